@@ -1,0 +1,68 @@
+#include "apps/commands.h"
+
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <exception>
+
+#include "core/error.h"
+
+#ifndef SLSHADOW_VERSION
+#define SLSHADOW_VERSION "unknown"
+#endif
+
+namespace slshadow::app {
+
+const std::vector<Command>& Commands() {
+  static const std::vector<Command> commands = {
+      {"rig", "inspect a rig file: cameras, projector, baselines, angles, overlap (rig show RIG.yaml)", RunRig},
+  };
+  return commands;
+}
+
+namespace {
+
+void PrintHelp() {
+  std::printf(
+      "slshadow %s: a structured-light 3D scanner and its digital shadow\n\n"
+      "usage: slshadow <command> [options]    (slshadow <command> --help for its options)\n\n"
+      "commands:\n",
+      SLSHADOW_VERSION);
+  for (const auto& c : Commands()) std::printf("  %-12s %s\n", c.name.c_str(), c.summary.c_str());
+  std::printf(
+      "\nconventions: millimetres, radians, pixels (OpenCV: (0,0) is the centre of the top-left pixel);\n"
+      "file formats are documented in docs/formats.md.\n");
+}
+
+}  // namespace
+
+int Main(int argc, char** argv) {
+  if (argc < 2 || std::strcmp(argv[1], "--help") == 0 || std::strcmp(argv[1], "-h") == 0 ||
+      std::strcmp(argv[1], "help") == 0) {
+    PrintHelp();
+    return argc < 2 ? EXIT_FAILURE : EXIT_SUCCESS;
+  }
+  if (std::strcmp(argv[1], "--version") == 0 || std::strcmp(argv[1], "version") == 0) {
+    std::printf("slshadow %s\n", SLSHADOW_VERSION);
+    return EXIT_SUCCESS;
+  }
+  for (const auto& c : Commands()) {
+    if (c.name != argv[1]) continue;
+    std::string program = std::string("slshadow ") + argv[1];
+    std::vector<char*> args;
+    args.push_back(program.data());
+    for (int i = 2; i < argc; ++i) args.push_back(argv[i]);
+    try {
+      return c.run(static_cast<int>(args.size()), args.data());
+    } catch (const Error& e) {
+      std::fprintf(stderr, "slshadow: error: %s\n", e.what());
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "slshadow: error: %s\n", e.what());
+    }
+    return EXIT_FAILURE;
+  }
+  std::fprintf(stderr, "slshadow: error: unknown command '%s' (slshadow --help lists the commands)\n", argv[1]);
+  return EXIT_FAILURE;
+}
+
+}  // namespace slshadow::app

@@ -1,0 +1,27 @@
+// The slshadow command line: a table of subcommands, each a thin `int RunX(argc, argv)` that
+// parses its options (CLI11), makes one library call and writes its outputs (STYLE.md habit 10).
+// Compiled into slshadow_app so tests can call the subcommands directly.
+#pragma once
+
+#include <string>
+#include <vector>
+
+namespace slshadow::app {
+
+struct Command {
+  std::string name;     // first word after "slshadow"
+  std::string summary;  // one line for `slshadow --help`
+  int (*run)(int argc, char** argv);  // argv[0] is "slshadow <name>"
+};
+
+// All subcommands, in the order `slshadow --help` lists them.
+const std::vector<Command>& Commands();
+
+// Entry point: dispatches argv[1] to its subcommand. Catches slshadow::Error (and any other
+// exception), prints one line "slshadow: error: ..." and returns EXIT_FAILURE.
+int Main(int argc, char** argv);
+
+// Subcommands.
+int RunRig(int argc, char** argv);
+
+}  // namespace slshadow::app

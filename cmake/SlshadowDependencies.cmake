@@ -1,0 +1,22 @@
+# Third-party packages, all from Debian 12 (scripts/setup.sh installs them). Facts about their
+# Debian builds are in ../shared/DEVICE-MOCKS.md.
+find_package(Eigen3 3.4 REQUIRED NO_MODULE)
+find_package(OpenCV 4 REQUIRED COMPONENTS core imgproc imgcodecs calib3d)
+find_package(yaml-cpp REQUIRED)
+find_package(nlohmann_json 3 REQUIRED)
+find_package(TBB REQUIRED)
+find_package(PkgConfig REQUIRED)
+
+# yaml-cpp 0.7 on Debian exports the plain target name; make a namespaced alias.
+if(TARGET yaml-cpp AND NOT TARGET yaml-cpp::yaml-cpp)
+  add_library(yaml-cpp::yaml-cpp ALIAS yaml-cpp)
+endif()
+
+find_package(CLI11 REQUIRED)
+find_package(spdlog REQUIRED)
+if(SLSHADOW_BUILD_TESTS)
+  find_package(GTest REQUIRED)
+endif()
+if(SLSHADOW_BUILD_BENCHMARKS)
+  find_package(benchmark REQUIRED)
+endif()

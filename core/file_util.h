@@ -1,0 +1,34 @@
+// File helpers that keep the promise "nothing already written is lost or half-written": every
+// output is written to a temporary sibling and renamed into place only when complete.
+#pragma once
+
+#include <filesystem>
+#include <functional>
+#include <string>
+
+namespace slshadow {
+
+// Reads a whole file; throws slshadow::Error naming the file when it cannot be read.
+std::string ReadTextFile(const std::filesystem::path& path);
+
+// Calls write(temporary_path), then renames the temporary file onto `path`. If write throws, the
+// temporary file is removed and `path` is untouched. Creates missing parent directories.
+void WriteFileAtomically(const std::filesystem::path& path,
+                         const std::function<void(const std::filesystem::path&)>& write);
+
+// Writes `text` to `path` atomically.
+void WriteTextFileAtomically(const std::filesystem::path& path, const std::string& text);
+
+// A unique temporary sibling name of `path` ("<name>.partial-<pid>-<n>").
+std::filesystem::path TemporarySibling(const std::filesystem::path& path);
+
+// Replaces directory `target` by the complete directory `staged` (a sibling): an existing target
+// is moved aside, the staged one renamed in, and the old one removed. Throws when target exists
+// and `overwrite` is false.
+void CommitDirectory(const std::filesystem::path& staged, const std::filesystem::path& target,
+                     bool overwrite);
+
+// The current UTC time as ISO 8601 with milliseconds, e.g. "2026-11-22T06:30:00.123Z".
+std::string UtcTimestamp();
+
+}  // namespace slshadow

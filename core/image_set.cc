@@ -1,0 +1,264 @@
+#include "core/image_set.h"
+
+#include <algorithm>
+#include <map>
+
+#include <opencv2/core/utility.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "core/config.h"
+#include "core/error.h"
+#include "core/file_util.h"
+
+namespace slshadow {
+namespace fs = std::filesystem;
+
+std::string ToString(ImageSource source) {
+  switch (source) {
+    case ImageSource::kDevice: return "device";
+    case ImageSource::kVirtual: return "virtual";
+    case ImageSource::kReplay: return "replay";
+  }
+  return "device";
+}
+
+namespace {
+
+ImageSource SourceFromConfig(const ConfigNode& node) {
+  const std::string s = node.AsString();
+  if (s == "device") return ImageSource::kDevice;
+  if (s == "virtual") return ImageSource::kVirtual;
+  if (s == "replay") return ImageSource::kReplay;
+  node.Fail("expected one of device, virtual, replay");
+}
+
+const char* Extension(ImageEncoding e) {
+  switch (e) {
+    case ImageEncoding::kPng: return ".png";
+    case ImageEncoding::kPgm: return ".pgm";
+    case ImageEncoding::kTiff: return ".tif";
+  }
+  return ".png";
+}
+
+void CheckImage(const cv::Mat& image, const RigDevice& camera, const std::string& what, int bit_depth) {
+  SLSHADOW_THROW_IF(image.channels() != 1, what, ": expected a single-channel (grey) image, got ",
+                    image.channels(), " channels");
+  const int depth = image.depth() == CV_8U ? 8 : image.depth() == CV_16U ? 16 : 0;
+  SLSHADOW_THROW_IF(depth == 0, what, ": expected 8- or 16-bit unsigned pixels");
+  SLSHADOW_THROW_IF(bit_depth != 0 && depth != bit_depth, what, ": bit depth is ", depth,
+                    ", the manifest says ", bit_depth);
+  SLSHADOW_THROW_IF(image.cols != camera.model.width || image.rows != camera.model.height, what,
+                    ": wrong image size ", image.cols, "x", image.rows, ", camera '", camera.name,
+                    "' is ", camera.model.width, "x", camera.model.height);
+}
+
+}  // namespace
+
+ImageEncoding ImageEncodingFromString(const std::string& name) {
+  if (name == "png") return ImageEncoding::kPng;
+  if (name == "pgm") return ImageEncoding::kPgm;
+  if (name == "tiff" || name == "tif") return ImageEncoding::kTiff;
+  SLSHADOW_THROW("image encoding: unknown '", name, "' (known: png, pgm, tiff)");
+}
+
+cv::Mat ReadGrayImage(const fs::path& path) {
+  std::error_code ec;
+  SLSHADOW_THROW_IF(!fs::is_regular_file(path, ec), path.string(), ": image file not found");
+  cv::Mat image = cv::imread(path.string(), cv::IMREAD_UNCHANGED);
+  SLSHADOW_THROW_IF(image.empty(), path.string(), ": cannot decode image (corrupt or unsupported format)");
+  return image;
+}
+
+void WriteGrayImage(const fs::path& path, const cv::Mat& image, int png_compression) {
+  std::vector<int> params;
+  const std::string ext = path.extension().string();
+  if (ext == ".png") params = {cv::IMWRITE_PNG_COMPRESSION, png_compression};
+  if (ext == ".pgm") params = {cv::IMWRITE_PXM_BINARY, 1};
+  if (ext == ".tif" || ext == ".tiff") params = {cv::IMWRITE_TIFF_COMPRESSION, 1};
+  bool ok = false;
+  try {
+    ok = cv::imwrite(path.string(), image, params);
+  } catch (const cv::Exception& e) {
+    SLSHADOW_THROW(path.string(), ": cannot write image: ", e.what());
+  }
+  SLSHADOW_THROW_IF(!ok, path.string(), ": cannot write image");
+}
+
+ImageSet ImageSet::Open(const fs::path& dir) {
+  std::error_code ec;
+  SLSHADOW_THROW_IF(!fs::is_directory(dir, ec), dir.string(), ": not an ImageSet folder (no such directory)");
+  const fs::path manifest_path = dir / "manifest.json";
+  const ConfigNode root = ConfigNode::LoadFile(manifest_path);
+  root.RejectUnknownKeys({"format", "version", "created", "rig", "patterns", "images", "extra"});
+  if (root["format"].AsString() != "slshadow-imageset") root["format"].Fail("expected \"slshadow-imageset\"");
+  if (root["version"].AsInt() != kFormatVersion) {
+    root["version"].Fail("unsupported ImageSet version (this slshadow reads version 1)");
+  }
+  ImageSet set;
+  set.dir_ = dir;
+  set.created_ = root.GetString("created", "");
+  set.rig_ = RigFromConfig(root["rig"]);
+  set.patterns_ = root["patterns"].json();
+  if (root.Has("extra")) set.extra_ = root["extra"].json();
+  const auto images = root["images"];
+  std::map<std::pair<std::string, int>, size_t> seen;
+  for (size_t i = 0; i < images.size(); ++i) {
+    const auto n = images.at(i);
+    n.RejectUnknownKeys({"camera", "pattern", "file", "bit_depth", "exposure_us", "timestamp", "source"});
+    ImageRecord r;
+    r.camera = n["camera"].AsString();
+    if (set.rig_.CameraIndex(r.camera) < 0) n["camera"].Fail("no camera of this name in the manifest's rig");
+    r.pattern_index = static_cast<int>(n["pattern"].AsInt());
+    if (r.pattern_index < 0) n["pattern"].Fail("pattern index must be >= 0");
+    r.file = n["file"].AsString();
+    const fs::path file(r.file);
+    if (file.is_absolute() || r.file.find("..") != std::string::npos) {
+      n["file"].Fail("must be a path relative to the ImageSet folder, without '..'");
+    }
+    if (!fs::is_regular_file(dir / file, ec)) n["file"].Fail("image file not found in " + dir.string());
+    r.bit_depth = static_cast<int>(n.GetInt("bit_depth", 8));
+    if (r.bit_depth != 8 && r.bit_depth != 16) n["bit_depth"].Fail("must be 8 or 16");
+    r.exposure_us = n.GetDouble("exposure_us", 0.0);
+    if (r.exposure_us < 0) n["exposure_us"].Fail("must be >= 0");
+    r.timestamp = n.GetString("timestamp", "");
+    r.source = n.Has("source") ? SourceFromConfig(n["source"]) : ImageSource::kDevice;
+    if (!seen.emplace(std::make_pair(r.camera, r.pattern_index), i).second) {
+      n.Fail("duplicate image for camera '" + r.camera + "', pattern " + std::to_string(r.pattern_index));
+    }
+    set.records_.push_back(std::move(r));
+  }
+  return set;
+}
+
+std::vector<std::string> ImageSet::CameraNames() const {
+  std::vector<std::string> names;
+  for (const auto& c : rig_.cameras) {
+    for (const auto& r : records_) {
+      if (r.camera == c.name) {
+        names.push_back(c.name);
+        break;
+      }
+    }
+  }
+  return names;
+}
+
+int ImageSet::PatternCount() const {
+  int n = 0;
+  for (const auto& r : records_) n = std::max(n, r.pattern_index + 1);
+  return n;
+}
+
+const ImageRecord* ImageSet::Find(const std::string& camera, int pattern_index) const {
+  for (const auto& r : records_) {
+    if (r.camera == camera && r.pattern_index == pattern_index) return &r;
+  }
+  return nullptr;
+}
+
+cv::Mat ImageSet::Load(const std::string& camera, int pattern_index) const {
+  const ImageRecord* r = Find(camera, pattern_index);
+  SLSHADOW_THROW_IF(r == nullptr, (dir_ / "manifest.json").string(), ": no image for camera '", camera,
+                    "', pattern ", pattern_index);
+  const fs::path path = dir_ / r->file;
+  cv::Mat image = ReadGrayImage(path);
+  CheckImage(image, rig_.Camera(camera), path.string(), r->bit_depth);
+  return image;
+}
+
+std::vector<cv::Mat> ImageSet::LoadCamera(const std::string& camera) const {
+  const int n = PatternCount();
+  std::vector<cv::Mat> images(n);
+  std::vector<std::string> errors(n);
+  cv::parallel_for_(cv::Range(0, n), [&](const cv::Range& range) {
+    for (int i = range.start; i < range.end; ++i) {
+      try {
+        images[i] = Load(camera, i);
+      } catch (const Error& e) {
+        errors[i] = e.what();
+      }
+    }
+  });
+  for (const auto& e : errors) SLSHADOW_THROW_IF(!e.empty(), e);
+  return images;
+}
+
+ImageSetWriter::ImageSetWriter(fs::path dir, Rig rig, nlohmann::json patterns, ImageSetWriterOptions options)
+    : dir_(std::move(dir)), rig_(std::move(rig)), patterns_(std::move(patterns)), options_(options) {
+  rig_.Check(dir_.string() + " (rig)");
+  std::error_code ec;
+  SLSHADOW_THROW_IF(fs::exists(dir_, ec) && !options_.overwrite, dir_.string(),
+                    ": already exists (choose another folder or pass --overwrite)");
+  SLSHADOW_THROW_IF(options_.png_compression < 0 || options_.png_compression > 9,
+                    "png_compression: must be 0..9 (got ", options_.png_compression, ")");
+  staging_ = TemporarySibling(dir_);
+  fs::create_directories(staging_, ec);
+  SLSHADOW_THROW_IF(ec, staging_.string(), ": cannot create folder: ", ec.message());
+  for (const auto& c : rig_.cameras) fs::create_directories(staging_ / c.name, ec);
+}
+
+ImageSetWriter::~ImageSetWriter() {
+  if (!committed_) {
+    std::error_code ec;
+    fs::remove_all(staging_, ec);
+  }
+}
+
+void ImageSetWriter::Add(const std::string& camera, int pattern_index, const cv::Mat& image,
+                         double exposure_us, ImageSource source, const std::string& timestamp) {
+  SLSHADOW_THROW_IF(committed_, dir_.string(), ": ImageSet already committed");
+  const RigDevice& device = rig_.Camera(camera);
+  SLSHADOW_THROW_IF(pattern_index < 0, "pattern index must be >= 0 (got ", pattern_index, ")");
+  char name[32];
+  std::snprintf(name, sizeof(name), "%04d", pattern_index);
+  ImageRecord r;
+  r.camera = camera;
+  r.pattern_index = pattern_index;
+  r.file = camera + "/" + name + Extension(options_.encoding);
+  CheckImage(image, device, dir_.string() + "/" + r.file, 0);
+  r.bit_depth = image.depth() == CV_16U ? 16 : 8;
+  r.exposure_us = exposure_us;
+  r.timestamp = timestamp.empty() ? UtcTimestamp() : timestamp;
+  r.source = source;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (const auto& other : records_) {
+      SLSHADOW_THROW_IF(other.camera == camera && other.pattern_index == pattern_index, dir_.string(),
+                        ": duplicate image for camera '", camera, "', pattern ", pattern_index);
+    }
+    records_.push_back(r);
+  }
+  WriteGrayImage(staging_ / r.file, image, options_.png_compression);
+}
+
+void ImageSetWriter::Commit() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  SLSHADOW_THROW_IF(committed_, dir_.string(), ": ImageSet already committed");
+  std::sort(records_.begin(), records_.end(), [&](const ImageRecord& a, const ImageRecord& b) {
+    const int ca = rig_.CameraIndex(a.camera), cb = rig_.CameraIndex(b.camera);
+    return ca != cb ? ca < cb : a.pattern_index < b.pattern_index;
+  });
+  nlohmann::json m;
+  m["format"] = "slshadow-imageset";
+  m["version"] = ImageSet::kFormatVersion;
+  m["created"] = UtcTimestamp();
+  m["rig"] = RigToJson(rig_);
+  m["patterns"] = patterns_;
+  m["images"] = nlohmann::json::array();
+  for (const auto& r : records_) {
+    m["images"].push_back({{"camera", r.camera},
+                           {"pattern", r.pattern_index},
+                           {"file", r.file},
+                           {"bit_depth", r.bit_depth},
+                           {"exposure_us", r.exposure_us},
+                           {"timestamp", r.timestamp},
+                           {"source", ToString(r.source)}});
+  }
+  if (!extra_.is_null()) m["extra"] = extra_;
+  WriteTextFileAtomically(staging_ / "manifest.json", m.dump(1) + "\n");
+  CommitDirectory(staging_, dir_, options_.overwrite);
+  committed_ = true;
+}
+
+}  // namespace slshadow

@@ -1,0 +1,260 @@
+#include "core/rig.h"
+
+#include <cmath>
+#include <cstdio>
+#include <set>
+#include <sstream>
+
+#include <algorithm>
+
+#include "core/config.h"
+#include "core/error.h"
+#include "core/file_util.h"
+
+namespace slshadow {
+namespace {
+
+constexpr int kRigFormatVersion = 1;
+
+Rigid3d PoseFromConfig(const ConfigNode& node) {
+  node.RejectUnknownKeys({"rotation_quat_wxyz", "rotation_rvec_rad", "rotation_matrix", "translation_mm"});
+  const auto t = node["translation_mm"].AsDoubles(3);
+  const int n_rot = node.Has("rotation_quat_wxyz") + node.Has("rotation_rvec_rad") + node.Has("rotation_matrix");
+  if (n_rot != 1) {
+    node.Fail("give exactly one of rotation_quat_wxyz, rotation_rvec_rad (Rodrigues, as OpenCV) or rotation_matrix");
+  }
+  Eigen::Quaterniond q;
+  if (node.Has("rotation_quat_wxyz")) {
+    const auto c = node["rotation_quat_wxyz"];
+    const auto v = c.AsDoubles(4);
+    q = Eigen::Quaterniond(v[0], v[1], v[2], v[3]);
+    if (std::abs(q.norm() - 1.0) > 1e-6) c.Fail("quaternion must have unit norm");
+  } else if (node.Has("rotation_rvec_rad")) {
+    const auto v = node["rotation_rvec_rad"].AsDoubles(3);
+    const Eigen::Vector3d r(v[0], v[1], v[2]);
+    const double angle = r.norm();
+    q = angle > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, r / angle)) : Eigen::Quaterniond::Identity();
+  } else {
+    const auto c = node["rotation_matrix"];
+    const auto v = c.AsDoubles(9);
+    Eigen::Matrix3d m;
+    m << v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8];
+    if ((m * m.transpose() - Eigen::Matrix3d::Identity()).norm() > 1e-6 || m.determinant() < 0) {
+      c.Fail("not a rotation matrix (must be orthonormal with determinant +1, row-major)");
+    }
+    q = Eigen::Quaterniond(m);
+  }
+  return Rigid3d(q, Eigen::Vector3d(t[0], t[1], t[2]));
+}
+
+RigDevice DeviceFromConfig(const ConfigNode& node, bool is_projector) {
+  node.RejectUnknownKeys({"name", "width", "height", "intrinsics", "distortion", "cam_from_rig"});
+  RigDevice d;
+  d.name = is_projector ? node.GetString("name", "projector") : node["name"].AsString();
+  if (d.name.empty()) node["name"].Fail("name must not be empty");
+  const auto w = node["width"], h = node["height"];
+  d.model.width = static_cast<int>(w.AsInt());
+  d.model.height = static_cast<int>(h.AsInt());
+  if (d.model.width <= 0 || d.model.width > 100000) w.Fail("must be a positive number of pixels");
+  if (d.model.height <= 0 || d.model.height > 100000) h.Fail("must be a positive number of pixels");
+  const auto intr = node["intrinsics"];
+  intr.RejectUnknownKeys({"fx", "fy", "cx", "cy"});
+  const char* names[] = {"fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"};
+  for (int i = 0; i < 4; ++i) d.model.params[i] = intr[names[i]].AsDouble();
+  if (d.model.fx() <= 0) intr["fx"].Fail("focal length must be positive");
+  if (d.model.fy() <= 0) intr["fy"].Fail("focal length must be positive");
+  if (node.Has("distortion")) {
+    const auto dist = node["distortion"];
+    dist.RejectUnknownKeys({"k1", "k2", "p1", "p2", "k3"});
+    for (int i = 4; i < 9; ++i) d.model.params[i] = dist.GetDouble(names[i], 0.0);
+  }
+  d.cam_from_rig = node.Has("cam_from_rig") ? PoseFromConfig(node["cam_from_rig"]) : Rigid3d();
+  return d;
+}
+
+nlohmann::json DeviceToJson(const RigDevice& d) {
+  nlohmann::json j;
+  j["name"] = d.name;
+  j["width"] = d.model.width;
+  j["height"] = d.model.height;
+  j["intrinsics"] = {{"fx", d.model.fx()}, {"fy", d.model.fy()}, {"cx", d.model.cx()}, {"cy", d.model.cy()}};
+  const auto& p = d.model.params;
+  j["distortion"] = {{"k1", p[4]}, {"k2", p[5]}, {"p1", p[6]}, {"p2", p[7]}, {"k3", p[8]}};
+  const auto& q = d.cam_from_rig.rotation;
+  const auto& t = d.cam_from_rig.translation;
+  j["cam_from_rig"] = {{"rotation_quat_wxyz", {q.w(), q.x(), q.y(), q.z()}},
+                       {"translation_mm", {t.x(), t.y(), t.z()}}};
+  return j;
+}
+
+}  // namespace
+
+const RigDevice& Rig::Camera(const std::string& name) const {
+  const int i = CameraIndex(name);
+  if (i < 0) {
+    std::string known;
+    for (const auto& c : cameras) known += (known.empty() ? "" : ", ") + c.name;
+    SLSHADOW_THROW("rig '", this->name, "': no camera named '", name, "' (cameras: ", known, ")");
+  }
+  return cameras[i];
+}
+
+int Rig::CameraIndex(const std::string& name) const {
+  for (size_t i = 0; i < cameras.size(); ++i) {
+    if (cameras[i].name == name) return static_cast<int>(i);
+  }
+  return -1;
+}
+
+const RigDevice& Rig::Device(const std::string& name) const {
+  if (projector && projector->name == name) return *projector;
+  return Camera(name);
+}
+
+double Rig::BaselineMm(const RigDevice& a, const RigDevice& b) const {
+  return (a.CenterInRig() - b.CenterInRig()).norm();
+}
+
+Eigen::Vector3d Rig::WorkingPointInRig() const {
+  SLSHADOW_CHECK(!cameras.empty());
+  return cameras[0].CenterInRig() + working_distance_mm * cameras[0].AxisInRig();
+}
+
+double Rig::TriangulationAngleRad(const RigDevice& a, const RigDevice& b, const Eigen::Vector3d& point_in_rig) {
+  const Eigen::Vector3d ra = (point_in_rig - a.CenterInRig()).normalized();
+  const Eigen::Vector3d rb = (point_in_rig - b.CenterInRig()).normalized();
+  return std::acos(std::clamp(ra.dot(rb), -1.0, 1.0));
+}
+
+double Rig::OverlapAtWorkingDistance(const RigDevice& a, const RigDevice& b, int samples) const {
+  // Plane through the working point, perpendicular to the first camera's axis.
+  const Eigen::Vector3d n = cameras[0].AxisInRig();
+  const Eigen::Vector3d p0 = WorkingPointInRig();
+  int inside = 0, total = 0;
+  for (int iy = 0; iy < samples; ++iy) {
+    for (int ix = 0; ix < samples; ++ix) {
+      const Eigen::Vector2d px((ix + 0.5) * a.model.width / samples - 0.5,
+                               (iy + 0.5) * a.model.height / samples - 0.5);
+      const auto ray_in_cam = a.model.Unproject(px);
+      if (!ray_in_cam) continue;
+      ++total;
+      const Eigen::Vector3d dir = a.cam_from_rig.rotation.conjugate() * *ray_in_cam;
+      const Eigen::Vector3d origin = a.CenterInRig();
+      const double denom = dir.dot(n);
+      if (std::abs(denom) < 1e-12) continue;
+      const double s = (p0 - origin).dot(n) / denom;
+      if (s <= 0) continue;
+      const auto pix_b = b.model.Project(b.cam_from_rig * (origin + s * dir));
+      if (pix_b && b.model.IsInImage(*pix_b)) ++inside;
+    }
+  }
+  return total > 0 ? static_cast<double>(inside) / total : 0.0;
+}
+
+void Rig::Check(const std::string& what) const {
+  SLSHADOW_THROW_IF(cameras.empty(), what, ": cameras: a rig needs at least one camera");
+  SLSHADOW_THROW_IF(!(working_distance_mm > 0) || !std::isfinite(working_distance_mm), what,
+                    ": working_distance_mm: must be a positive number (got ", working_distance_mm, ")");
+  std::set<std::string> names;
+  auto check_device = [&](const RigDevice& d, const std::string& where) {
+    SLSHADOW_THROW_IF(!names.insert(d.name).second, what, ": ", where, ".name: duplicate device name '",
+                      d.name, "'");
+    d.model.Check(what + ": " + where);
+    SLSHADOW_THROW_IF(!d.cam_from_rig.translation.allFinite() || !d.cam_from_rig.rotation.coeffs().allFinite(),
+                      what, ": ", where, ".cam_from_rig: pose must be finite");
+  };
+  for (size_t i = 0; i < cameras.size(); ++i) check_device(cameras[i], "cameras[" + std::to_string(i) + "]");
+  if (projector) check_device(*projector, "projector");
+}
+
+Rig RigFromConfig(const ConfigNode& node) {
+  node.RejectUnknownKeys({"format", "version", "name", "working_distance_mm", "cameras", "projector", "calibration"});
+  if (node.Has("format") && node["format"].AsString() != "slshadow-rig") {
+    node["format"].Fail("expected \"slshadow-rig\"");
+  }
+  if (node.Has("version") && node["version"].AsInt() != kRigFormatVersion) {
+    node["version"].Fail("unsupported rig format version (this slshadow reads version 1)");
+  }
+  Rig rig;
+  rig.name = node.GetString("name", "rig");
+  if (node.Has("working_distance_mm")) {
+    const auto wd = node["working_distance_mm"];
+    rig.working_distance_mm = wd.AsDouble();
+    if (rig.working_distance_mm <= 0) wd.Fail("must be positive");
+  }
+  const auto cams = node["cameras"];
+  if (cams.size() == 0) cams.Fail("a rig needs at least one camera");
+  for (size_t i = 0; i < cams.size(); ++i) {
+    rig.cameras.push_back(DeviceFromConfig(cams.at(i), false));
+    for (size_t j = 0; j < i; ++j) {
+      if (rig.cameras[j].name == rig.cameras[i].name) cams.at(i)["name"].Fail("duplicate camera name");
+    }
+  }
+  if (node.Has("projector")) rig.projector = DeviceFromConfig(node["projector"], true);
+  if (node.Has("calibration")) rig.calibration = node["calibration"].json();
+  rig.Check(node.file());
+  return rig;
+}
+
+nlohmann::json RigToJson(const Rig& rig) {
+  nlohmann::json j;
+  j["format"] = "slshadow-rig";
+  j["version"] = kRigFormatVersion;
+  j["name"] = rig.name;
+  j["working_distance_mm"] = rig.working_distance_mm;
+  j["cameras"] = nlohmann::json::array();
+  for (const auto& c : rig.cameras) j["cameras"].push_back(DeviceToJson(c));
+  if (rig.projector) j["projector"] = DeviceToJson(*rig.projector);
+  if (!rig.calibration.is_null()) j["calibration"] = rig.calibration;
+  return j;
+}
+
+Rig LoadRig(const std::filesystem::path& path) { return RigFromConfig(ConfigNode::LoadFile(path)); }
+
+void SaveRig(const Rig& rig, const std::filesystem::path& path) {
+  rig.Check(path.string());
+  const nlohmann::json j = RigToJson(rig);
+  const std::string text = path.extension() == ".json" ? j.dump(2) + "\n"
+                                                        : "# slshadow rig (docs/formats.md)\n" + JsonToYaml(j);
+  WriteTextFileAtomically(path, text);
+}
+
+std::string DescribeRig(const Rig& rig) {
+  std::ostringstream out;
+  char buf[512];
+  constexpr double kDeg = 180.0 / M_PI;
+  out << "rig '" << rig.name << "': " << rig.cameras.size() << " camera(s)"
+      << (rig.projector ? ", 1 projector" : ", no projector") << ", working distance "
+      << rig.working_distance_mm << " mm\n\n";
+  std::vector<const RigDevice*> devices;
+  for (const auto& c : rig.cameras) devices.push_back(&c);
+  if (rig.projector) devices.push_back(&*rig.projector);
+  out << "device        kind       resolution    fx        fy        cx        cy       k1       FOV h x v (deg)   centre in rig (mm)\n";
+  for (const auto* d : devices) {
+    const Eigen::Vector3d c = d->CenterInRig() + Eigen::Vector3d::Zero();  // no "-0.0"
+
+    std::snprintf(buf, sizeof(buf), "%-13s %-10s %5dx%-7d %-9.2f %-9.2f %-9.2f %-8.2f %-8.4f %6.2f x %-8.2f (%.1f, %.1f, %.1f)\n",
+                  d->name.c_str(), rig.projector && d == &*rig.projector ? "projector" : "camera",
+                  d->model.width, d->model.height, d->model.fx(), d->model.fy(), d->model.cx(),
+                  d->model.cy(), d->model.params[CameraModel::kK1], d->model.HorizontalFovRad() * kDeg,
+                  d->model.VerticalFovRad() * kDeg, c.x(), c.y(), c.z());
+    out << buf;
+  }
+  const Eigen::Vector3d wp = rig.WorkingPointInRig();
+  std::snprintf(buf, sizeof(buf), "\nworking point in rig frame: (%.1f, %.1f, %.1f) mm\n", wp.x(), wp.y(), wp.z());
+  out << buf;
+  out << "pair                     baseline (mm)  triangulation angle (deg)  overlap at working distance\n";
+  for (size_t i = 0; i < devices.size(); ++i) {
+    for (size_t j = i + 1; j < devices.size(); ++j) {
+      const auto& a = *devices[i];
+      const auto& b = *devices[j];
+      std::snprintf(buf, sizeof(buf), "%-24s %13.2f  %25.2f  %26.1f%%\n", (a.name + " - " + b.name).c_str(),
+                    rig.BaselineMm(a, b), Rig::TriangulationAngleRad(a, b, wp) * kDeg,
+                    100.0 * rig.OverlapAtWorkingDistance(a, b));
+      out << buf;
+    }
+  }
+  return out.str();
+}
+
+}  // namespace slshadow

@@ -1,0 +1,11 @@
+#!/usr/bin/env bash
+# Sets up (Debian packages), builds with warnings as errors, and runs the whole test suite.
+# This is the README's test command and the only thing .ci/run calls.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/setup.sh
+BUILD_DIR=${SLSHADOW_BUILD_DIR:-build}
+cmake -S . -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=Release -DSLSHADOW_WERROR=ON
+cmake --build "$BUILD_DIR" -j2
+cd "$BUILD_DIR"
+ctest --output-on-failure -j2 --timeout 1500

@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# Installs every Debian package slshadow needs to build, test and run. Idempotent and
+# non-interactive: run it as root on a fresh Debian 12 machine (or again at any time).
+set -euo pipefail
+
+PACKAGES=(
+  # toolchain
+  build-essential cmake ninja-build ccache pkg-config git
+  # core
+  libeigen3-dev libopencv-dev libopencv-contrib-dev libyaml-cpp-dev nlohmann-json3-dev
+  # calibration, simulation, comparison
+  libceres-dev libembree-dev libtbb-dev libpcl-dev libplplot-dev plplot-driver-cairo
+  # command line and logging
+  libcli11-dev libspdlog-dev
+  # tests and benchmarks
+  libgtest-dev libgmock-dev libbenchmark-dev
+  # devices and their mocks
+  libaravis-dev aravis-tools aravis-tools-cli libusb-1.0-0-dev umockdev libumockdev-dev
+  libsdl2-dev xvfb x11-apps
+)
+
+missing=()
+for p in "${PACKAGES[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q 'install ok installed'; then
+    missing+=("$p")
+  fi
+done
+
+if [ ${#missing[@]} -eq 0 ]; then
+  echo "setup: all ${#PACKAGES[@]} packages present"
+  exit 0
+fi
+
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
+echo "setup: installing ${#missing[@]} packages: ${missing[*]}"
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -q
+$SUDO apt-get install -y -q --no-install-recommends "${missing[@]}"
+echo "setup: done"
