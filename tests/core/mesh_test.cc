@@ -1,0 +1,93 @@
+#include "core/mesh.h"
+
+#include <fstream>
+
+#include <gtest/gtest.h>
+
+#include "core/error.h"
+#include "tests/testing/temp_dir.h"
+
+namespace slshadow {
+namespace {
+
+// A closed unit-ish tetrahedron with outward normals.
+TriangleMesh Tetrahedron() {
+  TriangleMesh m;
+  m.vertices = {{0, 0, 0}, {10, 0, 0}, {0, 10, 0}, {0, 0, 10}};
+  m.triangles = {{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}};
+  return m;
+}
+
+void ExpectSameMesh(const TriangleMesh& a, const TriangleMesh& b) {
+  ASSERT_EQ(a.vertices.size(), b.vertices.size());
+  ASSERT_EQ(a.triangles.size(), b.triangles.size());
+  for (size_t i = 0; i < a.triangles.size(); ++i) {
+    for (int k = 0; k < 3; ++k) {
+      EXPECT_EQ(a.vertices[a.triangles[i][k]], b.vertices[b.triangles[i][k]]);
+    }
+  }
+}
+
+TEST(Mesh, AreaNormalsAndManifold) {
+  const TriangleMesh m = Tetrahedron();
+  EXPECT_NEAR(m.SurfaceArea(), 3 * 50 + 0.5 * std::sqrt(3.0) * 200 / 2 * 1.0, 1e-9);
+  EXPECT_EQ(m.FaceNormal(0), Eigen::Vector3d(0, 0, -1));
+  EXPECT_EQ(m.CountNonManifoldEdges(), 0u);
+  TriangleMesh fin = m;
+  fin.vertices.push_back({-5, -5, 0});
+  fin.triangles.push_back({0, 1, 4});  // a third triangle on edge 0-1
+  EXPECT_EQ(fin.CountNonManifoldEdges(), 1u);
+}
+
+TEST(Mesh, PlyAndStlRoundTrip) {
+  testing::TempDir dir;
+  const TriangleMesh m = Tetrahedron();
+  WriteMesh(dir / "t.ply", m);
+  ExpectSameMesh(m, ReadMesh(dir / "t.ply"));
+  WriteMesh(dir / "t.stl", m);  // float precision; these coordinates are exact in float
+  ExpectSameMesh(m, ReadMesh(dir / "t.stl"));
+}
+
+TEST(Mesh, ReadsAsciiStlAndObjWithPolygons) {
+  testing::TempDir dir;
+  {
+    std::ofstream f(dir / "a.stl");
+    f << "solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\nendloop\nendfacet\n"
+         "facet normal 0 0 1\nouter loop\nvertex 1 0 0\nvertex 1 1 0\nvertex 0 1 0\nendloop\nendfacet\nendsolid x\n";
+  }
+  const TriangleMesh stl = ReadMesh(dir / "a.stl");
+  EXPECT_EQ(stl.vertices.size(), 4u);  // shared corners merged
+  EXPECT_EQ(stl.triangles.size(), 2u);
+  {
+    std::ofstream f(dir / "q.obj");
+    f << "# quad\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//1 4//1\nf -4 -3 -2\n";
+  }
+  const TriangleMesh obj = ReadMesh(dir / "q.obj");
+  EXPECT_EQ(obj.triangles.size(), 3u);
+  EXPECT_NEAR(obj.TriangleArea(0) + obj.TriangleArea(1), 1.0, 1e-12);
+}
+
+TEST(Mesh, BadInputGivesClearErrors) {
+  testing::TempDir dir;
+  EXPECT_THROW(ReadMesh(dir / "missing.stl"), Error);
+  { std::ofstream f(dir / "bad.obj"); f << "v 0 0 0\nf 1 2 3\n"; }
+  try {
+    ReadMesh(dir / "bad.obj");
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("line 2"), std::string::npos) << e.what();
+  }
+  { std::ofstream f(dir / "empty.obj"); f << "v 0 0 0\n"; }
+  EXPECT_THROW(ReadMesh(dir / "empty.obj"), Error);
+  { std::ofstream f(dir / "x.off"); f << "OFF\n"; }
+  EXPECT_THROW(ReadMesh(dir / "x.off"), Error);
+  TriangleMesh degenerate = Tetrahedron();
+  degenerate.triangles.push_back({0, 1, 1});
+  EXPECT_THROW(degenerate.Check("part.stl"), Error);
+  TriangleMesh nan = Tetrahedron();
+  nan.vertices[2].x() = std::nan("");
+  EXPECT_THROW(nan.Check("part.stl"), Error);
+}
+
+}  // namespace
+}  // namespace slshadow
