@@ -58,6 +58,10 @@ nlohmann::json YamlToJson(const YAML::Node& node) {
 }
 
 std::string Abbreviate(const nlohmann::json& json) {
+  if (json.is_number_float() && !std::isfinite(json.get<double>())) {
+    const double v = json.get<double>();
+    return std::isnan(v) ? "NaN" : (v > 0 ? "inf" : "-inf");
+  }
   std::string s = json.is_string() ? "\"" + json.get<std::string>() + "\"" : json.dump();
   if (s.size() > 60) s = s.substr(0, 57) + "...";
   return s;

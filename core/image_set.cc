@@ -187,6 +187,7 @@ std::vector<cv::Mat> ImageSet::LoadCamera(const std::string& camera) const {
 ImageSetWriter::ImageSetWriter(fs::path dir, Rig rig, nlohmann::json patterns, ImageSetWriterOptions options)
     : dir_(std::move(dir)), rig_(std::move(rig)), patterns_(std::move(patterns)), options_(options) {
   rig_.Check(dir_.string() + " (rig)");
+  SLSHADOW_THROW_IF(patterns_.is_null(), dir_.string(), ": patterns: an ImageSet needs its pattern specification");
   std::error_code ec;
   SLSHADOW_THROW_IF(fs::exists(dir_, ec) && !options_.overwrite, dir_.string(),
                     ": already exists (choose another folder or pass --overwrite)");

@@ -29,6 +29,7 @@ Rigid3d PoseFromConfig(const ConfigNode& node) {
     const auto v = c.AsDoubles(4);
     q = Eigen::Quaterniond(v[0], v[1], v[2], v[3]);
     if (std::abs(q.norm() - 1.0) > 1e-6) c.Fail("quaternion must have unit norm");
+    q.normalize();
   } else if (node.Has("rotation_rvec_rad")) {
     const auto v = node["rotation_rvec_rad"].AsDoubles(3);
     const Eigen::Vector3d r(v[0], v[1], v[2]);
@@ -39,7 +40,8 @@ Rigid3d PoseFromConfig(const ConfigNode& node) {
     const auto v = c.AsDoubles(9);
     Eigen::Matrix3d m;
     m << v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8];
-    if ((m * m.transpose() - Eigen::Matrix3d::Identity()).norm() > 1e-6 || m.determinant() < 0) {
+    // Tolerant enough for matrices pasted with 6 significant digits; re-orthonormalised below.
+    if ((m * m.transpose() - Eigen::Matrix3d::Identity()).norm() > 1e-5 || m.determinant() < 0) {
       c.Fail("not a rotation matrix (must be orthonormal with determinant +1, row-major)");
     }
     q = Eigen::Quaterniond(m);
@@ -52,8 +54,9 @@ RigDevice DeviceFromConfig(const ConfigNode& node, bool is_projector) {
   RigDevice d;
   d.name = is_projector ? node.GetString("name", "projector") : node["name"].AsString();
   if (d.name.empty()) node["name"].Fail("name must not be empty");
-  const auto w = node["width"], h = node["height"];
+  const auto w = node["width"];
   d.model.width = static_cast<int>(w.AsInt());
+  const auto h = node["height"];
   d.model.height = static_cast<int>(h.AsInt());
   if (d.model.width <= 0 || d.model.width > 100000) w.Fail("must be a positive number of pixels");
   if (d.model.height <= 0 || d.model.height > 100000) h.Fail("must be a positive number of pixels");

@@ -1,0 +1,176 @@
+#include "core/image_set.h"
+
+#include <fstream>
+#include <random>
+
+#include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
+
+#include "core/error.h"
+#include "tests/testing/temp_dir.h"
+
+namespace slshadow {
+namespace {
+
+Rig SmallRig() {
+  Rig rig;
+  rig.name = "small";
+  rig.cameras.push_back({"left", CameraModel(64, 48, 60, 60, 31.5, 23.5, -0.1), Rigid3d()});
+  rig.cameras.push_back({"right", CameraModel(64, 48, 61, 61, 32, 24),
+                         Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitY())), {-100, 0, 10})});
+  rig.projector = RigDevice{"projector", CameraModel(32, 20, 30, 30, 16, 10), Rigid3d()};
+  return rig;
+}
+
+nlohmann::json Spec() { return {{"kind", "gray_code"}}; }
+
+cv::Mat RandomImage(int depth, int seed) {
+  cv::Mat m(48, 64, depth == 8 ? CV_8UC1 : CV_16UC1);
+  cv::RNG rng(seed);
+  rng.fill(m, cv::RNG::UNIFORM, 0, depth == 8 ? 256 : 65536);
+  return m;
+}
+
+std::string ErrorOf(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(ImageSet, WriteReadRoundTripIsBitExact) {
+  testing::TempDir dir;
+  const nlohmann::json spec = {{"kind", "gray_code"}, {"projector_width", 32}};
+  for (const ImageEncoding encoding : {ImageEncoding::kPng, ImageEncoding::kPgm, ImageEncoding::kTiff}) {
+    const auto out = dir / ("set" + std::to_string(static_cast<int>(encoding)));
+    std::vector<cv::Mat> images;
+    {
+      ImageSetWriter writer(out, SmallRig(), spec, {.encoding = encoding});
+      for (int i = 0; i < 6; ++i) {
+        images.push_back(RandomImage(i < 3 ? 8 : 16, i));
+        writer.Add(i % 2 ? "right" : "left", i / 2, images.back(), 1000.0 + i, ImageSource::kVirtual);
+      }
+      writer.SetExtra({{"scene", "test"}});
+      EXPECT_FALSE(std::filesystem::exists(out));  // nothing visible before Commit
+      writer.Commit();
+    }
+    const ImageSet set = ImageSet::Open(out);
+    EXPECT_EQ(set.patterns(), spec);
+    EXPECT_EQ(set.extra()["scene"], "test");
+    EXPECT_EQ(RigToJson(set.rig()), RigToJson(SmallRig()));
+    EXPECT_EQ(set.PatternCount(), 3);
+    EXPECT_EQ(set.CameraNames(), (std::vector<std::string>{"left", "right"}));
+    for (int i = 0; i < 6; ++i) {
+      const cv::Mat back = set.Load(i % 2 ? "right" : "left", i / 2);
+      ASSERT_EQ(back.type(), images[i].type());
+      EXPECT_EQ(cv::norm(back, images[i], cv::NORM_INF), 0.0) << "image " << i;
+      const ImageRecord* r = set.Find(i % 2 ? "right" : "left", i / 2);
+      EXPECT_EQ(r->exposure_us, 1000.0 + i);
+      EXPECT_EQ(r->source, ImageSource::kVirtual);
+      EXPECT_EQ(r->bit_depth, i < 3 ? 8 : 16);
+    }
+    EXPECT_EQ(set.LoadCamera("left").size(), 3u);
+  }
+}
+
+TEST(ImageSet, AbandonedWriterLeavesNothing) {
+  testing::TempDir dir;
+  {
+    ImageSetWriter writer(dir / "set", SmallRig(), Spec());
+    writer.Add("left", 0, RandomImage(8, 1), 0, ImageSource::kDevice);
+  }
+  EXPECT_TRUE(std::filesystem::is_empty(dir.path()));
+}
+
+TEST(ImageSet, WriterRejectsBadImages) {
+  testing::TempDir dir;
+  ImageSetWriter writer(dir / "set", SmallRig(), Spec());
+  EXPECT_NE(ErrorOf([&] { writer.Add("left", 0, cv::Mat(47, 64, CV_8UC1), 0, ImageSource::kDevice); })
+                .find("wrong image size 64x47, camera 'left' is 64x48"),
+            std::string::npos);
+  EXPECT_THROW(writer.Add("middle", 0, RandomImage(8, 0), 0, ImageSource::kDevice), Error);
+  EXPECT_THROW(writer.Add("left", 0, cv::Mat(48, 64, CV_8UC3), 0, ImageSource::kDevice), Error);
+  EXPECT_THROW(writer.Add("left", 0, cv::Mat(48, 64, CV_32FC1), 0, ImageSource::kDevice), Error);
+  writer.Add("left", 0, RandomImage(8, 0), 0, ImageSource::kDevice);
+  EXPECT_THROW(writer.Add("left", 0, RandomImage(8, 0), 0, ImageSource::kDevice), Error);
+  EXPECT_THROW(ImageSetWriter(dir / "x", SmallRig(), Spec(), {.png_compression = 12}), Error);
+  EXPECT_THROW(ImageSetWriter(dir / "y", SmallRig(), nlohmann::json()), Error);
+}
+
+TEST(ImageSet, ExistingFolderIsNotOverwrittenUnlessAsked) {
+  testing::TempDir dir;
+  std::filesystem::create_directories(dir / "set");
+  { std::ofstream(dir / "set" / "keep.txt") << "precious"; }
+  EXPECT_THROW(ImageSetWriter(dir / "set", SmallRig(), Spec()), Error);
+  EXPECT_TRUE(std::filesystem::exists(dir / "set" / "keep.txt"));
+  ImageSetWriter writer(dir / "set", SmallRig(), Spec(), {.overwrite = true});
+  writer.Add("left", 0, RandomImage(8, 0), 0, ImageSource::kDevice);
+  writer.Commit();
+  EXPECT_FALSE(std::filesystem::exists(dir / "set" / "keep.txt"));
+  EXPECT_NO_THROW(ImageSet::Open(dir / "set"));
+}
+
+class BadManifest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    ImageSetWriter writer(dir_ / "set", SmallRig(), {{"kind", "gray_code"}});
+    writer.Add("left", 0, RandomImage(8, 0), 0, ImageSource::kDevice);
+    writer.Add("right", 0, RandomImage(8, 1), 0, ImageSource::kDevice);
+    writer.Commit();
+    std::ifstream in(dir_ / "set" / "manifest.json");
+    manifest_ = nlohmann::json::parse(in);
+  }
+  std::string OpenWith(const nlohmann::json& m) {
+    { std::ofstream(dir_ / "set" / "manifest.json") << m.dump(); }
+    return ErrorOf([&] { ImageSet::Open(dir_ / "set").Load("left", 0); });
+  }
+  testing::TempDir dir_;
+  nlohmann::json manifest_;
+};
+
+TEST_F(BadManifest, EachDefectIsNamed) {
+  const std::string m = (dir_ / "set" / "manifest.json").string();
+  nlohmann::json j = manifest_;
+  j.erase("rig");
+  EXPECT_EQ(OpenWith(j), m + ": rig: missing required field");
+  j = manifest_;
+  j["version"] = 7;
+  EXPECT_NE(OpenWith(j).find("version: unsupported ImageSet version"), std::string::npos);
+  j = manifest_;
+  j["images"][0]["camera"] = "center";
+  EXPECT_EQ(OpenWith(j), m + ": images[0].camera: no camera of this name in the manifest's rig (got \"center\")");
+  j = manifest_;
+  j["images"][1]["bit_depth"] = "eight";
+  EXPECT_EQ(OpenWith(j), m + ": images[1].bit_depth: expected a whole number (got \"eight\")");
+  j = manifest_;
+  j["images"][0]["file"] = "left/none.png";
+  EXPECT_NE(OpenWith(j).find("images[0].file: image file not found"), std::string::npos);
+  j = manifest_;
+  j["images"][0]["file"] = "../escape.png";
+  EXPECT_NE(OpenWith(j).find("without '..'"), std::string::npos);
+  j = manifest_;
+  j["images"][1]["camera"] = "left";
+  EXPECT_NE(OpenWith(j).find("duplicate image for camera 'left', pattern 0"), std::string::npos);
+  j = manifest_;
+  j["rig"]["cameras"][0]["intrinsics"]["fx"] = -60;
+  EXPECT_EQ(OpenWith(j), m + ": rig.cameras[0].intrinsics.fx: focal length must be positive (got -60)");
+  j = manifest_;
+  j["images"][0]["bit_depth"] = 16;
+  EXPECT_NE(OpenWith(j).find("bit depth is 8, the manifest says 16"), std::string::npos);
+}
+
+TEST_F(BadManifest, WrongImageSizeOrCorruptFileIsNamed) {
+  cv::imwrite((dir_ / "set" / "left" / "0000.png").string(), cv::Mat(10, 10, CV_8UC1, cv::Scalar(3)));
+  EXPECT_NE(ErrorOf([&] { ImageSet::Open(dir_ / "set").Load("left", 0); }).find("left/0000.png: wrong image size 10x10"),
+            std::string::npos);
+  { std::ofstream(dir_ / "set" / "right" / "0000.png") << "not a png"; }
+  EXPECT_NE(ErrorOf([&] { ImageSet::Open(dir_ / "set").Load("right", 0); }).find("cannot decode image"), std::string::npos);
+  { std::ofstream(dir_ / "set" / "manifest.json") << "{ broken"; }
+  EXPECT_NE(ErrorOf([&] { ImageSet::Open(dir_ / "set"); }).find("not valid JSON"), std::string::npos);
+  EXPECT_NE(ErrorOf([&] { ImageSet::Open(dir_ / "nothing"); }).find("not an ImageSet folder"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace slshadow

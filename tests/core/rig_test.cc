@@ -1,0 +1,89 @@
+#include "core/rig.h"
+
+#include <fstream>
+
+#include <gtest/gtest.h>
+
+#include "core/config.h"
+#include "core/error.h"
+#include "tests/testing/temp_dir.h"
+
+namespace slshadow {
+namespace {
+
+constexpr double kDeg = M_PI / 180.0;
+
+Rig DemoRig() { return LoadRig(testing::SourceDir() / "config/demo/rig.yaml"); }
+
+std::string ErrorOf(const std::string& yaml) {
+  try {
+    RigFromConfig(ConfigNode::ParseYaml(yaml, "bad.yaml"));
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(Rig, DemoGeometry) {
+  const Rig rig = DemoRig();
+  ASSERT_EQ(rig.cameras.size(), 2u);
+  ASSERT_TRUE(rig.projector.has_value());
+  EXPECT_EQ(rig.cameras[0].model.width, 1920);
+  EXPECT_EQ(rig.projector->model.width, 1280);
+  EXPECT_NEAR(rig.BaselineMm(rig.cameras[0], rig.cameras[1]), 200.0, 1e-6);
+  // Both cameras converge on the working point: the right camera's axis passes through it.
+  const Eigen::Vector3d wp = rig.WorkingPointInRig();
+  EXPECT_NEAR((wp - Eigen::Vector3d(0, 0, 500)).norm(), 0, 1e-9);
+  const auto& right = rig.cameras[1];
+  const Eigen::Vector3d to_wp = (wp - right.CenterInRig()).normalized();
+  EXPECT_NEAR(to_wp.dot(right.AxisInRig()), 1.0, 1e-12);
+  // Convergence angle 2 asin(100 / 500).
+  EXPECT_NEAR(Rig::TriangulationAngleRad(rig.cameras[0], right, wp), 2 * std::asin(0.2), 1e-9);
+  EXPECT_GT(rig.OverlapAtWorkingDistance(rig.cameras[0], right), 0.8);
+  EXPECT_GT(rig.OverlapAtWorkingDistance(rig.cameras[0], *rig.projector), 0.8);
+  EXPECT_NEAR(rig.cameras[0].model.HorizontalFovRad(), 39.0 * kDeg, 1.0 * kDeg);
+}
+
+TEST(Rig, YamlAndJsonRoundTripBitExact) {
+  testing::TempDir dir;
+  Rig rig = DemoRig();
+  rig.calibration = {{"rms_px", 0.123}, {"views", 17}};
+  SaveRig(rig, dir / "rig.yaml");
+  SaveRig(rig, dir / "rig.json");
+  for (const char* name : {"rig.yaml", "rig.json"}) {
+    const Rig back = LoadRig(dir / name);
+    EXPECT_EQ(RigToJson(back), RigToJson(rig)) << name;
+  }
+}
+
+TEST(Rig, RotationForms) {
+  const std::string head = "cameras:\n  - name: a\n    width: 10\n    height: 10\n    intrinsics: {fx: 5, fy: 5, cx: 5, cy: 5}\n    cam_from_rig:\n";
+  const Rig r1 = RigFromConfig(ConfigNode::ParseYaml(head + "      rotation_rvec_rad: [0, 0.3, 0]\n      translation_mm: [1, 2, 3]\n", "a.yaml"));
+  const Rig r2 = RigFromConfig(ConfigNode::ParseYaml(
+      head + "      rotation_matrix: [" + std::to_string(std::cos(0.3)) + ", 0, " + std::to_string(std::sin(0.3)) +
+          ", 0, 1, 0, " + std::to_string(-std::sin(0.3)) + ", 0, " + std::to_string(std::cos(0.3)) +
+          "]\n      translation_mm: [1, 2, 3]\n",
+      "b.yaml"));
+  EXPECT_NEAR(r1.cameras[0].cam_from_rig.rotation.angularDistance(r2.cameras[0].cam_from_rig.rotation), 0, 1e-6);
+  EXPECT_EQ(r1.cameras[0].cam_from_rig.translation, Eigen::Vector3d(1, 2, 3));
+}
+
+TEST(Rig, MalformedRigsGiveClearErrors) {
+  const std::string cam = "  - name: a\n    width: 10\n    height: 10\n    intrinsics: {fx: 5, fy: 5, cx: 5, cy: 5}\n";
+  EXPECT_EQ(ErrorOf("name: x\n"), "bad.yaml: cameras: missing required field");
+  EXPECT_EQ(ErrorOf("cameras:\n  - name: a\n    width: 10\n    height: 10\n    intrinsics: {fx: -5, fy: 5, cx: 5, cy: 5}\n"),
+            "bad.yaml: cameras[0].intrinsics.fx: focal length must be positive (got -5)");
+  EXPECT_EQ(ErrorOf("cameras:\n  - name: a\n    width: ten\n"), "bad.yaml: cameras[0].width: expected a whole number (got \"ten\")");
+  EXPECT_EQ(ErrorOf("cameras:\n  - name: a\n    width: 10\n    height: 10\n    intrinsics: {fx: .nan, fy: 5, cx: 5, cy: 5}\n"),
+            "bad.yaml: cameras[0].intrinsics.fx: must be a finite number (got NaN)");
+  EXPECT_EQ(ErrorOf("cameras:\n" + cam + cam), "bad.yaml: cameras[1].name: duplicate camera name (got \"a\")");
+  EXPECT_NE(ErrorOf("cameras:\n" + cam + "    cam_from_rig: {rotation_quat_wxyz: [1, 1, 0, 0], translation_mm: [0, 0, 0]}\n")
+                .find("cameras[0].cam_from_rig.rotation_quat_wxyz: quaternion must have unit norm"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf("cameras:\n" + cam + "    lens: 16mm\n").find("cameras[0].lens: unknown field"), std::string::npos);
+  EXPECT_NE(ErrorOf("working_distance_mm: -3\ncameras:\n" + cam).find("working_distance_mm: must be positive"),
+            std::string::npos);
+}
+
+}  // namespace
+}  // namespace slshadow
