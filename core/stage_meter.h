@@ -1,0 +1,44 @@
+// Per-stage wall time, CPU time and peak memory, as the benchmark paper in ../shared/seeds/
+// reports for every module. A StageMeter measures from construction to Stop(): wall seconds,
+// process CPU seconds (user + system, all threads; CPU / wall > 1 means parallel work), and the
+// peak resident set size during the stage (Linux: VmHWM is reset at the stage's start by writing
+// "5" to /proc/self/clear_refs; where that is not permitted, the process peak so far is
+// reported and `peak_is_process_wide` is set).
+#pragma once
+
+#include <chrono>
+#include <string>
+#include <vector>
+
+namespace slshadow {
+
+struct StageMeasurement {
+  std::string name;
+  double wall_s = 0;
+  double cpu_s = 0;
+  double peak_rss_mb = 0;
+  bool peak_is_process_wide = false;
+};
+
+class StageMeter {
+ public:
+  explicit StageMeter(std::string name);
+  StageMeasurement Stop() const;
+
+ private:
+  std::string name_;
+  std::chrono::steady_clock::time_point start_wall_;
+  double start_cpu_s_;
+  bool peak_reset_;
+};
+
+// Current process CPU time (user + system), seconds.
+double ProcessCpuSeconds();
+// Current and peak resident set size of this process, MB (0 when unknown).
+double CurrentRssMb();
+double PeakRssMb();
+
+// A fixed-width table of measurements: stage, wall s, CPU s, CPU/wall, peak RSS MB.
+std::string FormatStageTable(const std::vector<StageMeasurement>& stages);
+
+}  // namespace slshadow
