@@ -1,0 +1,53 @@
+// KdTree: exact nearest-neighbour queries over a borrowed array of 3D points (nanoflann inside,
+// in the adaptor spirit: the tree indexes the caller's std::vector and does not copy it).
+//
+// Distances are Euclidean and computed in double exactly as (q - p).squaredNorm() would be, so
+// a query returns bit-for-bit the minimum a brute-force scan finds (ties may pick either index).
+// Precondition: the points vector outlives the tree and is not modified while the tree exists.
+#pragma once
+
+#include <cstdint>
+#include <limits>
+#include <memory>
+#include <vector>
+
+#include <Eigen/Core>
+
+namespace slshadow::compare {
+
+struct Neighbor {
+  uint32_t index = 0;         // into the indexed points
+  double distance_sq = 0.0;   // squared Euclidean distance, mm^2
+};
+
+class KdTree {
+ public:
+  // Builds the tree (O(n log n)); leaf_size trades build time for query time.
+  explicit KdTree(const std::vector<Eigen::Vector3d>& points, int leaf_size = 12);
+  ~KdTree();
+  KdTree(const KdTree&) = delete;
+  KdTree& operator=(const KdTree&) = delete;
+
+  size_t size() const;
+  const std::vector<Eigen::Vector3d>& points() const { return *points_; }
+
+  // The nearest point, or false when none lies within max_distance (strictly closer than it).
+  bool Nearest(const Eigen::Vector3d& query, Neighbor* nearest,
+               double max_distance = std::numeric_limits<double>::infinity()) const;
+  // The k nearest points sorted by distance (fewer when the tree holds fewer points).
+  void KNearest(const Eigen::Vector3d& query, int k, std::vector<Neighbor>* out) const;
+  // All points with distance <= radius, sorted by distance when `sorted`.
+  void Radius(const Eigen::Vector3d& query, double radius, std::vector<Neighbor>* out,
+              bool sorted = false) const;
+
+ private:
+  struct Impl;
+  const std::vector<Eigen::Vector3d>* points_;
+  std::unique_ptr<Impl> impl_;
+};
+
+// Median distance from each point to its nearest other point (exact, on at most max_samples
+// evenly strided points): the typical point spacing of a cloud, mm. 0 for fewer than 2 points.
+double MedianSpacing(const KdTree& tree, size_t max_samples = 20000);
+
+}  // namespace slshadow::compare

@@ -1,0 +1,51 @@
+// Summary statistics of per-point deviations, and the coverage of a reference surface.
+//
+// Definitions (docs/formats.md "Comparison report" repeats them):
+//  - count: number of finite distances d_i (NaN entries are skipped and counted in num_invalid);
+//  - mean, std (population, divisor n), rms, median, p95, max: of |d_i|; median and p95 by the
+//    nearest-rank method on the sorted |d_i| (p-th percentile = element ceil(p/100 n) - 1);
+//  - signed_mean / signed_std: of d_i when the distances are signed (NaN otherwise);
+//  - inliers: |d_i| <= threshold, outliers: the others (outliers = count - inliers);
+//  - histogram of d_i (signed) or |d_i| (unsigned) with `bins` equal bins over [lo, hi], where
+//    hi = max(p99.9 of |d|, threshold) and lo = -hi (signed) or 0 (unsigned); values outside go
+//    to underflow / overflow.
+#pragma once
+
+#include <cstddef>
+#include <vector>
+
+#include <Eigen/Core>
+
+namespace slshadow::compare {
+
+class KdTree;
+
+struct Histogram {
+  double lo_mm = 0.0, hi_mm = 0.0;  // range of the bins
+  std::vector<size_t> counts;       // equal-width bins over [lo, hi)
+  size_t underflow = 0, overflow = 0;
+  double BinWidth() const { return counts.empty() ? 0.0 : (hi_mm - lo_mm) / static_cast<double>(counts.size()); }
+};
+
+struct DistanceStats {
+  bool is_signed = false;
+  size_t count = 0;
+  size_t num_invalid = 0;
+  double mean_mm = 0, std_mm = 0, rms_mm = 0, median_mm = 0, p95_mm = 0, max_mm = 0;
+  double signed_mean_mm = 0, signed_std_mm = 0;  // NaN when !is_signed
+  double threshold_mm = 0;
+  size_t inliers = 0, outliers = 0;
+  Histogram histogram;
+};
+
+DistanceStats ComputeStats(const std::vector<double>& distances_mm, bool is_signed,
+                           double threshold_mm, int bins = 60);
+
+// Coverage of the reference surface: the fraction of `reference_samples` (points that sample
+// the reference surface uniformly by area, or the reference cloud's own points) that have a
+// point of `reached` (the compared points within the threshold of the reference) within
+// `radius_mm`. In [0, 1]; 0 when there are no samples.
+double Coverage(const std::vector<Eigen::Vector3d>& reference_samples, const KdTree& reached,
+                double radius_mm);
+
+}  // namespace slshadow::compare
