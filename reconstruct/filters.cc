@@ -1,0 +1,184 @@
+#include "reconstruct/filters.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+
+#include <opencv2/core.hpp>
+
+namespace slshadow {
+
+namespace {
+
+constexpr uint8_t kAccepted = static_cast<uint8_t>(RejectReason::kAccepted);
+
+double Range(const DenseGrid& grid, size_t i) { return (grid.point_in_rig[i] - grid.viewpoint_in_rig).norm(); }
+
+}  // namespace
+
+int64_t FilterDepthDiscontinuities(DenseGrid& grid, double max_jump_footprints, int dilation_px) {
+  const int w = grid.width, h = grid.height;
+  std::vector<double> range(grid.reason.size(), 0.0);
+  cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
+    for (int v = rows.start; v < rows.end; ++v) {
+      for (int u = 0; u < w; ++u) {
+        const size_t i = grid.Index(u, v);
+        if (grid.Accepted(i)) range[i] = Range(grid, i);
+      }
+    }
+  });
+  std::vector<uint8_t> jump(grid.reason.size(), 0);
+  cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
+    for (int v = rows.start; v < rows.end; ++v) {
+      for (int u = 0; u < w; ++u) {
+        const size_t i = grid.Index(u, v);
+        if (!grid.Accepted(i)) continue;
+        const double limit = max_jump_footprints * range[i] / grid.focal_px;
+        const int du[4] = {-1, 1, 0, 0};
+        const int dv[4] = {0, 0, -1, 1};
+        for (int k = 0; k < 4; ++k) {
+          const int un = u + du[k], vn = v + dv[k];
+          if (un < 0 || vn < 0 || un >= w || vn >= h) continue;
+          const size_t j = grid.Index(un, vn);
+          if (grid.Accepted(j) && std::abs(range[j] - range[i]) > limit) {
+            jump[i] = 1;
+            break;
+          }
+        }
+      }
+    }
+  });
+  const int r = std::max(0, dilation_px);
+  std::atomic<int64_t> rejected{0};
+  std::vector<uint8_t> reject(grid.reason.size(), 0);
+  cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
+    int64_t local = 0;
+    for (int v = rows.start; v < rows.end; ++v) {
+      for (int u = 0; u < w; ++u) {
+        const size_t i = grid.Index(u, v);
+        if (!grid.Accepted(i)) continue;
+        bool hit = false;
+        for (int vn = std::max(0, v - r); vn <= std::min(h - 1, v + r) && !hit; ++vn) {
+          for (int un = std::max(0, u - r); un <= std::min(w - 1, u + r); ++un) {
+            if (jump[grid.Index(un, vn)]) {
+              hit = true;
+              break;
+            }
+          }
+        }
+        if (hit) {
+          reject[i] = 1;
+          ++local;
+        }
+      }
+    }
+    rejected += local;
+  });
+  for (size_t i = 0; i < reject.size(); ++i) {
+    if (reject[i]) grid.reason[i] = static_cast<uint8_t>(RejectReason::kDepthDiscontinuity);
+  }
+  return rejected.load();
+}
+
+int64_t FilterStatisticalOutliers(DenseGrid& grid, int window_radius_px, int neighbors, double std_ratio) {
+  const int w = grid.width, h = grid.height, r = std::max(1, window_radius_px);
+  const int k = std::max(1, neighbors);
+  const double inf = std::numeric_limits<double>::infinity();
+  std::vector<double> score(grid.reason.size(), -1.0);  // -1: not an accepted cell
+  cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
+    std::vector<double> d2;
+    d2.reserve(static_cast<size_t>((2 * r + 1) * (2 * r + 1)));
+    for (int v = rows.start; v < rows.end; ++v) {
+      for (int u = 0; u < w; ++u) {
+        const size_t i = grid.Index(u, v);
+        if (!grid.Accepted(i)) continue;
+        d2.clear();
+        const Eigen::Vector3d& p = grid.point_in_rig[i];
+        for (int vn = std::max(0, v - r); vn <= std::min(h - 1, v + r); ++vn) {
+          for (int un = std::max(0, u - r); un <= std::min(w - 1, u + r); ++un) {
+            const size_t j = grid.Index(un, vn);
+            if (j == i || grid.reason[j] != kAccepted) continue;
+            d2.push_back((grid.point_in_rig[j] - p).squaredNorm());
+          }
+        }
+        if (d2.empty()) {
+          score[i] = inf;
+          continue;
+        }
+        const size_t m = std::min(d2.size(), static_cast<size_t>(k));
+        std::nth_element(d2.begin(), d2.begin() + static_cast<std::ptrdiff_t>(m - 1), d2.end());
+        double sum = 0;
+        for (size_t q = 0; q < m; ++q) sum += std::sqrt(d2[q]);
+        // The m smallest are in front after nth_element (unordered); their mean, in footprints.
+        score[i] = (sum / static_cast<double>(m)) / (Range(grid, i) / grid.focal_px);
+      }
+    }
+  });
+  double sum = 0, sum2 = 0;
+  int64_t n = 0;
+  for (double s : score) {
+    if (s >= 0 && std::isfinite(s)) {
+      sum += s;
+      sum2 += s * s;
+      ++n;
+    }
+  }
+  const double mean = n > 0 ? sum / static_cast<double>(n) : 0.0;
+  const double var = n > 1 ? std::max(0.0, (sum2 - sum * mean) / static_cast<double>(n - 1)) : 0.0;
+  const double limit = mean + std_ratio * std::sqrt(var);
+  int64_t rejected = 0;
+  for (size_t i = 0; i < score.size(); ++i) {
+    if (score[i] >= 0 && score[i] > limit) {
+      grid.reason[i] = static_cast<uint8_t>(RejectReason::kOutlier);
+      ++rejected;
+    }
+  }
+  return rejected;
+}
+
+std::vector<Eigen::Vector3f> EstimateNormals(const DenseGrid& grid, int64_t* fallback_count) {
+  const int w = grid.width, h = grid.height;
+  std::vector<Eigen::Vector3f> normals(grid.reason.size(), Eigen::Vector3f::Zero());
+  std::atomic<int64_t> fallbacks{0};
+  cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
+    int64_t local = 0;
+    auto accepted = [&](int u, int v) { return u >= 0 && v >= 0 && u < w && v < h && grid.Accepted(grid.Index(u, v)); };
+    auto tangent = [&](int u, int v, int du, int dv, Eigen::Vector3d* t) {
+      const bool fwd = accepted(u + du, v + dv), back = accepted(u - du, v - dv);
+      if (fwd && back) {
+        *t = grid.point_in_rig[grid.Index(u + du, v + dv)] - grid.point_in_rig[grid.Index(u - du, v - dv)];
+      } else if (fwd) {
+        *t = grid.point_in_rig[grid.Index(u + du, v + dv)] - grid.point_in_rig[grid.Index(u, v)];
+      } else if (back) {
+        *t = grid.point_in_rig[grid.Index(u, v)] - grid.point_in_rig[grid.Index(u - du, v - dv)];
+      } else {
+        return false;
+      }
+      return true;
+    };
+    for (int v = rows.start; v < rows.end; ++v) {
+      for (int u = 0; u < w; ++u) {
+        const size_t i = grid.Index(u, v);
+        if (!grid.Accepted(i)) continue;
+        const Eigen::Vector3d to_view = grid.viewpoint_in_rig - grid.point_in_rig[i];
+        Eigen::Vector3d tu, tv;
+        Eigen::Vector3d n = Eigen::Vector3d::Zero();
+        if (tangent(u, v, 1, 0, &tu) && tangent(u, v, 0, 1, &tv)) n = tu.cross(tv);
+        const double norm = n.norm();
+        if (!(norm > 0) || !std::isfinite(norm)) {
+          n = to_view.normalized();
+          ++local;
+        } else {
+          n /= norm;
+          if (n.dot(to_view) < 0) n = -n;
+        }
+        normals[i] = n.cast<float>();
+      }
+    }
+    fallbacks += local;
+  });
+  if (fallback_count) *fallback_count = fallbacks.load();
+  return normals;
+}
+
+}  // namespace slshadow

@@ -1,0 +1,465 @@
+#include "reconstruct/reconstruct.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <sstream>
+
+#include "core/error.h"
+#include "reconstruct/filters.h"
+#include "reconstruct/ray_cache.h"
+#include "reconstruct/stereo_matcher.h"
+
+namespace slshadow {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double Seconds(Clock::time_point since) { return std::chrono::duration<double>(Clock::now() - since).count(); }
+
+constexpr uint8_t Code(RejectReason r) { return static_cast<uint8_t>(r); }
+
+inline double ReadCoord(const cv::Mat& m, int x, int y) {
+  return m.depth() == CV_64F ? m.at<double>(y, x) : static_cast<double>(m.at<float>(y, x));
+}
+
+void CheckMap(const ProjectorMap& map, const RigDevice& camera) {
+  SLSHADOW_THROW_IF(map.width() != camera.model.width || map.height() != camera.model.height,
+                    "reconstruct: camera '", camera.name, "': projector map is ", map.width(), "x", map.height(),
+                    " but the camera is ", camera.model.width, "x", camera.model.height);
+  SLSHADOW_THROW_IF(!map.has_x && !map.has_y, "reconstruct: camera '", camera.name,
+                    "': the projector map codes neither projector columns nor rows");
+  auto check = [&](const cv::Mat& m, const char* name, bool coded) {
+    if (!coded) return;
+    SLSHADOW_THROW_IF(m.rows != map.height() || m.cols != map.width() || m.channels() != 1 ||
+                          (m.depth() != CV_32F && m.depth() != CV_64F),
+                      "reconstruct: camera '", camera.name, "': ", name,
+                      " must be a single-channel CV_32F or CV_64F image of the camera's size");
+  };
+  check(map.proj_x, "proj_x", map.has_x);
+  check(map.proj_y, "proj_y", map.has_y);
+  SLSHADOW_THROW_IF(map.status.type() != CV_8UC1, "reconstruct: camera '", camera.name, "': status must be CV_8UC1");
+  SLSHADOW_THROW_IF(map.quality.type() != CV_32FC1 || map.quality.size() != map.status.size(),
+                    "reconstruct: camera '", camera.name, "': quality must be CV_32FC1 of the camera's size");
+}
+
+double FocalOf(const CameraModel& m) { return 0.5 * (m.fx() + m.fy()); }
+
+// Residual statistics, gates, filters, normals and the cloud: the part both modes share.
+void Finish(const ReconstructOptions& options, Reconstruction* out) {
+  DenseGrid& grid = out->grid;
+  ReconstructSummary& s = out->summary;
+  auto t0 = Clock::now();
+  std::vector<float> reproj, epi;
+  reproj.reserve(grid.reason.size() / 2);
+  for (size_t i = 0; i < grid.reason.size(); ++i) {
+    if (!grid.Accepted(i)) continue;
+    reproj.push_back(grid.reprojection_error_px[i]);
+    if (std::isfinite(grid.epipolar_error_px[i])) epi.push_back(grid.epipolar_error_px[i]);
+    if (!(grid.reprojection_error_px[i] <= options.max_reprojection_error_px)) {
+      grid.reason[i] = Code(RejectReason::kReprojectionError);
+    } else if (grid.epipolar_error_px[i] > options.max_epipolar_error_px) {
+      grid.reason[i] = Code(RejectReason::kEpipolarError);
+    }
+  }
+  s.reprojection_error_px = ComputeResidualStats(reproj);
+  s.epipolar_error_px = ComputeResidualStats(epi);
+  if (options.filter_depth_discontinuities) {
+    FilterDepthDiscontinuities(grid, options.max_depth_jump_footprints, options.discontinuity_dilation_px);
+  }
+  if (options.filter_outliers) {
+    FilterStatisticalOutliers(grid, options.outlier_window_radius_px, options.outlier_neighbors,
+                              options.outlier_std_ratio);
+  }
+  s.filter_s = Seconds(t0);
+  t0 = Clock::now();
+  std::vector<Eigen::Vector3f> normals;
+  if (options.estimate_normals) normals = EstimateNormals(grid, &s.normal_fallbacks);
+  out->cloud = grid.ToPointCloud(options.estimate_normals ? &normals : nullptr);
+  s.normals_s = Seconds(t0);
+  s.grid_width = grid.width;
+  s.grid_height = grid.height;
+  s.cells = static_cast<int64_t>(grid.reason.size());
+  s.rejected = grid.CountByReason();
+  s.points = s.rejected[0];
+}
+
+std::string Percent(int64_t part, int64_t whole) {
+  char buf[32];
+  std::snprintf(buf, sizeof(buf), "%.1f%%", whole > 0 ? 100.0 * static_cast<double>(part) / static_cast<double>(whole) : 0.0);
+  return buf;
+}
+
+}  // namespace
+
+const char* ToString(ReconstructMode mode) {
+  return mode == ReconstructMode::kProjector ? "projector" : "stereo";
+}
+
+ReconstructMode ReconstructModeFromString(const std::string& name) {
+  if (name == "projector") return ReconstructMode::kProjector;
+  if (name == "stereo") return ReconstructMode::kStereo;
+  SLSHADOW_THROW("reconstruct mode: unknown name (got '", name, "'; expected projector or stereo)");
+}
+
+void ReconstructOptions::Check() const {
+  auto fail = [](const std::string& field, const std::string& rule, double value) {
+    SLSHADOW_THROW("reconstruct options: ", field, ": ", rule, " (got ", value, ")");
+  };
+  if (!(min_depth_mm > 0)) fail("min_depth_mm", "must be positive", min_depth_mm);
+  if (!(max_depth_mm > min_depth_mm)) fail("max_depth_mm", "must exceed min_depth_mm", max_depth_mm);
+  if (!(min_triangulation_angle_deg >= 0 && min_triangulation_angle_deg < 90))
+    fail("min_triangulation_angle_deg", "must be in [0, 90)", min_triangulation_angle_deg);
+  if (!(max_reprojection_error_px > 0)) fail("max_reprojection_error_px", "must be positive", max_reprojection_error_px);
+  if (!(max_epipolar_error_px > 0)) fail("max_epipolar_error_px", "must be positive", max_epipolar_error_px);
+  if (!(min_quality >= 0) || !std::isfinite(min_quality)) fail("min_quality", "must be finite and >= 0", min_quality);
+  if (!(max_code_step_px > 0) || !std::isfinite(max_code_step_px)) fail("max_code_step_px", "must be finite and positive", max_code_step_px);
+  if (!(max_depth_jump_footprints > 0)) fail("max_depth_jump_footprints", "must be positive", max_depth_jump_footprints);
+  if (discontinuity_dilation_px < 0 || discontinuity_dilation_px > 16)
+    fail("discontinuity_dilation_px", "must be in [0, 16]", discontinuity_dilation_px);
+  if (outlier_window_radius_px < 1 || outlier_window_radius_px > 5)
+    fail("outlier_window_radius_px", "must be in [1, 5]", outlier_window_radius_px);
+  if (outlier_neighbors < 1 || outlier_neighbors > (2 * outlier_window_radius_px + 1) * (2 * outlier_window_radius_px + 1) - 1)
+    fail("outlier_neighbors", "must be in [1, (2 r + 1)^2 - 1] for the window radius r", outlier_neighbors);
+  if (!(outlier_std_ratio > 0) || !std::isfinite(outlier_std_ratio)) fail("outlier_std_ratio", "must be finite and positive", outlier_std_ratio);
+}
+
+nlohmann::json ReconstructOptions::ToJson() const {
+  auto num = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json("inf"); };
+  return {{"method", ToString(method)},
+          {"min_depth_mm", min_depth_mm},
+          {"max_depth_mm", max_depth_mm},
+          {"min_triangulation_angle_deg", min_triangulation_angle_deg},
+          {"max_reprojection_error_px", num(max_reprojection_error_px)},
+          {"max_epipolar_error_px", num(max_epipolar_error_px)},
+          {"min_quality", min_quality},
+          {"max_code_step_px", max_code_step_px},
+          {"filter_depth_discontinuities", filter_depth_discontinuities},
+          {"max_depth_jump_footprints", max_depth_jump_footprints},
+          {"discontinuity_dilation_px", discontinuity_dilation_px},
+          {"filter_outliers", filter_outliers},
+          {"outlier_window_radius_px", outlier_window_radius_px},
+          {"outlier_neighbors", outlier_neighbors},
+          {"outlier_std_ratio", outlier_std_ratio},
+          {"estimate_normals", estimate_normals}};
+}
+
+ResidualStats ComputeResidualStats(std::vector<float>& values) {
+  values.erase(std::remove_if(values.begin(), values.end(), [](float v) { return !std::isfinite(v); }), values.end());
+  ResidualStats s;
+  s.count = static_cast<int64_t>(values.size());
+  if (values.empty()) return s;
+  double sum2 = 0, mx = 0;
+  for (float v : values) {
+    sum2 += static_cast<double>(v) * v;
+    mx = std::max(mx, static_cast<double>(v));
+  }
+  s.rms = std::sqrt(sum2 / static_cast<double>(values.size()));
+  s.max = mx;
+  auto quantile = [&](double q) {
+    const size_t k = std::min(values.size() - 1, static_cast<size_t>(std::floor(q * static_cast<double>(values.size() - 1) + 0.5)));
+    std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(k), values.end());
+    return static_cast<double>(values[k]);
+  };
+  s.median = quantile(0.5);
+  s.p95 = quantile(0.95);
+  return s;
+}
+
+nlohmann::json ResidualStats::ToJson() const {
+  return {{"count", count}, {"median", median}, {"p95", p95}, {"max", max}, {"rms", rms}};
+}
+
+std::string ReconstructSummary::BriefReport() const {
+  char buf[512];
+  std::snprintf(buf, sizeof(buf),
+                "%s/%s %s-%s: %lld points of %lld cells (%s); reprojection median %.3g px, p95 %.3g px; %.3f s",
+                ToString(mode), ToString(method), camera.c_str(), other_device.c_str(),
+                static_cast<long long>(points), static_cast<long long>(cells), Percent(points, cells).c_str(),
+                reprojection_error_px.median, reprojection_error_px.p95, total_s);
+  return buf;
+}
+
+std::string ReconstructSummary::FullReport() const {
+  std::ostringstream out;
+  out << BriefReport() << "\n";
+  out << "  grid " << grid_width << "x" << grid_height << " (" << (mode == ReconstructMode::kStereo ? "rectified left camera" : "camera image") << ")\n";
+  out << "  cells by outcome:\n";
+  for (int r = 0; r < kNumRejectReasons; ++r) {
+    if (rejected[static_cast<size_t>(r)] == 0) continue;
+    char line[128];
+    std::snprintf(line, sizeof(line), "    %-20s %10lld  %6s\n", ToString(static_cast<RejectReason>(r)),
+                  static_cast<long long>(rejected[static_cast<size_t>(r)]),
+                  Percent(rejected[static_cast<size_t>(r)], cells).c_str());
+    out << line;
+  }
+  out << "  decoder status of the camera pixels:";
+  for (int k = 0; k < kNumPixelStatus; ++k) {
+    out << " " << ToString(static_cast<PixelStatus>(k)) << "=" << decode_status[static_cast<size_t>(k)];
+  }
+  out << "\n";
+  auto stats = [&](const char* name, const ResidualStats& r) {
+    char line[256];
+    std::snprintf(line, sizeof(line), "  %-22s n=%lld median %.4g p95 %.4g rms %.4g max %.4g px\n", name,
+                  static_cast<long long>(r.count), r.median, r.p95, r.rms, r.max);
+    out << line;
+  };
+  stats("reprojection error", reprojection_error_px);
+  if (epipolar_error_px.count > 0) stats(mode == ReconstructMode::kStereo ? "cross-axis residual" : "epipolar error", epipolar_error_px);
+  if (normal_fallbacks > 0) out << "  normals facing the camera (too few neighbours): " << normal_fallbacks << "\n";
+  char line[256];
+  std::snprintf(line, sizeof(line), "  time: rays %.3f s, match %.3f s, triangulate %.3f s, filters %.3f s, normals+cloud %.3f s, total %.3f s\n",
+                rays_s, match_s, triangulate_s, filter_s, normals_s, total_s);
+  out << line;
+  return out.str();
+}
+
+nlohmann::json ReconstructSummary::ToJson() const {
+  nlohmann::json rejected_json = nlohmann::json::object();
+  for (int r = 1; r < kNumRejectReasons; ++r) rejected_json[ToString(static_cast<RejectReason>(r))] = rejected[static_cast<size_t>(r)];
+  nlohmann::json decode_json = nlohmann::json::object();
+  for (int k = 0; k < kNumPixelStatus; ++k) decode_json[ToString(static_cast<PixelStatus>(k))] = decode_status[static_cast<size_t>(k)];
+  return {{"mode", ToString(mode)},
+          {"method", ToString(method)},
+          {"camera", camera},
+          {"other_device", other_device},
+          {"grid_width", grid_width},
+          {"grid_height", grid_height},
+          {"cells", cells},
+          {"points", points},
+          {"rejected", rejected_json},
+          {"decode_status", decode_json},
+          {"normal_fallbacks", normal_fallbacks},
+          {"reprojection_error_px", reprojection_error_px.ToJson()},
+          {"epipolar_error_px", epipolar_error_px.ToJson()},
+          {"time_s", {{"rays", rays_s}, {"match", match_s}, {"triangulate", triangulate_s}, {"filters", filter_s},
+                      {"normals", normals_s}, {"total", total_s}}}};
+}
+
+Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camera_name, const ProjectorMap& map,
+                                        const ReconstructOptions& options) {
+  options.Check();
+  const auto start = Clock::now();
+  SLSHADOW_THROW_IF(!rig.projector, "reconstruct: rig '", rig.name, "' has no projector (projector mode needs one)");
+  const RigDevice& cam = rig.Camera(camera_name);
+  const RigDevice& proj = *rig.projector;
+  CheckMap(map, cam);
+  Reconstruction out;
+  ReconstructSummary& s = out.summary;
+  s.mode = ReconstructMode::kProjector;
+  s.method = options.method;
+  s.camera = cam.name;
+  s.other_device = proj.name;
+  s.decode_status = map.CountByStatus();
+
+  auto t0 = Clock::now();
+  const std::shared_ptr<const RayGrid> rays = CachedRayGrid(cam.model);
+  s.rays_s = Seconds(t0);
+
+  t0 = Clock::now();
+  const TriangulationView cam_view(cam.cam_from_rig, FocalOf(cam.model));
+  const TriangulationView proj_view(proj.cam_from_rig, FocalOf(proj.model));
+  const TwoViewTriangulator tri(cam_view, proj_view);
+  DenseGrid& grid = out.grid;
+  grid.Allocate(cam.model.width, cam.model.height);
+  grid.viewpoint_in_rig = cam_view.center_in_rig;
+  grid.focal_px = cam_view.focal_px;
+  const double sin_min = std::sin(options.min_triangulation_angle_deg * M_PI / 180.0);
+  const bool both = map.has_x && map.has_y;
+  const int axis = map.has_x ? 0 : 1;
+  const double* cam_params = cam.model.params.data();
+  const double* proj_params = proj.model.params.data();
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  cv::parallel_for_(cv::Range(0, grid.height), [&](const cv::Range& rows) {
+    for (int v = rows.start; v < rows.end; ++v) {
+      const uint8_t* status = map.status.ptr<uint8_t>(v);
+      const float* quality = map.quality.ptr<float>(v);
+      for (int u = 0; u < grid.width; ++u) {
+        const size_t i = grid.Index(u, v);
+        grid.source_u[i] = static_cast<float>(u);
+        grid.source_v[i] = static_cast<float>(v);
+        if (status[u] != static_cast<uint8_t>(PixelStatus::kValid)) continue;  // kNotDecoded
+        grid.quality[i] = quality[u];
+        const double px = map.has_x ? ReadCoord(map.proj_x, u, v) : nan;
+        const double py = map.has_y ? ReadCoord(map.proj_y, u, v) : nan;
+        if ((map.has_x && !std::isfinite(px)) || (map.has_y && !std::isfinite(py))) continue;
+        uint8_t& reason = grid.reason[i];
+        if (quality[u] < options.min_quality) {
+          reason = Code(RejectReason::kLowQuality);
+          continue;
+        }
+        const Eigen::Vector2d& xy = rays->at(u, v);
+        if (!std::isfinite(xy.x())) {
+          reason = Code(RejectReason::kNoRay);
+          continue;
+        }
+        Eigen::Vector3d point;
+        double epipolar = nan;
+        if (both) {
+          const auto pxy = proj.model.UndistortToNormalized(Eigen::Vector2d(px, py));
+          if (!pxy) {
+            reason = Code(RejectReason::kNoRay);
+            continue;
+          }
+          if (!(tri.SinAngle(xy, *pxy) >= sin_min)) {
+            reason = Code(RejectReason::kParallelRays);
+            continue;
+          }
+          const auto p = tri.Triangulate(xy, *pxy, options.method);
+          if (!p) {
+            reason = Code(RejectReason::kParallelRays);
+            continue;
+          }
+          point = *p;
+          epipolar = tri.EpipolarDistancePx(xy, *pxy);
+        } else {
+          double sin_angle = 0;
+          const auto p = TriangulateRayAxis(cam_view.center_in_rig, cam_view.RayInRig(xy), proj.model, proj_view, axis,
+                                            axis == 0 ? px : py, &sin_angle);
+          if (!p) {
+            reason = Code(RejectReason::kNoRay);
+            continue;
+          }
+          if (!(sin_angle >= sin_min)) {
+            reason = Code(RejectReason::kParallelRays);
+            continue;
+          }
+          point = *p;
+        }
+        const Eigen::Vector3d in_cam = cam_view.ToCam(point);
+        const Eigen::Vector3d in_proj = proj_view.ToCam(point);
+        if (!(in_cam.z() > 0 && in_proj.z() > 0) || !point.allFinite()) {
+          reason = Code(RejectReason::kBehindDevice);
+          continue;
+        }
+        if (in_cam.z() < options.min_depth_mm || in_cam.z() > options.max_depth_mm) {
+          reason = Code(RejectReason::kOutOfDepthRange);
+          continue;
+        }
+        double cam_px[2], proj_px[2];
+        CameraModel::ImgFromCam(cam_params, in_cam.data(), cam_px);
+        CameraModel::ImgFromCam(proj_params, in_proj.data(), proj_px);
+        const double ec2 = (cam_px[0] - u) * (cam_px[0] - u) + (cam_px[1] - v) * (cam_px[1] - v);
+        double ep2 = 0;
+        if (map.has_x) ep2 += (proj_px[0] - px) * (proj_px[0] - px);
+        if (map.has_y) ep2 += (proj_px[1] - py) * (proj_px[1] - py);
+        grid.point_in_rig[i] = point;
+        grid.reprojection_error_px[i] = static_cast<float>(std::sqrt(0.5 * (ec2 + ep2)));
+        grid.epipolar_error_px[i] = static_cast<float>(epipolar);
+        reason = Code(RejectReason::kAccepted);
+      }
+    }
+  });
+  s.triangulate_s = Seconds(t0);
+  Finish(options, &out);
+  s.total_s = Seconds(start);
+  return out;
+}
+
+Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, const std::string& right_name,
+                                 const ProjectorMap& left_map, const ProjectorMap& right_map,
+                                 const ReconstructOptions& options) {
+  options.Check();
+  const auto start = Clock::now();
+  const RigDevice& left = rig.Camera(left_name);
+  const RigDevice& right = rig.Camera(right_name);
+  SLSHADOW_THROW_IF(left.name == right.name, "reconstruct: stereo needs two different cameras (got '", left.name, "' twice)");
+  CheckMap(left_map, left);
+  CheckMap(right_map, right);
+  Reconstruction out;
+  ReconstructSummary& s = out.summary;
+  s.mode = ReconstructMode::kStereo;
+  s.method = options.method;
+  s.camera = left.name;
+  s.other_device = right.name;
+  const auto dl = left_map.CountByStatus(), dr = right_map.CountByStatus();
+  for (int k = 0; k < kNumPixelStatus; ++k) s.decode_status[static_cast<size_t>(k)] = dl[static_cast<size_t>(k)] + dr[static_cast<size_t>(k)];
+
+  auto t0 = Clock::now();
+  const StereoRectification rect = ComputeStereoRectification(left, right);
+  const RectifiedMap lm = RectifyProjectorMap(rect, 0, left, left_map, options.max_code_step_px, options.min_quality);
+  const RectifiedMap rm = RectifyProjectorMap(rect, 1, right, right_map, options.max_code_step_px, options.min_quality);
+  s.rays_s = Seconds(t0);
+
+  t0 = Clock::now();
+  const double fb = rect.focal_px * rect.baseline_mm;
+  const StereoMatches matches = MatchRectifiedMaps(rect, lm, rm, fb / options.max_depth_mm, fb / options.min_depth_mm,
+                                                   options.max_code_step_px);
+  s.match_s = Seconds(t0);
+
+  t0 = Clock::now();
+  const TriangulationView view0(rect.RectCamFromRig(0), rect.focal_px);
+  const TriangulationView view1(rect.RectCamFromRig(1), rect.focal_px);
+  const TwoViewTriangulator tri(view0, view1);
+  DenseGrid& grid = out.grid;
+  grid.Allocate(lm.width, lm.height);
+  grid.reason = matches.reason;
+  grid.quality = lm.quality;
+  grid.source_u = lm.source_u;
+  grid.source_v = lm.source_v;
+  grid.viewpoint_in_rig = view0.center_in_rig;
+  grid.focal_px = rect.focal_px;
+  const double sin_min = std::sin(options.min_triangulation_angle_deg * M_PI / 180.0);
+  const bool cross_axis = lm.has_y && rm.has_y;
+  const TriangulationView left_view(left.cam_from_rig, FocalOf(left.model));
+  const TriangulationView right_view(right.cam_from_rig, FocalOf(right.model));
+  const Eigen::Matrix3d right_from_rect = right_view.cam_from_rig_rotation * rect.rect_from_rig_rotation.transpose();
+  cv::parallel_for_(cv::Range(0, grid.height), [&](const cv::Range& rows) {
+    for (int v = rows.start; v < rows.end; ++v) {
+      for (int u = 0; u < grid.width; ++u) {
+        const size_t i = grid.Index(u, v);
+        uint8_t& reason = grid.reason[i];
+        if (reason != Code(RejectReason::kAccepted)) continue;
+        const double ur = matches.right_u[i];
+        const Eigen::Vector2d xy0 = rect.Normalized(0, u, v);
+        const Eigen::Vector2d xy1 = rect.Normalized(1, ur, v);
+        if (!(tri.SinAngle(xy0, xy1) >= sin_min)) {
+          reason = Code(RejectReason::kParallelRays);
+          continue;
+        }
+        const auto p = tri.Triangulate(xy0, xy1, options.method);
+        if (!p) {
+          reason = Code(RejectReason::kParallelRays);
+          continue;
+        }
+        const Eigen::Vector3d in_rect0 = view0.ToCam(*p);
+        const Eigen::Vector3d in_left = left_view.ToCam(*p);
+        const Eigen::Vector3d in_right = right_view.ToCam(*p);
+        if (!(in_rect0.z() > 0 && view1.ToCam(*p).z() > 0 && in_left.z() > 0 && in_right.z() > 0)) {
+          reason = Code(RejectReason::kBehindDevice);
+          continue;
+        }
+        if (in_rect0.z() < options.min_depth_mm || in_rect0.z() > options.max_depth_mm) {
+          reason = Code(RejectReason::kOutOfDepthRange);
+          continue;
+        }
+        // Observed positions in the original images: the left cell's source, the right match's.
+        const Eigen::Vector3d right_ray = right_from_rect * Eigen::Vector3d(xy1.x(), xy1.y(), 1.0);
+        double right_obs[2], left_px[2], right_px[2];
+        CameraModel::ImgFromCam(right.model.params.data(), right_ray.data(), right_obs);
+        CameraModel::ImgFromCam(left.model.params.data(), in_left.data(), left_px);
+        CameraModel::ImgFromCam(right.model.params.data(), in_right.data(), right_px);
+        const double el2 = std::pow(left_px[0] - lm.source_u[i], 2) + std::pow(left_px[1] - lm.source_v[i], 2);
+        const double er2 = std::pow(right_px[0] - right_obs[0], 2) + std::pow(right_px[1] - right_obs[1], 2);
+        grid.reprojection_error_px[i] = static_cast<float>(std::sqrt(0.5 * (el2 + er2)));
+        if (cross_axis) {
+          const int k = std::min(static_cast<int>(ur), rm.width - 2);
+          const double t = ur - k;
+          const double y0 = rm.proj_y[rm.Index(k, v)], y1 = rm.proj_y[rm.Index(k + 1, v)];
+          if (std::isfinite(y0) && std::isfinite(y1)) {
+            grid.epipolar_error_px[i] = static_cast<float>(std::abs(lm.proj_y[i] - ((1 - t) * y0 + t * y1)));
+          }
+        }
+        grid.point_in_rig[i] = *p;
+      }
+    }
+  });
+  s.triangulate_s = Seconds(t0);
+  Finish(options, &out);
+  s.total_s = Seconds(start);
+  return out;
+}
+
+}  // namespace slshadow

@@ -1,0 +1,125 @@
+// Dense reconstruction from decoded ProjectorMaps: camera-projector triangulation (one camera
+// against the projector, an inverse camera) and stereo (two cameras matched through equal
+// projector coordinates), then gates, filters, normals -> PointCloud in the rig frame (mm).
+//
+// Every reference-grid cell either becomes a point or is rejected with one RejectReason
+// (dense_grid.h); the summary counts them, so rejected + accepted = cells, and no NaN/inf point
+// is ever emitted. Per point the cloud keeps scalar fields quality (decode quality), u, v (source
+// pixel in the reference camera image, px) and reprojection_error_px.
+//
+// Maps: proj_x / proj_y CV_32F as produced by patterns/, or CV_64F (e.g. exact ground truth);
+// status CV_8U PixelStatus, quality CV_32F, all of the camera's size.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <string>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+
+#include "core/point_cloud.h"
+#include "core/projector_map.h"
+#include "core/rig.h"
+#include "reconstruct/dense_grid.h"
+#include "reconstruct/triangulation.h"
+
+namespace slshadow {
+
+enum class ReconstructMode { kProjector, kStereo };
+const char* ToString(ReconstructMode mode);  // "projector", "stereo"
+ReconstructMode ReconstructModeFromString(const std::string& name);  // throws on unknown names
+
+struct ReconstructOptions {
+  // Two-view solver (camera-projector with both axes coded, and stereo). With one coded projector
+  // axis the exact ray-surface solve is used whatever the method.
+  TriangulationMethod method = TriangulationMethod::kMidpoint;
+  // Depth gate along the reference camera's optical axis (rectified axis in stereo), mm.
+  double min_depth_mm = 50;
+  double max_depth_mm = 5000;
+  // Rays closer to parallel than this are rejected (depth is ill-conditioned there), degrees.
+  double min_triangulation_angle_deg = 2.0;
+  // Gate on the RMS reprojection error of the point over both views, px. Infinity disables it.
+  double max_reprojection_error_px = 1.0;
+  // Gate on the epipolar residual, px: projector mode with both axes coded, distance of the
+  // projector coordinate from the camera pixel's epipolar line (projector px); stereo with both
+  // axes coded, |row_left - row_right| of the matched projector rows (projector px). Infinity
+  // disables it.
+  double max_epipolar_error_px = 1.0;
+  // Pixels of decode quality below this are rejected (units of ProjectorMap::quality). 0 keeps all.
+  float min_quality = 0.0f;
+  // Stereo: rectified maps are not interpolated across, nor matched over, projector-coordinate
+  // steps larger than this between neighbouring samples, projector px.
+  double max_code_step_px = 4.0;
+  // Depth-discontinuity filter (filters.h), in pixel footprints; dilation in pixels.
+  bool filter_depth_discontinuities = true;
+  double max_depth_jump_footprints = 8.0;
+  int discontinuity_dilation_px = 1;
+  // Statistical outlier removal (filters.h).
+  bool filter_outliers = true;
+  int outlier_window_radius_px = 2;
+  int outlier_neighbors = 8;
+  double outlier_std_ratio = 4.0;
+  // Normals from the organised grid, oriented toward the reference camera.
+  bool estimate_normals = true;
+
+  // Throws slshadow::Error naming the first violated constraint.
+  void Check() const;
+  nlohmann::json ToJson() const;
+};
+
+// Statistics of a per-correspondence residual, px.
+struct ResidualStats {
+  int64_t count = 0;
+  double median = 0;
+  double p95 = 0;
+  double max = 0;
+  double rms = 0;
+  nlohmann::json ToJson() const;
+};
+// Computes the statistics of `values` (NaN entries ignored); reorders `values`.
+ResidualStats ComputeResidualStats(std::vector<float>& values);
+
+struct ReconstructSummary {
+  ReconstructMode mode = ReconstructMode::kProjector;
+  TriangulationMethod method = TriangulationMethod::kMidpoint;
+  std::string camera;        // reference camera
+  std::string other_device;  // "projector" or the right camera
+  int grid_width = 0, grid_height = 0;  // reference grid (camera image, or rectified left image)
+  int64_t cells = 0;
+  int64_t points = 0;  // accepted
+  std::array<int64_t, kNumRejectReasons> rejected{};  // by RejectReason (index 0: accepted)
+  // Decoder statuses of the reference camera's pixels (stereo: of both cameras), by PixelStatus.
+  std::array<int64_t, kNumPixelStatus> decode_status{};
+  int64_t normal_fallbacks = 0;
+  // Residuals of all triangulated correspondences, before the reprojection/epipolar gates and
+  // the filters: a calibration check (a good rig gives sub-pixel medians).
+  ResidualStats reprojection_error_px;
+  ResidualStats epipolar_error_px;  // empty (count 0) when the mode has none
+  // Wall-clock seconds per stage.
+  double rays_s = 0, match_s = 0, triangulate_s = 0, filter_s = 0, normals_s = 0, total_s = 0;
+
+  std::string BriefReport() const;
+  std::string FullReport() const;
+  nlohmann::json ToJson() const;
+};
+
+struct Reconstruction {
+  PointCloud cloud;   // rig frame, mm
+  DenseGrid grid;     // the organised result with per-cell reasons
+  ReconstructSummary summary;
+};
+
+// Camera `camera` of the rig against its projector. Throws slshadow::Error when the rig has no
+// projector, the camera is unknown, the map's size differs from the camera's or no axis is coded.
+Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camera, const ProjectorMap& map,
+                                        const ReconstructOptions& options = {});
+
+// Cameras `left` and `right` matched by equal projector column along rectified epipolar lines.
+// The grid is the rectified left image (stereo_matcher.h). Throws when a camera is unknown, the
+// maps do not code projector columns or do not match their cameras' sizes.
+Reconstruction ReconstructStereo(const Rig& rig, const std::string& left, const std::string& right,
+                                 const ProjectorMap& left_map, const ProjectorMap& right_map,
+                                 const ReconstructOptions& options = {});
+
+}  // namespace slshadow

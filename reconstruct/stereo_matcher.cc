@@ -1,0 +1,277 @@
+#include "reconstruct/stereo_matcher.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include <opencv2/core.hpp>
+
+#include "core/error.h"
+#include "reconstruct/dense_grid.h"
+
+namespace slshadow {
+
+namespace {
+
+constexpr uint8_t kAcceptedCode = static_cast<uint8_t>(RejectReason::kAccepted);
+
+inline double ReadCoord(const cv::Mat& m, int x, int y) {
+  return m.depth() == CV_64F ? m.at<double>(y, x) : static_cast<double>(m.at<float>(y, x));
+}
+
+}  // namespace
+
+Rigid3d StereoRectification::RectCamFromRig(int camera) const {
+  const Eigen::Quaterniond q(rect_from_rig_rotation);
+  return Rigid3d(q, -(rect_from_rig_rotation * center_in_rig[camera]));
+}
+
+StereoRectification ComputeStereoRectification(const RigDevice& left, const RigDevice& right,
+                                               double max_size_factor) {
+  StereoRectification rect;
+  rect.center_in_rig[0] = left.CenterInRig();
+  rect.center_in_rig[1] = right.CenterInRig();
+  const Eigen::Vector3d baseline = rect.center_in_rig[1] - rect.center_in_rig[0];
+  rect.baseline_mm = baseline.norm();
+  SLSHADOW_THROW_IF(!(rect.baseline_mm > 1e-9), "stereo: cameras '", left.name, "' and '", right.name,
+                    "' have the same optical centre (baseline ", rect.baseline_mm, " mm)");
+  const Eigen::Vector3d e1 = baseline / rect.baseline_mm;
+  const Eigen::Vector3d axis = 0.5 * (left.AxisInRig() + right.AxisInRig());
+  Eigen::Vector3d e3 = axis - axis.dot(e1) * e1;
+  SLSHADOW_THROW_IF(!(e3.norm() > 1e-6), "stereo: the optical axes of '", left.name, "' and '", right.name,
+                    "' are along the baseline; cannot rectify");
+  e3.normalize();
+  const Eigen::Vector3d e2 = e3.cross(e1);
+  rect.rect_from_rig_rotation.row(0) = e1;
+  rect.rect_from_rig_rotation.row(1) = e2;
+  rect.rect_from_rig_rotation.row(2) = e3;
+  rect.focal_px = 0.5 * (left.model.fx() + left.model.fy());
+
+  double vmin = -std::numeric_limits<double>::infinity(), vmax = std::numeric_limits<double>::infinity();
+  const RigDevice* devices[2] = {&left, &right};
+  for (int c = 0; c < 2; ++c) {
+    const RigDevice& dev = *devices[c];
+    const Eigen::Matrix3d rect_from_cam =
+        rect.rect_from_rig_rotation * dev.cam_from_rig.rotation.toRotationMatrix().transpose();
+    double umin_c = std::numeric_limits<double>::infinity(), umax_c = -umin_c;
+    double vmin_c = umin_c, vmax_c = -umin_c;
+    const int w = dev.model.width, h = dev.model.height;
+    auto add = [&](double x, double y) {
+      const auto xy = dev.model.UndistortToNormalized(Eigen::Vector2d(x, y));
+      if (!xy) return;
+      const Eigen::Vector3d r = rect_from_cam * Eigen::Vector3d(xy->x(), xy->y(), 1.0);
+      if (!(r.z() > 1e-6)) return;
+      const double u = rect.focal_px * r.x() / r.z(), v = rect.focal_px * r.y() / r.z();
+      umin_c = std::min(umin_c, u);
+      umax_c = std::max(umax_c, u);
+      vmin_c = std::min(vmin_c, v);
+      vmax_c = std::max(vmax_c, v);
+    };
+    const int step = 8;
+    for (int x = 0; x <= w; x += step) {
+      add(std::min(x, w - 1), 0);
+      add(std::min(x, w - 1), h - 1);
+    }
+    for (int y = 0; y <= h; y += step) {
+      add(0, std::min(y, h - 1));
+      add(w - 1, std::min(y, h - 1));
+    }
+    SLSHADOW_THROW_IF(!std::isfinite(umin_c), "stereo: camera '", dev.name, "' sees nothing in front of the rectified plane");
+    const double max_w = max_size_factor * w;
+    if (umax_c - umin_c > max_w) {
+      const double mid = 0.5 * (umin_c + umax_c);
+      umin_c = mid - 0.5 * max_w;
+      umax_c = mid + 0.5 * max_w;
+    }
+    rect.cx[c] = -std::floor(umin_c);
+    rect.width[c] = static_cast<int>(std::ceil(umax_c) - std::floor(umin_c)) + 1;
+    vmin = std::max(vmin, vmin_c);  // rows both cameras see
+    vmax = std::min(vmax, vmax_c);
+  }
+  const double max_h = max_size_factor * left.model.height;
+  if (vmax - vmin > max_h) {
+    const double mid = 0.5 * (vmin + vmax);
+    vmin = mid - 0.5 * max_h;
+    vmax = mid + 0.5 * max_h;
+  }
+  SLSHADOW_THROW_IF(!(vmax > vmin), "stereo: cameras '", left.name, "' and '", right.name,
+                    "' share no epipolar lines (no common rectified rows)");
+  rect.cy = -std::floor(vmin);
+  rect.height = static_cast<int>(std::ceil(vmax) - std::floor(vmin)) + 1;
+  return rect;
+}
+
+RectifiedMap RectifyProjectorMap(const StereoRectification& rect, int camera, const RigDevice& device,
+                                 const ProjectorMap& map, double max_step_px, float min_quality) {
+  SLSHADOW_THROW_IF(!map.has_x, "stereo: camera '", device.name,
+                    "': the pattern does not code projector columns; stereo matching needs them");
+  SLSHADOW_THROW_IF(map.width() != device.model.width || map.height() != device.model.height,
+                    "stereo: camera '", device.name, "': projector map is ", map.width(), "x", map.height(),
+                    " but the camera is ", device.model.width, "x", device.model.height);
+  RectifiedMap out;
+  out.width = rect.width[camera];
+  out.height = rect.height;
+  out.has_y = map.has_y;
+  const size_t n = static_cast<size_t>(out.width) * out.height;
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  out.proj_x.assign(n, nan);
+  out.proj_y.assign(n, nan);
+  out.quality.assign(n, 0.0f);
+  out.source_u.assign(n, std::numeric_limits<float>::quiet_NaN());
+  out.source_v.assign(n, std::numeric_limits<float>::quiet_NaN());
+  out.reason.assign(n, static_cast<uint8_t>(RejectReason::kOutsideImage));
+  const Eigen::Matrix3d cam_from_rect =
+      device.cam_from_rig.rotation.toRotationMatrix() * rect.rect_from_rig_rotation.transpose();
+  const int w = map.width(), h = map.height();
+  const double* params = device.model.params.data();
+  cv::parallel_for_(cv::Range(0, out.height), [&](const cv::Range& rows) {
+    for (int v = rows.start; v < rows.end; ++v) {
+      for (int u = 0; u < out.width; ++u) {
+        const size_t o = out.Index(u, v);
+        const Eigen::Vector2d xy = rect.Normalized(camera, u, v);
+        const Eigen::Vector3d ray = cam_from_rect * Eigen::Vector3d(xy.x(), xy.y(), 1.0);
+        if (!(ray.z() > 0)) continue;
+        double pixel[2];
+        CameraModel::ImgFromCam(params, ray.data(), pixel);
+        const double x = pixel[0], y = pixel[1];
+        if (!(x >= 0 && y >= 0 && x <= w - 1 && y <= h - 1)) continue;
+        out.source_u[o] = static_cast<float>(x);
+        out.source_v[o] = static_cast<float>(y);
+        int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
+        if (x0 >= w - 1) x0 = w - 2;
+        if (y0 >= h - 1) y0 = h - 2;
+        const double ax = x - x0, ay = y - y0;
+        const double wts[4] = {(1 - ax) * (1 - ay), ax * (1 - ay), (1 - ax) * ay, ax * ay};
+        const int xs[4] = {x0, x0 + 1, x0, x0 + 1};
+        const int ys[4] = {y0, y0, y0 + 1, y0 + 1};
+        RejectReason reason = RejectReason::kAccepted;
+        double px = 0, py = 0, q = 0;
+        double xmin = std::numeric_limits<double>::infinity(), xmax = -xmin, ymin = xmin, ymax = -xmin;
+        for (int k = 0; k < 4; ++k) {
+          if (map.status.at<uint8_t>(ys[k], xs[k]) != static_cast<uint8_t>(PixelStatus::kValid)) {
+            reason = RejectReason::kNotDecoded;
+            break;
+          }
+          const double cx = ReadCoord(map.proj_x, xs[k], ys[k]);
+          const double cy = map.has_y ? ReadCoord(map.proj_y, xs[k], ys[k]) : 0.0;
+          if (!std::isfinite(cx) || !std::isfinite(cy)) {
+            reason = RejectReason::kNotDecoded;
+            break;
+          }
+          const float qk = map.quality.at<float>(ys[k], xs[k]);
+          if (qk < min_quality) reason = RejectReason::kLowQuality;
+          xmin = std::min(xmin, cx);
+          xmax = std::max(xmax, cx);
+          ymin = std::min(ymin, cy);
+          ymax = std::max(ymax, cy);
+          px += wts[k] * cx;
+          py += wts[k] * cy;
+          q += wts[k] * qk;
+        }
+        if (reason == RejectReason::kAccepted && (xmax - xmin > max_step_px || ymax - ymin > max_step_px)) {
+          reason = RejectReason::kDepthDiscontinuity;
+        }
+        out.reason[o] = static_cast<uint8_t>(reason);
+        if (reason != RejectReason::kAccepted) continue;
+        out.proj_x[o] = px;
+        if (map.has_y) out.proj_y[o] = py;
+        out.quality[o] = static_cast<float>(q);
+      }
+    }
+  });
+  return out;
+}
+
+StereoMatches MatchRectifiedMaps(const StereoRectification& rect, const RectifiedMap& left,
+                                 const RectifiedMap& right, double min_disparity_px,
+                                 double max_disparity_px, double max_step_px) {
+  SLSHADOW_CHECK(left.height == right.height);
+  StereoMatches matches;
+  const size_t n = left.proj_x.size();
+  matches.right_u.assign(n, std::numeric_limits<double>::quiet_NaN());
+  matches.reason = left.reason;
+  const int wr = right.width;
+  cv::parallel_for_(cv::Range(0, left.height), [&](const cv::Range& rows) {
+    // Per-thread scratch, reused across rows: the right row's segments bucketed by the integer
+    // part of the projector column they span (CSR layout).
+    std::vector<int> offsets, cursor, bucket;
+    for (int v = rows.start; v < rows.end; ++v) {
+      const double* r = right.proj_x.data() + right.Index(0, v);
+      double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+      for (int k = 0; k + 1 < wr; ++k) {
+        if (std::isfinite(r[k]) && std::isfinite(r[k + 1]) && std::abs(r[k + 1] - r[k]) <= max_step_px) {
+          lo = std::min(lo, std::min(r[k], r[k + 1]));
+          hi = std::max(hi, std::max(r[k], r[k + 1]));
+        }
+      }
+      const bool any = std::isfinite(lo);
+      const long base = any ? static_cast<long>(std::floor(lo)) : 0;
+      const int nb = any ? static_cast<int>(static_cast<long>(std::floor(hi)) - base + 1) : 0;
+      offsets.assign(static_cast<size_t>(nb) + 1, 0);
+      auto for_bins = [&](int k, auto&& fn) {
+        const double a = std::min(r[k], r[k + 1]), b = std::max(r[k], r[k + 1]);
+        const int b0 = static_cast<int>(static_cast<long>(std::floor(a)) - base);
+        const int b1 = static_cast<int>(static_cast<long>(std::floor(b)) - base);
+        for (int bin = b0; bin <= b1; ++bin) fn(bin);
+      };
+      if (any) {
+        for (int k = 0; k + 1 < wr; ++k) {
+          if (std::isfinite(r[k]) && std::isfinite(r[k + 1]) && std::abs(r[k + 1] - r[k]) <= max_step_px) {
+            for_bins(k, [&](int bin) { ++offsets[static_cast<size_t>(bin) + 1]; });
+          }
+        }
+        for (int b = 0; b < nb; ++b) offsets[static_cast<size_t>(b) + 1] += offsets[static_cast<size_t>(b)];
+        bucket.resize(static_cast<size_t>(offsets[static_cast<size_t>(nb)]));
+        cursor.assign(offsets.begin(), offsets.end() - 1);
+        for (int k = 0; k + 1 < wr; ++k) {
+          if (std::isfinite(r[k]) && std::isfinite(r[k + 1]) && std::abs(r[k + 1] - r[k]) <= max_step_px) {
+            for_bins(k, [&](int bin) { bucket[static_cast<size_t>(cursor[static_cast<size_t>(bin)]++)] = k; });
+          }
+        }
+      }
+      for (int u = 0; u < left.width; ++u) {
+        const size_t i = left.Index(u, v);
+        if (left.reason[i] != kAcceptedCode) continue;
+        const double value = left.proj_x[i];
+        const long bin = any ? static_cast<long>(std::floor(value)) - base : -1;
+        if (bin < 0 || bin >= nb) {
+          matches.reason[i] = static_cast<uint8_t>(RejectReason::kNoMatch);
+          continue;
+        }
+        // Bin b holds the segments bucket[offsets[b] .. offsets[b + 1]).
+        const int begin = offsets[static_cast<size_t>(bin)];
+        const int end = offsets[static_cast<size_t>(bin) + 1];
+        int found = 0;
+        double best = 0;
+        for (int e = begin; e < end; ++e) {
+          const int k = bucket[static_cast<size_t>(e)];
+          const double r0 = r[k], r1 = r[k + 1];
+          double t;
+          if (r1 == r0) {
+            if (value != r0) continue;
+            t = 0.5;
+          } else {
+            t = (value - r0) / (r1 - r0);
+          }
+          if (t < 0 || t > 1) continue;
+          const double ur = k + t;
+          const double disparity = (u - rect.cx[0]) - (ur - rect.cx[1]);
+          if (disparity < min_disparity_px || disparity > max_disparity_px) continue;
+          if (found > 0 && std::abs(ur - best) < 1e-9) continue;  // shared sample of two segments
+          ++found;
+          best = ur;
+        }
+        if (found == 0) {
+          matches.reason[i] = static_cast<uint8_t>(RejectReason::kNoMatch);
+        } else if (found > 1) {
+          matches.reason[i] = static_cast<uint8_t>(RejectReason::kAmbiguousMatch);
+        } else {
+          matches.right_u[i] = best;
+        }
+      }
+    }
+  });
+  return matches;
+}
+
+}  // namespace slshadow

@@ -1,0 +1,79 @@
+// Stereo correspondences from two cameras' ProjectorMaps: rectify both maps to a common
+// orientation (rows are epipolar lines), then find, along each row, where the right map's
+// projector column equals the left one (sub-pixel, by linear interpolation between the right
+// map's samples). Used by ReconstructStereo (reconstruct.h).
+//
+// Rectification (Fusiello, Trucco & Verri 2000): rect x axis along the baseline (left centre to
+// right centre), z the mean optical axis made orthogonal to x, y = z cross x (down). Both
+// rectified cameras share the orientation, focal length and cy; each has its own cx and width so
+// its rectified image covers its own camera image. Rectified pixel (u, v) is the ray
+// ((u - cx) / f, (v - cy) / f, 1) in the rect frame; disparity (u_l - cx_l) - (u_r - cx_r) =
+// f * baseline / z_rect.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "core/projector_map.h"
+#include "core/rig.h"
+
+namespace slshadow {
+
+struct StereoRectification {
+  Eigen::Matrix3d rect_from_rig_rotation = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d center_in_rig[2];  // left, right optical centres
+  double baseline_mm = 0;
+  double focal_px = 1;
+  double cy = 0;
+  int height = 0;
+  double cx[2] = {0, 0};
+  int width[2] = {0, 0};
+
+  // Normalised rect-frame coordinates of rectified pixel (u, v) of camera 0 (left) or 1 (right).
+  Eigen::Vector2d Normalized(int camera, double u, double v) const {
+    return {(u - cx[camera]) / focal_px, (v - cy) / focal_px};
+  }
+  // The rectified camera's pose: rect orientation, centred on the camera's optical centre.
+  Rigid3d RectCamFromRig(int camera) const;
+};
+
+// Throws slshadow::Error when the centres coincide. The rectified images keep the left camera's
+// mean focal length; their extents cover each camera's image (border rays in front of the rect
+// plane), clamped to max_size_factor times the camera's size.
+StereoRectification ComputeStereoRectification(const RigDevice& left, const RigDevice& right,
+                                               double max_size_factor = 2.0);
+
+// One camera's ProjectorMap resampled on its rectified grid (bilinear over the 4 source pixels
+// around the rectified pixel's position in the original, distorted image; a cell is valid only when
+// all 4 are decoded, of quality >= min_quality, and their projector coordinates differ by at most
+// max_step_px, which keeps interpolation from bridging code jumps).
+struct RectifiedMap {
+  int width = 0;
+  int height = 0;
+  bool has_y = false;
+  std::vector<double> proj_x, proj_y;  // NaN where invalid (proj_y NaN when rows are not coded)
+  std::vector<float> quality;
+  std::vector<float> source_u, source_v;  // position in the original image, px
+  std::vector<uint8_t> reason;            // RejectReason: kAccepted where valid
+  size_t Index(int u, int v) const { return static_cast<size_t>(v) * width + u; }
+};
+// Accepts proj_x / proj_y of type CV_32F or CV_64F. Requires map.has_x.
+RectifiedMap RectifyProjectorMap(const StereoRectification& rect, int camera, const RigDevice& device,
+                                 const ProjectorMap& map, double max_step_px, float min_quality);
+
+// For every left rectified cell with a valid code, the right rectified column u_r with equal
+// projector column on the same row and disparity in [min_disparity_px, max_disparity_px].
+// right_u is NaN where there is none; reason says kNoMatch / kAmbiguousMatch (two or more
+// distinct solutions) or carries the left cell's own reason. Segments between right samples that
+// differ by more than max_step_px are not searched (code jumps).
+struct StereoMatches {
+  std::vector<double> right_u;
+  std::vector<uint8_t> reason;
+};
+StereoMatches MatchRectifiedMaps(const StereoRectification& rect, const RectifiedMap& left,
+                                 const RectifiedMap& right, double min_disparity_px,
+                                 double max_disparity_px, double max_step_px);
+
+}  // namespace slshadow
