@@ -1,0 +1,586 @@
+#include "calib/calibration.h"
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <memory>
+#include <numeric>
+#include <sstream>
+
+#include <ceres/ceres.h>
+#include <ceres/rotation.h>
+#include <opencv2/calib3d.hpp>
+
+#include <Eigen/SVD>
+
+#include "core/error.h"
+
+namespace slshadow {
+namespace {
+
+using Pose6 = std::array<double, 6>;  // angle-axis (rad), translation (mm)
+using Intr9 = std::array<double, CameraModel::kNumParams>;
+
+Pose6 ToPose6(const Rigid3d& t) {
+  const Eigen::AngleAxisd aa(t.rotation);
+  const Eigen::Vector3d r = aa.angle() * aa.axis();
+  return {r.x(), r.y(), r.z(), t.translation.x(), t.translation.y(), t.translation.z()};
+}
+
+Rigid3d FromPose6(const Pose6& p) {
+  const Eigen::Vector3d r(p[0], p[1], p[2]);
+  const double angle = r.norm();
+  const Eigen::Quaterniond q =
+      angle > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, r / angle)) : Eigen::Quaterniond::Identity();
+  return Rigid3d(q, Eigen::Vector3d(p[3], p[4], p[5]));
+}
+
+// r = ImgFromCam(intrinsics, dev_from_rig * rig_from_board * X) - u. With aspect > 0 the model's
+// fy is aspect * fx (the fy entry of the block is held constant and ignored).
+struct ReprojectionFunctor {
+  ReprojectionFunctor(const Eigen::Vector3d& point_in_board, const Eigen::Vector2d& pixel, double aspect)
+      : x(point_in_board), u(pixel), aspect_ratio(aspect) {}
+
+  template <typename T>
+  bool operator()(const T* intrinsics, const T* dev_from_rig, const T* rig_from_board, T* residual) const {
+    const T point_in_board[3] = {T(x.x()), T(x.y()), T(x.z())};
+    T point_in_rig[3], point_in_dev[3];
+    ceres::AngleAxisRotatePoint(rig_from_board, point_in_board, point_in_rig);
+    for (int i = 0; i < 3; ++i) point_in_rig[i] += rig_from_board[3 + i];
+    ceres::AngleAxisRotatePoint(dev_from_rig, point_in_rig, point_in_dev);
+    for (int i = 0; i < 3; ++i) point_in_dev[i] += dev_from_rig[3 + i];
+    T params[CameraModel::kNumParams];
+    for (int i = 0; i < CameraModel::kNumParams; ++i) params[i] = intrinsics[i];
+    if (aspect_ratio > 0) params[CameraModel::kFy] = intrinsics[CameraModel::kFx] * T(aspect_ratio);
+    T pixel[2];
+    CameraModel::ImgFromCam(params, point_in_dev, pixel);
+    residual[0] = pixel[0] - T(u.x());
+    residual[1] = pixel[1] - T(u.y());
+    return true;
+  }
+
+  Eigen::Vector3d x;
+  Eigen::Vector2d u;
+  double aspect_ratio;
+};
+
+// All unknowns of one problem.
+struct State {
+  std::vector<Intr9> intrinsics;
+  std::vector<double> aspect;  // per device: fixed fy/fx, or 0 when free
+  std::vector<Pose6> dev_from_rig;
+  std::vector<Pose6> rig_from_board;
+  std::vector<bool> pose_known;
+};
+
+Intr9 EffectiveParams(const State& s, int d) {
+  Intr9 p = s.intrinsics[d];
+  if (s.aspect[d] > 0) p[CameraModel::kFy] = p[CameraModel::kFx] * s.aspect[d];
+  return p;
+}
+
+Eigen::Vector2d ProjectView(const State& s, const BoardView& v, size_t i) {
+  const ReprojectionFunctor f(v.points_in_board_mm[i], Eigen::Vector2d::Zero(), s.aspect[v.device]);
+  Eigen::Vector2d pixel;
+  f(s.intrinsics[v.device].data(), s.dev_from_rig[v.device].data(), s.rig_from_board[v.pose].data(), pixel.data());
+  return pixel;
+}
+
+std::vector<int> HeldIntrinsics(const CalibrationOptions& o, double aspect) {
+  std::vector<int> held;
+  if (aspect > 0) held.push_back(CameraModel::kFy);
+  if (o.fix_principal_point) {
+    held.push_back(CameraModel::kCx);
+    held.push_back(CameraModel::kCy);
+  }
+  if (o.zero_tangential) {
+    held.push_back(CameraModel::kP1);
+    held.push_back(CameraModel::kP2);
+  }
+  if (o.fix_k3) held.push_back(CameraModel::kK3);
+  return held;
+}
+
+struct SolveOutput {
+  ceres::Solver::Summary summary;
+  std::vector<Matrix9d> covariance;  // per device, unscaled (J^T J)^-1 in the 9 parameters
+  int num_free_parameters = 0;
+};
+
+// One Levenberg-Marquardt solve over `input`, starting from and updating `s`.
+SolveOutput Solve(const CalibrationInput& input, const CalibrationOptions& options, State* s, bool want_covariance) {
+  ceres::Problem problem;
+  std::vector<bool> device_used(input.devices.size(), false), pose_used(static_cast<size_t>(input.num_poses), false);
+  for (const auto& v : input.views) {
+    if (!s->pose_known[v.pose]) continue;
+    for (size_t i = 0; i < v.points_in_board_mm.size(); ++i) {
+      auto* cost = new ceres::AutoDiffCostFunction<ReprojectionFunctor, 2, CameraModel::kNumParams, 6, 6>(
+          new ReprojectionFunctor(v.points_in_board_mm[i], v.pixels_px[i], s->aspect[v.device]));
+      ceres::LossFunction* loss = nullptr;  // owned by the problem, one per residual
+      if (options.loss == LossType::kHuber) loss = new ceres::HuberLoss(options.loss_scale_px);
+      if (options.loss == LossType::kCauchy) loss = new ceres::CauchyLoss(options.loss_scale_px);
+      problem.AddResidualBlock(cost, loss, s->intrinsics[v.device].data(), s->dev_from_rig[v.device].data(),
+                               s->rig_from_board[v.pose].data());
+    }
+    device_used[v.device] = true;
+    pose_used[v.pose] = true;
+  }
+  SolveOutput out;
+  for (size_t d = 0; d < input.devices.size(); ++d) {
+    if (!device_used[d]) continue;
+    double* intr = s->intrinsics[d].data();
+    const auto held = HeldIntrinsics(options, s->aspect[d]);
+    if (options.fix_intrinsics) {
+      problem.SetParameterBlockConstant(intr);
+    } else {
+      if (!held.empty()) problem.SetManifold(intr, new ceres::SubsetManifold(CameraModel::kNumParams, held));
+      out.num_free_parameters += CameraModel::kNumParams - static_cast<int>(held.size());
+    }
+    if (d == 0) {
+      problem.SetParameterBlockConstant(s->dev_from_rig[d].data());
+    } else {
+      out.num_free_parameters += 6;
+    }
+  }
+  for (int p = 0; p < input.num_poses; ++p) {
+    if (pose_used[p]) out.num_free_parameters += 6;
+  }
+  ceres::Solver::Options so;
+  so.linear_solver_type = ceres::DENSE_SCHUR;
+  so.max_num_iterations = options.max_iterations;
+  so.function_tolerance = 1e-12;
+  so.gradient_tolerance = 1e-14;
+  so.parameter_tolerance = 1e-12;
+  so.num_threads = 2;
+  so.logging_type = ceres::SILENT;
+  ceres::Solve(so, &problem, &out.summary);
+
+  if (want_covariance && !options.fix_intrinsics) {
+    ceres::Covariance::Options co;
+    co.algorithm_type = ceres::DENSE_SVD;
+    co.null_space_rank = 0;
+    co.num_threads = 2;
+    ceres::Covariance covariance(co);
+    std::vector<std::pair<const double*, const double*>> blocks;
+    for (size_t d = 0; d < input.devices.size(); ++d) {
+      if (device_used[d]) blocks.emplace_back(s->intrinsics[d].data(), s->intrinsics[d].data());
+    }
+    if (covariance.Compute(blocks, &problem)) {
+      for (size_t d = 0; d < input.devices.size(); ++d) {
+        Matrix9d c = Matrix9d::Zero();
+        if (device_used[d]) {
+          Eigen::Matrix<double, 9, 9, Eigen::RowMajor> rm;
+          covariance.GetCovarianceBlock(s->intrinsics[d].data(), s->intrinsics[d].data(), rm.data());
+          c = rm;
+          if (s->aspect[d] > 0) {  // fy = aspect * fx
+            Matrix9d j = Matrix9d::Identity();
+            j(CameraModel::kFy, CameraModel::kFy) = 0;
+            j(CameraModel::kFy, CameraModel::kFx) = s->aspect[d];
+            c = j * c * j.transpose();
+          }
+        }
+        out.covariance.push_back(c);
+      }
+    }
+  }
+  return out;
+}
+
+std::vector<cv::Point3f> ToCv(const std::vector<Eigen::Vector3d>& v) {
+  std::vector<cv::Point3f> out;
+  for (const auto& p : v) out.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
+  return out;
+}
+std::vector<cv::Point2f> ToCv(const std::vector<Eigen::Vector2d>& v) {
+  std::vector<cv::Point2f> out;
+  for (const auto& p : v) out.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()));
+  return out;
+}
+
+// Pose of the board in the device frame from one view, by PnP with the current intrinsics.
+std::optional<Pose6> PoseByPnP(const Intr9& params, const BoardView& v) {
+  cv::Mat k = (cv::Mat_<double>(3, 3) << params[0], 0, params[2], 0, params[1], params[3], 0, 0, 1);
+  cv::Mat dist = (cv::Mat_<double>(1, 5) << params[4], params[5], params[6], params[7], params[8]);
+  cv::Mat rvec, tvec;
+  std::vector<cv::Point3d> obj;
+  std::vector<cv::Point2d> img;
+  for (size_t i = 0; i < v.pixels_px.size(); ++i) {
+    obj.emplace_back(v.points_in_board_mm[i].x(), v.points_in_board_mm[i].y(), v.points_in_board_mm[i].z());
+    img.emplace_back(v.pixels_px[i].x(), v.pixels_px[i].y());
+  }
+  if (!cv::solvePnP(obj, img, k, dist, rvec, tvec, false, cv::SOLVEPNP_ITERATIVE)) return std::nullopt;
+  Pose6 p{rvec.at<double>(0), rvec.at<double>(1), rvec.at<double>(2),
+          tvec.at<double>(0), tvec.at<double>(1), tvec.at<double>(2)};
+  for (double x : p) {
+    if (!std::isfinite(x)) return std::nullopt;
+  }
+  if (p[5] <= 0) return std::nullopt;
+  return p;
+}
+
+// Single-device input made of the views of device d (device index remapped to 0).
+CalibrationInput DeviceInput(const CalibrationInput& input, int d) {
+  CalibrationInput sub;
+  sub.devices = {input.devices[d]};
+  sub.num_poses = input.num_poses;
+  for (const auto& v : input.views) {
+    if (v.device != d) continue;
+    sub.views.push_back(v);
+    sub.views.back().device = 0;
+  }
+  return sub;
+}
+
+// Intrinsics and per-pose dev_from_board of one device alone.
+State InitDevice(const CalibrationInput& sub, const CalibrationOptions& options) {
+  const CalibrationDevice& dev = sub.devices[0];
+  State s;
+  s.dev_from_rig = {Pose6{0, 0, 0, 0, 0, 0}};
+  s.rig_from_board.assign(static_cast<size_t>(sub.num_poses), Pose6{0, 0, 0, 0, 0, 1000});
+  s.pose_known.assign(static_cast<size_t>(sub.num_poses), false);
+  Intr9 params{};
+  if (dev.initial) {
+    params = dev.initial->params;
+  } else {
+    std::vector<std::vector<cv::Point3f>> obj;
+    std::vector<std::vector<cv::Point2f>> img;
+    for (const auto& v : sub.views) {
+      obj.push_back(ToCv(v.points_in_board_mm));
+      img.push_back(ToCv(v.pixels_px));
+    }
+    // OpenCV's aspectRatio is fx / fy; 0 estimates both.
+    const double cv_aspect = options.fix_aspect_ratio ? 1.0 / options.aspect_ratio : 0.0;
+    cv::Mat k;
+    try {
+      k = cv::initCameraMatrix2D(obj, img, cv::Size(dev.width, dev.height), cv_aspect);
+    } catch (const cv::Exception& e) {
+      SLSHADOW_THROW("device '", dev.name, "': cannot initialise the intrinsics from the board homographies (",
+                     e.what(), ")");
+    }
+    params = {k.at<double>(0, 0), k.at<double>(1, 1), k.at<double>(0, 2), k.at<double>(1, 2), 0, 0, 0, 0, 0};
+    SLSHADOW_THROW_IF(!(params[0] > 0 && params[1] > 0 && std::isfinite(params[0]) && std::isfinite(params[1])),
+                      "device '", dev.name, "': the board homographies give no valid focal length (fx ", params[0],
+                      ", fy ", params[1], "): the views are degenerate (all parallel to the image plane, or ",
+                      "too few); capture the board tilted by 20-40 degrees in several directions");
+  }
+  if (options.fix_principal_point && !dev.initial) {
+    params[CameraModel::kCx] = (dev.width - 1) / 2.0;
+    params[CameraModel::kCy] = (dev.height - 1) / 2.0;
+  }
+  s.intrinsics = {params};
+  s.aspect = {options.fix_aspect_ratio ? params[CameraModel::kFy] / params[CameraModel::kFx] : 0.0};
+  int posed = 0;
+  for (const auto& v : sub.views) {
+    const auto pose = PoseByPnP(params, v);
+    if (!pose) continue;
+    s.rig_from_board[v.pose] = *pose;
+    s.pose_known[v.pose] = true;
+    ++posed;
+  }
+  SLSHADOW_THROW_IF(posed == 0, "device '", dev.name, "': no view could be posed (solvePnP failed on all views)");
+  return s;
+}
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
+  return v[v.size() / 2];
+}
+
+// The candidate transform closest (in translation, then rotation) to all others: robust average.
+Rigid3d Medoid(const std::vector<Rigid3d>& candidates) {
+  SLSHADOW_CHECK(!candidates.empty());
+  size_t best = 0;
+  double best_cost = 1e300;
+  for (size_t i = 0; i < candidates.size(); ++i) {
+    double cost = 0;
+    for (const auto& c : candidates) {
+      cost += (c.translation - candidates[i].translation).norm() +
+              1000 * c.rotation.angularDistance(candidates[i].rotation);
+    }
+    if (cost < best_cost) {
+      best_cost = cost;
+      best = i;
+    }
+  }
+  return candidates[best];
+}
+
+}  // namespace
+
+std::string ToString(LossType loss) {
+  switch (loss) {
+    case LossType::kNone: return "none";
+    case LossType::kHuber: return "huber";
+    case LossType::kCauchy: return "cauchy";
+  }
+  return "?";
+}
+
+LossType LossTypeFromString(const std::string& name) {
+  if (name == "none") return LossType::kNone;
+  if (name == "huber") return LossType::kHuber;
+  if (name == "cauchy") return LossType::kCauchy;
+  SLSHADOW_THROW("loss: unknown robust loss (got '", name, "'; use none, huber or cauchy)");
+}
+
+void CalibrationOptions::Check() const {
+  SLSHADOW_THROW_IF(!(aspect_ratio > 0 && std::isfinite(aspect_ratio)), "calibration options: aspect_ratio: must be positive (got ",
+                    aspect_ratio, ")");
+  SLSHADOW_THROW_IF(!(loss_scale_px > 0), "calibration options: loss_scale_px: must be positive (got ", loss_scale_px, ")");
+  SLSHADOW_THROW_IF(max_iterations < 1, "calibration options: max_iterations: must be at least 1 (got ", max_iterations, ")");
+  SLSHADOW_THROW_IF(!(outlier_view_factor > 1), "calibration options: outlier_view_factor: must be > 1 (got ",
+                    outlier_view_factor, ")");
+}
+
+void CalibrationInput::Check() const {
+  SLSHADOW_THROW_IF(devices.empty(), "calibration: no devices");
+  SLSHADOW_THROW_IF(num_poses < 1, "calibration: no board poses (got num_poses ", num_poses, ")");
+  for (const auto& d : devices) {
+    SLSHADOW_THROW_IF(d.width <= 0 || d.height <= 0, "calibration: device '", d.name, "': image size must be positive (got ",
+                      d.width, "x", d.height, ")");
+    if (d.initial) d.initial->Check("calibration: device '" + d.name + "': initial model");
+  }
+  std::vector<int> views_per_device(devices.size(), 0);
+  for (const auto& v : views) {
+    const std::string what = "calibration: view '" + v.label + "'";
+    SLSHADOW_THROW_IF(v.device < 0 || v.device >= static_cast<int>(devices.size()), what, ": device index out of range (got ",
+                      v.device, ")");
+    SLSHADOW_THROW_IF(v.pose < 0 || v.pose >= num_poses, what, ": pose index out of range (got ", v.pose, ")");
+    SLSHADOW_THROW_IF(v.points_in_board_mm.size() != v.pixels_px.size(), what, ": ", v.points_in_board_mm.size(),
+                      " board points but ", v.pixels_px.size(), " pixels");
+    SLSHADOW_THROW_IF(v.pixels_px.size() < 4, what, ": needs at least 4 points (got ", v.pixels_px.size(), ")");
+    const auto& dev = devices[static_cast<size_t>(v.device)];
+    for (const auto& px : v.pixels_px) {
+      // 2 px of slack: noisy detections at the border.
+      SLSHADOW_THROW_IF(!px.allFinite() || px.x() < -2.5 || px.y() < -2.5 || px.x() > dev.width + 1.5 ||
+                            px.y() > dev.height + 1.5,
+                        what, ": pixel (", px.x(), ", ", px.y(), ") outside the ", dev.width, "x", dev.height,
+                        " image of device '", dev.name, "' (mismatched image sizes?)");
+    }
+    // Collinear (or coincident) board points give no pose.
+    Eigen::MatrixXd centred(3, static_cast<Eigen::Index>(v.points_in_board_mm.size()));
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    for (const auto& p : v.points_in_board_mm) mean += p;
+    mean /= static_cast<double>(v.points_in_board_mm.size());
+    for (size_t i = 0; i < v.points_in_board_mm.size(); ++i) centred.col(static_cast<Eigen::Index>(i)) = v.points_in_board_mm[i] - mean;
+    const Eigen::JacobiSVD<Eigen::MatrixXd> svd(centred);
+    const auto sv = svd.singularValues();
+    SLSHADOW_THROW_IF(!(sv(1) > 1e-6 * sv(0)) || !(sv(0) > 0), what,
+                      ": the board points are collinear; a view needs points spanning the board in 2D");
+    ++views_per_device[static_cast<size_t>(v.device)];
+  }
+  for (size_t d = 0; d < devices.size(); ++d) {
+    if (devices[d].initial) {
+      SLSHADOW_THROW_IF(views_per_device[d] < 1, "calibration: device '", devices[d].name, "': no views");
+    } else {
+      SLSHADOW_THROW_IF(views_per_device[d] < 2, "calibration: device '", devices[d].name, "': ", views_per_device[d],
+                        " view(s); calibrating intrinsics needs at least 2 (better 10-20) views of the board in "
+                        "different orientations");
+    }
+  }
+}
+
+CalibrationResult Calibrate(const CalibrationInput& input, const CalibrationOptions& options) {
+  options.Check();
+  input.Check();
+  const auto t0 = std::chrono::steady_clock::now();
+  const int num_devices = static_cast<int>(input.devices.size());
+  int iterations = 0;
+
+  // Per device: intrinsics and dev_from_board per pose.
+  std::vector<State> per_device;
+  for (int d = 0; d < num_devices; ++d) {
+    const CalibrationInput sub = DeviceInput(input, d);
+    State s = InitDevice(sub, options);
+    if (num_devices > 1) {
+      const SolveOutput so = Solve(sub, options, &s, false);
+      iterations += static_cast<int>(so.summary.iterations.size());
+    }
+    per_device.push_back(std::move(s));
+  }
+
+  // Chain devices to device 0 through shared poses.
+  State s;
+  s.intrinsics.resize(static_cast<size_t>(num_devices));
+  s.aspect.resize(static_cast<size_t>(num_devices));
+  s.dev_from_rig.assign(static_cast<size_t>(num_devices), Pose6{0, 0, 0, 0, 0, 0});
+  s.rig_from_board.assign(static_cast<size_t>(input.num_poses), Pose6{0, 0, 0, 0, 0, 1000});
+  s.pose_known.assign(static_cast<size_t>(input.num_poses), false);
+  for (int d = 0; d < num_devices; ++d) {
+    s.intrinsics[d] = per_device[d].intrinsics[0];
+    s.aspect[d] = per_device[d].aspect[0];
+  }
+  std::vector<bool> placed(static_cast<size_t>(num_devices), false);
+  placed[0] = true;
+  s.rig_from_board = per_device[0].rig_from_board;
+  s.pose_known = per_device[0].pose_known;
+  for (bool progress = true; progress;) {
+    progress = false;
+    for (int d = 1; d < num_devices; ++d) {
+      if (placed[d]) continue;
+      std::vector<Rigid3d> candidates;
+      for (int p = 0; p < input.num_poses; ++p) {
+        if (s.pose_known[p] && per_device[d].pose_known[p]) {
+          candidates.push_back(FromPose6(per_device[d].rig_from_board[p]) * FromPose6(s.rig_from_board[p]).Inverse());
+        }
+      }
+      if (candidates.empty()) continue;
+      const Rigid3d dev_from_rig = Medoid(candidates);
+      s.dev_from_rig[d] = ToPose6(dev_from_rig);
+      for (int p = 0; p < input.num_poses; ++p) {
+        if (!s.pose_known[p] && per_device[d].pose_known[p]) {
+          s.rig_from_board[p] = ToPose6(dev_from_rig.Inverse() * FromPose6(per_device[d].rig_from_board[p]));
+          s.pose_known[p] = true;
+        }
+      }
+      placed[d] = true;
+      progress = true;
+    }
+  }
+  for (int d = 1; d < num_devices; ++d) {
+    SLSHADOW_THROW_IF(!placed[d], "calibration: device '", input.devices[d].name, "' shares no board pose with device '",
+                      input.devices[0].name, "' (directly or through other devices): its pose in the rig is unknown; "
+                      "capture poses where both see the board");
+  }
+
+  const SolveOutput final_solve = Solve(input, options, &s, options.compute_covariance);
+  iterations += static_cast<int>(final_solve.summary.iterations.size());
+
+  CalibrationResult result;
+  for (int d = 0; d < num_devices; ++d) {
+    RigDevice dev;
+    dev.name = input.devices[d].name;
+    dev.model.width = input.devices[d].width;
+    dev.model.height = input.devices[d].height;
+    dev.model.params = EffectiveParams(s, d);
+    dev.cam_from_rig = FromPose6(s.dev_from_rig[d]);
+    result.devices.push_back(dev);
+  }
+  for (int p = 0; p < input.num_poses; ++p) {
+    if (s.pose_known[p]) {
+      result.rig_from_board.emplace_back(FromPose6(s.rig_from_board[p]));
+    } else {
+      result.rig_from_board.emplace_back(std::nullopt);
+    }
+  }
+
+  // Statistics.
+  CalibrationSummary& sum = result.summary;
+  sum.initial_cost = final_solve.summary.initial_cost;
+  sum.final_cost = final_solve.summary.final_cost;
+  sum.iterations = iterations;
+  sum.converged = final_solve.summary.termination_type == ceres::CONVERGENCE;
+  sum.termination = ceres::TerminationTypeToString(final_solve.summary.termination_type) + std::string(": ") +
+                    final_solve.summary.message;
+  sum.num_free_parameters = final_solve.num_free_parameters;
+  sum.devices.resize(static_cast<size_t>(num_devices));
+  std::vector<double> dev_sq(static_cast<size_t>(num_devices), 0);
+  double total_sq = 0;
+  for (int d = 0; d < num_devices; ++d) sum.devices[d].name = input.devices[d].name;
+  for (const auto& v : input.views) {
+    ViewStats vs;
+    vs.device = v.device;
+    vs.pose = v.pose;
+    vs.label = v.label;
+    if (!s.pose_known[v.pose]) {
+      vs.rms_px = std::nan("");
+      vs.max_px = std::nan("");
+      sum.views.push_back(vs);
+      continue;
+    }
+    double sq = 0;
+    for (size_t i = 0; i < v.pixels_px.size(); ++i) {
+      const double e = (ProjectView(s, v, i) - v.pixels_px[i]).norm();
+      sq += e * e;
+      vs.max_px = std::max(vs.max_px, e);
+    }
+    vs.num_points = static_cast<int>(v.pixels_px.size());
+    vs.rms_px = std::sqrt(sq / vs.num_points);
+    auto& ds = sum.devices[v.device];
+    ds.num_views++;
+    ds.num_points += vs.num_points;
+    ds.max_px = std::max(ds.max_px, vs.max_px);
+    dev_sq[v.device] += sq;
+    total_sq += sq;
+    sum.num_points += vs.num_points;
+    sum.max_px = std::max(sum.max_px, vs.max_px);
+    sum.views.push_back(vs);
+  }
+  for (int d = 0; d < num_devices; ++d) {
+    auto& ds = sum.devices[d];
+    ds.rms_px = ds.num_points ? std::sqrt(dev_sq[d] / ds.num_points) : 0;
+    std::vector<double> rms;
+    for (const auto& vs : sum.views) {
+      if (vs.device == d && vs.num_points) rms.push_back(vs.rms_px);
+    }
+    const double median = Median(rms);
+    for (auto& vs : sum.views) {
+      if (vs.device == d && vs.num_points && vs.rms_px > options.outlier_view_factor * median) {
+        vs.outlier = true;
+        ++sum.num_outlier_views;
+      }
+    }
+  }
+  sum.rms_px = sum.num_points ? std::sqrt(total_sq / sum.num_points) : 0;
+  const int dof = 2 * sum.num_points - sum.num_free_parameters;
+  sum.residual_sigma_px = dof > 0 ? std::sqrt(total_sq / dof) : std::nan("");
+  if (!final_solve.covariance.empty() && dof > 0) {
+    const double var = sum.residual_sigma_px * sum.residual_sigma_px;
+    for (const auto& c : final_solve.covariance) result.intrinsics_covariance.push_back(c * var);
+  }
+  sum.solve_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return result;
+}
+
+std::vector<Eigen::Vector2d> Reproject(const CalibrationResult& result, const BoardView& view) {
+  SLSHADOW_THROW_IF(view.device < 0 || view.device >= static_cast<int>(result.devices.size()) || view.pose < 0 ||
+                        view.pose >= static_cast<int>(result.rig_from_board.size()) || !result.rig_from_board[view.pose],
+                    "Reproject: view '", view.label, "' has no device or estimated pose in this result");
+  const RigDevice& dev = result.devices[view.device];
+  const Rigid3d dev_from_board = dev.cam_from_rig * *result.rig_from_board[view.pose];
+  std::vector<Eigen::Vector2d> out;
+  for (const auto& x : view.points_in_board_mm) {
+    const Eigen::Vector3d p = dev_from_board * x;
+    Eigen::Vector2d px;
+    CameraModel::ImgFromCam(dev.model.params.data(), p.data(), px.data());
+    out.push_back(px);
+  }
+  return out;
+}
+
+std::string CalibrationSummary::BriefReport() const {
+  std::ostringstream out;
+  out.precision(4);
+  out << "calibration: " << devices.size() << " device(s), " << views.size() << " views, " << num_points
+      << " points: RMS " << rms_px << " px (worst " << max_px << " px), " << num_outlier_views
+      << " outlier view(s); cost " << initial_cost << " -> " << final_cost << ", " << iterations << " iterations, "
+      << (converged ? "converged" : "NOT converged") << ", " << solve_time_s << " s";
+  return out.str();
+}
+
+std::string CalibrationSummary::FullReport() const {
+  std::ostringstream out;
+  out << BriefReport() << "\n";
+  char line[512];
+  std::snprintf(line, sizeof(line), "termination: %s\nfree parameters: %d, residual sigma %.4f px per coordinate\n",
+                termination.c_str(), num_free_parameters, residual_sigma_px);
+  out << line;
+  out << "device           views  points  RMS px   worst px\n";
+  for (const auto& d : devices) {
+    std::snprintf(line, sizeof(line), "%-16s %5d %7d %8.4f %9.4f\n", d.name.c_str(), d.num_views, d.num_points,
+                  d.rms_px, d.max_px);
+    out << line;
+  }
+  out << "view                             device pose points  RMS px   worst px\n";
+  for (const auto& v : views) {
+    std::snprintf(line, sizeof(line), "%-32s %6d %4d %6d %8.4f %9.4f%s\n", v.label.c_str(), v.device, v.pose,
+                  v.num_points, v.rms_px, v.max_px, v.outlier ? "  OUTLIER" : (v.num_points ? "" : "  (not posed)"));
+    out << line;
+  }
+  return out.str();
+}
+
+}  // namespace slshadow

@@ -1,0 +1,142 @@
+// Calibration of cameras and projectors from board observations, by one Ceres bundle adjustment.
+//
+// One problem covers single-camera, stereo, camera-projector and whole-rig calibration: D devices
+// (cameras, or a projector as an inverse camera whose "pixels" are projector pixels) observe a
+// planar board in P poses. Unknowns, each its own Ceres parameter block:
+//   intrinsics of device d  fx fy cx cy k1 k2 p1 p2 k3 (core/camera_model.h, OpenCV's model)
+//   dev_from_rig of d > 0   angle-axis (rad) + translation (mm); device 0 defines the rig frame
+//   rig_from_board of pose p  angle-axis + translation
+// Residual of a board point X (mm, board frame) seen by device d in pose p at pixel u:
+//   r = ImgFromCam(intrinsics_d, dev_from_rig_d * rig_from_board_p * X) - u      (px)
+// minimised in the least-squares sense, optionally through a robust loss.
+//
+// Initialisation (Zhang 2000): per device, intrinsics from the board homographies
+// (cv::initCameraMatrix2D), zero distortion, poses by cv::solvePnP, then a per-device bundle
+// adjustment; devices are then chained to device 0 through shared poses (median relative pose)
+// and everything is refined jointly.
+#pragma once
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "core/camera_model.h"
+#include "core/rig.h"
+#include "core/rigid3.h"
+
+namespace slshadow {
+
+// Observations of one board pose by one device.
+struct BoardView {
+  int device = 0;     // index into CalibrationInput::devices
+  int pose = 0;       // board pose index, 0 .. num_poses-1; views of one pose share its pose
+  std::string label;  // for reports, e.g. the image file
+  std::vector<Eigen::Vector3d> points_in_board_mm;
+  std::vector<Eigen::Vector2d> pixels_px;  // same length as points_in_board_mm
+};
+
+struct CalibrationDevice {
+  std::string name;
+  int width = 0;  // image size, px
+  int height = 0;
+  bool is_projector = false;
+  // Starting intrinsics; when absent they are estimated from the homographies.
+  std::optional<CameraModel> initial;
+};
+
+struct CalibrationInput {
+  std::vector<CalibrationDevice> devices;  // device 0 defines the rig frame
+  int num_poses = 0;
+  std::vector<BoardView> views;
+
+  // Throws slshadow::Error naming the problem: no devices, a bad size, a view whose device or pose
+  // is out of range, mismatched point/pixel counts, fewer than 4 points in a view, collinear
+  // board points, a device with fewer than 2 views (unless it has `initial` intrinsics and
+  // shares a pose with another device), a device not connected to device 0 by shared poses.
+  void Check() const;
+};
+
+enum class LossType { kNone, kHuber, kCauchy };
+std::string ToString(LossType loss);              // "none", "huber", "cauchy"
+LossType LossTypeFromString(const std::string&);  // throws slshadow::Error on unknown names
+
+struct CalibrationOptions {
+  bool fix_aspect_ratio = false;     // fy / fx held at its initial value (1 when estimated)
+  double aspect_ratio = 1.0;         // fy / fx used when fix_aspect_ratio and no initial model
+  bool fix_principal_point = false;  // cx, cy held at the image centre or the initial model
+  bool zero_tangential = false;      // p1 = p2 = 0
+  bool fix_k3 = false;               // k3 = 0 (or its initial value)
+  bool fix_intrinsics = false;       // only poses are estimated (stereo with known cameras)
+  LossType loss = LossType::kNone;   // robust loss on each point's residual
+  double loss_scale_px = 1.0;        // residual size where the robust loss starts to bend, px
+  int max_iterations = 200;          // Levenberg-Marquardt iterations per solve
+  double outlier_view_factor = 3.0;  // a view is an outlier when its RMS > factor * its device's median view RMS
+  bool compute_covariance = true;    // intrinsics covariance (ceres::Covariance, dense SVD)
+
+  // Throws slshadow::Error naming the first violated constraint.
+  void Check() const;
+};
+
+// Residual statistics of one view (one device, one pose).
+struct ViewStats {
+  int device = 0;
+  int pose = 0;
+  std::string label;
+  int num_points = 0;
+  double rms_px = 0;
+  double max_px = 0;     // worst point residual
+  bool outlier = false;  // rms_px > outlier_view_factor * median view RMS of the device
+};
+
+struct DeviceStats {
+  std::string name;
+  int num_views = 0;
+  int num_points = 0;
+  double rms_px = 0;
+  double max_px = 0;
+};
+
+// What the solver did, in the spirit of ceres::Solver::Summary.
+struct CalibrationSummary {
+  double initial_cost = 0;  // Ceres cost (half the sum of squared, loss-mapped residuals) at the start
+  double final_cost = 0;
+  double rms_px = 0;        // over all points and devices: sqrt(sum |r|^2 / N points)
+  double max_px = 0;
+  double residual_sigma_px = 0;  // per-coordinate noise estimate sqrt(sum r^2 / (2N - free params))
+  int num_points = 0;
+  int num_free_parameters = 0;
+  int iterations = 0;
+  double solve_time_s = 0;  // initialisation and all solves
+  bool converged = false;
+  std::string termination;  // Ceres' message
+  std::vector<DeviceStats> devices;
+  std::vector<ViewStats> views;
+  int num_outlier_views = 0;
+
+  std::string BriefReport() const;  // one line
+  std::string FullReport() const;   // multi-line: per device and per view, outliers marked
+};
+
+using Matrix9d = Eigen::Matrix<double, 9, 9>;
+
+struct CalibrationResult {
+  std::vector<RigDevice> devices;  // models and cam_from_rig (device 0: identity)
+  // Per pose: rig_from_board (x_in_rig = rig_from_board * x_in_board), absent when no device saw it.
+  std::vector<std::optional<Rigid3d>> rig_from_board;
+  // Per device: covariance of (fx fy cx cy k1 k2 p1 p2 k3), scaled by residual_sigma_px^2; held
+  // parameters have zero rows (fy follows fx when the aspect is fixed). Empty when not computed
+  // or not estimable (rank-deficient problem).
+  std::vector<Matrix9d> intrinsics_covariance;
+  CalibrationSummary summary;
+};
+
+// Calibrates all devices of `input`. Throws slshadow::Error on bad input (input.Check(),
+// options.Check()) and when a device cannot be initialised (degenerate views).
+CalibrationResult Calibrate(const CalibrationInput& input, const CalibrationOptions& options);
+
+// Board-to-device reprojection of one view with the result's parameters, px.
+std::vector<Eigen::Vector2d> Reproject(const CalibrationResult& result, const BoardView& view);
+
+}  // namespace slshadow

@@ -1,0 +1,284 @@
+#include "calib/calibration.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <random>
+
+#include "calib/synthetic.h"
+#include "calib/target.h"
+#include "tests/testing/temp_dir.h"
+#include "core/error.h"
+
+namespace slshadow {
+namespace {
+
+CalibrationInput MakeSyntheticInput(const SyntheticRig& rig, int n, double noise_px, uint32_t seed) {
+  return MakeSyntheticData(rig, n, noise_px, seed).input;
+}
+
+TEST(Calibrate, RecoversSyntheticCameraWithinNoise) {
+  const SyntheticRig rig = SyntheticRig::OneCamera();
+  const SyntheticData data = MakeSyntheticData(rig, 15, /*noise_px=*/0.2, /*seed=*/7);
+  const CalibrationInput& input = data.input;
+  const CalibrationResult r = Calibrate(input, {});
+  const auto& est = r.devices[0].model.params;
+  const auto& truth = rig.devices[0].model.params;
+  EXPECT_NEAR(est[0] / truth[0], 1.0, 5e-4);
+  EXPECT_NEAR(est[1] / truth[1], 1.0, 5e-4);
+  // Every parameter within 4 predicted standard deviations of the truth (Monte Carlo coverage is
+  // tested in uncertainty_test); the prediction itself is tight: sigma(cx) under 1 px.
+  ASSERT_EQ(r.intrinsics_covariance.size(), 1u);
+  for (int i = 0; i < CameraModel::kNumParams; ++i) {
+    const double sigma = std::sqrt(r.intrinsics_covariance[0](i, i));
+    EXPECT_LT(std::abs(est[i] - truth[i]), 4 * sigma) << "parameter " << i << " sigma " << sigma;
+  }
+  EXPECT_LT(std::sqrt(r.intrinsics_covariance[0](2, 2)), 1.0);
+  EXPECT_TRUE(r.summary.converged) << r.summary.termination;
+  // RMS of 2D residuals of isotropic noise sigma: sigma * sqrt(2) * sqrt(1 - p / 2N).
+  EXPECT_NEAR(r.summary.rms_px, 0.2 * std::sqrt(2.0), 0.03);
+  EXPECT_NEAR(r.summary.residual_sigma_px, 0.2, 0.02);
+  EXPECT_EQ(r.summary.num_outlier_views, 0);
+  ASSERT_EQ(r.intrinsics_covariance.size(), 1u);
+  EXPECT_GT(r.intrinsics_covariance[0](0, 0), 0);
+  // Board poses agree with the truth.
+  for (size_t p = 0; p < data.rig_from_board.size(); ++p) {
+    ASSERT_TRUE(r.rig_from_board[p]);
+    EXPECT_LT((r.rig_from_board[p]->translation - data.rig_from_board[p].translation).norm(), 2.0);
+  }
+}
+
+TEST(Calibrate, HeldParametersStayHeld) {
+  const SyntheticRig rig = SyntheticRig::OneCamera();
+  const CalibrationInput input = MakeSyntheticInput(rig, 12, 0.1, 3);
+  CalibrationOptions o;
+  o.fix_aspect_ratio = true;
+  o.fix_principal_point = true;
+  o.zero_tangential = true;
+  o.fix_k3 = true;
+  const CalibrationResult r = Calibrate(input, o);
+  const auto& p = r.devices[0].model.params;
+  EXPECT_DOUBLE_EQ(p[CameraModel::kFx], p[CameraModel::kFy]);
+  EXPECT_DOUBLE_EQ(p[CameraModel::kCx], (rig.devices[0].model.width - 1) / 2.0);
+  EXPECT_DOUBLE_EQ(p[CameraModel::kCy], (rig.devices[0].model.height - 1) / 2.0);
+  EXPECT_EQ(p[CameraModel::kP1], 0.0);
+  EXPECT_EQ(p[CameraModel::kP2], 0.0);
+  EXPECT_EQ(p[CameraModel::kK3], 0.0);
+  ASSERT_EQ(r.intrinsics_covariance.size(), 1u);
+  const Matrix9d& c = r.intrinsics_covariance[0];
+  EXPECT_EQ(c(CameraModel::kCx, CameraModel::kCx), 0.0);
+  EXPECT_EQ(c(CameraModel::kK3, CameraModel::kK3), 0.0);
+  EXPECT_NEAR(c(CameraModel::kFy, CameraModel::kFy), c(CameraModel::kFx, CameraModel::kFx), 1e-12);
+}
+
+TEST(Calibrate, OutlierViewIsFlaggedAndRobustLossResistsIt) {
+  const SyntheticRig rig = SyntheticRig::OneCamera();
+  CalibrationInput input = MakeSyntheticInput(rig, 12, 0.1, 5);
+  // Corrupt view 4: a few corners off by 8 px (a mis-detection).
+  for (size_t i = 0; i < input.views[4].pixels_px.size(); i += 5) input.views[4].pixels_px[i] += Eigen::Vector2d(8, -6);
+  const CalibrationResult plain = Calibrate(input, {});
+  ASSERT_EQ(plain.summary.num_outlier_views, 1) << plain.summary.FullReport();
+  EXPECT_TRUE(plain.summary.views[4].outlier);
+  CalibrationOptions robust;
+  robust.loss = LossType::kCauchy;
+  robust.loss_scale_px = 0.5;
+  const CalibrationResult r = Calibrate(input, robust);
+  const double truth_fx = rig.devices[0].model.fx();
+  EXPECT_LT(std::abs(r.devices[0].model.fx() - truth_fx), std::abs(plain.devices[0].model.fx() - truth_fx));
+  EXPECT_NEAR(r.devices[0].model.fx() / truth_fx, 1.0, 1e-3);
+  const std::string full = r.summary.FullReport();
+  EXPECT_NE(full.find("OUTLIER"), std::string::npos) << full;
+  EXPECT_NE(r.summary.BriefReport().find("RMS"), std::string::npos);
+}
+
+TEST(Calibrate, StereoRecoversBaselineAndRelativePose) {
+  const SyntheticRig rig = SyntheticRig::Stereo();
+  const CalibrationInput input = MakeSyntheticInput(rig, 12, 0.1, 11);
+  const CalibrationResult r = Calibrate(input, {});
+  ASSERT_EQ(r.devices.size(), 2u);
+  const double baseline_true = rig.devices[1].cam_from_rig.translation.norm();
+  const double baseline = r.devices[1].cam_from_rig.translation.norm();
+  EXPECT_NEAR(baseline / baseline_true, 1.0, 5e-4);
+  EXPECT_LT(r.devices[1].cam_from_rig.rotation.angularDistance(rig.devices[1].cam_from_rig.rotation), 2e-4);
+  EXPECT_NEAR(r.devices[1].model.fx() / rig.devices[1].model.fx(), 1.0, 1e-3);
+  EXPECT_EQ(r.summary.devices.size(), 2u);
+  EXPECT_LT(r.summary.rms_px, 0.2);
+}
+
+TEST(Calibrate, BadInputsGiveClearErrors) {
+  const SyntheticRig rig = SyntheticRig::OneCamera();
+  auto expect_error = [](const CalibrationInput& in, const std::string& needle) {
+    try {
+      Calibrate(in, {});
+      ADD_FAILURE() << "no error, expected " << needle;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
+    }
+  };
+  // One view.
+  CalibrationInput one = MakeSyntheticInput(rig, 1, 0.1, 1);
+  expect_error(one, "at least 2");
+  // Collinear corners: keep only the first row of the board.
+  CalibrationInput collinear = MakeSyntheticInput(rig, 5, 0.1, 1);
+  for (auto& v : collinear.views) {
+    v.points_in_board_mm.resize(8);
+    v.pixels_px.resize(8);
+  }
+  expect_error(collinear, "collinear");
+  // Pixels outside the image (observations from a bigger camera than declared).
+  CalibrationInput mismatched = MakeSyntheticInput(rig, 5, 0.1, 1);
+  mismatched.devices[0].width /= 2;
+  mismatched.devices[0].height /= 2;
+  expect_error(mismatched, "mismatched image sizes");
+  // Point / pixel counts differ.
+  CalibrationInput counts = MakeSyntheticInput(rig, 5, 0.1, 1);
+  counts.views[2].pixels_px.pop_back();
+  expect_error(counts, "pixels");
+  // Stereo where the second camera never shares a pose with the first.
+  CalibrationInput apart = MakeSyntheticInput(SyntheticRig::Stereo(), 6, 0.1, 1);
+  for (auto& v : apart.views) {
+    if (v.device == 1) v.pose += 6;
+  }
+  apart.num_poses = 12;
+  expect_error(apart, "shares no board pose");
+  CalibrationOptions bad;
+  bad.loss_scale_px = 0;
+  EXPECT_THROW(Calibrate(MakeSyntheticInput(rig, 5, 0.1, 1), bad), Error);
+}
+
+}  // namespace
+}  // namespace slshadow
+
+// ---- Real data (../shared/data, read each folder's README.md) ----
+namespace slshadow {
+namespace {
+
+struct Detected {
+  CalibrationInput input;
+  std::vector<std::string> missed;
+};
+
+// Detects `spec` in each file; device d gets files[d], pose i is the i-th file of each list.
+Detected DetectAll(const TargetSpec& spec, const std::vector<std::vector<std::filesystem::path>>& files,
+                   const std::vector<std::string>& names) {
+  Detected out;
+  const auto board = BoardPoints(spec);
+  out.input.num_poses = static_cast<int>(files[0].size());
+  for (size_t d = 0; d < files.size(); ++d) {
+    CalibrationDevice dev;
+    dev.name = names[d];
+    for (size_t p = 0; p < files[d].size(); ++p) {
+      const TargetDetection det = DetectTargetInFile(spec, files[d][p]);
+      dev.width = det.width;
+      dev.height = det.height;
+      if (!det.found) {
+        out.missed.push_back(files[d][p].filename().string() + ": " + det.reason);
+        continue;
+      }
+      BoardView v;
+      v.device = static_cast<int>(d);
+      v.pose = static_cast<int>(p);
+      v.label = files[d][p].filename().string();
+      for (size_t i = 0; i < det.pixels_px.size(); ++i) {
+        v.points_in_board_mm.push_back(board[static_cast<size_t>(det.point_ids[i])]);
+        v.pixels_px.push_back(det.pixels_px[i]);
+      }
+      out.input.views.push_back(std::move(v));
+    }
+    out.input.devices.push_back(dev);
+  }
+  return out;
+}
+
+std::vector<std::filesystem::path> StereoFiles(const std::string& side) {
+  std::vector<std::filesystem::path> files;
+  for (int i : {1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 12, 13, 14}) {
+    char name[32];
+    std::snprintf(name, sizeof(name), "%s%02d.jpg", side.c_str(), i);
+    files.push_back(testing::SharedDataDir() / "opencv-stereo-chessboard" / name);
+  }
+  return files;
+}
+
+TEST(CalibrateRealData, OpenCvStereoChessboardLeftReproducesOpenCvsStoredResult) {
+  TargetSpec spec = LoadTargetSpec(testing::SourceDir() / "config/targets/opencv-stereo-chessboard.yaml");
+  const Detected det = DetectAll(spec, {StereoFiles("left")}, {"left"});
+  ASSERT_TRUE(det.missed.empty()) << det.missed[0];
+  CalibrationOptions o;
+  o.fix_aspect_ratio = true;  // left_intrinsics.yml: flags 2, aspectRatio 1
+  const CalibrationResult r = Calibrate(det.input, o);
+  std::printf("classic: %s\n", r.summary.FullReport().c_str());
+  const auto& p = r.devices[0].model.params;
+  std::printf("fx %.4f fy %.4f cx %.4f cy %.4f k %.5f %.5f %.7f %.8f %.5f\n", p[0], p[1], p[2], p[3], p[4], p[5], p[6],
+              p[7], p[8]);
+  // OpenCV's avg_reprojection_error is sqrt(sum |r|^2 / N), our rms_px.
+  EXPECT_NEAR(r.summary.rms_px, 0.39259, 0.0039);
+  EXPECT_NEAR(p[0], 535.9157, 0.5);
+  EXPECT_NEAR(p[1], 535.9157, 0.5);
+  EXPECT_NEAR(p[2], 342.2832, 1.0);
+  EXPECT_NEAR(p[3], 235.5708, 1.0);
+  // View 2 (left02.jpg) is the outlier at 1.18 px in OpenCV's per-view errors.
+  ASSERT_EQ(r.summary.views.size(), 13u);
+  EXPECT_NEAR(r.summary.views[1].rms_px, 1.18, 0.05);
+  EXPECT_TRUE(r.summary.views[1].outlier);
+
+  // The sector-based detector on the same images (reported, see docs/benchmarks.md).
+  spec.detector = ChessboardDetector::kSectorBased;
+  const Detected sb = DetectAll(spec, {StereoFiles("left")}, {"left"});
+  const CalibrationResult rs = Calibrate(sb.input, o);
+  std::printf("sb: %zu missed; %s\nfx %.4f cx %.4f cy %.4f\n", sb.missed.size(), rs.summary.BriefReport().c_str(),
+              rs.devices[0].model.fx(), rs.devices[0].model.cx(), rs.devices[0].model.cy());
+  EXPECT_NEAR(rs.devices[0].model.fx(), p[0], 5.0);
+}
+
+TEST(CalibrateRealData, OpenCvStereoChessboardPairs) {
+  const TargetSpec spec = LoadTargetSpec(testing::SourceDir() / "config/targets/opencv-stereo-chessboard.yaml");
+  const Detected det = DetectAll(spec, {StereoFiles("left"), StereoFiles("right")}, {"left", "right"});
+  for (const auto& m : det.missed) std::printf("missed %s\n", m.c_str());
+  CalibrationOptions o;
+  o.fix_aspect_ratio = true;
+  const CalibrationResult r = Calibrate(det.input, o);
+  std::printf("stereo: %s\n", r.summary.FullReport().c_str());
+  const Rigid3d& right_from_left = r.devices[1].cam_from_rig;
+  std::printf("baseline %.3f mm, t = %.3f %.3f %.3f\n", right_from_left.translation.norm(), right_from_left.translation.x(),
+              right_from_left.translation.y(), right_from_left.translation.z());
+  EXPECT_TRUE(r.summary.converged);
+  EXPECT_LT(r.summary.rms_px, 0.6);
+  // The right camera sits to the right of the left one: x of the left centre in the right frame < 0.
+  EXPECT_LT(right_from_left.translation.x(), 0);
+}
+
+TEST(CalibrateRealData, OpenCvCharucoTutorial) {
+  const TargetSpec spec = LoadTargetSpec(testing::SourceDir() / "config/targets/opencv-charuco-tutorial.yaml");
+  std::vector<std::filesystem::path> files;
+  for (int i = 0; i < 4; ++i) {
+    files.push_back(testing::SharedDataDir() / "opencv-charuco-tutorial" / ("img_0" + std::to_string(i) + ".jpg"));
+  }
+  const Detected det = DetectAll(spec, {files}, {"camera"});
+  ASSERT_TRUE(det.missed.empty()) << det.missed[0];
+  const CalibrationResult r = Calibrate(det.input, {});
+  std::printf("charuco: %s\nfx %.4f fy %.4f cx %.4f cy %.4f\n", r.summary.FullReport().c_str(), r.devices[0].model.fx(),
+              r.devices[0].model.fy(), r.devices[0].model.cx(), r.devices[0].model.cy());
+  EXPECT_NEAR(r.devices[0].model.fx() / 452.5107, 1.0, 0.01);
+  EXPECT_NEAR(r.devices[0].model.fy() / 456.7671, 1.0, 0.01);
+}
+
+TEST(CalibrateRealData, KaminoCameraFromWhiteFrames) {
+  const TargetSpec spec = LoadTargetSpec(testing::SourceDir() / "config/targets/kamino-procam-graycode.yaml");
+  std::vector<std::filesystem::path> files;
+  for (int i = 0; i < 5; ++i) {
+    files.push_back(testing::SharedDataDir() / "kamino-procam-graycode" / ("capture_" + std::to_string(i)) / "graycode_40.png");
+  }
+  const Detected det = DetectAll(spec, {files}, {"camera"});
+  ASSERT_TRUE(det.missed.empty()) << det.missed[0];
+  const CalibrationResult r = Calibrate(det.input, {});
+  std::printf("kamino camera: %s\nfx %.4f fy %.4f cx %.4f cy %.4f\n", r.summary.BriefReport().c_str(),
+              r.devices[0].model.fx(), r.devices[0].model.fy(), r.devices[0].model.cx(), r.devices[0].model.cy());
+  // Both upstream results: camera fx 3452.39 (README.md).
+  EXPECT_NEAR(r.devices[0].model.fx() / 3452.39, 1.0, 0.001);
+  EXPECT_NEAR(r.devices[0].model.fy() / 3449.92, 1.0, 0.001);
+}
+
+}  // namespace
+}  // namespace slshadow
