@@ -1,0 +1,60 @@
+// Generate the projector images of a PatternSpec, and decode camera images of them into a
+// ProjectorMap (per camera pixel: projector coordinate, status reason, quality).
+//
+// Decoding rules (exact formulas in docs/formats.md, "Pattern spec"); all levels are grey levels
+// of the input images, thresholds are given on an 8-bit scale and multiplied by full_scale / 255:
+//   Gray-code bit:  bit = P > I for the pattern / inverse pair (P, I): a per-pixel threshold
+//                   that needs no global level; the bit contrast is |P - I|.
+//   Phase (N-step): S = sum_n I_n sin(2 pi n / N), C = sum_n I_n cos(2 pi n / N),
+//                   phase = atan2(S, C) in [0, 2 pi), modulation B' = (2 / N) sqrt(S^2 + C^2).
+//   Status, first that applies: saturated (any frame read >= saturation_level), shadow (Gray
+//   code: white - black < shadow_threshold; phase codecs: 2 B' < shadow_threshold), low contrast
+//   (Gray code: smallest bit contrast < contrast_threshold; phase shift: second-smallest bit
+//   contrast, since one bit at a code edge is tolerated by the complementary unwrapping), code
+//   error (code out of range, coordinate outside [-1, S], heterodyne residual > tolerance).
+//   Quality: Gray code: smallest bit contrast; phase codecs: smallest modulation B'.
+#pragma once
+
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "core/projector_map.h"
+#include "patterns/pattern_spec.h"
+
+namespace slshadow {
+
+// The projector images of `spec`, in projection order (spec.Frames()), each CV_8UC1 of
+// projector_height x projector_width. Calls spec.Check().
+std::vector<cv::Mat> GeneratePatterns(const PatternSpec& spec);
+
+struct DecodeOptions {
+  // Minimum lit range (white - black, or fringe peak-to-peak 2 B'), 8-bit grey levels.
+  double shadow_threshold = 12;
+  // Minimum Gray-code bit contrast |pattern - inverse|, 8-bit grey levels.
+  double contrast_threshold = 4;
+  // A pixel with a frame at or above this level is saturated; -1: full_scale.
+  int saturation_level = -1;
+  // The input's full scale, -1: auto (255 for CV_8U, 65535 for CV_16U). Set 4095 for 12-bit
+  // data in 16-bit images. Thresholds are multiplied by full_scale / 255.
+  int full_scale = -1;
+  // Multi-frequency: largest accepted rounding residual of each unwrapping step, in cycles.
+  double unwrap_tolerance_cycles = 0.3;
+  // Decode rows in parallel (cv::parallel_for_).
+  bool parallel = true;
+
+  // Throws slshadow::Error naming the field of the first violated constraint.
+  void Check() const;
+};
+
+// Decodes one camera's images of `spec` (spec.NumImages() images in spec order, all CV_8UC1 or
+// all CV_16UC1, of one size) into a ProjectorMap of the camera's size. Throws slshadow::Error on
+// a bad spec, options, image count, type or size. Undecodable pixels are a status, not an error.
+ProjectorMap DecodePatterns(const PatternSpec& spec, const std::vector<cv::Mat>& camera_images,
+                            const DecodeOptions& options = {});
+
+// A fast atan2 in cycles: atan2(y, x) / (2 pi) wrapped to [0, 1); absolute error < 2e-6 cycles.
+// Exposed for tests.
+float Atan2Cycles(float y, float x);
+
+}  // namespace slshadow

@@ -1,0 +1,187 @@
+#include "patterns/pattern_spec.h"
+
+#include <gtest/gtest.h>
+
+#include "core/config.h"
+#include "core/error.h"
+#include "core/file_util.h"
+#include "tests/testing/temp_dir.h"
+
+namespace slshadow {
+namespace {
+
+PatternSpec Gray(int w, int h) {
+  PatternSpec s;
+  s.kind = PatternKind::kGrayCode;
+  s.projector_width = w;
+  s.projector_height = h;
+  return s;
+}
+
+TEST(PatternSpec, GrayCodeLayoutMatchesOpenCvOrder) {
+  PatternSpec s = Gray(1024, 768);
+  s.opencv_order = true;
+  s.Check();
+  EXPECT_EQ(s.GrayBits(0), 10);
+  EXPECT_EQ(s.GrayBits(1), 10);
+  ASSERT_EQ(s.NumImages(), 42);
+  const auto frames = s.Frames();
+  // Index 2m is column bit 9 - m, 2m + 1 its inverse; rows from 20; white 40, black 41.
+  for (int m = 0; m < 10; ++m) {
+    EXPECT_EQ(frames[2 * m].role, FrameRole::kGrayBit);
+    EXPECT_EQ(frames[2 * m].axis, 0);
+    EXPECT_EQ(frames[2 * m].bit, 9 - m);
+    EXPECT_EQ(frames[2 * m + 1].role, FrameRole::kGrayBitInverse);
+    EXPECT_EQ(frames[20 + 2 * m].axis, 1);
+    EXPECT_EQ(frames[20 + 2 * m].bit, 9 - m);
+  }
+  EXPECT_EQ(s.WhiteFrameIndex(), 40);
+  EXPECT_EQ(s.BlackFrameIndex(), 41);
+  EXPECT_EQ(frames[40].Name(), "white");
+  EXPECT_EQ(frames[1].Name(), "gray_x_bit9_inv");
+}
+
+TEST(PatternSpec, NativeOrderAndBitCounts) {
+  PatternSpec s = Gray(1280, 800);
+  s.code_y = false;
+  EXPECT_EQ(s.GrayBits(0), 11);  // 1024 < 1280 <= 2048
+  EXPECT_EQ(s.NumImages(), 2 + 22);
+  EXPECT_EQ(s.WhiteFrameIndex(), 0);
+  EXPECT_EQ(s.BlackFrameIndex(), 1);
+  EXPECT_EQ(Gray(2, 2).GrayBits(0), 1);
+  EXPECT_EQ(Gray(1025, 2).GrayBits(0), 11);
+
+  PatternSpec p = s;
+  p.kind = PatternKind::kPhaseShift;
+  p.code_y = true;
+  p.phase_steps = 4;
+  p.period_px = 16;
+  // x: h = floor(2 * 1279 / 16) = 159 -> 160 codes -> 8 bits; y: floor(2 * 799 / 16) = 99 -> 7 bits.
+  EXPECT_EQ(p.GrayBits(0), 8);
+  EXPECT_EQ(p.GrayBits(1), 7);
+  EXPECT_EQ(p.NumImages(), (4 + 16) + (4 + 14));
+  EXPECT_EQ(p.WhiteFrameIndex(), -1);
+  EXPECT_EQ(p.Frames()[4].role, FrameRole::kGrayBit);
+  EXPECT_EQ(p.Frames()[4].bit, 7);
+
+  PatternSpec m = p;
+  m.kind = PatternKind::kMultiFrequency;
+  m.periods_px = {1280.0 / 70, 1280.0 / 64, 1280.0 / 59};
+  m.Check();
+  EXPECT_NEAR(m.BeatPeriod12Px(), 1280.0 / 6, 1e-9);
+  EXPECT_NEAR(m.BeatPeriod23Px(), 1280.0 / 5, 1e-9);
+  EXPECT_NEAR(m.BeatPeriod123Px(), 1280.0, 1e-6);
+  EXPECT_EQ(m.NumImages(), 2 * 3 * 4);
+  EXPECT_EQ(m.GrayBits(0), 0);
+}
+
+TEST(PatternSpec, CheckNamesTheField) {
+  const auto message = [](const PatternSpec& s) {
+    try {
+      s.Check();
+    } catch (const Error& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  PatternSpec s = Gray(1, 768);
+  EXPECT_NE(message(s).find("projector_width"), std::string::npos);
+  s = Gray(64, 64);
+  s.code_x = s.code_y = false;
+  EXPECT_NE(message(s).find("code_x"), std::string::npos);
+  s = Gray(64, 64);
+  s.code_y = false;
+  s.opencv_order = true;
+  EXPECT_NE(message(s).find("opencv_order"), std::string::npos);
+  s = Gray(64, 64);
+  s.intensity_max = s.intensity_min;
+  EXPECT_NE(message(s).find("intensity_max"), std::string::npos);
+  s = Gray(64, 64);
+  s.kind = PatternKind::kPhaseShift;
+  s.phase_steps = 2;
+  EXPECT_NE(message(s).find("phase_steps"), std::string::npos);
+  s.phase_steps = 3;
+  s.period_px = 3;
+  EXPECT_NE(message(s).find("period_px"), std::string::npos);
+  s.kind = PatternKind::kMultiFrequency;
+  s.periods_px = {16, 18};
+  EXPECT_NE(message(s).find("periods_px"), std::string::npos);
+  s.periods_px = {18, 16, 21};
+  EXPECT_NE(message(s).find("increasing"), std::string::npos);
+  s.projector_width = 1280;
+  s.periods_px = {16, 18, 21};  // P12 = 144 > P23 = 126
+  EXPECT_NE(message(s).find("beat of P1, P2"), std::string::npos);
+  s.periods_px = {10, 12, 14};  // P12 = 60, P23 = 84, P123 = 210 < 1280
+  EXPECT_NE(message(s).find("P123"), std::string::npos);
+}
+
+TEST(PatternSpec, JsonRoundTripForEveryKind) {
+  PatternSpec g = Gray(1024, 768);
+  g.opencv_order = true;
+  PatternSpec p = Gray(1280, 800);
+  p.kind = PatternKind::kPhaseShift;
+  p.phase_steps = 5;
+  p.period_px = 19.5;
+  p.code_y = false;
+  p.intensity_min = 10;
+  p.intensity_max = 240;
+  PatternSpec m = Gray(1280, 800);
+  m.kind = PatternKind::kMultiFrequency;
+  m.periods_px = {1280.0 / 70, 1280.0 / 64, 1280.0 / 59};
+  for (const PatternSpec& s : {g, p, m}) {
+    const nlohmann::json j = PatternSpecToJson(s);
+    const PatternSpec back = PatternSpecFromConfig(ConfigNode::FromJson(j, "spec.json"));
+    EXPECT_EQ(PatternSpecToJson(back), j);
+    EXPECT_EQ(back.NumImages(), s.NumImages());
+    EXPECT_EQ(j["num_images"], s.NumImages());
+    // Nested under "patterns", as in an ImageSet manifest.
+    nlohmann::json manifest;
+    manifest["patterns"] = j;
+    manifest["version"] = 1;
+    EXPECT_EQ(PatternSpecToJson(PatternSpecFromConfig(ConfigNode::FromJson(manifest, "manifest.json"))), j);
+  }
+}
+
+TEST(PatternSpec, ConfigErrorsNameFileFieldAndValue) {
+  const auto message = [](const std::string& yaml) {
+    try {
+      PatternSpecFromConfig(ConfigNode::ParseYaml(yaml, "p.yaml"));
+    } catch (const Error& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  EXPECT_NE(message("kind: stripes\nprojector_width: 64\nprojector_height: 64\n").find("p.yaml: kind"),
+            std::string::npos);
+  EXPECT_NE(message("kind: gray_code\nprojector_width: 64\n").find("projector_height: missing"), std::string::npos);
+  EXPECT_NE(message("kind: gray_code\nprojector_width: 64\nprojector_height: 64\nperiod_px: 16\n").find("period_px"),
+            std::string::npos);
+  EXPECT_NE(message("kind: phase_shift\nprojector_width: 64\nprojector_height: 64\nperiod_px: 2\n").find(
+                "p.yaml: pattern spec: period_px"),
+            std::string::npos);
+  EXPECT_NE(message("kind: gray_code\nprojector_width: 64\nprojector_height: 64\nnum_images: 3\n").find(
+                "num_images"),
+            std::string::npos);
+  EXPECT_EQ(message("kind: gray_code\nprojector_width: 64\nprojector_height: 64\nnum_images: 26\n"), "");
+}
+
+TEST(PatternSpec, ShippedExampleConfigsLoad) {
+  const PatternSpec kamino = LoadPatternSpec(testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml");
+  EXPECT_EQ(kamino.kind, PatternKind::kGrayCode);
+  EXPECT_TRUE(kamino.opencv_order);
+  EXPECT_EQ(kamino.NumImages(), 42);
+  const PatternSpec phase = LoadPatternSpec(testing::SourceDir() / "config/patterns/graycode_phase.yaml");
+  EXPECT_EQ(phase.kind, PatternKind::kPhaseShift);
+  EXPECT_EQ(phase.projector_width, 1280);
+  EXPECT_EQ(phase.projector_height, 800);
+  EXPECT_TRUE(phase.code_x && phase.code_y);
+  const PatternSpec multi = LoadPatternSpec(testing::SourceDir() / "config/patterns/multi_frequency.yaml");
+  EXPECT_EQ(multi.kind, PatternKind::kMultiFrequency);
+
+  testing::TempDir dir;
+  WriteTextFileAtomically(dir / "spec.json", PatternSpecToJson(phase).dump(2));
+  EXPECT_EQ(PatternSpecToJson(LoadPatternSpec(dir / "spec.json")), PatternSpecToJson(phase));
+}
+
+}  // namespace
+}  // namespace slshadow
