@@ -28,7 +28,8 @@ struct Frame {
   Eigen::Matrix3d axes;
 };
 
-Frame PcaFrame(const std::vector<Eigen::Vector3d>& pts, const std::vector<Neighbor>& nn) {
+Frame PcaFrame(const std::vector<Eigen::Vector3d>& pts, const std::vector<Neighbor>& nn,
+               bool fast = false) {
   Eigen::Vector3d c = Eigen::Vector3d::Zero();
   for (const auto& n : nn) c += pts[n.index];
   c /= static_cast<double>(nn.size());
@@ -37,7 +38,14 @@ Frame PcaFrame(const std::vector<Eigen::Vector3d>& pts, const std::vector<Neighb
     const Eigen::Vector3d d = pts[n.index] - c;
     cov += d * d.transpose();
   }
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
+  // The closed form is ~5x faster and accurate to ~1e-9 on the normal: enough for normals,
+  // not for the local models whose distances tests compare at 1e-12.
+  if (fast) {
+    eig.computeDirect(cov);
+  } else {
+    eig.compute(cov);
+  }
   return {c, eig.eigenvectors()};
 }
 
@@ -163,7 +171,7 @@ std::vector<Eigen::Vector3d> EstimateNormals(const std::vector<Eigen::Vector3d>&
     thread_local std::vector<Neighbor> nn;
     tree.KNearest(queries[i], k, &nn);
     Eigen::Vector3d n = Eigen::Vector3d::UnitZ();
-    if (nn.size() >= 3) n = PcaFrame(pts, nn).axes.col(0);
+    if (nn.size() >= 3) n = PcaFrame(pts, nn, /*fast=*/true).axes.col(0);
     const Eigen::Vector3d toward = hints.empty() ? Eigen::Vector3d(viewpoint - queries[i]) : hints[i];
     if (n.dot(toward) < 0) n = -n;
     normals[i] = n;

@@ -5,6 +5,8 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <limits>
+#include <random>
 #include <unordered_map>
 
 #include <Eigen/Cholesky>
@@ -12,7 +14,6 @@
 #include <pcl/features/fpfh_omp.h>
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
-#include <pcl/registration/sample_consensus_prerejective.h>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_reduce.h>
 
@@ -59,6 +60,7 @@ std::vector<Eigen::Vector3d> VoxelDownsample(const std::vector<Eigen::Vector3d>&
 
 using PointT = pcl::PointNormal;
 using FeatureT = pcl::FPFHSignature33;
+constexpr int kDim = 33;  // FPFH histogram length
 
 pcl::PointCloud<PointT>::Ptr ToPcl(const std::vector<Eigen::Vector3d>& pts,
                                    const std::vector<Eigen::Vector3d>& normals) {
@@ -92,6 +94,132 @@ struct GlobalResult {
   double fitness = 0;
 };
 
+// Mutual nearest neighbours in FPFH space (33-D, L2), by brute force over the voxel clouds'
+// features (a few thousand each): pairs (source index, target index). Falls back to one-way
+// nearest neighbours when fewer than 30 pairs are mutual.
+std::vector<std::pair<uint32_t, uint32_t>> MatchFeatures(const pcl::PointCloud<FeatureT>& src,
+                                                         const pcl::PointCloud<FeatureT>& dst) {
+  using Mat = Eigen::Matrix<float, Eigen::Dynamic, kDim, Eigen::RowMajor>;
+  auto to_mat = [](const pcl::PointCloud<FeatureT>& f) {
+    Mat m(static_cast<long>(f.size()), kDim);
+    for (size_t i = 0; i < f.size(); ++i)
+      for (int k = 0; k < kDim; ++k) m(static_cast<long>(i), k) = std::isfinite(f[i].histogram[k]) ? f[i].histogram[k] : 0.f;
+    return m;
+  };
+  const Mat a = to_mat(src), b = to_mat(dst);
+  const Eigen::VectorXf an = a.rowwise().squaredNorm(), bn = b.rowwise().squaredNorm();
+  std::vector<uint32_t> best_ab(static_cast<size_t>(a.rows())), best_ba(static_cast<size_t>(b.rows()));
+  std::vector<float> dist_ba(static_cast<size_t>(b.rows()), std::numeric_limits<float>::max());
+  std::vector<float> dist_ab(static_cast<size_t>(a.rows()));
+  constexpr long kBlock = 256;
+  for (long r0 = 0; r0 < a.rows(); r0 += kBlock) {
+    const long rows = std::min(kBlock, a.rows() - r0);
+    // |a - b|^2 = |a|^2 + |b|^2 - 2 a.b, a block of rows at a time.
+    const Eigen::MatrixXf d = (-2.0f * (a.middleRows(r0, rows) * b.transpose())).rowwise() + bn.transpose();
+    for (long i = 0; i < rows; ++i) {
+      long j = 0;
+      const float di = d.row(i).minCoeff(&j) + an[r0 + i];
+      best_ab[static_cast<size_t>(r0 + i)] = static_cast<uint32_t>(j);
+      dist_ab[static_cast<size_t>(r0 + i)] = di;
+      for (long k = 0; k < d.cols(); ++k) {
+        const float v = d(i, k) + an[r0 + i];
+        if (v < dist_ba[static_cast<size_t>(k)]) {
+          dist_ba[static_cast<size_t>(k)] = v;
+          best_ba[static_cast<size_t>(k)] = static_cast<uint32_t>(r0 + i);
+        }
+      }
+    }
+  }
+  std::vector<std::pair<uint32_t, uint32_t>> mutual, oneway;
+  for (size_t i = 0; i < best_ab.size(); ++i) {
+    oneway.emplace_back(static_cast<uint32_t>(i), best_ab[i]);
+    if (best_ba[best_ab[i]] == i) mutual.emplace_back(static_cast<uint32_t>(i), best_ab[i]);
+  }
+  return mutual.size() >= 30 ? mutual : oneway;
+}
+
+// Least-squares rigid transform dst ~ R src + t (Kabsch / Umeyama without scale).
+Rigid3d Kabsch(const std::vector<Eigen::Vector3d>& s, const std::vector<Eigen::Vector3d>& d) {
+  Eigen::Matrix3Xd a(3, static_cast<long>(s.size())), b(3, static_cast<long>(d.size()));
+  for (size_t i = 0; i < s.size(); ++i) {
+    a.col(static_cast<long>(i)) = s[i];
+    b.col(static_cast<long>(i)) = d[i];
+  }
+  const Eigen::Matrix4d m = Eigen::umeyama(a, b, false);
+  return Rigid3d::FromMatrix(m);
+}
+
+// RANSAC over feature correspondences with edge-length prerejection (Buch et al. 2013: a
+// 3-sample whose pairwise distances differ by more than 10 % between the clouds is rejected
+// before any pose is computed), adaptive iteration count for 99.9 % confidence, final
+// least-squares fit on the inliers.
+GlobalResult RansacOnCorrespondences(const std::vector<Eigen::Vector3d>& src,
+                                     const std::vector<Eigen::Vector3d>& dst,
+                                     const std::vector<std::pair<uint32_t, uint32_t>>& corr,
+                                     double inlier_mm, const RegistrationOptions& o) {
+  GlobalResult g;
+  std::mt19937 rng(o.seed);
+  std::uniform_int_distribution<size_t> pick(0, corr.size() - 1);
+  const double thr2 = inlier_mm * inlier_mm;
+  size_t best_inliers = 0;
+  Rigid3d best;
+  long needed = o.ransac_iterations;
+  auto count_inliers = [&](const Rigid3d& t) {
+    size_t n = 0;
+    for (const auto& [i, j] : corr) n += (t * src[i] - dst[j]).squaredNorm() < thr2 ? 1 : 0;
+    return n;
+  };
+  for (long it = 0; it < needed && it < o.ransac_iterations; ++it) {
+    const size_t k0 = pick(rng), k1 = pick(rng), k2 = pick(rng);
+    if (k0 == k1 || k1 == k2 || k0 == k2) continue;
+    const size_t ks[3] = {k0, k1, k2};
+    bool ok = true;
+    for (int x = 0; x < 3 && ok; ++x) {
+      const auto& p = corr[ks[x]];
+      const auto& q = corr[ks[(x + 1) % 3]];
+      const double ls = (src[p.first] - src[q.first]).norm();
+      const double ld = (dst[p.second] - dst[q.second]).norm();
+      if (ls < 2 * inlier_mm || std::abs(ls - ld) > 0.1 * std::max(ls, ld)) ok = false;
+    }
+    if (!ok) continue;
+    std::vector<Eigen::Vector3d> s3, d3;
+    for (size_t k : ks) {
+      s3.push_back(src[corr[k].first]);
+      d3.push_back(dst[corr[k].second]);
+    }
+    const Rigid3d t = Kabsch(s3, d3);
+    const size_t n = count_inliers(t);
+    if (n > best_inliers) {
+      best_inliers = n;
+      best = t;
+      const double w = static_cast<double>(n) / static_cast<double>(corr.size());
+      const double denom = std::log(std::max(1e-12, 1.0 - w * w * w));
+      needed = std::max<long>(1000, static_cast<long>(std::ceil(std::log(1e-3) / denom)));
+    }
+  }
+  if (best_inliers < 3) return g;
+  // Refine on the inliers (twice: the refined pose may admit a few more).
+  for (int pass = 0; pass < 2; ++pass) {
+    std::vector<Eigen::Vector3d> s, d;
+    for (const auto& [i, j] : corr) {
+      if ((best * src[i] - dst[j]).squaredNorm() < thr2) {
+        s.push_back(src[i]);
+        d.push_back(dst[j]);
+      }
+    }
+    if (s.size() >= 3) best = Kabsch(s, d);
+  }
+  // Accept when enough of the voxel cloud lands on the target.
+  const KdTree tree(dst);
+  size_t on = 0;
+  Neighbor nb;
+  for (const auto& p : src) on += tree.Nearest(best * p, &nb, inlier_mm) ? 1 : 0;
+  g.fitness = static_cast<double>(on) / static_cast<double>(src.size());
+  g.found = g.fitness >= o.ransac_inlier_fraction;
+  g.reference_from_cloud = best;
+  return g;
+}
+
 GlobalResult GlobalAlign(const std::vector<Eigen::Vector3d>& cloud,
                          const std::vector<Eigen::Vector3d>& reference, double voxel,
                          double feature_radius, const RegistrationOptions& o) {
@@ -111,25 +239,9 @@ GlobalResult GlobalAlign(const std::vector<Eigen::Vector3d>& cloud,
   const auto src_f = Fpfh(src_pcl, feature_radius);
   const auto dst_f = Fpfh(dst_pcl, feature_radius);
 
-  pcl::SampleConsensusPrerejective<PointT, PointT, FeatureT> align;
-  align.setInputSource(src_pcl);
-  align.setSourceFeatures(src_f);
-  align.setInputTarget(dst_pcl);
-  align.setTargetFeatures(dst_f);
-  align.setMaximumIterations(o.ransac_iterations);
-  align.setNumberOfSamples(3);
-  align.setCorrespondenceRandomness(3);
-  align.setSimilarityThreshold(0.9f);
-  align.setMaxCorrespondenceDistance(static_cast<float>(1.5 * voxel));
-  align.setInlierFraction(static_cast<float>(o.ransac_inlier_fraction));
-  std::srand(o.seed);  // PCL draws its samples with rand()
-  pcl::PointCloud<PointT> aligned;
-  align.align(aligned);
-  if (!align.hasConverged()) return g;
-  const Eigen::Matrix4d m = align.getFinalTransformation().cast<double>();
-  g.found = true;
-  g.reference_from_cloud = Rigid3d::FromMatrix(m);
-  g.fitness = static_cast<double>(align.getInliers().size()) / static_cast<double>(src.size());
+  const auto corr = MatchFeatures(*src_f, *dst_f);
+  if (corr.size() < 3) return g;
+  g = RansacOnCorrespondences(src, dst, corr, 1.5 * voxel, o);
   return g;
 }
 
