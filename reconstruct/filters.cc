@@ -4,6 +4,7 @@
 #include <atomic>
 #include <cmath>
 
+#include <Eigen/Geometry>
 #include <opencv2/core.hpp>
 
 namespace slshadow {
@@ -80,7 +81,8 @@ int64_t FilterDepthDiscontinuities(DenseGrid& grid, double max_jump_footprints, 
   return rejected.load();
 }
 
-int64_t FilterStatisticalOutliers(DenseGrid& grid, int window_radius_px, int neighbors, double std_ratio) {
+int64_t FilterStatisticalOutliers(DenseGrid& grid, int window_radius_px, int neighbors, double std_ratio,
+                                  double min_distance_footprints) {
   const int w = grid.width, h = grid.height, r = std::max(1, window_radius_px);
   const int k = std::max(1, neighbors);
   const double inf = std::numeric_limits<double>::infinity();
@@ -125,7 +127,7 @@ int64_t FilterStatisticalOutliers(DenseGrid& grid, int window_radius_px, int nei
   }
   const double mean = n > 0 ? sum / static_cast<double>(n) : 0.0;
   const double var = n > 1 ? std::max(0.0, (sum2 - sum * mean) / static_cast<double>(n - 1)) : 0.0;
-  const double limit = mean + std_ratio * std::sqrt(var);
+  const double limit = std::max(mean + std_ratio * std::sqrt(var), min_distance_footprints);
   int64_t rejected = 0;
   for (size_t i = 0; i < score.size(); ++i) {
     if (score[i] >= 0 && score[i] > limit) {

@@ -71,7 +71,7 @@ void Finish(const ReconstructOptions& options, Reconstruction* out) {
   }
   if (options.filter_outliers) {
     FilterStatisticalOutliers(grid, options.outlier_window_radius_px, options.outlier_neighbors,
-                              options.outlier_std_ratio);
+                              options.outlier_std_ratio, options.outlier_min_distance_footprints);
   }
   s.filter_s = Seconds(t0);
   t0 = Clock::now();
@@ -108,6 +108,8 @@ void ReconstructOptions::Check() const {
   auto fail = [](const std::string& field, const std::string& rule, double value) {
     SLSHADOW_THROW("reconstruct options: ", field, ": ", rule, " (got ", value, ")");
   };
+  if (!(reference_noise_ratio > 0) || !std::isfinite(reference_noise_ratio))
+    fail("reference_noise_ratio", "must be finite and positive", reference_noise_ratio);
   if (!(min_depth_mm > 0)) fail("min_depth_mm", "must be positive", min_depth_mm);
   if (!(max_depth_mm > min_depth_mm)) fail("max_depth_mm", "must exceed min_depth_mm", max_depth_mm);
   if (!(min_triangulation_angle_deg >= 0 && min_triangulation_angle_deg < 90))
@@ -124,11 +126,14 @@ void ReconstructOptions::Check() const {
   if (outlier_neighbors < 1 || outlier_neighbors > (2 * outlier_window_radius_px + 1) * (2 * outlier_window_radius_px + 1) - 1)
     fail("outlier_neighbors", "must be in [1, (2 r + 1)^2 - 1] for the window radius r", outlier_neighbors);
   if (!(outlier_std_ratio > 0) || !std::isfinite(outlier_std_ratio)) fail("outlier_std_ratio", "must be finite and positive", outlier_std_ratio);
+  if (!(outlier_min_distance_footprints >= 0) || !std::isfinite(outlier_min_distance_footprints))
+    fail("outlier_min_distance_footprints", "must be finite and >= 0", outlier_min_distance_footprints);
 }
 
 nlohmann::json ReconstructOptions::ToJson() const {
   auto num = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json("inf"); };
   return {{"method", ToString(method)},
+          {"reference_noise_ratio", reference_noise_ratio},
           {"min_depth_mm", min_depth_mm},
           {"max_depth_mm", max_depth_mm},
           {"min_triangulation_angle_deg", min_triangulation_angle_deg},
@@ -143,6 +148,7 @@ nlohmann::json ReconstructOptions::ToJson() const {
           {"outlier_window_radius_px", outlier_window_radius_px},
           {"outlier_neighbors", outlier_neighbors},
           {"outlier_std_ratio", outlier_std_ratio},
+          {"outlier_min_distance_footprints", outlier_min_distance_footprints},
           {"estimate_normals", estimate_normals}};
 }
 
@@ -261,7 +267,7 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
   t0 = Clock::now();
   const TriangulationView cam_view(cam.cam_from_rig, FocalOf(cam.model));
   const TriangulationView proj_view(proj.cam_from_rig, FocalOf(proj.model));
-  const TwoViewTriangulator tri(cam_view, proj_view);
+  const TwoViewTriangulator tri(cam_view, proj_view, options.reference_noise_ratio, 1.0);
   DenseGrid& grid = out.grid;
   grid.Allocate(cam.model.width, cam.model.height);
   grid.viewpoint_in_rig = cam_view.center_in_rig;
@@ -318,12 +324,12 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
           double sin_angle = 0;
           const auto p = TriangulateRayAxis(cam_view.center_in_rig, cam_view.RayInRig(xy), proj.model, proj_view, axis,
                                             axis == 0 ? px : py, &sin_angle);
-          if (!p) {
-            reason = Code(RejectReason::kNoRay);
-            continue;
-          }
           if (!(sin_angle >= sin_min)) {
             reason = Code(RejectReason::kParallelRays);
+            continue;
+          }
+          if (!p) {
+            reason = Code(RejectReason::kNoRay);
             continue;
           }
           point = *p;
@@ -392,7 +398,7 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
   t0 = Clock::now();
   const TriangulationView view0(rect.RectCamFromRig(0), rect.focal_px);
   const TriangulationView view1(rect.RectCamFromRig(1), rect.focal_px);
-  const TwoViewTriangulator tri(view0, view1);
+  const TwoViewTriangulator tri(view0, view1, options.reference_noise_ratio, 1.0);
   DenseGrid& grid = out.grid;
   grid.Allocate(lm.width, lm.height);
   grid.reason = matches.reason;

@@ -34,6 +34,10 @@ struct ReconstructOptions {
   // Two-view solver (camera-projector with both axes coded, and stereo). With one coded projector
   // axis the exact ray-surface solve is used whatever the method.
   TriangulationMethod method = TriangulationMethod::kMidpoint;
+  // Noise of the reference pixel position relative to that of the matched coordinate (sigma ratio,
+  // > 0), used by the optimal method only. The reference pixel (camera pixel, rectified left cell) is
+  // exact and the decoded / matched coordinate carries the noise, hence small.
+  double reference_noise_ratio = 0.01;
   // Depth gate along the reference camera's optical axis (rectified axis in stereo), mm.
   double min_depth_mm = 50;
   double max_depth_mm = 5000;
@@ -60,6 +64,7 @@ struct ReconstructOptions {
   int outlier_window_radius_px = 2;
   int outlier_neighbors = 8;
   double outlier_std_ratio = 4.0;
+  double outlier_min_distance_footprints = 3.0;
   // Normals from the organised grid, oriented toward the reference camera.
   bool estimate_normals = true;
 
@@ -83,6 +88,10 @@ ResidualStats ComputeResidualStats(std::vector<float>& values);
 struct ReconstructSummary {
   ReconstructMode mode = ReconstructMode::kProjector;
   TriangulationMethod method = TriangulationMethod::kMidpoint;
+  // Noise of the reference pixel position relative to that of the matched coordinate (sigma ratio,
+  // > 0), used by the optimal method only. The reference pixel (camera pixel, rectified left cell) is
+  // exact and the decoded / matched coordinate carries the noise, hence small.
+  double reference_noise_ratio = 0.01;
   std::string camera;        // reference camera
   std::string other_device;  // "projector" or the right camera
   int grid_width = 0, grid_height = 0;  // reference grid (camera image, or rectified left image)

@@ -40,8 +40,12 @@ Eigen::Matrix3d Skew(const Eigen::Vector3d& v) {
 
 }  // namespace
 
-TwoViewTriangulator::TwoViewTriangulator(const TriangulationView& view0, const TriangulationView& view1)
+TwoViewTriangulator::TwoViewTriangulator(const TriangulationView& view0, const TriangulationView& view1,
+                                         double sigma0_px, double sigma1_px)
     : view0_(view0), view1_(view1) {
+  SLSHADOW_CHECK(sigma0_px > 0 && sigma1_px > 0);
+  scale0_ = view0.focal_px / sigma0_px;
+  scale1_ = view1.focal_px / sigma1_px;
   // cam1_from_cam0: X1 = R X0 + t; essential x1^T [t]x R x0 = 0, so x0^T ([t]x R)^T x1 = 0.
   const Eigen::Matrix3d r = view1.cam_from_rig_rotation * view0.cam_from_rig_rotation.transpose();
   const Eigen::Vector3d t = view1.cam_from_rig_translation - r * view0.cam_from_rig_translation;
@@ -49,6 +53,9 @@ TwoViewTriangulator::TwoViewTriangulator(const TriangulationView& view0, const T
   const Eigen::Vector3d k0inv(1.0 / view0.focal_px, 1.0 / view0.focal_px, 1.0);
   const Eigen::Vector3d k1inv(1.0 / view1.focal_px, 1.0 / view1.focal_px, 1.0);
   fundamental_ = k0inv.asDiagonal() * essential01 * k1inv.asDiagonal();
+  const Eigen::Vector3d w0inv(1.0 / scale0_, 1.0 / scale0_, 1.0);
+  const Eigen::Vector3d w1inv(1.0 / scale1_, 1.0 / scale1_, 1.0);
+  weighted_fundamental_ = w0inv.asDiagonal() * essential01 * w1inv.asDiagonal();
   proj0_.leftCols<3>() = view0.cam_from_rig_rotation;
   proj0_.col(3) = view0.cam_from_rig_translation;
   proj1_.leftCols<3>() = view1.cam_from_rig_rotation;
@@ -111,11 +118,11 @@ std::optional<Eigen::Vector3d> TwoViewTriangulator::Dlt(const Eigen::Vector2d& x
 
 bool TwoViewTriangulator::CorrectNiter2(const Eigen::Vector2d& xy0, const Eigen::Vector2d& xy1,
                                         Eigen::Vector2d* corrected0, Eigen::Vector2d* corrected1) const {
-  // Lindstrom 2010, algorithm niter2, with x = view 0 and x' = view 1 in pixel-scaled coordinates.
-  const double f0 = view0_.focal_px, f1 = view1_.focal_px;
+  // Lindstrom 2010, algorithm niter2, with x = view 0 and x' = view 1 in noise-scaled coordinates.
+  const double f0 = scale0_, f1 = scale1_;
   const Eigen::Vector3d x(f0 * xy0.x(), f0 * xy0.y(), 1.0);
   const Eigen::Vector3d xp(f1 * xy1.x(), f1 * xy1.y(), 1.0);
-  const Eigen::Matrix3d& e = fundamental_;
+  const Eigen::Matrix3d& e = weighted_fundamental_;
   const Eigen::Matrix2d e_tilde = e.topLeftCorner<2, 2>();
   Eigen::Vector2d n = (e * xp).head<2>();
   Eigen::Vector2d np = (e.transpose() * x).head<2>();
@@ -175,6 +182,13 @@ std::optional<Eigen::Vector3d> TriangulateRayAxis(const Eigen::Vector3d& center_
   const double m = (proj_coord_px - c) / f;
   const double denom = b[axis] - m * b.z();
   if (!(std::abs(denom) > 1e-300)) return std::nullopt;
+  if (sin_angle) {
+    // The undistorted plane's normal (e_axis - m e_z); refined at the solution below.
+    Eigen::Vector3d n = Eigen::Vector3d::Zero();
+    n[axis] = 1;
+    n.z() = -m;
+    *sin_angle = std::abs(n.dot(b)) / (n.norm() * b.norm());
+  }
   double s = -(a[axis] - m * a.z()) / denom;
   if (!std::isfinite(s)) return std::nullopt;
   const double k1 = p[CameraModel::kK1], k2 = p[CameraModel::kK2], p1 = p[CameraModel::kP1],

@@ -56,8 +56,13 @@ struct TriangulationView {
 // pixel-scaled normalised coordinates (f * x, f * y, 1), with x0^T F x1 = 0.
 class TwoViewTriangulator {
  public:
-  // Views must have distinct centres (otherwise every point is "parallel rays").
-  TwoViewTriangulator(const TriangulationView& view0, const TriangulationView& view1);
+  // Views must have distinct centres (otherwise every point is "parallel rays"). sigma0_px and
+  // sigma1_px are the observation noise of each view in its pixels; only their ratio matters, and
+  // only to the optimal method, which minimises (e0 / sigma0)^2 + (e1 / sigma1)^2 over the image
+  // residuals e (e.g. a reference camera pixel is exact and the decoded coordinate carries the
+  // noise: sigma0 << sigma1).
+  TwoViewTriangulator(const TriangulationView& view0, const TriangulationView& view1, double sigma0_px = 1.0,
+                      double sigma1_px = 1.0);
 
   const TriangulationView& view0() const { return view0_; }
   const TriangulationView& view1() const { return view1_; }
@@ -85,6 +90,8 @@ class TwoViewTriangulator {
  private:
   TriangulationView view0_, view1_;
   Eigen::Matrix3d fundamental_;  // pixel-scaled: x0~^T F x1~ = 0
+  double scale0_, scale1_;       // focal / sigma: the units in which the optimal method's noise is isotropic
+  Eigen::Matrix3d weighted_fundamental_;  // the same in those units
   Eigen::Matrix<double, 3, 4> proj0_, proj1_;
 };
 
@@ -93,7 +100,9 @@ class TwoViewTriangulator {
 // with the projector's full distortion model. Newton's method on s from the undistorted plane;
 // std::nullopt when it does not converge (to 1e-9 px within 20 steps) or lands behind either
 // device. `sin_angle` (optional) receives the sine of the angle between the ray and the plane
-// tangent to the coded surface at the solution (0 = ray inside the plane: no depth information).
+// tangent to the coded surface at the solution (0 = ray inside the plane: no depth information);
+// when there is no solution it is set from the undistorted plane, so callers can tell near-parallel
+// rays from other failures.
 std::optional<Eigen::Vector3d> TriangulateRayAxis(const Eigen::Vector3d& center_in_rig,
                                                   const Eigen::Vector3d& ray_in_rig,
                                                   const CameraModel& projector,

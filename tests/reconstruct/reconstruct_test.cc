@@ -1,0 +1,415 @@
+#include "reconstruct/reconstruct.h"
+
+#include <cmath>
+#include <random>
+#include <set>
+
+#include <gtest/gtest.h>
+
+#include "core/error.h"
+#include "tests/reconstruct/analytic_scene.h"
+#include "tests/testing/temp_dir.h"
+
+namespace slshadow {
+namespace {
+
+using testing::AnalyticView;
+using testing::RenderAnalytic;
+
+const TriangulationMethod kMethods[] = {TriangulationMethod::kMidpoint, TriangulationMethod::kDlt,
+                                        TriangulationMethod::kOptimal};
+
+// The demo rig with both cameras downscaled 4x (480 x 300 px, same field of view): fast tests.
+Rig SmallRig() {
+  Rig rig = LoadRig(testing::SourceDir() / "config/demo/rig.yaml");
+  for (auto& cam : rig.cameras) cam.model = testing::Downscaled(cam.model, 4);
+  return rig;
+}
+
+const Eigen::Vector3d kPlaneNormal = Eigen::Vector3d(0.15, -0.1, -1.0).normalized();  // faces the rig
+const double kPlaneD = kPlaneNormal.dot(Eigen::Vector3d(0, 0, 520));
+const Eigen::Vector3d kSphereCenter(10, -5, 600);
+const double kSphereRadius = 90;
+
+testing::Surface PlaneSurface() { return testing::Plane(kPlaneNormal, kPlaneD); }
+testing::Surface SphereSurface() { return testing::Sphere(kSphereCenter, kSphereRadius); }
+
+int64_t CountValid(const ProjectorMap& map) { return map.CountByStatus()[0]; }
+
+// Largest distance of a cloud point from the true point of its source pixel (projector mode).
+double MaxErrorToTruth(const PointCloud& cloud, const AnalyticView& truth) {
+  const auto* us = cloud.Scalar("u");
+  const auto* vs = cloud.Scalar("v");
+  double worst = 0;
+  for (size_t i = 0; i < cloud.size(); ++i) {
+    const Eigen::Vector3d t = truth.Point(static_cast<int>((*us)[i]), static_cast<int>((*vs)[i]));
+    worst = std::max(worst, (cloud.points[i] - t).norm());
+  }
+  return worst;
+}
+
+void ExpectFiniteCloud(const Reconstruction& rec) {
+  const PointCloud& cloud = rec.cloud;
+  EXPECT_NO_THROW(cloud.Check("reconstruction"));
+  for (const auto& p : cloud.points) ASSERT_TRUE(p.allFinite());
+  for (const auto& n : cloud.normals) {
+    ASSERT_TRUE(n.allFinite());
+    ASSERT_NEAR(n.norm(), 1.0, 1e-5);
+  }
+  for (const auto& field : cloud.scalars) {
+    for (float v : field.values) ASSERT_TRUE(std::isfinite(v)) << field.name;
+  }
+  int64_t total = 0;
+  for (int64_t c : rec.summary.rejected) total += c;
+  EXPECT_EQ(total, rec.summary.cells);
+  EXPECT_EQ(rec.summary.points, static_cast<int64_t>(cloud.size()));
+  EXPECT_EQ(rec.summary.cells, static_cast<int64_t>(rec.summary.grid_width) * rec.summary.grid_height);
+}
+
+class ReconstructTest : public ::testing::Test {
+ protected:
+  Rig rig_ = SmallRig();
+};
+
+TEST_F(ReconstructTest, ProjectorModeExactMapsGiveTheTruePointsForEveryMethod) {
+  for (const auto& surface : {PlaneSurface(), SphereSurface()}) {
+    for (const auto& cam : rig_.cameras) {
+      const AnalyticView truth = RenderAnalytic(rig_, cam, surface);
+      const int64_t valid = CountValid(truth.map);
+      ASSERT_GT(valid, 10000);
+      for (auto method : kMethods) {
+        ReconstructOptions options;
+        options.method = method;
+        const Reconstruction rec = ReconstructWithProjector(rig_, cam.name, truth.map, options);
+        ExpectFiniteCloud(rec);
+        EXPECT_LT(MaxErrorToTruth(rec.cloud, truth), 1e-6) << cam.name << " " << ToString(method);
+        // Only the outline of the valid region may be lost (depth-jump dilation at the sphere's rim).
+        EXPECT_GT(rec.summary.points, valid * 97 / 100) << cam.name << " " << ToString(method);
+        EXPECT_LT(rec.summary.reprojection_error_px.max, 1e-6);
+        EXPECT_LT(rec.summary.epipolar_error_px.max, 1e-6);
+        EXPECT_EQ(rec.summary.epipolar_error_px.count, rec.summary.reprojection_error_px.count);
+      }
+    }
+  }
+}
+
+TEST_F(ReconstructTest, ProjectorModeWithOneCodedAxisIsExact) {
+  for (int axis = 0; axis < 2; ++axis) {
+    const AnalyticView truth = RenderAnalytic(rig_, rig_.cameras[0], PlaneSurface(), axis == 0, axis == 1);
+    const Reconstruction rec = ReconstructWithProjector(rig_, "left", truth.map);
+    ExpectFiniteCloud(rec);
+    // Columns are well conditioned for the horizontal camera-projector baseline; rows much less so
+    // (the baseline is mostly along x), and there the angle gate rejects most pixels.
+    if (axis == 0) {
+      EXPECT_GT(rec.summary.points, CountValid(truth.map) * 97 / 100);
+    }
+    EXPECT_LT(MaxErrorToTruth(rec.cloud, truth), 1e-6) << "axis " << axis;
+    EXPECT_EQ(rec.summary.epipolar_error_px.count, 0);
+  }
+}
+
+TEST_F(ReconstructTest, FloatMapsAreAccurateToFloatPrecision) {
+  const AnalyticView truth = RenderAnalytic(rig_, rig_.cameras[0], PlaneSurface());
+  const Reconstruction rec = ReconstructWithProjector(rig_, "left", testing::ToFloatMap(truth.map));
+  ExpectFiniteCloud(rec);
+  // float32 projector coordinates near 1000 px carry ~6e-5 px of rounding.
+  EXPECT_LT(MaxErrorToTruth(rec.cloud, truth), 2e-3);
+}
+
+double DistanceToSurface(const Eigen::Vector3d& p, bool sphere) {
+  return sphere ? std::abs((p - kSphereCenter).norm() - kSphereRadius) : std::abs(kPlaneNormal.dot(p) - kPlaneD);
+}
+
+TEST_F(ReconstructTest, StereoModeExactMapsLandOnTheSurfaceForEveryMethod) {
+  for (bool sphere : {false, true}) {
+    const auto surface = sphere ? SphereSurface() : PlaneSurface();
+    const AnalyticView left = RenderAnalytic(rig_, rig_.cameras[0], surface);
+    const AnalyticView right = RenderAnalytic(rig_, rig_.cameras[1], surface);
+    for (auto method : kMethods) {
+      ReconstructOptions options;
+      options.method = method;
+      const Reconstruction rec = ReconstructStereo(rig_, "left", "right", left.map, right.map, options);
+      ExpectFiniteCloud(rec);
+      ASSERT_GT(rec.summary.points, CountValid(left.map) / 2);
+      std::vector<double> errors;
+      for (const auto& p : rec.cloud.points) errors.push_back(DistanceToSurface(p, sphere));
+      std::sort(errors.begin(), errors.end());
+      const double p99 = errors[errors.size() * 99 / 100], worst = errors.back();
+      // The matcher interpolates the sampled maps linearly between pixel centres: on smooth
+      // surfaces that costs well under a micrometre, more where the sphere turns away (grazing rim).
+      EXPECT_LT(p99, sphere ? 0.01 : 1e-3) << (sphere ? "sphere " : "plane ") << ToString(method);
+      EXPECT_LT(worst, sphere ? 0.02 : 1e-3) << (sphere ? "sphere " : "plane ") << ToString(method);
+      RecordProperty(std::string("stereo_mm_") + (sphere ? "sphere_" : "plane_") + ToString(method),
+                     std::to_string(p99) + " " + std::to_string(worst));
+      EXPECT_LT(rec.summary.reprojection_error_px.p95, 1e-3);
+      EXPECT_LT(rec.summary.epipolar_error_px.p95, 1e-3);  // cross-axis: projector rows agree
+    }
+  }
+}
+
+double DistanceToStep(const Eigen::Vector3d& p, double edge_x, double near_z, double far_z) {
+  const double d_near = p.x() < edge_x ? std::abs(p.z() - near_z) : std::hypot(p.x() - edge_x, p.z() - near_z);
+  const double d_far = p.x() >= edge_x ? std::abs(p.z() - far_z) : std::hypot(p.x() - edge_x, p.z() - far_z);
+  const double zc = std::clamp(p.z(), std::min(near_z, far_z), std::max(near_z, far_z));
+  const double d_face = std::hypot(p.x() - edge_x, p.z() - zc);
+  return std::min({d_near, d_far, d_face});
+}
+
+// Mixed pixels: every coordinate replaced by the mean of its valid 3x3 neighbourhood, as a camera
+// blurs a depth edge. Linear on smooth surfaces, wrong across jumps.
+ProjectorMap MixPixels(const ProjectorMap& map) {
+  ProjectorMap out = map;
+  out.proj_x = map.proj_x.clone();
+  out.proj_y = map.proj_y.clone();
+  for (int v = 1; v + 1 < map.height(); ++v) {
+    for (int u = 1; u + 1 < map.width(); ++u) {
+      if (map.status.at<uint8_t>(v, u) != 0) continue;
+      double sx = 0, sy = 0;
+      int n = 0;
+      bool complete = true;
+      for (int dv = -1; dv <= 1; ++dv) {
+        for (int du = -1; du <= 1; ++du) complete &= map.status.at<uint8_t>(v + dv, u + du) == 0;
+      }
+      if (!complete) continue;  // borders of shadows keep their exact codes
+      for (int dv = -1; dv <= 1; ++dv) {
+        for (int du = -1; du <= 1; ++du) {
+          sx += map.proj_x.at<double>(v + dv, u + du);
+          sy += map.proj_y.at<double>(v + dv, u + du);
+          ++n;
+        }
+      }
+      out.proj_x.at<double>(v, u) = sx / n;
+      out.proj_y.at<double>(v, u) = sy / n;
+    }
+  }
+  return out;
+}
+
+TEST_F(ReconstructTest, DepthJumpsAreRejectedAndCounted) {
+  const double edge = 10, near_z = 470, far_z = 540;
+  const auto step = testing::Step(edge, near_z, far_z);
+  const AnalyticView left = RenderAnalytic(rig_, rig_.cameras[0], step);
+  const AnalyticView right = RenderAnalytic(rig_, rig_.cameras[1], step);
+  const ProjectorMap mixed_left = MixPixels(left.map), mixed_right = MixPixels(right.map);
+  for (auto mode : {ReconstructMode::kProjector, ReconstructMode::kStereo}) {
+    auto run = [&](bool filter) {
+      ReconstructOptions options;
+      options.filter_depth_discontinuities = filter;
+      options.filter_outliers = false;
+      options.max_reprojection_error_px = std::numeric_limits<double>::infinity();
+      options.max_epipolar_error_px = std::numeric_limits<double>::infinity();
+      options.max_code_step_px = 1e6;  // stereo: let the matcher bridge the jump, the filter must catch it
+      return mode == ReconstructMode::kProjector
+                 ? ReconstructWithProjector(rig_, "left", mixed_left, options)
+                 : ReconstructStereo(rig_, "left", "right", mixed_left, mixed_right, options);
+    };
+    auto wrong = [&](const PointCloud& cloud) {
+      int64_t n = 0;
+      for (const auto& p : cloud.points) n += DistanceToStep(p, edge, near_z, far_z) > 0.5 ? 1 : 0;
+      return n;
+    };
+    const Reconstruction unfiltered = run(false);
+    const Reconstruction filtered = run(true);
+    ExpectFiniteCloud(filtered);
+    EXPECT_GT(wrong(unfiltered.cloud), 50) << ToString(mode);  // the fixture does make bad points
+    EXPECT_EQ(wrong(filtered.cloud), 0) << ToString(mode);
+    const int64_t jumps = filtered.summary.rejected[static_cast<size_t>(RejectReason::kDepthDiscontinuity)];
+    EXPECT_GE(jumps, wrong(unfiltered.cloud)) << ToString(mode);
+    EXPECT_EQ(filtered.summary.points + jumps, unfiltered.summary.points) << ToString(mode);
+  }
+}
+
+TEST_F(ReconstructTest, NearParallelRaysAreRejectedAndCounted) {
+  // A projector 0.5 mm beside the left camera, looking the same way: no triangulation angle.
+  Rig rig = rig_;
+  rig.projector->cam_from_rig = Rigid3d(rig.cameras[0].cam_from_rig.rotation, Eigen::Vector3d(-0.5, 0, 0));
+  const AnalyticView truth = RenderAnalytic(rig, rig.cameras[0], PlaneSurface());
+  const int64_t valid = CountValid(truth.map);
+  ASSERT_GT(valid, 10000);
+  for (bool one_axis : {false, true}) {
+    const AnalyticView view = one_axis ? RenderAnalytic(rig, rig.cameras[0], PlaneSurface(), true, false) : truth;
+    const Reconstruction rec = ReconstructWithProjector(rig, "left", view.map);
+    ExpectFiniteCloud(rec);
+    EXPECT_EQ(rec.summary.points, 0);
+    // All but a handful at the rim of the projector's image, where distortion bends rays apart.
+    EXPECT_GE(rec.summary.rejected[static_cast<size_t>(RejectReason::kParallelRays)], valid - 10)
+        << rec.summary.FullReport();
+  }
+}
+
+TEST_F(ReconstructTest, CorruptedCorrespondencesAreRejectedWithAReason) {
+  const RigDevice& cam = rig_.cameras[0];
+  const RigDevice& proj = *rig_.projector;
+  const AnalyticView truth = RenderAnalytic(rig_, cam, PlaneSurface());
+  ProjectorMap map = truth.map;
+  map.proj_x = truth.map.proj_x.clone();
+  map.proj_y = truth.map.proj_y.clone();
+  std::mt19937 rng(5);
+  std::uniform_int_distribution<int> pu(20, cam.model.width - 21), pv(20, cam.model.height - 21);
+  std::uniform_real_distribution<double> px(0, proj.model.width - 1), py(0, proj.model.height - 1);
+  std::set<std::pair<int, int>> corrupted;
+  int along = 0;
+  while (corrupted.size() < 200) {
+    const int u = pu(rng), v = pv(rng);
+    if (map.status.at<uint8_t>(v, u) != 0 || corrupted.count({u, v})) continue;
+    // Keep corrupted pixels apart so each is an isolated error.
+    bool near = false;
+    for (const auto& c : corrupted) near |= std::abs(c.first - u) <= 3 && std::abs(c.second - v) <= 3;
+    if (near) continue;
+    corrupted.insert({u, v});
+    if (corrupted.size() % 2 == 0) {
+      // A random projector pixel: off the epipolar line.
+      map.proj_x.at<double>(v, u) = px(rng);
+      map.proj_y.at<double>(v, u) = py(rng);
+    } else {
+      // The projector pixel of a point 8% deeper on the same camera ray: epipolar-consistent.
+      const Eigen::Vector3d c = cam.CenterInRig();
+      const Eigen::Vector3d p = c + (truth.Point(u, v) - c) * 1.08;
+      const auto q = proj.model.Project(proj.cam_from_rig * p);
+      ASSERT_TRUE(q);
+      map.proj_x.at<double>(v, u) = q->x();
+      map.proj_y.at<double>(v, u) = q->y();
+      ++along;
+    }
+  }
+  for (auto method : kMethods) {
+    ReconstructOptions options;
+    options.method = method;
+    const Reconstruction rec = ReconstructWithProjector(rig_, "left", map, options);
+    ExpectFiniteCloud(rec);
+    const auto* us = rec.cloud.Scalar("u");
+    const auto* vs = rec.cloud.Scalar("v");
+    for (size_t i = 0; i < rec.cloud.size(); ++i) {
+      EXPECT_FALSE(corrupted.count({static_cast<int>((*us)[i]), static_cast<int>((*vs)[i])}));
+    }
+    EXPECT_LT(MaxErrorToTruth(rec.cloud, truth), 1e-6);
+    const auto& r = rec.summary.rejected;
+    auto count = [&](RejectReason reason) { return r[static_cast<size_t>(reason)]; };
+    // Random codes mostly fail the epipolar gate; some land behind a device or out of range first.
+    EXPECT_GE(count(RejectReason::kEpipolarError) + count(RejectReason::kReprojectionError), 50) << ToString(method);
+    int64_t rejected = 0;
+    for (int k = static_cast<int>(RejectReason::kNoRay); k < kNumRejectReasons; ++k) rejected += r[static_cast<size_t>(k)];
+    EXPECT_GE(rejected, 200) << ToString(method);
+    EXPECT_GE(count(RejectReason::kDepthDiscontinuity) + count(RejectReason::kOutlier), along) << ToString(method);
+  }
+}
+
+TEST_F(ReconstructTest, WithNoisyCodesOptimalIsNoWorseThanMidpoint) {
+  const AnalyticView truth = RenderAnalytic(rig_, rig_.cameras[0], PlaneSurface());
+  const double sigma = 0.2;
+  const ProjectorMap noisy = testing::AddNoise(truth.map, sigma, 21);
+  std::map<TriangulationMethod, double> rms;
+  for (auto method : kMethods) {
+    ReconstructOptions options;
+    options.method = method;
+    options.max_reprojection_error_px = std::numeric_limits<double>::infinity();
+    options.max_epipolar_error_px = std::numeric_limits<double>::infinity();
+    options.filter_depth_discontinuities = false;
+    options.filter_outliers = false;
+    const Reconstruction rec = ReconstructWithProjector(rig_, "left", noisy, options);
+    ExpectFiniteCloud(rec);
+    double sum = 0;
+    const auto* us = rec.cloud.Scalar("u");
+    const auto* vs = rec.cloud.Scalar("v");
+    for (size_t i = 0; i < rec.cloud.size(); ++i) {
+      sum += (rec.cloud.points[i] - truth.Point(static_cast<int>((*us)[i]), static_cast<int>((*vs)[i]))).squaredNorm();
+    }
+    rms[method] = std::sqrt(sum / static_cast<double>(rec.cloud.size()));
+    RecordProperty(std::string("rms_mm_") + ToString(method), std::to_string(rms[method]));
+    // Residual statistics: the epipolar residual is the noise across the epipolar line, |N(0, s^2)|,
+    // whose median is 0.674 s.
+    EXPECT_NEAR(rec.summary.epipolar_error_px.median, 0.674 * sigma, 0.1 * sigma);
+    EXPECT_GT(rec.summary.reprojection_error_px.median, 0.1 * sigma);
+    EXPECT_LT(rec.summary.reprojection_error_px.median, 2 * sigma);
+  }
+  EXPECT_LE(rms[TriangulationMethod::kOptimal], rms[TriangulationMethod::kMidpoint] * 1.001);
+  EXPECT_LE(rms[TriangulationMethod::kOptimal], rms[TriangulationMethod::kDlt] * 1.001);
+}
+
+TEST_F(ReconstructTest, ResidualStatisticsRevealAMiscalibratedRig) {
+  const AnalyticView truth = RenderAnalytic(rig_, rig_.cameras[0], PlaneSurface());
+  Rig wrong = rig_;
+  // The projector's pose off by 0.1 degree about its x axis.
+  wrong.projector->cam_from_rig =
+      Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.1 * M_PI / 180, Eigen::Vector3d::UnitX())), Eigen::Vector3d::Zero()) *
+      wrong.projector->cam_from_rig;
+  ReconstructOptions options;
+  const Reconstruction good = ReconstructWithProjector(rig_, "left", truth.map, options);
+  const Reconstruction bad = ReconstructWithProjector(wrong, "left", truth.map, options);
+  EXPECT_LT(good.summary.epipolar_error_px.median, 1e-6);
+  // 0.1 deg at f = 1850 px moves the projector image by ~3 px, mostly across the epipolar lines.
+  EXPECT_GT(bad.summary.epipolar_error_px.median, 1.0);
+  EXPECT_GT(bad.summary.rejected[static_cast<size_t>(RejectReason::kEpipolarError)] +
+                bad.summary.rejected[static_cast<size_t>(RejectReason::kReprojectionError)],
+            good.summary.points / 2);
+}
+
+TEST_F(ReconstructTest, NormalsFaceTheCameraAndFollowTheSurface) {
+  const AnalyticView plane = RenderAnalytic(rig_, rig_.cameras[0], PlaneSurface());
+  const Reconstruction rec = ReconstructWithProjector(rig_, "left", plane.map);
+  ASSERT_TRUE(rec.cloud.HasNormals());
+  for (size_t i = 0; i < rec.cloud.size(); ++i) {
+    // The camera is at the origin, on the positive side of n . x = d (d < 0): normals point to +n.
+    ASSERT_LT(kPlaneD, 0);
+    EXPECT_GT(rec.cloud.normals[i].cast<double>().dot(kPlaneNormal), 0.99999);
+  }
+  const AnalyticView sphere = RenderAnalytic(rig_, rig_.cameras[0], SphereSurface());
+  const Reconstruction srec = ReconstructWithProjector(rig_, "left", sphere.map);
+  std::vector<double> cosines;
+  for (size_t i = 0; i < srec.cloud.size(); ++i) {
+    const Eigen::Vector3d radial = (srec.cloud.points[i] - kSphereCenter).normalized();
+    cosines.push_back(srec.cloud.normals[i].cast<double>().dot(radial));
+  }
+  std::sort(cosines.begin(), cosines.end());
+  RecordProperty("sphere_normal_cos_min", std::to_string(cosines.front()));
+  EXPECT_GT(cosines[cosines.size() / 100], 0.999);  // 99% within 2.6 degrees
+  EXPECT_GT(cosines.front(), 0.0);                  // all face the camera
+}
+
+TEST_F(ReconstructTest, SummaryReportsAndJson) {
+  const AnalyticView plane = RenderAnalytic(rig_, rig_.cameras[0], PlaneSurface());
+  const Reconstruction rec = ReconstructWithProjector(rig_, "left", plane.map);
+  const std::string brief = rec.summary.BriefReport();
+  EXPECT_NE(brief.find(std::to_string(rec.summary.points) + " points"), std::string::npos) << brief;
+  const std::string full = rec.summary.FullReport();
+  EXPECT_NE(full.find("not_decoded"), std::string::npos) << full;
+  const nlohmann::json j = rec.summary.ToJson();
+  EXPECT_EQ(j["points"].get<int64_t>(), rec.summary.points);
+  EXPECT_EQ(j["rejected"]["not_decoded"].get<int64_t>(),
+            rec.summary.rejected[static_cast<size_t>(RejectReason::kNotDecoded)]);
+  EXPECT_EQ(j["mode"], "projector");
+}
+
+TEST_F(ReconstructTest, BadInputThrows) {
+  const AnalyticView plane = RenderAnalytic(rig_, rig_.cameras[0], PlaneSurface());
+  Rig no_projector = rig_;
+  no_projector.projector.reset();
+  EXPECT_THROW(ReconstructWithProjector(no_projector, "left", plane.map), Error);
+  EXPECT_THROW(ReconstructWithProjector(rig_, "middle", plane.map), Error);
+  ProjectorMap small;
+  small.Allocate(10, 10, true, true);
+  EXPECT_THROW(ReconstructWithProjector(rig_, "left", small), Error);
+  EXPECT_THROW(ReconstructStereo(rig_, "left", "left", plane.map, plane.map), Error);
+  ProjectorMap rows_only = RenderAnalytic(rig_, rig_.cameras[0], PlaneSurface(), false, true).map;
+  EXPECT_THROW(ReconstructStereo(rig_, "left", "right", rows_only, rows_only), Error);
+
+  auto bad = [](auto mutate) {
+    ReconstructOptions o;
+    mutate(o);
+    return o;
+  };
+  EXPECT_NO_THROW(ReconstructOptions().Check());
+  EXPECT_THROW(bad([](ReconstructOptions& o) { o.min_depth_mm = 0; }).Check(), Error);
+  EXPECT_THROW(bad([](ReconstructOptions& o) { o.max_depth_mm = 10; }).Check(), Error);
+  EXPECT_THROW(bad([](ReconstructOptions& o) { o.min_triangulation_angle_deg = 90; }).Check(), Error);
+  EXPECT_THROW(bad([](ReconstructOptions& o) { o.max_reprojection_error_px = 0; }).Check(), Error);
+  EXPECT_THROW(bad([](ReconstructOptions& o) { o.max_epipolar_error_px = -1; }).Check(), Error);
+  EXPECT_THROW(bad([](ReconstructOptions& o) { o.outlier_neighbors = 25; }).Check(), Error);
+  EXPECT_THROW(bad([](ReconstructOptions& o) { o.outlier_window_radius_px = 0; }).Check(), Error);
+  EXPECT_THROW(bad([](ReconstructOptions& o) { o.max_code_step_px = std::nan(""); }).Check(), Error);
+  EXPECT_THROW(ReconstructModeFromString("mono"), Error);
+  EXPECT_EQ(ReconstructModeFromString("stereo"), ReconstructMode::kStereo);
+}
+
+}  // namespace
+}  // namespace slshadow
