@@ -1,0 +1,409 @@
+#include "calib/calibration_io.h"
+
+#include <cmath>
+
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core.hpp>
+
+#include "core/config.h"
+#include "core/error.h"
+#include "core/file_util.h"
+
+namespace slshadow {
+namespace {
+
+constexpr int kEvidenceVersion = 1;
+
+nlohmann::json PoseToJson(const Rigid3d& t) {
+  const auto& q = t.rotation;
+  return {{"rotation_quat_wxyz", {q.w(), q.x(), q.y(), q.z()}},
+          {"translation_mm", {t.translation.x(), t.translation.y(), t.translation.z()}}};
+}
+
+nlohmann::json StatsToJson(const CalibrationSummary& s) {
+  nlohmann::json j = {{"rms_px", s.rms_px},
+                      {"max_px", s.max_px},
+                      {"residual_sigma_px", s.residual_sigma_px},
+                      {"initial_cost", s.initial_cost},
+                      {"final_cost", s.final_cost},
+                      {"iterations", s.iterations},
+                      {"converged", s.converged},
+                      {"termination", s.termination},
+                      {"num_points", s.num_points},
+                      {"num_free_parameters", s.num_free_parameters},
+                      {"num_outlier_views", s.num_outlier_views},
+                      {"solve_time_s", s.solve_time_s}};
+  j["devices"] = nlohmann::json::array();
+  for (const auto& d : s.devices) {
+    j["devices"].push_back({{"name", d.name}, {"num_views", d.num_views}, {"num_points", d.num_points},
+                            {"rms_px", d.rms_px}, {"max_px", d.max_px}});
+  }
+  j["views"] = nlohmann::json::array();
+  for (const auto& v : s.views) {
+    j["views"].push_back({{"label", v.label}, {"device", v.device}, {"pose", v.pose}, {"num_points", v.num_points},
+                          {"rms_px", std::isfinite(v.rms_px) ? nlohmann::json(v.rms_px) : nlohmann::json()},
+                          {"max_px", std::isfinite(v.max_px) ? nlohmann::json(v.max_px) : nlohmann::json()},
+                          {"outlier", v.outlier}});
+  }
+  return j;
+}
+
+nlohmann::json MapStats(const PixelMap& m) {
+  auto num = [](double x) { return std::isfinite(x) ? nlohmann::json(x) : nlohmann::json(); };
+  return {{"median_px", num(m.median)}, {"p95_px", num(m.p95)}, {"max_px", num(m.max)}, {"centre_px", num(m.centre)},
+          {"cell_px", m.cell_px}};
+}
+
+cv::Mat ReadMat(const cv::FileStorage& fs, const std::string& key, const std::filesystem::path& path, int rows, int cols) {
+  cv::Mat m;
+  fs[key] >> m;
+  SLSHADOW_THROW_IF(m.empty(), path.string(), ": ", key, ": missing");
+  m.convertTo(m, CV_64F);
+  if (rows * cols == static_cast<int>(m.total()) && (m.rows != rows || m.cols != cols)) m = m.reshape(1, rows);
+  SLSHADOW_THROW_IF(m.rows != rows || m.cols != cols, path.string(), ": ", key, ": expected a ", rows, "x", cols,
+                    " matrix (got ", m.rows, "x", m.cols, ")");
+  return m;
+}
+
+CameraModel ModelFromMats(const cv::Mat& k, const cv::Mat& dist_in, int width, int height, const std::string& what) {
+  cv::Mat dist = dist_in.reshape(1, 1);
+  SLSHADOW_THROW_IF(dist.total() < 4, what, ": distortion: needs at least 4 coefficients (got ", dist.total(), ")");
+  for (size_t i = 5; i < dist.total(); ++i) {
+    SLSHADOW_THROW_IF(dist.at<double>(0, static_cast<int>(i)) != 0.0, what, ": distortion: coefficient ", i,
+                      " is not zero; slshadow's model has k1 k2 p1 p2 k3 only (OpenCV's rational/thin-prism terms "
+                      "cannot be imported)");
+  }
+  auto d = [&](int i) { return i < static_cast<int>(dist.total()) ? dist.at<double>(0, i) : 0.0; };
+  CameraModel m(width, height, k.at<double>(0, 0), k.at<double>(1, 1), k.at<double>(0, 2), k.at<double>(1, 2), d(0), d(1),
+                d(2), d(3), d(4));
+  SLSHADOW_THROW_IF(std::abs(k.at<double>(0, 1)) > 1e-9, what, ": camera matrix has skew ", k.at<double>(0, 1),
+                    "; slshadow's model has none");
+  m.Check(what);
+  return m;
+}
+
+cv::Mat KMat(const CameraModel& m) {
+  return (cv::Mat_<double>(3, 3) << m.fx(), 0, m.cx(), 0, m.fy(), m.cy(), 0, 0, 1);
+}
+cv::Mat DMat(const CameraModel& m) {
+  return (cv::Mat_<double>(1, 5) << m.params[4], m.params[5], m.params[6], m.params[7], m.params[8]);
+}
+
+Rigid3d PoseFromRT(const cv::Mat& r, const cv::Mat& t) {
+  Eigen::Matrix3d rot;
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) rot(i, j) = r.at<double>(i, j);
+  }
+  return Rigid3d(Eigen::Quaterniond(rot), Eigen::Vector3d(t.at<double>(0), t.at<double>(1), t.at<double>(2)));
+}
+
+cv::Mat RotationMatrixOrRvec(const cv::FileStorage& fs, const std::string& key, const std::filesystem::path& path) {
+  cv::Mat m;
+  fs[key] >> m;
+  SLSHADOW_THROW_IF(m.empty(), path.string(), ": ", key, ": missing");
+  m.convertTo(m, CV_64F);
+  if (m.total() == 3) {
+    cv::Mat r;
+    cv::Rodrigues(m.reshape(1, 3), r);
+    return r;
+  }
+  SLSHADOW_THROW_IF(m.rows != 3 || m.cols != 3, path.string(), ": ", key, ": expected a 3x3 rotation matrix or a Rodrigues vector");
+  const Eigen::Matrix3d e = Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(m.ptr<double>());
+  SLSHADOW_THROW_IF((e * e.transpose() - Eigen::Matrix3d::Identity()).norm() > 1e-5 || e.determinant() < 0, path.string(),
+                    ": ", key, ": not a rotation matrix");
+  return m;
+}
+
+cv::Mat ReadDist(const cv::FileStorage& fs, const std::string& key, const std::filesystem::path& path) {
+  cv::Mat m;
+  fs[key] >> m;
+  SLSHADOW_THROW_IF(m.empty(), path.string(), ": ", key, ": missing");
+  m.convertTo(m, CV_64F);
+  return m;
+}
+
+int IntOr(const cv::FileStorage& fs, const std::string& key, int fallback) {
+  const cv::FileNode n = fs[key];
+  if (n.empty()) return fallback;
+  return static_cast<int>(static_cast<double>(n));
+}
+
+}  // namespace
+
+Rig RigFromCalibration(const CalibrationInput& input, const CalibrationResult& result, const std::string& name) {
+  Rig rig;
+  rig.name = name;
+  for (size_t d = 0; d < result.devices.size(); ++d) {
+    if (input.devices[d].is_projector) {
+      SLSHADOW_THROW_IF(rig.projector.has_value(), "calibration: more than one projector device ('", rig.projector->name,
+                        "', '", result.devices[d].name, "'); a rig has at most one");
+      rig.projector = result.devices[d];
+    } else {
+      rig.cameras.push_back(result.devices[d]);
+    }
+  }
+  SLSHADOW_THROW_IF(rig.cameras.empty(), "calibration: no camera device; a rig needs at least one camera");
+  SLSHADOW_THROW_IF(input.devices[0].is_projector, "calibration: device 0 must be a camera (it defines the rig frame)");
+  // Working distance: median board distance along the first camera's axis.
+  std::vector<double> z;
+  for (const auto& p : result.rig_from_board) {
+    if (p) z.push_back(p->translation.z());
+  }
+  if (!z.empty()) {
+    std::nth_element(z.begin(), z.begin() + static_cast<long>(z.size() / 2), z.end());
+    if (z[z.size() / 2] > 0) rig.working_distance_mm = z[z.size() / 2];
+  }
+  return rig;
+}
+
+nlohmann::json CalibrationOptionsToJson(const CalibrationOptions& o) {
+  return {{"fix_aspect_ratio", o.fix_aspect_ratio}, {"aspect_ratio", o.aspect_ratio},
+          {"fix_principal_point", o.fix_principal_point}, {"zero_tangential", o.zero_tangential},
+          {"fix_k3", o.fix_k3}, {"fix_intrinsics", o.fix_intrinsics}, {"loss", ToString(o.loss)},
+          {"loss_scale_px", o.loss_scale_px}, {"max_iterations", o.max_iterations},
+          {"outlier_view_factor", o.outlier_view_factor}, {"compute_covariance", o.compute_covariance}};
+}
+
+CalibrationOptions CalibrationOptionsFromJson(const nlohmann::json& json, const std::string& file) {
+  const ConfigNode n = ConfigNode::FromJson(json, file, "calibration.options");
+  n.RejectUnknownKeys({"fix_aspect_ratio", "aspect_ratio", "fix_principal_point", "zero_tangential", "fix_k3",
+                       "fix_intrinsics", "loss", "loss_scale_px", "max_iterations", "outlier_view_factor",
+                       "compute_covariance"});
+  CalibrationOptions o;
+  o.fix_aspect_ratio = n.GetBool("fix_aspect_ratio", o.fix_aspect_ratio);
+  o.aspect_ratio = n.GetDouble("aspect_ratio", o.aspect_ratio);
+  o.fix_principal_point = n.GetBool("fix_principal_point", o.fix_principal_point);
+  o.zero_tangential = n.GetBool("zero_tangential", o.zero_tangential);
+  o.fix_k3 = n.GetBool("fix_k3", o.fix_k3);
+  o.fix_intrinsics = n.GetBool("fix_intrinsics", o.fix_intrinsics);
+  if (n.Has("loss")) {
+    try {
+      o.loss = LossTypeFromString(n["loss"].AsString());
+    } catch (const Error&) {
+      n["loss"].Fail("unknown robust loss (use none, huber or cauchy)");
+    }
+  }
+  o.loss_scale_px = n.GetDouble("loss_scale_px", o.loss_scale_px);
+  o.max_iterations = static_cast<int>(n.GetInt("max_iterations", o.max_iterations));
+  o.outlier_view_factor = n.GetDouble("outlier_view_factor", o.outlier_view_factor);
+  o.compute_covariance = n.GetBool("compute_covariance", o.compute_covariance);
+  try {
+    o.Check();
+  } catch (const Error& e) {
+    SLSHADOW_THROW(file, ": ", e.what());
+  }
+  return o;
+}
+
+nlohmann::json CalibrationEvidenceToJson(const CalibrationInput& input, const CalibrationOptions& options,
+                                         const CalibrationResult& result,
+                                         const std::optional<CrossValidation>& cross_validation) {
+  nlohmann::json j;
+  j["format"] = "slshadow-calibration-evidence";
+  j["version"] = kEvidenceVersion;
+  j["options"] = CalibrationOptionsToJson(options);
+  j["num_poses"] = input.num_poses;
+  j["devices"] = nlohmann::json::array();
+  for (const auto& d : input.devices) {
+    j["devices"].push_back({{"name", d.name}, {"width", d.width}, {"height", d.height}, {"is_projector", d.is_projector}});
+  }
+  j["views"] = nlohmann::json::array();
+  for (const auto& v : input.views) {
+    nlohmann::json pts = nlohmann::json::array(), pix = nlohmann::json::array();
+    for (const auto& p : v.points_in_board_mm) pts.push_back({p.x(), p.y(), p.z()});
+    for (const auto& p : v.pixels_px) pix.push_back({p.x(), p.y()});
+    j["views"].push_back({{"label", v.label}, {"device", v.device}, {"pose", v.pose}, {"points_in_board_mm", pts},
+                          {"pixels_px", pix}});
+  }
+  j["rig_from_board"] = nlohmann::json::array();
+  for (const auto& p : result.rig_from_board) j["rig_from_board"].push_back(p ? PoseToJson(*p) : nlohmann::json());
+  j["summary"] = StatsToJson(result.summary);
+  if (!result.intrinsics_covariance.empty()) {
+    j["intrinsics_covariance"] = nlohmann::json::array();
+    j["projection_uncertainty"] = nlohmann::json::array();
+    for (size_t d = 0; d < result.intrinsics_covariance.size(); ++d) {
+      const Matrix9d& c = result.intrinsics_covariance[d];
+      std::vector<double> flat;
+      for (int r = 0; r < 9; ++r) {
+        for (int k = 0; k < 9; ++k) flat.push_back(c(r, k));
+      }
+      j["intrinsics_covariance"].push_back(flat);
+      nlohmann::json u = MapStats(ProjectionUncertaintyMap(result.devices[d].model, c, 16));
+      u["device"] = result.devices[d].name;
+      j["projection_uncertainty"].push_back(u);
+    }
+  }
+  if (cross_validation) {
+    j["cross_validation"] = nlohmann::json::array();
+    for (size_t d = 0; d < cross_validation->difference.size(); ++d) {
+      nlohmann::json c = MapStats(cross_validation->difference[d]);
+      c["device"] = input.devices[d].name;
+      j["cross_validation"].push_back(c);
+    }
+  }
+  return j;
+}
+
+CalibrationEvidence CalibrationEvidenceFromJson(const nlohmann::json& json, const std::string& file) {
+  const ConfigNode n = ConfigNode::FromJson(json, file, "calibration");
+  SLSHADOW_THROW_IF(n.GetString("format", "") != "slshadow-calibration-evidence", file,
+                    ": calibration.format: not slshadow calibration evidence (got '", n.GetString("format", ""), "')");
+  const int64_t version = n["version"].AsInt();
+  if (version != kEvidenceVersion) n["version"].Fail("unsupported version");
+  CalibrationEvidence e;
+  e.options = n.Has("options") ? CalibrationOptionsFromJson(n["options"].json(), file) : CalibrationOptions{};
+  e.input.num_poses = static_cast<int>(n["num_poses"].AsInt());
+  const auto devs = n["devices"];
+  for (size_t i = 0; i < devs.size(); ++i) {
+    const auto d = devs.at(i);
+    CalibrationDevice cd;
+    cd.name = d["name"].AsString();
+    cd.width = static_cast<int>(d["width"].AsInt());
+    cd.height = static_cast<int>(d["height"].AsInt());
+    cd.is_projector = d.GetBool("is_projector", false);
+    e.input.devices.push_back(cd);
+  }
+  const auto views = n["views"];
+  for (size_t i = 0; i < views.size(); ++i) {
+    const auto v = views.at(i);
+    BoardView bv;
+    bv.label = v.GetString("label", "");
+    bv.device = static_cast<int>(v["device"].AsInt());
+    bv.pose = static_cast<int>(v["pose"].AsInt());
+    const auto pts = v["points_in_board_mm"], pix = v["pixels_px"];
+    for (size_t k = 0; k < pts.size(); ++k) {
+      const auto p = pts.at(k).AsDoubles(3);
+      bv.points_in_board_mm.emplace_back(p[0], p[1], p[2]);
+    }
+    for (size_t k = 0; k < pix.size(); ++k) {
+      const auto p = pix.at(k).AsDoubles(2);
+      bv.pixels_px.emplace_back(p[0], p[1]);
+    }
+    e.input.views.push_back(std::move(bv));
+  }
+  try {
+    e.input.Check();
+  } catch (const Error& err) {
+    SLSHADOW_THROW(file, ": ", err.what());
+  }
+  return e;
+}
+
+void WriteOpenCvCalibration(const Rig& rig, const std::filesystem::path& path) {
+  std::vector<const RigDevice*> devices;
+  for (const auto& c : rig.cameras) devices.push_back(&c);
+  if (rig.projector) devices.push_back(&*rig.projector);
+  SLSHADOW_THROW_IF(devices.empty(), path.string(), ": rig has no devices to write");
+  WriteFileAtomically(path, [&](const std::filesystem::path& tmp) {
+    // FileStorage picks the format from the extension: keep it on the temporary name.
+    const std::filesystem::path tmp_ext = tmp.string() + path.extension().string();
+    {
+      cv::FileStorage fs(tmp_ext.string(), cv::FileStorage::WRITE);
+      SLSHADOW_THROW_IF(!fs.isOpened(), path.string(), ": cannot open for writing");
+      if (devices.size() == 1) {
+        fs << "image_width" << devices[0]->model.width << "image_height" << devices[0]->model.height;
+        fs << "camera_matrix" << KMat(devices[0]->model) << "distortion_coefficients" << DMat(devices[0]->model);
+        fs << "device_name" << devices[0]->name;
+      } else {
+        const Rigid3d rig_from_1 = devices[0]->cam_from_rig.Inverse();
+        for (size_t i = 0; i < devices.size(); ++i) {
+          const std::string s = std::to_string(i + 1);
+          fs << "M" + s << KMat(devices[i]->model) << "D" + s << DMat(devices[i]->model);
+          fs << "image_width_" + s << devices[i]->model.width << "image_height_" + s << devices[i]->model.height;
+          fs << "device_name_" + s << devices[i]->name;
+          if (i == 0) continue;
+          const Rigid3d i_from_1 = devices[i]->cam_from_rig * rig_from_1;
+          const Eigen::Matrix3d r = i_from_1.rotation.toRotationMatrix();
+          cv::Mat rm(3, 3, CV_64F), tm(3, 1, CV_64F);
+          for (int a = 0; a < 3; ++a) {
+            for (int b = 0; b < 3; ++b) rm.at<double>(a, b) = r(a, b);
+            tm.at<double>(a) = i_from_1.translation(a);
+          }
+          const std::string suffix = i == 1 ? "" : s;
+          fs << "R" + suffix << rm << "T" + suffix << tm;
+        }
+        fs << "num_devices" << static_cast<int>(devices.size()) << "has_projector" << static_cast<int>(rig.projector.has_value());
+      }
+      fs.release();
+    }
+    std::filesystem::rename(tmp_ext, tmp);
+  });
+}
+
+Rig ReadOpenCvCalibration(const std::filesystem::path& path, int default_width, int default_height, int projector_width,
+                          int projector_height) {
+  SLSHADOW_THROW_IF(!std::filesystem::exists(path), path.string(), ": file not found");
+  cv::FileStorage fs;
+  try {
+    fs.open(path.string(), cv::FileStorage::READ);
+  } catch (const cv::Exception& e) {
+    SLSHADOW_THROW(path.string(), ": cannot parse as an OpenCV FileStorage file (", e.what(), ")");
+  }
+  SLSHADOW_THROW_IF(!fs.isOpened(), path.string(), ": cannot open as an OpenCV FileStorage file");
+  const std::string file = path.string();
+  Rig rig;
+  rig.name = path.stem().string();
+  auto size_or_throw = [&](int w, int h, const std::string& what) {
+    SLSHADOW_THROW_IF(w <= 0 || h <= 0, file, ": ", what, ": no image size in the file; give it (e.g. --image-size)");
+    return std::pair<int, int>(w, h);
+  };
+  if (!fs["camera_matrix"].empty()) {
+    const auto [w, h] = size_or_throw(IntOr(fs, "image_width", default_width), IntOr(fs, "image_height", default_height),
+                                      "camera_matrix");
+    RigDevice d;
+    d.name = fs["device_name"].empty() ? "camera" : static_cast<std::string>(fs["device_name"]);
+    d.model = ModelFromMats(ReadMat(fs, "camera_matrix", path, 3, 3), ReadDist(fs, "distortion_coefficients", path), w, h,
+                            file + ": camera_matrix");
+    rig.cameras.push_back(d);
+    return rig;
+  }
+  if (!fs["cam_int"].empty()) {  // kamino410/procam-calibration
+    int cam_w = default_width, cam_h = default_height;
+    if (!fs["img_shape"].empty()) {
+      cv::Mat shape;
+      fs["img_shape"] >> shape;
+      shape.convertTo(shape, CV_64F);
+      if (shape.total() >= 2) {
+        cam_h = static_cast<int>(shape.at<double>(0));
+        cam_w = static_cast<int>(shape.at<double>(1));
+      }
+    }
+    const auto [w, h] = size_or_throw(cam_w, cam_h, "cam_int");
+    const auto [pw, ph] = size_or_throw(projector_width, projector_height, "proj_int (projector size)");
+    RigDevice cam, proj;
+    cam.name = "camera";
+    auto dist = [&](const std::string& key) { return ReadDist(fs, key, path); };
+    cam.model = ModelFromMats(ReadMat(fs, "cam_int", path, 3, 3), dist("cam_dist"), w, h, file + ": cam_int");
+    proj.name = "projector";
+    proj.model = ModelFromMats(ReadMat(fs, "proj_int", path, 3, 3), dist("proj_dist"), pw, ph, file + ": proj_int");
+    const std::string rkey = fs["rotation"].empty() ? "roration" : "rotation";
+    proj.cam_from_rig = PoseFromRT(RotationMatrixOrRvec(fs, rkey, path), ReadMat(fs, "translation", path, 3, 1));
+    rig.cameras.push_back(cam);
+    rig.projector = proj;
+    return rig;
+  }
+  SLSHADOW_THROW_IF(fs["M1"].empty(), file, ": no camera_matrix, M1 or cam_int node: not an OpenCV calibration file");
+  const int num = IntOr(fs, "num_devices", fs["M2"].empty() ? 1 : 2);
+  const bool has_projector = IntOr(fs, "has_projector", 0) != 0;
+  for (int i = 1; i <= num; ++i) {
+    const std::string s = std::to_string(i);
+    const bool is_proj = has_projector && i == num;
+    const auto [w, h] = size_or_throw(IntOr(fs, "image_width_" + s, is_proj ? projector_width : default_width),
+                                      IntOr(fs, "image_height_" + s, is_proj ? projector_height : default_height), "M" + s);
+    RigDevice d;
+    d.name = fs["device_name_" + s].empty() ? (is_proj ? "projector" : "camera" + s) : static_cast<std::string>(fs["device_name_" + s]);
+    d.model = ModelFromMats(ReadMat(fs, "M" + s, path, 3, 3), ReadDist(fs, "D" + s, path), w, h, file + ": M" + s);
+    if (i > 1) {
+      const std::string suffix = i == 2 ? "" : s;
+      d.cam_from_rig = PoseFromRT(RotationMatrixOrRvec(fs, "R" + suffix, path), ReadMat(fs, "T" + suffix, path, 3, 1));
+    }
+    if (is_proj) {
+      rig.projector = d;
+    } else {
+      rig.cameras.push_back(d);
+    }
+  }
+  return rig;
+}
+
+}  // namespace slshadow
