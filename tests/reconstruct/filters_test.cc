@@ -1,0 +1,131 @@
+#include "reconstruct/filters.h"
+
+#include <cmath>
+#include <random>
+#include <set>
+
+#include <Eigen/Geometry>
+#include <gtest/gtest.h>
+
+namespace slshadow {
+namespace {
+
+constexpr double kFocal = 500;
+
+// An organised grid of a pinhole camera (at the origin, focal kFocal) looking at z = depth(u, v).
+template <typename Depth>
+DenseGrid MakeGrid(int w, int h, Depth depth) {
+  DenseGrid grid;
+  grid.Allocate(w, h);
+  grid.focal_px = kFocal;
+  for (int v = 0; v < h; ++v) {
+    for (int u = 0; u < w; ++u) {
+      const size_t i = grid.Index(u, v);
+      const double z = depth(u, v);
+      grid.point_in_rig[i] = Eigen::Vector3d((u - w / 2.0) / kFocal * z, (v - h / 2.0) / kFocal * z, z);
+      grid.reason[i] = static_cast<uint8_t>(RejectReason::kAccepted);
+    }
+  }
+  return grid;
+}
+
+// The same camera looking at the plane n . x = d.
+DenseGrid MakePlaneGrid(int w, int h, const Eigen::Vector3d& n, double d) {
+  return MakeGrid(w, h, [&](int u, int v) {
+    const Eigen::Vector3d ray((u - w / 2.0) / kFocal, (v - h / 2.0) / kFocal, 1.0);
+    return d / n.dot(ray);  // z of the hit, since ray.z() == 1
+  });
+}
+
+int64_t Count(const DenseGrid& g, RejectReason r) { return g.CountByReason()[static_cast<size_t>(r)]; }
+
+TEST(DepthDiscontinuityTest, MarksBothSidesOfAJumpAndTheDilation) {
+  DenseGrid grid = MakeGrid(60, 40, [](int u, int) { return u < 30 ? 400.0 : 450.0; });
+  const int64_t rejected = FilterDepthDiscontinuities(grid, 8, 0);
+  EXPECT_EQ(rejected, 2 * 40);  // columns 29 and 30
+  for (int v = 0; v < 40; ++v) {
+    EXPECT_EQ(grid.reason[grid.Index(29, v)], static_cast<uint8_t>(RejectReason::kDepthDiscontinuity));
+    EXPECT_EQ(grid.reason[grid.Index(30, v)], static_cast<uint8_t>(RejectReason::kDepthDiscontinuity));
+    EXPECT_TRUE(grid.Accepted(grid.Index(28, v)));
+  }
+  DenseGrid dilated = MakeGrid(60, 40, [](int u, int) { return u < 30 ? 400.0 : 450.0; });
+  EXPECT_EQ(FilterDepthDiscontinuities(dilated, 8, 2), 6 * 40);  // columns 27..32
+}
+
+TEST(DepthDiscontinuityTest, KeepsSteepButContinuousSurfaces) {
+  // A plane tilted 75 degrees to the line of sight: range grows by tan(72..78 deg) = 3.0..4.8
+  // footprints per pixel over this narrow image.
+  const double a = 75 * M_PI / 180;
+  const Eigen::Vector3d n(std::sin(a), 0, -std::cos(a));
+  DenseGrid grid = MakePlaneGrid(60, 40, n, n.dot(Eigen::Vector3d(0, 0, 400)));
+  EXPECT_EQ(FilterDepthDiscontinuities(grid, 8, 1), 0);
+  // A threshold below the slope takes it for a jump.
+  DenseGrid again = MakePlaneGrid(60, 40, n, n.dot(Eigen::Vector3d(0, 0, 400)));
+  EXPECT_GT(FilterDepthDiscontinuities(again, 2.5, 1), 0);
+}
+
+TEST(DepthDiscontinuityTest, IsolatedSpikeAndItsNeighboursGo) {
+  DenseGrid grid = MakeGrid(20, 20, [](int u, int v) { return u == 10 && v == 10 ? 440.0 : 400.0; });
+  // The spike and its 4 neighbours sit on jumps; dilated by 1: the 5x5 block less its corners.
+  EXPECT_EQ(FilterDepthDiscontinuities(grid, 8, 1), 25 - 4);
+}
+
+TEST(OutlierRemovalTest, CleanSurfaceKeepsEveryPointAndOffSurfacePointsGo) {
+  DenseGrid clean = MakeGrid(80, 60, [](int u, int v) { return 500.0 + 0.05 * u + 0.02 * v; });
+  EXPECT_EQ(FilterStatisticalOutliers(clean, 2, 8, 3.0), 0);  // border cells included
+  EXPECT_EQ(Count(clean, RejectReason::kAccepted), 80 * 60);
+  DenseGrid grid = MakeGrid(80, 60, [](int u, int v) { return 500.0 + 0.05 * u + 0.02 * v; });
+  std::mt19937 rng(4);
+  std::uniform_int_distribution<int> pu(0, 79), pv(0, 59);
+  std::set<size_t> moved;
+  while (moved.size() < 30) {
+    const size_t i = grid.Index(pu(rng), pv(rng));
+    if (moved.insert(i).second) grid.point_in_rig[i] += Eigen::Vector3d(0, 0, 15.0);  // 15 footprints off
+  }
+  const int64_t rejected = FilterStatisticalOutliers(grid, 2, 8, 3.0);
+  for (size_t i : moved) EXPECT_EQ(grid.reason[i], static_cast<uint8_t>(RejectReason::kOutlier));
+  EXPECT_EQ(rejected, static_cast<int64_t>(moved.size()));
+  EXPECT_EQ(Count(grid, RejectReason::kOutlier), rejected);
+}
+
+TEST(OutlierRemovalTest, PointsWithoutNeighboursGo) {
+  DenseGrid grid = MakeGrid(30, 30, [](int, int) { return 500.0; });
+  for (size_t i = 0; i < grid.reason.size(); ++i) grid.reason[i] = static_cast<uint8_t>(RejectReason::kNotDecoded);
+  grid.reason[grid.Index(5, 5)] = static_cast<uint8_t>(RejectReason::kAccepted);
+  grid.reason[grid.Index(20, 20)] = static_cast<uint8_t>(RejectReason::kAccepted);
+  grid.reason[grid.Index(21, 20)] = static_cast<uint8_t>(RejectReason::kAccepted);
+  EXPECT_EQ(FilterStatisticalOutliers(grid, 2, 8, 3.0), 1);
+  EXPECT_EQ(grid.reason[grid.Index(5, 5)], static_cast<uint8_t>(RejectReason::kOutlier));
+}
+
+TEST(NormalsTest, PlaneNormalsAreExactAndFaceTheViewpoint) {
+  const Eigen::Vector3d plane_normal = Eigen::Vector3d(0.3, -0.2, -1.0).normalized();
+  DenseGrid grid = MakePlaneGrid(40, 30, plane_normal, plane_normal.dot(Eigen::Vector3d(0, 0, 500)));
+  int64_t fallbacks = -1;
+  const auto normals = EstimateNormals(grid, &fallbacks);
+  EXPECT_EQ(fallbacks, 0);
+  const Eigen::Vector3d a = grid.point_in_rig[grid.Index(0, 0)];
+  const Eigen::Vector3d b = grid.point_in_rig[grid.Index(39, 0)];
+  const Eigen::Vector3d c = grid.point_in_rig[grid.Index(0, 29)];
+  Eigen::Vector3d n = (b - a).cross(c - a).normalized();
+  if (n.dot(-a) < 0) n = -n;
+  for (size_t i = 0; i < normals.size(); ++i) {
+    EXPECT_GT(normals[i].cast<double>().dot(n), 1 - 1e-6);
+    EXPECT_GT(normals[i].cast<double>().dot(grid.viewpoint_in_rig - grid.point_in_rig[i]), 0);
+  }
+}
+
+TEST(NormalsTest, IsolatedPointsFaceTheViewpoint) {
+  DenseGrid grid = MakeGrid(5, 5, [](int, int) { return 300.0; });
+  for (size_t i = 0; i < grid.reason.size(); ++i) grid.reason[i] = static_cast<uint8_t>(RejectReason::kOutlier);
+  const size_t i = grid.Index(2, 2);
+  grid.reason[i] = static_cast<uint8_t>(RejectReason::kAccepted);
+  int64_t fallbacks = 0;
+  const auto normals = EstimateNormals(grid, &fallbacks);
+  EXPECT_EQ(fallbacks, 1);
+  EXPECT_NEAR(normals[i].cast<double>().dot(-grid.point_in_rig[i].normalized()), 1.0, 1e-6);
+  EXPECT_EQ(normals[0], Eigen::Vector3f::Zero());
+}
+
+}  // namespace
+}  // namespace slshadow

@@ -1,0 +1,163 @@
+#include "reconstruct/stereo_matcher.h"
+
+#include <cmath>
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "core/error.h"
+#include "reconstruct/dense_grid.h"
+#include "tests/reconstruct/analytic_scene.h"
+#include "tests/testing/temp_dir.h"
+
+namespace slshadow {
+namespace {
+
+constexpr uint8_t kOk = static_cast<uint8_t>(RejectReason::kAccepted);
+
+Rig SmallRig() {
+  Rig rig = LoadRig(testing::SourceDir() / "config/demo/rig.yaml");
+  for (auto& cam : rig.cameras) cam.model = testing::Downscaled(cam.model, 4);
+  return rig;
+}
+
+TEST(StereoRectificationTest, RowsAreEpipolarLinesAndDisparityGivesDepth) {
+  const Rig rig = SmallRig();
+  const StereoRectification rect = ComputeStereoRectification(rig.cameras[0], rig.cameras[1]);
+  const Eigen::Matrix3d& r = rect.rect_from_rig_rotation;
+  EXPECT_LT((r * r.transpose() - Eigen::Matrix3d::Identity()).norm(), 1e-12);
+  EXPECT_NEAR(r.determinant(), 1.0, 1e-12);
+  EXPECT_NEAR(rect.baseline_mm, rig.BaselineMm(rig.cameras[0], rig.cameras[1]), 1e-9);
+  const Rigid3d rect0 = rect.RectCamFromRig(0), rect1 = rect.RectCamFromRig(1);
+  std::mt19937 rng(2);
+  std::uniform_real_distribution<double> xy(-100, 100), z(350, 800);
+  for (int i = 0; i < 200; ++i) {
+    const Eigen::Vector3d p(xy(rng), xy(rng), z(rng));
+    const Eigen::Vector3d a = rect0 * p, b = rect1 * p;
+    const double ul = rect.focal_px * a.x() / a.z() + rect.cx[0], vl = rect.focal_px * a.y() / a.z() + rect.cy;
+    const double ur = rect.focal_px * b.x() / b.z() + rect.cx[1], vr = rect.focal_px * b.y() / b.z() + rect.cy;
+    EXPECT_NEAR(vl, vr, 1e-9);
+    EXPECT_NEAR(a.z(), b.z(), 1e-9);
+    EXPECT_NEAR((ul - rect.cx[0]) - (ur - rect.cx[1]), rect.focal_px * rect.baseline_mm / a.z(), 1e-9);
+  }
+  // Each camera's image centre lies inside its rectified image.
+  for (int c = 0; c < 2; ++c) {
+    const RigDevice& cam = rig.cameras[static_cast<size_t>(c)];
+    const auto xy_c = cam.model.UndistortToNormalized(Eigen::Vector2d(cam.model.cx(), cam.model.cy()));
+    const Eigen::Vector3d ray = rect.rect_from_rig_rotation * cam.cam_from_rig.rotation.conjugate() *
+                                Eigen::Vector3d(xy_c->x(), xy_c->y(), 1.0);
+    const double u = rect.focal_px * ray.x() / ray.z() + rect.cx[c];
+    const double v = rect.focal_px * ray.y() / ray.z() + rect.cy;
+    EXPECT_GT(u, 0);
+    EXPECT_LT(u, rect.width[c] - 1);
+    EXPECT_GT(v, 0);
+    EXPECT_LT(v, rect.height - 1);
+  }
+}
+
+TEST(StereoRectificationTest, CoincidentCentresThrow) {
+  Rig rig = SmallRig();
+  rig.cameras[1].cam_from_rig = Rigid3d(rig.cameras[1].cam_from_rig.rotation, Eigen::Vector3d::Zero());
+  EXPECT_THROW(ComputeStereoRectification(rig.cameras[0], rig.cameras[1]), Error);
+}
+
+TEST(RectifyProjectorMapTest, ResampledCodesMatchTheAnalyticCodes) {
+  const Rig rig = SmallRig();
+  const Eigen::Vector3d n = Eigen::Vector3d(0.1, 0.05, -1).normalized();
+  const double d = n.dot(Eigen::Vector3d(0, 0, 500));
+  const auto view = testing::RenderAnalytic(rig, rig.cameras[1], testing::Plane(n, d));
+  const StereoRectification rect = ComputeStereoRectification(rig.cameras[0], rig.cameras[1]);
+  const RectifiedMap map = RectifyProjectorMap(rect, 1, rig.cameras[1], view.map, 4.0, 0.0f);
+  ASSERT_EQ(map.width, rect.width[1]);
+  ASSERT_EQ(map.height, rect.height);
+  const Rigid3d rig_from_rect = rect.RectCamFromRig(1).Inverse();
+  const RigDevice& proj = *rig.projector;
+  int checked = 0;
+  double worst = 0;
+  for (int v = 0; v < map.height; ++v) {
+    for (int u = 0; u < map.width; ++u) {
+      const size_t i = map.Index(u, v);
+      if (map.reason[i] != kOk) continue;
+      const Eigen::Vector2d xy = rect.Normalized(1, u, v);
+      const Eigen::Vector3d dir = rig_from_rect.rotation * Eigen::Vector3d(xy.x(), xy.y(), 1.0);
+      const Eigen::Vector3d o = rig_from_rect.translation;
+      const Eigen::Vector3d p = o + dir * ((d - n.dot(o)) / n.dot(dir));
+      const Eigen::Vector2d code = *proj.model.Project(proj.cam_from_rig * p);
+      worst = std::max({worst, std::abs(map.proj_x[i] - code.x()), std::abs(map.proj_y[i] - code.y())});
+      ++checked;
+    }
+  }
+  EXPECT_GT(checked, 50000);
+  // Bilinear interpolation of a smooth map between pixel centres (4x downscaled camera).
+  EXPECT_LT(worst, 2e-3);
+  RecordProperty("worst_code_error_px", std::to_string(worst));
+}
+
+// Hand-made rectified maps of one row.
+RectifiedMap Row(const std::vector<double>& values) {
+  RectifiedMap m;
+  m.width = static_cast<int>(values.size());
+  m.height = 1;
+  m.proj_x = values;
+  m.proj_y.assign(values.size(), std::nan(""));
+  m.quality.assign(values.size(), 1.0f);
+  m.source_u.assign(values.size(), 0.0f);
+  m.source_v.assign(values.size(), 0.0f);
+  m.reason.assign(values.size(), kOk);
+  for (size_t i = 0; i < values.size(); ++i) {
+    if (!std::isfinite(values[i])) m.reason[i] = static_cast<uint8_t>(RejectReason::kNotDecoded);
+  }
+  return m;
+}
+
+StereoRectification RowRect(int width) {
+  StereoRectification rect;
+  rect.focal_px = 100;
+  rect.height = 1;
+  rect.width[0] = rect.width[1] = width;
+  rect.cx[0] = rect.cx[1] = 0;
+  return rect;
+}
+
+TEST(MatchRectifiedMapsTest, FindsTheSubPixelCrossingWithinTheDisparityRange) {
+  const double nan = std::nan("");
+  // Right row: code 10 + 0.5 k (monotone); left codes at various places.
+  std::vector<double> right(20);
+  for (int k = 0; k < 20; ++k) right[static_cast<size_t>(k)] = 10 + 0.5 * k;
+  const RectifiedMap r = Row(right);
+  const RectifiedMap l = Row({nan, nan, nan, nan, nan, 12.25, 13.0, 30.0, nan, nan, 10.0, nan, nan, nan, nan, nan, nan, nan, nan, nan});
+  const StereoMatches m = MatchRectifiedMaps(RowRect(20), l, r, 0.0, 5.0, 4.0);
+  EXPECT_NEAR(m.right_u[5], 4.5, 1e-12);  // 12.25 between samples 4 (12.0) and 5 (12.5)
+  EXPECT_NEAR(m.right_u[6], 6.0, 1e-12);  // exactly on a sample shared by two segments: one match
+  EXPECT_EQ(m.reason[6], kOk);
+  EXPECT_EQ(m.reason[7], static_cast<uint8_t>(RejectReason::kNoMatch));  // code not on the row
+  EXPECT_TRUE(std::isnan(m.right_u[7]));
+  // Code 10 is at right sample 0: disparity 10 - 0 = 10 > 5, outside the range.
+  EXPECT_EQ(m.reason[10], static_cast<uint8_t>(RejectReason::kNoMatch));
+  const StereoMatches wider = MatchRectifiedMaps(RowRect(20), l, r, 0.0, 10.0, 4.0);
+  EXPECT_NEAR(wider.right_u[10], 0.0, 1e-12);
+}
+
+TEST(MatchRectifiedMapsTest, DisparityRangeAmbiguityAndCodeJumps) {
+  const double nan = std::nan("");
+  // Non-monotone right row: code 12.5 appears twice (k = 2.5 and k = 7.5).
+  const RectifiedMap r = Row({10, 11, 12, 13, 14, 15, 14, 13, 12, 11, 40, 41});
+  const RectifiedMap l = Row({nan, nan, nan, nan, nan, nan, nan, nan, 12.5, nan, nan, 40.5});
+  const auto rect = RowRect(12);
+  const StereoMatches wide = MatchRectifiedMaps(rect, l, r, 0.0, 100.0, 4.0);
+  EXPECT_EQ(wide.reason[8], static_cast<uint8_t>(RejectReason::kAmbiguousMatch));
+  EXPECT_NEAR(wide.right_u[11], 10.5, 1e-12);
+  // A disparity window that keeps only one of the two.
+  const StereoMatches window = MatchRectifiedMaps(rect, l, r, 0.0, 1.0, 4.0);
+  EXPECT_EQ(window.reason[8], kOk);
+  EXPECT_NEAR(window.right_u[8], 7.5, 1e-12);
+  // Code 25 lies in the jump 11 -> 40 between samples 9 and 10: never bridged.
+  const RectifiedMap l2 = Row({nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, 25.0, nan});
+  const StereoMatches jump = MatchRectifiedMaps(rect, l2, r, -100.0, 100.0, 4.0);
+  EXPECT_EQ(jump.reason[10], static_cast<uint8_t>(RejectReason::kNoMatch));
+  const StereoMatches bridged = MatchRectifiedMaps(rect, l2, r, -100.0, 100.0, 100.0);
+  EXPECT_EQ(bridged.reason[10], kOk);
+}
+
+}  // namespace
+}  // namespace slshadow
