@@ -9,7 +9,7 @@ PACKAGES=(
   # core
   libeigen3-dev libopencv-dev libopencv-contrib-dev libyaml-cpp-dev nlohmann-json3-dev
   # calibration, simulation, comparison
-  libceres-dev libembree-dev libtbb-dev libpcl-dev libplplot-dev plplot-driver-cairo
+  libceres-dev libembree-dev libtbb-dev libnanoflann-dev libpcl-dev libplplot-dev plplot-driver-cairo
   # command line and logging
   libcli11-dev libspdlog-dev
   # tests and benchmarks

@@ -1,0 +1,433 @@
+#include "sim/raycaster.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include <embree3/rtcore.h>
+
+#include "core/error.h"
+
+namespace slshadow {
+namespace {
+
+constexpr float kInf = std::numeric_limits<float>::infinity();
+
+// Data an Embree user geometry needs: the object and its transform.
+struct PrimitiveData {
+  const SceneObject* object = nullptr;
+  Eigen::Matrix3d object_from_rig_rotation;
+  Eigen::Matrix3d rig_from_object_rotation;
+  Eigen::Vector3d translation;  // rig_from_object translation
+};
+
+bool Better(double t, double t_near, double t_far, double best) { return t > t_near && t < t_far && t < best; }
+
+void PrimitiveBounds(const struct RTCBoundsFunctionArguments* args) {
+  const auto* data = static_cast<const PrimitiveData*>(args->geometryUserPtr);
+  const SceneObject& o = *data->object;
+  Eigen::Vector3d half;
+  switch (o.type) {
+    case ObjectType::kPlane: half = Eigen::Vector3d(o.size_mm.x() / 2, o.size_mm.y() / 2, 0); break;
+    case ObjectType::kSphere: half = Eigen::Vector3d::Constant(o.radius_mm); break;
+    case ObjectType::kCylinder: half = Eigen::Vector3d(o.radius_mm, o.radius_mm, o.height_mm / 2); break;
+    case ObjectType::kBox: half = o.size_mm / 2; break;
+    default: half = Eigen::Vector3d::Zero(); break;
+  }
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+  Eigen::Vector3d hi = -lo;
+  for (int c = 0; c < 8; ++c) {
+    const Eigen::Vector3d corner((c & 1) ? half.x() : -half.x(), (c & 2) ? half.y() : -half.y(), (c & 4) ? half.z() : -half.z());
+    const Eigen::Vector3d p = data->rig_from_object_rotation * corner + data->translation;
+    lo = lo.cwiseMin(p);
+    hi = hi.cwiseMax(p);
+  }
+  const double pad = 1e-3 + 1e-6 * hi.cwiseAbs().maxCoeff();
+  args->bounds_o->lower_x = static_cast<float>(lo.x() - pad);
+  args->bounds_o->lower_y = static_cast<float>(lo.y() - pad);
+  args->bounds_o->lower_z = static_cast<float>(lo.z() - pad);
+  args->bounds_o->upper_x = static_cast<float>(hi.x() + pad);
+  args->bounds_o->upper_y = static_cast<float>(hi.y() + pad);
+  args->bounds_o->upper_z = static_cast<float>(hi.z() + pad);
+}
+
+bool IntersectInRig(const PrimitiveData& data, float ox, float oy, float oz, float dx, float dy, float dz, float tnear,
+                    float tfar, PrimitiveHit* hit) {
+  const Eigen::Vector3d o = data.object_from_rig_rotation * (Eigen::Vector3d(ox, oy, oz) - data.translation);
+  const Eigen::Vector3d d = data.object_from_rig_rotation * Eigen::Vector3d(dx, dy, dz);
+  if (!IntersectPrimitive(*data.object, o, d, tnear, tfar, hit)) return false;
+  hit->normal = data.rig_from_object_rotation * hit->normal;
+  return true;
+}
+
+void PrimitiveIntersect(const RTCIntersectFunctionNArguments* args) {
+  const auto* data = static_cast<const PrimitiveData*>(args->geometryUserPtr);
+  RTCRayN* ray = RTCRayHitN_RayN(args->rayhit, args->N);
+  RTCHitN* h = RTCRayHitN_HitN(args->rayhit, args->N);
+  const unsigned n = args->N;
+  for (unsigned i = 0; i < n; ++i) {
+    if (args->valid[i] == 0) continue;
+    PrimitiveHit hit;
+    if (!IntersectInRig(*data, RTCRayN_org_x(ray, n, i), RTCRayN_org_y(ray, n, i), RTCRayN_org_z(ray, n, i),
+                        RTCRayN_dir_x(ray, n, i), RTCRayN_dir_y(ray, n, i), RTCRayN_dir_z(ray, n, i),
+                        RTCRayN_tnear(ray, n, i), RTCRayN_tfar(ray, n, i), &hit)) {
+      continue;
+    }
+    RTCRayN_tfar(ray, n, i) = static_cast<float>(hit.t);
+    RTCHitN_Ng_x(h, n, i) = static_cast<float>(hit.normal.x());
+    RTCHitN_Ng_y(h, n, i) = static_cast<float>(hit.normal.y());
+    RTCHitN_Ng_z(h, n, i) = static_cast<float>(hit.normal.z());
+    RTCHitN_u(h, n, i) = 0;
+    RTCHitN_v(h, n, i) = 0;
+    RTCHitN_primID(h, n, i) = args->primID;
+    RTCHitN_geomID(h, n, i) = args->geomID;
+    RTCHitN_instID(h, n, i, 0) = args->context->instID[0];
+  }
+}
+
+void PrimitiveOccluded(const RTCOccludedFunctionNArguments* args) {
+  const auto* data = static_cast<const PrimitiveData*>(args->geometryUserPtr);
+  RTCRayN* ray = args->ray;
+  const unsigned n = args->N;
+  for (unsigned i = 0; i < n; ++i) {
+    if (args->valid[i] == 0) continue;
+    PrimitiveHit hit;
+    if (IntersectInRig(*data, RTCRayN_org_x(ray, n, i), RTCRayN_org_y(ray, n, i), RTCRayN_org_z(ray, n, i),
+                       RTCRayN_dir_x(ray, n, i), RTCRayN_dir_y(ray, n, i), RTCRayN_dir_z(ray, n, i),
+                       RTCRayN_tnear(ray, n, i), RTCRayN_tfar(ray, n, i), &hit)) {
+      RTCRayN_tfar(ray, n, i) = -kInf;
+    }
+  }
+}
+
+void ErrorCallback(void*, RTCError code, const char* message) {
+  // Reported through rtcGetDeviceError checks below; keep the message for the exception.
+  (void)code;
+  (void)message;
+}
+
+}  // namespace
+
+bool IntersectPrimitive(const SceneObject& object, const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_near,
+                        double t_far, PrimitiveHit* hit) {
+  double best = std::numeric_limits<double>::infinity();
+  Eigen::Vector3d normal = Eigen::Vector3d::Zero();
+  switch (object.type) {
+    case ObjectType::kPlane: {
+      if (d.z() == 0) return false;
+      const double t = -o.z() / d.z();
+      if (!Better(t, t_near, t_far, best)) return false;
+      const Eigen::Vector3d p = o + t * d;
+      if (std::abs(p.x()) > object.size_mm.x() / 2 || std::abs(p.y()) > object.size_mm.y() / 2) return false;
+      best = t;
+      normal = Eigen::Vector3d::UnitZ();
+      break;
+    }
+    case ObjectType::kSphere: {
+      const double a = d.squaredNorm();
+      const double b = o.dot(d);
+      const double c = o.squaredNorm() - object.radius_mm * object.radius_mm;
+      const double disc = b * b - a * c;
+      if (disc < 0) return false;
+      // Numerically stable roots.
+      const double q = -(b + std::copysign(std::sqrt(disc), b));
+      const double t1 = q / a, t2 = q != 0 ? c / q : t1;
+      for (double t : {std::min(t1, t2), std::max(t1, t2)}) {
+        if (Better(t, t_near, t_far, best)) {
+          best = t;
+          break;
+        }
+      }
+      if (!std::isfinite(best)) return false;
+      normal = (o + best * d) / object.radius_mm;
+      break;
+    }
+    case ObjectType::kCylinder: {
+      const double r = object.radius_mm, hh = object.height_mm / 2;
+      const double a = d.x() * d.x() + d.y() * d.y();
+      const double b = o.x() * d.x() + o.y() * d.y();
+      const double c = o.x() * o.x() + o.y() * o.y() - r * r;
+      const double disc = b * b - a * c;
+      if (a > 0 && disc >= 0) {
+        const double q = -(b + std::copysign(std::sqrt(disc), b));
+        const double t1 = q / a, t2 = q != 0 ? c / q : t1;
+        for (double t : {t1, t2}) {
+          const double z = o.z() + t * d.z();
+          if (std::abs(z) <= hh && Better(t, t_near, t_far, best)) {
+            best = t;
+            const Eigen::Vector3d p = o + t * d;
+            normal = Eigen::Vector3d(p.x(), p.y(), 0) / r;
+          }
+        }
+      }
+      if (d.z() != 0) {
+        for (double zc : {-hh, hh}) {
+          const double t = (zc - o.z()) / d.z();
+          const Eigen::Vector3d p = o + t * d;
+          if (p.x() * p.x() + p.y() * p.y() <= r * r && Better(t, t_near, t_far, best)) {
+            best = t;
+            normal = Eigen::Vector3d(0, 0, zc > 0 ? 1 : -1);
+          }
+        }
+      }
+      if (!std::isfinite(best)) return false;
+      break;
+    }
+    case ObjectType::kBox: {
+      const Eigen::Vector3d half = object.size_mm / 2;
+      double t_enter = -std::numeric_limits<double>::infinity(), t_exit = std::numeric_limits<double>::infinity();
+      int axis_enter = 0, axis_exit = 0;
+      double sign_enter = 1, sign_exit = 1;
+      for (int k = 0; k < 3; ++k) {
+        if (d[k] == 0) {
+          if (std::abs(o[k]) > half[k]) return false;
+          continue;
+        }
+        double ta = (-half[k] - o[k]) / d[k], tb = (half[k] - o[k]) / d[k];
+        double sa = -1, sb = 1;
+        if (ta > tb) {
+          std::swap(ta, tb);
+          std::swap(sa, sb);
+        }
+        if (ta > t_enter) { t_enter = ta; axis_enter = k; sign_enter = sa; }
+        if (tb < t_exit) { t_exit = tb; axis_exit = k; sign_exit = sb; }
+      }
+      if (t_enter > t_exit) return false;
+      if (Better(t_enter, t_near, t_far, best)) {
+        best = t_enter;
+        normal = Eigen::Vector3d::Zero();
+        normal[axis_enter] = sign_enter;
+      } else if (Better(t_exit, t_near, t_far, best)) {
+        best = t_exit;
+        normal = Eigen::Vector3d::Zero();
+        normal[axis_exit] = sign_exit;
+      } else {
+        return false;
+      }
+      break;
+    }
+    default:
+      return false;
+  }
+  hit->t = best;
+  hit->normal = normal;
+  return true;
+}
+
+struct RayCaster::Impl {
+  RTCDevice device = nullptr;
+  RTCScene scene = nullptr;
+  std::vector<int32_t> geom_to_object;
+  std::vector<std::unique_ptr<PrimitiveData>> primitives;
+  ~Impl() {
+    if (scene) rtcReleaseScene(scene);
+    if (device) rtcReleaseDevice(device);
+  }
+};
+
+namespace {
+void ThrowIfDeviceError(RTCDevice device, const std::string& what) {
+  const RTCError e = rtcGetDeviceError(device);
+  SLSHADOW_THROW_IF(e != RTC_ERROR_NONE, "Embree: ", what, " failed (error code ", static_cast<int>(e), ")");
+}
+}  // namespace
+
+RayCaster::RayCaster(const Scene& scene) : scene_(scene), impl_(std::make_unique<Impl>()) {
+  const auto start = std::chrono::steady_clock::now();
+  impl_->device = rtcNewDevice(nullptr);
+  SLSHADOW_THROW_IF(impl_->device == nullptr, "Embree: cannot create a device (error code ",
+                    static_cast<int>(rtcGetDeviceError(nullptr)), ")");
+  rtcSetDeviceErrorFunction(impl_->device, ErrorCallback, nullptr);
+  impl_->scene = rtcNewScene(impl_->device);
+  rtcSetSceneBuildQuality(impl_->scene, RTC_BUILD_QUALITY_MEDIUM);
+  for (size_t oi = 0; oi < scene.objects.size(); ++oi) {
+    const SceneObject& o = scene.objects[oi];
+    RTCGeometry geom = nullptr;
+    const Eigen::Matrix3f rot = o.rig_from_object.rotation.toRotationMatrix().cast<float>();
+    const Eigen::Matrix3d rotd = o.rig_from_object.rotation.toRotationMatrix();
+    if (o.type == ObjectType::kMesh) {
+      const TriangleMesh& m = *o.mesh;
+      geom = rtcNewGeometry(impl_->device, RTC_GEOMETRY_TYPE_TRIANGLE);
+      auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                                            3 * sizeof(float), m.vertices.size()));
+      auto* t = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                                               3 * sizeof(uint32_t), m.triangles.size()));
+      SLSHADOW_THROW_IF(v == nullptr || t == nullptr, "Embree: cannot allocate buffers for object '", o.name, "'");
+      for (size_t i = 0; i < m.vertices.size(); ++i) {
+        const Eigen::Vector3d p = rotd * m.vertices[i] + o.rig_from_object.translation;
+        v[3 * i] = static_cast<float>(p.x());
+        v[3 * i + 1] = static_cast<float>(p.y());
+        v[3 * i + 2] = static_cast<float>(p.z());
+      }
+      for (size_t i = 0; i < m.triangles.size(); ++i) {
+        for (int k = 0; k < 3; ++k) t[3 * i + k] = static_cast<uint32_t>(m.triangles[i][k]);
+      }
+      num_triangles_ += static_cast<int64_t>(m.triangles.size());
+    } else if (o.type == ObjectType::kPointCloud) {
+      const PointCloud& c = *o.points;
+      geom = rtcNewGeometry(impl_->device, RTC_GEOMETRY_TYPE_ORIENTED_DISC_POINT);
+      auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4,
+                                                            4 * sizeof(float), c.size()));
+      auto* n = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_NORMAL, 0, RTC_FORMAT_FLOAT3,
+                                                            3 * sizeof(float), c.size()));
+      SLSHADOW_THROW_IF(v == nullptr || n == nullptr, "Embree: cannot allocate buffers for object '", o.name, "'");
+      for (size_t i = 0; i < c.size(); ++i) {
+        const Eigen::Vector3d p = rotd * c.points[i] + o.rig_from_object.translation;
+        const Eigen::Vector3f nn = (rot * c.normals[i]).normalized();
+        v[4 * i] = static_cast<float>(p.x());
+        v[4 * i + 1] = static_cast<float>(p.y());
+        v[4 * i + 2] = static_cast<float>(p.z());
+        v[4 * i + 3] = o.disc_radii_mm[i];
+        n[3 * i] = nn.x();
+        n[3 * i + 1] = nn.y();
+        n[3 * i + 2] = nn.z();
+      }
+    } else {
+      auto data = std::make_unique<PrimitiveData>();
+      data->object = &o;
+      data->rig_from_object_rotation = rotd;
+      data->object_from_rig_rotation = rotd.transpose();
+      data->translation = o.rig_from_object.translation;
+      geom = rtcNewGeometry(impl_->device, RTC_GEOMETRY_TYPE_USER);
+      rtcSetGeometryUserPrimitiveCount(geom, 1);
+      rtcSetGeometryUserData(geom, data.get());
+      rtcSetGeometryBoundsFunction(geom, PrimitiveBounds, nullptr);
+      rtcSetGeometryIntersectFunction(geom, PrimitiveIntersect);
+      rtcSetGeometryOccludedFunction(geom, PrimitiveOccluded);
+      impl_->primitives.push_back(std::move(data));
+    }
+    rtcCommitGeometry(geom);
+    const unsigned id = rtcAttachGeometry(impl_->scene, geom);
+    rtcReleaseGeometry(geom);
+    if (impl_->geom_to_object.size() <= id) impl_->geom_to_object.resize(id + 1, -1);
+    impl_->geom_to_object[id] = static_cast<int32_t>(oi);
+  }
+  rtcCommitScene(impl_->scene);
+  ThrowIfDeviceError(impl_->device, "building the scene");
+  build_seconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+RayCaster::~RayCaster() = default;
+
+void RayCaster::Intersect(RayPacket& p, TraceMode mode, bool coherent) const {
+  RTCIntersectContext context;
+  rtcInitIntersectContext(&context);
+  if (coherent) context.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+  if (mode == TraceMode::kPacket16) {
+    alignas(64) RTCRayHit16 rh;
+    alignas(64) int valid[RayPacket::kSize];
+    for (int i = 0; i < RayPacket::kSize; ++i) {
+      valid[i] = p.active[i] ? -1 : 0;
+      rh.ray.org_x[i] = p.org_x[i];
+      rh.ray.org_y[i] = p.org_y[i];
+      rh.ray.org_z[i] = p.org_z[i];
+      rh.ray.dir_x[i] = p.dir_x[i];
+      rh.ray.dir_y[i] = p.dir_y[i];
+      rh.ray.dir_z[i] = p.dir_z[i];
+      rh.ray.tnear[i] = p.tnear[i];
+      rh.ray.tfar[i] = p.tfar[i];
+      rh.ray.time[i] = 0;
+      rh.ray.mask[i] = 0xFFFFFFFFu;
+      rh.ray.id[i] = static_cast<unsigned>(i);
+      rh.ray.flags[i] = 0;
+      rh.hit.geomID[i] = RTC_INVALID_GEOMETRY_ID;
+      rh.hit.instID[0][i] = RTC_INVALID_GEOMETRY_ID;
+    }
+    rtcIntersect16(valid, impl_->scene, &context, &rh);
+    for (int i = 0; i < RayPacket::kSize; ++i) {
+      if (!p.active[i]) continue;
+      if (rh.hit.geomID[i] == RTC_INVALID_GEOMETRY_ID) {
+        p.object[i] = -1;
+        continue;
+      }
+      p.tfar[i] = rh.ray.tfar[i];
+      const Eigen::Vector3f n = Eigen::Vector3f(rh.hit.Ng_x[i], rh.hit.Ng_y[i], rh.hit.Ng_z[i]).normalized();
+      p.ng_x[i] = n.x();
+      p.ng_y[i] = n.y();
+      p.ng_z[i] = n.z();
+      p.object[i] = impl_->geom_to_object[rh.hit.geomID[i]];
+    }
+    return;
+  }
+  for (int i = 0; i < RayPacket::kSize; ++i) {
+    if (!p.active[i]) continue;
+    RTCRayHit rh;
+    rh.ray.org_x = p.org_x[i];
+    rh.ray.org_y = p.org_y[i];
+    rh.ray.org_z = p.org_z[i];
+    rh.ray.dir_x = p.dir_x[i];
+    rh.ray.dir_y = p.dir_y[i];
+    rh.ray.dir_z = p.dir_z[i];
+    rh.ray.tnear = p.tnear[i];
+    rh.ray.tfar = p.tfar[i];
+    rh.ray.time = 0;
+    rh.ray.mask = 0xFFFFFFFFu;
+    rh.ray.id = 0;
+    rh.ray.flags = 0;
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(impl_->scene, &context, &rh);
+    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) {
+      p.object[i] = -1;
+      continue;
+    }
+    p.tfar[i] = rh.ray.tfar;
+    const Eigen::Vector3f n = Eigen::Vector3f(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z).normalized();
+    p.ng_x[i] = n.x();
+    p.ng_y[i] = n.y();
+    p.ng_z[i] = n.z();
+    p.object[i] = impl_->geom_to_object[rh.hit.geomID];
+  }
+}
+
+void RayCaster::Occluded(RayPacket& p, TraceMode mode) const {
+  RTCIntersectContext context;
+  rtcInitIntersectContext(&context);
+  if (mode == TraceMode::kPacket16) {
+    alignas(64) RTCRay16 r;
+    alignas(64) int valid[RayPacket::kSize];
+    for (int i = 0; i < RayPacket::kSize; ++i) {
+      valid[i] = p.active[i] ? -1 : 0;
+      r.org_x[i] = p.org_x[i];
+      r.org_y[i] = p.org_y[i];
+      r.org_z[i] = p.org_z[i];
+      r.dir_x[i] = p.dir_x[i];
+      r.dir_y[i] = p.dir_y[i];
+      r.dir_z[i] = p.dir_z[i];
+      r.tnear[i] = p.tnear[i];
+      r.tfar[i] = p.tfar[i];
+      r.time[i] = 0;
+      r.mask[i] = 0xFFFFFFFFu;
+      r.id[i] = static_cast<unsigned>(i);
+      r.flags[i] = 0;
+    }
+    rtcOccluded16(valid, impl_->scene, &context, &r);
+    for (int i = 0; i < RayPacket::kSize; ++i) {
+      if (p.active[i]) p.occluded[i] = r.tfar[i] == -kInf;
+    }
+    return;
+  }
+  for (int i = 0; i < RayPacket::kSize; ++i) {
+    if (!p.active[i]) continue;
+    RTCRay r;
+    r.org_x = p.org_x[i];
+    r.org_y = p.org_y[i];
+    r.org_z = p.org_z[i];
+    r.dir_x = p.dir_x[i];
+    r.dir_y = p.dir_y[i];
+    r.dir_z = p.dir_z[i];
+    r.tnear = p.tnear[i];
+    r.tfar = p.tfar[i];
+    r.time = 0;
+    r.mask = 0xFFFFFFFFu;
+    r.id = 0;
+    r.flags = 0;
+    rtcOccluded1(impl_->scene, &context, &r);
+    p.occluded[i] = r.tfar == -kInf;
+  }
+}
+
+}  // namespace slshadow

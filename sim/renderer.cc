@@ -1,0 +1,513 @@
+#include "sim/renderer.h"
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <limits>
+
+#include <opencv2/imgproc.hpp>
+#include <tbb/blocked_range2d.h>
+#include <tbb/parallel_for.h>
+
+#include "core/error.h"
+
+namespace slshadow {
+namespace {
+
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+constexpr int kBlock = 4;  // 4 x 4 pixels = one packet of 16 rays
+
+// Where the pass writes for one set of samples.
+struct SampleTargets {
+  int samples = 1;  // per pixel in this set
+  const std::vector<Eigen::Vector3f>* dirs = nullptr;
+  // Per-sample outputs (may be null).
+  float* proj_x = nullptr;
+  float* proj_y = nullptr;
+  float* factor = nullptr;
+  float* albedo = nullptr;
+  float* proj_sigma = nullptr;
+  // Ground-truth outputs, per pixel (only when samples == 1; may be null).
+  GeometryBuffer* gt = nullptr;
+};
+
+struct PassContext {
+  const RayCaster* caster;
+  const Scene* scene;
+  TraceMode mode;
+  int width, height;
+  Eigen::Matrix3f rig_from_cam;
+  Eigen::Vector3f cam_center;
+  Eigen::Vector3d cam_center_d;
+  Rigid3d cam_from_rig;
+  Rigid3d proj_from_rig;
+  Eigen::Vector3d proj_center;
+  const CameraModel* projector;
+  double ref_distance_sq;
+  const SceneLayers::Defocus* proj_defocus;
+  std::vector<Rigid3d> object_from_rig;
+};
+
+void TracePacket(const PassContext& c, const SampleTargets& out, int bx, int by, int s, int64_t* primary,
+                 int64_t* shadow) {
+  RayPacket p;
+  RayPacket sh;
+  int64_t index[RayPacket::kSize];
+  int px[RayPacket::kSize], py[RayPacket::kSize];
+  for (int i = 0; i < RayPacket::kSize; ++i) {
+    const int x = bx * kBlock + (i % kBlock), y = by * kBlock + (i / kBlock);
+    px[i] = x;
+    py[i] = y;
+    p.active[i] = false;
+    sh.active[i] = false;
+    p.object[i] = -1;
+    if (x >= c.width || y >= c.height) continue;
+    index[i] = (static_cast<int64_t>(y) * c.width + x) * out.samples + s;
+    const Eigen::Vector3f& d_cam = (*out.dirs)[static_cast<size_t>(index[i])];
+    if (!d_cam.allFinite()) continue;
+    const Eigen::Vector3f d = c.rig_from_cam * d_cam;
+    p.org_x[i] = c.cam_center.x();
+    p.org_y[i] = c.cam_center.y();
+    p.org_z[i] = c.cam_center.z();
+    p.dir_x[i] = d.x();
+    p.dir_y[i] = d.y();
+    p.dir_z[i] = d.z();
+    p.tnear[i] = 0;
+    p.tfar[i] = std::numeric_limits<float>::infinity();
+    p.active[i] = true;
+    ++*primary;
+  }
+  c.caster->Intersect(p, c.mode, /*coherent=*/true);
+
+  Eigen::Vector3d point[RayPacket::kSize], normal[RayPacket::kSize];
+  Eigen::Vector2d proj_px[RayPacket::kSize];
+  double factor[RayPacket::kSize], albedo[RayPacket::kSize], proj_depth[RayPacket::kSize];
+  for (int i = 0; i < RayPacket::kSize; ++i) {
+    if (!p.active[i] || p.object[i] < 0) continue;
+    const Eigen::Vector3d dir(p.dir_x[i], p.dir_y[i], p.dir_z[i]);
+    point[i] = c.cam_center_d + static_cast<double>(p.tfar[i]) * dir;
+    Eigen::Vector3d n(p.ng_x[i], p.ng_y[i], p.ng_z[i]);
+    if (n.dot(dir) > 0) n = -n;
+    normal[i] = n;
+    const SceneObject& o = c.scene->objects[static_cast<size_t>(p.object[i])];
+    if (o.albedo.IsTextured()) {
+      const Eigen::Vector3d local = c.object_from_rig[static_cast<size_t>(p.object[i])] * point[i];
+      albedo[i] = o.albedo.Evaluate(local.x() + o.albedo_offset_mm.x(), local.y() + o.albedo_offset_mm.y());
+    } else {
+      albedo[i] = o.albedo.value;
+    }
+    factor[i] = 0;
+    const Eigen::Vector3d to_proj = c.proj_center - point[i];
+    const double dist = to_proj.norm();
+    const Eigen::Vector3d l = to_proj / dist;
+    const double cos_p = n.dot(l);
+    if (cos_p <= 0) continue;
+    const Eigen::Vector3d in_proj = c.proj_from_rig * point[i];
+    if (in_proj.z() <= 0) continue;
+    double uv[2];
+    CameraModel::ImgFromCam(c.projector->params.data(), in_proj.data(), uv);
+    proj_px[i] = Eigen::Vector2d(uv[0], uv[1]);
+    if (!c.projector->IsInImage(proj_px[i])) continue;
+    proj_depth[i] = in_proj.z();
+    factor[i] = albedo[i] * cos_p * c.ref_distance_sq / (dist * dist);
+    // Occlusion ray towards the projector's centre, started slightly off the surface.
+    const double eps = 1e-3 * (1.0 + dist / 100.0);
+    const Eigen::Vector3d origin = point[i] + eps * n;
+    sh.org_x[i] = static_cast<float>(origin.x());
+    sh.org_y[i] = static_cast<float>(origin.y());
+    sh.org_z[i] = static_cast<float>(origin.z());
+    sh.dir_x[i] = static_cast<float>(l.x());
+    sh.dir_y[i] = static_cast<float>(l.y());
+    sh.dir_z[i] = static_cast<float>(l.z());
+    sh.tnear[i] = 0;
+    sh.tfar[i] = static_cast<float>(dist - 2 * eps);
+    sh.active[i] = true;
+    ++*shadow;
+  }
+  bool any_shadow = false;
+  for (int i = 0; i < RayPacket::kSize; ++i) any_shadow |= sh.active[i];
+  if (any_shadow) c.caster->Occluded(sh, c.mode);
+
+  for (int i = 0; i < RayPacket::kSize; ++i) {
+    if (px[i] >= c.width || py[i] >= c.height) continue;
+    const bool hit = p.active[i] && p.object[i] >= 0;
+    const bool lit = hit && sh.active[i] && !sh.occluded[i];
+    const size_t k = static_cast<size_t>(index[i]);
+    if (out.proj_x) {
+      out.proj_x[k] = lit ? static_cast<float>(proj_px[i].x()) : kNaN;
+      out.proj_y[k] = lit ? static_cast<float>(proj_px[i].y()) : kNaN;
+      out.factor[k] = lit ? static_cast<float>(factor[i]) : 0.0f;
+      out.albedo[k] = hit ? static_cast<float>(albedo[i]) : 0.0f;
+      if (out.proj_sigma) {
+        out.proj_sigma[k] = lit ? static_cast<float>(c.proj_defocus->SigmaPx(c.projector->fx(), proj_depth[i])) : 0.0f;
+      }
+    }
+    if (out.gt) {
+      GeometryBuffer& g = *out.gt;
+      const int x = px[i], y = py[i];
+      if (hit) {
+        const Eigen::Vector3d in_cam = c.cam_from_rig * point[i];
+        g.depth_mm.at<float>(y, x) = static_cast<float>(in_cam.z());
+        g.point_in_rig.at<cv::Vec3f>(y, x) = cv::Vec3f(static_cast<float>(point[i].x()), static_cast<float>(point[i].y()),
+                                                       static_cast<float>(point[i].z()));
+        g.normal_in_rig.at<cv::Vec3f>(y, x) = cv::Vec3f(static_cast<float>(normal[i].x()), static_cast<float>(normal[i].y()),
+                                                        static_cast<float>(normal[i].z()));
+        g.object_id.at<int32_t>(y, x) = p.object[i];
+        g.visibility.at<uint8_t>(y, x) = lit ? 2 : 1;
+      }
+      if (lit) {
+        g.projector.proj_x.at<float>(y, x) = static_cast<float>(proj_px[i].x());
+        g.projector.proj_y.at<float>(y, x) = static_cast<float>(proj_px[i].y());
+        g.projector.status.at<uint8_t>(y, x) = static_cast<uint8_t>(PixelStatus::kValid);
+        g.projector.quality.at<float>(y, x) = static_cast<float>(factor[i]);
+      }
+    }
+  }
+}
+
+void RunPass(const PassContext& c, const SampleTargets& out, int64_t* primary, int64_t* shadow) {
+  const int blocks_x = (c.width + kBlock - 1) / kBlock, blocks_y = (c.height + kBlock - 1) / kBlock;
+  std::atomic<int64_t> n_primary{0}, n_shadow{0};
+  tbb::parallel_for(tbb::blocked_range2d<int>(0, blocks_y, 4, 0, blocks_x, 16), [&](const tbb::blocked_range2d<int>& r) {
+    int64_t local_primary = 0, local_shadow = 0;
+    for (int by = r.rows().begin(); by < r.rows().end(); ++by) {
+      for (int bx = r.cols().begin(); bx < r.cols().end(); ++bx) {
+        for (int s = 0; s < out.samples; ++s) TracePacket(c, out, bx, by, s, &local_primary, &local_shadow);
+      }
+    }
+    n_primary += local_primary;
+    n_shadow += local_shadow;
+  });
+  *primary += n_primary;
+  *shadow += n_shadow;
+}
+
+// Bilinear lookup with clamping at the borders.
+inline float Bilinear(const float* img, int w, int h, float x, float y) {
+  const float fx0 = std::floor(x), fy0 = std::floor(y);
+  const float fx = x - fx0, fy = y - fy0;
+  const int x0 = std::clamp(static_cast<int>(fx0), 0, w - 1), x1 = std::clamp(static_cast<int>(fx0) + 1, 0, w - 1);
+  const int y0 = std::clamp(static_cast<int>(fy0), 0, h - 1), y1 = std::clamp(static_cast<int>(fy0) + 1, 0, h - 1);
+  const float* r0 = img + static_cast<size_t>(y0) * w;
+  const float* r1 = img + static_cast<size_t>(y1) * w;
+  return (1 - fy) * ((1 - fx) * r0[x0] + fx * r0[x1]) + fy * ((1 - fx) * r1[x0] + fx * r1[x1]);
+}
+
+inline float Nearest(const float* img, int w, int h, float x, float y) {
+  const int xi = std::clamp(static_cast<int>(std::lround(x)), 0, w - 1);
+  const int yi = std::clamp(static_cast<int>(std::lround(y)), 0, h - 1);
+  return img[static_cast<size_t>(yi) * w + xi];
+}
+
+// Levels 0, s/(K-1), ..., s for a maximum sigma s (empty when s is negligible).
+std::vector<double> SigmaLevels(double max_sigma) {
+  if (!(max_sigma > 0.05)) return {};
+  const int k = std::clamp(static_cast<int>(std::ceil(max_sigma / 0.5)) + 1, 2, 8);
+  std::vector<double> levels(static_cast<size_t>(k));
+  for (int i = 0; i < k; ++i) levels[static_cast<size_t>(i)] = max_sigma * i / (k - 1);
+  return levels;
+}
+
+cv::Mat Blur(const cv::Mat& image, double sigma) {
+  if (sigma <= 0) return image;
+  cv::Mat out;
+  cv::GaussianBlur(image, out, cv::Size(0, 0), sigma, sigma, cv::BORDER_REPLICATE);
+  return out;
+}
+
+inline uint64_t SplitMix64(uint64_t x) {
+  x += 0x9E3779B97F4A7C15ull;
+  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
+  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
+  return x ^ (x >> 31);
+}
+
+}  // namespace
+
+CameraRays ComputeCameraRays(const CameraModel& camera, int samples_per_axis) {
+  SLSHADOW_THROW_IF(samples_per_axis < 1 || samples_per_axis > 16, "samples_per_axis must be in 1..16 (got ",
+                    samples_per_axis, ")");
+  CameraRays rays;
+  rays.width = camera.width;
+  rays.height = camera.height;
+  rays.samples_per_axis = samples_per_axis;
+  const int n = samples_per_axis, spp = n * n;
+  auto fill = [&](std::vector<Eigen::Vector3f>& dirs, int nn) {
+    dirs.resize(static_cast<size_t>(camera.width) * camera.height * nn * nn);
+    tbb::parallel_for(tbb::blocked_range<int>(0, camera.height), [&](const tbb::blocked_range<int>& r) {
+      for (int y = r.begin(); y < r.end(); ++y) {
+        for (int x = 0; x < camera.width; ++x) {
+          for (int b = 0; b < nn; ++b) {
+            for (int a = 0; a < nn; ++a) {
+              const Eigen::Vector2d pixel(x + (a + 0.5) / nn - 0.5, y + (b + 0.5) / nn - 0.5);
+              const auto ray = camera.Unproject(pixel);
+              dirs[(static_cast<size_t>(y) * camera.width + x) * nn * nn + b * nn + a] =
+                  ray ? Eigen::Vector3f(ray->cast<float>()) : Eigen::Vector3f::Constant(kNaN);
+            }
+          }
+        }
+      }
+    });
+  };
+  fill(rays.samples, n);
+  if (spp > 1) fill(rays.centers, 1);
+  return rays;
+}
+
+GeometryBuffer TraceGeometry(const RayCaster& caster, const Rig& rig, int camera_index, const CameraRays& rays,
+                             TraceMode mode) {
+  const auto start = std::chrono::steady_clock::now();
+  const Scene& scene = caster.scene();
+  SLSHADOW_THROW_IF(camera_index < 0 || camera_index >= static_cast<int>(rig.cameras.size()), "camera index ",
+                    camera_index, " out of range (rig has ", rig.cameras.size(), " cameras)");
+  SLSHADOW_THROW_IF(!rig.projector, "rig '", rig.name, "' has no projector: the simulator needs one");
+  const RigDevice& cam = rig.cameras[static_cast<size_t>(camera_index)];
+  SLSHADOW_THROW_IF(rays.width != cam.model.width || rays.height != cam.model.height ||
+                        rays.samples_per_axis != scene.layers.supersampling,
+                    "camera rays do not match camera '", cam.name, "' and the scene's supersampling");
+  PassContext c;
+  c.caster = &caster;
+  c.scene = &scene;
+  c.mode = mode;
+  c.width = cam.model.width;
+  c.height = cam.model.height;
+  c.rig_from_cam = cam.cam_from_rig.rotation.conjugate().toRotationMatrix().cast<float>();
+  c.cam_center_d = cam.CenterInRig();
+  c.cam_center = c.cam_center_d.cast<float>();
+  c.cam_from_rig = cam.cam_from_rig;
+  c.proj_from_rig = rig.projector->cam_from_rig;
+  c.proj_center = rig.projector->CenterInRig();
+  c.projector = &rig.projector->model;
+  const double d_ref = scene.radiometry.reference_distance_mm > 0 ? scene.radiometry.reference_distance_mm : rig.working_distance_mm;
+  c.ref_distance_sq = d_ref * d_ref;
+  c.proj_defocus = &scene.layers.projector_defocus;
+  for (const auto& o : scene.objects) c.object_from_rig.push_back(o.rig_from_object.Inverse());
+
+  GeometryBuffer g;
+  g.width = c.width;
+  g.height = c.height;
+  g.samples_per_axis = rays.samples_per_axis;
+  const int spp = rays.samples_per_axis * rays.samples_per_axis;
+  const size_t n = static_cast<size_t>(c.width) * c.height * spp;
+  g.proj_x.resize(n);
+  g.proj_y.resize(n);
+  g.factor.resize(n);
+  g.albedo.resize(n);
+  if (scene.layers.projector_defocus.enabled) g.proj_sigma_px.resize(n);
+  g.depth_mm = cv::Mat(c.height, c.width, CV_32FC1, cv::Scalar(kNaN));
+  g.point_in_rig = cv::Mat(c.height, c.width, CV_32FC3, cv::Scalar(kNaN, kNaN, kNaN));
+  g.normal_in_rig = cv::Mat(c.height, c.width, CV_32FC3, cv::Scalar(kNaN, kNaN, kNaN));
+  g.visibility = cv::Mat(c.height, c.width, CV_8UC1, cv::Scalar(0));
+  g.object_id = cv::Mat(c.height, c.width, CV_32SC1, cv::Scalar(-1));
+  g.projector.Allocate(c.width, c.height, true, true, PixelStatus::kShadow);
+
+  SampleTargets samples;
+  samples.samples = spp;
+  samples.dirs = &rays.samples;
+  samples.proj_x = g.proj_x.data();
+  samples.proj_y = g.proj_y.data();
+  samples.factor = g.factor.data();
+  samples.albedo = g.albedo.data();
+  samples.proj_sigma = g.proj_sigma_px.empty() ? nullptr : g.proj_sigma_px.data();
+  if (spp == 1) samples.gt = &g;
+  RunPass(c, samples, &g.primary_rays, &g.shadow_rays);
+  if (spp > 1) {
+    SampleTargets centers;
+    centers.samples = 1;
+    centers.dirs = &rays.centers;
+    centers.gt = &g;
+    RunPass(c, centers, &g.primary_rays, &g.shadow_rays);
+  }
+  g.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return g;
+}
+
+PatternRenderer::PatternRenderer(const Scene& scene, const Rig& rig, int camera_index, const GeometryBuffer& geometry)
+    : scene_(scene), geometry_(geometry), camera_index_(camera_index) {
+  SLSHADOW_THROW_IF(!rig.projector, "rig '", rig.name, "' has no projector: the simulator needs one");
+  projector_width_ = rig.projector->model.width;
+  projector_height_ = rig.projector->model.height;
+  full_scale_dn_ = std::ldexp(1.0, scene.radiometry.adc_bits) - 1;
+  const SceneLayers& l = scene.layers;
+  response_.resize(256);
+  for (int v = 0; v < 256; ++v) {
+    double r = v / 255.0;
+    if (l.response_enabled) r = l.response_lut.empty() ? std::pow(r, l.gamma) : l.response_lut[static_cast<size_t>(v)];
+    response_[static_cast<size_t>(v)] = static_cast<float>(r);
+  }
+  const CameraModel& model = rig.cameras[static_cast<size_t>(camera_index)].model;
+  if (l.vignetting_enabled) {
+    // Smooth in the image: evaluated on an 8-pixel grid and interpolated bilinearly.
+    constexpr int kStep = 8;
+    const int gw = model.width / kStep + 2, gh = model.height / kStep + 2;
+    cv::Mat grid(gh, gw, CV_32FC1);
+    for (int j = 0; j < gh; ++j) {
+      for (int i = 0; i < gw; ++i) {
+        const auto xy = model.UndistortToNormalized(Eigen::Vector2d(i * kStep, j * kStep));
+        // Outside the region where undistortion converges: treat as the image corner's value.
+        const double r2 = xy ? xy->squaredNorm() : 0.0;
+        double v;
+        if (l.vignetting_cos4) {
+          v = 1.0 / ((1 + r2) * (1 + r2));
+        } else {
+          const auto& a = l.vignetting_coefficients;
+          v = 1 + a[0] * r2 + a[1] * r2 * r2 + a[2] * r2 * r2 * r2;
+        }
+        grid.at<float>(j, i) = static_cast<float>(std::max(0.0, v));
+      }
+    }
+    vignetting_ = cv::Mat(model.height, model.width, CV_32FC1);
+    for (int y = 0; y < model.height; ++y) {
+      for (int x = 0; x < model.width; ++x) {
+        vignetting_.at<float>(y, x) = Bilinear(grid.ptr<float>(), gw, gh, static_cast<float>(x) / kStep, static_cast<float>(y) / kStep);
+      }
+    }
+  }
+  if (l.camera_defocus.enabled) {
+    cv::Mat sigma(model.height, model.width, CV_32FC1, cv::Scalar(0));
+    double max_sigma = 0;
+    for (int y = 0; y < model.height; ++y) {
+      for (int x = 0; x < model.width; ++x) {
+        const float d = geometry.depth_mm.at<float>(y, x);
+        const double s = std::isfinite(d) ? l.camera_defocus.SigmaPx(model.fx(), d) : 0.0;
+        sigma.at<float>(y, x) = static_cast<float>(s);
+        max_sigma = std::max(max_sigma, s);
+      }
+    }
+    camera_sigmas_ = SigmaLevels(max_sigma);
+    if (!camera_sigmas_.empty()) {
+      // Background pixels (no surface) stay sharp: sigma 0.
+      camera_level_ = sigma * ((camera_sigmas_.size() - 1) / max_sigma);
+    }
+  }
+  if (l.projector_defocus.enabled && !geometry.proj_sigma_px.empty()) {
+    const float max_sigma = *std::max_element(geometry.proj_sigma_px.begin(), geometry.proj_sigma_px.end());
+    projector_sigmas_ = SigmaLevels(max_sigma);
+  }
+}
+
+cv::Mat PatternRenderer::RenderIrradiance(const cv::Mat& projector_image) const {
+  SLSHADOW_THROW_IF(projector_image.type() != CV_8UC1 || projector_image.cols != projector_width_ ||
+                        projector_image.rows != projector_height_,
+                    "projector image must be 8-bit single-channel ", projector_width_, "x", projector_height_, " (got type ",
+                    projector_image.type(), ", ", projector_image.cols, "x", projector_image.rows, ")");
+  const SceneLayers& l = scene_.layers;
+  // Projector intensity through the response curve.
+  cv::Mat intensity(projector_height_, projector_width_, CV_32FC1);
+  for (int y = 0; y < projector_height_; ++y) {
+    const uint8_t* src = projector_image.ptr<uint8_t>(y);
+    float* dst = intensity.ptr<float>(y);
+    for (int x = 0; x < projector_width_; ++x) dst[x] = response_[src[x]];
+  }
+  std::vector<cv::Mat> levels;
+  if (!projector_sigmas_.empty()) {
+    for (double s : projector_sigmas_) levels.push_back(Blur(intensity, s));
+  }
+  const int w = geometry_.width, h = geometry_.height;
+  const int spp = geometry_.samples_per_axis * geometry_.samples_per_axis;
+  const float scale = static_cast<float>(scene_.radiometry.exposure * full_scale_dn_ / spp);
+  const float ambient = static_cast<float>(l.ambient);
+  const bool bilinear = scene_.radiometry.bilinear_lookup;
+  const bool fill = l.fill_factor < 1;
+  const float half_side = static_cast<float>(std::sqrt(l.fill_factor) / 2);
+  const int pw = projector_width_, ph = projector_height_;
+  const float* base = intensity.ptr<float>();
+  const float level_scale = projector_sigmas_.empty() ? 0.0f
+                                                      : static_cast<float>((projector_sigmas_.size() - 1) / projector_sigmas_.back());
+  cv::Mat out(h, w, CV_32FC1);
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const tbb::blocked_range<int>& r) {
+    for (int y = r.begin(); y < r.end(); ++y) {
+      float* row = out.ptr<float>(y);
+      const float* vig = vignetting_.empty() ? nullptr : vignetting_.ptr<float>(y);
+      for (int x = 0; x < w; ++x) {
+        float acc = 0;
+        const size_t i0 = (static_cast<size_t>(y) * w + x) * spp;
+        for (int s = 0; s < spp; ++s) {
+          const size_t i = i0 + s;
+          const float f = geometry_.factor[i];
+          float v = ambient * geometry_.albedo[i];
+          if (f > 0) {
+            const float u = geometry_.proj_x[i], t = geometry_.proj_y[i];
+            float I;
+            if (fill) {
+              const float ru = std::round(u), rt = std::round(t);
+              I = (std::abs(u - ru) <= half_side && std::abs(t - rt) <= half_side) ? Nearest(base, pw, ph, u, t) : 0.0f;
+            } else if (!levels.empty()) {
+              const float lv = geometry_.proj_sigma_px[i] * level_scale;
+              const int l0 = std::min(static_cast<int>(lv), static_cast<int>(levels.size()) - 1);
+              const int l1 = std::min(l0 + 1, static_cast<int>(levels.size()) - 1);
+              const float a = lv - l0;
+              I = (1 - a) * Bilinear(levels[static_cast<size_t>(l0)].ptr<float>(), pw, ph, u, t) +
+                  a * Bilinear(levels[static_cast<size_t>(l1)].ptr<float>(), pw, ph, u, t);
+            } else {
+              I = bilinear ? Bilinear(base, pw, ph, u, t) : Nearest(base, pw, ph, u, t);
+            }
+            v += f * I;
+          }
+          acc += v;
+        }
+        row[x] = acc * scale * (vig ? vig[x] : 1.0f);
+      }
+    }
+  });
+  if (!camera_sigmas_.empty()) {
+    std::vector<cv::Mat> blurred;
+    for (double s : camera_sigmas_) blurred.push_back(Blur(out, s));
+    cv::Mat mixed(h, w, CV_32FC1);
+    const int top = static_cast<int>(blurred.size()) - 1;
+    tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const tbb::blocked_range<int>& r) {
+      for (int y = r.begin(); y < r.end(); ++y) {
+        for (int x = 0; x < w; ++x) {
+          const float lv = camera_level_.at<float>(y, x);
+          const int l0 = std::min(static_cast<int>(lv), top), l1 = std::min(l0 + 1, top);
+          const float a = lv - l0;
+          mixed.at<float>(y, x) = (1 - a) * blurred[static_cast<size_t>(l0)].at<float>(y, x) + a * blurred[static_cast<size_t>(l1)].at<float>(y, x);
+        }
+      }
+    });
+    out = mixed;
+  }
+  return out;
+}
+
+cv::Mat PatternRenderer::Render(const cv::Mat& projector_image, int pattern_index) const {
+  const cv::Mat irradiance = RenderIrradiance(projector_image);
+  const SceneLayers& l = scene_.layers;
+  const int w = geometry_.width, h = geometry_.height;
+  const bool wide = scene_.radiometry.adc_bits > 8;
+  cv::Mat out(h, w, wide ? CV_16UC1 : CV_8UC1);
+  const double full = full_scale_dn_;
+  const double k_dn_per_e = full / l.full_well_e;
+  const uint64_t stream = SplitMix64(l.seed ^ SplitMix64((static_cast<uint64_t>(camera_index_) << 32) ^
+                                                          static_cast<uint64_t>(static_cast<uint32_t>(pattern_index))));
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const tbb::blocked_range<int>& r) {
+    for (int y = r.begin(); y < r.end(); ++y) {
+      const float* src = irradiance.ptr<float>(y);
+      for (int x = 0; x < w; ++x) {
+        double dn = src[x];
+        if (l.noise_enabled) {
+          const double mu_e = std::max(0.0, dn / k_dn_per_e);
+          const uint64_t r1 = SplitMix64(stream + static_cast<uint64_t>(y) * w + x);
+          const uint64_t r2 = SplitMix64(r1);
+          // Box-Muller: two independent standard normals.
+          const double u1 = (static_cast<double>(r1 >> 11) + 0.5) * 0x1.0p-53;
+          const double u2 = static_cast<double>(r2 >> 11) * 0x1.0p-53;
+          const double rad = std::sqrt(-2.0 * std::log(u1));
+          const double n1 = rad * std::cos(2 * M_PI * u2), n2 = rad * std::sin(2 * M_PI * u2);
+          const double e = std::min(mu_e + std::sqrt(mu_e) * n1 + l.read_noise_e * n2, l.full_well_e);
+          dn = e * k_dn_per_e;
+        }
+        const double q = std::clamp(std::round(dn), 0.0, full);
+        if (wide) {
+          out.ptr<uint16_t>(y)[x] = static_cast<uint16_t>(q);
+        } else {
+          out.ptr<uint8_t>(y)[x] = static_cast<uint8_t>(q);
+        }
+      }
+    }
+  });
+  return out;
+}
+
+}  // namespace slshadow

@@ -1,0 +1,105 @@
+// The two passes of the virtual scanner (DESIGN.md, "The simulator"):
+//
+//  1. TraceGeometry, once per camera: for every pixel sample, the camera ray's first hit (point,
+//     normal, object), the projector coordinate of that point through the projector model with
+//     its distortion, whether the projector lights it (facing the projector, inside the
+//     projector image, not occluded: one occlusion ray per sample) and the radiometric factor
+//     albedo * cos_p * (d_ref / d_p)^2 (sim/scene.h). Rays in packets of 4 x 4 pixels
+//     (rtcIntersect16 / rtcOccluded16), TBB over packets.
+//  2. PatternRenderer::Render, once per projector image: lookups over that buffer,
+//     DN = exposure * full_scale * (ambient * albedo + factor * I(projector coordinate)), then the
+//     scene's optional layers. Geometry is never recomputed per pattern.
+//
+// Units: mm, px. Projector coordinates use OpenCV's pixel convention (integer = pixel centre).
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
+
+#include "core/projector_map.h"
+#include "core/rig.h"
+#include "sim/raycaster.h"
+#include "sim/scene.h"
+
+namespace slshadow {
+
+// Viewing rays of one camera, in the camera frame (unit length), per pixel sample: sample s of
+// pixel (x, y) has index (y * width + x) * n^2 + s, s = b * n + a, at pixel position
+// (x + (a + 0.5) / n - 0.5, y + (b + 0.5) / n - 0.5) (n = samples_per_axis; n = 1: the pixel
+// centre). NaN where the pixel cannot be unprojected (distortion folds over). Computing them
+// costs one Newton undistortion per sample: compute once per camera and reuse across scans.
+struct CameraRays {
+  int width = 0;
+  int height = 0;
+  int samples_per_axis = 1;
+  std::vector<Eigen::Vector3f> samples;  // width * height * n^2
+  std::vector<Eigen::Vector3f> centers;  // width * height; empty when n = 1 (then samples are the centres)
+};
+CameraRays ComputeCameraRays(const CameraModel& camera, int samples_per_axis);
+
+// What the geometry pass yields for one camera.
+struct GeometryBuffer {
+  int width = 0;
+  int height = 0;
+  int samples_per_axis = 1;
+  // Per sample (index as CameraRays):
+  std::vector<float> proj_x;         // projector column, px; NaN when not lit
+  std::vector<float> proj_y;         // projector row, px; NaN when not lit
+  std::vector<float> factor;         // albedo * cos_p * (d_ref/d_p)^2 when lit, else 0
+  std::vector<float> albedo;         // albedo at the hit, 0 where the ray misses
+  std::vector<float> proj_sigma_px;  // projector defocus sigma (px); empty unless that layer is on
+
+  // Ground truth per pixel, from the pixel-centre ray:
+  cv::Mat depth_mm;       // CV_32FC1: z of the hit in the camera frame; NaN where no surface
+  cv::Mat point_in_rig;   // CV_32FC3: hit point in the rig frame, mm; NaN where no surface
+  cv::Mat normal_in_rig;  // CV_32FC3: unit surface normal facing the camera; NaN where no surface
+  cv::Mat visibility;     // CV_8UC1: 0 no surface, 1 surface not lit by the projector, 2 lit
+  cv::Mat object_id;      // CV_32SC1: index into Scene::objects, -1 where no surface
+  ProjectorMap projector; // true projector coordinates; status valid where lit, shadow elsewhere;
+                          // quality = the radiometric factor
+
+  // Counts and time of the pass (for benchmarks).
+  int64_t primary_rays = 0;
+  int64_t shadow_rays = 0;
+  double seconds = 0;
+};
+
+// The geometry pass of camera `camera_index` of `rig` (which needs a projector). `rays` must be
+// ComputeCameraRays of that camera with the scene's supersampling. Reference distance: the
+// scene's radiometry.reference_distance_mm, or the rig's working distance when 0.
+GeometryBuffer TraceGeometry(const RayCaster& caster, const Rig& rig, int camera_index, const CameraRays& rays,
+                             TraceMode mode = TraceMode::kPacket16);
+
+// The pattern pass for one camera: precomputes what does not depend on the pattern
+// (vignetting, camera defocus levels), then renders any number of projector images.
+class PatternRenderer {
+ public:
+  PatternRenderer(const Scene& scene, const Rig& rig, int camera_index, const GeometryBuffer& geometry);
+
+  // Renders the camera image for one projector image (CV_8UC1 at the projector's resolution).
+  // Returns CV_8UC1 when radiometry.adc_bits <= 8, else CV_16UC1 (values up to 2^adc_bits - 1).
+  // `pattern_index` only seeds the noise layer. Throws slshadow::Error on a wrong image size/type.
+  cv::Mat Render(const cv::Mat& projector_image, int pattern_index) const;
+
+  // The noise-free irradiance image before quantisation, in DN as float (CV_32FC1); what Render
+  // quantises (after noise). For tests of the radiometric model.
+  cv::Mat RenderIrradiance(const cv::Mat& projector_image) const;
+
+ private:
+  const Scene& scene_;
+  const GeometryBuffer& geometry_;
+  int camera_index_;
+  int projector_width_, projector_height_;
+  double full_scale_dn_;
+  std::vector<float> response_;  // 256 entries: projector value -> intensity in [0, 1]
+  cv::Mat vignetting_;           // CV_32FC1 multiplier, empty when off
+  // Camera defocus: per-pixel blur level (fractional index into camera_sigmas_), empty when off.
+  cv::Mat camera_level_;
+  std::vector<double> camera_sigmas_;
+  std::vector<double> projector_sigmas_;  // projector defocus levels, empty when off
+};
+
+}  // namespace slshadow

@@ -1,0 +1,86 @@
+// A whole virtual scan: every projector image seen by every camera of the rig, written as an
+// ImageSet exactly as a real capture (source "virtual"; scene and layers recorded in the
+// manifest's `extra`), plus ground truth per camera. The renderer takes the projector images
+// themselves (CV_8UC1 at the projector's resolution), so this library does not depend on how
+// they were made; the CLI makes them with patterns/.
+//
+// Ground truth, in DIR/ground_truth/<camera>/ (docs/formats.md, "Simulator ground truth"):
+// Float maps are NumPy .npy files (version 1.0, '<f4', C order; shape (rows, cols) or
+// (rows, cols, 3)), bit-exact and readable with numpy.load; OpenCV's float TIFF is not lossless
+// for 3 channels (it writes LogLuv).
+//   depth_mm.npy          (H, W)    z of the surface in the camera frame, NaN where none
+//   point_in_rig_mm.npy   (H, W, 3) surface point in the rig frame, NaN where none
+//   normal_in_rig.npy     (H, W, 3) unit normal facing the camera, NaN where none
+//   proj_x.npy, proj_y.npy (H, W)   true projector coordinates (px), NaN where not lit
+//   status.png            CV_8UC1   PixelStatus: 0 valid (lit), 1 shadow (not lit or no surface)
+//   visibility.png        CV_8UC1   0 no surface, 1 surface not lit by the projector, 2 lit
+//   object_id.png         CV_16UC1  1 + index into the scene's objects, 0 where no surface
+//   surface.ply           the visible surface: one point per pixel with a surface (rig frame),
+//                         normals, scalars object_id, lit, proj_x, proj_y, pixel_x, pixel_y
+#pragma once
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+
+#include "core/image_set.h"
+#include "core/point_cloud.h"
+#include "core/projector_map.h"
+#include "core/rig.h"
+#include "sim/renderer.h"
+#include "sim/scene.h"
+
+namespace slshadow {
+
+struct SimulateOptions {
+  ImageSetWriterOptions writer;     // encoding (PNG, PGM = fastest lossless, TIFF), overwrite
+  bool write_ground_truth = true;   // DIR/ground_truth/<camera>/...
+  TraceMode trace_mode = TraceMode::kPacket16;
+  void Check() const {}
+};
+
+struct SimulateSummary {
+  int cameras = 0;
+  int patterns = 0;
+  int64_t triangles = 0;
+  int64_t primary_rays = 0;
+  int64_t shadow_rays = 0;
+  double build_seconds = 0;        // BVH build
+  double camera_rays_seconds = 0;  // undistorted viewing rays (cacheable per rig)
+  double geometry_seconds = 0;     // geometry passes, all cameras
+  double render_seconds = 0;       // pattern passes, all images (in SimulateScan: with encoding)
+  double write_seconds = 0;        // ground truth and manifest
+  double total_seconds = 0;
+  double MraysPerSecond() const;
+  std::string BriefReport() const;
+};
+
+// Renders all images in memory: images[camera][pattern]. `geometry`, if not null, receives the
+// geometry buffers (ground truth) per camera.
+std::vector<std::vector<cv::Mat>> RenderScan(const Scene& scene, const Rig& rig, const std::vector<cv::Mat>& projector_images,
+                                             std::vector<GeometryBuffer>* geometry = nullptr,
+                                             SimulateSummary* summary = nullptr,
+                                             TraceMode mode = TraceMode::kPacket16);
+
+// Renders and writes the ImageSet (atomically: nothing appears at out_dir until complete).
+// `pattern_spec` is stored as the manifest's `patterns` (what patterns/ PatternSpecToJson gives).
+// Throws slshadow::Error on an invalid scene / rig, projector images of the wrong size, or an
+// existing out_dir without options.writer.overwrite.
+SimulateSummary SimulateScan(const Scene& scene, const Rig& rig, const std::vector<cv::Mat>& projector_images,
+                             const nlohmann::json& pattern_spec, const std::filesystem::path& out_dir,
+                             const SimulateOptions& options = {});
+
+// Ground truth of one camera as files (layout above) and back.
+void WriteGroundTruth(const GeometryBuffer& geometry, const std::filesystem::path& dir);
+struct GroundTruth {
+  cv::Mat depth_mm, point_in_rig, normal_in_rig, visibility, object_id;  // object_id CV_32SC1, -1 none
+  ProjectorMap projector;  // status valid / shadow; quality 0
+};
+GroundTruth ReadGroundTruth(const std::filesystem::path& dir);
+// The visible surface of one camera as a cloud (rig frame) with the scalars listed above.
+PointCloud VisibleSurface(const GeometryBuffer& geometry);
+
+}  // namespace slshadow
