@@ -103,11 +103,10 @@ std::optional<Eigen::Vector3d> TwoViewTriangulator::Dlt(const Eigen::Vector2d& x
   a.row(1) = xy0.y() * proj0_.row(2) - proj0_.row(1);
   a.row(2) = xy1.x() * proj1_.row(2) - proj1_.row(0);
   a.row(3) = xy1.y() * proj1_.row(2) - proj1_.row(1);
-  // Each row scaled to unit length: the residual is then a sum of comparable terms.
-  for (int i = 0; i < 4; ++i) {
-    const double n = a.row(i).norm();
-    if (n > 0) a.row(i) /= n;
-  }
+  // Rows in pixel units (times the focal length), as the textbook DLT on pixel coordinates: the
+  // algebraic residual of each row is then its image error in pixels times the point's depth.
+  a.topRows<2>() *= view0_.focal_px;
+  a.bottomRows<2>() *= view1_.focal_px;
   const Eigen::JacobiSVD<Eigen::Matrix4d> svd(a, Eigen::ComputeFullV);
   const Eigen::Vector4d x = svd.matrixV().col(3);
   if (!(std::abs(x(3)) > 1e-15 * x.head<3>().norm())) return std::nullopt;

@@ -1,0 +1,132 @@
+#include "reconstruct/reconstruct_image_set.h"
+
+#include <algorithm>
+#include <chrono>
+#include <sstream>
+
+#include "core/config.h"
+#include "core/error.h"
+
+namespace slshadow {
+
+namespace {
+using Clock = std::chrono::steady_clock;
+double Seconds(Clock::time_point since) { return std::chrono::duration<double>(Clock::now() - since).count(); }
+
+// The cameras to decode, checked against the rig and the available images.
+std::vector<std::string> SelectCameras(const Rig& rig, const std::vector<std::string>& available,
+                                       const ImageSetReconstructOptions& options) {
+  std::vector<std::string> cameras = options.cameras;
+  if (cameras.empty()) {
+    for (const auto& cam : rig.cameras) {
+      if (std::find(available.begin(), available.end(), cam.name) != available.end()) cameras.push_back(cam.name);
+    }
+    if (options.mode == ReconstructMode::kStereo && cameras.size() > 2) cameras.resize(2);
+  }
+  for (const auto& name : cameras) {
+    rig.Camera(name);  // throws listing the rig's cameras
+    SLSHADOW_THROW_IF(std::find(available.begin(), available.end(), name) == available.end(),
+                      "reconstruct: camera '", name, "' has no images");
+  }
+  if (options.mode == ReconstructMode::kStereo) {
+    SLSHADOW_THROW_IF(cameras.size() != 2, "reconstruct: stereo mode needs exactly two cameras (got ", cameras.size(), ")");
+  } else {
+    SLSHADOW_THROW_IF(cameras.empty(), "reconstruct: no camera has images");
+  }
+  return cameras;
+}
+
+void TagCamera(PointCloud* cloud, int index) {
+  cloud->SetScalar("camera", std::vector<float>(cloud->size(), static_cast<float>(index)));
+}
+
+}  // namespace
+
+void ImageSetReconstructOptions::Check() const {
+  reconstruct.Check();
+  decode.Check();
+  SLSHADOW_THROW_IF(mode == ReconstructMode::kStereo && !cameras.empty() && cameras.size() != 2,
+                    "reconstruct options: cameras: stereo mode takes two cameras (got ", cameras.size(), ")");
+}
+
+nlohmann::json ImageSetReconstructOptions::ToJson() const {
+  return {{"mode", ToString(mode)}, {"cameras", cameras}, {"reconstruct", reconstruct.ToJson()}};
+}
+
+ImageSetReconstruction ReconstructFromImages(const Rig& rig, const PatternSpec& spec,
+                                             const std::map<std::string, std::vector<cv::Mat>>& images,
+                                             const ImageSetReconstructOptions& options) {
+  options.Check();
+  spec.Check();
+  std::vector<std::string> available;
+  for (const auto& [name, frames] : images) available.push_back(name);
+  ImageSetReconstruction out;
+  out.cameras = SelectCameras(rig, available, options);
+  std::map<std::string, ProjectorMap> maps;
+  auto t0 = Clock::now();
+  for (const auto& name : out.cameras) maps[name] = DecodePatterns(spec, images.at(name), options.decode);
+  out.decode_s = Seconds(t0);
+  t0 = Clock::now();
+  if (options.mode == ReconstructMode::kStereo) {
+    Reconstruction rec = ReconstructStereo(rig, out.cameras[0], out.cameras[1], maps[out.cameras[0]],
+                                           maps[out.cameras[1]], options.reconstruct);
+    TagCamera(&rec.cloud, rig.CameraIndex(out.cameras[0]));
+    out.cloud = std::move(rec.cloud);
+    out.summaries.push_back(rec.summary);
+  } else {
+    for (const auto& name : out.cameras) {
+      Reconstruction rec = ReconstructWithProjector(rig, name, maps[name], options.reconstruct);
+      TagCamera(&rec.cloud, rig.CameraIndex(name));
+      if (out.cloud.empty() && out.summaries.empty()) {
+        out.cloud = std::move(rec.cloud);
+      } else {
+        out.cloud.Append(rec.cloud);
+      }
+      out.summaries.push_back(rec.summary);
+    }
+  }
+  out.reconstruct_s = Seconds(t0);
+  return out;
+}
+
+ImageSetReconstruction ReconstructImageSet(const ImageSet& image_set, const ImageSetReconstructOptions& options) {
+  options.Check();
+  const PatternSpec spec =
+      PatternSpecFromConfig(ConfigNode::FromJson(image_set.patterns(), (image_set.dir() / "manifest.json").string(), "patterns"));
+  const std::vector<std::string> cameras = SelectCameras(image_set.rig(), image_set.CameraNames(), options);
+  auto t0 = Clock::now();
+  std::map<std::string, std::vector<cv::Mat>> images;
+  for (const auto& name : cameras) {
+    images[name] = image_set.LoadCamera(name);
+    SLSHADOW_THROW_IF(static_cast<int>(images[name].size()) != spec.NumImages(), image_set.dir().string(),
+                      ": camera '", name, "' has ", images[name].size(), " images but the pattern spec has ",
+                      spec.NumImages());
+  }
+  const double load_s = Seconds(t0);
+  ImageSetReconstructOptions selected = options;
+  selected.cameras = cameras;
+  ImageSetReconstruction out = ReconstructFromImages(image_set.rig(), spec, images, selected);
+  out.load_s = load_s;
+  return out;
+}
+
+std::string ImageSetReconstruction::FullReport() const {
+  std::ostringstream out;
+  for (const auto& s : summaries) out << s.FullReport();
+  char line[256];
+  std::snprintf(line, sizeof(line), "cloud: %zu points; time: load %.3f s, decode %.3f s, reconstruct %.3f s\n",
+                cloud.size(), load_s, decode_s, reconstruct_s);
+  out << line;
+  return out.str();
+}
+
+nlohmann::json ImageSetReconstruction::ToJson() const {
+  nlohmann::json list = nlohmann::json::array();
+  for (const auto& s : summaries) list.push_back(s.ToJson());
+  return {{"points", cloud.size()},
+          {"cameras", cameras},
+          {"reconstructions", list},
+          {"time_s", {{"load", load_s}, {"decode", decode_s}, {"reconstruct", reconstruct_s}}}};
+}
+
+}  // namespace slshadow

@@ -1,0 +1,59 @@
+// Reconstruction of a whole ImageSet: decode every camera's images with the ImageSet's own pattern
+// spec (patterns/ DecodePatterns), then reconstruct in projector mode (each camera against the
+// projector, clouds merged) or stereo mode (two cameras), in the rig frame (mm). What
+// `slshadow reconstruct` runs.
+#pragma once
+
+#include <map>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+
+#include "core/image_set.h"
+#include "core/point_cloud.h"
+#include "patterns/codec.h"
+#include "patterns/pattern_spec.h"
+#include "reconstruct/reconstruct.h"
+
+namespace slshadow {
+
+struct ImageSetReconstructOptions {
+  ReconstructMode mode = ReconstructMode::kProjector;
+  // Projector mode: the cameras to reconstruct (empty: every camera with images). Stereo: the
+  // left and right camera (empty: the first two cameras with images, in rig order).
+  std::vector<std::string> cameras;
+  ReconstructOptions reconstruct;
+  DecodeOptions decode;
+
+  void Check() const;  // throws slshadow::Error
+  nlohmann::json ToJson() const;
+};
+
+struct ImageSetReconstruction {
+  // Merged cloud; besides the per-point fields of reconstruct.h it has "camera", the index in the
+  // rig of the reference camera each point came from.
+  PointCloud cloud;
+  std::vector<ReconstructSummary> summaries;  // one per reconstruction (camera, or stereo pair)
+  std::vector<std::string> cameras;           // cameras decoded, in order
+  double load_s = 0;         // reading and decoding image files
+  double decode_s = 0;       // fringe decoding (DecodePatterns), all cameras
+  double reconstruct_s = 0;  // triangulation, filters, normals, merging
+
+  std::string FullReport() const;
+  nlohmann::json ToJson() const;
+};
+
+// From images already in memory: `images` maps camera name -> that camera's images in pattern
+// order (spec.NumImages() each). Throws slshadow::Error on unknown cameras, missing images or a
+// bad spec / options.
+ImageSetReconstruction ReconstructFromImages(const Rig& rig, const PatternSpec& spec,
+                                             const std::map<std::string, std::vector<cv::Mat>>& images,
+                                             const ImageSetReconstructOptions& options);
+
+// Loads the ImageSet's images (in parallel) and calls ReconstructFromImages with the rig and
+// the pattern spec stored in its manifest.
+ImageSetReconstruction ReconstructImageSet(const ImageSet& image_set, const ImageSetReconstructOptions& options);
+
+}  // namespace slshadow
