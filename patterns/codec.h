@@ -10,7 +10,8 @@
 //   Status, first that applies: saturated (any frame read >= saturation_level), shadow (Gray
 //   code: white - black < shadow_threshold; phase codecs: 2 B' < shadow_threshold), low contrast
 //   (Gray code: smallest bit contrast < contrast_threshold; phase shift: second-smallest bit
-//   contrast, since one bit at a code edge is tolerated by the complementary unwrapping), code
+//   contrast, since one bit at a code edge is tolerated by the complementary unwrapping; Gray
+//   code with gray_edge_midpoint: one unreadable bit at a code edge gives the edge position), code
 //   error (code out of range, coordinate outside [-1, S], heterodyne residual > tolerance).
 //   Quality: Gray code: smallest bit contrast; phase codecs: smallest modulation B'.
 #pragma once
@@ -38,6 +39,10 @@ struct DecodeOptions {
   // The input's full scale, -1: auto (255 for CV_8U, 65535 for CV_16U). Set 4095 for 12-bit
   // data in 16-bit images. Thresholds are multiplied by full_scale / 255.
   int full_scale = -1;
+  // Gray code: when exactly one bit of an axis is below contrast_threshold and flipping it gives
+  // the adjacent code c' = c +- 1, the pixel sees the edge between two projector pixels: decode it
+  // to the edge (c + c') / 2 instead of rejecting it as low contrast.
+  bool gray_edge_midpoint = true;
   // Multi-frequency: largest accepted rounding residual of each unwrapping step, in cycles.
   double unwrap_tolerance_cycles = 0.3;
   // Decode rows in parallel (cv::parallel_for_).

@@ -7,6 +7,8 @@
 #include <limits>
 #include <numbers>
 
+#include <opencv2/core/hal/intrin.hpp>
+
 #include "core/error.h"
 #include "patterns/codec.h"
 
@@ -15,20 +17,24 @@ namespace {
 
 constexpr uint8_t kFlagSaturated = 1, kFlagShadow = 2, kFlagLowContrast = 4, kFlagCodeError = 8;
 
-inline uint8_t StatusFromFlags(uint8_t flags) {
-  if (flags & kFlagSaturated) return static_cast<uint8_t>(PixelStatus::kSaturated);
-  if (flags & kFlagShadow) return static_cast<uint8_t>(PixelStatus::kShadow);
-  if (flags & kFlagLowContrast) return static_cast<uint8_t>(PixelStatus::kLowContrast);
-  if (flags & kFlagCodeError) return static_cast<uint8_t>(PixelStatus::kCodeError);
-  return static_cast<uint8_t>(PixelStatus::kValid);
+// The first reason by priority: saturated, shadow, low contrast, code error; indexed by flags.
+constexpr uint8_t kStatusOfFlags[16] = {0, 3, 1, 3, 2, 3, 1, 3, 4, 3, 1, 3, 2, 3, 1, 3};
+static_assert(static_cast<int>(PixelStatus::kSaturated) == 3 && static_cast<int>(PixelStatus::kShadow) == 1 &&
+              static_cast<int>(PixelStatus::kLowContrast) == 2 && static_cast<int>(PixelStatus::kCodeError) == 4);
+
+// floor and round-to-nearest for |v| < 2^23 without libm calls (SSE2 has no roundps).
+inline float Floor(float v) {
+  const float t = static_cast<float>(static_cast<int32_t>(v));
+  return t > v ? t - 1.0f : t;
 }
+inline float Round(float v) { return Floor(v + 0.5f); }
 
 // atan2(y, x) / (2 pi) in [0, 1). Octant reduction, then Hastings' odd polynomial for atan on
 // [0, 1] (max error 1e-5 rad).
 inline float Atan2CyclesInline(float y, float x) {
   const float ax = std::fabs(x), ay = std::fabs(y);
-  const float mx = std::max(ax, ay), mn = std::min(ax, ay);
-  const float a = mn / std::max(mx, 1e-30f);
+  const float mx = ax > ay ? ax : ay, mn = ax > ay ? ay : ax;
+  const float a = mn / (mx > 1e-30f ? mx : 1e-30f);
   const float s = a * a;
   float r = a * (0.9998660f + s * (-0.3302995f + s * (0.1801410f + s * (-0.0851330f + s * 0.0208351f))));
   r = ay > ax ? 1.57079632679f - r : r;
@@ -39,34 +45,73 @@ inline float Atan2CyclesInline(float y, float x) {
   return f >= 1.0f ? 0.0f : f;
 }
 
+// Branch-free integer min / max (std::min returns a reference, which can keep a branch).
+inline int32_t Min(int32_t a, int32_t b) { return b ^ ((a ^ b) & -static_cast<int32_t>(a < b)); }
+inline int32_t Max(int32_t a, int32_t b) { return a ^ ((a ^ b) & -static_cast<int32_t>(a < b)); }
+
 struct Levels {
   float shadow;        // minimum lit range
   int32_t contrast;    // minimum bit contrast (integer grey levels, rounded up)
   int32_t saturation;  // saturation level
   float unwrap_tol;    // cycles
+  bool gray_edges;     // Gray code: a single unreadable bit at a code edge gives the edge position
 };
 
 // Gray-code bits of one axis: `frames` holds 2 * nbits row pointers, MSB first, pattern then
-// inverse. Accumulates the binary code, the two smallest bit contrasts and the maximum level.
+// inverse. Computes the binary code, the two smallest bit contrasts |P - I| and, if kTrackMask,
+// for the smallest the mask 2^(k+1) - 1 of its bit k (flipping Gray bit k flips binary bits
+// k..0). All state is uint16 (codes < 2^16 since an axis has at most 65536 pixels), so one SSE
+// register holds 8 pixels (OpenCV universal intrinsics).
 template <typename T>
-void GrayAxisRow(const T* const* frames, int nbits, int width, int32_t* __restrict code,
-                 int32_t* __restrict min1, int32_t* __restrict min2, int32_t* __restrict maxv) {
-  std::fill(code, code + width, 0);
-  for (int b = 0; b < nbits; ++b) {
-    const T* __restrict p = frames[2 * b];
-    const T* __restrict q = frames[2 * b + 1];
-    for (int x = 0; x < width; ++x) {
-      const int32_t pv = p[x], qv = q[x];
-      const int32_t d = pv - qv;
-      const int32_t g = d > 0 ? 1 : 0;
-      const int32_t c = d < 0 ? -d : d;
-      const int32_t prev = code[x];
-      code[x] = (prev << 1) | ((prev & 1) ^ g);  // binary bit = previous binary bit XOR Gray bit
-      const int32_t m1 = min1[x];
-      min2[x] = std::min(min2[x], std::max(m1, c));
-      min1[x] = std::min(m1, c);
-      maxv[x] = std::max(maxv[x], std::max(pv, qv));
+inline cv::v_uint16x8 Load8(const T* p);
+template <>
+inline cv::v_uint16x8 Load8<uint8_t>(const uint8_t* p) {
+  return cv::v_load_expand(p);
+}
+template <>
+inline cv::v_uint16x8 Load8<uint16_t>(const uint16_t* p) {
+  return cv::v_load(p);
+}
+
+template <typename T, bool kTrackMask>
+void GrayAxisRow(const T* const* frames, int nbits, int width, uint16_t* __restrict code,
+                 uint16_t* __restrict min1, uint16_t* __restrict min2, uint16_t* __restrict min_mask) {
+  const int vec_end = width - width % 8;
+  for (int x = 0; x < vec_end; x += 8) {
+    cv::v_uint16x8 c_code = cv::v_setzero_u16(), c_min1 = cv::v_setall_u16(0xFFFF), c_min2 = c_min1;
+    cv::v_uint16x8 c_mask = cv::v_setzero_u16();
+    const cv::v_uint16x8 one = cv::v_setall_u16(1);
+    for (int b = 0; b < nbits; ++b) {
+      const cv::v_uint16x8 p = Load8<T>(frames[2 * b] + x), q = Load8<T>(frames[2 * b + 1] + x);
+      const cv::v_uint16x8 g = (p > q) & one;
+      const cv::v_uint16x8 c = cv::v_absdiff(p, q);
+      c_code = cv::v_shl<1>(c_code) | ((c_code & one) ^ g);  // binary bit = previous binary XOR Gray
+      if constexpr (kTrackMask) {
+        const cv::v_uint16x8 lower = c < c_min1;
+        c_mask = cv::v_select(lower, cv::v_setall_u16(static_cast<uint16_t>((2 << (nbits - 1 - b)) - 1)), c_mask);
+      }
+      c_min2 = cv::v_min(c_min2, cv::v_max(c_min1, c));
+      c_min1 = cv::v_min(c_min1, c);
     }
+    cv::v_store(code + x, c_code);
+    cv::v_store(min1 + x, c_min1);
+    cv::v_store(min2 + x, c_min2);
+    if constexpr (kTrackMask) cv::v_store(min_mask + x, c_mask);
+  }
+  for (int x = vec_end; x < width; ++x) {
+    uint32_t c_code = 0, c_min1 = 0xFFFF, c_min2 = 0xFFFF, c_mask = 0;
+    for (int b = 0; b < nbits; ++b) {
+      const int32_t pv = frames[2 * b][x], qv = frames[2 * b + 1][x];
+      const uint32_t c = static_cast<uint32_t>(pv > qv ? pv - qv : qv - pv);
+      c_code = (c_code << 1) | ((c_code & 1u) ^ (pv > qv ? 1u : 0u));
+      if (c < c_min1) c_mask = (2u << (nbits - 1 - b)) - 1;
+      c_min2 = std::min(c_min2, std::max(c_min1, c));
+      c_min1 = std::min(c_min1, c);
+    }
+    code[x] = static_cast<uint16_t>(c_code);
+    min1[x] = static_cast<uint16_t>(c_min1);
+    min2[x] = static_cast<uint16_t>(c_min2);
+    min_mask[x] = static_cast<uint16_t>(c_mask);
   }
 }
 
@@ -80,15 +125,17 @@ void PhaseRow(const T* const* frames, int steps, const float* sn, const float* c
   for (int n = 0; n < steps; ++n) {
     const T* __restrict p = frames[n];
     const float s = sn[n], c = cn[n];
+    #pragma omp simd
     for (int x = 0; x < width; ++x) {
       const int32_t v = p[x];
       const float fv = static_cast<float>(v);
       sum_s[x] += fv * s;
       sum_c[x] += fv * c;
-      maxv[x] = std::max(maxv[x], v);
+      maxv[x] = Max(maxv[x], v);
     }
   }
   const float scale = 2.0f / static_cast<float>(steps);
+  #pragma omp simd
   for (int x = 0; x < width; ++x) {
     const float s = sum_s[x], c = sum_c[x];
     cycles[x] = Atan2CyclesInline(s, c);
@@ -100,10 +147,12 @@ void PhaseRow(const T* const* frames, int steps, const float* sn, const float* c
 struct Scratch {
   explicit Scratch(int width) : w(static_cast<size_t>(width)) {}
   size_t w;
-  std::vector<int32_t> code[2], min1, min2, maxv;
+  std::vector<uint16_t> code[2], min1, min2, min_mask;
+  std::vector<int32_t> maxv;
   std::vector<float> sum_s, sum_c, cycles[3], modulation[3], coord[2], quality;
   std::vector<uint8_t> flags;
   void Int(std::vector<int32_t>& v) { v.resize(w); }
+  void U16(std::vector<uint16_t>& v) { v.resize(w); }
   void Float(std::vector<float>& v) { v.resize(w); }
 };
 
@@ -129,13 +178,14 @@ class Decoder {
   void Rows(int y0, int y1) const {
     const int width = out_->width();
     Scratch s(width);
-    s.Int(s.min1);
-    s.Int(s.min2);
+    s.U16(s.min1);
+    s.U16(s.min2);
+    s.U16(s.min_mask);
     s.Int(s.maxv);
     s.Float(s.quality);
     s.flags.resize(s.w);
     for (int a = 0; a < 2; ++a) {
-      s.Int(s.code[a]);
+      s.U16(s.code[a]);
       s.Float(s.coord[a]);
     }
     s.Float(s.sum_s);
@@ -169,35 +219,50 @@ class Decoder {
     const int width = out_->width();
     const T* __restrict white = rows[static_cast<size_t>(spec_.WhiteFrameIndex())];
     const T* __restrict black = rows[static_cast<size_t>(spec_.BlackFrameIndex())];
-    int32_t* __restrict maxv = s.maxv.data();
-    int32_t* __restrict min1 = s.min1.data();
-    int32_t* __restrict min2 = s.min2.data();
+    const uint16_t* __restrict min1 = s.min1.data();
+    const uint16_t* __restrict min2 = s.min2.data();
+    const uint16_t* __restrict min_mask = s.min_mask.data();
     uint8_t* __restrict flags = s.flags.data();
+    float* __restrict quality = s.quality.data();
+    const int32_t saturation = levels_.saturation;
+    // The white frame is the brightest a pixel gets: it alone decides saturation.
+    #pragma omp simd
     for (int x = 0; x < width; ++x) {
       const int32_t wv = white[x], bv = black[x];
-      maxv[x] = std::max(wv, bv);
-      min1[x] = std::numeric_limits<int32_t>::max();
-      min2[x] = std::numeric_limits<int32_t>::max();
-      flags[x] = static_cast<float>(wv - bv) < levels_.shadow ? kFlagShadow : 0;
+      flags[x] = static_cast<uint8_t>((static_cast<float>(wv - bv) < levels_.shadow ? kFlagShadow : 0) |
+                                      ((wv >= saturation) | (bv >= saturation) ? kFlagSaturated : 0));
+      quality[x] = std::numeric_limits<float>::max();
     }
+    const int32_t threshold = levels_.contrast;
+    const bool edges = levels_.gray_edges;
     std::vector<const T*> frames;
     for (int a = 0; a < 2; ++a) {
       if (!spec_.Codes(a)) continue;
       GatherRows(rows, gray_[a], frames);
-      GrayAxisRow<T>(frames.data(), spec_.GrayBits(a), width, s.code[a].data(), min1, min2, maxv);
-      const int32_t size = spec_.AxisSize(a);
-      const int32_t* __restrict code = s.code[a].data();
-      float* __restrict coord = s.coord[a].data();
-      for (int x = 0; x < width; ++x) {
-        flags[x] |= code[x] >= size ? kFlagCodeError : 0;
-        coord[x] = static_cast<float>(code[x]);
+      if (edges) {
+        GrayAxisRow<T, true>(frames.data(), spec_.GrayBits(a), width, s.code[a].data(), s.min1.data(),
+                             s.min2.data(), s.min_mask.data());
+      } else {
+        GrayAxisRow<T, false>(frames.data(), spec_.GrayBits(a), width, s.code[a].data(), s.min1.data(),
+                              s.min2.data(), s.min_mask.data());
       }
-    }
-    float* __restrict quality = s.quality.data();
-    for (int x = 0; x < width; ++x) {
-      flags[x] |= (maxv[x] >= levels_.saturation ? kFlagSaturated : 0) |
-                  (min1[x] < levels_.contrast ? kFlagLowContrast : 0);
-      quality[x] = static_cast<float>(min1[x]);
+      const int32_t size = spec_.AxisSize(a);
+      const uint16_t* __restrict code = s.code[a].data();
+      float* __restrict coord = s.coord[a].data();
+      #pragma omp simd
+      for (int x = 0; x < width; ++x) {
+        const int32_t c = code[x];
+        // One unreadable bit whose flip gives the adjacent code: the pixel sees the edge between
+        // the two projector pixels, at c +- 0.5.
+        const int32_t other = c ^ static_cast<int32_t>(min_mask[x]);
+        const int32_t m1 = min1[x], m2 = min2[x];
+        const bool edge = edges & (m1 < threshold) & (m2 >= threshold) & ((c - other) * (c - other) == 1);
+        const bool low = (m1 < threshold) & !edge;
+        coord[x] = edge ? 0.5f * static_cast<float>(c + other) : static_cast<float>(c);
+        flags[x] |= (c >= size ? kFlagCodeError : 0) | (low ? kFlagLowContrast : 0);
+        const float q = static_cast<float>(m1);
+        quality[x] = q < quality[x] ? q : quality[x];
+      }
     }
   }
 
@@ -205,8 +270,8 @@ class Decoder {
   void PhaseShiftRow(const std::vector<const T*>& rows, Scratch& s) const {
     const int width = out_->width();
     int32_t* __restrict maxv = s.maxv.data();
-    int32_t* __restrict min1 = s.min1.data();
-    int32_t* __restrict min2 = s.min2.data();
+    const uint16_t* __restrict min1 = s.min1.data();
+    const uint16_t* __restrict min2 = s.min2.data();
     uint8_t* __restrict flags = s.flags.data();
     float* __restrict quality = s.quality.data();
     std::fill(s.maxv.begin(), s.maxv.end(), 0);
@@ -217,33 +282,35 @@ class Decoder {
       GatherRows(rows, phase_[a][0], frames);
       PhaseRow<T>(frames.data(), spec_.phase_steps, sin_.data(), cos_.data(), width, s.sum_s.data(),
                   s.sum_c.data(), s.cycles[0].data(), s.modulation[0].data(), maxv);
-      std::fill(s.min1.begin(), s.min1.end(), std::numeric_limits<int32_t>::max());
-      std::fill(s.min2.begin(), s.min2.end(), std::numeric_limits<int32_t>::max());
       GatherRows(rows, gray_[a], frames);
       const int nbits = spec_.GrayBits(a);
-      GrayAxisRow<T>(frames.data(), nbits, width, s.code[a].data(), min1, min2, maxv);
-      const int32_t* __restrict h = s.code[a].data();
+      GrayAxisRow<T, false>(frames.data(), nbits, width, s.code[a].data(), s.min1.data(), s.min2.data(),
+                            s.min_mask.data());
+      const uint16_t* __restrict h = s.code[a].data();
       const float* __restrict f = s.cycles[0].data();
       const float* __restrict mod = s.modulation[0].data();
       float* __restrict coord = s.coord[a].data();
       const float period = static_cast<float>(spec_.period_px);
       const auto h_max = static_cast<int32_t>(std::floor(2.0 * (spec_.AxisSize(a) - 1) / spec_.period_px));
       const float lo = -1.0f, hi = static_cast<float>(spec_.AxisSize(a));
-      const int32_t* __restrict contrast = nbits >= 2 ? min2 : min1;
+      const uint16_t* __restrict contrast = nbits >= 2 ? min2 : min1;
+      #pragma omp simd
       for (int x = 0; x < width; ++x) {
         // Complementary unwrapping: k1 = h >> 1 has its edges at the phase wraps, k2 = (h + 1) >> 1
         // half a period away; use k2 near the wraps and k1 in the middle of the period.
-        const int32_t k1 = h[x] >> 1, k2 = (h[x] + 1) >> 1;
+        const int32_t hx = h[x];
+        const int32_t k1 = hx >> 1, k2 = (hx + 1) >> 1;
         const float fx = f[x];
         const int32_t k = fx < 0.25f ? k2 : (fx > 0.75f ? k2 - 1 : k1);
         const float xc = (static_cast<float>(k) + fx) * period;
         coord[x] = xc;
-        const bool bad = h[x] > h_max || !(xc >= lo && xc <= hi);
+        const bool bad = (hx > h_max) | (xc < lo) | (xc > hi);
         flags[x] |= (bad ? kFlagCodeError : 0) | (2.0f * mod[x] < levels_.shadow ? kFlagShadow : 0) |
-                    (contrast[x] < levels_.contrast ? kFlagLowContrast : 0);
-        quality[x] = std::min(quality[x], mod[x]);
+                    (static_cast<int32_t>(contrast[x]) < levels_.contrast ? kFlagLowContrast : 0);
+        quality[x] = mod[x] < quality[x] ? mod[x] : quality[x];
       }
     }
+    #pragma omp simd
     for (int x = 0; x < width; ++x) flags[x] |= maxv[x] >= levels_.saturation ? kFlagSaturated : 0;
   }
 
@@ -277,30 +344,33 @@ class Decoder {
       const float size = static_cast<float>(spec_.AxisSize(a));
       const float centre = 0.5f * (size - 1.0f);  // middle of the decodable range [-0.5, S - 0.5]
       const float lo = -1.0f, hi = size;
+      #pragma omp simd
       for (int x = 0; x < width; ++x) {
         float f12 = f1[x] - f2[x];
-        f12 -= std::floor(f12);
+        f12 -= Floor(f12);
         float f23 = f2[x] - f3[x];
-        f23 -= std::floor(f23);
+        f23 -= Floor(f23);
         float f123 = f12 - f23;
-        f123 -= std::floor(f123);
+        f123 -= Floor(f123);
         // Absolute coordinate from the longest beat, centred on the axis.
         float t = f123 - centre / p123;
-        t -= std::nearbyint(t);
+        t -= Round(t);
         const float x123 = centre + p123 * t;
         const float u12 = x123 / p12 - f12;
-        const float k12 = std::nearbyint(u12);
+        const float k12 = Round(u12);
         const float x12 = p12 * (f12 + k12);
         const float u1 = x12 / p1 - f1[x];
-        const float k1 = std::nearbyint(u1);
+        const float k1 = Round(u1);
         const float xc = p1 * (f1[x] + k1);
         coord[x] = xc;
-        const bool bad = std::fabs(u12 - k12) > tol || std::fabs(u1 - k1) > tol || !(xc >= lo && xc <= hi);
-        const float mod = std::min(m1[x], std::min(m2[x], m3[x]));
+        const bool bad = (std::fabs(u12 - k12) > tol) | (std::fabs(u1 - k1) > tol) | (xc < lo) | (xc > hi);
+        const float m12 = m1[x] < m2[x] ? m1[x] : m2[x];
+        const float mod = m12 < m3[x] ? m12 : m3[x];
         flags[x] |= (bad ? kFlagCodeError : 0) | (2.0f * mod < levels_.shadow ? kFlagShadow : 0);
-        quality[x] = std::min(quality[x], mod);
+        quality[x] = mod < quality[x] ? mod : quality[x];
       }
     }
+    #pragma omp simd
     for (int x = 0; x < width; ++x) flags[x] |= maxv[x] >= levels_.saturation ? kFlagSaturated : 0;
   }
 
@@ -313,14 +383,16 @@ class Decoder {
     float* py = out_->proj_y.ptr<float>(y);
     const float* cx = s.coord[0].data();
     const float* cy = s.coord[1].data();
+    const uint8_t* flags = s.flags.data();
+    const float* q = s.quality.data();
     const bool has_x = spec_.code_x, has_y = spec_.code_y;
+    for (int x = 0; x < width; ++x) status[x] = kStatusOfFlags[flags[x] & 15];
+    #pragma omp simd
     for (int x = 0; x < width; ++x) {
-      const uint8_t st = StatusFromFlags(s.flags[static_cast<size_t>(x)]);
-      status[x] = st;
-      quality[x] = s.quality[static_cast<size_t>(x)];
-      const bool valid = st == 0;
-      px[x] = valid && has_x ? cx[x] : nan;
-      py[x] = valid && has_y ? cy[x] : nan;
+      quality[x] = q[x];
+      const bool valid = status[x] == 0;
+      px[x] = (valid & has_x) ? cx[x] : nan;
+      py[x] = (valid & has_y) ? cy[x] : nan;
     }
   }
 
@@ -377,6 +449,7 @@ ProjectorMap DecodePatterns(const PatternSpec& spec, const std::vector<cv::Mat>&
   levels.contrast = static_cast<int32_t>(std::ceil(options.contrast_threshold * scale));
   levels.saturation = options.saturation_level > 0 ? options.saturation_level : full_scale;
   levels.unwrap_tol = static_cast<float>(options.unwrap_tolerance_cycles);
+  levels.gray_edges = options.gray_edge_midpoint;
 
   ProjectorMap map;
   map.Allocate(size.width, size.height, spec.code_x, spec.code_y);

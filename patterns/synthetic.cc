@@ -1,10 +1,12 @@
 #include "patterns/synthetic.h"
 
 #include <cmath>
+#include <numbers>
 
 #include <opencv2/imgproc.hpp>
 
 #include "core/error.h"
+#include "patterns/codec.h"
 
 namespace slshadow {
 
@@ -20,6 +22,24 @@ void CameraSimOptions::Check() const {
   SLSHADOW_THROW_IF(bit_depth != 8 && bit_depth != 16, p, "bit_depth: must be 8 or 16 (got ", bit_depth, ")");
   SLSHADOW_THROW_IF(!gain_map.empty() && gain_map.type() != CV_32FC1, p, "gain_map: must be CV_32FC1");
   SLSHADOW_THROW_IF(!offset_map.empty() && offset_map.type() != CV_32FC1, p, "offset_map: must be CV_32FC1");
+}
+
+std::vector<cv::Mat> SimulateStandardView(const PatternSpec& spec, int width, int height,
+                                          const CameraSimOptions& options, cv::Mat* map_x, cv::Mat* map_y) {
+  SLSHADOW_THROW_IF(width < 2 || height < 2, "camera simulation: camera size must be at least 2x2 (got ", width,
+                    "x", height, ")");
+  const double a = 10 * std::numbers::pi / 180;
+  const double s = 0.8 * spec.projector_width / width;  // projector px per camera px
+  const cv::Matx33d centre_cam(1, 0, -width / 2.0, 0, 1, -height / 2.0, 0, 0, 1);
+  const cv::Matx33d view(s * std::cos(a), -s * std::sin(a), 0, s * std::sin(a), s * std::cos(a), 0,
+                         0.05 / width, 0.02 / height, 1);
+  const cv::Matx33d to_proj(1, 0, spec.projector_width / 2.0, 0, 1, spec.projector_height / 2.0, 0, 0, 1);
+  cv::Mat mx, my;
+  HomographyMaps(to_proj * view * centre_cam, width, height, &mx, &my);
+  std::vector<cv::Mat> images = SimulateCameraImages(GeneratePatterns(spec), mx, my, options);
+  if (map_x) *map_x = mx;
+  if (map_y) *map_y = my;
+  return images;
 }
 
 void HomographyMaps(const cv::Matx33d& h, int width, int height, cv::Mat* map_x, cv::Mat* map_y) {

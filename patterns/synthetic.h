@@ -18,6 +18,8 @@
 
 #include <opencv2/core.hpp>
 
+#include "patterns/pattern_spec.h"
+
 namespace slshadow {
 
 struct CameraSimOptions {
@@ -37,6 +39,13 @@ struct CameraSimOptions {
 // size, projector coordinates seen by each camera pixel (NaN: nothing). Rows run in parallel.
 std::vector<cv::Mat> SimulateCameraImages(const std::vector<cv::Mat>& projector_images, const cv::Mat& map_x,
                                           const cv::Mat& map_y, const CameraSimOptions& options = {});
+
+// A standard test view for benchmarks and examples: a camera of width x height looking at the
+// projector image under a 10 degree rotation and mild perspective, the projector's middle 80% filling
+// the camera's width. Returns the camera images of GeneratePatterns(spec) and, if asked, the maps.
+std::vector<cv::Mat> SimulateStandardView(const PatternSpec& spec, int width, int height,
+                                          const CameraSimOptions& options = {}, cv::Mat* map_x = nullptr,
+                                          cv::Mat* map_y = nullptr);
 
 // The maps of a homography: (map_x, map_y) = H * (u, v, 1) dehomogenised, for a camera of
 // width x height (CV_64FC1).

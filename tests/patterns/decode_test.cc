@@ -52,7 +52,7 @@ PatternSpec Spec(PatternKind kind) {
 bool Inside(double x, double y) { return x > 0.5 && x < kProjW - 1.5 && y > 0.5 && y < kProjH - 1.5; }
 
 struct GrayResult {
-  int64_t inside = 0, valid = 0, wrong = 0, valid_outside = 0;
+  int64_t inside = 0, valid = 0, wrong = 0, valid_outside = 0, edges = 0;
   double max_error = 0;  // projector pixels
 };
 
@@ -72,7 +72,15 @@ GrayResult CheckGrayExact(const ProjectorMap& map, const cv::Mat& mx, const cv::
       if (!valid) continue;
       ++r.valid;
       const float px = map.proj_x.at<float>(v, u), py = map.proj_y.at<float>(v, u);
-      const double ex = std::fabs(px - std::round(x)), ey = std::fabs(py - std::round(y));
+      // Integer results must be the projector pixel containing the point; half-integer ones (a
+      // pixel on an edge, DecodeOptions::gray_edge_midpoint) that edge, within 0.05 px.
+      const auto error = [&](double decoded, double truth) {
+        const bool half = decoded != std::floor(decoded);
+        r.edges += half;
+        const double e = half ? std::fabs(decoded - truth) : std::fabs(decoded - std::round(truth));
+        return half && e <= 0.05 ? 0.0 : e;
+      };
+      const double ex = error(px, x), ey = error(py, y);
       r.wrong += ex != 0 || ey != 0;
       r.max_error = std::max(r.max_error, std::max(ex, ey));
     }
@@ -85,19 +93,33 @@ TEST(DecodeGrayCode, NoiseFreeDecodesEveryValidPixelExactly) {
   HomographyView(&mx, &my);
   const PatternSpec spec = Spec(PatternKind::kGrayCode);
   for (int depth : {8, 16}) {
+   for (bool edges : {false, true}) {
     CameraSimOptions sim;
     sim.bit_depth = depth;
-    const ProjectorMap map = DecodePatterns(spec, SimulateCameraImages(GeneratePatterns(spec), mx, my, sim));
+    DecodeOptions options;
+    options.gray_edge_midpoint = edges;
+    const ProjectorMap map =
+        DecodePatterns(spec, SimulateCameraImages(GeneratePatterns(spec), mx, my, sim), options);
     EXPECT_TRUE(map.has_x && map.has_y);
     const GrayResult r = CheckGrayExact(map, mx, my);
-    EXPECT_EQ(r.wrong, 0) << depth;
-    EXPECT_EQ(r.valid_outside, 0) << depth;
-    // Only pixels within ~1% of a projector pixel edge (bit contrast < threshold) are rejected.
-    EXPECT_GT(r.valid, 0.95 * r.inside) << depth;
+    SCOPED_TRACE(::testing::Message() << depth << "-bit, edges " << edges << ": valid " << r.valid << "/"
+                                      << r.inside << ", on edges " << r.edges);
+    EXPECT_EQ(r.wrong, 0);
+    EXPECT_EQ(r.valid_outside, 0);
+    if (edges) {
+      // A pixel that sees a projector pixel edge (bit contrast < threshold) decodes to the edge.
+      EXPECT_GT(r.edges, 0);
+      EXPECT_GT(r.valid, 0.999 * r.inside);
+    } else {
+      // Only pixels within ~1% of a projector pixel edge are rejected.
+      EXPECT_EQ(r.edges, 0);
+      EXPECT_GT(r.valid, 0.95 * r.inside);
+    }
     const auto counts = map.CountByStatus();
     EXPECT_EQ(counts[static_cast<int>(PixelStatus::kSaturated)], 0);
     EXPECT_EQ(counts[static_cast<int>(PixelStatus::kCodeError)], 0);
     EXPECT_GT(counts[static_cast<int>(PixelStatus::kShadow)], 0);  // the corners see outside the projector
+   }
   }
 }
 
