@@ -23,5 +23,6 @@ int Main(int argc, char** argv);
 
 // Subcommands.
 int RunRig(int argc, char** argv);
+int RunSimulate(int argc, char** argv);
 
 }  // namespace slshadow::app
