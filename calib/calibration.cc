@@ -13,6 +13,7 @@
 #include <ceres/rotation.h>
 #include <opencv2/calib3d.hpp>
 
+#include <Eigen/Eigenvalues>
 #include <Eigen/SVD>
 
 #include "core/error.h"
@@ -132,7 +133,7 @@ SolveOutput Solve(const CalibrationInput& input, const CalibrationOptions& optio
     if (!device_used[d]) continue;
     double* intr = s->intrinsics[d].data();
     const auto held = HeldIntrinsics(options, s->aspect[d]);
-    if (options.fix_intrinsics) {
+    if (options.fix_intrinsics || input.devices[d].hold_intrinsics) {
       problem.SetParameterBlockConstant(intr);
     } else {
       if (!held.empty()) problem.SetManifold(intr, new ceres::SubsetManifold(CameraModel::kNumParams, held));
@@ -158,30 +159,73 @@ SolveOutput Solve(const CalibrationInput& input, const CalibrationOptions& optio
   ceres::Solve(so, &problem, &out.summary);
 
   if (want_covariance && !options.fix_intrinsics) {
-    ceres::Covariance::Options co;
-    co.algorithm_type = ceres::DENSE_SVD;
-    co.null_space_rank = 0;
-    co.num_threads = 2;
-    ceres::Covariance covariance(co);
-    std::vector<std::pair<const double*, const double*>> blocks;
+    // Covariance (J^T J)^-1 of all free parameters, from the Jacobian at the solution (tangent
+    // space of each block's manifold), with Jacobi column scaling: intrinsics (fx ~ 1e3, k3 ~ 1e-2
+    // sensitivities) and poses span ~10 orders of magnitude, which puts ceres::Covariance's
+    // unscaled dense SVD below its rank threshold on well-posed problems.
+    std::vector<double*> blocks;
+    std::vector<int> intr_column(input.devices.size(), -1);
+    int cols = 0;
     for (size_t d = 0; d < input.devices.size(); ++d) {
-      if (device_used[d]) blocks.emplace_back(s->intrinsics[d].data(), s->intrinsics[d].data());
+      if (!device_used[d] || input.devices[d].hold_intrinsics) continue;
+      blocks.push_back(s->intrinsics[d].data());
+      intr_column[d] = cols;
+      cols += problem.ParameterBlockTangentSize(s->intrinsics[d].data());
     }
-    if (covariance.Compute(blocks, &problem)) {
-      for (size_t d = 0; d < input.devices.size(); ++d) {
-        Matrix9d c = Matrix9d::Zero();
-        if (device_used[d]) {
-          Eigen::Matrix<double, 9, 9, Eigen::RowMajor> rm;
-          covariance.GetCovarianceBlock(s->intrinsics[d].data(), s->intrinsics[d].data(), rm.data());
-          c = rm;
-          if (s->aspect[d] > 0) {  // fy = aspect * fx
-            Matrix9d j = Matrix9d::Identity();
-            j(CameraModel::kFy, CameraModel::kFy) = 0;
-            j(CameraModel::kFy, CameraModel::kFx) = s->aspect[d];
-            c = j * c * j.transpose();
-          }
+    for (size_t d = 1; d < input.devices.size(); ++d) {
+      if (!device_used[d]) continue;
+      blocks.push_back(s->dev_from_rig[d].data());
+      cols += 6;
+    }
+    for (int p = 0; p < input.num_poses; ++p) {
+      if (!pose_used[p]) continue;
+      blocks.push_back(s->rig_from_board[p].data());
+      cols += 6;
+    }
+    ceres::Problem::EvaluateOptions eo;
+    eo.parameter_blocks = blocks;
+    eo.num_threads = 2;
+    ceres::CRSMatrix crs;
+    double cost = 0;
+    if (cols > 0 && problem.Evaluate(eo, &cost, nullptr, nullptr, &crs)) {
+      Eigen::MatrixXd jtj = Eigen::MatrixXd::Zero(cols, cols);
+      for (int r = 0; r < crs.num_rows; ++r) {
+        for (int a = crs.rows[r]; a < crs.rows[r + 1]; ++a) {
+          for (int b = crs.rows[r]; b < crs.rows[r + 1]; ++b) jtj(crs.cols[a], crs.cols[b]) += crs.values[a] * crs.values[b];
         }
-        out.covariance.push_back(c);
+      }
+      const Eigen::VectorXd scale = jtj.diagonal().cwiseMax(1e-300).cwiseSqrt().cwiseInverse();
+      const Eigen::MatrixXd scaled = scale.asDiagonal() * jtj * scale.asDiagonal();
+      const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(scaled);
+      const double max_ev = es.eigenvalues().maxCoeff();
+      if (es.info() == Eigen::Success && es.eigenvalues().minCoeff() > 1e-12 * max_ev) {
+        const Eigen::MatrixXd inv = scale.asDiagonal() *
+                                    (es.eigenvectors() * es.eigenvalues().cwiseInverse().asDiagonal() *
+                                     es.eigenvectors().transpose()) *
+                                    scale.asDiagonal();
+        for (size_t d = 0; d < input.devices.size(); ++d) {
+          Matrix9d c = Matrix9d::Zero();
+          if (intr_column[d] >= 0) {
+            // Lift from the tangent space (free coordinates in order) to the 9 parameters.
+            const auto held = HeldIntrinsics(options, s->aspect[d]);
+            std::vector<int> free;
+            for (int i = 0; i < CameraModel::kNumParams; ++i) {
+              if (std::find(held.begin(), held.end(), i) == held.end()) free.push_back(i);
+            }
+            for (size_t a = 0; a < free.size(); ++a) {
+              for (size_t b = 0; b < free.size(); ++b) {
+                c(free[a], free[b]) = inv(intr_column[d] + static_cast<int>(a), intr_column[d] + static_cast<int>(b));
+              }
+            }
+            if (s->aspect[d] > 0) {  // fy = aspect * fx
+              Matrix9d j = Matrix9d::Identity();
+              j(CameraModel::kFy, CameraModel::kFy) = 0;
+              j(CameraModel::kFy, CameraModel::kFx) = s->aspect[d];
+              c = j * c * j.transpose();
+            }
+          }
+          out.covariance.push_back(c);
+        }
       }
     }
   }
@@ -342,6 +386,11 @@ void CalibrationInput::Check() const {
     SLSHADOW_THROW_IF(d.width <= 0 || d.height <= 0, "calibration: device '", d.name, "': image size must be positive (got ",
                       d.width, "x", d.height, ")");
     if (d.initial) d.initial->Check("calibration: device '" + d.name + "': initial model");
+    SLSHADOW_THROW_IF(d.hold_intrinsics && !d.initial, "calibration: device '", d.name,
+                      "': hold_intrinsics needs initial intrinsics");
+    SLSHADOW_THROW_IF(d.initial && (d.initial->width != d.width || d.initial->height != d.height), "calibration: device '",
+                      d.name, "': initial model is ", d.initial->width, "x", d.initial->height, " but the device is ", d.width,
+                      "x", d.height, " (mismatched image sizes)");
   }
   std::vector<int> views_per_device(devices.size(), 0);
   for (const auto& v : views) {

@@ -44,6 +44,8 @@ struct CalibrationDevice {
   bool is_projector = false;
   // Starting intrinsics; when absent they are estimated from the homographies.
   std::optional<CameraModel> initial;
+  // Keep `initial` fixed (e.g. calibrate a projector against an already calibrated camera).
+  bool hold_intrinsics = false;
 };
 
 struct CalibrationInput {
@@ -54,7 +56,8 @@ struct CalibrationInput {
   // Throws slshadow::Error naming the problem: no devices, a bad size, a view whose device or pose
   // is out of range, mismatched point/pixel counts, fewer than 4 points in a view, collinear
   // board points, a device with fewer than 2 views (unless it has `initial` intrinsics and
-  // shares a pose with another device), a device not connected to device 0 by shared poses.
+  // shares a pose with another device), a device not connected to device 0 by shared poses,
+  // hold_intrinsics without initial intrinsics.
   void Check() const;
 };
 
@@ -73,7 +76,7 @@ struct CalibrationOptions {
   double loss_scale_px = 1.0;        // residual size where the robust loss starts to bend, px
   int max_iterations = 200;          // Levenberg-Marquardt iterations per solve
   double outlier_view_factor = 3.0;  // a view is an outlier when its RMS > factor * its device's median view RMS
-  bool compute_covariance = true;    // intrinsics covariance (ceres::Covariance, dense SVD)
+  bool compute_covariance = true;    // intrinsics covariance from the Jacobian at the solution
 
   // Throws slshadow::Error naming the first violated constraint.
   void Check() const;
@@ -125,9 +128,11 @@ struct CalibrationResult {
   std::vector<RigDevice> devices;  // models and cam_from_rig (device 0: identity)
   // Per pose: rig_from_board (x_in_rig = rig_from_board * x_in_board), absent when no device saw it.
   std::vector<std::optional<Rigid3d>> rig_from_board;
-  // Per device: covariance of (fx fy cx cy k1 k2 p1 p2 k3), scaled by residual_sigma_px^2; held
-  // parameters have zero rows (fy follows fx when the aspect is fixed). Empty when not computed
-  // or not estimable (rank-deficient problem).
+  // Per device: covariance of (fx fy cx cy k1 k2 p1 p2 k3), scaled by residual_sigma_px^2: the
+  // marginal of sigma^2 (J^T J)^-1 over all free parameters (board poses and rig poses included),
+  // J the Jacobian at the solution (Jacobi-scaled before inversion). Held parameters have zero
+  // rows (fy follows fx when the aspect is fixed; held devices are all zero). Empty when not
+  // computed or not estimable (J^T J rank-deficient to 1e-12 after scaling).
   std::vector<Matrix9d> intrinsics_covariance;
   CalibrationSummary summary;
 };
