@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <optional>
 
 #include <opencv2/imgproc.hpp>
 #include <tbb/blocked_range2d.h>
@@ -40,8 +41,10 @@ struct PassContext {
   Eigen::Matrix3f rig_from_cam;
   Eigen::Vector3f cam_center;
   Eigen::Vector3d cam_center_d;
-  Rigid3d cam_from_rig;
-  Rigid3d proj_from_rig;
+  Eigen::Vector3d cam_from_rig_row_z;  // third row of cam_from_rig's rotation: depth = row . p + t_z
+  double cam_from_rig_tz;
+  Eigen::Matrix3d proj_from_rig_rotation;
+  Eigen::Vector3d proj_from_rig_translation;
   Eigen::Vector3d proj_center;
   const CameraModel* projector;
   double ref_distance_sq;
@@ -103,7 +106,7 @@ void TracePacket(const PassContext& c, const SampleTargets& out, int bx, int by,
     const Eigen::Vector3d l = to_proj / dist;
     const double cos_p = n.dot(l);
     if (cos_p <= 0) continue;
-    const Eigen::Vector3d in_proj = c.proj_from_rig * point[i];
+    const Eigen::Vector3d in_proj = c.proj_from_rig_rotation * point[i] + c.proj_from_rig_translation;
     if (in_proj.z() <= 0) continue;
     double uv[2];
     CameraModel::ImgFromCam(c.projector->params.data(), in_proj.data(), uv);
@@ -144,24 +147,28 @@ void TracePacket(const PassContext& c, const SampleTargets& out, int bx, int by,
       }
     }
     if (out.gt) {
+      // Every pixel is written (no separate initialisation pass: first touch in parallel).
       GeometryBuffer& g = *out.gt;
       const int x = px[i], y = py[i];
       if (hit) {
-        const Eigen::Vector3d in_cam = c.cam_from_rig * point[i];
-        g.depth_mm.at<float>(y, x) = static_cast<float>(in_cam.z());
+        g.depth_mm.at<float>(y, x) = static_cast<float>(c.cam_from_rig_row_z.dot(point[i]) + c.cam_from_rig_tz);
         g.point_in_rig.at<cv::Vec3f>(y, x) = cv::Vec3f(static_cast<float>(point[i].x()), static_cast<float>(point[i].y()),
                                                        static_cast<float>(point[i].z()));
         g.normal_in_rig.at<cv::Vec3f>(y, x) = cv::Vec3f(static_cast<float>(normal[i].x()), static_cast<float>(normal[i].y()),
                                                         static_cast<float>(normal[i].z()));
         g.object_id.at<int32_t>(y, x) = p.object[i];
         g.visibility.at<uint8_t>(y, x) = lit ? 2 : 1;
+      } else {
+        g.depth_mm.at<float>(y, x) = kNaN;
+        g.point_in_rig.at<cv::Vec3f>(y, x) = cv::Vec3f(kNaN, kNaN, kNaN);
+        g.normal_in_rig.at<cv::Vec3f>(y, x) = cv::Vec3f(kNaN, kNaN, kNaN);
+        g.object_id.at<int32_t>(y, x) = -1;
+        g.visibility.at<uint8_t>(y, x) = 0;
       }
-      if (lit) {
-        g.projector.proj_x.at<float>(y, x) = static_cast<float>(proj_px[i].x());
-        g.projector.proj_y.at<float>(y, x) = static_cast<float>(proj_px[i].y());
-        g.projector.status.at<uint8_t>(y, x) = static_cast<uint8_t>(PixelStatus::kValid);
-        g.projector.quality.at<float>(y, x) = static_cast<float>(factor[i]);
-      }
+      g.projector.proj_x.at<float>(y, x) = lit ? static_cast<float>(proj_px[i].x()) : kNaN;
+      g.projector.proj_y.at<float>(y, x) = lit ? static_cast<float>(proj_px[i].y()) : kNaN;
+      g.projector.status.at<uint8_t>(y, x) = static_cast<uint8_t>(lit ? PixelStatus::kValid : PixelStatus::kShadow);
+      g.projector.quality.at<float>(y, x) = lit ? static_cast<float>(factor[i]) : 0.0f;
     }
   }
 }
@@ -225,6 +232,41 @@ inline uint64_t SplitMix64(uint64_t x) {
 
 }  // namespace
 
+namespace {
+
+// Undistortion by Newton's method on the Brown-Conrady model with an analytic Jacobian, started
+// from `guess` (the neighbouring sample's solution, so 1-3 iterations). Returns false when it
+// does not converge or the distortion folds over (then the caller falls back to
+// CameraModel::UndistortToNormalized, which decides).
+bool UndistortFrom(const CameraModel& cam, double xd_target, double yd_target, Eigen::Vector2d& guess) {
+  const auto& q = cam.params;
+  const double k1 = q[CameraModel::kK1], k2 = q[CameraModel::kK2], p1 = q[CameraModel::kP1], p2 = q[CameraModel::kP2],
+               k3 = q[CameraModel::kK3];
+  double x = guess.x(), y = guess.y();
+  for (int it = 0; it < 20; ++it) {
+    const double x2 = x * x, y2 = y * y, xy = x * y, r2 = x2 + y2;
+    const double radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3));
+    const double dradial = 2 * (k1 + r2 * (2 * k2 + 3 * k3 * r2));  // d radial / d r2 * 2
+    const double fx = x * radial + 2 * p1 * xy + p2 * (r2 + 2 * x2) - xd_target;
+    const double fy = y * radial + p1 * (r2 + 2 * y2) + 2 * p2 * xy - yd_target;
+    const double a = radial + x * x * dradial + 2 * p1 * y + 6 * p2 * x;
+    const double b = x * y * dradial + 2 * p1 * x + 2 * p2 * y;
+    const double d = radial + y * y * dradial + 6 * p1 * y + 2 * p2 * x;
+    const double det = a * d - b * b;
+    if (!(det > 0)) return false;
+    const double dx = (d * fx - b * fy) / det, dy = (a * fy - b * fx) / det;
+    x -= dx;
+    y -= dy;
+    if (std::abs(dx) + std::abs(dy) < 1e-13) {
+      guess = Eigen::Vector2d(x, y);
+      return true;
+    }
+  }
+  return false;
+}
+
+}  // namespace
+
 CameraRays ComputeCameraRays(const CameraModel& camera, int samples_per_axis) {
   SLSHADOW_THROW_IF(samples_per_axis < 1 || samples_per_axis > 16, "samples_per_axis must be in 1..16 (got ",
                     samples_per_axis, ")");
@@ -233,18 +275,35 @@ CameraRays ComputeCameraRays(const CameraModel& camera, int samples_per_axis) {
   rays.height = camera.height;
   rays.samples_per_axis = samples_per_axis;
   const int n = samples_per_axis, spp = n * n;
+  const bool distorted = camera.HasDistortion();
   auto fill = [&](std::vector<Eigen::Vector3f>& dirs, int nn) {
     dirs.resize(static_cast<size_t>(camera.width) * camera.height * nn * nn);
-    tbb::parallel_for(tbb::blocked_range<int>(0, camera.height), [&](const tbb::blocked_range<int>& r) {
-      for (int y = r.begin(); y < r.end(); ++y) {
+    tbb::parallel_for(tbb::blocked_range<int>(0, camera.height * nn), [&](const tbb::blocked_range<int>& r) {
+      for (int row = r.begin(); row < r.end(); ++row) {
+        const int y = row / nn, b = row % nn;
+        const double v = y + (b + 0.5) / nn - 0.5;
+        Eigen::Vector2d guess((-0.5 - camera.cx()) / camera.fx(), (v - camera.cy()) / camera.fy());
+        bool have_guess = false;
         for (int x = 0; x < camera.width; ++x) {
-          for (int b = 0; b < nn; ++b) {
-            for (int a = 0; a < nn; ++a) {
-              const Eigen::Vector2d pixel(x + (a + 0.5) / nn - 0.5, y + (b + 0.5) / nn - 0.5);
-              const auto ray = camera.Unproject(pixel);
-              dirs[(static_cast<size_t>(y) * camera.width + x) * nn * nn + b * nn + a] =
-                  ray ? Eigen::Vector3f(ray->cast<float>()) : Eigen::Vector3f::Constant(kNaN);
+          for (int a = 0; a < nn; ++a) {
+            const Eigen::Vector2d pixel(x + (a + 0.5) / nn - 0.5, v);
+            const double xd = (pixel.x() - camera.cx()) / camera.fx(), yd = (pixel.y() - camera.cy()) / camera.fy();
+            std::optional<Eigen::Vector2d> xy;
+            if (!distorted) {
+              xy = Eigen::Vector2d(xd, yd);
+            } else {
+              if (!have_guess) guess = Eigen::Vector2d(xd, yd);
+              if (UndistortFrom(camera, xd, yd, guess)) {
+                xy = guess;
+                have_guess = true;
+              } else {
+                xy = camera.UndistortToNormalized(pixel);
+                have_guess = false;
+              }
             }
+            dirs[(static_cast<size_t>(y) * camera.width + x) * nn * nn + b * nn + a] =
+                xy ? Eigen::Vector3f(Eigen::Vector3d(xy->x(), xy->y(), 1).normalized().cast<float>())
+                   : Eigen::Vector3f::Constant(kNaN);
           }
         }
       }
@@ -275,8 +334,10 @@ GeometryBuffer TraceGeometry(const RayCaster& caster, const Rig& rig, int camera
   c.rig_from_cam = cam.cam_from_rig.rotation.conjugate().toRotationMatrix().cast<float>();
   c.cam_center_d = cam.CenterInRig();
   c.cam_center = c.cam_center_d.cast<float>();
-  c.cam_from_rig = cam.cam_from_rig;
-  c.proj_from_rig = rig.projector->cam_from_rig;
+  c.cam_from_rig_row_z = cam.cam_from_rig.rotation.toRotationMatrix().row(2).transpose();
+  c.cam_from_rig_tz = cam.cam_from_rig.translation.z();
+  c.proj_from_rig_rotation = rig.projector->cam_from_rig.rotation.toRotationMatrix();
+  c.proj_from_rig_translation = rig.projector->cam_from_rig.translation;
   c.proj_center = rig.projector->CenterInRig();
   c.projector = &rig.projector->model;
   const double d_ref = scene.radiometry.reference_distance_mm > 0 ? scene.radiometry.reference_distance_mm : rig.working_distance_mm;
@@ -290,17 +351,22 @@ GeometryBuffer TraceGeometry(const RayCaster& caster, const Rig& rig, int camera
   g.samples_per_axis = rays.samples_per_axis;
   const int spp = rays.samples_per_axis * rays.samples_per_axis;
   const size_t n = static_cast<size_t>(c.width) * c.height * spp;
+  // Not initialised here: the passes write every element (in parallel).
   g.proj_x.resize(n);
   g.proj_y.resize(n);
   g.factor.resize(n);
   g.albedo.resize(n);
   if (scene.layers.projector_defocus.enabled) g.proj_sigma_px.resize(n);
-  g.depth_mm = cv::Mat(c.height, c.width, CV_32FC1, cv::Scalar(kNaN));
-  g.point_in_rig = cv::Mat(c.height, c.width, CV_32FC3, cv::Scalar(kNaN, kNaN, kNaN));
-  g.normal_in_rig = cv::Mat(c.height, c.width, CV_32FC3, cv::Scalar(kNaN, kNaN, kNaN));
-  g.visibility = cv::Mat(c.height, c.width, CV_8UC1, cv::Scalar(0));
-  g.object_id = cv::Mat(c.height, c.width, CV_32SC1, cv::Scalar(-1));
-  g.projector.Allocate(c.width, c.height, true, true, PixelStatus::kShadow);
+  g.depth_mm.create(c.height, c.width, CV_32FC1);
+  g.point_in_rig.create(c.height, c.width, CV_32FC3);
+  g.normal_in_rig.create(c.height, c.width, CV_32FC3);
+  g.visibility.create(c.height, c.width, CV_8UC1);
+  g.object_id.create(c.height, c.width, CV_32SC1);
+  g.projector.proj_x.create(c.height, c.width, CV_32FC1);
+  g.projector.proj_y.create(c.height, c.width, CV_32FC1);
+  g.projector.status.create(c.height, c.width, CV_8UC1);
+  g.projector.quality.create(c.height, c.width, CV_32FC1);
+  g.projector.has_x = g.projector.has_y = true;
 
   SampleTargets samples;
   samples.samples = spp;

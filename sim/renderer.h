@@ -14,6 +14,9 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
+#include <type_traits>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -40,17 +43,40 @@ struct CameraRays {
 };
 CameraRays ComputeCameraRays(const CameraModel& camera, int samples_per_axis);
 
+// std::vector storage that is not zero-filled on resize (the geometry pass writes every element;
+// first touch then happens in parallel instead of in one thread).
+template <typename T, typename A = std::allocator<T>>
+class DefaultInitAllocator : public A {
+  using traits = std::allocator_traits<A>;
+
+ public:
+  template <typename U>
+  struct rebind {
+    using other = DefaultInitAllocator<U, typename traits::template rebind_alloc<U>>;
+  };
+  using A::A;
+  template <typename U>
+  void construct(U* ptr) noexcept(std::is_nothrow_default_constructible<U>::value) {
+    ::new (static_cast<void*>(ptr)) U;
+  }
+  template <typename U, typename... Args>
+  void construct(U* ptr, Args&&... args) {
+    traits::construct(static_cast<A&>(*this), ptr, std::forward<Args>(args)...);
+  }
+};
+using FloatBuffer = std::vector<float, DefaultInitAllocator<float>>;
+
 // What the geometry pass yields for one camera.
 struct GeometryBuffer {
   int width = 0;
   int height = 0;
   int samples_per_axis = 1;
   // Per sample (index as CameraRays):
-  std::vector<float> proj_x;         // projector column, px; NaN when not lit
-  std::vector<float> proj_y;         // projector row, px; NaN when not lit
-  std::vector<float> factor;         // albedo * cos_p * (d_ref/d_p)^2 when lit, else 0
-  std::vector<float> albedo;         // albedo at the hit, 0 where the ray misses
-  std::vector<float> proj_sigma_px;  // projector defocus sigma (px); empty unless that layer is on
+  FloatBuffer proj_x;         // projector column, px; NaN when not lit
+  FloatBuffer proj_y;         // projector row, px; NaN when not lit
+  FloatBuffer factor;         // albedo * cos_p * (d_ref/d_p)^2 when lit, else 0
+  FloatBuffer albedo;         // albedo at the hit, 0 where the ray misses
+  FloatBuffer proj_sigma_px;  // projector defocus sigma (px); empty unless that layer is on
 
   // Ground truth per pixel, from the pixel-centre ray:
   cv::Mat depth_mm;       // CV_32FC1: z of the hit in the camera frame; NaN where no surface

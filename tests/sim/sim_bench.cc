@@ -1,0 +1,196 @@
+// sim_bench: speed of the virtual scanner (Google Benchmark; not a test). Results and the
+// commands reproducing them are in docs/benchmarks.md ("Simulator").
+//
+//   build-sim/tests/sim/sim_bench --benchmark_filter=DemoScan
+//
+// Scenes are the demo rig (2 cameras 1920x1200, projector 1280x800) looking at the demo part
+// (config/demo/scene.yaml) re-tessellated to a target triangle count; the pattern sequence is
+// config/patterns/graycode_phase.yaml (4-step phase shift + complementary Gray code, 38 images).
+#include <benchmark/benchmark.h>
+
+#include <cmath>
+#include <ctime>
+#include <map>
+#include <memory>
+
+#include "core/rig.h"
+#include "patterns/codec.h"
+#include "patterns/pattern_spec.h"
+#include "sim/renderer.h"
+#include "sim/scene.h"
+#include "sim/shapes.h"
+#include "sim/simulate.h"
+
+namespace slshadow {
+namespace {
+
+const std::filesystem::path kSource = SLSHADOW_SOURCE_DIR;
+
+const Rig& DemoRig() {
+  static const Rig rig = LoadRig(kSource / "config/demo/rig.yaml");
+  return rig;
+}
+
+// The demo scene with the part tessellated to about `triangles` triangles (86.7 k at 1 mm).
+Scene DemoScene(int64_t triangles) {
+  Scene scene = LoadScene(kSource / "config/demo/scene.yaml");
+  const double resolution = std::sqrt(86696.0 / static_cast<double>(triangles));
+  scene.objects[0].mesh = std::make_shared<const TriangleMesh>(MakeDemoPart(resolution));
+  return scene;
+}
+
+const Scene& CachedScene(int64_t triangles) {
+  static std::map<int64_t, std::unique_ptr<Scene>> cache;
+  auto& s = cache[triangles];
+  if (!s) s = std::make_unique<Scene>(DemoScene(triangles));
+  return *s;
+}
+
+const std::vector<cv::Mat>& Patterns() {
+  static const std::vector<cv::Mat> images = GeneratePatterns(LoadPatternSpec(kSource / "config/patterns/graycode_phase.yaml"));
+  return images;
+}
+
+// A rig whose cameras have `megapixels` at the demo's aspect ratio and field of view.
+Rig ScaledRig(double megapixels) {
+  Rig rig = DemoRig();
+  const double s = std::sqrt(megapixels * 1e6 / (1920.0 * 1200.0));
+  for (auto& c : rig.cameras) {
+    CameraModel& m = c.model;
+    m.width = static_cast<int>(std::lround(1920 * s));
+    m.height = static_cast<int>(std::lround(1200 * s));
+    m.params[CameraModel::kFx] *= s;
+    m.params[CameraModel::kFy] *= s;
+    m.params[CameraModel::kCx] = (m.params[CameraModel::kCx] + 0.5) * s - 0.5;
+    m.params[CameraModel::kCy] = (m.params[CameraModel::kCy] + 0.5) * s - 0.5;
+  }
+  return rig;
+}
+
+void BM_CameraRays(benchmark::State& state) {
+  const CameraModel& cam = DemoRig().cameras[0].model;
+  for (auto _ : state) benchmark::DoNotOptimize(ComputeCameraRays(cam, 1));
+  state.counters["Mrays/s"] = benchmark::Counter(1920.0 * 1200 / 1e6, benchmark::Counter::kIsIterationInvariantRate);
+}
+BENCHMARK(BM_CameraRays)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+void BM_BuildBvh(benchmark::State& state) {
+  const Scene& scene = CachedScene(state.range(0));
+  for (auto _ : state) {
+    RayCaster caster(scene);
+    benchmark::DoNotOptimize(caster.num_triangles());
+  }
+  state.counters["triangles"] = static_cast<double>(scene.objects[0].mesh->NumTriangles());
+}
+BENCHMARK(BM_BuildBvh)->Arg(10000)->Arg(100000)->Arg(1000000)->Arg(5000000)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// Geometry pass of one 1920x1200 camera: primary + shadow rays; arg 1 = packet16, 0 = single ray.
+void BM_GeometryPass(benchmark::State& state) {
+  const Scene& scene = CachedScene(state.range(0));
+  const RayCaster caster(scene);
+  const CameraRays rays = ComputeCameraRays(DemoRig().cameras[0].model, 1);
+  const TraceMode mode = state.range(1) ? TraceMode::kPacket16 : TraceMode::kSingleRay;
+  int64_t n_rays = 0;
+  const std::clock_t cpu0 = std::clock();
+  for (auto _ : state) {
+    const GeometryBuffer g = TraceGeometry(caster, DemoRig(), 0, rays, mode);
+    n_rays = g.primary_rays + g.shadow_rays;
+  }
+  // Process CPU time over all threads: throughput per core-second, robust to other load.
+  const double cpu_s = static_cast<double>(std::clock() - cpu0) / CLOCKS_PER_SEC;
+  state.counters["Mrays/cpu_s"] = static_cast<double>(n_rays) * static_cast<double>(state.iterations()) / 1e6 / cpu_s;
+  state.counters["triangles"] = static_cast<double>(caster.num_triangles());
+  state.counters["Mrays"] = static_cast<double>(n_rays) / 1e6;
+  state.counters["Mrays/s"] = benchmark::Counter(static_cast<double>(n_rays) / 1e6, benchmark::Counter::kIsIterationInvariantRate);
+}
+BENCHMARK(BM_GeometryPass)
+    ->Args({10000, 1})->Args({100000, 1})->Args({1000000, 1})->Args({5000000, 1})->Args({1000000, 0})
+    ->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// Geometry pass vs camera resolution (0.3, 2.3, 12 MP), 1 M triangles.
+void BM_GeometryPassPixels(benchmark::State& state) {
+  const Scene& scene = CachedScene(1000000);
+  const RayCaster caster(scene);
+  const Rig rig = ScaledRig(state.range(0) / 10.0);
+  const CameraRays rays = ComputeCameraRays(rig.cameras[0].model, 1);
+  int64_t n_rays = 0;
+  for (auto _ : state) {
+    const GeometryBuffer g = TraceGeometry(caster, rig, 0, rays);
+    n_rays = g.primary_rays + g.shadow_rays;
+  }
+  state.counters["MP"] = rig.cameras[0].model.width * rig.cameras[0].model.height / 1e6;
+  state.counters["Mrays/s"] = benchmark::Counter(static_cast<double>(n_rays) / 1e6, benchmark::Counter::kIsIterationInvariantRate);
+}
+BENCHMARK(BM_GeometryPassPixels)->Arg(3)->Arg(23)->Arg(120)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// One pattern image (1920x1200) from a geometry buffer, per layer configuration.
+enum LayerCase { kCore, kSupersampling2, kCameraDefocus, kProjectorDefocus, kGamma, kVignetting, kAmbient, kNoise, kFillFactor, kAll };
+const char* kLayerNames[] = {"core", "supersampling_2x2", "camera_defocus", "projector_defocus", "projector_gamma",
+                             "vignetting", "ambient", "noise", "fill_factor", "all_layers"};
+
+void BM_PatternPass(benchmark::State& state) {
+  const auto which = static_cast<LayerCase>(state.range(0));
+  Scene scene = CachedScene(100000);
+  SceneLayers& l = scene.layers;
+  const bool all = which == kAll;
+  if (which == kSupersampling2 || all) l.supersampling = 2;
+  if (which == kCameraDefocus || all) l.camera_defocus.enabled = true, l.camera_defocus.focus_distance_mm = 450;
+  if (which == kProjectorDefocus || all) l.projector_defocus.enabled = true, l.projector_defocus.focus_distance_mm = 450;
+  if (which == kGamma || all) l.response_enabled = true, l.gamma = 2.2;
+  if (which == kVignetting || all) l.vignetting_enabled = true;
+  if (which == kAmbient || all) l.ambient = 0.05;
+  if (which == kNoise || all) l.noise_enabled = true;
+  if (which == kFillFactor || all) l.fill_factor = 0.9;
+  const RayCaster caster(scene);
+  const CameraRays rays = ComputeCameraRays(DemoRig().cameras[0].model, l.supersampling);
+  const GeometryBuffer g = TraceGeometry(caster, DemoRig(), 0, rays);
+  const PatternRenderer renderer(scene, DemoRig(), 0, g);
+  const cv::Mat& pattern = Patterns()[10];
+  int index = 0;
+  for (auto _ : state) benchmark::DoNotOptimize(renderer.Render(pattern, index++));
+  state.SetLabel(kLayerNames[which]);
+  state.counters["geometry_ms"] = g.seconds * 1e3;
+}
+BENCHMARK(BM_PatternPass)->DenseRange(0, 9)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// The demo-size scan of the issue: 2 cameras 1920x1200, 1 M triangles, 1 spp, the full Gray
+// code + phase shift sequence (38 images per camera), in memory (no encoding): BVH build,
+// camera rays, geometry passes and pattern passes.
+void BM_DemoScan(benchmark::State& state) {
+  const Scene& scene = CachedScene(1000000);
+  SimulateSummary s;
+  for (auto _ : state) {
+    s = SimulateSummary{};
+    benchmark::DoNotOptimize(RenderScan(scene, DemoRig(), Patterns(), nullptr, &s));
+  }
+  state.counters["triangles"] = static_cast<double>(s.triangles);
+  state.counters["bvh_s"] = s.build_seconds;
+  state.counters["camera_rays_s"] = s.camera_rays_seconds;
+  state.counters["geometry_s"] = s.geometry_seconds;
+  state.counters["Mrays/s"] = s.MraysPerSecond();
+  state.counters["patterns_s"] = s.render_seconds;
+  state.counters["images"] = 2.0 * static_cast<double>(Patterns().size());
+}
+BENCHMARK(BM_DemoScan)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(3);
+
+// The paper's workload for comparison: 22 patterns x 2 cameras, written to disk as PGM
+// (images + manifest, no ground truth), whole run including encoding and writing. The paper's
+// Python/Open3D approach takes 31 s for this on these machines.
+void BM_PaperWorkloadWritten(benchmark::State& state) {
+  const Scene& scene = CachedScene(1000000);
+  std::vector<cv::Mat> patterns(Patterns().begin(), Patterns().begin() + 22);
+  const std::filesystem::path out = std::filesystem::temp_directory_path() / "sim_bench_scan";
+  SimulateOptions options;
+  options.writer.encoding = state.range(0) ? ImageEncoding::kPng : ImageEncoding::kPgm;
+  options.writer.overwrite = true;
+  options.write_ground_truth = false;
+  for (auto _ : state) SimulateScan(scene, DemoRig(), patterns, nlohmann::json::object(), out, options);
+  std::filesystem::remove_all(out);
+  state.SetLabel(state.range(0) ? "png" : "pgm");
+}
+BENCHMARK(BM_PaperWorkloadWritten)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(2);
+
+}  // namespace
+}  // namespace slshadow
+
+BENCHMARK_MAIN();
