@@ -1,0 +1,160 @@
+#include "compare/charts.h"
+
+#include <algorithm>
+#include <cmath>
+#include <memory>
+
+#include <plstream.h>
+
+#include "core/error.h"
+#include "core/file_util.h"
+
+namespace slshadow::compare {
+namespace {
+
+// Colour map control points (position, r, g, b).
+constexpr double kStops[5][4] = {
+    {0.00, 0, 0, 255}, {0.25, 0, 255, 255}, {0.50, 0, 255, 0}, {0.75, 255, 255, 0}, {1.00, 255, 0, 0}};
+
+void SetColorMap1(plstream& pls) {
+  PLFLT pos[5], r[5], g[5], b[5];
+  for (int i = 0; i < 5; ++i) {
+    pos[i] = kStops[i][0];
+    r[i] = kStops[i][1] / 255.0;
+    g[i] = kStops[i][2] / 255.0;
+    b[i] = kStops[i][3] / 255.0;
+  }
+  pls.scmap1n(256);
+  pls.scmap1l(true, 5, pos, r, g, b);
+}
+
+// A stream on a white page writing a PNG to `file`.
+std::unique_ptr<plstream> OpenPng(const std::filesystem::path& file, int width, int height) {
+  auto pls = std::make_unique<plstream>();
+  pls->sdev("pngcairo");
+  pls->sfnam(file.c_str());
+  pls->spage(0, 0, width, height, 0, 0);
+  pls->scol0(0, 255, 255, 255);  // background
+  pls->scol0(1, 0, 0, 0);        // axes and text
+  pls->scol0(2, 200, 0, 0);      // threshold lines
+  pls->scol0(3, 90, 90, 90);     // bar outlines
+  pls->init();
+  pls->col0(1);
+  return pls;
+}
+
+}  // namespace
+
+std::array<uint8_t, 3> DeviationColor(double t) {
+  t = std::isfinite(t) ? std::clamp(t, 0.0, 1.0) : 0.5;
+  int i = 0;
+  while (i < 3 && t > kStops[i + 1][0]) ++i;
+  const double f = (t - kStops[i][0]) / (kStops[i + 1][0] - kStops[i][0]);
+  std::array<uint8_t, 3> c{};
+  for (int k = 0; k < 3; ++k) {
+    c[static_cast<size_t>(k)] =
+        static_cast<uint8_t>(std::lround(kStops[i][k + 1] + f * (kStops[i + 1][k + 1] - kStops[i][k + 1])));
+  }
+  return c;
+}
+
+void WriteHistogramPng(const std::filesystem::path& path, const Histogram& h, const HistogramChart& chart) {
+  SLSHADOW_THROW_IF(h.counts.empty(), path.string(), ": histogram has no bins");
+  WriteFileAtomically(path, [&](const std::filesystem::path& tmp) {
+    auto pls = OpenPng(tmp, chart.width_px, chart.height_px);
+    SetColorMap1(*pls);
+    const size_t peak = *std::max_element(h.counts.begin(), h.counts.end());
+    const double ymax = std::max<double>(1.0, static_cast<double>(peak)) * 1.12;
+    pls->schr(0, 1.1);
+    pls->env(h.lo_mm, h.hi_mm, 0, ymax, 0, 0);
+    pls->lab(chart.x_label.c_str(), "points per bin", chart.title.c_str());
+    const double w = h.BinWidth();
+    for (size_t i = 0; i < h.counts.size(); ++i) {
+      if (h.counts[i] == 0) continue;
+      const double x0 = h.lo_mm + w * static_cast<double>(i), x1 = x0 + w;
+      const double xc = 0.5 * (x0 + x1);
+      const double t = chart.is_signed ? (xc - h.lo_mm) / (h.hi_mm - h.lo_mm) : xc / h.hi_mm;
+      PLFLT xs[4] = {x0, x0, x1, x1};
+      PLFLT ys[4] = {0, static_cast<double>(h.counts[i]), static_cast<double>(h.counts[i]), 0};
+      pls->col1(t);
+      pls->fill(4, xs, ys);
+      pls->col0(3);
+      pls->line(4, xs, ys);
+    }
+    if (chart.threshold_mm > 0) {
+      pls->col0(2);
+      pls->lsty(2);
+      for (double s : {-1.0, 1.0}) {
+        if (!chart.is_signed && s < 0) continue;
+        const double x = s * chart.threshold_mm;
+        if (x < h.lo_mm || x > h.hi_mm) continue;
+        PLFLT xs[2] = {x, x}, ys[2] = {0, ymax};
+        pls->line(2, xs, ys);
+      }
+      pls->lsty(1);
+    }
+    pls->col0(1);
+    pls->schr(0, 0.9);
+    double y = 1.5;
+    for (const auto& note : chart.notes) {
+      pls->mtex("t", -y, 0.98, 1.0, note.c_str());
+      y += 1.6;
+    }
+  });
+}
+
+void WriteDeviationMapPng(const std::filesystem::path& path, const ValueImage& image, const MapChart& chart) {
+  SLSHADOW_THROW_IF(image.width <= 0 || image.height <= 0 ||
+                        image.values.size() != static_cast<size_t>(image.width) * static_cast<size_t>(image.height),
+                    path.string(), ": bad deviation image size ", image.width, "x", image.height);
+  SLSHADOW_THROW_IF(!(chart.hi > chart.lo), path.string(), ": empty colour range");
+  // Page: the image at its own aspect ratio plus room for the colour bar and labels.
+  const int img_w = image.width, img_h = image.height;
+  const double scale = std::min(1.0, std::min(1100.0 / img_w, 800.0 / img_h));
+  const int page_w = static_cast<int>(img_w * scale) + 315, page_h = static_cast<int>(img_h * scale) + 160;
+  WriteFileAtomically(path, [&](const std::filesystem::path& tmp) {
+    auto pls = OpenPng(tmp, page_w, page_h);
+    SetColorMap1(*pls);
+    pls->adv(0);
+    // Viewport in normalised page coordinates leaving space right for the colour bar.
+    const double vx0 = 125.0 / page_w, vx1 = vx0 + img_w * scale / page_w;
+    const double vy0 = 85.0 / page_h, vy1 = vy0 + img_h * scale / page_h;
+    pls->vpor(vx0, vx1, vy0, vy1);
+    pls->wind(-0.5, img_w - 0.5, img_h - 0.5, -0.5);
+    // data[x][y] with y going up in PLplot: flip rows. Empty pixels are given a value below
+    // the range; plimagefr skips values outside [valuemin, valuemax] (white background).
+    std::vector<std::vector<PLFLT>> cols(static_cast<size_t>(img_w), std::vector<PLFLT>(static_cast<size_t>(img_h)));
+    std::vector<const PLFLT*> ptrs(static_cast<size_t>(img_w));
+    const double below = chart.lo - 10.0 * (chart.hi - chart.lo);
+    for (int x = 0; x < img_w; ++x) {
+      for (int y = 0; y < img_h; ++y) {
+        const float v = image.values[static_cast<size_t>(y) * static_cast<size_t>(img_w) + static_cast<size_t>(x)];
+        cols[static_cast<size_t>(x)][static_cast<size_t>(y)] =
+            std::isfinite(v) ? std::clamp<double>(v, chart.lo, chart.hi) : below;
+      }
+      ptrs[static_cast<size_t>(x)] = cols[static_cast<size_t>(x)].data();
+    }
+    pls->imagefr(ptrs.data(), img_w, img_h, -0.5, img_w - 0.5, img_h - 0.5, -0.5, chart.lo, chart.hi,
+                 chart.lo, chart.hi, nullptr, nullptr);
+    pls->col0(1);
+    pls->box("bcnst", 0, 0, "bcnstv", 0, 0);
+    pls->lab("image x (px)", "image y (px)", chart.title.c_str());
+    // Colour bar.
+    PLFLT bar_w = 0, bar_h = 0;
+    const int n_values = 64;
+    std::vector<PLFLT> values(n_values);
+    for (int i = 0; i < n_values; ++i) values[static_cast<size_t>(i)] = chart.lo + (chart.hi - chart.lo) * i / (n_values - 1);
+    const PLFLT* value_ptrs[1] = {values.data()};
+    PLINT n_vals[1] = {n_values};
+    const char* axis_opts[1] = {"bcvtm"};
+    PLFLT ticks[1] = {0.0};
+    PLINT sub_ticks[1] = {0};
+    PLINT label_opts[1] = {PL_COLORBAR_LABEL_RIGHT};
+    const char* labels[1] = {chart.colorbar_label.c_str()};
+    pls->colorbar(&bar_w, &bar_h, PL_COLORBAR_GRADIENT, PL_POSITION_RIGHT | PL_POSITION_OUTSIDE, 0.04, 0.0, 0.04,
+                  0.9, 0, 1, 1, 0.0, 0.0, 0, 0.0, 1, label_opts, labels, 1, axis_opts, ticks, sub_ticks, n_vals,
+                  value_ptrs);
+  });
+}
+
+}  // namespace slshadow::compare

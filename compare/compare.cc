@@ -1,0 +1,228 @@
+#include "compare/compare.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <random>
+#include <sstream>
+
+#include "compare/charts.h"
+#include "compare/kdtree.h"
+#include "core/error.h"
+
+namespace slshadow::compare {
+namespace fs = std::filesystem;
+
+namespace {
+
+std::vector<Eigen::Vector3d> NormalsAsDouble(const PointCloud& c) {
+  std::vector<Eigen::Vector3d> n;
+  n.reserve(c.normals.size());
+  for (const auto& v : c.normals) n.push_back(v.cast<double>());
+  return n;
+}
+
+std::string Fmt(const char* format, double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof(buf), format, v);
+  return buf;
+}
+
+}  // namespace
+
+Reference ReferenceFromMesh(TriangleMesh mesh, const std::string& source, size_t samples) {
+  mesh.Check(source, /*reject_degenerate=*/false);
+  SLSHADOW_THROW_IF(samples < 1, source, ": needs at least one surface sample");
+  Reference ref;
+  ref.source = source;
+  std::vector<double> cumulative(mesh.NumTriangles());
+  double total = 0;
+  for (size_t t = 0; t < mesh.NumTriangles(); ++t) {
+    total += mesh.TriangleArea(t);
+    cumulative[t] = total;
+  }
+  SLSHADOW_THROW_IF(!(total > 0), source, ": the mesh has zero surface area");
+  std::mt19937_64 rng(20261122);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  ref.cloud.points.reserve(samples);
+  ref.cloud.normals.reserve(samples);
+  for (size_t i = 0; i < samples; ++i) {
+    const double r = u(rng) * total;
+    const size_t t = std::min<size_t>(
+        static_cast<size_t>(std::upper_bound(cumulative.begin(), cumulative.end(), r) - cumulative.begin()),
+        mesh.NumTriangles() - 1);
+    const Eigen::Vector3i& f = mesh.triangles[t];
+    const double s = std::sqrt(u(rng)), b = u(rng);
+    const Eigen::Vector3d& a = mesh.vertices[static_cast<size_t>(f[0])];
+    const Eigen::Vector3d& p1 = mesh.vertices[static_cast<size_t>(f[1])];
+    const Eigen::Vector3d& p2 = mesh.vertices[static_cast<size_t>(f[2])];
+    ref.cloud.points.push_back((1 - s) * a + s * (1 - b) * p1 + s * b * p2);
+    ref.cloud.normals.push_back(mesh.FaceNormal(t).cast<float>());
+  }
+  ref.mesh = std::move(mesh);
+  return ref;
+}
+
+Reference ReferenceFromCloud(PointCloud cloud, const std::string& source) {
+  cloud.Check(source);
+  SLSHADOW_THROW_IF(cloud.empty(), source, ": the reference cloud has no points");
+  Reference ref;
+  ref.source = source;
+  ref.cloud = std::move(cloud);
+  return ref;
+}
+
+Reference LoadReference(const fs::path& path, size_t mesh_samples) {
+  std::string ext = path.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  if (ext == ".stl" || ext == ".obj") return ReferenceFromMesh(ReadMesh(path), path.string(), mesh_samples);
+  SLSHADOW_THROW_IF(ext != ".ply", path.string(), ": reference must be .ply, .stl or .obj (got '", ext, "')");
+  const PlyData ply = ReadPlyData(path);
+  const PlyElement* faces = ply.Find("face");
+  if (faces && faces->count > 0) return ReferenceFromMesh(ReadMesh(path), path.string(), mesh_samples);
+  return ReferenceFromCloud(ReadPly(path), path.string());
+}
+
+void CompareOptions::Check() const {
+  registration.Check();
+  c2c.Check();
+  SLSHADOW_THROW_IF(!(threshold_mm > 0) || !std::isfinite(threshold_mm),
+                    "threshold_mm: must be finite and > 0 (got ", threshold_mm, ")");
+  SLSHADOW_THROW_IF(!(coverage_radius_mm >= 0) || !std::isfinite(coverage_radius_mm),
+                    "coverage_radius_mm: must be finite and >= 0 (got ", coverage_radius_mm, ")");
+  SLSHADOW_THROW_IF(histogram_bins < 2 || histogram_bins > 10000,
+                    "histogram_bins: must be in [2, 10000] (got ", histogram_bins, ")");
+  if (m3c2) m3c2_options.Check();
+}
+
+CompareResult Compare(const PointCloud& cloud, const Reference& reference, const CompareOptions& options,
+                      const std::string& cloud_source) {
+  options.Check();
+  cloud.Check(cloud_source);
+  SLSHADOW_THROW_IF(cloud.empty(), cloud_source, ": the compared cloud has no points");
+  SLSHADOW_THROW_IF(reference.cloud.empty(), reference.source, ": the reference is empty");
+  const auto t0 = std::chrono::steady_clock::now();
+  CompareResult r;
+  r.cloud_source = cloud_source;
+  r.reference_source = reference.source;
+  r.reference_is_mesh = reference.IsMesh();
+  r.reference_size = reference.IsMesh() ? reference.mesh.NumTriangles() : reference.cloud.size();
+  r.options = options;
+
+  const auto ref_normals = NormalsAsDouble(reference.cloud);
+  r.registration = Register(cloud.points, reference.cloud.points, ref_normals, options.registration);
+  r.compared = cloud;
+  const Rigid3d& t = r.registration.reference_from_cloud;
+  for (auto& p : r.compared.points) p = t * p;
+  const Eigen::Matrix3f rot = t.rotation.toRotationMatrix().cast<float>();
+  for (auto& n : r.compared.normals) n = rot * n;
+  const auto& pts = r.compared.points;
+
+  const KdTree ref_tree(reference.cloud.points);
+  bool is_signed = false;
+  if (reference.IsMesh()) {
+    r.distance_method = "nearest_triangle";
+    r.deviations_mm = CloudToMesh(pts, reference.mesh).signed_distances_mm;
+    is_signed = true;
+  } else {
+    r.distance_method = "nearest_point";
+    C2CResult c2c = CloudToCloud(pts, ref_tree, options.c2c);
+    r.deviations_mm = std::move(c2c.distances_mm);
+    r.num_not_found = c2c.num_not_found;
+  }
+  r.c2c = ComputeStats(r.deviations_mm, false, options.threshold_mm, options.histogram_bins);
+  if (is_signed) r.c2m = ComputeStats(r.deviations_mm, true, options.threshold_mm, options.histogram_bins);
+
+  // Coverage.
+  std::vector<Eigen::Vector3d> reached;
+  for (size_t i = 0; i < pts.size(); ++i) {
+    if (std::abs(r.deviations_mm[i]) <= options.threshold_mm) reached.push_back(pts[i]);
+  }
+  const KdTree cmp_tree(pts);
+  r.coverage_radius_mm = options.coverage_radius_mm > 0
+                             ? options.coverage_radius_mm
+                             : std::max(options.threshold_mm, 3.0 * MedianSpacing(cmp_tree));
+  const KdTree reached_tree(reached);
+  r.coverage = Coverage(reference.cloud.points, reached_tree, r.coverage_radius_mm);
+  r.coverage_samples = reference.cloud.size();
+
+  // Scalar fields and colours.
+  std::vector<float> dev(pts.size());
+  for (size_t i = 0; i < pts.size(); ++i) dev[i] = static_cast<float>(r.deviations_mm[i]);
+  r.compared.SetScalar("deviation", std::move(dev));
+  const Histogram& h = is_signed ? r.c2m->histogram : r.c2c.histogram;
+  r.compared.colors.resize(pts.size());
+  for (size_t i = 0; i < pts.size(); ++i) {
+    r.compared.colors[i] = DeviationColor((r.deviations_mm[i] - h.lo_mm) / (h.hi_mm - h.lo_mm));
+  }
+
+  if (options.m3c2) {
+    std::vector<Eigen::Vector3d> hints(pts.size(), Eigen::Vector3d::UnitZ());
+    if (!ref_normals.empty()) {
+      Neighbor nb;
+      for (size_t i = 0; i < pts.size(); ++i) {
+        if (ref_tree.Nearest(pts[i], &nb)) hints[i] = ref_normals[nb.index];
+      }
+    }
+    const auto normals = EstimateNormals(pts, ref_tree, 12, hints);
+    const M3C2Result m = M3C2(pts, normals, ref_tree, cmp_tree, options.m3c2_options);
+    M3C2Summary s;
+    s.options = options.m3c2_options;
+    s.num_valid = m.num_valid;
+    s.num_significant = m.num_significant;
+    s.stats = ComputeStats(m.distance_mm, true, options.threshold_mm, options.histogram_bins);
+    double lod = 0;
+    std::vector<float> d(pts.size()), l(pts.size()), sig(pts.size());
+    for (size_t i = 0; i < pts.size(); ++i) {
+      d[i] = static_cast<float>(m.distance_mm[i]);
+      l[i] = static_cast<float>(m.lod95_mm[i]);
+      sig[i] = std::isfinite(m.distance_mm[i]) && std::abs(m.distance_mm[i]) > m.lod95_mm[i] ? 1.f : 0.f;
+      if (std::isfinite(m.lod95_mm[i])) lod += m.lod95_mm[i];
+    }
+    s.mean_lod95_mm = m.num_valid ? lod / static_cast<double>(m.num_valid) : 0.0;
+    r.compared.SetScalar("m3c2_distance", std::move(d));
+    r.compared.SetScalar("m3c2_lod95", std::move(l));
+    r.compared.SetScalar("m3c2_significant", std::move(sig));
+    r.m3c2 = s;
+  }
+  r.time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return r;
+}
+
+std::string CompareResult::Summary() const {
+  std::ostringstream o;
+  const auto pct = [](size_t a, size_t b) { return b ? 100.0 * static_cast<double>(a) / static_cast<double>(b) : 0.0; };
+  o << "compare: " << cloud_source << " (" << compared.size() << " points)\n"
+    << "     vs " << reference_source << " (" << (reference_is_mesh ? "mesh, " : "cloud, ") << reference_size
+    << (reference_is_mesh ? " triangles)\n" : " points)\n");
+  o << registration.BriefReport() << "\n";
+  o << "distance: " << (reference_is_mesh ? "signed point-to-triangle (C2M)" : "nearest neighbour (C2C)");
+  if (!reference_is_mesh && options.c2c.local_model != LocalModel::kNone) {
+    o << ", local model " << LocalModelName(options.c2c.local_model);
+  }
+  o << "\n";
+  const DistanceStats& s = c2c;
+  o << "  points      " << s.count << (s.num_invalid ? " (" + std::to_string(s.num_invalid) + " invalid)" : "") << "\n"
+    << "  mean        " << Fmt("%.4f mm", s.mean_mm) << "    std " << Fmt("%.4f mm", s.std_mm) << "\n"
+    << "  rms         " << Fmt("%.4f mm", s.rms_mm) << "    median " << Fmt("%.4f mm", s.median_mm) << "\n"
+    << "  p95         " << Fmt("%.4f mm", s.p95_mm) << "    max " << Fmt("%.4f mm", s.max_mm) << "\n";
+  if (c2m) {
+    o << "  signed mean " << Fmt("%+.4f mm", c2m->signed_mean_mm) << "    signed std "
+      << Fmt("%.4f mm", c2m->signed_std_mm) << "\n";
+  }
+  o << "  threshold   " << Fmt("%.3f mm", s.threshold_mm) << ": " << s.inliers << " inliers, " << s.outliers
+    << " outliers (" << Fmt("%.3f %%", pct(s.outliers, s.count)) << ")\n";
+  if (num_not_found) o << "  beyond max search distance: " << num_not_found << "\n";
+  o << "coverage: " << Fmt("%.2f %%", 100.0 * coverage) << " of the reference surface (" << coverage_samples
+    << " samples, radius " << Fmt("%.3f mm", coverage_radius_mm) << ")\n";
+  if (m3c2) {
+    o << "M3C2: " << m3c2->num_valid << " valid, " << m3c2->num_significant << " significant ("
+      << Fmt("%.2f %%", pct(m3c2->num_significant, m3c2->num_valid)) << "), mean "
+      << Fmt("%+.4f mm", m3c2->stats.signed_mean_mm) << ", mean LoD95 " << Fmt("%.4f mm", m3c2->mean_lod95_mm) << "\n";
+  }
+  o << "time: " << Fmt("%.2f s", time_s) << "\n";
+  return o.str();
+}
+
+}  // namespace slshadow::compare

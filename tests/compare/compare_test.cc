@@ -1,0 +1,128 @@
+#include "compare/compare.h"
+
+#include <cmath>
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "core/error.h"
+#include "tests/compare/test_shapes.h"
+#include "tests/testing/temp_dir.h"
+
+namespace slshadow::compare {
+namespace {
+
+using testing::IcoSphere;
+
+// Points on the upper half (z > 0) of a tessellated sphere, moved `offset` mm along their
+// triangle's outward normal: their exact signed distance to the mesh is `offset`.
+PointCloud OffsetUpperHalf(const TriangleMesh& mesh, double offset, unsigned seed, size_t per_triangle) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  PointCloud c;
+  for (size_t t = 0; t < mesh.NumTriangles(); ++t) {
+    const auto& f = mesh.triangles[t];
+    const Eigen::Vector3d& a = mesh.vertices[static_cast<size_t>(f[0])];
+    const Eigen::Vector3d& b = mesh.vertices[static_cast<size_t>(f[1])];
+    const Eigen::Vector3d& cc = mesh.vertices[static_cast<size_t>(f[2])];
+    if ((a + b + cc).z() <= 0) continue;
+    for (size_t k = 0; k < per_triangle; ++k) {
+      // Uniform on the triangle. On a convex mesh an outward offset along the face normal keeps
+      // the foot as the closest point, edges and corners included.
+      const double s = std::sqrt(u(rng)), r = u(rng);
+      c.points.push_back((1 - s) * a + s * (1 - r) * b + s * r * cc + offset * mesh.FaceNormal(t));
+    }
+  }
+  return c;
+}
+
+TEST(Compare, MeshReferenceGivesExactSignedDeviationsAndHalfCoverage) {
+  const TriangleMesh mesh = IcoSphere(20.0, 4);  // 5120 triangles
+  const Reference ref = ReferenceFromMesh(mesh, "sphere", 100000);
+  PointCloud cloud = OffsetUpperHalf(mesh, 0.1, 41, 12);
+  // 1 % of the points pushed 0.6 mm further out: outliers.
+  for (size_t i = 0; i < cloud.size(); i += 100) cloud.points[i] *= (20.0 + 0.7) / (20.0 + 0.1);
+  CompareOptions o;
+  const CompareResult r = Compare(cloud, ref, o, "offset sphere");
+  ASSERT_TRUE(r.c2m.has_value());
+  EXPECT_EQ(r.distance_method, "nearest_triangle");
+  size_t expected_outliers = 0;
+  for (size_t i = 0; i < cloud.size(); ++i) {
+    if (i % 100 == 0) {
+      ++expected_outliers;
+      EXPECT_GT(r.deviations_mm[i], 0.5);
+    } else {
+      EXPECT_NEAR(r.deviations_mm[i], 0.1, 1e-9);
+    }
+  }
+  EXPECT_EQ(r.c2c.outliers, expected_outliers);
+  EXPECT_EQ(r.c2c.count, cloud.size());
+  EXPECT_GT(r.c2m->signed_mean_mm, 0.1);
+  // The cloud covers the triangles of the upper hemisphere: about half of the area (plus a rim
+  // of one coverage radius, < 1 %).
+  EXPECT_NEAR(r.coverage, 0.5, 0.03);
+  EXPECT_EQ(r.compared.Scalar("deviation")->size(), cloud.size());
+  EXPECT_EQ(r.compared.colors.size(), cloud.size());
+  EXPECT_NE(r.Summary().find("coverage"), std::string::npos);
+}
+
+TEST(Compare, CloudReferenceUsesC2CAndIcpUndoesAMisalignment) {
+  const TriangleMesh mesh = IcoSphere(20.0, 4);
+  // An ellipsoid-ish part (a sphere scaled per axis) so that ICP has a unique answer.
+  TriangleMesh part = mesh;
+  for (auto& v : part.vertices) v = Eigen::Vector3d(1.5 * v.x(), v.y(), 0.7 * v.z());
+  const Reference dense = ReferenceFromMesh(part, "part", 200000);
+  const Reference ref = ReferenceFromCloud(dense.cloud, "part samples");
+  const Reference other = ReferenceFromMesh(part, "part", 60000);
+  PointCloud cloud;
+  const Rigid3d cloud_from_ref(Eigen::Quaterniond(Eigen::AngleAxisd(0.05, Eigen::Vector3d(0, 0.6, 0.8))),
+                               Eigen::Vector3d(0.8, -0.5, 0.3));
+  for (size_t i = 0; i < other.cloud.size(); i += 2) cloud.points.push_back(cloud_from_ref * other.cloud.points[i]);
+  CompareOptions o;
+  o.registration.method = RegistrationMethod::kIcp;
+  const CompareResult r = Compare(cloud, ref, o, "moved samples");
+  EXPECT_FALSE(r.c2m.has_value());
+  EXPECT_EQ(r.distance_method, "nearest_point");
+  const Rigid3d err = r.registration.reference_from_cloud * cloud_from_ref;
+  EXPECT_LT(err.rotation.angularDistance(Eigen::Quaterniond::Identity()), 1e-3);
+  EXPECT_LT(err.translation.norm(), 0.02);
+  // Two independent samples of the same surface, ~0.1 mm spacing: all within the threshold.
+  EXPECT_LT(r.c2c.p95_mm, 0.2);
+  EXPECT_EQ(r.c2c.outliers, 0u);
+  EXPECT_GT(r.coverage, 0.97);
+}
+
+TEST(Compare, M3C2FieldsAndBadInput) {
+  const Reference ref = ReferenceFromMesh(IcoSphere(10.0, 4), "sphere", 50000);
+  PointCloud cloud = OffsetUpperHalf(IcoSphere(10.0, 4), 0.05, 42, 8);
+  CompareOptions o;
+  o.m3c2 = true;
+  o.m3c2_options.projection_radius_mm = 0.6;
+  const CompareResult r = Compare(cloud, ref, o);
+  ASSERT_TRUE(r.m3c2.has_value());
+  EXPECT_GT(r.m3c2->num_valid, cloud.size() / 2);
+  EXPECT_NEAR(r.m3c2->stats.signed_mean_mm, 0.05, 0.01);
+  EXPECT_NE(r.compared.Scalar("m3c2_lod95"), nullptr);
+  o.threshold_mm = -1;
+  EXPECT_THROW(Compare(cloud, ref, o), Error);
+  EXPECT_THROW(Compare(PointCloud{}, ref, CompareOptions{}), Error);
+}
+
+TEST(LoadReference, ReadsMeshesAndClouds) {
+  slshadow::testing::TempDir tmp;
+  const TriangleMesh mesh = IcoSphere(5.0, 2);
+  WriteMesh(tmp / "m.stl", mesh);
+  WriteMesh(tmp / "m.ply", mesh);
+  PointCloud c;
+  c.points = mesh.vertices;
+  WritePly(tmp / "c.ply", c);
+  EXPECT_TRUE(LoadReference(tmp / "m.stl", 1000).IsMesh());
+  EXPECT_TRUE(LoadReference(tmp / "m.ply", 1000).IsMesh());
+  const Reference rc = LoadReference(tmp / "c.ply");
+  EXPECT_FALSE(rc.IsMesh());
+  EXPECT_EQ(rc.cloud.size(), mesh.vertices.size());
+  EXPECT_THROW(LoadReference(tmp / "m.xyz"), Error);
+}
+
+}  // namespace
+}  // namespace slshadow::compare

@@ -1,0 +1,105 @@
+#include "compare/report.h"
+
+#include <cmath>
+#include <fstream>
+
+#include <gtest/gtest.h>
+
+#include "core/error.h"
+#include "core/file_util.h"
+#include "tests/compare/test_shapes.h"
+#include "tests/testing/temp_dir.h"
+
+namespace slshadow::compare {
+namespace {
+
+using testing::IcoSphere;
+
+bool IsPng(const std::filesystem::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  char sig[8] = {};
+  in.read(sig, 8);
+  return in && std::string(sig + 1, 3) == "PNG";
+}
+
+CompareResult SmallResult() {
+  const TriangleMesh mesh = IcoSphere(20.0, 3);
+  const Reference ref = ReferenceFromMesh(mesh, "sphere.stl", 20000);
+  PointCloud cloud;
+  std::mt19937 rng(51);
+  std::normal_distribution<double> noise(0.0, 0.1);
+  for (const auto& p : ReferenceFromMesh(mesh, "s", 30000).cloud.points) {
+    if (p.z() > -5) cloud.points.push_back(p * (1.0 + noise(rng) / 20.0));
+  }
+  return Compare(cloud, ref, CompareOptions{}, "noisy.ply");
+}
+
+TEST(WriteReport, WritesEveryFileAndTheJsonSchema) {
+  slshadow::testing::TempDir tmp;
+  const CompareResult r = SmallResult();
+  WriteReport(tmp / "report", r);
+  for (const char* f : {"report.json", "compared.ply", "histogram.png", "deviation_map.png", "summary.txt"}) {
+    EXPECT_TRUE(std::filesystem::exists(tmp / "report" / f)) << f;
+  }
+  EXPECT_TRUE(IsPng(tmp / "report" / "histogram.png"));
+  EXPECT_TRUE(IsPng(tmp / "report" / "deviation_map.png"));
+  const auto j = nlohmann::json::parse(ReadTextFile(tmp / "report" / "report.json"));
+  for (const char* k : {"count", "mean_mm", "std_mm", "rms_mm", "median_mm", "p95_mm", "max_mm", "threshold_mm",
+                        "inliers", "outliers", "coverage"}) {
+    EXPECT_TRUE(j["c2c"].contains(k)) << k;
+  }
+  EXPECT_EQ(j["c2c"]["count"].get<size_t>(), r.c2c.count);
+  EXPECT_DOUBLE_EQ(j["c2c"]["rms_mm"].get<double>(), r.c2c.rms_mm);
+  EXPECT_EQ(j["registration"]["method"], "none");
+  EXPECT_EQ(j["registration"]["transform"].size(), 4u);
+  EXPECT_TRUE(j["registration"].contains("rmse_mm"));
+  EXPECT_TRUE(j.contains("c2m"));
+  // The PLY carries the deviation field bit-for-bit (as float) and colours.
+  const PointCloud back = ReadPly(tmp / "report" / "compared.ply");
+  ASSERT_EQ(back.size(), r.compared.size());
+  ASSERT_NE(back.Scalar("deviation"), nullptr);
+  for (size_t i = 0; i < back.size(); i += 97) {
+    EXPECT_EQ((*back.Scalar("deviation"))[i], static_cast<float>(r.deviations_mm[i]));
+  }
+  EXPECT_TRUE(back.HasColors());
+}
+
+TEST(WriteReport, RefusesToOverwriteWhenAskedAndLeavesTheOldReport) {
+  slshadow::testing::TempDir tmp;
+  const CompareResult r = SmallResult();
+  WriteReport(tmp / "out", r);
+  const std::string before = ReadTextFile(tmp / "out" / "summary.txt");
+  ReportOptions o;
+  o.overwrite = false;
+  EXPECT_THROW(WriteReport(tmp / "out", r, o), Error);
+  EXPECT_EQ(ReadTextFile(tmp / "out" / "summary.txt"), before);
+  // No staging folders left behind.
+  size_t entries = 0;
+  for ([[maybe_unused]] const auto& e : std::filesystem::directory_iterator(tmp.path())) ++entries;
+  EXPECT_EQ(entries, 1u);
+}
+
+TEST(FitView, EveryPointProjectsInsideTheImage) {
+  const CompareResult r = SmallResult();
+  const ViewCamera v = FitView(r.compared, 800);
+  for (const auto& p : r.compared.points) {
+    const auto px = v.camera.Project(v.cam_from_reference * p);
+    ASSERT_TRUE(px.has_value());
+    EXPECT_TRUE(v.camera.IsInImage(*px));
+  }
+}
+
+TEST(RenderValues, APointLandsOnItsPixelWithItsValue) {
+  ViewCamera v;
+  v.camera = CameraModel(64, 48, 50, 50, 31.5, 23.5);
+  const std::vector<Eigen::Vector3d> pts = {{0, 0, 100}, {0.0, 0.0, 50}, {20, 10, 100}};
+  const std::vector<double> vals = {1.0, 2.0, 3.0};
+  const ValueImage img = RenderValues(pts, vals, v, 1);
+  auto at = [&](int x, int y) { return img.values[static_cast<size_t>(y * 64 + x)]; };
+  EXPECT_EQ(at(32, 24), 2.0f);  // the nearer point wins the z-buffer
+  EXPECT_EQ(at(41, 28), 3.0f);  // (20, 10, 100) -> (31.5 + 10, 23.5 + 5)
+  EXPECT_TRUE(std::isnan(at(5, 5)));
+}
+
+}  // namespace
+}  // namespace slshadow::compare
