@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include "sim/shapes.h"
+#include <opencv2/core.hpp>
 #include "tests/sim/sim_test_util.h"
 
 namespace slshadow {
@@ -268,6 +269,224 @@ TEST(PointCloudTest, DiscsMatchMeshOfTheSameSurface) {
   std::printf("discs vs mesh: %d pixels, max |dDN| %d, mean %.3f\n", compared, max_dn, sum_dn / compared);
   EXPECT_LE(max_dn, 4);
   EXPECT_LE(sum_dn / compared, 1.0);
+}
+
+// ---- Optional layers: each checked against what it claims to model. ----
+
+// A plane facing the rig head-on, filling the view.
+Scene FacingPlane() { return PlaneScene(Pose(Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 0, 500)), 0.7); }
+
+cv::Mat Stripes(const Rig& rig, int period) {
+  cv::Mat m(rig.projector->model.height, rig.projector->model.width, CV_8UC1);
+  for (int y = 0; y < m.rows; ++y) {
+    for (int x = 0; x < m.cols; ++x) m.at<uint8_t>(y, x) = (x / period) % 2 ? 230 : 20;
+  }
+  return m;
+}
+
+TEST(LayersTest, LayersAreOffByDefault) {
+  const SceneLayers l;
+  EXPECT_EQ(l.supersampling, 1);
+  EXPECT_FALSE(l.camera_defocus.enabled || l.projector_defocus.enabled || l.response_enabled || l.vignetting_enabled ||
+               l.noise_enabled);
+  EXPECT_EQ(l.ambient, 0);
+  EXPECT_EQ(l.fill_factor, 1);
+}
+
+// EMVA 1288: residual (noisy - noise-free) has variance K^2 (mu_e + read^2) + 1/12 (quantisation),
+// K = full_scale / full_well; the normalised residual is standard normal. Seeded: reproducible.
+TEST(LayersTest, NoiseFollowsEmvaModelAndIsSeeded) {
+  const Rig rig = SmallDemoRig(4);
+  Scene scene = FacingPlane();
+  scene.radiometry.adc_bits = 12;
+  scene.layers.noise_enabled = true;
+  scene.layers.full_well_e = 8000;
+  scene.layers.read_noise_e = 12;
+  scene.layers.seed = 5;
+  const GeometryBuffer g = Trace(scene, rig, 0);
+  const PatternRenderer r(scene, rig, 0, g);
+  const cv::Mat pattern = Stripes(rig, 7);
+  const cv::Mat clean = r.RenderIrradiance(pattern);
+  const cv::Mat noisy = r.Render(pattern, 3);
+  ASSERT_EQ(noisy.type(), CV_16UC1);
+  const double k = 4095.0 / 8000;
+  double sum = 0, sum_sq = 0;
+  int n = 0;
+  for (int y = 0; y < g.height; ++y) {
+    for (int x = 0; x < g.width; ++x) {
+      const double mu = clean.at<float>(y, x);
+      if (mu < 50 || mu > 3500) continue;  // away from clipping at 0 and saturation
+      const double var = k * k * (mu / k + 12.0 * 12.0) + 1.0 / 12;
+      const double z = (noisy.at<uint16_t>(y, x) - mu) / std::sqrt(var);
+      sum += z;
+      sum_sq += z * z;
+      ++n;
+    }
+  }
+  ASSERT_GT(n, 50000);
+  const double mean = sum / n, sd = std::sqrt(sum_sq / n - mean * mean);
+  EXPECT_NEAR(mean, 0, 0.02);
+  EXPECT_NEAR(sd, 1, 0.02);
+  EXPECT_EQ(cv::norm(noisy, r.Render(pattern, 3), cv::NORM_INF), 0) << "same seed, camera, pattern: same image";
+  EXPECT_GT(cv::norm(noisy, r.Render(pattern, 4), cv::NORM_L1), 0) << "another pattern index: other noise";
+  Scene other = scene;
+  other.layers.seed = 6;
+  EXPECT_GT(cv::norm(noisy, PatternRenderer(other, rig, 0, g).Render(pattern, 3), cv::NORM_L1), 0);
+}
+
+TEST(LayersTest, SaturationClipsAtFullScale) {
+  const Rig rig = SmallDemoRig(4);
+  Scene scene = FacingPlane();
+  scene.radiometry.exposure = 5;  // far over full scale
+  const GeometryBuffer g = Trace(scene, rig, 0);
+  const cv::Mat img = PatternRenderer(scene, rig, 0, g).Render(FlatProjectorImage(rig, 255), 0);
+  double max_value;
+  cv::minMaxLoc(img, nullptr, &max_value);
+  EXPECT_EQ(max_value, 255);
+  EXPECT_GT(cv::countNonZero(img == 255), g.width * g.height / 2);
+}
+
+TEST(LayersTest, ProjectorGammaAndLut) {
+  const Rig rig = SmallDemoRig(4);
+  Scene linear = FacingPlane();
+  Scene gamma = linear;
+  gamma.layers.response_enabled = true;
+  gamma.layers.gamma = 2.2;
+  Scene lut = linear;
+  lut.layers.response_enabled = true;
+  lut.layers.response_lut.assign(256, 0.25);
+  const GeometryBuffer g = Trace(linear, rig, 0);
+  const cv::Mat white = PatternRenderer(linear, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 255));
+  const cv::Mat mid_linear = PatternRenderer(linear, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 128));
+  const cv::Mat mid_gamma = PatternRenderer(gamma, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 128));
+  const cv::Mat quarter = PatternRenderer(lut, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 77));
+  int n = 0;
+  for (int y = 0; y < g.height; y += 5) {
+    for (int x = 0; x < g.width; x += 5) {
+      const float w = white.at<float>(y, x);
+      if (w <= 0) continue;
+      EXPECT_NEAR(mid_linear.at<float>(y, x) / w, 128.0 / 255, 1e-5);
+      EXPECT_NEAR(mid_gamma.at<float>(y, x) / w, std::pow(128.0 / 255, 2.2), 1e-5);
+      EXPECT_NEAR(quarter.at<float>(y, x) / w, 0.25, 1e-5);
+      ++n;
+    }
+  }
+  EXPECT_GT(n, 1000);
+}
+
+TEST(LayersTest, VignettingIsCos4OfTheViewingAngle) {
+  const Rig rig = SmallDemoRig(4);
+  Scene plain = FacingPlane();
+  Scene vig = plain;
+  vig.layers.vignetting_enabled = true;
+  const GeometryBuffer g = Trace(plain, rig, 0);
+  const cv::Mat a = PatternRenderer(plain, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 255));
+  const cv::Mat b = PatternRenderer(vig, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 255));
+  const CameraModel& cam = rig.cameras[0].model;
+  double min_ratio = 1;
+  for (int y = 0; y < g.height; y += 7) {
+    for (int x = 0; x < g.width; x += 7) {
+      if (a.at<float>(y, x) <= 0) continue;
+      const auto ray = cam.Unproject(Eigen::Vector2d(x, y));
+      const double cos_theta = ray->z();
+      const double ratio = b.at<float>(y, x) / a.at<float>(y, x);
+      EXPECT_NEAR(ratio, std::pow(cos_theta, 4), 2e-3) << x << "," << y;
+      min_ratio = std::min(min_ratio, ratio);
+    }
+  }
+  EXPECT_LT(min_ratio, 0.97) << "the corners are darker";
+}
+
+TEST(LayersTest, AmbientAddsAlbedoTimesLevelEverywhereOnTheSurface) {
+  const Rig rig = SmallDemoRig(4);
+  Scene a = FacingPlane();
+  Scene b = a;
+  b.layers.ambient = 0.1;
+  const GeometryBuffer g = Trace(a, rig, 0);
+  const cv::Mat black_a = PatternRenderer(a, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 0));
+  const cv::Mat black_b = PatternRenderer(b, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 0));
+  EXPECT_EQ(cv::countNonZero(black_a), 0);
+  for (int y = 0; y < g.height; y += 5) {
+    for (int x = 0; x < g.width; x += 5) {
+      const float expected = g.visibility.at<uint8_t>(y, x) ? static_cast<float>(0.8 * 255 * 0.1 * 0.7) : 0.0f;
+      EXPECT_FLOAT_EQ(black_b.at<float>(y, x), expected);
+    }
+  }
+}
+
+// Supersampling box-filters the pixel: a checkerboard edge gets intermediate values, and the
+// board's mean brightness stays the same.
+TEST(LayersTest, SupersamplingAntialiasesAndPreservesMean) {
+  const Rig rig = SmallDemoRig(4);
+  const Rigid3d pose = Pose(Eigen::Vector3d(0.1, 0.2, 0.3), Eigen::Vector3d(-60, -40, 480));
+  BoardScene board = MakeCheckerboardScene(7, 5, 15, pose);
+  Scene ss = board.scene;
+  ss.layers.supersampling = 4;
+  const cv::Mat white = FlatProjectorImage(rig, 255);
+  const GeometryBuffer g1 = Trace(board.scene, rig, 0), g4 = Trace(ss, rig, 0);
+  const cv::Mat i1 = PatternRenderer(board.scene, rig, 0, g1).RenderIrradiance(white);
+  const cv::Mat i4 = PatternRenderer(ss, rig, 0, g4).RenderIrradiance(white);
+  // Intermediate values exist only with supersampling (relative to the local light/dark levels).
+  auto count_mid = [&](const cv::Mat& img, const GeometryBuffer& g) {
+    int mid = 0;
+    for (int y = 0; y < img.rows; ++y) {
+      for (int x = 0; x < img.cols; ++x) {
+        if (g.visibility.at<uint8_t>(y, x) != 2) continue;
+        const double v = img.at<float>(y, x);
+        if (v > 0.8 * 255 * 0.2 && v < 0.8 * 255 * 0.6) ++mid;
+      }
+    }
+    return mid;
+  };
+  EXPECT_GT(count_mid(i4, g4), 5 * count_mid(i1, g1) + 100);
+  EXPECT_NEAR(cv::mean(i4)[0], cv::mean(i1)[0], 0.01 * cv::mean(i1)[0]);
+}
+
+// Fill factor: averaged over many samples, the light falls to fill_factor of full.
+TEST(LayersTest, FillFactorScalesAverageLight) {
+  const Rig rig = SmallDemoRig(8);
+  Scene full = FacingPlane();
+  full.layers.supersampling = 8;
+  Scene gaps = full;
+  gaps.layers.fill_factor = 0.6;
+  const GeometryBuffer g = Trace(full, rig, 0);
+  const cv::Mat white = FlatProjectorImage(rig, 255);
+  const double a = cv::mean(PatternRenderer(full, rig, 0, g).RenderIrradiance(white))[0];
+  const double b = cv::mean(PatternRenderer(gaps, rig, 0, g).RenderIrradiance(white))[0];
+  EXPECT_NEAR(b / a, 0.6, 0.02);
+}
+
+// Defocus (thin lens): in focus it changes nothing; out of focus it lowers fringe contrast and
+// keeps the mean (a normalised PSF).
+TEST(LayersTest, DefocusBlursOnlyOutOfFocus) {
+  const Rig rig = SmallDemoRig(4);
+  Scene sharp = FacingPlane();
+  const GeometryBuffer g = Trace(sharp, rig, 0);
+  const cv::Mat stripes = Stripes(rig, 4);
+  const cv::Mat base = PatternRenderer(sharp, rig, 0, g).RenderIrradiance(stripes);
+  cv::Scalar base_mean, base_sd;
+  cv::meanStdDev(base, base_mean, base_sd);
+  for (int which = 0; which < 2; ++which) {
+    Scene focused = sharp, blurred = sharp;
+    auto& f = which == 0 ? focused.layers.camera_defocus : focused.layers.projector_defocus;
+    auto& b = which == 0 ? blurred.layers.camera_defocus : blurred.layers.projector_defocus;
+    f.enabled = b.enabled = true;
+    f.f_number = b.f_number = 1.4;
+    // The rig is scaled down 4x in pixels: 4x the pitch keeps the demo lenses' focal lengths.
+    f.pixel_pitch_um = b.pixel_pitch_um = (which == 0 ? 5.86 : 7.6) * 4;
+    f.focus_distance_mm = which == 0 ? 500 : rig.projector->cam_from_rig.translation.z() + 500;
+    b.focus_distance_mm = 300;
+    const GeometryBuffer gf = Trace(focused, rig, 0), gb = Trace(blurred, rig, 0);
+    const cv::Mat in_focus = PatternRenderer(focused, rig, 0, gf).RenderIrradiance(stripes);
+    const cv::Mat out_of_focus = PatternRenderer(blurred, rig, 0, gb).RenderIrradiance(stripes);
+    cv::Scalar mean, sd;
+    cv::meanStdDev(out_of_focus, mean, sd);
+    EXPECT_LT(sd[0], 0.8 * base_sd[0]) << (which == 0 ? "camera" : "projector");
+    EXPECT_NEAR(mean[0], base_mean[0], 0.02 * base_mean[0]);
+    cv::Scalar mean_f, sd_f;
+    cv::meanStdDev(in_focus, mean_f, sd_f);
+    EXPECT_GT(sd_f[0], 0.9 * base_sd[0]) << "at the focus distance the blur is small";
+  }
 }
 
 }  // namespace
