@@ -16,6 +16,7 @@ namespace slshadow::app {
 const std::vector<Command>& Commands() {
   static const std::vector<Command> commands = {
       {"rig", "inspect a rig file: cameras, projector, baselines, angles, overlap (rig show RIG.yaml)", RunRig},
+      {"reconstruct", "decode an ImageSet and triangulate a point cloud (reconstruct IMAGESET --out CLOUD.ply [--mode projector|stereo])", RunReconstruct},
       {"patterns", "pattern sequences: write projector images of a spec (patterns generate SPEC --out DIR), describe one", RunPatterns},
       {"compare", "compare a cloud against a reference mesh or cloud: registration, deviations, report folder", RunCompare},
       {"simulate", "virtual scan: ray-cast a rig over a scene into an ImageSet + ground truth (simulate --rig --scene --patterns --out)", RunSimulate},

@@ -402,6 +402,7 @@ PatternRenderer::PatternRenderer(const Scene& scene, const Rig& rig, int camera_
     if (l.response_enabled) r = l.response_lut.empty() ? std::pow(r, l.gamma) : l.response_lut[static_cast<size_t>(v)];
     response_[static_cast<size_t>(v)] = static_cast<float>(r);
   }
+  linear_response_ = !l.response_enabled;
   const CameraModel& model = rig.cameras[static_cast<size_t>(camera_index)].model;
   if (l.vignetting_enabled) {
     // Smooth in the image: evaluated on an 8-pixel grid and interpolated bilinearly.
@@ -454,22 +455,41 @@ PatternRenderer::PatternRenderer(const Scene& scene, const Rig& rig, int camera_
 }
 
 cv::Mat PatternRenderer::RenderIrradiance(const cv::Mat& projector_image) const {
-  SLSHADOW_THROW_IF(projector_image.type() != CV_8UC1 || projector_image.cols != projector_width_ ||
-                        projector_image.rows != projector_height_,
-                    "projector image must be 8-bit single-channel ", projector_width_, "x", projector_height_, " (got type ",
-                    projector_image.type(), ", ", projector_image.cols, "x", projector_image.rows, ")");
+  return RenderIrradianceBatch({projector_image})[0];
+}
+
+std::vector<cv::Mat> PatternRenderer::RenderIrradianceBatch(const std::vector<cv::Mat>& images) const {
+  const int batch = static_cast<int>(images.size());
+  SLSHADOW_THROW_IF(batch < 1 || batch > kMaxBatch, "pattern batch must hold 1..", kMaxBatch, " images (got ", batch, ")");
+  for (const cv::Mat& projector_image : images) {
+    SLSHADOW_THROW_IF(projector_image.type() != CV_8UC1 || projector_image.cols != projector_width_ ||
+                          projector_image.rows != projector_height_ || !projector_image.isContinuous(),
+                      "projector image must be 8-bit single-channel ", projector_width_, "x", projector_height_,
+                      " (got type ", projector_image.type(), ", ", projector_image.cols, "x", projector_image.rows, ")");
+  }
   const SceneLayers& l = scene_.layers;
-  // Projector intensity through the response curve.
-  cv::Mat intensity(projector_height_, projector_width_, CV_32FC1);
-  for (int y = 0; y < projector_height_; ++y) {
-    const uint8_t* src = projector_image.ptr<uint8_t>(y);
-    float* dst = intensity.ptr<float>(y);
-    for (int x = 0; x < projector_width_; ++x) dst[x] = response_[src[x]];
+  const int pw = projector_width_, ph = projector_height_;
+  // Float intensity images through the response curve, unless the response is linear and no
+  // projector blur is needed (then lookups read the 8-bit images directly).
+  const bool direct = linear_response_ && projector_sigmas_.empty();
+  std::vector<std::vector<cv::Mat>> levels(static_cast<size_t>(batch));  // [image][blur level]
+  if (!direct) {
+    tbb::parallel_for(0, batch, [&](int k) {
+      cv::Mat intensity(ph, pw, CV_32FC1);
+      for (int y = 0; y < ph; ++y) {
+        const uint8_t* src = images[static_cast<size_t>(k)].ptr<uint8_t>(y);
+        float* dst = intensity.ptr<float>(y);
+        for (int x = 0; x < pw; ++x) dst[x] = response_[src[x]];
+      }
+      if (projector_sigmas_.empty()) {
+        levels[static_cast<size_t>(k)].push_back(intensity);
+      } else {
+        for (double sgm : projector_sigmas_) levels[static_cast<size_t>(k)].push_back(Blur(intensity, sgm));
+      }
+    });
   }
-  std::vector<cv::Mat> levels;
-  if (!projector_sigmas_.empty()) {
-    for (double s : projector_sigmas_) levels.push_back(Blur(intensity, s));
-  }
+  const uint8_t* raw[kMaxBatch];
+  for (int k = 0; k < batch; ++k) raw[k] = images[static_cast<size_t>(k)].ptr<uint8_t>();
   const int w = geometry_.width, h = geometry_.height;
   const int spp = geometry_.samples_per_axis * geometry_.samples_per_axis;
   const float scale = static_cast<float>(scene_.radiometry.exposure * full_scale_dn_ / spp);
@@ -477,68 +497,115 @@ cv::Mat PatternRenderer::RenderIrradiance(const cv::Mat& projector_image) const 
   const bool bilinear = scene_.radiometry.bilinear_lookup;
   const bool fill = l.fill_factor < 1;
   const float half_side = static_cast<float>(std::sqrt(l.fill_factor) / 2);
-  const int pw = projector_width_, ph = projector_height_;
-  const float* base = intensity.ptr<float>();
-  const float level_scale = projector_sigmas_.empty() ? 0.0f
-                                                      : static_cast<float>((projector_sigmas_.size() - 1) / projector_sigmas_.back());
-  cv::Mat out(h, w, CV_32FC1);
-  tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const tbb::blocked_range<int>& r) {
+  const int top_level = projector_sigmas_.empty() ? 0 : static_cast<int>(projector_sigmas_.size()) - 1;
+  const float level_scale = projector_sigmas_.empty() ? 0.0f : static_cast<float>(top_level / projector_sigmas_.back());
+  std::vector<cv::Mat> out(static_cast<size_t>(batch));
+  for (auto& m : out) m.create(h, w, CV_32FC1);
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 4), [&](const tbb::blocked_range<int>& r) {
+    float acc[kMaxBatch];
     for (int y = r.begin(); y < r.end(); ++y) {
-      float* row = out.ptr<float>(y);
       const float* vig = vignetting_.empty() ? nullptr : vignetting_.ptr<float>(y);
       for (int x = 0; x < w; ++x) {
-        float acc = 0;
+        for (int k = 0; k < batch; ++k) acc[k] = 0;
         const size_t i0 = (static_cast<size_t>(y) * w + x) * spp;
         for (int s = 0; s < spp; ++s) {
           const size_t i = i0 + s;
           const float f = geometry_.factor[i];
-          float v = ambient * geometry_.albedo[i];
-          if (f > 0) {
-            const float u = geometry_.proj_x[i], t = geometry_.proj_y[i];
-            float I;
-            if (fill) {
-              const float ru = std::round(u), rt = std::round(t);
-              I = (std::abs(u - ru) <= half_side && std::abs(t - rt) <= half_side) ? Nearest(base, pw, ph, u, t) : 0.0f;
-            } else if (!levels.empty()) {
-              const float lv = geometry_.proj_sigma_px[i] * level_scale;
-              const int l0 = std::min(static_cast<int>(lv), static_cast<int>(levels.size()) - 1);
-              const int l1 = std::min(l0 + 1, static_cast<int>(levels.size()) - 1);
-              const float a = lv - l0;
-              I = (1 - a) * Bilinear(levels[static_cast<size_t>(l0)].ptr<float>(), pw, ph, u, t) +
-                  a * Bilinear(levels[static_cast<size_t>(l1)].ptr<float>(), pw, ph, u, t);
-            } else {
-              I = bilinear ? Bilinear(base, pw, ph, u, t) : Nearest(base, pw, ph, u, t);
-            }
-            v += f * I;
+          const float base = ambient * geometry_.albedo[i];
+          if (!(f > 0)) {
+            for (int k = 0; k < batch; ++k) acc[k] += base;
+            continue;
           }
-          acc += v;
+          const float u = geometry_.proj_x[i], t = geometry_.proj_y[i];
+          if (fill || !bilinear) {
+            // Pixel-exact: the projector pixel containing the point (dark in the fill gaps).
+            const int xi = std::clamp(static_cast<int>(std::lround(u)), 0, pw - 1);
+            const int yi = std::clamp(static_cast<int>(std::lround(t)), 0, ph - 1);
+            const bool lit = !fill || (std::abs(u - std::round(u)) <= half_side && std::abs(t - std::round(t)) <= half_side);
+            const size_t idx = static_cast<size_t>(yi) * pw + xi;
+            const float g = lit ? f : 0.0f;
+            for (int k = 0; k < batch; ++k) {
+              const float I = direct ? raw[k][idx] * (1.0f / 255) : levels[static_cast<size_t>(k)][0].ptr<float>()[idx];
+              acc[k] += base + g * I;
+            }
+            continue;
+          }
+          // Bilinear weights, shared by every image of the batch; clamped at the borders.
+          const float fx0 = std::floor(u), fy0 = std::floor(t);
+          const float ax = u - fx0, ay = t - fy0;
+          const int x0 = std::clamp(static_cast<int>(fx0), 0, pw - 1), x1 = std::clamp(static_cast<int>(fx0) + 1, 0, pw - 1);
+          const int y0 = std::clamp(static_cast<int>(fy0), 0, ph - 1), y1 = std::clamp(static_cast<int>(fy0) + 1, 0, ph - 1);
+          const size_t i00 = static_cast<size_t>(y0) * pw + x0, i01 = static_cast<size_t>(y0) * pw + x1;
+          const size_t i10 = static_cast<size_t>(y1) * pw + x0, i11 = static_cast<size_t>(y1) * pw + x1;
+          const float w00 = (1 - ax) * (1 - ay), w01 = ax * (1 - ay), w10 = (1 - ax) * ay, w11 = ax * ay;
+          if (direct) {
+            const float g = f * (1.0f / 255);
+            for (int k = 0; k < batch; ++k) {
+              const uint8_t* p = raw[k];
+              acc[k] += base + g * (w00 * p[i00] + w01 * p[i01] + w10 * p[i10] + w11 * p[i11]);
+            }
+          } else {
+            int l0 = 0, l1 = 0;
+            float a = 0;
+            if (top_level > 0) {
+              const float lv = geometry_.proj_sigma_px[i] * level_scale;
+              l0 = std::min(static_cast<int>(lv), top_level);
+              l1 = std::min(l0 + 1, top_level);
+              a = lv - l0;
+            }
+            for (int k = 0; k < batch; ++k) {
+              const float* p0 = levels[static_cast<size_t>(k)][static_cast<size_t>(l0)].ptr<float>();
+              const float* p1 = levels[static_cast<size_t>(k)][static_cast<size_t>(l1)].ptr<float>();
+              const float v0 = w00 * p0[i00] + w01 * p0[i01] + w10 * p0[i10] + w11 * p0[i11];
+              const float v1 = w00 * p1[i00] + w01 * p1[i01] + w10 * p1[i10] + w11 * p1[i11];
+              acc[k] += base + f * ((1 - a) * v0 + a * v1);
+            }
+          }
         }
-        row[x] = acc * scale * (vig ? vig[x] : 1.0f);
+        const float m = scale * (vig ? vig[x] : 1.0f);
+        for (int k = 0; k < batch; ++k) out[static_cast<size_t>(k)].ptr<float>(y)[x] = acc[k] * m;
       }
     }
   });
   if (!camera_sigmas_.empty()) {
-    std::vector<cv::Mat> blurred;
-    for (double s : camera_sigmas_) blurred.push_back(Blur(out, s));
-    cv::Mat mixed(h, w, CV_32FC1);
-    const int top = static_cast<int>(blurred.size()) - 1;
-    tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const tbb::blocked_range<int>& r) {
-      for (int y = r.begin(); y < r.end(); ++y) {
-        for (int x = 0; x < w; ++x) {
-          const float lv = camera_level_.at<float>(y, x);
-          const int l0 = std::min(static_cast<int>(lv), top), l1 = std::min(l0 + 1, top);
-          const float a = lv - l0;
-          mixed.at<float>(y, x) = (1 - a) * blurred[static_cast<size_t>(l0)].at<float>(y, x) + a * blurred[static_cast<size_t>(l1)].at<float>(y, x);
-        }
-      }
-    });
-    out = mixed;
+    tbb::parallel_for(0, batch, [&](int k) { out[static_cast<size_t>(k)] = ApplyCameraDefocus(out[static_cast<size_t>(k)]); });
   }
   return out;
 }
 
+cv::Mat PatternRenderer::ApplyCameraDefocus(const cv::Mat& image) const {
+  const int w = image.cols, h = image.rows;
+  std::vector<cv::Mat> blurred;
+  for (double sgm : camera_sigmas_) blurred.push_back(Blur(image, sgm));
+  cv::Mat mixed(h, w, CV_32FC1);
+  const int top = static_cast<int>(blurred.size()) - 1;
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const tbb::blocked_range<int>& r) {
+    for (int y = r.begin(); y < r.end(); ++y) {
+      for (int x = 0; x < w; ++x) {
+        const float lv = camera_level_.at<float>(y, x);
+        const int l0 = std::min(static_cast<int>(lv), top), l1 = std::min(l0 + 1, top);
+        const float a = lv - l0;
+        mixed.at<float>(y, x) = (1 - a) * blurred[static_cast<size_t>(l0)].at<float>(y, x) + a * blurred[static_cast<size_t>(l1)].at<float>(y, x);
+      }
+    }
+  });
+  return mixed;
+}
+
+std::vector<cv::Mat> PatternRenderer::RenderBatch(const std::vector<cv::Mat>& images, int first_pattern_index) const {
+  std::vector<cv::Mat> irradiance = RenderIrradianceBatch(images);
+  std::vector<cv::Mat> out(irradiance.size());
+  tbb::parallel_for(size_t{0}, out.size(), [&](size_t k) {
+    out[k] = Quantize(irradiance[k], first_pattern_index + static_cast<int>(k));
+  });
+  return out;
+}
+
 cv::Mat PatternRenderer::Render(const cv::Mat& projector_image, int pattern_index) const {
-  const cv::Mat irradiance = RenderIrradiance(projector_image);
+  return Quantize(RenderIrradiance(projector_image), pattern_index);
+}
+
+cv::Mat PatternRenderer::Quantize(const cv::Mat& irradiance, int pattern_index) const {
   const SceneLayers& l = scene_.layers;
   const int w = geometry_.width, h = geometry_.height;
   const bool wide = scene_.radiometry.adc_bits > 8;

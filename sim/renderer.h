@@ -114,6 +114,13 @@ class PatternRenderer {
   // quantises (after noise). For tests of the radiometric model.
   cv::Mat RenderIrradiance(const cv::Mat& projector_image) const;
 
+  // Several projector images in one sweep over the geometry buffer (which is then read once per
+  // batch instead of once per image; the lookup weights are shared too): the same images as
+  // Render(images[k], first_pattern_index + k). Batches of up to kMaxBatch images.
+  static constexpr int kMaxBatch = 16;
+  std::vector<cv::Mat> RenderBatch(const std::vector<cv::Mat>& projector_images, int first_pattern_index) const;
+  std::vector<cv::Mat> RenderIrradianceBatch(const std::vector<cv::Mat>& projector_images) const;
+
  private:
   const Scene& scene_;
   const GeometryBuffer& geometry_;
@@ -126,6 +133,10 @@ class PatternRenderer {
   cv::Mat camera_level_;
   std::vector<double> camera_sigmas_;
   std::vector<double> projector_sigmas_;  // projector defocus levels, empty when off
+  bool linear_response_ = true;           // lookups straight on the 8-bit pattern
+
+  cv::Mat Quantize(const cv::Mat& irradiance, int pattern_index) const;
+  cv::Mat ApplyCameraDefocus(const cv::Mat& irradiance) const;
 };
 
 }  // namespace slshadow

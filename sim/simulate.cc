@@ -1,5 +1,6 @@
 #include "sim/simulate.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <cstring>
@@ -14,6 +15,9 @@
 
 namespace slshadow {
 namespace {
+
+// Projector images rendered per sweep over a geometry buffer.
+constexpr size_t kBatch = 8;
 
 double Since(std::chrono::steady_clock::time_point t) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
@@ -133,9 +137,12 @@ std::vector<std::vector<cv::Mat>> RenderScan(const Scene& scene, const Rig& rig,
     sum.shadow_rays += g.shadow_rays;
     t = std::chrono::steady_clock::now();
     const PatternRenderer renderer(scene, rig, static_cast<int>(c), g);
-    images[c].resize(projector_images.size());
-    tbb::parallel_for(size_t{0}, projector_images.size(),
-                      [&](size_t p) { images[c][p] = renderer.Render(projector_images[p], static_cast<int>(p)); });
+    images[c].reserve(projector_images.size());
+    for (size_t first = 0; first < projector_images.size(); first += kBatch) {
+      const std::vector<cv::Mat> batch(projector_images.begin() + static_cast<std::ptrdiff_t>(first),
+                                       projector_images.begin() + static_cast<std::ptrdiff_t>(std::min(first + kBatch, projector_images.size())));
+      for (cv::Mat& m : renderer.RenderBatch(batch, static_cast<int>(first))) images[c].push_back(std::move(m));
+    }
     sum.render_seconds += Since(t);
     if (geometry) geometry->push_back(std::move(g));
   }
@@ -177,12 +184,16 @@ SimulateSummary SimulateScan(const Scene& scene, const Rig& rig, const std::vect
     progress.Advance();
     t = std::chrono::steady_clock::now();
     const PatternRenderer renderer(scene, rig, static_cast<int>(c), g);
-    // Render and encode in parallel; the writer's Add is thread-safe.
-    tbb::parallel_for(size_t{0}, projector_images.size(), [&](size_t p) {
-      const cv::Mat image = renderer.Render(projector_images[p], static_cast<int>(p));
-      writer.Add(name, static_cast<int>(p), image, scene.radiometry.exposure_us, ImageSource::kVirtual);
-      progress.Advance();
-    });
+    // Render a batch in one sweep, then encode its images in parallel (Add is thread-safe).
+    for (size_t first = 0; first < projector_images.size(); first += kBatch) {
+      const std::vector<cv::Mat> batch(projector_images.begin() + static_cast<std::ptrdiff_t>(first),
+                                       projector_images.begin() + static_cast<std::ptrdiff_t>(std::min(first + kBatch, projector_images.size())));
+      const std::vector<cv::Mat> rendered = renderer.RenderBatch(batch, static_cast<int>(first));
+      tbb::parallel_for(size_t{0}, rendered.size(), [&](size_t k) {
+        writer.Add(name, static_cast<int>(first + k), rendered[k], scene.radiometry.exposure_us, ImageSource::kVirtual);
+        progress.Advance();
+      });
+    }
     sum.render_seconds += Since(t);
     if (options.write_ground_truth) {
       t = std::chrono::steady_clock::now();

@@ -284,6 +284,25 @@ cv::Mat Stripes(const Rig& rig, int period) {
   return m;
 }
 
+// A batch sweep gives the same images as one image at a time, with every layer on.
+TEST(LayersTest, BatchEqualsSingleImagesWithAllLayers) {
+  const Rig rig = SmallDemoRig(8);
+  Scene scene = LoadScene(testing::SourceDir() / "config/scenes/layers_all.yaml");
+  for (int variant = 0; variant < 3; ++variant) {
+    if (variant == 1) scene.layers = SceneLayers();                   // core only, direct 8-bit lookups
+    if (variant == 2) scene.radiometry.bilinear_lookup = false;      // nearest
+    const GeometryBuffer g = Trace(scene, rig, 0);
+    const PatternRenderer r(scene, rig, 0, g);
+    std::vector<cv::Mat> patterns;
+    for (int period : {3, 5, 8, 13, 21}) patterns.push_back(Stripes(rig, period));
+    const auto batch = r.RenderBatch(patterns, 10);
+    ASSERT_EQ(batch.size(), patterns.size());
+    for (size_t k = 0; k < patterns.size(); ++k) {
+      EXPECT_EQ(cv::norm(batch[k], r.Render(patterns[k], 10 + static_cast<int>(k)), cv::NORM_INF), 0) << variant << " " << k;
+    }
+  }
+}
+
 TEST(LayersTest, LayersAreOffByDefault) {
   const SceneLayers l;
   EXPECT_EQ(l.supersampling, 1);
