@@ -59,10 +59,11 @@ SyntheticData MakeSyntheticData(const SyntheticRig& rig, int num_poses, double n
     for (int attempt = 0;; ++attempt) {
       SLSHADOW_CHECK(attempt < 10000);
       const Eigen::Quaterniond rot = Eigen::AngleAxisd(0.3 * u(rng), Eigen::Vector3d::UnitZ()) *
-                                     Eigen::AngleAxisd(0.6 * u(rng), Eigen::Vector3d::UnitX()) *
-                                     Eigen::AngleAxisd(0.6 * u(rng), Eigen::Vector3d::UnitY());
-      const Eigen::Vector3d centre = aim + Eigen::Vector3d(0.2 * rig.distance_mm * u(rng), 0.15 * rig.distance_mm * u(rng),
-                                                           0.2 * rig.distance_mm * u(rng));
+                                     Eigen::AngleAxisd(rig.max_tilt_rad * u(rng), Eigen::Vector3d::UnitX()) *
+                                     Eigen::AngleAxisd(rig.max_tilt_rad * u(rng), Eigen::Vector3d::UnitY());
+      const double shift = rig.shift_fraction * rig.distance_mm;
+      const Eigen::Vector3d centre =
+          aim + Eigen::Vector3d(shift * u(rng), 0.75 * shift * u(rng), 0.2 * rig.distance_mm * u(rng));
       const Rigid3d rig_from_board(rot, centre - rot * board_centre);
       bool all_inside = true;
       std::vector<BoardView> views;

@@ -17,6 +17,8 @@ struct SyntheticRig {
   int board_rows = 8;
   double square_size_mm = 30;
   double distance_mm = 650;  // mean distance of the board centre along device 0's axis
+  double max_tilt_rad = 0.6;  // board tilt about x and y drawn uniformly in +-max_tilt_rad
+  double shift_fraction = 0.2;  // board centre shifted sideways by up to this fraction of distance_mm
 
   // 1280x1024, fx 1400, fy 1405, mild barrel distortion.
   static SyntheticRig OneCamera();

@@ -1,0 +1,270 @@
+#include "calib/report.h"
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <memory>
+
+#include <plstream.h>
+
+#include "calib/calibration_io.h"
+#include "core/error.h"
+#include "core/file_util.h"
+
+namespace slshadow {
+namespace {
+
+constexpr double kStops[5][4] = {
+    {0.00, 0, 0, 255}, {0.25, 0, 255, 255}, {0.50, 0, 255, 0}, {0.75, 255, 255, 0}, {1.00, 255, 0, 0}};
+
+void SetColorMap1(plstream& pls) {
+  PLFLT pos[5], r[5], g[5], b[5];
+  for (int i = 0; i < 5; ++i) {
+    pos[i] = kStops[i][0];
+    r[i] = kStops[i][1] / 255.0;
+    g[i] = kStops[i][2] / 255.0;
+    b[i] = kStops[i][3] / 255.0;
+  }
+  pls.scmap1n(256);
+  pls.scmap1l(true, 5, pos, r, g, b);
+}
+
+std::unique_ptr<plstream> OpenPng(const std::filesystem::path& file, int width, int height) {
+  auto pls = std::make_unique<plstream>();
+  pls->sdev("pngcairo");
+  pls->sfnam(file.c_str());
+  pls->spage(0, 0, width, height, 0, 0);
+  pls->scol0(0, 255, 255, 255);  // background
+  pls->scol0(1, 0, 0, 0);        // axes and text
+  pls->scol0(2, 200, 0, 0);      // outliers
+  pls->scol0(3, 40, 90, 200);    // bars, vectors
+  pls->scol0(4, 150, 150, 150);  // points
+  pls->init();
+  pls->col0(1);
+  return pls;
+}
+
+void PerViewChart(const std::filesystem::path& path, const CalibrationSummary& s) {
+  const int n = static_cast<int>(s.views.size());
+  double ymax = 0;
+  for (const auto& v : s.views) {
+    if (std::isfinite(v.rms_px)) ymax = std::max(ymax, v.rms_px);
+  }
+  ymax = std::max(ymax * 1.15, 0.1);
+  auto pls = OpenPng(path, std::max(700, 40 * n + 200), 600);
+  pls->schr(0, 1.0);
+  pls->env(-0.5, n - 0.5, 0, ymax, 0, 0);
+  pls->lab("view (index; devices in turn, see summary.json)", "RMS reprojection error (px)",
+           "per-view RMS (red: outlier views)");
+  for (int i = 0; i < n; ++i) {
+    const auto& v = s.views[static_cast<size_t>(i)];
+    if (!std::isfinite(v.rms_px)) continue;
+    PLFLT xs[4] = {i - 0.4, i - 0.4, i + 0.4, i + 0.4};
+    PLFLT ys[4] = {0, v.rms_px, v.rms_px, 0};
+    pls->col0(v.outlier ? 2 : 3);
+    pls->fill(4, xs, ys);
+  }
+  pls->col0(1);
+  pls->lsty(2);
+  PLFLT xs[2] = {-0.5, n - 0.5}, ys[2] = {s.rms_px, s.rms_px};
+  pls->line(2, xs, ys);
+  pls->lsty(1);
+  char note[128];
+  std::snprintf(note, sizeof(note), "overall RMS %.3f px (dashed)", s.rms_px);
+  pls->mtex("t", -1.5, 0.98, 1.0, note);
+}
+
+void ResidualChart(const std::filesystem::path& path, const CalibrationInput& input, const CalibrationResult& result, int device) {
+  const auto& dev = input.devices[static_cast<size_t>(device)];
+  // Magnify so the 95th-percentile residual is drawn 1/25 of the image width long.
+  std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>> arrows;
+  std::vector<double> lengths;
+  for (const auto& v : input.views) {
+    if (v.device != device || !result.rig_from_board[static_cast<size_t>(v.pose)]) continue;
+    const auto proj = Reproject(result, v);
+    for (size_t i = 0; i < proj.size(); ++i) {
+      arrows.emplace_back(v.pixels_px[i], proj[i] - v.pixels_px[i]);
+      lengths.push_back((proj[i] - v.pixels_px[i]).norm());
+    }
+  }
+  double p95 = 1;
+  if (!lengths.empty()) {
+    std::sort(lengths.begin(), lengths.end());
+    p95 = std::max(1e-6, lengths[static_cast<size_t>(0.95 * static_cast<double>(lengths.size() - 1))]);
+  }
+  const double mag = dev.width / 25.0 / p95;
+  const double scale = std::min(1.0, 1000.0 / dev.width);
+  auto pls = OpenPng(path, static_cast<int>(dev.width * scale) + 160, static_cast<int>(dev.height * scale) + 130);
+  pls->adv(0);
+  pls->vpor(0.1, 0.95, 0.1, 0.9);
+  pls->wind(-0.5, dev.width - 0.5, dev.height - 0.5, -0.5);
+  pls->box("bcnst", 0, 0, "bcnstv", 0, 0);
+  char title[160];
+  std::snprintf(title, sizeof(title), "%s: residuals (projected - observed) x%.0f", dev.name.c_str(), mag);
+  pls->lab("image x (px)", "image y (px)", title);
+  pls->col0(4);
+  for (const auto& [p, r] : arrows) {
+    PLFLT x[1] = {p.x()}, y[1] = {p.y()};
+    pls->poin(1, x, y, 1);
+  }
+  pls->col0(3);
+  for (const auto& [p, r] : arrows) pls->join(p.x(), p.y(), p.x() + mag * r.x(), p.y() + mag * r.y());
+  pls->col0(1);
+  char note[128];
+  std::snprintf(note, sizeof(note), "95%% of residuals below %.3f px", p95);
+  pls->mtex("t", 0.5, 1.0, 1.0, note);
+}
+
+void MapChart(const std::filesystem::path& path, const PixelMap& map, int width, int height, const std::string& title,
+              const std::string& bar_label) {
+  const int nx = map.values.cols, ny = map.values.rows;
+  double hi = 0;
+  for (int r = 0; r < ny; ++r) {
+    for (int c = 0; c < nx; ++c) {
+      const float v = map.values.at<float>(r, c);
+      if (std::isfinite(v)) hi = std::max(hi, static_cast<double>(v));
+    }
+  }
+  // Colour range clipped at the 95th percentile so the bulk of the image is readable (the image
+  // corners, where data are extrapolated, would otherwise own the whole scale).
+  if (std::isfinite(map.p95) && map.p95 > 0) hi = std::min(hi, map.p95);
+  hi = hi > 0 ? hi : 1.0;
+  const double lo = 0;
+  const double scale = std::min(1.0, 1000.0 / width);
+  const int page_w = static_cast<int>(width * scale) + 330, page_h = static_cast<int>(height * scale) + 150;
+  auto pls = OpenPng(path, page_w, page_h);
+  SetColorMap1(*pls);
+  pls->adv(0);
+  const double vx0 = 135.0 / page_w, vx1 = vx0 + width * scale / page_w;
+  const double vy0 = 80.0 / page_h, vy1 = vy0 + height * scale / page_h;
+  pls->vpor(vx0, vx1, vy0, vy1);
+  pls->wind(-0.5, width - 0.5, height - 0.5, -0.5);
+  std::vector<std::vector<PLFLT>> cols(static_cast<size_t>(nx), std::vector<PLFLT>(static_cast<size_t>(ny)));
+  std::vector<const PLFLT*> ptrs(static_cast<size_t>(nx));
+  for (int x = 0; x < nx; ++x) {
+    for (int y = 0; y < ny; ++y) {
+      const float v = map.values.at<float>(y, x);
+      cols[static_cast<size_t>(x)][static_cast<size_t>(y)] = std::isfinite(v) ? std::clamp<double>(v, lo, hi) : lo - 10 * hi;
+    }
+    ptrs[static_cast<size_t>(x)] = cols[static_cast<size_t>(x)].data();
+  }
+  // Cells cover [c * cell - 0.5, (c + 1) * cell - 0.5).
+  const double x1 = nx * map.cell_px - 0.5, y1 = ny * map.cell_px - 0.5;
+  pls->imagefr(ptrs.data(), nx, ny, -0.5, x1, y1, -0.5, lo, hi, lo, hi, nullptr, nullptr);
+  pls->col0(1);
+  pls->box("bcnst", 0, 0, "bcnstv", 0, 0);
+  pls->lab("image x (px)", "image y (px)", title.c_str());
+  PLFLT bar_w = 0, bar_h = 0;
+  const int n_values = 64;
+  std::vector<PLFLT> values(n_values);
+  for (int i = 0; i < n_values; ++i) values[static_cast<size_t>(i)] = lo + (hi - lo) * i / (n_values - 1);
+  const PLFLT* value_ptrs[1] = {values.data()};
+  PLINT n_vals[1] = {n_values};
+  const char* axis_opts[1] = {"bcvtm"};
+  PLFLT ticks[1] = {0.0};
+  PLINT sub_ticks[1] = {0};
+  PLINT label_opts[1] = {PL_COLORBAR_LABEL_RIGHT};
+  const std::string clipped = bar_label + " (clipped at the 95th percentile)";
+  const char* labels[1] = {clipped.c_str()};
+  pls->colorbar(&bar_w, &bar_h, PL_COLORBAR_GRADIENT, PL_POSITION_RIGHT | PL_POSITION_OUTSIDE, 0.04, 0.0, 0.04, 0.9, 0, 1,
+                1, 0.0, 0.0, 0, 0.0, 1, label_opts, labels, 1, axis_opts, ticks, sub_ticks, n_vals, value_ptrs);
+}
+
+std::string SafeName(const std::string& s) {
+  std::string out;
+  for (char c : s) out += (std::isalnum(static_cast<unsigned char>(c)) || c == '-' || c == '_') ? c : '_';
+  return out.empty() ? "device" : out;
+}
+
+std::string FullText(const CalibrationReport& r) {
+  std::string text = r.result->summary.FullReport();
+  for (size_t d = 0; d < r.result->devices.size(); ++d) {
+    const auto& m = r.result->devices[d].model;
+    char line[400];
+    std::snprintf(line, sizeof(line), "%s: fx %.4f fy %.4f cx %.4f cy %.4f k1 %.6f k2 %.6f p1 %.7f p2 %.7f k3 %.6f\n",
+                  r.result->devices[d].name.c_str(), m.fx(), m.fy(), m.cx(), m.cy(), m.params[4], m.params[5], m.params[6],
+                  m.params[7], m.params[8]);
+    text += line;
+    if (d < r.result->intrinsics_covariance.size()) {
+      const auto& c = r.result->intrinsics_covariance[d];
+      std::snprintf(line, sizeof(line), "%s: 1-sigma fx %.4f fy %.4f cx %.4f cy %.4f\n", r.result->devices[d].name.c_str(),
+                    std::sqrt(c(0, 0)), std::sqrt(c(1, 1)), std::sqrt(c(2, 2)), std::sqrt(c(3, 3)));
+      text += line;
+    }
+    if (d > 0) {
+      const auto& t = r.result->devices[d].cam_from_rig;
+      std::snprintf(line, sizeof(line), "%s: baseline to %s %.4f mm, t = (%.4f, %.4f, %.4f) mm\n",
+                    r.result->devices[d].name.c_str(), r.result->devices[0].name.c_str(), t.translation.norm(),
+                    t.translation.x(), t.translation.y(), t.translation.z());
+      text += line;
+    }
+  }
+  if (r.findings.empty()) text += "no findings: the data set looks sufficient\n";
+  for (const auto& f : r.findings) text += f.Text() + "\n";
+  return text;
+}
+
+}  // namespace
+
+nlohmann::json CalibrationReportJson(const CalibrationReport& r) {
+  SLSHADOW_CHECK(r.input && r.options && r.result);
+  nlohmann::json j = CalibrationEvidenceToJson(*r.input, *r.options, *r.result, r.cross_validation);
+  j["format"] = "slshadow-calibration-report";
+  j["findings"] = nlohmann::json::array();
+  for (const auto& f : r.findings) {
+    j["findings"].push_back({{"severity", ToString(f.severity)}, {"device", f.device}, {"problem", f.problem}, {"advice", f.advice}});
+  }
+  j["devices_result"] = nlohmann::json::array();
+  for (size_t d = 0; d < r.result->devices.size(); ++d) {
+    const auto& dev = r.result->devices[d];
+    nlohmann::json dj = {{"name", dev.name}, {"params", dev.model.params}};
+    const auto& t = dev.cam_from_rig;
+    dj["cam_from_rig"] = {{"rotation_quat_wxyz", {t.rotation.w(), t.rotation.x(), t.rotation.y(), t.rotation.z()}},
+                          {"translation_mm", {t.translation.x(), t.translation.y(), t.translation.z()}}};
+    if (d < r.result->intrinsics_covariance.size()) {
+      std::vector<double> sigma;
+      for (int i = 0; i < CameraModel::kNumParams; ++i) sigma.push_back(std::sqrt(r.result->intrinsics_covariance[d](i, i)));
+      dj["params_sigma"] = sigma;
+    }
+    j["devices_result"].push_back(dj);
+  }
+  j["extra"] = r.extra;
+  return j;
+}
+
+void WriteCalibrationReport(const std::filesystem::path& dir, const CalibrationReport& r, bool overwrite) {
+  SLSHADOW_CHECK(r.input && r.options && r.result);
+  const std::filesystem::path staged = TemporarySibling(dir);
+  std::filesystem::create_directories(staged);
+  try {
+    std::ofstream(staged / "summary.json") << CalibrationReportJson(r).dump(2) << "\n";
+    std::ofstream(staged / "report.txt") << FullText(r);
+    PerViewChart(staged / "per_view_rms.png", r.result->summary);
+    for (size_t d = 0; d < r.result->devices.size(); ++d) {
+      const auto& dev = r.result->devices[d];
+      const std::string name = SafeName(dev.name);
+      ResidualChart(staged / ("residuals_" + name + ".png"), *r.input, *r.result, static_cast<int>(d));
+      if (d < r.result->intrinsics_covariance.size() && r.result->intrinsics_covariance[d].norm() > 0) {
+        const PixelMap u = ProjectionUncertaintyMap(dev.model, r.result->intrinsics_covariance[d], 16);
+        char title[200];
+        std::snprintf(title, sizeof(title), "%s: projection uncertainty (1 sigma, worst direction), median %.3f px",
+                      dev.name.c_str(), u.median);
+        MapChart(staged / ("uncertainty_" + name + ".png"), u, dev.model.width, dev.model.height, title, "px");
+      }
+      if (r.cross_validation && d < r.cross_validation->difference.size()) {
+        const PixelMap& c = r.cross_validation->difference[d];
+        char title[200];
+        std::snprintf(title, sizeof(title), "%s: cross-validation (even vs odd poses), median %.3f px", dev.name.c_str(),
+                      c.median);
+        MapChart(staged / ("cross_validation_" + name + ".png"), c, dev.model.width, dev.model.height, title, "px");
+      }
+    }
+    CommitDirectory(staged, dir, overwrite);
+  } catch (...) {
+    std::error_code ec;
+    std::filesystem::remove_all(staged, ec);
+    throw;
+  }
+}
+
+}  // namespace slshadow
