@@ -69,6 +69,11 @@ int RunCompare(int argc, char** argv) {
                  "render the deviation map from a camera of this rig (rig frame = the cloud's frame); "
                  "default: a view fitted to the cloud");
   app.add_option("--view-camera", view_camera, "camera name in --view-rig (default: the first camera)");
+  std::string artefacts;
+  app.add_option("--artefacts", artefacts,
+                 "artefact file (YAML, docs/formats.md \"Artefact file\"): also report the VDI/VDE 2634-2 "
+                 "figures PF, PS, SD, F of its spheres, ball bars and flats")
+      ->check(CLI::ExistingFile);
   app.add_flag("--no-overwrite", no_overwrite, "fail instead of replacing an existing report folder");
   try {
     app.parse(argc, argv);
@@ -83,6 +88,7 @@ int RunCompare(int argc, char** argv) {
     const RigDevice& cam = view_camera.empty() ? rig.cameras.front() : rig.Camera(view_camera);
     report.view = compare::ViewCamera{cam.model, cam.cam_from_rig};
   }
+  if (!artefacts.empty()) options.artefacts = compare::LoadArtefactSpec(artefacts);
   options.Check();
   const PointCloud cloud = ReadPly(cloud_path);
   const compare::Reference reference = compare::LoadReference(reference_path, mesh_samples);

@@ -94,6 +94,10 @@ void CompareOptions::Check() const {
   SLSHADOW_THROW_IF(histogram_bins < 2 || histogram_bins > 10000,
                     "histogram_bins: must be in [2, 10000] (got ", histogram_bins, ")");
   if (m3c2) m3c2_options.Check();
+  if (artefacts) {
+    artefacts->Check("artefacts");
+    vdi2634.Check();
+  }
 }
 
 CompareResult Compare(const PointCloud& cloud, const Reference& reference, const CompareOptions& options,
@@ -186,6 +190,7 @@ CompareResult Compare(const PointCloud& cloud, const Reference& reference, const
     r.compared.SetScalar("m3c2_significant", std::move(sig));
     r.m3c2 = s;
   }
+  if (options.artefacts) r.vdi2634 = EvaluateVdi2634(r.compared, *options.artefacts, options.vdi2634);
   r.time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return r;
 }
@@ -221,6 +226,7 @@ std::string CompareResult::Summary() const {
       << Fmt("%.2f %%", pct(m3c2->num_significant, m3c2->num_valid)) << "), mean "
       << Fmt("%+.4f mm", m3c2->stats.signed_mean_mm) << ", mean LoD95 " << Fmt("%.4f mm", m3c2->mean_lod95_mm) << "\n";
   }
+  if (vdi2634) o << vdi2634->Summary();
   o << "time: " << Fmt("%.2f s", time_s) << "\n";
   return o.str();
 }

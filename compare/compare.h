@@ -28,6 +28,7 @@
 #include "compare/distances.h"
 #include "compare/registration.h"
 #include "compare/statistics.h"
+#include "compare/vdi2634.h"
 #include "core/mesh.h"
 #include "core/point_cloud.h"
 
@@ -60,6 +61,9 @@ struct CompareOptions {
   int histogram_bins = 60;
   bool m3c2 = false;                 // also compute M3C2 distances at every compared point
   M3C2Options m3c2_options;
+  // VDI/VDE 2634-2 figures of the artefacts in the (registered) compared cloud, when given.
+  std::optional<ArtefactSpec> artefacts;
+  Vdi2634Options vdi2634;
   void Check() const;  // throws slshadow::Error naming the bad field
 };
 
@@ -84,6 +88,7 @@ struct CompareResult {
   double coverage_radius_mm = 0.0;
   size_t coverage_samples = 0;
   std::optional<M3C2Summary> m3c2;
+  std::optional<Vdi2634Result> vdi2634;
   // The compared cloud moved into the reference frame, with scalar fields "deviation" (signed
   // for a mesh, else unsigned), "m3c2_distance" / "m3c2_lod95" / "m3c2_significant" when
   // computed, and colours from the deviation (compare/charts.h colour map over the histogram

@@ -200,6 +200,7 @@ nlohmann::json ReportJson(const CompareResult& r) {
     m3["registration_error_mm"] = r.m3c2->options.registration_error_mm;
     j["m3c2"] = m3;
   }
+  if (r.vdi2634) j["vdi2634"] = r.vdi2634->ToJson();
   j["files"] = {{"cloud", "compared.ply"},
                 {"histogram", "histogram.png"},
                 {"deviation_map", "deviation_map.png"},
