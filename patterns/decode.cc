@@ -115,24 +115,48 @@ void GrayAxisRow(const T* const* frames, int nbits, int width, uint16_t* __restr
   }
 }
 
-// N-step phase of one frequency: wrapped phase in cycles [0, 1) and modulation B'.
+// N-step phase of one frequency: wrapped phase in cycles [0, 1), modulation B', and the running
+// maximum level (saturation). The sums run over 8 pixels at a time in registers.
 template <typename T>
 void PhaseRow(const T* const* frames, int steps, const float* sn, const float* cn, int width,
               float* __restrict sum_s, float* __restrict sum_c, float* __restrict cycles,
               float* __restrict modulation, int32_t* __restrict maxv) {
-  std::fill(sum_s, sum_s + width, 0.0f);
-  std::fill(sum_c, sum_c + width, 0.0f);
-  for (int n = 0; n < steps; ++n) {
-    const T* __restrict p = frames[n];
-    const float s = sn[n], c = cn[n];
-    #pragma omp simd
-    for (int x = 0; x < width; ++x) {
-      const int32_t v = p[x];
-      const float fv = static_cast<float>(v);
-      sum_s[x] += fv * s;
-      sum_c[x] += fv * c;
-      maxv[x] = Max(maxv[x], v);
+  const int vec_end = width - width % 8;
+  for (int x = 0; x < vec_end; x += 8) {
+    cv::v_float32x4 s0 = cv::v_setzero_f32(), s1 = s0, c0 = s0, c1 = s0;
+    cv::v_uint16x8 top = cv::v_setzero_u16();
+    for (int n = 0; n < steps; ++n) {
+      const cv::v_uint16x8 v = Load8<T>(frames[n] + x);
+      top = cv::v_max(top, v);
+      cv::v_uint32x4 lo, hi;
+      cv::v_expand(v, lo, hi);
+      const cv::v_float32x4 flo = cv::v_cvt_f32(cv::v_reinterpret_as_s32(lo));
+      const cv::v_float32x4 fhi = cv::v_cvt_f32(cv::v_reinterpret_as_s32(hi));
+      const cv::v_float32x4 vs = cv::v_setall_f32(sn[n]), vc = cv::v_setall_f32(cn[n]);
+      s0 = cv::v_fma(flo, vs, s0);
+      s1 = cv::v_fma(fhi, vs, s1);
+      c0 = cv::v_fma(flo, vc, c0);
+      c1 = cv::v_fma(fhi, vc, c1);
     }
+    cv::v_store(sum_s + x, s0);
+    cv::v_store(sum_s + x + 4, s1);
+    cv::v_store(sum_c + x, c0);
+    cv::v_store(sum_c + x + 4, c1);
+    cv::v_uint32x4 tlo, thi;
+    cv::v_expand(top, tlo, thi);
+    cv::v_store(maxv + x, cv::v_max(cv::v_load(maxv + x), cv::v_reinterpret_as_s32(tlo)));
+    cv::v_store(maxv + x + 4, cv::v_max(cv::v_load(maxv + x + 4), cv::v_reinterpret_as_s32(thi)));
+  }
+  for (int x = vec_end; x < width; ++x) {
+    float ss = 0, cc = 0;
+    for (int n = 0; n < steps; ++n) {
+      const int32_t v = frames[n][x];
+      ss += static_cast<float>(v) * sn[n];
+      cc += static_cast<float>(v) * cn[n];
+      maxv[x] = std::max(maxv[x], v);
+    }
+    sum_s[x] = ss;
+    sum_c[x] = cc;
   }
   const float scale = 2.0f / static_cast<float>(steps);
   #pragma omp simd
@@ -195,8 +219,17 @@ class Decoder {
       s.Float(s.modulation[f]);
     }
     std::vector<const T*> rows(images_.size());
+    const size_t row_bytes = static_cast<size_t>(width) * sizeof(T);
     for (int y = y0; y < y1; ++y) {
       for (size_t i = 0; i < images_.size(); ++i) rows[i] = images_[i].ptr<T>(y);
+      // The frames are read 8 pixels at a time across all frames: too many streams for the
+      // hardware prefetcher, so fetch the next row of every frame while this one is decoded.
+      if (y + 1 < y1) {
+        for (size_t i = 0; i < images_.size(); ++i) {
+          const char* next = reinterpret_cast<const char*>(images_[i].ptr<T>(y + 1));
+          for (size_t off = 0; off < row_bytes; off += 64) __builtin_prefetch(next + off);
+        }
+      }
       std::fill(s.flags.begin(), s.flags.end(), uint8_t{0});
       switch (spec_.kind) {
         case PatternKind::kGrayCode: GrayCodeRow<T>(rows, s); break;
@@ -386,10 +419,29 @@ class Decoder {
     const uint8_t* flags = s.flags.data();
     const float* q = s.quality.data();
     const bool has_x = spec_.code_x, has_y = spec_.code_y;
-    for (int x = 0; x < width; ++x) status[x] = kStatusOfFlags[flags[x] & 15];
-    #pragma omp simd
-    for (int x = 0; x < width; ++x) {
-      quality[x] = q[x];
+    // Status by priority with byte selects, 16 pixels at a time (order: lowest priority first).
+    const int vec16 = width - width % 16;
+    const cv::v_uint8x16 zero = cv::v_setzero_u8();
+    for (int x = 0; x < vec16; x += 16) {
+      const cv::v_uint8x16 f = cv::v_load(flags + x);
+      cv::v_uint8x16 st = zero;
+      for (const uint8_t flag : {kFlagCodeError, kFlagLowContrast, kFlagShadow, kFlagSaturated}) {
+        const cv::v_uint8x16 has = (f & cv::v_setall_u8(flag)) != zero;
+        st = cv::v_select(has, cv::v_setall_u8(kStatusOfFlags[flag]), st);
+      }
+      cv::v_store(status + x, st);
+    }
+    for (int x = vec16; x < width; ++x) status[x] = kStatusOfFlags[flags[x] & 15];
+    std::copy(q, q + width, quality);
+    const cv::v_float32x4 vnan = cv::v_setall_f32(nan);
+    const int vec4 = width - width % 4;
+    for (int x = 0; x < vec4; x += 4) {
+      const cv::v_uint32x4 st = cv::v_load_expand_q(status + x);
+      const cv::v_float32x4 valid = cv::v_reinterpret_as_f32(st == cv::v_setzero_u32());
+      cv::v_store(px + x, has_x ? cv::v_select(valid, cv::v_load(cx + x), vnan) : vnan);
+      cv::v_store(py + x, has_y ? cv::v_select(valid, cv::v_load(cy + x), vnan) : vnan);
+    }
+    for (int x = vec4; x < width; ++x) {
       const bool valid = status[x] == 0;
       px[x] = (valid & has_x) ? cx[x] : nan;
       py[x] = (valid & has_y) ? cy[x] : nan;
@@ -451,8 +503,14 @@ ProjectorMap DecodePatterns(const PatternSpec& spec, const std::vector<cv::Mat>&
   levels.unwrap_tol = static_cast<float>(options.unwrap_tolerance_cycles);
   levels.gray_edges = options.gray_edge_midpoint;
 
+  // Every pixel of every map is written by the decoder: no need to fill them first.
   ProjectorMap map;
-  map.Allocate(size.width, size.height, spec.code_x, spec.code_y);
+  map.proj_x.create(size, CV_32FC1);
+  map.proj_y.create(size, CV_32FC1);
+  map.status.create(size, CV_8UC1);
+  map.quality.create(size, CV_32FC1);
+  map.has_x = spec.code_x;
+  map.has_y = spec.code_y;
   const Decoder decoder(spec, camera_images, levels, &map);
   const auto body = [&](const cv::Range& range) {
     if (type == CV_8UC1) {

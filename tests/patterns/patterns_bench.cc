@@ -67,8 +67,10 @@ void Report(benchmark::State& state, int64_t pixels_per_iteration) {
 
 void BM_Slshadow_Decode(benchmark::State& state, const PatternSpec& spec) {
   const auto& images = Images(spec);
+  DecodeOptions options;
+  options.parallel = state.range(0) != 0;
   for (auto _ : state) {
-    ProjectorMap map = DecodePatterns(spec, images);
+    ProjectorMap map = DecodePatterns(spec, images, options);
     benchmark::DoNotOptimize(map.proj_x.data);
   }
   Report(state, int64_t{kCamW} * kCamH);
@@ -123,11 +125,23 @@ void BM_OpenCv_GrayCodePattern_getProjPixel(benchmark::State& state) {
   Report(state, int64_t{kCamW} * kCamH);
 }
 
-BENCHMARK_CAPTURE(BM_Slshadow_Decode, gray_code_phase_shift, PhaseSpec())->Unit(benchmark::kMillisecond)->UseRealTime();
-BENCHMARK_CAPTURE(BM_Slshadow_Decode, gray_code_opencv_order, GraySpec())->Unit(benchmark::kMillisecond)->UseRealTime();
-BENCHMARK_CAPTURE(BM_Slshadow_Decode, multi_frequency, MultiSpec())->Unit(benchmark::kMillisecond)->UseRealTime();
-BENCHMARK(BM_OpenCv_GrayCodePattern_decode)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(3);
-BENCHMARK(BM_OpenCv_GrayCodePattern_getProjPixel)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(3);
+// Arg 1: rows in parallel (cv::parallel_for_), wall-clock time; arg 0: one thread, CPU time
+// (robust on a loaded machine: the per-core throughput).
+BENCHMARK_CAPTURE(BM_Slshadow_Decode, gray_code_phase_shift, PhaseSpec())
+    ->ArgName("parallel")->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK_CAPTURE(BM_Slshadow_Decode, gray_code_phase_shift, PhaseSpec())
+    ->ArgName("parallel")->Arg(0)->Unit(benchmark::kMillisecond);
+BENCHMARK_CAPTURE(BM_Slshadow_Decode, gray_code_opencv_order, GraySpec())
+    ->ArgName("parallel")->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK_CAPTURE(BM_Slshadow_Decode, gray_code_opencv_order, GraySpec())
+    ->ArgName("parallel")->Arg(0)->Unit(benchmark::kMillisecond);
+BENCHMARK_CAPTURE(BM_Slshadow_Decode, multi_frequency, MultiSpec())
+    ->ArgName("parallel")->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK_CAPTURE(BM_Slshadow_Decode, multi_frequency, MultiSpec())
+    ->ArgName("parallel")->Arg(0)->Unit(benchmark::kMillisecond);
+// OpenCV runs on one thread: CPU time.
+BENCHMARK(BM_OpenCv_GrayCodePattern_decode)->Unit(benchmark::kMillisecond)->Iterations(2);
+BENCHMARK(BM_OpenCv_GrayCodePattern_getProjPixel)->Unit(benchmark::kMillisecond)->Iterations(3);
 
 }  // namespace
 }  // namespace slshadow
