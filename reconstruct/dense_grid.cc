@@ -2,6 +2,8 @@
 
 #include <limits>
 
+#include <opencv2/core.hpp>
+
 namespace slshadow {
 
 const char* ToString(RejectReason reason) {
@@ -47,30 +49,41 @@ std::array<int64_t, kNumRejectReasons> DenseGrid::CountByReason() const {
 }
 
 PointCloud DenseGrid::ToPointCloud(const std::vector<Eigen::Vector3f>* normals) const {
+  // Rows are counted, then filled in parallel at their prefix offsets (same order as a serial scan).
+  std::vector<size_t> row_start(static_cast<size_t>(height) + 1, 0);
+  cv::parallel_for_(cv::Range(0, height), [&](const cv::Range& rows) {
+    for (int v = rows.start; v < rows.end; ++v) {
+      size_t n = 0;
+      for (int u = 0; u < width; ++u) n += Accepted(Index(u, v)) ? 1 : 0;
+      row_start[static_cast<size_t>(v) + 1] = n;
+    }
+  });
+  for (int v = 0; v < height; ++v) row_start[static_cast<size_t>(v) + 1] += row_start[static_cast<size_t>(v)];
+  const size_t count = row_start.back();
   PointCloud cloud;
-  const size_t n = reason.size();
-  size_t count = 0;
-  for (size_t i = 0; i < n; ++i) count += Accepted(i) ? 1 : 0;
-  cloud.points.reserve(count);
-  const bool with_normals = normals && normals->size() == n;
-  if (with_normals) cloud.normals.reserve(count);
-  std::vector<float> q, u, v, e;
-  q.reserve(count);
-  u.reserve(count);
-  v.reserve(count);
-  e.reserve(count);
-  for (size_t i = 0; i < n; ++i) {
-    if (!Accepted(i)) continue;
-    cloud.points.push_back(point_in_rig[i]);
-    if (with_normals) cloud.normals.push_back((*normals)[i]);
-    q.push_back(quality[i]);
-    u.push_back(source_u[i]);
-    v.push_back(source_v[i]);
-    e.push_back(reprojection_error_px[i]);
-  }
+  cloud.points.resize(count);
+  const bool with_normals = normals && normals->size() == reason.size();
+  if (with_normals) cloud.normals.resize(count);
+  std::vector<float> q(count), us(count), vs(count), e(count);
+  cv::parallel_for_(cv::Range(0, height), [&](const cv::Range& rows) {
+    for (int v = rows.start; v < rows.end; ++v) {
+      size_t k = row_start[static_cast<size_t>(v)];
+      for (int u = 0; u < width; ++u) {
+        const size_t i = Index(u, v);
+        if (!Accepted(i)) continue;
+        cloud.points[k] = point_in_rig[i];
+        if (with_normals) cloud.normals[k] = (*normals)[i];
+        q[k] = quality[i];
+        us[k] = source_u[i];
+        vs[k] = source_v[i];
+        e[k] = reprojection_error_px[i];
+        ++k;
+      }
+    }
+  });
   cloud.SetScalar("quality", std::move(q));
-  cloud.SetScalar("u", std::move(u));
-  cloud.SetScalar("v", std::move(v));
+  cloud.SetScalar("u", std::move(us));
+  cloud.SetScalar("v", std::move(vs));
   cloud.SetScalar("reprojection_error_px", std::move(e));
   return cloud;
 }

@@ -91,14 +91,17 @@ int64_t FilterStatisticalOutliers(DenseGrid& grid, int window_radius_px, int nei
     std::vector<double> d2;
     d2.reserve(static_cast<size_t>((2 * r + 1) * (2 * r + 1)));
     for (int v = rows.start; v < rows.end; ++v) {
+      const int v0 = std::max(0, v - r), v1 = std::min(h - 1, v + r);
       for (int u = 0; u < w; ++u) {
         const size_t i = grid.Index(u, v);
         if (!grid.Accepted(i)) continue;
         d2.clear();
         const Eigen::Vector3d& p = grid.point_in_rig[i];
-        for (int vn = std::max(0, v - r); vn <= std::min(h - 1, v + r); ++vn) {
-          for (int un = std::max(0, u - r); un <= std::min(w - 1, u + r); ++un) {
-            const size_t j = grid.Index(un, vn);
+        const int u0 = std::max(0, u - r), u1 = std::min(w - 1, u + r);
+        for (int vn = v0; vn <= v1; ++vn) {
+          const size_t row = grid.Index(0, vn);
+          for (int un = u0; un <= u1; ++un) {
+            const size_t j = row + static_cast<size_t>(un);
             if (j == i || grid.reason[j] != kAccepted) continue;
             d2.push_back((grid.point_in_rig[j] - p).squaredNorm());
           }
@@ -108,11 +111,13 @@ int64_t FilterStatisticalOutliers(DenseGrid& grid, int window_radius_px, int nei
           continue;
         }
         const size_t m = std::min(d2.size(), static_cast<size_t>(k));
-        std::nth_element(d2.begin(), d2.begin() + static_cast<std::ptrdiff_t>(m - 1), d2.end());
+        if (m < d2.size()) std::nth_element(d2.begin(), d2.begin() + static_cast<std::ptrdiff_t>(m - 1), d2.end());
         double sum = 0;
-        for (size_t q = 0; q < m; ++q) sum += std::sqrt(d2[q]);
-        // The m smallest are in front after nth_element (unordered); their mean, in footprints.
-        score[i] = (sum / static_cast<double>(m)) / (Range(grid, i) / grid.focal_px);
+        for (size_t q = 0; q < m; ++q) sum += d2[q];
+        // RMS distance to the m nearest (in front after nth_element), in footprints (squared
+        // distances: one square root per cell).
+        score[i] = std::sqrt(sum / static_cast<double>(m) * (grid.focal_px * grid.focal_px) /
+                             (p - grid.viewpoint_in_rig).squaredNorm());
       }
     }
   });

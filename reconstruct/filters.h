@@ -23,7 +23,7 @@ int64_t FilterDepthDiscontinuities(DenseGrid& grid, double max_jump_footprints, 
 
 // Statistical outlier removal on the grid (PCL's StatisticalOutlierRemoval with the k nearest
 // neighbours taken among the accepted cells of a (2 window_radius_px + 1)^2 window): per cell the
-// mean distance to its `neighbors` nearest, in footprints; cells above mean + std_ratio * stddev
+// RMS distance to its `neighbors` nearest, in footprints; cells above mean + std_ratio * stddev
 // of that value over all cells, and above min_distance_footprints, are rejected, and so are cells
 // with no accepted neighbour at all. (The floor keeps the border of a perfect grid, whose cells
 // have fewer close neighbours, from being taken for outliers when the spread is tiny.)

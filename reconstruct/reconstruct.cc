@@ -64,8 +64,12 @@ void Finish(const ReconstructOptions& options, Reconstruction* out) {
       grid.reason[i] = Code(RejectReason::kEpipolarError);
     }
   }
-  s.reprojection_error_px = ComputeResidualStats(reproj);
-  s.epipolar_error_px = ComputeResidualStats(epi);
+  cv::parallel_for_(cv::Range(0, 2), [&](const cv::Range& r) {
+    for (int k = r.start; k < r.end; ++k) {
+      if (k == 0) s.reprojection_error_px = ComputeResidualStats(reproj);
+      if (k == 1) s.epipolar_error_px = ComputeResidualStats(epi);
+    }
+  });
   if (options.filter_depth_discontinuities) {
     FilterDepthDiscontinuities(grid, options.max_depth_jump_footprints, options.discontinuity_dilation_px);
   }
@@ -164,13 +168,15 @@ ResidualStats ComputeResidualStats(std::vector<float>& values) {
   }
   s.rms = std::sqrt(sum2 / static_cast<double>(values.size()));
   s.max = mx;
-  auto quantile = [&](double q) {
-    const size_t k = std::min(values.size() - 1, static_cast<size_t>(std::floor(q * static_cast<double>(values.size() - 1) + 0.5)));
-    std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(k), values.end());
-    return static_cast<double>(values[k]);
-  };
-  s.median = quantile(0.5);
-  s.p95 = quantile(0.95);
+  // Median first; nth_element leaves the larger half behind it, where p95 is then sought.
+  const size_t n = values.size();
+  const size_t km = std::min(n - 1, static_cast<size_t>(std::floor(0.5 * static_cast<double>(n - 1) + 0.5)));
+  const size_t kp = std::min(n - 1, static_cast<size_t>(std::floor(0.95 * static_cast<double>(n - 1) + 0.5)));
+  std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(km), values.end());
+  s.median = values[km];
+  std::nth_element(values.begin() + static_cast<std::ptrdiff_t>(km), values.begin() + static_cast<std::ptrdiff_t>(kp),
+                   values.end());
+  s.p95 = values[kp];
   return s;
 }
 
@@ -262,6 +268,9 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
 
   auto t0 = Clock::now();
   const std::shared_ptr<const RayGrid> rays = CachedRayGrid(cam.model);
+  const bool both = map.has_x && map.has_y;
+  // Projector pixels are undistorted per camera pixel, started from the projector's own grid.
+  const std::shared_ptr<const RayGrid> proj_rays = both ? CachedRayGrid(proj.model) : nullptr;
   s.rays_s = Seconds(t0);
 
   t0 = Clock::now();
@@ -273,7 +282,6 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
   grid.viewpoint_in_rig = cam_view.center_in_rig;
   grid.focal_px = cam_view.focal_px;
   const double sin_min = std::sin(options.min_triangulation_angle_deg * M_PI / 180.0);
-  const bool both = map.has_x && map.has_y;
   const int axis = map.has_x ? 0 : 1;
   const double* cam_params = cam.model.params.data();
   const double* proj_params = proj.model.params.data();
@@ -304,7 +312,7 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
         Eigen::Vector3d point;
         double epipolar = nan;
         if (both) {
-          const auto pxy = proj.model.UndistortToNormalized(Eigen::Vector2d(px, py));
+          const auto pxy = UndistortWithGrid(proj.model, *proj_rays, Eigen::Vector2d(px, py));
           if (!pxy) {
             reason = Code(RejectReason::kNoRay);
             continue;

@@ -61,7 +61,7 @@ struct ReconstructOptions {
   int discontinuity_dilation_px = 1;
   // Statistical outlier removal (filters.h).
   bool filter_outliers = true;
-  int outlier_window_radius_px = 2;
+  int outlier_window_radius_px = 1;
   int outlier_neighbors = 8;
   double outlier_std_ratio = 4.0;
   double outlier_min_distance_footprints = 3.0;

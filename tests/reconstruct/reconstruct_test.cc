@@ -83,8 +83,9 @@ TEST_F(ReconstructTest, ProjectorModeExactMapsGiveTheTruePointsForEveryMethod) {
         const Reconstruction rec = ReconstructWithProjector(rig_, cam.name, truth.map, options);
         ExpectFiniteCloud(rec);
         EXPECT_LT(MaxErrorToTruth(rec.cloud, truth), 1e-6) << cam.name << " " << ToString(method);
-        // Only the outline of the valid region may be lost (depth-jump dilation at the sphere's rim).
-        EXPECT_GT(rec.summary.points, valid * 97 / 100) << cam.name << " " << ToString(method);
+        // Only the outline of the valid region may go: the sphere's grazing rim, whose neighbour
+        // spacing of many footprints the depth-jump and outlier filters take for unreliable.
+        EXPECT_GT(rec.summary.points, valid * 95 / 100) << cam.name << " " << ToString(method);
         EXPECT_LT(rec.summary.reprojection_error_px.max, 1e-6);
         EXPECT_LT(rec.summary.epipolar_error_px.max, 1e-6);
         EXPECT_EQ(rec.summary.epipolar_error_px.count, rec.summary.reprojection_error_px.count);

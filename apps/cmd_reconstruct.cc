@@ -1,0 +1,128 @@
+// slshadow reconstruct IMAGESET --out CLOUD.ply [--mode projector|stereo] [--method ...]
+#include <CLI/CLI.hpp>
+#include <cstdio>
+#include <limits>
+
+#include "apps/commands.h"
+#include "core/error.h"
+#include "core/file_util.h"
+#include "core/image_set.h"
+#include "core/point_cloud.h"
+#include "reconstruct/reconstruct_image_set.h"
+
+namespace slshadow::app {
+
+int RunReconstruct(int argc, char** argv) {
+  CLI::App app{
+      "Reconstruct a point cloud from an ImageSet (docs/formats.md \"ImageSet manifest\").\n\n"
+      "Reads the rig and the pattern spec from IMAGESET/manifest.json, decodes every camera's fringe\n"
+      "images (patterns/: projector column / row per camera pixel, with a validity reason and a\n"
+      "quality), then triangulates:\n"
+      "  projector  each camera against the projector (an inverse camera): ray-ray when columns and\n"
+      "             rows are coded, exact ray-surface against the distorted projector when one axis is;\n"
+      "             the clouds of all cameras are merged.\n"
+      "  stereo     two cameras: rectified epipolar search for the equal projector column, sub-pixel\n"
+      "             interpolation on the right camera's map, camera-camera triangulation.\n"
+      "Gates (triangulation angle, depth range, reprojection and epipolar error) and filters (depth\n"
+      "discontinuities, statistical outliers) reject cells with a reason; every count is printed.\n"
+      "CLOUD.ply (binary, rig frame = first camera's frame, mm) has normals (toward the camera) and\n"
+      "the scalar fields quality, u, v (source pixel), reprojection_error_px and camera (rig index);\n"
+      "it is written atomically. A JSON summary (options, counts per reason, residual statistics\n"
+      "median / p95 of the reprojection and epipolar errors, timings) goes next to it.",
+      argv[0]};
+  std::string imageset_dir, out_path, summary_path, mode = "projector", method = "midpoint";
+  ImageSetReconstructOptions options;
+  ReconstructOptions& r = options.reconstruct;
+  bool ascii = false, no_discontinuity = false, no_outliers = false, no_normals = false, quiet = false;
+  double max_reproj = r.max_reprojection_error_px, max_epi = r.max_epipolar_error_px;
+  app.add_option("IMAGESET", imageset_dir, "ImageSet folder (holds manifest.json)")->required()->check(CLI::ExistingDirectory);
+  app.add_option("--out", out_path, "output point cloud (.ply)")->required();
+  app.add_option("--mode", mode, "projector: camera-projector triangulation; stereo: two cameras")
+      ->check(CLI::IsMember({"projector", "stereo"}))
+      ->capture_default_str();
+  app.add_option("--method", method,
+                 "two-view triangulation: midpoint (of the common perpendicular), dlt (linear, SVD), "
+                 "optimal (Lindstrom niter2: least image correction)")
+      ->check(CLI::IsMember({"midpoint", "dlt", "optimal"}))
+      ->capture_default_str();
+  app.add_option("--cameras", options.cameras,
+                 "cameras to use (projector: any subset, default all with images; stereo: LEFT RIGHT, "
+                 "default the first two)")
+      ->delimiter(',');
+  app.add_option("--min-depth-mm", r.min_depth_mm, "nearest accepted depth along the camera axis, mm")->capture_default_str();
+  app.add_option("--max-depth-mm", r.max_depth_mm, "farthest accepted depth, mm")->capture_default_str();
+  app.add_option("--min-angle-deg", r.min_triangulation_angle_deg,
+                 "smallest accepted angle between the two rays, degrees (near-parallel rays give no depth)")
+      ->capture_default_str();
+  app.add_option("--max-reprojection-px", max_reproj, "gate on the RMS reprojection error over both views, px (0: off)")
+      ->capture_default_str();
+  app.add_option("--max-epipolar-px", max_epi,
+                 "gate on the epipolar residual, projector px (projector mode with both axes coded: distance "
+                 "from the epipolar line; stereo: difference of the projector rows) (0: off)")
+      ->capture_default_str();
+  app.add_option("--min-quality", r.min_quality, "reject pixels of lower decode quality (grey levels; 0: keep all)")
+      ->capture_default_str();
+  app.add_option("--max-code-step-px", r.max_code_step_px,
+                 "stereo: no interpolation or matching across projector-coordinate steps larger than this between "
+                 "neighbouring pixels, projector px")
+      ->capture_default_str();
+  app.add_flag("--no-discontinuity-filter", no_discontinuity, "keep points at depth jumps");
+  app.add_option("--max-depth-jump", r.max_depth_jump_footprints,
+                 "depth jump between neighbouring pixels that marks a discontinuity, in pixel footprints "
+                 "(range / focal length)")
+      ->capture_default_str();
+  app.add_option("--discontinuity-dilation-px", r.discontinuity_dilation_px, "also reject this many pixels around a jump")
+      ->capture_default_str();
+  app.add_flag("--no-outlier-filter", no_outliers, "skip statistical outlier removal");
+  app.add_option("--outlier-std-ratio", r.outlier_std_ratio,
+                 "reject points whose mean neighbour distance exceeds mean + ratio x std over the cloud")
+      ->capture_default_str();
+  app.add_flag("--no-normals", no_normals, "do not estimate normals");
+  app.add_option("--shadow-threshold", options.decode.shadow_threshold,
+                 "decoding: minimum lit range (8-bit grey levels)")
+      ->capture_default_str();
+  app.add_option("--contrast-threshold", options.decode.contrast_threshold,
+                 "decoding: minimum Gray-code bit contrast (8-bit grey levels)")
+      ->capture_default_str();
+  app.add_option("--summary", summary_path, "summary JSON path (default: CLOUD with .summary.json)");
+  app.add_flag("--ascii", ascii, "write ASCII PLY instead of binary");
+  app.add_flag("--quiet", quiet, "print only the one-line summaries");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  options.mode = ReconstructModeFromString(mode);
+  r.method = TriangulationMethodFromString(method);
+  const double inf = std::numeric_limits<double>::infinity();
+  r.max_reprojection_error_px = max_reproj > 0 ? max_reproj : inf;
+  r.max_epipolar_error_px = max_epi > 0 ? max_epi : inf;
+  r.filter_depth_discontinuities = !no_discontinuity;
+  r.filter_outliers = !no_outliers;
+  r.estimate_normals = !no_normals;
+  options.Check();
+
+  const ImageSet image_set = ImageSet::Open(imageset_dir);
+  const ImageSetReconstruction rec = ReconstructImageSet(image_set, options);
+  PlyWriteOptions ply;
+  ply.binary = !ascii;
+  WritePly(out_path, rec.cloud, ply);
+  if (summary_path.empty()) {
+    std::filesystem::path p(out_path);
+    summary_path = (p.parent_path() / p.stem()).string() + ".summary.json";
+  }
+  nlohmann::json summary = rec.ToJson();
+  summary["imageset"] = imageset_dir;
+  summary["cloud"] = out_path;
+  summary["options"] = options.ToJson();
+  WriteTextFileAtomically(summary_path, summary.dump(2) + "\n");
+  if (quiet) {
+    for (const auto& s : rec.summaries) std::printf("%s\n", s.BriefReport().c_str());
+  } else {
+    std::printf("%s", rec.FullReport().c_str());
+  }
+  std::printf("wrote %s (%zu points) and %s\n", out_path.c_str(), rec.cloud.size(), summary_path.c_str());
+  return 0;
+}
+
+}  // namespace slshadow::app
