@@ -472,8 +472,22 @@ std::vector<cv::Mat> PatternRenderer::RenderIrradianceBatch(const std::vector<cv
   // Float intensity images through the response curve, unless the response is linear and no
   // projector blur is needed (then lookups read the 8-bit images directly).
   const bool direct = linear_response_ && projector_sigmas_.empty();
-  std::vector<std::vector<cv::Mat>> levels(static_cast<size_t>(batch));  // [image][blur level]
-  if (!direct) {
+  // The batch is interleaved per projector pixel ([pixel][image]) so one lookup reads all images
+  // of the batch from the same cache lines.
+  const size_t n_proj = static_cast<size_t>(pw) * ph;
+  std::vector<uint8_t> inter8;                 // direct path
+  std::vector<std::vector<float>> inter_f;    // [blur level][pixel * batch + image]
+  if (direct) {
+    inter8.resize(n_proj * batch);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n_proj, 4096), [&](const tbb::blocked_range<size_t>& r) {
+      for (int k = 0; k < batch; ++k) {
+        const uint8_t* src = images[static_cast<size_t>(k)].ptr<uint8_t>();
+        for (size_t i = r.begin(); i < r.end(); ++i) inter8[i * batch + k] = src[i];
+      }
+    });
+  } else {
+    const size_t n_levels = std::max<size_t>(1, projector_sigmas_.size());
+    inter_f.assign(n_levels, std::vector<float>(n_proj * batch));
     tbb::parallel_for(0, batch, [&](int k) {
       cv::Mat intensity(ph, pw, CV_32FC1);
       for (int y = 0; y < ph; ++y) {
@@ -481,15 +495,14 @@ std::vector<cv::Mat> PatternRenderer::RenderIrradianceBatch(const std::vector<cv
         float* dst = intensity.ptr<float>(y);
         for (int x = 0; x < pw; ++x) dst[x] = response_[src[x]];
       }
-      if (projector_sigmas_.empty()) {
-        levels[static_cast<size_t>(k)].push_back(intensity);
-      } else {
-        for (double sgm : projector_sigmas_) levels[static_cast<size_t>(k)].push_back(Blur(intensity, sgm));
+      for (size_t lv = 0; lv < n_levels; ++lv) {
+        const cv::Mat level = projector_sigmas_.empty() ? intensity : Blur(intensity, projector_sigmas_[lv]);
+        const float* src = level.ptr<float>();
+        float* dst = inter_f[lv].data();
+        for (size_t i = 0; i < n_proj; ++i) dst[i * batch + k] = src[i];
       }
     });
   }
-  const uint8_t* raw[kMaxBatch];
-  for (int k = 0; k < batch; ++k) raw[k] = images[static_cast<size_t>(k)].ptr<uint8_t>();
   const int w = geometry_.width, h = geometry_.height;
   const int spp = geometry_.samples_per_axis * geometry_.samples_per_axis;
   const float scale = static_cast<float>(scene_.radiometry.exposure * full_scale_dn_ / spp);
@@ -522,11 +535,13 @@ std::vector<cv::Mat> PatternRenderer::RenderIrradianceBatch(const std::vector<cv
             const int xi = std::clamp(static_cast<int>(std::lround(u)), 0, pw - 1);
             const int yi = std::clamp(static_cast<int>(std::lround(t)), 0, ph - 1);
             const bool lit = !fill || (std::abs(u - std::round(u)) <= half_side && std::abs(t - std::round(t)) <= half_side);
-            const size_t idx = static_cast<size_t>(yi) * pw + xi;
+            const size_t idx = (static_cast<size_t>(yi) * pw + xi) * batch;
             const float g = lit ? f : 0.0f;
-            for (int k = 0; k < batch; ++k) {
-              const float I = direct ? raw[k][idx] * (1.0f / 255) : levels[static_cast<size_t>(k)][0].ptr<float>()[idx];
-              acc[k] += base + g * I;
+            if (direct) {
+              for (int k = 0; k < batch; ++k) acc[k] += base + g * (1.0f / 255) * inter8[idx + k];
+            } else {
+              const float* p = inter_f[0].data() + idx;
+              for (int k = 0; k < batch; ++k) acc[k] += base + g * p[k];
             }
             continue;
           }
@@ -535,14 +550,14 @@ std::vector<cv::Mat> PatternRenderer::RenderIrradianceBatch(const std::vector<cv
           const float ax = u - fx0, ay = t - fy0;
           const int x0 = std::clamp(static_cast<int>(fx0), 0, pw - 1), x1 = std::clamp(static_cast<int>(fx0) + 1, 0, pw - 1);
           const int y0 = std::clamp(static_cast<int>(fy0), 0, ph - 1), y1 = std::clamp(static_cast<int>(fy0) + 1, 0, ph - 1);
-          const size_t i00 = static_cast<size_t>(y0) * pw + x0, i01 = static_cast<size_t>(y0) * pw + x1;
-          const size_t i10 = static_cast<size_t>(y1) * pw + x0, i11 = static_cast<size_t>(y1) * pw + x1;
+          const size_t i00 = (static_cast<size_t>(y0) * pw + x0) * batch, i01 = (static_cast<size_t>(y0) * pw + x1) * batch;
+          const size_t i10 = (static_cast<size_t>(y1) * pw + x0) * batch, i11 = (static_cast<size_t>(y1) * pw + x1) * batch;
           const float w00 = (1 - ax) * (1 - ay), w01 = ax * (1 - ay), w10 = (1 - ax) * ay, w11 = ax * ay;
           if (direct) {
             const float g = f * (1.0f / 255);
+            const uint8_t* p = inter8.data();
             for (int k = 0; k < batch; ++k) {
-              const uint8_t* p = raw[k];
-              acc[k] += base + g * (w00 * p[i00] + w01 * p[i01] + w10 * p[i10] + w11 * p[i11]);
+              acc[k] += base + g * (w00 * p[i00 + k] + w01 * p[i01 + k] + w10 * p[i10 + k] + w11 * p[i11 + k]);
             }
           } else {
             int l0 = 0, l1 = 0;
@@ -553,11 +568,11 @@ std::vector<cv::Mat> PatternRenderer::RenderIrradianceBatch(const std::vector<cv
               l1 = std::min(l0 + 1, top_level);
               a = lv - l0;
             }
+            const float* p0 = inter_f[static_cast<size_t>(l0)].data();
+            const float* p1 = inter_f[static_cast<size_t>(l1)].data();
             for (int k = 0; k < batch; ++k) {
-              const float* p0 = levels[static_cast<size_t>(k)][static_cast<size_t>(l0)].ptr<float>();
-              const float* p1 = levels[static_cast<size_t>(k)][static_cast<size_t>(l1)].ptr<float>();
-              const float v0 = w00 * p0[i00] + w01 * p0[i01] + w10 * p0[i10] + w11 * p0[i11];
-              const float v1 = w00 * p1[i00] + w01 * p1[i01] + w10 * p1[i10] + w11 * p1[i11];
+              const float v0 = w00 * p0[i00 + k] + w01 * p0[i01 + k] + w10 * p0[i10 + k] + w11 * p0[i11 + k];
+              const float v1 = w00 * p1[i00 + k] + w01 * p1[i01 + k] + w10 * p1[i10 + k] + w11 * p1[i11 + k];
               acc[k] += base + f * ((1 - a) * v0 + a * v1);
             }
           }
