@@ -15,6 +15,7 @@ namespace slshadow::app {
 
 const std::vector<Command>& Commands() {
   static const std::vector<Command> commands = {
+      {"calibrate", "calibrate cameras, stereo, projector or rig from board images (calibrate camera|stereo|projector|rig|import|export)", RunCalibrate},
       {"rig", "inspect a rig file: cameras, projector, baselines, angles, overlap (rig show RIG.yaml)", RunRig},
       {"reconstruct", "decode an ImageSet and triangulate a point cloud (reconstruct IMAGESET --out CLOUD.ply [--mode projector|stereo])", RunReconstruct},
       {"patterns", "pattern sequences: write projector images of a spec (patterns generate SPEC --out DIR), describe one", RunPatterns},
