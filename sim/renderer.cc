@@ -223,6 +223,53 @@ cv::Mat Blur(const cv::Mat& image, double sigma) {
   return out;
 }
 
+// Rounds and clips a non-negative float to [0, full] (the ADC). One definition for every path.
+inline int QuantizeValue(float v, float full) {
+  if (!(v > 0)) return 0;
+  if (v >= full) return static_cast<int>(full);
+  return static_cast<int>(v + 0.5f);
+}
+
+// The common case in one fused sweep: linear response, bilinear lookup, no fill factor, one
+// sample per pixel, no camera defocus, no noise: lookups, radiometry and quantisation of B
+// interleaved projector images, written straight to the output images (no float copies).
+template <int B, typename Out>
+void FusedDirectBilinear(const GeometryBuffer& g, const uint8_t* inter, int pw, int ph, float ambient, float scale,
+                         const cv::Mat& vignetting, float full, std::vector<cv::Mat>& out) {
+  const int w = g.width, h = g.height;
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 4), [&](const tbb::blocked_range<int>& r) {
+    Out* rows[B];
+    float acc[B];
+    for (int y = r.begin(); y < r.end(); ++y) {
+      for (int k = 0; k < B; ++k) rows[k] = out[static_cast<size_t>(k)].ptr<Out>(y);
+      const float* vig = vignetting.empty() ? nullptr : vignetting.ptr<float>(y);
+      for (int x = 0; x < w; ++x) {
+        const size_t i = static_cast<size_t>(y) * w + x;
+        const float f = g.factor[i];
+        const float base = ambient * g.albedo[i];
+        if (f > 0) {
+          const float u = g.proj_x[i], t = g.proj_y[i];
+          const float fx0 = std::floor(u), fy0 = std::floor(t);
+          const float ax = u - fx0, ay = t - fy0;
+          const int x0 = std::clamp(static_cast<int>(fx0), 0, pw - 1), x1 = std::clamp(static_cast<int>(fx0) + 1, 0, pw - 1);
+          const int y0 = std::clamp(static_cast<int>(fy0), 0, ph - 1), y1 = std::clamp(static_cast<int>(fy0) + 1, 0, ph - 1);
+          const uint8_t* p00 = inter + (static_cast<size_t>(y0) * pw + x0) * B;
+          const uint8_t* p01 = inter + (static_cast<size_t>(y0) * pw + x1) * B;
+          const uint8_t* p10 = inter + (static_cast<size_t>(y1) * pw + x0) * B;
+          const uint8_t* p11 = inter + (static_cast<size_t>(y1) * pw + x1) * B;
+          const float w00 = (1 - ax) * (1 - ay), w01 = ax * (1 - ay), w10 = (1 - ax) * ay, w11 = ax * ay;
+          const float gain = f * (1.0f / 255);
+          for (int k = 0; k < B; ++k) acc[k] = base + gain * (w00 * p00[k] + w01 * p01[k] + w10 * p10[k] + w11 * p11[k]);
+        } else {
+          for (int k = 0; k < B; ++k) acc[k] = base;
+        }
+        const float m = scale * (vig ? vig[x] : 1.0f);
+        for (int k = 0; k < B; ++k) rows[k][x] = static_cast<Out>(QuantizeValue(acc[k] * m, full));
+      }
+    }
+  });
+}
+
 inline uint64_t SplitMix64(uint64_t x) {
   x += 0x9E3779B97F4A7C15ull;
   x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
@@ -608,6 +655,40 @@ cv::Mat PatternRenderer::ApplyCameraDefocus(const cv::Mat& image) const {
 }
 
 std::vector<cv::Mat> PatternRenderer::RenderBatch(const std::vector<cv::Mat>& images, int first_pattern_index) const {
+  const SceneLayers& l = scene_.layers;
+  const int batch = static_cast<int>(images.size());
+  const bool fused = !l.response_enabled && projector_sigmas_.empty() && scene_.radiometry.bilinear_lookup && l.fill_factor >= 1 &&
+                     geometry_.samples_per_axis == 1 && camera_sigmas_.empty() && !l.noise_enabled && (batch == 8 || batch == 1);
+  if (fused) {
+    const int pw = projector_width_, ph = projector_height_;
+    for (const cv::Mat& m : images) {
+      SLSHADOW_THROW_IF(m.type() != CV_8UC1 || m.cols != pw || m.rows != ph || !m.isContinuous(),
+                        "projector image must be 8-bit single-channel ", pw, "x", ph, " (got type ", m.type(), ", ", m.cols,
+                        "x", m.rows, ")");
+    }
+    const size_t n_proj = static_cast<size_t>(pw) * ph;
+    std::vector<uint8_t> inter(n_proj * batch);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n_proj, 4096), [&](const tbb::blocked_range<size_t>& r) {
+      for (int k = 0; k < batch; ++k) {
+        const uint8_t* src = images[static_cast<size_t>(k)].ptr<uint8_t>();
+        for (size_t i = r.begin(); i < r.end(); ++i) inter[i * batch + k] = src[i];
+      }
+    });
+    const bool wide = scene_.radiometry.adc_bits > 8;
+    std::vector<cv::Mat> out(static_cast<size_t>(batch));
+    for (auto& m : out) m.create(geometry_.height, geometry_.width, wide ? CV_16UC1 : CV_8UC1);
+    const float scale = static_cast<float>(scene_.radiometry.exposure * full_scale_dn_);
+    const float ambient = static_cast<float>(l.ambient);
+    const float full = static_cast<float>(full_scale_dn_);
+    if (batch == 8) {
+      if (wide) FusedDirectBilinear<8, uint16_t>(geometry_, inter.data(), pw, ph, ambient, scale, vignetting_, full, out);
+      else FusedDirectBilinear<8, uint8_t>(geometry_, inter.data(), pw, ph, ambient, scale, vignetting_, full, out);
+    } else {
+      if (wide) FusedDirectBilinear<1, uint16_t>(geometry_, inter.data(), pw, ph, ambient, scale, vignetting_, full, out);
+      else FusedDirectBilinear<1, uint8_t>(geometry_, inter.data(), pw, ph, ambient, scale, vignetting_, full, out);
+    }
+    return out;
+  }
   std::vector<cv::Mat> irradiance = RenderIrradianceBatch(images);
   std::vector<cv::Mat> out(irradiance.size());
   tbb::parallel_for(size_t{0}, out.size(), [&](size_t k) {
@@ -617,7 +698,7 @@ std::vector<cv::Mat> PatternRenderer::RenderBatch(const std::vector<cv::Mat>& im
 }
 
 cv::Mat PatternRenderer::Render(const cv::Mat& projector_image, int pattern_index) const {
-  return Quantize(RenderIrradiance(projector_image), pattern_index);
+  return RenderBatch({projector_image}, pattern_index)[0];
 }
 
 cv::Mat PatternRenderer::Quantize(const cv::Mat& irradiance, int pattern_index) const {
@@ -646,7 +727,8 @@ cv::Mat PatternRenderer::Quantize(const cv::Mat& irradiance, int pattern_index) 
           const double e = std::min(mu_e + std::sqrt(mu_e) * n1 + l.read_noise_e * n2, l.full_well_e);
           dn = e * k_dn_per_e;
         }
-        const double q = std::clamp(std::round(dn), 0.0, full);
+        const int q = l.noise_enabled ? static_cast<int>(std::clamp(std::round(dn), 0.0, full))
+                                      : QuantizeValue(src[x], static_cast<float>(full));
         if (wide) {
           out.ptr<uint16_t>(y)[x] = static_cast<uint16_t>(q);
         } else {
