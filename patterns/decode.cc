@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <limits>
 #include <numbers>
+#include <type_traits>
 
 #include <opencv2/core/hal/intrin.hpp>
 
@@ -59,9 +60,7 @@ struct Levels {
 
 // Gray-code bits of one axis: `frames` holds 2 * nbits row pointers, MSB first, pattern then
 // inverse. Computes the binary code, the two smallest bit contrasts |P - I| and, if kTrackMask,
-// for the smallest the mask 2^(k+1) - 1 of its bit k (flipping Gray bit k flips binary bits
-// k..0). All state is uint16 (codes < 2^16 since an axis has at most 65536 pixels), so one SSE
-// register holds 8 pixels (OpenCV universal intrinsics).
+// the bit k of the smallest (OpenCV universal intrinsics, SSE2 baseline).
 template <typename T>
 inline cv::v_uint16x8 Load8(const T* p);
 template <>
@@ -73,22 +72,44 @@ inline cv::v_uint16x8 Load8<uint16_t>(const uint16_t* p) {
   return cv::v_load(p);
 }
 
+// Scalar tail shared by both input types.
+template <typename T>
+void GrayAxisTail(const T* const* frames, int nbits, int x0, int width, uint16_t* code, uint16_t* min1,
+                  uint16_t* min2, uint16_t* min_bit) {
+  for (int x = x0; x < width; ++x) {
+    uint32_t c_code = 0, c_min1 = 0xFFFF, c_min2 = 0xFFFF, c_bit = 0;
+    for (int b = 0; b < nbits; ++b) {
+      const int32_t pv = frames[2 * b][x], qv = frames[2 * b + 1][x];
+      const uint32_t c = static_cast<uint32_t>(pv > qv ? pv - qv : qv - pv);
+      c_code = (c_code << 1) | ((c_code & 1u) ^ (pv > qv ? 1u : 0u));
+      if (c < c_min1) c_bit = static_cast<uint32_t>(nbits - 1 - b);
+      c_min2 = std::min(c_min2, std::max(c_min1, c));
+      c_min1 = std::min(c_min1, c);
+    }
+    code[x] = static_cast<uint16_t>(c_code);
+    min1[x] = static_cast<uint16_t>(c_min1);
+    min2[x] = static_cast<uint16_t>(c_min2);
+    min_bit[x] = static_cast<uint16_t>(c_bit);
+  }
+}
+
+// 16-bit input: 8 pixels per register, all state uint16 (codes < 2^16: an axis has at most
+// 65536 pixels).
 template <typename T, bool kTrackMask>
 void GrayAxisRow(const T* const* frames, int nbits, int width, uint16_t* __restrict code,
-                 uint16_t* __restrict min1, uint16_t* __restrict min2, uint16_t* __restrict min_mask) {
+                 uint16_t* __restrict min1, uint16_t* __restrict min2, uint16_t* __restrict min_bit) {
   const int vec_end = width - width % 8;
+  const cv::v_uint16x8 one = cv::v_setall_u16(1);
   for (int x = 0; x < vec_end; x += 8) {
     cv::v_uint16x8 c_code = cv::v_setzero_u16(), c_min1 = cv::v_setall_u16(0xFFFF), c_min2 = c_min1;
-    cv::v_uint16x8 c_mask = cv::v_setzero_u16();
-    const cv::v_uint16x8 one = cv::v_setall_u16(1);
+    cv::v_uint16x8 c_bit = cv::v_setzero_u16();
     for (int b = 0; b < nbits; ++b) {
       const cv::v_uint16x8 p = Load8<T>(frames[2 * b] + x), q = Load8<T>(frames[2 * b + 1] + x);
       const cv::v_uint16x8 g = (p > q) & one;
       const cv::v_uint16x8 c = cv::v_absdiff(p, q);
       c_code = cv::v_shl<1>(c_code) | ((c_code & one) ^ g);  // binary bit = previous binary XOR Gray
       if constexpr (kTrackMask) {
-        const cv::v_uint16x8 lower = c < c_min1;
-        c_mask = cv::v_select(lower, cv::v_setall_u16(static_cast<uint16_t>((2 << (nbits - 1 - b)) - 1)), c_mask);
+        c_bit = cv::v_select(c < c_min1, cv::v_setall_u16(static_cast<uint16_t>(nbits - 1 - b)), c_bit);
       }
       c_min2 = cv::v_min(c_min2, cv::v_max(c_min1, c));
       c_min1 = cv::v_min(c_min1, c);
@@ -96,22 +117,64 @@ void GrayAxisRow(const T* const* frames, int nbits, int width, uint16_t* __restr
     cv::v_store(code + x, c_code);
     cv::v_store(min1 + x, c_min1);
     cv::v_store(min2 + x, c_min2);
-    if constexpr (kTrackMask) cv::v_store(min_mask + x, c_mask);
+    if constexpr (kTrackMask) cv::v_store(min_bit + x, c_bit);
   }
-  for (int x = vec_end; x < width; ++x) {
-    uint32_t c_code = 0, c_min1 = 0xFFFF, c_min2 = 0xFFFF, c_mask = 0;
+  GrayAxisTail(frames, nbits, vec_end, width, code, min1, min2, min_bit);
+}
+
+// 8-bit input: 16 pixels per register with byte arithmetic (saturating differences give the
+// comparison and the contrast); the code is built as a high and a low byte.
+template <bool kTrackMask>
+void GrayAxisRow8(const uint8_t* const* frames, int nbits, int width, uint16_t* __restrict code,
+                  uint16_t* __restrict min1, uint16_t* __restrict min2, uint16_t* __restrict min_bit) {
+  const int vec_end = width - width % 16;
+  const cv::v_uint8x16 one = cv::v_setall_u8(1), zero = cv::v_setzero_u8();
+  for (int x = 0; x < vec_end; x += 16) {
+    cv::v_uint8x16 hi = zero, lo = zero, bin = zero, c_min1 = cv::v_setall_u8(0xFF), c_min2 = c_min1, c_bit = zero;
     for (int b = 0; b < nbits; ++b) {
-      const int32_t pv = frames[2 * b][x], qv = frames[2 * b + 1][x];
-      const uint32_t c = static_cast<uint32_t>(pv > qv ? pv - qv : qv - pv);
-      c_code = (c_code << 1) | ((c_code & 1u) ^ (pv > qv ? 1u : 0u));
-      if (c < c_min1) c_mask = (2u << (nbits - 1 - b)) - 1;
-      c_min2 = std::min(c_min2, std::max(c_min1, c));
-      c_min1 = std::min(c_min1, c);
+      const cv::v_uint8x16 p = cv::v_load(frames[2 * b] + x), q = cv::v_load(frames[2 * b + 1] + x);
+      const cv::v_uint8x16 pq = p - q, qp = q - p;  // saturating: pq > 0 exactly where p > q
+      const cv::v_uint8x16 c = pq | qp;             // |p - q|
+      bin = bin ^ ~(pq == zero);                    // binary bit = previous binary XOR Gray bit
+      const int k = nbits - 1 - b;
+      if (k >= 8) {
+        hi = cv::v_add_wrap(hi, hi) | (bin & one);
+      } else {
+        lo = cv::v_add_wrap(lo, lo) | (bin & one);
+      }
+      if constexpr (kTrackMask) c_bit = cv::v_select(c < c_min1, cv::v_setall_u8(static_cast<uint8_t>(k)), c_bit);
+      c_min2 = cv::v_min(c_min2, cv::v_max(c_min1, c));
+      c_min1 = cv::v_min(c_min1, c);
     }
-    code[x] = static_cast<uint16_t>(c_code);
-    min1[x] = static_cast<uint16_t>(c_min1);
-    min2[x] = static_cast<uint16_t>(c_min2);
-    min_mask[x] = static_cast<uint16_t>(c_mask);
+    cv::v_uint16x8 h0, h1, l0, l1;
+    cv::v_expand(hi, h0, h1);
+    cv::v_expand(lo, l0, l1);
+    cv::v_store(code + x, cv::v_shl<8>(h0) | l0);
+    cv::v_store(code + x + 8, cv::v_shl<8>(h1) | l1);
+    // Contrast 255 is "no bit seen yet" only when nbits == 0, which a spec never has.
+    cv::v_expand(c_min1, l0, l1);
+    cv::v_store(min1 + x, l0);
+    cv::v_store(min1 + x + 8, l1);
+    cv::v_expand(c_min2, l0, l1);
+    cv::v_store(min2 + x, l0);
+    cv::v_store(min2 + x + 8, l1);
+    if constexpr (kTrackMask) {
+      cv::v_expand(c_bit, l0, l1);
+      cv::v_store(min_bit + x, l0);
+      cv::v_store(min_bit + x + 8, l1);
+    }
+  }
+  GrayAxisTail(frames, nbits, vec_end, width, code, min1, min2, min_bit);
+}
+
+// Dispatch: byte kernel for 8-bit input.
+template <typename T, bool kTrackMask>
+void GrayAxis(const T* const* frames, int nbits, int width, uint16_t* code, uint16_t* min1, uint16_t* min2,
+              uint16_t* min_bit) {
+  if constexpr (std::is_same_v<T, uint8_t>) {
+    GrayAxisRow8<kTrackMask>(frames, nbits, width, code, min1, min2, min_bit);
+  } else {
+    GrayAxisRow<T, kTrackMask>(frames, nbits, width, code, min1, min2, min_bit);
   }
 }
 
@@ -171,7 +234,7 @@ void PhaseRow(const T* const* frames, int steps, const float* sn, const float* c
 struct Scratch {
   explicit Scratch(int width) : w(static_cast<size_t>(width)) {}
   size_t w;
-  std::vector<uint16_t> code[2], min1, min2, min_mask;
+  std::vector<uint16_t> code[2], min1, min2, min_bit;
   std::vector<int32_t> maxv;
   std::vector<float> sum_s, sum_c, cycles[3], modulation[3], coord[2], quality;
   std::vector<uint8_t> flags;
@@ -204,7 +267,7 @@ class Decoder {
     Scratch s(width);
     s.U16(s.min1);
     s.U16(s.min2);
-    s.U16(s.min_mask);
+    s.U16(s.min_bit);
     s.Int(s.maxv);
     s.Float(s.quality);
     s.flags.resize(s.w);
@@ -254,7 +317,7 @@ class Decoder {
     const T* __restrict black = rows[static_cast<size_t>(spec_.BlackFrameIndex())];
     const uint16_t* __restrict min1 = s.min1.data();
     const uint16_t* __restrict min2 = s.min2.data();
-    const uint16_t* __restrict min_mask = s.min_mask.data();
+    const uint16_t* __restrict min_bit = s.min_bit.data();
     uint8_t* __restrict flags = s.flags.data();
     float* __restrict quality = s.quality.data();
     const int32_t saturation = levels_.saturation;
@@ -273,11 +336,11 @@ class Decoder {
       if (!spec_.Codes(a)) continue;
       GatherRows(rows, gray_[a], frames);
       if (edges) {
-        GrayAxisRow<T, true>(frames.data(), spec_.GrayBits(a), width, s.code[a].data(), s.min1.data(),
-                             s.min2.data(), s.min_mask.data());
+        GrayAxis<T, true>(frames.data(), spec_.GrayBits(a), width, s.code[a].data(), s.min1.data(),
+                          s.min2.data(), s.min_bit.data());
       } else {
-        GrayAxisRow<T, false>(frames.data(), spec_.GrayBits(a), width, s.code[a].data(), s.min1.data(),
-                              s.min2.data(), s.min_mask.data());
+        GrayAxis<T, false>(frames.data(), spec_.GrayBits(a), width, s.code[a].data(), s.min1.data(),
+                           s.min2.data(), s.min_bit.data());
       }
       const int32_t size = spec_.AxisSize(a);
       const uint16_t* __restrict code = s.code[a].data();
@@ -287,7 +350,8 @@ class Decoder {
         const int32_t c = code[x];
         // One unreadable bit whose flip gives the adjacent code: the pixel sees the edge between
         // the two projector pixels, at c +- 0.5.
-        const int32_t other = c ^ static_cast<int32_t>(min_mask[x]);
+        // Flipping Gray bit k flips binary bits k..0.
+        const int32_t other = c ^ ((2 << min_bit[x]) - 1);
         const int32_t m1 = min1[x], m2 = min2[x];
         const bool edge = edges & (m1 < threshold) & (m2 >= threshold) & ((c - other) * (c - other) == 1);
         const bool low = (m1 < threshold) & !edge;
@@ -317,8 +381,8 @@ class Decoder {
                   s.sum_c.data(), s.cycles[0].data(), s.modulation[0].data(), maxv);
       GatherRows(rows, gray_[a], frames);
       const int nbits = spec_.GrayBits(a);
-      GrayAxisRow<T, false>(frames.data(), nbits, width, s.code[a].data(), s.min1.data(), s.min2.data(),
-                            s.min_mask.data());
+      GrayAxis<T, false>(frames.data(), nbits, width, s.code[a].data(), s.min1.data(), s.min2.data(),
+                         s.min_bit.data());
       const uint16_t* __restrict h = s.code[a].data();
       const float* __restrict f = s.cycles[0].data();
       const float* __restrict mod = s.modulation[0].data();
