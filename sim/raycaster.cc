@@ -386,6 +386,8 @@ void RayCaster::Intersect(RayPacket& p, TraceMode mode, bool coherent) const {
 void RayCaster::Occluded(RayPacket& p, TraceMode mode) const {
   RTCIntersectContext context;
   rtcInitIntersectContext(&context);
+  // Shadow rays of neighbouring pixels start close together and all end at the projector's centre.
+  context.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
   if (mode == TraceMode::kPacket16) {
     alignas(64) RTCRay16 r;
     alignas(64) int valid[RayPacket::kSize];
