@@ -15,12 +15,13 @@ namespace slshadow::app {
 
 const std::vector<Command>& Commands() {
   static const std::vector<Command> commands = {
+      {"demo", "the main job: simulate the demo rig scanning the demo part, reconstruct both modes, compare with truth", RunDemo},
+      {"simulate", "virtual scan: ray-cast a rig over a scene into an ImageSet + ground truth (simulate --rig --scene --patterns --out)", RunSimulate},
+      {"patterns", "pattern sequences: write projector images of a spec (patterns generate SPEC --out DIR), describe one", RunPatterns},
+      {"reconstruct", "decode an ImageSet and triangulate a point cloud (reconstruct IMAGESET --out CLOUD.ply [--mode projector|stereo])", RunReconstruct},
+      {"compare", "compare a cloud against a reference mesh or cloud: registration, deviations, report folder", RunCompare},
       {"calibrate", "calibrate cameras, stereo, projector or rig from board images (calibrate camera|stereo|projector|rig|import|export)", RunCalibrate},
       {"rig", "inspect a rig file: cameras, projector, baselines, angles, overlap (rig show RIG.yaml)", RunRig},
-      {"reconstruct", "decode an ImageSet and triangulate a point cloud (reconstruct IMAGESET --out CLOUD.ply [--mode projector|stereo])", RunReconstruct},
-      {"patterns", "pattern sequences: write projector images of a spec (patterns generate SPEC --out DIR), describe one", RunPatterns},
-      {"compare", "compare a cloud against a reference mesh or cloud: registration, deviations, report folder", RunCompare},
-      {"simulate", "virtual scan: ray-cast a rig over a scene into an ImageSet + ground truth (simulate --rig --scene --patterns --out)", RunSimulate},
   };
   return commands;
 }

@@ -24,9 +24,10 @@ int Main(int argc, char** argv);
 // Subcommands.
 int RunRig(int argc, char** argv);
 int RunCalibrate(int argc, char** argv);
-int RunReconstruct(int argc, char** argv);
 int RunPatterns(int argc, char** argv);
+int RunReconstruct(int argc, char** argv);
 int RunCompare(int argc, char** argv);
 int RunSimulate(int argc, char** argv);
+int RunDemo(int argc, char** argv);
 
 }  // namespace slshadow::app

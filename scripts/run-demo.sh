@@ -6,4 +6,4 @@ bash scripts/setup.sh
 BUILD_DIR=${SLSHADOW_BUILD_DIR:-build}
 cmake -S . -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=Release
 cmake --build "$BUILD_DIR" -j2 --target slshadow
-"$BUILD_DIR/apps/slshadow" rig show config/demo/rig.yaml
+"$BUILD_DIR/apps/slshadow" demo --out "${SLSHADOW_DEMO_OUT:-out/demo}"

@@ -1,0 +1,61 @@
+#include "apps/demo.h"
+
+#include <fstream>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "core/error.h"
+#include "core/image_set.h"
+#include "tests/testing/temp_dir.h"
+
+namespace slshadow::app {
+namespace {
+
+// The whole digital-shadow loop on the embedded demo, checked against the accuracy goal:
+// on the noise-free demo fewer than 0.05 % of points lie beyond 0.25 mm, in both modes.
+TEST(Demo, NoiseFreeDemoMeetsTheAccuracyGoalInBothModes) {
+  testing::TempDir dir;
+  DemoOptions options;
+  options.out_dir = dir / "demo";
+  options.encoding = "pgm";
+  const DemoResult result = RunDemoJob(options);
+  ASSERT_EQ(result.modes.size(), 2u);
+  for (const auto& m : result.modes) {
+    SCOPED_TRACE(m.mode);
+    EXPECT_GT(m.points, 1000000u);
+    EXPECT_LT(m.outlier_fraction, 0.0005);
+    EXPECT_LT(m.rms_mm, 0.05);
+    EXPECT_GT(m.visible_coverage, 0.9);
+    EXPECT_GT(m.coverage, 0.3);  // the part's bottom and walls facing away are never seen
+    std::ifstream in(options.out_dir / m.mode / "report.json");
+    ASSERT_TRUE(in) << "no report.json for " << m.mode;
+    const auto report = nlohmann::json::parse(in);
+    EXPECT_EQ(report["c2c"]["count"].get<size_t>(), m.points);
+    EXPECT_TRUE(std::filesystem::exists(options.out_dir / m.mode / "histogram.png"));
+  }
+  EXPECT_GE(result.stages.size(), 8u);
+  const ImageSet scan = ImageSet::Open(options.out_dir / "scan");
+  EXPECT_EQ(scan.CameraNames(), (std::vector<std::string>{"left", "right"}));
+  EXPECT_EQ(scan.PatternCount(), 38);
+  EXPECT_EQ(scan.records().front().source, ImageSource::kVirtual);
+  EXPECT_TRUE(std::filesystem::exists(options.out_dir / "ground_truth.ply"));
+  EXPECT_TRUE(std::filesystem::exists(options.out_dir / "demo.json"));
+}
+
+TEST(Demo, RefusesToReplaceAFolderThatIsNotADemoOutput) {
+  testing::TempDir dir;
+  std::filesystem::create_directories(dir / "mine");
+  { std::ofstream(dir / "mine" / "notes.txt") << "keep me"; }
+  DemoOptions options;
+  options.out_dir = dir / "mine";
+  EXPECT_THROW(RunDemoJob(options), Error);
+  EXPECT_TRUE(std::filesystem::exists(dir / "mine" / "notes.txt"));
+  options.out_dir = dir / "x";
+  options.method = "guess";
+  EXPECT_THROW(RunDemoJob(options), Error);
+  EXPECT_FALSE(std::filesystem::exists(dir / "x"));
+}
+
+}  // namespace
+}  // namespace slshadow::app
