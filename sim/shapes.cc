@@ -262,4 +262,28 @@ BoardScene MakeCheckerboardScene(int inner_corners_x, int inner_corners_y, doubl
   return out;
 }
 
+Scene MakeImageBoardScene(const cv::Mat& image, double pixel_mm, const Rigid3d& rig_from_board, double margin_mm,
+                          double light) {
+  SLSHADOW_THROW_IF(image.empty() || image.type() != CV_8UC1, "image board: need a non-empty 8-bit grey image (got type ",
+                    image.type(), ")");
+  SLSHADOW_THROW_IF(!(pixel_mm > 0) || !(margin_mm >= 0), "image board: need pixel_mm > 0 and margin_mm >= 0 (got ", pixel_mm,
+                    ", ", margin_mm, ")");
+  Scene scene;
+  scene.name = "image_board";
+  SceneObject board;
+  board.name = "board";
+  board.type = ObjectType::kPlane;
+  board.albedo.kind = Albedo::Kind::kImage;
+  board.albedo.image = image.clone();
+  board.albedo.pixel_mm = pixel_mm;
+  board.albedo.light = light;
+  const double w = image.cols * pixel_mm, h = image.rows * pixel_mm;
+  board.size_mm = Eigen::Vector3d(w + 2 * margin_mm, h + 2 * margin_mm, 0);
+  const Eigen::Vector3d center_in_board(w / 2, h / 2, 0);
+  board.rig_from_object = rig_from_board * Rigid3d(Eigen::Quaterniond::Identity(), center_in_board);
+  board.albedo_offset_mm = Eigen::Vector2d(center_in_board.x(), center_in_board.y());
+  scene.objects.push_back(board);
+  return scene;
+}
+
 }  // namespace slshadow

@@ -96,5 +96,26 @@ TEST(CheckerboardSceneTest, CornersAndSquaresWhereTheCameraSeesThem) {
   EXPECT_GT(checked, 30);
 }
 
+// An image printed on a plane: the camera sees the image's pixels where they project.
+TEST(ImageBoardSceneTest, CameraSeesThePrintedImage) {
+  const Rig rig = testing::SmallDemoRig(2);
+  cv::Mat image(60, 90, CV_8UC1, cv::Scalar(230));
+  image(cv::Rect(30, 20, 30, 20)).setTo(10);  // a dark block in the middle
+  const Rigid3d rig_from_board = testing::Pose(Eigen::Vector3d(0.05, 0.1, 0), Eigen::Vector3d(-90, -60, 500));
+  const Scene scene = MakeImageBoardScene(image, 2.0, rig_from_board);
+  const RayCaster caster(scene);
+  const GeometryBuffer g = TraceGeometry(caster, rig, 0, ComputeCameraRays(rig.cameras[0].model, 1));
+  const cv::Mat img = PatternRenderer(scene, rig, 0, g).Render(testing::FlatProjectorImage(rig, 255), 0);
+  auto value_at = [&](double u, double v) {
+    // Board coordinates of image pixel centre (u, v).
+    const auto px = rig.cameras[0].model.Project(rig_from_board * Eigen::Vector3d((u + 0.5) * 2.0, (v + 0.5) * 2.0, 0));
+    EXPECT_TRUE(px && rig.cameras[0].model.IsInImage(*px));
+    return img.at<uint8_t>(static_cast<int>(std::lround(px->y())), static_cast<int>(std::lround(px->x())));
+  };
+  EXPECT_LT(value_at(45, 30), 15);   // inside the dark block
+  EXPECT_GT(value_at(10, 10), 100);  // light part of the image
+  EXPECT_GT(value_at(-3, 30), 100);  // margin
+}
+
 }  // namespace
 }  // namespace slshadow
