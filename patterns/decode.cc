@@ -441,6 +441,7 @@ class Decoder {
       const float size = static_cast<float>(spec_.AxisSize(a));
       const float centre = 0.5f * (size - 1.0f);  // middle of the decodable range [-0.5, S - 0.5]
       const float lo = -1.0f, hi = size;
+      const float inv_p12 = 1.0f / p12, inv_p1 = 1.0f / p1, centre_cycles = centre / p123;
       #pragma omp simd
       for (int x = 0; x < width; ++x) {
         float f12 = f1[x] - f2[x];
@@ -450,13 +451,13 @@ class Decoder {
         float f123 = f12 - f23;
         f123 -= Floor(f123);
         // Absolute coordinate from the longest beat, centred on the axis.
-        float t = f123 - centre / p123;
+        float t = f123 - centre_cycles;
         t -= Round(t);
         const float x123 = centre + p123 * t;
-        const float u12 = x123 / p12 - f12;
+        const float u12 = x123 * inv_p12 - f12;
         const float k12 = Round(u12);
         const float x12 = p12 * (f12 + k12);
-        const float u1 = x12 / p1 - f1[x];
+        const float u1 = x12 * inv_p1 - f1[x];
         const float k1 = Round(u1);
         const float xc = p1 * (f1[x] + k1);
         coord[x] = xc;
