@@ -59,12 +59,15 @@ struct ReconstructOptions {
   bool filter_depth_discontinuities = true;
   double max_depth_jump_footprints = 8.0;
   int discontinuity_dilation_px = 1;
-  // Statistical outlier removal (filters.h).
+  // Statistical outlier removal (filters.h): RMS distance to the 4 nearest of the 8 grid
+  // neighbours, in footprints (a surface tilted by a to the line of sight keeps two neighbours at
+  // ~1 footprint and two at ~1 / cos(a)), rejected above max(mean + ratio * std, floor): an
+  // off-surface spike has no near neighbour, a steep surface (< ~78 deg) stays.
   bool filter_outliers = true;
   int outlier_window_radius_px = 1;
-  int outlier_neighbors = 8;
+  int outlier_neighbors = 4;
   double outlier_std_ratio = 4.0;
-  double outlier_min_distance_footprints = 3.0;
+  double outlier_min_distance_footprints = 4.0;
   // Normals from the organised grid, oriented toward the reference camera.
   bool estimate_normals = true;
 

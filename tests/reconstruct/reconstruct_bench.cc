@@ -8,6 +8,8 @@
 
 #include <map>
 
+#include <opencv2/calib3d.hpp>
+
 #include "patterns/synthetic.h"
 #include "reconstruct/ray_cache.h"
 #include "reconstruct/reconstruct_image_set.h"
@@ -89,6 +91,72 @@ void BM_DecodeAndReconstruct(benchmark::State& state) {
   state.SetLabel(ToString(options.mode));
 }
 
+// Peer: OpenCV on the same correspondences of both cameras (valid decoded pixels): undistort the
+// camera and projector points (cv::undistortPoints) and triangulate them (cv::triangulatePoints,
+// linear DLT), no gates, filters or normals.
+struct OpenCvInput {
+  std::vector<cv::Mat> cam_pts, proj_pts;  // CV_64FC2, one per camera
+  std::vector<cv::Mat> k_cam, d_cam, p_cam;
+  cv::Mat k_proj, d_proj, p_proj;
+};
+
+const OpenCvInput& GetOpenCvInput() {
+  static const OpenCvInput in = [] {
+    const Fixture& f = GetFixture();
+    OpenCvInput in;
+    auto k = [](const CameraModel& m) -> cv::Mat { return cv::Mat((cv::Mat_<double>(3, 3) << m.fx(), 0, m.cx(), 0, m.fy(), m.cy(), 0, 0, 1)); };
+    auto d = [](const CameraModel& m) -> cv::Mat {
+      return cv::Mat((cv::Mat_<double>(1, 5) << m.params[4], m.params[5], m.params[6], m.params[7], m.params[8]));
+    };
+    auto p = [](const Rigid3d& pose) {
+      cv::Mat out(3, 4, CV_64F);
+      const Eigen::Matrix4d m = pose.ToMatrix();
+      for (int r = 0; r < 3; ++r) {
+        for (int c = 0; c < 4; ++c) out.at<double>(r, c) = m(r, c);
+      }
+      return out;
+    };
+    in.k_proj = k(f.rig.projector->model);
+    in.d_proj = d(f.rig.projector->model);
+    in.p_proj = p(f.rig.projector->cam_from_rig);
+    for (const auto& cam : f.rig.cameras) {
+      const ProjectorMap& map = f.maps.at(cam.name);
+      std::vector<cv::Point2d> c, q;
+      for (int v = 0; v < map.height(); ++v) {
+        for (int u = 0; u < map.width(); ++u) {
+          if (map.status.at<uint8_t>(v, u) != 0) continue;
+          c.emplace_back(u, v);
+          q.emplace_back(map.proj_x.at<float>(v, u), map.proj_y.at<float>(v, u));
+        }
+      }
+      in.cam_pts.push_back(cv::Mat(c, true).reshape(2, 1));
+      in.proj_pts.push_back(cv::Mat(q, true).reshape(2, 1));
+      in.k_cam.push_back(k(cam.model));
+      in.d_cam.push_back(d(cam.model));
+      in.p_cam.push_back(p(cam.cam_from_rig));
+    }
+    return in;
+  }();
+  return in;
+}
+
+void BM_OpenCvUndistortTriangulate2Cameras(benchmark::State& state) {
+  const OpenCvInput& in = GetOpenCvInput();
+  size_t points = 0;
+  for (auto _ : state) {
+    points = 0;
+    for (size_t c = 0; c < in.cam_pts.size(); ++c) {
+      cv::Mat uc, up, x;
+      cv::undistortPoints(in.cam_pts[c], uc, in.k_cam[c], in.d_cam[c]);
+      cv::undistortPoints(in.proj_pts[c], up, in.k_proj, in.d_proj);
+      cv::triangulatePoints(in.p_cam[c], in.p_proj, uc, up, x);
+      points += static_cast<size_t>(x.cols);
+      benchmark::DoNotOptimize(x.data);
+    }
+  }
+  state.counters["points"] = static_cast<double>(points);
+}
+
 // First use of a camera model: per-pixel undistortion of the whole image (cached afterwards).
 void BM_RayGridColdCache(benchmark::State& state) {
   const Fixture& f = GetFixture();
@@ -99,6 +167,7 @@ BENCHMARK(BM_Decode2Cameras)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTi
 BENCHMARK(BM_TriangulateProjector2Cameras)->Arg(0)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 BENCHMARK(BM_TriangulateStereo)->Arg(0)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 BENCHMARK(BM_DecodeAndReconstruct)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
+BENCHMARK(BM_OpenCvUndistortTriangulate2Cameras)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 BENCHMARK(BM_RayGridColdCache)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 
 }  // namespace
