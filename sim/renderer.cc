@@ -720,10 +720,12 @@ cv::Mat PatternRenderer::Quantize(const cv::Mat& irradiance, int pattern_index) 
           const uint64_t r1 = SplitMix64(stream + static_cast<uint64_t>(y) * w + x);
           const uint64_t r2 = SplitMix64(r1);
           // Box-Muller: two independent standard normals.
-          const double u1 = (static_cast<double>(r1 >> 11) + 0.5) * 0x1.0p-53;
-          const double u2 = static_cast<double>(r2 >> 11) * 0x1.0p-53;
-          const double rad = std::sqrt(-2.0 * std::log(u1));
-          const double n1 = rad * std::cos(2 * M_PI * u2), n2 = rad * std::sin(2 * M_PI * u2);
+          // (single precision: 24-bit uniforms are plenty for sensor noise, and ~2x faster)
+          const float u1 = (static_cast<float>(r1 >> 40) + 0.5f) * 0x1.0p-24f;
+          const float u2 = static_cast<float>(r2 >> 40) * 0x1.0p-24f;
+          const float rad = std::sqrt(-2.0f * std::log(u1));
+          const float angle = 6.2831853f * u2;
+          const double n1 = rad * std::cos(angle), n2 = rad * std::sin(angle);
           const double e = std::min(mu_e + std::sqrt(mu_e) * n1 + l.read_noise_e * n2, l.full_well_e);
           dn = e * k_dn_per_e;
         }
