@@ -61,6 +61,23 @@ struct DecodeOptions {
 ProjectorMap DecodePatterns(const PatternSpec& spec, const std::vector<cv::Mat>& camera_images,
                             const DecodeOptions& options = {});
 
+// Direct and global light (Nayar, Krishnan, Grossberg, Raskar, SIGGRAPH 2006): under a
+// high-frequency pattern lighting half the scene, a pixel sees L+ = d + g/2 when its own patch is
+// lit and L- = g/2 when it is dark, so d = L+ - L- and g = 2 L-. Per camera pixel, in input grey
+// levels (CV_32FC1):
+//   kGrayCode: L+ / L- = max / min over the pattern and inverse frames of the `fine_bits` least
+//              significant bits of every coded axis (stripes 2, 4, ... projector px wide), and
+//              the black frame is subtracted first (ambient light is neither direct nor global).
+//   phase codecs: from the finest period of the first coded axis, d = 2 B' and g = 2 (A - B'),
+//              A the mean level; no black frame, so g includes ambient light.
+// Valid where the global light varies slowly over the pattern period. Throws like DecodePatterns.
+struct DirectGlobal {
+  cv::Mat direct;  // CV_32FC1
+  cv::Mat global;  // CV_32FC1, >= 0
+};
+DirectGlobal SeparateDirectGlobal(const PatternSpec& spec, const std::vector<cv::Mat>& camera_images,
+                                  int fine_bits = 2);
+
 // A fast atan2 in cycles: atan2(y, x) / (2 pi) wrapped to [0, 1); absolute error < 2e-6 cycles.
 // Exposed for tests.
 float Atan2Cycles(float y, float x);
