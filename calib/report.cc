@@ -112,7 +112,7 @@ void ResidualChart(const std::filesystem::path& path, const CalibrationInput& in
   pls->col0(1);
   char note[128];
   std::snprintf(note, sizeof(note), "95%% of residuals below %.3f px", p95);
-  pls->mtex("t", 0.5, 1.0, 1.0, note);
+  pls->mtex("t", -1.5, 0.98, 1.0, note);
 }
 
 void MapChart(const std::filesystem::path& path, const PixelMap& map, int width, int height, const std::string& title,

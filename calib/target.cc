@@ -1,6 +1,7 @@
 #include "calib/target.h"
 
 #include <algorithm>
+#include <cmath>
 #include <utility>
 
 #include <opencv2/aruco/charuco.hpp>
@@ -75,6 +76,19 @@ std::string Hint(const TargetDetection& d) {
   }
   if (d.mean_grey < 20) return " (image very dark: raise the exposure or the light)";
   return " (is the whole board inside the image, in focus, with the configured size?)";
+}
+
+// Saturated share inside the convex hull of the detected points.
+void SaturationInBoard(const cv::Mat& gray, const TargetSpec& spec, TargetDetection* d) {
+  std::vector<cv::Point> pts, hull;
+  for (const auto& p : d->pixels_px) pts.emplace_back(static_cast<int>(std::lround(p.x())), static_cast<int>(std::lround(p.y())));
+  if (pts.size() < 3) return;
+  cv::convexHull(pts, hull);
+  cv::Mat mask(gray.size(), CV_8UC1, cv::Scalar(0));
+  cv::fillConvexPoly(mask, hull, cv::Scalar(255));
+  const int area = cv::countNonZero(mask);
+  if (area == 0) return;
+  d->saturated_fraction = static_cast<double>(cv::countNonZero((gray >= spec.saturation_level) & mask)) / area;
 }
 
 }  // namespace
@@ -262,6 +276,7 @@ TargetDetection DetectTarget(const TargetSpec& spec, const cv::Mat& image) {
         d.pixels_px.emplace_back(charuco_corners[i].x, charuco_corners[i].y);
         d.point_ids.push_back(charuco_ids[i]);
       }
+      SaturationInBoard(gray, spec, &d);
       return d;
     }
   }
@@ -270,6 +285,7 @@ TargetDetection DetectTarget(const TargetSpec& spec, const cv::Mat& image) {
     d.pixels_px.emplace_back(corners[i].x, corners[i].y);
     d.point_ids.push_back(static_cast<int>(i));
   }
+  SaturationInBoard(gray, spec, &d);
   return d;
 }
 

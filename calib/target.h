@@ -68,7 +68,9 @@ struct TargetDetection {
   int height = 0;
   std::vector<Eigen::Vector2d> pixels_px;  // detected points (OpenCV pixel convention)
   std::vector<int> point_ids;              // index into BoardPoints() for each detected point
-  double saturated_fraction = 0;  // share of pixels at or above spec.saturation_level
+  // Share of pixels at or above spec.saturation_level: inside the convex hull of the detected
+  // points when found (what biases corners), else over the whole image.
+  double saturated_fraction = 0;
   double mean_grey = 0;           // on the 8-bit scale
 };
 

@@ -79,6 +79,19 @@ TEST(Target, ChessboardBothDetectorsFindWarpedCornersSubPixel) {
   }
 }
 
+TEST(Target, SaturationIsMeasuredInsideTheBoard) {
+  const cv::Mat bright = Warp(RenderChessboard(9, 6, 40), kHom, cv::Size(640, 480));  // white squares at 255
+  cv::Mat dim;
+  bright.convertTo(dim, CV_8U, 0.7, 20);  // 20..198: nothing saturated
+  const TargetSpec spec = Chessboard(9, 6, 25, ChessboardDetector::kSectorBased);
+  const TargetDetection b = DetectTarget(spec, bright);
+  const TargetDetection d = DetectTarget(spec, dim);
+  ASSERT_TRUE(b.found && d.found);
+  EXPECT_GT(b.saturated_fraction, 0.3);  // about half the board is white paper at full scale
+  EXPECT_LT(b.saturated_fraction, 0.7);
+  EXPECT_EQ(d.saturated_fraction, 0.0);
+}
+
 TEST(Target, NotFoundSaysWhy) {
   const TargetSpec spec = Chessboard(9, 6, 25, ChessboardDetector::kSectorBased);
   const TargetDetection blank = DetectTarget(spec, cv::Mat(480, 640, CV_8UC1, cv::Scalar(128)));
