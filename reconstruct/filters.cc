@@ -88,36 +88,40 @@ int64_t FilterStatisticalOutliers(DenseGrid& grid, int window_radius_px, int nei
   const double inf = std::numeric_limits<double>::infinity();
   std::vector<double> score(grid.reason.size(), -1.0);  // -1: not an accepted cell
   cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
-    std::vector<double> d2;
-    d2.reserve(static_cast<size_t>((2 * r + 1) * (2 * r + 1)));
+    // The k smallest squared distances so far, ascending (insertion: k is small; no allocation
+    // per cell).
+    std::vector<double> best(static_cast<size_t>(k));
     for (int v = rows.start; v < rows.end; ++v) {
       const int v0 = std::max(0, v - r), v1 = std::min(h - 1, v + r);
       for (int u = 0; u < w; ++u) {
         const size_t i = grid.Index(u, v);
         if (!grid.Accepted(i)) continue;
-        d2.clear();
         const Eigen::Vector3d& p = grid.point_in_rig[i];
         const int u0 = std::max(0, u - r), u1 = std::min(w - 1, u + r);
+        int m = 0;
         for (int vn = v0; vn <= v1; ++vn) {
           const size_t row = grid.Index(0, vn);
           for (int un = u0; un <= u1; ++un) {
             const size_t j = row + static_cast<size_t>(un);
             if (j == i || grid.reason[j] != kAccepted) continue;
-            d2.push_back((grid.point_in_rig[j] - p).squaredNorm());
+            const double d = (grid.point_in_rig[j] - p).squaredNorm();
+            if (m == k && d >= best[static_cast<size_t>(k - 1)]) continue;
+            int pos = m < k ? m++ : k - 1;
+            while (pos > 0 && best[static_cast<size_t>(pos - 1)] > d) {
+              best[static_cast<size_t>(pos)] = best[static_cast<size_t>(pos - 1)];
+              --pos;
+            }
+            best[static_cast<size_t>(pos)] = d;
           }
         }
-        if (d2.empty()) {
+        if (m == 0) {
           score[i] = inf;
           continue;
         }
-        const size_t m = std::min(d2.size(), static_cast<size_t>(k));
-        if (m < d2.size()) std::nth_element(d2.begin(), d2.begin() + static_cast<std::ptrdiff_t>(m - 1), d2.end());
         double sum = 0;
-        for (size_t q = 0; q < m; ++q) sum += d2[q];
-        // RMS distance to the m nearest (in front after nth_element), in footprints (squared
-        // distances: one square root per cell).
-        score[i] = std::sqrt(sum / static_cast<double>(m) * (grid.focal_px * grid.focal_px) /
-                             (p - grid.viewpoint_in_rig).squaredNorm());
+        for (int q = 0; q < m; ++q) sum += best[static_cast<size_t>(q)];
+        // RMS distance to the m nearest, in footprints (one square root per cell).
+        score[i] = std::sqrt(sum / m * (grid.focal_px * grid.focal_px) / (p - grid.viewpoint_in_rig).squaredNorm());
       }
     }
   });
