@@ -21,6 +21,7 @@ const std::vector<Command>& Commands() {
       {"reconstruct", "decode an ImageSet and triangulate a point cloud (reconstruct IMAGESET --out CLOUD.ply [--mode projector|stereo])", RunReconstruct},
       {"compare", "compare a cloud against a reference mesh or cloud: registration, deviations, report folder", RunCompare},
       {"calibrate", "calibrate cameras, stereo, projector or rig from board images (calibrate camera|stereo|projector|rig|import|export)", RunCalibrate},
+      {"bench", "speed of simulate, decode, reconstruct and compare on the demo, with peers in the same run", RunBenchCommand},
       {"rig", "inspect a rig file: cameras, projector, baselines, angles, overlap (rig show RIG.yaml)", RunRig},
   };
   return commands;

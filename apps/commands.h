@@ -29,5 +29,6 @@ int RunReconstruct(int argc, char** argv);
 int RunCompare(int argc, char** argv);
 int RunSimulate(int argc, char** argv);
 int RunDemo(int argc, char** argv);
+int RunBenchCommand(int argc, char** argv);
 
 }  // namespace slshadow::app

@@ -228,7 +228,12 @@ DemoResult RunDemoJob(const DemoOptions& options) {
     const compare::CompareResult cmp = compare::Compare(rec.cloud, reference, compare_options, mode + " reconstruction");
     compare::ReportOptions report_options;
     report_options.view = compare::ViewCamera{image_set.rig().cameras[0].model, image_set.rig().cameras[0].cam_from_rig};
+    const StageMeasurement compared = meter.Stop();
     compare::WriteReport(staging / mode, cmp, report_options);
+    if (verbose) {
+      std::printf("%s\ncompare %.3f s wall (%.3f s CPU), then report %.3f s wall\n", cmp.Summary().c_str(),
+                  compared.wall_s, compared.cpu_s, meter.Stop().wall_s - compared.wall_s);
+    }
     DemoModeResult m;
     m.mode = mode;
     m.points = cmp.compared.size();

@@ -1,7 +1,7 @@
 # Third-party packages, all from Debian 12 (scripts/setup.sh installs them). Facts about their
 # Debian builds are in ../shared/DEVICE-MOCKS.md.
 find_package(Eigen3 3.4 REQUIRED NO_MODULE)
-find_package(OpenCV 4 REQUIRED COMPONENTS core imgproc imgcodecs calib3d)
+find_package(OpenCV 4 REQUIRED COMPONENTS core imgproc imgcodecs calib3d structured_light aruco)
 find_package(yaml-cpp REQUIRED)
 find_package(nlohmann_json 3 REQUIRED)
 find_package(TBB REQUIRED)

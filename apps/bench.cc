@@ -1,0 +1,201 @@
+#include "apps/bench.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <functional>
+
+#include <opencv2/structured_light.hpp>
+
+#include "apps/demo_config.h"
+#include "compare/compare.h"
+#include "core/config.h"
+#include "core/error.h"
+#include "core/rig.h"
+#include "core/stage_meter.h"
+#include "patterns/codec.h"
+#include "patterns/pattern_spec.h"
+#include "reconstruct/reconstruct.h"
+#include "sim/scene.h"
+#include "sim/simulate.h"
+
+namespace slshadow::app {
+namespace {
+
+struct Timing {
+  double wall_s = 0;
+  double cpu_s = 0;
+};
+
+// Runs `work` n times; returns the run with the median wall time.
+Timing Median(int n, const std::function<void()>& work) {
+  std::vector<Timing> runs;
+  for (int i = 0; i < n; ++i) {
+    const double cpu0 = ProcessCpuSeconds();
+    const auto t0 = std::chrono::steady_clock::now();
+    work();
+    runs.push_back({std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
+                    ProcessCpuSeconds() - cpu0});
+  }
+  std::sort(runs.begin(), runs.end(), [](const Timing& a, const Timing& b) { return a.wall_s < b.wall_s; });
+  return runs[runs.size() / 2];
+}
+
+BenchEntry MakeEntry(const std::string& name, const std::string& what) {
+  BenchEntry e;
+  e.name = name;
+  e.what = what;
+  return e;
+}
+
+bool Wanted(const BenchOptions& options, const std::string& name) {
+  return options.only.empty() || std::find(options.only.begin(), options.only.end(), name) != options.only.end();
+}
+
+}  // namespace
+
+void BenchOptions::Check() const {
+  SLSHADOW_THROW_IF(repetitions < 1 || repetitions > 100, "--repetitions: must be 1..100 (got ", repetitions, ")");
+  for (const auto& name : only) {
+    SLSHADOW_THROW_IF(name != "simulate" && name != "decode" && name != "reconstruct" && name != "compare",
+                      "--only: unknown entry '", name, "' (entries: simulate, decode, reconstruct, compare)");
+  }
+}
+
+std::vector<BenchEntry> RunBench(const BenchOptions& options) {
+  options.Check();
+  const Rig rig = RigFromConfig(ConfigNode::ParseYaml(kDemoRigYaml, "<embedded config/demo/rig.yaml>"));
+  const Scene scene = SceneFromConfig(ConfigNode::ParseYaml(kDemoSceneYaml, "<embedded config/demo/scene.yaml>"), ".");
+  const PatternSpec spec = PatternSpecFromConfig(ConfigNode::ParseYaml(kDemoPatternsYaml, "<embedded config/demo/patterns.yaml>"));
+  const std::vector<cv::Mat> projector_images = GeneratePatterns(spec);
+  const int reps = options.repetitions;
+  const double camera_mpix = rig.cameras[0].model.width * rig.cameras[0].model.height / 1e6;
+  std::vector<BenchEntry> entries;
+
+  std::vector<std::vector<cv::Mat>> images;
+  std::vector<GeometryBuffer> geometry;
+  {
+    BenchEntry e = MakeEntry("simulate", "render 2 cameras x " + std::to_string(spec.NumImages()) + " patterns, demo part");
+    SimulateSummary summary;
+    const Timing t = Median(Wanted(options, "simulate") ? reps : 1, [&] {
+      geometry.clear();
+      images = RenderScan(scene, rig, projector_images, &geometry, &summary);
+    });
+    if (Wanted(options, "simulate")) {
+      e.median_wall_s = t.wall_s;
+      e.cpu_s = t.cpu_s;
+      e.throughput = static_cast<double>(summary.primary_rays + summary.shadow_rays) / 1e6 / summary.geometry_seconds;
+      e.unit = "Mrays/s (geometry)";
+      entries.push_back(e);
+    }
+  }
+
+  const std::string left = rig.cameras[0].name, right = rig.cameras[1].name;
+  std::vector<ProjectorMap> maps(2);
+  if (Wanted(options, "decode")) {
+    BenchEntry e = MakeEntry("decode", "DecodePatterns, 2 cameras, " + std::to_string(spec.NumImages()) + " images each");
+    const Timing t = Median(reps, [&] {
+      for (int c = 0; c < 2; ++c) maps[c] = DecodePatterns(spec, images[c]);
+    });
+    e.median_wall_s = t.wall_s;
+    e.cpu_s = t.cpu_s;
+    e.throughput = 2 * camera_mpix / t.wall_s;
+    e.unit = "MPix/s";
+    if (options.with_opencv) {
+      // The same camera viewing OpenCV's own Gray-code sequence, rendered by the simulator.
+      PatternSpec gray;
+      gray.kind = PatternKind::kGrayCode;
+      gray.projector_width = spec.projector_width;
+      gray.projector_height = spec.projector_height;
+      gray.opencv_order = true;
+      const auto gray_images = RenderScan(scene, rig, GeneratePatterns(gray))[0];
+      cv::structured_light::GrayCodePattern::Params params;
+      params.width = gray.projector_width;
+      params.height = gray.projector_height;
+      const auto graycode = cv::structured_light::GrayCodePattern::create(params);
+      const size_t n = graycode->getNumberOfPatternImages();
+      const std::vector<cv::Mat> codes(gray_images.begin(), gray_images.begin() + static_cast<std::ptrdiff_t>(n));
+      const cv::Mat& white = gray_images[n];
+      const cv::Mat& black = gray_images[n + 1];
+      const Timing p = Median(std::min(reps, 3), [&] {
+        int64_t decoded = 0;
+        cv::Point proj;
+        for (int y = 0; y < white.rows; ++y) {
+          for (int x = 0; x < white.cols; ++x) {
+            if (white.at<uint8_t>(y, x) - black.at<uint8_t>(y, x) <= 12) continue;
+            decoded += !graycode->getProjPixel(codes, x, y, proj);
+          }
+        }
+        if (decoded < 0) std::abort();  // keeps the loop
+      });
+      e.peer = "OpenCV GrayCodePattern getProjPixel, 1 camera";
+      e.peer_median_wall_s = p.wall_s;
+      e.peer_throughput = camera_mpix / p.wall_s;
+      e.ratio = e.throughput / e.peer_throughput;
+    }
+    entries.push_back(e);
+  } else {
+    for (int c = 0; c < 2; ++c) maps[c] = DecodePatterns(spec, images[c]);
+  }
+
+  Reconstruction stereo;
+  if (Wanted(options, "reconstruct")) {
+    BenchEntry e = MakeEntry("reconstruct", "decode + triangulate 2 cameras (camera-projector), 2 x 1920x1200");
+    const Timing t = Median(reps, [&] {
+      for (int c = 0; c < 2; ++c) {
+        const ProjectorMap map = DecodePatterns(spec, images[c]);
+        ReconstructWithProjector(rig, rig.cameras[c].name, map);
+      }
+    });
+    e.median_wall_s = t.wall_s;
+    e.cpu_s = t.cpu_s;
+    e.throughput = 2 * camera_mpix / t.wall_s;
+    e.unit = "MPix/s";
+    entries.push_back(e);
+    BenchEntry s = MakeEntry("reconstruct", "stereo left-right from decoded maps");
+    const Timing ts = Median(reps, [&] { stereo = ReconstructStereo(rig, left, right, maps[0], maps[1]); });
+    s.median_wall_s = ts.wall_s;
+    s.cpu_s = ts.cpu_s;
+    s.throughput = static_cast<double>(stereo.summary.points) / 1e6 / ts.wall_s;
+    s.unit = "Mpoints/s";
+    entries.push_back(s);
+  }
+
+  if (Wanted(options, "compare")) {
+    if (stereo.cloud.empty()) stereo = ReconstructStereo(rig, left, right, maps[0], maps[1]);
+    TriangleMesh truth;
+    for (const auto& object : scene.objects) {
+      if (object.type != ObjectType::kMesh) continue;
+      TriangleMesh part = *object.mesh;
+      part.Transform(object.rig_from_object.rotation.toRotationMatrix(), object.rig_from_object.translation);
+      truth.Append(part);
+    }
+    const compare::Reference reference = compare::ReferenceFromMesh(truth, "demo part");
+    BenchEntry e = MakeEntry("compare", "C2M of the stereo cloud (" + std::to_string(stereo.cloud.size()) + " points) to the part mesh");
+    const Timing t = Median(reps, [&] { compare::Compare(stereo.cloud, reference, compare::CompareOptions{}); });
+    e.median_wall_s = t.wall_s;
+    e.cpu_s = t.cpu_s;
+    e.throughput = static_cast<double>(stereo.cloud.size()) / 1e6 / t.wall_s;
+    e.unit = "Mpoints/s";
+    entries.push_back(e);
+  }
+  return entries;
+}
+
+std::string FormatBench(const std::vector<BenchEntry>& entries) {
+  std::string out = "entry        median wall (s)  CPU (s)  throughput            what\n";
+  char buf[512];
+  for (const auto& e : entries) {
+    std::snprintf(buf, sizeof(buf), "%-12s %15.3f  %7.3f  %8.2f %-12s %s\n", e.name.c_str(), e.median_wall_s, e.cpu_s,
+                  e.throughput, e.unit.c_str(), e.what.c_str());
+    out += buf;
+    if (!e.peer.empty()) {
+      std::snprintf(buf, sizeof(buf), "  peer       %15.3f           %8.2f %-12s %s -> slshadow is %.1fx\n",
+                    e.peer_median_wall_s, e.peer_throughput, e.unit.c_str(), e.peer.c_str(), e.ratio);
+      out += buf;
+    }
+  }
+  return out;
+}
+
+}  // namespace slshadow::app

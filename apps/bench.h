@@ -1,0 +1,42 @@
+// `slshadow bench`: the pipeline's speed on the demo, measured in one run against peers where a
+// peer runs here. Every entry repeats its work and reports the median wall time (and the CPU time
+// of that run), so a noisy machine moves figures less; ratios are taken within the run.
+//
+// Entries (the demo rig scanning the demo part, images rendered by the simulator in memory):
+//   simulate     render 2 cameras x 38 patterns (ray casting + pattern passes; no encoding)
+//   decode       DecodePatterns, Gray code + phase shift, both cameras; peer: OpenCV 4.6
+//                GrayCodePattern's per-pixel decoding (shadow mask + getProjPixel) on the same
+//                camera viewing an OpenCV-order Gray code, on one camera, scaled per pixel
+//   reconstruct  decode + triangulate both cameras (camera-projector), and stereo
+//   compare      C2M of the stereo cloud against the ground-truth mesh
+#pragma once
+
+#include <string>
+#include <vector>
+
+namespace slshadow::app {
+
+struct BenchOptions {
+  int repetitions = 5;              // per entry; the median is reported
+  std::vector<std::string> only;    // entry names to run; empty: all
+  bool with_opencv = true;          // run the OpenCV peer (slow: ~1 s per repetition)
+  void Check() const;
+};
+
+struct BenchEntry {
+  std::string name;
+  std::string what;
+  double median_wall_s = 0;
+  double cpu_s = 0;             // CPU time of the median run
+  double throughput = 0;        // in `unit`
+  std::string unit;
+  std::string peer;             // empty when none
+  double peer_median_wall_s = 0;
+  double peer_throughput = 0;
+  double ratio = 0;             // throughput / peer throughput (per pixel), 0 without a peer
+};
+
+std::vector<BenchEntry> RunBench(const BenchOptions& options);
+std::string FormatBench(const std::vector<BenchEntry>& entries);
+
+}  // namespace slshadow::app
