@@ -148,6 +148,47 @@ TEST_F(ReconstructTest, StereoModeExactMapsLandOnTheSurfaceForEveryMethod) {
   }
 }
 
+TEST_F(ReconstructTest, StereoWorksWithEitherCameraAsReference) {
+  const AnalyticView left = RenderAnalytic(rig_, rig_.cameras[0], PlaneSurface());
+  const AnalyticView right = RenderAnalytic(rig_, rig_.cameras[1], PlaneSurface());
+  const Reconstruction rec = ReconstructStereo(rig_, "right", "left", right.map, left.map);
+  ExpectFiniteCloud(rec);
+  EXPECT_EQ(rec.summary.camera, "right");
+  EXPECT_GT(rec.summary.points, CountValid(right.map) / 2);
+  double worst = 0;
+  for (const auto& p : rec.cloud.points) worst = std::max(worst, DistanceToSurface(p, false));
+  EXPECT_LT(worst, 1e-3);
+  // Normals face the reference (right) camera.
+  const Eigen::Vector3d center = rig_.cameras[1].CenterInRig();
+  for (size_t i = 0; i < rec.cloud.size(); ++i) {
+    ASSERT_GT(rec.cloud.normals[i].cast<double>().dot(center - rec.cloud.points[i]), 0);
+  }
+}
+
+TEST(ResidualStatsTest, QuantilesMatchASortedCopy) {
+  std::mt19937 rng(9);
+  std::exponential_distribution<float> dist(3.0f);
+  std::vector<float> values(10001);
+  for (float& v : values) v = dist(rng);
+  values[17] = std::nanf("");
+  std::vector<float> sorted;
+  for (float v : values) {
+    if (std::isfinite(v)) sorted.push_back(v);
+  }
+  std::sort(sorted.begin(), sorted.end());
+  const ResidualStats s = ComputeResidualStats(values);
+  EXPECT_EQ(s.count, 10000);
+  const auto at = [&](double q) { return sorted[static_cast<size_t>(std::floor(q * (sorted.size() - 1) + 0.5))]; };
+  EXPECT_EQ(s.median, at(0.5));
+  EXPECT_EQ(s.p95, at(0.95));
+  EXPECT_EQ(s.max, sorted.back());
+  double sum2 = 0;
+  for (float v : sorted) sum2 += static_cast<double>(v) * v;
+  EXPECT_NEAR(s.rms, std::sqrt(sum2 / sorted.size()), 1e-9);
+  std::vector<float> empty;
+  EXPECT_EQ(ComputeResidualStats(empty).count, 0);
+}
+
 double DistanceToStep(const Eigen::Vector3d& p, double edge_x, double near_z, double far_z) {
   const double d_near = p.x() < edge_x ? std::abs(p.z() - near_z) : std::hypot(p.x() - edge_x, p.z() - near_z);
   const double d_far = p.x() >= edge_x ? std::abs(p.z() - far_z) : std::hypot(p.x() - edge_x, p.z() - far_z);
