@@ -1,6 +1,8 @@
-// Row-parallel decoding. Each stripe of rows owns its scratch rows (allocated once per stripe);
-// inner loops run over contiguous image rows with selects instead of branches so that GCC
-// vectorises them.
+// Row-parallel decoding. Each stripe of rows owns its scratch rows (allocated once per stripe).
+// Per row: the Gray and phase kernels read all frames of a block of 8 or 16 pixels with OpenCV's
+// universal intrinsics (SSE2 baseline) and keep the running state in registers; the per-pixel
+// unwrapping and status loops are branch-free (selects) under `#pragma omp simd`
+// (-fopenmp-simd, -fno-trapping-math let GCC if-convert the float compares).
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -45,10 +47,6 @@ inline float Atan2CyclesInline(float y, float x) {
   f = f < 0 ? f + 1.0f : f;
   return f >= 1.0f ? 0.0f : f;
 }
-
-// Branch-free integer min / max (std::min returns a reference, which can keep a branch).
-inline int32_t Min(int32_t a, int32_t b) { return b ^ ((a ^ b) & -static_cast<int32_t>(a < b)); }
-inline int32_t Max(int32_t a, int32_t b) { return a ^ ((a ^ b) & -static_cast<int32_t>(a < b)); }
 
 struct Levels {
   float shadow;        // minimum lit range
