@@ -123,3 +123,77 @@ TEST_F(ReconstructImageSetTest, BadCameraSelectionsThrow) {
 
 }  // namespace
 }  // namespace slshadow
+
+namespace slshadow {
+namespace {
+
+// Real data: ../shared/data/kamino-procam-graycode (one camera, one projector, OpenCV Gray code,
+// a chessboard in 5 poses) with the upstream stereoCalibrate result of commit ccf1cd8
+// (calibration_result_ccf1cd8.xml: X_proj = R X_cam + t, units of the 75-unit squares: mm).
+Rig KaminoRig(const std::string& xml) {
+  cv::FileStorage fs((testing::SharedDataDir() / "kamino-procam-graycode" / xml).string(), cv::FileStorage::READ);
+  cv::Mat ck, cd, pk, pd, r, t;
+  fs["cam_int"] >> ck;
+  fs["cam_dist"] >> cd;
+  fs["proj_int"] >> pk;
+  fs["proj_dist"] >> pd;
+  fs["roration"] >> r;  // sic
+  fs["translation"] >> t;
+  auto model = [](int w, int h, const cv::Mat& k, const cv::Mat& d) {
+    return CameraModel(w, h, k.at<double>(0, 0), k.at<double>(1, 1), k.at<double>(0, 2), k.at<double>(1, 2),
+                       d.at<double>(0), d.at<double>(1), d.at<double>(2), d.at<double>(3), d.at<double>(4));
+  };
+  Rig rig;
+  rig.name = "kamino";
+  rig.working_distance_mm = 1000;
+  rig.cameras.push_back({"camera", model(1280, 1024, ck, cd), Rigid3d()});
+  Eigen::Matrix3d rot;
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) rot(i, j) = r.at<double>(i, j);
+  }
+  rig.projector = RigDevice{"projector", model(1024, 768, pk, pd),
+                            Rigid3d(Eigen::Quaterniond(rot), Eigen::Vector3d(t.at<double>(0), t.at<double>(1), t.at<double>(2)))};
+  rig.Check("kamino");
+  return rig;
+}
+
+TEST(KaminoRealDataTest, ChessboardPoseReconstructsAndTheResidualsJudgeTheCalibration) {
+  const auto dir = testing::SharedDataDir() / "kamino-procam-graycode";
+  if (!std::filesystem::exists(dir / "capture_0")) GTEST_SKIP() << "no shared data at " << dir;
+  PatternSpec spec;
+  spec.kind = PatternKind::kGrayCode;
+  spec.projector_width = 1024;
+  spec.projector_height = 768;
+  spec.opencv_order = true;
+  std::map<std::string, std::vector<cv::Mat>> images;
+  for (int k = 0; k < spec.NumImages(); ++k) {
+    char name[32];
+    std::snprintf(name, sizeof(name), "graycode_%02d.png", k);
+    images["camera"].push_back(ReadGrayImage(dir / "capture_0" / name));
+  }
+  ImageSetReconstructOptions options;
+  // The first upstream calibration (stereoCalibrate RMS 0.43 px): sub-pixel-to-pixel epipolar
+  // residuals (Gray code decodes to whole projector pixels) and half a million points.
+  const ImageSetReconstruction good = ReconstructFromImages(KaminoRig("calibration_result_ccf1cd8.xml"), spec, images, options);
+  const ReconstructSummary& g = good.summaries.at(0);
+  RecordProperty("ccf1cd8_epipolar_median_px", std::to_string(g.epipolar_error_px.median));
+  EXPECT_EQ(g.decode_status[0], 996162);  // valid pixels of capture_0, measured
+  EXPECT_EQ(g.epipolar_error_px.count, g.decode_status[0]);
+  EXPECT_LT(g.epipolar_error_px.median, 1.2) << g.FullReport();      // measured 0.87
+  EXPECT_LT(g.reprojection_error_px.median, 1.0) << g.FullReport();  // measured 0.60
+  EXPECT_GT(g.points, 450000) << g.FullReport();                     // measured 507756
+  for (const auto& p : good.cloud.points) ASSERT_TRUE(p.allFinite());
+  int64_t total = 0;
+  for (int64_t c : g.rejected) total += c;
+  EXPECT_EQ(total, g.cells);
+  // Upstream's later result (its projector principal point lies outside the image): the residual
+  // statistics expose it, and the gates let no point through.
+  const ImageSetReconstruction bad = ReconstructFromImages(KaminoRig("calibration_result.xml"), spec, images, options);
+  const ReconstructSummary& b = bad.summaries.at(0);
+  RecordProperty("head_epipolar_median_px", std::to_string(b.epipolar_error_px.median));
+  EXPECT_GT(b.epipolar_error_px.median, 100.0) << b.FullReport();  // measured 521
+  EXPECT_LT(b.points, b.cells / 100);
+}
+
+}  // namespace
+}  // namespace slshadow
