@@ -114,39 +114,68 @@ std::string SimulateSummary::BriefReport() const {
   return s.str();
 }
 
-std::vector<std::vector<cv::Mat>> RenderScan(const Scene& scene, const Rig& rig, const std::vector<cv::Mat>& projector_images,
-                                             std::vector<GeometryBuffer>* geometry, SimulateSummary* summary,
-                                             TraceMode mode) {
+Simulator::Simulator(const Scene& scene, const Rig& rig, TraceMode mode) : scene_(scene), rig_(rig) {
   const auto start = std::chrono::steady_clock::now();
-  CheckInputs(scene, rig, projector_images);
-  SimulateSummary local;
-  SimulateSummary& sum = summary ? *summary : local;
-  RayCaster caster(scene);
-  sum.build_seconds = caster.build_seconds();
-  sum.triangles = caster.num_triangles();
-  sum.cameras = static_cast<int>(rig.cameras.size());
-  sum.patterns = static_cast<int>(projector_images.size());
-  std::vector<std::vector<cv::Mat>> images(rig.cameras.size());
+  scene.Check("scene '" + scene.name + "'");
+  rig.Check("rig '" + rig.name + "'");
+  SLSHADOW_THROW_IF(!rig.projector, "rig '", rig.name, "' has no projector: the simulator needs one");
+  const RayCaster caster(scene);
+  setup_.build_seconds = caster.build_seconds();
+  setup_.triangles = caster.num_triangles();
+  setup_.cameras = static_cast<int>(rig.cameras.size());
   for (size_t c = 0; c < rig.cameras.size(); ++c) {
-    auto t = std::chrono::steady_clock::now();
+    const auto t = std::chrono::steady_clock::now();
     const CameraRays rays = ComputeCameraRays(rig.cameras[c].model, scene.layers.supersampling);
-    sum.camera_rays_seconds += Since(t);
-    GeometryBuffer g = TraceGeometry(caster, rig, static_cast<int>(c), rays, mode);
-    sum.geometry_seconds += g.seconds;
-    sum.primary_rays += g.primary_rays;
-    sum.shadow_rays += g.shadow_rays;
-    t = std::chrono::steady_clock::now();
-    const PatternRenderer renderer(scene, rig, static_cast<int>(c), g);
+    setup_.camera_rays_seconds += Since(t);
+    geometry_.push_back(TraceGeometry(caster, rig, static_cast<int>(c), rays, mode));
+    setup_.geometry_seconds += geometry_.back().seconds;
+    setup_.primary_rays += geometry_.back().primary_rays;
+    setup_.shadow_rays += geometry_.back().shadow_rays;
+  }
+  setup_.total_seconds = Since(start);
+}
+
+Simulator::~Simulator() = default;
+
+std::vector<std::vector<cv::Mat>> Simulator::Render(const std::vector<cv::Mat>& projector_images, const Scene* scene,
+                                                    SimulateSummary* summary) const {
+  const Scene& s = scene ? *scene : scene_;
+  SLSHADOW_THROW_IF(s.layers.supersampling != scene_.layers.supersampling ||
+                        s.layers.projector_defocus.enabled != scene_.layers.projector_defocus.enabled ||
+                        s.objects.size() != scene_.objects.size(),
+                    "Simulator::Render: the scene's geometry-affecting settings differ from the set-up's");
+  CheckInputs(s, rig_, projector_images);
+  const auto start = std::chrono::steady_clock::now();
+  std::vector<std::vector<cv::Mat>> images(geometry_.size());
+  for (size_t c = 0; c < geometry_.size(); ++c) {
+    const PatternRenderer renderer(s, rig_, static_cast<int>(c), geometry_[c]);
     images[c].reserve(projector_images.size());
     for (size_t first = 0; first < projector_images.size(); first += kBatch) {
       const std::vector<cv::Mat> batch(projector_images.begin() + static_cast<std::ptrdiff_t>(first),
                                        projector_images.begin() + static_cast<std::ptrdiff_t>(std::min(first + kBatch, projector_images.size())));
       for (cv::Mat& m : renderer.RenderBatch(batch, static_cast<int>(first))) images[c].push_back(std::move(m));
     }
-    sum.render_seconds += Since(t);
-    if (geometry) geometry->push_back(std::move(g));
+  }
+  if (summary) {
+    summary->render_seconds += Since(start);
+    summary->patterns = static_cast<int>(projector_images.size());
+  }
+  return images;
+}
+
+std::vector<std::vector<cv::Mat>> RenderScan(const Scene& scene, const Rig& rig, const std::vector<cv::Mat>& projector_images,
+                                             std::vector<GeometryBuffer>* geometry, SimulateSummary* summary,
+                                             TraceMode mode) {
+  const auto start = std::chrono::steady_clock::now();
+  CheckInputs(scene, rig, projector_images);
+  const Simulator sim(scene, rig, mode);
+  SimulateSummary sum = sim.setup();
+  auto images = sim.Render(projector_images, nullptr, &sum);
+  if (geometry) {
+    for (int c = 0; c < sim.num_cameras(); ++c) geometry->push_back(sim.geometry(c));
   }
   sum.total_seconds = Since(start);
+  if (summary) *summary = sum;
   return images;
 }
 

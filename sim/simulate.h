@@ -58,6 +58,32 @@ struct SimulateSummary {
   std::string BriefReport() const;
 };
 
+// Keeps what does not change between scans of one scene by one rig: the BVH, the cameras'
+// viewing rays and their geometry buffers (ground truth). A scan is then only the pattern passes
+// (DESIGN.md: one ray-casting pass plus N memory-bound passes), e.g. for many pattern sets,
+// noise seeds or layer settings that do not change geometry (all but supersampling and
+// projector defocus, which are baked into the geometry buffers). Throws like RenderScan. The
+// scene and the rig must outlive it.
+class Simulator {
+ public:
+  Simulator(const Scene& scene, const Rig& rig, TraceMode mode = TraceMode::kPacket16);
+  ~Simulator();
+  int num_cameras() const { return static_cast<int>(geometry_.size()); }
+  const GeometryBuffer& geometry(int camera) const { return geometry_.at(static_cast<size_t>(camera)); }
+  // Timings of the set-up: BVH, camera rays, geometry passes.
+  const SimulateSummary& setup() const { return setup_; }
+  // images[camera][pattern] for `scene` (the constructor's scene, or a copy of it with other
+  // radiometry / layers of the kinds listed above). `summary` gets render_seconds added.
+  std::vector<std::vector<cv::Mat>> Render(const std::vector<cv::Mat>& projector_images, const Scene* scene = nullptr,
+                                           SimulateSummary* summary = nullptr) const;
+
+ private:
+  const Scene& scene_;
+  const Rig& rig_;
+  std::vector<GeometryBuffer> geometry_;
+  SimulateSummary setup_;
+};
+
 // Renders all images in memory: images[camera][pattern]. `geometry`, if not null, receives the
 // geometry buffers (ground truth) per camera.
 std::vector<std::vector<cv::Mat>> RenderScan(const Scene& scene, const Rig& rig, const std::vector<cv::Mat>& projector_images,

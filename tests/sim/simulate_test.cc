@@ -75,6 +75,33 @@ TEST(SimulateTest, WritesImageSetAndGroundTruth) {
   }
 }
 
+// Re-rendering from a Simulator's cached geometry gives what a fresh scan gives, also for other
+// pattern-pass settings (noise seed, gamma, exposure); geometry-changing settings are refused.
+TEST(SimulateTest, SimulatorReusesGeometryAcrossScans) {
+  const Rig rig = testing::SmallDemoRig(8);
+  const Scene scene = LoadScene(testing::SourceDir() / "config/demo/scene.yaml");
+  const auto images = StripeImages(rig);
+  const Simulator sim(scene, rig);
+  EXPECT_EQ(sim.num_cameras(), 2);
+  EXPECT_GT(sim.setup().primary_rays, 0);
+  Scene other = scene;
+  other.layers.noise_enabled = true;
+  other.layers.seed = 11;
+  other.layers.response_enabled = true;
+  other.layers.gamma = 1.8;
+  other.radiometry.exposure = 0.6;
+  for (const Scene* s : {&scene, static_cast<const Scene*>(&other)}) {
+    const auto cached = sim.Render(images, s);
+    const auto fresh = RenderScan(*s, rig, images);
+    for (size_t c = 0; c < 2; ++c) {
+      for (size_t p = 0; p < images.size(); ++p) EXPECT_EQ(cv::norm(cached[c][p], fresh[c][p], cv::NORM_INF), 0);
+    }
+  }
+  Scene supersampled = scene;
+  supersampled.layers.supersampling = 2;
+  EXPECT_THROW(sim.Render(images, &supersampled), Error);
+}
+
 TEST(SimulateTest, RefusesToOverwriteAndChecksImages) {
   testing::TempDir tmp;
   const Rig rig = testing::SmallDemoRig(8);
