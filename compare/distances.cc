@@ -21,6 +21,19 @@ void ParallelFor(size_t n, F&& f) {
   });
 }
 
+// f(i) for every query point, visited along a Morton curve (SpatialOrder) so that consecutive
+// queries touch the same tree nodes; results are written per index, so they do not depend on
+// the order.
+template <typename F>
+void ParallelForSpatial(const std::vector<Eigen::Vector3d>& queries, F&& f) {
+  if (queries.size() < 20000) {
+    ParallelFor(queries.size(), f);
+    return;
+  }
+  const std::vector<uint32_t> order = SpatialOrder(queries);
+  ParallelFor(order.size(), [&](size_t k) { f(order[k]); });
+}
+
 // PCA frame of a point set: centroid, eigenvectors sorted by ascending eigenvalue (column 0 is
 // the normal direction).
 struct Frame {
@@ -119,7 +132,7 @@ C2CResult CloudToCloud(const std::vector<Eigen::Vector3d>& compared, const KdTre
                     : (options.local_model == LocalModel::kQuadric ? 12 : 6);
   std::vector<uint8_t> found(n);
   const auto& ref_pts = reference.points();
-  ParallelFor(n, [&](size_t i) {
+  ParallelForSpatial(compared, [&](size_t i) {
     Neighbor nb;
     if (!reference.Nearest(compared[i], &nb, max_d)) {
       found[i] = 0;
@@ -150,7 +163,7 @@ C2MResult CloudToMesh(const std::vector<Eigen::Vector3d>& compared, const Triang
   C2MResult result;
   result.signed_distances_mm.resize(compared.size());
   result.triangles.resize(compared.size());
-  ParallelFor(compared.size(), [&](size_t i) {
+  ParallelForSpatial(compared, [&](size_t i) {
     const MeshHit hit = md.Closest(compared[i]);
     result.signed_distances_mm[i] = hit.signed_distance_mm;
     result.triangles[i] = hit.triangle;
@@ -167,7 +180,7 @@ std::vector<Eigen::Vector3d> EstimateNormals(const std::vector<Eigen::Vector3d>&
                     "normal estimation: ", hints.size(), " hints for ", queries.size(), " points");
   std::vector<Eigen::Vector3d> normals(queries.size());
   const auto& pts = tree.points();
-  ParallelFor(queries.size(), [&](size_t i) {
+  ParallelForSpatial(queries, [&](size_t i) {
     thread_local std::vector<Neighbor> nn;
     tree.KNearest(queries[i], k, &nn);
     Eigen::Vector3d n = Eigen::Vector3d::UnitZ();
@@ -227,7 +240,7 @@ M3C2Result M3C2(const std::vector<Eigen::Vector3d>& core_points,
     }
     return count;
   };
-  ParallelFor(n, [&](size_t i) {
+  ParallelForSpatial(core_points, [&](size_t i) {
     double m1 = 0, m2 = 0, s1 = 0, s2 = 0;
     const int c1 = project(cloud1, core_points[i], normals[i], &m1, &s1);
     const int c2 = project(cloud2, core_points[i], normals[i], &m2, &s2);

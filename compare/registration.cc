@@ -372,6 +372,13 @@ RegistrationResult Register(const std::vector<Eigen::Vector3d>& cloud,
   std::vector<Eigen::Vector3d> src;
   const size_t stride = std::max<size_t>(1, cloud.size() / static_cast<size_t>(options.icp_max_points));
   for (size_t i = 0; i < cloud.size(); i += stride) src.push_back(cloud[i]);
+  {
+    // Morton order: coherent kd-tree queries in every ICP iteration.
+    const std::vector<uint32_t> order = SpatialOrder(src);
+    std::vector<Eigen::Vector3d> sorted(src.size());
+    for (size_t k = 0; k < order.size(); ++k) sorted[k] = src[order[k]];
+    src = std::move(sorted);
+  }
   const double min_gate = 3.0 * MedianSpacing(tree);
   Rigid3d t = r.reference_from_cloud;
   r.converged = false;

@@ -100,13 +100,14 @@ DistanceStats ComputeStats(const std::vector<double>& distances_mm, bool is_sign
 double Coverage(const std::vector<Eigen::Vector3d>& reference_samples, const KdTree& reached,
                 double radius_mm) {
   if (reference_samples.empty() || reached.size() == 0) return 0.0;
+  const std::vector<uint32_t> order = SpatialOrder(reference_samples);
   const size_t covered = tbb::parallel_reduce(
       tbb::blocked_range<size_t>(0, reference_samples.size(), 2048), size_t{0},
       [&](const tbb::blocked_range<size_t>& r, size_t acc) {
         Neighbor nb;
-        for (size_t i = r.begin(); i != r.end(); ++i) {
+        for (size_t k = r.begin(); k != r.end(); ++k) {
           // Nearest() finds points strictly closer than the bound: nudge it to make it inclusive.
-          if (reached.Nearest(reference_samples[i], &nb, std::nextafter(radius_mm, 1e300))) ++acc;
+          if (reached.Nearest(reference_samples[order[k]], &nb, std::nextafter(radius_mm, 1e300))) ++acc;
         }
         return acc;
       },

@@ -10,6 +10,8 @@ PACKAGES=(
   libeigen3-dev libopencv-dev libopencv-contrib-dev libyaml-cpp-dev nlohmann-json3-dev
   # calibration, simulation, comparison
   libceres-dev libembree-dev libtbb-dev libnanoflann-dev libpcl-dev libplplot-dev plplot-driver-cairo
+  # C2C cross-check and benchmark peer (compare tests skip without it; runs headless)
+  cloudcompare
   # command line and logging
   libcli11-dev libspdlog-dev
   # tests and benchmarks
