@@ -1,0 +1,80 @@
+// The `slshadow calibrate` subcommand end to end (apps/cmd_calibrate.cc), on real data.
+#include <gtest/gtest.h>
+
+#include <string>
+#include <vector>
+
+#include "apps/commands.h"
+#include "calib/calibration_io.h"
+#include "core/file_util.h"
+#include "core/rig.h"
+#include "tests/testing/temp_dir.h"
+
+namespace slshadow {
+namespace {
+
+int RunCli(std::vector<std::string> args) {
+  args.insert(args.begin(), "slshadow");
+  std::vector<char*> argv;
+  for (auto& a : args) argv.push_back(a.data());
+  return app::Main(static_cast<int>(argv.size()), argv.data());
+}
+
+std::string Data(const std::string& name) { return (testing::SharedDataDir() / "opencv-stereo-chessboard" / name).string(); }
+
+TEST(CmdCalibrate, StereoWritesRigReportAndOpenCvFile) {
+  testing::TempDir tmp;
+  const std::string target = (testing::SourceDir() / "config/targets/opencv-stereo-chessboard.yaml").string();
+  std::vector<std::string> args = {"calibrate", "stereo", "--target", target, "--fix-aspect", "--out", (tmp / "rig.yaml").string(),
+                                   "--opencv-out", (tmp / "stereo.yml").string(), "--left"};
+  const std::vector<int> ids = {1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 12, 13, 14};
+  for (int i : ids) args.push_back(Data("left" + std::string(i < 10 ? "0" : "") + std::to_string(i) + ".jpg"));
+  args.push_back("--right");
+  for (int i : ids) args.push_back(Data("right" + std::string(i < 10 ? "0" : "") + std::to_string(i) + ".jpg"));
+  ASSERT_EQ(RunCli(args), 0);
+  const Rig rig = LoadRig(tmp / "rig.yaml");
+  ASSERT_EQ(rig.cameras.size(), 2u);
+  EXPECT_EQ(rig.cameras[0].name, "left");
+  EXPECT_NEAR(rig.cameras[0].model.fx(), 535.9, 2.0);
+  EXPECT_NEAR(rig.BaselineMm(rig.cameras[0], rig.cameras[1]), 83.4, 1.0);
+  // The evidence recomputes the same calibration.
+  const CalibrationEvidence ev = CalibrationEvidenceFromJson(rig.calibration, "rig.yaml");
+  EXPECT_TRUE(ev.options.fix_aspect_ratio);
+  EXPECT_NEAR(Calibrate(ev.input, ev.options).devices[1].model.fx(), rig.cameras[1].model.fx(), 1e-6);
+  for (const char* f : {"summary.json", "report.txt", "per_view_rms.png", "residuals_left.png", "uncertainty_right.png",
+                        "cross_validation_left.png"}) {
+    EXPECT_TRUE(std::filesystem::exists(tmp / "rig_report" / f)) << f;
+  }
+  const Rig cv_rig = ReadOpenCvCalibration(tmp / "stereo.yml");
+  EXPECT_NEAR(cv_rig.cameras[1].cam_from_rig.translation.x(), rig.cameras[1].cam_from_rig.translation.x(), 1e-9);
+  // Export / import round trip through the CLI.
+  ASSERT_EQ(RunCli({"calibrate", "export", (tmp / "rig.yaml").string(), "--out", (tmp / "exported.xml").string()}), 0);
+  ASSERT_EQ(RunCli({"calibrate", "import", (tmp / "exported.xml").string(), "--out", (tmp / "imported.yaml").string()}), 0);
+  EXPECT_NEAR(LoadRig(tmp / "imported.yaml").cameras[1].model.cy(), rig.cameras[1].model.cy(), 1e-9);
+}
+
+TEST(CmdCalibrate, BadInputsFailWithoutWriting) {
+  testing::TempDir tmp;
+  const std::string target = (testing::SourceDir() / "config/targets/opencv-stereo-chessboard.yaml").string();
+  const std::string out = (tmp / "rig.yaml").string();
+  // Mismatched pair counts, a missing file, a single view, an unknown loss.
+  EXPECT_NE(RunCli({"calibrate", "stereo", "--target", target, "--out", out, "--left", Data("left01.jpg"), Data("left02.jpg"),
+                 "--right", Data("right01.jpg")}), 0);
+  EXPECT_NE(RunCli({"calibrate", "camera", "--target", target, "--out", out, "--images", Data("left99.jpg")}), 0);
+  EXPECT_NE(RunCli({"calibrate", "camera", "--target", target, "--out", out, "--images", Data("left01.jpg")}), 0);
+  EXPECT_NE(RunCli({"calibrate", "camera", "--target", target, "--out", out, "--loss", "l1", "--images", Data("left01.jpg"),
+                 Data("left02.jpg")}), 0);
+  EXPECT_NE(RunCli({"calibrate", "import", (tmp / "none.yml").string(), "--out", out}), 0);
+  EXPECT_FALSE(std::filesystem::exists(out));
+  EXPECT_FALSE(std::filesystem::exists(tmp / "rig_report"));
+  // Mixed image sizes in one camera's list (640x480 and 1280x1024).
+  ::testing::internal::CaptureStderr();
+  EXPECT_NE(RunCli({"calibrate", "camera", "--target", target, "--out", out, "--images", Data("left01.jpg"), Data("left02.jpg"),
+                    (testing::SharedDataDir() / "kamino-procam-graycode/capture_0/graycode_40.png").string()}), 0);
+  const std::string err = ::testing::internal::GetCapturedStderr();
+  EXPECT_NE(err.find("mismatched image sizes"), std::string::npos) << err;
+  EXPECT_FALSE(std::filesystem::exists(out));
+}
+
+}  // namespace
+}  // namespace slshadow
