@@ -2,7 +2,7 @@
 
 #include <cmath>
 
-#include <Eigen/SVD>
+#include <Eigen/Cholesky>
 
 #include "core/error.h"
 
@@ -107,10 +107,15 @@ std::optional<Eigen::Vector3d> TwoViewTriangulator::Dlt(const Eigen::Vector2d& x
   // algebraic residual of each row is then its image error in pixels times the point's depth.
   a.topRows<2>() *= view0_.focal_px;
   a.bottomRows<2>() *= view1_.focal_px;
-  const Eigen::JacobiSVD<Eigen::Matrix4d> svd(a, Eigen::ComputeFullV);
-  const Eigen::Vector4d x = svd.matrixV().col(3);
-  if (!(std::abs(x(3)) > 1e-15 * x.head<3>().norm())) return std::nullopt;
-  const Eigen::Vector3d point = x.head<3>() / x(3);
+  // Inhomogeneous form (X = (X, Y, Z, 1)): least squares A3 X = -a4 by the 3x3 normal equations.
+  const Eigen::Matrix<double, 4, 3> a3 = a.leftCols<3>();
+  const Eigen::Matrix3d normal = a3.transpose() * a3;
+  const Eigen::Vector3d rhs = -(a3.transpose() * a.col(3));
+  const Eigen::LDLT<Eigen::Matrix3d> ldlt(normal);
+  if (ldlt.info() != Eigen::Success || !(ldlt.vectorD().minCoeff() > 1e-12 * ldlt.vectorD().maxCoeff())) {
+    return std::nullopt;
+  }
+  const Eigen::Vector3d point = ldlt.solve(rhs);
   if (!point.allFinite()) return std::nullopt;
   return point;
 }

@@ -7,9 +7,10 @@
 // Methods (all exact for noise-free observations):
 //  - kMidpoint: midpoint of the common perpendicular of the two rays (Hartley & Sturm 1997, sec. 5.3;
 //    the method of the structured-light benchmark in ../shared/seeds/).
-//  - kDlt: homogeneous linear triangulation, the null vector of the 4x4 system
-//    f [x P3 - P1; y P3 - P2] (both views, rows in pixel units) by SVD (Hartley & Zisserman, 2nd
-//    ed., sec. 12.2). Minimises an algebraic error: image errors weighted by the point's depth.
+//  - kDlt: linear triangulation (DLT) of the 4x4 system f [x P3 - P1; y P3 - P2] X = 0 (both
+//    views, rows in pixel units), in its inhomogeneous form X = (X, Y, Z, 1) solved by linear least
+//    squares (Hartley & Zisserman, 2nd ed., sec. 12.2). Minimises an algebraic error: image errors
+//    weighted by the point's depth. (The homogeneous SVD form costs ~5x more per point.)
 //  - kOptimal: Lindstrom's niter2 ("Triangulation made easy", CVPR 2010): the smallest correction
 //    of both observations, in pixels, that satisfies the epipolar constraint exactly (to second
 //    order, which equals Hartley-Sturm's optimum to machine precision in practice), then the
