@@ -6,6 +6,7 @@
 #include <cmath>
 #include <limits>
 #include <optional>
+#include <type_traits>
 
 #include <opencv2/imgproc.hpp>
 #include <tbb/blocked_range2d.h>
@@ -658,7 +659,7 @@ std::vector<cv::Mat> PatternRenderer::RenderBatch(const std::vector<cv::Mat>& im
   const SceneLayers& l = scene_.layers;
   const int batch = static_cast<int>(images.size());
   const bool fused = !l.response_enabled && projector_sigmas_.empty() && scene_.radiometry.bilinear_lookup && l.fill_factor >= 1 &&
-                     geometry_.samples_per_axis == 1 && camera_sigmas_.empty() && !l.noise_enabled && (batch == 8 || batch == 1);
+                     geometry_.samples_per_axis == 1 && camera_sigmas_.empty() && !l.noise_enabled && batch <= 8;
   if (fused) {
     const int pw = projector_width_, ph = projector_height_;
     for (const cv::Mat& m : images) {
@@ -680,12 +681,23 @@ std::vector<cv::Mat> PatternRenderer::RenderBatch(const std::vector<cv::Mat>& im
     const float scale = static_cast<float>(scene_.radiometry.exposure * full_scale_dn_);
     const float ambient = static_cast<float>(l.ambient);
     const float full = static_cast<float>(full_scale_dn_);
-    if (batch == 8) {
-      if (wide) FusedDirectBilinear<8, uint16_t>(geometry_, inter.data(), pw, ph, ambient, scale, vignetting_, full, out);
-      else FusedDirectBilinear<8, uint8_t>(geometry_, inter.data(), pw, ph, ambient, scale, vignetting_, full, out);
-    } else {
-      if (wide) FusedDirectBilinear<1, uint16_t>(geometry_, inter.data(), pw, ph, ambient, scale, vignetting_, full, out);
-      else FusedDirectBilinear<1, uint8_t>(geometry_, inter.data(), pw, ph, ambient, scale, vignetting_, full, out);
+    auto run = [&](auto batch_tag) {
+      constexpr int kB = decltype(batch_tag)::value;
+      if (wide) {
+        FusedDirectBilinear<kB, uint16_t>(geometry_, inter.data(), pw, ph, ambient, scale, vignetting_, full, out);
+      } else {
+        FusedDirectBilinear<kB, uint8_t>(geometry_, inter.data(), pw, ph, ambient, scale, vignetting_, full, out);
+      }
+    };
+    switch (batch) {
+      case 1: run(std::integral_constant<int, 1>()); break;
+      case 2: run(std::integral_constant<int, 2>()); break;
+      case 3: run(std::integral_constant<int, 3>()); break;
+      case 4: run(std::integral_constant<int, 4>()); break;
+      case 5: run(std::integral_constant<int, 5>()); break;
+      case 6: run(std::integral_constant<int, 6>()); break;
+      case 7: run(std::integral_constant<int, 7>()); break;
+      default: run(std::integral_constant<int, 8>()); break;
     }
     return out;
   }

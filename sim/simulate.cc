@@ -23,9 +23,8 @@ double Since(std::chrono::steady_clock::time_point t) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
 }
 
-void CheckInputs(const Scene& scene, const Rig& rig, const std::vector<cv::Mat>& images) {
-  scene.Check("scene '" + scene.name + "'");
-  rig.Check("rig '" + rig.name + "'");
+// Projector images only (the scene and rig are checked once, by the Simulator's set-up).
+void CheckImages(const Rig& rig, const std::vector<cv::Mat>& images) {
   SLSHADOW_THROW_IF(!rig.projector, "rig '", rig.name, "' has no projector: the simulator needs one");
   SLSHADOW_THROW_IF(images.empty(), "no projector images to render");
   for (size_t i = 0; i < images.size(); ++i) {
@@ -144,7 +143,9 @@ std::vector<std::vector<cv::Mat>> Simulator::Render(const std::vector<cv::Mat>& 
                         s.layers.projector_defocus.enabled != scene_.layers.projector_defocus.enabled ||
                         s.objects.size() != scene_.objects.size(),
                     "Simulator::Render: the scene's geometry-affecting settings differ from the set-up's");
-  CheckInputs(s, rig_, projector_images);
+  s.radiometry.Check("scene '" + s.name + "'");
+  s.layers.Check("scene '" + s.name + "'");
+  CheckImages(rig_, projector_images);
   const auto start = std::chrono::steady_clock::now();
   std::vector<std::vector<cv::Mat>> images(geometry_.size());
   for (size_t c = 0; c < geometry_.size(); ++c) {
@@ -167,7 +168,7 @@ std::vector<std::vector<cv::Mat>> RenderScan(const Scene& scene, const Rig& rig,
                                              std::vector<GeometryBuffer>* geometry, SimulateSummary* summary,
                                              TraceMode mode) {
   const auto start = std::chrono::steady_clock::now();
-  CheckInputs(scene, rig, projector_images);
+  CheckImages(rig, projector_images);
   const Simulator sim(scene, rig, mode);
   SimulateSummary sum = sim.setup();
   auto images = sim.Render(projector_images, nullptr, &sum);
@@ -184,7 +185,9 @@ SimulateSummary SimulateScan(const Scene& scene, const Rig& rig, const std::vect
                              const SimulateOptions& options) {
   const auto start = std::chrono::steady_clock::now();
   options.Check();
-  CheckInputs(scene, rig, projector_images);
+  scene.Check("scene '" + scene.name + "'");
+  rig.Check("rig '" + rig.name + "'");
+  CheckImages(rig, projector_images);
   SLSHADOW_THROW_IF(std::filesystem::exists(out_dir) && !options.writer.overwrite, out_dir.string(),
                     ": exists (pass overwrite to replace it)");
   SimulateSummary sum;
