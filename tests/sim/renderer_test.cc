@@ -305,13 +305,15 @@ TEST(LayersTest, BatchEqualsSingleImagesWithAllLayers) {
         EXPECT_EQ(cv::norm(batch[k], batch5[k], cv::NORM_INF), 0) << variant << " " << k;
       }
       if (variant == 1) {
+        ASSERT_EQ(batch[k].type(), CV_16UC1);
         // The fused sweep against the general path (float irradiance, then the ADC).
         const cv::Mat irradiance = r.RenderIrradiance(patterns[k]);
         for (int y = 0; y < irradiance.rows; ++y) {
           for (int x = 0; x < irradiance.cols; ++x) {
             const float v = irradiance.at<float>(y, x);
-            const int q = v <= 0 ? 0 : (v >= 255 ? 255 : static_cast<int>(v + 0.5f));
-            ASSERT_EQ(batch[k].at<uint8_t>(y, x), q) << k << " " << x << "," << y;
+            const float full = 4095;  // layers_all.yaml: 12-bit ADC, 16-bit images
+            const int q = v <= 0 ? 0 : (v >= full ? static_cast<int>(full) : static_cast<int>(v + 0.5f));
+            ASSERT_EQ(batch[k].at<uint16_t>(y, x), q) << k << " " << x << "," << y;
           }
         }
       }
