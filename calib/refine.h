@@ -1,0 +1,66 @@
+// Calibration check and self-calibration from a scan's dense camera-projector correspondences.
+//
+// A decoded scan gives, for camera pixels q_c, the projector pixel q_p they see. With the rig's
+// models, x_c = Unproject_cam(q_c) and x_p = Unproject_proj(q_p) are rays, and a correct
+// calibration makes every pair coplanar with the baseline: x_p^T [t]x R x_c = 0 with
+// (R, t) = proj_from_cam. The residual used is the Sampson distance of that epipolar constraint,
+// scaled by the projector's focal length into projector pixels. A bumped rig, swapped devices or
+// a wrong file shows as residuals far above the decoding noise (a fraction of a pixel).
+//
+// Refinement re-estimates proj_from_cam (rotation, and the translation's direction) by
+// minimising the Cauchy-robustified residuals with Ceres; the translation's length (the
+// baseline) is kept from the original calibration, which fixes the scale (epipolar geometry has
+// none). Intrinsics are kept.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "core/projector_map.h"
+#include "core/rig.h"
+
+namespace slshadow {
+
+struct Correspondence {
+  Eigen::Vector2d camera_px;
+  Eigen::Vector2d projector_px;
+};
+
+// Up to `max_samples` valid pixels of `map` (both axes decoded), spread evenly over the image.
+std::vector<Correspondence> SampleCorrespondences(const ProjectorMap& map, int max_samples = 20000);
+
+struct EpipolarStats {
+  int count = 0;          // correspondences that could be unprojected
+  double median_px = 0;   // |residual|, projector px
+  double p95_px = 0;
+  double rms_px = 0;
+};
+
+// Residuals of `correspondences` under the rig's camera `camera` and its projector.
+EpipolarStats EpipolarResiduals(const Rig& rig, int camera, const std::vector<Correspondence>& correspondences,
+                                std::vector<double>* residuals_px = nullptr);
+
+struct RefineOptions {
+  double loss_scale_px = 1.0;  // Cauchy loss scale, projector px
+  int max_iterations = 100;
+  // A check warns when the median residual exceeds this (projector px).
+  double warn_median_px = 0.5;
+};
+
+struct RefineResult {
+  Rig rig;                  // the input rig with the projector's cam_from_rig refined
+  EpipolarStats before, after;
+  double rotation_change_rad = 0;    // angle between the old and the new proj_from_cam rotation
+  double direction_change_rad = 0;   // angle between the old and the new baseline direction
+  bool converged = false;
+  std::string message;      // one line for the user
+};
+
+// Refines the projector's pose relative to camera `camera` (throws slshadow::Error when the rig
+// has no projector, the camera index is out of range, or fewer than 20 correspondences unproject).
+RefineResult RefineProjectorPose(const Rig& rig, int camera, const std::vector<Correspondence>& correspondences,
+                                 const RefineOptions& options = {});
+
+}  // namespace slshadow

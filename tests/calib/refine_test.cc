@@ -1,0 +1,109 @@
+#include "calib/refine.h"
+
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include "core/error.h"
+
+namespace slshadow {
+namespace {
+
+Rig ProcamRig() {
+  Rig rig;
+  rig.name = "procam";
+  RigDevice cam;
+  cam.name = "camera";
+  cam.model = CameraModel(1280, 1024, 1400, 1400, 640, 512, -0.1, 0.05, 0, 0, 0);
+  rig.cameras.push_back(cam);
+  RigDevice proj;
+  proj.name = "projector";
+  proj.model = CameraModel(1024, 768, 1800, 1800, 512, 700, 0.02, 0, 0, 0, 0);
+  const Eigen::Quaterniond r(Eigen::AngleAxisd(-0.25, Eigen::Vector3d::UnitY()));
+  proj.cam_from_rig = Rigid3d(r, r * -Eigen::Vector3d(180, -20, 10));
+  rig.projector = proj;
+  return rig;
+}
+
+// Correspondences of random surface points 400-700 mm away, seen by both devices.
+std::vector<Correspondence> Make(const Rig& rig, int n, double noise_px, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-1, 1);
+  std::normal_distribution<double> g(0, noise_px > 0 ? noise_px : 1);
+  std::vector<Correspondence> out;
+  while (static_cast<int>(out.size()) < n) {
+    const Eigen::Vector3d x(200 * u(rng), 150 * u(rng), 550 + 150 * u(rng));
+    const auto a = rig.cameras[0].model.Project(rig.cameras[0].cam_from_rig * x);
+    const auto b = rig.projector->model.Project(rig.projector->cam_from_rig * x);
+    if (!a || !b || !rig.cameras[0].model.IsInImage(*a) || !rig.projector->model.IsInImage(*b)) continue;
+    Correspondence c{*a, *b};
+    if (noise_px > 0) c.projector_px += Eigen::Vector2d(g(rng), g(rng));
+    out.push_back(c);
+  }
+  return out;
+}
+
+TEST(Refine, CorrectRigFitsAndBumpedRigIsDetectedAndRepaired) {
+  const Rig truth = ProcamRig();
+  const auto corr = Make(truth, 3000, 0.2, 1);
+  const EpipolarStats ok = EpipolarResiduals(truth, 0, corr);
+  EXPECT_LT(ok.median_px, 0.2);  // |Sampson| of 0.2 px noise: median ~0.67 sigma in 1D
+  // Bump the projector: 0.5 degree about x and a 3 mm shift.
+  Rig bumped = truth;
+  const Eigen::Quaterniond bump(Eigen::AngleAxisd(0.5 * M_PI / 180, Eigen::Vector3d::UnitX()));
+  bumped.projector->cam_from_rig = Rigid3d(bump, Eigen::Vector3d(3, 0, 0)) * truth.projector->cam_from_rig;
+  const EpipolarStats bad = EpipolarResiduals(bumped, 0, corr);
+  EXPECT_GT(bad.median_px, 10 * ok.median_px);
+  const RefineResult r = RefineProjectorPose(bumped, 0, corr);
+  EXPECT_TRUE(r.converged);
+  EXPECT_NE(r.message.find("WARNING"), std::string::npos) << r.message;
+  EXPECT_LT(r.after.median_px, 1.2 * ok.median_px) << r.message;
+  // With 0.2 px noise the rotation comes back to ~0.05 deg (rotation and baseline direction trade
+  // off over a narrow field of view); without noise, exactly. The baseline length stays the bumped
+  // one (epipolar geometry has no scale).
+  EXPECT_LT(r.rig.projector->cam_from_rig.rotation.angularDistance(truth.projector->cam_from_rig.rotation), 0.1 * M_PI / 180);
+  const RefineResult exact = RefineProjectorPose(bumped, 0, Make(truth, 3000, 0.0, 1));
+  EXPECT_LT(exact.rig.projector->cam_from_rig.rotation.angularDistance(truth.projector->cam_from_rig.rotation), 1e-5);
+  EXPECT_LT(exact.after.median_px, 1e-4);
+  const double len = (r.rig.projector->cam_from_rig * truth.cameras[0].cam_from_rig.Inverse()).translation.norm();
+  const double len_bumped = (bumped.projector->cam_from_rig * truth.cameras[0].cam_from_rig.Inverse()).translation.norm();
+  EXPECT_NEAR(len, len_bumped, 1e-9);
+  // An already good rig stays put.
+  const RefineResult same = RefineProjectorPose(truth, 0, corr);
+  EXPECT_LT(same.rotation_change_rad, 0.1 * M_PI / 180);
+  EXPECT_EQ(same.message.find("WARNING"), std::string::npos) << same.message;
+}
+
+TEST(Refine, SwappedOrWrongRigIsFlagged) {
+  const Rig truth = ProcamRig();
+  const auto corr = Make(truth, 2000, 0.2, 2);
+  Rig wrong = truth;
+  wrong.projector->cam_from_rig = Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.25, Eigen::Vector3d::UnitY())),
+                                          Eigen::Vector3d(180, 20, -10));  // mirrored geometry
+  EXPECT_GT(EpipolarResiduals(wrong, 0, corr).median_px, 5.0);
+  Rig no_projector = truth;
+  no_projector.projector.reset();
+  EXPECT_THROW(RefineProjectorPose(no_projector, 0, corr), Error);
+  EXPECT_THROW(RefineProjectorPose(truth, 3, corr), Error);
+  EXPECT_THROW(RefineProjectorPose(truth, 0, std::vector<Correspondence>(corr.begin(), corr.begin() + 5)), Error);
+}
+
+TEST(Refine, SampleCorrespondencesTakesValidPixelsOnly) {
+  ProjectorMap map;
+  map.Allocate(64, 48, true, true);
+  for (int y = 0; y < 48; ++y) {
+    for (int x = 0; x < 64; ++x) {
+      if ((x + y) % 2) continue;
+      map.status.at<uint8_t>(y, x) = static_cast<uint8_t>(PixelStatus::kValid);
+      map.proj_x.at<float>(y, x) = static_cast<float>(2 * x);
+      map.proj_y.at<float>(y, x) = static_cast<float>(3 * y);
+    }
+  }
+  const auto all = SampleCorrespondences(map, 100000);
+  EXPECT_EQ(all.size(), 64u * 48u / 2u);
+  for (const auto& c : all) EXPECT_EQ(c.projector_px, Eigen::Vector2d(2 * c.camera_px.x(), 3 * c.camera_px.y()));
+  EXPECT_EQ(SampleCorrespondences(map, 100).size(), 100u);
+}
+
+}  // namespace
+}  // namespace slshadow
