@@ -12,11 +12,13 @@
 #include "calib/calibration_io.h"
 #include "calib/guidance.h"
 #include "calib/projector.h"
+#include "calib/refine.h"
 #include "calib/report.h"
 #include "calib/target.h"
 #include "core/config.h"
 #include "core/error.h"
 #include "core/image_set.h"
+#include "patterns/codec.h"
 #include "patterns/pattern_spec.h"
 
 namespace slshadow::app {
@@ -217,6 +219,9 @@ int RunCalibrate(int argc, char** argv) {
       "            corners are carried into the projector by local homographies (Moreno & Taubin 2012)\n"
       "  rig       --target T.yaml --imagesets DIR... --out RIG.yaml\n"
       "            each DIR an ImageSet (one board pose) with all cameras; projector and cameras jointly\n"
+      "  refine    --rig RIG.yaml --imageset SCAN --out RIG2.yaml [--camera NAME]\n"
+      "            check the rig against a scan's dense camera-projector correspondences (epipolar residual,\n"
+      "            projector px: median, p95) and re-estimate the projector's pose, keeping the baseline length\n"
       "  import    OPENCV.yml --out RIG.yaml [--image-size WxH] [--projector-size WxH]\n"
       "  export    RIG.yaml --out OPENCV.yml",
       argv[0]};
@@ -257,6 +262,13 @@ int RunCalibrate(int argc, char** argv) {
   rig_cmd->add_option("--shadow-threshold", shadow_threshold, "decode: minimum white - black, grey levels")->capture_default_str();
   rig_cmd->add_option("--contrast-threshold", contrast_threshold, "decode: minimum |bit - inverse|, grey levels")->capture_default_str();
   rig_cmd->add_option("--window", window, "local homography half window, camera px")->capture_default_str();
+
+  std::string refine_rig, refine_scan, refine_out, refine_camera;
+  auto* refine = app.add_subcommand("refine", "check a rig against a scan and re-estimate the projector pose (self-calibration)");
+  refine->add_option("--rig", refine_rig, "rig file to check")->required();
+  refine->add_option("--imageset", refine_scan, "ImageSet of a scan (any object) with the rig's camera and a pattern spec coding x and y")->required();
+  refine->add_option("--out", refine_out, "refined rig file to write")->required();
+  refine->add_option("--camera", refine_camera, "camera to use (default: the rig's first camera)");
 
   std::string import_in, import_out, image_size, projector_size;
   auto* import = app.add_subcommand("import", "convert an OpenCV calibration file (calibrateCamera / stereoCalibrate / procam layout) to a rig");
@@ -387,6 +399,27 @@ int RunCalibrate(int argc, char** argv) {
     PrintMissed(checks);
     extra["target"] = rig_common.target;
     return CalibrateAndWrite(input, checks, rig_common, extra);
+  }
+  if (refine->parsed()) {
+    const Rig rig = LoadRig(refine_rig);
+    const ImageSet scan = ImageSet::Open(refine_scan);
+    const std::string cam = refine_camera.empty() ? rig.cameras.at(0).name : refine_camera;
+    const int index = rig.CameraIndex(cam);
+    SLSHADOW_THROW_IF(index < 0, refine_rig, ": no camera named '", cam, "'");
+    const PatternSpec patterns =
+        PatternSpecFromConfig(ConfigNode::FromJson(scan.patterns(), (fs::path(refine_scan) / "manifest.json").string(), "patterns"));
+    SLSHADOW_THROW_IF(!patterns.code_x || !patterns.code_y, refine_scan, ": patterns must code both projector axes to check the calibration");
+    const ProjectorMap map = DecodePatterns(patterns, scan.LoadCamera(cam), decode);
+    const RefineResult r = RefineProjectorPose(rig, index, SampleCorrespondences(map));
+    Rig out = r.rig;
+    out.calibration["refine"] = {{"imageset", refine_scan}, {"camera", cam},
+                                 {"before_median_px", r.before.median_px}, {"before_p95_px", r.before.p95_px},
+                                 {"after_median_px", r.after.median_px}, {"after_p95_px", r.after.p95_px},
+                                 {"rotation_change_rad", r.rotation_change_rad},
+                                 {"direction_change_rad", r.direction_change_rad}, {"converged", r.converged}};
+    SaveRig(out, refine_out);
+    std::printf("%s\nwrote %s\n", r.message.c_str(), refine_out.c_str());
+    return 0;
   }
   if (import->parsed()) {
     int w = 0, h = 0, pw = 0, ph = 0;

@@ -1,11 +1,16 @@
 // The `slshadow calibrate` subcommand end to end (apps/cmd_calibrate.cc), on real data.
 #include <gtest/gtest.h>
 
+#include <cstdio>
 #include <string>
 #include <vector>
 
 #include "apps/commands.h"
 #include "calib/calibration_io.h"
+#include "calib/refine.h"
+#include "core/image_set.h"
+#include "patterns/codec.h"
+#include "patterns/pattern_spec.h"
 #include "core/file_util.h"
 #include "core/rig.h"
 #include "tests/testing/temp_dir.h"
@@ -74,6 +79,49 @@ TEST(CmdCalibrate, BadInputsFailWithoutWriting) {
   const std::string err = ::testing::internal::GetCapturedStderr();
   EXPECT_NE(err.find("mismatched image sizes"), std::string::npos) << err;
   EXPECT_FALSE(std::filesystem::exists(out));
+}
+
+}  // namespace
+}  // namespace slshadow
+
+namespace slshadow {
+namespace {
+
+// The calibration check on real data: kamino's capture_0 (a board, but any scan works) decoded,
+// and upstream's two published calibrations checked against it.
+TEST(CmdCalibrate, RefineChecksUpstreamKaminoCalibrations) {
+  testing::TempDir tmp;
+  const auto kamino = testing::SharedDataDir() / "kamino-procam-graycode";
+  const Rig first = ReadOpenCvCalibration(kamino / "calibration_result_ccf1cd8.xml", 0, 0, 1024, 768);
+  const Rig head = ReadOpenCvCalibration(kamino / "calibration_result.xml", 0, 0, 1024, 768);
+  const PatternSpec spec = LoadPatternSpec(testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml");
+  {
+    ImageSetWriter writer(tmp / "scan", first, PatternSpecToJson(spec));
+    for (int i = 0; i < spec.NumImages(); ++i) {
+      char name[32];
+      std::snprintf(name, sizeof(name), "graycode_%02d.png", i);
+      writer.Add("camera", i, ReadGrayImage(kamino / "capture_0" / name), 0, ImageSource::kReplay);
+    }
+    writer.Commit();
+  }
+  DecodeOptions decode;
+  const ProjectorMap map = DecodePatterns(spec, ImageSet::Open(tmp / "scan").LoadCamera("camera"), decode);
+  const auto corr = SampleCorrespondences(map);
+  const EpipolarStats a = EpipolarResiduals(first, 0, corr);
+  const EpipolarStats b = EpipolarResiduals(head, 0, corr);
+  std::printf("upstream ccf1cd8: epipolar median %.3f px p95 %.3f px; HEAD: median %.3f px p95 %.3f px (%d correspondences)\n",
+              a.median_px, a.p95_px, b.median_px, b.p95_px, a.count);
+  SaveRig(first, tmp / "first.yaml");
+  ASSERT_EQ(RunCli({"calibrate", "refine", "--rig", (tmp / "first.yaml").string(), "--imageset", (tmp / "scan").string(),
+                    "--out", (tmp / "refined.yaml").string()}), 0);
+  const Rig refined = LoadRig(tmp / "refined.yaml");
+  EXPECT_LE(refined.calibration["refine"]["after_median_px"].get<double>(),
+            refined.calibration["refine"]["before_median_px"].get<double>() + 1e-9);
+  EXPECT_NEAR(refined.calibration["refine"]["before_median_px"].get<double>(), a.median_px, 1e-9);
+  // The baseline length is kept.
+  EXPECT_NEAR(refined.BaselineMm(refined.cameras[0], *refined.projector), first.BaselineMm(first.cameras[0], *first.projector), 1e-6);
+  EXPECT_NE(RunCli({"calibrate", "refine", "--rig", (tmp / "first.yaml").string(), "--imageset", (tmp / "missing").string(),
+                    "--out", (tmp / "x.yaml").string()}), 0);
 }
 
 }  // namespace
