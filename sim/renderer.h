@@ -64,6 +64,8 @@ class DefaultInitAllocator : public A {
     traits::construct(static_cast<A&>(*this), ptr, std::forward<Args>(args)...);
   }
 };
+template <typename T, typename U, typename A>
+bool operator==(const DefaultInitAllocator<T, A>&, const DefaultInitAllocator<U, A>&) { return true; }
 using FloatBuffer = std::vector<float, DefaultInitAllocator<float>>;
 
 // What the geometry pass yields for one camera.
