@@ -51,7 +51,7 @@ int64_t FilterDepthDiscontinuities(DenseGrid& grid, double max_jump_footprints, 
   });
   const int r = std::max(0, dilation_px);
   std::atomic<int64_t> rejected{0};
-  std::vector<uint8_t> reject(grid.reason.size(), 0);
+  // Each cell reads `jump` only and writes its own reason: rows can be marked in place.
   cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
     int64_t local = 0;
     for (int v = rows.start; v < rows.end; ++v) {
@@ -68,16 +68,13 @@ int64_t FilterDepthDiscontinuities(DenseGrid& grid, double max_jump_footprints, 
           }
         }
         if (hit) {
-          reject[i] = 1;
+          grid.reason[i] = static_cast<uint8_t>(RejectReason::kDepthDiscontinuity);
           ++local;
         }
       }
     }
     rejected += local;
   });
-  for (size_t i = 0; i < reject.size(); ++i) {
-    if (reject[i]) grid.reason[i] = static_cast<uint8_t>(RejectReason::kDepthDiscontinuity);
-  }
   return rejected.load();
 }
 
@@ -87,44 +84,96 @@ int64_t FilterStatisticalOutliers(DenseGrid& grid, int window_radius_px, int nei
   const int k = std::max(1, neighbors);
   const double inf = std::numeric_limits<double>::infinity();
   std::vector<double> score(grid.reason.size(), -1.0);  // -1: not an accepted cell
-  cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
-    // The k smallest squared distances so far, ascending (insertion: k is small; no allocation
-    // per cell).
-    std::vector<double> best(static_cast<size_t>(k));
-    for (int v = rows.start; v < rows.end; ++v) {
-      const int v0 = std::max(0, v - r), v1 = std::min(h - 1, v + r);
-      for (int u = 0; u < w; ++u) {
-        const size_t i = grid.Index(u, v);
-        if (!grid.Accepted(i)) continue;
-        const Eigen::Vector3d& p = grid.point_in_rig[i];
-        const int u0 = std::max(0, u - r), u1 = std::min(w - 1, u + r);
-        int m = 0;
-        for (int vn = v0; vn <= v1; ++vn) {
-          const size_t row = grid.Index(0, vn);
-          for (int un = u0; un <= u1; ++un) {
-            const size_t j = row + static_cast<size_t>(un);
-            if (j == i || grid.reason[j] != kAccepted) continue;
-            const double d = (grid.point_in_rig[j] - p).squaredNorm();
-            if (m == k && d >= best[static_cast<size_t>(k - 1)]) continue;
-            int pos = m < k ? m++ : k - 1;
-            while (pos > 0 && best[static_cast<size_t>(pos - 1)] > d) {
-              best[static_cast<size_t>(pos)] = best[static_cast<size_t>(pos - 1)];
-              --pos;
+  if (r == 1 && k <= 8) {
+    // 3x3 window: the 8 squared distances (+inf where no accepted neighbour) ordered by a
+    // branch-free sorting network; the sum of the k smallest in ascending order is then the same
+    // as the insertion below computes.
+    cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
+      for (int v = rows.start; v < rows.end; ++v) {
+        for (int u = 0; u < w; ++u) {
+          const size_t i = grid.Index(u, v);
+          if (!grid.Accepted(i)) continue;
+          const Eigen::Vector3d& p = grid.point_in_rig[i];
+          double d[8];
+          int m = 0, q = 0;
+          for (int dv = -1; dv <= 1; ++dv) {
+            for (int du = -1; du <= 1; ++du) {
+              if (du == 0 && dv == 0) continue;
+              const int un = u + du, vn = v + dv;
+              double dist = inf;
+              if (un >= 0 && vn >= 0 && un < w && vn < h) {
+                const size_t j = grid.Index(un, vn);
+                if (grid.reason[j] == kAccepted) {
+                  dist = (grid.point_in_rig[j] - p).squaredNorm();
+                  ++m;
+                }
+              }
+              d[q++] = dist;
             }
-            best[static_cast<size_t>(pos)] = d;
           }
+          if (m == 0) {
+            score[i] = inf;
+            continue;
+          }
+          auto cswap = [&d](int a, int b) {
+            const double lo = std::min(d[a], d[b]), hi = std::max(d[a], d[b]);
+            d[a] = lo;
+            d[b] = hi;
+          };
+          // Batcher's odd-even merge sort for 8 inputs (19 comparators).
+          cswap(0, 1); cswap(2, 3); cswap(4, 5); cswap(6, 7);
+          cswap(0, 2); cswap(1, 3); cswap(4, 6); cswap(5, 7);
+          cswap(1, 2); cswap(5, 6);
+          cswap(0, 4); cswap(1, 5); cswap(2, 6); cswap(3, 7);
+          cswap(2, 4); cswap(3, 5);
+          cswap(1, 2); cswap(3, 4); cswap(5, 6);
+          const int take = std::min(m, k);
+          double sum = 0;
+          for (int t = 0; t < take; ++t) sum += d[t];
+          score[i] = std::sqrt(sum / take * (grid.focal_px * grid.focal_px) / (p - grid.viewpoint_in_rig).squaredNorm());
         }
-        if (m == 0) {
-          score[i] = inf;
-          continue;
-        }
-        double sum = 0;
-        for (int q = 0; q < m; ++q) sum += best[static_cast<size_t>(q)];
-        // RMS distance to the m nearest, in footprints (one square root per cell).
-        score[i] = std::sqrt(sum / m * (grid.focal_px * grid.focal_px) / (p - grid.viewpoint_in_rig).squaredNorm());
       }
-    }
-  });
+    });
+  } else {
+    cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
+      // The k smallest squared distances so far, ascending (insertion: k is small; no allocation
+      // per cell).
+      std::vector<double> best(static_cast<size_t>(k));
+      for (int v = rows.start; v < rows.end; ++v) {
+        const int v0 = std::max(0, v - r), v1 = std::min(h - 1, v + r);
+        for (int u = 0; u < w; ++u) {
+          const size_t i = grid.Index(u, v);
+          if (!grid.Accepted(i)) continue;
+          const Eigen::Vector3d& p = grid.point_in_rig[i];
+          const int u0 = std::max(0, u - r), u1 = std::min(w - 1, u + r);
+          int m = 0;
+          for (int vn = v0; vn <= v1; ++vn) {
+            const size_t row = grid.Index(0, vn);
+            for (int un = u0; un <= u1; ++un) {
+              const size_t j = row + static_cast<size_t>(un);
+              if (j == i || grid.reason[j] != kAccepted) continue;
+              const double d = (grid.point_in_rig[j] - p).squaredNorm();
+              if (m == k && d >= best[static_cast<size_t>(k - 1)]) continue;
+              int pos = m < k ? m++ : k - 1;
+              while (pos > 0 && best[static_cast<size_t>(pos - 1)] > d) {
+                best[static_cast<size_t>(pos)] = best[static_cast<size_t>(pos - 1)];
+                --pos;
+              }
+              best[static_cast<size_t>(pos)] = d;
+            }
+          }
+          if (m == 0) {
+            score[i] = inf;
+            continue;
+          }
+          double sum = 0;
+          for (int q = 0; q < m; ++q) sum += best[static_cast<size_t>(q)];
+          // RMS distance to the m nearest, in footprints (one square root per cell).
+          score[i] = std::sqrt(sum / m * (grid.focal_px * grid.focal_px) / (p - grid.viewpoint_in_rig).squaredNorm());
+        }
+      }
+    });
+  }
   double sum = 0, sum2 = 0;
   int64_t n = 0;
   for (double s : score) {

@@ -1,6 +1,8 @@
 #include "reconstruct/filters.h"
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <random>
 #include <set>
 
@@ -96,6 +98,80 @@ TEST(OutlierRemovalTest, PointsWithoutNeighboursGo) {
   grid.reason[grid.Index(21, 20)] = static_cast<uint8_t>(RejectReason::kAccepted);
   EXPECT_EQ(FilterStatisticalOutliers(grid, 2, 8, 3.0), 1);
   EXPECT_EQ(grid.reason[grid.Index(5, 5)], static_cast<uint8_t>(RejectReason::kOutlier));
+}
+
+// Brute-force oracle of the statistical outlier removal: per accepted cell, all squared distances
+// to the accepted cells of the window, sorted, the k smallest summed; mean and std over the
+// cells with a neighbour; the same limit.
+std::vector<uint8_t> OutlierOracle(const DenseGrid& grid, int r, int k, double ratio, double floor) {
+  std::vector<double> score(grid.reason.size(), -1.0);
+  for (int v = 0; v < grid.height; ++v) {
+    for (int u = 0; u < grid.width; ++u) {
+      const size_t i = grid.Index(u, v);
+      if (!grid.Accepted(i)) continue;
+      std::vector<double> d;
+      for (int vn = std::max(0, v - r); vn <= std::min(grid.height - 1, v + r); ++vn) {
+        for (int un = std::max(0, u - r); un <= std::min(grid.width - 1, u + r); ++un) {
+          const size_t j = grid.Index(un, vn);
+          if (j != i && grid.Accepted(j)) d.push_back((grid.point_in_rig[j] - grid.point_in_rig[i]).squaredNorm());
+        }
+      }
+      if (d.empty()) {
+        score[i] = std::numeric_limits<double>::infinity();
+        continue;
+      }
+      std::sort(d.begin(), d.end());
+      const int m = std::min<int>(k, static_cast<int>(d.size()));
+      double sum = 0;
+      for (int q = 0; q < m; ++q) sum += d[static_cast<size_t>(q)];
+      score[i] = std::sqrt(sum / m * (grid.focal_px * grid.focal_px) / (grid.point_in_rig[i] - grid.viewpoint_in_rig).squaredNorm());
+    }
+  }
+  double sum = 0, sum2 = 0;
+  int64_t n = 0;
+  for (double s : score) {
+    if (s >= 0 && std::isfinite(s)) {
+      sum += s;
+      sum2 += s * s;
+      ++n;
+    }
+  }
+  const double mean = sum / static_cast<double>(n);
+  const double var = std::max(0.0, (sum2 - sum * mean) / static_cast<double>(n - 1));
+  const double limit = std::max(mean + ratio * std::sqrt(var), floor);
+  std::vector<uint8_t> reason = grid.reason;
+  for (size_t i = 0; i < score.size(); ++i) {
+    if (score[i] >= 0 && score[i] > limit) reason[i] = static_cast<uint8_t>(RejectReason::kOutlier);
+  }
+  return reason;
+}
+
+TEST(OutlierRemovalTest, MatchesABruteForceOracleForEveryWindowAndNeighbourCount) {
+  // A noisy wavy surface with holes (so cells have 0..8 accepted neighbours) and spikes; the
+  // 3x3 window has its own sorting-network path, larger windows the general one.
+  std::mt19937 rng(11);
+  std::normal_distribution<double> noise(0.0, 0.3);
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  DenseGrid base = MakeGrid(70, 50, [&](int u, int v) { return 450.0 + 10 * std::sin(0.2 * u) + 0.1 * v + noise(rng); });
+  for (size_t i = 0; i < base.reason.size(); ++i) {
+    const double x = uniform(rng);
+    if (x < 0.15) base.reason[i] = static_cast<uint8_t>(RejectReason::kNotDecoded);
+    else if (x < 0.18) base.point_in_rig[i].z() += 20 + 40 * uniform(rng);
+  }
+  for (int r = 1; r <= 2; ++r) {
+    for (int k = 1; k <= 8; ++k) {
+      for (double floor : {0.0, 4.0}) {
+        DenseGrid grid = base;
+        const std::vector<uint8_t> expected = OutlierOracle(grid, r, k, 2.0, floor);
+        const int64_t rejected = FilterStatisticalOutliers(grid, r, k, 2.0, floor);
+        int64_t expected_rejected = 0;
+        for (size_t i = 0; i < expected.size(); ++i) expected_rejected += expected[i] != base.reason[i] ? 1 : 0;
+        EXPECT_GT(expected_rejected, 0) << "r " << r << " k " << k;
+        EXPECT_EQ(rejected, expected_rejected) << "r " << r << " k " << k << " floor " << floor;
+        EXPECT_EQ(grid.reason, expected) << "r " << r << " k " << k << " floor " << floor;
+      }
+    }
+  }
 }
 
 TEST(NormalsTest, PlaneNormalsAreExactAndFaceTheViewpoint) {

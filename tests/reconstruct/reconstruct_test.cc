@@ -1,5 +1,6 @@
 #include "reconstruct/reconstruct.h"
 
+#include <algorithm>
 #include <cmath>
 #include <random>
 #include <set>
@@ -187,6 +188,28 @@ TEST(ResidualStatsTest, QuantilesMatchASortedCopy) {
   EXPECT_NEAR(s.rms, std::sqrt(sum2 / sorted.size()), 1e-9);
   std::vector<float> empty;
   EXPECT_EQ(ComputeResidualStats(empty).count, 0);
+}
+
+TEST(ResidualStatsTest, QuantilesAreExactWithTiesSignsAndTinySets) {
+  // Values quantised to few levels (long runs of ties), both signs and zeros of both signs, and
+  // sets of 1..5 values: the ranks must equal those of a sorted copy.
+  std::mt19937 rng(7);
+  std::uniform_int_distribution<int> level(-20, 200);
+  for (size_t n : {1, 2, 3, 5, 1000, 200001}) {
+    std::vector<float> values(n);
+    for (float& v : values) v = static_cast<float>(level(rng)) * 0.125f;
+    if (n > 3) {
+      values[1] = -0.0f;
+      values[2] = 0.0f;
+    }
+    std::vector<float> sorted = values;
+    std::sort(sorted.begin(), sorted.end());
+    const ResidualStats s = ComputeResidualStats(values);
+    const auto at = [&](double q) { return sorted[static_cast<size_t>(std::floor(q * (sorted.size() - 1) + 0.5))]; };
+    EXPECT_EQ(s.count, static_cast<int64_t>(n));
+    EXPECT_EQ(s.median, at(0.5)) << n;
+    EXPECT_EQ(s.p95, at(0.95)) << n;
+  }
 }
 
 double DistanceToStep(const Eigen::Vector3d& p, double edge_x, double near_z, double far_z) {
