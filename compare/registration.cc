@@ -386,8 +386,11 @@ RegistrationResult Register(const std::vector<Eigen::Vector3d>& cloud,
     const IcpAcc acc = Correspond(src, t, tree, normals, gate);
     r.icp_iterations = it + 1;
     if (acc.n < 6) break;
-    const Eigen::Matrix<double, 6, 1> x =
-        acc.ata.selfadjointView<Eigen::Upper>().ldlt().solve(-acc.atb);
+    // A tiny additive damping keeps unobservable directions (e.g. rotations of a sphere about
+    // its centre) at zero instead of letting them drift.
+    Eigen::Matrix<double, 6, 6> ata = acc.ata.selfadjointView<Eigen::Upper>();
+    ata.diagonal().array() += 1e-9 * ata.trace();
+    const Eigen::Matrix<double, 6, 1> x = ata.ldlt().solve(-acc.atb);
     const Eigen::Vector3d w = x.head<3>();
     const double angle = w.norm();
     const Eigen::Quaterniond dq =
@@ -395,8 +398,16 @@ RegistrationResult Register(const std::vector<Eigen::Vector3d>& cloud,
     t = Rigid3d(dq, x.tail<3>()) * t;
     const double rms = std::sqrt(acc.sum_sq_p2p / static_cast<double>(acc.n));
     const double motion = angle * diag + x.tail<3>().norm();
-    const double next_gate = std::max(std::min(gate, 3.0 * rms), min_gate);
-    if (motion < options.icp_tolerance * diag && next_gate >= gate) {
+    double next_gate = std::max(std::min(gate, 3.0 * rms), min_gate);
+    if (next_gate > 0.95 * gate) next_gate = gate;  // settled: do not shrink by crumbs forever
+    // Converged when the update is negligible, or when it moves the points only along the
+    // surface (RMS displacement along the normals, sqrt(x' A'A x / n), below a tenth of the
+    // statistical noise floor RMS / sqrt(n)): a symmetric part (a sphere, a cylinder) leaves
+    // such motions unobservable, and they would never settle.
+    const double normal_motion =
+        std::sqrt(std::max(0.0, x.dot(acc.ata.selfadjointView<Eigen::Upper>() * x)) / static_cast<double>(acc.n));
+    const double noise_floor = 0.1 * rms / std::sqrt(static_cast<double>(acc.n));
+    if ((motion < options.icp_tolerance * diag || normal_motion < noise_floor) && next_gate >= gate) {
       r.converged = true;
       break;
     }
