@@ -13,6 +13,7 @@
 // Units: mm, px. Projector coordinates use OpenCV's pixel convention (integer = pixel centre).
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <memory>
 #include <type_traits>
@@ -43,6 +44,35 @@ struct CameraRays {
 };
 CameraRays ComputeCameraRays(const CameraModel& camera, int samples_per_axis);
 
+namespace sim_detail {
+// Buffers of 1 MB and more come from a bounded pool of 2 MB-aligned, huge-page-advised blocks
+// recycled across geometry passes and scans (fewer first-touch page faults); renderer.cc.
+void* AllocateLarge(size_t bytes);
+void FreeLarge(void* p, size_t bytes);
+template <typename T>
+struct LargeBufferAllocator {
+  using value_type = T;
+  static constexpr size_t kLarge = size_t{1} << 20;
+  LargeBufferAllocator() = default;
+  template <typename U>
+  LargeBufferAllocator(const LargeBufferAllocator<U>&) {}
+  T* allocate(size_t n) {
+    const size_t bytes = n * sizeof(T);
+    return static_cast<T*>(bytes >= kLarge ? AllocateLarge(bytes) : ::operator new(bytes));
+  }
+  void deallocate(T* p, size_t n) {
+    const size_t bytes = n * sizeof(T);
+    if (bytes >= kLarge) {
+      FreeLarge(p, bytes);
+    } else {
+      ::operator delete(p);
+    }
+  }
+  template <typename U>
+  bool operator==(const LargeBufferAllocator<U>&) const { return true; }
+};
+}  // namespace sim_detail
+
 // std::vector storage that is not zero-filled on resize (the geometry pass writes every element;
 // first touch then happens in parallel instead of in one thread).
 template <typename T, typename A = std::allocator<T>>
@@ -66,7 +96,7 @@ class DefaultInitAllocator : public A {
 };
 template <typename T, typename U, typename A>
 bool operator==(const DefaultInitAllocator<T, A>&, const DefaultInitAllocator<U, A>&) { return true; }
-using FloatBuffer = std::vector<float, DefaultInitAllocator<float>>;
+using FloatBuffer = std::vector<float, DefaultInitAllocator<float, sim_detail::LargeBufferAllocator<float>>>;
 
 // What the geometry pass yields for one camera.
 struct GeometryBuffer {
