@@ -13,13 +13,28 @@ namespace {
 
 constexpr uint8_t kAccepted = static_cast<uint8_t>(RejectReason::kAccepted);
 
+// Per-thread scratch buffers, kept between calls: a 1920x1200 grid needs ~20 MB of temporaries
+// per filter, and fresh allocations of that size are fresh pages from the kernel every call
+// (page faults cost ~10 % of a reconstruction). The caller's thread owns them; the row-parallel
+// workers reach them through the caller's reference.
+std::vector<double>& ScratchDoubles(size_t n, double fill) {
+  thread_local std::vector<double> buffer;
+  buffer.assign(n, fill);
+  return buffer;
+}
+std::vector<uint8_t>& ScratchBytes(size_t n) {
+  thread_local std::vector<uint8_t> buffer;
+  buffer.assign(n, 0);
+  return buffer;
+}
+
 double Range(const DenseGrid& grid, size_t i) { return (grid.point_in_rig[i] - grid.viewpoint_in_rig).norm(); }
 
 }  // namespace
 
 int64_t FilterDepthDiscontinuities(DenseGrid& grid, double max_jump_footprints, int dilation_px) {
   const int w = grid.width, h = grid.height;
-  std::vector<double> range(grid.reason.size(), 0.0);
+  std::vector<double>& range = ScratchDoubles(grid.reason.size(), 0.0);
   cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
     for (int v = rows.start; v < rows.end; ++v) {
       for (int u = 0; u < w; ++u) {
@@ -28,7 +43,7 @@ int64_t FilterDepthDiscontinuities(DenseGrid& grid, double max_jump_footprints, 
       }
     }
   });
-  std::vector<uint8_t> jump(grid.reason.size(), 0);
+  std::vector<uint8_t>& jump = ScratchBytes(grid.reason.size());
   cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
     for (int v = rows.start; v < rows.end; ++v) {
       for (int u = 0; u < w; ++u) {
@@ -83,7 +98,7 @@ int64_t FilterStatisticalOutliers(DenseGrid& grid, int window_radius_px, int nei
   const int w = grid.width, h = grid.height, r = std::max(1, window_radius_px);
   const int k = std::max(1, neighbors);
   const double inf = std::numeric_limits<double>::infinity();
-  std::vector<double> score(grid.reason.size(), -1.0);  // -1: not an accepted cell
+  std::vector<double>& score = ScratchDoubles(grid.reason.size(), -1.0);  // -1: not an accepted cell
   if (r == 1 && k <= 8) {
     // 3x3 window: the 8 squared distances (+inf where no accepted neighbour) ordered by a
     // branch-free sorting network; the sum of the k smallest in ascending order is then the same
@@ -197,8 +212,15 @@ int64_t FilterStatisticalOutliers(DenseGrid& grid, int window_radius_px, int nei
 }
 
 std::vector<Eigen::Vector3f> EstimateNormals(const DenseGrid& grid, int64_t* fallback_count) {
+  std::vector<Eigen::Vector3f> normals;
+  EstimateNormals(grid, &normals, fallback_count);
+  return normals;
+}
+
+void EstimateNormals(const DenseGrid& grid, std::vector<Eigen::Vector3f>* out, int64_t* fallback_count) {
   const int w = grid.width, h = grid.height;
-  std::vector<Eigen::Vector3f> normals(grid.reason.size(), Eigen::Vector3f::Zero());
+  out->assign(grid.reason.size(), Eigen::Vector3f::Zero());
+  std::vector<Eigen::Vector3f>& normals = *out;
   std::atomic<int64_t> fallbacks{0};
   cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
     int64_t local = 0;
@@ -238,7 +260,6 @@ std::vector<Eigen::Vector3f> EstimateNormals(const DenseGrid& grid, int64_t* fal
     fallbacks += local;
   });
   if (fallback_count) *fallback_count = fallbacks.load();
-  return normals;
 }
 
 }  // namespace slshadow

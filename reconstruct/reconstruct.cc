@@ -53,8 +53,14 @@ void Finish(const ReconstructOptions& options, Reconstruction* out) {
   DenseGrid& grid = out->grid;
   ReconstructSummary& s = out->summary;
   auto t0 = Clock::now();
-  std::vector<float> reproj, epi;
-  reproj.reserve(grid.reason.size() / 2);
+  // Per-thread buffers reused by the next reconstruction (fresh pages cost page faults).
+  // (Referenced, not named, inside parallel bodies: a worker naming a thread_local gets its own.)
+  thread_local std::vector<float> reproj_buffer, epi_buffer;
+  std::vector<float>& reproj = reproj_buffer;
+  std::vector<float>& epi = epi_buffer;
+  reproj.clear();
+  epi.clear();
+  reproj.reserve(grid.reason.size());
   for (size_t i = 0; i < grid.reason.size(); ++i) {
     if (!grid.Accepted(i)) continue;
     reproj.push_back(grid.reprojection_error_px[i]);
@@ -80,8 +86,9 @@ void Finish(const ReconstructOptions& options, Reconstruction* out) {
   }
   s.filter_s = Seconds(t0);
   t0 = Clock::now();
-  std::vector<Eigen::Vector3f> normals;
-  if (options.estimate_normals) normals = EstimateNormals(grid, &s.normal_fallbacks);
+  thread_local std::vector<Eigen::Vector3f> normals_buffer;
+  std::vector<Eigen::Vector3f>& normals = normals_buffer;
+  if (options.estimate_normals) EstimateNormals(grid, &normals, &s.normal_fallbacks);
   out->cloud = grid.ToPointCloud(options.estimate_normals ? &normals : nullptr);
   s.normals_s = Seconds(t0);
   s.grid_width = grid.width;
@@ -328,6 +335,7 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
   grid.focal_px = cam_view.focal_px;
   const double sin_min = std::sin(options.min_triangulation_angle_deg * M_PI / 180.0);
   const int axis = map.has_x ? 0 : 1;
+  const bool midpoint = options.method == TriangulationMethod::kMidpoint;
   const double* cam_params = cam.model.params.data();
   const double* proj_params = proj.model.params.data();
   const double nan = std::numeric_limits<double>::quiet_NaN();
@@ -362,11 +370,12 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
             reason = Code(RejectReason::kNoRay);
             continue;
           }
-          if (!(tri.SinAngle(xy, *pxy) >= sin_min)) {
+          const Eigen::Vector3d d0 = cam_view.RayInRig(xy), d1 = proj_view.RayInRig(*pxy);
+          if (!(TwoViewTriangulator::SinAngleOfRays(d0, d1) >= sin_min)) {
             reason = Code(RejectReason::kParallelRays);
             continue;
           }
-          const auto p = tri.Triangulate(xy, *pxy, options.method);
+          const auto p = midpoint ? tri.MidpointOfRays(d0, d1) : tri.Triangulate(xy, *pxy, options.method);
           if (!p) {
             reason = Code(RejectReason::kParallelRays);
             continue;
@@ -462,6 +471,7 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
   grid.focal_px = rect.focal_px;
   const double sin_min = std::sin(options.min_triangulation_angle_deg * M_PI / 180.0);
   const bool cross_axis = lm.has_y && rm.has_y;
+  const bool midpoint = options.method == TriangulationMethod::kMidpoint;
   const TriangulationView left_view(left.cam_from_rig, FocalOf(left.model));
   const TriangulationView right_view(right.cam_from_rig, FocalOf(right.model));
   const Eigen::Matrix3d right_from_rect = right_view.cam_from_rig_rotation * rect.rect_from_rig_rotation.transpose();
@@ -474,11 +484,12 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
         const double ur = matches.right_u[i];
         const Eigen::Vector2d xy0 = rect.Normalized(0, u, v);
         const Eigen::Vector2d xy1 = rect.Normalized(1, ur, v);
-        if (!(tri.SinAngle(xy0, xy1) >= sin_min)) {
+        const Eigen::Vector3d d0 = view0.RayInRig(xy0), d1 = view1.RayInRig(xy1);
+        if (!(TwoViewTriangulator::SinAngleOfRays(d0, d1) >= sin_min)) {
           reason = Code(RejectReason::kParallelRays);
           continue;
         }
-        const auto p = tri.Triangulate(xy0, xy1, options.method);
+        const auto p = midpoint ? tri.MidpointOfRays(d0, d1) : tri.Triangulate(xy0, xy1, options.method);
         if (!p) {
           reason = Code(RejectReason::kParallelRays);
           continue;

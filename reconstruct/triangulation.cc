@@ -63,9 +63,7 @@ TwoViewTriangulator::TwoViewTriangulator(const TriangulationView& view0, const T
 }
 
 double TwoViewTriangulator::SinAngle(const Eigen::Vector2d& xy0, const Eigen::Vector2d& xy1) const {
-  const Eigen::Vector3d d0 = view0_.RayInRig(xy0);
-  const Eigen::Vector3d d1 = view1_.RayInRig(xy1);
-  return d0.cross(d1).norm() / (d0.norm() * d1.norm());
+  return SinAngleOfRays(view0_.RayInRig(xy0), view1_.RayInRig(xy1));
 }
 
 double TwoViewTriangulator::EpipolarDistancePx(const Eigen::Vector2d& xy0, const Eigen::Vector2d& xy1) const {
@@ -79,20 +77,7 @@ double TwoViewTriangulator::EpipolarDistancePx(const Eigen::Vector2d& xy0, const
 
 std::optional<Eigen::Vector3d> TwoViewTriangulator::Midpoint(const Eigen::Vector2d& xy0,
                                                              const Eigen::Vector2d& xy1) const {
-  const Eigen::Vector3d d0 = view0_.RayInRig(xy0);
-  const Eigen::Vector3d d1 = view1_.RayInRig(xy1);
-  const Eigen::Vector3d w = view0_.center_in_rig - view1_.center_in_rig;
-  const double a = d0.squaredNorm(), b = d0.dot(d1), c = d1.squaredNorm();
-  const double d = d0.dot(w), e = d1.dot(w);
-  const double denom = a * c - b * b;  // = |d0 x d1|^2
-  if (!(denom > 1e-24 * a * c)) return std::nullopt;
-  const double s = (b * e - c * d) / denom;
-  const double t = (a * e - b * d) / denom;
-  const Eigen::Vector3d p0 = view0_.center_in_rig + s * d0;
-  const Eigen::Vector3d p1 = view1_.center_in_rig + t * d1;
-  const Eigen::Vector3d mid = 0.5 * (p0 + p1);
-  if (!mid.allFinite()) return std::nullopt;
-  return mid;
+  return MidpointOfRays(view0_.RayInRig(xy0), view1_.RayInRig(xy1));
 }
 
 std::optional<Eigen::Vector3d> TwoViewTriangulator::Dlt(const Eigen::Vector2d& xy0,

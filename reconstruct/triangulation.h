@@ -78,6 +78,27 @@ class TwoViewTriangulator {
   // Sine of the angle between the two viewing rays.
   double SinAngle(const Eigen::Vector2d& xy0, const Eigen::Vector2d& xy1) const;
 
+  // The same from the rays in the rig frame (view0().RayInRig(xy0), view1().RayInRig(xy1)), for
+  // callers that gate on the angle and then triangulate by the midpoint: the rays are formed once.
+  // Bit-identical to SinAngle and Midpoint.
+  static double SinAngleOfRays(const Eigen::Vector3d& d0, const Eigen::Vector3d& d1) {
+    return d0.cross(d1).norm() / (d0.norm() * d1.norm());
+  }
+  std::optional<Eigen::Vector3d> MidpointOfRays(const Eigen::Vector3d& d0, const Eigen::Vector3d& d1) const {
+    const Eigen::Vector3d w = view0_.center_in_rig - view1_.center_in_rig;
+    const double a = d0.squaredNorm(), b = d0.dot(d1), c = d1.squaredNorm();
+    const double d = d0.dot(w), e = d1.dot(w);
+    const double denom = a * c - b * b;  // = |d0 x d1|^2
+    if (!(denom > 1e-24 * a * c)) return std::nullopt;
+    const double s = (b * e - c * d) / denom;
+    const double t = (a * e - b * d) / denom;
+    const Eigen::Vector3d p0 = view0_.center_in_rig + s * d0;
+    const Eigen::Vector3d p1 = view1_.center_in_rig + t * d1;
+    const Eigen::Vector3d mid = 0.5 * (p0 + p1);
+    if (!mid.allFinite()) return std::nullopt;
+    return mid;
+  }
+
   // Distance, in view 1's pixel-scaled units, of observation xy1 from the epipolar line of xy0.
   double EpipolarDistancePx(const Eigen::Vector2d& xy0, const Eigen::Vector2d& xy1) const;
 
