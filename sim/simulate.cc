@@ -1,9 +1,13 @@
 #include "sim/simulate.h"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cstdio>
 #include <cstring>
+#include <deque>
+#include <memory>
+#include <mutex>
 #include <sstream>
 
 #include <opencv2/imgcodecs.hpp>
@@ -113,6 +117,37 @@ std::string SimulateSummary::BriefReport() const {
   return s.str();
 }
 
+namespace {
+
+// Viewing rays depend only on the camera model and the supersampling; computing them costs a
+// Newton undistortion per sample (~0.1 CPU s per 1920x1200 camera), so the last few are kept
+// for the next scan by the same cameras (kCached entries, ~28 MB each at 1920x1200, 1 spp).
+std::shared_ptr<const CameraRays> CachedCameraRays(const CameraModel& model, int samples_per_axis) {
+  struct Entry {
+    int width, height, spp;
+    std::array<double, CameraModel::kNumParams> params;
+    std::shared_ptr<const CameraRays> rays;
+  };
+  constexpr size_t kCached = 4;
+  static std::mutex mutex;
+  static std::deque<Entry> cache;
+  {
+    const std::lock_guard<std::mutex> lock(mutex);
+    for (const Entry& e : cache) {
+      if (e.width == model.width && e.height == model.height && e.spp == samples_per_axis && e.params == model.params) {
+        return e.rays;
+      }
+    }
+  }
+  auto rays = std::make_shared<const CameraRays>(ComputeCameraRays(model, samples_per_axis));
+  const std::lock_guard<std::mutex> lock(mutex);
+  cache.push_front(Entry{model.width, model.height, samples_per_axis, model.params, rays});
+  if (cache.size() > kCached) cache.pop_back();
+  return rays;
+}
+
+}  // namespace
+
 Simulator::Simulator(const Scene& scene, const Rig& rig, TraceMode mode) : scene_(scene), rig_(rig) {
   const auto start = std::chrono::steady_clock::now();
   scene.Check("scene '" + scene.name + "'");
@@ -124,9 +159,9 @@ Simulator::Simulator(const Scene& scene, const Rig& rig, TraceMode mode) : scene
   setup_.cameras = static_cast<int>(rig.cameras.size());
   for (size_t c = 0; c < rig.cameras.size(); ++c) {
     const auto t = std::chrono::steady_clock::now();
-    const CameraRays rays = ComputeCameraRays(rig.cameras[c].model, scene.layers.supersampling);
+    const std::shared_ptr<const CameraRays> rays = CachedCameraRays(rig.cameras[c].model, scene.layers.supersampling);
     setup_.camera_rays_seconds += Since(t);
-    geometry_.push_back(TraceGeometry(caster, rig, static_cast<int>(c), rays, mode));
+    geometry_.push_back(TraceGeometry(caster, rig, static_cast<int>(c), *rays, mode));
     setup_.geometry_seconds += geometry_.back().seconds;
     setup_.primary_rays += geometry_.back().primary_rays;
     setup_.shadow_rays += geometry_.back().shadow_rays;
