@@ -1,6 +1,7 @@
 #include "reconstruct/filters.h"
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cmath>
 
@@ -22,8 +23,9 @@ std::vector<double>& ScratchDoubles(size_t n, double fill) {
   buffer.assign(n, fill);
   return buffer;
 }
-std::vector<uint8_t>& ScratchBytes(size_t n) {
-  thread_local std::vector<uint8_t> buffer;
+std::vector<uint8_t>& ScratchBytes(size_t n, int slot) {
+  thread_local std::array<std::vector<uint8_t>, 2> buffers;
+  std::vector<uint8_t>& buffer = buffers[static_cast<size_t>(slot)];
   buffer.assign(n, 0);
   return buffer;
 }
@@ -43,7 +45,7 @@ int64_t FilterDepthDiscontinuities(DenseGrid& grid, double max_jump_footprints, 
       }
     }
   });
-  std::vector<uint8_t>& jump = ScratchBytes(grid.reason.size());
+  std::vector<uint8_t>& jump = ScratchBytes(grid.reason.size(), 0);
   cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
     for (int v = rows.start; v < rows.end; ++v) {
       for (int u = 0; u < w; ++u) {
@@ -66,22 +68,33 @@ int64_t FilterDepthDiscontinuities(DenseGrid& grid, double max_jump_footprints, 
   });
   const int r = std::max(0, dilation_px);
   std::atomic<int64_t> rejected{0};
-  // Each cell reads `jump` only and writes its own reason: rows can be marked in place.
+  // The (2r + 1)^2 dilation as two separable passes: `near` marks cells with a jump within r along
+  // their row; a cell is then hit when `near` is set within r along its column. Each cell of the
+  // second pass reads `near` only and writes its own reason: rows can be marked in place.
+  std::vector<uint8_t>& near = ScratchBytes(grid.reason.size(), 1);
+  cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
+    for (int v = rows.start; v < rows.end; ++v) {
+      const uint8_t* in = jump.data() + grid.Index(0, v);
+      uint8_t* out = near.data() + grid.Index(0, v);
+      int last = -1 - 2 * r;  // column of the last jump seen, left to right
+      for (int u = 0; u < std::min(w, r); ++u) {
+        if (in[u]) last = u;
+      }
+      for (int u = 0; u < w; ++u) {
+        if (u + r < w && in[u + r]) last = u + r;
+        out[u] = last >= u - r ? 1 : 0;
+      }
+    }
+  });
   cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
     int64_t local = 0;
     for (int v = rows.start; v < rows.end; ++v) {
+      const int v0 = std::max(0, v - r), v1 = std::min(h - 1, v + r);
       for (int u = 0; u < w; ++u) {
         const size_t i = grid.Index(u, v);
         if (!grid.Accepted(i)) continue;
         bool hit = false;
-        for (int vn = std::max(0, v - r); vn <= std::min(h - 1, v + r) && !hit; ++vn) {
-          for (int un = std::max(0, u - r); un <= std::min(w - 1, u + r); ++un) {
-            if (jump[grid.Index(un, vn)]) {
-              hit = true;
-              break;
-            }
-          }
-        }
+        for (int vn = v0; vn <= v1 && !hit; ++vn) hit = near[grid.Index(u, vn)] != 0;
         if (hit) {
           grid.reason[i] = static_cast<uint8_t>(RejectReason::kDepthDiscontinuity);
           ++local;
@@ -111,19 +124,30 @@ int64_t FilterStatisticalOutliers(DenseGrid& grid, int window_radius_px, int nei
           const Eigen::Vector3d& p = grid.point_in_rig[i];
           double d[8];
           int m = 0, q = 0;
-          for (int dv = -1; dv <= 1; ++dv) {
-            for (int du = -1; du <= 1; ++du) {
-              if (du == 0 && dv == 0) continue;
-              const int un = u + du, vn = v + dv;
-              double dist = inf;
-              if (un >= 0 && vn >= 0 && un < w && vn < h) {
-                const size_t j = grid.Index(un, vn);
-                if (grid.reason[j] == kAccepted) {
-                  dist = (grid.point_in_rig[j] - p).squaredNorm();
-                  ++m;
+          if (u > 0 && v > 0 && u < w - 1 && v < h - 1) {
+            // Interior cell: no bounds tests.
+            const size_t row = static_cast<size_t>(w);
+            const size_t js[8] = {i - row - 1, i - row, i - row + 1, i - 1, i + 1, i + row - 1, i + row, i + row + 1};
+            for (size_t j : js) {
+              const bool ok = grid.reason[j] == kAccepted;
+              d[q++] = ok ? (grid.point_in_rig[j] - p).squaredNorm() : inf;
+              m += ok ? 1 : 0;
+            }
+          } else {
+            for (int dv = -1; dv <= 1; ++dv) {
+              for (int du = -1; du <= 1; ++du) {
+                if (du == 0 && dv == 0) continue;
+                const int un = u + du, vn = v + dv;
+                double dist = inf;
+                if (un >= 0 && vn >= 0 && un < w && vn < h) {
+                  const size_t j = grid.Index(un, vn);
+                  if (grid.reason[j] == kAccepted) {
+                    dist = (grid.point_in_rig[j] - p).squaredNorm();
+                    ++m;
+                  }
                 }
+                d[q++] = dist;
               }
-              d[q++] = dist;
             }
           }
           if (m == 0) {

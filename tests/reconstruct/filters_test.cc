@@ -5,6 +5,7 @@
 #include <limits>
 #include <random>
 #include <set>
+#include <utility>
 
 #include <Eigen/Geometry>
 #include <gtest/gtest.h>
@@ -70,6 +71,54 @@ TEST(DepthDiscontinuityTest, IsolatedSpikeAndItsNeighboursGo) {
   DenseGrid grid = MakeGrid(20, 20, [](int u, int v) { return u == 10 && v == 10 ? 440.0 : 400.0; });
   // The spike and its 4 neighbours sit on jumps; dilated by 1: the 5x5 block less its corners.
   EXPECT_EQ(FilterDepthDiscontinuities(grid, 8, 1), 25 - 4);
+}
+
+TEST(DepthDiscontinuityTest, MatchesABruteForceOracleForEveryDilation) {
+  // Random steps and holes; the oracle tests the 4-neighbour jumps and the (2r + 1)^2 window
+  // literally.
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  DenseGrid base = MakeGrid(53, 37, [&](int u, int v) { return 400.0 + 0.2 * u + (uniform(rng) < 0.03 ? 30.0 : 0.0) + 0.1 * v; });
+  for (size_t i = 0; i < base.reason.size(); ++i) {
+    if (uniform(rng) < 0.1) base.reason[i] = static_cast<uint8_t>(RejectReason::kNotDecoded);
+  }
+  const int w = base.width, h = base.height;
+  auto range = [&](size_t i) { return (base.point_in_rig[i] - base.viewpoint_in_rig).norm(); };
+  std::vector<uint8_t> jump(base.reason.size(), 0);
+  for (int v = 0; v < h; ++v) {
+    for (int u = 0; u < w; ++u) {
+      const size_t i = base.Index(u, v);
+      if (!base.Accepted(i)) continue;
+      for (auto [un, vn] : {std::pair{u - 1, v}, std::pair{u + 1, v}, std::pair{u, v - 1}, std::pair{u, v + 1}}) {
+        if (un < 0 || vn < 0 || un >= w || vn >= h || !base.Accepted(base.Index(un, vn))) continue;
+        if (std::abs(range(base.Index(un, vn)) - range(i)) > 8 * range(i) / kFocal) jump[i] = 1;
+      }
+    }
+  }
+  for (int r = 0; r <= 3; ++r) {
+    std::vector<uint8_t> expected = base.reason;
+    int64_t expected_count = 0;
+    for (int v = 0; v < h; ++v) {
+      for (int u = 0; u < w; ++u) {
+        const size_t i = base.Index(u, v);
+        if (!base.Accepted(i)) continue;
+        bool hit = false;
+        for (int vn = v - r; vn <= v + r; ++vn) {
+          for (int un = u - r; un <= u + r; ++un) {
+            if (un >= 0 && vn >= 0 && un < w && vn < h && jump[base.Index(un, vn)]) hit = true;
+          }
+        }
+        if (hit) {
+          expected[i] = static_cast<uint8_t>(RejectReason::kDepthDiscontinuity);
+          ++expected_count;
+        }
+      }
+    }
+    DenseGrid grid = base;
+    EXPECT_GT(expected_count, 0);
+    EXPECT_EQ(FilterDepthDiscontinuities(grid, 8, r), expected_count) << "r " << r;
+    EXPECT_EQ(grid.reason, expected) << "r " << r;
+  }
 }
 
 TEST(OutlierRemovalTest, CleanSurfaceKeepsEveryPointAndOffSurfacePointsGo) {
