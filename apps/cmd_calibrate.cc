@@ -72,6 +72,7 @@ struct CommonOptions {
   std::string loss = "none";
   double loss_scale_px = 1.0;
   bool no_cross_validation = false;
+  bool board_warp = false;
   int min_views = 10;
 
   void Add(CLI::App* app, bool needs_target = true) {
@@ -88,6 +89,7 @@ struct CommonOptions {
     app->add_option("--loss", loss, "robust loss on point residuals: none, huber or cauchy")->capture_default_str();
     app->add_option("--loss-scale-px", loss_scale_px, "residual (px) where the robust loss starts to bend")->capture_default_str();
     app->add_flag("--no-cross-validation", no_cross_validation, "skip calibrating the even and odd poses separately");
+    app->add_flag("--board-warp", board_warp, "estimate a board warp (two paraboloid terms, mm) shared by all poses");
     app->add_option("--min-views", min_views, "fewer views per device than this is reported as too few")->capture_default_str();
   }
 
@@ -99,6 +101,7 @@ struct CommonOptions {
     o.fix_k3 = fix_k3;
     o.loss = LossTypeFromString(loss);
     o.loss_scale_px = loss_scale_px;
+    o.estimate_board_warp = board_warp;
     o.Check();
     return o;
   }

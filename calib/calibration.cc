@@ -38,15 +38,23 @@ Rigid3d FromPose6(const Pose6& p) {
   return Rigid3d(q, Eigen::Vector3d(p[3], p[4], p[5]));
 }
 
-// r = ImgFromCam(intrinsics, dev_from_rig * rig_from_board * X) - u. With aspect > 0 the model's
-// fy is aspect * fx (the fy entry of the block is held constant and ignored).
+// r = ImgFromCam(intrinsics, dev_from_rig * rig_from_board * W(X)) - u. With aspect > 0 the
+// model's fy is aspect * fx (the fy entry of the block is held constant and ignored). W adds the
+// board warp z += w_x (1 - s^2) + w_y (1 - t^2), (s, t) the point's position across the board
+// extent scaled to [-1, 1] (mrcal's board deformation).
 struct ReprojectionFunctor {
-  ReprojectionFunctor(const Eigen::Vector3d& point_in_board, const Eigen::Vector2d& pixel, double aspect)
-      : x(point_in_board), u(pixel), aspect_ratio(aspect) {}
+  ReprojectionFunctor(const Eigen::Vector3d& point_in_board, const Eigen::Vector2d& pixel, double aspect,
+                      const Eigen::Vector4d& extent)
+      : x(point_in_board), u(pixel), aspect_ratio(aspect) {
+    const double sx = extent[1] > extent[0] ? 2 * (x.x() - extent[0]) / (extent[1] - extent[0]) - 1 : 0;
+    const double sy = extent[3] > extent[2] ? 2 * (x.y() - extent[2]) / (extent[3] - extent[2]) - 1 : 0;
+    warp_x = 1 - sx * sx;
+    warp_y = 1 - sy * sy;
+  }
 
   template <typename T>
-  bool operator()(const T* intrinsics, const T* dev_from_rig, const T* rig_from_board, T* residual) const {
-    const T point_in_board[3] = {T(x.x()), T(x.y()), T(x.z())};
+  bool operator()(const T* intrinsics, const T* dev_from_rig, const T* rig_from_board, const T* warp, T* residual) const {
+    const T point_in_board[3] = {T(x.x()), T(x.y()), T(x.z()) + warp[0] * T(warp_x) + warp[1] * T(warp_y)};
     T point_in_rig[3], point_in_dev[3];
     ceres::AngleAxisRotatePoint(rig_from_board, point_in_board, point_in_rig);
     for (int i = 0; i < 3; ++i) point_in_rig[i] += rig_from_board[3 + i];
@@ -65,6 +73,7 @@ struct ReprojectionFunctor {
   Eigen::Vector3d x;
   Eigen::Vector2d u;
   double aspect_ratio;
+  double warp_x = 0, warp_y = 0;
 };
 
 // All unknowns of one problem.
@@ -74,7 +83,22 @@ struct State {
   std::vector<Pose6> dev_from_rig;
   std::vector<Pose6> rig_from_board;
   std::vector<bool> pose_known;
+  std::array<double, 2> warp{0, 0};            // board warp, mm
+  Eigen::Vector4d extent = Eigen::Vector4d::Zero();  // board xmin xmax ymin ymax, mm
 };
+
+Eigen::Vector4d BoardExtent(const CalibrationInput& input) {
+  Eigen::Vector4d e(1e300, -1e300, 1e300, -1e300);
+  for (const auto& v : input.views) {
+    for (const auto& p : v.points_in_board_mm) {
+      e[0] = std::min(e[0], p.x());
+      e[1] = std::max(e[1], p.x());
+      e[2] = std::min(e[2], p.y());
+      e[3] = std::max(e[3], p.y());
+    }
+  }
+  return e;
+}
 
 Intr9 EffectiveParams(const State& s, int d) {
   Intr9 p = s.intrinsics[d];
@@ -83,9 +107,10 @@ Intr9 EffectiveParams(const State& s, int d) {
 }
 
 Eigen::Vector2d ProjectView(const State& s, const BoardView& v, size_t i) {
-  const ReprojectionFunctor f(v.points_in_board_mm[i], Eigen::Vector2d::Zero(), s.aspect[v.device]);
+  const ReprojectionFunctor f(v.points_in_board_mm[i], Eigen::Vector2d::Zero(), s.aspect[v.device], s.extent);
   Eigen::Vector2d pixel;
-  f(s.intrinsics[v.device].data(), s.dev_from_rig[v.device].data(), s.rig_from_board[v.pose].data(), pixel.data());
+  f(s.intrinsics[v.device].data(), s.dev_from_rig[v.device].data(), s.rig_from_board[v.pose].data(), s.warp.data(),
+    pixel.data());
   return pixel;
 }
 
@@ -117,13 +142,13 @@ SolveOutput Solve(const CalibrationInput& input, const CalibrationOptions& optio
   for (const auto& v : input.views) {
     if (!s->pose_known[v.pose]) continue;
     for (size_t i = 0; i < v.points_in_board_mm.size(); ++i) {
-      auto* cost = new ceres::AutoDiffCostFunction<ReprojectionFunctor, 2, CameraModel::kNumParams, 6, 6>(
-          new ReprojectionFunctor(v.points_in_board_mm[i], v.pixels_px[i], s->aspect[v.device]));
+      auto* cost = new ceres::AutoDiffCostFunction<ReprojectionFunctor, 2, CameraModel::kNumParams, 6, 6, 2>(
+          new ReprojectionFunctor(v.points_in_board_mm[i], v.pixels_px[i], s->aspect[v.device], s->extent));
       ceres::LossFunction* loss = nullptr;  // owned by the problem, one per residual
       if (options.loss == LossType::kHuber) loss = new ceres::HuberLoss(options.loss_scale_px);
       if (options.loss == LossType::kCauchy) loss = new ceres::CauchyLoss(options.loss_scale_px);
       problem.AddResidualBlock(cost, loss, s->intrinsics[v.device].data(), s->dev_from_rig[v.device].data(),
-                               s->rig_from_board[v.pose].data());
+                               s->rig_from_board[v.pose].data(), s->warp.data());
     }
     device_used[v.device] = true;
     pose_used[v.pose] = true;
@@ -147,6 +172,14 @@ SolveOutput Solve(const CalibrationInput& input, const CalibrationOptions& optio
   }
   for (int p = 0; p < input.num_poses; ++p) {
     if (pose_used[p]) out.num_free_parameters += 6;
+  }
+  const bool estimate_warp = options.estimate_board_warp && problem.HasParameterBlock(s->warp.data());
+  if (problem.HasParameterBlock(s->warp.data())) {
+    if (estimate_warp) {
+      out.num_free_parameters += 2;
+    } else {
+      problem.SetParameterBlockConstant(s->warp.data());
+    }
   }
   ceres::Solver::Options so;
   so.linear_solver_type = ceres::DENSE_SCHUR;
@@ -181,6 +214,10 @@ SolveOutput Solve(const CalibrationInput& input, const CalibrationOptions& optio
       if (!pose_used[p]) continue;
       blocks.push_back(s->rig_from_board[p].data());
       cols += 6;
+    }
+    if (estimate_warp) {
+      blocks.push_back(s->warp.data());
+      cols += 2;
     }
     ceres::Problem::EvaluateOptions eo;
     eo.parameter_blocks = blocks;
@@ -281,6 +318,7 @@ CalibrationInput DeviceInput(const CalibrationInput& input, int d) {
 State InitDevice(const CalibrationInput& sub, const CalibrationOptions& options) {
   const CalibrationDevice& dev = sub.devices[0];
   State s;
+  s.extent = BoardExtent(sub);
   s.dev_from_rig = {Pose6{0, 0, 0, 0, 0, 0}};
   s.rig_from_board.assign(static_cast<size_t>(sub.num_poses), Pose6{0, 0, 0, 0, 0, 1000});
   s.pose_known.assign(static_cast<size_t>(sub.num_poses), false);
@@ -458,6 +496,8 @@ CalibrationResult Calibrate(const CalibrationInput& input, const CalibrationOpti
   s.dev_from_rig.assign(static_cast<size_t>(num_devices), Pose6{0, 0, 0, 0, 0, 0});
   s.rig_from_board.assign(static_cast<size_t>(input.num_poses), Pose6{0, 0, 0, 0, 0, 1000});
   s.pose_known.assign(static_cast<size_t>(input.num_poses), false);
+  s.extent = BoardExtent(input);
+  s.warp = per_device[0].warp;
   for (int d = 0; d < num_devices; ++d) {
     s.intrinsics[d] = per_device[d].intrinsics[0];
     s.aspect[d] = per_device[d].aspect[0];
@@ -499,6 +539,8 @@ CalibrationResult Calibrate(const CalibrationInput& input, const CalibrationOpti
   iterations += static_cast<int>(final_solve.summary.iterations.size());
 
   CalibrationResult result;
+  result.board_warp_mm = Eigen::Vector2d(s.warp[0], s.warp[1]);
+  result.board_extent_mm = s.extent;
   for (int d = 0; d < num_devices; ++d) {
     RigDevice dev;
     dev.name = input.devices[d].name;
@@ -589,12 +631,14 @@ std::vector<Eigen::Vector2d> Reproject(const CalibrationResult& result, const Bo
                         view.pose >= static_cast<int>(result.rig_from_board.size()) || !result.rig_from_board[view.pose],
                     "Reproject: view '", view.label, "' has no device or estimated pose in this result");
   const RigDevice& dev = result.devices[view.device];
-  const Rigid3d dev_from_board = dev.cam_from_rig * *result.rig_from_board[view.pose];
+  const Pose6 dev_from_rig = ToPose6(dev.cam_from_rig);
+  const Pose6 rig_from_board = ToPose6(*result.rig_from_board[view.pose]);
+  const double warp[2] = {result.board_warp_mm.x(), result.board_warp_mm.y()};
   std::vector<Eigen::Vector2d> out;
   for (const auto& x : view.points_in_board_mm) {
-    const Eigen::Vector3d p = dev_from_board * x;
+    const ReprojectionFunctor f(x, Eigen::Vector2d::Zero(), 0.0, result.board_extent_mm);
     Eigen::Vector2d px;
-    CameraModel::ImgFromCam(dev.model.params.data(), p.data(), px.data());
+    f(dev.model.params.data(), dev_from_rig.data(), rig_from_board.data(), warp, px.data());
     out.push_back(px);
   }
   return out;

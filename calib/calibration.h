@@ -8,6 +8,7 @@
 //   rig_from_board of pose p  angle-axis + translation
 // Residual of a board point X (mm, board frame) seen by device d in pose p at pixel u:
 //   r = ImgFromCam(intrinsics_d, dev_from_rig_d * rig_from_board_p * X) - u      (px)
+// (with estimate_board_warp, X's z is offset by the shared board warp, see CalibrationOptions).
 // minimised in the least-squares sense, optionally through a robust loss.
 //
 // Initialisation (Zhang 2000): per device, intrinsics from the board homographies
@@ -77,6 +78,9 @@ struct CalibrationOptions {
   int max_iterations = 200;          // Levenberg-Marquardt iterations per solve
   double outlier_view_factor = 3.0;  // a view is an outlier when its RMS > factor * its device's median view RMS
   bool compute_covariance = true;    // intrinsics covariance from the Jacobian at the solution
+  // Estimate a board warp shared by all poses: z += w_x (1 - s^2) + w_y (1 - t^2) mm, (s, t) the
+  // point's position across the board's extent scaled to [-1, 1] (mrcal's board deformation).
+  bool estimate_board_warp = false;
 
   // Throws slshadow::Error naming the first violated constraint.
   void Check() const;
@@ -134,6 +138,8 @@ struct CalibrationResult {
   // rows (fy follows fx when the aspect is fixed; held devices are all zero). Empty when not
   // computed or not estimable (J^T J rank-deficient to 1e-12 after scaling).
   std::vector<Matrix9d> intrinsics_covariance;
+  Eigen::Vector2d board_warp_mm = Eigen::Vector2d::Zero();   // (w_x, w_y); zero unless estimated
+  Eigen::Vector4d board_extent_mm = Eigen::Vector4d::Zero();  // xmin xmax ymin ymax of the board points
   CalibrationSummary summary;
 };
 

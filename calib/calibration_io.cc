@@ -161,14 +161,15 @@ nlohmann::json CalibrationOptionsToJson(const CalibrationOptions& o) {
           {"fix_principal_point", o.fix_principal_point}, {"zero_tangential", o.zero_tangential},
           {"fix_k3", o.fix_k3}, {"fix_intrinsics", o.fix_intrinsics}, {"loss", ToString(o.loss)},
           {"loss_scale_px", o.loss_scale_px}, {"max_iterations", o.max_iterations},
-          {"outlier_view_factor", o.outlier_view_factor}, {"compute_covariance", o.compute_covariance}};
+          {"outlier_view_factor", o.outlier_view_factor}, {"compute_covariance", o.compute_covariance},
+          {"estimate_board_warp", o.estimate_board_warp}};
 }
 
 CalibrationOptions CalibrationOptionsFromJson(const nlohmann::json& json, const std::string& file) {
   const ConfigNode n = ConfigNode::FromJson(json, file, "calibration.options");
   n.RejectUnknownKeys({"fix_aspect_ratio", "aspect_ratio", "fix_principal_point", "zero_tangential", "fix_k3",
                        "fix_intrinsics", "loss", "loss_scale_px", "max_iterations", "outlier_view_factor",
-                       "compute_covariance"});
+                       "compute_covariance", "estimate_board_warp"});
   CalibrationOptions o;
   o.fix_aspect_ratio = n.GetBool("fix_aspect_ratio", o.fix_aspect_ratio);
   o.aspect_ratio = n.GetDouble("aspect_ratio", o.aspect_ratio);
@@ -187,6 +188,7 @@ CalibrationOptions CalibrationOptionsFromJson(const nlohmann::json& json, const 
   o.max_iterations = static_cast<int>(n.GetInt("max_iterations", o.max_iterations));
   o.outlier_view_factor = n.GetDouble("outlier_view_factor", o.outlier_view_factor);
   o.compute_covariance = n.GetBool("compute_covariance", o.compute_covariance);
+  o.estimate_board_warp = n.GetBool("estimate_board_warp", o.estimate_board_warp);
   try {
     o.Check();
   } catch (const Error& e) {
@@ -218,6 +220,7 @@ nlohmann::json CalibrationEvidenceToJson(const CalibrationInput& input, const Ca
   j["rig_from_board"] = nlohmann::json::array();
   for (const auto& p : result.rig_from_board) j["rig_from_board"].push_back(p ? PoseToJson(*p) : nlohmann::json());
   j["summary"] = StatsToJson(result.summary);
+  j["board_warp_mm"] = {result.board_warp_mm.x(), result.board_warp_mm.y()};
   if (!result.intrinsics_covariance.empty()) {
     j["intrinsics_covariance"] = nlohmann::json::array();
     j["projection_uncertainty"] = nlohmann::json::array();

@@ -72,8 +72,12 @@ SyntheticData MakeSyntheticData(const SyntheticRig& rig, int num_poses, double n
         v.device = static_cast<int>(d);
         v.pose = p;
         v.label = rig.devices[d].name + "/pose" + std::to_string(p);
+        const double w = (rig.board_cols - 1) * rig.square_size_mm, h = (rig.board_rows - 1) * rig.square_size_mm;
         for (const auto& x : board) {
-          const auto px = rig.devices[d].model.Project(rig.devices[d].cam_from_rig * (rig_from_board * x));
+          const double s = 2 * x.x() / w - 1, t = 2 * x.y() / h - 1;
+          const Eigen::Vector3d warped(x.x(), x.y(),
+                                       rig.board_warp_mm.x() * (1 - s * s) + rig.board_warp_mm.y() * (1 - t * t));
+          const auto px = rig.devices[d].model.Project(rig.devices[d].cam_from_rig * (rig_from_board * warped));
           if (!px || px->x() < 10 || px->y() < 10 || px->x() > rig.devices[d].model.width - 11 ||
               px->y() > rig.devices[d].model.height - 11) {
             all_inside = false;

@@ -19,6 +19,9 @@ struct SyntheticRig {
   double distance_mm = 650;  // mean distance of the board centre along device 0's axis
   double max_tilt_rad = 0.6;  // board tilt about x and y drawn uniformly in +-max_tilt_rad
   double shift_fraction = 0.2;  // board centre shifted sideways by up to this fraction of distance_mm
+  // True board warp (w_x, w_y), mm, as CalibrationOptions::estimate_board_warp models it; the
+  // observations' board points stay flat (nominal), as a user would give them.
+  Eigen::Vector2d board_warp_mm = Eigen::Vector2d::Zero();
 
   // 1280x1024, fx 1400, fy 1405, mild barrel distortion.
   static SyntheticRig OneCamera();
