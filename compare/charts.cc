@@ -111,14 +111,18 @@ void WriteDeviationMapPng(const std::filesystem::path& path, const ValueImage& i
   // Page: the image at its own aspect ratio plus room for the colour bar and labels.
   const int img_w = image.width, img_h = image.height;
   const double scale = std::min(1.0, std::min(1100.0 / img_w, 800.0 / img_h));
-  const int page_w = static_cast<int>(img_w * scale) + 315, page_h = static_cast<int>(img_h * scale) + 160;
+  // Fixed pixel margins: left for the y ticks and label, right for the colour bar and its
+  // labels, bottom for the x ticks and label, top for the title.
+  constexpr int kLeft = 145, kRight = 250, kBottom = 100, kTop = 70;
+  const int page_w = static_cast<int>(img_w * scale) + kLeft + kRight;
+  const int page_h = static_cast<int>(img_h * scale) + kBottom + kTop;
   WriteFileAtomically(path, [&](const std::filesystem::path& tmp) {
     auto pls = OpenPng(tmp, page_w, page_h);
     SetColorMap1(*pls);
     pls->adv(0);
     // Viewport in normalised page coordinates leaving space right for the colour bar.
-    const double vx0 = 125.0 / page_w, vx1 = vx0 + img_w * scale / page_w;
-    const double vy0 = 85.0 / page_h, vy1 = vy0 + img_h * scale / page_h;
+    const double vx0 = static_cast<double>(kLeft) / page_w, vx1 = vx0 + img_w * scale / page_w;
+    const double vy0 = static_cast<double>(kBottom) / page_h, vy1 = vy0 + img_h * scale / page_h;
     pls->vpor(vx0, vx1, vy0, vy1);
     pls->wind(-0.5, img_w - 0.5, img_h - 0.5, -0.5);
     // data[x][y] with y going up in PLplot: flip rows. Empty pixels are given a value below
@@ -151,7 +155,7 @@ void WriteDeviationMapPng(const std::filesystem::path& path, const ValueImage& i
     PLINT sub_ticks[1] = {0};
     PLINT label_opts[1] = {PL_COLORBAR_LABEL_RIGHT};
     const char* labels[1] = {chart.colorbar_label.c_str()};
-    pls->colorbar(&bar_w, &bar_h, PL_COLORBAR_GRADIENT, PL_POSITION_RIGHT | PL_POSITION_OUTSIDE, 0.04, 0.0, 0.04,
+    pls->colorbar(&bar_w, &bar_h, PL_COLORBAR_GRADIENT, PL_POSITION_RIGHT | PL_POSITION_OUTSIDE, 25.0 / page_w, 0.0, 35.0 / page_w,
                   0.9, 0, 1, 1, 0.0, 0.0, 0, 0.0, 1, label_opts, labels, 1, axis_opts, ticks, sub_ticks, n_vals,
                   value_ptrs);
   });

@@ -215,7 +215,7 @@ void WriteReport(const fs::path& dir, const CompareResult& r, const ReportOption
   SLSHADOW_THROW_IF(fs::exists(dir, ec) && !fs::is_directory(dir, ec), dir.string(),
                     ": exists and is not a folder");
   SLSHADOW_THROW_IF(fs::exists(dir, ec) && !options.overwrite, dir.string(),
-                    ": already exists (pass --overwrite to replace it)");
+                    ": already exists and is kept (overwriting was disabled)");
   const fs::path target = fs::absolute(dir);
   if (target.has_parent_path()) fs::create_directories(target.parent_path(), ec);
   const fs::path staged = TemporarySibling(target);
