@@ -34,13 +34,14 @@ constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 // transparent huge pages, recycled through a bounded process-wide pool: the geometry pass writes
 // ~60 bytes per pixel into fresh buffers and the pattern pass ~2.3 MB per image, and the kernel's
 // first-touch faults (page zeroing) cost about a fifth of a scan with 4 kB pages and still ~10 %
-// with huge pages. Freed blocks are kept (up to kPoolCap bytes, exact size match) and handed to
+// with huge pages. Freed blocks are kept (up to kPoolCap bytes: a 2-camera 1920x1200 scan with 38 patterns
+// recycles ~500 MB, exact size match) and handed to
 // the next allocation of the same size, e.g. the next scan's buffers. Not zeroed: every user
 // writes every element.
 class BlockPool {
  public:
   static constexpr size_t kHuge = size_t{2} << 20;
-  static constexpr size_t kPoolCap = size_t{512} << 20;
+  static constexpr size_t kPoolCap = size_t{640} << 20;
   static BlockPool& Get() {
     static BlockPool* pool = new BlockPool();  // never destroyed: buffers may outlive statics
     return *pool;
@@ -352,9 +353,9 @@ inline int QuantizeValue(float v, float full) {
 // interleaved projector images, written straight to the output images (no float copies).
 #if defined(__x86_64__) && defined(__GNUC__)
 #define SLSHADOW_SIM_AVX2 1
-// One row of FusedDirectBilinear with AVX2: the B <= 8 images of the batch are the lanes (the
-// interleaved pattern bytes of one projector pixel are one 64-bit load; the interleaved buffer is
-// padded by 8 bytes, lanes >= B are ignored). Same operations
+// One row of FusedDirectBilinear with AVX2: the B <= 16 images of the batch are the lanes of one
+// or two vectors (the interleaved pattern bytes of one projector pixel are one 64- or 128-bit
+// load; the interleaved buffer is padded by 16 bytes, lanes >= B are ignored). Same operations
 // in the same order as the scalar code (mul and add kept separate: target "avx2" without "fma",
 // so nothing gets contracted), hence bit-identical images. Quantisation as QuantizeValue:
 // max(v, 0) maps NaN and negatives to 0; min(v + 0.5, full) then truncation.
@@ -363,33 +364,62 @@ __attribute__((target("avx2"))) void FusedRowAvx2(const GeometryBuffer& g, size_
                                                      const uint8_t* inter, int pw, int ph, float ambient, float scale,
                                                      const float* vig, float full, Out* const* rows) {
   const __m256 zero = _mm256_setzero_ps(), half = _mm256_set1_ps(0.5f), vfull = _mm256_set1_ps(full);
-  alignas(32) int32_t q[8];
+  alignas(32) int32_t q[16];
   for (int x = 0; x < w; ++x) {
     const size_t i = row_start + static_cast<size_t>(x);
     const float f = g.factor[i];
     const __m256 base = _mm256_set1_ps(ambient * g.albedo[i]);
-    __m256 acc = base;
+    __m256 acc = base, acc_hi = base;
     if (f > 0) {
       const float u = g.proj_x[i], t = g.proj_y[i];
       const float fx0 = std::floor(u), fy0 = std::floor(t);
       const float ax = u - fx0, ay = t - fy0;
       const int x0 = std::clamp(static_cast<int>(fx0), 0, pw - 1), x1 = std::clamp(static_cast<int>(fx0) + 1, 0, pw - 1);
       const int y0 = std::clamp(static_cast<int>(fy0), 0, ph - 1), y1 = std::clamp(static_cast<int>(fy0) + 1, 0, ph - 1);
-#define SLSHADOW_LOAD8(yy, xx) \
-  _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(        \
-      _mm_loadl_epi64(reinterpret_cast<const __m128i*>(inter + (static_cast<size_t>(yy) * pw + (xx)) * B))))
       const __m256 w00 = _mm256_set1_ps((1 - ax) * (1 - ay)), w01 = _mm256_set1_ps(ax * (1 - ay));
       const __m256 w10 = _mm256_set1_ps((1 - ax) * ay), w11 = _mm256_set1_ps(ax * ay);
-      __m256 sum = _mm256_mul_ps(w00, SLSHADOW_LOAD8(y0, x0));
-      sum = _mm256_add_ps(sum, _mm256_mul_ps(w01, SLSHADOW_LOAD8(y0, x1)));
-      sum = _mm256_add_ps(sum, _mm256_mul_ps(w10, SLSHADOW_LOAD8(y1, x0)));
-      sum = _mm256_add_ps(sum, _mm256_mul_ps(w11, SLSHADOW_LOAD8(y1, x1)));
+      const __m256 gain = _mm256_set1_ps(f * (1.0f / 255));
+      const uint8_t* p00 = inter + (static_cast<size_t>(y0) * pw + x0) * B;
+      const uint8_t* p01 = inter + (static_cast<size_t>(y0) * pw + x1) * B;
+      const uint8_t* p10 = inter + (static_cast<size_t>(y1) * pw + x0) * B;
+      const uint8_t* p11 = inter + (static_cast<size_t>(y1) * pw + x1) * B;
+      if constexpr (B <= 8) {
+#define SLSHADOW_LOAD8(ptr) \
+  _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(ptr))))
+        __m256 sum = _mm256_mul_ps(w00, SLSHADOW_LOAD8(p00));
+        sum = _mm256_add_ps(sum, _mm256_mul_ps(w01, SLSHADOW_LOAD8(p01)));
+        sum = _mm256_add_ps(sum, _mm256_mul_ps(w10, SLSHADOW_LOAD8(p10)));
+        sum = _mm256_add_ps(sum, _mm256_mul_ps(w11, SLSHADOW_LOAD8(p11)));
 #undef SLSHADOW_LOAD8
-      acc = _mm256_add_ps(base, _mm256_mul_ps(_mm256_set1_ps(f * (1.0f / 255)), sum));
+        acc = _mm256_add_ps(base, _mm256_mul_ps(gain, sum));
+      } else {
+        const __m128i b00 = _mm_loadu_si128(reinterpret_cast<const __m128i*>(p00));
+        const __m128i b01 = _mm_loadu_si128(reinterpret_cast<const __m128i*>(p01));
+        const __m128i b10 = _mm_loadu_si128(reinterpret_cast<const __m128i*>(p10));
+        const __m128i b11 = _mm_loadu_si128(reinterpret_cast<const __m128i*>(p11));
+#define SLSHADOW_LO(b) _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(b))
+#define SLSHADOW_HI(b) _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_srli_si128(b, 8)))
+        __m256 sum = _mm256_mul_ps(w00, SLSHADOW_LO(b00));
+        sum = _mm256_add_ps(sum, _mm256_mul_ps(w01, SLSHADOW_LO(b01)));
+        sum = _mm256_add_ps(sum, _mm256_mul_ps(w10, SLSHADOW_LO(b10)));
+        sum = _mm256_add_ps(sum, _mm256_mul_ps(w11, SLSHADOW_LO(b11)));
+        acc = _mm256_add_ps(base, _mm256_mul_ps(gain, sum));
+        __m256 sum_hi = _mm256_mul_ps(w00, SLSHADOW_HI(b00));
+        sum_hi = _mm256_add_ps(sum_hi, _mm256_mul_ps(w01, SLSHADOW_HI(b01)));
+        sum_hi = _mm256_add_ps(sum_hi, _mm256_mul_ps(w10, SLSHADOW_HI(b10)));
+        sum_hi = _mm256_add_ps(sum_hi, _mm256_mul_ps(w11, SLSHADOW_HI(b11)));
+#undef SLSHADOW_LO
+#undef SLSHADOW_HI
+        acc_hi = _mm256_add_ps(base, _mm256_mul_ps(gain, sum_hi));
+      }
     }
-    const __m256 v = _mm256_mul_ps(acc, _mm256_set1_ps(scale * (vig ? vig[x] : 1.0f)));
-    const __m256 c = _mm256_min_ps(_mm256_add_ps(_mm256_max_ps(v, zero), half), vfull);
+    const __m256 m = _mm256_set1_ps(scale * (vig ? vig[x] : 1.0f));
+    const __m256 c = _mm256_min_ps(_mm256_add_ps(_mm256_max_ps(_mm256_mul_ps(acc, m), zero), half), vfull);
     _mm256_store_si256(reinterpret_cast<__m256i*>(q), _mm256_cvttps_epi32(c));
+    if constexpr (B > 8) {
+      const __m256 c_hi = _mm256_min_ps(_mm256_add_ps(_mm256_max_ps(_mm256_mul_ps(acc_hi, m), zero), half), vfull);
+      _mm256_store_si256(reinterpret_cast<__m256i*>(q + 8), _mm256_cvttps_epi32(c_hi));
+    }
     for (int k = 0; k < B; ++k) rows[k][x] = static_cast<Out>(q[k]);
   }
 }
@@ -411,7 +441,7 @@ void FusedDirectBilinear(const GeometryBuffer& g, const uint8_t* inter, int pw, 
       for (int k = 0; k < B; ++k) rows[k] = out[static_cast<size_t>(k)].ptr<Out>(y);
       const float* vig = vignetting.empty() ? nullptr : vignetting.ptr<float>(y);
 #ifdef SLSHADOW_SIM_AVX2
-      if constexpr (B <= 8) {
+      if constexpr (B <= 16) {
         if (HaveAvx2()) {
           FusedRowAvx2<B, Out>(g, static_cast<size_t>(y) * w, w, inter, pw, ph, ambient, scale, vig, full, rows);
           continue;
@@ -850,7 +880,7 @@ std::vector<cv::Mat> PatternRenderer::RenderBatch(const std::vector<cv::Mat>& im
   const SceneLayers& l = scene_.layers;
   const int batch = static_cast<int>(images.size());
   const bool fused = !l.response_enabled && projector_sigmas_.empty() && scene_.radiometry.bilinear_lookup && l.fill_factor >= 1 &&
-                     geometry_.samples_per_axis == 1 && camera_sigmas_.empty() && !l.noise_enabled && batch <= 8;
+                     geometry_.samples_per_axis == 1 && camera_sigmas_.empty() && !l.noise_enabled && batch <= 16;
   if (fused) {
     const int pw = projector_width_, ph = projector_height_;
     for (const cv::Mat& m : images) {
@@ -859,8 +889,8 @@ std::vector<cv::Mat> PatternRenderer::RenderBatch(const std::vector<cv::Mat>& im
                         "x", m.rows, ")");
     }
     const size_t n_proj = static_cast<size_t>(pw) * ph;
-    // + 8: the vector kernel reads 8 bytes per projector pixel whatever the batch size.
-    std::vector<uint8_t> inter(n_proj * batch + 8, 0);
+    // + 16: the vector kernel reads 8 or 16 bytes per projector pixel whatever the batch size.
+    std::vector<uint8_t> inter(n_proj * batch + 16, 0);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n_proj, 16384), [&](const tbb::blocked_range<size_t>& r) {
       const uint8_t* src[kMaxBatch];
       for (int k = 0; k < batch; ++k) src[k] = images[static_cast<size_t>(k)].ptr<uint8_t>();
@@ -896,7 +926,15 @@ std::vector<cv::Mat> PatternRenderer::RenderBatch(const std::vector<cv::Mat>& im
       case 5: run(std::integral_constant<int, 5>()); break;
       case 6: run(std::integral_constant<int, 6>()); break;
       case 7: run(std::integral_constant<int, 7>()); break;
-      default: run(std::integral_constant<int, 8>()); break;
+      case 8: run(std::integral_constant<int, 8>()); break;
+      case 9: run(std::integral_constant<int, 9>()); break;
+      case 10: run(std::integral_constant<int, 10>()); break;
+      case 11: run(std::integral_constant<int, 11>()); break;
+      case 12: run(std::integral_constant<int, 12>()); break;
+      case 13: run(std::integral_constant<int, 13>()); break;
+      case 14: run(std::integral_constant<int, 14>()); break;
+      case 15: run(std::integral_constant<int, 15>()); break;
+      default: run(std::integral_constant<int, 16>()); break;
     }
     return out;
   }

@@ -21,7 +21,7 @@ namespace slshadow {
 namespace {
 
 // Projector images rendered per sweep over a geometry buffer.
-constexpr size_t kBatch = 8;
+constexpr size_t kBatch = 16;
 
 double Since(std::chrono::steady_clock::time_point t) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
@@ -161,6 +161,7 @@ Simulator::Simulator(const Scene& scene, const Rig& rig, TraceMode mode) : scene
     const auto t = std::chrono::steady_clock::now();
     const std::shared_ptr<const CameraRays> rays = CachedCameraRays(rig.cameras[c].model, scene.layers.supersampling);
     setup_.camera_rays_seconds += Since(t);
+    if (geometry_.empty()) geometry_.reserve(rig.cameras.size());  // moved in, never copied
     geometry_.push_back(TraceGeometry(caster, rig, static_cast<int>(c), *rays, mode));
     setup_.geometry_seconds += geometry_.back().seconds;
     setup_.primary_rays += geometry_.back().primary_rays;
@@ -204,11 +205,11 @@ std::vector<std::vector<cv::Mat>> RenderScan(const Scene& scene, const Rig& rig,
                                              TraceMode mode) {
   const auto start = std::chrono::steady_clock::now();
   CheckImages(rig, projector_images);
-  const Simulator sim(scene, rig, mode);
+  Simulator sim(scene, rig, mode);
   SimulateSummary sum = sim.setup();
   auto images = sim.Render(projector_images, nullptr, &sum);
   if (geometry) {
-    for (int c = 0; c < sim.num_cameras(); ++c) geometry->push_back(sim.geometry(c));
+    for (GeometryBuffer& g : sim.ReleaseGeometry()) geometry->push_back(std::move(g));
   }
   sum.total_seconds = Since(start);
   if (summary) *summary = sum;

@@ -21,6 +21,7 @@
 
 #include <filesystem>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -70,6 +71,8 @@ class Simulator {
   ~Simulator();
   int num_cameras() const { return static_cast<int>(geometry_.size()); }
   const GeometryBuffer& geometry(int camera) const { return geometry_.at(static_cast<size_t>(camera)); }
+  // Hands the geometry buffers over (no copy); the Simulator has no cameras afterwards.
+  std::vector<GeometryBuffer> ReleaseGeometry() { return std::move(geometry_); }
   // Timings of the set-up: BVH, camera rays, geometry passes.
   const SimulateSummary& setup() const { return setup_; }
   // images[camera][pattern] for `scene` (the constructor's scene, or a copy of it with other

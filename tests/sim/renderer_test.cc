@@ -294,15 +294,21 @@ TEST(LayersTest, BatchEqualsSingleImagesWithAllLayers) {
     const GeometryBuffer g = Trace(scene, rig, 0);
     const PatternRenderer r(scene, rig, 0, g);
     std::vector<cv::Mat> patterns;
-    for (int period : {3, 5, 8, 13, 21, 34, 55, 89}) patterns.push_back(Stripes(rig, period));  // 8: the fused path
+    // 13 images: the fused path (two vectors of lanes when vectorised); 8 as well, below.
+    for (int period : {3, 5, 8, 13, 21, 34, 55, 89, 144, 4, 7, 11, 233}) patterns.push_back(Stripes(rig, period));
     const auto batch = r.RenderBatch(patterns, 10);
     const std::vector<cv::Mat> five(patterns.begin(), patterns.begin() + 5);  // the general path
     const auto batch5 = r.RenderBatch(five, 10);
+    const std::vector<cv::Mat> eight(patterns.begin(), patterns.begin() + 8);
+    const auto batch8 = r.RenderBatch(eight, 10);
     ASSERT_EQ(batch.size(), patterns.size());
     for (size_t k = 0; k < patterns.size(); ++k) {
       EXPECT_EQ(cv::norm(batch[k], r.Render(patterns[k], 10 + static_cast<int>(k)), cv::NORM_INF), 0) << variant << " " << k;
       if (k < 5) {
         EXPECT_EQ(cv::norm(batch[k], batch5[k], cv::NORM_INF), 0) << variant << " " << k;
+      }
+      if (k < 8) {
+        EXPECT_EQ(cv::norm(batch[k], batch8[k], cv::NORM_INF), 0) << variant << " " << k;
       }
       if (variant == 1) {
         ASSERT_EQ(batch[k].type(), CV_16UC1);
