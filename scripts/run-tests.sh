@@ -5,6 +5,8 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 BUILD_DIR=${SLSHADOW_BUILD_DIR:-build}
+# ccache: rewrite absolute paths relative to the checkout so clones in other folders share hits.
+export CCACHE_BASEDIR="$PWD" CCACHE_NOHASHDIR=true
 cmake -S . -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=Release -DSLSHADOW_WERROR=ON
 cmake --build "$BUILD_DIR" -j2
 cd "$BUILD_DIR"
