@@ -3,6 +3,10 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <optional>
+#include <string>
+
+#include <Eigen/Dense>
 
 #include <ceres/ceres.h>
 #include <ceres/rotation.h>
@@ -17,23 +21,24 @@ namespace {
 struct EpipolarFunctor {
   EpipolarFunctor(const Eigen::Vector3d& c, const Eigen::Vector3d& p, double length, double f)
       : xc(c), xp(p), baseline(length), focal(f) {}
+  // `scale`: new / old focal length of the second device; its ray becomes (x/s, y/s, 1).
   template <typename T>
-  bool operator()(const T* rvec, const T* direction, T* residual) const {
+  bool operator()(const T* rvec, const T* direction, const T* scale, T* residual) const {
     const T c[3] = {T(xc.x()), T(xc.y()), T(xc.z())};
     T rc[3];
     ceres::AngleAxisRotatePoint(rvec, c, rc);
     const T t[3] = {T(baseline) * direction[0], T(baseline) * direction[1], T(baseline) * direction[2]};
-    // E x_c = t x (R x_c); E^T x_p = -(R^T (t x x_p))... computed via the rows of E.
+    // E x_c = t x (R x_c).
     const T ex[3] = {t[1] * rc[2] - t[2] * rc[1], t[2] * rc[0] - t[0] * rc[2], t[0] * rc[1] - t[1] * rc[0]};
-    const T e = T(xp.x()) * ex[0] + T(xp.y()) * ex[1] + T(xp.z()) * ex[2];
+    const T p[3] = {T(xp.x()) / scale[0], T(xp.y()) / scale[0], T(xp.z())};
+    const T e = p[0] * ex[0] + p[1] * ex[1] + p[2] * ex[2];
     // E^T x_p = R^T (x_p x t)  (since x_p . (t x v) = (x_p x t) . v).
-    const T p[3] = {T(xp.x()), T(xp.y()), T(xp.z())};
     const T pxt[3] = {p[1] * t[2] - p[2] * t[1], p[2] * t[0] - p[0] * t[2], p[0] * t[1] - p[1] * t[0]};
     const T minus_r[3] = {-rvec[0], -rvec[1], -rvec[2]};
     T etx[3];
     ceres::AngleAxisRotatePoint(minus_r, pxt, etx);
     const T denom = ex[0] * ex[0] + ex[1] * ex[1] + etx[0] * etx[0] + etx[1] * etx[1];
-    residual[0] = T(focal) * e / sqrt(denom + T(1e-30));
+    residual[0] = T(focal) * scale[0] * e / sqrt(denom + T(1e-30));
     return true;
   }
   Eigen::Vector3d xc, xp;
@@ -44,10 +49,9 @@ struct Rays {
   std::vector<Eigen::Vector3d> cam, proj;
 };
 
-Rays Unproject(const Rig& rig, int camera, const std::vector<Correspondence>& corr) {
+// Rays of both devices; `proj` is the second device of the pair (projector or camera_b).
+Rays Unproject(const CameraModel& cam, const CameraModel& proj, const std::vector<Correspondence>& corr) {
   Rays r;
-  const auto& cam = rig.cameras[static_cast<size_t>(camera)].model;
-  const auto& proj = rig.projector->model;
   for (const auto& c : corr) {
     const auto a = cam.UndistortToNormalized(c.camera_px);
     const auto b = proj.UndistortToNormalized(c.projector_px);
@@ -71,22 +75,134 @@ EpipolarStats Stats(std::vector<double> abs_res) {
   return s;
 }
 
-Rigid3d ProjFromCam(const Rig& rig, int camera) {
-  return rig.projector->cam_from_rig * rig.cameras[static_cast<size_t>(camera)].cam_from_rig.Inverse();
-}
-
 std::vector<double> Residuals(const Rays& rays, const Rigid3d& proj_from_cam, double focal) {
   const Eigen::AngleAxisd aa(proj_from_cam.rotation);
   const Eigen::Vector3d r = aa.angle() * aa.axis();
   const double length = proj_from_cam.translation.norm();
   const Eigen::Vector3d dir = proj_from_cam.translation / std::max(length, 1e-300);
+  const double one = 1.0;
   std::vector<double> out;
   for (size_t i = 0; i < rays.cam.size(); ++i) {
     double res = 0;
-    EpipolarFunctor(rays.cam[i], rays.proj[i], length, focal)(r.data(), dir.data(), &res);
+    EpipolarFunctor(rays.cam[i], rays.proj[i], length, focal)(r.data(), dir.data(), &one, &res);
     out.push_back(std::abs(res));
   }
   return out;
+}
+
+struct PairResult {
+  Rigid3d b_from_a;
+  CameraModel model_b;
+  EpipolarStats before, after;
+  double rotation_change_rad = 0, direction_change_rad = 0, focal_scale = 1;
+  bool converged = false;
+};
+
+// Refines b_from_a (and optionally model_b's focal length) of the pair.
+PairResult RefinePair(const CameraModel& model_a, const CameraModel& model_b_in, const Rigid3d& initial,
+                      const std::vector<Correspondence>& correspondences, const RefineOptions& options) {
+  const double length = initial.translation.norm();
+  SLSHADOW_THROW_IF(!(length > 0), "calibrate refine: the two devices share a centre (zero baseline)");
+  PairResult out;
+  out.model_b = model_b_in;
+  Rays rays = Unproject(model_a, out.model_b, correspondences);
+  SLSHADOW_THROW_IF(rays.cam.size() < 20, "calibrate refine: only ", rays.cam.size(),
+                    " usable correspondences (need at least 20): is the scan decoded, and the rig the right one?");
+  out.before = Stats(Residuals(rays, initial, out.model_b.fx()));
+
+  const Eigen::AngleAxisd aa(initial.rotation);
+  Eigen::Vector3d rvec = aa.angle() * aa.axis();
+  Eigen::Vector3d dir = initial.translation / length;
+  // With focal refinement, the rays of b depend on its focal length through the distortion too:
+  // solve with the first-order ray scaling, update the model, re-undistort, solve again.
+  const int outer = options.refine_focal ? 4 : 1;
+  for (int it = 0; it < outer; ++it) {
+    double scale = 1.0;
+    ceres::Problem problem;
+    for (size_t i = 0; i < rays.cam.size(); ++i) {
+      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<EpipolarFunctor, 1, 3, 3, 1>(
+                                   new EpipolarFunctor(rays.cam[i], rays.proj[i], length, out.model_b.fx())),
+                               new ceres::CauchyLoss(options.loss_scale_px), rvec.data(), dir.data(), &scale);
+    }
+    problem.SetManifold(dir.data(), new ceres::SphereManifold<3>());
+    if (!options.refine_focal) problem.SetParameterBlockConstant(&scale);
+    ceres::Solver::Options so;
+    so.max_num_iterations = options.max_iterations;
+    so.num_threads = 2;
+    so.logging_type = ceres::SILENT;
+    ceres::Solver::Summary summary;
+    ceres::Solve(so, &problem, &summary);
+    out.converged = summary.termination_type == ceres::CONVERGENCE;
+    if (options.refine_focal) {
+      out.model_b.params[CameraModel::kFx] *= scale;
+      out.model_b.params[CameraModel::kFy] *= scale;
+      out.focal_scale *= scale;
+      rays = Unproject(model_a, out.model_b, correspondences);
+    }
+  }
+  const double angle = rvec.norm();
+  const Eigen::Quaterniond q =
+      angle > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, rvec / angle)) : Eigen::Quaterniond::Identity();
+  out.b_from_a = Rigid3d(q, length * dir.normalized());
+  out.after = Stats(Residuals(rays, out.b_from_a, out.model_b.fx()));
+  out.rotation_change_rad = out.b_from_a.rotation.angularDistance(initial.rotation);
+  out.direction_change_rad = std::acos(std::clamp(dir.normalized().dot(initial.translation / length), -1.0, 1.0));
+  return out;
+}
+
+std::string Message(const PairResult& r, const std::string& second, double length, const RefineOptions& options) {
+  char msg[600];
+  std::snprintf(msg, sizeof(msg),
+                "epipolar residual median %.3f -> %.3f px, p95 %.3f -> %.3f px (%d correspondences); %s rotated "
+                "%.4f deg, baseline direction turned %.4f deg, baseline kept at %.3f mm%s%s",
+                r.before.median_px, r.after.median_px, r.before.p95_px, r.after.p95_px, r.after.count, second.c_str(),
+                r.rotation_change_rad * 180 / M_PI, r.direction_change_rad * 180 / M_PI, length,
+                options.refine_focal ? (", focal length x" + std::to_string(r.focal_scale)).c_str() : "",
+                r.before.median_px > options.warn_median_px
+                    ? "; WARNING: before refinement the calibration did not fit this scan (bumped rig, swapped devices or wrong file?)"
+                    : "");
+  std::string out = msg;
+  if (r.rotation_change_rad > 1.0 * M_PI / 180 || r.direction_change_rad > 5.0 * M_PI / 180) {
+    out += "; WARNING: the correction is far larger than a bump (swapped camera names or a rig file of another rig?): "
+           "check before trusting the refined rig";
+  }
+  return out;
+}
+
+void CheckCamera(const Rig& rig, int camera, const char* what) {
+  SLSHADOW_THROW_IF(camera < 0 || camera >= static_cast<int>(rig.cameras.size()), what, ": camera index ", camera,
+                    " out of range (rig '", rig.name, "' has ", rig.cameras.size(), " cameras)");
+}
+
+Rigid3d BFromA(const Rig& rig, int a, int b) {
+  return rig.cameras[static_cast<size_t>(b)].cam_from_rig * rig.cameras[static_cast<size_t>(a)].cam_from_rig.Inverse();
+}
+
+// Sub-pixel position in `b` of projector coordinate (u, v), from b's pixels around `seed`.
+std::optional<Eigen::Vector2d> MatchIn(const ProjectorMap& b, int sx, int sy, double u, double v) {
+  Eigen::Matrix<double, 25, 3> A;
+  Eigen::Matrix<double, 25, 2> B;
+  int n = 0;
+  for (int y = sy - 2; y <= sy + 2; ++y) {
+    if (y < 0 || y >= b.height()) continue;
+    for (int x = sx - 2; x <= sx + 2; ++x) {
+      if (x < 0 || x >= b.width()) continue;
+      if (b.status.at<uint8_t>(y, x) != static_cast<uint8_t>(PixelStatus::kValid)) continue;
+      const double pu = b.proj_x.at<float>(y, x), pv = b.proj_y.at<float>(y, x);
+      if (!std::isfinite(pu) || !std::isfinite(pv)) continue;
+      A.row(n) << pu - u, pv - v, 1.0;
+      B.row(n) << x - sx, y - sy;
+      ++n;
+    }
+  }
+  if (n < 12) return std::nullopt;
+  const Eigen::MatrixXd An = A.topRows(n), Bn = B.topRows(n);
+  const Eigen::Matrix<double, 3, 2> M = An.colPivHouseholderQr().solve(Bn);
+  const double fit_rms = std::sqrt((An * M - Bn).squaredNorm() / n);
+  if (!(fit_rms < 0.5)) return std::nullopt;  // not locally affine: an edge or a depth jump
+  const Eigen::Vector2d d = M.row(2).transpose();
+  if (d.norm() > 1.5) return std::nullopt;
+  return Eigen::Vector2d(sx + d.x(), sy + d.y());
 }
 
 }  // namespace
@@ -113,10 +229,10 @@ std::vector<Correspondence> SampleCorrespondences(const ProjectorMap& map, int m
 EpipolarStats EpipolarResiduals(const Rig& rig, int camera, const std::vector<Correspondence>& correspondences,
                                 std::vector<double>* residuals_px) {
   SLSHADOW_THROW_IF(!rig.projector, "calibration check: rig '", rig.name, "' has no projector");
-  SLSHADOW_THROW_IF(camera < 0 || camera >= static_cast<int>(rig.cameras.size()), "calibration check: camera index ",
-                    camera, " out of range");
-  const Rays rays = Unproject(rig, camera, correspondences);
-  std::vector<double> res = Residuals(rays, ProjFromCam(rig, camera), rig.projector->model.fx());
+  CheckCamera(rig, camera, "calibration check");
+  const Rays rays = Unproject(rig.cameras[static_cast<size_t>(camera)].model, rig.projector->model, correspondences);
+  const Rigid3d proj_from_cam = rig.projector->cam_from_rig * rig.cameras[static_cast<size_t>(camera)].cam_from_rig.Inverse();
+  std::vector<double> res = Residuals(rays, proj_from_cam, rig.projector->model.fx());
   if (residuals_px) *residuals_px = res;
   return Stats(std::move(res));
 }
@@ -124,55 +240,91 @@ EpipolarStats EpipolarResiduals(const Rig& rig, int camera, const std::vector<Co
 RefineResult RefineProjectorPose(const Rig& rig, int camera, const std::vector<Correspondence>& correspondences,
                                  const RefineOptions& options) {
   SLSHADOW_THROW_IF(!rig.projector, "calibrate refine: rig '", rig.name, "' has no projector");
-  SLSHADOW_THROW_IF(camera < 0 || camera >= static_cast<int>(rig.cameras.size()), "calibrate refine: camera index ",
-                    camera, " out of range");
-  const Rays rays = Unproject(rig, camera, correspondences);
-  SLSHADOW_THROW_IF(rays.cam.size() < 20, "calibrate refine: only ", rays.cam.size(),
-                    " usable correspondences (need at least 20): is the scan decoded, and the rig the right one?");
-  const Rigid3d initial = ProjFromCam(rig, camera);
-  const double length = initial.translation.norm();
-  SLSHADOW_THROW_IF(!(length > 0), "calibrate refine: camera and projector share a centre (zero baseline)");
-  const double focal = rig.projector->model.fx();
+  CheckCamera(rig, camera, "calibrate refine");
+  const auto& cam = rig.cameras[static_cast<size_t>(camera)];
+  const Rigid3d initial = rig.projector->cam_from_rig * cam.cam_from_rig.Inverse();
+  const PairResult p = RefinePair(cam.model, rig.projector->model, initial, correspondences, options);
   RefineResult out;
-  out.before = Stats(Residuals(rays, initial, focal));
-
-  const Eigen::AngleAxisd aa(initial.rotation);
-  Eigen::Vector3d rvec = aa.angle() * aa.axis();
-  Eigen::Vector3d dir = initial.translation / length;
-  ceres::Problem problem;
-  for (size_t i = 0; i < rays.cam.size(); ++i) {
-    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<EpipolarFunctor, 1, 3, 3>(
-                                 new EpipolarFunctor(rays.cam[i], rays.proj[i], length, focal)),
-                             new ceres::CauchyLoss(options.loss_scale_px), rvec.data(), dir.data());
-  }
-  problem.SetManifold(dir.data(), new ceres::SphereManifold<3>());
-  ceres::Solver::Options so;
-  so.max_num_iterations = options.max_iterations;
-  so.num_threads = 2;
-  so.logging_type = ceres::SILENT;
-  ceres::Solver::Summary summary;
-  ceres::Solve(so, &problem, &summary);
-  out.converged = summary.termination_type == ceres::CONVERGENCE;
-
-  const double angle = rvec.norm();
-  const Eigen::Quaterniond q =
-      angle > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, rvec / angle)) : Eigen::Quaterniond::Identity();
-  const Rigid3d refined(q, length * dir.normalized());
-  out.after = Stats(Residuals(rays, refined, focal));
-  out.rotation_change_rad = refined.rotation.angularDistance(initial.rotation);
-  out.direction_change_rad = std::acos(std::clamp(dir.normalized().dot(initial.translation / length), -1.0, 1.0));
+  out.before = p.before;
+  out.after = p.after;
+  out.rotation_change_rad = p.rotation_change_rad;
+  out.direction_change_rad = p.direction_change_rad;
+  out.focal_scale = p.focal_scale;
+  out.converged = p.converged;
   out.rig = rig;
-  out.rig.projector->cam_from_rig = refined * rig.cameras[static_cast<size_t>(camera)].cam_from_rig;
-  char msg[400];
-  std::snprintf(msg, sizeof(msg),
-                "epipolar residual median %.3f -> %.3f px, p95 %.3f -> %.3f px (%d correspondences); projector rotated "
-                "%.4f deg, baseline direction turned %.4f deg, baseline kept at %.3f mm%s",
-                out.before.median_px, out.after.median_px, out.before.p95_px, out.after.p95_px, out.after.count,
-                out.rotation_change_rad * 180 / M_PI, out.direction_change_rad * 180 / M_PI, length,
-                out.before.median_px > options.warn_median_px
-                    ? "; WARNING: before refinement the calibration did not fit this scan (bumped rig, swapped devices or wrong file?)"
-                    : "");
-  out.message = msg;
+  out.rig.projector->cam_from_rig = p.b_from_a * cam.cam_from_rig;
+  out.rig.projector->model = p.model_b;
+  out.message = Message(p, "projector", initial.translation.norm(), options);
+  return out;
+}
+
+std::vector<Correspondence> StereoCorrespondences(const ProjectorMap& a, const ProjectorMap& b, int max_samples) {
+  SLSHADOW_THROW_IF(a.proj_x.empty() || a.proj_y.empty() || b.proj_x.empty() || b.proj_y.empty(),
+                    "stereo correspondences: both projector maps must decode both projector axes");
+  // Index b by projector coordinate: a grid of 1 projector px cells, each holding one b pixel.
+  double max_u = 0, max_v = 0;
+  for (int y = 0; y < b.height(); ++y) {
+    for (int x = 0; x < b.width(); ++x) {
+      if (b.status.at<uint8_t>(y, x) != static_cast<uint8_t>(PixelStatus::kValid)) continue;
+      const float u = b.proj_x.at<float>(y, x), v = b.proj_y.at<float>(y, x);
+      if (std::isfinite(u) && std::isfinite(v)) max_u = std::max<double>(max_u, u), max_v = std::max<double>(max_v, v);
+    }
+  }
+  const int gw = static_cast<int>(max_u) + 2, gh = static_cast<int>(max_v) + 2;
+  cv::Mat grid(gh, gw, CV_32SC1, cv::Scalar(-1));
+  for (int y = 0; y < b.height(); ++y) {
+    for (int x = 0; x < b.width(); ++x) {
+      if (b.status.at<uint8_t>(y, x) != static_cast<uint8_t>(PixelStatus::kValid)) continue;
+      const float u = b.proj_x.at<float>(y, x), v = b.proj_y.at<float>(y, x);
+      if (!std::isfinite(u) || !std::isfinite(v) || u < 0 || v < 0) continue;
+      grid.at<int32_t>(static_cast<int>(std::lround(v)), static_cast<int>(std::lround(u))) = y * b.width() + x;
+    }
+  }
+  const std::vector<Correspondence> samples = SampleCorrespondences(a, max_samples);
+  std::vector<Correspondence> out;
+  for (const auto& s : samples) {
+    const int gu = static_cast<int>(std::lround(s.projector_px.x())), gv = static_cast<int>(std::lround(s.projector_px.y()));
+    if (gu < 0 || gv < 0 || gu >= gw || gv >= gh) continue;
+    const int idx = grid.at<int32_t>(gv, gu);
+    if (idx < 0) continue;
+    const auto m = MatchIn(b, idx % b.width(), idx / b.width(), s.projector_px.x(), s.projector_px.y());
+    if (m) out.push_back({s.camera_px, *m});
+  }
+  return out;
+}
+
+EpipolarStats StereoEpipolarResiduals(const Rig& rig, int camera_a, int camera_b,
+                                      const std::vector<Correspondence>& correspondences, std::vector<double>* residuals_px) {
+  CheckCamera(rig, camera_a, "calibration check");
+  CheckCamera(rig, camera_b, "calibration check");
+  const auto& mb = rig.cameras[static_cast<size_t>(camera_b)].model;
+  const Rays rays = Unproject(rig.cameras[static_cast<size_t>(camera_a)].model, mb, correspondences);
+  std::vector<double> res = Residuals(rays, BFromA(rig, camera_a, camera_b), mb.fx());
+  if (residuals_px) *residuals_px = res;
+  return Stats(std::move(res));
+}
+
+RefineResult RefineStereoPose(const Rig& rig, int camera_a, int camera_b, const std::vector<Correspondence>& correspondences,
+                              const RefineOptions& options) {
+  CheckCamera(rig, camera_a, "calibrate refine");
+  CheckCamera(rig, camera_b, "calibrate refine");
+  SLSHADOW_THROW_IF(camera_a == camera_b, "calibrate refine: stereo needs two different cameras (both are ", camera_a, ")");
+  const auto& a = rig.cameras[static_cast<size_t>(camera_a)];
+  const auto& b = rig.cameras[static_cast<size_t>(camera_b)];
+  const Rigid3d initial = BFromA(rig, camera_a, camera_b);
+  const PairResult p = RefinePair(a.model, b.model, initial, correspondences, options);
+  RefineResult out;
+  out.before = p.before;
+  out.after = p.after;
+  out.rotation_change_rad = p.rotation_change_rad;
+  out.direction_change_rad = p.direction_change_rad;
+  out.focal_scale = p.focal_scale;
+  out.converged = p.converged;
+  out.rig = rig;
+  auto& nb = out.rig.cameras[static_cast<size_t>(camera_b)];
+  nb.cam_from_rig = p.b_from_a * a.cam_from_rig;
+  nb.model = p.model_b;
+  out.message = Message(p, "camera '" + b.name + "'", initial.translation.norm(), options);
   return out;
 }
 

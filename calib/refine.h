@@ -10,7 +10,13 @@
 // Refinement re-estimates proj_from_cam (rotation, and the translation's direction) by
 // minimising the Cauchy-robustified residuals with Ceres; the translation's length (the
 // baseline) is kept from the original calibration, which fixes the scale (epipolar geometry has
-// none). Intrinsics are kept.
+// none). Intrinsics are kept unless RefineOptions::refine_focal: then the focal length of the
+// second device of the pair (the projector, or camera_b in stereo) is re-estimated too, as one
+// scale on fx and fy (aspect, principal point and distortion kept).
+//
+// Stereo: two cameras' decoded ProjectorMaps of one scan give camera-camera correspondences
+// (pixels that see the same projector coordinate); the same residual and refinement then apply
+// to camera_b's pose relative to camera_a, in camera_b pixels.
 #pragma once
 
 #include <string>
@@ -45,8 +51,11 @@ EpipolarStats EpipolarResiduals(const Rig& rig, int camera, const std::vector<Co
 struct RefineOptions {
   double loss_scale_px = 1.0;  // Cauchy loss scale, projector px
   int max_iterations = 100;
-  // A check warns when the median residual exceeds this (projector px).
+  // A check warns when the median residual exceeds this (px of the second device).
   double warn_median_px = 0.5;
+  // Also re-estimate the second device's focal length (one scale on fx, fy). Needs a pair whose
+  // optical axes are not coplanar with the baseline (else focal length and pose trade off).
+  bool refine_focal = false;
 };
 
 struct RefineResult {
@@ -54,6 +63,7 @@ struct RefineResult {
   EpipolarStats before, after;
   double rotation_change_rad = 0;    // angle between the old and the new proj_from_cam rotation
   double direction_change_rad = 0;   // angle between the old and the new baseline direction
+  double focal_scale = 1;            // new / old focal length of the second device (1 unless refine_focal)
   bool converged = false;
   std::string message;      // one line for the user
 };
@@ -62,5 +72,24 @@ struct RefineResult {
 // has no projector, the camera index is out of range, or fewer than 20 correspondences unproject).
 RefineResult RefineProjectorPose(const Rig& rig, int camera, const std::vector<Correspondence>& correspondences,
                                  const RefineOptions& options = {});
+
+// Camera-camera correspondences from two cameras' ProjectorMaps of the same scan (both axes
+// decoded): for up to `max_samples` valid pixels of `a`, spread evenly, the sub-pixel position in
+// `b` with the same projector coordinate (an affine fit of b's pixel position against projector
+// coordinates over b's 5x5 neighbourhood of the closest match). camera_px is the pixel in `a`,
+// projector_px the matching pixel in `b`. Pixels without a consistent match are skipped.
+std::vector<Correspondence> StereoCorrespondences(const ProjectorMap& a, const ProjectorMap& b, int max_samples = 20000);
+
+// Residuals (camera_b px) of stereo correspondences (camera_px in camera_a, projector_px in
+// camera_b) under the rig's two cameras.
+EpipolarStats StereoEpipolarResiduals(const Rig& rig, int camera_a, int camera_b,
+                                      const std::vector<Correspondence>& correspondences,
+                                      std::vector<double>* residuals_px = nullptr);
+
+// Refines camera_b's pose relative to camera_a (camera_a stays where it is) from stereo
+// correspondences, keeping the baseline length; with options.refine_focal also camera_b's focal
+// length. Throws like RefineProjectorPose (indices out of range or equal, < 20 correspondences).
+RefineResult RefineStereoPose(const Rig& rig, int camera_a, int camera_b, const std::vector<Correspondence>& correspondences,
+                              const RefineOptions& options = {});
 
 }  // namespace slshadow
