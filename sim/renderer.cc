@@ -10,7 +10,6 @@
 #include <optional>
 #include <type_traits>
 
-#include <sys/mman.h>
 
 #if defined(__x86_64__)
 #include <immintrin.h>
@@ -30,17 +29,17 @@ namespace {
 
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
-// Large buffers (geometry buffers, rendered images) in 2 MB-aligned blocks advised for
-// transparent huge pages, recycled through a bounded process-wide pool: the geometry pass writes
-// ~60 bytes per pixel into fresh buffers and the pattern pass ~2.3 MB per image, and the kernel's
-// first-touch faults (page zeroing) cost about a fifth of a scan with 4 kB pages and still ~10 %
-// with huge pages. Freed blocks are kept (up to kPoolCap bytes: a 2-camera 1920x1200 scan with 38 patterns
+// Large buffers (geometry buffers, rendered images) in page-aligned blocks rounded up to 2 MB
+// size classes, recycled through a bounded process-wide pool: the geometry pass writes ~60 bytes
+// per pixel into fresh buffers and the pattern pass ~2.3 MB per image, and the kernel's
+// first-touch faults (page zeroing) cost about a fifth of a scan. Freed blocks are kept (up to kPoolCap bytes: a 2-camera 1920x1200 scan with 38 patterns
 // recycles ~500 MB, exact size match) and handed to
 // the next allocation of the same size, e.g. the next scan's buffers. Not zeroed: every user
 // writes every element.
 class BlockPool {
  public:
-  static constexpr size_t kHuge = size_t{2} << 20;
+  static constexpr size_t kPage = 4096;
+  static constexpr size_t kHuge = size_t{2} << 20;  // size classes (pages past the end are never touched)
   static constexpr size_t kPoolCap = size_t{640} << 20;
   static BlockPool& Get() {
     static BlockPool* pool = new BlockPool();  // never destroyed: buffers may outlive statics
@@ -59,9 +58,12 @@ class BlockPool {
         return p;
       }
     }
-    void* p = std::aligned_alloc(kHuge, rounded);
+    // Page-aligned, 4 kB pages: advising transparent huge pages (MADV_HUGEPAGE) made the first
+    // scan of a process ~1 CPU s slower on this machine (2 MB zeroing and compaction per fault:
+    // 2.2-2.6 vs 1.3-1.4 CPU s for the demo scan, same run), and recycling removes the faults of
+    // later scans anyway.
+    void* p = std::aligned_alloc(kPage, rounded);
     if (!p) throw std::bad_alloc();
-    madvise(p, rounded, MADV_HUGEPAGE);
     return p;
   }
   void Free(void* p, size_t bytes) {
@@ -85,7 +87,7 @@ class BlockPool {
 };
 
 // cv::Mat storage from the BlockPool. Same bookkeeping as OpenCV's standard allocator.
-class HugePageMatAllocator : public cv::MatAllocator {
+class PooledMatAllocator : public cv::MatAllocator {
  public:
   cv::UMatData* allocate(int dims, const int* sizes, int type, void* data0, size_t* step, cv::AccessFlag,
                          cv::UMatUsageFlags) const override {
@@ -125,14 +127,14 @@ void FreeLarge(void* p, size_t bytes) { BlockPool::Get().Free(p, bytes); }
 
 namespace {
 
-cv::MatAllocator* HugePages() {
-  static HugePageMatAllocator* allocator = new HugePageMatAllocator();  // never destroyed: Mats may outlive statics
+cv::MatAllocator* PooledMats() {
+  static PooledMatAllocator* allocator = new PooledMatAllocator();  // never destroyed: Mats may outlive statics
   return allocator;
 }
 
-void CreateHuge(cv::Mat& m, int rows, int cols, int type) {
+void CreatePooled(cv::Mat& m, int rows, int cols, int type) {
   m.release();
-  m.allocator = HugePages();
+  m.allocator = PooledMats();
   m.create(rows, cols, type);
 }
 constexpr int kBlock = 4;  // 4 x 4 pixels = one packet of 16 rays
@@ -626,15 +628,15 @@ GeometryBuffer TraceGeometry(const RayCaster& caster, const Rig& rig, int camera
   g.factor.resize(n);
   g.albedo.resize(n);
   if (scene.layers.projector_defocus.enabled) g.proj_sigma_px.resize(n);
-  CreateHuge(g.depth_mm, c.height, c.width, CV_32FC1);
-  CreateHuge(g.point_in_rig, c.height, c.width, CV_32FC3);
-  CreateHuge(g.normal_in_rig, c.height, c.width, CV_32FC3);
-  CreateHuge(g.visibility, c.height, c.width, CV_8UC1);
-  CreateHuge(g.object_id, c.height, c.width, CV_32SC1);
-  CreateHuge(g.projector.proj_x, c.height, c.width, CV_32FC1);
-  CreateHuge(g.projector.proj_y, c.height, c.width, CV_32FC1);
-  CreateHuge(g.projector.status, c.height, c.width, CV_8UC1);
-  CreateHuge(g.projector.quality, c.height, c.width, CV_32FC1);
+  CreatePooled(g.depth_mm, c.height, c.width, CV_32FC1);
+  CreatePooled(g.point_in_rig, c.height, c.width, CV_32FC3);
+  CreatePooled(g.normal_in_rig, c.height, c.width, CV_32FC3);
+  CreatePooled(g.visibility, c.height, c.width, CV_8UC1);
+  CreatePooled(g.object_id, c.height, c.width, CV_32SC1);
+  CreatePooled(g.projector.proj_x, c.height, c.width, CV_32FC1);
+  CreatePooled(g.projector.proj_y, c.height, c.width, CV_32FC1);
+  CreatePooled(g.projector.status, c.height, c.width, CV_8UC1);
+  CreatePooled(g.projector.quality, c.height, c.width, CV_32FC1);
   g.projector.has_x = g.projector.has_y = true;
 
   SampleTargets samples;
@@ -900,11 +902,10 @@ std::vector<cv::Mat> PatternRenderer::RenderBatch(const std::vector<cv::Mat>& im
       }
     });
     const bool wide = scene_.radiometry.adc_bits > 8;
-    // The batch's images as row bands of one block advised for huge pages (fewer first-touch
-    // faults than one 4 kB-paged allocation per image); each image is a continuous sub-matrix
-    // that keeps the block alive.
+    // The batch's images as row bands of one pooled block (recycled across scans: no first-touch
+    // faults after the first); each image is a continuous sub-matrix that keeps the block alive.
     cv::Mat block;
-    CreateHuge(block, geometry_.height * batch, geometry_.width, wide ? CV_16UC1 : CV_8UC1);
+    CreatePooled(block, geometry_.height * batch, geometry_.width, wide ? CV_16UC1 : CV_8UC1);
     std::vector<cv::Mat> out(static_cast<size_t>(batch));
     for (int k = 0; k < batch; ++k) out[static_cast<size_t>(k)] = block.rowRange(k * geometry_.height, (k + 1) * geometry_.height);
     const float scale = static_cast<float>(scene_.radiometry.exposure * full_scale_dn_);

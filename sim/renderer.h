@@ -45,7 +45,7 @@ struct CameraRays {
 CameraRays ComputeCameraRays(const CameraModel& camera, int samples_per_axis);
 
 namespace sim_detail {
-// Buffers of 1 MB and more come from a bounded pool of 2 MB-aligned, huge-page-advised blocks
+// Buffers of 1 MB and more come from a bounded pool of page-aligned blocks
 // recycled across geometry passes and scans (fewer first-touch page faults); renderer.cc.
 void* AllocateLarge(size_t bytes);
 void FreeLarge(void* p, size_t bytes);
