@@ -222,9 +222,12 @@ int RunCalibrate(int argc, char** argv) {
       "            corners are carried into the projector by local homographies (Moreno & Taubin 2012)\n"
       "  rig       --target T.yaml --imagesets DIR... --out RIG.yaml\n"
       "            each DIR an ImageSet (one board pose) with all cameras; projector and cameras jointly\n"
-      "  refine    --rig RIG.yaml --imageset SCAN --out RIG2.yaml [--camera NAME]\n"
+      "  refine    --rig RIG.yaml --imageset SCAN --out RIG2.yaml [--camera NAME] [--stereo NAME] [--refine-focal]\n"
       "            check the rig against a scan's dense camera-projector correspondences (epipolar residual,\n"
-      "            projector px: median, p95) and re-estimate the projector's pose, keeping the baseline length\n"
+      "            projector px: median, p95) and re-estimate the projector's pose, keeping the baseline length;\n"
+      "            with --stereo NAME the pose of camera NAME relative to --camera instead (camera-camera matches:\n"
+      "            pixels decoding to the same projector coordinate; residual in NAME's px); --refine-focal also\n"
+      "            re-estimates the focal length (fx, fy by one factor) of the projector, or of NAME with --stereo\n"
       "  import    OPENCV.yml --out RIG.yaml [--image-size WxH] [--projector-size WxH]\n"
       "  export    RIG.yaml --out OPENCV.yml",
       argv[0]};
@@ -272,6 +275,13 @@ int RunCalibrate(int argc, char** argv) {
   refine->add_option("--imageset", refine_scan, "ImageSet of a scan (any object) with the rig's camera and a pattern spec coding x and y")->required();
   refine->add_option("--out", refine_out, "refined rig file to write")->required();
   refine->add_option("--camera", refine_camera, "camera to use (default: the rig's first camera)");
+  std::string refine_stereo;
+  bool refine_focal = false;
+  refine->add_option("--stereo", refine_stereo,
+                     "second camera: refine its pose relative to --camera from camera-camera correspondences "
+                     "(default: none, refine the projector)");
+  refine->add_flag("--refine-focal", refine_focal,
+                   "also re-estimate the focal length of the projector (or of the --stereo camera); default off");
 
   std::string import_in, import_out, image_size, projector_size;
   auto* import = app.add_subcommand("import", "convert an OpenCV calibration file (calibrateCamera / stereoCalibrate / procam layout) to a rig");
@@ -413,9 +423,20 @@ int RunCalibrate(int argc, char** argv) {
         PatternSpecFromConfig(ConfigNode::FromJson(scan.patterns(), (fs::path(refine_scan) / "manifest.json").string(), "patterns"));
     SLSHADOW_THROW_IF(!patterns.code_x || !patterns.code_y, refine_scan, ": patterns must code both projector axes to check the calibration");
     const ProjectorMap map = DecodePatterns(patterns, scan.LoadCamera(cam), decode);
-    const RefineResult r = RefineProjectorPose(rig, index, SampleCorrespondences(map));
+    RefineOptions ro;
+    ro.refine_focal = refine_focal;
+    RefineResult r;
+    if (refine_stereo.empty()) {
+      r = RefineProjectorPose(rig, index, SampleCorrespondences(map), ro);
+    } else {
+      const int index_b = rig.CameraIndex(refine_stereo);
+      SLSHADOW_THROW_IF(index_b < 0, refine_rig, ": no camera named '", refine_stereo, "' (--stereo)");
+      const ProjectorMap map_b = DecodePatterns(patterns, scan.LoadCamera(refine_stereo), decode);
+      r = RefineStereoPose(rig, index, index_b, StereoCorrespondences(map, map_b), ro);
+    }
     Rig out = r.rig;
-    out.calibration["refine"] = {{"imageset", refine_scan}, {"camera", cam},
+    out.calibration["refine"] = {{"imageset", refine_scan}, {"camera", cam}, {"stereo", refine_stereo},
+                                 {"focal_scale", r.focal_scale},
                                  {"before_median_px", r.before.median_px}, {"before_p95_px", r.before.p95_px},
                                  {"after_median_px", r.after.median_px}, {"after_p95_px", r.after.p95_px},
                                  {"rotation_change_rad", r.rotation_change_rad},
