@@ -243,9 +243,9 @@ SimulateSummary SimulateScan(const Scene& scene, const Rig& rig, const std::vect
   for (size_t c = 0; c < rig.cameras.size(); ++c) {
     const std::string& name = rig.cameras[c].name;
     auto t = std::chrono::steady_clock::now();
-    const CameraRays rays = ComputeCameraRays(rig.cameras[c].model, scene.layers.supersampling);
+    const std::shared_ptr<const CameraRays> rays = CachedCameraRays(rig.cameras[c].model, scene.layers.supersampling);
     sum.camera_rays_seconds += Since(t);
-    const GeometryBuffer g = TraceGeometry(caster, rig, static_cast<int>(c), rays, options.trace_mode);
+    const GeometryBuffer g = TraceGeometry(caster, rig, static_cast<int>(c), *rays, options.trace_mode);
     sum.geometry_seconds += g.seconds;
     sum.primary_rays += g.primary_rays;
     sum.shadow_rays += g.shadow_rays;
