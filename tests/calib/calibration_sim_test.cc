@@ -9,29 +9,27 @@
 #include "calib/calibration.h"
 #include "calib/synthetic.h"
 #include "calib/target.h"
+#include "core/rig.h"
 #include "sim/shapes.h"
 #include "sim/simulate.h"
+#include "tests/testing/temp_dir.h"
 
 namespace slshadow {
 namespace {
 
-TEST(CalibrateSimulated, StereoRigFromRenderedBoards) {
-  // A 640x512 stereo pair (fx ~700) and a projector lighting the board; 11x8 inner corners, 30 mm.
-  SyntheticRig truth = SyntheticRig::Stereo();
-  truth.devices[0].model = CameraModel(640, 512, 700, 702, 322, 253, -0.12, 0.08, 0.0004, -0.0002, 0.0);
-  truth.devices[1].model = CameraModel(640, 512, 695, 696, 318, 258, -0.10, 0.06, -0.0002, 0.0003, 0.0);
-  const int num_poses = 12;
-  const SyntheticData poses = MakeSyntheticData(truth, num_poses, 0.0, 17);
+// Renders `num_poses` board poses for `truth` (noise on), detects the corners, calibrates.
+CalibrationResult RenderAndCalibrate(const SyntheticRig& truth, int num_poses, uint32_t seed, int supersampling) {
+  const SyntheticData poses = MakeSyntheticData(truth, num_poses, 0.0, seed);
   Rig rig;
   rig.name = "sim";
-  rig.working_distance_mm = 650;
+  rig.working_distance_mm = truth.distance_mm;
   rig.cameras = truth.devices;
   RigDevice projector;
   projector.name = "projector";
-  projector.model = CameraModel(800, 600, 600, 600, 400, 300);
+  projector.model = CameraModel(64, 48, 40, 40, 32, 24);  // lights the board uniformly: one white frame
   projector.cam_from_rig = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(-75, 0, 0));
   rig.projector = projector;
-  const cv::Mat white(600, 800, CV_8UC1, cv::Scalar(255));
+  const cv::Mat white(48, 64, CV_8UC1, cv::Scalar(255));
 
   TargetSpec spec;
   spec.type = TargetType::kChessboard;
@@ -46,15 +44,16 @@ TEST(CalibrateSimulated, StereoRigFromRenderedBoards) {
   for (const auto& d : truth.devices) input.devices.push_back({d.name, d.model.width, d.model.height, false, std::nullopt, false});
   for (int p = 0; p < num_poses; ++p) {
     BoardScene scene = MakeCheckerboardScene(spec.cols, spec.rows, spec.square_size_mm, poses.rig_from_board[static_cast<size_t>(p)]);
-    scene.scene.layers.supersampling = 2;
+    scene.scene.layers.supersampling = supersampling;
     scene.scene.layers.ambient = 0.3;
     scene.scene.layers.noise_enabled = true;
     scene.scene.layers.seed = static_cast<uint64_t>(100 + p);
     scene.scene.radiometry.exposure = 0.6;
     const auto images = RenderScan(scene.scene, rig, {white});
-    for (int d = 0; d < 2; ++d) {
+    for (int d = 0; d < static_cast<int>(truth.devices.size()); ++d) {
       const TargetDetection det = DetectTarget(spec, images[static_cast<size_t>(d)][0]);
-      ASSERT_TRUE(det.found) << "pose " << p << " camera " << d << ": " << det.reason;
+      EXPECT_TRUE(det.found) << "pose " << p << " camera " << d << ": " << det.reason;
+      if (!det.found) continue;
       BoardView v;
       v.device = d;
       v.pose = p;
@@ -66,29 +65,51 @@ TEST(CalibrateSimulated, StereoRigFromRenderedBoards) {
       input.views.push_back(std::move(v));
     }
   }
-  const CalibrationResult r = Calibrate(input, {});
+  return Calibrate(input, {});
+}
+
+// The targets: focal length within 0.05 %, principal point within 0.3 px, baseline within
+// 0.05 %, on the demo rig's 1920x1200 cameras (fx ~2730, 200 mm baseline, converging), 12 views
+// with tilts up to 40 degrees, sensor noise on, one white frame per view, no supersampling.
+TEST(CalibrateSimulated, DemoStereoRigFromRenderedBoards) {
+  const Rig demo = LoadRig(testing::SourceDir() / "config/demo/rig.yaml");
+  SyntheticRig truth;
+  truth.devices = demo.cameras;
+  truth.board_cols = 11;
+  truth.board_rows = 8;
+  truth.square_size_mm = 25;
+  truth.distance_mm = 620;
+  truth.max_tilt_rad = 0.7;
+  truth.shift_fraction = 0.12;
+  const int num_poses = 12;
+  const CalibrationResult r = RenderAndCalibrate(truth, num_poses, 23, 1);
   std::printf("%s\n", r.summary.BriefReport().c_str());
   for (int d = 0; d < 2; ++d) {
     const auto& est = r.devices[static_cast<size_t>(d)].model;
     const auto& tru = truth.devices[static_cast<size_t>(d)].model;
-    std::printf("camera %d: fx %+.4f %% fy %+.4f %% cx %+.3f px cy %+.3f px (sigma fx %.4f %%, cx %.3f px)\n", d,
+    const auto& cov = r.intrinsics_covariance[static_cast<size_t>(d)];
+    std::printf("camera %d: fx %+.4f %% fy %+.4f %% cx %+.3f px cy %+.3f px (sigma fx %.4f %% fy %.4f %% cx %.3f px cy %.3f px)\n", d,
                 100 * (est.fx() / tru.fx() - 1), 100 * (est.fy() / tru.fy() - 1), est.cx() - tru.cx(), est.cy() - tru.cy(),
-                100 * std::sqrt(r.intrinsics_covariance[static_cast<size_t>(d)](0, 0)) / tru.fx(),
-                std::sqrt(r.intrinsics_covariance[static_cast<size_t>(d)](2, 2)));
-    // Within 4 predicted sigma of the truth, and the prediction itself small.
+                100 * std::sqrt(cov(0, 0)) / tru.fx(), 100 * std::sqrt(cov(1, 1)) / tru.fy(), std::sqrt(cov(2, 2)),
+                std::sqrt(cov(3, 3)));
     for (int i = 0; i < 4; ++i) {
-      const double sigma = std::sqrt(r.intrinsics_covariance[static_cast<size_t>(d)](i, i));
+      const double sigma = std::sqrt(cov(i, i));
       EXPECT_LT(std::abs(est.params[static_cast<size_t>(i)] - tru.params[static_cast<size_t>(i)]), 4 * sigma + 1e-9)
           << "camera " << d << " parameter " << i;
     }
-    EXPECT_NEAR(est.fx() / tru.fx(), 1.0, 0.002);
-    EXPECT_NEAR(est.cx(), tru.cx(), 1.0);
+    EXPECT_NEAR(est.fx() / tru.fx(), 1.0, 0.0005);
+    EXPECT_NEAR(est.fy() / tru.fy(), 1.0, 0.0005);
+    // The 0.3 px principal point is NOT reachable here: with a 38 degree field of view the
+    // principal point trades off with the board rotations, and 12 views predict sigma ~0.9 px
+    // (docs/benchmarks.md). Asserted: within 4 predicted sigma (above) and 3 px.
+    EXPECT_NEAR(est.cx(), tru.cx(), 3.0);
+    EXPECT_NEAR(est.cy(), tru.cy(), 3.0);
   }
-  const double baseline_true = truth.devices[1].cam_from_rig.translation.norm();
-  const double baseline = r.devices[1].cam_from_rig.translation.norm();
-  std::printf("baseline %+.4f %%, rotation %.5f rad\n", 100 * (baseline / baseline_true - 1),
-              r.devices[1].cam_from_rig.rotation.angularDistance(truth.devices[1].cam_from_rig.rotation));
-  EXPECT_NEAR(baseline / baseline_true, 1.0, 0.002);
+  const Rigid3d t10 = truth.devices[1].cam_from_rig * truth.devices[0].cam_from_rig.Inverse();
+  const Rigid3d r10 = r.devices[1].cam_from_rig * r.devices[0].cam_from_rig.Inverse();
+  std::printf("baseline %+.4f %%, rotation %.5f deg, RMS %.4f px\n", 100 * (r10.translation.norm() / t10.translation.norm() - 1),
+              r10.rotation.angularDistance(t10.rotation) * 180 / M_PI, r.summary.rms_px);
+  EXPECT_NEAR(r10.translation.norm() / t10.translation.norm(), 1.0, 0.0005);
   EXPECT_LT(r.summary.rms_px, 0.3);
   EXPECT_EQ(r.summary.num_outlier_views, 0);
 }
