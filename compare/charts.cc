@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <memory>
+#include <mutex>
 
 #include <plstream.h>
 
@@ -26,6 +27,13 @@ void SetColorMap1(plstream& pls) {
   }
   pls.scmap1n(256);
   pls.scmap1l(true, 5, pos, r, g, b);
+}
+
+// PLplot keeps global state (stream table, current stream): one chart at a time per process,
+// so that reports may be written from several threads.
+std::mutex& PlplotMutex() {
+  static std::mutex m;
+  return m;
 }
 
 // A stream on a white page writing a PNG to `file`.
@@ -60,6 +68,7 @@ std::array<uint8_t, 3> DeviationColor(double t) {
 
 void WriteHistogramPng(const std::filesystem::path& path, const Histogram& h, const HistogramChart& chart) {
   SLSHADOW_THROW_IF(h.counts.empty(), path.string(), ": histogram has no bins");
+  const std::lock_guard<std::mutex> lock(PlplotMutex());
   WriteFileAtomically(path, [&](const std::filesystem::path& tmp) {
     auto pls = OpenPng(tmp, chart.width_px, chart.height_px);
     SetColorMap1(*pls);
@@ -108,6 +117,7 @@ void WriteDeviationMapPng(const std::filesystem::path& path, const ValueImage& i
                         image.values.size() != static_cast<size_t>(image.width) * static_cast<size_t>(image.height),
                     path.string(), ": bad deviation image size ", image.width, "x", image.height);
   SLSHADOW_THROW_IF(!(chart.hi > chart.lo), path.string(), ": empty colour range");
+  const std::lock_guard<std::mutex> lock(PlplotMutex());
   // Page: the image at its own aspect ratio plus room for the colour bar and labels.
   const int img_w = image.width, img_h = image.height;
   const double scale = std::min(1.0, std::min(1100.0 / img_w, 800.0 / img_h));

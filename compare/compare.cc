@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <memory>
 #include <random>
 #include <sstream>
 
@@ -123,7 +124,9 @@ CompareResult Compare(const PointCloud& cloud, const Reference& reference, const
   for (auto& n : r.compared.normals) n = rot * n;
   const auto& pts = r.compared.points;
 
-  const KdTree ref_tree(reference.cloud.points);
+  // Trees only where a query needs them: C2M and the coverage use none.
+  std::unique_ptr<KdTree> ref_tree;
+  if (!reference.IsMesh() || options.m3c2) ref_tree = std::make_unique<KdTree>(reference.cloud.points);
   bool is_signed = false;
   if (reference.IsMesh()) {
     r.distance_method = "nearest_triangle";
@@ -131,7 +134,7 @@ CompareResult Compare(const PointCloud& cloud, const Reference& reference, const
     is_signed = true;
   } else {
     r.distance_method = "nearest_point";
-    C2CResult c2c = CloudToCloud(pts, ref_tree, options.c2c);
+    C2CResult c2c = CloudToCloud(pts, *ref_tree, options.c2c);
     r.deviations_mm = std::move(c2c.distances_mm);
     r.num_not_found = c2c.num_not_found;
   }
@@ -140,15 +143,14 @@ CompareResult Compare(const PointCloud& cloud, const Reference& reference, const
 
   // Coverage.
   std::vector<Eigen::Vector3d> reached;
+  reached.reserve(pts.size());
   for (size_t i = 0; i < pts.size(); ++i) {
     if (std::abs(r.deviations_mm[i]) <= options.threshold_mm) reached.push_back(pts[i]);
   }
-  const KdTree cmp_tree(pts);
   r.coverage_radius_mm = options.coverage_radius_mm > 0
                              ? options.coverage_radius_mm
-                             : std::max(options.threshold_mm, 3.0 * MedianSpacing(cmp_tree));
-  const KdTree reached_tree(reached);
-  r.coverage = Coverage(reference.cloud.points, reached_tree, r.coverage_radius_mm);
+                             : std::max(options.threshold_mm, 3.0 * MedianSpacing(pts));
+  r.coverage = Coverage(reference.cloud.points, reached, r.coverage_radius_mm);
   r.coverage_samples = reference.cloud.size();
 
   // Scalar fields and colours.
@@ -166,11 +168,12 @@ CompareResult Compare(const PointCloud& cloud, const Reference& reference, const
     if (!ref_normals.empty()) {
       Neighbor nb;
       for (size_t i = 0; i < pts.size(); ++i) {
-        if (ref_tree.Nearest(pts[i], &nb)) hints[i] = ref_normals[nb.index];
+        if (ref_tree->Nearest(pts[i], &nb)) hints[i] = ref_normals[nb.index];
       }
     }
-    const auto normals = EstimateNormals(pts, ref_tree, 12, hints);
-    const M3C2Result m = M3C2(pts, normals, ref_tree, cmp_tree, options.m3c2_options);
+    const auto normals = EstimateNormals(pts, *ref_tree, 12, hints);
+    const KdTree cmp_tree(pts);
+    const M3C2Result m = M3C2(pts, normals, *ref_tree, cmp_tree, options.m3c2_options);
     M3C2Summary s;
     s.options = options.m3c2_options;
     s.num_valid = m.num_valid;

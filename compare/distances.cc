@@ -34,6 +34,15 @@ void ParallelForSpatial(const std::vector<Eigen::Vector3d>& queries, F&& f) {
   ParallelFor(order.size(), [&](size_t k) { f(order[k]); });
 }
 
+// f(begin, end, order) over chunks of the Morton order: a chunk's queries are neighbours, so
+// f can carry state (a warm start) from one query to the next.
+template <typename F>
+void ParallelChunksSpatial(const std::vector<Eigen::Vector3d>& queries, F&& f) {
+  const std::vector<uint32_t> order = SpatialOrder(queries);
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, order.size(), 4096),
+                    [&](const tbb::blocked_range<size_t>& r) { f(r.begin(), r.end(), order); });
+}
+
 // PCA frame of a point set: centroid, eigenvectors sorted by ascending eigenvalue (column 0 is
 // the normal direction).
 struct Frame {
@@ -163,10 +172,15 @@ C2MResult CloudToMesh(const std::vector<Eigen::Vector3d>& compared, const Triang
   C2MResult result;
   result.signed_distances_mm.resize(compared.size());
   result.triangles.resize(compared.size());
-  ParallelForSpatial(compared, [&](size_t i) {
-    const MeshHit hit = md.Closest(compared[i]);
-    result.signed_distances_mm[i] = hit.signed_distance_mm;
-    result.triangles[i] = hit.triangle;
+  ParallelChunksSpatial(compared, [&](size_t begin, size_t end, const std::vector<uint32_t>& order) {
+    uint32_t hint = std::numeric_limits<uint32_t>::max();
+    for (size_t k = begin; k < end; ++k) {
+      const size_t i = order[k];
+      const MeshHit hit = md.Closest(compared[i], hint);
+      result.signed_distances_mm[i] = hit.signed_distance_mm;
+      result.triangles[i] = hit.triangle;
+      hint = hit.triangle;
+    }
   });
   return result;
 }

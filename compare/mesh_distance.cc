@@ -146,10 +146,20 @@ uint32_t MeshDistance::Build(uint32_t begin, uint32_t end, std::vector<Eigen::Ve
 }
 
 MeshHit MeshDistance::Closest(const Eigen::Vector3d& p) const {
+  return Closest(p, std::numeric_limits<uint32_t>::max());
+}
+
+MeshHit MeshDistance::Closest(const Eigen::Vector3d& p, uint32_t hint) const {
   MeshHit hit;
   double best = std::numeric_limits<double>::infinity();
   int best_feature = 0;
   uint32_t best_tri = 0;
+  if (hint < tris_.size()) {
+    const Tri& t = tris_[hint];
+    hit.closest = ClosestPointOnTriangle(p, t.a, t.b, t.c, &best_feature);
+    best = (p - hit.closest).squaredNorm();
+    best_tri = hint;
+  }
   // Stack of (node, box distance); children visited nearest first.
   struct Entry {
     uint32_t node;

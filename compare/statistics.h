@@ -47,5 +47,13 @@ DistanceStats ComputeStats(const std::vector<double>& distances_mm, bool is_sign
 // `radius_mm`. In [0, 1]; 0 when there are no samples.
 double Coverage(const std::vector<Eigen::Vector3d>& reference_samples, const KdTree& reached,
                 double radius_mm);
+// The same value from the reached points themselves, through a uniform grid of cell ~radius
+// (no tree to build: ~10x cheaper on millions of reached points).
+double Coverage(const std::vector<Eigen::Vector3d>& reference_samples, const std::vector<Eigen::Vector3d>& reached,
+                double radius_mm);
+
+// MedianSpacing(KdTree(points), max_samples) without the tree: a uniform grid answers the
+// samples whose nearest other point lies within its cell, a tree only the others.
+double MedianSpacing(const std::vector<Eigen::Vector3d>& points, size_t max_samples = 20000);
 
 }  // namespace slshadow::compare

@@ -1,6 +1,7 @@
 #include "compare/mesh_distance.h"
 
 #include <cmath>
+#include <limits>
 #include <random>
 
 #include <gtest/gtest.h>
@@ -69,6 +70,25 @@ TEST(MeshDistance, EqualsBruteForceOverAllTriangles) {
       best = std::min(best, (p - q).norm());
     }
     EXPECT_EQ(std::abs(md.Closest(p).signed_distance_mm), best);
+  }
+}
+
+TEST(MeshDistance, WarmStartedQueriesEqualColdOnes) {
+  TriangleMesh mesh = IcoSphere(5.0, 3);
+  std::mt19937 rng(12);
+  std::normal_distribution<double> n(0.0, 0.2);
+  for (auto& v : mesh.vertices) v += Eigen::Vector3d(n(rng), n(rng), n(rng));
+  const MeshDistance md(mesh);
+  // Hints: the previous query's triangle (coherent), a random one, and an out-of-range one.
+  std::uniform_int_distribution<uint32_t> tri(0, static_cast<uint32_t>(mesh.triangles.size() - 1));
+  uint32_t previous = 0;
+  for (const auto& p : RandomPoints(5000, 8.0, 13)) {
+    const MeshHit cold = md.Closest(p);
+    for (const uint32_t hint : {previous, tri(rng), std::numeric_limits<uint32_t>::max()}) {
+      const MeshHit warm = md.Closest(p, hint);
+      ASSERT_EQ(warm.signed_distance_mm, cold.signed_distance_mm) << p.transpose() << " hint " << hint;
+    }
+    previous = cold.triangle;
   }
 }
 

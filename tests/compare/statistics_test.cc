@@ -78,5 +78,73 @@ TEST(Coverage, FractionOfReferenceSamplesReached) {
   EXPECT_DOUBLE_EQ(Coverage(ref, tree, 0.001), 0.0);
 }
 
+TEST(ComputeStats, PercentilesEqualTheSortedNearestRanks) {
+  std::mt19937 rng(22);
+  std::exponential_distribution<double> e(10.0);
+  for (const size_t n : {1u, 2u, 3u, 999u, 1000u, 4097u}) {
+    std::vector<double> d(n);
+    for (auto& v : d) v = e(rng);
+    const DistanceStats s = ComputeStats(d, false, 0.1);
+    std::vector<double> sorted = d;
+    std::sort(sorted.begin(), sorted.end());
+    const auto rank = [&](double p) {
+      return sorted[static_cast<size_t>(std::clamp(std::ceil(p / 100.0 * static_cast<double>(n)), 1.0,
+                                                   static_cast<double>(n))) - 1];
+    };
+    EXPECT_EQ(s.median_mm, rank(50)) << n;
+    EXPECT_EQ(s.p95_mm, rank(95)) << n;
+    EXPECT_EQ(s.max_mm, sorted.back()) << n;
+    EXPECT_EQ(s.histogram.hi_mm, std::max({rank(99.9), 0.1, 1e-6})) << n;
+  }
+}
+
+// The grid overload against the tree overload (itself checked above) and a brute-force count,
+// on a noisy surface with a hole, duplicates, and radii from below the spacing to wide.
+TEST(Coverage, GridEqualsTreeAndBruteForce) {
+  std::mt19937 rng(23);
+  std::uniform_real_distribution<double> u(0.0, 10.0);
+  std::normal_distribution<double> g(0.0, 0.02);
+  std::vector<Eigen::Vector3d> ref, reached;
+  for (int i = 0; i < 3000; ++i) ref.emplace_back(u(rng), u(rng), std::sin(u(rng)));
+  for (int i = 0; i < 20000; ++i) {
+    const Eigen::Vector3d p(u(rng), u(rng), g(rng));
+    if ((p.head<2>() - Eigen::Vector2d(5, 5)).norm() > 2) reached.push_back(p);
+  }
+  reached.push_back(reached.front());
+  const KdTree tree(reached);
+  for (const double r : {0.0, 0.01, 0.05, 0.3, 1.5, 40.0}) {
+    size_t brute = 0;
+    const double b = std::nextafter(r, 1e300) * std::nextafter(r, 1e300);
+    for (const auto& q : ref) {
+      bool hit = false;
+      for (const auto& p : reached) hit = hit || (q - p).squaredNorm() < b;
+      brute += hit;
+    }
+    const double expected = static_cast<double>(brute) / static_cast<double>(ref.size());
+    EXPECT_EQ(Coverage(ref, reached, r), expected) << r;
+    EXPECT_EQ(Coverage(ref, tree, r), expected) << r;
+  }
+  EXPECT_EQ(Coverage(ref, std::vector<Eigen::Vector3d>{}, 1.0), 0.0);
+}
+
+TEST(MedianSpacing, GridEqualsTree) {
+  std::mt19937 rng(24);
+  std::uniform_real_distribution<double> u(0.0, 10.0);
+  // A dense surface, a sparse volume (many samples fall back to the tree), a line with
+  // duplicates, a flat plane, and a single point.
+  std::vector<std::vector<Eigen::Vector3d>> clouds(5);
+  for (int i = 0; i < 50000; ++i) clouds[0].emplace_back(u(rng), u(rng), 0.1 * std::sin(u(rng)));
+  for (int i = 0; i < 200; ++i) clouds[1].emplace_back(u(rng), u(rng), u(rng));
+  for (int i = 0; i < 1000; ++i) clouds[2].emplace_back(0.5 * (i / 2), 0, 0);
+  for (int i = 0; i < 3000; ++i) clouds[3].emplace_back(u(rng), u(rng), 1.0);
+  clouds[4].emplace_back(1, 2, 3);
+  for (const auto& c : clouds) {
+    const KdTree tree(c);
+    for (const size_t samples : {size_t{20000}, size_t{100}}) {
+      EXPECT_EQ(MedianSpacing(c, samples), MedianSpacing(tree, samples)) << c.size() << " " << samples;
+    }
+  }
+}
+
 }  // namespace
 }  // namespace slshadow::compare
