@@ -32,7 +32,7 @@ int RunDemo(int argc, char** argv) {
                  "pattern spec instead of the embedded config/demo/patterns.yaml");
   app.add_option("--method", options.method, "triangulation: midpoint | dlt | optimal")->capture_default_str();
   app.add_option("--threshold-mm", options.threshold_mm, "outlier threshold, mm")->capture_default_str();
-  app.add_option("--encoding", options.encoding, "ImageSet images: png | pgm (fastest) | tiff")
+  app.add_option("--encoding", options.encoding, "ImageSet image encoding, all lossless: pgm (default, fastest to write and read) | png (smaller files, slower to write) | tiff")
       ->capture_default_str();
   app.add_flag("--verbose", options.verbose, "print each stage's full report");
   try {

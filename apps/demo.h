@@ -22,7 +22,7 @@ struct DemoOptions {
   std::filesystem::path patterns_path;  // empty: the embedded config/demo/patterns.yaml
   std::string method = "midpoint";      // triangulation method (reconstruct/triangulation.h)
   double threshold_mm = 0.25;           // outlier threshold of the comparison
-  std::string encoding = "png";         // ImageSet image encoding: png | pgm | tiff
+  std::string encoding = "pgm";         // ImageSet image encoding: pgm (fastest) | png | tiff
   bool verbose = false;                 // print each stage's full report
   void Check() const;
 };
