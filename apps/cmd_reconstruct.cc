@@ -1,7 +1,12 @@
 // slshadow reconstruct IMAGESET --out CLOUD.ply [--mode projector|stereo] [--method ...]
 #include <CLI/CLI.hpp>
 #include <cstdio>
+#include <cmath>
+#include <filesystem>
 #include <limits>
+
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "apps/commands.h"
 #include "core/error.h"
@@ -84,6 +89,10 @@ int RunReconstruct(int argc, char** argv) {
   app.add_option("--contrast-threshold", options.decode.contrast_threshold,
                  "decoding: minimum Gray-code bit contrast (8-bit grey levels)")
       ->capture_default_str();
+  app.add_option("--calibration-warning-px", r.calibration_warning_px,
+                 "calibration check: warn when the median epipolar residual of the dense correspondences exceeds "
+                 "this (px); residual maps are written next to the cloud")
+      ->capture_default_str();
   app.add_option("--summary", summary_path, "summary JSON path (default: CLOUD with .summary.json)");
   app.add_flag("--ascii", ascii, "write ASCII PLY instead of binary");
   app.add_flag("--quiet", quiet, "print only the one-line summaries");
@@ -115,7 +124,27 @@ int RunReconstruct(int argc, char** argv) {
   summary["imageset"] = imageset_dir;
   summary["cloud"] = out_path;
   summary["options"] = options.ToJson();
+  // Calibration-check maps: the dense correspondences' residuals, colour-coded from 0 (blue) to
+  // 2 x the warning threshold (red); black where no correspondence.
+  const double map_max_px = std::isfinite(r.calibration_warning_px) ? 2 * r.calibration_warning_px : 1.0;
+  nlohmann::json maps = nlohmann::json::array();
+  for (const auto& [name, residuals] : rec.residual_maps) {
+    std::filesystem::path p(out_path);
+    const std::filesystem::path map_path = p.parent_path() / (p.stem().string() + ".residuals_" + name + ".png");
+    cv::Mat scaled, mask = residuals == residuals;  // false at NaN
+    residuals.convertTo(scaled, CV_8U, 255.0 / map_max_px);
+    cv::Mat colour;
+    cv::applyColorMap(scaled, colour, cv::COLORMAP_TURBO);
+    colour.setTo(cv::Scalar(0, 0, 0), ~mask);
+    WriteFileAtomically(map_path, [&](const std::filesystem::path& tmp) {
+      SLSHADOW_THROW_IF(!cv::imwrite(tmp.string() + ".png", colour), map_path.string(), ": cannot write image");
+      std::filesystem::rename(tmp.string() + ".png", tmp);
+    });
+    maps.push_back({{"reconstruction", name}, {"file", map_path.string()}, {"scale_max_px", map_max_px}});
+  }
+  summary["residual_maps"] = maps;
   WriteTextFileAtomically(summary_path, summary.dump(2) + "\n");
+  for (const auto& w : rec.Warnings()) std::fprintf(stderr, "slshadow: warning: %s\n", w.c_str());
   if (quiet) {
     for (const auto& s : rec.summaries) std::printf("%s\n", s.BriefReport().c_str());
   } else {

@@ -140,6 +140,7 @@ void ReconstructOptions::Check() const {
   if (!(outlier_std_ratio > 0) || !std::isfinite(outlier_std_ratio)) fail("outlier_std_ratio", "must be finite and positive", outlier_std_ratio);
   if (!(outlier_min_distance_footprints >= 0) || !std::isfinite(outlier_min_distance_footprints))
     fail("outlier_min_distance_footprints", "must be finite and >= 0", outlier_min_distance_footprints);
+  if (!(calibration_warning_px > 0)) fail("calibration_warning_px", "must be positive", calibration_warning_px);
 }
 
 nlohmann::json ReconstructOptions::ToJson() const {
@@ -161,8 +162,29 @@ nlohmann::json ReconstructOptions::ToJson() const {
           {"outlier_neighbors", outlier_neighbors},
           {"outlier_std_ratio", outlier_std_ratio},
           {"outlier_min_distance_footprints", outlier_min_distance_footprints},
-          {"estimate_normals", estimate_normals}};
+          {"estimate_normals", estimate_normals},
+          {"calibration_warning_px", num(calibration_warning_px)}};
 }
+
+namespace {
+
+// The calibration check of ReconstructOptions::calibration_warning_px.
+std::vector<std::string> CalibrationWarnings(const ReconstructSummary& s, double threshold_px) {
+  const bool epipolar = s.epipolar_error_px.count > 0;
+  const ResidualStats& r = epipolar ? s.epipolar_error_px : s.reprojection_error_px;
+  if (r.count < 100 || !(r.median > threshold_px)) return {};
+  char buf[640];
+  std::snprintf(buf, sizeof(buf),
+                "calibration check: the median %s of %lld dense %s-%s correspondences is %.3g px (p95 %.3g px), "
+                "above %.3g px: the rig file does not fit these captures (bumped rig, swapped camera names or a "
+                "wrong rig file?); recalibrate or run 'slshadow calibrate refine'",
+                epipolar ? (s.mode == ReconstructMode::kStereo ? "cross-axis residual" : "epipolar residual")
+                         : "reprojection error",
+                static_cast<long long>(r.count), s.camera.c_str(), s.other_device.c_str(), r.median, r.p95, threshold_px);
+  return {buf};
+}
+
+}  // namespace
 
 namespace {
 
@@ -277,6 +299,7 @@ std::string ReconstructSummary::FullReport() const {
   std::snprintf(line, sizeof(line), "  time: rays %.3f s, match %.3f s, triangulate %.3f s, filters %.3f s, normals+cloud %.3f s, total %.3f s\n",
                 rays_s, match_s, triangulate_s, filter_s, normals_s, total_s);
   out << line;
+  for (const auto& w : warnings) out << "  WARNING: " << w << "\n";
   return out.str();
 }
 
@@ -298,6 +321,7 @@ nlohmann::json ReconstructSummary::ToJson() const {
           {"normal_fallbacks", normal_fallbacks},
           {"reprojection_error_px", reprojection_error_px.ToJson()},
           {"epipolar_error_px", epipolar_error_px.ToJson()},
+          {"warnings", warnings},
           {"time_s", {{"rays", rays_s}, {"match", match_s}, {"triangulate", triangulate_s}, {"filters", filter_s},
                       {"normals", normals_s}, {"total", total_s}}}};
 }
@@ -422,6 +446,7 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
   });
   s.triangulate_s = Seconds(t0);
   Finish(options, &out);
+  s.warnings = CalibrationWarnings(s, options.calibration_warning_px);
   s.total_s = Seconds(start);
   return out;
 }
@@ -528,6 +553,7 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
   });
   s.triangulate_s = Seconds(t0);
   Finish(options, &out);
+  s.warnings = CalibrationWarnings(s, options.calibration_warning_px);
   s.total_s = Seconds(start);
   return out;
 }

@@ -14,6 +14,7 @@
 #include <array>
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
@@ -70,6 +71,12 @@ struct ReconstructOptions {
   double outlier_min_distance_footprints = 4.0;
   // Normals from the organised grid, oriented toward the reference camera.
   bool estimate_normals = true;
+  // Calibration check: warn when the median epipolar residual (projector mode: distance from the
+  // epipolar line; stereo: cross-axis residual), or else the median reprojection error, of the
+  // dense correspondences exceeds this, px. A good calibration gives a few hundredths to a few
+  // tenths of a pixel; a bumped rig, swapped camera names or a wrong rig file give pixels to
+  // hundreds of pixels. Infinity disables the check.
+  double calibration_warning_px = 0.5;
 
   // Throws slshadow::Error naming the first violated constraint.
   void Check() const;
@@ -108,6 +115,9 @@ struct ReconstructSummary {
   // the filters: a calibration check (a good rig gives sub-pixel medians).
   ResidualStats reprojection_error_px;
   ResidualStats epipolar_error_px;  // empty (count 0) when the mode has none
+  // Calibration-check warnings (see ReconstructOptions::calibration_warning_px); empty when the
+  // residuals fit the calibration.
+  std::vector<std::string> warnings;
   // Wall-clock seconds per stage.
   double rays_s = 0, match_s = 0, triangulate_s = 0, filter_s = 0, normals_s = 0, total_s = 0;
 

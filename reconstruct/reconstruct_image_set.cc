@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
+#include <limits>
 #include <sstream>
 
 #include "core/config.h"
@@ -34,6 +36,21 @@ std::vector<std::string> SelectCameras(const Rig& rig, const std::vector<std::st
     SLSHADOW_THROW_IF(cameras.empty(), "reconstruct: no camera has images");
   }
   return cameras;
+}
+
+cv::Mat ResidualMap(const Reconstruction& rec) {
+  const DenseGrid& g = rec.grid;
+  const bool epipolar = rec.summary.epipolar_error_px.count > 0;
+  const std::vector<float>& values = epipolar ? g.epipolar_error_px : g.reprojection_error_px;
+  cv::Mat map(g.height, g.width, CV_32FC1, cv::Scalar(std::numeric_limits<float>::quiet_NaN()));
+  for (int v = 0; v < g.height; ++v) {
+    float* row = map.ptr<float>(v);
+    for (int u = 0; u < g.width; ++u) {
+      const size_t i = g.Index(u, v);
+      if (i < values.size() && std::isfinite(values[i])) row[u] = values[i];
+    }
+  }
+  return map;
 }
 
 void TagCamera(PointCloud* cloud, int index) {
@@ -71,12 +88,14 @@ ImageSetReconstruction ReconstructFromImages(const Rig& rig, const PatternSpec& 
     Reconstruction rec = ReconstructStereo(rig, out.cameras[0], out.cameras[1], maps[out.cameras[0]],
                                            maps[out.cameras[1]], options.reconstruct);
     TagCamera(&rec.cloud, rig.CameraIndex(out.cameras[0]));
+    out.residual_maps.emplace_back(rec.summary.camera + "-" + rec.summary.other_device, ResidualMap(rec));
     out.cloud = std::move(rec.cloud);
     out.summaries.push_back(rec.summary);
   } else {
     for (const auto& name : out.cameras) {
       Reconstruction rec = ReconstructWithProjector(rig, name, maps[name], options.reconstruct);
       TagCamera(&rec.cloud, rig.CameraIndex(name));
+      out.residual_maps.emplace_back(rec.summary.camera + "-" + rec.summary.other_device, ResidualMap(rec));
       if (out.cloud.empty() && out.summaries.empty()) {
         out.cloud = std::move(rec.cloud);
       } else {
@@ -108,6 +127,12 @@ ImageSetReconstruction ReconstructImageSet(const ImageSet& image_set, const Imag
   ImageSetReconstruction out = ReconstructFromImages(image_set.rig(), spec, images, selected);
   out.load_s = load_s;
   return out;
+}
+
+std::vector<std::string> ImageSetReconstruction::Warnings() const {
+  std::vector<std::string> all;
+  for (const auto& s : summaries) all.insert(all.end(), s.warnings.begin(), s.warnings.end());
+  return all;
 }
 
 std::string ImageSetReconstruction::FullReport() const {

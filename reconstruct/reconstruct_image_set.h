@@ -37,6 +37,14 @@ struct ImageSetReconstruction {
   PointCloud cloud;
   std::vector<ReconstructSummary> summaries;  // one per reconstruction (camera, or stereo pair)
   std::vector<std::string> cameras;           // cameras decoded, in order
+  // Calibration-check maps, one per reconstruction ("<camera>-<other device>"): per cell of the
+  // reconstruction grid (the camera image; stereo: the rectified left image) the epipolar
+  // residual of its correspondence (projector mode with both axes coded: distance from the
+  // epipolar line, projector px; stereo: cross-axis residual, projector px), or the reprojection
+  // error (px) where the mode has no epipolar residual. CV_32FC1, NaN where no correspondence.
+  std::vector<std::pair<std::string, cv::Mat>> residual_maps;
+  // All summaries' calibration-check warnings.
+  std::vector<std::string> Warnings() const;
   double load_s = 0;         // reading and decoding image files
   double decode_s = 0;       // fringe decoding (DecodePatterns), all cameras
   double reconstruct_s = 0;  // triangulation, filters, normals, merging

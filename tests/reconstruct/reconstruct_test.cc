@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <random>
 #include <set>
 
@@ -407,6 +408,27 @@ TEST_F(ReconstructTest, ResidualStatisticsRevealAMiscalibratedRig) {
   EXPECT_GT(bad.summary.rejected[static_cast<size_t>(RejectReason::kEpipolarError)] +
                 bad.summary.rejected[static_cast<size_t>(RejectReason::kReprojectionError)],
             good.summary.points / 2);
+  // The calibration check warns about the bumped rig, and only about it.
+  EXPECT_TRUE(good.summary.warnings.empty());
+  ASSERT_EQ(bad.summary.warnings.size(), 1u);
+  EXPECT_NE(bad.summary.warnings[0].find("calibration check: the median epipolar residual"), std::string::npos)
+      << bad.summary.warnings[0];
+  EXPECT_NE(bad.summary.FullReport().find("WARNING: calibration check"), std::string::npos);
+  EXPECT_EQ(bad.summary.ToJson()["warnings"].size(), 1u);
+  options.calibration_warning_px = std::numeric_limits<double>::infinity();
+  EXPECT_TRUE(ReconstructWithProjector(wrong, "left", truth.map, options).summary.warnings.empty());
+}
+
+TEST_F(ReconstructTest, CalibrationCheckCatchesSwappedStereoCameras) {
+  const AnalyticView left = RenderAnalytic(rig_, rig_.cameras[0], PlaneSurface());
+  const AnalyticView right = RenderAnalytic(rig_, rig_.cameras[1], PlaneSurface());
+  const Reconstruction good = ReconstructStereo(rig_, "left", "right", left.map, right.map);
+  EXPECT_TRUE(good.summary.warnings.empty()) << good.summary.FullReport();
+  // The captures of the two cameras filed under each other's names.
+  const Reconstruction swapped = ReconstructStereo(rig_, "left", "right", right.map, left.map);
+  EXPECT_LT(swapped.summary.points, good.summary.points / 10);
+  ASSERT_FALSE(swapped.summary.warnings.empty()) << swapped.summary.FullReport();
+  EXPECT_NE(swapped.summary.warnings[0].find("swapped camera names"), std::string::npos);
 }
 
 TEST_F(ReconstructTest, NormalsFaceTheCameraAndFollowTheSurface) {
