@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <memory>
 #include <mutex>
 
@@ -135,20 +136,33 @@ void WriteDeviationMapPng(const std::filesystem::path& path, const ValueImage& i
     const double vy0 = static_cast<double>(kBottom) / page_h, vy1 = vy0 + img_h * scale / page_h;
     pls->vpor(vx0, vx1, vy0, vy1);
     pls->wind(-0.5, img_w - 0.5, img_h - 0.5, -0.5);
-    // data[x][y] with y going up in PLplot: flip rows. Empty pixels are given a value below
+    // PLplot draws every data cell as a filled polygon: give it the cells at the size they are
+    // drawn (each the mean of the finite values of its block of image pixels), not more.
+    // data[x][y] with y going up in PLplot: flip rows. Empty cells are given a value below
     // the range; plimagefr skips values outside [valuemin, valuemax] (white background).
-    std::vector<std::vector<PLFLT>> cols(static_cast<size_t>(img_w), std::vector<PLFLT>(static_cast<size_t>(img_h)));
-    std::vector<const PLFLT*> ptrs(static_cast<size_t>(img_w));
-    const double below = chart.lo - 10.0 * (chart.hi - chart.lo);
-    for (int x = 0; x < img_w; ++x) {
-      for (int y = 0; y < img_h; ++y) {
+    const int cell_w = std::max(1, static_cast<int>(std::ceil(img_w * scale))),
+              cell_h = std::max(1, static_cast<int>(std::ceil(img_h * scale)));
+    std::vector<std::vector<PLFLT>> cols(static_cast<size_t>(cell_w), std::vector<PLFLT>(static_cast<size_t>(cell_h), 0.0));
+    std::vector<std::vector<int>> counts(static_cast<size_t>(cell_w), std::vector<int>(static_cast<size_t>(cell_h), 0));
+    for (int y = 0; y < img_h; ++y) {
+      const auto cy = static_cast<size_t>(std::min(cell_h - 1, static_cast<int>(static_cast<int64_t>(y) * cell_h / img_h)));
+      for (int x = 0; x < img_w; ++x) {
         const float v = image.values[static_cast<size_t>(y) * static_cast<size_t>(img_w) + static_cast<size_t>(x)];
-        cols[static_cast<size_t>(x)][static_cast<size_t>(y)] =
-            std::isfinite(v) ? std::clamp<double>(v, chart.lo, chart.hi) : below;
+        if (!std::isfinite(v)) continue;
+        const auto cx = static_cast<size_t>(std::min(cell_w - 1, static_cast<int>(static_cast<int64_t>(x) * cell_w / img_w)));
+        cols[cx][cy] += v;
+        ++counts[cx][cy];
       }
-      ptrs[static_cast<size_t>(x)] = cols[static_cast<size_t>(x)].data();
     }
-    pls->imagefr(ptrs.data(), img_w, img_h, -0.5, img_w - 0.5, img_h - 0.5, -0.5, chart.lo, chart.hi,
+    std::vector<const PLFLT*> ptrs(static_cast<size_t>(cell_w));
+    const double below = chart.lo - 10.0 * (chart.hi - chart.lo);
+    for (size_t x = 0; x < cols.size(); ++x) {
+      for (size_t y = 0; y < cols[x].size(); ++y) {
+        cols[x][y] = counts[x][y] > 0 ? std::clamp<double>(cols[x][y] / counts[x][y], chart.lo, chart.hi) : below;
+      }
+      ptrs[x] = cols[x].data();
+    }
+    pls->imagefr(ptrs.data(), cell_w, cell_h, -0.5, img_w - 0.5, img_h - 0.5, -0.5, chart.lo, chart.hi,
                  chart.lo, chart.hi, nullptr, nullptr);
     pls->col0(1);
     pls->box("bcnst", 0, 0, "bcnstv", 0, 0);
