@@ -62,17 +62,18 @@ class PointGrid {
   }
   double cell() const { return cell_; }
 
-  // f(point, original index) for every point in the 27 cells around q.
+  // f(point, original index) for every point in the (2 reach + 1)^3 cells around q: all the
+  // points within reach cells of q.
   template <typename F>
-  void ForNeighbours(const Eigen::Vector3d& q, F&& f) const {
+  void ForNeighbours(const Eigen::Vector3d& q, F&& f, int64_t reach = 1) const {
     if (points_.empty() || !q.allFinite()) return;
     const Eigen::Vector3d c = ((q - lo_) * inv_).array().floor();
     constexpr double kMax = double(1 << 21);
-    if ((c.array() < -1.0).any() || (c.array() > kMax).any()) return;
+    if ((c.array() < -static_cast<double>(reach)).any() || (c.array() > kMax + static_cast<double>(reach)).any()) return;
     const auto cx = static_cast<int64_t>(c.x()), cy = static_cast<int64_t>(c.y()), cz = static_cast<int64_t>(c.z());
-    for (int64_t z = cz - 1; z <= cz + 1; ++z) {
-      for (int64_t y = cy - 1; y <= cy + 1; ++y) {
-        for (int64_t x = cx - 1; x <= cx + 1; ++x) {
+    for (int64_t z = std::max<int64_t>(cz - reach, 0); z <= std::min(cz + reach, kCells - 1); ++z) {
+      for (int64_t y = std::max<int64_t>(cy - reach, 0); y <= std::min(cy + reach, kCells - 1); ++y) {
+        for (int64_t x = std::max<int64_t>(cx - reach, 0); x <= std::min(cx + reach, kCells - 1); ++x) {
           if (x < 0 || y < 0 || z < 0 || x >= kCells || y >= kCells || z >= kCells) continue;
           const auto it = cells_.find(Key(x, y, z));
           if (it == cells_.end()) continue;
@@ -242,15 +243,22 @@ double MedianSpacing(const std::vector<Eigen::Vector3d>& points, size_t max_samp
     const PointGrid grid(points, cell * 1.001);
     const double reach = cell * cell;  // within it, the grid's answer is exact
     for (size_t i = 0; i < points.size(); i += stride) {
-      double best = std::numeric_limits<double>::infinity();
-      grid.ForNeighbours(points[i], [&](const Eigen::Vector3d& p, uint32_t j) {
-        if (j != i) best = std::min(best, (points[i] - p).squaredNorm());
-      });
-      if (best <= reach) {
-        d.push_back(std::sqrt(best));
-      } else {
-        missed.push_back(i);
+      // Cubes of 1, 2, 4, 8 cells around the point: exact as soon as the nearest lies within
+      // the cube's inscribed radius.
+      bool found = false;
+      for (int64_t cells = 1; cells <= 8 && !found; cells *= 2) {
+        double best = std::numeric_limits<double>::infinity();
+        grid.ForNeighbours(
+            points[i], [&](const Eigen::Vector3d& p, uint32_t j) {
+              if (j != i) best = std::min(best, (points[i] - p).squaredNorm());
+            },
+            cells);
+        if (best <= reach * static_cast<double>(cells * cells)) {
+          d.push_back(std::sqrt(best));
+          found = true;
+        }
       }
+      if (!found) missed.push_back(i);
     }
   } else {
     for (size_t i = 0; i < points.size(); i += stride) missed.push_back(i);
