@@ -5,43 +5,25 @@
 #include <fstream>
 #include <memory>
 
-#include <plstream.h>
-
 #include "calib/calibration_io.h"
 #include "core/error.h"
 #include "core/file_util.h"
+#include "plot/plot.h"
 
 namespace slshadow {
 namespace {
 
-constexpr double kStops[5][4] = {
-    {0.00, 0, 0, 255}, {0.25, 0, 255, 255}, {0.50, 0, 255, 0}, {0.75, 255, 255, 0}, {1.00, 255, 0, 0}};
+// A chart stream holding the PLplot lock: colour 2 outliers, 3 bars and vectors, 4 points.
+struct Chart {
+  std::unique_lock<std::mutex> lock = plot::LockPlplot();
+  std::unique_ptr<plstream> pls;
+  plstream* operator->() const { return pls.get(); }
+};
 
-void SetColorMap1(plstream& pls) {
-  PLFLT pos[5], r[5], g[5], b[5];
-  for (int i = 0; i < 5; ++i) {
-    pos[i] = kStops[i][0];
-    r[i] = kStops[i][1] / 255.0;
-    g[i] = kStops[i][2] / 255.0;
-    b[i] = kStops[i][3] / 255.0;
-  }
-  pls.scmap1n(256);
-  pls.scmap1l(true, 5, pos, r, g, b);
-}
-
-std::unique_ptr<plstream> OpenPng(const std::filesystem::path& file, int width, int height) {
-  auto pls = std::make_unique<plstream>();
-  pls->sdev("pngcairo");
-  pls->sfnam(file.c_str());
-  pls->spage(0, 0, width, height, 0, 0);
-  pls->scol0(0, 255, 255, 255);  // background
-  pls->scol0(1, 0, 0, 0);        // axes and text
-  pls->scol0(2, 200, 0, 0);      // outliers
-  pls->scol0(3, 40, 90, 200);    // bars, vectors
-  pls->scol0(4, 150, 150, 150);  // points
-  pls->init();
-  pls->col0(1);
-  return pls;
+Chart OpenPng(const std::filesystem::path& file, int width, int height) {
+  Chart chart;
+  chart.pls = plot::OpenPng(file, width, height, {{200, 0, 0}, {40, 90, 200}, {150, 150, 150}});
+  return chart;
 }
 
 void PerViewChart(const std::filesystem::path& path, const CalibrationSummary& s) {
@@ -133,7 +115,7 @@ void MapChart(const std::filesystem::path& path, const PixelMap& map, int width,
   const double scale = std::min(1.0, 1000.0 / width);
   const int page_w = static_cast<int>(width * scale) + 330, page_h = static_cast<int>(height * scale) + 150;
   auto pls = OpenPng(path, page_w, page_h);
-  SetColorMap1(*pls);
+  plot::SetHeatColorMap(*pls.pls);
   pls->adv(0);
   const double vx0 = 135.0 / page_w, vx1 = vx0 + width * scale / page_w;
   const double vy0 = 80.0 / page_h, vy1 = vy0 + height * scale / page_h;

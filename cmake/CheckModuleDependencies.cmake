@@ -3,13 +3,14 @@ cmake_minimum_required(VERSION 3.22)
 # must name the module itself or one it may depend on. Run as a CTest test:
 #   cmake -DROOT=<source dir> -P cmake/CheckModuleDependencies.cmake
 set(allowed_core "core")
+set(allowed_plot "plot")
 set(allowed_patterns "core;patterns")
 set(allowed_reconstruct "core;patterns;reconstruct")
 set(allowed_sim "core;patterns;sim")
 set(allowed_capture "core;patterns;capture")
-set(allowed_calib "core;patterns;calib")
-set(allowed_compare "core;compare")
-set(modules core patterns reconstruct sim capture calib compare)
+set(allowed_calib "core;patterns;plot;calib")
+set(allowed_compare "core;plot;compare")
+set(modules core plot patterns reconstruct sim capture calib compare)
 
 set(violations "")
 foreach(module IN LISTS modules)

@@ -4,75 +4,30 @@
 #include <cmath>
 #include <cstdint>
 #include <memory>
-#include <mutex>
-
-#include <plstream.h>
 
 #include "core/error.h"
 #include "core/file_util.h"
+#include "plot/plot.h"
 
 namespace slshadow::compare {
 namespace {
 
-// Colour map control points (position, r, g, b).
-constexpr double kStops[5][4] = {
-    {0.00, 0, 0, 255}, {0.25, 0, 255, 255}, {0.50, 0, 255, 0}, {0.75, 255, 255, 0}, {1.00, 255, 0, 0}};
-
-void SetColorMap1(plstream& pls) {
-  PLFLT pos[5], r[5], g[5], b[5];
-  for (int i = 0; i < 5; ++i) {
-    pos[i] = kStops[i][0];
-    r[i] = kStops[i][1] / 255.0;
-    g[i] = kStops[i][2] / 255.0;
-    b[i] = kStops[i][3] / 255.0;
-  }
-  pls.scmap1n(256);
-  pls.scmap1l(true, 5, pos, r, g, b);
-}
-
-// PLplot keeps global state (stream table, current stream): one chart at a time per process,
-// so that reports may be written from several threads.
-std::mutex& PlplotMutex() {
-  static std::mutex m;
-  return m;
-}
-
-// A stream on a white page writing a PNG to `file`.
-std::unique_ptr<plstream> OpenPng(const std::filesystem::path& file, int width, int height) {
-  auto pls = std::make_unique<plstream>();
-  pls->sdev("pngcairo");
-  pls->sfnam(file.c_str());
-  pls->spage(0, 0, width, height, 0, 0);
-  pls->scol0(0, 255, 255, 255);  // background
-  pls->scol0(1, 0, 0, 0);        // axes and text
-  pls->scol0(2, 200, 0, 0);      // threshold lines
-  pls->scol0(3, 90, 90, 90);     // bar outlines
-  pls->init();
-  pls->col0(1);
+// Palette after white and black: colour 2 threshold lines, colour 3 bar outlines.
+std::unique_ptr<plstream> OpenChart(const std::filesystem::path& file, int width, int height) {
+  auto pls = plot::OpenPng(file, width, height, {{200, 0, 0}, {90, 90, 90}});
+  plot::SetHeatColorMap(*pls);
   return pls;
 }
 
 }  // namespace
 
-std::array<uint8_t, 3> DeviationColor(double t) {
-  t = std::isfinite(t) ? std::clamp(t, 0.0, 1.0) : 0.5;
-  int i = 0;
-  while (i < 3 && t > kStops[i + 1][0]) ++i;
-  const double f = (t - kStops[i][0]) / (kStops[i + 1][0] - kStops[i][0]);
-  std::array<uint8_t, 3> c{};
-  for (int k = 0; k < 3; ++k) {
-    c[static_cast<size_t>(k)] =
-        static_cast<uint8_t>(std::lround(kStops[i][k + 1] + f * (kStops[i + 1][k + 1] - kStops[i][k + 1])));
-  }
-  return c;
-}
+std::array<uint8_t, 3> DeviationColor(double t) { return plot::HeatColor(t); }
 
 void WriteHistogramPng(const std::filesystem::path& path, const Histogram& h, const HistogramChart& chart) {
   SLSHADOW_THROW_IF(h.counts.empty(), path.string(), ": histogram has no bins");
-  const std::lock_guard<std::mutex> lock(PlplotMutex());
+  const auto lock = plot::LockPlplot();
   WriteFileAtomically(path, [&](const std::filesystem::path& tmp) {
-    auto pls = OpenPng(tmp, chart.width_px, chart.height_px);
-    SetColorMap1(*pls);
+    auto pls = OpenChart(tmp, chart.width_px, chart.height_px);
     const size_t peak = *std::max_element(h.counts.begin(), h.counts.end());
     const double ymax = std::max<double>(1.0, static_cast<double>(peak)) * 1.12;
     pls->schr(0, 1.1);
@@ -118,7 +73,7 @@ void WriteDeviationMapPng(const std::filesystem::path& path, const ValueImage& i
                         image.values.size() != static_cast<size_t>(image.width) * static_cast<size_t>(image.height),
                     path.string(), ": bad deviation image size ", image.width, "x", image.height);
   SLSHADOW_THROW_IF(!(chart.hi > chart.lo), path.string(), ": empty colour range");
-  const std::lock_guard<std::mutex> lock(PlplotMutex());
+  const auto lock = plot::LockPlplot();
   // Page: the image at its own aspect ratio plus room for the colour bar and labels.
   const int img_w = image.width, img_h = image.height;
   const double scale = std::min(1.0, std::min(1100.0 / img_w, 800.0 / img_h));
@@ -128,8 +83,7 @@ void WriteDeviationMapPng(const std::filesystem::path& path, const ValueImage& i
   const int page_w = static_cast<int>(img_w * scale) + kLeft + kRight;
   const int page_h = static_cast<int>(img_h * scale) + kBottom + kTop;
   WriteFileAtomically(path, [&](const std::filesystem::path& tmp) {
-    auto pls = OpenPng(tmp, page_w, page_h);
-    SetColorMap1(*pls);
+    auto pls = OpenChart(tmp, page_w, page_h);
     pls->adv(0);
     // Viewport in normalised page coordinates leaving space right for the colour bar.
     const double vx0 = static_cast<double>(kLeft) / page_w, vx1 = vx0 + img_w * scale / page_w;

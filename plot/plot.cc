@@ -1,0 +1,60 @@
+#include "plot/plot.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace slshadow::plot {
+namespace {
+
+// Colour map control points: position, r, g, b.
+constexpr double kStops[5][4] = {
+    {0.00, 0, 0, 255}, {0.25, 0, 255, 255}, {0.50, 0, 255, 0}, {0.75, 255, 255, 0}, {1.00, 255, 0, 0}};
+
+}  // namespace
+
+std::array<uint8_t, 3> HeatColor(double t) {
+  t = std::isfinite(t) ? std::clamp(t, 0.0, 1.0) : 0.5;
+  int i = 0;
+  while (i < 3 && t > kStops[i + 1][0]) ++i;
+  const double f = (t - kStops[i][0]) / (kStops[i + 1][0] - kStops[i][0]);
+  std::array<uint8_t, 3> c{};
+  for (int k = 0; k < 3; ++k) {
+    c[static_cast<size_t>(k)] =
+        static_cast<uint8_t>(std::lround(kStops[i][k + 1] + f * (kStops[i + 1][k + 1] - kStops[i][k + 1])));
+  }
+  return c;
+}
+
+void SetHeatColorMap(plstream& pls) {
+  PLFLT pos[5], r[5], g[5], b[5];
+  for (int i = 0; i < 5; ++i) {
+    pos[i] = kStops[i][0];
+    r[i] = kStops[i][1] / 255.0;
+    g[i] = kStops[i][2] / 255.0;
+    b[i] = kStops[i][3] / 255.0;
+  }
+  pls.scmap1n(256);
+  pls.scmap1l(true, 5, pos, r, g, b);
+}
+
+std::unique_lock<std::mutex> LockPlplot() {
+  static std::mutex m;
+  return std::unique_lock<std::mutex>(m);
+}
+
+std::unique_ptr<plstream> OpenPng(const std::filesystem::path& file, int width, int height,
+                                  std::initializer_list<std::array<int, 3>> palette) {
+  auto pls = std::make_unique<plstream>();
+  pls->sdev("pngcairo");
+  pls->sfnam(file.c_str());
+  pls->spage(0, 0, width, height, 0, 0);
+  pls->scol0(0, 255, 255, 255);
+  pls->scol0(1, 0, 0, 0);
+  int index = 2;
+  for (const auto& rgb : palette) pls->scol0(index++, rgb[0], rgb[1], rgb[2]);
+  pls->init();
+  pls->col0(1);
+  return pls;
+}
+
+}  // namespace slshadow::plot

@@ -1,0 +1,35 @@
+#pragma once
+// PNG charts through PLplot, shared by the report writers of calib/ and compare/.
+//
+// PLplot keeps process-wide state (stream table, current stream), so a chart must hold
+// LockPlplot() for as long as its stream lives; reports may then be written from several threads.
+
+#include <array>
+#include <cstdint>
+#include <filesystem>
+#include <initializer_list>
+#include <memory>
+#include <mutex>
+
+#include <plstream.h>
+
+namespace slshadow::plot {
+
+// The heat colour map used by every deviation and residual chart, and by the colours stored in
+// report PLYs: blue (t = 0), cyan, green, yellow, red (t = 1), linear in between. t is clamped to
+// [0, 1]; NaN gives the middle (green).
+std::array<uint8_t, 3> HeatColor(double t);
+
+// Loads the same heat map into PLplot's colour map 1 (256 entries), for shade plots and colour bars.
+void SetHeatColorMap(plstream& pls);
+
+// Serialises PLplot use across threads.
+[[nodiscard]] std::unique_lock<std::mutex> LockPlplot();
+
+// A stream writing a width x height px PNG (pngcairo) to `file`: colour 0 is the white
+// background, colour 1 black (axes, text), and `palette` becomes colours 2, 3, ... in order.
+// The stream is initialised and drawing in colour 1.
+std::unique_ptr<plstream> OpenPng(const std::filesystem::path& file, int width, int height,
+                                  std::initializer_list<std::array<int, 3>> palette);
+
+}  // namespace slshadow::plot
