@@ -56,6 +56,23 @@ void PrimitiveBounds(const struct RTCBoundsFunctionArguments* args) {
 
 bool IntersectInRig(const PrimitiveData& data, float ox, float oy, float oz, float dx, float dy, float dz, float tnear,
                     float tfar, PrimitiveHit* hit) {
+  if (data.object->type == ObjectType::kPlane) {
+    // The plane z = 0 of the object frame, as IntersectPrimitive does it but with only the rows
+    // it needs (the table under a part is hit by nearly every ray: this is the hot case).
+    const Eigen::Matrix3d& m = data.object_from_rig_rotation;
+    const double rx = ox - data.translation.x(), ry = oy - data.translation.y(), rz = oz - data.translation.z();
+    const double o_z = m(2, 0) * rx + m(2, 1) * ry + m(2, 2) * rz;
+    const double d_z = m(2, 0) * dx + m(2, 1) * dy + m(2, 2) * dz;
+    if (d_z == 0) return false;
+    const double t = -o_z / d_z;
+    if (!(t > tnear && t < tfar)) return false;
+    const double px = (m(0, 0) * rx + m(0, 1) * ry + m(0, 2) * rz) + t * (m(0, 0) * dx + m(0, 1) * dy + m(0, 2) * dz);
+    const double py = (m(1, 0) * rx + m(1, 1) * ry + m(1, 2) * rz) + t * (m(1, 0) * dx + m(1, 1) * dy + m(1, 2) * dz);
+    if (std::abs(px) > data.object->size_mm.x() / 2 || std::abs(py) > data.object->size_mm.y() / 2) return false;
+    hit->t = t;
+    hit->normal = data.rig_from_object_rotation.col(2);
+    return true;
+  }
   const Eigen::Vector3d o = data.object_from_rig_rotation * (Eigen::Vector3d(ox, oy, oz) - data.translation);
   const Eigen::Vector3d d = data.object_from_rig_rotation * Eigen::Vector3d(dx, dy, dz);
   if (!IntersectPrimitive(*data.object, o, d, tnear, tfar, hit)) return false;
@@ -101,6 +118,16 @@ void PrimitiveOccluded(const RTCOccludedFunctionNArguments* args) {
       RTCRayN_tfar(ray, n, i) = -kInf;
     }
   }
+}
+
+// An inactive packet lane: a valid, empty ray (tfar < tnear), so that no lane Embree reads is
+// uninitialised (valgrind flagged rtcOccluded16's validity check on such lanes).
+void InactiveLane(RTCRay16& r, int i) {
+  r.org_x[i] = r.org_y[i] = r.org_z[i] = 0;
+  r.dir_x[i] = r.dir_y[i] = 0;
+  r.dir_z[i] = 1;
+  r.tnear[i] = 0;
+  r.tfar[i] = -kInf;
 }
 
 void ErrorCallback(void*, RTCError code, const char* message) {
@@ -321,14 +348,20 @@ void RayCaster::Intersect(RayPacket& p, TraceMode mode, bool coherent) const {
     alignas(64) int valid[RayPacket::kSize];
     for (int i = 0; i < RayPacket::kSize; ++i) {
       valid[i] = p.active[i] ? -1 : 0;
-      rh.ray.org_x[i] = p.org_x[i];
-      rh.ray.org_y[i] = p.org_y[i];
-      rh.ray.org_z[i] = p.org_z[i];
-      rh.ray.dir_x[i] = p.dir_x[i];
-      rh.ray.dir_y[i] = p.dir_y[i];
-      rh.ray.dir_z[i] = p.dir_z[i];
-      rh.ray.tnear[i] = p.tnear[i];
-      rh.ray.tfar[i] = p.tfar[i];
+      if (p.active[i]) {
+        rh.ray.org_x[i] = p.org_x[i];
+        rh.ray.org_y[i] = p.org_y[i];
+        rh.ray.org_z[i] = p.org_z[i];
+        rh.ray.dir_x[i] = p.dir_x[i];
+        rh.ray.dir_y[i] = p.dir_y[i];
+        rh.ray.dir_z[i] = p.dir_z[i];
+        rh.ray.tnear[i] = p.tnear[i];
+        rh.ray.tfar[i] = p.tfar[i];
+      } else {
+        // Every lane defined: Embree reads all 16 (masked by `valid`); never the caller's
+        // unset inputs of inactive lanes.
+        InactiveLane(rh.ray, i);
+      }
       rh.ray.time[i] = 0;
       rh.ray.mask[i] = 0xFFFFFFFFu;
       rh.ray.id[i] = static_cast<unsigned>(i);
@@ -393,14 +426,18 @@ void RayCaster::Occluded(RayPacket& p, TraceMode mode) const {
     alignas(64) int valid[RayPacket::kSize];
     for (int i = 0; i < RayPacket::kSize; ++i) {
       valid[i] = p.active[i] ? -1 : 0;
-      r.org_x[i] = p.org_x[i];
-      r.org_y[i] = p.org_y[i];
-      r.org_z[i] = p.org_z[i];
-      r.dir_x[i] = p.dir_x[i];
-      r.dir_y[i] = p.dir_y[i];
-      r.dir_z[i] = p.dir_z[i];
-      r.tnear[i] = p.tnear[i];
-      r.tfar[i] = p.tfar[i];
+      if (p.active[i]) {
+        r.org_x[i] = p.org_x[i];
+        r.org_y[i] = p.org_y[i];
+        r.org_z[i] = p.org_z[i];
+        r.dir_x[i] = p.dir_x[i];
+        r.dir_y[i] = p.dir_y[i];
+        r.dir_z[i] = p.dir_z[i];
+        r.tnear[i] = p.tnear[i];
+        r.tfar[i] = p.tfar[i];
+      } else {
+        InactiveLane(r, i);
+      }
       r.time[i] = 0;
       r.mask[i] = 0xFFFFFFFFu;
       r.id[i] = static_cast<unsigned>(i);

@@ -155,19 +155,31 @@ Simulator::Simulator(const Scene& scene, const Rig& rig, TraceMode mode) : scene
   SLSHADOW_THROW_IF(!rig.projector, "rig '", rig.name, "' has no projector: the simulator needs one");
   const RayCaster caster(scene);
   setup_.build_seconds = caster.build_seconds();
+  Trace(caster, mode);
+  setup_.total_seconds = Since(start);
+}
+
+Simulator::Simulator(const RayCaster& caster, const Rig& rig, TraceMode mode) : scene_(caster.scene()), rig_(rig) {
+  const auto start = std::chrono::steady_clock::now();
+  rig.Check("rig '" + rig.name + "'");
+  SLSHADOW_THROW_IF(!rig.projector, "rig '", rig.name, "' has no projector: the simulator needs one");
+  Trace(caster, mode);
+  setup_.total_seconds = Since(start);
+}
+
+void Simulator::Trace(const RayCaster& caster, TraceMode mode) {
   setup_.triangles = caster.num_triangles();
-  setup_.cameras = static_cast<int>(rig.cameras.size());
-  for (size_t c = 0; c < rig.cameras.size(); ++c) {
+  setup_.cameras = static_cast<int>(rig_.cameras.size());
+  for (size_t c = 0; c < rig_.cameras.size(); ++c) {
     const auto t = std::chrono::steady_clock::now();
-    const std::shared_ptr<const CameraRays> rays = CachedCameraRays(rig.cameras[c].model, scene.layers.supersampling);
+    const std::shared_ptr<const CameraRays> rays = CachedCameraRays(rig_.cameras[c].model, scene_.layers.supersampling);
     setup_.camera_rays_seconds += Since(t);
-    if (geometry_.empty()) geometry_.reserve(rig.cameras.size());  // moved in, never copied
-    geometry_.push_back(TraceGeometry(caster, rig, static_cast<int>(c), *rays, mode));
+    if (geometry_.empty()) geometry_.reserve(rig_.cameras.size());  // moved in, never copied
+    geometry_.push_back(TraceGeometry(caster, rig_, static_cast<int>(c), *rays, mode));
     setup_.geometry_seconds += geometry_.back().seconds;
     setup_.primary_rays += geometry_.back().primary_rays;
     setup_.shadow_rays += geometry_.back().shadow_rays;
   }
-  setup_.total_seconds = Since(start);
 }
 
 Simulator::~Simulator() = default;

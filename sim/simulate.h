@@ -67,7 +67,13 @@ struct SimulateSummary {
 // scene and the rig must outlive it.
 class Simulator {
  public:
+  // Builds the BVH of `scene`, traces the rig's cameras, then frees the BVH.
   Simulator(const Scene& scene, const Rig& rig, TraceMode mode = TraceMode::kPacket16);
+  // Traces with a BVH built once by the caller, e.g. for many scans of one part from other rig
+  // poses or by other rigs: a scan then costs its geometry passes and pattern passes, not the
+  // build (0.3 CPU s for 1 M triangles). The scene is `caster.scene()`; `caster` is needed only
+  // during construction.
+  Simulator(const RayCaster& caster, const Rig& rig, TraceMode mode = TraceMode::kPacket16);
   ~Simulator();
   int num_cameras() const { return static_cast<int>(geometry_.size()); }
   const GeometryBuffer& geometry(int camera) const { return geometry_.at(static_cast<size_t>(camera)); }
@@ -85,6 +91,7 @@ class Simulator {
   const Rig& rig_;
   std::vector<GeometryBuffer> geometry_;
   SimulateSummary setup_;
+  void Trace(const RayCaster& caster, TraceMode mode);
 };
 
 // Renders all images in memory: images[camera][pattern]. `geometry`, if not null, receives the

@@ -16,6 +16,7 @@
 #include "core/rig.h"
 #include "patterns/codec.h"
 #include "patterns/pattern_spec.h"
+#include "sim/raycaster.h"
 #include "sim/renderer.h"
 #include "sim/scene.h"
 #include "sim/shapes.h"
@@ -196,6 +197,51 @@ void BM_DemoScan(benchmark::State& state) {
   state.counters["images"] = 2.0 * static_cast<double>(Patterns().size());
 }
 BENCHMARK(BM_DemoScan)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(4);
+
+// The rig moved rigidly about the vertical axis through its working point (0, 0, wd).
+Rig MovedRig(const Rig& base, double angle_deg) {
+  const Eigen::Matrix3d r = Eigen::AngleAxisd(angle_deg * M_PI / 180, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  const Eigen::Vector3d pivot(0, 0, base.working_distance_mm);
+  const Rigid3d rig_from_moved = Rigid3d(Eigen::Quaterniond(r), pivot - r * pivot).Inverse();
+  Rig rig = base;
+  for (RigDevice& d : rig.cameras) d.cam_from_rig = d.cam_from_rig * rig_from_moved;
+  rig.projector->cam_from_rig = rig.projector->cam_from_rig * rig_from_moved;
+  return rig;
+}
+
+// The demo scan with the BVH built once (what a user running many scans of one part does): each
+// iteration scans from another rig pose (rotated -4..4 degrees about the part), so geometry
+// passes and pattern passes are redone, only the BVH is reused. 76 images in memory.
+void BM_DemoScanSharedBvh(benchmark::State& state) {
+  const Scene& scene = CachedScene(1000000);
+  const std::clock_t cpu_build = std::clock();
+  const RayCaster caster(scene);
+  const double build_cpu_s = static_cast<double>(std::clock() - cpu_build) / CLOCKS_PER_SEC;
+  std::vector<Rig> rigs;
+  for (int k = 0; k < 5; ++k) rigs.push_back(MovedRig(DemoRig(), 2.0 * k - 4.0));
+  double geometry_s = 0, patterns_s = 0;
+  int64_t rays = 0, primary = 0;
+  size_t k = 0;
+  const std::clock_t cpu0 = std::clock();
+  for (auto _ : state) {
+    const Simulator sim(caster, rigs[k++ % rigs.size()]);
+    SimulateSummary s = sim.setup();
+    benchmark::DoNotOptimize(sim.Render(Patterns(), nullptr, &s));
+    geometry_s += s.geometry_seconds;
+    patterns_s += s.render_seconds;
+    rays = s.primary_rays + s.shadow_rays;
+    primary = s.primary_rays;
+  }
+  const double n = static_cast<double>(state.iterations());
+  state.counters["cpu_s"] = static_cast<double>(std::clock() - cpu0) / CLOCKS_PER_SEC / n;
+  state.counters["bvh_cpu_s_once"] = build_cpu_s;
+  state.counters["geometry_s"] = geometry_s / n;
+  state.counters["patterns_s"] = patterns_s / n;
+  state.counters["Mrays"] = static_cast<double>(rays) / 1e6;
+  state.counters["Mprimary"] = static_cast<double>(primary) / 1e6;
+  state.counters["images"] = 2.0 * static_cast<double>(Patterns().size());
+}
+BENCHMARK(BM_DemoScanSharedBvh)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(5);
 
 // Re-scans from cached geometry (Simulator): the same 76 images, only the pattern passes.
 void BM_Rescan(benchmark::State& state) {

@@ -1,5 +1,7 @@
 #include "sim/simulate.h"
 
+#include <cmath>
+
 #include <gtest/gtest.h>
 
 #include "core/error.h"
@@ -100,6 +102,41 @@ TEST(SimulateTest, SimulatorReusesGeometryAcrossScans) {
   Scene supersampled = scene;
   supersampled.layers.supersampling = 2;
   EXPECT_THROW(sim.Render(images, &supersampled), Error);
+}
+
+// One BVH shared by scans from several rig poses (the scanner moved around the part) gives the
+// images and ground truth of a Simulator that builds its own BVH for each pose.
+TEST(SimulateTest, SharedBvhEqualsOwnBvhForMovedRigs) {
+  const Rig base = testing::SmallDemoRig(8);
+  const Scene scene = LoadScene(testing::SourceDir() / "config/demo/scene.yaml");
+  const auto images = StripeImages(base);
+  const RayCaster caster(scene);
+  for (double angle_deg : {0.0, 4.0, -7.0}) {
+    // Rotate the whole rig about the vertical axis through the working point (0, 0, 500).
+    const Eigen::Matrix3d r = Eigen::AngleAxisd(angle_deg * M_PI / 180, Eigen::Vector3d::UnitY()).toRotationMatrix();
+    const Eigen::Vector3d pivot(0, 0, base.working_distance_mm);
+    const Rigid3d moved_from_rig(Eigen::Quaterniond(r), pivot - r * pivot);
+    Rig rig = base;
+    for (RigDevice& d : rig.cameras) d.cam_from_rig = d.cam_from_rig * moved_from_rig.Inverse();
+    rig.projector->cam_from_rig = rig.projector->cam_from_rig * moved_from_rig.Inverse();
+    const Simulator shared(caster, rig);
+    const Simulator own(scene, rig);
+    EXPECT_EQ(shared.setup().build_seconds, 0);
+    EXPECT_EQ(shared.setup().primary_rays, own.setup().primary_rays);
+    EXPECT_EQ(shared.setup().shadow_rays, own.setup().shadow_rays);
+    const auto a = shared.Render(images);
+    const auto b = own.Render(images);
+    for (size_t c = 0; c < 2; ++c) {
+      EXPECT_EQ(cv::norm(shared.geometry(static_cast<int>(c)).visibility, own.geometry(static_cast<int>(c)).visibility,
+                         cv::NORM_INF), 0);
+      for (size_t p = 0; p < images.size(); ++p) EXPECT_EQ(cv::norm(a[c][p], b[c][p], cv::NORM_INF), 0) << angle_deg;
+    }
+    // The views differ between poses (the rig really moved).
+    if (angle_deg != 0) {
+      const Simulator still(caster, base);
+      EXPECT_GT(cv::norm(still.geometry(0).visibility, shared.geometry(0).visibility, cv::NORM_L1), 0);
+    }
+  }
 }
 
 TEST(SimulateTest, RefusesToOverwriteAndChecksImages) {
