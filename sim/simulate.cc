@@ -8,6 +8,7 @@
 #include <deque>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <sstream>
 
 #include <opencv2/imgcodecs.hpp>
@@ -246,8 +247,14 @@ SimulateSummary SimulateScan(const Scene& scene, const Rig& rig, const std::vect
                         {"ground_truth", options.write_ground_truth ? "ground_truth/<camera>/" : ""}};
   writer.SetExtra(extra);
 
-  RayCaster caster(scene);
-  sum.build_seconds = caster.build_seconds();
+  SLSHADOW_THROW_IF(options.shared_bvh && &options.shared_bvh->scene() != &scene,
+                    "SimulateScan: the shared BVH was built for another Scene object");
+  std::optional<RayCaster> own_caster;
+  if (!options.shared_bvh) {
+    own_caster.emplace(scene);
+    sum.build_seconds = own_caster->build_seconds();
+  }
+  const RayCaster& caster = options.shared_bvh ? *options.shared_bvh : *own_caster;
   sum.triangles = caster.num_triangles();
   sum.cameras = static_cast<int>(rig.cameras.size());
   sum.patterns = static_cast<int>(projector_images.size());

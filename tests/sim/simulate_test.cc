@@ -139,6 +139,34 @@ TEST(SimulateTest, SharedBvhEqualsOwnBvhForMovedRigs) {
   }
 }
 
+// SimulateScan with a shared BVH writes the images of a scan that builds its own; a BVH of
+// another Scene object is refused.
+TEST(SimulateTest, SimulateScanWithSharedBvh) {
+  testing::TempDir tmp;
+  const Rig rig = testing::SmallDemoRig(8);
+  const Scene scene = LoadScene(testing::SourceDir() / "config/demo/scene.yaml");
+  const auto images = StripeImages(rig);
+  const RayCaster caster(scene);
+  SimulateOptions options;
+  options.writer.encoding = ImageEncoding::kPgm;
+  options.write_ground_truth = false;
+  options.shared_bvh = &caster;
+  const nlohmann::json spec = {{"codec", "test_stripes"}};
+  const SimulateSummary summary = SimulateScan(scene, rig, images, spec, tmp / "scan", options);
+  EXPECT_EQ(summary.build_seconds, 0);
+  EXPECT_EQ(summary.triangles, caster.num_triangles());
+  const ImageSet set = ImageSet::Open(tmp / "scan");
+  const auto rendered = RenderScan(scene, rig, images);
+  for (size_t c = 0; c < 2; ++c) {
+    for (int p = 0; p < 4; ++p) {
+      EXPECT_EQ(cv::norm(set.Load(rig.cameras[c].name, p), rendered[c][static_cast<size_t>(p)], cv::NORM_INF), 0);
+    }
+  }
+  const Scene copy = scene;
+  EXPECT_THROW(SimulateScan(copy, rig, images, spec, tmp / "other", options), Error);
+  EXPECT_FALSE(std::filesystem::exists(tmp / "other"));
+}
+
 TEST(SimulateTest, RefusesToOverwriteAndChecksImages) {
   testing::TempDir tmp;
   const Rig rig = testing::SmallDemoRig(8);
