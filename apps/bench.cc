@@ -27,18 +27,41 @@ struct Timing {
   double cpu_s = 0;
 };
 
-// Runs `work` n times; returns the run with the median wall time.
-Timing Median(int n, const std::function<void()>& work) {
-  std::vector<Timing> runs;
+// Runs `work` n times; returns the run with the median wall time (and its index in `median_run`).
+Timing Median(int n, const std::function<void()>& work, int* median_run = nullptr) {
+  std::vector<std::pair<Timing, int>> runs;
   for (int i = 0; i < n; ++i) {
     const double cpu0 = ProcessCpuSeconds();
     const auto t0 = std::chrono::steady_clock::now();
     work();
-    runs.push_back({std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
-                    ProcessCpuSeconds() - cpu0});
+    runs.push_back({{std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
+                     ProcessCpuSeconds() - cpu0},
+                    i});
   }
-  std::sort(runs.begin(), runs.end(), [](const Timing& a, const Timing& b) { return a.wall_s < b.wall_s; });
-  return runs[runs.size() / 2];
+  std::sort(runs.begin(), runs.end(), [](const auto& a, const auto& b) { return a.first.wall_s < b.first.wall_s; });
+  if (median_run) *median_run = runs[runs.size() / 2].second;
+  return runs[runs.size() / 2].first;
+}
+
+// Adds a stage's wall and CPU seconds to the entry named `name` of `stages` (appended when new).
+void AddStage(std::vector<BenchStage>* stages, const std::string& name, double wall_s, double cpu_s) {
+  for (auto& s : *stages) {
+    if (s.name == name) {
+      s.wall_s += wall_s;
+      s.cpu_s += cpu_s;
+      return;
+    }
+  }
+  stages->push_back({name, wall_s, cpu_s});
+}
+
+// The per-stage times of a reconstruction.
+void AddStages(std::vector<BenchStage>* stages, const ReconstructSummary& s) {
+  AddStage(stages, "rays", s.rays_s, s.rays_cpu_s);
+  if (s.mode == ReconstructMode::kStereo) AddStage(stages, "match", s.match_s, s.match_cpu_s);
+  AddStage(stages, "triangulate", s.triangulate_s, s.triangulate_cpu_s);
+  AddStage(stages, "filters", s.filter_s, s.filter_cpu_s);
+  AddStage(stages, "normals+cloud", s.normals_s, s.normals_cpu_s);
 }
 
 BenchEntry MakeEntry(const std::string& name, const std::string& what) {
@@ -141,19 +164,40 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
   Reconstruction stereo;
   if (Wanted(options, "reconstruct")) {
     BenchEntry e = MakeEntry("reconstruct", "decode + triangulate 2 cameras (camera-projector), 2 x 1920x1200");
-    const Timing t = Median(reps, [&] {
-      for (int c = 0; c < 2; ++c) {
-        const ProjectorMap map = DecodePatterns(spec, images[c]);
-        ReconstructWithProjector(rig, rig.cameras[c].name, map);
-      }
-    });
+    std::vector<std::vector<BenchStage>> run_stages;
+    int median_run = 0;
+    const Timing t = Median(
+        reps,
+        [&] {
+          std::vector<BenchStage> stages;
+          for (int c = 0; c < 2; ++c) {
+            const double cpu0 = ProcessCpuSeconds();
+            const auto t0 = std::chrono::steady_clock::now();
+            const ProjectorMap map = DecodePatterns(spec, images[c]);
+            AddStage(&stages, "decode", std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
+                     ProcessCpuSeconds() - cpu0);
+            AddStages(&stages, ReconstructWithProjector(rig, rig.cameras[c].name, map).summary);
+          }
+          run_stages.push_back(std::move(stages));
+        },
+        &median_run);
+    e.stages = run_stages[static_cast<size_t>(median_run)];
     e.median_wall_s = t.wall_s;
     e.cpu_s = t.cpu_s;
     e.throughput = 2 * camera_mpix / t.wall_s;
     e.unit = "MPix/s";
     entries.push_back(e);
     BenchEntry s = MakeEntry("reconstruct", "stereo left-right from decoded maps");
-    const Timing ts = Median(reps, [&] { stereo = ReconstructStereo(rig, left, right, maps[0], maps[1]); });
+    run_stages.clear();
+    const Timing ts = Median(
+        reps,
+        [&] {
+          stereo = ReconstructStereo(rig, left, right, maps[0], maps[1]);
+          run_stages.emplace_back();
+          AddStages(&run_stages.back(), stereo.summary);
+        },
+        &median_run);
+    s.stages = run_stages[static_cast<size_t>(median_run)];
     s.median_wall_s = ts.wall_s;
     s.cpu_s = ts.cpu_s;
     s.throughput = static_cast<double>(stereo.summary.points) / 1e6 / ts.wall_s;
@@ -192,6 +236,10 @@ std::string FormatBench(const std::vector<BenchEntry>& entries) {
     if (!e.peer.empty()) {
       std::snprintf(buf, sizeof(buf), "  peer       %15.3f           %8.2f %-12s %s -> slshadow is %.1fx\n",
                     e.peer_median_wall_s, e.peer_throughput, e.unit.c_str(), e.peer.c_str(), e.ratio);
+      out += buf;
+    }
+    for (const auto& stage : e.stages) {
+      std::snprintf(buf, sizeof(buf), "  %-14s %13.3f  %7.3f\n", stage.name.c_str(), stage.wall_s, stage.cpu_s);
       out += buf;
     }
   }

@@ -23,6 +23,14 @@ struct BenchOptions {
   void Check() const;
 };
 
+// One stage of an entry's median run (reconstruct: decode, rays, triangulate, filters, ...), summed
+// over the cameras.
+struct BenchStage {
+  std::string name;
+  double wall_s = 0;
+  double cpu_s = 0;
+};
+
 struct BenchEntry {
   std::string name;
   std::string what;
@@ -34,6 +42,7 @@ struct BenchEntry {
   double peer_median_wall_s = 0;
   double peer_throughput = 0;
   double ratio = 0;             // throughput / peer throughput (per pixel), 0 without a peer
+  std::vector<BenchStage> stages;  // of the median run; empty when the entry has none
 };
 
 std::vector<BenchEntry> RunBench(const BenchOptions& options);

@@ -9,6 +9,7 @@
 #include <sstream>
 
 #include "core/error.h"
+#include "core/stage_meter.h"
 #include "reconstruct/filters.h"
 #include "reconstruct/ray_cache.h"
 #include "reconstruct/stereo_matcher.h"
@@ -18,7 +19,17 @@ namespace slshadow {
 namespace {
 
 using Clock = std::chrono::steady_clock;
-double Seconds(Clock::time_point since) { return std::chrono::duration<double>(Clock::now() - since).count(); }
+
+// A stage's start: wall clock and process CPU time.
+struct Stamp {
+  Clock::time_point wall = Clock::now();
+  double cpu = ProcessCpuSeconds();
+};
+// Stores the wall and CPU seconds since `since`.
+void Elapsed(const Stamp& since, double* wall_s, double* cpu_s) {
+  *cpu_s = ProcessCpuSeconds() - since.cpu;
+  *wall_s = std::chrono::duration<double>(Clock::now() - since.wall).count();
+}
 
 constexpr uint8_t Code(RejectReason r) { return static_cast<uint8_t>(r); }
 
@@ -52,7 +63,7 @@ double FocalOf(const CameraModel& m) { return 0.5 * (m.fx() + m.fy()); }
 void Finish(const ReconstructOptions& options, Reconstruction* out) {
   DenseGrid& grid = out->grid;
   ReconstructSummary& s = out->summary;
-  auto t0 = Clock::now();
+  Stamp t0;
   // Per-thread buffers reused by the next reconstruction (fresh pages cost page faults).
   // (Referenced, not named, inside parallel bodies: a worker naming a thread_local gets its own.)
   thread_local std::vector<float> reproj_buffer, epi_buffer;
@@ -84,13 +95,13 @@ void Finish(const ReconstructOptions& options, Reconstruction* out) {
     FilterStatisticalOutliers(grid, options.outlier_window_radius_px, options.outlier_neighbors,
                               options.outlier_std_ratio, options.outlier_min_distance_footprints);
   }
-  s.filter_s = Seconds(t0);
-  t0 = Clock::now();
+  Elapsed(t0, &s.filter_s, &s.filter_cpu_s);
+  t0 = Stamp();
   thread_local std::vector<Eigen::Vector3f> normals_buffer;
   std::vector<Eigen::Vector3f>& normals = normals_buffer;
   if (options.estimate_normals) EstimateNormals(grid, &normals, &s.normal_fallbacks);
   out->cloud = grid.ToPointCloud(options.estimate_normals ? &normals : nullptr);
-  s.normals_s = Seconds(t0);
+  Elapsed(t0, &s.normals_s, &s.normals_cpu_s);
   s.grid_width = grid.width;
   s.grid_height = grid.height;
   s.cells = static_cast<int64_t>(grid.reason.size());
@@ -299,6 +310,9 @@ std::string ReconstructSummary::FullReport() const {
   std::snprintf(line, sizeof(line), "  time: rays %.3f s, match %.3f s, triangulate %.3f s, filters %.3f s, normals+cloud %.3f s, total %.3f s\n",
                 rays_s, match_s, triangulate_s, filter_s, normals_s, total_s);
   out << line;
+  std::snprintf(line, sizeof(line), "  CPU:  rays %.3f s, match %.3f s, triangulate %.3f s, filters %.3f s, normals+cloud %.3f s, total %.3f s\n",
+                rays_cpu_s, match_cpu_s, triangulate_cpu_s, filter_cpu_s, normals_cpu_s, total_cpu_s);
+  out << line;
   for (const auto& w : warnings) out << "  WARNING: " << w << "\n";
   return out.str();
 }
@@ -323,13 +337,15 @@ nlohmann::json ReconstructSummary::ToJson() const {
           {"epipolar_error_px", epipolar_error_px.ToJson()},
           {"warnings", warnings},
           {"time_s", {{"rays", rays_s}, {"match", match_s}, {"triangulate", triangulate_s}, {"filters", filter_s},
-                      {"normals", normals_s}, {"total", total_s}}}};
+                      {"normals", normals_s}, {"total", total_s}}},
+          {"cpu_s", {{"rays", rays_cpu_s}, {"match", match_cpu_s}, {"triangulate", triangulate_cpu_s},
+                     {"filters", filter_cpu_s}, {"normals", normals_cpu_s}, {"total", total_cpu_s}}}};
 }
 
 Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camera_name, const ProjectorMap& map,
                                         const ReconstructOptions& options) {
   options.Check();
-  const auto start = Clock::now();
+  const Stamp start;
   SLSHADOW_THROW_IF(!rig.projector, "reconstruct: rig '", rig.name, "' has no projector (projector mode needs one)");
   const RigDevice& cam = rig.Camera(camera_name);
   const RigDevice& proj = *rig.projector;
@@ -342,14 +358,14 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
   s.other_device = proj.name;
   s.decode_status = map.CountByStatus();
 
-  auto t0 = Clock::now();
+  Stamp t0;
   const std::shared_ptr<const RayGrid> rays = CachedRayGrid(cam.model);
   const bool both = map.has_x && map.has_y;
   // Projector pixels are undistorted per camera pixel, started from the projector's own grid.
   const std::shared_ptr<const RayGrid> proj_rays = both ? CachedRayGrid(proj.model) : nullptr;
-  s.rays_s = Seconds(t0);
+  Elapsed(t0, &s.rays_s, &s.rays_cpu_s);
 
-  t0 = Clock::now();
+  t0 = Stamp();
   const TriangulationView cam_view(cam.cam_from_rig, FocalOf(cam.model));
   const TriangulationView proj_view(proj.cam_from_rig, FocalOf(proj.model));
   const TwoViewTriangulator tri(cam_view, proj_view, options.reference_noise_ratio, 1.0);
@@ -444,10 +460,10 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
       }
     }
   });
-  s.triangulate_s = Seconds(t0);
+  Elapsed(t0, &s.triangulate_s, &s.triangulate_cpu_s);
   Finish(options, &out);
   s.warnings = CalibrationWarnings(s, options.calibration_warning_px);
-  s.total_s = Seconds(start);
+  Elapsed(start, &s.total_s, &s.total_cpu_s);
   return out;
 }
 
@@ -455,7 +471,7 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
                                  const ProjectorMap& left_map, const ProjectorMap& right_map,
                                  const ReconstructOptions& options) {
   options.Check();
-  const auto start = Clock::now();
+  const Stamp start;
   const RigDevice& left = rig.Camera(left_name);
   const RigDevice& right = rig.Camera(right_name);
   SLSHADOW_THROW_IF(left.name == right.name, "reconstruct: stereo needs two different cameras (got '", left.name, "' twice)");
@@ -470,19 +486,19 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
   const auto dl = left_map.CountByStatus(), dr = right_map.CountByStatus();
   for (int k = 0; k < kNumPixelStatus; ++k) s.decode_status[static_cast<size_t>(k)] = dl[static_cast<size_t>(k)] + dr[static_cast<size_t>(k)];
 
-  auto t0 = Clock::now();
+  Stamp t0;
   const StereoRectification rect = ComputeStereoRectification(left, right);
   const RectifiedMap lm = RectifyProjectorMap(rect, 0, left, left_map, options.max_code_step_px, options.min_quality);
   const RectifiedMap rm = RectifyProjectorMap(rect, 1, right, right_map, options.max_code_step_px, options.min_quality);
-  s.rays_s = Seconds(t0);
+  Elapsed(t0, &s.rays_s, &s.rays_cpu_s);
 
-  t0 = Clock::now();
+  t0 = Stamp();
   const double fb = rect.focal_px * rect.baseline_mm;
   const StereoMatches matches = MatchRectifiedMaps(rect, lm, rm, fb / options.max_depth_mm, fb / options.min_depth_mm,
                                                    options.max_code_step_px);
-  s.match_s = Seconds(t0);
+  Elapsed(t0, &s.match_s, &s.match_cpu_s);
 
-  t0 = Clock::now();
+  t0 = Stamp();
   const TriangulationView view0(rect.RectCamFromRig(0), rect.focal_px);
   const TriangulationView view1(rect.RectCamFromRig(1), rect.focal_px);
   const TwoViewTriangulator tri(view0, view1, options.reference_noise_ratio, 1.0);
@@ -551,10 +567,10 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
       }
     }
   });
-  s.triangulate_s = Seconds(t0);
+  Elapsed(t0, &s.triangulate_s, &s.triangulate_cpu_s);
   Finish(options, &out);
   s.warnings = CalibrationWarnings(s, options.calibration_warning_px);
-  s.total_s = Seconds(start);
+  Elapsed(start, &s.total_s, &s.total_cpu_s);
   return out;
 }
 

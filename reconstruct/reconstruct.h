@@ -120,6 +120,8 @@ struct ReconstructSummary {
   std::vector<std::string> warnings;
   // Wall-clock seconds per stage.
   double rays_s = 0, match_s = 0, triangulate_s = 0, filter_s = 0, normals_s = 0, total_s = 0;
+  // Process CPU seconds (user + system, all threads) per stage: CPU / wall ~ 2 on 2 idle cores.
+  double rays_cpu_s = 0, match_cpu_s = 0, triangulate_cpu_s = 0, filter_cpu_s = 0, normals_cpu_s = 0, total_cpu_s = 0;
 
   std::string BriefReport() const;
   std::string FullReport() const;
