@@ -120,11 +120,6 @@ class PooledMatAllocator : public cv::MatAllocator {
 
 }  // namespace
 
-namespace sim_detail {
-void* AllocateLarge(size_t bytes) { return BlockPool::Get().Allocate(bytes); }
-void FreeLarge(void* p, size_t bytes) { BlockPool::Get().Free(p, bytes); }
-}  // namespace sim_detail
-
 namespace {
 
 cv::MatAllocator* PooledMats() {
@@ -139,7 +134,20 @@ void CreatePooled(cv::Mat& m, int rows, int cols, int type) {
 }
 constexpr int kBlock = 4;  // 4 x 4 pixels = one packet of 16 rays
 
-// Where the pass writes for one set of samples.
+// Where the pass writes for one set of samples. Ground-truth maps are continuous, indexed
+// y * width + x; pointers are null when the map shares its storage with a per-sample buffer.
+struct GroundTruthTargets {
+  float* depth = nullptr;
+  float* point = nullptr;   // 3 per pixel
+  float* normal = nullptr;  // 3 per pixel
+  int32_t* object = nullptr;
+  uint8_t* visibility = nullptr;
+  uint8_t* status = nullptr;
+  float* proj_x = nullptr;   // null: shared with SampleTargets::proj_x
+  float* proj_y = nullptr;   // null: shared with SampleTargets::proj_y
+  float* quality = nullptr;  // null: shared with SampleTargets::factor
+};
+
 struct SampleTargets {
   int samples = 1;  // per pixel in this set
   const std::vector<Eigen::Vector3f>* dirs = nullptr;
@@ -150,7 +158,7 @@ struct SampleTargets {
   float* albedo = nullptr;
   float* proj_sigma = nullptr;
   // Ground-truth outputs, per pixel (only when samples == 1; may be null).
-  GeometryBuffer* gt = nullptr;
+  const GroundTruthTargets* gt = nullptr;
 };
 
 struct PassContext {
@@ -268,27 +276,31 @@ void TracePacket(const PassContext& c, const SampleTargets& out, int bx, int by,
     }
     if (out.gt) {
       // Every pixel is written (no separate initialisation pass: first touch in parallel).
-      GeometryBuffer& g = *out.gt;
-      const int x = px[i], y = py[i];
+      const GroundTruthTargets& g = *out.gt;
+      const size_t q = static_cast<size_t>(py[i]) * static_cast<size_t>(c.width) + static_cast<size_t>(px[i]);
       if (hit) {
-        g.depth_mm.at<float>(y, x) = static_cast<float>(c.cam_from_rig_row_z.dot(point[i]) + c.cam_from_rig_tz);
-        g.point_in_rig.at<cv::Vec3f>(y, x) = cv::Vec3f(static_cast<float>(point[i].x()), static_cast<float>(point[i].y()),
-                                                       static_cast<float>(point[i].z()));
-        g.normal_in_rig.at<cv::Vec3f>(y, x) = cv::Vec3f(static_cast<float>(normal[i].x()), static_cast<float>(normal[i].y()),
-                                                        static_cast<float>(normal[i].z()));
-        g.object_id.at<int32_t>(y, x) = p.object[i];
-        g.visibility.at<uint8_t>(y, x) = lit ? 2 : 1;
+        g.depth[q] = static_cast<float>(c.cam_from_rig_row_z.dot(point[i]) + c.cam_from_rig_tz);
+        for (int a = 0; a < 3; ++a) {
+          g.point[3 * q + static_cast<size_t>(a)] = static_cast<float>(point[i][a]);
+          g.normal[3 * q + static_cast<size_t>(a)] = static_cast<float>(normal[i][a]);
+        }
+        g.object[q] = p.object[i];
+        g.visibility[q] = lit ? 2 : 1;
       } else {
-        g.depth_mm.at<float>(y, x) = kNaN;
-        g.point_in_rig.at<cv::Vec3f>(y, x) = cv::Vec3f(kNaN, kNaN, kNaN);
-        g.normal_in_rig.at<cv::Vec3f>(y, x) = cv::Vec3f(kNaN, kNaN, kNaN);
-        g.object_id.at<int32_t>(y, x) = -1;
-        g.visibility.at<uint8_t>(y, x) = 0;
+        g.depth[q] = kNaN;
+        for (int a = 0; a < 3; ++a) {
+          g.point[3 * q + static_cast<size_t>(a)] = kNaN;
+          g.normal[3 * q + static_cast<size_t>(a)] = kNaN;
+        }
+        g.object[q] = -1;
+        g.visibility[q] = 0;
       }
-      g.projector.proj_x.at<float>(y, x) = lit ? static_cast<float>(proj_px[i].x()) : kNaN;
-      g.projector.proj_y.at<float>(y, x) = lit ? static_cast<float>(proj_px[i].y()) : kNaN;
-      g.projector.status.at<uint8_t>(y, x) = static_cast<uint8_t>(lit ? PixelStatus::kValid : PixelStatus::kShadow);
-      g.projector.quality.at<float>(y, x) = lit ? static_cast<float>(factor[i]) : 0.0f;
+      if (g.proj_x) {
+        g.proj_x[q] = lit ? static_cast<float>(proj_px[i].x()) : kNaN;
+        g.proj_y[q] = lit ? static_cast<float>(proj_px[i].y()) : kNaN;
+        g.quality[q] = lit ? static_cast<float>(factor[i]) : 0.0f;
+      }
+      g.status[q] = static_cast<uint8_t>(lit ? PixelStatus::kValid : PixelStatus::kShadow);
     }
   }
 }
@@ -623,11 +635,6 @@ GeometryBuffer TraceGeometry(const RayCaster& caster, const Rig& rig, int camera
   const int spp = rays.samples_per_axis * rays.samples_per_axis;
   const size_t n = static_cast<size_t>(c.width) * c.height * spp;
   // Not initialised here: the passes write every element (in parallel).
-  g.proj_x.resize(n);
-  g.proj_y.resize(n);
-  g.factor.resize(n);
-  g.albedo.resize(n);
-  if (scene.layers.projector_defocus.enabled) g.proj_sigma_px.resize(n);
   CreatePooled(g.depth_mm, c.height, c.width, CV_32FC1);
   CreatePooled(g.point_in_rig, c.height, c.width, CV_32FC3);
   CreatePooled(g.normal_in_rig, c.height, c.width, CV_32FC3);
@@ -638,6 +645,37 @@ GeometryBuffer TraceGeometry(const RayCaster& caster, const Rig& rig, int camera
   CreatePooled(g.projector.status, c.height, c.width, CV_8UC1);
   CreatePooled(g.projector.quality, c.height, c.width, CV_32FC1);
   g.projector.has_x = g.projector.has_y = true;
+  const auto samples_mat = [&] {
+    cv::Mat m;
+    CreatePooled(m, c.height, c.width * spp, CV_32FC1);
+    return SampleBuffer(m);
+  };
+  if (spp == 1) {
+    // The same values as the ground truth's projector map: one store each.
+    g.proj_x = SampleBuffer(g.projector.proj_x);
+    g.proj_y = SampleBuffer(g.projector.proj_y);
+    g.factor = SampleBuffer(g.projector.quality);
+  } else {
+    g.proj_x = samples_mat();
+    g.proj_y = samples_mat();
+    g.factor = samples_mat();
+  }
+  g.albedo = samples_mat();
+  if (scene.layers.projector_defocus.enabled) g.proj_sigma_px = samples_mat();
+  SLSHADOW_CHECK(g.proj_x.size() == n && g.albedo.size() == n);
+
+  GroundTruthTargets gt;
+  gt.depth = g.depth_mm.ptr<float>();
+  gt.point = g.point_in_rig.ptr<float>();
+  gt.normal = g.normal_in_rig.ptr<float>();
+  gt.object = g.object_id.ptr<int32_t>();
+  gt.visibility = g.visibility.ptr<uint8_t>();
+  gt.status = g.projector.status.ptr<uint8_t>();
+  if (spp > 1) {
+    gt.proj_x = g.projector.proj_x.ptr<float>();
+    gt.proj_y = g.projector.proj_y.ptr<float>();
+    gt.quality = g.projector.quality.ptr<float>();
+  }
 
   SampleTargets samples;
   samples.samples = spp;
@@ -647,13 +685,13 @@ GeometryBuffer TraceGeometry(const RayCaster& caster, const Rig& rig, int camera
   samples.factor = g.factor.data();
   samples.albedo = g.albedo.data();
   samples.proj_sigma = g.proj_sigma_px.empty() ? nullptr : g.proj_sigma_px.data();
-  if (spp == 1) samples.gt = &g;
+  if (spp == 1) samples.gt = &gt;
   RunPass(c, samples, &g.primary_rays, &g.shadow_rays);
   if (spp > 1) {
     SampleTargets centers;
     centers.samples = 1;
     centers.dirs = &rays.centers;
-    centers.gt = &g;
+    centers.gt = &gt;
     RunPass(c, centers, &g.primary_rays, &g.shadow_rays);
   }
   g.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

@@ -16,7 +16,6 @@
 #include <cstddef>
 #include <cstdint>
 #include <memory>
-#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -44,59 +43,28 @@ struct CameraRays {
 };
 CameraRays ComputeCameraRays(const CameraModel& camera, int samples_per_axis);
 
-namespace sim_detail {
-// Buffers of 1 MB and more come from a bounded pool of page-aligned blocks
-// recycled across geometry passes and scans (fewer first-touch page faults); renderer.cc.
-void* AllocateLarge(size_t bytes);
-void FreeLarge(void* p, size_t bytes);
-template <typename T>
-struct LargeBufferAllocator {
-  using value_type = T;
-  static constexpr size_t kLarge = size_t{1} << 20;
-  LargeBufferAllocator() = default;
-  template <typename U>
-  LargeBufferAllocator(const LargeBufferAllocator<U>&) {}
-  T* allocate(size_t n) {
-    const size_t bytes = n * sizeof(T);
-    return static_cast<T*>(bytes >= kLarge ? AllocateLarge(bytes) : ::operator new(bytes));
-  }
-  void deallocate(T* p, size_t n) {
-    const size_t bytes = n * sizeof(T);
-    if (bytes >= kLarge) {
-      FreeLarge(p, bytes);
-    } else {
-      ::operator delete(p);
-    }
-  }
-  template <typename U>
-  bool operator==(const LargeBufferAllocator<U>&) const { return true; }
-};
-}  // namespace sim_detail
-
-// std::vector storage that is not zero-filled on resize (the geometry pass writes every element;
-// first touch then happens in parallel instead of in one thread).
-template <typename T, typename A = std::allocator<T>>
-class DefaultInitAllocator : public A {
-  using traits = std::allocator_traits<A>;
-
+// Per-sample floats of a geometry pass (index as CameraRays) in a continuous CV_32FC1 Mat from
+// the simulator's pool of large blocks (sim/renderer.cc: recycled across passes and scans, so
+// later scans do not fault their pages in again). A copy shares the storage, like cv::Mat. With
+// one sample per pixel, proj_x / proj_y / factor share their storage with the ground-truth maps
+// projector.proj_x / proj_y / quality (the same values, written once).
+class SampleBuffer {
  public:
-  template <typename U>
-  struct rebind {
-    using other = DefaultInitAllocator<U, typename traits::template rebind_alloc<U>>;
-  };
-  using A::A;
-  template <typename U>
-  void construct(U* ptr) noexcept(std::is_nothrow_default_constructible<U>::value) {
-    ::new (static_cast<void*>(ptr)) U;
-  }
-  template <typename U, typename... Args>
-  void construct(U* ptr, Args&&... args) {
-    traits::construct(static_cast<A&>(*this), ptr, std::forward<Args>(args)...);
-  }
+  SampleBuffer() = default;
+  explicit SampleBuffer(cv::Mat m) : mat_(std::move(m)) {}
+  float* data() { return reinterpret_cast<float*>(mat_.data); }
+  const float* data() const { return reinterpret_cast<const float*>(mat_.data); }
+  size_t size() const { return mat_.total(); }
+  bool empty() const { return mat_.empty(); }
+  float& operator[](size_t i) { return data()[i]; }
+  const float& operator[](size_t i) const { return data()[i]; }
+  const float* begin() const { return data(); }
+  const float* end() const { return data() + size(); }
+  const cv::Mat& mat() const { return mat_; }
+
+ private:
+  cv::Mat mat_;
 };
-template <typename T, typename U, typename A>
-bool operator==(const DefaultInitAllocator<T, A>&, const DefaultInitAllocator<U, A>&) { return true; }
-using FloatBuffer = std::vector<float, DefaultInitAllocator<float, sim_detail::LargeBufferAllocator<float>>>;
 
 // What the geometry pass yields for one camera.
 struct GeometryBuffer {
@@ -104,11 +72,11 @@ struct GeometryBuffer {
   int height = 0;
   int samples_per_axis = 1;
   // Per sample (index as CameraRays):
-  FloatBuffer proj_x;         // projector column, px; NaN when not lit
-  FloatBuffer proj_y;         // projector row, px; NaN when not lit
-  FloatBuffer factor;         // albedo * cos_p * (d_ref/d_p)^2 when lit, else 0
-  FloatBuffer albedo;         // albedo at the hit, 0 where the ray misses
-  FloatBuffer proj_sigma_px;  // projector defocus sigma (px); empty unless that layer is on
+  SampleBuffer proj_x;         // projector column, px; NaN when not lit
+  SampleBuffer proj_y;         // projector row, px; NaN when not lit
+  SampleBuffer factor;         // albedo * cos_p * (d_ref/d_p)^2 when lit, else 0
+  SampleBuffer albedo;         // albedo at the hit, 0 where the ray misses
+  SampleBuffer proj_sigma_px;  // projector defocus sigma (px); empty unless that layer is on
 
   // Ground truth per pixel, from the pixel-centre ray:
   cv::Mat depth_mm;       // CV_32FC1: z of the hit in the camera frame; NaN where no surface
