@@ -178,7 +178,94 @@ struct PassContext {
   double ref_distance_sq;
   const SceneLayers::Defocus* proj_defocus;
   std::vector<Rigid3d> object_from_rig;
+  std::vector<double> uniform_albedo;  // per object; NaN when textured
 };
+
+// The per-hit arithmetic of 16 lanes in structure-of-arrays form, without branches, so the
+// compiler vectorises it (AVX2 clone where the CPU has it; no FMA, so every clone rounds alike
+// and packet and single-ray renders stay bit-identical). Lanes without a hit carry harmless
+// inputs and are ignored by the caller.
+struct LaneInputs {
+  alignas(64) double t[16];
+  alignas(64) double dx[16], dy[16], dz[16];  // camera ray direction (rig frame)
+  alignas(64) double nx[16], ny[16], nz[16];  // unit geometric normal
+  alignas(64) double albedo[16];
+};
+struct LaneOutputs {
+  alignas(64) double px[16], py[16], pz[16];  // hit point (rig frame)
+  alignas(64) double nx[16], ny[16], nz[16];  // normal turned towards the camera
+  alignas(64) double u[16], v[16];            // projector pixel
+  alignas(64) double proj_depth[16];
+  alignas(64) double factor[16];              // albedo * cos_p * (d_ref / d_p)^2
+  alignas(64) double ox[16], oy[16], oz[16];  // shadow ray origin, slightly off the surface
+  alignas(64) double lx[16], ly[16], lz[16];  // unit direction to the projector's centre
+  alignas(64) double tfar[16];                // shadow ray length
+  alignas(64) double lit[16];                 // 1: faces the projector, in front of it, inside its image
+};
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define SLSHADOW_LANE_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define SLSHADOW_LANE_CLONES
+#endif
+
+SLSHADOW_LANE_CLONES void ShadeLanes(const PassContext& c, const LaneInputs& __restrict in, LaneOutputs& __restrict out) {
+  const double cx = c.cam_center_d.x(), cy = c.cam_center_d.y(), cz = c.cam_center_d.z();
+  const double qx0 = c.proj_center.x(), qy0 = c.proj_center.y(), qz0 = c.proj_center.z();
+  const Eigen::Matrix3d& r = c.proj_from_rig_rotation;
+  const double r00 = r(0, 0), r01 = r(0, 1), r02 = r(0, 2), r10 = r(1, 0), r11 = r(1, 1), r12 = r(1, 2);
+  const double r20 = r(2, 0), r21 = r(2, 1), r22 = r(2, 2);
+  const double t0 = c.proj_from_rig_translation.x(), t1 = c.proj_from_rig_translation.y(),
+               t2 = c.proj_from_rig_translation.z();
+  const double* k = c.projector->params.data();
+  const double fx = k[CameraModel::kFx], fy = k[CameraModel::kFy], ppx = k[CameraModel::kCx], ppy = k[CameraModel::kCy];
+  const double k1 = k[CameraModel::kK1], k2 = k[CameraModel::kK2], k3 = k[CameraModel::kK3];
+  const double p1 = k[CameraModel::kP1], p2 = k[CameraModel::kP2];
+  const double u_max = c.projector->width - 0.5, v_max = c.projector->height - 0.5;
+  const double ref_sq = c.ref_distance_sq;
+  for (int i = 0; i < 16; ++i) {
+    const double dx = in.dx[i], dy = in.dy[i], dz = in.dz[i], t = in.t[i];
+    const double X = cx + t * dx, Y = cy + t * dy, Z = cz + t * dz;
+    const double facing = in.nx[i] * dx + in.ny[i] * dy + in.nz[i] * dz;
+    const double sign = facing > 0 ? -1.0 : 1.0;
+    const double nx = sign * in.nx[i], ny = sign * in.ny[i], nz = sign * in.nz[i];
+    const double ax = qx0 - X, ay = qy0 - Y, az = qz0 - Z;
+    const double dist = std::sqrt(ax * ax + ay * ay + az * az);
+    const double lx = ax / dist, ly = ay / dist, lz = az / dist;
+    const double cos_p = nx * lx + ny * ly + nz * lz;
+    // Projector frame, then the projector model with its distortion (CameraModel::ImgFromCam).
+    const double qx = r00 * X + r01 * Y + r02 * Z + t0;
+    const double qy = r10 * X + r11 * Y + r12 * Z + t1;
+    const double qz = r20 * X + r21 * Y + r22 * Z + t2;
+    const double x = qx / qz, y = qy / qz;
+    const double x2 = x * x, y2 = y * y, xy = x * y, r2 = x2 + y2;
+    const double radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
+    const double xd = x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x2);
+    const double yd = y * radial + p1 * (r2 + 2.0 * y2) + 2.0 * p2 * xy;
+    const double u = fx * xd + ppx, v = fy * yd + ppy;
+    // Non-short-circuit `&`: no branches in the loop.
+    const bool lit = (cos_p > 0) & (qz > 0) & (u >= -0.5) & (v >= -0.5) & (u < u_max) & (v < v_max);
+    const double eps = 1e-3 * (1.0 + dist / 100.0);
+    out.px[i] = X;
+    out.py[i] = Y;
+    out.pz[i] = Z;
+    out.nx[i] = nx;
+    out.ny[i] = ny;
+    out.nz[i] = nz;
+    out.u[i] = u;
+    out.v[i] = v;
+    out.proj_depth[i] = qz;
+    out.factor[i] = in.albedo[i] * cos_p * ref_sq / (dist * dist);
+    out.ox[i] = X + eps * nx;
+    out.oy[i] = Y + eps * ny;
+    out.oz[i] = Z + eps * nz;
+    out.lx[i] = lx;
+    out.ly[i] = ly;
+    out.lz[i] = lz;
+    out.tfar[i] = dist - 2 * eps;
+    out.lit[i] = lit ? 1.0 : 0.0;
+  }
+}
 
 void TracePacket(const PassContext& c, const SampleTargets& out, int bx, int by, int s, int64_t* primary,
                  int64_t* shadow) {
@@ -211,48 +298,46 @@ void TracePacket(const PassContext& c, const SampleTargets& out, int bx, int by,
   }
   c.caster->Intersect(p, c.mode, /*coherent=*/true);
 
-  Eigen::Vector3d point[RayPacket::kSize], normal[RayPacket::kSize];
-  Eigen::Vector2d proj_px[RayPacket::kSize];
-  double factor[RayPacket::kSize], albedo[RayPacket::kSize], proj_depth[RayPacket::kSize];
+  bool hit[RayPacket::kSize];
+  LaneInputs in;
   for (int i = 0; i < RayPacket::kSize; ++i) {
-    if (!p.active[i] || p.object[i] < 0) continue;
-    const Eigen::Vector3d dir(p.dir_x[i], p.dir_y[i], p.dir_z[i]);
-    point[i] = c.cam_center_d + static_cast<double>(p.tfar[i]) * dir;
-    Eigen::Vector3d n(p.ng_x[i], p.ng_y[i], p.ng_z[i]);
-    if (n.dot(dir) > 0) n = -n;
-    normal[i] = n;
-    const SceneObject& o = c.scene->objects[static_cast<size_t>(p.object[i])];
-    if (o.albedo.IsTextured()) {
-      const Eigen::Vector3d local = c.object_from_rig[static_cast<size_t>(p.object[i])] * point[i];
-      albedo[i] = o.albedo.Evaluate(local.x() + o.albedo_offset_mm.x(), local.y() + o.albedo_offset_mm.y());
-    } else {
-      albedo[i] = o.albedo.value;
+    hit[i] = p.active[i] && p.object[i] >= 0;
+    if (!hit[i]) {
+      in.t[i] = 1;
+      in.dx[i] = in.dy[i] = in.nx[i] = in.ny[i] = 0;
+      in.dz[i] = in.nz[i] = 1;
+      in.albedo[i] = 0;
+      continue;
     }
-    factor[i] = 0;
-    const Eigen::Vector3d to_proj = c.proj_center - point[i];
-    const double dist = to_proj.norm();
-    const Eigen::Vector3d l = to_proj / dist;
-    const double cos_p = n.dot(l);
-    if (cos_p <= 0) continue;
-    const Eigen::Vector3d in_proj = c.proj_from_rig_rotation * point[i] + c.proj_from_rig_translation;
-    if (in_proj.z() <= 0) continue;
-    double uv[2];
-    CameraModel::ImgFromCam(c.projector->params.data(), in_proj.data(), uv);
-    proj_px[i] = Eigen::Vector2d(uv[0], uv[1]);
-    if (!c.projector->IsInImage(proj_px[i])) continue;
-    proj_depth[i] = in_proj.z();
-    factor[i] = albedo[i] * cos_p * c.ref_distance_sq / (dist * dist);
+    in.t[i] = p.tfar[i];
+    in.dx[i] = p.dir_x[i];
+    in.dy[i] = p.dir_y[i];
+    in.dz[i] = p.dir_z[i];
+    in.nx[i] = p.ng_x[i];
+    in.ny[i] = p.ng_y[i];
+    in.nz[i] = p.ng_z[i];
+    const size_t obj = static_cast<size_t>(p.object[i]);
+    in.albedo[i] = c.uniform_albedo[obj];
+    if (std::isnan(in.albedo[i])) {
+      const SceneObject& o = c.scene->objects[obj];
+      const Eigen::Vector3d point = c.cam_center_d + in.t[i] * Eigen::Vector3d(in.dx[i], in.dy[i], in.dz[i]);
+      const Eigen::Vector3d local = c.object_from_rig[obj] * point;
+      in.albedo[i] = o.albedo.Evaluate(local.x() + o.albedo_offset_mm.x(), local.y() + o.albedo_offset_mm.y());
+    }
+  }
+  LaneOutputs sh_in;
+  ShadeLanes(c, in, sh_in);
+  for (int i = 0; i < RayPacket::kSize; ++i) {
+    if (!hit[i] || sh_in.lit[i] == 0) continue;
     // Occlusion ray towards the projector's centre, started slightly off the surface.
-    const double eps = 1e-3 * (1.0 + dist / 100.0);
-    const Eigen::Vector3d origin = point[i] + eps * n;
-    sh.org_x[i] = static_cast<float>(origin.x());
-    sh.org_y[i] = static_cast<float>(origin.y());
-    sh.org_z[i] = static_cast<float>(origin.z());
-    sh.dir_x[i] = static_cast<float>(l.x());
-    sh.dir_y[i] = static_cast<float>(l.y());
-    sh.dir_z[i] = static_cast<float>(l.z());
+    sh.org_x[i] = static_cast<float>(sh_in.ox[i]);
+    sh.org_y[i] = static_cast<float>(sh_in.oy[i]);
+    sh.org_z[i] = static_cast<float>(sh_in.oz[i]);
+    sh.dir_x[i] = static_cast<float>(sh_in.lx[i]);
+    sh.dir_y[i] = static_cast<float>(sh_in.ly[i]);
+    sh.dir_z[i] = static_cast<float>(sh_in.lz[i]);
     sh.tnear[i] = 0;
-    sh.tfar[i] = static_cast<float>(dist - 2 * eps);
+    sh.tfar[i] = static_cast<float>(sh_in.tfar[i]);
     sh.active[i] = true;
     ++*shadow;
   }
@@ -262,28 +347,32 @@ void TracePacket(const PassContext& c, const SampleTargets& out, int bx, int by,
 
   for (int i = 0; i < RayPacket::kSize; ++i) {
     if (px[i] >= c.width || py[i] >= c.height) continue;
-    const bool hit = p.active[i] && p.object[i] >= 0;
-    const bool lit = hit && sh.active[i] && !sh.occluded[i];
+    const bool lit = hit[i] && sh.active[i] && !sh.occluded[i];
     const size_t k = static_cast<size_t>(index[i]);
+    const float proj_u = static_cast<float>(sh_in.u[i]), proj_v = static_cast<float>(sh_in.v[i]);
+    const float factor = static_cast<float>(sh_in.factor[i]);
     if (out.proj_x) {
-      out.proj_x[k] = lit ? static_cast<float>(proj_px[i].x()) : kNaN;
-      out.proj_y[k] = lit ? static_cast<float>(proj_px[i].y()) : kNaN;
-      out.factor[k] = lit ? static_cast<float>(factor[i]) : 0.0f;
-      out.albedo[k] = hit ? static_cast<float>(albedo[i]) : 0.0f;
+      out.proj_x[k] = lit ? proj_u : kNaN;
+      out.proj_y[k] = lit ? proj_v : kNaN;
+      out.factor[k] = lit ? factor : 0.0f;
+      out.albedo[k] = hit[i] ? static_cast<float>(in.albedo[i]) : 0.0f;
       if (out.proj_sigma) {
-        out.proj_sigma[k] = lit ? static_cast<float>(c.proj_defocus->SigmaPx(c.projector->fx(), proj_depth[i])) : 0.0f;
+        out.proj_sigma[k] = lit ? static_cast<float>(c.proj_defocus->SigmaPx(c.projector->fx(), sh_in.proj_depth[i])) : 0.0f;
       }
     }
     if (out.gt) {
       // Every pixel is written (no separate initialisation pass: first touch in parallel).
       const GroundTruthTargets& g = *out.gt;
       const size_t q = static_cast<size_t>(py[i]) * static_cast<size_t>(c.width) + static_cast<size_t>(px[i]);
-      if (hit) {
-        g.depth[q] = static_cast<float>(c.cam_from_rig_row_z.dot(point[i]) + c.cam_from_rig_tz);
-        for (int a = 0; a < 3; ++a) {
-          g.point[3 * q + static_cast<size_t>(a)] = static_cast<float>(point[i][a]);
-          g.normal[3 * q + static_cast<size_t>(a)] = static_cast<float>(normal[i][a]);
-        }
+      if (hit[i]) {
+        const Eigen::Vector3d point(sh_in.px[i], sh_in.py[i], sh_in.pz[i]);
+        g.depth[q] = static_cast<float>(c.cam_from_rig_row_z.dot(point) + c.cam_from_rig_tz);
+        g.point[3 * q] = static_cast<float>(sh_in.px[i]);
+        g.point[3 * q + 1] = static_cast<float>(sh_in.py[i]);
+        g.point[3 * q + 2] = static_cast<float>(sh_in.pz[i]);
+        g.normal[3 * q] = static_cast<float>(sh_in.nx[i]);
+        g.normal[3 * q + 1] = static_cast<float>(sh_in.ny[i]);
+        g.normal[3 * q + 2] = static_cast<float>(sh_in.nz[i]);
         g.object[q] = p.object[i];
         g.visibility[q] = lit ? 2 : 1;
       } else {
@@ -296,9 +385,9 @@ void TracePacket(const PassContext& c, const SampleTargets& out, int bx, int by,
         g.visibility[q] = 0;
       }
       if (g.proj_x) {
-        g.proj_x[q] = lit ? static_cast<float>(proj_px[i].x()) : kNaN;
-        g.proj_y[q] = lit ? static_cast<float>(proj_px[i].y()) : kNaN;
-        g.quality[q] = lit ? static_cast<float>(factor[i]) : 0.0f;
+        g.proj_x[q] = lit ? proj_u : kNaN;
+        g.proj_y[q] = lit ? proj_v : kNaN;
+        g.quality[q] = lit ? factor : 0.0f;
       }
       g.status[q] = static_cast<uint8_t>(lit ? PixelStatus::kValid : PixelStatus::kShadow);
     }
@@ -626,7 +715,10 @@ GeometryBuffer TraceGeometry(const RayCaster& caster, const Rig& rig, int camera
   const double d_ref = scene.radiometry.reference_distance_mm > 0 ? scene.radiometry.reference_distance_mm : rig.working_distance_mm;
   c.ref_distance_sq = d_ref * d_ref;
   c.proj_defocus = &scene.layers.projector_defocus;
-  for (const auto& o : scene.objects) c.object_from_rig.push_back(o.rig_from_object.Inverse());
+  for (const auto& o : scene.objects) {
+    c.object_from_rig.push_back(o.rig_from_object.Inverse());
+    c.uniform_albedo.push_back(o.albedo.IsTextured() ? std::numeric_limits<double>::quiet_NaN() : o.albedo.value);
+  }
 
   GeometryBuffer g;
   g.width = c.width;
