@@ -1,6 +1,8 @@
 #include "reconstruct/dense_grid.h"
 
+#include <algorithm>
 #include <limits>
+#include <mutex>
 
 #include <opencv2/core.hpp>
 
@@ -26,18 +28,89 @@ const char* ToString(RejectReason reason) {
   return "unknown";
 }
 
+namespace {
+
+struct GridBuffers {
+  std::vector<Eigen::Vector3d> point_in_rig;
+  std::vector<uint8_t> reason;
+  std::vector<float> quality, source_u, source_v, reprojection_error_px, epipolar_error_px;
+};
+
+struct GridPool {
+  std::mutex mutex;
+  std::vector<GridBuffers> free;
+};
+
+GridPool& Pool() {
+  static GridPool* pool = new GridPool;  // never destroyed: grids may die after static destruction
+  return *pool;
+}
+
+// Grids below this many cells are not worth pooling.
+constexpr size_t kMinPooledCells = size_t{1} << 16;
+
+}  // namespace
+
+DenseGrid::~DenseGrid() {
+  if (point_in_rig.capacity() < kMinPooledCells) return;
+  GridPool& pool = Pool();
+  std::lock_guard<std::mutex> lock(pool.mutex);
+  if (pool.free.size() >= static_cast<size_t>(kPooledGrids)) return;
+  pool.free.push_back({std::move(point_in_rig), std::move(reason), std::move(quality), std::move(source_u),
+                       std::move(source_v), std::move(reprojection_error_px), std::move(epipolar_error_px)});
+}
+
+void DenseGrid::ReleasePool() {
+  GridPool& pool = Pool();
+  std::lock_guard<std::mutex> lock(pool.mutex);
+  pool.free.clear();
+  pool.free.shrink_to_fit();
+}
+
 void DenseGrid::Allocate(int w, int h) {
   width = w;
   height = h;
   const size_t n = static_cast<size_t>(w) * h;
+  if (n >= kMinPooledCells && point_in_rig.capacity() < n) {
+    GridPool& pool = Pool();
+    std::lock_guard<std::mutex> lock(pool.mutex);
+    // The pooled set with the largest capacity (a too small one grows below as a fresh one would).
+    auto best = pool.free.end();
+    for (auto it = pool.free.begin(); it != pool.free.end(); ++it) {
+      if (best == pool.free.end() || it->point_in_rig.capacity() > best->point_in_rig.capacity()) best = it;
+    }
+    if (best != pool.free.end()) {
+      point_in_rig = std::move(best->point_in_rig);
+      reason = std::move(best->reason);
+      quality = std::move(best->quality);
+      source_u = std::move(best->source_u);
+      source_v = std::move(best->source_v);
+      reprojection_error_px = std::move(best->reprojection_error_px);
+      epipolar_error_px = std::move(best->epipolar_error_px);
+      pool.free.erase(best);
+    }
+  }
+  // resize() of the point vector leaves new elements uninitialised (Eigen's default constructor):
+  // every field is filled below, row-parallel, so fresh pages are first touched by both threads.
+  point_in_rig.resize(n);
+  reason.resize(n);
+  quality.resize(n);
+  source_u.resize(n);
+  source_v.resize(n);
+  reprojection_error_px.resize(n);
+  epipolar_error_px.resize(n);
   const float nan = std::numeric_limits<float>::quiet_NaN();
-  point_in_rig.assign(n, Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN()));
-  reason.assign(n, static_cast<uint8_t>(RejectReason::kNotDecoded));
-  quality.assign(n, 0.0f);
-  source_u.assign(n, nan);
-  source_v.assign(n, nan);
-  reprojection_error_px.assign(n, nan);
-  epipolar_error_px.assign(n, nan);
+  const Eigen::Vector3d nan3 = Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN());
+  cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
+    const size_t a = static_cast<size_t>(rows.start) * w, b = static_cast<size_t>(rows.end) * w;
+    std::fill(point_in_rig.begin() + static_cast<std::ptrdiff_t>(a), point_in_rig.begin() + static_cast<std::ptrdiff_t>(b), nan3);
+    std::fill(reason.begin() + static_cast<std::ptrdiff_t>(a), reason.begin() + static_cast<std::ptrdiff_t>(b),
+              static_cast<uint8_t>(RejectReason::kNotDecoded));
+    std::fill(quality.begin() + static_cast<std::ptrdiff_t>(a), quality.begin() + static_cast<std::ptrdiff_t>(b), 0.0f);
+    for (auto* f : {&source_u, &source_v, &reprojection_error_px, &epipolar_error_px}) {
+      std::fill(f->begin() + static_cast<std::ptrdiff_t>(a), f->begin() + static_cast<std::ptrdiff_t>(b), nan);
+    }
+  });
 }
 
 std::array<int64_t, kNumRejectReasons> DenseGrid::CountByReason() const {

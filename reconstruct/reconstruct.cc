@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <cstring>
 #include <limits>
+#include <optional>
 #include <sstream>
 
 #include "core/error.h"
@@ -59,6 +60,70 @@ void CheckMap(const ProjectorMap& map, const RigDevice& camera) {
 
 double FocalOf(const CameraModel& m) { return 0.5 * (m.fx() + m.fy()); }
 
+// A device's pixel -> normalised coordinates for the dense loop: the bilinear interpolation of the
+// device's RayGrid, then one Newton step on the distortion (as UndistortFrom). The interpolation
+// is off by ~1e-9 (the grid spacing squared times the distortion's curvature) and Newton's method
+// converges quadratically, so after a step below 1e-7 the remaining error is ~1e-14 or less; a
+// larger step, a start next to an invalid or outside the grid, or a fold of the distortion falls
+// back to the full iteration (UndistortWithGrid).
+class GridUndistorter {
+ public:
+  GridUndistorter(const CameraModel& model, const RayGrid& grid) : model_(model), grid_(grid) {
+    const double* p = model.params.data();
+    fx_ = p[CameraModel::kFx], fy_ = p[CameraModel::kFy], cx_ = p[CameraModel::kCx], cy_ = p[CameraModel::kCy];
+    k1_ = p[CameraModel::kK1], k2_ = p[CameraModel::kK2], p1_ = p[CameraModel::kP1], p2_ = p[CameraModel::kP2];
+    k3_ = p[CameraModel::kK3];
+    distorted_ = model.HasDistortion();
+  }
+
+  bool operator()(double px, double py, double* xo, double* yo) const {
+    const double tx = (px - cx_) / fx_, ty = (py - cy_) / fy_;
+    if (!distorted_) {
+      *xo = tx;
+      *yo = ty;
+      return true;
+    }
+    if (px >= 0 && py >= 0 && px < grid_.width - 1 && py < grid_.height - 1) {
+      const int x0 = static_cast<int>(px), y0 = static_cast<int>(py);
+      const double ax = px - x0, ay = py - y0;
+      const Eigen::Vector2d* row0 = grid_.xy.data() + static_cast<size_t>(y0) * grid_.width + x0;
+      const Eigen::Vector2d* row1 = row0 + grid_.width;
+      const double x = (1 - ay) * ((1 - ax) * row0[0].x() + ax * row0[1].x()) + ay * ((1 - ax) * row1[0].x() + ax * row1[1].x());
+      const double y = (1 - ay) * ((1 - ax) * row0[0].y() + ax * row0[1].y()) + ay * ((1 - ax) * row1[0].y() + ax * row1[1].y());
+      if (std::isfinite(x) && std::isfinite(y)) {
+        const double x2 = x * x, y2 = y * y, r2 = x2 + y2;
+        const double radial = 1 + r2 * (k1_ + r2 * (k2_ + r2 * k3_));
+        const double dradial = k1_ + r2 * (2 * k2_ + 3 * k3_ * r2);
+        const double rx = x * radial + 2 * p1_ * x * y + p2_ * (r2 + 2 * x2) - tx;
+        const double ry = y * radial + p1_ * (r2 + 2 * y2) + 2 * p2_ * x * y - ty;
+        const double a = radial + 2 * x2 * dradial + 2 * p1_ * y + 6 * p2_ * x;
+        const double b = 2 * x * y * dradial + 2 * p1_ * x + 2 * p2_ * y;
+        const double d = radial + 2 * y2 * dradial + 6 * p1_ * y + 2 * p2_ * x;
+        const double det = a * d - b * b;
+        if (det > 0) {
+          const double sx = (d * rx - b * ry) / det, sy = (a * ry - b * rx) / det;
+          if (std::abs(sx) < 1e-7 && std::abs(sy) < 1e-7) {
+            *xo = x - sx;
+            *yo = y - sy;
+            return true;
+          }
+        }
+      }
+    }
+    const auto xy = UndistortWithGrid(model_, grid_, Eigen::Vector2d(px, py));
+    if (!xy) return false;
+    *xo = xy->x();
+    *yo = xy->y();
+    return true;
+  }
+
+ private:
+  const CameraModel& model_;
+  const RayGrid& grid_;
+  double fx_, fy_, cx_, cy_, k1_, k2_, p1_, p2_, k3_;
+  bool distorted_;
+};
+
 // Residual statistics, gates, filters, normals and the cloud: the part both modes share.
 void Finish(const ReconstructOptions& options, Reconstruction* out) {
   DenseGrid& grid = out->grid;
@@ -69,19 +134,42 @@ void Finish(const ReconstructOptions& options, Reconstruction* out) {
   thread_local std::vector<float> reproj_buffer, epi_buffer;
   std::vector<float>& reproj = reproj_buffer;
   std::vector<float>& epi = epi_buffer;
-  reproj.clear();
-  epi.clear();
-  reproj.reserve(grid.reason.size());
-  for (size_t i = 0; i < grid.reason.size(); ++i) {
-    if (!grid.Accepted(i)) continue;
-    reproj.push_back(grid.reprojection_error_px[i]);
-    if (std::isfinite(grid.epipolar_error_px[i])) epi.push_back(grid.epipolar_error_px[i]);
-    if (!(grid.reprojection_error_px[i] <= options.max_reprojection_error_px)) {
-      grid.reason[i] = Code(RejectReason::kReprojectionError);
-    } else if (grid.epipolar_error_px[i] > options.max_epipolar_error_px) {
-      grid.reason[i] = Code(RejectReason::kEpipolarError);
+  // The residuals of the accepted cells in row-major order, gathered row-parallel: rows are
+  // counted, then filled at their prefix offsets while the gates are applied.
+  const int w = grid.width, h = grid.height;
+  std::vector<std::array<size_t, 2>> row_start(static_cast<size_t>(h) + 1, {0, 0});
+  cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
+    for (int v = rows.start; v < rows.end; ++v) {
+      size_t n = 0, ne = 0;
+      for (size_t i = grid.Index(0, v), end = i + static_cast<size_t>(w); i < end; ++i) {
+        if (!grid.Accepted(i)) continue;
+        ++n;
+        ne += std::isfinite(grid.epipolar_error_px[i]) ? 1 : 0;
+      }
+      row_start[static_cast<size_t>(v) + 1] = {n, ne};
     }
+  });
+  for (size_t v = 0; v < static_cast<size_t>(h); ++v) {
+    row_start[v + 1][0] += row_start[v][0];
+    row_start[v + 1][1] += row_start[v][1];
   }
+  reproj.resize(row_start.back()[0]);
+  epi.resize(row_start.back()[1]);
+  cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
+    for (int v = rows.start; v < rows.end; ++v) {
+      size_t k = row_start[static_cast<size_t>(v)][0], ke = row_start[static_cast<size_t>(v)][1];
+      for (size_t i = grid.Index(0, v), end = i + static_cast<size_t>(w); i < end; ++i) {
+        if (!grid.Accepted(i)) continue;
+        reproj[k++] = grid.reprojection_error_px[i];
+        if (std::isfinite(grid.epipolar_error_px[i])) epi[ke++] = grid.epipolar_error_px[i];
+        if (!(grid.reprojection_error_px[i] <= options.max_reprojection_error_px)) {
+          grid.reason[i] = Code(RejectReason::kReprojectionError);
+        } else if (grid.epipolar_error_px[i] > options.max_epipolar_error_px) {
+          grid.reason[i] = Code(RejectReason::kEpipolarError);
+        }
+      }
+    }
+  });
   cv::parallel_for_(cv::Range(0, 2), [&](const cv::Range& r) {
     for (int k = r.start; k < r.end; ++k) {
       if (k == 0) s.reprojection_error_px = ComputeResidualStats(reproj);
@@ -379,6 +467,18 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
   const double* cam_params = cam.model.params.data();
   const double* proj_params = proj.model.params.data();
   const double nan = std::numeric_limits<double>::quiet_NaN();
+  std::optional<GridUndistorter> proj_undistort;
+  if (both) proj_undistort.emplace(proj.model, *proj_rays);
+  // The midpoint in the camera frame (the camera centre at the origin, its ray (x, y, 1)): the
+  // projector's rotation and centre relative to the camera, and the camera's pose for the output.
+  const Eigen::Matrix3d& rc = cam_view.cam_from_rig_rotation;
+  const Eigen::Vector3d& tc = cam_view.cam_from_rig_translation;
+  const Eigen::Matrix3d r_pc = proj_view.cam_from_rig_rotation * rc.transpose();  // proj_from_cam
+  const Eigen::Vector3d t_pc = proj_view.cam_from_rig_translation - r_pc * tc;
+  const Eigen::Matrix3d r_cp = r_pc.transpose();
+  const Eigen::Vector3d proj_center = -(r_cp * t_pc);  // in the camera frame
+  const Eigen::Matrix3d rig_from_cam = rc.transpose();
+  const double sin2_min = sin_min * sin_min;
   cv::parallel_for_(cv::Range(0, grid.height), [&](const cv::Range& rows) {
     for (int v = rows.start; v < rows.end; ++v) {
       const uint8_t* status = map.status.ptr<uint8_t>(v);
@@ -402,26 +502,51 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
           reason = Code(RejectReason::kNoRay);
           continue;
         }
-        Eigen::Vector3d point;
+        Eigen::Vector3d point, in_cam, in_proj;
         double epipolar = nan;
         if (both) {
-          const auto pxy = UndistortWithGrid(proj.model, *proj_rays, Eigen::Vector2d(px, py));
-          if (!pxy) {
+          Eigen::Vector2d pxy;
+          if (!(*proj_undistort)(px, py, &pxy.x(), &pxy.y())) {
             reason = Code(RejectReason::kNoRay);
             continue;
           }
-          const Eigen::Vector3d d0 = cam_view.RayInRig(xy), d1 = proj_view.RayInRig(*pxy);
-          if (!(TwoViewTriangulator::SinAngleOfRays(d0, d1) >= sin_min)) {
-            reason = Code(RejectReason::kParallelRays);
-            continue;
+          if (midpoint) {
+            // Rays c0 + s d0 (c0 = 0) and c1 + t d1 in the camera frame; the closest points' midpoint
+            // (as TwoViewTriangulator::MidpointOfRays, whose denominator |d0 x d1|^2 also gives the
+            // angle: sin^2 = denom / (|d0|^2 |d1|^2)).
+            const double x = xy.x(), y = xy.y();
+            const Eigen::Vector3d d1 = r_cp.col(0) * pxy.x() + r_cp.col(1) * pxy.y() + r_cp.col(2);
+            const double a = x * x + y * y + 1, b = x * d1.x() + y * d1.y() + d1.z(), c = d1.squaredNorm();
+            const double d = -(x * proj_center.x() + y * proj_center.y() + proj_center.z());
+            const double e = -d1.dot(proj_center);
+            const double denom = a * c - b * b;
+            if (!(denom >= sin2_min * a * c) || !(denom > 1e-24 * a * c)) {
+              reason = Code(RejectReason::kParallelRays);
+              continue;
+            }
+            const double s0 = (b * e - c * d) / denom, s1 = (a * e - b * d) / denom;
+            in_cam = 0.5 * (Eigen::Vector3d(s0 * x, s0 * y, s0) + proj_center + s1 * d1);
+            if (!in_cam.allFinite()) {
+              reason = Code(RejectReason::kParallelRays);
+              continue;
+            }
+            point = rig_from_cam * (in_cam - tc);
+          } else {
+            const Eigen::Vector3d d0 = cam_view.RayInRig(xy), d1 = proj_view.RayInRig(pxy);
+            if (!(TwoViewTriangulator::SinAngleOfRays(d0, d1) >= sin_min)) {
+              reason = Code(RejectReason::kParallelRays);
+              continue;
+            }
+            const auto p = tri.Triangulate(xy, pxy, options.method);
+            if (!p) {
+              reason = Code(RejectReason::kParallelRays);
+              continue;
+            }
+            point = *p;
+            in_cam = cam_view.ToCam(point);
           }
-          const auto p = midpoint ? tri.MidpointOfRays(d0, d1) : tri.Triangulate(xy, *pxy, options.method);
-          if (!p) {
-            reason = Code(RejectReason::kParallelRays);
-            continue;
-          }
-          point = *p;
-          epipolar = tri.EpipolarDistancePx(xy, *pxy);
+          in_proj = r_pc * in_cam + t_pc;
+          epipolar = tri.EpipolarDistancePx(xy, pxy);
         } else {
           double sin_angle = 0;
           const auto p = TriangulateRayAxis(cam_view.center_in_rig, cam_view.RayInRig(xy), proj.model, proj_view, axis,
@@ -435,9 +560,9 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
             continue;
           }
           point = *p;
+          in_cam = cam_view.ToCam(point);
+          in_proj = proj_view.ToCam(point);
         }
-        const Eigen::Vector3d in_cam = cam_view.ToCam(point);
-        const Eigen::Vector3d in_proj = proj_view.ToCam(point);
         if (!(in_cam.z() > 0 && in_proj.z() > 0) || !point.allFinite()) {
           reason = Code(RejectReason::kBehindDevice);
           continue;
