@@ -15,10 +15,13 @@ namespace slshadow {
 namespace {
 
 constexpr float kInf = std::numeric_limits<float>::infinity();
+// Up to this many analytic primitives are tested outside Embree by every ray.
+constexpr std::ptrdiff_t kMaxDirectPrimitives = 8;
 
 // Data an Embree user geometry needs: the object and its transform.
 struct PrimitiveData {
   const SceneObject* object = nullptr;
+  int32_t object_index = -1;
   Eigen::Matrix3d object_from_rig_rotation;
   Eigen::Matrix3d rig_from_object_rotation;
   Eigen::Vector3d translation;  // rig_from_object translation
@@ -249,6 +252,11 @@ struct RayCaster::Impl {
   RTCScene scene = nullptr;
   std::vector<int32_t> geom_to_object;
   std::vector<std::unique_ptr<PrimitiveData>> primitives;
+  // Analytic primitives tested by every ray outside Embree (when there are few: the table plane
+  // under a part is hit by nearly every ray, and Embree's user-geometry callbacks cost more than
+  // the test itself). Nearest hit / any hit combined with Embree's result.
+  std::vector<const PrimitiveData*> direct;
+  bool has_embree_geometry = false;
   ~Impl() {
     if (scene) rtcReleaseScene(scene);
     if (device) rtcReleaseDevice(device);
@@ -270,6 +278,9 @@ RayCaster::RayCaster(const Scene& scene) : scene_(scene), impl_(std::make_unique
   rtcSetDeviceErrorFunction(impl_->device, ErrorCallback, nullptr);
   impl_->scene = rtcNewScene(impl_->device);
   rtcSetSceneBuildQuality(impl_->scene, RTC_BUILD_QUALITY_MEDIUM);
+  const auto is_primitive = [](const SceneObject& o) { return o.type != ObjectType::kMesh && o.type != ObjectType::kPointCloud; };
+  const bool direct_primitives =
+      std::count_if(scene.objects.begin(), scene.objects.end(), is_primitive) <= kMaxDirectPrimitives;
   for (size_t oi = 0; oi < scene.objects.size(); ++oi) {
     const SceneObject& o = scene.objects[oi];
     RTCGeometry geom = nullptr;
@@ -318,6 +329,12 @@ RayCaster::RayCaster(const Scene& scene) : scene_(scene), impl_(std::make_unique
       data->rig_from_object_rotation = rotd;
       data->object_from_rig_rotation = rotd.transpose();
       data->translation = o.rig_from_object.translation;
+      data->object_index = static_cast<int32_t>(oi);
+      if (direct_primitives) {
+        impl_->direct.push_back(data.get());
+        impl_->primitives.push_back(std::move(data));
+        continue;
+      }
       geom = rtcNewGeometry(impl_->device, RTC_GEOMETRY_TYPE_USER);
       rtcSetGeometryUserPrimitiveCount(geom, 1);
       rtcSetGeometryUserData(geom, data.get());
@@ -327,6 +344,7 @@ RayCaster::RayCaster(const Scene& scene) : scene_(scene), impl_(std::make_unique
       impl_->primitives.push_back(std::move(data));
     }
     rtcCommitGeometry(geom);
+    impl_->has_embree_geometry = true;
     const unsigned id = rtcAttachGeometry(impl_->scene, geom);
     rtcReleaseGeometry(geom);
     if (impl_->geom_to_object.size() <= id) impl_->geom_to_object.resize(id + 1, -1);
@@ -340,6 +358,57 @@ RayCaster::RayCaster(const Scene& scene) : scene_(scene), impl_(std::make_unique
 RayCaster::~RayCaster() = default;
 
 void RayCaster::Intersect(RayPacket& p, TraceMode mode, bool coherent) const {
+  if (impl_->has_embree_geometry) {
+    IntersectEmbree(p, mode, coherent);
+  } else {
+    for (int i = 0; i < RayPacket::kSize; ++i) {
+      if (p.active[i]) p.object[i] = -1;
+    }
+  }
+  // The same for both trace modes: packet and single-ray renders stay identical.
+  for (int i = 0; i < RayPacket::kSize; ++i) {
+    if (!p.active[i]) continue;
+    for (const PrimitiveData* d : impl_->direct) {
+      PrimitiveHit hit;
+      if (!IntersectInRig(*d, p.org_x[i], p.org_y[i], p.org_z[i], p.dir_x[i], p.dir_y[i], p.dir_z[i], p.tnear[i], p.tfar[i],
+                          &hit)) {
+        continue;
+      }
+      // As Embree's user-geometry route: tfar and the normal stored as floats, then normalised.
+      p.tfar[i] = static_cast<float>(hit.t);
+      const Eigen::Vector3f n = hit.normal.cast<float>().normalized();
+      p.ng_x[i] = n.x();
+      p.ng_y[i] = n.y();
+      p.ng_z[i] = n.z();
+      p.object[i] = d->object_index;
+    }
+  }
+}
+
+void RayCaster::Occluded(RayPacket& p, TraceMode mode) const {
+  // Lanes blocked by a primitive need no Embree traversal.
+  bool active[RayPacket::kSize];
+  bool any = false;
+  for (int i = 0; i < RayPacket::kSize; ++i) {
+    active[i] = p.active[i];
+    if (!p.active[i]) continue;
+    p.occluded[i] = false;
+    for (const PrimitiveData* d : impl_->direct) {
+      PrimitiveHit hit;
+      if (IntersectInRig(*d, p.org_x[i], p.org_y[i], p.org_z[i], p.dir_x[i], p.dir_y[i], p.dir_z[i], p.tnear[i], p.tfar[i],
+                         &hit)) {
+        p.occluded[i] = true;
+        p.active[i] = false;
+        break;
+      }
+    }
+    any |= p.active[i];
+  }
+  if (any && impl_->has_embree_geometry) OccludedEmbree(p, mode);
+  for (int i = 0; i < RayPacket::kSize; ++i) p.active[i] = active[i];
+}
+
+void RayCaster::IntersectEmbree(RayPacket& p, TraceMode mode, bool coherent) const {
   RTCIntersectContext context;
   rtcInitIntersectContext(&context);
   if (coherent) context.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
@@ -416,7 +485,7 @@ void RayCaster::Intersect(RayPacket& p, TraceMode mode, bool coherent) const {
   }
 }
 
-void RayCaster::Occluded(RayPacket& p, TraceMode mode) const {
+void RayCaster::OccludedEmbree(RayPacket& p, TraceMode mode) const {
   RTCIntersectContext context;
   rtcInitIntersectContext(&context);
   // Shadow rays of neighbouring pixels start close together and all end at the projector's centre.

@@ -1,6 +1,7 @@
 // Ray casting against a Scene with Embree 3 (kept out of this header): triangle meshes, point
 // clouds as oriented discs (RTC_GEOMETRY_TYPE_ORIENTED_DISC_POINT) and analytic primitives
-// (plane, sphere, cylinder, box) as user geometry intersected exactly in double precision.
+// (plane, sphere, cylinder, box) intersected exactly in double precision: up to 8 of them tested
+// by every ray outside Embree, more as Embree user geometry (with their bounds).
 //
 // Rays are in the rig frame, mm. Queries come in packets of up to 16 rays (structure of arrays,
 // floats as Embree stores them) and are traced either as one rtcIntersect16 / rtcOccluded16
@@ -52,6 +53,8 @@ class RayCaster {
 
  private:
   struct Impl;
+  void IntersectEmbree(RayPacket& packet, TraceMode mode, bool coherent) const;
+  void OccludedEmbree(RayPacket& packet, TraceMode mode) const;
   const Scene& scene_;
   std::unique_ptr<Impl> impl_;
   double build_seconds_ = 0;

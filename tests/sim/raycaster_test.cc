@@ -87,7 +87,9 @@ TEST(IntersectPrimitiveTest, PlaneIsBoundedAndTwoSided) {
 
 // The packet path and the single-ray path give identical hits on a scene with every geometry
 // type (triangles, discs, user primitives), for random rays.
-TEST(RayCasterTest, PacketEqualsSingleRay) {
+// Every geometry type (triangles, discs, primitives); `extra_spheres` more spheres behind the
+// origin (never hit by the test rays, which go towards +z).
+Scene MixedScene(int extra_spheres = 0) {
   Scene scene;
   SceneObject part;
   part.name = "part";
@@ -121,26 +123,91 @@ TEST(RayCasterTest, PacketEqualsSingleRay) {
   discs.disc_radii_mm = DiscRadiiFromSpacing(cloud->points);
   discs.points = cloud;
   scene.objects.push_back(discs);
+  for (int k = 0; k < extra_spheres; ++k) {
+    SceneObject far = MakePrimitive(ObjectType::kSphere, Pose({0, 0, 0}, {30.0 * k, 0, -1000}));
+    far.radius_mm = 10;
+    scene.objects.push_back(far);
+  }
   scene.Check("test");
+  return scene;
+}
+
+RayPacket RandomPacket(std::mt19937& rng, int round) {
+  std::uniform_real_distribution<float> u(-0.25f, 0.25f);
+  RayPacket a;
+  for (int i = 0; i < RayPacket::kSize; ++i) {
+    const Eigen::Vector3f d = Eigen::Vector3f(u(rng), u(rng), 1).normalized();
+    a.org_x[i] = 0;
+    a.org_y[i] = 0;
+    a.org_z[i] = 0;
+    a.dir_x[i] = d.x();
+    a.dir_y[i] = d.y();
+    a.dir_z[i] = d.z();
+    a.tnear[i] = 0;
+    a.tfar[i] = 1e4f;
+    a.active[i] = (i + round) % 7 != 0;  // some inactive lanes
+  }
+  return a;
+}
+
+// Few primitives are tested outside Embree, many go in as Embree user geometry: both routes give
+// the same hits and occlusions (here 4 vs 4 + 6 primitives, the extra ones never hit).
+TEST(RayCasterTest, PrimitivesOutsideEmbreeEqualUserGeometry) {
+  const Scene few = MixedScene(0), many = MixedScene(6);
+  const RayCaster direct(few), embree(many);
+  std::mt19937 rng(5);
+  int primitive_hits = 0, occluded = 0;
+  for (int round = 0; round < 300; ++round) {
+    RayPacket a = RandomPacket(rng, round);
+    RayPacket b = a;
+    direct.Intersect(a, TraceMode::kPacket16, true);
+    embree.Intersect(b, TraceMode::kPacket16, true);
+    // Shadow-like segments from the hits towards a point off to the side.
+    RayPacket sa = a;
+    for (int i = 0; i < RayPacket::kSize; ++i) {
+      if (!a.active[i] || a.object[i] < 0) {
+        sa.active[i] = false;
+        continue;
+      }
+      const Eigen::Vector3f hit = a.tfar[i] * Eigen::Vector3f(a.dir_x[i], a.dir_y[i], a.dir_z[i]);
+      const Eigen::Vector3f to = Eigen::Vector3f(-100, 20, 0) - hit;
+      const Eigen::Vector3f l = to.normalized();
+      const Eigen::Vector3f o = hit + 0.01f * l;
+      sa.org_x[i] = o.x(), sa.org_y[i] = o.y(), sa.org_z[i] = o.z();
+      sa.dir_x[i] = l.x(), sa.dir_y[i] = l.y(), sa.dir_z[i] = l.z();
+      sa.tnear[i] = 0;
+      sa.tfar[i] = to.norm() - 0.02f;
+    }
+    RayPacket sb = sa;
+    direct.Occluded(sa, TraceMode::kPacket16);
+    embree.Occluded(sb, TraceMode::kSingleRay);
+    for (int i = 0; i < RayPacket::kSize; ++i) {
+      if (!a.active[i]) continue;
+      ASSERT_EQ(a.object[i], b.object[i]);
+      if (a.object[i] < 0) continue;
+      primitive_hits += a.object[i] >= 1 && a.object[i] <= 4;
+      EXPECT_EQ(a.tfar[i], b.tfar[i]);
+      EXPECT_EQ(a.ng_x[i], b.ng_x[i]);
+      EXPECT_EQ(a.ng_y[i], b.ng_y[i]);
+      EXPECT_EQ(a.ng_z[i], b.ng_z[i]);
+      ASSERT_EQ(sa.occluded[i], sb.occluded[i]);
+      occluded += sa.occluded[i];
+    }
+  }
+  EXPECT_GT(primitive_hits, 100);
+  EXPECT_GT(occluded, 50);
+}
+
+// The packet path and the single-ray path give identical hits on a scene with every geometry
+// type (triangles, discs, user primitives), for random rays.
+TEST(RayCasterTest, PacketEqualsSingleRay) {
+  const Scene scene = MixedScene();
   const RayCaster caster(scene);
 
   std::mt19937 rng(3);
-  std::uniform_real_distribution<float> u(-0.25f, 0.25f);
   int hits_by_object[6] = {0, 0, 0, 0, 0, 0};
   for (int round = 0; round < 400; ++round) {
-    RayPacket a;
-    for (int i = 0; i < RayPacket::kSize; ++i) {
-      const Eigen::Vector3f d = Eigen::Vector3f(u(rng), u(rng), 1).normalized();
-      a.org_x[i] = 0;
-      a.org_y[i] = 0;
-      a.org_z[i] = 0;
-      a.dir_x[i] = d.x();
-      a.dir_y[i] = d.y();
-      a.dir_z[i] = d.z();
-      a.tnear[i] = 0;
-      a.tfar[i] = 1e4f;
-      a.active[i] = (i + round) % 7 != 0;  // some inactive lanes
-    }
+    RayPacket a = RandomPacket(rng, round);
     RayPacket b = a;
     caster.Intersect(a, TraceMode::kPacket16, true);
     caster.Intersect(b, TraceMode::kSingleRay, true);
