@@ -309,7 +309,7 @@ int RunCalibrate(int argc, char** argv) {
     const TargetSpec spec = LoadTargetSpec(cam_common.target);
     const auto files = ImageFiles(images, "--images");
     CalibrationInput input;
-    input.devices = {CalibrationDevice{camera_name, 0, 0, false, std::nullopt, false}};
+    input.devices = {CalibrationDevice{camera_name, 0, 0, false, std::nullopt, false, {}}};
     input.num_poses = static_cast<int>(files.size());
     std::vector<ImageCheck> checks;
     DetectInto(spec, files, 0, &input, &checks);
@@ -324,8 +324,8 @@ int RunCalibrate(int argc, char** argv) {
                       " right images; give the same poses in the same (name) order");
     SLSHADOW_THROW_IF(left_name == right_name, "stereo: --left-name and --right-name must differ (got '", left_name, "')");
     CalibrationInput input;
-    input.devices = {CalibrationDevice{left_name, 0, 0, false, std::nullopt, false},
-                     CalibrationDevice{right_name, 0, 0, false, std::nullopt, false}};
+    input.devices = {CalibrationDevice{left_name, 0, 0, false, std::nullopt, false, {}},
+                     CalibrationDevice{right_name, 0, 0, false, std::nullopt, false, {}}};
     input.num_poses = static_cast<int>(lf.size());
     std::vector<ImageCheck> checks;
     DetectInto(spec, lf, 0, &input, &checks);
@@ -346,8 +346,8 @@ int RunCalibrate(int argc, char** argv) {
     const TargetSpec spec = LoadTargetSpec(proj_common.target);
     const PatternSpec patterns = LoadPatternSpec(patterns_path);
     CalibrationInput input;
-    input.devices = {CalibrationDevice{camera_name, 0, 0, false, std::nullopt, false},
-                     CalibrationDevice{"projector", patterns.projector_width, patterns.projector_height, true, std::nullopt, false}};
+    input.devices = {CalibrationDevice{camera_name, 0, 0, false, std::nullopt, false, {}},
+                     CalibrationDevice{"projector", patterns.projector_width, patterns.projector_height, true, std::nullopt, false, {}}};
     if (!camera_rig.empty()) {
       const Rig known = LoadRig(camera_rig);
       input.devices[0].initial = known.cameras.at(0).model;
@@ -391,12 +391,12 @@ int RunCalibrate(int argc, char** argv) {
       if (p == 0) {
         for (const auto& name : set.CameraNames()) {
           const auto& cam = set.rig().Camera(name);
-          input.devices.push_back({name, cam.model.width, cam.model.height, false, std::nullopt, false});
+          input.devices.push_back({name, cam.model.width, cam.model.height, false, std::nullopt, false, {}});
           names.push_back(name);
         }
         projector_device = static_cast<int>(input.devices.size());
         input.devices.push_back({set.rig().projector ? set.rig().projector->name : "projector", patterns.projector_width,
-                                 patterns.projector_height, true, std::nullopt, false});
+                                 patterns.projector_height, true, std::nullopt, false, {}});
       }
       SLSHADOW_THROW_IF(set.CameraNames() != names, imagesets[p], ": cameras differ from the first ImageSet's");
       for (size_t d = 0; d < names.size(); ++d) {

@@ -114,8 +114,11 @@ Eigen::Vector2d ProjectView(const State& s, const BoardView& v, size_t i) {
   return pixel;
 }
 
-std::vector<int> HeldIntrinsics(const CalibrationOptions& o, double aspect) {
+std::vector<int> HeldIntrinsics(const CalibrationOptions& o, const CalibrationDevice& device, double aspect) {
   std::vector<int> held;
+  for (int i : device.held_params) {
+    if (i != CameraModel::kFy || aspect <= 0) held.push_back(i);
+  }
   if (aspect > 0) held.push_back(CameraModel::kFy);
   if (o.fix_principal_point) {
     held.push_back(CameraModel::kCx);
@@ -126,6 +129,8 @@ std::vector<int> HeldIntrinsics(const CalibrationOptions& o, double aspect) {
     held.push_back(CameraModel::kP2);
   }
   if (o.fix_k3) held.push_back(CameraModel::kK3);
+  std::sort(held.begin(), held.end());
+  held.erase(std::unique(held.begin(), held.end()), held.end());
   return held;
 }
 
@@ -157,7 +162,7 @@ SolveOutput Solve(const CalibrationInput& input, const CalibrationOptions& optio
   for (size_t d = 0; d < input.devices.size(); ++d) {
     if (!device_used[d]) continue;
     double* intr = s->intrinsics[d].data();
-    const auto held = HeldIntrinsics(options, s->aspect[d]);
+    const auto held = HeldIntrinsics(options, input.devices[d], s->aspect[d]);
     if (options.fix_intrinsics || input.devices[d].hold_intrinsics) {
       problem.SetParameterBlockConstant(intr);
     } else {
@@ -244,7 +249,7 @@ SolveOutput Solve(const CalibrationInput& input, const CalibrationOptions& optio
           Matrix9d c = Matrix9d::Zero();
           if (intr_column[d] >= 0) {
             // Lift from the tangent space (free coordinates in order) to the 9 parameters.
-            const auto held = HeldIntrinsics(options, s->aspect[d]);
+            const auto held = HeldIntrinsics(options, input.devices[d], s->aspect[d]);
             std::vector<int> free;
             for (int i = 0; i < CameraModel::kNumParams; ++i) {
               if (std::find(held.begin(), held.end(), i) == held.end()) free.push_back(i);
@@ -426,6 +431,10 @@ void CalibrationInput::Check() const {
     if (d.initial) d.initial->Check("calibration: device '" + d.name + "': initial model");
     SLSHADOW_THROW_IF(d.hold_intrinsics && !d.initial, "calibration: device '", d.name,
                       "': hold_intrinsics needs initial intrinsics");
+    for (int i : d.held_params) {
+      SLSHADOW_THROW_IF(i < 0 || i >= CameraModel::kNumParams, "calibration: device '", d.name,
+                        "': held_params: parameter index must be in 0..", CameraModel::kNumParams - 1, " (got ", i, ")");
+    }
     SLSHADOW_THROW_IF(d.initial && (d.initial->width != d.width || d.initial->height != d.height), "calibration: device '",
                       d.name, "': initial model is ", d.initial->width, "x", d.initial->height, " but the device is ", d.width,
                       "x", d.height, " (mismatched image sizes)");
@@ -481,11 +490,23 @@ CalibrationResult Calibrate(const CalibrationInput& input, const CalibrationOpti
   std::vector<State> per_device;
   for (int d = 0; d < num_devices; ++d) {
     const CalibrationInput sub = DeviceInput(input, d);
+    // Two starts, the lower final cost kept: the full model straight from the homography
+    // initialisation (OpenCV's way), and pinhole first (distortion held at its start, zero unless
+    // given) then the full model. With few poses either can fall into a far minimum: measured,
+    // the kamino projector with one pose held out went to k1 -1.5, cy 256 px from the first
+    // start, and the ChArUco tutorial camera to fx +36 % from the second.
     State s = InitDevice(sub, options);
-    if (num_devices > 1) {
-      const SolveOutput so = Solve(sub, options, &s, false);
-      iterations += static_cast<int>(so.summary.iterations.size());
+    SolveOutput direct = Solve(sub, options, &s, false);
+    iterations += static_cast<int>(direct.summary.iterations.size());
+    State t = InitDevice(sub, options);
+    CalibrationInput pinhole = sub;
+    for (int i : {CameraModel::kK1, CameraModel::kK2, CameraModel::kP1, CameraModel::kP2, CameraModel::kK3}) {
+      pinhole.devices[0].held_params.push_back(i);
     }
+    iterations += static_cast<int>(Solve(pinhole, options, &t, false).summary.iterations.size());
+    const SolveOutput staged = Solve(sub, options, &t, false);
+    iterations += static_cast<int>(staged.summary.iterations.size());
+    if (staged.summary.final_cost < direct.summary.final_cost) s = std::move(t);
     per_device.push_back(std::move(s));
   }
 

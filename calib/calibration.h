@@ -47,6 +47,11 @@ struct CalibrationDevice {
   std::optional<CameraModel> initial;
   // Keep `initial` fixed (e.g. calibrate a projector against an already calibrated camera).
   bool hold_intrinsics = false;
+  // Per-device model selection, on top of CalibrationOptions' holds (which apply to every
+  // device): CameraModel parameter indices held at their initial value (0 for distortion when
+  // there is no initial model), e.g. {kP1, kP2, kK3} for a projector whose few poses cannot
+  // support tangential distortion and k3 (chosen by calib/model_selection.h).
+  std::vector<int> held_params;
 };
 
 struct CalibrationInput {

@@ -41,7 +41,7 @@ CalibrationResult RenderAndCalibrate(const SyntheticRig& truth, int num_poses, u
 
   CalibrationInput input;
   input.num_poses = num_poses;
-  for (const auto& d : truth.devices) input.devices.push_back({d.name, d.model.width, d.model.height, false, std::nullopt, false});
+  for (const auto& d : truth.devices) input.devices.push_back({d.name, d.model.width, d.model.height, false, std::nullopt, false, {}});
   for (int p = 0; p < num_poses; ++p) {
     BoardScene scene = MakeCheckerboardScene(spec.cols, spec.rows, spec.square_size_mm, poses.rig_from_board[static_cast<size_t>(p)]);
     scene.scene.layers.supersampling = supersampling;
