@@ -133,6 +133,32 @@ void InactiveLane(RTCRay16& r, int i) {
   r.tfar[i] = -kInf;
 }
 
+// IntersectInRig's plane case for the 16 lanes of a packet at once, in the same operations (so
+// the same results), without branches: vectorised. Inactive lanes compute garbage, ignored.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+__attribute__((target_clones("avx2", "default")))
+#endif
+void PlaneLanes(const PrimitiveData& data, const RayPacket& p, double* __restrict t_out, bool* __restrict hit_out) {
+  const Eigen::Matrix3d& m = data.object_from_rig_rotation;
+  const double m00 = m(0, 0), m01 = m(0, 1), m02 = m(0, 2), m10 = m(1, 0), m11 = m(1, 1), m12 = m(1, 2);
+  const double m20 = m(2, 0), m21 = m(2, 1), m22 = m(2, 2);
+  const double cx = data.translation.x(), cy = data.translation.y(), cz = data.translation.z();
+  const double hx = data.object->size_mm.x() / 2, hy = data.object->size_mm.y() / 2;
+  for (int i = 0; i < RayPacket::kSize; ++i) {
+    const double rx = static_cast<double>(p.org_x[i]) - cx, ry = static_cast<double>(p.org_y[i]) - cy,
+                 rz = static_cast<double>(p.org_z[i]) - cz;
+    const double dx = p.dir_x[i], dy = p.dir_y[i], dz = p.dir_z[i];
+    const double o_z = m20 * rx + m21 * ry + m22 * rz;
+    const double d_z = m20 * dx + m21 * dy + m22 * dz;
+    const double t = -o_z / d_z;
+    const double px = (m00 * rx + m01 * ry + m02 * rz) + t * (m00 * dx + m01 * dy + m02 * dz);
+    const double py = (m10 * rx + m11 * ry + m12 * rz) + t * (m10 * dx + m11 * dy + m12 * dz);
+    t_out[i] = t;
+    hit_out[i] = (d_z != 0) & (t > static_cast<double>(p.tnear[i])) & (t < static_cast<double>(p.tfar[i])) &
+                 !(std::abs(px) > hx) & !(std::abs(py) > hy);
+  }
+}
+
 void ErrorCallback(void*, RTCError code, const char* message) {
   // Reported through rtcGetDeviceError checks below; keep the message for the exception.
   (void)code;
@@ -365,13 +391,21 @@ void RayCaster::Intersect(RayPacket& p, TraceMode mode, bool coherent) const {
       if (p.active[i]) p.object[i] = -1;
     }
   }
-  // The same for both trace modes: packet and single-ray renders stay identical.
-  for (int i = 0; i < RayPacket::kSize; ++i) {
-    if (!p.active[i]) continue;
-    for (const PrimitiveData* d : impl_->direct) {
+  // The same for both trace modes: packet and single-ray renders stay identical. Primitive by
+  // primitive (lanes are independent, so this is the per-ray order of the Embree route).
+  for (const PrimitiveData* d : impl_->direct) {
+    alignas(64) double plane_t[RayPacket::kSize];
+    bool plane_hit[RayPacket::kSize];
+    if (d->object->type == ObjectType::kPlane) PlaneLanes(*d, p, plane_t, plane_hit);
+    for (int i = 0; i < RayPacket::kSize; ++i) {
+      if (!p.active[i]) continue;
       PrimitiveHit hit;
-      if (!IntersectInRig(*d, p.org_x[i], p.org_y[i], p.org_z[i], p.dir_x[i], p.dir_y[i], p.dir_z[i], p.tnear[i], p.tfar[i],
-                          &hit)) {
+      if (d->object->type == ObjectType::kPlane) {
+        if (!plane_hit[i]) continue;
+        hit.t = plane_t[i];
+        hit.normal = d->rig_from_object_rotation.col(2);
+      } else if (!IntersectInRig(*d, p.org_x[i], p.org_y[i], p.org_z[i], p.dir_x[i], p.dir_y[i], p.dir_z[i], p.tnear[i],
+                                 p.tfar[i], &hit)) {
         continue;
       }
       // As Embree's user-geometry route: tfar and the normal stored as floats, then normalised.
