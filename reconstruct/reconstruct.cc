@@ -592,6 +592,50 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
   return out;
 }
 
+StereoTriangulator::StereoTriangulator(const RigDevice& left, const RigDevice& right, const StereoRectification& rect,
+                                       const ReconstructOptions& options)
+    : rect_(rect),
+      view0_(rect.RectCamFromRig(0), rect.focal_px),
+      view1_(rect.RectCamFromRig(1), rect.focal_px),
+      left_view_(left.cam_from_rig, FocalOf(left.model)),
+      right_view_(right.cam_from_rig, FocalOf(right.model)),
+      tri_(view0_, view1_, options.reference_noise_ratio, 1.0),
+      right_from_rect_(right_view_.cam_from_rig_rotation * rect.rect_from_rig_rotation.transpose()),
+      left_params_(left.model.params),
+      right_params_(right.model.params),
+      method_(options.method),
+      sin_min_(std::sin(options.min_triangulation_angle_deg * M_PI / 180.0)),
+      min_depth_mm_(options.min_depth_mm),
+      max_depth_mm_(options.max_depth_mm) {}
+
+RejectReason StereoTriangulator::Triangulate(double u, double v, double ur, const Eigen::Vector2d& left_source_px,
+                                             Eigen::Vector3d* point_in_rig, double* reprojection_error_px) const {
+  const Eigen::Vector2d xy0 = rect_.Normalized(0, u, v);
+  const Eigen::Vector2d xy1 = rect_.Normalized(1, ur, v);
+  const Eigen::Vector3d d0 = view0_.RayInRig(xy0), d1 = view1_.RayInRig(xy1);
+  if (!(TwoViewTriangulator::SinAngleOfRays(d0, d1) >= sin_min_)) return RejectReason::kParallelRays;
+  const auto p = method_ == TriangulationMethod::kMidpoint ? tri_.MidpointOfRays(d0, d1) : tri_.Triangulate(xy0, xy1, method_);
+  if (!p) return RejectReason::kParallelRays;
+  const Eigen::Vector3d in_rect0 = view0_.ToCam(*p);
+  const Eigen::Vector3d in_left = left_view_.ToCam(*p);
+  const Eigen::Vector3d in_right = right_view_.ToCam(*p);
+  if (!(in_rect0.z() > 0 && view1_.ToCam(*p).z() > 0 && in_left.z() > 0 && in_right.z() > 0)) {
+    return RejectReason::kBehindDevice;
+  }
+  if (in_rect0.z() < min_depth_mm_ || in_rect0.z() > max_depth_mm_) return RejectReason::kOutOfDepthRange;
+  // Observed positions in the original images: the left cell's source, the right match's.
+  const Eigen::Vector3d right_ray = right_from_rect_ * Eigen::Vector3d(xy1.x(), xy1.y(), 1.0);
+  double right_obs[2], left_px[2], right_px[2];
+  CameraModel::ImgFromCam(right_params_.data(), right_ray.data(), right_obs);
+  CameraModel::ImgFromCam(left_params_.data(), in_left.data(), left_px);
+  CameraModel::ImgFromCam(right_params_.data(), in_right.data(), right_px);
+  const double el2 = std::pow(left_px[0] - left_source_px.x(), 2) + std::pow(left_px[1] - left_source_px.y(), 2);
+  const double er2 = std::pow(right_px[0] - right_obs[0], 2) + std::pow(right_px[1] - right_obs[1], 2);
+  *reprojection_error_px = std::sqrt(0.5 * (el2 + er2));
+  *point_in_rig = *p;
+  return RejectReason::kAccepted;
+}
+
 Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, const std::string& right_name,
                                  const ProjectorMap& left_map, const ProjectorMap& right_map,
                                  const ReconstructOptions& options) {
@@ -624,23 +668,16 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
   Elapsed(t0, &s.match_s, &s.match_cpu_s);
 
   t0 = Stamp();
-  const TriangulationView view0(rect.RectCamFromRig(0), rect.focal_px);
-  const TriangulationView view1(rect.RectCamFromRig(1), rect.focal_px);
-  const TwoViewTriangulator tri(view0, view1, options.reference_noise_ratio, 1.0);
+  const StereoTriangulator tri(left, right, rect, options);
   DenseGrid& grid = out.grid;
   grid.Allocate(lm.width, lm.height);
   grid.reason = matches.reason;
   grid.quality = lm.quality;
   grid.source_u = lm.source_u;
   grid.source_v = lm.source_v;
-  grid.viewpoint_in_rig = view0.center_in_rig;
+  grid.viewpoint_in_rig = rect.center_in_rig[0];
   grid.focal_px = rect.focal_px;
-  const double sin_min = std::sin(options.min_triangulation_angle_deg * M_PI / 180.0);
   const bool cross_axis = lm.has_y && rm.has_y;
-  const bool midpoint = options.method == TriangulationMethod::kMidpoint;
-  const TriangulationView left_view(left.cam_from_rig, FocalOf(left.model));
-  const TriangulationView right_view(right.cam_from_rig, FocalOf(right.model));
-  const Eigen::Matrix3d right_from_rect = right_view.cam_from_rig_rotation * rect.rect_from_rig_rotation.transpose();
   cv::parallel_for_(cv::Range(0, grid.height), [&](const cv::Range& rows) {
     for (int v = rows.start; v < rows.end; ++v) {
       for (int u = 0; u < grid.width; ++u) {
@@ -648,47 +685,20 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
         uint8_t& reason = grid.reason[i];
         if (reason != Code(RejectReason::kAccepted)) continue;
         const double ur = matches.right_u[i];
-        const Eigen::Vector2d xy0 = rect.Normalized(0, u, v);
-        const Eigen::Vector2d xy1 = rect.Normalized(1, ur, v);
-        const Eigen::Vector3d d0 = view0.RayInRig(xy0), d1 = view1.RayInRig(xy1);
-        if (!(TwoViewTriangulator::SinAngleOfRays(d0, d1) >= sin_min)) {
-          reason = Code(RejectReason::kParallelRays);
+        Eigen::Vector3d point;
+        double reprojection_error = 0;
+        const RejectReason r = tri.Triangulate(u, v, ur, Eigen::Vector2d(lm.source_u[i], lm.source_v[i]), &point,
+                                               &reprojection_error);
+        if (r != RejectReason::kAccepted) {
+          reason = Code(r);
           continue;
         }
-        const auto p = midpoint ? tri.MidpointOfRays(d0, d1) : tri.Triangulate(xy0, xy1, options.method);
-        if (!p) {
-          reason = Code(RejectReason::kParallelRays);
-          continue;
-        }
-        const Eigen::Vector3d in_rect0 = view0.ToCam(*p);
-        const Eigen::Vector3d in_left = left_view.ToCam(*p);
-        const Eigen::Vector3d in_right = right_view.ToCam(*p);
-        if (!(in_rect0.z() > 0 && view1.ToCam(*p).z() > 0 && in_left.z() > 0 && in_right.z() > 0)) {
-          reason = Code(RejectReason::kBehindDevice);
-          continue;
-        }
-        if (in_rect0.z() < options.min_depth_mm || in_rect0.z() > options.max_depth_mm) {
-          reason = Code(RejectReason::kOutOfDepthRange);
-          continue;
-        }
-        // Observed positions in the original images: the left cell's source, the right match's.
-        const Eigen::Vector3d right_ray = right_from_rect * Eigen::Vector3d(xy1.x(), xy1.y(), 1.0);
-        double right_obs[2], left_px[2], right_px[2];
-        CameraModel::ImgFromCam(right.model.params.data(), right_ray.data(), right_obs);
-        CameraModel::ImgFromCam(left.model.params.data(), in_left.data(), left_px);
-        CameraModel::ImgFromCam(right.model.params.data(), in_right.data(), right_px);
-        const double el2 = std::pow(left_px[0] - lm.source_u[i], 2) + std::pow(left_px[1] - lm.source_v[i], 2);
-        const double er2 = std::pow(right_px[0] - right_obs[0], 2) + std::pow(right_px[1] - right_obs[1], 2);
-        grid.reprojection_error_px[i] = static_cast<float>(std::sqrt(0.5 * (el2 + er2)));
+        grid.reprojection_error_px[i] = static_cast<float>(reprojection_error);
         if (cross_axis) {
-          const int k = std::min(static_cast<int>(ur), rm.width - 2);
-          const double t = ur - k;
-          const double y0 = rm.proj_y[rm.Index(k, v)], y1 = rm.proj_y[rm.Index(k + 1, v)];
-          if (std::isfinite(y0) && std::isfinite(y1)) {
-            grid.epipolar_error_px[i] = static_cast<float>(std::abs(lm.proj_y[i] - ((1 - t) * y0 + t * y1)));
-          }
+          const double y = InterpolateRow(rm.proj_y.data() + rm.Index(0, v), rm.width, ur, options.max_code_step_px);
+          if (std::isfinite(y)) grid.epipolar_error_px[i] = static_cast<float>(std::abs(lm.proj_y[i] - y));
         }
-        grid.point_in_rig[i] = *p;
+        grid.point_in_rig[i] = point;
       }
     }
   });

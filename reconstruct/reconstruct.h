@@ -23,6 +23,7 @@
 #include "core/projector_map.h"
 #include "core/rig.h"
 #include "reconstruct/dense_grid.h"
+#include "reconstruct/stereo_matcher.h"
 #include "reconstruct/triangulation.h"
 
 namespace slshadow {
@@ -138,6 +139,31 @@ struct Reconstruction {
 // projector, the camera is unknown, the map's size differs from the camera's or no axis is coded.
 Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camera, const ProjectorMap& map,
                                         const ReconstructOptions& options = {});
+
+// Stereo mode's triangulation of one correspondence, what ReconstructStereo runs on every matched
+// cell: the left rectified pixel (u, v) and the right rectified column ur on the same rectified
+// row (stereo_matcher.h), triangulated with options.method between the two rectified cameras,
+// then gated by the triangulation angle, the side of all four (rectified and original) cameras
+// and the depth range (rectified left axis).
+class StereoTriangulator {
+ public:
+  StereoTriangulator(const RigDevice& left, const RigDevice& right, const StereoRectification& rect,
+                     const ReconstructOptions& options);
+  // kAccepted with the point (rig frame, mm) and its reprojection error (RMS over both views, px,
+  // against left_source_px, the left cell's position in the left image, and the right match's
+  // position in the right image); otherwise kParallelRays, kBehindDevice or kOutOfDepthRange.
+  RejectReason Triangulate(double u, double v, double ur, const Eigen::Vector2d& left_source_px,
+                           Eigen::Vector3d* point_in_rig, double* reprojection_error_px) const;
+
+ private:
+  StereoRectification rect_;
+  TriangulationView view0_, view1_, left_view_, right_view_;
+  TwoViewTriangulator tri_;
+  Eigen::Matrix3d right_from_rect_;
+  std::array<double, CameraModel::kNumParams> left_params_, right_params_;
+  TriangulationMethod method_;
+  double sin_min_, min_depth_mm_, max_depth_mm_;
+};
 
 // Cameras `left` and `right` matched by equal projector column along rectified epipolar lines.
 // The grid is the rectified left image (stereo_matcher.h). Throws when a camera is unknown, the

@@ -19,7 +19,95 @@ inline double ReadCoord(const cv::Mat& m, int x, int y) {
   return m.depth() == CV_64F ? m.at<double>(y, x) : static_cast<double>(m.at<float>(y, x));
 }
 
+// Weights of the 4-point Lagrange interpolant with nodes -1, 0, 1, 2 at t (in [0, 1] between the
+// middle nodes).
+inline void CubicWeights(double t, double w[4]) {
+  const double tm1 = t - 1, tm2 = t - 2, tp1 = t + 1;
+  w[0] = -t * tm1 * tm2 / 6;
+  w[1] = tp1 * tm1 * tm2 / 2;
+  w[2] = -tp1 * t * tm2 / 2;
+  w[3] = tp1 * t * tm1 / 6;
+}
+
+// True when the 4 samples are finite and neighbours differ by at most max_step.
+inline bool SmoothRun(const double* s, double max_step) {
+  for (int k = 0; k < 4; ++k) {
+    if (!std::isfinite(s[k])) return false;
+  }
+  return std::abs(s[1] - s[0]) <= max_step && std::abs(s[2] - s[1]) <= max_step && std::abs(s[3] - s[2]) <= max_step;
+}
+
+// The 4x4 source block around (x0, y0) (x0 - 1 .. x0 + 2, y0 - 1 .. y0 + 2) of the projector
+// coordinates, when every pixel is decoded and finite and no two horizontal or vertical neighbours
+// differ by more than max_step (in either coordinate); false otherwise.
+template <typename T>
+bool GatherBlock(const ProjectorMap& map, int x0, int y0, double max_step, double bx[16], double by[16]) {
+  for (int j = 0; j < 4; ++j) {
+    const int y = y0 - 1 + j;
+    const uint8_t* status = map.status.ptr<uint8_t>(y) + (x0 - 1);
+    const T* px = map.proj_x.ptr<T>(y) + (x0 - 1);
+    const T* py = map.has_y ? map.proj_y.ptr<T>(y) + (x0 - 1) : nullptr;
+    for (int i = 0; i < 4; ++i) {
+      if (status[i] != static_cast<uint8_t>(PixelStatus::kValid)) return false;
+      bx[4 * j + i] = static_cast<double>(px[i]);
+      by[4 * j + i] = py ? static_cast<double>(py[i]) : 0.0;
+    }
+  }
+  for (const double* b : {bx, by}) {
+    for (int k = 0; k < 16; ++k) {
+      if (!std::isfinite(b[k])) return false;
+    }
+    for (int j = 0; j < 4; ++j) {
+      for (int i = 0; i < 3; ++i) {
+        if (std::abs(b[4 * j + i + 1] - b[4 * j + i]) > max_step) return false;  // along rows
+        if (std::abs(b[4 * i + 4 + j] - b[4 * i + j]) > max_step) return false;  // along columns
+      }
+    }
+  }
+  return true;
+}
+
+inline double Bicubic(const double b[16], const double wx[4], const double wy[4]) {
+  double sum = 0;
+  for (int j = 0; j < 4; ++j) sum += wy[j] * (wx[0] * b[4 * j] + wx[1] * b[4 * j + 1] + wx[2] * b[4 * j + 2] + wx[3] * b[4 * j + 3]);
+  return sum;
+}
+
+// The crossing of `value` by the cubic through s[0..3] (nodes -1, 0, 1, 2), by Newton's method
+// started at t (the linear crossing between s[1] and s[2]); t itself when the iteration leaves
+// the neighbourhood of the segment or does not converge.
+double RefineCrossing(const double s[4], double value, double t) {
+  const double c1 = -s[0] / 3 - s[1] / 2 + s[2] - s[3] / 6;
+  const double c2 = s[0] / 2 - s[1] + s[2] / 2;
+  const double c3 = -s[0] / 6 + s[1] / 2 - s[2] / 2 + s[3] / 6;
+  double x = t;
+  for (int it = 0; it < 8; ++it) {
+    const double f = s[1] + x * (c1 + x * (c2 + x * c3)) - value;
+    const double df = c1 + x * (2 * c2 + 3 * x * c3);
+    if (!(df * (s[2] - s[1]) > 0)) return t;  // not monotone like the segment here
+    const double step = f / df;
+    x -= step;
+    if (!(x > -0.5 && x < 1.5)) return t;
+    if (std::abs(step) < 1e-13) return x;
+  }
+  return t;
+}
+
 }  // namespace
+
+double InterpolateRow(const double* row, int width, double u, double max_step_px) {
+  if (!(u >= 0 && u <= width - 1) || width < 2) return std::numeric_limits<double>::quiet_NaN();
+  const int k = std::min(static_cast<int>(u), width - 2);
+  const double t = u - k;
+  if (k >= 1 && k + 2 < width && SmoothRun(row + k - 1, max_step_px)) {
+    double w[4];
+    CubicWeights(t, w);
+    return w[0] * row[k - 1] + w[1] * row[k] + w[2] * row[k + 1] + w[3] * row[k + 2];
+  }
+  const double y0 = row[k], y1 = row[k + 1];
+  if (!std::isfinite(y0) || !std::isfinite(y1)) return std::numeric_limits<double>::quiet_NaN();
+  return (1 - t) * y0 + t * y1;
+}
 
 Rigid3d StereoRectification::RectCamFromRig(int camera) const {
   const Eigen::Quaterniond q(rect_from_rig_rotation);
@@ -124,6 +212,7 @@ RectifiedMap RectifyProjectorMap(const StereoRectification& rect, int camera, co
       device.cam_from_rig.rotation.toRotationMatrix() * rect.rect_from_rig_rotation.transpose();
   const int w = map.width(), h = map.height();
   const double* params = device.model.params.data();
+  const bool is_double = map.proj_x.depth() == CV_64F;
   cv::parallel_for_(cv::Range(0, out.height), [&](const cv::Range& rows) {
     for (int v = rows.start; v < rows.end; ++v) {
       for (int u = 0; u < out.width; ++u) {
@@ -173,6 +262,18 @@ RectifiedMap RectifyProjectorMap(const StereoRectification& rect, int camera, co
         }
         out.reason[o] = static_cast<uint8_t>(reason);
         if (reason != RejectReason::kAccepted) continue;
+        if (x0 >= 1 && y0 >= 1 && x0 + 2 < w && y0 + 2 < h) {
+          double bx[16], by[16];
+          const bool block = is_double ? GatherBlock<double>(map, x0, y0, max_step_px, bx, by)
+                                       : GatherBlock<float>(map, x0, y0, max_step_px, bx, by);
+          if (block) {
+            double wx[4], wy[4];
+            CubicWeights(ax, wx);
+            CubicWeights(ay, wy);
+            px = Bicubic(bx, wx, wy);
+            if (map.has_y) py = Bicubic(by, wx, wy);
+          }
+        }
         out.proj_x[o] = px;
         if (map.has_y) out.proj_y[o] = py;
         out.quality[o] = static_cast<float>(q);
@@ -242,7 +343,8 @@ StereoMatches MatchRectifiedMaps(const StereoRectification& rect, const Rectifie
         const int begin = offsets[static_cast<size_t>(bin)];
         const int end = offsets[static_cast<size_t>(bin) + 1];
         int found = 0;
-        double best = 0;
+        double best = 0, best_t = 0;
+        int best_k = 0;
         for (int e = begin; e < end; ++e) {
           const int k = bucket[static_cast<size_t>(e)];
           const double r0 = r[k], r1 = r[k + 1];
@@ -260,12 +362,17 @@ StereoMatches MatchRectifiedMaps(const StereoRectification& rect, const Rectifie
           if (found > 0 && std::abs(ur - best) < 1e-9) continue;  // shared sample of two segments
           ++found;
           best = ur;
+          best_k = k;
+          best_t = t;
         }
         if (found == 0) {
           matches.reason[i] = static_cast<uint8_t>(RejectReason::kNoMatch);
         } else if (found > 1) {
           matches.reason[i] = static_cast<uint8_t>(RejectReason::kAmbiguousMatch);
         } else {
+          if (best_k >= 1 && best_k + 2 < wr && SmoothRun(r + best_k - 1, max_step_px) && r[best_k + 1] != r[best_k]) {
+            best = best_k + RefineCrossing(r + best_k - 1, value, best_t);
+          }
           matches.right_u[i] = best;
         }
       }

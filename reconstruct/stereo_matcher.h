@@ -1,7 +1,7 @@
 // Stereo correspondences from two cameras' ProjectorMaps: rectify both maps to a common
 // orientation (rows are epipolar lines), then find, along each row, where the right map's
-// projector column equals the left one (sub-pixel, by linear interpolation between the right
-// map's samples). Used by ReconstructStereo (reconstruct.h).
+// projector column equals the left one (sub-pixel, by cubic interpolation of the right map's
+// samples). Used by ReconstructStereo (reconstruct.h).
 //
 // Rectification (Fusiello, Trucco & Verri 2000): rect x axis along the baseline (left centre to
 // right centre), z the mean optical axis made orthogonal to x, y = z cross x (down). Both
@@ -45,10 +45,14 @@ struct StereoRectification {
 StereoRectification ComputeStereoRectification(const RigDevice& left, const RigDevice& right,
                                                double max_size_factor = 2.0);
 
-// One camera's ProjectorMap resampled on its rectified grid (bilinear over the 4 source pixels
-// around the rectified pixel's position in the original, distorted image; a cell is valid only when
-// all 4 are decoded, of quality >= min_quality, and their projector coordinates differ by at most
-// max_step_px, which keeps interpolation from bridging code jumps).
+// One camera's ProjectorMap resampled on its rectified grid at the rectified pixel's position in
+// the original, distorted image. A cell is valid only when the 4 source pixels around that position
+// are decoded, of quality >= min_quality, and their projector coordinates differ by at most
+// max_step_px (which keeps interpolation from bridging code jumps). The projector coordinates are
+// then interpolated bicubically (4-point Lagrange in each axis, exact for cubics: the error on a
+// smooth map is O(h^4) instead of bilinear O(h^2)) when the 4x4 source pixels around the position
+// are all decoded and no two neighbours among them differ by more than max_step_px, bilinearly
+// over the 4 otherwise; quality is interpolated bilinearly.
 struct RectifiedMap {
   int width = 0;
   int height = 0;
@@ -63,8 +67,18 @@ struct RectifiedMap {
 RectifiedMap RectifyProjectorMap(const StereoRectification& rect, int camera, const RigDevice& device,
                                  const ProjectorMap& map, double max_step_px, float min_quality);
 
+// The value of a rectified row (`row`, `width` samples) at fractional column u: the cubic through
+// the 4 samples around u (4-point Lagrange) when they are finite and no two neighbours differ by
+// more than max_step_px, else linear between the 2 around u; NaN when those are not finite or u is
+// outside [0, width - 1].
+double InterpolateRow(const double* row, int width, double u, double max_step_px);
+
 // For every left rectified cell with a valid code, the right rectified column u_r with equal
-// projector column on the same row and disparity in [min_disparity_px, max_disparity_px].
+// projector column on the same row and disparity in [min_disparity_px, max_disparity_px]. The
+// crossing is found between two right samples (linear), then refined on the cubic through the 4
+// samples around it (Newton's method on the 4-point Lagrange interpolant, as InterpolateRow) when
+// those are finite and free of code jumps, which makes the sub-pixel position exact to O(h^4) on
+// smooth maps instead of O(h^2).
 // right_u is NaN where there is none; reason says kNoMatch / kAmbiguousMatch (two or more
 // distinct solutions) or carries the left cell's own reason. Segments between right samples that
 // differ by more than max_step_px are not searched (code jumps).
