@@ -108,7 +108,8 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
       e.median_wall_s = t.wall_s;
       e.cpu_s = t.cpu_s;
       e.throughput = static_cast<double>(summary.primary_rays + summary.shadow_rays) / 1e6 / summary.geometry_seconds;
-      e.unit = "Mrays/s (geometry)";
+      e.unit = "Mrays/s (geometry pass, primary + shadow rays)";
+      e.what += " (primary rays only: " + std::to_string(static_cast<int>(summary.PrimaryMraysPerSecond() + 0.5)) + " M/s)";
       entries.push_back(e);
     }
   }

@@ -108,12 +108,17 @@ double SimulateSummary::MraysPerSecond() const {
   return geometry_seconds > 0 ? (primary_rays + shadow_rays) / geometry_seconds / 1e6 : 0;
 }
 
+double SimulateSummary::PrimaryMraysPerSecond() const {
+  return geometry_seconds > 0 ? primary_rays / geometry_seconds / 1e6 : 0;
+}
+
 std::string SimulateSummary::BriefReport() const {
   std::ostringstream s;
   s.precision(3);
   s << cameras << " cameras x " << patterns << " patterns, " << triangles << " triangles: BVH " << build_seconds
     << " s, camera rays " << camera_rays_seconds << " s, geometry " << geometry_seconds << " s ("
-    << (primary_rays + shadow_rays) / 1e6 << " Mrays, " << MraysPerSecond() << " Mrays/s), images " << render_seconds
+    << (primary_rays + shadow_rays) / 1e6 << " Mrays = " << primary_rays / 1e6 << " primary + " << shadow_rays / 1e6
+    << " shadow, " << MraysPerSecond() << " Mrays/s, " << PrimaryMraysPerSecond() << " M primary rays/s), images " << render_seconds
     << " s, ground truth " << write_seconds << " s, total " << total_seconds << " s";
   return s.str();
 }

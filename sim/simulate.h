@@ -58,7 +58,11 @@ struct SimulateSummary {
   double render_seconds = 0;       // pattern passes, all images (in SimulateScan: with encoding)
   double write_seconds = 0;        // ground truth and manifest
   double total_seconds = 0;
+  // Rays per second of the geometry passes. Counted: every ray Embree traces, i.e. primary
+  // (camera) rays plus shadow (occlusion) rays; shadow rays are cast only where the surface faces
+  // the projector inside its image. PrimaryMraysPerSecond counts camera rays only.
   double MraysPerSecond() const;
+  double PrimaryMraysPerSecond() const;
   std::string BriefReport() const;
 };
 
