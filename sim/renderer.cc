@@ -451,6 +451,21 @@ inline int QuantizeValue(float v, float full) {
   return static_cast<int>(v + 0.5f);
 }
 
+#if defined(__x86_64__)
+// Transposes a 16 x 16 byte matrix held as 16 rows (SSE2): four rounds of interleaving rows i
+// and i + 8.
+inline void Transpose16x16(__m128i* a) {
+  __m128i b[16];
+  for (int round = 0; round < 4; ++round) {
+    for (int i = 0; i < 8; ++i) {
+      b[2 * i] = _mm_unpacklo_epi8(a[i], a[i + 8]);
+      b[2 * i + 1] = _mm_unpackhi_epi8(a[i], a[i + 8]);
+    }
+    for (int i = 0; i < 16; ++i) a[i] = b[i];
+  }
+}
+#endif
+
 // The common case in one fused sweep: linear response, bilinear lookup, no fill factor, one
 // sample per pixel, no camera defocus, no noise: lookups, radiometry and quantisation of B
 // interleaved projector images, written straight to the output images (no float copies).
@@ -463,17 +478,11 @@ inline int QuantizeValue(float v, float full) {
 // so nothing gets contracted), hence bit-identical images. Quantisation as QuantizeValue:
 // max(v, 0) maps NaN and negatives to 0; min(v + 0.5, full) then truncation.
 // 16 pixels x 16 images of 8-bit values (tile[pixel][image]) stored as 16 bytes into each image
-// row at column x0: a 16 x 16 byte transpose by four rounds of interleaving rows i and i + 8.
+// row at column x0: a 16 x 16 byte transpose (Transpose16x16).
 __attribute__((target("avx2"))) inline void StoreTransposed16(const uint8_t (*tile)[16], uint8_t* const* rows, int x0) {
-  __m128i a[16], b[16];
+  __m128i a[16];
   for (int i = 0; i < 16; ++i) a[i] = _mm_load_si128(reinterpret_cast<const __m128i*>(tile[i]));
-  for (int round = 0; round < 4; ++round) {
-    for (int i = 0; i < 8; ++i) {
-      b[2 * i] = _mm_unpacklo_epi8(a[i], a[i + 8]);
-      b[2 * i + 1] = _mm_unpackhi_epi8(a[i], a[i + 8]);
-    }
-    for (int i = 0; i < 16; ++i) a[i] = b[i];
-  }
+  Transpose16x16(a);
   for (int k = 0; k < 16; ++k) _mm_storeu_si128(reinterpret_cast<__m128i*>(rows[k] + x0), a[k]);
 }
 
@@ -1055,12 +1064,28 @@ std::vector<cv::Mat> PatternRenderer::RenderBatch(const std::vector<cv::Mat>& im
     }
     const size_t n_proj = static_cast<size_t>(pw) * ph;
     // + 16: the vector kernel reads 8 or 16 bytes per projector pixel whatever the batch size.
-    std::vector<uint8_t> inter(n_proj * batch + 16, 0);
+    // Pooled (no page faults after the first batch), every byte written below.
+    cv::Mat inter_block;
+    CreatePooled(inter_block, 1, static_cast<int>(n_proj * batch + 16), CV_8UC1);
+    uint8_t* const inter_data = inter_block.ptr<uint8_t>();
+    std::fill(inter_data + n_proj * batch, inter_data + n_proj * batch + 16, uint8_t{0});
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n_proj, 16384), [&](const tbb::blocked_range<size_t>& r) {
       const uint8_t* src[kMaxBatch];
       for (int k = 0; k < batch; ++k) src[k] = images[static_cast<size_t>(k)].ptr<uint8_t>();
-      uint8_t* dst = inter.data() + r.begin() * batch;
-      for (size_t i = r.begin(); i < r.end(); ++i) {
+      size_t i = r.begin();
+#if defined(__x86_64__)
+      if (batch == 16) {
+        // 16 projector pixels of the 16 images at a time: one byte transpose.
+        for (; i + 16 <= r.end(); i += 16) {
+          __m128i a[16];
+          for (int k = 0; k < 16; ++k) a[k] = _mm_loadu_si128(reinterpret_cast<const __m128i*>(src[k] + i));
+          Transpose16x16(a);
+          for (int j = 0; j < 16; ++j) _mm_storeu_si128(reinterpret_cast<__m128i*>(inter_data + (i + static_cast<size_t>(j)) * 16), a[j]);
+        }
+      }
+#endif
+      uint8_t* dst = inter_data + i * batch;
+      for (; i < r.end(); ++i) {
         for (int k = 0; k < batch; ++k) *dst++ = src[k][i];
       }
     });
@@ -1077,9 +1102,9 @@ std::vector<cv::Mat> PatternRenderer::RenderBatch(const std::vector<cv::Mat>& im
     auto run = [&](auto batch_tag) {
       constexpr int kB = decltype(batch_tag)::value;
       if (wide) {
-        FusedDirectBilinear<kB, uint16_t>(geometry_, inter.data(), pw, ph, ambient, scale, vignetting_, full, out);
+        FusedDirectBilinear<kB, uint16_t>(geometry_, inter_data, pw, ph, ambient, scale, vignetting_, full, out);
       } else {
-        FusedDirectBilinear<kB, uint8_t>(geometry_, inter.data(), pw, ph, ambient, scale, vignetting_, full, out);
+        FusedDirectBilinear<kB, uint8_t>(geometry_, inter_data, pw, ph, ambient, scale, vignetting_, full, out);
       }
     };
     switch (batch) {
