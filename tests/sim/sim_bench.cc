@@ -3,6 +3,10 @@
 //
 //   build-sim/tests/sim/sim_bench --benchmark_filter=DemoScan
 //
+// BM_DemoScan builds the BVH in every scan; BM_DemoScanSharedBvh builds it once and scans from
+// other rig poses; BM_Rescan keeps the geometry too. Rays counted = primary + shadow rays (every
+// ray Embree traces); "Mprimary" / the summary's primary count gives camera rays alone.
+//
 // Scenes are the demo rig (2 cameras 1920x1200, projector 1280x800) looking at the demo part
 // (config/demo/scene.yaml) re-tessellated to a target triangle count; the pattern sequence is
 // config/patterns/graycode_phase.yaml (4-step phase shift + complementary Gray code, 38 images).
