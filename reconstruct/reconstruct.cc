@@ -601,6 +601,7 @@ StereoTriangulator::StereoTriangulator(const RigDevice& left, const RigDevice& r
       right_view_(right.cam_from_rig, FocalOf(right.model)),
       tri_(view0_, view1_, options.reference_noise_ratio, 1.0),
       right_from_rect_(right_view_.cam_from_rig_rotation * rect.rect_from_rig_rotation.transpose()),
+      rig_from_rect_(rect.rect_from_rig_rotation.transpose()),
       left_params_(left.model.params),
       right_params_(right.model.params),
       method_(options.method),
@@ -612,16 +613,35 @@ RejectReason StereoTriangulator::Triangulate(double u, double v, double ur, cons
                                              Eigen::Vector3d* point_in_rig, double* reprojection_error_px) const {
   const Eigen::Vector2d xy0 = rect_.Normalized(0, u, v);
   const Eigen::Vector2d xy1 = rect_.Normalized(1, ur, v);
-  const Eigen::Vector3d d0 = view0_.RayInRig(xy0), d1 = view1_.RayInRig(xy1);
-  if (!(TwoViewTriangulator::SinAngleOfRays(d0, d1) >= sin_min_)) return RejectReason::kParallelRays;
-  const auto p = method_ == TriangulationMethod::kMidpoint ? tri_.MidpointOfRays(d0, d1) : tri_.Triangulate(xy0, xy1, method_);
-  if (!p) return RejectReason::kParallelRays;
-  const Eigen::Vector3d in_rect0 = view0_.ToCam(*p);
-  const Eigen::Vector3d in_left = left_view_.ToCam(*p);
-  const Eigen::Vector3d in_right = right_view_.ToCam(*p);
-  if (!(in_rect0.z() > 0 && view1_.ToCam(*p).z() > 0 && in_left.z() > 0 && in_right.z() > 0)) {
-    return RejectReason::kBehindDevice;
+  Eigen::Vector3d p, in_rect0;
+  double z1 = 0;  // depth in the right rectified camera
+  if (method_ == TriangulationMethod::kMidpoint) {
+    // Both rectified cameras share their orientation, the baseline is their x axis and the two
+    // observations share their row: the rays (x0, y, 1) and (x1, y, 1) lie in one epipolar plane
+    // and meet, so the midpoint of their common perpendicular is their intersection,
+    // z (x0, y, 1) in the left rectified frame with z = baseline / (x0 - x1). The angle between
+    // them: |d0 x d1| = |x0 - x1| sqrt(1 + y^2).
+    const double x0 = xy0.x(), x1 = xy1.x(), y = xy0.y();
+    const double dx = x0 - x1;
+    const double sin_angle = std::abs(dx) * std::sqrt(1 + y * y) / std::sqrt((x0 * x0 + y * y + 1) * (x1 * x1 + y * y + 1));
+    if (!(sin_angle >= sin_min_) || !(std::abs(dx) > 1e-12)) return RejectReason::kParallelRays;
+    const double z = rect_.baseline_mm / dx;
+    in_rect0 = Eigen::Vector3d(z * x0, z * y, z);
+    if (!in_rect0.allFinite()) return RejectReason::kParallelRays;
+    p = rig_from_rect_ * in_rect0 + rect_.center_in_rig[0];
+    z1 = z;
+  } else {
+    const Eigen::Vector3d d0 = view0_.RayInRig(xy0), d1 = view1_.RayInRig(xy1);
+    if (!(TwoViewTriangulator::SinAngleOfRays(d0, d1) >= sin_min_)) return RejectReason::kParallelRays;
+    const auto q = tri_.Triangulate(xy0, xy1, method_);
+    if (!q) return RejectReason::kParallelRays;
+    p = *q;
+    in_rect0 = view0_.ToCam(p);
+    z1 = view1_.ToCam(p).z();
   }
+  const Eigen::Vector3d in_left = left_view_.ToCam(p);
+  const Eigen::Vector3d in_right = right_view_.ToCam(p);
+  if (!(in_rect0.z() > 0 && z1 > 0 && in_left.z() > 0 && in_right.z() > 0)) return RejectReason::kBehindDevice;
   if (in_rect0.z() < min_depth_mm_ || in_rect0.z() > max_depth_mm_) return RejectReason::kOutOfDepthRange;
   // Observed positions in the original images: the left cell's source, the right match's.
   const Eigen::Vector3d right_ray = right_from_rect_ * Eigen::Vector3d(xy1.x(), xy1.y(), 1.0);
@@ -632,7 +652,7 @@ RejectReason StereoTriangulator::Triangulate(double u, double v, double ur, cons
   const double el2 = std::pow(left_px[0] - left_source_px.x(), 2) + std::pow(left_px[1] - left_source_px.y(), 2);
   const double er2 = std::pow(right_px[0] - right_obs[0], 2) + std::pow(right_px[1] - right_obs[1], 2);
   *reprojection_error_px = std::sqrt(0.5 * (el2 + er2));
-  *point_in_rig = *p;
+  *point_in_rig = p;
   return RejectReason::kAccepted;
 }
 
@@ -657,24 +677,26 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
 
   Stamp t0;
   const StereoRectification rect = ComputeStereoRectification(left, right);
-  const RectifiedMap lm = RectifyProjectorMap(rect, 0, left, left_map, options.max_code_step_px, options.min_quality);
-  const RectifiedMap rm = RectifyProjectorMap(rect, 1, right, right_map, options.max_code_step_px, options.min_quality);
+  // Per-thread buffers reused by the next stereo reconstruction (fresh pages cost page faults).
+  thread_local RectifiedMap left_buffer, right_buffer;
+  thread_local StereoMatches matches_buffer;
+  RectifiedMap& lm = left_buffer;
+  RectifiedMap& rm = right_buffer;
+  RectifyProjectorMap(rect, 0, left, left_map, options.max_code_step_px, options.min_quality, &lm);
+  RectifyProjectorMap(rect, 1, right, right_map, options.max_code_step_px, options.min_quality, &rm);
   Elapsed(t0, &s.rays_s, &s.rays_cpu_s);
 
   t0 = Stamp();
   const double fb = rect.focal_px * rect.baseline_mm;
-  const StereoMatches matches = MatchRectifiedMaps(rect, lm, rm, fb / options.max_depth_mm, fb / options.min_depth_mm,
-                                                   options.max_code_step_px);
+  StereoMatches& matches = matches_buffer;
+  MatchRectifiedMaps(rect, lm, rm, fb / options.max_depth_mm, fb / options.min_depth_mm, options.max_code_step_px,
+                     &matches);
   Elapsed(t0, &s.match_s, &s.match_cpu_s);
 
   t0 = Stamp();
   const StereoTriangulator tri(left, right, rect, options);
   DenseGrid& grid = out.grid;
   grid.Allocate(lm.width, lm.height);
-  grid.reason = matches.reason;
-  grid.quality = lm.quality;
-  grid.source_u = lm.source_u;
-  grid.source_v = lm.source_v;
   grid.viewpoint_in_rig = rect.center_in_rig[0];
   grid.focal_px = rect.focal_px;
   const bool cross_axis = lm.has_y && rm.has_y;
@@ -683,6 +705,10 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
       for (int u = 0; u < grid.width; ++u) {
         const size_t i = grid.Index(u, v);
         uint8_t& reason = grid.reason[i];
+        reason = matches.reason[i];
+        grid.quality[i] = lm.quality[i];
+        grid.source_u[i] = lm.source_u[i];
+        grid.source_v[i] = lm.source_v[i];
         if (reason != Code(RejectReason::kAccepted)) continue;
         const double ur = matches.right_u[i];
         Eigen::Vector3d point;

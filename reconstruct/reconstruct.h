@@ -159,7 +159,7 @@ class StereoTriangulator {
   StereoRectification rect_;
   TriangulationView view0_, view1_, left_view_, right_view_;
   TwoViewTriangulator tri_;
-  Eigen::Matrix3d right_from_rect_;
+  Eigen::Matrix3d right_from_rect_, rig_from_rect_;
   std::array<double, CameraModel::kNumParams> left_params_, right_params_;
   TriangulationMethod method_;
   double sin_min_, min_depth_mm_, max_depth_mm_;

@@ -22,11 +22,13 @@ inline double ReadCoord(const cv::Mat& m, int x, int y) {
 // Weights of the 4-point Lagrange interpolant with nodes -1, 0, 1, 2 at t (in [0, 1] between the
 // middle nodes).
 inline void CubicWeights(double t, double w[4]) {
+  constexpr double kSixth = 1.0 / 6;
   const double tm1 = t - 1, tm2 = t - 2, tp1 = t + 1;
-  w[0] = -t * tm1 * tm2 / 6;
-  w[1] = tp1 * tm1 * tm2 / 2;
-  w[2] = -tp1 * t * tm2 / 2;
-  w[3] = tp1 * t * tm1 / 6;
+  const double a = t * tm1, b = tp1 * tm2;  // the products shared by the outer and inner weights
+  w[0] = -kSixth * a * tm2;
+  w[1] = 0.5 * b * tm1;
+  w[2] = -0.5 * b * t;
+  w[3] = kSixth * a * tp1;
 }
 
 // True when the 4 samples are finite and neighbours differ by at most max_step.
@@ -37,34 +39,78 @@ inline bool SmoothRun(const double* s, double max_step) {
   return std::abs(s[1] - s[0]) <= max_step && std::abs(s[2] - s[1]) <= max_step && std::abs(s[3] - s[2]) <= max_step;
 }
 
-// The 4x4 source block around (x0, y0) (x0 - 1 .. x0 + 2, y0 - 1 .. y0 + 2) of the projector
-// coordinates, when every pixel is decoded and finite and no two horizontal or vertical neighbours
-// differ by more than max_step (in either coordinate); false otherwise.
+// Per source pixel (x0, y0), 1 when the 4x4 block x0 - 1 .. x0 + 2, y0 - 1 .. y0 + 2 is fit for
+// bicubic interpolation: every pixel decoded with finite coordinates, and no two horizontal or
+// vertical neighbours in it differing by more than max_step in either coordinate. Separable: the
+// pairs of neighbours first, then runs of 3 pairs along rows and columns.
 template <typename T>
-bool GatherBlock(const ProjectorMap& map, int x0, int y0, double max_step, double bx[16], double by[16]) {
-  for (int j = 0; j < 4; ++j) {
-    const int y = y0 - 1 + j;
-    const uint8_t* status = map.status.ptr<uint8_t>(y) + (x0 - 1);
-    const T* px = map.proj_x.ptr<T>(y) + (x0 - 1);
-    const T* py = map.has_y ? map.proj_y.ptr<T>(y) + (x0 - 1) : nullptr;
-    for (int i = 0; i < 4; ++i) {
-      if (status[i] != static_cast<uint8_t>(PixelStatus::kValid)) return false;
-      bx[4 * j + i] = static_cast<double>(px[i]);
-      by[4 * j + i] = py ? static_cast<double>(py[i]) : 0.0;
-    }
-  }
-  for (const double* b : {bx, by}) {
-    for (int k = 0; k < 16; ++k) {
-      if (!std::isfinite(b[k])) return false;
-    }
-    for (int j = 0; j < 4; ++j) {
-      for (int i = 0; i < 3; ++i) {
-        if (std::abs(b[4 * j + i + 1] - b[4 * j + i]) > max_step) return false;  // along rows
-        if (std::abs(b[4 * i + 4 + j] - b[4 * i + j]) > max_step) return false;  // along columns
+std::vector<uint8_t> SmoothBlocks(const ProjectorMap& map, double max_step) {
+  const int w = map.width(), h = map.height();
+  const size_t n = static_cast<size_t>(w) * h;
+  constexpr uint8_t kRight = 1, kDown = 2;
+  std::vector<uint8_t> pairs(n, 0), runs(n, 0), blocks(n, 0);
+  auto ok = [&](const uint8_t* status, const T* px, const T* py, int x) {
+    return status[x] == static_cast<uint8_t>(PixelStatus::kValid) && std::isfinite(static_cast<double>(px[x])) &&
+           (!py || std::isfinite(static_cast<double>(py[x])));
+  };
+  auto close = [&](const T* a, const T* b, int xa, int xb) {
+    return !a || std::abs(static_cast<double>(a[xa]) - static_cast<double>(b[xb])) <= max_step;
+  };
+  // pairs: bit kRight when (x, y) and (x + 1, y) are fit neighbours, kDown for (x, y) and (x, y + 1).
+  cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
+    for (int y = rows.start; y < rows.end; ++y) {
+      const uint8_t* s0 = map.status.ptr<uint8_t>(y);
+      const T* x0 = map.proj_x.ptr<T>(y);
+      const T* y0 = map.has_y ? map.proj_y.ptr<T>(y) : nullptr;
+      const bool below = y + 1 < h;
+      const uint8_t* s1 = below ? map.status.ptr<uint8_t>(y + 1) : nullptr;
+      const T* x1 = below ? map.proj_x.ptr<T>(y + 1) : nullptr;
+      const T* y1 = below && map.has_y ? map.proj_y.ptr<T>(y + 1) : nullptr;
+      uint8_t* out = pairs.data() + static_cast<size_t>(y) * w;
+      for (int x = 0; x < w; ++x) {
+        if (!ok(s0, x0, y0, x)) continue;
+        uint8_t bits = 0;
+        if (x + 1 < w && ok(s0, x0, y0, x + 1) && close(x0, x0, x, x + 1) && close(y0, y0, x, x + 1)) bits |= kRight;
+        if (below && ok(s1, x1, y1, x) && close(x0, x1, x, x) && close(y0, y1, x, x)) bits |= kDown;
+        out[x] = bits;
       }
     }
+  });
+  // runs: kRight when the 3 right-pairs from x - 1 (a row of 4) are fit, kDown when the 4 down-pairs
+  // of columns x - 1 .. x + 2 are.
+  cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
+    for (int y = rows.start; y < rows.end; ++y) {
+      const uint8_t* in = pairs.data() + static_cast<size_t>(y) * w;
+      uint8_t* out = runs.data() + static_cast<size_t>(y) * w;
+      for (int x = 1; x + 2 < w; ++x) {
+        const uint8_t right = in[x - 1] & in[x] & in[x + 1] & kRight;
+        const uint8_t down = in[x - 1] & in[x] & in[x + 1] & in[x + 2] & kDown;
+        out[x] = right | down;
+      }
+    }
+  });
+  cv::parallel_for_(cv::Range(1, std::max(1, h - 2)), [&](const cv::Range& rows) {
+    for (int y = rows.start; y < rows.end; ++y) {
+      const uint8_t* r0 = runs.data() + static_cast<size_t>(y - 1) * w;
+      const uint8_t* r1 = r0 + w;
+      const uint8_t* r2 = r1 + w;
+      const uint8_t* r3 = r2 + w;
+      uint8_t* out = blocks.data() + static_cast<size_t>(y) * w;
+      for (int x = 1; x + 2 < w; ++x) {
+        out[x] = (r0[x] & r1[x] & r2[x] & r3[x] & kRight) && (r0[x] & r1[x] & r2[x] & kDown) ? 1 : 0;
+      }
+    }
+  });
+  return blocks;
+}
+
+// The 4x4 block of coordinate `m` around (x0, y0), row-major.
+template <typename T>
+void GatherBlock(const cv::Mat& m, int x0, int y0, double b[16]) {
+  for (int j = 0; j < 4; ++j) {
+    const T* p = m.ptr<T>(y0 - 1 + j) + (x0 - 1);
+    for (int i = 0; i < 4; ++i) b[4 * j + i] = static_cast<double>(p[i]);
   }
-  return true;
 }
 
 inline double Bicubic(const double b[16], const double wx[4], const double wy[4]) {
@@ -74,21 +120,24 @@ inline double Bicubic(const double b[16], const double wx[4], const double wy[4]
 }
 
 // The crossing of `value` by the cubic through s[0..3] (nodes -1, 0, 1, 2), by Newton's method
-// started at t (the linear crossing between s[1] and s[2]); t itself when the iteration leaves
-// the neighbourhood of the segment or does not converge.
+// started at t, the linear crossing between s[1] and s[2] (off by O(h^2), ~1e-3 px: two or three
+// steps of the quadratically convergent iteration bring that to ~1e-14); t itself when the cubic
+// is not monotone like the segment there or the iteration does not converge in 4 steps.
 double RefineCrossing(const double s[4], double value, double t) {
-  const double c1 = -s[0] / 3 - s[1] / 2 + s[2] - s[3] / 6;
-  const double c2 = s[0] / 2 - s[1] + s[2] / 2;
-  const double c3 = -s[0] / 6 + s[1] / 2 - s[2] / 2 + s[3] / 6;
+  constexpr double kThird = 1.0 / 3, kSixth = 1.0 / 6;
+  const double c1 = -kThird * s[0] - 0.5 * s[1] + s[2] - kSixth * s[3];
+  const double c2 = 0.5 * (s[0] + s[2]) - s[1];
+  const double c3 = kSixth * (s[3] - s[0]) + 0.5 * (s[1] - s[2]);
+  const double slope = s[2] - s[1];
   double x = t;
-  for (int it = 0; it < 8; ++it) {
+  for (int it = 0; it < 4; ++it) {
     const double f = s[1] + x * (c1 + x * (c2 + x * c3)) - value;
     const double df = c1 + x * (2 * c2 + 3 * x * c3);
-    if (!(df * (s[2] - s[1]) > 0)) return t;  // not monotone like the segment here
+    if (!(df * slope > 0)) return t;  // not monotone like the segment here
     const double step = f / df;
     x -= step;
     if (!(x > -0.5 && x < 1.5)) return t;
-    if (std::abs(step) < 1e-13) return x;
+    if (std::abs(step) < 1e-7) return x;  // quadratic convergence: the error is now ~1e-14 or less
   }
   return t;
 }
@@ -191,34 +240,52 @@ StereoRectification ComputeStereoRectification(const RigDevice& left, const RigD
 
 RectifiedMap RectifyProjectorMap(const StereoRectification& rect, int camera, const RigDevice& device,
                                  const ProjectorMap& map, double max_step_px, float min_quality) {
+  RectifiedMap out;
+  RectifyProjectorMap(rect, camera, device, map, max_step_px, min_quality, &out);
+  return out;
+}
+
+void RectifyProjectorMap(const StereoRectification& rect, int camera, const RigDevice& device, const ProjectorMap& map,
+                         double max_step_px, float min_quality, RectifiedMap* out_map) {
   SLSHADOW_THROW_IF(!map.has_x, "stereo: camera '", device.name,
                     "': the pattern does not code projector columns; stereo matching needs them");
   SLSHADOW_THROW_IF(map.width() != device.model.width || map.height() != device.model.height,
                     "stereo: camera '", device.name, "': projector map is ", map.width(), "x", map.height(),
                     " but the camera is ", device.model.width, "x", device.model.height);
-  RectifiedMap out;
+  RectifiedMap& out = *out_map;
   out.width = rect.width[camera];
   out.height = rect.height;
   out.has_y = map.has_y;
   const size_t n = static_cast<size_t>(out.width) * out.height;
   const double nan = std::numeric_limits<double>::quiet_NaN();
-  out.proj_x.assign(n, nan);
-  out.proj_y.assign(n, nan);
-  out.quality.assign(n, 0.0f);
-  out.source_u.assign(n, std::numeric_limits<float>::quiet_NaN());
-  out.source_v.assign(n, std::numeric_limits<float>::quiet_NaN());
-  out.reason.assign(n, static_cast<uint8_t>(RejectReason::kOutsideImage));
+  const float nanf = std::numeric_limits<float>::quiet_NaN();
+  // Sized only (kept buffers are not refilled here): the loop below writes every cell.
+  out.proj_x.resize(n);
+  out.proj_y.resize(n);
+  out.quality.resize(n);
+  out.source_u.resize(n);
+  out.source_v.resize(n);
+  out.reason.resize(n);
+  const double inv_f = 1.0 / rect.focal_px;
   const Eigen::Matrix3d cam_from_rect =
       device.cam_from_rig.rotation.toRotationMatrix() * rect.rect_from_rig_rotation.transpose();
   const int w = map.width(), h = map.height();
   const double* params = device.model.params.data();
   const bool is_double = map.proj_x.depth() == CV_64F;
+  const std::vector<uint8_t> blocks =
+      is_double ? SmoothBlocks<double>(map, max_step_px) : SmoothBlocks<float>(map, max_step_px);
   cv::parallel_for_(cv::Range(0, out.height), [&](const cv::Range& rows) {
     for (int v = rows.start; v < rows.end; ++v) {
+      const double yn = (v - rect.cy) * inv_f;
       for (int u = 0; u < out.width; ++u) {
         const size_t o = out.Index(u, v);
-        const Eigen::Vector2d xy = rect.Normalized(camera, u, v);
-        const Eigen::Vector3d ray = cam_from_rect * Eigen::Vector3d(xy.x(), xy.y(), 1.0);
+        out.proj_x[o] = nan;
+        out.proj_y[o] = nan;
+        out.quality[o] = 0.0f;
+        out.source_u[o] = nanf;
+        out.source_v[o] = nanf;
+        out.reason[o] = static_cast<uint8_t>(RejectReason::kOutsideImage);
+        const Eigen::Vector3d ray = cam_from_rect * Eigen::Vector3d((u - rect.cx[camera]) * inv_f, yn, 1.0);
         if (!(ray.z() > 0)) continue;
         double pixel[2];
         CameraModel::ImgFromCam(params, ray.data(), pixel);
@@ -262,16 +329,15 @@ RectifiedMap RectifyProjectorMap(const StereoRectification& rect, int camera, co
         }
         out.reason[o] = static_cast<uint8_t>(reason);
         if (reason != RejectReason::kAccepted) continue;
-        if (x0 >= 1 && y0 >= 1 && x0 + 2 < w && y0 + 2 < h) {
-          double bx[16], by[16];
-          const bool block = is_double ? GatherBlock<double>(map, x0, y0, max_step_px, bx, by)
-                                       : GatherBlock<float>(map, x0, y0, max_step_px, bx, by);
-          if (block) {
-            double wx[4], wy[4];
-            CubicWeights(ax, wx);
-            CubicWeights(ay, wy);
-            px = Bicubic(bx, wx, wy);
-            if (map.has_y) py = Bicubic(by, wx, wy);
+        if (blocks[static_cast<size_t>(y0) * w + x0]) {
+          double b[16], wx[4], wy[4];
+          CubicWeights(ax, wx);
+          CubicWeights(ay, wy);
+          is_double ? GatherBlock<double>(map.proj_x, x0, y0, b) : GatherBlock<float>(map.proj_x, x0, y0, b);
+          px = Bicubic(b, wx, wy);
+          if (map.has_y) {
+            is_double ? GatherBlock<double>(map.proj_y, x0, y0, b) : GatherBlock<float>(map.proj_y, x0, y0, b);
+            py = Bicubic(b, wx, wy);
           }
         }
         out.proj_x[o] = px;
@@ -280,18 +346,33 @@ RectifiedMap RectifyProjectorMap(const StereoRectification& rect, int camera, co
       }
     }
   });
-  return out;
 }
 
 StereoMatches MatchRectifiedMaps(const StereoRectification& rect, const RectifiedMap& left,
                                  const RectifiedMap& right, double min_disparity_px,
                                  double max_disparity_px, double max_step_px) {
-  SLSHADOW_CHECK(left.height == right.height);
   StereoMatches matches;
+  MatchRectifiedMaps(rect, left, right, min_disparity_px, max_disparity_px, max_step_px, &matches);
+  return matches;
+}
+
+void MatchRectifiedMaps(const StereoRectification& rect, const RectifiedMap& left, const RectifiedMap& right,
+                        double min_disparity_px, double max_disparity_px, double max_step_px, StereoMatches* out) {
+  SLSHADOW_CHECK(left.height == right.height);
+  StereoMatches& matches = *out;
   const size_t n = left.proj_x.size();
-  matches.right_u.assign(n, std::numeric_limits<double>::quiet_NaN());
-  matches.reason = left.reason;
+  matches.right_u.resize(n);
+  matches.reason.resize(n);
   const int wr = right.width;
+  cv::parallel_for_(cv::Range(0, left.height), [&](const cv::Range& rows) {
+    for (int v = rows.start; v < rows.end; ++v) {
+      const size_t a = left.Index(0, v), b = a + static_cast<size_t>(left.width);
+      std::fill(matches.right_u.begin() + static_cast<std::ptrdiff_t>(a), matches.right_u.begin() + static_cast<std::ptrdiff_t>(b),
+                std::numeric_limits<double>::quiet_NaN());
+      std::copy(left.reason.begin() + static_cast<std::ptrdiff_t>(a), left.reason.begin() + static_cast<std::ptrdiff_t>(b),
+                matches.reason.begin() + static_cast<std::ptrdiff_t>(a));
+    }
+  });
   cv::parallel_for_(cv::Range(0, left.height), [&](const cv::Range& rows) {
     // Per-thread scratch, reused across rows: the right row's segments bucketed by the integer
     // part of the projector column they span (CSR layout).
@@ -378,7 +459,6 @@ StereoMatches MatchRectifiedMaps(const StereoRectification& rect, const Rectifie
       }
     }
   });
-  return matches;
 }
 
 }  // namespace slshadow

@@ -66,6 +66,10 @@ struct RectifiedMap {
 // Accepts proj_x / proj_y of type CV_32F or CV_64F. Requires map.has_x.
 RectifiedMap RectifyProjectorMap(const StereoRectification& rect, int camera, const RigDevice& device,
                                  const ProjectorMap& map, double max_step_px, float min_quality);
+// The same into `out`, reusing its buffers (every cell is written, row-parallel): a caller that
+// rectifies repeatedly keeps the pages it has touched.
+void RectifyProjectorMap(const StereoRectification& rect, int camera, const RigDevice& device, const ProjectorMap& map,
+                         double max_step_px, float min_quality, RectifiedMap* out);
 
 // The value of a rectified row (`row`, `width` samples) at fractional column u: the cubic through
 // the 4 samples around u (4-point Lagrange) when they are finite and no two neighbours differ by
@@ -89,5 +93,8 @@ struct StereoMatches {
 StereoMatches MatchRectifiedMaps(const StereoRectification& rect, const RectifiedMap& left,
                                  const RectifiedMap& right, double min_disparity_px,
                                  double max_disparity_px, double max_step_px);
+// The same into `out`, reusing its buffers.
+void MatchRectifiedMaps(const StereoRectification& rect, const RectifiedMap& left, const RectifiedMap& right,
+                        double min_disparity_px, double max_disparity_px, double max_step_px, StereoMatches* out);
 
 }  // namespace slshadow
