@@ -729,7 +729,7 @@ CameraRays ComputeCameraRays(const CameraModel& camera, int samples_per_axis) {
 }
 
 GeometryBuffer TraceGeometry(const RayCaster& caster, const Rig& rig, int camera_index, const CameraRays& rays,
-                             TraceMode mode) {
+                             TraceMode mode, bool ground_truth) {
   const auto start = std::chrono::steady_clock::now();
   const Scene& scene = caster.scene();
   SLSHADOW_THROW_IF(camera_index < 0 || camera_index >= static_cast<int>(rig.cameras.size()), "camera index ",
@@ -768,23 +768,26 @@ GeometryBuffer TraceGeometry(const RayCaster& caster, const Rig& rig, int camera
   g.samples_per_axis = rays.samples_per_axis;
   const int spp = rays.samples_per_axis * rays.samples_per_axis;
   const size_t n = static_cast<size_t>(c.width) * c.height * spp;
+  const bool with_gt = ground_truth || scene.layers.camera_defocus.enabled;
   // Not initialised here: the passes write every element (in parallel).
-  CreatePooled(g.depth_mm, c.height, c.width, CV_32FC1);
-  CreatePooled(g.point_in_rig, c.height, c.width, CV_32FC3);
-  CreatePooled(g.normal_in_rig, c.height, c.width, CV_32FC3);
-  CreatePooled(g.visibility, c.height, c.width, CV_8UC1);
-  CreatePooled(g.object_id, c.height, c.width, CV_32SC1);
-  CreatePooled(g.projector.proj_x, c.height, c.width, CV_32FC1);
-  CreatePooled(g.projector.proj_y, c.height, c.width, CV_32FC1);
-  CreatePooled(g.projector.status, c.height, c.width, CV_8UC1);
-  CreatePooled(g.projector.quality, c.height, c.width, CV_32FC1);
-  g.projector.has_x = g.projector.has_y = true;
+  if (with_gt) {
+    CreatePooled(g.depth_mm, c.height, c.width, CV_32FC1);
+    CreatePooled(g.point_in_rig, c.height, c.width, CV_32FC3);
+    CreatePooled(g.normal_in_rig, c.height, c.width, CV_32FC3);
+    CreatePooled(g.visibility, c.height, c.width, CV_8UC1);
+    CreatePooled(g.object_id, c.height, c.width, CV_32SC1);
+    CreatePooled(g.projector.proj_x, c.height, c.width, CV_32FC1);
+    CreatePooled(g.projector.proj_y, c.height, c.width, CV_32FC1);
+    CreatePooled(g.projector.status, c.height, c.width, CV_8UC1);
+    CreatePooled(g.projector.quality, c.height, c.width, CV_32FC1);
+    g.projector.has_x = g.projector.has_y = true;
+  }
   const auto samples_mat = [&] {
     cv::Mat m;
     CreatePooled(m, c.height, c.width * spp, CV_32FC1);
     return SampleBuffer(m);
   };
-  if (spp == 1) {
+  if (spp == 1 && with_gt) {
     // The same values as the ground truth's projector map: one store each.
     g.proj_x = SampleBuffer(g.projector.proj_x);
     g.proj_y = SampleBuffer(g.projector.proj_y);
@@ -799,16 +802,18 @@ GeometryBuffer TraceGeometry(const RayCaster& caster, const Rig& rig, int camera
   SLSHADOW_CHECK(g.proj_x.size() == n && g.albedo.size() == n);
 
   GroundTruthTargets gt;
-  gt.depth = g.depth_mm.ptr<float>();
-  gt.point = g.point_in_rig.ptr<float>();
-  gt.normal = g.normal_in_rig.ptr<float>();
-  gt.object = g.object_id.ptr<int32_t>();
-  gt.visibility = g.visibility.ptr<uint8_t>();
-  gt.status = g.projector.status.ptr<uint8_t>();
-  if (spp > 1) {
-    gt.proj_x = g.projector.proj_x.ptr<float>();
-    gt.proj_y = g.projector.proj_y.ptr<float>();
-    gt.quality = g.projector.quality.ptr<float>();
+  if (with_gt) {
+    gt.depth = g.depth_mm.ptr<float>();
+    gt.point = g.point_in_rig.ptr<float>();
+    gt.normal = g.normal_in_rig.ptr<float>();
+    gt.object = g.object_id.ptr<int32_t>();
+    gt.visibility = g.visibility.ptr<uint8_t>();
+    gt.status = g.projector.status.ptr<uint8_t>();
+    if (spp > 1) {
+      gt.proj_x = g.projector.proj_x.ptr<float>();
+      gt.proj_y = g.projector.proj_y.ptr<float>();
+      gt.quality = g.projector.quality.ptr<float>();
+    }
   }
 
   SampleTargets samples;
@@ -819,9 +824,9 @@ GeometryBuffer TraceGeometry(const RayCaster& caster, const Rig& rig, int camera
   samples.factor = g.factor.data();
   samples.albedo = g.albedo.data();
   samples.proj_sigma = g.proj_sigma_px.empty() ? nullptr : g.proj_sigma_px.data();
-  if (spp == 1) samples.gt = &gt;
+  if (spp == 1 && with_gt) samples.gt = &gt;
   RunPass(c, samples, &g.primary_rays, &g.shadow_rays);
-  if (spp > 1) {
+  if (spp > 1 && with_gt) {
     SampleTargets centers;
     centers.samples = 1;
     centers.dirs = &rays.centers;

@@ -154,26 +154,27 @@ std::shared_ptr<const CameraRays> CachedCameraRays(const CameraModel& model, int
 
 }  // namespace
 
-Simulator::Simulator(const Scene& scene, const Rig& rig, TraceMode mode) : scene_(scene), rig_(rig) {
+Simulator::Simulator(const Scene& scene, const Rig& rig, TraceMode mode, bool ground_truth) : scene_(scene), rig_(rig) {
   const auto start = std::chrono::steady_clock::now();
   scene.Check("scene '" + scene.name + "'");
   rig.Check("rig '" + rig.name + "'");
   SLSHADOW_THROW_IF(!rig.projector, "rig '", rig.name, "' has no projector: the simulator needs one");
   const RayCaster caster(scene);
   setup_.build_seconds = caster.build_seconds();
-  Trace(caster, mode);
+  Trace(caster, mode, ground_truth);
   setup_.total_seconds = Since(start);
 }
 
-Simulator::Simulator(const RayCaster& caster, const Rig& rig, TraceMode mode) : scene_(caster.scene()), rig_(rig) {
+Simulator::Simulator(const RayCaster& caster, const Rig& rig, TraceMode mode, bool ground_truth)
+    : scene_(caster.scene()), rig_(rig) {
   const auto start = std::chrono::steady_clock::now();
   rig.Check("rig '" + rig.name + "'");
   SLSHADOW_THROW_IF(!rig.projector, "rig '", rig.name, "' has no projector: the simulator needs one");
-  Trace(caster, mode);
+  Trace(caster, mode, ground_truth);
   setup_.total_seconds = Since(start);
 }
 
-void Simulator::Trace(const RayCaster& caster, TraceMode mode) {
+void Simulator::Trace(const RayCaster& caster, TraceMode mode, bool ground_truth) {
   setup_.triangles = caster.num_triangles();
   setup_.cameras = static_cast<int>(rig_.cameras.size());
   for (size_t c = 0; c < rig_.cameras.size(); ++c) {
@@ -181,7 +182,7 @@ void Simulator::Trace(const RayCaster& caster, TraceMode mode) {
     const std::shared_ptr<const CameraRays> rays = CachedCameraRays(rig_.cameras[c].model, scene_.layers.supersampling);
     setup_.camera_rays_seconds += Since(t);
     if (geometry_.empty()) geometry_.reserve(rig_.cameras.size());  // moved in, never copied
-    geometry_.push_back(TraceGeometry(caster, rig_, static_cast<int>(c), *rays, mode));
+    geometry_.push_back(TraceGeometry(caster, rig_, static_cast<int>(c), *rays, mode, ground_truth));
     setup_.geometry_seconds += geometry_.back().seconds;
     setup_.primary_rays += geometry_.back().primary_rays;
     setup_.shadow_rays += geometry_.back().shadow_rays;
@@ -269,7 +270,7 @@ SimulateSummary SimulateScan(const Scene& scene, const Rig& rig, const std::vect
     auto t = std::chrono::steady_clock::now();
     const std::shared_ptr<const CameraRays> rays = CachedCameraRays(rig.cameras[c].model, scene.layers.supersampling);
     sum.camera_rays_seconds += Since(t);
-    const GeometryBuffer g = TraceGeometry(caster, rig, static_cast<int>(c), *rays, options.trace_mode);
+    const GeometryBuffer g = TraceGeometry(caster, rig, static_cast<int>(c), *rays, options.trace_mode, options.write_ground_truth);
     sum.geometry_seconds += g.seconds;
     sum.primary_rays += g.primary_rays;
     sum.shadow_rays += g.shadow_rays;

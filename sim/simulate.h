@@ -38,7 +38,7 @@ namespace slshadow {
 
 struct SimulateOptions {
   ImageSetWriterOptions writer;     // encoding (PNG, PGM = fastest lossless, TIFF), overwrite
-  bool write_ground_truth = true;   // DIR/ground_truth/<camera>/...
+  bool write_ground_truth = true;   // DIR/ground_truth/<camera>/...; false: not even computed
   TraceMode trace_mode = TraceMode::kPacket16;
   // A BVH built once for many scans of this scene (RayCaster of the same Scene object), or null:
   // SimulateScan builds its own (0.3 CPU s for 1 M triangles).
@@ -74,13 +74,14 @@ struct SimulateSummary {
 // scene and the rig must outlive it.
 class Simulator {
  public:
-  // Builds the BVH of `scene`, traces the rig's cameras, then frees the BVH.
-  Simulator(const Scene& scene, const Rig& rig, TraceMode mode = TraceMode::kPacket16);
+  // Builds the BVH of `scene`, traces the rig's cameras, then frees the BVH. ground_truth =
+  // false: geometry buffers without the ground-truth maps (TraceGeometry), images only.
+  Simulator(const Scene& scene, const Rig& rig, TraceMode mode = TraceMode::kPacket16, bool ground_truth = true);
   // Traces with a BVH built once by the caller, e.g. for many scans of one part from other rig
   // poses or by other rigs: a scan then costs its geometry passes and pattern passes, not the
   // build (0.3 CPU s for 1 M triangles). The scene is `caster.scene()`; `caster` is needed only
   // during construction.
-  Simulator(const RayCaster& caster, const Rig& rig, TraceMode mode = TraceMode::kPacket16);
+  Simulator(const RayCaster& caster, const Rig& rig, TraceMode mode = TraceMode::kPacket16, bool ground_truth = true);
   ~Simulator();
   int num_cameras() const { return static_cast<int>(geometry_.size()); }
   const GeometryBuffer& geometry(int camera) const { return geometry_.at(static_cast<size_t>(camera)); }
@@ -98,7 +99,7 @@ class Simulator {
   const Rig& rig_;
   std::vector<GeometryBuffer> geometry_;
   SimulateSummary setup_;
-  void Trace(const RayCaster& caster, TraceMode mode);
+  void Trace(const RayCaster& caster, TraceMode mode, bool ground_truth);
 };
 
 // Renders all images in memory: images[camera][pattern]. `geometry`, if not null, receives the

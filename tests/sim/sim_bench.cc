@@ -181,9 +181,18 @@ void BM_DemoScan(benchmark::State& state) {
   const std::clock_t cpu0 = std::clock();
   std::clock_t after_first = cpu0;
   int64_t n = 0;
+  // Arg 1: with the ground-truth maps (what RenderScan / a scan writing ground truth computes);
+  // 0: images only (Simulator without ground truth, as `slshadow simulate --no-ground-truth`).
+  const bool ground_truth = state.range(0) != 0;
   for (auto _ : state) {
     s = SimulateSummary{};
-    benchmark::DoNotOptimize(RenderScan(scene, DemoRig(), Patterns(), nullptr, &s));
+    if (ground_truth) {
+      benchmark::DoNotOptimize(RenderScan(scene, DemoRig(), Patterns(), nullptr, &s));
+    } else {
+      const Simulator sim(scene, DemoRig(), TraceMode::kPacket16, false);
+      s = sim.setup();
+      benchmark::DoNotOptimize(sim.Render(Patterns(), nullptr, &s));
+    }
     if (n++ == 0) after_first = std::clock();
   }
   // Process CPU seconds per scan over all threads (the machine's other load does not count).
@@ -201,7 +210,7 @@ void BM_DemoScan(benchmark::State& state) {
   state.counters["patterns_s"] = s.render_seconds;
   state.counters["images"] = 2.0 * static_cast<double>(Patterns().size());
 }
-BENCHMARK(BM_DemoScan)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(4);
+BENCHMARK(BM_DemoScan)->Arg(1)->Arg(0)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(4);
 
 // The rig moved rigidly about the vertical axis through its working point (0, 0, wd).
 Rig MovedRig(const Rig& base, double angle_deg) {
@@ -228,8 +237,9 @@ void BM_DemoScanSharedBvh(benchmark::State& state) {
   int64_t rays = 0, primary = 0;
   size_t k = 0;
   const std::clock_t cpu0 = std::clock();
+  const bool ground_truth = state.range(0) != 0;  // 0: images only
   for (auto _ : state) {
-    const Simulator sim(caster, rigs[k++ % rigs.size()]);
+    const Simulator sim(caster, rigs[k++ % rigs.size()], TraceMode::kPacket16, ground_truth);
     SimulateSummary s = sim.setup();
     benchmark::DoNotOptimize(sim.Render(Patterns(), nullptr, &s));
     geometry_s += s.geometry_seconds;
@@ -246,7 +256,7 @@ void BM_DemoScanSharedBvh(benchmark::State& state) {
   state.counters["Mprimary"] = static_cast<double>(primary) / 1e6;
   state.counters["images"] = 2.0 * static_cast<double>(Patterns().size());
 }
-BENCHMARK(BM_DemoScanSharedBvh)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(5);
+BENCHMARK(BM_DemoScanSharedBvh)->Arg(1)->Arg(0)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(5);
 
 // Re-scans from cached geometry (Simulator): the same 76 images, only the pattern passes.
 void BM_Rescan(benchmark::State& state) {

@@ -167,6 +167,34 @@ TEST(SimulateTest, SimulateScanWithSharedBvh) {
   EXPECT_FALSE(std::filesystem::exists(tmp / "other"));
 }
 
+// Without ground truth the geometry pass fills only the per-sample buffers; the images are the
+// same (1 and 2x2 samples per pixel; camera defocus needs depth, so the maps are made then).
+TEST(SimulateTest, ImagesWithoutGroundTruthAreTheSame) {
+  const Rig rig = testing::SmallDemoRig(8);
+  const Scene base = LoadScene(testing::SourceDir() / "config/demo/scene.yaml");
+  const auto images = StripeImages(rig);
+  for (int variant = 0; variant < 3; ++variant) {
+    Scene scene = base;
+    if (variant == 1) scene.layers.supersampling = 2;
+    if (variant == 2) {
+      scene.layers.camera_defocus.enabled = true;
+      scene.layers.camera_defocus.focus_distance_mm = 450;
+    }
+    const Simulator with(scene, rig);
+    const Simulator without(scene, rig, TraceMode::kPacket16, /*ground_truth=*/false);
+    EXPECT_EQ(without.setup().primary_rays, with.setup().primary_rays - (variant == 1 ? 2 * rig.cameras[0].model.width *
+                                                                                            rig.cameras[0].model.height : 0));
+    EXPECT_EQ(without.geometry(0).depth_mm.empty(), variant != 2) << variant;
+    EXPECT_EQ(without.geometry(1).projector.proj_x.empty(), variant != 2) << variant;
+    EXPECT_FALSE(with.geometry(0).depth_mm.empty());
+    const auto a = with.Render(images);
+    const auto b = without.Render(images);
+    for (size_t c = 0; c < 2; ++c) {
+      for (size_t p = 0; p < images.size(); ++p) EXPECT_EQ(cv::norm(a[c][p], b[c][p], cv::NORM_INF), 0) << variant;
+    }
+  }
+}
+
 TEST(SimulateTest, RefusesToOverwriteAndChecksImages) {
   testing::TempDir tmp;
   const Rig rig = testing::SmallDemoRig(8);
