@@ -137,7 +137,15 @@ PointCloud DenseGrid::ToPointCloud(const std::vector<Eigen::Vector3f>* normals) 
   cloud.points.resize(count);
   const bool with_normals = normals && normals->size() == reason.size();
   if (with_normals) cloud.normals.resize(count);
-  std::vector<float> q(count), us(count), vs(count), e(count);
+  // The scalar fields are zero-filled by their constructors: in parallel, one field per task.
+  std::array<std::vector<float>, 4> fields;
+  cv::parallel_for_(cv::Range(0, 4), [&](const cv::Range& r) {
+    for (int k = r.start; k < r.end; ++k) fields[static_cast<size_t>(k)].resize(count);
+  });
+  std::vector<float>& q = fields[0];
+  std::vector<float>& us = fields[1];
+  std::vector<float>& vs = fields[2];
+  std::vector<float>& e = fields[3];
   cv::parallel_for_(cv::Range(0, height), [&](const cv::Range& rows) {
     for (int v = rows.start; v < rows.end; ++v) {
       size_t k = row_start[static_cast<size_t>(v)];

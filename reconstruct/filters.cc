@@ -18,15 +18,28 @@ constexpr uint8_t kAccepted = static_cast<uint8_t>(RejectReason::kAccepted);
 // per filter, and fresh allocations of that size are fresh pages from the kernel every call
 // (page faults cost ~10 % of a reconstruction). The caller's thread owns them; the row-parallel
 // workers reach them through the caller's reference.
+// Fills v[0, n) with `value`, row-parallel (blocks of 64k elements).
+template <typename T>
+void ParallelFill(std::vector<T>& v, size_t n, const T& value) {
+  v.resize(n);
+  constexpr size_t kBlock = size_t{1} << 16;
+  const int blocks = static_cast<int>((n + kBlock - 1) / kBlock);
+  cv::parallel_for_(cv::Range(0, blocks), [&](const cv::Range& r) {
+    const size_t a = static_cast<size_t>(r.start) * kBlock, b = std::min(n, static_cast<size_t>(r.end) * kBlock);
+    std::fill(v.begin() + static_cast<std::ptrdiff_t>(a), v.begin() + static_cast<std::ptrdiff_t>(b), value);
+  });
+}
+
 std::vector<double>& ScratchDoubles(size_t n, double fill) {
   thread_local std::vector<double> buffer;
-  buffer.assign(n, fill);
-  return buffer;
+  std::vector<double>& b = buffer;
+  ParallelFill(b, n, fill);
+  return b;
 }
 std::vector<uint8_t>& ScratchBytes(size_t n, int slot) {
   thread_local std::array<std::vector<uint8_t>, 2> buffers;
   std::vector<uint8_t>& buffer = buffers[static_cast<size_t>(slot)];
-  buffer.assign(n, 0);
+  ParallelFill(buffer, n, uint8_t{0});
   return buffer;
 }
 
@@ -213,26 +226,46 @@ int64_t FilterStatisticalOutliers(DenseGrid& grid, int window_radius_px, int nei
       }
     });
   }
+  // Mean and spread of the scores: per-row partial sums (row-parallel), added in row order.
+  std::vector<std::array<double, 3>> row_sums(static_cast<size_t>(h));
+  cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
+    for (int v = rows.start; v < rows.end; ++v) {
+      double sum = 0, sum2 = 0, n = 0;
+      for (size_t i = grid.Index(0, v), end = i + static_cast<size_t>(w); i < end; ++i) {
+        const double s = score[i];
+        if (s >= 0 && std::isfinite(s)) {
+          sum += s;
+          sum2 += s * s;
+          n += 1;
+        }
+      }
+      row_sums[static_cast<size_t>(v)] = {sum, sum2, n};
+    }
+  });
   double sum = 0, sum2 = 0;
   int64_t n = 0;
-  for (double s : score) {
-    if (s >= 0 && std::isfinite(s)) {
-      sum += s;
-      sum2 += s * s;
-      ++n;
-    }
+  for (const auto& r : row_sums) {
+    sum += r[0];
+    sum2 += r[1];
+    n += static_cast<int64_t>(r[2]);
   }
   const double mean = n > 0 ? sum / static_cast<double>(n) : 0.0;
   const double var = n > 1 ? std::max(0.0, (sum2 - sum * mean) / static_cast<double>(n - 1)) : 0.0;
   const double limit = std::max(mean + std_ratio * std::sqrt(var), min_distance_footprints);
-  int64_t rejected = 0;
-  for (size_t i = 0; i < score.size(); ++i) {
-    if (score[i] >= 0 && score[i] > limit) {
-      grid.reason[i] = static_cast<uint8_t>(RejectReason::kOutlier);
-      ++rejected;
+  std::atomic<int64_t> rejected{0};
+  cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
+    int64_t local = 0;
+    for (int v = rows.start; v < rows.end; ++v) {
+      for (size_t i = grid.Index(0, v), end = i + static_cast<size_t>(w); i < end; ++i) {
+        if (score[i] >= 0 && score[i] > limit) {
+          grid.reason[i] = static_cast<uint8_t>(RejectReason::kOutlier);
+          ++local;
+        }
+      }
     }
-  }
-  return rejected;
+    rejected += local;
+  });
+  return rejected.load();
 }
 
 std::vector<Eigen::Vector3f> EstimateNormals(const DenseGrid& grid, int64_t* fallback_count) {
@@ -243,7 +276,7 @@ std::vector<Eigen::Vector3f> EstimateNormals(const DenseGrid& grid, int64_t* fal
 
 void EstimateNormals(const DenseGrid& grid, std::vector<Eigen::Vector3f>* out, int64_t* fallback_count) {
   const int w = grid.width, h = grid.height;
-  out->assign(grid.reason.size(), Eigen::Vector3f::Zero());
+  out->resize(grid.reason.size());  // every cell is written below
   std::vector<Eigen::Vector3f>& normals = *out;
   std::atomic<int64_t> fallbacks{0};
   cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
@@ -265,7 +298,10 @@ void EstimateNormals(const DenseGrid& grid, std::vector<Eigen::Vector3f>* out, i
     for (int v = rows.start; v < rows.end; ++v) {
       for (int u = 0; u < w; ++u) {
         const size_t i = grid.Index(u, v);
-        if (!grid.Accepted(i)) continue;
+        if (!grid.Accepted(i)) {
+          normals[i] = Eigen::Vector3f::Zero();
+          continue;
+        }
         const Eigen::Vector3d to_view = grid.viewpoint_in_rig - grid.point_in_rig[i];
         Eigen::Vector3d tu, tv;
         Eigen::Vector3d n = Eigen::Vector3d::Zero();
