@@ -1,6 +1,7 @@
 // The `slshadow calibrate` subcommand end to end (apps/cmd_calibrate.cc), on real data.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <string>
@@ -123,6 +124,57 @@ TEST(CmdCalibrate, RefineChecksUpstreamKaminoCalibrations) {
   EXPECT_NEAR(refined.BaselineMm(refined.cameras[0], *refined.projector), first.BaselineMm(first.cameras[0], *first.projector), 1e-6);
   EXPECT_NE(RunCli({"calibrate", "refine", "--rig", (tmp / "first.yaml").string(), "--imageset", (tmp / "missing").string(),
                     "--out", (tmp / "x.yaml").string()}), 0);
+}
+
+// `calibrate refine --stereo NAME --refine-focal` end to end on a simulated scan: the demo scene
+// rendered for the demo rig (cameras at half resolution, 960x600, to keep the scan small), then
+// the right camera bumped (0.2 degree, 1 mm) and its focal length made 0.5 % too long in the rig
+// file; the refined rig file must bring focal length and pose back and keep the baseline length.
+TEST(CmdCalibrate, RefineStereoWithFocalLengthOnSimulatedScan) {
+  testing::TempDir tmp;
+  Rig truth = LoadRig(testing::SourceDir() / "config/demo/rig.yaml");
+  for (auto& c : truth.cameras) {
+    c.model.width /= 2;
+    c.model.height /= 2;
+    c.model.params[CameraModel::kFx] /= 2;
+    c.model.params[CameraModel::kFy] /= 2;
+    c.model.params[CameraModel::kCx] = (c.model.params[CameraModel::kCx] + 0.5) / 2 - 0.5;
+    c.model.params[CameraModel::kCy] = (c.model.params[CameraModel::kCy] + 0.5) / 2 - 0.5;
+  }
+  SaveRig(truth, tmp / "truth.yaml");
+  ASSERT_EQ(RunCli({"simulate", "--rig", (tmp / "truth.yaml").string(), "--scene",
+                    (testing::SourceDir() / "config/demo/scene.yaml").string(), "--patterns",
+                    (testing::SourceDir() / "config/demo/patterns.yaml").string(), "--out", (tmp / "scan").string(),
+                    "--encoding", "pgm", "--no-ground-truth", "--quiet"}),
+            0);
+  Rig bumped = truth;
+  const Eigen::Quaterniond turn(Eigen::AngleAxisd(0.2 * M_PI / 180, Eigen::Vector3d(0.3, 1.0, 0.2).normalized()));
+  bumped.cameras[1].cam_from_rig = Rigid3d(turn, Eigen::Vector3d(0.6, -0.8, 0.0)) * truth.cameras[1].cam_from_rig;
+  bumped.cameras[1].model.params[CameraModel::kFx] *= 1.005;
+  bumped.cameras[1].model.params[CameraModel::kFy] *= 1.005;
+  SaveRig(bumped, tmp / "bumped.yaml");
+  ASSERT_EQ(RunCli({"calibrate", "refine", "--rig", (tmp / "bumped.yaml").string(), "--imageset", (tmp / "scan").string(),
+                    "--camera", "left", "--stereo", "right", "--refine-focal", "--out", (tmp / "refined.yaml").string()}),
+            0);
+  const Rig refined = LoadRig(tmp / "refined.yaml");
+  const auto& info = refined.calibration["refine"];
+  const double f_err = refined.cameras[1].model.fx() / truth.cameras[1].model.fx() - 1;
+  const Rigid3d t10 = truth.cameras[1].cam_from_rig * truth.cameras[0].cam_from_rig.Inverse();
+  const Rigid3d r10 = refined.cameras[1].cam_from_rig * refined.cameras[0].cam_from_rig.Inverse();
+  const double direction_err =
+      std::acos(std::clamp(r10.translation.normalized().dot(t10.translation.normalized()), -1.0, 1.0)) * 180 / M_PI;
+  std::printf("refine --stereo --refine-focal: median %.3f -> %.3f px, focal scale %.5f, focal error %+.4f %%, rotation error "
+              "%.4f deg, baseline direction error %.4f deg\n",
+              info["before_median_px"].get<double>(), info["after_median_px"].get<double>(), info["focal_scale"].get<double>(),
+              100 * f_err, r10.rotation.angularDistance(t10.rotation) * 180 / M_PI, direction_err);
+  EXPECT_GT(info["before_median_px"].get<double>(), 5 * info["after_median_px"].get<double>());
+  EXPECT_LT(std::abs(f_err), 0.0005);  // 0.5 % error brought to within 0.05 %
+  EXPECT_LT(r10.rotation.angularDistance(t10.rotation) * 180 / M_PI, 0.01);
+  EXPECT_LT(direction_err, 0.05);
+  // The scale comes from the rig file's baseline, which is kept.
+  EXPECT_NEAR(refined.BaselineMm(refined.cameras[0], refined.cameras[1]), bumped.BaselineMm(bumped.cameras[0], bumped.cameras[1]),
+              1e-6);
+  EXPECT_EQ(refined.cameras[0].model.params, truth.cameras[0].model.params);
 }
 
 }  // namespace
