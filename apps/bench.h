@@ -7,7 +7,8 @@
 //   decode       DecodePatterns, Gray code + phase shift, both cameras; peer: OpenCV 4.6
 //                GrayCodePattern's per-pixel decoding (shadow mask + getProjPixel) on the same
 //                camera viewing an OpenCV-order Gray code, on one camera, scaled per pixel
-//   reconstruct  decode + triangulate both cameras (camera-projector), and stereo
+//   reconstruct  decode + triangulate both cameras (camera-projector; in turn with parallel loops,
+//                then concurrently one camera per core), and stereo; per-stage wall and CPU
 //   compare      C2M of the stereo cloud against the ground-truth mesh
 #pragma once
 
