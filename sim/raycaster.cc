@@ -282,6 +282,7 @@ struct RayCaster::Impl {
   // under a part is hit by nearly every ray, and Embree's user-geometry callbacks cost more than
   // the test itself). Nearest hit / any hit combined with Embree's result.
   std::vector<const PrimitiveData*> direct;
+  std::vector<std::vector<float>> disc_normals;  // shared with Embree; outlive the scene (released first)
   bool has_embree_geometry = false;
   ~Impl() {
     if (scene) rtcReleaseScene(scene);
@@ -335,8 +336,11 @@ RayCaster::RayCaster(const Scene& scene) : scene_(scene), impl_(std::make_unique
       geom = rtcNewGeometry(impl_->device, RTC_GEOMETRY_TYPE_ORIENTED_DISC_POINT);
       auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4,
                                                             4 * sizeof(float), c.size()));
-      auto* n = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_NORMAL, 0, RTC_FORMAT_FLOAT3,
-                                                            3 * sizeof(float), c.size()));
+      // Our own, padded normal buffer: Embree 3.13.5 reads 4 bytes past the end of a FLOAT3 normal
+      // buffer it allocates itself (valgrind: invalid read in rtcSetNewGeometryBuffer).
+      impl_->disc_normals.emplace_back(3 * c.size() + 4, 0.0f);
+      float* n = impl_->disc_normals.back().data();
+      rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_NORMAL, 0, RTC_FORMAT_FLOAT3, n, 0, 3 * sizeof(float), c.size());
       SLSHADOW_THROW_IF(v == nullptr || n == nullptr, "Embree: cannot allocate buffers for object '", o.name, "'");
       for (size_t i = 0; i < c.size(); ++i) {
         const Eigen::Vector3d p = rotd * c.points[i] + o.rig_from_object.translation;
