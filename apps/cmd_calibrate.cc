@@ -12,6 +12,7 @@
 #include "calib/calibration_io.h"
 #include "calib/guidance.h"
 #include "calib/projector.h"
+#include "calib/model_selection.h"
 #include "calib/refine.h"
 #include "calib/report.h"
 #include "calib/target.h"
@@ -74,6 +75,7 @@ struct CommonOptions {
   bool no_cross_validation = false;
   bool board_warp = false;
   int min_views = 10;
+  bool select_model = false;
 
   void Add(CLI::App* app, bool needs_target = true) {
     auto* t = app->add_option("--target", target, "target YAML (docs/formats.md, \"Calibration target YAML\"; examples in config/targets/)");
@@ -91,6 +93,14 @@ struct CommonOptions {
     app->add_flag("--no-cross-validation", no_cross_validation, "skip calibrating the even and odd poses separately");
     app->add_flag("--board-warp", board_warp, "estimate a board warp (two paraboloid terms, mm) shared by all poses");
     app->add_option("--min-views", min_views, "fewer views per device than this is reported as too few")->capture_default_str();
+  }
+  // Camera-projector commands only.
+  void AddSelectModel(CLI::App* app) {
+    app->add_flag("--select-model", select_model,
+                  "choose the distortion models (cameras: k1 k2 p1 p2 k3 or without k3; projector: all five, without k3, "
+                  "k1 k2, or k1) by leave-one-pose-out cross-validation: calibrate without each pose, pose its board from "
+                  "the first camera, predict its projector corners; the lowest prediction RMS (px) wins. Needs 3+ poses; "
+                  "costs ~8 x (poses + 1) solves. Default off (all five terms for every device)");
   }
 
   CalibrationOptions Options() const {
@@ -114,9 +124,49 @@ struct CommonOptions {
 };
 
 // Calibrates, reviews, writes the rig, the OpenCV file and the report, prints the summary.
-int CalibrateAndWrite(const CalibrationInput& input, const std::vector<ImageCheck>& checks, const CommonOptions& common,
+// --select-model: sets the devices' held_params to the candidate with the lowest leave-one-pose-out
+// prediction RMS of the projector's corners and records the scores in `extra`.
+void SelectModels(CalibrationInput* input, const CalibrationOptions& options, nlohmann::json* extra) {
+  int projector = -1;
+  for (size_t d = 0; d < input->devices.size(); ++d) {
+    if (input->devices[d].is_projector) projector = static_cast<int>(d);
+  }
+  SLSHADOW_THROW_IF(projector < 0, "--select-model: the input has no projector");
+  using M = CameraModel;
+  const std::vector<std::pair<std::string, std::vector<int>>> cameras = {{"k1 k2 p1 p2 k3", {}}, {"k1 k2 p1 p2", {M::kK3}}};
+  const std::vector<std::pair<std::string, std::vector<int>>> projectors = {
+      {"k1 k2 p1 p2 k3", {}}, {"k1 k2 p1 p2", {M::kK3}}, {"k1 k2", {M::kP1, M::kP2, M::kK3}}, {"k1", {M::kK2, M::kP1, M::kP2, M::kK3}}};
+  std::vector<ModelCandidate> candidates;
+  for (const auto& [cam_name, cam_held] : cameras) {
+    for (const auto& [proj_name, proj_held] : projectors) {
+      ModelCandidate c;
+      c.name = "cameras " + cam_name + " / projector " + proj_name;
+      for (size_t d = 0; d < input->devices.size(); ++d) {
+        c.held_params.push_back(static_cast<int>(d) == projector ? proj_held : cam_held);
+      }
+      candidates.push_back(std::move(c));
+    }
+  }
+  const auto scores = ScoreModelsByLeaveOnePoseOut(*input, options, candidates, 0, projector);
+  size_t best = 0;
+  nlohmann::json table = nlohmann::json::array();
+  std::printf("model selection (leave-one-pose-out, projector corners):\n");
+  for (size_t i = 0; i < scores.size(); ++i) {
+    std::printf("  %-45s fit %.4f px, predicted %.4f px (%d corners)\n", scores[i].name.c_str(), scores[i].fit_rms_px,
+                scores[i].prediction_rms_px, scores[i].num_predicted);
+    table.push_back({{"model", scores[i].name}, {"fit_rms_px", scores[i].fit_rms_px},
+                     {"prediction_rms_px", scores[i].prediction_rms_px}, {"num_predicted", scores[i].num_predicted}});
+    if (scores[i].prediction_rms_px < scores[best].prediction_rms_px) best = i;
+  }
+  std::printf("  chosen: %s\n", scores[best].name.c_str());
+  for (size_t d = 0; d < input->devices.size(); ++d) input->devices[d].held_params = candidates[best].held_params[d];
+  (*extra)["model_selection"] = {{"candidates", table}, {"chosen", scores[best].name}};
+}
+
+int CalibrateAndWrite(CalibrationInput input, const std::vector<ImageCheck>& checks, const CommonOptions& common,
                       nlohmann::json extra) {
   const CalibrationOptions options = common.Options();
+  if (common.select_model) SelectModels(&input, options, &extra);
   const CalibrationResult result = Calibrate(input, options);
   std::optional<CrossValidation> cv;
   if (!common.no_cross_validation) {
@@ -254,6 +304,7 @@ int RunCalibrate(int argc, char** argv) {
 
   auto* projector = app.add_subcommand("projector", "calibrate a camera and a projector from fringe captures of the board");
   proj_common.Add(projector);
+  proj_common.AddSelectModel(projector);
   projector->add_option("--patterns", patterns_path, "pattern spec YAML (docs/formats.md \"Pattern spec\"), must code x and y and have a white frame")->required();
   projector->add_option("--captures", captures, "one folder per board pose with the camera's images in sequence (name) order")->required();
   projector->add_option("--camera-name", camera_name, "camera name in the rig")->capture_default_str();
@@ -264,6 +315,7 @@ int RunCalibrate(int argc, char** argv) {
 
   auto* rig_cmd = app.add_subcommand("rig", "calibrate all cameras and the projector of a rig from ImageSets of the board");
   rig_common.Add(rig_cmd);
+  rig_common.AddSelectModel(rig_cmd);
   rig_cmd->add_option("--imagesets", imagesets, "one ImageSet folder per board pose (manifest with rig and pattern spec)")->required();
   rig_cmd->add_option("--shadow-threshold", shadow_threshold, "decode: minimum white - black, grey levels")->capture_default_str();
   rig_cmd->add_option("--contrast-threshold", contrast_threshold, "decode: minimum |bit - inverse|, grey levels")->capture_default_str();

@@ -1,5 +1,7 @@
 #include "calib/calibration_io.h"
 
+#include <algorithm>
+#include <array>
 #include <cmath>
 
 #include <opencv2/calib3d.hpp>
@@ -13,6 +15,8 @@ namespace slshadow {
 namespace {
 
 constexpr int kEvidenceVersion = 1;
+// CameraModel parameter order.
+constexpr std::array<const char*, CameraModel::kNumParams> kParamNames = {"fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"};
 
 nlohmann::json PoseToJson(const Rigid3d& t) {
   const auto& q = t.rotation;
@@ -207,7 +211,10 @@ nlohmann::json CalibrationEvidenceToJson(const CalibrationInput& input, const Ca
   j["num_poses"] = input.num_poses;
   j["devices"] = nlohmann::json::array();
   for (const auto& d : input.devices) {
-    j["devices"].push_back({{"name", d.name}, {"width", d.width}, {"height", d.height}, {"is_projector", d.is_projector}});
+    nlohmann::json held = nlohmann::json::array();
+    for (int i : d.held_params) held.push_back(kParamNames.at(static_cast<size_t>(i)));
+    j["devices"].push_back(
+        {{"name", d.name}, {"width", d.width}, {"height", d.height}, {"is_projector", d.is_projector}, {"held_params", held}});
   }
   j["views"] = nlohmann::json::array();
   for (const auto& v : input.views) {
@@ -264,6 +271,15 @@ CalibrationEvidence CalibrationEvidenceFromJson(const nlohmann::json& json, cons
     cd.width = static_cast<int>(d["width"].AsInt());
     cd.height = static_cast<int>(d["height"].AsInt());
     cd.is_projector = d.GetBool("is_projector", false);
+    if (d.Has("held_params")) {
+      const auto held = d["held_params"];
+      for (size_t k = 0; k < held.size(); ++k) {
+        const std::string name = held.at(k).AsString();
+        const auto it = std::find(kParamNames.begin(), kParamNames.end(), name);
+        if (it == kParamNames.end()) held.at(k).Fail("unknown parameter (use fx fy cx cy k1 k2 p1 p2 k3)");
+        cd.held_params.push_back(static_cast<int>(it - kParamNames.begin()));
+      }
+    }
     e.input.devices.push_back(cd);
   }
   const auto views = n["views"];

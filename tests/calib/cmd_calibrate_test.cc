@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <fstream>
 #include <string>
 #include <vector>
 
@@ -194,10 +195,11 @@ TEST(CmdCalibrate, RigFromImageSetsMatchesProjectorFromFolders) {
   const Rig nominal = ReadOpenCvCalibration(kamino / "calibration_result_ccf1cd8.xml", 0, 0, 1024, 768);
   std::vector<std::string> rig_args = {"calibrate", "rig", "--target", target, "--shadow-threshold", "40",
                                        "--contrast-threshold", "5", "--min-views", "5", "--no-cross-validation",
-                                       "--out", (tmp / "rig.yaml").string(), "--imagesets"};
+                                       "--select-model", "--out", (tmp / "rig.yaml").string(), "--imagesets"};
   std::vector<std::string> proj_args = {"calibrate", "projector", "--target", target, "--patterns", spec_path,
                                         "--shadow-threshold", "40", "--contrast-threshold", "5", "--min-views", "5",
-                                        "--no-cross-validation", "--out", (tmp / "procam.yaml").string(), "--captures"};
+                                        "--no-cross-validation", "--select-model", "--out", (tmp / "procam.yaml").string(),
+                                        "--captures"};
   for (int p = 0; p < 5; ++p) {
     const auto dir = tmp / ("pose" + std::to_string(p));
     ImageSetWriterOptions wo;
@@ -222,6 +224,34 @@ TEST(CmdCalibrate, RigFromImageSetsMatchesProjectorFromFolders) {
   }
   EXPECT_LT((a.projector->cam_from_rig.translation - b.projector->cam_from_rig.translation).norm(), 1e-4);
   EXPECT_LE(a.calibration["summary"]["devices"][1]["rms_px"].get<double>(), 0.43);
+  // --select-model: both paths choose the same models, the chosen one has the lowest prediction
+  // RMS of the 8 candidates, and the rig file's evidence keeps the held parameters.
+  EXPECT_EQ(a.calibration["devices"][1]["held_params"], b.calibration["devices"][1]["held_params"]);
+  EXPECT_EQ(a.calibration["devices"][0]["held_params"], b.calibration["devices"][0]["held_params"]);
+  const CalibrationEvidence evidence = CalibrationEvidenceFromJson(b.calibration, "procam.yaml");
+  std::ifstream summary_file(tmp / "procam_report" / "summary.json");
+  ASSERT_TRUE(summary_file.good());
+  const nlohmann::json summary = nlohmann::json::parse(summary_file);
+  const auto& selection = summary["extra"]["model_selection"];
+  ASSERT_EQ(selection["candidates"].size(), 8u);
+  double best = 1e9;
+  std::string best_name;
+  for (const auto& c : selection["candidates"]) {
+    if (c["prediction_rms_px"].get<double>() < best) {
+      best = c["prediction_rms_px"].get<double>();
+      best_name = c["model"].get<std::string>();
+    }
+    EXPECT_EQ(c["num_predicted"].get<int>(), 5 * 63);
+  }
+  EXPECT_EQ(selection["chosen"].get<std::string>(), best_name);
+  std::printf("chosen: %s, predicted %.4f px; projector held %s\n", best_name.c_str(), best,
+              b.calibration["devices"][1]["held_params"].dump().c_str());
+  ASSERT_EQ(evidence.input.devices.size(), 2u);
+  const std::vector<std::string> names = {"fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"};
+  std::vector<std::string> held;
+  for (int i : evidence.input.devices[1].held_params) held.push_back(names.at(static_cast<size_t>(i)));
+  EXPECT_EQ(nlohmann::json(held), b.calibration["devices"][1]["held_params"]);
+  EXPECT_LT(best, 0.43);
 }
 
 }  // namespace
