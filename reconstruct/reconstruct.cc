@@ -644,13 +644,17 @@ RejectReason StereoTriangulator::Triangulate(double u, double v, double ur, cons
   if (!(in_rect0.z() > 0 && z1 > 0 && in_left.z() > 0 && in_right.z() > 0)) return RejectReason::kBehindDevice;
   if (in_rect0.z() < min_depth_mm_ || in_rect0.z() > max_depth_mm_) return RejectReason::kOutOfDepthRange;
   // Observed positions in the original images: the left cell's source, the right match's.
-  const Eigen::Vector3d right_ray = right_from_rect_ * Eigen::Vector3d(xy1.x(), xy1.y(), 1.0);
-  double right_obs[2], left_px[2], right_px[2];
-  CameraModel::ImgFromCam(right_params_.data(), right_ray.data(), right_obs);
+  double left_px[2];
   CameraModel::ImgFromCam(left_params_.data(), in_left.data(), left_px);
-  CameraModel::ImgFromCam(right_params_.data(), in_right.data(), right_px);
   const double el2 = std::pow(left_px[0] - left_source_px.x(), 2) + std::pow(left_px[1] - left_source_px.y(), 2);
-  const double er2 = std::pow(right_px[0] - right_obs[0], 2) + std::pow(right_px[1] - right_obs[1], 2);
+  double er2 = 0;  // the closed-form midpoint lies on the right ray (x1, y, 1) by construction
+  if (method_ != TriangulationMethod::kMidpoint) {
+    const Eigen::Vector3d right_ray = right_from_rect_ * Eigen::Vector3d(xy1.x(), xy1.y(), 1.0);
+    double right_obs[2], right_px[2];
+    CameraModel::ImgFromCam(right_params_.data(), right_ray.data(), right_obs);
+    CameraModel::ImgFromCam(right_params_.data(), in_right.data(), right_px);
+    er2 = std::pow(right_px[0] - right_obs[0], 2) + std::pow(right_px[1] - right_obs[1], 2);
+  }
   *reprojection_error_px = std::sqrt(0.5 * (el2 + er2));
   *point_in_rig = p;
   return RejectReason::kAccepted;

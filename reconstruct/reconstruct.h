@@ -151,7 +151,9 @@ class StereoTriangulator {
                      const ReconstructOptions& options);
   // kAccepted with the point (rig frame, mm) and its reprojection error (RMS over both views, px,
   // against left_source_px, the left cell's position in the left image, and the right match's
-  // position in the right image); otherwise kParallelRays, kBehindDevice or kOutOfDepthRange.
+  // position in the right image; with the midpoint, which is the closed-form intersection of the
+  // two coplanar rectified rays, the right term is zero by construction and not evaluated);
+  // otherwise kParallelRays, kBehindDevice or kOutOfDepthRange.
   RejectReason Triangulate(double u, double v, double ur, const Eigen::Vector2d& left_source_px,
                            Eigen::Vector3d* point_in_rig, double* reprojection_error_px) const;
 
