@@ -271,9 +271,11 @@ TEST_F(CalibrateSimulated, DemoStereoRigFromRenderedBoards) {
     // The view set is good enough for the targets: predicted sigma well inside them.
     EXPECT_LT(std::sqrt(cov(2, 2)), 0.15) << "camera " << d;
     EXPECT_LT(std::sqrt(cov(3, 3)), 0.15) << "camera " << d;
+    // Each of fx fy cx cy within 4 predicted sigma (8 checks: at 3 sigma one seed in ~50 would
+    // fail by chance; plan seeds 24-26 gave at most 3.0 sigma, fy of camera 1 with seed 24).
     for (int i = 0; i < 4; ++i) {
       const double sigma = std::sqrt(cov(i, i));
-      EXPECT_LT(std::abs(est.params[static_cast<size_t>(i)] - tru.params[static_cast<size_t>(i)]), 3 * sigma)
+      EXPECT_LT(std::abs(est.params[static_cast<size_t>(i)] - tru.params[static_cast<size_t>(i)]), 4 * sigma)
           << "camera " << d << " parameter " << i;
     }
     EXPECT_NEAR(est.fx() / tru.fx(), 1.0, 0.0005);
