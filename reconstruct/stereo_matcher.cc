@@ -2,7 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
+#include <list>
+#include <memory>
+#include <mutex>
 
 #include <opencv2/core.hpp>
 
@@ -143,6 +147,77 @@ double RefineCrossing(const double s[4], double value, double t) {
   return t;
 }
 
+// Where every rectified cell of one camera falls in its original image (the camera's distortion
+// applied to the rectified ray), NaN outside the image or behind the camera. Geometry only, so it
+// is computed once per rectification and camera and kept (at most kMaxCachedSourceGrids, least
+// recently used first out; keyed by every number it depends on).
+constexpr size_t kMaxCachedSourceGrids = 4;
+
+std::vector<double> SourceGridKey(const StereoRectification& rect, int camera, const RigDevice& device) {
+  std::vector<double> key(rect.rect_from_rig_rotation.data(), rect.rect_from_rig_rotation.data() + 9);
+  const Eigen::Quaterniond& q = device.cam_from_rig.rotation;
+  const Eigen::Vector3d& t = device.cam_from_rig.translation;
+  for (double v : {rect.focal_px, rect.cy, rect.cx[camera], static_cast<double>(rect.width[camera]),
+                   static_cast<double>(rect.height), static_cast<double>(device.model.width),
+                   static_cast<double>(device.model.height), q.w(), q.x(), q.y(), q.z(), t.x(), t.y(), t.z()}) {
+    key.push_back(v);
+  }
+  key.insert(key.end(), device.model.params.begin(), device.model.params.end());
+  return key;
+}
+
+std::vector<Eigen::Vector2d> ComputeSourceGrid(const StereoRectification& rect, int camera, const RigDevice& device) {
+  const int width = rect.width[camera], height = rect.height;
+  std::vector<Eigen::Vector2d> grid(static_cast<size_t>(width) * height);
+  const Eigen::Matrix3d cam_from_rect =
+      device.cam_from_rig.rotation.toRotationMatrix() * rect.rect_from_rig_rotation.transpose();
+  const int w = device.model.width, h = device.model.height;
+  const double* params = device.model.params.data();
+  const double inv_f = 1.0 / rect.focal_px;
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  cv::parallel_for_(cv::Range(0, height), [&](const cv::Range& rows) {
+    for (int v = rows.start; v < rows.end; ++v) {
+      const double yn = (v - rect.cy) * inv_f;
+      Eigen::Vector2d* out = grid.data() + static_cast<size_t>(v) * width;
+      for (int u = 0; u < width; ++u) {
+        out[u] = Eigen::Vector2d(nan, nan);
+        const Eigen::Vector3d ray = cam_from_rect * Eigen::Vector3d((u - rect.cx[camera]) * inv_f, yn, 1.0);
+        if (!(ray.z() > 0)) continue;
+        double pixel[2];
+        CameraModel::ImgFromCam(params, ray.data(), pixel);
+        if (!(pixel[0] >= 0 && pixel[1] >= 0 && pixel[0] <= w - 1 && pixel[1] <= h - 1)) continue;
+        out[u] = Eigen::Vector2d(pixel[0], pixel[1]);
+      }
+    }
+  });
+  return grid;
+}
+
+std::shared_ptr<const std::vector<Eigen::Vector2d>> CachedSourceGrid(const StereoRectification& rect, int camera,
+                                                                      const RigDevice& device) {
+  using Entry = std::pair<std::vector<double>, std::shared_ptr<const std::vector<Eigen::Vector2d>>>;
+  static std::mutex mutex;
+  static std::list<Entry> entries;  // most recent first
+  const std::vector<double> key = SourceGridKey(rect, camera, device);
+  auto same = [&](const std::vector<double>& k) {
+    return k.size() == key.size() && std::memcmp(k.data(), key.data(), sizeof(double) * key.size()) == 0;
+  };
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    for (auto it = entries.begin(); it != entries.end(); ++it) {
+      if (same(it->first)) {
+        entries.splice(entries.begin(), entries, it);
+        return entries.front().second;
+      }
+    }
+  }
+  auto grid = std::make_shared<const std::vector<Eigen::Vector2d>>(ComputeSourceGrid(rect, camera, device));
+  std::lock_guard<std::mutex> lock(mutex);
+  entries.emplace_front(key, grid);
+  while (entries.size() > kMaxCachedSourceGrids) entries.pop_back();
+  return grid;
+}
+
 }  // namespace
 
 double InterpolateRow(const double* row, int width, double u, double max_step_px) {
@@ -267,17 +342,13 @@ void RectifyProjectorMap(const StereoRectification& rect, int camera, const RigD
   out.source_u.resize(n);
   out.source_v.resize(n);
   out.reason.resize(n);
-  const double inv_f = 1.0 / rect.focal_px;
-  const Eigen::Matrix3d cam_from_rect =
-      device.cam_from_rig.rotation.toRotationMatrix() * rect.rect_from_rig_rotation.transpose();
+  const std::shared_ptr<const std::vector<Eigen::Vector2d>> sources = CachedSourceGrid(rect, camera, device);
   const int w = map.width(), h = map.height();
-  const double* params = device.model.params.data();
   const bool is_double = map.proj_x.depth() == CV_64F;
   const std::vector<uint8_t> blocks =
       is_double ? SmoothBlocks<double>(map, max_step_px) : SmoothBlocks<float>(map, max_step_px);
   cv::parallel_for_(cv::Range(0, out.height), [&](const cv::Range& rows) {
     for (int v = rows.start; v < rows.end; ++v) {
-      const double yn = (v - rect.cy) * inv_f;
       for (int u = 0; u < out.width; ++u) {
         const size_t o = out.Index(u, v);
         out.proj_x[o] = nan;
@@ -286,12 +357,9 @@ void RectifyProjectorMap(const StereoRectification& rect, int camera, const RigD
         out.source_u[o] = nanf;
         out.source_v[o] = nanf;
         out.reason[o] = static_cast<uint8_t>(RejectReason::kOutsideImage);
-        const Eigen::Vector3d ray = cam_from_rect * Eigen::Vector3d((u - rect.cx[camera]) * inv_f, yn, 1.0);
-        if (!(ray.z() > 0)) continue;
-        double pixel[2];
-        CameraModel::ImgFromCam(params, ray.data(), pixel);
-        const double x = pixel[0], y = pixel[1];
-        if (!(x >= 0 && y >= 0 && x <= w - 1 && y <= h - 1)) continue;
+        const Eigen::Vector2d& source = (*sources)[o];
+        const double x = source.x(), y = source.y();
+        if (!(x >= 0 && y >= 0 && x <= w - 1 && y <= h - 1)) continue;  // NaN: outside the image
         out.source_u[o] = static_cast<float>(x);
         out.source_v[o] = static_cast<float>(y);
         int x0 = static_cast<int>(x), y0 = static_cast<int>(y);

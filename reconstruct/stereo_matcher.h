@@ -52,7 +52,10 @@ StereoRectification ComputeStereoRectification(const RigDevice& left, const RigD
 // then interpolated bicubically (4-point Lagrange in each axis, exact for cubics: the error on a
 // smooth map is O(h^4) instead of bilinear O(h^2)) when the 4x4 source pixels around the position
 // are all decoded and no two neighbours among them differ by more than max_step_px, bilinearly
-// over the 4 otherwise; quality is interpolated bilinearly.
+// over the 4 otherwise; quality is interpolated bilinearly. Where each rectified cell falls in the
+// original image depends on the geometry only: it is computed once per rectification and camera
+// and kept in a small process-wide cache (4 grids of 16 B per rectified cell, least recently used
+// first out).
 struct RectifiedMap {
   int width = 0;
   int height = 0;
