@@ -434,19 +434,17 @@ void MatchRectifiedMaps(const StereoRectification& rect, const RectifiedMap& lef
   matches.reason.resize(n);
   const int wr = right.width;
   cv::parallel_for_(cv::Range(0, left.height), [&](const cv::Range& rows) {
-    for (int v = rows.start; v < rows.end; ++v) {
-      const size_t a = left.Index(0, v), b = a + static_cast<size_t>(left.width);
-      std::fill(matches.right_u.begin() + static_cast<std::ptrdiff_t>(a), matches.right_u.begin() + static_cast<std::ptrdiff_t>(b),
-                std::numeric_limits<double>::quiet_NaN());
-      std::copy(left.reason.begin() + static_cast<std::ptrdiff_t>(a), left.reason.begin() + static_cast<std::ptrdiff_t>(b),
-                matches.reason.begin() + static_cast<std::ptrdiff_t>(a));
-    }
-  });
-  cv::parallel_for_(cv::Range(0, left.height), [&](const cv::Range& rows) {
     // Per-thread scratch, reused across rows: the right row's segments bucketed by the integer
     // part of the projector column they span (CSR layout).
     std::vector<int> offsets, cursor, bucket;
     for (int v = rows.start; v < rows.end; ++v) {
+      {
+        const size_t a = left.Index(0, v), b = a + static_cast<size_t>(left.width);
+        std::fill(matches.right_u.begin() + static_cast<std::ptrdiff_t>(a),
+                  matches.right_u.begin() + static_cast<std::ptrdiff_t>(b), std::numeric_limits<double>::quiet_NaN());
+        std::copy(left.reason.begin() + static_cast<std::ptrdiff_t>(a), left.reason.begin() + static_cast<std::ptrdiff_t>(b),
+                  matches.reason.begin() + static_cast<std::ptrdiff_t>(a));
+      }
       const double* r = right.proj_x.data() + right.Index(0, v);
       double lo = std::numeric_limits<double>::infinity(), hi = -lo;
       for (int k = 0; k + 1 < wr; ++k) {
