@@ -209,6 +209,22 @@ const char* ToString(ReconstructMode mode) {
   return mode == ReconstructMode::kProjector ? "projector" : "stereo";
 }
 
+const char* ToString(StereoInterpolation interpolation) {
+  switch (interpolation) {
+    case StereoInterpolation::kAuto: return "auto";
+    case StereoInterpolation::kLinear: return "linear";
+    case StereoInterpolation::kCubic: return "cubic";
+  }
+  return "unknown";
+}
+
+StereoInterpolation StereoInterpolationFromString(const std::string& name) {
+  if (name == "auto") return StereoInterpolation::kAuto;
+  if (name == "linear") return StereoInterpolation::kLinear;
+  if (name == "cubic") return StereoInterpolation::kCubic;
+  SLSHADOW_THROW("stereo interpolation: unknown name (got '", name, "'; expected auto, linear or cubic)");
+}
+
 ReconstructMode ReconstructModeFromString(const std::string& name) {
   if (name == "projector") return ReconstructMode::kProjector;
   if (name == "stereo") return ReconstructMode::kStereo;
@@ -253,6 +269,7 @@ nlohmann::json ReconstructOptions::ToJson() const {
           {"max_epipolar_error_px", num(max_epipolar_error_px)},
           {"min_quality", min_quality},
           {"max_code_step_px", max_code_step_px},
+          {"stereo_interpolation", ToString(stereo_interpolation)},
           {"filter_depth_discontinuities", filter_depth_discontinuities},
           {"max_depth_jump_footprints", max_depth_jump_footprints},
           {"discontinuity_dilation_px", discontinuity_dilation_px},
@@ -686,15 +703,18 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
   thread_local StereoMatches matches_buffer;
   RectifiedMap& lm = left_buffer;
   RectifiedMap& rm = right_buffer;
-  RectifyProjectorMap(rect, 0, left, left_map, options.max_code_step_px, options.min_quality, &lm);
-  RectifyProjectorMap(rect, 1, right, right_map, options.max_code_step_px, options.min_quality, &rm);
+  const bool cubic = options.stereo_interpolation == StereoInterpolation::kCubic ||
+                     (options.stereo_interpolation == StereoInterpolation::kAuto &&
+                      left_map.proj_x.depth() == CV_64F && right_map.proj_x.depth() == CV_64F);
+  RectifyProjectorMap(rect, 0, left, left_map, options.max_code_step_px, options.min_quality, cubic, &lm);
+  RectifyProjectorMap(rect, 1, right, right_map, options.max_code_step_px, options.min_quality, cubic, &rm);
   Elapsed(t0, &s.rays_s, &s.rays_cpu_s);
 
   t0 = Stamp();
   const double fb = rect.focal_px * rect.baseline_mm;
   StereoMatches& matches = matches_buffer;
   MatchRectifiedMaps(rect, lm, rm, fb / options.max_depth_mm, fb / options.min_depth_mm, options.max_code_step_px,
-                     &matches);
+                     cubic, &matches);
   Elapsed(t0, &s.match_s, &s.match_cpu_s);
 
   t0 = Stamp();
@@ -725,7 +745,8 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
         }
         grid.reprojection_error_px[i] = static_cast<float>(reprojection_error);
         if (cross_axis) {
-          const double y = InterpolateRow(rm.proj_y.data() + rm.Index(0, v), rm.width, ur, options.max_code_step_px);
+          const double y = InterpolateRow(rm.proj_y.data() + rm.Index(0, v), rm.width, ur, options.max_code_step_px,
+                                          cubic);
           if (std::isfinite(y)) grid.epipolar_error_px[i] = static_cast<float>(std::abs(lm.proj_y[i] - y));
         }
         grid.point_in_rig[i] = point;

@@ -220,11 +220,11 @@ std::shared_ptr<const std::vector<Eigen::Vector2d>> CachedSourceGrid(const Stere
 
 }  // namespace
 
-double InterpolateRow(const double* row, int width, double u, double max_step_px) {
+double InterpolateRow(const double* row, int width, double u, double max_step_px, bool cubic) {
   if (!(u >= 0 && u <= width - 1) || width < 2) return std::numeric_limits<double>::quiet_NaN();
   const int k = std::min(static_cast<int>(u), width - 2);
   const double t = u - k;
-  if (k >= 1 && k + 2 < width && SmoothRun(row + k - 1, max_step_px)) {
+  if (cubic && k >= 1 && k + 2 < width && SmoothRun(row + k - 1, max_step_px)) {
     double w[4];
     CubicWeights(t, w);
     return w[0] * row[k - 1] + w[1] * row[k] + w[2] * row[k + 1] + w[3] * row[k + 2];
@@ -315,14 +315,14 @@ StereoRectification ComputeStereoRectification(const RigDevice& left, const RigD
 }
 
 RectifiedMap RectifyProjectorMap(const StereoRectification& rect, int camera, const RigDevice& device,
-                                 const ProjectorMap& map, double max_step_px, float min_quality) {
+                                 const ProjectorMap& map, double max_step_px, float min_quality, bool cubic) {
   RectifiedMap out;
-  RectifyProjectorMap(rect, camera, device, map, max_step_px, min_quality, &out);
+  RectifyProjectorMap(rect, camera, device, map, max_step_px, min_quality, cubic, &out);
   return out;
 }
 
 void RectifyProjectorMap(const StereoRectification& rect, int camera, const RigDevice& device, const ProjectorMap& map,
-                         double max_step_px, float min_quality, RectifiedMap* out_map) {
+                         double max_step_px, float min_quality, bool cubic, RectifiedMap* out_map) {
   SLSHADOW_THROW_IF(!map.has_x, "stereo: camera '", device.name,
                     "': the pattern does not code projector columns; stereo matching needs them");
   SLSHADOW_THROW_IF(map.width() != device.model.width || map.height() != device.model.height,
@@ -345,8 +345,9 @@ void RectifyProjectorMap(const StereoRectification& rect, int camera, const RigD
   const std::shared_ptr<const std::vector<Eigen::Vector2d>> sources = CachedSourceGrid(rect, camera, device);
   const int w = map.width(), h = map.height();
   const bool is_double = map.proj_x.depth() == CV_64F;
-  const std::vector<uint8_t> blocks =
-      is_double ? SmoothBlocks<double>(map, max_step_px) : SmoothBlocks<float>(map, max_step_px);
+  const std::vector<uint8_t> blocks = !cubic    ? std::vector<uint8_t>()
+                                      : is_double ? SmoothBlocks<double>(map, max_step_px)
+                                                  : SmoothBlocks<float>(map, max_step_px);
   cv::parallel_for_(cv::Range(0, out.height), [&](const cv::Range& rows) {
     for (int v = rows.start; v < rows.end; ++v) {
       for (int u = 0; u < out.width; ++u) {
@@ -398,7 +399,7 @@ void RectifyProjectorMap(const StereoRectification& rect, int camera, const RigD
         }
         out.reason[o] = static_cast<uint8_t>(reason);
         if (reason != RejectReason::kAccepted) continue;
-        if (blocks[static_cast<size_t>(y0) * w + x0]) {
+        if (cubic && blocks[static_cast<size_t>(y0) * w + x0]) {
           double b[16], wx[4], wy[4];
           CubicWeights(ax, wx);
           CubicWeights(ay, wy);
@@ -419,14 +420,15 @@ void RectifyProjectorMap(const StereoRectification& rect, int camera, const RigD
 
 StereoMatches MatchRectifiedMaps(const StereoRectification& rect, const RectifiedMap& left,
                                  const RectifiedMap& right, double min_disparity_px,
-                                 double max_disparity_px, double max_step_px) {
+                                 double max_disparity_px, double max_step_px, bool cubic) {
   StereoMatches matches;
-  MatchRectifiedMaps(rect, left, right, min_disparity_px, max_disparity_px, max_step_px, &matches);
+  MatchRectifiedMaps(rect, left, right, min_disparity_px, max_disparity_px, max_step_px, cubic, &matches);
   return matches;
 }
 
 void MatchRectifiedMaps(const StereoRectification& rect, const RectifiedMap& left, const RectifiedMap& right,
-                        double min_disparity_px, double max_disparity_px, double max_step_px, StereoMatches* out) {
+                        double min_disparity_px, double max_disparity_px, double max_step_px, bool cubic,
+                        StereoMatches* out) {
   SLSHADOW_CHECK(left.height == right.height);
   StereoMatches& matches = *out;
   const size_t n = left.proj_x.size();
@@ -518,7 +520,8 @@ void MatchRectifiedMaps(const StereoRectification& rect, const RectifiedMap& lef
         } else if (found > 1) {
           matches.reason[i] = static_cast<uint8_t>(RejectReason::kAmbiguousMatch);
         } else {
-          if (best_k >= 1 && best_k + 2 < wr && SmoothRun(r + best_k - 1, max_step_px) && r[best_k + 1] != r[best_k]) {
+          if (cubic && best_k >= 1 && best_k + 2 < wr && SmoothRun(r + best_k - 1, max_step_px) &&
+              r[best_k + 1] != r[best_k]) {
             best = best_k + RefineCrossing(r + best_k - 1, value, best_t);
           }
           matches.right_u[i] = best;

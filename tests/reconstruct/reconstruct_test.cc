@@ -211,7 +211,9 @@ TEST(StereoMatcherAccuracyTest, FullResolutionExactAndFloatMaps) {
           view->map.proj_y.convertTo(view->map.proj_y, CV_32F);
         }
       }
-      const Reconstruction rec = ReconstructStereo(rig, "left", "right", left.map, right.map);
+      ReconstructOptions options;
+      options.stereo_interpolation = StereoInterpolation::kCubic;  // float maps too
+      const Reconstruction rec = ReconstructStereo(rig, "left", "right", left.map, right.map, options);
       ExpectFiniteCloud(rec);
       // All points, and those seen at less than 60 deg incidence from the left camera (the sphere's
       // rim is where its codes change fastest and least smoothly per pixel).
@@ -245,6 +247,41 @@ TEST(StereoMatcherAccuracyTest, FullResolutionExactAndFloatMaps) {
       EXPECT_LT(a[2], sphere ? 0.1 : (to_float ? 5e-4 : 1e-4)) << name;
     }
   }
+}
+
+// The other side of cubic interpolation: its 4-point weights raise noise. Decoded-like maps (exact
+// codes plus Gaussian noise, stored as float): linear gives the lower RMS, and kAuto picks linear
+// for float maps and cubic for CV_64F maps.
+TEST_F(ReconstructTest, StereoInterpolationTradesBiasForNoise) {
+  AnalyticView left = RenderAnalytic(rig_, rig_.cameras[0], PlaneSurface());
+  AnalyticView right = RenderAnalytic(rig_, rig_.cameras[1], PlaneSurface());
+  auto run = [&](StereoInterpolation interpolation) {
+    ReconstructOptions options;
+    options.stereo_interpolation = interpolation;
+    return ReconstructStereo(rig_, "left", "right", left.map, right.map, options);
+  };
+  auto rms = [](const Reconstruction& rec) {
+    double sum2 = 0;
+    for (const auto& p : rec.cloud.points) sum2 += std::pow(DistanceToSurface(p, false), 2);
+    return std::sqrt(sum2 / static_cast<double>(rec.cloud.size()));
+  };
+  // Exact CV_64F maps: auto == cubic.
+  EXPECT_EQ(run(StereoInterpolation::kAuto).cloud.points, run(StereoInterpolation::kCubic).cloud.points);
+  cv::RNG rng(11);
+  for (AnalyticView* view : {&left, &right}) {
+    for (cv::Mat* m : {&view->map.proj_x, &view->map.proj_y}) {
+      cv::Mat noise(m->size(), CV_64F);
+      rng.fill(noise, cv::RNG::NORMAL, 0.0, 0.05);  // projector px, about a decoder's phase noise
+      *m += noise;
+      m->convertTo(*m, CV_32F);
+    }
+  }
+  const Reconstruction linear = run(StereoInterpolation::kLinear), cubic = run(StereoInterpolation::kCubic);
+  EXPECT_EQ(run(StereoInterpolation::kAuto).cloud.points, linear.cloud.points);
+  const double rms_linear = rms(linear), rms_cubic = rms(cubic);
+  RecordProperty("noisy_plane_rms_mm_linear_cubic", std::to_string(rms_linear) + " " + std::to_string(rms_cubic));
+  EXPECT_LT(rms_linear, rms_cubic);
+  EXPECT_GT(rms_cubic, 1.1 * rms_linear);
 }
 
 TEST_F(ReconstructTest, StereoWorksWithEitherCameraAsReference) {
