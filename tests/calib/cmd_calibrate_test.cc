@@ -195,10 +195,10 @@ TEST(CmdCalibrate, RigFromImageSetsMatchesProjectorFromFolders) {
   const Rig nominal = ReadOpenCvCalibration(kamino / "calibration_result_ccf1cd8.xml", 0, 0, 1024, 768);
   std::vector<std::string> rig_args = {"calibrate", "rig", "--target", target, "--shadow-threshold", "40",
                                        "--contrast-threshold", "5", "--min-views", "5", "--no-cross-validation",
-                                       "--select-model", "--out", (tmp / "rig.yaml").string(), "--imagesets"};
+                                       "--out", (tmp / "rig.yaml").string(), "--imagesets"};
   std::vector<std::string> proj_args = {"calibrate", "projector", "--target", target, "--patterns", spec_path,
                                         "--shadow-threshold", "40", "--contrast-threshold", "5", "--min-views", "5",
-                                        "--no-cross-validation", "--select-model", "--out", (tmp / "procam.yaml").string(),
+                                        "--no-cross-validation", "--out", (tmp / "procam.yaml").string(),
                                         "--captures"};
   for (int p = 0; p < 5; ++p) {
     const auto dir = tmp / ("pose" + std::to_string(p));
@@ -224,10 +224,24 @@ TEST(CmdCalibrate, RigFromImageSetsMatchesProjectorFromFolders) {
   }
   EXPECT_LT((a.projector->cam_from_rig.translation - b.projector->cam_from_rig.translation).norm(), 1e-4);
   EXPECT_LE(a.calibration["summary"]["devices"][1]["rms_px"].get<double>(), 0.43);
-  // --select-model: both paths choose the same models, the chosen one has the lowest prediction
-  // RMS of the 8 candidates, and the rig file's evidence keeps the held parameters.
-  EXPECT_EQ(a.calibration["devices"][1]["held_params"], b.calibration["devices"][1]["held_params"]);
-  EXPECT_EQ(a.calibration["devices"][0]["held_params"], b.calibration["devices"][0]["held_params"]);
+}
+
+// --select-model (eight leave-one-pose-out calibrations, the costly part, so run once): the chosen
+// model has the lowest prediction RMS of the 8 candidates, and the rig file's evidence keeps the
+// held parameters.
+TEST(CmdCalibrate, ProjectorSelectModelChoosesLowestPredictionError) {
+  testing::TempDir tmp;
+  const auto kamino = testing::SharedDataDir() / "kamino-procam-graycode";
+  std::vector<std::string> args = {
+      "calibrate", "projector", "--target", (testing::SourceDir() / "config/targets/kamino-procam-graycode.yaml").string(),
+      "--patterns", (testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml").string(),
+      "--shadow-threshold", "40", "--contrast-threshold", "5", "--min-views", "5", "--no-cross-validation",
+      "--select-model", "--out", (tmp / "procam.yaml").string(), "--captures"};
+  for (int p = 0; p < 5; ++p) args.push_back((kamino / ("capture_" + std::to_string(p))).string());
+  ASSERT_EQ(RunCli(args), 0);
+  const Rig b = LoadRig(tmp / "procam.yaml");
+  ASSERT_TRUE(b.projector);
+  EXPECT_LE(b.calibration["summary"]["devices"][1]["rms_px"].get<double>(), 0.43);
   const CalibrationEvidence evidence = CalibrationEvidenceFromJson(b.calibration, "procam.yaml");
   std::ifstream summary_file(tmp / "procam_report" / "summary.json");
   ASSERT_TRUE(summary_file.good());
