@@ -7,17 +7,13 @@
 #include "apps/commands.h"
 #include "core/image_set.h"
 #include "patterns/codec.h"
+#include "tests/testing/run_cli.h"
 #include "tests/testing/temp_dir.h"
 
 namespace slshadow::app {
 namespace {
 
-int RunCli(std::vector<std::string> args) {
-  args.insert(args.begin(), "slshadow");
-  std::vector<char*> argv;
-  for (auto& a : args) argv.push_back(a.data());
-  return Main(static_cast<int>(argv.size()), argv.data());
-}
+using slshadow::testing::RunCli;
 
 TEST(CmdPatterns, GenerateWritesEveryFrameAndASpecThatLoadsBack) {
   testing::TempDir tmp;

@@ -13,17 +13,13 @@
 #include "apps/commands.h"
 #include "core/point_cloud.h"
 #include "core/rig.h"
+#include "tests/testing/run_cli.h"
 #include "tests/testing/temp_dir.h"
 
 namespace slshadow {
 namespace {
 
-int RunCli(std::vector<std::string> args) {
-  args.insert(args.begin(), "slshadow");
-  std::vector<char*> argv;
-  for (auto& a : args) argv.push_back(a.data());
-  return app::Main(static_cast<int>(argv.size()), argv.data());
-}
+using slshadow::testing::RunCli;
 
 nlohmann::json ReadJson(const std::filesystem::path& path) {
   std::ifstream in(path);

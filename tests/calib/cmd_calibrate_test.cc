@@ -16,17 +16,13 @@
 #include "patterns/pattern_spec.h"
 #include "core/file_util.h"
 #include "core/rig.h"
+#include "tests/testing/run_cli.h"
 #include "tests/testing/temp_dir.h"
 
 namespace slshadow {
 namespace {
 
-int RunCli(std::vector<std::string> args) {
-  args.insert(args.begin(), "slshadow");
-  std::vector<char*> argv;
-  for (auto& a : args) argv.push_back(a.data());
-  return app::Main(static_cast<int>(argv.size()), argv.data());
-}
+using slshadow::testing::RunCli;
 
 std::string Data(const std::string& name) { return (testing::SharedDataDir() / "opencv-stereo-chessboard" / name).string(); }
 

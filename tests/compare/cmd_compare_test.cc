@@ -10,17 +10,11 @@
 #include "core/mesh.h"
 #include "core/point_cloud.h"
 #include "tests/compare/test_shapes.h"
+#include "tests/testing/run_cli.h"
 #include "tests/testing/temp_dir.h"
 
 namespace slshadow::compare {
 namespace {
-
-int RunSlshadow(std::vector<std::string> args) {
-  args.insert(args.begin(), "slshadow");
-  std::vector<char*> argv;
-  for (auto& a : args) argv.push_back(a.data());
-  return app::Main(static_cast<int>(argv.size()), argv.data());
-}
 
 TEST(CmdCompare, WritesAReportAndRejectsBadInput) {
   slshadow::testing::TempDir tmp;
@@ -29,7 +23,7 @@ TEST(CmdCompare, WritesAReportAndRejectsBadInput) {
   PointCloud cloud;
   for (const auto& v : mesh.vertices) cloud.points.push_back(v * (20.05 / 20.0));  // 0.05 mm outside
   WritePly(tmp / "scan.ply", cloud);
-  ASSERT_EQ(RunSlshadow({"compare", (tmp / "scan.ply").string(), (tmp / "part.stl").string(), "--out",
+  ASSERT_EQ(slshadow::testing::RunCli({"compare", (tmp / "scan.ply").string(), (tmp / "part.stl").string(), "--out",
                  (tmp / "report").string(), "--threshold-mm", "0.1"}),
             0);
   const auto j = nlohmann::json::parse(ReadTextFile(tmp / "report" / "report.json"));
@@ -42,15 +36,15 @@ TEST(CmdCompare, WritesAReportAndRejectsBadInput) {
   EXPECT_EQ(j["options"]["threshold_mm"].get<double>(), 0.1);
   // Refuses to replace with --no-overwrite and leaves the report untouched.
   const std::string before = ReadTextFile(tmp / "report" / "report.json");
-  EXPECT_NE(RunSlshadow({"compare", (tmp / "scan.ply").string(), (tmp / "part.stl").string(), "--out",
+  EXPECT_NE(slshadow::testing::RunCli({"compare", (tmp / "scan.ply").string(), (tmp / "part.stl").string(), "--out",
                  (tmp / "report").string(), "--no-overwrite"}),
             0);
   EXPECT_EQ(ReadTextFile(tmp / "report" / "report.json"), before);
   // Bad values fail with a non-zero exit and write nothing.
-  EXPECT_NE(RunSlshadow({"compare", (tmp / "scan.ply").string(), (tmp / "part.stl").string(), "--out",
+  EXPECT_NE(slshadow::testing::RunCli({"compare", (tmp / "scan.ply").string(), (tmp / "part.stl").string(), "--out",
                  (tmp / "r2").string(), "--threshold-mm", "-1"}),
             0);
-  EXPECT_NE(RunSlshadow({"compare", (tmp / "scan.ply").string(), (tmp / "part.stl").string(), "--out",
+  EXPECT_NE(slshadow::testing::RunCli({"compare", (tmp / "scan.ply").string(), (tmp / "part.stl").string(), "--out",
                  (tmp / "r2").string(), "--register", "magic"}),
             0);
   EXPECT_FALSE(std::filesystem::exists(tmp / "r2"));
