@@ -136,20 +136,7 @@ void MapChart(const std::filesystem::path& path, const PixelMap& map, int width,
   pls->col0(1);
   pls->box("bcnst", 0, 0, "bcnstv", 0, 0);
   pls->lab("image x (px)", "image y (px)", title.c_str());
-  PLFLT bar_w = 0, bar_h = 0;
-  const int n_values = 64;
-  std::vector<PLFLT> values(n_values);
-  for (int i = 0; i < n_values; ++i) values[static_cast<size_t>(i)] = lo + (hi - lo) * i / (n_values - 1);
-  const PLFLT* value_ptrs[1] = {values.data()};
-  PLINT n_vals[1] = {n_values};
-  const char* axis_opts[1] = {"bcvtm"};
-  PLFLT ticks[1] = {0.0};
-  PLINT sub_ticks[1] = {0};
-  PLINT label_opts[1] = {PL_COLORBAR_LABEL_RIGHT};
-  const std::string clipped = bar_label + " (clipped at the 95th percentile)";
-  const char* labels[1] = {clipped.c_str()};
-  pls->colorbar(&bar_w, &bar_h, PL_COLORBAR_GRADIENT, PL_POSITION_RIGHT | PL_POSITION_OUTSIDE, 0.04, 0.0, 0.04, 0.9, 0, 1,
-                1, 0.0, 0.0, 0, 0.0, 1, label_opts, labels, 1, axis_opts, ticks, sub_ticks, n_vals, value_ptrs);
+  plot::HeatColorBar(*pls.pls, lo, hi, bar_label + " (clipped at the 95th percentile)", 0.04, 0.04);
 }
 
 std::string SafeName(const std::string& s) {

@@ -121,21 +121,7 @@ void WriteDeviationMapPng(const std::filesystem::path& path, const ValueImage& i
     pls->col0(1);
     pls->box("bcnst", 0, 0, "bcnstv", 0, 0);
     pls->lab("image x (px)", "image y (px)", chart.title.c_str());
-    // Colour bar.
-    PLFLT bar_w = 0, bar_h = 0;
-    const int n_values = 64;
-    std::vector<PLFLT> values(n_values);
-    for (int i = 0; i < n_values; ++i) values[static_cast<size_t>(i)] = chart.lo + (chart.hi - chart.lo) * i / (n_values - 1);
-    const PLFLT* value_ptrs[1] = {values.data()};
-    PLINT n_vals[1] = {n_values};
-    const char* axis_opts[1] = {"bcvtm"};
-    PLFLT ticks[1] = {0.0};
-    PLINT sub_ticks[1] = {0};
-    PLINT label_opts[1] = {PL_COLORBAR_LABEL_RIGHT};
-    const char* labels[1] = {chart.colorbar_label.c_str()};
-    pls->colorbar(&bar_w, &bar_h, PL_COLORBAR_GRADIENT, PL_POSITION_RIGHT | PL_POSITION_OUTSIDE, 25.0 / page_w, 0.0, 35.0 / page_w,
-                  0.9, 0, 1, 1, 0.0, 0.0, 0, 0.0, 1, label_opts, labels, 1, axis_opts, ticks, sub_ticks, n_vals,
-                  value_ptrs);
+    plot::HeatColorBar(*pls, chart.lo, chart.hi, chart.colorbar_label, 25.0 / page_w, 35.0 / page_w);
   });
 }
 

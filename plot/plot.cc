@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <vector>
 
 namespace slshadow::plot {
 namespace {
@@ -35,6 +36,22 @@ void SetHeatColorMap(plstream& pls) {
   }
   pls.scmap1n(256);
   pls.scmap1l(true, 5, pos, r, g, b);
+}
+
+void HeatColorBar(plstream& pls, double lo, double hi, const std::string& label, double offset, double width) {
+  constexpr int kValues = 64;
+  std::vector<PLFLT> values(kValues);
+  for (int i = 0; i < kValues; ++i) values[static_cast<size_t>(i)] = lo + (hi - lo) * i / (kValues - 1);
+  const PLFLT* value_ptrs[1] = {values.data()};
+  PLINT n_vals[1] = {kValues};
+  const char* axis_opts[1] = {"bcvtm"};
+  PLFLT ticks[1] = {0.0};
+  PLINT sub_ticks[1] = {0};
+  PLINT label_opts[1] = {PL_COLORBAR_LABEL_RIGHT};
+  const char* labels[1] = {label.c_str()};
+  PLFLT bar_w = 0, bar_h = 0;
+  pls.colorbar(&bar_w, &bar_h, PL_COLORBAR_GRADIENT, PL_POSITION_RIGHT | PL_POSITION_OUTSIDE, offset, 0.0, width, 0.9, 0, 1, 1,
+               0.0, 0.0, 0, 0.0, 1, label_opts, labels, 1, axis_opts, ticks, sub_ticks, n_vals, value_ptrs);
 }
 
 std::unique_lock<std::mutex> LockPlplot() {

@@ -10,6 +10,7 @@
 #include <initializer_list>
 #include <memory>
 #include <mutex>
+#include <string>
 
 #include <plstream.h>
 
@@ -22,6 +23,10 @@ std::array<uint8_t, 3> HeatColor(double t);
 
 // Loads the same heat map into PLplot's colour map 1 (256 entries), for shade plots and colour bars.
 void SetHeatColorMap(plstream& pls);
+
+// A vertical colour bar of the heat map right of the current viewport: values lo..hi, `label`
+// on its right; `offset` from the viewport and `width` in normalised page units.
+void HeatColorBar(plstream& pls, double lo, double hi, const std::string& label, double offset, double width);
 
 // Serialises PLplot use across threads.
 [[nodiscard]] std::unique_lock<std::mutex> LockPlplot();
