@@ -237,13 +237,11 @@ EpipolarStats EpipolarResiduals(const Rig& rig, int camera, const std::vector<Co
   return Stats(std::move(res));
 }
 
-RefineResult RefineProjectorPose(const Rig& rig, int camera, const std::vector<Correspondence>& correspondences,
-                                 const RefineOptions& options) {
-  SLSHADOW_THROW_IF(!rig.projector, "calibrate refine: rig '", rig.name, "' has no projector");
-  CheckCamera(rig, camera, "calibrate refine");
-  const auto& cam = rig.cameras[static_cast<size_t>(camera)];
-  const Rigid3d initial = rig.projector->cam_from_rig * cam.cam_from_rig.Inverse();
-  const PairResult p = RefinePair(cam.model, rig.projector->model, initial, correspondences, options);
+// The refined rig (device b moved to b_from_a * a_from_rig, with its refined model) and the
+// figures of one pair refinement.
+template <typename DeviceB>
+RefineResult PairToResult(const PairResult& p, const Rig& rig, DeviceB device_b, const Rigid3d& a_from_rig,
+                          const std::string& b_label, const Rigid3d& initial, const RefineOptions& options) {
   RefineResult out;
   out.before = p.before;
   out.after = p.after;
@@ -252,10 +250,22 @@ RefineResult RefineProjectorPose(const Rig& rig, int camera, const std::vector<C
   out.focal_scale = p.focal_scale;
   out.converged = p.converged;
   out.rig = rig;
-  out.rig.projector->cam_from_rig = p.b_from_a * cam.cam_from_rig;
-  out.rig.projector->model = p.model_b;
-  out.message = Message(p, "projector", initial.translation.norm(), options);
+  RigDevice& nb = device_b(out.rig);
+  nb.cam_from_rig = p.b_from_a * a_from_rig;
+  nb.model = p.model_b;
+  out.message = Message(p, b_label, initial.translation.norm(), options);
   return out;
+}
+
+RefineResult RefineProjectorPose(const Rig& rig, int camera, const std::vector<Correspondence>& correspondences,
+                                 const RefineOptions& options) {
+  SLSHADOW_THROW_IF(!rig.projector, "calibrate refine: rig '", rig.name, "' has no projector");
+  CheckCamera(rig, camera, "calibrate refine");
+  const auto& cam = rig.cameras[static_cast<size_t>(camera)];
+  const Rigid3d initial = rig.projector->cam_from_rig * cam.cam_from_rig.Inverse();
+  const PairResult p = RefinePair(cam.model, rig.projector->model, initial, correspondences, options);
+  return PairToResult(p, rig, [](Rig& r) -> RigDevice& { return *r.projector; }, cam.cam_from_rig, "projector", initial,
+                      options);
 }
 
 std::vector<Correspondence> StereoCorrespondences(const ProjectorMap& a, const ProjectorMap& b, int max_samples) {
@@ -313,19 +323,8 @@ RefineResult RefineStereoPose(const Rig& rig, int camera_a, int camera_b, const 
   const auto& b = rig.cameras[static_cast<size_t>(camera_b)];
   const Rigid3d initial = BFromA(rig, camera_a, camera_b);
   const PairResult p = RefinePair(a.model, b.model, initial, correspondences, options);
-  RefineResult out;
-  out.before = p.before;
-  out.after = p.after;
-  out.rotation_change_rad = p.rotation_change_rad;
-  out.direction_change_rad = p.direction_change_rad;
-  out.focal_scale = p.focal_scale;
-  out.converged = p.converged;
-  out.rig = rig;
-  auto& nb = out.rig.cameras[static_cast<size_t>(camera_b)];
-  nb.cam_from_rig = p.b_from_a * a.cam_from_rig;
-  nb.model = p.model_b;
-  out.message = Message(p, "camera '" + b.name + "'", initial.translation.norm(), options);
-  return out;
+  return PairToResult(p, rig, [camera_b](Rig& r) -> RigDevice& { return r.cameras[static_cast<size_t>(camera_b)]; },
+                      a.cam_from_rig, "camera '" + b.name + "'", initial, options);
 }
 
 }  // namespace slshadow
