@@ -466,6 +466,25 @@ inline void Transpose16x16(__m128i* a) {
 }
 #endif
 
+// Bilinear footprint of projector coordinate (u, t) in an interleaved batch of B projector
+// images (B bytes per projector pixel): the four neighbours (edges clamped) and their weights.
+// Shared by the AVX2 and the portable fused pattern pass so both sample identically.
+struct BilinearTap {
+  const uint8_t *p00, *p01, *p10, *p11;
+  float w00, w01, w10, w11;
+};
+
+template <int B>
+inline BilinearTap TapAt(const uint8_t* inter, int pw, int ph, float u, float t) {
+  const float fx0 = std::floor(u), fy0 = std::floor(t);
+  const float ax = u - fx0, ay = t - fy0;
+  const int x0 = std::clamp(static_cast<int>(fx0), 0, pw - 1), x1 = std::clamp(static_cast<int>(fx0) + 1, 0, pw - 1);
+  const int y0 = std::clamp(static_cast<int>(fy0), 0, ph - 1), y1 = std::clamp(static_cast<int>(fy0) + 1, 0, ph - 1);
+  return {inter + (static_cast<size_t>(y0) * pw + x0) * B, inter + (static_cast<size_t>(y0) * pw + x1) * B,
+          inter + (static_cast<size_t>(y1) * pw + x0) * B, inter + (static_cast<size_t>(y1) * pw + x1) * B,
+          (1 - ax) * (1 - ay), ax * (1 - ay), (1 - ax) * ay, ax * ay};
+}
+
 // The common case in one fused sweep: linear response, bilinear lookup, no fill factor, one
 // sample per pixel, no camera defocus, no noise: lookups, radiometry and quantisation of B
 // interleaved projector images, written straight to the output images (no float copies).
@@ -500,18 +519,11 @@ __attribute__((target("avx2"))) void FusedRowAvx2(const GeometryBuffer& g, size_
     const __m256 base = _mm256_set1_ps(ambient * g.albedo[i]);
     __m256 acc = base, acc_hi = base;
     if (f > 0) {
-      const float u = g.proj_x[i], t = g.proj_y[i];
-      const float fx0 = std::floor(u), fy0 = std::floor(t);
-      const float ax = u - fx0, ay = t - fy0;
-      const int x0 = std::clamp(static_cast<int>(fx0), 0, pw - 1), x1 = std::clamp(static_cast<int>(fx0) + 1, 0, pw - 1);
-      const int y0 = std::clamp(static_cast<int>(fy0), 0, ph - 1), y1 = std::clamp(static_cast<int>(fy0) + 1, 0, ph - 1);
-      const __m256 w00 = _mm256_set1_ps((1 - ax) * (1 - ay)), w01 = _mm256_set1_ps(ax * (1 - ay));
-      const __m256 w10 = _mm256_set1_ps((1 - ax) * ay), w11 = _mm256_set1_ps(ax * ay);
+      const BilinearTap tap = TapAt<B>(inter, pw, ph, g.proj_x[i], g.proj_y[i]);
+      const __m256 w00 = _mm256_set1_ps(tap.w00), w01 = _mm256_set1_ps(tap.w01);
+      const __m256 w10 = _mm256_set1_ps(tap.w10), w11 = _mm256_set1_ps(tap.w11);
       const __m256 gain = _mm256_set1_ps(f * (1.0f / 255));
-      const uint8_t* p00 = inter + (static_cast<size_t>(y0) * pw + x0) * B;
-      const uint8_t* p01 = inter + (static_cast<size_t>(y0) * pw + x1) * B;
-      const uint8_t* p10 = inter + (static_cast<size_t>(y1) * pw + x0) * B;
-      const uint8_t* p11 = inter + (static_cast<size_t>(y1) * pw + x1) * B;
+      const uint8_t *p00 = tap.p00, *p01 = tap.p01, *p10 = tap.p10, *p11 = tap.p11;
       if constexpr (B <= 8) {
 #define SLSHADOW_LOAD8(ptr) \
   _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(ptr))))
@@ -598,18 +610,11 @@ void FusedDirectBilinear(const GeometryBuffer& g, const uint8_t* inter, int pw, 
         const float f = g.factor[i];
         const float base = ambient * g.albedo[i];
         if (f > 0) {
-          const float u = g.proj_x[i], t = g.proj_y[i];
-          const float fx0 = std::floor(u), fy0 = std::floor(t);
-          const float ax = u - fx0, ay = t - fy0;
-          const int x0 = std::clamp(static_cast<int>(fx0), 0, pw - 1), x1 = std::clamp(static_cast<int>(fx0) + 1, 0, pw - 1);
-          const int y0 = std::clamp(static_cast<int>(fy0), 0, ph - 1), y1 = std::clamp(static_cast<int>(fy0) + 1, 0, ph - 1);
-          const uint8_t* p00 = inter + (static_cast<size_t>(y0) * pw + x0) * B;
-          const uint8_t* p01 = inter + (static_cast<size_t>(y0) * pw + x1) * B;
-          const uint8_t* p10 = inter + (static_cast<size_t>(y1) * pw + x0) * B;
-          const uint8_t* p11 = inter + (static_cast<size_t>(y1) * pw + x1) * B;
-          const float w00 = (1 - ax) * (1 - ay), w01 = ax * (1 - ay), w10 = (1 - ax) * ay, w11 = ax * ay;
+          const BilinearTap t = TapAt<B>(inter, pw, ph, g.proj_x[i], g.proj_y[i]);
           const float gain = f * (1.0f / 255);
-          for (int k = 0; k < B; ++k) acc[k] = base + gain * (w00 * p00[k] + w01 * p01[k] + w10 * p10[k] + w11 * p11[k]);
+          for (int k = 0; k < B; ++k) {
+            acc[k] = base + gain * (t.w00 * t.p00[k] + t.w01 * t.p01[k] + t.w10 * t.p10[k] + t.w11 * t.p11[k]);
+          }
         } else {
           for (int k = 0; k < B; ++k) acc[k] = base;
         }
