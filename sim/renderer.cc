@@ -636,11 +636,29 @@ inline uint64_t SplitMix64(uint64_t x) {
 
 namespace {
 
+// r^2 of the radial distortion's fold: the smallest r^2 > 0 where d(r * radial(r)) / dr =
+// 1 + 3 k1 r^2 + 5 k2 r^4 + 7 k3 r^6 reaches 0 (infinity when it never does). Beyond it a lens
+// maps rays back inwards; Newton started from a neighbour's solution can converge there, on a
+// solution no ray of the camera has, so such solutions are rejected.
+double RadialFoldR2(const CameraModel& cam) {
+  const auto& q = cam.params;
+  const double k1 = q[CameraModel::kK1], k2 = q[CameraModel::kK2], k3 = q[CameraModel::kK3];
+  const auto slope = [&](double s) { return 1 + s * (3 * k1 + s * (5 * k2 + s * 7 * k3)); };
+  constexpr double kStep = 1e-3, kMax = 100;  // r up to 10 (84 deg off axis)
+  for (double s = kStep; s <= kMax; s += kStep) {
+    if (slope(s) > 0) continue;
+    double lo = s - kStep, hi = s;
+    for (int i = 0; i < 60; ++i) (slope(0.5 * (lo + hi)) > 0 ? lo : hi) = 0.5 * (lo + hi);
+    return lo;
+  }
+  return std::numeric_limits<double>::infinity();
+}
+
 // Undistortion by Newton's method on the Brown-Conrady model with an analytic Jacobian, started
 // from `guess` (the neighbouring sample's solution, so 1-3 iterations). Returns false when it
-// does not converge or the distortion folds over (then the caller falls back to
-// CameraModel::UndistortToNormalized, which decides).
-bool UndistortFrom(const CameraModel& cam, double xd_target, double yd_target, Eigen::Vector2d& guess) {
+// does not converge, the distortion folds over on the way, or the solution lies beyond the radial
+// fold `fold_r2` (then the caller falls back to CameraModel::UndistortToNormalized, which decides).
+bool UndistortFrom(const CameraModel& cam, double fold_r2, double xd_target, double yd_target, Eigen::Vector2d& guess) {
   const auto& q = cam.params;
   const double k1 = q[CameraModel::kK1], k2 = q[CameraModel::kK2], p1 = q[CameraModel::kP1], p2 = q[CameraModel::kP2],
                k3 = q[CameraModel::kK3];
@@ -664,10 +682,63 @@ bool UndistortFrom(const CameraModel& cam, double xd_target, double yd_target, E
     // double rounding of these O(1) coordinates (and the float rays made from them).
     if (std::abs(dx) + std::abs(dy) < 1e-10) {
       guess = Eigen::Vector2d(x, y);
-      return true;
+      return x * x + y * y < fold_r2;
     }
   }
   return false;
+}
+
+// `Steps` Newton steps of UndistortFrom for a row of samples at once (targets xd[i], yd), without
+// branches so the compiler vectorises it (AVX2 clone). Lane i starts from (x[i], y[i]) and is
+// accepted when the Jacobian stayed positive, the last step was below 1e-10 (UndistortFrom's
+// test: the error left is ~1e-20) and the solution lies inside the radial fold; other lanes are
+// flagged for the scalar solver.
+template <int Steps>
+SLSHADOW_LANE_CLONES void NewtonRow(const CameraModel& cam, double fold_r2, const double* __restrict xd, double yd,
+                                    double* __restrict x_io, double* __restrict y_io, uint8_t* __restrict ok, int n) {
+  const auto& q = cam.params;
+  const double k1 = q[CameraModel::kK1], k2 = q[CameraModel::kK2], p1 = q[CameraModel::kP1], p2 = q[CameraModel::kP2],
+               k3 = q[CameraModel::kK3];
+  for (int i = 0; i < n; ++i) {
+    double x = x_io[i], y = y_io[i], step = 0;
+    bool good = true;
+    for (int it = 0; it < Steps; ++it) {
+      const double x2 = x * x, y2 = y * y, xy = x * y, r2 = x2 + y2;
+      const double radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3));
+      const double dradial = 2 * (k1 + r2 * (2 * k2 + 3 * k3 * r2));
+      const double fx = x * radial + 2 * p1 * xy + p2 * (r2 + 2 * x2) - xd[i];
+      const double fy = y * radial + p1 * (r2 + 2 * y2) + 2 * p2 * xy - yd;
+      const double a = radial + x * x * dradial + 2 * p1 * y + 6 * p2 * x;
+      const double b = x * y * dradial + 2 * p1 * x + 2 * p2 * y;
+      const double d = radial + y * y * dradial + 6 * p1 * y + 2 * p2 * x;
+      const double det = a * d - b * b;
+      good = good & (det > 0);
+      const double inv_det = 1 / det;
+      const double dx = (d * fx - b * fy) * inv_det, dy = (a * fy - b * fx) * inv_det;
+      x -= dx;
+      y -= dy;
+      step = std::abs(dx) + std::abs(dy);
+    }
+    ok[i] = good & (step < 1e-10) & (x * x + y * y < fold_r2);
+    x_io[i] = x;
+    y_io[i] = y;
+  }
+}
+
+// Unit ray directions (x, y, 1) / |(x, y, 1)| of one sample row (width pixels x nn samples) into
+// the sub-row that starts at `out` (float xyz; pixel px's samples are nn * nn directions apart).
+SLSHADOW_LANE_CLONES void DirectionsRow(const double* __restrict x, const double* __restrict y, double* __restrict scratch,
+                                        float* __restrict out, int width, int nn) {
+  const int m = width * nn;
+  for (int i = 0; i < m; ++i) scratch[i] = 1 / std::sqrt(x[i] * x[i] + y[i] * y[i] + 1);
+  for (int px = 0, i = 0; px < width; ++px) {
+    for (int a = 0; a < nn; ++a, ++i) {
+      float* o = out + 3 * (static_cast<ptrdiff_t>(px) * nn * nn + a);
+      o[0] = static_cast<float>(x[i] * scratch[i]);
+      o[1] = static_cast<float>(y[i] * scratch[i]);
+      o[2] = static_cast<float>(scratch[i]);
+    }
+  }
 }
 
 }  // namespace
@@ -681,50 +752,80 @@ CameraRays ComputeCameraRays(const CameraModel& camera, int samples_per_axis) {
   rays.samples_per_axis = samples_per_axis;
   const int n = samples_per_axis, spp = n * n;
   const bool distorted = camera.HasDistortion();
+  const double fold_r2 = RadialFoldR2(camera);
+  // Sample rows (height * nn of them, equally spaced in v) in bands, solved a row at a time by
+  // Newton steps vectorised along the row (NewtonRow). A band's first row starts from the
+  // distorted positions (five steps), its second from the first row's solutions (three), every
+  // later one from the two rows above extrapolated (two). Only the lanes NewtonRow flags go
+  // through the scalar solvers.
   auto fill = [&](std::vector<Eigen::Vector3f>& dirs, int nn) {
-    dirs.resize(static_cast<size_t>(camera.width) * camera.height * nn * nn);
-    tbb::parallel_for(tbb::blocked_range<int>(0, camera.height * nn), [&](const tbb::blocked_range<int>& r) {
+    const int row_samples = camera.width * nn;
+    const size_t m = static_cast<size_t>(row_samples);
+    dirs.resize(m * camera.height * nn);
+    std::vector<double> xd(m);  // normalised distorted x of every sample of a row (the same on each row)
+    for (int px = 0, j = 0; px < camera.width; ++px) {
+      for (int a = 0; a < nn; ++a, ++j) xd[static_cast<size_t>(j)] = (px + (a + 0.5) / nn - 0.5 - camera.cx()) / camera.fx();
+    }
+    tbb::parallel_for(tbb::blocked_range<int>(0, camera.height * nn, 32), [&](const tbb::blocked_range<int>& r) {
+      std::vector<double> x(m), y(m), x1(m), y1(m), x2(m), y2(m), scratch(m);
+      std::vector<uint8_t> ok(m);
       for (int row = r.begin(); row < r.end(); ++row) {
-        const int y = row / nn, b = row % nn;
-        const double v = y + (b + 0.5) / nn - 0.5;
-        Eigen::Vector2d guess((-0.5 - camera.cx()) / camera.fx(), (v - camera.cy()) / camera.fy());
-        Eigen::Vector2d previous = guess;  // the solution before the last one (for extrapolation)
-        bool have_guess = false, have_previous = false;
-        for (int x = 0; x < camera.width; ++x) {
-          for (int a = 0; a < nn; ++a) {
-            const Eigen::Vector2d pixel(x + (a + 0.5) / nn - 0.5, v);
-            const double xd = (pixel.x() - camera.cx()) / camera.fx(), yd = (pixel.y() - camera.cy()) / camera.fy();
-            std::optional<Eigen::Vector2d> xy;
-            if (!distorted) {
-              xy = Eigen::Vector2d(xd, yd);
-            } else {
-              // Start from the neighbours' solutions extrapolated linearly (samples are equally
-              // spaced along the row): usually one Newton step and one to confirm.
-              const Eigen::Vector2d last = guess;
-              if (!have_guess) {
-                guess = Eigen::Vector2d(xd, yd);
-              } else if (have_previous) {
-                guess = 2 * last - previous;
-              }
-              if (UndistortFrom(camera, xd, yd, guess)) {
-                xy = guess;
-                have_previous = have_guess;
-                previous = last;
-                have_guess = true;
-              } else {
-                xy = camera.UndistortToNormalized(pixel);
-                have_guess = have_previous = false;
-              }
-            }
-            Eigen::Vector3f dir = Eigen::Vector3f::Constant(kNaN);
-            if (xy) {
-              const double inv_norm = 1 / std::sqrt(xy->x() * xy->x() + xy->y() * xy->y() + 1);
-              dir = Eigen::Vector3f(static_cast<float>(xy->x() * inv_norm), static_cast<float>(xy->y() * inv_norm),
-                                    static_cast<float>(inv_norm));
-            }
-            dirs[(static_cast<size_t>(y) * camera.width + x) * nn * nn + b * nn + a] = dir;
+        const int py = row / nn, b = row % nn;
+        const double v = py + (b + 0.5) / nn - 0.5;
+        const double yd = (v - camera.cy()) / camera.fy();
+        const int k = row - r.begin();  // rows of this band already solved
+        if (!distorted) {
+          x = xd;
+          std::fill(y.begin(), y.end(), yd);
+          std::fill(ok.begin(), ok.end(), uint8_t{1});
+        } else if (k == 0) {
+          // From the distorted position: mild lens distortion moves points by ~1e-2, so five
+          // quadratically converging steps end below 1e-10 (3 + 2: GCC vectorises those).
+          x = xd;
+          std::fill(y.begin(), y.end(), yd);
+          NewtonRow<3>(camera, fold_r2, xd.data(), yd, x.data(), y.data(), ok.data(), row_samples);
+          NewtonRow<2>(camera, fold_r2, xd.data(), yd, x.data(), y.data(), ok.data(), row_samples);
+        } else if (k == 1) {
+          x = x1;
+          y = y1;
+          NewtonRow<3>(camera, fold_r2, xd.data(), yd, x.data(), y.data(), ok.data(), row_samples);
+        } else {
+          for (size_t j = 0; j < m; ++j) {
+            x[j] = 2 * x1[j] - x2[j];
+            y[j] = 2 * y1[j] - y2[j];
           }
+          NewtonRow<2>(camera, fold_r2, xd.data(), yd, x.data(), y.data(), ok.data(), row_samples);
         }
+        // Lanes not yet solved: started from the left neighbours' solutions (extrapolated when
+        // there are two), then the camera model's own solver, which decides (NaN: no solution
+        // past the fold of the distortion).
+        for (size_t j = 0; j < m; ++j) {
+          if (ok[j]) continue;
+          Eigen::Vector2d start(xd[j], yd);
+          const bool left1 = j >= 1 && std::isfinite(x[j - 1]), left2 = left1 && j >= 2 && std::isfinite(x[j - 2]);
+          if (left2) {
+            start = Eigen::Vector2d(2 * x[j - 1] - x[j - 2], 2 * y[j - 1] - y[j - 2]);
+          } else if (left1) {
+            start = Eigen::Vector2d(x[j - 1], y[j - 1]);
+          }
+          std::optional<Eigen::Vector2d> xy;
+          if (UndistortFrom(camera, fold_r2, xd[j], yd, start)) {
+            xy = start;
+          } else {
+            const double u = static_cast<double>(j / static_cast<size_t>(nn)) +
+                             (static_cast<double>(j % static_cast<size_t>(nn)) + 0.5) / nn - 0.5;
+            xy = camera.UndistortToNormalized(Eigen::Vector2d(u, v));
+          }
+          x[j] = xy ? xy->x() : kNaN;
+          y[j] = xy ? xy->y() : kNaN;
+        }
+        // Sub-row b of pixel row py holds samples (px, a) at (py * width + px) * nn * nn + b * nn + a.
+        float* out = dirs[static_cast<size_t>(py) * camera.width * nn * nn + static_cast<size_t>(b * nn)].data();
+        DirectionsRow(x.data(), y.data(), scratch.data(), out, camera.width, nn);
+        std::swap(x2, x1);
+        std::swap(y2, y1);
+        std::swap(x1, x);
+        std::swap(y1, y);
       }
     });
   };

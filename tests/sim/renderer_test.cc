@@ -51,6 +51,51 @@ void ExpectSameBuffers(const GeometryBuffer& a, const GeometryBuffer& b) {
   EXPECT_EQ(a.shadow_rays, b.shadow_rays);
 }
 
+// Every camera ray is the camera model's own unprojection of its sample (CameraModel::Unproject,
+// Newton from the distorted point), and NaN exactly where that finds no solution: a lens whose
+// distortion folds over inside the image corners, 1 and 3x3 samples per pixel, and an image tall
+// enough for several row bands of the vectorised solver.
+TEST(CameraRaysTest, EqualTheModelsUnprojectionIncludingPastTheFold) {
+  CameraModel cam(300, 260, 255, 257, 151.3, 127.8);
+  cam.params[CameraModel::kK1] = -0.32;  // folds at r ~ 1.02 (distorted r ~ 0.68)
+  cam.params[CameraModel::kP1] = 0.002;
+  cam.params[CameraModel::kP2] = -0.003;
+  cam.params[CameraModel::kK3] = 0.004;
+  for (const int n : {1, 3}) {
+    const CameraRays rays = ComputeCameraRays(cam, n);
+    ASSERT_EQ(rays.samples.size(), static_cast<size_t>(cam.width) * cam.height * n * n);
+    int folded = 0;
+    double worst = 0, worst_px = 0;
+    for (int y = 0; y < cam.height; ++y) {
+      for (int x = 0; x < cam.width; ++x) {
+        for (int b = 0; b < n; ++b) {
+          for (int a = 0; a < n; ++a) {
+            const Eigen::Vector2d pixel(x + (a + 0.5) / n - 0.5, y + (b + 0.5) / n - 0.5);
+            const Eigen::Vector3f& d = rays.samples[(static_cast<size_t>(y) * cam.width + x) * n * n + b * n + a];
+            const std::optional<Eigen::Vector3d> expected = cam.Unproject(pixel);
+            if (!expected) {
+              ++folded;
+              ASSERT_TRUE(d.array().isNaN().all()) << pixel.transpose();
+              continue;
+            }
+            ASSERT_TRUE(d.allFinite()) << pixel.transpose();
+            worst = std::max(worst, (d.cast<double>() - *expected).norm());
+            const std::optional<Eigen::Vector2d> back = cam.Project(d.cast<double>());
+            ASSERT_TRUE(back.has_value());
+            worst_px = std::max(worst_px, (*back - pixel).norm());
+          }
+        }
+      }
+    }
+    EXPECT_GT(folded, 0) << "the test lens should fold over in the image corners";
+    EXPECT_LT(folded, cam.width * cam.height * n * n / 10);
+    EXPECT_LT(worst, 1e-7) << n;     // float rounding of a unit vector
+    // Back through the model; near the fold the lens compresses the image, which magnifies the
+    // float rounding of the direction in pixels.
+    EXPECT_LT(worst_px, 1e-3) << n;
+  }
+}
+
 // Brute force (rtcIntersect1 / rtcOccluded1 per ray) against the packet render of the demo scene,
 // with supersampling so both the sample and the centre passes are covered.
 TEST(TraceGeometryTest, SingleRayReferenceEqualsPacketRender) {
