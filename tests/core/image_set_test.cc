@@ -75,6 +75,30 @@ TEST(ImageSet, WriteReadRoundTripIsBitExact) {
   }
 }
 
+// slshadow writes PGM itself (one writev); OpenCV's reader must read back every pixel, also of a
+// sub-image (rows not contiguous) and of 16-bit images (big-endian samples).
+TEST(ImageSet, PgmWriterRoundTripsThroughOpenCv) {
+  testing::TempDir dir;
+  for (const int depth : {8, 16}) {
+    const cv::Mat full = RandomImage(depth, 40 + depth);
+    const cv::Mat roi = full(cv::Rect(3, 2, full.cols - 7, full.rows - 5));
+    ASSERT_FALSE(roi.isContinuous());
+    for (const cv::Mat& image : {full, roi}) {
+      const auto path = dir / ("image" + std::to_string(depth) + "_" + std::to_string(image.cols) + ".pgm");
+      WriteGrayImage(path, image);
+      const cv::Mat back = cv::imread(path.string(), cv::IMREAD_UNCHANGED);
+      ASSERT_EQ(back.type(), image.type()) << path;
+      EXPECT_EQ(cv::norm(back, image, cv::NORM_INF), 0.0) << path;
+    }
+  }
+  const auto missing = dir / "no_such_folder" / "image.pgm";
+  const std::string message = ErrorOf([&] { WriteGrayImage(missing, RandomImage(8, 1)); });
+  EXPECT_NE(message.find(missing.string()), std::string::npos) << message;
+  EXPECT_NE(message.find("No such file"), std::string::npos) << message;
+  EXPECT_NE(ErrorOf([&] { WriteGrayImage(dir / "color.pgm", cv::Mat(4, 4, CV_8UC3)); }).find("single-channel"),
+            std::string::npos);
+}
+
 TEST(ImageSet, AbandonedWriterLeavesNothing) {
   testing::TempDir dir;
   {
