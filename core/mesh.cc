@@ -1,12 +1,15 @@
 #include "core/mesh.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cstring>
 #include <fstream>
 #include <limits>
 #include <map>
 #include <sstream>
 #include <unordered_map>
+
+#include <opencv2/core/utility.hpp>
 
 #include "core/error.h"
 #include "core/file_util.h"
@@ -57,22 +60,38 @@ void TriangleMesh::Append(const TriangleMesh& other) {
 
 void TriangleMesh::Check(const std::string& what, bool reject_degenerate) const {
   SLSHADOW_THROW_IF(triangles.empty(), what, ": mesh has no triangles");
+  Eigen::Vector3d low = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), high = -low;
   for (size_t i = 0; i < vertices.size(); ++i) {
     SLSHADOW_THROW_IF(!vertices[i].allFinite(), what, ": vertex ", i, " is not finite");
+    low = low.cwiseMin(vertices[i]);
+    high = high.cwiseMax(vertices[i]);
   }
   const int n = static_cast<int>(vertices.size());
-  const double diag2 = (BoundsMax() - BoundsMin()).squaredNorm();
-  for (size_t i = 0; i < triangles.size(); ++i) {
+  const double diag2 = (high - low).squaredNorm();
+  const auto bad = [&](size_t i) {
     const auto& t = triangles[i];
-    for (int k = 0; k < 3; ++k) {
-      SLSHADOW_THROW_IF(t[k] < 0 || t[k] >= n, what, ": triangle ", i, " refers to vertex ", t[k],
-                        " of ", n);
+    if (t[0] < 0 || t[0] >= n || t[1] < 0 || t[1] >= n || t[2] < 0 || t[2] >= n) return true;
+    return reject_degenerate && (t[0] == t[1] || t[1] == t[2] || t[0] == t[2] || TriangleArea(i) < 1e-12 * diag2);
+  };
+  // Triangles in parallel (a simulated scan checks its 1 M-triangle part every time); the
+  // lowest-numbered bad triangle is reported, as a serial loop would.
+  std::atomic<size_t> first_bad{triangles.size()};
+  cv::parallel_for_(cv::Range(0, static_cast<int>(triangles.size())), [&](const cv::Range& r) {
+    for (int i = r.start; i < r.end && static_cast<size_t>(i) < first_bad.load(std::memory_order_relaxed); ++i) {
+      if (!bad(static_cast<size_t>(i))) continue;
+      size_t seen = first_bad.load();
+      while (static_cast<size_t>(i) < seen && !first_bad.compare_exchange_weak(seen, static_cast<size_t>(i))) {
+      }
+      return;
     }
-    if (reject_degenerate) {
-      SLSHADOW_THROW_IF(t[0] == t[1] || t[1] == t[2] || t[0] == t[2] || TriangleArea(i) < 1e-12 * diag2, what,
-                        ": triangle ", i, " is degenerate (zero area)");
-    }
+  }, 64);
+  const size_t i = first_bad.load();
+  if (i == triangles.size()) return;
+  const auto& t = triangles[i];
+  for (int k = 0; k < 3; ++k) {
+    SLSHADOW_THROW_IF(t[k] < 0 || t[k] >= n, what, ": triangle ", i, " refers to vertex ", t[k], " of ", n);
   }
+  SLSHADOW_THROW(what, ": triangle ", i, " is degenerate (zero area)");
 }
 
 size_t TriangleMesh::CountNonManifoldEdges() const {

@@ -89,5 +89,40 @@ TEST(Mesh, BadInputGivesClearErrors) {
   EXPECT_THROW(nan.Check("part.stl"), Error);
 }
 
+// Check runs over the triangles in parallel and still names the first bad one, as a serial loop
+// would: a large grid with a degenerate and a dangling triangle far apart.
+TEST(Mesh, CheckNamesTheFirstBadTriangle) {
+  TriangleMesh grid;
+  const int n = 400;
+  for (int y = 0; y <= n; ++y) {
+    for (int x = 0; x <= n; ++x) grid.vertices.emplace_back(x, y, 0.01 * ((x * 7 + y * 3) % 5));
+  }
+  for (int y = 0; y < n; ++y) {
+    for (int x = 0; x < n; ++x) {
+      const int a = y * (n + 1) + x;
+      grid.triangles.emplace_back(a, a + 1, a + n + 1);
+      grid.triangles.emplace_back(a + 1, a + n + 2, a + n + 1);
+    }
+  }
+  EXPECT_NO_THROW(grid.Check("grid.ply"));
+  const auto message = [&](const TriangleMesh& m) {
+    try {
+      m.Check("grid.ply");
+    } catch (const Error& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  TriangleMesh bad = grid;
+  bad.triangles[250001] = Eigen::Vector3i(5, 6, 5);
+  bad.triangles[318000] = Eigen::Vector3i(5, 6, 1 << 30);
+  EXPECT_NE(message(bad).find("grid.ply: triangle 250001 is degenerate"), std::string::npos) << message(bad);
+  bad.triangles[17] = Eigen::Vector3i(5, 6, -1);
+  EXPECT_NE(message(bad).find("grid.ply: triangle 17 refers to vertex -1"), std::string::npos) << message(bad);
+  TriangleMesh only_degenerate = grid;
+  only_degenerate.triangles[250001] = Eigen::Vector3i(5, 6, 5);
+  EXPECT_NO_THROW(only_degenerate.Check("grid.ply", /*reject_degenerate=*/false));
+}
+
 }  // namespace
 }  // namespace slshadow
