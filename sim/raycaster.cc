@@ -8,6 +8,8 @@
 #include <vector>
 
 #include <embree3/rtcore.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 
 #include "core/error.h"
 
@@ -327,15 +329,20 @@ RayCaster::RayCaster(const Scene& scene) : scene_(scene), impl_(std::make_unique
       auto* t = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
                                                                3 * sizeof(uint32_t), m.triangles.size()));
       SLSHADOW_THROW_IF(v == nullptr || t == nullptr, "Embree: cannot allocate buffers for object '", o.name, "'");
-      for (size_t i = 0; i < m.vertices.size(); ++i) {
-        const Eigen::Vector3d p = rotd * m.vertices[i] + o.rig_from_object.translation;
-        v[3 * i] = static_cast<float>(p.x());
-        v[3 * i + 1] = static_cast<float>(p.y());
-        v[3 * i + 2] = static_cast<float>(p.z());
-      }
-      for (size_t i = 0; i < m.triangles.size(); ++i) {
-        for (int k = 0; k < 3; ++k) t[3 * i + k] = static_cast<uint32_t>(m.triangles[i][k]);
-      }
+      // In parallel: part of every scan from scratch (~10 ms serial for 1 M triangles).
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, m.vertices.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t i = r.begin(); i < r.end(); ++i) {
+          const Eigen::Vector3d p = rotd * m.vertices[i] + o.rig_from_object.translation;
+          v[3 * i] = static_cast<float>(p.x());
+          v[3 * i + 1] = static_cast<float>(p.y());
+          v[3 * i + 2] = static_cast<float>(p.z());
+        }
+      });
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, m.triangles.size(), 8192), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t i = r.begin(); i < r.end(); ++i) {
+          for (int k = 0; k < 3; ++k) t[3 * i + k] = static_cast<uint32_t>(m.triangles[i][k]);
+        }
+      });
       num_triangles_ += static_cast<int64_t>(m.triangles.size());
     } else if (o.type == ObjectType::kPointCloud) {
       const PointCloud& c = *o.points;
