@@ -13,6 +13,7 @@
 #include <ceres/rotation.h>
 #include <opencv2/calib3d.hpp>
 
+#include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 #include <Eigen/SVD>
 
@@ -38,7 +39,7 @@ Rigid3d FromPose6(const Pose6& p) {
   return Rigid3d(q, Eigen::Vector3d(p[3], p[4], p[5]));
 }
 
-// r = ImgFromCam(intrinsics, dev_from_rig * rig_from_board * W(X)) - u. With aspect > 0 the
+// r = weight * (ImgFromCam(intrinsics, dev_from_rig * rig_from_board * W(X)) - u). With aspect > 0 the
 // model's fy is aspect * fx (the fy entry of the block is held constant and ignored). W adds the
 // board warp z += w_x (1 - s^2) + w_y (1 - t^2), (s, t) the point's position across the board
 // extent scaled to [-1, 1] (mrcal's board deformation).
@@ -65,8 +66,8 @@ struct ReprojectionFunctor {
     if (aspect_ratio > 0) params[CameraModel::kFy] = intrinsics[CameraModel::kFx] * T(aspect_ratio);
     T pixel[2];
     CameraModel::ImgFromCam(params, point_in_dev, pixel);
-    residual[0] = pixel[0] - T(u.x());
-    residual[1] = pixel[1] - T(u.y());
+    residual[0] = (pixel[0] - T(u.x())) * T(weight);
+    residual[1] = (pixel[1] - T(u.y())) * T(weight);
     return true;
   }
 
@@ -74,7 +75,64 @@ struct ReprojectionFunctor {
   Eigen::Vector2d u;
   double aspect_ratio;
   double warp_x = 0, warp_y = 0;
+  double weight = 1;  // 1 / noise sigma when whitening
 };
+
+// One carried point and its source point (BoardView::source_device), whitened together:
+// W (r_source; r_carried), W = L^-1 for their 4x4 noise covariance C = L L^T.
+struct CarriedPairFunctor {
+  template <typename T>
+  bool operator()(const T* source_intrinsics, const T* source_from_rig, const T* intrinsics, const T* dev_from_rig,
+                  const T* rig_from_board, const T* warp, T* residual) const {
+    T r[4];
+    source(source_intrinsics, source_from_rig, rig_from_board, warp, r);
+    carried(intrinsics, dev_from_rig, rig_from_board, warp, r + 2);
+    for (int i = 0; i < 4; ++i) {
+      residual[i] = T(0);
+      for (int j = 0; j <= i; ++j) residual[i] += T(whiten(i, j)) * r[j];
+    }
+    return true;
+  }
+
+  ReprojectionFunctor source, carried;
+  Eigen::Matrix4d whiten;  // lower triangular
+};
+
+// Weights of the joint noise model (CalibrationOptions::correlated_carried_noise).
+struct NoiseModel {
+  std::vector<double> sigma_px;  // per device, per coordinate
+  double carry_scale = 1;        // k on carry_covariances_px2
+};
+
+// Whitening of a carried point and its source: C = [[s^2 I, s^2 J^T], [s^2 J, s^2 J J^T + carry]];
+// std::nullopt when C is not positive definite.
+std::optional<Eigen::Matrix4d> PairWhitening(double sigma, const Eigen::Matrix2d& jacobian, const Eigen::Matrix2d& carry) {
+  const double s2 = sigma * sigma;
+  Eigen::Matrix4d c;
+  c.topLeftCorner<2, 2>() = s2 * Eigen::Matrix2d::Identity();
+  c.topRightCorner<2, 2>() = s2 * jacobian.transpose();
+  c.bottomLeftCorner<2, 2>() = s2 * jacobian;
+  c.bottomRightCorner<2, 2>() = s2 * jacobian * jacobian.transpose() + carry;
+  const Eigen::LLT<Eigen::Matrix4d> llt(c);
+  if (llt.info() != Eigen::Success) return std::nullopt;
+  const Eigen::Matrix4d w = llt.matrixL().solve(Eigen::Matrix4d::Identity());
+  if (!w.allFinite()) return std::nullopt;
+  return w;
+}
+
+// Index of `device`'s view of `pose` in input.views, -1 when there is none.
+int FindView(const CalibrationInput& input, int device, int pose) {
+  for (size_t i = 0; i < input.views.size(); ++i) {
+    if (input.views[i].device == device && input.views[i].pose == pose) return static_cast<int>(i);
+  }
+  return -1;
+}
+
+ceres::LossFunction* MakeLoss(const CalibrationOptions& options, double scale) {
+  if (options.loss == LossType::kHuber) return new ceres::HuberLoss(scale);
+  if (options.loss == LossType::kCauchy) return new ceres::CauchyLoss(scale);
+  return nullptr;
+}
 
 // All unknowns of one problem.
 struct State {
@@ -140,20 +198,50 @@ struct SolveOutput {
   int num_free_parameters = 0;
 };
 
-// One Levenberg-Marquardt solve over `input`, starting from and updating `s`.
-SolveOutput Solve(const CalibrationInput& input, const CalibrationOptions& options, State* s, bool want_covariance) {
+// One Levenberg-Marquardt solve over `input`, starting from and updating `s`. With `noise`, carried
+// points are whitened jointly with their source points and every other point is weighted by
+// 1 / its device's sigma; without, all points are independent and equally weighted.
+SolveOutput Solve(const CalibrationInput& input, const CalibrationOptions& options, State* s, bool want_covariance,
+                  const NoiseModel* noise = nullptr) {
   ceres::Problem problem;
   std::vector<bool> device_used(input.devices.size(), false), pose_used(static_cast<size_t>(input.num_poses), false);
-  for (const auto& v : input.views) {
+  // Points in a joint pair, per view (not added again alone).
+  std::vector<std::vector<bool>> paired(input.views.size());
+  for (size_t vi = 0; noise && vi < input.views.size(); ++vi) {
+    const BoardView& v = input.views[vi];
+    if (!v.IsCarried() || !s->pose_known[v.pose]) continue;
+    const auto si = static_cast<size_t>(FindView(input, v.source_device, v.pose));  // exists (input.Check())
+    const BoardView& src = input.views[si];
+    paired[vi].resize(v.pixels_px.size(), false);
+    paired[si].resize(src.pixels_px.size(), false);
+    const double sigma = noise->sigma_px[src.device];
+    for (size_t i = 0; i < v.pixels_px.size(); ++i) {
+      const auto j = static_cast<size_t>(v.source_points[i]);
+      if (paired[si][j]) continue;  // a source point pairs once
+      const auto w = PairWhitening(sigma, v.source_jacobians[i], noise->carry_scale * v.carry_covariances_px2[i]);
+      if (!w) continue;
+      auto* cost = new ceres::AutoDiffCostFunction<CarriedPairFunctor, 4, CameraModel::kNumParams, 6,
+                                                   CameraModel::kNumParams, 6, 6, 2>(new CarriedPairFunctor{
+          ReprojectionFunctor(src.points_in_board_mm[j], src.pixels_px[j], s->aspect[src.device], s->extent),
+          ReprojectionFunctor(v.points_in_board_mm[i], v.pixels_px[i], s->aspect[v.device], s->extent), *w});
+      problem.AddResidualBlock(cost, MakeLoss(options, options.loss_scale_px / sigma), s->intrinsics[src.device].data(),
+                               s->dev_from_rig[src.device].data(), s->intrinsics[v.device].data(),
+                               s->dev_from_rig[v.device].data(), s->rig_from_board[v.pose].data(), s->warp.data());
+      paired[vi][i] = paired[si][j] = true;
+    }
+  }
+  for (size_t vi = 0; vi < input.views.size(); ++vi) {
+    const BoardView& v = input.views[vi];
     if (!s->pose_known[v.pose]) continue;
+    const double weight = noise ? 1 / noise->sigma_px[v.device] : 1.0;
     for (size_t i = 0; i < v.points_in_board_mm.size(); ++i) {
-      auto* cost = new ceres::AutoDiffCostFunction<ReprojectionFunctor, 2, CameraModel::kNumParams, 6, 6, 2>(
-          new ReprojectionFunctor(v.points_in_board_mm[i], v.pixels_px[i], s->aspect[v.device], s->extent));
-      ceres::LossFunction* loss = nullptr;  // owned by the problem, one per residual
-      if (options.loss == LossType::kHuber) loss = new ceres::HuberLoss(options.loss_scale_px);
-      if (options.loss == LossType::kCauchy) loss = new ceres::CauchyLoss(options.loss_scale_px);
-      problem.AddResidualBlock(cost, loss, s->intrinsics[v.device].data(), s->dev_from_rig[v.device].data(),
-                               s->rig_from_board[v.pose].data(), s->warp.data());
+      if (!paired[vi].empty() && paired[vi][i]) continue;
+      auto* f = new ReprojectionFunctor(v.points_in_board_mm[i], v.pixels_px[i], s->aspect[v.device], s->extent);
+      f->weight = weight;
+      auto* cost = new ceres::AutoDiffCostFunction<ReprojectionFunctor, 2, CameraModel::kNumParams, 6, 6, 2>(f);
+      // The loss is owned by the problem, one per residual.
+      problem.AddResidualBlock(cost, MakeLoss(options, options.loss_scale_px * weight), s->intrinsics[v.device].data(),
+                               s->dev_from_rig[v.device].data(), s->rig_from_board[v.pose].data(), s->warp.data());
     }
     device_used[v.device] = true;
     pose_used[v.pose] = true;
@@ -315,8 +403,39 @@ CalibrationInput DeviceInput(const CalibrationInput& input, int d) {
     if (v.device != d) continue;
     sub.views.push_back(v);
     sub.views.back().device = 0;
+    sub.views.back().DropCarry();
   }
   return sub;
+}
+
+// The joint noise model's weights from the residuals at `s`: each device's corner noise (RMS per
+// coordinate of its points) and k, the scale of the carry covariances: for a carried point i and
+// its source point, d = r_i - J_i r_source has covariance k C_i alone (the source's error
+// cancels), so k = mean(d^T C_i^-1 d) / 2.
+NoiseModel EstimateNoise(const CalibrationInput& input, const State& s) {
+  NoiseModel noise;
+  std::vector<double> sq(input.devices.size(), 0), n(input.devices.size(), 0);
+  double k_sum = 0;
+  int k_n = 0;
+  for (const auto& v : input.views) {
+    if (!s.pose_known[v.pose]) continue;
+    for (size_t i = 0; i < v.pixels_px.size(); ++i) {
+      sq[v.device] += (ProjectView(s, v, i) - v.pixels_px[i]).squaredNorm();
+      n[v.device] += 2;
+    }
+    if (!v.IsCarried()) continue;
+    const BoardView& src = input.views[static_cast<size_t>(FindView(input, v.source_device, v.pose))];
+    for (size_t i = 0; i < v.pixels_px.size(); ++i) {
+      const auto j = static_cast<size_t>(v.source_points[i]);
+      const Eigen::Vector2d d = (ProjectView(s, v, i) - v.pixels_px[i]) -
+                                v.source_jacobians[i] * (ProjectView(s, src, j) - src.pixels_px[j]);
+      k_sum += d.dot(v.carry_covariances_px2[i].ldlt().solve(d)) / 2;
+      ++k_n;
+    }
+  }
+  for (size_t d = 0; d < input.devices.size(); ++d) noise.sigma_px.push_back(std::max(n[d] > 0 ? std::sqrt(sq[d] / n[d]) : 1.0, 1e-6));
+  noise.carry_scale = k_n > 0 ? std::max(k_sum / k_n, 1e-6) : 1.0;
+  return noise;
 }
 
 // Intrinsics and per-pose dev_from_board of one device alone.
@@ -456,6 +575,30 @@ void CalibrationInput::Check() const {
                         what, ": pixel (", px.x(), ", ", px.y(), ") outside the ", dev.width, "x", dev.height,
                         " image of device '", dev.name, "' (mismatched image sizes?)");
     }
+    if (v.IsCarried()) {
+      SLSHADOW_THROW_IF(v.source_device >= static_cast<int>(devices.size()) || v.source_device == v.device, what,
+                        ": source_device must be another device of the input (got ", v.source_device, ")");
+      const size_t n = v.pixels_px.size();
+      SLSHADOW_THROW_IF(v.source_points.size() != n || v.source_jacobians.size() != n || v.carry_covariances_px2.size() != n,
+                        what, ": a carried view needs one source point, Jacobian and carry covariance per point (", n,
+                        " points, ", v.source_points.size(), " source points, ", v.source_jacobians.size(), " Jacobians, ",
+                        v.carry_covariances_px2.size(), " covariances)");
+      const int si = FindView(*this, v.source_device, v.pose);
+      SLSHADOW_THROW_IF(si < 0, what, ": carried from device '", devices[static_cast<size_t>(v.source_device)].name,
+                        "', which has no view of pose ", v.pose);
+      const BoardView& src = views[static_cast<size_t>(si)];
+      for (size_t i = 0; i < n; ++i) {
+        const int j = v.source_points[i];
+        SLSHADOW_THROW_IF(j < 0 || j >= static_cast<int>(src.pixels_px.size()) ||
+                              (src.points_in_board_mm[static_cast<size_t>(j)] - v.points_in_board_mm[i]).norm() > 1e-9,
+                          what, ": point ", i, ": source point ", j, " is not the same board point in view '", src.label, "'");
+        const Eigen::Matrix2d& c = v.carry_covariances_px2[i];
+        SLSHADOW_THROW_IF(!v.source_jacobians[i].allFinite() || !c.allFinite() || std::abs(c(0, 1) - c(1, 0)) > 1e-9 * c.norm() ||
+                              Eigen::LLT<Eigen::Matrix2d>(c).info() != Eigen::Success,
+                          what, ": point ", i, ": the source Jacobian must be finite and the carry covariance symmetric "
+                          "positive definite");
+      }
+    }
     // Collinear (or coincident) board points give no pose.
     Eigen::MatrixXd centred(3, static_cast<Eigen::Index>(v.points_in_board_mm.size()));
     Eigen::Vector3d mean = Eigen::Vector3d::Zero();
@@ -556,8 +699,19 @@ CalibrationResult Calibrate(const CalibrationInput& input, const CalibrationOpti
                       "capture poses where both see the board");
   }
 
-  const SolveOutput final_solve = Solve(input, options, &s, options.compute_covariance);
+  // Final joint solve. With carried views and correlated_carried_noise: solve with independent
+  // weights, estimate the noise model from its residuals, solve whitened, re-estimate once, and
+  // solve whitened again (with the covariance).
+  bool joint = false;
+  for (const auto& v : input.views) joint = joint || (options.correlated_carried_noise && v.IsCarried());
+  SolveOutput final_solve = Solve(input, options, &s, options.compute_covariance && !joint);
   iterations += static_cast<int>(final_solve.summary.iterations.size());
+  NoiseModel noise;
+  for (int round = 0; joint && round < 2; ++round) {
+    noise = EstimateNoise(input, s);
+    final_solve = Solve(input, options, &s, options.compute_covariance && round == 1, &noise);
+    iterations += static_cast<int>(final_solve.summary.iterations.size());
+  }
 
   CalibrationResult result;
   result.board_warp_mm = Eigen::Vector2d(s.warp[0], s.warp[1]);
@@ -639,12 +793,25 @@ CalibrationResult Calibrate(const CalibrationInput& input, const CalibrationOpti
   sum.rms_px = sum.num_points ? std::sqrt(total_sq / sum.num_points) : 0;
   const int dof = 2 * sum.num_points - sum.num_free_parameters;
   sum.residual_sigma_px = dof > 0 ? std::sqrt(total_sq / dof) : std::nan("");
+  if (joint) {
+    sum.joint_noise = true;
+    sum.noise_sigma_px = noise.sigma_px;
+    sum.carry_scale = noise.carry_scale;
+    sum.variance_factor = dof > 0 ? 2 * final_solve.summary.final_cost / dof : std::nan("");
+  }
   if (!final_solve.covariance.empty() && dof > 0) {
-    const double var = sum.residual_sigma_px * sum.residual_sigma_px;
+    const double var = joint ? sum.variance_factor : sum.residual_sigma_px * sum.residual_sigma_px;
     for (const auto& c : final_solve.covariance) result.intrinsics_covariance.push_back(c * var);
   }
   sum.solve_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return result;
+}
+
+void BoardView::DropCarry() {
+  source_device = -1;
+  source_points.clear();
+  source_jacobians.clear();
+  carry_covariances_px2.clear();
 }
 
 std::vector<Eigen::Vector2d> Reproject(const CalibrationResult& result, const BoardView& view) {
@@ -682,6 +849,15 @@ std::string CalibrationSummary::FullReport() const {
   std::snprintf(line, sizeof(line), "termination: %s\nfree parameters: %d, residual sigma %.4f px per coordinate\n",
                 termination.c_str(), num_free_parameters, residual_sigma_px);
   out << line;
+  if (joint_noise) {
+    out << "noise model: carried points whitened with their source points; corner noise per device (px):";
+    for (size_t d = 0; d < noise_sigma_px.size(); ++d) {
+      std::snprintf(line, sizeof(line), " %s %.4f", devices[d].name.c_str(), noise_sigma_px[d]);
+      out << line;
+    }
+    std::snprintf(line, sizeof(line), "; carry scale %.4g; chi2/dof %.4f\n", carry_scale, variance_factor);
+    out << line;
+  }
   out << "device           views  points  RMS px   worst px\n";
   for (const auto& d : devices) {
     std::snprintf(line, sizeof(line), "%-16s %5d %7d %8.4f %9.4f\n", d.name.c_str(), d.num_views, d.num_points,

@@ -36,6 +36,19 @@ struct BoardView {
   std::string label;  // for reports, e.g. the image file
   std::vector<Eigen::Vector3d> points_in_board_mm;
   std::vector<Eigen::Vector2d> pixels_px;  // same length as points_in_board_mm
+
+  // Only for a view whose pixels were carried from another device's detections of the same pose
+  // (projector corners mapped from the camera's by local homographies, calib/projector.h); empty
+  // otherwise, else one entry per point. Pixel i was made from the pixel c of point
+  // source_points[i] in `source_device`'s view of this pose: an error e in c moves pixel i by
+  // source_jacobians[i] * e, and the carrying adds its own error of covariance
+  // carry_covariances_px2[i] (px^2; its shape and relative size matter, its scale is estimated).
+  int source_device = -1;
+  std::vector<int> source_points;
+  std::vector<Eigen::Matrix2d> source_jacobians;       // d pixel / d source pixel
+  std::vector<Eigen::Matrix2d> carry_covariances_px2;  // symmetric positive definite
+  bool IsCarried() const { return source_device >= 0; }
+  void DropCarry();  // makes the view an ordinary one (for a problem without its source device)
 };
 
 struct CalibrationDevice {
@@ -60,7 +73,8 @@ struct CalibrationInput {
   std::vector<BoardView> views;
 
   // Throws slshadow::Error naming the problem: no devices, a bad size, a view whose device or pose
-  // is out of range, mismatched point/pixel counts, fewer than 4 points in a view, collinear
+  // is out of range, mismatched point/pixel counts, a carried view whose source view is missing or
+  // whose source points or matrices do not match it, fewer than 4 points in a view, collinear
   // board points, a device with fewer than 2 views (unless it has `initial` intrinsics and
   // shares a pose with another device), a device not connected to device 0 by shared poses,
   // hold_intrinsics without initial intrinsics.
@@ -86,6 +100,21 @@ struct CalibrationOptions {
   // Estimate a board warp shared by all poses: z += w_x (1 - s^2) + w_y (1 - t^2) mm, (s, t) the
   // point's position across the board's extent scaled to [-1, 1] (mrcal's board deformation).
   bool estimate_board_warp = false;
+  // Noise model of carried views (BoardView::source_device, e.g. projector corners made from the
+  // camera's): true weighs each carried point jointly with its source point. The 4x4 covariance of
+  // (source residual, carried residual) is [[s^2 I, s^2 J^T], [s^2 J, s^2 J J^T + k C]], s the
+  // source device's corner noise, J = source_jacobians[i], C = carry_covariances_px2[i]; s and k
+  // are estimated from the residuals of a solve with independent weighting and re-estimated once
+  // (CalibrationSummary::noise_sigma_px, carry_scale), and each pair's stacked residual is
+  // whitened by the inverse Cholesky factor inside one cost (the robust loss applies to the
+  // whitened 4-vector, its scale loss_scale_px / s). Every other point of device d is weighted by
+  // 1 / s_d. false: every point is an independent, equally weighted 2D residual (the carried
+  // point's share of its source's error then counts twice). Off by default: on the kamino
+  // capture the residuals are correlated across the corners of a pose (neighbouring corners
+  // +0.4, the carried points' own part +0.57), which neither model describes, and the joint
+  // model's covariance is the more optimistic of the two there (docs/benchmarks.md,
+  // "Calibration"); it is the right model when the corner errors are independent (tested).
+  bool correlated_carried_noise = false;
 
   // Throws slshadow::Error naming the first violated constraint.
   void Check() const;
@@ -126,6 +155,14 @@ struct CalibrationSummary {
   std::vector<DeviceStats> devices;
   std::vector<ViewStats> views;
   int num_outlier_views = 0;
+  // Noise model of the final solve (CalibrationOptions::correlated_carried_noise): when
+  // joint_noise, each device's own corner noise (px per coordinate, estimated), the factor k on
+  // the carried views' carry covariances, and chi^2 / dof of the whitened residuals (the factor
+  // the covariance is scaled by instead of residual_sigma_px^2).
+  bool joint_noise = false;
+  std::vector<double> noise_sigma_px;  // per device
+  double carry_scale = 0;
+  double variance_factor = 0;
 
   std::string BriefReport() const;  // one line
   std::string FullReport() const;   // multi-line: per device and per view, outliers marked
@@ -137,7 +174,8 @@ struct CalibrationResult {
   std::vector<RigDevice> devices;  // models and cam_from_rig (device 0: identity)
   // Per pose: rig_from_board (x_in_rig = rig_from_board * x_in_board), absent when no device saw it.
   std::vector<std::optional<Rigid3d>> rig_from_board;
-  // Per device: covariance of (fx fy cx cy k1 k2 p1 p2 k3), scaled by residual_sigma_px^2: the
+  // Per device: covariance of (fx fy cx cy k1 k2 p1 p2 k3), scaled by residual_sigma_px^2 (with
+  // summary.joint_noise: J of the whitened residuals, scaled by summary.variance_factor): the
   // marginal of sigma^2 (J^T J)^-1 over all free parameters (board poses and rig poses included),
   // J the Jacobian at the solution (Jacobi-scaled before inversion). Held parameters have zero
   // rows (fy follows fx when the aspect is fixed; held devices are all zero). Empty when not

@@ -61,6 +61,7 @@ std::vector<ModelScore> ScoreModelsByLeaveOnePoseOut(const CalibrationInput& inp
           single.views.push_back(v);
           single.views.back().device = 0;
           single.views.back().pose = 0;
+          single.views.back().DropCarry();
         }
         if (v.device == target_device) target_view = &v;
       }

@@ -1,5 +1,6 @@
 #include "calib/projector.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include <Eigen/Dense>
@@ -45,6 +46,40 @@ bool FitHomography(const std::vector<Eigen::Vector2d>& src, const std::vector<Ei
 }
 
 Eigen::Vector2d Apply(const Eigen::Matrix3d& h, const Eigen::Vector2d& x) { return (h * x.homogeneous()).hnormalized(); }
+
+// Jacobian d(H c)/dc and the fit's covariance of H c (white-noise propagation), from the fitted
+// H and its inlier pairs. H is re-expressed around the corner, G(u) = H(c + u) - H c with
+// G's (2,2) entry 1; there G(0) = 0, dG/du(0) is G's upper-left 2x2, and G(0) moves only with
+// G's entries (0,2) and (1,2), whose covariance is sigma^2 (A^T A)^-1, A the Jacobian of the pairs'
+// residuals in G's 8 free entries, sigma^2 the residual variance per coordinate.
+void LocalFitAtCorner(const Eigen::Matrix3d& h, const Eigen::Vector2d& c, const std::vector<Eigen::Vector2d>& cam,
+                      const std::vector<Eigen::Vector2d>& proj, Eigen::Matrix2d* jacobian, Eigen::Matrix2d* covariance) {
+  const Eigen::Vector2d hc = Apply(h, c);
+  Eigen::Matrix3d to_corner, from_image;
+  to_corner << 1, 0, c.x(), 0, 1, c.y(), 0, 0, 1;
+  from_image << 1, 0, -hc.x(), 0, 1, -hc.y(), 0, 0, 1;
+  Eigen::Matrix3d g = from_image * h * to_corner;
+  g /= g(2, 2);
+  *jacobian = g.topLeftCorner<2, 2>();
+  Eigen::Matrix<double, 8, 8> ata = Eigen::Matrix<double, 8, 8>::Zero();
+  double sq = 0;
+  for (size_t i = 0; i < cam.size(); ++i) {
+    const Eigen::Vector2d u = cam[i] - c;
+    const double w = g(2, 0) * u.x() + g(2, 1) * u.y() + 1;
+    const Eigen::Vector2d f = (g * u.homogeneous()).hnormalized();
+    sq += (f - (proj[i] - hc)).squaredNorm();
+    Eigen::Matrix<double, 2, 8> a;
+    a << u.x(), u.y(), 1, 0, 0, 0, -f.x() * u.x(), -f.x() * u.y(),  //
+        0, 0, 0, u.x(), u.y(), 1, -f.y() * u.x(), -f.y() * u.y();
+    a /= w;
+    ata += a.transpose() * a;
+  }
+  const double sigma2 = cam.size() > 4 ? sq / static_cast<double>(2 * cam.size() - 8) : 0;
+  const Eigen::Matrix<double, 8, 8> inv = ata.ldlt().solve(Eigen::Matrix<double, 8, 8>::Identity());
+  *covariance << inv(2, 2), inv(2, 5), inv(5, 2), inv(5, 5);
+  *covariance *= sigma2;
+  *covariance += 1e-12 * Eigen::Matrix2d::Identity();  // positive definite even for an exact fit
+}
 
 }  // namespace
 
@@ -125,6 +160,7 @@ ProjectorCorners ProjectorCornersByLocalHomography(const ProjectorMap& map, cons
     pc.projector_px = Apply(h, c);
     pc.num_pixels = static_cast<int>(cam.size());
     pc.fit_rms_px = rms;
+    LocalFitAtCorner(h, c, cam, proj, &pc.jacobian, &pc.fit_covariance_px2);
     out.corners.push_back(pc);
   }
   return out;
@@ -155,9 +191,14 @@ ProcamPose MakeProcamPose(const PatternSpec& patterns, const std::vector<cv::Mat
     out.camera_view.points_in_board_mm.push_back(board[static_cast<size_t>(out.detection.point_ids[i])]);
     out.camera_view.pixels_px.push_back(out.detection.pixels_px[i]);
   }
+  out.projector_view.source_device = camera_device;
   for (const auto& c : out.projector.corners) {
     out.projector_view.points_in_board_mm.push_back(board[static_cast<size_t>(c.point_id)]);
     out.projector_view.pixels_px.push_back(c.projector_px);
+    const auto at = std::find(out.detection.point_ids.begin(), out.detection.point_ids.end(), c.point_id);
+    out.projector_view.source_points.push_back(static_cast<int>(at - out.detection.point_ids.begin()));
+    out.projector_view.source_jacobians.push_back(c.jacobian);
+    out.projector_view.carry_covariances_px2.push_back(c.fit_covariance_px2);
   }
   return out;
 }

@@ -47,6 +47,14 @@ struct ProjectorCorner {
   Eigen::Vector2d projector_px = Eigen::Vector2d::Zero();
   int num_pixels = 0;     // decoded pixel pairs used (inliers)
   double fit_rms_px = 0;  // RMS distance of the inliers to the homography, projector px
+  // d projector_px / d camera_px: how an error of the camera corner moves the projector corner.
+  Eigen::Matrix2d jacobian = Eigen::Matrix2d::Identity();
+  // Covariance of H c from the fit alone (projector px^2): the inliers' residual variance per
+  // coordinate propagated through the least-squares fit (8 homography entries) to the corner,
+  // as if the decoded pixels' errors were independent. They are not (Gray-code stripes and
+  // phase errors are shared by neighbouring pixels), so the calibration uses its shape and
+  // relative size and estimates its scale (CalibrationSummary::carry_scale).
+  Eigen::Matrix2d fit_covariance_px2 = Eigen::Matrix2d::Zero();
 };
 
 struct ProjectorCorners {
@@ -61,7 +69,8 @@ ProjectorCorners ProjectorCornersByLocalHomography(const ProjectorMap& map, cons
 
 // One board pose of a camera-projector capture, ready for Calibrate(): the camera's view (board
 // found in the sequence's white frame) and the projector's view (the corners carried into
-// projector pixels), plus what was found along the way.
+// projector pixels, a carried view: BoardView::source_device is the camera, with each corner's
+// Jacobian and fit covariance), plus what was found along the way.
 struct ProcamPose {
   TargetDetection detection;      // in the white frame
   ProjectorCorners projector;     // corners in projector pixels, and skipped ones

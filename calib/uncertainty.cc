@@ -180,6 +180,31 @@ PixelMap ProjectionDifferenceMap(const CameraModel& a, const CameraModel& b, int
   return m;
 }
 
+double NeighbourResidualCorrelation(const CalibrationInput& input, const CalibrationResult& result, int device) {
+  double products = 0, energy = 0;
+  int pairs = 0, points = 0;
+  for (const auto& v : input.views) {
+    if (v.device != device || v.pose >= static_cast<int>(result.rig_from_board.size()) || !result.rig_from_board[v.pose]) continue;
+    const auto px = Reproject(result, v);
+    const auto& x = v.points_in_board_mm;
+    double spacing = 1e300;
+    for (size_t i = 0; i < x.size(); ++i) {
+      for (size_t j = i + 1; j < x.size(); ++j) spacing = std::min(spacing, (x[i] - x[j]).norm());
+    }
+    for (size_t i = 0; i < x.size(); ++i) {
+      const Eigen::Vector2d ri = px[i] - v.pixels_px[i];
+      energy += ri.squaredNorm();
+      ++points;
+      for (size_t j = i + 1; j < x.size(); ++j) {
+        if ((x[i] - x[j]).norm() > 1.01 * spacing) continue;
+        products += ri.dot(px[j] - v.pixels_px[j]);
+        ++pairs;
+      }
+    }
+  }
+  return pairs > 0 && energy > 0 ? (products / pairs) / (energy / points) : std::nan("");
+}
+
 CrossValidation CrossValidate(const CalibrationInput& input, const CalibrationOptions& options, int cell_px) {
   CalibrationInput halves[2];
   for (int h = 0; h < 2; ++h) {

@@ -62,6 +62,15 @@ PixelMap ProjectionUncertaintyMap(const CameraModel& model, const Matrix9d& cova
 PixelMap ProjectionDifferenceMap(const CameraModel& a, const CameraModel& b, int cell_px = 16,
                                  bool fit_rotation = true);
 
+// Whether the corner errors are independent, as the covariance assumes: the correlation of the
+// residuals of neighbouring board points (one grid spacing apart, the smallest distance between
+// two points of a view) within each view of `device`, sum(r_i . r_j) / (pairs * mean |r|^2).
+// About 0 (slightly negative, the fit absorbs a little) for independent errors; clearly positive
+// means errors shared across a pose (board deformation, detector or decoding bias), which the
+// covariance does not see: it is then optimistic. NaN when no view of the device has a
+// neighbour pair.
+double NeighbourResidualCorrelation(const CalibrationInput& input, const CalibrationResult& result, int device);
+
 struct CrossValidation {
   std::vector<CameraModel> half_a;  // per device, from the even poses
   std::vector<CameraModel> half_b;  // per device, from the odd poses

@@ -12,6 +12,7 @@
 #include <opencv2/calib3d.hpp>
 
 #include "calib/calibration.h"
+#include "calib/model_selection.h"
 #include "calib/projector.h"
 #include "calib/target.h"
 #include "core/image_set.h"
@@ -62,6 +63,7 @@ CalibrationResult ProjectorAlone(const std::vector<ProcamPose>& poses, const Var
   for (const auto& p : poses) {
     BoardView pv = p.projector_view;
     pv.device = 0;
+    pv.DropCarry();
     in.views.push_back(pv);
   }
   return Calibrate(in, {});
@@ -165,6 +167,119 @@ void UpstreamReplica(const std::string& setting, const std::vector<ProcamPose>& 
   std::fflush(stdout);
 }
 
+// Are the residuals white within a pose? Per view: the camera residual r_c, the projector
+// residual r_p and the projector's own part d = r_p - J r_c (the camera's error cancels). Printed:
+// the correlation of neighbouring corners (one square apart; 0 for white noise) and the share of
+// the residual energy a per-view affine field in the board coordinates explains (3/63 = 5 % per
+// coordinate for white noise).
+void ResidualStructure(const CalibrationInput& in, const CalibrationResult& r) {
+  std::vector<std::vector<Eigen::Vector2d>> res(in.views.size());
+  for (size_t vi = 0; vi < in.views.size(); ++vi) {
+    const auto px = Reproject(r, in.views[vi]);
+    for (size_t i = 0; i < px.size(); ++i) res[vi].push_back(px[i] - in.views[vi].pixels_px[i]);
+  }
+  auto stats = [&](const char* name, const std::vector<std::vector<Eigen::Vector2d>>& rr, const std::vector<size_t>& views) {
+    double nb = 0, nb_n = 0, e = 0, e_n = 0, fit = 0, tot = 0;
+    for (size_t vi : views) {
+      const auto& pts = in.views[vi].points_in_board_mm;
+      const auto& x = rr[vi];
+      double ss = 0;
+      for (const auto& v : x) ss += v.squaredNorm();
+      double spacing = 1e300;
+      for (size_t i = 0; i < pts.size(); ++i) {
+        for (size_t j = i + 1; j < pts.size(); ++j) spacing = std::min(spacing, (pts[i] - pts[j]).norm());
+      }
+      for (size_t i = 0; i < pts.size(); ++i) {
+        for (size_t j = i + 1; j < pts.size(); ++j) {
+          if ((pts[i] - pts[j]).norm() < 1.01 * spacing) {
+            nb += x[i].dot(x[j]);
+            nb_n += 1;
+          }
+        }
+      }
+      e += ss;
+      e_n += static_cast<double>(x.size());
+      Eigen::MatrixXd a(static_cast<Eigen::Index>(pts.size()), 3);
+      Eigen::MatrixXd b(static_cast<Eigen::Index>(pts.size()), 2);
+      for (size_t i = 0; i < pts.size(); ++i) {
+        a.row(static_cast<Eigen::Index>(i)) << pts[i].x(), pts[i].y(), 1;
+        b.row(static_cast<Eigen::Index>(i)) << x[i].x(), x[i].y();
+      }
+      const Eigen::MatrixXd coef = a.colPivHouseholderQr().solve(b);
+      fit += (a * coef).squaredNorm();
+      tot += ss;
+    }
+    std::printf("    %-6s rms %.4f px, neighbour correlation %+.2f, affine field explains %.0f %%\n", name,
+                std::sqrt(e / e_n), (nb / nb_n) / (e / e_n), 100 * fit / tot);
+  };
+  std::vector<size_t> cams, projs;
+  std::vector<std::vector<Eigen::Vector2d>> own(in.views.size());
+  for (size_t vi = 0; vi < in.views.size(); ++vi) {
+    const BoardView& v = in.views[vi];
+    if (!v.IsCarried()) {
+      cams.push_back(vi);
+      continue;
+    }
+    projs.push_back(vi);
+    size_t si = 0;
+    while (!(in.views[si].device == v.source_device && in.views[si].pose == v.pose)) ++si;
+    for (size_t i = 0; i < v.pixels_px.size(); ++i) {
+      own[vi].push_back(res[vi][i] - v.source_jacobians[i] * res[si][static_cast<size_t>(v.source_points[i])]);
+    }
+  }
+  stats("camera", res, cams);
+  stats("proj", res, projs);
+  stats("d", own, projs);
+}
+
+// Covariance sigma against the jackknife spread of the leave-one-pose-out folds, for the chosen
+// models (camera k1k2p1p2, projector k1k2), under noise models and options.
+void CovarianceVsJackknife(const std::vector<ProcamPose>& poses) {
+  using M = CameraModel;
+  const Variant v{"k1k2p/k1k2", {M::kP1, M::kP2, M::kK3}, {M::kK3}};
+  const CalibrationInput in = Input(poses, v, -1, 0);
+  struct Setting {
+    std::string name;
+    CalibrationOptions options;
+  };
+  std::vector<Setting> settings(4);
+  settings[0].name = "independent";
+  settings[0].options.correlated_carried_noise = false;
+  settings[1].name = "joint";
+  settings[2].name = "independent+warp";
+  settings[2].options.correlated_carried_noise = false;
+  settings[2].options.estimate_board_warp = true;
+  settings[3].name = "joint+warp";
+  settings[3].options.estimate_board_warp = true;
+  for (const auto& st : settings) {
+    const auto scores = ScoreModelsByLeaveOnePoseOut(in, st.options, {{v.name, {v.cam_held, v.proj_held}}}, 0, 1);
+    const ModelScore& sc = scores[0];
+    const CalibrationSummary& sum = sc.result.summary;
+    const auto& c = sc.result.intrinsics_covariance[1];
+    const CameraModel& m = sc.result.devices[1].model;
+    std::printf("%-18s cam rms %.4f proj rms %.4f predicted %.4f | fx %.1f sigma %.2f jack %.2f (x%.2f) | cx %.1f sigma %.2f "
+                "jack %.2f (x%.2f) | cy %.1f sigma %.2f jack %.2f (x%.2f)",
+                st.name.c_str(), sum.devices[0].rms_px, sum.devices[1].rms_px, sc.prediction_rms_px, m.fx(),
+                std::sqrt(c(0, 0)), JackknifeSigma(sc, M::kFx), JackknifeSigma(sc, M::kFx) / std::sqrt(c(0, 0)), m.cx(),
+                std::sqrt(c(2, 2)), JackknifeSigma(sc, M::kCx), JackknifeSigma(sc, M::kCx) / std::sqrt(c(2, 2)), m.cy(),
+                std::sqrt(c(3, 3)), JackknifeSigma(sc, M::kCy), JackknifeSigma(sc, M::kCy) / std::sqrt(c(3, 3)));
+    if (sum.joint_noise) {
+      std::printf(" | noise cam %.4f proj %.4f carry x%.1f chi2/dof %.3f", sum.noise_sigma_px[0], sum.noise_sigma_px[1],
+                  sum.carry_scale, sum.variance_factor);
+    }
+    if (st.options.estimate_board_warp) {
+      std::printf(" | warp %.3f %.3f mm", sc.result.board_warp_mm.x(), sc.result.board_warp_mm.y());
+    }
+    ResidualStructure(in, sc.result);
+    std::printf("\n  folds cy:");
+    for (const auto& f : sc.fold_models) std::printf(" %.1f", f.cy());
+    std::printf("  cx:");
+    for (const auto& f : sc.fold_models) std::printf(" %.1f", f.cx());
+    std::printf("\n");
+    std::fflush(stdout);
+  }
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -202,6 +317,10 @@ int main(int argc, char** argv) {
   upstream.shadow_threshold = 40;
   upstream.contrast_threshold = 5;
   const auto base = Poses(spec, target, upstream, {});
+  if (std::getenv("STUDY_COVARIANCE")) {
+    CovarianceVsJackknife(base);
+    return 0;
+  }
   if (std::getenv("STUDY_QUICK")) {
     Row("thr40/5 w20", base, models[3]);
     return 0;

@@ -134,5 +134,27 @@ TEST(Uncertainty, CrossValidationAgreesWithPredictedUncertainty) {
   EXPECT_THROW(CrossValidate(few.input, {}), Error);
 }
 
+// Independent corner noise gives neighbour correlation ~0; a smooth error shared by the corners
+// of each view (a per-view field across the board, as a bent board or a decoding bias makes)
+// gives a clearly positive one.
+TEST(Uncertainty, NeighbourResidualCorrelationSeesErrorsSharedAcrossAView) {
+  const SyntheticRig rig = SyntheticRig::OneCamera();
+  const SyntheticData data = MakeSyntheticData(rig, 10, 0.2, 77);
+  const double white = NeighbourResidualCorrelation(data.input, Calibrate(data.input, {}), 0);
+  std::printf("independent noise: neighbour correlation %+.3f\n", white);
+  EXPECT_LT(std::abs(white), 0.1);
+  CalibrationInput shared = data.input;
+  for (auto& v : shared.views) {  // 0.5 px waves across the board, phase per view
+    for (size_t i = 0; i < v.pixels_px.size(); ++i) {
+      const double s = 0.02 * v.points_in_board_mm[i].x() + 0.7 * v.pose, t = 0.025 * v.points_in_board_mm[i].y() - 0.4 * v.pose;
+      v.pixels_px[i] += 0.5 * Eigen::Vector2d(std::sin(s + t), std::cos(s - t));
+    }
+  }
+  const double correlated = NeighbourResidualCorrelation(shared, Calibrate(shared, {}), 0);
+  std::printf("shared waves: neighbour correlation %+.3f\n", correlated);
+  EXPECT_GT(correlated, 0.4);
+  EXPECT_TRUE(std::isnan(NeighbourResidualCorrelation(data.input, Calibrate(data.input, {}), 1)));
+}
+
 }  // namespace
 }  // namespace slshadow
