@@ -743,10 +743,10 @@ SLSHADOW_LANE_CLONES void DirectionsRow(const double* __restrict x, const double
 
 }  // namespace
 
-CameraRays ComputeCameraRays(const CameraModel& camera, int samples_per_axis) {
+CameraRays ComputeCameraRays(const CameraModel& camera, int samples_per_axis, CameraRays storage) {
   SLSHADOW_THROW_IF(samples_per_axis < 1 || samples_per_axis > 16, "samples_per_axis must be in 1..16 (got ",
                     samples_per_axis, ")");
-  CameraRays rays;
+  CameraRays rays = std::move(storage);
   rays.width = camera.width;
   rays.height = camera.height;
   rays.samples_per_axis = samples_per_axis;
@@ -830,7 +830,11 @@ CameraRays ComputeCameraRays(const CameraModel& camera, int samples_per_axis) {
     });
   };
   fill(rays.samples, n);
-  if (spp > 1) fill(rays.centers, 1);
+  if (spp > 1) {
+    fill(rays.centers, 1);
+  } else {
+    rays.centers.clear();
+  }
   return rays;
 }
 

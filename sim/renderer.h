@@ -41,7 +41,8 @@ struct CameraRays {
   std::vector<Eigen::Vector3f> samples;  // width * height * n^2
   std::vector<Eigen::Vector3f> centers;  // width * height; empty when n = 1 (then samples are the centres)
 };
-CameraRays ComputeCameraRays(const CameraModel& camera, int samples_per_axis);
+// `storage`: rays no longer needed whose buffers are reused (no new allocation when large enough).
+CameraRays ComputeCameraRays(const CameraModel& camera, int samples_per_axis, CameraRays storage = {});
 
 // Per-sample floats of a geometry pass (index as CameraRays) in a continuous CV_32FC1 Mat from
 // the simulator's pool of large blocks (sim/renderer.cc: recycled across passes and scans, so

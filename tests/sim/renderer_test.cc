@@ -94,6 +94,18 @@ TEST(CameraRaysTest, EqualTheModelsUnprojectionIncludingPastTheFold) {
     // float rounding of the direction in pixels.
     EXPECT_LT(worst_px, 1e-3) << n;
   }
+  // Recycled storage (a larger, supersampled ray set) gives the same rays as fresh storage.
+  CameraModel other = cam;
+  other.params[CameraModel::kCx] += 3.25;
+  const CameraRays fresh = ComputeCameraRays(other, 1);
+  const CameraRays recycled = ComputeCameraRays(other, 1, ComputeCameraRays(cam, 3));
+  ASSERT_EQ(recycled.samples.size(), fresh.samples.size());
+  EXPECT_TRUE(recycled.centers.empty());
+  for (size_t i = 0; i < fresh.samples.size(); ++i) {
+    ASSERT_TRUE(fresh.samples[i].array().isNaN().all() ? recycled.samples[i].array().isNaN().all()
+                                                       : recycled.samples[i] == fresh.samples[i])
+        << i;
+  }
 }
 
 // Brute force (rtcIntersect1 / rtcOccluded1 per ray) against the packet render of the demo scene,
