@@ -180,6 +180,7 @@ void ResidualStructure(const CalibrationInput& in, const CalibrationResult& r) {
   }
   auto stats = [&](const char* name, const std::vector<std::vector<Eigen::Vector2d>>& rr, const std::vector<size_t>& views) {
     double nb = 0, nb_n = 0, e = 0, e_n = 0, fit = 0, tot = 0;
+    double by_dist[6] = {0, 0, 0, 0, 0, 0}, by_dist_n[6] = {0, 0, 0, 0, 0, 0};
     for (size_t vi : views) {
       const auto& pts = in.views[vi].points_in_board_mm;
       const auto& x = rr[vi];
@@ -191,9 +192,15 @@ void ResidualStructure(const CalibrationInput& in, const CalibrationResult& r) {
       }
       for (size_t i = 0; i < pts.size(); ++i) {
         for (size_t j = i + 1; j < pts.size(); ++j) {
-          if ((pts[i] - pts[j]).norm() < 1.01 * spacing) {
+          const double k = (pts[i] - pts[j]).norm() / spacing;
+          if (k < 1.01) {
             nb += x[i].dot(x[j]);
             nb_n += 1;
+          }
+          const int bin = k < 1.01 ? 0 : k < 1.5 ? 1 : k < 2.01 ? 2 : k < 3.01 ? 3 : k < 5.01 ? 4 : 5;
+          if (k < 1.01 || std::abs(k - std::sqrt(2.0)) < 0.01 || std::abs(k - std::round(k)) < 0.01 || bin >= 4) {
+            by_dist[bin] += x[i].dot(x[j]);
+            by_dist_n[bin] += 1;
           }
         }
       }
@@ -209,8 +216,11 @@ void ResidualStructure(const CalibrationInput& in, const CalibrationResult& r) {
       fit += (a * coef).squaredNorm();
       tot += ss;
     }
-    std::printf("    %-6s rms %.4f px, neighbour correlation %+.2f, affine field explains %.0f %%\n", name,
-                std::sqrt(e / e_n), (nb / nb_n) / (e / e_n), 100 * fit / tot);
+    std::printf("    %-6s rms %.4f px, neighbour correlation %+.2f, affine field explains %.0f %%; correlation at 1, 1.4, 2, 3, "
+                "3.2-5, >5 squares:",
+                name, std::sqrt(e / e_n), (nb / nb_n) / (e / e_n), 100 * fit / tot);
+    for (int b = 0; b < 6; ++b) std::printf(" %+.2f", (by_dist[b] / by_dist_n[b]) / (e / e_n));
+    std::printf("\n");
   };
   std::vector<size_t> cams, projs;
   std::vector<std::vector<Eigen::Vector2d>> own(in.views.size());
@@ -246,10 +256,12 @@ void CovarianceVsJackknife(const std::vector<ProcamPose>& poses) {
   settings[0].name = "independent";
   settings[0].options.correlated_carried_noise = false;
   settings[1].name = "joint";
+  settings[1].options.correlated_carried_noise = true;
   settings[2].name = "independent+warp";
   settings[2].options.correlated_carried_noise = false;
   settings[2].options.estimate_board_warp = true;
   settings[3].name = "joint+warp";
+  settings[3].options.correlated_carried_noise = true;
   settings[3].options.estimate_board_warp = true;
   for (const auto& st : settings) {
     const auto scores = ScoreModelsByLeaveOnePoseOut(in, st.options, {{v.name, {v.cam_held, v.proj_held}}}, 0, 1);
@@ -270,6 +282,7 @@ void CovarianceVsJackknife(const std::vector<ProcamPose>& poses) {
     if (st.options.estimate_board_warp) {
       std::printf(" | warp %.3f %.3f mm", sc.result.board_warp_mm.x(), sc.result.board_warp_mm.y());
     }
+    std::printf("\n");
     ResidualStructure(in, sc.result);
     std::printf("\n  folds cy:");
     for (const auto& f : sc.fold_models) std::printf(" %.1f", f.cy());
