@@ -286,6 +286,10 @@ struct RayCaster::Impl {
   std::vector<const PrimitiveData*> direct;
   std::vector<std::vector<float>> disc_normals;  // shared with Embree; outlive the scene (released first)
   bool has_embree_geometry = false;
+  // Embree's scene bounds, widened by a margin: a ray segment that misses this box cannot hit
+  // anything Embree holds, so its lane skips the traversal (a packet of them skips the call).
+  bool cull = false;
+  double box_lo[3] = {0, 0, 0}, box_hi[3] = {0, 0, 0};
   ~Impl() {
     if (scene) rtcReleaseScene(scene);
     if (device) rtcReleaseDevice(device);
@@ -299,7 +303,7 @@ void ThrowIfDeviceError(RTCDevice device, const std::string& what) {
 }
 }  // namespace
 
-RayCaster::RayCaster(const Scene& scene) : scene_(scene), impl_(std::make_unique<Impl>()) {
+RayCaster::RayCaster(const Scene& scene, bool cull_by_bounds) : scene_(scene), impl_(std::make_unique<Impl>()) {
   const auto start = std::chrono::steady_clock::now();
   impl_->device = rtcNewDevice(nullptr);
   SLSHADOW_THROW_IF(impl_->device == nullptr, "Embree: cannot create a device (error code ",
@@ -396,19 +400,70 @@ RayCaster::RayCaster(const Scene& scene) : scene_(scene), impl_(std::make_unique
   }
   rtcCommitScene(impl_->scene);
   ThrowIfDeviceError(impl_->device, "building the scene");
+  impl_->cull = cull_by_bounds && impl_->has_embree_geometry;
+  if (impl_->cull) {
+    RTCBounds b;
+    rtcGetSceneBounds(impl_->scene, &b);
+    const double lo[3] = {b.lower_x, b.lower_y, b.lower_z}, hi[3] = {b.upper_x, b.upper_y, b.upper_z};
+    // Margin: far above float rounding of hit points and ray parameters at these scales (a
+    // float ulp is 6e-5 mm at 1 m).
+    double size = 0;
+    for (int a = 0; a < 3; ++a) size = std::max({size, std::abs(lo[a]), std::abs(hi[a])});
+    const double margin = 1e-3 + 1e-5 * size;
+    for (int a = 0; a < 3; ++a) {
+      impl_->box_lo[a] = lo[a] - margin;
+      impl_->box_hi[a] = hi[a] + margin;
+    }
+  }
   build_seconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
 RayCaster::~RayCaster() = default;
 
-void RayCaster::Intersect(RayPacket& p, TraceMode mode, bool coherent) const {
-  if (impl_->has_embree_geometry) {
-    IntersectEmbree(p, mode, coherent);
-  } else {
-    for (int i = 0; i < RayPacket::kSize; ++i) {
-      if (p.active[i]) p.object[i] = -1;
+namespace {
+// Whether each lane's ray segment [tnear, tfar] misses the box: slab test in double, without
+// branches (vectorised). A direction component of 0 gives infinite slab parameters (a miss when
+// the origin is outside that slab). Its one NaN case, an origin exactly on a face of the box
+// with the ray running in that face's plane, may go either way: the box is widened beyond all
+// geometry, so such a ray cannot hit anything.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+__attribute__((target_clones("avx2", "default")))
+#endif
+void SegmentsMissBox(const double* __restrict lo, const double* __restrict hi, const RayPacket& p, bool* __restrict miss) {
+  for (int i = 0; i < RayPacket::kSize; ++i) {
+    const double o[3] = {p.org_x[i], p.org_y[i], p.org_z[i]}, d[3] = {p.dir_x[i], p.dir_y[i], p.dir_z[i]};
+    double t0 = p.tnear[i], t1 = p.tfar[i];
+    for (int a = 0; a < 3; ++a) {
+      const double inv = 1 / d[a];
+      const double ta = (lo[a] - o[a]) * inv, tb = (hi[a] - o[a]) * inv;
+      t0 = std::max(t0, std::min(ta, tb));
+      t1 = std::min(t1, std::max(ta, tb));
     }
+    miss[i] = t0 > t1;
   }
+}
+}  // namespace
+
+bool RayCaster::CullToEmbreeBounds(RayPacket& p) const {
+  if (!impl_->cull) return true;
+  bool miss[RayPacket::kSize];
+  SegmentsMissBox(impl_->box_lo, impl_->box_hi, p, miss);
+  bool any = false;
+  for (int i = 0; i < RayPacket::kSize; ++i) {
+    p.active[i] = p.active[i] && !miss[i];
+    any |= p.active[i];
+  }
+  return any;
+}
+
+void RayCaster::Intersect(RayPacket& p, TraceMode mode, bool coherent) const {
+  bool active[RayPacket::kSize];
+  for (int i = 0; i < RayPacket::kSize; ++i) {
+    active[i] = p.active[i];
+    if (p.active[i]) p.object[i] = -1;
+  }
+  if (impl_->has_embree_geometry && CullToEmbreeBounds(p)) IntersectEmbree(p, mode, coherent);
+  for (int i = 0; i < RayPacket::kSize; ++i) p.active[i] = active[i];
   // The same for both trace modes: packet and single-ray renders stay identical. Primitive by
   // primitive (lanes are independent, so this is the per-ray order of the Embree route).
   for (const PrimitiveData* d : impl_->direct) {
@@ -456,7 +511,7 @@ void RayCaster::Occluded(RayPacket& p, TraceMode mode) const {
     }
     any |= p.active[i];
   }
-  if (any && impl_->has_embree_geometry) OccludedEmbree(p, mode);
+  if (any && impl_->has_embree_geometry && CullToEmbreeBounds(p)) OccludedEmbree(p, mode);
   for (int i = 0; i < RayPacket::kSize; ++i) p.active[i] = active[i];
 }
 

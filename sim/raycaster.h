@@ -36,8 +36,9 @@ struct alignas(64) RayPacket {
 class RayCaster {
  public:
   // Builds the acceleration structure. Throws slshadow::Error when Embree fails (e.g. out of
-  // memory). The scene must outlive the ray caster.
-  explicit RayCaster(const Scene& scene);
+  // memory). The scene must outlive the ray caster. `cull_by_bounds`: rays whose segment misses
+  // the bounds of everything Embree holds skip its traversal (exact; off only to test that).
+  explicit RayCaster(const Scene& scene, bool cull_by_bounds = true);
   ~RayCaster();
   RayCaster(const RayCaster&) = delete;
   RayCaster& operator=(const RayCaster&) = delete;
@@ -55,6 +56,8 @@ class RayCaster {
   struct Impl;
   void IntersectEmbree(RayPacket& packet, TraceMode mode, bool coherent) const;
   void OccludedEmbree(RayPacket& packet, TraceMode mode) const;
+  // Deactivates the lanes whose segment misses Embree's scene bounds; false when none is left.
+  bool CullToEmbreeBounds(RayPacket& packet) const;
   const Scene& scene_;
   std::unique_ptr<Impl> impl_;
   double build_seconds_ = 0;

@@ -130,6 +130,21 @@ TEST(TraceGeometryTest, SingleRayReferenceEqualsPacketRender) {
   }
 }
 
+// Rays whose segment misses the bounds of Embree's geometry skip its traversal. That must change
+// nothing: the demo part on its table (most of the view is table around the part, and shadow
+// rays from the table graze the part's bounds), both trace modes.
+TEST(TraceGeometryTest, BoundsCullingChangesNothing) {
+  const Scene scene = LoadScene(testing::SourceDir() / "config/demo/scene.yaml");
+  const Rig rig = SmallDemoRig(8);
+  const RayCaster culled(scene, /*cull_by_bounds=*/true), full(scene, /*cull_by_bounds=*/false);
+  for (int camera = 0; camera < 2; ++camera) {
+    const CameraRays rays = ComputeCameraRays(rig.cameras[static_cast<size_t>(camera)].model, 1);
+    for (const TraceMode mode : {TraceMode::kPacket16, TraceMode::kSingleRay}) {
+      ExpectSameBuffers(TraceGeometry(culled, rig, camera, rays, mode), TraceGeometry(full, rig, camera, rays, mode));
+    }
+  }
+}
+
 // DN = exposure * full * (ambient * albedo + albedo * cos_p * (d_ref/d_p)^2 * I), evaluated
 // independently per pixel by intersecting the viewing ray with the plane in closed form.
 TEST(RadiometryTest, TiltedPlaneFollowsCosOverDistanceSquared) {
