@@ -163,6 +163,16 @@ struct CalibrationSummary {
   std::vector<double> noise_sigma_px;  // per device
   double carry_scale = 0;
   double variance_factor = 0;
+  // The view-correlated noise model behind CalibrationResult::intrinsics_covariance_view_correlated,
+  // per device, estimated from the residuals (for a carried device: their part not explained by
+  // the source's error): sigma per coordinate, and the correlation of two corners delta squares
+  // apart, share * exp(-delta^2 / (2 length^2)). share 0: the errors look independent.
+  struct ViewNoise {
+    double sigma_px = 0;
+    double share = 0;
+    double length_squares = 1;
+  };
+  std::vector<ViewNoise> view_noise;
 
   std::string BriefReport() const;  // one line
   std::string FullReport() const;   // multi-line: per device and per view, outliers marked
@@ -181,6 +191,13 @@ struct CalibrationResult {
   // rows (fy follows fx when the aspect is fixed; held devices are all zero). Empty when not
   // computed or not estimable (J^T J rank-deficient to 1e-12 after scaling).
   std::vector<Matrix9d> intrinsics_covariance;
+  // The same marginal under a noise model whose corner errors are correlated within each pose
+  // (summary.view_noise: a Gaussian-correlated error field per device across the board, carried
+  // views inheriting their source's field through source_jacobians): the sandwich
+  // (J^T J)^-1 J^T Sigma J (J^T J)^-1, Sigma the errors' covariance pose by pose, poses
+  // independent. Equals intrinsics_covariance (up to the dof correction) when the residuals look
+  // independent. Empty when not computed (no covariance, fix_intrinsics, correlated_carried_noise).
+  std::vector<Matrix9d> intrinsics_covariance_view_correlated;
   Eigen::Vector2d board_warp_mm = Eigen::Vector2d::Zero();   // (w_x, w_y); zero unless estimated
   Eigen::Vector4d board_extent_mm = Eigen::Vector4d::Zero();  // xmin xmax ymin ymax of the board points
   CalibrationSummary summary;
