@@ -267,7 +267,7 @@ SLSHADOW_LANE_CLONES void ShadeLanes(const PassContext& c, const LaneInputs& __r
   }
 }
 
-void TracePacket(const PassContext& c, const SampleTargets& out, int bx, int by, int s, int64_t* primary,
+SLSHADOW_LANE_CLONES void TracePacket(const PassContext& c, const SampleTargets& out, int bx, int by, int s, int64_t* primary,
                  int64_t* shadow) {
   RayPacket p;
   RayPacket sh;
