@@ -42,6 +42,15 @@ nlohmann::json StatsToJson(const CalibrationSummary& s) {
     j["devices"].push_back({{"name", d.name}, {"num_views", d.num_views}, {"num_points", d.num_points},
                             {"rms_px", d.rms_px}, {"max_px", d.max_px}});
   }
+  if (!s.view_noise.empty()) {
+    j["view_noise"] = nlohmann::json::array();
+    for (const auto& k : s.view_noise) {
+      j["view_noise"].push_back({{"sigma_px", k.sigma_px}, {"share", k.share}, {"length_squares", k.length_squares}});
+    }
+  }
+  if (s.joint_noise) {
+    j["joint_noise"] = {{"noise_sigma_px", s.noise_sigma_px}, {"carry_scale", s.carry_scale}, {"variance_factor", s.variance_factor}};
+  }
   j["views"] = nlohmann::json::array();
   for (const auto& v : s.views) {
     j["views"].push_back({{"label", v.label}, {"device", v.device}, {"pose", v.pose}, {"num_points", v.num_points},
@@ -166,14 +175,14 @@ nlohmann::json CalibrationOptionsToJson(const CalibrationOptions& o) {
           {"fix_k3", o.fix_k3}, {"fix_intrinsics", o.fix_intrinsics}, {"loss", ToString(o.loss)},
           {"loss_scale_px", o.loss_scale_px}, {"max_iterations", o.max_iterations},
           {"outlier_view_factor", o.outlier_view_factor}, {"compute_covariance", o.compute_covariance},
-          {"estimate_board_warp", o.estimate_board_warp}};
+          {"estimate_board_warp", o.estimate_board_warp}, {"correlated_carried_noise", o.correlated_carried_noise}};
 }
 
 CalibrationOptions CalibrationOptionsFromJson(const nlohmann::json& json, const std::string& file) {
   const ConfigNode n = ConfigNode::FromJson(json, file, "calibration.options");
   n.RejectUnknownKeys({"fix_aspect_ratio", "aspect_ratio", "fix_principal_point", "zero_tangential", "fix_k3",
                        "fix_intrinsics", "loss", "loss_scale_px", "max_iterations", "outlier_view_factor",
-                       "compute_covariance", "estimate_board_warp"});
+                       "compute_covariance", "estimate_board_warp", "correlated_carried_noise"});
   CalibrationOptions o;
   o.fix_aspect_ratio = n.GetBool("fix_aspect_ratio", o.fix_aspect_ratio);
   o.aspect_ratio = n.GetDouble("aspect_ratio", o.aspect_ratio);
@@ -193,6 +202,7 @@ CalibrationOptions CalibrationOptionsFromJson(const nlohmann::json& json, const 
   o.outlier_view_factor = n.GetDouble("outlier_view_factor", o.outlier_view_factor);
   o.compute_covariance = n.GetBool("compute_covariance", o.compute_covariance);
   o.estimate_board_warp = n.GetBool("estimate_board_warp", o.estimate_board_warp);
+  o.correlated_carried_noise = n.GetBool("correlated_carried_noise", o.correlated_carried_noise);
   try {
     o.Check();
   } catch (const Error& e) {
@@ -223,6 +233,15 @@ nlohmann::json CalibrationEvidenceToJson(const CalibrationInput& input, const Ca
     for (const auto& p : v.pixels_px) pix.push_back({p.x(), p.y()});
     j["views"].push_back({{"label", v.label}, {"device", v.device}, {"pose", v.pose}, {"points_in_board_mm", pts},
                           {"pixels_px", pix}});
+    if (v.IsCarried()) {
+      nlohmann::json jac = nlohmann::json::array(), cov = nlohmann::json::array();
+      for (const auto& m : v.source_jacobians) jac.push_back({m(0, 0), m(0, 1), m(1, 0), m(1, 1)});
+      for (const auto& m : v.carry_covariances_px2) cov.push_back({m(0, 0), m(0, 1), m(1, 0), m(1, 1)});
+      j["views"].back()["source_device"] = v.source_device;
+      j["views"].back()["source_points"] = v.source_points;
+      j["views"].back()["source_jacobians"] = jac;
+      j["views"].back()["carry_covariances_px2"] = cov;
+    }
   }
   j["rig_from_board"] = nlohmann::json::array();
   for (const auto& p : result.rig_from_board) j["rig_from_board"].push_back(p ? PoseToJson(*p) : nlohmann::json());
@@ -241,6 +260,17 @@ nlohmann::json CalibrationEvidenceToJson(const CalibrationInput& input, const Ca
       nlohmann::json u = MapStats(ProjectionUncertaintyMap(result.devices[d].model, c, 16));
       u["device"] = result.devices[d].name;
       j["projection_uncertainty"].push_back(u);
+    }
+  }
+  if (!result.intrinsics_covariance_view_correlated.empty()) {
+    j["intrinsics_covariance_view_correlated"] = nlohmann::json::array();
+    j["projection_uncertainty_view_correlated"] = nlohmann::json::array();
+    for (size_t d = 0; d < result.intrinsics_covariance_view_correlated.size(); ++d) {
+      const Matrix9d& c = result.intrinsics_covariance_view_correlated[d];
+      j["intrinsics_covariance_view_correlated"].push_back(std::vector<double>(c.data(), c.data() + 81));  // symmetric
+      nlohmann::json u = MapStats(ProjectionUncertaintyMap(result.devices[d].model, c, 16));
+      u["device"] = result.devices[d].name;
+      j["projection_uncertainty_view_correlated"].push_back(u);
     }
   }
   if (cross_validation) {
@@ -297,6 +327,17 @@ CalibrationEvidence CalibrationEvidenceFromJson(const nlohmann::json& json, cons
     for (size_t k = 0; k < pix.size(); ++k) {
       const auto p = pix.at(k).AsDoubles(2);
       bv.pixels_px.emplace_back(p[0], p[1]);
+    }
+    if (v.Has("source_device")) {
+      bv.source_device = static_cast<int>(v["source_device"].AsInt());
+      const auto ids = v["source_points"], jac = v["source_jacobians"], cov = v["carry_covariances_px2"];
+      for (size_t k = 0; k < ids.size(); ++k) bv.source_points.push_back(static_cast<int>(ids.at(k).AsInt()));
+      auto matrix = [](const ConfigNode& node) {
+        const auto m = node.AsDoubles(4);
+        return (Eigen::Matrix2d() << m[0], m[1], m[2], m[3]).finished();
+      };
+      for (size_t k = 0; k < jac.size(); ++k) bv.source_jacobians.push_back(matrix(jac.at(k)));
+      for (size_t k = 0; k < cov.size(); ++k) bv.carry_covariances_px2.push_back(matrix(cov.at(k)));
     }
     e.input.views.push_back(std::move(bv));
   }

@@ -26,6 +26,15 @@ TEST(CalibrationIo, RigFileKeepsTheEvidenceToRecomputeTheCalibration) {
   testing::TempDir tmp;
   SyntheticData data = MakeSyntheticData(SyntheticRig::Stereo(), 8, 0.2, 3);
   data.input.devices[1].is_projector = true;  // the second device plays the projector
+  for (auto& v : data.input.views) {  // its pixels carried from the first device's (any J, C)
+    if (v.device != 1) continue;
+    v.source_device = 0;
+    for (size_t i = 0; i < v.pixels_px.size(); ++i) {
+      v.source_points.push_back(static_cast<int>(i));
+      v.source_jacobians.push_back((Eigen::Matrix2d() << 0.9, 0.05, -0.02, 1.1).finished());
+      v.carry_covariances_px2.push_back((Eigen::Matrix2d() << 0.01, 0.002, 0.002, 0.02).finished());
+    }
+  }
   CalibrationOptions options;
   options.loss = LossType::kHuber;
   options.loss_scale_px = 2.0;
@@ -37,6 +46,8 @@ TEST(CalibrationIo, RigFileKeepsTheEvidenceToRecomputeTheCalibration) {
   rig.calibration = CalibrationEvidenceToJson(data.input, options, result, CrossValidate(data.input, options));
   EXPECT_TRUE(rig.calibration.contains("projection_uncertainty"));
   EXPECT_TRUE(rig.calibration.contains("cross_validation"));
+  EXPECT_TRUE(rig.calibration.contains("intrinsics_covariance_view_correlated"));
+  EXPECT_TRUE(rig.calibration["summary"].contains("view_noise"));
   SaveRig(rig, tmp / "rig.yaml");
   const Rig back = LoadRig(tmp / "rig.yaml");
   const CalibrationEvidence ev = CalibrationEvidenceFromJson(back.calibration, "rig.yaml");
@@ -50,7 +61,23 @@ TEST(CalibrationIo, RigFileKeepsTheEvidenceToRecomputeTheCalibration) {
     ExpectSameModel(again.devices[d].model, result.devices[d].model, 1e-6);
     EXPECT_LT((again.intrinsics_covariance[d] - result.intrinsics_covariance[d]).norm(),
               1e-4 * result.intrinsics_covariance[d].norm());
+    // ... and the view-correlated one, which needs the carried views' Jacobians.
+    EXPECT_LT((again.intrinsics_covariance_view_correlated.at(d) - result.intrinsics_covariance_view_correlated.at(d)).norm(),
+              1e-4 * result.intrinsics_covariance_view_correlated[d].norm());
   }
+  for (size_t i = 0; i < ev.input.views.size(); ++i) {
+    const BoardView& a = ev.input.views[i];
+    const BoardView& b = data.input.views[i];
+    EXPECT_EQ(a.source_device, b.source_device);
+    EXPECT_EQ(a.source_points, b.source_points);
+    ASSERT_EQ(a.source_jacobians.size(), b.source_jacobians.size());
+    for (size_t k = 0; k < a.source_jacobians.size(); ++k) {
+      EXPECT_EQ(a.source_jacobians[k], b.source_jacobians[k]);
+      EXPECT_EQ(a.carry_covariances_px2[k], b.carry_covariances_px2[k]);
+    }
+  }
+  options.correlated_carried_noise = true;  // the joint noise model's option is kept too
+  EXPECT_TRUE(CalibrationOptionsFromJson(CalibrationOptionsToJson(options), "x").correlated_carried_noise);
   // Malformed evidence names the field.
   nlohmann::json broken = back.calibration;
   broken["views"][0]["pixels_px"][0] = {1.0};

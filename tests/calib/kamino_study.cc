@@ -275,6 +275,13 @@ void CovarianceVsJackknife(const std::vector<ProcamPose>& poses) {
                 std::sqrt(c(0, 0)), JackknifeSigma(sc, M::kFx), JackknifeSigma(sc, M::kFx) / std::sqrt(c(0, 0)), m.cx(),
                 std::sqrt(c(2, 2)), JackknifeSigma(sc, M::kCx), JackknifeSigma(sc, M::kCx) / std::sqrt(c(2, 2)), m.cy(),
                 std::sqrt(c(3, 3)), JackknifeSigma(sc, M::kCy), JackknifeSigma(sc, M::kCy) / std::sqrt(c(3, 3)));
+    if (!sc.result.intrinsics_covariance_view_correlated.empty()) {
+      const auto& vc = sc.result.intrinsics_covariance_view_correlated[1];
+      std::printf(" | view-correlated sigma fx %.2f (x%.2f) cx %.2f (x%.2f) cy %.2f (x%.2f)", std::sqrt(vc(0, 0)),
+                  JackknifeSigma(sc, M::kFx) / std::sqrt(vc(0, 0)), std::sqrt(vc(2, 2)), JackknifeSigma(sc, M::kCx) / std::sqrt(vc(2, 2)),
+                  std::sqrt(vc(3, 3)), JackknifeSigma(sc, M::kCy) / std::sqrt(vc(3, 3)));
+      for (const auto& k : sum.view_noise) std::printf(" | kernel %.3f px %.2f %.2f sq", k.sigma_px, k.share, k.length_squares);
+    }
     if (sum.joint_noise) {
       std::printf(" | noise cam %.4f proj %.4f carry x%.1f chi2/dof %.3f", sum.noise_sigma_px[0], sum.noise_sigma_px[1],
                   sum.carry_scale, sum.variance_factor);
