@@ -658,29 +658,43 @@ double RadialFoldR2(const CameraModel& cam) {
 // from `guess` (the neighbouring sample's solution, so 1-3 iterations). Returns false when it
 // does not converge, the distortion folds over on the way, or the solution lies beyond the radial
 // fold `fold_r2` (then the caller falls back to CameraModel::UndistortToNormalized, which decides).
+// Brown-Conrady coefficients as the Newton step reads them.
+struct Distortion {
+  double k1, k2, k3, p1, p2;
+  explicit Distortion(const CameraModel& cam)
+      : k1(cam.params[CameraModel::kK1]), k2(cam.params[CameraModel::kK2]), k3(cam.params[CameraModel::kK3]),
+        p1(cam.params[CameraModel::kP1]), p2(cam.params[CameraModel::kP2]) {}
+};
+
+// One Newton step on distort(x, y) = (xd, yd) with the analytic Jacobian [a b; b d]: updates
+// (x, y) and returns the Jacobian's determinant (the step is meaningless unless it is > 0) and
+// |dx| + |dy| in `step`. Branch-free, so NewtonRow vectorises over it.
+inline double NewtonStep(const Distortion& k, double xd, double yd, double& x, double& y, double& step) {
+  const double x2 = x * x, y2 = y * y, xy = x * y, r2 = x2 + y2;
+  const double radial = 1 + r2 * (k.k1 + r2 * (k.k2 + r2 * k.k3));
+  const double dradial = 2 * (k.k1 + r2 * (2 * k.k2 + 3 * k.k3 * r2));  // d radial / d r2 * 2
+  const double fx = x * radial + 2 * k.p1 * xy + k.p2 * (r2 + 2 * x2) - xd;
+  const double fy = y * radial + k.p1 * (r2 + 2 * y2) + 2 * k.p2 * xy - yd;
+  const double a = radial + x * x * dradial + 2 * k.p1 * y + 6 * k.p2 * x;
+  const double b = x * y * dradial + 2 * k.p1 * x + 2 * k.p2 * y;
+  const double d = radial + y * y * dradial + 6 * k.p1 * y + 2 * k.p2 * x;
+  const double det = a * d - b * b;
+  const double inv_det = 1 / det;
+  const double dx = (d * fx - b * fy) * inv_det, dy = (a * fy - b * fx) * inv_det;
+  x -= dx;
+  y -= dy;
+  step = std::abs(dx) + std::abs(dy);
+  return det;
+}
+
 bool UndistortFrom(const CameraModel& cam, double fold_r2, double xd_target, double yd_target, Eigen::Vector2d& guess) {
-  const auto& q = cam.params;
-  const double k1 = q[CameraModel::kK1], k2 = q[CameraModel::kK2], p1 = q[CameraModel::kP1], p2 = q[CameraModel::kP2],
-               k3 = q[CameraModel::kK3];
-  double x = guess.x(), y = guess.y();
+  const Distortion k(cam);
+  double x = guess.x(), y = guess.y(), step = 0;
   for (int it = 0; it < 20; ++it) {
-    const double x2 = x * x, y2 = y * y, xy = x * y, r2 = x2 + y2;
-    const double radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3));
-    const double dradial = 2 * (k1 + r2 * (2 * k2 + 3 * k3 * r2));  // d radial / d r2 * 2
-    const double fx = x * radial + 2 * p1 * xy + p2 * (r2 + 2 * x2) - xd_target;
-    const double fy = y * radial + p1 * (r2 + 2 * y2) + 2 * p2 * xy - yd_target;
-    const double a = radial + x * x * dradial + 2 * p1 * y + 6 * p2 * x;
-    const double b = x * y * dradial + 2 * p1 * x + 2 * p2 * y;
-    const double d = radial + y * y * dradial + 6 * p1 * y + 2 * p2 * x;
-    const double det = a * d - b * b;
-    if (!(det > 0)) return false;
-    const double inv_det = 1 / det;
-    const double dx = (d * fx - b * fy) * inv_det, dy = (a * fy - b * fx) * inv_det;
-    x -= dx;
-    y -= dy;
+    if (!(NewtonStep(k, xd_target, yd_target, x, y, step) > 0)) return false;
     // Quadratic convergence: after a step below 1e-10 the remaining error is ~1e-20, far below
     // double rounding of these O(1) coordinates (and the float rays made from them).
-    if (std::abs(dx) + std::abs(dy) < 1e-10) {
+    if (step < 1e-10) {
       guess = Eigen::Vector2d(x, y);
       return x * x + y * y < fold_r2;
     }
@@ -696,29 +710,11 @@ bool UndistortFrom(const CameraModel& cam, double fold_r2, double xd_target, dou
 template <int Steps>
 SLSHADOW_LANE_CLONES void NewtonRow(const CameraModel& cam, double fold_r2, const double* __restrict xd, double yd,
                                     double* __restrict x_io, double* __restrict y_io, uint8_t* __restrict ok, int n) {
-  const auto& q = cam.params;
-  const double k1 = q[CameraModel::kK1], k2 = q[CameraModel::kK2], p1 = q[CameraModel::kP1], p2 = q[CameraModel::kP2],
-               k3 = q[CameraModel::kK3];
+  const Distortion k(cam);
   for (int i = 0; i < n; ++i) {
     double x = x_io[i], y = y_io[i], step = 0;
     bool good = true;
-    for (int it = 0; it < Steps; ++it) {
-      const double x2 = x * x, y2 = y * y, xy = x * y, r2 = x2 + y2;
-      const double radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3));
-      const double dradial = 2 * (k1 + r2 * (2 * k2 + 3 * k3 * r2));
-      const double fx = x * radial + 2 * p1 * xy + p2 * (r2 + 2 * x2) - xd[i];
-      const double fy = y * radial + p1 * (r2 + 2 * y2) + 2 * p2 * xy - yd;
-      const double a = radial + x * x * dradial + 2 * p1 * y + 6 * p2 * x;
-      const double b = x * y * dradial + 2 * p1 * x + 2 * p2 * y;
-      const double d = radial + y * y * dradial + 6 * p1 * y + 2 * p2 * x;
-      const double det = a * d - b * b;
-      good = good & (det > 0);
-      const double inv_det = 1 / det;
-      const double dx = (d * fx - b * fy) * inv_det, dy = (a * fy - b * fx) * inv_det;
-      x -= dx;
-      y -= dy;
-      step = std::abs(dx) + std::abs(dy);
-    }
+    for (int it = 0; it < Steps; ++it) good = good & (NewtonStep(k, xd[i], yd, x, y, step) > 0);
     ok[i] = good & (step < 1e-10) & (x * x + y * y < fold_r2);
     x_io[i] = x;
     y_io[i] = y;
