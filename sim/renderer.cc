@@ -654,10 +654,6 @@ double RadialFoldR2(const CameraModel& cam) {
   return std::numeric_limits<double>::infinity();
 }
 
-// Undistortion by Newton's method on the Brown-Conrady model with an analytic Jacobian, started
-// from `guess` (the neighbouring sample's solution, so 1-3 iterations). Returns false when it
-// does not converge, the distortion folds over on the way, or the solution lies beyond the radial
-// fold `fold_r2` (then the caller falls back to CameraModel::UndistortToNormalized, which decides).
 // Brown-Conrady coefficients as the Newton step reads them.
 struct Distortion {
   double k1, k2, k3, p1, p2;
@@ -687,6 +683,10 @@ inline double NewtonStep(const Distortion& k, double xd, double yd, double& x, d
   return det;
 }
 
+// Undistortion by Newton's method on the Brown-Conrady model with an analytic Jacobian, started
+// from `guess` (the neighbouring sample's solution, so 1-3 iterations). Returns false when it
+// does not converge, the distortion folds over on the way, or the solution lies beyond the radial
+// fold `fold_r2` (then the caller falls back to CameraModel::UndistortToNormalized, which decides).
 bool UndistortFrom(const CameraModel& cam, double fold_r2, double xd_target, double yd_target, Eigen::Vector2d& guess) {
   const Distortion k(cam);
   double x = guess.x(), y = guess.y(), step = 0;
