@@ -13,7 +13,6 @@
 
 #include <opencv2/imgcodecs.hpp>
 #include <tbb/parallel_for.h>
-#include <tbb/parallel_invoke.h>
 
 #include "core/error.h"
 #include "core/file_util.h"
@@ -117,7 +116,7 @@ std::string SimulateSummary::BriefReport() const {
   std::ostringstream s;
   s.precision(3);
   s << cameras << " cameras x " << patterns << " patterns, " << triangles << " triangles: BVH " << build_seconds
-    << " s and camera rays " << camera_rays_seconds << " s (concurrent), geometry " << geometry_seconds << " s ("
+    << " s, camera rays " << camera_rays_seconds << " s, geometry " << geometry_seconds << " s ("
     << (primary_rays + shadow_rays) / 1e6 << " Mrays = " << primary_rays / 1e6 << " primary + " << shadow_rays / 1e6
     << " shadow, " << MraysPerSecond() << " Mrays/s, " << PrimaryMraysPerSecond() << " M primary rays/s), images " << render_seconds
     << " s, ground truth " << write_seconds << " s, total " << total_seconds << " s";
@@ -164,26 +163,6 @@ std::shared_ptr<const CameraRays> CachedCameraRays(const CameraModel& model, int
   return rays;
 }
 
-// The viewing rays of every camera of the rig (cached); `seconds` gets the time taken.
-std::vector<std::shared_ptr<const CameraRays>> RaysOfCameras(const Rig& rig, int samples_per_axis, double* seconds) {
-  const auto start = std::chrono::steady_clock::now();
-  std::vector<std::shared_ptr<const CameraRays>> rays;
-  for (const RigDevice& c : rig.cameras) rays.push_back(CachedCameraRays(c.model, samples_per_axis));
-  *seconds = Since(start);
-  return rays;
-}
-
-// Builds the BVH of `scene` into `caster` while the cameras' rays are made: Embree's Morton
-// build keeps only ~1.3 of the 2 cores busy, and the rays fill the rest. The two times overlap.
-std::vector<std::shared_ptr<const CameraRays>> BuildWithRays(const Scene& scene, const Rig& rig,
-                                                             std::optional<RayCaster>& caster, SimulateSummary& summary) {
-  std::vector<std::shared_ptr<const CameraRays>> rays;
-  tbb::parallel_invoke([&] { caster.emplace(scene); },
-                       [&] { rays = RaysOfCameras(rig, scene.layers.supersampling, &summary.camera_rays_seconds); });
-  summary.build_seconds = caster->build_seconds();
-  return rays;
-}
-
 }  // namespace
 
 Simulator::Simulator(const Scene& scene, const Rig& rig, TraceMode mode, bool ground_truth) : scene_(scene), rig_(rig) {
@@ -191,9 +170,9 @@ Simulator::Simulator(const Scene& scene, const Rig& rig, TraceMode mode, bool gr
   scene.Check("scene '" + scene.name + "'");
   rig.Check("rig '" + rig.name + "'");
   SLSHADOW_THROW_IF(!rig.projector, "rig '", rig.name, "' has no projector: the simulator needs one");
-  std::optional<RayCaster> caster;
-  const auto rays = BuildWithRays(scene, rig, caster, setup_);
-  Trace(*caster, rays, mode, ground_truth);
+  const RayCaster caster(scene);
+  setup_.build_seconds = caster.build_seconds();
+  Trace(caster, mode, ground_truth);
   setup_.total_seconds = Since(start);
 }
 
@@ -202,17 +181,19 @@ Simulator::Simulator(const RayCaster& caster, const Rig& rig, TraceMode mode, bo
   const auto start = std::chrono::steady_clock::now();
   rig.Check("rig '" + rig.name + "'");
   SLSHADOW_THROW_IF(!rig.projector, "rig '", rig.name, "' has no projector: the simulator needs one");
-  Trace(caster, RaysOfCameras(rig, scene_.layers.supersampling, &setup_.camera_rays_seconds), mode, ground_truth);
+  Trace(caster, mode, ground_truth);
   setup_.total_seconds = Since(start);
 }
 
-void Simulator::Trace(const RayCaster& caster, const std::vector<std::shared_ptr<const CameraRays>>& rays, TraceMode mode,
-                      bool ground_truth) {
+void Simulator::Trace(const RayCaster& caster, TraceMode mode, bool ground_truth) {
   setup_.triangles = caster.num_triangles();
   setup_.cameras = static_cast<int>(rig_.cameras.size());
   for (size_t c = 0; c < rig_.cameras.size(); ++c) {
+    const auto t = std::chrono::steady_clock::now();
+    const std::shared_ptr<const CameraRays> rays = CachedCameraRays(rig_.cameras[c].model, scene_.layers.supersampling);
+    setup_.camera_rays_seconds += Since(t);
     if (geometry_.empty()) geometry_.reserve(rig_.cameras.size());  // moved in, never copied
-    geometry_.push_back(TraceGeometry(caster, rig_, static_cast<int>(c), *rays[c], mode, ground_truth));
+    geometry_.push_back(TraceGeometry(caster, rig_, static_cast<int>(c), *rays, mode, ground_truth));
     setup_.geometry_seconds += geometry_.back().seconds;
     setup_.primary_rays += geometry_.back().primary_rays;
     setup_.shadow_rays += geometry_.back().shadow_rays;
@@ -286,8 +267,10 @@ SimulateSummary SimulateScan(const Scene& scene, const Rig& rig, const std::vect
   SLSHADOW_THROW_IF(options.shared_bvh && &options.shared_bvh->scene() != &scene,
                     "SimulateScan: the shared BVH was built for another Scene object");
   std::optional<RayCaster> own_caster;
-  const auto rays = options.shared_bvh ? RaysOfCameras(rig, scene.layers.supersampling, &sum.camera_rays_seconds)
-                                       : BuildWithRays(scene, rig, own_caster, sum);
+  if (!options.shared_bvh) {
+    own_caster.emplace(scene);
+    sum.build_seconds = own_caster->build_seconds();
+  }
   const RayCaster& caster = options.shared_bvh ? *options.shared_bvh : *own_caster;
   sum.triangles = caster.num_triangles();
   sum.cameras = static_cast<int>(rig.cameras.size());
@@ -295,12 +278,15 @@ SimulateSummary SimulateScan(const Scene& scene, const Rig& rig, const std::vect
   Progress progress("simulate", static_cast<int64_t>(rig.cameras.size() * (projector_images.size() + 1)));
   for (size_t c = 0; c < rig.cameras.size(); ++c) {
     const std::string& name = rig.cameras[c].name;
-    const GeometryBuffer g = TraceGeometry(caster, rig, static_cast<int>(c), *rays[c], options.trace_mode, options.write_ground_truth);
+    auto t = std::chrono::steady_clock::now();
+    const std::shared_ptr<const CameraRays> rays = CachedCameraRays(rig.cameras[c].model, scene.layers.supersampling);
+    sum.camera_rays_seconds += Since(t);
+    const GeometryBuffer g = TraceGeometry(caster, rig, static_cast<int>(c), *rays, options.trace_mode, options.write_ground_truth);
     sum.geometry_seconds += g.seconds;
     sum.primary_rays += g.primary_rays;
     sum.shadow_rays += g.shadow_rays;
     progress.Advance();
-    auto t = std::chrono::steady_clock::now();
+    t = std::chrono::steady_clock::now();
     const PatternRenderer renderer(scene, rig, static_cast<int>(c), g);
     // Render a batch in one sweep, then encode its images in parallel (Add is thread-safe).
     for (size_t first = 0; first < projector_images.size(); first += kBatch) {

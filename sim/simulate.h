@@ -20,7 +20,6 @@
 #pragma once
 
 #include <filesystem>
-#include <memory>
 #include <string>
 #include <utility>
 #include <vector>
@@ -53,8 +52,8 @@ struct SimulateSummary {
   int64_t triangles = 0;
   int64_t primary_rays = 0;
   int64_t shadow_rays = 0;
-  double build_seconds = 0;        // BVH build (made at the same time as the camera rays: the two overlap)
-  double camera_rays_seconds = 0;  // undistorted viewing rays (cached per camera model)
+  double build_seconds = 0;        // BVH build
+  double camera_rays_seconds = 0;  // undistorted viewing rays (cacheable per rig)
   double geometry_seconds = 0;     // geometry passes, all cameras
   double render_seconds = 0;       // pattern passes, all images (in SimulateScan: with encoding)
   double write_seconds = 0;        // ground truth and manifest
@@ -100,8 +99,7 @@ class Simulator {
   const Rig& rig_;
   std::vector<GeometryBuffer> geometry_;
   SimulateSummary setup_;
-  void Trace(const RayCaster& caster, const std::vector<std::shared_ptr<const CameraRays>>& rays, TraceMode mode,
-             bool ground_truth);
+  void Trace(const RayCaster& caster, TraceMode mode, bool ground_truth);
 };
 
 // Renders all images in memory: images[camera][pattern]. `geometry`, if not null, receives the
