@@ -164,9 +164,11 @@ struct CalibrationSummary {
   double carry_scale = 0;
   double variance_factor = 0;
   // The view-correlated noise model behind CalibrationResult::intrinsics_covariance_view_correlated,
-  // per device, estimated from the residuals (for a carried device: their part not explained by
-  // the source's error): sigma per coordinate, and the correlation of two corners delta squares
-  // apart, share * exp(-delta^2 / (2 length^2)). share 0: the errors look independent.
+  // per device (for a carried device: its own error, beyond the source's carried through J):
+  // sigma per coordinate, and the correlation of two corners delta squares apart,
+  // share * exp(-delta^2 / (2 length^2)). Fitted to the residuals' moments at 0, 1 and sqrt(2)
+  // squares through the residual-maker matrix (the fit absorbs part of correlated errors).
+  // share 0: the residuals look independent (neighbour correlation <= 0.1).
   struct ViewNoise {
     double sigma_px = 0;
     double share = 0;

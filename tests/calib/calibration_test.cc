@@ -174,7 +174,7 @@ CarriedMonteCarlo RunCarriedMonteCarlo(bool correlated, int runs) {
 }
 
 TEST(Calibrate, CarriedViewsWhitenedWithTheirSourceGiveHonestCovariance) {
-  const int runs = 24;
+  const int runs = 16;
   const CarriedMonteCarlo joint = RunCarriedMonteCarlo(true, runs);
   const CarriedMonteCarlo independent = RunCarriedMonteCarlo(false, runs);
   const char* names[3] = {"fx", "cx", "cy"};
@@ -182,7 +182,7 @@ TEST(Calibrate, CarriedViewsWhitenedWithTheirSourceGiveHonestCovariance) {
     std::printf("%s: joint spread %.3f predicted %.3f | independent spread %.3f predicted %.3f, view-correlated model %.3f\n",
                 names[k], joint.spread[k], joint.predicted[k], independent.spread[k], independent.predicted[k],
                 independent.predicted_view[k]);
-    // 24 runs estimate a sigma to about +-15 % (1 sigma).
+    // 16 runs estimate a sigma to about +-18 % (1 sigma).
     EXPECT_GT(joint.spread[k] / joint.predicted[k], 0.65) << names[k];
     EXPECT_LT(joint.spread[k] / joint.predicted[k], 1.4) << names[k];
     // The view-correlated covariance of the independently weighted solve (intrinsics_covariance_
@@ -192,7 +192,7 @@ TEST(Calibrate, CarriedViewsWhitenedWithTheirSourceGiveHonestCovariance) {
     EXPECT_LT(independent.spread[k] / independent.predicted_view[k], 1.4) << names[k];
   }
   // Weighting the pairs as independent counts the source's error twice: less precise estimates
-  // (measured 1.6x the joint spread for fx, 1.2x cx, 2.1x cy) with an optimistic sigma.
+  // (measured 2.1x the joint spread for fx, 1.16x cx, 1.9x cy) with an optimistic sigma.
   EXPECT_GT(independent.spread[0], 1.25 * joint.spread[0]);
   EXPECT_GT(independent.spread[1], joint.spread[1]);
   EXPECT_GT(independent.spread[2], 1.25 * joint.spread[2]);
@@ -203,8 +203,8 @@ TEST(Calibrate, CarriedViewsWhitenedWithTheirSourceGiveHonestCovariance) {
 
 // Corner errors correlated across each view (a Gaussian-correlated field, share 0.6 over one
 // square, plus an independent part), as on the kamino capture: the standard covariance is
-// optimistic, the view-correlated model (intrinsics_covariance_view_correlated, kernel estimated
-// from the residuals) much less so.
+// optimistic, the view-correlated model (intrinsics_covariance_view_correlated, kernel fitted to
+// the residuals' moments) predicts the spread over seeds.
 TEST(Calibrate, ViewCorrelatedCovariancePredictsSpreadOfCorrelatedCornerErrors) {
   const SyntheticRig rig = SyntheticRig::OneCamera();
   const int runs = 30;
@@ -248,18 +248,16 @@ TEST(Calibrate, ViewCorrelatedCovariancePredictsSpreadOfCorrelatedCornerErrors) 
     standard[q] = std::sqrt(standard[q]);
     view[q] = std::sqrt(view[q]);
     std::printf("%s: spread %.3f, standard covariance %.3f, view-correlated %.3f\n", names[q], spread[q], standard[q], view[q]);
-    // Measured: spread / standard sigma 1.6-2.2; / view-correlated sigma 1.15-1.6 (with the true
-    // kernel instead of the estimated one 0.94-1.31: the kernel estimated from the residuals
-    // is too short, the fit absorbs the errors' smooth part).
+    // Measured: spread / standard sigma 1.6-2.2; / view-correlated sigma 0.93-1.28 (the same as
+    // with the true kernel; correlation read off the residuals alone, without the moment
+    // matching, gave a kernel too short, share 0.66 over 0.77 squares, and 1.15-1.6).
     EXPECT_GT(spread[q] / standard[q], 1.5) << names[q];
-    EXPECT_GT(spread[q] / view[q], 0.8) << names[q];
-    EXPECT_LT(spread[q] / view[q], 1.8) << names[q];
-    EXPECT_LT(spread[q] / view[q], 0.85 * spread[q] / standard[q]) << names[q];
+    EXPECT_GT(spread[q] / view[q], 0.75) << names[q];
+    EXPECT_LT(spread[q] / view[q], 1.45) << names[q];
   }
   std::printf("estimated share %.3f (truth %.1f), length %.2f squares (truth %.1f)\n", est_share, share, est_length, length);
-  EXPECT_NEAR(est_share, share, 0.15);
-  EXPECT_GT(est_length, 0.6);
-  EXPECT_LT(est_length, 1.1);
+  EXPECT_NEAR(est_share, share, 0.1);
+  EXPECT_NEAR(est_length, length, 0.2);
 }
 
 TEST(Calibrate, CarriedViewsAreChecked) {

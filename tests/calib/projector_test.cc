@@ -207,11 +207,12 @@ TEST(ProjectorCalibrationRealData, KaminoProcamGraycode) {
   EXPECT_GT(camera_corr, 0.2);
   EXPECT_GT(projector_corr, 0.2);
   // The covariance under a noise model with corner errors correlated across each pose
-  // (intrinsics_covariance_view_correlated; kernel from the residuals, measured: camera sigma
-  // 0.22 px, share 0.62 over 1.0 square; projector's own part 0.07 px, 0.68 over 1.7 squares)
-  // comes near the jackknife for fx (measured 4.77 vs 6.21 px, 1.30x) and cy (12.3 vs 15.2 px,
-  // 1.24x), not for cx (4.07 vs 11.0, 2.7x). Asserted with margin: fx and cy within 1.6x, cx
-  // within 3.5x, and wider than the standard covariance.
+  // (intrinsics_covariance_view_correlated; kernel fitted to the residual moments, measured:
+  // camera sigma 0.28 px, share 0.70 over 1.7 squares; projector's own part 0.065 px, 0.59 over
+  // 2.4 squares) agrees with the jackknife for fx (measured 6.93 vs 6.21 px) and cy (17.7 vs
+  // 15.2 px), not yet for cx (5.82 vs 11.0, 1.9x). Asserted with margin (five folds estimate a
+  // sigma to about +-35 %): jackknife / sigma in 0.6..1.5 for fx and cy, < 2.5 for cx, and the
+  // sigma wider than the standard covariance's.
   ASSERT_EQ(result.intrinsics_covariance_view_correlated.size(), 2u);
   const auto& vcov = result.intrinsics_covariance_view_correlated[1];
   for (const auto& k : result.summary.view_noise) {
@@ -221,8 +222,8 @@ TEST(ProjectorCalibrationRealData, KaminoProcamGraycode) {
     const double sigma = std::sqrt(cov(i, i)), view = std::sqrt(vcov(i, i)), jack = JackknifeSigma(chosen, i);
     std::printf("parameter %d: sigma %.2f, view-correlated %.2f, jackknife %.2f (x%.2f)\n", i, sigma, view, jack, jack / view);
     EXPECT_GT(view, 1.2 * sigma) << "parameter " << i;
-    EXPECT_LT(jack / view, i == M::kCx ? 3.5 : 1.6) << "parameter " << i;
-    EXPECT_GT(jack / view, 0.5) << "parameter " << i;
+    EXPECT_LT(jack / view, i == M::kCx ? 2.5 : 1.5) << "parameter " << i;
+    EXPECT_GT(jack / view, 0.6) << "parameter " << i;
   }
   // The joint noise model (CalibrationOptions::correlated_carried_noise: each projector corner
   // whitened with its camera corner through the local homography's Jacobian) does not make the
