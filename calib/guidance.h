@@ -14,6 +14,10 @@
 //   high RMS             device RMS above max_rms_px (1 px)              -> check target size / focus
 //   edge uncertainty     projection uncertainty p95 above max_uncertainty_px (0.5 px)
 //                                                                         -> more views near the edges
+//   correlated errors    corner errors shared across views make fx's sigma more than
+//                        max_correlated_sigma_ratio (1.5) x the standard covariance's
+//                        (CalibrationResult::intrinsics_covariance_view_correlated)
+//                                                                         -> quote that covariance; check focus, print
 #pragma once
 
 #include <string>
@@ -50,6 +54,7 @@ struct GuidanceOptions {
   double max_saturated = 0.02;
   double max_rms_px = 1.0;
   double max_uncertainty_px = 0.5;
+  double max_correlated_sigma_ratio = 1.5;
 };
 
 // Reviews a calibration (input, result and the per-image checks). Findings are ordered by

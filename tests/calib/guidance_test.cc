@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
+
 #include "calib/synthetic.h"
 
 namespace slshadow {
@@ -26,6 +28,20 @@ TEST(Guidance, GoodDataGivesNoWarnings) {
   const auto f = ReviewCalibration(data.input, r, {});
   EXPECT_TRUE(f.empty()) << All(f);
   EXPECT_GT(ImageCoverage(data.input, 0), 0.55);
+}
+
+// Corner errors shared across each view (0.5 px waves across the board): the review says the
+// standard covariance is optimistic and by how much.
+TEST(Guidance, CorrelatedCornerErrors) {
+  SyntheticData data = MakeSyntheticData(SyntheticRig::OneCamera(), 15, 0.1, 2);
+  for (auto& v : data.input.views) {
+    for (size_t i = 0; i < v.pixels_px.size(); ++i) {
+      const double s = 0.02 * v.points_in_board_mm[i].x() + 0.7 * v.pose, t = 0.025 * v.points_in_board_mm[i].y() - 0.4 * v.pose;
+      v.pixels_px[i] += 0.5 * Eigen::Vector2d(std::sin(s + t), std::cos(s - t));
+    }
+  }
+  const auto f = ReviewCalibration(data.input, Calibrate(data.input, {}), {});
+  EXPECT_TRUE(Has(f, "corner errors are correlated across each view")) << All(f);
 }
 
 TEST(Guidance, TooFewViews) {
