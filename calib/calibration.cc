@@ -726,30 +726,34 @@ std::vector<ViewNoiseKernel> EstimateViewKernels(const CalibrationInput& input, 
 // The joint noise model's weights from the residuals at `s`: each device's corner noise (RMS per
 // coordinate of its points) and k, the scale of the carry covariances: for a carried point i and
 // its source point, d = r_i - J_i r_source has covariance k C_i alone (the source's error
-// cancels), so k = mean(d^T C_i^-1 d) / 2.
-NoiseModel EstimateNoise(const CalibrationInput& input, const State& s) {
-  NoiseModel noise;
-  std::vector<double> sq(input.devices.size(), 0), n(input.devices.size(), 0);
-  double k_sum = 0;
-  int k_n = 0;
+// cancels), so k = mean(d^T C_i^-1 d) / 2 (medians with a robust loss, below).
+double Median(std::vector<double> v);
+
+NoiseModel EstimateNoise(const CalibrationInput& input, const State& s, bool robust) {
+  // Per-coordinate variance samples |r|^2 / 2 per device, and d^T C^-1 d / 2 for k: their mean,
+  // or with a robust loss their median / ln 2 (exponentially distributed for Gaussian errors), so
+  // that outliers do not inflate the weights' scale.
+  std::vector<std::vector<double>> var(input.devices.size());
+  std::vector<double> k;
   for (const auto& v : input.views) {
     if (!s.pose_known[v.pose]) continue;
-    for (size_t i = 0; i < v.pixels_px.size(); ++i) {
-      sq[v.device] += (ProjectView(s, v, i) - v.pixels_px[i]).squaredNorm();
-      n[v.device] += 2;
-    }
+    for (size_t i = 0; i < v.pixels_px.size(); ++i) var[v.device].push_back((ProjectView(s, v, i) - v.pixels_px[i]).squaredNorm() / 2);
     if (!v.IsCarried()) continue;
     const BoardView& src = input.views[static_cast<size_t>(FindView(input, v.source_device, v.pose))];
     for (size_t i = 0; i < v.pixels_px.size(); ++i) {
       const auto j = static_cast<size_t>(v.source_points[i]);
       const Eigen::Vector2d d = (ProjectView(s, v, i) - v.pixels_px[i]) -
                                 v.source_jacobians[i] * (ProjectView(s, src, j) - src.pixels_px[j]);
-      k_sum += d.dot(v.carry_covariances_px2[i].ldlt().solve(d)) / 2;
-      ++k_n;
+      k.push_back(d.dot(v.carry_covariances_px2[i].ldlt().solve(d)) / 2);
     }
   }
-  for (size_t d = 0; d < input.devices.size(); ++d) noise.sigma_px.push_back(std::max(n[d] > 0 ? std::sqrt(sq[d] / n[d]) : 1.0, 1e-6));
-  noise.carry_scale = k_n > 0 ? std::max(k_sum / k_n, 1e-6) : 1.0;
+  auto scale = [&](const std::vector<double>& x) {
+    if (x.empty()) return 1.0;
+    return robust ? Median(x) / std::log(2.0) : std::accumulate(x.begin(), x.end(), 0.0) / static_cast<double>(x.size());
+  };
+  NoiseModel noise;
+  for (const auto& x : var) noise.sigma_px.push_back(std::max(std::sqrt(scale(x)), 1e-6));
+  noise.carry_scale = std::max(scale(k), 1e-6);
   return noise;
 }
 
@@ -1023,7 +1027,7 @@ CalibrationResult Calibrate(const CalibrationInput& input, const CalibrationOpti
   iterations += static_cast<int>(final_solve.summary.iterations.size());
   NoiseModel noise;
   for (int round = 0; joint && round < 2; ++round) {
-    noise = EstimateNoise(input, s);
+    noise = EstimateNoise(input, s, options.loss != LossType::kNone);
     final_solve = Solve(input, options, &s, options.compute_covariance && round == 1, &noise);
     iterations += static_cast<int>(final_solve.summary.iterations.size());
   }

@@ -105,7 +105,8 @@ struct CalibrationOptions {
   // (source residual, carried residual) is [[s^2 I, s^2 J^T], [s^2 J, s^2 J J^T + k C]], s the
   // source device's corner noise, J = source_jacobians[i], C = carry_covariances_px2[i]; s and k
   // are estimated from the residuals of a solve with independent weighting and re-estimated once
-  // (CalibrationSummary::noise_sigma_px, carry_scale), and each pair's stacked residual is
+  // (CalibrationSummary::noise_sigma_px, carry_scale; from medians with a robust loss, so that
+  // outliers do not set the weights), and each pair's stacked residual is
   // whitened by the inverse Cholesky factor inside one cost (the robust loss applies to the
   // whitened 4-vector, its scale loss_scale_px / s). Every other point of device d is weighted by
   // 1 / s_d. false: every point is an independent, equally weighted 2D residual (the carried
