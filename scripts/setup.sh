@@ -16,6 +16,8 @@ PACKAGES=(
   libcli11-dev libspdlog-dev
   # tests and benchmarks
   libgtest-dev libgmock-dev libbenchmark-dev
+  # benchmark peer: the digital-model paper's Python/Open3D approach (bench/paper_peer)
+  python3-open3d
   # devices and their mocks
   libaravis-dev aravis-tools aravis-tools-cli libusb-1.0-0-dev umockdev libumockdev-dev
   libsdl2-dev xvfb x11-apps
