@@ -4,8 +4,9 @@
 # (paper_scanner.py) and slshadow's BM_PaperWorkloadWritten/0 on the same workload, one after
 # the other, then the ratio of their times.
 #
-#   bash bench/paper_peer/run.sh                 # N = 1800000 points on the part (~31 % holes)
-#   PEER_POINTS="1200000 1800000 2400000" bash bench/paper_peer/run.sh
+#   bash bench/paper_peer/run.sh        # N = 2500000 points on the part (~31 % holes), the part
+#                                       # alone, then part + table at the same point density
+#   PEER_POINTS="1200000 2500000" PEER_TABLE_DENSITY=0 bash bench/paper_peer/run.sh
 #   BUILD=/work/main/build bash bench/paper_peer/run.sh   # reuse another build folder
 #
 # Needs python3-open3d (scripts/setup.sh). Run it on a quiet machine (load average < 1): both
@@ -13,8 +14,9 @@
 set -euo pipefail
 SRC="$(cd "$(dirname "$0")/../.." && pwd)"
 BUILD="${BUILD:-$SRC/build-peer}"
-POINTS="${PEER_POINTS:-1800000}"
-TABLE_DENSITY="${PEER_TABLE_DENSITY:-1}"
+POINTS="${PEER_POINTS:-2500000}"
+# Point density on the table relative to the part's; 0: the part alone (the paper's object cloud).
+TABLE_DENSITIES="${PEER_TABLE_DENSITY:-0 1}"
 WORK="$BUILD/paper_peer"
 PY=/usr/bin/python3   # Debian's python3, where python3-open3d lives
 
@@ -27,31 +29,32 @@ rm -rf "$WORK"
 mkdir -p "$WORK"
 "$BUILD/tests/sim/export_bench_part" "$SRC" "$WORK/scene"
 
-echo "== peer: paper_scanner.py, 22 patterns x 2 cameras, N = $POINTS, table density x$TABLE_DENSITY"
-echo "   ($(uptime))"
-# shellcheck disable=SC2086
-/usr/bin/time -f 'peer process: %e s wall, %U s user, %S s sys, %M KB peak' \
-  "$PY" "$SRC/bench/paper_peer/paper_scanner.py" --scene "$WORK/scene" --rig "$SRC/config/demo/rig.yaml" \
-  --out "$WORK/images" --points $POINTS --table-density "$TABLE_DENSITY" --json "$WORK/peer.json"
-rm -rf "$WORK/images"
+for td in $TABLE_DENSITIES; do
+  echo "== peer: paper_scanner.py, 22 patterns x 2 cameras, N = $POINTS, table density x$td ($(uptime))"
+  # shellcheck disable=SC2086
+  /usr/bin/time -f 'peer process: %e s wall, %U s user, %S s sys, %M KB peak' \
+    "$PY" "$SRC/bench/paper_peer/paper_scanner.py" --scene "$WORK/scene" --rig "$SRC/config/demo/rig.yaml" \
+    --out "$WORK/images" --points $POINTS --table-density "$td" --json "$WORK/peer_table$td.json"
+  rm -rf "$WORK/images"
+done
 
-echo "== slshadow: sim_bench BM_PaperWorkloadWritten/0 (same workload, PGM written)"
-echo "   ($(uptime))"
+echo "== slshadow: sim_bench BM_PaperWorkloadWritten/0 (same workload, PGM written) ($(uptime))"
 "$BUILD/tests/sim/sim_bench" --benchmark_filter='BM_PaperWorkloadWritten/0' --benchmark_repetitions=3 \
   --benchmark_report_aggregates_only=true --benchmark_out="$WORK/slshadow.json" --benchmark_out_format=json
 
 echo "== ratio ($(uptime))"
-"$PY" - "$WORK/peer.json" "$WORK/slshadow.json" <<'EOF'
+"$PY" - "$WORK/slshadow.json" "$WORK"/peer_table*.json <<'PYEOF'
 import json, sys
-peer = json.load(open(sys.argv[1]))
-bench = json.load(open(sys.argv[2]))
+bench = json.load(open(sys.argv[1]))
 med = [b for b in bench["benchmarks"] if b.get("aggregate_name") == "median"][0]
 scale = {"ns": 1e-9, "us": 1e-6, "ms": 1e-3, "s": 1.0}[med.get("time_unit", "ns")]
 sl = med["real_time"] * scale
 print("slshadow median %.3f s wall (cpu_s %.3f)" % (sl, med.get("cpu_s", float("nan"))))
-for r in peer:
-    s = r["seconds"]
-    print("N=%d: peer %.2f s (sample %.2f, hpr %.2f, project %.2f, images %.2f; + load %.2f), holes %.1f %%: "
-          "ratio %.0fx (with load %.0fx)" % (r["points_part"], s["total"], s["sample"], s["hpr"], s["project"],
-          s["images"], s["load"], 100 * r["hole_fraction"], s["total"] / sl, s["total_with_load"] / sl))
-EOF
+for path in sys.argv[2:]:
+    for r in json.load(open(path)):
+        s = r["seconds"]
+        print("%s N=%d (%d points): peer %.2f s (sample %.2f, hpr %.2f, project %.2f, images %.2f; + load %.2f), "
+              "holes %.1f %%: ratio %.0fx" % (path.rsplit("/", 1)[-1], r["points_part"], r["points_total"],
+              s["total"], s["sample"], s["hpr"], s["project"], s["images"], s["load"],
+              100 * r["hole_fraction"], s["total"] / sl))
+PYEOF
