@@ -243,6 +243,214 @@ double GridSpacing(const BoardView& v) {
   return spacing > 0 && spacing < 1e300 ? spacing : 1.0;
 }
 
+// The view-correlated covariance of all free parameters (the sandwich
+// (J^T J)^-1 J^T Sigma J (J^T J)^-1, Sigma the errors' covariance pose by pose), for Solve. The
+// rows of `crs` and `residuals` are the single-point blocks in `block_points` order (two each);
+// `inv` is (J^T J)^-1. When the first guess in `kernels` shows correlation, each device's kernel is
+// refitted to the residuals' moments first and written back (Solve's comment says how).
+Eigen::MatrixXd ViewCorrelatedCovariance(const CalibrationInput& input, const std::vector<std::pair<int, int>>& block_points,
+                                         const std::vector<double>& residuals, const ceres::CRSMatrix& crs,
+                                         const Eigen::MatrixXd& inv, int cols, std::vector<ViewNoiseKernel>* kernels) {
+  // Pose by pose (errors of different poses are independent): Jacobian rows, residuals,
+  // the hat block H_pp = J_p (J^T J)^-1 J_p^T, and the moment units: per point its
+  // residual, for a carried point its own part r - J r_source.
+  struct Unit {
+    int device = 0;
+    std::vector<std::pair<Eigen::Index, Eigen::Matrix2d>> terms;  // sum of c * r(block)
+  };
+  struct PoseRows {
+    std::vector<int> blocks;
+    Eigen::MatrixXd j, h;
+    Eigen::VectorXd r;
+    double spacing = 1e300;
+    std::vector<Unit> units;
+    std::vector<std::array<int, 3>> pairs;  // unit a, unit b, lag 0 (a = b), 1 or 2 (sqrt 2 squares)
+  };
+  std::vector<PoseRows> poses(static_cast<size_t>(input.num_poses));
+  for (size_t k = 0; k < block_points.size(); ++k) {
+    poses[static_cast<size_t>(input.views[static_cast<size_t>(block_points[k].first)].pose)].blocks.push_back(static_cast<int>(k));
+  }
+  std::erase_if(poses, [](const PoseRows& p) { return p.blocks.empty(); });
+  for (auto& p : poses) {
+    const auto m = static_cast<Eigen::Index>(2 * p.blocks.size());
+    p.j = Eigen::MatrixXd::Zero(m, cols);
+    p.r.resize(m);
+    std::map<std::pair<int, int>, Eigen::Index> local;  // (view, point) -> block index in the pose
+    for (size_t a = 0; a < p.blocks.size(); ++a) {
+      const auto [va, ia] = block_points[static_cast<size_t>(p.blocks[a])];
+      local[{va, ia}] = static_cast<Eigen::Index>(a);
+      p.spacing = std::min(p.spacing, GridSpacing(input.views[static_cast<size_t>(va)]));
+      for (int r = 0; r < 2; ++r) {
+        const int row = 2 * p.blocks[a] + r;
+        p.r(static_cast<Eigen::Index>(2 * a) + r) = residuals[static_cast<size_t>(row)];
+        for (int e = crs.rows[row]; e < crs.rows[row + 1]; ++e) p.j(static_cast<Eigen::Index>(2 * a) + r, crs.cols[e]) = crs.values[e];
+      }
+    }
+    p.h = p.j * inv * p.j.transpose();
+    std::map<int, std::vector<int>> view_units;  // view -> its units
+    for (size_t a = 0; a < p.blocks.size(); ++a) {
+      const auto [va, ia] = block_points[static_cast<size_t>(p.blocks[a])];
+      const BoardView& v = input.views[static_cast<size_t>(va)];
+      Unit u;
+      u.device = v.device;
+      u.terms.emplace_back(static_cast<Eigen::Index>(a), Eigen::Matrix2d::Identity());
+      if (v.IsCarried()) {
+        const auto it = local.find({FindView(input, v.source_device, v.pose), v.source_points[static_cast<size_t>(ia)]});
+        if (it != local.end()) u.terms.emplace_back(it->second, -v.source_jacobians[static_cast<size_t>(ia)]);
+      }
+      view_units[va].push_back(static_cast<int>(p.units.size()));
+      p.units.push_back(std::move(u));
+    }
+    for (const auto& [va, us] : view_units) {
+      for (size_t a = 0; a < us.size(); ++a) {
+        const auto ia = static_cast<size_t>(block_points[static_cast<size_t>(p.blocks[static_cast<size_t>(us[a])])].second);
+        for (size_t b = a; b < us.size(); ++b) {
+          const auto ib = static_cast<size_t>(block_points[static_cast<size_t>(p.blocks[static_cast<size_t>(us[b])])].second);
+          const auto& x = input.views[static_cast<size_t>(va)].points_in_board_mm;
+          const double delta = (x[ia] - x[ib]).norm() / p.spacing;
+          const int lag = a == b ? 0 : std::abs(delta - 1) < 0.01 ? 1 : std::abs(delta - std::sqrt(2.0)) < 0.01 ? 2 : -1;
+          if (lag >= 0) p.pairs.push_back({us[a], us[b], lag});
+        }
+      }
+    }
+  }
+  auto sigma_of = [&](const std::vector<ViewNoiseKernel>& k, const PoseRows& p) {
+    const auto m = static_cast<Eigen::Index>(2 * p.blocks.size());
+    Eigen::MatrixXd sigma = Eigen::MatrixXd::Zero(m, m);
+    auto active = [&](const BoardView& v) {  // does any field of this view's points have noise?
+      return k[static_cast<size_t>(v.IsCarried() ? v.source_device : v.device)].sigma_px > 0 ||
+             (v.IsCarried() && k[static_cast<size_t>(v.device)].sigma_px > 0);
+    };
+    for (size_t a = 0; a < p.blocks.size(); ++a) {
+      const auto [va, ia] = block_points[static_cast<size_t>(p.blocks[a])];
+      const BoardView& v = input.views[static_cast<size_t>(va)];
+      if (!active(v)) continue;
+      for (size_t b = a; b < p.blocks.size(); ++b) {
+        const auto [vb, ib] = block_points[static_cast<size_t>(p.blocks[b])];
+        const BoardView& w = input.views[static_cast<size_t>(vb)];
+        if (!active(w)) continue;
+        const Eigen::Matrix2d c = PointPairCovariance(k, v, static_cast<size_t>(ia), w, static_cast<size_t>(ib), p.spacing);
+        const auto ra = static_cast<Eigen::Index>(2 * a), rb = static_cast<Eigen::Index>(2 * b);
+        sigma.block<2, 2>(ra, rb) = c;
+        sigma.block<2, 2>(rb, ra) = c.transpose();
+      }
+    }
+    return sigma;
+  };
+  auto meat_of = [&](const std::vector<Eigen::MatrixXd>& sigmas) {
+    Eigen::MatrixXd meat = Eigen::MatrixXd::Zero(cols, cols);
+    for (size_t i = 0; i < poses.size(); ++i) meat += poses[i].j.transpose() * sigmas[i] * poses[i].j;
+    return meat;
+  };
+  // Sum over each device's unit pairs of u_a . u_b by lag, for a covariance C of the
+  // residuals (entry(a, b): the 2x2 block of C between blocks a and b).
+  const size_t nd = input.devices.size();
+  auto pair_sums = [&](const PoseRows& p, const auto& entry, std::vector<double>* sums) {
+    for (const auto& [ua, ub, lag] : p.pairs) {
+      double v = 0;
+      for (const auto& [ka, ca] : p.units[static_cast<size_t>(ua)].terms) {
+        for (const auto& [kb, cb] : p.units[static_cast<size_t>(ub)].terms) v += (ca * entry(ka, kb) * cb.transpose()).trace();
+      }
+      (*sums)[3 * static_cast<size_t>(p.units[static_cast<size_t>(ua)].device) + static_cast<size_t>(lag)] += v;
+    }
+  };
+  // Expected sums when the errors have covariance `k`: residuals r = (I - H) e, so
+  // E[r r^T]_pp = S_p - H_pp S_p - S_p H_pp + J_p (J^T J)^-1 (sum_q J_q^T S_q J_q) (J^T J)^-1 J_p^T.
+  auto expected = [&](const std::vector<ViewNoiseKernel>& k) {
+    std::vector<double> sums(3 * nd, 0);
+    std::vector<Eigen::MatrixXd> sigmas;
+    for (const auto& p : poses) sigmas.push_back(sigma_of(k, p));
+    const Eigen::MatrixXd kk = inv * meat_of(sigmas) * inv;
+    for (size_t i = 0; i < poses.size(); ++i) {
+      const PoseRows& p = poses[i];
+      const Eigen::MatrixXd& sigma = sigmas[i];
+      const Eigen::MatrixXd jk = p.j * kk;
+      pair_sums(p, [&](Eigen::Index a, Eigen::Index b) {
+        const Eigen::Matrix2d hs = p.h.middleRows(2 * a, 2) * sigma.middleCols(2 * b, 2);
+        const Eigen::Matrix2d sh = sigma.middleRows(2 * a, 2) * p.h.middleCols(2 * b, 2);
+        return Eigen::Matrix2d(sigma.block<2, 2>(2 * a, 2 * b) - hs - sh +
+                               jk.middleRows(2 * a, 2) * p.j.middleRows(2 * b, 2).transpose());
+      }, &sums);
+    }
+    return sums;
+  };
+  std::vector<double> observed(3 * nd, 0);
+  for (const auto& p : poses) {
+    pair_sums(p, [&](Eigen::Index a, Eigen::Index b) {
+      return Eigen::Matrix2d(p.r.segment<2>(2 * a) * p.r.segment<2>(2 * b).transpose());
+    }, &observed);
+  }
+  // Moment matching: each device's field contributes sigma^2 (nugget) and sigma^2 share
+  // (correlated part) linearly; its length is searched on a grid, device by device.
+  auto structure = [&](size_t f, double share, double length) {
+    std::vector<ViewNoiseKernel> k(nd);
+    k[f] = {1.0, share, length};
+    return expected(k);
+  };
+  bool seen = false;  // any correlation in the residuals? (else the residual-based estimate stands)
+  for (const auto& k : *kernels) seen = seen || k.share > 0;
+  std::vector<std::vector<double>> nugget(nd);
+  for (size_t f = 0; seen && f < nd; ++f) nugget[f] = structure(f, 0, 1);
+  const std::vector<double> grid = {0.4, 0.6, 0.85, 1.2, 1.7, 2.4, 3.4};
+  std::vector<double> length(nd);
+  std::map<std::pair<size_t, size_t>, std::vector<double>> correlated;  // (field, grid index)
+  auto correlated_of = [&](size_t f, size_t g) -> const std::vector<double>& {
+    auto it = correlated.find({f, g});
+    if (it == correlated.end()) {
+      std::vector<double> c = structure(f, 1, grid[g]);
+      for (size_t i = 0; i < c.size(); ++i) c[i] -= nugget[f][i];
+      it = correlated.emplace(std::make_pair(f, g), std::move(c)).first;
+    }
+    return it->second;
+  };
+  std::vector<size_t> at(nd, 0);
+  for (size_t f = 0; f < nd; ++f) {  // start from the residual-based estimate
+    for (size_t g = 0; g < grid.size(); ++g) {
+      if (std::abs(grid[g] - (*kernels)[f].length_squares) < std::abs(grid[at[f]] - (*kernels)[f].length_squares)) at[f] = g;
+    }
+  }
+  auto fit = [&](const std::vector<size_t>& g, Eigen::VectorXd* x) {
+    Eigen::MatrixXd a(3 * nd, 2 * nd);
+    Eigen::VectorXd b(3 * nd);
+    for (size_t i = 0; i < 3 * nd; ++i) {
+      const double w = observed[3 * (i / 3)] > 0 ? 1 / observed[3 * (i / 3)] : 0;  // per device, by its energy
+      b(static_cast<Eigen::Index>(i)) = w * observed[i];
+      for (size_t f = 0; f < nd; ++f) {
+        a(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(2 * f)) = w * nugget[f][i];
+        a(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(2 * f + 1)) = w * correlated_of(f, g[f])[i];
+      }
+    }
+    *x = a.colPivHouseholderQr().solve(b);
+    return (a * *x - b).squaredNorm();
+  };
+  Eigen::VectorXd x;
+  for (int pass = 0; seen && pass < (nd > 1 ? 2 : 1); ++pass) {
+    for (size_t f = 0; f < nd; ++f) {
+      size_t best = at[f];
+      double best_err = 1e300;
+      for (size_t g = 0; g < grid.size(); ++g) {
+        std::vector<size_t> trial = at;
+        trial[f] = g;
+        const double err = fit(trial, &x);
+        if (err < best_err) {
+          best_err = err;
+          best = g;
+        }
+      }
+      at[f] = best;
+    }
+  }
+  if (seen) fit(at, &x);
+  for (size_t f = 0; seen && f < nd; ++f) {
+    const double var = x(static_cast<Eigen::Index>(2 * f)), cov = x(static_cast<Eigen::Index>(2 * f + 1));
+    if (!(var > 0) || observed[3 * f] <= 0) continue;  // keep the residual-based estimate
+    (*kernels)[f] = {std::sqrt(var), std::clamp(cov / var, 0.0, 1.0), grid[at[f]]};
+  }
+  std::vector<Eigen::MatrixXd> sigmas;
+  for (const auto& p : poses) sigmas.push_back(sigma_of(*kernels, p));
+  return inv * meat_of(sigmas) * inv;
+}
+
 // One Levenberg-Marquardt solve over `input`, starting from and updating `s`. With `noise`, carried
 // points are whitened jointly with their source points and every other point is weighted by
 // 1 / its device's sigma; without, all points are independent and equally weighted.
@@ -416,204 +624,8 @@ SolveOutput Solve(const CalibrationInput& input, const CalibrationOptions& optio
         };
         for (size_t d = 0; d < input.devices.size(); ++d) out.covariance.push_back(lift(inv, d));
         if (sandwich) {
-          // Pose by pose (errors of different poses are independent): Jacobian rows, residuals,
-          // the hat block H_pp = J_p (J^T J)^-1 J_p^T, and the moment units: per point its
-          // residual, for a carried point its own part r - J r_source.
-          struct Unit {
-            int device = 0;
-            std::vector<std::pair<Eigen::Index, Eigen::Matrix2d>> terms;  // sum of c * r(block)
-          };
-          struct PoseRows {
-            std::vector<int> blocks;
-            Eigen::MatrixXd j, h;
-            Eigen::VectorXd r;
-            double spacing = 1e300;
-            std::vector<Unit> units;
-            std::vector<std::array<int, 3>> pairs;  // unit a, unit b, lag 0 (a = b), 1 or 2 (sqrt 2 squares)
-          };
-          std::vector<PoseRows> poses(static_cast<size_t>(input.num_poses));
-          for (size_t k = 0; k < block_points.size(); ++k) {
-            poses[static_cast<size_t>(input.views[static_cast<size_t>(block_points[k].first)].pose)].blocks.push_back(static_cast<int>(k));
-          }
-          std::erase_if(poses, [](const PoseRows& p) { return p.blocks.empty(); });
-          for (auto& p : poses) {
-            const auto m = static_cast<Eigen::Index>(2 * p.blocks.size());
-            p.j = Eigen::MatrixXd::Zero(m, cols);
-            p.r.resize(m);
-            std::map<std::pair<int, int>, Eigen::Index> local;  // (view, point) -> block index in the pose
-            for (size_t a = 0; a < p.blocks.size(); ++a) {
-              const auto [va, ia] = block_points[static_cast<size_t>(p.blocks[a])];
-              local[{va, ia}] = static_cast<Eigen::Index>(a);
-              p.spacing = std::min(p.spacing, GridSpacing(input.views[static_cast<size_t>(va)]));
-              for (int r = 0; r < 2; ++r) {
-                const int row = 2 * p.blocks[a] + r;
-                p.r(static_cast<Eigen::Index>(2 * a) + r) = residuals[static_cast<size_t>(row)];
-                for (int e = crs.rows[row]; e < crs.rows[row + 1]; ++e) p.j(static_cast<Eigen::Index>(2 * a) + r, crs.cols[e]) = crs.values[e];
-              }
-            }
-            p.h = p.j * inv * p.j.transpose();
-            std::map<int, std::vector<int>> view_units;  // view -> its units
-            for (size_t a = 0; a < p.blocks.size(); ++a) {
-              const auto [va, ia] = block_points[static_cast<size_t>(p.blocks[a])];
-              const BoardView& v = input.views[static_cast<size_t>(va)];
-              Unit u;
-              u.device = v.device;
-              u.terms.emplace_back(static_cast<Eigen::Index>(a), Eigen::Matrix2d::Identity());
-              if (v.IsCarried()) {
-                const auto it = local.find({FindView(input, v.source_device, v.pose), v.source_points[static_cast<size_t>(ia)]});
-                if (it != local.end()) u.terms.emplace_back(it->second, -v.source_jacobians[static_cast<size_t>(ia)]);
-              }
-              view_units[va].push_back(static_cast<int>(p.units.size()));
-              p.units.push_back(std::move(u));
-            }
-            for (const auto& [va, us] : view_units) {
-              for (size_t a = 0; a < us.size(); ++a) {
-                const auto ia = static_cast<size_t>(block_points[static_cast<size_t>(p.blocks[static_cast<size_t>(us[a])])].second);
-                for (size_t b = a; b < us.size(); ++b) {
-                  const auto ib = static_cast<size_t>(block_points[static_cast<size_t>(p.blocks[static_cast<size_t>(us[b])])].second);
-                  const auto& x = input.views[static_cast<size_t>(va)].points_in_board_mm;
-                  const double delta = (x[ia] - x[ib]).norm() / p.spacing;
-                  const int lag = a == b ? 0 : std::abs(delta - 1) < 0.01 ? 1 : std::abs(delta - std::sqrt(2.0)) < 0.01 ? 2 : -1;
-                  if (lag >= 0) p.pairs.push_back({us[a], us[b], lag});
-                }
-              }
-            }
-          }
-          auto sigma_of = [&](const std::vector<ViewNoiseKernel>& k, const PoseRows& p) {
-            const auto m = static_cast<Eigen::Index>(2 * p.blocks.size());
-            Eigen::MatrixXd sigma = Eigen::MatrixXd::Zero(m, m);
-            auto active = [&](const BoardView& v) {  // does any field of this view's points have noise?
-              return k[static_cast<size_t>(v.IsCarried() ? v.source_device : v.device)].sigma_px > 0 ||
-                     (v.IsCarried() && k[static_cast<size_t>(v.device)].sigma_px > 0);
-            };
-            for (size_t a = 0; a < p.blocks.size(); ++a) {
-              const auto [va, ia] = block_points[static_cast<size_t>(p.blocks[a])];
-              const BoardView& v = input.views[static_cast<size_t>(va)];
-              if (!active(v)) continue;
-              for (size_t b = a; b < p.blocks.size(); ++b) {
-                const auto [vb, ib] = block_points[static_cast<size_t>(p.blocks[b])];
-                const BoardView& w = input.views[static_cast<size_t>(vb)];
-                if (!active(w)) continue;
-                const Eigen::Matrix2d c = PointPairCovariance(k, v, static_cast<size_t>(ia), w, static_cast<size_t>(ib), p.spacing);
-                const auto ra = static_cast<Eigen::Index>(2 * a), rb = static_cast<Eigen::Index>(2 * b);
-                sigma.block<2, 2>(ra, rb) = c;
-                sigma.block<2, 2>(rb, ra) = c.transpose();
-              }
-            }
-            return sigma;
-          };
-          auto meat_of = [&](const std::vector<Eigen::MatrixXd>& sigmas) {
-            Eigen::MatrixXd meat = Eigen::MatrixXd::Zero(cols, cols);
-            for (size_t i = 0; i < poses.size(); ++i) meat += poses[i].j.transpose() * sigmas[i] * poses[i].j;
-            return meat;
-          };
-          // Sum over each device's unit pairs of u_a . u_b by lag, for a covariance C of the
-          // residuals (entry(a, b): the 2x2 block of C between blocks a and b).
-          const size_t nd = input.devices.size();
-          auto pair_sums = [&](const PoseRows& p, const auto& entry, std::vector<double>* sums) {
-            for (const auto& [ua, ub, lag] : p.pairs) {
-              double v = 0;
-              for (const auto& [ka, ca] : p.units[static_cast<size_t>(ua)].terms) {
-                for (const auto& [kb, cb] : p.units[static_cast<size_t>(ub)].terms) v += (ca * entry(ka, kb) * cb.transpose()).trace();
-              }
-              (*sums)[3 * static_cast<size_t>(p.units[static_cast<size_t>(ua)].device) + static_cast<size_t>(lag)] += v;
-            }
-          };
-          // Expected sums when the errors have covariance `k`: residuals r = (I - H) e, so
-          // E[r r^T]_pp = S_p - H_pp S_p - S_p H_pp + J_p (J^T J)^-1 (sum_q J_q^T S_q J_q) (J^T J)^-1 J_p^T.
-          auto expected = [&](const std::vector<ViewNoiseKernel>& k) {
-            std::vector<double> sums(3 * nd, 0);
-            std::vector<Eigen::MatrixXd> sigmas;
-            for (const auto& p : poses) sigmas.push_back(sigma_of(k, p));
-            const Eigen::MatrixXd kk = inv * meat_of(sigmas) * inv;
-            for (size_t i = 0; i < poses.size(); ++i) {
-              const PoseRows& p = poses[i];
-              const Eigen::MatrixXd& sigma = sigmas[i];
-              const Eigen::MatrixXd jk = p.j * kk;
-              pair_sums(p, [&](Eigen::Index a, Eigen::Index b) {
-                const Eigen::Matrix2d hs = p.h.middleRows(2 * a, 2) * sigma.middleCols(2 * b, 2);
-                const Eigen::Matrix2d sh = sigma.middleRows(2 * a, 2) * p.h.middleCols(2 * b, 2);
-                return Eigen::Matrix2d(sigma.block<2, 2>(2 * a, 2 * b) - hs - sh +
-                                       jk.middleRows(2 * a, 2) * p.j.middleRows(2 * b, 2).transpose());
-              }, &sums);
-            }
-            return sums;
-          };
-          std::vector<double> observed(3 * nd, 0);
-          for (const auto& p : poses) {
-            pair_sums(p, [&](Eigen::Index a, Eigen::Index b) {
-              return Eigen::Matrix2d(p.r.segment<2>(2 * a) * p.r.segment<2>(2 * b).transpose());
-            }, &observed);
-          }
-          // Moment matching: each device's field contributes sigma^2 (nugget) and sigma^2 share
-          // (correlated part) linearly; its length is searched on a grid, device by device.
-          auto structure = [&](size_t f, double share, double length) {
-            std::vector<ViewNoiseKernel> k(nd);
-            k[f] = {1.0, share, length};
-            return expected(k);
-          };
-          bool seen = false;  // any correlation in the residuals? (else the residual-based estimate stands)
-          for (const auto& k : *kernels) seen = seen || k.share > 0;
-          std::vector<std::vector<double>> nugget(nd);
-          for (size_t f = 0; seen && f < nd; ++f) nugget[f] = structure(f, 0, 1);
-          const std::vector<double> grid = {0.4, 0.6, 0.85, 1.2, 1.7, 2.4, 3.4};
-          std::vector<double> length(nd);
-          std::map<std::pair<size_t, size_t>, std::vector<double>> correlated;  // (field, grid index)
-          auto correlated_of = [&](size_t f, size_t g) -> const std::vector<double>& {
-            auto it = correlated.find({f, g});
-            if (it == correlated.end()) {
-              std::vector<double> c = structure(f, 1, grid[g]);
-              for (size_t i = 0; i < c.size(); ++i) c[i] -= nugget[f][i];
-              it = correlated.emplace(std::make_pair(f, g), std::move(c)).first;
-            }
-            return it->second;
-          };
-          std::vector<size_t> at(nd, 0);
-          for (size_t f = 0; f < nd; ++f) {  // start from the residual-based estimate
-            for (size_t g = 0; g < grid.size(); ++g) {
-              if (std::abs(grid[g] - (*kernels)[f].length_squares) < std::abs(grid[at[f]] - (*kernels)[f].length_squares)) at[f] = g;
-            }
-          }
-          auto fit = [&](const std::vector<size_t>& g, Eigen::VectorXd* x) {
-            Eigen::MatrixXd a(3 * nd, 2 * nd);
-            Eigen::VectorXd b(3 * nd);
-            for (size_t i = 0; i < 3 * nd; ++i) {
-              const double w = observed[3 * (i / 3)] > 0 ? 1 / observed[3 * (i / 3)] : 0;  // per device, by its energy
-              b(static_cast<Eigen::Index>(i)) = w * observed[i];
-              for (size_t f = 0; f < nd; ++f) {
-                a(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(2 * f)) = w * nugget[f][i];
-                a(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(2 * f + 1)) = w * correlated_of(f, g[f])[i];
-              }
-            }
-            *x = a.colPivHouseholderQr().solve(b);
-            return (a * *x - b).squaredNorm();
-          };
-          Eigen::VectorXd x;
-          for (int pass = 0; seen && pass < (nd > 1 ? 2 : 1); ++pass) {
-            for (size_t f = 0; f < nd; ++f) {
-              size_t best = at[f];
-              double best_err = 1e300;
-              for (size_t g = 0; g < grid.size(); ++g) {
-                std::vector<size_t> trial = at;
-                trial[f] = g;
-                const double err = fit(trial, &x);
-                if (err < best_err) {
-                  best_err = err;
-                  best = g;
-                }
-              }
-              at[f] = best;
-            }
-          }
-          if (seen) fit(at, &x);
-          for (size_t f = 0; seen && f < nd; ++f) {
-            const double var = x(static_cast<Eigen::Index>(2 * f)), cov = x(static_cast<Eigen::Index>(2 * f + 1));
-            if (!(var > 0) || observed[3 * f] <= 0) continue;  // keep the residual-based estimate
-            (*kernels)[f] = {std::sqrt(var), std::clamp(cov / var, 0.0, 1.0), grid[at[f]]};
-          }
-          std::vector<Eigen::MatrixXd> sigmas;
-          for (const auto& p : poses) sigmas.push_back(sigma_of(*kernels, p));
-          const Eigen::MatrixXd sandwich_cov = inv * meat_of(sigmas) * inv;
+          const Eigen::MatrixXd sandwich_cov =
+              ViewCorrelatedCovariance(input, block_points, residuals, crs, inv, cols, kernels);
           for (size_t d = 0; d < input.devices.size(); ++d) out.correlated_covariance.push_back(lift(sandwich_cov, d));
         }
       }
