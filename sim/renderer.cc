@@ -496,13 +496,14 @@ inline BilinearTap TapAt(const uint8_t* inter, int pw, int ph, float u, float t)
 // in the same order as the scalar code (mul and add kept separate: target "avx2" without "fma",
 // so nothing gets contracted), hence bit-identical images. Quantisation as QuantizeValue:
 // max(v, 0) maps NaN and negatives to 0; min(v + 0.5, full) then truncation.
-// 16 pixels x 16 images of 8-bit values (tile[pixel][image]) stored as 16 bytes into each image
-// row at column x0: a 16 x 16 byte transpose (Transpose16x16).
-__attribute__((target("avx2"))) inline void StoreTransposed16(const uint8_t (*tile)[16], uint8_t* const* rows, int x0) {
+// 16 pixels x 16 images of 8-bit values (tile[pixel][image]) stored as 16 bytes into each of the
+// first `images` image rows at column x0: a 16 x 16 byte transpose (Transpose16x16).
+__attribute__((target("avx2"))) inline void StoreTransposed16(const uint8_t (*tile)[16], uint8_t* const* rows, int x0,
+                                                                int images) {
   __m128i a[16];
   for (int i = 0; i < 16; ++i) a[i] = _mm_load_si128(reinterpret_cast<const __m128i*>(tile[i]));
   Transpose16x16(a);
-  for (int k = 0; k < 16; ++k) _mm_storeu_si128(reinterpret_cast<__m128i*>(rows[k] + x0), a[k]);
+  for (int k = 0; k < images; ++k) _mm_storeu_si128(reinterpret_cast<__m128i*>(rows[k] + x0), a[k]);
 }
 
 template <int B, typename Out>
@@ -511,7 +512,7 @@ __attribute__((target("avx2"))) void FusedRowAvx2(const GeometryBuffer& g, size_
                                                      const float* vig, float full, Out* const* rows) {
   const __m256 zero = _mm256_setzero_ps(), half = _mm256_set1_ps(0.5f), vfull = _mm256_set1_ps(full);
   alignas(32) int32_t q[16];
-  constexpr bool kTiled = B == 16 && std::is_same_v<Out, uint8_t>;
+  constexpr bool kTiled = std::is_same_v<Out, uint8_t>;  // any B <= 16; lanes >= B are not stored
   alignas(16) uint8_t tile[16][16];
   for (int x = 0; x < w; ++x) {
     const size_t i = row_start + static_cast<size_t>(x);
@@ -557,14 +558,14 @@ __attribute__((target("avx2"))) void FusedRowAvx2(const GeometryBuffer& g, size_
     const __m256 m = _mm256_set1_ps(scale * (vig ? vig[x] : 1.0f));
     const __m256 c = _mm256_min_ps(_mm256_add_ps(_mm256_max_ps(_mm256_mul_ps(acc, m), zero), half), vfull);
     if constexpr (kTiled) {
-      // 8-bit output of a full batch: values 0..255, packed to the 16 bytes of this pixel (image
-      // order kept), written to the images 16 pixels at a time (not 16 single-byte stores).
+      // 8-bit output: values 0..255, packed to the 16 bytes of this pixel (image order kept; bytes
+      // >= B unused), written to the B images 16 pixels at a time (not B single-byte stores).
       const __m256 c_hi = _mm256_min_ps(_mm256_add_ps(_mm256_max_ps(_mm256_mul_ps(acc_hi, m), zero), half), vfull);
       const __m256i p16 = _mm256_permute4x64_epi64(
           _mm256_packus_epi32(_mm256_cvttps_epi32(c), _mm256_cvttps_epi32(c_hi)), 0xD8);
       _mm_store_si128(reinterpret_cast<__m128i*>(tile[x & 15]),
                       _mm_packus_epi16(_mm256_castsi256_si128(p16), _mm256_extracti128_si256(p16, 1)));
-      if ((x & 15) == 15) StoreTransposed16(tile, rows, x - 15);
+      if ((x & 15) == 15) StoreTransposed16(tile, rows, x - 15, B);
     } else {
       _mm256_store_si256(reinterpret_cast<__m256i*>(q), _mm256_cvttps_epi32(c));
       if constexpr (B > 8) {
@@ -576,7 +577,7 @@ __attribute__((target("avx2"))) void FusedRowAvx2(const GeometryBuffer& g, size_
   }
   if constexpr (kTiled) {
     for (int x = w & ~15; x < w; ++x) {
-      for (int k = 0; k < 16; ++k) rows[k][x] = tile[x & 15][k];
+      for (int k = 0; k < B; ++k) rows[k][x] = tile[x & 15][k];
     }
   }
 }

@@ -402,7 +402,7 @@ TEST(LayersTest, BatchEqualsSingleImagesWithAllLayers) {
 // A full batch of 16 images with 8-bit output (written 16 pixels x 16 images at a time) equals
 // the images rendered one by one and the general path's float irradiance through the ADC; the
 // camera width (274) is not a multiple of 16, so the row tails are covered too.
-TEST(LayersTest, FullBatchOf8BitImagesEqualsSingleImages) {
+TEST(LayersTest, BatchesOf8BitImagesEqualSingleImagesAndIrradiance) {
   const Rig rig = SmallDemoRig(7);
   ASSERT_NE(rig.cameras[0].model.width % 16, 0);
   Scene scene = LoadScene(testing::SourceDir() / "config/demo/scene.yaml");
@@ -413,21 +413,26 @@ TEST(LayersTest, FullBatchOf8BitImagesEqualsSingleImages) {
   std::vector<cv::Mat> patterns;
   for (int period : {3, 5, 8, 13, 21, 34, 55, 89, 144, 4, 7, 11, 233, 2, 6, 9}) patterns.push_back(Stripes(rig, period));
   ASSERT_EQ(patterns.size(), 16u);
-  const auto batch = r.RenderBatch(patterns, 0);
-  for (size_t k = 0; k < patterns.size(); ++k) {
-    ASSERT_EQ(batch[k].type(), CV_8UC1);
-    EXPECT_EQ(cv::norm(batch[k], r.Render(patterns[k], static_cast<int>(k)), cv::NORM_INF), 0) << k;
-    const cv::Mat irradiance = r.RenderIrradiance(patterns[k]);
-    int lit = 0;
-    for (int y = 0; y < irradiance.rows; ++y) {
-      for (int x = 0; x < irradiance.cols; ++x) {
-        const float v = irradiance.at<float>(y, x);
-        const int q = v <= 0 ? 0 : (v >= 255 ? 255 : static_cast<int>(v + 0.5f));
-        ASSERT_EQ(batch[k].at<uint8_t>(y, x), q) << k << " " << x << "," << y;
-        lit += q > 0;
+  // Full and partial batches (a 22-pattern sequence renders as 16 + 6).
+  for (const size_t n : {16u, 9u, 6u, 1u}) {
+    const std::vector<cv::Mat> some(patterns.begin(), patterns.begin() + static_cast<std::ptrdiff_t>(n));
+    const auto batch = r.RenderBatch(some, 0);
+    ASSERT_EQ(batch.size(), n);
+    for (size_t k = 0; k < n; ++k) {
+      ASSERT_EQ(batch[k].type(), CV_8UC1);
+      EXPECT_EQ(cv::norm(batch[k], r.Render(patterns[k], static_cast<int>(k)), cv::NORM_INF), 0) << n << " " << k;
+      const cv::Mat irradiance = r.RenderIrradiance(patterns[k]);
+      int lit = 0;
+      for (int y = 0; y < irradiance.rows; ++y) {
+        for (int x = 0; x < irradiance.cols; ++x) {
+          const float v = irradiance.at<float>(y, x);
+          const int q = v <= 0 ? 0 : (v >= 255 ? 255 : static_cast<int>(v + 0.5f));
+          ASSERT_EQ(batch[k].at<uint8_t>(y, x), q) << n << " " << k << " " << x << "," << y;
+          lit += q > 0;
+        }
       }
+      EXPECT_GT(lit, irradiance.total() / 10) << k;
     }
-    EXPECT_GT(lit, irradiance.total() / 10) << k;
   }
 }
 
