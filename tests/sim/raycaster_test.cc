@@ -150,6 +150,18 @@ RayPacket RandomPacket(std::mt19937& rng, int round) {
   return a;
 }
 
+// Lane i of two traces of the same ray: the same object and, on a hit, the same distance and
+// normal, bit for bit.
+::testing::AssertionResult SameHit(const RayPacket& a, const RayPacket& b, int i) {
+  if (a.object[i] != b.object[i]) return ::testing::AssertionFailure() << "object " << a.object[i] << " vs " << b.object[i];
+  if (a.object[i] >= 0 && (a.tfar[i] != b.tfar[i] || a.ng_x[i] != b.ng_x[i] || a.ng_y[i] != b.ng_y[i] || a.ng_z[i] != b.ng_z[i])) {
+    return ::testing::AssertionFailure() << "t " << a.tfar[i] << " vs " << b.tfar[i] << ", normal (" << a.ng_x[i] << ", "
+                                         << a.ng_y[i] << ", " << a.ng_z[i] << ") vs (" << b.ng_x[i] << ", " << b.ng_y[i]
+                                         << ", " << b.ng_z[i] << ")";
+  }
+  return ::testing::AssertionSuccess();
+}
+
 // Few primitives are tested outside Embree, many go in as Embree user geometry: both routes give
 // the same hits and occlusions (here 4 vs 4 + 6 primitives, the extra ones never hit).
 TEST(RayCasterTest, PrimitivesOutsideEmbreeEqualUserGeometry) {
@@ -183,13 +195,9 @@ TEST(RayCasterTest, PrimitivesOutsideEmbreeEqualUserGeometry) {
     embree.Occluded(sb, TraceMode::kSingleRay);
     for (int i = 0; i < RayPacket::kSize; ++i) {
       if (!a.active[i]) continue;
-      ASSERT_EQ(a.object[i], b.object[i]);
+      ASSERT_TRUE(SameHit(a, b, i)) << "lane " << i;
       if (a.object[i] < 0) continue;
       primitive_hits += a.object[i] >= 1 && a.object[i] <= 4;
-      EXPECT_EQ(a.tfar[i], b.tfar[i]);
-      EXPECT_EQ(a.ng_x[i], b.ng_x[i]);
-      EXPECT_EQ(a.ng_y[i], b.ng_y[i]);
-      EXPECT_EQ(a.ng_z[i], b.ng_z[i]);
       ASSERT_EQ(sa.occluded[i], sb.occluded[i]);
       occluded += sa.occluded[i];
     }
@@ -216,13 +224,9 @@ TEST(RayCasterTest, PacketEqualsSingleRay) {
     caster.Occluded(sb, TraceMode::kSingleRay);
     for (int i = 0; i < RayPacket::kSize; ++i) {
       if (!a.active[i]) continue;
-      ASSERT_EQ(a.object[i], b.object[i]);
+      ASSERT_TRUE(SameHit(a, b, i)) << "lane " << i;
       if (a.object[i] < 0) continue;
       ++hits_by_object[a.object[i]];
-      EXPECT_EQ(a.tfar[i], b.tfar[i]);
-      EXPECT_EQ(a.ng_x[i], b.ng_x[i]);
-      EXPECT_EQ(a.ng_y[i], b.ng_y[i]);
-      EXPECT_EQ(a.ng_z[i], b.ng_z[i]);
     }
     // Occlusion of the segment up to the hit (tfar = hit distance): never occluded before the
     // closest hit, by both paths.
