@@ -45,7 +45,7 @@ struct CameraRays {
 CameraRays ComputeCameraRays(const CameraModel& camera, int samples_per_axis, CameraRays storage = {});
 
 // Per-sample floats of a geometry pass (index as CameraRays) in a continuous CV_32FC1 Mat from
-// the simulator's pool of large blocks (sim/renderer.cc: recycled across passes and scans, so
+// the simulator's pool of large blocks (sim/pooled_mats.cc: recycled across passes and scans, so
 // later scans do not fault their pages in again). A copy shares the storage, like cv::Mat. With
 // one sample per pixel, proj_x / proj_y / factor share their storage with the ground-truth maps
 // projector.proj_x / proj_y / quality (the same values, written once).
