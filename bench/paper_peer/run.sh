@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Same-run peer for the simulator benchmark (docs/benchmarks.md, "Same-run peer: the
 # digital-model paper's approach"): the paper's Python/Open3D virtual scanner
-# (paper_scanner.py) and slshadow's BM_PaperWorkloadWritten/0 on the same workload, one after
-# the other, then the ratio of their times.
+# (paper_scanner.py) and slshadow's BM_PaperWorkloadWritten/0 on the same workload (slshadow
+# before and after the peer), then the ratio of their times.
 #
 #   bash bench/paper_peer/run.sh        # N = 2500000 points on the part (~31 % holes), the part
 #                                       # alone, then part + table at the same point density
@@ -29,6 +29,15 @@ rm -rf "$WORK"
 mkdir -p "$WORK"
 "$BUILD/tests/sim/export_bench_part" "$SRC" "$WORK/scene"
 
+# slshadow runs before and after the peers: the machine's speed drifts within minutes, so the
+# ratio is quoted against both (and their mean).
+run_slshadow() {
+  echo "== slshadow: sim_bench BM_PaperWorkloadWritten/0 (same workload, PGM written) ($(uptime))"
+  "$BUILD/tests/sim/sim_bench" --benchmark_filter='BM_PaperWorkloadWritten/0' --benchmark_repetitions=3 \
+    --benchmark_report_aggregates_only=true --benchmark_out="$1" --benchmark_out_format=json
+}
+run_slshadow "$WORK/slshadow_before.json"
+
 for td in $TABLE_DENSITIES; do
   echo "== peer: paper_scanner.py, 22 patterns x 2 cameras, N = $POINTS, table density x$td ($(uptime))"
   # shellcheck disable=SC2086
@@ -38,23 +47,25 @@ for td in $TABLE_DENSITIES; do
   rm -rf "$WORK/images"
 done
 
-echo "== slshadow: sim_bench BM_PaperWorkloadWritten/0 (same workload, PGM written) ($(uptime))"
-"$BUILD/tests/sim/sim_bench" --benchmark_filter='BM_PaperWorkloadWritten/0' --benchmark_repetitions=3 \
-  --benchmark_report_aggregates_only=true --benchmark_out="$WORK/slshadow.json" --benchmark_out_format=json
+run_slshadow "$WORK/slshadow_after.json"
 
 echo "== ratio ($(uptime))"
-"$PY" - "$WORK/slshadow.json" "$WORK"/peer_table*.json <<'PYEOF'
+"$PY" - "$WORK/slshadow_before.json" "$WORK/slshadow_after.json" "$WORK"/peer_table*.json <<'PYEOF'
 import json, sys
-bench = json.load(open(sys.argv[1]))
-med = [b for b in bench["benchmarks"] if b.get("aggregate_name") == "median"][0]
-scale = {"ns": 1e-9, "us": 1e-6, "ms": 1e-3, "s": 1.0}[med.get("time_unit", "ns")]
-sl = med["real_time"] * scale
-print("slshadow median %.3f s wall (cpu_s %.3f)" % (sl, med.get("cpu_s", float("nan"))))
-for path in sys.argv[2:]:
+def median_seconds(path):
+    bench = json.load(open(path))
+    med = [b for b in bench["benchmarks"] if b.get("aggregate_name") == "median"][0]
+    scale = {"ns": 1e-9, "us": 1e-6, "ms": 1e-3, "s": 1.0}[med.get("time_unit", "ns")]
+    return med["real_time"] * scale, med.get("cpu_s", float("nan"))
+before, after = median_seconds(sys.argv[1]), median_seconds(sys.argv[2])
+sl = (before[0] + after[0]) / 2
+print("slshadow median %.3f s wall before the peers, %.3f s after (cpu_s %.3f, %.3f); mean %.3f s"
+      % (before[0], after[0], before[1], after[1], sl))
+for path in sys.argv[3:]:
     for r in json.load(open(path)):
         s = r["seconds"]
         print("%s N=%d (%d points): peer %.2f s (sample %.2f, hpr %.2f, project %.2f, images %.2f; + load %.2f), "
-              "holes %.1f %%: ratio %.0fx" % (path.rsplit("/", 1)[-1], r["points_part"], r["points_total"],
-              s["total"], s["sample"], s["hpr"], s["project"], s["images"], s["load"],
-              100 * r["hole_fraction"], s["total"] / sl))
+              "holes %.1f %%: ratio %.0fx (%.0fx against the run before, %.0fx after)" % (path.rsplit("/", 1)[-1],
+              r["points_part"], r["points_total"], s["total"], s["sample"], s["hpr"], s["project"], s["images"],
+              s["load"], 100 * r["hole_fraction"], s["total"] / sl, s["total"] / before[0], s["total"] / after[0]))
 PYEOF
