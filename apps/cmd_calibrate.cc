@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <optional>
 #include <set>
+#include <utility>
 
 #include "apps/commands.h"
 #include "calib/calibration.h"
@@ -125,8 +126,9 @@ struct CommonOptions {
 
 // Calibrates, reviews, writes the rig, the OpenCV file and the report, prints the summary.
 // --select-model: sets the devices' held_params to the candidate with the lowest leave-one-pose-out
-// prediction RMS of the projector's corners and records the scores in `extra`.
-void SelectModels(CalibrationInput* input, const CalibrationOptions& options, nlohmann::json* extra) {
+// prediction RMS of the projector's corners, records the scores in `extra` and returns the chosen
+// candidate's calibration with all poses (the same input and options: not solved again).
+CalibrationResult SelectModels(CalibrationInput* input, const CalibrationOptions& options, nlohmann::json* extra) {
   int projector = -1;
   for (size_t d = 0; d < input->devices.size(); ++d) {
     if (input->devices[d].is_projector) projector = static_cast<int>(d);
@@ -147,7 +149,7 @@ void SelectModels(CalibrationInput* input, const CalibrationOptions& options, nl
       candidates.push_back(std::move(c));
     }
   }
-  const auto scores = ScoreModelsByLeaveOnePoseOut(*input, options, candidates, 0, projector);
+  auto scores = ScoreModelsByLeaveOnePoseOut(*input, options, candidates, 0, projector);
   size_t best = 0;
   nlohmann::json table = nlohmann::json::array();
   std::printf("model selection (leave-one-pose-out, projector corners):\n");
@@ -161,13 +163,13 @@ void SelectModels(CalibrationInput* input, const CalibrationOptions& options, nl
   std::printf("  chosen: %s\n", scores[best].name.c_str());
   for (size_t d = 0; d < input->devices.size(); ++d) input->devices[d].held_params = candidates[best].held_params[d];
   (*extra)["model_selection"] = {{"candidates", table}, {"chosen", scores[best].name}};
+  return std::move(scores[best].result);
 }
 
 int CalibrateAndWrite(CalibrationInput input, const std::vector<ImageCheck>& checks, const CommonOptions& common,
                       nlohmann::json extra) {
   const CalibrationOptions options = common.Options();
-  if (common.select_model) SelectModels(&input, options, &extra);
-  const CalibrationResult result = Calibrate(input, options);
+  const CalibrationResult result = common.select_model ? SelectModels(&input, options, &extra) : Calibrate(input, options);
   std::optional<CrossValidation> cv;
   if (!common.no_cross_validation) {
     bool enough = true;

@@ -260,33 +260,62 @@ Eigen::MatrixXd ViewCorrelatedCovariance(const CalibrationInput& input, const st
   };
   struct PoseRows {
     std::vector<int> blocks;
+    // The pose's Jacobian rows restricted to the columns any of them touches (`cols`: its devices'
+    // intrinsics and rig poses, its board pose; the rest are zero), and the hat block.
+    std::vector<Eigen::Index> cols;
     Eigen::MatrixXd j, h;
     Eigen::VectorXd r;
     double spacing = 1e300;
-    std::vector<Unit> units;
+    std::vector<Unit> units;  // one per block, in block order
     std::vector<std::array<int, 3>> pairs;  // unit a, unit b, lag 0 (a = b), 1 or 2 (sqrt 2 squares)
+    Eigen::MatrixXd th, tj;  // T H and T J, T the units' linear map (row pair u: sum of c * rows of block)
+  };
+  auto apply_units = [](const PoseRows& p, const Eigen::MatrixXd& m) {  // T m
+    Eigen::MatrixXd out = Eigen::MatrixXd::Zero(2 * static_cast<Eigen::Index>(p.units.size()), m.cols());
+    for (size_t u = 0; u < p.units.size(); ++u) {
+      for (const auto& [k, c] : p.units[u].terms) out.middleRows(2 * static_cast<Eigen::Index>(u), 2).noalias() += c * m.middleRows(2 * k, 2);
+    }
+    return out;
   };
   std::vector<PoseRows> poses(static_cast<size_t>(input.num_poses));
   for (size_t k = 0; k < block_points.size(); ++k) {
     poses[static_cast<size_t>(input.views[static_cast<size_t>(block_points[k].first)].pose)].blocks.push_back(static_cast<int>(k));
   }
   std::erase_if(poses, [](const PoseRows& p) { return p.blocks.empty(); });
+  std::vector<double> view_spacing(input.views.size(), -1);  // GridSpacing per view, computed once
   for (auto& p : poses) {
     const auto m = static_cast<Eigen::Index>(2 * p.blocks.size());
-    p.j = Eigen::MatrixXd::Zero(m, cols);
+    std::vector<Eigen::Index> compact(static_cast<size_t>(cols), -1);  // column -> column of p.j
+    for (int b : p.blocks) {
+      for (int row = 2 * b; row < 2 * b + 2; ++row) {
+        for (int e = crs.rows[row]; e < crs.rows[row + 1]; ++e) {
+          if (compact[static_cast<size_t>(crs.cols[e])] < 0) compact[static_cast<size_t>(crs.cols[e])] = 0;
+        }
+      }
+    }
+    for (int c = 0; c < cols; ++c) {
+      if (compact[static_cast<size_t>(c)] < 0) continue;
+      compact[static_cast<size_t>(c)] = static_cast<Eigen::Index>(p.cols.size());
+      p.cols.push_back(c);
+    }
+    p.j = Eigen::MatrixXd::Zero(m, static_cast<Eigen::Index>(p.cols.size()));
     p.r.resize(m);
     std::map<std::pair<int, int>, Eigen::Index> local;  // (view, point) -> block index in the pose
     for (size_t a = 0; a < p.blocks.size(); ++a) {
       const auto [va, ia] = block_points[static_cast<size_t>(p.blocks[a])];
       local[{va, ia}] = static_cast<Eigen::Index>(a);
-      p.spacing = std::min(p.spacing, GridSpacing(input.views[static_cast<size_t>(va)]));
+      double& spacing = view_spacing[static_cast<size_t>(va)];
+      if (spacing < 0) spacing = GridSpacing(input.views[static_cast<size_t>(va)]);
+      p.spacing = std::min(p.spacing, spacing);
       for (int r = 0; r < 2; ++r) {
         const int row = 2 * p.blocks[a] + r;
         p.r(static_cast<Eigen::Index>(2 * a) + r) = residuals[static_cast<size_t>(row)];
-        for (int e = crs.rows[row]; e < crs.rows[row + 1]; ++e) p.j(static_cast<Eigen::Index>(2 * a) + r, crs.cols[e]) = crs.values[e];
+        for (int e = crs.rows[row]; e < crs.rows[row + 1]; ++e) {
+          p.j(static_cast<Eigen::Index>(2 * a) + r, compact[static_cast<size_t>(crs.cols[e])]) = crs.values[e];
+        }
       }
     }
-    p.h = p.j * inv * p.j.transpose();
+    p.h = p.j * inv(p.cols, p.cols) * p.j.transpose();
     std::map<int, std::vector<int>> view_units;  // view -> its units
     for (size_t a = 0; a < p.blocks.size(); ++a) {
       const auto [va, ia] = block_points[static_cast<size_t>(p.blocks[a])];
@@ -313,6 +342,8 @@ Eigen::MatrixXd ViewCorrelatedCovariance(const CalibrationInput& input, const st
         }
       }
     }
+    p.th = apply_units(p, p.h);
+    p.tj = apply_units(p, p.j);
   }
   auto sigma_of = [&](const std::vector<ViewNoiseKernel>& k, const PoseRows& p) {
     const auto m = static_cast<Eigen::Index>(2 * p.blocks.size());
@@ -339,7 +370,7 @@ Eigen::MatrixXd ViewCorrelatedCovariance(const CalibrationInput& input, const st
   };
   auto meat_of = [&](const std::vector<Eigen::MatrixXd>& sigmas) {
     Eigen::MatrixXd meat = Eigen::MatrixXd::Zero(cols, cols);
-    for (size_t i = 0; i < poses.size(); ++i) meat += poses[i].j.transpose() * sigmas[i] * poses[i].j;
+    for (size_t i = 0; i < poses.size(); ++i) meat(poses[i].cols, poses[i].cols) += poses[i].j.transpose() * sigmas[i] * poses[i].j;
     return meat;
   };
   // Sum over each device's unit pairs of u_a . u_b by lag, for a covariance C of the
@@ -356,6 +387,9 @@ Eigen::MatrixXd ViewCorrelatedCovariance(const CalibrationInput& input, const st
   };
   // Expected sums when the errors have covariance `k`: residuals r = (I - H) e, so
   // E[r r^T]_pp = S_p - H_pp S_p - S_p H_pp + J_p (J^T J)^-1 (sum_q J_q^T S_q J_q) (J^T J)^-1 J_p^T.
+  // A unit pair's sum is trace(T_a E T_b^T), T the units' map: with S, H and K symmetric,
+  // trace((T S T^T)_ab) - <(T H)_a, (T S)_b> - <(T S)_a, (T H)_b> + <(T J K)_a, (T J)_b>, <,> the
+  // sum of the element-wise product of two row pairs (T H and T J are fixed: computed once).
   auto expected = [&](const std::vector<ViewNoiseKernel>& k) {
     std::vector<double> sums(3 * nd, 0);
     std::vector<Eigen::MatrixXd> sigmas;
@@ -363,14 +397,17 @@ Eigen::MatrixXd ViewCorrelatedCovariance(const CalibrationInput& input, const st
     const Eigen::MatrixXd kk = inv * meat_of(sigmas) * inv;
     for (size_t i = 0; i < poses.size(); ++i) {
       const PoseRows& p = poses[i];
-      const Eigen::MatrixXd& sigma = sigmas[i];
-      const Eigen::MatrixXd jk = p.j * kk;
-      pair_sums(p, [&](Eigen::Index a, Eigen::Index b) {
-        const Eigen::Matrix2d hs = p.h.middleRows(2 * a, 2) * sigma.middleCols(2 * b, 2);
-        const Eigen::Matrix2d sh = sigma.middleRows(2 * a, 2) * p.h.middleCols(2 * b, 2);
-        return Eigen::Matrix2d(sigma.block<2, 2>(2 * a, 2 * b) - hs - sh +
-                               jk.middleRows(2 * a, 2) * p.j.middleRows(2 * b, 2).transpose());
-      }, &sums);
+      const Eigen::MatrixXd ts = apply_units(p, sigmas[i]);
+      const Eigen::MatrixXd tjk = p.tj * kk(p.cols, p.cols);
+      for (const auto& [ua, ub, lag] : p.pairs) {
+        const Eigen::Index a = 2 * ua, b = 2 * ub;
+        double v = 0;
+        for (const auto& [kb, cb] : p.units[static_cast<size_t>(ub)].terms) v += (ts.block<2, 2>(a, 2 * kb) * cb.transpose()).trace();
+        v -= p.th.middleRows(a, 2).cwiseProduct(ts.middleRows(b, 2)).sum();
+        v -= ts.middleRows(a, 2).cwiseProduct(p.th.middleRows(b, 2)).sum();
+        v += tjk.middleRows(a, 2).cwiseProduct(p.tj.middleRows(b, 2)).sum();
+        sums[3 * static_cast<size_t>(p.units[static_cast<size_t>(ua)].device) + static_cast<size_t>(lag)] += v;
+      }
     }
     return sums;
   };

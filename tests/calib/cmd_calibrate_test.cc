@@ -180,15 +180,46 @@ TEST(CmdCalibrate, RefineStereoWithFocalLengthOnSimulatedScan) {
 namespace slshadow {
 namespace {
 
+// Kamino's five captures written once per suite as ImageSets (one per board pose, PGM), for the
+// `calibrate rig` tests below.
+class CmdCalibrateKamino : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    sets_ = new testing::TempDir;
+    const auto kamino = testing::SharedDataDir() / "kamino-procam-graycode";
+    const PatternSpec spec = LoadPatternSpec(testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml");
+    const Rig nominal = ReadOpenCvCalibration(kamino / "calibration_result_ccf1cd8.xml", 0, 0, 1024, 768);
+    for (int p = 0; p < 5; ++p) {
+      ImageSetWriterOptions wo;
+      wo.encoding = ImageEncoding::kPgm;
+      ImageSetWriter writer(ImageSetDir(p), nominal, PatternSpecToJson(spec), wo);
+      for (int i = 0; i < spec.NumImages(); ++i) {
+        char name[32];
+        std::snprintf(name, sizeof(name), "graycode_%02d.png", i);
+        writer.Add("camera", i, ReadGrayImage(kamino / ("capture_" + std::to_string(p)) / name), 0, ImageSource::kReplay);
+      }
+      writer.Commit();
+    }
+  }
+  static void TearDownTestSuite() {
+    delete sets_;
+    sets_ = nullptr;
+  }
+  static std::filesystem::path ImageSetDir(int pose) { return *sets_ / ("pose" + std::to_string(pose)); }
+  static std::string Target() { return (testing::SourceDir() / "config/targets/kamino-procam-graycode.yaml").string(); }
+
+ private:
+  static testing::TempDir* sets_;
+};
+testing::TempDir* CmdCalibrateKamino::sets_ = nullptr;
+
 // `calibrate rig` reads one ImageSet per board pose; kamino's five captures written as ImageSets
 // must give what `calibrate projector` gives from the plain folders.
-TEST(CmdCalibrate, RigFromImageSetsMatchesProjectorFromFolders) {
+TEST_F(CmdCalibrateKamino, RigFromImageSetsMatchesProjectorFromFolders) {
   testing::TempDir tmp;
   const auto kamino = testing::SharedDataDir() / "kamino-procam-graycode";
   const std::string spec_path = (testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml").string();
-  const std::string target = (testing::SourceDir() / "config/targets/kamino-procam-graycode.yaml").string();
-  const PatternSpec spec = LoadPatternSpec(spec_path);
-  const Rig nominal = ReadOpenCvCalibration(kamino / "calibration_result_ccf1cd8.xml", 0, 0, 1024, 768);
+  const std::string target = Target();
   std::vector<std::string> rig_args = {"calibrate", "rig", "--target", target, "--shadow-threshold", "40",
                                        "--contrast-threshold", "5", "--min-views", "5", "--no-cross-validation",
                                        "--out", (tmp / "rig.yaml").string(), "--imagesets"};
@@ -197,17 +228,7 @@ TEST(CmdCalibrate, RigFromImageSetsMatchesProjectorFromFolders) {
                                         "--no-cross-validation", "--out", (tmp / "procam.yaml").string(),
                                         "--captures"};
   for (int p = 0; p < 5; ++p) {
-    const auto dir = tmp / ("pose" + std::to_string(p));
-    ImageSetWriterOptions wo;
-    wo.encoding = ImageEncoding::kPgm;
-    ImageSetWriter writer(dir, nominal, PatternSpecToJson(spec), wo);
-    for (int i = 0; i < spec.NumImages(); ++i) {
-      char name[32];
-      std::snprintf(name, sizeof(name), "graycode_%02d.png", i);
-      writer.Add("camera", i, ReadGrayImage(kamino / ("capture_" + std::to_string(p)) / name), 0, ImageSource::kReplay);
-    }
-    writer.Commit();
-    rig_args.push_back(dir.string());
+    rig_args.push_back(ImageSetDir(p).string());
     proj_args.push_back((kamino / ("capture_" + std::to_string(p))).string());
   }
   ASSERT_EQ(RunCli(rig_args), 0);
@@ -222,18 +243,16 @@ TEST(CmdCalibrate, RigFromImageSetsMatchesProjectorFromFolders) {
   EXPECT_LE(a.calibration["summary"]["devices"][1]["rms_px"].get<double>(), 0.43);
 }
 
-// --select-model (eight leave-one-pose-out calibrations, the costly part, so run once): the chosen
-// model has the lowest prediction RMS of the 8 candidates, and the rig file's evidence keeps the
-// held parameters.
-TEST(CmdCalibrate, ProjectorSelectModelChoosesLowestPredictionError) {
+// --select-model (eight leave-one-pose-out calibrations, the costly part, so run once; through
+// `calibrate rig` on the suite's ImageSets, which shares the selection with `calibrate projector`
+// and reads PGM instead of decoding PNG): the chosen model has the lowest prediction RMS of the 8
+// candidates, and the rig file's evidence keeps the held parameters.
+TEST_F(CmdCalibrateKamino, SelectModelChoosesLowestPredictionError) {
   testing::TempDir tmp;
-  const auto kamino = testing::SharedDataDir() / "kamino-procam-graycode";
-  std::vector<std::string> args = {
-      "calibrate", "projector", "--target", (testing::SourceDir() / "config/targets/kamino-procam-graycode.yaml").string(),
-      "--patterns", (testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml").string(),
-      "--shadow-threshold", "40", "--contrast-threshold", "5", "--min-views", "5", "--no-cross-validation",
-      "--select-model", "--out", (tmp / "procam.yaml").string(), "--captures"};
-  for (int p = 0; p < 5; ++p) args.push_back((kamino / ("capture_" + std::to_string(p))).string());
+  std::vector<std::string> args = {"calibrate", "rig", "--target", Target(), "--shadow-threshold", "40",
+                                   "--contrast-threshold", "5", "--min-views", "5", "--no-cross-validation",
+                                   "--select-model", "--out", (tmp / "procam.yaml").string(), "--imagesets"};
+  for (int p = 0; p < 5; ++p) args.push_back(ImageSetDir(p).string());
   ASSERT_EQ(RunCli(args), 0);
   const Rig b = LoadRig(tmp / "procam.yaml");
   ASSERT_TRUE(b.projector);
