@@ -9,6 +9,7 @@
 #include <mutex>
 #include <optional>
 #include <type_traits>
+#include <utility>
 
 #if defined(__x86_64__)
 #include <immintrin.h>
@@ -106,88 +107,79 @@ inline BilinearTap TapAt(const uint8_t* inter, int pw, int ph, float u, float t)
 // interleaved projector images, written straight to the output images (no float copies).
 #if defined(__x86_64__) && defined(__GNUC__)
 #define SLSHADOW_SIM_AVX2 1
-// One row of FusedDirectBilinear with AVX2: the B <= 16 images of the batch are the lanes of one
-// or two vectors (the interleaved pattern bytes of one projector pixel are one 64- or 128-bit
-// load; the interleaved buffer is padded by 16 bytes, lanes >= B are ignored). Same operations
-// in the same order as the scalar code (mul and add kept separate: target "avx2" without "fma",
-// so nothing gets contracted), hence bit-identical images. Quantisation as QuantizeValue:
-// max(v, 0) maps NaN and negatives to 0; min(v + 0.5, full) then truncation.
-// 16 pixels x 16 images of 8-bit values (tile[pixel][image]) stored as 16 bytes into each of the
-// first `images` image rows at column x0: a 16 x 16 byte transpose (Transpose16x16).
-__attribute__((target("avx2"))) inline void StoreTransposed16(const uint8_t (*tile)[16], uint8_t* const* rows, int x0,
-                                                                int images) {
+// 16 pixels x 16 images of 8-bit values (pixel i's bytes at tile + i * stride) stored as 16
+// bytes into each of the first `images` image rows at column x0: a 16 x 16 byte transpose.
+__attribute__((target("avx2"))) inline void StoreTransposed16(const uint8_t* tile, size_t stride, uint8_t* const* rows,
+                                                                int x0, int images) {
   __m128i a[16];
-  for (int i = 0; i < 16; ++i) a[i] = _mm_load_si128(reinterpret_cast<const __m128i*>(tile[i]));
+  for (int i = 0; i < 16; ++i) a[i] = _mm_load_si128(reinterpret_cast<const __m128i*>(tile + i * stride));
   Transpose16x16(a);
   for (int k = 0; k < images; ++k) _mm_storeu_si128(reinterpret_cast<__m128i*>(rows[k] + x0), a[k]);
 }
 
+// One row of FusedDirectBilinear with AVX2: the B <= 32 images of the batch are the lanes of
+// (B + 7) / 8 vectors of 8 floats (the interleaved pattern bytes of one projector pixel are read
+// 8 at a time; the interleaved buffer is padded, lanes >= B are computed and not stored). Same
+// operations in the same order as the scalar code (mul and add kept separate: target "avx2"
+// without "fma", so nothing gets contracted), hence bit-identical images. Quantisation as
+// QuantizeValue: max(v, 0) maps NaN and negatives to 0; min(v + 0.5, full) then truncation.
 template <int B, typename Out>
 __attribute__((target("avx2"))) void FusedRowAvx2(const GeometryBuffer& g, size_t row_start, int w,
                                                      const uint8_t* inter, int pw, int ph, float ambient, float scale,
                                                      const float* vig, float full, Out* const* rows) {
+  static_assert(B >= 1 && B <= 32);
+  constexpr int kV = (B + 7) / 8;
   const __m256 zero = _mm256_setzero_ps(), half = _mm256_set1_ps(0.5f), vfull = _mm256_set1_ps(full);
-  alignas(32) int32_t q[16];
-  constexpr bool kTiled = std::is_same_v<Out, uint8_t>;  // any B <= 16; lanes >= B are not stored
-  alignas(16) uint8_t tile[16][16];
+  constexpr bool kTiled = std::is_same_v<Out, uint8_t>;
+  // 8-bit output: each pixel's B values packed to the bytes of one tile row (image order), the
+  // images written 16 pixels at a time through byte transposes (not B single-byte stores).
+  alignas(32) uint8_t tile[16][32];
+  alignas(32) int32_t q[32];
+  const __m256i order = _mm256_setr_epi32(0, 4, 1, 5, 2, 6, 3, 7);
   for (int x = 0; x < w; ++x) {
     const size_t i = row_start + static_cast<size_t>(x);
     const float f = g.factor[i];
     const __m256 base = _mm256_set1_ps(ambient * g.albedo[i]);
-    __m256 acc = base, acc_hi = base;
+    __m256 acc[kV];
+    for (int j = 0; j < kV; ++j) acc[j] = base;
     if (f > 0) {
       const BilinearTap tap = TapAt<B>(inter, pw, ph, g.proj_x[i], g.proj_y[i]);
+      const uint8_t *p00 = tap.p00, *p01 = tap.p01, *p10 = tap.p10, *p11 = tap.p11;
       const __m256 w00 = _mm256_set1_ps(tap.w00), w01 = _mm256_set1_ps(tap.w01);
       const __m256 w10 = _mm256_set1_ps(tap.w10), w11 = _mm256_set1_ps(tap.w11);
       const __m256 gain = _mm256_set1_ps(f * (1.0f / 255));
-      const uint8_t *p00 = tap.p00, *p01 = tap.p01, *p10 = tap.p10, *p11 = tap.p11;
-      if constexpr (B <= 8) {
 #define SLSHADOW_LOAD8(ptr) \
   _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(ptr))))
-        __m256 sum = _mm256_mul_ps(w00, SLSHADOW_LOAD8(p00));
-        sum = _mm256_add_ps(sum, _mm256_mul_ps(w01, SLSHADOW_LOAD8(p01)));
-        sum = _mm256_add_ps(sum, _mm256_mul_ps(w10, SLSHADOW_LOAD8(p10)));
-        sum = _mm256_add_ps(sum, _mm256_mul_ps(w11, SLSHADOW_LOAD8(p11)));
-#undef SLSHADOW_LOAD8
-        acc = _mm256_add_ps(base, _mm256_mul_ps(gain, sum));
-      } else {
-        const __m128i b00 = _mm_loadu_si128(reinterpret_cast<const __m128i*>(p00));
-        const __m128i b01 = _mm_loadu_si128(reinterpret_cast<const __m128i*>(p01));
-        const __m128i b10 = _mm_loadu_si128(reinterpret_cast<const __m128i*>(p10));
-        const __m128i b11 = _mm_loadu_si128(reinterpret_cast<const __m128i*>(p11));
-#define SLSHADOW_LO(b) _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(b))
-#define SLSHADOW_HI(b) _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_srli_si128(b, 8)))
-        __m256 sum = _mm256_mul_ps(w00, SLSHADOW_LO(b00));
-        sum = _mm256_add_ps(sum, _mm256_mul_ps(w01, SLSHADOW_LO(b01)));
-        sum = _mm256_add_ps(sum, _mm256_mul_ps(w10, SLSHADOW_LO(b10)));
-        sum = _mm256_add_ps(sum, _mm256_mul_ps(w11, SLSHADOW_LO(b11)));
-        acc = _mm256_add_ps(base, _mm256_mul_ps(gain, sum));
-        __m256 sum_hi = _mm256_mul_ps(w00, SLSHADOW_HI(b00));
-        sum_hi = _mm256_add_ps(sum_hi, _mm256_mul_ps(w01, SLSHADOW_HI(b01)));
-        sum_hi = _mm256_add_ps(sum_hi, _mm256_mul_ps(w10, SLSHADOW_HI(b10)));
-        sum_hi = _mm256_add_ps(sum_hi, _mm256_mul_ps(w11, SLSHADOW_HI(b11)));
-#undef SLSHADOW_LO
-#undef SLSHADOW_HI
-        acc_hi = _mm256_add_ps(base, _mm256_mul_ps(gain, sum_hi));
+      for (int j = 0; j < kV; ++j) {
+        __m256 sum = _mm256_mul_ps(w00, SLSHADOW_LOAD8(p00 + 8 * j));
+        sum = _mm256_add_ps(sum, _mm256_mul_ps(w01, SLSHADOW_LOAD8(p01 + 8 * j)));
+        sum = _mm256_add_ps(sum, _mm256_mul_ps(w10, SLSHADOW_LOAD8(p10 + 8 * j)));
+        sum = _mm256_add_ps(sum, _mm256_mul_ps(w11, SLSHADOW_LOAD8(p11 + 8 * j)));
+        acc[j] = _mm256_add_ps(base, _mm256_mul_ps(gain, sum));
       }
+#undef SLSHADOW_LOAD8
     }
     const __m256 m = _mm256_set1_ps(scale * (vig ? vig[x] : 1.0f));
-    const __m256 c = _mm256_min_ps(_mm256_add_ps(_mm256_max_ps(_mm256_mul_ps(acc, m), zero), half), vfull);
+    __m256i c[4] = {_mm256_setzero_si256(), _mm256_setzero_si256(), _mm256_setzero_si256(), _mm256_setzero_si256()};
+    for (int j = 0; j < kV; ++j) {
+      c[j] = _mm256_cvttps_epi32(_mm256_min_ps(_mm256_add_ps(_mm256_max_ps(_mm256_mul_ps(acc[j], m), zero), half), vfull));
+    }
     if constexpr (kTiled) {
-      // 8-bit output: values 0..255, packed to the 16 bytes of this pixel (image order kept; bytes
-      // >= B unused), written to the B images 16 pixels at a time (not B single-byte stores).
-      const __m256 c_hi = _mm256_min_ps(_mm256_add_ps(_mm256_max_ps(_mm256_mul_ps(acc_hi, m), zero), half), vfull);
-      const __m256i p16 = _mm256_permute4x64_epi64(
-          _mm256_packus_epi32(_mm256_cvttps_epi32(c), _mm256_cvttps_epi32(c_hi)), 0xD8);
-      _mm_store_si128(reinterpret_cast<__m128i*>(tile[x & 15]),
-                      _mm_packus_epi16(_mm256_castsi256_si128(p16), _mm256_extracti128_si256(p16, 1)));
-      if ((x & 15) == 15) StoreTransposed16(tile, rows, x - 15, B);
-    } else {
-      _mm256_store_si256(reinterpret_cast<__m256i*>(q), _mm256_cvttps_epi32(c));
-      if constexpr (B > 8) {
-        const __m256 c_hi = _mm256_min_ps(_mm256_add_ps(_mm256_max_ps(_mm256_mul_ps(acc_hi, m), zero), half), vfull);
-        _mm256_store_si256(reinterpret_cast<__m256i*>(q + 8), _mm256_cvttps_epi32(c_hi));
+      // Values 0..255: packed to 32 bytes in lane order (the packs work per 128-bit half; the
+      // permutation puts the 4-byte groups back in image order).
+      const __m256i bytes = _mm256_permutevar8x32_epi32(
+          _mm256_packus_epi16(_mm256_packus_epi32(c[0], c[1]), _mm256_packus_epi32(c[2], c[3])), order);
+      if constexpr (B <= 16) {
+        _mm_store_si128(reinterpret_cast<__m128i*>(tile[x & 15]), _mm256_castsi256_si128(bytes));
+      } else {
+        _mm256_store_si256(reinterpret_cast<__m256i*>(tile[x & 15]), bytes);
       }
+      if ((x & 15) == 15) {
+        StoreTransposed16(&tile[0][0], 32, rows, x - 15, std::min(B, 16));
+        if constexpr (B > 16) StoreTransposed16(&tile[0][16], 32, rows + 16, x - 15, B - 16);
+      }
+    } else {
+      for (int j = 0; j < kV; ++j) _mm256_store_si256(reinterpret_cast<__m256i*>(q + 8 * j), c[j]);
       for (int k = 0; k < B; ++k) rows[k][x] = static_cast<Out>(q[k]);
     }
   }
@@ -215,7 +207,7 @@ void FusedDirectBilinear(const GeometryBuffer& g, const uint8_t* inter, int pw, 
       for (int k = 0; k < B; ++k) rows[k] = out[static_cast<size_t>(k)].ptr<Out>(y);
       const float* vig = vignetting.empty() ? nullptr : vignetting.ptr<float>(y);
 #ifdef SLSHADOW_SIM_AVX2
-      if constexpr (B <= 16) {
+      if constexpr (B <= 32) {
         if (HaveAvx2()) {
           FusedRowAvx2<B, Out>(g, static_cast<size_t>(y) * w, w, inter, pw, ph, ambient, scale, vig, full, rows);
           continue;
@@ -469,11 +461,83 @@ cv::Mat PatternRenderer::ApplyCameraDefocus(const cv::Mat& image) const {
   return mixed;
 }
 
+PatternBatch::PatternBatch(std::vector<cv::Mat> images) : images_(std::move(images)) {
+  SLSHADOW_THROW_IF(images_.empty(), "a pattern batch needs at least one projector image");
+  for (const cv::Mat& m : images_) {
+    SLSHADOW_THROW_IF(m.type() != CV_8UC1 || m.size() != images_[0].size() || !m.isContinuous(),
+                      "projector images of a batch must be 8-bit single-channel, continuous, all ", images_[0].cols, "x",
+                      images_[0].rows, " (got type ", m.type(), ", ", m.cols, "x", m.rows, ")");
+  }
+}
+
+const uint8_t* PatternBatch::Interleaved() const {
+  std::call_once(interleaved_once_, [this] {
+    const int batch = size();
+    const size_t n = images_[0].total();
+    // Pooled (no page faults after the first scan); every byte written below.
+    CreatePooled(interleaved_, 1, static_cast<int>(n * batch + kPadding), CV_8UC1);
+    uint8_t* const inter = interleaved_.ptr<uint8_t>();
+    std::fill(inter + n * batch, inter + n * batch + kPadding, uint8_t{0});
+    std::vector<const uint8_t*> src(static_cast<size_t>(batch));
+    for (int k = 0; k < batch; ++k) src[static_cast<size_t>(k)] = images_[static_cast<size_t>(k)].ptr<uint8_t>();
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 16384), [&](const tbb::blocked_range<size_t>& r) {
+      size_t i = r.begin();
+#if defined(__x86_64__)
+      if (batch >= 4) {
+        // 16 projector pixels at a time: byte transposes of 16 images each, then per pixel one
+        // 16-byte store per group of images. A group of fewer than 16 images spills into the
+        // next pixel's bytes, which are written afterwards (pixels in order; the last spill stays
+        // inside this range: i + 32 <= end).
+        const int groups = (batch + 15) / 16;
+        for (; i + 32 <= r.end(); i += 16) {
+          __m128i a[2][16];
+          for (int gi = 0; gi < groups; ++gi) {
+            for (int k = 0; k < 16; ++k) {
+              const int img = gi * 16 + k;
+              a[gi][k] = img < batch ? _mm_loadu_si128(reinterpret_cast<const __m128i*>(src[static_cast<size_t>(img)] + i))
+                                     : _mm_setzero_si128();
+            }
+            Transpose16x16(a[gi]);
+          }
+          for (int j = 0; j < 16; ++j) {
+            uint8_t* dst = inter + (i + static_cast<size_t>(j)) * batch;
+            for (int gi = 0; gi < groups; ++gi) _mm_storeu_si128(reinterpret_cast<__m128i*>(dst + 16 * gi), a[gi][j]);
+          }
+        }
+      }
+#endif
+      uint8_t* dst = inter + i * batch;
+      for (; i < r.end(); ++i) {
+        for (int k = 0; k < batch; ++k) *dst++ = src[static_cast<size_t>(k)][i];
+      }
+    });
+  });
+  return interleaved_.ptr<uint8_t>();
+}
+
+namespace {
+
+// Calls run(std::integral_constant<int, n>()) for the batch size n in 1..32.
+template <typename F, int... Ns>
+void DispatchBatchSize(int n, F&& run, std::integer_sequence<int, Ns...>) {
+  static_cast<void>(((n == Ns + 1 ? (run(std::integral_constant<int, Ns + 1>()), true) : false) || ...));
+}
+
+}  // namespace
+
 std::vector<cv::Mat> PatternRenderer::RenderBatch(const std::vector<cv::Mat>& images, int first_pattern_index) const {
+  SLSHADOW_THROW_IF(images.empty() || static_cast<int>(images.size()) > kMaxBatch, "pattern batch must hold 1..",
+                    kMaxBatch, " images (got ", images.size(), ")");
+  return RenderBatch(PatternBatch(images), first_pattern_index);
+}
+
+std::vector<cv::Mat> PatternRenderer::RenderBatch(const PatternBatch& patterns, int first_pattern_index) const {
   const SceneLayers& l = scene_.layers;
-  const int batch = static_cast<int>(images.size());
+  const std::vector<cv::Mat>& images = patterns.images();
+  const int batch = patterns.size();
+  static_assert(kMaxBatch <= 32, "the fused kernels take up to 32 images");
   const bool fused = !l.response_enabled && projector_sigmas_.empty() && scene_.radiometry.bilinear_lookup && l.fill_factor >= 1 &&
-                     geometry_.samples_per_axis == 1 && camera_sigmas_.empty() && !l.noise_enabled && batch <= 16;
+                     geometry_.samples_per_axis == 1 && camera_sigmas_.empty() && !l.noise_enabled && batch <= kMaxBatch;
   if (fused) {
     const int pw = projector_width_, ph = projector_height_;
     for (const cv::Mat& m : images) {
@@ -481,33 +545,8 @@ std::vector<cv::Mat> PatternRenderer::RenderBatch(const std::vector<cv::Mat>& im
                         "projector image must be 8-bit single-channel ", pw, "x", ph, " (got type ", m.type(), ", ", m.cols,
                         "x", m.rows, ")");
     }
-    const size_t n_proj = static_cast<size_t>(pw) * ph;
-    // + 16: the vector kernel reads 8 or 16 bytes per projector pixel whatever the batch size.
-    // Pooled (no page faults after the first batch), every byte written below.
-    cv::Mat inter_block;
-    CreatePooled(inter_block, 1, static_cast<int>(n_proj * batch + 16), CV_8UC1);
-    uint8_t* const inter_data = inter_block.ptr<uint8_t>();
-    std::fill(inter_data + n_proj * batch, inter_data + n_proj * batch + 16, uint8_t{0});
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, n_proj, 16384), [&](const tbb::blocked_range<size_t>& r) {
-      const uint8_t* src[kMaxBatch];
-      for (int k = 0; k < batch; ++k) src[k] = images[static_cast<size_t>(k)].ptr<uint8_t>();
-      size_t i = r.begin();
-#if defined(__x86_64__)
-      if (batch == 16) {
-        // 16 projector pixels of the 16 images at a time: one byte transpose.
-        for (; i + 16 <= r.end(); i += 16) {
-          __m128i a[16];
-          for (int k = 0; k < 16; ++k) a[k] = _mm_loadu_si128(reinterpret_cast<const __m128i*>(src[k] + i));
-          Transpose16x16(a);
-          for (int j = 0; j < 16; ++j) _mm_storeu_si128(reinterpret_cast<__m128i*>(inter_data + (i + static_cast<size_t>(j)) * 16), a[j]);
-        }
-      }
-#endif
-      uint8_t* dst = inter_data + i * batch;
-      for (; i < r.end(); ++i) {
-        for (int k = 0; k < batch; ++k) *dst++ = src[k][i];
-      }
-    });
+    // Interleaved once per batch object (shared by every camera of a scan).
+    const uint8_t* const inter_data = patterns.Interleaved();
     const bool wide = scene_.radiometry.adc_bits > 8;
     // The batch's images as row bands of one pooled block (recycled across scans: no first-touch
     // faults after the first); each image is a continuous sub-matrix that keeps the block alive.
@@ -518,32 +557,17 @@ std::vector<cv::Mat> PatternRenderer::RenderBatch(const std::vector<cv::Mat>& im
     const float scale = static_cast<float>(scene_.radiometry.exposure * full_scale_dn_);
     const float ambient = static_cast<float>(l.ambient);
     const float full = static_cast<float>(full_scale_dn_);
-    auto run = [&](auto batch_tag) {
-      constexpr int kB = decltype(batch_tag)::value;
-      if (wide) {
-        FusedDirectBilinear<kB, uint16_t>(geometry_, inter_data, pw, ph, ambient, scale, vignetting_, full, out);
-      } else {
-        FusedDirectBilinear<kB, uint8_t>(geometry_, inter_data, pw, ph, ambient, scale, vignetting_, full, out);
-      }
-    };
-    switch (batch) {
-      case 1: run(std::integral_constant<int, 1>()); break;
-      case 2: run(std::integral_constant<int, 2>()); break;
-      case 3: run(std::integral_constant<int, 3>()); break;
-      case 4: run(std::integral_constant<int, 4>()); break;
-      case 5: run(std::integral_constant<int, 5>()); break;
-      case 6: run(std::integral_constant<int, 6>()); break;
-      case 7: run(std::integral_constant<int, 7>()); break;
-      case 8: run(std::integral_constant<int, 8>()); break;
-      case 9: run(std::integral_constant<int, 9>()); break;
-      case 10: run(std::integral_constant<int, 10>()); break;
-      case 11: run(std::integral_constant<int, 11>()); break;
-      case 12: run(std::integral_constant<int, 12>()); break;
-      case 13: run(std::integral_constant<int, 13>()); break;
-      case 14: run(std::integral_constant<int, 14>()); break;
-      case 15: run(std::integral_constant<int, 15>()); break;
-      default: run(std::integral_constant<int, 16>()); break;
-    }
+    DispatchBatchSize(
+        batch,
+        [&](auto batch_tag) {
+          constexpr int kB = decltype(batch_tag)::value;
+          if (wide) {
+            FusedDirectBilinear<kB, uint16_t>(geometry_, inter_data, pw, ph, ambient, scale, vignetting_, full, out);
+          } else {
+            FusedDirectBilinear<kB, uint8_t>(geometry_, inter_data, pw, ph, ambient, scale, vignetting_, full, out);
+          }
+        },
+        std::make_integer_sequence<int, kMaxBatch>());
     return out;
   }
   std::vector<cv::Mat> irradiance = RenderIrradianceBatch(images);
@@ -555,7 +579,7 @@ std::vector<cv::Mat> PatternRenderer::RenderBatch(const std::vector<cv::Mat>& im
 }
 
 cv::Mat PatternRenderer::Render(const cv::Mat& projector_image, int pattern_index) const {
-  return RenderBatch({projector_image}, pattern_index)[0];
+  return RenderBatch(std::vector<cv::Mat>{projector_image}, pattern_index)[0];
 }
 
 cv::Mat PatternRenderer::Quantize(const cv::Mat& irradiance, int pattern_index) const {

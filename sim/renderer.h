@@ -16,6 +16,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <memory>
+#include <mutex>
 #include <utility>
 #include <vector>
 
@@ -103,6 +104,27 @@ struct GeometryBuffer {
 GeometryBuffer TraceGeometry(const RayCaster& caster, const Rig& rig, int camera_index, const CameraRays& rays,
                              TraceMode mode = TraceMode::kPacket16, bool ground_truth = true);
 
+// A batch of projector images (CV_8UC1, one size) and, made on first use by the fused pattern
+// pass and then kept, the same bytes interleaved per projector pixel ([pixel][image]) so that
+// one lookup reads every image of the batch from the same cache lines. Build it once per scan
+// and render it for every camera (PatternRenderer::RenderBatch): the interleaving is then paid
+// once, not once per camera. The images are shared with the caller (cv::Mat headers), not
+// copied: their pixels must not change while the batch is in use. Thread-safe.
+class PatternBatch {
+ public:
+  explicit PatternBatch(std::vector<cv::Mat> images);
+  const std::vector<cv::Mat>& images() const { return images_; }
+  int size() const { return static_cast<int>(images_.size()); }
+  // size() bytes per projector pixel, then kPadding zero bytes (vector loads may overrun).
+  const uint8_t* Interleaved() const;
+  static constexpr int kPadding = 32;
+
+ private:
+  std::vector<cv::Mat> images_;
+  mutable std::once_flag interleaved_once_;
+  mutable cv::Mat interleaved_;
+};
+
 // The pattern pass for one camera: precomputes what does not depend on the pattern
 // (vignetting, camera defocus levels), then renders any number of projector images.
 class PatternRenderer {
@@ -121,8 +143,9 @@ class PatternRenderer {
   // Several projector images in one sweep over the geometry buffer (which is then read once per
   // batch instead of once per image; the lookup weights are shared too): the same images as
   // Render(images[k], first_pattern_index + k). Batches of up to kMaxBatch images.
-  static constexpr int kMaxBatch = 16;
+  static constexpr int kMaxBatch = 32;
   std::vector<cv::Mat> RenderBatch(const std::vector<cv::Mat>& projector_images, int first_pattern_index) const;
+  std::vector<cv::Mat> RenderBatch(const PatternBatch& batch, int first_pattern_index) const;
   std::vector<cv::Mat> RenderIrradianceBatch(const std::vector<cv::Mat>& projector_images) const;
 
  private:

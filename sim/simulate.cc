@@ -21,8 +21,20 @@
 namespace slshadow {
 namespace {
 
-// Projector images rendered per sweep over a geometry buffer.
-constexpr size_t kBatch = 16;
+// Projector images rendered per sweep over a geometry buffer (a 22-image Gray code + phase shift
+// sequence is one sweep).
+constexpr size_t kBatch = PatternRenderer::kMaxBatch;
+
+// The projector images in batches of kBatch; each batch is interleaved once (on first use) and
+// then rendered for every camera.
+std::deque<PatternBatch> MakeBatches(const std::vector<cv::Mat>& images) {
+  std::deque<PatternBatch> batches;
+  for (size_t first = 0; first < images.size(); first += kBatch) {
+    batches.emplace_back(std::vector<cv::Mat>(images.begin() + static_cast<std::ptrdiff_t>(first),
+                                              images.begin() + static_cast<std::ptrdiff_t>(std::min(first + kBatch, images.size()))));
+  }
+  return batches;
+}
 
 double Since(std::chrono::steady_clock::time_point t) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
@@ -214,13 +226,12 @@ std::vector<std::vector<cv::Mat>> Simulator::Render(const std::vector<cv::Mat>& 
   CheckImages(rig_, projector_images);
   const auto start = std::chrono::steady_clock::now();
   std::vector<std::vector<cv::Mat>> images(geometry_.size());
+  const std::deque<PatternBatch> batches = MakeBatches(projector_images);
   for (size_t c = 0; c < geometry_.size(); ++c) {
     const PatternRenderer renderer(s, rig_, static_cast<int>(c), geometry_[c]);
     images[c].reserve(projector_images.size());
-    for (size_t first = 0; first < projector_images.size(); first += kBatch) {
-      const std::vector<cv::Mat> batch(projector_images.begin() + static_cast<std::ptrdiff_t>(first),
-                                       projector_images.begin() + static_cast<std::ptrdiff_t>(std::min(first + kBatch, projector_images.size())));
-      for (cv::Mat& m : renderer.RenderBatch(batch, static_cast<int>(first))) images[c].push_back(std::move(m));
+    for (size_t b = 0; b < batches.size(); ++b) {
+      for (cv::Mat& m : renderer.RenderBatch(batches[b], static_cast<int>(b * kBatch))) images[c].push_back(std::move(m));
     }
   }
   if (summary) {
@@ -276,6 +287,7 @@ SimulateSummary SimulateScan(const Scene& scene, const Rig& rig, const std::vect
   sum.cameras = static_cast<int>(rig.cameras.size());
   sum.patterns = static_cast<int>(projector_images.size());
   Progress progress("simulate", static_cast<int64_t>(rig.cameras.size() * (projector_images.size() + 1)));
+  const std::deque<PatternBatch> batches = MakeBatches(projector_images);
   for (size_t c = 0; c < rig.cameras.size(); ++c) {
     const std::string& name = rig.cameras[c].name;
     auto t = std::chrono::steady_clock::now();
@@ -289,10 +301,9 @@ SimulateSummary SimulateScan(const Scene& scene, const Rig& rig, const std::vect
     t = std::chrono::steady_clock::now();
     const PatternRenderer renderer(scene, rig, static_cast<int>(c), g);
     // Render a batch in one sweep, then encode its images in parallel (Add is thread-safe).
-    for (size_t first = 0; first < projector_images.size(); first += kBatch) {
-      const std::vector<cv::Mat> batch(projector_images.begin() + static_cast<std::ptrdiff_t>(first),
-                                       projector_images.begin() + static_cast<std::ptrdiff_t>(std::min(first + kBatch, projector_images.size())));
-      const std::vector<cv::Mat> rendered = renderer.RenderBatch(batch, static_cast<int>(first));
+    for (size_t b = 0; b < batches.size(); ++b) {
+      const size_t first = b * kBatch;
+      const std::vector<cv::Mat> rendered = renderer.RenderBatch(batches[b], static_cast<int>(first));
       tbb::parallel_for(size_t{0}, rendered.size(), [&](size_t k) {
         writer.Add(name, static_cast<int>(first + k), rendered[k], scene.radiometry.exposure_us, ImageSource::kVirtual);
         progress.Advance();

@@ -5,6 +5,7 @@
 
 #include <gtest/gtest.h>
 
+#include "core/error.h"
 #include "sim/shapes.h"
 #include <opencv2/core.hpp>
 #include "tests/sim/sim_test_util.h"
@@ -366,8 +367,10 @@ TEST(LayersTest, BatchEqualsSingleImagesWithAllLayers) {
     const GeometryBuffer g = Trace(scene, rig, 0);
     const PatternRenderer r(scene, rig, 0, g);
     std::vector<cv::Mat> patterns;
-    // 13 images: the fused path (two vectors of lanes when vectorised); 8 as well, below.
-    for (int period : {3, 5, 8, 13, 21, 34, 55, 89, 144, 4, 7, 11, 233}) patterns.push_back(Stripes(rig, period));
+    // 22 images: the fused path (three vectors of lanes when vectorised); 8 and 5 as well, below.
+    for (int period : {3, 5, 8, 13, 21, 34, 55, 89, 144, 4, 7, 11, 233, 2, 6, 9, 10, 12, 14, 15, 17, 19}) {
+      patterns.push_back(Stripes(rig, period));
+    }
     const auto batch = r.RenderBatch(patterns, 10);
     const std::vector<cv::Mat> five(patterns.begin(), patterns.begin() + 5);  // the general path
     const auto batch5 = r.RenderBatch(five, 10);
@@ -399,9 +402,10 @@ TEST(LayersTest, BatchEqualsSingleImagesWithAllLayers) {
   }
 }
 
-// A full batch of 16 images with 8-bit output (written 16 pixels x 16 images at a time) equals
-// the images rendered one by one and the general path's float irradiance through the ADC; the
-// camera width (274) is not a multiple of 16, so the row tails are covered too.
+// Batches of up to 32 images with 8-bit output (written 16 pixels x 16 images at a time, two
+// tiles above 16 images) equal the images rendered one by one and the general path's float
+// irradiance through the ADC; the camera width (274) is not a multiple of 16, so the row tails
+// are covered too.
 TEST(LayersTest, BatchesOf8BitImagesEqualSingleImagesAndIrradiance) {
   const Rig rig = SmallDemoRig(7);
   ASSERT_NE(rig.cameras[0].model.width % 16, 0);
@@ -410,30 +414,80 @@ TEST(LayersTest, BatchesOf8BitImagesEqualSingleImagesAndIrradiance) {
   scene.radiometry.adc_bits = 8;
   const GeometryBuffer g = Trace(scene, rig, 0);
   const PatternRenderer r(scene, rig, 0, g);
-  std::vector<cv::Mat> patterns;
-  for (int period : {3, 5, 8, 13, 21, 34, 55, 89, 144, 4, 7, 11, 233, 2, 6, 9}) patterns.push_back(Stripes(rig, period));
-  ASSERT_EQ(patterns.size(), 16u);
-  // Full and partial batches (a 22-pattern sequence renders as 16 + 6).
-  for (const size_t n : {16u, 9u, 6u, 1u}) {
+  std::vector<cv::Mat> patterns, single, expected;
+  for (int period : {3, 5, 8, 13, 21, 34, 55, 89, 144, 4, 7, 11, 233, 2, 6, 9,
+                     10, 12, 14, 15, 17, 19, 20, 23, 25, 27, 29, 31, 37, 41, 43, 47}) {
+    patterns.push_back(Stripes(rig, period));
+  }
+  ASSERT_EQ(patterns.size(), static_cast<size_t>(PatternRenderer::kMaxBatch));
+  for (size_t k = 0; k < patterns.size(); ++k) {
+    single.push_back(r.Render(patterns[k], static_cast<int>(k)));
+    // The oracle: the general path's float irradiance through the ADC.
+    const cv::Mat irradiance = r.RenderIrradiance(patterns[k]);
+    cv::Mat q(irradiance.size(), CV_8UC1);
+    int lit = 0;
+    for (int y = 0; y < irradiance.rows; ++y) {
+      for (int x = 0; x < irradiance.cols; ++x) {
+        const float v = irradiance.at<float>(y, x);
+        q.at<uint8_t>(y, x) = static_cast<uint8_t>(v <= 0 ? 0 : (v >= 255 ? 255 : static_cast<int>(v + 0.5f)));
+        lit += q.at<uint8_t>(y, x) > 0;
+      }
+    }
+    EXPECT_GT(lit, irradiance.total() / 10) << k;
+    expected.push_back(q);
+  }
+  // Full and partial batches: one and two tiles of 16 images, vectors of 8 lanes full and partial
+  // (a 22-pattern sequence renders as one batch of 22).
+  for (const size_t n : {32u, 22u, 17u, 16u, 9u, 6u, 1u}) {
     const std::vector<cv::Mat> some(patterns.begin(), patterns.begin() + static_cast<std::ptrdiff_t>(n));
     const auto batch = r.RenderBatch(some, 0);
     ASSERT_EQ(batch.size(), n);
     for (size_t k = 0; k < n; ++k) {
       ASSERT_EQ(batch[k].type(), CV_8UC1);
-      EXPECT_EQ(cv::norm(batch[k], r.Render(patterns[k], static_cast<int>(k)), cv::NORM_INF), 0) << n << " " << k;
-      const cv::Mat irradiance = r.RenderIrradiance(patterns[k]);
-      int lit = 0;
-      for (int y = 0; y < irradiance.rows; ++y) {
-        for (int x = 0; x < irradiance.cols; ++x) {
-          const float v = irradiance.at<float>(y, x);
-          const int q = v <= 0 ? 0 : (v >= 255 ? 255 : static_cast<int>(v + 0.5f));
-          ASSERT_EQ(batch[k].at<uint8_t>(y, x), q) << n << " " << k << " " << x << "," << y;
-          lit += q > 0;
+      EXPECT_EQ(cv::norm(batch[k], single[k], cv::NORM_INF), 0) << n << " " << k;
+      for (int y = 0; y < batch[k].rows; ++y) {
+        for (int x = 0; x < batch[k].cols; ++x) {
+          ASSERT_EQ(batch[k].at<uint8_t>(y, x), expected[k].at<uint8_t>(y, x)) << n << " " << k << " " << x << "," << y;
         }
       }
-      EXPECT_GT(lit, irradiance.total() / 10) << k;
     }
   }
+}
+
+// One PatternBatch (interleaved once) rendered for both cameras gives each camera the images of
+// a fresh batch, and bad batches are refused.
+TEST(LayersTest, PatternBatchIsSharedAcrossCamerasAndChecked) {
+  const Rig rig = SmallDemoRig(8);
+  Scene scene = LoadScene(testing::SourceDir() / "config/demo/scene.yaml");
+  scene.layers = SceneLayers();
+  scene.radiometry.adc_bits = 8;
+  std::vector<cv::Mat> patterns;
+  for (int period : {3, 5, 8, 13, 21, 34, 55, 89, 144, 4, 7, 11, 233, 2, 6, 9, 10, 12, 14, 15}) {
+    patterns.push_back(Stripes(rig, period));
+  }
+  const PatternBatch shared(patterns);
+  ASSERT_EQ(shared.size(), 20);
+  // The interleaved bytes: image k of projector pixel i at i * size() + k, then zero padding.
+  const uint8_t* inter = shared.Interleaved();
+  const size_t n = patterns[0].total();
+  for (size_t i = 0; i < n; i += 97) {
+    for (int k = 0; k < shared.size(); ++k) ASSERT_EQ(inter[i * 20 + static_cast<size_t>(k)], patterns[static_cast<size_t>(k)].data[i]) << i;
+  }
+  for (int k = 0; k < PatternBatch::kPadding; ++k) EXPECT_EQ(inter[n * 20 + static_cast<size_t>(k)], 0);
+  for (int camera = 0; camera < 2; ++camera) {
+    const GeometryBuffer g = Trace(scene, rig, camera);
+    const PatternRenderer r(scene, rig, camera, g);
+    const auto a = r.RenderBatch(shared, 0);
+    const auto b = r.RenderBatch(patterns, 0);
+    ASSERT_EQ(a.size(), patterns.size());
+    for (size_t k = 0; k < a.size(); ++k) EXPECT_EQ(cv::norm(a[k], b[k], cv::NORM_INF), 0) << camera << " " << k;
+    // More images than a batch holds.
+    std::vector<cv::Mat> too_many(static_cast<size_t>(PatternRenderer::kMaxBatch) + 1, patterns[0]);
+    EXPECT_THROW(r.RenderBatch(too_many, 0), Error);
+  }
+  EXPECT_THROW(PatternBatch(std::vector<cv::Mat>{}), Error);
+  EXPECT_THROW(PatternBatch({patterns[0], cv::Mat(patterns[0].rows, patterns[0].cols + 1, CV_8UC1, cv::Scalar(0))}), Error);
+  EXPECT_THROW(PatternBatch({patterns[0], cv::Mat(patterns[0].size(), CV_16UC1, cv::Scalar(0))}), Error);
 }
 
 TEST(LayersTest, LayersAreOffByDefault) {
