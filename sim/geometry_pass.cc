@@ -6,6 +6,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <mutex>
 #include <optional>
@@ -21,6 +22,37 @@ namespace {
 
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 constexpr int kBlock = 4;  // 4 x 4 pixels = one packet of 16 rays
+
+// One packet row (4 lanes) per vector (GCC vector extensions): AVX2 registers in the avx2 clones,
+// pairs of SSE2 operations in the default ones; the same IEEE operations as the scalar per-lane
+// code and no FMA, so the same bits in every clone. (GCC kept the per-lane loops over 16 lanes
+// scalar: mixed bool / int / float / double lanes.) Comparisons give lane masks (all bits set).
+// The helpers pass these by value; internal and inlined, so GCC's note on the calling
+// convention of 32-byte vectors without AVX (-Wpsabi) does not apply.
+#pragma GCC diagnostic ignored "-Wpsabi"
+typedef float V4f __attribute__((vector_size(16)));
+typedef int32_t V4i __attribute__((vector_size(16)));
+typedef double V4d __attribute__((vector_size(32)));
+typedef int64_t V4l __attribute__((vector_size(32)));
+
+template <class V, class T>
+inline V Load4(const T* p) {
+  V v;
+  std::memcpy(&v, p, sizeof(v));
+  return v;
+}
+template <class V, class T>
+inline void Store4(T* p, const V& v) {
+  std::memcpy(p, &v, sizeof(v));
+}
+// RayPacket lane flags (0 / 1) <-> lane masks.
+inline V4i MaskOf(const int32_t* flags) { return Load4<V4i>(flags) != 0; }
+inline V4i Flags(V4i mask) { return mask & 1; }
+inline V4l Wide(V4i mask) { return __builtin_convertvector(mask, V4l); }
+inline V4d ToDouble(V4f v) { return __builtin_convertvector(v, V4d); }
+inline V4f ToFloat(const V4d& v) { return __builtin_convertvector(v, V4f); }
+inline V4d Splat(double v) { return V4d{v, v, v, v}; }
+inline V4f Splat(float v) { return V4f{v, v, v, v}; }
 
 // Where the pass writes for one set of samples. Ground-truth maps are continuous, indexed
 // y * width + x; pointers are null when the map shares its storage with a per-sample buffer.
@@ -67,6 +99,7 @@ struct PassContext {
   const SceneLayers::Defocus* proj_defocus;
   std::vector<Rigid3d> object_from_rig;
   std::vector<double> uniform_albedo;  // per object; NaN when textured
+  bool any_textured = false;
 };
 
 // The per-hit arithmetic of 16 lanes in structure-of-arrays form, without branches, so the
@@ -155,58 +188,83 @@ SLSHADOW_LANE_CLONES void ShadeLanes(const PassContext& c, const LaneInputs& __r
   }
 }
 
+// One packet: 4 x 4 pixels (one sample each), traced, shaded and stored. Every per-lane step
+// without branches, a packet row (4 lanes) per vector; the values are those of the scalar
+// per-lane code it replaced, bit for bit (docs/benchmarks.md, Simulator).
 SLSHADOW_LANE_CLONES void TracePacket(const PassContext& c, const SampleTargets& out, int bx, int by, int s, int64_t* primary,
-                 int64_t* shadow) {
+                                      int64_t* shadow) {
+  constexpr int kN = RayPacket::kSize;
   RayPacket p;
   RayPacket sh;
-  int64_t index[RayPacket::kSize];
-  int px[RayPacket::kSize], py[RayPacket::kSize];
-  for (int i = 0; i < RayPacket::kSize; ++i) {
-    const int x = bx * kBlock + (i % kBlock), y = by * kBlock + (i / kBlock);
-    px[i] = x;
-    py[i] = y;
-    p.active[i] = false;
-    sh.active[i] = false;
-    p.object[i] = -1;
-    if (x >= c.width || y >= c.height) continue;
-    index[i] = (static_cast<int64_t>(y) * c.width + x) * out.samples + s;
-    const Eigen::Vector3f& d_cam = (*out.dirs)[static_cast<size_t>(index[i])];
-    if (!d_cam.allFinite()) continue;
-    const Eigen::Vector3f d = c.rig_from_cam * d_cam;
-    p.org_x[i] = c.cam_center.x();
-    p.org_y[i] = c.cam_center.y();
-    p.org_z[i] = c.cam_center.z();
-    p.dir_x[i] = d.x();
-    p.dir_y[i] = d.y();
-    p.dir_z[i] = d.z();
-    p.tnear[i] = 0;
-    p.tfar[i] = std::numeric_limits<float>::infinity();
-    p.active[i] = true;
-    ++*primary;
+  const int x0 = bx * kBlock, y0 = by * kBlock;
+  // Inside the image: every lane (a packet over the right or bottom edge has lanes outside).
+  const bool full = x0 + kBlock <= c.width && y0 + kBlock <= c.height;
+  int64_t index[kN];     // sample index; 0 outside the image
+  alignas(16) int32_t inside[kN];  // lane masks
+  for (int r = 0; r < kBlock; ++r) {
+    const int y = y0 + r;
+    const int64_t row = (static_cast<int64_t>(y) * c.width + x0) * out.samples + s;
+    for (int k = 0; k < kBlock; ++k) {
+      const bool in_image = (x0 + k < c.width) & (y < c.height);
+      inside[r * kBlock + k] = in_image ? -1 : 0;
+      index[r * kBlock + k] = in_image ? row + k * out.samples : 0;
+    }
   }
+  // Camera rays to the rig frame: rig_from_cam * d in the order Eigen evaluates a 3x3 float
+  // product (m0 x + (m1 y + m2 z)); lanes outside the image or without a ray (NaN) inactive.
+  const Eigen::Matrix3f& m = c.rig_from_cam;
+  const float m00 = m(0, 0), m01 = m(0, 1), m02 = m(0, 2), m10 = m(1, 0), m11 = m(1, 1), m12 = m(1, 2);
+  const float m20 = m(2, 0), m21 = m(2, 1), m22 = m(2, 2);
+  const V4f ox = Splat(c.cam_center.x()), oy = Splat(c.cam_center.y()), oz = Splat(c.cam_center.z());
+  V4i n_primary = {0, 0, 0, 0};
+  for (int r = 0; r < kBlock; ++r) {
+    const int i = r * kBlock;
+    const Eigen::Vector3f* d[4];
+    for (int k = 0; k < 4; ++k) d[k] = &(*out.dirs)[static_cast<size_t>(index[i + k])];
+    const V4f x = {d[0]->x(), d[1]->x(), d[2]->x(), d[3]->x()};
+    const V4f y = {d[0]->y(), d[1]->y(), d[2]->y(), d[3]->y()};
+    const V4f z = {d[0]->z(), d[1]->z(), d[2]->z(), d[3]->z()};
+    const V4i finite = Load4<V4i>(inside + i) & (x - x == 0) & (y - y == 0) & (z - z == 0);  // Eigen's allFinite()
+    Store4(p.org_x + i, ox);
+    Store4(p.org_y + i, oy);
+    Store4(p.org_z + i, oz);
+    Store4(p.dir_x + i, m00 * x + (m01 * y + m02 * z));
+    Store4(p.dir_y + i, m10 * x + (m11 * y + m12 * z));
+    Store4(p.dir_z + i, m20 * x + (m21 * y + m22 * z));
+    Store4(p.tnear + i, Splat(0.0f));
+    Store4(p.tfar + i, Splat(std::numeric_limits<float>::infinity()));
+    Store4(p.object + i, V4i{-1, -1, -1, -1});
+    Store4(p.active + i, Flags(finite));
+    n_primary -= finite;
+  }
+  *primary += n_primary[0] + n_primary[1] + n_primary[2] + n_primary[3];
   c.caster->Intersect(p, c.mode, /*coherent=*/true);
 
-  bool hit[RayPacket::kSize];
+  alignas(16) int32_t hit[kN];  // lane masks
   LaneInputs in;
-  for (int i = 0; i < RayPacket::kSize; ++i) {
-    hit[i] = p.active[i] && p.object[i] >= 0;
-    if (!hit[i]) {
-      in.t[i] = 1;
-      in.dx[i] = in.dy[i] = in.nx[i] = in.ny[i] = 0;
-      in.dz[i] = in.nz[i] = 1;
-      in.albedo[i] = 0;
-      continue;
-    }
-    in.t[i] = p.tfar[i];
-    in.dx[i] = p.dir_x[i];
-    in.dy[i] = p.dir_y[i];
-    in.dz[i] = p.dir_z[i];
-    in.nx[i] = p.ng_x[i];
-    in.ny[i] = p.ng_y[i];
-    in.nz[i] = p.ng_z[i];
-    const size_t obj = static_cast<size_t>(p.object[i]);
-    in.albedo[i] = c.uniform_albedo[obj];
-    if (std::isnan(in.albedo[i])) {
+  for (int r = 0; r < kBlock; ++r) {
+    const int i = r * kBlock;
+    const V4i object = Load4<V4i>(p.object + i);
+    const V4i h = MaskOf(p.active + i) & (object >= 0);
+    const V4l h2 = Wide(h);
+    Store4(hit + i, h);
+    // Lanes without a hit carry harmless inputs.
+    Store4(in.t + i, h2 ? ToDouble(Load4<V4f>(p.tfar + i)) : Splat(1.0));
+    Store4(in.dx + i, h2 ? ToDouble(Load4<V4f>(p.dir_x + i)) : Splat(0.0));
+    Store4(in.dy + i, h2 ? ToDouble(Load4<V4f>(p.dir_y + i)) : Splat(0.0));
+    Store4(in.dz + i, h2 ? ToDouble(Load4<V4f>(p.dir_z + i)) : Splat(1.0));
+    Store4(in.nx + i, h2 ? ToDouble(Load4<V4f>(p.ng_x + i)) : Splat(0.0));
+    Store4(in.ny + i, h2 ? ToDouble(Load4<V4f>(p.ng_y + i)) : Splat(0.0));
+    Store4(in.nz + i, h2 ? ToDouble(Load4<V4f>(p.ng_z + i)) : Splat(1.0));
+    const V4i obj = h ? object : V4i{0, 0, 0, 0};
+    const double* ua = c.uniform_albedo.data();
+    const V4d a = {ua[obj[0]], ua[obj[1]], ua[obj[2]], ua[obj[3]]};
+    Store4(in.albedo + i, h2 ? a : Splat(0.0));
+  }
+  if (c.any_textured) {
+    for (int i = 0; i < kN; ++i) {
+      if (!hit[i] || !std::isnan(in.albedo[i])) continue;
+      const size_t obj = static_cast<size_t>(p.object[i]);
       const SceneObject& o = c.scene->objects[obj];
       const Eigen::Vector3d point = c.cam_center_d + in.t[i] * Eigen::Vector3d(in.dx[i], in.dy[i], in.dz[i]);
       const Eigen::Vector3d local = c.object_from_rig[obj] * point;
@@ -215,43 +273,73 @@ SLSHADOW_LANE_CLONES void TracePacket(const PassContext& c, const SampleTargets&
   }
   LaneOutputs sh_in;
   ShadeLanes(c, in, sh_in);
-  for (int i = 0; i < RayPacket::kSize; ++i) {
-    if (!hit[i] || sh_in.lit[i] == 0) continue;
-    // Occlusion ray towards the projector's centre, started slightly off the surface.
-    sh.org_x[i] = static_cast<float>(sh_in.ox[i]);
-    sh.org_y[i] = static_cast<float>(sh_in.oy[i]);
-    sh.org_z[i] = static_cast<float>(sh_in.oz[i]);
-    sh.dir_x[i] = static_cast<float>(sh_in.lx[i]);
-    sh.dir_y[i] = static_cast<float>(sh_in.ly[i]);
-    sh.dir_z[i] = static_cast<float>(sh_in.lz[i]);
-    sh.tnear[i] = 0;
-    sh.tfar[i] = static_cast<float>(sh_in.tfar[i]);
-    sh.active[i] = true;
-    ++*shadow;
+  // Occlusion rays towards the projector's centre, started slightly off the surface.
+  V4i n_shadow = {0, 0, 0, 0};
+  for (int r = 0; r < kBlock; ++r) {
+    const int i = r * kBlock;
+    const V4i a = Load4<V4i>(hit + i) & __builtin_convertvector(Load4<V4d>(sh_in.lit + i) != 0, V4i);
+    Store4(sh.org_x + i, ToFloat(Load4<V4d>(sh_in.ox + i)));
+    Store4(sh.org_y + i, ToFloat(Load4<V4d>(sh_in.oy + i)));
+    Store4(sh.org_z + i, ToFloat(Load4<V4d>(sh_in.oz + i)));
+    Store4(sh.dir_x + i, ToFloat(Load4<V4d>(sh_in.lx + i)));
+    Store4(sh.dir_y + i, ToFloat(Load4<V4d>(sh_in.ly + i)));
+    Store4(sh.dir_z + i, ToFloat(Load4<V4d>(sh_in.lz + i)));
+    Store4(sh.tnear + i, Splat(0.0f));
+    Store4(sh.tfar + i, ToFloat(Load4<V4d>(sh_in.tfar + i)));
+    Store4(sh.active + i, Flags(a));
+    Store4(sh.occluded + i, V4i{0, 0, 0, 0});
+    n_shadow -= a;
   }
-  bool any_shadow = false;
-  for (int i = 0; i < RayPacket::kSize; ++i) any_shadow |= sh.active[i];
-  if (any_shadow) c.caster->Occluded(sh, c.mode);
+  const int shadow_rays = n_shadow[0] + n_shadow[1] + n_shadow[2] + n_shadow[3];
+  *shadow += shadow_rays;
+  if (shadow_rays > 0) c.caster->Occluded(sh, c.mode);
 
-  for (int i = 0; i < RayPacket::kSize; ++i) {
-    if (px[i] >= c.width || py[i] >= c.height) continue;
-    const bool lit = hit[i] && sh.active[i] && !sh.occluded[i];
-    const size_t k = static_cast<size_t>(index[i]);
-    const float proj_u = static_cast<float>(sh_in.u[i]), proj_v = static_cast<float>(sh_in.v[i]);
-    const float factor = static_cast<float>(sh_in.factor[i]);
-    if (out.proj_x) {
-      out.proj_x[k] = lit ? proj_u : kNaN;
-      out.proj_y[k] = lit ? proj_v : kNaN;
-      out.factor[k] = lit ? factor : 0.0f;
-      out.albedo[k] = hit[i] ? static_cast<float>(in.albedo[i]) : 0.0f;
-      if (out.proj_sigma) {
-        out.proj_sigma[k] = lit ? static_cast<float>(c.proj_defocus->SigmaPx(c.projector->fx(), sh_in.proj_depth[i])) : 0.0f;
+  alignas(16) int32_t lit[kN];  // lane masks
+  alignas(64) float proj_u[kN], proj_v[kN], factor[kN], albedo[kN];
+  for (int r = 0; r < kBlock; ++r) {
+    const int i = r * kBlock;
+    const V4i h = Load4<V4i>(hit + i);
+    const V4i l = h & MaskOf(sh.active + i) & ~MaskOf(sh.occluded + i);
+    Store4(lit + i, l);
+    Store4(proj_u + i, l ? ToFloat(Load4<V4d>(sh_in.u + i)) : Splat(kNaN));
+    Store4(proj_v + i, l ? ToFloat(Load4<V4d>(sh_in.v + i)) : Splat(kNaN));
+    Store4(factor + i, l ? ToFloat(Load4<V4d>(sh_in.factor + i)) : Splat(0.0f));
+    Store4(albedo + i, h ? ToFloat(Load4<V4d>(in.albedo + i)) : Splat(0.0f));
+  }
+  if (out.proj_x) {
+    if (full && out.samples == 1) {
+      // A row of the packet is 4 consecutive pixels.
+      for (int r = 0; r < kBlock; ++r) {
+        const size_t k = static_cast<size_t>(index[r * kBlock]);
+        std::memcpy(out.proj_x + k, proj_u + r * kBlock, kBlock * sizeof(float));
+        std::memcpy(out.proj_y + k, proj_v + r * kBlock, kBlock * sizeof(float));
+        std::memcpy(out.factor + k, factor + r * kBlock, kBlock * sizeof(float));
+        std::memcpy(out.albedo + k, albedo + r * kBlock, kBlock * sizeof(float));
+      }
+    } else {
+      for (int i = 0; i < kN; ++i) {
+        if (!inside[i]) continue;
+        const size_t k = static_cast<size_t>(index[i]);
+        out.proj_x[k] = proj_u[i];
+        out.proj_y[k] = proj_v[i];
+        out.factor[k] = factor[i];
+        out.albedo[k] = albedo[i];
       }
     }
-    if (out.gt) {
+    if (out.proj_sigma) {
+      for (int i = 0; i < kN; ++i) {
+        if (!inside[i]) continue;
+        out.proj_sigma[static_cast<size_t>(index[i])] =
+            lit[i] ? static_cast<float>(c.proj_defocus->SigmaPx(c.projector->fx(), sh_in.proj_depth[i])) : 0.0f;
+      }
+    }
+  }
+  if (out.gt) {
+    for (int i = 0; i < kN; ++i) {
+      if (!inside[i]) continue;
       // Every pixel is written (no separate initialisation pass: first touch in parallel).
       const GroundTruthTargets& g = *out.gt;
-      const size_t q = static_cast<size_t>(py[i]) * static_cast<size_t>(c.width) + static_cast<size_t>(px[i]);
+      const size_t q = static_cast<size_t>(y0 + i / kBlock) * static_cast<size_t>(c.width) + static_cast<size_t>(x0 + i % kBlock);
       if (hit[i]) {
         const Eigen::Vector3d point(sh_in.px[i], sh_in.py[i], sh_in.pz[i]);
         g.depth[q] = static_cast<float>(c.cam_from_rig_row_z.dot(point) + c.cam_from_rig_tz);
@@ -262,7 +350,7 @@ SLSHADOW_LANE_CLONES void TracePacket(const PassContext& c, const SampleTargets&
         g.normal[3 * q + 1] = static_cast<float>(sh_in.ny[i]);
         g.normal[3 * q + 2] = static_cast<float>(sh_in.nz[i]);
         g.object[q] = p.object[i];
-        g.visibility[q] = lit ? 2 : 1;
+        g.visibility[q] = lit[i] ? 2 : 1;
       } else {
         g.depth[q] = kNaN;
         for (int a = 0; a < 3; ++a) {
@@ -273,11 +361,11 @@ SLSHADOW_LANE_CLONES void TracePacket(const PassContext& c, const SampleTargets&
         g.visibility[q] = 0;
       }
       if (g.proj_x) {
-        g.proj_x[q] = lit ? proj_u : kNaN;
-        g.proj_y[q] = lit ? proj_v : kNaN;
-        g.quality[q] = lit ? factor : 0.0f;
+        g.proj_x[q] = proj_u[i];
+        g.proj_y[q] = proj_v[i];
+        g.quality[q] = factor[i];
       }
-      g.status[q] = static_cast<uint8_t>(lit ? PixelStatus::kValid : PixelStatus::kShadow);
+      g.status[q] = static_cast<uint8_t>(lit[i] ? PixelStatus::kValid : PixelStatus::kShadow);
     }
   }
 }
@@ -533,6 +621,7 @@ GeometryBuffer TraceGeometry(const RayCaster& caster, const Rig& rig, int camera
   for (const auto& o : scene.objects) {
     c.object_from_rig.push_back(o.rig_from_object.Inverse());
     c.uniform_albedo.push_back(o.albedo.IsTextured() ? std::numeric_limits<double>::quiet_NaN() : o.albedo.value);
+    c.any_textured = c.any_textured || o.albedo.IsTextured();
   }
 
   GeometryBuffer g;

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <string>
 #include <vector>
@@ -20,6 +21,51 @@ constexpr float kInf = std::numeric_limits<float>::infinity();
 // Up to this many analytic primitives are tested outside Embree by every ray.
 constexpr std::ptrdiff_t kMaxDirectPrimitives = 8;
 
+// Four lanes per vector (GCC vector extensions): the avx2 clones below map them to AVX2
+// registers, the default clones to pairs of SSE2 operations. The same IEEE operations either
+// way and no FMA, so every clone gives the same bits as the scalar code they replace (GCC left
+// the per-lane loops over 16 lanes scalar). Comparisons give lane masks (all bits set = true).
+// The helpers below pass these vectors by value; they are internal and inlined, so GCC's note
+// on the calling convention of 32-byte vectors without AVX (-Wpsabi) does not apply.
+#pragma GCC diagnostic ignored "-Wpsabi"
+typedef double V4d __attribute__((vector_size(32)));
+typedef int64_t V4l __attribute__((vector_size(32)));
+typedef float V4f __attribute__((vector_size(16)));
+typedef int32_t V4i __attribute__((vector_size(16)));
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define SLSHADOW_RAY_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define SLSHADOW_RAY_CLONES
+#endif
+
+template <class V, class T>
+inline V Load4(const T* p) {
+  V v;
+  std::memcpy(&v, p, sizeof(v));
+  return v;
+}
+template <class V, class T>
+inline void Store4(T* p, const V& v) {
+  std::memcpy(p, &v, sizeof(v));
+}
+// A packet's 16 float lanes as doubles (exact). A plain loop: GCC converts whole registers
+// there, but one 4-float vector through two halves.
+inline void Widen(const float* __restrict in, double* __restrict out) {
+  for (int i = 0; i < RayPacket::kSize; ++i) out[i] = in[i];
+}
+// std::min / std::max lane by lane with their exact semantics (the first argument when the
+// comparison is false, so NaN propagates as in the scalar code).
+inline V4d Min(const V4d& a, const V4d& b) { return b < a ? b : a; }
+inline V4d Max(const V4d& a, const V4d& b) { return a < b ? b : a; }
+inline V4d Abs(const V4d& a) { return (V4d)((V4l)a & INT64_MAX); }
+inline V4i Narrow(const V4l& mask) { return __builtin_convertvector(mask, V4i); }
+inline V4i Splat(int32_t v) { return V4i{v, v, v, v}; }
+inline V4f Splat(float v) { return V4f{v, v, v, v}; }
+// RayPacket lane flags (0 / 1) <-> lane masks.
+inline V4i ActiveMask(const int32_t* flags) { return Load4<V4i>(flags) != 0; }
+inline V4i Flags(const V4i& mask) { return mask & 1; }
+
 // Data an Embree user geometry needs: the object and its transform.
 struct PrimitiveData {
   const SceneObject* object = nullptr;
@@ -27,6 +73,8 @@ struct PrimitiveData {
   Eigen::Matrix3d object_from_rig_rotation;
   Eigen::Matrix3d rig_from_object_rotation;
   Eigen::Vector3d translation;  // rig_from_object translation
+  // A plane's unit normal as a hit stores it (RayCaster::Intersect: made float, then normalised).
+  Eigen::Vector3f plane_normal = Eigen::Vector3f::Zero();
 };
 
 bool Better(double t, double t_near, double t_far, double best) { return t > t_near && t < t_far && t < best; }
@@ -125,40 +173,80 @@ void PrimitiveOccluded(const RTCOccludedFunctionNArguments* args) {
   }
 }
 
-// An inactive packet lane: a valid, empty ray (tfar < tnear), so that no lane Embree reads is
-// uninitialised (valgrind flagged rtcOccluded16's validity check on such lanes).
-void InactiveLane(RTCRay16& r, int i) {
-  r.org_x[i] = r.org_y[i] = r.org_z[i] = 0;
-  r.dir_x[i] = r.dir_y[i] = 0;
-  r.dir_z[i] = 1;
-  r.tnear[i] = 0;
-  r.tfar[i] = -kInf;
-}
-
-// IntersectInRig's plane case for the 16 lanes of a packet at once, in the same operations (so
-// the same results), without branches: vectorised. Inactive lanes compute garbage, ignored.
+// Eigen's Vector3f::normalized() for 16 lanes (Embree's geometric normals), without branches:
+// the same operations (x^2 + (y^2 + z^2), then a division by its square root; unchanged when
+// that is not > 0), so the same bits.
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 __attribute__((target_clones("avx2", "default")))
 #endif
-void PlaneLanes(const PrimitiveData& data, const RayPacket& p, double* __restrict t_out, bool* __restrict hit_out) {
+void NormalizedLanes(const float* __restrict x, const float* __restrict y, const float* __restrict z, float* __restrict ox,
+                     float* __restrict oy, float* __restrict oz) {
+  for (int i = 0; i < RayPacket::kSize; ++i) {
+    const float n2 = x[i] * x[i] + (y[i] * y[i] + z[i] * z[i]);
+    const float s = std::sqrt(n2);
+    const bool positive = n2 > 0;
+    ox[i] = positive ? x[i] / s : x[i];
+    oy[i] = positive ? y[i] / s : y[i];
+    oz[i] = positive ? z[i] / s : z[i];
+  }
+}
+
+// IntersectInRig's plane case for the 16 lanes of a packet, four at a time, in the same
+// operations (so the same results) and without branches: calls f(j, t, hit) for lanes
+// 4j..4j+3 with their parameters t and hit masks. Inactive lanes compute garbage, ignored by
+// the callers (a ray parallel to the plane gives d_z == 0: no hit, whatever t is).
+template <class F>
+__attribute__((always_inline)) inline void ForPlaneLanes(const PrimitiveData& data, const RayPacket& p, F&& f) {
+  constexpr int kN = RayPacket::kSize;
+  alignas(32) double ox[kN], oy[kN], oz[kN], dx[kN], dy[kN], dz[kN], tnear[kN], tfar[kN];
+  Widen(p.org_x, ox);
+  Widen(p.org_y, oy);
+  Widen(p.org_z, oz);
+  Widen(p.dir_x, dx);
+  Widen(p.dir_y, dy);
+  Widen(p.dir_z, dz);
+  Widen(p.tnear, tnear);
+  Widen(p.tfar, tfar);
   const Eigen::Matrix3d& m = data.object_from_rig_rotation;
   const double m00 = m(0, 0), m01 = m(0, 1), m02 = m(0, 2), m10 = m(1, 0), m11 = m(1, 1), m12 = m(1, 2);
   const double m20 = m(2, 0), m21 = m(2, 1), m22 = m(2, 2);
   const double cx = data.translation.x(), cy = data.translation.y(), cz = data.translation.z();
   const double hx = data.object->size_mm.x() / 2, hy = data.object->size_mm.y() / 2;
-  for (int i = 0; i < RayPacket::kSize; ++i) {
-    const double rx = static_cast<double>(p.org_x[i]) - cx, ry = static_cast<double>(p.org_y[i]) - cy,
-                 rz = static_cast<double>(p.org_z[i]) - cz;
-    const double dx = p.dir_x[i], dy = p.dir_y[i], dz = p.dir_z[i];
-    const double o_z = m20 * rx + m21 * ry + m22 * rz;
-    const double d_z = m20 * dx + m21 * dy + m22 * dz;
-    const double t = -o_z / d_z;
-    const double px = (m00 * rx + m01 * ry + m02 * rz) + t * (m00 * dx + m01 * dy + m02 * dz);
-    const double py = (m10 * rx + m11 * ry + m12 * rz) + t * (m10 * dx + m11 * dy + m12 * dz);
-    t_out[i] = t;
-    hit_out[i] = (d_z != 0) & (t > static_cast<double>(p.tnear[i])) & (t < static_cast<double>(p.tfar[i])) &
-                 !(std::abs(px) > hx) & !(std::abs(py) > hy);
+  for (int j = 0; j < kN; j += 4) {
+    const V4d rx = Load4<V4d>(ox + j) - cx, ry = Load4<V4d>(oy + j) - cy, rz = Load4<V4d>(oz + j) - cz;
+    const V4d x = Load4<V4d>(dx + j), y = Load4<V4d>(dy + j), z = Load4<V4d>(dz + j);
+    const V4d o_z = m20 * rx + m21 * ry + m22 * rz;
+    const V4d d_z = m20 * x + m21 * y + m22 * z;
+    const V4d t = -o_z / d_z;
+    const V4d px = (m00 * rx + m01 * ry + m02 * rz) + t * (m00 * x + m01 * y + m02 * z);
+    const V4d py = (m10 * rx + m11 * ry + m12 * rz) + t * (m10 * x + m11 * y + m12 * z);
+    const V4l hit = (d_z != 0) & (t > Load4<V4d>(tnear + j)) & (t < Load4<V4d>(tfar + j)) & ~(Abs(px) > hx) & ~(Abs(py) > hy);
+    f(j, t, hit);
   }
+}
+
+// Closest hits with a plane for the active lanes (RayCaster::Intersect): as Embree's
+// user-geometry route, tfar and the normal stored as floats (PrimitiveData::plane_normal).
+SLSHADOW_RAY_CLONES void IntersectPlaneLanes(const PrimitiveData& data, RayPacket& p) {
+  const V4f nx = Splat(data.plane_normal.x()), ny = Splat(data.plane_normal.y()), nz = Splat(data.plane_normal.z());
+  ForPlaneLanes(data, p, [&](int j, const V4d& t, const V4l& hit) {
+    const V4i take = ActiveMask(p.active + j) & Narrow(hit);
+    Store4(p.tfar + j, take ? __builtin_convertvector(t, V4f) : Load4<V4f>(p.tfar + j));
+    Store4(p.ng_x + j, take ? nx : Load4<V4f>(p.ng_x + j));
+    Store4(p.ng_y + j, take ? ny : Load4<V4f>(p.ng_y + j));
+    Store4(p.ng_z + j, take ? nz : Load4<V4f>(p.ng_z + j));
+    Store4(p.object + j, take ? Splat(data.object_index) : Load4<V4i>(p.object + j));
+  });
+}
+
+// Any hit with a plane (RayCaster::Occluded): blocked lanes are marked occluded and deactivated.
+SLSHADOW_RAY_CLONES void OccludePlaneLanes(const PrimitiveData& data, RayPacket& p) {
+  ForPlaneLanes(data, p, [&](int j, const V4d&, const V4l& hit) {
+    const V4i active = ActiveMask(p.active + j);
+    const V4i blocked = active & Narrow(hit);
+    Store4(p.occluded + j, Load4<V4i>(p.occluded + j) | Flags(blocked));
+    Store4(p.active + j, Flags(active & ~blocked));
+  });
 }
 
 void ErrorCallback(void*, RTCError code, const char* message) {
@@ -377,6 +465,7 @@ RayCaster::RayCaster(const Scene& scene, bool cull_by_bounds) : scene_(scene), i
       data->object_from_rig_rotation = rotd.transpose();
       data->translation = o.rig_from_object.translation;
       data->object_index = static_cast<int32_t>(oi);
+      data->plane_normal = rotd.col(2).cast<float>().normalized();
       if (direct_primitives) {
         impl_->direct.push_back(data.get());
         impl_->primitives.push_back(std::move(data));
@@ -421,67 +510,68 @@ RayCaster::RayCaster(const Scene& scene, bool cull_by_bounds) : scene_(scene), i
 RayCaster::~RayCaster() = default;
 
 namespace {
-// Whether each lane's ray segment [tnear, tfar] misses the box: slab test in double, without
-// branches (vectorised). A direction component of 0 gives infinite slab parameters (a miss when
-// the origin is outside that slab). Its one NaN case, an origin exactly on a face of the box
-// with the ray running in that face's plane, may go either way: the box is widened beyond all
-// geometry, so such a ray cannot hit anything.
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-__attribute__((target_clones("avx2", "default")))
-#endif
-void SegmentsMissBox(const double* __restrict lo, const double* __restrict hi, const RayPacket& p, bool* __restrict miss) {
-  for (int i = 0; i < RayPacket::kSize; ++i) {
-    const double o[3] = {p.org_x[i], p.org_y[i], p.org_z[i]}, d[3] = {p.dir_x[i], p.dir_y[i], p.dir_z[i]};
-    double t0 = p.tnear[i], t1 = p.tfar[i];
+// Deactivates the lanes whose ray segment [tnear, tfar] misses the box; returns the number of
+// lanes left active. Slab test in double, without branches, four lanes per vector. A
+// direction component of 0 gives infinite slab parameters (a miss when the origin is outside
+// that slab). Its one NaN case, an origin exactly on a face of the box with the ray running in
+// that face's plane, may go either way: the box is widened beyond all geometry, so such a ray
+// cannot hit anything.
+SLSHADOW_RAY_CLONES int CullLanesToBox(const double* __restrict lo, const double* __restrict hi, RayPacket& p) {
+  constexpr int kN = RayPacket::kSize;
+  alignas(32) double o[3][kN], d[3][kN], tnear[kN], tfar[kN];
+  Widen(p.org_x, o[0]);
+  Widen(p.org_y, o[1]);
+  Widen(p.org_z, o[2]);
+  Widen(p.dir_x, d[0]);
+  Widen(p.dir_y, d[1]);
+  Widen(p.dir_z, d[2]);
+  Widen(p.tnear, tnear);
+  Widen(p.tfar, tfar);
+  V4i left = Splat(0);
+  for (int j = 0; j < kN; j += 4) {
+    V4d t0 = Load4<V4d>(tnear + j), t1 = Load4<V4d>(tfar + j);
     for (int a = 0; a < 3; ++a) {
-      const double inv = 1 / d[a];
-      const double ta = (lo[a] - o[a]) * inv, tb = (hi[a] - o[a]) * inv;
-      t0 = std::max(t0, std::min(ta, tb));
-      t1 = std::min(t1, std::max(ta, tb));
+      const V4d oa = Load4<V4d>(o[a] + j);
+      const V4d inv = 1.0 / Load4<V4d>(d[a] + j);
+      const V4d ta = (lo[a] - oa) * inv, tb = (hi[a] - oa) * inv;
+      t0 = Max(t0, Min(ta, tb));
+      t1 = Min(t1, Max(ta, tb));
     }
-    miss[i] = t0 > t1;
+    const V4i active = Flags(ActiveMask(p.active + j) & ~Narrow(t0 > t1));
+    Store4(p.active + j, active);
+    left += active;
   }
+  return left[0] + left[1] + left[2] + left[3];
 }
 }  // namespace
 
 bool RayCaster::CullToEmbreeBounds(RayPacket& p) const {
   if (!impl_->cull) return true;
-  bool miss[RayPacket::kSize];
-  SegmentsMissBox(impl_->box_lo, impl_->box_hi, p, miss);
-  bool any = false;
-  for (int i = 0; i < RayPacket::kSize; ++i) {
-    p.active[i] = p.active[i] && !miss[i];
-    any |= p.active[i];
-  }
-  return any;
+  return CullLanesToBox(impl_->box_lo, impl_->box_hi, p) > 0;
 }
 
 void RayCaster::Intersect(RayPacket& p, TraceMode mode, bool coherent) const {
-  bool active[RayPacket::kSize];
+  int32_t active[RayPacket::kSize];
   for (int i = 0; i < RayPacket::kSize; ++i) {
     active[i] = p.active[i];
-    if (p.active[i]) p.object[i] = -1;
+    p.object[i] = p.active[i] ? -1 : p.object[i];
   }
   if (impl_->has_embree_geometry && CullToEmbreeBounds(p)) IntersectEmbree(p, mode, coherent);
   for (int i = 0; i < RayPacket::kSize; ++i) p.active[i] = active[i];
   // The same for both trace modes: packet and single-ray renders stay identical. Primitive by
   // primitive (lanes are independent, so this is the per-ray order of the Embree route).
   for (const PrimitiveData* d : impl_->direct) {
-    alignas(64) double plane_t[RayPacket::kSize];
-    bool plane_hit[RayPacket::kSize];
-    if (d->object->type == ObjectType::kPlane) PlaneLanes(*d, p, plane_t, plane_hit);
+    if (d->object->type == ObjectType::kPlane) {
+      IntersectPlaneLanes(*d, p);
+      continue;
+    }
     for (int i = 0; i < RayPacket::kSize; ++i) {
       if (!p.active[i]) continue;
       PrimitiveHit hit;
-      if (d->object->type == ObjectType::kPlane) {
-        if (!plane_hit[i]) continue;
-        hit.t = plane_t[i];
-        hit.normal = d->rig_from_object_rotation.col(2);
-      } else if (!IntersectInRig(*d, p.org_x[i], p.org_y[i], p.org_z[i], p.dir_x[i], p.dir_y[i], p.dir_z[i], p.tnear[i],
-                                 p.tfar[i], &hit)) {
+      if (!IntersectInRig(*d, p.org_x[i], p.org_y[i], p.org_z[i], p.dir_x[i], p.dir_y[i], p.dir_z[i], p.tnear[i],
+                          p.tfar[i], &hit)) {
         continue;
       }
-      // As Embree's user-geometry route: tfar and the normal stored as floats, then normalised.
       p.tfar[i] = static_cast<float>(hit.t);
       const Eigen::Vector3f n = hit.normal.cast<float>().normalized();
       p.ng_x[i] = n.x();
@@ -493,24 +583,30 @@ void RayCaster::Intersect(RayPacket& p, TraceMode mode, bool coherent) const {
 }
 
 void RayCaster::Occluded(RayPacket& p, TraceMode mode) const {
-  // Lanes blocked by a primitive need no Embree traversal.
-  bool active[RayPacket::kSize];
-  bool any = false;
+  // Lanes blocked by a primitive need no Embree traversal. Planes (the table under a part: every
+  // shadow ray) four lanes per vector (PlaneLanes: the same operations as IntersectInRig).
+  int32_t active[RayPacket::kSize];
   for (int i = 0; i < RayPacket::kSize; ++i) {
     active[i] = p.active[i];
-    if (!p.active[i]) continue;
-    p.occluded[i] = false;
-    for (const PrimitiveData* d : impl_->direct) {
+    p.occluded[i] = p.active[i] ? 0 : p.occluded[i];
+  }
+  for (const PrimitiveData* d : impl_->direct) {
+    if (d->object->type == ObjectType::kPlane) {
+      OccludePlaneLanes(*d, p);
+      continue;
+    }
+    for (int i = 0; i < RayPacket::kSize; ++i) {
+      if (!p.active[i]) continue;
       PrimitiveHit hit;
       if (IntersectInRig(*d, p.org_x[i], p.org_y[i], p.org_z[i], p.dir_x[i], p.dir_y[i], p.dir_z[i], p.tnear[i], p.tfar[i],
                          &hit)) {
-        p.occluded[i] = true;
-        p.active[i] = false;
-        break;
+        p.occluded[i] = 1;
+        p.active[i] = 0;
       }
     }
-    any |= p.active[i];
   }
+  int32_t any = 0;
+  for (int i = 0; i < RayPacket::kSize; ++i) any |= p.active[i];
   if (any && impl_->has_embree_geometry && CullToEmbreeBounds(p)) OccludedEmbree(p, mode);
   for (int i = 0; i < RayPacket::kSize; ++i) p.active[i] = active[i];
 }
@@ -522,22 +618,19 @@ void RayCaster::IntersectEmbree(RayPacket& p, TraceMode mode, bool coherent) con
   if (mode == TraceMode::kPacket16) {
     alignas(64) RTCRayHit16 rh;
     alignas(64) int valid[RayPacket::kSize];
+    // Without branches (vectorised): every lane defined, Embree reads all 16 (masked by
+    // `valid`); inactive lanes get InactiveLane's empty ray, never the caller's unset inputs.
     for (int i = 0; i < RayPacket::kSize; ++i) {
-      valid[i] = p.active[i] ? -1 : 0;
-      if (p.active[i]) {
-        rh.ray.org_x[i] = p.org_x[i];
-        rh.ray.org_y[i] = p.org_y[i];
-        rh.ray.org_z[i] = p.org_z[i];
-        rh.ray.dir_x[i] = p.dir_x[i];
-        rh.ray.dir_y[i] = p.dir_y[i];
-        rh.ray.dir_z[i] = p.dir_z[i];
-        rh.ray.tnear[i] = p.tnear[i];
-        rh.ray.tfar[i] = p.tfar[i];
-      } else {
-        // Every lane defined: Embree reads all 16 (masked by `valid`); never the caller's
-        // unset inputs of inactive lanes.
-        InactiveLane(rh.ray, i);
-      }
+      const bool a = p.active[i] != 0;
+      valid[i] = a ? -1 : 0;
+      rh.ray.org_x[i] = a ? p.org_x[i] : 0.0f;
+      rh.ray.org_y[i] = a ? p.org_y[i] : 0.0f;
+      rh.ray.org_z[i] = a ? p.org_z[i] : 0.0f;
+      rh.ray.dir_x[i] = a ? p.dir_x[i] : 0.0f;
+      rh.ray.dir_y[i] = a ? p.dir_y[i] : 0.0f;
+      rh.ray.dir_z[i] = a ? p.dir_z[i] : 1.0f;
+      rh.ray.tnear[i] = a ? p.tnear[i] : 0.0f;
+      rh.ray.tfar[i] = a ? p.tfar[i] : -kInf;
       rh.ray.time[i] = 0;
       rh.ray.mask[i] = 0xFFFFFFFFu;
       rh.ray.id[i] = static_cast<unsigned>(i);
@@ -546,18 +639,16 @@ void RayCaster::IntersectEmbree(RayPacket& p, TraceMode mode, bool coherent) con
       rh.hit.instID[0][i] = RTC_INVALID_GEOMETRY_ID;
     }
     rtcIntersect16(valid, impl_->scene, &context, &rh);
+    alignas(64) float nx[RayPacket::kSize], ny[RayPacket::kSize], nz[RayPacket::kSize];
+    NormalizedLanes(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z, nx, ny, nz);
+    const int32_t* geom_to_object = impl_->geom_to_object.data();
     for (int i = 0; i < RayPacket::kSize; ++i) {
-      if (!p.active[i]) continue;
-      if (rh.hit.geomID[i] == RTC_INVALID_GEOMETRY_ID) {
-        p.object[i] = -1;
-        continue;
-      }
-      p.tfar[i] = rh.ray.tfar[i];
-      const Eigen::Vector3f n = Eigen::Vector3f(rh.hit.Ng_x[i], rh.hit.Ng_y[i], rh.hit.Ng_z[i]).normalized();
-      p.ng_x[i] = n.x();
-      p.ng_y[i] = n.y();
-      p.ng_z[i] = n.z();
-      p.object[i] = impl_->geom_to_object[rh.hit.geomID[i]];
+      const bool hit = (p.active[i] != 0) & (rh.hit.geomID[i] != RTC_INVALID_GEOMETRY_ID);
+      p.tfar[i] = hit ? rh.ray.tfar[i] : p.tfar[i];
+      p.ng_x[i] = hit ? nx[i] : p.ng_x[i];
+      p.ng_y[i] = hit ? ny[i] : p.ng_y[i];
+      p.ng_z[i] = hit ? nz[i] : p.ng_z[i];
+      p.object[i] = hit ? geom_to_object[hit ? rh.hit.geomID[i] : 0] : p.active[i] ? -1 : p.object[i];
     }
     return;
   }
@@ -600,29 +691,24 @@ void RayCaster::OccludedEmbree(RayPacket& p, TraceMode mode) const {
   if (mode == TraceMode::kPacket16) {
     alignas(64) RTCRay16 r;
     alignas(64) int valid[RayPacket::kSize];
-    for (int i = 0; i < RayPacket::kSize; ++i) {
-      valid[i] = p.active[i] ? -1 : 0;
-      if (p.active[i]) {
-        r.org_x[i] = p.org_x[i];
-        r.org_y[i] = p.org_y[i];
-        r.org_z[i] = p.org_z[i];
-        r.dir_x[i] = p.dir_x[i];
-        r.dir_y[i] = p.dir_y[i];
-        r.dir_z[i] = p.dir_z[i];
-        r.tnear[i] = p.tnear[i];
-        r.tfar[i] = p.tfar[i];
-      } else {
-        InactiveLane(r, i);
-      }
+    for (int i = 0; i < RayPacket::kSize; ++i) {  // as in IntersectEmbree
+      const bool a = p.active[i] != 0;
+      valid[i] = a ? -1 : 0;
+      r.org_x[i] = a ? p.org_x[i] : 0.0f;
+      r.org_y[i] = a ? p.org_y[i] : 0.0f;
+      r.org_z[i] = a ? p.org_z[i] : 0.0f;
+      r.dir_x[i] = a ? p.dir_x[i] : 0.0f;
+      r.dir_y[i] = a ? p.dir_y[i] : 0.0f;
+      r.dir_z[i] = a ? p.dir_z[i] : 1.0f;
+      r.tnear[i] = a ? p.tnear[i] : 0.0f;
+      r.tfar[i] = a ? p.tfar[i] : -kInf;
       r.time[i] = 0;
       r.mask[i] = 0xFFFFFFFFu;
       r.id[i] = static_cast<unsigned>(i);
       r.flags[i] = 0;
     }
     rtcOccluded16(valid, impl_->scene, &context, &r);
-    for (int i = 0; i < RayPacket::kSize; ++i) {
-      if (p.active[i]) p.occluded[i] = r.tfar[i] == -kInf;
-    }
+    for (int i = 0; i < RayPacket::kSize; ++i) p.occluded[i] = p.active[i] ? r.tfar[i] == -kInf : p.occluded[i];
     return;
   }
   for (int i = 0; i < RayPacket::kSize; ++i) {

@@ -20,17 +20,18 @@ enum class TraceMode { kPacket16, kSingleRay };
 
 struct alignas(64) RayPacket {
   static constexpr int kSize = 16;
-  // Inputs. Lanes with active[i] == false are ignored and left untouched.
+  // Inputs. Lanes with active[i] == 0 are ignored and left untouched. Lane flags are 32-bit
+  // ints (0 or 1), as wide as the float lanes, so that lane masks vectorise with them.
   float org_x[kSize], org_y[kSize], org_z[kSize];
   float dir_x[kSize], dir_y[kSize], dir_z[kSize];
   float tnear[kSize], tfar[kSize];
-  bool active[kSize];
+  int32_t active[kSize];
   // Outputs of Intersect: tfar is the hit distance (in units of |dir|), ng the unit geometric
   // normal in the rig frame (orientation as the shape defines it, not flipped to the ray),
   // object the index into Scene::objects or -1 for a miss. Outputs of Occluded: occluded.
   float ng_x[kSize], ng_y[kSize], ng_z[kSize];
   int32_t object[kSize];
-  bool occluded[kSize];
+  int32_t occluded[kSize];  // 1 or 0
 };
 
 class RayCaster {

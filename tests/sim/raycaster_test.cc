@@ -1,5 +1,7 @@
 #include "sim/raycaster.h"
 
+#include <cmath>
+#include <limits>
 #include <random>
 
 #include <gtest/gtest.h>
@@ -204,6 +206,88 @@ TEST(RayCasterTest, PrimitivesOutsideEmbreeEqualUserGeometry) {
   }
   EXPECT_GT(primitive_hits, 100);
   EXPECT_GT(occluded, 50);
+}
+
+// The plane test of up to 8 primitives outside Embree runs four lanes per vector (closest hits
+// and shadow rays); with more primitives the plane is Embree user geometry, tested ray by ray by
+// the scalar code. Both against hand-made cases whose arithmetic is exact (identity pose): rays
+// parallel to the plane (also lying in it), hits exactly at tfar and tnear (not hits: the open
+// interval) and one float step inside them, hits exactly on the plane's edge (inside) and one
+// step beyond (outside), from either side. Inactive lanes are left untouched.
+TEST(RayCasterTest, VectorisedPlaneTestEqualsScalarOnEdgeCases) {
+  Scene direct_scene, embree_scene;
+  SceneObject plane = MakePrimitive(ObjectType::kPlane, Rigid3d());
+  plane.size_mm = Eigen::Vector3d(100, 60, 0);  // |x| <= 50, |y| <= 30
+  direct_scene.objects.push_back(plane);
+  embree_scene.objects.push_back(plane);
+  for (int k = 0; k < 8; ++k) {  // 9 primitives: all go to Embree; these are never reached
+    SceneObject far = MakePrimitive(ObjectType::kSphere, Pose({0, 0, 0}, {5000.0 + 30 * k, 5000, -5000}));
+    far.radius_mm = 10;
+    embree_scene.objects.push_back(far);
+  }
+  const RayCaster direct(direct_scene), embree(embree_scene);
+  const float up = std::nextafter(10.0f, 20.0f), down = std::nextafter(10.0f, 0.0f);
+  const float edge_out = std::nextafter(50.0f, 60.0f);
+  const float inf = std::numeric_limits<float>::infinity();
+  struct Case {
+    float ox, oy, oz, dx, dy, dz, tnear, tfar;
+    bool hit;
+  };
+  const Case cases[RayPacket::kSize] = {
+      {0, 0, 10, 0, 0, -1, 0, 10, false},         // hit exactly at tfar
+      {0, 0, 10, 0, 0, -1, 0, up, true},          // one step inside tfar
+      {0, 0, 10, 0, 0, -1, 10, 20, false},        // exactly at tnear
+      {0, 0, 10, 0, 0, -1, down, 20, true},       // one step inside tnear
+      {0, 0, 5, 1, 0, 0, 0, inf, false},          // parallel, above
+      {0, 0, 0, 1, 0, 0, 0, inf, false},          // parallel, in the plane (t = NaN)
+      {0, 0, 0, 0, 0, 1, 0, inf, false},          // from the plane: t = -0, not > tnear
+      {50, 0, 10, 0, 0, -1, 0, inf, true},        // on the x edge
+      {edge_out, 0, 10, 0, 0, -1, 0, inf, false}, // one step beyond it
+      {-20, 30, 10, 0, 0, -1, 0, inf, true},      // on the y edge
+      {0, -30.5f, 10, 0, 0, -1, 0, inf, false},   // beyond it
+      {0, 0, -4, 0, 0, 2, 0, inf, true},          // from below: t = 2
+      {-20, 10, 8, 0.5f, -0.25f, -0.5f, 0, inf, true},  // oblique: t = 16 at (-12, 6)
+      {-20, 10, 8, 0.5f, -0.25f, -0.5f, 0, 16, false},  // the same, tfar at the hit
+      {0, 0, 10, 0, 0, 1, 0, inf, false},         // pointing away
+      {49, 29, 1, 0, 0, -1, 0, inf, true}};       // near the corner
+  for (const TraceMode mode : {TraceMode::kPacket16, TraceMode::kSingleRay}) {
+    for (int inactive = -1; inactive < RayPacket::kSize; inactive += 5) {
+      RayPacket p;
+      for (int i = 0; i < RayPacket::kSize; ++i) {
+        const Case& c = cases[i];
+        p.org_x[i] = c.ox, p.org_y[i] = c.oy, p.org_z[i] = c.oz;
+        p.dir_x[i] = c.dx, p.dir_y[i] = c.dy, p.dir_z[i] = c.dz;
+        p.tnear[i] = c.tnear, p.tfar[i] = c.tfar;
+        p.active[i] = i != inactive;
+        p.object[i] = 77;   // sentinels: inactive lanes keep them
+        p.occluded[i] = 5;
+      }
+      RayPacket a = p, b = p, sa = p, sb = p;
+      direct.Intersect(a, mode, true);
+      embree.Intersect(b, mode, true);
+      direct.Occluded(sa, mode);
+      embree.Occluded(sb, mode);
+      for (int i = 0; i < RayPacket::kSize; ++i) {
+        SCOPED_TRACE(::testing::Message() << "lane " << i << ", inactive lane " << inactive);
+        if (i == inactive) {
+          EXPECT_EQ(a.object[i], 77);
+          EXPECT_EQ(sa.occluded[i], 5);
+          EXPECT_EQ(a.tfar[i], p.tfar[i]);
+          continue;
+        }
+        EXPECT_EQ(a.object[i], cases[i].hit ? 0 : -1);
+        EXPECT_EQ(sa.occluded[i], cases[i].hit ? 1 : 0);
+        ASSERT_TRUE(SameHit(a, b, i));
+        EXPECT_EQ(sa.occluded[i], sb.occluded[i]);
+        if (cases[i].hit) {
+          EXPECT_EQ(a.ng_z[i], 1.0f);
+          EXPECT_EQ(a.tfar[i], std::abs(cases[i].oz / cases[i].dz));
+        } else {
+          EXPECT_EQ(a.tfar[i], p.tfar[i]) << "a miss keeps tfar";
+        }
+      }
+    }
+  }
 }
 
 // The packet path and the single-ray path give identical hits on a scene with every geometry
