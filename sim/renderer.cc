@@ -136,17 +136,57 @@ __attribute__((target("avx2"))) void FusedRowAvx2(const GeometryBuffer& g, size_
   alignas(32) uint8_t tile[16][32];
   alignas(32) int32_t q[32];
   const __m256i order = _mm256_setr_epi32(0, 4, 1, 5, 2, 6, 3, 7);
-  for (int x = 0; x < w; ++x) {
-    const size_t i = row_start + static_cast<size_t>(x);
+  // Bilinear footprints (TapAt) of 8 pixels at a time: byte offsets of the four neighbours in
+  // `inter` and their weights, the same float operations lane by lane (floor, subtract, 1 - a,
+  // products), the same integer clamps. Lanes of unlit pixels (NaN coordinates) are not used.
+  alignas(32) int32_t off[4][8];
+  alignas(32) float wt[4][8];
+  const __m256i izero = _mm256_setzero_si256(), ione = _mm256_set1_epi32(1);
+  const __m256i pw_max = _mm256_set1_epi32(pw - 1), ph_max = _mm256_set1_epi32(ph - 1), vpw = _mm256_set1_epi32(pw);
+  const __m256i vb = _mm256_set1_epi32(B);
+  const __m256 one = _mm256_set1_ps(1.0f);
+  for (int xb = 0; xb < w; xb += 8) {
+    const int nb = std::min(8, w - xb);
+    const size_t ib = row_start + static_cast<size_t>(xb);
+    if (nb == 8) {
+      const __m256 u = _mm256_loadu_ps(g.proj_x.data() + ib), t = _mm256_loadu_ps(g.proj_y.data() + ib);
+      const __m256 fx0 = _mm256_floor_ps(u), fy0 = _mm256_floor_ps(t);
+      const __m256 ax = _mm256_sub_ps(u, fx0), ay = _mm256_sub_ps(t, fy0);
+      const __m256i ix = _mm256_cvttps_epi32(fx0), iy = _mm256_cvttps_epi32(fy0);
+      const __m256i x0 = _mm256_min_epi32(_mm256_max_epi32(ix, izero), pw_max);
+      const __m256i x1 = _mm256_min_epi32(_mm256_max_epi32(_mm256_add_epi32(ix, ione), izero), pw_max);
+      const __m256i y0 = _mm256_mullo_epi32(_mm256_min_epi32(_mm256_max_epi32(iy, izero), ph_max), vpw);
+      const __m256i y1 = _mm256_mullo_epi32(_mm256_min_epi32(_mm256_max_epi32(_mm256_add_epi32(iy, ione), izero), ph_max), vpw);
+      _mm256_store_si256(reinterpret_cast<__m256i*>(off[0]), _mm256_mullo_epi32(_mm256_add_epi32(y0, x0), vb));
+      _mm256_store_si256(reinterpret_cast<__m256i*>(off[1]), _mm256_mullo_epi32(_mm256_add_epi32(y0, x1), vb));
+      _mm256_store_si256(reinterpret_cast<__m256i*>(off[2]), _mm256_mullo_epi32(_mm256_add_epi32(y1, x0), vb));
+      _mm256_store_si256(reinterpret_cast<__m256i*>(off[3]), _mm256_mullo_epi32(_mm256_add_epi32(y1, x1), vb));
+      const __m256 bx = _mm256_sub_ps(one, ax), by = _mm256_sub_ps(one, ay);
+      _mm256_store_ps(wt[0], _mm256_mul_ps(bx, by));
+      _mm256_store_ps(wt[1], _mm256_mul_ps(ax, by));
+      _mm256_store_ps(wt[2], _mm256_mul_ps(bx, ay));
+      _mm256_store_ps(wt[3], _mm256_mul_ps(ax, ay));
+    } else {
+      for (int p = 0; p < nb; ++p) {
+        const size_t i = ib + static_cast<size_t>(p);
+        if (!(g.factor[i] > 0)) continue;
+        const BilinearTap tap = TapAt<B>(inter, pw, ph, g.proj_x[i], g.proj_y[i]);
+        off[0][p] = static_cast<int32_t>(tap.p00 - inter), off[1][p] = static_cast<int32_t>(tap.p01 - inter);
+        off[2][p] = static_cast<int32_t>(tap.p10 - inter), off[3][p] = static_cast<int32_t>(tap.p11 - inter);
+        wt[0][p] = tap.w00, wt[1][p] = tap.w01, wt[2][p] = tap.w10, wt[3][p] = tap.w11;
+      }
+    }
+  for (int p = 0; p < nb; ++p) {
+    const int x = xb + p;
+    const size_t i = ib + static_cast<size_t>(p);
     const float f = g.factor[i];
     const __m256 base = _mm256_set1_ps(ambient * g.albedo[i]);
     __m256 acc[kV];
     for (int j = 0; j < kV; ++j) acc[j] = base;
     if (f > 0) {
-      const BilinearTap tap = TapAt<B>(inter, pw, ph, g.proj_x[i], g.proj_y[i]);
-      const uint8_t *p00 = tap.p00, *p01 = tap.p01, *p10 = tap.p10, *p11 = tap.p11;
-      const __m256 w00 = _mm256_set1_ps(tap.w00), w01 = _mm256_set1_ps(tap.w01);
-      const __m256 w10 = _mm256_set1_ps(tap.w10), w11 = _mm256_set1_ps(tap.w11);
+      const uint8_t *p00 = inter + off[0][p], *p01 = inter + off[1][p], *p10 = inter + off[2][p], *p11 = inter + off[3][p];
+      const __m256 w00 = _mm256_set1_ps(wt[0][p]), w01 = _mm256_set1_ps(wt[1][p]);
+      const __m256 w10 = _mm256_set1_ps(wt[2][p]), w11 = _mm256_set1_ps(wt[3][p]);
       const __m256 gain = _mm256_set1_ps(f * (1.0f / 255));
 #define SLSHADOW_LOAD8(ptr) \
   _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(ptr))))
@@ -182,6 +222,7 @@ __attribute__((target("avx2"))) void FusedRowAvx2(const GeometryBuffer& g, size_
       for (int j = 0; j < kV; ++j) _mm256_store_si256(reinterpret_cast<__m256i*>(q + 8 * j), c[j]);
       for (int k = 0; k < B; ++k) rows[k][x] = static_cast<Out>(q[k]);
     }
+  }
   }
   if constexpr (kTiled) {
     for (int x = w & ~15; x < w; ++x) {
