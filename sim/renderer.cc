@@ -117,6 +117,25 @@ __attribute__((target("avx2"))) inline void StoreTransposed16(const uint8_t* til
   for (int k = 0; k < images; ++k) _mm_storeu_si128(reinterpret_cast<__m128i*>(rows[k] + x0), a[k]);
 }
 
+// The same for 16 pixels x up to 32 images (tile[pixel][image]): both 16 x 16 transposes at once,
+// one per 128-bit half (the AVX2 byte unpacks work per half).
+__attribute__((target("avx2"))) inline void StoreTransposed32(const uint8_t (*tile)[32], uint8_t* const* rows, int x0,
+                                                                int images) {
+  __m256i a[16], b[16];
+  for (int i = 0; i < 16; ++i) a[i] = _mm256_load_si256(reinterpret_cast<const __m256i*>(tile[i]));
+  for (int round = 0; round < 4; ++round) {
+    for (int i = 0; i < 8; ++i) {
+      b[2 * i] = _mm256_unpacklo_epi8(a[i], a[i + 8]);
+      b[2 * i + 1] = _mm256_unpackhi_epi8(a[i], a[i + 8]);
+    }
+    for (int i = 0; i < 16; ++i) a[i] = b[i];
+  }
+  for (int k = 0; k < 16; ++k) _mm_storeu_si128(reinterpret_cast<__m128i*>(rows[k] + x0), _mm256_castsi256_si128(a[k]));
+  for (int k = 16; k < images; ++k) {
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(rows[k] + x0), _mm256_extracti128_si256(a[k - 16], 1));
+  }
+}
+
 // One row of FusedDirectBilinear with AVX2: the B <= 32 images of the batch are the lanes of
 // (B + 7) / 8 vectors of 8 floats (the interleaved pattern bytes of one projector pixel are read
 // 8 at a time; the interleaved buffer is padded, lanes >= B are computed and not stored). Same
@@ -215,8 +234,11 @@ __attribute__((target("avx2"))) void FusedRowAvx2(const GeometryBuffer& g, size_
         _mm256_store_si256(reinterpret_cast<__m256i*>(tile[x & 15]), bytes);
       }
       if ((x & 15) == 15) {
-        StoreTransposed16(&tile[0][0], 32, rows, x - 15, std::min(B, 16));
-        if constexpr (B > 16) StoreTransposed16(&tile[0][16], 32, rows + 16, x - 15, B - 16);
+        if constexpr (B <= 16) {
+          StoreTransposed16(&tile[0][0], 32, rows, x - 15, B);
+        } else {
+          StoreTransposed32(tile, rows, x - 15, B);
+        }
       }
     } else {
       for (int j = 0; j < kV; ++j) _mm256_store_si256(reinterpret_cast<__m256i*>(q + 8 * j), c[j]);
