@@ -77,6 +77,7 @@ struct CommonOptions {
   bool board_warp = false;
   int min_views = 10;
   bool select_model = false;
+  bool principal_point_inside = false;
 
   void Add(CLI::App* app, bool needs_target = true) {
     auto* t = app->add_option("--target", target, "target YAML (docs/formats.md, \"Calibration target YAML\"; examples in config/targets/)");
@@ -102,6 +103,12 @@ struct CommonOptions {
                   "k1 k2, or k1) by leave-one-pose-out cross-validation: calibrate without each pose, pose its board from "
                   "the first camera, predict its projector corners; the lowest prediction RMS (px) wins. Needs 3+ poses; "
                   "costs ~8 x (poses + 1) solves. Default off (all five terms for every device)");
+    app->add_flag("--principal-point-inside", principal_point_inside,
+                  "bound each device's principal point to its image (-0.5 <= cx <= width - 0.5, same for cy, px) "
+                  "instead of letting the data place it. Default off: a projector with lens offset (throwing upwards "
+                  "from a table) has it outside its image, and forcing it in then costs fit and held-out accuracy. "
+                  "Use it when the optics are known to be centred and the poses too few to locate it; the report "
+                  "names a bound that ends active (the data pull the point outside)");
   }
 
   CalibrationOptions Options() const {
@@ -113,6 +120,7 @@ struct CommonOptions {
     o.loss = LossTypeFromString(loss);
     o.loss_scale_px = loss_scale_px;
     o.estimate_board_warp = board_warp;
+    o.principal_point_inside = principal_point_inside;
     o.Check();
     return o;
   }

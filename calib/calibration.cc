@@ -151,6 +151,8 @@ struct State {
   std::vector<Pose6> dev_from_rig;
   std::vector<Pose6> rig_from_board;
   std::vector<bool> pose_known;
+  // Per device: principal-point coordinates pinned to their bound by the last solve (Solve).
+  std::vector<std::vector<int>> pinned;
   std::array<double, 2> warp{0, 0};            // board warp, mm
   Eigen::Vector4d extent = Eigen::Vector4d::Zero();  // board xmin xmax ymin ymax, mm
 };
@@ -207,6 +209,7 @@ struct SolveOutput {
   std::vector<Matrix9d> covariance;  // per device, unscaled (J^T J)^-1 in the 9 parameters
   std::vector<Matrix9d> correlated_covariance;  // per device, px-scaled sandwich (with `kernels`)
   int num_free_parameters = 0;
+  bool repeat = false;  // a principal-point coordinate was pinned to its bound: solve again
 };
 
 // Covariance (px^2, 2x2) of the errors of point ia of view va and point ib of view vb of the same
@@ -498,8 +501,21 @@ Eigen::MatrixXd ViewCorrelatedCovariance(const CalibrationInput& input, const st
 // written back): the moments of the residuals (per device: sum of |r|^2, of r_i . r_j one and
 // sqrt(2) squares apart) are matched to their expectation E[r r^T] = (I - H) Sigma (I - H)^T,
 // H = J (J^T J)^-1 J^T, linear in sigma^2 and sigma^2 share for each length on a grid.
-SolveOutput Solve(const CalibrationInput& input, const CalibrationOptions& options, State* s, bool want_covariance,
-                  const NoiseModel* noise = nullptr, std::vector<ViewNoiseKernel>* kernels = nullptr) {
+//
+// `pinned` (per device, CameraModel indices): principal-point coordinates held at their bound
+// (CalibrationOptions::principal_point_inside); with that option, a free cx or cy that ends outside
+// its image is clamped to the bound and added to `pinned`, and the solve returns `repeat` (before
+// the covariance) for Solve to solve again with it held: an active-set method, which converges
+// where Ceres' projected steps on parameter bounds stalled (kamino: 433 iterations, not converged).
+SolveOutput SolveOnce(const CalibrationInput& input, const CalibrationOptions& options, State* s, bool want_covariance,
+                      const NoiseModel* noise, std::vector<ViewNoiseKernel>* kernels, std::vector<std::vector<int>>* pinned) {
+  auto held_of = [&](size_t d) {
+    std::vector<int> held = HeldIntrinsics(options, input.devices[d], s->aspect[d]);
+    held.insert(held.end(), (*pinned)[d].begin(), (*pinned)[d].end());
+    std::sort(held.begin(), held.end());
+    held.erase(std::unique(held.begin(), held.end()), held.end());
+    return held;
+  };
   ceres::Problem problem;
   std::vector<bool> device_used(input.devices.size(), false), pose_used(static_cast<size_t>(input.num_poses), false);
   // Points in a joint pair, per view (not added again alone).
@@ -551,7 +567,7 @@ SolveOutput Solve(const CalibrationInput& input, const CalibrationOptions& optio
   for (size_t d = 0; d < input.devices.size(); ++d) {
     if (!device_used[d]) continue;
     double* intr = s->intrinsics[d].data();
-    const auto held = HeldIntrinsics(options, input.devices[d], s->aspect[d]);
+    const auto held = held_of(d);
     if (options.fix_intrinsics || input.devices[d].hold_intrinsics) {
       problem.SetParameterBlockConstant(intr);
     } else {
@@ -584,6 +600,20 @@ SolveOutput Solve(const CalibrationInput& input, const CalibrationOptions& optio
   so.num_threads = 2;
   so.logging_type = ceres::SILENT;
   ceres::Solve(so, &problem, &out.summary);
+  for (size_t d = 0; options.principal_point_inside && d < input.devices.size(); ++d) {
+    if (!device_used[d] || options.fix_intrinsics || input.devices[d].hold_intrinsics) continue;
+    const auto held = held_of(d);
+    for (int i : {CameraModel::kCx, CameraModel::kCy}) {
+      if (std::find(held.begin(), held.end(), i) != held.end()) continue;
+      const double upper = (i == CameraModel::kCx ? input.devices[d].width : input.devices[d].height) - 0.5;
+      double& v = s->intrinsics[d][static_cast<size_t>(i)];
+      if (v >= -0.5 && v <= upper) continue;
+      v = std::clamp(v, -0.5, upper);
+      (*pinned)[d].push_back(i);
+      out.repeat = true;
+    }
+  }
+  if (out.repeat) return out;
 
   if (want_covariance && !options.fix_intrinsics) {
     // Covariance (J^T J)^-1 of all free parameters, from the Jacobian at the solution (tangent
@@ -641,7 +671,7 @@ SolveOutput Solve(const CalibrationInput& input, const CalibrationOptions& optio
         auto lift = [&](const Eigen::MatrixXd& full, size_t d) {
           Matrix9d c = Matrix9d::Zero();
           if (intr_column[d] < 0) return c;
-          const auto held = HeldIntrinsics(options, input.devices[d], s->aspect[d]);
+          const auto held = held_of(d);
           std::vector<int> free;
           for (int i = 0; i < CameraModel::kNumParams; ++i) {
             if (std::find(held.begin(), held.end(), i) == held.end()) free.push_back(i);
@@ -669,6 +699,24 @@ SolveOutput Solve(const CalibrationInput& input, const CalibrationOptions& optio
     }
   }
   return out;
+}
+
+// SolveOnce until no principal-point coordinate leaves its image (at most once per coordinate).
+SolveOutput Solve(const CalibrationInput& input, const CalibrationOptions& options, State* s, bool want_covariance,
+                  const NoiseModel* noise = nullptr, std::vector<ViewNoiseKernel>* kernels = nullptr) {
+  // A solve with iterations finds its own active set; an evaluation (max_iterations 0, the
+  // covariance at a solution) keeps the one the solution was found with.
+  std::vector<std::vector<int>> pinned(input.devices.size());
+  if (options.max_iterations == 0 && s->pinned.size() == input.devices.size()) pinned = s->pinned;
+  double initial_cost = -1;  // of the first pass (a pinned pass starts from the clamped point)
+  for (;;) {
+    SolveOutput out = SolveOnce(input, options, s, want_covariance, noise, kernels, &pinned);
+    if (initial_cost < 0) initial_cost = out.summary.initial_cost;
+    if (out.repeat) continue;
+    s->pinned = pinned;
+    out.summary.initial_cost = initial_cost;
+    return out;
+  }
 }
 
 std::vector<cv::Point3f> ToCv(const std::vector<Eigen::Vector3d>& v) {
@@ -1177,6 +1225,17 @@ CalibrationResult Calibrate(const CalibrationInput& input, const CalibrationOpti
     sum.variance_factor = dof > 0 ? 2 * final_solve.summary.final_cost / dof : std::nan("");
   }
   for (const auto& k : kernels) sum.view_noise.push_back({k.sigma_px, k.share, k.length_squares});
+  for (int d = 0; options.principal_point_inside && d < num_devices; ++d) {
+    const CalibrationDevice& dev = input.devices[static_cast<size_t>(d)];
+    for (int i : {CameraModel::kCx, CameraModel::kCy}) {
+      const double v = s.intrinsics[d][i], upper = (i == CameraModel::kCx ? dev.width : dev.height) - 0.5;
+      if (std::abs(v - upper) > 1e-6 && std::abs(v + 0.5) > 1e-6) continue;
+      char line[160];
+      std::snprintf(line, sizeof(line), "%s %s = %.1f (%s bound)", dev.name.c_str(), i == CameraModel::kCx ? "cx" : "cy", v,
+                    v > 0 ? "upper" : "lower");
+      sum.bounds_active.push_back(line);
+    }
+  }
   result.intrinsics_covariance_view_correlated = correlated_covariance;
   if (!final_solve.covariance.empty() && dof > 0) {
     const double var = joint ? sum.variance_factor : sum.residual_sigma_px * sum.residual_sigma_px;
@@ -1246,6 +1305,7 @@ std::string CalibrationSummary::FullReport() const {
     }
     out << "\n";
   }
+  for (const auto& b : bounds_active) out << "principal point on its bound (the data pull it outside the image): " << b << "\n";
   out << "device           views  points  RMS px   worst px\n";
   for (const auto& d : devices) {
     std::snprintf(line, sizeof(line), "%-16s %5d %7d %8.4f %9.4f\n", d.name.c_str(), d.num_views, d.num_points,

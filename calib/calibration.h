@@ -116,6 +116,15 @@ struct CalibrationOptions {
   // model's covariance is the more optimistic of the two there (docs/benchmarks.md,
   // "Calibration"); it is the right model when the corner errors are independent (tested).
   bool correlated_carried_noise = false;
+  // Bound every estimated device's principal point to its image: -0.5 <= cx <= width - 0.5 and
+  // -0.5 <= cy <= height - 0.5 (pixel centres at integers), as Ceres parameter bounds (a start
+  // outside is clamped first). Off by default: a projector with lens offset (a table projector
+  // throwing upwards) has its principal point outside its image, and the kamino data put it there
+  // (docs/benchmarks.md, "Calibration"). Use it when the optics are known to be centred and the
+  // data are too weak to locate the principal point. A bound that is active is reported
+  // (CalibrationSummary::bounds_active); the covariance is then the unconstrained linearisation
+  // at the bounded solution.
+  bool principal_point_inside = false;
 
   // Throws slshadow::Error naming the first violated constraint.
   void Check() const;
@@ -176,6 +185,9 @@ struct CalibrationSummary {
     double length_squares = 1;
   };
   std::vector<ViewNoise> view_noise;
+  // With CalibrationOptions::principal_point_inside: one entry per principal-point coordinate
+  // that ended on its bound, e.g. "projector cy = 767.5 (upper bound)"; empty otherwise.
+  std::vector<std::string> bounds_active;
 
   std::string BriefReport() const;  // one line
   std::string FullReport() const;   // multi-line: per device and per view, outliers marked

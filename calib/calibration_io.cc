@@ -48,6 +48,7 @@ nlohmann::json StatsToJson(const CalibrationSummary& s) {
       j["view_noise"].push_back({{"sigma_px", k.sigma_px}, {"share", k.share}, {"length_squares", k.length_squares}});
     }
   }
+  if (!s.bounds_active.empty()) j["bounds_active"] = s.bounds_active;
   if (s.joint_noise) {
     j["joint_noise"] = {{"noise_sigma_px", s.noise_sigma_px}, {"carry_scale", s.carry_scale}, {"variance_factor", s.variance_factor}};
   }
@@ -175,14 +176,15 @@ nlohmann::json CalibrationOptionsToJson(const CalibrationOptions& o) {
           {"fix_k3", o.fix_k3}, {"fix_intrinsics", o.fix_intrinsics}, {"loss", ToString(o.loss)},
           {"loss_scale_px", o.loss_scale_px}, {"max_iterations", o.max_iterations},
           {"outlier_view_factor", o.outlier_view_factor}, {"compute_covariance", o.compute_covariance},
-          {"estimate_board_warp", o.estimate_board_warp}, {"correlated_carried_noise", o.correlated_carried_noise}};
+          {"estimate_board_warp", o.estimate_board_warp}, {"correlated_carried_noise", o.correlated_carried_noise},
+          {"principal_point_inside", o.principal_point_inside}};
 }
 
 CalibrationOptions CalibrationOptionsFromJson(const nlohmann::json& json, const std::string& file) {
   const ConfigNode n = ConfigNode::FromJson(json, file, "calibration.options");
   n.RejectUnknownKeys({"fix_aspect_ratio", "aspect_ratio", "fix_principal_point", "zero_tangential", "fix_k3",
                        "fix_intrinsics", "loss", "loss_scale_px", "max_iterations", "outlier_view_factor",
-                       "compute_covariance", "estimate_board_warp", "correlated_carried_noise"});
+                       "compute_covariance", "estimate_board_warp", "correlated_carried_noise", "principal_point_inside"});
   CalibrationOptions o;
   o.fix_aspect_ratio = n.GetBool("fix_aspect_ratio", o.fix_aspect_ratio);
   o.aspect_ratio = n.GetDouble("aspect_ratio", o.aspect_ratio);
@@ -203,6 +205,7 @@ CalibrationOptions CalibrationOptionsFromJson(const nlohmann::json& json, const 
   o.compute_covariance = n.GetBool("compute_covariance", o.compute_covariance);
   o.estimate_board_warp = n.GetBool("estimate_board_warp", o.estimate_board_warp);
   o.correlated_carried_noise = n.GetBool("correlated_carried_noise", o.correlated_carried_noise);
+  o.principal_point_inside = n.GetBool("principal_point_inside", o.principal_point_inside);
   try {
     o.Check();
   } catch (const Error& e) {

@@ -78,6 +78,9 @@ TEST(CalibrationIo, RigFileKeepsTheEvidenceToRecomputeTheCalibration) {
   }
   options.correlated_carried_noise = true;  // the joint noise model's option is kept too
   EXPECT_TRUE(CalibrationOptionsFromJson(CalibrationOptionsToJson(options), "x").correlated_carried_noise);
+  options.principal_point_inside = true;  // and the principal-point bound
+  EXPECT_TRUE(CalibrationOptionsFromJson(CalibrationOptionsToJson(options), "x").principal_point_inside);
+  EXPECT_FALSE(CalibrationOptionsFromJson(CalibrationOptionsToJson(CalibrationOptions{}), "x").principal_point_inside);
   // Malformed evidence names the field.
   nlohmann::json broken = back.calibration;
   broken["views"][0]["pixels_px"][0] = {1.0};

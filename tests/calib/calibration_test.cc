@@ -292,6 +292,60 @@ TEST(Calibrate, JointNoiseModelKeepsTheRobustLoss) {
   EXPECT_LT(robust_err, 0.25 * plain_err);
 }
 
+// CalibrationOptions::principal_point_inside. Truth inside the image (cy 124 px from the bottom
+// edge): the bound is inactive and the bounded fit agrees with the free one within its sigma (here
+// exactly). Truth outside (cy 76 px below the image, as a projector with lens offset): the free fit
+// finds it, the bounded one stays on the bound, says so, and fits worse.
+TEST(Calibrate, PrincipalPointInsideBoundsHoldAndAgreeWhenTheTruthIsInside) {
+  using M = CameraModel;
+  CalibrationOptions inside;
+  inside.principal_point_inside = true;
+  for (const double true_cy : {900.0, 1100.0}) {
+    SyntheticRig rig = SyntheticRig::OneCamera();
+    rig.devices[0].model.params[M::kCy] = true_cy;
+    rig.board_cols = 7;  // a smaller board further away, so that whole boards fit above the axis
+    rig.board_rows = 5;
+    rig.distance_mm = 900;
+    const SyntheticData data = MakeSyntheticData(rig, 12, 0.2, 61);
+    const CalibrationResult free = Calibrate(data.input, {});
+    const CalibrationResult bounded = Calibrate(data.input, inside);
+    const auto& f = free.devices[0].model.params;
+    const auto& b = bounded.devices[0].model.params;
+    const auto& truth = rig.devices[0].model.params;
+    ASSERT_EQ(free.intrinsics_covariance.size(), 1u);
+    std::printf("true cy %.1f: free cy %.3f (sigma %.3f) RMS %.4f, bounded cy %.3f RMS %.4f, fx %.3f vs %.3f\n", true_cy, f[M::kCy],
+                std::sqrt(free.intrinsics_covariance[0](M::kCy, M::kCy)), free.summary.rms_px, b[M::kCy], bounded.summary.rms_px,
+                f[M::kFx], b[M::kFx]);
+    EXPECT_GE(b[M::kCx], -0.5);
+    EXPECT_LE(b[M::kCx], 1280 - 0.5);
+    EXPECT_GE(b[M::kCy], -0.5);
+    EXPECT_LE(b[M::kCy], 1024 - 0.5);
+    EXPECT_TRUE(bounded.summary.converged) << bounded.summary.termination;
+    for (int i : {M::kFx, M::kCx, M::kCy}) {
+      const double sigma = std::sqrt(free.intrinsics_covariance[0](i, i));
+      EXPECT_LT(std::abs(f[i] - truth[i]), 4 * sigma) << "parameter " << i;
+      if (true_cy < 1024) {
+        EXPECT_LT(std::abs(b[i] - f[i]), sigma) << "parameter " << i;
+      }
+    }
+    if (true_cy < 1024) {
+      EXPECT_TRUE(bounded.summary.bounds_active.empty());
+    } else {
+      ASSERT_EQ(bounded.summary.bounds_active.size(), 1u);
+      EXPECT_NE(bounded.summary.bounds_active[0].find("cy = 1023.5 (upper bound)"), std::string::npos) << bounded.summary.bounds_active[0];
+      EXPECT_NE(bounded.summary.FullReport().find("principal point on its bound"), std::string::npos);
+      EXPECT_EQ(b[M::kCy], 1023.5);
+      EXPECT_GT(bounded.summary.final_cost, free.summary.final_cost);
+      // The bounded coordinate is held: no variance, in both covariances.
+      ASSERT_EQ(bounded.intrinsics_covariance.size(), 1u);
+      EXPECT_EQ(bounded.intrinsics_covariance[0](M::kCy, M::kCy), 0.0);
+      if (!bounded.intrinsics_covariance_view_correlated.empty()) {
+        EXPECT_EQ(bounded.intrinsics_covariance_view_correlated[0](M::kCy, M::kCy), 0.0);
+      }
+    }
+  }
+}
+
 TEST(Calibrate, CarriedViewsAreChecked) {
   const CalibrationInput good = CarriedInput(SyntheticRig::Stereo(), 4, 3);
   EXPECT_NO_THROW(good.Check());
