@@ -146,6 +146,86 @@ TEST(TraceGeometryTest, BoundsCullingChangesNothing) {
   }
 }
 
+// The pass traces packets of 4 x 4 pixels; packets over the image's right and bottom edges have
+// lanes outside it, and a pixel without a camera ray (NaN: past a lens's fold) is a lane left
+// out. Such pixels get the values the same rays give inside full packets: a camera whose rays
+// are the top-left 237 x 147 crop of a 240 x 150 camera's (so its edge packets are partial where
+// the larger camera's are full), with and without ground truth, 1 and 2x2 samples per pixel.
+TEST(TraceGeometryTest, EdgePacketsAndMissingRaysEqualFullPackets) {
+  const Rig big = SmallDemoRig(8);
+  ASSERT_EQ(big.cameras[0].model.width, 240);
+  ASSERT_EQ(big.cameras[0].model.height, 150);
+  Rig small = big;
+  const int w = 237, h = 147;
+  small.cameras[0].model.width = w;
+  small.cameras[0].model.height = h;
+  const std::vector<cv::Point> no_ray = {{5, 7}, {236, 146}, {100, 3}, {236, 0}, {0, 146}};
+  for (const int n : {1, 2}) {
+    CameraRays big_rays = ComputeCameraRays(big.cameras[0].model, n);
+    CameraRays small_rays;
+    small_rays.width = w;
+    small_rays.height = h;
+    small_rays.samples_per_axis = n;
+    const auto crop = [&](std::vector<Eigen::Vector3f>& from, std::vector<Eigen::Vector3f>& to, int per_pixel) {
+      for (const cv::Point& q : no_ray) {
+        for (int k = 0; k < per_pixel; ++k) from[(static_cast<size_t>(q.y) * 240 + q.x) * per_pixel + k].setConstant(NAN);
+      }
+      for (int y = 0; y < h; ++y) {
+        const auto row = from.begin() + static_cast<ptrdiff_t>(y) * 240 * per_pixel;
+        to.insert(to.end(), row, row + static_cast<ptrdiff_t>(w) * per_pixel);
+      }
+    };
+    crop(big_rays.samples, small_rays.samples, n * n);
+    if (n > 1) crop(big_rays.centers, small_rays.centers, 1);
+    Scene scene = LoadScene(testing::SourceDir() / "config/demo/scene.yaml");
+    scene.layers.supersampling = n;
+    const RayCaster caster(scene);
+    for (const bool ground_truth : {true, false}) {
+      const GeometryBuffer a = TraceGeometry(caster, big, 0, big_rays, TraceMode::kPacket16, ground_truth);
+      const GeometryBuffer b = TraceGeometry(caster, small, 0, small_rays, TraceMode::kPacket16, ground_truth);
+      const size_t nn = static_cast<size_t>(n) * n;
+      int lit = 0;
+      for (int y = 0; y < h; ++y) {
+        for (int x = 0; x < w; ++x) {
+          for (size_t k = 0; k < nn; ++k) {
+            const size_t i = (static_cast<size_t>(y) * 240 + x) * nn + k, j = (static_cast<size_t>(y) * w + x) * nn + k;
+            ASSERT_TRUE(SameFloat(a.proj_x[i], b.proj_x[j])) << x << "," << y;
+            ASSERT_TRUE(SameFloat(a.proj_y[i], b.proj_y[j])) << x << "," << y;
+            ASSERT_EQ(a.factor[i], b.factor[j]) << x << "," << y;
+            ASSERT_EQ(a.albedo[i], b.albedo[j]) << x << "," << y;
+            lit += !std::isnan(b.proj_x[j]);
+          }
+          if (!ground_truth) continue;
+          ASSERT_TRUE(SameFloat(a.depth_mm.at<float>(y, x), b.depth_mm.at<float>(y, x))) << x << "," << y;
+          ASSERT_EQ(a.object_id.at<int32_t>(y, x), b.object_id.at<int32_t>(y, x)) << x << "," << y;
+          ASSERT_EQ(a.visibility.at<uint8_t>(y, x), b.visibility.at<uint8_t>(y, x)) << x << "," << y;
+          ASSERT_EQ(a.projector.status.at<uint8_t>(y, x), b.projector.status.at<uint8_t>(y, x)) << x << "," << y;
+          ASSERT_TRUE(SameFloat(a.projector.proj_x.at<float>(y, x), b.projector.proj_x.at<float>(y, x))) << x << "," << y;
+          for (int k = 0; k < 3; ++k) {
+            ASSERT_TRUE(SameFloat(a.point_in_rig.at<cv::Vec3f>(y, x)[k], b.point_in_rig.at<cv::Vec3f>(y, x)[k]));
+            ASSERT_TRUE(SameFloat(a.normal_in_rig.at<cv::Vec3f>(y, x)[k], b.normal_in_rig.at<cv::Vec3f>(y, x)[k]));
+          }
+        }
+      }
+      EXPECT_GT(lit, w * h * static_cast<int>(nn) / 2) << "most of the view is lit";
+      for (const cv::Point& q : no_ray) {
+        for (size_t k = 0; k < nn; ++k) {
+          const size_t j = (static_cast<size_t>(q.y) * w + q.x) * nn + k;
+          EXPECT_TRUE(std::isnan(b.proj_x[j]) && b.factor[j] == 0 && b.albedo[j] == 0) << "no ray: nothing seen";
+        }
+        if (ground_truth) {
+          EXPECT_EQ(b.visibility.at<uint8_t>(q), 0);
+          EXPECT_EQ(b.object_id.at<int32_t>(q), -1);
+          EXPECT_TRUE(std::isnan(b.depth_mm.at<float>(q)));
+        }
+      }
+      const int64_t expected_primary = (static_cast<int64_t>(w) * h - static_cast<int64_t>(no_ray.size())) *
+                                        (static_cast<int64_t>(nn) + (n > 1 && ground_truth ? 1 : 0));
+      EXPECT_EQ(b.primary_rays, expected_primary);
+    }
+  }
+}
+
 // DN = exposure * full * (ambient * albedo + albedo * cos_p * (d_ref/d_p)^2 * I), evaluated
 // independently per pixel by intersecting the viewing ray with the plane in closed form.
 TEST(RadiometryTest, TiltedPlaneFollowsCosOverDistanceSquared) {
