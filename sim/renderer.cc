@@ -91,8 +91,7 @@ struct BilinearTap {
   float w00, w01, w10, w11;
 };
 
-template <int B>
-inline BilinearTap TapAt(const uint8_t* inter, int pw, int ph, float u, float t) {
+inline BilinearTap TapAt(const uint8_t* inter, int pw, int ph, float u, float t, int B) {
   const float fx0 = std::floor(u), fy0 = std::floor(t);
   const float ax = u - fx0, ay = t - fy0;
   const int x0 = std::clamp(static_cast<int>(fx0), 0, pw - 1), x1 = std::clamp(static_cast<int>(fx0) + 1, 0, pw - 1);
@@ -137,17 +136,17 @@ __attribute__((target("avx2"))) inline void StoreTransposed32(const uint8_t (*ti
 }
 
 // One row of FusedDirectBilinear with AVX2: the B <= 32 images of the batch are the lanes of
-// (B + 7) / 8 vectors of 8 floats (the interleaved pattern bytes of one projector pixel are read
-// 8 at a time; the interleaved buffer is padded, lanes >= B are computed and not stored). Same
+// kV = (B + 7) / 8 vectors of 8 floats (templated on kV; B is a run-time argument). The
+// interleaved pattern bytes of one projector pixel are read 8 at a time (the interleaved buffer
+// is padded; lanes >= B are computed and not stored). Same
 // operations in the same order as the scalar code (mul and add kept separate: target "avx2"
 // without "fma", so nothing gets contracted), hence bit-identical images. Quantisation as
 // QuantizeValue: max(v, 0) maps NaN and negatives to 0; min(v + 0.5, full) then truncation.
-template <int B, typename Out>
+template <int kV, typename Out>
 __attribute__((target("avx2"))) void FusedRowAvx2(const GeometryBuffer& g, size_t row_start, int w,
                                                      const uint8_t* inter, int pw, int ph, float ambient, float scale,
-                                                     const float* vig, float full, Out* const* rows) {
-  static_assert(B >= 1 && B <= 32);
-  constexpr int kV = (B + 7) / 8;
+                                                     const float* vig, float full, int B, Out* const* rows) {
+  static_assert(kV >= 1 && kV <= 4);
   const __m256 zero = _mm256_setzero_ps(), half = _mm256_set1_ps(0.5f), vfull = _mm256_set1_ps(full);
   constexpr bool kTiled = std::is_same_v<Out, uint8_t>;
   // 8-bit output: each pixel's B values packed to the bytes of one tile row (image order), the
@@ -189,7 +188,7 @@ __attribute__((target("avx2"))) void FusedRowAvx2(const GeometryBuffer& g, size_
       for (int p = 0; p < nb; ++p) {
         const size_t i = ib + static_cast<size_t>(p);
         if (!(g.factor[i] > 0)) continue;
-        const BilinearTap tap = TapAt<B>(inter, pw, ph, g.proj_x[i], g.proj_y[i]);
+        const BilinearTap tap = TapAt(inter, pw, ph, g.proj_x[i], g.proj_y[i], B);
         off[0][p] = static_cast<int32_t>(tap.p00 - inter), off[1][p] = static_cast<int32_t>(tap.p01 - inter);
         off[2][p] = static_cast<int32_t>(tap.p10 - inter), off[3][p] = static_cast<int32_t>(tap.p11 - inter);
         wt[0][p] = tap.w00, wt[1][p] = tap.w01, wt[2][p] = tap.w10, wt[3][p] = tap.w11;
@@ -228,13 +227,13 @@ __attribute__((target("avx2"))) void FusedRowAvx2(const GeometryBuffer& g, size_
       // permutation puts the 4-byte groups back in image order).
       const __m256i bytes = _mm256_permutevar8x32_epi32(
           _mm256_packus_epi16(_mm256_packus_epi32(c[0], c[1]), _mm256_packus_epi32(c[2], c[3])), order);
-      if constexpr (B <= 16) {
+      if constexpr (kV <= 2) {
         _mm_store_si128(reinterpret_cast<__m128i*>(tile[x & 15]), _mm256_castsi256_si128(bytes));
       } else {
         _mm256_store_si256(reinterpret_cast<__m256i*>(tile[x & 15]), bytes);
       }
       if ((x & 15) == 15) {
-        if constexpr (B <= 16) {
+        if constexpr (kV <= 2) {
           StoreTransposed16(&tile[0][0], 32, rows, x - 15, B);
         } else {
           StoreTransposed32(tile, rows, x - 15, B);
@@ -259,22 +258,27 @@ bool HaveAvx2() {
 }
 #endif
 
-template <int B, typename Out>
-void FusedDirectBilinear(const GeometryBuffer& g, const uint8_t* inter, int pw, int ph, float ambient, float scale,
+template <typename Out>
+void FusedDirectBilinear(const GeometryBuffer& g, const uint8_t* inter, int B, int pw, int ph, float ambient, float scale,
                          const cv::Mat& vignetting, float full, std::vector<cv::Mat>& out) {
   const int w = g.width, h = g.height;
   tbb::parallel_for(tbb::blocked_range<int>(0, h, 4), [&](const tbb::blocked_range<int>& r) {
-    Out* rows[B];
-    float acc[B];
+    Out* rows[32];
+    float acc[32];
     for (int y = r.begin(); y < r.end(); ++y) {
       for (int k = 0; k < B; ++k) rows[k] = out[static_cast<size_t>(k)].ptr<Out>(y);
       const float* vig = vignetting.empty() ? nullptr : vignetting.ptr<float>(y);
 #ifdef SLSHADOW_SIM_AVX2
-      if constexpr (B <= 32) {
-        if (HaveAvx2()) {
-          FusedRowAvx2<B, Out>(g, static_cast<size_t>(y) * w, w, inter, pw, ph, ambient, scale, vig, full, rows);
-          continue;
+      if (HaveAvx2()) {
+        // Templated on the number of 8-lane vectors; the batch size is a run-time argument.
+        const size_t row = static_cast<size_t>(y) * w;
+        switch ((B + 7) / 8) {
+          case 1: FusedRowAvx2<1, Out>(g, row, w, inter, pw, ph, ambient, scale, vig, full, B, rows); break;
+          case 2: FusedRowAvx2<2, Out>(g, row, w, inter, pw, ph, ambient, scale, vig, full, B, rows); break;
+          case 3: FusedRowAvx2<3, Out>(g, row, w, inter, pw, ph, ambient, scale, vig, full, B, rows); break;
+          default: FusedRowAvx2<4, Out>(g, row, w, inter, pw, ph, ambient, scale, vig, full, B, rows); break;
         }
+        continue;
       }
 #endif
       for (int x = 0; x < w; ++x) {
@@ -282,7 +286,7 @@ void FusedDirectBilinear(const GeometryBuffer& g, const uint8_t* inter, int pw, 
         const float f = g.factor[i];
         const float base = ambient * g.albedo[i];
         if (f > 0) {
-          const BilinearTap t = TapAt<B>(inter, pw, ph, g.proj_x[i], g.proj_y[i]);
+          const BilinearTap t = TapAt(inter, pw, ph, g.proj_x[i], g.proj_y[i], B);
           const float gain = f * (1.0f / 255);
           for (int k = 0; k < B; ++k) {
             acc[k] = base + gain * (t.w00 * t.p00[k] + t.w01 * t.p01[k] + t.w10 * t.p10[k] + t.w11 * t.p11[k]);
@@ -578,16 +582,6 @@ const uint8_t* PatternBatch::Interleaved() const {
   return interleaved_.ptr<uint8_t>();
 }
 
-namespace {
-
-// Calls run(std::integral_constant<int, n>()) for the batch size n in 1..32.
-template <typename F, int... Ns>
-void DispatchBatchSize(int n, F&& run, std::integer_sequence<int, Ns...>) {
-  static_cast<void>(((n == Ns + 1 ? (run(std::integral_constant<int, Ns + 1>()), true) : false) || ...));
-}
-
-}  // namespace
-
 std::vector<cv::Mat> PatternRenderer::RenderBatch(const std::vector<cv::Mat>& images, int first_pattern_index) const {
   SLSHADOW_THROW_IF(images.empty() || static_cast<int>(images.size()) > kMaxBatch, "pattern batch must hold 1..",
                     kMaxBatch, " images (got ", images.size(), ")");
@@ -620,17 +614,11 @@ std::vector<cv::Mat> PatternRenderer::RenderBatch(const PatternBatch& patterns, 
     const float scale = static_cast<float>(scene_.radiometry.exposure * full_scale_dn_);
     const float ambient = static_cast<float>(l.ambient);
     const float full = static_cast<float>(full_scale_dn_);
-    DispatchBatchSize(
-        batch,
-        [&](auto batch_tag) {
-          constexpr int kB = decltype(batch_tag)::value;
-          if (wide) {
-            FusedDirectBilinear<kB, uint16_t>(geometry_, inter_data, pw, ph, ambient, scale, vignetting_, full, out);
-          } else {
-            FusedDirectBilinear<kB, uint8_t>(geometry_, inter_data, pw, ph, ambient, scale, vignetting_, full, out);
-          }
-        },
-        std::make_integer_sequence<int, kMaxBatch>());
+    if (wide) {
+      FusedDirectBilinear<uint16_t>(geometry_, inter_data, batch, pw, ph, ambient, scale, vignetting_, full, out);
+    } else {
+      FusedDirectBilinear<uint8_t>(geometry_, inter_data, batch, pw, ph, ambient, scale, vignetting_, full, out);
+    }
     return out;
   }
   std::vector<cv::Mat> irradiance = RenderIrradianceBatch(images);
