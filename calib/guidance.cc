@@ -95,27 +95,26 @@ std::vector<Finding> ReviewCalibration(const CalibrationInput& input, const Cali
       out.push_back({Severity::kWarning, name, Fmt("RMS reprojection error %.2f px is high", result.summary.devices[d].rms_px),
                      "check the target's square size, focus and motion blur, and the outlier views"});
     }
-    if (d < result.intrinsics_covariance.size() && d < result.intrinsics_covariance_view_correlated.size() &&
-        d < result.summary.view_noise.size() && result.intrinsics_covariance[d](0, 0) > 0) {
-      // Corner errors shared across a view: how much wider is the focal length's sigma?
+    // Corner errors shared across a view: how much wider is the focal length's sigma? The same
+    // criterion picks the covariance the report's sigmas and uncertainty maps use.
+    const QuotedCovariance quoted = PreferredCovariance(result, static_cast<int>(d), o.max_correlated_sigma_ratio);
+    if (quoted.view_correlated) {
       const auto& k = result.summary.view_noise[d];
-      const double ratio = std::sqrt(result.intrinsics_covariance_view_correlated[d](0, 0) / result.intrinsics_covariance[d](0, 0));
-      if (k.share > 0 && ratio > o.max_correlated_sigma_ratio) {
-        out.push_back({Severity::kWarning, name,
-                       Fmt("corner errors are correlated across each view (share %.2f over %.1f board squares)", k.share,
-                           k.length_squares) +
-                           Fmt(": with them the focal length's sigma is %.1fx the independent-error covariance's", ratio),
-                       "quote the view-correlated covariance (rig file: calibration.intrinsics_covariance_view_correlated) or the "
-                       "cross-validation; "
-                       "check focus, motion blur, the board's print and flatness"});
-      }
+      out.push_back({Severity::kWarning, name,
+                     Fmt("corner errors are correlated across each view (share %.2f over %.1f board squares)", k.share,
+                         k.length_squares) +
+                         Fmt(": with them the focal length's sigma is %.1fx the independent-error covariance's", quoted.fx_sigma_ratio),
+                     "the report's sigmas and uncertainty maps use the view-correlated covariance (rig file: "
+                     "calibration.intrinsics_covariance_view_correlated); quote it or the cross-validation; "
+                     "check focus, motion blur, the board's print and flatness"});
     }
-    if (d < result.intrinsics_covariance.size() && result.intrinsics_covariance[d].norm() > 0) {
-      const PixelMap u = ProjectionUncertaintyMap(result.devices[d].model, result.intrinsics_covariance[d], 32);
+    if (quoted.available && quoted.covariance.norm() > 0) {
+      const PixelMap u = ProjectionUncertaintyMap(result.devices[d].model, quoted.covariance, 32);
       if (u.p95 > o.max_uncertainty_px) {
         out.push_back({Severity::kWarning, name,
-                       Fmt("projection uncertainty reaches %.2f px (95th percentile over the image, median %.2f px)", u.p95,
-                           u.median),
+                       Fmt("projection uncertainty reaches %.2f px (95th percentile over the image, median %.2f px; ", u.p95,
+                           u.median) +
+                           (quoted.view_correlated ? "view-correlated covariance)" : "standard covariance)"),
                        "capture more views, especially with the board near the image edges where it is largest"});
       }
     }

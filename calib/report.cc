@@ -154,11 +154,18 @@ std::string FullText(const CalibrationReport& r) {
                   r.result->devices[d].name.c_str(), m.fx(), m.fy(), m.cx(), m.cy(), m.params[4], m.params[5], m.params[6],
                   m.params[7], m.params[8]);
     text += line;
-    if (d < r.result->intrinsics_covariance.size()) {
-      const auto& c = r.result->intrinsics_covariance[d];
-      std::snprintf(line, sizeof(line), "%s: 1-sigma fx %.4f fy %.4f cx %.4f cy %.4f\n", r.result->devices[d].name.c_str(),
-                    std::sqrt(c(0, 0)), std::sqrt(c(1, 1)), std::sqrt(c(2, 2)), std::sqrt(c(3, 3)));
+    const QuotedCovariance q = PreferredCovariance(*r.result, static_cast<int>(d));
+    if (q.available) {
+      const auto& c = q.covariance;
+      std::snprintf(line, sizeof(line), "%s: 1-sigma fx %.4f fy %.4f cx %.4f cy %.4f (%s)\n", r.result->devices[d].name.c_str(),
+                    std::sqrt(c(0, 0)), std::sqrt(c(1, 1)), std::sqrt(c(2, 2)), std::sqrt(c(3, 3)), q.reason.c_str());
       text += line;
+      if (q.view_correlated) {
+        const auto& s = r.result->intrinsics_covariance[d];
+        std::snprintf(line, sizeof(line), "%s: 1-sigma, standard covariance (independent errors, optimistic here): fx %.4f fy %.4f cx %.4f cy %.4f\n",
+                      r.result->devices[d].name.c_str(), std::sqrt(s(0, 0)), std::sqrt(s(1, 1)), std::sqrt(s(2, 2)), std::sqrt(s(3, 3)));
+        text += line;
+      }
     }
     if (d > 0) {
       const auto& t = r.result->devices[d].cam_from_rig;
@@ -190,10 +197,21 @@ nlohmann::json CalibrationReportJson(const CalibrationReport& r) {
     const auto& t = dev.cam_from_rig;
     dj["cam_from_rig"] = {{"rotation_quat_wxyz", {t.rotation.w(), t.rotation.x(), t.rotation.y(), t.rotation.z()}},
                           {"translation_mm", {t.translation.x(), t.translation.y(), t.translation.z()}}};
-    if (d < r.result->intrinsics_covariance.size()) {
-      std::vector<double> sigma;
-      for (int i = 0; i < CameraModel::kNumParams; ++i) sigma.push_back(std::sqrt(r.result->intrinsics_covariance[d](i, i)));
-      dj["params_sigma"] = sigma;
+    const QuotedCovariance q = PreferredCovariance(*r.result, static_cast<int>(d));
+    if (q.available) {
+      std::vector<double> sigma, standard;
+      for (int i = 0; i < CameraModel::kNumParams; ++i) {
+        sigma.push_back(std::sqrt(q.covariance(i, i)));
+        standard.push_back(std::sqrt(r.result->intrinsics_covariance[d](i, i)));
+      }
+      dj["params_sigma"] = sigma;  // from the covariance named in "covariance_used"
+      dj["params_sigma_standard"] = standard;
+      dj["covariance_used"] = q.view_correlated ? "view-correlated" : "standard";
+      dj["covariance_reason"] = q.reason;
+      const PixelMap u = ProjectionUncertaintyMap(dev.model, q.covariance, 16);
+      auto num = [](double x) { return std::isfinite(x) ? nlohmann::json(x) : nlohmann::json(); };
+      dj["projection_uncertainty"] = {{"median_px", num(u.median)}, {"p95_px", num(u.p95)}, {"max_px", num(u.max)},
+                                      {"covariance", dj["covariance_used"]}};
     }
     j["devices_result"].push_back(dj);
   }
@@ -213,11 +231,12 @@ void WriteCalibrationReport(const std::filesystem::path& dir, const CalibrationR
       const auto& dev = r.result->devices[d];
       const std::string name = SafeName(dev.name);
       ResidualChart(staged / ("residuals_" + name + ".png"), *r.input, *r.result, static_cast<int>(d));
-      if (d < r.result->intrinsics_covariance.size() && r.result->intrinsics_covariance[d].norm() > 0) {
-        const PixelMap u = ProjectionUncertaintyMap(dev.model, r.result->intrinsics_covariance[d], 16);
-        char title[200];
-        std::snprintf(title, sizeof(title), "%s: projection uncertainty (1 sigma, worst direction), median %.3f px",
-                      dev.name.c_str(), u.median);
+      const QuotedCovariance q = PreferredCovariance(*r.result, static_cast<int>(d));
+      if (q.available && q.covariance.norm() > 0) {
+        const PixelMap u = ProjectionUncertaintyMap(dev.model, q.covariance, 16);
+        char title[240];
+        std::snprintf(title, sizeof(title), "%s: projection uncertainty (1 sigma, worst direction, %s covariance), median %.3f px",
+                      dev.name.c_str(), q.view_correlated ? "view-correlated" : "standard", u.median);
         MapChart(staged / ("uncertainty_" + name + ".png"), u, dev.model.width, dev.model.height, title, "px");
       }
       if (r.cross_validation && d < r.cross_validation->difference.size()) {

@@ -7,7 +7,10 @@
 //   report.txt                   FullReport() and the findings, as printed
 //   per_view_rms.png             bar chart: RMS per view and device, outliers in red
 //   residuals_<device>.png       residual vectors at the observed points, magnified
-//   uncertainty_<device>.png     projection uncertainty map (px), rotation-compensated
+//   uncertainty_<device>.png     projection uncertainty map (px), rotation-compensated, from the
+//                                covariance PreferredCovariance (calib/uncertainty.h) picks: the
+//                                view-correlated one when corner errors correlate across views,
+//                                else the standard one; summary.json and report.txt say which and why
 //   cross_validation_<device>.png  projection difference of the two halves (px)
 // The folder is written to a temporary sibling and renamed into place.
 #pragma once

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 
 #include <ceres/ceres.h>
 #include <ceres/jet.h>
@@ -235,6 +236,40 @@ CrossValidation CrossValidate(const CalibrationInput& input, const CalibrationOp
   }
   cv.summaries = {a.summary, b.summary};
   return cv;
+}
+
+QuotedCovariance PreferredCovariance(const CalibrationResult& result, int device, double max_ratio) {
+  QuotedCovariance q;
+  const auto d = static_cast<size_t>(device);
+  if (d >= result.intrinsics_covariance.size() || !(result.intrinsics_covariance[d](0, 0) > 0)) {
+    q.reason = "no covariance for this device (not computed, or its intrinsics held)";
+    return q;
+  }
+  q.available = true;
+  q.covariance = result.intrinsics_covariance[d];
+  const bool have_view = d < result.intrinsics_covariance_view_correlated.size() && d < result.summary.view_noise.size();
+  if (!have_view) {
+    q.reason = "standard covariance (independent corner errors); no view-correlated covariance was computed";
+    return q;
+  }
+  const auto& k = result.summary.view_noise[d];
+  q.fx_sigma_ratio = std::sqrt(result.intrinsics_covariance_view_correlated[d](0, 0) / result.intrinsics_covariance[d](0, 0));
+  char line[300];
+  if (k.share > 0 && q.fx_sigma_ratio > max_ratio) {
+    q.view_correlated = true;
+    q.covariance = result.intrinsics_covariance_view_correlated[d];
+    std::snprintf(line, sizeof(line),
+                  "view-correlated covariance: corner errors correlate across each view (share %.2f over %.1f squares), "
+                  "which widens fx's sigma %.2fx over the standard covariance (> %.2f)",
+                  k.share, k.length_squares, q.fx_sigma_ratio, max_ratio);
+  } else {
+    std::snprintf(line, sizeof(line),
+                  "standard covariance: corner errors look independent enough (correlated share %.2f, fx sigma ratio %.2f <= "
+                  "%.2f or no correlation)",
+                  k.share, q.fx_sigma_ratio, max_ratio);
+  }
+  q.reason = line;
+  return q;
 }
 
 }  // namespace slshadow

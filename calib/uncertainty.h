@@ -71,6 +71,23 @@ PixelMap ProjectionDifferenceMap(const CameraModel& a, const CameraModel& b, int
 // neighbour pair.
 double NeighbourResidualCorrelation(const CalibrationInput& input, const CalibrationResult& result, int device);
 
+// The covariance a report should quote for one device. The standard one
+// (CalibrationResult::intrinsics_covariance) assumes independent corner errors; when the residuals
+// show errors shared across each view (summary.view_noise[device].share > 0, from the neighbour
+// residual correlation) and the view-correlated covariance widens fx's sigma by more than
+// `max_ratio` (GuidanceOptions::max_correlated_sigma_ratio, 1.5: the criterion of calibrate's
+// warning), the view-correlated one (intrinsics_covariance_view_correlated) is quoted instead:
+// the standard one is then optimistic (kamino: 1.9-3.8x against the jackknife). Otherwise the
+// standard one, unchanged.
+struct QuotedCovariance {
+  bool available = false;        // a standard covariance exists for the device (else all zero)
+  bool view_correlated = false;  // which one `covariance` is
+  Matrix9d covariance = Matrix9d::Zero();
+  double fx_sigma_ratio = 1;  // view-correlated / standard sigma of fx (1 when there is no view-correlated one)
+  std::string reason;         // one line, for reports
+};
+QuotedCovariance PreferredCovariance(const CalibrationResult& result, int device, double max_ratio = 1.5);
+
 struct CrossValidation {
   std::vector<CameraModel> half_a;  // per device, from the even poses
   std::vector<CameraModel> half_b;  // per device, from the odd poses

@@ -273,6 +273,24 @@ TEST_F(CmdCalibrateKamino, SelectModelChoosesLowestPredictionError) {
     EXPECT_EQ(c["num_predicted"].get<int>(), 5 * 63);
   }
   EXPECT_EQ(selection["chosen"].get<std::string>(), best_name);
+  // Kamino's corner errors correlate across each view: the report quotes the view-correlated
+  // covariance for both devices, and its uncertainty maps are wider than the standard ones by the
+  // factor the two covariances' maps in the rig file's evidence give.
+  for (int d = 0; d < 2; ++d) {
+    const auto& dev = summary["devices_result"][d];
+    EXPECT_EQ(dev["covariance_used"], "view-correlated") << dev["covariance_reason"];
+    const double used = dev["projection_uncertainty"]["median_px"].get<double>();
+    const double standard = summary["projection_uncertainty"][d]["median_px"].get<double>();
+    const double view = summary["projection_uncertainty_view_correlated"][d]["median_px"].get<double>();
+    std::printf("%s: uncertainty median %.3f px quoted, standard %.3f px (x%.2f); fx sigma %.2f (standard %.2f); %s\n",
+                dev["name"].get<std::string>().c_str(), used, standard, used / standard, dev["params_sigma"][0].get<double>(),
+                dev["params_sigma_standard"][0].get<double>(), dev["covariance_reason"].get<std::string>().c_str());
+    EXPECT_NEAR(used, view, 1e-9);
+    EXPECT_GT(used, 1.5 * standard);
+    EXPECT_GT(dev["params_sigma"][0].get<double>(), 1.5 * dev["params_sigma_standard"][0].get<double>());
+  }
+  const std::string text = ReadTextFile(tmp / "procam_report" / "report.txt");
+  EXPECT_NE(text.find("view-correlated covariance: corner errors correlate"), std::string::npos) << text;
   std::printf("chosen: %s, predicted %.4f px; projector held %s\n", best_name.c_str(), best,
               b.calibration["devices"][1]["held_params"].dump().c_str());
   ASSERT_EQ(evidence.input.devices.size(), 2u);
