@@ -621,11 +621,17 @@ std::vector<cv::Mat> PatternRenderer::RenderBatch(const PatternBatch& patterns, 
     }
     return out;
   }
-  std::vector<cv::Mat> irradiance = RenderIrradianceBatch(images);
-  std::vector<cv::Mat> out(irradiance.size());
-  tbb::parallel_for(size_t{0}, out.size(), [&](size_t k) {
-    out[k] = Quantize(irradiance[k], first_pattern_index + static_cast<int>(k));
-  });
+  // The general path in chunks of at most 16 images, as before batches of 32: its float buffers
+  // (one per projector blur level and one per output image) grow with the chunk.
+  constexpr int kGeneralChunk = 16;
+  std::vector<cv::Mat> out(images.size());
+  for (int first = 0; first < batch; first += kGeneralChunk) {
+    const std::vector<cv::Mat> chunk(images.begin() + first, images.begin() + std::min(first + kGeneralChunk, batch));
+    const std::vector<cv::Mat> irradiance = RenderIrradianceBatch(chunk);
+    tbb::parallel_for(size_t{0}, irradiance.size(), [&](size_t k) {
+      out[static_cast<size_t>(first) + k] = Quantize(irradiance[k], first_pattern_index + first + static_cast<int>(k));
+    });
+  }
   return out;
 }
 
