@@ -138,10 +138,10 @@ __attribute__((target("avx2"))) inline void StoreTransposed32(const uint8_t (*ti
 // One row of FusedDirectBilinear with AVX2: the B <= 32 images of the batch are the lanes of
 // kV = (B + 7) / 8 vectors of 8 floats (templated on kV; B is a run-time argument). The
 // interleaved pattern bytes of one projector pixel are read 8 at a time (the interleaved buffer
-// is padded; lanes >= B are computed and not stored). Same
-// operations in the same order as the scalar code (mul and add kept separate: target "avx2"
-// without "fma", so nothing gets contracted), hence bit-identical images. Quantisation as
-// QuantizeValue: max(v, 0) maps NaN and negatives to 0; min(v + 0.5, full) then truncation.
+// is padded; lanes >= B are computed and not stored). Same operations in the same order as the
+// scalar code (mul and add kept separate: target "avx2" without "fma", so nothing gets
+// contracted), hence bit-identical images. Quantisation as QuantizeValue: max(v, 0) maps NaN and
+// negatives to 0; min(v + 0.5, full) then truncation.
 template <int kV, typename Out>
 __attribute__((target("avx2"))) void FusedRowAvx2(const GeometryBuffer& g, size_t row_start, int w,
                                                      const uint8_t* inter, int pw, int ph, float ambient, float scale,
@@ -194,56 +194,56 @@ __attribute__((target("avx2"))) void FusedRowAvx2(const GeometryBuffer& g, size_
         wt[0][p] = tap.w00, wt[1][p] = tap.w01, wt[2][p] = tap.w10, wt[3][p] = tap.w11;
       }
     }
-  for (int p = 0; p < nb; ++p) {
-    const int x = xb + p;
-    const size_t i = ib + static_cast<size_t>(p);
-    const float f = g.factor[i];
-    const __m256 base = _mm256_set1_ps(ambient * g.albedo[i]);
-    __m256 acc[kV];
-    for (int j = 0; j < kV; ++j) acc[j] = base;
-    if (f > 0) {
-      const uint8_t *p00 = inter + off[0][p], *p01 = inter + off[1][p], *p10 = inter + off[2][p], *p11 = inter + off[3][p];
-      const __m256 w00 = _mm256_set1_ps(wt[0][p]), w01 = _mm256_set1_ps(wt[1][p]);
-      const __m256 w10 = _mm256_set1_ps(wt[2][p]), w11 = _mm256_set1_ps(wt[3][p]);
-      const __m256 gain = _mm256_set1_ps(f * (1.0f / 255));
+    for (int p = 0; p < nb; ++p) {
+      const int x = xb + p;
+      const size_t i = ib + static_cast<size_t>(p);
+      const float f = g.factor[i];
+      const __m256 base = _mm256_set1_ps(ambient * g.albedo[i]);
+      __m256 acc[kV];
+      for (int j = 0; j < kV; ++j) acc[j] = base;
+      if (f > 0) {
+        const uint8_t *p00 = inter + off[0][p], *p01 = inter + off[1][p], *p10 = inter + off[2][p], *p11 = inter + off[3][p];
+        const __m256 w00 = _mm256_set1_ps(wt[0][p]), w01 = _mm256_set1_ps(wt[1][p]);
+        const __m256 w10 = _mm256_set1_ps(wt[2][p]), w11 = _mm256_set1_ps(wt[3][p]);
+        const __m256 gain = _mm256_set1_ps(f * (1.0f / 255));
 #define SLSHADOW_LOAD8(ptr) \
   _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(ptr))))
-      for (int j = 0; j < kV; ++j) {
-        __m256 sum = _mm256_mul_ps(w00, SLSHADOW_LOAD8(p00 + 8 * j));
-        sum = _mm256_add_ps(sum, _mm256_mul_ps(w01, SLSHADOW_LOAD8(p01 + 8 * j)));
-        sum = _mm256_add_ps(sum, _mm256_mul_ps(w10, SLSHADOW_LOAD8(p10 + 8 * j)));
-        sum = _mm256_add_ps(sum, _mm256_mul_ps(w11, SLSHADOW_LOAD8(p11 + 8 * j)));
-        acc[j] = _mm256_add_ps(base, _mm256_mul_ps(gain, sum));
-      }
-#undef SLSHADOW_LOAD8
-    }
-    const __m256 m = _mm256_set1_ps(scale * (vig ? vig[x] : 1.0f));
-    __m256i c[4] = {_mm256_setzero_si256(), _mm256_setzero_si256(), _mm256_setzero_si256(), _mm256_setzero_si256()};
-    for (int j = 0; j < kV; ++j) {
-      c[j] = _mm256_cvttps_epi32(_mm256_min_ps(_mm256_add_ps(_mm256_max_ps(_mm256_mul_ps(acc[j], m), zero), half), vfull));
-    }
-    if constexpr (kTiled) {
-      // Values 0..255: packed to 32 bytes in lane order (the packs work per 128-bit half; the
-      // permutation puts the 4-byte groups back in image order).
-      const __m256i bytes = _mm256_permutevar8x32_epi32(
-          _mm256_packus_epi16(_mm256_packus_epi32(c[0], c[1]), _mm256_packus_epi32(c[2], c[3])), order);
-      if constexpr (kV <= 2) {
-        _mm_store_si128(reinterpret_cast<__m128i*>(tile[x & 15]), _mm256_castsi256_si128(bytes));
-      } else {
-        _mm256_store_si256(reinterpret_cast<__m256i*>(tile[x & 15]), bytes);
-      }
-      if ((x & 15) == 15) {
-        if constexpr (kV <= 2) {
-          StoreTransposed16(&tile[0][0], 32, rows, x - 15, B);
-        } else {
-          StoreTransposed32(tile, rows, x - 15, B);
+        for (int j = 0; j < kV; ++j) {
+          __m256 sum = _mm256_mul_ps(w00, SLSHADOW_LOAD8(p00 + 8 * j));
+          sum = _mm256_add_ps(sum, _mm256_mul_ps(w01, SLSHADOW_LOAD8(p01 + 8 * j)));
+          sum = _mm256_add_ps(sum, _mm256_mul_ps(w10, SLSHADOW_LOAD8(p10 + 8 * j)));
+          sum = _mm256_add_ps(sum, _mm256_mul_ps(w11, SLSHADOW_LOAD8(p11 + 8 * j)));
+          acc[j] = _mm256_add_ps(base, _mm256_mul_ps(gain, sum));
         }
+#undef SLSHADOW_LOAD8
       }
-    } else {
-      for (int j = 0; j < kV; ++j) _mm256_store_si256(reinterpret_cast<__m256i*>(q + 8 * j), c[j]);
-      for (int k = 0; k < B; ++k) rows[k][x] = static_cast<Out>(q[k]);
+      const __m256 m = _mm256_set1_ps(scale * (vig ? vig[x] : 1.0f));
+      __m256i c[4] = {_mm256_setzero_si256(), _mm256_setzero_si256(), _mm256_setzero_si256(), _mm256_setzero_si256()};
+      for (int j = 0; j < kV; ++j) {
+        c[j] = _mm256_cvttps_epi32(_mm256_min_ps(_mm256_add_ps(_mm256_max_ps(_mm256_mul_ps(acc[j], m), zero), half), vfull));
+      }
+      if constexpr (kTiled) {
+        // Values 0..255: packed to 32 bytes in lane order (the packs work per 128-bit half; the
+        // permutation puts the 4-byte groups back in image order).
+        const __m256i bytes = _mm256_permutevar8x32_epi32(
+            _mm256_packus_epi16(_mm256_packus_epi32(c[0], c[1]), _mm256_packus_epi32(c[2], c[3])), order);
+        if constexpr (kV <= 2) {
+          _mm_store_si128(reinterpret_cast<__m128i*>(tile[x & 15]), _mm256_castsi256_si128(bytes));
+        } else {
+          _mm256_store_si256(reinterpret_cast<__m256i*>(tile[x & 15]), bytes);
+        }
+        if ((x & 15) == 15) {
+          if constexpr (kV <= 2) {
+            StoreTransposed16(&tile[0][0], 32, rows, x - 15, B);
+          } else {
+            StoreTransposed32(tile, rows, x - 15, B);
+          }
+        }
+      } else {
+        for (int j = 0; j < kV; ++j) _mm256_store_si256(reinterpret_cast<__m256i*>(q + 8 * j), c[j]);
+        for (int k = 0; k < B; ++k) rows[k][x] = static_cast<Out>(q[k]);
+      }
     }
-  }
   }
   if constexpr (kTiled) {
     for (int x = w & ~15; x < w; ++x) {
@@ -583,8 +583,6 @@ const uint8_t* PatternBatch::Interleaved() const {
 }
 
 std::vector<cv::Mat> PatternRenderer::RenderBatch(const std::vector<cv::Mat>& images, int first_pattern_index) const {
-  SLSHADOW_THROW_IF(images.empty() || static_cast<int>(images.size()) > kMaxBatch, "pattern batch must hold 1..",
-                    kMaxBatch, " images (got ", images.size(), ")");
   return RenderBatch(PatternBatch(images), first_pattern_index);
 }
 
@@ -592,6 +590,7 @@ std::vector<cv::Mat> PatternRenderer::RenderBatch(const PatternBatch& patterns, 
   const SceneLayers& l = scene_.layers;
   const std::vector<cv::Mat>& images = patterns.images();
   const int batch = patterns.size();
+  SLSHADOW_THROW_IF(batch > kMaxBatch, "pattern batch must hold 1..", kMaxBatch, " images (got ", batch, ")");
   static_assert(kMaxBatch <= 32, "the fused kernels take up to 32 images");
   const bool fused = !l.response_enabled && projector_sigmas_.empty() && scene_.radiometry.bilinear_lookup && l.fill_factor >= 1 &&
                      geometry_.samples_per_axis == 1 && camera_sigmas_.empty() && !l.noise_enabled && batch <= kMaxBatch;
