@@ -219,6 +219,9 @@ int CalibrateAndWrite(CalibrationInput input, const std::vector<ImageCheck>& che
                 m.height, m.fx(), m.fy(), m.cx(), m.cy(), m.params[4], m.params[5], m.params[6], m.params[7], m.params[8]);
   }
   for (const auto& s : result.summary.devices) std::printf("  %s: RMS %.4f px over %d points\n", s.name.c_str(), s.rms_px, s.num_points);
+  for (const auto& b : result.summary.bounds_active) {
+    std::printf("  --principal-point-inside: %s; the data pull it outside the image (compare the fit without the flag)\n", b.c_str());
+  }
   for (const auto& f : findings) std::printf("%s\n", f.Text().c_str());
   std::printf("wrote %s and report %s\n", common.out.c_str(), common.ReportDir().string().c_str());
   return 0;

@@ -214,7 +214,9 @@ class CmdCalibrateKamino : public ::testing::Test {
 testing::TempDir* CmdCalibrateKamino::sets_ = nullptr;
 
 // `calibrate rig` reads one ImageSet per board pose; kamino's five captures written as ImageSets
-// must give what `calibrate projector` gives from the plain folders.
+// must give what `calibrate projector` gives from the plain folders. Both with
+// --principal-point-inside (the default solve is run by the --select-model test below): the flag
+// reaches the solver and the rig file through either subcommand.
 TEST_F(CmdCalibrateKamino, RigFromImageSetsMatchesProjectorFromFolders) {
   testing::TempDir tmp;
   const auto kamino = testing::SharedDataDir() / "kamino-procam-graycode";
@@ -222,11 +224,11 @@ TEST_F(CmdCalibrateKamino, RigFromImageSetsMatchesProjectorFromFolders) {
   const std::string target = Target();
   std::vector<std::string> rig_args = {"calibrate", "rig", "--target", target, "--shadow-threshold", "40",
                                        "--contrast-threshold", "5", "--min-views", "5", "--no-cross-validation",
-                                       "--out", (tmp / "rig.yaml").string(), "--imagesets"};
+                                       "--principal-point-inside", "--out", (tmp / "rig.yaml").string(), "--imagesets"};
   std::vector<std::string> proj_args = {"calibrate", "projector", "--target", target, "--patterns", spec_path,
                                         "--shadow-threshold", "40", "--contrast-threshold", "5", "--min-views", "5",
-                                        "--no-cross-validation", "--out", (tmp / "procam.yaml").string(),
-                                        "--captures"};
+                                        "--no-cross-validation", "--principal-point-inside", "--out",
+                                        (tmp / "procam.yaml").string(), "--captures"};
   for (int p = 0; p < 5; ++p) {
     rig_args.push_back(ImageSetDir(p).string());
     proj_args.push_back((kamino / ("capture_" + std::to_string(p))).string());
@@ -241,6 +243,12 @@ TEST_F(CmdCalibrateKamino, RigFromImageSetsMatchesProjectorFromFolders) {
   }
   EXPECT_LT((a.projector->cam_from_rig.translation - b.projector->cam_from_rig.translation).norm(), 1e-4);
   EXPECT_LE(a.calibration["summary"]["devices"][1]["rms_px"].get<double>(), 0.43);
+  for (const Rig* r : {&a, &b}) {
+    EXPECT_TRUE(r->calibration["options"]["principal_point_inside"].get<bool>());
+    EXPECT_LE(r->projector->model.cy(), 767.5);
+    ASSERT_EQ(r->calibration["summary"]["bounds_active"].size(), 1u);
+    EXPECT_EQ(r->calibration["summary"]["bounds_active"][0], "projector cy = 767.5 (upper bound)");
+  }
 }
 
 // --select-model (eight leave-one-pose-out calibrations, the costly part, so run once; through
