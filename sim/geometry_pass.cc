@@ -199,7 +199,7 @@ SLSHADOW_LANE_CLONES void TracePacket(const PassContext& c, const SampleTargets&
   const int x0 = bx * kBlock, y0 = by * kBlock;
   // Inside the image: every lane (a packet over the right or bottom edge has lanes outside).
   const bool full = x0 + kBlock <= c.width && y0 + kBlock <= c.height;
-  int64_t index[kN];     // sample index; 0 outside the image
+  int64_t index[kN];               // sample index; 0 outside the image
   alignas(16) int32_t inside[kN];  // lane masks
   for (int r = 0; r < kBlock; ++r) {
     const int y = y0 + r;
