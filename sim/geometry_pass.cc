@@ -482,7 +482,17 @@ SLSHADOW_LANE_CLONES void DirectionsRow(const double* __restrict x, const double
                                         float* __restrict out, int width, int nn) {
   const int m = width * nn;
   for (int i = 0; i < m; ++i) scratch[i] = 1 / std::sqrt(x[i] * x[i] + y[i] * y[i] + 1);
-  for (int px = 0, i = 0; px < width; ++px) {
+  int start = 0;
+  if (nn == 1) {
+    // One sample per pixel: 4 rays (12 consecutive floats) per step, the same conversions.
+    for (; start + 4 <= width; start += 4) {
+      const V4d s = Load4<V4d>(scratch + start);
+      const V4f fx = ToFloat(Load4<V4d>(x + start) * s), fy = ToFloat(Load4<V4d>(y + start) * s), fz = ToFloat(s);
+      const float xyz[12] = {fx[0], fy[0], fz[0], fx[1], fy[1], fz[1], fx[2], fy[2], fz[2], fx[3], fy[3], fz[3]};
+      std::memcpy(out + 3 * static_cast<ptrdiff_t>(start), xyz, sizeof(xyz));
+    }
+  }
+  for (int px = start, i = start * nn; px < width; ++px) {
     for (int a = 0; a < nn; ++a, ++i) {
       float* o = out + 3 * (static_cast<ptrdiff_t>(px) * nn * nn + a);
       o[0] = static_cast<float>(x[i] * scratch[i]);

@@ -109,6 +109,26 @@ TEST(CameraRaysTest, EqualTheModelsUnprojectionIncludingPastTheFold) {
   }
 }
 
+// Rows of one sample per pixel are written 4 rays at a time with a scalar tail: widths 5 to 8
+// (tails of 1, 2, 3 and no rays) give the camera model's unprojection everywhere.
+TEST(CameraRaysTest, RowTailsEqualTheModelsUnprojection) {
+  for (const int width : {5, 6, 7, 8}) {
+    CameraModel cam(width, 3, 4.1, 3.9, 0.4 * width, 1.3);
+    cam.params[CameraModel::kK1] = -0.05;
+    cam.params[CameraModel::kP2] = 0.002;
+    const CameraRays rays = ComputeCameraRays(cam, 1);
+    ASSERT_EQ(rays.samples.size(), static_cast<size_t>(width) * 3);
+    for (int y = 0; y < 3; ++y) {
+      for (int x = 0; x < width; ++x) {
+        const std::optional<Eigen::Vector3d> expected = cam.Unproject(Eigen::Vector2d(x, y));
+        ASSERT_TRUE(expected.has_value());
+        const Eigen::Vector3f& d = rays.samples[static_cast<size_t>(y) * width + x];
+        EXPECT_LT((d.cast<double>() - *expected).norm(), 1e-7) << width << ": " << x << "," << y;
+      }
+    }
+  }
+}
+
 // Brute force (rtcIntersect1 / rtcOccluded1 per ray) against the packet render of the demo scene,
 // with supersampling so both the sample and the centre passes are covered.
 TEST(TraceGeometryTest, SingleRayReferenceEqualsPacketRender) {
