@@ -15,6 +15,7 @@
 #include <tbb/parallel_for.h>
 
 #include "core/error.h"
+#include "sim/lanes.h"
 #include "sim/pooled_mats.h"
 
 namespace slshadow {
@@ -23,36 +24,11 @@ namespace {
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 constexpr int kBlock = 4;  // 4 x 4 pixels = one packet of 16 rays
 
-// One packet row (4 lanes) per vector (GCC vector extensions): AVX2 registers in the avx2 clones,
-// pairs of SSE2 operations in the default ones; the same IEEE operations as the scalar per-lane
-// code and no FMA, so the same bits in every clone. (GCC kept the per-lane loops over 16 lanes
-// scalar: mixed bool / int / float / double lanes.) Comparisons give lane masks (all bits set).
-// The helpers pass these by value; internal and inlined, so GCC's note on the calling
-// convention of 32-byte vectors without AVX (-Wpsabi) does not apply.
-#pragma GCC diagnostic ignored "-Wpsabi"
-typedef float V4f __attribute__((vector_size(16)));
-typedef int32_t V4i __attribute__((vector_size(16)));
-typedef double V4d __attribute__((vector_size(32)));
-typedef int64_t V4l __attribute__((vector_size(32)));
+using namespace lanes;  // NOLINT: the lane vector helpers of sim/lanes.h
 
-template <class V, class T>
-inline V Load4(const T* p) {
-  V v;
-  std::memcpy(&v, p, sizeof(v));
-  return v;
-}
-template <class V, class T>
-inline void Store4(T* p, const V& v) {
-  std::memcpy(p, &v, sizeof(v));
-}
-// RayPacket lane flags (0 / 1) <-> lane masks.
-inline V4i MaskOf(const int32_t* flags) { return Load4<V4i>(flags) != 0; }
-inline V4i Flags(V4i mask) { return mask & 1; }
 inline V4l Wide(V4i mask) { return __builtin_convertvector(mask, V4l); }
 inline V4d ToDouble(V4f v) { return __builtin_convertvector(v, V4d); }
 inline V4f ToFloat(const V4d& v) { return __builtin_convertvector(v, V4f); }
-inline V4d Splat(double v) { return V4d{v, v, v, v}; }
-inline V4f Splat(float v) { return V4f{v, v, v, v}; }
 
 // Where the pass writes for one set of samples. Ground-truth maps are continuous, indexed
 // y * width + x; pointers are null when the map shares its storage with a per-sample buffer.
@@ -124,11 +100,6 @@ struct LaneOutputs {
   alignas(64) double lit[16];                 // 1: faces the projector, in front of it, inside its image
 };
 
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define SLSHADOW_LANE_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define SLSHADOW_LANE_CLONES
-#endif
 
 SLSHADOW_LANE_CLONES void ShadeLanes(const PassContext& c, const LaneInputs& __restrict in, LaneOutputs& __restrict out) {
   const double cx = c.cam_center_d.x(), cy = c.cam_center_d.y(), cz = c.cam_center_d.z();

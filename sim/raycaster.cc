@@ -13,6 +13,7 @@
 #include <tbb/parallel_for.h>
 
 #include "core/error.h"
+#include "sim/lanes.h"
 
 namespace slshadow {
 namespace {
@@ -21,34 +22,8 @@ constexpr float kInf = std::numeric_limits<float>::infinity();
 // Up to this many analytic primitives are tested outside Embree by every ray.
 constexpr std::ptrdiff_t kMaxDirectPrimitives = 8;
 
-// Four lanes per vector (GCC vector extensions): the avx2 clones below map them to AVX2
-// registers, the default clones to pairs of SSE2 operations. The same IEEE operations either
-// way and no FMA, so every clone gives the same bits as the scalar code they replace (GCC left
-// the per-lane loops over 16 lanes scalar). Comparisons give lane masks (all bits set = true).
-// The helpers below pass these vectors by value; they are internal and inlined, so GCC's note
-// on the calling convention of 32-byte vectors without AVX (-Wpsabi) does not apply.
-#pragma GCC diagnostic ignored "-Wpsabi"
-typedef double V4d __attribute__((vector_size(32)));
-typedef int64_t V4l __attribute__((vector_size(32)));
-typedef float V4f __attribute__((vector_size(16)));
-typedef int32_t V4i __attribute__((vector_size(16)));
+using namespace lanes;  // NOLINT: the lane vector helpers of sim/lanes.h
 
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define SLSHADOW_RAY_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define SLSHADOW_RAY_CLONES
-#endif
-
-template <class V, class T>
-inline V Load4(const T* p) {
-  V v;
-  std::memcpy(&v, p, sizeof(v));
-  return v;
-}
-template <class V, class T>
-inline void Store4(T* p, const V& v) {
-  std::memcpy(p, &v, sizeof(v));
-}
 // A packet's 16 float lanes as doubles (exact). A plain loop: GCC converts whole registers
 // there, but one 4-float vector through two halves.
 inline void Widen(const float* __restrict in, double* __restrict out) {
@@ -60,11 +35,6 @@ inline V4d Min(const V4d& a, const V4d& b) { return b < a ? b : a; }
 inline V4d Max(const V4d& a, const V4d& b) { return a < b ? b : a; }
 inline V4d Abs(const V4d& a) { return (V4d)((V4l)a & INT64_MAX); }
 inline V4i Narrow(const V4l& mask) { return __builtin_convertvector(mask, V4i); }
-inline V4i Splat(int32_t v) { return V4i{v, v, v, v}; }
-inline V4f Splat(float v) { return V4f{v, v, v, v}; }
-// RayPacket lane flags (0 / 1) <-> lane masks.
-inline V4i ActiveMask(const int32_t* flags) { return Load4<V4i>(flags) != 0; }
-inline V4i Flags(const V4i& mask) { return mask & 1; }
 
 // Data an Embree user geometry needs: the object and its transform.
 struct PrimitiveData {
@@ -176,10 +146,7 @@ void PrimitiveOccluded(const RTCOccludedFunctionNArguments* args) {
 // Eigen's Vector3f::normalized() for 16 lanes (Embree's geometric normals), without branches:
 // the same operations (x^2 + (y^2 + z^2), then a division by its square root; unchanged when
 // that is not > 0), so the same bits.
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-__attribute__((target_clones("avx2", "default")))
-#endif
-void NormalizedLanes(const float* __restrict x, const float* __restrict y, const float* __restrict z, float* __restrict ox,
+SLSHADOW_LANE_CLONES void NormalizedLanes(const float* __restrict x, const float* __restrict y, const float* __restrict z, float* __restrict ox,
                      float* __restrict oy, float* __restrict oz) {
   for (int i = 0; i < RayPacket::kSize; ++i) {
     const float n2 = x[i] * x[i] + (y[i] * y[i] + z[i] * z[i]);
@@ -227,10 +194,10 @@ __attribute__((always_inline)) inline void ForPlaneLanes(const PrimitiveData& da
 
 // Closest hits with a plane for the active lanes (RayCaster::Intersect): as Embree's
 // user-geometry route, tfar and the normal stored as floats (PrimitiveData::plane_normal).
-SLSHADOW_RAY_CLONES void IntersectPlaneLanes(const PrimitiveData& data, RayPacket& p) {
+SLSHADOW_LANE_CLONES void IntersectPlaneLanes(const PrimitiveData& data, RayPacket& p) {
   const V4f nx = Splat(data.plane_normal.x()), ny = Splat(data.plane_normal.y()), nz = Splat(data.plane_normal.z());
   ForPlaneLanes(data, p, [&](int j, const V4d& t, const V4l& hit) {
-    const V4i take = ActiveMask(p.active + j) & Narrow(hit);
+    const V4i take = MaskOf(p.active + j) & Narrow(hit);
     Store4(p.tfar + j, take ? __builtin_convertvector(t, V4f) : Load4<V4f>(p.tfar + j));
     Store4(p.ng_x + j, take ? nx : Load4<V4f>(p.ng_x + j));
     Store4(p.ng_y + j, take ? ny : Load4<V4f>(p.ng_y + j));
@@ -240,9 +207,9 @@ SLSHADOW_RAY_CLONES void IntersectPlaneLanes(const PrimitiveData& data, RayPacke
 }
 
 // Any hit with a plane (RayCaster::Occluded): blocked lanes are marked occluded and deactivated.
-SLSHADOW_RAY_CLONES void OccludePlaneLanes(const PrimitiveData& data, RayPacket& p) {
+SLSHADOW_LANE_CLONES void OccludePlaneLanes(const PrimitiveData& data, RayPacket& p) {
   ForPlaneLanes(data, p, [&](int j, const V4d&, const V4l& hit) {
-    const V4i active = ActiveMask(p.active + j);
+    const V4i active = MaskOf(p.active + j);
     const V4i blocked = active & Narrow(hit);
     Store4(p.occluded + j, Load4<V4i>(p.occluded + j) | Flags(blocked));
     Store4(p.active + j, Flags(active & ~blocked));
@@ -516,7 +483,7 @@ namespace {
 // that slab). Its one NaN case, an origin exactly on a face of the box with the ray running in
 // that face's plane, may go either way: the box is widened beyond all geometry, so such a ray
 // cannot hit anything.
-SLSHADOW_RAY_CLONES int CullLanesToBox(const double* __restrict lo, const double* __restrict hi, RayPacket& p) {
+SLSHADOW_LANE_CLONES int CullLanesToBox(const double* __restrict lo, const double* __restrict hi, RayPacket& p) {
   constexpr int kN = RayPacket::kSize;
   alignas(32) double o[3][kN], d[3][kN], tnear[kN], tfar[kN];
   Widen(p.org_x, o[0]);
@@ -537,7 +504,7 @@ SLSHADOW_RAY_CLONES int CullLanesToBox(const double* __restrict lo, const double
       t0 = Max(t0, Min(ta, tb));
       t1 = Min(t1, Max(ta, tb));
     }
-    const V4i active = Flags(ActiveMask(p.active + j) & ~Narrow(t0 > t1));
+    const V4i active = Flags(MaskOf(p.active + j) & ~Narrow(t0 > t1));
     Store4(p.active + j, active);
     left += active;
   }
