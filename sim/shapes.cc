@@ -107,6 +107,11 @@ DemoPartFeatures DemoPartDescription() {
   return f;
 }
 
+double DemoPartResolutionFor(double triangles) {
+  SLSHADOW_THROW_IF(!(triangles > 0), "demo part: triangle count must be > 0 (got ", triangles, ")");
+  return std::sqrt(86696.0 / triangles);
+}
+
 TriangleMesh MakeDemoPart(double resolution_mm) {
   SLSHADOW_THROW_IF(!(resolution_mm > 0.01 && resolution_mm <= 20), "demo part: resolution_mm must be in (0.01, 20] (got ",
                     resolution_mm, ")");

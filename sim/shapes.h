@@ -25,6 +25,10 @@ namespace slshadow {
 // up to rounding).
 TriangleMesh MakeDemoPart(double resolution_mm);
 
+// The resolution (mm) at which MakeDemoPart gives about `triangles` triangles (86 696 at 1 mm;
+// the count grows as 1 / resolution^2). Benchmarks size the part with it.
+double DemoPartResolutionFor(double triangles);
+
 // Description of the demo part's analytic features in its object frame (for tests and reports).
 struct DemoPartFeatures {
   Eigen::Vector3d sphere_center_mm{0, 0, 0};

@@ -4,7 +4,7 @@
 //   export_bench_part SOURCE_DIR OUT_DIR [TRIANGLES=1000000]
 //
 // Loads SOURCE_DIR/config/demo/scene.yaml and SOURCE_DIR/config/demo/rig.yaml, re-tessellates the
-// demo part as sim_bench's DemoScene does (resolution = sqrt(86696 / TRIANGLES) mm), and writes in
+// demo part as sim_bench's DemoScene does (DemoPartResolutionFor(TRIANGLES)), and writes in
 // OUT_DIR, all in the rig frame (mm):
 //   part.ply          the posed part (binary PLY, core's WriteMesh)
 //   table.ply         the table plane as two triangles (when the scene has a plane object)
@@ -51,7 +51,7 @@ int Run(int argc, char** argv) {
   const Rig rig = LoadRig(source / "config/demo/rig.yaml");
   SLSHADOW_THROW_IF(scene.objects.empty() || scene.objects[0].type != ObjectType::kMesh,
                     "config/demo/scene.yaml: the first object is not a mesh");
-  scene.objects[0].mesh = std::make_shared<const TriangleMesh>(MakeDemoPart(std::sqrt(86696.0 / triangles)));
+  scene.objects[0].mesh = std::make_shared<const TriangleMesh>(MakeDemoPart(DemoPartResolutionFor(triangles)));
 
   std::ofstream list(out / "scene.txt");
   const SceneObject& part = scene.objects[0];

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include "core/error.h"
 #include "sim/renderer.h"
 #include "tests/sim/sim_test_util.h"
 
@@ -33,6 +34,15 @@ TEST(DemoPartTest, ValidMeshWithExpectedExtentAndScalableResolution) {
     }
   }
   EXPECT_GT(on_dome, 100);
+}
+
+TEST(DemoPartTest, ResolutionForATriangleCount) {
+  EXPECT_DOUBLE_EQ(DemoPartResolutionFor(86696), 1.0);
+  for (const double n : {25000.0, 200000.0}) {
+    const double got = static_cast<double>(MakeDemoPart(DemoPartResolutionFor(n)).NumTriangles());
+    EXPECT_NEAR(got / n, 1.0, 0.15) << n << " triangles asked, " << got << " made";
+  }
+  EXPECT_THROW(DemoPartResolutionFor(0), Error);
 }
 
 TEST(DemoPartTest, OutwardNormals) {

@@ -40,8 +40,8 @@ const Rig& DemoRig() {
 // The demo scene with the part tessellated to about `triangles` triangles (86.7 k at 1 mm).
 Scene DemoScene(int64_t triangles) {
   Scene scene = LoadScene(kSource / "config/demo/scene.yaml");
-  const double resolution = std::sqrt(86696.0 / static_cast<double>(triangles));
-  scene.objects[0].mesh = std::make_shared<const TriangleMesh>(MakeDemoPart(resolution));
+  scene.objects[0].mesh =
+      std::make_shared<const TriangleMesh>(MakeDemoPart(DemoPartResolutionFor(static_cast<double>(triangles))));
   return scene;
 }
 
