@@ -71,6 +71,30 @@ CalibrationResult ProjectorAlone(const std::vector<ProcamPose>& poses, const Var
   return Calibrate(in, {});
 }
 
+// Held-out pose k's projector corners predicted by calibration `r` (camera device 0, projector
+// device 1): the board posed from the camera's corners alone (camera intrinsics held), then
+// projected into the projector. Adds the squared errors (corners shifted by `shift` px) and
+// their count.
+void PredictHeldOutProjectorCorners(const CalibrationResult& r, const ProcamPose& held_out, double shift, double* sq, int* n) {
+  CalibrationInput cam;
+  cam.num_poses = 1;
+  cam.devices = {{"camera", 1280, 1024, false, r.devices[0].model, true, {}}};
+  BoardView cv = held_out.camera_view;
+  cv.pose = 0;
+  cam.views = {cv};
+  CalibrationOptions o;
+  o.compute_covariance = false;
+  const CalibrationResult pose = Calibrate(cam, o);
+  const Rigid3d proj_from_board = r.devices[1].cam_from_rig * *pose.rig_from_board[0];
+  const BoardView& pv = held_out.projector_view;
+  for (size_t i = 0; i < pv.pixels_px.size(); ++i) {
+    const auto px = r.devices[1].model.Project(proj_from_board * pv.points_in_board_mm[i]);
+    if (!px) continue;
+    *sq += (*px - (pv.pixels_px[i] + Eigen::Vector2d(shift, shift))).squaredNorm();
+    ++*n;
+  }
+}
+
 // Leave-one-pose-out: RMS of the held-out projector corners predicted through the camera.
 double CrossValidate(const std::vector<ProcamPose>& poses, const Variant& v, double shift, double* worst_cy) {
   double sq = 0;
@@ -85,23 +109,7 @@ double CrossValidate(const std::vector<ProcamPose>& poses, const Variant& v, dou
     }
     lo = std::min(lo, r.devices[1].model.cy());
     hi = std::max(hi, r.devices[1].model.cy());
-    CalibrationInput cam;
-    cam.num_poses = 1;
-    cam.devices = {{"camera", 1280, 1024, false, r.devices[0].model, true, {}}};
-    BoardView cv = poses[k].camera_view;
-    cv.pose = 0;
-    cam.views = {cv};
-    CalibrationOptions o;
-    o.compute_covariance = false;
-    const CalibrationResult pose = Calibrate(cam, o);
-    const Rigid3d proj_from_board = r.devices[1].cam_from_rig * *pose.rig_from_board[0];
-    const BoardView& pv = poses[k].projector_view;
-    for (size_t i = 0; i < pv.pixels_px.size(); ++i) {
-      const auto px = r.devices[1].model.Project(proj_from_board * pv.points_in_board_mm[i]);
-      if (!px) continue;
-      sq += (*px - (pv.pixels_px[i] + Eigen::Vector2d(shift, shift))).squaredNorm();
-      ++n;
-    }
+    PredictHeldOutProjectorCorners(r, poses[k], shift, &sq, &n);
   }
   *worst_cy = hi - lo;
   return std::sqrt(sq / n);
@@ -328,25 +336,9 @@ void PrincipalPointStudy(const PatternSpec& spec, const std::vector<ProcamPose>&
       CalibrationOptions fo = o;
       fo.compute_covariance = false;
       const CalibrationResult f = Calibrate(Input(poses, v, k, 0), fo);
-      CalibrationInput cam;
-      cam.num_poses = 1;
-      cam.devices = {{"camera", 1280, 1024, false, f.devices[0].model, true, {}}};
-      BoardView cv = poses[static_cast<size_t>(k)].camera_view;
-      cv.pose = 0;
-      cam.views = {cv};
-      CalibrationOptions po;
-      po.compute_covariance = false;
-      const CalibrationResult pose = Calibrate(cam, po);
-      const Rigid3d proj_from_board = f.devices[1].cam_from_rig * *pose.rig_from_board[0];
-      const BoardView& pv = poses[static_cast<size_t>(k)].projector_view;
       double fsq = 0;
       int fn = 0;
-      for (size_t i = 0; i < pv.pixels_px.size(); ++i) {
-        const auto px = f.devices[1].model.Project(proj_from_board * pv.points_in_board_mm[i]);
-        if (!px) continue;
-        fsq += (*px - pv.pixels_px[i]).squaredNorm();
-        ++fn;
-      }
+      PredictHeldOutProjectorCorners(f, poses[static_cast<size_t>(k)], 0, &fsq, &fn);
       fold_rms[inside].push_back(std::sqrt(fsq / fn));
       sq += fsq;
       n += fn;
