@@ -10,7 +10,10 @@ set(allowed_sim "core;patterns;sim")
 set(allowed_capture "core;patterns;capture")
 set(allowed_calib "core;patterns;plot;calib")
 set(allowed_compare "core;plot;compare")
-set(modules core plot patterns reconstruct sim capture calib compare)
+# shadow/ (workflows) may use every module but apps/.
+set(allowed_shadow "core;plot;patterns;reconstruct;sim;capture;calib;compare;shadow")
+set(allowed_apps "core;plot;patterns;reconstruct;sim;capture;calib;compare;shadow;apps")
+set(modules core plot patterns reconstruct sim capture calib compare shadow apps)
 
 set(violations "")
 foreach(module IN LISTS modules)
