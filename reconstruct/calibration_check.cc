@@ -194,7 +194,7 @@ std::string CalibrationCheck::Message() const {
       threshold += " (" + Fixed(threshold_px / noise_px, "%.2g") + " x the decode noise";
     }
     threshold += threshold_mm > 0 ? ", = " + Fixed(threshold_mm) + " mm in depth at the " + Fixed(working_distance_mm, "%.0f") +
-                                        " mm working distance)"
+                                        " mm working distance of this scan)"
                                   : "; no mm equivalent without a projector model)";
   }
   std::string shape = "(";
