@@ -9,7 +9,9 @@
 #include <array>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <functional>
+#include <limits>
 #include <map>
 #include <string>
 #include <vector>
@@ -25,7 +27,16 @@
 namespace slshadow {
 namespace {
 
-constexpr int kDivisor = 4;
+// The rig's resolution divisor: 4, or SLSHADOW_CALIB_CHECK_DIVISOR (1 = the full-size demo rig,
+// for docs/benchmarks.md; slower).
+int Divisor() {
+  static const int divisor = [] {
+    const char* env = std::getenv("SLSHADOW_CALIB_CHECK_DIVISOR");
+    const int d = env ? std::atoi(env) : 4;
+    return d >= 1 && d <= 8 ? d : 4;
+  }();
+  return divisor;
+}
 constexpr double kDeg = M_PI / 180.0;
 
 PatternSpec Spec(const Rig& rig) {
@@ -52,7 +63,7 @@ Scene NoisyScene(uint64_t seed) {
 // (with the ground truth of each camera).
 class Scans {
  public:
-  Scans() : rig_(testing::SmallDemoRig(kDivisor)), spec_(Spec(rig_)), scene_(NoisyScene(1)), sim_(scene_, rig_) {
+  Scans() : rig_(testing::SmallDemoRig(Divisor())), spec_(Spec(rig_)), scene_(NoisyScene(1)), sim_(scene_, rig_) {
     patterns_ = GeneratePatterns(spec_);
   }
   const Rig& rig() const { return rig_; }
@@ -99,7 +110,7 @@ double DepthRmsMm(const Reconstruction& rec, const Rig& rig, const Scans& scans,
     sum += std::pow((cam_from_rig * rec.cloud.points[i]).z() - d, 2);
     ++n;
   }
-  return n > 0 ? std::sqrt(sum / static_cast<double>(n)) : 0;
+  return n > 0 ? std::sqrt(sum / static_cast<double>(n)) : std::numeric_limits<double>::quiet_NaN();
 }
 
 struct RigError {
@@ -108,8 +119,8 @@ struct RigError {
 };
 
 void ShiftPrincipalPoint(RigDevice* d, double dx_full_px, double dy_full_px) {
-  d->model.params[CameraModel::kCx] += dx_full_px / kDivisor;
-  d->model.params[CameraModel::kCy] += dy_full_px / kDivisor;
+  d->model.params[CameraModel::kCx] += dx_full_px / Divisor();
+  d->model.params[CameraModel::kCy] += dy_full_px / Divisor();
 }
 
 std::vector<RigError> Errors() {
@@ -179,8 +190,12 @@ Outcome Reconstruct(const Rig& rig, const std::vector<ProjectorMap>& maps, const
 // A table row; the depth error the rig error adds to the clean scan's (noise): sqrt(rms^2 - clean^2).
 void PrintRow(const std::string& what, const ReconstructSummary& s, double depth_rms_mm, double clean_rms_mm) {
   const CalibrationCheck& c = s.calibration_check;
-  std::printf("| %s | %s | %.3f | %.3f | %.4f | %.4f | %.4f | %.3f | %s | %s |\n", what.c_str(), c.pair.c_str(),
-              depth_rms_mm, std::sqrt(std::max(0.0, depth_rms_mm * depth_rms_mm - clean_rms_mm * clean_rms_mm)),
+  char depth[64] = "no points pass the gates | -";
+  if (std::isfinite(depth_rms_mm)) {
+    std::snprintf(depth, sizeof(depth), "%.3f | %.3f", depth_rms_mm,
+                  std::sqrt(std::max(0.0, depth_rms_mm * depth_rms_mm - clean_rms_mm * clean_rms_mm)));
+  }
+  std::printf("| %s | %s | %s | %.4f | %.4f | %.4f | %.3f | %s | %s |\n", what.c_str(), c.pair.c_str(), depth,
               c.systematic_px, c.noise_px, c.threshold_px, c.threshold_mm, c.warn ? "**yes**" : "no",
               c.likely_causes.empty() ? "" : c.likely_causes[0].c_str());
 }
