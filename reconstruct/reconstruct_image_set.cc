@@ -47,7 +47,7 @@ cv::Mat ResidualMap(const Reconstruction& rec) {
     float* row = map.ptr<float>(v);
     for (int u = 0; u < g.width; ++u) {
       const size_t i = g.Index(u, v);
-      if (i < values.size() && std::isfinite(values[i])) row[u] = values[i];
+      if (i < values.size() && std::isfinite(values[i])) row[u] = std::abs(values[i]);  // epipolar: signed
     }
   }
   return map;

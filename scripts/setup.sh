@@ -21,6 +21,8 @@ PACKAGES=(
   # devices and their mocks
   libaravis-dev aravis-tools aravis-tools-cli libusb-1.0-0-dev umockdev libumockdev-dev
   libsdl2-dev xvfb x11-apps
+  # private loopback-only network namespaces for the GigE Vision fake-camera tests (unshare, ip)
+  util-linux iproute2
   # window projector: X screen read-back (XGetImage, MIT-SHM)
   libx11-dev libxext-dev
 )
