@@ -16,7 +16,18 @@
 #include "capture/projector.h"
 #include "capture/x11_screen.h"
 
-namespace slshadow::capture::testing {
+namespace slshadow::testing {
+
+using capture::Camera;
+using capture::CameraInfo;
+using capture::CameraSettings;
+using capture::Frame;
+using capture::FrameStatus;
+using capture::PixelFormat;
+using capture::Projector;
+using capture::ProjectorInfo;
+using capture::TriggerMode;
+using capture::XScreenReader;
 
 class XScreenCamera : public Camera {
  public:
@@ -91,7 +102,12 @@ class DelayedProjector : public Projector {
     worker_.join();
   }
   ProjectorInfo Info() const override { return inner_.Info(); }
-  void Load(const std::vector<cv::Mat>& images) override { inner_.Load(images); }
+  // Waits until every Show already handed over has reached the wrapped projector.
+  void Load(const std::vector<cv::Mat>& images) override {
+    std::unique_lock<std::mutex> lock(mutex_);
+    cv_.wait(lock, [&] { return queue_.empty() && !busy_; });
+    inner_.Load(images);
+  }
   std::chrono::steady_clock::time_point Show(int index) override { return Post(index); }
   std::chrono::steady_clock::time_point ShowBlack() override { return Post(-1); }
   std::chrono::microseconds Latency() const override { return inner_.Latency(); }
@@ -115,10 +131,13 @@ class DelayedProjector : public Projector {
       if (queue_.empty()) return;
       const auto [due, index] = queue_.front();
       queue_.pop_front();
+      busy_ = true;
       lock.unlock();
       std::this_thread::sleep_until(due);
       if (index < 0) inner_.ShowBlack(); else inner_.Show(index);
       lock.lock();
+      busy_ = false;
+      cv_.notify_all();
     }
   }
   Projector& inner_;
@@ -128,6 +147,7 @@ class DelayedProjector : public Projector {
   std::condition_variable cv_;
   std::deque<std::pair<std::chrono::steady_clock::time_point, int>> queue_;
   bool quit_ = false;
+  bool busy_ = false;
 };
 
-}  // namespace slshadow::capture::testing
+}  // namespace slshadow::testing

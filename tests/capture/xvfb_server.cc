@@ -13,7 +13,7 @@
 
 extern char** environ;
 
-namespace slshadow::capture::testing {
+namespace slshadow::testing {
 
 XvfbServer::XvfbServer(int width, int height, bool set_display_env) : width_(width), height_(height) {
   int fds[2];
@@ -63,4 +63,4 @@ XvfbServer::~XvfbServer() {
   }
 }
 
-}  // namespace slshadow::capture::testing
+}  // namespace slshadow::testing

@@ -8,7 +8,7 @@
 
 #include <string>
 
-namespace slshadow::capture::testing {
+namespace slshadow::testing {
 
 class XvfbServer {
  public:
@@ -29,4 +29,4 @@ class XvfbServer {
   int width_, height_;
 };
 
-}  // namespace slshadow::capture::testing
+}  // namespace slshadow::testing
