@@ -131,7 +131,7 @@ CalibrationCheck FitCalibrationCheck(const std::vector<float>& x, const std::vec
   // Huber IRLS from the median: bounded influence of decoding blunders, convex, so it converges
   // from any start (a rig file hundreds of pixels off included).
   Terms coef = Terms::Zero();
-  coef(0) = Median(e);
+  coef(0) = c.median_px;
   std::vector<double> r(n), w(n, 1.0);
   double scale = 0;
   for (int iter = 0; iter < 30; ++iter) {

@@ -16,12 +16,13 @@
 // systematic part is the field's RMS over the correspondences. It is significant when it exceeds
 //   threshold = max(noise_factor x noise, 5 x noise x sqrt(8 / n), min_warning_px)
 // (the second term: five standard errors of a field fitted to pure noise, for small n; the third:
-// exact, noise-free maps leave no noise to judge by), or a user's fixed threshold. Each group's share (RMS of what it adds to the field) names what is
-// likely wrong: offset -> a principal point or a rotation of the pose (both shift whole
-// epipolar lines), linear -> a focal length or a rotation, quadratic -> the pose, radial -> the
-// distortion; a field of pixels or more, a bumped rig, swapped camera names or a wrong rig file.
-// The epipolar error cannot see errors that move points along epipolar lines (e.g.
-// a camera principal point shifted along the baseline): those stay invisible to any such check.
+// exact, noise-free maps leave no noise to judge by), or a user's fixed threshold. Each group's
+// share (RMS of what it adds to the field) names what is likely wrong: offset -> a principal point
+// or a rotation of the pose (both shift whole epipolar lines), linear -> a focal length or a
+// rotation, quadratic -> the pose, radial -> the distortion; a field above 1 px -> a bumped rig,
+// swapped camera names or a wrong rig file. The epipolar error cannot see errors that move points
+// along epipolar lines (e.g. a camera principal point shifted along the baseline): those stay
+// invisible to any such check.
 //
 // The default noise_factor 1 warns when the calibration's systematic error exceeds the per-point
 // decode noise, i.e. when the calibration, not the decoding, dominates a point's error.
