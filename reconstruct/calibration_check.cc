@@ -189,32 +189,29 @@ CalibrationCheck FitCalibrationCheck(const std::vector<float>& x, const std::vec
 
 std::string CalibrationCheck::Message() const {
   if (!available) return "calibration check: not available for " + pair + ", because " + unavailable_reason;
-  std::string threshold = Fixed(threshold_px) + " px";
-  if (!std::isfinite(threshold_px)) {
-    threshold = "none (the check is switched off)";
+  const bool off = !std::isfinite(threshold_px);
+  std::string m = "calibration check: " + std::string(warn ? "" : off ? "reported only (--calibration-warning-px inf): " : "passed: ") +
+                  "the epipolar error of " + std::to_string(count) + " dense " + pair +
+                  " correspondences has a systematic part of " + Fixed(systematic_px) + " projector px RMS (median " +
+                  Fixed(median_px, "%+.3g") + " px; decode noise " + Fixed(noise_px) + " px)";
+  if (off) return m;
+  m += std::string(warn ? ", above" : ", within") + " the threshold " + Fixed(threshold_px) + " px";
+  if (threshold_source == "user") {
+    m += " (--calibration-warning-px";
+  } else if (threshold_source == "floor") {
+    m += " (the floor of the automatic threshold";
   } else {
-    if (threshold_source == "user") {
-      threshold += " (--calibration-warning-px";
-    } else if (threshold_source == "floor") {
-      threshold += " (the floor of the automatic threshold";
-    } else {
-      threshold += " (" + Fixed(threshold_px / noise_px, "%.2g") + " x the decode noise";
-    }
-    threshold += threshold_mm > 0 ? ", = " + Fixed(threshold_mm) + " mm in depth at the " + Fixed(working_distance_mm, "%.0f") +
-                                        " mm working distance of this scan)"
-                                  : "; no mm equivalent without a projector model)";
+    m += " (" + Fixed(threshold_px / noise_px, "%.2g") + " x the decode noise";
   }
+  m += threshold_mm > 0 ? ", = " + Fixed(threshold_mm) + " mm in depth at the " + Fixed(working_distance_mm, "%.0f") +
+                              " mm working distance of this scan)"
+                        : "; no mm equivalent without a projector model)";
+  if (!warn) return m;
   std::string shape = "(";
   for (int g = 0; g < kNumGroups; ++g) {
     shape += std::string(g ? ", " : "") + GroupName(g) + " " + Fixed(group_rms_px[static_cast<size_t>(g)], "%.2g");
   }
   shape += " px)";
-  std::string m = "calibration check: " + std::string(warn ? "" : "passed: ") + "the epipolar error of " +
-                  std::to_string(count) + " dense " + pair + " correspondences has a systematic part of " +
-                  Fixed(systematic_px) + " projector px RMS (median " + Fixed(median_px, "%+.3g") +
-                  " px; decode noise " + Fixed(noise_px) + " px), " + (warn ? "above" : "within") + " the threshold " +
-                  threshold;
-  if (!warn) return m;
   m += ": the rig file does not fit these captures; the field's shape " + shape + " points at ";
   for (size_t k = 0; k < likely_causes.size(); ++k) m += (k ? "; or " : "") + likely_causes[k];
   m += ". Recalibrate or run 'slshadow calibrate refine'";

@@ -419,7 +419,8 @@ std::string ReconstructSummary::BriefReport() const {
     std::snprintf(check, sizeof(check), "calibration check not available");
   } else {
     std::snprintf(check, sizeof(check), "epipolar error median %.3g projector px; calibration check %s (%.3g of %.3g px)",
-                  epipolar_error_px.median, c.warn ? "WARNING" : "passed", c.systematic_px, c.threshold_px);
+                  epipolar_error_px.median, c.warn ? "WARNING" : std::isfinite(c.threshold_px) ? "passed" : "reported",
+                  c.systematic_px, c.threshold_px);
   }
   std::snprintf(buf, sizeof(buf), "%s/%s %s-%s: %lld points of %lld cells (%s); %s; %.3f s", ToString(mode),
                 ToString(method), camera.c_str(), other_device.c_str(), static_cast<long long>(points),
@@ -455,7 +456,8 @@ std::string ReconstructSummary::FullReport() const {
         mode == ReconstructMode::kStereo
             ? (method == TriangulationMethod::kMidpoint ? "camera px (~0 by construction in stereo: no calibration evidence)"
                                                         : "camera px (small by construction in stereo: no calibration evidence)")
-            : "px (RMS of camera px and projector px)");
+            : epipolar_error_px.count > 0 ? "px (RMS of camera px and projector px)"
+                                          : "px (~0 by construction with one coded axis: no calibration evidence)");
   if (epipolar_error_px.count > 0) stats("epipolar error", epipolar_error_px, "projector px (|signed|)");
   out << "  " << calibration_check.Message() << "\n";
   if (normal_fallbacks > 0) out << "  normals facing the camera (too few neighbours): " << normal_fallbacks << "\n";
