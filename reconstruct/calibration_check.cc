@@ -84,6 +84,14 @@ const char* Cause(int group, bool stereo) {
 
 }  // namespace
 
+const char* ResidualName(CalibrationResidual residual) {
+  return residual == CalibrationResidual::kEpipolarError ? "epipolar error" : "projector error";
+}
+
+const char* ResidualKey(CalibrationResidual residual) {
+  return residual == CalibrationResidual::kEpipolarError ? "epipolar_error_px" : "projector_error_px";
+}
+
 const char* CalibrationCheck::GroupName(int group) {
   static const char* const kNames[kNumGroups] = {"offset", "linear", "quadratic", "radial"};
   return group >= 0 && group < kNumGroups ? kNames[group] : "unknown";
@@ -104,12 +112,13 @@ CalibrationCheck FitCalibrationCheck(const std::vector<float>& x, const std::vec
   for (size_t i = 0; i < n_all; ++i) count += finite(i) ? 1 : 0;
   if (count < static_cast<size_t>(kMinCount)) {
     return UnavailableCalibrationCheck(
-        setup.pair, "only " + std::to_string(count) + " correspondences have an epipolar error (at least " +
-                        std::to_string(kMinCount) + " are needed)");
+        setup.pair, "only " + std::to_string(count) + " correspondences have " + (setup.residual == CalibrationResidual::kEpipolarError ? "an " : "a ") +
+                        ResidualName(setup.residual) + " (at least " + std::to_string(kMinCount) + " are needed)");
   }
   CalibrationCheck c;
   c.available = true;
   c.pair = setup.pair;
+  c.residual = setup.residual;
   c.count = static_cast<int64_t>(count);
   c.working_distance_mm = setup.working_distance_mm;
   // An even subsample keeps the fit's cost bounded: 5e4 samples fit a field of 8 terms to ~1.3 %
@@ -183,6 +192,9 @@ CalibrationCheck FitCalibrationCheck(const std::vector<float>& x, const std::vec
     for (int g = 0; g < CalibrationCheck::kNumGroups; ++g) {
       if (c.group_rms_px[static_cast<size_t>(g)] >= 0.3 * top) c.likely_causes.push_back(Cause(g, setup.stereo));
     }
+    if (setup.residual == CalibrationResidual::kProjectorError) {
+      c.likely_causes.push_back("the projector's own calibration (the third view checked; the stereo cloud does not use it)");
+    }
   }
   return c;
 }
@@ -191,7 +203,7 @@ std::string CalibrationCheck::Message() const {
   if (!available) return "calibration check: not available for " + pair + ", because " + unavailable_reason;
   const bool off = !std::isfinite(threshold_px);
   std::string m = "calibration check: " + std::string(warn ? "" : off ? "reported only (--calibration-warning-px inf): " : "passed: ") +
-                  "the epipolar error of " + std::to_string(count) + " dense " + pair +
+                  "the " + ResidualName(residual) + " of " + std::to_string(count) + " dense " + pair +
                   " correspondences has a systematic part of " + Fixed(systematic_px) + " projector px RMS (median " +
                   Fixed(median_px, "%+.3g") + " px; decode noise " + Fixed(noise_px) + " px)";
   if (off) return m;
@@ -224,7 +236,7 @@ nlohmann::json CalibrationCheck::ToJson() const {
   nlohmann::json field = nlohmann::json::object();
   for (int g = 0; g < kNumGroups; ++g) field[GroupName(g)] = group_rms_px[static_cast<size_t>(g)];
   return {{"available", true},
-          {"residual", "epipolar_error_px"},
+          {"residual", ResidualKey(residual)},
           {"unit", "projector px"},
           {"count", count},
           {"median_px", median_px},
