@@ -780,10 +780,10 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
   grid.Allocate(lm.width, lm.height);
   grid.viewpoint_in_rig = rect.center_in_rig[0];
   grid.focal_px = rect.focal_px;
-  const bool cross_axis = lm.has_y && rm.has_y;
+  const bool both_axes = lm.has_y && rm.has_y;
   // One coded axis leaves no epipolar error; a calibrated projector is then a third view: the
   // decoded projector column of the left cell minus the column the stereo point projects to.
-  const bool third_view = !cross_axis && rig.projector.has_value();
+  const bool third_view = !both_axes && rig.projector.has_value();
   std::vector<float> projector_error;
   if (third_view) projector_error.assign(static_cast<size_t>(grid.width) * grid.height, std::numeric_limits<float>::quiet_NaN());
   const double* proj_params = third_view ? rig.projector->model.params.data() : nullptr;
@@ -807,7 +807,7 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
           continue;
         }
         grid.reprojection_error_px[i] = static_cast<float>(reprojection_error);
-        if (cross_axis) {
+        if (both_axes) {
           const double y = InterpolateRow(rm.proj_y.data() + rm.Index(0, v), rm.width, ur, options.max_code_step_px,
                                           cubic);
           if (std::isfinite(y)) grid.epipolar_error_px[i] = static_cast<float>(lm.proj_y[i] - y);
@@ -832,12 +832,13 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
     setup.mm_per_px = 1.0 / (FocalOf(rig.projector->model) * (left.CenterInRig() - rig.projector->CenterInRig()).norm());
   }
   RunCalibrationCheck(grid, third_view ? projector_error : grid.epipolar_error_px, left.model, setup,
-                      cross_axis || third_view
+                      both_axes || third_view
                           ? ""
                           : "only projector columns are coded and the rig has no projector: the stereo matches lie "
                             "on the rectified epipolar lines by construction and leave no epipolar error to check, "
                             "and no third view can check them (code projector rows, or calibrate the projector)",
                       &s);
+  out.projector_error_px = std::move(projector_error);
   Elapsed(start, &s.total_s, &s.total_cpu_s);
   return out;
 }

@@ -159,6 +159,9 @@ struct Reconstruction {
   PointCloud cloud;   // rig frame, mm
   DenseGrid grid;     // the organised result with per-cell reasons
   ReconstructSummary summary;
+  // Stereo with one coded axis and a projector in the rig: the signed projector error per grid
+  // cell, projector px (calibration_check.h; NaN where none); empty otherwise.
+  std::vector<float> projector_error_px;
 };
 
 // Camera `camera` of the rig against its projector. Throws slshadow::Error when the rig has no
