@@ -340,6 +340,7 @@ TEST(CalibrationCheckSimTest, OneCodedAxis) {
     std::printf("one axis, right camera turned %.2f deg about y: depth RMS %.3f mm (clean %.3f); %s\n", deg,
                 DepthRmsMm(rec, truth, scans, 0), out.depth_rms_mm[2], c.Message().c_str());
     EXPECT_TRUE(c.warn) << deg << " deg: " << c.Message();
+    EXPECT_EQ(rec.projector_error_px.size(), rec.grid.reason.size());  // the residual map's values
     EXPECT_GT(c.systematic_px, 1.3 * c.threshold_px) << c.Message();
   }
   // The two cameras' images filed under each other's names.
