@@ -420,8 +420,8 @@ std::string ReconstructSummary::BriefReport() const {
   if (!c.available) {
     std::snprintf(check, sizeof(check), "calibration check not available");
   } else {
-    std::snprintf(check, sizeof(check), "epipolar error median %.3g projector px; calibration check %s (%.3g of %.3g px)",
-                  epipolar_error_px.median, c.warn ? "WARNING" : std::isfinite(c.threshold_px) ? "passed" : "reported",
+    std::snprintf(check, sizeof(check), "calibration check %s: %s systematic %.3g of %.3g projector px",
+                  c.warn ? "WARNING" : std::isfinite(c.threshold_px) ? "passed" : "reported", ResidualName(c.residual),
                   c.systematic_px, c.threshold_px);
   }
   std::snprintf(buf, sizeof(buf), "%s/%s %s-%s: %lld points of %lld cells (%s); %s; %.3f s", ToString(mode),
