@@ -84,6 +84,14 @@ const char* Cause(int group, bool stereo) {
 
 }  // namespace
 
+const char* ResidualName(CalibrationResidual residual) {
+  return residual == CalibrationResidual::kEpipolarError ? "epipolar error" : "projector error";
+}
+
+const char* ResidualKey(CalibrationResidual residual) {
+  return residual == CalibrationResidual::kEpipolarError ? "epipolar_error_px" : "projector_error_px";
+}
+
 const char* CalibrationCheck::GroupName(int group) {
   static const char* const kNames[kNumGroups] = {"offset", "linear", "quadratic", "radial"};
   return group >= 0 && group < kNumGroups ? kNames[group] : "unknown";
@@ -104,12 +112,13 @@ CalibrationCheck FitCalibrationCheck(const std::vector<float>& x, const std::vec
   for (size_t i = 0; i < n_all; ++i) count += finite(i) ? 1 : 0;
   if (count < static_cast<size_t>(kMinCount)) {
     return UnavailableCalibrationCheck(
-        setup.pair, "only " + std::to_string(count) + " correspondences have an epipolar error (at least " +
-                        std::to_string(kMinCount) + " are needed)");
+        setup.pair, "only " + std::to_string(count) + " correspondences have " + (setup.residual == CalibrationResidual::kEpipolarError ? "an " : "a ") +
+                        ResidualName(setup.residual) + " (at least " + std::to_string(kMinCount) + " are needed)");
   }
   CalibrationCheck c;
   c.available = true;
   c.pair = setup.pair;
+  c.residual = setup.residual;
   c.count = static_cast<int64_t>(count);
   c.working_distance_mm = setup.working_distance_mm;
   // An even subsample keeps the fit's cost bounded: 5e4 samples fit a field of 8 terms to ~1.3 %
@@ -131,7 +140,7 @@ CalibrationCheck FitCalibrationCheck(const std::vector<float>& x, const std::vec
   // Huber IRLS from the median: bounded influence of decoding blunders, convex, so it converges
   // from any start (a rig file hundreds of pixels off included).
   Terms coef = Terms::Zero();
-  coef(0) = Median(e);
+  coef(0) = c.median_px;
   std::vector<double> r(n), w(n, 1.0);
   double scale = 0;
   for (int iter = 0; iter < 30; ++iter) {
@@ -183,38 +192,38 @@ CalibrationCheck FitCalibrationCheck(const std::vector<float>& x, const std::vec
     for (int g = 0; g < CalibrationCheck::kNumGroups; ++g) {
       if (c.group_rms_px[static_cast<size_t>(g)] >= 0.3 * top) c.likely_causes.push_back(Cause(g, setup.stereo));
     }
+    if (setup.residual == CalibrationResidual::kProjectorError) {
+      c.likely_causes.push_back("the projector's own calibration (the third view checked; the stereo cloud does not use it)");
+    }
   }
   return c;
 }
 
 std::string CalibrationCheck::Message() const {
   if (!available) return "calibration check: not available for " + pair + ", because " + unavailable_reason;
-  std::string threshold = Fixed(threshold_px) + " px";
-  if (!std::isfinite(threshold_px)) {
-    threshold = "none (the check is switched off)";
+  const bool off = !std::isfinite(threshold_px);
+  std::string m = "calibration check: " + std::string(warn ? "" : off ? "reported only (--calibration-warning-px inf): " : "passed: ") +
+                  "the " + ResidualName(residual) + " of " + std::to_string(count) + " dense " + pair +
+                  " correspondences has a systematic part of " + Fixed(systematic_px) + " projector px RMS (median " +
+                  Fixed(median_px, "%+.3g") + " px; decode noise " + Fixed(noise_px) + " px)";
+  if (off) return m;
+  m += std::string(warn ? ", above" : ", within") + " the threshold " + Fixed(threshold_px) + " px";
+  if (threshold_source == "user") {
+    m += " (--calibration-warning-px";
+  } else if (threshold_source == "floor") {
+    m += " (the floor of the automatic threshold";
   } else {
-    if (threshold_source == "user") {
-      threshold += " (--calibration-warning-px";
-    } else if (threshold_source == "floor") {
-      threshold += " (the floor of the automatic threshold";
-    } else {
-      threshold += " (" + Fixed(threshold_px / noise_px, "%.2g") + " x the decode noise";
-    }
-    threshold += threshold_mm > 0 ? ", = " + Fixed(threshold_mm) + " mm in depth at the " + Fixed(working_distance_mm, "%.0f") +
-                                        " mm working distance of this scan)"
-                                  : "; no mm equivalent without a projector model)";
+    m += " (" + Fixed(threshold_px / noise_px, "%.2g") + " x the decode noise";
   }
+  m += threshold_mm > 0 ? ", = " + Fixed(threshold_mm) + " mm in depth at the " + Fixed(working_distance_mm, "%.0f") +
+                              " mm working distance of this scan)"
+                        : "; no mm equivalent without a projector model)";
+  if (!warn) return m;
   std::string shape = "(";
   for (int g = 0; g < kNumGroups; ++g) {
     shape += std::string(g ? ", " : "") + GroupName(g) + " " + Fixed(group_rms_px[static_cast<size_t>(g)], "%.2g");
   }
   shape += " px)";
-  std::string m = "calibration check: " + std::string(warn ? "" : "passed: ") + "the epipolar error of " +
-                  std::to_string(count) + " dense " + pair + " correspondences has a systematic part of " +
-                  Fixed(systematic_px) + " projector px RMS (median " + Fixed(median_px, "%+.3g") +
-                  " px; decode noise " + Fixed(noise_px) + " px), " + (warn ? "above" : "within") + " the threshold " +
-                  threshold;
-  if (!warn) return m;
   m += ": the rig file does not fit these captures; the field's shape " + shape + " points at ";
   for (size_t k = 0; k < likely_causes.size(); ++k) m += (k ? "; or " : "") + likely_causes[k];
   m += ". Recalibrate or run 'slshadow calibrate refine'";
@@ -227,7 +236,7 @@ nlohmann::json CalibrationCheck::ToJson() const {
   nlohmann::json field = nlohmann::json::object();
   for (int g = 0; g < kNumGroups; ++g) field[GroupName(g)] = group_rms_px[static_cast<size_t>(g)];
   return {{"available", true},
-          {"residual", "epipolar_error_px"},
+          {"residual", ResidualKey(residual)},
           {"unit", "projector px"},
           {"count", count},
           {"median_px", median_px},

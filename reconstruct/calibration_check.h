@@ -5,8 +5,10 @@
 //   stereo, both axes coded: the decoded projector row of the left camera minus that of the right
 //     camera at the matched position, projector px (rectification matched the columns; the rows
 //     must then agree).
-// With one coded axis the triangulation leaves no such residual and the check says it is not
-// available, and why.
+// With one coded axis the triangulation leaves no such residual. Stereo then checks the projector
+// error instead when the rig has a (calibrated) projector, a third view: the left camera's decoded
+// projector column minus the column the stereo point projects to, projector px. Otherwise the check
+// says it is not available, and why.
 //
 // The error is split into a systematic part and noise. A smooth field is fitted to it over the
 // reference camera's image, robustly (Huber IRLS), in nested groups of terms
@@ -16,12 +18,13 @@
 // systematic part is the field's RMS over the correspondences. It is significant when it exceeds
 //   threshold = max(noise_factor x noise, 5 x noise x sqrt(8 / n), min_warning_px)
 // (the second term: five standard errors of a field fitted to pure noise, for small n; the third:
-// exact, noise-free maps leave no noise to judge by), or a user's fixed threshold. Each group's share (RMS of what it adds to the field) names what is
-// likely wrong: offset -> a principal point or a rotation of the pose (both shift whole
-// epipolar lines), linear -> a focal length or a rotation, quadratic -> the pose, radial -> the
-// distortion; a field of pixels or more, a bumped rig, swapped camera names or a wrong rig file.
-// The epipolar error cannot see errors that move points along epipolar lines (e.g.
-// a camera principal point shifted along the baseline): those stay invisible to any such check.
+// exact, noise-free maps leave no noise to judge by), or a user's fixed threshold. Each group's
+// share (RMS of what it adds to the field) names what is likely wrong: offset -> a principal point
+// or a rotation of the pose (both shift whole epipolar lines), linear -> a focal length or a
+// rotation, quadratic -> the pose, radial -> the distortion; a field above 1 px -> a bumped rig,
+// swapped camera names or a wrong rig file. The epipolar error cannot see errors that move points
+// along epipolar lines (e.g. a camera principal point shifted along the baseline): those stay
+// invisible to any such check.
 //
 // The default noise_factor 1 warns when the calibration's systematic error exceeds the per-point
 // decode noise, i.e. when the calibration, not the decoding, dominates a point's error.
@@ -41,7 +44,13 @@
 
 namespace slshadow {
 
+// The residual checked: its name in text and its key in JSON.
+enum class CalibrationResidual { kEpipolarError, kProjectorError };
+const char* ResidualName(CalibrationResidual residual);  // "epipolar error", "projector error"
+const char* ResidualKey(CalibrationResidual residual);   // "epipolar_error_px", "projector_error_px"
+
 struct CalibrationCheckSetup {
+  CalibrationResidual residual = CalibrationResidual::kEpipolarError;
   std::string pair;           // "<camera>-<other device>", for messages
   bool stereo = false;        // wording of the likely causes
   // Fixed threshold on the systematic part, px; 0: automatic (noise_factor x noise); infinity:
@@ -61,8 +70,9 @@ struct CalibrationCheck {
   bool available = false;
   std::string unavailable_reason;  // when !available: why (one clause, "because ...")
   std::string pair;
+  CalibrationResidual residual = CalibrationResidual::kEpipolarError;
   int64_t count = 0;            // correspondences used
-  double median_px = 0;         // signed median of the epipolar error, projector px
+  double median_px = 0;         // signed median of the residual, projector px
   double noise_px = 0;          // robust scatter about the fitted field, projector px
   double systematic_px = 0;     // RMS of the fitted field over the correspondences, projector px
   double threshold_px = 0;      // what systematic_px is judged against

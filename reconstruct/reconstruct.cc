@@ -291,11 +291,13 @@ nlohmann::json ReconstructOptions::ToJson() const {
 
 namespace {
 
-// The calibration check (calibration_check.h) of the grid's signed epipolar errors, at the
-// reference camera's source pixels in normalised coordinates scaled to +-1 across its width.
-// `reason_unavailable` non-empty: the mode leaves no epipolar error; the check says why.
-void RunCalibrationCheck(const DenseGrid& grid, const CameraModel& reference, const CalibrationCheckSetup& setup,
-                         const std::string& reason_unavailable, ReconstructSummary* s) {
+// The calibration check (calibration_check.h) of per-cell signed residuals `residual_px` (the
+// grid's epipolar errors, or the projector error of one-axis stereo), at the reference camera's
+// source pixels in normalised coordinates scaled to +-1 across its width. `reason_unavailable`
+// non-empty: the mode leaves no residual; the check says why.
+void RunCalibrationCheck(const DenseGrid& grid, const std::vector<float>& residual_px, const CameraModel& reference,
+                         const CalibrationCheckSetup& setup, const std::string& reason_unavailable,
+                         ReconstructSummary* s) {
   if (!reason_unavailable.empty()) {
     s->calibration_check = UnavailableCalibrationCheck(setup.pair, reason_unavailable);
     return;
@@ -303,11 +305,11 @@ void RunCalibrationCheck(const DenseGrid& grid, const CameraModel& reference, co
   const double half_width = 0.5 * reference.width, aspect = reference.fx() / reference.fy();
   std::vector<float> x, y, e;
   std::vector<double> range_mm;
-  for (size_t i = 0; i < grid.epipolar_error_px.size(); ++i) {
-    if (!std::isfinite(grid.epipolar_error_px[i])) continue;
+  for (size_t i = 0; i < residual_px.size(); ++i) {
+    if (!std::isfinite(residual_px[i])) continue;
     x.push_back(static_cast<float>((grid.source_u[i] - reference.cx()) / half_width));
     y.push_back(static_cast<float>((grid.source_v[i] - reference.cy()) / half_width * aspect));
-    e.push_back(grid.epipolar_error_px[i]);
+    e.push_back(residual_px[i]);
     if (e.size() % 16 == 0 && grid.point_in_rig[i].allFinite()) range_mm.push_back((grid.point_in_rig[i] - grid.viewpoint_in_rig).norm());
   }
   // The working distance of this scan: the median range of its points (the rig file's nominal
@@ -418,8 +420,9 @@ std::string ReconstructSummary::BriefReport() const {
   if (!c.available) {
     std::snprintf(check, sizeof(check), "calibration check not available");
   } else {
-    std::snprintf(check, sizeof(check), "epipolar error median %.3g projector px; calibration check %s (%.3g of %.3g px)",
-                  epipolar_error_px.median, c.warn ? "WARNING" : "passed", c.systematic_px, c.threshold_px);
+    std::snprintf(check, sizeof(check), "calibration check %s: %s systematic %.3g of %.3g projector px",
+                  c.warn ? "WARNING" : std::isfinite(c.threshold_px) ? "passed" : "reported", ResidualName(c.residual),
+                  c.systematic_px, c.threshold_px);
   }
   std::snprintf(buf, sizeof(buf), "%s/%s %s-%s: %lld points of %lld cells (%s); %s; %.3f s", ToString(mode),
                 ToString(method), camera.c_str(), other_device.c_str(), static_cast<long long>(points),
@@ -455,7 +458,8 @@ std::string ReconstructSummary::FullReport() const {
         mode == ReconstructMode::kStereo
             ? (method == TriangulationMethod::kMidpoint ? "camera px (~0 by construction in stereo: no calibration evidence)"
                                                         : "camera px (small by construction in stereo: no calibration evidence)")
-            : "px (RMS of camera px and projector px)");
+            : epipolar_error_px.count > 0 ? "px (RMS of camera px and projector px)"
+                                          : "px (~0 by construction with one coded axis: no calibration evidence)");
   if (epipolar_error_px.count > 0) stats("epipolar error", epipolar_error_px, "projector px (|signed|)");
   out << "  " << calibration_check.Message() << "\n";
   if (normal_fallbacks > 0) out << "  normals facing the camera (too few neighbours): " << normal_fallbacks << "\n";
@@ -653,7 +657,7 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
   });
   Elapsed(t0, &s.triangulate_s, &s.triangulate_cpu_s);
   Finish(options, &out);
-  RunCalibrationCheck(grid, cam.model, CheckSetup(options, rig, cam, proj, false),
+  RunCalibrationCheck(grid, grid.epipolar_error_px, cam.model, CheckSetup(options, rig, cam, proj, false),
                       both ? "" : std::string("only projector ") + (map.has_x ? "columns" : "rows") +
                                       " are coded: the one-axis triangulation meets the projector's plane exactly and "
                                       "leaves no epipolar error to check (code both axes for a check)",
@@ -776,7 +780,13 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
   grid.Allocate(lm.width, lm.height);
   grid.viewpoint_in_rig = rect.center_in_rig[0];
   grid.focal_px = rect.focal_px;
-  const bool cross_axis = lm.has_y && rm.has_y;
+  const bool both_axes = lm.has_y && rm.has_y;
+  // One coded axis leaves no epipolar error; a calibrated projector is then a third view: the
+  // decoded projector column of the left cell minus the column the stereo point projects to.
+  const bool third_view = !both_axes && rig.projector.has_value();
+  std::vector<float> projector_error;
+  if (third_view) projector_error.assign(static_cast<size_t>(grid.width) * grid.height, std::numeric_limits<float>::quiet_NaN());
+  const double* proj_params = third_view ? rig.projector->model.params.data() : nullptr;
   cv::parallel_for_(cv::Range(0, grid.height), [&](const cv::Range& rows) {
     for (int v = rows.start; v < rows.end; ++v) {
       for (int u = 0; u < grid.width; ++u) {
@@ -797,10 +807,17 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
           continue;
         }
         grid.reprojection_error_px[i] = static_cast<float>(reprojection_error);
-        if (cross_axis) {
+        if (both_axes) {
           const double y = InterpolateRow(rm.proj_y.data() + rm.Index(0, v), rm.width, ur, options.max_code_step_px,
                                           cubic);
           if (std::isfinite(y)) grid.epipolar_error_px[i] = static_cast<float>(lm.proj_y[i] - y);
+        } else if (third_view) {
+          const Eigen::Vector3d in_proj = rig.projector->cam_from_rig * point;
+          if (in_proj.z() > 0) {
+            double proj_px[2];
+            CameraModel::ImgFromCam(proj_params, in_proj.data(), proj_px);
+            projector_error[i] = static_cast<float>(lm.proj_x[i] - proj_px[0]);
+          }
         }
         grid.point_in_rig[i] = point;
       }
@@ -808,12 +825,20 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
   });
   Elapsed(t0, &s.triangulate_s, &s.triangulate_cpu_s);
   Finish(options, &out);
-  RunCalibrationCheck(grid, left.model, CheckSetup(options, rig, left, right, true),
-                      cross_axis ? ""
-                                 : "only projector columns are coded: the stereo matches lie on the rectified epipolar "
-                                   "lines by construction and leave no epipolar error to check (code projector rows "
-                                   "too for a check)",
+  CalibrationCheckSetup setup = CheckSetup(options, rig, left, right, true);
+  if (third_view) {
+    setup.residual = CalibrationResidual::kProjectorError;
+    // The projector error's depth equivalent is along the left camera-projector baseline.
+    setup.mm_per_px = 1.0 / (FocalOf(rig.projector->model) * (left.CenterInRig() - rig.projector->CenterInRig()).norm());
+  }
+  RunCalibrationCheck(grid, third_view ? projector_error : grid.epipolar_error_px, left.model, setup,
+                      both_axes || third_view
+                          ? ""
+                          : "only projector columns are coded and the rig has no projector: the stereo matches lie "
+                            "on the rectified epipolar lines by construction and leave no epipolar error to check, "
+                            "and no third view can check them (code projector rows, or calibrate the projector)",
                       &s);
+  out.projector_error_px = std::move(projector_error);
   Elapsed(start, &s.total_s, &s.total_cpu_s);
   return out;
 }

@@ -91,11 +91,13 @@ struct ReconstructOptions {
   // (the RMS of a smooth field fitted to it) exceeds a threshold, projector px. 0 (default): the
   // threshold is calibration_noise_factor x the decode noise of this capture (the scatter about
   // the field), at least calibration_min_warning_px; > 0: this fixed threshold; infinity: the
-  // check reports but never warns.
+  // check reports but never warns. The default factor 1 warns when the calibration, not the
+  // decoding, dominates a point's error (docs/benchmarks.md, "Calibration check": margins measured
+  // on simulated errors, clean seeds and the kamino capture).
   double calibration_warning_px = 0;
   double calibration_noise_factor = 1.0;
   // Floor of the automatic threshold, projector px: exact (noise-free) maps leave no noise to
-  // judge by, and fields below this cost < 0.02 mm at common working distances.
+  // judge by; 0.01 px is 0.016 mm of depth on the full-size demo rig at 500 mm.
   double calibration_min_warning_px = 0.01;
 
   // Throws slshadow::Error naming the first violated constraint.
@@ -157,6 +159,9 @@ struct Reconstruction {
   PointCloud cloud;   // rig frame, mm
   DenseGrid grid;     // the organised result with per-cell reasons
   ReconstructSummary summary;
+  // Stereo with one coded axis and a projector in the rig: the signed projector error per grid
+  // cell, projector px (calibration_check.h; NaN where none); empty otherwise.
+  std::vector<float> projector_error_px;
 };
 
 // Camera `camera` of the rig against its projector. Throws slshadow::Error when the rig has no

@@ -40,8 +40,12 @@ std::vector<std::string> SelectCameras(const Rig& rig, const std::vector<std::st
 
 cv::Mat ResidualMap(const Reconstruction& rec) {
   const DenseGrid& g = rec.grid;
+  // The calibration check's residual: the epipolar error, or one-axis stereo's projector error;
+  // the reprojection error where the check has none.
   const bool epipolar = rec.summary.epipolar_error_px.count > 0;
-  const std::vector<float>& values = epipolar ? g.epipolar_error_px : g.reprojection_error_px;
+  const std::vector<float>& values = !rec.projector_error_px.empty() ? rec.projector_error_px
+                                     : epipolar                      ? g.epipolar_error_px
+                                                                     : g.reprojection_error_px;
   cv::Mat map(g.height, g.width, CV_32FC1, cv::Scalar(std::numeric_limits<float>::quiet_NaN()));
   for (int v = 0; v < g.height; ++v) {
     float* row = map.ptr<float>(v);

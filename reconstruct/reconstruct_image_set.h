@@ -38,10 +38,10 @@ struct ImageSetReconstruction {
   std::vector<ReconstructSummary> summaries;  // one per reconstruction (camera, or stereo pair)
   std::vector<std::string> cameras;           // cameras decoded, in order
   // Calibration-check maps, one per reconstruction ("<camera>-<other device>"): per cell of the
-  // reconstruction grid (the camera image; stereo: the rectified left image) the epipolar
-  // residual of its correspondence (projector mode with both axes coded: distance from the
-  // epipolar line, projector px; stereo: cross-axis residual, projector px), or the reprojection
-  // error (px) where the mode has no epipolar residual. CV_32FC1, NaN where no correspondence.
+  // reconstruction grid (the camera image; stereo: the rectified left image) the absolute value
+  // of the residual the calibration check judges (calibration_check.h: the epipolar error, or
+  // one-axis stereo's projector error, projector px), or the reprojection error (px) where the
+  // check has none. CV_32FC1, NaN where no correspondence.
   std::vector<std::pair<std::string, cv::Mat>> residual_maps;
   // All summaries' calibration-check warnings.
   std::vector<std::string> Warnings() const;

@@ -263,14 +263,22 @@ TEST(CalibrationCheckSimTest, RigErrorsAreCaughtWhereObservable) {
   }
 }
 
-// False alarms over 20 noise seeds of the clean scan: 60 checks (3 pairs x 20 seeds), none warns.
+// False alarms over 20 noise seeds of the clean scan: 80 checks (3 pairs with both axes coded and
+// one-axis stereo, x 20 seeds), none warns.
 // The largest systematic part found, against its threshold, is the margin.
 TEST(CalibrationCheckSimTest, CleanScansDoNotWarnOverTwentySeeds) {
   const Scans& scans = SharedScans();
   int checks = 0, alarms = 0;
   double worst_ratio = 0;
   for (uint64_t seed = 101; seed < 121; ++seed) {
-    const Outcome out = Reconstruct(scans.rig(), scans.Decode(seed), scans);
+    auto maps = scans.Decode(seed);
+    Outcome out = Reconstruct(scans.rig(), maps, scans);
+    // And one-axis stereo (the projector error, OneCodedAxis below).
+    for (auto& m : maps) {
+      m.has_y = false;
+      m.proj_y = cv::Mat();
+    }
+    out.summaries.push_back(ReconstructStereo(scans.rig(), "left", "right", maps[0], maps[1]).summary);
     for (const auto& s : out.summaries) {
       const CalibrationCheck& c = s.calibration_check;
       ASSERT_TRUE(c.available);
@@ -281,25 +289,31 @@ TEST(CalibrationCheckSimTest, CleanScansDoNotWarnOverTwentySeeds) {
       EXPECT_TRUE(s.warnings.empty());
     }
   }
-  std::printf("false alarms: %d of %d checks (20 seeds x 3 pairs); largest systematic part %.3f x its threshold\n",
+  std::printf("false alarms: %d of %d checks (20 seeds x 4 checks); largest systematic part %.3f x its threshold\n",
               alarms, checks, worst_ratio);
   RecordProperty("false_alarms", alarms);
   RecordProperty("checks", checks);
   RecordProperty("worst_systematic_over_threshold", std::to_string(worst_ratio));
-  EXPECT_EQ(checks, 60);
-  EXPECT_LT(worst_ratio, 0.15);  // measured 0.040: a wide margin, not a near miss
+  EXPECT_EQ(checks, 80);
+  EXPECT_LT(worst_ratio, 0.15);  // measured 0.056: a wide margin, not a near miss
 }
 
-// With one coded axis the check has nothing to measure, and says so in one line (issue 14).
-TEST(CalibrationCheckSimTest, OneCodedAxisIsReportedNotAvailable) {
+// One coded axis (projector columns only, the usual stereo phase shift) leaves no epipolar error.
+// Stereo then checks the calibrated projector as a third view (issue 14): the clean scan passes; a
+// right camera turned 0.3 deg or 0.05 deg (about its y axis, along the baseline: invisible to any
+// epipolar check, it changes the disparities) and swapped camera names are caught. Projector mode
+// and a rig without a projector have nothing to check, and say so in one line.
+TEST(CalibrationCheckSimTest, OneCodedAxis) {
   const Scans& scans = SharedScans();
   auto maps = scans.Decode(1);
   for (auto& m : maps) {
     m.has_y = false;
     m.proj_y = cv::Mat();
   }
-  const Outcome out = Reconstruct(scans.rig(), maps, scans);
-  for (const auto& s : out.summaries) {
+  const Rig& truth = scans.rig();
+  const Outcome out = Reconstruct(truth, maps, scans);
+  for (size_t k = 0; k < 2; ++k) {  // projector mode
+    const ReconstructSummary& s = out.summaries[k];
     const CalibrationCheck& c = s.calibration_check;
     EXPECT_FALSE(c.available);
     EXPECT_FALSE(c.warn);
@@ -309,6 +323,38 @@ TEST(CalibrationCheckSimTest, OneCodedAxisIsReportedNotAvailable) {
     EXPECT_NE(s.FullReport().find(c.Message()), std::string::npos);
     EXPECT_FALSE(s.ToJson()["calibration_check"]["available"].get<bool>());
   }
+  const CalibrationCheck& clean = out.summaries[2].calibration_check;
+  ASSERT_TRUE(clean.available) << clean.Message();
+  EXPECT_EQ(clean.residual, CalibrationResidual::kProjectorError);
+  EXPECT_FALSE(clean.warn) << clean.Message();
+  EXPECT_LT(clean.systematic_px, 0.2 * clean.threshold_px) << clean.Message();
+  EXPECT_EQ(out.summaries[2].ToJson()["calibration_check"]["residual"], "projector_error_px");
+  std::printf("one axis, clean: %s\n", clean.Message().c_str());
+  for (double deg : {0.3, 0.05}) {
+    Rig bumped = truth;
+    bumped.cameras[1].cam_from_rig =
+        Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(deg * kDeg, Eigen::Vector3d::UnitY())), Eigen::Vector3d::Zero()) *
+        bumped.cameras[1].cam_from_rig;
+    const Reconstruction rec = ReconstructStereo(bumped, "left", "right", maps[0], maps[1]);
+    const CalibrationCheck& c = rec.summary.calibration_check;
+    std::printf("one axis, right camera turned %.2f deg about y: depth RMS %.3f mm (clean %.3f); %s\n", deg,
+                DepthRmsMm(rec, truth, scans, 0), out.depth_rms_mm[2], c.Message().c_str());
+    EXPECT_TRUE(c.warn) << deg << " deg: " << c.Message();
+    EXPECT_EQ(rec.projector_error_px.size(), rec.grid.reason.size());  // the residual map's values
+    EXPECT_GT(c.systematic_px, 1.3 * c.threshold_px) << c.Message();
+  }
+  // The two cameras' images filed under each other's names.
+  const Reconstruction swapped = ReconstructStereo(truth, "left", "right", maps[1], maps[0]);
+  const CalibrationCheck& sc = swapped.summary.calibration_check;
+  std::printf("one axis, swapped cameras: %lld points; %s\n", static_cast<long long>(swapped.summary.points), sc.Message().c_str());
+  EXPECT_TRUE(sc.warn) << sc.Message();
+  // No projector in the rig: nothing to check.
+  Rig no_projector = truth;
+  no_projector.projector.reset();
+  const CalibrationCheck none = ReconstructStereo(no_projector, "left", "right", maps[0], maps[1]).summary.calibration_check;
+  EXPECT_FALSE(none.available);
+  EXPECT_NE(none.Message().find("because only projector columns are coded and the rig has no projector"), std::string::npos)
+      << none.Message();
 }
 
 }  // namespace

@@ -153,6 +153,13 @@ TEST(CalibrationCheckTest, ThresholdFloorUserOverrideAndTooFewPoints) {
   EXPECT_FALSE(off.warn);
   EXPECT_NEAR(off.systematic_px, 0.1, 0.002);  // still measured and reported
   EXPECT_EQ(off.ToJson()["threshold_px"], "inf");
+  EXPECT_EQ(off.Message().rfind("calibration check: reported only (--calibration-warning-px inf): ", 0), 0u) << off.Message();
+  // No projector model: no mm equivalent, and the message says so.
+  CalibrationCheckSetup no_mm = DefaultSetup();
+  no_mm.mm_per_px = 0;
+  const CalibrationCheck unitless = Fit(s, no_mm);
+  EXPECT_EQ(unitless.threshold_mm, 0);
+  EXPECT_NE(unitless.Message().find("no mm equivalent without a projector model"), std::string::npos) << unitless.Message();
   // Few points: a small-sample threshold (5 standard errors of a fitted field) guards the fit.
   const Samples few = Make(150, 0.05, [](double, double) { return 0.0; });
   EXPECT_GT(Fit(few).threshold_px, 0.05 * 5 * std::sqrt(8.0 / 150) * 0.8);
