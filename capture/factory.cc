@@ -14,6 +14,9 @@ namespace {
 
 }  // namespace
 
+std::vector<std::string> BuiltInCameraBackends() { return {"replay"}; }
+std::vector<std::string> BuiltInProjectorBackends() { return {"none"}; }
+
 std::unique_ptr<Camera> OpenCamera(const CameraEntry& entry) {
   // One case per camera backend.
   if (entry.backend == "replay") {
@@ -33,6 +36,21 @@ std::unique_ptr<Projector> OpenProjector(const ProjectorEntry& entry) {
   if (entry.backend == "none") return std::make_unique<NoneProjector>(latency);
   if (entry.backend == "window") NotBuilt(entry.where, entry.backend, "an SDL2 window on an HDMI output");
   NotBuilt(entry.where, entry.backend, "no projector backend of this name");
+}
+
+OpenedDevices OpenDevices(const DevicesConfig& devices, const Rig& rig) {
+  devices.CheckAgainst(rig);
+  OpenedDevices opened;
+  for (const auto& rig_camera : rig.cameras) {
+    const CameraEntry* entry = devices.Camera(rig_camera.name);
+    if (entry == nullptr) continue;
+    opened.owned.push_back(OpenCamera(*entry));
+    opened.cameras.push_back({entry->name, opened.owned.back().get(), entry->settings,
+                              std::chrono::milliseconds(entry->grab_timeout_ms)});
+  }
+  opened.projector = OpenProjector(devices.projector);
+  opened.settle = std::chrono::microseconds(devices.projector.settle_us);
+  return opened;
 }
 
 }  // namespace slshadow::capture
