@@ -39,6 +39,7 @@ class TestProjector : public Projector {
     if (index != requested_) {
       requested_ = index;
       requested_at_ = now_;
+      ++requests_;
     }
     Update();
     return now_;
@@ -62,6 +63,7 @@ class TestProjector : public Projector {
   const cv::Mat& Visible() const { return visible_ < 0 ? black_ : images_[static_cast<size_t>(visible_)]; }
   int visible() const { return visible_; }
   int64_t shows() const { return shows_; }
+  int64_t requests() const { return requests_; }  // Show calls that asked for another pattern
 
   std::chrono::microseconds true_latency{0};
   std::function<std::chrono::microseconds(int index)> latency_for;  // overrides true_latency
@@ -77,7 +79,7 @@ class TestProjector : public Projector {
   cv::Mat black_;
   int requested_ = -1, visible_ = -1;
   std::chrono::steady_clock::time_point now_{std::chrono::hours(1)}, requested_at_{};
-  int64_t shows_ = 0;
+  int64_t shows_ = 0, requests_ = 0;
   std::chrono::microseconds latency_{0};
 };
 
@@ -134,6 +136,7 @@ class TestCamera : public Camera {
     next_id_ = Wrap(next_id_ + 1);
     const bool drop = options_.drop_triggers.count(t) || Chance(options_.drop_probability);
     const bool late = !drop && (options_.late_triggers.count(t) || Chance(options_.late_probability));
+    if (drop || late) lost_triggers_.insert(t);
     if (drop) {
       ++dropped_;
       return;
@@ -178,6 +181,8 @@ class TestCamera : public Camera {
   int64_t dropped() const { return dropped_; }
   int64_t late() const { return late_; }
   int64_t flushed() const { return flushed_; }
+  // Trigger numbers whose frame was dropped or late.
+  const std::set<int64_t>& lost_triggers() const { return lost_triggers_; }
   // Which pattern the projector showed when the frame of `id` was taken.
   int ShownFor(uint64_t id) const { return shown_of_id_.at(id); }
   std::function<void(int64_t triggers)> on_trigger;  // e.g. raise a stop flag after N triggers
@@ -241,6 +246,7 @@ class TestCamera : public Camera {
   int64_t triggers_ = 0, dropped_ = 0, late_ = 0, flushed_ = 0;
   std::deque<Pending> queue_;
   std::map<uint64_t, int> shown_of_id_;
+  std::set<int64_t> lost_triggers_;
 };
 
 }  // namespace slshadow::capture::doubles
