@@ -24,6 +24,7 @@ const std::vector<Command>& Commands() {
       {"bench", "speed of simulate, decode, reconstruct and compare on the demo, with peers in the same run", RunBenchCommand},
       {"rig", "inspect a rig file: cameras, projector, baselines, angles, overlap (rig show RIG.yaml)", RunRig},
       {"latency", "projector latency: present-to-screen of the window projector (latency [--display N | --geometry x,y,w,h])", RunLatency},
+      {"capture", "real capture: projector + cameras from a devices file into a resumable ImageSet (capture --rig --devices --patterns --out)", RunCapture},
   };
   return commands;
 }

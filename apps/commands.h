@@ -31,5 +31,6 @@ int RunSimulate(int argc, char** argv);
 int RunDemo(int argc, char** argv);
 int RunBenchCommand(int argc, char** argv);
 int RunLatency(int argc, char** argv);
+int RunCapture(int argc, char** argv);
 
 }  // namespace slshadow::app

@@ -111,6 +111,10 @@ class Camera {
   virtual Frame Grab(std::chrono::milliseconds timeout) = 0;
   // Drops frames already delivered but not grabbed (e.g. before a retry).
   virtual void Flush() {}
+  // The sequencer says which pattern (index into the pattern sequence) the projector shows for
+  // the next Trigger(). Real cameras ignore it; a replay camera serves that pattern's recorded
+  // frame, a simulator-backed camera renders it (so resume and retries stay in step).
+  virtual void ExpectPattern(int pattern_index) { (void)pattern_index; }
   virtual StreamStatistics Statistics() const { return {}; }
   // Warnings collected so far (e.g. a socket buffer capped by the kernel), each one line.
   virtual std::vector<std::string> Warnings() const { return {}; }

@@ -1,0 +1,56 @@
+#include "capture/factory.h"
+
+#include "capture/none_projector.h"
+#include "capture/replay_camera.h"
+#include "core/error.h"
+
+namespace slshadow::capture {
+namespace {
+
+[[noreturn]] void NotBuilt(const std::string& where, const std::string& backend, const std::string& what) {
+  SLSHADOW_THROW(where, ".backend: backend '", backend, "' is not built into this slshadow (", what,
+                 "; `slshadow capture --help` lists the backends built in)");
+}
+
+}  // namespace
+
+std::vector<std::string> BuiltInCameraBackends() { return {"replay"}; }
+std::vector<std::string> BuiltInProjectorBackends() { return {"none"}; }
+
+std::unique_ptr<Camera> OpenCamera(const CameraEntry& entry) {
+  // One case per camera backend.
+  if (entry.backend == "replay") {
+    return std::make_unique<ReplayCamera>(entry.imageset,
+                                          ReplayCameraOptions{entry.imageset_camera, entry.first_frame_id, entry.serial});
+  }
+  if (entry.backend == "aravis") NotBuilt(entry.where, entry.backend, "GigE Vision / USB3 Vision through Aravis");
+  if (entry.backend == "sim") {
+    NotBuilt(entry.where, entry.backend, "a simulator camera is built by the workflow layer, not by capture/");
+  }
+  NotBuilt(entry.where, entry.backend, "no camera backend of this name");
+}
+
+std::unique_ptr<Projector> OpenProjector(const ProjectorEntry& entry) {
+  const std::chrono::microseconds latency(entry.latency_us);
+  // One case per projector backend.
+  if (entry.backend == "none") return std::make_unique<NoneProjector>(latency);
+  if (entry.backend == "window") NotBuilt(entry.where, entry.backend, "an SDL2 window on an HDMI output");
+  NotBuilt(entry.where, entry.backend, "no projector backend of this name");
+}
+
+OpenedDevices OpenDevices(const DevicesConfig& devices, const Rig& rig) {
+  devices.CheckAgainst(rig);
+  OpenedDevices opened;
+  for (const auto& rig_camera : rig.cameras) {
+    const CameraEntry* entry = devices.Camera(rig_camera.name);
+    if (entry == nullptr) continue;
+    opened.owned.push_back(OpenCamera(*entry));
+    opened.cameras.push_back({entry->name, opened.owned.back().get(), entry->settings,
+                              std::chrono::milliseconds(entry->grab_timeout_ms)});
+  }
+  opened.projector = OpenProjector(devices.projector);
+  opened.settle = std::chrono::microseconds(devices.projector.settle_us);
+  return opened;
+}
+
+}  // namespace slshadow::capture

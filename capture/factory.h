@@ -1,0 +1,37 @@
+// Opens the device a devices.yaml entry names (capture/devices.h). One place chooses the backend
+// by name; a backend this slshadow was built without is a clear error, not a silent fallback.
+#pragma once
+
+#include <chrono>
+#include <memory>
+#include <vector>
+
+#include "capture/camera.h"
+#include "capture/devices.h"
+#include "capture/projector.h"
+#include "capture/sequencer.h"
+
+namespace slshadow::capture {
+
+// Opens (does not configure or start) the camera of `entry`. Throws slshadow::Error naming the
+// entry when the backend is not built in or the device cannot be opened.
+std::unique_ptr<Camera> OpenCamera(const CameraEntry& entry);
+// Opens the projector of `entry` with its latency set. Throws like OpenCamera.
+std::unique_ptr<Projector> OpenProjector(const ProjectorEntry& entry);
+
+// Backend names this build can open (for --help and messages).
+std::vector<std::string> BuiltInCameraBackends();
+std::vector<std::string> BuiltInProjectorBackends();
+
+// Everything a capture needs from a devices file: the cameras of the rig that have an entry (rig
+// order), opened, with their settings and timeouts, and the projector. Owns the devices.
+struct OpenedDevices {
+  std::vector<std::unique_ptr<Camera>> owned;
+  std::vector<CaptureCamera> cameras;  // point into `owned`
+  std::unique_ptr<Projector> projector;
+  std::chrono::microseconds settle{0};
+};
+// Checks the entries against the rig (DevicesConfig::CheckAgainst) and opens every device.
+OpenedDevices OpenDevices(const DevicesConfig& devices, const Rig& rig);
+
+}  // namespace slshadow::capture

@@ -1,0 +1,1017 @@
+#include "capture/sequencer.h"
+
+#include <algorithm>
+#include <cmath>
+#include <condition_variable>
+#include <cstdio>
+#include <ctime>
+#include <deque>
+#include <exception>
+#include <istream>
+#include <mutex>
+#include <optional>
+#include <ostream>
+#include <thread>
+
+#include "core/error.h"
+#include "core/file_util.h"
+#include "core/progress.h"
+#include "patterns/codec.h"
+
+namespace slshadow::capture {
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+void ValidationOptions::Check() const {
+  SLSHADOW_THROW_IF(stride_px < 1 || stride_px > 64, "validation.stride_px: must be in [1, 64] (got ", stride_px, ")");
+  for (const auto& [name, v] : {std::pair{"min_pattern_change", min_pattern_change}, std::pair{"stale_ratio", stale_ratio},
+                                std::pair{"min_lit_share_floor", min_lit_share_floor},
+                                std::pair{"min_lit_share", min_lit_share}, std::pair{"min_complementary", min_complementary}}) {
+    SLSHADOW_THROW_IF(!(v >= 0 && v <= 1), "validation.", name, ": must be in [0, 1] (got ", v, ")");
+  }
+  SLSHADOW_THROW_IF(!(change_threshold > 0) || !(lit_threshold > 0), "validation: change_threshold and lit_threshold must be > 0");
+  SLSHADOW_THROW_IF(min_samples < 1, "validation.min_samples: must be >= 1 (got ", min_samples, ")");
+}
+
+void AutoExposureOptions::Check() const {
+  SLSHADOW_THROW_IF(!(target_fraction > 0.1 && target_fraction < 1), "auto_exposure.target_fraction: must be in (0.1, 1) (got ",
+                    target_fraction, ")");
+  SLSHADOW_THROW_IF(!(tolerance > 0 && tolerance < target_fraction), "auto_exposure.tolerance: must be in (0, target) (got ",
+                    tolerance, ")");
+  SLSHADOW_THROW_IF(!(percentile > 0.5 && percentile < 1), "auto_exposure.percentile: must be in (0.5, 1) (got ", percentile, ")");
+  SLSHADOW_THROW_IF(max_iterations < 1, "auto_exposure.max_iterations: must be >= 1 (got ", max_iterations, ")");
+  SLSHADOW_THROW_IF(!(min_exposure_us > 0 && max_exposure_us > min_exposure_us), "auto_exposure: exposure bounds must satisfy 0 < min < max");
+}
+
+void SequencerOptions::Check() const {
+  SLSHADOW_THROW_IF(settle.count() < 0, "settle: must be >= 0 (got ", settle.count(), " us)");
+  SLSHADOW_THROW_IF(max_retries < 0 || max_retries > 100, "max_retries: must be in [0, 100] (got ", max_retries, ")");
+  SLSHADOW_THROW_IF(retry_backoff.count() < 0, "retry_backoff: must be >= 0 (got ", retry_backoff.count(), " us)");
+  SLSHADOW_THROW_IF(store_queue_images < 1, "store_queue_images: must be >= 1 (got ", store_queue_images, ")");
+  validation.Check();
+  auto_exposure_options.Check();
+}
+
+int64_t FrameIdTracker::Next(uint64_t id) {
+  if (id == 0) {
+    ++invalid_;
+    return 0;
+  }
+  int64_t skipped = 0;
+  if (has_last_) {
+    if (id <= 65535 && last_ <= 65535) {
+      // 16-bit ids 1..65535: the ring has 65535 members.
+      const uint64_t d = (id + 65535 - last_) % 65535;
+      skipped = d == 0 ? 0 : static_cast<int64_t>(d) - 1;
+    } else if (id > last_) {
+      skipped = static_cast<int64_t>(id - last_ - 1);
+    }
+  }
+  has_last_ = true;
+  last_ = id;
+  missing_ += skipped;
+  return skipped;
+}
+
+nlohmann::json CameraCaptureStats::ToJson() const {
+  return {{"serial", serial},
+          {"frames_grabbed", frames_grabbed},
+          {"frames_stored", frames_stored},
+          {"timeouts", timeouts},
+          {"damaged", damaged},
+          {"stale", stale},
+          {"not_complementary", not_complementary},
+          {"missing_frame_ids", missing_frame_ids},
+          {"invalid_frame_ids", invalid_frame_ids},
+          {"exposure_us", exposure_us},
+          {"stream",
+           {{"completed_frames", stream.completed_frames},
+            {"failed_frames", stream.failed_frames},
+            {"missing_frames", stream.missing_frames},
+            {"missing_packets", stream.missing_packets},
+            {"resend_requests", stream.resend_requests},
+            {"underruns", stream.underruns},
+            {"timeouts", stream.timeouts}}}};
+}
+
+nlohmann::json CaptureSummary::ToJson() const {
+  nlohmann::json j = {{"complete", complete},       {"interrupted", interrupted},   {"resumed", resumed},
+                      {"patterns", patterns},       {"images_total", images_total}, {"images_before", images_before},
+                      {"images_stored", images_stored}, {"retries", retries},   {"seconds", seconds},
+                      {"mean_pattern_ms", mean_pattern_ms}};
+  for (const auto& [name, s] : cameras) j["cameras"][name] = s.ToJson();
+  for (const auto& [name, us] : auto_exposure_us) j["auto_exposure_us"][name] = us;
+  return j;
+}
+
+std::string CaptureSummary::BriefReport() const {
+  char line[256];
+  std::snprintf(line, sizeof(line), "%s: %d of %d images (%d stored now, %d before), %d patterns, %d retries, %.1f s%s",
+                complete ? "complete" : interrupted ? "interrupted" : "incomplete",
+                images_before + images_stored, images_total, images_stored, images_before, patterns, retries, seconds,
+                resumed ? ", resumed" : "");
+  std::string s = line;
+  for (const auto& [name, c] : cameras) {
+    std::snprintf(line, sizeof(line),
+                  "\n  %s (%s): %lld grabbed, %lld timeouts, %lld damaged, %lld stale, %lld not complementary, "
+                  "%lld missing frame ids, exposure %.0f us",
+                  name.c_str(), c.serial.c_str(), static_cast<long long>(c.frames_grabbed),
+                  static_cast<long long>(c.timeouts), static_cast<long long>(c.damaged), static_cast<long long>(c.stale),
+                  static_cast<long long>(c.not_complementary), static_cast<long long>(c.missing_frame_ids), c.exposure_us);
+    s += line;
+  }
+  return s;
+}
+
+namespace {
+
+std::string FormatUtc(std::chrono::system_clock::time_point tp) {
+  if (tp.time_since_epoch().count() == 0) return UtcTimestamp();
+  const std::time_t t = std::chrono::system_clock::to_time_t(tp);
+  const auto ms = std::chrono::duration_cast<std::chrono::milliseconds>(tp.time_since_epoch()).count() % 1000;
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buf[64];
+  std::strftime(buf, sizeof(buf), "%Y-%m-%dT%H:%M:%S", &tm);
+  char out[80];
+  std::snprintf(out, sizeof(out), "%s.%03dZ", buf, static_cast<int>(ms));
+  return out;
+}
+
+double FullScale(PixelFormat f) {
+  switch (f) {
+    case PixelFormat::kMono8: return 255;
+    case PixelFormat::kMono12: return 4095;
+    case PixelFormat::kMono16: return 65535;
+  }
+  return 255;
+}
+
+ImageSource SourceOf(const std::string& backend) {
+  if (backend == "replay") return ImageSource::kReplay;
+  if (backend == "sim") return ImageSource::kVirtual;
+  return ImageSource::kDevice;
+}
+
+// What the pattern sequence predicts, computed once per capture.
+struct SequenceModel {
+  std::vector<FrameInfo> frames;
+  std::vector<double> expected_change;  // [k]: min over an 8x8 tile grid of the share of projector
+                                        // pixels whose level changes by half the range from k-1
+  struct Group {
+    int first = 0, size = 1;
+    bool pair = false;     // Gray bit + inverse, or white + black: taken and checked as a whole
+    bool opening = false;  // white, black and the first Gray pair as one group (see CheckGroup)
+  };
+  std::vector<Group> groups;
+  std::vector<int> group_of;  // pattern -> group index
+  std::vector<int> reference_frames;  // white, black; or the first phase steps
+  bool white_black = false;
+
+  explicit SequenceModel(const PatternSpec& spec, const std::vector<cv::Mat>& images) {
+    frames = spec.Frames();
+    const int n = static_cast<int>(frames.size());
+    expected_change.assign(static_cast<size_t>(n), 0.0);
+    const double half_range = 0.5 * (spec.intensity_max - spec.intensity_min);
+    for (int k = 1; k < n; ++k) {
+      cv::Mat diff;
+      cv::absdiff(images[static_cast<size_t>(k)], images[static_cast<size_t>(k - 1)], diff);
+      const cv::Mat changed = diff >= half_range;
+      double worst = 1;
+      for (int ty = 0; ty < 8; ++ty) {
+        for (int tx = 0; tx < 8; ++tx) {
+          const cv::Rect tile(tx * changed.cols / 8, ty * changed.rows / 8, (tx + 1) * changed.cols / 8 - tx * changed.cols / 8,
+                              (ty + 1) * changed.rows / 8 - ty * changed.rows / 8);
+          if (tile.area() == 0) continue;
+          worst = std::min(worst, cv::countNonZero(changed(tile)) / static_cast<double>(tile.area()));
+        }
+      }
+      expected_change[static_cast<size_t>(k)] = worst;
+    }
+    group_of.assign(static_cast<size_t>(n), 0);
+    for (int k = 0; k < n;) {
+      Group g;
+      g.first = k;
+      const FrameInfo& f = frames[static_cast<size_t>(k)];
+      const bool gray_pair = f.role == FrameRole::kGrayBit && k + 1 < n &&
+                             frames[static_cast<size_t>(k + 1)].role == FrameRole::kGrayBitInverse &&
+                             frames[static_cast<size_t>(k + 1)].axis == f.axis && frames[static_cast<size_t>(k + 1)].bit == f.bit;
+      const bool refs_pair = f.role == FrameRole::kWhite && k + 1 < n && frames[static_cast<size_t>(k + 1)].role == FrameRole::kBlack;
+      if (gray_pair || refs_pair) {
+        g.size = 2;
+        g.pair = true;
+      }
+      for (int i = 0; i < g.size; ++i) group_of[static_cast<size_t>(k + i)] = static_cast<int>(groups.size());
+      groups.push_back(g);
+      k += g.size;
+    }
+    // White and black first: the white frame has no predecessor to be compared with, so it is
+    // judged by the frames after it. White, black and the first Gray pair form one group.
+    if (groups.size() >= 2 && frames[0].role == FrameRole::kWhite && groups[0].size == 2 && groups[1].pair) {
+      groups[0].size = 4;
+      groups[0].opening = true;
+      groups.erase(groups.begin() + 1);
+      for (int i = 0; i < 4; ++i) group_of[static_cast<size_t>(i)] = 0;
+      for (size_t k = 4; k < group_of.size(); ++k) --group_of[k];
+    }
+    if (spec.WhiteFrameIndex() >= 0 && spec.BlackFrameIndex() >= 0) {
+      white_black = true;
+      reference_frames = {spec.WhiteFrameIndex(), spec.BlackFrameIndex()};
+    } else {
+      // Phase codecs: the steps of the first frequency of the first coded axis; per pixel their
+      // max and min stand in for white and black.
+      for (int k = 0; k < n; ++k) {
+        const FrameInfo& f = frames[static_cast<size_t>(k)];
+        if (f.role == FrameRole::kPhase && f.frequency == 0 && f.axis == frames.front().axis) reference_frames.push_back(k);
+      }
+    }
+  }
+  std::string Name(int k) const {
+    return "pattern " + std::to_string(k) + " (" + frames[static_cast<size_t>(k)].Name() + ")";
+  }
+};
+
+// Per-pixel references of one camera: white (or max) and black (or min), as float.
+struct References {
+  cv::Mat white, black;  // CV_32F
+  bool ready() const { return !white.empty(); }
+};
+
+// Visits every stride-th pixel in x and y, the phase of the grid changing from row to row and
+// column to column (the offsets cycle through 0..stride-1), so stripes with a period near the
+// stride cannot alias onto one side of every stripe.
+template <typename F>
+void ForEachSample(int rows, int cols, int stride, F&& f) {
+  const int step = stride <= 2 ? 1 : (stride % 2 == 0 ? stride - 1 : stride - 2);  // coprime with stride
+  for (int i = 0;; ++i) {
+    const int y = i * stride + (i * step) % stride;
+    if (y >= rows) break;
+    for (int j = 0;; ++j) {
+      const int x = j * stride + (j * step + i) % stride;
+      if (x >= cols) break;
+      f(y, x);
+    }
+  }
+}
+
+template <typename T>
+struct Sampler {
+  static double ChangedShare(const cv::Mat& f, const cv::Mat& prev, const References& refs, double lit_threshold,
+                             double abs_threshold, int stride, int* samples) {
+    int64_t count = 0, changed = 0;
+    const bool refs_ready = refs.ready();
+    ForEachSample(f.rows, f.cols, stride, [&](int y, int x) {
+      const double d = std::abs(static_cast<double>(f.at<T>(y, x)) - static_cast<double>(prev.at<T>(y, x)));
+      if (refs_ready) {
+        const double contrast = refs.white.at<float>(y, x) - refs.black.at<float>(y, x);
+        if (contrast < lit_threshold) return;
+        ++count;
+        changed += d >= 0.25 * contrast;
+      } else {
+        ++count;
+        changed += d >= abs_threshold;
+      }
+    });
+    *samples = static_cast<int>(count);
+    return count ? static_cast<double>(changed) / static_cast<double>(count) : 0.0;
+  }
+  // Share of pixels decisive in both frames (a quarter of the contrast away from the middle)
+  // that lie on opposite sides of it.
+  static double ComplementaryShare(const cv::Mat& p, const cv::Mat& q, const References& refs, double lit_threshold,
+                                   int stride, int* samples) {
+    int64_t count = 0, opposite = 0;
+    ForEachSample(p.rows, p.cols, stride, [&](int y, int x) {
+      const double w = refs.white.at<float>(y, x), k = refs.black.at<float>(y, x);
+      const double contrast = w - k;
+      if (contrast < lit_threshold) return;
+      const double mid = 0.5 * (w + k);
+      const double da = p.at<T>(y, x) - mid, db = q.at<T>(y, x) - mid;
+      if (std::abs(da) < 0.25 * contrast || std::abs(db) < 0.25 * contrast) return;
+      ++count;
+      opposite += (da > 0) != (db > 0);
+    });
+    *samples = static_cast<int>(count);
+    return count ? static_cast<double>(opposite) / static_cast<double>(count) : 1.0;
+  }
+};
+
+double ChangedShare(const cv::Mat& f, const cv::Mat& prev, const References& refs, double lit_threshold,
+                    double abs_threshold, int stride, int* samples) {
+  return f.depth() == CV_8U ? Sampler<uint8_t>::ChangedShare(f, prev, refs, lit_threshold, abs_threshold, stride, samples)
+                            : Sampler<uint16_t>::ChangedShare(f, prev, refs, lit_threshold, abs_threshold, stride, samples);
+}
+
+double ComplementaryShare(const cv::Mat& p, const cv::Mat& q, const References& refs, double lit_threshold, int stride,
+                          int* samples) {
+  return p.depth() == CV_8U ? Sampler<uint8_t>::ComplementaryShare(p, q, refs, lit_threshold, stride, samples)
+                            : Sampler<uint16_t>::ComplementaryShare(p, q, refs, lit_threshold, stride, samples);
+}
+
+double LitShare(const References& refs, double lit_threshold, int stride) {
+  int64_t count = 0, lit = 0;
+  ForEachSample(refs.white.rows, refs.white.cols, stride, [&](int y, int x) {
+    ++count;
+    lit += refs.white.at<float>(y, x) - refs.black.at<float>(y, x) >= lit_threshold;
+  });
+  return count ? static_cast<double>(lit) / static_cast<double>(count) : 0.0;
+}
+
+// Storage on its own thread, in order, through the resumable writer.
+class StoreQueue {
+ public:
+  StoreQueue(ResumableImageSetWriter& writer, size_t capacity) : writer_(writer), capacity_(capacity) {
+    thread_ = std::thread([this] { Run(); });
+  }
+  ~StoreQueue() {
+    try {
+      Finish();
+    } catch (...) {
+    }
+  }
+  void Push(ImageRecord record, cv::Mat image) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    space_.wait(lock, [&] { return queue_.size() < capacity_ || error_; });
+    if (error_) std::rethrow_exception(error_);
+    queue_.push_back({std::move(record), std::move(image)});
+    ready_.notify_one();
+  }
+  // Waits until everything queued is stored; rethrows a storage error.
+  void Finish() {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      done_ = true;
+      ready_.notify_one();
+    }
+    if (thread_.joinable()) thread_.join();
+    if (error_) {
+      auto e = error_;
+      error_ = nullptr;
+      std::rethrow_exception(e);
+    }
+  }
+  int stored() const { return stored_.load(); }
+
+ private:
+  void Run() {
+    for (;;) {
+      std::pair<ImageRecord, cv::Mat> item;
+      {
+        std::unique_lock<std::mutex> lock(mutex_);
+        ready_.wait(lock, [&] { return !queue_.empty() || done_; });
+        if (queue_.empty()) return;
+        item = std::move(queue_.front());
+        queue_.pop_front();
+      }
+      try {
+        writer_.Add(std::move(item.first), item.second);
+        ++stored_;
+      } catch (...) {
+        std::lock_guard<std::mutex> lock(mutex_);
+        error_ = std::current_exception();
+        queue_.clear();
+        space_.notify_all();
+        return;
+      }
+      space_.notify_all();
+    }
+  }
+  ResumableImageSetWriter& writer_;
+  size_t capacity_;
+  std::deque<std::pair<ImageRecord, cv::Mat>> queue_;
+  std::mutex mutex_;
+  std::condition_variable ready_, space_;
+  std::exception_ptr error_;
+  bool done_ = false;
+  std::atomic<int> stored_{0};
+  std::thread thread_;
+};
+
+struct CameraState {
+  const CaptureCamera* cam = nullptr;
+  CameraInfo info;
+  CameraSettings settings;
+  double full_scale = 255;
+  int expected_depth = CV_8U;
+  cv::Mat prev;            // accepted frame of pattern prev_index
+  int prev_index = -1;
+  References refs;
+  std::map<int, cv::Mat> reference_images;  // accepted frames of the reference patterns
+  double lit_estimate = 0;  // without references: largest changed share seen on a full-change pair
+  FrameIdTracker ids;
+  CameraCaptureStats stats;
+};
+
+struct Verdict {
+  bool ok = true;
+  std::string why;
+};
+
+class Sequencer {
+ public:
+  Sequencer(const Rig& rig, const PatternSpec& spec, const std::vector<CaptureCamera>& cameras, Projector& projector,
+            const fs::path& out, const SequencerOptions& options)
+      : rig_(rig), spec_(spec), projector_(projector), out_(out), options_(options) {
+    options_.Check();
+    spec_.Check();
+    SLSHADOW_THROW_IF(cameras.empty(), "capture: no cameras");
+    for (const auto& c : cameras) {
+      SLSHADOW_THROW_IF(c.camera == nullptr, "capture: camera '", c.name, "' has no device");
+      SLSHADOW_THROW_IF(rig.CameraIndex(c.name) < 0, "capture: the rig '", rig.name, "' has no camera '", c.name, "'");
+      SLSHADOW_THROW_IF(c.grab_timeout.count() <= 0, "capture: camera '", c.name, "': grab timeout must be > 0");
+      for (const auto& s : states_) SLSHADOW_THROW_IF(s.cam->name == c.name, "capture: camera '", c.name, "' given twice");
+      CameraState s;
+      s.cam = &c;
+      s.settings = c.settings;
+      s.full_scale = FullScale(c.settings.pixel_format);
+      s.expected_depth = BitDepthOf(c.settings.pixel_format) == 8 ? CV_8U : CV_16U;
+      states_.push_back(std::move(s));
+    }
+    // Rig camera order: the order frames are triggered, grabbed and reported.
+    std::sort(states_.begin(), states_.end(), [&](const CameraState& a, const CameraState& b) {
+      return rig.CameraIndex(a.cam->name) < rig.CameraIndex(b.cam->name);
+    });
+    images_ = GeneratePatterns(spec_);
+    model_ = std::make_unique<SequenceModel>(spec_, images_);
+    validate_ = options_.validate && projector_.Info().width > 0;
+  }
+
+  CaptureSummary Run() {
+    const auto start = Clock::now();
+    ResumableImageSetWriter writer(out_, rig_, PatternSpecToJson(spec_), options_.writer);
+    writer_ = &writer;
+    const int n = spec_.NumImages();
+    summary_.out = out_;
+    summary_.staging = writer.staging_dir();
+    summary_.resumed = writer.resumed();
+    summary_.patterns = n;
+    summary_.images_total = n * static_cast<int>(states_.size());
+    for (const auto& s : states_) {
+      for (int k = 0; k < n; ++k) summary_.images_before += writer.Has(s.cam->name, k);
+    }
+    // The projector gets the sequence plus a white and a black frame for the exposure assistant.
+    std::vector<cv::Mat> loaded = images_;
+    loaded.push_back(cv::Mat(spec_.projector_height, spec_.projector_width, CV_8UC1, cv::Scalar(spec_.intensity_max)));
+    loaded.push_back(cv::Mat(spec_.projector_height, spec_.projector_width, CV_8UC1, cv::Scalar(spec_.intensity_min)));
+    projector_.Load(loaded);
+    for (auto& s : states_) {
+      s.cam->camera->Configure(s.settings);
+      s.info = s.cam->camera->Info();
+      s.stats.serial = s.info.serial;
+      s.cam->camera->Start();
+    }
+    struct StopCameras {
+      std::vector<CameraState>* states;
+      ~StopCameras() {
+        for (auto& s : *states) {
+          try {
+            s.cam->camera->Stop();
+          } catch (...) {
+          }
+        }
+      }
+    } stop_cameras{&states_};
+    ChooseExposures(writer);
+    for (auto& s : states_) {
+      s.stats.exposure_us = s.settings.exposure_us.value_or(0);
+      s.info = s.cam->camera->Info();
+    }
+    nlohmann::json start_note = {{"started", UtcTimestamp()}, {"resumed", writer.resumed()}, {"validate", validate_},
+                                 {"projector", projector_.Info().backend},
+                                 {"latency_us", projector_.Latency().count()}, {"settle_us", options_.settle.count()}};
+    for (const auto& s : states_) {
+      start_note["cameras"][s.cam->name] = {{"backend", s.info.backend}, {"id", s.info.id}, {"serial", s.info.serial},
+                                            {"model", s.info.model},     {"vendor", s.info.vendor},
+                                            {"exposure_us", s.stats.exposure_us},
+                                            {"pixel_format", ToString(s.settings.pixel_format)},
+                                            {"trigger", ToString(s.settings.trigger)}};
+    }
+    if (!summary_.auto_exposure_us.empty()) start_note["auto_exposure_us"] = summary_.auto_exposure_us;
+    writer.AppendSession(start_note);
+
+    StoreQueue store(writer, static_cast<size_t>(options_.store_queue_images));
+    std::optional<Progress> progress;
+    const int todo_patterns = [&] {
+      int t = 0;
+      for (int k = 0; k < n; ++k) t += !AllStored(k);
+      return t;
+    }();
+    if (options_.progress) progress.emplace("capture", todo_patterns);
+    int acquired_patterns = 0;
+    const auto acquire_start = Clock::now();
+    std::string failure;
+    try {
+      for (const auto& group : model_->groups) {
+        bool all = true;
+        for (int i = 0; i < group.size; ++i) all = all && AllStored(group.first + i);
+        if (all) continue;
+        if (Stopped()) {
+          summary_.interrupted = true;
+          break;
+        }
+        if (!AcquireGroup(group, store)) {
+          summary_.interrupted = true;
+          break;
+        }
+        acquired_patterns += group.size;
+        if (progress) progress->Advance(group.size);
+      }
+    } catch (const Error& e) {
+      failure = e.what();
+    }
+    progress.reset();
+    const double acquire_s = std::chrono::duration<double>(Clock::now() - acquire_start).count();
+    std::string storage_error;
+    try {
+      store.Finish();
+    } catch (const std::exception& e) {
+      storage_error = e.what();
+    }
+    summary_.images_stored = store.stored();
+    summary_.mean_pattern_ms = acquired_patterns ? 1e3 * acquire_s / acquired_patterns : 0;
+    for (auto& s : states_) {
+      s.stats.stream = s.cam->camera->Statistics();
+      s.stats.missing_frame_ids = s.ids.missing();
+      s.stats.invalid_frame_ids = s.ids.invalid();
+      summary_.cameras[s.cam->name] = s.stats;
+    }
+    summary_.seconds = std::chrono::duration<double>(Clock::now() - start).count();
+    nlohmann::json end_note = summary_.ToJson();
+    end_note["ended"] = UtcTimestamp();
+    if (!failure.empty()) end_note["failure"] = failure;
+    if (!storage_error.empty()) end_note["storage_error"] = storage_error;
+    try {
+      writer.AppendSession(end_note);
+    } catch (const Error&) {
+      // The records are what matters; a lost note is not worth hiding the real error.
+    }
+    SLSHADOW_THROW_IF(!storage_error.empty(), storage_error, " (the capture is staged in ", writer.staging_dir().string(),
+                      "; continue it with --resume)");
+    SLSHADOW_THROW_IF(!failure.empty(), failure, " (", summary_.images_before + summary_.images_stored, " of ",
+                      summary_.images_total, " images are staged in ", writer.staging_dir().string(),
+                      "; fix the cause and continue with --resume)");
+    if (summary_.interrupted) return summary_;
+    for (const auto& s : states_) {
+      for (int k = 0; k < n; ++k) {
+        SLSHADOW_THROW_IF(!writer.Has(s.cam->name, k), "capture: camera '", s.cam->name, "' has no image of ",
+                          model_->Name(k), " (internal)");
+      }
+    }
+    nlohmann::json extra = options_.extra.is_null() ? nlohmann::json::object() : options_.extra;
+    extra["capture"]["sessions"] = writer.Sessions();
+    if (!summary_.auto_exposure_us.empty()) extra["capture"]["auto_exposure_us"] = summary_.auto_exposure_us;
+    writer.SetExtra(extra);
+    writer.Commit();
+    summary_.complete = true;
+    return summary_;
+  }
+
+ private:
+  bool Stopped() const { return options_.stop && options_.stop->load(); }
+
+  bool AllStored(int k) const {
+    for (const auto& s : states_) {
+      if (!writer_->Has(s.cam->name, k)) return false;
+    }
+    return true;
+  }
+
+  // Frames of pattern k for every camera from one trigger round; each verdict per camera.
+  struct Round {
+    std::vector<Frame> frames;
+    std::vector<Verdict> verdicts;
+    bool ok = true;
+  };
+
+  void WaitAfterShow(Clock::time_point shown, int attempt) {
+    const auto until = shown + projector_.Latency() + options_.settle + attempt * options_.retry_backoff;
+    if (options_.sleep_until) {
+      options_.sleep_until(until);
+    } else if (until > Clock::now()) {
+      std::this_thread::sleep_until(until);
+    }
+  }
+
+  // Show pattern `index` (of the loaded sequence), trigger every camera, grab every camera.
+  std::vector<Frame> TriggerRound(int index, int attempt) {
+    for (auto& s : states_) s.cam->camera->ExpectPattern(index);
+    WaitAfterShow(projector_.Show(index), attempt);
+    for (auto& s : states_) {
+      // Free run: frames streamed before the pattern was on are stale by construction.
+      if (s.settings.trigger == TriggerMode::kFreeRun) s.cam->camera->Flush();
+      s.cam->camera->Trigger();
+    }
+    std::vector<Frame> frames;
+    frames.reserve(states_.size());
+    for (auto& s : states_) frames.push_back(s.cam->camera->Grab(s.cam->grab_timeout));
+    return frames;
+  }
+
+  const cv::Mat* Previous(CameraState& s, int k) {
+    if (k == 0) return nullptr;
+    if (s.prev_index != k - 1) {
+      if (!writer_->Has(s.cam->name, k - 1)) return nullptr;
+      s.prev = writer_->Load(s.cam->name, k - 1);
+      s.prev_index = k - 1;
+    }
+    return &s.prev;
+  }
+
+  void EnsureReferences(CameraState& s) {
+    if (s.refs.ready()) return;
+    for (int r : model_->reference_frames) {
+      if (s.reference_images.count(r)) continue;
+      if (!writer_->Has(s.cam->name, r)) return;
+      s.reference_images[r] = writer_->Load(s.cam->name, r);
+    }
+    if (model_->reference_frames.empty()) return;
+    if (model_->white_black) {
+      s.reference_images.at(model_->reference_frames[0]).convertTo(s.refs.white, CV_32F);
+      s.reference_images.at(model_->reference_frames[1]).convertTo(s.refs.black, CV_32F);
+    } else {
+      cv::Mat hi, lo;
+      for (int r : model_->reference_frames) {
+        cv::Mat f;
+        s.reference_images.at(r).convertTo(f, CV_32F);
+        hi = hi.empty() ? f.clone() : cv::max(hi, f);
+        lo = lo.empty() ? f.clone() : cv::min(lo, f);
+      }
+      s.refs.white = hi;
+      s.refs.black = lo;
+    }
+  }
+
+  Verdict CheckFrame(CameraState& s, int k, const Frame& f, const cv::Mat* prev_override) {
+    const std::string who = model_->Name(k) + ", camera '" + s.cam->name + "'";
+    if (f.status == FrameStatus::kTimeout) {
+      ++s.stats.timeouts;
+      return {false, who + ": no frame within " + std::to_string(s.cam->grab_timeout.count()) + " ms" +
+                         (f.message.empty() ? "" : " (" + f.message + ")")};
+    }
+    if (f.status != FrameStatus::kOk) {
+      ++s.stats.damaged;
+      return {false, who + ": frame " + ToString(f.status) + (f.message.empty() ? "" : " (" + f.message + ")")};
+    }
+    const RigDevice& dev = rig_.Camera(s.cam->name);
+    if (f.image.cols != dev.model.width || f.image.rows != dev.model.height || f.image.type() != CV_MAKETYPE(s.expected_depth, 1)) {
+      ++s.stats.damaged;
+      return {false, who + ": frame of " + std::to_string(f.image.cols) + "x" + std::to_string(f.image.rows) + ", " +
+                         (f.image.depth() == CV_8U ? "8" : "16") + "-bit; the rig camera is " +
+                         std::to_string(dev.model.width) + "x" + std::to_string(dev.model.height) + ", " +
+                         ToString(s.settings.pixel_format)};
+    }
+    if (!validate_) return {};
+    const double e = model_->expected_change[static_cast<size_t>(k)];
+    const cv::Mat* prev = prev_override ? prev_override : Previous(s, k);
+    if (prev == nullptr || e < options_.validation.min_pattern_change) return {};
+    EnsureReferences(s);
+    const double scale = s.full_scale / 255.0;
+    int samples = 0;
+    const double changed = ChangedShare(f.image, *prev, s.refs, options_.validation.lit_threshold * scale,
+                                        options_.validation.change_threshold * scale, options_.validation.stride_px, &samples);
+    if (samples < options_.validation.min_samples) return {};
+    const double lit = s.refs.ready() ? 1.0 : std::max(s.lit_estimate, options_.validation.min_lit_share_floor);
+    const double needed = options_.validation.stale_ratio * e * lit;
+    if (changed < needed) {
+      ++s.stats.stale;
+      char buf[256];
+      std::snprintf(buf, sizeof(buf),
+                    ": frame nearly equal to %s: %.1f %% of the %s pixels changed, at least %.1f %% expected; the "
+                    "projector had not switched yet (raise latency_us or settle_us in the devices file)",
+                    model_->Name(k - 1).c_str(), 100 * changed, s.refs.ready() ? "lit" : "sampled", 100 * needed);
+      return {false, who + buf};
+    }
+    if (!s.refs.ready() && e >= 0.9) s.lit_estimate = std::max(s.lit_estimate, changed);
+    return {};
+  }
+
+  // Group checks of one camera: white and black differ; a Gray bit and its inverse are
+  // complementary; in the opening group (white, black, first Gray pair) the pair also lies
+  // between black and white everywhere: a frame brighter than white or darker than black where
+  // the patterns say otherwise means the white or black frame showed another pattern.
+  Verdict CheckGroup(CameraState& s, const SequenceModel::Group& g, const std::vector<const cv::Mat*>& f) {
+    if (!validate_ || !g.pair) return {};
+    const double scale = s.full_scale / 255.0;
+    const double lit_threshold = options_.validation.lit_threshold * scale;
+    const int stride = options_.validation.stride_px;
+    char buf[320];
+    References refs;
+    const FrameRole role = model_->frames[static_cast<size_t>(g.first)].role;
+    size_t pair_at = 0;
+    if (role == FrameRole::kWhite) {
+      f[0]->convertTo(refs.white, CV_32F);
+      f[1]->convertTo(refs.black, CV_32F);
+      const double lit = LitShare(refs, lit_threshold, stride);
+      if (lit < options_.validation.min_lit_share) {
+        ++s.stats.not_complementary;
+        std::snprintf(buf, sizeof(buf),
+                      ": white and black frames do not differ (%.2f %% of the image lit, at least %.2f %% expected): "
+                      "the projector did not switch, or this camera sees none of its light",
+                      100 * lit, 100 * options_.validation.min_lit_share);
+        return {false, model_->Name(g.first) + " and " + model_->Name(g.first + 1) + ", camera '" + s.cam->name + "'" + buf};
+      }
+      if (!g.opening) return {};
+      pair_at = 2;
+      int64_t count = 0, outside = 0;
+      const double tolerance = lit_threshold;
+      for (size_t i = 2; i < 4; ++i) {
+        ForEachSample(f[i]->rows, f[i]->cols, stride, [&](int y, int x) {
+          const double v = f[i]->depth() == CV_8U ? f[i]->at<uint8_t>(y, x) : f[i]->at<uint16_t>(y, x);
+          ++count;
+          outside += v > refs.white.at<float>(y, x) + tolerance || v < refs.black.at<float>(y, x) - tolerance;
+        });
+      }
+      const double share = count ? static_cast<double>(outside) / static_cast<double>(count) : 0.0;
+      if (outside >= options_.validation.min_samples && share > 1 - options_.validation.min_complementary) {
+        ++s.stats.not_complementary;
+        std::snprintf(buf, sizeof(buf),
+                      ": %.1f %% of the pixels of %s / %s are brighter than the white frame or darker than the black "
+                      "frame: the white or black frame showed another pattern (raise latency_us or settle_us)",
+                      100 * share, model_->Name(g.first + 2).c_str(), model_->Name(g.first + 3).c_str());
+        return {false, model_->Name(g.first) + " and " + model_->Name(g.first + 1) + ", camera '" + s.cam->name + "'" + buf};
+      }
+    } else {
+      EnsureReferences(s);
+      if (!s.refs.ready()) return {};
+      refs = s.refs;
+    }
+    int samples = 0;
+    const double q = ComplementaryShare(*f[pair_at], *f[pair_at + 1], refs, lit_threshold, stride, &samples);
+    if (samples < options_.validation.min_samples || q >= options_.validation.min_complementary) return {};
+    ++s.stats.not_complementary;
+    std::snprintf(buf, sizeof(buf),
+                  ": not complementary: %.1f %% of %d decisive pixels are on opposite sides, at least %.1f %% expected; "
+                  "one of them shows another pattern (raise latency_us or settle_us in the devices file)",
+                  100 * q, samples, 100 * options_.validation.min_complementary);
+    const int k = g.first + static_cast<int>(pair_at);
+    return {false, model_->Name(k) + " and " + model_->Name(k + 1) + ", camera '" + s.cam->name + "'" + buf};
+  }
+
+  static std::string Join(const std::vector<std::string>& errors) {
+    std::string all;
+    for (const auto& e : errors) all += (all.empty() ? "" : "; ") + e;
+    return all;
+  }
+
+  // Acquires pattern k for every camera, with retries; nullopt (and *errors) when every attempt
+  // failed. prev: per camera the frame of k-1 to compare with (nullptr: the stored one).
+  std::optional<std::vector<Frame>> AcquirePattern(int k, const std::vector<const cv::Mat*>& prev, int extra_wait,
+                                                   int* attempts_used, std::vector<std::string>* errors) {
+    for (int attempt = 0; attempt <= options_.max_retries; ++attempt) {
+      if (attempt > 0) {
+        for (auto& s : states_) s.cam->camera->Flush();
+        ++summary_.retries;
+      }
+      *attempts_used = attempt;
+      std::vector<Frame> frames = TriggerRound(k, attempt + extra_wait);
+      errors->clear();
+      for (size_t c = 0; c < states_.size(); ++c) {
+        CameraState& s = states_[c];
+        const Frame& f = frames[c];
+        if (f.status != FrameStatus::kTimeout && f.status != FrameStatus::kAborted) {
+          ++s.stats.frames_grabbed;
+          if (s.settings.trigger != TriggerMode::kFreeRun) s.ids.Next(f.frame_id);
+        }
+        const Verdict v = CheckFrame(s, k, f, prev[c]);
+        if (!v.ok) errors->push_back(v.why);
+      }
+      if (errors->empty()) return frames;
+    }
+    return std::nullopt;
+  }
+
+  void AcceptReference(CameraState& s, int k, const cv::Mat& image) {
+    if (std::find(model_->reference_frames.begin(), model_->reference_frames.end(), k) == model_->reference_frames.end()) return;
+    s.reference_images[k] = image;
+  }
+
+  // Acquires, checks and queues for storage one group; false when stopped before it was taken.
+  bool AcquireGroup(const SequenceModel::Group& g, StoreQueue& store) {
+    std::vector<std::vector<Frame>> frames(static_cast<size_t>(g.size));
+    std::vector<int> retries(static_cast<size_t>(g.size), 0);
+    std::vector<std::string> errors;
+    const auto fail = [&] {
+      SLSHADOW_THROW("capture failed after ", options_.max_retries + 1, " attempts: ", Join(errors));
+    };
+    for (int group_attempt = 0; group_attempt <= options_.max_retries; ++group_attempt) {
+      if (group_attempt > 0) {
+        for (auto& s : states_) s.cam->camera->Flush();
+        ++summary_.retries;
+      }
+      bool taken = true;
+      for (int i = 0; i < g.size; ++i) {
+        const int k = g.first + i;
+        if (Stopped()) return false;  // between frames; a pair is taken whole or not at all
+        std::vector<const cv::Mat*> prev(states_.size(), nullptr);
+        if (i > 0) {
+          for (size_t c = 0; c < states_.size(); ++c) prev[c] = &frames[static_cast<size_t>(i - 1)][c].image;
+        }
+        int attempts = 0;
+        auto got = AcquirePattern(k, prev, group_attempt, &attempts, &errors);
+        retries[static_cast<size_t>(i)] += attempts;
+        if (!got) {
+          // The first frame of a group has only accepted frames before it: its failure is its own.
+          // A failing second frame may accuse the first (a stale white looks like black): retake both.
+          if (i == 0 || !g.pair) fail();
+          taken = false;
+          break;
+        }
+        frames[static_cast<size_t>(i)] = std::move(*got);
+      }
+      if (taken && g.pair) {
+        for (size_t c = 0; c < states_.size(); ++c) {
+          std::vector<const cv::Mat*> mine;
+          for (int i = 0; i < g.size; ++i) mine.push_back(&frames[static_cast<size_t>(i)][c].image);
+          const Verdict v = CheckGroup(states_[c], g, mine);
+          if (!v.ok) errors.push_back(v.why);
+        }
+      }
+      if (taken && errors.empty()) {
+        for (int i = 0; i < g.size; ++i) retries[static_cast<size_t>(i)] += group_attempt;
+        break;
+      }
+      if (group_attempt == options_.max_retries) fail();
+    }
+    for (int i = 0; i < g.size; ++i) {
+      const int k = g.first + i;
+      for (size_t c = 0; c < states_.size(); ++c) {
+        CameraState& s = states_[c];
+        Frame& f = frames[static_cast<size_t>(i)][c];
+        ImageRecord r;
+        r.camera = s.cam->name;
+        r.pattern_index = k;
+        r.exposure_us = f.exposure_us > 0 ? f.exposure_us : s.settings.exposure_us.value_or(0);
+        r.timestamp = FormatUtc(f.host_timestamp);
+        r.source = SourceOf(s.info.backend);
+        r.device_serial = s.info.serial;
+        if (f.frame_id != 0) r.frame_id = f.frame_id;
+        if (f.device_timestamp_ns != 0) r.device_timestamp_ns = f.device_timestamp_ns;
+        r.retries = retries[static_cast<size_t>(i)];
+        s.prev = f.image;
+        s.prev_index = k;
+        AcceptReference(s, k, f.image);
+        ++s.stats.frames_stored;
+        store.Push(std::move(r), f.image);
+      }
+    }
+    return true;
+  }
+
+  // Exposure assistant: per camera, from the white frame, so that the brightest 1 % of the lit
+  // area sits at target_fraction of full scale. A resumed capture reuses the journaled choice.
+  void ChooseExposures(ResumableImageSetWriter& writer) {
+    if (!options_.auto_exposure) return;
+    for (const auto& session : writer.Sessions()) {
+      if (!session.contains("auto_exposure_us")) continue;
+      for (auto& s : states_) {
+        if (session["auto_exposure_us"].contains(s.cam->name)) {
+          summary_.auto_exposure_us[s.cam->name] = session["auto_exposure_us"][s.cam->name].get<double>();
+        }
+      }
+    }
+    if (summary_.auto_exposure_us.size() == states_.size()) {
+      for (auto& s : states_) SetExposure(s, summary_.auto_exposure_us.at(s.cam->name));
+      return;
+    }
+    summary_.auto_exposure_us.clear();
+    const AutoExposureOptions& o = options_.auto_exposure_options;
+    const int white = spec_.NumImages(), black = spec_.NumImages() + 1;
+    const bool lit_by_projector = projector_.Info().width > 0;
+    std::vector<cv::Mat> dark(states_.size());
+    if (lit_by_projector) {
+      std::vector<Frame> frames = TriggerRound(black, 0);
+      for (size_t c = 0; c < states_.size(); ++c) {
+        SLSHADOW_THROW_IF(!frames[c].ok(), "auto exposure: camera '", states_[c].cam->name, "': black frame ",
+                          ToString(frames[c].status), " ", frames[c].message);
+        frames[c].image.convertTo(dark[c], CV_32F);
+      }
+    }
+    std::vector<bool> done(states_.size(), false);
+    for (auto& s : states_) {
+      if (!s.settings.exposure_us) SetExposure(s, 10000);
+    }
+    for (int it = 0; it < o.max_iterations; ++it) {
+      std::vector<Frame> frames = TriggerRound(white, 0);
+      bool all_done = true;
+      for (size_t c = 0; c < states_.size(); ++c) {
+        if (done[c]) continue;
+        CameraState& s = states_[c];
+        SLSHADOW_THROW_IF(!frames[c].ok(), "auto exposure: camera '", s.cam->name, "': white frame ",
+                          ToString(frames[c].status), " ", frames[c].message);
+        cv::Mat w;
+        frames[c].image.convertTo(w, CV_32F);
+        std::vector<float> lit;
+        const double lit_threshold = options_.validation.lit_threshold * s.full_scale / 255.0;
+        for (int y = 0; y < w.rows; y += 2) {
+          const float* pw = w.ptr<float>(y);
+          const float* pd = dark[c].empty() ? nullptr : dark[c].ptr<float>(y);
+          for (int x = 0; x < w.cols; x += 2) {
+            if (!pd || pw[x] - pd[x] >= lit_threshold || pw[x] >= s.full_scale) lit.push_back(pw[x]);
+          }
+        }
+        const double exposure = *s.settings.exposure_us;
+        double next = exposure;
+        if (lit.empty()) {
+          next = exposure * 4;  // nothing lit yet: much longer
+        } else {
+          const size_t at = std::min(lit.size() - 1, static_cast<size_t>(o.percentile * static_cast<double>(lit.size())));
+          std::nth_element(lit.begin(), lit.begin() + static_cast<std::ptrdiff_t>(at), lit.end());
+          const double level = lit[at] / s.full_scale;
+          if (std::abs(level - o.target_fraction) <= o.tolerance) {
+            done[c] = true;
+            summary_.auto_exposure_us[s.cam->name] = exposure;
+            continue;
+          }
+          next = level >= 0.999 ? exposure * 0.5 : exposure * std::clamp(o.target_fraction / std::max(level, 1e-3), 0.25, 4.0);
+        }
+        next = std::clamp(next, o.min_exposure_us, o.max_exposure_us);
+        if (next == exposure) {  // at a bound: take it
+          done[c] = true;
+          summary_.auto_exposure_us[s.cam->name] = exposure;
+          continue;
+        }
+        SetExposure(s, next);
+        all_done = false;
+      }
+      if (all_done) break;
+    }
+    for (size_t c = 0; c < states_.size(); ++c) {
+      if (!done[c]) {
+        summary_.auto_exposure_us[states_[c].cam->name] = *states_[c].settings.exposure_us;
+      }
+    }
+  }
+
+  void SetExposure(CameraState& s, double exposure_us) {
+    s.cam->camera->Stop();
+    s.settings.exposure_us = exposure_us;
+    s.cam->camera->Configure(s.settings);
+    s.cam->camera->Start();
+  }
+
+  const Rig& rig_;
+  PatternSpec spec_;
+  Projector& projector_;
+  fs::path out_;
+  SequencerOptions options_;
+  std::vector<CameraState> states_;
+  std::vector<cv::Mat> images_;
+  std::unique_ptr<SequenceModel> model_;
+  bool validate_ = true;
+  ResumableImageSetWriter* writer_ = nullptr;
+  CaptureSummary summary_;
+};
+
+}  // namespace
+
+CaptureSummary Capture(const Rig& rig, const PatternSpec& spec, const std::vector<CaptureCamera>& cameras,
+                       Projector& projector, const fs::path& out, const SequencerOptions& options) {
+  Sequencer sequencer(rig, spec, cameras, projector, out, options);
+  return sequencer.Run();
+}
+
+fs::path PoseDir(const fs::path& out, int pose) {
+  char name[32];
+  std::snprintf(name, sizeof(name), "pose_%02d", pose);
+  return out / name;
+}
+
+PosesSummary CapturePoses(const Rig& rig, const PatternSpec& spec, const std::vector<CaptureCamera>& cameras,
+                          Projector& projector, const fs::path& out, int num_poses, const SequencerOptions& options,
+                          std::istream& input, std::ostream& prompt) {
+  SLSHADOW_THROW_IF(num_poses < 1 || num_poses > 99, "--poses: must be in [1, 99] (got ", num_poses, ")");
+  std::error_code ec;
+  fs::create_directories(out, ec);
+  SLSHADOW_THROW_IF(ec, out.string(), ": cannot create folder: ", ec.message());
+  PosesSummary result;
+  for (int p = 0; p < num_poses; ++p) {
+    const fs::path dir = PoseDir(out, p);
+    if (fs::exists(dir / "manifest.json", ec)) {
+      ++result.skipped;
+      continue;
+    }
+    if (options.stop && options.stop->load()) {
+      result.interrupted = true;
+      break;
+    }
+    const bool partial = fs::exists(ResumableImageSetWriter::StagingDirFor(dir), ec);
+    prompt << "pose " << p + 1 << " of " << num_poses << (partial ? " (continuing a partial capture)" : "")
+           << ": place the board, then press Enter" << std::endl;
+    std::string line;
+    if (!std::getline(input, line)) {
+      result.interrupted = true;  // end of input: stop like Ctrl-C, the poses so far are kept
+      break;
+    }
+    SequencerOptions o = options;
+    o.writer.overwrite = false;
+    CaptureSummary s = Capture(rig, spec, cameras, projector, dir, o);
+    const bool stopped = s.interrupted;
+    result.poses.push_back(std::move(s));
+    if (stopped) {
+      result.interrupted = true;
+      break;
+    }
+  }
+  return result;
+}
+
+}  // namespace slshadow::capture

@@ -1,0 +1,177 @@
+// The acquisition sequencer: drives the projector and the cameras through a pattern sequence and
+// stores every accepted frame through the resumable ImageSet writer (core/image_set.h), so a
+// capture interrupted by Ctrl-C, a crash or a lost camera continues with `resume`.
+//
+// Per pattern: Show -> wait latency + settle -> trigger every camera (stereo frames of one
+// pattern come from the same trigger round) -> Grab with each camera's timeout -> validate ->
+// retry (bounded) -> store. Storage runs on its own thread so PNG encoding and fsync do not
+// pace the projector.
+//
+// Validation (only when the projector shows the patterns, i.e. its Info().width > 0), per camera,
+// against what the pattern spec predicts (patterns/codec.h GeneratePatterns):
+//  - the frame arrived complete (status kOk) and has the camera's size and the configured depth;
+//  - stale frame: where consecutive patterns differ over the whole projector (every tile of an 8x8
+//    grid changes in >= min_pattern_change of its pixels), a frame nearly equal to the previous one
+//    means the projector had not switched yet: fewer than stale_ratio x expected of the lit pixels
+//    changed by a quarter of the local contrast (white - black);
+//  - complementary pairs: after the white and black references (or, for phase codecs, the
+//    per-pixel max / min of the first phase steps), a Gray bit and its inverse must be on opposite
+//    sides of (white + black) / 2 wherever both are decisive, in >= min_complementary of those
+//    pixels; white and black must differ (lit area >= min_lit_share). A failing pair is taken
+//    again as a whole.
+// A frame that fails is taken again (Flush, Show, wait latency + settle + attempt x
+// retry_backoff, trigger all cameras) up to max_retries times. A pair (Gray bit + inverse, white
+// + black) whose second frame or whose pair check fails is taken again as a whole, up to
+// max_retries times, waiting group attempt x retry_backoff longer each time (a stale first frame
+// of a pair is only visible through the second). Then Capture throws slshadow::Error naming the
+// pattern (index and role), the camera and why, and the staging folder stays resumable.
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <iosfwd>
+#include <map>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "capture/camera.h"
+#include "capture/projector.h"
+#include "core/image_set.h"
+#include "core/rig.h"
+#include "patterns/pattern_spec.h"
+
+namespace slshadow::capture {
+
+// One camera as the sequencer uses it: the rig camera it plays, the device, its settings.
+struct CaptureCamera {
+  std::string name;    // a camera name of the rig
+  Camera* camera = nullptr;  // not owned
+  CameraSettings settings;
+  std::chrono::milliseconds grab_timeout{1000};
+};
+
+struct ValidationOptions {
+  int stride_px = 4;                 // check every stride-th pixel in x and y (speed)
+  double min_pattern_change = 0.25;  // pattern pairs changing less (in some tile) are not stale-checked
+  double stale_ratio = 0.3;          // stale: changed share < stale_ratio x expected change share
+  // Without references: a pixel changed when |frame - previous| >= this (8-bit grey levels,
+  // scaled to the camera's full scale), and the lit share is taken as at least this floor.
+  double change_threshold = 16;
+  double min_lit_share_floor = 0.02;
+  double lit_threshold = 12;         // lit: white - black >= this (8-bit grey levels, scaled)
+  double min_lit_share = 0.01;       // white vs black: at least this share of the image lit
+  double min_complementary = 0.9;    // share of decisive pixels on opposite sides in a Gray pair
+  int min_samples = 64;              // fewer lit / decisive samples than this: the check is skipped
+  void Check() const;
+};
+
+struct AutoExposureOptions {
+  double target_fraction = 0.85;  // brightest 1 % of the lit area at this fraction of full scale
+  double tolerance = 0.08;        // done when within target_fraction +- tolerance
+  double percentile = 0.99;       // "brightest 1 %"
+  int max_iterations = 6;
+  double min_exposure_us = 10, max_exposure_us = 2e6;
+  void Check() const;
+};
+
+struct SequencerOptions {
+  std::chrono::microseconds settle{0};         // waited after the projector's latency
+  int max_retries = 3;                         // extra attempts per pattern (and per pair)
+  std::chrono::microseconds retry_backoff{std::chrono::milliseconds(20)};  // extra wait per attempt
+  bool validate = true;                        // only effective when the projector shows patterns
+  ValidationOptions validation;
+  bool auto_exposure = false;                  // exposure assistant before the sequence
+  AutoExposureOptions auto_exposure_options;
+  // Writer: encoding, resume, overwrite, durability (core/image_set.h).
+  ResumableImageSetWriterOptions writer;
+  int store_queue_images = 64;                 // frames waiting for storage before Capture waits
+  // Set from another thread or a signal handler to stop between frames; the capture returns
+  // with interrupted = true and the staging folder resumable.
+  const std::atomic<bool>* stop = nullptr;
+  bool progress = true;                        // progress line on stderr (core/progress.h)
+  // How the sequencer waits for the projector (until latency + settle + backoff after Show).
+  // Empty: std::this_thread::sleep_until. Tests pass a virtual clock shared with a test projector.
+  std::function<void(std::chrono::steady_clock::time_point)> sleep_until;
+  nlohmann::json extra;                        // caller's provenance, stored in the manifest's extra
+  void Check() const;
+};
+
+// Counters of one camera in one capture run.
+struct CameraCaptureStats {
+  std::string serial;
+  int64_t frames_grabbed = 0;    // frames that arrived (any status)
+  int64_t frames_stored = 0;
+  int64_t timeouts = 0;          // Grab returned kTimeout
+  int64_t damaged = 0;           // arrived with another status than kOk, or a wrong size / depth
+  int64_t stale = 0;             // rejected: still showed the previous pattern
+  int64_t not_complementary = 0; // rejected with its pair: Gray bit / inverse (or white / black) check
+  int64_t missing_frame_ids = 0; // frame ids never grabbed (16-bit ids wrap 65535 -> 1; 0 invalid)
+  int64_t invalid_frame_ids = 0; // frames with id 0
+  double exposure_us = 0;        // the exposure used (auto-exposure: the value chosen)
+  StreamStatistics stream;       // the camera's own transport counters at the end
+  nlohmann::json ToJson() const;
+};
+
+struct CaptureSummary {
+  std::filesystem::path out;       // the ImageSet (when complete)
+  std::filesystem::path staging;   // the staging folder (when interrupted)
+  bool complete = false;           // committed
+  bool interrupted = false;        // stopped by options.stop; resumable
+  bool resumed = false;            // continued an existing staging folder
+  int patterns = 0;                // in the sequence
+  int images_total = 0;            // patterns x cameras
+  int images_before = 0;           // already stored when this run started (resume)
+  int images_stored = 0;           // stored by this run
+  int retries = 0;                 // extra attempts, all patterns
+  double seconds = 0;
+  double mean_pattern_ms = 0;      // wall time per pattern acquired by this run
+  std::map<std::string, CameraCaptureStats> cameras;
+  std::map<std::string, double> auto_exposure_us;  // chosen exposures (auto-exposure)
+  std::string BriefReport() const;
+  nlohmann::json ToJson() const;
+};
+
+// Captures `spec` with `cameras` (each a rig camera) and `projector` into the ImageSet `out`.
+// Throws slshadow::Error on bad arguments, on a camera or projector that refuses its settings,
+// and when a pattern fails max_retries + 1 times (message: pattern, camera, why; the staging
+// folder stays resumable). Returns interrupted = true when options.stop was raised.
+CaptureSummary Capture(const Rig& rig, const PatternSpec& spec, const std::vector<CaptureCamera>& cameras,
+                       Projector& projector, const std::filesystem::path& out, const SequencerOptions& options);
+
+// Board poses one after another (`slshadow capture --poses N`): before each pose, writes a prompt
+// to `prompt` and waits for a line on `input` (Enter); pose p goes to OUT/pose_PP (two digits),
+// an ImageSet each, the layout `slshadow calibrate rig --imagesets OUT/pose_*` reads. Poses
+// already complete are skipped; with options.writer.resume a partial pose is continued.
+struct PosesSummary {
+  std::vector<CaptureSummary> poses;  // the poses captured by this run
+  bool interrupted = false;
+  int skipped = 0;                    // already complete
+};
+PosesSummary CapturePoses(const Rig& rig, const PatternSpec& spec, const std::vector<CaptureCamera>& cameras,
+                          Projector& projector, const std::filesystem::path& out, int num_poses,
+                          const SequencerOptions& options, std::istream& input, std::ostream& prompt);
+// OUT/pose_PP.
+std::filesystem::path PoseDir(const std::filesystem::path& out, int pose);
+
+// Frame-id bookkeeping: counts ids that were never seen between consecutive frames. GigE Vision
+// ids are 16-bit, 0 is invalid and 65535 is followed by 1; larger ids count up without wrapping.
+class FrameIdTracker {
+ public:
+  // Returns the number of ids skipped before `id` (0 for the first frame, an invalid id or a
+  // repeated id).
+  int64_t Next(uint64_t id);
+  int64_t missing() const { return missing_; }
+  int64_t invalid() const { return invalid_; }
+
+ private:
+  bool has_last_ = false;
+  uint64_t last_ = 0;
+  int64_t missing_ = 0, invalid_ = 0;
+};
+
+}  // namespace slshadow::capture
