@@ -162,6 +162,7 @@ class AravisCamera final : public Camera {
     const std::string& who = Who();
     settings.Check(who);
     SLSHADOW_THROW_IF(running_, who, ": Configure: call Stop() first");
+    configured_ = false;  // until every setting is applied
     GError* error = nullptr;
 
     // Pixel format.
@@ -193,12 +194,14 @@ class AravisCamera final : public Camera {
     if (settings.exposure_us) {
       SLSHADOW_THROW_IF(exposure_feature_.empty(), who,
                         ": exposure_us: the device has neither ExposureTime nor ExposureTimeAbs");
+      SwitchOff("ExposureAuto");  // an automatic exposure would override the value
       SetFloatChecked(exposure_feature_, *settings.exposure_us, "exposure_us");
     }
     // Gain (dB).
     if (settings.gain_db) {
       SLSHADOW_THROW_IF(gain_feature_.empty(), who,
                         ": gain_db: the device has none of Gain, GainAbs, GainRaw");
+      SwitchOff("GainAuto");
       if (gain_feature_ == "GainRaw") {
         const double raw = std::round(*settings.gain_db);
         SetIntegerChecked("GainRaw", static_cast<int64_t>(raw), "gain_db");
@@ -423,6 +426,16 @@ class AravisCamera final : public Camera {
       if (IsAvailable(name)) return name;
     }
     return "";
+  }
+
+  // Sets an automatic-mode enumeration (ExposureAuto, GainAuto) to Off when the device has it.
+  void SwitchOff(const char* feature) {
+    if (!IsAvailable(feature)) return;
+    GError* error = nullptr;
+    if (arv_camera_is_enumeration_entry_available(camera_, feature, "Off", &error)) {
+      arv_camera_set_string(camera_, feature, "Off", &error);
+    }
+    ThrowOn(error, feature, "Off");
   }
 
   void SetFloatChecked(const std::string& feature, double value, const char* field) {
