@@ -33,7 +33,10 @@ int RunReconstruct(int argc, char** argv) {
       "CLOUD.ply (binary, rig frame = first camera's frame, mm) has normals (toward the camera) and\n"
       "the scalar fields quality, u, v (source pixel), reprojection_error_px and camera (rig index);\n"
       "it is written atomically. A JSON summary (options, counts per reason, residual statistics\n"
-      "median / p95 of the reprojection and epipolar errors, timings) goes next to it.",
+      "median / p95 of the reprojection and epipolar errors, the calibration check, timings) goes next\n"
+      "to it. The calibration check splits the epipolar error into a smooth field and the decode noise\n"
+      "and warns (stderr) when the field is significant against the noise, naming its likely cause;\n"
+      "with one coded axis it says why it is not available.",
       argv[0]};
   std::string imageset_dir, out_path, summary_path, mode = "projector", method = "midpoint", interpolation = "auto";
   ImageSetReconstructOptions options;
@@ -69,7 +72,7 @@ int RunReconstruct(int argc, char** argv) {
   app.add_option("--max-reprojection-px", max_reproj, "gate on the RMS reprojection error over both views, px (0: off)")
       ->capture_default_str();
   app.add_option("--max-epipolar-px", max_epi,
-                 "gate on the epipolar residual, projector px (projector mode with both axes coded: distance "
+                 "gate on the epipolar error, projector px (projector mode with both axes coded: distance "
                  "from the epipolar line; stereo: difference of the projector rows) (0: off)")
       ->capture_default_str();
   app.add_option("--min-quality", r.min_quality, "reject pixels of lower decode quality (grey levels; 0: keep all)")
@@ -97,8 +100,12 @@ int RunReconstruct(int argc, char** argv) {
                  "decoding: minimum Gray-code bit contrast (8-bit grey levels)")
       ->capture_default_str();
   app.add_option("--calibration-warning-px", r.calibration_warning_px,
-                 "calibration check: warn when the median epipolar residual of the dense correspondences exceeds "
-                 "this (px); residual maps are written next to the cloud")
+                 "calibration check: warn when the systematic part of the epipolar error (a smooth field fitted to "
+                 "it) exceeds this, projector px. 0: automatic, --calibration-noise-factor x the decode noise of "
+                 "this capture (at least 0.01 px); inf: report only. Residual maps are written next to the cloud")
+      ->capture_default_str();
+  app.add_option("--calibration-noise-factor", r.calibration_noise_factor,
+                 "calibration check: the automatic threshold in units of the decode noise")
       ->capture_default_str();
   app.add_option("--summary", summary_path, "summary JSON path (default: CLOUD with .summary.json)");
   app.add_flag("--ascii", ascii, "write ASCII PLY instead of binary");
@@ -121,6 +128,8 @@ int RunReconstruct(int argc, char** argv) {
 
   const ImageSet image_set = ImageSet::Open(imageset_dir);
   const ImageSetReconstruction rec = ReconstructImageSet(image_set, options);
+  // An empty cloud is an error with its reason (a wrong rig file, most often), and nothing is written.
+  SLSHADOW_THROW_IF(rec.cloud.empty(), "reconstruct: ", imageset_dir, ": 0 points: ", rec.NoPointsReason());
   PlyWriteOptions ply;
   ply.binary = !ascii;
   WritePly(out_path, rec.cloud, ply);
@@ -132,11 +141,15 @@ int RunReconstruct(int argc, char** argv) {
   summary["imageset"] = imageset_dir;
   summary["cloud"] = out_path;
   summary["options"] = options.ToJson();
-  // Calibration-check maps: the dense correspondences' residuals, colour-coded from 0 (blue) to
-  // 2 x the warning threshold (red); black where no correspondence.
-  const double map_max_px = std::isfinite(r.calibration_warning_px) ? 2 * r.calibration_warning_px : 1.0;
+  // Calibration-check maps: the dense correspondences' |epipolar error|, colour-coded from 0 (blue)
+  // to 2 x the check's threshold (red); black where no correspondence. Each entry carries the
+  // check's verdict and the likely causes it named.
   nlohmann::json maps = nlohmann::json::array();
-  for (const auto& [name, residuals] : rec.residual_maps) {
+  for (size_t k = 0; k < rec.residual_maps.size(); ++k) {
+    const auto& [name, residuals] = rec.residual_maps[k];
+    const CalibrationCheck& check = rec.summaries.at(k).calibration_check;
+    const double map_max_px =
+        check.available && std::isfinite(check.threshold_px) && check.threshold_px > 0 ? 2 * check.threshold_px : 1.0;
     std::filesystem::path p(out_path);
     const std::filesystem::path map_path = p.parent_path() / (p.stem().string() + ".residuals_" + name + ".png");
     cv::Mat scaled, mask = residuals == residuals;  // false at NaN
@@ -148,13 +161,21 @@ int RunReconstruct(int argc, char** argv) {
       SLSHADOW_THROW_IF(!cv::imwrite(tmp.string() + ".png", colour), map_path.string(), ": cannot write image");
       std::filesystem::rename(tmp.string() + ".png", tmp);
     });
-    maps.push_back({{"reconstruction", name}, {"file", map_path.string()}, {"scale_max_px", map_max_px}});
+    maps.push_back({{"reconstruction", name},
+                    {"file", map_path.string()},
+                    {"scale_max_px", map_max_px},
+                    {"calibration_warning", check.warn},
+                    {"systematic_px", check.systematic_px},
+                    {"likely_causes", check.likely_causes}});
   }
   summary["residual_maps"] = maps;
   WriteTextFileAtomically(summary_path, summary.dump(2) + "\n");
   for (const auto& w : rec.Warnings()) std::fprintf(stderr, "slshadow: warning: %s\n", w.c_str());
   if (quiet) {
-    for (const auto& s : rec.summaries) std::printf("%s\n", s.BriefReport().c_str());
+    for (const auto& s : rec.summaries) {
+      std::printf("%s\n", s.BriefReport().c_str());
+      if (!s.calibration_check.warn) std::printf("%s\n", s.calibration_check.Message().c_str());
+    }
   } else {
     std::printf("%s", rec.FullReport().c_str());
   }

@@ -23,6 +23,7 @@ const std::vector<Command>& Commands() {
       {"calibrate", "calibrate cameras, stereo, projector or rig from board images (calibrate camera|stereo|projector|rig|import|export)", RunCalibrate},
       {"bench", "speed of simulate, decode, reconstruct and compare on the demo, with peers in the same run", RunBenchCommand},
       {"rig", "inspect a rig file: cameras, projector, baselines, angles, overlap (rig show RIG.yaml)", RunRig},
+      {"latency", "projector latency: present-to-screen of the window projector (latency [--display N | --geometry x,y,w,h])", RunLatency},
       {"devices", "list cameras and displays to capture with (devices [--address IP]... [--discover]: discovery broadcasts)", RunDevices},
   };
   return commands;

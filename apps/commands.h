@@ -30,6 +30,7 @@ int RunCompare(int argc, char** argv);
 int RunSimulate(int argc, char** argv);
 int RunDemo(int argc, char** argv);
 int RunBenchCommand(int argc, char** argv);
+int RunLatency(int argc, char** argv);
 int RunDevices(int argc, char** argv);
 
 }  // namespace slshadow::app

@@ -26,7 +26,7 @@ enum class RejectReason : uint8_t {
   kBehindDevice = 7,       // the point is not in front of both devices
   kOutOfDepthRange = 8,    // depth outside [min_depth_mm, max_depth_mm]
   kReprojectionError = 9,  // reprojection error above the gate
-  kEpipolarError = 10,     // epipolar (projector mode) / cross-axis (stereo) residual above the gate
+  kEpipolarError = 10,     // |epipolar error| above the gate (both modes; calibration_check.h)
   kDepthDiscontinuity = 11,  // at or next to a depth jump
   kOutlier = 12,           // statistical outlier removal
   kOutsideImage = 13,      // stereo: the rectified cell falls outside the camera image
@@ -45,7 +45,8 @@ struct DenseGrid {
   std::vector<float> quality;                // decode quality of the source pixel
   std::vector<float> source_u, source_v;     // source pixel in the reference camera image, px
   std::vector<float> reprojection_error_px;  // RMS over the two views
-  std::vector<float> epipolar_error_px;      // NaN when not defined for the mode
+  // Signed epipolar error, projector px (calibration_check.h); NaN when not defined for the mode.
+  std::vector<float> epipolar_error_px;
 
   // Grids of a whole image are large (~45 B per cell, ~100 MB at 1920x1200) and fresh memory of
   // that size costs page faults on every reconstruction, so a destroyed grid hands its buffers to a

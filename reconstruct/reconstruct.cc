@@ -161,10 +161,11 @@ void Finish(const ReconstructOptions& options, Reconstruction* out) {
       for (size_t i = grid.Index(0, v), end = i + static_cast<size_t>(w); i < end; ++i) {
         if (!grid.Accepted(i)) continue;
         reproj[k++] = grid.reprojection_error_px[i];
-        if (std::isfinite(grid.epipolar_error_px[i])) epi[ke++] = grid.epipolar_error_px[i];
+        const float epipolar = std::abs(grid.epipolar_error_px[i]);  // signed in the grid
+        if (std::isfinite(epipolar)) epi[ke++] = epipolar;
         if (!(grid.reprojection_error_px[i] <= options.max_reprojection_error_px)) {
           grid.reason[i] = Code(RejectReason::kReprojectionError);
-        } else if (grid.epipolar_error_px[i] > options.max_epipolar_error_px) {
+        } else if (epipolar > options.max_epipolar_error_px) {
           grid.reason[i] = Code(RejectReason::kEpipolarError);
         }
       }
@@ -255,7 +256,11 @@ void ReconstructOptions::Check() const {
   if (!(outlier_std_ratio > 0) || !std::isfinite(outlier_std_ratio)) fail("outlier_std_ratio", "must be finite and positive", outlier_std_ratio);
   if (!(outlier_min_distance_footprints >= 0) || !std::isfinite(outlier_min_distance_footprints))
     fail("outlier_min_distance_footprints", "must be finite and >= 0", outlier_min_distance_footprints);
-  if (!(calibration_warning_px > 0)) fail("calibration_warning_px", "must be positive", calibration_warning_px);
+  if (!(calibration_warning_px >= 0)) fail("calibration_warning_px", "must be >= 0 (0: automatic)", calibration_warning_px);
+  if (!(calibration_noise_factor > 0) || !std::isfinite(calibration_noise_factor))
+    fail("calibration_noise_factor", "must be finite and positive", calibration_noise_factor);
+  if (!(calibration_min_warning_px >= 0) || !std::isfinite(calibration_min_warning_px))
+    fail("calibration_min_warning_px", "must be finite and >= 0", calibration_min_warning_px);
 }
 
 nlohmann::json ReconstructOptions::ToJson() const {
@@ -279,25 +284,57 @@ nlohmann::json ReconstructOptions::ToJson() const {
           {"outlier_std_ratio", outlier_std_ratio},
           {"outlier_min_distance_footprints", outlier_min_distance_footprints},
           {"estimate_normals", estimate_normals},
-          {"calibration_warning_px", num(calibration_warning_px)}};
+          {"calibration_warning_px", num(calibration_warning_px)},
+          {"calibration_noise_factor", calibration_noise_factor},
+          {"calibration_min_warning_px", calibration_min_warning_px}};
 }
 
 namespace {
 
-// The calibration check of ReconstructOptions::calibration_warning_px.
-std::vector<std::string> CalibrationWarnings(const ReconstructSummary& s, double threshold_px) {
-  const bool epipolar = s.epipolar_error_px.count > 0;
-  const ResidualStats& r = epipolar ? s.epipolar_error_px : s.reprojection_error_px;
-  if (r.count < 100 || !(r.median > threshold_px)) return {};
-  char buf[640];
-  std::snprintf(buf, sizeof(buf),
-                "calibration check: the median %s of %lld dense %s-%s correspondences is %.3g px (p95 %.3g px), "
-                "above %.3g px: the rig file does not fit these captures (bumped rig, swapped camera names or a "
-                "wrong rig file?); recalibrate or run 'slshadow calibrate refine'",
-                epipolar ? (s.mode == ReconstructMode::kStereo ? "cross-axis residual" : "epipolar residual")
-                         : "reprojection error",
-                static_cast<long long>(r.count), s.camera.c_str(), s.other_device.c_str(), r.median, r.p95, threshold_px);
-  return {buf};
+// The calibration check (calibration_check.h) of the grid's signed epipolar errors, at the
+// reference camera's source pixels in normalised coordinates scaled to +-1 across its width.
+// `reason_unavailable` non-empty: the mode leaves no epipolar error; the check says why.
+void RunCalibrationCheck(const DenseGrid& grid, const CameraModel& reference, const CalibrationCheckSetup& setup,
+                         const std::string& reason_unavailable, ReconstructSummary* s) {
+  if (!reason_unavailable.empty()) {
+    s->calibration_check = UnavailableCalibrationCheck(setup.pair, reason_unavailable);
+    return;
+  }
+  const double half_width = 0.5 * reference.width, aspect = reference.fx() / reference.fy();
+  std::vector<float> x, y, e;
+  std::vector<double> range_mm;
+  for (size_t i = 0; i < grid.epipolar_error_px.size(); ++i) {
+    if (!std::isfinite(grid.epipolar_error_px[i])) continue;
+    x.push_back(static_cast<float>((grid.source_u[i] - reference.cx()) / half_width));
+    y.push_back(static_cast<float>((grid.source_v[i] - reference.cy()) / half_width * aspect));
+    e.push_back(grid.epipolar_error_px[i]);
+    if (e.size() % 16 == 0 && grid.point_in_rig[i].allFinite()) range_mm.push_back((grid.point_in_rig[i] - grid.viewpoint_in_rig).norm());
+  }
+  // The working distance of this scan: the median range of its points (the rig file's nominal
+  // working_distance_mm when too few).
+  CalibrationCheckSetup at = setup;
+  if (range_mm.size() >= 10) {
+    std::nth_element(range_mm.begin(), range_mm.begin() + static_cast<std::ptrdiff_t>(range_mm.size() / 2), range_mm.end());
+    at.working_distance_mm = range_mm[range_mm.size() / 2];
+  }
+  // setup.mm_per_px holds 1 / (f B) until the distance is known.
+  at.mm_per_px = setup.mm_per_px * at.working_distance_mm * at.working_distance_mm;
+  s->calibration_check = FitCalibrationCheck(x, y, e, at);
+  if (s->calibration_check.warn) s->warnings.push_back(s->calibration_check.Message());
+}
+
+CalibrationCheckSetup CheckSetup(const ReconstructOptions& options, const Rig& rig, const RigDevice& a,
+                                 const RigDevice& b, bool stereo) {
+  CalibrationCheckSetup setup;
+  setup.pair = a.name + "-" + b.name;
+  setup.stereo = stereo;
+  setup.warning_px = options.calibration_warning_px;
+  setup.noise_factor = options.calibration_noise_factor;
+  setup.min_warning_px = options.calibration_min_warning_px;
+  setup.working_distance_mm = rig.working_distance_mm;
+  const double baseline_mm = (a.CenterInRig() - b.CenterInRig()).norm();
+  if (rig.projector && baseline_mm > 0) setup.mm_per_px = 1.0 / (FocalOf(rig.projector->model) * baseline_mm);
+  return setup;
 }
 
 }  // namespace
@@ -376,11 +413,17 @@ nlohmann::json ResidualStats::ToJson() const {
 
 std::string ReconstructSummary::BriefReport() const {
   char buf[512];
-  std::snprintf(buf, sizeof(buf),
-                "%s/%s %s-%s: %lld points of %lld cells (%s); reprojection median %.3g px, p95 %.3g px; %.3f s",
-                ToString(mode), ToString(method), camera.c_str(), other_device.c_str(),
-                static_cast<long long>(points), static_cast<long long>(cells), Percent(points, cells).c_str(),
-                reprojection_error_px.median, reprojection_error_px.p95, total_s);
+  const CalibrationCheck& c = calibration_check;
+  char check[128];
+  if (!c.available) {
+    std::snprintf(check, sizeof(check), "calibration check not available");
+  } else {
+    std::snprintf(check, sizeof(check), "epipolar error median %.3g projector px; calibration check %s (%.3g of %.3g px)",
+                  epipolar_error_px.median, c.warn ? "WARNING" : "passed", c.systematic_px, c.threshold_px);
+  }
+  std::snprintf(buf, sizeof(buf), "%s/%s %s-%s: %lld points of %lld cells (%s); %s; %.3f s", ToString(mode),
+                ToString(method), camera.c_str(), other_device.c_str(), static_cast<long long>(points),
+                static_cast<long long>(cells), Percent(points, cells).c_str(), check, total_s);
   return buf;
 }
 
@@ -402,14 +445,19 @@ std::string ReconstructSummary::FullReport() const {
     out << " " << ToString(static_cast<PixelStatus>(k)) << "=" << decode_status[static_cast<size_t>(k)];
   }
   out << "\n";
-  auto stats = [&](const char* name, const ResidualStats& r) {
-    char line[256];
-    std::snprintf(line, sizeof(line), "  %-22s n=%lld median %.4g p95 %.4g rms %.4g max %.4g px\n", name,
-                  static_cast<long long>(r.count), r.median, r.p95, r.rms, r.max);
+  auto stats = [&](const char* name, const ResidualStats& r, const char* unit) {
+    char line[320];
+    std::snprintf(line, sizeof(line), "  %-22s n=%lld median %.4g p95 %.4g rms %.4g max %.4g %s\n", name,
+                  static_cast<long long>(r.count), r.median, r.p95, r.rms, r.max, unit);
     out << line;
   };
-  stats("reprojection error", reprojection_error_px);
-  if (epipolar_error_px.count > 0) stats(mode == ReconstructMode::kStereo ? "cross-axis residual" : "epipolar error", epipolar_error_px);
+  stats("reprojection error", reprojection_error_px,
+        mode == ReconstructMode::kStereo
+            ? (method == TriangulationMethod::kMidpoint ? "camera px (~0 by construction in stereo: no calibration evidence)"
+                                                        : "camera px (small by construction in stereo: no calibration evidence)")
+            : "px (RMS of camera px and projector px)");
+  if (epipolar_error_px.count > 0) stats("epipolar error", epipolar_error_px, "projector px (|signed|)");
+  out << "  " << calibration_check.Message() << "\n";
   if (normal_fallbacks > 0) out << "  normals facing the camera (too few neighbours): " << normal_fallbacks << "\n";
   char line[256];
   std::snprintf(line, sizeof(line), "  time: rays %.3f s, match %.3f s, triangulate %.3f s, filters %.3f s, normals+cloud %.3f s, total %.3f s\n",
@@ -440,6 +488,7 @@ nlohmann::json ReconstructSummary::ToJson() const {
           {"normal_fallbacks", normal_fallbacks},
           {"reprojection_error_px", reprojection_error_px.ToJson()},
           {"epipolar_error_px", epipolar_error_px.ToJson()},
+          {"calibration_check", calibration_check.ToJson()},
           {"warnings", warnings},
           {"time_s", {{"rays", rays_s}, {"match", match_s}, {"triangulate", triangulate_s}, {"filters", filter_s},
                       {"normals", normals_s}, {"total", total_s}}},
@@ -563,7 +612,7 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
             in_cam = cam_view.ToCam(point);
           }
           in_proj = r_pc * in_cam + t_pc;
-          epipolar = tri.EpipolarDistancePx(xy, pxy);
+          epipolar = tri.SignedEpipolarDistancePx(xy, pxy);
         } else {
           double sin_angle = 0;
           const auto p = TriangulateRayAxis(cam_view.center_in_rig, cam_view.RayInRig(xy), proj.model, proj_view, axis,
@@ -604,7 +653,11 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
   });
   Elapsed(t0, &s.triangulate_s, &s.triangulate_cpu_s);
   Finish(options, &out);
-  s.warnings = CalibrationWarnings(s, options.calibration_warning_px);
+  RunCalibrationCheck(grid, cam.model, CheckSetup(options, rig, cam, proj, false),
+                      both ? "" : std::string("only projector ") + (map.has_x ? "columns" : "rows") +
+                                      " are coded: the one-axis triangulation meets the projector's plane exactly and "
+                                      "leaves no epipolar error to check (code both axes for a check)",
+                      &s);
   Elapsed(start, &s.total_s, &s.total_cpu_s);
   return out;
 }
@@ -747,7 +800,7 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
         if (cross_axis) {
           const double y = InterpolateRow(rm.proj_y.data() + rm.Index(0, v), rm.width, ur, options.max_code_step_px,
                                           cubic);
-          if (std::isfinite(y)) grid.epipolar_error_px[i] = static_cast<float>(std::abs(lm.proj_y[i] - y));
+          if (std::isfinite(y)) grid.epipolar_error_px[i] = static_cast<float>(lm.proj_y[i] - y);
         }
         grid.point_in_rig[i] = point;
       }
@@ -755,7 +808,12 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
   });
   Elapsed(t0, &s.triangulate_s, &s.triangulate_cpu_s);
   Finish(options, &out);
-  s.warnings = CalibrationWarnings(s, options.calibration_warning_px);
+  RunCalibrationCheck(grid, left.model, CheckSetup(options, rig, left, right, true),
+                      cross_axis ? ""
+                                 : "only projector columns are coded: the stereo matches lie on the rectified epipolar "
+                                   "lines by construction and leave no epipolar error to check (code projector rows "
+                                   "too for a check)",
+                      &s);
   Elapsed(start, &s.total_s, &s.total_cpu_s);
   return out;
 }

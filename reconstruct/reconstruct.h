@@ -22,6 +22,7 @@
 #include "core/point_cloud.h"
 #include "core/projector_map.h"
 #include "core/rig.h"
+#include "reconstruct/calibration_check.h"
 #include "reconstruct/dense_grid.h"
 #include "reconstruct/stereo_matcher.h"
 #include "reconstruct/triangulation.h"
@@ -60,10 +61,9 @@ struct ReconstructOptions {
   double min_triangulation_angle_deg = 2.0;
   // Gate on the RMS reprojection error of the point over both views, px. Infinity disables it.
   double max_reprojection_error_px = 1.0;
-  // Gate on the epipolar residual, px: projector mode with both axes coded, distance of the
-  // projector coordinate from the camera pixel's epipolar line (projector px); stereo with both
-  // axes coded, |row_left - row_right| of the matched projector rows (projector px). Infinity
-  // disables it.
+  // Gate on |epipolar error|, projector px (calibration_check.h: projector mode with both axes
+  // coded, distance of the projector coordinate from the camera pixel's epipolar line; stereo with
+  // both axes coded, |row_left - row_right| of the matched projector rows). Infinity disables it.
   double max_epipolar_error_px = 1.0;
   // Pixels of decode quality below this are rejected (units of ProjectorMap::quality). 0 keeps all.
   float min_quality = 0.0f;
@@ -87,12 +87,16 @@ struct ReconstructOptions {
   double outlier_min_distance_footprints = 4.0;
   // Normals from the organised grid, oriented toward the reference camera.
   bool estimate_normals = true;
-  // Calibration check: warn when the median epipolar residual (projector mode: distance from the
-  // epipolar line; stereo: cross-axis residual), or else the median reprojection error, of the
-  // dense correspondences exceeds this, px. A good calibration gives a few hundredths to a few
-  // tenths of a pixel; a bumped rig, swapped camera names or a wrong rig file give pixels to
-  // hundreds of pixels. Infinity disables the check.
-  double calibration_warning_px = 0.5;
+  // Calibration check (calibration_check.h): warn when the systematic part of the epipolar error
+  // (the RMS of a smooth field fitted to it) exceeds a threshold, projector px. 0 (default): the
+  // threshold is calibration_noise_factor x the decode noise of this capture (the scatter about
+  // the field), at least calibration_min_warning_px; > 0: this fixed threshold; infinity: the
+  // check reports but never warns.
+  double calibration_warning_px = 0;
+  double calibration_noise_factor = 1.0;
+  // Floor of the automatic threshold, projector px: exact (noise-free) maps leave no noise to
+  // judge by, and fields below this cost < 0.02 mm at common working distances.
+  double calibration_min_warning_px = 0.01;
 
   // Throws slshadow::Error naming the first violated constraint.
   void Check() const;
@@ -128,11 +132,16 @@ struct ReconstructSummary {
   std::array<int64_t, kNumPixelStatus> decode_status{};
   int64_t normal_fallbacks = 0;
   // Residuals of all triangulated correspondences, before the reprojection/epipolar gates and
-  // the filters: a calibration check (a good rig gives sub-pixel medians).
+  // the filters. reprojection_error_px: RMS over both views (projector mode: camera and projector
+  // px; stereo: left and right camera px, ~0 by construction with the midpoint, so no evidence of
+  // calibration). epipolar_error_px: |epipolar error|, projector px (calibration_check.h); empty
+  // (count 0) with one coded axis.
   ResidualStats reprojection_error_px;
-  ResidualStats epipolar_error_px;  // empty (count 0) when the mode has none
-  // Calibration-check warnings (see ReconstructOptions::calibration_warning_px); empty when the
-  // residuals fit the calibration.
+  ResidualStats epipolar_error_px;
+  // The calibration check of the epipolar error (calibration_check.h), always reported.
+  CalibrationCheck calibration_check;
+  // Calibration-check warnings (its Message() when it warns); empty when the residuals fit the
+  // calibration or the check is not available.
   std::vector<std::string> warnings;
   // Wall-clock seconds per stage.
   double rays_s = 0, match_s = 0, triangulate_s = 0, filter_s = 0, normals_s = 0, total_s = 0;

@@ -47,7 +47,7 @@ cv::Mat ResidualMap(const Reconstruction& rec) {
     float* row = map.ptr<float>(v);
     for (int u = 0; u < g.width; ++u) {
       const size_t i = g.Index(u, v);
-      if (i < values.size() && std::isfinite(values[i])) row[u] = values[i];
+      if (i < values.size() && std::isfinite(values[i])) row[u] = std::abs(values[i]);  // epipolar: signed
     }
   }
   return map;
@@ -133,6 +133,33 @@ std::vector<std::string> ImageSetReconstruction::Warnings() const {
   std::vector<std::string> all;
   for (const auto& s : summaries) all.insert(all.end(), s.warnings.begin(), s.warnings.end());
   return all;
+}
+
+std::string ImageSetReconstruction::NoPointsReason() const {
+  if (!cloud.empty()) return "";
+  std::string out;
+  for (const auto& s : summaries) {
+    std::vector<std::pair<int64_t, int>> reasons;
+    for (int r = 1; r < kNumRejectReasons; ++r) {
+      if (s.rejected[static_cast<size_t>(r)] > 0) reasons.emplace_back(s.rejected[static_cast<size_t>(r)], r);
+    }
+    std::sort(reasons.rbegin(), reasons.rend());
+    out += (out.empty() ? "" : "; ") + s.camera + "-" + s.other_device + ": ";
+    if (reasons.empty()) out += "no cells";
+    for (size_t k = 0; k < reasons.size() && k < 2; ++k) {
+      char buf[160];
+      const double percent = 100.0 * static_cast<double>(reasons[k].first) / static_cast<double>(std::max<int64_t>(s.cells, 1));
+      if (k == 0) {
+        std::snprintf(buf, sizeof(buf), "%.1f %% of %lld cells rejected as %s", percent, static_cast<long long>(s.cells),
+                      ToString(static_cast<RejectReason>(reasons[k].second)));
+      } else {
+        std::snprintf(buf, sizeof(buf), ", %.1f %% as %s", percent, ToString(static_cast<RejectReason>(reasons[k].second)));
+      }
+      out += buf;
+    }
+    if (s.calibration_check.warn) out += " (" + s.calibration_check.Message() + ")";
+  }
+  return out;
 }
 
 std::string ImageSetReconstruction::FullReport() const {

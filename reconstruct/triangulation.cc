@@ -66,13 +66,13 @@ double TwoViewTriangulator::SinAngle(const Eigen::Vector2d& xy0, const Eigen::Ve
   return SinAngleOfRays(view0_.RayInRig(xy0), view1_.RayInRig(xy1));
 }
 
-double TwoViewTriangulator::EpipolarDistancePx(const Eigen::Vector2d& xy0, const Eigen::Vector2d& xy1) const {
+double TwoViewTriangulator::SignedEpipolarDistancePx(const Eigen::Vector2d& xy0, const Eigen::Vector2d& xy1) const {
   const Eigen::Vector3d x0(view0_.focal_px * xy0.x(), view0_.focal_px * xy0.y(), 1.0);
   const Eigen::Vector3d x1(view1_.focal_px * xy1.x(), view1_.focal_px * xy1.y(), 1.0);
   const Eigen::Vector3d line_in_1 = fundamental_.transpose() * x0;  // l1 = F^T x0
   const double norm = std::sqrt(line_in_1.x() * line_in_1.x() + line_in_1.y() * line_in_1.y());
   if (!(norm > 0)) return 0.0;
-  return std::abs(line_in_1.dot(x1)) / norm;
+  return line_in_1.dot(x1) / norm;
 }
 
 std::optional<Eigen::Vector3d> TwoViewTriangulator::Midpoint(const Eigen::Vector2d& xy0,

@@ -20,6 +20,7 @@
 // method on the ray parameter, started from the undistorted plane.
 #pragma once
 
+#include <cmath>
 #include <optional>
 #include <string>
 
@@ -100,7 +101,13 @@ class TwoViewTriangulator {
   }
 
   // Distance, in view 1's pixel-scaled units, of observation xy1 from the epipolar line of xy0.
-  double EpipolarDistancePx(const Eigen::Vector2d& xy0, const Eigen::Vector2d& xy1) const;
+  double EpipolarDistancePx(const Eigen::Vector2d& xy0, const Eigen::Vector2d& xy1) const {
+    return std::abs(SignedEpipolarDistancePx(xy0, xy1));
+  }
+  // The same with a sign: which side of the line xy1 lies on. The side is fixed by the rig (the
+  // fundamental matrix), so over one reconstruction a calibration error shows as a field of one
+  // sign where decoding noise averages to zero.
+  double SignedEpipolarDistancePx(const Eigen::Vector2d& xy0, const Eigen::Vector2d& xy1) const;
 
   // The individual methods.
   std::optional<Eigen::Vector3d> Midpoint(const Eigen::Vector2d& xy0, const Eigen::Vector2d& xy1) const;

@@ -23,6 +23,8 @@ PACKAGES=(
   libsdl2-dev xvfb x11-apps
   # private loopback-only network namespaces for the GigE Vision fake-camera tests (unshare, ip)
   util-linux iproute2
+  # window projector: X screen read-back (XGetImage, MIT-SHM)
+  libx11-dev libxext-dev
 )
 
 missing=()

@@ -195,7 +195,13 @@ Radiometry RadiometryFromConfig(const ConfigNode& node) {
   node.RejectUnknownKeys({"exposure", "exposure_us", "reference_distance_mm", "adc_bits", "lookup"});
   if (node.Has("exposure")) r.exposure = Positive(node["exposure"]);
   if (node.Has("exposure_us")) r.exposure_us = Positive(node["exposure_us"]);
-  if (node.Has("reference_distance_mm")) r.reference_distance_mm = Positive(node["reference_distance_mm"]);
+  if (node.Has("reference_distance_mm")) {  // 0: the rig's working distance (Radiometry)
+    const auto n = node["reference_distance_mm"];
+    r.reference_distance_mm = n.AsDouble();
+    if (!(r.reference_distance_mm >= 0) || !std::isfinite(r.reference_distance_mm)) {
+      n.Fail("must be >= 0 (0: the rig's working_distance_mm)");
+    }
+  }
   if (node.Has("adc_bits")) {
     r.adc_bits = static_cast<int>(node["adc_bits"].AsInt());
     if (r.adc_bits < 1 || r.adc_bits > 16) node["adc_bits"].Fail("must be in 1..16");

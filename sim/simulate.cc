@@ -270,7 +270,12 @@ SimulateSummary SimulateScan(const Scene& scene, const Rig& rig, const std::vect
   SimulateSummary sum;
   ImageSetWriter writer(out_dir, rig, pattern_spec, options.writer);
   nlohmann::json extra;
-  extra["simulator"] = {{"scene", SceneToJson(scene)},
+  // The radiometry as rendered: reference_distance_mm 0 (the rig's working distance) resolved.
+  nlohmann::json scene_json = SceneToJson(scene);
+  if (!(scene.radiometry.reference_distance_mm > 0)) {
+    scene_json["radiometry"]["reference_distance_mm"] = rig.working_distance_mm;
+  }
+  extra["simulator"] = {{"scene", scene_json},
                         {"trace_mode", options.trace_mode == TraceMode::kPacket16 ? "packet16" : "single_ray"},
                         {"ground_truth", options.write_ground_truth ? "ground_truth/<camera>/" : ""}};
   writer.SetExtra(extra);

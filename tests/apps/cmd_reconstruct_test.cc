@@ -11,6 +11,7 @@
 #include <nlohmann/json.hpp>
 
 #include "apps/commands.h"
+#include "core/image_set.h"
 #include "core/point_cloud.h"
 #include "core/rig.h"
 #include "tests/testing/run_cli.h"
@@ -66,6 +67,67 @@ TEST_F(CmdReconstruct, ProjectorModeWritesCloudAndSummary) {
   EXPECT_EQ(summary["options"]["reconstruct"]["method"], "midpoint");
   // Both cameras see the part: a half-resolution scan gives several hundred thousand points.
   EXPECT_GT(cloud.size(), 300000u);
+  // The calibration check of each reconstruction is in the summary, beside its residual map.
+  ASSERT_EQ(summary["residual_maps"].size(), 2u);
+  for (size_t k = 0; k < 2; ++k) {
+    const nlohmann::json& check = summary["reconstructions"][k]["calibration_check"];
+    EXPECT_TRUE(check["available"].get<bool>()) << check.dump();
+    EXPECT_FALSE(check["warning"].get<bool>()) << check.dump();  // the scan's own rig
+    EXPECT_EQ(summary["residual_maps"][k]["calibration_warning"], false);
+    EXPECT_DOUBLE_EQ(summary["residual_maps"][k]["scale_max_px"].get<double>(), 2 * check["threshold_px"].get<double>());
+    EXPECT_TRUE(std::filesystem::exists(summary["residual_maps"][k]["file"].get<std::string>()));
+  }
+}
+
+// A rig file with the left camera's principal point 1 px off (cx, cy): the check warns on stderr,
+// names the cause, and the summary records it beside the residual map; the cloud is still written.
+TEST_F(CmdReconstruct, CalibrationCheckWarnsAboutAWrongRigFile) {
+  const ImageSet scan = ImageSet::Open(Scan());
+  Rig wrong = scan.rig();
+  wrong.cameras[0].model.params[CameraModel::kCx] += 1.0;
+  wrong.cameras[0].model.params[CameraModel::kCy] += 1.0;
+  const auto copy = Dir() / "scan_wrong_rig";
+  std::filesystem::copy(Scan(), copy, std::filesystem::copy_options::recursive);
+  nlohmann::json manifest = ReadJson(copy / "manifest.json");
+  manifest["rig"] = RigToJson(wrong);
+  std::ofstream(copy / "manifest.json") << manifest.dump(2);
+  const auto out = Dir() / "wrong.ply";
+  ASSERT_EQ(RunCli({"reconstruct", copy.string(), "--out", out.string(), "--quiet"}), 0);
+  const nlohmann::json summary = ReadJson(Dir() / "wrong.summary.json");
+  const nlohmann::json& left = summary["reconstructions"][0]["calibration_check"];
+  EXPECT_TRUE(left["warning"].get<bool>()) << left.dump();
+  EXPECT_NE(left["message"].get<std::string>().find("principal point"), std::string::npos);
+  EXPECT_EQ(summary["residual_maps"][0]["calibration_warning"], true);
+  EXPECT_FALSE(summary["residual_maps"][0]["likely_causes"].empty());
+  EXPECT_FALSE(summary["reconstructions"][1]["calibration_check"]["warning"].get<bool>());  // right camera fits
+  // A fixed threshold overrides the automatic one.
+  const auto out2 = Dir() / "wrong_fixed.ply";
+  ASSERT_EQ(RunCli({"reconstruct", copy.string(), "--out", out2.string(), "--quiet", "--calibration-warning-px", "50"}), 0);
+  const nlohmann::json fixed = ReadJson(Dir() / "wrong_fixed.summary.json")["reconstructions"][0]["calibration_check"];
+  EXPECT_EQ(fixed["threshold_source"], "user");
+  EXPECT_FALSE(fixed["warning"].get<bool>());
+}
+
+// A rig file so wrong that no point passes the gates: an error naming the reason, nothing written.
+TEST_F(CmdReconstruct, NoPointsIsAnErrorWithItsReason) {
+  const ImageSet scan = ImageSet::Open(Scan());
+  Rig wrong = scan.rig();
+  wrong.projector->cam_from_rig.translation.y() += 40;  // the projector 40 mm off
+  const auto copy = Dir() / "scan_far_off_rig";
+  std::filesystem::copy(Scan(), copy, std::filesystem::copy_options::recursive);
+  nlohmann::json manifest = ReadJson(copy / "manifest.json");
+  manifest["rig"] = RigToJson(wrong);
+  std::ofstream(copy / "manifest.json") << manifest.dump(2);
+  const auto out = Dir() / "none.ply";
+  ::testing::internal::CaptureStderr();
+  const int code = RunCli({"reconstruct", copy.string(), "--out", out.string(), "--quiet"});
+  const std::string err = ::testing::internal::GetCapturedStderr();
+  EXPECT_NE(code, 0);
+  EXPECT_NE(err.find("0 points"), std::string::npos) << err;
+  EXPECT_NE(err.find("cells"), std::string::npos) << err;
+  EXPECT_NE(err.find("wrong rig file"), std::string::npos) << err;
+  EXPECT_FALSE(std::filesystem::exists(out));
+  EXPECT_FALSE(std::filesystem::exists(Dir() / "none.summary.json"));
 }
 
 TEST_F(CmdReconstruct, StereoInterpolationOptionReachesTheMatcher) {

@@ -2,8 +2,10 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <vector>
 
 #include "calib/synthetic.h"
 #include "core/error.h"
@@ -21,12 +23,15 @@ TEST(Uncertainty, MonteCarloTruthInsidePredictedTwoSigma) {
   std::array<int, CameraModel::kNumParams> inside{};
   int proj_inside = 0, proj_total = 0;
   const std::vector<Eigen::Vector2d> probes = {{640, 512}, {100, 100}, {1180, 900}, {200, 950}, {1100, 150}};
+  std::vector<double> fx_estimates, fx_sigmas;
   for (int run = 0; run < runs; ++run) {
     const SyntheticData data = MakeSyntheticData(rig, 10, noise_px, 1000u + static_cast<uint32_t>(run));
     const CalibrationResult r = Calibrate(data.input, {});
     ASSERT_EQ(r.intrinsics_covariance.size(), 1u);
     const Matrix9d& cov = r.intrinsics_covariance[0];
     const CameraModel& est = r.devices[0].model;
+    fx_estimates.push_back(est.params[CameraModel::kFx]);
+    fx_sigmas.push_back(std::sqrt(cov(CameraModel::kFx, CameraModel::kFx)));
     for (int i = 0; i < CameraModel::kNumParams; ++i) {
       inside[i] += std::abs(est.params[i] - truth.params[i]) < 2 * std::sqrt(cov(i, i));
     }
@@ -42,18 +47,32 @@ TEST(Uncertainty, MonteCarloTruthInsidePredictedTwoSigma) {
       ++proj_total;
     }
   }
+  int inside_all = 0;
   for (int i = 0; i < CameraModel::kNumParams; ++i) {
     EXPECT_GE(inside[i], 0.9 * runs) << "parameter " << i << ": truth inside 2 sigma in " << inside[i] << "/" << runs;
+    inside_all += inside[i];
   }
+  // Bounded above too: a covariance twice too wide puts the truth inside "2 sigma" (really
+  // 4 sigma) in 99.99 % of the cases. Over all 450 parameter checks 95.4 % is expected; at most
+  // 98 % (a binomial 3.7-sigma excursion) is accepted.
+  const int checks = CameraModel::kNumParams * runs;
+  EXPECT_LE(inside_all, 0.98 * checks) << inside_all << "/" << checks << " inside: covariance too wide";
   EXPECT_GE(proj_inside, 0.9 * proj_total) << proj_inside << "/" << proj_total;
-  // And the prediction is not uselessly loose: not every single run inside for every parameter
-  // would be suspicious only over many more runs, so check the scale instead: sigma(fx) is within
-  // a factor 2 of the scatter expected from 10 views at 0.3 px (about 0.1 % of fx).
-  const SyntheticData data = MakeSyntheticData(rig, 10, noise_px, 999);
-  const CalibrationResult r = Calibrate(data.input, {});
-  const double sigma_fx = std::sqrt(r.intrinsics_covariance[0](0, 0));
-  EXPECT_GT(sigma_fx, 0.05);
-  EXPECT_LT(sigma_fx, 5.0);
+  EXPECT_LE(proj_inside, 0.99 * proj_total) << proj_inside << "/" << proj_total
+                                            << " inside the 95 % ellipse: covariance too wide";
+  // The scale itself: the predicted sigma(fx) (median over runs) is within a factor 2 of the
+  // scatter of fx actually seen over the 50 runs (whose own sampling error is about 10 %).
+  double mean_fx = 0;
+  for (double f : fx_estimates) mean_fx += f / runs;
+  double var_fx = 0;
+  for (double f : fx_estimates) var_fx += (f - mean_fx) * (f - mean_fx) / (runs - 1);
+  std::nth_element(fx_sigmas.begin(), fx_sigmas.begin() + runs / 2, fx_sigmas.end());
+  const double predicted = fx_sigmas[runs / 2], seen = std::sqrt(var_fx);
+  std::printf("sigma(fx): predicted %.4f px, seen over %d runs %.4f px; inside 2 sigma %d/%d, "
+              "projection %d/%d\n", predicted, runs, seen, inside_all, checks, proj_inside,
+              proj_total);
+  EXPECT_GT(predicted, 0.5 * seen);
+  EXPECT_LT(predicted, 2.0 * seen);
 }
 
 TEST(Uncertainty, MapsHaveTheRightShapeAndScale) {
@@ -108,15 +127,27 @@ TEST(Uncertainty, ProjectionDifferenceOfKnownChanges) {
 
 TEST(Uncertainty, CrossValidationAgreesWithPredictedUncertainty) {
   const SyntheticRig rig = SyntheticRig::OneCamera();
+  // One split is one random draw of the difference between two calibrations, so a single seed
+  // says little (seed 5 alone gives 0.34); the mean over 8 seeds is compared with the prediction.
+  double seen_sum = 0, predicted_sum = 0;
+  for (uint32_t seed = 5; seed < 13; ++seed) {
+    const SyntheticData d = MakeSyntheticData(rig, 16, 0.3, seed);
+    const CrossValidation c = CrossValidate(d.input, {});
+    ASSERT_EQ(c.difference.size(), 1u);
+    const CalibrationResult full = Calibrate(d.input, {});
+    const PixelMap u = ProjectionUncertaintyMap(full.devices[0].model, full.intrinsics_covariance[0], 16);
+    // Each half has ~half the data: its uncertainty ~sqrt(2) u; the difference of two ~2 u.
+    seen_sum += c.difference[0].median;
+    predicted_sum += 2 * u.median;
+  }
+  const double ratio = seen_sum / predicted_sum;
+  std::printf("cross-validation / predicted over 8 seeds: %.3f\n", ratio);
+  EXPECT_GT(ratio, 0.5) << seen_sum / 8 << " vs " << predicted_sum / 8;
+  EXPECT_LT(ratio, 2.0) << seen_sum / 8 << " vs " << predicted_sum / 8;
   const SyntheticData data = MakeSyntheticData(rig, 16, 0.3, 5);
   const CrossValidation cv = CrossValidate(data.input, {});
-  ASSERT_EQ(cv.difference.size(), 1u);
   const CalibrationResult full = Calibrate(data.input, {});
   const PixelMap u = ProjectionUncertaintyMap(full.devices[0].model, full.intrinsics_covariance[0], 16);
-  // Each half has ~half the data: its uncertainty ~sqrt(2) u; the difference of two ~2 u.
-  const double ratio = cv.difference[0].median / (2 * u.median);
-  EXPECT_GT(ratio, 0.2) << cv.difference[0].median << " vs " << u.median;
-  EXPECT_LT(ratio, 3.0) << cv.difference[0].median << " vs " << u.median;
   // Two halves from different cameras (the odd images stretched by 3 % in x, as if the lens had
   // been refocused between them) differ far beyond the uncertainty.
   CalibrationInput bad = data.input;

@@ -91,6 +91,7 @@ TEST_F(ReconstructImageSetTest, ProjectorModeReconstructsThePlaneFromBothCameras
     RecordProperty(std::string("projector_flatness_rms_mm_") + ToString(method), std::to_string(rms));
     EXPECT_LT(rms, 0.02) << ToString(method);
     for (const auto& s : rec.summaries) EXPECT_LT(s.epipolar_error_px.median, 0.05);
+    EXPECT_TRUE(rec.Warnings().empty()) << rec.FullReport();  // a clean scan passes the calibration check
     const auto* camera = rec.cloud.Scalar("camera");
     ASSERT_TRUE(camera);
     EXPECT_EQ(std::count(camera->begin(), camera->end(), 0.0f), rec.summaries[0].points);
@@ -109,6 +110,8 @@ TEST_F(ReconstructImageSetTest, StereoModeReconstructsThePlane) {
   RecordProperty("stereo_flatness_rms_mm", std::to_string(rms));
   EXPECT_LT(rms, 0.02) << rec.FullReport();
   EXPECT_LT(rec.summaries[0].epipolar_error_px.median, 0.05);  // projector rows agree across cameras
+  EXPECT_TRUE(rec.summaries[0].calibration_check.available);
+  EXPECT_TRUE(rec.Warnings().empty()) << rec.FullReport();
 }
 
 TEST_F(ReconstructImageSetTest, BadCameraSelectionsThrow) {
@@ -193,6 +196,93 @@ TEST(KaminoRealDataTest, ChessboardPoseReconstructsAndTheResidualsJudgeTheCalibr
   RecordProperty("head_epipolar_median_px", std::to_string(b.epipolar_error_px.median));
   EXPECT_GT(b.epipolar_error_px.median, 100.0) << b.FullReport();  // measured 521
   EXPECT_LT(b.points, b.cells / 100);
+  EXPECT_TRUE(b.calibration_check.warn);
+  EXPECT_NE(b.calibration_check.Message().find("wrong rig file"), std::string::npos) << b.calibration_check.Message();
+}
+
+// The calibration check on the real capture: the first upstream calibration (ccf1cd8) does not
+// fit the dense correspondences either. Its epipolar error has a smooth field of 1.5 projector
+// px RMS, mostly linear, 4.5x the decode noise (0.33 px: Gray code's whole projector pixels), the
+// same on all five poses (1.1-1.6 px), and the 1 px gates reject a third of the triangulated
+// points. The check warns and names a focal length first. The oracle that this is no false alarm:
+// the projector focal length scaled by 0.995 (the best of 0.97..1.03 on pose 0) shrinks the
+// field 2.4x on pose 0 and 1.3-2.4x on the four held-out poses, where it lets 4-88 % more points
+// through the gates (measured, pose 3 checked here).
+TEST(KaminoRealDataTest, CalibrationCheckFindsTheFocalLengthMisfitOfTheFirstUpstreamCalibration) {
+  const auto dir = testing::SharedDataDir() / "kamino-procam-graycode";
+  if (!std::filesystem::exists(dir / "capture_0")) GTEST_SKIP() << "no shared data at " << dir;
+  PatternSpec spec;
+  spec.kind = PatternKind::kGrayCode;
+  spec.projector_width = 1024;
+  spec.projector_height = 768;
+  spec.opencv_order = true;
+  Rig refined = KaminoRig("calibration_result_ccf1cd8.xml");
+  refined.projector->model.params[CameraModel::kFx] *= 0.995;
+  refined.projector->model.params[CameraModel::kFy] *= 0.995;
+  for (int pose : {0, 3}) {
+    std::map<std::string, std::vector<cv::Mat>> images;
+    for (int k = 0; k < spec.NumImages(); ++k) {
+      char name[32];
+      std::snprintf(name, sizeof(name), "graycode_%02d.png", k);
+      images["camera"].push_back(ReadGrayImage(dir / ("capture_" + std::to_string(pose)) / name));
+    }
+    const ReconstructSummary s =
+        ReconstructFromImages(KaminoRig("calibration_result_ccf1cd8.xml"), spec, images, {}).summaries.at(0);
+    const ReconstructSummary r = ReconstructFromImages(refined, spec, images, {}).summaries.at(0);
+    const CalibrationCheck& c = s.calibration_check;
+    SCOPED_TRACE("pose " + std::to_string(pose) + ": " + c.Message());
+    RecordProperty("pose" + std::to_string(pose) + "_systematic_px", std::to_string(c.systematic_px));
+    RecordProperty("pose" + std::to_string(pose) + "_refined_systematic_px", std::to_string(r.calibration_check.systematic_px));
+    EXPECT_GT(c.noise_px, 0.25);  // whole-pixel codes: ~0.29 px of quantisation across the line
+    EXPECT_LT(c.noise_px, 0.45);
+    EXPECT_GT(c.systematic_px, 1.2);   // measured 1.49, 1.51
+    EXPECT_TRUE(c.warn);
+    ASSERT_FALSE(c.likely_causes.empty());
+    EXPECT_NE(c.Message().find("focal length"), std::string::npos);
+    EXPECT_GT(c.group_rms_px[1], 0.8 * c.systematic_px);  // linear: 1.37 of 1.49 px on pose 0
+    EXPECT_LT(r.calibration_check.systematic_px, 0.5 * c.systematic_px);  // measured 0.61, 0.60
+    EXPECT_GT(r.points, s.points * 14 / 10);                             // measured +61 %, +62 %
+  }
+}
+
+// The real capture with a calibration that fits it, slshadow's own (tests/reconstruct/data/
+// kamino_slshadow_rig.yaml: `slshadow calibrate projector` on the five poses): no warning on any
+// pose. Its field is 0.67-0.95x the decode noise (0.24-0.31 px against 0.33-0.36 px), a sixth of
+// ccf1cd8's, and 82-91 % of the decoded pixels pass the gates (ccf1cd8: 37-67 %).
+TEST(KaminoRealDataTest, CalibrationCheckPassesSlshadowsOwnCalibrationOnAllPoses) {
+  const auto dir = testing::SharedDataDir() / "kamino-procam-graycode";
+  if (!std::filesystem::exists(dir / "capture_0")) GTEST_SKIP() << "no shared data at " << dir;
+  PatternSpec spec;
+  spec.kind = PatternKind::kGrayCode;
+  spec.projector_width = 1024;
+  spec.projector_height = 768;
+  spec.opencv_order = true;
+  const Rig own = LoadRig(testing::SourceDir() / "tests/reconstruct/data/kamino_slshadow_rig.yaml");
+  double worst = 0;
+  for (int pose = 0; pose < 5; ++pose) {
+    std::map<std::string, std::vector<cv::Mat>> images;
+    for (int k = 0; k < spec.NumImages(); ++k) {
+      char name[32];
+      std::snprintf(name, sizeof(name), "graycode_%02d.png", k);
+      images["camera"].push_back(ReadGrayImage(dir / ("capture_" + std::to_string(pose)) / name));
+    }
+    const ImageSetReconstruction rec = ReconstructFromImages(own, spec, images, {});
+    const ReconstructSummary& s = rec.summaries.at(0);
+    const CalibrationCheck& c = s.calibration_check;
+    SCOPED_TRACE("pose " + std::to_string(pose) + ": " + c.Message());
+    ASSERT_TRUE(c.available);
+    EXPECT_FALSE(c.warn);
+    EXPECT_TRUE(s.warnings.empty());
+    EXPECT_GT(s.points, s.decode_status[0] * 3 / 4);
+    // The mm equivalent is at this scan's distance (the median range of its points from the
+    // camera, the rig origin), not at the rig file's nominal working distance.
+    std::vector<double> range;
+    for (const auto& p : rec.cloud.points) range.push_back(p.norm());
+    std::nth_element(range.begin(), range.begin() + static_cast<std::ptrdiff_t>(range.size() / 2), range.end());
+    EXPECT_NEAR(c.working_distance_mm, range[range.size() / 2], 0.02 * range[range.size() / 2]);
+    worst = std::max(worst, c.systematic_px / c.threshold_px);
+  }
+  RecordProperty("worst_systematic_over_threshold", std::to_string(worst));
 }
 
 }  // namespace

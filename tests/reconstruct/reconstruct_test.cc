@@ -545,7 +545,7 @@ TEST_F(ReconstructTest, ResidualStatisticsRevealAMiscalibratedRig) {
   // The calibration check warns about the bumped rig, and only about it.
   EXPECT_TRUE(good.summary.warnings.empty());
   ASSERT_EQ(bad.summary.warnings.size(), 1u);
-  EXPECT_NE(bad.summary.warnings[0].find("calibration check: the median epipolar residual"), std::string::npos)
+  EXPECT_NE(bad.summary.warnings[0].find("calibration check: the epipolar error of"), std::string::npos)
       << bad.summary.warnings[0];
   EXPECT_NE(bad.summary.FullReport().find("WARNING: calibration check"), std::string::npos);
   EXPECT_EQ(bad.summary.ToJson()["warnings"].size(), 1u);

@@ -795,5 +795,90 @@ TEST(LayersTest, DefocusBlursOnlyOutOfFocus) {
   }
 }
 
+
+// A sinusoidal projector image cos(2 pi u / P) on the facing plane, 8-bit.
+cv::Mat SineFringe(const Rig& rig, double period_px) {
+  cv::Mat m(rig.projector->model.height, rig.projector->model.width, CV_8UC1);
+  for (int y = 0; y < m.rows; ++y) {
+    for (int x = 0; x < m.cols; ++x) {
+      m.at<uint8_t>(y, x) = cv::saturate_cast<uint8_t>(127.5 + 100 * std::cos(2 * M_PI * x / period_px));
+    }
+  }
+  return m;
+}
+
+// Fringe amplitude of `image` / `white` (the radiometric factor divided out) over the pixels of a
+// central window lit in `g`: least squares of A + B cos(2 pi u / P) + C sin(2 pi u / P) against
+// the true projector column u; returns sqrt(B^2 + C^2).
+double FringeAmplitude(const cv::Mat& image, const cv::Mat& white, const GeometryBuffer& g, double period_px) {
+  Eigen::Matrix3d ata = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d atb = Eigen::Vector3d::Zero();
+  for (int y = g.height / 4; y < 3 * g.height / 4; ++y) {
+    for (int x = g.width / 4; x < 3 * g.width / 4; ++x) {
+      const float u = g.projector.proj_x.at<float>(y, x);
+      const float w = white.at<float>(y, x);
+      if (!std::isfinite(u) || !(w > 0)) continue;
+      const Eigen::Vector3d a(1, std::cos(2 * M_PI * u / period_px), std::sin(2 * M_PI * u / period_px));
+      ata += a * a.transpose();
+      atb += a * (image.at<float>(y, x) / w);
+    }
+  }
+  const Eigen::Vector3d c = ata.ldlt().solve(atb);
+  return std::hypot(c(1), c(2));
+}
+
+// Defocus against the analytic transfer of a Gaussian PSF: a sinusoidal fringe of period P
+// (px of the blurred image) keeps exp(-2 pi^2 sigma^2 / P^2) of its contrast. Camera defocus
+// blurs the camera image (P in camera px from the true projector-coordinate gradient); projector
+// defocus blurs the pattern (P in projector px).
+TEST(LayersTest, DefocusContrastFollowsTheGaussianTransferFunction) {
+  const Rig rig = SmallDemoRig(4);
+  const double period_px = 10;
+  const cv::Mat fringe = SineFringe(rig, period_px), white = FlatProjectorImage(rig, 255);
+  const Scene sharp = FacingPlane();
+  const GeometryBuffer g = Trace(sharp, rig, 0);
+  const double sharp_amplitude = FringeAmplitude(PatternRenderer(sharp, rig, 0, g).RenderIrradiance(fringe),
+                                                 PatternRenderer(sharp, rig, 0, g).RenderIrradiance(white), g, period_px);
+  // The 8-bit fringe of amplitude 100 read back through the factor: 100 / 255 of the white, less
+  // the few per cent that bilinear lookups of a 10-px sampled sinusoid lose (the same in both).
+  EXPECT_NEAR(sharp_amplitude, 100.0 / 255, 0.02);
+  // Camera period: P / |grad u| at the image centre (the plane's projector map is nearly affine).
+  const int cx = g.width / 2, cy = g.height / 2;
+  const double dudx = (g.projector.proj_x.at<float>(cy, cx + 4) - g.projector.proj_x.at<float>(cy, cx - 4)) / 8;
+  const double dudy = (g.projector.proj_x.at<float>(cy + 4, cx) - g.projector.proj_x.at<float>(cy - 4, cx)) / 8;
+  const double camera_period_px = period_px / std::hypot(dudx, dudy);
+  for (int which = 0; which < 2; ++which) {
+    Scene blurred = sharp;
+    auto& d = which == 0 ? blurred.layers.camera_defocus : blurred.layers.projector_defocus;
+    d.enabled = true;
+    d.f_number = 1.4;
+    d.pixel_pitch_um = (which == 0 ? 5.86 : 7.6) * 4;  // the rig is scaled down 4x in pixels
+    d.focus_distance_mm = 300;
+    const GeometryBuffer gb = Trace(blurred, rig, 0);
+    const PatternRenderer r(blurred, rig, 0, gb);
+    const double amplitude = FringeAmplitude(r.RenderIrradiance(fringe), r.RenderIrradiance(white), gb, period_px);
+    double sigma_px = 0, period = 0;
+    if (which == 0) {
+      sigma_px = d.SigmaPx(rig.cameras[0].model.fx(), 500);  // the facing plane: depth 500 everywhere
+      period = camera_period_px;
+    } else {
+      std::vector<float> sigmas;
+      for (size_t i = 0; i < gb.proj_sigma_px.size(); ++i) {
+        if (std::isfinite(gb.proj_x[i])) sigmas.push_back(gb.proj_sigma_px[i]);
+      }
+      ASSERT_FALSE(sigmas.empty());
+      std::nth_element(sigmas.begin(), sigmas.begin() + sigmas.size() / 2, sigmas.end());
+      sigma_px = sigmas[sigmas.size() / 2];
+      period = period_px;
+    }
+    const double expected = std::exp(-2 * M_PI * M_PI * sigma_px * sigma_px / (period * period));
+    std::printf("%s defocus: sigma %.3f px, period %.2f px, contrast kept %.4f (analytic %.4f)\n",
+                which == 0 ? "camera" : "projector", sigma_px, period, amplitude / sharp_amplitude, expected);
+    ASSERT_GT(expected, 0.2) << "the set-up should blur the fringe measurably, not erase it";
+    ASSERT_LT(expected, 0.9);
+    EXPECT_NEAR(amplitude / sharp_amplitude, expected, 0.03) << (which == 0 ? "camera" : "projector");
+  }
+}
+
 }  // namespace
 }  // namespace slshadow

@@ -170,6 +170,12 @@ TEST(SceneTest, BadScenesGiveClearErrors) {
   EXPECT_THAT(ErrorOf([&] { ParseScene("objects: []\n"); }), HasSubstr("no objects"));
   EXPECT_THAT(ErrorOf([&] { ParseScene("layers: {noise: {full_well_e: 0}}\nobjects:\n  - {type: sphere, radius_mm: 5}\n"); }),
               HasSubstr("full_well_e"));
+  // reference_distance_mm: 0 is the rig's working distance (docs/formats.md); negative is refused.
+  EXPECT_EQ(ParseScene("radiometry: {reference_distance_mm: 0}\nobjects:\n  - {type: sphere, radius_mm: 5}\n")
+                .radiometry.reference_distance_mm,
+            0);
+  EXPECT_THAT(ErrorOf([&] { ParseScene("radiometry: {reference_distance_mm: -1}\nobjects:\n  - {type: sphere, radius_mm: 5}\n"); }),
+              AllOf(HasSubstr("scene.yaml"), HasSubstr("reference_distance_mm"), HasSubstr(">= 0")));
   PointCloud cloud;
   cloud.points = {{0, 0, 0}, {1, 0, 0}};
   WritePly(tmp / "cloud.ply", cloud);

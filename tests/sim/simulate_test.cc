@@ -49,6 +49,9 @@ TEST(SimulateTest, WritesImageSetAndGroundTruth) {
     EXPECT_EQ(set.PatternCount(), 4);
     EXPECT_EQ(set.patterns(), spec);
     EXPECT_EQ(set.extra()["simulator"]["scene"]["name"], "demo");
+    // The reference distance as rendered: the demo scene leaves it at 0, the rig's working distance.
+    ASSERT_EQ(scene.radiometry.reference_distance_mm, 0);
+    EXPECT_EQ(set.extra()["simulator"]["scene"]["radiometry"]["reference_distance_mm"], rig.working_distance_mm);
     for (const auto& r : set.records()) EXPECT_EQ(r.source, ImageSource::kVirtual);
 
     std::vector<GeometryBuffer> geometry;
