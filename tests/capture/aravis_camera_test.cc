@@ -245,6 +245,24 @@ TEST_F(AravisCameraTest, OpeningNeverDiscoversUnlessAllowed) {
   }
 }
 
+// Asked for, discovery resolves a serial number or an Aravis device id. It broadcasts: inside the
+// private namespace (SetUp skips outside it) loopback is the only interface.
+TEST_F(AravisCameraTest, DiscoveryWhenAllowedFindsASerialOrADeviceId) {
+  FakeGvCamera fake({.address = "127.0.0.2", .serial = "DISC7"});
+  for (const std::string name : {"DISC7", "Aravis-Fake-DISC7"}) {
+    SCOPED_TRACE(name);
+    auto camera = OpenAravisCamera(AravisOpenOptions{.device = name, .allow_discovery = true});
+    EXPECT_EQ(camera->Info().serial, "DISC7");
+    EXPECT_EQ(camera->Info().id, name);
+  }
+  const auto listed = ListAravisDevices(true);
+  ASSERT_EQ(listed.size(), 1u);
+  EXPECT_EQ(listed[0].protocol, "GigEVision");
+  EXPECT_EQ(listed[0].address, "127.0.0.2");
+  EXPECT_EQ(listed[0].serial, "DISC7");
+  EXPECT_TRUE(ListAravisDevices(false).empty());  // no USB3 Vision here, and no broadcast
+}
+
 // The fake camera starts at frame id 65400: 150 frames cross 65535 -> 1, which is not a gap.
 TEST_F(AravisCameraTest, FrameIdWrapAroundIsNotReportedAsAGap) {
   FakeGvCamera fake({.address = "127.0.0.2", .keep_served = 8});
