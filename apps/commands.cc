@@ -25,6 +25,7 @@ const std::vector<Command>& Commands() {
       {"rig", "inspect a rig file: cameras, projector, baselines, angles, overlap (rig show RIG.yaml)", RunRig},
       {"latency", "projector latency: present-to-screen of the window projector (latency [--display N | --geometry x,y,w,h])", RunLatency},
       {"capture", "real capture: projector + cameras from a devices file into a resumable ImageSet (capture --rig --devices --patterns --out)", RunCapture},
+      {"devices", "list cameras and displays to capture with (devices [--address IP]... [--discover]: discovery broadcasts)", RunDevices},
   };
   return commands;
 }

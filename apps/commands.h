@@ -32,5 +32,6 @@ int RunDemo(int argc, char** argv);
 int RunBenchCommand(int argc, char** argv);
 int RunLatency(int argc, char** argv);
 int RunCapture(int argc, char** argv);
+int RunDevices(int argc, char** argv);
 
 }  // namespace slshadow::app

@@ -162,6 +162,7 @@ class AravisCamera final : public Camera {
     const std::string& who = Who();
     settings.Check(who);
     SLSHADOW_THROW_IF(running_, who, ": Configure: call Stop() first");
+    configured_ = false;  // until every setting is applied
     GError* error = nullptr;
 
     // Pixel format.
@@ -193,12 +194,14 @@ class AravisCamera final : public Camera {
     if (settings.exposure_us) {
       SLSHADOW_THROW_IF(exposure_feature_.empty(), who,
                         ": exposure_us: the device has neither ExposureTime nor ExposureTimeAbs");
+      SwitchOff("ExposureAuto");  // an automatic exposure would override the value
       SetFloatChecked(exposure_feature_, *settings.exposure_us, "exposure_us");
     }
     // Gain (dB).
     if (settings.gain_db) {
       SLSHADOW_THROW_IF(gain_feature_.empty(), who,
                         ": gain_db: the device has none of Gain, GainAbs, GainRaw");
+      SwitchOff("GainAuto");
       if (gain_feature_ == "GainRaw") {
         const double raw = std::round(*settings.gain_db);
         SetIntegerChecked("GainRaw", static_cast<int64_t>(raw), "gain_db");
@@ -425,6 +428,16 @@ class AravisCamera final : public Camera {
     return "";
   }
 
+  // Sets an automatic-mode enumeration (ExposureAuto, GainAuto) to Off when the device has it.
+  void SwitchOff(const char* feature) {
+    if (!IsAvailable(feature)) return;
+    GError* error = nullptr;
+    if (arv_camera_is_enumeration_entry_available(camera_, feature, "Off", &error)) {
+      arv_camera_set_string(camera_, feature, "Off", &error);
+    }
+    ThrowOn(error, feature, "Off");
+  }
+
   void SetFloatChecked(const std::string& feature, double value, const char* field) {
     GError* error = nullptr;
     double lo = 0, hi = 0;
@@ -629,17 +642,31 @@ std::unique_ptr<Camera> OpenAravisCamera(const AravisOpenOptions& options) {
     device = arv_interface_open_device(arv_gv_interface_get_instance(), options.device.c_str(), &error);
     if (device == nullptr) why = error != nullptr ? TakeMessage(error) : "no GigE Vision device answered";
   } else {
+    // A serial number or device id is matched against the listed devices here, then opened by
+    // the listing's own id (USB3 Vision) or address (GigE Vision): Aravis would otherwise try the
+    // name as a host name (a DNS query) before broadcasting.
+    auto find = [&](ArvInterface* iface, bool by_address) -> std::string {
+      arv_interface_update_device_list(iface);
+      for (unsigned i = 0; i < arv_interface_get_n_devices(iface); ++i) {
+        if (options.device == Str(arv_interface_get_device_id(iface, i)) ||
+            options.device == Str(arv_interface_get_device_serial_nbr(iface, i))) {
+          return Str(by_address ? arv_interface_get_device_address(iface, i) : arv_interface_get_device_id(iface, i));
+        }
+      }
+      return "";
+    };
     ArvInterface* usb = arv_uv_interface_get_instance();
-    arv_interface_update_device_list(usb);
-    device = arv_interface_open_device(usb, options.device.c_str(), &error);
-    g_clear_error(&error);
-    if (device == nullptr && options.allow_discovery) {
-      ArvInterface* gige = arv_gv_interface_get_instance();
-      arv_interface_update_device_list(gige);
-      device = arv_interface_open_device(gige, options.device.c_str(), &error);
-      g_clear_error(&error);
+    std::string key = find(usb, false);
+    ArvInterface* iface = usb;
+    if (key.empty() && options.allow_discovery) {
+      iface = arv_gv_interface_get_instance();
+      key = find(iface, true);
     }
-    if (device == nullptr) {
+    if (!key.empty()) {
+      device = arv_interface_open_device(iface, key.c_str(), &error);
+      if (device == nullptr) why = error != nullptr ? TakeMessage(error) : "it did not answer";
+      g_clear_error(&error);
+    } else {
       why = options.allow_discovery
                 ? "no USB3 Vision or GigE Vision device has this id or serial"
                 : "no USB3 Vision device has this id or serial; a GigE Vision camera is opened by "

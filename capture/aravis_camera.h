@@ -5,10 +5,11 @@
 //  - an IPv4 address ("192.168.1.20", "127.0.0.2") opens that GigE Vision device directly (GVCP
 //    unicast to the address; Aravis's GigE Vision interface picks the local interface on the
 //    camera's subnet, no discovery packet is sent);
-//  - any other string (a serial number or an Aravis device id such as "Basler-21234567") is looked
-//    up among USB3 Vision devices (local USB enumeration), and among GigE Vision devices only when
-//    AravisOpenOptions::allow_discovery is set, because GigE Vision discovery broadcasts GVCP on
-//    every network interface.
+//  - any other string, a serial number or an Aravis device id ("vendor-model-serial", e.g.
+//    "Aravis-Fake-GV01"), is matched against the USB3 Vision devices (local USB enumeration), and
+//    against the GigE Vision devices only when AravisOpenOptions::allow_discovery is set, because
+//    GigE Vision discovery broadcasts GVCP on every network interface. It is never resolved as a
+//    host name (no DNS query).
 //
 // Feature names: the SFNC names real cameras use (`ExposureTime` in µs, `Gain` in dB) are
 // preferred; the older names are the fallback (`ExposureTimeAbs`; `GainAbs` in dB, then `GainRaw`

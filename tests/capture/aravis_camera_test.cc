@@ -4,6 +4,7 @@
 // accounted for as delivered, damaged or lost whole.
 #include "capture/aravis_camera.h"
 
+#include <algorithm>
 #include <fstream>
 #include <string>
 #include <vector>
@@ -244,6 +245,24 @@ TEST_F(AravisCameraTest, OpeningNeverDiscoversUnlessAllowed) {
   }
 }
 
+// Asked for, discovery resolves a serial number or an Aravis device id. It broadcasts: inside the
+// private namespace (SetUp skips outside it) loopback is the only interface.
+TEST_F(AravisCameraTest, DiscoveryWhenAllowedFindsASerialOrADeviceId) {
+  FakeGvCamera fake({.address = "127.0.0.2", .serial = "DISC7"});
+  for (const std::string name : {"DISC7", "Aravis-Fake-DISC7"}) {
+    SCOPED_TRACE(name);
+    auto camera = OpenAravisCamera(AravisOpenOptions{.device = name, .allow_discovery = true});
+    EXPECT_EQ(camera->Info().serial, "DISC7");
+    EXPECT_EQ(camera->Info().id, name);
+  }
+  const auto listed = ListAravisDevices(true);
+  ASSERT_EQ(listed.size(), 1u);
+  EXPECT_EQ(listed[0].protocol, "GigEVision");
+  EXPECT_EQ(listed[0].address, "127.0.0.2");
+  EXPECT_EQ(listed[0].serial, "DISC7");
+  EXPECT_TRUE(ListAravisDevices(false).empty());  // no USB3 Vision here, and no broadcast
+}
+
 // The fake camera starts at frame id 65400: 150 frames cross 65535 -> 1, which is not a gap.
 TEST_F(AravisCameraTest, FrameIdWrapAroundIsNotReportedAsAGap) {
   FakeGvCamera fake({.address = "127.0.0.2", .keep_served = 8});
@@ -370,6 +389,60 @@ TEST_P(PacketLossTest, EveryDamagedFrameIsDetectedAndAccountedFor) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Ratios, PacketLossTest, ::testing::Values(0.0, 0.001, 0.01, 0.1));
+
+// Resend off, free-run: a damaged frame is closed as soon as the next one starts (Aravis's status
+// MISSING_PACKETS). The same accounting holds from the stream's first frame to the last complete
+// one, whatever the machine's load (a buffer underrun is a frame lost whole, counted as a gap).
+TEST_F(AravisCameraTest, PacketLossWithoutResendInFreeRun) {
+  FakeGvCamera::SeedLoss(7);
+  FakeGvCamera fake({.address = "127.0.0.2", .frame_rate_hz = 100, .keep_served = 256});
+  fake.SetFill([](const FakeFrameRequest& r) { return RandomImage(r); });
+  auto camera = Open(fake);
+  CameraSettings s = SmallSoftware();
+  s.roi = Roi{0, 0, 512, 512};
+  s.trigger = TriggerMode::kFreeRun;
+  s.packet_resend = false;
+  camera->Configure(s);
+  camera->Start();
+  Frame first = camera->Grab(kPatience);
+  ASSERT_TRUE(first.ok()) << first.message;
+  fake.SetLostPacketRatio(0.01);
+  int ok = 1, damaged = 0;
+  uint64_t last_ok = first.frame_id;
+  for (int i = 0; i < 60; ++i) {
+    const Frame frame = camera->Grab(kPatience);
+    ASSERT_NE(frame.status, FrameStatus::kTimeout) << frame.message;
+    if (frame.ok()) {
+      ++ok;
+      last_ok = frame.frame_id;
+      EXPECT_TRUE(SameImage(frame.image, fake.ServedImage(frame.frame_id))) << "frame " << frame.frame_id;
+    } else {
+      ++damaged;
+      EXPECT_EQ(frame.status, FrameStatus::kMissingPackets) << frame.message;
+    }
+  }
+  fake.SetLostPacketRatio(0.0);
+  for (Frame frame = camera->Grab(kPatience);; frame = camera->Grab(kPatience)) {
+    ASSERT_NE(frame.status, FrameStatus::kTimeout) << frame.message;
+    if (frame.ok()) {
+      ++ok;
+      last_ok = frame.frame_id;
+      EXPECT_TRUE(SameImage(frame.image, fake.ServedImage(frame.frame_id)));
+      break;
+    }
+    ++damaged;
+  }
+  const StreamStatistics stats = camera->Statistics();
+  const std::vector<uint64_t> served = fake.served_ids();
+  const auto last = std::find(served.begin(), served.end(), last_ok);
+  ASSERT_NE(last, served.end());
+  const auto served_until_last_ok = static_cast<uint64_t>(last - served.begin() + 1);
+  EXPECT_EQ(static_cast<uint64_t>(ok + damaged) + stats.missing_frames, served_until_last_ok)
+      << "ok " << ok << " damaged " << damaged << " lost whole " << stats.missing_frames;
+  EXPECT_GT(damaged, 0);  // about 190 packets a frame at 1 %: most frames are damaged
+  EXPECT_EQ(stats.resend_requests, 0u);
+  EXPECT_EQ(stats.timeouts, 0u);
+}
 
 TEST_F(AravisCameraTest, FrameTimeoutIsReportedAndTheCameraStaysUsable) {
   FakeGvCamera fake({.address = "127.0.0.2"});
