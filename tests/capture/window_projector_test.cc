@@ -114,9 +114,14 @@ TEST(WindowProjector, WideScreenGeometryOffset) {
   XScreenReader screen(xvfb.display());
   const cv::Rect whole(0, 0, 3200, 1200);
   const cv::Mat before = screen.ReadBgr(whole);
+  const std::vector<DisplayEntry> displays = ListDisplays();
+  ASSERT_EQ(displays.size(), 1u);  // plain Xvfb: one display, the whole screen
+  EXPECT_EQ(displays[0].bounds.width, 3200);
+  EXPECT_EQ(displays[0].bounds.height, 1200);
   WindowProjectorOptions options;
   options.geometry = ParseWindowGeometry("1920,0,1280,800");
   WindowProjector projector(options);
+  EXPECT_THROW(ListDisplays(), Error);  // not while a projector window is open
   EXPECT_EQ(projector.Info().id, "geometry:1920,0,1280,800");
   EXPECT_EQ(projector.Info().width, 1280);
   EXPECT_EQ(projector.Info().height, 800);
@@ -189,6 +194,7 @@ TEST(WindowProjector, ClearErrorsWithoutADisplayOrWithABadPlace) {
   }
   // No X server at all.
   unsetenv("DISPLAY");
+  EXPECT_THROW(ListDisplays(), Error);
   try {
     WindowProjector projector;
     ADD_FAILURE() << "opened without a display";
