@@ -291,7 +291,10 @@ int RunCalibrate(int argc, char** argv) {
       "            with --stereo NAME the pose of camera NAME relative to --camera instead (camera-camera matches:\n"
       "            pixels decoding to the same projector coordinate; residual in NAME's px); --refine-focal also\n"
       "            re-estimates the focal length (fx, fy by one factor) of the projector, or of NAME with --stereo\n"
-      "  import    OPENCV.yml --out RIG.yaml [--image-size WxH] [--projector-size WxH]\n"
+      "  import    OPENCV.yml --out RIG.yaml [--image-size WxH] [--projector-size WxH] [--map K1=NODE,D1=NODE,...]\n"
+      "            layouts: calibration sample, stereo_calib (M1 D1 M2 D2 R T), M1 D1 M2 D2 Rlr Tlr S,\n"
+      "            cam1_intrinsics cam1_distorsion cam2_* R T cam1_size, procam (cam_int proj_int); --map names\n"
+      "            the nodes of any other one- or two-camera layout (keys K1 D1 K2 D2 R T size1 size2)\n"
       "  export    RIG.yaml --out OPENCV.yml",
       argv[0]};
   app.require_subcommand(1);
@@ -348,12 +351,14 @@ int RunCalibrate(int argc, char** argv) {
   refine->add_flag("--refine-focal", refine_focal,
                    "also re-estimate the focal length of the projector (or of the --stereo camera); default off");
 
-  std::string import_in, import_out, image_size, projector_size;
+  std::string import_in, import_out, image_size, projector_size, import_map;
   auto* import = app.add_subcommand("import", "convert an OpenCV calibration file (calibrateCamera / stereoCalibrate / procam layout) to a rig");
   import->add_option("OPENCV", import_in, "OpenCV FileStorage file (.yml/.yaml/.xml)")->required();
   import->add_option("--out", import_out, "rig file to write")->required();
   import->add_option("--image-size", image_size, "camera image size WxH when the file has none");
   import->add_option("--projector-size", projector_size, "projector size WxH when the file has a projector without size");
+  import->add_option("--map", import_map,
+                     "node names of a layout slshadow does not know: K1=NODE,D1=NODE[,K2=,D2=,R=,T=,size1=,size2=]");
 
   std::string export_in, export_out;
   auto* exp = app.add_subcommand("export", "write a rig as an OpenCV calibration file (camera_matrix... or M1 D1 M2 D2 R T)");
@@ -514,7 +519,8 @@ int RunCalibrate(int argc, char** argv) {
     int w = 0, h = 0, pw = 0, ph = 0;
     if (!image_size.empty()) std::tie(w, h) = ParseSize(image_size, "--image-size");
     if (!projector_size.empty()) std::tie(pw, ph) = ParseSize(projector_size, "--projector-size");
-    const Rig rig = ReadOpenCvCalibration(import_in, w, h, pw, ph);
+    const OpenCvNodeMap node_map = import_map.empty() ? OpenCvNodeMap{} : ParseOpenCvNodeMap(import_map);
+    const Rig rig = ReadOpenCvCalibration(import_in, w, h, pw, ph, node_map);
     SaveRig(rig, import_out);
     std::printf("%s", DescribeRig(rig).c_str());
     std::printf("wrote %s\n", import_out.c_str());

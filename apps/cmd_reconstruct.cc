@@ -128,6 +128,8 @@ int RunReconstruct(int argc, char** argv) {
 
   const ImageSet image_set = ImageSet::Open(imageset_dir);
   const ImageSetReconstruction rec = ReconstructImageSet(image_set, options);
+  // An empty cloud is an error with its reason (a wrong rig file, most often), and nothing is written.
+  SLSHADOW_THROW_IF(rec.cloud.empty(), "reconstruct: ", imageset_dir, ": 0 points: ", rec.NoPointsReason());
   PlyWriteOptions ply;
   ply.binary = !ascii;
   WritePly(out_path, rec.cloud, ply);

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <optional>
+#include <utility>
 
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
@@ -68,9 +70,33 @@ nlohmann::json MapStats(const PixelMap& m) {
           {"cell_px", m.cell_px}};
 }
 
-cv::Mat ReadMat(const cv::FileStorage& fs, const std::string& key, const std::filesystem::path& path, int rows, int cols) {
+// A matrix node (!!opencv-matrix) or a plain list of numbers (as a 1xN matrix), CV_64F; empty
+// when the node is absent.
+cv::Mat ReadAnyMat(const cv::FileStorage& fs, const std::string& key, const std::filesystem::path& path) {
+  const cv::FileNode node = fs[key];
   cv::Mat m;
-  fs[key] >> m;
+  if (node.empty()) return m;
+  if (node.isSeq()) {
+    std::vector<double> values;
+    for (const cv::FileNode& v : node) {
+      SLSHADOW_THROW_IF(!v.isReal() && !v.isInt(), path.string(), ": ", key, ": expected numbers in the list");
+      values.push_back(static_cast<double>(v));
+    }
+    return cv::Mat(values, true).reshape(1, 1);
+  }
+  if (node.isReal() || node.isInt()) return cv::Mat(1, 1, CV_64F, cv::Scalar(static_cast<double>(node)));
+  try {
+    node >> m;
+  } catch (const cv::Exception&) {
+    SLSHADOW_THROW(path.string(), ": ", key, ": not a matrix or a list of numbers");
+  }
+  SLSHADOW_THROW_IF(m.empty() && !node.empty(), path.string(), ": ", key, ": not a matrix or a list of numbers");
+  m.convertTo(m, CV_64F);
+  return m;
+}
+
+cv::Mat ReadMat(const cv::FileStorage& fs, const std::string& key, const std::filesystem::path& path, int rows, int cols) {
+  cv::Mat m = ReadAnyMat(fs, key, path);
   SLSHADOW_THROW_IF(m.empty(), path.string(), ": ", key, ": missing");
   m.convertTo(m, CV_64F);
   if (rows * cols == static_cast<int>(m.total()) && (m.rows != rows || m.cols != cols)) m = m.reshape(1, rows);
@@ -112,10 +138,9 @@ Rigid3d PoseFromRT(const cv::Mat& r, const cv::Mat& t) {
 }
 
 cv::Mat RotationMatrixOrRvec(const cv::FileStorage& fs, const std::string& key, const std::filesystem::path& path) {
-  cv::Mat m;
-  fs[key] >> m;
+  cv::Mat m = ReadAnyMat(fs, key, path);
   SLSHADOW_THROW_IF(m.empty(), path.string(), ": ", key, ": missing");
-  m.convertTo(m, CV_64F);
+  if (m.total() == 9) m = m.reshape(1, 3);
   if (m.total() == 3) {
     cv::Mat r;
     cv::Rodrigues(m.reshape(1, 3), r);
@@ -129,11 +154,81 @@ cv::Mat RotationMatrixOrRvec(const cv::FileStorage& fs, const std::string& key, 
 }
 
 cv::Mat ReadDist(const cv::FileStorage& fs, const std::string& key, const std::filesystem::path& path) {
-  cv::Mat m;
-  fs[key] >> m;
+  cv::Mat m = ReadAnyMat(fs, key, path);
   SLSHADOW_THROW_IF(m.empty(), path.string(), ": ", key, ": missing");
-  m.convertTo(m, CV_64F);
   return m;
+}
+
+// An image size node: [width, height] (cv::Size) or a matrix of two numbers; nullopt if absent.
+std::optional<std::pair<int, int>> ReadSize(const cv::FileStorage& fs, const std::string& key,
+                                            const std::filesystem::path& path) {
+  if (key.empty() || fs[key].empty()) return std::nullopt;
+  const cv::Mat m = ReadAnyMat(fs, key, path);
+  SLSHADOW_THROW_IF(m.total() != 2, path.string(), ": ", key, ": expected an image size [width, height] (got ",
+                    m.total(), " numbers)");
+  return std::pair<int, int>(static_cast<int>(m.at<double>(0)), static_cast<int>(m.at<double>(1)));
+}
+
+// "cam_K (3x3 matrix), dist (1x5 matrix), S ([2 numbers]), name (string)": the top-level nodes.
+std::string DescribeNodes(const cv::FileStorage& fs) {
+  std::string out;
+  const cv::FileNode root = fs.root();
+  for (const cv::FileNode& n : root) {
+    std::string what;
+    if (n.isSeq()) {
+      what = internal::Concat("[", n.size(), " values]");
+    } else if (n.isMap()) {
+      what = !n["rows"].empty() && !n["cols"].empty()
+                 ? internal::Concat(static_cast<int>(n["rows"]), "x", static_cast<int>(n["cols"]), " matrix")
+                 : std::string("mapping");
+    } else {
+      what = n.isString() ? "string" : "number";
+    }
+    out = internal::Concat(out, out.empty() ? "" : ", ", n.name(), " (", what, ")");
+  }
+  return out.empty() ? "none" : out;
+}
+
+// The built-in two-camera layouts other than slshadow's / stereo_calib.cpp's.
+OpenCvNodeMap StructuredLightSampleLayout(const cv::FileStorage& fs) {
+  const std::string d1 = fs["cam1_distorsion"].empty() ? "cam1_distortion" : "cam1_distorsion";
+  const std::string d2 = fs["cam2_distorsion"].empty() ? "cam2_distortion" : "cam2_distorsion";
+  return {"cam1_intrinsics", d1, "cam2_intrinsics", d2, "R", "T", "cam1_size", "cam2_size"};
+}
+OpenCvNodeMap BinocularLayout() { return {"M1", "D1", "M2", "D2", "Rlr", "Tlr", "S", ""}; }
+
+// One or two cameras from explicitly named nodes.
+Rig ReadMappedLayout(const cv::FileStorage& fs, const OpenCvNodeMap& map, const std::filesystem::path& path,
+                     int default_width, int default_height) {
+  const std::string file = path.string();
+  SLSHADOW_THROW_IF(map.k1.empty() || map.d1.empty(), file, ": the node map needs K1 and D1");
+  SLSHADOW_THROW_IF(map.k2.empty() != map.d2.empty(), file, ": the node map needs both K2 and D2, or neither");
+  SLSHADOW_THROW_IF(!map.k2.empty() && (map.r.empty() || map.t.empty()), file,
+                    ": the node map names a second camera (K2) but not its pose (R and T)");
+  for (const std::string* key : {&map.k1, &map.d1, &map.k2, &map.d2, &map.r, &map.t, &map.size1, &map.size2}) {
+    SLSHADOW_THROW_IF(!key->empty() && fs[*key].empty(), file, ": ", *key, ": missing (nodes found: ",
+                      DescribeNodes(fs), ")");
+  }
+  const auto size1 = ReadSize(fs, map.size1, path);
+  const auto size2 = ReadSize(fs, map.size2, path);
+  Rig rig;
+  rig.name = path.stem().string();
+  const auto device = [&](const std::string& name, const std::string& k, const std::string& d,
+                          const std::optional<std::pair<int, int>>& size) {
+    const int w = size ? size->first : default_width, h = size ? size->second : default_height;
+    SLSHADOW_THROW_IF(w <= 0 || h <= 0, file, ": ", k, ": no image size in the file; give it (e.g. --image-size)");
+    RigDevice dev;
+    dev.name = name;
+    dev.model = ModelFromMats(ReadMat(fs, k, path, 3, 3), ReadDist(fs, d, path), w, h, file + ": " + k);
+    return dev;
+  };
+  rig.cameras.push_back(device(map.k2.empty() ? "camera" : "camera1", map.k1, map.d1, size1));
+  if (!map.k2.empty()) {
+    RigDevice second = device("camera2", map.k2, map.d2, size2 ? size2 : size1);
+    second.cam_from_rig = PoseFromRT(RotationMatrixOrRvec(fs, map.r, path), ReadMat(fs, map.t, path, 3, 1));
+    rig.cameras.push_back(second);
+  }
+  return rig;
 }
 
 int IntOr(const cv::FileStorage& fs, const std::string& key, int fallback) {
@@ -393,8 +488,37 @@ void WriteOpenCvCalibration(const Rig& rig, const std::filesystem::path& path) {
   });
 }
 
+OpenCvNodeMap ParseOpenCvNodeMap(const std::string& text) {
+  OpenCvNodeMap map;
+  size_t start = 0;
+  while (start <= text.size()) {
+    const size_t end = std::min(text.find(',', start), text.size());
+    const std::string entry = text.substr(start, end - start);
+    start = end + 1;
+    if (entry.empty()) continue;
+    const size_t eq = entry.find('=');
+    SLSHADOW_THROW_IF(eq == std::string::npos || eq == 0 || eq + 1 == entry.size(), "node map: entry '", entry,
+                      "' is not KEY=NODE (keys: K1 D1 K2 D2 R T size1 size2)");
+    const std::string key = entry.substr(0, eq), node = entry.substr(eq + 1);
+    std::string* slot = key == "K1"      ? &map.k1
+                        : key == "D1"    ? &map.d1
+                        : key == "K2"    ? &map.k2
+                        : key == "D2"    ? &map.d2
+                        : key == "R"     ? &map.r
+                        : key == "T"     ? &map.t
+                        : key == "size1" ? &map.size1
+                        : key == "size2" ? &map.size2
+                                         : nullptr;
+    SLSHADOW_THROW_IF(slot == nullptr, "node map: unknown key '", key, "' in '", entry,
+                      "' (keys: K1 D1 K2 D2 R T size1 size2)");
+    *slot = node;
+  }
+  SLSHADOW_THROW_IF(map.k1.empty() || map.d1.empty(), "node map: '", text, "' must name at least K1 and D1");
+  return map;
+}
+
 Rig ReadOpenCvCalibration(const std::filesystem::path& path, int default_width, int default_height, int projector_width,
-                          int projector_height) {
+                          int projector_height, const OpenCvNodeMap& node_map) {
   SLSHADOW_THROW_IF(!std::filesystem::exists(path), path.string(), ": file not found");
   cv::FileStorage fs;
   try {
@@ -406,6 +530,7 @@ Rig ReadOpenCvCalibration(const std::filesystem::path& path, int default_width, 
   const std::string file = path.string();
   Rig rig;
   rig.name = path.stem().string();
+  if (!node_map.Empty()) return ReadMappedLayout(fs, node_map, path, default_width, default_height);
   auto size_or_throw = [&](int w, int h, const std::string& what) {
     SLSHADOW_THROW_IF(w <= 0 || h <= 0, file, ": ", what, ": no image size in the file; give it (e.g. --image-size)");
     return std::pair<int, int>(w, h);
@@ -445,7 +570,14 @@ Rig ReadOpenCvCalibration(const std::filesystem::path& path, int default_width, 
     rig.projector = proj;
     return rig;
   }
-  SLSHADOW_THROW_IF(fs["M1"].empty(), file, ": no camera_matrix, M1 or cam_int node: not an OpenCV calibration file");
+  if (!fs["cam1_intrinsics"].empty()) return ReadMappedLayout(fs, StructuredLightSampleLayout(fs), path, default_width, default_height);
+  if (!fs["M1"].empty() && fs["R"].empty() && !fs["Rlr"].empty()) {
+    return ReadMappedLayout(fs, BinocularLayout(), path, default_width, default_height);
+  }
+  SLSHADOW_THROW_IF(fs["M1"].empty(), file, ": no known calibration layout among the nodes found: ", DescribeNodes(fs),
+                    ". Known: camera_matrix (OpenCV calibration sample), M1/D1/M2/D2/R/T (stereo_calib), "
+                    "M1/D1/M2/D2/Rlr/Tlr/S, cam1_intrinsics/cam1_distorsion/cam2_*/R/T, cam_int/proj_int (procam); "
+                    "name the nodes of another layout with --map K1=NODE,D1=NODE[,K2=..,D2=..,R=..,T=..,size1=..]");
   const int num = IntOr(fs, "num_devices", fs["M2"].empty() ? 1 : 2);
   const bool has_projector = IntOr(fs, "has_projector", 0) != 0;
   for (int i = 1; i <= num; ++i) {

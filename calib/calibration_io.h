@@ -48,12 +48,32 @@ CalibrationOptions CalibrationOptionsFromJson(const nlohmann::json& json, const 
 // relative to device 1. The projector, when present, is the last device.
 void WriteOpenCvCalibration(const Rig& rig, const std::filesystem::path& path);
 
-// Reading accepts those layouts, and the procam layout of kamino410/procam-calibration
-// (cam_int, cam_dist, proj_int, proj_dist, rotation or its misspelling roration, translation,
-// img_shape). Image sizes come from the file when present, else from `default_width` x
-// `default_height` (throws when neither gives one). Throws slshadow::Error naming the file and
-// the missing or malformed node.
+// Node names of a one- or two-camera calibration file, for ReadOpenCvCalibration: the built-in
+// layouts are such maps, and a user names the nodes of any other layout with one.
+struct OpenCvNodeMap {
+  std::string k1, d1;        // first camera: 3x3 camera matrix, distortion (k1 k2 p1 p2 [k3]); required
+  std::string k2, d2;        // second camera (both or neither)
+  std::string r, t;          // x_in_2 = R x_in_1 + T: 3x3 matrix or Rodrigues vector, 3-vector (mm)
+  std::string size1, size2;  // image sizes as [width, height] (cv::Size) or a 1x2 matrix; optional,
+                             // size2 defaults to size1
+  bool Empty() const { return k1.empty(); }
+};
+// Parses "K1=cam_K,D1=cam_D,K2=...,D2=...,R=...,T=...,size1=...,size2=..." (keys as shown, any
+// order). Throws slshadow::Error naming the bad entry and the known keys.
+OpenCvNodeMap ParseOpenCvNodeMap(const std::string& text);
+
+// Reading accepts those layouts and others in common use:
+//   - kamino410/procam-calibration's procam layout (cam_int, cam_dist, proj_int, proj_dist,
+//     rotation or its misspelling roration, translation, img_shape);
+//   - the stereo structured-light sample's (cam1_intrinsics, cam1_distorsion or cam1_distortion,
+//     cam2_*, R, T, cam1_size / cam2_size);
+//   - a binocular layout (M1, D1, M2, D2, Rlr, Tlr, image size in S);
+//   - any layout of one or two cameras whose nodes `node_map` names (it then takes precedence).
+// Matrices may be !!opencv-matrix nodes or plain number lists. Image sizes come from the file
+// when present, else from `default_width` x `default_height` (throws when neither gives one). A
+// file of no known layout throws an error that lists the nodes it has. Throws slshadow::Error
+// naming the file and the missing or malformed node.
 Rig ReadOpenCvCalibration(const std::filesystem::path& path, int default_width = 0, int default_height = 0,
-                          int projector_width = 0, int projector_height = 0);
+                          int projector_width = 0, int projector_height = 0, const OpenCvNodeMap& node_map = {});
 
 }  // namespace slshadow

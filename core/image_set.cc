@@ -59,6 +59,57 @@ void CheckImage(const cv::Mat& image, const RigDevice& camera, const std::string
                     "' is ", camera.model.width, "x", camera.model.height);
 }
 
+
+nlohmann::json RecordToJson(const ImageRecord& r) {
+  nlohmann::json j = {{"camera", r.camera},       {"pattern", r.pattern_index},   {"file", r.file},
+                      {"bit_depth", r.bit_depth}, {"exposure_us", r.exposure_us}, {"timestamp", r.timestamp},
+                      {"source", ToString(r.source)}};
+  if (!r.device_serial.empty()) j["device_serial"] = r.device_serial;
+  if (r.frame_id) j["frame_id"] = *r.frame_id;
+  if (r.device_timestamp_ns) j["device_timestamp_ns"] = *r.device_timestamp_ns;
+  if (r.retries) j["retries"] = *r.retries;
+  return j;
+}
+
+// One image record of a manifest (or a capture journal line, which may carry "type"); the file
+// must exist under `dir`.
+ImageRecord RecordFromConfig(const ConfigNode& n, const Rig& rig, const fs::path& dir, bool allow_type = false) {
+  std::vector<std::string> keys = {"camera",    "pattern", "file",          "bit_depth",          "exposure_us",
+                                   "timestamp", "source",  "device_serial", "frame_id", "device_timestamp_ns",
+                                   "retries"};
+  if (allow_type) keys.push_back("type");
+  n.RejectUnknownKeys(keys);
+  ImageRecord r;
+  r.camera = n["camera"].AsString();
+  if (rig.CameraIndex(r.camera) < 0) n["camera"].Fail("no camera of this name in the manifest's rig");
+  r.pattern_index = static_cast<int>(n["pattern"].AsInt());
+  if (r.pattern_index < 0) n["pattern"].Fail("pattern index must be >= 0");
+  r.file = n["file"].AsString();
+  const fs::path file(r.file);
+  if (file.is_absolute() || r.file.find("..") != std::string::npos) {
+    n["file"].Fail("must be a path relative to the ImageSet folder, without '..'");
+  }
+  std::error_code ec;
+  if (!fs::is_regular_file(dir / file, ec)) n["file"].Fail("image file not found in " + dir.string());
+  r.bit_depth = static_cast<int>(n.GetInt("bit_depth", 8));
+  if (r.bit_depth != 8 && r.bit_depth != 16) n["bit_depth"].Fail("must be 8 or 16");
+  r.exposure_us = n.GetDouble("exposure_us", 0.0);
+  if (r.exposure_us < 0) n["exposure_us"].Fail("must be >= 0");
+  r.timestamp = n.GetString("timestamp", "");
+  r.source = n.Has("source") ? SourceFromConfig(n["source"]) : ImageSource::kDevice;
+  r.device_serial = n.GetString("device_serial", "");
+  const auto non_negative = [&](const char* key) -> std::optional<uint64_t> {
+    if (!n.Has(key)) return std::nullopt;
+    const int64_t v = n[key].AsInt();
+    if (v < 0) n[key].Fail("must be >= 0");
+    return static_cast<uint64_t>(v);
+  };
+  r.frame_id = non_negative("frame_id");
+  r.device_timestamp_ns = non_negative("device_timestamp_ns");
+  if (const auto retries = non_negative("retries")) r.retries = static_cast<int>(*retries);
+  return r;
+}
+
 }  // namespace
 
 ImageEncoding ImageEncodingFromString(const std::string& name) {
@@ -160,24 +211,7 @@ ImageSet ImageSet::Open(const fs::path& dir) {
   std::map<std::pair<std::string, int>, size_t> seen;
   for (size_t i = 0; i < images.size(); ++i) {
     const auto n = images.at(i);
-    n.RejectUnknownKeys({"camera", "pattern", "file", "bit_depth", "exposure_us", "timestamp", "source"});
-    ImageRecord r;
-    r.camera = n["camera"].AsString();
-    if (set.rig_.CameraIndex(r.camera) < 0) n["camera"].Fail("no camera of this name in the manifest's rig");
-    r.pattern_index = static_cast<int>(n["pattern"].AsInt());
-    if (r.pattern_index < 0) n["pattern"].Fail("pattern index must be >= 0");
-    r.file = n["file"].AsString();
-    const fs::path file(r.file);
-    if (file.is_absolute() || r.file.find("..") != std::string::npos) {
-      n["file"].Fail("must be a path relative to the ImageSet folder, without '..'");
-    }
-    if (!fs::is_regular_file(dir / file, ec)) n["file"].Fail("image file not found in " + dir.string());
-    r.bit_depth = static_cast<int>(n.GetInt("bit_depth", 8));
-    if (r.bit_depth != 8 && r.bit_depth != 16) n["bit_depth"].Fail("must be 8 or 16");
-    r.exposure_us = n.GetDouble("exposure_us", 0.0);
-    if (r.exposure_us < 0) n["exposure_us"].Fail("must be >= 0");
-    r.timestamp = n.GetString("timestamp", "");
-    r.source = n.Has("source") ? SourceFromConfig(n["source"]) : ImageSource::kDevice;
+    ImageRecord r = RecordFromConfig(n, set.rig_, dir);
     if (!seen.emplace(std::make_pair(r.camera, r.pattern_index), i).second) {
       n.Fail("duplicate image for camera '" + r.camera + "', pattern " + std::to_string(r.pattern_index));
     }
@@ -302,19 +336,290 @@ void ImageSetWriter::Commit() {
   m["rig"] = RigToJson(rig_);
   m["patterns"] = patterns_;
   m["images"] = nlohmann::json::array();
-  for (const auto& r : records_) {
-    m["images"].push_back({{"camera", r.camera},
-                           {"pattern", r.pattern_index},
-                           {"file", r.file},
-                           {"bit_depth", r.bit_depth},
-                           {"exposure_us", r.exposure_us},
-                           {"timestamp", r.timestamp},
-                           {"source", ToString(r.source)}});
-  }
+  for (const auto& r : records_) m["images"].push_back(RecordToJson(r));
   if (!extra_.is_null()) m["extra"] = extra_;
   WriteTextFileAtomically(staging_ / "manifest.json", m.dump(1) + "\n");
   CommitDirectory(staging_, dir_, options_.overwrite);
   committed_ = true;
+}
+
+// ---------------------------------------------------------------------------------------------
+// ResumableImageSetWriter
+
+namespace {
+
+constexpr const char* kStagingHeader = "staging.json";
+constexpr const char* kJournal = "journal.jsonl";
+
+void FsyncPath(const fs::path& path, bool directory) {
+  const int fd = ::open(path.c_str(), (directory ? O_RDONLY | O_DIRECTORY : O_RDONLY) | O_CLOEXEC);
+  SLSHADOW_THROW_IF(fd < 0, path.string(), ": cannot open to sync: ", std::strerror(errno));
+  const int rc = ::fsync(fd);
+  const int error = errno;
+  ::close(fd);
+  SLSHADOW_THROW_IF(rc != 0, path.string(), ": fsync failed: ", std::strerror(error));
+}
+
+std::string EncodingName(ImageEncoding e) {
+  switch (e) {
+    case ImageEncoding::kPng: return "png";
+    case ImageEncoding::kPgm: return "pgm";
+    case ImageEncoding::kTiff: return "tiff";
+  }
+  return "png";
+}
+
+std::string RecordFileName(const std::string& camera, int pattern_index, ImageEncoding encoding) {
+  char name[32];
+  std::snprintf(name, sizeof(name), "%04d", pattern_index);
+  return camera + "/" + name + Extension(encoding);
+}
+
+}  // namespace
+
+fs::path ResumableImageSetWriter::StagingDirFor(const fs::path& dir) {
+  fs::path staging = dir.has_filename() ? dir : dir.parent_path();
+  staging += ".partial";
+  return staging;
+}
+
+ResumableImageSetWriter::ResumableImageSetWriter(fs::path dir, Rig rig, nlohmann::json patterns,
+                                                 ResumableImageSetWriterOptions options)
+    : dir_(std::move(dir)), rig_(std::move(rig)), patterns_(std::move(patterns)), options_(options) {
+  rig_.Check(dir_.string() + " (rig)");
+  SLSHADOW_THROW_IF(patterns_.is_null(), dir_.string(), ": patterns: an ImageSet needs its pattern specification");
+  SLSHADOW_THROW_IF(options_.png_compression < 0 || options_.png_compression > 9,
+                    "png_compression: must be 0..9 (got ", options_.png_compression, ")");
+  staging_ = StagingDirFor(dir_);
+  std::error_code ec;
+  SLSHADOW_THROW_IF(fs::exists(dir_, ec) && !options_.overwrite, dir_.string(),
+                    ": already exists (choose another folder or pass --overwrite)");
+  const nlohmann::json header = {{"format", "slshadow-imageset-staging"},
+                                 {"version", 1},
+                                 {"rig", RigToJson(rig_)},
+                                 {"patterns", patterns_},
+                                 {"encoding", EncodingName(options_.encoding)}};
+  if (fs::exists(staging_, ec)) {
+    SLSHADOW_THROW_IF(!options_.resume, staging_.string(),
+                      ": an interrupted capture is staged here; continue it with --resume, or delete the folder to "
+                      "start over");
+    const ConfigNode root = ConfigNode::LoadFile(staging_ / kStagingHeader);
+    if (root["format"].AsString() != "slshadow-imageset-staging") root["format"].Fail("expected \"slshadow-imageset-staging\"");
+    if (root["version"].AsInt() != 1) root["version"].Fail("unsupported staging version (this slshadow reads 1)");
+    const std::string what = staging_.string() + ": cannot resume: the staged capture was started with ";
+    SLSHADOW_THROW_IF(root["rig"].json() != header["rig"], what,
+                      "another rig (cameras, projector or calibration differ); use the same rig file, or delete the "
+                      "folder to start over");
+    SLSHADOW_THROW_IF(root["patterns"].json() != header["patterns"], what,
+                      "another pattern spec; use the same patterns file, or delete the folder to start over");
+    SLSHADOW_THROW_IF(root["encoding"].AsString() != header["encoding"], what, "image encoding '",
+                      root["encoding"].AsString(), "', this run asks for '", EncodingName(options_.encoding), "'");
+    resumed_ = true;
+    LoadJournal();
+  } else {
+    fs::create_directories(staging_, ec);
+    SLSHADOW_THROW_IF(ec, staging_.string(), ": cannot create folder: ", ec.message());
+    WriteTextFileAtomically(staging_ / kStagingHeader, header.dump(1) + "\n");
+  }
+  for (const auto& c : rig_.cameras) {
+    fs::create_directories(staging_ / c.name, ec);
+    SLSHADOW_THROW_IF(ec, (staging_ / c.name).string(), ": cannot create folder: ", ec.message());
+  }
+  journal_fd_ = ::open((staging_ / kJournal).c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
+  SLSHADOW_THROW_IF(journal_fd_ < 0, (staging_ / kJournal).string(), ": cannot open: ", std::strerror(errno));
+  if (options_.durable) FsyncPath(staging_, true);
+}
+
+ResumableImageSetWriter::~ResumableImageSetWriter() {
+  if (journal_fd_ >= 0) ::close(journal_fd_);
+}
+
+void ResumableImageSetWriter::LoadJournal() {
+  const fs::path path = staging_ / kJournal;
+  std::error_code ec;
+  if (!fs::exists(path, ec)) return;
+  const std::string text = ReadTextFile(path);
+  // Complete lines end in '\n'. A crash can leave a torn (or zero-filled) tail: every line from the
+  // first unreadable one on must be unreadable too, and is cut off; an unreadable line followed by
+  // good ones is corruption, not a crash, and is refused.
+  struct Line {
+    size_t begin, end;
+    bool ok;
+    nlohmann::json json;
+  };
+  std::vector<Line> lines;
+  for (size_t begin = 0; begin < text.size();) {
+    const size_t nl = text.find('\n', begin);
+    Line line{begin, nl == std::string::npos ? text.size() : nl + 1, false, {}};
+    if (nl != std::string::npos) {
+      line.json = nlohmann::json::parse(text.begin() + static_cast<std::ptrdiff_t>(begin),
+                                        text.begin() + static_cast<std::ptrdiff_t>(nl), nullptr, false);
+      line.ok = line.json.is_object() && line.json.contains("type");
+    }
+    lines.push_back(std::move(line));
+    begin = lines.back().end;
+  }
+  size_t good = lines.size();
+  for (size_t i = 0; i < lines.size(); ++i) {
+    if (lines[i].ok) continue;
+    for (size_t j = i + 1; j < lines.size(); ++j) {
+      SLSHADOW_THROW_IF(lines[j].ok, path.string(), ": line ", i + 1,
+                        ": unreadable journal line followed by readable ones (the file was edited or damaged; "
+                        "delete the staging folder to start over)");
+    }
+    good = i;
+    break;
+  }
+  if (good < lines.size()) {
+    const size_t keep = lines[good].begin;
+    SLSHADOW_THROW_IF(::truncate(path.c_str(), static_cast<off_t>(keep)) != 0, path.string(),
+                      ": cannot cut off the torn last line: ", std::strerror(errno));
+  }
+  for (size_t i = 0; i < good; ++i) {
+    const ConfigNode node = ConfigNode::FromJson(lines[i].json, path.string(), "line " + std::to_string(i + 1));
+    const std::string type = node["type"].AsString();
+    if (type == "session") {
+      sessions_.push_back(node["session"].json());
+      continue;
+    }
+    if (type != "image") node["type"].Fail("expected \"image\" or \"session\"");
+    if (!fs::is_regular_file(staging_ / node["file"].AsString(), ec)) continue;  // taken again
+    ImageRecord r = RecordFromConfig(node, rig_, staging_, true);
+    bool replaced = false;
+    for (auto& other : records_) {
+      if (other.camera == r.camera && other.pattern_index == r.pattern_index) {
+        other = r;
+        replaced = true;
+      }
+    }
+    if (!replaced) records_.push_back(std::move(r));
+  }
+}
+
+void ResumableImageSetWriter::AppendJournalLine(const std::string& line) {
+  // Called with mutex_ held. One write() per line: O_APPEND keeps lines whole between threads.
+  const std::string text = line + "\n";
+  for (size_t done = 0; done < text.size();) {
+    const ssize_t n = ::write(journal_fd_, text.data() + done, text.size() - done);
+    if (n < 0 && errno == EINTR) continue;
+    SLSHADOW_THROW_IF(n <= 0, (staging_ / kJournal).string(), ": cannot append: ", std::strerror(errno));
+    done += static_cast<size_t>(n);
+  }
+  if (options_.durable) {
+    SLSHADOW_THROW_IF(::fsync(journal_fd_) != 0, (staging_ / kJournal).string(), ": fsync failed: ",
+                      std::strerror(errno));
+  }
+}
+
+bool ResumableImageSetWriter::Has(const std::string& camera, int pattern_index) const {
+  return Find(camera, pattern_index).has_value();
+}
+
+std::optional<ImageRecord> ResumableImageSetWriter::Find(const std::string& camera, int pattern_index) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (const auto& r : records_) {
+    if (r.camera == camera && r.pattern_index == pattern_index) return r;
+  }
+  return std::nullopt;
+}
+
+std::vector<ImageRecord> ResumableImageSetWriter::Records() const {
+  std::vector<ImageRecord> records;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    records = records_;
+  }
+  std::sort(records.begin(), records.end(), [&](const ImageRecord& a, const ImageRecord& b) {
+    const int ca = rig_.CameraIndex(a.camera), cb = rig_.CameraIndex(b.camera);
+    return ca != cb ? ca < cb : a.pattern_index < b.pattern_index;
+  });
+  return records;
+}
+
+cv::Mat ResumableImageSetWriter::Load(const std::string& camera, int pattern_index) const {
+  const auto r = Find(camera, pattern_index);
+  SLSHADOW_THROW_IF(!r, staging_.string(), ": no finished image for camera '", camera, "', pattern ", pattern_index);
+  const fs::path path = staging_ / r->file;
+  cv::Mat image = ReadGrayImage(path);
+  CheckImage(image, rig_.Camera(camera), path.string(), r->bit_depth);
+  return image;
+}
+
+ImageRecord ResumableImageSetWriter::Add(ImageRecord record, const cv::Mat& image) {
+  SLSHADOW_THROW_IF(committed_, dir_.string(), ": ImageSet already committed");
+  const RigDevice& device = rig_.Camera(record.camera);
+  SLSHADOW_THROW_IF(record.pattern_index < 0, "pattern index must be >= 0 (got ", record.pattern_index, ")");
+  record.file = RecordFileName(record.camera, record.pattern_index, options_.encoding);
+  CheckImage(image, device, dir_.string() + "/" + record.file, 0);
+  record.bit_depth = image.depth() == CV_16U ? 16 : 8;
+  if (record.timestamp.empty()) record.timestamp = UtcTimestamp();
+  const fs::path final_path = staging_ / record.file;
+  fs::path tmp = final_path.parent_path() / ("." + final_path.stem().string() + ".tmp");
+  tmp += final_path.extension();
+  std::error_code ec;
+  WriteGrayImage(tmp, image, options_.png_compression);
+  if (options_.durable) FsyncPath(tmp, false);
+  fs::rename(tmp, final_path, ec);
+  if (ec) {
+    fs::remove(tmp, ec);
+    SLSHADOW_THROW(final_path.string(), ": cannot move finished image into place: ", ec.message());
+  }
+  if (options_.durable) FsyncPath(final_path.parent_path(), true);
+  nlohmann::json line = RecordToJson(record);
+  line["type"] = "image";
+  std::lock_guard<std::mutex> lock(mutex_);
+  AppendJournalLine(line.dump());
+  bool replaced = false;
+  for (auto& other : records_) {
+    if (other.camera == record.camera && other.pattern_index == record.pattern_index) {
+      other = record;
+      replaced = true;
+    }
+  }
+  if (!replaced) records_.push_back(record);
+  return record;
+}
+
+void ResumableImageSetWriter::AppendSession(const nlohmann::json& session) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  AppendJournalLine(nlohmann::json{{"type", "session"}, {"session", session}}.dump());
+  sessions_.push_back(session);
+}
+
+std::vector<nlohmann::json> ResumableImageSetWriter::Sessions() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return sessions_;
+}
+
+void ResumableImageSetWriter::Commit() {
+  SLSHADOW_THROW_IF(committed_, dir_.string(), ": ImageSet already committed");
+  const std::vector<ImageRecord> records = Records();
+  nlohmann::json m;
+  m["format"] = "slshadow-imageset";
+  m["version"] = ImageSet::kFormatVersion;
+  m["created"] = UtcTimestamp();
+  m["rig"] = RigToJson(rig_);
+  m["patterns"] = patterns_;
+  m["images"] = nlohmann::json::array();
+  for (const auto& r : records) m["images"].push_back(RecordToJson(r));
+  if (!extra_.is_null()) m["extra"] = extra_;
+  WriteTextFileAtomically(staging_ / "manifest.json", m.dump(1) + "\n");
+  if (options_.durable) FsyncPath(staging_ / "manifest.json", false);
+  std::lock_guard<std::mutex> lock(mutex_);
+  ::close(journal_fd_);
+  journal_fd_ = -1;
+  // Stray temporary images of frames that never finished.
+  std::error_code ec;
+  for (const auto& c : rig_.cameras) {
+    for (const auto& entry : fs::directory_iterator(staging_ / c.name, ec)) {
+      const std::string name = entry.path().filename().string();
+      if (!name.empty() && name[0] == '.' && name.find(".tmp") != std::string::npos) fs::remove(entry.path(), ec);
+    }
+  }
+  CommitDirectory(staging_, dir_, options_.overwrite);
+  committed_ = true;
+  fs::remove(dir_ / kJournal, ec);
+  fs::remove(dir_ / kStagingHeader, ec);
 }
 
 }  // namespace slshadow

@@ -4,8 +4,10 @@
 // Decoding rules (exact formulas in docs/formats.md, "Pattern spec"); all levels are grey levels
 // of the input images, thresholds are given on an 8-bit scale and multiplied by full_scale / 255:
 //   Gray-code bit:  bit = P > I for the pattern / inverse pair (P, I): a per-pixel threshold
-//                   that needs no global level; the bit contrast is |P - I|.
-//   Phase (N-step): S = sum_n I_n sin(2 pi n / N), C = sum_n I_n cos(2 pi n / N),
+//                   that needs no global level; the bit contrast is |P - I|. A bit without an
+//                   inverse (spec.gray_inverse false) uses the reference (white + black) / 2 or
+//                   the mean of the phase frames as I.
+//   Phase (N-step): S = sum_n I_n sin(a_n), C = sum_n I_n cos(a_n), a_n = spec.PhaseStepAngle(n),
 //                   phase = atan2(S, C) in [0, 2 pi), modulation B' = (2 / N) sqrt(S^2 + C^2).
 //   Status, first that applies: saturated (Gray code: white or black frame >= saturation_level;
 //   phase codecs: any phase frame), shadow (Gray

@@ -9,6 +9,7 @@
 #include <limits>
 #include <numbers>
 #include <type_traits>
+#include <utility>
 
 #include <opencv2/core/hal/intrin.hpp>
 
@@ -178,13 +179,15 @@ void GrayAxis(const T* const* frames, int nbits, int width, uint16_t* code, uint
 
 // N-step phase of one frequency: wrapped phase in cycles [0, 1), modulation B', and the running
 // maximum level (saturation). The sums run over 8 pixels at a time in registers.
+// `standard` says the coefficients are sin / cos(2 pi n / N) (no offset, direction +1), which
+// allows the exact integer path for 4 steps.
 template <typename T>
-void PhaseRow(const T* const* frames, int steps, const float* sn, const float* cn, int width,
+void PhaseRow(const T* const* frames, int steps, bool standard, const float* sn, const float* cn, int width,
               float* __restrict sum_s, float* __restrict sum_c, float* __restrict cycles,
               float* __restrict modulation, int32_t* __restrict maxv) {
   const int vec_end = width - width % 8;
   if constexpr (std::is_same_v<T, uint8_t>) {
-    if (steps == 4) {
+    if (steps == 4 && standard) {
       // 4 steps: S = I1 - I3, C = I0 - I2 exactly, in 16-bit integers.
       for (int x = 0; x < vec_end; x += 8) {
         const cv::v_uint16x8 v0 = Load8<T>(frames[0] + x), v1 = Load8<T>(frames[1] + x);
@@ -206,7 +209,7 @@ void PhaseRow(const T* const* frames, int steps, const float* sn, const float* c
       }
     }
   }
-  const bool done = std::is_same_v<T, uint8_t> && steps == 4;
+  const bool done = std::is_same_v<T, uint8_t> && steps == 4 && standard;
   for (int x = 0; x < (done ? 0 : vec_end); x += 8) {
     cv::v_float32x4 s0 = cv::v_setzero_f32(), s1 = s0, c0 = s0, c1 = s0;
     cv::v_uint16x8 top = cv::v_setzero_u16();
@@ -257,6 +260,9 @@ struct Scratch {
   explicit Scratch(int width) : w(static_cast<size_t>(width)) {}
   size_t w;
   std::vector<uint16_t> code[2], min1, min2, min_bit;
+  std::vector<uint16_t> code_b, min1_b, min2_b, min_bit_b;  // the shifted Gray code (kShifted)
+  std::vector<uint16_t> reference;  // threshold row of Gray bits without inverse, as T
+  std::vector<int32_t> sum;         // phase mean accumulator
   std::vector<int32_t> maxv;
   std::vector<float> sum_s, sum_c, cycles[3], modulation[3], coord[2], quality;
   std::vector<uint8_t> flags;
@@ -270,16 +276,30 @@ class Decoder {
   Decoder(const PatternSpec& spec, const std::vector<cv::Mat>& images, const Levels& levels, ProjectorMap* out)
       : spec_(spec), images_(images), levels_(levels), out_(out), frames_(spec.Frames()) {
     for (int n = 0; n < spec.phase_steps; ++n) {
-      const double d = 2 * std::numbers::pi * n / spec.phase_steps;
+      const double d = spec.PhaseStepAngle(n);
       sin_.push_back(static_cast<float>(std::sin(d)));
       cos_.push_back(static_cast<float>(std::cos(d)));
     }
-    // Frame indices per axis, by role.
+    standard_phase_ = spec.phase_direction == 1 && spec.phase_offset_rad == 0;
+    reference_ = spec.ResolvedGrayReference();
+    // Frame indices per axis, by role: Gray bits MSB first as (pattern, inverse or -1), phase
+    // frames by step, whatever the projection order.
+    for (int a = 0; a < 2; ++a) {
+      const int nbits = spec.Codes(a) ? spec.GrayBits(a) : 0;
+      for (int code = 0; code < 2; ++code) gray_[a][code].assign(static_cast<size_t>(nbits), {-1, -1});
+      for (int f = 0; f < 3; ++f) phase_[a][f].assign(static_cast<size_t>(spec.phase_steps), -1);
+    }
     for (size_t i = 0; i < frames_.size(); ++i) {
       const FrameInfo& fr = frames_[i];
       const int idx = static_cast<int>(i);
-      if (fr.role == FrameRole::kGrayBit || fr.role == FrameRole::kGrayBitInverse) gray_[fr.axis].push_back(idx);
-      if (fr.role == FrameRole::kPhase) phase_[fr.axis][fr.frequency].push_back(idx);
+      if (fr.role == FrameRole::kGrayBit || fr.role == FrameRole::kGrayBitInverse) {
+        auto& bits = gray_[fr.axis][fr.code];
+        auto& slot = bits[bits.size() - 1 - static_cast<size_t>(fr.bit)];
+        (fr.role == FrameRole::kGrayBit ? slot.first : slot.second) = idx;
+      }
+      if (fr.role == FrameRole::kPhase) phase_[fr.axis][fr.frequency][static_cast<size_t>(fr.step)] = idx;
+      if (fr.role == FrameRole::kWhite) white_ = idx;
+      if (fr.role == FrameRole::kBlack) black_ = idx;
     }
   }
 
@@ -299,6 +319,14 @@ class Decoder {
     }
     s.Float(s.sum_s);
     s.Float(s.sum_c);
+    s.U16(s.reference);
+    s.Int(s.sum);
+    if (spec_.GrayCodes() == 2) {
+      s.U16(s.code_b);
+      s.U16(s.min1_b);
+      s.U16(s.min2_b);
+      s.U16(s.min_bit_b);
+    }
     for (int f = 0; f < 3; ++f) {
       s.Float(s.cycles[f]);
       s.Float(s.modulation[f]);
@@ -332,11 +360,44 @@ class Decoder {
     for (size_t i = 0; i < idx.size(); ++i) out[i] = rows[static_cast<size_t>(idx[i])];
   }
 
+  // The row pointers of one Gray code of axis a, MSB first, each bit as (pattern, inverse); a bit
+  // without an inverse gets the reference row, computed here (white_black: (white + black + 1) / 2;
+  // phase_mean: the rounded mean of the axis' phase frames).
+  template <typename T>
+  void GrayRows(const std::vector<const T*>& rows, int a, int code, Scratch& s, std::vector<const T*>& out) const {
+    const auto& bits = gray_[a][code];
+    out.resize(2 * bits.size());
+    const T* reference = nullptr;
+    if (!spec_.gray_inverse) {
+      const int width = out_->width();
+      T* ref = reinterpret_cast<T*>(s.reference.data());
+      if (reference_ == GrayReference::kWhiteBlack) {
+        const T* w = rows[static_cast<size_t>(white_)];
+        const T* b = rows[static_cast<size_t>(black_)];
+        for (int x = 0; x < width; ++x) ref[x] = static_cast<T>((int32_t{w[x]} + int32_t{b[x]} + 1) >> 1);
+      } else {
+        int32_t* sum = s.sum.data();
+        std::fill(sum, sum + width, 0);
+        for (const int idx : phase_[a][0]) {
+          const T* p = rows[static_cast<size_t>(idx)];
+          for (int x = 0; x < width; ++x) sum[x] += p[x];
+        }
+        const int32_t n = spec_.phase_steps;
+        for (int x = 0; x < width; ++x) ref[x] = static_cast<T>((sum[x] + n / 2) / n);
+      }
+      reference = ref;
+    }
+    for (size_t b = 0; b < bits.size(); ++b) {
+      out[2 * b] = rows[static_cast<size_t>(bits[b].first)];
+      out[2 * b + 1] = bits[b].second >= 0 ? rows[static_cast<size_t>(bits[b].second)] : reference;
+    }
+  }
+
   template <typename T>
   void GrayCodeRow(const std::vector<const T*>& rows, Scratch& s) const {
     const int width = out_->width();
-    const T* __restrict white = rows[static_cast<size_t>(spec_.WhiteFrameIndex())];
-    const T* __restrict black = rows[static_cast<size_t>(spec_.BlackFrameIndex())];
+    const T* __restrict white = rows[static_cast<size_t>(white_)];
+    const T* __restrict black = rows[static_cast<size_t>(black_)];
     const uint16_t* __restrict min1 = s.min1.data();
     const uint16_t* __restrict min2 = s.min2.data();
     const uint16_t* __restrict min_bit = s.min_bit.data();
@@ -356,7 +417,7 @@ class Decoder {
     std::vector<const T*> frames;
     for (int a = 0; a < 2; ++a) {
       if (!spec_.Codes(a)) continue;
-      GatherRows(rows, gray_[a], frames);
+      GrayRows(rows, a, 0, s, frames);
       if (edges) {
         GrayAxis<T, true>(frames.data(), spec_.GrayBits(a), width, s.code[a].data(), s.min1.data(),
                           s.min2.data(), s.min_bit.data());
@@ -399,9 +460,9 @@ class Decoder {
     for (int a = 0; a < 2; ++a) {
       if (!spec_.Codes(a)) continue;
       GatherRows(rows, phase_[a][0], frames);
-      PhaseRow<T>(frames.data(), spec_.phase_steps, sin_.data(), cos_.data(), width, s.sum_s.data(),
-                  s.sum_c.data(), s.cycles[0].data(), s.modulation[0].data(), maxv);
-      GatherRows(rows, gray_[a], frames);
+      PhaseRow<T>(frames.data(), spec_.phase_steps, standard_phase_, sin_.data(), cos_.data(), width,
+                  s.sum_s.data(), s.sum_c.data(), s.cycles[0].data(), s.modulation[0].data(), maxv);
+      GrayRows(rows, a, 0, s, frames);
       const int nbits = spec_.GrayBits(a);
       GrayAxis<T, false>(frames.data(), nbits, width, s.code[a].data(), s.min1.data(), s.min2.data(),
                          s.min_bit.data());
@@ -410,8 +471,34 @@ class Decoder {
       const float* __restrict mod = s.modulation[0].data();
       float* __restrict coord = s.coord[a].data();
       const float period = static_cast<float>(spec_.period_px);
-      const auto h_max = static_cast<int32_t>(std::floor(2.0 * (spec_.AxisSize(a) - 1) / spec_.period_px));
       const float lo = -1.0f, hi = static_cast<float>(spec_.AxisSize(a));
+      if (spec_.gray_code == GrayCodeVariant::kShifted) {
+        GrayRows(rows, a, 1, s, frames);
+        GrayAxis<T, false>(frames.data(), nbits, width, s.code_b.data(), s.min1_b.data(), s.min2_b.data(),
+                           s.min_bit_b.data());
+        const uint16_t* __restrict h2 = s.code_b.data();
+        const uint16_t* __restrict min1_b = s.min1_b.data();
+        const int32_t k1_max = static_cast<int32_t>(spec_.GrayValue(0, spec_.AxisSize(a) - 1));
+        const int32_t k2_max = static_cast<int32_t>(spec_.GrayValue(1, spec_.AxisSize(a) - 1));
+        #pragma omp simd
+        for (int x = 0; x < width; ++x) {
+          // k1 = floor(x / P) has its edges at the phase wraps, k2 = floor(x / P + 1/2) half a
+          // period away: use k2 near the wraps and k1 in the middle, and only that code's contrast.
+          const int32_t k1 = h[x], k2 = h2[x];
+          const float fx = f[x];
+          const bool middle = (fx >= 0.25f) & (fx <= 0.75f);
+          const int32_t k = middle ? k1 : (fx < 0.25f ? k2 : k2 - 1);
+          const float xc = (static_cast<float>(k) + fx) * period;
+          coord[x] = xc;
+          const int32_t contrast = middle ? min1[x] : min1_b[x];
+          const bool bad = (k1 > k1_max) | (k2 > k2_max) | (xc < lo) | (xc > hi);
+          flags[x] |= (bad ? kFlagCodeError : 0) | (2.0f * mod[x] < levels_.shadow ? kFlagShadow : 0) |
+                      (contrast < levels_.contrast ? kFlagLowContrast : 0);
+          quality[x] = mod[x] < quality[x] ? mod[x] : quality[x];
+        }
+        continue;
+      }
+      const auto h_max = static_cast<int32_t>(std::floor(2.0 * (spec_.AxisSize(a) - 1) / spec_.period_px));
       const uint16_t* __restrict contrast = nbits >= 2 ? min2 : min1;
       #pragma omp simd
       for (int x = 0; x < width; ++x) {
@@ -450,8 +537,8 @@ class Decoder {
       if (!spec_.Codes(a)) continue;
       for (int fq = 0; fq < 3; ++fq) {
         GatherRows(rows, phase_[a][fq], frames);
-        PhaseRow<T>(frames.data(), spec_.phase_steps, sin_.data(), cos_.data(), width, s.sum_s.data(),
-                    s.sum_c.data(), s.cycles[fq].data(), s.modulation[fq].data(), maxv);
+        PhaseRow<T>(frames.data(), spec_.phase_steps, standard_phase_, sin_.data(), cos_.data(), width,
+                    s.sum_s.data(), s.sum_c.data(), s.cycles[fq].data(), s.modulation[fq].data(), maxv);
       }
       const float* __restrict f1 = s.cycles[0].data();
       const float* __restrict f2 = s.cycles[1].data();
@@ -541,8 +628,11 @@ class Decoder {
   ProjectorMap* out_;
   std::vector<FrameInfo> frames_;
   std::vector<float> sin_, cos_;
-  std::vector<int> gray_[2];
-  std::vector<int> phase_[2][3];
+  bool standard_phase_ = true;
+  GrayReference reference_ = GrayReference::kAuto;
+  std::vector<std::pair<int, int>> gray_[2][2];  // [axis][code][bit, MSB first]: (pattern, inverse or -1)
+  std::vector<int> phase_[2][3];                 // [axis][frequency][step]: frame index
+  int white_ = -1, black_ = -1;
 };
 
 }  // namespace

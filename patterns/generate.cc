@@ -19,12 +19,10 @@ std::vector<uint8_t> FrameProfile(const PatternSpec& spec, const FrameInfo& fram
     case FrameRole::kGrayBit:
     case FrameRole::kGrayBitInverse: {
       const bool inverse = frame.role == FrameRole::kGrayBitInverse;
-      const double period = spec.period_px;
       for (int c = 0; c < size; ++c) {
-        // kGrayCode codes the pixel index; kPhaseShift the half-period index floor(2 c / P).
-        const auto value = spec.kind == PatternKind::kGrayCode
-                               ? static_cast<uint32_t>(c)
-                               : static_cast<uint32_t>(std::floor(2.0 * c / period));
+        // kGrayCode codes the pixel index; kPhaseShift the half-period index floor(2 c / P), or
+        // the (shifted) period index.
+        const uint32_t value = spec.GrayValue(frame.code, c);
         const uint32_t gray = value ^ (value >> 1);
         const bool on = ((gray >> frame.bit) & 1u) != 0;
         line[static_cast<size_t>(c)] = (on != inverse) ? hi : lo;
@@ -35,7 +33,7 @@ std::vector<uint8_t> FrameProfile(const PatternSpec& spec, const FrameInfo& fram
       const double period = spec.PeriodsPx().at(static_cast<size_t>(frame.frequency));
       const double a = 0.5 * (spec.intensity_min + spec.intensity_max);
       const double b = 0.5 * (spec.intensity_max - spec.intensity_min);
-      const double shift = 2 * std::numbers::pi * frame.step / spec.phase_steps;
+      const double shift = spec.PhaseStepAngle(frame.step);
       for (int c = 0; c < size; ++c) {
         const double v = a + b * std::cos(2 * std::numbers::pi * c / period - shift);
         line[static_cast<size_t>(c)] = static_cast<uint8_t>(std::floor(v + 0.5));

@@ -1,6 +1,8 @@
 #include "patterns/pattern_spec.h"
 
 #include <cmath>
+#include <map>
+#include <numbers>
 
 #include "core/config.h"
 #include "core/error.h"
@@ -36,29 +38,70 @@ PatternKind PatternKindFromString(const std::string& name) {
                  "\"; known: gray_code, phase_shift, multi_frequency)");
 }
 
+std::string ToString(GrayCodeVariant variant) {
+  return variant == GrayCodeVariant::kShifted ? "shifted" : "complementary";
+}
+
+std::string ToString(GrayReference reference) {
+  switch (reference) {
+    case GrayReference::kAuto: return "auto";
+    case GrayReference::kWhiteBlack: return "white_black";
+    case GrayReference::kPhaseMean: return "phase_mean";
+  }
+  return "unknown";
+}
+
 std::string FrameInfo::Name() const {
+  const char* code_name = code == 1 ? "_shifted" : "";
   switch (role) {
     case FrameRole::kWhite: return "white";
     case FrameRole::kBlack: return "black";
-    case FrameRole::kGrayBit: return internal::Concat("gray_", AxisName(axis), "_bit", bit);
-    case FrameRole::kGrayBitInverse: return internal::Concat("gray_", AxisName(axis), "_bit", bit, "_inv");
+    case FrameRole::kGrayBit: return internal::Concat("gray_", AxisName(axis), code_name, "_bit", bit);
+    case FrameRole::kGrayBitInverse:
+      return internal::Concat("gray_", AxisName(axis), code_name, "_bit", bit, "_inv");
     case FrameRole::kPhase: return internal::Concat("phase_", AxisName(axis), "_f", frequency, "_s", step);
   }
   return "unknown";
 }
 
-int PatternSpec::GrayBits(int axis) const {
+int PatternSpec::DerivedGrayBits(int axis) const {
   const int size = AxisSize(axis);
   switch (kind) {
     case PatternKind::kGrayCode: return BitsFor(size);
     case PatternKind::kPhaseShift: {
-      // Half-period index h = floor(2 c / P) of the last pixel c = S - 1, plus one.
-      const auto h_max = static_cast<int64_t>(std::floor(2.0 * (size - 1) / period_px));
-      return BitsFor(h_max + 1);
+      // The largest code value (at the last pixel c = S - 1), plus one.
+      const auto max_value = static_cast<int64_t>(GrayValue(gray_code == GrayCodeVariant::kShifted ? 1 : 0, size - 1));
+      return BitsFor(max_value + 1);
     }
     case PatternKind::kMultiFrequency: return 0;
   }
   return 0;
+}
+
+int PatternSpec::GrayBits(int axis) const {
+  if (kind == PatternKind::kMultiFrequency) return 0;
+  return gray_bits > 0 ? gray_bits : DerivedGrayBits(axis);
+}
+
+int PatternSpec::GrayCodes() const {
+  if (kind == PatternKind::kMultiFrequency) return 0;
+  return kind == PatternKind::kPhaseShift && gray_code == GrayCodeVariant::kShifted ? 2 : 1;
+}
+
+GrayReference PatternSpec::ResolvedGrayReference() const {
+  if (gray_inverse || kind == PatternKind::kMultiFrequency) return GrayReference::kAuto;
+  if (gray_reference != GrayReference::kAuto) return gray_reference;
+  return HasWhiteBlack() ? GrayReference::kWhiteBlack : GrayReference::kPhaseMean;
+}
+
+double PatternSpec::PhaseStepAngle(int step) const {
+  return phase_direction * (2 * std::numbers::pi * step / phase_steps) - phase_offset_rad;
+}
+
+uint32_t PatternSpec::GrayValue(int code, int c) const {
+  if (kind == PatternKind::kGrayCode) return static_cast<uint32_t>(c);
+  if (gray_code == GrayCodeVariant::kComplementary) return static_cast<uint32_t>(std::floor(2.0 * c / period_px));
+  return static_cast<uint32_t>(std::floor(c / period_px + (code == 1 ? 0.5 : 0.0)));
 }
 
 std::vector<double> PatternSpec::PeriodsPx() const {
@@ -70,12 +113,14 @@ std::vector<double> PatternSpec::PeriodsPx() const {
   return {};
 }
 
-std::vector<FrameInfo> PatternSpec::Frames() const {
+std::vector<FrameInfo> PatternSpec::DefaultFrames() const {
   std::vector<FrameInfo> frames;
   const auto add_gray = [&](int axis) {
-    for (int bit = GrayBits(axis) - 1; bit >= 0; --bit) {
-      frames.push_back({FrameRole::kGrayBit, axis, bit, 0, 0});
-      frames.push_back({FrameRole::kGrayBitInverse, axis, bit, 0, 0});
+    for (int code = 0; code < GrayCodes(); ++code) {
+      for (int bit = GrayBits(axis) - 1; bit >= 0; --bit) {
+        frames.push_back({FrameRole::kGrayBit, axis, bit, 0, 0, code});
+        if (gray_inverse) frames.push_back({FrameRole::kGrayBitInverse, axis, bit, 0, 0, code});
+      }
     }
   };
   const auto add_phase = [&](int axis) {
@@ -86,7 +131,7 @@ std::vector<FrameInfo> PatternSpec::Frames() const {
   };
   const FrameInfo white{FrameRole::kWhite, 0, 0, 0, 0};
   const FrameInfo black{FrameRole::kBlack, 0, 0, 0, 0};
-  if (kind == PatternKind::kGrayCode && !opencv_order) {
+  if (HasWhiteBlack() && !opencv_order) {
     frames.push_back(white);
     frames.push_back(black);
   }
@@ -102,17 +147,34 @@ std::vector<FrameInfo> PatternSpec::Frames() const {
   return frames;
 }
 
-int PatternSpec::NumImages() const { return static_cast<int>(Frames().size()); }
-
-int PatternSpec::WhiteFrameIndex() const {
-  if (kind != PatternKind::kGrayCode) return -1;
-  return opencv_order ? NumImages() - 2 : 0;
+std::vector<FrameInfo> PatternSpec::Frames() const {
+  std::vector<FrameInfo> frames = DefaultFrames();
+  if (frame_order.empty() || frame_order.size() != frames.size()) return frames;  // Check() rejects the latter
+  std::map<std::string, FrameInfo> by_name;
+  for (const FrameInfo& f : frames) by_name[f.Name()] = f;
+  std::vector<FrameInfo> ordered;
+  for (const std::string& name : frame_order) {
+    const auto it = by_name.find(name);
+    if (it == by_name.end()) return frames;  // Check() rejects it
+    ordered.push_back(it->second);
+  }
+  return ordered;
 }
 
-int PatternSpec::BlackFrameIndex() const {
-  if (kind != PatternKind::kGrayCode) return -1;
-  return opencv_order ? NumImages() - 1 : 1;
+int PatternSpec::NumImages() const { return static_cast<int>(DefaultFrames().size()); }
+
+namespace {
+int FindRole(const std::vector<FrameInfo>& frames, FrameRole role) {
+  for (size_t i = 0; i < frames.size(); ++i) {
+    if (frames[i].role == role) return static_cast<int>(i);
+  }
+  return -1;
 }
+}  // namespace
+
+int PatternSpec::WhiteFrameIndex() const { return FindRole(Frames(), FrameRole::kWhite); }
+
+int PatternSpec::BlackFrameIndex() const { return FindRole(Frames(), FrameRole::kBlack); }
 
 double PatternSpec::BeatPeriod12Px() const {
   return periods_px.at(0) * periods_px.at(1) / (periods_px.at(1) - periods_px.at(0));
@@ -143,7 +205,62 @@ void PatternSpec::Check() const {
                       "opencv_order: OpenCV's GrayCodePattern codes both axes (got code_x=", code_x,
                       ", code_y=", code_y, ")");
   }
+  if (kind == PatternKind::kPhaseShift) {  // GrayBits() below divides by it
+    SLSHADOW_THROW_IF(!std::isfinite(period_px) || period_px < 4 || period_px > 65536, p,
+                      "period_px: must be in [4, 65536] projector pixels (got ", period_px, ")");
+  }
+  if (kind != PatternKind::kPhaseShift) {
+    SLSHADOW_THROW_IF(gray_code != GrayCodeVariant::kComplementary, p,
+                      "gray_code: a Gray-code variant is only for kind phase_shift (got ", ToString(gray_code), ")");
+    SLSHADOW_THROW_IF(white_black, p, "white_black: only for kind phase_shift (gray_code always has them)");
+  }
+  if (kind == PatternKind::kMultiFrequency) {
+    SLSHADOW_THROW_IF(!gray_inverse || gray_bits != 0 || gray_reference != GrayReference::kAuto, p,
+                      "gray_inverse, gray_bits, gray_reference: multi_frequency has no Gray code");
+  } else {
+    SLSHADOW_THROW_IF(gray_bits < 0 || gray_bits > 16, p, "gray_bits: must be 0 (derived) or in [1, 16] (got ",
+                      gray_bits, ")");
+    for (int axis = 0; axis < 2; ++axis) {
+      if (!Codes(axis) || gray_bits == 0) continue;
+      SLSHADOW_THROW_IF(gray_bits < DerivedGrayBits(axis), p, "gray_bits: the ", AxisName(axis), " axis needs ",
+                        DerivedGrayBits(axis), " bits (got ", gray_bits, ")");
+    }
+    for (int axis = 0; axis < 2; ++axis) {
+      SLSHADOW_THROW_IF(Codes(axis) && GrayBits(axis) > 16, p, "the ", AxisName(axis), " axis needs ",
+                        GrayBits(axis), " Gray bits, more than the 16 the decoder reads");
+    }
+    if (gray_inverse) {
+      SLSHADOW_THROW_IF(gray_reference != GrayReference::kAuto, p,
+                        "gray_reference: only for bits without inverse (gray_inverse: false; got ",
+                        ToString(gray_reference), ")");
+    } else {
+      SLSHADOW_THROW_IF(gray_reference == GrayReference::kPhaseMean && kind == PatternKind::kGrayCode, p,
+                        "gray_reference: gray_code has no phase frames (got phase_mean; use white_black)");
+      SLSHADOW_THROW_IF(gray_reference == GrayReference::kWhiteBlack && !HasWhiteBlack(), p,
+                        "gray_reference: white_black needs white_black: true (the sequence has no white and "
+                        "black frames)");
+    }
+  }
+  if (!frame_order.empty()) {
+    const std::vector<FrameInfo> frames = DefaultFrames();
+    std::map<std::string, int> count;
+    for (const FrameInfo& f : frames) count[f.Name()] = 0;
+    for (size_t i = 0; i < frame_order.size(); ++i) {
+      const auto it = count.find(frame_order[i]);
+      SLSHADOW_THROW_IF(it == count.end(), p, "frame_order[", i, "]: no such frame in this spec (got \"",
+                        frame_order[i], "\"; `slshadow patterns show` lists the frames)");
+      SLSHADOW_THROW_IF(++it->second > 1, p, "frame_order[", i, "]: frame \"", frame_order[i], "\" appears twice");
+    }
+    for (const FrameInfo& f : frames) {
+      SLSHADOW_THROW_IF(count[f.Name()] == 0, p, "frame_order: frame \"", f.Name(), "\" is missing (the spec has ",
+                        frames.size(), " frames, the order lists ", frame_order.size(), ")");
+    }
+  }
   if (kind == PatternKind::kGrayCode) return;
+  SLSHADOW_THROW_IF(!std::isfinite(phase_offset_rad) || std::fabs(phase_offset_rad) > 2 * std::numbers::pi + 1e-9,
+                    p, "phase_offset_rad: must be in [-2 pi, 2 pi] (got ", phase_offset_rad, ")");
+  SLSHADOW_THROW_IF(phase_direction != 1 && phase_direction != -1, p, "phase_direction: must be 1 or -1 (got ",
+                    phase_direction, ")");
   SLSHADOW_THROW_IF(phase_steps < 3 || phase_steps > 64, p, "phase_steps: must be in [3, 64] (got ",
                     phase_steps, ")");
   if (kind == PatternKind::kPhaseShift) {
@@ -184,14 +301,23 @@ PatternSpec PatternSpecFromConfig(const ConfigNode& root) {
   }
   std::vector<std::string> allowed = {"kind", "projector_width", "projector_height", "code_x", "code_y",
                                       "intensity_min", "intensity_max", "num_images"};
+  allowed.push_back("frame_order");
+  const std::vector<std::string> gray_keys = {"gray_inverse", "gray_reference", "gray_bits"};
+  const std::vector<std::string> phase_keys = {"phase_steps", "phase_offset_rad", "phase_direction"};
   switch (spec.kind) {
-    case PatternKind::kGrayCode: allowed.push_back("opencv_order"); break;
+    case PatternKind::kGrayCode:
+      allowed.push_back("opencv_order");
+      allowed.insert(allowed.end(), gray_keys.begin(), gray_keys.end());
+      break;
     case PatternKind::kPhaseShift:
-      allowed.push_back("phase_steps");
+      allowed.insert(allowed.end(), phase_keys.begin(), phase_keys.end());
+      allowed.insert(allowed.end(), gray_keys.begin(), gray_keys.end());
       allowed.push_back("period_px");
+      allowed.push_back("gray_code");
+      allowed.push_back("white_black");
       break;
     case PatternKind::kMultiFrequency:
-      allowed.push_back("phase_steps");
+      allowed.insert(allowed.end(), phase_keys.begin(), phase_keys.end());
       allowed.push_back("periods_px");
       break;
   }
@@ -214,6 +340,34 @@ PatternSpec PatternSpecFromConfig(const ConfigNode& root) {
   if (spec.kind == PatternKind::kMultiFrequency && !root.Has("periods_px")) root["periods_px"];
   spec.intensity_min = get_int("intensity_min", spec.intensity_min);
   spec.intensity_max = get_int("intensity_max", spec.intensity_max);
+  spec.gray_inverse = root.GetBool("gray_inverse", true);
+  spec.gray_bits = get_int("gray_bits", 0);
+  spec.white_black = root.GetBool("white_black", false);
+  spec.phase_offset_rad = root.GetDouble("phase_offset_rad", 0.0);
+  spec.phase_direction = get_int("phase_direction", 1);
+  if (root.Has("gray_reference")) {
+    const std::string name = root["gray_reference"].AsString();
+    if (name == "white_black") {
+      spec.gray_reference = GrayReference::kWhiteBlack;
+    } else if (name == "phase_mean") {
+      spec.gray_reference = GrayReference::kPhaseMean;
+    } else if (name != "auto") {
+      root["gray_reference"].Fail("unknown reference (known: white_black, phase_mean, auto)");
+    }
+  }
+  if (root.Has("gray_code")) {
+    const std::string name = root["gray_code"].AsString();
+    if (name == "shifted") {
+      spec.gray_code = GrayCodeVariant::kShifted;
+    } else if (name != "complementary") {
+      root["gray_code"].Fail("unknown Gray-code variant (known: complementary, shifted)");
+    }
+  }
+  if (root.Has("frame_order")) {
+    const ConfigNode order = root["frame_order"];
+    if (!order.IsArray()) order.Fail("expected a list of frame names (as `slshadow patterns show` prints them)");
+    for (size_t i = 0; i < order.size(); ++i) spec.frame_order.push_back(order.at(i).AsString());
+  }
   try {
     spec.Check();
   } catch (const Error& e) {
@@ -238,6 +392,16 @@ nlohmann::json PatternSpecToJson(const PatternSpec& spec) {
   if (spec.kind == PatternKind::kMultiFrequency) j["periods_px"] = spec.periods_px;
   j["intensity_min"] = spec.intensity_min;
   j["intensity_max"] = spec.intensity_max;
+  // The variant fields only when they differ from their defaults: a spec without them is written
+  // as it was before they existed.
+  if (!spec.gray_inverse) j["gray_inverse"] = false;
+  if (spec.gray_reference != GrayReference::kAuto) j["gray_reference"] = ToString(spec.gray_reference);
+  if (spec.gray_bits != 0) j["gray_bits"] = spec.gray_bits;
+  if (spec.gray_code != GrayCodeVariant::kComplementary) j["gray_code"] = ToString(spec.gray_code);
+  if (spec.white_black) j["white_black"] = true;
+  if (spec.phase_offset_rad != 0) j["phase_offset_rad"] = spec.phase_offset_rad;
+  if (spec.phase_direction != 1) j["phase_direction"] = spec.phase_direction;
+  if (!spec.frame_order.empty()) j["frame_order"] = spec.frame_order;
   j["num_images"] = spec.NumImages();
   return j;
 }

@@ -16,8 +16,20 @@
 //                    h = floor(2 x / P) (one bit more than the period index needs), as pairs.
 //   kMultiFrequency: three N-step phase shifts of periods P1 < P2 < P3, unwrapped by the
 //                    heterodyne (beat) method; the beat of all three must span the axis.
+//
+// Variants of the sequences other scanners project (all default off, so a spec written before
+// them reads and decodes as it did):
+//   gray_inverse = false   each Gray bit is one frame, thresholded against a reference: the mean
+//                          of the white and black frames, or of the axis' phase frames.
+//   gray_code = kShifted   (phase shift) two Gray codes of the period index, k1 = floor(x / P)
+//                          and k2 = floor(x / P + 1/2), instead of the complementary one.
+//   gray_bits              more Gray bits than the axis needs (the extra high bits are 0).
+//   white_black            (phase shift) an all-white and an all-black frame first.
+//   phase_offset_rad, phase_direction: I_s = A + B cos(2 pi x / P + offset - d 2 pi s / N).
+//   frame_order            any permutation of the frames, by FrameInfo::Name().
 #pragma once
 
+#include <cstdint>
 #include <filesystem>
 #include <string>
 #include <vector>
@@ -44,8 +56,26 @@ struct FrameInfo {
   int bit = 0;        // Gray-code bit (0 = least significant) for kGrayBit / kGrayBitInverse
   int frequency = 0;  // period index into PeriodsPx() for kPhase
   int step = 0;       // phase step n in 0..phase_steps-1 for kPhase
-  std::string Name() const;  // e.g. "white", "gray_x_bit9", "gray_x_bit9_inv", "phase_y_f0_s2"
+  int code = 0;       // Gray code 0, or 1 for the half-period shifted code (GrayCodeVariant::kShifted)
+  // e.g. "white", "gray_x_bit9", "gray_x_bit9_inv", "gray_x_shifted_bit5", "phase_y_f0_s2".
+  std::string Name() const;
 };
+
+// How a phase_shift spec's Gray code resolves the period index (docs/formats.md).
+enum class GrayCodeVariant {
+  kComplementary,  // one code of the half-period index h = floor(2 x / P): gray(floor(x / P)) plus
+                   // one complementary bit whose edges lie half a period from the phase wraps
+  kShifted,        // two codes: k1 = floor(x / P) and the half-period shifted k2 = floor(x / P + 1/2)
+};
+std::string ToString(GrayCodeVariant variant);  // "complementary", "shifted"
+
+// What a Gray bit without an inverse frame is compared with.
+enum class GrayReference {
+  kAuto,        // gray_code: kWhiteBlack; phase_shift: kWhiteBlack if white_black, else kPhaseMean
+  kWhiteBlack,  // (white + black) / 2 of the sequence's white and black frames
+  kPhaseMean,   // the mean of the N phase frames of the same axis (phase_shift)
+};
+std::string ToString(GrayReference reference);  // "auto", "white_black", "phase_mean"
 
 struct PatternSpec {
   PatternKind kind = PatternKind::kGrayCode;
@@ -62,6 +92,20 @@ struct PatternSpec {
   int intensity_min = 0;             // 8-bit projector level of "black" / fringe minimum
   int intensity_max = 255;           // 8-bit projector level of "white" / fringe maximum
 
+  // Gray bits (gray_code, phase_shift).
+  bool gray_inverse = true;  // each bit is followed by its inverse frame; false: bits stand alone
+  GrayReference gray_reference = GrayReference::kAuto;  // threshold of bits without an inverse
+  int gray_bits = 0;  // bits per coded axis; 0: derived (GrayBits); else >= derived, <= 16
+  GrayCodeVariant gray_code = GrayCodeVariant::kComplementary;  // phase_shift only
+  bool white_black = false;  // phase_shift: an all-white and an all-black frame open the sequence
+  // Phase frames (phase codecs): I_s = A + B cos(2 pi x / P + phase_offset_rad
+  //                                            - phase_direction 2 pi s / N).
+  double phase_offset_rad = 0;  // |offset| <= 2 pi
+  int phase_direction = 1;      // +1: fringes move towards +x as s grows; -1: towards -x
+  // The projection order as frame names (FrameInfo::Name()), a permutation of the default order;
+  // empty: the default order (docs/formats.md, "Frame order").
+  std::vector<std::string> frame_order;
+
   // Number of projector images (= camera images per camera) in the sequence.
   int NumImages() const;
   // Throws slshadow::Error naming the field and value of the first violated constraint.
@@ -70,13 +114,28 @@ struct PatternSpec {
   // Derived layout (valid after Check()).
   int AxisSize(int axis) const { return axis == 0 ? projector_width : projector_height; }
   bool Codes(int axis) const { return axis == 0 ? code_x : code_y; }
-  // Gray-code bits per coded axis: ceil(log2 S) for kGrayCode, ceil(log2 ceil(2 S / P)) for
-  // kPhaseShift (at least 1), 0 for kMultiFrequency.
+  // Gray-code bits per coded axis (of each code): gray_bits when set, else derived: ceil(log2 S)
+  // for kGrayCode; for kPhaseShift bits(floor(2 (S - 1) / P) + 1) (complementary) or
+  // bits(floor((S - 1) / P + 1/2) + 1) (shifted); 0 for kMultiFrequency.
   int GrayBits(int axis) const;
+  int DerivedGrayBits(int axis) const;  // the derived count alone
+  // Number of Gray codes per axis: 2 for kShifted phase shift, else 1 (0 for kMultiFrequency).
+  int GrayCodes() const;
+  // The reference of bits without inverse (kAuto resolved); kAuto when bits have inverses.
+  GrayReference ResolvedGrayReference() const;
+  // Whether the sequence has an all-white and an all-black frame.
+  bool HasWhiteBlack() const { return kind == PatternKind::kGrayCode || white_black; }
+  // The phase shift of step s in radians: phase_direction 2 pi s / N - phase_offset_rad, so a
+  // phase frame is A + B cos(2 pi x / P - PhaseStepAngle(s)).
+  double PhaseStepAngle(int step) const;
+  // The value a Gray code of `code` (0 or 1) carries at projector pixel c of an axis:
+  // c (kGrayCode), floor(2 c / P) (complementary), floor(c / P) / floor(c / P + 1/2) (shifted).
+  uint32_t GrayValue(int code, int c) const;
   // Periods in projector pixels: {period_px}, periods_px, or empty for kGrayCode.
   std::vector<double> PeriodsPx() const;
-  // The role of every frame, in projection order (size NumImages()).
+  // The role of every frame, in projection order (size NumImages()): frame_order, or the default.
   std::vector<FrameInfo> Frames() const;
+  std::vector<FrameInfo> DefaultFrames() const;
   // Index of the all-white / all-black frame, or -1 when the sequence has none.
   int WhiteFrameIndex() const;
   int BlackFrameIndex() const;

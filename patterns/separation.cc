@@ -49,7 +49,7 @@ DirectGlobal SeparateDirectGlobal(const PatternSpec& spec, const std::vector<cv:
   for (size_t i = 0; i < frames.size(); ++i) {
     const FrameInfo& f = frames[i];
     if (f.role != FrameRole::kPhase || f.axis != axis || f.frequency != 0) continue;
-    const double d = 2 * std::numbers::pi * f.step / spec.phase_steps;
+    const double d = spec.PhaseStepAngle(f.step);
     sum_s += images[i] * std::sin(d);
     sum_c += images[i] * std::cos(d);
     sum += images[i];

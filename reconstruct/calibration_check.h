@@ -23,9 +23,13 @@
 // The epipolar error cannot see errors that move points along epipolar lines (e.g.
 // a camera principal point shifted along the baseline): those stay invisible to any such check.
 //
+// The default noise_factor 1 warns when the calibration's systematic error exceeds the per-point
+// decode noise, i.e. when the calibration, not the decoding, dominates a point's error.
+//
 // The threshold is also given in mm: the depth error a disparity error of that size causes at
 // the working distance, threshold_px x Z^2 / (f B), f the focal length of the device whose
-// pixels the error is in (the projector), B the baseline of the triangulating pair.
+// pixels the error is in (the projector), B the baseline of the triangulating pair, Z the scan's
+// median range (reconstruct.cc).
 #pragma once
 
 #include <array>
@@ -43,9 +47,9 @@ struct CalibrationCheckSetup {
   // Fixed threshold on the systematic part, px; 0: automatic (noise_factor x noise); infinity:
   // the check runs and reports but never warns.
   double warning_px = 0;
-  double noise_factor = 0.5;  // automatic threshold in units of the noise (> 0)
+  double noise_factor = 1.0;  // automatic threshold in units of the noise (> 0)
   double min_warning_px = 0.01;  // floor of the automatic threshold, px
-  double working_distance_mm = 0;
+  double working_distance_mm = 0;  // Z
   // Depth error per px of epipolar error at the working distance, Z^2 / (f B); 0: not known.
   double mm_per_px = 0;
 };

@@ -302,13 +302,24 @@ void RunCalibrationCheck(const DenseGrid& grid, const CameraModel& reference, co
   }
   const double half_width = 0.5 * reference.width, aspect = reference.fx() / reference.fy();
   std::vector<float> x, y, e;
+  std::vector<double> range_mm;
   for (size_t i = 0; i < grid.epipolar_error_px.size(); ++i) {
     if (!std::isfinite(grid.epipolar_error_px[i])) continue;
     x.push_back(static_cast<float>((grid.source_u[i] - reference.cx()) / half_width));
     y.push_back(static_cast<float>((grid.source_v[i] - reference.cy()) / half_width * aspect));
     e.push_back(grid.epipolar_error_px[i]);
+    if (e.size() % 16 == 0 && grid.point_in_rig[i].allFinite()) range_mm.push_back((grid.point_in_rig[i] - grid.viewpoint_in_rig).norm());
   }
-  s->calibration_check = FitCalibrationCheck(x, y, e, setup);
+  // The working distance of this scan: the median range of its points (the rig file's nominal
+  // working_distance_mm when too few).
+  CalibrationCheckSetup at = setup;
+  if (range_mm.size() >= 10) {
+    std::nth_element(range_mm.begin(), range_mm.begin() + static_cast<std::ptrdiff_t>(range_mm.size() / 2), range_mm.end());
+    at.working_distance_mm = range_mm[range_mm.size() / 2];
+  }
+  // setup.mm_per_px holds 1 / (f B) until the distance is known.
+  at.mm_per_px = setup.mm_per_px * at.working_distance_mm * at.working_distance_mm;
+  s->calibration_check = FitCalibrationCheck(x, y, e, at);
   if (s->calibration_check.warn) s->warnings.push_back(s->calibration_check.Message());
 }
 
@@ -322,9 +333,7 @@ CalibrationCheckSetup CheckSetup(const ReconstructOptions& options, const Rig& r
   setup.min_warning_px = options.calibration_min_warning_px;
   setup.working_distance_mm = rig.working_distance_mm;
   const double baseline_mm = (a.CenterInRig() - b.CenterInRig()).norm();
-  if (rig.projector && baseline_mm > 0) {
-    setup.mm_per_px = rig.working_distance_mm * rig.working_distance_mm / (FocalOf(rig.projector->model) * baseline_mm);
-  }
+  if (rig.projector && baseline_mm > 0) setup.mm_per_px = 1.0 / (FocalOf(rig.projector->model) * baseline_mm);
   return setup;
 }
 

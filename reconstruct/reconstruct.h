@@ -93,7 +93,7 @@ struct ReconstructOptions {
   // the field), at least calibration_min_warning_px; > 0: this fixed threshold; infinity: the
   // check reports but never warns.
   double calibration_warning_px = 0;
-  double calibration_noise_factor = 0.5;
+  double calibration_noise_factor = 1.0;
   // Floor of the automatic threshold, projector px: exact (noise-free) maps leave no noise to
   // judge by, and fields below this cost < 0.02 mm at common working distances.
   double calibration_min_warning_px = 0.01;

@@ -135,6 +135,33 @@ std::vector<std::string> ImageSetReconstruction::Warnings() const {
   return all;
 }
 
+std::string ImageSetReconstruction::NoPointsReason() const {
+  if (!cloud.empty()) return "";
+  std::string out;
+  for (const auto& s : summaries) {
+    std::vector<std::pair<int64_t, int>> reasons;
+    for (int r = 1; r < kNumRejectReasons; ++r) {
+      if (s.rejected[static_cast<size_t>(r)] > 0) reasons.emplace_back(s.rejected[static_cast<size_t>(r)], r);
+    }
+    std::sort(reasons.rbegin(), reasons.rend());
+    out += (out.empty() ? "" : "; ") + s.camera + "-" + s.other_device + ": ";
+    if (reasons.empty()) out += "no cells";
+    for (size_t k = 0; k < reasons.size() && k < 2; ++k) {
+      char buf[160];
+      const double percent = 100.0 * static_cast<double>(reasons[k].first) / static_cast<double>(std::max<int64_t>(s.cells, 1));
+      if (k == 0) {
+        std::snprintf(buf, sizeof(buf), "%.1f %% of %lld cells rejected as %s", percent, static_cast<long long>(s.cells),
+                      ToString(static_cast<RejectReason>(reasons[k].second)));
+      } else {
+        std::snprintf(buf, sizeof(buf), ", %.1f %% as %s", percent, ToString(static_cast<RejectReason>(reasons[k].second)));
+      }
+      out += buf;
+    }
+    if (s.calibration_check.warn) out += " (" + s.calibration_check.Message() + ")";
+  }
+  return out;
+}
+
 std::string ImageSetReconstruction::FullReport() const {
   std::ostringstream out;
   for (const auto& s : summaries) out << s.FullReport();

@@ -45,6 +45,11 @@ struct ImageSetReconstruction {
   std::vector<std::pair<std::string, cv::Mat>> residual_maps;
   // All summaries' calibration-check warnings.
   std::vector<std::string> Warnings() const;
+  // Why the cloud is empty, for an error message: per reconstruction its most frequent rejection
+  // reasons with their shares, and its calibration-check warning ("left-projector: 76.0 % of
+  // 1310720 cells rejected as reprojection_error, ...; calibration check: ..."). Empty when the
+  // cloud has points.
+  std::string NoPointsReason() const;
   double load_s = 0;         // reading and decoding image files
   double decode_s = 0;       // fringe decoding (DecodePatterns), all cameras
   double reconstruct_s = 0;  // triangulation, filters, normals, merging

@@ -108,6 +108,28 @@ TEST_F(CmdReconstruct, CalibrationCheckWarnsAboutAWrongRigFile) {
   EXPECT_FALSE(fixed["warning"].get<bool>());
 }
 
+// A rig file so wrong that no point passes the gates: an error naming the reason, nothing written.
+TEST_F(CmdReconstruct, NoPointsIsAnErrorWithItsReason) {
+  const ImageSet scan = ImageSet::Open(Scan());
+  Rig wrong = scan.rig();
+  wrong.projector->cam_from_rig.translation.y() += 40;  // the projector 40 mm off
+  const auto copy = Dir() / "scan_far_off_rig";
+  std::filesystem::copy(Scan(), copy, std::filesystem::copy_options::recursive);
+  nlohmann::json manifest = ReadJson(copy / "manifest.json");
+  manifest["rig"] = RigToJson(wrong);
+  std::ofstream(copy / "manifest.json") << manifest.dump(2);
+  const auto out = Dir() / "none.ply";
+  ::testing::internal::CaptureStderr();
+  const int code = RunCli({"reconstruct", copy.string(), "--out", out.string(), "--quiet"});
+  const std::string err = ::testing::internal::GetCapturedStderr();
+  EXPECT_NE(code, 0);
+  EXPECT_NE(err.find("0 points"), std::string::npos) << err;
+  EXPECT_NE(err.find("cells"), std::string::npos) << err;
+  EXPECT_NE(err.find("wrong rig file"), std::string::npos) << err;
+  EXPECT_FALSE(std::filesystem::exists(out));
+  EXPECT_FALSE(std::filesystem::exists(Dir() / "none.summary.json"));
+}
+
 TEST_F(CmdReconstruct, StereoInterpolationOptionReachesTheMatcher) {
   const auto lin = Dir() / "stereo_linear.ply", cub = Dir() / "stereo_cubic.ply", def = Dir() / "stereo_auto.ply";
   ASSERT_EQ(RunCli({"reconstruct", Scan().string(), "--mode", "stereo", "--stereo-interpolation", "linear", "--out",

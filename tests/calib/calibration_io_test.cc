@@ -4,6 +4,8 @@
 
 #include <fstream>
 
+#include <opencv2/core.hpp>
+
 #include "calib/synthetic.h"
 #include "core/error.h"
 #include "tests/testing/temp_dir.h"
@@ -155,13 +157,138 @@ TEST(CalibrationIo, BadOpenCvFilesGiveClearErrors) {
   };
   expect_error(tmp / "missing.yml", "not found");
   std::ofstream(tmp / "empty.yml") << "%YAML:1.0\n---\nfoo: 1\n";
-  expect_error(tmp / "empty.yml", "not an OpenCV calibration file");
+  // Not "not an OpenCV calibration file": the file is one; the message lists what it has.
+  expect_error(tmp / "empty.yml", "no known calibration layout among the nodes found: foo (number)");
   std::ofstream(tmp / "rational.yml")
       << "%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 500., 0., 320., 0., 500., 240., 0., 0., 1. ]\n"
          "distortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 8\n   dt: d\n   data: [ 0.1, 0.01, 0., 0., 0., 0.2, 0., 0. ]\n";
   expect_error(tmp / "rational.yml", "rational");
   std::ofstream(tmp / "garbage.yml") << "this is: [not, closed\n";
   expect_error(tmp / "garbage.yml", "garbage.yml");
+}
+
+
+// The two-camera layouts other tools write, each as cv::FileStorage writes it, import to the
+// same rig; an unknown layout is named node by node and imports with an explicit node map.
+class OpenCvLayouts : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const SyntheticRig truth = SyntheticRig::Stereo();
+    rig_.cameras = truth.devices;
+    rig_.cameras[1].model = CameraModel(1280, 1024, 2410, 2405, 650, 500, -0.08, 0.12, 0.0005, -0.0007, 0.01);
+    const Rigid3d second_from_first = rig_.cameras[1].cam_from_rig * rig_.cameras[0].cam_from_rig.Inverse();
+    const Eigen::Matrix3d r = second_from_first.rotation.toRotationMatrix();
+    r_ = cv::Mat(3, 3, CV_64F);
+    t_ = cv::Mat(3, 1, CV_64F);
+    for (int a = 0; a < 3; ++a) {
+      for (int b = 0; b < 3; ++b) r_.at<double>(a, b) = r(a, b);
+      t_.at<double>(a) = second_from_first.translation(a);
+    }
+    const Eigen::AngleAxisd aa(second_from_first.rotation);
+    rvec_ = (cv::Mat_<double>(3, 1) << aa.angle() * aa.axis().x(), aa.angle() * aa.axis().y(), aa.angle() * aa.axis().z());
+  }
+  cv::Mat K(int i) const {
+    const CameraModel& m = rig_.cameras[static_cast<size_t>(i)].model;
+    return (cv::Mat_<double>(3, 3) << m.fx(), 0, m.cx(), 0, m.fy(), m.cy(), 0, 0, 1);
+  }
+  cv::Mat D(int i) const {
+    const auto& p = rig_.cameras[static_cast<size_t>(i)].model.params;
+    return (cv::Mat_<double>(1, 5) << p[4], p[5], p[6], p[7], p[8]);
+  }
+  cv::Size Size(int i) const {
+    const CameraModel& m = rig_.cameras[static_cast<size_t>(i)].model;
+    return {m.width, m.height};
+  }
+  void ExpectSameRig(const Rig& back) const {
+    ASSERT_EQ(back.cameras.size(), 2u);
+    EXPECT_FALSE(back.projector);
+    for (size_t i = 0; i < 2; ++i) ExpectSameModel(back.cameras[i].model, rig_.cameras[i].model, 1e-12);
+    // The file holds the relative pose; the rig frame is the first camera's.
+    const Rigid3d expected = rig_.cameras[1].cam_from_rig * rig_.cameras[0].cam_from_rig.Inverse();
+    ExpectSamePose(back.cameras[0].cam_from_rig, Rigid3d(), 1e-12);
+    ExpectSamePose(back.cameras[1].cam_from_rig, expected, 1e-9);
+  }
+  Rig rig_;
+  cv::Mat r_, t_, rvec_;
+  testing::TempDir tmp_;
+};
+
+TEST_F(OpenCvLayouts, EachImportsToTheSameRig) {
+  // slshadow's own / stereo_calib.cpp's layout.
+  Rig relative = rig_;
+  relative.cameras[1].cam_from_rig = rig_.cameras[1].cam_from_rig * rig_.cameras[0].cam_from_rig.Inverse();
+  relative.cameras[0].cam_from_rig = Rigid3d();
+  WriteOpenCvCalibration(relative, tmp_ / "stereo_calib.yml");
+  ExpectSameRig(ReadOpenCvCalibration(tmp_ / "stereo_calib.yml"));
+  for (const std::string ext : {".yml", ".xml"}) {
+    SCOPED_TRACE(ext);
+    {  // The stereo structured-light sample's layout (with its spelling "distorsion").
+      cv::FileStorage fs((tmp_ / ("sample" + ext)).string(), cv::FileStorage::WRITE);
+      fs << "cam1_intrinsics" << K(0) << "cam1_distorsion" << D(0) << "cam2_intrinsics" << K(1) << "cam2_distorsion"
+         << D(1) << "R" << r_ << "T" << t_ << "cam1_size" << Size(0) << "cam2_size" << Size(1);
+    }
+    ExpectSameRig(ReadOpenCvCalibration(tmp_ / ("sample" + ext)));
+    {  // The binocular layout: M1 D1 M2 D2, Rlr Tlr, the image size in S (one size for both).
+      cv::FileStorage fs((tmp_ / ("binocular" + ext)).string(), cv::FileStorage::WRITE);
+      fs << "M1" << K(0) << "D1" << D(0) << "M2" << K(1) << "D2" << D(1) << "Rlr" << r_ << "Tlr" << t_ << "S"
+         << Size(0);
+    }
+    const Rig binocular = ReadOpenCvCalibration(tmp_ / ("binocular" + ext));
+    ASSERT_EQ(binocular.cameras.size(), 2u);
+    EXPECT_EQ(binocular.cameras[1].model.width, rig_.cameras[0].model.width);  // S is both cameras' size
+    EXPECT_NEAR(binocular.cameras[1].model.fx(), rig_.cameras[1].model.fx(), 1e-9);
+    ExpectSamePose(binocular.cameras[1].cam_from_rig, rig_.cameras[1].cam_from_rig * rig_.cameras[0].cam_from_rig.Inverse(),
+                   1e-9);
+    {  // A layout of its own: plain number lists, a Rodrigues vector, the size as a 1x2 matrix.
+      cv::FileStorage fs((tmp_ / ("own" + ext)).string(), cv::FileStorage::WRITE);
+      const cv::Mat m0 = K(0), m1 = K(1);
+      std::vector<double> k0(m0.begin<double>(), m0.end<double>()), k1(m1.begin<double>(), m1.end<double>());
+      fs << "left_K" << k0 << "left_D" << D(0) << "right_K" << k1 << "right_D" << D(1) << "rvec" << rvec_ << "tvec"
+         << t_ << "left_size" << (cv::Mat_<int>(1, 2) << Size(0).width, Size(0).height) << "right_size" << Size(1);
+    }
+    try {
+      ReadOpenCvCalibration(tmp_ / ("own" + ext));
+      ADD_FAILURE() << "an unknown layout imported";
+    } catch (const Error& e) {
+      // The message names every node found, with its shape, and the way out.
+      const std::string m = e.what();
+      EXPECT_NE(m.find("left_K ([9 values])"), std::string::npos) << m;
+      EXPECT_NE(m.find("left_D (1x5 matrix)"), std::string::npos) << m;
+      EXPECT_NE(m.find("rvec (3x1 matrix)"), std::string::npos) << m;
+      EXPECT_NE(m.find("--map K1=NODE"), std::string::npos) << m;
+    }
+    const OpenCvNodeMap map =
+        ParseOpenCvNodeMap("K1=left_K,D1=left_D,K2=right_K,D2=right_D,R=rvec,T=tvec,size1=left_size,size2=right_size");
+    ExpectSameRig(ReadOpenCvCalibration(tmp_ / ("own" + ext), 0, 0, 0, 0, map));
+    // The map overrides a known layout too, and names a node it does not find.
+    OpenCvNodeMap wrong = map;
+    wrong.r = "Rlr";
+    try {
+      ReadOpenCvCalibration(tmp_ / ("own" + ext), 0, 0, 0, 0, wrong);
+      ADD_FAILURE() << "a missing mapped node imported";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("Rlr: missing (nodes found: left_K"), std::string::npos) << e.what();
+    }
+  }
+}
+
+TEST(CalibrationIo, NodeMapParsing) {
+  const OpenCvNodeMap one = ParseOpenCvNodeMap("K1=cam_K,D1=cam_D,size1=wh");
+  EXPECT_EQ(one.k1, "cam_K");
+  EXPECT_EQ(one.d1, "cam_D");
+  EXPECT_EQ(one.size1, "wh");
+  EXPECT_TRUE(one.k2.empty());
+  const auto message = [](const std::string& text) {
+    try {
+      ParseOpenCvNodeMap(text);
+    } catch (const Error& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  EXPECT_NE(message("K1=a,D1=b,Q=c").find("unknown key 'Q'"), std::string::npos);
+  EXPECT_NE(message("K1=a,D1").find("entry 'D1' is not KEY=NODE"), std::string::npos);
+  EXPECT_NE(message("K2=a,D2=b").find("must name at least K1 and D1"), std::string::npos);
 }
 
 }  // namespace

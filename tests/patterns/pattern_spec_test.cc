@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include <numbers>
+
 #include "core/config.h"
 #include "core/error.h"
 #include "core/file_util.h"
@@ -181,6 +183,155 @@ TEST(PatternSpec, ShippedExampleConfigsLoad) {
   testing::TempDir dir;
   WriteTextFileAtomically(dir / "spec.json", PatternSpecToJson(phase).dump(2));
   EXPECT_EQ(PatternSpecToJson(LoadPatternSpec(dir / "spec.json")), PatternSpecToJson(phase));
+}
+
+
+// The sequence variants: frame layout, JSON round trip, and errors that name the field.
+TEST(PatternSpec, VariantLayouts) {
+  PatternSpec p = Gray(1280, 800);
+  p.kind = PatternKind::kPhaseShift;
+  p.period_px = 20;  // 64 periods across 1280 px
+  p.phase_steps = 12;
+  p.code_y = false;
+  p.gray_inverse = false;
+  p.Check();
+  EXPECT_EQ(p.GrayBits(0), 7);  // complementary: half-period index 0..127
+  EXPECT_EQ(p.NumImages(), 12 + 7);
+  EXPECT_EQ(p.ResolvedGrayReference(), GrayReference::kPhaseMean);
+  EXPECT_EQ(p.Frames()[12].Name(), "gray_x_bit6");
+  p.white_black = true;
+  EXPECT_EQ(p.ResolvedGrayReference(), GrayReference::kWhiteBlack);
+  EXPECT_EQ(p.NumImages(), 2 + 12 + 7);
+  EXPECT_EQ(p.WhiteFrameIndex(), 0);
+  EXPECT_EQ(p.BlackFrameIndex(), 1);
+  p.gray_reference = GrayReference::kPhaseMean;
+  EXPECT_EQ(p.ResolvedGrayReference(), GrayReference::kPhaseMean);
+  p.white_black = false;
+  p.gray_reference = GrayReference::kAuto;
+  p.gray_code = GrayCodeVariant::kShifted;
+  EXPECT_EQ(p.GrayBits(0), 7);  // floor(1279 / 20 + 1/2) = 64 needs 7 bits
+  EXPECT_EQ(p.GrayCodes(), 2);
+  EXPECT_EQ(p.NumImages(), 12 + 2 * 7);
+  EXPECT_EQ(p.Frames()[19].Name(), "gray_x_shifted_bit6");
+  EXPECT_EQ(p.GrayValue(0, 29), 1u);
+  EXPECT_EQ(p.GrayValue(1, 29), 1u);
+  EXPECT_EQ(p.GrayValue(1, 30), 2u);
+  p.gray_bits = 9;
+  EXPECT_EQ(p.GrayBits(0), 9);
+  EXPECT_EQ(p.NumImages(), 12 + 2 * 9);
+  // Phase angle: A + B cos(2 pi x / P - angle), angle = d 2 pi s / N - offset.
+  p.phase_offset_rad = -std::numbers::pi;
+  p.phase_direction = -1;
+  EXPECT_NEAR(p.PhaseStepAngle(3), -2 * std::numbers::pi * 3 / 12 + std::numbers::pi, 1e-12);
+  // A frame order is a permutation; the white and black frames are found wherever they are.
+  PatternSpec g = Gray(64, 32);
+  for (const FrameInfo& f : g.Frames()) g.frame_order.insert(g.frame_order.begin(), f.Name());
+  g.Check();
+  EXPECT_EQ(g.WhiteFrameIndex(), g.NumImages() - 1);
+  EXPECT_EQ(g.BlackFrameIndex(), g.NumImages() - 2);
+  EXPECT_EQ(g.Frames().front().Name(), "gray_y_bit0_inv");
+}
+
+TEST(PatternSpec, VariantErrorsNameTheField) {
+  const auto message = [](const PatternSpec& s) {
+    try {
+      s.Check();
+    } catch (const Error& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  PatternSpec p = Gray(1280, 800);
+  p.kind = PatternKind::kPhaseShift;
+  p.period_px = 20;
+  p.gray_bits = 5;
+  EXPECT_NE(message(p).find("gray_bits: the x axis needs 7 bits (got 5)"), std::string::npos) << message(p);
+  p.gray_bits = 17;
+  EXPECT_NE(message(p).find("gray_bits"), std::string::npos);
+  p.gray_bits = 0;
+  p.gray_reference = GrayReference::kPhaseMean;
+  EXPECT_NE(message(p).find("gray_reference: only for bits without inverse"), std::string::npos);
+  p.gray_inverse = false;
+  p.gray_reference = GrayReference::kWhiteBlack;
+  EXPECT_NE(message(p).find("gray_reference: white_black needs white_black: true"), std::string::npos);
+  p.gray_reference = GrayReference::kAuto;
+  p.phase_direction = 0;
+  EXPECT_NE(message(p).find("phase_direction"), std::string::npos);
+  p.phase_direction = 1;
+  p.phase_offset_rad = 7;
+  EXPECT_NE(message(p).find("phase_offset_rad"), std::string::npos);
+  p.phase_offset_rad = 0;
+  p.frame_order = {"phase_x_f0_s0"};
+  EXPECT_NE(message(p).find("frame_order: frame \"phase_x_f0_s1\" is missing"), std::string::npos) << message(p);
+  p.frame_order = {"phase_x_f0_s9"};
+  EXPECT_NE(message(p).find("frame_order[0]: no such frame in this spec (got \"phase_x_f0_s9\""), std::string::npos);
+  p.frame_order = {"phase_x_f0_s0", "phase_x_f0_s0"};
+  EXPECT_NE(message(p).find("frame_order[1]: frame \"phase_x_f0_s0\" appears twice"), std::string::npos);
+  PatternSpec g = Gray(64, 64);
+  g.gray_code = GrayCodeVariant::kShifted;
+  EXPECT_NE(message(g).find("gray_code"), std::string::npos);
+  g.gray_code = GrayCodeVariant::kComplementary;
+  g.gray_inverse = false;
+  g.gray_reference = GrayReference::kPhaseMean;
+  EXPECT_NE(message(g).find("gray_code has no phase frames"), std::string::npos);
+}
+
+TEST(PatternSpec, VariantJsonRoundTripAndFrameOrderReadBack) {
+  PatternSpec p = Gray(1280, 800);
+  p.kind = PatternKind::kPhaseShift;
+  p.period_px = 20;
+  p.phase_steps = 12;
+  p.gray_inverse = false;
+  p.gray_bits = 8;
+  p.white_black = true;
+  p.gray_reference = GrayReference::kPhaseMean;
+  p.gray_code = GrayCodeVariant::kShifted;
+  p.phase_offset_rad = -std::numbers::pi;
+  p.phase_direction = -1;
+  // The order `slshadow patterns show` prints, reversed, read back.
+  for (const FrameInfo& f : p.Frames()) p.frame_order.insert(p.frame_order.begin(), f.Name());
+  const nlohmann::json j = PatternSpecToJson(p);
+  EXPECT_EQ(j["gray_code"], "shifted");
+  EXPECT_EQ(j["gray_reference"], "phase_mean");
+  const PatternSpec back = PatternSpecFromConfig(ConfigNode::FromJson(j, "spec.json"));
+  EXPECT_EQ(PatternSpecToJson(back), j);
+  ASSERT_EQ(back.Frames().size(), p.Frames().size());
+  for (size_t i = 0; i < p.Frames().size(); ++i) EXPECT_EQ(back.Frames()[i].Name(), p.Frames()[i].Name());
+  // A default spec writes none of the variant fields.
+  const nlohmann::json plain = PatternSpecToJson(Gray(64, 64));
+  for (const char* key : {"gray_inverse", "gray_reference", "gray_bits", "gray_code", "white_black",
+                          "phase_offset_rad", "phase_direction", "frame_order"}) {
+    EXPECT_FALSE(plain.contains(key)) << key;
+  }
+  // Config errors name the file and field.
+  const auto message = [](const std::string& yaml) {
+    try {
+      PatternSpecFromConfig(ConfigNode::ParseYaml(yaml, "p.yaml"));
+    } catch (const Error& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  const std::string base = "kind: phase_shift\nprojector_width: 64\nprojector_height: 64\n";
+  EXPECT_NE(message(base + "gray_code: twisted\n").find("p.yaml: gray_code"), std::string::npos);
+  EXPECT_NE(message(base + "gray_reference: median\n").find("p.yaml: gray_reference"), std::string::npos);
+  EXPECT_NE(message(base + "frame_order: white\n").find("p.yaml: frame_order"), std::string::npos);
+  EXPECT_NE(message("kind: multi_frequency\nprojector_width: 64\nprojector_height: 64\nperiods_px: [20, 21.875, "
+                    "23.728813559322035]\ngray_inverse: false\n")
+                .find("gray_inverse"),
+            std::string::npos);
+}
+
+TEST(PatternSpec, ShippedVariantExamplesLoad) {
+  const PatternSpec stereo = LoadPatternSpec(testing::SourceDir() / "config/patterns/phase12_gray7_no_inverse.yaml");
+  EXPECT_EQ(stereo.NumImages(), 19);
+  EXPECT_FALSE(stereo.gray_inverse);
+  EXPECT_EQ(stereo.phase_direction, -1);
+  const PatternSpec shifted = LoadPatternSpec(testing::SourceDir() / "config/patterns/phase_shifted_gray.yaml");
+  EXPECT_EQ(shifted.gray_code, GrayCodeVariant::kShifted);
+  const PatternSpec ordered = LoadPatternSpec(testing::SourceDir() / "config/patterns/phase_frame_order.yaml");
+  EXPECT_FALSE(ordered.frame_order.empty());
+  EXPECT_EQ(ordered.WhiteFrameIndex(), ordered.NumImages() - 2);
 }
 
 }  // namespace

@@ -69,7 +69,7 @@ TEST(CalibrationCheckTest, NoiseAloneDoesNotWarnAndIsMeasured) {
     // A field of 8 terms fitted to pure noise: RMS ~ sigma sqrt(8 / n) = 0.0006 px.
     EXPECT_LT(c.systematic_px, 0.002);
     EXPECT_EQ(c.threshold_source, "noise");
-    EXPECT_NEAR(c.threshold_px, 0.5 * c.noise_px, 1e-12);
+    EXPECT_NEAR(c.threshold_px, c.noise_px, 1e-12);
     EXPECT_NEAR(c.threshold_mm, 1.5 * c.threshold_px, 1e-12);
     EXPECT_FALSE(c.warn);
     EXPECT_TRUE(c.likely_causes.empty());
@@ -87,9 +87,9 @@ TEST(CalibrationCheckTest, FieldsAreMeasuredAndNamedByShape) {
   };
   const std::vector<Case> cases = {
       {"offset", [](double, double) { return 0.06; }, 0, "principal point"},
-      {"linear", [](double x, double y) { return 0.08 * x - 0.05 * y; }, 1, "focal length"},
-      {"quadratic", [](double x, double y) { return 0.3 * x * y; }, 2, "pose"},
-      {"radial", [](double x, double y) { return 0.2 * x * (x * x + y * y) - 0.1 * x; }, 3, "distortion"},
+      {"linear", [](double x, double y) { return 0.16 * x - 0.1 * y; }, 1, "focal length"},
+      {"quadratic", [](double x, double y) { return 0.5 * x * y; }, 2, "pose"},
+      {"radial", [](double x, double y) { return 0.4 * x * (x * x + y * y) - 0.2 * x; }, 3, "distortion"},
   };
   for (const auto& k : cases) {
     SCOPED_TRACE(k.name);
@@ -102,7 +102,7 @@ TEST(CalibrationCheckTest, FieldsAreMeasuredAndNamedByShape) {
     // The group carries most of the field.
     EXPECT_GT(c.group_rms_px[static_cast<size_t>(k.group)], 0.5 * c.systematic_px) << c.Message();
     EXPECT_NE(c.Message().find("above the threshold"), std::string::npos);
-    EXPECT_NE(c.Message().find(" mm in depth at the 500 mm working distance"), std::string::npos) << c.Message();
+    EXPECT_NE(c.Message().find(" mm in depth at the 500 mm working distance of this scan"), std::string::npos) << c.Message();
     const nlohmann::json j = c.ToJson();
     EXPECT_TRUE(j["warning"].get<bool>());
     EXPECT_EQ(j["residual"], "epipolar_error_px");
