@@ -29,8 +29,10 @@ std::string LatencyMeasurement::BriefReport() const {
     per += v;
   }
   char line[256];
-  std::snprintf(line, sizeof line, "latency %.1f ms (%s; per repetition [%s] ms; black %.1f DN, white %.1f DN; %d frames)",
-                latency.count() / 1000.0, mode.c_str(), per.c_str(), black_mean_dn, white_mean_dn, frames);
+  std::snprintf(line, sizeof line,
+                "latency %.1f ms (%s; per repetition [%s] ms; black %.1f DN, white %.1f DN; %d frames, %d late trials "
+                "repeated)",
+                latency.count() / 1000.0, mode.c_str(), per.c_str(), black_mean_dn, white_mean_dn, frames, late_trials);
   return line;
 }
 
@@ -48,11 +50,21 @@ class Session {
                       frame.message.empty() ? "" : ": " + frame.message, ")");
     return cv::mean(frame.image)[0];
   }
-  // One frame taken `wait` after `shown` (software trigger).
-  double TriggeredMean(Clock::time_point shown, microseconds wait) {
-    std::this_thread::sleep_until(shown + wait);
-    camera_.Trigger();
-    return GrabMean();
+  // One frame triggered `wait` after `shown` (software trigger). A trigger that left late (the
+  // thread woke more than half the resolution after the planned time) would make the wait look
+  // shorter than it was: that frame is dropped and the trial repeated with the image shown again.
+  double TriggeredMean(Clock::time_point shown, microseconds wait, int index = -1) {
+    for (int attempt = 0;; ++attempt) {
+      std::this_thread::sleep_until(shown + wait);
+      const bool late = Clock::now() - (shown + wait) > options_.resolution / 2;
+      camera_.Trigger();
+      const double mean = GrabMean();
+      if (!late || index < 0 || attempt == 20) return mean;
+      ++late_trials_;
+      projector_.Show(1 - index);  // back to the other image, settled, then again
+      std::this_thread::sleep_for(options_.max_latency);
+      shown = projector_.Show(index);
+    }
   }
   bool IsWhite(double mean) const { return mean > black_ + options_.threshold * (white_ - black_); }
 
@@ -96,7 +108,7 @@ class Session {
         if (software) {
           microseconds lo(0), hi = options_.max_latency;
           Settle(0, hi);
-          if (!IsWhite(TriggeredMean(projector_.Show(1), hi))) {
+          if (!IsWhite(TriggeredMean(projector_.Show(1), hi, 1))) {
             SLSHADOW_THROW("latency: camera '", camera_.Info().id, "' did not see the projector turn white within ",
                            hi.count() / 1000, " ms (max_latency)");
           }
@@ -106,7 +118,7 @@ class Session {
             const microseconds mid = zero_tried ? lo + (hi - lo) / 2 : microseconds(0);
             zero_tried = true;
             Settle(0, hi);
-            if (IsWhite(TriggeredMean(projector_.Show(1), mid))) {
+            if (IsWhite(TriggeredMean(projector_.Show(1), mid, 1))) {
               hi = mid;
               if (mid.count() == 0) break;
             } else {
@@ -154,13 +166,20 @@ class Session {
   const LatencyOptions& options_;
   double black_ = 0, white_ = 0;
   int frames_ = 0;
+  int late_trials_ = 0;
+
+ public:
+  int late_trials() const { return late_trials_; }
 };
 
 }  // namespace
 
 LatencyMeasurement MeasureProjectorLatency(Camera& camera, Projector& projector, const LatencyOptions& options) {
   options.Check();
-  return Session(camera, projector, options).Run();
+  Session session(camera, projector, options);
+  LatencyMeasurement m = session.Run();
+  m.late_trials = session.late_trials();
+  return m;
 }
 
 }  // namespace slshadow::capture

@@ -8,7 +8,8 @@
 //    `resolution`): show black and let it settle, show white, wait d after Show returned,
 //    trigger, grab. The latency is the largest per-repetition result: the smallest wait after
 //    which the frame showed white in every repetition. It includes the camera's own trigger delay,
-//    which is what the sequencer waits for too.
+//    which is what the sequencer waits for too. A trial whose trigger left more than half the
+//    resolution late (a busy machine) is repeated, so oversleeping cannot shorten the result.
 //  - Free-run (and hardware trigger, where Trigger() is a no-op): after Show(white) the frames are
 //    counted until one is white; the latency is the time that frame was grabbed minus Show's
 //    return, an upper bound (it includes exposure and transfer).
@@ -40,6 +41,7 @@ struct LatencyMeasurement {
   std::vector<int> frames_until_change;           // frame counting: frames grabbed after Show until white
   double black_mean_dn = 0, white_mean_dn = 0;    // references
   int frames = 0;                                 // frames grabbed in all
+  int late_trials = 0;  // software trigger: trials repeated because the trigger left late
   std::string BriefReport() const;
 };
 

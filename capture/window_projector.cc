@@ -325,6 +325,39 @@ WindowProjector::~WindowProjector() {
   g_window_open = false;
 }
 
+std::vector<DisplayEntry> ListDisplays() {
+  bool expected = false;
+  SLSHADOW_THROW_IF(!g_window_open.compare_exchange_strong(expected, true),
+                    "displays: a window projector is open in this process; list the displays before opening it");
+  std::vector<DisplayEntry> out;
+  std::string error;
+  // SDL video on a thread of its own, initialised and shut down there (like the projector).
+  std::thread([&] {
+    if (!std::getenv("SDL_VIDEODRIVER")) SDL_SetHint(SDL_HINT_VIDEODRIVER, "x11");
+    if (SDL_InitSubSystem(SDL_INIT_VIDEO) != 0) {
+      const char* display = std::getenv("DISPLAY");
+      error = "displays: no display: SDL cannot start video (DISPLAY='" + std::string(display ? display : "") + "'): " + SdlError();
+      return;
+    }
+    for (int d = 0; d < SDL_GetNumVideoDisplays(); ++d) {
+      DisplayEntry e;
+      e.index = d;
+      const char* name = SDL_GetDisplayName(d);
+      e.name = name ? name : "";
+      SDL_Rect b{};
+      SDL_GetDisplayBounds(d, &b);
+      e.bounds = {b.x, b.y, b.w, b.h};
+      SDL_DisplayMode mode{};
+      if (SDL_GetCurrentDisplayMode(d, &mode) == 0) e.refresh_hz = mode.refresh_rate;
+      out.push_back(e);
+    }
+    SDL_QuitSubSystem(SDL_INIT_VIDEO);
+  }).join();
+  g_window_open = false;
+  SLSHADOW_THROW_IF(!error.empty(), error);
+  return out;
+}
+
 ProjectorInfo WindowProjector::Info() const { return impl_->info; }
 WindowGeometry WindowProjector::Geometry() const { return impl_->geometry; }
 std::string WindowProjector::RendererName() const { return impl_->renderer_name; }

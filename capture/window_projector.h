@@ -58,6 +58,17 @@ struct PresentLatency {
   std::string BriefReport() const;
 };
 
+// One display as SDL sees it on $DISPLAY (for `slshadow devices`).
+struct DisplayEntry {
+  int index = 0;
+  std::string name;
+  WindowGeometry bounds;  // position and size on the X screen
+  double refresh_hz = 0;  // 0 when the display reports none (Xvfb)
+};
+// Lists the displays. Throws slshadow::Error when there is no display (no X server), or while a
+// WindowProjector is open in this process.
+std::vector<DisplayEntry> ListDisplays();
+
 class WindowProjector : public Projector {
  public:
   // Opens the window and shows black. Throws slshadow::Error when SDL has no video device (no X

@@ -25,6 +25,8 @@ PACKAGES=(
   util-linux iproute2
   # window projector: X screen read-back (XGetImage, MIT-SHM)
   libx11-dev libxext-dev
+  # window projector on a second display in tests: Xorg with the dummy driver, xrandr
+  xserver-xorg-core xserver-xorg-video-dummy x11-xserver-utils
 )
 
 missing=()

@@ -65,7 +65,6 @@ TEST(ProjectorLatency, AddedDisplayDelayIsFound) {
   camera.Configure(s);
   const LatencyMeasurement m = MeasureProjectorLatency(camera, projector, FastOptions());
   std::printf("window projector + 40 ms display delay, screen camera: %s\n", m.BriefReport().c_str());
-  for (microseconds r : m.per_repetition) EXPECT_GE(r, delay);
   EXPECT_GE(m.latency, delay);
   EXPECT_LE(m.latency, FastOptions().max_latency);
 }

@@ -114,9 +114,14 @@ TEST(WindowProjector, WideScreenGeometryOffset) {
   XScreenReader screen(xvfb.display());
   const cv::Rect whole(0, 0, 3200, 1200);
   const cv::Mat before = screen.ReadBgr(whole);
+  const std::vector<DisplayEntry> displays = ListDisplays();
+  ASSERT_EQ(displays.size(), 1u);  // plain Xvfb: one display, the whole screen
+  EXPECT_EQ(displays[0].bounds.width, 3200);
+  EXPECT_EQ(displays[0].bounds.height, 1200);
   WindowProjectorOptions options;
   options.geometry = ParseWindowGeometry("1920,0,1280,800");
   WindowProjector projector(options);
+  EXPECT_THROW(ListDisplays(), Error);  // not while a projector window is open
   EXPECT_EQ(projector.Info().id, "geometry:1920,0,1280,800");
   EXPECT_EQ(projector.Info().width, 1280);
   EXPECT_EQ(projector.Info().height, 800);
@@ -133,6 +138,42 @@ TEST(WindowProjector, WideScreenGeometryOffset) {
     cv::Mat any;
     cv::transform(outside_diff, any, cv::Matx13f(1, 1, 1));
     EXPECT_EQ(cv::countNonZero(any), 0) << "pixels outside the window changed, pattern " << i;
+  }
+}
+
+// Two monitors as SDL sees a laptop with a projector on HDMI (Xorg, dummy driver, xrandr): the
+// fullscreen window on display 1 covers exactly that output, shows every pattern pixel for pixel
+// and leaves display 0 alone.
+TEST(WindowProjector, FullscreenOnSecondDisplay) {
+  testing::XorgDummyServer xorg(1920, 1200, 1280, 800);
+  const std::vector<DisplayEntry> displays = ListDisplays();
+  ASSERT_EQ(displays.size(), 2u);
+  EXPECT_EQ(displays[1].bounds.x, 1920);
+  EXPECT_EQ(displays[1].bounds.width, 1280);
+  EXPECT_GT(displays[1].refresh_hz, 0);
+  XScreenReader screen(xorg.display());
+  const cv::Rect monitor(0, 0, 1920, 1200);
+  const cv::Mat before = screen.ReadBgr(monitor);
+  WindowProjectorOptions options;
+  options.display_index = 1;
+  WindowProjector projector(options);
+  EXPECT_EQ(projector.Info().id, "display:1");
+  EXPECT_EQ(projector.Info().width, 1280);
+  EXPECT_EQ(projector.Info().height, 800);
+  EXPECT_GT(projector.Info().refresh_hz, 0);
+  const WindowGeometry g = projector.Geometry();
+  EXPECT_EQ(g.x, 1920);
+  EXPECT_EQ(g.y, 0);
+  const std::vector<cv::Mat> patterns = TestPatterns(1280, 800);
+  projector.Load(patterns);
+  for (int i = 0; i < projector.size(); ++i) {
+    projector.Show(i);
+    EXPECT_EQ(DifferingPixels(screen.ReadBgr(RectOf(g)), patterns[static_cast<size_t>(i)]), 0) << "pattern " << i;
+    cv::Mat diff;
+    cv::absdiff(screen.ReadBgr(monitor), before, diff);
+    cv::Mat any;
+    cv::transform(diff, any, cv::Matx13f(1, 1, 1));
+    EXPECT_EQ(cv::countNonZero(any), 0) << "display 0 changed, pattern " << i;
   }
 }
 
@@ -189,6 +230,7 @@ TEST(WindowProjector, ClearErrorsWithoutADisplayOrWithABadPlace) {
   }
   // No X server at all.
   unsetenv("DISPLAY");
+  EXPECT_THROW(ListDisplays(), Error);
   try {
     WindowProjector projector;
     ADD_FAILURE() << "opened without a display";
