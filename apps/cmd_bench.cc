@@ -2,10 +2,13 @@
 #include <CLI/CLI.hpp>
 #include <cstdio>
 
-#include "apps/bench.h"
 #include "apps/commands.h"
+#include "shadow/bench.h"
 
 namespace slshadow::app {
+using workflow::BenchOptions;
+using workflow::FormatBench;
+using workflow::RunBench;
 
 int RunBenchCommand(int argc, char** argv) {
   BenchOptions options;

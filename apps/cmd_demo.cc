@@ -3,9 +3,12 @@
 #include <cstdio>
 
 #include "apps/commands.h"
-#include "apps/demo.h"
+#include "shadow/demo.h"
 
 namespace slshadow::app {
+using workflow::DemoOptions;
+using workflow::DemoResult;
+using workflow::RunDemoJob;
 
 int RunDemo(int argc, char** argv) {
   DemoOptions options;

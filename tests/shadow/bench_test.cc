@@ -1,10 +1,10 @@
-#include "apps/bench.h"
+#include "shadow/bench.h"
 
 #include <gtest/gtest.h>
 
 #include "core/error.h"
 
-namespace slshadow::app {
+namespace slshadow::workflow {
 namespace {
 
 TEST(Bench, DecodeEntryRunsOnTheDemoScan) {
@@ -31,4 +31,4 @@ TEST(Bench, BadOptionsAreNamed) {
 }
 
 }  // namespace
-}  // namespace slshadow::app
+}  // namespace slshadow::workflow

@@ -2,7 +2,8 @@
 // as an ImageSet, reconstruct it from that ImageSet in both modes (camera-projector and stereo),
 // compare each cloud against the part's ground truth, and report accuracy, time and memory per
 // stage. The rig, scene and pattern files of config/demo/ are compiled into the binary, so the
-// job needs no files; each can be replaced by a path.
+// job needs no files; each can be replaced by a path. Built on the scan pipeline
+// (shadow/scan_pipeline.h).
 #pragma once
 
 #include <filesystem>
@@ -12,8 +13,9 @@
 #include <nlohmann/json.hpp>
 
 #include "core/stage_meter.h"
+#include "shadow/scan_pipeline.h"
 
-namespace slshadow::app {
+namespace slshadow::workflow {
 
 struct DemoOptions {
   std::filesystem::path out_dir = "slshadow-demo";  // replaced only if it holds an earlier demo
@@ -27,14 +29,9 @@ struct DemoOptions {
   void Check() const;
 };
 
-struct DemoModeResult {
-  std::string mode;  // "projector" or "stereo"
-  size_t points = 0;
-  double coverage = 0;          // of the whole ground-truth surface (hidden faces included)
-  double visible_coverage = 0;  // of the surface the left camera sees lit by the projector
-  double rms_mm = 0, p95_mm = 0, max_mm = 0, mean_mm = 0;
-  size_t outliers = 0;
-  double outlier_fraction = 0;
+// The accuracy figures of one mode (visible coverage: of what the left camera sees lit) and
+// where its report folder is.
+struct DemoModeResult : ModeAccuracy {
   std::filesystem::path report_dir;
 };
 
@@ -51,4 +48,4 @@ struct DemoResult {
 // atomically (a complete new folder replaces an earlier demo output).
 DemoResult RunDemoJob(const DemoOptions& options);
 
-}  // namespace slshadow::app
+}  // namespace slshadow::workflow

@@ -1,6 +1,7 @@
-// `slshadow bench`: the pipeline's speed on the demo, measured in one run against peers where a
-// peer runs here. Every entry repeats its work and reports the median wall time (and the CPU time
-// of that run), so a noisy machine moves figures less; ratios are taken within the run.
+// `slshadow bench` (the command only parses and prints): the pipeline's speed on the demo, measured
+// in one run against peers where a peer runs here. Every entry repeats its work and reports the
+// median wall time (and the CPU time of that run), so a noisy machine moves figures less; ratios
+// are taken within the run.
 //
 // Entries (the demo rig scanning the demo part, images rendered by the simulator in memory):
 //   simulate     render 2 cameras x 38 patterns (ray casting + pattern passes; no encoding)
@@ -15,7 +16,7 @@
 #include <string>
 #include <vector>
 
-namespace slshadow::app {
+namespace slshadow::workflow {
 
 struct BenchOptions {
   int repetitions = 5;              // per entry; the median is reported
@@ -49,4 +50,4 @@ struct BenchEntry {
 std::vector<BenchEntry> RunBench(const BenchOptions& options);
 std::string FormatBench(const std::vector<BenchEntry>& entries);
 
-}  // namespace slshadow::app
+}  // namespace slshadow::workflow

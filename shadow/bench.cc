@@ -1,4 +1,4 @@
-#include "apps/bench.h"
+#include "shadow/bench.h"
 
 #include <algorithm>
 #include <chrono>
@@ -7,9 +7,7 @@
 
 #include <opencv2/structured_light.hpp>
 
-#include "apps/demo_config.h"
 #include "compare/compare.h"
-#include "core/config.h"
 #include "core/error.h"
 #include "core/rig.h"
 #include "core/stage_meter.h"
@@ -18,8 +16,9 @@
 #include "reconstruct/reconstruct.h"
 #include "sim/scene.h"
 #include "sim/simulate.h"
+#include "shadow/scan_pipeline.h"
 
-namespace slshadow::app {
+namespace slshadow::workflow {
 namespace {
 
 struct Timing {
@@ -87,9 +86,9 @@ void BenchOptions::Check() const {
 
 std::vector<BenchEntry> RunBench(const BenchOptions& options) {
   options.Check();
-  const Rig rig = RigFromConfig(ConfigNode::ParseYaml(kDemoRigYaml, "<embedded config/demo/rig.yaml>"));
-  const Scene scene = SceneFromConfig(ConfigNode::ParseYaml(kDemoSceneYaml, "<embedded config/demo/scene.yaml>"), ".");
-  const PatternSpec spec = PatternSpecFromConfig(ConfigNode::ParseYaml(kDemoPatternsYaml, "<embedded config/demo/patterns.yaml>"));
+  const Rig rig = LoadRigOrDemo("");
+  const Scene scene = LoadSceneOrDemo("", ".");
+  const PatternSpec spec = LoadPatternSpecOrDemo("");
   const std::vector<cv::Mat> projector_images = GeneratePatterns(spec);
   const int reps = options.repetitions;
   const double camera_mpix = rig.cameras[0].model.width * rig.cameras[0].model.height / 1e6;
@@ -225,13 +224,7 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
 
   if (Wanted(options, "compare")) {
     if (stereo.cloud.empty()) stereo = ReconstructStereo(rig, left, right, maps[0], maps[1]);
-    TriangleMesh truth;
-    for (const auto& object : scene.objects) {
-      if (object.type != ObjectType::kMesh) continue;
-      TriangleMesh part = *object.mesh;
-      part.Transform(object.rig_from_object.rotation.toRotationMatrix(), object.rig_from_object.translation);
-      truth.Append(part);
-    }
+    const TriangleMesh truth = SceneMeshSurface(scene);
     const compare::Reference reference = compare::ReferenceFromMesh(truth, "demo part");
     BenchEntry e = MakeEntry("compare", "C2M of the stereo cloud (" + std::to_string(stereo.cloud.size()) + " points) to the part mesh");
     const Timing t = Median(reps, [&] { compare::Compare(stereo.cloud, reference, compare::CompareOptions{}); });
@@ -264,4 +257,4 @@ std::string FormatBench(const std::vector<BenchEntry>& entries) {
   return out;
 }
 
-}  // namespace slshadow::app
+}  // namespace slshadow::workflow

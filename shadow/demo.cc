@@ -1,83 +1,24 @@
-#include "apps/demo.h"
-
-#include "apps/demo_config.h"  // generated: the embedded config/demo files
-#include "compare/compare.h"
-#include "compare/report.h"
-#include "compare/statistics.h"
-#include "core/config.h"
-#include "core/error.h"
-#include "core/file_util.h"
-#include "core/image_set.h"
-#include "core/mesh.h"
-#include "core/rig.h"
-#include "patterns/codec.h"
-#include "patterns/pattern_spec.h"
-#include "reconstruct/reconstruct.h"
-#include "sim/scene.h"
-#include "sim/simulate.h"
-
-#include <opencv2/core/utility.hpp>
+#include "shadow/demo.h"
 
 #include <chrono>
 #include <cstdio>
 #include <exception>
-#include <fstream>
 #include <thread>
 
-namespace slshadow::app {
+#include "compare/compare.h"
+#include "compare/report.h"
+#include "core/error.h"
+#include "core/file_util.h"
+#include "core/image_set.h"
+#include "core/mesh.h"
+#include "shadow/scan_pipeline.h"
+
+namespace slshadow::workflow {
 namespace fs = std::filesystem;
 
 namespace {
 
 constexpr const char* kMarker = "demo.json";  // marks a folder as an earlier demo output
-
-// The ground-truth surface of the scene's meshes and planes in the rig frame. Other object
-// types would need their exact surfaces; the demo scene has none, and a user's scene with them
-// is rejected with a clear message.
-TriangleMesh SceneSurface(const Scene& scene, const std::string& what) {
-  TriangleMesh surface;
-  for (const auto& object : scene.objects) {
-    TriangleMesh part;
-    if (object.type == ObjectType::kMesh) {
-      part = *object.mesh;
-    } else if (object.type == ObjectType::kPlane) {
-      const double hx = object.size_mm.x() / 2, hy = object.size_mm.y() / 2;
-      part.vertices = {{-hx, -hy, 0}, {hx, -hy, 0}, {hx, hy, 0}, {-hx, hy, 0}};
-      part.triangles = {{0, 1, 2}, {0, 2, 3}};
-    } else {
-      SLSHADOW_THROW(what, ": object '", object.name, "' is a ", ToString(object.type),
-                     "; the demo compares against meshes and planes only");
-    }
-    part.Transform(object.rig_from_object.rotation.toRotationMatrix(),
-                   object.rig_from_object.translation);
-    surface.Append(part);
-  }
-  return surface;
-}
-
-// Points of the surface the camera sees lit by the projector (every second pixel).
-std::vector<Eigen::Vector3d> LitVisibleSurface(const GeometryBuffer& geometry) {
-  std::vector<Eigen::Vector3d> points;
-  for (int y = 0; y < geometry.height; y += 2) {
-    const uint8_t* vis = geometry.visibility.ptr<uint8_t>(y);
-    const cv::Vec3f* p = geometry.point_in_rig.ptr<cv::Vec3f>(y);
-    for (int x = 0; x < geometry.width; x += 2) {
-      if (vis[x] == 2) points.emplace_back(p[x][0], p[x][1], p[x][2]);
-    }
-  }
-  return points;
-}
-
-double VisibleCoverage(const compare::CompareResult& result,
-                       const std::vector<Eigen::Vector3d>& visible) {
-  std::vector<Eigen::Vector3d> reached;
-  reached.reserve(result.compared.size());
-  for (size_t i = 0; i < result.compared.size(); ++i) {
-    if (std::abs(result.deviations_mm[i]) <= result.options.threshold_mm)
-      reached.push_back(result.compared.points[i]);
-  }
-  return compare::Coverage(visible, reached, result.coverage_radius_mm);
-}
 
 }  // namespace
 
@@ -127,7 +68,8 @@ std::string DemoResult::Table() const {
                   m.p95_mm, m.max_mm, m.outliers, 100 * m.outlier_fraction);
     out += buf;
   }
-  out += "\n" + FormatStageTable(stages);
+  out += '\n';  // (not "\n" + ...: GCC 12 reports a false -Wrestrict on that once inlined)
+  out += FormatStageTable(stages);
   return out;
 }
 
@@ -155,22 +97,11 @@ DemoResult RunDemoJob(const DemoOptions& options) {
 
   // 1. Configuration: rig, scene (the part is generated in code), patterns.
   StageMeter meter("load rig, build scene, patterns");
-  const Rig rig =
-      options.rig_path.empty()
-          ? RigFromConfig(ConfigNode::ParseYaml(kDemoRigYaml, "<embedded config/demo/rig.yaml>"))
-          : LoadRig(options.rig_path);
+  const Rig rig = LoadRigOrDemo(options.rig_path);
   SLSHADOW_THROW_IF(rig.cameras.size() < 2 || !rig.projector, "demo rig '", rig.name,
                     "': needs two cameras and a projector");
-  const Scene scene =
-      options.scene_path.empty()
-          ? SceneFromConfig(
-                ConfigNode::ParseYaml(kDemoSceneYaml, "<embedded config/demo/scene.yaml>"),
-                fs::current_path())
-          : LoadScene(options.scene_path);
-  const PatternSpec spec = options.patterns_path.empty()
-                               ? PatternSpecFromConfig(ConfigNode::ParseYaml(
-                                     kDemoPatternsYaml, "<embedded config/demo/patterns.yaml>"))
-                               : LoadPatternSpec(options.patterns_path);
+  const Scene scene = LoadSceneOrDemo(options.scene_path);
+  const PatternSpec spec = LoadPatternSpecOrDemo(options.patterns_path);
   const std::vector<cv::Mat> projector_images = GeneratePatterns(spec);
   const TriangleMesh truth =
       SceneSurface(scene, options.scene_path.empty() ? "demo scene" : options.scene_path.string());
@@ -178,35 +109,17 @@ DemoResult RunDemoJob(const DemoOptions& options) {
 
   // 2. The virtual scan, in memory.
   meter = StageMeter("simulate (ray cast + patterns)");
-  std::vector<GeometryBuffer> geometry;
-  SimulateSummary sim_summary;
-  const auto images = RenderScan(scene, rig, projector_images, &geometry, &sim_summary);
+  VirtualScan scan = RenderVirtualScan(scene, rig, projector_images);
   result.stages.push_back(meter.Stop());
-  if (verbose) std::printf("%s\n", sim_summary.BriefReport().c_str());
+  if (verbose) std::printf("%s\n", scan.summary.BriefReport().c_str());
 
   // 3. Write it as an ImageSet, exactly as a real capture is written.
   meter = StageMeter("write ImageSet");
   {
     ImageSetWriterOptions writer_options;
     writer_options.encoding = ImageEncodingFromString(options.encoding);
-    ImageSetWriter writer(staging / "scan", rig, PatternSpecToJson(spec), writer_options);
-    const int num_cameras = static_cast<int>(images.size());
-    const int num_patterns = spec.NumImages();
-    std::vector<std::string> errors(static_cast<size_t>(num_cameras * num_patterns));
-    cv::parallel_for_(cv::Range(0, num_cameras * num_patterns), [&](const cv::Range& range) {
-      for (int k = range.start; k < range.end; ++k) {
-        try {
-          writer.Add(rig.cameras[k / num_patterns].name, k % num_patterns,
-                     images[k / num_patterns][k % num_patterns], scene.radiometry.exposure_us,
-                     ImageSource::kVirtual);
-        } catch (const Error& e) {
-          errors[k] = e.what();
-        }
-      }
-    });
-    for (const auto& e : errors) SLSHADOW_THROW_IF(!e.empty(), e);
-    writer.SetExtra({{"generator", "slshadow demo"}, {"scene", SceneToJson(scene)}});
-    writer.Commit();
+    WriteVirtualScan(staging / "scan", rig, spec, scene, scan.images, writer_options,
+                     {{"generator", "slshadow demo"}, {"scene", SceneToJson(scene)}});
   }
   WriteMesh(staging / "ground_truth.ply", truth);
   result.stages.push_back(meter.Stop());
@@ -214,11 +127,7 @@ DemoResult RunDemoJob(const DemoOptions& options) {
   // 4. Read the ImageSet back and decode both cameras: the path a real capture takes.
   meter = StageMeter("read ImageSet + decode");
   const ImageSet image_set = ImageSet::Open(staging / "scan");
-  const PatternSpec stored_spec = PatternSpecFromConfig(ConfigNode::FromJson(
-      image_set.patterns(), (staging / "scan" / "manifest.json").string(), "patterns"));
-  const std::string left = image_set.rig().cameras[0].name, right = image_set.rig().cameras[1].name;
-  const ProjectorMap left_map = DecodePatterns(stored_spec, image_set.LoadCamera(left));
-  const ProjectorMap right_map = DecodePatterns(stored_spec, image_set.LoadCamera(right));
+  const DecodedScan decoded = DecodeImageSet(image_set);
   result.stages.push_back(meter.Stop());
 
   ReconstructOptions reconstruct_options;
@@ -228,21 +137,16 @@ DemoResult RunDemoJob(const DemoOptions& options) {
   meter = StageMeter("reference: sample ground truth");
   const compare::Reference reference =
       compare::ReferenceFromMesh(truth, "ground truth (scene meshes and planes)");
-  const std::vector<Eigen::Vector3d> visible = LitVisibleSurface(geometry[0]);
+  const std::vector<Eigen::Vector3d> visible = LitVisibleSurface(scan.geometry[0]);
   result.stages.push_back(meter.Stop());
 
   // 5. Reconstruct both modes, then compare and report them concurrently: each comparison is
   // parallel inside, but its report (PLY, map, charts) and parts of the comparison are serial.
   const std::vector<std::string> mode_names = {"projector", "stereo"};
-  std::vector<Reconstruction> recs;
-  for (const std::string& mode : mode_names) {
-    meter = StageMeter("reconstruct " + mode);
-    recs.push_back(mode == "projector" ? ReconstructWithProjector(image_set.rig(), left, left_map,
-                                                                  reconstruct_options)
-                                       : ReconstructStereo(image_set.rig(), left, right, left_map,
-                                                           right_map, reconstruct_options));
-    result.stages.push_back(meter.Stop());
-    if (verbose) std::printf("%s\n", recs.back().summary.FullReport().c_str());
+  std::vector<Reconstruction> recs = ReconstructModes(
+      decoded, {ReconstructMode::kProjector, ReconstructMode::kStereo}, reconstruct_options, &result.stages);
+  if (verbose) {
+    for (const auto& rec : recs) std::printf("%s\n", rec.summary.FullReport().c_str());
   }
 
   meter = StageMeter("compare + report (2 modes at once)");
@@ -263,18 +167,7 @@ DemoResult RunDemoJob(const DemoOptions& options) {
       compare::WriteReport(staging / mode, cmp, report_options);
       const auto t2 = std::chrono::steady_clock::now();
       DemoModeResult& m = modes[k];
-      m.mode = mode;
-      m.points = cmp.compared.size();
-      m.coverage = cmp.coverage;
-      m.visible_coverage = VisibleCoverage(cmp, visible);
-      m.mean_mm = cmp.c2c.mean_mm;
-      m.rms_mm = cmp.c2c.rms_mm;
-      m.p95_mm = cmp.c2c.p95_mm;
-      m.max_mm = cmp.c2c.max_mm;
-      m.outliers = cmp.c2c.outliers;
-      m.outlier_fraction =
-          cmp.c2c.count ? static_cast<double>(cmp.c2c.outliers) / static_cast<double>(cmp.c2c.count)
-                        : 0;
+      static_cast<ModeAccuracy&>(m) = MeasureAccuracy(mode, cmp, visible);
       m.report_dir = out_dir / mode;
       if (verbose) {
         char buf[160];
@@ -309,4 +202,4 @@ DemoResult RunDemoJob(const DemoOptions& options) {
   return result;
 }
 
-}  // namespace slshadow::app
+}  // namespace slshadow::workflow

@@ -1,4 +1,4 @@
-#include "apps/demo.h"
+#include "shadow/demo.h"
 
 #include <fstream>
 
@@ -9,7 +9,7 @@
 #include "core/image_set.h"
 #include "tests/testing/temp_dir.h"
 
-namespace slshadow::app {
+namespace slshadow::workflow {
 namespace {
 
 // The whole digital-shadow loop on the embedded demo, checked against the accuracy goal:
@@ -58,4 +58,4 @@ TEST(Demo, RefusesToReplaceAFolderThatIsNotADemoOutput) {
 }
 
 }  // namespace
-}  // namespace slshadow::app
+}  // namespace slshadow::workflow

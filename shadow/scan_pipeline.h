@@ -1,0 +1,122 @@
+// The scan pipeline every workflow is built from (the demo job, `slshadow bench`, real vs
+// virtual): the virtual scan of a scene by a rig, in memory or written as an ImageSet exactly as a
+// real capture is written; an ImageSet decoded once and reconstructed in any set of modes from
+// those maps; a cloud compared against a reference with the demo's coverage figures.
+//
+// Namespace slshadow::workflow: the shadow/ folder holds workflows (DESIGN.md); `shadow::` would
+// read as the code of the one workflow called `slshadow shadow`.
+//
+// Frames and units: rig frame (the first camera's), mm, px (OpenCV's pixel convention).
+#pragma once
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+
+#include "compare/compare.h"
+#include "core/image_set.h"
+#include "core/mesh.h"
+#include "core/projector_map.h"
+#include "core/rig.h"
+#include "core/stage_meter.h"
+#include "patterns/codec.h"
+#include "patterns/pattern_spec.h"
+#include "reconstruct/reconstruct.h"
+#include "sim/scene.h"
+#include "sim/simulate.h"
+
+namespace slshadow::workflow {
+
+// ---- Configuration: the embedded demo (config/demo/, compiled in) or a file in its place.
+
+// `path` empty: the embedded config/demo/rig.yaml; else LoadRig(path).
+Rig LoadRigOrDemo(const std::filesystem::path& path);
+// `path` empty: the embedded config/demo/scene.yaml (relative mesh paths against `base_dir`);
+// else LoadScene(path).
+Scene LoadSceneOrDemo(const std::filesystem::path& path,
+                      const std::filesystem::path& base_dir = std::filesystem::current_path());
+// `path` empty: the embedded config/demo/patterns.yaml; else LoadPatternSpec(path).
+PatternSpec LoadPatternSpecOrDemo(const std::filesystem::path& path);
+
+// ---- The virtual scan.
+
+struct VirtualScan {
+  std::vector<std::vector<cv::Mat>> images;  // images[camera][pattern], rig camera order
+  std::vector<GeometryBuffer> geometry;      // per camera: the geometry pass (ground truth)
+  SimulateSummary summary;
+};
+
+// Renders every projector image seen by every camera of `rig` in memory (sim/ RenderScan).
+// Throws slshadow::Error on an invalid scene or rig, or projector images of the wrong size.
+VirtualScan RenderVirtualScan(const Scene& scene, const Rig& rig, const std::vector<cv::Mat>& projector_images);
+
+// Writes images[camera][pattern] (rig camera order, spec.NumImages() per camera) as an ImageSet
+// at `dir`, source "virtual", exposure scene.radiometry.exposure_us, the manifest's `extra` set
+// to `extra`. Images are encoded in parallel; the folder appears complete or not at all.
+void WriteVirtualScan(const std::filesystem::path& dir, const Rig& rig, const PatternSpec& spec, const Scene& scene,
+                      const std::vector<std::vector<cv::Mat>>& images, const ImageSetWriterOptions& writer_options,
+                      const nlohmann::json& extra);
+
+// ---- Decode once, reconstruct any set of modes.
+
+// The decoded maps of an ImageSet's cameras, with the rig and pattern spec it was read with.
+struct DecodedScan {
+  Rig rig;
+  PatternSpec spec;
+  std::vector<std::string> cameras;  // decoded, in the order asked
+  std::vector<ProjectorMap> maps;    // one per camera
+  // The map of `camera`; throws slshadow::Error when it was not decoded.
+  const ProjectorMap& map(const std::string& camera) const;
+};
+
+// Loads and decodes `cameras` of `image_set` (empty: the first two cameras of its rig, or the
+// one camera when the rig has one) with the pattern spec stored in its manifest, one camera
+// after the other. Throws slshadow::Error on unknown cameras, missing images or a bad spec.
+DecodedScan DecodeImageSet(const ImageSet& image_set, const std::vector<std::string>& cameras = {},
+                           const DecodeOptions& options = {});
+
+// One reconstruction from decoded maps: kProjector, the first decoded camera against the
+// projector; kStereo, the first decoded camera (left) against the second (right).
+Reconstruction ReconstructFromMaps(const DecodedScan& scan, ReconstructMode mode, const ReconstructOptions& options);
+
+// The reconstructions of `modes`, in that order, each from the same maps. `stages`, if not null,
+// receives one StageMeasurement per mode, named "reconstruct <mode>".
+std::vector<Reconstruction> ReconstructModes(const DecodedScan& scan, const std::vector<ReconstructMode>& modes,
+                                             const ReconstructOptions& options,
+                                             std::vector<StageMeasurement>* stages = nullptr);
+
+// ---- Compare against a reference.
+
+// The ground-truth surface of the scene's meshes and planes in the rig frame. Other object
+// types (exact primitives, clouds) would need their exact surfaces: a scene with them is rejected,
+// naming `what`, the object and its type.
+TriangleMesh SceneSurface(const Scene& scene, const std::string& what);
+// The scene's meshes only, in the rig frame (other objects, e.g. the demo's table, left out).
+TriangleMesh SceneMeshSurface(const Scene& scene);
+
+// Points of the surface the camera sees lit by the projector (geometry.visibility == 2), every
+// second pixel in x and y, from the pixel-centre ground truth.
+std::vector<Eigen::Vector3d> LitVisibleSurface(const GeometryBuffer& geometry);
+
+// The share of `visible` that the comparison's inliers (|deviation| <= threshold) reach within
+// its coverage radius (compare::Coverage).
+double VisibleCoverage(const compare::CompareResult& result, const std::vector<Eigen::Vector3d>& visible);
+
+// The demo's accuracy figures of one compared cloud.
+struct ModeAccuracy {
+  std::string mode;  // "projector" or "stereo"
+  size_t points = 0;
+  double coverage = 0;          // of the whole ground-truth surface (hidden faces included)
+  double visible_coverage = 0;  // of the surface the reference camera sees lit by the projector
+  double rms_mm = 0, p95_mm = 0, max_mm = 0, mean_mm = 0;
+  size_t outliers = 0;
+  double outlier_fraction = 0;
+};
+ModeAccuracy MeasureAccuracy(const std::string& mode, const compare::CompareResult& result,
+                             const std::vector<Eigen::Vector3d>& visible);
+
+}  // namespace slshadow::workflow

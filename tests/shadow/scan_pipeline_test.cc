@@ -1,0 +1,194 @@
+#include "shadow/scan_pipeline.h"
+
+#include <algorithm>
+#include <cstring>
+
+#include <gtest/gtest.h>
+
+#include "core/error.h"
+#include "tests/testing/temp_dir.h"
+
+namespace slshadow::workflow {
+namespace {
+
+// Byte equality of two images (type, size and every byte; NaN payloads compare as bytes).
+bool SameBytes(const cv::Mat& a, const cv::Mat& b) {
+  if (a.type() != b.type() || a.size() != b.size()) return false;
+  for (int y = 0; y < a.rows; ++y) {
+    if (std::memcmp(a.ptr(y), b.ptr(y), a.cols * a.elemSize()) != 0) return false;
+  }
+  return true;
+}
+
+// The demo rig scanning the demo scene, rendered once for the whole suite.
+class ScanPipeline : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    rig_ = new Rig(LoadRigOrDemo(""));
+    scene_ = new Scene(LoadSceneOrDemo(""));
+    spec_ = new PatternSpec(LoadPatternSpecOrDemo(""));
+    scan_ = new VirtualScan(RenderVirtualScan(*scene_, *rig_, GeneratePatterns(*spec_)));
+  }
+  static void TearDownTestSuite() {
+    delete scan_;
+    delete spec_;
+    delete scene_;
+    delete rig_;
+  }
+  static Rig* rig_;
+  static Scene* scene_;
+  static PatternSpec* spec_;
+  static VirtualScan* scan_;
+};
+Rig* ScanPipeline::rig_ = nullptr;
+Scene* ScanPipeline::scene_ = nullptr;
+PatternSpec* ScanPipeline::spec_ = nullptr;
+VirtualScan* ScanPipeline::scan_ = nullptr;
+
+// Oracle: the in-memory path. A scan written as an ImageSet, read back, decoded once and
+// reconstructed in both modes gives the same maps and the same clouds, point for point, as the
+// images decoded and reconstructed in memory (the encoding is lossless).
+TEST_F(ScanPipeline, WrittenScanDecodesAndReconstructsLikeTheImagesInMemory) {
+  ASSERT_EQ(scan_->images.size(), 2u);
+  ASSERT_EQ(scan_->geometry.size(), 2u);
+  EXPECT_EQ(scan_->images[0].size(), static_cast<size_t>(spec_->NumImages()));
+  testing::TempDir dir;
+  ImageSetWriterOptions writer;
+  writer.encoding = ImageEncoding::kPgm;
+  const nlohmann::json extra = {{"note", "pipeline test"}};
+  WriteVirtualScan(dir / "scan", *rig_, *spec_, *scene_, scan_->images, writer, extra);
+  const ImageSet image_set = ImageSet::Open(dir / "scan");
+  EXPECT_EQ(image_set.extra(), extra);
+  EXPECT_EQ(image_set.records().front().source, ImageSource::kVirtual);
+  EXPECT_EQ(image_set.records().front().exposure_us, scene_->radiometry.exposure_us);
+
+  const DecodedScan decoded = DecodeImageSet(image_set);
+  ASSERT_EQ(decoded.cameras, (std::vector<std::string>{"left", "right"}));
+  std::vector<ProjectorMap> in_memory;
+  for (size_t c = 0; c < 2; ++c) {
+    in_memory.push_back(DecodePatterns(*spec_, scan_->images[c]));
+    const ProjectorMap& read = decoded.map(decoded.cameras[c]);
+    EXPECT_TRUE(SameBytes(read.proj_x, in_memory[c].proj_x)) << c;
+    EXPECT_TRUE(SameBytes(read.proj_y, in_memory[c].proj_y)) << c;
+    EXPECT_TRUE(SameBytes(read.status, in_memory[c].status)) << c;
+    EXPECT_TRUE(SameBytes(read.quality, in_memory[c].quality)) << c;
+  }
+  EXPECT_THROW(decoded.map("middle"), Error);
+
+  std::vector<StageMeasurement> stages;
+  const ReconstructOptions options;
+  const std::vector<Reconstruction> recs =
+      ReconstructModes(decoded, {ReconstructMode::kProjector, ReconstructMode::kStereo}, options, &stages);
+  ASSERT_EQ(recs.size(), 2u);
+  ASSERT_EQ(stages.size(), 2u);
+  EXPECT_EQ(stages[0].name, "reconstruct projector");
+  EXPECT_EQ(stages[1].name, "reconstruct stereo");
+  const Reconstruction projector = ReconstructWithProjector(*rig_, "left", in_memory[0], options);
+  const Reconstruction stereo = ReconstructStereo(*rig_, "left", "right", in_memory[0], in_memory[1], options);
+  EXPECT_GT(projector.cloud.size(), 1000000u);
+  EXPECT_GT(stereo.cloud.size(), 1000000u);
+  EXPECT_EQ(recs[0].summary.mode, ReconstructMode::kProjector);
+  EXPECT_EQ(recs[1].summary.mode, ReconstructMode::kStereo);
+  EXPECT_EQ(recs[0].cloud.points, projector.cloud.points);
+  EXPECT_EQ(recs[1].cloud.points, stereo.cloud.points);
+}
+
+TEST_F(ScanPipeline, DecodeAndReconstructRefuseWhatWasNotDecoded) {
+  testing::TempDir dir;
+  ImageSetWriterOptions writer;
+  writer.encoding = ImageEncoding::kPgm;
+  WriteVirtualScan(dir / "scan", *rig_, *spec_, *scene_, scan_->images, writer, nlohmann::json::object());
+  const ImageSet image_set = ImageSet::Open(dir / "scan");
+  EXPECT_THROW(DecodeImageSet(image_set, {"middle"}), Error);
+  const DecodedScan left_only = DecodeImageSet(image_set, {"left"});
+  EXPECT_THROW(ReconstructFromMaps(left_only, ReconstructMode::kStereo, {}), Error);
+  EXPECT_GT(ReconstructFromMaps(left_only, ReconstructMode::kProjector, {}).cloud.size(), 1000000u);
+  // A wrong image count is refused before anything is written.
+  std::vector<std::vector<cv::Mat>> short_scan = scan_->images;
+  short_scan[1].pop_back();
+  EXPECT_THROW(WriteVirtualScan(dir / "short", *rig_, *spec_, *scene_, short_scan, writer, {}), Error);
+  EXPECT_FALSE(std::filesystem::exists(dir / "short"));
+}
+
+TEST_F(ScanPipeline, SceneSurfaceHoldsMeshesAndPlanesAndNamesOtherObjects) {
+  const TriangleMesh meshes = SceneMeshSurface(*scene_);
+  const TriangleMesh all = SceneSurface(*scene_, "demo scene");
+  ASSERT_EQ(scene_->objects.size(), 2u);  // the part (a mesh) and the table (a plane)
+  EXPECT_EQ(meshes.triangles.size(), scene_->objects[0].mesh->triangles.size());
+  EXPECT_EQ(all.triangles.size(), meshes.triangles.size() + 2);
+  // The part's first vertex moved into the rig frame.
+  const SceneObject& part = scene_->objects[0];
+  const Eigen::Vector3d expected =
+      part.rig_from_object.rotation * part.mesh->vertices[0] + part.rig_from_object.translation;
+  EXPECT_LT((meshes.vertices[0] - expected).norm(), 1e-9);
+
+  Scene with_sphere = *scene_;
+  SceneObject sphere;
+  sphere.name = "ball";
+  sphere.type = ObjectType::kSphere;
+  sphere.radius_mm = 10;
+  with_sphere.objects.push_back(sphere);
+  try {
+    SceneSurface(with_sphere, "my scene");
+    FAIL() << "a sphere was accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("my scene"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("'ball'"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("sphere"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(SceneMeshSurface(with_sphere).triangles.size(), meshes.triangles.size());
+}
+
+// Brute force: every lit pixel at even (x, y), in row order, at its ground-truth point.
+TEST_F(ScanPipeline, LitVisibleSurfaceIsEverySecondLitPixel) {
+  const GeometryBuffer& g = scan_->geometry[0];
+  const std::vector<Eigen::Vector3d> lit = LitVisibleSurface(g);
+  size_t k = 0;
+  for (int y = 0; y < g.height; y += 2) {
+    for (int x = 0; x < g.width; x += 2) {
+      if (g.visibility.at<uint8_t>(y, x) != 2) continue;
+      ASSERT_LT(k, lit.size());
+      const cv::Vec3f p = g.point_in_rig.at<cv::Vec3f>(y, x);
+      ASSERT_EQ(lit[k], Eigen::Vector3d(p[0], p[1], p[2]));
+      ++k;
+    }
+  }
+  EXPECT_EQ(k, lit.size());
+  EXPECT_GT(lit.size(), 100000u);
+}
+
+// Oracle: the ground truth itself. The lit surface as a cloud lies on the reference (RMS ~ the
+// float rounding of the ground-truth points) and covers all of what is visible; half of it
+// covers about half.
+TEST_F(ScanPipeline, AccuracyOfTheGroundTruthCloudIsPerfectAndHalfCoversHalf) {
+  const std::vector<Eigen::Vector3d> visible = LitVisibleSurface(scan_->geometry[0]);
+  const compare::Reference reference = compare::ReferenceFromMesh(SceneSurface(*scene_, "demo"), "truth");
+  PointCloud cloud;
+  cloud.points = visible;
+  const compare::CompareOptions options;
+  const ModeAccuracy full = MeasureAccuracy("truth", compare::Compare(cloud, reference, options), visible);
+  EXPECT_EQ(full.mode, "truth");
+  EXPECT_EQ(full.points, visible.size());
+  EXPECT_LT(full.rms_mm, 1e-3);
+  EXPECT_EQ(full.outliers, 0u);
+  EXPECT_EQ(full.outlier_fraction, 0);
+  EXPECT_GT(full.visible_coverage, 0.999);
+  EXPECT_GT(full.coverage, 0.3);
+
+  // Keep the points left of the median x: about half the visible surface.
+  std::vector<double> xs;
+  for (const auto& p : visible) xs.push_back(p.x());
+  std::nth_element(xs.begin(), xs.begin() + static_cast<std::ptrdiff_t>(xs.size() / 2), xs.end());
+  const double median_x = xs[xs.size() / 2];
+  PointCloud half;
+  for (const auto& p : visible) {
+    if (p.x() < median_x) half.points.push_back(p);
+  }
+  const ModeAccuracy part = MeasureAccuracy("half", compare::Compare(half, reference, options), visible);
+  EXPECT_GT(part.visible_coverage, 0.45);
+  EXPECT_LT(part.visible_coverage, 0.55);
+  EXPECT_LT(part.coverage, full.coverage);
+}
+
+}  // namespace
+}  // namespace slshadow::workflow
