@@ -30,5 +30,6 @@ int RunCompare(int argc, char** argv);
 int RunSimulate(int argc, char** argv);
 int RunDemo(int argc, char** argv);
 int RunBenchCommand(int argc, char** argv);
+int RunShadowCommand(int argc, char** argv);
 
 }  // namespace slshadow::app
