@@ -4,6 +4,7 @@
 
 #include "apps/commands.h"
 #include "core/error.h"
+#include "core/rig.h"
 #include "shadow/twin.h"
 
 namespace slshadow::app {
@@ -19,13 +20,15 @@ int RunShadowCommand(int argc, char** argv) {
       "part in its own frame (e.g. a plane with a printed checkerboard). Writes DIR/report.json\n"
       "(docs/formats.md \"Shadow report\"), DIR/summary.txt, DIR/maps/*.png, DIR/clouds/*.ply.",
       argv[0]};
-  std::string image_set, part_path, out_dir;
+  std::string image_set, part_path, out_dir, rig_path;
   std::vector<double> pose;
   bool fixed_pose = false, no_fit = false, overwrite = false, no_clouds = false;
   shadow::ShadowOptions options;
   app.add_option("REAL_IMAGESET", image_set, "the real scan (ImageSet folder)")->required()->check(CLI::ExistingDirectory);
   app.add_option("--part", part_path, "the part: mesh (.stl/.ply/.obj) or scene (.yaml)")->required()->check(CLI::ExistingFile);
   app.add_option("--out", out_dir, "report folder")->required();
+  app.add_option("--rig", rig_path, "rig file to use instead of the ImageSet's own (e.g. a later calibration)")
+      ->check(CLI::ExistingFile);
   app.add_option("--pose", pose, "rig_from_part as rx ry rz (Rodrigues, rad) tx ty tz (mm): ICP starts here")->expected(6);
   app.add_flag("--fixed-pose", fixed_pose, "use --pose as it is (no ICP), e.g. a plane whose in-plane pose ICP cannot see");
   app.add_option("--min-fitness", options.min_fitness, "credible pose: share of the cloud within 1 mm of the part")
@@ -58,7 +61,9 @@ int RunShadowCommand(int argc, char** argv) {
   options.overwrite = overwrite;
   options.write_clouds = !no_clouds;
   const shadow::ShadowPart part = shadow::LoadShadowPart(part_path);
-  const shadow::ShadowResult result = shadow::RunShadow(image_set, part, options, out_dir);
+  std::optional<Rig> rig;
+  if (!rig_path.empty()) rig = LoadRig(rig_path);
+  const shadow::ShadowResult result = shadow::RunShadow(image_set, part, options, out_dir, rig ? &*rig : nullptr);
   std::printf("%sreport: %s\n", result.Summary().c_str(), out_dir.c_str());
   return 0;
 }

@@ -470,17 +470,20 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
     part.evidence["modes"] = nlohmann::json::array();
     std::vector<Eigen::Vector3d> centroids;
     std::vector<double> signs;
+    std::vector<std::pair<std::vector<Eigen::Vector3d>, std::vector<double>>> mode_means;
     bool all_detect = !modes.empty();
     for (const ModeEvidence& m : modes) {
       if (m.real_points.size() < 100 || m.virtual_points.size() < 100) {
         all_detect = false;
+        mode_means.emplace_back();
+        part.evidence["modes"].push_back({{"mode", m.mode}, {"detected", false}, {"compared_points", 0}});
         continue;
       }
       const compare::KdTree real_tree(m.real_points), virt_tree(m.virtual_points);
       const size_t step = std::max<size_t>(1, m.real_points.size() / 40000);
       std::vector<size_t> idx;
       for (size_t i = 0; i < m.real_points.size(); i += step) idx.push_back(i);
-      std::vector<double> d(idx.size());
+      std::vector<double> d(idx.size()), spread(idx.size());
       const int k = options.smoothing_neighbors;
       cv::parallel_for_(cv::Range(0, static_cast<int>(idx.size())), [&](const cv::Range& range) {
         std::vector<compare::Neighbor> nb;
@@ -491,23 +494,35 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
           for (const auto& q : nb) sr += m.real_c2m[q.index];
           sr /= static_cast<double>(nb.size());
           virt_tree.KNearest(p, k, &nb);
-          double sv = 0;
-          for (const auto& q : nb) sv += m.virtual_c2m[q.index];
+          double sv = 0, svv = 0;
+          for (const auto& q : nb) sv += m.virtual_c2m[q.index], svv += m.virtual_c2m[q.index] * m.virtual_c2m[q.index];
           sv /= static_cast<double>(nb.size());
           d[static_cast<size_t>(i)] = sr - sv;
+          // The twin's own local scatter: large at edges and mixed pixels, where the real scan
+          // scatters too; such places say nothing about the part.
+          spread[static_cast<size_t>(i)] = std::sqrt(std::max(0.0, svv / static_cast<double>(nb.size()) - sv * sv));
         }
       });
+      const double spread_limit = 3 * Median(spread);
       const double med = Median(d), sigma = Mad(d, med);
-      const double thr = std::max(5 * sigma, options.part_min_mm);
+      const double thr = std::max(4 * sigma, options.part_min_mm);
+      {
+        std::vector<Eigen::Vector3d> pts;
+        std::vector<double> vals;
+        for (size_t i = 0; i < idx.size(); ++i) {
+          if (spread[i] <= spread_limit) pts.push_back(m.real_points[idx[i]]), vals.push_back(d[i] - med);
+        }
+        mode_means.emplace_back(std::move(pts), std::move(vals));
+      }
       std::vector<Eigen::Vector3d> sig;
       std::vector<double> sig_d;
       for (size_t i = 0; i < idx.size(); ++i) {
-        if (std::abs(d[i] - med) > thr) {
+        if (std::abs(d[i] - med) > thr && spread[i] <= spread_limit) {
           sig.push_back(m.real_points[idx[i]]);
           sig_d.push_back(d[i] - med);
         }
       }
-      // Spatial coherence: significant points whose nearest significant neighbours are close.
+      // The largest connected cluster of significant points (linked within 4 point spacings).
       size_t coherent = 0;
       Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
       double peak = 0, mean_dev = 0;
@@ -522,14 +537,35 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
           }
           return Median(s) * static_cast<double>(step);
         }();
+        std::vector<int> label(sig.size(), -1);
+        std::vector<size_t> size_of;
         for (size_t i = 0; i < sig.size(); ++i) {
-          sig_tree.KNearest(sig[i], 5, &nb);
-          if (nb.size() == 5 && std::sqrt(nb[4].distance_sq) < 4 * spacing) {
-            ++coherent;
-            centroid += sig[i];
-            peak = std::max(peak, std::abs(sig_d[i]));
-            mean_dev += sig_d[i];
+          if (label[i] >= 0) continue;
+          const int id = static_cast<int>(size_of.size());
+          size_of.push_back(0);
+          std::vector<size_t> stack = {i};
+          label[i] = id;
+          while (!stack.empty()) {
+            const size_t j = stack.back();
+            stack.pop_back();
+            ++size_of.back();
+            sig_tree.Radius(sig[j], 4 * spacing, &nb);
+            for (const auto& q : nb) {
+              // Same sign only: a bump and a dent next to each other are two findings.
+              if (label[q.index] < 0 && sig_d[q.index] * sig_d[j] > 0) {
+                label[q.index] = id;
+                stack.push_back(q.index);
+              }
+            }
           }
+        }
+        const int best = static_cast<int>(std::max_element(size_of.begin(), size_of.end()) - size_of.begin());
+        for (size_t i = 0; i < sig.size(); ++i) {
+          if (label[i] != best) continue;
+          ++coherent;
+          centroid += sig[i];
+          peak = std::max(peak, std::abs(sig_d[i]));
+          mean_dev += sig_d[i];
         }
         if (coherent) centroid /= static_cast<double>(coherent), mean_dev /= static_cast<double>(coherent);
       }
@@ -553,10 +589,31 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
         all_detect = false;
       }
     }
-    bool consistent = all_detect && !centroids.empty();
-    for (size_t i = 1; i < centroids.size() && consistent; ++i) {
-      consistent = (centroids[i] - centroids[0]).norm() < 15.0 && signs[i] * signs[0] > 0;
+    // Consistent between modes: every other mode deviates the same way where the strongest
+    // mode found its cluster (mean of its smoothed differences within 6 mm of that centroid at
+    // least half the strongest mode's mean deviation, same sign).
+    bool consistent = false;
+    if (!centroids.empty()) {
+      size_t primary = 0;
+      for (size_t i = 1; i < centroids.size(); ++i) {
+        if (std::abs(signs[i]) > std::abs(signs[primary])) primary = i;
+      }
+      consistent = true;
+      for (size_t mi = 0; mi < mode_means.size(); ++mi) {
+        const auto& [points, values] = mode_means[mi];
+        double sum = 0;
+        int64_t n = 0;
+        for (size_t i = 0; i < points.size(); ++i) {
+          if ((points[i] - centroids[primary]).norm() < 6.0) sum += values[i], ++n;
+        }
+        const double mean = n ? sum / static_cast<double>(n) : 0.0;
+        part.evidence["modes"][mi]["mean_at_strongest_cluster_mm"] = mean;
+        if (!(n > 0 && mean * signs[primary] > 0 && std::abs(mean) >= 0.5 * std::abs(signs[primary]))) consistent = false;
+      }
+      centroids = {centroids[primary]};
+      signs = {signs[primary]};
     }
+    (void)all_detect;
     part.detected = consistent && !calibration_found;
     if (part.detected) {
       const auto& first = part.evidence["modes"][0];

@@ -20,9 +20,10 @@
 //                       below multipath_ratio x its median over >= min_blob_blocks 8 x 8 blocks).
 //   part                a deviation on the part's surface: the real cloud's C2M to the part minus
 //                       the twin cloud's (at the nearest twin point, each smoothed over k
-//                       neighbours) beyond max(5 robust sigma, part_min_mm) on a cluster of
-//                       points, in every reconstruction mode at the same place, and no
-//                       calibration or wrong-frame cause found.
+//                       neighbours) beyond max(4 robust sigma, part_min_mm) on a cluster of
+//                       points in one mode, and every other mode deviating the same way there
+//                       (mean at least half as large, same sign), and no calibration or
+//                       wrong-frame cause found.
 //
 // A scan with no cause found is "consistent with the model".
 #pragma once
@@ -45,9 +46,9 @@ struct DiagnoseOptions {
   double wrong_frame_min_corr = 0.8;    // and the best other must reach this
   double multipath_ratio = 0.65;
   int min_blob_blocks = 6;
-  double part_min_mm = 0.02;
-  double part_min_fraction = 0.002;     // of the compared points, in a cluster
-  int smoothing_neighbors = 24;
+  double part_min_mm = 0.015;
+  double part_min_fraction = 0.001;     // of the compared points, in a cluster
+  int smoothing_neighbors = 64;
   void Check() const;
 };
 

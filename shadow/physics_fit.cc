@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <functional>
 #include <numeric>
 
 #include <Eigen/Dense>
@@ -64,20 +63,6 @@ struct Sample {
   int camera = 0, y = 0, x = 0, band = 0;
   bool heldout = false;
 };
-
-double GoldenMin(const std::function<double(double)>& f, double lo, double hi, int iterations = 40) {
-  const double g = (std::sqrt(5.0) - 1) / 2;
-  double a = lo, b = hi, c = b - g * (b - a), d = a + g * (b - a);
-  double fc = f(c), fd = f(d);
-  for (int i = 0; i < iterations; ++i) {
-    if (fc < fd) {
-      b = d, d = c, fd = fc, c = b - g * (b - a), fc = f(c);
-    } else {
-      a = c, c = d, fc = fd, d = a + g * (b - a), fd = f(d);
-    }
-  }
-  return (a + b) / 2;
-}
 
 int FindFrame(const std::vector<FrameInfo>& frames, FrameRole role, int axis, int bit, int frequency, int step) {
   for (size_t i = 0; i < frames.size(); ++i) {
@@ -407,7 +392,7 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     gamma.unit = "exponent";
     gamma.off_value = 1;
     gamma.value = 1;
-    gamma.residual_unit = "RMS of mean_n r_n^(1/gamma) - 1/2";
+    gamma.residual_unit = "RMS of the mean normalised phase value - a0(gamma)";
     const int n = spec.phase_steps;
     std::vector<int> phase_frames;
     if (spec.kind != PatternKind::kGrayCode) {
@@ -421,64 +406,60 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
       gamma.observable = false;
       gamma.reason = "phase frames do not span 0..255; the response fit needs them";
     } else {
-      // Normalised phase values of well-lit pixels, at most ~60 k pixels.
+      // Per well-lit pixel the mean of its normalised phase values, which is a0(gamma), the mean
+      // of (0.5 + 0.5 cos)^gamma over a period, whatever the phase, blur or frame order.
       std::vector<double> contrast;
       for (const Sample& s : samples) contrast.push_back(s.white - s.black);
       const double min_contrast = 0.3 * Median(contrast);
-      const size_t step = std::max<size_t>(1, samples.size() / 60000);
-      std::vector<std::vector<float>> r_fit, r_held;
-      std::vector<int> band_of;
-      for (size_t i = 0; i < samples.size(); i += step) {
-        const Sample& s = samples[i];
+      std::vector<double> fit_mean, held_mean;
+      std::vector<std::vector<double>> band_mean(kBands);
+      for (const Sample& s : samples) {
         if (s.white - s.black < min_contrast) continue;
-        std::vector<float> r(static_cast<size_t>(n));
+        double m = 0;
         for (int k = 0; k < n; ++k) {
           const float p = Pixel(cameras[static_cast<size_t>(s.camera)].real[static_cast<size_t>(phase_frames[static_cast<size_t>(k)])], s.y, s.x);
-          r[static_cast<size_t>(k)] = std::clamp((p - s.black) / (s.white - s.black), 1e-4f, 1.0f);
+          m += (p - s.black) / (s.white - s.black) / n;
         }
         if (s.heldout) {
-          r_held.push_back(std::move(r));
+          held_mean.push_back(m);
         } else {
-          r_fit.push_back(std::move(r));
-          band_of.push_back(s.band);
+          fit_mean.push_back(m);
+          band_mean[static_cast<size_t>(s.band)].push_back(m);
         }
       }
-      const auto cost = [&](const std::vector<std::vector<float>>& rs, double g, int only_band) {
+      const auto a0 = [](double g) {
         double sum = 0;
-        int64_t count = 0;
-        const float inv = static_cast<float>(1.0 / g);
-        for (size_t i = 0; i < rs.size(); ++i) {
-          if (only_band >= 0 && band_of[i] != only_band) continue;
-          float m = 0;
-          for (float r : rs[i]) m += std::pow(r, inv);
-          const double c = m / static_cast<float>(rs[i].size()) - 0.5;
-          sum += c * c;
-          ++count;
+        const int steps = 360;
+        for (int i = 0; i < steps; ++i) sum += std::pow(0.5 + 0.5 * std::cos(2 * M_PI * (i + 0.5) / steps), g);
+        return sum / steps;
+      };
+      const auto invert = [&](double mean) {  // a0 decreases with gamma
+        double lo = 0.2, hi = 5;
+        for (int i = 0; i < 50; ++i) {
+          const double mid = std::sqrt(lo * hi);
+          (a0(mid) > mean ? lo : hi) = mid;
         }
-        return count ? sum / static_cast<double>(count) : 0.0;
+        return std::sqrt(lo * hi);
       };
-      const auto fit_gamma = [&](int only_band) {
-        return std::exp(GoldenMin([&](double lg) { return cost(r_fit, std::exp(lg), only_band); }, std::log(0.25), std::log(4.0)));
-      };
-      if (r_fit.size() < 100) {
+      if (fit_mean.size() < 100) {
         gamma.observable = false;
         gamma.reason = "too few well-lit pixels for the response fit";
       } else {
-        gamma.value = fit_gamma(-1);
+        gamma.value = invert(Median(fit_mean));
         std::vector<double> bv;
-        for (int b = 0; b < kBands; ++b) {
-          const int64_t count = std::count(band_of.begin(), band_of.end(), b);
-          bv.push_back(count > 200 ? fit_gamma(b) : std::nan(""));
-        }
+        for (auto& b : band_mean) bv.push_back(b.size() > 50 ? invert(Median(b)) : std::nan(""));
         gamma.sigma = BandSigma(bv);
-        gamma.samples = static_cast<int64_t>(r_fit.size());
-        band_of.assign(r_held.size(), 0);
-        gamma.heldout_residual_off = std::sqrt(cost(r_held, 1.0, -1));
-        gamma.heldout_residual_on = std::sqrt(cost(r_held, gamma.value, -1));
+        gamma.samples = static_cast<int64_t>(fit_mean.size());
+        gamma.residual_unit = "RMS of the mean normalised phase value - a0(gamma)";
+        std::vector<double> off, on;
+        const double on_level = a0(gamma.value);
+        for (double m : held_mean) off.push_back(m - 0.5), on.push_back(m - on_level);
+        gamma.heldout_residual_off = Rms(off);
+        gamma.heldout_residual_on = Rms(on);
         const bool significant = std::abs(gamma.value - 1) > std::max(3 * gamma.sigma, options.gamma_floor);
         const bool drops = gamma.heldout_residual_on < (1 - options.min_heldout_drop) * gamma.heldout_residual_off;
         gamma.kept = significant && drops;
-        gamma.reason = gamma.kept ? Fmt("phase frames are not sinusoidal in the linear response: held-out residual %.4f -> %.4f",
+        gamma.reason = gamma.kept ? Fmt("phase frames average %.3f of white, not 0.5: held-out residual %.4f -> %.4f", on_level,
                                         gamma.heldout_residual_off, gamma.heldout_residual_on)
                                   : Fmt("a linear response fits within noise (gamma %.3f, held-out residual %.4f vs %.4f)",
                                         gamma.value, gamma.heldout_residual_off, gamma.heldout_residual_on);
@@ -622,13 +603,15 @@ cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>
         if (spec.kind == PatternKind::kGrayCode) {
           o[x] = std::abs(Pixel(images[static_cast<size_t>(idx[0])], y, x) - Pixel(images[static_cast<size_t>(idx[1])], y, x)) / range;
         } else {
-          double s = 0, c = 0;
+          // N equally spaced samples of A + B' cos(.) have variance B'^2 / 2 whatever their
+          // order: the amplitude does not depend on frame order or phase.
+          double s = 0, ss = 0;
           for (int k = 0; k < n; ++k) {
             const double v = Pixel(images[static_cast<size_t>(idx[static_cast<size_t>(k)])], y, x);
-            s += v * std::sin(2 * M_PI * k / n);
-            c += v * std::cos(2 * M_PI * k / n);
+            s += v, ss += v * v;
           }
-          o[x] = static_cast<float>((2.0 / n) * std::sqrt(s * s + c * c) / range);
+          const double var = std::max(0.0, ss / n - (s / n) * (s / n));
+          o[x] = static_cast<float>(std::sqrt(2 * var) / range);
         }
       }
     }

@@ -10,9 +10,10 @@
 //              ratio on pixels of each square colour (exposure from the light squares).
 //   ambient    B = E * FS * ambient * albedo: ambient = median of B / (E * FS * albedo).
 //   gamma      phase codecs only (binary patterns do not see a response): the N phase frames of
-//              a period normalised r_n = (I_n - B) / (W - B) satisfy sum_n r_n^(1/gamma) = N / 2
-//              for I = (0.5 + 0.5 cos)^gamma; gamma minimises that constraint's squared residual
-//              (golden section on [0.25, 4]). No projector coordinate is needed.
+//              a period, normalised r_n = (I_n - B) / (W - B), average a0(gamma) = the mean of
+//              (0.5 + 0.5 cos t)^gamma over a period (0.5 for a linear response), whatever the
+//              phase, the blur (it keeps the mean) or the frame order; gamma inverts the median
+//              of that average. No projector coordinate is needed, and noise enters linearly.
 //   defocus    fringe contrast: the median ratio rho of the real fringe modulation to the focused
 //              twin's (phase codecs: B' of the first period on x; Gray code: |P - I| of the
 //              finest x bit) gives a Gaussian projector blur sigma = P / (pi sqrt 2) sqrt(-ln rho)
@@ -106,7 +107,8 @@ void FitDefocus(const PatternSpec& spec, const std::vector<CameraData>& cameras,
 void WhiteBlackImages(const PatternSpec& spec, const std::vector<cv::Mat>& images, cv::Mat* white, cv::Mat* black);
 
 // Fringe modulation per pixel of one camera's images (CV_32FC1, NaN where not computable),
-// normalised by white - black: phase codecs: B' / (W - B) of the first period on x; Gray code:
+// normalised by white - black: phase codecs: B' / (W - B) of the first period on x, with
+// B' = sqrt(2 var(I_n)) (independent of the frames' order); Gray code:
 // |P - I| / (W - B) of the finest x bit. Used by FitDefocus and the multipath signature.
 cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>& images);
 // The fringe period the modulation above refers to, projector px.

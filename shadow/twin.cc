@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <mutex>
 
+#include <Eigen/Dense>
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgcodecs.hpp>
 
@@ -115,6 +116,50 @@ Reconstructions DecodeAndReconstruct(const Rig& rig, const PatternSpec& spec, co
     out.modes.emplace_back("stereo", ReconstructStereo(rig, cameras[0], cameras[1], out.maps[0], out.maps[1], options.reconstruct));
   }
   return out;
+}
+
+// Point-to-surface Gauss-Newton on the exact signed distance to the part's triangles, from
+// `part_from_rig`: r_i + n_i . (dt + dw x q_i) -> 0 over the cloud points q_i = part_from_rig p_i
+// (n_i the closest triangle's normal), points beyond 3 robust sigmas (at least 0.05 mm) left
+// out, so a local defect on the part does not pull the pose. Polishes ICP's pose (which stops at
+// its sampled correspondences) to the noise of the whole cloud.
+Rigid3d PolishPose(const TriangleMesh& part_surface, const std::vector<Eigen::Vector3d>& cloud, Rigid3d part_from_rig) {
+  const compare::MeshDistance mesh(part_surface);
+  const size_t step = std::max<size_t>(1, cloud.size() / 60000);
+  for (int iter = 0; iter < 6; ++iter) {
+    std::vector<Eigen::Vector3d> q, n;
+    std::vector<double> r;
+    for (size_t i = 0; i < cloud.size(); i += step) {
+      const Eigen::Vector3d p = part_from_rig * cloud[i];
+      const compare::MeshHit hit = mesh.Closest(p);
+      if (std::abs(hit.signed_distance_mm) > 1.0) continue;
+      q.push_back(p);
+      n.push_back(part_surface.FaceNormal(hit.triangle));
+      r.push_back(hit.signed_distance_mm);
+    }
+    if (r.size() < 100) break;
+    std::vector<double> a(r.size());
+    for (size_t i = 0; i < r.size(); ++i) a[i] = std::abs(r[i]);
+    std::nth_element(a.begin(), a.begin() + static_cast<std::ptrdiff_t>(a.size() / 2), a.end());
+    const double gate = std::max(3 * 1.4826 * a[a.size() / 2], 0.05);
+    Eigen::Matrix<double, 6, 6> jtj = Eigen::Matrix<double, 6, 6>::Zero();
+    Eigen::Matrix<double, 6, 1> jtr = Eigen::Matrix<double, 6, 1>::Zero();
+    for (size_t i = 0; i < r.size(); ++i) {
+      if (std::abs(r[i]) > gate) continue;
+      Eigen::Matrix<double, 6, 1> j;
+      j.head<3>() = n[i];
+      j.tail<3>() = q[i].cross(n[i]);
+      jtj += j * j.transpose();
+      jtr += j * r[i];
+    }
+    const Eigen::Matrix<double, 6, 1> delta = -jtj.ldlt().solve(jtr);
+    const Eigen::Vector3d w = delta.tail<3>();
+    const Eigen::Quaterniond dq = w.norm() > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(w.norm(), w / w.norm()))
+                                              : Eigen::Quaterniond::Identity();
+    part_from_rig = Rigid3d(dq, delta.head<3>()) * part_from_rig;
+    if (delta.head<3>().norm() < 1e-5 && w.norm() < 1e-8) break;
+  }
+  return part_from_rig;
 }
 
 }  // namespace
@@ -278,7 +323,7 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
   meter = StageMeter("pose");
   const compare::Reference reference = compare::ReferenceFromMesh(part.surface, part.source, 100000);
   const PointCloud& reg_cloud = real_rec.modes.back().second.cloud;  // stereo when there is one
-  SLSHADOW_THROW_IF(reg_cloud.size() < 100, "shadow: the real scan reconstructed only ", reg_cloud.size(),
+  SLSHADOW_THROW_IF(reg_cloud.size() < 100 && !(options.rig_from_part && !options.refine_pose), "shadow: the real scan reconstructed only ", reg_cloud.size(),
                     " points; cannot place the part");
   PoseSource pose_source;
   compare::RegistrationResult reg;
@@ -303,21 +348,21 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
     normals.reserve(reference.cloud.size());
     for (const auto& n : reference.cloud.normals) normals.push_back(n.cast<double>());
     reg = compare::Register(cloud, reference.cloud.points, normals, ro);
-    rig_from_part = (reg.reference_from_cloud * part_from_rig_guess).Inverse();
+    rig_from_part = PolishPose(part.surface, reg_cloud.points, reg.reference_from_cloud * part_from_rig_guess).Inverse();
   }
   // Fitness and RMSE of the final pose, measured the same way for every source: share of the
   // registration cloud within 1 mm of the part, RMS of those distances.
   TriangleMesh surface_in_rig = part.surface;
   surface_in_rig.Transform(rig_from_part.rotation.toRotationMatrix(), rig_from_part.translation);
-  const compare::MeshDistance part_distance(surface_in_rig);
   {
-    const std::vector<double> d = SignedC2M(part_distance, reg_cloud.points);
+    const compare::MeshDistance registered(surface_in_rig);
+    const std::vector<double> d = SignedC2M(registered, reg_cloud.points);
     int64_t in = 0;
     double ss = 0;
     for (double x : d) {
       if (std::abs(x) < 1.0) ++in, ss += x * x;
     }
-    const double fitness = static_cast<double>(in) / static_cast<double>(d.size());
+    const double fitness = d.empty() ? 0.0 : static_cast<double>(in) / static_cast<double>(d.size());
     const double rmse = in ? std::sqrt(ss / static_cast<double>(in)) : std::nan("");
     report["pose"] = {{"source", ToString(pose_source)},
                       {"rig_from_part", PoseToJson(rig_from_part)},
@@ -338,12 +383,26 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
       report["pose"]["moved_from_given_mm"] = (rig_from_part.translation - options.rig_from_part->translation).norm();
       report["pose"]["rotated_from_given_deg"] = compare::RotationDifferenceDeg(rig_from_part, *options.rig_from_part);
     }
-    report["pose"]["credible"] = fitness >= options.min_fitness && rmse <= options.max_rmse_mm;
-    SLSHADOW_THROW_IF(!(fitness >= options.min_fitness && rmse <= options.max_rmse_mm), "shadow: the part's pose is not credible (",
-                      ToString(pose_source), "): fitness ", fitness, " (need >= ", options.min_fitness, "), inlier RMSE ", rmse,
-                      " mm (need <= ", options.max_rmse_mm, "); give a pose guess with --pose, or check the part file");
+    const bool credible = fitness >= options.min_fitness && rmse <= options.max_rmse_mm;
+    report["pose"]["credible"] = credible;
+    // Not credible: stop, unless a pose was given; then the job goes on from the given pose
+    // (a scan corrupted e.g. by a wrong frame still deserves its diagnosis), and says so.
+    SLSHADOW_THROW_IF(!credible && !options.rig_from_part, "shadow: the part's pose is not credible (", ToString(pose_source),
+                      "): fitness ", fitness, " (need >= ", options.min_fitness, "), inlier RMSE ", rmse, " mm (need <= ",
+                      options.max_rmse_mm, "); give a pose guess with --pose, or check the part file");
+    if (!credible) {
+      rig_from_part = *options.rig_from_part;
+      surface_in_rig = part.surface;
+      surface_in_rig.Transform(rig_from_part.rotation.toRotationMatrix(), rig_from_part.translation);
+      report["pose"]["used"] = "given";
+      report["pose"]["rig_from_part"] = PoseToJson(rig_from_part);
+      report["pose"]["warning"] = "registration not credible (the real cloud is far from the part); the given pose is used as it is";
+    } else {
+      report["pose"]["used"] = ToString(pose_source);
+    }
     result.rig_from_part = rig_from_part;
   }
+  const compare::MeshDistance part_distance(surface_in_rig);
   result.stages.push_back(meter.Stop());
 
   // 3. The twin: the part at its pose; geometry once (focused), then the physics fit.
@@ -681,7 +740,8 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
   return result;
 }
 
-ShadowResult RunShadow(const fs::path& image_set_dir, const ShadowPart& part, const ShadowOptions& options, const fs::path& out_dir) {
+ShadowResult RunShadow(const fs::path& image_set_dir, const ShadowPart& part, const ShadowOptions& options, const fs::path& out_dir,
+                       const Rig* rig) {
   StageMeter meter("read ImageSet");
   const ImageSet set = ImageSet::Open(image_set_dir);
   const PatternSpec spec = PatternSpecFromConfig(
@@ -689,7 +749,7 @@ ShadowResult RunShadow(const fs::path& image_set_dir, const ShadowPart& part, co
   std::map<std::string, std::vector<cv::Mat>> images;
   for (const auto& name : set.CameraNames()) images[name] = set.LoadCamera(name);
   const StageMeasurement read = meter.Stop();
-  ShadowResult r = RunShadowOnImages(set.rig(), spec, images, part, options, out_dir, image_set_dir.string());
+  ShadowResult r = RunShadowOnImages(rig ? *rig : set.rig(), spec, images, part, options, out_dir, image_set_dir.string());
   r.stages.insert(r.stages.begin(), read);
   return r;
 }

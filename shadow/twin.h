@@ -92,8 +92,9 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
                                const ShadowPart& part, const ShadowOptions& options,
                                const std::filesystem::path& out_dir = {}, const std::string& source = "in memory");
 
-// Reads the ImageSet folder (rig and pattern spec from its manifest) and runs the job.
+// Reads the ImageSet folder (pattern spec from its manifest; the rig too unless `rig` is given,
+// e.g. a calibration made after the capture) and runs the job.
 ShadowResult RunShadow(const std::filesystem::path& image_set_dir, const ShadowPart& part, const ShadowOptions& options,
-                       const std::filesystem::path& out_dir);
+                       const std::filesystem::path& out_dir, const Rig* rig = nullptr);
 
 }  // namespace slshadow::shadow
