@@ -3,6 +3,7 @@
 // plane with its printed chessboard as albedo) at the pose the calibration estimated for that
 // capture, and measure real vs virtual per pose.
 #include <cstdio>
+#include <cstdlib>
 #include <fstream>
 
 #include <gtest/gtest.h>
@@ -113,7 +114,10 @@ TEST(ShadowKamino, RealVsVirtualPerPose) {
     options.refine_pose = false;  // a plane leaves registration blind in-plane: the calibration's pose
     options.decode.shadow_threshold = 40;
     options.decode.contrast_threshold = 5;
-    const auto out = tmp / ("shadow_" + std::to_string(p));
+    options.overwrite = true;
+    // SLSHADOW_KEEP_KAMINO_SHADOW=DIR keeps the report folders (maps, clouds) for a look.
+    const char* keep = std::getenv("SLSHADOW_KEEP_KAMINO_SHADOW");
+    const auto out = (keep ? std::filesystem::path(keep) : tmp.path()) / ("shadow_" + std::to_string(p));
     const shadow::ShadowResult r = shadow::RunShadow(tmp / ("capture_" + std::to_string(p)), KaminoBoard(flipped), options, out, &rig);
     std::printf("%s\n", r.Summary().c_str());
     const auto& cam = r.report["images"]["cameras"][0];
