@@ -33,5 +33,6 @@ int RunBenchCommand(int argc, char** argv);
 int RunLatency(int argc, char** argv);
 int RunCapture(int argc, char** argv);
 int RunDevices(int argc, char** argv);
+int RunShadowCommand(int argc, char** argv);
 
 }  // namespace slshadow::app

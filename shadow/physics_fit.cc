@@ -1,0 +1,692 @@
+#include "shadow/physics_fit.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <numeric>
+
+#include <Eigen/Dense>
+#include <opencv2/core/utility.hpp>
+
+#include "core/error.h"
+
+namespace slshadow::shadow {
+namespace {
+
+constexpr int kBands = 8;
+
+float Pixel(const cv::Mat& m, int y, int x) {
+  return m.depth() == CV_8U ? static_cast<float>(m.at<uint8_t>(y, x)) : static_cast<float>(m.at<uint16_t>(y, x));
+}
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return std::nan("");
+  const size_t mid = v.size() / 2;
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(mid), v.end());
+  return v[mid];
+}
+
+// Variance of the values within 4 robust sigmas of the median (the MAD alone is biased for
+// integer-valued data: its median snaps to the grid).
+double RobustVariance(const std::vector<double>& v) {
+  if (v.size() < 8) return std::nan("");
+  const double med = Median(v);
+  std::vector<double> dev;
+  dev.reserve(v.size());
+  for (double x : v) dev.push_back(std::abs(x - med));
+  const double gate = 4 * std::max(1.4826 * Median(std::move(dev)), 1.0);
+  double sum = 0, ss = 0;
+  int64_t n = 0;
+  for (double x : v) {
+    if (std::abs(x - med) > gate) continue;
+    sum += x, ss += x * x, ++n;
+  }
+  const double mean = sum / static_cast<double>(n);
+  return ss / static_cast<double>(n) - mean * mean;
+}
+
+// Standard deviation of the finite band values / sqrt(count).
+double BandSigma(const std::vector<double>& values) {
+  std::vector<double> v;
+  for (double x : values) {
+    if (std::isfinite(x)) v.push_back(x);
+  }
+  if (v.size() < 2) return std::nan("");
+  const double mean = std::accumulate(v.begin(), v.end(), 0.0) / static_cast<double>(v.size());
+  double ss = 0;
+  for (double x : v) ss += (x - mean) * (x - mean);
+  return std::sqrt(ss / static_cast<double>(v.size() - 1)) / std::sqrt(static_cast<double>(v.size()));
+}
+
+struct Sample {
+  float white = 0, black = 0, factor = 0, albedo = 0;
+  int camera = 0, y = 0, x = 0, band = 0;
+  bool heldout = false;
+};
+
+int FindFrame(const std::vector<FrameInfo>& frames, FrameRole role, int axis, int bit, int frequency, int step) {
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const FrameInfo& f = frames[i];
+    if (f.role != role) continue;
+    if (role == FrameRole::kWhite || role == FrameRole::kBlack) return static_cast<int>(i);
+    if (f.axis != axis) continue;
+    if ((role == FrameRole::kGrayBit || role == FrameRole::kGrayBitInverse) && f.bit == bit) return static_cast<int>(i);
+    if (role == FrameRole::kPhase && f.frequency == frequency && f.step == step) return static_cast<int>(i);
+  }
+  return -1;
+}
+
+std::string Fmt(const char* format, double a, double b = 0, double c = 0, double d = 0) {
+  char buf[256];
+  std::snprintf(buf, sizeof(buf), format, a, b, c, d);
+  return buf;
+}
+
+double Rms(const std::vector<double>& v) {
+  if (v.empty()) return std::nan("");
+  double s = 0;
+  for (double x : v) s += x * x;
+  return std::sqrt(s / static_cast<double>(v.size()));
+}
+
+std::vector<std::pair<int, int>> InversePairs(const std::vector<FrameInfo>& frames) {
+  std::vector<std::pair<int, int>> pairs;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    if (frames[i].role != FrameRole::kGrayBit) continue;
+    const int inv = FindFrame(frames, FrameRole::kGrayBitInverse, frames[i].axis, frames[i].bit, 0, 0);
+    if (inv >= 0) pairs.emplace_back(static_cast<int>(i), inv);
+  }
+  return pairs;
+}
+
+}  // namespace
+
+void WhiteBlackImages(const PatternSpec& spec, const std::vector<cv::Mat>& images, cv::Mat* white, cv::Mat* black) {
+  const int w = spec.WhiteFrameIndex(), b = spec.BlackFrameIndex();
+  if (w >= 0 && b >= 0) {
+    images.at(static_cast<size_t>(w)).convertTo(*white, CV_32F);
+    images.at(static_cast<size_t>(b)).convertTo(*black, CV_32F);
+    return;
+  }
+  const auto pairs = InversePairs(spec.Frames());
+  SLSHADOW_THROW_IF(pairs.empty(), "white / black levels: the sequence has neither white and black frames nor inverse pairs");
+  const cv::Mat& first = images.at(0);
+  white->create(first.size(), CV_32FC1);
+  black->create(first.size(), CV_32FC1);
+  cv::parallel_for_(cv::Range(0, first.rows), [&](const cv::Range& rows) {
+    std::vector<float> hi(pairs.size()), lo(pairs.size());
+    for (int y = rows.start; y < rows.end; ++y) {
+      for (int x = 0; x < first.cols; ++x) {
+        for (size_t k = 0; k < pairs.size(); ++k) {
+          const float p = Pixel(images[static_cast<size_t>(pairs[k].first)], y, x);
+          const float q = Pixel(images[static_cast<size_t>(pairs[k].second)], y, x);
+          hi[k] = std::max(p, q);
+          lo[k] = std::min(p, q);
+        }
+        const auto mid = static_cast<std::ptrdiff_t>(pairs.size() / 2);
+        std::nth_element(hi.begin(), hi.begin() + mid, hi.end());
+        std::nth_element(lo.begin(), lo.begin() + mid, lo.end());
+        white->at<float>(y, x) = hi[static_cast<size_t>(mid)];
+        black->at<float>(y, x) = lo[static_cast<size_t>(mid)];
+      }
+    }
+  });
+}
+
+nlohmann::json PhysicsLayer::ToJson() const {
+  nlohmann::json j = {{"name", name},
+                      {"observable", observable},
+                      {"kept", kept},
+                      {"value", value},
+                      {"sigma", sigma},
+                      {"off_value", off_value},
+                      {"unit", unit},
+                      {"heldout_residual_off", heldout_residual_off},
+                      {"heldout_residual_on", heldout_residual_on},
+                      {"residual_unit", residual_unit},
+                      {"samples", samples},
+                      {"reason", reason}};
+  if (!extra.empty()) j["extra"] = extra;
+  return j;
+}
+
+void PhysicsFitOptions::Check() const {
+  SLSHADOW_THROW_IF(stride_px < 1, "physics fit: stride_px must be >= 1 (got ", stride_px, ")");
+  SLSHADOW_THROW_IF(!(min_factor >= 0), "physics fit: min_factor must be >= 0 (got ", min_factor, ")");
+  SLSHADOW_THROW_IF(!(min_heldout_drop >= 0 && min_heldout_drop < 1),
+                    "physics fit: min_heldout_drop must be in [0, 1) (got ", min_heldout_drop, ")");
+}
+
+const PhysicsLayer* PhysicsFit::Find(const std::string& name) const {
+  for (const auto& l : layers) {
+    if (l.name == name) return &l;
+  }
+  return nullptr;
+}
+
+bool PhysicsFit::Kept(const std::string& name) const {
+  const PhysicsLayer* l = Find(name);
+  return l && l->kept;
+}
+
+nlohmann::json PhysicsFit::ToJson() const {
+  nlohmann::json j = nlohmann::json::array();
+  for (const auto& l : layers) j.push_back(l.ToJson());
+  return j;
+}
+
+std::string PhysicsFit::Table() const {
+  std::string out;
+  for (const auto& l : layers) {
+    char buf[512];
+    std::snprintf(buf, sizeof(buf), "  %-13s %-5s %12.5g +- %-10.3g %-10s %s\n", l.name.c_str(),
+                  !l.observable ? "n/a" : (l.kept ? "kept" : "off"), l.value, l.sigma, l.unit.c_str(), l.reason.c_str());
+    out += buf;
+  }
+  return out;
+}
+
+Scene PhysicsFit::Apply(const Scene& twin, const Rig& rig, double projector_depth_mm, uint64_t noise_seed) const {
+  Scene scene = twin;
+  if (const PhysicsLayer* e = Find("exposure")) scene.radiometry.exposure = e->value;
+  if (const PhysicsLayer* d = Find("albedo_dark"); d && d->kept) {
+    for (auto& o : scene.objects) {
+      if (o.albedo.kind == Albedo::Kind::kCheckerboard) o.albedo.dark = d->value;
+    }
+  }
+  if (Kept("ambient")) scene.layers.ambient = Find("ambient")->value;
+  if (Kept("gamma")) {
+    scene.layers.response_enabled = true;
+    scene.layers.gamma = Find("gamma")->value;
+  }
+  if (Kept("defocus") && rig.projector) {
+    const double sigma_px = Find("defocus")->value;
+    auto& d = scene.layers.projector_defocus;
+    d.enabled = true;
+    d.focus_distance_mm = 1e7;  // focused far away: blur ~ 1 / depth, flat over a part's depth
+    const double f_mm = rig.projector->model.fx() * d.pixel_pitch_um * 1e-3;
+    // c = f^2 (D - d) / (N d (D - f)) mm on the sensor, sigma = c / (4 pitch): solve for N.
+    const double c_mm = 4 * sigma_px * d.pixel_pitch_um * 1e-3;
+    d.f_number = f_mm * f_mm * (d.focus_distance_mm - projector_depth_mm) /
+                 (c_mm * projector_depth_mm * (d.focus_distance_mm - f_mm));
+  }
+  if (const PhysicsLayer* n = Find("noise"); n && n->kept) {
+    scene.layers.noise_enabled = true;
+    scene.layers.full_well_e = n->value;
+    scene.layers.read_noise_e = n->extra.value("read_noise_e", 0.0);
+    scene.layers.seed = noise_seed;
+  }
+  return scene;
+}
+
+PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vector<CameraData>& cameras,
+                      const PhysicsFitOptions& options) {
+  options.Check();
+  SLSHADOW_THROW_IF(cameras.empty(), "physics fit: no camera");
+  std::vector<cv::Mat> whites(cameras.size()), blacks(cameras.size());
+  for (size_t c = 0; c < cameras.size(); ++c) WhiteBlackImages(spec, cameras[c].real, &whites[c], &blacks[c]);
+  const bool has_white_black = spec.WhiteFrameIndex() >= 0 && spec.BlackFrameIndex() >= 0;
+  const double fs = cameras[0].real.at(0).depth() == CV_8U ? 255.0 : 65535.0;
+  const std::vector<FrameInfo> frames = spec.Frames();
+  const double range = (spec.intensity_max - spec.intensity_min) / 255.0;  // R(max) - R(min), linear
+
+  // Checkerboard part: its dark / light reflectances.
+  const Albedo* board = nullptr;
+  for (const auto& o : twin.objects) {
+    if (o.albedo.kind == Albedo::Kind::kCheckerboard) board = &o.albedo;
+  }
+
+  std::vector<Sample> samples;
+  for (size_t c = 0; c < cameras.size(); ++c) {
+    const CameraData& cam = cameras[c];
+    const GeometryBuffer& g = *cam.geometry;
+    const int n2 = g.samples_per_axis * g.samples_per_axis;
+    for (int y = 0; y < g.height; y += options.stride_px) {
+      for (int x = 0; x < g.width; x += options.stride_px) {
+        if (g.visibility.at<uint8_t>(y, x) != 2 || g.object_id.at<int32_t>(y, x) < 0) continue;
+        Sample s;
+        const size_t base = (static_cast<size_t>(y) * static_cast<size_t>(g.width) + static_cast<size_t>(x)) *
+                            static_cast<size_t>(n2);
+        for (int k = 0; k < n2; ++k) {
+          s.factor += g.factor[base + static_cast<size_t>(k)] / static_cast<float>(n2);
+          s.albedo += g.albedo[base + static_cast<size_t>(k)] / static_cast<float>(n2);
+        }
+        if (s.factor < options.min_factor) continue;
+        s.white = whites[c].at<float>(y, x);
+        s.black = blacks[c].at<float>(y, x);
+        if (s.white >= 0.98 * fs) continue;  // saturated
+        s.camera = static_cast<int>(c);
+        s.y = y;
+        s.x = x;
+        s.band = std::min(kBands - 1, y * kBands / g.height);
+        s.heldout = (y / options.stride_px) % 2 == 1;
+        samples.push_back(s);
+      }
+    }
+  }
+  SLSHADOW_THROW_IF(samples.size() < 100, "physics fit: only ", samples.size(),
+                    " lit part pixels in the twin; is the part in front of the cameras at the estimated pose?");
+
+  PhysicsFit fit;
+  // --- exposure (and checkerboard albedo) ---
+  const auto is_light = [&](const Sample& s) { return !board || std::abs(s.albedo - board->light) < 1e-3; };
+  const auto is_dark = [&](const Sample& s) { return board && std::abs(s.albedo - board->dark) < 1e-3; };
+  const auto ratio = [&](const Sample& s) { return (s.white - s.black) / (fs * s.factor * range); };
+  std::vector<double> all;
+  std::vector<std::vector<double>> band(kBands);
+  for (const Sample& s : samples) {
+    if (s.heldout || !is_light(s)) continue;
+    all.push_back(ratio(s));
+    band[static_cast<size_t>(s.band)].push_back(ratio(s));
+  }
+  SLSHADOW_THROW_IF(all.size() < 50, "physics fit: too few lit part pixels to fit the exposure (", all.size(), ")");
+  PhysicsLayer exposure;
+  exposure.name = "exposure";
+  exposure.unit = "fraction of full scale";
+  exposure.value = Median(all);
+  std::vector<double> band_values;
+  for (auto& b : band) band_values.push_back(b.size() > 20 ? Median(b) : std::nan(""));
+  exposure.sigma = BandSigma(band_values);
+  exposure.off_value = twin.radiometry.exposure;
+  exposure.samples = static_cast<int64_t>(all.size());
+  exposure.residual_unit = "DN RMS of white - black";
+  {
+    std::vector<double> off, on;
+    for (const Sample& s : samples) {
+      if (!s.heldout || !is_light(s)) continue;
+      off.push_back(s.white - s.black - exposure.off_value * fs * s.factor * range);
+      on.push_back(s.white - s.black - exposure.value * fs * s.factor * range);
+    }
+    exposure.heldout_residual_off = Rms(off);
+    exposure.heldout_residual_on = Rms(on);
+  }
+  exposure.kept = true;
+  exposure.reason = "core radiometry: exposure x albedo from white - black over the twin's geometric factor";
+  if (board) exposure.reason += " (light squares)";
+  fit.layers.push_back(exposure);
+  const double e = exposure.value;
+
+  if (board) {
+    PhysicsLayer dark;
+    dark.name = "albedo_dark";
+    dark.unit = "reflectance";
+    dark.off_value = board->dark;
+    dark.residual_unit = "DN RMS of white - black, dark squares";
+    std::vector<double> d;
+    std::vector<std::vector<double>> db(kBands);
+    for (const Sample& s : samples) {
+      if (s.heldout || !is_dark(s)) continue;
+      const double a = board->dark * ratio(s) / e;
+      d.push_back(a);
+      db[static_cast<size_t>(s.band)].push_back(a);
+    }
+    if (d.size() < 50) {
+      dark.observable = false;
+      dark.reason = "too few dark-square pixels lit";
+    } else {
+      dark.value = Median(d);
+      std::vector<double> bv;
+      for (auto& b : db) bv.push_back(b.size() > 20 ? Median(b) : std::nan(""));
+      dark.sigma = BandSigma(bv);
+      dark.samples = static_cast<int64_t>(d.size());
+      std::vector<double> off, on;
+      for (const Sample& s : samples) {
+        if (!s.heldout || !is_dark(s)) continue;
+        const double g = s.factor / board->dark;
+        off.push_back(s.white - s.black - e * fs * g * board->dark * range);
+        on.push_back(s.white - s.black - e * fs * g * dark.value * range);
+      }
+      dark.heldout_residual_off = Rms(off);
+      dark.heldout_residual_on = Rms(on);
+      const bool significant = std::abs(dark.value - dark.off_value) > std::max(3 * dark.sigma, 0.005);
+      const bool drops = dark.heldout_residual_on < (1 - options.min_heldout_drop) * dark.heldout_residual_off;
+      dark.kept = significant && drops;
+      dark.reason = dark.kept ? Fmt("dark squares reflect %.3f of the light ones' exposure, not %.3f: held-out residual %.2f -> %.2f DN",
+                                    dark.value / board->light, board->dark / board->light, dark.heldout_residual_off,
+                                    dark.heldout_residual_on)
+                              : "the part's dark reflectance already fits within noise";
+    }
+    fit.layers.push_back(dark);
+  }
+
+  // --- ambient ---
+  {
+    PhysicsLayer amb;
+    amb.name = "ambient";
+    amb.unit = "fraction of projector white";
+    amb.residual_unit = "DN RMS of the black frame";
+    std::vector<double> v;
+    std::vector<std::vector<double>> vb(kBands);
+    for (const Sample& s : samples) {
+      if (s.heldout || s.albedo < 0.02f) continue;
+      const double a = s.black / (e * fs * s.albedo);
+      v.push_back(a);
+      vb[static_cast<size_t>(s.band)].push_back(a);
+    }
+    amb.value = Median(v);
+    std::vector<double> bv;
+    for (auto& b : vb) bv.push_back(b.size() > 20 ? Median(b) : std::nan(""));
+    amb.sigma = BandSigma(bv);
+    amb.samples = static_cast<int64_t>(v.size());
+    std::vector<double> off, on;
+    for (const Sample& s : samples) {
+      if (!s.heldout) continue;
+      off.push_back(s.black);
+      on.push_back(s.black - e * fs * amb.value * s.albedo);
+    }
+    amb.heldout_residual_off = Rms(off);
+    amb.heldout_residual_on = Rms(on);
+    const bool significant = amb.value > std::max(3 * amb.sigma, 0.002);
+    const bool drops = amb.heldout_residual_on < (1 - options.min_heldout_drop) * amb.heldout_residual_off;
+    amb.kept = significant && drops;
+    amb.reason = amb.kept ? Fmt("the black frame is lit: %.2f DN mean; held-out residual %.2f -> %.2f DN",
+                                 amb.heldout_residual_off, amb.heldout_residual_off, amb.heldout_residual_on)
+                          : Fmt("the black frame is dark within noise (held-out RMS %.2f DN)", amb.heldout_residual_off);
+    fit.layers.push_back(amb);
+  }
+
+  // --- projector response (gamma), phase codecs only ---
+  {
+    PhysicsLayer gamma;
+    gamma.name = "gamma";
+    gamma.unit = "exponent";
+    gamma.off_value = 1;
+    gamma.value = 1;
+    gamma.residual_unit = "RMS of the mean normalised phase value - a0(gamma)";
+    const int n = spec.phase_steps;
+    std::vector<int> phase_frames;
+    if (spec.kind != PatternKind::kGrayCode) {
+      for (int k = 0; k < n; ++k) phase_frames.push_back(FindFrame(frames, FrameRole::kPhase, spec.code_x ? 0 : 1, 0, 0, k));
+    }
+    if (spec.kind == PatternKind::kGrayCode) {
+      gamma.observable = false;
+      gamma.reason = "binary patterns (0 / 255 only) do not see the projector's response";
+    } else if (spec.intensity_min != 0 || spec.intensity_max != 255 ||
+               std::find(phase_frames.begin(), phase_frames.end(), -1) != phase_frames.end()) {
+      gamma.observable = false;
+      gamma.reason = "phase frames do not span 0..255; the response fit needs them";
+    } else {
+      // Per well-lit pixel the mean of its normalised phase values, which is a0(gamma), the mean
+      // of (0.5 + 0.5 cos)^gamma over a period, whatever the phase, blur or frame order.
+      std::vector<double> contrast;
+      for (const Sample& s : samples) contrast.push_back(s.white - s.black);
+      const double min_contrast = 0.3 * Median(contrast);
+      std::vector<double> fit_mean, held_mean;
+      std::vector<std::vector<double>> band_mean(kBands);
+      for (const Sample& s : samples) {
+        if (s.white - s.black < min_contrast) continue;
+        double m = 0;
+        for (int k = 0; k < n; ++k) {
+          const float p = Pixel(cameras[static_cast<size_t>(s.camera)].real[static_cast<size_t>(phase_frames[static_cast<size_t>(k)])], s.y, s.x);
+          m += (p - s.black) / (s.white - s.black) / n;
+        }
+        if (s.heldout) {
+          held_mean.push_back(m);
+        } else {
+          fit_mean.push_back(m);
+          band_mean[static_cast<size_t>(s.band)].push_back(m);
+        }
+      }
+      const auto a0 = [](double g) {
+        double sum = 0;
+        const int steps = 360;
+        for (int i = 0; i < steps; ++i) sum += std::pow(0.5 + 0.5 * std::cos(2 * M_PI * (i + 0.5) / steps), g);
+        return sum / steps;
+      };
+      const auto invert = [&](double mean) {  // a0 decreases with gamma
+        double lo = 0.2, hi = 5;
+        for (int i = 0; i < 50; ++i) {
+          const double mid = std::sqrt(lo * hi);
+          (a0(mid) > mean ? lo : hi) = mid;
+        }
+        return std::sqrt(lo * hi);
+      };
+      if (fit_mean.size() < 100) {
+        gamma.observable = false;
+        gamma.reason = "too few well-lit pixels for the response fit";
+      } else {
+        gamma.value = invert(Median(fit_mean));
+        std::vector<double> bv;
+        for (auto& b : band_mean) bv.push_back(b.size() > 50 ? invert(Median(b)) : std::nan(""));
+        gamma.sigma = BandSigma(bv);
+        gamma.samples = static_cast<int64_t>(fit_mean.size());
+        gamma.residual_unit = "RMS of the mean normalised phase value - a0(gamma)";
+        std::vector<double> off, on;
+        const double on_level = a0(gamma.value);
+        for (double m : held_mean) off.push_back(m - 0.5), on.push_back(m - on_level);
+        gamma.heldout_residual_off = Rms(off);
+        gamma.heldout_residual_on = Rms(on);
+        const bool significant = std::abs(gamma.value - 1) > std::max(3 * gamma.sigma, options.gamma_floor);
+        const bool drops = gamma.heldout_residual_on < (1 - options.min_heldout_drop) * gamma.heldout_residual_off;
+        gamma.kept = significant && drops;
+        gamma.reason = gamma.kept ? Fmt("phase frames average %.3f of white, not 0.5: held-out residual %.4f -> %.4f", on_level,
+                                        gamma.heldout_residual_off, gamma.heldout_residual_on)
+                                  : Fmt("a linear response fits within noise (gamma %.3f, held-out residual %.4f vs %.4f)",
+                                        gamma.value, gamma.heldout_residual_off, gamma.heldout_residual_on);
+      }
+    }
+    fit.layers.push_back(gamma);
+  }
+
+  // --- sensor noise from inverse pairs ---
+  {
+    PhysicsLayer noise;
+    noise.name = "noise";
+    noise.unit = "full well, electrons";
+    noise.off_value = 0;
+    noise.residual_unit = "DN^2 RMS of the binned variance of P + I - W - B";
+    const std::vector<std::pair<int, int>> pairs = InversePairs(frames);
+    if (pairs.empty()) {
+      noise.observable = false;
+      noise.reason = "the sequence has no inverse pairs";
+    } else {
+      const size_t step = std::max<size_t>(1, samples.size() / 40000);
+      struct Obs {
+        double s, r;
+        bool held;
+      };
+      std::vector<Obs> obs;
+      for (size_t i = 0; i < samples.size(); i += step) {
+        const Sample& s = samples[i];
+        const auto& real = cameras[static_cast<size_t>(s.camera)].real;
+        // Sums of pairs (and W + B when those frames exist), each ideally W + B; differences of
+        // consecutive sums carry four images' noise and no signal.
+        std::vector<double> sums;
+        if (has_white_black) sums.push_back(-1);  // placeholder for W + B
+        bool saturated = false;
+        for (const auto& [p, q] : pairs) {
+          const double a = Pixel(real[static_cast<size_t>(p)], s.y, s.x), b = Pixel(real[static_cast<size_t>(q)], s.y, s.x);
+          saturated = saturated || a >= 0.98 * fs || b >= 0.98 * fs;
+          sums.push_back(a + b);
+        }
+        if (saturated) continue;
+        if (has_white_black) sums[0] = s.white + s.black;
+        for (size_t k = 0; k + 1 < sums.size(); k += 2) obs.push_back({sums[k] + sums[k + 1], sums[k] - sums[k + 1], s.heldout});
+      }
+      // Bin by signal into 10 quantile bins; per bin the robust variance of r.
+      const auto binned = [&](bool held, std::vector<double>* centre, std::vector<double>* var) {
+        std::vector<const Obs*> o;
+        for (const Obs& x : obs) {
+          if (x.held == held) o.push_back(&x);
+        }
+        std::sort(o.begin(), o.end(), [](const Obs* a, const Obs* b) { return a->s < b->s; });
+        const size_t bins = 10;
+        for (size_t b = 0; b < bins && o.size() >= bins * 20; ++b) {
+          const size_t lo = b * o.size() / bins, hi = (b + 1) * o.size() / bins;
+          std::vector<double> r, s;
+          for (size_t i = lo; i < hi; ++i) r.push_back(o[i]->r), s.push_back(o[i]->s);
+          centre->push_back(Median(s));
+          var->push_back(RobustVariance(r));
+        }
+      };
+      std::vector<double> sc, sv, hc, hv;
+      binned(false, &sc, &sv);
+      binned(true, &hc, &hv);
+      if (sc.size() < 3) {
+        noise.observable = false;
+        noise.reason = "too few pixels for the noise fit";
+      } else {
+        // Least squares var = K s + c.
+        Eigen::MatrixXd a(static_cast<Eigen::Index>(sc.size()), 2);
+        Eigen::VectorXd b(static_cast<Eigen::Index>(sc.size()));
+        for (size_t i = 0; i < sc.size(); ++i) {
+          a(static_cast<Eigen::Index>(i), 0) = sc[i];
+          a(static_cast<Eigen::Index>(i), 1) = 1;
+          b(static_cast<Eigen::Index>(i)) = sv[i];
+        }
+        const Eigen::Vector2d kc = a.colPivHouseholderQr().solve(b);
+        const Eigen::VectorXd res = b - a * kc;
+        const double dof = std::max<double>(1, static_cast<double>(sc.size()) - 2);
+        const Eigen::Matrix2d cov = (res.squaredNorm() / dof) * (a.transpose() * a).inverse();
+        const double k = kc(0), sigma_k = std::sqrt(std::max(0.0, cov(0, 0)));
+        const double quant = 4.0 / 12.0;
+        double mean_var = 0;
+        for (double v : sv) mean_var += v / static_cast<double>(sv.size());
+        std::vector<double> off, on;
+        for (size_t i = 0; i < hc.size(); ++i) {
+          off.push_back(hv[i] - quant);
+          on.push_back(hv[i] - (k * hc[i] + kc(1)));
+        }
+        noise.heldout_residual_off = Rms(off);
+        noise.heldout_residual_on = Rms(on);
+        noise.samples = static_cast<int64_t>(obs.size());
+        const bool above_quant = mean_var > 2 * quant;
+        const bool significant = k > 3 * sigma_k && k > 0;
+        const bool drops = noise.heldout_residual_on < (1 - options.min_heldout_drop) * noise.heldout_residual_off;
+        if (k > 0) {
+          noise.value = fs / k;
+          noise.sigma = fs * sigma_k / (k * k);
+          const double read_dn2 = std::max(0.0, kc(1) / 4 - 1.0 / 12);
+          noise.extra["read_noise_e"] = std::sqrt(read_dn2) / k;
+        }
+        noise.extra["dn_per_electron"] = k;
+        noise.extra["variance_offset_dn2"] = kc(1);
+        noise.extra["mean_pair_variance_dn2"] = mean_var;
+        noise.kept = above_quant && significant && drops;
+        noise.reason = noise.kept
+                           ? Fmt("inverse pairs vary by %.2f DN^2 (quantisation alone: %.2f), growing with signal: shot noise",
+                                 mean_var, quant)
+                           : Fmt("inverse-pair variance %.2f DN^2 is what quantisation (%.2f) explains, or does not grow with signal",
+                                 mean_var, quant);
+      }
+    }
+    fit.layers.push_back(noise);
+  }
+  return fit;
+}
+
+double ModulationPeriodPx(const PatternSpec& spec) {
+  if (spec.kind == PatternKind::kGrayCode) return 4.0;  // the finest Gray bit: 2 px stripes
+  return spec.PeriodsPx().front();
+}
+
+cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>& images) {
+  const std::vector<FrameInfo> frames = spec.Frames();
+  const int axis = spec.code_x ? 0 : 1;
+  cv::Mat w, b;
+  WhiteBlackImages(spec, images, &w, &b);
+  cv::Mat out(w.size(), CV_32FC1, cv::Scalar(std::nanf("")));
+  std::vector<int> idx;
+  if (spec.kind == PatternKind::kGrayCode) {
+    idx = {FindFrame(frames, FrameRole::kGrayBit, axis, 0, 0, 0), FindFrame(frames, FrameRole::kGrayBitInverse, axis, 0, 0, 0)};
+  } else {
+    for (int k = 0; k < spec.phase_steps; ++k) idx.push_back(FindFrame(frames, FrameRole::kPhase, axis, 0, 0, k));
+  }
+  for (int i : idx) SLSHADOW_THROW_IF(i < 0, "fringe modulation: the sequence lacks its finest fringe frames");
+  const int n = static_cast<int>(idx.size());
+  cv::parallel_for_(cv::Range(0, w.rows), [&](const cv::Range& rows) {
+    for (int y = rows.start; y < rows.end; ++y) {
+      float* o = out.ptr<float>(y);
+      for (int x = 0; x < w.cols; ++x) {
+        const float range = w.at<float>(y, x) - b.at<float>(y, x);
+        if (range < 4) continue;
+        if (spec.kind == PatternKind::kGrayCode) {
+          o[x] = std::abs(Pixel(images[static_cast<size_t>(idx[0])], y, x) - Pixel(images[static_cast<size_t>(idx[1])], y, x)) / range;
+        } else {
+          // N equally spaced samples of A + B' cos(.) have variance B'^2 / 2 whatever their
+          // order: the amplitude does not depend on frame order or phase.
+          double s = 0, ss = 0;
+          for (int k = 0; k < n; ++k) {
+            const double v = Pixel(images[static_cast<size_t>(idx[static_cast<size_t>(k)])], y, x);
+            s += v, ss += v * v;
+          }
+          const double var = std::max(0.0, ss / n - (s / n) * (s / n));
+          o[x] = static_cast<float>(std::sqrt(2 * var) / range);
+        }
+      }
+    }
+  });
+  return out;
+}
+
+void FitDefocus(const PatternSpec& spec, const std::vector<CameraData>& cameras, const PhysicsFitOptions& options,
+                PhysicsFit* fit) {
+  PhysicsLayer d;
+  d.name = "defocus";
+  d.unit = "projector px (Gaussian sigma)";
+  d.residual_unit = "RMS of the normalised fringe modulation";
+  const double period = ModulationPeriodPx(spec);
+  struct Obs {
+    double real, twin;
+    int band;
+    bool held;
+  };
+  std::vector<Obs> obs;
+  for (const CameraData& cam : cameras) {
+    if (cam.twin.empty()) continue;
+    const cv::Mat mr = NormalisedModulation(spec, cam.real), mt = NormalisedModulation(spec, cam.twin);
+    const GeometryBuffer& g = *cam.geometry;
+    for (int y = 0; y < g.height; y += options.stride_px) {
+      for (int x = 0; x < g.width; x += options.stride_px) {
+        if (g.visibility.at<uint8_t>(y, x) != 2) continue;
+        const float a = mr.at<float>(y, x), b = mt.at<float>(y, x);
+        if (!std::isfinite(a) || !std::isfinite(b) || b < 0.05f) continue;
+        obs.push_back({a, b, std::min(kBands - 1, y * kBands / g.height), (y / options.stride_px) % 2 == 1});
+      }
+    }
+  }
+  if (obs.size() < 100) {
+    d.observable = false;
+    d.reason = "too few lit pixels with fringe modulation";
+    fit->layers.push_back(d);
+    return;
+  }
+  std::vector<double> r;
+  std::vector<std::vector<double>> rb(kBands);
+  for (const Obs& o : obs) {
+    if (o.held) continue;
+    r.push_back(o.real / o.twin);
+    rb[static_cast<size_t>(o.band)].push_back(o.real / o.twin);
+  }
+  const double rho = Median(r);
+  std::vector<double> bv;
+  for (auto& b : rb) bv.push_back(b.size() > 20 ? Median(b) : std::nan(""));
+  const double sigma_rho = BandSigma(bv);
+  const auto sigma_of = [&](double q) { return q < 1 ? period / (M_PI * std::sqrt(2.0)) * std::sqrt(-std::log(q)) : 0.0; };
+  d.value = sigma_of(rho);
+  // d sigma / d rho at rho (finite difference), for the uncertainty.
+  const double h = 1e-4;
+  d.sigma = rho < 1 - 2 * h ? std::abs(sigma_of(rho + h) - sigma_of(rho - h)) / (2 * h) * sigma_rho : std::nan("");
+  d.samples = static_cast<int64_t>(r.size());
+  std::vector<double> off, on;
+  for (const Obs& o : obs) {
+    if (!o.held) continue;
+    off.push_back(o.real - o.twin);
+    on.push_back(o.real - std::min(1.0, rho) * o.twin);
+  }
+  d.heldout_residual_off = Rms(off);
+  d.heldout_residual_on = Rms(on);
+  d.extra["modulation_ratio"] = rho;
+  d.extra["modulation_ratio_sigma"] = sigma_rho;
+  d.extra["period_px"] = period;
+  const double loss = 1 - rho;
+  const bool significant = loss > std::max(3 * sigma_rho, options.defocus_min_loss);
+  const bool drops = d.heldout_residual_on < (1 - options.min_heldout_drop) * d.heldout_residual_off;
+  d.kept = significant && drops;
+  d.reason = d.kept ? Fmt("fringes reach %.1f %% of the focused twin's modulation: held-out residual %.4f -> %.4f", 100 * rho,
+                          d.heldout_residual_off, d.heldout_residual_on)
+                    : Fmt("fringe modulation %.1f %% of the focused twin's: focus explains it within noise", 100 * rho);
+  fit->layers.push_back(d);
+}
+
+}  // namespace slshadow::shadow

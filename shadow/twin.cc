@@ -1,0 +1,757 @@
+#include "shadow/twin.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstdio>
+#include <mutex>
+
+#include <Eigen/Dense>
+#include <opencv2/core/utility.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "compare/compare.h"
+#include "compare/kdtree.h"
+#include "compare/mesh_distance.h"
+#include "core/config.h"
+#include "core/error.h"
+#include "core/file_util.h"
+#include "core/image_set.h"
+#include "core/point_cloud.h"
+#include "sim/simulate.h"
+
+namespace slshadow::shadow {
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr const char* kFormat = "slshadow-shadow-report";
+constexpr int kVersion = 1;
+
+float Pixel(const cv::Mat& m, int y, int x) {
+  return m.depth() == CV_8U ? static_cast<float>(m.at<uint8_t>(y, x)) : static_cast<float>(m.at<uint16_t>(y, x));
+}
+
+struct Stats {
+  int64_t count = 0;
+  double mean = 0, stddev = 0, rms = 0, median = 0, p95_abs = 0, max_abs = 0;
+  nlohmann::json ToJson(const std::string& unit) const {
+    return {{"count", count},          {"mean_" + unit, mean},       {"std_" + unit, stddev},
+            {"rms_" + unit, rms},      {"median_" + unit, median},   {"p95_abs_" + unit, p95_abs},
+            {"max_abs_" + unit, max_abs}};
+  }
+};
+
+Stats ComputeStats(std::vector<double> v) {
+  Stats s;
+  v.erase(std::remove_if(v.begin(), v.end(), [](double x) { return !std::isfinite(x); }), v.end());
+  s.count = static_cast<int64_t>(v.size());
+  if (v.empty()) return s;
+  double sum = 0, ss = 0;
+  for (double x : v) sum += x, ss += x * x;
+  const double n = static_cast<double>(v.size());
+  s.mean = sum / n;
+  s.rms = std::sqrt(ss / n);
+  s.stddev = std::sqrt(std::max(0.0, ss / n - s.mean * s.mean));
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+  s.median = v[v.size() / 2];
+  for (double& x : v) x = std::abs(x);
+  const size_t k = std::min(v.size() - 1, static_cast<size_t>(0.95 * n));
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.end());
+  s.p95_abs = v[k];
+  s.max_abs = *std::max_element(v.begin(), v.end());
+  return s;
+}
+
+nlohmann::json PoseToJson(const Rigid3d& p) {
+  const Eigen::AngleAxisd aa(p.rotation);
+  const Eigen::Vector3d r = aa.angle() * aa.axis();
+  return {{"rotation_quat_wxyz", {p.rotation.w(), p.rotation.x(), p.rotation.y(), p.rotation.z()}},
+          {"rotation_rvec_rad", {r.x(), r.y(), r.z()}},
+          {"translation_mm", {p.translation.x(), p.translation.y(), p.translation.z()}}};
+}
+
+// Diverging colour (blue - white - red) of t in [-1, 1]; NaN black.
+cv::Vec3b Diverging(double t) {
+  if (!std::isfinite(t)) return {0, 0, 0};
+  t = std::clamp(t, -1.0, 1.0);
+  const auto c = [](double v) { return static_cast<uint8_t>(std::lround(255 * std::clamp(v, 0.0, 1.0))); };
+  if (t < 0) return {255, c(1 + t), c(1 + t)};  // BGR: towards blue
+  return {c(1 - t), c(1 - t), 255};              // towards red
+}
+
+void WriteDivergingMap(const fs::path& path, const cv::Mat& values, double scale) {
+  cv::Mat out(values.size(), CV_8UC3);
+  for (int y = 0; y < values.rows; ++y) {
+    for (int x = 0; x < values.cols; ++x) out.at<cv::Vec3b>(y, x) = Diverging(values.at<float>(y, x) / scale);
+  }
+  SLSHADOW_THROW_IF(!cv::imwrite(path.string(), out), path.string(), ": cannot write PNG");
+}
+
+struct ModeClouds {
+  std::string mode;
+  PointCloud real, twin;
+  std::vector<double> real_c2m, twin_c2m;
+};
+
+std::vector<double> SignedC2M(const compare::MeshDistance& mesh, const std::vector<Eigen::Vector3d>& points) {
+  std::vector<double> d(points.size());
+  cv::parallel_for_(cv::Range(0, static_cast<int>(points.size())), [&](const cv::Range& r) {
+    for (int i = r.start; i < r.end; ++i) d[static_cast<size_t>(i)] = mesh.Closest(points[static_cast<size_t>(i)]).signed_distance_mm;
+  });
+  return d;
+}
+
+struct Reconstructions {
+  std::vector<ProjectorMap> maps;  // per camera
+  std::vector<std::pair<std::string, Reconstruction>> modes;
+};
+
+Reconstructions DecodeAndReconstruct(const Rig& rig, const PatternSpec& spec, const std::vector<std::string>& cameras,
+                                     const std::vector<const std::vector<cv::Mat>*>& images, const ShadowOptions& options) {
+  Reconstructions out;
+  for (size_t c = 0; c < cameras.size(); ++c) out.maps.push_back(DecodePatterns(spec, *images[c], options.decode));
+  out.modes.emplace_back("projector", ReconstructWithProjector(rig, cameras[0], out.maps[0], options.reconstruct));
+  if (cameras.size() >= 2 && spec.code_x) {
+    out.modes.emplace_back("stereo", ReconstructStereo(rig, cameras[0], cameras[1], out.maps[0], out.maps[1], options.reconstruct));
+  }
+  return out;
+}
+
+// Point-to-surface Gauss-Newton on the exact signed distance to the part's triangles, from
+// `part_from_rig`: r_i + n_i . (dt + dw x q_i) -> 0 over the cloud points q_i = part_from_rig p_i
+// (n_i the closest triangle's normal), points beyond 3 robust sigmas (at least 0.05 mm) left
+// out, so a local defect on the part does not pull the pose. Polishes ICP's pose (which stops at
+// its sampled correspondences) to the noise of the whole cloud.
+Rigid3d PolishPose(const TriangleMesh& part_surface, const std::vector<Eigen::Vector3d>& cloud, Rigid3d part_from_rig) {
+  const compare::MeshDistance mesh(part_surface);
+  const size_t step = std::max<size_t>(1, cloud.size() / 60000);
+  for (int iter = 0; iter < 6; ++iter) {
+    std::vector<Eigen::Vector3d> q, n;
+    std::vector<double> r;
+    for (size_t i = 0; i < cloud.size(); i += step) {
+      const Eigen::Vector3d p = part_from_rig * cloud[i];
+      const compare::MeshHit hit = mesh.Closest(p);
+      if (std::abs(hit.signed_distance_mm) > 1.0) continue;
+      q.push_back(p);
+      n.push_back(part_surface.FaceNormal(hit.triangle));
+      r.push_back(hit.signed_distance_mm);
+    }
+    if (r.size() < 100) break;
+    std::vector<double> a(r.size());
+    for (size_t i = 0; i < r.size(); ++i) a[i] = std::abs(r[i]);
+    std::nth_element(a.begin(), a.begin() + static_cast<std::ptrdiff_t>(a.size() / 2), a.end());
+    const double gate = std::max(3 * 1.4826 * a[a.size() / 2], 0.05);
+    Eigen::Matrix<double, 6, 6> jtj = Eigen::Matrix<double, 6, 6>::Zero();
+    Eigen::Matrix<double, 6, 1> jtr = Eigen::Matrix<double, 6, 1>::Zero();
+    for (size_t i = 0; i < r.size(); ++i) {
+      if (std::abs(r[i]) > gate) continue;
+      Eigen::Matrix<double, 6, 1> j;
+      j.head<3>() = n[i];
+      j.tail<3>() = q[i].cross(n[i]);
+      jtj += j * j.transpose();
+      jtr += j * r[i];
+    }
+    const Eigen::Matrix<double, 6, 1> delta = -jtj.ldlt().solve(jtr);
+    const Eigen::Vector3d w = delta.tail<3>();
+    const Eigen::Quaterniond dq = w.norm() > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(w.norm(), w / w.norm()))
+                                              : Eigen::Quaterniond::Identity();
+    part_from_rig = Rigid3d(dq, delta.head<3>()) * part_from_rig;
+    if (delta.head<3>().norm() < 1e-5 && w.norm() < 1e-8) break;
+  }
+  return part_from_rig;
+}
+
+}  // namespace
+
+const char* ToString(PoseSource source) {
+  switch (source) {
+    case PoseSource::kGivenFixed:
+      return "given";
+    case PoseSource::kGivenRefined:
+      return "given+icp";
+    case PoseSource::kRegistered:
+      return "global+icp";
+  }
+  return "?";
+}
+
+TriangleMesh SceneSurfaceMesh(const Scene& scene, const std::string& what) {
+  TriangleMesh surface;
+  for (const auto& object : scene.objects) {
+    TriangleMesh part;
+    if (object.type == ObjectType::kMesh) {
+      part = *object.mesh;
+    } else if (object.type == ObjectType::kPlane) {
+      // A grid of 2 x 2 cells per 10 mm at most 64 x 64, so C2M and samples see the whole plane.
+      const double hx = object.size_mm.x() / 2, hy = object.size_mm.y() / 2;
+      const int n = 16;
+      for (int j = 0; j <= n; ++j) {
+        for (int i = 0; i <= n; ++i) part.vertices.emplace_back(-hx + 2 * hx * i / n, -hy + 2 * hy * j / n, 0);
+      }
+      for (int j = 0; j < n; ++j) {
+        for (int i = 0; i < n; ++i) {
+          const int a = j * (n + 1) + i;
+          part.triangles.emplace_back(a, a + 1, a + n + 2);
+          part.triangles.emplace_back(a, a + n + 2, a + n + 1);
+        }
+      }
+    } else {
+      SLSHADOW_THROW(what, ": object '", object.name, "' is a ", ToString(object.type),
+                     "; a shadow part is made of meshes and planes only");
+    }
+    part.Transform(object.rig_from_object.rotation.toRotationMatrix(), object.rig_from_object.translation);
+    surface.Append(part);
+  }
+  return surface;
+}
+
+ShadowPart LoadShadowPart(const fs::path& path) {
+  ShadowPart part;
+  part.source = path.string();
+  std::string ext = path.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  if (ext == ".yaml" || ext == ".yml" || ext == ".json") {
+    part.scene = LoadScene(path);
+  } else if (ext == ".stl" || ext == ".ply" || ext == ".obj") {
+    auto mesh = std::make_shared<TriangleMesh>(ReadMesh(path));
+    CheckSceneMesh(*mesh, path.string(), /*allow_non_manifold=*/true);
+    SceneObject object;
+    object.name = path.stem().string();
+    object.type = ObjectType::kMesh;
+    object.mesh = mesh;
+    object.albedo.value = 0.8;
+    part.scene.name = object.name;
+    part.scene.objects.push_back(object);
+  } else {
+    SLSHADOW_THROW(path.string(), ": unknown part format '", ext, "' (expected .stl, .ply, .obj or a scene .yaml/.json)");
+  }
+  part.surface = SceneSurfaceMesh(part.scene, path.string());
+  return part;
+}
+
+void ShadowOptions::Check() const {
+  SLSHADOW_THROW_IF(!(min_fitness >= 0 && min_fitness <= 1), "shadow: min_fitness must be in [0, 1] (got ", min_fitness, ")");
+  SLSHADOW_THROW_IF(!(max_rmse_mm > 0), "shadow: max_rmse_mm must be > 0 (got ", max_rmse_mm, ")");
+  decode.Check();
+  reconstruct.Check();
+  physics.Check();
+  diagnose.Check();
+}
+
+std::string ShadowResult::Summary() const {
+  std::string out = "slshadow shadow: " + report.value("image_set", std::string()) + " vs part " +
+                    report.value("part", std::string()) + "\n\n";
+  char buf[512];
+  const auto& pose = report["pose"];
+  std::snprintf(buf, sizeof(buf), "pose (%s): fitness %.3f, inlier RMSE %.4f mm\n\n", pose["source"].get<std::string>().c_str(),
+                pose["fitness"].get<double>(), pose["inlier_rmse_mm"].get<double>());
+  out += buf;
+  out += "physics (layer, kept?, value +- sigma, why):\n" + physics.Table() + "\n";
+  out += "images (per camera, over the twin's lit part pixels):\n";
+  for (const auto& c : report["images"]["cameras"]) {
+    const auto& pc = c["projector_coordinates"];
+    std::snprintf(buf, sizeof(buf),
+                  "  %-8s intensity within 5%% FS: %.1f%% of pixel-frames (worst frame %.1f%%); decoded vs twin truth "
+                  "%.3f px RMS (twin's own decoding %.3f px), real vs twin decoded %.3f px RMS; valid both %lld, real only "
+                  "%lld, twin only %lld\n",
+                  c["camera"].get<std::string>().c_str(), 100 * c["within_5pct_all_frames"].get<double>(),
+                  100 * c["within_5pct_worst_frame"].get<double>(), pc["real_vs_truth_rms_px"].get<double>(),
+                  pc["twin_vs_truth_rms_px"].get<double>(), pc["real_vs_twin_decoded_rms_px"].get<double>(),
+                  static_cast<long long>(pc["valid_both"].get<int64_t>()), static_cast<long long>(pc["valid_real_only"].get<int64_t>()),
+                  static_cast<long long>(pc["valid_twin_only"].get<int64_t>()));
+    out += buf;
+  }
+  out += "\nclouds (signed C2M to the part, mm):\n";
+  for (const auto& m : report["clouds"]["modes"]) {
+    std::snprintf(buf, sizeof(buf),
+                  "  %-9s real %7lld pts mean %+.4f RMS %.4f | twin %7lld pts mean %+.4f RMS %.4f | real - twin RMS %.4f, "
+                  "%.2f%% beyond LoD95 %.4f\n",
+                  m["mode"].get<std::string>().c_str(), static_cast<long long>(m["real_vs_part"]["count"].get<int64_t>()),
+                  m["real_vs_part"]["mean_mm"].get<double>(), m["real_vs_part"]["rms_mm"].get<double>(),
+                  static_cast<long long>(m["twin_vs_part"]["count"].get<int64_t>()), m["twin_vs_part"]["mean_mm"].get<double>(),
+                  m["twin_vs_part"]["rms_mm"].get<double>(), m["real_vs_twin"]["rms_mm"].get<double>(),
+                  100 * m["real_vs_twin_significant_fraction"].get<double>(), m["lod95_mm"].get<double>());
+    out += buf;
+  }
+  out += "\n" + diagnosis.Summary();
+  out += "\n" + FormatStageTable(stages);
+  return out;
+}
+
+ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const std::map<std::string, std::vector<cv::Mat>>& real,
+                               const ShadowPart& part, const ShadowOptions& options, const fs::path& out_dir,
+                               const std::string& source) {
+  options.Check();
+  spec.Check();
+  SLSHADOW_THROW_IF(!rig.projector, "shadow: the rig '", rig.name, "' has no projector");
+  SLSHADOW_THROW_IF(part.surface.empty(), "shadow: the part '", part.source, "' has no surface");
+  std::error_code ec;
+  if (!out_dir.empty()) {
+    SLSHADOW_THROW_IF(fs::exists(out_dir, ec) && !options.overwrite, out_dir.string(),
+                      ": exists; choose another --out or pass --overwrite");
+  }
+  // Cameras with images, in rig order.
+  std::vector<std::string> cameras;
+  std::vector<const std::vector<cv::Mat>*> real_images;
+  for (const auto& cam : rig.cameras) {
+    auto it = real.find(cam.name);
+    if (it == real.end()) continue;
+    SLSHADOW_THROW_IF(static_cast<int>(it->second.size()) != spec.NumImages(), "shadow: camera '", cam.name, "' has ",
+                      it->second.size(), " images, the pattern spec needs ", spec.NumImages());
+    cameras.push_back(cam.name);
+    real_images.push_back(&it->second);
+  }
+  SLSHADOW_THROW_IF(cameras.empty(), "shadow: no camera of the rig has images");
+  const bool sixteen = real_images[0]->front().depth() == CV_16U;
+  const double fs_dn = sixteen ? 65535.0 : 255.0;
+
+  ShadowResult result;
+  nlohmann::json& report = result.report;
+  report["format"] = kFormat;
+  report["version"] = kVersion;
+  report["image_set"] = source;
+  report["part"] = part.source;
+  report["cameras"] = cameras;
+
+  // 1. The real scan.
+  StageMeter meter("real: decode + reconstruct");
+  Reconstructions real_rec = DecodeAndReconstruct(rig, spec, cameras, real_images, options);
+  result.stages.push_back(meter.Stop());
+
+  // 2. Pose.
+  meter = StageMeter("pose");
+  const compare::Reference reference = compare::ReferenceFromMesh(part.surface, part.source, 100000);
+  const PointCloud& reg_cloud = real_rec.modes.back().second.cloud;  // stereo when there is one
+  SLSHADOW_THROW_IF(reg_cloud.size() < 100 && !(options.rig_from_part && !options.refine_pose), "shadow: the real scan reconstructed only ", reg_cloud.size(),
+                    " points; cannot place the part");
+  PoseSource pose_source;
+  compare::RegistrationResult reg;
+  Rigid3d rig_from_part;
+  if (options.rig_from_part && !options.refine_pose) {
+    pose_source = PoseSource::kGivenFixed;
+    rig_from_part = *options.rig_from_part;
+  } else {
+    compare::RegistrationOptions ro;
+    std::vector<Eigen::Vector3d> cloud = reg_cloud.points;
+    Rigid3d part_from_rig_guess;
+    if (options.rig_from_part) {
+      pose_source = PoseSource::kGivenRefined;
+      ro.method = compare::RegistrationMethod::kIcp;
+      part_from_rig_guess = options.rig_from_part->Inverse();
+      for (auto& p : cloud) p = part_from_rig_guess * p;
+    } else {
+      pose_source = PoseSource::kRegistered;
+      ro.method = compare::RegistrationMethod::kGlobalIcp;
+    }
+    std::vector<Eigen::Vector3d> normals;
+    normals.reserve(reference.cloud.size());
+    for (const auto& n : reference.cloud.normals) normals.push_back(n.cast<double>());
+    reg = compare::Register(cloud, reference.cloud.points, normals, ro);
+    rig_from_part = PolishPose(part.surface, reg_cloud.points, reg.reference_from_cloud * part_from_rig_guess).Inverse();
+  }
+  // Fitness and RMSE of the final pose, measured the same way for every source: share of the
+  // registration cloud within 1 mm of the part, RMS of those distances.
+  TriangleMesh surface_in_rig = part.surface;
+  surface_in_rig.Transform(rig_from_part.rotation.toRotationMatrix(), rig_from_part.translation);
+  {
+    const compare::MeshDistance registered(surface_in_rig);
+    const std::vector<double> d = SignedC2M(registered, reg_cloud.points);
+    int64_t in = 0;
+    double ss = 0;
+    for (double x : d) {
+      if (std::abs(x) < 1.0) ++in, ss += x * x;
+    }
+    const double fitness = d.empty() ? 0.0 : static_cast<double>(in) / static_cast<double>(d.size());
+    const double rmse = in ? std::sqrt(ss / static_cast<double>(in)) : std::nan("");
+    report["pose"] = {{"source", ToString(pose_source)},
+                      {"rig_from_part", PoseToJson(rig_from_part)},
+                      {"registration_cloud", real_rec.modes.back().first},
+                      {"fitness", fitness},
+                      {"inlier_rmse_mm", rmse},
+                      {"gate_mm", 1.0},
+                      {"min_fitness", options.min_fitness},
+                      {"max_rmse_mm", options.max_rmse_mm}};
+    if (pose_source != PoseSource::kGivenFixed) {
+      report["pose"]["registration"] = {{"fitness", reg.fitness},
+                                        {"inlier_rmse_mm", reg.inlier_rmse_mm},
+                                        {"icp_iterations", reg.icp_iterations},
+                                        {"converged", reg.converged},
+                                        {"global_found", reg.global_found}};
+    }
+    if (options.rig_from_part) {
+      report["pose"]["moved_from_given_mm"] = (rig_from_part.translation - options.rig_from_part->translation).norm();
+      report["pose"]["rotated_from_given_deg"] = compare::RotationDifferenceDeg(rig_from_part, *options.rig_from_part);
+    }
+    const bool credible = fitness >= options.min_fitness && rmse <= options.max_rmse_mm;
+    report["pose"]["credible"] = credible;
+    // Not credible: stop, unless a pose was given; then the job goes on from the given pose
+    // (a scan corrupted e.g. by a wrong frame still deserves its diagnosis), and says so.
+    SLSHADOW_THROW_IF(!credible && !options.rig_from_part, "shadow: the part's pose is not credible (", ToString(pose_source),
+                      "): fitness ", fitness, " (need >= ", options.min_fitness, "), inlier RMSE ", rmse, " mm (need <= ",
+                      options.max_rmse_mm, "); give a pose guess with --pose, or check the part file");
+    if (!credible) {
+      rig_from_part = *options.rig_from_part;
+      surface_in_rig = part.surface;
+      surface_in_rig.Transform(rig_from_part.rotation.toRotationMatrix(), rig_from_part.translation);
+      report["pose"]["used"] = "given";
+      report["pose"]["rig_from_part"] = PoseToJson(rig_from_part);
+      report["pose"]["warning"] = "registration not credible (the real cloud is far from the part); the given pose is used as it is";
+    } else {
+      report["pose"]["used"] = ToString(pose_source);
+    }
+    result.rig_from_part = rig_from_part;
+  }
+  const compare::MeshDistance part_distance(surface_in_rig);
+  result.stages.push_back(meter.Stop());
+
+  // 3. The twin: the part at its pose; geometry once (focused), then the physics fit.
+  meter = StageMeter("twin geometry + physics fit");
+  Scene twin = part.scene;
+  twin.name = "twin of " + part.scene.name;
+  for (auto& o : twin.objects) o.rig_from_object = rig_from_part * o.rig_from_object;
+  twin.radiometry.adc_bits = sixteen ? 16 : 8;
+  twin.layers.noise_enabled = false;
+  twin.layers.projector_defocus.enabled = false;
+  twin.layers.response_enabled = false;
+  twin.layers.ambient = 0;
+  const std::vector<cv::Mat> projector_images = GeneratePatterns(spec);
+  Rig twin_rig = rig;
+  auto simulator = std::make_unique<Simulator>(twin, twin_rig);
+  std::vector<CameraData> data(cameras.size());
+  double projector_depth_mm = twin_rig.working_distance_mm;
+  {
+    std::vector<double> depths;
+    const GeometryBuffer& g0 = simulator->geometry(twin_rig.CameraIndex(cameras[0]));
+    for (int y = 0; y < g0.height; y += 8) {
+      for (int x = 0; x < g0.width; x += 8) {
+        if (g0.visibility.at<uint8_t>(y, x) != 2) continue;
+        const cv::Vec3f p = g0.point_in_rig.at<cv::Vec3f>(y, x);
+        depths.push_back((twin_rig.projector->cam_from_rig * Eigen::Vector3d(p[0], p[1], p[2])).z());
+      }
+    }
+    SLSHADOW_THROW_IF(depths.empty(), "shadow: the part at its pose is not seen lit by camera '", cameras[0], "'");
+    std::nth_element(depths.begin(), depths.begin() + static_cast<std::ptrdiff_t>(depths.size() / 2), depths.end());
+    projector_depth_mm = depths[depths.size() / 2];
+  }
+  for (size_t c = 0; c < cameras.size(); ++c) {
+    data[c].camera = cameras[c];
+    data[c].real = *real_images[c];
+    data[c].geometry = &simulator->geometry(twin_rig.CameraIndex(cameras[c]));
+  }
+  PhysicsFit fit;
+  if (options.fit_physics) {
+    fit = FitPhysics(spec, twin, data, options.physics);
+  } else {
+    PhysicsLayer e;
+    e.name = "exposure";
+    e.kept = true;
+    e.value = part.scene.radiometry.exposure;
+    e.reason = "from the part file (--no-physics-fit)";
+    fit.layers.push_back(e);
+  }
+  result.stages.push_back(meter.Stop());
+
+  // 4. Virtual re-scan with the fitted physics; defocus from its fringes against the real ones.
+  meter = StageMeter("twin: render (+ defocus fit)");
+  Scene fitted = fit.Apply(twin, twin_rig, projector_depth_mm, options.noise_seed);
+  std::vector<std::vector<cv::Mat>> rendered = simulator->Render(projector_images, &fitted);
+  if (options.fit_physics) {
+    for (size_t c = 0; c < cameras.size(); ++c) data[c].twin = rendered[static_cast<size_t>(twin_rig.CameraIndex(cameras[c]))];
+    FitDefocus(spec, data, options.physics, &fit);
+    for (auto& d : data) d.twin.clear();
+    if (fit.Kept("defocus")) {
+      fitted = fit.Apply(twin, twin_rig, projector_depth_mm, options.noise_seed);
+      data.clear();
+      rendered.clear();
+      simulator = std::make_unique<Simulator>(fitted, twin_rig);
+      rendered = simulator->Render(projector_images, &fitted);
+    }
+  }
+  result.stages.push_back(meter.Stop());
+  report["physics"] = {{"layers", fit.ToJson()}, {"twin_scene", SceneToJson(fitted)}};
+  report["physics"]["projector_depth_mm"] = projector_depth_mm;
+
+  meter = StageMeter("twin: decode + reconstruct");
+  std::vector<const std::vector<cv::Mat>*> twin_images;
+  for (const auto& name : cameras) twin_images.push_back(&rendered[static_cast<size_t>(twin_rig.CameraIndex(name))]);
+  Reconstructions twin_rec = DecodeAndReconstruct(twin_rig, spec, cameras, twin_images, options);
+  result.stages.push_back(meter.Stop());
+
+  // 5. Images.
+  meter = StageMeter("compare images + clouds");
+  std::vector<float> response(256);
+  for (int v = 0; v < 256; ++v) response[static_cast<size_t>(v)] = static_cast<float>(fitted.layers.response_enabled ? std::pow(v / 255.0, fitted.layers.gamma) : v / 255.0);
+  std::vector<CameraEvidence> evidence(cameras.size());
+  std::vector<cv::Mat> residual_maps, validity_maps, white_diff_maps, modulation_maps;
+  report["images"]["cameras"] = nlohmann::json::array();
+  const std::vector<FrameInfo> frames = spec.Frames();
+  for (size_t c = 0; c < cameras.size(); ++c) {
+    const GeometryBuffer& g = simulator->geometry(twin_rig.CameraIndex(cameras[c]));
+    const std::vector<cv::Mat>& rimg = *real_images[c];
+    const std::vector<cv::Mat>& timg = *twin_images[c];
+    cv::Mat mask(g.height, g.width, CV_8UC1, cv::Scalar(0));
+    for (int y = 0; y < g.height; ++y) {
+      for (int x = 0; x < g.width; ++x) {
+        if (g.visibility.at<uint8_t>(y, x) == 2 && g.object_id.at<int32_t>(y, x) >= 0) mask.at<uint8_t>(y, x) = 255;
+      }
+    }
+    const int64_t lit = cv::countNonZero(mask);
+    // Per pattern intensity differences.
+    const int nf = spec.NumImages();
+    std::vector<nlohmann::json> per(static_cast<size_t>(nf));
+    std::vector<int64_t> within(static_cast<size_t>(nf), 0);
+    const double tol = 0.05 * fs_dn;
+    cv::parallel_for_(cv::Range(0, nf), [&](const cv::Range& r) {
+      for (int k = r.start; k < r.end; ++k) {
+        double sum = 0, ss = 0;
+        int64_t n = 0, in = 0;
+        for (int y = 0; y < g.height; ++y) {
+          const uint8_t* m = mask.ptr<uint8_t>(y);
+          for (int x = 0; x < g.width; ++x) {
+            if (!m[x]) continue;
+            const double d = Pixel(rimg[static_cast<size_t>(k)], y, x) - Pixel(timg[static_cast<size_t>(k)], y, x);
+            sum += d, ss += d * d, ++n;
+            if (std::abs(d) <= tol) ++in;
+          }
+        }
+        within[static_cast<size_t>(k)] = in;
+        per[static_cast<size_t>(k)] = {{"index", k},
+                                       {"name", frames[static_cast<size_t>(k)].Name()},
+                                       {"mean_dn", n ? sum / static_cast<double>(n) : 0.0},
+                                       {"rms_dn", n ? std::sqrt(ss / static_cast<double>(n)) : 0.0},
+                                       {"within_5pct", n ? static_cast<double>(in) / static_cast<double>(n) : 0.0}};
+      }
+    });
+    int64_t in_all = 0;
+    double worst = 1;
+    for (int k = 0; k < nf; ++k) {
+      in_all += within[static_cast<size_t>(k)];
+      worst = std::min(worst, per[static_cast<size_t>(k)]["within_5pct"].get<double>());
+    }
+    // Decoded projector coordinates.
+    const ProjectorMap& rm = real_rec.maps[c];
+    const ProjectorMap& tm = twin_rec.maps[c];
+    const ProjectorMap& gt = g.projector;
+    std::vector<double> real_truth, twin_truth, real_twin;
+    int64_t both = 0, real_only = 0, twin_only = 0;
+    cv::Mat residual(g.height, g.width, CV_32FC1, cv::Scalar(std::nanf("")));
+    cv::Mat validity(g.height, g.width, CV_8UC3, cv::Scalar(0, 0, 0));
+    for (int y = 0; y < g.height; ++y) {
+      for (int x = 0; x < g.width; ++x) {
+        const bool rv = rm.status.at<uint8_t>(y, x) == 0, tv = tm.status.at<uint8_t>(y, x) == 0;
+        if (rv && tv) ++both, validity.at<cv::Vec3b>(y, x) = {80, 200, 80};
+        if (rv && !tv) ++real_only, validity.at<cv::Vec3b>(y, x) = {60, 60, 255};
+        if (!rv && tv) ++twin_only, validity.at<cv::Vec3b>(y, x) = {255, 120, 60};
+        if (!mask.at<uint8_t>(y, x)) continue;
+        for (int axis = 0; axis < 2; ++axis) {
+          if (!spec.Codes(axis)) continue;
+          const float r = (axis ? rm.proj_y : rm.proj_x).at<float>(y, x);
+          const float t = (axis ? tm.proj_y : tm.proj_x).at<float>(y, x);
+          const float tr = (axis ? gt.proj_y : gt.proj_x).at<float>(y, x);
+          if (std::isfinite(r) && std::isfinite(tr) && std::abs(r - tr) < 20) real_truth.push_back(r - tr);
+          if (std::isfinite(t) && std::isfinite(tr) && std::abs(t - tr) < 20) twin_truth.push_back(t - tr);
+          if (std::isfinite(r) && std::isfinite(t) && std::abs(r - t) < 20) real_twin.push_back(r - t);
+          if (axis == (spec.code_x ? 0 : 1) && std::isfinite(r) && std::isfinite(tr)) residual.at<float>(y, x) = r - tr;
+        }
+      }
+    }
+    // Outliers (|d| >= 20 px, wrong codes) are counted apart so they do not swamp the RMS.
+    const Stats srt = ComputeStats(real_truth), stt = ComputeStats(twin_truth), srw = ComputeStats(real_twin);
+    nlohmann::json cj = {{"camera", cameras[c]},
+                         {"lit_part_pixels", lit},
+                         {"full_scale_dn", fs_dn},
+                         {"within_5pct_all_frames", lit ? static_cast<double>(in_all) / static_cast<double>(lit * nf) : 0.0},
+                         {"within_5pct_worst_frame", worst},
+                         {"patterns", per}};
+    // Per axis RMS (x, y) are pooled: RMS over both axes' residuals is what "px RMS" means here.
+    cj["projector_coordinates"] = {{"real_vs_truth_rms_px", srt.rms},
+                                   {"real_vs_truth", srt.ToJson("px")},
+                                   {"twin_vs_truth_rms_px", stt.rms},
+                                   {"twin_vs_truth", stt.ToJson("px")},
+                                   {"real_vs_twin_decoded_rms_px", srw.rms},
+                                   {"real_vs_twin_decoded", srw.ToJson("px")},
+                                   {"valid_both", both},
+                                   {"valid_real_only", real_only},
+                                   {"valid_twin_only", twin_only},
+                                   {"outlier_gate_px", 20}};
+    report["images"]["cameras"].push_back(cj);
+
+    CameraEvidence& ev = evidence[c];
+    ev.camera = cameras[c];
+    ev.width = g.width;
+    ev.height = g.height;
+    ev.mask = mask;
+    ev.real_x = rm.proj_x;
+    ev.real_y = rm.proj_y;
+    ev.gt_x = gt.proj_x;
+    ev.gt_y = gt.proj_y;
+    if (!spec.code_x) ev.real_x = ev.gt_x = cv::Mat();
+    if (!spec.code_y) ev.real_y = ev.gt_y = cv::Mat();
+    ev.real = real_images[c];
+    WhiteBlackImages(spec, rimg, &ev.white, &ev.black);
+    ev.projector_fx = twin_rig.projector->model.fx();
+    ev.projector_fy = twin_rig.projector->model.fy();
+    const cv::Mat mr = NormalisedModulation(spec, rimg), mt = NormalisedModulation(spec, timg);
+    ev.modulation_ratio = mr / mt;
+    residual_maps.push_back(residual);
+    validity_maps.push_back(validity);
+    cv::Mat wd(g.height, g.width, CV_32FC1, cv::Scalar(std::nanf("")));
+    cv::Mat twin_white, twin_black;
+    WhiteBlackImages(spec, timg, &twin_white, &twin_black);
+    for (int y = 0; y < g.height; ++y) {
+      for (int x = 0; x < g.width; ++x) {
+        if (mask.at<uint8_t>(y, x)) wd.at<float>(y, x) = ev.white.at<float>(y, x) - twin_white.at<float>(y, x);
+      }
+    }
+    white_diff_maps.push_back(wd);
+    cv::Mat mod = ev.modulation_ratio.clone();
+    for (int y = 0; y < g.height; ++y) {
+      for (int x = 0; x < g.width; ++x) {
+        if (!mask.at<uint8_t>(y, x)) mod.at<float>(y, x) = std::nanf("");
+      }
+    }
+    modulation_maps.push_back(mod);
+  }
+
+  // Clouds.
+  std::vector<ModeClouds> clouds;
+  std::vector<ModeEvidence> mode_evidence;
+  report["clouds"]["modes"] = nlohmann::json::array();
+  for (size_t m = 0; m < real_rec.modes.size(); ++m) {
+    ModeClouds mc;
+    mc.mode = real_rec.modes[m].first;
+    mc.real = std::move(real_rec.modes[m].second.cloud);
+    mc.twin = std::move(twin_rec.modes[m].second.cloud);
+    mc.real_c2m = SignedC2M(part_distance, mc.real.points);
+    mc.twin_c2m = SignedC2M(part_distance, mc.twin.points);
+    // Compare on the part only: points within 2 mm of it (the rest is background the twin lacks).
+    const auto on_part = [](const PointCloud& cloud, const std::vector<double>& d, std::vector<Eigen::Vector3d>* pts,
+                            std::vector<double>* vals) {
+      for (size_t i = 0; i < cloud.size(); ++i) {
+        if (std::abs(d[i]) < 2.0) pts->push_back(cloud.points[i]), vals->push_back(d[i]);
+      }
+    };
+    ModeEvidence me;
+    me.mode = mc.mode;
+    on_part(mc.real, mc.real_c2m, &me.real_points, &me.real_c2m);
+    on_part(mc.twin, mc.twin_c2m, &me.virtual_points, &me.virtual_c2m);
+    std::vector<double> diff;
+    if (!me.virtual_points.empty()) {
+      const compare::KdTree tree(me.virtual_points);
+      diff.resize(me.real_points.size(), std::nan(""));
+      cv::parallel_for_(cv::Range(0, static_cast<int>(me.real_points.size())), [&](const cv::Range& r) {
+        for (int i = r.start; i < r.end; ++i) {
+          compare::Neighbor nb;
+          if (tree.Nearest(me.real_points[static_cast<size_t>(i)], &nb, 1.0))
+            diff[static_cast<size_t>(i)] = me.real_c2m[static_cast<size_t>(i)] - me.virtual_c2m[nb.index];
+        }
+      });
+    }
+    const Stats sr = ComputeStats(me.real_c2m), st = ComputeStats(me.virtual_c2m), sd = ComputeStats(diff);
+    // LoD95 of a real - twin difference from the twin's own scatter about the part (both scans
+    // carry that noise): 1.96 sqrt(2) sigma.
+    const double lod95 = 1.96 * std::sqrt(2.0) * st.stddev;
+    int64_t significant = 0;
+    for (double d : diff) {
+      if (std::isfinite(d) && std::abs(d) > lod95) ++significant;
+    }
+    report["clouds"]["modes"].push_back(
+        {{"mode", mc.mode},
+         {"real_points", mc.real.size()},
+         {"twin_points", mc.twin.size()},
+         {"on_part_gate_mm", 2.0},
+         {"real_vs_part", sr.ToJson("mm")},
+         {"twin_vs_part", st.ToJson("mm")},
+         {"real_vs_twin", sd.ToJson("mm")},
+         {"lod95_mm", lod95},
+         {"real_vs_twin_significant_fraction", sd.count ? static_cast<double>(significant) / static_cast<double>(sd.count) : 0.0},
+         {"real_summary", real_rec.modes[m].second.summary.ToJson()},
+         {"twin_summary", twin_rec.modes[m].second.summary.ToJson()}});
+    mode_evidence.push_back(std::move(me));
+    clouds.push_back(std::move(mc));
+  }
+  result.stages.push_back(meter.Stop());
+
+  // 6. Diagnosis.
+  meter = StageMeter("diagnose");
+  result.diagnosis = Diagnose(spec, projector_images, response, fit, evidence, mode_evidence, options.diagnose);
+  report["diagnosis"] = result.diagnosis.ToJson();
+  result.physics = fit;
+  result.stages.push_back(meter.Stop());
+
+  // 7. Report folder.
+  if (!out_dir.empty()) {
+    meter = StageMeter("write report");
+    const fs::path staging = TemporarySibling(out_dir);
+    fs::create_directories(staging / "maps", ec);
+    SLSHADOW_THROW_IF(ec, staging.string(), ": cannot create folder: ", ec.message());
+    struct Cleanup {
+      fs::path dir;
+      bool keep = false;
+      ~Cleanup() {
+        std::error_code e;
+        if (!keep) fs::remove_all(dir, e);
+      }
+    } cleanup{staging};
+    report["maps"] = nlohmann::json::array();
+    for (size_t c = 0; c < cameras.size(); ++c) {
+      const std::string& n = cameras[c];
+      WriteDivergingMap(staging / "maps" / (n + "_projector_residual.png"), residual_maps[c], 2.0);
+      WriteDivergingMap(staging / "maps" / (n + "_white_difference.png"), white_diff_maps[c], 0.05 * fs_dn);
+      cv::Mat ratio = modulation_maps[c] - 1.0f;
+      WriteDivergingMap(staging / "maps" / (n + "_modulation_ratio.png"), ratio, 0.5);
+      SLSHADOW_THROW_IF(!cv::imwrite((staging / "maps" / (n + "_validity.png")).string(), validity_maps[c]),
+                        "cannot write the validity map");
+      report["maps"].push_back({{"camera", n},
+                                {"projector_residual", "maps/" + n + "_projector_residual.png"},
+                                {"projector_residual_scale_px", 2.0},
+                                {"white_difference", "maps/" + n + "_white_difference.png"},
+                                {"white_difference_scale_dn", 0.05 * fs_dn},
+                                {"modulation_ratio", "maps/" + n + "_modulation_ratio.png"},
+                                {"validity", "maps/" + n + "_validity.png"}});
+    }
+    if (options.write_clouds) {
+      fs::create_directories(staging / "clouds", ec);
+      for (auto& mc : clouds) {
+        std::vector<float> d(mc.real_c2m.begin(), mc.real_c2m.end());
+        mc.real.SetScalar("c2m_part_mm", std::move(d));
+        WritePly(staging / "clouds" / ("real_" + mc.mode + ".ply"), mc.real);
+        std::vector<float> e(mc.twin_c2m.begin(), mc.twin_c2m.end());
+        mc.twin.SetScalar("c2m_part_mm", std::move(e));
+        WritePly(staging / "clouds" / ("twin_" + mc.mode + ".ply"), mc.twin);
+      }
+    }
+    result.stages.push_back(meter.Stop());
+    report["stages"] = nlohmann::json::array();
+    for (const auto& s : result.stages) {
+      report["stages"].push_back({{"name", s.name}, {"wall_s", s.wall_s}, {"cpu_s", s.cpu_s}, {"peak_rss_mb", s.peak_rss_mb}});
+    }
+    WriteTextFileAtomically(staging / "report.json", report.dump(2) + "\n");
+    WriteTextFileAtomically(staging / "summary.txt", result.Summary());
+    CommitDirectory(staging, out_dir, options.overwrite);
+    cleanup.keep = true;
+  } else {
+    report["stages"] = nlohmann::json::array();
+    for (const auto& s : result.stages) {
+      report["stages"].push_back({{"name", s.name}, {"wall_s", s.wall_s}, {"cpu_s", s.cpu_s}, {"peak_rss_mb", s.peak_rss_mb}});
+    }
+  }
+  return result;
+}
+
+ShadowResult RunShadow(const fs::path& image_set_dir, const ShadowPart& part, const ShadowOptions& options, const fs::path& out_dir,
+                       const Rig* rig) {
+  StageMeter meter("read ImageSet");
+  const ImageSet set = ImageSet::Open(image_set_dir);
+  const PatternSpec spec = PatternSpecFromConfig(
+      ConfigNode::FromJson(set.patterns(), (image_set_dir / "manifest.json").string(), "patterns"));
+  std::map<std::string, std::vector<cv::Mat>> images;
+  for (const auto& name : set.CameraNames()) images[name] = set.LoadCamera(name);
+  const StageMeasurement read = meter.Stop();
+  ShadowResult r = RunShadowOnImages(rig ? *rig : set.rig(), spec, images, part, options, out_dir, image_set_dir.string());
+  r.stages.insert(r.stages.begin(), read);
+  return r;
+}
+
+}  // namespace slshadow::shadow
