@@ -172,6 +172,47 @@ TEST(CmdCalibrate, RefineStereoWithFocalLengthOnSimulatedScan) {
   EXPECT_NEAR(refined.BaselineMm(refined.cameras[0], refined.cameras[1]), bumped.BaselineMm(bumped.cameras[0], bumped.cameras[1]),
               1e-6);
   EXPECT_EQ(refined.cameras[0].model.params, truth.cameras[0].model.params);
+  // The scale was not verified (the rig file's baseline is kept) ...
+  EXPECT_FALSE(info["scale_verified"].get<bool>());
+  // ... unless a known baseline sets it.
+  const double true_baseline = truth.BaselineMm(truth.cameras[0], truth.cameras[1]);
+  ASSERT_EQ(RunCli({"calibrate", "refine", "--rig", (tmp / "bumped.yaml").string(), "--imageset", (tmp / "scan").string(),
+                    "--camera", "left", "--stereo", "right", "--baseline-mm", std::to_string(true_baseline), "--out",
+                    (tmp / "scaled.yaml").string()}),
+            0);
+  const Rig scaled = LoadRig(tmp / "scaled.yaml");
+  EXPECT_TRUE(scaled.calibration["refine"]["scale_verified"].get<bool>());
+  EXPECT_NEAR(scaled.BaselineMm(scaled.cameras[0], scaled.cameras[1]), true_baseline, 1e-3);
+  EXPECT_NE(RunCli({"calibrate", "refine", "--rig", (tmp / "bumped.yaml").string(), "--imageset", (tmp / "scan").string(),
+                    "--camera", "left", "--stereo", "right", "--known-distance", "1,2,3", "--out",
+                    (tmp / "bad.yaml").string()}),
+            0);
+  // A rig without a projector and no --stereo: the error points at --stereo, nothing is written.
+  Rig cameras_only = truth;
+  cameras_only.projector.reset();
+  SaveRig(cameras_only, tmp / "cameras_only.yaml");
+  ::testing::internal::CaptureStderr();
+  EXPECT_NE(RunCli({"calibrate", "refine", "--rig", (tmp / "cameras_only.yaml").string(), "--imageset",
+                    (tmp / "scan").string(), "--out", (tmp / "bad.yaml").string()}),
+            0);
+  const std::string err = ::testing::internal::GetCapturedStderr();
+  EXPECT_NE(err.find("has no projector: refine the pose of one camera against another with --stereo"), std::string::npos)
+      << err;
+  // A twisted pair (the right camera turned 180 degrees about the baseline) fits the same epipolar
+  // geometry: refused for cheirality, nothing written.
+  Rig twisted = truth;
+  const Rigid3d r10_true = truth.cameras[1].cam_from_rig * truth.cameras[0].cam_from_rig.Inverse();
+  twisted.cameras[1].cam_from_rig =
+      Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(M_PI, r10_true.translation.normalized())), Eigen::Vector3d::Zero()) *
+      truth.cameras[1].cam_from_rig;
+  SaveRig(twisted, tmp / "twisted.yaml");
+  ::testing::internal::CaptureStderr();
+  EXPECT_NE(RunCli({"calibrate", "refine", "--rig", (tmp / "twisted.yaml").string(), "--imageset", (tmp / "scan").string(),
+                    "--camera", "left", "--stereo", "right", "--out", (tmp / "bad.yaml").string()}),
+            0);
+  const std::string twisted_err = ::testing::internal::GetCapturedStderr();
+  EXPECT_NE(twisted_err.find("cheirality"), std::string::npos) << twisted_err;
+  EXPECT_FALSE(std::filesystem::exists(tmp / "bad.yaml"));
 }
 
 }  // namespace
