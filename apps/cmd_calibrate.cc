@@ -6,6 +6,8 @@
 #include <filesystem>
 #include <optional>
 #include <set>
+#include <sstream>
+#include <string>
 #include <utility>
 
 #include "apps/commands.h"
@@ -286,6 +288,10 @@ int RunCalibrate(int argc, char** argv) {
       "  rig       --target T.yaml --imagesets DIR... --out RIG.yaml\n"
       "            each DIR an ImageSet (one board pose) with all cameras; projector and cameras jointly\n"
       "  refine    --rig RIG.yaml --imageset SCAN --out RIG2.yaml [--camera NAME] [--stereo NAME] [--refine-focal]\n"
+      "            [--baseline-mm MM | --known-distance U1,V1,U2,V2,MM]\n"
+      "            the scale is the rig file's baseline (\"scale not verified\") unless a known length sets it: the\n"
+      "            baseline, or the distance between the scene points at pixels (U1,V1), (U2,V2) of --camera;\n"
+      "            solutions behind a device (twisted pair) or fitting under half the correspondences are refused\n"
       "            check the rig against a scan's dense camera-projector correspondences (epipolar residual,\n"
       "            projector px: median, p95) and re-estimate the projector's pose, keeping the baseline length;\n"
       "            with --stereo NAME the pose of camera NAME relative to --camera instead (camera-camera matches:\n"
@@ -343,11 +349,16 @@ int RunCalibrate(int argc, char** argv) {
   refine->add_option("--imageset", refine_scan, "ImageSet of a scan (any object) with the rig's camera and a pattern spec coding x and y")->required();
   refine->add_option("--out", refine_out, "refined rig file to write")->required();
   refine->add_option("--camera", refine_camera, "camera to use (default: the rig's first camera)");
-  std::string refine_stereo;
+  std::string refine_stereo, known_distance;
   bool refine_focal = false;
+  double known_baseline_mm = 0;
   refine->add_option("--stereo", refine_stereo,
                      "second camera: refine its pose relative to --camera from camera-camera correspondences "
                      "(default: none, refine the projector)");
+  refine->add_option("--baseline-mm", known_baseline_mm,
+                     "known baseline length between --camera and the refined device, mm: fixes the scale");
+  refine->add_option("--known-distance", known_distance,
+                     "U1,V1,U2,V2,MM: two pixels of --camera seeing scene points MM mm apart: fixes the scale");
   refine->add_flag("--refine-focal", refine_focal,
                    "also re-estimate the focal length of the projector (or of the --stereo camera); default off");
 
@@ -492,25 +503,58 @@ int RunCalibrate(int argc, char** argv) {
     const PatternSpec patterns =
         PatternSpecFromConfig(ConfigNode::FromJson(scan.patterns(), (fs::path(refine_scan) / "manifest.json").string(), "patterns"));
     SLSHADOW_THROW_IF(!patterns.code_x || !patterns.code_y, refine_scan, ": patterns must code both projector axes to check the calibration");
+    SLSHADOW_THROW_IF(refine_stereo.empty() && !rig.projector, refine_rig, ": rig '", rig.name,
+                      "' has no projector: refine the pose of one camera against another with --stereo NAME");
     const ProjectorMap map = DecodePatterns(patterns, scan.LoadCamera(cam), decode);
     RefineOptions ro;
     ro.refine_focal = refine_focal;
+    ro.known_baseline_mm = known_baseline_mm;
+    std::optional<ProjectorMap> map_b;
+    if (!refine_stereo.empty()) {
+      const int index_b = rig.CameraIndex(refine_stereo);
+      SLSHADOW_THROW_IF(index_b < 0, refine_rig, ": no camera named '", refine_stereo, "' (--stereo)");
+      map_b = DecodePatterns(patterns, scan.LoadCamera(refine_stereo), decode);
+    }
+    if (!known_distance.empty()) {
+      std::vector<double> v;
+      std::stringstream in(known_distance);
+      for (std::string item; std::getline(in, item, ',');) {
+        try {
+          v.push_back(std::stod(item));
+        } catch (const std::exception&) {
+          v.clear();
+          break;
+        }
+      }
+      SLSHADOW_THROW_IF(v.size() != 5, "--known-distance: expected U1,V1,U2,V2,MM (got '", known_distance, "')");
+      KnownDistance k;
+      k.distance_mm = v[4];
+      for (int i = 0; i < 2; ++i) {
+        const Eigen::Vector2d px(v[static_cast<size_t>(2 * i)], v[static_cast<size_t>(2 * i + 1)]);
+        const auto c = CorrespondenceAt(map, map_b ? &*map_b : nullptr, px);
+        SLSHADOW_THROW_IF(!c, "--known-distance: pixel (", px.x(), ", ", px.y(), ") of camera '", cam,
+                          "' has no decoded correspondence", map_b ? " in both cameras" : "");
+        (i == 0 ? k.first : k.second) = *c;
+      }
+      ro.known_distances.push_back(k);
+    }
     RefineResult r;
     if (refine_stereo.empty()) {
       r = RefineProjectorPose(rig, index, SampleCorrespondences(map), ro);
     } else {
-      const int index_b = rig.CameraIndex(refine_stereo);
-      SLSHADOW_THROW_IF(index_b < 0, refine_rig, ": no camera named '", refine_stereo, "' (--stereo)");
-      const ProjectorMap map_b = DecodePatterns(patterns, scan.LoadCamera(refine_stereo), decode);
-      r = RefineStereoPose(rig, index, index_b, StereoCorrespondences(map, map_b), ro);
+      r = RefineStereoPose(rig, index, rig.CameraIndex(refine_stereo), StereoCorrespondences(map, *map_b), ro);
     }
+    // A refused solution writes nothing: the report says why.
+    SLSHADOW_THROW_IF(r.rejected, refine_rig, ": calibrate refine: ", r.message);
     Rig out = r.rig;
     out.calibration["refine"] = {{"imageset", refine_scan}, {"camera", cam}, {"stereo", refine_stereo},
                                  {"focal_scale", r.focal_scale},
                                  {"before_median_px", r.before.median_px}, {"before_p95_px", r.before.p95_px},
                                  {"after_median_px", r.after.median_px}, {"after_p95_px", r.after.p95_px},
                                  {"rotation_change_rad", r.rotation_change_rad},
-                                 {"direction_change_rad", r.direction_change_rad}, {"converged", r.converged}};
+                                 {"direction_change_rad", r.direction_change_rad}, {"converged", r.converged},
+                                 {"front_share", r.front_share}, {"inlier_share", r.inlier_share},
+                                 {"baseline_mm", r.baseline_mm}, {"scale_verified", r.scale_verified}};
     SaveRig(out, refine_out);
     std::printf("%s\nwrote %s\n", r.message.c_str(), refine_out.c_str());
     return 0;

@@ -35,7 +35,10 @@ int RunPatterns(int argc, char** argv) {
       "  show SPEC                 print the spec, its image count and the role of every frame.\n\n"
       "SPEC is a .yaml or .json file with the spec's fields, or an ImageSet manifest.json (its\n"
       "\"patterns\" member). Examples: config/patterns/graycode_phase.yaml (Gray code + 4-step phase\n"
-      "shift, 1280x800), config/patterns/kamino_opencv_graycode.yaml (OpenCV GrayCodePattern order).",
+      "shift, 1280x800), config/patterns/kamino_opencv_graycode.yaml (OpenCV GrayCodePattern order),\n"
+      "config/patterns/phase12_gray7_no_inverse.yaml (12 steps, Gray bits without inverse, phase offset\n"
+      "and direction), phase_shifted_gray.yaml (shifted Gray code), phase_frame_order.yaml (own frame\n"
+      "order). The frame names `show` prints, as a `frame_order` list, read back as the same sequence.",
       argv[0]};
   app.require_subcommand(1);
   std::string spec_path, out_dir;

@@ -1,4 +1,4 @@
-// slshadow reconstruct IMAGESET --out CLOUD.ply [--mode projector|stereo] [--method ...]
+// slshadow reconstruct IMAGESET --out CLOUD.ply [--rig RIG.yaml] [--mode auto|projector|stereo] [--method ...]
 #include <CLI/CLI.hpp>
 #include <cstdio>
 #include <cmath>
@@ -13,6 +13,7 @@
 #include "core/file_util.h"
 #include "core/image_set.h"
 #include "core/point_cloud.h"
+#include "core/rig.h"
 #include "reconstruct/reconstruct_image_set.h"
 
 namespace slshadow::app {
@@ -38,16 +39,22 @@ int RunReconstruct(int argc, char** argv) {
       "and warns (stderr) when the field is significant against the noise, naming its likely cause;\n"
       "with one coded axis it says why it is not available.",
       argv[0]};
-  std::string imageset_dir, out_path, summary_path, mode = "projector", method = "midpoint", interpolation = "auto";
+  std::string imageset_dir, out_path, summary_path, rig_path, mode = "auto", method = "midpoint", interpolation = "auto";
   ImageSetReconstructOptions options;
   ReconstructOptions& r = options.reconstruct;
   bool ascii = false, no_discontinuity = false, no_outliers = false, no_normals = false, quiet = false;
   double max_reproj = r.max_reprojection_error_px, max_epi = r.max_epipolar_error_px;
   app.add_option("IMAGESET", imageset_dir, "ImageSet folder (holds manifest.json)")->required()->check(CLI::ExistingDirectory);
   app.add_option("--out", out_path, "output point cloud (.ply)")->required();
-  app.add_option("--mode", mode, "projector: camera-projector triangulation; stereo: two cameras")
-      ->check(CLI::IsMember({"projector", "stereo"}))
+  app.add_option("--mode", mode,
+                 "projector: camera-projector triangulation; stereo: two cameras; auto: projector when the rig "
+                 "has a projector, else stereo")
+      ->check(CLI::IsMember({"auto", "projector", "stereo"}))
       ->capture_default_str();
+  app.add_option("--rig", rig_path,
+                 "rig file to use instead of the manifest's (e.g. from `slshadow calibrate refine`); the ImageSet "
+                 "is not modified, the summary records the rig used")
+      ->check(CLI::ExistingFile);
   app.add_option("--method", method,
                  "two-view triangulation: midpoint (of the common perpendicular), dlt (linear, SVD), "
                  "optimal (Lindstrom niter2: least image correction)")
@@ -115,7 +122,9 @@ int RunReconstruct(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
   }
-  options.mode = ReconstructModeFromString(mode);
+  const ImageSet image_set = ImageSet::Open(imageset_dir);
+  const Rig rig = rig_path.empty() ? image_set.rig() : LoadRig(rig_path);
+  options.mode = mode == "auto" ? DefaultReconstructMode(rig) : ReconstructModeFromString(mode);
   r.method = TriangulationMethodFromString(method);
   r.stereo_interpolation = StereoInterpolationFromString(interpolation);
   const double inf = std::numeric_limits<double>::infinity();
@@ -126,10 +135,9 @@ int RunReconstruct(int argc, char** argv) {
   r.estimate_normals = !no_normals;
   options.Check();
 
-  const ImageSet image_set = ImageSet::Open(imageset_dir);
-  const ImageSetReconstruction rec = ReconstructImageSet(image_set, options);
-  // An empty cloud is an error with its reason (a wrong rig file, most often), and nothing is written.
-  SLSHADOW_THROW_IF(rec.cloud.empty(), "reconstruct: ", imageset_dir, ": 0 points: ", rec.NoPointsReason());
+  const ImageSetReconstruction rec = ReconstructImageSet(image_set, options, rig);
+  // An empty cloud is a failure with a reason, not a result (nothing is written).
+  SLSHADOW_THROW_IF(rec.cloud.empty(), imageset_dir, ": the reconstruction has 0 points: ", rec.EmptyCloudReason());
   PlyWriteOptions ply;
   ply.binary = !ascii;
   WritePly(out_path, rec.cloud, ply);
@@ -141,6 +149,11 @@ int RunReconstruct(int argc, char** argv) {
   summary["imageset"] = imageset_dir;
   summary["cloud"] = out_path;
   summary["options"] = options.ToJson();
+  // Provenance of the rig: the manifest's, or the file given with --rig.
+  summary["rig"] = {{"name", rig.name},
+                    {"source", rig_path.empty() ? "manifest" : "file"},
+                    {"file", rig_path.empty() ? (std::filesystem::path(imageset_dir) / "manifest.json").string()
+                                              : std::filesystem::absolute(rig_path).string()}};
   // Calibration-check maps: the dense correspondences' |epipolar error|, colour-coded from 0 (blue)
   // to 2 x the check's threshold (red); black where no correspondence. Each entry carries the
   // check's verdict and the likely causes it named.
@@ -179,6 +192,7 @@ int RunReconstruct(int argc, char** argv) {
   } else {
     std::printf("%s", rec.FullReport().c_str());
   }
+  if (!rig_path.empty()) std::printf("rig: %s (--rig; the manifest's rig was not used)\n", rig_path.c_str());
   std::printf("wrote %s (%zu points) and %s\n", out_path.c_str(), rec.cloud.size(), summary_path.c_str());
   return 0;
 }

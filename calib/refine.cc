@@ -96,7 +96,37 @@ struct PairResult {
   EpipolarStats before, after;
   double rotation_change_rad = 0, direction_change_rad = 0, focal_scale = 1;
   bool converged = false;
+  double front_share = 0, inlier_share = 0;
+  bool scale_verified = false;
+  std::string scale_note;  // how the scale was set
 };
+
+// Depths (along the rays, in ray units) of the midpoint triangulation of rays xa (frame a) and xb
+// (frame b); nullopt for parallel rays.
+std::optional<Eigen::Vector2d> Depths(const Rigid3d& b_from_a, const Eigen::Vector3d& xa, const Eigen::Vector3d& xb) {
+  const Eigen::Matrix3d rt = b_from_a.rotation.toRotationMatrix().transpose();
+  const Eigen::Vector3d cb = -rt * b_from_a.translation, db = rt * xb;
+  Eigen::Matrix<double, 3, 2> a;
+  a.col(0) = xa;
+  a.col(1) = -db;
+  const Eigen::Matrix2d n = a.transpose() * a;
+  if (std::abs(n.determinant()) < 1e-12 * n.trace() * n.trace()) return std::nullopt;
+  return Eigen::Vector2d(n.ldlt().solve(a.transpose() * cb));
+}
+
+// The midpoint of a correspondence in frame a (mm at the pose's scale).
+std::optional<Eigen::Vector3d> Triangulate(const CameraModel& ma, const CameraModel& mb, const Rigid3d& b_from_a,
+                                           const Correspondence& c) {
+  const auto a = ma.UndistortToNormalized(c.camera_px);
+  const auto b = mb.UndistortToNormalized(c.projector_px);
+  if (!a || !b) return std::nullopt;
+  const Eigen::Vector3d xa(a->x(), a->y(), 1), xb(b->x(), b->y(), 1);
+  const auto d = Depths(b_from_a, xa, xb);
+  if (!d) return std::nullopt;
+  const Eigen::Matrix3d rt = b_from_a.rotation.toRotationMatrix().transpose();
+  const Eigen::Vector3d pa = d->x() * xa, pb = -rt * b_from_a.translation + d->y() * (rt * xb);
+  return Eigen::Vector3d(0.5 * (pa + pb));
+}
 
 // Refines b_from_a (and optionally model_b's focal length) of the pair.
 PairResult RefinePair(const CameraModel& model_a, const CameraModel& model_b_in, const Rigid3d& initial,
@@ -144,19 +174,59 @@ PairResult RefinePair(const CameraModel& model_a, const CameraModel& model_b_in,
   const Eigen::Quaterniond q =
       angle > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, rvec / angle)) : Eigen::Quaterniond::Identity();
   out.b_from_a = Rigid3d(q, length * dir.normalized());
-  out.after = Stats(Residuals(rays, out.b_from_a, out.model_b.fx()));
+  const std::vector<double> after = Residuals(rays, out.b_from_a, out.model_b.fx());
+  out.after = Stats(after);
+  // Inliers, and cheirality over the inliers (an outlier's depth means nothing).
+  int front = 0, inliers = 0;
+  for (size_t i = 0; i < rays.cam.size(); ++i) {
+    if (!(after[i] <= options.inlier_px)) continue;
+    ++inliers;
+    const auto d = Depths(out.b_from_a, rays.cam[i], rays.proj[i]);
+    front += d && d->x() > 0 && d->y() > 0;
+  }
+  const double n = static_cast<double>(std::max<size_t>(correspondences.size(), 1));
+  out.front_share = inliers > 0 ? front / static_cast<double>(inliers) : 0.0;
+  out.inlier_share = inliers / n;  // correspondences that did not unproject count as lost
+  // Scale: a known length, else the rig file's baseline.
+  char note[300];
+  if (options.known_baseline_mm > 0) {
+    out.b_from_a.translation = options.known_baseline_mm * dir.normalized();
+    out.scale_verified = true;
+    std::snprintf(note, sizeof(note), "scale set by the known baseline: %.3f mm (rig file: %.3f mm)",
+                  options.known_baseline_mm, length);
+    out.scale_note = note;
+  } else if (!options.known_distances.empty()) {
+    const KnownDistance& k = options.known_distances[0];
+    const auto p1 = Triangulate(model_a, out.model_b, out.b_from_a, k.first);
+    const auto p2 = Triangulate(model_a, out.model_b, out.b_from_a, k.second);
+    SLSHADOW_THROW_IF(!p1 || !p2, "calibrate refine: a point of the known distance does not triangulate");
+    const double measured = (*p1 - *p2).norm();
+    SLSHADOW_THROW_IF(!(measured > 0), "calibrate refine: the two points of the known distance coincide");
+    out.b_from_a.translation *= k.distance_mm / measured;
+    out.scale_verified = true;
+    std::snprintf(note, sizeof(note),
+                  "scale set by the known distance %.3f mm (%.3f mm with the rig file's baseline): baseline %.3f -> %.3f mm",
+                  k.distance_mm, measured, length, out.b_from_a.translation.norm());
+    out.scale_note = note;
+  } else {
+    std::snprintf(note, sizeof(note),
+                  "scale not verified: the baseline is the rig file's %.3f mm (self-calibration cannot measure scale; "
+                  "give a known baseline or a measured distance between two scene points)",
+                  length);
+    out.scale_note = note;
+  }
   out.rotation_change_rad = out.b_from_a.rotation.angularDistance(initial.rotation);
   out.direction_change_rad = std::acos(std::clamp(dir.normalized().dot(initial.translation / length), -1.0, 1.0));
   return out;
 }
 
-std::string Message(const PairResult& r, const std::string& second, double length, const RefineOptions& options) {
+std::string Message(const PairResult& r, const std::string& second, const RefineOptions& options) {
   char msg[600];
   std::snprintf(msg, sizeof(msg),
                 "epipolar residual median %.3f -> %.3f px, p95 %.3f -> %.3f px (%d correspondences); %s rotated "
-                "%.4f deg, baseline direction turned %.4f deg, baseline kept at %.3f mm%s%s",
+                "%.4f deg, baseline direction turned %.4f deg, baseline %.3f mm%s%s",
                 r.before.median_px, r.after.median_px, r.before.p95_px, r.after.p95_px, r.after.count, second.c_str(),
-                r.rotation_change_rad * 180 / M_PI, r.direction_change_rad * 180 / M_PI, length,
+                r.rotation_change_rad * 180 / M_PI, r.direction_change_rad * 180 / M_PI, r.b_from_a.translation.norm(),
                 options.refine_focal ? (", focal length x" + std::to_string(r.focal_scale)).c_str() : "",
                 r.before.median_px > options.warn_median_px
                     ? "; WARNING: before refinement the calibration did not fit this scan (bumped rig, swapped devices or wrong file?)"
@@ -166,7 +236,29 @@ std::string Message(const PairResult& r, const std::string& second, double lengt
     out += "; WARNING: the correction is far larger than a bump (swapped camera names or a rig file of another rig?): "
            "check before trusting the refined rig";
   }
-  return out;
+  return out + "; " + r.scale_note;
+}
+
+// Why a refined pair is refused, or empty.
+std::string Rejection(const PairResult& r, const RefineOptions& options) {
+  char msg[400];
+  if (r.inlier_share < options.min_inlier_share) {
+    std::snprintf(msg, sizeof(msg),
+                  "rejected: the refined pose fits only %.0f %% of the correspondences within %.1f px (need %.0f %%): "
+                  "most correspondences are lost (wrong scan or rig file, or a decoding failure?)",
+                  100 * r.inlier_share, options.inlier_px, 100 * options.min_inlier_share);
+    return msg;
+  }
+  if (r.front_share < options.min_front_share) {
+    std::snprintf(msg, sizeof(msg),
+                  "rejected: only %.0f %% of the fitting correspondences triangulate in front of both devices (cheirality; "
+                  "need %.0f %%): the solution is the twisted pair or the reversed baseline of the true pose, a "
+                  "mirror image that fits the epipolar geometry equally well; the rig file is too far off (wrong "
+                  "file or swapped devices?)",
+                  100 * r.front_share, 100 * options.min_front_share);
+    return msg;
+  }
+  return "";
 }
 
 void CheckCamera(const Rig& rig, int camera, const char* what) {
@@ -253,13 +345,49 @@ RefineResult PairToResult(const PairResult& p, const Rig& rig, DeviceB device_b,
   RigDevice& nb = device_b(out.rig);
   nb.cam_from_rig = p.b_from_a * a_from_rig;
   nb.model = p.model_b;
-  out.message = Message(p, b_label, initial.translation.norm(), options);
+  out.front_share = p.front_share;
+  out.inlier_share = p.inlier_share;
+  out.baseline_mm = p.b_from_a.translation.norm();
+  out.scale_verified = p.scale_verified;
+  out.rejection = Rejection(p, options);
+  out.rejected = !out.rejection.empty();
+  out.message = Message(p, b_label, options);
+  if (out.rejected) out.message += "; " + out.rejection;
+  (void)initial;
   return out;
+}
+
+void RefineOptions::Check() const {
+  const char* p = "refine options: ";
+  SLSHADOW_THROW_IF(!(loss_scale_px > 0), p, "loss_scale_px: must be > 0 (got ", loss_scale_px, ")");
+  SLSHADOW_THROW_IF(max_iterations < 1, p, "max_iterations: must be >= 1 (got ", max_iterations, ")");
+  SLSHADOW_THROW_IF(!(known_baseline_mm >= 0) || !std::isfinite(known_baseline_mm), p,
+                    "known_baseline_mm: must be >= 0 (got ", known_baseline_mm, ")");
+  SLSHADOW_THROW_IF(known_distances.size() > 1, p, "known_distances: at most one (got ", known_distances.size(), ")");
+  SLSHADOW_THROW_IF(known_baseline_mm > 0 && !known_distances.empty(), p,
+                    "known_baseline_mm, known_distances: give one known length, not both");
+  for (const auto& k : known_distances) {
+    SLSHADOW_THROW_IF(!(k.distance_mm > 0) || !std::isfinite(k.distance_mm), p,
+                      "known_distances: distance_mm must be > 0 (got ", k.distance_mm, ")");
+  }
+  SLSHADOW_THROW_IF(!(min_front_share >= 0 && min_front_share <= 1), p, "min_front_share: must be in [0, 1] (got ",
+                    min_front_share, ")");
+  SLSHADOW_THROW_IF(!(min_inlier_share >= 0 && min_inlier_share <= 1), p,
+                    "min_inlier_share: must be in [0, 1] (got ", min_inlier_share, ")");
+  SLSHADOW_THROW_IF(!(inlier_px > 0), p, "inlier_px: must be > 0 (got ", inlier_px, ")");
 }
 
 RefineResult RefineProjectorPose(const Rig& rig, int camera, const std::vector<Correspondence>& correspondences,
                                  const RefineOptions& options) {
-  SLSHADOW_THROW_IF(!rig.projector, "calibrate refine: rig '", rig.name, "' has no projector");
+  options.Check();
+  SLSHADOW_THROW_IF(!rig.projector, "calibrate refine: rig '", rig.name,
+                    "' has no projector: refine a camera pair instead (--stereo CAMERA, cameras: ",
+                    [&] {
+                      std::string names;
+                      for (const auto& c : rig.cameras) names += (names.empty() ? "" : ", ") + c.name;
+                      return names;
+                    }(),
+                    ")");
   CheckCamera(rig, camera, "calibrate refine");
   const auto& cam = rig.cameras[static_cast<size_t>(camera)];
   const Rigid3d initial = rig.projector->cam_from_rig * cam.cam_from_rig.Inverse();
@@ -268,7 +396,11 @@ RefineResult RefineProjectorPose(const Rig& rig, int camera, const std::vector<C
                       options);
 }
 
-std::vector<Correspondence> StereoCorrespondences(const ProjectorMap& a, const ProjectorMap& b, int max_samples) {
+namespace {
+// Stereo matches of `a`'s samples in `b`, or of the one correspondence `only` (a pixel of a with its
+// projector coordinate).
+std::vector<Correspondence> StereoMatches(const ProjectorMap& a, const ProjectorMap& b, int max_samples,
+                                          const std::optional<Correspondence>& only) {
   SLSHADOW_THROW_IF(a.proj_x.empty() || a.proj_y.empty() || b.proj_x.empty() || b.proj_y.empty(),
                     "stereo correspondences: both projector maps must decode both projector axes");
   // Index b by projector coordinate: a grid of 1 projector px cells, each holding one b pixel.
@@ -290,7 +422,8 @@ std::vector<Correspondence> StereoCorrespondences(const ProjectorMap& a, const P
       grid.at<int32_t>(static_cast<int>(std::lround(v)), static_cast<int>(std::lround(u))) = y * b.width() + x;
     }
   }
-  const std::vector<Correspondence> samples = SampleCorrespondences(a, max_samples);
+  const std::vector<Correspondence> samples =
+      only ? std::vector<Correspondence>{*only} : SampleCorrespondences(a, max_samples);
   std::vector<Correspondence> out;
   for (const auto& s : samples) {
     const int gu = static_cast<int>(std::lround(s.projector_px.x())), gv = static_cast<int>(std::lround(s.projector_px.y()));
@@ -301,6 +434,24 @@ std::vector<Correspondence> StereoCorrespondences(const ProjectorMap& a, const P
     if (m) out.push_back({s.camera_px, *m});
   }
   return out;
+}
+}  // namespace
+
+std::vector<Correspondence> StereoCorrespondences(const ProjectorMap& a, const ProjectorMap& b, int max_samples) {
+  return StereoMatches(a, b, max_samples, std::nullopt);
+}
+
+std::optional<Correspondence> CorrespondenceAt(const ProjectorMap& a, const ProjectorMap* b, const Eigen::Vector2d& pixel) {
+  const int x = static_cast<int>(std::lround(pixel.x())), y = static_cast<int>(std::lround(pixel.y()));
+  if (x < 0 || y < 0 || x >= a.width() || y >= a.height()) return std::nullopt;
+  if (a.status.at<uint8_t>(y, x) != static_cast<uint8_t>(PixelStatus::kValid)) return std::nullopt;
+  const float u = a.proj_x.at<float>(y, x), v = a.proj_y.at<float>(y, x);
+  if (!std::isfinite(u) || !std::isfinite(v)) return std::nullopt;
+  const Correspondence c{Eigen::Vector2d(x, y), Eigen::Vector2d(u, v)};
+  if (!b) return c;
+  const auto m = StereoMatches(a, *b, 1, c);
+  if (m.empty()) return std::nullopt;
+  return m[0];
 }
 
 EpipolarStats StereoEpipolarResiduals(const Rig& rig, int camera_a, int camera_b,
@@ -316,6 +467,7 @@ EpipolarStats StereoEpipolarResiduals(const Rig& rig, int camera_a, int camera_b
 
 RefineResult RefineStereoPose(const Rig& rig, int camera_a, int camera_b, const std::vector<Correspondence>& correspondences,
                               const RefineOptions& options) {
+  options.Check();
   CheckCamera(rig, camera_a, "calibrate refine");
   CheckCamera(rig, camera_b, "calibrate refine");
   SLSHADOW_THROW_IF(camera_a == camera_b, "calibrate refine: stereo needs two different cameras (both are ", camera_a, ")");

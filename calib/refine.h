@@ -9,8 +9,11 @@
 //
 // Refinement re-estimates proj_from_cam (rotation, and the translation's direction) by
 // minimising the Cauchy-robustified residuals with Ceres; the translation's length (the
-// baseline) is kept from the original calibration, which fixes the scale (epipolar geometry has
-// none). Intrinsics are kept unless RefineOptions::refine_focal: then the focal length of the
+// baseline) is kept from the original calibration (epipolar geometry has no scale), so the scale
+// is not verified unless a known length is given (RefineOptions: a baseline in mm, or a measured
+// distance between two scene points). A solution is rejected (RefineResult::rejected) when it
+// fails cheirality (the twisted pair or the reversed baseline of the same epipolar geometry: the
+// triangulated points lie behind a device) or fits only a minority of the correspondences. Intrinsics are kept unless RefineOptions::refine_focal: then the focal length of the
 // second device of the pair (the projector, or camera_b in stereo) is re-estimated too, as one
 // scale on fx and fy (aspect, principal point and distortion kept).
 //
@@ -19,6 +22,7 @@
 // to camera_b's pose relative to camera_a, in camera_b pixels.
 #pragma once
 
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -48,6 +52,13 @@ struct EpipolarStats {
 EpipolarStats EpipolarResiduals(const Rig& rig, int camera, const std::vector<Correspondence>& correspondences,
                                 std::vector<double>* residuals_px = nullptr);
 
+// A distance measured in the scene between two points, each given by a correspondence of the
+// pair (camera_px in the first device, projector_px the second device's pixel).
+struct KnownDistance {
+  Correspondence first, second;
+  double distance_mm = 0;
+};
+
 struct RefineOptions {
   double loss_scale_px = 1.0;  // Cauchy loss scale, projector px
   int max_iterations = 100;
@@ -56,6 +67,17 @@ struct RefineOptions {
   // Also re-estimate the second device's focal length (one scale on fx, fy). Needs a pair whose
   // optical axes are not coplanar with the baseline (else focal length and pose trade off).
   bool refine_focal = false;
+  // A known length fixes the scale (at most one): the baseline between the pair's centres (mm),
+  // or the distance between two scene points. 0 / empty: the rig file's baseline is kept.
+  double known_baseline_mm = 0;
+  std::vector<KnownDistance> known_distances;  // at most one
+  // Rejection: fewer than this share of the correspondences fit the refined pose within
+  // inlier_px (px of the second device), or of those inliers triangulate in front of both devices.
+  double min_front_share = 0.8;
+  double min_inlier_share = 0.5;
+  double inlier_px = 3.0;
+
+  void Check() const;  // throws slshadow::Error naming the field
 };
 
 struct RefineResult {
@@ -65,11 +87,20 @@ struct RefineResult {
   double direction_change_rad = 0;   // angle between the old and the new baseline direction
   double focal_scale = 1;            // new / old focal length of the second device (1 unless refine_focal)
   bool converged = false;
-  std::string message;      // one line for the user
+  double front_share = 0;   // share of the inliers triangulated in front of both devices
+  double inlier_share = 0;  // share of correspondences within RefineOptions::inlier_px after refinement
+  double baseline_mm = 0;   // the refined pair's baseline length
+  bool scale_verified = false;  // a known length set the scale (else the rig file's baseline is kept)
+  // A solution to refuse: the reason (cheirality or lost correspondences) is in `rejection` and
+  // `message`; `rig` must not be used.
+  bool rejected = false;
+  std::string rejection;
+  std::string message;      // the report for the user (one paragraph)
 };
 
 // Refines the projector's pose relative to camera `camera` (throws slshadow::Error when the rig
-// has no projector, the camera index is out of range, or fewer than 20 correspondences unproject).
+// has no projector, the camera index is out of range, or fewer than 20 correspondences unproject;
+// a solution that fails cheirality or loses most correspondences comes back `rejected`).
 RefineResult RefineProjectorPose(const Rig& rig, int camera, const std::vector<Correspondence>& correspondences,
                                  const RefineOptions& options = {});
 
@@ -79,6 +110,11 @@ RefineResult RefineProjectorPose(const Rig& rig, int camera, const std::vector<C
 // coordinates over b's 5x5 neighbourhood of the closest match). camera_px is the pixel in `a`,
 // projector_px the matching pixel in `b`. Pixels without a consistent match are skipped.
 std::vector<Correspondence> StereoCorrespondences(const ProjectorMap& a, const ProjectorMap& b, int max_samples = 20000);
+
+// The correspondence of camera pixel `pixel` (rounded) of `a`: with its projector coordinate, or,
+// with `b`, the matching pixel of camera b (as StereoCorrespondences); nullopt where it has none.
+// For KnownDistance points.
+std::optional<Correspondence> CorrespondenceAt(const ProjectorMap& a, const ProjectorMap* b, const Eigen::Vector2d& pixel);
 
 // Residuals (camera_b px) of stereo correspondences (camera_px in camera_a, projector_px in
 // camera_b) under the rig's two cameras.

@@ -82,7 +82,17 @@ ImageSetReconstruction ReconstructFromImages(const Rig& rig, const PatternSpec& 
   std::vector<std::string> available;
   for (const auto& [name, frames] : images) available.push_back(name);
   ImageSetReconstruction out;
+  SLSHADOW_THROW_IF(options.mode == ReconstructMode::kProjector && !rig.projector, "reconstruct: rig '", rig.name,
+                    "' has no projector, which projector mode needs; reconstruct in stereo mode (--mode stereo) ",
+                    "with two of its ", rig.cameras.size(), " camera(s)");
   out.cameras = SelectCameras(rig, available, options);
+  for (const auto& name : out.cameras) {
+    const CameraModel& model = rig.Camera(name).model;
+    const cv::Size size = images.at(name).empty() ? cv::Size() : images.at(name)[0].size();
+    SLSHADOW_THROW_IF(size.width != model.width || size.height != model.height, "reconstruct: rig '", rig.name,
+                      "' camera '", name, "' is ", model.width, "x", model.height, " px but its images are ",
+                      size.width, "x", size.height, ": a rig of another camera?");
+  }
   std::map<std::string, ProjectorMap> maps;
   auto t0 = Clock::now();
   for (const auto& name : out.cameras) maps[name] = DecodePatterns(spec, images.at(name), options.decode);
@@ -112,11 +122,20 @@ ImageSetReconstruction ReconstructFromImages(const Rig& rig, const PatternSpec& 
   return out;
 }
 
+ReconstructMode DefaultReconstructMode(const Rig& rig) {
+  return rig.projector ? ReconstructMode::kProjector : ReconstructMode::kStereo;
+}
+
 ImageSetReconstruction ReconstructImageSet(const ImageSet& image_set, const ImageSetReconstructOptions& options) {
+  return ReconstructImageSet(image_set, options, image_set.rig());
+}
+
+ImageSetReconstruction ReconstructImageSet(const ImageSet& image_set, const ImageSetReconstructOptions& options,
+                                           const Rig& rig) {
   options.Check();
   const PatternSpec spec =
       PatternSpecFromConfig(ConfigNode::FromJson(image_set.patterns(), (image_set.dir() / "manifest.json").string(), "patterns"));
-  const std::vector<std::string> cameras = SelectCameras(image_set.rig(), image_set.CameraNames(), options);
+  const std::vector<std::string> cameras = SelectCameras(rig, image_set.CameraNames(), options);
   auto t0 = Clock::now();
   std::map<std::string, std::vector<cv::Mat>> images;
   for (const auto& name : cameras) {
@@ -128,7 +147,7 @@ ImageSetReconstruction ReconstructImageSet(const ImageSet& image_set, const Imag
   const double load_s = Seconds(t0);
   ImageSetReconstructOptions selected = options;
   selected.cameras = cameras;
-  ImageSetReconstruction out = ReconstructFromImages(image_set.rig(), spec, images, selected);
+  ImageSetReconstruction out = ReconstructFromImages(rig, spec, images, selected);
   out.load_s = load_s;
   return out;
 }
@@ -139,31 +158,42 @@ std::vector<std::string> ImageSetReconstruction::Warnings() const {
   return all;
 }
 
-std::string ImageSetReconstruction::NoPointsReason() const {
+std::string ImageSetReconstruction::EmptyCloudReason() const {
   if (!cloud.empty()) return "";
-  std::string out;
-  for (const auto& s : summaries) {
-    std::vector<std::pair<int64_t, int>> reasons;
+  const auto meaning = [](RejectReason r, bool stereo) -> const char* {
+    switch (r) {
+      case RejectReason::kNotDecoded: return "were not decoded: wrong pattern spec, or images too dark / saturated?";
+      case RejectReason::kLowQuality: return "were below --min-quality";
+      case RejectReason::kNoMatch:
+      case RejectReason::kAmbiguousMatch: return "found no stereo match: wrong rig file?";
+      case RejectReason::kBehindDevice:
+        return stereo ? "triangulated behind a camera: wrong rig file, or left and right swapped?"
+                      : "triangulated behind a device: wrong rig file?";
+      case RejectReason::kParallelRays: return "had near-parallel rays: wrong rig file?";
+      case RejectReason::kOutOfDepthRange: return "fell outside the depth range (--min-depth-mm, --max-depth-mm)";
+      case RejectReason::kReprojectionError:
+      case RejectReason::kEpipolarError: return "failed the residual gates: wrong rig file, or a rig that does not fit the images?";
+      default: return "were rejected";
+    }
+  };
+  std::ostringstream out;
+  if (summaries.empty()) return "nothing was reconstructed";
+  for (size_t k = 0; k < summaries.size(); ++k) {
+    const ReconstructSummary& s = summaries[k];
+    int best = 1;
     for (int r = 1; r < kNumRejectReasons; ++r) {
-      if (s.rejected[static_cast<size_t>(r)] > 0) reasons.emplace_back(s.rejected[static_cast<size_t>(r)], r);
+      if (s.rejected[static_cast<size_t>(r)] > s.rejected[static_cast<size_t>(best)]) best = r;
     }
-    std::sort(reasons.rbegin(), reasons.rend());
-    out += (out.empty() ? "" : "; ") + s.camera + "-" + s.other_device + ": ";
-    if (reasons.empty()) out += "no cells";
-    for (size_t k = 0; k < reasons.size() && k < 2; ++k) {
-      char buf[160];
-      const double percent = 100.0 * static_cast<double>(reasons[k].first) / static_cast<double>(std::max<int64_t>(s.cells, 1));
-      if (k == 0) {
-        std::snprintf(buf, sizeof(buf), "%.1f %% of %lld cells rejected as %s", percent, static_cast<long long>(s.cells),
-                      ToString(static_cast<RejectReason>(reasons[k].second)));
-      } else {
-        std::snprintf(buf, sizeof(buf), ", %.1f %% as %s", percent, ToString(static_cast<RejectReason>(reasons[k].second)));
-      }
-      out += buf;
-    }
-    if (s.calibration_check.warn) out += " (" + s.calibration_check.Message() + ")";
+    const double share = s.cells > 0 ? 100.0 * static_cast<double>(s.rejected[static_cast<size_t>(best)]) / s.cells : 0;
+    char line[320];
+    std::snprintf(line, sizeof(line), "%s%s-%s: %.0f %% of %lld cells %s (%s)", k ? "; " : "", s.camera.c_str(),
+                  s.other_device.c_str(), share, static_cast<long long>(s.cells),
+                  meaning(static_cast<RejectReason>(best), s.mode == ReconstructMode::kStereo),
+                    ToString(static_cast<RejectReason>(best)));
+    out << line;
+    if (s.calibration_check.warn) out << " (" << s.calibration_check.Message() << ")";
   }
-  return out;
+  return out.str();
 }
 
 std::string ImageSetReconstruction::FullReport() const {

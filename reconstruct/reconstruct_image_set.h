@@ -45,11 +45,11 @@ struct ImageSetReconstruction {
   std::vector<std::pair<std::string, cv::Mat>> residual_maps;
   // All summaries' calibration-check warnings.
   std::vector<std::string> Warnings() const;
-  // Why the cloud is empty, for an error message: per reconstruction its most frequent rejection
-  // reasons with their shares, and its calibration-check warning ("left-projector: 76.0 % of
-  // 1310720 cells rejected as reprojection_error, ...; calibration check: ..."). Empty when the
-  // cloud has points.
-  std::string NoPointsReason() const;
+  // Why the cloud is empty, in one line: the largest rejection reasons per reconstruction with
+  // their share of the cells and what they usually mean (e.g. "stereo left-right: 54 % of cells
+  // found no stereo match: wrong rig file?"), and each
+  // reconstruction's calibration-check warning when it has one. Empty when the cloud has points.
+  std::string EmptyCloudReason() const;
   double load_s = 0;         // reading and decoding image files
   double decode_s = 0;       // fringe decoding (DecodePatterns), all cameras
   double reconstruct_s = 0;  // triangulation, filters, normals, merging
@@ -68,5 +68,12 @@ ImageSetReconstruction ReconstructFromImages(const Rig& rig, const PatternSpec& 
 // Loads the ImageSet's images (in parallel) and calls ReconstructFromImages with the rig and
 // the pattern spec stored in its manifest.
 ImageSetReconstruction ReconstructImageSet(const ImageSet& image_set, const ImageSetReconstructOptions& options);
+// The same with another rig than the manifest's (e.g. a refined one; the manifest is not read
+// for it): it must name the ImageSet's cameras, at the images' size.
+ImageSetReconstruction ReconstructImageSet(const ImageSet& image_set, const ImageSetReconstructOptions& options,
+                                           const Rig& rig);
+
+// The mode a rig supports by default: projector mode when it has a projector, else stereo.
+ReconstructMode DefaultReconstructMode(const Rig& rig);
 
 }  // namespace slshadow

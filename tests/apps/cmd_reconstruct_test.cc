@@ -5,6 +5,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <string>
 #include <vector>
 
@@ -161,6 +162,74 @@ TEST_F(CmdReconstruct, BadInputFailsWithoutWriting) {
   EXPECT_NE(RunCli({"reconstruct", Scan().string(), "--max-depth-mm", "nan", "--out", out.string()}), 0);
   EXPECT_FALSE(std::filesystem::exists(out));
   EXPECT_FALSE(std::filesystem::exists(Dir() / "bad.summary.json"));
+}
+
+
+std::string ReadFile(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+// --rig: another rig than the manifest's, the manifest untouched, the summary saying which.
+TEST_F(CmdReconstruct, RigOptionUsesAnotherRigAndRecordsIt) {
+  const std::string manifest = ReadFile(Scan() / "manifest.json");
+  Rig moved = LoadRig(Dir() / "rig.yaml");
+  moved.name = "refined";
+  // A 0.2 % longer baseline (what a refinement may change): the same epipolar geometry, a scaled cloud.
+  moved.projector->cam_from_rig.translation *= 1.002;
+  SaveRig(moved, Dir() / "refined.yaml");
+  const auto base = Dir() / "rig_base.ply", refined = Dir() / "rig_refined.ply";
+  ASSERT_EQ(RunCli({"reconstruct", Scan().string(), "--cameras", "left", "--out", base.string(), "--quiet"}), 0);
+  ASSERT_EQ(RunCli({"reconstruct", Scan().string(), "--cameras", "left", "--rig", (Dir() / "refined.yaml").string(),
+                    "--out", refined.string(), "--quiet"}),
+            0);
+  EXPECT_EQ(ReadFile(Scan() / "manifest.json"), manifest);
+  const nlohmann::json a = ReadJson(Dir() / "rig_base.summary.json"), b = ReadJson(Dir() / "rig_refined.summary.json");
+  EXPECT_EQ(a["rig"]["source"], "manifest");
+  EXPECT_EQ(b["rig"]["source"], "file");
+  EXPECT_EQ(b["rig"]["name"], "refined");
+  EXPECT_NE(b["rig"]["file"].get<std::string>().find("refined.yaml"), std::string::npos);
+  const PointCloud pa = ReadPly(base), pb = ReadPly(refined);
+  ASSERT_GT(pa.size(), 100000u);
+  ASSERT_GT(pb.size(), 100000u);
+  EXPECT_NE(pa.points, pb.points);
+}
+
+// A rig without a projector: the default mode is stereo; projector mode says to use stereo.
+TEST_F(CmdReconstruct, ProjectorlessRigDefaultsToStereo) {
+  Rig cameras_only = LoadRig(Dir() / "rig.yaml");
+  cameras_only.projector.reset();
+  SaveRig(cameras_only, Dir() / "cameras_only.yaml");
+  const auto out = Dir() / "auto_stereo.ply";
+  ASSERT_EQ(RunCli({"reconstruct", Scan().string(), "--rig", (Dir() / "cameras_only.yaml").string(), "--out",
+                    out.string(), "--quiet"}),
+            0);
+  EXPECT_EQ(ReadJson(Dir() / "auto_stereo.summary.json")["options"]["mode"], "stereo");
+  EXPECT_GT(ReadPly(out).size(), 100000u);
+  // With the manifest's rig (it has a projector) the default stays projector mode (above).
+  const auto bad = Dir() / "projector_without_projector.ply";
+  ::testing::internal::CaptureStderr();
+  EXPECT_NE(RunCli({"reconstruct", Scan().string(), "--rig", (Dir() / "cameras_only.yaml").string(), "--mode",
+                    "projector", "--out", bad.string()}),
+            0);
+  const std::string err = ::testing::internal::GetCapturedStderr();
+  EXPECT_NE(err.find("has no projector"), std::string::npos) << err;
+  EXPECT_NE(err.find("--mode stereo"), std::string::npos) << err;
+  EXPECT_FALSE(std::filesystem::exists(bad));
+}
+
+// A reconstruction with no point is an error that says why, and writes nothing.
+TEST_F(CmdReconstruct, ZeroPointsIsAnErrorWithTheReason) {
+  const auto out = Dir() / "empty.ply";
+  ::testing::internal::CaptureStderr();
+  EXPECT_NE(RunCli({"reconstruct", Scan().string(), "--max-depth-mm", "10", "--min-depth-mm", "1", "--out",
+                    out.string(), "--quiet"}),
+            0);
+  const std::string err = ::testing::internal::GetCapturedStderr();
+  EXPECT_NE(err.find("0 points"), std::string::npos) << err;
+  EXPECT_NE(err.find("outside the depth range"), std::string::npos) << err;
+  EXPECT_FALSE(std::filesystem::exists(out));
+  EXPECT_FALSE(std::filesystem::exists(Dir() / "empty.summary.json"));
 }
 
 }  // namespace

@@ -14,6 +14,7 @@
 #include "core/image_set.h"
 #include "patterns/codec.h"
 #include "patterns/pattern_spec.h"
+#include "core/config.h"
 #include "core/file_util.h"
 #include "core/rig.h"
 #include "tests/testing/run_cli.h"
@@ -172,6 +173,93 @@ TEST(CmdCalibrate, RefineStereoWithFocalLengthOnSimulatedScan) {
   EXPECT_NEAR(refined.BaselineMm(refined.cameras[0], refined.cameras[1]), bumped.BaselineMm(bumped.cameras[0], bumped.cameras[1]),
               1e-6);
   EXPECT_EQ(refined.cameras[0].model.params, truth.cameras[0].model.params);
+  // The scale was not verified (the rig file's baseline is kept) ...
+  EXPECT_FALSE(info["scale_verified"].get<bool>());
+  // ... unless a known baseline sets it.
+  const double true_baseline = truth.BaselineMm(truth.cameras[0], truth.cameras[1]);
+  ASSERT_EQ(RunCli({"calibrate", "refine", "--rig", (tmp / "bumped.yaml").string(), "--imageset", (tmp / "scan").string(),
+                    "--camera", "left", "--stereo", "right", "--baseline-mm", std::to_string(true_baseline), "--out",
+                    (tmp / "scaled.yaml").string()}),
+            0);
+  const Rig scaled = LoadRig(tmp / "scaled.yaml");
+  EXPECT_TRUE(scaled.calibration["refine"]["scale_verified"].get<bool>());
+  EXPECT_NEAR(scaled.BaselineMm(scaled.cameras[0], scaled.cameras[1]), true_baseline, 1e-3);
+  EXPECT_NE(RunCli({"calibrate", "refine", "--rig", (tmp / "bumped.yaml").string(), "--imageset", (tmp / "scan").string(),
+                    "--camera", "left", "--stereo", "right", "--known-distance", "1,2,3", "--out",
+                    (tmp / "bad.yaml").string()}),
+            0);
+  // ... or a distance measured between two scene points: two left pixels 300 px apart on the part,
+  // their distance triangulated with the true rig (midpoint of the rays), and a rig file whose
+  // baseline is 3 % too long.
+  {
+    const ImageSet scan = ImageSet::Open(tmp / "scan");
+    const PatternSpec spec = PatternSpecFromConfig(ConfigNode::FromJson(scan.patterns(), "manifest.json", "patterns"));
+    const ProjectorMap left = DecodePatterns(spec, scan.LoadCamera("left"));
+    const ProjectorMap right = DecodePatterns(spec, scan.LoadCamera("right"));
+    const auto point = [&](const Correspondence& c) {
+      const CameraModel &ma = truth.cameras[0].model, &mb = truth.cameras[1].model;
+      const Eigen::Vector2d a = *ma.UndistortToNormalized(c.camera_px), b = *mb.UndistortToNormalized(c.projector_px);
+      const Rigid3d rig_from_a = truth.cameras[0].cam_from_rig.Inverse(), rig_from_b = truth.cameras[1].cam_from_rig.Inverse();
+      const Eigen::Vector3d oa = rig_from_a.translation, ob = rig_from_b.translation;
+      const Eigen::Vector3d da = rig_from_a.rotation * Eigen::Vector3d(a.x(), a.y(), 1);
+      const Eigen::Vector3d db = rig_from_b.rotation * Eigen::Vector3d(b.x(), b.y(), 1);
+      Eigen::Matrix<double, 3, 2> m;
+      m << da, -db;
+      const Eigen::Vector2d t = (m.transpose() * m).ldlt().solve(m.transpose() * (ob - oa));
+      return Eigen::Vector3d(0.5 * (oa + t.x() * da + ob + t.y() * db));
+    };
+    std::vector<Correspondence> ends;
+    for (int x0 : {left.width() / 2 - 150, left.width() / 2 + 150}) {
+      for (int dy = 0; dy < 200 && static_cast<int>(ends.size()) < (x0 < left.width() / 2 ? 1 : 2); ++dy) {
+        const auto c = CorrespondenceAt(left, &right, Eigen::Vector2d(x0, left.height() / 2 + dy));
+        if (c) ends.push_back(*c);
+      }
+    }
+    ASSERT_EQ(ends.size(), 2u);
+    const double distance = (point(ends[0]) - point(ends[1])).norm();
+    Rig long_baseline = truth;
+    long_baseline.cameras[1].cam_from_rig.translation *= 1.03;  // the left camera is the rig frame
+    SaveRig(long_baseline, tmp / "long_baseline.yaml");
+    char known[160];
+    std::snprintf(known, sizeof(known), "%.0f,%.0f,%.0f,%.0f,%.6f", ends[0].camera_px.x(), ends[0].camera_px.y(),
+                  ends[1].camera_px.x(), ends[1].camera_px.y(), distance);
+    ASSERT_EQ(RunCli({"calibrate", "refine", "--rig", (tmp / "long_baseline.yaml").string(), "--imageset",
+                      (tmp / "scan").string(), "--camera", "left", "--stereo", "right", "--known-distance", known,
+                      "--out", (tmp / "by_distance.yaml").string()}),
+              0);
+    const Rig by_distance = LoadRig(tmp / "by_distance.yaml");
+    const double baseline = by_distance.BaselineMm(by_distance.cameras[0], by_distance.cameras[1]);
+    std::printf("known distance %.3f mm: baseline %.3f mm (truth %.3f mm, rig file %.3f mm)\n", distance, baseline,
+                true_baseline, long_baseline.BaselineMm(long_baseline.cameras[0], long_baseline.cameras[1]));
+    EXPECT_TRUE(by_distance.calibration["refine"]["scale_verified"].get<bool>());
+    EXPECT_NEAR(baseline / true_baseline, 1.0, 0.002);
+  }
+  // A rig without a projector and no --stereo: the error points at --stereo, nothing is written.
+  Rig cameras_only = truth;
+  cameras_only.projector.reset();
+  SaveRig(cameras_only, tmp / "cameras_only.yaml");
+  ::testing::internal::CaptureStderr();
+  EXPECT_NE(RunCli({"calibrate", "refine", "--rig", (tmp / "cameras_only.yaml").string(), "--imageset",
+                    (tmp / "scan").string(), "--out", (tmp / "bad.yaml").string()}),
+            0);
+  const std::string err = ::testing::internal::GetCapturedStderr();
+  EXPECT_NE(err.find("has no projector: refine the pose of one camera against another with --stereo"), std::string::npos)
+      << err;
+  // A twisted pair (the right camera turned 180 degrees about the baseline) fits the same epipolar
+  // geometry: refused for cheirality, nothing written.
+  Rig twisted = truth;
+  const Rigid3d r10_true = truth.cameras[1].cam_from_rig * truth.cameras[0].cam_from_rig.Inverse();
+  twisted.cameras[1].cam_from_rig =
+      Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(M_PI, r10_true.translation.normalized())), Eigen::Vector3d::Zero()) *
+      truth.cameras[1].cam_from_rig;
+  SaveRig(twisted, tmp / "twisted.yaml");
+  ::testing::internal::CaptureStderr();
+  EXPECT_NE(RunCli({"calibrate", "refine", "--rig", (tmp / "twisted.yaml").string(), "--imageset", (tmp / "scan").string(),
+                    "--camera", "left", "--stereo", "right", "--out", (tmp / "bad.yaml").string()}),
+            0);
+  const std::string twisted_err = ::testing::internal::GetCapturedStderr();
+  EXPECT_NE(twisted_err.find("cheirality"), std::string::npos) << twisted_err;
+  EXPECT_FALSE(std::filesystem::exists(tmp / "bad.yaml"));
 }
 
 }  // namespace

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <cstdio>
 #include <random>
 
 #include "core/error.h"
@@ -103,6 +104,116 @@ TEST(Refine, SampleCorrespondencesTakesValidPixelsOnly) {
   EXPECT_EQ(all.size(), 64u * 48u / 2u);
   for (const auto& c : all) EXPECT_EQ(c.projector_px, Eigen::Vector2d(2 * c.camera_px.x(), 3 * c.camera_px.y()));
   EXPECT_EQ(SampleCorrespondences(map, 100).size(), 100u);
+}
+
+
+// The twisted pair (the second device turned 180 degrees about the baseline) and the reversed
+// baseline fit the same epipolar geometry as the true pose: refinement started there stays there,
+// with residuals as small as the truth's. Cheirality tells them apart: they are rejected.
+TEST(Refine, TwistedPairAndReversedBaselineAreRejected) {
+  const Rig truth = ProcamRig();
+  const auto corr = Make(truth, 2000, 0.2, 4);
+  const Rigid3d proj_from_cam = truth.projector->cam_from_rig;  // the camera is the rig frame
+  const Eigen::Vector3d baseline = proj_from_cam.translation.normalized();
+  Rig twisted = truth;
+  // Turning the projector 180 degrees about the baseline axis (in its own frame) keeps E up to sign.
+  twisted.projector->cam_from_rig =
+      Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(M_PI, baseline)), Eigen::Vector3d::Zero()) * proj_from_cam;
+  Rig reversed = truth;
+  reversed.projector->cam_from_rig.translation = -proj_from_cam.translation;
+  const RefineResult good = RefineProjectorPose(truth, 0, corr);
+  EXPECT_FALSE(good.rejected) << good.message;
+  EXPECT_GT(good.front_share, 0.99);
+  EXPECT_GT(good.inlier_share, 0.99);
+  for (const Rig* rig : {&twisted, &reversed}) {
+    EXPECT_LT(EpipolarResiduals(*rig, 0, corr).median_px, 2 * EpipolarResiduals(truth, 0, corr).median_px);
+    const RefineResult r = RefineProjectorPose(*rig, 0, corr);
+    std::printf("%s: front %.3f, inliers %.3f: %s\n", rig == &twisted ? "twisted" : "reversed", r.front_share,
+                r.inlier_share, r.message.c_str());
+    EXPECT_TRUE(r.rejected);
+    EXPECT_LT(r.front_share, 0.05);
+    EXPECT_NE(r.rejection.find("cheirality"), std::string::npos) << r.rejection;
+    EXPECT_NE(r.message.find("rejected"), std::string::npos);
+  }
+}
+
+// When the refined pose fits only a minority of the correspondences, most are lost: rejected.
+TEST(Refine, LosingMostCorrespondencesIsRejected) {
+  const Rig truth = ProcamRig();
+  std::vector<Correspondence> corr = Make(truth, 1000, 0.2, 5);
+  std::mt19937 rng(6);
+  std::uniform_real_distribution<double> ux(0, 1024), uy(0, 768);
+  const auto with_garbage = [&](int count) {
+    std::vector<Correspondence> out = corr;
+    for (int i = 0; i < count; ++i) {
+      Correspondence c = corr[static_cast<size_t>(i) % corr.size()];
+      c.projector_px = Eigen::Vector2d(ux(rng), uy(rng));
+      out.push_back(c);
+    }
+    return out;
+  };
+  const RefineResult some = RefineProjectorPose(truth, 0, with_garbage(300));  // 23 % garbage: kept
+  EXPECT_FALSE(some.rejected) << some.message;
+  EXPECT_NEAR(some.inlier_share, 1000.0 / 1300, 0.03);
+  const RefineResult most = RefineProjectorPose(truth, 0, with_garbage(3000));  // 75 % garbage
+  EXPECT_TRUE(most.rejected);
+  EXPECT_LT(most.inlier_share, 0.5);
+  EXPECT_NE(most.rejection.find("most correspondences are lost"), std::string::npos) << most.rejection;
+}
+
+// Self-calibration keeps the rig file's baseline and says the scale is not verified; a known
+// baseline or a measured distance between two scene points sets it.
+TEST(Refine, ScaleIsNotVerifiedUnlessAKnownLengthSetsIt) {
+  const Rig truth = ProcamRig();
+  const auto corr = Make(truth, 2000, 0.0, 7);
+  const double true_baseline = truth.projector->cam_from_rig.translation.norm();
+  Rig scaled = truth;  // the rig file's baseline is 3 % too long: epipolar geometry cannot tell
+  scaled.projector->cam_from_rig.translation *= 1.03;
+  const RefineResult plain = RefineProjectorPose(scaled, 0, corr);
+  EXPECT_FALSE(plain.scale_verified);
+  EXPECT_NE(plain.message.find("scale not verified"), std::string::npos) << plain.message;
+  EXPECT_NEAR(plain.baseline_mm, 1.03 * true_baseline, 1e-6);
+
+  RefineOptions by_baseline;
+  by_baseline.known_baseline_mm = true_baseline;
+  const RefineResult b = RefineProjectorPose(scaled, 0, corr, by_baseline);
+  EXPECT_TRUE(b.scale_verified);
+  EXPECT_EQ(b.message.find("scale not verified"), std::string::npos) << b.message;
+  EXPECT_NEAR(b.rig.projector->cam_from_rig.translation.norm(), true_baseline, 1e-9);
+
+  // Two scene points 137.5 mm apart, seen by both devices.
+  const Eigen::Vector3d x1(-60, 20, 520), x2 = x1 + 137.5 * Eigen::Vector3d(0.6, 0.0, 0.8);
+  KnownDistance k;
+  k.distance_mm = 137.5;
+  for (int i = 0; i < 2; ++i) {
+    const Eigen::Vector3d& x = i == 0 ? x1 : x2;
+    const Correspondence c{*truth.cameras[0].model.Project(x), *truth.projector->model.Project(truth.projector->cam_from_rig * x)};
+    (i == 0 ? k.first : k.second) = c;
+  }
+  RefineOptions by_distance;
+  by_distance.known_distances = {k};
+  const RefineResult d = RefineProjectorPose(scaled, 0, corr, by_distance);
+  EXPECT_TRUE(d.scale_verified);
+  EXPECT_NE(d.message.find("scale set by the known distance 137.500 mm"), std::string::npos) << d.message;
+  EXPECT_NEAR(d.baseline_mm, true_baseline, 1e-6 * true_baseline);
+  // Both at once, or a bad length: a clear error.
+  by_distance.known_baseline_mm = 100;
+  EXPECT_THROW(RefineProjectorPose(scaled, 0, corr, by_distance), Error);
+  RefineOptions negative;
+  negative.known_baseline_mm = -1;
+  EXPECT_THROW(RefineProjectorPose(scaled, 0, corr, negative), Error);
+}
+
+TEST(Refine, ProjectorlessRigPointsAtStereo) {
+  Rig rig = ProcamRig();
+  const auto corr = Make(rig, 100, 0.0, 8);
+  rig.projector.reset();
+  try {
+    RefineProjectorPose(rig, 0, corr);
+    ADD_FAILURE() << "no error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("--stereo"), std::string::npos) << e.what();
+  }
 }
 
 }  // namespace
