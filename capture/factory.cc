@@ -1,5 +1,6 @@
 #include "capture/factory.h"
 
+#include "capture/aravis_camera.h"
 #include "capture/none_projector.h"
 #include "capture/replay_camera.h"
 #include "core/error.h"
@@ -14,7 +15,7 @@ namespace {
 
 }  // namespace
 
-std::vector<std::string> BuiltInCameraBackends() { return {"replay"}; }
+std::vector<std::string> BuiltInCameraBackends() { return {"replay", "aravis"}; }
 std::vector<std::string> BuiltInProjectorBackends() { return {"none"}; }
 
 std::unique_ptr<Camera> OpenCamera(const CameraEntry& entry) {
@@ -23,7 +24,16 @@ std::unique_ptr<Camera> OpenCamera(const CameraEntry& entry) {
     return std::make_unique<ReplayCamera>(entry.imageset,
                                           ReplayCameraOptions{entry.imageset_camera, entry.first_frame_id, entry.serial});
   }
-  if (entry.backend == "aravis") NotBuilt(entry.where, entry.backend, "GigE Vision / USB3 Vision through Aravis");
+  if (entry.backend == "aravis") {
+    // The address opens a GigE Vision camera directly; an id or serial is looked up among USB3
+    // Vision devices only: devices.yaml never makes slshadow broadcast a GigE Vision discovery.
+    const std::string& device = !entry.address.empty() ? entry.address : !entry.id.empty() ? entry.id : entry.serial;
+    try {
+      return OpenAravisCamera(AravisOpenOptions{.device = device});
+    } catch (const Error& e) {
+      SLSHADOW_THROW(entry.where, ": ", e.what());
+    }
+  }
   if (entry.backend == "sim") {
     NotBuilt(entry.where, entry.backend, "a simulator camera is built by the workflow layer, not by capture/");
   }
