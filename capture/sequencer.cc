@@ -22,8 +22,18 @@ namespace slshadow::capture {
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
 
+namespace {
+// CPU time of the calling thread, seconds.
+double ThreadCpuSeconds() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
+}
+}  // namespace
+
 void ValidationOptions::Check() const {
-  SLSHADOW_THROW_IF(stride_px < 1 || stride_px > 64, "validation.stride_px: must be in [1, 64] (got ", stride_px, ")");
+  SLSHADOW_THROW_IF(stride_px < 0 || stride_px > 64, "validation.stride_px: must be in [0, 64] (got ", stride_px, ")");
+  SLSHADOW_THROW_IF(target_samples < 1000, "validation.target_samples: must be >= 1000 (got ", target_samples, ")");
   for (const auto& [name, v] : {std::pair{"min_pattern_change", min_pattern_change}, std::pair{"stale_ratio", stale_ratio},
                                 std::pair{"min_lit_share_floor", min_lit_share_floor},
                                 std::pair{"min_lit_share", min_lit_share}, std::pair{"min_complementary", min_complementary}}) {
@@ -98,7 +108,8 @@ nlohmann::json CaptureSummary::ToJson() const {
   nlohmann::json j = {{"complete", complete},       {"interrupted", interrupted},   {"resumed", resumed},
                       {"patterns", patterns},       {"images_total", images_total}, {"images_before", images_before},
                       {"images_stored", images_stored}, {"retries", retries},   {"seconds", seconds},
-                      {"mean_pattern_ms", mean_pattern_ms}};
+                      {"mean_pattern_ms", mean_pattern_ms}, {"overhead_ms_per_pattern", overhead_ms_per_pattern},
+                      {"overhead_cpu_ms_per_pattern", overhead_cpu_ms_per_pattern}};
   for (const auto& [name, s] : cameras) j["cameras"][name] = s.ToJson();
   for (const auto& [name, us] : auto_exposure_us) j["auto_exposure_us"][name] = us;
   return j;
@@ -234,6 +245,14 @@ struct SequenceModel {
 // Per-pixel references of one camera: white (or max) and black (or min), as float.
 struct References {
   cv::Mat white, black;  // CV_32F
+  // The lit sample positions (ForEachSample grid, white - black >= the lit threshold) with a
+  // quarter of their contrast and their mid level, built once: the per-frame checks then read
+  // only the two frames, in row order.
+  struct Sample {
+    int32_t y, x;
+    float quarter, mid;
+  };
+  std::vector<Sample> samples;
   bool ready() const { return !white.empty(); }
 };
 
@@ -243,14 +262,20 @@ struct References {
 template <typename F>
 void ForEachSample(int rows, int cols, int stride, F&& f) {
   const int step = stride <= 2 ? 1 : (stride % 2 == 0 ? stride - 1 : stride - 2);  // coprime with stride
+  int row_offset = 0;  // (i * step) % stride, kept without a division per sample
   for (int i = 0;; ++i) {
-    const int y = i * stride + (i * step) % stride;
+    const int y = i * stride + row_offset;
     if (y >= rows) break;
-    for (int j = 0;; ++j) {
-      const int x = j * stride + (j * step + i) % stride;
+    int col_offset = i % stride;  // (j * step + i) % stride
+    for (int base = 0;; base += stride) {
+      const int x = base + col_offset;
       if (x >= cols) break;
       f(y, x);
+      col_offset += step;
+      if (col_offset >= stride) col_offset -= stride;
     }
+    row_offset += step;
+    if (row_offset >= stride) row_offset -= stride;
   }
 }
 
@@ -259,6 +284,18 @@ struct Sampler {
   static double ChangedShare(const cv::Mat& f, const cv::Mat& prev, const References& refs, double lit_threshold,
                              double abs_threshold, int stride, int* samples) {
     int64_t count = 0, changed = 0;
+    if (!refs.samples.empty()) {
+      const uchar* a = f.data;
+      const uchar* b = prev.data;
+      const size_t sa = f.step[0], sb = prev.step[0];
+      for (const auto& p : refs.samples) {
+        const float va = reinterpret_cast<const T*>(a + static_cast<size_t>(p.y) * sa)[p.x];
+        const float vb = reinterpret_cast<const T*>(b + static_cast<size_t>(p.y) * sb)[p.x];
+        changed += std::abs(va - vb) >= p.quarter;
+      }
+      *samples = static_cast<int>(refs.samples.size());
+      return static_cast<double>(changed) / static_cast<double>(refs.samples.size());
+    }
     const bool refs_ready = refs.ready();
     ForEachSample(f.rows, f.cols, stride, [&](int y, int x) {
       const double d = std::abs(static_cast<double>(f.at<T>(y, x)) - static_cast<double>(prev.at<T>(y, x)));
@@ -280,6 +317,18 @@ struct Sampler {
   static double ComplementaryShare(const cv::Mat& p, const cv::Mat& q, const References& refs, double lit_threshold,
                                    int stride, int* samples) {
     int64_t count = 0, opposite = 0;
+    if (!refs.samples.empty()) {
+      const size_t sp = p.step[0], sq = q.step[0];
+      for (const auto& r : refs.samples) {
+        const float da = reinterpret_cast<const T*>(p.data + static_cast<size_t>(r.y) * sp)[r.x] - r.mid;
+        const float db = reinterpret_cast<const T*>(q.data + static_cast<size_t>(r.y) * sq)[r.x] - r.mid;
+        if (std::abs(da) < r.quarter || std::abs(db) < r.quarter) continue;
+        ++count;
+        opposite += (da > 0) != (db > 0);
+      }
+      *samples = static_cast<int>(count);
+      return count ? static_cast<double>(opposite) / static_cast<double>(count) : 1.0;
+    }
     ForEachSample(p.rows, p.cols, stride, [&](int y, int x) {
       const double w = refs.white.at<float>(y, x), k = refs.black.at<float>(y, x);
       const double contrast = w - k;
@@ -388,6 +437,7 @@ class StoreQueue {
 
 struct CameraState {
   const CaptureCamera* cam = nullptr;
+  int stride = 1;  // validation sampling stride for this camera's image size
   CameraInfo info;
   CameraSettings settings;
   double full_scale = 255;
@@ -424,6 +474,11 @@ class Sequencer {
       s.settings = c.settings;
       s.full_scale = FullScale(c.settings.pixel_format);
       s.expected_depth = BitDepthOf(c.settings.pixel_format) == 8 ? CV_8U : CV_16U;
+      const RigDevice& dev = rig.Camera(c.name);
+      s.stride = options_.validation.stride_px > 0
+                     ? options_.validation.stride_px
+                     : std::max(1, static_cast<int>(std::sqrt(static_cast<double>(dev.model.width) * dev.model.height /
+                                                              options_.validation.target_samples)));
       states_.push_back(std::move(s));
     }
     // Rig camera order: the order frames are triggered, grabbed and reported.
@@ -498,6 +553,9 @@ class Sequencer {
     if (options_.progress) progress.emplace("capture", todo_patterns);
     int acquired_patterns = 0;
     const auto acquire_start = Clock::now();
+    const double acquire_cpu_start = ThreadCpuSeconds();
+    device_time_ = {};
+    device_cpu_s_ = 0;
     std::string failure;
     try {
       for (const auto& group : model_->groups) {
@@ -520,6 +578,7 @@ class Sequencer {
     }
     progress.reset();
     const double acquire_s = std::chrono::duration<double>(Clock::now() - acquire_start).count();
+    const double acquire_cpu_s = ThreadCpuSeconds() - acquire_cpu_start;
     std::string storage_error;
     try {
       store.Finish();
@@ -528,6 +587,9 @@ class Sequencer {
     }
     summary_.images_stored = store.stored();
     summary_.mean_pattern_ms = acquired_patterns ? 1e3 * acquire_s / acquired_patterns : 0;
+    summary_.overhead_ms_per_pattern =
+        acquired_patterns ? 1e3 * (acquire_s - std::chrono::duration<double>(device_time_).count()) / acquired_patterns : 0;
+    summary_.overhead_cpu_ms_per_pattern = acquired_patterns ? 1e3 * (acquire_cpu_s - device_cpu_s_) / acquired_patterns : 0;
     for (auto& s : states_) {
       s.stats.stream = s.cam->camera->Statistics();
       s.stats.missing_frame_ids = s.ids.missing();
@@ -593,6 +655,16 @@ class Sequencer {
 
   // Show pattern `index` (of the loaded sequence), trigger every camera, grab every camera.
   std::vector<Frame> TriggerRound(int index, int attempt) {
+    struct AddTime {
+      Clock::time_point t0;
+      double cpu0;
+      Clock::duration* sum;
+      double* cpu_sum;
+      ~AddTime() {
+        *sum += Clock::now() - t0;
+        *cpu_sum += ThreadCpuSeconds() - cpu0;
+      }
+    } add{Clock::now(), ThreadCpuSeconds(), &device_time_, &device_cpu_s_};
     for (auto& s : states_) s.cam->camera->ExpectPattern(index);
     WaitAfterShow(projector_.Show(index), attempt);
     for (auto& s : states_) {
@@ -604,6 +676,14 @@ class Sequencer {
     frames.reserve(states_.size());
     for (auto& s : states_) frames.push_back(s.cam->camera->Grab(s.cam->grab_timeout));
     return frames;
+  }
+
+  void FlushAll() {
+    const auto t0 = Clock::now();
+    const double cpu0 = ThreadCpuSeconds();
+    for (auto& s : states_) s.cam->camera->Flush();
+    device_time_ += Clock::now() - t0;
+    device_cpu_s_ += ThreadCpuSeconds() - cpu0;
   }
 
   const cv::Mat* Previous(CameraState& s, int k) {
@@ -638,6 +718,11 @@ class Sequencer {
       s.refs.white = hi;
       s.refs.black = lo;
     }
+    const double lit_threshold = options_.validation.lit_threshold * s.full_scale / 255.0;
+    ForEachSample(s.refs.white.rows, s.refs.white.cols, s.stride, [&](int y, int x) {
+      const float w = s.refs.white.at<float>(y, x), k = s.refs.black.at<float>(y, x);
+      if (w - k >= lit_threshold) s.refs.samples.push_back({y, x, 0.25f * (w - k), 0.5f * (w + k)});
+    });
   }
 
   Verdict CheckFrame(CameraState& s, int k, const Frame& f, const cv::Mat* prev_override) {
@@ -667,7 +752,7 @@ class Sequencer {
     const double scale = s.full_scale / 255.0;
     int samples = 0;
     const double changed = ChangedShare(f.image, *prev, s.refs, options_.validation.lit_threshold * scale,
-                                        options_.validation.change_threshold * scale, options_.validation.stride_px, &samples);
+                                        options_.validation.change_threshold * scale, s.stride, &samples);
     if (samples < options_.validation.min_samples) return {};
     const double lit = s.refs.ready() ? 1.0 : std::max(s.lit_estimate, options_.validation.min_lit_share_floor);
     const double needed = options_.validation.stale_ratio * e * lit;
@@ -692,7 +777,7 @@ class Sequencer {
     if (!validate_ || !g.pair) return {};
     const double scale = s.full_scale / 255.0;
     const double lit_threshold = options_.validation.lit_threshold * scale;
-    const int stride = options_.validation.stride_px;
+    const int stride = s.stride;
     char buf[320];
     References refs;
     const FrameRole role = model_->frames[static_cast<size_t>(g.first)].role;
@@ -758,7 +843,7 @@ class Sequencer {
                                                    int* attempts_used, std::vector<std::string>* errors) {
     for (int attempt = 0; attempt <= options_.max_retries; ++attempt) {
       if (attempt > 0) {
-        for (auto& s : states_) s.cam->camera->Flush();
+        FlushAll();
         ++summary_.retries;
       }
       *attempts_used = attempt;
@@ -794,7 +879,7 @@ class Sequencer {
     };
     for (int group_attempt = 0; group_attempt <= options_.max_retries; ++group_attempt) {
       if (group_attempt > 0) {
-        for (auto& s : states_) s.cam->camera->Flush();
+        FlushAll();
         ++summary_.retries;
       }
       bool taken = true;
@@ -957,6 +1042,8 @@ class Sequencer {
   std::vector<cv::Mat> images_;
   std::unique_ptr<SequenceModel> model_;
   bool validate_ = true;
+  Clock::duration device_time_{};  // inside device calls (see CaptureSummary::overhead_ms_per_pattern)
+  double device_cpu_s_ = 0;        // the same on the thread's CPU clock
   ResumableImageSetWriter* writer_ = nullptr;
   CaptureSummary summary_;
 };

@@ -56,7 +56,10 @@ struct CaptureCamera {
 };
 
 struct ValidationOptions {
-  int stride_px = 4;                 // check every stride-th pixel in x and y (speed)
+  // Check every stride-th pixel in x and y (jittered grid); 0: chosen per camera so that about
+  // target_samples pixels are checked (1920x1200: every 8th; small images: every pixel).
+  int stride_px = 0;
+  int target_samples = 32768;
   double min_pattern_change = 0.25;  // pattern pairs changing less (in some tile) are not stale-checked
   double stale_ratio = 0.3;          // stale: changed share < stale_ratio x expected change share
   // Without references: a pixel changed when |frame - previous| >= this (8-bit grey levels,
@@ -130,6 +133,13 @@ struct CaptureSummary {
   int retries = 0;                 // extra attempts, all patterns
   double seconds = 0;
   double mean_pattern_ms = 0;      // wall time per pattern acquired by this run
+  // The sequencer's own cost per pattern acquired: wall time minus the time inside device calls
+  // (projector Show, the latency / settle wait, camera Trigger, Grab, Flush): validation, frame-id
+  // bookkeeping, queueing for storage (including waiting for a full storage queue).
+  double overhead_ms_per_pattern = 0;
+  // The same on the sequencer thread's CPU clock (what it costs where the machine is not busy
+  // with other work; the wall figure above also holds the time the thread waited for a core).
+  double overhead_cpu_ms_per_pattern = 0;
   std::map<std::string, CameraCaptureStats> cameras;
   std::map<std::string, double> auto_exposure_us;  // chosen exposures (auto-exposure)
   std::string BriefReport() const;
