@@ -94,6 +94,7 @@ nlohmann::json CameraCaptureStats::ToJson() const {
           {"missing_frame_ids", missing_frame_ids},
           {"invalid_frame_ids", invalid_frame_ids},
           {"exposure_us", exposure_us},
+          {"min_complementary_share", min_complementary_share},
           {"stream",
            {{"completed_frames", stream.completed_frames},
             {"failed_frames", stream.failed_frames},
@@ -178,6 +179,7 @@ struct SequenceModel {
   std::vector<int> group_of;  // pattern -> group index
   std::vector<int> reference_frames;  // white, black; or the first phase steps
   bool white_black = false;
+  bool references_last = false;  // white and black after the Gray pairs (OpenCV order)
 
   explicit SequenceModel(const PatternSpec& spec, const std::vector<cv::Mat>& images) {
     frames = spec.Frames();
@@ -228,6 +230,7 @@ struct SequenceModel {
     if (spec.WhiteFrameIndex() >= 0 && spec.BlackFrameIndex() >= 0) {
       white_black = true;
       reference_frames = {spec.WhiteFrameIndex(), spec.BlackFrameIndex()};
+      references_last = spec.WhiteFrameIndex() > 0;
     } else {
       // Phase codecs: the steps of the first frequency of the first coded axis; per pixel their
       // max and min stand in for white and black.
@@ -586,6 +589,18 @@ class Sequencer {
       storage_error = e.what();
     }
     summary_.images_stored = store.stored();
+    if (failure.empty() && storage_error.empty() && !summary_.interrupted && validate_ && model_->references_last) {
+      // White and black came last: now every Gray pair can be judged against them, and a pair
+      // that fails (a stale frame the pattern-to-pattern check could not see) is taken again.
+      try {
+        StoreQueue again(writer, static_cast<size_t>(options_.store_queue_images));
+        if (!RecheckPairs(again)) summary_.interrupted = true;
+        again.Finish();
+        summary_.images_stored += again.stored();
+      } catch (const std::exception& e) {
+        failure = e.what();
+      }
+    }
     summary_.mean_pattern_ms = acquired_patterns ? 1e3 * acquire_s / acquired_patterns : 0;
     summary_.overhead_ms_per_pattern =
         acquired_patterns ? 1e3 * (acquire_s - std::chrono::duration<double>(device_time_).count()) / acquired_patterns : 0;
@@ -746,7 +761,7 @@ class Sequencer {
     }
     if (!validate_) return {};
     const double e = model_->expected_change[static_cast<size_t>(k)];
-    const cv::Mat* prev = prev_override ? prev_override : Previous(s, k);
+    const cv::Mat* prev = prev_override ? prev_override : no_previous_ ? nullptr : Previous(s, k);
     if (prev == nullptr || e < options_.validation.min_pattern_change) return {};
     EnsureReferences(s);
     const double scale = s.full_scale / 255.0;
@@ -821,7 +836,9 @@ class Sequencer {
     }
     int samples = 0;
     const double q = ComplementaryShare(*f[pair_at], *f[pair_at + 1], refs, lit_threshold, stride, &samples);
-    if (samples < options_.validation.min_samples || q >= options_.validation.min_complementary) return {};
+    if (samples < options_.validation.min_samples) return {};
+    s.stats.min_complementary_share = std::min(s.stats.min_complementary_share, q);
+    if (q >= options_.validation.min_complementary) return {};
     ++s.stats.not_complementary;
     std::snprintf(buf, sizeof(buf),
                   ": not complementary: %.1f %% of %d decisive pixels are on opposite sides, at least %.1f %% expected; "
@@ -941,6 +958,31 @@ class Sequencer {
     return true;
   }
 
+  // Judges every stored Gray pair against the references (white and black last) and takes a
+  // failing pair again; false when stopped.
+  bool RecheckPairs(StoreQueue& store) {
+    for (auto& s : states_) {
+      EnsureReferences(s);
+      if (!s.refs.ready()) return true;
+    }
+    for (const auto& g : model_->groups) {
+      if (!g.pair || model_->frames[static_cast<size_t>(g.first)].role != FrameRole::kGrayBit) continue;
+      bool bad = false;
+      for (auto& s : states_) {
+        const cv::Mat a = writer_->Load(s.cam->name, g.first), b = writer_->Load(s.cam->name, g.first + 1);
+        bad = !CheckGroup(s, g, {&a, &b}).ok || bad;
+      }
+      if (!bad) continue;
+      // The projector showed other patterns since: the first frame has no previous one to be
+      // compared with; the pair check against the references judges both.
+      no_previous_ = true;
+      const bool taken = AcquireGroup(g, store);
+      no_previous_ = false;
+      if (!taken) return false;
+    }
+    return true;
+  }
+
   // Exposure assistant: per camera, from the white frame, so that the brightest 1 % of the lit
   // area sits at target_fraction of full scale. A resumed capture reuses the journaled choice.
   void ChooseExposures(ResumableImageSetWriter& writer) {
@@ -1044,6 +1086,7 @@ class Sequencer {
   bool validate_ = true;
   Clock::duration device_time_{};  // inside device calls (see CaptureSummary::overhead_ms_per_pattern)
   double device_cpu_s_ = 0;        // the same on the thread's CPU clock
+  bool no_previous_ = false;       // re-taking a pair out of sequence: no stale check of its first frame
   ResumableImageSetWriter* writer_ = nullptr;
   CaptureSummary summary_;
 };

@@ -18,7 +18,11 @@
 //    per-pixel max / min of the first phase steps), a Gray bit and its inverse must be on opposite
 //    sides of (white + black) / 2 wherever both are decisive, in >= min_complementary of those
 //    pixels; white and black must differ (lit area >= min_lit_share). A failing pair is taken
-//    again as a whole.
+//    again as a whole. When white and black come first, they are taken with the first Gray pair
+//    as one group, and that pair must lie between black and white (a stale white or black has
+//    no predecessor to be compared with). When they come last (OpenCV order), every stored pair
+//    is judged against them at the end and a failing pair is taken again.
+//  Not covered: the first frame of a phase sequence has neither a predecessor nor references.
 // A frame that fails is taken again (Flush, Show, wait latency + settle + attempt x
 // retry_backoff, trigger all cameras) up to max_retries times. A pair (Gray bit + inverse, white
 // + black) whose second frame or whose pair check fails is taken again as a whole, up to
@@ -116,6 +120,9 @@ struct CameraCaptureStats {
   int64_t missing_frame_ids = 0; // frame ids never grabbed (16-bit ids wrap 65535 -> 1; 0 invalid)
   int64_t invalid_frame_ids = 0; // frames with id 0
   double exposure_us = 0;        // the exposure used (auto-exposure: the value chosen)
+  // Lowest share of decisive pixels on opposite sides seen in a Gray pair check (1: none made);
+  // how far the accepted pairs were from the min_complementary limit.
+  double min_complementary_share = 1;
   StreamStatistics stream;       // the camera's own transport counters at the end
   nlohmann::json ToJson() const;
 };

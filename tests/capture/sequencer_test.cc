@@ -187,6 +187,25 @@ TEST(Sequencer, StaleFramesAtEveryPatternAreCaughtWithNoise) {
   }
 }
 
+TEST(Sequencer, StaleFramesAreCaughtWhenWhiteAndBlackComeLast) {
+  // OpenCV order: the references come last, so a stale frame after a coarse pattern change is
+  // only found when the pairs are judged against them at the end, and taken again.
+  PatternSpec spec = GraySpec();
+  spec.opencv_order = true;
+  for (int lagging = 0; lagging < spec.NumImages(); ++lagging) {
+    SCOPED_TRACE(::testing::Message() << "lagging pattern " << lagging);
+    slshadow::testing::TempDir dir;
+    TestCameraOptions l, r = Stereo::Right();
+    l.noise = r.noise = 2;
+    Stereo rig(l, r);
+    rig.projector.latency_for = [&](int index) { return std::chrono::microseconds(index == lagging ? 30000 : 0); };
+    const CaptureSummary s = Capture(StereoRig(), spec, rig.cameras, rig.projector, dir / "set", Options(rig.projector));
+    EXPECT_TRUE(s.complete);
+    EXPECT_GT(s.retries, 0);
+    ExpectEveryFrameOfItsPattern(dir / "set", rig, spec, 2);
+  }
+}
+
 TEST(Sequencer, ProjectorThatNeverSwitchesFailsNamingPatternAndCameraThenResumes) {
   slshadow::testing::TempDir dir;
   const fs::path out = dir / "set";
