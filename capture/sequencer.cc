@@ -227,6 +227,28 @@ struct SequenceModel {
       for (int i = 0; i < 4; ++i) group_of[static_cast<size_t>(i)] = 0;
       for (size_t k = 4; k < group_of.size(); ++k) --group_of[k];
     }
+    // Phase first (4 or more steps): the first frame has no predecessor either; the first period's
+    // steps form one group whose per-pixel sinusoid fit must hold (see CheckGroup).
+    const int steps = spec.phase_steps;
+    if (frames[0].role == FrameRole::kPhase && steps >= 4 && static_cast<int>(frames.size()) >= steps) {
+      bool same = true;
+      for (int i = 0; i < steps; ++i) {
+        same = same && frames[static_cast<size_t>(i)].role == FrameRole::kPhase &&
+               frames[static_cast<size_t>(i)].frequency == 0 && frames[static_cast<size_t>(i)].step == i;
+      }
+      if (same) {
+        groups.erase(groups.begin(), groups.begin() + steps);
+        Group g;
+        g.first = 0;
+        g.size = steps;
+        g.pair = true;
+        g.opening = true;
+        groups.insert(groups.begin(), g);
+        for (size_t k = 0; k < group_of.size(); ++k) {
+          group_of[k] = k < static_cast<size_t>(steps) ? 0 : group_of[k] - (steps - 1);
+        }
+      }
+    }
     if (spec.WhiteFrameIndex() >= 0 && spec.BlackFrameIndex() >= 0) {
       white_black = true;
       reference_frames = {spec.WhiteFrameIndex(), spec.BlackFrameIndex()};
@@ -794,6 +816,7 @@ class Sequencer {
     const double lit_threshold = options_.validation.lit_threshold * scale;
     const int stride = s.stride;
     char buf[320];
+    if (model_->frames[static_cast<size_t>(g.first)].role == FrameRole::kPhase) return CheckPhaseSteps(s, g, f);
     References refs;
     const FrameRole role = model_->frames[static_cast<size_t>(g.first)].role;
     size_t pair_at = 0;
@@ -956,6 +979,53 @@ class Sequencer {
       }
     }
     return true;
+  }
+
+  // The first period's N >= 4 phase steps: per lit pixel, I_n = A + C cos(2 pi n / N) +
+  // S sin(2 pi n / N) fitted by least squares; a frame that shows another pattern leaves a
+  // residual (rms over the steps) above a third of the modulation B = sqrt(C^2 + S^2) at many
+  // pixels. (Three steps fit exactly: nothing to check.)
+  Verdict CheckPhaseSteps(CameraState& s, const SequenceModel::Group& g, const std::vector<const cv::Mat*>& f) {
+    const int n = g.size;
+    const double lit_threshold = options_.validation.lit_threshold * s.full_scale / 255.0;
+    std::vector<double> c(static_cast<size_t>(n)), sn(static_cast<size_t>(n));
+    for (int i = 0; i < n; ++i) {
+      c[static_cast<size_t>(i)] = std::cos(2 * M_PI * i / n);
+      sn[static_cast<size_t>(i)] = std::sin(2 * M_PI * i / n);
+    }
+    int64_t count = 0, bad = 0;
+    std::vector<double> v(static_cast<size_t>(n));
+    ForEachSample(f[0]->rows, f[0]->cols, s.stride, [&](int y, int x) {
+      double a = 0, cc = 0, ss = 0;
+      for (int i = 0; i < n; ++i) {
+        const cv::Mat& m = *f[static_cast<size_t>(i)];
+        v[static_cast<size_t>(i)] = m.depth() == CV_8U ? m.at<uint8_t>(y, x) : m.at<uint16_t>(y, x);
+        a += v[static_cast<size_t>(i)];
+        cc += v[static_cast<size_t>(i)] * c[static_cast<size_t>(i)];
+        ss += v[static_cast<size_t>(i)] * sn[static_cast<size_t>(i)];
+      }
+      a /= n;
+      cc *= 2.0 / n;
+      ss *= 2.0 / n;
+      const double b = std::sqrt(cc * cc + ss * ss);
+      if (2 * b < lit_threshold) return;
+      double r2 = 0;
+      for (int i = 0; i < n; ++i) {
+        const double e = v[static_cast<size_t>(i)] - a - cc * c[static_cast<size_t>(i)] - ss * sn[static_cast<size_t>(i)];
+        r2 += e * e;
+      }
+      ++count;
+      bad += std::sqrt(r2 / n) > b / 3;
+    });
+    const double share = count ? static_cast<double>(bad) / static_cast<double>(count) : 0.0;
+    if (count < options_.validation.min_samples || share <= 1 - options_.validation.min_complementary) return {};
+    ++s.stats.not_complementary;
+    char buf[320];
+    std::snprintf(buf, sizeof(buf),
+                  ": the %d phase steps do not fit one sinusoid at %.1f %% of %lld modulated pixels: one of them shows "
+                  "another pattern (raise latency_us or settle_us in the devices file)",
+                  n, 100 * share, static_cast<long long>(count));
+    return {false, model_->Name(g.first) + " .. " + model_->Name(g.first + n - 1) + ", camera '" + s.cam->name + "'" + buf};
   }
 
   // Judges every stored Gray pair against the references (white and black last) and takes a
