@@ -95,6 +95,7 @@ nlohmann::json CameraCaptureStats::ToJson() const {
           {"invalid_frame_ids", invalid_frame_ids},
           {"exposure_us", exposure_us},
           {"min_complementary_share", min_complementary_share},
+          {"pair_checks", pair_checks},
           {"stream",
            {{"completed_frames", stream.completed_frames},
             {"failed_frames", stream.failed_frames},
@@ -861,6 +862,7 @@ class Sequencer {
     const double q = ComplementaryShare(*f[pair_at], *f[pair_at + 1], refs, lit_threshold, stride, &samples);
     if (samples < options_.validation.min_samples) return {};
     s.stats.min_complementary_share = std::min(s.stats.min_complementary_share, q);
+    ++s.stats.pair_checks;
     if (q >= options_.validation.min_complementary) return {};
     ++s.stats.not_complementary;
     std::snprintf(buf, sizeof(buf),

@@ -123,6 +123,7 @@ struct CameraCaptureStats {
   // Lowest share of decisive pixels on opposite sides seen in a Gray pair check (1: none made);
   // how far the accepted pairs were from the min_complementary limit.
   double min_complementary_share = 1;
+  int64_t pair_checks = 0;       // Gray pair complementarity checks made (enough decisive pixels)
   StreamStatistics stream;       // the camera's own transport counters at the end
   nlohmann::json ToJson() const;
 };
