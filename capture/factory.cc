@@ -64,7 +64,14 @@ std::unique_ptr<Projector> OpenProjector(const ProjectorEntry& entry) {
   const std::chrono::microseconds latency(entry.latency_us);
   // One case per projector backend.
   if (entry.backend == "none") return std::make_unique<NoneProjector>(latency);
-  if (entry.backend == "window") return std::make_unique<WindowProjector>(WindowOptionsOf(entry));
+  if (entry.backend == "window") {
+    const WindowProjectorOptions options = WindowOptionsOf(entry);
+    try {
+      return std::make_unique<WindowProjector>(options);
+    } catch (const Error& e) {
+      SLSHADOW_THROW(entry.where, ": ", e.what());
+    }
+  }
   NotBuilt(entry.where, entry.backend, "no projector backend of this name");
 }
 
