@@ -179,6 +179,7 @@ class ClosedLoop : public ::testing::Test {
       CameraSettings s;
       s.trigger = TriggerMode::kSoftware;
       s.roi = Roi{0, 0, rig_.cameras[k].model.width, rig_.cameras[k].model.height};
+      s.packet_size_bytes = 8192;  // loopback: per-packet costs dominate (docs/benchmarks.md)
       settings_.push_back(s);
       names_.push_back(rig_.cameras[k].name);
     }
@@ -204,7 +205,11 @@ class ClosedLoop : public ::testing::Test {
     options.max_retries = max_retries;
     options.validate = validate;
     const CaptureSummary summary = Capture(rig_, spec_, cams, projector, dir_ / name, options);
-    std::printf("closed loop (%s, latency %.1f ms): %s\n", name.c_str(), projector.Latency().count() / 1000.0,
+    std::printf("closed loop (%s): %d patterns x 2 cameras (%dx%d, projector %dx%d, %.0f Hz, latency %.1f ms): "
+                "%.1f ms per pattern, %.1f patterns/s\n%s\n",
+                name.c_str(), summary.patterns, rig_.cameras[0].model.width, rig_.cameras[0].model.height,
+                rig_.projector->model.width, rig_.projector->model.height, projector.Info().refresh_hz,
+                projector.Latency().count() / 1000.0, summary.mean_pattern_ms, 1000.0 / summary.mean_pattern_ms,
                 summary.BriefReport().c_str());
     PrintFillCosts();
     return summary;
@@ -314,7 +319,7 @@ TEST_F(ClosedLoop, SlshadowLatencyAndCaptureCommandsEqualSimulation) {
     for (size_t k = 0; k < 2; ++k) {
       out << "  - name: " << names_[k] << "\n    backend: aravis\n    address: " << kAddresses[k]
           << "\n    settings: {pixel_format: Mono8, trigger: software, roi: [0, 0, " << rig_.cameras[k].model.width
-          << ", " << rig_.cameras[k].model.height << "]}\n    grab_timeout_ms: 3000\n";
+          << ", " << rig_.cameras[k].model.height << "], packet_size_bytes: 8192}\n    grab_timeout_ms: 3000\n";
     }
     out << "projector:\n  backend: window\n  display: \"" << projector_rect_.x << "," << projector_rect_.y << ","
         << projector_rect_.width << "," << projector_rect_.height << "\"\n  latency_us: " << latency_us << "\n";
