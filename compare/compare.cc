@@ -10,6 +10,7 @@
 
 #include "compare/charts.h"
 #include "compare/kdtree.h"
+#include "core/config.h"
 #include "core/error.h"
 
 namespace slshadow::compare {
@@ -99,6 +100,109 @@ void CompareOptions::Check() const {
     artefacts->Check("artefacts");
     vdi2634.Check();
   }
+}
+
+namespace {
+
+template <typename Parse>
+auto ParseName(const ConfigNode& node, Parse parse) {
+  try {
+    return parse(node.AsString());
+  } catch (const Error& e) {
+    node.Fail(e.what());
+  }
+}
+
+unsigned GetSeed(const ConfigNode& node, const std::string& key, unsigned fallback) {
+  const int64_t seed = node.GetInt(key, fallback);
+  if (seed < 0 || seed > 0xffffffffLL) node[key].Fail("must be in [0, 2^32 - 1]");
+  return static_cast<unsigned>(seed);
+}
+
+}  // namespace
+
+nlohmann::json CompareOptionsToJson(const CompareOptions& o) {
+  const RegistrationOptions& r = o.registration;
+  nlohmann::json j;
+  j["registration"] = {{"method", RegistrationMethodName(r.method)},
+                       {"voxel_mm", r.voxel_mm},
+                       {"feature_radius_mm", r.feature_radius_mm},
+                       {"ransac_iterations", r.ransac_iterations},
+                       {"ransac_inlier_fraction", r.ransac_inlier_fraction},
+                       {"seed", r.seed},
+                       {"icp_max_correspondence_mm", r.icp_max_correspondence_mm},
+                       {"icp_max_iterations", r.icp_max_iterations},
+                       {"icp_max_points", r.icp_max_points},
+                       {"icp_tolerance", r.icp_tolerance}};
+  j["c2c"] = {{"max_distance_mm", o.c2c.max_distance_mm},
+              {"local_model", LocalModelName(o.c2c.local_model)},
+              {"local_model_neighbors", o.c2c.local_model_neighbors}};
+  j["threshold_mm"] = o.threshold_mm;
+  j["coverage_radius_mm"] = o.coverage_radius_mm;
+  j["histogram_bins"] = o.histogram_bins;
+  j["m3c2"] = o.m3c2;
+  j["m3c2_options"] = {{"projection_radius_mm", o.m3c2_options.projection_radius_mm},
+                       {"max_depth_mm", o.m3c2_options.max_depth_mm},
+                       {"registration_error_mm", o.m3c2_options.registration_error_mm},
+                       {"min_points", o.m3c2_options.min_points}};
+  j["artefacts"] = o.artefacts ? ArtefactSpecToJson(*o.artefacts) : nlohmann::json(nullptr);
+  j["vdi2634"] = Vdi2634OptionsToJson(o.vdi2634);
+  return j;
+}
+
+CompareOptions CompareOptionsFromConfig(const ConfigNode& node) {
+  if (!node.IsObject()) node.Fail("expected a mapping of compare options");
+  node.RejectUnknownKeys({"registration", "c2c", "threshold_mm", "coverage_radius_mm", "histogram_bins", "m3c2",
+                          "m3c2_options", "artefacts", "vdi2634"});
+  CompareOptions o;
+  if (node.Has("registration")) {
+    const ConfigNode n = node["registration"];
+    n.RejectUnknownKeys({"method", "voxel_mm", "feature_radius_mm", "ransac_iterations", "ransac_inlier_fraction",
+                         "seed", "icp_max_correspondence_mm", "icp_max_iterations", "icp_max_points",
+                         "icp_tolerance"});
+    RegistrationOptions& r = o.registration;
+    if (n.Has("method")) r.method = ParseName(n["method"], [](const std::string& s) { return ParseRegistrationMethod(s); });
+    r.voxel_mm = n.GetDouble("voxel_mm", r.voxel_mm);
+    r.feature_radius_mm = n.GetDouble("feature_radius_mm", r.feature_radius_mm);
+    r.ransac_iterations = static_cast<int>(n.GetInt("ransac_iterations", r.ransac_iterations));
+    r.ransac_inlier_fraction = n.GetDouble("ransac_inlier_fraction", r.ransac_inlier_fraction);
+    r.seed = GetSeed(n, "seed", r.seed);
+    r.icp_max_correspondence_mm = n.GetDouble("icp_max_correspondence_mm", r.icp_max_correspondence_mm);
+    r.icp_max_iterations = static_cast<int>(n.GetInt("icp_max_iterations", r.icp_max_iterations));
+    r.icp_max_points = static_cast<int>(n.GetInt("icp_max_points", r.icp_max_points));
+    r.icp_tolerance = n.GetDouble("icp_tolerance", r.icp_tolerance);
+  }
+  if (node.Has("c2c")) {
+    const ConfigNode n = node["c2c"];
+    n.RejectUnknownKeys({"max_distance_mm", "local_model", "local_model_neighbors"});
+    o.c2c.max_distance_mm = n.GetDouble("max_distance_mm", o.c2c.max_distance_mm);
+    if (n.Has("local_model")) {
+      o.c2c.local_model = ParseName(n["local_model"], [](const std::string& s) { return ParseLocalModel(s); });
+    }
+    o.c2c.local_model_neighbors = static_cast<int>(n.GetInt("local_model_neighbors", o.c2c.local_model_neighbors));
+  }
+  o.threshold_mm = node.GetDouble("threshold_mm", o.threshold_mm);
+  o.coverage_radius_mm = node.GetDouble("coverage_radius_mm", o.coverage_radius_mm);
+  o.histogram_bins = static_cast<int>(node.GetInt("histogram_bins", o.histogram_bins));
+  o.m3c2 = node.GetBool("m3c2", o.m3c2);
+  if (node.Has("m3c2_options")) {
+    const ConfigNode n = node["m3c2_options"];
+    n.RejectUnknownKeys({"projection_radius_mm", "max_depth_mm", "registration_error_mm", "min_points"});
+    M3C2Options& m = o.m3c2_options;
+    m.projection_radius_mm = n.GetDouble("projection_radius_mm", m.projection_radius_mm);
+    m.max_depth_mm = n.GetDouble("max_depth_mm", m.max_depth_mm);
+    m.registration_error_mm = n.GetDouble("registration_error_mm", m.registration_error_mm);
+    m.min_points = static_cast<int>(n.GetInt("min_points", m.min_points));
+  }
+  if (node.Has("artefacts") && !node["artefacts"].json().is_null()) o.artefacts = ArtefactSpecFromConfig(node["artefacts"]);
+  if (node.Has("vdi2634")) o.vdi2634 = Vdi2634OptionsFromConfig(node["vdi2634"]);
+  try {
+    o.Check();
+    o.m3c2_options.Check();  // checked whatever `m3c2` says: a file keeps no invalid values
+  } catch (const Error& e) {
+    SLSHADOW_THROW(node.file(), node.path().empty() ? "" : ": ", node.path(), ": ", e.what());
+  }
+  return o;
 }
 
 CompareResult Compare(const PointCloud& cloud, const Reference& reference, const CompareOptions& options,

@@ -24,6 +24,7 @@
 #include <vector>
 
 #include <Eigen/Core>
+#include <nlohmann/json.hpp>
 
 #include "compare/distances.h"
 #include "compare/registration.h"
@@ -66,6 +67,13 @@ struct CompareOptions {
   Vdi2634Options vdi2634;
   void Check() const;  // throws slshadow::Error naming the bad field
 };
+
+// CompareOptions as a file (YAML or JSON, docs/formats.md "Compare options"): every field under its
+// own name (registration, c2c, m3c2_options and vdi2634 as nested mappings, artefacts as an
+// artefact file's mapping or null); missing fields keep their defaults, unknown keys are rejected
+// at every level, the result is Check()ed. Throws slshadow::Error naming the file, field, value.
+nlohmann::json CompareOptionsToJson(const CompareOptions& options);
+CompareOptions CompareOptionsFromConfig(const ConfigNode& node);
 
 struct M3C2Summary {
   M3C2Options options;

@@ -171,7 +171,10 @@ void ArtefactSpec::Check(const std::string& what) const {
 }
 
 ArtefactSpec LoadArtefactSpec(const std::filesystem::path& path) {
-  const ConfigNode root = ConfigNode::LoadFile(path);
+  return ArtefactSpecFromConfig(ConfigNode::LoadFile(path));
+}
+
+ArtefactSpec ArtefactSpecFromConfig(const ConfigNode& root) {
   root.RejectUnknownKeys({"format", "version", "search_margin_mm", "spheres", "sphere_pairs", "planes"});
   ArtefactSpec spec;
   spec.search_margin_mm = root.GetDouble("search_margin_mm", spec.search_margin_mm);
@@ -203,8 +206,54 @@ ArtefactSpec LoadArtefactSpec(const std::filesystem::path& path) {
                              e["half_size_mm"].AsDouble()});
     }
   }
-  spec.Check(path.string());
+  spec.Check(root.path().empty() ? root.file() : root.file() + ": " + root.path());
   return spec;
+}
+
+nlohmann::json ArtefactSpecToJson(const ArtefactSpec& spec) {
+  auto vec = [](const Eigen::Vector3d& v) { return nlohmann::json::array({v.x(), v.y(), v.z()}); };
+  nlohmann::json j = {{"search_margin_mm", spec.search_margin_mm}};
+  j["spheres"] = nlohmann::json::array();
+  for (const auto& s : spec.spheres) {
+    j["spheres"].push_back({{"name", s.name}, {"center_mm", vec(s.nominal_center_mm)}, {"diameter_mm", s.calibrated_diameter_mm}});
+  }
+  j["sphere_pairs"] = nlohmann::json::array();
+  for (const auto& p : spec.pairs) {
+    j["sphere_pairs"].push_back(
+        {{"name", p.name}, {"spheres", {p.sphere_a, p.sphere_b}}, {"distance_mm", p.calibrated_distance_mm}});
+  }
+  j["planes"] = nlohmann::json::array();
+  for (const auto& p : spec.planes) {
+    j["planes"].push_back({{"name", p.name},
+                           {"point_mm", vec(p.nominal_point_mm)},
+                           {"normal", vec(p.nominal_normal)},
+                           {"half_size_mm", p.half_size_mm}});
+  }
+  return j;
+}
+
+nlohmann::json Vdi2634OptionsToJson(const Vdi2634Options& o) {
+  return {{"exclude_fraction", o.exclude_fraction},
+          {"ransac_iterations", o.ransac_iterations},
+          {"min_points", o.min_points},
+          {"seed", o.seed}};
+}
+
+Vdi2634Options Vdi2634OptionsFromConfig(const ConfigNode& node) {
+  node.RejectUnknownKeys({"exclude_fraction", "ransac_iterations", "min_points", "seed"});
+  Vdi2634Options o;
+  o.exclude_fraction = node.GetDouble("exclude_fraction", o.exclude_fraction);
+  o.ransac_iterations = static_cast<int>(node.GetInt("ransac_iterations", o.ransac_iterations));
+  o.min_points = static_cast<int>(node.GetInt("min_points", o.min_points));
+  const int64_t seed = node.GetInt("seed", o.seed);
+  if (seed < 0 || seed > 0xffffffffLL) node["seed"].Fail("must be in [0, 2^32 - 1]");
+  o.seed = static_cast<unsigned>(seed);
+  try {
+    o.Check();
+  } catch (const Error& e) {
+    SLSHADOW_THROW(node.file(), ": ", node.path(), ": ", e.what());
+  }
+  return o;
 }
 
 void Vdi2634Options::Check() const {

@@ -25,6 +25,10 @@
 
 #include "core/point_cloud.h"
 
+namespace slshadow {
+class ConfigNode;
+}  // namespace slshadow
+
 namespace slshadow::compare {
 
 struct SphereFit {
@@ -71,6 +75,9 @@ struct ArtefactSpec {
   void Check(const std::string& what) const;  // throws slshadow::Error
 };
 ArtefactSpec LoadArtefactSpec(const std::filesystem::path& path);
+// The same from a parsed tree, and back (the file's keys; unknown keys rejected, Check()ed).
+ArtefactSpec ArtefactSpecFromConfig(const ConfigNode& node);
+nlohmann::json ArtefactSpecToJson(const ArtefactSpec& spec);
 
 struct Vdi2634Options {
   double exclude_fraction = 0.0;  // in [0, 0.003]: share of largest residuals dropped
@@ -79,6 +86,9 @@ struct Vdi2634Options {
   unsigned seed = 7;
   void Check() const;
 };
+// Every field under its own name, and back (unknown keys rejected, Check()ed).
+nlohmann::json Vdi2634OptionsToJson(const Vdi2634Options& options);
+Vdi2634Options Vdi2634OptionsFromConfig(const ConfigNode& node);
 
 struct SphereFigures {
   std::string name;

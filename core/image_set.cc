@@ -119,6 +119,15 @@ ImageEncoding ImageEncodingFromString(const std::string& name) {
   SLSHADOW_THROW("image encoding: unknown '", name, "' (known: png, pgm, tiff)");
 }
 
+std::string ToString(ImageEncoding encoding) {
+  switch (encoding) {
+    case ImageEncoding::kPng: return "png";
+    case ImageEncoding::kPgm: return "pgm";
+    case ImageEncoding::kTiff: return "tiff";
+  }
+  return "png";
+}
+
 cv::Mat ReadGrayImage(const fs::path& path) {
   std::error_code ec;
   SLSHADOW_THROW_IF(!fs::is_regular_file(path, ec), path.string(), ": image file not found");

@@ -90,6 +90,7 @@ enum class ImageEncoding {
   kTiff  // uncompressed TIFF
 };
 ImageEncoding ImageEncodingFromString(const std::string& name);  // throws on unknown names
+std::string ToString(ImageEncoding encoding);                    // "png", "pgm", "tiff"
 
 struct ImageSetWriterOptions {
   ImageEncoding encoding = ImageEncoding::kPng;

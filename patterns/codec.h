@@ -21,12 +21,15 @@
 
 #include <vector>
 
+#include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 
 #include "core/projector_map.h"
 #include "patterns/pattern_spec.h"
 
 namespace slshadow {
+
+class ConfigNode;
 
 // The projector images of `spec`, in projection order (spec.Frames()), each CV_8UC1 of
 // projector_height x projector_width. Calls spec.Check().
@@ -54,6 +57,12 @@ struct DecodeOptions {
   // Throws slshadow::Error naming the field of the first violated constraint.
   void Check() const;
 };
+
+// DecodeOptions as a file (YAML or JSON, docs/formats.md "Decode options"): every field under its
+// own name; missing fields keep their defaults, unknown keys are rejected, the result is
+// Check()ed. Throws slshadow::Error naming the file, the field and the value.
+nlohmann::json DecodeOptionsToJson(const DecodeOptions& options);
+DecodeOptions DecodeOptionsFromConfig(const ConfigNode& node);
 
 // Decodes one camera's images of `spec` (spec.NumImages() images in spec order, all CV_8UC1 or
 // all CV_16UC1, of one size) into a ProjectorMap of the camera's size. Throws slshadow::Error on

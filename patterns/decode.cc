@@ -13,6 +13,7 @@
 
 #include <opencv2/core/hal/intrin.hpp>
 
+#include "core/config.h"
 #include "core/error.h"
 #include "patterns/codec.h"
 
@@ -651,6 +652,36 @@ void DecodeOptions::Check() const {
                     "full_scale: must be -1 (auto) or in [1, 65535] (got ", full_scale, ")");
   SLSHADOW_THROW_IF(!(unwrap_tolerance_cycles > 0 && unwrap_tolerance_cycles <= 0.5), p,
                     "unwrap_tolerance_cycles: must be in (0, 0.5] (got ", unwrap_tolerance_cycles, ")");
+}
+
+nlohmann::json DecodeOptionsToJson(const DecodeOptions& o) {
+  return {{"shadow_threshold", o.shadow_threshold},
+          {"contrast_threshold", o.contrast_threshold},
+          {"saturation_level", o.saturation_level},
+          {"full_scale", o.full_scale},
+          {"gray_edge_midpoint", o.gray_edge_midpoint},
+          {"unwrap_tolerance_cycles", o.unwrap_tolerance_cycles},
+          {"parallel", o.parallel}};
+}
+
+DecodeOptions DecodeOptionsFromConfig(const ConfigNode& node) {
+  if (!node.IsObject()) node.Fail("expected a mapping of decode options");
+  node.RejectUnknownKeys({"shadow_threshold", "contrast_threshold", "saturation_level", "full_scale",
+                          "gray_edge_midpoint", "unwrap_tolerance_cycles", "parallel"});
+  DecodeOptions o;
+  o.shadow_threshold = node.GetDouble("shadow_threshold", o.shadow_threshold);
+  o.contrast_threshold = node.GetDouble("contrast_threshold", o.contrast_threshold);
+  o.saturation_level = static_cast<int>(node.GetInt("saturation_level", o.saturation_level));
+  o.full_scale = static_cast<int>(node.GetInt("full_scale", o.full_scale));
+  o.gray_edge_midpoint = node.GetBool("gray_edge_midpoint", o.gray_edge_midpoint);
+  o.unwrap_tolerance_cycles = node.GetDouble("unwrap_tolerance_cycles", o.unwrap_tolerance_cycles);
+  o.parallel = node.GetBool("parallel", o.parallel);
+  try {
+    o.Check();
+  } catch (const Error& e) {
+    SLSHADOW_THROW(node.file(), node.path().empty() ? "" : ": ", node.path(), ": ", e.what());
+  }
+  return o;
 }
 
 ProjectorMap DecodePatterns(const PatternSpec& spec, const std::vector<cv::Mat>& camera_images,

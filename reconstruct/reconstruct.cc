@@ -9,6 +9,7 @@
 #include <optional>
 #include <sstream>
 
+#include "core/config.h"
 #include "core/error.h"
 #include "core/stage_meter.h"
 #include "reconstruct/filters.h"
@@ -339,7 +340,73 @@ CalibrationCheckSetup CheckSetup(const ReconstructOptions& options, const Rig& r
   return setup;
 }
 
+// A number, or "inf" / absent (then `fallback`) for gates that infinity disables.
+double GetDoubleOrInf(const ConfigNode& node, const std::string& key, double fallback) {
+  if (!node.Has(key)) return fallback;
+  const ConfigNode n = node[key];
+  if (n.json().is_string()) {
+    if (n.AsString() == "inf") return std::numeric_limits<double>::infinity();
+    n.Fail("expected a number or \"inf\"");
+  }
+  return n.AsDouble();
+}
+
+template <typename Parse>
+auto ParseEnum(const ConfigNode& node, Parse parse) {
+  try {
+    return parse(node.AsString());
+  } catch (const Error& e) {
+    node.Fail(e.what());
+  }
+}
+
 }  // namespace
+
+ReconstructOptions ReconstructOptionsFromConfig(const ConfigNode& node) {
+  if (!node.IsObject()) node.Fail("expected a mapping of reconstruct options");
+  node.RejectUnknownKeys({"method", "reference_noise_ratio", "min_depth_mm", "max_depth_mm",
+                          "min_triangulation_angle_deg", "max_reprojection_error_px", "max_epipolar_error_px",
+                          "min_quality", "max_code_step_px", "stereo_interpolation", "filter_depth_discontinuities",
+                          "max_depth_jump_footprints", "discontinuity_dilation_px", "filter_outliers",
+                          "outlier_window_radius_px", "outlier_neighbors", "outlier_std_ratio",
+                          "outlier_min_distance_footprints", "estimate_normals", "calibration_warning_px",
+                          "calibration_noise_factor", "calibration_min_warning_px"});
+  ReconstructOptions o;
+  if (node.Has("method")) {
+    o.method = ParseEnum(node["method"], [](const std::string& s) { return TriangulationMethodFromString(s); });
+  }
+  o.reference_noise_ratio = node.GetDouble("reference_noise_ratio", o.reference_noise_ratio);
+  o.min_depth_mm = node.GetDouble("min_depth_mm", o.min_depth_mm);
+  o.max_depth_mm = node.GetDouble("max_depth_mm", o.max_depth_mm);
+  o.min_triangulation_angle_deg = node.GetDouble("min_triangulation_angle_deg", o.min_triangulation_angle_deg);
+  o.max_reprojection_error_px = GetDoubleOrInf(node, "max_reprojection_error_px", o.max_reprojection_error_px);
+  o.max_epipolar_error_px = GetDoubleOrInf(node, "max_epipolar_error_px", o.max_epipolar_error_px);
+  o.min_quality = static_cast<float>(node.GetDouble("min_quality", o.min_quality));
+  o.max_code_step_px = node.GetDouble("max_code_step_px", o.max_code_step_px);
+  if (node.Has("stereo_interpolation")) {
+    o.stereo_interpolation = ParseEnum(node["stereo_interpolation"],
+                                       [](const std::string& s) { return StereoInterpolationFromString(s); });
+  }
+  o.filter_depth_discontinuities = node.GetBool("filter_depth_discontinuities", o.filter_depth_discontinuities);
+  o.max_depth_jump_footprints = node.GetDouble("max_depth_jump_footprints", o.max_depth_jump_footprints);
+  o.discontinuity_dilation_px = static_cast<int>(node.GetInt("discontinuity_dilation_px", o.discontinuity_dilation_px));
+  o.filter_outliers = node.GetBool("filter_outliers", o.filter_outliers);
+  o.outlier_window_radius_px = static_cast<int>(node.GetInt("outlier_window_radius_px", o.outlier_window_radius_px));
+  o.outlier_neighbors = static_cast<int>(node.GetInt("outlier_neighbors", o.outlier_neighbors));
+  o.outlier_std_ratio = node.GetDouble("outlier_std_ratio", o.outlier_std_ratio);
+  o.outlier_min_distance_footprints =
+      node.GetDouble("outlier_min_distance_footprints", o.outlier_min_distance_footprints);
+  o.estimate_normals = node.GetBool("estimate_normals", o.estimate_normals);
+  o.calibration_warning_px = GetDoubleOrInf(node, "calibration_warning_px", o.calibration_warning_px);
+  o.calibration_noise_factor = node.GetDouble("calibration_noise_factor", o.calibration_noise_factor);
+  o.calibration_min_warning_px = node.GetDouble("calibration_min_warning_px", o.calibration_min_warning_px);
+  try {
+    o.Check();
+  } catch (const Error& e) {
+    SLSHADOW_THROW(node.file(), node.path().empty() ? "" : ": ", node.path(), ": ", e.what());
+  }
+  return o;
+}
 
 namespace {
 

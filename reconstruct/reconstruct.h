@@ -29,6 +29,8 @@
 
 namespace slshadow {
 
+class ConfigNode;
+
 enum class ReconstructMode { kProjector, kStereo };
 const char* ToString(ReconstructMode mode);  // "projector", "stereo"
 ReconstructMode ReconstructModeFromString(const std::string& name);  // throws on unknown names
@@ -102,8 +104,14 @@ struct ReconstructOptions {
 
   // Throws slshadow::Error naming the first violated constraint.
   void Check() const;
+  // Every field under its own name; enums by name, infinite gates as "inf".
   nlohmann::json ToJson() const;
 };
+
+// ReconstructOptions from a file (YAML or JSON, docs/formats.md "Reconstruct options"): the
+// fields of ToJson(); missing fields keep their defaults, unknown keys are rejected, the result
+// is Check()ed. Throws slshadow::Error naming the file, the field and the value.
+ReconstructOptions ReconstructOptionsFromConfig(const ConfigNode& node);
 
 // Statistics of a per-correspondence residual, px.
 struct ResidualStats {

@@ -71,7 +71,36 @@ void ImageSetReconstructOptions::Check() const {
 }
 
 nlohmann::json ImageSetReconstructOptions::ToJson() const {
-  return {{"mode", ToString(mode)}, {"cameras", cameras}, {"reconstruct", reconstruct.ToJson()}};
+  return {{"mode", ToString(mode)},
+          {"cameras", cameras},
+          {"reconstruct", reconstruct.ToJson()},
+          {"decode", DecodeOptionsToJson(decode)}};
+}
+
+ImageSetReconstructOptions ImageSetReconstructOptionsFromConfig(const ConfigNode& node) {
+  if (!node.IsObject()) node.Fail("expected a mapping of reconstruct options");
+  node.RejectUnknownKeys({"mode", "cameras", "reconstruct", "decode"});
+  ImageSetReconstructOptions o;
+  if (node.Has("mode")) {
+    const ConfigNode mode = node["mode"];
+    try {
+      o.mode = ReconstructModeFromString(mode.AsString());
+    } catch (const Error& e) {
+      mode.Fail(e.what());
+    }
+  }
+  if (node.Has("cameras")) {
+    const ConfigNode cameras = node["cameras"];
+    for (size_t i = 0; i < cameras.size(); ++i) o.cameras.push_back(cameras.at(i).AsString());
+  }
+  if (node.Has("reconstruct")) o.reconstruct = ReconstructOptionsFromConfig(node["reconstruct"]);
+  if (node.Has("decode")) o.decode = DecodeOptionsFromConfig(node["decode"]);
+  try {
+    o.Check();
+  } catch (const Error& e) {
+    SLSHADOW_THROW(node.file(), node.path().empty() ? "" : ": ", node.path(), ": ", e.what());
+  }
+  return o;
 }
 
 ImageSetReconstruction ReconstructFromImages(const Rig& rig, const PatternSpec& spec,

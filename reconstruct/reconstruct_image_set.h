@@ -28,8 +28,14 @@ struct ImageSetReconstructOptions {
   DecodeOptions decode;
 
   void Check() const;  // throws slshadow::Error
+  // {mode, cameras, reconstruct: ReconstructOptions::ToJson, decode: DecodeOptionsToJson}.
   nlohmann::json ToJson() const;
 };
+
+// The same as a file (docs/formats.md "Reconstruct options"); missing fields keep their
+// defaults, unknown keys are rejected, the result is Check()ed. Throws slshadow::Error naming the
+// file, the field and the value.
+ImageSetReconstructOptions ImageSetReconstructOptionsFromConfig(const ConfigNode& node);
 
 struct ImageSetReconstruction {
   // Merged cloud; besides the per-point fields of reconstruct.h it has "camera", the index in the

@@ -11,6 +11,7 @@
 #include "core/file_util.h"
 #include "core/image_set.h"
 #include "core/mesh.h"
+#include "core/provenance.h"
 #include "shadow/scan_pipeline.h"
 
 namespace slshadow::workflow {
@@ -107,6 +108,12 @@ DemoResult RunDemoJob(const DemoOptions& options) {
       SceneSurface(scene, options.scene_path.empty() ? "demo scene" : options.scene_path.string());
   result.stages.push_back(meter.Stop());
 
+  const DecodeOptions decode_options;
+  ReconstructOptions reconstruct_options;
+  reconstruct_options.method = TriangulationMethodFromString(options.method);
+  compare::CompareOptions compare_options;
+  compare_options.threshold_mm = options.threshold_mm;
+
   // 2. The virtual scan, in memory.
   meter = StageMeter("simulate (ray cast + patterns)");
   VirtualScan scan = RenderVirtualScan(scene, rig, projector_images);
@@ -116,10 +123,17 @@ DemoResult RunDemoJob(const DemoOptions& options) {
   // 3. Write it as an ImageSet, exactly as a real capture is written.
   meter = StageMeter("write ImageSet");
   {
-    ImageSetWriterOptions writer_options;
-    writer_options.encoding = ImageEncodingFromString(options.encoding);
-    WriteVirtualScan(staging / "scan", rig, spec, scene, scan.images, writer_options,
-                     {{"generator", "slshadow demo"}, {"scene", SceneToJson(scene)}});
+    // Provenance: the scan renders again as SimulateScan with these options (the demo keeps its
+    // ground truth in memory), and records the settings it decodes, reconstructs and compares with.
+    SimulateOptions simulate_options;
+    simulate_options.writer.encoding = ImageEncodingFromString(options.encoding);
+    simulate_options.write_ground_truth = false;
+    ScanProvenance provenance = VirtualScanProvenance(scene, simulate_options, "slshadow demo");
+    provenance.decode = DecodeOptionsToJson(decode_options);
+    provenance.reconstruct = reconstruct_options.ToJson();
+    provenance.compare = compare::CompareOptionsToJson(compare_options);
+    WriteVirtualScan(staging / "scan", rig, spec, scene, scan.images, simulate_options.writer,
+                     ExtraWithProvenance(provenance));
   }
   WriteMesh(staging / "ground_truth.ply", truth);
   result.stages.push_back(meter.Stop());
@@ -127,13 +141,9 @@ DemoResult RunDemoJob(const DemoOptions& options) {
   // 4. Read the ImageSet back and decode both cameras: the path a real capture takes.
   meter = StageMeter("read ImageSet + decode");
   const ImageSet image_set = ImageSet::Open(staging / "scan");
-  const DecodedScan decoded = DecodeImageSet(image_set);
+  const DecodedScan decoded = DecodeImageSet(image_set, {}, decode_options);
   result.stages.push_back(meter.Stop());
 
-  ReconstructOptions reconstruct_options;
-  reconstruct_options.method = TriangulationMethodFromString(options.method);
-  compare::CompareOptions compare_options;
-  compare_options.threshold_mm = options.threshold_mm;
   meter = StageMeter("reference: sample ground truth");
   const compare::Reference reference =
       compare::ReferenceFromMesh(truth, "ground truth (scene meshes and planes)");

@@ -3,6 +3,7 @@
 #include <opencv2/core/utility.hpp>
 
 #include <cmath>
+#include <optional>
 
 #include "core/config.h"
 #include "core/error.h"
@@ -61,6 +62,43 @@ void WriteVirtualScan(const fs::path& dir, const Rig& rig, const PatternSpec& sp
   for (const auto& e : errors) SLSHADOW_THROW_IF(!e.empty(), e);
   writer.SetExtra(extra);
   writer.Commit();
+}
+
+ScanSettings ScanSettingsFromProvenance(const ScanProvenance& provenance, const std::string& file) {
+  ScanSettings settings;
+  const auto node = [&file](const nlohmann::json& json, const char* key) {
+    return ConfigNode::FromJson(json, file, std::string("extra.provenance.") + key);
+  };
+  if (!provenance.simulate.is_null()) settings.simulate = SimulateOptionsFromConfig(node(provenance.simulate, "simulate"));
+  if (!provenance.decode.is_null()) settings.decode = DecodeOptionsFromConfig(node(provenance.decode, "decode"));
+  if (!provenance.reconstruct.is_null()) {
+    settings.reconstruct = ReconstructOptionsFromConfig(node(provenance.reconstruct, "reconstruct"));
+  }
+  if (!provenance.compare.is_null()) {
+    settings.compare = compare::CompareOptionsFromConfig(node(provenance.compare, "compare"));
+  }
+  return settings;
+}
+
+SimulateSummary RedoVirtualScan(const fs::path& scan_dir, const fs::path& out_dir) {
+  const ImageSet image_set = ImageSet::Open(scan_dir);
+  const std::string manifest = (scan_dir / "manifest.json").string();
+  const std::optional<ScanProvenance> provenance = ReadScanProvenance(image_set);
+  SLSHADOW_THROW_IF(!provenance, manifest, ": extra.provenance: missing; the scan cannot be redone from its folder");
+  SLSHADOW_THROW_IF(provenance->scene_config.is_null(), manifest,
+                    ": extra.provenance.scene.config: null (the scene was built in code); the scan cannot be redone");
+  const Scene scene = SceneFromConfig(
+      ConfigNode::FromJson(provenance->scene_config, manifest, "extra.provenance.scene.config"),
+      provenance->scene_base_dir);
+  SLSHADOW_THROW_IF(SceneToJson(scene) != provenance->scene_summary, manifest,
+                    ": extra.provenance.scene: the scene rebuilt from its config differs from the recorded summary "
+                    "(a mesh or image file changed, or the scene was edited after loading)");
+  ScanSettings settings = ScanSettingsFromProvenance(*provenance, manifest);
+  settings.simulate.writer.overwrite = false;
+  const PatternSpec spec =
+      PatternSpecFromConfig(ConfigNode::FromJson(image_set.patterns(), manifest, "patterns"));
+  return SimulateScan(scene, image_set.rig(), GeneratePatterns(spec), image_set.patterns(), out_dir,
+                      settings.simulate);
 }
 
 const ProjectorMap& DecodedScan::map(const std::string& camera) const {

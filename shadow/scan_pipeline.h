@@ -21,6 +21,7 @@
 #include "core/image_set.h"
 #include "core/mesh.h"
 #include "core/projector_map.h"
+#include "core/provenance.h"
 #include "core/rig.h"
 #include "core/stage_meter.h"
 #include "patterns/codec.h"
@@ -60,6 +61,27 @@ VirtualScan RenderVirtualScan(const Scene& scene, const Rig& rig, const std::vec
 void WriteVirtualScan(const std::filesystem::path& dir, const Rig& rig, const PatternSpec& spec, const Scene& scene,
                       const std::vector<std::vector<cv::Mat>>& images, const ImageSetWriterOptions& writer_options,
                       const nlohmann::json& extra);
+
+// ---- Settings and provenance as files (core/provenance.h; each module reads its own options).
+
+// The settings a scan was made and processed with, read from its provenance: each field from its
+// module's FromConfig, the default where the provenance has none (null).
+struct ScanSettings {
+  SimulateOptions simulate;
+  DecodeOptions decode;
+  ReconstructOptions reconstruct;
+  compare::CompareOptions compare;
+};
+// Throws slshadow::Error naming the manifest and the field on a malformed provenance.
+ScanSettings ScanSettingsFromProvenance(const ScanProvenance& provenance, const std::string& file);
+
+// Renders the virtual scan in `scan_dir` again from that folder alone, with the same settings:
+// rig and pattern spec from its manifest, the scene rebuilt from extra.provenance.scene (config and
+// base_dir), the simulator options from extra.provenance.simulate (overwrite off); writes the new
+// ImageSet at `out_dir` (SimulateScan). Throws slshadow::Error when the ImageSet has no
+// provenance, its scene was built in code (no config), or the rebuilt scene's summary differs from
+// the recorded one (a mesh file changed, or the scene was edited after loading).
+SimulateSummary RedoVirtualScan(const std::filesystem::path& scan_dir, const std::filesystem::path& out_dir);
 
 // ---- Decode once, reconstruct any set of modes.
 

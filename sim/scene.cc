@@ -490,6 +490,9 @@ Scene SceneFromConfig(const ConfigNode& node, const std::filesystem::path& base_
   if (objects.size() == 0) objects.Fail("scene has no objects");
   for (size_t i = 0; i < objects.size(); ++i) AddObjects(objects.at(i), base_dir, scene);
   scene.Check(node.file());
+  scene.source_config = node.json();
+  std::error_code ec;
+  scene.source_dir = std::filesystem::absolute(base_dir, ec);
   return scene;
 }
 

@@ -159,6 +159,11 @@ struct Scene {
   // Calibrated values of metrology artefacts (sphere diameters and centres, ball-bar lengths,
   // plane poses, board corners) in the rig frame, for comparison against reconstructions.
   nlohmann::json artefacts = nlohmann::json::object();
+  // Where the scene came from, for scan provenance (core/provenance.h): the tree SceneFromConfig
+  // read and the absolute folder its relative paths resolve against; null / empty for a scene
+  // built in code. A redo rebuilds the scene from them and checks it against SceneToJson.
+  nlohmann::json source_config;
+  std::filesystem::path source_dir;
 
   // Throws slshadow::Error naming `what` on an empty scene, non-finite poses, invalid shapes,
   // empty / degenerate / non-manifold meshes, point clouds without normals, invalid layers.

@@ -14,6 +14,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <tbb/parallel_for.h>
 
+#include "core/config.h"
 #include "core/error.h"
 #include "core/file_util.h"
 #include "core/progress.h"
@@ -257,6 +258,61 @@ std::vector<std::vector<cv::Mat>> RenderScan(const Scene& scene, const Rig& rig,
   return images;
 }
 
+void SimulateOptions::Check() const {
+  SLSHADOW_THROW_IF(writer.png_compression < 0 || writer.png_compression > 9,
+                    "simulate options: png_compression: must be in [0, 9] (got ", writer.png_compression, ")");
+}
+
+nlohmann::json SimulateOptionsToJson(const SimulateOptions& o) {
+  return {{"encoding", ToString(o.writer.encoding)},
+          {"png_compression", o.writer.png_compression},
+          {"overwrite", o.writer.overwrite},
+          {"write_ground_truth", o.write_ground_truth},
+          {"trace_mode", o.trace_mode == TraceMode::kPacket16 ? "packet16" : "single_ray"}};
+}
+
+SimulateOptions SimulateOptionsFromConfig(const ConfigNode& node) {
+  if (!node.IsObject()) node.Fail("expected a mapping of simulate options");
+  node.RejectUnknownKeys({"encoding", "png_compression", "overwrite", "write_ground_truth", "trace_mode"});
+  SimulateOptions o;
+  if (node.Has("encoding")) {
+    try {
+      o.writer.encoding = ImageEncodingFromString(node["encoding"].AsString());
+    } catch (const Error& e) {
+      node["encoding"].Fail(e.what());
+    }
+  }
+  o.writer.png_compression = static_cast<int>(node.GetInt("png_compression", o.writer.png_compression));
+  o.writer.overwrite = node.GetBool("overwrite", o.writer.overwrite);
+  o.write_ground_truth = node.GetBool("write_ground_truth", o.write_ground_truth);
+  if (node.Has("trace_mode")) {
+    const std::string mode = node["trace_mode"].AsString();
+    if (mode == "packet16") {
+      o.trace_mode = TraceMode::kPacket16;
+    } else if (mode == "single_ray") {
+      o.trace_mode = TraceMode::kSingleRay;
+    } else {
+      node["trace_mode"].Fail("unknown trace mode (known: packet16, single_ray)");
+    }
+  }
+  try {
+    o.Check();
+  } catch (const Error& e) {
+    SLSHADOW_THROW(node.file(), node.path().empty() ? "" : ": ", node.path(), ": ", e.what());
+  }
+  return o;
+}
+
+ScanProvenance VirtualScanProvenance(const Scene& scene, const SimulateOptions& options, const std::string& generator) {
+  ScanProvenance p;
+  p.generator = generator;
+  p.scene_config = scene.source_config;
+  p.scene_base_dir = scene.source_dir.string();
+  p.scene_summary = SceneToJson(scene);
+  p.simulate = SimulateOptionsToJson(options);
+  return p;
+}
+
 SimulateSummary SimulateScan(const Scene& scene, const Rig& rig, const std::vector<cv::Mat>& projector_images,
                              const nlohmann::json& pattern_spec, const std::filesystem::path& out_dir,
                              const SimulateOptions& options) {
@@ -269,15 +325,12 @@ SimulateSummary SimulateScan(const Scene& scene, const Rig& rig, const std::vect
                     ": exists (pass overwrite to replace it)");
   SimulateSummary sum;
   ImageSetWriter writer(out_dir, rig, pattern_spec, options.writer);
-  nlohmann::json extra;
+  nlohmann::json extra = ExtraWithProvenance(VirtualScanProvenance(scene, options, "slshadow simulate"));
   // The radiometry as rendered: reference_distance_mm 0 (the rig's working distance) resolved.
-  nlohmann::json scene_json = SceneToJson(scene);
-  if (!(scene.radiometry.reference_distance_mm > 0)) {
-    scene_json["radiometry"]["reference_distance_mm"] = rig.working_distance_mm;
-  }
-  extra["simulator"] = {{"scene", scene_json},
-                        {"trace_mode", options.trace_mode == TraceMode::kPacket16 ? "packet16" : "single_ray"},
-                        {"ground_truth", options.write_ground_truth ? "ground_truth/<camera>/" : ""}};
+  // (The provenance keeps the scene as configured, so a redo rebuilds the same scene.)
+  extra["radiometry_as_rendered"] = {
+      {"reference_distance_mm",
+       scene.radiometry.reference_distance_mm > 0 ? scene.radiometry.reference_distance_mm : rig.working_distance_mm}};
   writer.SetExtra(extra);
 
   SLSHADOW_THROW_IF(options.shared_bvh && &options.shared_bvh->scene() != &scene,

@@ -1,6 +1,7 @@
 // A whole virtual scan: every projector image seen by every camera of the rig, written as an
-// ImageSet exactly as a real capture (source "virtual"; scene and layers recorded in the
-// manifest's `extra`), plus ground truth per camera. The renderer takes the projector images
+// ImageSet exactly as a real capture (source "virtual"; the scan's provenance, with the scene
+// and these options, in the manifest's `extra.provenance`: core/provenance.h), plus ground truth
+// per camera. The renderer takes the projector images
 // themselves (CV_8UC1 at the projector's resolution), so this library does not depend on how
 // they were made; the CLI makes them with patterns/.
 //
@@ -29,12 +30,15 @@
 
 #include "core/image_set.h"
 #include "core/point_cloud.h"
+#include "core/provenance.h"
 #include "core/projector_map.h"
 #include "core/rig.h"
 #include "sim/renderer.h"
 #include "sim/scene.h"
 
 namespace slshadow {
+
+class ConfigNode;
 
 struct SimulateOptions {
   ImageSetWriterOptions writer;     // encoding (PNG, PGM = fastest lossless, TIFF), overwrite
@@ -43,8 +47,19 @@ struct SimulateOptions {
   // A BVH built once for many scans of this scene (RayCaster of the same Scene object), or null:
   // SimulateScan builds its own (0.3 CPU s for 1 M triangles).
   const RayCaster* shared_bvh = nullptr;
-  void Check() const {}
+  void Check() const;
 };
+
+// SimulateOptions as a file (docs/formats.md "Simulate options"): {encoding, png_compression,
+// overwrite, write_ground_truth, trace_mode: packet16 | single_ray}; shared_bvh is a run-time
+// object and is not written (null after reading). Missing fields keep their defaults, unknown
+// keys are rejected, the result is Check()ed. Throws slshadow::Error naming file, field, value.
+nlohmann::json SimulateOptionsToJson(const SimulateOptions& options);
+SimulateOptions SimulateOptionsFromConfig(const ConfigNode& node);
+
+// The provenance of a virtual scan of `scene` rendered with `options` (core/provenance.h): the
+// scene's source config and folder, its summary, the options; `generator` names the writer.
+ScanProvenance VirtualScanProvenance(const Scene& scene, const SimulateOptions& options, const std::string& generator);
 
 struct SimulateSummary {
   int cameras = 0;

@@ -5,6 +5,7 @@
 
 #include <gtest/gtest.h>
 
+#include "core/config.h"
 #include "core/error.h"
 #include "tests/compare/test_shapes.h"
 #include "tests/testing/temp_dir.h"
@@ -122,6 +123,87 @@ TEST(LoadReference, ReadsMeshesAndClouds) {
   EXPECT_FALSE(rc.IsMesh());
   EXPECT_EQ(rc.cloud.size(), mesh.vertices.size());
   EXPECT_THROW(LoadReference(tmp / "m.xyz"), Error);
+}
+
+
+// Options as files: every field (nested registration, c2c, M3C2, artefacts, VDI/VDE 2634) written
+// is read back from JSON and YAML; unknown keys at any level and bad values are refused.
+TEST(CompareOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
+  CompareOptions o;
+  o.registration.method = RegistrationMethod::kIcp;
+  o.registration.voxel_mm = 1.5;
+  o.registration.feature_radius_mm = 7;
+  o.registration.ransac_iterations = 1000;
+  o.registration.ransac_inlier_fraction = 0.3;
+  o.registration.seed = 42;
+  o.registration.icp_max_correspondence_mm = 2;
+  o.registration.icp_max_iterations = 30;
+  o.registration.icp_max_points = 5000;
+  o.registration.icp_tolerance = 1e-6;
+  o.c2c.max_distance_mm = 4;
+  o.c2c.local_model = LocalModel::kQuadric;
+  o.c2c.local_model_neighbors = 15;
+  o.threshold_mm = 0.1;
+  o.coverage_radius_mm = 0.4;
+  o.histogram_bins = 40;
+  o.m3c2 = true;
+  o.m3c2_options.projection_radius_mm = 0.8;
+  o.m3c2_options.max_depth_mm = 3;
+  o.m3c2_options.registration_error_mm = 0.01;
+  o.m3c2_options.min_points = 5;
+  ArtefactSpec artefacts;
+  artefacts.search_margin_mm = 3;
+  artefacts.spheres = {{"s1", Eigen::Vector3d(1, 2, 3), 25.0}, {"s2", Eigen::Vector3d(101, 2, 3), 25.0}};
+  artefacts.pairs = {{"bar", "s1", "s2", 100.0}};
+  artefacts.planes = {{"flat", Eigen::Vector3d(0, 0, 10), Eigen::Vector3d(0, 0, 1), 40.0}};
+  o.artefacts = artefacts;
+  o.vdi2634.exclude_fraction = 0.001;
+  o.vdi2634.ransac_iterations = 200;
+  o.vdi2634.min_points = 20;
+  o.vdi2634.seed = 9;
+  const nlohmann::json j = CompareOptionsToJson(o);
+  for (const ConfigNode& node : {ConfigNode::FromJson(j, "c.json"), ConfigNode::ParseYaml(JsonToYaml(j), "c.yaml")}) {
+    const CompareOptions r = CompareOptionsFromConfig(node);
+    EXPECT_EQ(r.registration.method, RegistrationMethod::kIcp);
+    EXPECT_EQ(r.registration.seed, 42u);
+    EXPECT_EQ(r.c2c.local_model, LocalModel::kQuadric);
+    EXPECT_EQ(r.threshold_mm, 0.1);
+    EXPECT_TRUE(r.m3c2);
+    ASSERT_TRUE(r.artefacts.has_value());
+    EXPECT_EQ(r.artefacts->pairs.size(), 1u);
+    EXPECT_EQ(r.artefacts->spheres[1].nominal_center_mm, Eigen::Vector3d(101, 2, 3));
+    EXPECT_EQ(r.vdi2634.seed, 9u);
+    EXPECT_EQ(CompareOptionsToJson(r), j);  // every other field
+  }
+  // Defaults (no registration, no artefacts) survive an empty file and a written default.
+  const CompareOptions defaults;
+  EXPECT_EQ(CompareOptionsToJson(CompareOptionsFromConfig(ConfigNode::FromJson(nlohmann::json::object(), "c.json"))),
+            CompareOptionsToJson(defaults));
+  const CompareOptions read_defaults =
+      CompareOptionsFromConfig(ConfigNode::FromJson(CompareOptionsToJson(defaults), "c.json"));
+  EXPECT_EQ(read_defaults.registration.method, RegistrationMethod::kNone);
+  EXPECT_FALSE(read_defaults.artefacts.has_value());
+
+  nlohmann::json typo = j;
+  typo["registration"]["icp_iterations"] = 10;
+  try {
+    CompareOptionsFromConfig(ConfigNode::FromJson(typo, "c.json"));
+    FAIL() << "unknown nested key accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("icp_iterations"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("c.json"), std::string::npos) << e.what();
+  }
+  nlohmann::json bad = j;
+  bad["c2c"]["local_model"] = "cubic";
+  EXPECT_THROW(CompareOptionsFromConfig(ConfigNode::FromJson(bad, "c.json")), Error);
+  bad = j;
+  bad["threshold_mm"] = -1;
+  try {
+    CompareOptionsFromConfig(ConfigNode::FromJson(bad, "c.json"));
+    FAIL() << "negative threshold accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("threshold_mm"), std::string::npos) << e.what();
+  }
 }
 
 }  // namespace

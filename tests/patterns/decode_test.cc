@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <numbers>
 
+#include "core/config.h"
 #include "core/error.h"
 #include "patterns/codec.h"
 #include "patterns/synthetic.h"
@@ -472,6 +473,53 @@ TEST(Atan2Cycles, MatchesStdAtan2) {
   EXPECT_LT(worst, 2e-6);
   const float f = Atan2Cycles(-1e-30f, 1.0f);
   EXPECT_TRUE(f >= 0.0f && f < 1.0f);
+}
+
+
+// Options as files: every field written is read back (JSON and YAML), unknown keys and bad
+// values are refused naming the file and the field.
+TEST(DecodeOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
+  DecodeOptions o;
+  o.shadow_threshold = 7.5;
+  o.contrast_threshold = 2.25;
+  o.saturation_level = 4000;
+  o.full_scale = 4095;
+  o.gray_edge_midpoint = false;
+  o.unwrap_tolerance_cycles = 0.2;
+  o.parallel = false;
+  const nlohmann::json j = DecodeOptionsToJson(o);
+  for (const ConfigNode& node : {ConfigNode::FromJson(j, "decode.json"), ConfigNode::ParseYaml(JsonToYaml(j), "decode.yaml")}) {
+    const DecodeOptions r = DecodeOptionsFromConfig(node);
+    EXPECT_EQ(r.shadow_threshold, o.shadow_threshold);
+    EXPECT_EQ(r.contrast_threshold, o.contrast_threshold);
+    EXPECT_EQ(r.saturation_level, o.saturation_level);
+    EXPECT_EQ(r.full_scale, o.full_scale);
+    EXPECT_EQ(r.gray_edge_midpoint, o.gray_edge_midpoint);
+    EXPECT_EQ(r.unwrap_tolerance_cycles, o.unwrap_tolerance_cycles);
+    EXPECT_EQ(r.parallel, o.parallel);
+    EXPECT_EQ(DecodeOptionsToJson(r), j);
+  }
+  // Missing fields keep their defaults.
+  EXPECT_EQ(DecodeOptionsToJson(DecodeOptionsFromConfig(ConfigNode::FromJson(nlohmann::json::object(), "d.json"))),
+            DecodeOptionsToJson(DecodeOptions{}));
+  nlohmann::json typo = j;
+  typo["shadow_treshold"] = 3;
+  try {
+    DecodeOptionsFromConfig(ConfigNode::FromJson(typo, "d.json"));
+    FAIL() << "unknown key accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("shadow_treshold"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("d.json"), std::string::npos) << e.what();
+  }
+  nlohmann::json bad = j;
+  bad["unwrap_tolerance_cycles"] = 0.9;
+  try {
+    DecodeOptionsFromConfig(ConfigNode::FromJson(bad, "d.json"));
+    FAIL() << "bad value accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("unwrap_tolerance_cycles"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("d.json"), std::string::npos) << e.what();
+  }
 }
 
 }  // namespace

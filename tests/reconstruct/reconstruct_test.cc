@@ -10,6 +10,8 @@
 
 #include <gtest/gtest.h>
 
+#include "core/config.h"
+#include "reconstruct/reconstruct_image_set.h"
 #include "core/error.h"
 #include "tests/reconstruct/analytic_scene.h"
 #include "tests/testing/temp_dir.h"
@@ -630,6 +632,83 @@ TEST_F(ReconstructTest, BadInputThrows) {
   EXPECT_THROW(bad([](ReconstructOptions& o) { o.max_code_step_px = std::nan(""); }).Check(), Error);
   EXPECT_THROW(ReconstructModeFromString("mono"), Error);
   EXPECT_EQ(ReconstructModeFromString("stereo"), ReconstructMode::kStereo);
+}
+
+
+// Options as files: every field written is read back (JSON and YAML, infinite gates as "inf"),
+// unknown keys and bad values are refused naming the file and the field.
+TEST(ReconstructOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
+  ReconstructOptions o;
+  o.method = TriangulationMethod::kOptimal;
+  o.reference_noise_ratio = 0.02;
+  o.min_depth_mm = 100;
+  o.max_depth_mm = 900;
+  o.min_triangulation_angle_deg = 3.5;
+  o.max_reprojection_error_px = std::numeric_limits<double>::infinity();
+  o.max_epipolar_error_px = 0.75;
+  o.min_quality = 1.5f;
+  o.max_code_step_px = 3;
+  o.stereo_interpolation = StereoInterpolation::kCubic;
+  o.filter_depth_discontinuities = false;
+  o.max_depth_jump_footprints = 6;
+  o.discontinuity_dilation_px = 2;
+  o.filter_outliers = false;
+  o.outlier_window_radius_px = 2;
+  o.outlier_neighbors = 6;
+  o.outlier_std_ratio = 3;
+  o.outlier_min_distance_footprints = 5;
+  o.estimate_normals = false;
+  o.calibration_warning_px = std::numeric_limits<double>::infinity();
+  const nlohmann::json j = o.ToJson();
+  EXPECT_EQ(j["max_reprojection_error_px"], "inf");
+  for (const ConfigNode& node : {ConfigNode::FromJson(j, "r.json"), ConfigNode::ParseYaml(JsonToYaml(j), "r.yaml")}) {
+    const ReconstructOptions r = ReconstructOptionsFromConfig(node);
+    EXPECT_EQ(r.method, o.method);
+    EXPECT_EQ(r.max_reprojection_error_px, o.max_reprojection_error_px);
+    EXPECT_EQ(r.min_quality, o.min_quality);
+    EXPECT_EQ(r.stereo_interpolation, o.stereo_interpolation);
+    EXPECT_EQ(r.outlier_neighbors, o.outlier_neighbors);
+    EXPECT_EQ(r.calibration_warning_px, o.calibration_warning_px);
+    EXPECT_EQ(r.ToJson(), j);  // every other field
+  }
+  EXPECT_EQ(ReconstructOptionsFromConfig(ConfigNode::FromJson(nlohmann::json::object(), "r.json")).ToJson(),
+            ReconstructOptions{}.ToJson());
+  nlohmann::json typo = j;
+  typo["min_depth"] = 1;
+  EXPECT_THROW(ReconstructOptionsFromConfig(ConfigNode::FromJson(typo, "r.json")), Error);
+  nlohmann::json bad_method = j;
+  bad_method["method"] = "guess";
+  try {
+    ReconstructOptionsFromConfig(ConfigNode::FromJson(bad_method, "r.json"));
+    FAIL() << "unknown method accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("r.json: method"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("guess"), std::string::npos) << e.what();
+  }
+  nlohmann::json bad_value = j;
+  bad_value["min_depth_mm"] = 1000;  // above max_depth_mm
+  EXPECT_THROW(ReconstructOptionsFromConfig(ConfigNode::FromJson(bad_value, "r.json")), Error);
+
+  ImageSetReconstructOptions s;
+  s.mode = ReconstructMode::kStereo;
+  s.cameras = {"right", "left"};
+  s.reconstruct = o;
+  s.decode.shadow_threshold = 20;
+  const nlohmann::json sj = s.ToJson();
+  const ImageSetReconstructOptions sr =
+      ImageSetReconstructOptionsFromConfig(ConfigNode::ParseYaml(JsonToYaml(sj), "s.yaml"));
+  EXPECT_EQ(sr.mode, s.mode);
+  EXPECT_EQ(sr.cameras, s.cameras);
+  EXPECT_EQ(sr.decode.shadow_threshold, 20);
+  EXPECT_EQ(sr.ToJson(), sj);
+  nlohmann::json nested_typo = sj;
+  nested_typo["decode"]["parallell"] = true;
+  try {
+    ImageSetReconstructOptionsFromConfig(ConfigNode::FromJson(nested_typo, "s.json"));
+    FAIL() << "unknown nested key accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("parallell"), std::string::npos) << e.what();
+  }
 }
 
 }  // namespace

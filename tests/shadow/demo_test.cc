@@ -41,6 +41,23 @@ TEST(Demo, NoiseFreeDemoMeetsTheAccuracyGoalInBothModes) {
   EXPECT_EQ(scan.records().front().source, ImageSource::kVirtual);
   EXPECT_TRUE(std::filesystem::exists(options.out_dir / "ground_truth.ply"));
   EXPECT_TRUE(std::filesystem::exists(options.out_dir / "demo.json"));
+
+  // The scan's provenance holds the settings the demo ran with, and the scan renders again from
+  // its folder alone into identical images (the demo renders in memory, the redo with SimulateScan).
+  const std::optional<ScanProvenance> provenance = ReadScanProvenance(scan);
+  ASSERT_TRUE(provenance.has_value());
+  EXPECT_EQ(provenance->generator, "slshadow demo");
+  const ScanSettings settings = ScanSettingsFromProvenance(*provenance, "manifest.json");
+  EXPECT_EQ(settings.reconstruct.method, TriangulationMethod::kMidpoint);
+  EXPECT_EQ(settings.compare.threshold_mm, options.threshold_mm);
+  EXPECT_EQ(settings.simulate.writer.encoding, ImageEncoding::kPgm);
+  RedoVirtualScan(options.out_dir / "scan", dir / "redo");
+  const ImageSet redo = ImageSet::Open(dir / "redo");
+  ASSERT_EQ(redo.records().size(), scan.records().size());
+  for (const ImageRecord& r : scan.records()) {
+    ASSERT_EQ(cv::norm(scan.Load(r.camera, r.pattern_index), redo.Load(r.camera, r.pattern_index), cv::NORM_INF), 0)
+        << r.camera << " " << r.pattern_index;
+  }
 }
 
 TEST(Demo, RefusesToReplaceAFolderThatIsNotADemoOutput) {

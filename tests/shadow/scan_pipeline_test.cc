@@ -190,5 +190,90 @@ TEST_F(ScanPipeline, AccuracyOfTheGroundTruthCloudIsPerfectAndHalfCoversHalf) {
   EXPECT_LT(part.coverage, full.coverage);
 }
 
+// Every image of `b` equals the same (camera, pattern) image of `a`, pixel for pixel, and both have
+// the same records.
+void ExpectSameImages(const ImageSet& a, const ImageSet& b) {
+  ASSERT_EQ(a.records().size(), b.records().size());
+  for (const ImageRecord& r : a.records()) {
+    const cv::Mat image = b.Load(r.camera, r.pattern_index);
+    ASSERT_TRUE(SameBytes(a.Load(r.camera, r.pattern_index), image)) << r.camera << " " << r.pattern_index;
+    EXPECT_EQ(b.Find(r.camera, r.pattern_index)->exposure_us, r.exposure_us);
+    EXPECT_EQ(b.Find(r.camera, r.pattern_index)->source, ImageSource::kVirtual);
+  }
+}
+
+// Oracle: the scan itself. A scan written by SimulateScan from scene, rig and pattern files is
+// rendered again from its folder alone (manifest rig and patterns, extra.provenance's scene and
+// simulator options) into identical images.
+TEST_F(ScanPipeline, RedoFromTheFoldersProvenanceGivesIdenticalImages) {
+  testing::TempDir dir;
+  const std::filesystem::path demo = std::filesystem::path(SLSHADOW_SOURCE_DIR) / "config" / "demo";
+  const Scene scene = LoadScene(demo / "scene.yaml");
+  const Rig rig = LoadRig(demo / "rig.yaml");
+  const PatternSpec spec = LoadPatternSpec(demo / "patterns.yaml");
+  SimulateOptions options;
+  options.writer.encoding = ImageEncoding::kPgm;
+  options.write_ground_truth = false;
+  SimulateScan(scene, rig, GeneratePatterns(spec), PatternSpecToJson(spec), dir / "scan", options);
+  const ImageSet scan = ImageSet::Open(dir / "scan");
+  const std::optional<ScanProvenance> provenance = ReadScanProvenance(scan);
+  ASSERT_TRUE(provenance.has_value());
+  EXPECT_EQ(provenance->generator, "slshadow simulate");
+  EXPECT_EQ(provenance->scene_base_dir, std::filesystem::absolute(demo).string());
+  const ScanSettings settings = ScanSettingsFromProvenance(*provenance, "manifest.json");
+  EXPECT_EQ(SimulateOptionsToJson(settings.simulate), SimulateOptionsToJson(options));
+
+  RedoVirtualScan(dir / "scan", dir / "redo");
+  const ImageSet redo = ImageSet::Open(dir / "redo");
+  ExpectSameImages(scan, redo);
+  EXPECT_EQ(redo.patterns(), scan.patterns());
+  EXPECT_EQ(RigToJson(redo.rig()), RigToJson(scan.rig()));
+  EXPECT_EQ(ReadScanProvenance(redo)->ToJson(), provenance->ToJson());
+  // The same images as the suite's in-memory render of the embedded demo (same files).
+  for (size_t c = 0; c < 2; ++c) {
+    for (int p = 0; p < spec.NumImages(); ++p) {
+      ASSERT_TRUE(SameBytes(redo.Load(rig.cameras[c].name, p), scan_->images[c][static_cast<size_t>(p)])) << c << " " << p;
+    }
+  }
+  // An existing output folder is not replaced.
+  EXPECT_THROW(RedoVirtualScan(dir / "scan", dir / "redo"), Error);
+}
+
+TEST_F(ScanPipeline, RedoRefusesScansItCannotRebuild) {
+  testing::TempDir dir;
+  ImageSetWriterOptions writer;
+  writer.encoding = ImageEncoding::kPgm;
+  const auto message = [&](const std::string& name) -> std::string {
+    try {
+      RedoVirtualScan(dir / name, dir / (name + "-redo"));
+    } catch (const Error& e) {
+      EXPECT_FALSE(std::filesystem::exists(dir / (name + "-redo")));
+      return e.what();
+    }
+    return "";
+  };
+  // No provenance at all.
+  WriteVirtualScan(dir / "bare", *rig_, *spec_, *scene_, scan_->images, writer, {{"note", "hand-made"}});
+  EXPECT_NE(message("bare").find("extra.provenance: missing"), std::string::npos) << message("bare");
+  // A scene built in code has no config to rebuild it from.
+  Scene in_code = *scene_;
+  in_code.source_config = nullptr;
+  WriteVirtualScan(dir / "code", *rig_, *spec_, in_code, scan_->images, writer,
+                   ExtraWithProvenance(VirtualScanProvenance(in_code, SimulateOptions{}, "test")));
+  EXPECT_NE(message("code").find("built in code"), std::string::npos) << message("code");
+  // A scene edited after loading: its config no longer rebuilds what was rendered.
+  Scene edited = *scene_;
+  edited.radiometry.exposure = 0.5;
+  WriteVirtualScan(dir / "edited", *rig_, *spec_, edited, scan_->images, writer,
+                   ExtraWithProvenance(VirtualScanProvenance(edited, SimulateOptions{}, "test")));
+  EXPECT_NE(message("edited").find("differs from the recorded summary"), std::string::npos) << message("edited");
+  // A malformed option in the provenance names the manifest and the field.
+  ScanProvenance typo = VirtualScanProvenance(*scene_, SimulateOptions{}, "test");
+  typo.simulate["trace"] = "packet16";
+  WriteVirtualScan(dir / "typo", *rig_, *spec_, *scene_, scan_->images, writer, ExtraWithProvenance(typo));
+  EXPECT_NE(message("typo").find("extra.provenance.simulate"), std::string::npos) << message("typo");
+  EXPECT_NE(message("typo").find("trace"), std::string::npos) << message("typo");
+}
+
 }  // namespace
 }  // namespace slshadow::workflow

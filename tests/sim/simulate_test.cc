@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 
+#include "core/config.h"
 #include "core/error.h"
 #include "core/image_set.h"
 #include "tests/sim/sim_test_util.h"
@@ -48,10 +49,12 @@ TEST(SimulateTest, WritesImageSetAndGroundTruth) {
     const ImageSet set = ImageSet::Open(dir);
     EXPECT_EQ(set.PatternCount(), 4);
     EXPECT_EQ(set.patterns(), spec);
-    EXPECT_EQ(set.extra()["simulator"]["scene"]["name"], "demo");
+    EXPECT_EQ(set.extra()["provenance"]["scene"]["summary"]["name"], "demo");
+    EXPECT_EQ(set.extra()["provenance"]["generator"], "slshadow simulate");
+    EXPECT_EQ(set.extra()["provenance"]["simulate"], SimulateOptionsToJson(options));
     // The reference distance as rendered: the demo scene leaves it at 0, the rig's working distance.
     ASSERT_EQ(scene.radiometry.reference_distance_mm, 0);
-    EXPECT_EQ(set.extra()["simulator"]["scene"]["radiometry"]["reference_distance_mm"], rig.working_distance_mm);
+    EXPECT_EQ(set.extra()["radiometry_as_rendered"]["reference_distance_mm"], rig.working_distance_mm);
     for (const auto& r : set.records()) EXPECT_EQ(r.source, ImageSource::kVirtual);
 
     std::vector<GeometryBuffer> geometry;
@@ -211,6 +214,51 @@ TEST(SimulateTest, RefusesToOverwriteAndChecksImages) {
   Rig no_projector = rig;
   no_projector.projector.reset();
   EXPECT_THROW(SimulateScan(scene, no_projector, images, {}, tmp / "new"), Error);
+}
+
+
+// Options as files: every field written is read back from JSON and YAML; unknown keys and bad
+// values are refused naming the file and the field.
+TEST(SimulateOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
+  SimulateOptions o;
+  o.writer.encoding = ImageEncoding::kTiff;
+  o.writer.png_compression = 6;
+  o.writer.overwrite = true;
+  o.write_ground_truth = false;
+  o.trace_mode = TraceMode::kSingleRay;
+  const nlohmann::json j = SimulateOptionsToJson(o);
+  for (const ConfigNode& node : {ConfigNode::FromJson(j, "s.json"), ConfigNode::ParseYaml(JsonToYaml(j), "s.yaml")}) {
+    const SimulateOptions r = SimulateOptionsFromConfig(node);
+    EXPECT_EQ(r.writer.encoding, ImageEncoding::kTiff);
+    EXPECT_EQ(r.writer.png_compression, 6);
+    EXPECT_TRUE(r.writer.overwrite);
+    EXPECT_FALSE(r.write_ground_truth);
+    EXPECT_EQ(r.trace_mode, TraceMode::kSingleRay);
+    EXPECT_EQ(r.shared_bvh, nullptr);
+    EXPECT_EQ(SimulateOptionsToJson(r), j);
+  }
+  EXPECT_EQ(SimulateOptionsToJson(SimulateOptionsFromConfig(ConfigNode::FromJson(nlohmann::json::object(), "s.json"))),
+            SimulateOptionsToJson(SimulateOptions{}));
+  nlohmann::json typo = j;
+  typo["ground_truth"] = true;
+  try {
+    SimulateOptionsFromConfig(ConfigNode::FromJson(typo, "s.json"));
+    FAIL() << "unknown key accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("ground_truth"), std::string::npos) << e.what();
+  }
+  for (const auto& [key, value] : std::vector<std::pair<std::string, nlohmann::json>>{
+           {"encoding", "jpeg"}, {"trace_mode", "fast"}, {"png_compression", 12}}) {
+    nlohmann::json bad = j;
+    bad[key] = value;
+    try {
+      SimulateOptionsFromConfig(ConfigNode::FromJson(bad, "s.json"));
+      FAIL() << key << " accepted";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(key), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("s.json"), std::string::npos) << e.what();
+    }
+  }
 }
 
 }  // namespace
