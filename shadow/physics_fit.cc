@@ -224,7 +224,13 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
   options.Check();
   SLSHADOW_THROW_IF(cameras.empty(), "physics fit: no camera");
   std::vector<cv::Mat> whites(cameras.size()), blacks(cameras.size());
-  for (size_t c = 0; c < cameras.size(); ++c) WhiteBlackImages(spec, cameras[c].real, &whites[c], &blacks[c]);
+  for (size_t c = 0; c < cameras.size(); ++c) {
+    if (cameras[c].white.empty() || cameras[c].black.empty()) {
+      WhiteBlackImages(spec, cameras[c].real, &whites[c], &blacks[c]);
+    } else {
+      whites[c] = cameras[c].white, blacks[c] = cameras[c].black;
+    }
+  }
   const bool has_white_black = spec.WhiteFrameIndex() >= 0 && spec.BlackFrameIndex() >= 0;
   const double fs = cameras[0].real.at(0).depth() == CV_8U ? 255.0 : 65535.0;
   const std::vector<FrameInfo> frames = spec.Frames();
@@ -581,10 +587,14 @@ double ModulationPeriodPx(const PatternSpec& spec) {
 }
 
 cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>& images) {
-  const std::vector<FrameInfo> frames = spec.Frames();
-  const int axis = spec.code_x ? 0 : 1;
   cv::Mat w, b;
   WhiteBlackImages(spec, images, &w, &b);
+  return NormalisedModulation(spec, images, w, b);
+}
+
+cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>& images, const cv::Mat& w, const cv::Mat& b) {
+  const std::vector<FrameInfo> frames = spec.Frames();
+  const int axis = spec.code_x ? 0 : 1;
   cv::Mat out(w.size(), CV_32FC1, cv::Scalar(std::nanf("")));
   std::vector<int> idx;
   if (spec.kind == PatternKind::kGrayCode) {
@@ -619,7 +629,7 @@ cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>
   return out;
 }
 
-void FitDefocus(const PatternSpec& spec, const std::vector<CameraData>& cameras, const PhysicsFitOptions& options,
+void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras, const PhysicsFitOptions& options,
                 PhysicsFit* fit) {
   PhysicsLayer d;
   d.name = "defocus";
@@ -632,9 +642,13 @@ void FitDefocus(const PatternSpec& spec, const std::vector<CameraData>& cameras,
     bool held;
   };
   std::vector<Obs> obs;
-  for (const CameraData& cam : cameras) {
+  for (CameraData& cam : cameras) {
     if (cam.twin.empty()) continue;
-    const cv::Mat mr = NormalisedModulation(spec, cam.real), mt = NormalisedModulation(spec, cam.twin);
+    if (cam.white.empty() || cam.black.empty()) WhiteBlackImages(spec, cam.real, &cam.white, &cam.black);
+    cam.real_modulation = NormalisedModulation(spec, cam.real, cam.white, cam.black);
+    cam.twin_modulation = NormalisedModulation(spec, cam.twin);
+    const cv::Mat& mr = cam.real_modulation;
+    const cv::Mat& mt = cam.twin_modulation;
     const GeometryBuffer& g = *cam.geometry;
     for (int y = 0; y < g.height; y += options.stride_px) {
       for (int x = 0; x < g.width; x += options.stride_px) {
