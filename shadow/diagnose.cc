@@ -410,10 +410,22 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
           }
         }
       }
+      // Relative to a smooth background (a robust quadratic over the image): a depth-dependent
+      // blur on a tilted part is a smooth trend, multipath a local loss.
+      cv::Mat ratio = cam.modulation_ratio.clone();
+      const cv::Mat background = SmoothField(cam.modulation_ratio, usable);
+      if (!background.empty()) {
+        for (int y = 0; y < cam.height; ++y) {
+          for (int x = 0; x < cam.width; ++x) {
+            const float b = background.at<float>(y, x);
+            ratio.at<float>(y, x) = b > 0.05f ? ratio.at<float>(y, x) / b : std::nanf("");
+          }
+        }
+      }
       std::vector<double> all;
       for (int y = 0; y < cam.height; y += 2) {
         for (int x = 0; x < cam.width; x += 2) {
-          const float v = cam.modulation_ratio.at<float>(y, x);
+          const float v = ratio.at<float>(y, x);
           if (usable.at<uint8_t>(y, x) && std::isfinite(v)) all.push_back(v);
         }
       }
@@ -431,7 +443,7 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
                 full = false;
                 break;
               }
-              const float r = cam.modulation_ratio.at<float>(y, x);
+              const float r = ratio.at<float>(y, x);
               if (std::isfinite(r)) v.push_back(r);
             }
           }

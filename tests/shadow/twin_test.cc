@@ -205,3 +205,34 @@ TEST(ShadowTwin, ConfusionTableNamesEachCauseAndNoOther) {
 
 }  // namespace
 }  // namespace slshadow
+
+namespace slshadow {
+namespace {
+
+// The command line: bad input gives one clear error, a non-zero exit and no report folder.
+TEST(ShadowTwin, CommandLineRejectsBadInput) {
+  testing::TempDir tmp;
+  const Rig rig = testing::HalfDemoRig();
+  const PatternSpec spec = testing::DemoSpec();
+  WriteImageSet(tmp / "real", rig, spec, testing::Render(testing::RealScene(DemoPart(), DemoPartPose()), rig, spec));
+  std::ofstream(tmp / "part.txt") << "not a mesh\n";
+  EXPECT_NE(testing::RunCli({"shadow", (tmp / "real").string(), "--part", (tmp / "part.txt").string(), "--out",
+                             (tmp / "out1").string()}),
+            0);
+  EXPECT_FALSE(std::filesystem::exists(tmp / "out1"));
+  // A sphere is not the scanned part: global registration cannot place it credibly.
+  WriteMesh(tmp / "sphere.ply", MakeSphereMesh(20, 48));
+  EXPECT_NE(testing::RunCli({"shadow", (tmp / "real").string(), "--part", (tmp / "sphere.ply").string(), "--out",
+                             (tmp / "out2").string()}),
+            0);
+  EXPECT_FALSE(std::filesystem::exists(tmp / "out2"));
+  // --fixed-pose without --pose.
+  WriteMesh(tmp / "part.ply", DemoPart());
+  EXPECT_NE(testing::RunCli({"shadow", (tmp / "real").string(), "--part", (tmp / "part.ply").string(), "--fixed-pose", "--out",
+                             (tmp / "out3").string()}),
+            0);
+  EXPECT_FALSE(std::filesystem::exists(tmp / "out3"));
+}
+
+}  // namespace
+}  // namespace slshadow
