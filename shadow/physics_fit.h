@@ -76,6 +76,7 @@ struct CameraData {
   std::vector<cv::Mat> twin;               // rendered focused twin images (defocus fit); may be empty
   cv::Mat white, black;                    // real white / black levels (WhiteBlackImages); computed when empty
   cv::Mat real_modulation, twin_modulation;  // FitDefocus's NormalisedModulation maps, kept for reuse
+  cv::Mat twin_white, twin_black;            // FitDefocus's white / black levels of `twin`
 };
 
 struct PhysicsFit {

@@ -281,7 +281,7 @@ std::string ShadowResult::Summary() const {
 
 ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const std::map<std::string, std::vector<cv::Mat>>& real,
                                const ShadowPart& part, const ShadowOptions& options, const fs::path& out_dir,
-                               const std::string& source) {
+                               const std::string& source, const std::vector<StageMeasurement>& earlier_stages) {
   options.Check();
   spec.Check();
   SLSHADOW_THROW_IF(!rig.projector, "shadow: the rig '", rig.name, "' has no projector");
@@ -307,6 +307,7 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
   const double fs_dn = sixteen ? 65535.0 : 255.0;
 
   ShadowResult result;
+  result.stages = earlier_stages;
   nlohmann::json& report = result.report;
   report["format"] = kFormat;
   report["version"] = kVersion;
@@ -465,7 +466,7 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
     for (auto& d : data) d.twin.clear();
     if (fit.Kept("defocus")) {
       fitted = fit.Apply(twin, twin_rig, projector_depth_mm, options.noise_seed);
-      for (auto& d : data) d.twin_modulation = cv::Mat(), d.geometry = nullptr;
+      for (auto& d : data) d.twin_modulation = d.twin_white = d.twin_black = cv::Mat(), d.geometry = nullptr;
       rendered.clear();
       simulator = std::make_unique<Simulator>(fitted, twin_rig);
       rendered = simulator->Render(projector_images, &fitted);
@@ -601,8 +602,8 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
     ev.black = data[c].black;
     ev.projector_fx = twin_rig.projector->model.fx();
     ev.projector_fy = twin_rig.projector->model.fy();
-    cv::Mat twin_white, twin_black;
-    WhiteBlackImages(spec, timg, &twin_white, &twin_black);
+    cv::Mat twin_white = data[c].twin_white, twin_black = data[c].twin_black;
+    if (twin_white.empty() || twin_black.empty()) WhiteBlackImages(spec, timg, &twin_white, &twin_black);
     const cv::Mat mr = data[c].real_modulation.empty() ? NormalisedModulation(spec, rimg, ev.white, ev.black) : data[c].real_modulation;
     const cv::Mat mt = data[c].twin_modulation.empty() ? NormalisedModulation(spec, timg, twin_white, twin_black) : data[c].twin_modulation;
     ev.modulation_ratio = mr / mt;
@@ -770,9 +771,7 @@ ShadowResult RunShadow(const fs::path& image_set_dir, const ShadowPart& part, co
   std::map<std::string, std::vector<cv::Mat>> images;
   for (const auto& name : set.CameraNames()) images[name] = set.LoadCamera(name);
   const StageMeasurement read = meter.Stop();
-  ShadowResult r = RunShadowOnImages(rig ? *rig : set.rig(), spec, images, part, options, out_dir, image_set_dir.string());
-  r.stages.insert(r.stages.begin(), read);
-  return r;
+  return RunShadowOnImages(rig ? *rig : set.rig(), spec, images, part, options, out_dir, image_set_dir.string(), {read});
 }
 
 }  // namespace slshadow::shadow
