@@ -366,7 +366,7 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
       if (std::abs(x) < 1.0) ++in, ss += x * x;
     }
     const double fitness = d.empty() ? 0.0 : static_cast<double>(in) / static_cast<double>(d.size());
-    const double rmse = in ? std::sqrt(ss / static_cast<double>(in)) : std::nan("");
+    const double rmse = in ? std::sqrt(ss / static_cast<double>(in)) : 0.0;
     report["pose"] = {{"source", ToString(pose_source)},
                       {"rig_from_part", PoseToJson(rig_from_part)},
                       {"registration_cloud", real_rec.modes.back().first},
@@ -386,14 +386,16 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
       report["pose"]["moved_from_given_mm"] = (rig_from_part.translation - options.rig_from_part->translation).norm();
       report["pose"]["rotated_from_given_deg"] = compare::RotationDifferenceDeg(rig_from_part, *options.rig_from_part);
     }
-    const bool credible = fitness >= options.min_fitness && rmse <= options.max_rmse_mm;
+    const bool credible = in > 0 && fitness >= options.min_fitness && rmse <= options.max_rmse_mm;
     report["pose"]["credible"] = credible;
     // Not credible: stop, unless a pose was given; then the job goes on from the given pose
     // (a scan corrupted e.g. by a wrong frame still deserves its diagnosis), and says so.
     SLSHADOW_THROW_IF(!credible && !options.rig_from_part, "shadow: the part's pose is not credible (", ToString(pose_source),
-                      "): fitness ", fitness, " (need >= ", options.min_fitness, "), inlier RMSE ", rmse, " mm (need <= ",
-                      options.max_rmse_mm, "); give a pose guess with --pose, or check the part file");
-    if (!credible) {
+                      "): fitness ", fitness, " (need >= ", options.min_fitness, "), inlier RMSE ", rmse, " mm over ", in,
+                      " points (need <= ", options.max_rmse_mm, "); give a pose guess with --pose, or check the part file");
+    if (pose_source == PoseSource::kGivenFixed) {
+      report["pose"]["used"] = "given";  // no registration ran: fitness and RMSE are for information
+    } else if (!credible) {
       rig_from_part = *options.rig_from_part;
       surface_in_rig = part.surface;
       surface_in_rig.Transform(rig_from_part.rotation.toRotationMatrix(), rig_from_part.translation);
