@@ -247,6 +247,21 @@ TEST(ShadowTwin, CommandLineRejectsBadInput) {
                              (tmp / "out3").string()}),
             0);
   EXPECT_FALSE(std::filesystem::exists(tmp / "out3"));
+  // And the good case through the command line: --pose as a rotation vector and a translation.
+  const Eigen::AngleAxisd aa(DemoPartPose().rotation);
+  const Eigen::Vector3d r = aa.angle() * aa.axis(), t = DemoPartPose().translation;
+  std::vector<std::string> args = {"shadow", (tmp / "real").string(), "--part", (tmp / "part.ply").string(), "--out",
+                                   (tmp / "out4").string(), "--no-clouds", "--pose"};
+  for (double v : {r.x(), r.y(), r.z(), t.x(), t.y(), t.z()}) args.push_back(std::to_string(v));
+  ASSERT_EQ(testing::RunCli(args), 0);
+  std::ifstream in(tmp / "out4" / "report.json");
+  ASSERT_TRUE(in.good());
+  const nlohmann::json report = nlohmann::json::parse(in);
+  EXPECT_EQ(report["pose"]["source"], "given+icp");
+  EXPECT_EQ(report["diagnosis"]["verdict"], "consistent with the model");
+  EXPECT_FALSE(std::filesystem::exists(tmp / "out4" / "clouds"));
+  // An existing folder is not replaced without --overwrite.
+  EXPECT_NE(testing::RunCli(args), 0);
 }
 
 }  // namespace
