@@ -52,9 +52,9 @@ int RunCapture(int argc, char** argv) {
       "Exit status: 0 complete, 1 error (nothing committed, the staged frames kept), 130 interrupted.\n"
       "Example without hardware (replays a simulated scan through the whole capture path):\n"
       "  slshadow simulate --rig config/demo/rig.yaml --scene config/demo/scene.yaml \\\n"
-      "      --patterns config/demo/patterns.yaml --out scan\n"
+      "      --patterns config/patterns/graycode_phase.yaml --out scan_virtual --encoding pgm\n"
       "  slshadow capture --rig config/demo/rig.yaml --devices config/devices/replay.yaml \\\n"
-      "      --patterns config/demo/patterns.yaml --out replayed",
+      "      --patterns config/patterns/graycode_phase.yaml --out scan_replayed",
       argv[0]};
   std::string rig_path, devices_path, patterns_path, out_dir, encoding = "png";
   bool resume = false, overwrite = false, auto_exposure = false, no_validate = false, quiet = false;

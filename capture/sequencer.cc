@@ -1199,8 +1199,8 @@ PosesSummary CapturePoses(const Rig& rig, const PatternSpec& spec, const std::ve
     prompt << "pose " << p + 1 << " of " << num_poses << (partial ? " (continuing a partial capture)" : "")
            << ": place the board, then press Enter" << std::endl;
     std::string line;
-    if (!std::getline(input, line)) {
-      result.interrupted = true;  // end of input: stop like Ctrl-C, the poses so far are kept
+    if (!std::getline(input, line) || (options.stop && options.stop->load())) {
+      result.interrupted = true;  // end of input or Ctrl-C: stop, the poses so far are kept
       break;
     }
     SequencerOptions o = options;

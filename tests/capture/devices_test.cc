@@ -55,7 +55,7 @@ TEST(Devices, ExamplesLoad) {
   EXPECT_EQ(hw.projector.display, "1920,0,1280,800");
 
   const DevicesConfig replay = LoadDevices(dir / "replay.yaml");
-  EXPECT_EQ(replay.cameras[0].imageset, dir / "../../scan");
+  EXPECT_EQ(replay.cameras[0].imageset, dir / "../../scan_virtual");
   EXPECT_EQ(replay.cameras[1].imageset_camera, "right");
   EXPECT_EQ(replay.cameras[1].first_frame_id, 65400);
   EXPECT_EQ(replay.projector.backend, "none");
