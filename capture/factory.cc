@@ -50,9 +50,14 @@ std::unique_ptr<Camera> OpenCamera(const CameraEntry& entry) {
                                           ReplayCameraOptions{entry.imageset_camera, entry.first_frame_id, entry.serial});
   }
   if (entry.backend == "aravis") {
-    AravisOpenOptions options;
-    options.device = !entry.address.empty() ? entry.address : !entry.id.empty() ? entry.id : entry.serial;
-    return OpenAravisCamera(options);
+    // The address opens a GigE Vision camera directly; an id or serial is looked up among USB3
+    // Vision devices only: devices.yaml never makes slshadow broadcast a GigE Vision discovery.
+    const std::string& device = !entry.address.empty() ? entry.address : !entry.id.empty() ? entry.id : entry.serial;
+    try {
+      return OpenAravisCamera(AravisOpenOptions{.device = device});
+    } catch (const Error& e) {
+      SLSHADOW_THROW(entry.where, ": ", e.what());
+    }
   }
   if (entry.backend == "sim") {
     NotBuilt(entry.where, entry.backend, "a simulator camera is built by the workflow layer, not by capture/");
