@@ -379,13 +379,12 @@ TEST_F(ClosedLoop, StaleFramesAreSeenByTheOracle) {
 // pattern: it either catches the stale frames and retakes them (then every image equals the
 // simulation) or stops with an error naming the pattern and the camera.
 //
-// DISABLED: it fails with the sequencer of 2026-11-24 (capture-seq 3463a3d): 92 retries and 180
-// refused frames, but 28 of 60 images (45 in another run) stored under the wrong pattern, e.g. Gray pairs: a
-// retaken pair stores each frame with its partner's image (bit and inverse are complementary, so
-// the pair check passes), and a pair can store the previous pair (gray_x_bit3 shows gray_x_bit4:
-// not "nearly equal to the previous frame", which was its inverse). With capture-seq 50a4f85's
-// sequencer (not yet in main at 12:05 UTC): 52 of 60, phase steps too (phase_x_f0_s0 stored with
-// the image of phase_x_f0_s3). Run it with
+// DISABLED: it fails with the sequencer in main (2026-11-24, 12:04 UTC, capture-seq up to
+// 50a4f85): 66 retries and 123 refused frames, yet 36 of 60 images stored under the wrong pattern
+// (earlier sequencer versions: 28, 45, 52). The test prints each one; e.g. a retaken Gray pair
+// stores each frame with its partner's image (bit and inverse are complementary, so the pair check
+// passes), a pair stores the previous pair (gray_x_bit3 shows gray_x_bit4), phase_x_f0_s0 shows
+// phase_x_f0_s3. Run it with
 //   build/tests/capture/capture_closed_loop_test --gtest_also_run_disabled_tests --gtest_filter=*Late*
 // and enable it when the sequencer passes.
 TEST_F(ClosedLoop, DISABLED_LateProjectorNeverStoresAWrongFrame) {
