@@ -326,6 +326,13 @@ TEST_F(ClosedLoop, SlshadowLatencyAndCaptureCommandsEqualSimulation) {
   };
   write_devices(0);
   std::string out;
+  // The X display as `slshadow devices` lists it, and the window's own present latency.
+  ASSERT_EQ(RunSlshadow({"devices"}, &out), 0);
+  EXPECT_NE(out.find("display 0  screen         at 0,0," + std::to_string(xvfb_->width()) + ","), std::string::npos) << out;
+  const std::string geometry = std::to_string(projector_rect_.x) + ",0," + std::to_string(projector_rect_.width) + "," +
+                               std::to_string(projector_rect_.height);
+  ASSERT_EQ(RunSlshadow({"latency", "--geometry", geometry, "--samples", "3"}, &out), 0);
+  EXPECT_NE(out.find("present latency over 6 frames"), std::string::npos) << out;
   ASSERT_EQ(RunSlshadow({"latency", "--devices", devices_file.string(), "--repetitions", "2", "--max-ms", "200"}, &out), 0);
   const size_t at = out.find("latency_us: ");
   ASSERT_NE(at, std::string::npos) << out;
