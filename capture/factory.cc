@@ -20,7 +20,7 @@ std::vector<std::string> BuiltInCameraBackends() { return {"replay", "aravis"}; 
 std::vector<std::string> BuiltInProjectorBackends() { return {"none", "window"}; }
 
 // window: `display` is an SDL display index ("1") or a geometry on the X screen ("x,y,w,h").
-WindowProjectorOptions WindowOptionsOf(const ProjectorEntry& entry) {
+static WindowProjectorOptions WindowOptionsOf(const ProjectorEntry& entry) {
   WindowProjectorOptions options;
   options.latency = std::chrono::microseconds(entry.latency_us);
   if (entry.display.find(',') != std::string::npos) {
