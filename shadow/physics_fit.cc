@@ -60,7 +60,7 @@ double BandSigma(const std::vector<double>& values) {
 
 struct Sample {
   float white = 0, black = 0, factor = 0, albedo = 0;
-  int camera = 0, y = 0, x = 0, band = 0;
+  int camera = 0, y = 0, x = 0, band = 0, object = 0;
   bool heldout = false;
 };
 
@@ -209,6 +209,11 @@ Scene PhysicsFit::Apply(const Scene& twin, const Rig& rig, double projector_dept
       if (o.albedo.kind == Albedo::Kind::kCheckerboard) o.albedo.dark = d->value;
     }
   }
+  for (auto& o : scene.objects) {
+    if (const PhysicsLayer* a = Find("albedo_" + o.name); a && a->kept && o.albedo.kind == Albedo::Kind::kUniform) {
+      o.albedo.value = a->value;
+    }
+  }
   if (Kept("ambient")) scene.layers.ambient = Find("ambient")->value;
   if (Kept("gamma")) {
     scene.layers.response_enabled = true;
@@ -280,6 +285,7 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
         s.y = y;
         s.x = x;
         s.band = std::min(kBands - 1, y * kBands / g.height);
+        s.object = g.object_id.at<int32_t>(y, x);
         s.heldout = (y / options.stride_px) % 2 == 1;
         samples.push_back(s);
       }
@@ -288,9 +294,17 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
   SLSHADOW_THROW_IF(samples.size() < 100, "physics fit: only ", samples.size(),
                     " lit part pixels in the twin; is the part in front of the cameras at the estimated pose?");
 
+  // The exposure comes from the object with most lit pixels; the others get their own
+  // exposure x albedo ratio below ("albedo_<name>" layers).
+  std::vector<int64_t> per_object(twin.objects.size(), 0);
+  for (const Sample& s : samples) ++per_object[static_cast<size_t>(s.object)];
+  const int reference = static_cast<int>(std::max_element(per_object.begin(), per_object.end()) - per_object.begin());
+
   PhysicsFit fit;
   // --- exposure (and checkerboard albedo) ---
-  const auto is_light = [&](const Sample& s) { return !board || std::abs(s.albedo - board->light) < 1e-3; };
+  const auto is_light = [&](const Sample& s) {
+    return s.object == reference && (!board || std::abs(s.albedo - board->light) < 1e-3);
+  };
   const auto is_dark = [&](const Sample& s) { return board && std::abs(s.albedo - board->dark) < 1e-3; };
   const auto ratio = [&](const Sample& s) { return (s.white - s.black) / (fs * s.factor * range); };
   std::vector<double> all;
@@ -326,6 +340,52 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
   if (board) exposure.reason += " (light squares)";
   fit.layers.push_back(exposure);
   const double e = exposure.value;
+  if (twin.objects.size() > 1) fit.layers.back().reason += " (object '" + twin.objects[static_cast<size_t>(reference)].name + "')";
+
+  // --- exposure x albedo of the other objects ---
+  for (size_t o = 0; o < twin.objects.size(); ++o) {
+    const SceneObject& object = twin.objects[o];
+    if (static_cast<int>(o) == reference || object.albedo.kind != Albedo::Kind::kUniform) continue;
+    PhysicsLayer a;
+    a.name = "albedo_" + object.name;
+    a.unit = "reflectance";
+    a.off_value = object.albedo.value;
+    a.residual_unit = "DN RMS of white - black on this object";
+    std::vector<double> v;
+    std::vector<std::vector<double>> vb(kBands);
+    for (const Sample& s : samples) {
+      if (s.heldout || s.object != static_cast<int>(o)) continue;
+      const double value = object.albedo.value * ratio(s) / e;
+      v.push_back(value);
+      vb[static_cast<size_t>(s.band)].push_back(value);
+    }
+    if (v.size() < 200) {
+      a.observable = false;
+      a.reason = "too few lit pixels on this object";
+      fit.layers.push_back(a);
+      continue;
+    }
+    a.value = Median(v);
+    std::vector<double> bv;
+    for (auto& b : vb) bv.push_back(b.size() > 20 ? Median(b) : std::nan(""));
+    a.sigma = BandSigma(bv);
+    a.samples = static_cast<int64_t>(v.size());
+    std::vector<double> off, on;
+    for (const Sample& s : samples) {
+      if (!s.heldout || s.object != static_cast<int>(o)) continue;
+      off.push_back(s.white - s.black - e * fs * s.factor * range);
+      on.push_back(s.white - s.black - e * fs * s.factor * range * a.value / object.albedo.value);
+    }
+    a.heldout_residual_off = Rms(off);
+    a.heldout_residual_on = Rms(on);
+    const bool significant = std::abs(a.value - a.off_value) > std::max(3 * a.sigma, 0.01);
+    const bool drops = a.heldout_residual_on < (1 - options.min_heldout_drop) * a.heldout_residual_off;
+    a.kept = significant && drops;
+    a.reason = a.kept ? Fmt("reflects %.3f, not %.3f, relative to the reference object: held-out residual %.2f -> %.2f DN", a.value,
+                            a.off_value, a.heldout_residual_off, a.heldout_residual_on)
+                      : Fmt("the file's albedo %.3f fits within noise (fitted %.3f)", a.off_value, a.value);
+    fit.layers.push_back(a);
+  }
 
   if (board) {
     PhysicsLayer dark;

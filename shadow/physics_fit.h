@@ -6,8 +6,11 @@
 //   exposure   DN = E * FS * albedo * cos_p * (d_ref / d_p)^2 * (R(max) - R(min)) for white - black,
 //              so E = median over lit part pixels of (W - B) / (FS * factor) (factor from the
 //              twin's geometry pass). Always kept (the core model has it).
-//   albedo     checkerboard parts only: the dark and light squares' reflectances, from the same
-//              ratio on pixels of each square colour (exposure from the light squares).
+//              E comes from the object with most lit pixels (the reference).
+//   albedo_<o> each other object o (uniform albedo): its reflectance from the same ratio on its
+//              own pixels relative to E, kept when it differs from the part file's.
+//   albedo     checkerboard parts only: the dark squares' reflectance ("albedo_dark"), from the
+//              same ratio on pixels of each square colour (exposure from the light squares).
 //   ambient    B = E * FS * ambient * albedo: ambient = median of B / (E * FS * albedo).
 //   gamma      phase codecs only (binary patterns do not see a response): the N phase frames of
 //              a period, normalised r_n = (I_n - B) / (W - B), average a0(gamma) = the mean of
@@ -42,7 +45,7 @@
 namespace slshadow::shadow {
 
 struct PhysicsLayer {
-  std::string name;       // "exposure", "albedo_dark", "albedo_light", "ambient", "gamma", "defocus", "noise"
+  std::string name;       // "exposure", "albedo_<object>", "albedo_dark", "ambient", "gamma", "defocus", "noise"
   bool observable = true; // false: the images cannot inform it (reason says why)
   bool kept = false;
   double value = 0;       // fitted value (unit below); noise: full well, electrons

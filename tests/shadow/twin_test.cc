@@ -266,3 +266,51 @@ TEST(ShadowTwin, CommandLineRejectsBadInput) {
 
 }  // namespace
 }  // namespace slshadow
+
+namespace slshadow {
+namespace {
+
+// Exposure x albedo per object: a part on a table whose file albedos (0.8 both) are not the real
+// ones (0.7 and 0.4). Only the products exposure x albedo are observable: the fit recovers both
+// (0.8 x 0.7 and 0.8 x 0.4), the reference object's through the exposure, the other's through
+// its own albedo layer.
+TEST(ShadowTwin, ExposureTimesAlbedoPerObject) {
+  const Rig rig = testing::HalfDemoRig();
+  const PatternSpec spec = testing::DemoSpec();
+  const Rigid3d truth = DemoPartPose();
+  Scene real = testing::RealScene(DemoPart(), truth);
+  SceneObject table;
+  table.name = "table";
+  table.type = ObjectType::kPlane;
+  table.size_mm = Eigen::Vector3d(400, 300, 0);
+  table.albedo.value = 0.4;
+  table.rig_from_object = Rigid3d(truth.rotation, truth.translation + truth.rotation * Eigen::Vector3d(0, 0, -0.05));
+  real.objects.push_back(table);
+  shadow::ShadowPart part = testing::PartFromMesh(DemoPart(), "demo_part");
+  SceneObject table_in_part = table;
+  table_in_part.albedo.value = 0.8;
+  table_in_part.rig_from_object = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0, -0.05));
+  part.scene.objects.push_back(table_in_part);
+  part.surface = shadow::SceneSurfaceMesh(part.scene, "part + table");
+  shadow::ShadowOptions options;
+  options.rig_from_part = truth;
+  const shadow::ShadowResult r = shadow::RunShadowOnImages(rig, spec, testing::Render(real, rig, spec), part, options);
+  std::printf("%s", r.physics.Table().c_str());
+  const double e = r.physics.Find("exposure")->value;
+  const shadow::PhysicsLayer* part_albedo = r.physics.Find("albedo_demo_part");
+  const shadow::PhysicsLayer* table_albedo = r.physics.Find("albedo_table");
+  ASSERT_TRUE(part_albedo || table_albedo);
+  if (table_albedo) {  // the part is the reference object
+    EXPECT_NEAR(e * 0.8, 0.8 * 0.7, 0.01);
+    EXPECT_TRUE(table_albedo->kept);
+    EXPECT_NEAR(e * table_albedo->value, 0.8 * 0.4, 0.01);
+  } else {  // the table is
+    EXPECT_NEAR(e * 0.8, 0.8 * 0.4, 0.01);
+    EXPECT_TRUE(part_albedo->kept);
+    EXPECT_NEAR(e * part_albedo->value, 0.8 * 0.7, 0.01);
+  }
+  EXPECT_EQ(r.diagnosis.verdict, "consistent with the model") << r.diagnosis.Summary();
+}
+
+}  // namespace
+}  // namespace slshadow
