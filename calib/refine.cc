@@ -236,7 +236,12 @@ std::string Message(const PairResult& r, const std::string& second, const Refine
     out += "; WARNING: the correction is far larger than a bump (swapped camera names or a rig file of another rig?): "
            "check before trusting the refined rig";
   }
-  return out + "; " + r.scale_note;
+  // Not the figure `slshadow reconstruct` quotes: its calibration check fits a smooth field to the
+  // dense epipolar error and judges it against the capture's decode noise (issue 14: say so).
+  return out + "; " + r.scale_note +
+         "; (this is the Sampson residual of the sparse correspondences refine fits, px of " + second +
+         "; `slshadow reconstruct` quotes another figure: the systematic part of the dense epipolar error "
+         "against the capture's decode noise)";
 }
 
 // Why a refined pair is refused, or empty.

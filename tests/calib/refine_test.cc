@@ -172,6 +172,8 @@ TEST(Refine, ScaleIsNotVerifiedUnlessAKnownLengthSetsIt) {
   const RefineResult plain = RefineProjectorPose(scaled, 0, corr);
   EXPECT_FALSE(plain.scale_verified);
   EXPECT_NE(plain.message.find("scale not verified"), std::string::npos) << plain.message;
+  // The residual it quotes is not reconstruct's calibration-check figure, and it says so.
+  EXPECT_NE(plain.message.find("`slshadow reconstruct` quotes another figure"), std::string::npos) << plain.message;
   EXPECT_NEAR(plain.baseline_mm, 1.03 * true_baseline, 1e-6);
 
   RefineOptions by_baseline;
