@@ -35,6 +35,16 @@ double Median(std::vector<double> v) {
   return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
+// SDL_InitSubSystem(VIDEO), tried three times 200 ms apart: the X connection (XOpenDisplay inside
+// SDL) was seen failing once, transiently, on a loaded machine with a running server.
+bool InitVideo() {
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    if (attempt > 0) std::this_thread::sleep_for(std::chrono::milliseconds(200));
+    if (SDL_InitSubSystem(SDL_INIT_VIDEO) == 0) return true;
+  }
+  return false;
+}
+
 double Ms(std::chrono::steady_clock::duration d) { return std::chrono::duration<double, std::milli>(d).count(); }
 
 }  // namespace
@@ -194,7 +204,7 @@ struct WindowProjector::Impl {
     // X11 unless the user chose another driver (SDL_VIDEODRIVER): the geometry is an X screen
     // position, and SDL's fallbacks (offscreen, ...) show nothing.
     if (!std::getenv("SDL_VIDEODRIVER")) SDL_SetHint(SDL_HINT_VIDEODRIVER, "x11");
-    if (SDL_InitSubSystem(SDL_INIT_VIDEO) != 0) {
+    if (!InitVideo()) {
       const char* display = std::getenv("DISPLAY");
       SLSHADOW_THROW("window projector: no display: SDL cannot start video (DISPLAY='", display ? display : "",
                      "'): ", SdlError());
@@ -334,7 +344,7 @@ std::vector<DisplayEntry> ListDisplays() {
   // SDL video on a thread of its own, initialised and shut down there (like the projector).
   std::thread([&] {
     if (!std::getenv("SDL_VIDEODRIVER")) SDL_SetHint(SDL_HINT_VIDEODRIVER, "x11");
-    if (SDL_InitSubSystem(SDL_INIT_VIDEO) != 0) {
+    if (!InitVideo()) {
       const char* display = std::getenv("DISPLAY");
       error = "displays: no display: SDL cannot start video (DISPLAY='" + std::string(display ? display : "") + "'): " + SdlError();
       return;

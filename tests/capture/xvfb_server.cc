@@ -1,6 +1,7 @@
 #include "tests/capture/xvfb_server.h"
 
 #include <fcntl.h>
+#include <sys/prctl.h>
 #include <poll.h>
 #include <signal.h>
 #include <spawn.h>
@@ -24,21 +25,29 @@ namespace {
 std::string SpawnWithDisplayFd(const std::vector<std::string>& args, const std::string& log, pid_t* pid) {
   int fds[2];
   if (pipe2(fds, O_CLOEXEC) != 0) throw std::runtime_error("X server: pipe failed");
-  posix_spawn_file_actions_t actions;
-  posix_spawn_file_actions_init(&actions);
-  posix_spawn_file_actions_adddup2(&actions, fds[1], 3);
-  posix_spawn_file_actions_addopen(&actions, 1, log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-  posix_spawn_file_actions_adddup2(&actions, 1, 2);
   std::vector<std::string> copy = args;
   std::vector<char*> argv;
   for (auto& a : copy) argv.push_back(a.data());
   argv.push_back(nullptr);
-  const int rc = posix_spawnp(pid, argv[0], &actions, nullptr, argv.data(), environ);
-  posix_spawn_file_actions_destroy(&actions);
+  const int log_fd = open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  *pid = fork();
+  if (*pid == 0) {
+    // Child: only async-signal-safe calls until exec. The server dies with the test process
+    // (SIGTERM when the forking thread ends), so a crashed test leaves no server behind.
+    prctl(PR_SET_PDEATHSIG, SIGTERM);
+    dup2(fds[1], 3);  // dup2 clears close-on-exec
+    if (log_fd >= 0) {
+      dup2(log_fd, 1);
+      dup2(log_fd, 2);
+    }
+    execvp(argv[0], argv.data());
+    _exit(127);
+  }
+  if (log_fd >= 0) close(log_fd);
   close(fds[1]);
-  if (rc != 0) {
+  if (*pid < 0) {
     close(fds[0]);
-    throw std::runtime_error(args[0] + ": cannot start (is it installed? scripts/setup.sh installs it)");
+    throw std::runtime_error(args[0] + ": cannot fork");
   }
   std::string number;
   pollfd p{fds[0], POLLIN, 0};
@@ -53,7 +62,8 @@ std::string SpawnWithDisplayFd(const std::vector<std::string>& args, const std::
   if (number.empty() || number.back() != '\n') {
     kill(*pid, SIGKILL);
     waitpid(*pid, nullptr, 0);
-    throw std::runtime_error(args[0] + ": did not report a display number within 15 s (log: " + log + ")");
+    throw std::runtime_error(args[0] + ": did not start or report a display number within 15 s (is it installed? "
+                             "scripts/setup.sh installs it; log: " + log + ")");
   }
   number.pop_back();
   return ":" + number;
@@ -132,43 +142,9 @@ XorgDummyServer::~XorgDummyServer() {
 }
 
 XvfbServer::XvfbServer(int width, int height, bool set_display_env) : width_(width), height_(height) {
-  int fds[2];
-  if (pipe2(fds, O_CLOEXEC) != 0) throw std::runtime_error("Xvfb: pipe failed");
-  // The write end goes to the child as fd 3 (dup2 clears close-on-exec).
-  posix_spawn_file_actions_t actions;
-  posix_spawn_file_actions_init(&actions);
-  posix_spawn_file_actions_adddup2(&actions, fds[1], 3);
-  posix_spawn_file_actions_addopen(&actions, 1, "/dev/null", O_WRONLY, 0);
-  posix_spawn_file_actions_addopen(&actions, 2, "/dev/null", O_WRONLY, 0);
   const std::string screen = std::to_string(width) + "x" + std::to_string(height) + "x24";
-  std::vector<std::string> args = {"Xvfb", "-displayfd", "3", "-screen", "0", screen, "-nolisten", "tcp", "-nocursor"};
-  std::vector<char*> argv;
-  for (auto& a : args) argv.push_back(a.data());
-  argv.push_back(nullptr);
-  const int rc = posix_spawnp(&pid_, "Xvfb", &actions, nullptr, argv.data(), environ);
-  posix_spawn_file_actions_destroy(&actions);
-  close(fds[1]);
-  if (rc != 0) {
-    close(fds[0]);
-    throw std::runtime_error("Xvfb: cannot start (is the xvfb package installed?)");
-  }
-  std::string number;
-  pollfd p{fds[0], POLLIN, 0};
-  while (number.empty() || number.back() != '\n') {
-    if (poll(&p, 1, 10000) <= 0) break;
-    char buf[32];
-    const ssize_t n = read(fds[0], buf, sizeof buf);
-    if (n <= 0) break;
-    number.append(buf, static_cast<size_t>(n));
-  }
-  close(fds[0]);
-  if (number.empty() || number.back() != '\n') {
-    kill(pid_, SIGKILL);
-    waitpid(pid_, nullptr, 0);
-    throw std::runtime_error("Xvfb " + screen + ": did not report a display number within 10 s");
-  }
-  number.pop_back();
-  display_ = ":" + number;
+  display_ = SpawnWithDisplayFd({"Xvfb", "-displayfd", "3", "-screen", "0", screen, "-nolisten", "tcp", "-nocursor"},
+                                "/dev/null", &pid_);
   if (set_display_env) setenv("DISPLAY", display_.c_str(), 1);
 }
 
