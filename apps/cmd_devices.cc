@@ -1,11 +1,13 @@
 // slshadow devices [--address IP]... [--discover]
 #include <CLI/CLI.hpp>
 #include <cstdio>
+#include <cstdlib>
 #include <string>
 #include <vector>
 
 #include "apps/commands.h"
 #include "capture/aravis_camera.h"
+#include "capture/window_projector.h"
 #include "core/error.h"
 
 namespace slshadow::app {
@@ -70,6 +72,15 @@ int RunDevices(int argc, char** argv) {
     }
   }
   // Displays (HDMI projector windows): listed here by the window projector backend.
+  if (std::getenv("DISPLAY") == nullptr) {
+    std::printf("(displays: $DISPLAY is not set, no X display to list)\n");
+  } else {
+    for (const auto& d : capture::ListDisplays()) {
+      std::printf("display %-2d %-14s at %d,%d,%d,%d %.0f Hz (devices.yaml projector: backend window, display %d)\n",
+                  d.index, d.name.c_str(), d.bounds.x, d.bounds.y, d.bounds.width, d.bounds.height, d.refresh_hz,
+                  d.index);
+    }
+  }
   return 0;
 }
 

@@ -24,7 +24,7 @@ const std::vector<Command>& Commands() {
       {"bench", "speed of simulate, decode, reconstruct and compare on the demo, with peers in the same run", RunBenchCommand},
       {"shadow", "real vs virtual: a real scan against its twin re-scan of the part; physics fitted, causes named (shadow IMAGESET --part PART --out DIR)", RunShadowCommand},
       {"rig", "inspect a rig file: cameras, projector, baselines, angles, overlap (rig show RIG.yaml)", RunRig},
-      {"latency", "projector latency: present-to-screen of the window projector (latency [--display N | --geometry x,y,w,h])", RunLatency},
+      {"latency", "projector-to-camera latency to wait after each pattern (latency --devices DEVICES.yaml), or the window's present latency", RunLatency},
       {"capture", "real capture: projector + cameras from a devices file into a resumable ImageSet (capture --rig --devices --patterns --out)", RunCapture},
       {"devices", "list cameras and displays to capture with (devices [--address IP]... [--discover]: discovery broadcasts)", RunDevices},
   };

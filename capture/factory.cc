@@ -1,7 +1,9 @@
 #include "capture/factory.h"
 
+#include "capture/aravis_camera.h"
 #include "capture/none_projector.h"
 #include "capture/replay_camera.h"
+#include "capture/window_projector.h"
 #include "core/error.h"
 
 namespace slshadow::capture {
@@ -14,8 +16,32 @@ namespace {
 
 }  // namespace
 
-std::vector<std::string> BuiltInCameraBackends() { return {"replay"}; }
-std::vector<std::string> BuiltInProjectorBackends() { return {"none"}; }
+std::vector<std::string> BuiltInCameraBackends() { return {"replay", "aravis"}; }
+std::vector<std::string> BuiltInProjectorBackends() { return {"none", "window"}; }
+
+// window: `display` is an SDL display index ("1") or a geometry on the X screen ("x,y,w,h").
+WindowProjectorOptions WindowOptionsOf(const ProjectorEntry& entry) {
+  WindowProjectorOptions options;
+  options.latency = std::chrono::microseconds(entry.latency_us);
+  if (entry.display.find(',') != std::string::npos) {
+    try {
+      options.geometry = ParseWindowGeometry(entry.display);
+    } catch (const Error& e) {
+      SLSHADOW_THROW(entry.where, ".display: ", e.what());
+    }
+  } else if (!entry.display.empty()) {
+    size_t used = 0;
+    int index = -1;
+    try {
+      index = std::stoi(entry.display, &used);
+    } catch (const std::exception&) {
+    }
+    SLSHADOW_THROW_IF(index < 0 || used != entry.display.size(), entry.where, ".display: '", entry.display,
+                      "' is neither a display index (0, 1, ...) nor a geometry x,y,w,h");
+    options.display_index = index;
+  }
+  return options;
+}
 
 std::unique_ptr<Camera> OpenCamera(const CameraEntry& entry) {
   // One case per camera backend.
@@ -23,7 +49,16 @@ std::unique_ptr<Camera> OpenCamera(const CameraEntry& entry) {
     return std::make_unique<ReplayCamera>(entry.imageset,
                                           ReplayCameraOptions{entry.imageset_camera, entry.first_frame_id, entry.serial});
   }
-  if (entry.backend == "aravis") NotBuilt(entry.where, entry.backend, "GigE Vision / USB3 Vision through Aravis");
+  if (entry.backend == "aravis") {
+    // The address opens a GigE Vision camera directly; an id or serial is looked up among USB3
+    // Vision devices only: devices.yaml never makes slshadow broadcast a GigE Vision discovery.
+    const std::string& device = !entry.address.empty() ? entry.address : !entry.id.empty() ? entry.id : entry.serial;
+    try {
+      return OpenAravisCamera(AravisOpenOptions{.device = device});
+    } catch (const Error& e) {
+      SLSHADOW_THROW(entry.where, ": ", e.what());
+    }
+  }
   if (entry.backend == "sim") {
     NotBuilt(entry.where, entry.backend, "a simulator camera is built by the workflow layer, not by capture/");
   }
@@ -34,7 +69,14 @@ std::unique_ptr<Projector> OpenProjector(const ProjectorEntry& entry) {
   const std::chrono::microseconds latency(entry.latency_us);
   // One case per projector backend.
   if (entry.backend == "none") return std::make_unique<NoneProjector>(latency);
-  if (entry.backend == "window") NotBuilt(entry.where, entry.backend, "an SDL2 window on an HDMI output");
+  if (entry.backend == "window") {
+    const WindowProjectorOptions options = WindowOptionsOf(entry);
+    try {
+      return std::make_unique<WindowProjector>(options);
+    } catch (const Error& e) {
+      SLSHADOW_THROW(entry.where, ": ", e.what());
+    }
+  }
   NotBuilt(entry.where, entry.backend, "no projector backend of this name");
 }
 

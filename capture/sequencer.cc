@@ -22,8 +22,18 @@ namespace slshadow::capture {
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
 
+namespace {
+// CPU time of the calling thread, seconds.
+double ThreadCpuSeconds() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
+}
+}  // namespace
+
 void ValidationOptions::Check() const {
-  SLSHADOW_THROW_IF(stride_px < 1 || stride_px > 64, "validation.stride_px: must be in [1, 64] (got ", stride_px, ")");
+  SLSHADOW_THROW_IF(stride_px < 0 || stride_px > 64, "validation.stride_px: must be in [0, 64] (got ", stride_px, ")");
+  SLSHADOW_THROW_IF(target_samples < 1000, "validation.target_samples: must be >= 1000 (got ", target_samples, ")");
   for (const auto& [name, v] : {std::pair{"min_pattern_change", min_pattern_change}, std::pair{"stale_ratio", stale_ratio},
                                 std::pair{"min_lit_share_floor", min_lit_share_floor},
                                 std::pair{"min_lit_share", min_lit_share}, std::pair{"min_complementary", min_complementary}}) {
@@ -84,6 +94,8 @@ nlohmann::json CameraCaptureStats::ToJson() const {
           {"missing_frame_ids", missing_frame_ids},
           {"invalid_frame_ids", invalid_frame_ids},
           {"exposure_us", exposure_us},
+          {"min_complementary_share", min_complementary_share},
+          {"pair_checks", pair_checks},
           {"stream",
            {{"completed_frames", stream.completed_frames},
             {"failed_frames", stream.failed_frames},
@@ -98,7 +110,8 @@ nlohmann::json CaptureSummary::ToJson() const {
   nlohmann::json j = {{"complete", complete},       {"interrupted", interrupted},   {"resumed", resumed},
                       {"patterns", patterns},       {"images_total", images_total}, {"images_before", images_before},
                       {"images_stored", images_stored}, {"retries", retries},   {"seconds", seconds},
-                      {"mean_pattern_ms", mean_pattern_ms}};
+                      {"mean_pattern_ms", mean_pattern_ms}, {"overhead_ms_per_pattern", overhead_ms_per_pattern},
+                      {"overhead_cpu_ms_per_pattern", overhead_cpu_ms_per_pattern}};
   for (const auto& [name, s] : cameras) j["cameras"][name] = s.ToJson();
   for (const auto& [name, us] : auto_exposure_us) j["auto_exposure_us"][name] = us;
   return j;
@@ -167,6 +180,7 @@ struct SequenceModel {
   std::vector<int> group_of;  // pattern -> group index
   std::vector<int> reference_frames;  // white, black; or the first phase steps
   bool white_black = false;
+  bool references_last = false;  // white and black after the Gray pairs (OpenCV order)
 
   explicit SequenceModel(const PatternSpec& spec, const std::vector<cv::Mat>& images) {
     frames = spec.Frames();
@@ -214,9 +228,32 @@ struct SequenceModel {
       for (int i = 0; i < 4; ++i) group_of[static_cast<size_t>(i)] = 0;
       for (size_t k = 4; k < group_of.size(); ++k) --group_of[k];
     }
+    // Phase first (4 or more steps): the first frame has no predecessor either; the first period's
+    // steps form one group whose per-pixel sinusoid fit must hold (see CheckGroup).
+    const int steps = spec.phase_steps;
+    if (frames[0].role == FrameRole::kPhase && steps >= 4 && static_cast<int>(frames.size()) >= steps) {
+      bool same = true;
+      for (int i = 0; i < steps; ++i) {
+        same = same && frames[static_cast<size_t>(i)].role == FrameRole::kPhase &&
+               frames[static_cast<size_t>(i)].frequency == 0 && frames[static_cast<size_t>(i)].step == i;
+      }
+      if (same) {
+        groups.erase(groups.begin(), groups.begin() + steps);
+        Group g;
+        g.first = 0;
+        g.size = steps;
+        g.pair = true;
+        g.opening = true;
+        groups.insert(groups.begin(), g);
+        for (size_t k = 0; k < group_of.size(); ++k) {
+          group_of[k] = k < static_cast<size_t>(steps) ? 0 : group_of[k] - (steps - 1);
+        }
+      }
+    }
     if (spec.WhiteFrameIndex() >= 0 && spec.BlackFrameIndex() >= 0) {
       white_black = true;
       reference_frames = {spec.WhiteFrameIndex(), spec.BlackFrameIndex()};
+      references_last = spec.WhiteFrameIndex() > 0;
     } else {
       // Phase codecs: the steps of the first frequency of the first coded axis; per pixel their
       // max and min stand in for white and black.
@@ -234,6 +271,14 @@ struct SequenceModel {
 // Per-pixel references of one camera: white (or max) and black (or min), as float.
 struct References {
   cv::Mat white, black;  // CV_32F
+  // The lit sample positions (ForEachSample grid, white - black >= the lit threshold) with a
+  // quarter of their contrast and their mid level, built once: the per-frame checks then read
+  // only the two frames, in row order.
+  struct Sample {
+    int32_t y, x;
+    float quarter, mid;
+  };
+  std::vector<Sample> samples;
   bool ready() const { return !white.empty(); }
 };
 
@@ -243,14 +288,20 @@ struct References {
 template <typename F>
 void ForEachSample(int rows, int cols, int stride, F&& f) {
   const int step = stride <= 2 ? 1 : (stride % 2 == 0 ? stride - 1 : stride - 2);  // coprime with stride
+  int row_offset = 0;  // (i * step) % stride, kept without a division per sample
   for (int i = 0;; ++i) {
-    const int y = i * stride + (i * step) % stride;
+    const int y = i * stride + row_offset;
     if (y >= rows) break;
-    for (int j = 0;; ++j) {
-      const int x = j * stride + (j * step + i) % stride;
+    int col_offset = i % stride;  // (j * step + i) % stride
+    for (int base = 0;; base += stride) {
+      const int x = base + col_offset;
       if (x >= cols) break;
       f(y, x);
+      col_offset += step;
+      if (col_offset >= stride) col_offset -= stride;
     }
+    row_offset += step;
+    if (row_offset >= stride) row_offset -= stride;
   }
 }
 
@@ -259,6 +310,18 @@ struct Sampler {
   static double ChangedShare(const cv::Mat& f, const cv::Mat& prev, const References& refs, double lit_threshold,
                              double abs_threshold, int stride, int* samples) {
     int64_t count = 0, changed = 0;
+    if (!refs.samples.empty()) {
+      const uchar* a = f.data;
+      const uchar* b = prev.data;
+      const size_t sa = f.step[0], sb = prev.step[0];
+      for (const auto& p : refs.samples) {
+        const float va = reinterpret_cast<const T*>(a + static_cast<size_t>(p.y) * sa)[p.x];
+        const float vb = reinterpret_cast<const T*>(b + static_cast<size_t>(p.y) * sb)[p.x];
+        changed += std::abs(va - vb) >= p.quarter;
+      }
+      *samples = static_cast<int>(refs.samples.size());
+      return static_cast<double>(changed) / static_cast<double>(refs.samples.size());
+    }
     const bool refs_ready = refs.ready();
     ForEachSample(f.rows, f.cols, stride, [&](int y, int x) {
       const double d = std::abs(static_cast<double>(f.at<T>(y, x)) - static_cast<double>(prev.at<T>(y, x)));
@@ -280,6 +343,18 @@ struct Sampler {
   static double ComplementaryShare(const cv::Mat& p, const cv::Mat& q, const References& refs, double lit_threshold,
                                    int stride, int* samples) {
     int64_t count = 0, opposite = 0;
+    if (!refs.samples.empty()) {
+      const size_t sp = p.step[0], sq = q.step[0];
+      for (const auto& r : refs.samples) {
+        const float da = reinterpret_cast<const T*>(p.data + static_cast<size_t>(r.y) * sp)[r.x] - r.mid;
+        const float db = reinterpret_cast<const T*>(q.data + static_cast<size_t>(r.y) * sq)[r.x] - r.mid;
+        if (std::abs(da) < r.quarter || std::abs(db) < r.quarter) continue;
+        ++count;
+        opposite += (da > 0) != (db > 0);
+      }
+      *samples = static_cast<int>(count);
+      return count ? static_cast<double>(opposite) / static_cast<double>(count) : 1.0;
+    }
     ForEachSample(p.rows, p.cols, stride, [&](int y, int x) {
       const double w = refs.white.at<float>(y, x), k = refs.black.at<float>(y, x);
       const double contrast = w - k;
@@ -388,6 +463,7 @@ class StoreQueue {
 
 struct CameraState {
   const CaptureCamera* cam = nullptr;
+  int stride = 1;  // validation sampling stride for this camera's image size
   CameraInfo info;
   CameraSettings settings;
   double full_scale = 255;
@@ -424,6 +500,11 @@ class Sequencer {
       s.settings = c.settings;
       s.full_scale = FullScale(c.settings.pixel_format);
       s.expected_depth = BitDepthOf(c.settings.pixel_format) == 8 ? CV_8U : CV_16U;
+      const RigDevice& dev = rig.Camera(c.name);
+      s.stride = options_.validation.stride_px > 0
+                     ? options_.validation.stride_px
+                     : std::max(1, static_cast<int>(std::sqrt(static_cast<double>(dev.model.width) * dev.model.height /
+                                                              options_.validation.target_samples)));
       states_.push_back(std::move(s));
     }
     // Rig camera order: the order frames are triggered, grabbed and reported.
@@ -498,6 +579,9 @@ class Sequencer {
     if (options_.progress) progress.emplace("capture", todo_patterns);
     int acquired_patterns = 0;
     const auto acquire_start = Clock::now();
+    const double acquire_cpu_start = ThreadCpuSeconds();
+    device_time_ = {};
+    device_cpu_s_ = 0;
     std::string failure;
     try {
       for (const auto& group : model_->groups) {
@@ -520,6 +604,7 @@ class Sequencer {
     }
     progress.reset();
     const double acquire_s = std::chrono::duration<double>(Clock::now() - acquire_start).count();
+    const double acquire_cpu_s = ThreadCpuSeconds() - acquire_cpu_start;
     std::string storage_error;
     try {
       store.Finish();
@@ -527,7 +612,22 @@ class Sequencer {
       storage_error = e.what();
     }
     summary_.images_stored = store.stored();
+    if (failure.empty() && storage_error.empty() && !summary_.interrupted && validate_ && model_->references_last) {
+      // White and black came last: now every Gray pair can be judged against them, and a pair
+      // that fails (a stale frame the pattern-to-pattern check could not see) is taken again.
+      try {
+        StoreQueue again(writer, static_cast<size_t>(options_.store_queue_images));
+        if (!RecheckPairs(again)) summary_.interrupted = true;
+        again.Finish();
+        summary_.images_stored += again.stored();
+      } catch (const std::exception& e) {
+        failure = e.what();
+      }
+    }
     summary_.mean_pattern_ms = acquired_patterns ? 1e3 * acquire_s / acquired_patterns : 0;
+    summary_.overhead_ms_per_pattern =
+        acquired_patterns ? 1e3 * (acquire_s - std::chrono::duration<double>(device_time_).count()) / acquired_patterns : 0;
+    summary_.overhead_cpu_ms_per_pattern = acquired_patterns ? 1e3 * (acquire_cpu_s - device_cpu_s_) / acquired_patterns : 0;
     for (auto& s : states_) {
       s.stats.stream = s.cam->camera->Statistics();
       s.stats.missing_frame_ids = s.ids.missing();
@@ -593,6 +693,16 @@ class Sequencer {
 
   // Show pattern `index` (of the loaded sequence), trigger every camera, grab every camera.
   std::vector<Frame> TriggerRound(int index, int attempt) {
+    struct AddTime {
+      Clock::time_point t0;
+      double cpu0;
+      Clock::duration* sum;
+      double* cpu_sum;
+      ~AddTime() {
+        *sum += Clock::now() - t0;
+        *cpu_sum += ThreadCpuSeconds() - cpu0;
+      }
+    } add{Clock::now(), ThreadCpuSeconds(), &device_time_, &device_cpu_s_};
     for (auto& s : states_) s.cam->camera->ExpectPattern(index);
     WaitAfterShow(projector_.Show(index), attempt);
     for (auto& s : states_) {
@@ -604,6 +714,14 @@ class Sequencer {
     frames.reserve(states_.size());
     for (auto& s : states_) frames.push_back(s.cam->camera->Grab(s.cam->grab_timeout));
     return frames;
+  }
+
+  void FlushAll() {
+    const auto t0 = Clock::now();
+    const double cpu0 = ThreadCpuSeconds();
+    for (auto& s : states_) s.cam->camera->Flush();
+    device_time_ += Clock::now() - t0;
+    device_cpu_s_ += ThreadCpuSeconds() - cpu0;
   }
 
   const cv::Mat* Previous(CameraState& s, int k) {
@@ -638,6 +756,11 @@ class Sequencer {
       s.refs.white = hi;
       s.refs.black = lo;
     }
+    const double lit_threshold = options_.validation.lit_threshold * s.full_scale / 255.0;
+    ForEachSample(s.refs.white.rows, s.refs.white.cols, s.stride, [&](int y, int x) {
+      const float w = s.refs.white.at<float>(y, x), k = s.refs.black.at<float>(y, x);
+      if (w - k >= lit_threshold) s.refs.samples.push_back({y, x, 0.25f * (w - k), 0.5f * (w + k)});
+    });
   }
 
   Verdict CheckFrame(CameraState& s, int k, const Frame& f, const cv::Mat* prev_override) {
@@ -661,13 +784,13 @@ class Sequencer {
     }
     if (!validate_) return {};
     const double e = model_->expected_change[static_cast<size_t>(k)];
-    const cv::Mat* prev = prev_override ? prev_override : Previous(s, k);
+    const cv::Mat* prev = prev_override ? prev_override : no_previous_ ? nullptr : Previous(s, k);
     if (prev == nullptr || e < options_.validation.min_pattern_change) return {};
     EnsureReferences(s);
     const double scale = s.full_scale / 255.0;
     int samples = 0;
     const double changed = ChangedShare(f.image, *prev, s.refs, options_.validation.lit_threshold * scale,
-                                        options_.validation.change_threshold * scale, options_.validation.stride_px, &samples);
+                                        options_.validation.change_threshold * scale, s.stride, &samples);
     if (samples < options_.validation.min_samples) return {};
     const double lit = s.refs.ready() ? 1.0 : std::max(s.lit_estimate, options_.validation.min_lit_share_floor);
     const double needed = options_.validation.stale_ratio * e * lit;
@@ -692,8 +815,9 @@ class Sequencer {
     if (!validate_ || !g.pair) return {};
     const double scale = s.full_scale / 255.0;
     const double lit_threshold = options_.validation.lit_threshold * scale;
-    const int stride = options_.validation.stride_px;
+    const int stride = s.stride;
     char buf[320];
+    if (model_->frames[static_cast<size_t>(g.first)].role == FrameRole::kPhase) return CheckPhaseSteps(s, g, f);
     References refs;
     const FrameRole role = model_->frames[static_cast<size_t>(g.first)].role;
     size_t pair_at = 0;
@@ -736,7 +860,10 @@ class Sequencer {
     }
     int samples = 0;
     const double q = ComplementaryShare(*f[pair_at], *f[pair_at + 1], refs, lit_threshold, stride, &samples);
-    if (samples < options_.validation.min_samples || q >= options_.validation.min_complementary) return {};
+    if (samples < options_.validation.min_samples) return {};
+    s.stats.min_complementary_share = std::min(s.stats.min_complementary_share, q);
+    ++s.stats.pair_checks;
+    if (q >= options_.validation.min_complementary) return {};
     ++s.stats.not_complementary;
     std::snprintf(buf, sizeof(buf),
                   ": not complementary: %.1f %% of %d decisive pixels are on opposite sides, at least %.1f %% expected; "
@@ -758,7 +885,7 @@ class Sequencer {
                                                    int* attempts_used, std::vector<std::string>* errors) {
     for (int attempt = 0; attempt <= options_.max_retries; ++attempt) {
       if (attempt > 0) {
-        for (auto& s : states_) s.cam->camera->Flush();
+        FlushAll();
         ++summary_.retries;
       }
       *attempts_used = attempt;
@@ -794,7 +921,7 @@ class Sequencer {
     };
     for (int group_attempt = 0; group_attempt <= options_.max_retries; ++group_attempt) {
       if (group_attempt > 0) {
-        for (auto& s : states_) s.cam->camera->Flush();
+        FlushAll();
         ++summary_.retries;
       }
       bool taken = true;
@@ -852,6 +979,78 @@ class Sequencer {
         ++s.stats.frames_stored;
         store.Push(std::move(r), f.image);
       }
+    }
+    return true;
+  }
+
+  // The first period's N >= 4 phase steps: per lit pixel, I_n = A + C cos(2 pi n / N) +
+  // S sin(2 pi n / N) fitted by least squares; a frame that shows another pattern leaves a
+  // residual (rms over the steps) above a third of the modulation B = sqrt(C^2 + S^2) at many
+  // pixels. (Three steps fit exactly: nothing to check.)
+  Verdict CheckPhaseSteps(CameraState& s, const SequenceModel::Group& g, const std::vector<const cv::Mat*>& f) {
+    const int n = g.size;
+    const double lit_threshold = options_.validation.lit_threshold * s.full_scale / 255.0;
+    std::vector<double> c(static_cast<size_t>(n)), sn(static_cast<size_t>(n));
+    for (int i = 0; i < n; ++i) {
+      c[static_cast<size_t>(i)] = std::cos(2 * M_PI * i / n);
+      sn[static_cast<size_t>(i)] = std::sin(2 * M_PI * i / n);
+    }
+    int64_t count = 0, bad = 0;
+    std::vector<double> v(static_cast<size_t>(n));
+    ForEachSample(f[0]->rows, f[0]->cols, s.stride, [&](int y, int x) {
+      double a = 0, cc = 0, ss = 0;
+      for (int i = 0; i < n; ++i) {
+        const cv::Mat& m = *f[static_cast<size_t>(i)];
+        v[static_cast<size_t>(i)] = m.depth() == CV_8U ? m.at<uint8_t>(y, x) : m.at<uint16_t>(y, x);
+        a += v[static_cast<size_t>(i)];
+        cc += v[static_cast<size_t>(i)] * c[static_cast<size_t>(i)];
+        ss += v[static_cast<size_t>(i)] * sn[static_cast<size_t>(i)];
+      }
+      a /= n;
+      cc *= 2.0 / n;
+      ss *= 2.0 / n;
+      const double b = std::sqrt(cc * cc + ss * ss);
+      if (2 * b < lit_threshold) return;
+      double r2 = 0;
+      for (int i = 0; i < n; ++i) {
+        const double e = v[static_cast<size_t>(i)] - a - cc * c[static_cast<size_t>(i)] - ss * sn[static_cast<size_t>(i)];
+        r2 += e * e;
+      }
+      ++count;
+      bad += std::sqrt(r2 / n) > b / 3;
+    });
+    const double share = count ? static_cast<double>(bad) / static_cast<double>(count) : 0.0;
+    if (count < options_.validation.min_samples || share <= 1 - options_.validation.min_complementary) return {};
+    ++s.stats.not_complementary;
+    char buf[320];
+    std::snprintf(buf, sizeof(buf),
+                  ": the %d phase steps do not fit one sinusoid at %.1f %% of %lld modulated pixels: one of them shows "
+                  "another pattern (raise latency_us or settle_us in the devices file)",
+                  n, 100 * share, static_cast<long long>(count));
+    return {false, model_->Name(g.first) + " .. " + model_->Name(g.first + n - 1) + ", camera '" + s.cam->name + "'" + buf};
+  }
+
+  // Judges every stored Gray pair against the references (white and black last) and takes a
+  // failing pair again; false when stopped.
+  bool RecheckPairs(StoreQueue& store) {
+    for (auto& s : states_) {
+      EnsureReferences(s);
+      if (!s.refs.ready()) return true;
+    }
+    for (const auto& g : model_->groups) {
+      if (!g.pair || model_->frames[static_cast<size_t>(g.first)].role != FrameRole::kGrayBit) continue;
+      bool bad = false;
+      for (auto& s : states_) {
+        const cv::Mat a = writer_->Load(s.cam->name, g.first), b = writer_->Load(s.cam->name, g.first + 1);
+        bad = !CheckGroup(s, g, {&a, &b}).ok || bad;
+      }
+      if (!bad) continue;
+      // The projector showed other patterns since: the first frame has no previous one to be
+      // compared with; the pair check against the references judges both.
+      no_previous_ = true;
+      const bool taken = AcquireGroup(g, store);
+      no_previous_ = false;
+      if (!taken) return false;
     }
     return true;
   }
@@ -957,6 +1156,9 @@ class Sequencer {
   std::vector<cv::Mat> images_;
   std::unique_ptr<SequenceModel> model_;
   bool validate_ = true;
+  Clock::duration device_time_{};  // inside device calls (see CaptureSummary::overhead_ms_per_pattern)
+  double device_cpu_s_ = 0;        // the same on the thread's CPU clock
+  bool no_previous_ = false;       // re-taking a pair out of sequence: no stale check of its first frame
   ResumableImageSetWriter* writer_ = nullptr;
   CaptureSummary summary_;
 };

@@ -18,7 +18,11 @@
 //    per-pixel max / min of the first phase steps), a Gray bit and its inverse must be on opposite
 //    sides of (white + black) / 2 wherever both are decisive, in >= min_complementary of those
 //    pixels; white and black must differ (lit area >= min_lit_share). A failing pair is taken
-//    again as a whole.
+//    again as a whole. When white and black come first, they are taken with the first Gray pair
+//    as one group, and that pair must lie between black and white (a stale white or black has
+//    no predecessor to be compared with). When they come last (OpenCV order), every stored pair
+//    is judged against them at the end and a failing pair is taken again.
+//  Not covered: the first frame of a phase sequence has neither a predecessor nor references.
 // A frame that fails is taken again (Flush, Show, wait latency + settle + attempt x
 // retry_backoff, trigger all cameras) up to max_retries times. A pair (Gray bit + inverse, white
 // + black) whose second frame or whose pair check fails is taken again as a whole, up to
@@ -56,7 +60,10 @@ struct CaptureCamera {
 };
 
 struct ValidationOptions {
-  int stride_px = 4;                 // check every stride-th pixel in x and y (speed)
+  // Check every stride-th pixel in x and y (jittered grid); 0: chosen per camera so that about
+  // target_samples pixels are checked (1920x1200: every 8th; small images: every pixel).
+  int stride_px = 0;
+  int target_samples = 32768;
   double min_pattern_change = 0.25;  // pattern pairs changing less (in some tile) are not stale-checked
   double stale_ratio = 0.3;          // stale: changed share < stale_ratio x expected change share
   // Without references: a pixel changed when |frame - previous| >= this (8-bit grey levels,
@@ -113,6 +120,10 @@ struct CameraCaptureStats {
   int64_t missing_frame_ids = 0; // frame ids never grabbed (16-bit ids wrap 65535 -> 1; 0 invalid)
   int64_t invalid_frame_ids = 0; // frames with id 0
   double exposure_us = 0;        // the exposure used (auto-exposure: the value chosen)
+  // Lowest share of decisive pixels on opposite sides seen in a Gray pair check (1: none made);
+  // how far the accepted pairs were from the min_complementary limit.
+  double min_complementary_share = 1;
+  int64_t pair_checks = 0;       // Gray pair complementarity checks made (enough decisive pixels)
   StreamStatistics stream;       // the camera's own transport counters at the end
   nlohmann::json ToJson() const;
 };
@@ -130,6 +141,13 @@ struct CaptureSummary {
   int retries = 0;                 // extra attempts, all patterns
   double seconds = 0;
   double mean_pattern_ms = 0;      // wall time per pattern acquired by this run
+  // The sequencer's own cost per pattern acquired: wall time minus the time inside device calls
+  // (projector Show, the latency / settle wait, camera Trigger, Grab, Flush): validation, frame-id
+  // bookkeeping, queueing for storage (including waiting for a full storage queue).
+  double overhead_ms_per_pattern = 0;
+  // The same on the sequencer thread's CPU clock (what it costs where the machine is not busy
+  // with other work; the wall figure above also holds the time the thread waited for a core).
+  double overhead_cpu_ms_per_pattern = 0;
   std::map<std::string, CameraCaptureStats> cameras;
   std::map<std::string, double> auto_exposure_us;  // chosen exposures (auto-exposure)
   std::string BriefReport() const;

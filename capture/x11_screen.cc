@@ -69,7 +69,7 @@ struct XScreenReader::Impl {
   }
 };
 
-XScreenReader::XScreenReader(const std::string& display_name) : impl_(std::make_unique<Impl>()) {
+XScreenReader::XScreenReader(const std::string& display_name, bool allow_shm) : impl_(std::make_unique<Impl>()) {
   const char* env = std::getenv("DISPLAY");
   impl_->name = !display_name.empty() ? display_name : (env ? env : "");
   SLSHADOW_THROW_IF(impl_->name.empty(), "X screen: no display given and $DISPLAY is not set");
@@ -87,7 +87,10 @@ XScreenReader::XScreenReader(const std::string& display_name) : impl_(std::make_
     SLSHADOW_THROW("X screen '", impl_->name, "': depth ", depth,
                    " is not 24-bit TrueColor with 8-bit R, G, B (start the server with -screen 0 WxHx24)");
   }
-  impl_->use_shm = XShmQueryExtension(impl_->display);
+  // Shared memory only with a local server (":N", "unix:N"): for a remote one XShmAttach fails with
+  // an X error, which Xlib's default handler turns into exit().
+  const bool local = impl_->name[0] == ':' || impl_->name.rfind("unix:", 0) == 0;
+  impl_->use_shm = allow_shm && local && XShmQueryExtension(impl_->display);
 }
 
 XScreenReader::~XScreenReader() {
@@ -97,6 +100,7 @@ XScreenReader::~XScreenReader() {
 
 const std::string& XScreenReader::display_name() const { return impl_->name; }
 int XScreenReader::width() const { return impl_->width; }
+bool XScreenReader::uses_shm() const { return impl_->use_shm; }
 int XScreenReader::height() const { return impl_->height; }
 
 namespace {

@@ -16,8 +16,10 @@ namespace slshadow::capture {
 class XScreenReader {
  public:
   // Connects to `display_name` (e.g. ":93"); empty: $DISPLAY. Throws slshadow::Error naming the
-  // display when the connection fails or the root window is not 24/32-bit TrueColor.
-  explicit XScreenReader(const std::string& display_name = "");
+  // display when the connection fails or the root window is not 24/32-bit TrueColor. Reads through
+  // MIT-SHM when the server is local and offers it (allow_shm), else with plain XGetImage.
+  explicit XScreenReader(const std::string& display_name = "", bool allow_shm = true);
+  bool uses_shm() const;
   ~XScreenReader();
   XScreenReader(const XScreenReader&) = delete;
   XScreenReader& operator=(const XScreenReader&) = delete;

@@ -393,11 +393,40 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
     std::string where;
     for (const CameraEvidence& cam : cameras) {
       if (cam.modulation_ratio.empty()) continue;
+      // Well-lit pixels only (real white - black at least 30 % of its median over the part):
+      // dark print or shadowed parts have little modulation to lose and say nothing of multipath.
+      cv::Mat usable = cam.mask.clone();
+      if (!cam.white.empty() && !cam.black.empty()) {
+        std::vector<double> range;
+        for (int y = 0; y < cam.height; y += 2) {
+          for (int x = 0; x < cam.width; x += 2) {
+            if (cam.mask.at<uint8_t>(y, x)) range.push_back(cam.white.at<float>(y, x) - cam.black.at<float>(y, x));
+          }
+        }
+        const double min_range = 0.3 * Median(range);
+        for (int y = 0; y < cam.height; ++y) {
+          for (int x = 0; x < cam.width; ++x) {
+            if (cam.white.at<float>(y, x) - cam.black.at<float>(y, x) < min_range) usable.at<uint8_t>(y, x) = 0;
+          }
+        }
+      }
+      // Relative to a smooth background (a robust quadratic over the image): a depth-dependent
+      // blur on a tilted part is a smooth trend, multipath a local loss.
+      cv::Mat ratio = cam.modulation_ratio.clone();
+      const cv::Mat background = SmoothField(cam.modulation_ratio, usable);
+      if (!background.empty()) {
+        for (int y = 0; y < cam.height; ++y) {
+          for (int x = 0; x < cam.width; ++x) {
+            const float b = background.at<float>(y, x);
+            ratio.at<float>(y, x) = b > 0.05f ? ratio.at<float>(y, x) / b : std::nanf("");
+          }
+        }
+      }
       std::vector<double> all;
       for (int y = 0; y < cam.height; y += 2) {
         for (int x = 0; x < cam.width; x += 2) {
-          const float v = cam.modulation_ratio.at<float>(y, x);
-          if (cam.mask.at<uint8_t>(y, x) && std::isfinite(v)) all.push_back(v);
+          const float v = ratio.at<float>(y, x);
+          if (usable.at<uint8_t>(y, x) && std::isfinite(v)) all.push_back(v);
         }
       }
       if (all.size() < 100) continue;
@@ -410,11 +439,11 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
           bool full = true;
           for (int y = by * 8; y < by * 8 + 8 && full; ++y) {
             for (int x = bx * 8; x < bx * 8 + 8; ++x) {
-              if (!cam.mask.at<uint8_t>(y, x)) {
+              if (!usable.at<uint8_t>(y, x)) {
                 full = false;
                 break;
               }
-              const float r = cam.modulation_ratio.at<float>(y, x);
+              const float r = ratio.at<float>(y, x);
               if (std::isfinite(r)) v.push_back(r);
             }
           }

@@ -16,8 +16,10 @@
 //                       residual at 1..4 x the fringe frequency is reported as its evidence.
 //   defocus             the fitted projector blur kept by the physics fit (fringe contrast below
 //                       the focused twin's).
-//   multipath           local blobs where the real fringe modulation is below the twin's (ratio
-//                       below multipath_ratio x its median over >= min_blob_blocks 8 x 8 blocks).
+//   multipath           local blobs where the real fringe modulation is below the twin's (the
+//                       ratio over its smooth quadratic background below multipath_ratio x its
+//                       median over >= min_blob_blocks 8 x 8 blocks
+//                       of well-lit pixels: real white - black >= 30 % of its median).
 //   part                a deviation on the part's surface: the real cloud's C2M to the part minus
 //                       the twin cloud's (at the nearest twin point, each smoothed over k
 //                       neighbours) beyond max(4 robust sigma, part_min_mm) on a cluster of

@@ -113,21 +113,36 @@ void WhiteBlackImages(const PatternSpec& spec, const std::vector<cv::Mat>& image
   const cv::Mat& first = images.at(0);
   white->create(first.size(), CV_32FC1);
   black->create(first.size(), CV_32FC1);
+  const bool bytes = first.depth() == CV_8U;
   cv::parallel_for_(cv::Range(0, first.rows), [&](const cv::Range& rows) {
-    std::vector<float> hi(pairs.size()), lo(pairs.size());
+    const size_t n = pairs.size();
+    std::vector<float> hi(n), lo(n);
+    std::vector<const uint8_t*> p8(n), q8(n);
+    std::vector<const uint16_t*> p16(n), q16(n);
+    const auto mid = static_cast<std::ptrdiff_t>(n / 2);
     for (int y = rows.start; y < rows.end; ++y) {
+      for (size_t k = 0; k < n; ++k) {
+        const cv::Mat& a = images[static_cast<size_t>(pairs[k].first)];
+        const cv::Mat& b = images[static_cast<size_t>(pairs[k].second)];
+        if (bytes) {
+          p8[k] = a.ptr<uint8_t>(y), q8[k] = b.ptr<uint8_t>(y);
+        } else {
+          p16[k] = a.ptr<uint16_t>(y), q16[k] = b.ptr<uint16_t>(y);
+        }
+      }
+      float* w = white->ptr<float>(y);
+      float* bl = black->ptr<float>(y);
       for (int x = 0; x < first.cols; ++x) {
-        for (size_t k = 0; k < pairs.size(); ++k) {
-          const float p = Pixel(images[static_cast<size_t>(pairs[k].first)], y, x);
-          const float q = Pixel(images[static_cast<size_t>(pairs[k].second)], y, x);
+        for (size_t k = 0; k < n; ++k) {
+          const float p = bytes ? p8[k][x] : p16[k][x];
+          const float q = bytes ? q8[k][x] : q16[k][x];
           hi[k] = std::max(p, q);
           lo[k] = std::min(p, q);
         }
-        const auto mid = static_cast<std::ptrdiff_t>(pairs.size() / 2);
         std::nth_element(hi.begin(), hi.begin() + mid, hi.end());
         std::nth_element(lo.begin(), lo.begin() + mid, lo.end());
-        white->at<float>(y, x) = hi[static_cast<size_t>(mid)];
-        black->at<float>(y, x) = lo[static_cast<size_t>(mid)];
+        w[x] = hi[static_cast<size_t>(mid)];
+        bl[x] = lo[static_cast<size_t>(mid)];
       }
     }
   });
@@ -224,7 +239,13 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
   options.Check();
   SLSHADOW_THROW_IF(cameras.empty(), "physics fit: no camera");
   std::vector<cv::Mat> whites(cameras.size()), blacks(cameras.size());
-  for (size_t c = 0; c < cameras.size(); ++c) WhiteBlackImages(spec, cameras[c].real, &whites[c], &blacks[c]);
+  for (size_t c = 0; c < cameras.size(); ++c) {
+    if (cameras[c].white.empty() || cameras[c].black.empty()) {
+      WhiteBlackImages(spec, cameras[c].real, &whites[c], &blacks[c]);
+    } else {
+      whites[c] = cameras[c].white, blacks[c] = cameras[c].black;
+    }
+  }
   const bool has_white_black = spec.WhiteFrameIndex() >= 0 && spec.BlackFrameIndex() >= 0;
   const double fs = cameras[0].real.at(0).depth() == CV_8U ? 255.0 : 65535.0;
   const std::vector<FrameInfo> frames = spec.Frames();
@@ -581,10 +602,14 @@ double ModulationPeriodPx(const PatternSpec& spec) {
 }
 
 cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>& images) {
-  const std::vector<FrameInfo> frames = spec.Frames();
-  const int axis = spec.code_x ? 0 : 1;
   cv::Mat w, b;
   WhiteBlackImages(spec, images, &w, &b);
+  return NormalisedModulation(spec, images, w, b);
+}
+
+cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>& images, const cv::Mat& w, const cv::Mat& b) {
+  const std::vector<FrameInfo> frames = spec.Frames();
+  const int axis = spec.code_x ? 0 : 1;
   cv::Mat out(w.size(), CV_32FC1, cv::Scalar(std::nanf("")));
   std::vector<int> idx;
   if (spec.kind == PatternKind::kGrayCode) {
@@ -594,12 +619,33 @@ cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>
   }
   for (int i : idx) SLSHADOW_THROW_IF(i < 0, "fringe modulation: the sequence lacks its finest fringe frames");
   const int n = static_cast<int>(idx.size());
+  const bool bytes = images[0].depth() == CV_8U;
   cv::parallel_for_(cv::Range(0, w.rows), [&](const cv::Range& rows) {
+    std::vector<const uint8_t*> p8(static_cast<size_t>(n));
     for (int y = rows.start; y < rows.end; ++y) {
       float* o = out.ptr<float>(y);
+      const float* wr = w.ptr<float>(y);
+      const float* br = b.ptr<float>(y);
+      if (bytes) {
+        for (int k = 0; k < n; ++k) p8[static_cast<size_t>(k)] = images[static_cast<size_t>(idx[static_cast<size_t>(k)])].ptr<uint8_t>(y);
+      }
       for (int x = 0; x < w.cols; ++x) {
-        const float range = w.at<float>(y, x) - b.at<float>(y, x);
+        const float range = wr[x] - br[x];
         if (range < 4) continue;
+        if (bytes) {
+          if (spec.kind == PatternKind::kGrayCode) {
+            o[x] = std::abs(static_cast<float>(p8[0][x]) - static_cast<float>(p8[1][x])) / range;
+          } else {
+            float sum = 0, ss = 0;
+            for (int k = 0; k < n; ++k) {
+              const float v = p8[static_cast<size_t>(k)][x];
+              sum += v, ss += v * v;
+            }
+            const float var = std::max(0.0f, ss / static_cast<float>(n) - (sum / static_cast<float>(n)) * (sum / static_cast<float>(n)));
+            o[x] = std::sqrt(2 * var) / range;
+          }
+          continue;
+        }
         if (spec.kind == PatternKind::kGrayCode) {
           o[x] = std::abs(Pixel(images[static_cast<size_t>(idx[0])], y, x) - Pixel(images[static_cast<size_t>(idx[1])], y, x)) / range;
         } else {
@@ -619,7 +665,7 @@ cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>
   return out;
 }
 
-void FitDefocus(const PatternSpec& spec, const std::vector<CameraData>& cameras, const PhysicsFitOptions& options,
+void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras, const PhysicsFitOptions& options,
                 PhysicsFit* fit) {
   PhysicsLayer d;
   d.name = "defocus";
@@ -632,9 +678,14 @@ void FitDefocus(const PatternSpec& spec, const std::vector<CameraData>& cameras,
     bool held;
   };
   std::vector<Obs> obs;
-  for (const CameraData& cam : cameras) {
+  for (CameraData& cam : cameras) {
     if (cam.twin.empty()) continue;
-    const cv::Mat mr = NormalisedModulation(spec, cam.real), mt = NormalisedModulation(spec, cam.twin);
+    if (cam.white.empty() || cam.black.empty()) WhiteBlackImages(spec, cam.real, &cam.white, &cam.black);
+    cam.real_modulation = NormalisedModulation(spec, cam.real, cam.white, cam.black);
+    WhiteBlackImages(spec, cam.twin, &cam.twin_white, &cam.twin_black);
+    cam.twin_modulation = NormalisedModulation(spec, cam.twin, cam.twin_white, cam.twin_black);
+    const cv::Mat& mr = cam.real_modulation;
+    const cv::Mat& mt = cam.twin_modulation;
     const GeometryBuffer& g = *cam.geometry;
     for (int y = 0; y < g.height; y += options.stride_px) {
       for (int x = 0; x < g.width; x += options.stride_px) {

@@ -74,6 +74,9 @@ struct CameraData {
   std::vector<cv::Mat> real;               // CV_8UC1 or CV_16UC1, spec.NumImages()
   const GeometryBuffer* geometry = nullptr;
   std::vector<cv::Mat> twin;               // rendered focused twin images (defocus fit); may be empty
+  cv::Mat white, black;                    // real white / black levels (WhiteBlackImages); computed when empty
+  cv::Mat real_modulation, twin_modulation;  // FitDefocus's NormalisedModulation maps, kept for reuse
+  cv::Mat twin_white, twin_black;            // FitDefocus's white / black levels of `twin`
 };
 
 struct PhysicsFit {
@@ -98,7 +101,7 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
 
 // Adds the defocus layer to `fit` from the real images against the twin's rendered images
 // (cameras[i].twin, rendered with `fit` applied, focused).
-void FitDefocus(const PatternSpec& spec, const std::vector<CameraData>& cameras, const PhysicsFitOptions& options,
+void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras, const PhysicsFitOptions& options,
                 PhysicsFit* fit);
 
 // Per pixel white and black levels (CV_32FC1) of one camera's images: the white and black frames
@@ -111,6 +114,9 @@ void WhiteBlackImages(const PatternSpec& spec, const std::vector<cv::Mat>& image
 // B' = sqrt(2 var(I_n)) (independent of the frames' order); Gray code:
 // |P - I| / (W - B) of the finest x bit. Used by FitDefocus and the multipath signature.
 cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>& images);
+// The same with the images' white and black levels already at hand.
+cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>& images, const cv::Mat& white,
+                             const cv::Mat& black);
 // The fringe period the modulation above refers to, projector px.
 double ModulationPeriodPx(const PatternSpec& spec);
 

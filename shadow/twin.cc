@@ -281,7 +281,7 @@ std::string ShadowResult::Summary() const {
 
 ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const std::map<std::string, std::vector<cv::Mat>>& real,
                                const ShadowPart& part, const ShadowOptions& options, const fs::path& out_dir,
-                               const std::string& source) {
+                               const std::string& source, const std::vector<StageMeasurement>& earlier_stages) {
   options.Check();
   spec.Check();
   SLSHADOW_THROW_IF(!rig.projector, "shadow: the rig '", rig.name, "' has no projector");
@@ -307,6 +307,7 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
   const double fs_dn = sixteen ? 65535.0 : 255.0;
 
   ShadowResult result;
+  result.stages = earlier_stages;
   nlohmann::json& report = result.report;
   report["format"] = kFormat;
   report["version"] = kVersion;
@@ -356,14 +357,16 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
   surface_in_rig.Transform(rig_from_part.rotation.toRotationMatrix(), rig_from_part.translation);
   {
     const compare::MeshDistance registered(surface_in_rig);
-    const std::vector<double> d = SignedC2M(registered, reg_cloud.points);
+    std::vector<Eigen::Vector3d> sample;
+    for (size_t i = 0; i < reg_cloud.size(); i += std::max<size_t>(1, reg_cloud.size() / 100000)) sample.push_back(reg_cloud.points[i]);
+    const std::vector<double> d = SignedC2M(registered, sample);
     int64_t in = 0;
     double ss = 0;
     for (double x : d) {
       if (std::abs(x) < 1.0) ++in, ss += x * x;
     }
     const double fitness = d.empty() ? 0.0 : static_cast<double>(in) / static_cast<double>(d.size());
-    const double rmse = in ? std::sqrt(ss / static_cast<double>(in)) : std::nan("");
+    const double rmse = in ? std::sqrt(ss / static_cast<double>(in)) : 0.0;
     report["pose"] = {{"source", ToString(pose_source)},
                       {"rig_from_part", PoseToJson(rig_from_part)},
                       {"registration_cloud", real_rec.modes.back().first},
@@ -383,14 +386,16 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
       report["pose"]["moved_from_given_mm"] = (rig_from_part.translation - options.rig_from_part->translation).norm();
       report["pose"]["rotated_from_given_deg"] = compare::RotationDifferenceDeg(rig_from_part, *options.rig_from_part);
     }
-    const bool credible = fitness >= options.min_fitness && rmse <= options.max_rmse_mm;
+    const bool credible = in > 0 && fitness >= options.min_fitness && rmse <= options.max_rmse_mm;
     report["pose"]["credible"] = credible;
     // Not credible: stop, unless a pose was given; then the job goes on from the given pose
     // (a scan corrupted e.g. by a wrong frame still deserves its diagnosis), and says so.
     SLSHADOW_THROW_IF(!credible && !options.rig_from_part, "shadow: the part's pose is not credible (", ToString(pose_source),
-                      "): fitness ", fitness, " (need >= ", options.min_fitness, "), inlier RMSE ", rmse, " mm (need <= ",
-                      options.max_rmse_mm, "); give a pose guess with --pose, or check the part file");
-    if (!credible) {
+                      "): fitness ", fitness, " (need >= ", options.min_fitness, "), inlier RMSE ", rmse, " mm over ", in,
+                      " points (need <= ", options.max_rmse_mm, "); give a pose guess with --pose, or check the part file");
+    if (pose_source == PoseSource::kGivenFixed) {
+      report["pose"]["used"] = "given";  // no registration ran: fitness and RMSE are for information
+    } else if (!credible) {
       rig_from_part = *options.rig_from_part;
       surface_in_rig = part.surface;
       surface_in_rig.Transform(rig_from_part.rotation.toRotationMatrix(), rig_from_part.translation);
@@ -438,6 +443,7 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
     data[c].camera = cameras[c];
     data[c].real = *real_images[c];
     data[c].geometry = &simulator->geometry(twin_rig.CameraIndex(cameras[c]));
+    WhiteBlackImages(spec, data[c].real, &data[c].white, &data[c].black);
   }
   PhysicsFit fit;
   if (options.fit_physics) {
@@ -462,7 +468,7 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
     for (auto& d : data) d.twin.clear();
     if (fit.Kept("defocus")) {
       fitted = fit.Apply(twin, twin_rig, projector_depth_mm, options.noise_seed);
-      data.clear();
+      for (auto& d : data) d.twin_modulation = d.twin_white = d.twin_black = cv::Mat(), d.geometry = nullptr;
       rendered.clear();
       simulator = std::make_unique<Simulator>(fitted, twin_rig);
       rendered = simulator->Render(projector_images, &fitted);
@@ -506,11 +512,16 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
       for (int k = r.start; k < r.end; ++k) {
         double sum = 0, ss = 0;
         int64_t n = 0, in = 0;
+        const cv::Mat& a = rimg[static_cast<size_t>(k)];
+        const cv::Mat& b = timg[static_cast<size_t>(k)];
+        const bool bytes = a.depth() == CV_8U && b.depth() == CV_8U;
         for (int y = 0; y < g.height; ++y) {
           const uint8_t* m = mask.ptr<uint8_t>(y);
+          const uint8_t* pa = bytes ? a.ptr<uint8_t>(y) : nullptr;
+          const uint8_t* pb = bytes ? b.ptr<uint8_t>(y) : nullptr;
           for (int x = 0; x < g.width; ++x) {
             if (!m[x]) continue;
-            const double d = Pixel(rimg[static_cast<size_t>(k)], y, x) - Pixel(timg[static_cast<size_t>(k)], y, x);
+            const double d = bytes ? static_cast<double>(pa[x]) - pb[x] : Pixel(a, y, x) - Pixel(b, y, x);
             sum += d, ss += d * d, ++n;
             if (std::abs(d) <= tol) ++in;
           }
@@ -589,16 +600,18 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
     if (!spec.code_x) ev.real_x = ev.gt_x = cv::Mat();
     if (!spec.code_y) ev.real_y = ev.gt_y = cv::Mat();
     ev.real = real_images[c];
-    WhiteBlackImages(spec, rimg, &ev.white, &ev.black);
+    ev.white = data[c].white;
+    ev.black = data[c].black;
     ev.projector_fx = twin_rig.projector->model.fx();
     ev.projector_fy = twin_rig.projector->model.fy();
-    const cv::Mat mr = NormalisedModulation(spec, rimg), mt = NormalisedModulation(spec, timg);
+    cv::Mat twin_white = data[c].twin_white, twin_black = data[c].twin_black;
+    if (twin_white.empty() || twin_black.empty()) WhiteBlackImages(spec, timg, &twin_white, &twin_black);
+    const cv::Mat mr = data[c].real_modulation.empty() ? NormalisedModulation(spec, rimg, ev.white, ev.black) : data[c].real_modulation;
+    const cv::Mat mt = data[c].twin_modulation.empty() ? NormalisedModulation(spec, timg, twin_white, twin_black) : data[c].twin_modulation;
     ev.modulation_ratio = mr / mt;
     residual_maps.push_back(residual);
     validity_maps.push_back(validity);
     cv::Mat wd(g.height, g.width, CV_32FC1, cv::Scalar(std::nanf("")));
-    cv::Mat twin_white, twin_black;
-    WhiteBlackImages(spec, timg, &twin_white, &twin_black);
     for (int y = 0; y < g.height; ++y) {
       for (int x = 0; x < g.width; ++x) {
         if (mask.at<uint8_t>(y, x)) wd.at<float>(y, x) = ev.white.at<float>(y, x) - twin_white.at<float>(y, x);
@@ -621,8 +634,17 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
   for (size_t m = 0; m < real_rec.modes.size(); ++m) {
     ModeClouds mc;
     mc.mode = real_rec.modes[m].first;
-    mc.real = std::move(real_rec.modes[m].second.cloud);
-    mc.twin = std::move(twin_rec.modes[m].second.cloud);
+    // At most ~400 k points per cloud are compared (and written): C2M costs ~1 us a point.
+    const auto thin = [](PointCloud cloud) {
+      const size_t stride = std::max<size_t>(1, (cloud.size() + 399999) / 400000);
+      if (stride == 1) return cloud;
+      std::vector<bool> keep(cloud.size(), false);
+      for (size_t i = 0; i < cloud.size(); i += stride) keep[i] = true;
+      return cloud.Select(keep);
+    };
+    const size_t real_total = real_rec.modes[m].second.cloud.size(), twin_total = twin_rec.modes[m].second.cloud.size();
+    mc.real = thin(std::move(real_rec.modes[m].second.cloud));
+    mc.twin = thin(std::move(twin_rec.modes[m].second.cloud));
     mc.real_c2m = SignedC2M(part_distance, mc.real.points);
     mc.twin_c2m = SignedC2M(part_distance, mc.twin.points);
     // Compare on the part only: points within 2 mm of it (the rest is background the twin lacks).
@@ -658,8 +680,10 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
     }
     report["clouds"]["modes"].push_back(
         {{"mode", mc.mode},
-         {"real_points", mc.real.size()},
-         {"twin_points", mc.twin.size()},
+         {"real_points", real_total},
+         {"twin_points", twin_total},
+         {"compared_real_points", mc.real.size()},
+         {"compared_twin_points", mc.twin.size()},
          {"on_part_gate_mm", 2.0},
          {"real_vs_part", sr.ToJson("mm")},
          {"twin_vs_part", st.ToJson("mm")},
@@ -749,9 +773,7 @@ ShadowResult RunShadow(const fs::path& image_set_dir, const ShadowPart& part, co
   std::map<std::string, std::vector<cv::Mat>> images;
   for (const auto& name : set.CameraNames()) images[name] = set.LoadCamera(name);
   const StageMeasurement read = meter.Stop();
-  ShadowResult r = RunShadowOnImages(rig ? *rig : set.rig(), spec, images, part, options, out_dir, image_set_dir.string());
-  r.stages.insert(r.stages.begin(), read);
-  return r;
+  return RunShadowOnImages(rig ? *rig : set.rig(), spec, images, part, options, out_dir, image_set_dir.string(), {read});
 }
 
 }  // namespace slshadow::shadow

@@ -90,7 +90,8 @@ struct ShadowResult {
 // that is not credible.
 ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const std::map<std::string, std::vector<cv::Mat>>& real,
                                const ShadowPart& part, const ShadowOptions& options,
-                               const std::filesystem::path& out_dir = {}, const std::string& source = "in memory");
+                               const std::filesystem::path& out_dir = {}, const std::string& source = "in memory",
+                               const std::vector<StageMeasurement>& earlier_stages = {});
 
 // Reads the ImageSet folder (pattern spec from its manifest; the rig too unless `rig` is given,
 // e.g. a calibration made after the capture) and runs the job.

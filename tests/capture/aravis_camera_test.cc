@@ -11,6 +11,8 @@
 
 #include <gtest/gtest.h>
 
+#include "capture/devices.h"
+#include "capture/factory.h"
 #include "core/error.h"
 #include "tests/capture/fake_gv_camera.h"
 
@@ -242,6 +244,34 @@ TEST_F(AravisCameraTest, OpeningNeverDiscoversUnlessAllowed) {
     ADD_FAILURE() << "opened an address without a camera";
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("127.0.0.3"), std::string::npos) << e.what();
+  }
+}
+
+// devices.yaml entries with backend aravis open through the factory; errors name the entry.
+TEST_F(AravisCameraTest, FactoryOpensAnAravisEntry) {
+  FakeGvCamera fake({.address = "127.0.0.2", .serial = "FACT1"});
+  CameraEntry entry;
+  entry.name = "left";
+  entry.backend = "aravis";
+  entry.address = "127.0.0.2";
+  entry.where = "dev.yaml: cameras[0]";
+  const auto camera = OpenCamera(entry);
+  EXPECT_EQ(camera->Info().backend, "aravis");
+  EXPECT_EQ(camera->Info().serial, "FACT1");
+  entry.address = "127.0.0.3";  // nothing there
+  try {
+    OpenCamera(entry);
+    ADD_FAILURE() << "opened 127.0.0.3";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("dev.yaml: cameras[0]: aravis: device '127.0.0.3'"), std::string::npos)
+        << e.what();
+  }
+  entry.address.clear();  // none of address / id / serial
+  try {
+    OpenCamera(entry);
+    ADD_FAILURE() << "opened an entry without a device";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("dev.yaml: cameras[0]: aravis: device:"), std::string::npos) << e.what();
   }
 }
 

@@ -14,17 +14,25 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <map>
 #include <memory>
 #include <string>
 #include <vector>
 
+#include <fcntl.h>
+#include <unistd.h>
+
 #include <gtest/gtest.h>
 
+#include "apps/commands.h"
 #include "capture/aravis_camera.h"
 #include "capture/latency.h"
+#include "capture/sequencer.h"
 #include "capture/window_projector.h"
 #include "capture/x11_screen.h"
+#include "core/error.h"
 #include "core/image_set.h"
 #include "core/rig.h"
 #include "patterns/codec.h"
@@ -109,63 +117,36 @@ class SimulatedCameraOnScreen {
   cv::Rect rect_;
 };
 
-struct CaptureStats {
-  int patterns = 0;
-  int retries = 0;
-  double seconds = 0;
-  double show_s = 0, wait_s = 0, trigger_grab_s = 0, store_s = 0;  // summed over patterns
-  std::string Breakdown() const {
-    char line[200];
-    const double n = std::max(1, patterns);
-    std::snprintf(line, sizeof line, "per pattern: Show %.2f ms (vsync), latency wait %.2f ms, trigger+grab %.2f ms, store %.2f ms",
-                  1e3 * show_s / n, 1e3 * wait_s / n, 1e3 * trigger_grab_s / n, 1e3 * store_s / n);
-    return line;
-  }
-};
-
-// Stand-in for the sequencer (capture-seq's, not yet in this branch): for each pattern, Show,
-// wait the projector's latency, trigger every camera, grab, retry a bounded number of times on a
-// frame that did not arrive intact, store.
-CaptureStats CaptureSequence(Projector& projector, std::vector<std::unique_ptr<Camera>>& cameras,
-                             const std::vector<std::string>& names, ImageSetWriter& writer) {
-  CaptureStats stats;
-  const auto t0 = Clock::now();
-  for (int i = 0; i < projector.size(); ++i) {
-    for (int attempt = 0;; ++attempt) {
-      const auto t0 = Clock::now();
-      const auto shown = projector.Show(i);
-      std::this_thread::sleep_until(shown + projector.Latency());
-      const auto t1 = Clock::now();
-      for (auto& c : cameras) c->Trigger();
-      std::vector<Frame> frames;
-      for (auto& c : cameras) frames.push_back(c->Grab(milliseconds(3000)));
-      const auto t2 = Clock::now();
-      stats.show_s += std::chrono::duration<double>(shown - t0).count();
-      stats.wait_s += std::chrono::duration<double>(t1 - shown).count();
-      stats.trigger_grab_s += std::chrono::duration<double>(t2 - t1).count();
-      bool ok = true;
-      for (const Frame& f : frames) ok = ok && f.ok();
-      if (ok) {
-        for (size_t c = 0; c < cameras.size(); ++c) {
-          writer.Add(names[c], i, frames[c].image, frames[c].exposure_us, ImageSource::kDevice);
-        }
-        stats.store_s += std::chrono::duration<double>(Clock::now() - t2).count();
-        break;
-      }
-      if (attempt == 3) throw std::runtime_error("pattern " + std::to_string(i) + ": no intact frames after 4 attempts");
-      ++stats.retries;
-      for (auto& c : cameras) c->Flush();
-    }
-    ++stats.patterns;
-  }
-  stats.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
-  return stats;
+// Runs `slshadow ARGS...` in this process (the fake cameras live here) and returns its exit
+// status and what it printed on stdout.
+int RunSlshadow(std::vector<std::string> args, std::string* out) {
+  args.insert(args.begin(), "slshadow");
+  std::vector<char*> argv;
+  for (auto& a : args) argv.push_back(a.data());
+  std::fflush(stdout);
+  char path[] = "/tmp/slshadow-closed-loop-stdout-XXXXXX";
+  const int fd = mkstemp(path);
+  const int saved = dup(1);
+  dup2(fd, 1);
+  const int rc = app::Main(static_cast<int>(argv.size()), argv.data());
+  std::fflush(stdout);
+  dup2(saved, 1);
+  close(saved);
+  close(fd);
+  std::ifstream in(path);
+  *out = std::string(std::istreambuf_iterator<char>(in), {});
+  unlink(path);
+  std::printf("%s", out->c_str());
+  return rc;
 }
 
 // Everything of one closed-loop capture: scene, rig, patterns, the simulator's ImageSet (the
-// oracle), the X server and the projector window, and two fake cameras rendering the screen.
+// oracle), the X server, and two fake cameras rendering the screen. The projector window is opened
+// by the test (OpenWindow) or by the `slshadow` commands it runs (one window per process).
 class ClosedLoop : public ::testing::Test {
  protected:
+  static constexpr int kMonitorWidth = 640;  // the X screen: a "monitor", then the projector
+
   void SetUp() override {
     const std::string reason = testing::SkipReasonWithoutPrivateNetwork();
     if (!reason.empty()) GTEST_SKIP() << reason;
@@ -186,63 +167,101 @@ class ClosedLoop : public ::testing::Test {
     sim_options.writer.encoding = ImageEncoding::kPgm;
     SimulateScan(*scene_, rig_, patterns_, PatternSpecToJson(spec_), dir_ / "simulated", sim_options);
 
-    // One wide X screen: a 640-pixel wide "monitor" on the left, the projector right of it.
     const int pw = rig_.projector->model.width, ph = rig_.projector->model.height;
-    xvfb_ = std::make_unique<testing::XvfbServer>(640 + pw, std::max(480, ph));
-    WindowProjectorOptions wopt;
-    wopt.geometry = WindowGeometry{640, 0, pw, ph};
-    window_ = std::make_unique<WindowProjector>(wopt);
+    projector_rect_ = cv::Rect(kMonitorWidth, 0, pw, ph);
+    xvfb_ = std::make_unique<testing::XvfbServer>(kMonitorWidth + pw, std::max(480, ph));
 
     simulator_ = std::make_unique<Simulator>(*scene_, rig_, TraceMode::kPacket16, /*ground_truth=*/false);
-    const std::vector<std::string> addresses = {"127.0.0.2", "127.0.0.3"};
     for (int c = 0; c < 2; ++c) {
       const auto k = static_cast<size_t>(c);
-      devices_.push_back(std::make_unique<SimulatedCameraOnScreen>(*scene_, rig_, c, simulator_->geometry(c), addresses[k],
-                                                                   cv::Rect(640, 0, pw, ph)));
-      cameras_.push_back(OpenAravisCamera(AravisOpenOptions{.device = addresses[k]}));
+      devices_.push_back(std::make_unique<SimulatedCameraOnScreen>(*scene_, rig_, c, simulator_->geometry(c),
+                                                                   kAddresses[k], projector_rect_));
       CameraSettings s;
       s.trigger = TriggerMode::kSoftware;
       s.roi = Roi{0, 0, rig_.cameras[k].model.width, rig_.cameras[k].model.height};
-      cameras_.back()->Configure(s);
+      s.packet_size_bytes = 8192;  // loopback: per-packet costs dominate (docs/benchmarks.md)
+      settings_.push_back(s);
       names_.push_back(rig_.cameras[k].name);
     }
   }
 
-  // Captures the pattern sequence through `projector` into dir_/name and returns the ImageSet.
-  ImageSet Capture(Projector& projector, const std::string& name, CaptureStats* stats) {
-    projector.Load(patterns_);
-    ImageSetWriterOptions wo;
-    wo.encoding = ImageEncoding::kPgm;
-    ImageSetWriter writer(dir_ / name, rig_, PatternSpecToJson(spec_), wo);
-    for (auto& c : cameras_) c->Start();
-    *stats = CaptureSequence(projector, cameras_, names_, writer);
-    for (auto& c : cameras_) c->Stop();
-    writer.Commit();
-    std::printf("  %s\n", stats->Breakdown().c_str());
-    for (const auto& d : devices_) std::printf("  fake camera %s: %s\n", d->fake().serial().c_str(), d->FillReport().c_str());
-    std::printf("closed loop (%s): %d patterns x 2 cameras (%dx%d, projector %dx%d, %.0f Hz, latency %.1f ms) in %.3f s: "
-                "%.1f patterns/s, %d retries\n",
-                name.c_str(), stats->patterns, rig_.cameras[0].model.width, rig_.cameras[0].model.height,
-                rig_.projector->model.width, rig_.projector->model.height, projector.Info().refresh_hz,
-                projector.Latency().count() / 1000.0, stats->seconds, stats->patterns / stats->seconds, stats->retries);
-    return ImageSet::Open(dir_ / name);
+  void OpenWindow() {
+    WindowProjectorOptions wopt;
+    wopt.geometry = WindowGeometry{projector_rect_.x, projector_rect_.y, projector_rect_.width, projector_rect_.height};
+    window_ = std::make_unique<WindowProjector>(wopt);
+  }
+  void OpenCameras() {
+    for (size_t k = 0; k < 2; ++k) cameras_.push_back(OpenAravisCamera(AravisOpenOptions{.device = kAddresses[k]}));
   }
 
-  // Images of `captured` that differ from the simulated ones (camera, pattern).
-  int DifferingImages(const ImageSet& captured) {
+  // Captures the pattern sequence through `projector` with the sequencer into dir_/name.
+  CaptureSummary CaptureWith(Projector& projector, const std::string& name, int max_retries = 3, bool validate = true) {
+    std::vector<CaptureCamera> cams;
+    for (size_t k = 0; k < 2; ++k) cams.push_back({names_[k], cameras_[k].get(), settings_[k], milliseconds(3000)});
+    SequencerOptions options;
+    options.writer.encoding = ImageEncoding::kPgm;
+    options.writer.durable = false;
+    options.progress = false;
+    options.max_retries = max_retries;
+    options.validate = validate;
+    const CaptureSummary summary = Capture(rig_, spec_, cams, projector, dir_ / name, options);
+    std::printf("closed loop (%s): %d patterns x 2 cameras (%dx%d, projector %dx%d, %.0f Hz, latency %.1f ms): "
+                "%.1f ms per pattern, %.1f patterns/s\n%s\n",
+                name.c_str(), summary.patterns, rig_.cameras[0].model.width, rig_.cameras[0].model.height,
+                rig_.projector->model.width, rig_.projector->model.height, projector.Info().refresh_hz,
+                projector.Latency().count() / 1000.0, summary.mean_pattern_ms, 1000.0 / summary.mean_pattern_ms,
+                summary.BriefReport().c_str());
+    PrintFillCosts();
+    return summary;
+  }
+  void PrintFillCosts() const {
+    for (const auto& d : devices_) std::printf("  fake camera %s: %s\n", d->fake().serial().c_str(), d->FillReport().c_str());
+  }
+
+  // Images of the ImageSet at dir_/name that differ from the simulated ones.
+  int DifferingImages(const std::string& name) {
+    const ImageSet captured = ImageSet::Open(dir_ / name);
     const ImageSet simulated = ImageSet::Open(dir_ / "simulated");
     EXPECT_EQ(captured.PatternCount(), static_cast<int>(patterns_.size()));
     int differing = 0;
     for (const std::string& camera : names_) {
       for (int i = 0; i < captured.PatternCount(); ++i) {
         const cv::Mat a = captured.Load(camera, i), b = simulated.Load(camera, i);
-        differing += a.type() != b.type() || cv::norm(a, b, cv::NORM_INF) != 0;
+        if (a.type() == b.type() && cv::norm(a, b, cv::NORM_INF) == 0) continue;
+        ++differing;
+        // Which pattern the stored frame really shows (a stale frame shows an earlier one).
+        std::string shows = "no pattern of the sequence";
+        for (int j = 0; j < captured.PatternCount(); ++j) {
+          const cv::Mat c = simulated.Load(camera, j);
+          if (c.type() == a.type() && cv::norm(a, c, cv::NORM_INF) == 0) shows = "pattern " + std::to_string(j);
+        }
+        std::printf("  %s: %s pattern %d (%s) shows %s\n", name.c_str(), camera.c_str(), i,
+                    spec_.Frames()[static_cast<size_t>(i)].Name().c_str(), shows.c_str());
       }
     }
     return differing;
   }
 
+  // The reconstructions of dir_/name and of the simulation are the same clouds, in both modes.
+  void ExpectSameReconstructions(const std::string& name) {
+    const ImageSet captured = ImageSet::Open(dir_ / name);
+    const ImageSet simulated = ImageSet::Open(dir_ / "simulated");
+    for (ReconstructMode mode : {ReconstructMode::kProjector, ReconstructMode::kStereo}) {
+      ImageSetReconstructOptions ro;
+      ro.mode = mode;
+      const PointCloud a = ReconstructImageSet(captured, ro).cloud;
+      const PointCloud b = ReconstructImageSet(simulated, ro).cloud;
+      ASSERT_GT(a.size(), 1000u) << ToString(mode);
+      ASSERT_EQ(a.size(), b.size()) << ToString(mode);
+      size_t differing = 0;
+      for (size_t k = 0; k < a.size(); ++k) differing += a.points[k] != b.points[k];
+      EXPECT_EQ(differing, 0u) << ToString(mode);
+      std::printf("reconstruction (%s): %zu points, %zu differ\n", ToString(mode), a.size(), differing);
+    }
+  }
+
   LatencyMeasurement MeasureLatency(Projector& projector) {
+    cameras_[0]->Configure(settings_[0]);
     LatencyOptions lopt;
     lopt.repetitions = 2;
     lopt.max_latency = milliseconds(200);
@@ -251,62 +270,140 @@ class ClosedLoop : public ::testing::Test {
     return latency;
   }
 
+  void TearDown() override {
+    cameras_.clear();
+    window_.reset();
+    devices_.clear();
+    xvfb_.reset();
+  }
+
+  const std::vector<std::string> kAddresses = {"127.0.0.2", "127.0.0.3"};
   Rig rig_;
   std::unique_ptr<Scene> scene_;
   PatternSpec spec_;
   std::vector<cv::Mat> patterns_;
   fs::path dir_;
+  cv::Rect projector_rect_;
   std::unique_ptr<testing::XvfbServer> xvfb_;
-  std::unique_ptr<WindowProjector> window_;
   std::unique_ptr<Simulator> simulator_;
   std::vector<std::unique_ptr<SimulatedCameraOnScreen>> devices_;
-  std::vector<std::unique_ptr<Camera>> cameras_;  // destroyed before the fake cameras
+  std::vector<CameraSettings> settings_;
   std::vector<std::string> names_;
-
-  void TearDown() override {
-    cameras_.clear();
-    devices_.clear();
-    window_.reset();
-    xvfb_.reset();
-  }
+  std::unique_ptr<WindowProjector> window_;
+  std::vector<std::unique_ptr<Camera>> cameras_;
 };
 
-// Stereo capture with the measured latency: every image equals the simulation pixel for pixel,
-// and so do the reconstructions (projector mode and stereo mode).
+// The sequencer (capture::Capture) with the latency measured through the loop: every image equals
+// the simulation pixel for pixel, and so do the reconstructions (projector mode and stereo mode).
 TEST_F(ClosedLoop, CaptureThroughXAndGigEVisionEqualsSimulation) {
+  OpenWindow();
+  OpenCameras();
   window_->SetLatency(MeasureLatency(*window_).latency);
-  CaptureStats stats;
-  const ImageSet captured = Capture(*window_, "captured", &stats);
-  EXPECT_EQ(DifferingImages(captured), 0);
-  const ImageSet simulated = ImageSet::Open(dir_ / "simulated");
-  for (ReconstructMode mode : {ReconstructMode::kProjector, ReconstructMode::kStereo}) {
-    ImageSetReconstructOptions ro;
-    ro.mode = mode;
-    const PointCloud a = ReconstructImageSet(captured, ro).cloud;
-    const PointCloud b = ReconstructImageSet(simulated, ro).cloud;
-    ASSERT_GT(a.size(), 1000u) << ToString(mode);
-    ASSERT_EQ(a.size(), b.size()) << ToString(mode);
-    size_t differing = 0;
-    for (size_t k = 0; k < a.size(); ++k) differing += a.points[k] != b.points[k];
-    EXPECT_EQ(differing, 0u) << ToString(mode);
-    std::printf("reconstruction (%s): %zu points, %zu differ\n", ToString(mode), a.size(), differing);
+  const CaptureSummary summary = CaptureWith(*window_, "captured");
+  EXPECT_TRUE(summary.complete);
+  EXPECT_EQ(summary.images_stored, 2 * static_cast<int>(patterns_.size()));
+  EXPECT_EQ(DifferingImages("captured"), 0);
+  ExpectSameReconstructions("captured");
+}
+
+// What a user runs: `slshadow latency --devices D.yaml`, its latency_us into D.yaml, then
+// `slshadow capture --rig R.yaml --devices D.yaml --patterns P.json --out DIR`: the commands open
+// the Aravis cameras at 127.0.0.2/.3 and the window at its geometry from the devices file.
+TEST_F(ClosedLoop, SlshadowLatencyAndCaptureCommandsEqualSimulation) {
+  const fs::path rig_file = dir_ / "rig.yaml", patterns_file = dir_ / "patterns.json", devices_file = dir_ / "devices.yaml";
+  SaveRig(rig_, rig_file);
+  std::ofstream(patterns_file) << PatternSpecToJson(spec_).dump(2);
+  auto write_devices = [&](long long latency_us) {
+    std::ofstream out(devices_file);
+    out << "format: slshadow-devices\nversion: 1\ncameras:\n";
+    for (size_t k = 0; k < 2; ++k) {
+      out << "  - name: " << names_[k] << "\n    backend: aravis\n    address: " << kAddresses[k]
+          << "\n    settings: {pixel_format: Mono8, trigger: software, roi: [0, 0, " << rig_.cameras[k].model.width
+          << ", " << rig_.cameras[k].model.height << "], packet_size_bytes: 8192}\n    grab_timeout_ms: 3000\n";
+    }
+    out << "projector:\n  backend: window\n  display: \"" << projector_rect_.x << "," << projector_rect_.y << ","
+        << projector_rect_.width << "," << projector_rect_.height << "\"\n  latency_us: " << latency_us << "\n";
+  };
+  write_devices(0);
+  std::string out;
+  ASSERT_EQ(RunSlshadow({"latency", "--devices", devices_file.string(), "--repetitions", "2", "--max-ms", "200"}, &out), 0);
+  const size_t at = out.find("latency_us: ");
+  ASSERT_NE(at, std::string::npos) << out;
+  write_devices(std::stoll(out.substr(at + 12)));
+  ASSERT_EQ(RunSlshadow({"capture", "--rig", rig_file.string(), "--devices", devices_file.string(), "--patterns",
+                         patterns_file.string(), "--out", (dir_ / "cli").string(), "--encoding", "pgm", "--quiet"},
+                        &out),
+            0);
+  PrintFillCosts();
+  EXPECT_EQ(DifferingImages("cli"), 0);
+  ExpectSameReconstructions("cli");
+  // A devices file whose window does not fit on the screen: one clear error, nothing written.
+  std::string text;
+  {
+    std::ifstream in(devices_file);
+    text.assign(std::istreambuf_iterator<char>(in), {});
   }
+  text.replace(text.find("display: \"") + 10, std::to_string(projector_rect_.x).size(), "9000");
+  std::ofstream(devices_file) << text;
+  ::testing::internal::CaptureStderr();
+  EXPECT_NE(RunSlshadow({"capture", "--rig", rig_file.string(), "--devices", devices_file.string(), "--patterns",
+                         patterns_file.string(), "--out", (dir_ / "cli_bad").string(), "--quiet"},
+                        &out),
+            0);
+  const std::string error = ::testing::internal::GetCapturedStderr();
+  EXPECT_NE(error.find("devices.yaml: projector: window projector: geometry 9000,0,"), std::string::npos) << error;
+  EXPECT_FALSE(fs::exists(dir_ / "cli_bad"));
+  EXPECT_FALSE(fs::exists(dir_ / "cli_bad.partial"));
 }
 
 // The oracle sees the classic real-rig failure: a projector whose light comes 40 ms after Show
-// returns, driven with latency 0, gives frames of the previous pattern, and the images differ from
-// the simulation. The latency measured through the same loop is printed and positive: it is the
-// wait before the trigger, so the fake camera's own trigger delay (its 1 kHz polling, GVCP) comes
-// off the 40 ms, and only a trigger delay above 40 ms could make it 0.
-TEST_F(ClosedLoop, StaleFramesAreSeenAndTheLatencyIsMeasured) {
+// returns, driven with latency 0 and without the sequencer's frame validation, gives frames of
+// earlier patterns, and the images differ from the simulation. The latency measured through the
+// same loop is positive: it is the wait before the trigger, so the fake camera's own trigger delay
+// (1 kHz polling, GVCP) comes off the 40 ms, and only a trigger delay above 40 ms could make it 0.
+TEST_F(ClosedLoop, StaleFramesAreSeenByTheOracle) {
+  OpenWindow();
+  OpenCameras();
   testing::DelayedProjector slow(*window_, milliseconds(40));
   slow.SetLatency(std::chrono::microseconds(0));
-  CaptureStats stats;
-  const int stale = DifferingImages(Capture(slow, "latency_0", &stats));
-  std::printf("latency 0 with a 40 ms display: %d of %d images differ from the simulation\n", stale,
+  CaptureWith(slow, "unvalidated", 3, /*validate=*/false);
+  const int stale = DifferingImages("unvalidated");
+  std::printf("latency 0 with a 40 ms display, no validation: %d of %d images differ from the simulation\n", stale,
               2 * static_cast<int>(patterns_.size()));
   EXPECT_GT(stale, 0);
   EXPECT_GT(MeasureLatency(slow).latency.count(), 0);
+}
+
+// The classic real-rig failure, through the whole loop: a projector whose light comes 40 ms after
+// Show returns, driven with latency 0. The sequencer must never store a frame of the wrong
+// pattern: it either catches the stale frames and retakes them (then every image equals the
+// simulation) or stops with an error naming the pattern and the camera.
+//
+// DISABLED: it fails with the sequencer of 2026-11-24 (capture-seq 3463a3d): 92 retries and 180
+// refused frames, but 28 of 60 images stored under the wrong pattern, all Gray-code pairs: a
+// retaken pair stores each frame with its partner's image (bit and inverse are complementary, so
+// the pair check passes), and a pair can store the previous pair (gray_x_bit3 shows gray_x_bit4:
+// not "nearly equal to the previous frame", which was its inverse). Run it with
+//   build/tests/capture/capture_closed_loop_test --gtest_also_run_disabled_tests --gtest_filter=*Late*
+// and enable it when the sequencer passes.
+TEST_F(ClosedLoop, DISABLED_LateProjectorNeverStoresAWrongFrame) {
+  OpenWindow();
+  OpenCameras();
+  testing::DelayedProjector slow(*window_, milliseconds(40));
+  slow.SetLatency(std::chrono::microseconds(0));
+  try {
+    const CaptureSummary summary = CaptureWith(slow, "latency_0", /*max_retries=*/8);
+    int64_t stale = 0;
+    for (const auto& [camera, stats] : summary.cameras) stale += stats.stale + stats.not_complementary;
+    std::printf("latency 0 with a 40 ms display: %d retries, %lld frames refused as stale or not complementary\n",
+                summary.retries, static_cast<long long>(stale));
+    EXPECT_GT(summary.retries, 0);
+    EXPECT_EQ(DifferingImages("latency_0"), 0);
+  } catch (const Error& e) {
+    std::printf("latency 0 with a 40 ms display: stopped: %s\n", e.what());
+    EXPECT_NE(std::string(e.what()).find("pattern"), std::string::npos) << e.what();
+    EXPECT_FALSE(fs::exists(dir_ / "latency_0"));
+  }
 }
 
 }  // namespace

@@ -87,6 +87,10 @@ TEST(ReplayKamino, CapturedFilesAreTheRecordedPixelsAndReconstructAsTheOriginals
   const CameraCaptureStats& c = s.cameras.at("camera");
   EXPECT_EQ(c.stale + c.not_complementary + c.damaged + c.timeouts, 0);
   EXPECT_EQ(c.missing_frame_ids, 0);  // 65535 -> 1 is not a drop
+  // The 20 Gray pairs were judged against white and black (they come last here).
+  std::printf("kamino pose 0: lowest complementary share of a Gray pair %.4f\n", c.min_complementary_share);
+  EXPECT_EQ(c.pair_checks, 20);
+  EXPECT_GE(c.min_complementary_share, options.validation.min_complementary);
   const ImageSet replayed = ImageSet::Open(dir / "replayed");
   ASSERT_EQ(replayed.records().size(), originals.size());
   for (int k = 0; k < spec.NumImages(); ++k) {

@@ -151,11 +151,7 @@ TEST(Sequencer, LaggingProjectorIsCaughtAndRetriedGrayAndPhase) {
     SCOPED_TRACE(ToString(spec.kind));
     slshadow::testing::TempDir dir;
     Stereo rig;
-    // The sequencer assumes 0. Pattern 0 of a phase sequence has no predecessor and no reference
-    // to be judged by (Gray code: the frames after it judge it, see below), so it is on time here.
-    rig.projector.latency_for = [&](int index) {
-      return std::chrono::microseconds(index == 0 && spec.kind != PatternKind::kGrayCode ? 0 : 30000);
-    };
+    rig.projector.true_latency = std::chrono::milliseconds(30);  // the sequencer assumes 0
     const CaptureSummary s = Capture(StereoRig(), spec, rig.cameras, rig.projector, dir / "set", Options(rig.projector));
     EXPECT_TRUE(s.complete);
     ExpectEveryFrameOfItsPattern(dir / "set", rig, spec);
@@ -169,11 +165,10 @@ TEST(Sequencer, LaggingProjectorIsCaughtAndRetriedGrayAndPhase) {
 }
 
 TEST(Sequencer, StaleFramesAtEveryPatternAreCaughtWithNoise) {
-  // One stale trigger round per pattern, alone (lag only at pattern k): whichever pattern lags,
-  // nothing is stored under the wrong pattern.
-  const PatternSpec spec = GraySpec();
+  // One pattern at a time is late: whichever it is, nothing is stored under the wrong pattern.
+  for (const PatternSpec& spec : {GraySpec(), PhaseSpec()})
   for (int lagging = 0; lagging < spec.NumImages(); ++lagging) {
-    SCOPED_TRACE(::testing::Message() << "lagging pattern " << lagging);
+    SCOPED_TRACE(::testing::Message() << ToString(spec.kind) << ", lagging pattern " << lagging);
     slshadow::testing::TempDir dir;
     TestCameraOptions l, r = Stereo::Right();
     l.noise = r.noise = 2;
@@ -183,6 +178,25 @@ TEST(Sequencer, StaleFramesAtEveryPatternAreCaughtWithNoise) {
     };
     const CaptureSummary s = Capture(StereoRig(), spec, rig.cameras, rig.projector, dir / "set", Options(rig.projector));
     EXPECT_TRUE(s.complete);
+    ExpectEveryFrameOfItsPattern(dir / "set", rig, spec, 2);
+  }
+}
+
+TEST(Sequencer, StaleFramesAreCaughtWhenWhiteAndBlackComeLast) {
+  // OpenCV order: the references come last, so a stale frame after a coarse pattern change is
+  // only found when the pairs are judged against them at the end, and taken again.
+  PatternSpec spec = GraySpec();
+  spec.opencv_order = true;
+  for (int lagging = 0; lagging < spec.NumImages(); ++lagging) {
+    SCOPED_TRACE(::testing::Message() << "lagging pattern " << lagging);
+    slshadow::testing::TempDir dir;
+    TestCameraOptions l, r = Stereo::Right();
+    l.noise = r.noise = 2;
+    Stereo rig(l, r);
+    rig.projector.latency_for = [&](int index) { return std::chrono::microseconds(index == lagging ? 30000 : 0); };
+    const CaptureSummary s = Capture(StereoRig(), spec, rig.cameras, rig.projector, dir / "set", Options(rig.projector));
+    EXPECT_TRUE(s.complete);
+    EXPECT_GT(s.retries, 0);
     ExpectEveryFrameOfItsPattern(dir / "set", rig, spec, 2);
   }
 }

@@ -78,9 +78,15 @@ TEST_P(WindowProjectorScreen, EveryPatternShownEqualsTheScreen) {
   XScreenReader screen(xvfb.display());
   ASSERT_EQ(screen.width(), size.width);
 
+  XScreenReader plain(xvfb.display(), /*allow_shm=*/false);  // XGetImage, the other read-back path
+  EXPECT_TRUE(screen.uses_shm());
+  EXPECT_FALSE(plain.uses_shm());
   const std::vector<cv::Mat> patterns = TestPatterns(size.width, size.height);
   projector.Load(patterns);
   ASSERT_EQ(projector.size(), static_cast<int>(patterns.size()));
+  projector.Show(0);
+  EXPECT_EQ(DifferingPixels(plain.ReadBgr(RectOf(g)), patterns[0]), 0);
+  EXPECT_EQ(cv::norm(plain.ReadGrey(RectOf(g)), patterns[0], cv::NORM_INF), 0);
   // Forwards, then backwards (every change of image), then black.
   std::vector<int> order;
   for (int i = 0; i < projector.size(); ++i) order.push_back(i);
@@ -202,6 +208,8 @@ TEST(WindowProjector, WrongImagesAreRejectedAndTheSequenceKept) {
   EXPECT_THROW(projector.Show(static_cast<int>(patterns.size())), Error);
   EXPECT_THROW(projector.Show(-1), Error);
   EXPECT_THROW(projector.SetLatency(std::chrono::microseconds(-1)), Error);
+  EXPECT_THROW(screen.ReadBgr({300, 0, 64, 64}), Error);  // not inside the 320x200 screen
+  EXPECT_THROW(XScreenReader(":999"), Error);             // no such X server
 }
 
 TEST(WindowProjector, ClearErrorsWithoutADisplayOrWithABadPlace) {

@@ -1,0 +1,92 @@
+#include "shadow/physics_fit.h"
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "patterns/codec.h"
+#include "tests/testing/temp_dir.h"
+
+namespace slshadow::shadow {
+namespace {
+
+// Camera images of the demo spec (phase shift + complementary Gray code, no white / black frame)
+// of a flat scene whose pixel (x, y) sees projector column x with white level W and black level B:
+// I = B + (W - B) * pattern / 255.
+std::vector<cv::Mat> FlatImages(const PatternSpec& spec, float w, float b) {
+  const std::vector<cv::Mat> projector = GeneratePatterns(spec);
+  std::vector<cv::Mat> out;
+  for (const auto& p : projector) {
+    cv::Mat img(64, 256, CV_8UC1);
+    for (int y = 0; y < img.rows; ++y) {
+      for (int x = 0; x < img.cols; ++x) img.at<uint8_t>(y, x) = cv::saturate_cast<uint8_t>(b + (w - b) * p.at<uint8_t>(y, x) / 255.0f);
+    }
+    out.push_back(img);
+  }
+  return out;
+}
+
+PatternSpec DemoSpec() {
+  PatternSpec spec;
+  spec.kind = PatternKind::kPhaseShift;
+  spec.projector_width = 256;
+  spec.projector_height = 64;
+  spec.phase_steps = 4;
+  spec.period_px = 16;
+  spec.Check();
+  return spec;
+}
+
+// Without white and black frames the levels come from the inverse pairs: each pixel is lit in
+// one frame of a pair and dark in the other.
+TEST(PhysicsFit, WhiteBlackFromInversePairs) {
+  const PatternSpec spec = DemoSpec();
+  ASSERT_LT(spec.WhiteFrameIndex(), 0);
+  cv::Mat w, b;
+  WhiteBlackImages(spec, FlatImages(spec, 200, 20), &w, &b);
+  for (int y = 0; y < w.rows; y += 7) {
+    for (int x = 0; x < w.cols; ++x) {
+      ASSERT_FLOAT_EQ(w.at<float>(y, x), 200) << x;
+      ASSERT_FLOAT_EQ(b.at<float>(y, x), 20) << x;
+    }
+  }
+}
+
+// The normalised modulation of an ideal 4-step sinusoid is 0.5 (I = 0.5 + 0.5 cos), whatever the
+// order of the phase frames (two swapped give the same map).
+TEST(PhysicsFit, NormalisedModulationIsOrderFree) {
+  const PatternSpec spec = DemoSpec();
+  std::vector<cv::Mat> images = FlatImages(spec, 230, 10);
+  const cv::Mat m = NormalisedModulation(spec, images);
+  double sum = 0;
+  int n = 0;
+  for (int y = 0; y < m.rows; ++y) {
+    for (int x = 0; x < m.cols; ++x) sum += m.at<float>(y, x), ++n;
+  }
+  EXPECT_NEAR(sum / n, 0.5, 0.01);
+  const auto frames = spec.Frames();
+  int a = -1, b = -1;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    if (frames[i].role == FrameRole::kPhase && frames[i].axis == 0 && frames[i].step == 1) a = static_cast<int>(i);
+    if (frames[i].role == FrameRole::kPhase && frames[i].axis == 0 && frames[i].step == 2) b = static_cast<int>(i);
+  }
+  std::swap(images[static_cast<size_t>(a)], images[static_cast<size_t>(b)]);
+  const cv::Mat swapped = NormalisedModulation(spec, images);
+  EXPECT_EQ(cv::norm(m, swapped, cv::NORM_INF), 0.0);
+}
+
+TEST(PhysicsFit, OptionsCheckNamesTheField) {
+  PhysicsFitOptions o;
+  o.stride_px = 0;
+  try {
+    o.Check();
+    FAIL() << "no exception";
+  } catch (const std::exception& e) {
+    EXPECT_NE(std::string(e.what()).find("stride_px"), std::string::npos) << e.what();
+  }
+}
+
+}  // namespace
+}  // namespace slshadow::shadow
