@@ -13,6 +13,7 @@
 
 #include <gtest/gtest.h>
 
+#include "capture/factory.h"
 #include "core/error.h"
 #include "tests/testing/temp_dir.h"
 
@@ -190,6 +191,34 @@ TEST_F(V4l2CameraTest, SoftwareTriggerDropsFramesAlreadyDelivered) {
   ASSERT_TRUE(next.ok());
   EXPECT_EQ(next.frame_id, 3u);
   EXPECT_EQ(std::memcmp(next.image.data, frames[3].data(), frames[3].size()), 0);
+}
+
+// The devices.yaml example's v4l2 entries open through the factory (its node swapped for the shim's).
+TEST_F(V4l2CameraTest, FactoryOpensTheExampleEntry) {
+  const auto frames = Record("GREY", 16, 8, 1, 1);
+  DevicesConfig devices = LoadDevices(::slshadow::testing::SourceDir() / "config/devices/uvc_lightcrafter.yaml");
+  ASSERT_EQ(devices.cameras.size(), 2u);
+  EXPECT_EQ(devices.cameras[0].id, "/dev/video0");
+  EXPECT_EQ(devices.projector.backend, "lightcrafter");
+  CameraEntry entry = devices.cameras[0];
+  entry.id = kDevice;
+  auto camera = OpenCamera(entry);
+  EXPECT_EQ(camera->Info().backend, "v4l2");
+  camera->Configure(entry.settings);
+  EXPECT_EQ(camera->Settings().exposure_us, 10000.0);
+  camera->Start();
+  const Frame f = camera->Grab(1000ms);
+  ASSERT_TRUE(f.ok()) << f.message;
+  EXPECT_EQ(std::memcmp(f.image.data, frames[0].data(), frames[0].size()), 0);
+  entry.id = "/dev/video-none-such";
+  try {
+    OpenCamera(entry);
+    FAIL() << "no error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("uvc_lightcrafter.yaml: cameras[0]: /dev/video-none-such: cannot open"),
+              std::string::npos)
+        << e.what();
+  }
 }
 
 // Frames per second through the shim (printed for docs/benchmarks.md; asserted only for
