@@ -7,7 +7,9 @@
 #include <sys/mman.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
+#include <filesystem>
 #include <cmath>
 #include <cstring>
 #include <thread>
@@ -32,6 +34,22 @@ int Xioctl(int fd, unsigned long request, void* arg) {
 }
 
 }  // namespace
+
+std::vector<std::string> ListV4l2Nodes(const std::string& dir) {
+  std::vector<std::pair<int, std::string>> found;
+  std::error_code ec;
+  for (const auto& e : std::filesystem::directory_iterator(dir, ec)) {
+    const std::string name = e.path().filename().string();
+    if (name.size() <= 5 || name.compare(0, 5, "video") != 0) continue;
+    const std::string digits = name.substr(5);
+    if (digits.size() > 6 || !std::all_of(digits.begin(), digits.end(), [](char c) { return c >= '0' && c <= '9'; })) continue;
+    found.emplace_back(std::stoi(digits), e.path().string());
+  }
+  std::sort(found.begin(), found.end());
+  std::vector<std::string> out;
+  for (auto& f : found) out.push_back(f.second);
+  return out;
+}
 
 void V4l2CameraOptions::Check() const {
   SLSHADOW_THROW_IF(buffers < 2 || buffers > 32, "v4l2 camera: buffers: must be 2..32 (got ", buffers, ")");

@@ -10,10 +10,14 @@
 
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "capture/camera.h"
 
 namespace slshadow::capture {
+
+// The V4L2 nodes `dir`/videoN, sorted by N (capture nodes and others: open one to tell).
+std::vector<std::string> ListV4l2Nodes(const std::string& dir = "/dev");
 
 struct V4l2CameraOptions {
   int buffers = 4;  // mmap buffers requested, 2..32

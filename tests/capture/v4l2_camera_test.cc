@@ -221,6 +221,14 @@ TEST_F(V4l2CameraTest, FactoryOpensTheExampleEntry) {
   }
 }
 
+TEST(V4l2Nodes, ListsVideoNodesInNumericOrder) {
+  ::slshadow::testing::TempDir dir;
+  for (const char* name : {"video10", "video2", "video", "videoX", "media0", "video0"}) std::ofstream(dir / name) << "";
+  EXPECT_EQ(ListV4l2Nodes(dir.path().string()),
+            (std::vector<std::string>{(dir / "video0").string(), (dir / "video2").string(), (dir / "video10").string()}));
+  EXPECT_TRUE(ListV4l2Nodes((dir / "missing").string()).empty());
+}
+
 // Frames per second through the shim (printed for docs/benchmarks.md; asserted only for
 // correctness).
 TEST_F(V4l2CameraTest, Throughput) {
