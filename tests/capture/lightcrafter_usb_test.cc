@@ -22,6 +22,7 @@
 
 #include "core/error.h"
 #include "tests/capture/dlpc350_emulator.h"
+#include "tests/testing/run_cli.h"
 
 namespace slshadow::capture {
 namespace {
@@ -272,6 +273,37 @@ TEST_F(LightCrafterUsb, VersionNackTimeoutAndUnplug) {
             std::string::npos);
   EXPECT_NE(ErrorOf([&] { OpenLightCrafterUsb("3:9"); }).find("no LightCrafter 4500 (USB 0451:6401) at 3:9 (found: 1:2)"),
             std::string::npos);
+}
+
+// `slshadow projector info|mode|validate` against the emulated device, in-process.
+TEST_F(LightCrafterUsb, ProjectorCommand) {
+  auto run = [](std::vector<std::string> args, std::string* out, std::string* err) {
+    ::testing::internal::CaptureStdout();
+    ::testing::internal::CaptureStderr();
+    const int code = ::slshadow::testing::RunCli(std::move(args));
+    std::fflush(stdout);
+    *out = ::testing::internal::GetCapturedStdout();
+    *err = ::testing::internal::GetCapturedStderr();
+    return code;
+  };
+  std::string out, err;
+  emulator_->With([](testing::Dlpc350Emulator& d) { d.version = {2, 0, 1, 3, 0, 0, 0, 2, 0, 0, 0, 1, 0, 0, 0, 1}; });
+  ASSERT_EQ(run({"projector", "info"}, &out, &err), 0) << err;
+  EXPECT_NE(out.find("LightCrafter 4500 on USB 1:2\nfirmware: application 3.1.2, API 2.0.0"), std::string::npos) << out;
+  EXPECT_NE(out.find("display mode: video"), std::string::npos) << out;
+  ASSERT_EQ(run({"projector", "--usb", "1:2", "mode", "pattern"}, &out, &err), 0) << err;
+  EXPECT_NE(out.find("display mode pattern"), std::string::npos) << out;
+  EXPECT_EQ(emulator_->With([](testing::Dlpc350Emulator& d) { return int(d.display_mode); }), 1);
+  emulator_->With([](testing::Dlpc350Emulator& d) {
+    d.busy_polls = 2;
+    d.validation_status = 0x12;
+  });
+  EXPECT_EQ(run({"projector", "validate"}, &out, &err), 1);
+  EXPECT_NE(out.find("validation status 0x12: INVALID"), std::string::npos) << out;
+  EXPECT_NE(out.find("error   bit 1: pattern numbers invalid"), std::string::npos) << out;
+  EXPECT_NE(out.find("error   bit 4: frame period - exposure below 230 us"), std::string::npos) << out;
+  EXPECT_NE(run({"projector", "--usb", "2:5", "info"}, &out, &err), 0);
+  EXPECT_NE(err.find("no LightCrafter 4500 (USB 0451:6401) at 2:5 (found: 1:2)"), std::string::npos) << err;
 }
 
 // Round trips through libusb and usbdevfs (printed for docs/benchmarks.md; asserted only for
