@@ -135,6 +135,36 @@ void PatternSequence::Check() const {
                     " or be at most frame_period_us - 230");
 }
 
+PatternSequence SequenceFor(int patterns, int bit_depth, EntryTrigger trigger, uint32_t exposure_us,
+                            uint32_t frame_period_us) {
+  SLSHADOW_THROW_IF(bit_depth < 1 || bit_depth > 8, "pattern sequence: bit depth must be 1..8 (got ", bit_depth, ")");
+  const int per_image = 24 / bit_depth;
+  SLSHADOW_THROW_IF(patterns < 1 || patterns > 128, "pattern sequence: ", patterns,
+                    " patterns do not fit the device's 128-entry pattern LUT");
+  const int images = (patterns + per_image - 1) / per_image;
+  SLSHADOW_THROW_IF(images > 64, "pattern sequence: ", patterns, " patterns of ", bit_depth, " bits need ", images,
+                    " images, more than the 64-entry image LUT");
+  PatternSequence s;
+  s.source = PatternSource::kFlash;
+  s.trigger_mode = PatternTriggerMode::kInternalOrExternal;
+  s.exposure_us = exposure_us;
+  s.frame_period_us = frame_period_us;
+  s.patterns_per_trig_out2 = patterns;
+  for (int i = 0; i < images; ++i) s.images.push_back(static_cast<uint8_t>(i));
+  for (int i = 0; i < patterns; ++i) {
+    PatternEntry e;
+    e.trigger = trigger;
+    e.pattern_number = i % per_image;
+    e.bit_depth = bit_depth;
+    e.leds = kLedWhite;
+    e.insert_black = bit_depth == 1;
+    e.buffer_swap = i > 0 && i % per_image == 0;
+    s.entries.push_back(e);
+  }
+  s.Check();
+  return s;
+}
+
 uint8_t EncodeTrigDelay(double delay_us, const std::string& what) {
   const long steps = std::lround(delay_us / kTrigDelayStepUs);
   const long code = kTrigDelayZero + steps;

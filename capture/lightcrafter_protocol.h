@@ -106,6 +106,15 @@ struct PatternSequence {
   void Check() const;                 // throws slshadow::Error naming the field
 };
 
+// The sequence that shows `patterns` patterns of `bit_depth` bits from flash images packed
+// 24 / bit_depth to a 24-bit image (pattern i: image i / per_image, pattern number i % per_image,
+// a buffer swap on the first entry of every image after the first), white LEDs, each entry
+// started by `trigger` (internal: the device's own period; external: TRIG_IN), TRIG_OUT2 once
+// per sequence, with black inserted after 1-bit patterns as TI recommends between binary frames.
+// Throws slshadow::Error for a count or depth the device cannot hold.
+PatternSequence SequenceFor(int patterns, int bit_depth, EntryTrigger trigger, uint32_t exposure_us,
+                            uint32_t frame_period_us);
+
 struct TrigOut {
   bool invert = false;          // false: active high
   double rising_delay_us = 0;   // -20.05 .. +2.787 us in steps of 107.2 ns

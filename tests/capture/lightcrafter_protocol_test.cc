@@ -265,5 +265,35 @@ TEST_F(Fixture, ProgramRunsTheSetUpOrderAndReportsValidationErrors) {
   EXPECT_EQ(EncodeTrigDelay(-20.05, "x"), 0);
 }
 
+TEST_F(Fixture, SequenceForPacksPatternsIntoImagesAndProgramsThem) {
+  // 10 patterns of 8 bits: 3 per image, 4 images; buffer swaps at 3, 6, 9.
+  const PatternSequence s = SequenceFor(10, 8, EntryTrigger::kExternalRising, 16667, 16667);
+  ASSERT_EQ(s.entries.size(), 10u);
+  EXPECT_EQ(s.images, (std::vector<uint8_t>{0, 1, 2, 3}));
+  for (int i = 0; i < 10; ++i) {
+    EXPECT_EQ(s.entries[i].pattern_number, i % 3);
+    EXPECT_EQ(s.entries[i].buffer_swap, i == 3 || i == 6 || i == 9) << i;
+    EXPECT_FALSE(s.entries[i].insert_black);
+  }
+  client.Program(s);
+  // Pattern configuration: 10 entries, repeat, TRIG_OUT2 every 10, 4 images.
+  EXPECT_EQ(ToHex(device.log[3].reports[0]), ToHex(R("40 04 06 00 31 1A 09 01 09 03")));
+  // Image LUT on the wire: first two swapped.
+  EXPECT_EQ(device.image_lut, (std::vector<uint8_t>{1, 0, 2, 3}));
+  // Entry 3: external rising (1), pattern 0, depth 8, white, buffer swap: 1 | 8<<8 | 7<<12 | 1<<18 = 0x047801.
+  ASSERT_EQ(device.pattern_lut.size(), 30u);
+  EXPECT_EQ(device.pattern_lut[9] | device.pattern_lut[10] << 8 | device.pattern_lut[11] << 16, 0x047801);
+  // 1-bit: 24 per image, black inserted; 40 patterns -> 2 images.
+  const PatternSequence b = SequenceFor(40, 1, EntryTrigger::kInternal, 8000, 8333);
+  EXPECT_EQ(b.images.size(), 2u);
+  EXPECT_TRUE(b.entries[24].buffer_swap);
+  EXPECT_EQ(b.entries[24].pattern_number, 0);
+  EXPECT_TRUE(b.entries[0].insert_black);
+  EXPECT_NE(ErrorOf([] { SequenceFor(129, 1, EntryTrigger::kInternal, 8000, 8333); }).find("128-entry pattern LUT"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([] { SequenceFor(10, 8, EntryTrigger::kInternal, 8000, 8100); }).find("frame_period_us - 230"),
+            std::string::npos);
+}
+
 }  // namespace
 }  // namespace slshadow::capture::dlpc350
