@@ -204,6 +204,11 @@ std::vector<uint8_t> Client::Transact(uint8_t flags, uint16_t command, std::span
   if (!read) next_seq_ = static_cast<uint8_t>(next_seq_ == 255 ? 1 : next_seq_ + 1);
   const auto reports = EncodeRequest(flags, seq, command, data);
   ++requests_;
+  if (drain_) {  // a late reply to a timed-out request must not be taken for this one's
+    Report stale{};
+    while (transport_.Read(&stale, options_.drain_timeout)) ++stale_reports_;
+    drain_ = false;
+  }
   for (size_t i = 0; i < reports.size(); ++i) {
     if (!transport_.Write(reports[i], options_.timeout)) {
       Fail(command, data, "the device did not accept report " + std::to_string(i + 1) + " of " +
@@ -214,6 +219,7 @@ std::vector<uint8_t> Client::Transact(uint8_t flags, uint16_t command, std::span
   if (!(flags & kFlagReply)) return {};
   Report report{};
   if (!transport_.Read(&report, options_.timeout)) {
+    drain_ = true;
     Fail(command, data, std::string("no ") + (read ? "reply" : "acknowledgement") + " within " +
                             std::to_string(options_.timeout.count()) + " ms");
   }
@@ -232,6 +238,7 @@ std::vector<uint8_t> Client::Transact(uint8_t flags, uint16_t command, std::span
   std::vector<uint8_t> payload(report.begin() + kHeader, report.begin() + kHeader + std::min(len, kFirstPayload));
   while (payload.size() < len) {
     if (!transport_.Read(&report, options_.timeout)) {
+      drain_ = true;
       Fail(command, data, "reply cut short: " + std::to_string(payload.size()) + " of " + std::to_string(len) +
                               " bytes arrived within " + std::to_string(options_.timeout.count()) + " ms");
     }

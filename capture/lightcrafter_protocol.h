@@ -141,6 +141,7 @@ struct ClientOptions {
   std::chrono::milliseconds timeout{1000};          // per report, write and read
   std::chrono::milliseconds validate_poll{10};      // between busy polls
   std::chrono::milliseconds validate_timeout{5000}; // busy longer than this is an error
+  std::chrono::milliseconds drain_timeout{20};      // after a timeout: wait this long for late replies
 };
 
 // The DLPC350 command set over a Transport. Not thread-safe.
@@ -171,6 +172,8 @@ class Client {
   Validation Program(const PatternSequence& sequence);
 
   uint64_t requests() const { return requests_; }
+  // Reports thrown away because they arrived after their request had timed out.
+  uint64_t stale_reports() const { return stale_reports_; }
 
  private:
   std::vector<uint8_t> Transact(uint8_t flags, uint16_t command, std::span<const uint8_t> data);
@@ -180,6 +183,8 @@ class Client {
   ClientOptions options_;
   uint8_t next_seq_ = 1;
   uint64_t requests_ = 0;
+  uint64_t stale_reports_ = 0;
+  bool drain_ = false;  // a reply timed out: its late report may still come; drop it first
 };
 
 }  // namespace slshadow::capture::dlpc350

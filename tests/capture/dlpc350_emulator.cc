@@ -43,14 +43,20 @@ void Dlpc350Emulator::Reply(const Request& request, uint8_t flags, const std::ve
   r[3] = static_cast<uint8_t>(data.size() >> 8);
   size_t at = std::min<size_t>(data.size(), 60);
   std::copy(data.begin(), data.begin() + static_cast<long>(at), r.begin() + 4);
-  replies_.push_back(r);
+  auto& queue = hold ? held_ : replies_;
+  queue.push_back(r);
   while (at < data.size()) {
     Report next{};
     const size_t n = std::min(data.size() - at, dlpc350::kReportSize);
     std::copy(data.begin() + static_cast<long>(at), data.begin() + static_cast<long>(at + n), next.begin());
-    replies_.push_back(next);
+    queue.push_back(next);
     at += n;
   }
+}
+
+void Dlpc350Emulator::ReleaseHeld() {
+  replies_.insert(replies_.end(), held_.begin(), held_.end());
+  held_.clear();
 }
 
 void Dlpc350Emulator::Handle(const Request& q) {

@@ -39,6 +39,8 @@ class Dlpc350Emulator {
   uint16_t nack_command = 0;      // NACK every request of this command
   bool wrong_seq = false;         // echo seq + 1
   bool silent = false;            // queue no replies (a timeout)
+  bool hold = false;              // keep replies back until ReleaseHeld() (a late device)
+  void ReleaseHeld();
   int busy_polls = 0;             // validate reads report busy this many times
   uint8_t validation_status = 0;  // the final validation bits
 
@@ -48,7 +50,7 @@ class Dlpc350Emulator {
   std::vector<uint8_t> pending_;  // bytes of a multi-report request
   Request partial_;
   size_t expected_ = 0;
-  std::deque<dlpc350::Report> replies_;
+  std::deque<dlpc350::Report> replies_, held_;
 };
 
 // The Transport a test hands to dlpc350::Client: writes go to the emulator, reads pop its replies.

@@ -218,6 +218,27 @@ TEST_F(Fixture, TimeoutAndADeviceThatTakesNothing) {
       << e;
 }
 
+TEST_F(Fixture, ALateReplyIsNotTakenForTheNextRequests) {
+  // A read times out; its reply (display mode 1) arrives afterwards. Without draining, the next
+  // read of the sequence state would take it (reads all carry seq 0) and report 1 = pause.
+  device.display_mode = 1;
+  device.hold = true;
+  EXPECT_NE(ErrorOf([&] { client.GetDisplayMode(); }).find("no reply within 50 ms"), std::string::npos);
+  device.hold = false;
+  device.ReleaseHeld();
+  device.sequence_control = 2;
+  EXPECT_EQ(client.Read(kSequenceControl), (std::vector<uint8_t>{2}));
+  EXPECT_EQ(client.stale_reports(), 1u);
+  // A long late reply (two reports) is dropped whole.
+  device.version.assign(100, 7);
+  device.hold = true;
+  EXPECT_NE(ErrorOf([&] { client.GetVersion(); }).find("no reply within 50 ms"), std::string::npos);
+  device.hold = false;
+  device.ReleaseHeld();
+  client.SetDisplayMode(DisplayMode::kVideo);
+  EXPECT_EQ(client.stale_reports(), 3u);
+}
+
 TEST_F(Fixture, ValidatePollsUntilDoneAndNamesEveryBit) {
   device.busy_polls = 3;
   device.validation_status = 0x0C;
