@@ -98,6 +98,35 @@ TEST_F(V4l2CameraTest, GreyFramesAreBitExactThenTheDeviceStops) {
   EXPECT_EQ(camera.Grab(10ms).status, FrameStatus::kAborted);
 }
 
+TEST_F(V4l2CameraTest, DamagedFramesAreReportedAndTheStreamGoesOn) {
+  const auto frames = Record("GREY", 16, 8, 1, 5);
+  setenv("V4L2_SHIM_ERROR_FRAME", "1", 1);
+  setenv("V4L2_SHIM_SHORT_FRAME", "3", 1);
+  V4l2Camera camera(kDevice, V4l2CameraOptions{2});
+  camera.Configure(CameraSettings{});
+  camera.Start();
+  std::vector<FrameStatus> statuses;
+  for (int i = 0; i < 5; ++i) {
+    const Frame f = camera.Grab(1000ms);
+    statuses.push_back(f.status);
+    if (f.ok()) {
+      EXPECT_EQ(std::memcmp(f.image.data, frames[i].data(), frames[i].size()), 0) << i;
+    }
+    if (i == 1) {
+      EXPECT_NE(f.message.find("flagged frame 1 as damaged"), std::string::npos) << f.message;
+    }
+    if (i == 3) {
+      EXPECT_NE(f.message.find("frame of 64 bytes, expected 128"), std::string::npos) << f.message;
+    }
+  }
+  unsetenv("V4L2_SHIM_ERROR_FRAME");
+  unsetenv("V4L2_SHIM_SHORT_FRAME");
+  EXPECT_EQ(statuses, (std::vector<FrameStatus>{FrameStatus::kOk, FrameStatus::kOtherError, FrameStatus::kOk,
+                                                FrameStatus::kSizeMismatch, FrameStatus::kOk}));
+  EXPECT_EQ(camera.Statistics().failed_frames, 2u);
+  EXPECT_EQ(camera.Statistics().completed_frames, 3u);
+}
+
 TEST_F(V4l2CameraTest, Y16IsLittleEndianSixteenBit) {
   const auto frames = Record("Y16", 32, 24, 2, 3);
   V4l2Camera camera(kDevice);

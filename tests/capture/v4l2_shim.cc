@@ -11,6 +11,8 @@
 //   V4L2_SHIM_FRAMES   a file of raw frames back to back in that format; served once, in order,
 //                      after which DQBUF says EAGAIN for ever (a device that stopped delivering)
 //   V4L2_SHIM_CONTROLS "exposure,gain" (default): the controls the device has
+//   V4L2_SHIM_ERROR_FRAME, V4L2_SHIM_SHORT_FRAME: the sequence number of one frame delivered with
+//                      V4L2_BUF_FLAG_ERROR, resp. with half its bytes
 #include <dlfcn.h>
 #include <fcntl.h>
 #include <linux/videodev2.h>
@@ -41,6 +43,7 @@ struct Device {
   bool has_exposure = true, has_gain = true;
   int32_t exposure_auto = V4L2_EXPOSURE_APERTURE_PRIORITY, exposure = 100, gain = 0;
   uint32_t fps = 30;
+  int64_t error_frame = -1, short_frame = -1;
   uint32_t sizeimage() const { return width * height * bpp; }
   // Buffer offsets are page-aligned, as a driver's are (mmap needs it).
   uint32_t stride() const { return (sizeimage() + 4095u) / 4096u * 4096u; }
@@ -79,6 +82,8 @@ int OpenShim() {
   const std::string controls = Env("V4L2_SHIM_CONTROLS", "exposure,gain");
   g_dev.has_exposure = controls.find("exposure") != std::string::npos;
   g_dev.has_gain = controls.find("gain") != std::string::npos;
+  g_dev.error_frame = std::atoll(Env("V4L2_SHIM_ERROR_FRAME", "-1"));
+  g_dev.short_frame = std::atoll(Env("V4L2_SHIM_SHORT_FRAME", "-1"));
   const char* frames = std::getenv("V4L2_SHIM_FRAMES");
   if (frames) g_dev.frames = std::fopen(frames, "rb");
   g_dev.fd = memfd_create("v4l2-shim", 0);
@@ -181,6 +186,8 @@ int ShimIoctl(unsigned long request, void* arg) {
       b->length = g_dev.sizeimage();
       b->sequence = g_dev.sequence++;
       b->flags = V4L2_BUF_FLAG_MAPPED | V4L2_BUF_FLAG_DONE | V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC;
+      if (int64_t(b->sequence) == g_dev.error_frame) b->flags |= V4L2_BUF_FLAG_ERROR;
+      if (int64_t(b->sequence) == g_dev.short_frame) b->bytesused /= 2;
       b->field = V4L2_FIELD_NONE;
       b->timestamp.tv_sec = 1000 + b->sequence / g_dev.fps;
       b->timestamp.tv_usec = static_cast<long>((b->sequence % g_dev.fps) * (1000000 / g_dev.fps));
