@@ -7,6 +7,8 @@
 
 #include "apps/commands.h"
 #include "capture/aravis_camera.h"
+#include "capture/lightcrafter_usb.h"
+#include "capture/v4l2_camera.h"
 #include "capture/window_projector.h"
 #include "core/error.h"
 
@@ -69,6 +71,22 @@ int RunDevices(int argc, char** argv) {
     }
     if (!discover) {
       std::printf("(GigE Vision cameras: --address IP opens one; --discover broadcasts to find them)\n");
+    }
+    // UVC cameras (V4L2 nodes; metadata nodes say why they cannot capture) and LightCrafters on USB.
+    for (const auto& node : capture::ListV4l2Nodes()) {
+      try {
+        PrintCamera(capture::V4l2Camera(node).Info(), "V4L2", node);
+      } catch (const Error& e) {
+        std::printf("camera  %-10s %-16s (cannot capture: %s)\n", "V4L2", node.c_str(), e.what());
+      }
+    }
+    try {
+      for (const auto& usb : capture::ListLightCrafters()) {
+        std::printf("projector LightCrafter 4500 on USB %s (devices.yaml projector: backend lightcrafter; "
+                    "`slshadow projector info`)\n", usb.c_str());
+      }
+    } catch (const Error& e) {
+      std::printf("(USB projectors: cannot list: %s)\n", e.what());
     }
   }
   // Displays (HDMI projector windows): listed here by the window projector backend.

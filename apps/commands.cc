@@ -27,6 +27,7 @@ const std::vector<Command>& Commands() {
       {"latency", "projector-to-camera latency to wait after each pattern (latency --devices DEVICES.yaml), or the window's present latency", RunLatency},
       {"capture", "real capture: projector + cameras from a devices file into a resumable ImageSet (capture --rig --devices --patterns --out)", RunCapture},
       {"devices", "list cameras and displays to capture with (devices [--address IP]... [--discover]: discovery broadcasts)", RunDevices},
+      {"projector", "a DLP LightCrafter 4500 over USB: firmware and mode, switch video/pattern mode, validate (projector info|mode|validate)", RunProjector},
   };
   return commands;
 }

@@ -1,8 +1,10 @@
 #include "capture/factory.h"
 
 #include "capture/aravis_camera.h"
+#include "capture/lightcrafter_projector.h"
 #include "capture/none_projector.h"
 #include "capture/replay_camera.h"
+#include "capture/v4l2_camera.h"
 #include "capture/window_projector.h"
 #include "core/error.h"
 
@@ -16,8 +18,8 @@ namespace {
 
 }  // namespace
 
-std::vector<std::string> BuiltInCameraBackends() { return {"replay", "aravis"}; }
-std::vector<std::string> BuiltInProjectorBackends() { return {"none", "window"}; }
+std::vector<std::string> BuiltInCameraBackends() { return {"replay", "aravis", "v4l2"}; }
+std::vector<std::string> BuiltInProjectorBackends() { return {"none", "window", "lightcrafter"}; }
 
 // window: `display` is an SDL display index ("1") or a geometry on the X screen ("x,y,w,h").
 static WindowProjectorOptions WindowOptionsOf(const ProjectorEntry& entry) {
@@ -59,6 +61,13 @@ std::unique_ptr<Camera> OpenCamera(const CameraEntry& entry) {
       SLSHADOW_THROW(entry.where, ": ", e.what());
     }
   }
+  if (entry.backend == "v4l2") {  // id: the device node, default /dev/video0
+    try {
+      return std::make_unique<V4l2Camera>(entry.id.empty() ? "/dev/video0" : entry.id);
+    } catch (const Error& e) {
+      SLSHADOW_THROW(entry.where, ": ", e.what());
+    }
+  }
   if (entry.backend == "sim") {
     NotBuilt(entry.where, entry.backend, "a simulator camera is built by the workflow layer, not by capture/");
   }
@@ -76,6 +85,11 @@ std::unique_ptr<Projector> OpenProjector(const ProjectorEntry& entry) {
     } catch (const Error& e) {
       SLSHADOW_THROW(entry.where, ": ", e.what());
     }
+  }
+  if (entry.backend == "lightcrafter") {  // video mode; the HDMI output is a window on `display`
+    ProjectorEntry hdmi = entry;
+    hdmi.backend = "window";
+    return OpenLightCrafterProjector(entry, OpenProjector(hdmi));
   }
   NotBuilt(entry.where, entry.backend, "no projector backend of this name");
 }

@@ -1,0 +1,116 @@
+#include "tests/capture/dlpc350_emulator.h"
+
+#include <algorithm>
+
+namespace slshadow::capture::testing {
+using dlpc350::Report;
+
+void Dlpc350Emulator::Receive(const Report& report) {
+  if (expected_ == 0) {
+    partial_ = Request{};
+    partial_.flags = report[0];
+    partial_.seq = report[1];
+    expected_ = report[2] | size_t(report[3]) << 8;
+    pending_.assign(report.begin() + 4, report.begin() + 4 + std::min<size_t>(expected_, 60));
+  } else {
+    const size_t n = std::min(expected_ - pending_.size(), dlpc350::kReportSize);
+    pending_.insert(pending_.end(), report.begin(), report.begin() + static_cast<long>(n));
+  }
+  partial_.reports.push_back(report);
+  if (pending_.size() < expected_) return;
+  expected_ = 0;
+  if (pending_.size() >= 2) {
+    partial_.command = static_cast<uint16_t>(pending_[0] | pending_[1] << 8);
+    partial_.data.assign(pending_.begin() + 2, pending_.end());
+  }
+  log.push_back(partial_);
+  Handle(partial_);
+}
+
+bool Dlpc350Emulator::PopReply(Report* report) {
+  if (replies_.empty()) return false;
+  *report = replies_.front();
+  replies_.pop_front();
+  return true;
+}
+
+void Dlpc350Emulator::Reply(const Request& request, uint8_t flags, const std::vector<uint8_t>& data) {
+  if (silent || !(request.flags & dlpc350::kFlagReply)) return;
+  Report r{};
+  r[0] = flags;
+  r[1] = static_cast<uint8_t>(wrong_seq ? request.seq + 1 : request.seq);
+  r[2] = static_cast<uint8_t>(data.size() & 0xFF);
+  r[3] = static_cast<uint8_t>(data.size() >> 8);
+  size_t at = std::min<size_t>(data.size(), 60);
+  std::copy(data.begin(), data.begin() + static_cast<long>(at), r.begin() + 4);
+  auto& queue = hold ? held_ : replies_;
+  queue.push_back(r);
+  while (at < data.size()) {
+    Report next{};
+    const size_t n = std::min(data.size() - at, dlpc350::kReportSize);
+    std::copy(data.begin() + static_cast<long>(at), data.begin() + static_cast<long>(at + n), next.begin());
+    queue.push_back(next);
+    at += n;
+  }
+}
+
+void Dlpc350Emulator::ReleaseHeld() {
+  replies_.insert(replies_.end(), held_.begin(), held_.end());
+  held_.clear();
+}
+
+void Dlpc350Emulator::Handle(const Request& q) {
+  const bool read = q.flags & dlpc350::kFlagRead;
+  if (q.command == nack_command) return Reply(q, static_cast<uint8_t>(q.flags | dlpc350::kFlagNack), {});
+  auto need = [&](size_t n) { return q.data.size() == n; };
+  using namespace dlpc350;
+  if (read) {
+    switch (q.command) {
+      case kDisplayMode: return Reply(q, q.flags, {display_mode});
+      case kSequenceControl: return Reply(q, q.flags, {sequence_control});
+      case kVersion: return Reply(q, q.flags, version);
+      case kValidate:
+        if (busy_polls > 0) {
+          --busy_polls;
+          return Reply(q, q.flags, {0x80});
+        }
+        return Reply(q, q.flags, {validation_status});
+      default: return Reply(q, static_cast<uint8_t>(q.flags | kFlagNack), {});
+    }
+  }
+  bool ok = true;
+  switch (q.command) {
+    case kDisplayMode: ok = need(1) && q.data[0] <= 1; if (ok) display_mode = q.data[0]; break;
+    case kSequenceControl: ok = need(1) && q.data[0] <= 2; if (ok) sequence_control = q.data[0]; break;
+    case kPatternSource: ok = need(1) && (q.data[0] == 0 || q.data[0] == 3); break;
+    case kPatternTrigger: ok = need(1) && q.data[0] <= 4; break;
+    case kExposure: ok = need(8); break;
+    case kPatternConfig: ok = need(4); break;
+    case kTrigOut1: ok = need(3); break;
+    case kTrigOut2: ok = need(2); break;
+    case kValidate: ok = need(1); break;
+    case kMailboxOpen:
+      ok = need(1) && q.data[0] <= 3;
+      if (ok) mailbox = q.data[0];
+      break;
+    case kMailboxAddress: ok = need(1) && q.data[0] < 128; if (ok) mailbox_address = q.data[0]; break;
+    case kMailboxData:
+      ok = mailbox == 1 || mailbox == 2;
+      if (mailbox == 1) image_lut = q.data;
+      if (mailbox == 2) pattern_lut = q.data;
+      break;
+    default: ok = false;
+  }
+  Reply(q, ok ? q.flags : static_cast<uint8_t>(q.flags | kFlagNack), {});
+}
+
+bool MemoryTransport::Write(const Report& report, std::chrono::milliseconds) {
+  if (!accept_writes) return false;
+  written.push_back(report);
+  device_.Receive(report);
+  return true;
+}
+
+bool MemoryTransport::Read(Report* report, std::chrono::milliseconds) { return device_.PopReply(report); }
+
+}  // namespace slshadow::capture::testing
