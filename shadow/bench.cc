@@ -8,6 +8,7 @@
 #include <opencv2/structured_light.hpp>
 
 #include "compare/compare.h"
+#include "compare/distances.h"
 #include "core/error.h"
 #include "core/rig.h"
 #include "core/stage_meter.h"
@@ -233,6 +234,14 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
     e.throughput = static_cast<double>(stereo.cloud.size()) / 1e6 / t.wall_s;
     e.unit = "Mpoints/s";
     entries.push_back(e);
+    // The signed distances alone (hierarchy build + queries), the work Open3D's peer does.
+    BenchEntry c = MakeEntry("compare", "signed C2M alone (CloudToMesh: hierarchy + queries)");
+    const Timing tc = Median(reps, [&] { compare::CloudToMesh(stereo.cloud.points, truth); });
+    c.median_wall_s = tc.wall_s;
+    c.cpu_s = tc.cpu_s;
+    c.throughput = static_cast<double>(stereo.cloud.size()) / 1e6 / tc.wall_s;
+    c.unit = "Mpoints/s";
+    entries.push_back(c);
   }
   return entries;
 }
