@@ -5,6 +5,10 @@
 #include <limits>
 #include <unordered_map>
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 #include "core/error.h"
 
 namespace slshadow::compare {
@@ -364,12 +368,23 @@ MeshHit MeshDistance::Closest(const Eigen::Vector3d& p, uint32_t hint) const {
   const float slack = static_cast<float>(4.0 * std::ldexp(m, -24));
   constexpr double kShrink = 1.0 - 1e-6;
   const float px = static_cast<float>(p.x()), py = static_cast<float>(p.y()), pz = static_cast<float>(p.z());
+#if defined(__SSE2__)
+  const __m128 vx = _mm_set1_ps(px), vy = _mm_set1_ps(py), vz = _mm_set1_ps(pz), vslack = _mm_set1_ps(slack);
+#endif
 
   // Triangle bound: with h the distance to the triangle's plane and e the largest outside distance
   // to its edges' in-plane planes, the distance is at least sqrt(h^2 + e^2). The float normals,
   // offsets and products are off by less than 32 * 2^-24 * m in each of h and e (unit vectors
   // rounded to float, |p|, |offset| <= m), so both are shrunk by twice that.
   const float tri_slack = static_cast<float>(64.0 * std::ldexp(m, -24));
+  // Float threshold for the float bounds: a bound b may prune only when b * kShrink > best, so
+  // anything up to best / kShrink (rounded up to float) is visited.
+  const auto threshold = [&](double b2) {
+    const double t = b2 / kShrink;
+    return !prune || t >= static_cast<double>(std::numeric_limits<float>::max()) ? std::numeric_limits<float>::infinity()
+                                                                                  : Up(t);
+  };
+  float bestf = threshold(best);
   auto visit_triangles = [&](uint32_t first, uint32_t count) {
     for (uint32_t s = first; s < first + count; ++s) {
       if (prune) {
@@ -380,7 +395,7 @@ MeshHit MeshDistance::Closest(const Eigen::Vector3d& p, uint32_t hint) const {
         const float e2 = b[3][0] * px + b[3][1] * py + b[3][2] * pz - b[3][3];
         const float hh = std::max(h - tri_slack, 0.0f);
         const float ee = std::max(std::max(std::max(e0, e1), e2) - tri_slack, 0.0f);
-        if (static_cast<double>(hh * hh + ee * ee) * kShrink > best) continue;
+        if (hh * hh + ee * ee > bestf) continue;
       }
       const TriGeom& g = geom_[s];
       int feature = 0;
@@ -392,51 +407,79 @@ MeshHit MeshDistance::Closest(const Eigen::Vector3d& p, uint32_t hint) const {
         best_feature = feature;
         best_tri = t;
         best_q = q;
+        bestf = threshold(best);
       }
     }
   };
 
   struct Entry {
     uint32_t node;
-    double lb;
+    float lb;
   };
   constexpr int kStack = 4 * 64;
   Entry stack[kStack];
   int top = 0;
-  stack[top++] = {0, 0.0};
+  stack[top++] = {0, 0.0f};
   while (top > 0) {
     const Entry e = stack[--top];
-    if (e.lb > best) continue;
+    if (e.lb > bestf) continue;
     const Node& node = nodes_[e.node];
-    float d[4];
+    alignas(16) float d[4];
+    unsigned mask = 0;  // lanes whose bound does not exceed the best
+#if defined(__SSE2__)
+    {
+      const __m128 zero = _mm_setzero_ps();
+      const __m128 gx = _mm_max_ps(
+          _mm_sub_ps(_mm_max_ps(_mm_sub_ps(_mm_load_ps(node.lo[0]), vx), _mm_sub_ps(vx, _mm_load_ps(node.hi[0]))), vslack),
+          zero);
+      const __m128 gy = _mm_max_ps(
+          _mm_sub_ps(_mm_max_ps(_mm_sub_ps(_mm_load_ps(node.lo[1]), vy), _mm_sub_ps(vy, _mm_load_ps(node.hi[1]))), vslack),
+          zero);
+      const __m128 gz = _mm_max_ps(
+          _mm_sub_ps(_mm_max_ps(_mm_sub_ps(_mm_load_ps(node.lo[2]), vz), _mm_sub_ps(vz, _mm_load_ps(node.hi[2]))), vslack),
+          zero);
+      const __m128 vd = _mm_add_ps(_mm_add_ps(_mm_mul_ps(gx, gx), _mm_mul_ps(gy, gy)), _mm_mul_ps(gz, gz));
+      _mm_store_ps(d, vd);
+      mask = static_cast<unsigned>(_mm_movemask_ps(_mm_cmple_ps(vd, _mm_set1_ps(bestf))));
+    }
+#else
     for (int k = 0; k < 4; ++k) {
       const float gx = std::max(std::max(node.lo[0][k] - px, px - node.hi[0][k]) - slack, 0.0f);
       const float gy = std::max(std::max(node.lo[1][k] - py, py - node.hi[1][k]) - slack, 0.0f);
       const float gz = std::max(std::max(node.lo[2][k] - pz, pz - node.hi[2][k]) - slack, 0.0f);
       d[k] = gx * gx + gy * gy + gz * gz;
+      if (d[k] <= bestf) mask |= 1u << k;
     }
-    // Children nearest first: leaves are evaluated at once, inner children pushed farthest first.
-    int lane[4] = {0, 1, 2, 3};
-    for (int i = 1; i < 4; ++i) {
-      for (int j = i; j > 0 && d[lane[j]] < d[lane[j - 1]]; --j) std::swap(lane[j], lane[j - 1]);
+#endif
+    if (!prune) {
+      mask = 0xf;
+      for (float& x : d) x = 0.0f;
+    }
+    // The passing children nearest first: leaves are evaluated at once, inner children pushed
+    // farthest first.
+    int lane[4];
+    int n = 0;
+    for (int k = 0; k < 4; ++k) {
+      if ((mask >> k) & 1u) {
+        if (node.count[k] == kEmpty) continue;
+        int j = n++;
+        for (; j > 0 && d[k] < d[lane[j - 1]]; --j) lane[j] = lane[j - 1];
+        lane[j] = k;
+      }
     }
     int inner[4];
-    double inner_lb[4];
     int n_inner = 0;
-    for (int i = 0; i < 4; ++i) {
+    for (int i = 0; i < n; ++i) {
       const int k = lane[i];
-      if (node.count[k] == kEmpty) continue;
-      const double lb = prune ? static_cast<double>(d[k]) * kShrink : 0.0;
-      if (lb > best) continue;
+      if (d[k] > bestf) break;
       if (node.count[k] > 0) {
         visit_triangles(node.child[k], node.count[k]);
       } else {
-        inner[n_inner] = k;
-        inner_lb[n_inner++] = lb;
+        inner[n_inner++] = k;
       }
     }
     SLSHADOW_CHECK(top + n_inner <= kStack);
-    for (int i = n_inner - 1; i >= 0; --i) stack[top++] = {node.child[inner[i]], inner_lb[i]};
+    for (int i = n_inner - 1; i >= 0; --i) stack[top++] = {node.child[inner[i]], d[inner[i]]};
   }
 
   const TriNormals& t = normals_[best_tri];

@@ -45,7 +45,7 @@ class MeshDistance {
 
  private:
   // 4-wide node: the boxes of up to four children, float, rounded outwards.
-  struct Node {
+  struct alignas(16) Node {
     float lo[3][4];
     float hi[3][4];
     uint32_t child[4];  // inner child: node index; leaf: slot of its first triangle in geom_
