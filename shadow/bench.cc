@@ -15,6 +15,7 @@
 
 #include "compare/compare.h"
 #include "compare/distances.h"
+#include "compare/kdtree.h"
 #include "core/error.h"
 #include "core/rig.h"
 #include "core/stage_meter.h"
@@ -91,8 +92,9 @@ double JsonNumber(const std::string& json, const std::string& key) {
 // Open3D's RaycastingScene on the same cloud and mesh (bench/c2m_peer/open3d_c2m.py, compiled in),
 // run by Debian's python3 where python3-open3d lives. Returns the script's JSON line, or "" with
 // `why` set when the peer cannot run.
-std::string RunOpen3dC2m(const std::vector<Eigen::Vector3d>& points, const TriangleMesh& mesh, int reps,
-                         std::string* why) {
+// With `mesh` null, the C2C peer: `points` against `reference`.
+std::string RunOpen3dPeer(const std::vector<Eigen::Vector3d>& points, const TriangleMesh* mesh,
+                          const std::vector<Eigen::Vector3d>* reference, int reps, std::string* why) {
   namespace fs = std::filesystem;
   const std::string python = fs::exists("/usr/bin/python3") ? "/usr/bin/python3" : "python3";
   const fs::path dir = fs::temp_directory_path() / ("slshadow_bench_c2m_" + std::to_string(::getpid()));
@@ -103,15 +105,21 @@ std::string RunOpen3dC2m(const std::vector<Eigen::Vector3d>& points, const Trian
   };
   std::ofstream(dir / "open3d_c2m.py") << kOpen3dC2mPy;
   write("points.f64", points.data(), points.size() * sizeof(Eigen::Vector3d));
-  write("vertices.f64", mesh.vertices.data(), mesh.vertices.size() * sizeof(Eigen::Vector3d));
-  std::vector<uint32_t> tris;
-  for (const auto& t : mesh.triangles) {
-    for (int k = 0; k < 3; ++k) tris.push_back(static_cast<uint32_t>(t[k]));
+  std::string args;
+  if (mesh) {
+    write("vertices.f64", mesh->vertices.data(), mesh->vertices.size() * sizeof(Eigen::Vector3d));
+    std::vector<uint32_t> tris;
+    for (const auto& t : mesh->triangles) {
+      for (int k = 0; k < 3; ++k) tris.push_back(static_cast<uint32_t>(t[k]));
+    }
+    write("triangles.u32", tris.data(), tris.size() * sizeof(uint32_t));
+    args = (dir / "points.f64").string() + " " + (dir / "vertices.f64").string() + " " + (dir / "triangles.u32").string();
+  } else {
+    write("reference.f64", reference->data(), reference->size() * sizeof(Eigen::Vector3d));
+    args = "c2c " + (dir / "points.f64").string() + " " + (dir / "reference.f64").string();
   }
-  write("triangles.u32", tris.data(), tris.size() * sizeof(uint32_t));
-  const std::string cmd = python + " " + (dir / "open3d_c2m.py").string() + " " + (dir / "points.f64").string() + " " +
-                          (dir / "vertices.f64").string() + " " + (dir / "triangles.u32").string() + " " +
-                          std::to_string(reps) + " > " + (dir / "out.json").string() + " 2> " + (dir / "err.txt").string();
+  const std::string cmd = python + " " + (dir / "open3d_c2m.py").string() + " " + args + " " + std::to_string(reps) +
+                          " > " + (dir / "out.json").string() + " 2> " + (dir / "err.txt").string();
   const int status = std::system(cmd.c_str());
   std::stringstream out, err;
   out << std::ifstream(dir / "out.json").rdbuf();
@@ -300,7 +308,7 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
     c.unit = "Mpoints/s";
     if (options.with_open3d) {
       std::string why;
-      const std::string json = RunOpen3dC2m(stereo.cloud.points, truth, reps, &why);
+      const std::string json = RunOpen3dPeer(stereo.cloud.points, &truth, nullptr, reps, &why);
       if (json.empty()) {
         std::fprintf(stderr, "bench: C2M peer skipped: %s\n", why.c_str());
       } else {
@@ -317,6 +325,41 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
       }
     }
     entries.push_back(c);
+
+    // C2C, about 1 M -> 1 M: the stereo cloud's even-indexed points against its odd-indexed ones.
+    std::vector<Eigen::Vector3d> even, odd;
+    for (size_t i = 0; i < stereo.cloud.size(); ++i) (i % 2 ? odd : even).push_back(stereo.cloud.points[i]);
+    BenchEntry cc = MakeEntry("compare", "C2C " + std::to_string(even.size()) + " -> " + std::to_string(odd.size()) +
+                                             " points (stereo cloud, even to odd points; kd-tree + queries)");
+    double c2c_mean = 0;
+    const Timing t2 = Median(reps, [&] {
+      const compare::KdTree tree(odd);
+      const compare::C2CResult r = compare::CloudToCloud(even, tree);
+      double sum = 0;
+      for (const double d : r.distances_mm) sum += d;
+      c2c_mean = sum / static_cast<double>(r.distances_mm.size());
+    });
+    cc.median_wall_s = t2.wall_s;
+    cc.cpu_s = t2.cpu_s;
+    cc.throughput = static_cast<double>(even.size()) / 1e6 / t2.wall_s;
+    cc.unit = "Mpoints/s";
+    if (options.with_open3d) {
+      std::string why;
+      const std::string json = RunOpen3dPeer(even, nullptr, &odd, reps, &why);
+      if (json.empty()) {
+        std::fprintf(stderr, "bench: C2C peer skipped: %s\n", why.c_str());
+      } else {
+        char what[256];
+        std::snprintf(what, sizeof(what),
+                      "Open3D PointCloud compute_point_cloud_distance (CPU %.3f s; mean d %.5f mm, slshadow %.5f mm)",
+                      JsonNumber(json, "c2c_cpu_s"), JsonNumber(json, "c2c_mean_mm"), c2c_mean);
+        cc.peer = what;
+        cc.peer_median_wall_s = JsonNumber(json, "c2c_s");
+        cc.peer_throughput = static_cast<double>(even.size()) / 1e6 / cc.peer_median_wall_s;
+        cc.ratio = cc.throughput / cc.peer_throughput;
+      }
+    }
+    entries.push_back(cc);
   }
   return entries;
 }

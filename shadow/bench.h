@@ -12,7 +12,9 @@
 //                then concurrently one camera per core), and stereo; per-stage wall and CPU
 //   compare      C2M of the stereo cloud against the ground-truth mesh (the whole Compare, then
 //                CloudToMesh alone); peer: Open3D's RaycastingScene signed distance
-//                (bench/c2m_peer/open3d_c2m.py, run by /usr/bin/python3) on the same cloud and mesh
+//                (bench/c2m_peer/open3d_c2m.py, run by /usr/bin/python3) on the same cloud and mesh;
+//                C2C of the stereo cloud's even points to its odd ones (~1 M each); peer: Open3D's
+//                compute_point_cloud_distance
 #pragma once
 
 #include <string>
