@@ -1,6 +1,12 @@
 // Signed distance from points to a triangle mesh: exact closest point on the nearest triangle,
-// found through a bounding-volume hierarchy (axis-aligned boxes, median splits, leaves of <= 4
-// triangles, nearest-box-first traversal with pruning), so a query costs O(log n) triangles.
+// found through a bounding-volume hierarchy: binned surface-area-heuristic splits down to one
+// triangle per leaf, collapsed into 4-wide nodes whose child boxes are stored in float, rounded
+// outwards. A node's four box distances are computed together in float and pruned only when a
+// conservative lower bound (float rounding of the point and of the arithmetic accounted for)
+// exceeds the best squared distance so far; the triangles that survive are evaluated in double
+// with ClosestPointOnTriangle. The result is therefore the same as a brute-force scan over all
+// triangles: the smallest squared distance, ties broken towards the lowest triangle index, so it
+// does not depend on the traversal, the warm-start hint or the threads.
 //
 // Sign: positive on the side the outward normals point to (outside a closed mesh whose
 // triangles are counter-clockwise seen from outside). The sign is taken from the angle-weighted
@@ -31,30 +37,43 @@ class MeshDistance {
   explicit MeshDistance(const TriangleMesh& mesh);
 
   MeshHit Closest(const Eigen::Vector3d& point) const;
-  // The same distance, warm-started with triangle `hint` (e.g. the previous query's hit when
+  // The same result, warm-started with triangle `hint` (e.g. the previous query's hit when
   // queries run in spatially coherent order): its distance bounds the search from the start, so
-  // fewer boxes are opened. On exact ties the hint may be the triangle returned.
+  // fewer boxes are opened. Out-of-range hints are ignored.
   MeshHit Closest(const Eigen::Vector3d& point, uint32_t hint) const;
-  size_t NumTriangles() const { return tris_.size(); }
+  size_t NumTriangles() const { return normals_.size(); }
 
  private:
-  struct Node {
-    Eigen::Vector3d lo = Eigen::Vector3d::Zero(), hi = Eigen::Vector3d::Zero();
-    uint32_t first = 0;   // leaf: first triangle in order_; inner: index of the left child
-    uint32_t count = 0;   // leaf: number of triangles; inner: 0
-    uint32_t right = 0;   // inner: index of the right child
+  // 4-wide node: the boxes of up to four children, float, rounded outwards.
+  struct alignas(16) Node {
+    float lo[3][4];
+    float hi[3][4];
+    uint32_t child[4];  // inner child: node index; leaf: slot of its first triangle in geom_
+    uint32_t count[4];  // 0: inner child; 1..: leaf of that many triangles; kEmpty: no child
   };
-  struct Tri {
+  struct TriGeom {
     Eigen::Vector3d a, b, c;
-    Eigen::Vector3d face_normal;       // unit
-    Eigen::Vector3d vertex_normal[3];  // angle-weighted pseudo-normals of a, b, c
-    Eigen::Vector3d edge_normal[3];    // ab, bc, ca: sum of the adjacent face normals
   };
-  uint32_t Build(uint32_t begin, uint32_t end, std::vector<Eigen::Vector3d>& centroids);
+  // Float planes of a triangle: its own plane and the three edges' outward in-plane planes, each
+  // (unit normal, offset). Give a cheap lower bound of the distance before the exact one.
+  struct TriBound {
+    float plane[4][4];
+  };
+  struct TriNormals {
+    Eigen::Vector3d face;       // unit
+    Eigen::Vector3d vertex[3];  // angle-weighted pseudo-normals of a, b, c
+    Eigen::Vector3d edge[3];    // ab, bc, ca: sum of the adjacent face normals
+  };
+  struct BuildNode;
+  static constexpr uint32_t kEmpty = 0xffffffffu;
 
-  std::vector<Tri> tris_;
-  std::vector<uint32_t> order_;
-  std::vector<Node> nodes_;
+  std::vector<TriGeom> geom_;        // in leaf order
+  std::vector<TriBound> bound_;      // in leaf order
+  std::vector<uint32_t> index_;      // leaf slot -> triangle index
+  std::vector<uint32_t> slot_;       // triangle index -> leaf slot
+  std::vector<TriNormals> normals_;  // by triangle index
+  std::vector<Node> nodes_;          // nodes_[0] is the root
+  double max_abs_ = 0;               // largest |coordinate| of the mesh
 };
 
 // Closest point on triangle (a, b, c) to p (Ericson, "Real-Time Collision Detection", 5.1.5).

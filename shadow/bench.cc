@@ -2,18 +2,27 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
+#include <filesystem>
+#include <fstream>
 #include <functional>
+#include <sstream>
+
+#include <unistd.h>
 
 #include <opencv2/structured_light.hpp>
 
 #include "compare/compare.h"
+#include "compare/distances.h"
+#include "compare/kdtree.h"
 #include "core/error.h"
 #include "core/rig.h"
 #include "core/stage_meter.h"
 #include "patterns/codec.h"
 #include "patterns/pattern_spec.h"
 #include "reconstruct/reconstruct.h"
+#include "shadow/c2m_peer_py.h"
 #include "sim/scene.h"
 #include "sim/simulate.h"
 #include "shadow/scan_pipeline.h"
@@ -72,6 +81,57 @@ BenchEntry MakeEntry(const std::string& name, const std::string& what) {
 
 bool Wanted(const BenchOptions& options, const std::string& name) {
   return options.only.empty() || std::find(options.only.begin(), options.only.end(), name) != options.only.end();
+}
+
+// The number after "key": in a one-line JSON object (the peer script's output); 0 when absent.
+double JsonNumber(const std::string& json, const std::string& key) {
+  const auto at = json.find("\"" + key + "\":");
+  return at == std::string::npos ? 0.0 : std::atof(json.c_str() + at + key.size() + 3);
+}
+
+// Open3D's RaycastingScene on the same cloud and mesh (bench/c2m_peer/open3d_c2m.py, compiled in),
+// run by Debian's python3 where python3-open3d lives. Returns the script's JSON line, or "" with
+// `why` set when the peer cannot run.
+// With `mesh` null, the C2C peer: `points` against `reference`.
+std::string RunOpen3dPeer(const std::vector<Eigen::Vector3d>& points, const TriangleMesh* mesh,
+                          const std::vector<Eigen::Vector3d>* reference, int reps, std::string* why) {
+  namespace fs = std::filesystem;
+  const std::string python = fs::exists("/usr/bin/python3") ? "/usr/bin/python3" : "python3";
+  const fs::path dir = fs::temp_directory_path() / ("slshadow_bench_c2m_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  auto write = [&](const std::string& name, const void* data, size_t bytes) {
+    std::ofstream f(dir / name, std::ios::binary);
+    f.write(static_cast<const char*>(data), static_cast<std::streamsize>(bytes));
+  };
+  std::ofstream(dir / "open3d_c2m.py") << kOpen3dC2mPy;
+  write("points.f64", points.data(), points.size() * sizeof(Eigen::Vector3d));
+  std::string args;
+  if (mesh) {
+    write("vertices.f64", mesh->vertices.data(), mesh->vertices.size() * sizeof(Eigen::Vector3d));
+    std::vector<uint32_t> tris;
+    for (const auto& t : mesh->triangles) {
+      for (int k = 0; k < 3; ++k) tris.push_back(static_cast<uint32_t>(t[k]));
+    }
+    write("triangles.u32", tris.data(), tris.size() * sizeof(uint32_t));
+    args = (dir / "points.f64").string() + " " + (dir / "vertices.f64").string() + " " + (dir / "triangles.u32").string();
+  } else {
+    write("reference.f64", reference->data(), reference->size() * sizeof(Eigen::Vector3d));
+    args = "c2c " + (dir / "points.f64").string() + " " + (dir / "reference.f64").string();
+  }
+  const std::string cmd = python + " " + (dir / "open3d_c2m.py").string() + " " + args + " " + std::to_string(reps) +
+                          " > " + (dir / "out.json").string() + " 2> " + (dir / "err.txt").string();
+  const int status = std::system(cmd.c_str());
+  std::stringstream out, err;
+  out << std::ifstream(dir / "out.json").rdbuf();
+  err << std::ifstream(dir / "err.txt").rdbuf();
+  std::error_code ec;
+  fs::remove_all(dir, ec);
+  if (status != 0) {
+    *why = err.str().empty() ? "the Open3D peer failed (exit status " + std::to_string(status) + ")" : err.str();
+    while (!why->empty() && why->back() == '\n') why->pop_back();
+    return "";
+  }
+  return out.str();
 }
 
 }  // namespace
@@ -233,6 +293,73 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
     e.throughput = static_cast<double>(stereo.cloud.size()) / 1e6 / t.wall_s;
     e.unit = "Mpoints/s";
     entries.push_back(e);
+    // The signed distances alone (hierarchy build + queries), the work Open3D's peer does.
+    BenchEntry c = MakeEntry("compare", "signed C2M alone (CloudToMesh: hierarchy + queries)");
+    double mean_abs = 0;
+    const Timing tc = Median(reps, [&] {
+      const compare::C2MResult r = compare::CloudToMesh(stereo.cloud.points, truth);
+      double sum = 0;
+      for (const double d : r.signed_distances_mm) sum += std::abs(d);
+      mean_abs = sum / static_cast<double>(r.signed_distances_mm.size());
+    });
+    c.median_wall_s = tc.wall_s;
+    c.cpu_s = tc.cpu_s;
+    c.throughput = static_cast<double>(stereo.cloud.size()) / 1e6 / tc.wall_s;
+    c.unit = "Mpoints/s";
+    if (options.with_open3d) {
+      std::string why;
+      const std::string json = RunOpen3dPeer(stereo.cloud.points, &truth, nullptr, reps, &why);
+      if (json.empty()) {
+        std::fprintf(stderr, "bench: C2M peer skipped: %s\n", why.c_str());
+      } else {
+        char what[256];
+        std::snprintf(what, sizeof(what),
+                      "Open3D RaycastingScene compute_signed_distance, scene + query (CPU %.3f s; unsigned "
+                      "compute_distance %.3f s, CPU %.3f s; mean |d| %.4f mm, slshadow %.4f mm)",
+                      JsonNumber(json, "signed_cpu_s"), JsonNumber(json, "unsigned_s"), JsonNumber(json, "unsigned_cpu_s"),
+                      JsonNumber(json, "signed_mean_abs_mm"), mean_abs);
+        c.peer = what;
+        c.peer_median_wall_s = JsonNumber(json, "signed_s");
+        c.peer_throughput = static_cast<double>(stereo.cloud.size()) / 1e6 / c.peer_median_wall_s;
+        c.ratio = c.throughput / c.peer_throughput;
+      }
+    }
+    entries.push_back(c);
+
+    // C2C, about 1 M -> 1 M: the stereo cloud's even-indexed points against its odd-indexed ones.
+    std::vector<Eigen::Vector3d> even, odd;
+    for (size_t i = 0; i < stereo.cloud.size(); ++i) (i % 2 ? odd : even).push_back(stereo.cloud.points[i]);
+    BenchEntry cc = MakeEntry("compare", "C2C " + std::to_string(even.size()) + " -> " + std::to_string(odd.size()) +
+                                             " points (stereo cloud, even to odd points; kd-tree + queries)");
+    double c2c_mean = 0;
+    const Timing t2 = Median(reps, [&] {
+      const compare::KdTree tree(odd);
+      const compare::C2CResult r = compare::CloudToCloud(even, tree);
+      double sum = 0;
+      for (const double d : r.distances_mm) sum += d;
+      c2c_mean = sum / static_cast<double>(r.distances_mm.size());
+    });
+    cc.median_wall_s = t2.wall_s;
+    cc.cpu_s = t2.cpu_s;
+    cc.throughput = static_cast<double>(even.size()) / 1e6 / t2.wall_s;
+    cc.unit = "Mpoints/s";
+    if (options.with_open3d) {
+      std::string why;
+      const std::string json = RunOpen3dPeer(even, nullptr, &odd, reps, &why);
+      if (json.empty()) {
+        std::fprintf(stderr, "bench: C2C peer skipped: %s\n", why.c_str());
+      } else {
+        char what[256];
+        std::snprintf(what, sizeof(what),
+                      "Open3D PointCloud compute_point_cloud_distance (CPU %.3f s; mean d %.5f mm, slshadow %.5f mm)",
+                      JsonNumber(json, "c2c_cpu_s"), JsonNumber(json, "c2c_mean_mm"), c2c_mean);
+        cc.peer = what;
+        cc.peer_median_wall_s = JsonNumber(json, "c2c_s");
+        cc.peer_throughput = static_cast<double>(even.size()) / 1e6 / cc.peer_median_wall_s;
+        cc.ratio = cc.throughput / cc.peer_throughput;
+      }
+    }
+    entries.push_back(cc);
   }
   return entries;
 }

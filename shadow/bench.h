@@ -10,7 +10,11 @@
 //                camera viewing an OpenCV-order Gray code, on one camera, scaled per pixel
 //   reconstruct  decode + triangulate both cameras (camera-projector; in turn with parallel loops,
 //                then concurrently one camera per core), and stereo; per-stage wall and CPU
-//   compare      C2M of the stereo cloud against the ground-truth mesh
+//   compare      C2M of the stereo cloud against the ground-truth mesh (the whole Compare, then
+//                CloudToMesh alone); peer: Open3D's RaycastingScene signed distance
+//                (bench/c2m_peer/open3d_c2m.py, run by /usr/bin/python3) on the same cloud and mesh;
+//                C2C of the stereo cloud's even points to its odd ones (~1 M each); peer: Open3D's
+//                compute_point_cloud_distance
 #pragma once
 
 #include <string>
@@ -22,6 +26,7 @@ struct BenchOptions {
   int repetitions = 5;              // per entry; the median is reported
   std::vector<std::string> only;    // entry names to run; empty: all
   bool with_opencv = true;          // run the OpenCV peer (slow: ~1 s per repetition)
+  bool with_open3d = true;          // run the Open3D C2M peer (skipped with a message when absent)
   void Check() const;
 };
 
