@@ -27,6 +27,7 @@ const std::vector<Command>& Commands() {
       {"latency", "projector latency: present-to-screen of the window projector (latency [--display N | --geometry x,y,w,h])", RunLatency},
       {"capture", "real capture: projector + cameras from a devices file into a resumable ImageSet (capture --rig --devices --patterns --out)", RunCapture},
       {"devices", "list cameras and displays to capture with (devices [--address IP]... [--discover]: discovery broadcasts)", RunDevices},
+      {"sweep", "studies as independent jobs: sweep plan STUDY.yaml --out JOBS | run JOBS --shard I/N | merge JOBS --out RESULT", RunSweep},
   };
   return commands;
 }

@@ -34,5 +34,6 @@ int RunLatency(int argc, char** argv);
 int RunCapture(int argc, char** argv);
 int RunDevices(int argc, char** argv);
 int RunShadowCommand(int argc, char** argv);
+int RunSweep(int argc, char** argv);
 
 }  // namespace slshadow::app
