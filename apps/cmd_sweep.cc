@@ -1,6 +1,7 @@
 // slshadow sweep plan STUDY.yaml --out JOBS/ | run JOBS/ [--shard I/N] | merge JOBS/ --out RESULT/
 #include "apps/commands.h"
 #include "core/error.h"
+#include "core/threads.h"
 
 #include "shadow/sweep.h"
 #include <CLI/CLI.hpp>
@@ -26,6 +27,7 @@ int RunSweep(int argc, char** argv) {
   app.require_subcommand(1);
   std::string study, jobs, out, shard = "0/1";
   bool verbose = false;
+  int threads = 0;
   CLI::App* plan = app.add_subcommand("plan", "write the jobs of a study");
   plan->add_option("study", study, "study YAML")->required();
   plan->add_option("--out", out, "jobs folder (must not exist)")->required();
@@ -35,6 +37,9 @@ int RunSweep(int argc, char** argv) {
                   "I/N: shard I (0-based) of N; SLURM_ARRAY_TASK_ID / COUNT are not read")
       ->capture_default_str();
   run->add_flag("--verbose", verbose, "one line per job");
+  run->add_option(
+      "--threads", threads,
+      "threads for OpenCV, TBB and Ceres (default: SLURM_CPUS_PER_TASK when set, else all cores)");
   CLI::App* merge = app.add_subcommand("merge", "merge the results of all jobs");
   merge->add_option("jobs", jobs, "jobs folder")->required();
   merge->add_option("--out", out, "result folder")->required();
@@ -51,6 +56,10 @@ int RunSweep(int argc, char** argv) {
     workflow::SweepRunOptions options;
     workflow::ParseShard(shard, "--shard", &options);
     options.verbose = verbose;
+    std::string source;
+    const int budget = ResolveThreadBudget(threads, &source);
+    if (budget > 0) SetThreadBudget(budget);
+    std::printf("threads: %d (%s)\n", ThreadBudget(), source.c_str());
     const workflow::SweepRunSummary s = workflow::RunSweepShard(jobs, options);
     std::printf("shard %d/%d: %s\n", options.shard_index, options.shard_count,
                 s.BriefReport().c_str());
