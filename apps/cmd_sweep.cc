@@ -67,6 +67,10 @@ int RunSweep(int argc, char** argv) {
     const workflow::SweepMergeSummary s = workflow::MergeSweep(jobs, out);
     std::printf("%d jobs merged: %d rows in %s/results.csv (+ results.json, timings.csv)\n", s.jobs,
                 s.rows, out.c_str());
+    std::printf(
+        "Pareto front of decode + reconstruct time against RMS (%s/pareto.csv, time_vs_rms.png):\n",
+        out.c_str());
+    for (const auto& f : s.front) std::printf("  %s\n", f.c_str());
   }
   return EXIT_SUCCESS;
 }

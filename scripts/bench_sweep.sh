@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # A noise sweep of the demo (N seeds, both modes) as one `slshadow sweep` against N separate
 # `slshadow simulate` + `slshadow reconstruct` runs (both modes), in one run on this machine.
-# The sweep does more per seed (it also compares both clouds with the ground truth); the separate
-# runs skip the ground truth (--no-ground-truth) and write PGM, the fastest encoding.
+# Same work per seed (render both cameras; projector mode from the left camera, stereo left-right),
+# except that the sweep also compares both clouds with the ground truth; the separate runs skip the
+# ground truth (--no-ground-truth) and write PGM, the fastest encoding.
 # usage: scripts/bench_sweep.sh [N=100] [SLSHADOW=build/apps/slshadow]
 set -euo pipefail
 N=${1:-100}
@@ -25,7 +26,7 @@ for seed in $(seq 1 "$N"); do
   "$BIN" simulate --rig "$SRC/config/demo/rig.yaml" --scene "$WORK/scene.yaml" \
     --patterns "$SRC/config/demo/patterns.yaml" --out "$WORK/scan" --encoding pgm --no-ground-truth \
     --overwrite --quiet
-  "$BIN" reconstruct "$WORK/scan" --out "$WORK/projector.ply" --mode projector --quiet > /dev/null
+  "$BIN" reconstruct "$WORK/scan" --out "$WORK/projector.ply" --mode projector --cameras left --quiet > /dev/null
   "$BIN" reconstruct "$WORK/scan" --out "$WORK/stereo.ply" --mode stereo --quiet > /dev/null
 done
 t2=$(date +%s.%N)

@@ -11,6 +11,7 @@
 #include "sim/scene.h"
 #include "sim/simulate.h"
 
+#include "plot/plot.h"
 #include "shadow/scan_pipeline.h"
 
 #include <algorithm>
@@ -421,17 +422,29 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
   DecodedScan decoded;
   decoded.rig = group->rig;
   decoded.spec = spec;
+  std::vector<double> decode_camera_s;
   for (size_t c = 0; c < (stereo ? 2u : 1u); ++c) {
+    const auto tc = clock();
     decoded.cameras.push_back(group->rig.cameras[c].name);
     decoded.maps.push_back(DecodePatterns(spec, images[c], decode));
+    decode_camera_s.push_back(seconds(tc, clock()));
   }
   const auto t3 = clock();
   timing["decode_s"] = seconds(t2, t3);
 
   const ReconstructOptions reconstruct = ReconstructOptionsFromConfig(node("reconstruct"));
-  std::vector<Reconstruction> recs = ReconstructModes(decoded, modes, reconstruct);
+  std::vector<StageMeasurement> stages;
+  std::vector<Reconstruction> recs = ReconstructModes(decoded, modes, reconstruct, &stages);
   const auto t4 = clock();
   timing["reconstruct_s"] = seconds(t3, t4);
+  // Per mode, what the method costs: decoding the cameras it reads, then its reconstruction.
+  json method_s = json::object();
+  for (size_t k = 0; k < modes.size() && k < stages.size(); ++k) {
+    const bool two = modes[k] == ReconstructMode::kStereo;
+    method_s[ToString(modes[k])] =
+        decode_camera_s[0] + (two ? decode_camera_s[1] : 0.0) + stages[k].wall_s;
+  }
+  timing["method_s"] = method_s;
 
   const compare::CompareOptions compare_options =
       compare::CompareOptionsFromConfig(node("compare"));
@@ -518,13 +531,14 @@ SweepRunSummary RunSweepShard(const fs::path& jobs_dir, const SweepRunOptions& o
 
 namespace {
 
-std::string CsvField(const json& v) {
+// Floats with `digits` significant digits (17: exact round trip).
+std::string CsvField(const json& v, int digits = 10) {
   std::string s;
   if (v.is_string()) {
     s = v.get<std::string>();
   } else if (v.is_number_float()) {
     char buf[64];
-    std::snprintf(buf, sizeof(buf), "%.10g", v.get<double>());
+    std::snprintf(buf, sizeof(buf), "%.*g", digits, v.get<double>());
     s = buf;
   } else {
     s = v.dump();
@@ -536,6 +550,72 @@ std::string CsvField(const json& v) {
     return q;
   }
   return s;
+}
+
+// Per mode: a job is on the Pareto front of (method time, RMS) when no other job of that mode is
+// at least as fast and as accurate and better in one of the two.
+struct FrontPoint {
+  std::string id, mode, label;
+  double time_s = 0, rms_mm = 0;
+  bool on_front = false;
+};
+
+void MarkFront(std::vector<FrontPoint>& points) {
+  for (auto& p : points) {
+    p.on_front = true;
+    for (const auto& q : points) {
+      if (q.mode != p.mode || &q == &p) continue;
+      if (q.time_s <= p.time_s && q.rms_mm <= p.rms_mm &&
+          (q.time_s < p.time_s || q.rms_mm < p.rms_mm)) {
+        p.on_front = false;
+        break;
+      }
+    }
+  }
+}
+
+void WriteFrontChart(const fs::path& path, const std::vector<FrontPoint>& points,
+                     const std::string& study) {
+  double xmax = 0, ymax = 0;
+  for (const auto& p : points) {
+    xmax = std::max(xmax, p.time_s);
+    ymax = std::max(ymax, p.rms_mm);
+  }
+  const auto lock = plot::LockPlplot();
+  WriteFileAtomically(path, [&](const fs::path& tmp) {
+    auto pls = plot::OpenPng(tmp, 1000, 700, {{40, 90, 200}, {200, 60, 0}, {150, 150, 150}});
+    pls->env(0, xmax * 1.1 + 1e-9, 0, ymax * 1.15 + 1e-12, 0, 0);
+    pls->lab("decode (cameras the mode reads) + reconstruct time (s)", "RMS deviation (mm)",
+             (study + ": time against error, Pareto front per mode").c_str());
+    std::vector<std::string> modes;
+    for (const auto& p : points) {
+      if (std::find(modes.begin(), modes.end(), p.mode) == modes.end()) modes.push_back(p.mode);
+    }
+    for (size_t m = 0; m < modes.size(); ++m) {
+      std::vector<FrontPoint> front;
+      pls->col0(static_cast<PLINT>(2 + m % 2));
+      for (const auto& p : points) {
+        if (p.mode != modes[m]) continue;
+        PLFLT x = p.time_s, y = p.rms_mm;
+        pls->ssym(0, p.on_front ? 2.5 : 1.0);
+        pls->poin(1, &x, &y, p.on_front ? 17 : 4);
+        if (p.on_front) front.push_back(p);
+      }
+      std::sort(front.begin(), front.end(),
+                [](const auto& a, const auto& b) { return a.time_s < b.time_s; });
+      std::vector<PLFLT> xs, ys;
+      for (const auto& p : front) {
+        xs.push_back(p.time_s);
+        ys.push_back(p.rms_mm);
+        pls->schr(0, 0.6);
+        pls->ptex(p.time_s, p.rms_mm, 1, 0, -0.1, (" " + p.label).c_str());
+        pls->schr(0, 1.0);
+      }
+      if (xs.size() > 1) pls->line(static_cast<PLINT>(xs.size()), xs.data(), ys.data());
+      pls->mtex("t", -1.5 - 1.5 * static_cast<double>(m), 0.98, 1.0,
+                (modes[m] + " (filled: on the front)").c_str());
+    }
+  });
 }
 
 }  // namespace
@@ -622,6 +702,36 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
   WriteTextFileAtomically(out_dir / "results.csv", csv);
   WriteTextFileAtomically(out_dir / "results.json", merged.dump(2) + "\n");
   WriteTextFileAtomically(out_dir / "timings.csv", timings);
+
+  // Time against error: decode + reconstruct time (the method's cost; rendering and comparing are
+  // the study's) against RMS, per mode, with the Pareto front. Measured times: not reproducible.
+  std::vector<FrontPoint> points;
+  for (const auto& r : results) {
+    std::string label;
+    for (const auto& a : axes) {
+      if (!label.empty()) label += ' ';
+      label += CsvField(r.at("params").at(a));
+    }
+    const json& t = r.at("timing");
+    for (const auto& m : r.at("modes")) {
+      FrontPoint p;
+      p.id = JobName(r.at("id").get<int>());
+      p.mode = m.at("mode").get<std::string>();
+      p.label = label.empty() ? p.id : label;
+      p.time_s = t.at("method_s").at(p.mode).get<double>();
+      p.rms_mm = m.at("rms_mm").get<double>();
+      points.push_back(p);
+    }
+  }
+  MarkFront(points);
+  std::string front_csv = "id,mode,label,time_s,rms_mm,on_front\n";
+  for (const auto& p : points) {
+    front_csv += p.id + ',' + p.mode + ',' + CsvField(p.label) + ',' + CsvField(p.time_s, 17) +
+                 ',' + CsvField(p.rms_mm, 17) + ',' + (p.on_front ? "1" : "0") + '\n';
+    if (p.on_front) summary.front.push_back(p.mode + ": " + p.id + " (" + p.label + ")");
+  }
+  WriteTextFileAtomically(out_dir / "pareto.csv", front_csv);
+  WriteFrontChart(out_dir / "time_vs_rms.png", points, plan.at("study").get<std::string>());
   summary.jobs = n;
   summary.out_dir = out_dir;
   return summary;

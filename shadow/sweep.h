@@ -79,15 +79,19 @@ SweepRunSummary RunSweepShard(const std::filesystem::path& jobs_dir,
 
 struct SweepMergeSummary {
   int jobs = 0;
-  int rows = 0;  // results.csv rows (one per job and mode)
+  int rows = 0;                    // results.csv rows (one per job and mode)
+  std::vector<std::string> front;  // "mode: id (axis values)" of the jobs on the Pareto front
   std::filesystem::path out_dir;
 };
 
 // Reads every job's result (in id order) and writes at `out_dir` (created if missing; each file
 // atomically): results.csv (one row per job and mode: id, the axis values, the accuracy figures),
 // results.json (the plan's study and per job its axis values and accuracy), timings.csv (wall and
-// CPU seconds per stage and job: measured, so not reproducible). Throws slshadow::Error naming the
-// missing jobs (at most 10) when some have no result.
+// CPU seconds per stage and job: measured, so not reproducible), and from those times pareto.csv
+// (per job and mode: seconds to decode the cameras the mode reads and reconstruct it, RMS mm,
+// whether on the mode's Pareto front) and
+// time_vs_rms.png (the front marked and labelled with the axis values). Throws slshadow::Error
+// naming the missing jobs (at most 10) when some have no result.
 SweepMergeSummary MergeSweep(const std::filesystem::path& jobs_dir,
                              const std::filesystem::path& out_dir);
 

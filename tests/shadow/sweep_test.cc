@@ -14,6 +14,7 @@
 #include <algorithm>
 #include <cstdlib>
 #include <fstream>
+#include <sstream>
 #include <string>
 
 namespace slshadow::workflow {
@@ -81,6 +82,41 @@ TEST(Sweep, ShardsInAnyOrderMergeToTheOneProcessResultAndResumeOnlyMissingJobs) 
   EXPECT_EQ(merged["jobs"][2]["params"]["seed"], 12);
   EXPECT_NE(merged["jobs"][0]["modes"][0]["rms_mm"], merged["jobs"][2]["modes"][0]["rms_mm"]);
   EXPECT_EQ(std::count(csv.begin(), csv.end(), '\n'), 1 + 8);
+
+  // The Pareto front (measured times): flagged rows are dominated by no row of their mode, the
+  // others by at least one; each mode has a front; the chart is written.
+  {
+    std::istringstream in(ReadTextFile(tmp / "one_result/pareto.csv"));
+    std::string line;
+    std::getline(in, line);
+    struct Row {
+      std::string mode;
+      double t, rms;
+      bool front;
+    };
+    std::vector<Row> rows;
+    while (std::getline(in, line)) {
+      std::vector<std::string> f;
+      std::stringstream ls(line);
+      for (std::string x; std::getline(ls, x, ',');) f.push_back(x);
+      ASSERT_EQ(f.size(), 6u) << line;
+      rows.push_back({f[1], std::stod(f[3]), std::stod(f[4]), f[5] == "1"});
+    }
+    ASSERT_EQ(rows.size(), 8u);
+    for (const auto& p : rows) {
+      bool dominated = false;
+      for (const auto& q : rows) {
+        dominated |=
+            q.mode == p.mode && q.t <= p.t && q.rms <= p.rms && (q.t < p.t || q.rms < p.rms);
+      }
+      EXPECT_EQ(p.front, !dominated) << p.mode << " " << p.t << " " << p.rms;
+    }
+    for (const char* mode : {"projector", "stereo"}) {
+      EXPECT_TRUE(std::any_of(rows.begin(), rows.end(),
+                              [&](const Row& r) { return r.mode == mode && r.front; }));
+    }
+    EXPECT_GT(fs::file_size(tmp / "one_result/time_vs_rms.png"), 1000u);
+  }
 
   // An interrupted shard: one result lost; the merge names it, a re-run runs only it.
   fs::remove(tmp / "sharded/results/000001.json");
