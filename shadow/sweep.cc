@@ -276,6 +276,12 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
       params[axis.name] = axis.labels[index[a]];
     }
     job["params"] = params;
+    // The spec's derived image count follows what the axes changed (e.g. patterns.phase_steps);
+    // the job holds the spec as PatternSpecToJson writes it.
+    job["patterns"].erase("num_images");
+    job["patterns"] = PatternSpecToJson(PatternSpecFromConfig(ConfigNode::FromJson(
+        job["patterns"], study_file.string() + " (job " + JobName(static_cast<int>(k)) + ")",
+        "patterns")));
     CheckJob(job, study_file.string() + " (job " + JobName(static_cast<int>(k)) + ")",
              &seen_scenes);
     groups.insert(GeometryKey(job));
@@ -710,7 +716,11 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
     std::string label;
     for (const auto& a : axes) {
       if (!label.empty()) label += ' ';
-      label += CsvField(r.at("params").at(a));
+      const json& v = r.at("params").at(a);
+      // Files axes: the file's stem (graycode_phase), not its path.
+      label += v.is_string() && v.get<std::string>().find_first_of("/.") != std::string::npos
+                   ? fs::path(v.get<std::string>()).stem().string()
+                   : CsvField(v);
     }
     const json& t = r.at("timing");
     for (const auto& m : r.at("modes")) {
