@@ -28,6 +28,7 @@ const std::vector<Command>& Commands() {
       {"capture", "real capture: projector + cameras from a devices file into a resumable ImageSet (capture --rig --devices --patterns --out)", RunCapture},
       {"devices", "list cameras and displays to capture with (devices [--address IP]... [--discover]: discovery broadcasts)", RunDevices},
       {"projector", "a DLP LightCrafter 4500 over USB: firmware and mode, switch video/pattern mode, validate (projector info|mode|validate)", RunProjector},
+      {"sweep", "studies as independent jobs: sweep plan STUDY.yaml --out JOBS | run JOBS --shard I/N | merge JOBS --out RESULT", RunSweep},
   };
   return commands;
 }

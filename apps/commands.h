@@ -35,5 +35,6 @@ int RunCapture(int argc, char** argv);
 int RunDevices(int argc, char** argv);
 int RunShadowCommand(int argc, char** argv);
 int RunProjector(int argc, char** argv);
+int RunSweep(int argc, char** argv);
 
 }  // namespace slshadow::app

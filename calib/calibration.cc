@@ -19,6 +19,7 @@
 #include <Eigen/SVD>
 
 #include "core/error.h"
+#include "core/threads.h"
 
 namespace slshadow {
 namespace {
@@ -597,7 +598,7 @@ SolveOutput SolveOnce(const CalibrationInput& input, const CalibrationOptions& o
   so.function_tolerance = 1e-12;
   so.gradient_tolerance = 1e-14;
   so.parameter_tolerance = 1e-12;
-  so.num_threads = 2;
+  so.num_threads = ThreadBudget();
   so.logging_type = ceres::SILENT;
   ceres::Solve(so, &problem, &out.summary);
   for (size_t d = 0; options.principal_point_inside && d < input.devices.size(); ++d) {
@@ -645,7 +646,7 @@ SolveOutput SolveOnce(const CalibrationInput& input, const CalibrationOptions& o
     }
     ceres::Problem::EvaluateOptions eo;
     eo.parameter_blocks = blocks;
-    eo.num_threads = 2;
+    eo.num_threads = ThreadBudget();
     ceres::CRSMatrix crs;
     double cost = 0;
     const bool sandwich = kernels != nullptr && noise == nullptr;

@@ -13,6 +13,7 @@
 #include <ceres/sphere_manifold.h>
 
 #include "core/error.h"
+#include "core/threads.h"
 
 namespace slshadow {
 namespace {
@@ -158,7 +159,7 @@ PairResult RefinePair(const CameraModel& model_a, const CameraModel& model_b_in,
     if (!options.refine_focal) problem.SetParameterBlockConstant(&scale);
     ceres::Solver::Options so;
     so.max_num_iterations = options.max_iterations;
-    so.num_threads = 2;
+    so.num_threads = ThreadBudget();
     so.logging_type = ceres::SILENT;
     ceres::Solver::Summary summary;
     ceres::Solve(so, &problem, &summary);

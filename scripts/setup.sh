@@ -27,6 +27,8 @@ PACKAGES=(
   libx11-dev libxext-dev
   # window projector on a second display in tests: Xorg with the dummy driver, xrandr
   xserver-xorg-core xserver-xorg-video-dummy x11-xserver-utils
+  # sweeps: shards run through GNU parallel (tests/shadow/sweep_test.cc, docs/sweeps.md)
+  parallel
 )
 
 missing=()

@@ -1,0 +1,750 @@
+#include "shadow/sweep.h"
+
+#include "compare/compare.h"
+#include "core/config.h"
+#include "core/error.h"
+#include "core/file_util.h"
+#include "core/stage_meter.h"
+#include "patterns/codec.h"
+#include "patterns/pattern_spec.h"
+#include "reconstruct/reconstruct.h"
+#include "sim/scene.h"
+#include "sim/simulate.h"
+
+#include "plot/plot.h"
+#include "shadow/scan_pipeline.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <map>
+#include <memory>
+#include <optional>
+#include <set>
+
+namespace slshadow::workflow {
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+namespace {
+
+constexpr const char* kStudyFormat = "slshadow-study";
+constexpr const char* kPlanFormat = "slshadow-sweep-plan";
+constexpr const char* kJobFormat = "slshadow-sweep-job";
+constexpr const char* kResultFormat = "slshadow-sweep-result";
+constexpr int kVersion = 1;
+// The top-level keys of a job an axis or a `set` entry may write into.
+const std::vector<std::string> kSettable = {"scene",  "rig",         "patterns",
+                                            "decode", "reconstruct", "compare"};
+
+std::string JobName(int id) {
+  char buf[32];
+  std::snprintf(buf, sizeof(buf), "%06d", id);
+  return buf;
+}
+fs::path JobFile(const fs::path& dir, int id) { return dir / "jobs" / (JobName(id) + ".json"); }
+fs::path ResultFile(const fs::path& dir, int id) {
+  return dir / "results" / (JobName(id) + ".json");
+}
+
+json ReadJsonFile(const fs::path& path) {
+  try {
+    return json::parse(ReadTextFile(path));
+  } catch (const json::exception& e) {
+    SLSHADOW_THROW(path.string(), ": not valid JSON: ", e.what());
+  }
+}
+
+// "scene.layers.noise.seed" -> the JSON pointer into a job; `node` names the study field on error.
+json::json_pointer SetPath(const std::string& path, const ConfigNode& node) {
+  if (path.empty()) node.Fail("empty path");
+  std::string pointer;
+  size_t start = 0;
+  while (true) {
+    const size_t dot = path.find('.', start);
+    const std::string part =
+        path.substr(start, dot == std::string::npos ? std::string::npos : dot - start);
+    if (part.empty()) node.Fail("path '" + path + "' has an empty component");
+    if (start == 0 && std::find(kSettable.begin(), kSettable.end(), part) == kSettable.end()) {
+      node.Fail("path '" + path +
+                "' must start with one of scene, rig, patterns, decode, reconstruct, compare");
+    }
+    pointer += '/';
+    pointer += part;
+    if (dot == std::string::npos) break;
+    start = dot + 1;
+  }
+  return json::json_pointer(pointer);
+}
+
+// The geometry group of a job: what the Simulator's geometry buffers depend on.
+std::string GeometryKey(const json& job) {
+  json scene = job.at("scene");
+  scene.erase("radiometry");
+  scene.erase("name");
+  if (scene.contains("layers") && scene["layers"].is_object()) {
+    json kept = json::object();
+    for (const char* k : {"supersampling", "projector_defocus"}) {
+      if (scene["layers"].contains(k)) kept[k] = scene["layers"][k];
+    }
+    scene["layers"] = kept;
+  }
+  return json{{"scene", scene}, {"base_dir", job.at("scene_base_dir")}, {"rig", job.at("rig")}}
+      .dump();
+}
+
+// A file value of an axis or of the study's scene / rig / patterns keys, as its job JSON.
+struct FileValue {
+  json tree;
+  std::string base_dir;  // scenes only
+};
+FileValue LoadFileValue(const std::string& key, const std::string& file,
+                        const fs::path& study_dir) {
+  const fs::path path = file.empty()
+                            ? fs::path()
+                            : (fs::path(file).is_absolute() ? fs::path(file) : study_dir / file);
+  FileValue v;
+  if (key == "scene") {
+    const Scene scene = LoadSceneOrDemo(path, study_dir);
+    v.tree = scene.source_config;
+    v.base_dir = fs::absolute(scene.source_dir).lexically_normal().string();
+  } else if (key == "rig") {
+    v.tree = RigToJson(LoadRigOrDemo(path));
+  } else {
+    v.tree = PatternSpecToJson(LoadPatternSpecOrDemo(path));
+  }
+  return v;
+}
+
+struct Axis {
+  std::string name;
+  json::json_pointer target;
+  std::string target_text;
+  std::vector<json> values;            // written at target (files: the loaded trees)
+  std::vector<json> labels;            // the value in the results (files: the path as written)
+  std::vector<std::string> base_dirs;  // scene files only
+};
+
+// Checks a job by the codecs that will read it; `what` names it in errors.
+void CheckJob(const json& job, const std::string& what, std::set<std::string>* seen_scenes) {
+  const auto node = [&](const char* key) { return ConfigNode::FromJson(job.at(key), what, key); };
+  const std::string scene_key = job.at("scene").dump() + job.at("scene_base_dir").dump();
+  if (seen_scenes->insert(scene_key).second) {
+    SceneFromConfig(node("scene"), job.at("scene_base_dir").get<std::string>())
+        .Check(what + ": scene");
+  }
+  const Rig rig = RigFromConfig(node("rig"));
+  PatternSpecFromConfig(node("patterns")).Check();
+  DecodeOptionsFromConfig(node("decode"));
+  ReconstructOptionsFromConfig(node("reconstruct"));
+  compare::CompareOptionsFromConfig(node("compare"));
+  for (const auto& m : job.at("modes")) {
+    const ReconstructMode mode = ReconstructModeFromString(m.get<std::string>());
+    SLSHADOW_THROW_IF(mode == ReconstructMode::kStereo && rig.cameras.size() < 2, what,
+                      ": mode stereo needs a rig with two cameras");
+    SLSHADOW_THROW_IF(mode == ReconstructMode::kProjector && !rig.projector, what,
+                      ": mode projector needs a rig with a projector");
+  }
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+// Plan.
+
+SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir) {
+  std::error_code ec;
+  SLSHADOW_THROW_IF(fs::exists(jobs_dir, ec), jobs_dir.string(),
+                    ": exists; sweep plan writes a new folder (remove it or choose another --out)");
+  const ConfigNode study = ConfigNode::LoadFile(study_file);
+  const fs::path study_dir = fs::absolute(study_file).parent_path();
+  study.RejectUnknownKeys({"format", "version", "name", "description", "scene", "rig", "patterns",
+                           "modes", "decode", "reconstruct", "compare", "set", "axes"});
+  if (study["format"].AsString() != kStudyFormat)
+    study["format"].Fail(std::string("must be ") + kStudyFormat);
+  if (study["version"].AsInt() != kVersion) study["version"].Fail("must be 1");
+  SweepPlanSummary summary;
+  summary.study = study["name"].AsString();
+  if (summary.study.empty()) study["name"].Fail("must not be empty");
+
+  // The base job.
+  json base = {{"format", kJobFormat}, {"version", kVersion}, {"study", summary.study}};
+  {
+    const FileValue scene = LoadFileValue("scene", study.GetString("scene", ""), study_dir);
+    base["scene"] = scene.tree;
+    base["scene_base_dir"] = scene.base_dir;
+    base["rig"] = LoadFileValue("rig", study.GetString("rig", ""), study_dir).tree;
+    base["patterns"] = LoadFileValue("patterns", study.GetString("patterns", ""), study_dir).tree;
+  }
+  base["modes"] = json::array({"projector", "stereo"});
+  if (study.Has("modes")) {
+    const ConfigNode modes = study["modes"];
+    base["modes"] = json::array();
+    for (size_t i = 0; i < modes.size(); ++i) {
+      const std::string m = modes.at(i).AsString();
+      try {
+        ReconstructModeFromString(m);
+      } catch (const Error&) {
+        modes.at(i).Fail("unknown mode '" + m + "' (projector | stereo)");
+      }
+      base["modes"].push_back(m);
+    }
+    if (base["modes"].empty()) modes.Fail("must list at least one mode");
+  }
+  // Options through their codecs, so the job holds every field (defaults included).
+  base["decode"] = DecodeOptionsToJson(
+      study.Has("decode") ? DecodeOptionsFromConfig(study["decode"]) : DecodeOptions{});
+  base["reconstruct"] =
+      (study.Has("reconstruct") ? ReconstructOptionsFromConfig(study["reconstruct"])
+                                : ReconstructOptions{})
+          .ToJson();
+  base["compare"] = compare::CompareOptionsToJson(
+      study.Has("compare") ? compare::CompareOptionsFromConfig(study["compare"])
+                           : compare::CompareOptions{});
+  if (study.Has("set")) {
+    const ConfigNode set = study["set"];
+    for (const std::string& key : set.Keys()) base[SetPath(key, set[key])] = set[key].json();
+  }
+
+  // Axes: the cartesian product, first axis slowest.
+  std::vector<Axis> axes;
+  if (study.Has("axes")) {
+    const ConfigNode list = study["axes"];
+    for (size_t a = 0; a < list.size(); ++a) {
+      const ConfigNode n = list.at(a);
+      n.RejectUnknownKeys({"name", "set", "values", "range", "files"});
+      Axis axis;
+      axis.name = n["name"].AsString();
+      for (const auto& other : axes) {
+        if (other.name == axis.name) n["name"].Fail("axis name '" + axis.name + "' used twice");
+      }
+      axis.target_text = n["set"].AsString();
+      axis.target = SetPath(axis.target_text, n["set"]);
+      const int kinds = int(n.Has("values")) + int(n.Has("range")) + int(n.Has("files"));
+      if (kinds != 1) n.Fail("needs exactly one of values, range, files");
+      if (n.Has("values")) {
+        for (size_t i = 0; i < n["values"].size(); ++i)
+          axis.values.push_back(n["values"].at(i).json());
+        axis.labels = axis.values;
+      } else if (n.Has("range")) {
+        const ConfigNode r = n["range"];
+        r.RejectUnknownKeys({"first", "count", "step"});
+        const int64_t first = r["first"].AsInt(), count = r["count"].AsInt(),
+                      step = r.GetInt("step", 1);
+        if (count < 1 || count > 1000000) r["count"].Fail("must be in 1..1000000");
+        for (int64_t i = 0; i < count; ++i) axis.values.push_back(first + i * step);
+        axis.labels = axis.values;
+      } else {
+        const std::string& t = axis.target_text;
+        if (t != "scene" && t != "rig" && t != "patterns") {
+          n["set"].Fail("files need set: scene, rig or patterns (got '" + t + "')");
+        }
+        for (size_t i = 0; i < n["files"].size(); ++i) {
+          const std::string file = n["files"].at(i).AsString();
+          FileValue v = LoadFileValue(t, file, study_dir);
+          axis.values.push_back(v.tree);
+          axis.labels.push_back(file);
+          axis.base_dirs.push_back(v.base_dir);
+        }
+      }
+      if (axis.values.empty()) n.Fail("axis '" + axis.name + "' has no values");
+      summary.axes.push_back(axis.name);
+      axes.push_back(std::move(axis));
+    }
+  }
+  size_t total = 1;
+  for (const auto& a : axes) total *= a.values.size();
+  if (total > 1000000) study["axes"].Fail("more than 1000000 jobs");
+
+  // The jobs, each checked before anything is written.
+  std::vector<json> jobs;
+  std::set<std::string> seen_scenes, groups;
+  for (size_t k = 0; k < total; ++k) {
+    json job = base;
+    job["id"] = static_cast<int>(k);
+    json params = json::object();
+    size_t rest = k;
+    std::vector<size_t> index(axes.size());
+    for (size_t a = axes.size(); a-- > 0;) {
+      index[a] = rest % axes[a].values.size();
+      rest /= axes[a].values.size();
+    }
+    for (size_t a = 0; a < axes.size(); ++a) {
+      const Axis& axis = axes[a];
+      job[axis.target] = axis.values[index[a]];
+      if (!axis.base_dirs.empty()) job["scene_base_dir"] = axis.base_dirs[index[a]];
+      params[axis.name] = axis.labels[index[a]];
+    }
+    job["params"] = params;
+    // The spec's derived image count follows what the axes changed (e.g. patterns.phase_steps);
+    // the job holds the spec as PatternSpecToJson writes it.
+    job["patterns"].erase("num_images");
+    job["patterns"] = PatternSpecToJson(PatternSpecFromConfig(ConfigNode::FromJson(
+        job["patterns"], study_file.string() + " (job " + JobName(static_cast<int>(k)) + ")",
+        "patterns")));
+    CheckJob(job, study_file.string() + " (job " + JobName(static_cast<int>(k)) + ")",
+             &seen_scenes);
+    groups.insert(GeometryKey(job));
+    jobs.push_back(std::move(job));
+  }
+  summary.jobs = static_cast<int>(jobs.size());
+  summary.geometry_groups = static_cast<int>(groups.size());
+
+  const fs::path staging = TemporarySibling(jobs_dir);
+  struct Cleanup {
+    fs::path dir;
+    bool keep = false;
+    ~Cleanup() {
+      std::error_code e;
+      if (!keep) fs::remove_all(dir, e);
+    }
+  } cleanup{staging};
+  fs::create_directories(staging / "jobs", ec);
+  SLSHADOW_THROW_IF(ec, staging.string(), ": cannot create folder: ", ec.message());
+  fs::create_directories(staging / "results", ec);
+  for (const auto& job : jobs)
+    WriteTextFileAtomically(JobFile(staging, job["id"].get<int>()), job.dump(1) + "\n");
+  const json plan = {{"format", kPlanFormat},
+                     {"version", kVersion},
+                     {"study", summary.study},
+                     {"study_file", fs::absolute(study_file).lexically_normal().string()},
+                     {"study_config", study.json()},
+                     {"axes", summary.axes},
+                     {"jobs", summary.jobs},
+                     {"geometry_groups", summary.geometry_groups}};
+  WriteTextFileAtomically(staging / "plan.json", plan.dump(2) + "\n");
+  CommitDirectory(staging, jobs_dir, /*overwrite=*/false);
+  cleanup.keep = true;
+  return summary;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Run.
+
+void SweepRunOptions::Check() const {
+  SLSHADOW_THROW_IF(shard_count < 1, "--shard: the number of shards must be at least 1 (got ",
+                    shard_count, ")");
+  SLSHADOW_THROW_IF(shard_index < 0 || shard_index >= shard_count, "--shard: index ", shard_index,
+                    " is not in 0..", shard_count - 1);
+}
+
+void ParseShard(const std::string& text, const std::string& what, SweepRunOptions* options) {
+  const size_t slash = text.find('/');
+  int i = -1, n = 0;
+  size_t used_i = 0, used_n = 0;
+  try {
+    if (slash != std::string::npos) {
+      i = std::stoi(text.substr(0, slash), &used_i);
+      n = std::stoi(text.substr(slash + 1), &used_n);
+    }
+  } catch (const std::exception&) {
+    i = -1;
+  }
+  SLSHADOW_THROW_IF(slash == std::string::npos || i < 0 || n < 1 || i >= n || used_i != slash ||
+                        used_n != text.size() - slash - 1,
+                    what, ": '", text, "' is not I/N with 0 <= I < N (e.g. 0/4)");
+  options->shard_index = i;
+  options->shard_count = n;
+}
+
+std::string SweepRunSummary::BriefReport() const {
+  char buf[256];
+  std::snprintf(buf, sizeof(buf),
+                "%d jobs in this shard: %d already done, %d run, %d geometry traces, %.2f s",
+                assigned, already_done, ran, geometry_traces, wall_s);
+  return buf;
+}
+
+namespace {
+
+json ReadPlan(const fs::path& jobs_dir) {
+  const fs::path file = jobs_dir / "plan.json";
+  const json plan = ReadJsonFile(file);
+  SLSHADOW_THROW_IF(!plan.is_object() || plan.value("format", "") != kPlanFormat ||
+                        plan.value("version", 0) != kVersion,
+                    file.string(), ": not a sweep plan (format ", kPlanFormat, ", version 1)");
+  return plan;
+}
+
+json ReadJob(const fs::path& jobs_dir, int id) {
+  const fs::path file = JobFile(jobs_dir, id);
+  json job = ReadJsonFile(file);
+  SLSHADOW_THROW_IF(
+      !job.is_object() || job.value("format", "") != kJobFormat || job.value("id", -1) != id,
+      file.string(), ": not sweep job ", id, " (format ", kJobFormat, ")");
+  return job;
+}
+
+// What a geometry group keeps for its jobs.
+struct Group {
+  std::string key;
+  Scene scene;  // the first job's scene (geometry of all)
+  Rig rig;
+  std::unique_ptr<Simulator> simulator;
+  std::optional<compare::Reference> reference;
+  std::vector<Eigen::Vector3d> visible;
+};
+
+json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group, int* traces) {
+  const std::string what = file.string();
+  const auto node = [&](const char* key) { return ConfigNode::FromJson(job.at(key), what, key); };
+  const std::string key = GeometryKey(job);
+  const auto clock = [] { return std::chrono::steady_clock::now(); };
+  const auto seconds = [](auto a, auto b) { return std::chrono::duration<double>(b - a).count(); };
+  json timing = json::object();
+  const double cpu0 = ProcessCpuSeconds();
+  const auto t0 = clock();
+
+  Scene scene = SceneFromConfig(node("scene"), job.at("scene_base_dir").get<std::string>());
+  if (!group || group->key != key) {
+    group.reset();
+    auto g = std::make_unique<Group>();
+    g->key = key;
+    g->scene = scene;
+    g->rig = RigFromConfig(node("rig"));
+    g->simulator = std::make_unique<Simulator>(g->scene, g->rig);
+    g->reference.emplace(
+        compare::ReferenceFromMesh(SceneSurface(g->scene, what + ": scene"), "scene ground truth"));
+    g->visible = LitVisibleSurface(g->simulator->geometry(0));
+    group = std::move(g);
+    ++*traces;
+  }
+  const auto t1 = clock();
+  timing["setup_s"] = seconds(t0, t1);
+
+  const PatternSpec spec = PatternSpecFromConfig(node("patterns"));
+  const std::vector<cv::Mat> projector_images = GeneratePatterns(spec);
+  const std::vector<std::vector<cv::Mat>> images =
+      group->simulator->Render(projector_images, &scene);
+  const auto t2 = clock();
+  timing["render_s"] = seconds(t1, t2);
+
+  std::vector<ReconstructMode> modes;
+  for (const auto& m : job.at("modes"))
+    modes.push_back(ReconstructModeFromString(m.get<std::string>()));
+  const bool stereo =
+      std::find(modes.begin(), modes.end(), ReconstructMode::kStereo) != modes.end();
+  const DecodeOptions decode = DecodeOptionsFromConfig(node("decode"));
+  DecodedScan decoded;
+  decoded.rig = group->rig;
+  decoded.spec = spec;
+  std::vector<double> decode_camera_s;
+  for (size_t c = 0; c < (stereo ? 2u : 1u); ++c) {
+    const auto tc = clock();
+    decoded.cameras.push_back(group->rig.cameras[c].name);
+    decoded.maps.push_back(DecodePatterns(spec, images[c], decode));
+    decode_camera_s.push_back(seconds(tc, clock()));
+  }
+  const auto t3 = clock();
+  timing["decode_s"] = seconds(t2, t3);
+
+  const ReconstructOptions reconstruct = ReconstructOptionsFromConfig(node("reconstruct"));
+  std::vector<StageMeasurement> stages;
+  std::vector<Reconstruction> recs = ReconstructModes(decoded, modes, reconstruct, &stages);
+  const auto t4 = clock();
+  timing["reconstruct_s"] = seconds(t3, t4);
+  // Per mode, what the method costs: decoding the cameras it reads, then its reconstruction.
+  json method_s = json::object();
+  for (size_t k = 0; k < modes.size() && k < stages.size(); ++k) {
+    const bool two = modes[k] == ReconstructMode::kStereo;
+    method_s[ToString(modes[k])] =
+        decode_camera_s[0] + (two ? decode_camera_s[1] : 0.0) + stages[k].wall_s;
+  }
+  timing["method_s"] = method_s;
+
+  const compare::CompareOptions compare_options =
+      compare::CompareOptionsFromConfig(node("compare"));
+  json accuracy = json::array();
+  for (size_t k = 0; k < modes.size(); ++k) {
+    const std::string name = ToString(modes[k]);
+    const compare::CompareResult cmp =
+        compare::Compare(recs[k].cloud, *group->reference, compare_options, name);
+    const ModeAccuracy m = MeasureAccuracy(name, cmp, group->visible);
+    accuracy.push_back({{"mode", m.mode},
+                        {"points", m.points},
+                        {"coverage", m.coverage},
+                        {"visible_coverage", m.visible_coverage},
+                        {"mean_mm", m.mean_mm},
+                        {"rms_mm", m.rms_mm},
+                        {"p95_mm", m.p95_mm},
+                        {"max_mm", m.max_mm},
+                        {"outliers", m.outliers},
+                        {"outlier_fraction", m.outlier_fraction}});
+  }
+  const auto t5 = clock();
+  timing["compare_s"] = seconds(t4, t5);
+  timing["total_s"] = seconds(t0, t5);
+  timing["cpu_s"] = ProcessCpuSeconds() - cpu0;
+  return {{"format", kResultFormat},    {"version", kVersion}, {"id", job.at("id")},
+          {"params", job.at("params")}, {"modes", accuracy},   {"timing", timing}};
+}
+
+}  // namespace
+
+std::vector<int> ShardJobs(const fs::path& jobs_dir, int shard_index, int shard_count) {
+  SweepRunOptions check;
+  check.shard_index = shard_index;
+  check.shard_count = shard_count;
+  check.Check();
+  const json plan = ReadPlan(jobs_dir);
+  const int n = plan.at("jobs").get<int>();
+  // Jobs by geometry group, groups in order of first appearance.
+  std::map<std::string, int> group_of_key;
+  std::vector<std::pair<int, int>> order;  // (group, id)
+  for (int id = 0; id < n; ++id) {
+    const std::string key = GeometryKey(ReadJob(jobs_dir, id));
+    const auto it = group_of_key.emplace(key, static_cast<int>(group_of_key.size())).first;
+    order.emplace_back(it->second, id);
+  }
+  std::sort(order.begin(), order.end());
+  const auto begin = static_cast<size_t>(static_cast<int64_t>(n) * shard_index / shard_count);
+  const auto end = static_cast<size_t>(static_cast<int64_t>(n) * (shard_index + 1) / shard_count);
+  std::vector<int> ids;
+  for (size_t k = begin; k < end; ++k) ids.push_back(order[k].second);
+  return ids;
+}
+
+SweepRunSummary RunSweepShard(const fs::path& jobs_dir, const SweepRunOptions& options) {
+  options.Check();
+  const auto t0 = std::chrono::steady_clock::now();
+  SweepRunSummary summary;
+  const std::vector<int> ids = ShardJobs(jobs_dir, options.shard_index, options.shard_count);
+  summary.assigned = static_cast<int>(ids.size());
+  std::unique_ptr<Group> group;
+  for (int id : ids) {
+    std::error_code ec;
+    const fs::path result_file = ResultFile(jobs_dir, id);
+    if (fs::exists(result_file, ec)) {
+      ++summary.already_done;
+      continue;
+    }
+    const fs::path file = JobFile(jobs_dir, id);
+    const json result = RunJob(ReadJob(jobs_dir, id), file, group, &summary.geometry_traces);
+    WriteTextFileAtomically(result_file, result.dump(1) + "\n");
+    ++summary.ran;
+    if (options.verbose) {
+      std::printf("job %s: %s, %.3f s\n", JobName(id).c_str(), result["params"].dump().c_str(),
+                  result["timing"]["total_s"].get<double>());
+      std::fflush(stdout);
+    }
+  }
+  summary.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return summary;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Merge.
+
+namespace {
+
+// Floats with `digits` significant digits (17: exact round trip).
+std::string CsvField(const json& v, int digits = 10) {
+  std::string s;
+  if (v.is_string()) {
+    s = v.get<std::string>();
+  } else if (v.is_number_float()) {
+    char buf[64];
+    std::snprintf(buf, sizeof(buf), "%.*g", digits, v.get<double>());
+    s = buf;
+  } else {
+    s = v.dump();
+  }
+  if (s.find_first_of(",\"\n") != std::string::npos) {
+    std::string q = "\"";
+    for (char c : s) q += (c == '"') ? std::string("\"\"") : std::string(1, c);
+    q += '"';
+    return q;
+  }
+  return s;
+}
+
+// Per mode: a job is on the Pareto front of (method time, RMS) when no other job of that mode is
+// at least as fast and as accurate and better in one of the two.
+struct FrontPoint {
+  std::string id, mode, label;
+  double time_s = 0, rms_mm = 0;
+  bool on_front = false;
+};
+
+void MarkFront(std::vector<FrontPoint>& points) {
+  for (auto& p : points) {
+    p.on_front = true;
+    for (const auto& q : points) {
+      if (q.mode != p.mode || &q == &p) continue;
+      if (q.time_s <= p.time_s && q.rms_mm <= p.rms_mm &&
+          (q.time_s < p.time_s || q.rms_mm < p.rms_mm)) {
+        p.on_front = false;
+        break;
+      }
+    }
+  }
+}
+
+void WriteFrontChart(const fs::path& path, const std::vector<FrontPoint>& points,
+                     const std::string& study) {
+  double xmax = 0, ymax = 0;
+  for (const auto& p : points) {
+    xmax = std::max(xmax, p.time_s);
+    ymax = std::max(ymax, p.rms_mm);
+  }
+  const auto lock = plot::LockPlplot();
+  WriteFileAtomically(path, [&](const fs::path& tmp) {
+    auto pls = plot::OpenPng(tmp, 1000, 700, {{40, 90, 200}, {200, 60, 0}, {150, 150, 150}});
+    pls->env(0, xmax * 1.1 + 1e-9, 0, ymax * 1.15 + 1e-12, 0, 0);
+    pls->lab("decode (cameras the mode reads) + reconstruct time (s)", "RMS deviation (mm)",
+             (study + ": time against error, Pareto front per mode").c_str());
+    std::vector<std::string> modes;
+    for (const auto& p : points) {
+      if (std::find(modes.begin(), modes.end(), p.mode) == modes.end()) modes.push_back(p.mode);
+    }
+    for (size_t m = 0; m < modes.size(); ++m) {
+      std::vector<FrontPoint> front;
+      pls->col0(static_cast<PLINT>(2 + m % 2));
+      for (const auto& p : points) {
+        if (p.mode != modes[m]) continue;
+        PLFLT x = p.time_s, y = p.rms_mm;
+        pls->ssym(0, p.on_front ? 2.5 : 1.0);
+        pls->poin(1, &x, &y, p.on_front ? 17 : 4);
+        if (p.on_front) front.push_back(p);
+      }
+      std::sort(front.begin(), front.end(),
+                [](const auto& a, const auto& b) { return a.time_s < b.time_s; });
+      std::vector<PLFLT> xs, ys;
+      for (const auto& p : front) {
+        xs.push_back(p.time_s);
+        ys.push_back(p.rms_mm);
+        pls->schr(0, 0.6);
+        pls->ptex(p.time_s, p.rms_mm, 1, 0, -0.1, (" " + p.label).c_str());
+        pls->schr(0, 1.0);
+      }
+      if (xs.size() > 1) pls->line(static_cast<PLINT>(xs.size()), xs.data(), ys.data());
+      pls->mtex("t", -1.5 - 1.5 * static_cast<double>(m), 0.98, 1.0,
+                (modes[m] + " (filled: on the front)").c_str());
+    }
+  });
+}
+
+}  // namespace
+
+SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) {
+  const json plan = ReadPlan(jobs_dir);
+  const int n = plan.at("jobs").get<int>();
+  const std::vector<std::string> axes = plan.at("axes").get<std::vector<std::string>>();
+  std::vector<json> results;
+  std::vector<std::string> missing;
+  for (int id = 0; id < n; ++id) {
+    std::error_code ec;
+    const fs::path file = ResultFile(jobs_dir, id);
+    if (!fs::exists(file, ec)) {
+      missing.push_back(JobName(id));
+      continue;
+    }
+    json r = ReadJsonFile(file);
+    SLSHADOW_THROW_IF(
+        !r.is_object() || r.value("format", "") != kResultFormat || r.value("id", -1) != id,
+        file.string(), ": not the result of job ", id);
+    results.push_back(std::move(r));
+  }
+  if (!missing.empty()) {
+    std::string list;
+    for (size_t i = 0; i < missing.size() && i < 10; ++i) {
+      if (i) list += ", ";
+      list += missing[i];
+    }
+    SLSHADOW_THROW(jobs_dir.string(), ": ", missing.size(), " of ", n, " jobs have no result (",
+                   list, missing.size() > 10 ? ", ..." : "", "); run their shards first");
+  }
+
+  const std::vector<std::string> metrics = {"points",  "coverage", "visible_coverage",
+                                            "mean_mm", "rms_mm",   "p95_mm",
+                                            "max_mm",  "outliers", "outlier_fraction"};
+  std::string csv = "id";
+  for (const auto& a : axes) {
+    csv += ',';
+    csv += CsvField(a);
+  }
+  csv += ",mode";
+  for (const auto& m : metrics) {
+    csv += ',';
+    csv += m;
+  }
+  csv += "\n";
+  std::string timings = "id,setup_s,render_s,decode_s,reconstruct_s,compare_s,total_s,cpu_s\n";
+  json merged = {
+      {"format", "slshadow-sweep-results"},      {"version", kVersion}, {"study", plan.at("study")},
+      {"study_config", plan.at("study_config")}, {"axes", axes},        {"jobs", json::array()}};
+  SweepMergeSummary summary;
+  for (const auto& r : results) {
+    const std::string id = JobName(r.at("id").get<int>());
+    for (const auto& m : r.at("modes")) {
+      csv += id;
+      for (const auto& a : axes) {
+        csv += ',';
+        csv += CsvField(r.at("params").at(a));
+      }
+      csv += ',';
+      csv += CsvField(m.at("mode"));
+      for (const auto& k : metrics) {
+        csv += ',';
+        csv += CsvField(m.at(k));
+      }
+      csv += "\n";
+      ++summary.rows;
+    }
+    const json& t = r.at("timing");
+    timings += id;
+    for (const char* k :
+         {"setup_s", "render_s", "decode_s", "reconstruct_s", "compare_s", "total_s", "cpu_s"}) {
+      timings += ',';
+      timings += CsvField(t.at(k));
+    }
+    timings += "\n";
+    merged["jobs"].push_back(
+        {{"id", r.at("id")}, {"params", r.at("params")}, {"modes", r.at("modes")}});
+  }
+  std::error_code ec;
+  fs::create_directories(out_dir, ec);
+  SLSHADOW_THROW_IF(ec, out_dir.string(), ": cannot create folder: ", ec.message());
+  WriteTextFileAtomically(out_dir / "results.csv", csv);
+  WriteTextFileAtomically(out_dir / "results.json", merged.dump(2) + "\n");
+  WriteTextFileAtomically(out_dir / "timings.csv", timings);
+
+  // Time against error: decode + reconstruct time (the method's cost; rendering and comparing are
+  // the study's) against RMS, per mode, with the Pareto front. Measured times: not reproducible.
+  std::vector<FrontPoint> points;
+  for (const auto& r : results) {
+    std::string label;
+    for (const auto& a : axes) {
+      if (!label.empty()) label += ' ';
+      const json& v = r.at("params").at(a);
+      // Files axes: the file's stem (graycode_phase), not its path.
+      label += v.is_string() && v.get<std::string>().find_first_of("/.") != std::string::npos
+                   ? fs::path(v.get<std::string>()).stem().string()
+                   : CsvField(v);
+    }
+    const json& t = r.at("timing");
+    for (const auto& m : r.at("modes")) {
+      FrontPoint p;
+      p.id = JobName(r.at("id").get<int>());
+      p.mode = m.at("mode").get<std::string>();
+      p.label = label.empty() ? p.id : label;
+      p.time_s = t.at("method_s").at(p.mode).get<double>();
+      p.rms_mm = m.at("rms_mm").get<double>();
+      points.push_back(p);
+    }
+  }
+  MarkFront(points);
+  std::string front_csv = "id,mode,label,time_s,rms_mm,on_front\n";
+  for (const auto& p : points) {
+    front_csv += p.id + ',' + p.mode + ',' + CsvField(p.label) + ',' + CsvField(p.time_s, 17) +
+                 ',' + CsvField(p.rms_mm, 17) + ',' + (p.on_front ? "1" : "0") + '\n';
+    if (p.on_front) summary.front.push_back(p.mode + ": " + p.id + " (" + p.label + ")");
+  }
+  WriteTextFileAtomically(out_dir / "pareto.csv", front_csv);
+  WriteFrontChart(out_dir / "time_vs_rms.png", points, plan.at("study").get<std::string>());
+  summary.jobs = n;
+  summary.out_dir = out_dir;
+  return summary;
+}
+
+}  // namespace slshadow::workflow

@@ -1,0 +1,231 @@
+// Sweeps (shadow/sweep.h): plan, shards, merge. Oracles: the merged result of one process against
+// that of shards run in another order and through GNU parallel (byte for byte); resumption runs
+// only missing jobs; the accuracy of noisy scans of the demo part against its ground truth; bad
+// input.
+#include "shadow/sweep.h"
+
+#include "core/error.h"
+#include "core/file_util.h"
+
+#include "tests/testing/temp_dir.h"
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <cstdlib>
+#include <fstream>
+#include <sstream>
+#include <string>
+
+namespace slshadow::workflow {
+namespace {
+namespace fs = std::filesystem;
+using testing::SourceDir;
+using testing::TempDir;
+
+// 2 noise seeds x 2 triangulation methods on the quarter-resolution demo rig: 4 jobs.
+void WriteSmallStudy(const fs::path& file) {
+  std::ofstream(file)
+      << "format: slshadow-study\nversion: 1\nname: small\n"
+      << "rig: " << (SourceDir() / "config/studies/quarter_demo_rig.yaml").string() << "\n"
+      << "modes: [projector, stereo]\n"
+         "compare: {threshold_mm: 0.5}\n"
+         "set:\n  scene.layers.noise: {full_well_e: 10000, read_noise_e: 6}\n"
+         "axes:\n"
+         "  - {name: seed, set: scene.layers.noise.seed, values: [11, 12]}\n"
+         "  - {name: method, set: reconstruct.method, values: [midpoint, optimal]}\n";
+}
+
+SweepRunOptions Shard(int i, int n) {
+  SweepRunOptions o;
+  o.shard_index = i;
+  o.shard_count = n;
+  return o;
+}
+
+TEST(Sweep, ShardsInAnyOrderMergeToTheOneProcessResultAndResumeOnlyMissingJobs) {
+  TempDir tmp;
+  WriteSmallStudy(tmp / "study.yaml");
+  const SweepPlanSummary plan = PlanSweep(tmp / "study.yaml", tmp / "one");
+  EXPECT_EQ(plan.jobs, 4);
+  EXPECT_EQ(plan.geometry_groups, 1);
+  const SweepRunSummary one = RunSweepShard(tmp / "one", Shard(0, 1));
+  EXPECT_EQ(one.ran, 4);
+  EXPECT_EQ(one.geometry_traces, 1);  // noise and method do not change geometry
+  MergeSweep(tmp / "one", tmp / "one_result");
+
+  PlanSweep(tmp / "study.yaml", tmp / "sharded");
+  int ran = 0;
+  for (int i : {2, 0, 1}) ran += RunSweepShard(tmp / "sharded", Shard(i, 3)).ran;
+  EXPECT_EQ(ran, 4);
+  MergeSweep(tmp / "sharded", tmp / "sharded_result");
+  const std::string csv = ReadTextFile(tmp / "one_result/results.csv");
+  EXPECT_EQ(csv, ReadTextFile(tmp / "sharded_result/results.csv"));
+  EXPECT_EQ(ReadTextFile(tmp / "one_result/results.json"),
+            ReadTextFile(tmp / "sharded_result/results.json"));
+
+  // The figures: noisy scans of the demo part, 2 modes per job.
+  const nlohmann::json merged =
+      nlohmann::json::parse(ReadTextFile(tmp / "one_result/results.json"));
+  ASSERT_EQ(merged["jobs"].size(), 4u);
+  for (const auto& job : merged["jobs"]) {
+    ASSERT_EQ(job["modes"].size(), 2u);
+    for (const auto& m : job["modes"]) {
+      EXPECT_GT(m["visible_coverage"].get<double>(), 0.9) << job.dump();
+      EXPECT_GT(m["rms_mm"].get<double>(), 0.01) << job.dump();  // noise is on
+      EXPECT_LT(m["rms_mm"].get<double>(), 0.15) << job.dump();
+      EXPECT_LT(m["outlier_fraction"].get<double>(), 0.01) << job.dump();
+    }
+  }
+  // Another seed is another noise realisation: the projector-mode RMS of seeds 11 and 12 differ.
+  EXPECT_EQ(merged["jobs"][0]["params"]["seed"], 11);
+  EXPECT_EQ(merged["jobs"][2]["params"]["seed"], 12);
+  EXPECT_NE(merged["jobs"][0]["modes"][0]["rms_mm"], merged["jobs"][2]["modes"][0]["rms_mm"]);
+  EXPECT_EQ(std::count(csv.begin(), csv.end(), '\n'), 1 + 8);
+
+  // The Pareto front (measured times): flagged rows are dominated by no row of their mode, the
+  // others by at least one; each mode has a front; the chart is written.
+  {
+    std::istringstream in(ReadTextFile(tmp / "one_result/pareto.csv"));
+    std::string line;
+    std::getline(in, line);
+    struct Row {
+      std::string mode;
+      double t, rms;
+      bool front;
+    };
+    std::vector<Row> rows;
+    while (std::getline(in, line)) {
+      std::vector<std::string> f;
+      std::stringstream ls(line);
+      for (std::string x; std::getline(ls, x, ',');) f.push_back(x);
+      ASSERT_EQ(f.size(), 6u) << line;
+      rows.push_back({f[1], std::stod(f[3]), std::stod(f[4]), f[5] == "1"});
+    }
+    ASSERT_EQ(rows.size(), 8u);
+    for (const auto& p : rows) {
+      bool dominated = false;
+      for (const auto& q : rows) {
+        dominated |=
+            q.mode == p.mode && q.t <= p.t && q.rms <= p.rms && (q.t < p.t || q.rms < p.rms);
+      }
+      EXPECT_EQ(p.front, !dominated) << p.mode << " " << p.t << " " << p.rms;
+    }
+    for (const char* mode : {"projector", "stereo"}) {
+      EXPECT_TRUE(std::any_of(rows.begin(), rows.end(),
+                              [&](const Row& r) { return r.mode == mode && r.front; }));
+    }
+    EXPECT_GT(fs::file_size(tmp / "one_result/time_vs_rms.png"), 1000u);
+  }
+
+  // An interrupted shard: one result lost; the merge names it, a re-run runs only it.
+  fs::remove(tmp / "sharded/results/000001.json");
+  try {
+    MergeSweep(tmp / "sharded", tmp / "partial");
+    ADD_FAILURE() << "merge with a missing result did not throw";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("000001"), std::string::npos) << e.what();
+  }
+  const SweepRunSummary again = RunSweepShard(tmp / "sharded", Shard(0, 1));
+  EXPECT_EQ(again.ran, 1);
+  EXPECT_EQ(again.already_done, 3);
+  MergeSweep(tmp / "sharded", tmp / "sharded_result");
+  EXPECT_EQ(csv, ReadTextFile(tmp / "sharded_result/results.csv"));
+}
+
+TEST(Sweep, ShardsAreContiguousDisjointAndCoverEveryJob) {
+  TempDir tmp;
+  WriteSmallStudy(tmp / "study.yaml");
+  PlanSweep(tmp / "study.yaml", tmp / "jobs");
+  for (int n : {1, 3, 4, 7}) {
+    std::vector<int> all;
+    for (int i = 0; i < n; ++i) {
+      const std::vector<int> ids = ShardJobs(tmp / "jobs", i, n);
+      EXPECT_LE(ids.size(), 4u / static_cast<size_t>(n) + 1);
+      all.insert(all.end(), ids.begin(), ids.end());
+    }
+    std::sort(all.begin(), all.end());
+    EXPECT_EQ(all, (std::vector<int>{0, 1, 2, 3})) << n << " shards";
+  }
+}
+
+// The quick study through GNU parallel: 3 shards on 2 job slots, then merge; equal byte for byte
+// to the one-process result.
+TEST(Sweep, GnuParallelShardsMergeToTheOneProcessResult) {
+  if (std::system("parallel --version > /dev/null 2>&1") != 0) {
+    GTEST_SKIP() << "GNU parallel is not installed (scripts/setup.sh installs it)";
+  }
+  TempDir tmp;
+  const fs::path study = SourceDir() / "config/studies/noise_quick.yaml";
+  PlanSweep(study, tmp / "one");
+  RunSweepShard(tmp / "one", Shard(0, 1));
+  MergeSweep(tmp / "one", tmp / "one_result");
+
+  const std::string bin = SLSHADOW_BINARY;
+  const std::string jobs = (tmp / "par").string(), result = (tmp / "par_result").string();
+  ASSERT_EQ(
+      std::system(
+          (bin + " sweep plan " + study.string() + " --out " + jobs + " > /dev/null").c_str()),
+      0);
+  const std::string cmd = "parallel --will-cite --halt now,fail=1 -j 2 --joblog " +
+                          (tmp / "joblog").string() + " " + bin + " sweep run " + jobs +
+                          " --shard {}/3 ::: 2 1 0 > /dev/null";
+  ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
+  ASSERT_EQ(
+      std::system((bin + " sweep merge " + jobs + " --out " + result + " > /dev/null").c_str()), 0);
+  EXPECT_EQ(ReadTextFile(tmp / "one_result/results.csv"),
+            ReadTextFile(tmp / "par_result/results.csv"));
+  EXPECT_EQ(ReadTextFile(tmp / "one_result/results.json"),
+            ReadTextFile(tmp / "par_result/results.json"));
+  const std::string joblog = ReadTextFile(tmp / "joblog");
+  EXPECT_EQ(std::count(joblog.begin(), joblog.end(), '\n'), 1 + 3) << joblog;  // header + 3 shards
+}
+
+void ExpectPlanError(const TempDir& tmp, const std::string& yaml, const std::string& needle) {
+  const fs::path file = tmp / "bad.yaml";
+  std::ofstream(file) << "format: slshadow-study\nversion: 1\nname: bad\n" << yaml;
+  try {
+    PlanSweep(file, tmp / "bad_jobs");
+    ADD_FAILURE() << "no error for:\n" << yaml;
+  } catch (const Error& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("bad.yaml"), std::string::npos) << what;
+    EXPECT_NE(what.find(needle), std::string::npos) << what;
+  }
+  EXPECT_FALSE(fs::exists(tmp / "bad_jobs"));
+}
+
+TEST(Sweep, BadStudiesAreRejectedNamingFileAndFieldAndWriteNothing) {
+  TempDir tmp;
+  const std::string rig =
+      "rig: " + (SourceDir() / "config/studies/quarter_demo_rig.yaml").string() + "\n";
+  ExpectPlanError(tmp, rig + "colour: red\n", "colour");
+  ExpectPlanError(tmp, rig + "modes: [projector, sideways]\n", "sideways");
+  ExpectPlanError(tmp, rig + "axes:\n  - {name: s, set: layers.noise.seed, values: [1]}\n",
+                  "layers.noise.seed");
+  ExpectPlanError(tmp,
+                  rig +
+                      "axes:\n  - {name: s, set: scene.layers.noise.seed, values: [1], range: "
+                      "{first: 1, count: 2}}\n",
+                  "exactly one of");
+  ExpectPlanError(
+      tmp, rig + "axes:\n  - {name: m, set: reconstruct.method, values: [midpoint, bogus]}\n",
+      "bogus");
+  ExpectPlanError(tmp, rig + "axes:\n  - {name: g, set: decode.shadow_threshold, values: [-3]}\n",
+                  "shadow_threshold");
+
+  WriteSmallStudy(tmp / "study.yaml");
+  fs::create_directories(tmp / "exists");
+  EXPECT_THROW(PlanSweep(tmp / "study.yaml", tmp / "exists"), Error);
+  SweepRunOptions o;
+  EXPECT_THROW(ParseShard("3/3", "--shard", &o), Error);
+  EXPECT_THROW(ParseShard("1/0", "--shard", &o), Error);
+  EXPECT_THROW(ParseShard("1-2", "--shard", &o), Error);
+  EXPECT_THROW(ParseShard("1/2x", "--shard", &o), Error);
+  ParseShard("1/2", "--shard", &o);
+  EXPECT_EQ(o.shard_index, 1);
+  EXPECT_EQ(o.shard_count, 2);
+}
+
+}  // namespace
+}  // namespace slshadow::workflow
