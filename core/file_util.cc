@@ -8,6 +8,7 @@
 #include <ctime>
 #include <fstream>
 #include <sstream>
+#include <utility>
 
 #include "core/error.h"
 
@@ -76,6 +77,23 @@ void CommitDirectory(const fs::path& staged, const fs::path& target, bool overwr
     SLSHADOW_THROW(target.string(), ": cannot move finished folder into place: ", ec.message());
   }
   if (!old.empty()) fs::remove_all(old, ec);
+}
+
+StagingDirectory::StagingDirectory(std::filesystem::path target)
+    : target_(std::move(target)), staging_(TemporarySibling(target_)) {
+  std::error_code ec;
+  std::filesystem::create_directories(staging_, ec);
+  SLSHADOW_THROW_IF(ec, staging_.string(), ": cannot create folder: ", ec.message());
+}
+
+StagingDirectory::~StagingDirectory() {
+  std::error_code ec;
+  if (!committed_) std::filesystem::remove_all(staging_, ec);
+}
+
+void StagingDirectory::Commit(bool overwrite) {
+  CommitDirectory(staging_, target_, overwrite);
+  committed_ = true;
 }
 
 std::string UtcTimestamp() {

@@ -28,6 +28,23 @@ std::filesystem::path TemporarySibling(const std::filesystem::path& path);
 void CommitDirectory(const std::filesystem::path& staged, const std::filesystem::path& target,
                      bool overwrite);
 
+// A folder built under a temporary sibling name of `target` and moved into place by Commit()
+// (CommitDirectory); destroyed uncommitted, it is removed with everything in it, so an error
+// midway leaves nothing half-written. The constructor creates the folder (throws naming it).
+class StagingDirectory {
+ public:
+  explicit StagingDirectory(std::filesystem::path target);
+  ~StagingDirectory();
+  StagingDirectory(const StagingDirectory&) = delete;
+  StagingDirectory& operator=(const StagingDirectory&) = delete;
+  const std::filesystem::path& path() const { return staging_; }
+  void Commit(bool overwrite);
+
+ private:
+  std::filesystem::path target_, staging_;
+  bool committed_ = false;
+};
+
 // The current UTC time as ISO 8601 with milliseconds, e.g. "2026-11-22T06:30:00.123Z".
 std::string UtcTimestamp();
 

@@ -4,6 +4,7 @@
 #include <cstdio>
 #include <exception>
 #include <thread>
+#include <utility>
 
 #include "compare/compare.h"
 #include "compare/report.h"
@@ -35,17 +36,9 @@ nlohmann::json DemoResult::ToJson() const {
   nlohmann::json j;
   j["modes"] = nlohmann::json::array();
   for (const auto& m : modes) {
-    j["modes"].push_back({{"mode", m.mode},
-                          {"points", m.points},
-                          {"coverage", m.coverage},
-                          {"visible_coverage", m.visible_coverage},
-                          {"mean_mm", m.mean_mm},
-                          {"rms_mm", m.rms_mm},
-                          {"p95_mm", m.p95_mm},
-                          {"max_mm", m.max_mm},
-                          {"outliers", m.outliers},
-                          {"outlier_fraction", m.outlier_fraction},
-                          {"report", m.report_dir.string()}});
+    nlohmann::json mode = ModeAccuracyToJson(m);
+    mode["report"] = m.report_dir.string();
+    j["modes"].push_back(std::move(mode));
   }
   j["stages"] = nlohmann::json::array();
   for (const auto& s : stages) {
@@ -80,17 +73,8 @@ DemoResult RunDemoJob(const DemoOptions& options) {
   const fs::path out_dir = options.out_dir;
   SLSHADOW_THROW_IF(fs::exists(out_dir, ec) && !fs::exists(out_dir / kMarker, ec), out_dir.string(),
                     ": exists and is not an earlier demo output; choose another --out");
-  const fs::path staging = TemporarySibling(out_dir);
-  fs::create_directories(staging, ec);
-  SLSHADOW_THROW_IF(ec, staging.string(), ": cannot create folder: ", ec.message());
-  struct Cleanup {
-    fs::path dir;
-    bool keep = false;
-    ~Cleanup() {
-      std::error_code e;
-      if (!keep) fs::remove_all(dir, e);
-    }
-  } cleanup{staging};
+  StagingDirectory staged(out_dir);
+  const fs::path& staging = staged.path();
 
   DemoResult result;
   result.out_dir = out_dir;
@@ -207,8 +191,7 @@ DemoResult RunDemoJob(const DemoOptions& options) {
   result.stages.push_back(meter.Stop());
 
   WriteTextFileAtomically(staging / kMarker, result.ToJson().dump(2) + "\n");
-  CommitDirectory(staging, out_dir, /*overwrite=*/true);
-  cleanup.keep = true;
+  staged.Commit(/*overwrite=*/true);
   return result;
 }
 

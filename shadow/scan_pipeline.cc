@@ -224,4 +224,17 @@ ModeAccuracy MeasureAccuracy(const std::string& mode, const compare::CompareResu
   return m;
 }
 
+nlohmann::json ModeAccuracyToJson(const ModeAccuracy& m) {
+  return {{"mode", m.mode},
+          {"points", m.points},
+          {"coverage", m.coverage},
+          {"visible_coverage", m.visible_coverage},
+          {"mean_mm", m.mean_mm},
+          {"rms_mm", m.rms_mm},
+          {"p95_mm", m.p95_mm},
+          {"max_mm", m.max_mm},
+          {"outliers", m.outliers},
+          {"outlier_fraction", m.outlier_fraction}};
+}
+
 }  // namespace slshadow::workflow

@@ -140,5 +140,8 @@ struct ModeAccuracy {
 };
 ModeAccuracy MeasureAccuracy(const std::string& mode, const compare::CompareResult& result,
                              const std::vector<Eigen::Vector3d>& visible);
+// {"mode", "points", "coverage", "visible_coverage", "mean_mm", "rms_mm", "p95_mm", "max_mm",
+//  "outliers", "outlier_fraction"}: what the demo's demo.json and a sweep job's result record.
+nlohmann::json ModeAccuracyToJson(const ModeAccuracy& accuracy);
 
 }  // namespace slshadow::workflow

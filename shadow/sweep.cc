@@ -290,15 +290,8 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
   summary.jobs = static_cast<int>(jobs.size());
   summary.geometry_groups = static_cast<int>(groups.size());
 
-  const fs::path staging = TemporarySibling(jobs_dir);
-  struct Cleanup {
-    fs::path dir;
-    bool keep = false;
-    ~Cleanup() {
-      std::error_code e;
-      if (!keep) fs::remove_all(dir, e);
-    }
-  } cleanup{staging};
+  StagingDirectory staged(jobs_dir);
+  const fs::path& staging = staged.path();
   fs::create_directories(staging / "jobs", ec);
   SLSHADOW_THROW_IF(ec, staging.string(), ": cannot create folder: ", ec.message());
   fs::create_directories(staging / "results", ec);
@@ -313,8 +306,7 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
                      {"jobs", summary.jobs},
                      {"geometry_groups", summary.geometry_groups}};
   WriteTextFileAtomically(staging / "plan.json", plan.dump(2) + "\n");
-  CommitDirectory(staging, jobs_dir, /*overwrite=*/false);
-  cleanup.keep = true;
+  staged.Commit(/*overwrite=*/false);
   return summary;
 }
 
@@ -460,16 +452,7 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
     const compare::CompareResult cmp =
         compare::Compare(recs[k].cloud, *group->reference, compare_options, name);
     const ModeAccuracy m = MeasureAccuracy(name, cmp, group->visible);
-    accuracy.push_back({{"mode", m.mode},
-                        {"points", m.points},
-                        {"coverage", m.coverage},
-                        {"visible_coverage", m.visible_coverage},
-                        {"mean_mm", m.mean_mm},
-                        {"rms_mm", m.rms_mm},
-                        {"p95_mm", m.p95_mm},
-                        {"max_mm", m.max_mm},
-                        {"outliers", m.outliers},
-                        {"outlier_fraction", m.outlier_fraction}});
+    accuracy.push_back(ModeAccuracyToJson(m));
   }
   const auto t5 = clock();
   timing["compare_s"] = seconds(t4, t5);

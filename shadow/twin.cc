@@ -707,17 +707,10 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
   // 7. Report folder.
   if (!out_dir.empty()) {
     meter = StageMeter("write report");
-    const fs::path staging = TemporarySibling(out_dir);
+    StagingDirectory staged(out_dir);
+    const fs::path& staging = staged.path();
     fs::create_directories(staging / "maps", ec);
-    SLSHADOW_THROW_IF(ec, staging.string(), ": cannot create folder: ", ec.message());
-    struct Cleanup {
-      fs::path dir;
-      bool keep = false;
-      ~Cleanup() {
-        std::error_code e;
-        if (!keep) fs::remove_all(dir, e);
-      }
-    } cleanup{staging};
+    SLSHADOW_THROW_IF(ec, (staging / "maps").string(), ": cannot create folder: ", ec.message());
     report["maps"] = nlohmann::json::array();
     for (size_t c = 0; c < cameras.size(); ++c) {
       const std::string& n = cameras[c];
@@ -753,8 +746,7 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
     }
     WriteTextFileAtomically(staging / "report.json", report.dump(2) + "\n");
     WriteTextFileAtomically(staging / "summary.txt", result.Summary());
-    CommitDirectory(staging, out_dir, options.overwrite);
-    cleanup.keep = true;
+    staged.Commit(options.overwrite);
   } else {
     report["stages"] = nlohmann::json::array();
     for (const auto& s : result.stages) {
