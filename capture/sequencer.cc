@@ -57,6 +57,7 @@ void SequencerOptions::Check() const {
   SLSHADOW_THROW_IF(settle.count() < 0, "settle: must be >= 0 (got ", settle.count(), " us)");
   SLSHADOW_THROW_IF(max_retries < 0 || max_retries > 100, "max_retries: must be in [0, 100] (got ", max_retries, ")");
   SLSHADOW_THROW_IF(retry_backoff.count() < 0, "retry_backoff: must be >= 0 (got ", retry_backoff.count(), " us)");
+  SLSHADOW_THROW_IF(max_latency.count() < 0, "max_latency: must be >= 0 (got ", max_latency.count(), " us)");
   SLSHADOW_THROW_IF(store_queue_images < 1, "store_queue_images: must be >= 1 (got ", store_queue_images, ")");
   validation.Check();
   auto_exposure_options.Check();
@@ -111,7 +112,8 @@ nlohmann::json CaptureSummary::ToJson() const {
                       {"patterns", patterns},       {"images_total", images_total}, {"images_before", images_before},
                       {"images_stored", images_stored}, {"retries", retries},   {"seconds", seconds},
                       {"mean_pattern_ms", mean_pattern_ms}, {"overhead_ms_per_pattern", overhead_ms_per_pattern},
-                      {"overhead_cpu_ms_per_pattern", overhead_cpu_ms_per_pattern}};
+                      {"overhead_cpu_ms_per_pattern", overhead_cpu_ms_per_pattern},
+                      {"wait_after_show_us", wait_after_show_us}, {"learned_latency_us", learned_latency_us}};
   for (const auto& [name, s] : cameras) j["cameras"][name] = s.ToJson();
   for (const auto& [name, us] : auto_exposure_us) j["auto_exposure_us"][name] = us;
   return j;
@@ -188,19 +190,8 @@ struct SequenceModel {
     expected_change.assign(static_cast<size_t>(n), 0.0);
     const double half_range = 0.5 * (spec.intensity_max - spec.intensity_min);
     for (int k = 1; k < n; ++k) {
-      cv::Mat diff;
-      cv::absdiff(images[static_cast<size_t>(k)], images[static_cast<size_t>(k - 1)], diff);
-      const cv::Mat changed = diff >= half_range;
-      double worst = 1;
-      for (int ty = 0; ty < 8; ++ty) {
-        for (int tx = 0; tx < 8; ++tx) {
-          const cv::Rect tile(tx * changed.cols / 8, ty * changed.rows / 8, (tx + 1) * changed.cols / 8 - tx * changed.cols / 8,
-                              (ty + 1) * changed.rows / 8 - ty * changed.rows / 8);
-          if (tile.area() == 0) continue;
-          worst = std::min(worst, cv::countNonZero(changed(tile)) / static_cast<double>(tile.area()));
-        }
-      }
-      expected_change[static_cast<size_t>(k)] = worst;
+      expected_change[static_cast<size_t>(k)] =
+          TileChange(images[static_cast<size_t>(k)], images[static_cast<size_t>(k - 1)], half_range);
     }
     group_of.assign(static_cast<size_t>(n), 0);
     for (int k = 0; k < n;) {
@@ -265,6 +256,27 @@ struct SequenceModel {
   }
   std::string Name(int k) const {
     return "pattern " + std::to_string(k) + " (" + frames[static_cast<size_t>(k)].Name() + ")";
+  }
+  // expected_change between any two patterns (k-1 and k: the table).
+  double Change(const std::vector<cv::Mat>& images, double half_range, int from, int to) const {
+    if (from == to - 1) return expected_change[static_cast<size_t>(to)];
+    if (from < 0 || from == to) return 0;
+    return TileChange(images[static_cast<size_t>(from)], images[static_cast<size_t>(to)], half_range);
+  }
+  static double TileChange(const cv::Mat& a, const cv::Mat& b, double half_range) {
+    cv::Mat diff;
+    cv::absdiff(a, b, diff);
+    const cv::Mat changed = diff >= half_range;
+    double worst = 1;
+    for (int ty = 0; ty < 8; ++ty) {
+      for (int tx = 0; tx < 8; ++tx) {
+        const cv::Rect tile(tx * changed.cols / 8, ty * changed.rows / 8, (tx + 1) * changed.cols / 8 - tx * changed.cols / 8,
+                            (ty + 1) * changed.rows / 8 - ty * changed.rows / 8);
+        if (tile.area() == 0) continue;
+        worst = std::min(worst, cv::countNonZero(changed(tile)) / static_cast<double>(tile.area()));
+      }
+    }
+    return worst;
   }
 };
 
@@ -480,6 +492,7 @@ struct CameraState {
 struct Verdict {
   bool ok = true;
   std::string why;
+  bool stale = false;  // the frame still showed the pattern before: the display had not switched
 };
 
 class Sequencer {
@@ -513,6 +526,7 @@ class Sequencer {
     });
     images_ = GeneratePatterns(spec_);
     model_ = std::make_unique<SequenceModel>(spec_, images_);
+    half_range_ = 0.5 * (spec_.intensity_max - spec_.intensity_min);
     validate_ = options_.validate && projector_.Info().width > 0;
   }
 
@@ -624,6 +638,15 @@ class Sequencer {
         failure = e.what();
       }
     }
+    summary_.wait_after_show_us = std::chrono::duration<double, std::micro>(BaseWait()).count();
+    summary_.learned_latency_us = std::chrono::duration<double, std::micro>(learned_extra_).count();
+    if (learned_extra_.count() > 0) {
+      std::fprintf(stderr,
+                   "warning: frames showed the previous pattern after the projector's latency (%.1f ms) + settle (%.1f ms); "
+                   "the capture waited %.1f ms longer after each Show from then on. Measure the latency with "
+                   "`slshadow latency` and set latency_us in the devices file.\n",
+                   projector_.Latency().count() / 1000.0, options_.settle.count() / 1000.0, summary_.learned_latency_us / 1000.0);
+    }
     summary_.mean_pattern_ms = acquired_patterns ? 1e3 * acquire_s / acquired_patterns : 0;
     summary_.overhead_ms_per_pattern =
         acquired_patterns ? 1e3 * (acquire_s - std::chrono::duration<double>(device_time_).count()) / acquired_patterns : 0;
@@ -659,6 +682,8 @@ class Sequencer {
     nlohmann::json extra = options_.extra.is_null() ? nlohmann::json::object() : options_.extra;
     extra["capture"]["sessions"] = writer.Sessions();
     if (!summary_.auto_exposure_us.empty()) extra["capture"]["auto_exposure_us"] = summary_.auto_exposure_us;
+    extra["capture"]["learned_latency_us"] = summary_.learned_latency_us;
+    extra["capture"]["wait_after_show_us"] = summary_.wait_after_show_us;
     writer.SetExtra(extra);
     writer.Commit();
     summary_.complete = true;
@@ -682,17 +707,36 @@ class Sequencer {
     bool ok = true;
   };
 
-  void WaitAfterShow(Clock::time_point shown, int attempt) {
-    const auto until = shown + projector_.Latency() + options_.settle + attempt * options_.retry_backoff;
+  // The wait after a Show before the cameras are triggered: the projector's latency, the settle
+  // time, and what this capture learned of an underestimated latency.
+  Clock::duration BaseWait() const { return projector_.Latency() + options_.settle + learned_extra_; }
+
+  // Waits until the last Show + BaseWait() + attempt x retry_backoff (and at least `after`);
+  // returns the time waited for (the trigger time).
+  Clock::time_point WaitAfterShow(int attempt, Clock::time_point after = {}) {
+    const auto until = std::max(last_show_ + BaseWait() + attempt * options_.retry_backoff, after);
     if (options_.sleep_until) {
       options_.sleep_until(until);
-    } else if (until > Clock::now()) {
-      std::this_thread::sleep_until(until);
+      return until;
     }
+    if (until > Clock::now()) std::this_thread::sleep_until(until);
+    return Clock::now();
   }
 
-  // Show pattern `index` (of the loaded sequence), trigger every camera, grab every camera.
-  std::vector<Frame> TriggerRound(int index, int attempt) {
+  // The latency was underestimated: a frame triggered at `fresh` (after the last Show) was the
+  // first to show it. Every later Show waits that long (bounded by max_latency).
+  void LearnLatency(Clock::time_point fresh) {
+    const Clock::duration base = projector_.Latency() + options_.settle;
+    const Clock::duration observed = fresh - last_show_ - base;
+    const Clock::duration bound = std::max<Clock::duration>(Clock::duration{}, Clock::duration(options_.max_latency) - base);
+    learned_extra_ = std::min(std::max(learned_extra_, observed), bound);
+  }
+
+  // Show pattern `index` (of the loaded sequence; show = false: re-trigger what the last Show
+  // asked for, the display pipeline may still be bringing it), trigger every camera, grab every
+  // camera. Never a second Show of a pattern whose first is not known to be on screen: a display
+  // queues Shows, so a re-Show brings back older patterns behind the pending one.
+  std::vector<Frame> TriggerRound(int index, int attempt, bool show = true, Clock::time_point after = {}) {
     struct AddTime {
       Clock::time_point t0;
       double cpu0;
@@ -704,7 +748,11 @@ class Sequencer {
       }
     } add{Clock::now(), ThreadCpuSeconds(), &device_time_, &device_cpu_s_};
     for (auto& s : states_) s.cam->camera->ExpectPattern(index);
-    WaitAfterShow(projector_.Show(index), attempt);
+    if (show) {
+      last_show_ = projector_.Show(index);
+      last_shown_ = index;
+    }
+    last_trigger_ = WaitAfterShow(attempt, after);
     for (auto& s : states_) {
       // Free run: frames streamed before the pattern was on are stale by construction.
       if (s.settings.trigger == TriggerMode::kFreeRun) s.cam->camera->Flush();
@@ -763,7 +811,7 @@ class Sequencer {
     });
   }
 
-  Verdict CheckFrame(CameraState& s, int k, const Frame& f, const cv::Mat* prev_override) {
+  Verdict CheckFrame(CameraState& s, int k, const Frame& f, const cv::Mat* prev_override, int prev_pattern) {
     const std::string who = model_->Name(k) + ", camera '" + s.cam->name + "'";
     if (f.status == FrameStatus::kTimeout) {
       ++s.stats.timeouts;
@@ -783,8 +831,9 @@ class Sequencer {
                          ToString(s.settings.pixel_format)};
     }
     if (!validate_) return {};
-    const double e = model_->expected_change[static_cast<size_t>(k)];
-    const cv::Mat* prev = prev_override ? prev_override : no_previous_ ? nullptr : Previous(s, k);
+    if (!prev_override && prev_pattern != k - 1) return {};  // out of sequence, nothing known on screen
+    const double e = model_->Change(images_, half_range_, prev_pattern, k);
+    const cv::Mat* prev = prev_override ? prev_override : Previous(s, k);
     if (prev == nullptr || e < options_.validation.min_pattern_change) return {};
     EnsureReferences(s);
     const double scale = s.full_scale / 255.0;
@@ -800,8 +849,8 @@ class Sequencer {
       std::snprintf(buf, sizeof(buf),
                     ": frame nearly equal to %s: %.1f %% of the %s pixels changed, at least %.1f %% expected; the "
                     "projector had not switched yet (raise latency_us or settle_us in the devices file)",
-                    model_->Name(k - 1).c_str(), 100 * changed, s.refs.ready() ? "lit" : "sampled", 100 * needed);
-      return {false, who + buf};
+                    model_->Name(prev_pattern).c_str(), 100 * changed, s.refs.ready() ? "lit" : "sampled", 100 * needed);
+      return {false, who + buf, true};
     }
     if (!s.refs.ready() && e >= 0.9) s.lit_estimate = std::max(s.lit_estimate, changed);
     return {};
@@ -880,16 +929,53 @@ class Sequencer {
   }
 
   // Acquires pattern k for every camera, with retries; nullopt (and *errors) when every attempt
-  // failed. prev: per camera the frame of k-1 to compare with (nullptr: the stored one).
-  std::optional<std::vector<Frame>> AcquirePattern(int k, const std::vector<const cv::Mat*>& prev, int extra_wait,
-                                                   int* attempts_used, std::vector<std::string>* errors) {
+  // failed. prev: per camera the frame of prev_pattern to compare with (nullptr: the stored frame
+  // of k-1). Pattern k is shown once: a stale, missing or damaged frame is triggered again after a
+  // longer wait, never re-shown (see TriggerRound). A stale frame followed by a fresh one teaches
+  // the capture its real latency (LearnLatency).
+  std::optional<std::vector<Frame>> AcquirePattern(int k, const std::vector<const cv::Mat*>& prev, int prev_pattern,
+                                                   int extra_wait, int* attempts_used, std::vector<std::string>* errors) {
+    bool saw_stale = false;
     for (int attempt = 0; attempt <= options_.max_retries; ++attempt) {
       if (attempt > 0) {
         FlushAll();
         ++summary_.retries;
       }
       *attempts_used = attempt;
-      std::vector<Frame> frames = TriggerRound(k, attempt + extra_wait);
+      std::vector<Frame> frames = TriggerRound(k, attempt + extra_wait, /*show=*/attempt == 0);
+      errors->clear();
+      bool stale = false;
+      for (size_t c = 0; c < states_.size(); ++c) {
+        CameraState& s = states_[c];
+        const Frame& f = frames[c];
+        if (f.status != FrameStatus::kTimeout && f.status != FrameStatus::kAborted) {
+          ++s.stats.frames_grabbed;
+          if (s.settings.trigger != TriggerMode::kFreeRun) s.ids.Next(f.frame_id);
+        }
+        const Verdict v = CheckFrame(s, k, f, prev[c], prev_pattern);
+        if (!v.ok) errors->push_back(v.why);
+        stale = stale || v.stale;
+      }
+      saw_stale = saw_stale || stale;
+      if (errors->empty()) {
+        if (saw_stale) LearnLatency(last_trigger_);
+        return frames;
+      }
+    }
+    return std::nullopt;
+  }
+
+  // After a failed group, before anything is shown again: triggers every camera until two rounds,
+  // at least the current wait apart, give equal frames, so the display is known to show the last
+  // Show and nothing is pending behind it. Returns those frames (of last_shown_), or nullopt
+  // (and *errors) when it did not settle within max_retries + 2 rounds.
+  std::optional<std::vector<Frame>> Settle(int group_attempt, std::vector<std::string>* errors) {
+    std::vector<Frame> before;
+    for (int round = 0; round <= options_.max_retries + 1; ++round) {
+      FlushAll();
+      const Clock::time_point earliest = round == 0 ? Clock::time_point{} : last_trigger_ + std::max<Clock::duration>(
+                                                                               BaseWait(), options_.retry_backoff);
+      std::vector<Frame> frames = TriggerRound(last_shown_, group_attempt + round, /*show=*/false, earliest);
       errors->clear();
       for (size_t c = 0; c < states_.size(); ++c) {
         CameraState& s = states_[c];
@@ -898,13 +984,37 @@ class Sequencer {
           ++s.stats.frames_grabbed;
           if (s.settings.trigger != TriggerMode::kFreeRun) s.ids.Next(f.frame_id);
         }
-        const Verdict v = CheckFrame(s, k, f, prev[c]);
-        if (!v.ok) errors->push_back(v.why);
+        if (f.status == FrameStatus::kTimeout) ++s.stats.timeouts;
+        if (!f.ok() && f.status != FrameStatus::kTimeout) ++s.stats.damaged;
+        if (!f.ok()) errors->push_back("settling on " + model_->Name(last_shown_) + ", camera '" + s.cam->name +
+                                       "': frame " + ToString(f.status) + (f.message.empty() ? "" : " (" + f.message + ")"));
       }
-      if (errors->empty()) return frames;
+      if (!errors->empty()) {
+        before.clear();
+        continue;
+      }
+      bool equal = !before.empty();
+      for (size_t c = 0; equal && c < states_.size(); ++c) {
+        const CameraState& s = states_[c];
+        if (frames[c].image.size() != before[c].image.size() || frames[c].image.type() != before[c].image.type()) {
+          equal = false;
+          break;
+        }
+        const double scale = s.full_scale / 255.0;
+        int samples = 0;
+        const double changed = ChangedShare(frames[c].image, before[c].image, s.refs, options_.validation.lit_threshold * scale,
+                                            options_.validation.change_threshold * scale, s.stride, &samples);
+        equal = changed <= kSettledChange;
+      }
+      if (equal) return frames;
+      if (!before.empty()) LearnLatency(last_trigger_);  // the display was still changing
+      before = std::move(frames);
     }
+    errors->push_back("the display did not settle on " + model_->Name(last_shown_) + " within " +
+                      std::to_string(options_.max_retries + 2) + " frames (raise latency_us or settle_us)");
     return std::nullopt;
   }
+  static constexpr double kSettledChange = 0.01;  // share of samples allowed to change between settled frames
 
   void AcceptReference(CameraState& s, int k, const cv::Mat& image) {
     if (std::find(model_->reference_frames.begin(), model_->reference_frames.end(), k) == model_->reference_frames.end()) return;
@@ -916,24 +1026,42 @@ class Sequencer {
     std::vector<std::vector<Frame>> frames(static_cast<size_t>(g.size));
     std::vector<int> retries(static_cast<size_t>(g.size), 0);
     std::vector<std::string> errors;
+    // The first attempt's errors name the cause (e.g. the pattern the display never took); those
+    // of the last group attempt follow when they differ.
+    std::vector<std::string> first_errors;
     const auto fail = [&] {
-      SLSHADOW_THROW("capture failed after ", options_.max_retries + 1, " attempts: ", Join(errors));
+      const std::string first = Join(first_errors), last = Join(errors);
+      SLSHADOW_THROW("capture failed after ", options_.max_retries + 1, " attempts: ", first.empty() ? last : first,
+                     first.empty() || first == last ? "" : "; taken again as a group: " + last);
     };
     for (int group_attempt = 0; group_attempt <= options_.max_retries; ++group_attempt) {
-      if (group_attempt > 0) {
-        FlushAll();
-        ++summary_.retries;
+      if (group_attempt > 0) ++summary_.retries;
+      // Taken again (or out of sequence): first wait until the display shows the last Show with
+      // nothing pending, so that the first frame can be compared with what is on screen.
+      std::optional<std::vector<Frame>> settled;
+      if ((group_attempt > 0 || out_of_sequence_) && last_shown_ >= 0) {
+        if (group_attempt > 0) learned_extra_ = std::min<Clock::duration>(
+            std::max<Clock::duration>(2 * learned_extra_, options_.retry_backoff),
+            std::max<Clock::duration>(Clock::duration{}, Clock::duration(options_.max_latency) - projector_.Latency() - options_.settle));
+        settled = Settle(group_attempt, &errors);
+        if (!settled) fail();
       }
       bool taken = true;
       for (int i = 0; i < g.size; ++i) {
         const int k = g.first + i;
         if (Stopped()) return false;  // between frames; a pair is taken whole or not at all
         std::vector<const cv::Mat*> prev(states_.size(), nullptr);
+        int prev_pattern = k - 1;
         if (i > 0) {
           for (size_t c = 0; c < states_.size(); ++c) prev[c] = &frames[static_cast<size_t>(i - 1)][c].image;
+        } else if (settled) {
+          for (size_t c = 0; c < states_.size(); ++c) prev[c] = &(*settled)[c].image;
+          prev_pattern = last_shown_;
+        } else if (out_of_sequence_) {
+          prev_pattern = -1;  // nothing shown by this run yet: no stale check
         }
         int attempts = 0;
-        auto got = AcquirePattern(k, prev, group_attempt, &attempts, &errors);
+        auto got = AcquirePattern(k, prev, prev_pattern, group_attempt, &attempts, &errors);
         retries[static_cast<size_t>(i)] += attempts;
         if (!got) {
           // The first frame of a group has only accepted frames before it: its failure is its own.
@@ -956,6 +1084,7 @@ class Sequencer {
         for (int i = 0; i < g.size; ++i) retries[static_cast<size_t>(i)] += group_attempt;
         break;
       }
+      if (group_attempt == 0) first_errors = errors;
       if (group_attempt == options_.max_retries) fail();
     }
     for (int i = 0; i < g.size; ++i) {
@@ -1047,9 +1176,9 @@ class Sequencer {
       if (!bad) continue;
       // The projector showed other patterns since: the first frame has no previous one to be
       // compared with; the pair check against the references judges both.
-      no_previous_ = true;
+      out_of_sequence_ = true;
       const bool taken = AcquireGroup(g, store);
-      no_previous_ = false;
+      out_of_sequence_ = false;
       if (!taken) return false;
     }
     return true;
@@ -1158,7 +1287,12 @@ class Sequencer {
   bool validate_ = true;
   Clock::duration device_time_{};  // inside device calls (see CaptureSummary::overhead_ms_per_pattern)
   double device_cpu_s_ = 0;        // the same on the thread's CPU clock
-  bool no_previous_ = false;       // re-taking a pair out of sequence: no stale check of its first frame
+  bool out_of_sequence_ = false;   // re-taking a pair out of sequence: settle first, compare with what is on screen
+  double half_range_ = 127.5;       // half the pattern intensity range (SequenceModel::Change)
+  Clock::time_point last_show_{};   // when the last Show returned
+  int last_shown_ = -1;             // its pattern
+  Clock::time_point last_trigger_{};  // when the last trigger round was triggered
+  Clock::duration learned_extra_{};   // wait added to latency + settle after a stale frame (LearnLatency)
   ResumableImageSetWriter* writer_ = nullptr;
   CaptureSummary summary_;
 };

@@ -23,12 +23,20 @@
 //    no predecessor to be compared with). When they come last (OpenCV order), every stored pair
 //    is judged against them at the end and a failing pair is taken again.
 //  Not covered: the first frame of a phase sequence has neither a predecessor nor references.
-// A frame that fails is taken again (Flush, Show, wait latency + settle + attempt x
-// retry_backoff, trigger all cameras) up to max_retries times. A pair (Gray bit + inverse, white
-// + black) whose second frame or whose pair check fails is taken again as a whole, up to
-// max_retries times, waiting group attempt x retry_backoff longer each time (a stale first frame
-// of a pair is only visible through the second). Then Capture throws slshadow::Error naming the
-// pattern (index and role), the camera and why, and the staging folder stays resumable.
+// A display queues Shows (what is on screen at t is the last Show issued before t - latency), so
+// the sequencer never re-shows a pattern whose Show is not known to be on screen: a re-Show would
+// bring older patterns back behind it, and relative checks could then pass with wrong frames.
+// A frame that fails is triggered again without a new Show (Flush, wait latency + settle +
+// learned + attempt x retry_backoff after the Show, trigger all cameras) up to max_retries times.
+// A stale frame followed by a fresh one shows the latency was underestimated: the wait after every
+// later Show grows to what was observed (learned, bounded by max_latency; in the summary, the
+// manifest's extra.capture.learned_latency_us, and a warning to run `slshadow latency`). A pair
+// (Gray bit + inverse, white + black) whose second frame or whose pair check fails is taken
+// again as a whole, up to max_retries times: first the cameras are triggered until two frames a
+// full wait apart are equal (the display has settled on the last Show, nothing pending), then the
+// pair is shown again, its first frame checked against that settled frame. Then Capture throws
+// slshadow::Error naming the pattern (index and role), the camera and why (the first attempt's
+// cause first), and the staging folder stays resumable.
 #pragma once
 
 #include <atomic>
@@ -90,6 +98,9 @@ struct SequencerOptions {
   std::chrono::microseconds settle{0};         // waited after the projector's latency
   int max_retries = 3;                         // extra attempts per pattern (and per pair)
   std::chrono::microseconds retry_backoff{std::chrono::milliseconds(20)};  // extra wait per attempt
+  // Upper bound of the wait after a Show the capture may learn when frames show that the
+  // projector's latency was underestimated (CaptureSummary::learned_latency_us).
+  std::chrono::microseconds max_latency{std::chrono::seconds(1)};
   bool validate = true;                        // only effective when the projector shows patterns
   ValidationOptions validation;
   bool auto_exposure = false;                  // exposure assistant before the sequence
@@ -139,6 +150,11 @@ struct CaptureSummary {
   int images_before = 0;           // already stored when this run started (resume)
   int images_stored = 0;           // stored by this run
   int retries = 0;                 // extra attempts, all patterns
+  // The wait after a Show this capture ended with (latency + settle + what it learned from stale
+  // frames); above latency_us + settle_us the configured latency was too low: measure it with
+  // `slshadow latency`.
+  double wait_after_show_us = 0;
+  double learned_latency_us = 0;   // what the capture added to latency + settle (0: none)
   double seconds = 0;
   double mean_pattern_ms = 0;      // wall time per pattern acquired by this run
   // The sequencer's own cost per pattern acquired: wall time minus the time inside device calls

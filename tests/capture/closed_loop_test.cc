@@ -384,17 +384,12 @@ TEST_F(ClosedLoop, StaleFramesAreSeenByTheOracle) {
 // The classic real-rig failure, through the whole loop: a projector whose light comes 40 ms after
 // Show returns, driven with latency 0. The sequencer must never store a frame of the wrong
 // pattern: it either catches the stale frames and retakes them (then every image equals the
-// simulation) or stops with an error naming the pattern and the camera.
-//
-// DISABLED: it fails with the sequencer in main (2026-11-24, 12:04 UTC, capture-seq up to
-// 50a4f85): 66 retries and 123 refused frames, yet 36 of 60 images stored under the wrong pattern
-// (earlier sequencer versions: 28, 45, 52). The test prints each one; e.g. a retaken Gray pair
-// stores each frame with its partner's image (bit and inverse are complementary, so the pair check
-// passes), a pair stores the previous pair (gray_x_bit3 shows gray_x_bit4), phase_x_f0_s0 shows
-// phase_x_f0_s3. Run it with
-//   build/tests/capture/capture_closed_loop_test --gtest_also_run_disabled_tests --gtest_filter=*Late*
-// and enable it when the sequencer passes.
-TEST_F(ClosedLoop, DISABLED_LateProjectorNeverStoresAWrongFrame) {
+// simulation) or stops with an error naming the pattern and the camera. The display queues Shows,
+// so the sequencer must not re-show a pattern whose Show has not been seen on screen (issue 12:
+// before that, 36 of 60 images were stored under the wrong pattern). It learns the latency from
+// the stale frames and waits that long after every later Show. Prints each wrong image; run with
+//   build/tests/capture/capture_closed_loop_test --gtest_filter=*Late*
+TEST_F(ClosedLoop, LateProjectorNeverStoresAWrongFrame) {
   OpenWindow();
   OpenCameras();
   testing::DelayedProjector slow(*window_, milliseconds(40));
@@ -407,6 +402,10 @@ TEST_F(ClosedLoop, DISABLED_LateProjectorNeverStoresAWrongFrame) {
                 summary.retries, static_cast<long long>(stale));
     EXPECT_GT(summary.retries, 0);
     EXPECT_EQ(DifferingImages("latency_0"), 0);
+    std::printf("learned latency %.1f ms\n", summary.learned_latency_us / 1000);
+    EXPECT_GT(summary.learned_latency_us, 0);
+    EXPECT_EQ(ImageSet::Open(dir_ / "latency_0").extra()["capture"]["learned_latency_us"].get<double>(),
+              summary.learned_latency_us);
   } catch (const Error& e) {
     std::printf("latency 0 with a 40 ms display: stopped: %s\n", e.what());
     EXPECT_NE(std::string(e.what()).find("pattern"), std::string::npos) << e.what();

@@ -7,6 +7,7 @@
 #include "capture/sequencer.h"
 
 #include <atomic>
+#include <cstdio>
 #include <sstream>
 
 #include <gtest/gtest.h>
@@ -161,6 +162,35 @@ TEST(Sequencer, LaggingProjectorIsCaughtAndRetriedGrayAndPhase) {
     int retried = 0;
     for (const auto& r : set.records()) retried += r.retries.value_or(0) > 0;
     EXPECT_GT(retried, 0);
+  }
+}
+
+// The closed-loop late-projector scenario without X (tests/capture/closed_loop_test.cc
+// LateProjectorNeverStoresAWrongFrame): every Show reaches the screen 40 ms after it returns,
+// the sequencer is told 0, and the display queues Shows like a real one (a re-Show while another
+// is pending brings the older pattern back first). Every stored frame must be of its pattern; the
+// capture learns the latency (>= 40 ms, in the manifest) and stops queueing Shows.
+TEST(Sequencer, LateDisplayThatQueuesShowsNeverStoresAWrongFrame) {
+  for (const PatternSpec& spec : {GraySpec(), PhaseSpec()})
+  for (const double noise : {0.0, 2.0}) {
+    SCOPED_TRACE(::testing::Message() << ToString(spec.kind) << ", noise " << noise);
+    slshadow::testing::TempDir dir;
+    TestCameraOptions l, r = Stereo::Right();
+    l.noise = r.noise = noise;
+    Stereo rig(l, r);
+    rig.projector.true_latency = std::chrono::milliseconds(40);  // the sequencer assumes 0
+    SequencerOptions o = Options(rig.projector);
+    o.max_retries = 8;
+    const CaptureSummary s = Capture(StereoRig(), spec, rig.cameras, rig.projector, dir / "set", o);
+    EXPECT_TRUE(s.complete);
+    ExpectEveryFrameOfItsPattern(dir / "set", rig, spec, noise);
+    EXPECT_GT(s.retries, 0);
+    EXPECT_GE(s.learned_latency_us, 40000);
+    EXPECT_LE(s.learned_latency_us, 40000 + 8 * 20000);
+    const ImageSet set = ImageSet::Open(dir / "set");
+    EXPECT_EQ(set.extra()["capture"]["learned_latency_us"].get<double>(), s.learned_latency_us);
+    std::printf("%s, noise %.0f: %d retries, learned latency %.0f ms, at most %d Shows pending at once\n",
+                ToString(spec.kind).c_str(), noise, s.retries, s.learned_latency_us / 1000, rig.projector.max_pending());
   }
 }
 

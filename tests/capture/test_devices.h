@@ -1,5 +1,5 @@
 // Test doubles for hardware we do not have in unit tests: a projector that "shows" images (with
-// an injectable lag: it switches to a new pattern only on the (lag+1)-th Show of it), and
+// an injectable latency, behaving like a real display pipeline), and
 // cameras that render what that projector shows (nearest-neighbour, gain, offset, exposure,
 // saturation, seeded noise) with injectable drops (a frame never delivered, its id used up) and
 // late frames (delivered after the grab timed out). The sequencer and the writer under test are
@@ -22,10 +22,12 @@
 namespace slshadow::capture::doubles {
 
 // Time is virtual: Show() returns the projector's clock, and the sequencer waits through
-// SleepUntil() (SequencerOptions::sleep_until), which only moves that clock. A newly requested
-// pattern becomes visible once the clock is `latency_for(index)` (or true_latency) past the
-// first Show of it; until then the previous image stays on screen (a projector whose latency
-// the sequencer underestimates). Deterministic, and as fast as the machine.
+// SleepUntil() (SequencerOptions::sleep_until), which only moves that clock. Like a real display
+// pipeline (an HDMI projector, testing::DelayedProjector), every Show is queued: a Show issued at
+// time s with latency L (`latency_for(index)` at the time of the Show, or true_latency) is on
+// screen from s + L until a later-issued Show takes effect. Shows issued while an earlier one is
+// still pending are all shown in turn, so a sequencer that re-shows while its latency estimate is
+// too low sees earlier patterns come back. Deterministic, and as fast as the machine.
 class TestProjector : public Projector {
  public:
   TestProjector(int width, int height) : width_(width), height_(height) {}
@@ -38,14 +40,17 @@ class TestProjector : public Projector {
     ++shows_;
     if (index != requested_) {
       requested_ = index;
-      requested_at_ = now_;
       ++requests_;
     }
+    const auto latency = latency_for ? latency_for(index) : true_latency;
+    pending_.push_back({now_ + latency, index});
     Update();
+    max_pending_ = std::max(max_pending_, static_cast<int>(pending_.size()));
     return now_;
   }
   std::chrono::steady_clock::time_point ShowBlack() override {
     visible_ = requested_ = -1;
+    pending_.clear();
     return now_;
   }
   std::chrono::microseconds Latency() const override { return latency_; }
@@ -63,22 +68,35 @@ class TestProjector : public Projector {
   const cv::Mat& Visible() const { return visible_ < 0 ? black_ : images_[static_cast<size_t>(visible_)]; }
   int visible() const { return visible_; }
   int64_t shows() const { return shows_; }
-  int64_t requests() const { return requests_; }  // Show calls that asked for another pattern
+  int64_t requests() const { return requests_; }  // Show calls that asked for another pattern than the last one
+  int pending() const { return static_cast<int>(pending_.size()); }  // Shows not yet on screen
+  int max_pending() const { return max_pending_; }  // most Shows ever waiting at once (1 + a re-Show queued behind)
 
   std::chrono::microseconds true_latency{0};
   std::function<std::chrono::microseconds(int index)> latency_for;  // overrides true_latency
 
  private:
+  struct Pending {
+    std::chrono::steady_clock::time_point effective;
+    int index;
+  };
+  // The latest-issued Show that has taken effect is on screen; it and every Show issued before it
+  // leave the queue.
   void Update() {
-    if (requested_ == visible_) return;
-    const auto latency = latency_for ? latency_for(requested_) : true_latency;
-    if (now_ - requested_at_ >= latency) visible_ = requested_;
+    for (size_t i = pending_.size(); i-- > 0;) {
+      if (pending_[i].effective <= now_) {
+        visible_ = pending_[i].index;
+        pending_.erase(pending_.begin(), pending_.begin() + static_cast<std::ptrdiff_t>(i) + 1);
+        break;
+      }
+    }
   }
   int width_, height_;
   std::vector<cv::Mat> images_;
   cv::Mat black_;
-  int requested_ = -1, visible_ = -1;
-  std::chrono::steady_clock::time_point now_{std::chrono::hours(1)}, requested_at_{};
+  int requested_ = -1, visible_ = -1, max_pending_ = 0;
+  std::chrono::steady_clock::time_point now_{std::chrono::hours(1)};
+  std::deque<Pending> pending_;
   int64_t shows_ = 0, requests_ = 0;
   std::chrono::microseconds latency_{0};
 };
