@@ -11,7 +11,7 @@
 #include "compare/kdtree.h"
 #include "core/error.h"
 
-namespace slshadow::shadow {
+namespace slshadow::workflow {
 namespace {
 
 double Median(std::vector<double> v) {
@@ -672,4 +672,4 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
   return diag;
 }
 
-}  // namespace slshadow::shadow
+}  // namespace slshadow::workflow

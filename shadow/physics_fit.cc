@@ -10,7 +10,7 @@
 
 #include "core/error.h"
 
-namespace slshadow::shadow {
+namespace slshadow::workflow {
 namespace {
 
 constexpr int kBands = 8;
@@ -800,4 +800,4 @@ void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras, const
   fit->layers.push_back(d);
 }
 
-}  // namespace slshadow::shadow
+}  // namespace slshadow::workflow

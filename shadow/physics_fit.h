@@ -42,7 +42,7 @@
 #include "sim/renderer.h"
 #include "sim/scene.h"
 
-namespace slshadow::shadow {
+namespace slshadow::workflow {
 
 struct PhysicsLayer {
   std::string name;       // "exposure", "albedo_<object>", "albedo_dark", "ambient", "gamma", "defocus", "noise"
@@ -123,4 +123,4 @@ cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>
 // The fringe period the modulation above refers to, projector px.
 double ModulationPeriodPx(const PatternSpec& spec);
 
-}  // namespace slshadow::shadow
+}  // namespace slshadow::workflow

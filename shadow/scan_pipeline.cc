@@ -158,19 +158,32 @@ TriangleMesh ObjectSurfaceInRig(const SceneObject& object, TriangleMesh part) {
 
 }  // namespace
 
-TriangleMesh SceneSurface(const Scene& scene, const std::string& what) {
+TriangleMesh SceneSurface(const Scene& scene, const std::string& what, int plane_cells) {
+  SLSHADOW_CHECK(plane_cells >= 1);
   TriangleMesh surface;
   for (const auto& object : scene.objects) {
     TriangleMesh part;
+    const double hx = object.size_mm.x() / 2, hy = object.size_mm.y() / 2;
     if (object.type == ObjectType::kMesh) {
       part = *object.mesh;
-    } else if (object.type == ObjectType::kPlane) {
-      const double hx = object.size_mm.x() / 2, hy = object.size_mm.y() / 2;
+    } else if (object.type == ObjectType::kPlane && plane_cells == 1) {
       part.vertices = {{-hx, -hy, 0}, {hx, -hy, 0}, {hx, hy, 0}, {-hx, hy, 0}};
       part.triangles = {{0, 1, 2}, {0, 2, 3}};
+    } else if (object.type == ObjectType::kPlane) {
+      const int n = plane_cells;
+      for (int j = 0; j <= n; ++j) {
+        for (int i = 0; i <= n; ++i) part.vertices.emplace_back(-hx + 2 * hx * i / n, -hy + 2 * hy * j / n, 0);
+      }
+      for (int j = 0; j < n; ++j) {
+        for (int i = 0; i < n; ++i) {
+          const int a = j * (n + 1) + i;
+          part.triangles.emplace_back(a, a + 1, a + n + 2);
+          part.triangles.emplace_back(a, a + n + 2, a + n + 1);
+        }
+      }
     } else {
       SLSHADOW_THROW(what, ": object '", object.name, "' is a ", ToString(object.type),
-                     "; the demo compares against meshes and planes only");
+                     "; only meshes and planes have a surface to compare against");
     }
     surface.Append(ObjectSurfaceInRig(object, std::move(part)));
   }

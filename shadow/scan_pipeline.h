@@ -116,7 +116,9 @@ std::vector<Reconstruction> ReconstructModes(const DecodedScan& scan, const std:
 // The ground-truth surface of the scene's meshes and planes in the rig frame. Other object
 // types (exact primitives, clouds) would need their exact surfaces: a scene with them is rejected,
 // naming `what`, the object and its type.
-TriangleMesh SceneSurface(const Scene& scene, const std::string& what);
+// Planes are split into plane_cells x plane_cells squares (two triangles each), so samples and
+// C2M spread over the whole plane; 1 keeps the two triangles of the demo.
+TriangleMesh SceneSurface(const Scene& scene, const std::string& what, int plane_cells = 1);
 // The scene's meshes only, in the rig frame (other objects, e.g. the demo's table, left out).
 TriangleMesh SceneMeshSurface(const Scene& scene);
 

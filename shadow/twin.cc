@@ -1,5 +1,7 @@
 #include "shadow/twin.h"
 
+#include "shadow/scan_pipeline.h"
+
 #include <algorithm>
 #include <atomic>
 #include <cmath>
@@ -20,7 +22,7 @@
 #include "core/point_cloud.h"
 #include "sim/simulate.h"
 
-namespace slshadow::shadow {
+namespace slshadow::workflow {
 namespace fs = std::filesystem;
 
 namespace {
@@ -176,36 +178,6 @@ const char* ToString(PoseSource source) {
   return "?";
 }
 
-TriangleMesh SceneSurfaceMesh(const Scene& scene, const std::string& what) {
-  TriangleMesh surface;
-  for (const auto& object : scene.objects) {
-    TriangleMesh part;
-    if (object.type == ObjectType::kMesh) {
-      part = *object.mesh;
-    } else if (object.type == ObjectType::kPlane) {
-      // A grid of 2 x 2 cells per 10 mm at most 64 x 64, so C2M and samples see the whole plane.
-      const double hx = object.size_mm.x() / 2, hy = object.size_mm.y() / 2;
-      const int n = 16;
-      for (int j = 0; j <= n; ++j) {
-        for (int i = 0; i <= n; ++i) part.vertices.emplace_back(-hx + 2 * hx * i / n, -hy + 2 * hy * j / n, 0);
-      }
-      for (int j = 0; j < n; ++j) {
-        for (int i = 0; i < n; ++i) {
-          const int a = j * (n + 1) + i;
-          part.triangles.emplace_back(a, a + 1, a + n + 2);
-          part.triangles.emplace_back(a, a + n + 2, a + n + 1);
-        }
-      }
-    } else {
-      SLSHADOW_THROW(what, ": object '", object.name, "' is a ", ToString(object.type),
-                     "; a shadow part is made of meshes and planes only");
-    }
-    part.Transform(object.rig_from_object.rotation.toRotationMatrix(), object.rig_from_object.translation);
-    surface.Append(part);
-  }
-  return surface;
-}
-
 ShadowPart LoadShadowPart(const fs::path& path) {
   ShadowPart part;
   part.source = path.string();
@@ -226,7 +198,7 @@ ShadowPart LoadShadowPart(const fs::path& path) {
   } else {
     SLSHADOW_THROW(path.string(), ": unknown part format '", ext, "' (expected .stl, .ply, .obj or a scene .yaml/.json)");
   }
-  part.surface = SceneSurfaceMesh(part.scene, path.string());
+  part.surface = SceneSurface(part.scene, path.string(), kPartPlaneCells);
   return part;
 }
 
@@ -768,4 +740,4 @@ ShadowResult RunShadow(const fs::path& image_set_dir, const ShadowPart& part, co
   return RunShadowOnImages(rig ? *rig : set.rig(), spec, images, part, options, out_dir, image_set_dir.string(), {read});
 }
 
-}  // namespace slshadow::shadow
+}  // namespace slshadow::workflow

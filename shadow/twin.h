@@ -39,7 +39,7 @@
 #include "shadow/physics_fit.h"
 #include "sim/scene.h"
 
-namespace slshadow::shadow {
+namespace slshadow::workflow {
 
 // The part: its objects (in the part's own frame: each object's rig_from_object is read as
 // part_from_object) with their albedo, and its surface for registration and C2M.
@@ -52,8 +52,9 @@ struct ShadowPart {
 // its objects in the part frame, e.g. a plane with a printed checkerboard; meshes and planes
 // only). Throws slshadow::Error naming the file.
 ShadowPart LoadShadowPart(const std::filesystem::path& path);
-// The part's surface from scene objects (meshes and planes), in the scene's frame.
-TriangleMesh SceneSurfaceMesh(const Scene& scene, const std::string& what);
+// A part's planes are split into this many cells per side for its surface (SceneSurface), so
+// registration samples and C2M see the whole plane.
+inline constexpr int kPartPlaneCells = 16;
 
 enum class PoseSource { kGivenFixed, kGivenRefined, kRegistered };
 const char* ToString(PoseSource source);  // "given", "given+icp", "global+icp"
@@ -98,4 +99,4 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
 ShadowResult RunShadow(const std::filesystem::path& image_set_dir, const ShadowPart& part, const ShadowOptions& options,
                        const std::filesystem::path& out_dir, const Rig* rig = nullptr);
 
-}  // namespace slshadow::shadow
+}  // namespace slshadow::workflow

@@ -9,6 +9,7 @@
 #include <gtest/gtest.h>
 
 #include "core/image_set.h"
+#include "shadow/scan_pipeline.h"
 #include "shadow/twin.h"
 #include "tests/testing/run_cli.h"
 #include "tests/testing/temp_dir.h"
@@ -23,8 +24,8 @@ constexpr double kSquareMm = 75;
 // simulator's checkerboard has its corner square (at -75..0, -75..0) dark; when the real board's
 // corner square is light the plane is turned 180 degrees about its y axis, which mirrors the
 // texture onto the other (dark) corner.
-shadow::ShadowPart KaminoBoard(bool flipped) {
-  shadow::ShadowPart part;
+workflow::ShadowPart KaminoBoard(bool flipped) {
+  workflow::ShadowPart part;
   part.source = flipped ? "kamino board (texture mirrored)" : "kamino board";
   SceneObject o;
   o.name = "board";
@@ -45,7 +46,7 @@ shadow::ShadowPart KaminoBoard(bool flipped) {
   part.scene.radiometry.exposure = 0.5;
   part.scene.layers.supersampling = 3;  // anti-aliased square edges, as a real lens gives
   part.scene.objects.push_back(o);
-  part.surface = shadow::SceneSurfaceMesh(part.scene, part.source);
+  part.surface = workflow::SceneSurface(part.scene, part.source, workflow::kPartPlaneCells);
   return part;
 }
 
@@ -109,7 +110,7 @@ TEST(ShadowKamino, RealVsVirtualPerPose) {
       return px ? static_cast<double>(white.at<uint8_t>(static_cast<int>(std::lround(px->y())), static_cast<int>(std::lround(px->x())))) : 0.0;
     };
     const bool flipped = sample(-37.5, -37.5) > sample(37.5, -37.5);
-    shadow::ShadowOptions options;
+    workflow::ShadowOptions options;
     options.rig_from_part = rig_from_board;
     options.refine_pose = false;  // a plane leaves registration blind in-plane: the calibration's pose
     options.decode.shadow_threshold = 40;
@@ -118,7 +119,7 @@ TEST(ShadowKamino, RealVsVirtualPerPose) {
     // SLSHADOW_KEEP_KAMINO_SHADOW=DIR keeps the report folders (maps, clouds) for a look.
     const char* keep = std::getenv("SLSHADOW_KEEP_KAMINO_SHADOW");
     const auto out = (keep ? std::filesystem::path(keep) : tmp.path()) / ("shadow_" + std::to_string(p));
-    const shadow::ShadowResult r = shadow::RunShadow(tmp / ("capture_" + std::to_string(p)), KaminoBoard(flipped), options, out, &rig);
+    const workflow::ShadowResult r = workflow::RunShadow(tmp / ("capture_" + std::to_string(p)), KaminoBoard(flipped), options, out, &rig);
     std::printf("%s\n", r.Summary().c_str());
     const auto& cam = r.report["images"]["cameras"][0];
     const auto& pc = cam["projector_coordinates"];

@@ -1,5 +1,7 @@
 #include "shadow/twin.h"
 
+#include "shadow/scan_pipeline.h"
+
 #include <algorithm>
 #include <cstdio>
 #include <fstream>
@@ -42,11 +44,11 @@ TEST(ShadowTwin, CleanSyntheticScanEndToEnd) {
   const PatternSpec spec = testing::DemoSpec();
   const Rigid3d truth = DemoPartPose();
   WriteImageSet(tmp / "real", rig, spec, testing::Render(testing::RealScene(DemoPart(), truth), rig, spec));
-  const shadow::ShadowPart part = testing::PartFromMesh(DemoPart(), "demo_part");
-  shadow::ShadowOptions options;
+  const workflow::ShadowPart part = testing::PartFromMesh(DemoPart(), "demo_part");
+  workflow::ShadowOptions options;
   options.rig_from_part = Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.5 * M_PI / 180, Eigen::Vector3d::UnitX())) * truth.rotation,
                                   truth.translation + Eigen::Vector3d(1, 0, 0));
-  const shadow::ShadowResult r = shadow::RunShadow(tmp / "real", part, options, tmp / "out");
+  const workflow::ShadowResult r = workflow::RunShadow(tmp / "real", part, options, tmp / "out");
   std::printf("%s\n", r.Summary().c_str());
   EXPECT_LT((r.rig_from_part.translation - truth.translation).norm(), 0.1);
   EXPECT_LT(compare::RotationDifferenceDeg(r.rig_from_part, truth), 0.02);
@@ -126,7 +128,7 @@ TEST(ShadowTwin, ConfusionTableNamesEachCauseAndNoOther) {
   const Rig rig = testing::HalfDemoRig();
   const PatternSpec spec = testing::DemoSpec();
   const Rigid3d truth = DemoPartPose();
-  const shadow::ShadowPart part = testing::PartFromMesh(DemoPart(), "demo_part");
+  const workflow::ShadowPart part = testing::PartFromMesh(DemoPart(), "demo_part");
   const std::vector<Case> cases = {{"clean", {}},
                                    {"gamma 2.2", {"projector_response"}},
                                    {"projector bumped 0.1 deg", {"calibration"}},
@@ -169,9 +171,9 @@ TEST(ShadowTwin, ConfusionTableNamesEachCauseAndNoOther) {
       ASSERT_GE(b, 0);
       for (auto& [camera, frames_of_camera] : images) std::swap(frames_of_camera[static_cast<size_t>(a)], frames_of_camera[static_cast<size_t>(b)]);
     }
-    shadow::ShadowOptions options;
+    workflow::ShadowOptions options;
     options.rig_from_part = truth;
-    const shadow::ShadowResult r = shadow::RunShadowOnImages(rig, spec, images, part, options);
+    const workflow::ShadowResult r = workflow::RunShadowOnImages(rig, spec, images, part, options);
     std::string named;
     for (const auto& cause : r.diagnosis.causes) named += (named.empty() ? "" : ", ") + cause;
     // The evidence behind each signature, for the table in docs/benchmarks.md.
@@ -286,19 +288,19 @@ TEST(ShadowTwin, ExposureTimesAlbedoPerObject) {
   table.albedo.value = 0.4;
   table.rig_from_object = Rigid3d(truth.rotation, truth.translation + truth.rotation * Eigen::Vector3d(0, 0, -0.05));
   real.objects.push_back(table);
-  shadow::ShadowPart part = testing::PartFromMesh(DemoPart(), "demo_part");
+  workflow::ShadowPart part = testing::PartFromMesh(DemoPart(), "demo_part");
   SceneObject table_in_part = table;
   table_in_part.albedo.value = 0.8;
   table_in_part.rig_from_object = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0, -0.05));
   part.scene.objects.push_back(table_in_part);
-  part.surface = shadow::SceneSurfaceMesh(part.scene, "part + table");
-  shadow::ShadowOptions options;
+  part.surface = workflow::SceneSurface(part.scene, "part + table", workflow::kPartPlaneCells);
+  workflow::ShadowOptions options;
   options.rig_from_part = truth;
-  const shadow::ShadowResult r = shadow::RunShadowOnImages(rig, spec, testing::Render(real, rig, spec), part, options);
+  const workflow::ShadowResult r = workflow::RunShadowOnImages(rig, spec, testing::Render(real, rig, spec), part, options);
   std::printf("%s", r.physics.Table().c_str());
   const double e = r.physics.Find("exposure")->value;
-  const shadow::PhysicsLayer* part_albedo = r.physics.Find("albedo_demo_part");
-  const shadow::PhysicsLayer* table_albedo = r.physics.Find("albedo_table");
+  const workflow::PhysicsLayer* part_albedo = r.physics.Find("albedo_demo_part");
+  const workflow::PhysicsLayer* table_albedo = r.physics.Find("albedo_table");
   ASSERT_TRUE(part_albedo || table_albedo);
   if (table_albedo) {  // the part is the reference object
     EXPECT_NEAR(e * 0.8, 0.8 * 0.7, 0.01);
