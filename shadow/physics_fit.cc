@@ -573,7 +573,7 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
         // Sums of pairs (and W + B when those frames exist), each ideally W + B; differences of
         // consecutive sums carry four images' noise and no signal.
         std::vector<double> sums;
-        if (has_white_black) sums.push_back(-1);  // placeholder for W + B
+        if (has_white_black) sums.push_back(s.white + s.black);
         bool saturated = false;
         for (const auto& [p, q] : pairs) {
           const double a = Pixel(real[static_cast<size_t>(p)], s.y, s.x), b = Pixel(real[static_cast<size_t>(q)], s.y, s.x);
@@ -581,7 +581,6 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
           sums.push_back(a + b);
         }
         if (saturated) continue;
-        if (has_white_black) sums[0] = s.white + s.black;
         for (size_t k = 0; k + 1 < sums.size(); k += 2) obs.push_back({sums[k] + sums[k + 1], sums[k] - sums[k + 1], s.heldout});
       }
       // Bin by signal into 10 quantile bins; per bin the robust variance of r.
