@@ -17,41 +17,15 @@
 #include "reconstruct/reconstruct_image_set.h"
 #include "tests/capture/test_devices.h"
 #include "tests/testing/run_cli.h"
+#include "tests/testing/kamino_rig.h"
 #include "tests/testing/temp_dir.h"
 
 namespace slshadow::capture {
 namespace {
 namespace fs = std::filesystem;
 
-fs::path KaminoDir() { return slshadow::testing::SharedDataDir() / "kamino-procam-graycode"; }
-
-// The upstream stereoCalibrate result of commit ccf1cd8 as a rig (as in the reconstruct test).
-Rig KaminoRig() {
-  cv::FileStorage fs((KaminoDir() / "calibration_result_ccf1cd8.xml").string(), cv::FileStorage::READ);
-  cv::Mat ck, cd, pk, pd, r, t;
-  fs["cam_int"] >> ck;
-  fs["cam_dist"] >> cd;
-  fs["proj_int"] >> pk;
-  fs["proj_dist"] >> pd;
-  fs["roration"] >> r;  // sic
-  fs["translation"] >> t;
-  auto model = [](int w, int h, const cv::Mat& k, const cv::Mat& d) {
-    return CameraModel(w, h, k.at<double>(0, 0), k.at<double>(1, 1), k.at<double>(0, 2), k.at<double>(1, 2),
-                       d.at<double>(0), d.at<double>(1), d.at<double>(2), d.at<double>(3), d.at<double>(4));
-  };
-  Rig rig;
-  rig.name = "kamino";
-  rig.working_distance_mm = 1000;
-  rig.cameras.push_back({"camera", model(1280, 1024, ck, cd), Rigid3d()});
-  Eigen::Matrix3d rot;
-  for (int i = 0; i < 3; ++i) {
-    for (int j = 0; j < 3; ++j) rot(i, j) = r.at<double>(i, j);
-  }
-  rig.projector = RigDevice{"projector", model(1024, 768, pk, pd),
-                            Rigid3d(Eigen::Quaterniond(rot), Eigen::Vector3d(t.at<double>(0), t.at<double>(1), t.at<double>(2)))};
-  rig.Check("kamino");
-  return rig;
-}
+using slshadow::testing::KaminoDir;
+using slshadow::testing::KaminoRig;
 
 TEST(ReplayKamino, CapturedFilesAreTheRecordedPixelsAndReconstructAsTheOriginals) {
   if (!fs::exists(KaminoDir() / "capture_0")) GTEST_SKIP() << "no shared data at " << KaminoDir();

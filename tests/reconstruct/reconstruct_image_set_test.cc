@@ -11,6 +11,7 @@
 #include "core/error.h"
 #include "patterns/synthetic.h"
 #include "tests/reconstruct/analytic_scene.h"
+#include "tests/testing/kamino_rig.h"
 #include "tests/testing/temp_dir.h"
 
 namespace slshadow {
@@ -130,35 +131,7 @@ TEST_F(ReconstructImageSetTest, BadCameraSelectionsThrow) {
 namespace slshadow {
 namespace {
 
-// Real data: ../shared/data/kamino-procam-graycode (one camera, one projector, OpenCV Gray code,
-// a chessboard in 5 poses) with the upstream stereoCalibrate result of commit ccf1cd8
-// (calibration_result_ccf1cd8.xml: X_proj = R X_cam + t, units of the 75-unit squares: mm).
-Rig KaminoRig(const std::string& xml) {
-  cv::FileStorage fs((testing::SharedDataDir() / "kamino-procam-graycode" / xml).string(), cv::FileStorage::READ);
-  cv::Mat ck, cd, pk, pd, r, t;
-  fs["cam_int"] >> ck;
-  fs["cam_dist"] >> cd;
-  fs["proj_int"] >> pk;
-  fs["proj_dist"] >> pd;
-  fs["roration"] >> r;  // sic
-  fs["translation"] >> t;
-  auto model = [](int w, int h, const cv::Mat& k, const cv::Mat& d) {
-    return CameraModel(w, h, k.at<double>(0, 0), k.at<double>(1, 1), k.at<double>(0, 2), k.at<double>(1, 2),
-                       d.at<double>(0), d.at<double>(1), d.at<double>(2), d.at<double>(3), d.at<double>(4));
-  };
-  Rig rig;
-  rig.name = "kamino";
-  rig.working_distance_mm = 1000;
-  rig.cameras.push_back({"camera", model(1280, 1024, ck, cd), Rigid3d()});
-  Eigen::Matrix3d rot;
-  for (int i = 0; i < 3; ++i) {
-    for (int j = 0; j < 3; ++j) rot(i, j) = r.at<double>(i, j);
-  }
-  rig.projector = RigDevice{"projector", model(1024, 768, pk, pd),
-                            Rigid3d(Eigen::Quaterniond(rot), Eigen::Vector3d(t.at<double>(0), t.at<double>(1), t.at<double>(2)))};
-  rig.Check("kamino");
-  return rig;
-}
+using testing::KaminoRig;
 
 TEST(KaminoRealDataTest, ChessboardPoseReconstructsAndTheResidualsJudgeTheCalibration) {
   const auto dir = testing::SharedDataDir() / "kamino-procam-graycode";
