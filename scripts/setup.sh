@@ -6,6 +6,8 @@ set -euo pipefail
 PACKAGES=(
   # toolchain
   build-essential cmake ninja-build ccache pkg-config git
+  # formatting and lint (scripts/format.sh, .clang-format, .clang-tidy)
+  clang-format clang-tidy
   # core
   libeigen3-dev libopencv-dev libopencv-contrib-dev libyaml-cpp-dev nlohmann-json3-dev
   # calibration, simulation, comparison
