@@ -25,7 +25,7 @@ int RunBenchCommand(int argc, char** argv) {
       "  reconstruct  decode + triangulate both cameras (camera-projector); stereo from decoded maps\n"
       "  compare      cloud-to-mesh distances of the stereo cloud; peer: Open3D signed distance\n"
       "Each entry runs N times; the median wall time and the CPU time of that run are printed.\n"
-      "Google Benchmark programs with more detail: tests/*/ *_bench (docs/benchmarks.md).",
+      "Google Benchmark programs with more detail: bench/*/ *_bench (docs/benchmarks.md).",
       argv[0]};
   app.add_option("--repetitions,-n", options.repetitions, "runs per entry (median reported)")->capture_default_str();
   app.add_option("--only", options.only, "entries to run (default: all)");

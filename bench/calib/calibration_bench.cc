@@ -1,5 +1,5 @@
 // Calibration speed against OpenCV on the same corners (docs/benchmarks.md, "Calibration").
-//   build-*/tests/calib/calib_bench --benchmark_repetitions=5 --benchmark_report_aggregates_only=true
+//   build-*/bench/calib/calib_bench --benchmark_repetitions=5 --benchmark_report_aggregates_only=true
 #include <benchmark/benchmark.h>
 
 #include <cstdio>
