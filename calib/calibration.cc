@@ -733,8 +733,9 @@ std::vector<cv::Point2f> ToCv(const std::vector<Eigen::Vector2d>& v) {
 
 // Pose of the board in the device frame from one view, by PnP with the current intrinsics.
 std::optional<Pose6> PoseByPnP(const Intr9& params, const BoardView& v) {
-  cv::Mat k = (cv::Mat_<double>(3, 3) << params[0], 0, params[2], 0, params[1], params[3], 0, 0, 1);
-  cv::Mat dist = (cv::Mat_<double>(1, 5) << params[4], params[5], params[6], params[7], params[8]);
+  using M = CameraModel;
+  cv::Mat k = (cv::Mat_<double>(3, 3) << params[M::kFx], 0, params[M::kCx], 0, params[M::kFy], params[M::kCy], 0, 0, 1);
+  cv::Mat dist = (cv::Mat_<double>(1, 5) << params[M::kK1], params[M::kK2], params[M::kP1], params[M::kP2], params[M::kK3]);
   cv::Mat rvec, tvec;
   std::vector<cv::Point3d> obj;
   std::vector<cv::Point2d> img;
@@ -883,9 +884,10 @@ State InitDevice(const CalibrationInput& sub, const CalibrationOptions& options)
                      e.what(), ")");
     }
     params = {k.at<double>(0, 0), k.at<double>(1, 1), k.at<double>(0, 2), k.at<double>(1, 2), 0, 0, 0, 0, 0};
-    SLSHADOW_THROW_IF(!(params[0] > 0 && params[1] > 0 && std::isfinite(params[0]) && std::isfinite(params[1])),
-                      "device '", dev.name, "': the board homographies give no valid focal length (fx ", params[0],
-                      ", fy ", params[1], "): the views are degenerate (all parallel to the image plane, or ",
+    SLSHADOW_THROW_IF(!(params[CameraModel::kFx] > 0 && params[CameraModel::kFy] > 0 && std::isfinite(params[CameraModel::kFx]) &&
+                        std::isfinite(params[CameraModel::kFy])),
+                      "device '", dev.name, "': the board homographies give no valid focal length (fx ", params[CameraModel::kFx],
+                      ", fy ", params[CameraModel::kFy], "): the views are degenerate (all parallel to the image plane, or ",
                       "too few); capture the board tilted by 20-40 degrees in several directions");
   }
   if (options.fix_principal_point && !dev.initial) {
