@@ -14,8 +14,8 @@ PACKAGES=(
   libceres-dev libembree-dev libtbb-dev libnanoflann-dev libpcl-dev libplplot-dev plplot-driver-cairo
   # C2C cross-check and benchmark peer (compare tests skip without it; runs headless)
   cloudcompare
-  # command line and logging
-  libcli11-dev libspdlog-dev
+  # command line
+  libcli11-dev
   # tests and benchmarks
   libgtest-dev libgmock-dev libbenchmark-dev
   # benchmark peer: the digital-model paper's Python/Open3D approach (bench/paper_peer)
