@@ -76,6 +76,8 @@ nlohmann::json CameraCaptureStats::ToJson() const {
           {"exposure_us", exposure_us},
           {"min_complementary_share", min_complementary_share},
           {"pair_checks", pair_checks},
+          {"missed_triggers", missed_triggers},
+          {"extra_frames", extra_frames},
           {"stream",
            {{"completed_frames", stream.completed_frames},
             {"failed_frames", stream.failed_frames},
