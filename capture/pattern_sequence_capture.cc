@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <map>
 #include <optional>
+#include <thread>
 
 #include "capture/internal/sequence_checks.h"
 #include "capture/internal/store_queue.h"
@@ -20,6 +21,7 @@ namespace {
 using namespace internal;  // NOLINT: the sequencers' shared internal pieces
 using Clock = std::chrono::steady_clock;
 using SysClock = std::chrono::system_clock;
+constexpr std::chrono::microseconds kArmTime{100000};
 
 struct SequenceCamera {
   const CaptureCamera* cam = nullptr;
@@ -120,6 +122,9 @@ class PatternSequenceCapture {
         }
       }
     } stop_devices{&cams_};
+    // Cameras arm their trigger input some time after AcquisitionStart: a pulse before that is
+    // lost (a fault at pattern 0); give them the settle time, at least kArmTime.
+    std::this_thread::sleep_for(std::max<std::chrono::microseconds>(options_.settle, kArmTime));
     const ProjectorInfo pinfo = projector_.Info();
     nlohmann::json start_note = {{"started", UtcTimestamp()},  {"resumed", writer.resumed()}, {"validate", validate_},
                                  {"projector", pinfo.backend}, {"projector_id", pinfo.id},
@@ -236,91 +241,125 @@ class PatternSequenceCapture {
     }
   }
 
-  // Starts the device's sequence and takes one frame per pattern per camera, matched by count
-  // and timestamp (see the header), until the end or the first fault; then stops the device and
-  // drops whatever frames still come.
+  // Starts the device's sequence and grabs one frame per pattern per camera until every camera
+  // has one per pattern or stayed silent for its timeout; stops the device, drops late frames,
+  // and keeps the patterns before the first fault of any camera (MatchFrames).
   SequenceRun RunOnce() {
     SequenceRun run;
     const int n = spec_.NumImages();
     const auto period = projector_.FramePeriod();
-    const double period_s = std::chrono::duration<double>(period).count();
     for (auto& s : cams_) s.cam->camera->Flush();
     const SysClock::time_point started = projector_.Start();
     const auto t0 = Clock::now();
-    std::vector<int64_t> slot(cams_.size(), -1);
-    std::vector<Frame> last(cams_.size());
-    for (int k = 0; k < n && run.fault.empty(); ++k) {
-      if (Stopped()) {
-        run.stopped = true;
-        break;
-      }
-      std::vector<Frame> round;
-      for (size_t c = 0; c < cams_.size() && run.fault.empty(); ++c) {
+    std::vector<std::vector<Frame>> got(cams_.size());
+    std::vector<std::vector<int64_t>> lost_ids(cams_.size());
+    std::vector<std::string> ended(cams_.size());  // why a camera's frames ended early
+    for (int k = 0; k < n && !run.stopped; ++k) {
+      for (size_t c = 0; c < cams_.size(); ++c) {
+        if (!ended[c].empty()) continue;
+        if (Stopped()) {
+          run.stopped = true;
+          break;
+        }
         SequenceCamera& s = cams_[c];
         const auto timeout = s.cam->grab_timeout + std::chrono::ceil<std::chrono::milliseconds>(period);
         Frame f = s.cam->camera->Grab(timeout);
-        const std::string who = model_->Name(k) + ", camera '" + s.cam->name + "'";
         if (f.status == FrameStatus::kTimeout || f.status == FrameStatus::kAborted) {
           s.stats.timeouts += f.status == FrameStatus::kTimeout;
-          ++s.stats.missed_triggers;
-          run.fault = who + ": no frame within " + std::to_string(timeout.count()) + " ms" +
-                      (f.message.empty() ? "" : " (" + f.message + ")") + ": its trigger never came" + ProjectorState();
-          break;
+          ended[c] = ": no frame within " + std::to_string(timeout.count()) + " ms" +
+                     (f.message.empty() ? "" : " (" + f.message + ")") + ": its trigger never came" + ProjectorState();
+          continue;
         }
         ++s.stats.frames_grabbed;
-        const int64_t lost_ids = s.ids.Next(f.frame_id);
+        const int64_t lost = s.ids.Next(f.frame_id);
         const RigDevice& dev = rig_.Camera(s.cam->name);
         if (!f.ok() || f.image.cols != dev.model.width || f.image.rows != dev.model.height ||
             f.image.type() != CV_MAKETYPE(s.expected_depth, 1)) {
           ++s.stats.damaged;
-          run.fault = who + ": frame " + (f.ok() ? "of another size or depth than the rig camera" : ToString(f.status)) +
-                      (f.message.empty() ? "" : " (" + f.message + ")");
-          break;
+          ended[c] = ": frame " + (f.ok() ? std::string("of another size or depth than the rig camera") : ToString(f.status)) +
+                     (f.message.empty() ? "" : " (" + f.message + ")");
+          continue;
         }
-        double dt_s = 0;
-        int64_t at = 0;
-        if (slot[c] < 0) {
-          dt_s = std::chrono::duration<double>(f.host_timestamp - started).count();
-          at = static_cast<int64_t>(std::floor(std::max(0.0, dt_s) / period_s));
-        } else {
-          const Frame& p = last[c];
-          dt_s = f.device_timestamp_ns != 0 && p.device_timestamp_ns != 0
-                     ? 1e-9 * (static_cast<double>(f.device_timestamp_ns) - static_cast<double>(p.device_timestamp_ns))
-                     : std::chrono::duration<double>(f.host_timestamp - p.host_timestamp).count();
-          at = slot[c] + std::llround(dt_s / period_s);
-        }
-        if (at != k) {
-          ++s.stats.missed_triggers;
-          const std::string after = k == 0 ? "Start" : model_->Name(k - 1) + "'s frame";
-          run.fault = at > k ? who + ": no frame: the next one came " + Ms(dt_s) + " after " + after + " (frame period " +
-                                   Ms(period_s) + "): " +
-                                   (lost_ids > 0 ? "the frame of this pattern was lost in transport (frame-id gap)"
-                                                 : "the camera missed this pattern's trigger")
-                             : who + ": a frame only " + Ms(dt_s) + " after " + after + " (frame period " + Ms(period_s) +
-                                   "): a spurious trigger";
-          break;
-        }
-        slot[c] = at;
-        last[c].device_timestamp_ns = f.device_timestamp_ns;
-        last[c].host_timestamp = f.host_timestamp;
-        round.push_back(std::move(f));
+        got[c].push_back(std::move(f));
+        lost_ids[c].push_back(lost);
       }
-      if (run.fault.empty() && !run.stopped) run.frames.push_back(std::move(round));
     }
     run.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+    std::string stop_error;
     try {
       projector_.Stop();
     } catch (const Error& e) {
-      if (run.fault.empty()) run.fault = std::string("stopping the sequence: ") + e.what();
+      stop_error = std::string("stopping the sequence: ") + e.what();
     }
-    // Frames of triggers after the fault (or spurious ones after the last pattern) are dropped.
+    // Frames of triggers after a fault (or spurious ones after the last pattern) are dropped.
     const auto drain = std::chrono::ceil<std::chrono::milliseconds>(period) + std::chrono::milliseconds(50);
     for (auto& s : cams_) {
-      while (s.cam->camera->Grab(drain).status != FrameStatus::kTimeout) {
-        if (run.fault.empty()) ++s.stats.extra_frames;
-      }
+      while (s.cam->camera->Grab(drain).status != FrameStatus::kTimeout) ++s.stats.extra_frames;
+    }
+    int prefix = n;
+    for (size_t c = 0; c < cams_.size(); ++c) {
+      const auto [first_bad, why] = MatchFrames(got[c], lost_ids[c], started, ended[c], run.stopped);
+      if (!why.empty()) ++cams_[c].stats.missed_triggers;
+      if (first_bad >= prefix) continue;
+      prefix = first_bad;
+      run.fault = why.empty() ? "" : model_->Name(first_bad) + ", camera '" + cams_[c].cam->name + "'" + why;
+    }
+    if (run.fault.empty() && !stop_error.empty() && !run.stopped) run.fault = stop_error;
+    for (int k = 0; k < prefix; ++k) {
+      std::vector<Frame> round;
+      for (size_t c = 0; c < cams_.size(); ++c) round.push_back(std::move(got[c][static_cast<size_t>(k)]));
+      run.frames.push_back(std::move(round));
     }
     return run;
+  }
+
+  // Matches one camera's frames of a run to patterns (see the header): consecutive frames one
+  // period apart, the first one anchored at pattern 0 by its arrival within a period after Start
+  // (pattern 1's trigger comes no earlier) or by the count (frames spanning every pattern).
+  // Returns the first pattern without a frame of its own and why ("" when stopped), or n.
+  std::pair<int, std::string> MatchFrames(const std::vector<Frame>& f, const std::vector<int64_t>& lost_ids,
+                                          SysClock::time_point started, const std::string& ended, bool stopped) const {
+    const int n = spec_.NumImages();
+    const double period_s = std::chrono::duration<double>(projector_.FramePeriod()).count();
+    const std::string end = stopped ? "" : ended.empty() ? ": no frame (the run ended)" : ended;
+    if (f.empty()) return {0, end};
+    std::vector<int64_t> slot = {0};
+    std::vector<double> gap_s = {0};
+    double spurious_s = 0;
+    for (size_t j = 1; j < f.size(); ++j) {
+      const double dt = f[j].device_timestamp_ns != 0 && f[j - 1].device_timestamp_ns != 0
+                            ? 1e-9 * (static_cast<double>(f[j].device_timestamp_ns) -
+                                      static_cast<double>(f[j - 1].device_timestamp_ns))
+                            : std::chrono::duration<double>(f[j].host_timestamp - f[j - 1].host_timestamp).count();
+      const int64_t step = std::llround(dt / period_s);
+      if (step < 1) {  // a spurious frame: the slots end before it
+        spurious_s = dt;
+        break;
+      }
+      slot.push_back(slot.back() + step);
+      gap_s.push_back(dt);
+    }
+    const double first_s = std::chrono::duration<double>(f[0].host_timestamp - started).count();
+    const bool anchored = first_s < period_s || (slot.back() == n - 1 && slot.size() == f.size());
+    if (!anchored || slot.back() > n - 1) {
+      return {0, ": cannot tell which pattern its first frame shows: it came " + Ms(first_s) + " after Start (frame period " +
+                     Ms(period_s) + ") and the frames span " + std::to_string(slot.back() + 1) + " of " + std::to_string(n) +
+                     " patterns: the camera missed a trigger at the start" + (ended.empty() ? "" : "; then" + ended)};
+    }
+    for (size_t j = 1; j < slot.size(); ++j) {
+      if (slot[j] == static_cast<int64_t>(j)) continue;
+      const int k = static_cast<int>(j);
+      return {k, ": no frame: the next one came " + Ms(gap_s[j]) + " after " + model_->Name(k - 1) + "'s (frame period " +
+                     Ms(period_s) + "): " +
+                     (lost_ids[j] > 0 ? "the frame of this pattern was lost in transport (frame-id gap)"
+                                      : "the camera missed this pattern's trigger")};
+    }
+    const int k = static_cast<int>(slot.size());
+    if (slot.size() < f.size()) {
+      return {k, ": a frame only " + Ms(spurious_s) + " after " + model_->Name(k - 1) + "'s (frame period " + Ms(period_s) +
+                     "): a spurious trigger or a late frame, this pattern's frame cannot be told"};
+    }
+    return {k, k == n ? "" : end};
   }
 
   // The frame of pattern k of camera c: from this run, an earlier run, or the staging folder;

@@ -3,9 +3,12 @@
 // line once per pattern). The host programs the sequence, starts it, and only grabs: one frame
 // per pattern per camera, in real time, stored through the resumable ImageSet writer.
 //
-// Frames are matched to patterns by count and timestamp, per camera: the k-th frame must be the
-// frame of pattern k. The first one must arrive within the first frame period after Start (host
-// clock); each later one one period after its predecessor (device timestamps when the camera has
+// The cameras are started first and given SequencerOptions::settle, at least 100 ms, to arm
+// their trigger inputs. Frames are matched to patterns by count and timestamp, per camera: the
+// k-th frame must be the frame of pattern k. The first one must arrive within the first frame
+// period after Start (host clock: so the time from a trigger to the frame's arrival, exposure and
+// transfer included, must stay below one frame period); each later one one period after its
+// predecessor (device timestamps when the camera has
 // them, else host timestamps; "one period" is anything in (0.5, 1.5) periods). A frame that comes
 // two or more periods after its predecessor means the camera missed the trigger of the pattern in
 // between; one within half a period means a spurious trigger; no frame within the grab timeout
@@ -37,9 +40,9 @@ namespace slshadow::capture {
 
 // Captures `spec` with `cameras` (each set to TriggerMode::kHardware, wired to the projector's
 // trigger output) and a projector that runs the sequence itself into the ImageSet `out`.
-// SequencerOptions: max_retries (whole-sequence runs after a fault), validate, validation, writer,
-// store_queue_images, stop, progress and extra apply; settle, retry_backoff, max_latency and
-// sleep_until do not; auto_exposure must be off. The summary's mean_pattern_ms is the time from
+// SequencerOptions: max_retries (whole-sequence runs after a fault), settle (the arming time),
+// validate, validation, writer, store_queue_images, stop, progress and extra apply; retry_backoff,
+// max_latency and sleep_until do not; auto_exposure must be off. The summary's mean_pattern_ms is the time from
 // Start to the last frame of a run over its patterns; CameraCaptureStats::missed_triggers counts
 // the faults of each camera. Throws like capture::Capture.
 CaptureSummary CapturePatternSequence(const Rig& rig, const PatternSpec& spec, const std::vector<CaptureCamera>& cameras,

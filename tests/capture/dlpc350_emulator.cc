@@ -173,6 +173,7 @@ void Dlpc350SequenceRunner::Loop() {
     const std::vector<int> patterns = patterns_;
     const auto period = period_;
     const auto start = std::chrono::steady_clock::now();
+    const auto start_system = std::chrono::system_clock::now();
     ++runs_;
     bool halted = false;
     for (size_t e = 0; e < patterns.size() && generation_ == generation; ++e) {
@@ -187,7 +188,9 @@ void Dlpc350SequenceRunner::Loop() {
       if (drop) drop_pulse_at = -1;
       if (!drop && trigger_out) {
         lock.unlock();
-        trigger_out(entry, patterns[e]);
+        trigger_out(entry, patterns[e],
+                    start_system + std::chrono::duration_cast<std::chrono::system_clock::duration>(
+                                       static_cast<int64_t>(e) * period));
         ++pulses_;
         lock.lock();
       }

@@ -82,8 +82,9 @@ class Dlpc350SequenceRunner {
   int showing() const { return showing_.load(); }  // pattern on the DMD, -1 dark
   uint64_t pulses() const { return pulses_.load(); }
   uint64_t runs() const { return runs_.load(); }
-  // Set before Start. Runs on the runner's thread.
-  std::function<void(int entry, int pattern)> trigger_out;
+  // Set before Start. Runs on the runner's thread; `edge` is when the device's clock scheduled
+  // the pulse (the thread may run late on a loaded machine; the DLPC350's clock does not).
+  std::function<void(int entry, int pattern, std::chrono::system_clock::time_point edge)> trigger_out;
   std::atomic<int> drop_pulse_at{-1};  // the next run with this entry shows it without a pulse (once)
   std::atomic<int> halt_at{-1};        // the next run reaching this entry dies there (once): dark, no pulse, on_halt
   std::function<void()> on_halt;       // e.g. unplug the USB device
