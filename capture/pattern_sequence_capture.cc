@@ -275,10 +275,13 @@ class PatternSequenceCapture {
         const RigDevice& dev = rig_.Camera(s.cam->name);
         if (!f.ok() || f.image.cols != dev.model.width || f.image.rows != dev.model.height ||
             f.image.type() != CV_MAKETYPE(s.expected_depth, 1)) {
+          // Still one trigger's frame: kept in the count, a fault at the pattern it takes.
           ++s.stats.damaged;
-          ended[c] = ": frame " + (f.ok() ? std::string("of another size or depth than the rig camera") : ToString(f.status)) +
-                     (f.message.empty() ? "" : " (" + f.message + ")");
-          continue;
+          if (f.ok()) {
+            f.status = FrameStatus::kSizeMismatch;
+            f.message = "of another size or depth than the rig camera";
+          }
+          f.device_timestamp_ns = 0;
         }
         got[c].push_back(std::move(f));
         lost_ids[c].push_back(lost);
@@ -323,32 +326,46 @@ class PatternSequenceCapture {
     const double period_s = std::chrono::duration<double>(projector_.FramePeriod()).count();
     const std::string end = stopped ? "" : ended.empty() ? ": no frame (the run ended)" : ended;
     if (f.empty()) return {0, end};
+    // Slots from device timestamps (host ones when the camera has none) relative to the last
+    // complete frame; a damaged frame (no timestamp) takes the next slot, checked by the next one.
     std::vector<int64_t> slot = {0};
     std::vector<double> gap_s = {0};
     double spurious_s = 0;
+    int64_t last_good = f[0].ok() ? 0 : -1;
     for (size_t j = 1; j < f.size(); ++j) {
-      const double dt = f[j].device_timestamp_ns != 0 && f[j - 1].device_timestamp_ns != 0
-                            ? 1e-9 * (static_cast<double>(f[j].device_timestamp_ns) -
-                                      static_cast<double>(f[j - 1].device_timestamp_ns))
-                            : std::chrono::duration<double>(f[j].host_timestamp - f[j - 1].host_timestamp).count();
-      const int64_t step = std::llround(dt / period_s);
-      if (step < 1) {  // a spurious frame: the slots end before it
+      if (!f[j].ok() || last_good < 0) {
+        slot.push_back(slot.back() + 1);
+        gap_s.push_back(0);
+        if (f[j].ok()) last_good = static_cast<int64_t>(j);
+        continue;
+      }
+      const Frame& r = f[static_cast<size_t>(last_good)];
+      const double dt = f[j].device_timestamp_ns != 0 && r.device_timestamp_ns != 0
+                            ? 1e-9 * (static_cast<double>(f[j].device_timestamp_ns) - static_cast<double>(r.device_timestamp_ns))
+                            : std::chrono::duration<double>(f[j].host_timestamp - r.host_timestamp).count();
+      const int64_t at = slot[static_cast<size_t>(last_good)] + std::llround(dt / period_s);
+      if (at <= slot.back()) {  // a spurious frame: the slots end before it
         spurious_s = dt;
         break;
       }
-      slot.push_back(slot.back() + step);
       gap_s.push_back(dt);
+      slot.push_back(at);
+      last_good = static_cast<int64_t>(j);
     }
     const double first_s = std::chrono::duration<double>(f[0].host_timestamp - started).count();
     const bool anchored = first_s < period_s || (slot.back() == n - 1 && slot.size() == f.size());
     if (!anchored || slot.back() > n - 1) {
-      return {0, ": cannot tell which pattern its first frame shows: it came " + Ms(first_s) + " after Start (frame period " +
-                     Ms(period_s) + ") and the frames span " + std::to_string(slot.back() + 1) + " of " + std::to_string(n) +
-                     " patterns: the camera missed a trigger at the start" + (ended.empty() ? "" : "; then" + ended)};
+      return {0, ": cannot tell which pattern its first frame shows: it came " + Ms(first_s) + " after Start (more than " +
+                     "the frame period " + Ms(period_s) + ") and the frames span " + std::to_string(slot.back() + 1) +
+                     " of " + std::to_string(n) + " patterns: a frame is missing at the start or at the end" +
+                     (ended.empty() ? "" : "; the last one" + ended)};
     }
-    for (size_t j = 1; j < slot.size(); ++j) {
-      if (slot[j] == static_cast<int64_t>(j)) continue;
+    for (size_t j = 0; j < slot.size(); ++j) {
       const int k = static_cast<int>(j);
+      if (slot[j] == static_cast<int64_t>(j) && !f[j].ok()) {
+        return {k, ": frame " + ToString(f[j].status) + (f[j].message.empty() ? "" : " (" + f[j].message + ")")};
+      }
+      if (slot[j] == static_cast<int64_t>(j)) continue;
       return {k, ": no frame: the next one came " + Ms(gap_s[j]) + " after " + model_->Name(k - 1) + "'s (frame period " +
                      Ms(period_s) + "): " +
                      (lost_ids[j] > 0 ? "the frame of this pattern was lost in transport (frame-id gap)"

@@ -149,6 +149,8 @@ void Dlpc350SequenceRunner::Start(std::vector<int> patterns, uint32_t frame_peri
     std::lock_guard lock(mutex_);
     patterns_ = std::move(patterns);
     period_ = std::chrono::microseconds(frame_period_us);
+    start_ = std::chrono::steady_clock::now();
+    start_system_ = std::chrono::system_clock::now();
     running_ = true;
     ++generation_;
   }
@@ -172,8 +174,8 @@ void Dlpc350SequenceRunner::Loop() {
     const uint64_t generation = generation_;
     const std::vector<int> patterns = patterns_;
     const auto period = period_;
-    const auto start = std::chrono::steady_clock::now();
-    const auto start_system = std::chrono::system_clock::now();
+    const auto start = start_;
+    const auto start_system = start_system_;
     ++runs_;
     bool halted = false;
     for (size_t e = 0; e < patterns.size() && generation_ == generation; ++e) {

@@ -95,6 +95,10 @@ class Dlpc350SequenceRunner {
   std::condition_variable wake_;
   std::vector<int> patterns_;
   std::chrono::microseconds period_{0};
+  // When the start command came: the device's clock runs from there even when this thread wakes
+  // late on a loaded machine (overdue pulses then go out at once, stamped with their edge time).
+  std::chrono::steady_clock::time_point start_;
+  std::chrono::system_clock::time_point start_system_;
   uint64_t generation_ = 0;
   bool running_ = false, quit_ = false;
   std::atomic<int> showing_{-1};
