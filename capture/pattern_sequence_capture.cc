@@ -53,29 +53,22 @@ class PatternSequenceCapture {
  public:
   PatternSequenceCapture(const Rig& rig, const PatternSpec& spec, const std::vector<CaptureCamera>& cameras,
                          SequenceProjector& projector, const fs::path& out, const SequencerOptions& options)
-      : rig_(rig), spec_(spec), projector_(projector), out_(out), options_(options) {
+      : rig_(rig), spec_(spec), projector_(projector), out_(out), options_(options), cameras_(cameras) {
     options_.Check();
     spec_.Check();
     SLSHADOW_THROW_IF(options_.auto_exposure, "capture: auto exposure is not available when the projector runs the ",
                       "pattern sequence itself; set exposure_us per camera");
-    SLSHADOW_THROW_IF(cameras.empty(), "capture: no cameras");
+    CheckCaptureCameras(rig, cameras);
     for (const auto& c : cameras) {
-      SLSHADOW_THROW_IF(c.camera == nullptr, "capture: camera '", c.name, "' has no device");
-      SLSHADOW_THROW_IF(rig.CameraIndex(c.name) < 0, "capture: the rig '", rig.name, "' has no camera '", c.name, "'");
-      SLSHADOW_THROW_IF(c.grab_timeout.count() <= 0, "capture: camera '", c.name, "': grab timeout must be > 0");
       SLSHADOW_THROW_IF(c.settings.trigger != TriggerMode::kHardware, "capture: camera '", c.name, "': trigger is ",
                         ToString(c.settings.trigger), "; with a projector that runs the sequence itself every camera ",
                         "takes trigger: hardware on the line wired to the projector's trigger output");
-      for (const auto& s : cams_) SLSHADOW_THROW_IF(s.cam->name == c.name, "capture: camera '", c.name, "' given twice");
       SequenceCamera s;
       s.cam = &c;
       s.full_scale = FullScale(c.settings.pixel_format);
       s.expected_depth = BitDepthOf(c.settings.pixel_format) == 8 ? CV_8U : CV_16U;
       const RigDevice& dev = rig.Camera(c.name);
-      s.stride = options_.validation.stride_px > 0
-                     ? options_.validation.stride_px
-                     : std::max(1, static_cast<int>(std::sqrt(static_cast<double>(dev.model.width) * dev.model.height /
-                                                              options_.validation.target_samples)));
+      s.stride = SampleStride(options_.validation, dev.model.width, dev.model.height);
       cams_.push_back(std::move(s));
     }
     std::sort(cams_.begin(), cams_.end(), [&](const SequenceCamera& a, const SequenceCamera& b) {
@@ -111,17 +104,7 @@ class PatternSequenceCapture {
       s.stats.exposure_us = s.cam->settings.exposure_us.value_or(0);
       s.cam->camera->Start();
     }
-    struct StopDevices {
-      std::vector<SequenceCamera>* cams;
-      ~StopDevices() {
-        for (auto& s : *cams) {
-          try {
-            s.cam->camera->Stop();
-          } catch (...) {
-          }
-        }
-      }
-    } stop_devices{&cams_};
+    const CamerasStopper stop_cameras(cameras_);
     // Cameras arm their trigger input some time after AcquisitionStart: a pulse before that is
     // lost (a fault at pattern 0); give them the settle time, at least kArmTime.
     std::this_thread::sleep_for(std::max<std::chrono::microseconds>(options_.settle, kArmTime));
@@ -131,12 +114,8 @@ class PatternSequenceCapture {
                                  {"mode", "pattern-sequence"},
                                  {"frame_period_us", projector_.FramePeriod().count()}};
     for (const auto& s : cams_) {
-      start_note["cameras"][s.cam->name] = {{"backend", s.info.backend}, {"id", s.info.id}, {"serial", s.info.serial},
-                                            {"model", s.info.model},     {"vendor", s.info.vendor},
-                                            {"exposure_us", s.stats.exposure_us},
-                                            {"pixel_format", ToString(s.cam->settings.pixel_format)},
-                                            {"trigger", ToString(s.cam->settings.trigger)},
-                                            {"trigger_line", s.cam->settings.trigger_line}};
+      start_note["cameras"][s.cam->name] = CameraNote(s.info, s.cam->settings, s.stats.exposure_us);
+      start_note["cameras"][s.cam->name]["trigger_line"] = s.cam->settings.trigger_line;
     }
     writer.AppendSession(start_note);
 
@@ -192,20 +171,7 @@ class PatternSequenceCapture {
       summary_.cameras[s.cam->name] = s.stats;
     }
     summary_.seconds = std::chrono::duration<double>(Clock::now() - start).count();
-    nlohmann::json end_note = summary_.ToJson();
-    end_note["ended"] = UtcTimestamp();
-    if (!failure.empty()) end_note["failure"] = failure;
-    if (!storage_error.empty()) end_note["storage_error"] = storage_error;
-    try {
-      writer.AppendSession(end_note);
-    } catch (const Error&) {
-      // The records are what matters; a lost note is not worth hiding the real error.
-    }
-    SLSHADOW_THROW_IF(!storage_error.empty(), storage_error, " (the capture is staged in ", writer.staging_dir().string(),
-                      "; continue it with --resume)");
-    SLSHADOW_THROW_IF(!failure.empty(), failure, " (", summary_.images_before + summary_.images_stored, " of ",
-                      summary_.images_total, " images are staged in ", writer.staging_dir().string(),
-                      "; fix the cause and continue with --resume)");
+    EndSession(writer, summary_, failure, storage_error);
     if (summary_.interrupted) return summary_;
     nlohmann::json extra = options_.extra.is_null() ? nlohmann::json::object() : options_.extra;
     extra["capture"]["sessions"] = writer.Sessions();
@@ -477,18 +443,8 @@ class PatternSequenceCapture {
         const auto& refs = model_->reference_frames;
         if (std::find(refs.begin(), refs.end(), static_cast<int>(k)) != refs.end()) s.reference_images[static_cast<int>(k)] = f.image;
         s.queued[k] = 1;
-        ImageRecord r;
-        r.camera = s.cam->name;
-        r.pattern_index = static_cast<int>(k);
-        r.exposure_us = f.exposure_us > 0 ? f.exposure_us : s.cam->settings.exposure_us.value_or(0);
-        r.timestamp = FormatUtc(f.host_timestamp);
-        r.source = SourceOf(s.info.backend);
-        r.device_serial = s.info.serial;
-        if (f.frame_id != 0) r.frame_id = f.frame_id;
-        if (f.device_timestamp_ns != 0) r.device_timestamp_ns = f.device_timestamp_ns;
-        r.retries = attempt;
         ++s.stats.frames_stored;
-        store.Push(std::move(r), f.image);
+        store.Push(RecordOf(*s.cam, s.info, s.cam->settings, static_cast<int>(k), f, attempt), f.image);
       }
     }
   }
@@ -499,6 +455,7 @@ class PatternSequenceCapture {
   fs::path out_;
   SequencerOptions options_;
   std::vector<SequenceCamera> cams_;
+  const std::vector<CaptureCamera>& cameras_;  // the caller's, alive for the capture
   std::vector<cv::Mat> images_;
   std::unique_ptr<SequenceModel> model_;
   bool validate_ = true;

@@ -45,25 +45,18 @@ class Sequencer {
  public:
   Sequencer(const Rig& rig, const PatternSpec& spec, const std::vector<CaptureCamera>& cameras, Projector& projector,
             const fs::path& out, const SequencerOptions& options)
-      : rig_(rig), spec_(spec), projector_(projector), out_(out), options_(options) {
+      : rig_(rig), spec_(spec), projector_(projector), out_(out), options_(options), cameras_(cameras) {
     options_.Check();
     spec_.Check();
-    SLSHADOW_THROW_IF(cameras.empty(), "capture: no cameras");
+    CheckCaptureCameras(rig, cameras);
     for (const auto& c : cameras) {
-      SLSHADOW_THROW_IF(c.camera == nullptr, "capture: camera '", c.name, "' has no device");
-      SLSHADOW_THROW_IF(rig.CameraIndex(c.name) < 0, "capture: the rig '", rig.name, "' has no camera '", c.name, "'");
-      SLSHADOW_THROW_IF(c.grab_timeout.count() <= 0, "capture: camera '", c.name, "': grab timeout must be > 0");
-      for (const auto& s : states_) SLSHADOW_THROW_IF(s.cam->name == c.name, "capture: camera '", c.name, "' given twice");
       CameraState s;
       s.cam = &c;
       s.settings = c.settings;
       s.full_scale = FullScale(c.settings.pixel_format);
       s.expected_depth = BitDepthOf(c.settings.pixel_format) == 8 ? CV_8U : CV_16U;
       const RigDevice& dev = rig.Camera(c.name);
-      s.stride = options_.validation.stride_px > 0
-                     ? options_.validation.stride_px
-                     : std::max(1, static_cast<int>(std::sqrt(static_cast<double>(dev.model.width) * dev.model.height /
-                                                              options_.validation.target_samples)));
+      s.stride = SampleStride(options_.validation, dev.model.width, dev.model.height);
       states_.push_back(std::move(s));
     }
     // Rig camera order: the order frames are triggered, grabbed and reported.
@@ -100,17 +93,7 @@ class Sequencer {
       s.stats.serial = s.info.serial;
       s.cam->camera->Start();
     }
-    struct StopCameras {
-      std::vector<CameraState>* states;
-      ~StopCameras() {
-        for (auto& s : *states) {
-          try {
-            s.cam->camera->Stop();
-          } catch (...) {
-          }
-        }
-      }
-    } stop_cameras{&states_};
+    const CamerasStopper stop_cameras(cameras_);
     ChooseExposures(writer);
     for (auto& s : states_) {
       s.stats.exposure_us = s.settings.exposure_us.value_or(0);
@@ -120,11 +103,7 @@ class Sequencer {
                                  {"projector", projector_.Info().backend},
                                  {"latency_us", projector_.Latency().count()}, {"settle_us", options_.settle.count()}};
     for (const auto& s : states_) {
-      start_note["cameras"][s.cam->name] = {{"backend", s.info.backend}, {"id", s.info.id}, {"serial", s.info.serial},
-                                            {"model", s.info.model},     {"vendor", s.info.vendor},
-                                            {"exposure_us", s.stats.exposure_us},
-                                            {"pixel_format", ToString(s.settings.pixel_format)},
-                                            {"trigger", ToString(s.settings.trigger)}};
+      start_note["cameras"][s.cam->name] = CameraNote(s.info, s.settings, s.stats.exposure_us);
     }
     if (!summary_.auto_exposure_us.empty()) start_note["auto_exposure_us"] = summary_.auto_exposure_us;
     writer.AppendSession(start_note);
@@ -204,20 +183,7 @@ class Sequencer {
       summary_.cameras[s.cam->name] = s.stats;
     }
     summary_.seconds = std::chrono::duration<double>(Clock::now() - start).count();
-    nlohmann::json end_note = summary_.ToJson();
-    end_note["ended"] = UtcTimestamp();
-    if (!failure.empty()) end_note["failure"] = failure;
-    if (!storage_error.empty()) end_note["storage_error"] = storage_error;
-    try {
-      writer.AppendSession(end_note);
-    } catch (const Error&) {
-      // The records are what matters; a lost note is not worth hiding the real error.
-    }
-    SLSHADOW_THROW_IF(!storage_error.empty(), storage_error, " (the capture is staged in ", writer.staging_dir().string(),
-                      "; continue it with --resume)");
-    SLSHADOW_THROW_IF(!failure.empty(), failure, " (", summary_.images_before + summary_.images_stored, " of ",
-                      summary_.images_total, " images are staged in ", writer.staging_dir().string(),
-                      "; fix the cause and continue with --resume)");
+    EndSession(writer, summary_, failure, storage_error);
     if (summary_.interrupted) return summary_;
     for (const auto& s : states_) {
       for (int k = 0; k < n; ++k) {
@@ -638,16 +604,7 @@ class Sequencer {
       for (size_t c = 0; c < states_.size(); ++c) {
         CameraState& s = states_[c];
         Frame& f = frames[static_cast<size_t>(i)][c];
-        ImageRecord r;
-        r.camera = s.cam->name;
-        r.pattern_index = k;
-        r.exposure_us = f.exposure_us > 0 ? f.exposure_us : s.settings.exposure_us.value_or(0);
-        r.timestamp = FormatUtc(f.host_timestamp);
-        r.source = SourceOf(s.info.backend);
-        r.device_serial = s.info.serial;
-        if (f.frame_id != 0) r.frame_id = f.frame_id;
-        if (f.device_timestamp_ns != 0) r.device_timestamp_ns = f.device_timestamp_ns;
-        r.retries = retries[static_cast<size_t>(i)];
+        ImageRecord r = RecordOf(*s.cam, s.info, s.settings, k, f, retries[static_cast<size_t>(i)]);
         s.prev = f.image;
         s.prev_index = k;
         AcceptReference(s, k, f.image);
@@ -828,6 +785,7 @@ class Sequencer {
   fs::path out_;
   SequencerOptions options_;
   std::vector<CameraState> states_;
+  const std::vector<CaptureCamera>& cameras_;  // the caller's, alive for the capture
   std::vector<cv::Mat> images_;
   std::unique_ptr<SequenceModel> model_;
   bool validate_ = true;

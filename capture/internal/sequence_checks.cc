@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <ctime>
 
+#include "core/error.h"
 #include "core/file_util.h"
 
 namespace slshadow::capture::internal {
@@ -41,6 +42,78 @@ ImageSource SourceOf(const std::string& backend) {
   if (backend == "replay") return ImageSource::kReplay;
   if (backend == "sim") return ImageSource::kVirtual;
   return ImageSource::kDevice;
+}
+
+int SampleStride(const ValidationOptions& validation, int width, int height) {
+  return validation.stride_px > 0
+             ? validation.stride_px
+             : std::max(1, static_cast<int>(std::sqrt(static_cast<double>(width) * height / validation.target_samples)));
+}
+
+void CheckCaptureCameras(const Rig& rig, const std::vector<CaptureCamera>& cameras) {
+  SLSHADOW_THROW_IF(cameras.empty(), "capture: no cameras");
+  for (size_t i = 0; i < cameras.size(); ++i) {
+    const CaptureCamera& c = cameras[i];
+    SLSHADOW_THROW_IF(c.camera == nullptr, "capture: camera '", c.name, "' has no device");
+    SLSHADOW_THROW_IF(rig.CameraIndex(c.name) < 0, "capture: the rig '", rig.name, "' has no camera '", c.name, "'");
+    SLSHADOW_THROW_IF(c.grab_timeout.count() <= 0, "capture: camera '", c.name, "': grab timeout must be > 0");
+    for (size_t j = 0; j < i; ++j) {
+      SLSHADOW_THROW_IF(cameras[j].name == c.name, "capture: camera '", c.name, "' given twice");
+    }
+  }
+}
+
+CamerasStopper::~CamerasStopper() {
+  for (const auto& c : cameras_) {
+    try {
+      c.camera->Stop();
+    } catch (...) {
+    }
+  }
+}
+
+ImageRecord RecordOf(const CaptureCamera& camera, const CameraInfo& info, const CameraSettings& settings, int k,
+                     const Frame& frame, int retries) {
+  ImageRecord r;
+  r.camera = camera.name;
+  r.pattern_index = k;
+  r.exposure_us = frame.exposure_us > 0 ? frame.exposure_us : settings.exposure_us.value_or(0);
+  r.timestamp = FormatUtc(frame.host_timestamp);
+  r.source = SourceOf(info.backend);
+  r.device_serial = info.serial;
+  if (frame.frame_id != 0) r.frame_id = frame.frame_id;
+  if (frame.device_timestamp_ns != 0) r.device_timestamp_ns = frame.device_timestamp_ns;
+  r.retries = retries;
+  return r;
+}
+
+nlohmann::json CameraNote(const CameraInfo& info, const CameraSettings& settings, double exposure_us) {
+  return {{"backend", info.backend},
+          {"id", info.id},
+          {"serial", info.serial},
+          {"model", info.model},
+          {"vendor", info.vendor},
+          {"exposure_us", exposure_us},
+          {"pixel_format", ToString(settings.pixel_format)},
+          {"trigger", ToString(settings.trigger)}};
+}
+
+void EndSession(ResumableImageSetWriter& writer, const CaptureSummary& summary, const std::string& failure,
+                const std::string& storage_error) {
+  nlohmann::json end_note = summary.ToJson();
+  end_note["ended"] = UtcTimestamp();
+  if (!failure.empty()) end_note["failure"] = failure;
+  if (!storage_error.empty()) end_note["storage_error"] = storage_error;
+  try {
+    writer.AppendSession(end_note);
+  } catch (const Error&) {
+    // The records are what matters; a lost note is not worth hiding the real error.
+  }
+  SLSHADOW_THROW_IF(!storage_error.empty(), storage_error, " (the capture is staged in ", writer.staging_dir().string(),
+                    "; continue it with --resume)");
+  SLSHADOW_THROW_IF(!failure.empty(), failure, " (", summary.images_before + summary.images_stored, " of ",
+                    summary.images_total, " images are staged in ", writer.staging_dir().string(),
+                    "; fix the cause and continue with --resume)");
 }
 
 namespace {

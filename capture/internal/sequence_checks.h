@@ -11,7 +11,10 @@
 
 #include <opencv2/core.hpp>
 
+#include <nlohmann/json.hpp>
+
 #include "capture/camera.h"
+#include "capture/sequencer.h"
 #include "core/image_set.h"
 #include "patterns/codec.h"
 #include "patterns/pattern_spec.h"
@@ -26,6 +29,34 @@ std::string FormatUtc(std::chrono::system_clock::time_point tp);
 double FullScale(PixelFormat f);
 // The ImageSet source of a camera backend ("replay", "sim", else a device).
 ImageSource SourceOf(const std::string& backend);
+// The validation sampling stride for a camera of `width` x `height` pixels: stride_px when set,
+// else about target_samples samples.
+int SampleStride(const ValidationOptions& validation, int width, int height);
+// The cameras of a capture: at least one, each with a device, a camera name of the rig, a
+// positive grab timeout, none twice; throws slshadow::Error naming the camera.
+void CheckCaptureCameras(const Rig& rig, const std::vector<CaptureCamera>& cameras);
+// Stops every camera when it goes out of scope (errors ignored: the capture's own error wins).
+class CamerasStopper {
+ public:
+  explicit CamerasStopper(const std::vector<CaptureCamera>& cameras) : cameras_(cameras) {}
+  ~CamerasStopper();
+  CamerasStopper(const CamerasStopper&) = delete;
+  CamerasStopper& operator=(const CamerasStopper&) = delete;
+
+ private:
+  const std::vector<CaptureCamera>& cameras_;
+};
+// The ImageSet record of an accepted frame of pattern k (exposure: the frame's, else the
+// configured one).
+ImageRecord RecordOf(const CaptureCamera& camera, const CameraInfo& info, const CameraSettings& settings, int k,
+                     const Frame& frame, int retries);
+// A camera's entry in a capture's start note (journaled session).
+nlohmann::json CameraNote(const CameraInfo& info, const CameraSettings& settings, double exposure_us);
+// Journals a capture run's end note (the summary, `failure`, `storage_error`), then throws the
+// storage error or the failure, each naming the staging folder to resume; returns when both are
+// empty.
+void EndSession(ResumableImageSetWriter& writer, const CaptureSummary& summary, const std::string& failure,
+                const std::string& storage_error);
 
 // What the pattern sequence predicts, computed once per capture.
 struct SequenceModel {
