@@ -4,22 +4,27 @@
 // per pattern per camera, in real time, stored through the resumable ImageSet writer.
 //
 // The cameras are started first and given SequencerOptions::settle, at least 100 ms, to arm
-// their trigger inputs. Frames are matched to patterns by count and timestamp, per camera: the
-// k-th frame must be the frame of pattern k. The first one must arrive within the first frame
-// period after Start (host clock: so the time from a trigger to the frame's arrival, exposure and
-// transfer included, must stay below one frame period); each later one one period after its
-// predecessor (device timestamps when the camera has
-// them, else host timestamps; "one period" is anything in (0.5, 1.5) periods). A frame that comes
-// two or more periods after its predecessor means the camera missed the trigger of the pattern in
-// between; one within half a period means a spurious trigger; no frame within the grab timeout
-// (the camera's grab_timeout plus a period) means the trigger never came. Each is a detected
-// fault that names the pattern (index and role), never a shifted sequence: the patterns before it
-// are kept, the device is stopped, and the whole sequence runs again (the device starts at its
-// first pattern) and only the missing patterns are stored, up to max_retries times. After a
-// missing frame the projector is asked whether it is still there (CheckAlive), so an unplugged
-// device is named in the error. Then Capture throws slshadow::Error naming the pattern, the camera
-// and why (the first run's cause first), and the staging folder stays resumable: `--resume`
-// runs the sequence again and stores the missing patterns only.
+// their trigger inputs. Then each run starts the device and grabs, per camera, one frame per
+// pattern until it has one for every pattern or nothing comes within its grab timeout plus a
+// period. Frames are matched to patterns by count and timestamp, per camera:
+//  - consecutive frames lie one period apart (device timestamps when the camera has them, else
+//    host ones; "one period" is anything in (0.5, 1.5) periods): a frame two or more periods
+//    after its predecessor means the frame of the pattern in between is missing (the camera
+//    missed its trigger, or the frame was lost in transport when the frame ids skip); one within
+//    half a period is a spurious trigger (or a late frame) that cannot be told from the next;
+//  - the first frame is the frame of pattern 0 when it arrived within one period of Start (no
+//    later trigger can have come by then), or when the frames span every pattern of the
+//    sequence. Otherwise (a frame missing at the start or the end, which one cannot be told)
+//    nothing of the run is kept;
+//  - a damaged frame (incomplete, wrong size) takes one pattern's place and is a fault there;
+//  - no frame after the last one matched: that pattern's trigger never came; the projector is then
+//    asked whether it is still there (CheckAlive), so an unplugged device is named.
+// Each fault names the pattern (index and role) and the camera, never a shifted sequence: the
+// patterns before the first fault of any camera are kept, the device is stopped, late frames are
+// dropped, and the whole sequence runs again (the device starts at its first pattern) storing
+// only the missing patterns, up to max_retries times. Then Capture throws slshadow::Error naming
+// the pattern, the camera and why (the first run's cause first), and the staging folder stays
+// resumable: `--resume` runs the sequence again and stores the missing patterns only.
 //
 // Validation (SequencerOptions::validate), after every run, per camera: every frame complete and
 // of the rig camera's size and depth; white and black differ (lit share); each Gray bit and its
@@ -42,9 +47,9 @@ namespace slshadow::capture {
 // trigger output) and a projector that runs the sequence itself into the ImageSet `out`.
 // SequencerOptions: max_retries (whole-sequence runs after a fault), settle (the arming time),
 // validate, validation, writer, store_queue_images, stop, progress and extra apply; retry_backoff,
-// max_latency and sleep_until do not; auto_exposure must be off. The summary's mean_pattern_ms is the time from
-// Start to the last frame of a run over its patterns; CameraCaptureStats::missed_triggers counts
-// the faults of each camera. Throws like capture::Capture.
+// max_latency and sleep_until do not; auto_exposure must be off. The summary's mean_pattern_ms
+// is the runs' time (Start to the last frame grabbed) over the patterns they matched;
+// CameraCaptureStats::missed_triggers counts the faults of each camera. Throws like Capture.
 CaptureSummary CapturePatternSequence(const Rig& rig, const PatternSpec& spec, const std::vector<CaptureCamera>& cameras,
                                       SequenceProjector& projector, const std::filesystem::path& out,
                                       const SequencerOptions& options);
