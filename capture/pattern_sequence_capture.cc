@@ -263,7 +263,12 @@ class PatternSequenceCapture {
     // Frames of triggers after a fault (or spurious ones after the last pattern) are dropped.
     const auto drain = std::chrono::ceil<std::chrono::milliseconds>(period) + std::chrono::milliseconds(50);
     for (auto& s : cams_) {
-      while (s.cam->camera->Grab(drain).status != FrameStatus::kTimeout) ++s.stats.extra_frames;
+      // Bounded, and a lost camera (kAborted at once, every time) ends it too.
+      for (int i = 0; i < n; ++i) {
+        const FrameStatus status = s.cam->camera->Grab(drain).status;
+        if (status == FrameStatus::kTimeout || status == FrameStatus::kAborted) break;
+        ++s.stats.extra_frames;
+      }
     }
     int prefix = n;
     for (size_t c = 0; c < cams_.size(); ++c) {

@@ -15,6 +15,7 @@
 // Runs under `umockdev-wrapper` (CTest) and inside a private network namespace (fake_gv_camera.h).
 #include "capture/pattern_sequence_capture.h"
 
+#include <atomic>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -100,12 +101,8 @@ class LightCrafterLoop : public ::testing::Test {
       std::vector<cv::Mat> renders;
       for (size_t p = 0; p < patterns_.size(); ++p) renders.push_back(renderer.Render(patterns_[p], static_cast<int>(p)));
       renders.push_back(renderer.Render(dark_, 0));
-      fakes_.push_back(std::make_unique<slshadow::testing::FakeGvCamera>(slshadow::testing::FakeGvCameraOptions{
-          .address = kAddresses[k], .serial = rig_.cameras[k].name, .sfnc_xml = true}));
-      fakes_.back()->SetFill([renders](const slshadow::testing::FakeFrameRequest& r) {
-        // The pattern the emulator showed at the TRIG_OUT edge this frame answers (its tag).
-        return renders[r.line_tag < 0 ? renders.size() - 1 : static_cast<size_t>(r.line_tag)];
-      });
+      renders_.push_back(std::move(renders));
+      fakes_.push_back(MakeFakeCamera(k));
       CameraSettings s;
       s.trigger = TriggerMode::kHardware;
       s.trigger_line = "Line1";
@@ -114,9 +111,24 @@ class LightCrafterLoop : public ::testing::Test {
       settings_.push_back(s);
       cameras_.push_back(OpenAravisCamera(AravisOpenOptions{.device = kAddresses[k]}));
     }
-    runner_->trigger_out = [this](int, int pattern, std::chrono::system_clock::time_point edge) {
+    runner_->trigger_out = [this](int entry, int pattern, std::chrono::system_clock::time_point edge) {
+      if (entry == unplug_camera_at_) {  // the right camera's cable pulled as this pattern starts
+        unplug_camera_at_ = -1;
+        fakes_[1]->Destroy();
+      }
       for (auto& f : fakes_) f->PulseLine(pattern, edge);
     };
+  }
+
+  // Fake camera k: Line1 is TRIG_OUT1; each frame is the simulator's render of the pattern the
+  // emulator showed at the edge it answers (the edge's tag).
+  std::unique_ptr<slshadow::testing::FakeGvCamera> MakeFakeCamera(size_t k) {
+    auto fake = std::make_unique<slshadow::testing::FakeGvCamera>(slshadow::testing::FakeGvCameraOptions{
+        .address = kAddresses[k], .serial = rig_.cameras[k].name, .sfnc_xml = true});
+    fake->SetFill([renders = renders_[k]](const slshadow::testing::FakeFrameRequest& r) {
+      return renders[r.line_tag < 0 ? renders.size() - 1 : static_cast<size_t>(r.line_tag)];
+    });
+    return fake;
   }
 
   void TearDown() override {
@@ -216,7 +228,9 @@ class LightCrafterLoop : public ::testing::Test {
   std::unique_ptr<testing::UsbLightCrafterEmulator> usb_;
   std::unique_ptr<testing::Dlpc350SequenceRunner> runner_;
   std::unique_ptr<Simulator> simulator_;
+  std::vector<std::vector<cv::Mat>> renders_;  // per camera: every pattern's render, then the dark DMD's
   std::vector<std::unique_ptr<slshadow::testing::FakeGvCamera>> fakes_;
+  std::atomic<int> unplug_camera_at_{-1};
   std::vector<CameraSettings> settings_;
   std::vector<std::unique_ptr<Camera>> cameras_;
 };
@@ -316,6 +330,28 @@ TEST_F(LightCrafterLoop, UnpluggedMidSequenceIsAClearErrorAndTheCaptureResumes) 
   EXPECT_TRUE(s.complete);
   EXPECT_EQ(s.images_before, 2 * 8);
   EXPECT_EQ(DifferingImages("unplugged"), 0);
+}
+
+// The right camera unplugged as pattern 10 starts: the error names pattern 10 and that camera,
+// patterns 0..9 stay staged; with the camera back (a new device at its address, opened again),
+// --resume completes the set equal to the simulation.
+TEST_F(LightCrafterLoop, CameraUnpluggedMidSequenceIsAClearErrorAndTheCaptureResumes) {
+  auto projector = OpenProjector(kSlowerPeriodUs);
+  unplug_camera_at_ = 10;
+  const std::string error = ErrorOf(*projector, "camera_unplugged", /*max_retries=*/0, milliseconds(400));
+  std::printf("camera unplugged: %s\n", error.c_str());
+  EXPECT_NE(error.find("pattern 10 ("), std::string::npos) << error;
+  EXPECT_NE(error.find("camera 'right': no frame within"), std::string::npos) << error;
+  EXPECT_NE(error.find("continue with --resume"), std::string::npos) << error;
+  EXPECT_EQ(Staged("camera_unplugged").size(), 2u * 10u);
+
+  cameras_[1].reset();
+  fakes_[1] = MakeFakeCamera(1);
+  cameras_[1] = OpenAravisCamera(AravisOpenOptions{.device = kAddresses[1]});
+  const CaptureSummary s = CaptureInto(*projector, "camera_unplugged", 0, /*resume=*/true);
+  EXPECT_TRUE(s.complete);
+  EXPECT_EQ(s.images_before, 2 * 10);
+  EXPECT_EQ(DifferingImages("camera_unplugged"), 0);
 }
 
 // What a user runs: `slshadow capture` with a devices file whose projector is a LightCrafter in
