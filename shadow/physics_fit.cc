@@ -60,6 +60,8 @@ double BandSigma(const std::vector<double>& values) {
 
 struct Sample {
   float white = 0, black = 0, factor = 0, albedo = 0;
+  float gain = 1;         // the illumination field at the pixel (1 until that layer is kept)
+  float twin_albedo = 0;  // the albedo the fitted twin renders there (after the albedo layers)
   int camera = 0, y = 0, x = 0, band = 0, object = 0;
   bool heldout = false;
 };
@@ -97,6 +99,90 @@ std::vector<std::pair<int, int>> InversePairs(const std::vector<FrameInfo>& fram
     if (inv >= 0) pairs.emplace_back(static_cast<int>(i), inv);
   }
   return pairs;
+}
+
+// Monomials u^i v^j, 1 <= i + j <= degree (u, v in [-1, 1] over the image).
+std::vector<std::pair<int, int>> IlluminationTerms(int degree) {
+  std::vector<std::pair<int, int>> t;
+  for (int d = 1; d <= degree; ++d) {
+    for (int j = 0; j <= d; ++j) t.emplace_back(d - j, j);
+  }
+  return t;
+}
+
+std::string TermName(const std::pair<int, int>& t) {
+  const auto power = [](const char* v, int k) { return k == 0 ? std::string() : k == 1 ? std::string(v) : v + std::string("^") + std::to_string(k); };
+  const std::string a = power("u", t.first), b = power("v", t.second);
+  return a.empty() ? b : b.empty() ? a : a + " " + b;
+}
+
+double NormalisedCoordinate(int x, int size) { return (x - 0.5 * size) / (0.5 * size); }
+
+// Linear least squares y = X beta over rows in bands (kBands), with one reweighting pass that
+// drops rows beyond 4 robust sigmas of the first fit, and the delete-one-band solutions for a
+// jackknife of any function of beta.
+struct LinearFit {
+  Eigen::VectorXd beta;
+  std::vector<Eigen::VectorXd> jackknife;  // one per band that had rows
+  int64_t rows = 0, inliers = 0;
+  bool ok = false;
+};
+
+LinearFit FitLinear(const std::vector<double>& x, const std::vector<double>& y, const std::vector<int>& band, int p) {
+  LinearFit f;
+  const size_t n = y.size();
+  f.rows = static_cast<int64_t>(n);
+  if (n < static_cast<size_t>(10 * p)) return f;
+  const auto solve = [&](const std::vector<char>& use, Eigen::VectorXd* beta, std::vector<Eigen::VectorXd>* jack) {
+    std::vector<Eigen::MatrixXd> ab(kBands, Eigen::MatrixXd::Zero(p, p));
+    std::vector<Eigen::VectorXd> rb(kBands, Eigen::VectorXd::Zero(p));
+    std::vector<int64_t> nb(kBands, 0);
+    for (size_t i = 0; i < n; ++i) {
+      if (!use[i]) continue;
+      const Eigen::Map<const Eigen::VectorXd> xi(&x[i * static_cast<size_t>(p)], p);
+      const auto b = static_cast<size_t>(band[i]);
+      ab[b].selfadjointView<Eigen::Lower>().rankUpdate(xi);
+      rb[b] += xi * y[i];
+      ++nb[b];
+    }
+    Eigen::MatrixXd a = Eigen::MatrixXd::Zero(p, p);
+    Eigen::VectorXd r = Eigen::VectorXd::Zero(p);
+    for (int b = 0; b < kBands; ++b) a += ab[static_cast<size_t>(b)], r += rb[static_cast<size_t>(b)];
+    const auto sym = [](const Eigen::MatrixXd& m) { return Eigen::MatrixXd(m.selfadjointView<Eigen::Lower>()); };
+    *beta = sym(a).ldlt().solve(r);
+    if (!jack) return;
+    jack->clear();
+    for (int b = 0; b < kBands; ++b) {
+      if (nb[static_cast<size_t>(b)] == 0) continue;
+      jack->push_back(sym(a - ab[static_cast<size_t>(b)]).ldlt().solve(r - rb[static_cast<size_t>(b)]));
+    }
+  };
+  std::vector<char> use(n, 1);
+  Eigen::VectorXd beta;
+  solve(use, &beta, nullptr);
+  std::vector<double> res(n);
+  for (size_t i = 0; i < n; ++i) res[i] = y[i] - Eigen::Map<const Eigen::VectorXd>(&x[i * static_cast<size_t>(p)], p).dot(beta);
+  std::vector<double> abs_res(n);
+  for (size_t i = 0; i < n; ++i) abs_res[i] = std::abs(res[i]);
+  const double gate = 4 * 1.4826 * std::max(Median(abs_res), 1e-12);
+  for (size_t i = 0; i < n; ++i) use[i] = std::abs(res[i]) <= gate;
+  f.inliers = std::count(use.begin(), use.end(), 1);
+  solve(use, &f.beta, &f.jackknife);
+  f.ok = f.beta.allFinite() && f.jackknife.size() >= 3;
+  return f;
+}
+
+// Jackknife standard deviation of a statistic over the delete-one-band solutions.
+template <typename F>
+double JackknifeSigma(const LinearFit& fit, F&& statistic) {
+  std::vector<double> v;
+  for (const auto& b : fit.jackknife) v.push_back(statistic(b));
+  if (v.size() < 2) return std::nan("");
+  const double mean = std::accumulate(v.begin(), v.end(), 0.0) / static_cast<double>(v.size());
+  double ss = 0;
+  for (double x : v) ss += (x - mean) * (x - mean);
+  const double m = static_cast<double>(v.size());
+  return std::sqrt((m - 1) / m * ss);
 }
 
 }  // namespace
@@ -194,7 +280,7 @@ std::string PhysicsFit::Table() const {
   std::string out;
   for (const auto& l : layers) {
     char buf[512];
-    std::snprintf(buf, sizeof(buf), "  %-13s %-5s %12.5g +- %-10.3g %-10s %s\n", l.name.c_str(),
+    std::snprintf(buf, sizeof(buf), "  %-20s %-5s %12.5g +- %-10.3g %-10s %s\n", l.name.c_str(),
                   !l.observable ? "n/a" : (l.kept ? "kept" : "off"), l.value, l.sigma, l.unit.c_str(), l.reason.c_str());
     out += buf;
   }
@@ -237,6 +323,49 @@ Scene PhysicsFit::Apply(const Scene& twin, const Rig& rig, double projector_dept
     scene.layers.seed = noise_seed;
   }
   return scene;
+}
+
+cv::Mat IlluminationField(const PhysicsFit& fit, const std::string& camera, int width, int height) {
+  cv::Mat g(height, width, CV_32FC1, cv::Scalar(1));
+  const PhysicsLayer* l = fit.Find("illumination_" + camera);
+  if (!l || !l->kept) return g;
+  const std::vector<std::pair<int, int>> terms = IlluminationTerms(l->extra.at("degree").get<int>());
+  const auto& c = l->extra.at("coefficients");
+  SLSHADOW_THROW_IF(c.size() != terms.size() + 1, "illumination field of '", camera, "': ", c.size(), " coefficients for ",
+                    terms.size() + 1, " terms");
+  // The field was fitted on images of extra.width x extra.height; scale coordinates to this size.
+  const int fw = l->extra.value("width", width), fh = l->extra.value("height", height);
+  cv::parallel_for_(cv::Range(0, height), [&](const cv::Range& rows) {
+    for (int y = rows.start; y < rows.end; ++y) {
+      float* out = g.ptr<float>(y);
+      const double v = NormalisedCoordinate(static_cast<int>(std::lround((y + 0.5) * fh / height - 0.5)), fh);
+      for (int x = 0; x < width; ++x) {
+        const double u = NormalisedCoordinate(static_cast<int>(std::lround((x + 0.5) * fw / width - 0.5)), fw);
+        double sum = c[0].get<double>();
+        for (size_t k = 0; k < terms.size(); ++k) sum += c[k + 1].get<double>() * std::pow(u, terms[k].first) * std::pow(v, terms[k].second);
+        out[x] = static_cast<float>(sum);
+      }
+    }
+  });
+  return g;
+}
+
+void ApplyImageLayers(const PhysicsFit& fit, const std::string& camera, std::vector<cv::Mat>* images) {
+  const PhysicsLayer* bl = fit.Find("black_level_" + camera);
+  const double offset = bl && bl->kept ? bl->value : 0.0;
+  const bool field = fit.Kept("illumination_" + camera);
+  if ((offset == 0 && !field) || images->empty()) return;
+  const cv::Mat& first = images->front();
+  const cv::Mat g = IlluminationField(fit, camera, first.cols, first.rows);
+  cv::parallel_for_(cv::Range(0, static_cast<int>(images->size())), [&](const cv::Range& r) {
+    cv::Mat f;
+    for (int i = r.start; i < r.end; ++i) {
+      cv::Mat& img = (*images)[static_cast<size_t>(i)];
+      img.convertTo(f, CV_32F);
+      if (field) cv::multiply(f, g, f);
+      f.convertTo(img, img.depth(), 1.0, offset);  // rounds and saturates
+    }
+  });
 }
 
 PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vector<CameraData>& cameras,
@@ -306,7 +435,7 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     return s.object == reference && (!board || std::abs(s.albedo - board->light) < 1e-3);
   };
   const auto is_dark = [&](const Sample& s) { return board && std::abs(s.albedo - board->dark) < 1e-3; };
-  const auto ratio = [&](const Sample& s) { return (s.white - s.black) / (fs * s.factor * range); };
+  const auto ratio = [&](const Sample& s) { return (s.white - s.black) / (fs * s.factor * range * s.gain); };
   std::vector<double> all;
   std::vector<std::vector<double>> band(kBands);
   for (const Sample& s : samples) {
@@ -342,6 +471,94 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
   const double e = exposure.value;
   if (twin.objects.size() > 1) fit.layers.back().reason += " (object '" + twin.objects[static_cast<size_t>(reference)].name + "')";
 
+  // --- illumination field per camera (reference pixels: (W - B) / (FS factor range) = E G(u, v)) ---
+  const std::vector<std::pair<int, int>> terms = IlluminationTerms(options.illumination_degree);
+  const int p = 1 + static_cast<int>(terms.size());
+  for (size_t c = 0; c < cameras.size() && !terms.empty(); ++c) {
+    const GeometryBuffer& g = *cameras[c].geometry;
+    PhysicsLayer il;
+    il.name = "illumination_" + cameras[c].camera;
+    il.unit = "RMS of G - 1";
+    il.residual_unit = "DN RMS of white - black, reference pixels";
+    const auto row = [&](const Sample& s, double* out) {
+      const double u = NormalisedCoordinate(s.x, g.width), v = NormalisedCoordinate(s.y, g.height);
+      out[0] = 1;
+      for (size_t k = 0; k < terms.size(); ++k) out[k + 1] = std::pow(u, terms[k].first) * std::pow(v, terms[k].second);
+    };
+    std::vector<double> x, y;
+    std::vector<int> bands;
+    for (const Sample& s : samples) {
+      if (s.heldout || s.camera != static_cast<int>(c) || !is_light(s)) continue;
+      x.resize(x.size() + static_cast<size_t>(p));
+      row(s, &x[x.size() - static_cast<size_t>(p)]);
+      y.push_back(ratio(s) / e);
+      bands.push_back(s.band);
+    }
+    const LinearFit lf = FitLinear(x, y, bands, p);
+    if (!lf.ok) {
+      il.observable = false;
+      il.reason = "too few reference pixels spread over the image for the illumination field";
+      fit.layers.push_back(il);
+      continue;
+    }
+    std::vector<double> buf(static_cast<size_t>(p));
+    const auto field = [&](const Eigen::VectorXd& beta, const Sample& s) {
+      row(s, buf.data());
+      return Eigen::Map<const Eigen::VectorXd>(buf.data(), p).dot(beta);
+    };
+    const auto rms_dev = [&](const Eigen::VectorXd& beta) {
+      double ss = 0;
+      int64_t n = 0;
+      for (const Sample& s : samples) {
+        if (s.camera != static_cast<int>(c)) continue;
+        const double d = field(beta, s) - 1;
+        ss += d * d, ++n;
+      }
+      return n ? std::sqrt(ss / static_cast<double>(n)) : 0.0;
+    };
+    il.value = rms_dev(lf.beta);
+    il.sigma = JackknifeSigma(lf, rms_dev);
+    il.samples = lf.inliers;
+    double lo = 1e9, hi = -1e9;
+    for (const Sample& s : samples) {
+      if (s.camera != static_cast<int>(c)) continue;
+      const double v = field(lf.beta, s);
+      lo = std::min(lo, v), hi = std::max(hi, v);
+    }
+    nlohmann::json names = nlohmann::json::array(), coeffs = nlohmann::json::array(), sigmas = nlohmann::json::array();
+    for (int k = 0; k < p; ++k) {
+      names.push_back(k == 0 ? std::string("1") : TermName(terms[static_cast<size_t>(k - 1)]));
+      coeffs.push_back(lf.beta(k));
+      sigmas.push_back(JackknifeSigma(lf, [k](const Eigen::VectorXd& b) { return b(k); }));
+    }
+    il.extra = {{"degree", options.illumination_degree}, {"terms", names}, {"coefficients", coeffs},
+                {"coefficient_sigmas", sigmas}, {"width", g.width}, {"height", g.height},
+                {"min", lo}, {"max", hi},
+                {"coordinates", "u = (x - width/2) / (width/2), v = (y - height/2) / (height/2), x, y pixel centres"}};
+    std::vector<double> off, on;
+    for (const Sample& s : samples) {
+      if (!s.heldout || s.camera != static_cast<int>(c) || !is_light(s)) continue;
+      const double model = e * fs * s.factor * range;
+      off.push_back(s.white - s.black - model);
+      on.push_back(s.white - s.black - model * field(lf.beta, s));
+    }
+    il.heldout_residual_off = Rms(off);
+    il.heldout_residual_on = Rms(on);
+    const bool significant = il.value > std::max(3 * il.sigma, options.illumination_floor);
+    const bool drops = il.heldout_residual_on < (1 - options.min_heldout_drop) * il.heldout_residual_off;
+    il.kept = significant && drops;
+    il.reason = il.kept ? Fmt("the lit part is %.3f..%.3f of its mean brightness, smoothly: held-out residual %.2f -> %.2f DN", lo, hi,
+                              il.heldout_residual_off, il.heldout_residual_on)
+                        : Fmt("uniform within noise (field %.3f..%.3f, held-out residual %.2f vs %.2f DN)", lo, hi,
+                              il.heldout_residual_off, il.heldout_residual_on);
+    if (il.kept) {
+      for (Sample& s : samples) {
+        if (s.camera == static_cast<int>(c)) s.gain = static_cast<float>(field(lf.beta, s));
+      }
+    }
+    fit.layers.push_back(il);
+  }
+
   // --- exposure x albedo of the other objects ---
   for (size_t o = 0; o < twin.objects.size(); ++o) {
     const SceneObject& object = twin.objects[o];
@@ -373,8 +590,8 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     std::vector<double> off, on;
     for (const Sample& s : samples) {
       if (!s.heldout || s.object != static_cast<int>(o)) continue;
-      off.push_back(s.white - s.black - e * fs * s.factor * range);
-      on.push_back(s.white - s.black - e * fs * s.factor * range * a.value / object.albedo.value);
+      off.push_back(s.white - s.black - e * fs * s.factor * s.gain * range);
+      on.push_back(s.white - s.black - e * fs * s.factor * s.gain * range * a.value / object.albedo.value);
     }
     a.heldout_residual_off = Rms(off);
     a.heldout_residual_on = Rms(on);
@@ -413,7 +630,7 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
       std::vector<double> off, on;
       for (const Sample& s : samples) {
         if (!s.heldout || !is_dark(s)) continue;
-        const double g = s.factor / board->dark;
+        const double g = s.factor * s.gain / board->dark;
         off.push_back(s.white - s.black - e * fs * g * board->dark * range);
         on.push_back(s.white - s.black - e * fs * g * dark.value * range);
       }
@@ -430,8 +647,20 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     fit.layers.push_back(dark);
   }
 
-  // --- ambient ---
+  // --- ambient and black level: B = o_c + E FS ambient albedo G ---
   {
+    // The albedo the fitted twin renders at each sample.
+    for (Sample& s : samples) {
+      s.twin_albedo = s.albedo;
+      if (is_dark(s) && fit.Kept("albedo_dark")) s.twin_albedo = static_cast<float>(fit.Find("albedo_dark")->value);
+      const SceneObject& o = twin.objects[static_cast<size_t>(s.object)];
+      if (o.albedo.kind == Albedo::Kind::kUniform && fit.Kept("albedo_" + o.name)) {
+        s.twin_albedo = static_cast<float>(fit.Find("albedo_" + o.name)->value);
+      }
+    }
+    const std::string no_black_frame =
+        has_white_black ? "" : " (no black frame: the black level is the darker of each inverse pair, which projector blur raises near stripe edges: an upper bound)";
+    const auto regressor = [&](const Sample& s) { return e * fs * s.twin_albedo * s.gain; };
     PhysicsLayer amb;
     amb.name = "ambient";
     amb.unit = "fraction of projector white";
@@ -439,8 +668,8 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     std::vector<double> v;
     std::vector<std::vector<double>> vb(kBands);
     for (const Sample& s : samples) {
-      if (s.heldout || s.albedo < 0.02f) continue;
-      const double a = s.black / (e * fs * s.albedo);
+      if (s.heldout || s.twin_albedo < 0.02f) continue;
+      const double a = s.black / regressor(s);
       v.push_back(a);
       vb[static_cast<size_t>(s.band)].push_back(a);
     }
@@ -453,17 +682,154 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     for (const Sample& s : samples) {
       if (!s.heldout) continue;
       off.push_back(s.black);
-      on.push_back(s.black - e * fs * amb.value * s.albedo);
+      on.push_back(s.black - amb.value * regressor(s));
     }
     amb.heldout_residual_off = Rms(off);
     amb.heldout_residual_on = Rms(on);
-    const bool significant = amb.value > std::max(3 * amb.sigma, 0.002);
-    const bool drops = amb.heldout_residual_on < (1 - options.min_heldout_drop) * amb.heldout_residual_off;
-    amb.kept = significant && drops;
-    amb.reason = amb.kept ? Fmt("the black frame is lit: %.2f DN mean; held-out residual %.2f -> %.2f DN",
-                                 amb.heldout_residual_off, amb.heldout_residual_off, amb.heldout_residual_on)
+    {
+      const bool significant = amb.value > std::max(3 * amb.sigma, 0.002);
+      const bool drops = amb.heldout_residual_on < (1 - options.min_heldout_drop) * amb.heldout_residual_off;
+      amb.kept = significant && drops;
+    }
+    amb.reason = amb.kept ? Fmt("the black frame is lit: %.2f DN mean; held-out residual %.2f -> %.2f DN", amb.heldout_residual_off,
+                                 amb.heldout_residual_off, amb.heldout_residual_on)
                           : Fmt("the black frame is dark within noise (held-out RMS %.2f DN)", amb.heldout_residual_off);
+
+    // Black-level offsets: observable on a camera whose lit pixels span reflectances (the
+    // regressor's coefficient of variation), fitted jointly with ambient: unknowns (ambient, o_c).
+    const size_t nc = cameras.size();
+    std::vector<int> column(nc, -1);  // the offset's column in the joint fit, -1: not observable
+    int cols = 1;
+    for (size_t c = 0; c < nc; ++c) {
+      double sum = 0, ss = 0;
+      int64_t n = 0;
+      for (const Sample& s : samples) {
+        if (s.heldout || s.camera != static_cast<int>(c)) continue;
+        const double r = s.twin_albedo * s.gain;
+        sum += r, ss += r * r, ++n;
+      }
+      const double mean = n ? sum / static_cast<double>(n) : 0.0;
+      const double cv = n > 100 && mean > 0 ? std::sqrt(std::max(0.0, ss / static_cast<double>(n) - mean * mean)) / mean : 0.0;
+      if (cv > 0.25) column[c] = cols++;
+    }
+    const auto joint = [&] {
+      std::vector<double> x, y;
+      std::vector<int> bands;
+      for (const Sample& s : samples) {
+        if (s.heldout || column[static_cast<size_t>(s.camera)] < 0) continue;
+        const size_t at = x.size();
+        x.resize(at + static_cast<size_t>(cols), 0.0);
+        x[at] = regressor(s);
+        x[at + static_cast<size_t>(column[static_cast<size_t>(s.camera)])] = 1;
+        y.push_back(s.black);
+        bands.push_back(s.band);
+      }
+      return FitLinear(x, y, bands, cols);
+    };
+    std::vector<PhysicsLayer> offsets;
+    if (cols > 1) {
+      const LinearFit both = joint();
+      LinearFit only;  // offsets alone: o_c = mean black level of camera c
+      {
+        std::vector<double> x, y;
+        std::vector<int> bands;
+        for (const Sample& s : samples) {
+          if (s.heldout || column[static_cast<size_t>(s.camera)] < 0) continue;
+          const size_t at = x.size();
+          x.resize(at + static_cast<size_t>(cols - 1), 0.0);
+          x[at + static_cast<size_t>(column[static_cast<size_t>(s.camera)] - 1)] = 1;
+          y.push_back(s.black);
+          bands.push_back(s.band);
+        }
+        only = FitLinear(x, y, bands, cols - 1);
+      }
+      if (both.ok && only.ok) {
+        // Held-out black-frame residuals per camera under: ambient only, offsets + ambient, offsets only.
+        const auto residuals = [&](int camera, double a, const Eigen::VectorXd* beta, int shift) {
+          std::vector<double> r;
+          for (const Sample& s : samples) {
+            if (!s.heldout || s.camera != camera) continue;
+            const double o = beta ? (*beta)(column[static_cast<size_t>(camera)] - shift) : 0.0;
+            r.push_back(s.black - o - a * regressor(s));
+          }
+          return Rms(r);
+        };
+        bool any_kept = false;
+        for (size_t c = 0; c < nc; ++c) {
+          PhysicsLayer bl;
+          bl.name = "black_level_" + cameras[c].camera;
+          bl.unit = "DN";
+          bl.residual_unit = "DN RMS of the black frame";
+          if (column[c] < 0) {
+            bl.observable = false;
+            bl.reason = "one reflectance in view: a black-level offset and ambient light look alike in the black frame; ambient stands for both";
+            offsets.push_back(bl);
+            continue;
+          }
+          const int k = column[c];
+          bl.value = both.beta(k);
+          bl.sigma = JackknifeSigma(both, [k](const Eigen::VectorXd& b) { return b(k); });
+          bl.samples = both.inliers;
+          bl.heldout_residual_off = residuals(static_cast<int>(c), amb.kept ? amb.value : 0.0, nullptr, 0);
+          bl.heldout_residual_on = residuals(static_cast<int>(c), both.beta(0), &both.beta, 0);
+          const bool significant = std::abs(bl.value) > std::max(3 * bl.sigma, options.black_level_floor * fs);
+          const bool drops = bl.heldout_residual_on < (1 - options.min_heldout_drop) * bl.heldout_residual_off;
+          bl.kept = significant && drops;
+          any_kept = any_kept || bl.kept;
+          offsets.push_back(bl);
+        }
+        if (any_kept) {
+          // Ambient judged again with the offsets in: offsets + ambient against offsets alone.
+          amb.value = both.beta(0);
+          amb.sigma = JackknifeSigma(both, [](const Eigen::VectorXd& b) { return b(0); });
+          std::vector<double> off2, on2;
+          for (const Sample& s : samples) {
+            if (!s.heldout || column[static_cast<size_t>(s.camera)] < 0) continue;
+            const int k = column[static_cast<size_t>(s.camera)];
+            off2.push_back(s.black - only.beta(k - 1));
+            on2.push_back(s.black - both.beta(k) - both.beta(0) * regressor(s));
+          }
+          amb.heldout_residual_off = Rms(off2);
+          amb.heldout_residual_on = Rms(on2);
+          const bool significant = amb.value > std::max(3 * amb.sigma, 0.002);
+          const bool drops = amb.heldout_residual_on < (1 - options.min_heldout_drop) * amb.heldout_residual_off;
+          amb.kept = significant && drops;
+          amb.reason = amb.kept ? Fmt("the black frame scales with reflectance beyond the offset: %.4f of white; held-out residual %.2f -> %.2f DN",
+                                       amb.value, amb.heldout_residual_off, amb.heldout_residual_on)
+                                : Fmt("with the black-level offset in, the black frame does not scale with reflectance (%.4f +- %.4f); held-out residual %.2f vs %.2f DN",
+                                      amb.value, amb.sigma, amb.heldout_residual_off, amb.heldout_residual_on);
+          for (size_t c = 0; c < nc; ++c) {
+            PhysicsLayer& bl = offsets[c];
+            if (!bl.kept) continue;
+            if (!amb.kept) {  // the offset alone: its own fit
+              bl.value = only.beta(column[c] - 1);
+              bl.sigma = JackknifeSigma(only, [k = column[c] - 1](const Eigen::VectorXd& b) { return b(k); });
+              bl.heldout_residual_on = residuals(static_cast<int>(c), 0.0, &only.beta, 1);
+            }
+            bl.reason = Fmt("the black frame sits %.2f DN above what ambient light on the print explains, on every reflectance: held-out residual %.2f -> %.2f DN",
+                            bl.value, bl.heldout_residual_off, bl.heldout_residual_on);
+          }
+        }
+        for (PhysicsLayer& bl : offsets) {
+          if (bl.observable && !bl.kept) bl.reason = Fmt("no offset beyond noise (%.2f +- %.2f DN)", bl.value, bl.sigma);
+        }
+      }
+    } else {
+      for (size_t c = 0; c < nc; ++c) {
+        PhysicsLayer bl;
+        bl.name = "black_level_" + cameras[c].camera;
+        bl.unit = "DN";
+        bl.observable = false;
+        bl.reason = "one reflectance in view: a black-level offset and ambient light look alike in the black frame; ambient stands for both";
+        offsets.push_back(bl);
+      }
+    }
+    amb.reason += no_black_frame;
     fit.layers.push_back(amb);
+    for (PhysicsLayer& bl : offsets) {
+      if (bl.observable) bl.reason += no_black_frame;
+      fit.layers.push_back(bl);
+    }
   }
 
   // --- projector response (gamma), phase codecs only ---
@@ -581,7 +947,10 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
           sums.push_back(a + b);
         }
         if (saturated) continue;
-        for (size_t k = 0; k + 1 < sums.size(); k += 2) obs.push_back({sums[k] + sums[k + 1], sums[k] - sums[k + 1], s.heldout});
+        // The signal is what sits above the black level (shot noise does not see the offset).
+        const PhysicsLayer* bl = fit.Find("black_level_" + cameras[static_cast<size_t>(s.camera)].camera);
+        const double offset4 = bl && bl->kept ? 4 * bl->value : 0.0;
+        for (size_t k = 0; k + 1 < sums.size(); k += 2) obs.push_back({sums[k] + sums[k + 1] - offset4, sums[k] - sums[k + 1], s.heldout});
       }
       // Bin by signal into 10 quantile bins; per bin the robust variance of r.
       const auto binned = [&](bool held, std::vector<double>* centre, std::vector<double>* var) {

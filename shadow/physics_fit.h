@@ -11,7 +11,19 @@
 //              own pixels relative to E, kept when it differs from the part file's.
 //   albedo     checkerboard parts only: the dark squares' reflectance ("albedo_dark"), from the
 //              same ratio on pixels of each square colour (exposure from the light squares).
+//   illumination_<camera>  a smooth field G(u, v) = g0 + sum c_ij u^i v^j (1 <= i + j <= degree,
+//              u = (x - w/2) / (w/2), v = (y - h/2) / (h/2)) multiplying everything the camera
+//              sees: projector non-uniformity, vignetting beyond the model, the part's tilt to the
+//              light. Least squares (one 4-sigma reweighting) of (W - B) / (FS * factor * range) = E G
+//              on the reference pixels; value = RMS of G - 1 over the lit part.
 //   ambient    B = E * FS * ambient * albedo: ambient = median of B / (E * FS * albedo).
+//   black_level_<camera>  B = o + E * FS * ambient * albedo * G: a sensor offset o (DN) that does
+//              not scale with reflectance, fitted jointly with ambient (least squares, one offset per
+//              camera). Observable only when the camera sees more than one reflectance (a
+//              checkerboard, objects of different albedo); otherwise ambient stands for both (the
+//              black frame looks the same). Without a black frame the black level is the darker of
+//              each inverse pair, which projector blur raises near stripe edges: ambient / offset
+//              are then upper bounds (the reason says so).
 //   gamma      phase codecs only (binary patterns do not see a response): the N phase frames of
 //              a period, normalised r_n = (I_n - B) / (W - B), average a0(gamma) = the mean of
 //              (0.5 + 0.5 cos t)^gamma over a period (0.5 for a linear response), whatever the
@@ -26,7 +38,8 @@
 //              fitted by a line through per-bin robust variances.
 //
 // Uncertainty: each value is also fitted on 8 horizontal bands of the image; sigma = standard
-// deviation of the band values / sqrt(8) (bands absorb the pixels' spatial correlation).
+// deviation of the band values / sqrt(8) (bands absorb the pixels' spatial correlation). The
+// least-squares layers (illumination, black level) use the delete-one-band jackknife instead.
 // Keep rule: |value - off value| > max(3 sigma, a practical floor) AND the residual on held-out
 // pixels (odd sample rows; fits use even rows) drops by more than the stated fraction.
 #pragma once
@@ -67,6 +80,9 @@ struct PhysicsFitOptions {
   double min_heldout_drop = 0.05;    // keep: held-out residual must drop by at least this fraction
   double gamma_floor = 0.05;         // keep gamma only if |gamma - 1| exceeds this as well
   double defocus_min_loss = 0.04;    // keep defocus only if the modulation loss exceeds this
+  int illumination_degree = 2;       // polynomial degree of the illumination field, 0..4 (0: layer off)
+  double illumination_floor = 0.01;  // keep the field only if its RMS variation exceeds this as well
+  double black_level_floor = 0.002;  // keep an offset only if it exceeds this fraction of full scale as well
   void Check() const;
 };
 
@@ -94,6 +110,13 @@ struct PhysicsFit {
   nlohmann::json ToJson() const;
   std::string Table() const;  // one line per layer
 };
+
+// The fitted image layers the renderer does not model, applied to one camera's rendered twin
+// images in place: I' = o + G(x, y) I (black_level_<camera> and illumination_<camera>, when kept),
+// rounded and saturated to the images' depth. No-op when neither is kept.
+void ApplyImageLayers(const PhysicsFit& fit, const std::string& camera, std::vector<cv::Mat>* images);
+// The illumination field G of `camera` (CV_32FC1, width x height); all ones when not kept.
+cv::Mat IlluminationField(const PhysicsFit& fit, const std::string& camera, int width, int height);
 
 // Fits exposure, albedo, ambient, gamma and noise (everything but defocus) from the real images
 // and the twin's geometry (`twin` is the scene the geometry was traced with, albedo as given by

@@ -434,6 +434,11 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
   meter = StageMeter("twin: render (+ defocus fit)");
   Scene fitted = fit.Apply(twin, twin_rig, projector_depth_mm, options.noise_seed);
   std::vector<std::vector<cv::Mat>> rendered = simulator->Render(projector_images, &fitted);
+  // The image layers the renderer does not model (black level, illumination field).
+  const auto apply_image_layers = [&] {
+    for (const auto& name : cameras) ApplyImageLayers(fit, name, &rendered[static_cast<size_t>(twin_rig.CameraIndex(name))]);
+  };
+  apply_image_layers();
   if (options.fit_physics) {
     for (size_t c = 0; c < cameras.size(); ++c) data[c].twin = rendered[static_cast<size_t>(twin_rig.CameraIndex(cameras[c]))];
     FitDefocus(spec, data, options.physics, &fit);
@@ -444,6 +449,7 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
       rendered.clear();
       simulator = std::make_unique<Simulator>(fitted, twin_rig);
       rendered = simulator->Render(projector_images, &fitted);
+      apply_image_layers();
     }
   }
   result.stages.push_back(meter.Stop());
