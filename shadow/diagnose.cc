@@ -180,9 +180,13 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
   std::vector<Field> fields(cameras.size());
   for (size_t c = 0; c < cameras.size(); ++c) {
     const CameraEvidence& cam = cameras[c];
-    cv::Mat dx = cam.real_x - cam.gt_x, dy = cam.real_y - cam.gt_y;  // NaN propagates
-    fields[c].x = SmoothField(dx, cam.mask, &fields[c].rms_x, &fields[c].mean_x);
-    if (!cam.real_y.empty() && !cam.gt_y.empty()) fields[c].y = SmoothField(dy, cam.mask, &fields[c].rms_y, &fields[c].mean_y);
+    // NaN propagates; an axis the spec does not code has empty maps.
+    if (!cam.real_x.empty() && !cam.gt_x.empty()) {
+      fields[c].x = SmoothField(cam.real_x - cam.gt_x, cam.mask, &fields[c].rms_x, &fields[c].mean_x);
+    }
+    if (!cam.real_y.empty() && !cam.gt_y.empty()) {
+      fields[c].y = SmoothField(cam.real_y - cam.gt_y, cam.mask, &fields[c].rms_y, &fields[c].mean_y);
+    }
   }
 
   // --- wrong frame ---

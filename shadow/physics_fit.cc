@@ -9,6 +9,7 @@
 #include <opencv2/core/utility.hpp>
 
 #include "core/error.h"
+#include "patterns/codec.h"
 
 namespace slshadow::workflow {
 namespace {
@@ -350,18 +351,39 @@ cv::Mat IlluminationField(const PhysicsFit& fit, const std::string& camera, int 
   return g;
 }
 
-void ApplyImageLayers(const PhysicsFit& fit, const std::string& camera, std::vector<cv::Mat>* images) {
+std::vector<double> PatternMeans(const std::vector<cv::Mat>& projector_images) {
+  std::vector<double> m;
+  for (const cv::Mat& p : projector_images) m.push_back(cv::mean(p)[0] / (p.depth() == CV_8U ? 255.0 : 65535.0));
+  return m;
+}
+
+void ApplyImageLayers(const PhysicsFit& fit, const PatternSpec& spec, const std::vector<double>& pattern_means,
+                      const std::string& camera, std::vector<cv::Mat>* images) {
   const PhysicsLayer* bl = fit.Find("black_level_" + camera);
   const double offset = bl && bl->kept ? bl->value : 0.0;
   const bool field = fit.Kept("illumination_" + camera);
-  if ((offset == 0 && !field) || images->empty()) return;
+  const double global = fit.Kept("global_light") ? fit.Find("global_light")->value : 0.0;
+  if ((offset == 0 && !field && global == 0) || images->empty()) return;
+  SLSHADOW_THROW_IF(pattern_means.size() != images->size(), "image layers: ", pattern_means.size(), " pattern means for ",
+                    images->size(), " images");
   const cv::Mat& first = images->front();
   const cv::Mat g = IlluminationField(fit, camera, first.cols, first.rows);
+  cv::Mat white, black;
+  if (global != 0) WhiteBlackImages(spec, *images, &white, &black);
   cv::parallel_for_(cv::Range(0, static_cast<int>(images->size())), [&](const cv::Range& r) {
     cv::Mat f;
     for (int i = r.start; i < r.end; ++i) {
       cv::Mat& img = (*images)[static_cast<size_t>(i)];
       img.convertTo(f, CV_32F);
+      if (global != 0) {  // B + (1 - g) (I - B) + g m (W - B)
+        const float keep = static_cast<float>(1 - global), m = static_cast<float>(global * pattern_means[static_cast<size_t>(i)]);
+        for (int y = 0; y < f.rows; ++y) {
+          float* p = f.ptr<float>(y);
+          const float* w = white.ptr<float>(y);
+          const float* b = black.ptr<float>(y);
+          for (int x = 0; x < f.cols; ++x) p[x] = b[x] + keep * (p[x] - b[x]) + m * (w[x] - b[x]);
+        }
+      }
       if (field) cv::multiply(f, g, f);
       f.convertTo(img, img.depth(), 1.0, offset);  // rounds and saturates
     }
@@ -913,6 +935,75 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
       }
     }
     fit.layers.push_back(gamma);
+  }
+
+  // --- global light: (1 - gamma) of the white level is direct, gamma arrives scattered from the
+  // whole lit projector image, so a frame with lit fraction m reads B + (W - B) ((1 - g) p + g m).
+  // Coarse inverse pairs (both about half lit) then differ by (1 - g) (W - B) away from edges. ---
+  {
+    PhysicsLayer gl;
+    gl.name = "global_light";
+    gl.unit = "fraction of white - black";
+    gl.residual_unit = "RMS of |P - I| / (W - B) - (1 - g), coarse inverse pairs";
+    const std::vector<double> means = PatternMeans(GeneratePatterns(spec));
+    int max_bit[2] = {-1, -1};
+    for (const FrameInfo& f : frames) {
+      if (f.role == FrameRole::kGrayBit) max_bit[f.axis] = std::max(max_bit[f.axis], f.bit);
+    }
+    std::vector<std::pair<int, int>> coarse;
+    for (const auto& [a, b] : InversePairs(frames)) {
+      const FrameInfo& f = frames[static_cast<size_t>(a)];
+      const double ma = means[static_cast<size_t>(a)], mb = means[static_cast<size_t>(b)];
+      if (2 * f.bit >= max_bit[f.axis] && std::abs(ma - mb) < 0.1 && ma > 0.3 && ma < 0.7) coarse.emplace_back(a, b);
+    }
+    if (!has_white_black) {
+      gl.observable = false;
+      gl.reason = "no white and black frames: the levels come from the inverse pairs themselves, so scattered light is folded into them";
+    } else if (coarse.size() < 2) {
+      gl.observable = false;
+      gl.reason = "the sequence has too few coarse inverse pairs (about half lit) to separate direct from scattered light";
+    } else {
+      std::vector<double> contrast;
+      for (const Sample& s : samples) contrast.push_back(s.white - s.black);
+      const double min_contrast = 0.3 * Median(contrast);
+      std::vector<double> fit_r, held_r;
+      std::vector<std::vector<double>> band_r(kBands);
+      std::vector<double> per(coarse.size());
+      for (const Sample& s : samples) {
+        if (s.white - s.black < min_contrast) continue;
+        const auto& real = cameras[static_cast<size_t>(s.camera)].real;
+        for (size_t k = 0; k < coarse.size(); ++k) {
+          per[k] = std::abs(Pixel(real[static_cast<size_t>(coarse[k].first)], s.y, s.x) -
+                            Pixel(real[static_cast<size_t>(coarse[k].second)], s.y, s.x)) / (s.white - s.black);
+        }
+        const double r = Median(per);  // a pixel near one bit's edge is outvoted by the others
+        (s.heldout ? held_r : fit_r).push_back(r);
+        if (!s.heldout) band_r[static_cast<size_t>(s.band)].push_back(r);
+      }
+      if (fit_r.size() < 100) {
+        gl.observable = false;
+        gl.reason = "too few well-lit pixels for the global-light fit";
+      } else {
+        gl.value = 1 - Median(fit_r);
+        std::vector<double> bv;
+        for (auto& b : band_r) bv.push_back(b.size() > 20 ? 1 - Median(b) : std::nan(""));
+        gl.sigma = BandSigma(bv);
+        gl.samples = static_cast<int64_t>(fit_r.size());
+        std::vector<double> off, on;
+        for (double r : held_r) off.push_back(r - 1), on.push_back(r - (1 - gl.value));
+        gl.heldout_residual_off = Rms(off);
+        gl.heldout_residual_on = Rms(on);
+        gl.extra["pairs"] = coarse.size();
+        const bool significant = gl.value > std::max(3 * gl.sigma, options.global_light_floor);
+        const bool drops = gl.heldout_residual_on < (1 - options.min_heldout_drop) * gl.heldout_residual_off;
+        gl.kept = significant && drops;
+        gl.reason = gl.kept ? Fmt("coarse stripes reach %.1f %% of white - black: %.1f %% of the light is scattered from the lit "
+                                  "projector image; held-out residual %.3f -> %.3f",
+                                  100 * (1 - gl.value), 100 * gl.value, gl.heldout_residual_off, gl.heldout_residual_on)
+                            : Fmt("coarse stripes reach %.1f %% of white - black: direct light explains them", 100 * (1 - gl.value));
+      }
+    }
+    fit.layers.push_back(gl);
   }
 
   // --- sensor noise from inverse pairs ---

@@ -24,6 +24,11 @@
 //              black frame looks the same). Without a black frame the black level is the darker of
 //              each inverse pair, which projector blur raises near stripe edges: ambient / offset
 //              are then upper bounds (the reason says so).
+//   global_light  a fraction g of the white level arrives scattered from the whole lit projector
+//              image (interreflections, projector flare): a frame with lit fraction m reads
+//              B + (W - B) ((1 - g) p + g m). Coarse inverse pairs (about half lit, stripes wide
+//              against the blur) differ by (1 - g) (W - B): g = 1 - median over pixels of the
+//              per-pixel median over those pairs of |P - I| / (W - B).
 //   gamma      phase codecs only (binary patterns do not see a response): the N phase frames of
 //              a period, normalised r_n = (I_n - B) / (W - B), average a0(gamma) = the mean of
 //              (0.5 + 0.5 cos t)^gamma over a period (0.5 for a linear response), whatever the
@@ -39,7 +44,9 @@
 //
 // Uncertainty: each value is also fitted on 8 horizontal bands of the image; sigma = standard
 // deviation of the band values / sqrt(8) (bands absorb the pixels' spatial correlation). The
-// least-squares layers (illumination, black level) use the delete-one-band jackknife instead.
+// least-squares layers (illumination, black level) use the delete-one-band jackknife instead,
+// which does not see the bias of a mean of integer DN when the frames' noise is below 1 DN (up to
+// ~0.3 DN at 8 bits): the keep floors cover it.
 // Keep rule: |value - off value| > max(3 sigma, a practical floor) AND the residual on held-out
 // pixels (odd sample rows; fits use even rows) drops by more than the stated fraction.
 #pragma once
@@ -83,6 +90,7 @@ struct PhysicsFitOptions {
   int illumination_degree = 2;       // polynomial degree of the illumination field, 0..4 (0: layer off)
   double illumination_floor = 0.01;  // keep the field only if its RMS variation exceeds this as well
   double black_level_floor = 0.002;  // keep an offset only if it exceeds this fraction of full scale as well
+  double global_light_floor = 0.01;  // keep global light only if its fraction exceeds this as well
   void Check() const;
 };
 
@@ -112,9 +120,14 @@ struct PhysicsFit {
 };
 
 // The fitted image layers the renderer does not model, applied to one camera's rendered twin
-// images in place: I' = o + G(x, y) I (black_level_<camera> and illumination_<camera>, when kept),
-// rounded and saturated to the images' depth. No-op when neither is kept.
-void ApplyImageLayers(const PhysicsFit& fit, const std::string& camera, std::vector<cv::Mat>* images);
+// images (spec order) in place: first global_light, I = B + (1 - g) (I - B) + g m_k (W - B) with
+// m_k = pattern_means[k] and W, B the images' own white / black levels (WhiteBlackImages); then
+// I' = o + G(x, y) I (black_level_<camera>, illumination_<camera>); rounded and saturated to the
+// images' depth. No-op when none is kept.
+void ApplyImageLayers(const PhysicsFit& fit, const PatternSpec& spec, const std::vector<double>& pattern_means,
+                      const std::string& camera, std::vector<cv::Mat>* images);
+// Lit fraction of each projector image (mean / full scale).
+std::vector<double> PatternMeans(const std::vector<cv::Mat>& projector_images);
 // The illumination field G of `camera` (CV_32FC1, width x height); all ones when not kept.
 cv::Mat IlluminationField(const PhysicsFit& fit, const std::string& camera, int width, int height);
 

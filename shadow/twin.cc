@@ -435,8 +435,11 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
   Scene fitted = fit.Apply(twin, twin_rig, projector_depth_mm, options.noise_seed);
   std::vector<std::vector<cv::Mat>> rendered = simulator->Render(projector_images, &fitted);
   // The image layers the renderer does not model (black level, illumination field).
+  const std::vector<double> pattern_means = PatternMeans(projector_images);
   const auto apply_image_layers = [&] {
-    for (const auto& name : cameras) ApplyImageLayers(fit, name, &rendered[static_cast<size_t>(twin_rig.CameraIndex(name))]);
+    for (const auto& name : cameras) {
+      ApplyImageLayers(fit, spec, pattern_means, name, &rendered[static_cast<size_t>(twin_rig.CameraIndex(name))]);
+    }
   };
   apply_image_layers();
   if (options.fit_physics) {
