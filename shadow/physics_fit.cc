@@ -111,6 +111,14 @@ std::vector<std::pair<int, int>> IlluminationTerms(int degree) {
   return t;
 }
 
+// 1 and the monomials of IlluminationTerms(degree) at (u, v), into out[0..terms.size()].
+void MonomialRow(const std::vector<std::pair<int, int>>& terms, int degree, double u, double v, double* out) {
+  double pu[8] = {1}, pv[8] = {1};
+  for (int k = 1; k <= degree && k < 8; ++k) pu[k] = pu[k - 1] * u, pv[k] = pv[k - 1] * v;
+  out[0] = 1;
+  for (size_t k = 0; k < terms.size(); ++k) out[k + 1] = pu[terms[k].first] * pv[terms[k].second];
+}
+
 std::string TermName(const std::pair<int, int>& t) {
   const auto power = [](const char* v, int k) { return k == 0 ? std::string() : k == 1 ? std::string(v) : v + std::string("^") + std::to_string(k); };
   const std::string a = power("u", t.first), b = power("v", t.second);
@@ -200,39 +208,46 @@ void WhiteBlackImages(const PatternSpec& spec, const std::vector<cv::Mat>& image
   const cv::Mat& first = images.at(0);
   white->create(first.size(), CV_32FC1);
   black->create(first.size(), CV_32FC1);
-  const bool bytes = first.depth() == CV_8U;
-  cv::parallel_for_(cv::Range(0, first.rows), [&](const cv::Range& rows) {
-    const size_t n = pairs.size();
-    std::vector<float> hi(n), lo(n);
-    std::vector<const uint8_t*> p8(n), q8(n);
-    std::vector<const uint16_t*> p16(n), q16(n);
-    const auto mid = static_cast<std::ptrdiff_t>(n / 2);
-    for (int y = rows.start; y < rows.end; ++y) {
-      for (size_t k = 0; k < n; ++k) {
-        const cv::Mat& a = images[static_cast<size_t>(pairs[k].first)];
-        const cv::Mat& b = images[static_cast<size_t>(pairs[k].second)];
-        if (bytes) {
-          p8[k] = a.ptr<uint8_t>(y), q8[k] = b.ptr<uint8_t>(y);
-        } else {
-          p16[k] = a.ptr<uint16_t>(y), q16[k] = b.ptr<uint16_t>(y);
-        }
-      }
-      float* w = white->ptr<float>(y);
-      float* bl = black->ptr<float>(y);
-      for (int x = 0; x < first.cols; ++x) {
+  // Per row: hi_k = max(P_k, I_k), lo_k = min(P_k, I_k) of every pair, sorted across k by a
+  // compare-exchange network over whole rows (vectorised), then the element n/2 of each.
+  const auto medians = [&](auto zero) {
+    using T = decltype(zero);
+    cv::parallel_for_(cv::Range(0, first.rows), [&](const cv::Range& rows) {
+      const size_t n = pairs.size(), w = static_cast<size_t>(first.cols);
+      std::vector<T> hi(n * w), lo(n * w);
+      for (int y = rows.start; y < rows.end; ++y) {
         for (size_t k = 0; k < n; ++k) {
-          const float p = bytes ? p8[k][x] : p16[k][x];
-          const float q = bytes ? q8[k][x] : q16[k][x];
-          hi[k] = std::max(p, q);
-          lo[k] = std::min(p, q);
+          const T* p = images[static_cast<size_t>(pairs[k].first)].ptr<T>(y);
+          const T* q = images[static_cast<size_t>(pairs[k].second)].ptr<T>(y);
+          T* h = &hi[k * w];
+          T* l = &lo[k * w];
+          for (size_t x = 0; x < w; ++x) h[x] = std::max(p[x], q[x]), l[x] = std::min(p[x], q[x]);
         }
-        std::nth_element(hi.begin(), hi.begin() + mid, hi.end());
-        std::nth_element(lo.begin(), lo.begin() + mid, lo.end());
-        w[x] = hi[static_cast<size_t>(mid)];
-        bl[x] = lo[static_cast<size_t>(mid)];
+        for (size_t i = 0; i + 1 < n; ++i) {
+          for (size_t j = i + 1; j < n; ++j) {
+            for (std::vector<T>* v : {&hi, &lo}) {
+              T* a = &(*v)[i * w];
+              T* b = &(*v)[j * w];
+              for (size_t x = 0; x < w; ++x) {
+                const T lo_ab = std::min(a[x], b[x]), hi_ab = std::max(a[x], b[x]);
+                a[x] = lo_ab, b[x] = hi_ab;
+              }
+            }
+          }
+        }
+        const T* hm = &hi[(n / 2) * w];
+        const T* lm = &lo[(n / 2) * w];
+        float* wr = white->ptr<float>(y);
+        float* br = black->ptr<float>(y);
+        for (size_t x = 0; x < w; ++x) wr[x] = hm[x], br[x] = lm[x];
       }
-    }
-  });
+    });
+  };
+  if (first.depth() == CV_8U) {
+    medians(uint8_t{0});
+  } else {
+    medians(uint16_t{0});
+  }
 }
 
 nlohmann::json PhysicsLayer::ToJson() const {
@@ -257,6 +272,8 @@ void PhysicsFitOptions::Check() const {
   SLSHADOW_THROW_IF(!(min_factor >= 0), "physics fit: min_factor must be >= 0 (got ", min_factor, ")");
   SLSHADOW_THROW_IF(!(min_heldout_drop >= 0 && min_heldout_drop < 1),
                     "physics fit: min_heldout_drop must be in [0, 1) (got ", min_heldout_drop, ")");
+  SLSHADOW_THROW_IF(illumination_degree < 0 || illumination_degree > 4, "physics fit: illumination_degree must be in 0..4 (got ",
+                    illumination_degree, ")");
 }
 
 const PhysicsLayer* PhysicsFit::Find(const std::string& name) const {
@@ -330,20 +347,24 @@ cv::Mat IlluminationField(const PhysicsFit& fit, const std::string& camera, int 
   cv::Mat g(height, width, CV_32FC1, cv::Scalar(1));
   const PhysicsLayer* l = fit.Find("illumination_" + camera);
   if (!l || !l->kept) return g;
-  const std::vector<std::pair<int, int>> terms = IlluminationTerms(l->extra.at("degree").get<int>());
+  const int degree = l->extra.at("degree").get<int>();
+  const std::vector<std::pair<int, int>> terms = IlluminationTerms(degree);
   const auto& c = l->extra.at("coefficients");
+  const std::vector<double> coefficients = c.get<std::vector<double>>();
   SLSHADOW_THROW_IF(c.size() != terms.size() + 1, "illumination field of '", camera, "': ", c.size(), " coefficients for ",
                     terms.size() + 1, " terms");
   // The field was fitted on images of extra.width x extra.height; scale coordinates to this size.
   const int fw = l->extra.value("width", width), fh = l->extra.value("height", height);
   cv::parallel_for_(cv::Range(0, height), [&](const cv::Range& rows) {
+    std::vector<double> row(terms.size() + 1);
     for (int y = rows.start; y < rows.end; ++y) {
       float* out = g.ptr<float>(y);
       const double v = NormalisedCoordinate(static_cast<int>(std::lround((y + 0.5) * fh / height - 0.5)), fh);
       for (int x = 0; x < width; ++x) {
         const double u = NormalisedCoordinate(static_cast<int>(std::lround((x + 0.5) * fw / width - 0.5)), fw);
-        double sum = c[0].get<double>();
-        for (size_t k = 0; k < terms.size(); ++k) sum += c[k + 1].get<double>() * std::pow(u, terms[k].first) * std::pow(v, terms[k].second);
+        MonomialRow(terms, degree, u, v, row.data());
+        double sum = 0;
+        for (size_t k = 0; k < row.size(); ++k) sum += coefficients[k] * row[k];
         out[x] = static_cast<float>(sum);
       }
     }
@@ -503,9 +524,7 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     il.unit = "RMS of G - 1";
     il.residual_unit = "DN RMS of white - black, reference pixels";
     const auto row = [&](const Sample& s, double* out) {
-      const double u = NormalisedCoordinate(s.x, g.width), v = NormalisedCoordinate(s.y, g.height);
-      out[0] = 1;
-      for (size_t k = 0; k < terms.size(); ++k) out[k + 1] = std::pow(u, terms[k].first) * std::pow(v, terms[k].second);
+      MonomialRow(terms, options.illumination_degree, NormalisedCoordinate(s.x, g.width), NormalisedCoordinate(s.y, g.height), out);
     };
     std::vector<double> x, y;
     std::vector<int> bands;
@@ -528,25 +547,29 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
       row(s, buf.data());
       return Eigen::Map<const Eigen::VectorXd>(buf.data(), p).dot(beta);
     };
-    const auto rms_dev = [&](const Eigen::VectorXd& beta) {
-      double ss = 0;
-      int64_t n = 0;
+    // The field's RMS deviation from 1 over the lit part: on up to ~20000 of its pixels.
+    std::vector<double> lit_rows;
+    {
+      int64_t count = 0;
+      for (const Sample& s : samples) count += s.camera == static_cast<int>(c);
+      const int64_t step = std::max<int64_t>(1, count / 20000);
+      int64_t i = 0;
       for (const Sample& s : samples) {
-        if (s.camera != static_cast<int>(c)) continue;
-        const double d = field(beta, s) - 1;
-        ss += d * d, ++n;
+        if (s.camera != static_cast<int>(c) || i++ % step) continue;
+        lit_rows.resize(lit_rows.size() + static_cast<size_t>(p));
+        row(s, &lit_rows[lit_rows.size() - static_cast<size_t>(p)]);
       }
-      return n ? std::sqrt(ss / static_cast<double>(n)) : 0.0;
+    }
+    const Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> lit_basis(
+        lit_rows.data(), static_cast<Eigen::Index>(lit_rows.size() / static_cast<size_t>(p)), p);
+    const auto rms_dev = [&](const Eigen::VectorXd& beta) {
+      return lit_basis.rows() ? std::sqrt(((lit_basis * beta).array() - 1).square().mean()) : 0.0;
     };
     il.value = rms_dev(lf.beta);
     il.sigma = JackknifeSigma(lf, rms_dev);
     il.samples = lf.inliers;
-    double lo = 1e9, hi = -1e9;
-    for (const Sample& s : samples) {
-      if (s.camera != static_cast<int>(c)) continue;
-      const double v = field(lf.beta, s);
-      lo = std::min(lo, v), hi = std::max(hi, v);
-    }
+    const Eigen::VectorXd lit_field = lit_basis * lf.beta;
+    const double lo = lit_field.size() ? lit_field.minCoeff() : 1.0, hi = lit_field.size() ? lit_field.maxCoeff() : 1.0;
     nlohmann::json names = nlohmann::json::array(), coeffs = nlohmann::json::array(), sigmas = nlohmann::json::array();
     for (int k = 0; k < p; ++k) {
       names.push_back(k == 0 ? std::string("1") : TermName(terms[static_cast<size_t>(k - 1)]));
