@@ -466,7 +466,7 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
   result.stages.push_back(meter.Stop());
 
   // 5. Images.
-  meter = StageMeter("compare images + clouds");
+  meter = StageMeter("compare images");
   std::vector<float> response(256);
   for (int v = 0; v < 256; ++v) response[static_cast<size_t>(v)] = static_cast<float>(fitted.layers.response_enabled ? std::pow(v / 255.0, fitted.layers.gamma) : v / 255.0);
   std::vector<CameraEvidence> evidence(cameras.size());
@@ -608,7 +608,10 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
     modulation_maps.push_back(mod);
   }
 
+  result.stages.push_back(meter.Stop());
+
   // Clouds.
+  meter = StageMeter("compare clouds");
   std::vector<ModeClouds> clouds;
   std::vector<ModeEvidence> mode_evidence;
   report["clouds"]["modes"] = nlohmann::json::array();
