@@ -11,6 +11,7 @@
 #include <memory>
 #include <mutex>
 #include <string>
+#include <vector>
 
 #include <plstream.h>
 
@@ -26,7 +27,9 @@ void SetHeatColorMap(plstream& pls);
 
 // A vertical colour bar of the heat map right of the current viewport: values lo..hi, `label`
 // on its right; `offset` from the viewport and `width` in normalised page units.
-void HeatColorBar(plstream& pls, double lo, double hi, const std::string& label, double offset, double width);
+// `marks` (e.g. a threshold) are drawn as black lines across the bar where they fall in range.
+void HeatColorBar(plstream& pls, double lo, double hi, const std::string& label, double offset, double width,
+                  const std::vector<double>& marks = {});
 
 // Serialises PLplot use across threads.
 [[nodiscard]] std::unique_lock<std::mutex> LockPlplot();
