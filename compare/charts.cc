@@ -73,10 +73,11 @@ void WriteDeviationMapPng(const std::filesystem::path& path, const ValueImage& i
                         image.values.size() != static_cast<size_t>(image.width) * static_cast<size_t>(image.height),
                     path.string(), ": bad deviation image size ", image.width, "x", image.height);
   SLSHADOW_THROW_IF(!(chart.hi > chart.lo), path.string(), ": empty colour range");
+  SLSHADOW_THROW_IF(chart.max_width_px < 16 || chart.max_height_px < 16, path.string(), ": map drawn smaller than 16 px");
   const auto lock = plot::LockPlplot();
   // Page: the image at its own aspect ratio plus room for the colour bar and labels.
   const int img_w = image.width, img_h = image.height;
-  const double scale = std::min(1.0, std::min(1100.0 / img_w, 800.0 / img_h));
+  const double scale = std::min(1.0, std::min(static_cast<double>(chart.max_width_px) / img_w, static_cast<double>(chart.max_height_px) / img_h));
   // Fixed pixel margins: left for the y ticks and label, right for the colour bar and its
   // labels, bottom for the x ticks and label, top for the title.
   constexpr int kLeft = 145, kRight = 250, kTop = 70;

@@ -76,6 +76,13 @@ TEST(ShadowTwin, CleanSyntheticScanEndToEnd) {
   }
   EXPECT_TRUE(std::filesystem::exists(tmp / "out" / "summary.txt"));
   EXPECT_TRUE(std::filesystem::exists(tmp / "out" / "maps" / "left_projector_residual.png"));
+  EXPECT_TRUE(std::filesystem::exists(tmp / "out" / "charts" / "intensity_per_frame.png"));
+  EXPECT_TRUE(std::filesystem::exists(tmp / "out" / "charts" / "real_vs_twin_stereo.png"));
+  // Map colour ranges scale to the data: the clean scan's decoded residual is a fraction of a
+  // projector pixel (p99 of |residual|), not a fixed +-2 px.
+  const double range = report["maps"][0]["projector_residual_range_px"].get<double>();
+  EXPECT_GT(range, 0.05);
+  EXPECT_LT(range, 0.6);
   EXPECT_TRUE(std::filesystem::exists(tmp / "out" / "clouds" / "real_stereo.ply"));
 }
 
@@ -453,6 +460,41 @@ TEST(ShadowTwin, BlackLevelIlluminationAndGlobalLightRecovered) {
   EXPECT_FALSE(clean.physics.Kept("global_light")) << clean.physics.Find("global_light")->reason;
   EXPECT_TRUE(clean.physics.Kept("ambient")) << clean.physics.Find("ambient")->reason;
   EXPECT_NEAR(clean.physics.Find("ambient")->value, 0.01, 0.003);
+}
+
+}  // namespace
+}  // namespace slshadow
+
+namespace slshadow {
+namespace {
+
+// Oracle: the real projector's focal length 4 px longer than the rig file says: the calibration
+// finding names the focal-length equivalent of the smooth projector-coordinate field, about 4 px.
+TEST(ShadowTwin, CalibrationFieldNamesItsFocalLengthEquivalent) {
+  const Rig rig = testing::HalfDemoRig();
+  Rig real_rig = rig;
+  real_rig.projector->model.params[CameraModel::kFx] += 4;
+  real_rig.projector->model.params[CameraModel::kFy] += 4;
+  const PatternSpec spec = testing::DemoSpec();
+  const Rigid3d truth = DemoPartPose();
+  const auto images = testing::Render(testing::RealScene(DemoPart(), truth), real_rig, spec);
+  workflow::ShadowOptions options;
+  options.rig_from_part = truth;
+  options.write_clouds = false;
+  const workflow::ShadowResult r =
+      workflow::RunShadowOnImages(rig, spec, images, testing::PartFromMesh(DemoPart(), "demo_part"), options);
+  std::printf("%s\n", r.diagnosis.Summary().c_str());
+  const workflow::Finding* cal = nullptr;
+  for (const auto& f : r.diagnosis.findings) {
+    if (f.cause == "calibration") cal = &f;
+  }
+  ASSERT_NE(cal, nullptr);
+  EXPECT_TRUE(cal->detected) << cal->message;
+  EXPECT_NE(cal->message.find("focal length off by"), std::string::npos) << cal->message;
+  for (const auto& cam : cal->evidence["cameras"]) {
+    ASSERT_TRUE(cam.contains("equivalent_projector_focal_error_x_px")) << cam.dump();
+    EXPECT_NEAR(cam["equivalent_projector_focal_error_x_px"].get<double>(), 4.0, 1.0) << cam["camera"];
+  }
 }
 
 }  // namespace
