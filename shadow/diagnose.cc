@@ -298,23 +298,47 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
     cal.evidence["cameras"] = nlohmann::json::array();
     for (size_t c = 0; c < cameras.size(); ++c) {
       const Field& f = fields[c];
+      const CameraEvidence& cam = cameras[c];
       const double rms = std::hypot(f.rms_x, f.rms_y);
-      const double rot_y_deg = std::atan(f.mean_x / cameras[c].projector_fx) * 180 / M_PI;
-      const double rot_x_deg = std::atan(f.mean_y / cameras[c].projector_fy) * 180 / M_PI;
-      cal.evidence["cameras"].push_back({{"camera", cameras[c].camera},
-                                         {"field_rms_px", rms},
-                                         {"field_rms_x_px", f.rms_x},
-                                         {"field_rms_y_px", f.rms_y},
-                                         {"field_mean_x_px", f.mean_x},
-                                         {"field_mean_y_px", f.mean_y},
-                                         {"equivalent_projector_rotation_about_y_deg", rot_y_deg},
-                                         {"equivalent_projector_rotation_about_x_deg", rot_x_deg}});
+      const double rot_y_deg = std::atan(f.mean_x / cam.projector_fx) * 180 / M_PI;
+      const double rot_x_deg = std::atan(f.mean_y / cam.projector_fy) * 180 / M_PI;
+      // Focal-length equivalent: a projector focal error df moves a coordinate by
+      // (df / f) (u - cx), so the field's slope against u - cx (least squares, with an offset)
+      // times f is the focal error that explains its linear part.
+      const auto focal_error = [&](const cv::Mat& field, const cv::Mat& truth, double principal, double focal) {
+        if (field.empty() || truth.empty()) return std::nan("");
+        double n = 0, sx = 0, sy = 0, sxx = 0, sxy = 0;
+        const int stride = std::max(1, std::min(cam.width, cam.height) / 200);
+        for (int y = 0; y < cam.height; y += stride) {
+          for (int x = 0; x < cam.width; x += stride) {
+            if (!cam.mask.at<uint8_t>(y, x)) continue;
+            const double u = truth.at<float>(y, x) - principal, d = field.at<float>(y, x);
+            if (!std::isfinite(u) || !std::isfinite(d)) continue;
+            n += 1, sx += u, sy += d, sxx += u * u, sxy += u * d;
+          }
+        }
+        const double den = n * sxx - sx * sx;
+        return n > 50 && den > 0 ? focal * (n * sxy - sx * sy) / den : std::nan("");
+      };
+      const double dfx = focal_error(f.x, cam.gt_x, cam.projector_cx, cam.projector_fx);
+      const double dfy = focal_error(f.y, cam.gt_y, cam.projector_cy, cam.projector_fy);
+      nlohmann::json ev = {{"camera", cam.camera},
+                           {"field_rms_px", rms},
+                           {"field_rms_x_px", f.rms_x},
+                           {"field_rms_y_px", f.rms_y},
+                           {"field_mean_x_px", f.mean_x},
+                           {"field_mean_y_px", f.mean_y},
+                           {"equivalent_projector_rotation_about_y_deg", rot_y_deg},
+                           {"equivalent_projector_rotation_about_x_deg", rot_x_deg}};
+      if (std::isfinite(dfx)) ev["equivalent_projector_focal_error_x_px"] = dfx;
+      if (std::isfinite(dfy)) ev["equivalent_projector_focal_error_y_px"] = dfy;
+      cal.evidence["cameras"].push_back(ev);
       if (rms > worst) {
         worst = rms;
-        cal.message = Fmt("smooth projector-coordinate field of %.3f px RMS (mean %.3f, %.3f px): equivalent projector "
-                          "rotation %.4f deg about y, %.4f deg about x",
-                          rms, f.mean_x, f.mean_y, rot_y_deg) +
-                      Fmt(" / %.4f", rot_x_deg);
+        cal.message = Fmt("smooth projector-coordinate field of %.3f px RMS (mean %.3f, %.3f px): ", rms, f.mean_x, f.mean_y) +
+                      Fmt("equivalent projector rotation %.4f deg about y, %.4f deg about x", rot_y_deg, rot_x_deg);
+        if (std::isfinite(dfx)) cal.message += Fmt(", or a projector focal length off by %.2f px (fx %.1f)", dfx, cam.projector_fx);
+        if (std::isfinite(dfy)) cal.message += Fmt(" / %.2f px (fy)", dfy);
       }
     }
     cal.evidence["threshold_px"] = options.calibration_field_px;
