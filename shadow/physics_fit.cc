@@ -387,14 +387,16 @@ void ApplyImageLayers(const PhysicsFit& fit, const PatternSpec& spec, const std:
   if ((offset == 0 && !field && global == 0) || images->empty()) return;
   SLSHADOW_THROW_IF(pattern_means.size() != images->size(), "image layers: ", pattern_means.size(), " pattern means for ",
                     images->size(), " images");
-  const cv::Mat& first = images->front();
-  const cv::Mat g = IlluminationField(fit, camera, first.cols, first.rows);
+  const auto first = std::find_if(images->begin(), images->end(), [](const cv::Mat& m) { return !m.empty(); });
+  if (first == images->end()) return;
+  const cv::Mat g = IlluminationField(fit, camera, first->cols, first->rows);
   cv::Mat white, black;
   if (global != 0) WhiteBlackImages(spec, *images, &white, &black);
   cv::parallel_for_(cv::Range(0, static_cast<int>(images->size())), [&](const cv::Range& r) {
     cv::Mat f;
     for (int i = r.start; i < r.end; ++i) {
       cv::Mat& img = (*images)[static_cast<size_t>(i)];
+      if (img.empty()) continue;  // a frame not rendered
       img.convertTo(f, CV_32F);
       if (global != 0) {  // B + (1 - g) (I - B) + g m (W - B)
         const float keep = static_cast<float>(1 - global), m = static_cast<float>(global * pattern_means[static_cast<size_t>(i)]);
@@ -1143,6 +1145,18 @@ double ModulationPeriodPx(const PatternSpec& spec) {
   return spec.PeriodsPx().front();
 }
 
+std::vector<int> ModulationFrames(const PatternSpec& spec) {
+  const std::vector<FrameInfo> frames = spec.Frames();
+  const int axis = spec.code_x ? 0 : 1;
+  std::vector<int> idx;
+  if (spec.kind == PatternKind::kGrayCode) {
+    idx = {FindFrame(frames, FrameRole::kGrayBit, axis, 0, 0, 0), FindFrame(frames, FrameRole::kGrayBitInverse, axis, 0, 0, 0)};
+  } else {
+    for (int k = 0; k < spec.phase_steps; ++k) idx.push_back(FindFrame(frames, FrameRole::kPhase, axis, 0, 0, k));
+  }
+  return idx;
+}
+
 cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>& images) {
   cv::Mat w, b;
   WhiteBlackImages(spec, images, &w, &b);
@@ -1150,18 +1164,11 @@ cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>
 }
 
 cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>& images, const cv::Mat& w, const cv::Mat& b) {
-  const std::vector<FrameInfo> frames = spec.Frames();
-  const int axis = spec.code_x ? 0 : 1;
   cv::Mat out(w.size(), CV_32FC1, cv::Scalar(std::nanf("")));
-  std::vector<int> idx;
-  if (spec.kind == PatternKind::kGrayCode) {
-    idx = {FindFrame(frames, FrameRole::kGrayBit, axis, 0, 0, 0), FindFrame(frames, FrameRole::kGrayBitInverse, axis, 0, 0, 0)};
-  } else {
-    for (int k = 0; k < spec.phase_steps; ++k) idx.push_back(FindFrame(frames, FrameRole::kPhase, axis, 0, 0, k));
-  }
+  const std::vector<int> idx = ModulationFrames(spec);
   for (int i : idx) SLSHADOW_THROW_IF(i < 0, "fringe modulation: the sequence lacks its finest fringe frames");
   const int n = static_cast<int>(idx.size());
-  const bool bytes = images[0].depth() == CV_8U;
+  const bool bytes = images.at(static_cast<size_t>(idx[0])).depth() == CV_8U;
   cv::parallel_for_(cv::Range(0, w.rows), [&](const cv::Range& rows) {
     std::vector<const uint8_t*> p8(static_cast<size_t>(n));
     for (int y = rows.start; y < rows.end; ++y) {

@@ -120,7 +120,7 @@ struct PhysicsFit {
 };
 
 // The fitted image layers the renderer does not model, applied to one camera's rendered twin
-// images (spec order) in place: first global_light, I = B + (1 - g) (I - B) + g m_k (W - B) with
+// images (spec order; empty Mats, frames not rendered, are left alone) in place: first global_light, I = B + (1 - g) (I - B) + g m_k (W - B) with
 // m_k = pattern_means[k] and W, B the images' own white / black levels (WhiteBlackImages); then
 // I' = o + G(x, y) I (black_level_<camera>, illumination_<camera>); rounded and saturated to the
 // images' depth. No-op when none is kept.
@@ -156,6 +156,8 @@ cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>
 // The same with the images' white and black levels already at hand.
 cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>& images, const cv::Mat& white,
                              const cv::Mat& black);
+// The frames NormalisedModulation reads (spec indices; -1 where the sequence lacks one).
+std::vector<int> ModulationFrames(const PatternSpec& spec);
 // The fringe period the modulation above refers to, projector px.
 double ModulationPeriodPx(const PatternSpec& spec);
 

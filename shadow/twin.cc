@@ -501,16 +501,40 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
   // 4. Virtual re-scan with the fitted physics; defocus from its fringes against the real ones.
   meter = StageMeter("twin: render (+ defocus fit)");
   Scene fitted = fit.Apply(twin, twin_rig, projector_depth_mm, options.noise_seed);
-  std::vector<std::vector<cv::Mat>> rendered = simulator->Render(projector_images, &fitted);
-  // The image layers the renderer does not model (black level, illumination field).
+  std::vector<std::vector<cv::Mat>> rendered;
+  // The image layers the renderer does not model (black level, illumination field, global light).
   const std::vector<double> pattern_means = PatternMeans(projector_images);
   const auto apply_image_layers = [&] {
     for (const auto& name : cameras) {
       ApplyImageLayers(fit, spec, pattern_means, name, &rendered[static_cast<size_t>(twin_rig.CameraIndex(name))]);
     }
   };
-  apply_image_layers();
+  const auto render_all = [&] {
+    rendered.clear();
+    rendered = simulator->Render(projector_images, &fitted);
+    apply_image_layers();
+  };
   if (options.fit_physics) {
+    // The defocus fit reads only the white, black and finest fringe frames: with white and black
+    // frames in the sequence only those are rendered for it (the rest once the physics is final).
+    std::vector<int> fit_frames;
+    if (spec.WhiteFrameIndex() >= 0 && spec.BlackFrameIndex() >= 0) {
+      fit_frames = ModulationFrames(spec);
+      fit_frames.push_back(spec.WhiteFrameIndex());
+      fit_frames.push_back(spec.BlackFrameIndex());
+    }
+    if (fit_frames.empty()) {
+      render_all();
+    } else {
+      std::vector<cv::Mat> subset;
+      for (int i : fit_frames) subset.push_back(projector_images[static_cast<size_t>(i)]);
+      const std::vector<std::vector<cv::Mat>> part = simulator->Render(subset, &fitted);
+      rendered.assign(part.size(), std::vector<cv::Mat>(projector_images.size()));
+      for (size_t cam = 0; cam < part.size(); ++cam) {
+        for (size_t k = 0; k < fit_frames.size(); ++k) rendered[cam][static_cast<size_t>(fit_frames[k])] = part[cam][k];
+      }
+      apply_image_layers();
+    }
     for (size_t c = 0; c < cameras.size(); ++c) data[c].twin = rendered[static_cast<size_t>(twin_rig.CameraIndex(cameras[c]))];
     FitDefocus(spec, data, options.physics, &fit);
     for (auto& d : data) d.twin.clear();
@@ -519,9 +543,13 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
       for (auto& d : data) d.twin_modulation = d.twin_white = d.twin_black = cv::Mat(), d.geometry = nullptr;
       rendered.clear();
       simulator = std::make_unique<Simulator>(fitted, twin_rig);
-      rendered = simulator->Render(projector_images, &fitted);
-      apply_image_layers();
+      render_all();
+    } else if (!fit_frames.empty()) {
+      for (auto& d : data) d.twin_modulation = d.twin_white = d.twin_black = cv::Mat();
+      render_all();
     }
+  } else {
+    render_all();
   }
   result.stages.push_back(meter.Stop());
   report["physics"] = {{"layers", fit.ToJson()}, {"twin_scene", SceneToJson(fitted)}};
