@@ -110,11 +110,11 @@ double WriteMapChart(const fs::path& path, const cv::Mat& values, const std::str
   chart.max_width_px = 640;  // ~3x fewer PLplot cells than compare's maps: four maps per camera
   chart.max_height_px = 440;
   char buf[160];
-  std::snprintf(buf, sizeof(buf), "colour range +-%.3g (99 %% of the pixels); white: not compared", range);
+  std::snprintf(buf, sizeof(buf), "range +-%.3g (99 %% of pixels); white: not compared", range);
   chart.notes = {buf};
   bool any_in = false;
   for (double m : marks) any_in = any_in || std::abs(m) < range;
-  if (!mark_note.empty()) chart.notes.push_back(mark_note + (any_in ? ": black lines on the bar" : ": beyond the range"));
+  if (!mark_note.empty()) chart.notes.push_back(mark_note + (any_in ? ": lines on the bar" : ": beyond the range"));
   compare::WriteDeviationMapPng(path, img, chart);
   return range;
 }
@@ -804,15 +804,15 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
       const double residual_range = WriteMapChart(
           staging / "maps" / (n + "_projector_residual.png"), residual_maps[c],
           n + ": decoded projector " + (spec.code_x ? "x" : "y") + " - twin truth", "projector px", {-cal, cal},
-          "+-" + Fmt("%.2f", cal) + " px: the calibration-field threshold", 0.05);
+          "+-" + Fmt("%.2f", cal) + " px (calibration-field threshold)", 0.05);
       const double white_range = WriteMapChart(staging / "maps" / (n + "_white_difference.png"), white_diff_maps[c],
                                                n + ": white level, real - twin", "DN", {-0.05 * fs_dn, 0.05 * fs_dn},
-                                               "+-5 % of full scale (" + Fmt("%.4g", 0.05 * fs_dn) + " DN): the agreement tolerance", 1.0);
+                                               "+-" + Fmt("%.4g", 0.05 * fs_dn) + " DN (5 % of full scale)", 1.0);
       cv::Mat ratio = modulation_maps[c] - 1.0f;
       const double mr = options.diagnose.multipath_ratio;
       const double modulation_range = WriteMapChart(staging / "maps" / (n + "_modulation_ratio.png"), ratio,
                                                     n + ": fringe modulation, real / twin - 1", "relative", {mr - 1},
-                                                    Fmt("%.2f", mr - 1) + ": the multipath threshold", 0.05);
+                                                    Fmt("%.2f", mr - 1) + " (multipath threshold)", 0.05);
       SLSHADOW_THROW_IF(!cv::imwrite((staging / "maps" / (n + "_validity.png")).string(), validity_maps[c]),
                         "cannot write the validity map");
       report["maps"].push_back({{"camera", n},
