@@ -102,6 +102,14 @@ std::vector<std::pair<int, int>> InversePairs(const std::vector<FrameInfo>& fram
   return pairs;
 }
 
+// The white - black contrast a pixel needs to count as well lit: 0.3 x the median over the samples.
+double WellLitContrast(const std::vector<Sample>& samples) {
+  std::vector<double> contrast;
+  contrast.reserve(samples.size());
+  for (const Sample& s : samples) contrast.push_back(s.white - s.black);
+  return 0.3 * Median(std::move(contrast));
+}
+
 // Monomials u^i v^j, 1 <= i + j <= degree (u, v in [-1, 1] over the image).
 std::vector<std::pair<int, int>> IlluminationTerms(int degree) {
   std::vector<std::pair<int, int>> t;
@@ -902,9 +910,7 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     } else {
       // Per well-lit pixel the mean of its normalised phase values, which is a0(gamma), the mean
       // of (0.5 + 0.5 cos)^gamma over a period, whatever the phase, blur or frame order.
-      std::vector<double> contrast;
-      for (const Sample& s : samples) contrast.push_back(s.white - s.black);
-      const double min_contrast = 0.3 * Median(contrast);
+      const double min_contrast = WellLitContrast(samples);
       std::vector<double> fit_mean, held_mean;
       std::vector<std::vector<double>> band_mean(kBands);
       for (const Sample& s : samples) {
@@ -988,9 +994,7 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
       gl.observable = false;
       gl.reason = "the sequence has too few coarse inverse pairs (about half lit) to separate direct from scattered light";
     } else {
-      std::vector<double> contrast;
-      for (const Sample& s : samples) contrast.push_back(s.white - s.black);
-      const double min_contrast = 0.3 * Median(contrast);
+      const double min_contrast = WellLitContrast(samples);
       std::vector<double> fit_r, held_r;
       std::vector<std::vector<double>> band_r(kBands);
       std::vector<double> per(coarse.size());
