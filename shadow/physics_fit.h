@@ -114,6 +114,8 @@ struct PhysicsFit {
   // checkerboard part; ambient, response gamma, projector defocus, noise with `noise_seed`).
   // `rig` and `depth_mm` (the part's typical depth along the projector axis) size the defocus
   // layer's physical parameters so that its blur sigma at that depth equals the fitted one.
+  // The image layers (illumination, black level, global light) are not scene layers: the
+  // rendered images get them from ApplyImageLayers below.
   Scene Apply(const Scene& twin, const Rig& rig, double projector_depth_mm, uint64_t noise_seed) const;
   nlohmann::json ToJson() const;
   std::string Table() const;  // one line per layer
@@ -131,7 +133,8 @@ std::vector<double> PatternMeans(const std::vector<cv::Mat>& projector_images);
 // The illumination field G of `camera` (CV_32FC1, width x height); all ones when not kept.
 cv::Mat IlluminationField(const PhysicsFit& fit, const std::string& camera, int width, int height);
 
-// Fits exposure, albedo, ambient, gamma and noise (everything but defocus) from the real images
+// Fits exposure, the illumination field, albedo, ambient, black level, global light, gamma and
+// noise (everything but defocus) from the real images
 // and the twin's geometry (`twin` is the scene the geometry was traced with, albedo as given by
 // the part). Throws slshadow::Error when the sequence has no white / black frame or no lit part
 // pixel is found.
