@@ -40,8 +40,24 @@ void SetHeatColorMap(plstream& pls) {
 
 void HeatColorBar(plstream& pls, double lo, double hi, const std::string& label, double offset, double width,
                   const std::vector<double>& marks) {
-  // Drawn by hand (an image column, a box with the values on its right) rather than with
-  // plcolorbar, whose placement moves with its labels: the marks must land on their values.
+  if (marks.empty()) {  // PLplot's own colour bar (its label placed to fit)
+    constexpr int kValues = 64;
+    std::vector<PLFLT> values(kValues);
+    for (int i = 0; i < kValues; ++i) values[static_cast<size_t>(i)] = lo + (hi - lo) * i / (kValues - 1);
+    const PLFLT* value_ptrs[1] = {values.data()};
+    PLINT n_vals[1] = {kValues};
+    const char* axis_opts[1] = {"bcvtm"};
+    PLFLT ticks[1] = {0.0};
+    PLINT sub_ticks[1] = {0};
+    PLINT label_opts[1] = {PL_COLORBAR_LABEL_RIGHT};
+    const char* labels[1] = {label.c_str()};
+    PLFLT bar_w = 0, bar_h = 0;
+    pls.colorbar(&bar_w, &bar_h, PL_COLORBAR_GRADIENT, PL_POSITION_RIGHT | PL_POSITION_OUTSIDE, offset, 0.0, width, 0.9, 0, 1,
+                 1, 0.0, 0.0, 0, 0.0, 1, label_opts, labels, 1, axis_opts, ticks, sub_ticks, n_vals, value_ptrs);
+    return;
+  }
+  // With marks, drawn by hand (an image column, a box with the values on its right): plcolorbar's
+  // placement moves with its labels, and the marks must land on their values.
   PLFLT x0 = 0, x1 = 0, y0 = 0, y1 = 0, wx0 = 0, wx1 = 0, wy0 = 0, wy1 = 0;
   pls.gvpd(x0, x1, y0, y1);
   pls.gvpw(wx0, wx1, wy0, wy1);

@@ -27,7 +27,8 @@ void SetHeatColorMap(plstream& pls);
 
 // A vertical colour bar of the heat map right of the current viewport: values lo..hi, `label`
 // on its right; `offset` from the viewport and `width` in normalised page units.
-// `marks` (e.g. a threshold) are drawn as black lines across the bar where they fall in range.
+// `marks` (e.g. a threshold) are drawn as black lines across the bar where they fall in range
+// (then the bar is drawn by hand, its label 5 characters right of it: leave room).
 void HeatColorBar(plstream& pls, double lo, double hi, const std::string& label, double offset, double width,
                   const std::vector<double>& marks = {});
 
