@@ -13,14 +13,14 @@
 
 #include "compare/kdtree.h"
 #include "core/error.h"
+#include "core/statistics.h"
 
 namespace slshadow::compare {
 namespace {
 
 // Index of the nearest-rank percentile p in n sorted values (n > 0).
 size_t PercentileIndex(size_t n, double p) {
-  const double rank = std::ceil(p / 100.0 * static_cast<double>(n));
-  return static_cast<size_t>(std::clamp(rank, 1.0, static_cast<double>(n))) - 1;
+  return PercentileRank(n, p);  // core/statistics.h
 }
 
 // A uniform grid over points (cells hashed, points copied cell by cell): the points within one
