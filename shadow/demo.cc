@@ -148,8 +148,14 @@ DemoResult RunDemoJob(const DemoOptions& options) {
   // 5. Reconstruct both modes, then compare and report them concurrently: each comparison is
   // parallel inside, but its report (PLY, map, charts) and parts of the comparison are serial.
   const std::vector<std::string> mode_names = {"projector", "stereo"};
-  std::vector<Reconstruction> recs = ReconstructModes(
-      *decoded, {ReconstructMode::kProjector, ReconstructMode::kStereo}, reconstruct_options, &result.stages);
+  // One mode at a time: the demo keeps each cloud and summary, not its grid (~100 MB), whose
+  // buffers the next mode reuses.
+  std::vector<Reconstruction> recs;
+  for (const ReconstructMode mode : {ReconstructMode::kProjector, ReconstructMode::kStereo}) {
+    recs.push_back(std::move(ReconstructModes(*decoded, {mode}, reconstruct_options, &result.stages).front()));
+    recs.back().grid = DenseGrid();
+    recs.back().projector_error_px = {};
+  }
   decoded.reset();  // the maps and the reconstruction's pooled grids are not needed any more
   DenseGrid::ReleasePool();
   malloc_trim(0);
