@@ -254,16 +254,18 @@ CompareResult Compare(PointCloud&& cloud, const Reference& reference, const Comp
   r.c2c = ComputeStats(r.deviations_mm, false, options.threshold_mm, options.histogram_bins);
   if (is_signed) r.c2m = ComputeStats(r.deviations_mm, true, options.threshold_mm, options.histogram_bins);
 
-  // Coverage.
-  std::vector<Eigen::Vector3d> reached;
-  reached.reserve(pts.size());
-  for (size_t i = 0; i < pts.size(); ++i) {
-    if (std::abs(r.deviations_mm[i]) <= options.threshold_mm) reached.push_back(pts[i]);
-  }
+  // Coverage (the reached points freed at once: a second copy of most of the cloud).
   r.coverage_radius_mm = options.coverage_radius_mm > 0
                              ? options.coverage_radius_mm
                              : std::max(options.threshold_mm, 3.0 * MedianSpacing(pts));
-  r.coverage = Coverage(reference.cloud.points, reached, r.coverage_radius_mm);
+  {
+    std::vector<Eigen::Vector3d> reached;
+    reached.reserve(pts.size());
+    for (size_t i = 0; i < pts.size(); ++i) {
+      if (std::abs(r.deviations_mm[i]) <= options.threshold_mm) reached.push_back(pts[i]);
+    }
+    r.coverage = Coverage(reference.cloud.points, reached, r.coverage_radius_mm);
+  }
   r.coverage_samples = reference.cloud.size();
 
   // Scalar fields and colours.
