@@ -107,18 +107,39 @@ class PointGrid {
     for (int64_t z = std::max<int64_t>(cz - reach, 0); z <= std::min(cz + reach, max_cell_[2]); ++z) {
       for (int64_t y = std::max<int64_t>(cy - reach, 0); y <= std::min(cy + reach, max_cell_[1]); ++y) {
         for (int64_t x = std::max<int64_t>(cx - reach, 0); x <= std::min(cx + reach, max_cell_[0]); ++x) {
-          const uint64_t key = Key(x, y, z);
-          for (size_t h = Hash(key);; h = (h + 1) & mask_) {
-            const Slot& slot = table_[h];
-            if (slot.key == key) {
-              for (uint32_t k = slot.begin; k < slot.end; ++k) f(points_[k], index_[k]);
-              break;
-            }
-            if (slot.key == kNoKey) break;
+          if (const Slot* slot = Find(Key(x, y, z))) {
+            for (uint32_t k = slot->begin; k < slot->end; ++k) f(points_[k], index_[k]);
           }
         }
       }
     }
+  }
+
+  // Whether some point p has (q - p).squaredNorm() < bound, for bound <= cell^2: the query's own
+  // cell first, then its 26 neighbours, stopping at the first such point.
+  bool AnyWithin(const Eigen::Vector3d& q, double bound) const {
+    if (points_.empty() || !q.allFinite()) return false;
+    const Eigen::Vector3d c = ((q - lo_) * inv_).array().floor();
+    if ((c.array() < -1.0).any() || (c.array() > double(1 << 21) + 1.0).any()) return false;
+    const auto cx = static_cast<int64_t>(c.x()), cy = static_cast<int64_t>(c.y()), cz = static_cast<int64_t>(c.z());
+    const auto cell_has = [&](int64_t x, int64_t y, int64_t z) {
+      if (x < 0 || y < 0 || z < 0 || x > max_cell_[0] || y > max_cell_[1] || z > max_cell_[2]) return false;
+      const Slot* slot = Find(Key(x, y, z));
+      if (!slot) return false;
+      for (uint32_t k = slot->begin; k < slot->end; ++k) {
+        if ((q - points_[k]).squaredNorm() < bound) return true;
+      }
+      return false;
+    };
+    if (cell_has(cx, cy, cz)) return true;
+    for (int64_t z = cz - 1; z <= cz + 1; ++z) {
+      for (int64_t y = cy - 1; y <= cy + 1; ++y) {
+        for (int64_t x = cx - 1; x <= cx + 1; ++x) {
+          if ((x != cx || y != cy || z != cz) && cell_has(x, y, z)) return true;
+        }
+      }
+    }
+    return false;
   }
 
  private:
@@ -130,6 +151,12 @@ class PointGrid {
   uint64_t Key(int64_t x, int64_t y, int64_t z) const {
     return (static_cast<uint64_t>(z) << (bits_[0] + bits_[1])) | (static_cast<uint64_t>(y) << bits_[0]) |
            static_cast<uint64_t>(x);
+  }
+  const Slot* Find(uint64_t key) const {
+    for (size_t h = Hash(key);; h = (h + 1) & mask_) {
+      if (table_[h].key == key) return &table_[h];
+      if (table_[h].key == kNoKey) return nullptr;
+    }
   }
   size_t Hash(uint64_t key) const { return static_cast<size_t>((key * 0x9E3779B97F4A7C15ull) >> 20) & mask_; }
   Eigen::Vector3d lo_ = Eigen::Vector3d::Zero();
@@ -258,10 +285,7 @@ double Coverage(const std::vector<Eigen::Vector3d>& reference_samples, const std
       tbb::blocked_range<size_t>(0, reference_samples.size(), 2048), size_t{0},
       [&](const tbb::blocked_range<size_t>& range, size_t acc) {
         for (size_t k = range.begin(); k != range.end(); ++k) {
-          const Eigen::Vector3d& q = reference_samples[order[k]];
-          bool hit = false;
-          grid.ForNeighbours(q, [&](const Eigen::Vector3d& p, uint32_t) { hit = hit || (q - p).squaredNorm() < bound; });
-          if (hit) ++acc;
+          if (grid.AnyWithin(reference_samples[order[k]], bound)) ++acc;
         }
         return acc;
       },
