@@ -142,4 +142,8 @@ GroundTruth ReadGroundTruth(const std::filesystem::path& dir);
 // The visible surface of one camera as a cloud (rig frame) with the scalars listed above.
 PointCloud VisibleSurface(const GeometryBuffer& geometry);
 
+// Frees the simulator's cache of recycled image and geometry blocks (up to ~640 MB kept after a
+// scan so the next one does not fault its pages in again): for a process done simulating.
+void ReleaseSimulatorPool();
+
 }  // namespace slshadow
