@@ -13,6 +13,7 @@
 
 #include "plot/plot.h"
 #include "shadow/scan_pipeline.h"
+#include "shadow/sweep_reuse.h"
 
 #include <algorithm>
 #include <chrono>
@@ -21,6 +22,8 @@
 #include <memory>
 #include <optional>
 #include <set>
+
+#include <tbb/parallel_for.h>
 
 namespace slshadow::workflow {
 namespace fs = std::filesystem;
@@ -367,14 +370,18 @@ json ReadJob(const fs::path& jobs_dir, int id) {
   return job;
 }
 
-// What a geometry group keeps for its jobs.
+// What a geometry group keeps for its jobs (shadow/sweep_reuse.h).
 struct Group {
   std::string key;
   Scene scene;  // the first job's scene (geometry of all)
   Rig rig;
   std::unique_ptr<Simulator> simulator;
-  std::optional<compare::Reference> reference;
-  std::vector<Eigen::Vector3d> visible;
+  std::unique_ptr<GroundTruthScorer> scorer;
+  // The noise-free images of the last noisy job's patterns and noise-free scene, and the image
+  // buffers every job renders into.
+  std::string noise_free_key;
+  std::unique_ptr<NoiseFreeImages> noise_free;
+  std::vector<std::vector<cv::Mat>> images;
 };
 
 json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group, int* traces) {
@@ -386,6 +393,13 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
   json timing = json::object();
   const double cpu0 = ProcessCpuSeconds();
   const auto t0 = clock();
+  // CPU seconds of the process (every thread) since the previous stage ended.
+  double cpu_mark = cpu0;
+  const auto stage_cpu = [&](const char* name) {
+    const double now = ProcessCpuSeconds();
+    timing[name] = now - cpu_mark;
+    cpu_mark = now;
+  };
 
   Scene scene = SceneFromConfig(node("scene"), job.at("scene_base_dir").get<std::string>());
   if (!group || group->key != key) {
@@ -395,21 +409,34 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
     g->scene = scene;
     g->rig = RigFromConfig(node("rig"));
     g->simulator = std::make_unique<Simulator>(g->scene, g->rig);
-    g->reference.emplace(
-        compare::ReferenceFromMesh(SceneSurface(g->scene, what + ": scene"), "scene ground truth"));
-    g->visible = LitVisibleSurface(g->simulator->geometry(0));
+    g->scorer = std::make_unique<GroundTruthScorer>(SceneSurface(g->scene, what + ": scene"),
+                                                    LitVisibleSurface(g->simulator->geometry(0)),
+                                                    "scene ground truth");
     group = std::move(g);
     ++*traces;
   }
   const auto t1 = clock();
   timing["setup_s"] = seconds(t0, t1);
+  stage_cpu("setup_cpu_s");
 
   const PatternSpec spec = PatternSpecFromConfig(node("patterns"));
-  const std::vector<cv::Mat> projector_images = GeneratePatterns(spec);
-  const std::vector<std::vector<cv::Mat>> images =
-      group->simulator->Render(projector_images, &scene);
+  if (scene.layers.noise_enabled) {
+    // Noise per seed on the noise-free images rendered once (bit for bit Simulator::Render's).
+    const std::string images_key = NoiseFreeImages::Key(job.at("scene"), job.at("patterns"));
+    if (!group->noise_free || group->noise_free_key != images_key) {
+      group->noise_free.reset();
+      group->noise_free = std::make_unique<NoiseFreeImages>(*group->simulator, scene, group->rig,
+                                                            GeneratePatterns(spec));
+      group->noise_free_key = images_key;
+    }
+    group->noise_free->Render(scene, &group->images);
+  } else {
+    group->images = group->simulator->Render(GeneratePatterns(spec), &scene);
+  }
+  const std::vector<std::vector<cv::Mat>>& images = group->images;
   const auto t2 = clock();
   timing["render_s"] = seconds(t1, t2);
+  stage_cpu("render_cpu_s");
 
   std::vector<ReconstructMode> modes;
   for (const auto& m : job.at("modes"))
@@ -429,12 +456,14 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
   }
   const auto t3 = clock();
   timing["decode_s"] = seconds(t2, t3);
+  stage_cpu("decode_cpu_s");
 
   const ReconstructOptions reconstruct = ReconstructOptionsFromConfig(node("reconstruct"));
   std::vector<StageMeasurement> stages;
   std::vector<Reconstruction> recs = ReconstructModes(decoded, modes, reconstruct, &stages);
   const auto t4 = clock();
   timing["reconstruct_s"] = seconds(t3, t4);
+  stage_cpu("reconstruct_cpu_s");
   // Per mode, what the method costs: decoding the cameras it reads, then its reconstruction.
   json method_s = json::object();
   for (size_t k = 0; k < modes.size() && k < stages.size(); ++k) {
@@ -446,16 +475,16 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
 
   const compare::CompareOptions compare_options =
       compare::CompareOptionsFromConfig(node("compare"));
+  // The modes' measurements are independent and partly serial: run them side by side.
+  std::vector<ModeAccuracy> measured(modes.size());
+  tbb::parallel_for(size_t{0}, modes.size(), [&](size_t k) {
+    measured[k] = group->scorer->Measure(recs[k].cloud, compare_options, ToString(modes[k]));
+  });
   json accuracy = json::array();
-  for (size_t k = 0; k < modes.size(); ++k) {
-    const std::string name = ToString(modes[k]);
-    const compare::CompareResult cmp =
-        compare::Compare(recs[k].cloud, *group->reference, compare_options, name);
-    const ModeAccuracy m = MeasureAccuracy(name, cmp, group->visible);
-    accuracy.push_back(ModeAccuracyToJson(m));
-  }
+  for (const ModeAccuracy& m : measured) accuracy.push_back(ModeAccuracyToJson(m));
   const auto t5 = clock();
   timing["compare_s"] = seconds(t4, t5);
+  stage_cpu("compare_cpu_s");
   timing["total_s"] = seconds(t0, t5);
   timing["cpu_s"] = ProcessCpuSeconds() - cpu0;
   return {{"format", kResultFormat},    {"version", kVersion}, {"id", job.at("id")},
@@ -652,7 +681,9 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
     csv += m;
   }
   csv += "\n";
-  std::string timings = "id,setup_s,render_s,decode_s,reconstruct_s,compare_s,total_s,cpu_s\n";
+  std::string timings =
+      "id,setup_s,render_s,decode_s,reconstruct_s,compare_s,total_s,cpu_s,setup_cpu_s,render_cpu_s,"
+      "decode_cpu_s,reconstruct_cpu_s,compare_cpu_s\n";
   json merged = {
       {"format", "slshadow-sweep-results"},      {"version", kVersion}, {"study", plan.at("study")},
       {"study_config", plan.at("study_config")}, {"axes", axes},        {"jobs", json::array()}};
@@ -677,9 +708,10 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
     const json& t = r.at("timing");
     timings += id;
     for (const char* k :
-         {"setup_s", "render_s", "decode_s", "reconstruct_s", "compare_s", "total_s", "cpu_s"}) {
+         {"setup_s", "render_s", "decode_s", "reconstruct_s", "compare_s", "total_s", "cpu_s",
+          "setup_cpu_s", "render_cpu_s", "decode_cpu_s", "reconstruct_cpu_s", "compare_cpu_s"}) {
       timings += ',';
-      timings += CsvField(t.at(k));
+      timings += t.contains(k) ? CsvField(t.at(k)) : std::string();  // older results: empty
     }
     timings += "\n";
     merged["jobs"].push_back(

@@ -1,7 +1,7 @@
 // Sweeps (shadow/sweep.h): plan, shards, merge. Oracles: the merged result of one process against
-// that of shards run in another order and through GNU parallel (byte for byte); resumption runs
-// only missing jobs; the accuracy of noisy scans of the demo part against its ground truth; bad
-// input.
+// that of shards run in another order, through GNU parallel and through a single-node Slurm (byte
+// for byte); resumption runs only missing jobs; the accuracy of noisy scans of the demo part
+// against its ground truth; bad input.
 #include "shadow/sweep.h"
 
 #include "core/error.h"
@@ -16,6 +16,8 @@
 #include <fstream>
 #include <sstream>
 #include <string>
+
+#include <sys/wait.h>
 
 namespace slshadow::workflow {
 namespace {
@@ -179,6 +181,41 @@ TEST(Sweep, GnuParallelShardsMergeToTheOneProcessResult) {
             ReadTextFile(tmp / "par_result/results.json"));
   const std::string joblog = ReadTextFile(tmp / "joblog");
   EXPECT_EQ(std::count(joblog.begin(), joblog.end(), '\n'), 1 + 3) << joblog;  // header + 3 shards
+}
+
+// The small study through a real single-node Slurm (Debian's slurm-wlm and munge), configured
+// and started by tests/shadow/slurm_sweep.sh in a temporary folder inside a private network
+// namespace (loopback only) and stopped afterwards: the shards as an `sbatch --array`, the merge as
+// a job depending on them (afterok). Equal byte for byte to the one-process result. Skips, naming
+// what failed, when Slurm or MUNGE cannot start here.
+TEST(Sweep, SlurmArrayShardsAndDependentMergeGiveTheOneProcessResult) {
+  if (std::system("unshare -n true > /dev/null 2>&1") != 0) {
+    GTEST_SKIP() << "cannot make a private network namespace (unshare -n) for the Slurm daemons";
+  }
+  TempDir tmp;
+  WriteSmallStudy(tmp / "study.yaml");
+  PlanSweep(tmp / "study.yaml", tmp / "one");
+  RunSweepShard(tmp / "one", Shard(0, 1));
+  MergeSweep(tmp / "one", tmp / "one_result");
+
+  PlanSweep(tmp / "study.yaml", tmp / "slurm");
+  const fs::path log = tmp / "slurm_sweep.log";
+  const std::string cmd = "unshare -n bash " +
+                          (SourceDir() / "tests/shadow/slurm_sweep.sh").string() + " " +
+                          SLSHADOW_BINARY + " " + (tmp / "slurm").string() + " " +
+                          (tmp / "slurm_result").string() + " " + (tmp / "slurm_work").string() +
+                          " 2 > " + log.string() + " 2>&1";
+  const int status = std::system(cmd.c_str());
+  const int code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  const std::string output = ReadTextFile(log);
+  if (code == 77) GTEST_SKIP() << output;
+  ASSERT_EQ(code, 0) << cmd << "\n" << output;
+  EXPECT_EQ(ReadTextFile(tmp / "one_result/results.csv"),
+            ReadTextFile(tmp / "slurm_result/results.csv"));
+  EXPECT_EQ(ReadTextFile(tmp / "one_result/results.json"),
+            ReadTextFile(tmp / "slurm_result/results.json"));
+  // Each array task took its thread budget from Slurm's allocation (--cpus-per-task=1).
+  EXPECT_EQ(output, "threads: 1 (SLURM_CPUS_PER_TASK)\nthreads: 1 (SLURM_CPUS_PER_TASK)\n");
 }
 
 void ExpectPlanError(const TempDir& tmp, const std::string& yaml, const std::string& needle) {
