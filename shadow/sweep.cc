@@ -14,16 +14,17 @@
 #include "plot/plot.h"
 #include "shadow/scan_pipeline.h"
 #include "shadow/sweep_reuse.h"
+#include <tbb/parallel_for.h>
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
+#include <limits>
 #include <map>
 #include <memory>
 #include <optional>
 #include <set>
-
-#include <tbb/parallel_for.h>
 
 namespace slshadow::workflow {
 namespace fs = std::filesystem;
@@ -39,6 +40,12 @@ constexpr int kVersion = 1;
 // The top-level keys of a job an axis or a `set` entry may write into.
 const std::vector<std::string> kSettable = {"scene",  "rig",         "patterns",
                                             "decode", "reconstruct", "compare"};
+
+// The figures a study's `curves` may chart and limit. Error figures break upwards (above the
+// limit), coverage figures downwards.
+const std::vector<std::string> kCurveMetrics = {"p95_mm", "rms_mm", "outlier_fraction", "coverage",
+                                                "visible_coverage"};
+bool BreaksAbove(const std::string& metric) { return metric.find("coverage") == std::string::npos; }
 
 std::string JobName(int id) {
   char buf[32];
@@ -162,7 +169,7 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
   const ConfigNode study = ConfigNode::LoadFile(study_file);
   const fs::path study_dir = fs::absolute(study_file).parent_path();
   study.RejectUnknownKeys({"format", "version", "name", "description", "scene", "rig", "patterns",
-                           "modes", "decode", "reconstruct", "compare", "set", "axes"});
+                           "modes", "decode", "reconstruct", "compare", "set", "axes", "curves"});
   if (study["format"].AsString() != kStudyFormat)
     study["format"].Fail(std::string("must be ") + kStudyFormat);
   if (study["version"].AsInt() != kVersion) study["version"].Fail("must be 1");
@@ -253,6 +260,23 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
       if (axis.values.empty()) n.Fail("axis '" + axis.name + "' has no values");
       summary.axes.push_back(axis.name);
       axes.push_back(std::move(axis));
+    }
+  }
+  if (study.Has("curves")) {
+    const ConfigNode c = study["curves"];
+    c.RejectUnknownKeys({"x", "limits"});
+    const std::string x = c["x"].AsString();
+    const auto it =
+        std::find_if(axes.begin(), axes.end(), [&](const Axis& a) { return a.name == x; });
+    if (it == axes.end()) c["x"].Fail("'" + x + "' is not an axis of the study");
+    for (const json& v : it->labels) {
+      if (!v.is_number())
+        c["x"].Fail("axis '" + x + "' has a value that is not a number: " + v.dump());
+    }
+    if (c.Has("limits")) {
+      const ConfigNode limits = c["limits"];
+      limits.RejectUnknownKeys(kCurveMetrics);
+      for (const std::string& k : limits.Keys()) limits[k].AsDouble();
     }
   }
   size_t total = 1;
@@ -477,11 +501,21 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
       compare::CompareOptionsFromConfig(node("compare"));
   // The modes' measurements are independent and partly serial: run them side by side.
   std::vector<ModeAccuracy> measured(modes.size());
+  // A method that reconstructs nothing (it broke) has no error figures: null, and coverage 0.
   tbb::parallel_for(size_t{0}, modes.size(), [&](size_t k) {
+    measured[k].mode = ToString(modes[k]);
+    if (recs[k].cloud.empty()) return;
     measured[k] = group->scorer->Measure(recs[k].cloud, compare_options, ToString(modes[k]));
   });
   json accuracy = json::array();
-  for (const ModeAccuracy& m : measured) accuracy.push_back(ModeAccuracyToJson(m));
+  for (const ModeAccuracy& m : measured) {
+    json a = ModeAccuracyToJson(m);
+    if (m.points == 0) {
+      for (const char* k : {"mean_mm", "rms_mm", "p95_mm", "max_mm", "outlier_fraction"})
+        a[k] = nullptr;
+    }
+    accuracy.push_back(a);
+  }
   const auto t5 = clock();
   timing["compare_s"] = seconds(t4, t5);
   stage_cpu("compare_cpu_s");
@@ -554,6 +588,8 @@ std::string CsvField(const json& v, int digits = 10) {
   std::string s;
   if (v.is_string()) {
     s = v.get<std::string>();
+  } else if (v.is_null()) {
+    s = "";  // a figure a job could not have (e.g. the error of an empty cloud)
   } else if (v.is_number_float()) {
     char buf[64];
     std::snprintf(buf, sizeof(buf), "%.*g", digits, v.get<double>());
@@ -592,6 +628,7 @@ void MarkFront(std::vector<FrontPoint>& points) {
   }
 }
 
+// The chart as `path`.png and `path`.svg (the same drawing), each written atomically.
 void WriteFrontChart(const fs::path& path, const std::vector<FrontPoint>& points,
                      const std::string& study) {
   double xmax = 0, ymax = 0;
@@ -600,40 +637,157 @@ void WriteFrontChart(const fs::path& path, const std::vector<FrontPoint>& points
     ymax = std::max(ymax, p.rms_mm);
   }
   const auto lock = plot::LockPlplot();
-  WriteFileAtomically(path, [&](const fs::path& tmp) {
-    auto pls = plot::OpenPng(tmp, 1000, 700, {{40, 90, 200}, {200, 60, 0}, {150, 150, 150}});
-    pls->env(0, xmax * 1.1 + 1e-9, 0, ymax * 1.15 + 1e-12, 0, 0);
-    pls->lab("decode (cameras the mode reads) + reconstruct time (s)", "RMS deviation (mm)",
-             (study + ": time against error, Pareto front per mode").c_str());
-    std::vector<std::string> modes;
-    for (const auto& p : points) {
-      if (std::find(modes.begin(), modes.end(), p.mode) == modes.end()) modes.push_back(p.mode);
-    }
-    for (size_t m = 0; m < modes.size(); ++m) {
-      std::vector<FrontPoint> front;
-      pls->col0(static_cast<PLINT>(2 + m % 2));
+  for (const char* ext : {".png", ".svg"}) {
+    fs::path file = path;
+    file += ext;
+    WriteFileAtomically(file, [&](const fs::path& tmp) {
+      auto pls =
+          std::string(ext) == ".png"
+              ? plot::OpenPng(tmp, 1000, 700, {{40, 90, 200}, {200, 60, 0}, {150, 150, 150}})
+              : plot::OpenSvg(tmp, 1000, 700, {{40, 90, 200}, {200, 60, 0}, {150, 150, 150}});
+      pls->env(0, xmax * 1.1 + 1e-9, 0, ymax * 1.15 + 1e-12, 0, 0);
+      pls->lab("decode (cameras the mode reads) + reconstruct time (s)", "RMS deviation (mm)",
+               (study + ": time against error, Pareto front per mode").c_str());
+      std::vector<std::string> modes;
       for (const auto& p : points) {
-        if (p.mode != modes[m]) continue;
-        PLFLT x = p.time_s, y = p.rms_mm;
-        pls->ssym(0, p.on_front ? 2.5 : 1.0);
-        pls->poin(1, &x, &y, p.on_front ? 17 : 4);
-        if (p.on_front) front.push_back(p);
+        if (std::find(modes.begin(), modes.end(), p.mode) == modes.end()) modes.push_back(p.mode);
       }
-      std::sort(front.begin(), front.end(),
-                [](const auto& a, const auto& b) { return a.time_s < b.time_s; });
-      std::vector<PLFLT> xs, ys;
-      for (const auto& p : front) {
-        xs.push_back(p.time_s);
-        ys.push_back(p.rms_mm);
-        pls->schr(0, 0.6);
-        pls->ptex(p.time_s, p.rms_mm, 1, 0, -0.1, (" " + p.label).c_str());
-        pls->schr(0, 1.0);
+      for (size_t m = 0; m < modes.size(); ++m) {
+        std::vector<FrontPoint> front;
+        pls->col0(static_cast<PLINT>(2 + m % 2));
+        for (const auto& p : points) {
+          if (p.mode != modes[m]) continue;
+          PLFLT x = p.time_s, y = p.rms_mm;
+          pls->ssym(0, p.on_front ? 2.5 : 1.0);
+          pls->poin(1, &x, &y, p.on_front ? 17 : 4);
+          if (p.on_front) front.push_back(p);
+        }
+        std::sort(front.begin(), front.end(),
+                  [](const auto& a, const auto& b) { return a.time_s < b.time_s; });
+        std::vector<PLFLT> xs, ys;
+        for (const auto& p : front) {
+          xs.push_back(p.time_s);
+          ys.push_back(p.rms_mm);
+          pls->schr(0, 0.6);
+          pls->ptex(p.time_s, p.rms_mm, 1, 0, -0.1, (" " + p.label).c_str());
+          pls->schr(0, 1.0);
+        }
+        if (xs.size() > 1) pls->line(static_cast<PLINT>(xs.size()), xs.data(), ys.data());
+        pls->mtex("t", -1.5 - 1.5 * static_cast<double>(m), 0.98, 1.0,
+                  (modes[m] + " (filled: on the front)").c_str());
       }
-      if (xs.size() > 1) pls->line(static_cast<PLINT>(xs.size()), xs.data(), ys.data());
-      pls->mtex("t", -1.5 - 1.5 * static_cast<double>(m), 0.98, 1.0,
-                (modes[m] + " (filled: on the front)").c_str());
+    });
+  }
+}
+
+// The axis values of a job as a label ("graycode_phase 4 midpoint"), `skip` left out; files axes
+// by their file's stem, not their path.
+std::string ParamsLabel(const json& params, const std::vector<std::string>& axes,
+                        const std::string& skip) {
+  std::string label;
+  for (const auto& a : axes) {
+    if (a == skip) continue;
+    if (!label.empty()) label += ' ';
+    const json& v = params.at(a);
+    label += v.is_string() && v.get<std::string>().find_first_of("/.") != std::string::npos
+                 ? fs::path(v.get<std::string>()).stem().string()
+                 : CsvField(v);
+  }
+  return label;
+}
+
+// One curve: a metric of one mode and one combination of the other axes, against the x axis.
+struct Curve {
+  std::string series, mode;
+  std::vector<std::pair<double, json>> points;  // (x, the mode's accuracy), by increasing x
+};
+
+// Where a curve first crosses `limit`: linearly interpolated between the last x inside and the
+// first x beyond; "at_first" when the first x is already beyond, "never" when no x is.
+struct BreakPoint {
+  std::string status;
+  double x = 0;
+};
+// A figure of a mode's accuracy; NaN when the job has none (null: nothing was reconstructed).
+double Figure(const json& accuracy, const std::string& metric) {
+  const json& v = accuracy.at(metric);
+  return v.is_null() ? std::numeric_limits<double>::quiet_NaN() : v.get<double>();
+}
+
+// A curve is beyond its limit where the figure is past it or missing (no cloud: broken). The break
+// is linearly interpolated between the last x inside and the first beyond when both figures exist,
+// else at that first x beyond.
+BreakPoint FindBreak(const Curve& c, const std::string& metric, double limit) {
+  const bool above = BreaksAbove(metric);
+  const auto beyond = [&](double v) { return std::isnan(v) || (above ? v > limit : v < limit); };
+  for (size_t i = 0; i < c.points.size(); ++i) {
+    const double v = Figure(c.points[i].second, metric);
+    if (!beyond(v)) continue;
+    if (i == 0) return {"at_first", c.points[0].first};
+    const double x0 = c.points[i - 1].first, x1 = c.points[i].first;
+    const double v0 = Figure(c.points[i - 1].second, metric);
+    const double t = !std::isnan(v) && v != v0 ? (limit - v0) / (v - v0) : 1.0;
+    return {"broke", x0 + std::clamp(t, 0.0, 1.0) * (x1 - x0)};
+  }
+  return {"never", 0};
+}
+
+// curves_<metric>.png / .svg for each metric: every curve, the limit as a dashed line.
+void WriteCurveCharts(const fs::path& out_dir, const std::vector<Curve>& curves,
+                      const std::string& x_axis, const std::vector<std::string>& metrics,
+                      const json& limits, const std::string& study) {
+  const auto lock = plot::LockPlplot();
+  const std::initializer_list<std::array<int, 3>> palette = {
+      {40, 90, 200}, {200, 60, 0}, {30, 150, 60}, {150, 40, 160}, {120, 120, 120}, {220, 160, 0}};
+  for (const std::string& metric : metrics) {
+    double xmin = 1e300, xmax = -1e300, ymax = 0;
+    for (const auto& c : curves) {
+      for (const auto& [x, m] : c.points) {
+        xmin = std::min(xmin, x);
+        xmax = std::max(xmax, x);
+        const double v = Figure(m, metric);
+        if (!std::isnan(v)) ymax = std::max(ymax, v);
+      }
     }
-  });
+    if (limits.contains(metric)) ymax = std::max(ymax, limits.at(metric).get<double>());
+    if (!(xmax > xmin)) xmax = xmin + 1;
+    const double ytop = metric.find("coverage") != std::string::npos ? 1.05 : ymax * 1.15 + 1e-12;
+    for (const char* ext : {".png", ".svg"}) {
+      const fs::path file = out_dir / ("curves_" + metric + ext);
+      WriteFileAtomically(file, [&](const fs::path& tmp) {
+        auto pls = std::string(ext) == ".png" ? plot::OpenPng(tmp, 1000, 700, palette)
+                                              : plot::OpenSvg(tmp, 1000, 700, palette);
+        pls->env(xmin, xmax, 0, ytop, 0, 0);
+        pls->lab(x_axis.c_str(), metric.c_str(),
+                 (study + ": " + metric + " against " + x_axis).c_str());
+        if (limits.contains(metric)) {
+          const PLFLT lx[2] = {xmin, xmax};
+          const PLFLT ly[2] = {limits.at(metric).get<double>(), limits.at(metric).get<double>()};
+          pls->lsty(3);
+          pls->line(2, lx, ly);
+          pls->lsty(1);
+        }
+        for (size_t k = 0; k < curves.size(); ++k) {
+          const Curve& c = curves[k];
+          std::vector<PLFLT> xs, ys;
+          for (const auto& [x, m] : c.points) {
+            if (std::isnan(Figure(m, metric))) continue;  // nothing reconstructed: no point
+            xs.push_back(x);
+            ys.push_back(Figure(m, metric));
+          }
+          pls->col0(static_cast<PLINT>(2 + k % 6));
+          pls->lsty(c.mode == "stereo" ? 2 : 1);
+          if (!xs.empty()) pls->line(static_cast<PLINT>(xs.size()), xs.data(), ys.data());
+          if (!xs.empty()) pls->poin(static_cast<PLINT>(xs.size()), xs.data(), ys.data(), 17);
+          pls->lsty(1);
+          pls->schr(0, 0.7);
+          pls->mtex("t", -1.5 - 1.3 * static_cast<double>(k), 0.02, 0.0,
+                    (c.series.empty() ? c.mode : c.series + ", " + c.mode).c_str());
+          pls->schr(0, 1.0);
+        }
+      });
+    }
+  }
 }
 
 }  // namespace
@@ -728,17 +882,10 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
   // the study's) against RMS, per mode, with the Pareto front. Measured times: not reproducible.
   std::vector<FrontPoint> points;
   for (const auto& r : results) {
-    std::string label;
-    for (const auto& a : axes) {
-      if (!label.empty()) label += ' ';
-      const json& v = r.at("params").at(a);
-      // Files axes: the file's stem (graycode_phase), not its path.
-      label += v.is_string() && v.get<std::string>().find_first_of("/.") != std::string::npos
-                   ? fs::path(v.get<std::string>()).stem().string()
-                   : CsvField(v);
-    }
+    const std::string label = ParamsLabel(r.at("params"), axes, "");
     const json& t = r.at("timing");
     for (const auto& m : r.at("modes")) {
+      if (m.at("rms_mm").is_null()) continue;  // nothing reconstructed: not on the chart
       FrontPoint p;
       p.id = JobName(r.at("id").get<int>());
       p.mode = m.at("mode").get<std::string>();
@@ -756,7 +903,55 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
     if (p.on_front) summary.front.push_back(p.mode + ": " + p.id + " (" + p.label + ")");
   }
   WriteTextFileAtomically(out_dir / "pareto.csv", front_csv);
-  WriteFrontChart(out_dir / "time_vs_rms.png", points, plan.at("study").get<std::string>());
+  WriteFrontChart(out_dir / "time_vs_rms", points, plan.at("study").get<std::string>());
+
+  // Curves against one axis and break points (study key `curves`): from the accuracy figures
+  // only, so as reproducible as results.csv.
+  const json& config = plan.at("study_config");
+  if (config.contains("curves")) {
+    const json& spec = config.at("curves");
+    const std::string x_axis = spec.at("x").get<std::string>();
+    const json limits = spec.value("limits", json::object());
+    std::vector<std::string> metrics;
+    for (const auto& m : kCurveMetrics) {
+      if (limits.contains(m)) metrics.push_back(m);
+    }
+    if (metrics.empty()) metrics = {"p95_mm", "visible_coverage"};
+    std::vector<Curve> curves;
+    std::map<std::string, size_t> index;
+    for (const auto& r : results) {
+      const std::string series = ParamsLabel(r.at("params"), axes, x_axis);
+      const double x = r.at("params").at(x_axis).get<double>();
+      for (const auto& m : r.at("modes")) {
+        const std::string mode = m.at("mode").get<std::string>();
+        const auto it = index.emplace(series + '\n' + mode, curves.size()).first;
+        if (it->second == curves.size()) curves.push_back({series, mode, {}});
+        curves[it->second].points.emplace_back(x, m);
+      }
+    }
+    for (auto& c : curves) {
+      std::stable_sort(c.points.begin(), c.points.end(),
+                       [](const auto& a, const auto& b) { return a.first < b.first; });
+    }
+    std::string breaks = "series,mode,metric,limit,status," + CsvField(x_axis) + "\n";
+    for (const auto& c : curves) {
+      for (const auto& metric : metrics) {
+        if (!limits.contains(metric)) continue;
+        const double limit = limits.at(metric).get<double>();
+        const BreakPoint b = FindBreak(c, metric, limit);
+        breaks += CsvField(c.series) + ',' + c.mode + ',' + metric + ',' + CsvField(json(limit)) +
+                  ',' + b.status + ',' + (b.status == "never" ? "" : CsvField(json(b.x))) + '\n';
+        summary.break_points.push_back(
+            (c.series.empty() ? "" : c.series + ", ") + c.mode + ": " + metric +
+            (BreaksAbove(metric) ? " > " : " < ") + CsvField(json(limit)) + " " +
+            (b.status == "never" ? "nowhere in the sweep"
+                                 : (b.status == "at_first" ? "already at " : "at ") + x_axis +
+                                       " = " + CsvField(json(b.x), 4)));
+      }
+    }
+    WriteTextFileAtomically(out_dir / "break_points.csv", breaks);
+    WriteCurveCharts(out_dir, curves, x_axis, metrics, limits, plan.at("study").get<std::string>());
+  }
   summary.jobs = n;
   summary.out_dir = out_dir;
   return summary;

@@ -15,20 +15,21 @@
 // checks both against those oracles.
 #pragma once
 
-#include <string>
-#include <vector>
-
-#include <Eigen/Core>
-#include <nlohmann/json.hpp>
-#include <opencv2/core.hpp>
-
 #include "compare/compare.h"
 #include "compare/mesh_distance.h"
 #include "core/mesh.h"
 #include "core/point_cloud.h"
-#include "shadow/scan_pipeline.h"
 #include "sim/scene.h"
 #include "sim/simulate.h"
+
+#include "shadow/scan_pipeline.h"
+#include <Eigen/Core>
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+
+#include <memory>
+#include <string>
+#include <vector>
 
 namespace slshadow::workflow {
 
@@ -62,7 +63,9 @@ class NoiseFreeImages {
   void Render(const Scene& scene, std::vector<std::vector<cv::Mat>>* images) const;
 
   int num_cameras() const { return static_cast<int>(irradiance_.size()); }
-  int num_patterns() const { return irradiance_.empty() ? 0 : static_cast<int>(irradiance_[0].size()); }
+  int num_patterns() const {
+    return irradiance_.empty() ? 0 : static_cast<int>(irradiance_[0].size());
+  }
 
  private:
   std::vector<std::vector<cv::Mat>> irradiance_;  // [camera][pattern], CV_32FC1
@@ -76,6 +79,7 @@ class GroundTruthScorer {
   // `visible`: the lit visible surface (LitVisibleSurface). `what` names the surface in errors.
   GroundTruthScorer(TriangleMesh surface, std::vector<Eigen::Vector3d> visible,
                     const std::string& what);
+  ~GroundTruthScorer();
 
   // MeasureAccuracy(mode, compare::Compare(cloud, reference, options, mode), visible), the same
   // doubles, for options without registration, M3C2 or artefacts (what a sweep job's compare
@@ -90,6 +94,9 @@ class GroundTruthScorer {
   compare::Reference reference_;
   compare::MeshDistance distance_;
   std::vector<Eigen::Vector3d> visible_;
+  // The surface samples and the visible points in one uniform grid, for both coverages at once.
+  struct SampleGrid;
+  std::unique_ptr<const SampleGrid> samples_;
 };
 
 }  // namespace slshadow::workflow

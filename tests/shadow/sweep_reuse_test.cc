@@ -7,13 +7,14 @@
 #include "core/error.h"
 #include "patterns/codec.h"
 #include "reconstruct/reconstruct.h"
-#include "shadow/scan_pipeline.h"
 
+#include "shadow/scan_pipeline.h"
 #include "tests/testing/temp_dir.h"
 #include <gtest/gtest.h>
 
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace slshadow::workflow {
@@ -136,15 +137,19 @@ TEST(GroundTruthScorer, EqualsCompareThenMeasureAccuracy) {
     decoded.cameras.push_back(f.rig.cameras[c].name);
     decoded.maps.push_back(DecodePatterns(f.spec, images[c], DecodeOptions{}));
   }
-  const std::vector<ReconstructMode> modes = {ReconstructMode::kProjector, ReconstructMode::kStereo};
+  const std::vector<ReconstructMode> modes = {ReconstructMode::kProjector,
+                                              ReconstructMode::kStereo};
   const auto recs = ReconstructModes(decoded, modes, ReconstructOptions{});
   const TriangleMesh surface = SceneSurface(f.scene, "demo");
   const std::vector<Eigen::Vector3d> visible = LitVisibleSurface(sim.geometry(0));
   const GroundTruthScorer scorer(surface, visible, "truth");
   const compare::Reference reference = compare::ReferenceFromMesh(surface, "truth");
-  for (double threshold : {0.1, 0.5}) {
+  // The automatic coverage radius, and one of several grid cells.
+  for (const auto& [threshold, radius] :
+       std::vector<std::pair<double, double>>{{0.1, 0.0}, {0.5, 0.0}, {0.5, 6.0}}) {
     compare::CompareOptions options;
     options.threshold_mm = threshold;
+    options.coverage_radius_mm = radius;
     for (size_t k = 0; k < modes.size(); ++k) {
       const std::string mode = ToString(modes[k]);
       ASSERT_GT(recs[k].cloud.size(), 10000u);
@@ -152,7 +157,7 @@ TEST(GroundTruthScorer, EqualsCompareThenMeasureAccuracy) {
       const ModeAccuracy want =
           MeasureAccuracy(mode, compare::Compare(recs[k].cloud, reference, options, mode), visible);
       EXPECT_EQ(ModeAccuracyToJson(got).dump(), ModeAccuracyToJson(want).dump())
-          << mode << " threshold " << threshold;
+          << mode << " threshold " << threshold << " radius " << radius;
       EXPECT_GT(got.coverage, 0.1);
       EXPECT_GT(got.visible_coverage, 0.5);
       EXPECT_LT(got.rms_mm, threshold * 2);

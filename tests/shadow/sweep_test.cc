@@ -10,14 +10,16 @@
 #include "tests/testing/temp_dir.h"
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
+#include <sys/wait.h>
 
 #include <algorithm>
+#include <cstdio>
 #include <cstdlib>
 #include <fstream>
+#include <map>
 #include <sstream>
 #include <string>
-
-#include <sys/wait.h>
+#include <vector>
 
 namespace slshadow::workflow {
 namespace {
@@ -200,11 +202,10 @@ TEST(Sweep, SlurmArrayShardsAndDependentMergeGiveTheOneProcessResult) {
 
   PlanSweep(tmp / "study.yaml", tmp / "slurm");
   const fs::path log = tmp / "slurm_sweep.log";
-  const std::string cmd = "unshare -n bash " +
-                          (SourceDir() / "tests/shadow/slurm_sweep.sh").string() + " " +
-                          SLSHADOW_BINARY + " " + (tmp / "slurm").string() + " " +
-                          (tmp / "slurm_result").string() + " " + (tmp / "slurm_work").string() +
-                          " 2 > " + log.string() + " 2>&1";
+  const std::string cmd =
+      "unshare -n bash " + (SourceDir() / "tests/shadow/slurm_sweep.sh").string() + " " +
+      SLSHADOW_BINARY + " " + (tmp / "slurm").string() + " " + (tmp / "slurm_result").string() +
+      " " + (tmp / "slurm_work").string() + " 2 > " + log.string() + " 2>&1";
   const int status = std::system(cmd.c_str());
   const int code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   const std::string output = ReadTextFile(log);
@@ -216,6 +217,79 @@ TEST(Sweep, SlurmArrayShardsAndDependentMergeGiveTheOneProcessResult) {
             ReadTextFile(tmp / "slurm_result/results.json"));
   // Each array task took its thread budget from Slurm's allocation (--cpus-per-task=1).
   EXPECT_EQ(output, "threads: 1 (SLURM_CPUS_PER_TASK)\nthreads: 1 (SLURM_CPUS_PER_TASK)\n");
+}
+
+// Study 2's machinery on three read-noise levels up to one where stereo reconstructs nothing: the
+// shard does not stop (graceful failure: the empty cloud's figures are null, no NaN anywhere), the
+// error grows with the noise, and each break point is where the curve crosses its limit, linearly
+// interpolated (recomputed here from results.json).
+TEST(Sweep, CurvesAndBreakPointsAgainstOneAxis) {
+  TempDir tmp;
+  std::ofstream(tmp / "study.yaml")
+      << "format: slshadow-study\nversion: 1\nname: curves\n"
+      << "rig: " << (SourceDir() / "config/studies/quarter_demo_rig.yaml").string() << "\n"
+      << "patterns: " << (SourceDir() / "config/patterns/multi_frequency.yaml").string() << "\n"
+      << "modes: [projector, stereo]\n"
+         "compare: {threshold_mm: 0.5}\n"
+         "set:\n  scene.layers.noise: {full_well_e: 10000, read_noise_e: 6, seed: 1}\n"
+         "axes:\n"
+         "  - {name: read_noise_e, set: scene.layers.noise.read_noise_e, values: [5, 300, 1500]}\n"
+         "curves: {x: read_noise_e, limits: {p95_mm: 0.5, visible_coverage: 0.8}}\n";
+  PlanSweep(tmp / "study.yaml", tmp / "jobs");
+  EXPECT_EQ(RunSweepShard(tmp / "jobs", Shard(0, 1)).ran, 3);
+  const SweepMergeSummary merged = MergeSweep(tmp / "jobs", tmp / "result");
+  EXPECT_EQ(merged.break_points.size(), 4u);  // 2 modes x 2 limits
+  const std::string json_text = ReadTextFile(tmp / "result/results.json");
+  const std::string csv = ReadTextFile(tmp / "result/results.csv");
+  for (const std::string* text : {&json_text, &csv}) {
+    EXPECT_EQ(text->find("nan"), std::string::npos);
+    EXPECT_EQ(text->find("inf"), std::string::npos);
+  }
+  const nlohmann::json jobs = nlohmann::json::parse(json_text)["jobs"];
+  ASSERT_EQ(jobs.size(), 3u);
+  // figure[mode][job]
+  std::map<std::string, std::vector<nlohmann::json>> by_mode;
+  for (const auto& job : jobs) {
+    for (const auto& m : job["modes"]) by_mode[m["mode"].get<std::string>()].push_back(m);
+  }
+  const double xs[3] = {5, 300, 1500};
+  const std::string breaks = ReadTextFile(tmp / "result/break_points.csv");
+  for (const auto& [mode, figures] : by_mode) {
+    ASSERT_EQ(figures.size(), 3u);
+    ASSERT_FALSE(figures[0]["p95_mm"].is_null()) << mode;
+    ASSERT_FALSE(figures[1]["p95_mm"].is_null()) << mode;
+    EXPECT_GT(figures[1]["p95_mm"].get<double>(), figures[0]["p95_mm"].get<double>()) << mode;
+    EXPECT_LT(figures[0]["p95_mm"].get<double>(), 0.5) << mode;
+    for (const auto& f : figures) {
+      if (f["points"].get<int>() == 0) {
+        EXPECT_TRUE(f["p95_mm"].is_null());
+        EXPECT_EQ(f["visible_coverage"].get<double>(), 0.0);
+      }
+    }
+    // The p95 break: the first x whose p95 is beyond 0.5 or missing.
+    size_t i = 1;
+    while (i < 3 && !figures[i]["p95_mm"].is_null() && figures[i]["p95_mm"].get<double>() <= 0.5)
+      ++i;
+    std::string expected = mode + ",p95_mm,0.5,";
+    if (i == 3) {
+      expected += "never,";
+    } else {
+      const double v0 = figures[i - 1]["p95_mm"].get<double>();
+      const double t = figures[i]["p95_mm"].is_null()
+                           ? 1.0
+                           : (0.5 - v0) / (figures[i]["p95_mm"].get<double>() - v0);
+      char buf[64];
+      std::snprintf(buf, sizeof(buf), "%.10g", xs[i - 1] + t * (xs[i] - xs[i - 1]));
+      expected += std::string("broke,") + buf;
+    }
+    EXPECT_NE(breaks.find(expected + "\n"), std::string::npos) << expected << "\n" << breaks;
+  }
+  // The highest noise breaks stereo entirely here: the case above that must not crash the shard.
+  EXPECT_EQ(by_mode["stereo"][2]["points"].get<int>(), 0) << by_mode["stereo"][2].dump();
+  for (const char* chart : {"curves_p95_mm.png", "curves_p95_mm.svg", "curves_visible_coverage.png",
+                            "time_vs_rms.svg"}) {
+    EXPECT_GT(fs::file_size(tmp / "result" / chart), 1000u) << chart;
+  }
 }
 
 void ExpectPlanError(const TempDir& tmp, const std::string& yaml, const std::string& needle) {
@@ -250,6 +324,14 @@ TEST(Sweep, BadStudiesAreRejectedNamingFileAndFieldAndWriteNothing) {
       "bogus");
   ExpectPlanError(tmp, rig + "axes:\n  - {name: g, set: decode.shadow_threshold, values: [-3]}\n",
                   "shadow_threshold");
+  const std::string noise_axis =
+      "axes:\n  - {name: r, set: scene.layers.noise.read_noise_e, values: [5, 50]}\n";
+  ExpectPlanError(tmp, rig + noise_axis + "curves: {x: q}\n", "'q' is not an axis");
+  ExpectPlanError(tmp, rig + noise_axis + "curves: {x: r, limits: {p99_mm: 1}}\n", "p99_mm");
+  ExpectPlanError(tmp,
+                  rig + "axes:\n  - {name: m, set: reconstruct.method, values: [midpoint]}\n" +
+                      "curves: {x: m}\n",
+                  "not a number");
 
   WriteSmallStudy(tmp / "study.yaml");
   fs::create_directories(tmp / "exists");
