@@ -75,6 +75,10 @@ int RunSweep(int argc, char** argv) {
       std::printf("Break points (%s/break_points.csv, curves_*.png):\n", out.c_str());
       for (const auto& b : s.break_points) std::printf("  %s\n", b.c_str());
     }
+    if (!s.effects.empty()) {
+      std::printf("Effects against the baseline (%s/effects.csv):\n", out.c_str());
+      for (const auto& e : s.effects) std::printf("  %s\n", e.c_str());
+    }
   }
   return EXIT_SUCCESS;
 }

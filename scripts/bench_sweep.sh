@@ -9,10 +9,12 @@
 # usage: scripts/bench_sweep.sh [N=100] [SLSHADOW=build/apps/slshadow]
 set -euo pipefail
 N=${1:-100}
-BIN=$(realpath "${2:-build/apps/slshadow}")
 SRC=$(cd "$(dirname "$0")/.." && pwd)
 WORK=$(mktemp -d)
 trap 'rm -rf "$WORK"' EXIT
+# A copy: a rebuild during the run must not change (or remove) the binary under measurement.
+cp "$(realpath "${2:-build/apps/slshadow}")" "$WORK/slshadow"
+BIN="$WORK/slshadow"
 sed "s/count: 100/count: $N/" "$SRC/config/studies/noise_demo.yaml" > "$WORK/study.yaml"
 threads=()
 if [ -n "${THREADS:-}" ]; then threads=(--threads "$THREADS"); fi

@@ -169,7 +169,8 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
   const ConfigNode study = ConfigNode::LoadFile(study_file);
   const fs::path study_dir = fs::absolute(study_file).parent_path();
   study.RejectUnknownKeys({"format", "version", "name", "description", "scene", "rig", "patterns",
-                           "modes", "decode", "reconstruct", "compare", "set", "axes", "curves"});
+                           "modes", "decode", "reconstruct", "compare", "set", "axes", "curves",
+                           "effects"});
   if (study["format"].AsString() != kStudyFormat)
     study["format"].Fail(std::string("must be ") + kStudyFormat);
   if (study["version"].AsInt() != kVersion) study["version"].Fail("must be 1");
@@ -211,9 +212,13 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
   base["compare"] = compare::CompareOptionsToJson(
       study.Has("compare") ? compare::CompareOptionsFromConfig(study["compare"])
                            : compare::CompareOptions{});
+  std::vector<std::pair<json::json_pointer, json>> set_entries;
   if (study.Has("set")) {
     const ConfigNode set = study["set"];
-    for (const std::string& key : set.Keys()) base[SetPath(key, set[key])] = set[key].json();
+    for (const std::string& key : set.Keys()) {
+      set_entries.emplace_back(SetPath(key, set[key]), set[key].json());
+      base[set_entries.back().first] = set_entries.back().second;
+    }
   }
 
   // Axes: the cartesian product, first axis slowest.
@@ -222,7 +227,7 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
     const ConfigNode list = study["axes"];
     for (size_t a = 0; a < list.size(); ++a) {
       const ConfigNode n = list.at(a);
-      n.RejectUnknownKeys({"name", "set", "values", "range", "files"});
+      n.RejectUnknownKeys({"name", "set", "values", "labels", "range", "files"});
       Axis axis;
       axis.name = n["name"].AsString();
       for (const auto& other : axes) {
@@ -232,10 +237,19 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
       axis.target = SetPath(axis.target_text, n["set"]);
       const int kinds = int(n.Has("values")) + int(n.Has("range")) + int(n.Has("files"));
       if (kinds != 1) n.Fail("needs exactly one of values, range, files");
+      if (n.Has("labels") && !n.Has("values")) n["labels"].Fail("labels go with values");
       if (n.Has("values")) {
         for (size_t i = 0; i < n["values"].size(); ++i)
           axis.values.push_back(n["values"].at(i).json());
         axis.labels = axis.values;
+        // Names for values that read badly in tables and charts (e.g. mappings of layers).
+        if (n.Has("labels")) {
+          const ConfigNode labels = n["labels"];
+          if (labels.size() != axis.values.size()) {
+            labels.Fail("needs one label per value (" + std::to_string(axis.values.size()) + ")");
+          }
+          for (size_t i = 0; i < labels.size(); ++i) axis.labels[i] = labels.at(i).AsString();
+        }
       } else if (n.Has("range")) {
         const ConfigNode r = n["range"];
         r.RejectUnknownKeys({"first", "count", "step"});
@@ -279,6 +293,18 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
       for (const std::string& k : limits.Keys()) limits[k].AsDouble();
     }
   }
+  if (study.Has("effects")) {
+    const ConfigNode e = study["effects"];
+    e.RejectUnknownKeys({"axis", "baseline", "tolerance_mm"});
+    const std::string name = e["axis"].AsString();
+    const auto it =
+        std::find_if(axes.begin(), axes.end(), [&](const Axis& a) { return a.name == name; });
+    if (it == axes.end()) e["axis"].Fail("'" + name + "' is not an axis of the study");
+    if (std::find(it->labels.begin(), it->labels.end(), e["baseline"].json()) == it->labels.end()) {
+      e["baseline"].Fail("is not a value (or label) of axis '" + name + "'");
+    }
+    if (!(e["tolerance_mm"].AsDouble() >= 0)) e["tolerance_mm"].Fail("must be >= 0");
+  }
   size_t total = 1;
   for (const auto& a : axes) total *= a.values.size();
   if (total > 1000000) study["axes"].Fail("more than 1000000 jobs");
@@ -301,6 +327,19 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
       job[axis.target] = axis.values[index[a]];
       if (!axis.base_dirs.empty()) job["scene_base_dir"] = axis.base_dirs[index[a]];
       params[axis.name] = axis.labels[index[a]];
+    }
+    // `set` entries under a tree an axis replaced whole (e.g. a scene file) apply to it too,
+    // unless an axis sets that path or one under it.
+    for (const auto& [path, value] : set_entries) {
+      bool replaced = false, set_by_axis = false;
+      for (const Axis& axis : axes) {
+        const std::string t = axis.target.to_string(), p = path.to_string();
+        replaced = replaced ||
+                   (p.size() > t.size() && p.compare(0, t.size(), t) == 0 && p[t.size()] == '/');
+        set_by_axis = set_by_axis || (t.compare(0, p.size(), p) == 0 &&
+                                      (t.size() == p.size() || t[p.size()] == '/'));
+      }
+      if (replaced && !set_by_axis) job[path] = value;
     }
     job["params"] = params;
     // The spec's derived image count follows what the axes changed (e.g. patterns.phase_steps);
@@ -433,7 +472,7 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
     g->scene = scene;
     g->rig = RigFromConfig(node("rig"));
     g->simulator = std::make_unique<Simulator>(g->scene, g->rig);
-    g->scorer = std::make_unique<GroundTruthScorer>(SceneSurface(g->scene, what + ": scene"),
+    g->scorer = std::make_unique<GroundTruthScorer>(GroundTruthSurface(g->scene, what + ": scene"),
                                                     LitVisibleSurface(g->simulator->geometry(0)),
                                                     "scene ground truth");
     group = std::move(g);
@@ -951,6 +990,52 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
     }
     WriteTextFileAtomically(out_dir / "break_points.csv", breaks);
     WriteCurveCharts(out_dir, curves, x_axis, metrics, limits, plan.at("study").get<std::string>());
+  }
+  // Effects of one axis's values against a baseline value (study key `effects`).
+  if (config.contains("effects")) {
+    const json& spec = config.at("effects");
+    const std::string axis = spec.at("axis").get<std::string>();
+    const json& baseline = spec.at("baseline");
+    const double tolerance = spec.at("tolerance_mm").get<double>();
+    std::map<std::string, json> base;  // series + mode -> the baseline job's accuracy
+    for (const auto& r : results) {
+      if (r.at("params").at(axis) != baseline) continue;
+      for (const auto& m : r.at("modes")) {
+        base[ParamsLabel(r.at("params"), axes, axis) + '\n' + m.at("mode").get<std::string>()] = m;
+      }
+    }
+    std::string csv_effects =
+        "series,mode," + CsvField(axis) + ",rms_mm,p95_mm,d_rms_mm,d_p95_mm,needed,render_s\n";
+    for (const auto& r : results) {
+      const std::string series = ParamsLabel(r.at("params"), axes, axis);
+      const json& value = r.at("params").at(axis);
+      for (const auto& m : r.at("modes")) {
+        const std::string mode = m.at("mode").get<std::string>();
+        const auto b = base.find(series + '\n' + mode);
+        std::string d_rms, d_p95, needed;
+        if (b != base.end()) {
+          const double dr = Figure(m, "rms_mm") - Figure(b->second, "rms_mm");
+          const double dp = Figure(m, "p95_mm") - Figure(b->second, "p95_mm");
+          // A missing figure (nothing reconstructed on one side) is a change beyond any tolerance.
+          const bool need = std::isnan(dr) || std::isnan(dp) || std::abs(dr) > tolerance ||
+                            std::abs(dp) > tolerance;
+          d_rms = std::isnan(dr) ? "" : CsvField(json(dr));
+          d_p95 = std::isnan(dp) ? "" : CsvField(json(dp));
+          needed = value == baseline ? "" : (need ? "1" : "0");
+          if (value != baseline) {
+            summary.effects.push_back((series.empty() ? "" : series + ", ") + mode + ": " +
+                                      CsvField(value) + (need ? " changes" : " does not change") +
+                                      " RMS or p95 by more than " + CsvField(json(tolerance)) +
+                                      " mm");
+          }
+        }
+        csv_effects += CsvField(series) + ',' + mode + ',' + CsvField(value) + ',' +
+                       CsvField(m.at("rms_mm")) + ',' + CsvField(m.at("p95_mm")) + ',' + d_rms +
+                       ',' + d_p95 + ',' + needed + ',' + CsvField(r.at("timing").at("render_s")) +
+                       '\n';
+      }
+    }
+    WriteTextFileAtomically(out_dir / "effects.csv", csv_effects);
   }
   summary.jobs = n;
   summary.out_dir = out_dir;

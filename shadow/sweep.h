@@ -83,6 +83,8 @@ struct SweepMergeSummary {
   std::vector<std::string> front;  // "mode: id (axis values)" of the jobs on the Pareto front
   // With the study key `curves`: "series, mode: metric > limit at x = value" per curve and limit.
   std::vector<std::string> break_points;
+  // With the study key `effects`: "series, mode: value changes / does not change ..." per job.
+  std::vector<std::string> effects;
   std::filesystem::path out_dir;
 };
 

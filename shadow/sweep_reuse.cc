@@ -3,6 +3,7 @@
 #include "compare/statistics.h"
 #include "core/error.h"
 #include "sim/renderer.h"
+#include "sim/shapes.h"
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -150,6 +151,54 @@ void NoiseFreeImages::Render(const Scene& scene, std::vector<std::vector<cv::Mat
                          &cam[p]);
     }
   }
+}
+
+namespace {
+
+constexpr int kSegments = 512;
+
+// A closed cylinder of radius r along z, from z = -h/2 to h/2: `sides` facets and two capped ends.
+TriangleMesh CylinderMesh(double r, double h, int sides) {
+  TriangleMesh m;
+  for (int k = 0; k < sides; ++k) {
+    const double a = 2 * M_PI * k / sides;
+    m.vertices.emplace_back(r * std::cos(a), r * std::sin(a), -h / 2);
+    m.vertices.emplace_back(r * std::cos(a), r * std::sin(a), h / 2);
+  }
+  const int bottom = static_cast<int>(m.vertices.size());
+  m.vertices.emplace_back(0, 0, -h / 2);
+  m.vertices.emplace_back(0, 0, h / 2);
+  for (int k = 0; k < sides; ++k) {
+    const int a0 = 2 * k, a1 = 2 * k + 1, b0 = 2 * ((k + 1) % sides), b1 = b0 + 1;
+    m.triangles.emplace_back(a0, b0, b1);  // outward (counter-clockwise seen from outside)
+    m.triangles.emplace_back(a0, b1, a1);
+    m.triangles.emplace_back(bottom, b0, a0);
+    m.triangles.emplace_back(bottom + 1, a1, b1);
+  }
+  return m;
+}
+
+}  // namespace
+
+TriangleMesh GroundTruthSurface(const Scene& scene, const std::string& what) {
+  TriangleMesh surface;
+  for (const SceneObject& object : scene.objects) {
+    TriangleMesh part;
+    if (object.type == ObjectType::kSphere) {
+      part = MakeSphereMesh(object.radius_mm, kSegments);
+    } else if (object.type == ObjectType::kCylinder) {
+      part = CylinderMesh(object.radius_mm, object.height_mm, kSegments);
+    } else {
+      Scene one;
+      one.objects = {object};
+      surface.Append(SceneSurface(one, what));
+      continue;
+    }
+    part.Transform(object.rig_from_object.rotation.toRotationMatrix(),
+                   object.rig_from_object.translation);
+    surface.Append(part);
+  }
+  return surface;
 }
 
 // The samples of the reference surface followed by the visible points, sorted into a dense

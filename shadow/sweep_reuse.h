@@ -71,6 +71,13 @@ class NoiseFreeImages {
   std::vector<std::vector<cv::Mat>> irradiance_;  // [camera][pattern], CV_32FC1
 };
 
+// The ground-truth surface of a scene in the rig frame: meshes and planes as SceneSurface gives
+// them; exact spheres and cylinders (also those of a ball bar) tessellated finely enough that
+// their true surface lies within 0.5 um of the mesh (UV spheres of 512 segments, cylinders of 512
+// sides with caps; sim/shapes.h MakeSphereMesh). Throws slshadow::Error naming `what` and the
+// object for other types (boxes, point clouds).
+TriangleMesh GroundTruthSurface(const Scene& scene, const std::string& what);
+
 // The accuracy figures of clouds against one ground-truth surface, with the hierarchy and the
 // samples built once.
 class GroundTruthScorer {

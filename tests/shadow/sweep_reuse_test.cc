@@ -7,6 +7,7 @@
 #include "core/error.h"
 #include "patterns/codec.h"
 #include "reconstruct/reconstruct.h"
+#include "sim/scene.h"
 
 #include "shadow/scan_pipeline.h"
 #include "tests/testing/temp_dir.h"
@@ -119,6 +120,48 @@ TEST(NoiseFreeImages, KeyIgnoresNameAndNoiseOnly) {
   EXPECT_NE(NoiseFreeImages::Key(scene, patterns), NoiseFreeImages::Key(other_ambient, patterns));
   EXPECT_NE(NoiseFreeImages::Key(scene, patterns),
             NoiseFreeImages::Key(scene, nlohmann::json{{"kind", "phase_shift"}}));
+}
+
+// Exact spheres and cylinders (here the parts of a ball bar and a VDI sphere) as meshes whose
+// distance to points on the true surfaces stays under 0.5 um; meshes and planes as SceneSurface.
+TEST(GroundTruthSurface, TessellatedPrimitivesWithinAFractionOfAMicrometre) {
+  const Scene ball_bar = LoadScene(SourceDir() / "config/scenes/ball_bar.yaml");
+  const Scene sphere = LoadScene(SourceDir() / "config/scenes/vdi2634_sphere.yaml");
+  for (const Scene* scene : {&ball_bar, &sphere}) {
+    const TriangleMesh surface = GroundTruthSurface(*scene, "test");
+    const compare::MeshDistance distance(surface);
+    int checked = 0;
+    for (const SceneObject& o : scene->objects) {
+      if (o.type != ObjectType::kSphere) continue;
+      // Points on the true sphere in every direction (a Fibonacci sphere), and 1 mm outside it.
+      for (int i = 0; i < 2000; ++i) {
+        const double z = -1 + 2 * (i + 0.5) / 2000, phi = i * 2.399963229728653;
+        const Eigen::Vector3d dir(std::sqrt(1 - z * z) * std::cos(phi),
+                                  std::sqrt(1 - z * z) * std::sin(phi), z);
+        const Eigen::Vector3d on = o.rig_from_object * Eigen::Vector3d(o.radius_mm * dir);
+        const Eigen::Vector3d out = o.rig_from_object * Eigen::Vector3d((o.radius_mm + 1) * dir);
+        const double d = std::abs(distance.Closest(on).signed_distance_mm);
+        // Where the bar enters the sphere its (inner) surface may be nearer: at most as near.
+        EXPECT_LT(d, 0.5e-3) << o.name << " " << i;
+        // Outside (away from the ball bar's bar and from the plate behind the single sphere).
+        if (scene == &sphere) {
+          EXPECT_NEAR(distance.Closest(out).signed_distance_mm, 1.0, 0.5e-3) << o.name << " " << i;
+        }
+        ++checked;
+      }
+    }
+    EXPECT_GE(checked, 2000);
+  }
+  // Planes (and meshes) are SceneSurface's.
+  const Scene plane = LoadScene(SourceDir() / "config/scenes/flat_plane.yaml");
+  const TriangleMesh a = GroundTruthSurface(plane, "plane"), b = SceneSurface(plane, "plane");
+  EXPECT_EQ(a.vertices, b.vertices);
+  EXPECT_EQ(a.triangles, b.triangles);
+  Scene box;
+  box.objects.emplace_back();
+  box.objects.back().type = ObjectType::kBox;
+  box.objects.back().name = "crate";
+  EXPECT_THROW(GroundTruthSurface(box, "boxes"), Error);
 }
 
 // The scorer's figures are those of the demo's path (compare::Compare, then MeasureAccuracy),

@@ -292,6 +292,76 @@ TEST(Sweep, CurvesAndBreakPointsAgainstOneAxis) {
   }
 }
 
+// Study 3's machinery: an axis of layer mappings with labels, each against the baseline `none`.
+// effects.csv's changes are the differences of results.json's figures, `needed` their comparison
+// with the tolerance. Also: the study's `set` reaches the scene a files axis puts in each job.
+TEST(Sweep, EffectsOfEachAxisValueAgainstABaseline) {
+  TempDir tmp;
+  std::ofstream(tmp / "study.yaml")
+      << "format: slshadow-study\nversion: 1\nname: effects\n"
+      << "rig: " << (SourceDir() / "config/studies/quarter_demo_rig.yaml").string() << "\n"
+      << "scene: " << (SourceDir() / "config/scenes/flat_plane.yaml").string() << "\n"
+      << "modes: [projector]\n"
+         "axes:\n"
+         "  - name: layer\n"
+         "    set: scene.layers\n"
+         "    labels: [none, ambient, gamma]\n"
+         "    values: [{}, {ambient: {level: 0.05}}, {projector_response: {gamma: 2.2}}]\n"
+         "effects: {axis: layer, baseline: none, tolerance_mm: 0.002}\n";
+  PlanSweep(tmp / "study.yaml", tmp / "jobs");
+  RunSweepShard(tmp / "jobs", Shard(0, 1));
+  const SweepMergeSummary merged = MergeSweep(tmp / "jobs", tmp / "result");
+  EXPECT_EQ(merged.effects.size(), 2u);  // ambient, gamma
+  const nlohmann::json jobs =
+      nlohmann::json::parse(ReadTextFile(tmp / "result/results.json"))["jobs"];
+  ASSERT_EQ(jobs.size(), 3u);
+  EXPECT_EQ(jobs[2]["params"]["layer"], "gamma");
+  const auto figure = [&](int job, const char* key) {
+    return jobs[job]["modes"][0][key].get<double>();
+  };
+  const std::string csv = ReadTextFile(tmp / "result/effects.csv");
+  std::istringstream lines(csv);
+  std::string line;
+  std::getline(lines, line);
+  EXPECT_EQ(line, "series,mode,layer,rms_mm,p95_mm,d_rms_mm,d_p95_mm,needed,render_s");
+  const auto g = [](double v) {
+    char buf[64];
+    std::snprintf(buf, sizeof(buf), "%.10g", v);
+    return std::string(buf);
+  };
+  for (int job = 0; job < 3; ++job) {
+    ASSERT_TRUE(std::getline(lines, line));
+    const double dr = figure(job, "rms_mm") - figure(0, "rms_mm");
+    const double dp = figure(job, "p95_mm") - figure(0, "p95_mm");
+    const std::string needed =
+        job == 0 ? "" : (std::abs(dr) > 0.002 || std::abs(dp) > 0.002 ? "1" : "0");
+    const std::string expected = ",projector," + jobs[job]["params"]["layer"].get<std::string>() +
+                                 "," + g(figure(job, "rms_mm")) + "," + g(figure(job, "p95_mm")) +
+                                 "," + g(dr) + "," + g(dp) + "," + needed + ",";
+    EXPECT_EQ(line.substr(0, expected.size()), expected);
+  }
+
+  // `set` under a tree a files axis replaces: applied to each file's tree; not where an axis sets
+  // that path or one under it.
+  std::ofstream(tmp / "files.yaml")
+      << "format: slshadow-study\nversion: 1\nname: files\n"
+      << "rig: " << (SourceDir() / "config/studies/quarter_demo_rig.yaml").string() << "\n"
+      << "set:\n  scene.layers.noise: {full_well_e: 9000, read_noise_e: 7}\n"
+      << "  scene.radiometry.exposure: 0.5\n"
+      << "axes:\n"
+      << "  - {name: scene, set: scene, files: ["
+      << (SourceDir() / "config/scenes/flat_plane.yaml").string() << ", "
+      << (SourceDir() / "config/scenes/ball_bar.yaml").string() << "]}\n"
+      << "  - {name: exposure, set: scene.radiometry.exposure, values: [0.6]}\n";
+  PlanSweep(tmp / "files.yaml", tmp / "files_jobs");
+  for (const char* id : {"000000", "000001"}) {
+    const nlohmann::json job =
+        nlohmann::json::parse(ReadTextFile(tmp / "files_jobs/jobs" / (std::string(id) + ".json")));
+    EXPECT_EQ(job["scene"]["layers"]["noise"]["full_well_e"], 9000) << id;
+    EXPECT_EQ(job["scene"]["radiometry"]["exposure"], 0.6) << id;  // the axis, not `set`
+  }
+}
+
 void ExpectPlanError(const TempDir& tmp, const std::string& yaml, const std::string& needle) {
   const fs::path file = tmp / "bad.yaml";
   std::ofstream(file) << "format: slshadow-study\nversion: 1\nname: bad\n" << yaml;
@@ -327,6 +397,13 @@ TEST(Sweep, BadStudiesAreRejectedNamingFileAndFieldAndWriteNothing) {
   const std::string noise_axis =
       "axes:\n  - {name: r, set: scene.layers.noise.read_noise_e, values: [5, 50]}\n";
   ExpectPlanError(tmp, rig + noise_axis + "curves: {x: q}\n", "'q' is not an axis");
+  ExpectPlanError(tmp, rig + noise_axis + "effects: {axis: r, baseline: 7, tolerance_mm: 0.1}\n",
+                  "baseline");
+  ExpectPlanError(tmp,
+                  rig +
+                      "axes:\n  - {name: r, set: scene.layers.noise.read_noise_e, values: [5, "
+                      "50], labels: [low]}\n",
+                  "one label per value");
   ExpectPlanError(tmp, rig + noise_axis + "curves: {x: r, limits: {p99_mm: 1}}\n", "p99_mm");
   ExpectPlanError(tmp,
                   rig + "axes:\n  - {name: m, set: reconstruct.method, values: [midpoint]}\n" +
