@@ -17,9 +17,11 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <initializer_list>
 #include <limits>
 #include <map>
 #include <memory>
@@ -170,7 +172,7 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
   const fs::path study_dir = fs::absolute(study_file).parent_path();
   study.RejectUnknownKeys({"format", "version", "name", "description", "scene", "rig", "patterns",
                            "modes", "decode", "reconstruct", "compare", "set", "axes", "curves",
-                           "effects"});
+                           "effects", "pareto"});
   if (study["format"].AsString() != kStudyFormat)
     study["format"].Fail(std::string("must be ") + kStudyFormat);
   if (study["version"].AsInt() != kVersion) study["version"].Fail("must be 1");
@@ -291,6 +293,14 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
       const ConfigNode limits = c["limits"];
       limits.RejectUnknownKeys(kCurveMetrics);
       for (const std::string& k : limits.Keys()) limits[k].AsDouble();
+    }
+  }
+  if (study.Has("pareto")) {
+    const ConfigNode pareto = study["pareto"];
+    pareto.RejectUnknownKeys({"by"});
+    const std::string name = pareto["by"].AsString();
+    if (std::none_of(axes.begin(), axes.end(), [&](const Axis& a) { return a.name == name; })) {
+      pareto["by"].Fail("'" + name + "' is not an axis of the study");
     }
   }
   if (study.Has("effects")) {
@@ -645,10 +655,11 @@ std::string CsvField(const json& v, int digits = 10) {
   return s;
 }
 
-// Per mode: a job is on the Pareto front of (method time, RMS) when no other job of that mode is
-// at least as fast and as accurate and better in one of the two.
+// Per group (the mode, or the mode and a value of the study's `pareto.by` axis): a job is on the
+// Pareto front of (method time, RMS) when no other job of that group is at least as fast and as
+// accurate and better in one of the two.
 struct FrontPoint {
-  std::string id, mode, label;
+  std::string id, mode, group, label;
   double time_s = 0, rms_mm = 0;
   bool on_front = false;
 };
@@ -657,7 +668,7 @@ void MarkFront(std::vector<FrontPoint>& points) {
   for (auto& p : points) {
     p.on_front = true;
     for (const auto& q : points) {
-      if (q.mode != p.mode || &q == &p) continue;
+      if (q.group != p.group || &q == &p) continue;
       if (q.time_s <= p.time_s && q.rms_mm <= p.rms_mm &&
           (q.time_s < p.time_s || q.rms_mm < p.rms_mm)) {
         p.on_front = false;
@@ -666,6 +677,10 @@ void MarkFront(std::vector<FrontPoint>& points) {
     }
   }
 }
+
+constexpr std::initializer_list<std::array<int, 3>> kFrontPalette = {
+    {40, 90, 200},   {200, 60, 0},  {30, 150, 60}, {150, 40, 160},
+    {120, 120, 120}, {220, 160, 0}, {0, 170, 190}, {120, 60, 20}};
 
 // The chart as `path`.png and `path`.svg (the same drawing), each written atomically.
 void WriteFrontChart(const fs::path& path, const std::vector<FrontPoint>& points,
@@ -680,22 +695,28 @@ void WriteFrontChart(const fs::path& path, const std::vector<FrontPoint>& points
     fs::path file = path;
     file += ext;
     WriteFileAtomically(file, [&](const fs::path& tmp) {
-      auto pls =
-          std::string(ext) == ".png"
-              ? plot::OpenPng(tmp, 1000, 700, {{40, 90, 200}, {200, 60, 0}, {150, 150, 150}})
-              : plot::OpenSvg(tmp, 1000, 700, {{40, 90, 200}, {200, 60, 0}, {150, 150, 150}});
-      pls->env(0, xmax * 1.1 + 1e-9, 0, ymax * 1.15 + 1e-12, 0, 0);
+      auto pls = std::string(ext) == ".png" ? plot::OpenPng(tmp, 1000, 700, kFrontPalette)
+                                            : plot::OpenSvg(tmp, 1000, 700, kFrontPalette);
+      size_t groups = 0;  // room above the points for one legend line per group
+      for (size_t i = 0; i < points.size(); ++i) {
+        groups += std::none_of(points.begin(), points.begin() + static_cast<std::ptrdiff_t>(i),
+                               [&](const FrontPoint& q) { return q.group == points[i].group; });
+      }
+      pls->env(0, xmax * 1.1 + 1e-9, 0,
+               ymax * (1.15 + 0.07 * static_cast<double>(groups > 2 ? groups : 0)) + 1e-12, 0, 0);
       pls->lab("decode (cameras the mode reads) + reconstruct time (s)", "RMS deviation (mm)",
-               (study + ": time against error, Pareto front per mode").c_str());
-      std::vector<std::string> modes;
+               (study + ": time against error, Pareto front per " +
+                (points.empty() || points[0].group == points[0].mode ? "mode" : "group"))
+                   .c_str());
+      std::vector<std::string> modes;  // the groups, in order of appearance
       for (const auto& p : points) {
-        if (std::find(modes.begin(), modes.end(), p.mode) == modes.end()) modes.push_back(p.mode);
+        if (std::find(modes.begin(), modes.end(), p.group) == modes.end()) modes.push_back(p.group);
       }
       for (size_t m = 0; m < modes.size(); ++m) {
         std::vector<FrontPoint> front;
-        pls->col0(static_cast<PLINT>(2 + m % 2));
+        pls->col0(static_cast<PLINT>(2 + m % 8));
         for (const auto& p : points) {
-          if (p.mode != modes[m]) continue;
+          if (p.group != modes[m]) continue;
           PLFLT x = p.time_s, y = p.rms_mm;
           pls->ssym(0, p.on_front ? 2.5 : 1.0);
           pls->poin(1, &x, &y, p.on_front ? 17 : 4);
@@ -712,15 +733,18 @@ void WriteFrontChart(const fs::path& path, const std::vector<FrontPoint>& points
           pls->schr(0, 1.0);
         }
         if (xs.size() > 1) pls->line(static_cast<PLINT>(xs.size()), xs.data(), ys.data());
-        pls->mtex("t", -1.5 - 1.5 * static_cast<double>(m), 0.98, 1.0,
+        pls->schr(0, modes.size() > 2 ? 0.75 : 1.0);
+        pls->mtex("t", -1.5 - (modes.size() > 2 ? 1.2 : 1.5) * static_cast<double>(m), 0.98, 1.0,
                   (modes[m] + " (filled: on the front)").c_str());
+        pls->schr(0, 1.0);
       }
     });
   }
 }
 
 // The axis values of a job as a label ("graycode_phase 4 midpoint"), `skip` left out; files axes
-// by their file's stem, not their path.
+// by their file's stem, not their path (scene.yaml, rig.yaml, patterns.yaml by their folder's
+// name).
 std::string ParamsLabel(const json& params, const std::vector<std::string>& axes,
                         const std::string& skip) {
   std::string label;
@@ -728,9 +752,17 @@ std::string ParamsLabel(const json& params, const std::vector<std::string>& axes
     if (a == skip) continue;
     if (!label.empty()) label += ' ';
     const json& v = params.at(a);
-    label += v.is_string() && v.get<std::string>().find_first_of("/.") != std::string::npos
-                 ? fs::path(v.get<std::string>()).stem().string()
-                 : CsvField(v);
+    if (v.is_string() && v.get<std::string>().find_first_of("/.") != std::string::npos) {
+      // config/demo/scene.yaml reads better as its folder's name.
+      const fs::path file(v.get<std::string>());
+      const std::string stem = file.stem().string();
+      label += (stem == "scene" || stem == "rig" || stem == "patterns") &&
+                       !file.parent_path().filename().empty()
+                   ? file.parent_path().filename().string()
+                   : stem;
+    } else {
+      label += CsvField(v);
+    }
   }
   return label;
 }
@@ -919,9 +951,13 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
 
   // Time against error: decode + reconstruct time (the method's cost; rendering and comparing are
   // the study's) against RMS, per mode, with the Pareto front. Measured times: not reproducible.
+  const json& config = plan.at("study_config");
+  const std::string by =
+      config.contains("pareto") ? config.at("pareto").at("by").get<std::string>() : "";
   std::vector<FrontPoint> points;
   for (const auto& r : results) {
-    const std::string label = ParamsLabel(r.at("params"), axes, "");
+    const std::string label = ParamsLabel(r.at("params"), axes, by);
+    const std::string by_value = by.empty() ? "" : ParamsLabel(r.at("params"), {by}, "");
     const json& t = r.at("timing");
     for (const auto& m : r.at("modes")) {
       if (m.at("rms_mm").is_null()) continue;  // nothing reconstructed: not on the chart
@@ -929,24 +965,26 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
       p.id = JobName(r.at("id").get<int>());
       p.mode = m.at("mode").get<std::string>();
       p.label = label.empty() ? p.id : label;
+      p.group = by.empty() ? p.mode : p.mode + " " + by_value;
       p.time_s = t.at("method_s").at(p.mode).get<double>();
       p.rms_mm = m.at("rms_mm").get<double>();
       points.push_back(p);
     }
   }
   MarkFront(points);
-  std::string front_csv = "id,mode,label,time_s,rms_mm,on_front\n";
+  std::string front_csv =
+      std::string("id,mode,label,time_s,rms_mm,on_front") + (by.empty() ? "\n" : ",group\n");
   for (const auto& p : points) {
     front_csv += p.id + ',' + p.mode + ',' + CsvField(p.label) + ',' + CsvField(p.time_s, 17) +
-                 ',' + CsvField(p.rms_mm, 17) + ',' + (p.on_front ? "1" : "0") + '\n';
-    if (p.on_front) summary.front.push_back(p.mode + ": " + p.id + " (" + p.label + ")");
+                 ',' + CsvField(p.rms_mm, 17) + ',' + (p.on_front ? "1" : "0") +
+                 (by.empty() ? "" : "," + CsvField(p.group)) + '\n';
+    if (p.on_front) summary.front.push_back(p.group + ": " + p.id + " (" + p.label + ")");
   }
   WriteTextFileAtomically(out_dir / "pareto.csv", front_csv);
   WriteFrontChart(out_dir / "time_vs_rms", points, plan.at("study").get<std::string>());
 
   // Curves against one axis and break points (study key `curves`): from the accuracy figures
   // only, so as reproducible as results.csv.
-  const json& config = plan.at("study_config");
   if (config.contains("curves")) {
     const json& spec = config.at("curves");
     const std::string x_axis = spec.at("x").get<std::string>();

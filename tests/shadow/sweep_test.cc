@@ -307,7 +307,8 @@ TEST(Sweep, EffectsOfEachAxisValueAgainstABaseline) {
          "    set: scene.layers\n"
          "    labels: [none, ambient, gamma]\n"
          "    values: [{}, {ambient: {level: 0.05}}, {projector_response: {gamma: 2.2}}]\n"
-         "effects: {axis: layer, baseline: none, tolerance_mm: 0.002}\n";
+         "effects: {axis: layer, baseline: none, tolerance_mm: 0.002}\n"
+         "pareto: {by: layer}\n";
   PlanSweep(tmp / "study.yaml", tmp / "jobs");
   RunSweepShard(tmp / "jobs", Shard(0, 1));
   const SweepMergeSummary merged = MergeSweep(tmp / "jobs", tmp / "result");
@@ -340,6 +341,12 @@ TEST(Sweep, EffectsOfEachAxisValueAgainstABaseline) {
                                  "," + g(dr) + "," + g(dp) + "," + needed + ",";
     EXPECT_EQ(line.substr(0, expected.size()), expected);
   }
+
+  // A front per mode and layer: one job each, so each is on its front.
+  const std::string pareto = ReadTextFile(tmp / "result/pareto.csv");
+  EXPECT_EQ(pareto.substr(0, pareto.find('\n')), "id,mode,label,time_s,rms_mm,on_front,group");
+  EXPECT_NE(pareto.find(",1,projector gamma\n"), std::string::npos) << pareto;
+  EXPECT_EQ(merged.front.size(), 3u);
 
   // `set` under a tree a files axis replaces: applied to each file's tree; not where an axis sets
   // that path or one under it.
@@ -397,6 +404,7 @@ TEST(Sweep, BadStudiesAreRejectedNamingFileAndFieldAndWriteNothing) {
   const std::string noise_axis =
       "axes:\n  - {name: r, set: scene.layers.noise.read_noise_e, values: [5, 50]}\n";
   ExpectPlanError(tmp, rig + noise_axis + "curves: {x: q}\n", "'q' is not an axis");
+  ExpectPlanError(tmp, rig + noise_axis + "pareto: {by: q}\n", "'q' is not an axis");
   ExpectPlanError(tmp, rig + noise_axis + "effects: {axis: r, baseline: 7, tolerance_mm: 0.1}\n",
                   "baseline");
   ExpectPlanError(tmp,
