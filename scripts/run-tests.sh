@@ -4,6 +4,12 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
+# Formatting is checked once the tree has been formatted (scripts/format.sh --apply): flip the
+# default to 1 in the same commit. SLSHADOW_CHECK_FORMAT=1 in the environment checks it now.
+SLSHADOW_CHECK_FORMAT=${SLSHADOW_CHECK_FORMAT:-0}
+if [ "$SLSHADOW_CHECK_FORMAT" = 1 ]; then
+  bash scripts/format.sh --check
+fi
 BUILD_DIR=${SLSHADOW_BUILD_DIR:-build}
 # ccache: rewrite absolute paths relative to the checkout so clones in other folders share hits.
 export CCACHE_BASEDIR="$PWD" CCACHE_NOHASHDIR=true

@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include <nlohmann/json.hpp>
+
 #include "core/error.h"
 
 namespace slshadow::workflow {
@@ -19,6 +21,22 @@ TEST(Bench, DecodeEntryRunsOnTheDemoScan) {
   EXPECT_NEAR(entries[0].throughput, 2 * 1920 * 1200 / 1e6 / entries[0].median_wall_s, 1e-9);
   EXPECT_TRUE(entries[0].peer.empty());
   EXPECT_NE(FormatBench(entries).find("decode"), std::string::npos);
+
+  // --json: every field, numbers exact.
+  const auto json = nlohmann::json::parse(BenchToJson(entries, options));
+  EXPECT_EQ(json.at("format"), "slshadow-bench");
+  EXPECT_EQ(json.at("version"), 1);
+  EXPECT_EQ(json.at("repetitions"), 1);
+  ASSERT_EQ(json.at("entries").size(), 1u);
+  const auto& e = json.at("entries")[0];
+  EXPECT_EQ(e.at("name"), "decode");
+  EXPECT_EQ(e.at("median_wall_s").get<double>(), entries[0].median_wall_s);
+  EXPECT_EQ(e.at("cpu_s").get<double>(), entries[0].cpu_s);
+  EXPECT_EQ(e.at("throughput").get<double>(), entries[0].throughput);
+  EXPECT_EQ(e.at("unit"), entries[0].unit);
+  EXPECT_EQ(e.at("peer"), "");
+  EXPECT_EQ(e.at("ratio").get<double>(), 0.0);
+  EXPECT_EQ(e.at("stages").size(), entries[0].stages.size());
 }
 
 TEST(Bench, BadOptionsAreNamed) {
