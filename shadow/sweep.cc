@@ -7,13 +7,13 @@
 #include "core/stage_meter.h"
 #include "patterns/codec.h"
 #include "patterns/pattern_spec.h"
+#include "plot/plot.h"
 #include "reconstruct/reconstruct.h"
+#include "shadow/scan_pipeline.h"
+#include "shadow/sweep_reuse.h"
 #include "sim/scene.h"
 #include "sim/simulate.h"
 
-#include "plot/plot.h"
-#include "shadow/scan_pipeline.h"
-#include "shadow/sweep_reuse.h"
 #include <tbb/parallel_for.h>
 
 #include <algorithm>

@@ -19,10 +19,10 @@
 #include "compare/mesh_distance.h"
 #include "core/mesh.h"
 #include "core/point_cloud.h"
+#include "shadow/scan_pipeline.h"
 #include "sim/scene.h"
 #include "sim/simulate.h"
 
-#include "shadow/scan_pipeline.h"
 #include <Eigen/Core>
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>

@@ -7,10 +7,10 @@
 #include "core/error.h"
 #include "patterns/codec.h"
 #include "reconstruct/reconstruct.h"
-#include "sim/scene.h"
-
 #include "shadow/scan_pipeline.h"
+#include "sim/scene.h"
 #include "tests/testing/temp_dir.h"
+
 #include <gtest/gtest.h>
 
 #include <memory>

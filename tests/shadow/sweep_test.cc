@@ -6,11 +6,11 @@
 
 #include "core/error.h"
 #include "core/file_util.h"
-
 #include "tests/testing/temp_dir.h"
+
 #include <gtest/gtest.h>
-#include <nlohmann/json.hpp>
 #include <sys/wait.h>
+#include <nlohmann/json.hpp>
 
 #include <algorithm>
 #include <cstdio>
