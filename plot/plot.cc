@@ -88,10 +88,12 @@ std::unique_lock<std::mutex> LockPlplot() {
   return std::unique_lock<std::mutex>(m);
 }
 
-std::unique_ptr<plstream> OpenPng(const std::filesystem::path& file, int width, int height,
-                                  std::initializer_list<std::array<int, 3>> palette) {
+namespace {
+
+std::unique_ptr<plstream> Open(const char* device, const std::filesystem::path& file, int width,
+                               int height, std::initializer_list<std::array<int, 3>> palette) {
   auto pls = std::make_unique<plstream>();
-  pls->sdev("pngcairo");
+  pls->sdev(device);
   pls->sfnam(file.c_str());
   pls->spage(0, 0, width, height, 0, 0);
   pls->scol0(0, 255, 255, 255);
@@ -101,6 +103,18 @@ std::unique_ptr<plstream> OpenPng(const std::filesystem::path& file, int width, 
   pls->init();
   pls->col0(1);
   return pls;
+}
+
+}  // namespace
+
+std::unique_ptr<plstream> OpenPng(const std::filesystem::path& file, int width, int height,
+                                  std::initializer_list<std::array<int, 3>> palette) {
+  return Open("pngcairo", file, width, height, palette);
+}
+
+std::unique_ptr<plstream> OpenSvg(const std::filesystem::path& file, int width, int height,
+                                  std::initializer_list<std::array<int, 3>> palette) {
+  return Open("svgcairo", file, width, height, palette);
 }
 
 }  // namespace slshadow::plot

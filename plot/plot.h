@@ -1,5 +1,5 @@
 #pragma once
-// PNG charts through PLplot, shared by the report writers of calib/ and compare/.
+// PNG (and SVG) charts through PLplot, shared by the report writers of calib/ and compare/.
 //
 // PLplot keeps process-wide state (stream table, current stream), so a chart must hold
 // LockPlplot() for as long as its stream lives; reports may then be written from several threads.
@@ -39,6 +39,10 @@ void HeatColorBar(plstream& pls, double lo, double hi, const std::string& label,
 // background, colour 1 black (axes, text), and `palette` becomes colours 2, 3, ... in order.
 // The stream is initialised and drawing in colour 1.
 std::unique_ptr<plstream> OpenPng(const std::filesystem::path& file, int width, int height,
+                                  std::initializer_list<std::array<int, 3>> palette);
+
+// The same as an SVG (svgcairo) of width x height points: vector output of the same drawing.
+std::unique_ptr<plstream> OpenSvg(const std::filesystem::path& file, int width, int height,
                                   std::initializer_list<std::array<int, 3>> palette);
 
 }  // namespace slshadow::plot

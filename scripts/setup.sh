@@ -31,6 +31,8 @@ PACKAGES=(
   xserver-xorg-core xserver-xorg-video-dummy x11-xserver-utils
   # sweeps: shards run through GNU parallel (tests/shadow/sweep_test.cc, docs/sweeps.md)
   parallel
+  # sweeps: a single-node Slurm started by tests/shadow/slurm_sweep.sh (array shards, dependent merge)
+  slurm-wlm munge
 )
 
 missing=()
