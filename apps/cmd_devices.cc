@@ -43,7 +43,7 @@ int RunDevices(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    return ExitOnParseError(app, e);
   }
   for (const auto& address : addresses) {
     SLSHADOW_THROW_IF(!capture::IsIpv4Address(address), "--address: '", address,

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <optional>
 #include <utility>
 
@@ -85,6 +86,15 @@ cv::Mat ReadAnyMat(const cv::FileStorage& fs, const std::string& key, const std:
     return cv::Mat(values, true).reshape(1, 1);
   }
   if (node.isReal() || node.isInt()) return cv::Mat(1, 1, CV_64F, cv::Scalar(static_cast<double>(node)));
+  // OpenCV allocates rows x cols before reading the data: the claimed size is checked against the
+  // values present first (a header claiming 10^5 x 10^5 is an error, not a 80 GB allocation).
+  if (node.isMap() && node["rows"].isInt() && node["cols"].isInt()) {
+    const int64_t rows = static_cast<int>(node["rows"]), cols = static_cast<int>(node["cols"]);
+    const cv::FileNode data = node["data"];
+    const int64_t values = data.isSeq() ? static_cast<int64_t>(data.size()) : 0;
+    SLSHADOW_THROW_IF(rows < 0 || cols < 0 || rows * cols > values, path.string(), ": ", key, ": matrix claims ", rows,
+                      " x ", cols, " but holds ", values, " values");
+  }
   try {
     node >> m;
   } catch (const cv::Exception&) {
@@ -517,8 +527,10 @@ OpenCvNodeMap ParseOpenCvNodeMap(const std::string& text) {
   return map;
 }
 
-Rig ReadOpenCvCalibration(const std::filesystem::path& path, int default_width, int default_height, int projector_width,
-                          int projector_height, const OpenCvNodeMap& node_map) {
+namespace {
+
+Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_width, int default_height,
+                               int projector_width, int projector_height, const OpenCvNodeMap& node_map) {
   SLSHADOW_THROW_IF(!std::filesystem::exists(path), path.string(), ": file not found");
   cv::FileStorage fs;
   try {
@@ -599,6 +611,19 @@ Rig ReadOpenCvCalibration(const std::filesystem::path& path, int default_width, 
     }
   }
   return rig;
+}
+
+}  // namespace
+
+Rig ReadOpenCvCalibration(const std::filesystem::path& path, int default_width, int default_height, int projector_width,
+                          int projector_height, const OpenCvNodeMap& node_map) {
+  // cv::FileNode throws cv::Exception on content of an unexpected shape (the top level not a
+  // mapping, a string read as a matrix, ...): bad input, reported as such in one line.
+  try {
+    return ReadOpenCvCalibrationNodes(path, default_width, default_height, projector_width, projector_height, node_map);
+  } catch (const cv::Exception& e) {
+    SLSHADOW_THROW(path.string(), ": malformed OpenCV FileStorage content (", e.err, " in ", e.func, ")");
+  }
 }
 
 }  // namespace slshadow
