@@ -169,6 +169,14 @@ cv::Mat ReadDist(const cv::FileStorage& fs, const std::string& key, const std::f
   return m;
 }
 
+// A size or count read as a double (FileStorage stores numbers as either), as an int: a value that
+// is not finite, not whole or beyond +-10^6 is bad input (converting it would be undefined).
+int CheckedInt(double v, const std::filesystem::path& path, const std::string& key) {
+  SLSHADOW_THROW_IF(!(std::abs(v) <= 1e6) || v != std::floor(v), path.string(), ": ", key,
+                    ": expected a whole number within +-1000000 (got ", v, ")");
+  return static_cast<int>(v);
+}
+
 // An image size node: [width, height] (cv::Size) or a matrix of two numbers; nullopt if absent.
 std::optional<std::pair<int, int>> ReadSize(const cv::FileStorage& fs, const std::string& key,
                                             const std::filesystem::path& path) {
@@ -176,7 +184,7 @@ std::optional<std::pair<int, int>> ReadSize(const cv::FileStorage& fs, const std
   const cv::Mat m = ReadAnyMat(fs, key, path);
   SLSHADOW_THROW_IF(m.total() != 2, path.string(), ": ", key, ": expected an image size [width, height] (got ",
                     m.total(), " numbers)");
-  return std::pair<int, int>(static_cast<int>(m.at<double>(0)), static_cast<int>(m.at<double>(1)));
+  return std::pair<int, int>(CheckedInt(m.at<double>(0), path, key), CheckedInt(m.at<double>(1), path, key));
 }
 
 // "cam_K (3x3 matrix), dist (1x5 matrix), S ([2 numbers]), name (string)": the top-level nodes.
@@ -241,10 +249,10 @@ Rig ReadMappedLayout(const cv::FileStorage& fs, const OpenCvNodeMap& map, const 
   return rig;
 }
 
-int IntOr(const cv::FileStorage& fs, const std::string& key, int fallback) {
+int IntOr(const cv::FileStorage& fs, const std::string& key, int fallback, const std::filesystem::path& path) {
   const cv::FileNode n = fs[key];
   if (n.empty()) return fallback;
-  return static_cast<int>(static_cast<double>(n));
+  return CheckedInt(static_cast<double>(n), path, key);
 }
 
 }  // namespace
@@ -548,7 +556,7 @@ Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_wi
     return std::pair<int, int>(w, h);
   };
   if (!fs["camera_matrix"].empty()) {
-    const auto [w, h] = size_or_throw(IntOr(fs, "image_width", default_width), IntOr(fs, "image_height", default_height),
+    const auto [w, h] = size_or_throw(IntOr(fs, "image_width", default_width, path), IntOr(fs, "image_height", default_height, path),
                                       "camera_matrix");
     RigDevice d;
     d.name = fs["device_name"].empty() ? "camera" : static_cast<std::string>(fs["device_name"]);
@@ -564,8 +572,8 @@ Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_wi
       fs["img_shape"] >> shape;
       shape.convertTo(shape, CV_64F);
       if (shape.total() >= 2) {
-        cam_h = static_cast<int>(shape.at<double>(0));
-        cam_w = static_cast<int>(shape.at<double>(1));
+        cam_h = CheckedInt(shape.at<double>(0), path, "img_shape");
+        cam_w = CheckedInt(shape.at<double>(1), path, "img_shape");
       }
     }
     const auto [w, h] = size_or_throw(cam_w, cam_h, "cam_int");
@@ -590,13 +598,13 @@ Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_wi
                     ". Known: camera_matrix (OpenCV calibration sample), M1/D1/M2/D2/R/T (stereo_calib), "
                     "M1/D1/M2/D2/Rlr/Tlr/S, cam1_intrinsics/cam1_distorsion/cam2_*/R/T, cam_int/proj_int (procam); "
                     "name the nodes of another layout with --map K1=NODE,D1=NODE[,K2=..,D2=..,R=..,T=..,size1=..]");
-  const int num = IntOr(fs, "num_devices", fs["M2"].empty() ? 1 : 2);
-  const bool has_projector = IntOr(fs, "has_projector", 0) != 0;
+  const int num = IntOr(fs, "num_devices", fs["M2"].empty() ? 1 : 2, path);
+  const bool has_projector = IntOr(fs, "has_projector", 0, path) != 0;
   for (int i = 1; i <= num; ++i) {
     const std::string s = std::to_string(i);
     const bool is_proj = has_projector && i == num;
-    const auto [w, h] = size_or_throw(IntOr(fs, "image_width_" + s, is_proj ? projector_width : default_width),
-                                      IntOr(fs, "image_height_" + s, is_proj ? projector_height : default_height), "M" + s);
+    const auto [w, h] = size_or_throw(IntOr(fs, "image_width_" + s, is_proj ? projector_width : default_width, path),
+                                      IntOr(fs, "image_height_" + s, is_proj ? projector_height : default_height, path), "M" + s);
     RigDevice d;
     d.name = fs["device_name_" + s].empty() ? (is_proj ? "projector" : "camera" + s) : static_cast<std::string>(fs["device_name_" + s]);
     d.model = ModelFromMats(ReadMat(fs, "M" + s, path, 3, 3), ReadDist(fs, "D" + s, path), w, h, file + ": M" + s);
