@@ -1,12 +1,14 @@
-// slshadow bench [--repetitions N] [--only ENTRY ...]
+// slshadow bench [--repetitions N] [--only ENTRY ...] [--json FILE]
 #include <CLI/CLI.hpp>
 #include <cstdio>
 
 #include "apps/commands.h"
+#include "core/file_util.h"
 #include "shadow/bench.h"
 
 namespace slshadow::app {
 using workflow::BenchOptions;
+using workflow::BenchToJson;
 using workflow::FormatBench;
 using workflow::RunBench;
 
@@ -14,6 +16,7 @@ int RunBenchCommand(int argc, char** argv) {
   BenchOptions options;
   bool no_opencv = false;
   bool no_open3d = false;
+  std::string json_path;
   CLI::App app{
       "Speed of the pipeline on the embedded demo (the demo rig scanning the demo part, images\n"
       "rendered in memory, no file encoding), with peers measured in the same run:\n"
@@ -22,12 +25,13 @@ int RunBenchCommand(int argc, char** argv) {
       "  reconstruct  decode + triangulate both cameras (camera-projector); stereo from decoded maps\n"
       "  compare      cloud-to-mesh distances of the stereo cloud; peer: Open3D signed distance\n"
       "Each entry runs N times; the median wall time and the CPU time of that run are printed.\n"
-      "Google Benchmark programs with more detail: tests/*/ *_bench (docs/benchmarks.md).",
+      "Google Benchmark programs with more detail: bench/*/ *_bench (docs/benchmarks.md).",
       argv[0]};
   app.add_option("--repetitions,-n", options.repetitions, "runs per entry (median reported)")->capture_default_str();
   app.add_option("--only", options.only, "entries to run (default: all)");
   app.add_flag("--no-opencv", no_opencv, "skip the OpenCV peer (about 1 s per repetition)");
   app.add_flag("--no-open3d", no_open3d, "skip the Open3D C2M peer (bench/c2m_peer/open3d_c2m.py)");
+  app.add_option("--json", json_path, "also write the entries as JSON (docs/benchmarks.md is rendered from such a file)");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -35,7 +39,9 @@ int RunBenchCommand(int argc, char** argv) {
   }
   options.with_opencv = !no_opencv;
   options.with_open3d = !no_open3d;
-  std::printf("%s", FormatBench(RunBench(options)).c_str());
+  const auto entries = RunBench(options);
+  if (!json_path.empty()) WriteTextFileAtomically(json_path, BenchToJson(entries, options));
+  std::printf("%s", FormatBench(entries).c_str());
   return 0;
 }
 

@@ -1,24 +1,26 @@
-// slshadow calibrate camera|stereo|projector|rig|import|export ...
+// slshadow calibrate camera|stereo|projector|rig|refine|import|export ...: one function per
+// subcommand, each parsing into its arguments and making its calls into calib/.
 #include <CLI/CLI.hpp>
 
 #include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <optional>
-#include <set>
 #include <sstream>
 #include <string>
 #include <utility>
 
 #include "apps/commands.h"
 #include "calib/calibration.h"
+#include "calib/calibration_input.h"
 #include "calib/calibration_io.h"
 #include "calib/guidance.h"
-#include "calib/projector.h"
 #include "calib/model_selection.h"
+#include "calib/projector.h"
 #include "calib/refine.h"
 #include "calib/report.h"
 #include "calib/target.h"
+#include "calib/uncertainty.h"
 #include "core/config.h"
 #include "core/error.h"
 #include "core/image_set.h"
@@ -29,30 +31,6 @@ namespace slshadow::app {
 namespace {
 
 namespace fs = std::filesystem;
-
-// Image files of a folder (sorted by name), or the file itself.
-std::vector<fs::path> ImageFiles(const std::vector<std::string>& args, const std::string& what) {
-  static const std::set<std::string> kExt = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"};
-  std::vector<fs::path> files;
-  for (const auto& a : args) {
-    const fs::path p(a);
-    SLSHADOW_THROW_IF(!fs::exists(p), what, ": ", a, ": no such file or folder");
-    if (fs::is_directory(p)) {
-      std::vector<fs::path> in_dir;
-      for (const auto& e : fs::directory_iterator(p)) {
-        std::string ext = e.path().extension().string();
-        std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
-        if (e.is_regular_file() && kExt.count(ext)) in_dir.push_back(e.path());
-      }
-      std::sort(in_dir.begin(), in_dir.end());
-      SLSHADOW_THROW_IF(in_dir.empty(), what, ": ", a, ": folder holds no images (.png .jpg .bmp .tif .pgm)");
-      files.insert(files.end(), in_dir.begin(), in_dir.end());
-    } else {
-      files.push_back(p);
-    }
-  }
-  return files;
-}
 
 std::pair<int, int> ParseSize(const std::string& s, const std::string& option) {
   int w = 0, h = 0;
@@ -134,65 +112,34 @@ struct CommonOptions {
   }
 };
 
-// Calibrates, reviews, writes the rig, the OpenCV file and the report, prints the summary.
-// --select-model: sets the devices' held_params to the candidate with the lowest leave-one-pose-out
-// prediction RMS of the projector's corners, records the scores in `extra` and returns the chosen
-// candidate's calibration with all poses (the same input and options: not solved again).
-CalibrationResult SelectModels(CalibrationInput* input, const CalibrationOptions& options, nlohmann::json* extra) {
-  int projector = -1;
-  for (size_t d = 0; d < input->devices.size(); ++d) {
-    if (input->devices[d].is_projector) projector = static_cast<int>(d);
-  }
-  SLSHADOW_THROW_IF(projector < 0, "--select-model: the input has no projector");
-  using M = CameraModel;
-  const std::vector<std::pair<std::string, std::vector<int>>> cameras = {{"k1 k2 p1 p2 k3", {}}, {"k1 k2 p1 p2", {M::kK3}}};
-  const std::vector<std::pair<std::string, std::vector<int>>> projectors = {
-      {"k1 k2 p1 p2 k3", {}}, {"k1 k2 p1 p2", {M::kK3}}, {"k1 k2", {M::kP1, M::kP2, M::kK3}}, {"k1", {M::kK2, M::kP1, M::kP2, M::kK3}}};
-  std::vector<ModelCandidate> candidates;
-  for (const auto& [cam_name, cam_held] : cameras) {
-    for (const auto& [proj_name, proj_held] : projectors) {
-      ModelCandidate c;
-      c.name = "cameras " + cam_name + " / projector " + proj_name;
-      for (size_t d = 0; d < input->devices.size(); ++d) {
-        c.held_params.push_back(static_cast<int>(d) == projector ? proj_held : cam_held);
-      }
-      candidates.push_back(std::move(c));
-    }
-  }
-  auto scores = ScoreModelsByLeaveOnePoseOut(*input, options, candidates, 0, projector);
-  size_t best = 0;
-  nlohmann::json table = nlohmann::json::array();
+// --select-model: prints the leave-one-pose-out table and the choice.
+void PrintModelSelection(const ModelSelection& selection) {
   std::printf("model selection (leave-one-pose-out, projector corners):\n");
-  for (size_t i = 0; i < scores.size(); ++i) {
-    std::printf("  %-45s fit %.4f px, predicted %.4f px (%d corners)\n", scores[i].name.c_str(), scores[i].fit_rms_px,
-                scores[i].prediction_rms_px, scores[i].num_predicted);
-    table.push_back({{"model", scores[i].name}, {"fit_rms_px", scores[i].fit_rms_px},
-                     {"prediction_rms_px", scores[i].prediction_rms_px}, {"num_predicted", scores[i].num_predicted}});
-    if (scores[i].prediction_rms_px < scores[best].prediction_rms_px) best = i;
+  for (const auto& s : selection.scores) {
+    std::printf("  %-45s fit %.4f px, predicted %.4f px (%d corners)\n", s.name.c_str(), s.fit_rms_px,
+                s.prediction_rms_px, s.num_predicted);
   }
-  std::printf("  chosen: %s\n", scores[best].name.c_str());
-  for (size_t d = 0; d < input->devices.size(); ++d) input->devices[d].held_params = candidates[best].held_params[d];
-  (*extra)["model_selection"] = {{"candidates", table}, {"chosen", scores[best].name}};
-  return std::move(scores[best].result);
+  std::printf("  chosen: %s\n", selection.scores[selection.chosen].name.c_str());
 }
 
+// Calibrates (--select-model: the distortion models chosen by leave-one-pose-out, the chosen
+// candidate's all-pose solve kept), cross-validates, reviews, writes the rig, the OpenCV file and
+// the report, prints the summary.
 int CalibrateAndWrite(CalibrationInput input, const std::vector<ImageCheck>& checks, const CommonOptions& common,
                       nlohmann::json extra) {
   const CalibrationOptions options = common.Options();
-  const CalibrationResult result = common.select_model ? SelectModels(&input, options, &extra) : Calibrate(input, options);
+  CalibrationResult result;
+  if (common.select_model) {
+    ModelSelection selection = SelectDistortionModels(&input, options);
+    PrintModelSelection(selection);
+    extra["model_selection"] = ModelSelectionToJson(selection);
+    result = std::move(selection.scores[selection.chosen].result);
+  } else {
+    result = Calibrate(input, options);
+  }
   std::optional<CrossValidation> cv;
   if (!common.no_cross_validation) {
-    bool enough = true;
-    for (size_t d = 0; d < input.devices.size(); ++d) {
-      std::set<int> poses;
-      for (const auto& v : input.views) {
-        if (v.device == static_cast<int>(d)) poses.insert(v.pose);
-      }
-      int even = 0, odd = 0;
-      for (int p : poses) (p % 2 ? odd : even)++;
-      enough = enough && even >= 2 && odd >= 2;
-    }
-    if (enough) {
+    if (CanCrossValidate(input)) {
       cv = CrossValidate(input, options);
     } else {
       std::printf("cross-validation skipped: needs at least 2 views per device among the even and among the odd poses\n");
@@ -218,7 +165,7 @@ int CalibrateAndWrite(CalibrationInput input, const std::vector<ImageCheck>& che
   for (const auto& d : result.devices) {
     const auto& m = d.model;
     std::printf("  %s: %dx%d fx %.3f fy %.3f cx %.3f cy %.3f k1 %.5f k2 %.5f p1 %.6f p2 %.6f k3 %.5f\n", d.name.c_str(), m.width,
-                m.height, m.fx(), m.fy(), m.cx(), m.cy(), m.params[4], m.params[5], m.params[6], m.params[7], m.params[8]);
+                m.height, m.fx(), m.fy(), m.cx(), m.cy(), m.k1(), m.k2(), m.p1(), m.p2(), m.k3());
   }
   for (const auto& s : result.summary.devices) std::printf("  %s: RMS %.4f px over %d points\n", s.name.c_str(), s.rms_px, s.num_points);
   for (const auto& b : result.summary.bounds_active) {
@@ -227,34 +174,6 @@ int CalibrateAndWrite(CalibrationInput input, const std::vector<ImageCheck>& che
   for (const auto& f : findings) std::printf("%s\n", f.Text().c_str());
   std::printf("wrote %s and report %s\n", common.out.c_str(), common.ReportDir().string().c_str());
   return 0;
-}
-
-// Detects the target in each file; device d, pose = index in the list.
-void DetectInto(const TargetSpec& spec, const std::vector<fs::path>& files, int device, CalibrationInput* input,
-                std::vector<ImageCheck>* checks) {
-  const auto board = BoardPoints(spec);
-  auto& dev = input->devices[static_cast<size_t>(device)];
-  for (size_t p = 0; p < files.size(); ++p) {
-    const TargetDetection det = DetectTargetInFile(spec, files[p]);
-    if (dev.width == 0) {
-      dev.width = det.width;
-      dev.height = det.height;
-    }
-    SLSHADOW_THROW_IF(det.width != dev.width || det.height != dev.height, files[p].string(), ": image is ", det.width, "x",
-                      det.height, " but the first image of '", dev.name, "' is ", dev.width, "x", dev.height,
-                      " (mismatched image sizes: one camera per list)");
-    checks->push_back({files[p].string(), device, det.found, det.reason, det.saturated_fraction});
-    if (!det.found) continue;
-    BoardView v;
-    v.device = device;
-    v.pose = static_cast<int>(p);
-    v.label = files[p].filename().string();
-    for (size_t i = 0; i < det.pixels_px.size(); ++i) {
-      v.points_in_board_mm.push_back(board[static_cast<size_t>(det.point_ids[i])]);
-      v.pixels_px.push_back(det.pixels_px[i]);
-    }
-    input->views.push_back(std::move(v));
-  }
 }
 
 void PrintMissed(const std::vector<ImageCheck>& checks) {
@@ -267,6 +186,223 @@ void PrintMissed(const std::vector<ImageCheck>& checks) {
     }
   }
   std::printf("board found in %d of %zu images\n", found, checks.size());
+}
+
+// Decoding and local-homography options of `projector` and `rig`.
+struct ProcamArgs {
+  double shadow_threshold = 12;
+  double contrast_threshold = 4;
+  int window = 20;
+
+  void Add(CLI::App* app, bool long_help) {
+    app->add_option("--shadow-threshold", shadow_threshold,
+                    long_help ? "decode: minimum white - black, grey levels (8-bit scale)" : "decode: minimum white - black, grey levels")
+        ->capture_default_str();
+    app->add_option("--contrast-threshold", contrast_threshold, "decode: minimum |bit - inverse|, grey levels")->capture_default_str();
+    app->add_option("--window", window,
+                    long_help ? "local homography half window, camera px (window 2n+1)" : "local homography half window, camera px")
+        ->capture_default_str();
+  }
+  DecodeOptions Decode() const {
+    DecodeOptions decode;
+    decode.shadow_threshold = shadow_threshold;
+    decode.contrast_threshold = contrast_threshold;
+    decode.Check();
+    return decode;
+  }
+  ProcamInputOptions Options() const {
+    ProcamInputOptions o;
+    o.decode = Decode();
+    o.local.half_window_px = window;
+    o.local.min_valid_pixels = std::min(100, window * window);
+    o.Check();
+    return o;
+  }
+};
+
+struct CameraArgs {
+  CommonOptions common;
+  std::vector<std::string> images;
+  std::string camera_name = "camera";
+};
+
+int RunCalibrateCamera(const CameraArgs& a, nlohmann::json extra) {
+  const TargetSpec spec = LoadTargetSpec(a.common.target);
+  const auto files = ImageFiles(a.images, "--images");
+  CalibrationInput input;
+  input.devices = {CalibrationDevice::Camera(a.camera_name)};
+  input.num_poses = static_cast<int>(files.size());
+  std::vector<ImageCheck> checks;
+  AddBoardViews(spec, files, 0, &input, &checks);
+  PrintMissed(checks);
+  extra["target"] = a.common.target;
+  return CalibrateAndWrite(input, checks, a.common, extra);
+}
+
+struct StereoArgs {
+  CommonOptions common;
+  std::vector<std::string> left, right;
+  std::string left_name = "left", right_name = "right";
+};
+
+int RunCalibrateStereo(const StereoArgs& a, nlohmann::json extra) {
+  const TargetSpec spec = LoadTargetSpec(a.common.target);
+  const auto lf = ImageFiles(a.left, "--left"), rf = ImageFiles(a.right, "--right");
+  SLSHADOW_THROW_IF(lf.size() != rf.size(), "stereo: ", lf.size(), " left images but ", rf.size(),
+                    " right images; give the same poses in the same (name) order");
+  SLSHADOW_THROW_IF(a.left_name == a.right_name, "stereo: --left-name and --right-name must differ (got '", a.left_name, "')");
+  CalibrationInput input;
+  input.devices = {CalibrationDevice::Camera(a.left_name), CalibrationDevice::Camera(a.right_name)};
+  input.num_poses = static_cast<int>(lf.size());
+  std::vector<ImageCheck> checks;
+  AddBoardViews(spec, lf, 0, &input, &checks);
+  AddBoardViews(spec, rf, 1, &input, &checks);
+  PrintMissed(checks);
+  extra["target"] = a.common.target;
+  return CalibrateAndWrite(input, checks, a.common, extra);
+}
+
+struct ProjectorArgs {
+  CommonOptions common;
+  ProcamArgs procam;
+  std::string patterns_path, camera_rig;
+  std::vector<std::string> captures;
+  std::string camera_name = "camera";
+};
+
+int RunCalibrateProjector(const ProjectorArgs& a, nlohmann::json extra) {
+  const ProcamInputOptions procam = a.procam.Options();
+  const TargetSpec spec = LoadTargetSpec(a.common.target);
+  const PatternSpec patterns = LoadPatternSpec(a.patterns_path);
+  CalibrationInput input;
+  input.devices = {CalibrationDevice::Camera(a.camera_name),
+                   CalibrationDevice::Projector("projector", patterns.projector_width, patterns.projector_height)};
+  if (!a.camera_rig.empty()) {
+    const Rig known = LoadRig(a.camera_rig);
+    input.devices[0].initial = known.cameras.at(0).model;
+    input.devices[0].hold_intrinsics = true;
+  }
+  input.num_poses = static_cast<int>(a.captures.size());
+  std::vector<std::vector<fs::path>> files;
+  for (const auto& capture : a.captures) files.push_back(ImageFiles({capture}, "--captures"));
+  std::vector<ImageCheck> checks;
+  std::vector<std::string> skipped;
+  AddProcamCaptures(patterns, a.patterns_path, spec, files, a.captures, procam, &input, &checks, &skipped);
+  for (const auto& s : skipped) std::printf("%s\n", s.c_str());
+  PrintMissed(checks);
+  extra["target"] = a.common.target;
+  extra["patterns"] = PatternSpecToJson(patterns);
+  return CalibrateAndWrite(input, checks, a.common, extra);
+}
+
+struct RigArgs {
+  CommonOptions common;
+  ProcamArgs procam;
+  std::vector<std::string> imagesets;
+};
+
+int RunCalibrateRig(const RigArgs& a, nlohmann::json extra) {
+  const ProcamInputOptions procam = a.procam.Options();
+  const TargetSpec spec = LoadTargetSpec(a.common.target);
+  std::vector<ImageCheck> checks;
+  const CalibrationInput input = ProcamInputFromImageSets(a.imagesets, spec, procam, &checks);
+  PrintMissed(checks);
+  extra["target"] = a.common.target;
+  return CalibrateAndWrite(input, checks, a.common, extra);
+}
+
+struct RefineArgs {
+  std::string rig, scan, out, camera, stereo, known_distance;
+  bool refine_focal = false;
+  double known_baseline_mm = 0;
+};
+
+// --known-distance U1,V1,U2,V2,MM: five numbers.
+std::vector<double> ParseKnownDistance(const std::string& text) {
+  std::vector<double> v;
+  std::stringstream in(text);
+  for (std::string item; std::getline(in, item, ',');) {
+    try {
+      v.push_back(std::stod(item));
+    } catch (const std::exception&) {
+      v.clear();
+      break;
+    }
+  }
+  SLSHADOW_THROW_IF(v.size() != 5, "--known-distance: expected U1,V1,U2,V2,MM (got '", text, "')");
+  return v;
+}
+
+int RunCalibrateRefine(const RefineArgs& a) {
+  const DecodeOptions decode = ProcamArgs{}.Decode();
+  const Rig rig = LoadRig(a.rig);
+  const ImageSet scan = ImageSet::Open(a.scan);
+  const std::string cam = a.camera.empty() ? rig.cameras.at(0).name : a.camera;
+  const int index = rig.CameraIndex(cam);
+  SLSHADOW_THROW_IF(index < 0, a.rig, ": no camera named '", cam, "'");
+  const PatternSpec patterns =
+      PatternSpecFromConfig(ConfigNode::FromJson(scan.patterns(), (fs::path(a.scan) / "manifest.json").string(), "patterns"));
+  SLSHADOW_THROW_IF(!patterns.code_x || !patterns.code_y, a.scan, ": patterns must code both projector axes to check the calibration");
+  SLSHADOW_THROW_IF(a.stereo.empty() && !rig.projector, a.rig, ": rig '", rig.name,
+                    "' has no projector: refine the pose of one camera against another with --stereo NAME");
+  const ProjectorMap map = DecodePatterns(patterns, scan.LoadCamera(cam), decode);
+  RefineOptions ro;
+  ro.refine_focal = a.refine_focal;
+  ro.known_baseline_mm = a.known_baseline_mm;
+  std::optional<ProjectorMap> map_b;
+  if (!a.stereo.empty()) {
+    const int index_b = rig.CameraIndex(a.stereo);
+    SLSHADOW_THROW_IF(index_b < 0, a.rig, ": no camera named '", a.stereo, "' (--stereo)");
+    map_b = DecodePatterns(patterns, scan.LoadCamera(a.stereo), decode);
+  }
+  if (!a.known_distance.empty()) {
+    const std::vector<double> v = ParseKnownDistance(a.known_distance);
+    KnownDistance k;
+    k.distance_mm = v[4];
+    for (int i = 0; i < 2; ++i) {
+      const Eigen::Vector2d px(v[static_cast<size_t>(2 * i)], v[static_cast<size_t>(2 * i + 1)]);
+      const auto c = CorrespondenceAt(map, map_b ? &*map_b : nullptr, px);
+      SLSHADOW_THROW_IF(!c, "--known-distance: pixel (", px.x(), ", ", px.y(), ") of camera '", cam,
+                        "' has no decoded correspondence", map_b ? " in both cameras" : "");
+      (i == 0 ? k.first : k.second) = *c;
+    }
+    ro.known_distances.push_back(k);
+  }
+  RefineResult r;
+  if (a.stereo.empty()) {
+    r = RefineProjectorPose(rig, index, SampleCorrespondences(map), ro);
+  } else {
+    r = RefineStereoPose(rig, index, rig.CameraIndex(a.stereo), StereoCorrespondences(map, *map_b), ro);
+  }
+  // A refused solution writes nothing: the report says why.
+  SLSHADOW_THROW_IF(r.rejected, a.rig, ": calibrate refine: ", r.message);
+  Rig out = r.rig;
+  out.calibration["refine"] = RefineRecordToJson(r, a.scan, cam, a.stereo);
+  SaveRig(out, a.out);
+  std::printf("%s\nwrote %s\n", r.message.c_str(), a.out.c_str());
+  return 0;
+}
+
+struct ImportArgs {
+  std::string in, out, image_size, projector_size, map;
+};
+
+int RunCalibrateImport(const ImportArgs& a) {
+  int w = 0, h = 0, pw = 0, ph = 0;
+  if (!a.image_size.empty()) std::tie(w, h) = ParseSize(a.image_size, "--image-size");
+  if (!a.projector_size.empty()) std::tie(pw, ph) = ParseSize(a.projector_size, "--projector-size");
+  const OpenCvNodeMap node_map = a.map.empty() ? OpenCvNodeMap{} : ParseOpenCvNodeMap(a.map);
+  const Rig rig = ReadOpenCvCalibration(a.in, w, h, pw, ph, node_map);
+  SaveRig(rig, a.out);
+  std::printf("%s", DescribeRig(rig).c_str());
+  std::printf("wrote %s\n", a.out.c_str());
+  return 0;
+}
+
+int RunCalibrateExport(const std::string& in, const std::string& out) {
+  WriteOpenCvCalibration(LoadRig(in), out);
+  std::printf("wrote %s\n", out.c_str());
+  return 0;
 }
 
 }  // namespace
@@ -305,70 +441,60 @@ int RunCalibrate(int argc, char** argv) {
       argv[0]};
   app.require_subcommand(1);
 
-  CommonOptions cam_common, stereo_common, proj_common, rig_common;
-  std::vector<std::string> images, left, right, captures, imagesets;
-  std::string camera_name = "camera", left_name = "left", right_name = "right";
-  std::string patterns_path, camera_rig;
-  double shadow_threshold = 12, contrast_threshold = 4;
-  int window = 20;
-
+  CameraArgs camera_args;
   auto* camera = app.add_subcommand("camera", "calibrate one camera from images of the board");
-  cam_common.Add(camera);
-  camera->add_option("--images", images, "image files or folders (all images in name order)")->required();
-  camera->add_option("--camera-name", camera_name, "camera name in the rig")->capture_default_str();
+  camera_args.common.Add(camera);
+  camera->add_option("--images", camera_args.images, "image files or folders (all images in name order)")->required();
+  camera->add_option("--camera-name", camera_args.camera_name, "camera name in the rig")->capture_default_str();
 
+  StereoArgs stereo_args;
   auto* stereo = app.add_subcommand("stereo", "calibrate two cameras and their relative pose from image pairs");
-  stereo_common.Add(stereo);
-  stereo->add_option("--left", left, "first camera's images (files or folders); defines the rig frame")->required();
-  stereo->add_option("--right", right, "second camera's images, same count and order")->required();
-  stereo->add_option("--left-name", left_name, "first camera's name")->capture_default_str();
-  stereo->add_option("--right-name", right_name, "second camera's name")->capture_default_str();
+  stereo_args.common.Add(stereo);
+  stereo->add_option("--left", stereo_args.left, "first camera's images (files or folders); defines the rig frame")->required();
+  stereo->add_option("--right", stereo_args.right, "second camera's images, same count and order")->required();
+  stereo->add_option("--left-name", stereo_args.left_name, "first camera's name")->capture_default_str();
+  stereo->add_option("--right-name", stereo_args.right_name, "second camera's name")->capture_default_str();
 
+  ProjectorArgs projector_args;
   auto* projector = app.add_subcommand("projector", "calibrate a camera and a projector from fringe captures of the board");
-  proj_common.Add(projector);
-  proj_common.AddSelectModel(projector);
-  projector->add_option("--patterns", patterns_path, "pattern spec YAML (docs/formats.md \"Pattern spec\"), must code x and y and have a white frame")->required();
-  projector->add_option("--captures", captures, "one folder per board pose with the camera's images in sequence (name) order")->required();
-  projector->add_option("--camera-name", camera_name, "camera name in the rig")->capture_default_str();
-  projector->add_option("--camera-rig", camera_rig, "rig file whose first camera's intrinsics are held fixed (else estimated jointly)");
-  projector->add_option("--shadow-threshold", shadow_threshold, "decode: minimum white - black, grey levels (8-bit scale)")->capture_default_str();
-  projector->add_option("--contrast-threshold", contrast_threshold, "decode: minimum |bit - inverse|, grey levels")->capture_default_str();
-  projector->add_option("--window", window, "local homography half window, camera px (window 2n+1)")->capture_default_str();
+  projector_args.common.Add(projector);
+  projector_args.common.AddSelectModel(projector);
+  projector->add_option("--patterns", projector_args.patterns_path, "pattern spec YAML (docs/formats.md \"Pattern spec\"), must code x and y and have a white frame")->required();
+  projector->add_option("--captures", projector_args.captures, "one folder per board pose with the camera's images in sequence (name) order")->required();
+  projector->add_option("--camera-name", projector_args.camera_name, "camera name in the rig")->capture_default_str();
+  projector->add_option("--camera-rig", projector_args.camera_rig, "rig file whose first camera's intrinsics are held fixed (else estimated jointly)");
+  projector_args.procam.Add(projector, true);
 
+  RigArgs rig_args;
   auto* rig_cmd = app.add_subcommand("rig", "calibrate all cameras and the projector of a rig from ImageSets of the board");
-  rig_common.Add(rig_cmd);
-  rig_common.AddSelectModel(rig_cmd);
-  rig_cmd->add_option("--imagesets", imagesets, "one ImageSet folder per board pose (manifest with rig and pattern spec)")->required();
-  rig_cmd->add_option("--shadow-threshold", shadow_threshold, "decode: minimum white - black, grey levels")->capture_default_str();
-  rig_cmd->add_option("--contrast-threshold", contrast_threshold, "decode: minimum |bit - inverse|, grey levels")->capture_default_str();
-  rig_cmd->add_option("--window", window, "local homography half window, camera px")->capture_default_str();
+  rig_args.common.Add(rig_cmd);
+  rig_args.common.AddSelectModel(rig_cmd);
+  rig_cmd->add_option("--imagesets", rig_args.imagesets, "one ImageSet folder per board pose (manifest with rig and pattern spec)")->required();
+  rig_args.procam.Add(rig_cmd, false);
 
-  std::string refine_rig, refine_scan, refine_out, refine_camera;
+  RefineArgs refine_args;
   auto* refine = app.add_subcommand("refine", "check a rig against a scan and re-estimate the projector pose (self-calibration)");
-  refine->add_option("--rig", refine_rig, "rig file to check")->required();
-  refine->add_option("--imageset", refine_scan, "ImageSet of a scan (any object) with the rig's camera and a pattern spec coding x and y")->required();
-  refine->add_option("--out", refine_out, "refined rig file to write")->required();
-  refine->add_option("--camera", refine_camera, "camera to use (default: the rig's first camera)");
-  std::string refine_stereo, known_distance;
-  bool refine_focal = false;
-  double known_baseline_mm = 0;
-  refine->add_option("--stereo", refine_stereo,
+  refine->add_option("--rig", refine_args.rig, "rig file to check")->required();
+  refine->add_option("--imageset", refine_args.scan, "ImageSet of a scan (any object) with the rig's camera and a pattern spec coding x and y")->required();
+  refine->add_option("--out", refine_args.out, "refined rig file to write")->required();
+  refine->add_option("--camera", refine_args.camera, "camera to use (default: the rig's first camera)");
+  refine->add_option("--stereo", refine_args.stereo,
                      "second camera: refine its pose relative to --camera from camera-camera correspondences "
                      "(default: none, refine the projector)");
-  refine->add_option("--baseline-mm", known_baseline_mm,
+  refine->add_option("--baseline-mm", refine_args.known_baseline_mm,
                      "known baseline length between --camera and the refined device, mm: fixes the scale");
-  refine->add_option("--known-distance", known_distance,
+  refine->add_option("--known-distance", refine_args.known_distance,
                      "U1,V1,U2,V2,MM: two pixels of --camera seeing scene points MM mm apart: fixes the scale");
-  refine->add_flag("--refine-focal", refine_focal,
+  refine->add_flag("--refine-focal", refine_args.refine_focal,
                    "also re-estimate the focal length of the projector (or of the --stereo camera); default off");
 
-  std::string import_in, import_out, image_size, projector_size, import_map;
+  ImportArgs import_args;
   auto* import = app.add_subcommand("import", "convert an OpenCV calibration file (calibrateCamera / stereoCalibrate / procam layout) to a rig");
-  import->add_option("OPENCV", import_in, "OpenCV FileStorage file (.yml/.yaml/.xml)")->required();
-  import->add_option("--out", import_out, "rig file to write")->required();
-  import->add_option("--image-size", image_size, "camera image size WxH when the file has none");
-  import->add_option("--projector-size", projector_size, "projector size WxH when the file has a projector without size");
-  import->add_option("--map", import_map,
+  import->add_option("OPENCV", import_args.in, "OpenCV FileStorage file (.yml/.yaml/.xml)")->required();
+  import->add_option("--out", import_args.out, "rig file to write")->required();
+  import->add_option("--image-size", import_args.image_size, "camera image size WxH when the file has none");
+  import->add_option("--projector-size", import_args.projector_size, "projector size WxH when the file has a projector without size");
+  import->add_option("--map", import_args.map,
                      "node names of a layout slshadow does not know: K1=NODE,D1=NODE[,K2=,D2=,R=,T=,size1=,size2=]");
 
   std::string export_in, export_out;
@@ -386,195 +512,13 @@ int RunCalibrate(int argc, char** argv) {
   for (int i = 0; i < argc; ++i) cmdline += (i ? " " : "") + std::string(argv[i]);
   extra["command"] = cmdline;
 
-  if (camera->parsed()) {
-    const TargetSpec spec = LoadTargetSpec(cam_common.target);
-    const auto files = ImageFiles(images, "--images");
-    CalibrationInput input;
-    input.devices = {CalibrationDevice{camera_name, 0, 0, false, std::nullopt, false, {}}};
-    input.num_poses = static_cast<int>(files.size());
-    std::vector<ImageCheck> checks;
-    DetectInto(spec, files, 0, &input, &checks);
-    PrintMissed(checks);
-    extra["target"] = cam_common.target;
-    return CalibrateAndWrite(input, checks, cam_common, extra);
-  }
-  if (stereo->parsed()) {
-    const TargetSpec spec = LoadTargetSpec(stereo_common.target);
-    const auto lf = ImageFiles(left, "--left"), rf = ImageFiles(right, "--right");
-    SLSHADOW_THROW_IF(lf.size() != rf.size(), "stereo: ", lf.size(), " left images but ", rf.size(),
-                      " right images; give the same poses in the same (name) order");
-    SLSHADOW_THROW_IF(left_name == right_name, "stereo: --left-name and --right-name must differ (got '", left_name, "')");
-    CalibrationInput input;
-    input.devices = {CalibrationDevice{left_name, 0, 0, false, std::nullopt, false, {}},
-                     CalibrationDevice{right_name, 0, 0, false, std::nullopt, false, {}}};
-    input.num_poses = static_cast<int>(lf.size());
-    std::vector<ImageCheck> checks;
-    DetectInto(spec, lf, 0, &input, &checks);
-    DetectInto(spec, rf, 1, &input, &checks);
-    PrintMissed(checks);
-    extra["target"] = stereo_common.target;
-    return CalibrateAndWrite(input, checks, stereo_common, extra);
-  }
-  DecodeOptions decode;
-  decode.shadow_threshold = shadow_threshold;
-  decode.contrast_threshold = contrast_threshold;
-  decode.Check();
-  LocalHomographyOptions local;
-  local.half_window_px = window;
-  local.min_valid_pixels = std::min(100, window * window);
-  local.Check();
-  if (projector->parsed()) {
-    const TargetSpec spec = LoadTargetSpec(proj_common.target);
-    const PatternSpec patterns = LoadPatternSpec(patterns_path);
-    CalibrationInput input;
-    input.devices = {CalibrationDevice{camera_name, 0, 0, false, std::nullopt, false, {}},
-                     CalibrationDevice{"projector", patterns.projector_width, patterns.projector_height, true, std::nullopt, false, {}}};
-    if (!camera_rig.empty()) {
-      const Rig known = LoadRig(camera_rig);
-      input.devices[0].initial = known.cameras.at(0).model;
-      input.devices[0].hold_intrinsics = true;
-    }
-    input.num_poses = static_cast<int>(captures.size());
-    std::vector<ImageCheck> checks;
-    for (size_t p = 0; p < captures.size(); ++p) {
-      const auto files = ImageFiles({captures[p]}, "--captures");
-      SLSHADOW_THROW_IF(static_cast<int>(files.size()) != patterns.NumImages(), captures[p], ": ", files.size(),
-                        " images but the pattern sequence ", patterns_path, " has ", patterns.NumImages());
-      std::vector<cv::Mat> frames;
-      for (const auto& f : files) frames.push_back(ReadGrayImage(f));
-      if (input.devices[0].width == 0) {
-        input.devices[0].width = frames[0].cols;
-        input.devices[0].height = frames[0].rows;
-      }
-      const ProcamPose pose = MakeProcamPose(patterns, frames, spec, static_cast<int>(p), 0, 1, captures[p], decode, local);
-      checks.push_back({captures[p], 0, pose.detection.found, pose.detection.reason, pose.detection.saturated_fraction});
-      for (const auto& s : pose.projector.skipped) std::printf("%s: skipped %s\n", captures[p].c_str(), s.c_str());
-      if (!pose.detection.found) continue;
-      input.views.push_back(pose.camera_view);
-      if (pose.projector_view.pixels_px.size() >= 4) input.views.push_back(pose.projector_view);
-    }
-    PrintMissed(checks);
-    extra["target"] = proj_common.target;
-    extra["patterns"] = PatternSpecToJson(patterns);
-    return CalibrateAndWrite(input, checks, proj_common, extra);
-  }
-  if (rig_cmd->parsed()) {
-    const TargetSpec spec = LoadTargetSpec(rig_common.target);
-    CalibrationInput input;
-    input.num_poses = static_cast<int>(imagesets.size());
-    std::vector<ImageCheck> checks;
-    std::vector<std::string> names;
-    int projector_device = -1;
-    for (size_t p = 0; p < imagesets.size(); ++p) {
-      const ImageSet set = ImageSet::Open(imagesets[p]);
-      const PatternSpec patterns =
-          PatternSpecFromConfig(ConfigNode::FromJson(set.patterns(), (fs::path(imagesets[p]) / "manifest.json").string(), "patterns"));
-      if (p == 0) {
-        for (const auto& name : set.CameraNames()) {
-          const auto& cam = set.rig().Camera(name);
-          input.devices.push_back({name, cam.model.width, cam.model.height, false, std::nullopt, false, {}});
-          names.push_back(name);
-        }
-        projector_device = static_cast<int>(input.devices.size());
-        input.devices.push_back({set.rig().projector ? set.rig().projector->name : "projector", patterns.projector_width,
-                                 patterns.projector_height, true, std::nullopt, false, {}});
-      }
-      SLSHADOW_THROW_IF(set.CameraNames() != names, imagesets[p], ": cameras differ from the first ImageSet's");
-      for (size_t d = 0; d < names.size(); ++d) {
-        const std::string label = imagesets[p] + "/" + names[d];
-        const ProcamPose pose = MakeProcamPose(patterns, set.LoadCamera(names[d]), spec, static_cast<int>(p),
-                                               static_cast<int>(d), projector_device, label, decode, local);
-        checks.push_back({label, static_cast<int>(d), pose.detection.found, pose.detection.reason, pose.detection.saturated_fraction});
-        if (!pose.detection.found) continue;
-        input.views.push_back(pose.camera_view);
-        if (pose.projector_view.pixels_px.size() >= 4) input.views.push_back(pose.projector_view);
-      }
-    }
-    PrintMissed(checks);
-    extra["target"] = rig_common.target;
-    return CalibrateAndWrite(input, checks, rig_common, extra);
-  }
-  if (refine->parsed()) {
-    const Rig rig = LoadRig(refine_rig);
-    const ImageSet scan = ImageSet::Open(refine_scan);
-    const std::string cam = refine_camera.empty() ? rig.cameras.at(0).name : refine_camera;
-    const int index = rig.CameraIndex(cam);
-    SLSHADOW_THROW_IF(index < 0, refine_rig, ": no camera named '", cam, "'");
-    const PatternSpec patterns =
-        PatternSpecFromConfig(ConfigNode::FromJson(scan.patterns(), (fs::path(refine_scan) / "manifest.json").string(), "patterns"));
-    SLSHADOW_THROW_IF(!patterns.code_x || !patterns.code_y, refine_scan, ": patterns must code both projector axes to check the calibration");
-    SLSHADOW_THROW_IF(refine_stereo.empty() && !rig.projector, refine_rig, ": rig '", rig.name,
-                      "' has no projector: refine the pose of one camera against another with --stereo NAME");
-    const ProjectorMap map = DecodePatterns(patterns, scan.LoadCamera(cam), decode);
-    RefineOptions ro;
-    ro.refine_focal = refine_focal;
-    ro.known_baseline_mm = known_baseline_mm;
-    std::optional<ProjectorMap> map_b;
-    if (!refine_stereo.empty()) {
-      const int index_b = rig.CameraIndex(refine_stereo);
-      SLSHADOW_THROW_IF(index_b < 0, refine_rig, ": no camera named '", refine_stereo, "' (--stereo)");
-      map_b = DecodePatterns(patterns, scan.LoadCamera(refine_stereo), decode);
-    }
-    if (!known_distance.empty()) {
-      std::vector<double> v;
-      std::stringstream in(known_distance);
-      for (std::string item; std::getline(in, item, ',');) {
-        try {
-          v.push_back(std::stod(item));
-        } catch (const std::exception&) {
-          v.clear();
-          break;
-        }
-      }
-      SLSHADOW_THROW_IF(v.size() != 5, "--known-distance: expected U1,V1,U2,V2,MM (got '", known_distance, "')");
-      KnownDistance k;
-      k.distance_mm = v[4];
-      for (int i = 0; i < 2; ++i) {
-        const Eigen::Vector2d px(v[static_cast<size_t>(2 * i)], v[static_cast<size_t>(2 * i + 1)]);
-        const auto c = CorrespondenceAt(map, map_b ? &*map_b : nullptr, px);
-        SLSHADOW_THROW_IF(!c, "--known-distance: pixel (", px.x(), ", ", px.y(), ") of camera '", cam,
-                          "' has no decoded correspondence", map_b ? " in both cameras" : "");
-        (i == 0 ? k.first : k.second) = *c;
-      }
-      ro.known_distances.push_back(k);
-    }
-    RefineResult r;
-    if (refine_stereo.empty()) {
-      r = RefineProjectorPose(rig, index, SampleCorrespondences(map), ro);
-    } else {
-      r = RefineStereoPose(rig, index, rig.CameraIndex(refine_stereo), StereoCorrespondences(map, *map_b), ro);
-    }
-    // A refused solution writes nothing: the report says why.
-    SLSHADOW_THROW_IF(r.rejected, refine_rig, ": calibrate refine: ", r.message);
-    Rig out = r.rig;
-    out.calibration["refine"] = {{"imageset", refine_scan}, {"camera", cam}, {"stereo", refine_stereo},
-                                 {"focal_scale", r.focal_scale},
-                                 {"before_median_px", r.before.median_px}, {"before_p95_px", r.before.p95_px},
-                                 {"after_median_px", r.after.median_px}, {"after_p95_px", r.after.p95_px},
-                                 {"rotation_change_rad", r.rotation_change_rad},
-                                 {"direction_change_rad", r.direction_change_rad}, {"converged", r.converged},
-                                 {"front_share", r.front_share}, {"inlier_share", r.inlier_share},
-                                 {"baseline_mm", r.baseline_mm}, {"scale_verified", r.scale_verified}};
-    SaveRig(out, refine_out);
-    std::printf("%s\nwrote %s\n", r.message.c_str(), refine_out.c_str());
-    return 0;
-  }
-  if (import->parsed()) {
-    int w = 0, h = 0, pw = 0, ph = 0;
-    if (!image_size.empty()) std::tie(w, h) = ParseSize(image_size, "--image-size");
-    if (!projector_size.empty()) std::tie(pw, ph) = ParseSize(projector_size, "--projector-size");
-    const OpenCvNodeMap node_map = import_map.empty() ? OpenCvNodeMap{} : ParseOpenCvNodeMap(import_map);
-    const Rig rig = ReadOpenCvCalibration(import_in, w, h, pw, ph, node_map);
-    SaveRig(rig, import_out);
-    std::printf("%s", DescribeRig(rig).c_str());
-    std::printf("wrote %s\n", import_out.c_str());
-    return 0;
-  }
-  if (exp->parsed()) {
-    WriteOpenCvCalibration(LoadRig(export_in), export_out);
-    std::printf("wrote %s\n", export_out.c_str());
-    return 0;
-  }
+  if (camera->parsed()) return RunCalibrateCamera(camera_args, extra);
+  if (stereo->parsed()) return RunCalibrateStereo(stereo_args, extra);
+  if (projector->parsed()) return RunCalibrateProjector(projector_args, extra);
+  if (rig_cmd->parsed()) return RunCalibrateRig(rig_args, extra);
+  if (refine->parsed()) return RunCalibrateRefine(refine_args);
+  if (import->parsed()) return RunCalibrateImport(import_args);
+  if (exp->parsed()) return RunCalibrateExport(export_in, export_out);
   return 1;
 }
 

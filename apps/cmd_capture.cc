@@ -9,6 +9,7 @@
 #include "apps/commands.h"
 #include "capture/devices.h"
 #include "capture/factory.h"
+#include "capture/pattern_sequence_capture.h"
 #include "capture/sequencer.h"
 #include "core/error.h"
 #include "core/rig.h"
@@ -117,6 +118,8 @@ int RunCapture(int argc, char** argv) {
   } restore{previous_handler};
 
   const std::string again = "run the same command with --resume to continue";
+  SLSHADOW_THROW_IF(poses > 0 && opened.sequence_projector, devices_path,
+                    ": projector: --poses needs a projector shown pattern by pattern (mode: video)");
   if (poses > 0) {
     const capture::PosesSummary s = capture::CapturePoses(rig, spec, opened.cameras, *opened.projector, out_dir, poses,
                                                           options, std::cin, std::cerr);
@@ -131,7 +134,11 @@ int RunCapture(int argc, char** argv) {
     if (!quiet) std::printf("capture: %d poses in %s (slshadow calibrate rig --imagesets %s/pose_*)\n", poses, out_dir.c_str(), out_dir.c_str());
     return 0;
   }
-  const capture::CaptureSummary s = capture::Capture(rig, spec, opened.cameras, *opened.projector, out_dir, options);
+  // A LightCrafter in pattern-sequence mode runs the sequence and triggers the cameras itself.
+  const capture::CaptureSummary s =
+      opened.sequence_projector
+          ? capture::CapturePatternSequence(rig, spec, opened.cameras, *opened.sequence_projector, out_dir, options)
+          : capture::Capture(rig, spec, opened.cameras, *opened.projector, out_dir, options);
   if (s.interrupted) {
     std::fprintf(stderr, "capture: interrupted: %d of %d images staged in %s; %s\n", s.images_before + s.images_stored,
                  s.images_total, s.staging.string().c_str(), again.c_str());

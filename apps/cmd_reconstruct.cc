@@ -1,20 +1,13 @@
 // slshadow reconstruct IMAGESET --out CLOUD.ply [--rig RIG.yaml] [--mode auto|projector|stereo] [--method ...]
 #include <CLI/CLI.hpp>
 #include <cstdio>
-#include <cmath>
-#include <filesystem>
 #include <limits>
 
-#include <opencv2/imgcodecs.hpp>
-#include <opencv2/imgproc.hpp>
-
 #include "apps/commands.h"
-#include "core/error.h"
-#include "core/file_util.h"
 #include "core/image_set.h"
-#include "core/point_cloud.h"
 #include "core/rig.h"
 #include "reconstruct/reconstruct_image_set.h"
+#include "reconstruct/write_reconstruction.h"
 
 namespace slshadow::app {
 
@@ -136,53 +129,13 @@ int RunReconstruct(int argc, char** argv) {
   options.Check();
 
   const ImageSetReconstruction rec = ReconstructImageSet(image_set, options, rig);
-  // An empty cloud is a failure with a reason, not a result (nothing is written).
-  SLSHADOW_THROW_IF(rec.cloud.empty(), imageset_dir, ": the reconstruction has 0 points: ", rec.EmptyCloudReason());
-  PlyWriteOptions ply;
-  ply.binary = !ascii;
-  WritePly(out_path, rec.cloud, ply);
-  if (summary_path.empty()) {
-    std::filesystem::path p(out_path);
-    summary_path = (p.parent_path() / p.stem()).string() + ".summary.json";
-  }
-  nlohmann::json summary = rec.ToJson();
-  summary["imageset"] = imageset_dir;
-  summary["cloud"] = out_path;
-  summary["options"] = options.ToJson();
-  // Provenance of the rig: the manifest's, or the file given with --rig.
-  summary["rig"] = {{"name", rig.name},
-                    {"source", rig_path.empty() ? "manifest" : "file"},
-                    {"file", rig_path.empty() ? (std::filesystem::path(imageset_dir) / "manifest.json").string()
-                                              : std::filesystem::absolute(rig_path).string()}};
-  // Calibration-check maps: the dense correspondences' |epipolar error|, colour-coded from 0 (blue)
-  // to 2 x the check's threshold (red); black where no correspondence. Each entry carries the
-  // check's verdict and the likely causes it named.
-  nlohmann::json maps = nlohmann::json::array();
-  for (size_t k = 0; k < rec.residual_maps.size(); ++k) {
-    const auto& [name, residuals] = rec.residual_maps[k];
-    const CalibrationCheck& check = rec.summaries.at(k).calibration_check;
-    const double map_max_px =
-        check.available && std::isfinite(check.threshold_px) && check.threshold_px > 0 ? 2 * check.threshold_px : 1.0;
-    std::filesystem::path p(out_path);
-    const std::filesystem::path map_path = p.parent_path() / (p.stem().string() + ".residuals_" + name + ".png");
-    cv::Mat scaled, mask = residuals == residuals;  // false at NaN
-    residuals.convertTo(scaled, CV_8U, 255.0 / map_max_px);
-    cv::Mat colour;
-    cv::applyColorMap(scaled, colour, cv::COLORMAP_TURBO);
-    colour.setTo(cv::Scalar(0, 0, 0), ~mask);
-    WriteFileAtomically(map_path, [&](const std::filesystem::path& tmp) {
-      SLSHADOW_THROW_IF(!cv::imwrite(tmp.string() + ".png", colour), map_path.string(), ": cannot write image");
-      std::filesystem::rename(tmp.string() + ".png", tmp);
-    });
-    maps.push_back({{"reconstruction", name},
-                    {"file", map_path.string()},
-                    {"scale_max_px", map_max_px},
-                    {"calibration_warning", check.warn},
-                    {"systematic_px", check.systematic_px},
-                    {"likely_causes", check.likely_causes}});
-  }
-  summary["residual_maps"] = maps;
-  WriteTextFileAtomically(summary_path, summary.dump(2) + "\n");
+  ReconstructionOutputOptions output;
+  output.cloud_path = out_path;
+  output.summary_path = summary_path;
+  output.binary_ply = !ascii;
+  output.imageset = imageset_dir;
+  output.rig_file = rig_path;
+  const ReconstructionOutputs written = WriteReconstruction(rec, options, rig, output);
   for (const auto& w : rec.Warnings()) std::fprintf(stderr, "slshadow: warning: %s\n", w.c_str());
   if (quiet) {
     for (const auto& s : rec.summaries) {
@@ -193,7 +146,7 @@ int RunReconstruct(int argc, char** argv) {
     std::printf("%s", rec.FullReport().c_str());
   }
   if (!rig_path.empty()) std::printf("rig: %s (--rig; the manifest's rig was not used)\n", rig_path.c_str());
-  std::printf("wrote %s (%zu points) and %s\n", out_path.c_str(), rec.cloud.size(), summary_path.c_str());
+  std::printf("wrote %s (%zu points) and %s\n", out_path.c_str(), rec.cloud.size(), written.summary.string().c_str());
   return 0;
 }
 

@@ -19,6 +19,7 @@
 
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -65,6 +66,21 @@ struct CalibrationDevice {
   // there is no initial model), e.g. {kP1, kP2, kK3} for a projector whose few poses cannot
   // support tangential distortion and k3 (chosen by calib/model_selection.h).
   std::vector<int> held_params;
+
+  // A camera or a projector by name (size 0: taken from its first image), every other field at
+  // its default; set the others by name.
+  static CalibrationDevice Camera(std::string name, int width = 0, int height = 0) {
+    CalibrationDevice d;
+    d.name = std::move(name);
+    d.width = width;
+    d.height = height;
+    return d;
+  }
+  static CalibrationDevice Projector(std::string name, int width, int height) {
+    CalibrationDevice d = Camera(std::move(name), width, height);
+    d.is_projector = true;
+    return d;
+  }
 };
 
 struct CalibrationInput {

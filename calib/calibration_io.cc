@@ -136,7 +136,7 @@ cv::Mat KMat(const CameraModel& m) {
   return (cv::Mat_<double>(3, 3) << m.fx(), 0, m.cx(), 0, m.fy(), m.cy(), 0, 0, 1);
 }
 cv::Mat DMat(const CameraModel& m) {
-  return (cv::Mat_<double>(1, 5) << m.params[4], m.params[5], m.params[6], m.params[7], m.params[8]);
+  return (cv::Mat_<double>(1, 5) << m.k1(), m.k2(), m.p1(), m.p2(), m.k3());
 }
 
 Rigid3d PoseFromRT(const cv::Mat& r, const cv::Mat& t) {

@@ -3,6 +3,8 @@
 #include <cmath>
 #include <set>
 
+#include <nlohmann/json.hpp>
+
 #include "core/error.h"
 
 namespace slshadow {
@@ -92,6 +94,54 @@ double JackknifeSigma(const ModelScore& score, int parameter) {
   double ss = 0;
   for (const auto& m : score.fold_models) ss += std::pow(m.params[static_cast<size_t>(parameter)] - mean, 2);
   return std::sqrt((static_cast<double>(n) - 1) / static_cast<double>(n) * ss);
+}
+
+std::vector<ModelCandidate> DistortionModelCandidates(const CalibrationInput& input, int projector_device) {
+  SLSHADOW_THROW_IF(projector_device < 0 || projector_device >= static_cast<int>(input.devices.size()) ||
+                        !input.devices[static_cast<size_t>(projector_device)].is_projector,
+                    "model selection: device ", projector_device, " is not a projector of the input");
+  using M = CameraModel;
+  const std::vector<std::pair<std::string, std::vector<int>>> cameras = {{"k1 k2 p1 p2 k3", {}}, {"k1 k2 p1 p2", {M::kK3}}};
+  const std::vector<std::pair<std::string, std::vector<int>>> projectors = {
+      {"k1 k2 p1 p2 k3", {}}, {"k1 k2 p1 p2", {M::kK3}}, {"k1 k2", {M::kP1, M::kP2, M::kK3}}, {"k1", {M::kK2, M::kP1, M::kP2, M::kK3}}};
+  std::vector<ModelCandidate> candidates;
+  for (const auto& [cam_name, cam_held] : cameras) {
+    for (const auto& [proj_name, proj_held] : projectors) {
+      ModelCandidate c;
+      c.name = "cameras " + cam_name + " / projector " + proj_name;
+      for (size_t d = 0; d < input.devices.size(); ++d) {
+        c.held_params.push_back(static_cast<int>(d) == projector_device ? proj_held : cam_held);
+      }
+      candidates.push_back(std::move(c));
+    }
+  }
+  return candidates;
+}
+
+ModelSelection SelectDistortionModels(CalibrationInput* input, const CalibrationOptions& options) {
+  int projector = -1;
+  for (size_t d = 0; d < input->devices.size(); ++d) {
+    if (input->devices[d].is_projector) projector = static_cast<int>(d);
+  }
+  SLSHADOW_THROW_IF(projector < 0, "--select-model: the input has no projector");
+  const std::vector<ModelCandidate> candidates = DistortionModelCandidates(*input, projector);
+  ModelSelection selection;
+  selection.scores = ScoreModelsByLeaveOnePoseOut(*input, options, candidates, 0, projector);
+  for (size_t i = 0; i < selection.scores.size(); ++i) {
+    if (selection.scores[i].prediction_rms_px < selection.scores[selection.chosen].prediction_rms_px) selection.chosen = i;
+  }
+  selection.chosen_held_params = candidates[selection.chosen].held_params;
+  for (size_t d = 0; d < input->devices.size(); ++d) input->devices[d].held_params = selection.chosen_held_params[d];
+  return selection;
+}
+
+nlohmann::json ModelSelectionToJson(const ModelSelection& selection) {
+  nlohmann::json table = nlohmann::json::array();
+  for (const auto& s : selection.scores) {
+    table.push_back({{"model", s.name}, {"fit_rms_px", s.fit_rms_px}, {"prediction_rms_px", s.prediction_rms_px},
+                     {"num_predicted", s.num_predicted}});
+  }
+  return {{"candidates", table}, {"chosen", selection.scores.at(selection.chosen).name}};
 }
 
 }  // namespace slshadow

@@ -14,6 +14,8 @@
 #include <string>
 #include <vector>
 
+#include <nlohmann/json_fwd.hpp>
+
 #include "calib/calibration.h"
 
 namespace slshadow {
@@ -38,6 +40,29 @@ struct ModelScore {
 std::vector<ModelScore> ScoreModelsByLeaveOnePoseOut(const CalibrationInput& input, const CalibrationOptions& options,
                                                      const std::vector<ModelCandidate>& candidates, int reference_device,
                                                      int target_device);
+
+// The candidate grid of `slshadow calibrate --select-model`: every camera "k1 k2 p1 p2 k3" or
+// "k1 k2 p1 p2" (k3 held) crossed with the projector "k1 k2 p1 p2 k3", "k1 k2 p1 p2", "k1 k2" or
+// "k1": 8 candidates named "cameras <model> / projector <model>", held_params one entry per device
+// of `input`. Throws slshadow::Error when `projector_device` is not a projector of the input.
+std::vector<ModelCandidate> DistortionModelCandidates(const CalibrationInput& input, int projector_device);
+
+struct ModelSelection {
+  std::vector<ModelScore> scores;  // per candidate of DistortionModelCandidates, in its order
+  size_t chosen = 0;               // the lowest prediction_rms_px (the first of equals)
+  std::vector<std::vector<int>> chosen_held_params;  // per device
+};
+
+// Scores DistortionModelCandidates by leave-one-pose-out (the first device as reference, the
+// input's projector as target) and sets the devices' held_params in `input` to the chosen
+// candidate's. scores[chosen].result is the chosen model's calibration with all poses (the same
+// input and options: no need to solve again). Throws slshadow::Error when the input has no
+// projector, and as ScoreModelsByLeaveOnePoseOut.
+ModelSelection SelectDistortionModels(CalibrationInput* input, const CalibrationOptions& options);
+
+// {"candidates": [{"model", "fit_rms_px", "prediction_rms_px", "num_predicted"}], "chosen": name}
+// (the calibration report's extra.model_selection, docs/formats.md "Calibration report").
+nlohmann::json ModelSelectionToJson(const ModelSelection& selection);
 
 // Jackknife standard deviation of one intrinsics parameter over a score's folds:
 // sqrt((n-1)/n * sum (theta_i - mean)^2), comparable with the covariance's predicted sigma.

@@ -485,4 +485,16 @@ RefineResult RefineStereoPose(const Rig& rig, int camera_a, int camera_b, const 
                       a.cam_from_rig, "camera '" + b.name + "'", initial, options);
 }
 
+nlohmann::json RefineRecordToJson(const RefineResult& r, const std::string& imageset, const std::string& camera,
+                                  const std::string& stereo) {
+  return {{"imageset", imageset}, {"camera", camera}, {"stereo", stereo},
+          {"focal_scale", r.focal_scale},
+          {"before_median_px", r.before.median_px}, {"before_p95_px", r.before.p95_px},
+          {"after_median_px", r.after.median_px}, {"after_p95_px", r.after.p95_px},
+          {"rotation_change_rad", r.rotation_change_rad},
+          {"direction_change_rad", r.direction_change_rad}, {"converged", r.converged},
+          {"front_share", r.front_share}, {"inlier_share", r.inlier_share},
+          {"baseline_mm", r.baseline_mm}, {"scale_verified", r.scale_verified}};
+}
+
 }  // namespace slshadow

@@ -27,6 +27,7 @@
 #include <vector>
 
 #include <Eigen/Core>
+#include <nlohmann/json_fwd.hpp>
 
 #include "core/projector_map.h"
 #include "core/rig.h"
@@ -115,6 +116,13 @@ std::vector<Correspondence> StereoCorrespondences(const ProjectorMap& a, const P
 // with `b`, the matching pixel of camera b (as StereoCorrespondences); nullopt where it has none.
 // For KnownDistance points.
 std::optional<Correspondence> CorrespondenceAt(const ProjectorMap& a, const ProjectorMap* b, const Eigen::Vector2d& pixel);
+
+// What a refinement did, as kept in the refined rig's `calibration.refine` (`slshadow calibrate
+// refine`): {imageset, camera, stereo (empty: the projector was refined), focal_scale,
+// before_median_px, before_p95_px, after_median_px, after_p95_px, rotation_change_rad,
+// direction_change_rad, converged, front_share, inlier_share, baseline_mm, scale_verified}.
+nlohmann::json RefineRecordToJson(const RefineResult& result, const std::string& imageset, const std::string& camera,
+                                  const std::string& stereo);
 
 // Residuals (camera_b px) of stereo correspondences (camera_px in camera_a, projector_px in
 // camera_b) under the rig's two cameras.

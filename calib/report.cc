@@ -151,8 +151,8 @@ std::string FullText(const CalibrationReport& r) {
     const auto& m = r.result->devices[d].model;
     char line[400];
     std::snprintf(line, sizeof(line), "%s: fx %.4f fy %.4f cx %.4f cy %.4f k1 %.6f k2 %.6f p1 %.7f p2 %.7f k3 %.6f\n",
-                  r.result->devices[d].name.c_str(), m.fx(), m.fy(), m.cx(), m.cy(), m.params[4], m.params[5], m.params[6],
-                  m.params[7], m.params[8]);
+                  r.result->devices[d].name.c_str(), m.fx(), m.fy(), m.cx(), m.cy(), m.k1(), m.k2(), m.p1(), m.p2(),
+                  m.k3());
     text += line;
     const QuotedCovariance q = PreferredCovariance(*r.result, static_cast<int>(d));
     if (q.available) {

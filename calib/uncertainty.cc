@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <set>
 
 #include <ceres/ceres.h>
 #include <ceres/jet.h>
@@ -204,6 +205,19 @@ double NeighbourResidualCorrelation(const CalibrationInput& input, const Calibra
     }
   }
   return pairs > 0 && energy > 0 ? (products / pairs) / (energy / points) : std::nan("");
+}
+
+bool CanCrossValidate(const CalibrationInput& input) {
+  for (size_t d = 0; d < input.devices.size(); ++d) {
+    std::set<int> poses;
+    for (const auto& v : input.views) {
+      if (v.device == static_cast<int>(d)) poses.insert(v.pose);
+    }
+    int even = 0, odd = 0;
+    for (int p : poses) (p % 2 ? odd : even)++;
+    if (even < 2 || odd < 2) return false;
+  }
+  return true;
 }
 
 CrossValidation CrossValidate(const CalibrationInput& input, const CalibrationOptions& options, int cell_px) {

@@ -100,4 +100,8 @@ struct CrossValidation {
 // cross-validation needs at least 4 poses per device).
 CrossValidation CrossValidate(const CalibrationInput& input, const CalibrationOptions& options, int cell_px = 16);
 
+// Whether CrossValidate can run: every device has views of at least 2 distinct even and 2
+// distinct odd poses.
+bool CanCrossValidate(const CalibrationInput& input);
+
 }  // namespace slshadow

@@ -138,9 +138,30 @@ DevicesConfig DevicesFromConfig(const ConfigNode& root) {
   }
   if (root.Has("projector")) {
     const ConfigNode p = root["projector"];
-    p.RejectUnknownKeys({"backend", "display", "latency_us", "settle_us"});
+    p.RejectUnknownKeys({"backend", "display", "latency_us", "settle_us", "mode", "usb", "frame_period_us", "exposure_us",
+                         "bit_depth", "trigger_inverted"});
     config.projector.where = root.file() + ": projector";
     config.projector.backend = Backend(p["backend"], KnownProjectorBackends());
+    ProjectorEntry& e = config.projector;
+    if (e.backend == "lightcrafter") {
+      e.mode = p.GetString("mode", e.mode);
+      if (e.mode != "video" && e.mode != "pattern-sequence") p["mode"].Fail("expected video or pattern-sequence");
+      if (p.Has("usb")) e.usb = Text(p["usb"]);
+    }
+    for (const char* key : {"mode", "usb"}) {
+      if (p.Has(key) && e.backend != "lightcrafter") p[key].Fail("only for backend lightcrafter");
+    }
+    for (const char* key : {"frame_period_us", "exposure_us", "bit_depth", "trigger_inverted"}) {
+      if (p.Has(key) && e.mode != "pattern-sequence") p[key].Fail("only for a lightcrafter in mode pattern-sequence");
+    }
+    e.frame_period_us = p.GetInt("frame_period_us", e.frame_period_us);
+    if (e.frame_period_us < 235 || e.frame_period_us > 10000000) p["frame_period_us"].Fail("must be in [235, 10000000] us");
+    e.exposure_us = NonNegative(p, "exposure_us", 0);
+    if (e.exposure_us > e.frame_period_us) p["exposure_us"].Fail("must be at most frame_period_us");
+    const int64_t depth = p.GetInt("bit_depth", 0);
+    if (depth < 0 || depth > 8) p["bit_depth"].Fail("must be 1..8, or 0 for automatic");
+    e.bit_depth = static_cast<int>(depth);
+    e.trigger_inverted = p.GetBool("trigger_inverted", false);
     if (p.Has("display")) config.projector.display = Text(p["display"]);
     config.projector.latency_us = NonNegative(p, "latency_us", 0);
     config.projector.settle_us = NonNegative(p, "settle_us", 0);

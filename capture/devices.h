@@ -16,6 +16,8 @@
 //     display: 1                 # window: display index, or "x,y,w,h"
 //     latency_us: 35000          # present-to-light latency waited after each Show
 //     settle_us: 2000            # extra settling time after the latency
+//   (or, a LightCrafter running the sequence itself: backend: lightcrafter, mode: pattern-sequence,
+//    frame_period_us: 16667; the cameras then take trigger: hardware, config/devices/)
 #pragma once
 
 #include <cstdint>
@@ -52,6 +54,14 @@ struct ProjectorEntry {
   std::string display;           // window: display index ("1") or geometry ("x,y,w,h")
   int64_t latency_us = 0;        // present-to-light latency, microseconds, >= 0
   int64_t settle_us = 0;         // extra wait after the latency, microseconds, >= 0
+  // lightcrafter: "video" (HDMI input shown through a window on `display`) or "pattern-sequence"
+  // (the device runs the sequence from flash, TRIG_OUT1 triggers cameras set to trigger: hardware).
+  std::string mode = "video";
+  std::string usb;                  // lightcrafter: BUS:ADDRESS; empty: the only one
+  int64_t frame_period_us = 16667;  // pattern-sequence: one pattern every this many us
+  int64_t exposure_us = 0;          // pattern-sequence: LED time per pattern; 0: the whole period
+  int bit_depth = 0;                // pattern-sequence: 1..8; 0: 1 for binary patterns, else 8
+  bool trigger_inverted = false;    // pattern-sequence: TRIG_OUT1 active low
   std::string where;             // "FILE: projector" for messages
 };
 

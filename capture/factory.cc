@@ -74,8 +74,21 @@ std::unique_ptr<Camera> OpenCamera(const CameraEntry& entry) {
   NotBuilt(entry.where, entry.backend, "no camera backend of this name");
 }
 
+bool RunsSequenceItself(const ProjectorEntry& entry) {
+  return entry.backend == "lightcrafter" && entry.mode == "pattern-sequence";
+}
+
+std::unique_ptr<SequenceProjector> OpenSequenceProjector(const ProjectorEntry& entry) {
+  SLSHADOW_THROW_IF(!RunsSequenceItself(entry), entry.where, ": backend '", entry.backend,
+                    "' shows patterns one by one (only backend lightcrafter with mode: pattern-sequence runs them itself)");
+  return OpenLightCrafterSequenceProjector(entry);
+}
+
 std::unique_ptr<Projector> OpenProjector(const ProjectorEntry& entry) {
   const std::chrono::microseconds latency(entry.latency_us);
+  SLSHADOW_THROW_IF(RunsSequenceItself(entry), entry.where, ".mode: pattern-sequence: the LightCrafter runs the ",
+                    "sequence itself and triggers the cameras; it is not shown pattern by pattern (use mode: video ",
+                    "for this command)");
   // One case per projector backend.
   if (entry.backend == "none") return std::make_unique<NoneProjector>(latency);
   if (entry.backend == "window") {
@@ -104,7 +117,11 @@ OpenedDevices OpenDevices(const DevicesConfig& devices, const Rig& rig) {
     opened.cameras.push_back({entry->name, opened.owned.back().get(), entry->settings,
                               std::chrono::milliseconds(entry->grab_timeout_ms)});
   }
-  opened.projector = OpenProjector(devices.projector);
+  if (RunsSequenceItself(devices.projector)) {
+    opened.sequence_projector = OpenSequenceProjector(devices.projector);
+  } else {
+    opened.projector = OpenProjector(devices.projector);
+  }
   opened.settle = std::chrono::microseconds(devices.projector.settle_us);
   return opened;
 }

@@ -9,6 +9,7 @@
 #include "capture/camera.h"
 #include "capture/devices.h"
 #include "capture/projector.h"
+#include "capture/sequence_projector.h"
 #include "capture/sequencer.h"
 
 namespace slshadow::capture {
@@ -16,8 +17,12 @@ namespace slshadow::capture {
 // Opens (does not configure or start) the camera of `entry`. Throws slshadow::Error naming the
 // entry when the backend is not built in or the device cannot be opened.
 std::unique_ptr<Camera> OpenCamera(const CameraEntry& entry);
-// Opens the projector of `entry` with its latency set. Throws like OpenCamera.
+// Opens the projector of `entry` with its latency set. Throws like OpenCamera, and for a projector
+// that runs the sequence itself (RunsSequenceItself).
 std::unique_ptr<Projector> OpenProjector(const ProjectorEntry& entry);
+// True for a LightCrafter in mode pattern-sequence: opened by OpenSequenceProjector.
+bool RunsSequenceItself(const ProjectorEntry& entry);
+std::unique_ptr<SequenceProjector> OpenSequenceProjector(const ProjectorEntry& entry);
 
 // Backend names this build can open (for --help and messages).
 std::vector<std::string> BuiltInCameraBackends();
@@ -28,7 +33,8 @@ std::vector<std::string> BuiltInProjectorBackends();
 struct OpenedDevices {
   std::vector<std::unique_ptr<Camera>> owned;
   std::vector<CaptureCamera> cameras;  // point into `owned`
-  std::unique_ptr<Projector> projector;
+  std::unique_ptr<Projector> projector;  // null when sequence_projector is set
+  std::unique_ptr<SequenceProjector> sequence_projector;  // RunsSequenceItself(entry)
   std::chrono::microseconds settle{0};
 };
 // Checks the entries against the rig (DevicesConfig::CheckAgainst) and opens every device.

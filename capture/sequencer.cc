@@ -2,17 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
-#include <condition_variable>
 #include <cstdio>
-#include <ctime>
-#include <deque>
-#include <exception>
-#include <istream>
-#include <mutex>
 #include <optional>
-#include <ostream>
-#include <thread>
 
+#include "capture/internal/sequence_checks.h"
+#include "capture/internal/store_queue.h"
 #include "core/error.h"
 #include "core/file_util.h"
 #include "core/progress.h"
@@ -23,455 +17,7 @@ namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
 
 namespace {
-// CPU time of the calling thread, seconds.
-double ThreadCpuSeconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
-}
-}  // namespace
-
-void ValidationOptions::Check() const {
-  SLSHADOW_THROW_IF(stride_px < 0 || stride_px > 64, "validation.stride_px: must be in [0, 64] (got ", stride_px, ")");
-  SLSHADOW_THROW_IF(target_samples < 1000, "validation.target_samples: must be >= 1000 (got ", target_samples, ")");
-  for (const auto& [name, v] : {std::pair{"min_pattern_change", min_pattern_change}, std::pair{"stale_ratio", stale_ratio},
-                                std::pair{"min_lit_share_floor", min_lit_share_floor},
-                                std::pair{"min_lit_share", min_lit_share}, std::pair{"min_complementary", min_complementary}}) {
-    SLSHADOW_THROW_IF(!(v >= 0 && v <= 1), "validation.", name, ": must be in [0, 1] (got ", v, ")");
-  }
-  SLSHADOW_THROW_IF(!(change_threshold > 0) || !(lit_threshold > 0), "validation: change_threshold and lit_threshold must be > 0");
-  SLSHADOW_THROW_IF(min_samples < 1, "validation.min_samples: must be >= 1 (got ", min_samples, ")");
-}
-
-void AutoExposureOptions::Check() const {
-  SLSHADOW_THROW_IF(!(target_fraction > 0.1 && target_fraction < 1), "auto_exposure.target_fraction: must be in (0.1, 1) (got ",
-                    target_fraction, ")");
-  SLSHADOW_THROW_IF(!(tolerance > 0 && tolerance < target_fraction), "auto_exposure.tolerance: must be in (0, target) (got ",
-                    tolerance, ")");
-  SLSHADOW_THROW_IF(!(percentile > 0.5 && percentile < 1), "auto_exposure.percentile: must be in (0.5, 1) (got ", percentile, ")");
-  SLSHADOW_THROW_IF(max_iterations < 1, "auto_exposure.max_iterations: must be >= 1 (got ", max_iterations, ")");
-  SLSHADOW_THROW_IF(!(min_exposure_us > 0 && max_exposure_us > min_exposure_us), "auto_exposure: exposure bounds must satisfy 0 < min < max");
-}
-
-void SequencerOptions::Check() const {
-  SLSHADOW_THROW_IF(settle.count() < 0, "settle: must be >= 0 (got ", settle.count(), " us)");
-  SLSHADOW_THROW_IF(max_retries < 0 || max_retries > 100, "max_retries: must be in [0, 100] (got ", max_retries, ")");
-  SLSHADOW_THROW_IF(retry_backoff.count() < 0, "retry_backoff: must be >= 0 (got ", retry_backoff.count(), " us)");
-  SLSHADOW_THROW_IF(max_latency.count() < 0, "max_latency: must be >= 0 (got ", max_latency.count(), " us)");
-  SLSHADOW_THROW_IF(store_queue_images < 1, "store_queue_images: must be >= 1 (got ", store_queue_images, ")");
-  validation.Check();
-  auto_exposure_options.Check();
-}
-
-int64_t FrameIdTracker::Next(uint64_t id) {
-  if (id == 0) {
-    ++invalid_;
-    return 0;
-  }
-  int64_t skipped = 0;
-  if (has_last_) {
-    if (id <= 65535 && last_ <= 65535) {
-      // 16-bit ids 1..65535: the ring has 65535 members.
-      const uint64_t d = (id + 65535 - last_) % 65535;
-      skipped = d == 0 ? 0 : static_cast<int64_t>(d) - 1;
-    } else if (id > last_) {
-      skipped = static_cast<int64_t>(id - last_ - 1);
-    }
-  }
-  has_last_ = true;
-  last_ = id;
-  missing_ += skipped;
-  return skipped;
-}
-
-nlohmann::json CameraCaptureStats::ToJson() const {
-  return {{"serial", serial},
-          {"frames_grabbed", frames_grabbed},
-          {"frames_stored", frames_stored},
-          {"timeouts", timeouts},
-          {"damaged", damaged},
-          {"stale", stale},
-          {"not_complementary", not_complementary},
-          {"missing_frame_ids", missing_frame_ids},
-          {"invalid_frame_ids", invalid_frame_ids},
-          {"exposure_us", exposure_us},
-          {"min_complementary_share", min_complementary_share},
-          {"pair_checks", pair_checks},
-          {"stream",
-           {{"completed_frames", stream.completed_frames},
-            {"failed_frames", stream.failed_frames},
-            {"missing_frames", stream.missing_frames},
-            {"missing_packets", stream.missing_packets},
-            {"resend_requests", stream.resend_requests},
-            {"underruns", stream.underruns},
-            {"timeouts", stream.timeouts}}}};
-}
-
-nlohmann::json CaptureSummary::ToJson() const {
-  nlohmann::json j = {{"complete", complete},       {"interrupted", interrupted},   {"resumed", resumed},
-                      {"patterns", patterns},       {"images_total", images_total}, {"images_before", images_before},
-                      {"images_stored", images_stored}, {"retries", retries},   {"seconds", seconds},
-                      {"mean_pattern_ms", mean_pattern_ms}, {"overhead_ms_per_pattern", overhead_ms_per_pattern},
-                      {"overhead_cpu_ms_per_pattern", overhead_cpu_ms_per_pattern},
-                      {"wait_after_show_us", wait_after_show_us}, {"learned_latency_us", learned_latency_us}};
-  for (const auto& [name, s] : cameras) j["cameras"][name] = s.ToJson();
-  for (const auto& [name, us] : auto_exposure_us) j["auto_exposure_us"][name] = us;
-  return j;
-}
-
-std::string CaptureSummary::BriefReport() const {
-  char line[256];
-  std::snprintf(line, sizeof(line), "%s: %d of %d images (%d stored now, %d before), %d patterns, %d retries, %.1f s%s",
-                complete ? "complete" : interrupted ? "interrupted" : "incomplete",
-                images_before + images_stored, images_total, images_stored, images_before, patterns, retries, seconds,
-                resumed ? ", resumed" : "");
-  std::string s = line;
-  for (const auto& [name, c] : cameras) {
-    std::snprintf(line, sizeof(line),
-                  "\n  %s (%s): %lld grabbed, %lld timeouts, %lld damaged, %lld stale, %lld not complementary, "
-                  "%lld missing frame ids, exposure %.0f us",
-                  name.c_str(), c.serial.c_str(), static_cast<long long>(c.frames_grabbed),
-                  static_cast<long long>(c.timeouts), static_cast<long long>(c.damaged), static_cast<long long>(c.stale),
-                  static_cast<long long>(c.not_complementary), static_cast<long long>(c.missing_frame_ids), c.exposure_us);
-    s += line;
-  }
-  return s;
-}
-
-namespace {
-
-std::string FormatUtc(std::chrono::system_clock::time_point tp) {
-  if (tp.time_since_epoch().count() == 0) return UtcTimestamp();
-  const std::time_t t = std::chrono::system_clock::to_time_t(tp);
-  const auto ms = std::chrono::duration_cast<std::chrono::milliseconds>(tp.time_since_epoch()).count() % 1000;
-  std::tm tm{};
-  gmtime_r(&t, &tm);
-  char buf[64];
-  std::strftime(buf, sizeof(buf), "%Y-%m-%dT%H:%M:%S", &tm);
-  char out[80];
-  std::snprintf(out, sizeof(out), "%s.%03dZ", buf, static_cast<int>(ms));
-  return out;
-}
-
-double FullScale(PixelFormat f) {
-  switch (f) {
-    case PixelFormat::kMono8: return 255;
-    case PixelFormat::kMono12: return 4095;
-    case PixelFormat::kMono16: return 65535;
-  }
-  return 255;
-}
-
-ImageSource SourceOf(const std::string& backend) {
-  if (backend == "replay") return ImageSource::kReplay;
-  if (backend == "sim") return ImageSource::kVirtual;
-  return ImageSource::kDevice;
-}
-
-// What the pattern sequence predicts, computed once per capture.
-struct SequenceModel {
-  std::vector<FrameInfo> frames;
-  std::vector<double> expected_change;  // [k]: min over an 8x8 tile grid of the share of projector
-                                        // pixels whose level changes by half the range from k-1
-  struct Group {
-    int first = 0, size = 1;
-    bool pair = false;     // Gray bit + inverse, or white + black: taken and checked as a whole
-    bool opening = false;  // white, black and the first Gray pair as one group (see CheckGroup)
-  };
-  std::vector<Group> groups;
-  std::vector<int> group_of;  // pattern -> group index
-  std::vector<int> reference_frames;  // white, black; or the first phase steps
-  bool white_black = false;
-  bool references_last = false;  // white and black after the Gray pairs (OpenCV order)
-
-  explicit SequenceModel(const PatternSpec& spec, const std::vector<cv::Mat>& images) {
-    frames = spec.Frames();
-    const int n = static_cast<int>(frames.size());
-    expected_change.assign(static_cast<size_t>(n), 0.0);
-    const double half_range = 0.5 * (spec.intensity_max - spec.intensity_min);
-    for (int k = 1; k < n; ++k) {
-      expected_change[static_cast<size_t>(k)] =
-          TileChange(images[static_cast<size_t>(k)], images[static_cast<size_t>(k - 1)], half_range);
-    }
-    group_of.assign(static_cast<size_t>(n), 0);
-    for (int k = 0; k < n;) {
-      Group g;
-      g.first = k;
-      const FrameInfo& f = frames[static_cast<size_t>(k)];
-      const bool gray_pair = f.role == FrameRole::kGrayBit && k + 1 < n &&
-                             frames[static_cast<size_t>(k + 1)].role == FrameRole::kGrayBitInverse &&
-                             frames[static_cast<size_t>(k + 1)].axis == f.axis && frames[static_cast<size_t>(k + 1)].bit == f.bit;
-      const bool refs_pair = f.role == FrameRole::kWhite && k + 1 < n && frames[static_cast<size_t>(k + 1)].role == FrameRole::kBlack;
-      if (gray_pair || refs_pair) {
-        g.size = 2;
-        g.pair = true;
-      }
-      for (int i = 0; i < g.size; ++i) group_of[static_cast<size_t>(k + i)] = static_cast<int>(groups.size());
-      groups.push_back(g);
-      k += g.size;
-    }
-    // White and black first: the white frame has no predecessor to be compared with, so it is
-    // judged by the frames after it. White, black and the first Gray pair form one group.
-    if (groups.size() >= 2 && frames[0].role == FrameRole::kWhite && groups[0].size == 2 && groups[1].pair) {
-      groups[0].size = 4;
-      groups[0].opening = true;
-      groups.erase(groups.begin() + 1);
-      for (int i = 0; i < 4; ++i) group_of[static_cast<size_t>(i)] = 0;
-      for (size_t k = 4; k < group_of.size(); ++k) --group_of[k];
-    }
-    // Phase first (4 or more steps): the first frame has no predecessor either; the first period's
-    // steps form one group whose per-pixel sinusoid fit must hold (see CheckGroup).
-    const int steps = spec.phase_steps;
-    if (frames[0].role == FrameRole::kPhase && steps >= 4 && static_cast<int>(frames.size()) >= steps) {
-      bool same = true;
-      for (int i = 0; i < steps; ++i) {
-        same = same && frames[static_cast<size_t>(i)].role == FrameRole::kPhase &&
-               frames[static_cast<size_t>(i)].frequency == 0 && frames[static_cast<size_t>(i)].step == i;
-      }
-      if (same) {
-        groups.erase(groups.begin(), groups.begin() + steps);
-        Group g;
-        g.first = 0;
-        g.size = steps;
-        g.pair = true;
-        g.opening = true;
-        groups.insert(groups.begin(), g);
-        for (size_t k = 0; k < group_of.size(); ++k) {
-          group_of[k] = k < static_cast<size_t>(steps) ? 0 : group_of[k] - (steps - 1);
-        }
-      }
-    }
-    if (spec.WhiteFrameIndex() >= 0 && spec.BlackFrameIndex() >= 0) {
-      white_black = true;
-      reference_frames = {spec.WhiteFrameIndex(), spec.BlackFrameIndex()};
-      references_last = spec.WhiteFrameIndex() > 0;
-    } else {
-      // Phase codecs: the steps of the first frequency of the first coded axis; per pixel their
-      // max and min stand in for white and black.
-      for (int k = 0; k < n; ++k) {
-        const FrameInfo& f = frames[static_cast<size_t>(k)];
-        if (f.role == FrameRole::kPhase && f.frequency == 0 && f.axis == frames.front().axis) reference_frames.push_back(k);
-      }
-    }
-  }
-  std::string Name(int k) const {
-    return "pattern " + std::to_string(k) + " (" + frames[static_cast<size_t>(k)].Name() + ")";
-  }
-  // expected_change between any two patterns (k-1 and k: the table).
-  double Change(const std::vector<cv::Mat>& images, double half_range, int from, int to) const {
-    if (from == to - 1) return expected_change[static_cast<size_t>(to)];
-    if (from < 0 || from == to) return 0;
-    return TileChange(images[static_cast<size_t>(from)], images[static_cast<size_t>(to)], half_range);
-  }
-  static double TileChange(const cv::Mat& a, const cv::Mat& b, double half_range) {
-    cv::Mat diff;
-    cv::absdiff(a, b, diff);
-    const cv::Mat changed = diff >= half_range;
-    double worst = 1;
-    for (int ty = 0; ty < 8; ++ty) {
-      for (int tx = 0; tx < 8; ++tx) {
-        const cv::Rect tile(tx * changed.cols / 8, ty * changed.rows / 8, (tx + 1) * changed.cols / 8 - tx * changed.cols / 8,
-                            (ty + 1) * changed.rows / 8 - ty * changed.rows / 8);
-        if (tile.area() == 0) continue;
-        worst = std::min(worst, cv::countNonZero(changed(tile)) / static_cast<double>(tile.area()));
-      }
-    }
-    return worst;
-  }
-};
-
-// Per-pixel references of one camera: white (or max) and black (or min), as float.
-struct References {
-  cv::Mat white, black;  // CV_32F
-  // The lit sample positions (ForEachSample grid, white - black >= the lit threshold) with a
-  // quarter of their contrast and their mid level, built once: the per-frame checks then read
-  // only the two frames, in row order.
-  struct Sample {
-    int32_t y, x;
-    float quarter, mid;
-  };
-  std::vector<Sample> samples;
-  bool ready() const { return !white.empty(); }
-};
-
-// Visits every stride-th pixel in x and y, the phase of the grid changing from row to row and
-// column to column (the offsets cycle through 0..stride-1), so stripes with a period near the
-// stride cannot alias onto one side of every stripe.
-template <typename F>
-void ForEachSample(int rows, int cols, int stride, F&& f) {
-  const int step = stride <= 2 ? 1 : (stride % 2 == 0 ? stride - 1 : stride - 2);  // coprime with stride
-  int row_offset = 0;  // (i * step) % stride, kept without a division per sample
-  for (int i = 0;; ++i) {
-    const int y = i * stride + row_offset;
-    if (y >= rows) break;
-    int col_offset = i % stride;  // (j * step + i) % stride
-    for (int base = 0;; base += stride) {
-      const int x = base + col_offset;
-      if (x >= cols) break;
-      f(y, x);
-      col_offset += step;
-      if (col_offset >= stride) col_offset -= stride;
-    }
-    row_offset += step;
-    if (row_offset >= stride) row_offset -= stride;
-  }
-}
-
-template <typename T>
-struct Sampler {
-  static double ChangedShare(const cv::Mat& f, const cv::Mat& prev, const References& refs, double lit_threshold,
-                             double abs_threshold, int stride, int* samples) {
-    int64_t count = 0, changed = 0;
-    if (!refs.samples.empty()) {
-      const uchar* a = f.data;
-      const uchar* b = prev.data;
-      const size_t sa = f.step[0], sb = prev.step[0];
-      for (const auto& p : refs.samples) {
-        const float va = reinterpret_cast<const T*>(a + static_cast<size_t>(p.y) * sa)[p.x];
-        const float vb = reinterpret_cast<const T*>(b + static_cast<size_t>(p.y) * sb)[p.x];
-        changed += std::abs(va - vb) >= p.quarter;
-      }
-      *samples = static_cast<int>(refs.samples.size());
-      return static_cast<double>(changed) / static_cast<double>(refs.samples.size());
-    }
-    const bool refs_ready = refs.ready();
-    ForEachSample(f.rows, f.cols, stride, [&](int y, int x) {
-      const double d = std::abs(static_cast<double>(f.at<T>(y, x)) - static_cast<double>(prev.at<T>(y, x)));
-      if (refs_ready) {
-        const double contrast = refs.white.at<float>(y, x) - refs.black.at<float>(y, x);
-        if (contrast < lit_threshold) return;
-        ++count;
-        changed += d >= 0.25 * contrast;
-      } else {
-        ++count;
-        changed += d >= abs_threshold;
-      }
-    });
-    *samples = static_cast<int>(count);
-    return count ? static_cast<double>(changed) / static_cast<double>(count) : 0.0;
-  }
-  // Share of pixels decisive in both frames (a quarter of the contrast away from the middle)
-  // that lie on opposite sides of it.
-  static double ComplementaryShare(const cv::Mat& p, const cv::Mat& q, const References& refs, double lit_threshold,
-                                   int stride, int* samples) {
-    int64_t count = 0, opposite = 0;
-    if (!refs.samples.empty()) {
-      const size_t sp = p.step[0], sq = q.step[0];
-      for (const auto& r : refs.samples) {
-        const float da = reinterpret_cast<const T*>(p.data + static_cast<size_t>(r.y) * sp)[r.x] - r.mid;
-        const float db = reinterpret_cast<const T*>(q.data + static_cast<size_t>(r.y) * sq)[r.x] - r.mid;
-        if (std::abs(da) < r.quarter || std::abs(db) < r.quarter) continue;
-        ++count;
-        opposite += (da > 0) != (db > 0);
-      }
-      *samples = static_cast<int>(count);
-      return count ? static_cast<double>(opposite) / static_cast<double>(count) : 1.0;
-    }
-    ForEachSample(p.rows, p.cols, stride, [&](int y, int x) {
-      const double w = refs.white.at<float>(y, x), k = refs.black.at<float>(y, x);
-      const double contrast = w - k;
-      if (contrast < lit_threshold) return;
-      const double mid = 0.5 * (w + k);
-      const double da = p.at<T>(y, x) - mid, db = q.at<T>(y, x) - mid;
-      if (std::abs(da) < 0.25 * contrast || std::abs(db) < 0.25 * contrast) return;
-      ++count;
-      opposite += (da > 0) != (db > 0);
-    });
-    *samples = static_cast<int>(count);
-    return count ? static_cast<double>(opposite) / static_cast<double>(count) : 1.0;
-  }
-};
-
-double ChangedShare(const cv::Mat& f, const cv::Mat& prev, const References& refs, double lit_threshold,
-                    double abs_threshold, int stride, int* samples) {
-  return f.depth() == CV_8U ? Sampler<uint8_t>::ChangedShare(f, prev, refs, lit_threshold, abs_threshold, stride, samples)
-                            : Sampler<uint16_t>::ChangedShare(f, prev, refs, lit_threshold, abs_threshold, stride, samples);
-}
-
-double ComplementaryShare(const cv::Mat& p, const cv::Mat& q, const References& refs, double lit_threshold, int stride,
-                          int* samples) {
-  return p.depth() == CV_8U ? Sampler<uint8_t>::ComplementaryShare(p, q, refs, lit_threshold, stride, samples)
-                            : Sampler<uint16_t>::ComplementaryShare(p, q, refs, lit_threshold, stride, samples);
-}
-
-double LitShare(const References& refs, double lit_threshold, int stride) {
-  int64_t count = 0, lit = 0;
-  ForEachSample(refs.white.rows, refs.white.cols, stride, [&](int y, int x) {
-    ++count;
-    lit += refs.white.at<float>(y, x) - refs.black.at<float>(y, x) >= lit_threshold;
-  });
-  return count ? static_cast<double>(lit) / static_cast<double>(count) : 0.0;
-}
-
-// Storage on its own thread, in order, through the resumable writer.
-class StoreQueue {
- public:
-  StoreQueue(ResumableImageSetWriter& writer, size_t capacity) : writer_(writer), capacity_(capacity) {
-    thread_ = std::thread([this] { Run(); });
-  }
-  ~StoreQueue() {
-    try {
-      Finish();
-    } catch (...) {
-    }
-  }
-  void Push(ImageRecord record, cv::Mat image) {
-    std::unique_lock<std::mutex> lock(mutex_);
-    space_.wait(lock, [&] { return queue_.size() < capacity_ || error_; });
-    if (error_) std::rethrow_exception(error_);
-    queue_.push_back({std::move(record), std::move(image)});
-    ready_.notify_one();
-  }
-  // Waits until everything queued is stored; rethrows a storage error.
-  void Finish() {
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      done_ = true;
-      ready_.notify_one();
-    }
-    if (thread_.joinable()) thread_.join();
-    if (error_) {
-      auto e = error_;
-      error_ = nullptr;
-      std::rethrow_exception(e);
-    }
-  }
-  int stored() const { return stored_.load(); }
-
- private:
-  void Run() {
-    for (;;) {
-      std::pair<ImageRecord, cv::Mat> item;
-      {
-        std::unique_lock<std::mutex> lock(mutex_);
-        ready_.wait(lock, [&] { return !queue_.empty() || done_; });
-        if (queue_.empty()) return;
-        item = std::move(queue_.front());
-        queue_.pop_front();
-      }
-      try {
-        writer_.Add(std::move(item.first), item.second);
-        ++stored_;
-      } catch (...) {
-        std::lock_guard<std::mutex> lock(mutex_);
-        error_ = std::current_exception();
-        queue_.clear();
-        space_.notify_all();
-        return;
-      }
-      space_.notify_all();
-    }
-  }
-  ResumableImageSetWriter& writer_;
-  size_t capacity_;
-  std::deque<std::pair<ImageRecord, cv::Mat>> queue_;
-  std::mutex mutex_;
-  std::condition_variable ready_, space_;
-  std::exception_ptr error_;
-  bool done_ = false;
-  std::atomic<int> stored_{0};
-  std::thread thread_;
-};
+using namespace internal;  // NOLINT: the sequencer's own internal pieces
 
 struct CameraState {
   const CaptureCamera* cam = nullptr;
@@ -499,25 +45,18 @@ class Sequencer {
  public:
   Sequencer(const Rig& rig, const PatternSpec& spec, const std::vector<CaptureCamera>& cameras, Projector& projector,
             const fs::path& out, const SequencerOptions& options)
-      : rig_(rig), spec_(spec), projector_(projector), out_(out), options_(options) {
+      : rig_(rig), spec_(spec), projector_(projector), out_(out), options_(options), cameras_(cameras) {
     options_.Check();
     spec_.Check();
-    SLSHADOW_THROW_IF(cameras.empty(), "capture: no cameras");
+    CheckCaptureCameras(rig, cameras);
     for (const auto& c : cameras) {
-      SLSHADOW_THROW_IF(c.camera == nullptr, "capture: camera '", c.name, "' has no device");
-      SLSHADOW_THROW_IF(rig.CameraIndex(c.name) < 0, "capture: the rig '", rig.name, "' has no camera '", c.name, "'");
-      SLSHADOW_THROW_IF(c.grab_timeout.count() <= 0, "capture: camera '", c.name, "': grab timeout must be > 0");
-      for (const auto& s : states_) SLSHADOW_THROW_IF(s.cam->name == c.name, "capture: camera '", c.name, "' given twice");
       CameraState s;
       s.cam = &c;
       s.settings = c.settings;
       s.full_scale = FullScale(c.settings.pixel_format);
       s.expected_depth = BitDepthOf(c.settings.pixel_format) == 8 ? CV_8U : CV_16U;
       const RigDevice& dev = rig.Camera(c.name);
-      s.stride = options_.validation.stride_px > 0
-                     ? options_.validation.stride_px
-                     : std::max(1, static_cast<int>(std::sqrt(static_cast<double>(dev.model.width) * dev.model.height /
-                                                              options_.validation.target_samples)));
+      s.stride = SampleStride(options_.validation, dev.model.width, dev.model.height);
       states_.push_back(std::move(s));
     }
     // Rig camera order: the order frames are triggered, grabbed and reported.
@@ -554,17 +93,7 @@ class Sequencer {
       s.stats.serial = s.info.serial;
       s.cam->camera->Start();
     }
-    struct StopCameras {
-      std::vector<CameraState>* states;
-      ~StopCameras() {
-        for (auto& s : *states) {
-          try {
-            s.cam->camera->Stop();
-          } catch (...) {
-          }
-        }
-      }
-    } stop_cameras{&states_};
+    const CamerasStopper stop_cameras(cameras_);
     ChooseExposures(writer);
     for (auto& s : states_) {
       s.stats.exposure_us = s.settings.exposure_us.value_or(0);
@@ -574,11 +103,7 @@ class Sequencer {
                                  {"projector", projector_.Info().backend},
                                  {"latency_us", projector_.Latency().count()}, {"settle_us", options_.settle.count()}};
     for (const auto& s : states_) {
-      start_note["cameras"][s.cam->name] = {{"backend", s.info.backend}, {"id", s.info.id}, {"serial", s.info.serial},
-                                            {"model", s.info.model},     {"vendor", s.info.vendor},
-                                            {"exposure_us", s.stats.exposure_us},
-                                            {"pixel_format", ToString(s.settings.pixel_format)},
-                                            {"trigger", ToString(s.settings.trigger)}};
+      start_note["cameras"][s.cam->name] = CameraNote(s.info, s.settings, s.stats.exposure_us);
     }
     if (!summary_.auto_exposure_us.empty()) start_note["auto_exposure_us"] = summary_.auto_exposure_us;
     writer.AppendSession(start_note);
@@ -658,20 +183,7 @@ class Sequencer {
       summary_.cameras[s.cam->name] = s.stats;
     }
     summary_.seconds = std::chrono::duration<double>(Clock::now() - start).count();
-    nlohmann::json end_note = summary_.ToJson();
-    end_note["ended"] = UtcTimestamp();
-    if (!failure.empty()) end_note["failure"] = failure;
-    if (!storage_error.empty()) end_note["storage_error"] = storage_error;
-    try {
-      writer.AppendSession(end_note);
-    } catch (const Error&) {
-      // The records are what matters; a lost note is not worth hiding the real error.
-    }
-    SLSHADOW_THROW_IF(!storage_error.empty(), storage_error, " (the capture is staged in ", writer.staging_dir().string(),
-                      "; continue it with --resume)");
-    SLSHADOW_THROW_IF(!failure.empty(), failure, " (", summary_.images_before + summary_.images_stored, " of ",
-                      summary_.images_total, " images are staged in ", writer.staging_dir().string(),
-                      "; fix the cause and continue with --resume)");
+    EndSession(writer, summary_, failure, storage_error);
     if (summary_.interrupted) return summary_;
     for (const auto& s : states_) {
       for (int k = 0; k < n; ++k) {
@@ -1092,16 +604,7 @@ class Sequencer {
       for (size_t c = 0; c < states_.size(); ++c) {
         CameraState& s = states_[c];
         Frame& f = frames[static_cast<size_t>(i)][c];
-        ImageRecord r;
-        r.camera = s.cam->name;
-        r.pattern_index = k;
-        r.exposure_us = f.exposure_us > 0 ? f.exposure_us : s.settings.exposure_us.value_or(0);
-        r.timestamp = FormatUtc(f.host_timestamp);
-        r.source = SourceOf(s.info.backend);
-        r.device_serial = s.info.serial;
-        if (f.frame_id != 0) r.frame_id = f.frame_id;
-        if (f.device_timestamp_ns != 0) r.device_timestamp_ns = f.device_timestamp_ns;
-        r.retries = retries[static_cast<size_t>(i)];
+        ImageRecord r = RecordOf(*s.cam, s.info, s.settings, k, f, retries[static_cast<size_t>(i)]);
         s.prev = f.image;
         s.prev_index = k;
         AcceptReference(s, k, f.image);
@@ -1282,6 +785,7 @@ class Sequencer {
   fs::path out_;
   SequencerOptions options_;
   std::vector<CameraState> states_;
+  const std::vector<CaptureCamera>& cameras_;  // the caller's, alive for the capture
   std::vector<cv::Mat> images_;
   std::unique_ptr<SequenceModel> model_;
   bool validate_ = true;
@@ -1303,51 +807,6 @@ CaptureSummary Capture(const Rig& rig, const PatternSpec& spec, const std::vecto
                        Projector& projector, const fs::path& out, const SequencerOptions& options) {
   Sequencer sequencer(rig, spec, cameras, projector, out, options);
   return sequencer.Run();
-}
-
-fs::path PoseDir(const fs::path& out, int pose) {
-  char name[32];
-  std::snprintf(name, sizeof(name), "pose_%02d", pose);
-  return out / name;
-}
-
-PosesSummary CapturePoses(const Rig& rig, const PatternSpec& spec, const std::vector<CaptureCamera>& cameras,
-                          Projector& projector, const fs::path& out, int num_poses, const SequencerOptions& options,
-                          std::istream& input, std::ostream& prompt) {
-  SLSHADOW_THROW_IF(num_poses < 1 || num_poses > 99, "--poses: must be in [1, 99] (got ", num_poses, ")");
-  std::error_code ec;
-  fs::create_directories(out, ec);
-  SLSHADOW_THROW_IF(ec, out.string(), ": cannot create folder: ", ec.message());
-  PosesSummary result;
-  for (int p = 0; p < num_poses; ++p) {
-    const fs::path dir = PoseDir(out, p);
-    if (fs::exists(dir / "manifest.json", ec)) {
-      ++result.skipped;
-      continue;
-    }
-    if (options.stop && options.stop->load()) {
-      result.interrupted = true;
-      break;
-    }
-    const bool partial = fs::exists(ResumableImageSetWriter::StagingDirFor(dir), ec);
-    prompt << "pose " << p + 1 << " of " << num_poses << (partial ? " (continuing a partial capture)" : "")
-           << ": place the board, then press Enter" << std::endl;
-    std::string line;
-    if (!std::getline(input, line) || (options.stop && options.stop->load())) {
-      result.interrupted = true;  // end of input or Ctrl-C: stop, the poses so far are kept
-      break;
-    }
-    SequencerOptions o = options;
-    o.writer.overwrite = false;
-    CaptureSummary s = Capture(rig, spec, cameras, projector, dir, o);
-    const bool stopped = s.interrupted;
-    result.poses.push_back(std::move(s));
-    if (stopped) {
-      result.interrupted = true;
-      break;
-    }
-  }
-  return result;
 }
 
 }  // namespace slshadow::capture

@@ -135,6 +135,11 @@ struct CameraCaptureStats {
   // how far the accepted pairs were from the min_complementary limit.
   double min_complementary_share = 1;
   int64_t pair_checks = 0;       // Gray pair complementarity checks made (enough decisive pixels)
+  // Pattern-sequence capture (capture/pattern_sequence_capture.h): frames missed or not matching
+  // their pattern's trigger (missing, two periods late, a spurious one), and frames that came
+  // after the last pattern of a run.
+  int64_t missed_triggers = 0;
+  int64_t extra_frames = 0;
   StreamStatistics stream;       // the camera's own transport counters at the end
   nlohmann::json ToJson() const;
 };

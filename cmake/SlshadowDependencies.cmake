@@ -13,7 +13,6 @@ if(TARGET yaml-cpp AND NOT TARGET yaml-cpp::yaml-cpp)
 endif()
 
 find_package(CLI11 REQUIRED)
-find_package(spdlog REQUIRED)
 if(SLSHADOW_BUILD_TESTS)
   find_package(GTest REQUIRED)
 endif()

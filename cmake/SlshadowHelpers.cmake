@@ -19,6 +19,22 @@ function(slshadow_add_library)
   target_compile_options(${target} PRIVATE ${SLSHADOW_WARNINGS} ${ARG_PRIVATE_OPTIONS})
 endfunction()
 
+# slshadow_add_bench(NAME name SRCS ... [LINK_LIBS ...] [GOOGLE_BENCHMARK])
+# A benchmark or study program under bench/<module>/ (not run by CTest); GOOGLE_BENCHMARK links
+# Google Benchmark with its main. Test fixtures are included as "tests/<module>/...".
+function(slshadow_add_bench)
+  cmake_parse_arguments(ARG "GOOGLE_BENCHMARK" "NAME" "SRCS;LINK_LIBS" ${ARGN})
+  add_executable(${ARG_NAME} ${ARG_SRCS})
+  target_link_libraries(${ARG_NAME} PRIVATE ${ARG_LINK_LIBS})
+  if(ARG_GOOGLE_BENCHMARK)
+    target_link_libraries(${ARG_NAME} PRIVATE benchmark::benchmark)
+  endif()
+  target_compile_options(${ARG_NAME} PRIVATE ${SLSHADOW_WARNINGS})
+  target_compile_definitions(${ARG_NAME} PRIVATE
+    SLSHADOW_SOURCE_DIR="${PROJECT_SOURCE_DIR}"
+    SLSHADOW_SHARED_DATA_DIR="${PROJECT_SOURCE_DIR}/../shared/data")
+endfunction()
+
 # slshadow_add_test(NAME name SRCS ... [LINK_LIBS ...] [LABELS ...] [PROPERTIES ...])
 # Test executables are named <module>_<unit>_test so that `ctest -R sim` runs one module.
 function(slshadow_add_test)

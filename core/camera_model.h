@@ -40,6 +40,11 @@ class CameraModel {
   double fy() const { return params[kFy]; }
   double cx() const { return params[kCx]; }
   double cy() const { return params[kCy]; }
+  double k1() const { return params[kK1]; }
+  double k2() const { return params[kK2]; }
+  double p1() const { return params[kP1]; }
+  double p2() const { return params[kP2]; }
+  double k3() const { return params[kK3]; }
   bool HasDistortion() const;
 
   // Throws slshadow::Error naming `what` (e.g. "rig.yaml: cameras[0]") when a parameter is

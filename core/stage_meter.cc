@@ -79,4 +79,14 @@ std::string FormatStageTable(const std::vector<StageMeasurement>& stages) {
   return out;
 }
 
+void StageTimer::Restart() {
+  start_wall_ = std::chrono::steady_clock::now();
+  start_cpu_s_ = ProcessCpuSeconds();
+}
+
+void StageTimer::Elapsed(double* wall_s, double* cpu_s) const {
+  *cpu_s = ProcessCpuSeconds() - start_cpu_s_;
+  *wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_wall_).count();
+}
+
 }  // namespace slshadow

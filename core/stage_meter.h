@@ -32,6 +32,21 @@ class StageMeter {
   bool peak_reset_;
 };
 
+// Wall and process CPU seconds since construction (or Restart()), for stages inside a measured
+// job (a reconstruction's rays, triangulation, filters): unlike StageMeter it leaves the peak
+// memory counter alone, so it does not disturb an enclosing StageMeter.
+class StageTimer {
+ public:
+  StageTimer() { Restart(); }
+  void Restart();
+  // Stores the wall and CPU seconds since construction or the last Restart().
+  void Elapsed(double* wall_s, double* cpu_s) const;
+
+ private:
+  std::chrono::steady_clock::time_point start_wall_;
+  double start_cpu_s_ = 0;
+};
+
 // Current process CPU time (user + system), seconds.
 double ProcessCpuSeconds();
 // Current and peak resident set size of this process, MB (0 when unknown).

@@ -1,7 +1,6 @@
 #include "reconstruct/reconstruct.h"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -19,19 +18,6 @@
 namespace slshadow {
 
 namespace {
-
-using Clock = std::chrono::steady_clock;
-
-// A stage's start: wall clock and process CPU time.
-struct Stamp {
-  Clock::time_point wall = Clock::now();
-  double cpu = ProcessCpuSeconds();
-};
-// Stores the wall and CPU seconds since `since`.
-void Elapsed(const Stamp& since, double* wall_s, double* cpu_s) {
-  *cpu_s = ProcessCpuSeconds() - since.cpu;
-  *wall_s = std::chrono::duration<double>(Clock::now() - since.wall).count();
-}
 
 constexpr uint8_t Code(RejectReason r) { return static_cast<uint8_t>(r); }
 
@@ -129,7 +115,7 @@ class GridUndistorter {
 void Finish(const ReconstructOptions& options, Reconstruction* out) {
   DenseGrid& grid = out->grid;
   ReconstructSummary& s = out->summary;
-  Stamp t0;
+  StageTimer t0;
   // Per-thread buffers reused by the next reconstruction (fresh pages cost page faults).
   // (Referenced, not named, inside parallel bodies: a worker naming a thread_local gets its own.)
   thread_local std::vector<float> reproj_buffer, epi_buffer;
@@ -185,13 +171,13 @@ void Finish(const ReconstructOptions& options, Reconstruction* out) {
     FilterStatisticalOutliers(grid, options.outlier_window_radius_px, options.outlier_neighbors,
                               options.outlier_std_ratio, options.outlier_min_distance_footprints);
   }
-  Elapsed(t0, &s.filter_s, &s.filter_cpu_s);
-  t0 = Stamp();
+  t0.Elapsed(&s.filter_s, &s.filter_cpu_s);
+  t0.Restart();
   thread_local std::vector<Eigen::Vector3f> normals_buffer;
   std::vector<Eigen::Vector3f>& normals = normals_buffer;
   if (options.estimate_normals) EstimateNormals(grid, &normals, &s.normal_fallbacks);
   out->cloud = grid.ToPointCloud(options.estimate_normals ? &normals : nullptr);
-  Elapsed(t0, &s.normals_s, &s.normals_cpu_s);
+  t0.Elapsed(&s.normals_s, &s.normals_cpu_s);
   s.grid_width = grid.width;
   s.grid_height = grid.height;
   s.cells = static_cast<int64_t>(grid.reason.size());
@@ -199,96 +185,7 @@ void Finish(const ReconstructOptions& options, Reconstruction* out) {
   s.points = s.rejected[0];
 }
 
-std::string Percent(int64_t part, int64_t whole) {
-  char buf[32];
-  std::snprintf(buf, sizeof(buf), "%.1f%%", whole > 0 ? 100.0 * static_cast<double>(part) / static_cast<double>(whole) : 0.0);
-  return buf;
-}
-
 }  // namespace
-
-const char* ToString(ReconstructMode mode) {
-  return mode == ReconstructMode::kProjector ? "projector" : "stereo";
-}
-
-const char* ToString(StereoInterpolation interpolation) {
-  switch (interpolation) {
-    case StereoInterpolation::kAuto: return "auto";
-    case StereoInterpolation::kLinear: return "linear";
-    case StereoInterpolation::kCubic: return "cubic";
-  }
-  return "unknown";
-}
-
-StereoInterpolation StereoInterpolationFromString(const std::string& name) {
-  if (name == "auto") return StereoInterpolation::kAuto;
-  if (name == "linear") return StereoInterpolation::kLinear;
-  if (name == "cubic") return StereoInterpolation::kCubic;
-  SLSHADOW_THROW("stereo interpolation: unknown name (got '", name, "'; expected auto, linear or cubic)");
-}
-
-ReconstructMode ReconstructModeFromString(const std::string& name) {
-  if (name == "projector") return ReconstructMode::kProjector;
-  if (name == "stereo") return ReconstructMode::kStereo;
-  SLSHADOW_THROW("reconstruct mode: unknown name (got '", name, "'; expected projector or stereo)");
-}
-
-void ReconstructOptions::Check() const {
-  auto fail = [](const std::string& field, const std::string& rule, double value) {
-    SLSHADOW_THROW("reconstruct options: ", field, ": ", rule, " (got ", value, ")");
-  };
-  if (!(reference_noise_ratio > 0) || !std::isfinite(reference_noise_ratio))
-    fail("reference_noise_ratio", "must be finite and positive", reference_noise_ratio);
-  if (!(min_depth_mm > 0)) fail("min_depth_mm", "must be positive", min_depth_mm);
-  if (!(max_depth_mm > min_depth_mm)) fail("max_depth_mm", "must exceed min_depth_mm", max_depth_mm);
-  if (!(min_triangulation_angle_deg >= 0 && min_triangulation_angle_deg < 90))
-    fail("min_triangulation_angle_deg", "must be in [0, 90)", min_triangulation_angle_deg);
-  if (!(max_reprojection_error_px > 0)) fail("max_reprojection_error_px", "must be positive", max_reprojection_error_px);
-  if (!(max_epipolar_error_px > 0)) fail("max_epipolar_error_px", "must be positive", max_epipolar_error_px);
-  if (!(min_quality >= 0) || !std::isfinite(min_quality)) fail("min_quality", "must be finite and >= 0", min_quality);
-  if (!(max_code_step_px > 0) || !std::isfinite(max_code_step_px)) fail("max_code_step_px", "must be finite and positive", max_code_step_px);
-  if (!(max_depth_jump_footprints > 0)) fail("max_depth_jump_footprints", "must be positive", max_depth_jump_footprints);
-  if (discontinuity_dilation_px < 0 || discontinuity_dilation_px > 16)
-    fail("discontinuity_dilation_px", "must be in [0, 16]", discontinuity_dilation_px);
-  if (outlier_window_radius_px < 1 || outlier_window_radius_px > 5)
-    fail("outlier_window_radius_px", "must be in [1, 5]", outlier_window_radius_px);
-  if (outlier_neighbors < 1 || outlier_neighbors > (2 * outlier_window_radius_px + 1) * (2 * outlier_window_radius_px + 1) - 1)
-    fail("outlier_neighbors", "must be in [1, (2 r + 1)^2 - 1] for the window radius r", outlier_neighbors);
-  if (!(outlier_std_ratio > 0) || !std::isfinite(outlier_std_ratio)) fail("outlier_std_ratio", "must be finite and positive", outlier_std_ratio);
-  if (!(outlier_min_distance_footprints >= 0) || !std::isfinite(outlier_min_distance_footprints))
-    fail("outlier_min_distance_footprints", "must be finite and >= 0", outlier_min_distance_footprints);
-  if (!(calibration_warning_px >= 0)) fail("calibration_warning_px", "must be >= 0 (0: automatic)", calibration_warning_px);
-  if (!(calibration_noise_factor > 0) || !std::isfinite(calibration_noise_factor))
-    fail("calibration_noise_factor", "must be finite and positive", calibration_noise_factor);
-  if (!(calibration_min_warning_px >= 0) || !std::isfinite(calibration_min_warning_px))
-    fail("calibration_min_warning_px", "must be finite and >= 0", calibration_min_warning_px);
-}
-
-nlohmann::json ReconstructOptions::ToJson() const {
-  auto num = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json("inf"); };
-  return {{"method", ToString(method)},
-          {"reference_noise_ratio", reference_noise_ratio},
-          {"min_depth_mm", min_depth_mm},
-          {"max_depth_mm", max_depth_mm},
-          {"min_triangulation_angle_deg", min_triangulation_angle_deg},
-          {"max_reprojection_error_px", num(max_reprojection_error_px)},
-          {"max_epipolar_error_px", num(max_epipolar_error_px)},
-          {"min_quality", min_quality},
-          {"max_code_step_px", max_code_step_px},
-          {"stereo_interpolation", ToString(stereo_interpolation)},
-          {"filter_depth_discontinuities", filter_depth_discontinuities},
-          {"max_depth_jump_footprints", max_depth_jump_footprints},
-          {"discontinuity_dilation_px", discontinuity_dilation_px},
-          {"filter_outliers", filter_outliers},
-          {"outlier_window_radius_px", outlier_window_radius_px},
-          {"outlier_neighbors", outlier_neighbors},
-          {"outlier_std_ratio", outlier_std_ratio},
-          {"outlier_min_distance_footprints", outlier_min_distance_footprints},
-          {"estimate_normals", estimate_normals},
-          {"calibration_warning_px", num(calibration_warning_px)},
-          {"calibration_noise_factor", calibration_noise_factor},
-          {"calibration_min_warning_px", calibration_min_warning_px}};
-}
 
 namespace {
 
@@ -340,237 +237,12 @@ CalibrationCheckSetup CheckSetup(const ReconstructOptions& options, const Rig& r
   return setup;
 }
 
-// A number, or "inf" / absent (then `fallback`) for gates that infinity disables.
-double GetDoubleOrInf(const ConfigNode& node, const std::string& key, double fallback) {
-  if (!node.Has(key)) return fallback;
-  const ConfigNode n = node[key];
-  if (n.json().is_string()) {
-    if (n.AsString() == "inf") return std::numeric_limits<double>::infinity();
-    n.Fail("expected a number or \"inf\"");
-  }
-  return n.AsDouble();
-}
-
-template <typename Parse>
-auto ParseEnum(const ConfigNode& node, Parse parse) {
-  try {
-    return parse(node.AsString());
-  } catch (const Error& e) {
-    node.Fail(e.what());
-  }
-}
-
 }  // namespace
-
-ReconstructOptions ReconstructOptionsFromConfig(const ConfigNode& node) {
-  if (!node.IsObject()) node.Fail("expected a mapping of reconstruct options");
-  node.RejectUnknownKeys({"method", "reference_noise_ratio", "min_depth_mm", "max_depth_mm",
-                          "min_triangulation_angle_deg", "max_reprojection_error_px", "max_epipolar_error_px",
-                          "min_quality", "max_code_step_px", "stereo_interpolation", "filter_depth_discontinuities",
-                          "max_depth_jump_footprints", "discontinuity_dilation_px", "filter_outliers",
-                          "outlier_window_radius_px", "outlier_neighbors", "outlier_std_ratio",
-                          "outlier_min_distance_footprints", "estimate_normals", "calibration_warning_px",
-                          "calibration_noise_factor", "calibration_min_warning_px"});
-  ReconstructOptions o;
-  if (node.Has("method")) {
-    o.method = ParseEnum(node["method"], [](const std::string& s) { return TriangulationMethodFromString(s); });
-  }
-  o.reference_noise_ratio = node.GetDouble("reference_noise_ratio", o.reference_noise_ratio);
-  o.min_depth_mm = node.GetDouble("min_depth_mm", o.min_depth_mm);
-  o.max_depth_mm = node.GetDouble("max_depth_mm", o.max_depth_mm);
-  o.min_triangulation_angle_deg = node.GetDouble("min_triangulation_angle_deg", o.min_triangulation_angle_deg);
-  o.max_reprojection_error_px = GetDoubleOrInf(node, "max_reprojection_error_px", o.max_reprojection_error_px);
-  o.max_epipolar_error_px = GetDoubleOrInf(node, "max_epipolar_error_px", o.max_epipolar_error_px);
-  o.min_quality = static_cast<float>(node.GetDouble("min_quality", o.min_quality));
-  o.max_code_step_px = node.GetDouble("max_code_step_px", o.max_code_step_px);
-  if (node.Has("stereo_interpolation")) {
-    o.stereo_interpolation = ParseEnum(node["stereo_interpolation"],
-                                       [](const std::string& s) { return StereoInterpolationFromString(s); });
-  }
-  o.filter_depth_discontinuities = node.GetBool("filter_depth_discontinuities", o.filter_depth_discontinuities);
-  o.max_depth_jump_footprints = node.GetDouble("max_depth_jump_footprints", o.max_depth_jump_footprints);
-  o.discontinuity_dilation_px = static_cast<int>(node.GetInt("discontinuity_dilation_px", o.discontinuity_dilation_px));
-  o.filter_outliers = node.GetBool("filter_outliers", o.filter_outliers);
-  o.outlier_window_radius_px = static_cast<int>(node.GetInt("outlier_window_radius_px", o.outlier_window_radius_px));
-  o.outlier_neighbors = static_cast<int>(node.GetInt("outlier_neighbors", o.outlier_neighbors));
-  o.outlier_std_ratio = node.GetDouble("outlier_std_ratio", o.outlier_std_ratio);
-  o.outlier_min_distance_footprints =
-      node.GetDouble("outlier_min_distance_footprints", o.outlier_min_distance_footprints);
-  o.estimate_normals = node.GetBool("estimate_normals", o.estimate_normals);
-  o.calibration_warning_px = GetDoubleOrInf(node, "calibration_warning_px", o.calibration_warning_px);
-  o.calibration_noise_factor = node.GetDouble("calibration_noise_factor", o.calibration_noise_factor);
-  o.calibration_min_warning_px = node.GetDouble("calibration_min_warning_px", o.calibration_min_warning_px);
-  try {
-    o.Check();
-  } catch (const Error& e) {
-    SLSHADOW_THROW(node.file(), node.path().empty() ? "" : ": ", node.path(), ": ", e.what());
-  }
-  return o;
-}
-
-namespace {
-
-// The values of ranks k0 and k1 (0-based, ascending) of finite `values`, exactly as
-// std::nth_element would give them, by one radix pass: a histogram of the top 16 bits of the
-// order-preserving integer key of each float locates the bucket holding each rank, and only the
-// values of those buckets (a few thousand of millions for residuals) are then ordered.
-inline uint32_t SortKey(float v) {
-  uint32_t bits;
-  std::memcpy(&bits, &v, sizeof(bits));
-  return (bits & 0x80000000u) ? ~bits : (bits | 0x80000000u);
-}
-
-std::pair<float, float> SelectRanks(std::vector<float>& values, size_t k0, size_t k1) {
-  constexpr int kBuckets = 1 << 16;
-  std::vector<uint32_t> hist(kBuckets, 0);
-  for (float v : values) ++hist[SortKey(v) >> 16];
-  auto locate = [&](size_t k, size_t* rank_in_bucket) {
-    size_t below = 0;
-    for (int b = 0; b < kBuckets; ++b) {
-      if (below + hist[static_cast<size_t>(b)] > k) {
-        *rank_in_bucket = k - below;
-        return static_cast<uint32_t>(b);
-      }
-      below += hist[static_cast<size_t>(b)];
-    }
-    *rank_in_bucket = 0;
-    return static_cast<uint32_t>(kBuckets - 1);
-  };
-  size_t r0 = 0, r1 = 0;
-  const uint32_t b0 = locate(k0, &r0), b1 = locate(k1, &r1);
-  std::vector<float> c0, c1;
-  c0.reserve(hist[b0]);
-  if (b1 != b0) c1.reserve(hist[b1]);
-  for (float v : values) {
-    const uint32_t b = SortKey(v) >> 16;
-    if (b == b0) c0.push_back(v);
-    else if (b == b1) c1.push_back(v);
-  }
-  std::vector<float>& d1 = b1 == b0 ? c0 : c1;
-  std::nth_element(c0.begin(), c0.begin() + static_cast<std::ptrdiff_t>(r0), c0.end());
-  const float v0 = c0[r0];
-  std::nth_element(d1.begin(), d1.begin() + static_cast<std::ptrdiff_t>(r1), d1.end());
-  return {v0, d1[r1]};
-}
-
-}  // namespace
-
-ResidualStats ComputeResidualStats(std::vector<float>& values) {
-  values.erase(std::remove_if(values.begin(), values.end(), [](float v) { return !std::isfinite(v); }), values.end());
-  ResidualStats s;
-  s.count = static_cast<int64_t>(values.size());
-  if (values.empty()) return s;
-  double sum2 = 0, mx = 0;
-  for (float v : values) {
-    sum2 += static_cast<double>(v) * v;
-    mx = std::max(mx, static_cast<double>(v));
-  }
-  s.rms = std::sqrt(sum2 / static_cast<double>(values.size()));
-  s.max = mx;
-  const size_t n = values.size();
-  const size_t km = std::min(n - 1, static_cast<size_t>(std::floor(0.5 * static_cast<double>(n - 1) + 0.5)));
-  const size_t kp = std::min(n - 1, static_cast<size_t>(std::floor(0.95 * static_cast<double>(n - 1) + 0.5)));
-  const auto ranked = SelectRanks(values, km, kp);
-  s.median = ranked.first;
-  s.p95 = ranked.second;
-  return s;
-}
-
-nlohmann::json ResidualStats::ToJson() const {
-  return {{"count", count}, {"median", median}, {"p95", p95}, {"max", max}, {"rms", rms}};
-}
-
-std::string ReconstructSummary::BriefReport() const {
-  char buf[512];
-  const CalibrationCheck& c = calibration_check;
-  char check[128];
-  if (!c.available) {
-    std::snprintf(check, sizeof(check), "calibration check not available");
-  } else {
-    std::snprintf(check, sizeof(check), "calibration check %s: %s systematic %.3g of %.3g projector px",
-                  c.warn ? "WARNING" : std::isfinite(c.threshold_px) ? "passed" : "reported", ResidualName(c.residual),
-                  c.systematic_px, c.threshold_px);
-  }
-  std::snprintf(buf, sizeof(buf), "%s/%s %s-%s: %lld points of %lld cells (%s); %s; %.3f s", ToString(mode),
-                ToString(method), camera.c_str(), other_device.c_str(), static_cast<long long>(points),
-                static_cast<long long>(cells), Percent(points, cells).c_str(), check, total_s);
-  return buf;
-}
-
-std::string ReconstructSummary::FullReport() const {
-  std::ostringstream out;
-  out << BriefReport() << "\n";
-  out << "  grid " << grid_width << "x" << grid_height << " (" << (mode == ReconstructMode::kStereo ? "rectified left camera" : "camera image") << ")\n";
-  out << "  cells by outcome:\n";
-  for (int r = 0; r < kNumRejectReasons; ++r) {
-    if (rejected[static_cast<size_t>(r)] == 0) continue;
-    char line[128];
-    std::snprintf(line, sizeof(line), "    %-20s %10lld  %6s\n", ToString(static_cast<RejectReason>(r)),
-                  static_cast<long long>(rejected[static_cast<size_t>(r)]),
-                  Percent(rejected[static_cast<size_t>(r)], cells).c_str());
-    out << line;
-  }
-  out << "  decoder status of the camera pixels:";
-  for (int k = 0; k < kNumPixelStatus; ++k) {
-    out << " " << ToString(static_cast<PixelStatus>(k)) << "=" << decode_status[static_cast<size_t>(k)];
-  }
-  out << "\n";
-  auto stats = [&](const char* name, const ResidualStats& r, const char* unit) {
-    char line[320];
-    std::snprintf(line, sizeof(line), "  %-22s n=%lld median %.4g p95 %.4g rms %.4g max %.4g %s\n", name,
-                  static_cast<long long>(r.count), r.median, r.p95, r.rms, r.max, unit);
-    out << line;
-  };
-  stats("reprojection error", reprojection_error_px,
-        mode == ReconstructMode::kStereo
-            ? (method == TriangulationMethod::kMidpoint ? "camera px (~0 by construction in stereo: no calibration evidence)"
-                                                        : "camera px (small by construction in stereo: no calibration evidence)")
-            : epipolar_error_px.count > 0 ? "px (RMS of camera px and projector px)"
-                                          : "px (~0 by construction with one coded axis: no calibration evidence)");
-  if (epipolar_error_px.count > 0) stats("epipolar error", epipolar_error_px, "projector px (|signed|)");
-  out << "  " << calibration_check.Message() << "\n";
-  if (normal_fallbacks > 0) out << "  normals facing the camera (too few neighbours): " << normal_fallbacks << "\n";
-  char line[256];
-  std::snprintf(line, sizeof(line), "  time: rays %.3f s, match %.3f s, triangulate %.3f s, filters %.3f s, normals+cloud %.3f s, total %.3f s\n",
-                rays_s, match_s, triangulate_s, filter_s, normals_s, total_s);
-  out << line;
-  std::snprintf(line, sizeof(line), "  CPU:  rays %.3f s, match %.3f s, triangulate %.3f s, filters %.3f s, normals+cloud %.3f s, total %.3f s\n",
-                rays_cpu_s, match_cpu_s, triangulate_cpu_s, filter_cpu_s, normals_cpu_s, total_cpu_s);
-  out << line;
-  for (const auto& w : warnings) out << "  WARNING: " << w << "\n";
-  return out.str();
-}
-
-nlohmann::json ReconstructSummary::ToJson() const {
-  nlohmann::json rejected_json = nlohmann::json::object();
-  for (int r = 1; r < kNumRejectReasons; ++r) rejected_json[ToString(static_cast<RejectReason>(r))] = rejected[static_cast<size_t>(r)];
-  nlohmann::json decode_json = nlohmann::json::object();
-  for (int k = 0; k < kNumPixelStatus; ++k) decode_json[ToString(static_cast<PixelStatus>(k))] = decode_status[static_cast<size_t>(k)];
-  return {{"mode", ToString(mode)},
-          {"method", ToString(method)},
-          {"camera", camera},
-          {"other_device", other_device},
-          {"grid_width", grid_width},
-          {"grid_height", grid_height},
-          {"cells", cells},
-          {"points", points},
-          {"rejected", rejected_json},
-          {"decode_status", decode_json},
-          {"normal_fallbacks", normal_fallbacks},
-          {"reprojection_error_px", reprojection_error_px.ToJson()},
-          {"epipolar_error_px", epipolar_error_px.ToJson()},
-          {"calibration_check", calibration_check.ToJson()},
-          {"warnings", warnings},
-          {"time_s", {{"rays", rays_s}, {"match", match_s}, {"triangulate", triangulate_s}, {"filters", filter_s},
-                      {"normals", normals_s}, {"total", total_s}}},
-          {"cpu_s", {{"rays", rays_cpu_s}, {"match", match_cpu_s}, {"triangulate", triangulate_cpu_s},
-                     {"filters", filter_cpu_s}, {"normals", normals_cpu_s}, {"total", total_cpu_s}}}};
-}
 
 Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camera_name, const ProjectorMap& map,
                                         const ReconstructOptions& options) {
   options.Check();
-  const Stamp start;
+  const StageTimer start;
   SLSHADOW_THROW_IF(!rig.projector, "reconstruct: rig '", rig.name, "' has no projector (projector mode needs one)");
   const RigDevice& cam = rig.Camera(camera_name);
   const RigDevice& proj = *rig.projector;
@@ -583,14 +255,14 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
   s.other_device = proj.name;
   s.decode_status = map.CountByStatus();
 
-  Stamp t0;
+  StageTimer t0;
   const std::shared_ptr<const RayGrid> rays = CachedRayGrid(cam.model);
   const bool both = map.has_x && map.has_y;
   // Projector pixels are undistorted per camera pixel, started from the projector's own grid.
   const std::shared_ptr<const RayGrid> proj_rays = both ? CachedRayGrid(proj.model) : nullptr;
-  Elapsed(t0, &s.rays_s, &s.rays_cpu_s);
+  t0.Elapsed(&s.rays_s, &s.rays_cpu_s);
 
-  t0 = Stamp();
+  t0.Restart();
   const TriangulationView cam_view(cam.cam_from_rig, FocalOf(cam.model));
   const TriangulationView proj_view(proj.cam_from_rig, FocalOf(proj.model));
   const TwoViewTriangulator tri(cam_view, proj_view, options.reference_noise_ratio, 1.0);
@@ -722,14 +394,14 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
       }
     }
   });
-  Elapsed(t0, &s.triangulate_s, &s.triangulate_cpu_s);
+  t0.Elapsed(&s.triangulate_s, &s.triangulate_cpu_s);
   Finish(options, &out);
   RunCalibrationCheck(grid, grid.epipolar_error_px, cam.model, CheckSetup(options, rig, cam, proj, false),
                       both ? "" : std::string("only projector ") + (map.has_x ? "columns" : "rows") +
                                       " are coded: the one-axis triangulation meets the projector's plane exactly and "
                                       "leaves no epipolar error to check (code both axes for a check)",
                       &s);
-  Elapsed(start, &s.total_s, &s.total_cpu_s);
+  start.Elapsed(&s.total_s, &s.total_cpu_s);
   return out;
 }
 
@@ -805,7 +477,7 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
                                  const ProjectorMap& left_map, const ProjectorMap& right_map,
                                  const ReconstructOptions& options) {
   options.Check();
-  const Stamp start;
+  const StageTimer start;
   const RigDevice& left = rig.Camera(left_name);
   const RigDevice& right = rig.Camera(right_name);
   SLSHADOW_THROW_IF(left.name == right.name, "reconstruct: stereo needs two different cameras (got '", left.name, "' twice)");
@@ -820,7 +492,7 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
   const auto dl = left_map.CountByStatus(), dr = right_map.CountByStatus();
   for (int k = 0; k < kNumPixelStatus; ++k) s.decode_status[static_cast<size_t>(k)] = dl[static_cast<size_t>(k)] + dr[static_cast<size_t>(k)];
 
-  Stamp t0;
+  StageTimer t0;
   const StereoRectification rect = ComputeStereoRectification(left, right);
   // Per-thread buffers reused by the next stereo reconstruction (fresh pages cost page faults).
   thread_local RectifiedMap left_buffer, right_buffer;
@@ -832,16 +504,16 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
                       left_map.proj_x.depth() == CV_64F && right_map.proj_x.depth() == CV_64F);
   RectifyProjectorMap(rect, 0, left, left_map, options.max_code_step_px, options.min_quality, cubic, &lm);
   RectifyProjectorMap(rect, 1, right, right_map, options.max_code_step_px, options.min_quality, cubic, &rm);
-  Elapsed(t0, &s.rays_s, &s.rays_cpu_s);
+  t0.Elapsed(&s.rays_s, &s.rays_cpu_s);
 
-  t0 = Stamp();
+  t0.Restart();
   const double fb = rect.focal_px * rect.baseline_mm;
   StereoMatches& matches = matches_buffer;
   MatchRectifiedMaps(rect, lm, rm, fb / options.max_depth_mm, fb / options.min_depth_mm, options.max_code_step_px,
                      cubic, &matches);
-  Elapsed(t0, &s.match_s, &s.match_cpu_s);
+  t0.Elapsed(&s.match_s, &s.match_cpu_s);
 
-  t0 = Stamp();
+  t0.Restart();
   const StereoTriangulator tri(left, right, rect, options);
   DenseGrid& grid = out.grid;
   grid.Allocate(lm.width, lm.height);
@@ -890,7 +562,7 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
       }
     }
   });
-  Elapsed(t0, &s.triangulate_s, &s.triangulate_cpu_s);
+  t0.Elapsed(&s.triangulate_s, &s.triangulate_cpu_s);
   Finish(options, &out);
   CalibrationCheckSetup setup = CheckSetup(options, rig, left, right, true);
   if (third_view) {
@@ -906,7 +578,7 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
                             "and no third view can check them (code projector rows, or calibrate the projector)",
                       &s);
   out.projector_error_px = std::move(projector_error);
-  Elapsed(start, &s.total_s, &s.total_cpu_s);
+  start.Elapsed(&s.total_s, &s.total_cpu_s);
   return out;
 }
 

@@ -15,6 +15,12 @@ for arg in "$@"; do
   esac
 done
 bash scripts/setup.sh
+# Formatting is checked once the tree has been formatted (scripts/format.sh --apply): flip the
+# default to 1 in the same commit. SLSHADOW_CHECK_FORMAT=1 in the environment checks it now.
+SLSHADOW_CHECK_FORMAT=${SLSHADOW_CHECK_FORMAT:-0}
+if [ "$SLSHADOW_CHECK_FORMAT" = 1 ]; then
+  bash scripts/format.sh --check
+fi
 # ccache: rewrite absolute paths relative to the checkout so clones in other folders share hits.
 export CCACHE_BASEDIR="$PWD" CCACHE_NOHASHDIR=true
 if [ "$SANITIZE" = 1 ]; then

@@ -6,14 +6,16 @@ set -euo pipefail
 PACKAGES=(
   # toolchain
   build-essential cmake ninja-build ccache pkg-config git
+  # formatting and lint (scripts/format.sh, .clang-format, .clang-tidy)
+  clang-format clang-tidy
   # core
   libeigen3-dev libopencv-dev libopencv-contrib-dev libyaml-cpp-dev nlohmann-json3-dev
   # calibration, simulation, comparison
   libceres-dev libembree-dev libtbb-dev libnanoflann-dev libpcl-dev libplplot-dev plplot-driver-cairo
   # C2C cross-check and benchmark peer (compare tests skip without it; runs headless)
   cloudcompare
-  # command line and logging
-  libcli11-dev libspdlog-dev
+  # command line
+  libcli11-dev
   # tests and benchmarks
   libgtest-dev libgmock-dev libbenchmark-dev
   # libFuzzer harnesses (fuzz/, docs/fuzzing.md): clang with its libFuzzer and sanitizer runtimes

@@ -11,6 +11,7 @@
 
 #include <unistd.h>
 
+#include <nlohmann/json.hpp>
 #include <opencv2/structured_light.hpp>
 
 #include "compare/compare.h"
@@ -382,6 +383,29 @@ std::string FormatBench(const std::vector<BenchEntry>& entries) {
     }
   }
   return out;
+}
+
+std::string BenchToJson(const std::vector<BenchEntry>& entries, const BenchOptions& options) {
+  nlohmann::ordered_json json = {{"format", "slshadow-bench"}, {"version", 1}, {"repetitions", options.repetitions}};
+  json["entries"] = nlohmann::ordered_json::array();
+  for (const auto& e : entries) {
+    nlohmann::ordered_json entry = {{"name", e.name},
+                                    {"what", e.what},
+                                    {"median_wall_s", e.median_wall_s},
+                                    {"cpu_s", e.cpu_s},
+                                    {"throughput", e.throughput},
+                                    {"unit", e.unit},
+                                    {"peer", e.peer},
+                                    {"peer_median_wall_s", e.peer_median_wall_s},
+                                    {"peer_throughput", e.peer_throughput},
+                                    {"ratio", e.ratio}};
+    entry["stages"] = nlohmann::ordered_json::array();
+    for (const auto& stage : e.stages) {
+      entry["stages"].push_back({{"name", stage.name}, {"wall_s", stage.wall_s}, {"cpu_s", stage.cpu_s}});
+    }
+    json["entries"].push_back(std::move(entry));
+  }
+  return json.dump(2) + "\n";
 }
 
 }  // namespace slshadow::workflow

@@ -55,4 +55,11 @@ struct BenchEntry {
 std::vector<BenchEntry> RunBench(const BenchOptions& options);
 std::string FormatBench(const std::vector<BenchEntry>& entries);
 
+// The entries as JSON text (`slshadow bench --json FILE`; docs/formats.md, "Bench results"):
+// {"format": "slshadow-bench", "version": 1, "repetitions": N, "entries": [{"name", "what",
+// "median_wall_s", "cpu_s", "throughput", "unit", "peer", "peer_median_wall_s",
+// "peer_throughput", "ratio", "stages": [{"name", "wall_s", "cpu_s"}]}]}. Numbers are written
+// exactly (round-trip doubles); docs/benchmarks.md is rendered from such a file.
+std::string BenchToJson(const std::vector<BenchEntry>& entries, const BenchOptions& options);
+
 }  // namespace slshadow::workflow

@@ -6,7 +6,7 @@ simulates a scan in Python with Open3D: the object is a point cloud; the points 
 viewpoint come from Open3D's hidden-point removal (Katz et al. 2007); cameras are pinholes with
 radial distortion only (k1, k2, no skew); the projector is an inverse camera; shading is
 Lambertian. This script follows that method on slshadow's benchmark workload
-(tests/sim/sim_bench.cc, BM_PaperWorkloadWritten: the demo part at about 1 M triangles on its
+(bench/sim/sim_bench.cc, BM_PaperWorkloadWritten: the demo part at about 1 M triangles on its
 table, the demo rig, 22 patterns x 2 cameras, 8-bit PGM written to disk):
 
   1. load     the part and table meshes in the rig frame (export_bench_part writes them)

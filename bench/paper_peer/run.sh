@@ -28,13 +28,13 @@ cmake --build "$BUILD" -j2 --target export_bench_part sim_bench > /dev/null
 echo "== export: the demo part at ~1 M triangles, posed as config/demo/scene.yaml, rig frame"
 rm -rf "$WORK"
 mkdir -p "$WORK"
-"$BUILD/tests/sim/export_bench_part" "$SRC" "$WORK/scene"
+"$BUILD/bench/sim/export_bench_part" "$SRC" "$WORK/scene"
 
 # slshadow runs before and after the peers: the machine's speed drifts within minutes, so the
 # ratio is quoted against both (and their mean).
 run_slshadow() {
   echo "== slshadow: sim_bench BM_PaperWorkloadWritten/0 (part and table) and /3 (part alone), PGM written ($(uptime))"
-  "$BUILD/tests/sim/sim_bench" --benchmark_filter='BM_PaperWorkloadWritten/(0|3)' --benchmark_repetitions=3 \
+  "$BUILD/bench/sim/sim_bench" --benchmark_filter='BM_PaperWorkloadWritten/(0|3)' --benchmark_repetitions=3 \
     --benchmark_report_aggregates_only=true --benchmark_out="$1" --benchmark_out_format=json
 }
 run_slshadow "$WORK/slshadow_before.json"

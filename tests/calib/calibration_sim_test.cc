@@ -165,7 +165,7 @@ class CalibrateSimulated : public ::testing::Test {
     projector.model = CameraModel(64, 48, 16, 16, 32, 24);
     const cv::Mat white(48, 64, CV_8UC1, cv::Scalar(255));
     input_->num_poses = static_cast<int>(plan.size());
-    for (const auto& c : truth_->cameras) input_->devices.push_back({c.name, c.model.width, c.model.height, false, std::nullopt, false, {}});
+    for (const auto& c : truth_->cameras) input_->devices.push_back(CalibrationDevice::Camera(c.name, c.model.width, c.model.height));
     double render_s = 0, detect_s = 0, sq = 0;
     int n = 0;
     // Planning aid (docs/benchmarks.md): SIM_DESIGN=NOISE replaces renders and detections by the

@@ -4,6 +4,8 @@
 
 #include <cmath>
 
+#include <nlohmann/json.hpp>
+
 #include "calib/synthetic.h"
 #include "core/error.h"
 
@@ -69,6 +71,44 @@ TEST(ModelSelection, LeaveOnePoseOutScoresAgainstTruth) {
   few.views.resize(4);  // 2 poses
   few.num_poses = 2;
   EXPECT_THROW(ScoreModelsByLeaveOnePoseOut(few, {}, candidates, 0, 1), Error);
+}
+
+// The grid of `slshadow calibrate --select-model` and the choice by the lowest prediction error.
+TEST(ModelSelection, DistortionModelGridAndTheLowestPredictionIsChosen) {
+  SyntheticData data = MakeSyntheticData(Procam(), 4, 0.0, 14);
+  data.input.devices[1].is_projector = true;
+  using M = CameraModel;
+  const auto candidates = DistortionModelCandidates(data.input, 1);
+  ASSERT_EQ(candidates.size(), 8u);
+  EXPECT_EQ(candidates[0].name, "cameras k1 k2 p1 p2 k3 / projector k1 k2 p1 p2 k3");
+  EXPECT_EQ(candidates[7].name, "cameras k1 k2 p1 p2 / projector k1");
+  EXPECT_EQ(candidates[2].held_params, (std::vector<std::vector<int>>{{}, {M::kP1, M::kP2, M::kK3}}));
+  EXPECT_EQ(candidates[5].held_params, (std::vector<std::vector<int>>{{M::kK3}, {M::kK3}}));
+  EXPECT_EQ(candidates[7].held_params, (std::vector<std::vector<int>>{{M::kK3}, {M::kK2, M::kP1, M::kP2, M::kK3}}));
+  EXPECT_THROW(DistortionModelCandidates(data.input, 0), Error);  // not a projector
+  EXPECT_THROW(DistortionModelCandidates(data.input, 2), Error);
+
+  CalibrationInput input = data.input;
+  const ModelSelection selection = SelectDistortionModels(&input, {});
+  ASSERT_EQ(selection.scores.size(), 8u);
+  for (size_t i = 0; i < selection.scores.size(); ++i) {
+    EXPECT_EQ(selection.scores[i].name, candidates[i].name);
+    EXPECT_GE(selection.scores[i].prediction_rms_px, selection.scores[selection.chosen].prediction_rms_px);
+  }
+  EXPECT_LT(selection.scores[selection.chosen].prediction_rms_px, 1e-4);  // noise-free: a candidate holds the truth
+  EXPECT_EQ(selection.chosen_held_params, candidates[selection.chosen].held_params);
+  EXPECT_EQ(input.devices[0].held_params, candidates[selection.chosen].held_params[0]);
+  EXPECT_EQ(input.devices[1].held_params, candidates[selection.chosen].held_params[1]);
+  const nlohmann::json json = ModelSelectionToJson(selection);
+  EXPECT_EQ(json.at("chosen"), selection.scores[selection.chosen].name);
+  ASSERT_EQ(json.at("candidates").size(), 8u);
+  EXPECT_EQ(json.at("candidates")[3].at("model"), candidates[3].name);
+  EXPECT_EQ(json.at("candidates")[3].at("prediction_rms_px").get<double>(), selection.scores[3].prediction_rms_px);
+  EXPECT_EQ(json.at("candidates")[3].at("num_predicted").get<int>(), selection.scores[3].num_predicted);
+
+  CalibrationInput cameras_only = data.input;
+  cameras_only.devices[1].is_projector = false;
+  EXPECT_THROW(SelectDistortionModels(&cameras_only, {}), Error);
 }
 
 }  // namespace

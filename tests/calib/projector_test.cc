@@ -145,7 +145,7 @@ double UpstreamProjectorAloneRms(const std::vector<ProcamPose>& poses, cv::Mat* 
 // Moreno-Taubin on the kamino capture, camera and projector in one bundle adjustment with shared
 // board poses, the distortion models chosen by leave-one-pose-out prediction of the projector's
 // corners (calib/model_selection.h). docs/benchmarks.md ("Calibration") has the study behind it
-// (build-*/tests/calib/calib_kamino_study: thresholds, windows, pixel convention, models).
+// (build-*/bench/calib/calib_kamino_study: thresholds, windows, pixel convention, models).
 TEST(ProjectorCalibrationRealData, KaminoProcamGraycode) {
   DecodeOptions decode;  // upstream's thresholds: black 40 (shadow), white 5 (bit contrast)
   decode.shadow_threshold = 40;

@@ -5,6 +5,8 @@
 #include <cstdio>
 #include <random>
 
+#include <nlohmann/json.hpp>
+
 #include "core/error.h"
 
 namespace slshadow {
@@ -73,6 +75,39 @@ TEST(Refine, CorrectRigFitsAndBumpedRigIsDetectedAndRepaired) {
   const RefineResult same = RefineProjectorPose(truth, 0, corr);
   EXPECT_LT(same.rotation_change_rad, 0.1 * M_PI / 180);
   EXPECT_EQ(same.message.find("WARNING"), std::string::npos) << same.message;
+}
+
+TEST(Refine, RecordKeepsWhatTheRefinementDid) {
+  RefineResult r;
+  r.before.median_px = 2.5;
+  r.before.p95_px = 4.5;
+  r.after.median_px = 0.25;
+  r.after.p95_px = 0.5;
+  r.focal_scale = 1.001;
+  r.rotation_change_rad = 0.01;
+  r.direction_change_rad = 0.02;
+  r.converged = true;
+  r.front_share = 0.99;
+  r.inlier_share = 0.98;
+  r.baseline_mm = 200;
+  r.scale_verified = true;
+  const nlohmann::json j = RefineRecordToJson(r, "scan", "left", "right");
+  EXPECT_EQ(j.size(), 15u);
+  EXPECT_EQ(j.at("imageset"), "scan");
+  EXPECT_EQ(j.at("camera"), "left");
+  EXPECT_EQ(j.at("stereo"), "right");
+  EXPECT_EQ(j.at("before_median_px").get<double>(), 2.5);
+  EXPECT_EQ(j.at("before_p95_px").get<double>(), 4.5);
+  EXPECT_EQ(j.at("after_median_px").get<double>(), 0.25);
+  EXPECT_EQ(j.at("after_p95_px").get<double>(), 0.5);
+  EXPECT_EQ(j.at("focal_scale").get<double>(), 1.001);
+  EXPECT_EQ(j.at("rotation_change_rad").get<double>(), 0.01);
+  EXPECT_EQ(j.at("direction_change_rad").get<double>(), 0.02);
+  EXPECT_EQ(j.at("converged"), true);
+  EXPECT_EQ(j.at("front_share").get<double>(), 0.99);
+  EXPECT_EQ(j.at("inlier_share").get<double>(), 0.98);
+  EXPECT_EQ(j.at("baseline_mm").get<double>(), 200.0);
+  EXPECT_EQ(j.at("scale_verified"), true);
 }
 
 TEST(Refine, SwappedOrWrongRigIsFlagged) {

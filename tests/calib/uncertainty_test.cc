@@ -75,6 +75,17 @@ TEST(Uncertainty, MonteCarloTruthInsidePredictedTwoSigma) {
   EXPECT_LT(predicted, 2.0 * seen);
 }
 
+TEST(Uncertainty, CrossValidationNeedsTwoEvenAndTwoOddPosesPerDevice) {
+  const SyntheticData data = MakeSyntheticData(SyntheticRig::Stereo(), 4, 0.0, 3);
+  EXPECT_TRUE(CanCrossValidate(data.input));
+  CalibrationInput three = data.input;  // poses 0, 1, 2: one odd pose
+  std::erase_if(three.views, [](const BoardView& v) { return v.pose == 3; });
+  EXPECT_FALSE(CanCrossValidate(three));
+  CalibrationInput one_device = data.input;  // device 1 loses pose 2: one even pose for it only
+  std::erase_if(one_device.views, [](const BoardView& v) { return v.device == 1 && v.pose == 2; });
+  EXPECT_FALSE(CanCrossValidate(one_device));
+}
+
 TEST(Uncertainty, MapsHaveTheRightShapeAndScale) {
   const SyntheticRig rig = SyntheticRig::OneCamera();
   const SyntheticData data = MakeSyntheticData(rig, 12, 0.2, 21);

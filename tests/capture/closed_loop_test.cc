@@ -42,6 +42,7 @@
 #include "sim/scene.h"
 #include "sim/simulate.h"
 #include "tests/capture/fake_gv_camera.h"
+#include "tests/capture/scaled_demo_rig.h"
 #include "tests/capture/screen_devices.h"
 #include "tests/capture/xvfb_server.h"
 
@@ -58,24 +59,6 @@ fs::path TestDir(const std::string& name) {
   fs::remove_all(dir);
   fs::create_directories(dir);
   return dir;
-}
-
-// The demo rig at 1/scale of its resolution (same optics, coarser pixels), so a test runs in
-// seconds: cameras 1920x1200 -> 480x300, projector 1280x800 -> 320x200 at scale 4.
-Rig ScaledDemoRig(int scale) {
-  Rig rig = LoadRig(fs::path(SLSHADOW_SOURCE_DIR) / "config/demo/rig.yaml");
-  auto shrink = [scale](CameraModel& m) {
-    m.width /= scale;
-    m.height /= scale;
-    m.params[CameraModel::kFx] /= scale;
-    m.params[CameraModel::kFy] /= scale;
-    m.params[CameraModel::kCx] = (m.params[CameraModel::kCx] + 0.5) / scale - 0.5;
-    m.params[CameraModel::kCy] = (m.params[CameraModel::kCy] + 0.5) / scale - 0.5;
-  };
-  for (RigDevice& c : rig.cameras) shrink(c.model);
-  shrink(rig.projector->model);
-  rig.Check("scaled demo rig");
-  return rig;
 }
 
 // One fake GigE Vision camera per rig camera whose fill renders, with the simulator, the
@@ -152,7 +135,7 @@ class ClosedLoop : public ::testing::Test {
     if (!reason.empty()) GTEST_SKIP() << reason;
     // SLSHADOW_CLOSED_LOOP_SCALE=1: the full demo resolution (for the benchmark); default 4.
     const char* scale = std::getenv("SLSHADOW_CLOSED_LOOP_SCALE");
-    rig_ = ScaledDemoRig(scale ? std::atoi(scale) : 4);
+    rig_ = testing::ScaledDemoRig(scale ? std::atoi(scale) : 4);
     scene_ = std::make_unique<Scene>(LoadScene(fs::path(SLSHADOW_SOURCE_DIR) / "config/demo/scene.yaml"));
     spec_ = LoadPatternSpec(fs::path(SLSHADOW_SOURCE_DIR) / "config/patterns/graycode_phase.yaml");
     spec_.projector_width = rig_.projector->model.width;

@@ -62,6 +62,50 @@ TEST(Devices, ExamplesLoad) {
   const Rig demo = LoadRig(testing::SourceDir() / "config/demo/rig.yaml");
   replay.CheckAgainst(demo);
   gige.CheckAgainst(demo);
+
+  const DevicesConfig seq = LoadDevices(dir / "gige_lightcrafter_pattern_sequence.yaml");
+  EXPECT_EQ(seq.cameras[1].settings.trigger, TriggerMode::kHardware);
+  EXPECT_EQ(seq.cameras[1].settings.trigger_line, "Line1");
+  EXPECT_EQ(seq.projector.backend, "lightcrafter");
+  EXPECT_EQ(seq.projector.mode, "pattern-sequence");
+  EXPECT_EQ(seq.projector.usb, "1:7");
+  EXPECT_EQ(seq.projector.frame_period_us, 16667);
+  EXPECT_EQ(seq.projector.exposure_us, 16667);
+  EXPECT_EQ(seq.projector.bit_depth, 0);
+  EXPECT_FALSE(seq.projector.trigger_inverted);
+  EXPECT_EQ(seq.projector.settle_us, 100000);
+  EXPECT_TRUE(RunsSequenceItself(seq.projector));
+  EXPECT_FALSE(RunsSequenceItself(LoadDevices(dir / "uvc_lightcrafter.yaml").projector));
+  seq.CheckAgainst(demo);
+}
+
+// The LightCrafter's pattern-sequence fields: only where they mean something, in range.
+TEST(Devices, LightCrafterPatternSequenceFields) {
+  const std::string cam = "cameras:\n  - name: left\n    backend: replay\n    imageset: x\n";
+  const std::string lc = "projector:\n  backend: lightcrafter\n  mode: pattern-sequence\n";
+  EXPECT_EQ(Parse(kHead + cam + lc + "  frame_period_us: 8333\n").projector.frame_period_us, 8333);
+  EXPECT_EQ(Parse(kHead + cam + "projector: {backend: lightcrafter}\n").projector.mode, "video");
+  EXPECT_NE(ErrorOf([&] { Parse(kHead + cam + "projector: {backend: lightcrafter, mode: pattern}\n"); })
+                .find("dev.yaml: projector.mode: expected video or pattern-sequence"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([&] { Parse(kHead + cam + "projector: {backend: window, mode: video}\n"); })
+                .find("projector.mode: only for backend lightcrafter"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([&] { Parse(kHead + cam + "projector: {backend: lightcrafter, frame_period_us: 8333}\n"); })
+                .find("projector.frame_period_us: only for a lightcrafter in mode pattern-sequence"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([&] { Parse(kHead + cam + lc + "  frame_period_us: 100\n"); })
+                .find("projector.frame_period_us: must be in [235, 10000000] us (got 100)"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([&] { Parse(kHead + cam + lc + "  exposure_us: 20000\n"); })
+                .find("projector.exposure_us: must be at most frame_period_us (got 20000)"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([&] { Parse(kHead + cam + lc + "  bit_depth: 9\n"); }).find("projector.bit_depth: must be 1..8"),
+            std::string::npos);
+  // Opened as a projector shown pattern by pattern, it says why not (no USB needed to see that).
+  EXPECT_NE(ErrorOf([&] { OpenProjector(Parse(kHead + cam + lc).projector); })
+                .find("dev.yaml: projector.mode: pattern-sequence: the LightCrafter runs the sequence itself"),
+            std::string::npos);
 }
 
 TEST(Devices, BadInputIsNamedWithFileFieldAndValue) {

@@ -85,6 +85,11 @@ struct FakeGvCamera::Impl {
   std::deque<std::pair<uint64_t, cv::Mat>> served;
   std::vector<uint64_t> served_ids;
   std::atomic<uint64_t> n_served{0};
+  // Latched line edges (PulseLine): time (ns since the epoch) and tag; `armed` while the trigger
+  // register is set or the frame it fired is being filled.
+  std::mutex line_mutex;
+  std::deque<std::pair<uint64_t, int64_t>> edges;
+  bool armed = false;
 
   static void Fill(ArvBuffer* buffer, void* data, guint32 exposure_us, guint32 gain, ArvPixelFormat format) {
     auto* self = static_cast<Impl*>(data);
@@ -95,6 +100,16 @@ struct FakeGvCamera::Impl {
     request.format = FormatOf(format);
     request.exposure_us = exposure_us;
     request.gain_raw = gain;
+    {
+      std::lock_guard<std::mutex> lock(self->line_mutex);
+      if (!self->edges.empty()) {
+        arv_buffer_set_timestamp(buffer, self->edges.front().first);
+        request.line_tag = self->edges.front().second;
+        self->edges.pop_front();
+        self->armed = !self->edges.empty();
+        if (self->armed) arv_fake_camera_write_register(self->fake, kTriggerSoftwareRegister, 1);
+      }
+    }
     const int type = request.format == capture::PixelFormat::kMono8 ? CV_8UC1 : CV_16UC1;
     // The buffer was allocated by the fake camera with the payload of this region and format.
     auto* pixels = static_cast<uint8_t*>(const_cast<void*>(arv_buffer_get_data(buffer, nullptr)));
@@ -155,8 +170,16 @@ void FakeGvCamera::SetLostPacketRatio(double ratio) {
 
 void FakeGvCamera::SeedLoss(uint32_t seed) { g_random_set_seed(seed); }
 
-void FakeGvCamera::PulseLine() {
-  if (impl_->fake != nullptr) arv_fake_camera_write_register(impl_->fake, kTriggerSoftwareRegister, 1);
+void FakeGvCamera::PulseLine(int64_t tag, std::chrono::system_clock::time_point edge) {
+  if (impl_->fake == nullptr) return;
+  if (edge.time_since_epoch().count() == 0) edge = std::chrono::system_clock::now();
+  const auto ns = std::chrono::duration_cast<std::chrono::nanoseconds>(edge.time_since_epoch()).count();
+  std::lock_guard<std::mutex> lock(impl_->line_mutex);
+  impl_->edges.emplace_back(static_cast<uint64_t>(ns), tag);
+  if (!impl_->armed) {
+    impl_->armed = true;
+    arv_fake_camera_write_register(impl_->fake, kTriggerSoftwareRegister, 1);
+  }
 }
 
 void FakeGvCamera::SetFrameRate(double hz) {

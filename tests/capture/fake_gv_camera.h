@@ -12,6 +12,7 @@
 // Aravis and GLib types stay in fake_gv_camera.cc.
 #pragma once
 
+#include <chrono>
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -31,6 +32,8 @@ struct FakeFrameRequest {
   capture::PixelFormat format = capture::PixelFormat::kMono8;
   uint32_t exposure_us = 0;  // the camera's exposure register when the frame is taken
   uint32_t gain_raw = 0;     // the camera's gain register (= gain in dB through the SFNC XML)
+  // Hardware trigger (PulseLine): the tag given to the edge this frame answers (-1 without one).
+  int64_t line_tag = -1;
 };
 
 // Returns a width x height image, CV_8UC1 for Mono8 and CV_16UC1 for Mono12 / Mono16. Runs on
@@ -69,7 +72,12 @@ class FakeGvCamera {
   // Seeds GLib's global generator, which draws the dropped packets.
   static void SeedLoss(uint32_t seed);
   // Emulated hardware trigger: one rising edge on Line1 (needs sfnc_xml and TriggerSource Line1).
-  void PulseLine();
+  // Edges are latched like a camera's trigger input does: each one gives one frame, even when the
+  // fake camera's thread is descheduled past the next edge (the trigger register alone would
+  // merge them), and that frame carries the edge's time as its device timestamp (`edge`, or now
+  // when unset; ns since the epoch, as the fake camera stamps frames) and `tag` in
+  // FakeFrameRequest::line_tag (e.g. what a projector showed at the edge).
+  void PulseLine(int64_t tag = -1, std::chrono::system_clock::time_point edge = {});
   // Sets the free-run rate while running.
   void SetFrameRate(double hz);
   // The camera disappears: stops answering GVCP and sending GVSP (the object stays valid).

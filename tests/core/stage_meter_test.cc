@@ -6,6 +6,8 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
+
 namespace slshadow {
 namespace {
 
@@ -45,6 +47,28 @@ TEST(StageMeter, MeasuresPeakMemoryOfTheStage) {
   const std::string table = FormatStageTable({m, s});
   EXPECT_NE(table.find("allocate"), std::string::npos);
   EXPECT_NE(table.find("total"), std::string::npos);
+}
+
+// StageTimer: the CPU of work done since its start (or Restart) and never a negative time; wall
+// and CPU keep growing across calls.
+TEST(StageTimer, MeasuresCpuAndWallSinceItsStart) {
+  StageTimer timer;
+  volatile double sink = 0;
+  for (int i = 0; i < 20000000; ++i) sink = sink + std::sqrt(static_cast<double>(i));
+  double wall = -1, cpu = -1;
+  timer.Elapsed(&wall, &cpu);
+  EXPECT_GT(cpu, 0);
+  EXPECT_GT(wall, 0);
+  double wall2 = -1, cpu2 = -1;
+  timer.Elapsed(&wall2, &cpu2);
+  EXPECT_GE(wall2, wall);
+  EXPECT_GE(cpu2, cpu);
+  timer.Restart();
+  double wall3 = -1, cpu3 = -1;
+  timer.Elapsed(&wall3, &cpu3);
+  EXPECT_GE(wall3, 0);
+  EXPECT_GE(cpu3, 0);
+  EXPECT_LT(cpu3, cpu);  // the busy loop is before the restart
 }
 
 }  // namespace

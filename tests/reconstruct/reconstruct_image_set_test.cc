@@ -5,11 +5,15 @@
 #include "reconstruct/reconstruct_image_set.h"
 
 #include <cmath>
+#include <fstream>
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
 
 #include "core/error.h"
 #include "patterns/synthetic.h"
+#include "reconstruct/write_reconstruction.h"
 #include "tests/reconstruct/analytic_scene.h"
 #include "tests/testing/kamino_rig.h"
 #include "tests/testing/temp_dir.h"
@@ -123,6 +127,57 @@ TEST_F(ReconstructImageSetTest, BadCameraSelectionsThrow) {
   options.mode = ReconstructMode::kStereo;
   options.cameras = {"left"};
   EXPECT_THROW(ReconstructImageSet(set, options), Error);
+}
+
+// reconstruct/write_reconstruction.h: the cloud read back equals the reconstruction's, the summary
+// names its inputs, one residual map per reconstruction; an empty cloud writes nothing.
+TEST_F(ReconstructImageSetTest, WriteReconstructionWritesTheCloudSummaryAndResidualMaps) {
+  const ImageSet set = ImageSet::Open(dir_->path() / "plane");
+  ImageSetReconstructOptions options;
+  const ImageSetReconstruction rec = ReconstructImageSet(set, options);
+  testing::TempDir out;
+  ReconstructionOutputOptions output;
+  output.cloud_path = out.path() / "plane.ply";
+  output.imageset = (dir_->path() / "plane").string();
+  const ReconstructionOutputs written = WriteReconstruction(rec, options, *rig_, output);
+  EXPECT_EQ(written.summary, out.path() / "plane.summary.json");
+  const PointCloud cloud = ReadPly(written.cloud);
+  ASSERT_EQ(cloud.size(), rec.cloud.size());
+  EXPECT_EQ(cloud.points.front(), rec.cloud.points.front());
+  EXPECT_EQ(cloud.points.back(), rec.cloud.points.back());
+  std::ifstream in(written.summary);
+  const nlohmann::json summary = nlohmann::json::parse(in);
+  EXPECT_EQ(summary.at("imageset"), output.imageset);
+  EXPECT_EQ(summary.at("cloud"), output.cloud_path.string());
+  EXPECT_EQ(summary.at("rig").at("source"), "manifest");
+  EXPECT_EQ(summary.at("options"), options.ToJson());
+  ASSERT_EQ(written.residual_maps.size(), rec.residual_maps.size());
+  ASSERT_EQ(summary.at("residual_maps").size(), rec.residual_maps.size());
+  for (size_t k = 0; k < written.residual_maps.size(); ++k) {
+    const cv::Mat map = cv::imread(written.residual_maps[k].string());
+    EXPECT_EQ(map.size(), rec.residual_maps[k].second.size());
+    EXPECT_EQ(summary.at("residual_maps")[k].at("reconstruction"), rec.residual_maps[k].first);
+  }
+  // A rig file instead of the manifest's is recorded; ASCII PLY on request.
+  output.rig_file = (testing::SourceDir() / "config/demo/rig.yaml").string();
+  output.summary_path = out.path() / "other.json";
+  output.binary_ply = false;
+  output.cloud_path = out.path() / "ascii.ply";
+  WriteReconstruction(rec, options, *rig_, output);
+  std::ifstream in2(out.path() / "other.json");
+  EXPECT_EQ(nlohmann::json::parse(in2).at("rig").at("source"), "file");
+  EXPECT_EQ(ReadPly(out.path() / "ascii.ply").size(), rec.cloud.size());
+  // Nothing is written for an empty cloud; the error names the ImageSet.
+  ImageSetReconstruction empty = rec;
+  empty.cloud = PointCloud();
+  output.cloud_path = out.path() / "empty.ply";
+  try {
+    WriteReconstruction(empty, options, *rig_, output);
+    FAIL() << "no error for an empty cloud";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find(output.imageset), std::string::npos) << e.what();
+  }
+  EXPECT_FALSE(std::filesystem::exists(out.path() / "empty.ply"));
 }
 
 }  // namespace

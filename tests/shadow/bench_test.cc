@@ -4,6 +4,8 @@
 
 #include <filesystem>
 
+#include <nlohmann/json.hpp>
+
 #include "core/error.h"
 #include "patterns/pattern_spec.h"
 
@@ -31,6 +33,22 @@ TEST(Bench, DecodeEntryRunsOnTheDemoScan) {
   const std::string table = FormatBench(entries);
   EXPECT_NE(table.find(entries[0].what), std::string::npos) << table;
   EXPECT_EQ(table.find("simulate"), std::string::npos) << table;
+
+  // --json: every field, numbers exact.
+  const auto json = nlohmann::json::parse(BenchToJson(entries, options));
+  EXPECT_EQ(json.at("format"), "slshadow-bench");
+  EXPECT_EQ(json.at("version"), 1);
+  EXPECT_EQ(json.at("repetitions"), 1);
+  ASSERT_EQ(json.at("entries").size(), 1u);
+  const auto& e = json.at("entries")[0];
+  EXPECT_EQ(e.at("name"), "decode");
+  EXPECT_EQ(e.at("median_wall_s").get<double>(), entries[0].median_wall_s);
+  EXPECT_EQ(e.at("cpu_s").get<double>(), entries[0].cpu_s);
+  EXPECT_EQ(e.at("throughput").get<double>(), entries[0].throughput);
+  EXPECT_EQ(e.at("unit"), entries[0].unit);
+  EXPECT_EQ(e.at("peer"), "");
+  EXPECT_EQ(e.at("ratio").get<double>(), 0.0);
+  EXPECT_EQ(e.at("stages").size(), entries[0].stages.size());
 }
 
 TEST(Bench, BadOptionsAreNamed) {

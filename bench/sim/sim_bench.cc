@@ -1,7 +1,7 @@
 // sim_bench: speed of the virtual scanner (Google Benchmark; not a test). Results and the
 // commands reproducing them are in docs/benchmarks.md ("Simulator").
 //
-//   build-sim/tests/sim/sim_bench --benchmark_filter=DemoScan
+//   build-sim/bench/sim/sim_bench --benchmark_filter=DemoScan
 //
 // BM_DemoScan builds the BVH in every scan; BM_DemoScanSharedBvh builds it once and scans from
 // other rig poses; BM_Rescan keeps the geometry too. Rays counted = primary + shadow rays (every

@@ -2,7 +2,7 @@
 // 1920x1200 Mono8 free-run frames from in-process GV fake cameras through real GVSP, 1000 frames
 // per run, one camera and two at once. Runs inside a private network namespace like the tests.
 //
-//   build/tests/capture/aravis_bench --benchmark_repetitions=3 --benchmark_report_aggregates_only
+//   build/bench/capture/aravis_bench --benchmark_repetitions=3 --benchmark_report_aggregates_only
 //
 // Arguments: packet size in bytes, the camera's free-run rate in frames/s, socket buffer. Counters: fps (complete
 // frames per second, first to last), lost (frames served but not delivered complete: damaged or

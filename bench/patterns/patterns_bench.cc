@@ -3,7 +3,7 @@
 // 1920x1080, standard view (patterns/synthetic.h) with noise sigma 1. Throughput is counted in
 // camera pixels decoded per second, per camera (items_per_second).
 //
-//   build-patterns/tests/patterns/patterns_bench --benchmark_repetitions=5
+//   build-patterns/bench/patterns/patterns_bench --benchmark_repetitions=5
 //       --benchmark_report_aggregates_only=true   (one command line)
 #include <benchmark/benchmark.h>
 

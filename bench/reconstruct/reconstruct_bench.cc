@@ -2,7 +2,7 @@
 // (image file decoding excluded): the demo rig looking at a plane, images rendered without the
 // simulator by warping GeneratePatterns output through the analytic plane mapping.
 //
-//   build-*/tests/reconstruct/reconstruct_bench --benchmark_repetitions=5
+//   build-*/bench/reconstruct/reconstruct_bench --benchmark_repetitions=5
 //   (add --benchmark_report_aggregates_only=true for medians only)
 #include <benchmark/benchmark.h>
 

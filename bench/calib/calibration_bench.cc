@@ -1,5 +1,5 @@
 // Calibration speed against OpenCV on the same corners (docs/benchmarks.md, "Calibration").
-//   build-*/tests/calib/calib_bench --benchmark_repetitions=5 --benchmark_report_aggregates_only=true
+//   build-*/bench/calib/calib_bench --benchmark_repetitions=5 --benchmark_report_aggregates_only=true
 #include <benchmark/benchmark.h>
 
 #include <cstdio>
@@ -18,7 +18,7 @@ const CalibrationInput& LeftInput() {
     const TargetSpec spec = LoadTargetSpec(std::string(SLSHADOW_SOURCE_DIR) + "/config/targets/opencv-stereo-chessboard.yaml");
     const auto board = BoardPoints(spec);
     CalibrationInput in;
-    in.devices = {CalibrationDevice{"left", 640, 480, false, std::nullopt, false, {}}};
+    in.devices = {CalibrationDevice::Camera("left", 640, 480)};
     int p = 0;
     for (int i : {1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 12, 13, 14}) {
       char name[256];

@@ -7,7 +7,7 @@
 //                 wall time minus the time inside Show / wait / Trigger / Grab / Flush)
 //   overhead_cpu_ms the same on the sequencer thread's CPU clock (not inflated by other load)
 //   pattern_ms    wall time per pattern, devices included
-// Run: build/tests/capture/capture_bench --benchmark_repetitions=5 (validate:1/stride:0 is the default)
+// Run: build/bench/capture/capture_bench --benchmark_repetitions=5 (validate:1/stride:0 is the default)
 #include <benchmark/benchmark.h>
 
 #include <filesystem>

@@ -1,6 +1,6 @@
 // compare_bench: C2C 1 M -> 1 M (against CloudCompare's C2C in the same run when it is
 // installed), C2M 1 M points -> 80 k triangles, registration of 200 k points (global + ICP).
-// Run: build-*/tests/compare/compare_bench   (docs/benchmarks.md "compare")
+// Run: build-*/bench/compare/compare_bench   (docs/benchmarks.md "compare")
 #include <benchmark/benchmark.h>
 
 #include <chrono>

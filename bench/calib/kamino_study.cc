@@ -61,7 +61,8 @@ CalibrationInput Input(const std::vector<ProcamPose>& poses, const Variant& v, i
 CalibrationResult ProjectorAlone(const std::vector<ProcamPose>& poses, const Variant& v) {
   CalibrationInput in;
   in.num_poses = 5;
-  in.devices = {{"projector", 1024, 768, true, std::nullopt, false, v.proj_held}};
+  in.devices = {CalibrationDevice::Projector("projector", 1024, 768)};
+  in.devices[0].held_params = v.proj_held;
   for (const auto& p : poses) {
     BoardView pv = p.projector_view;
     pv.device = 0;
@@ -78,7 +79,9 @@ CalibrationResult ProjectorAlone(const std::vector<ProcamPose>& poses, const Var
 void PredictHeldOutProjectorCorners(const CalibrationResult& r, const ProcamPose& held_out, double shift, double* sq, int* n) {
   CalibrationInput cam;
   cam.num_poses = 1;
-  cam.devices = {{"camera", 1280, 1024, false, r.devices[0].model, true, {}}};
+  cam.devices = {CalibrationDevice::Camera("camera", 1280, 1024)};
+  cam.devices[0].initial = r.devices[0].model;
+  cam.devices[0].hold_intrinsics = true;
   BoardView cv = held_out.camera_view;
   cv.pose = 0;
   cam.views = {cv};
