@@ -5,19 +5,13 @@
 #include <gtest/gtest.h>
 
 #include "core/error.h"
+#include "tests/testing/error_of.h"
 #include "tests/testing/temp_dir.h"
 
 namespace slshadow {
 namespace {
 
-std::string ErrorOf(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
-}
+using testing::ErrorOf;
 
 TEST(Config, YamlScalarsAreTyped) {
   const auto n = ConfigNode::ParseYaml("a: 3\nb: 2.5\nc: true\nd: hello\ne: \"42\"\nf: [1, 2.0, -3e2]\ng: ~\n", "x.yaml");

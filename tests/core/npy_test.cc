@@ -7,19 +7,13 @@
 #include <gtest/gtest.h>
 
 #include "core/error.h"
+#include "tests/testing/error_of.h"
 #include "tests/testing/temp_dir.h"
 
 namespace slshadow {
 namespace {
 
-std::string ErrorOf(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
-}
+using testing::ErrorOf;
 
 // A header as NumPy writes it: magic, version 1.0, little-endian length, dict padded to 64.
 std::string Npy(const std::string& shape, const std::string& payload) {

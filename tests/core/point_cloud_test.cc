@@ -7,10 +7,13 @@
 #include <gtest/gtest.h>
 
 #include "core/error.h"
+#include "tests/testing/error_of.h"
 #include "tests/testing/temp_dir.h"
 
 namespace slshadow {
 namespace {
+
+using testing::ErrorOf;
 
 PointCloud RandomCloud(size_t n, bool normals, bool colors, int seed = 3) {
   std::mt19937 rng(seed);
@@ -191,24 +194,13 @@ TEST(PointCloud, HugeHeaderCountsAreRefusedBeforeAllocation) {
                                 "ply\nformat binary_little_endian 1.0\nelement vertex 1000000000000\n"
                                 "property double x\nproperty double y\nproperty double z\nend_header\n" +
                                     std::string(48, '\0'));
-  try {
-    ReadPly(bin);
-    FAIL() << "no error";
-  } catch (const Error& e) {
-    EXPECT_EQ(std::string(e.what()), bin + ": PLY header: element 'vertex' claims 1000000000000 rows, but the file has "
-                                           "only 48 bytes of data (at least 24 bytes per row)");
-  }
+  EXPECT_EQ(ErrorOf([&] { ReadPly(bin); }), bin + ": PLY header: element 'vertex' claims 1000000000000 rows, but the "
+                                                  "file has only 48 bytes of data (at least 24 bytes per row)");
   const std::string ascii = write("huge_ascii.ply",
                                   "ply\nformat ascii 1.0\nelement vertex 1000000000000\nproperty float x\n"
                                   "property float y\nproperty float z\nend_header\n1 2 3\n");
-  try {
-    ReadPly(ascii);
-    FAIL() << "no error";
-  } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find(ascii + ": PLY header: element 'vertex' claims 1000000000000 rows"),
-              std::string::npos)
-        << e.what();
-  }
+  EXPECT_NE(ErrorOf([&] { ReadPly(ascii); }).find(ascii + ": PLY header: element 'vertex' claims 1000000000000 rows"),
+            std::string::npos);
   // A count that does not fit in 64 bits is a bad element line, not LLONG_MAX rows.
   const std::string overflow = write("overflow.ply",
                                      "ply\nformat ascii 1.0\nelement vertex 99999999999999999999\nproperty float x\n"
@@ -219,22 +211,12 @@ TEST(PointCloud, HugeHeaderCountsAreRefusedBeforeAllocation) {
                                       "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
                                       "property float z\nelement face 1\nproperty list uchar float vertex_indices\n"
                                       "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 nan\n");
-  try {
-    ReadPlyData(nan_index);
-    FAIL() << "no error";
-  } catch (const Error& e) {
-    EXPECT_EQ(std::string(e.what()),
-              nan_index + ": element 'face' row 0 property 'vertex_indices': list value nan is not an integer");
-  }
+  EXPECT_EQ(ErrorOf([&] { ReadPlyData(nan_index); }),
+            nan_index + ": element 'face' row 0 property 'vertex_indices': list value nan is not an integer");
   const std::string x_list = write("x_list.ply",
                                    "ply\nformat ascii 1.0\nelement vertex 1\nproperty list uchar int x\n"
                                    "property float y\nproperty float z\nend_header\n1 5 0 0\n");
-  try {
-    ReadPly(x_list);
-    FAIL() << "no error";
-  } catch (const Error& e) {
-    EXPECT_EQ(std::string(e.what()), x_list + ": PLY vertex property 'x' is a list, expected a number");
-  }
+  EXPECT_EQ(ErrorOf([&] { ReadPly(x_list); }), x_list + ": PLY vertex property 'x' is a list, expected a number");
 }
 
 }  // namespace
