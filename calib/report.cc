@@ -8,6 +8,7 @@
 #include "calib/calibration_io.h"
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/statistics.h"
 #include "plot/plot.h"
 
 namespace slshadow {
@@ -72,7 +73,7 @@ void ResidualChart(const std::filesystem::path& path, const CalibrationInput& in
   double p95 = 1;
   if (!lengths.empty()) {
     std::sort(lengths.begin(), lengths.end());
-    p95 = std::max(1e-6, lengths[static_cast<size_t>(0.95 * static_cast<double>(lengths.size() - 1))]);
+    p95 = std::max(1e-6, lengths[PercentileRank(lengths.size(), 95)]);  // core/statistics.h
   }
   const double mag = dev.width / 25.0 / p95;
   const double scale = std::min(1.0, 1000.0 / dev.width);

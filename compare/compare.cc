@@ -10,6 +10,7 @@
 
 #include "compare/charts.h"
 #include "compare/kdtree.h"
+#include "compare/mesh_distance.h"
 #include "core/config.h"
 #include "core/error.h"
 
@@ -63,6 +64,7 @@ Reference ReferenceFromMesh(TriangleMesh mesh, const std::string& source, size_t
     ref.cloud.normals.push_back(mesh.FaceNormal(t).cast<float>());
   }
   ref.mesh = std::move(mesh);
+  ref.mesh_distance = std::make_shared<const MeshDistance>(ref.mesh);
   return ref;
 }
 
@@ -207,6 +209,11 @@ CompareOptions CompareOptionsFromConfig(const ConfigNode& node) {
 
 CompareResult Compare(const PointCloud& cloud, const Reference& reference, const CompareOptions& options,
                       const std::string& cloud_source) {
+  return Compare(PointCloud(cloud), reference, options, cloud_source);
+}
+
+CompareResult Compare(PointCloud&& cloud, const Reference& reference, const CompareOptions& options,
+                      const std::string& cloud_source) {
   options.Check();
   cloud.Check(cloud_source);
   SLSHADOW_THROW_IF(cloud.empty(), cloud_source, ": the compared cloud has no points");
@@ -221,7 +228,7 @@ CompareResult Compare(const PointCloud& cloud, const Reference& reference, const
 
   const auto ref_normals = NormalsAsDouble(reference.cloud);
   r.registration = Register(cloud.points, reference.cloud.points, ref_normals, options.registration);
-  r.compared = cloud;
+  r.compared = std::move(cloud);
   const Rigid3d& t = r.registration.reference_from_cloud;
   for (auto& p : r.compared.points) p = t * p;
   const Eigen::Matrix3f rot = t.rotation.toRotationMatrix().cast<float>();
@@ -234,7 +241,9 @@ CompareResult Compare(const PointCloud& cloud, const Reference& reference, const
   bool is_signed = false;
   if (reference.IsMesh()) {
     r.distance_method = "nearest_triangle";
-    r.deviations_mm = CloudToMesh(pts, reference.mesh).signed_distances_mm;
+    r.deviations_mm = (reference.mesh_distance ? CloudToMesh(pts, *reference.mesh_distance)
+                                               : CloudToMesh(pts, MeshDistance(reference.mesh)))
+                          .signed_distances_mm;
     is_signed = true;
   } else {
     r.distance_method = "nearest_point";
@@ -245,16 +254,18 @@ CompareResult Compare(const PointCloud& cloud, const Reference& reference, const
   r.c2c = ComputeStats(r.deviations_mm, false, options.threshold_mm, options.histogram_bins);
   if (is_signed) r.c2m = ComputeStats(r.deviations_mm, true, options.threshold_mm, options.histogram_bins);
 
-  // Coverage.
-  std::vector<Eigen::Vector3d> reached;
-  reached.reserve(pts.size());
-  for (size_t i = 0; i < pts.size(); ++i) {
-    if (std::abs(r.deviations_mm[i]) <= options.threshold_mm) reached.push_back(pts[i]);
-  }
+  // Coverage (the reached points freed at once: a second copy of most of the cloud).
   r.coverage_radius_mm = options.coverage_radius_mm > 0
                              ? options.coverage_radius_mm
                              : std::max(options.threshold_mm, 3.0 * MedianSpacing(pts));
-  r.coverage = Coverage(reference.cloud.points, reached, r.coverage_radius_mm);
+  {
+    std::vector<Eigen::Vector3d> reached;
+    reached.reserve(pts.size());
+    for (size_t i = 0; i < pts.size(); ++i) {
+      if (std::abs(r.deviations_mm[i]) <= options.threshold_mm) reached.push_back(pts[i]);
+    }
+    r.coverage = Coverage(reference.cloud.points, reached, r.coverage_radius_mm);
+  }
   r.coverage_samples = reference.cloud.size();
 
   // Scalar fields and colours.

@@ -19,6 +19,7 @@
 #pragma once
 
 #include <filesystem>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -35,9 +36,15 @@
 
 namespace slshadow::compare {
 
+class MeshDistance;
+
 struct Reference {
   std::string source;  // file name or a description, for the report
   TriangleMesh mesh;   // non-empty for a mesh reference
+  // The distance hierarchy over `mesh`, built once by ReferenceFromMesh and shared by every
+  // Compare() against this reference (and by copies of it); Compare builds one when it is null.
+  // Rebuild it (or reset it) after changing `mesh`.
+  std::shared_ptr<const MeshDistance> mesh_distance;
   // Points (with unit normals) representing the reference: a cloud reference's own points, or
   // area-uniform samples of the mesh with their face normals. Registration and coverage use it.
   PointCloud cloud;
@@ -110,6 +117,9 @@ struct CompareResult {
 };
 
 CompareResult Compare(const PointCloud& cloud, const Reference& reference, const CompareOptions& options,
+                      const std::string& cloud_source = "cloud");
+// The same, moving the cloud into CompareResult::compared instead of copying it.
+CompareResult Compare(PointCloud&& cloud, const Reference& reference, const CompareOptions& options,
                       const std::string& cloud_source = "cloud");
 
 }  // namespace slshadow::compare

@@ -7,7 +7,7 @@
 
 #include <Eigen/Eigenvalues>
 
-#include "compare/kdtree.h"
+#include "compare/statistics.h"
 #include "core/error.h"
 #include "core/file_util.h"
 
@@ -41,6 +41,14 @@ nlohmann::json StatsJson(const DistanceStats& s) {
                     {"underflow", s.histogram.underflow},
                     {"overflow", s.histogram.overflow}};
   return j;
+}
+
+// Float keeps a coordinate to half a unit in the last place: <= 2^-11 mm below 8192 mm.
+bool FitsFloatPositions(const std::vector<Eigen::Vector3d>& points) {
+  for (const auto& p : points) {
+    if (!(p.cwiseAbs().maxCoeff() < 8192.0)) return false;
+  }
+  return true;
 }
 
 std::string Fmt(const char* format, double v) {
@@ -123,8 +131,7 @@ ValueImage RenderValues(const std::vector<Eigen::Vector3d>& points, const std::v
     double spacing_px = 1.0;
     if (!zs.empty()) {
       std::nth_element(zs.begin(), zs.begin() + static_cast<long>(zs.size() / 2), zs.end());
-      const KdTree tree(points);
-      spacing_px = view.camera.fx() * MedianSpacing(tree, 5000) / zs[zs.size() / 2];
+      spacing_px = view.camera.fx() * MedianSpacing(points, 5000) / zs[zs.size() / 2];  // grid: no tree
     }
     splat_px = std::clamp(static_cast<int>(std::ceil(0.5 * spacing_px)), 0, 4);
   }
@@ -229,6 +236,7 @@ void WriteReport(const fs::path& dir, const CompareResult& r, const ReportOption
     WriteTextFileAtomically(staged / "report.json", ReportJson(r).dump(2) + "\n");
     PlyWriteOptions ply;
     ply.binary = options.binary_ply;
+    ply.double_positions = !(options.float_positions && FitsFloatPositions(r.compared.points));
     WritePly(staged / "compared.ply", r.compared, ply);
     // Histogram of the signed deviations for a mesh, else of the distances.
     const DistanceStats& s = r.c2m ? *r.c2m : r.c2c;

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstring>
 #include <fstream>
+#include <functional>
 #include <sstream>
 
 #include "core/error.h"
@@ -111,37 +112,45 @@ void WritePly(const fs::path& path, const PointCloud& cloud, const PlyWriteOptio
   for (const auto& s : cloud.scalars) out += "property float " + s.name + "\n";
   out += "end_header\n";
   const size_t n = cloud.size();
+  // Binary records are encoded into a buffer of at most kChunk records at a time and written
+  // as they are (a 2 M-point cloud would otherwise need a second copy of ~100 MB in memory).
+  static constexpr size_t kChunk = 16384;
+  std::function<void(std::ofstream&)> write_records;
   if (options.binary) {
-    // Fixed-size records written with memcpy into one buffer (little-endian host assumed, as
-    // x86-64 and AArch64 Linux are; checked at compile time).
+    // Fixed-size records written with memcpy (little-endian host assumed, as x86-64 and AArch64
+    // Linux are; checked at compile time).
     static_assert(std::endian::native == std::endian::little, "binary PLY writer assumes a little-endian host");
     const size_t pos_size = options.double_positions ? 24 : 12;
     const size_t stride = pos_size + (cloud.HasNormals() ? 12 : 0) + (cloud.HasColors() ? 3 : 0) + 4 * cloud.scalars.size();
-    const size_t header_size = out.size();
-    out.resize(header_size + n * stride);
-    char* base = out.data() + header_size;
-    for (size_t i = 0; i < n; ++i) {
-      char* rec = base + i * stride;
-      if (options.double_positions) {
-        std::memcpy(rec, cloud.points[i].data(), 24);
-      } else {
-        const Eigen::Vector3f p = cloud.points[i].cast<float>();
-        std::memcpy(rec, p.data(), 12);
+    write_records = [&cloud, &options, n, pos_size, stride](std::ofstream& f) {
+      std::string buffer(std::min(n, kChunk) * stride, '\0');
+      for (size_t first = 0; first < n; first += kChunk) {
+        const size_t last = std::min(n, first + kChunk);
+        char* rec = buffer.data();
+        for (size_t i = first; i < last; ++i) {
+          if (options.double_positions) {
+            std::memcpy(rec, cloud.points[i].data(), 24);
+          } else {
+            const Eigen::Vector3f p = cloud.points[i].cast<float>();
+            std::memcpy(rec, p.data(), 12);
+          }
+          rec += pos_size;
+          if (cloud.HasNormals()) {
+            std::memcpy(rec, cloud.normals[i].data(), 12);
+            rec += 12;
+          }
+          if (cloud.HasColors()) {
+            std::memcpy(rec, cloud.colors[i].data(), 3);
+            rec += 3;
+          }
+          for (const auto& sf : cloud.scalars) {
+            std::memcpy(rec, &sf.values[i], 4);
+            rec += 4;
+          }
+        }
+        f.write(buffer.data(), static_cast<std::streamsize>((last - first) * stride));
       }
-      rec += pos_size;
-      if (cloud.HasNormals()) {
-        std::memcpy(rec, cloud.normals[i].data(), 12);
-        rec += 12;
-      }
-      if (cloud.HasColors()) {
-        std::memcpy(rec, cloud.colors[i].data(), 3);
-        rec += 3;
-      }
-      for (const auto& sf : cloud.scalars) {
-        std::memcpy(rec, &sf.values[i], 4);
-        rec += 4;
-      }
-    }
+    };
   } else {
     // Appending piecewise (GCC 12 warns falsely about "literal" + std::string under -O2).
     auto put = [&out](const std::string& value, bool first) {
@@ -164,6 +173,7 @@ void WritePly(const fs::path& path, const PointCloud& cloud, const PlyWriteOptio
     std::ofstream f(tmp, std::ios::binary);
     SLSHADOW_THROW_IF(!f, path.string(), ": cannot open for writing");
     f.write(out.data(), static_cast<std::streamsize>(out.size()));
+    if (write_records) write_records(f);
     f.close();
     SLSHADOW_THROW_IF(!f, path.string(), ": write failed (disk full?)");
   });

@@ -1,8 +1,10 @@
 #include "compare/compare.h"
+#include "compare/mesh_distance.h"
 
 #include <cmath>
 #include <random>
 
+#include <limits>
 #include <gtest/gtest.h>
 
 #include "core/config.h"
@@ -107,6 +109,36 @@ TEST(Compare, M3C2FieldsAndBadInput) {
   o.threshold_mm = -1;
   EXPECT_THROW(Compare(cloud, ref, o), Error);
   EXPECT_THROW(Compare(PointCloud{}, ref, CompareOptions{}), Error);
+}
+
+// The reference's shared hierarchy, one built inside Compare, and brute force over every
+// triangle give the same deviations; moving the cloud in gives the same result as copying it.
+TEST(Compare, SharedHierarchyAndMovedCloudChangeNothing) {
+  const TriangleMesh mesh = IcoSphere(10.0, 3);
+  Reference shared = ReferenceFromMesh(mesh, "sphere", 5000);
+  ASSERT_NE(shared.mesh_distance, nullptr);
+  Reference own = shared;
+  own.mesh_distance.reset();
+  const PointCloud cloud = OffsetUpperHalf(mesh, 0.05, 43, 4);
+  const CompareResult a = Compare(cloud, shared, CompareOptions{});
+  const CompareResult b = Compare(cloud, own, CompareOptions{});
+  const CompareResult c = Compare(PointCloud(cloud), shared, CompareOptions{});
+  ASSERT_EQ(a.deviations_mm.size(), cloud.size());
+  EXPECT_EQ(a.deviations_mm, b.deviations_mm);
+  EXPECT_EQ(a.deviations_mm, c.deviations_mm);
+  EXPECT_EQ(a.compared.points, c.compared.points);
+  for (size_t i = 0; i < cloud.size(); i += 7) {
+    double best = std::numeric_limits<double>::infinity();
+    for (size_t t = 0; t < mesh.triangles.size(); ++t) {
+      const auto& f = mesh.triangles[t];
+      int feature = 0;
+      const Eigen::Vector3d q = ClosestPointOnTriangle(cloud.points[i], mesh.vertices[static_cast<size_t>(f[0])],
+                                                       mesh.vertices[static_cast<size_t>(f[1])],
+                                                       mesh.vertices[static_cast<size_t>(f[2])], &feature);
+      best = std::min(best, (cloud.points[i] - q).squaredNorm());
+    }
+    EXPECT_EQ(std::abs(a.deviations_mm[i]), std::sqrt(best));
+  }
 }
 
 TEST(LoadReference, ReadsMeshesAndClouds) {
