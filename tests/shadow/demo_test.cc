@@ -43,8 +43,8 @@ TEST(Demo, NoiseFreeDemoMeetsTheAccuracyGoalInBothModes) {
   std::vector<std::string> stage_names;
   for (const auto& s : result.stages) stage_names.push_back(s.name);
   EXPECT_EQ(stage_names, (std::vector<std::string>{"load rig, build scene, patterns", "simulate (ray cast + patterns)",
-                                                   "write ImageSet", "read ImageSet + decode",
-                                                   "reference: sample ground truth", "reconstruct projector",
+                                                   "write ImageSet", "reference: sample ground truth",
+                                                   "read ImageSet + decode", "reconstruct projector",
                                                    "reconstruct stereo", "compare + report (2 modes at once)"}));
   const ImageSet scan = ImageSet::Open(options.out_dir / "scan");
   EXPECT_EQ(scan.CameraNames(), (std::vector<std::string>{"left", "right"}));
