@@ -81,7 +81,7 @@ int RunCompare(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    return ExitOnParseError(app, e);
   }
   options.registration.method = compare::ParseRegistrationMethod(method);
   options.c2c.local_model = compare::ParseLocalModel(local_model);

@@ -46,7 +46,7 @@ int RunSweep(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    return ExitOnParseError(app, e);
   }
   if (plan->parsed()) {
     const workflow::SweepPlanSummary s = workflow::PlanSweep(study, out);

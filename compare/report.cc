@@ -223,6 +223,10 @@ void WriteReport(const fs::path& dir, const CompareResult& r, const ReportOption
                     ": exists and is not a folder");
   SLSHADOW_THROW_IF(fs::exists(dir, ec) && !options.overwrite, dir.string(),
                     ": already exists and is kept (overwriting was disabled)");
+  // Replacing is for an earlier report only: a folder of anything else (a typo'd --out naming a
+  // folder of the user's) is kept. An empty folder holds nothing to lose.
+  SLSHADOW_THROW_IF(fs::exists(dir, ec) && !fs::exists(dir / "report.json", ec) && !fs::is_empty(dir, ec), dir.string(),
+                    ": exists and is not a compare report (no report.json); it is kept, choose another --out");
   const fs::path target = fs::absolute(dir);
   if (target.has_parent_path()) fs::create_directories(target.parent_path(), ec);
   const fs::path staged = TemporarySibling(target);

@@ -18,6 +18,8 @@ PACKAGES=(
   libcli11-dev
   # tests and benchmarks
   libgtest-dev libgmock-dev libbenchmark-dev
+  # libFuzzer harnesses (fuzz/, docs/fuzzing.md): clang with its libFuzzer and sanitizer runtimes
+  clang
   # benchmark peer: the digital-model paper's Python/Open3D approach (bench/paper_peer)
   python3-open3d
   # devices and their mocks
