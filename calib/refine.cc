@@ -12,6 +12,8 @@
 #include <ceres/rotation.h>
 #include <ceres/sphere_manifold.h>
 
+#include "core/statistics.h"
+
 #include "core/error.h"
 #include "core/threads.h"
 
@@ -71,8 +73,8 @@ EpipolarStats Stats(std::vector<double> abs_res) {
   for (double v : abs_res) sq += v * v;
   s.rms_px = std::sqrt(sq / static_cast<double>(abs_res.size()));
   std::sort(abs_res.begin(), abs_res.end());
-  s.median_px = abs_res[abs_res.size() / 2];
-  s.p95_px = abs_res[std::min(abs_res.size() - 1, static_cast<size_t>(0.95 * static_cast<double>(abs_res.size())))];
+  s.median_px = abs_res[PercentileRank(abs_res.size(), 50)];  // core/statistics.h: nearest rank
+  s.p95_px = abs_res[PercentileRank(abs_res.size(), 95)];
   return s;
 }
 

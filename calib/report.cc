@@ -8,6 +8,7 @@
 #include "calib/calibration_io.h"
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/statistics.h"
 #include "plot/plot.h"
 
 namespace slshadow {
@@ -72,7 +73,7 @@ void ResidualChart(const std::filesystem::path& path, const CalibrationInput& in
   double p95 = 1;
   if (!lengths.empty()) {
     std::sort(lengths.begin(), lengths.end());
-    p95 = std::max(1e-6, lengths[static_cast<size_t>(0.95 * static_cast<double>(lengths.size() - 1))]);
+    p95 = std::max(1e-6, lengths[PercentileRank(lengths.size(), 95)]);  // core/statistics.h
   }
   const double mag = dev.width / 25.0 / p95;
   const double scale = std::min(1.0, 1000.0 / dev.width);
@@ -222,10 +223,13 @@ nlohmann::json CalibrationReportJson(const CalibrationReport& r) {
 void WriteCalibrationReport(const std::filesystem::path& dir, const CalibrationReport& r, bool overwrite) {
   SLSHADOW_CHECK(r.input && r.options && r.result);
   const std::filesystem::path staged = TemporarySibling(dir);
-  std::filesystem::create_directories(staged);
+  std::error_code created;
+  std::filesystem::create_directories(staged, created);
+  SLSHADOW_THROW_IF(created, staged.string(), ": cannot create folder: ", created.message());
   try {
-    std::ofstream(staged / "summary.json") << CalibrationReportJson(r).dump(2) << "\n";
-    std::ofstream(staged / "report.txt") << FullText(r);
+    // Checked writes: a full disk fails the report instead of committing truncated text.
+    WriteTextFileAtomically(staged / "summary.json", CalibrationReportJson(r).dump(2) + "\n");
+    WriteTextFileAtomically(staged / "report.txt", FullText(r));
     PerViewChart(staged / "per_view_rms.png", r.result->summary);
     for (size_t d = 0; d < r.result->devices.size(); ++d) {
       const auto& dev = r.result->devices[d];

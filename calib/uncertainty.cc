@@ -12,6 +12,7 @@
 #include <Eigen/Eigenvalues>
 
 #include "core/error.h"
+#include "core/statistics.h"
 
 namespace slshadow {
 namespace {
@@ -29,8 +30,8 @@ void FinishStats(PixelMap* map, int width, int height) {
     return;
   }
   std::sort(v.begin(), v.end());
-  map->median = v[v.size() / 2];
-  map->p95 = v[std::min(v.size() - 1, static_cast<size_t>(0.95 * static_cast<double>(v.size())))];
+  map->median = v[PercentileRank(v.size(), 50)];  // core/statistics.h: nearest rank
+  map->p95 = v[PercentileRank(v.size(), 95)];
   map->max = v.back();
   const int cc = std::min(map->values.cols - 1, static_cast<int>((width / 2.0) / map->cell_px));
   const int cr = std::min(map->values.rows - 1, static_cast<int>((height / 2.0) / map->cell_px));

@@ -10,6 +10,7 @@
 
 #include "compare/charts.h"
 #include "compare/kdtree.h"
+#include "compare/mesh_distance.h"
 #include "core/config.h"
 #include "core/error.h"
 
@@ -63,6 +64,7 @@ Reference ReferenceFromMesh(TriangleMesh mesh, const std::string& source, size_t
     ref.cloud.normals.push_back(mesh.FaceNormal(t).cast<float>());
   }
   ref.mesh = std::move(mesh);
+  ref.mesh_distance = std::make_shared<const MeshDistance>(ref.mesh);
   return ref;
 }
 
@@ -93,6 +95,8 @@ void CompareOptions::Check() const {
                     "threshold_mm: must be finite and > 0 (got ", threshold_mm, ")");
   SLSHADOW_THROW_IF(!(coverage_radius_mm >= 0) || !std::isfinite(coverage_radius_mm),
                     "coverage_radius_mm: must be finite and >= 0 (got ", coverage_radius_mm, ")");
+  SLSHADOW_THROW_IF(!(color_range_mm >= 0) || !std::isfinite(color_range_mm),
+                    "color_range_mm: must be finite and >= 0 (0: scaled to the data; got ", color_range_mm, ")");
   SLSHADOW_THROW_IF(histogram_bins < 2 || histogram_bins > 10000,
                     "histogram_bins: must be in [2, 10000] (got ", histogram_bins, ")");
   if (m3c2) m3c2_options.Check();
@@ -140,6 +144,7 @@ nlohmann::json CompareOptionsToJson(const CompareOptions& o) {
   j["threshold_mm"] = o.threshold_mm;
   j["coverage_radius_mm"] = o.coverage_radius_mm;
   j["histogram_bins"] = o.histogram_bins;
+  j["color_range_mm"] = o.color_range_mm;
   j["m3c2"] = o.m3c2;
   j["m3c2_options"] = {{"projection_radius_mm", o.m3c2_options.projection_radius_mm},
                        {"max_depth_mm", o.m3c2_options.max_depth_mm},
@@ -153,7 +158,7 @@ nlohmann::json CompareOptionsToJson(const CompareOptions& o) {
 CompareOptions CompareOptionsFromConfig(const ConfigNode& node) {
   if (!node.IsObject()) node.Fail("expected a mapping of compare options");
   node.RejectUnknownKeys({"registration", "c2c", "threshold_mm", "coverage_radius_mm", "histogram_bins", "m3c2",
-                          "m3c2_options", "artefacts", "vdi2634"});
+                          "m3c2_options", "artefacts", "vdi2634", "color_range_mm"});
   CompareOptions o;
   if (node.Has("registration")) {
     const ConfigNode n = node["registration"];
@@ -184,6 +189,7 @@ CompareOptions CompareOptionsFromConfig(const ConfigNode& node) {
   o.threshold_mm = node.GetDouble("threshold_mm", o.threshold_mm);
   o.coverage_radius_mm = node.GetDouble("coverage_radius_mm", o.coverage_radius_mm);
   o.histogram_bins = static_cast<int>(node.GetInt("histogram_bins", o.histogram_bins));
+  o.color_range_mm = node.GetDouble("color_range_mm", o.color_range_mm);
   o.m3c2 = node.GetBool("m3c2", o.m3c2);
   if (node.Has("m3c2_options")) {
     const ConfigNode n = node["m3c2_options"];
@@ -207,6 +213,11 @@ CompareOptions CompareOptionsFromConfig(const ConfigNode& node) {
 
 CompareResult Compare(const PointCloud& cloud, const Reference& reference, const CompareOptions& options,
                       const std::string& cloud_source) {
+  return Compare(PointCloud(cloud), reference, options, cloud_source);
+}
+
+CompareResult Compare(PointCloud&& cloud, const Reference& reference, const CompareOptions& options,
+                      const std::string& cloud_source) {
   options.Check();
   cloud.Check(cloud_source);
   SLSHADOW_THROW_IF(cloud.empty(), cloud_source, ": the compared cloud has no points");
@@ -221,7 +232,7 @@ CompareResult Compare(const PointCloud& cloud, const Reference& reference, const
 
   const auto ref_normals = NormalsAsDouble(reference.cloud);
   r.registration = Register(cloud.points, reference.cloud.points, ref_normals, options.registration);
-  r.compared = cloud;
+  r.compared = std::move(cloud);
   const Rigid3d& t = r.registration.reference_from_cloud;
   for (auto& p : r.compared.points) p = t * p;
   const Eigen::Matrix3f rot = t.rotation.toRotationMatrix().cast<float>();
@@ -234,7 +245,9 @@ CompareResult Compare(const PointCloud& cloud, const Reference& reference, const
   bool is_signed = false;
   if (reference.IsMesh()) {
     r.distance_method = "nearest_triangle";
-    r.deviations_mm = CloudToMesh(pts, reference.mesh).signed_distances_mm;
+    r.deviations_mm = (reference.mesh_distance ? CloudToMesh(pts, *reference.mesh_distance)
+                                               : CloudToMesh(pts, MeshDistance(reference.mesh)))
+                          .signed_distances_mm;
     is_signed = true;
   } else {
     r.distance_method = "nearest_point";
@@ -242,19 +255,21 @@ CompareResult Compare(const PointCloud& cloud, const Reference& reference, const
     r.deviations_mm = std::move(c2c.distances_mm);
     r.num_not_found = c2c.num_not_found;
   }
-  r.c2c = ComputeStats(r.deviations_mm, false, options.threshold_mm, options.histogram_bins);
-  if (is_signed) r.c2m = ComputeStats(r.deviations_mm, true, options.threshold_mm, options.histogram_bins);
+  r.c2c = ComputeStats(r.deviations_mm, false, options.threshold_mm, options.histogram_bins, options.color_range_mm);
+  if (is_signed) r.c2m = ComputeStats(r.deviations_mm, true, options.threshold_mm, options.histogram_bins, options.color_range_mm);
 
-  // Coverage.
-  std::vector<Eigen::Vector3d> reached;
-  reached.reserve(pts.size());
-  for (size_t i = 0; i < pts.size(); ++i) {
-    if (std::abs(r.deviations_mm[i]) <= options.threshold_mm) reached.push_back(pts[i]);
-  }
+  // Coverage (the reached points freed at once: a second copy of most of the cloud).
   r.coverage_radius_mm = options.coverage_radius_mm > 0
                              ? options.coverage_radius_mm
                              : std::max(options.threshold_mm, 3.0 * MedianSpacing(pts));
-  r.coverage = Coverage(reference.cloud.points, reached, r.coverage_radius_mm);
+  {
+    std::vector<Eigen::Vector3d> reached;
+    reached.reserve(pts.size());
+    for (size_t i = 0; i < pts.size(); ++i) {
+      if (std::abs(r.deviations_mm[i]) <= options.threshold_mm) reached.push_back(pts[i]);
+    }
+    r.coverage = Coverage(reference.cloud.points, reached, r.coverage_radius_mm);
+  }
   r.coverage_samples = reference.cloud.size();
 
   // Scalar fields and colours.
@@ -282,7 +297,7 @@ CompareResult Compare(const PointCloud& cloud, const Reference& reference, const
     s.options = options.m3c2_options;
     s.num_valid = m.num_valid;
     s.num_significant = m.num_significant;
-    s.stats = ComputeStats(m.distance_mm, true, options.threshold_mm, options.histogram_bins);
+    s.stats = ComputeStats(m.distance_mm, true, options.threshold_mm, options.histogram_bins, options.color_range_mm);
     double lod = 0;
     std::vector<float> d(pts.size()), l(pts.size()), sig(pts.size());
     for (size_t i = 0; i < pts.size(); ++i) {

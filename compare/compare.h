@@ -19,6 +19,7 @@
 #pragma once
 
 #include <filesystem>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -35,9 +36,15 @@
 
 namespace slshadow::compare {
 
+class MeshDistance;
+
 struct Reference {
   std::string source;  // file name or a description, for the report
   TriangleMesh mesh;   // non-empty for a mesh reference
+  // The distance hierarchy over `mesh`, built once by ReferenceFromMesh and shared by every
+  // Compare() against this reference (and by copies of it); Compare builds one when it is null.
+  // Rebuild it (or reset it) after changing `mesh`.
+  std::shared_ptr<const MeshDistance> mesh_distance;
   // Points (with unit normals) representing the reference: a cloud reference's own points, or
   // area-uniform samples of the mesh with their face normals. Registration and coverage use it.
   PointCloud cloud;
@@ -60,6 +67,9 @@ struct CompareOptions {
   double threshold_mm = 0.25;        // inlier / outlier threshold
   double coverage_radius_mm = 0.0;   // 0: automatic (see above)
   int histogram_bins = 60;
+  // Colour (and histogram) range of the deviation map, histogram and PLY colours, mm: 0 scales
+  // to the data (symmetric at the 99th percentile of |deviation|), > 0 fixes it at +-range.
+  double color_range_mm = 0.0;
   bool m3c2 = false;                 // also compute M3C2 distances at every compared point
   M3C2Options m3c2_options;
   // VDI/VDE 2634-2 figures of the artefacts in the (registered) compared cloud, when given.
@@ -110,6 +120,9 @@ struct CompareResult {
 };
 
 CompareResult Compare(const PointCloud& cloud, const Reference& reference, const CompareOptions& options,
+                      const std::string& cloud_source = "cloud");
+// The same, moving the cloud into CompareResult::compared instead of copying it.
+CompareResult Compare(PointCloud&& cloud, const Reference& reference, const CompareOptions& options,
                       const std::string& cloud_source = "cloud");
 
 }  // namespace slshadow::compare

@@ -168,7 +168,10 @@ C2CResult CloudToCloud(const std::vector<Eigen::Vector3d>& compared, const KdTre
 }
 
 C2MResult CloudToMesh(const std::vector<Eigen::Vector3d>& compared, const TriangleMesh& mesh) {
-  const MeshDistance md(mesh);
+  return CloudToMesh(compared, MeshDistance(mesh));
+}
+
+C2MResult CloudToMesh(const std::vector<Eigen::Vector3d>& compared, const MeshDistance& md) {
   C2MResult result;
   result.signed_distances_mm.resize(compared.size());
   result.triangles.resize(compared.size());

@@ -24,6 +24,7 @@
 namespace slshadow::compare {
 
 class KdTree;
+class MeshDistance;
 
 enum class LocalModel { kNone, kPlane, kQuadric };
 std::string LocalModelName(LocalModel model);               // "none", "plane", "quadric"
@@ -57,6 +58,8 @@ struct C2MResult {
   std::vector<uint32_t> triangles;          // nearest triangle per point
 };
 C2MResult CloudToMesh(const std::vector<Eigen::Vector3d>& compared, const TriangleMesh& mesh);
+// The same with a hierarchy built once (compare/mesh_distance.h), e.g. for several clouds.
+C2MResult CloudToMesh(const std::vector<Eigen::Vector3d>& compared, const MeshDistance& mesh);
 
 // Unit normals by PCA of the k nearest points of `tree` around each query point. Each normal is
 // oriented to agree with `hints` (one per query, e.g. the reference's stored normals) when given,

@@ -2,71 +2,15 @@
 
 #include <algorithm>
 #include <cmath>
+#include <utility>
 
-#include <nanoflann.hpp>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
-#include <tbb/parallel_sort.h>
+#include <tbb/parallel_invoke.h>
+#include <tbb/parallel_reduce.h>
 
 namespace slshadow::compare {
 namespace {
-
-struct Adaptor {
-  const std::vector<Eigen::Vector3d>* points;
-  size_t kdtree_get_point_count() const { return points->size(); }
-  double kdtree_get_pt(size_t i, size_t dim) const { return (*points)[i][static_cast<int>(dim)]; }
-  template <class Box>
-  bool kdtree_get_bbox(Box&) const {
-    return false;
-  }
-};
-
-// L2 squared distance computed as (q - p).squaredNorm() in the same summation order, so a tree
-// query and a brute-force scan agree bit for bit.
-struct ExactL2 {
-  using ElementType = double;
-  using DistanceType = double;
-  const Adaptor& data;
-  explicit ExactL2(const Adaptor& d) : data(d) {}
-  double evalMetric(const double* a, size_t b_idx, size_t /*size*/) const {
-    const Eigen::Vector3d& p = (*data.points)[b_idx];
-    const double dx = a[0] - p.x(), dy = a[1] - p.y(), dz = a[2] - p.z();
-    return dx * dx + dy * dy + dz * dz;
-  }
-  template <typename U, typename V>
-  double accum_dist(const U a, const V b, size_t) const {
-    return (a - b) * (a - b);
-  }
-};
-
-using Tree = nanoflann::KDTreeSingleIndexAdaptor<ExactL2, Adaptor, 3, uint32_t>;
-
-// 1-NN result set with an initial bound (the max search distance).
-class BoundedNearest {
- public:
-  using DistanceType = double;
-  using IndexType = uint32_t;
-  explicit BoundedNearest(double bound_sq) : best_(bound_sq) {}
-  bool full() const { return true; }
-  size_t size() const { return found_ ? 1 : 0; }
-  bool addPoint(double dist, uint32_t index) {
-    if (dist < best_) {
-      best_ = dist;
-      index_ = index;
-      found_ = true;
-    }
-    return true;
-  }
-  double worstDist() const { return best_; }
-  bool found() const { return found_; }
-  uint32_t index() const { return index_; }
-  double best() const { return best_; }
-
- private:
-  double best_;
-  uint32_t index_ = 0;
-  bool found_ = false;
-};
 
 // Spreads the low 10 bits of v to every third bit.
 uint32_t Spread3(uint32_t v) {
@@ -90,61 +34,261 @@ std::vector<uint32_t> SpatialOrder(const std::vector<Eigen::Vector3d>& points) {
     hi = hi.cwiseMax(p);
   }
   const double extent = std::max((hi - lo).maxCoeff(), 1e-300);
-  // 30-bit Morton key (1024 cells per axis: fine enough for coherence) above the 32-bit index,
-  // so one sort of 64-bit integers orders the points.
+  // 30-bit Morton key (1024 cells per axis: fine enough for coherence); ties keep index order
+  // (a stable radix sort, two passes of 15 bits), as a sort of (key << 32 | index) would.
   const double scale = 1023.0 / extent;
-  std::vector<uint64_t> keys(points.size());
+  std::vector<uint32_t> keys(points.size());
   tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 16384), [&](const tbb::blocked_range<size_t>& r) {
     for (size_t i = r.begin(); i != r.end(); ++i) {
       const Eigen::Vector3d q = ((points[i] - lo) * scale).cwiseMax(0.0).cwiseMin(1023.0);
-      const uint64_t morton = q.allFinite() ? Spread3(static_cast<uint32_t>(q.x())) |
-                                                  (Spread3(static_cast<uint32_t>(q.y())) << 1) |
-                                                  (Spread3(static_cast<uint32_t>(q.z())) << 2)
-                                            : 0x3FFFFFFFu;
-      keys[i] = (morton << 32) | i;
+      keys[i] = q.allFinite() ? Spread3(static_cast<uint32_t>(q.x())) | (Spread3(static_cast<uint32_t>(q.y())) << 1) |
+                                    (Spread3(static_cast<uint32_t>(q.z())) << 2)
+                              : 0x3FFFFFFFu;
     }
   });
-  tbb::parallel_sort(keys.begin(), keys.end());
-  for (size_t i = 0; i < keys.size(); ++i) order[i] = static_cast<uint32_t>(keys[i] & 0xFFFFFFFFu);
+  constexpr uint32_t kBits = 15, kBuckets = 1u << kBits;
+  std::vector<uint32_t> tmp(points.size());
+  std::vector<uint32_t> count(kBuckets);
+  for (int pass = 0; pass < 2; ++pass) {
+    const uint32_t shift = pass * kBits;
+    std::fill(count.begin(), count.end(), 0u);
+    for (uint32_t k : keys) ++count[(k >> shift) & (kBuckets - 1)];
+    uint32_t sum = 0;
+    for (uint32_t& c : count) sum += std::exchange(c, sum);
+    if (pass == 0) {
+      for (size_t i = 0; i < keys.size(); ++i) tmp[count[keys[i] & (kBuckets - 1)]++] = static_cast<uint32_t>(i);
+    } else {
+      for (uint32_t i : tmp) order[count[keys[i] >> shift]++] = i;
+    }
+  }
   return order;
 }
 
-// After the build, the points are copied in the tree's leaf order and the tree is pointed at the
-// copy (its nodes only hold ranges into the index array, so this keeps it valid): a leaf's
-// points are then contiguous in memory, which halves the query time on large clouds.
-struct KdTree::Impl {
-  // Declared before the tree: MortonCopy() fills them while the adaptor is initialised.
-  std::vector<uint32_t> morton;
-  std::vector<Eigen::Vector3d> ordered;
-  std::vector<uint32_t> original;  // ordered[i] == (*points)[original[i]]
-  Adaptor adaptor;
-  Tree tree;
-  // The tree is built over a Morton-ordered copy (cache-friendly partitioning), then that copy
-  // is rearranged in leaf order.
-  Impl(const std::vector<Eigen::Vector3d>* pts, int leaf)
-      : adaptor{MortonCopy(pts)},
-        tree(3, adaptor, nanoflann::KDTreeSingleIndexAdaptorParams(static_cast<size_t>(leaf))) {
-    original.resize(tree.vAcc.size());
-    std::vector<Eigen::Vector3d> leaf_ordered(tree.vAcc.size());
-    for (size_t i = 0; i < tree.vAcc.size(); ++i) {
-      leaf_ordered[i] = ordered[tree.vAcc[i]];
-      original[i] = morton[tree.vAcc[i]];
-      tree.vAcc[i] = static_cast<uint32_t>(i);
-    }
-    ordered = std::move(leaf_ordered);
-    morton.clear();
-    morton.shrink_to_fit();
+namespace {
+
+// A node of the tree, in pre-order: the left child of an inner node follows it, the right child
+// is at `right`. An inner node splits along `dim` its points into a left half whose coordinates
+// along dim are <= low and a right half whose coordinates are >= high (low <= high: the extreme
+// coordinates of each half, so the gap between them is empty space).
+struct Node {
+  double low = 0, high = 0;  // inner only
+  uint32_t first = 0;        // inner: index of the right child; leaf: first point (leaf order)
+  uint16_t count = 0;        // leaf: number of points (>= 1); inner: 0
+  uint16_t dim = 0;          // inner: split axis
+};
+
+struct Item {
+  Eigen::Vector3d p;
+  uint32_t index;  // in the caller's array
+};
+
+struct Box {
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+  Eigen::Vector3d hi = -Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+  void Add(const Eigen::Vector3d& p) {
+    lo = lo.cwiseMin(p);
+    hi = hi.cwiseMax(p);
   }
-  const std::vector<Eigen::Vector3d>* MortonCopy(const std::vector<Eigen::Vector3d>* pts) {
-    morton = SpatialOrder(*pts);
-    ordered.resize(pts->size());
-    for (size_t i = 0; i < pts->size(); ++i) ordered[i] = (*pts)[morton[i]];
-    return &ordered;
+  void Add(const Box& b) {
+    lo = lo.cwiseMin(b.lo);
+    hi = hi.cwiseMax(b.hi);
   }
 };
 
+// Above this many points a subtree's bounding box and its two halves are computed in parallel.
+constexpr size_t kParallelBuild = 32768;
+
+Box BoundsOf(const Item* items, size_t n) {
+  if (n < kParallelBuild) {
+    Box b;
+    for (size_t i = 0; i < n; ++i) b.Add(items[i].p);
+    return b;
+  }
+  return tbb::parallel_reduce(
+      tbb::blocked_range<size_t>(0, n, 8192), Box(),
+      [&](const tbb::blocked_range<size_t>& r, Box b) {
+        for (size_t i = r.begin(); i != r.end(); ++i) b.Add(items[i].p);
+        return b;
+      },
+      [](Box a, const Box& b) {
+        a.Add(b);
+        return a;
+      });
+}
+
+// Number of nodes of the tree over n >= 1 points, and over n + 1 (a split halves n into
+// floor(n / 2) and the rest, so the subtrees below a level only ever have two sizes m, m + 1).
+std::pair<uint32_t, uint32_t> NodeCounts(size_t n, size_t leaf) {
+  if (n <= leaf) return {1u, n + 1 <= leaf ? 1u : 3u};
+  const size_t m = n / 2;
+  const auto [cm, cm1] = NodeCounts(m, leaf);
+  const auto count = [&](size_t k) -> uint32_t {
+    if (k <= leaf) return 1u;
+    const size_t a = k / 2, b = k - a;
+    return 1u + (a == m ? cm : cm1) + (b == m ? cm : cm1);
+  };
+  return {count(n), count(n + 1)};
+}
+
+// Builds the subtree of items [begin, end) at nodes[index]: the split axis is the bounding box's
+// widest, the split the median (nth_element), so the tree's shape depends only on the points and
+// each subtree's node range is known before it is built: the halves are built in parallel and
+// the result does not depend on the number of threads. Returns the subtree's bounding box.
+Box Build(std::vector<Item>& items, std::vector<Node>& nodes, size_t leaf, uint32_t index, size_t begin,
+          size_t end) {
+  const size_t n = end - begin;
+  Node& node = nodes[index];
+  if (n <= leaf) {
+    node.first = static_cast<uint32_t>(begin);
+    node.count = static_cast<uint16_t>(n);
+    return BoundsOf(items.data() + begin, n);
+  }
+  const Box box = BoundsOf(items.data() + begin, n);
+  int dim = 0;
+  (box.hi - box.lo).maxCoeff(&dim);
+  const size_t mid = begin + n / 2;
+  std::nth_element(items.begin() + static_cast<std::ptrdiff_t>(begin), items.begin() + static_cast<std::ptrdiff_t>(mid),
+                   items.begin() + static_cast<std::ptrdiff_t>(end),
+                   [dim](const Item& a, const Item& b) { return a.p[dim] < b.p[dim]; });
+  const uint32_t right = index + 1 + NodeCounts(mid - begin, leaf).first;
+  node.first = right;
+  node.count = 0;
+  node.dim = static_cast<uint16_t>(dim);
+  Box left_box, right_box;
+  if (n >= kParallelBuild) {
+    tbb::parallel_invoke([&] { left_box = Build(items, nodes, leaf, index + 1, begin, mid); },
+                         [&] { right_box = Build(items, nodes, leaf, right, mid, end); });
+  } else {
+    left_box = Build(items, nodes, leaf, index + 1, begin, mid);
+    right_box = Build(items, nodes, leaf, right, mid, end);
+  }
+  nodes[index].low = left_box.hi[dim];
+  nodes[index].high = right_box.lo[dim];
+  return box;
+}
+
+// Lower bounds are compared after this factor: the squared gaps are rounded (relative 2^-52 per
+// operation), so a subtree is skipped only when even its slightly lowered bound exceeds the
+// current worst distance, and no point a brute-force scan would pick is missed.
+constexpr double kSafe = 1.0 - 1e-12;
+
+}  // namespace
+
+// The points are stored in leaf order (a leaf's points contiguous in memory) with their original
+// indices beside them.
+struct KdTree::Impl {
+  std::vector<Eigen::Vector3d> ordered;
+  std::vector<uint32_t> original;  // ordered[i] == points[original[i]]
+  std::vector<Node> nodes;
+  Box root;
+
+  Impl(const std::vector<Eigen::Vector3d>& points, size_t leaf) {
+    const size_t n = points.size();
+    if (n == 0) return;
+    std::vector<Item> items(n);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 16384), [&](const tbb::blocked_range<size_t>& r) {
+      for (size_t i = r.begin(); i != r.end(); ++i) items[i] = {points[i], static_cast<uint32_t>(i)};
+    });
+    nodes.resize(NodeCounts(n, leaf).first);
+    root = Build(items, nodes, leaf, 0, 0, n);
+    ordered.resize(n);
+    original.resize(n);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 16384), [&](const tbb::blocked_range<size_t>& r) {
+      for (size_t i = r.begin(); i != r.end(); ++i) {
+        ordered[i] = items[i].p;
+        original[i] = items[i].index;
+      }
+    });
+  }
+
+  // Depth-first search, nearer child first; `visit` sees (squared distance, leaf-order index)
+  // and `worst()` bounds what can still be accepted.
+  template <class Visitor>
+  void Search(const double* q, uint32_t index, double* gaps, Visitor& visit) const {
+    const Node& node = nodes[index];
+    if (node.count > 0) {
+      for (uint32_t i = node.first, end = node.first + node.count; i < end; ++i) {
+        const Eigen::Vector3d& p = ordered[i];
+        const double dx = q[0] - p.x(), dy = q[1] - p.y(), dz = q[2] - p.z();
+        visit.Add(dx * dx + dy * dy + dz * dz, i);
+      }
+      return;
+    }
+    const int dim = node.dim;
+    const double below = q[dim] - node.low, above = q[dim] - node.high;
+    uint32_t near_child = index + 1, far_child = node.first;
+    double cut = above * above;
+    if (below + above >= 0) {
+      std::swap(near_child, far_child);
+      cut = below * below;
+    }
+    Search(q, near_child, gaps, visit);
+    const double saved = gaps[dim];
+    gaps[dim] = std::max(cut, saved);
+    if ((gaps[0] + gaps[1] + gaps[2]) * kSafe <= visit.worst()) Search(q, far_child, gaps, visit);
+    gaps[dim] = saved;
+  }
+
+  template <class Visitor>
+  void Run(const Eigen::Vector3d& query, Visitor& visit) const {
+    if (nodes.empty()) return;
+    double gaps[3];
+    for (int d = 0; d < 3; ++d) {
+      const double g = std::max({root.lo[d] - query[d], query[d] - root.hi[d], 0.0});
+      gaps[d] = g * g;
+    }
+    if ((gaps[0] + gaps[1] + gaps[2]) * kSafe > visit.worst()) return;
+    Search(query.data(), 0, gaps, visit);
+  }
+};
+
+namespace {
+
+// The nearest point strictly closer than a bound.
+struct NearestVisitor {
+  double best;
+  uint32_t index = 0;
+  bool found = false;
+  double worst() const { return best; }
+  void Add(double d2, uint32_t i) {
+    if (d2 < best) {
+      best = d2;
+      index = i;
+      found = true;
+    }
+  }
+};
+
+// The k nearest, kept sorted by distance (then by order of discovery).
+struct KnnVisitor {
+  size_t k;
+  std::vector<Neighbor>* out;
+  double worst() const { return out->size() < k ? std::numeric_limits<double>::infinity() : out->back().distance_sq; }
+  void Add(double d2, uint32_t i) {
+    if (out->size() == k) {
+      if (!(d2 < out->back().distance_sq)) return;
+      out->pop_back();
+    }
+    out->push_back({i, d2});
+    for (size_t j = out->size() - 1; j > 0 && (*out)[j].distance_sq < (*out)[j - 1].distance_sq; --j) {
+      std::swap((*out)[j], (*out)[j - 1]);
+    }
+  }
+};
+
+struct RadiusVisitor {
+  double radius_sq;
+  std::vector<Neighbor>* out;
+  double worst() const { return radius_sq; }
+  void Add(double d2, uint32_t i) {
+    if (d2 <= radius_sq) out->push_back({i, d2});
+  }
+};
+
+}  // namespace
+
 KdTree::KdTree(const std::vector<Eigen::Vector3d>& points, int leaf_size)
-    : points_(&points), impl_(std::make_unique<Impl>(&points, std::max(1, leaf_size))) {}
+    : points_(&points), impl_(std::make_unique<Impl>(points, static_cast<size_t>(std::clamp(leaf_size, 1, 4096)))) {}
 
 KdTree::~KdTree() = default;
 
@@ -152,13 +296,11 @@ size_t KdTree::size() const { return points_->size(); }
 
 bool KdTree::Nearest(const Eigen::Vector3d& query, Neighbor* nearest, double max_distance) const {
   if (points_->empty()) return false;
-  const double bound =
-      std::isfinite(max_distance) ? max_distance * max_distance : std::numeric_limits<double>::max();
-  BoundedNearest result(bound);
-  impl_->tree.findNeighbors(result, query.data(), nanoflann::SearchParams());
-  if (!result.found()) return false;
-  nearest->index = impl_->original[result.index()];
-  nearest->distance_sq = result.best();
+  NearestVisitor visit{std::isfinite(max_distance) ? max_distance * max_distance : std::numeric_limits<double>::max()};
+  impl_->Run(query, visit);
+  if (!visit.found) return false;
+  nearest->index = impl_->original[visit.index];
+  nearest->distance_sq = visit.best;
   return true;
 }
 
@@ -166,25 +308,22 @@ void KdTree::KNearest(const Eigen::Vector3d& query, int k, std::vector<Neighbor>
   out->clear();
   const size_t n = std::min(static_cast<size_t>(std::max(k, 0)), points_->size());
   if (n == 0) return;
-  std::vector<uint32_t> idx(n);
-  std::vector<double> d2(n);
-  nanoflann::KNNResultSet<double, uint32_t> result(n);
-  result.init(idx.data(), d2.data());
-  impl_->tree.findNeighbors(result, query.data(), nanoflann::SearchParams());
-  out->resize(result.size());
-  for (size_t i = 0; i < result.size(); ++i) (*out)[i] = {impl_->original[idx[i]], d2[i]};
+  KnnVisitor visit{n, out};
+  impl_->Run(query, visit);
+  for (auto& nb : *out) nb.index = impl_->original[nb.index];
 }
 
-void KdTree::Radius(const Eigen::Vector3d& query, double radius, std::vector<Neighbor>* out,
-                    bool sorted) const {
+void KdTree::Radius(const Eigen::Vector3d& query, double radius, std::vector<Neighbor>* out, bool sorted) const {
   out->clear();
-  if (points_->empty()) return;
-  std::vector<std::pair<uint32_t, double>> found;
-  nanoflann::SearchParams params;
-  params.sorted = sorted;
-  impl_->tree.radiusSearch(query.data(), radius * radius, found, params);
-  out->reserve(found.size());
-  for (const auto& [i, d2] : found) out->push_back({impl_->original[i], d2});
+  if (points_->empty() || !(radius >= 0)) return;
+  RadiusVisitor visit{radius * radius, out};
+  impl_->Run(query, visit);
+  for (auto& nb : *out) nb.index = impl_->original[nb.index];
+  if (sorted) {
+    std::sort(out->begin(), out->end(), [](const Neighbor& a, const Neighbor& b) {
+      return a.distance_sq < b.distance_sq || (a.distance_sq == b.distance_sq && a.index < b.index);
+    });
+  }
 }
 
 double MedianSpacing(const KdTree& tree, size_t max_samples) {

@@ -1,8 +1,10 @@
-// KdTree: exact nearest-neighbour queries over a borrowed array of 3D points (nanoflann inside,
-// in the adaptor spirit: the tree indexes the caller's std::vector and does not copy it).
+// KdTree: exact nearest-neighbour queries over a borrowed array of 3D points.
 //
 // Distances are Euclidean and computed in double exactly as (q - p).squaredNorm() would be, so
 // a query returns bit-for-bit the minimum a brute-force scan finds (ties may pick either index).
+// The tree splits at the median along the widest axis of each subtree's bounding box, down to
+// leaf_size points; it is built in parallel (TBB) and is the same tree whatever the number of
+// threads, so every query result is too. The points are copied in leaf order inside the tree.
 // Precondition: the points vector outlives the tree and is not modified while the tree exists.
 #pragma once
 
@@ -22,8 +24,8 @@ struct Neighbor {
 
 class KdTree {
  public:
-  // Builds the tree (O(n log n)); leaf_size trades build time for query time.
-  explicit KdTree(const std::vector<Eigen::Vector3d>& points, int leaf_size = 12);
+  // Builds the tree (O(n log n)); leaf_size (clamped to 1..4096) trades build time for query time.
+  explicit KdTree(const std::vector<Eigen::Vector3d>& points, int leaf_size = 20);
   ~KdTree();
   KdTree(const KdTree&) = delete;
   KdTree& operator=(const KdTree&) = delete;

@@ -46,6 +46,9 @@ struct ReportOptions {
   std::optional<ViewCamera> view;  // default: FitView(compared cloud)
   bool overwrite = true;           // replace an existing report folder
   bool binary_ply = true;
+  // compared.ply's x, y, z as float when every |coordinate| < 8192 mm (rounding <= 2^-11 mm =
+  // 0.49 um, below the 1 um fidelity the report keeps; docs/formats.md), else as double.
+  bool float_positions = true;
 };
 
 nlohmann::json ReportJson(const CompareResult& result);

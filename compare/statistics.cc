@@ -4,27 +4,27 @@
 #include <atomic>
 #include <cmath>
 #include <limits>
-#include <unordered_map>
 #include <utility>
 
 #include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
-#include <tbb/parallel_sort.h>
 
 #include "compare/kdtree.h"
 #include "core/error.h"
+#include "core/statistics.h"
 
 namespace slshadow::compare {
 namespace {
 
 // Index of the nearest-rank percentile p in n sorted values (n > 0).
 size_t PercentileIndex(size_t n, double p) {
-  const double rank = std::ceil(p / 100.0 * static_cast<double>(n));
-  return static_cast<size_t>(std::clamp(rank, 1.0, static_cast<double>(n))) - 1;
+  return PercentileRank(n, p);  // core/statistics.h
 }
 
-// A uniform grid over points (cells hashed, points copied cell by cell): the points within one
-// cell size of a query lie in the 27 cells around the query's cell.
+// A uniform grid over points (points copied cell by cell, cells found through an open-addressing
+// hash table): the points within one cell size of a query lie in the 27 cells around the query's
+// cell. Built in O(n): cell keys in parallel, a stable radix sort of the points by key.
 class PointGrid {
  public:
   PointGrid(const std::vector<Eigen::Vector3d>& points, double cell) {
@@ -39,25 +39,58 @@ class PointGrid {
     // At most 2^20 cells per axis; a larger cell stays correct (27 cells still cover the radius).
     cell_ = std::max({cell, (hi - lo_).maxCoeff() / double(1 << 20), 1e-12});
     inv_ = 1.0 / cell_;
-    std::vector<std::pair<uint64_t, uint32_t>> keyed;
-    keyed.reserve(points.size());
-    for (size_t i = 0; i < points.size(); ++i) {
-      if (!points[i].allFinite()) continue;
-      const Eigen::Vector3d c = ((points[i] - lo_) * inv_).array().floor();
-      keyed.emplace_back(Key(static_cast<int64_t>(c.x()), static_cast<int64_t>(c.y()), static_cast<int64_t>(c.z())),
-                         static_cast<uint32_t>(i));
+    for (int a = 0; a < 3; ++a) {
+      max_cell_[a] = static_cast<int64_t>(std::floor((hi[a] - lo_[a]) * inv_));
+      bits_[a] = 1;
+      while ((int64_t{1} << bits_[a]) <= max_cell_[a]) ++bits_[a];
     }
-    tbb::parallel_sort(keyed.begin(), keyed.end());
-    points_.resize(keyed.size());
-    index_.resize(keyed.size());
-    cells_.reserve(keyed.size() / 8 + 16);
-    for (size_t k = 0; k < keyed.size(); ++k) {
-      points_[k] = points[keyed[k].second];
-      index_[k] = keyed[k].second;
-      if (k == 0 || keyed[k].first != keyed[k - 1].first) {
-        cells_[keyed[k].first] = {static_cast<uint32_t>(k), static_cast<uint32_t>(k)};
+    // Keys of the finite points (packed cell coordinates), then a stable LSD radix sort by key in
+    // passes of 16 bits.
+    const size_t n = points.size();
+    std::vector<uint64_t> keys(n, kNoKey);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 16384), [&](const tbb::blocked_range<size_t>& r) {
+      for (size_t i = r.begin(); i != r.end(); ++i) {
+        if (!points[i].allFinite()) continue;
+        const Eigen::Vector3d c = ((points[i] - lo_) * inv_).array().floor();
+        keys[i] = Key(std::min(static_cast<int64_t>(c.x()), max_cell_[0]), std::min(static_cast<int64_t>(c.y()), max_cell_[1]),
+                      std::min(static_cast<int64_t>(c.z()), max_cell_[2]));
       }
-      cells_[keyed[k].first].second = static_cast<uint32_t>(k + 1);
+    });
+    std::vector<uint32_t> order;
+    order.reserve(n);
+    for (size_t i = 0; i < n; ++i) {
+      if (keys[i] != kNoKey) order.push_back(static_cast<uint32_t>(i));
+    }
+    const int total_bits = bits_[0] + bits_[1] + bits_[2];
+    std::vector<uint32_t> tmp(order.size());
+    std::vector<uint32_t> count(1u << 16);
+    for (int shift = 0; shift < total_bits; shift += 16) {
+      std::fill(count.begin(), count.end(), 0u);
+      for (uint32_t i : order) ++count[(keys[i] >> shift) & 0xFFFFu];
+      uint32_t sum = 0;
+      for (uint32_t& c : count) sum += std::exchange(c, sum);
+      for (uint32_t i : order) tmp[count[(keys[i] >> shift) & 0xFFFFu]++] = i;
+      order.swap(tmp);
+    }
+    points_.resize(order.size());
+    index_ = order;
+    size_t cells = 0;
+    for (size_t k = 0; k < order.size(); ++k) {
+      points_[k] = points[order[k]];
+      cells += k == 0 || keys[order[k]] != keys[order[k - 1]];
+    }
+    size_t capacity = 16;
+    while (capacity < 2 * cells) capacity *= 2;
+    table_.assign(capacity, Slot{kNoKey, 0, 0});
+    mask_ = capacity - 1;
+    for (size_t k = 0; k < order.size();) {
+      const uint64_t key = keys[order[k]];
+      size_t end = k + 1;
+      while (end < order.size() && keys[order[end]] == key) ++end;
+      size_t h = Hash(key);
+      while (table_[h].key != kNoKey) h = (h + 1) & mask_;
+      table_[h] = {key, static_cast<uint32_t>(k), static_cast<uint32_t>(end)};
+      k = end;
     }
   }
   double cell() const { return cell_; }
@@ -71,34 +104,76 @@ class PointGrid {
     constexpr double kMax = double(1 << 21);
     if ((c.array() < -static_cast<double>(reach)).any() || (c.array() > kMax + static_cast<double>(reach)).any()) return;
     const auto cx = static_cast<int64_t>(c.x()), cy = static_cast<int64_t>(c.y()), cz = static_cast<int64_t>(c.z());
-    for (int64_t z = std::max<int64_t>(cz - reach, 0); z <= std::min(cz + reach, kCells - 1); ++z) {
-      for (int64_t y = std::max<int64_t>(cy - reach, 0); y <= std::min(cy + reach, kCells - 1); ++y) {
-        for (int64_t x = std::max<int64_t>(cx - reach, 0); x <= std::min(cx + reach, kCells - 1); ++x) {
-          if (x < 0 || y < 0 || z < 0 || x >= kCells || y >= kCells || z >= kCells) continue;
-          const auto it = cells_.find(Key(x, y, z));
-          if (it == cells_.end()) continue;
-          for (uint32_t k = it->second.first; k < it->second.second; ++k) f(points_[k], index_[k]);
+    for (int64_t z = std::max<int64_t>(cz - reach, 0); z <= std::min(cz + reach, max_cell_[2]); ++z) {
+      for (int64_t y = std::max<int64_t>(cy - reach, 0); y <= std::min(cy + reach, max_cell_[1]); ++y) {
+        for (int64_t x = std::max<int64_t>(cx - reach, 0); x <= std::min(cx + reach, max_cell_[0]); ++x) {
+          if (const Slot* slot = Find(Key(x, y, z))) {
+            for (uint32_t k = slot->begin; k < slot->end; ++k) f(points_[k], index_[k]);
+          }
         }
       }
     }
   }
 
- private:
-  static constexpr int64_t kCells = int64_t{1} << 21;
-  static uint64_t Key(int64_t x, int64_t y, int64_t z) {
-    return (static_cast<uint64_t>(z) << 42) | (static_cast<uint64_t>(y) << 21) | static_cast<uint64_t>(x);
+  // Whether some point p has (q - p).squaredNorm() < bound, for bound <= cell^2: the query's own
+  // cell first, then its 26 neighbours, stopping at the first such point.
+  bool AnyWithin(const Eigen::Vector3d& q, double bound) const {
+    if (points_.empty() || !q.allFinite()) return false;
+    const Eigen::Vector3d c = ((q - lo_) * inv_).array().floor();
+    if ((c.array() < -1.0).any() || (c.array() > double(1 << 21) + 1.0).any()) return false;
+    const auto cx = static_cast<int64_t>(c.x()), cy = static_cast<int64_t>(c.y()), cz = static_cast<int64_t>(c.z());
+    const auto cell_has = [&](int64_t x, int64_t y, int64_t z) {
+      if (x < 0 || y < 0 || z < 0 || x > max_cell_[0] || y > max_cell_[1] || z > max_cell_[2]) return false;
+      const Slot* slot = Find(Key(x, y, z));
+      if (!slot) return false;
+      for (uint32_t k = slot->begin; k < slot->end; ++k) {
+        if ((q - points_[k]).squaredNorm() < bound) return true;
+      }
+      return false;
+    };
+    if (cell_has(cx, cy, cz)) return true;
+    for (int64_t z = cz - 1; z <= cz + 1; ++z) {
+      for (int64_t y = cy - 1; y <= cy + 1; ++y) {
+        for (int64_t x = cx - 1; x <= cx + 1; ++x) {
+          if ((x != cx || y != cy || z != cz) && cell_has(x, y, z)) return true;
+        }
+      }
+    }
+    return false;
   }
+
+ private:
+  static constexpr uint64_t kNoKey = ~uint64_t{0};
+  struct Slot {
+    uint64_t key;
+    uint32_t begin, end;  // the cell's points: points_[begin, end)
+  };
+  uint64_t Key(int64_t x, int64_t y, int64_t z) const {
+    return (static_cast<uint64_t>(z) << (bits_[0] + bits_[1])) | (static_cast<uint64_t>(y) << bits_[0]) |
+           static_cast<uint64_t>(x);
+  }
+  const Slot* Find(uint64_t key) const {
+    for (size_t h = Hash(key);; h = (h + 1) & mask_) {
+      if (table_[h].key == key) return &table_[h];
+      if (table_[h].key == kNoKey) return nullptr;
+    }
+  }
+  size_t Hash(uint64_t key) const { return static_cast<size_t>((key * 0x9E3779B97F4A7C15ull) >> 20) & mask_; }
   Eigen::Vector3d lo_ = Eigen::Vector3d::Zero();
   double cell_ = 1.0, inv_ = 1.0;
+  int64_t max_cell_[3] = {0, 0, 0};  // largest cell coordinate of a point, per axis
+  int bits_[3] = {1, 1, 1};          // bits of the packed key per axis
   std::vector<Eigen::Vector3d> points_;
   std::vector<uint32_t> index_;
-  std::unordered_map<uint64_t, std::pair<uint32_t, uint32_t>> cells_;
+  std::vector<Slot> table_;
+  size_t mask_ = 0;
 };
 
 }  // namespace
 
 DistanceStats ComputeStats(const std::vector<double>& distances_mm, bool is_signed,
-                           double threshold_mm, int bins) {
+                           double threshold_mm, int bins, double range_mm) {
+  SLSHADOW_THROW_IF(!(range_mm >= 0) || !std::isfinite(range_mm), "colour range: must be finite and >= 0 (got ", range_mm, ")");
   SLSHADOW_THROW_IF(!(threshold_mm >= 0) || !std::isfinite(threshold_mm),
                     "threshold_mm: must be finite and >= 0 (got ", threshold_mm, ")");
   SLSHADOW_THROW_IF(bins < 1, "histogram bins: must be >= 1 (got ", bins, ")");
@@ -126,7 +201,7 @@ DistanceStats ComputeStats(const std::vector<double>& distances_mm, bool is_sign
   s.outliers = s.count - s.inliers;
   if (s.count == 0) {
     s.histogram.counts.assign(static_cast<size_t>(bins), 0);
-    s.histogram.hi_mm = std::max(threshold_mm, 1e-3);
+    s.histogram.hi_mm = range_mm > 0 ? range_mm : std::max(threshold_mm, 1e-3);
     s.histogram.lo_mm = is_signed ? -s.histogram.hi_mm : 0.0;
     return s;
   }
@@ -149,16 +224,16 @@ DistanceStats ComputeStats(const std::vector<double>& distances_mm, bool is_sign
   // The nearest-rank percentiles by successive selections (each on the part above the previous
   // rank): the same values a full sort gives, in O(n).
   const size_t i50 = PercentileIndex(abs_d.size(), 50), i95 = PercentileIndex(abs_d.size(), 95),
-               i999 = PercentileIndex(abs_d.size(), 99.9);
+               i99 = PercentileIndex(abs_d.size(), 99);
   const auto at = [&](size_t i) { return abs_d.begin() + static_cast<std::ptrdiff_t>(i); };
   std::nth_element(abs_d.begin(), at(i50), abs_d.end());
   s.median_mm = abs_d[i50];
   std::nth_element(at(i50), at(i95), abs_d.end());
   s.p95_mm = abs_d[i95];
-  std::nth_element(at(i95), at(i999), abs_d.end());
+  std::nth_element(at(i95), at(i99), abs_d.end());
   Histogram& h = s.histogram;
-  h.hi_mm = std::max({abs_d[i999], threshold_mm, 1e-6});
-  s.max_mm = *std::max_element(at(i999), abs_d.end());
+  h.hi_mm = range_mm > 0 ? range_mm : std::max(abs_d[i99], 1e-6);
+  s.max_mm = *std::max_element(at(i99), abs_d.end());
   h.lo_mm = is_signed ? -h.hi_mm : 0.0;
   h.counts.assign(static_cast<size_t>(bins), 0);
   const double w = h.BinWidth();
@@ -211,10 +286,7 @@ double Coverage(const std::vector<Eigen::Vector3d>& reference_samples, const std
       tbb::blocked_range<size_t>(0, reference_samples.size(), 2048), size_t{0},
       [&](const tbb::blocked_range<size_t>& range, size_t acc) {
         for (size_t k = range.begin(); k != range.end(); ++k) {
-          const Eigen::Vector3d& q = reference_samples[order[k]];
-          bool hit = false;
-          grid.ForNeighbours(q, [&](const Eigen::Vector3d& p, uint32_t) { hit = hit || (q - p).squaredNorm() < bound; });
-          if (hit) ++acc;
+          if (grid.AnyWithin(reference_samples[order[k]], bound)) ++acc;
         }
         return acc;
       },

@@ -5,6 +5,8 @@
 #include <cstring>
 #include <sstream>
 
+#include "core/statistics.h"
+
 namespace slshadow {
 
 namespace {
@@ -73,8 +75,8 @@ ResidualStats ComputeResidualStats(std::vector<float>& values) {
   s.rms = std::sqrt(sum2 / static_cast<double>(values.size()));
   s.max = mx;
   const size_t n = values.size();
-  const size_t km = std::min(n - 1, static_cast<size_t>(std::floor(0.5 * static_cast<double>(n - 1) + 0.5)));
-  const size_t kp = std::min(n - 1, static_cast<size_t>(std::floor(0.95 * static_cast<double>(n - 1) + 0.5)));
+  const size_t km = PercentileRank(n, 50);  // core/statistics.h: nearest rank
+  const size_t kp = PercentileRank(n, 95);
   const auto ranked = SelectRanks(values, km, kp);
   s.median = ranked.first;
   s.p95 = ranked.second;

@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -133,6 +134,61 @@ std::string RunOpen3dPeer(const std::vector<Eigen::Vector3d>& points, const Tria
     return "";
   }
   return out.str();
+}
+
+// CloudCompare's own compute time (its log's "[computeApproxDistances] Time" + "[ComputeDistances]
+// Time", file loading excluded) for `-C2C_DIST` of `points` against `reference`, headless, `reps`
+// runs; the median run's seconds and its mean distance. Returns false with `why` set when
+// CloudCompare is absent or fails.
+bool RunCloudComparePeer(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& reference,
+                         int reps, double* seconds, double* mean_mm, std::string* why) {
+  namespace fs = std::filesystem;
+  if (std::system("command -v CloudCompare > /dev/null 2>&1") != 0) {
+    *why = "CloudCompare not installed (apt-get install cloudcompare)";
+    return false;
+  }
+  const fs::path dir = fs::temp_directory_path() / ("slshadow_bench_cc_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  PlyWriteOptions f;
+  f.double_positions = false;  // CloudCompare keeps float coordinates
+  PointCloud cloud;
+  cloud.points = points;
+  WritePly(dir / "compared.ply", cloud, f);
+  cloud.points = reference;
+  WritePly(dir / "reference.ply", cloud, f);
+  cloud = PointCloud();
+  const std::string cmd = "cd '" + dir.string() +
+                          "' && QT_QPA_PLATFORM=offscreen CloudCompare -SILENT -NO_TIMESTAMP -AUTO_SAVE OFF "
+                          "-O compared.ply -O reference.ply -C2C_DIST > cc.log 2>&1";
+  std::vector<std::pair<double, double>> runs;  // seconds, mean distance
+  for (int i = 0; i < reps; ++i) {
+    const int status = std::system(cmd.c_str());
+    std::stringstream text;
+    text << std::ifstream(dir / "cc.log").rdbuf();
+    const std::string log = text.str();
+    double s = 0, mean = 0;
+    bool timed = false;
+    for (const char* key : {"[computeApproxDistances] Time: ", "[ComputeDistances] Time: "}) {
+      const auto at = log.find(key);
+      if (at != std::string::npos) {
+        s += std::atof(log.c_str() + at + std::strlen(key));
+        timed = true;
+      }
+    }
+    const auto at = log.find("Mean distance = ");
+    if (at != std::string::npos) mean = std::atof(log.c_str() + at + 16);
+    if (status != 0 || !timed) {
+      *why = "CloudCompare failed (exit status " + std::to_string(status) + "); its log: " + (dir / "cc.log").string();
+      return false;  // the folder is kept for the log
+    }
+    runs.push_back({s, mean});
+  }
+  std::error_code ec;
+  fs::remove_all(dir, ec);
+  std::sort(runs.begin(), runs.end());
+  *seconds = runs[runs.size() / 2].first;
+  *mean_mm = runs[runs.size() / 2].second;
+  return true;
 }
 
 }  // namespace
@@ -326,6 +382,8 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
       }
     }
     entries.push_back(c);
+    // No CloudCompare C2M peer: its -C2M_DIST on this cloud (78 % of the points 1 mm to 170 mm from
+    // the part mesh) took 607 s in one run (docs/benchmarks/log/2026-11-24-compare.md).
 
     // C2C, about 1 M -> 1 M: the stereo cloud's even-indexed points against its odd-indexed ones.
     std::vector<Eigen::Vector3d> even, odd;
@@ -361,6 +419,26 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
       }
     }
     entries.push_back(cc);
+    if (options.with_cloudcompare) {
+      double cc_s = 0, cc_mean = 0;
+      std::string why;
+      if (!RunCloudComparePeer(even, odd, std::min(reps, 3), &cc_s, &cc_mean, &why)) {
+        std::fprintf(stderr, "bench: CloudCompare C2C peer skipped: %s\n", why.c_str());
+      } else {
+        BenchEntry m = cc;
+        m.what = "C2C " + std::to_string(even.size()) + " -> " + std::to_string(odd.size()) +
+                 " points, against CloudCompare";
+        char what[256];
+        std::snprintf(what, sizeof(what),
+                      "CloudCompare -C2C_DIST, its logged compute time, median of %d (mean d %.5f mm, slshadow %.5f mm)",
+                      std::min(reps, 3), cc_mean, c2c_mean);
+        m.peer = what;
+        m.peer_median_wall_s = cc_s;
+        m.peer_throughput = static_cast<double>(even.size()) / 1e6 / cc_s;
+        m.ratio = m.throughput / m.peer_throughput;
+        entries.push_back(m);
+      }
+    }
   }
   return entries;
 }

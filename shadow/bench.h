@@ -14,7 +14,9 @@
 //                CloudToMesh alone); peer: Open3D's RaycastingScene signed distance
 //                (bench/c2m_peer/open3d_c2m.py, run by /usr/bin/python3) on the same cloud and mesh;
 //                C2C of the stereo cloud's even points to its odd ones (~1 M each); peer: Open3D's
-//                compute_point_cloud_distance
+//                compute_point_cloud_distance. Where CloudCompare is installed, one more entry
+//                repeats the C2C figure against CloudCompare's -C2C_DIST (its logged compute
+//                time, file loading excluded; float coordinates)
 #pragma once
 
 #include <string>
@@ -27,6 +29,7 @@ struct BenchOptions {
   std::vector<std::string> only;    // entry names to run; empty: all
   bool with_opencv = true;          // run the OpenCV peer (slow: ~1 s per repetition)
   bool with_open3d = true;          // run the Open3D C2M peer (skipped with a message when absent)
+  bool with_cloudcompare = true;    // run CloudCompare's C2C (skipped with a message when absent)
   void Check() const;
 };
 

@@ -3,8 +3,11 @@
 #include <chrono>
 #include <cstdio>
 #include <exception>
+#include <memory>
 #include <thread>
 #include <utility>
+
+#include <malloc.h>
 
 #include "compare/compare.h"
 #include "compare/report.h"
@@ -13,7 +16,9 @@
 #include "core/image_set.h"
 #include "core/mesh.h"
 #include "core/provenance.h"
+#include "reconstruct/dense_grid.h"
 #include "shadow/scan_pipeline.h"
+#include "sim/simulate.h"
 
 namespace slshadow::workflow {
 namespace fs = std::filesystem;
@@ -122,23 +127,38 @@ DemoResult RunDemoJob(const DemoOptions& options) {
   WriteMesh(staging / "ground_truth.ply", truth);
   result.stages.push_back(meter.Stop());
 
-  // 4. Read the ImageSet back and decode both cameras: the path a real capture takes.
-  meter = StageMeter("read ImageSet + decode");
-  const ImageSet image_set = ImageSet::Open(staging / "scan");
-  const DecodedScan decoded = DecodeImageSet(image_set, {}, decode_options);
-  result.stages.push_back(meter.Stop());
-
+  // The reference (surface samples and the distance hierarchy, shared by both comparisons) and
+  // what the left camera sees lit, from the virtual scan's ground truth; then the scan's images
+  // and geometry are freed with the simulator's block cache: everything below reads the ImageSet.
   meter = StageMeter("reference: sample ground truth");
   const compare::Reference reference =
       compare::ReferenceFromMesh(truth, "ground truth (scene meshes and planes)");
   const std::vector<Eigen::Vector3d> visible = LitVisibleSurface(scan.geometry[0]);
+  scan = VirtualScan();
+  ReleaseSimulatorPool();
+  malloc_trim(0);
+  result.stages.push_back(meter.Stop());
+
+  // 4. Read the ImageSet back and decode both cameras: the path a real capture takes.
+  meter = StageMeter("read ImageSet + decode");
+  const ImageSet image_set = ImageSet::Open(staging / "scan");
+  auto decoded = std::make_unique<DecodedScan>(DecodeImageSet(image_set, {}, decode_options));
   result.stages.push_back(meter.Stop());
 
   // 5. Reconstruct both modes, then compare and report them concurrently: each comparison is
   // parallel inside, but its report (PLY, map, charts) and parts of the comparison are serial.
   const std::vector<std::string> mode_names = {"projector", "stereo"};
-  std::vector<Reconstruction> recs = ReconstructModes(
-      decoded, {ReconstructMode::kProjector, ReconstructMode::kStereo}, reconstruct_options, &result.stages);
+  // One mode at a time: the demo keeps each cloud and summary, not its grid (~100 MB), whose
+  // buffers the next mode reuses.
+  std::vector<Reconstruction> recs;
+  for (const ReconstructMode mode : {ReconstructMode::kProjector, ReconstructMode::kStereo}) {
+    recs.push_back(std::move(ReconstructModes(*decoded, {mode}, reconstruct_options, &result.stages).front()));
+    recs.back().grid = DenseGrid();
+    recs.back().projector_error_px = {};
+  }
+  decoded.reset();  // the maps and the reconstruction's pooled grids are not needed any more
+  DenseGrid::ReleasePool();
+  malloc_trim(0);
   if (verbose) {
     for (const auto& rec : recs) std::printf("%s\n", rec.summary.FullReport().c_str());
   }
@@ -152,8 +172,7 @@ DemoResult RunDemoJob(const DemoOptions& options) {
       const std::string& mode = mode_names[k];
       const auto t0 = std::chrono::steady_clock::now();
       compare::CompareResult cmp =
-          compare::Compare(recs[k].cloud, reference, compare_options, mode + " reconstruction");
-      recs[k].cloud = PointCloud();  // the compared copy lives on in cmp
+          compare::Compare(std::move(recs[k].cloud), reference, compare_options, mode + " reconstruction");
       const auto t1 = std::chrono::steady_clock::now();
       compare::ReportOptions report_options;
       report_options.view = compare::ViewCamera{image_set.rig().cameras[0].model,

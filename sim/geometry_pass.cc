@@ -1,6 +1,6 @@
 // The geometry pass (DESIGN.md, sim/): camera rays and one trace per camera with Embree packets:
 // hit point, normal, object, projector coordinate, shadow test and radiometric factor per pixel.
-#include "sim/renderer.h"
+#include "sim/geometry_pass.h"
 
 #include <algorithm>
 #include <atomic>

@@ -26,6 +26,13 @@ class BlockPool {
     return *pool;
   }
   static size_t Rounded(size_t bytes) { return (bytes + kHuge - 1) / kHuge * kHuge; }
+  // Frees every cached block (blocks in use are untouched and return to the pool when freed).
+  void Release() {
+    const std::lock_guard<std::mutex> lock(mutex_);
+    for (const auto& [bytes, p] : free_) std::free(p);
+    free_.clear();
+    cached_ = 0;
+  }
   void* Allocate(size_t bytes) {
     const size_t rounded = Rounded(std::max<size_t>(bytes, 1));
     {
@@ -104,6 +111,8 @@ cv::MatAllocator* PooledMats() {
   static PooledMatAllocator* allocator = new PooledMatAllocator();  // never destroyed: Mats may outlive statics
   return allocator;
 }
+
+void ReleaseSimulatorPool() { BlockPool::Get().Release(); }
 
 void CreatePooled(cv::Mat& m, int rows, int cols, int type) {
   m.release();

@@ -53,68 +53,6 @@ void CheckImages(const Rig& rig, const std::vector<cv::Mat>& images) {
   }
 }
 
-void WriteImage(const std::filesystem::path& path, const cv::Mat& image) {
-  WriteFileAtomically(path, [&](const std::filesystem::path& tmp) {
-    // OpenCV picks the encoder from the extension; keep it on the temporary name.
-    const std::filesystem::path with_ext = tmp.string() + path.extension().string();
-    SLSHADOW_THROW_IF(!cv::imwrite(with_ext.string(), image), path.string(), ": cannot write image");
-    std::filesystem::rename(with_ext, tmp);
-  });
-}
-
-// NumPy .npy version 1.0, little-endian float32, C order, shape (rows, cols) or (rows, cols, 3).
-void WriteNpy(const std::filesystem::path& path, const cv::Mat& m) {
-  SLSHADOW_CHECK(m.depth() == CV_32F && (m.channels() == 1 || m.channels() == 3) && m.isContinuous());
-  std::string header = "{'descr': '<f4', 'fortran_order': False, 'shape': (" + std::to_string(m.rows) + ", " +
-                       std::to_string(m.cols) + (m.channels() == 3 ? ", 3), }" : "), }");
-  const size_t total = 10 + header.size() + 1;
-  header.append((64 - total % 64) % 64, ' ');
-  header += '\n';
-  WriteFileAtomically(path, [&](const std::filesystem::path& tmp) {
-    std::FILE* f = std::fopen(tmp.c_str(), "wb");
-    SLSHADOW_THROW_IF(!f, path.string(), ": cannot write");
-    const char magic[8] = {'\x93', 'N', 'U', 'M', 'P', 'Y', 1, 0};
-    const uint16_t len = static_cast<uint16_t>(header.size());
-    const unsigned char len_le[2] = {static_cast<unsigned char>(len & 0xff), static_cast<unsigned char>(len >> 8)};
-    const size_t bytes = m.total() * m.elemSize();
-    const bool ok = std::fwrite(magic, 1, 8, f) == 8 && std::fwrite(len_le, 1, 2, f) == 2 &&
-                    std::fwrite(header.data(), 1, header.size(), f) == header.size() &&
-                    std::fwrite(m.data, 1, bytes, f) == bytes;
-    std::fclose(f);
-    SLSHADOW_THROW_IF(!ok, path.string(), ": write failed");
-  });
-}
-
-cv::Mat ReadNpy(const std::filesystem::path& path, int channels) {
-  const std::string data = ReadTextFile(path);
-  SLSHADOW_THROW_IF(data.size() < 10 || data.compare(0, 6, "\x93NUMPY") != 0, path.string(), ": not a .npy file");
-  const size_t len = static_cast<unsigned char>(data[8]) | (static_cast<size_t>(static_cast<unsigned char>(data[9])) << 8);
-  SLSHADOW_THROW_IF(data.size() < 10 + len, path.string(), ": truncated header");
-  const std::string header = data.substr(10, len);
-  SLSHADOW_THROW_IF(header.find("'<f4'") == std::string::npos || header.find("False") == std::string::npos, path.string(),
-                    ": expected little-endian float32 in C order (header ", header, ")");
-  int rows = 0, cols = 0, ch = 1;
-  const size_t open = header.find("'shape': (");
-  SLSHADOW_THROW_IF(open == std::string::npos, path.string(), ": no shape in header");
-  const int n = std::sscanf(header.c_str() + open + 10, "%d, %d, %d", &rows, &cols, &ch);
-  SLSHADOW_THROW_IF(n < 2 || rows <= 0 || cols <= 0, path.string(), ": bad shape in header ", header);
-  if (n == 2) ch = 1;
-  SLSHADOW_THROW_IF(ch != channels, path.string(), ": expected ", channels, " channels (got ", ch, ")");
-  cv::Mat m(rows, cols, CV_32FC(channels));
-  const size_t bytes = m.total() * m.elemSize();
-  SLSHADOW_THROW_IF(data.size() != 10 + len + bytes, path.string(), ": size does not match the shape");
-  std::memcpy(m.data, data.data() + 10 + len, bytes);
-  return m;
-}
-
-cv::Mat ReadImage(const std::filesystem::path& path, int expected_type) {
-  const cv::Mat m = cv::imread(path.string(), cv::IMREAD_UNCHANGED);
-  SLSHADOW_THROW_IF(m.empty(), path.string(), ": cannot read ground-truth image");
-  SLSHADOW_THROW_IF(m.type() != expected_type, path.string(), ": unexpected image type ", m.type(), " (expected ",
-                    expected_type, ")");
-  return m;
-}
-
 }  // namespace
 
 double SimulateSummary::MraysPerSecond() const {
@@ -322,7 +260,7 @@ SimulateSummary SimulateScan(const Scene& scene, const Rig& rig, const std::vect
   rig.Check("rig '" + rig.name + "'");
   CheckImages(rig, projector_images);
   SLSHADOW_THROW_IF(std::filesystem::exists(out_dir) && !options.writer.overwrite, out_dir.string(),
-                    ": exists (pass overwrite to replace it)");
+                    ": already exists (pass --overwrite to replace it)");
   SimulateSummary sum;
   ImageSetWriter writer(out_dir, rig, pattern_spec, options.writer);
   nlohmann::json extra = ExtraWithProvenance(VirtualScanProvenance(scene, options, "slshadow simulate"));
@@ -379,73 +317,6 @@ SimulateSummary SimulateScan(const Scene& scene, const Rig& rig, const std::vect
   sum.write_seconds += Since(t);
   sum.total_seconds = Since(start);
   return sum;
-}
-
-PointCloud VisibleSurface(const GeometryBuffer& g) {
-  PointCloud cloud;
-  std::vector<float> object_id, lit, proj_x, proj_y, pixel_x, pixel_y;
-  for (int y = 0; y < g.height; ++y) {
-    for (int x = 0; x < g.width; ++x) {
-      if (g.visibility.at<uint8_t>(y, x) == 0) continue;
-      const cv::Vec3f p = g.point_in_rig.at<cv::Vec3f>(y, x);
-      const cv::Vec3f n = g.normal_in_rig.at<cv::Vec3f>(y, x);
-      cloud.points.emplace_back(p[0], p[1], p[2]);
-      cloud.normals.emplace_back(n[0], n[1], n[2]);
-      object_id.push_back(static_cast<float>(g.object_id.at<int32_t>(y, x)));
-      lit.push_back(g.visibility.at<uint8_t>(y, x) == 2 ? 1.0f : 0.0f);
-      proj_x.push_back(g.projector.proj_x.at<float>(y, x));
-      proj_y.push_back(g.projector.proj_y.at<float>(y, x));
-      pixel_x.push_back(static_cast<float>(x));
-      pixel_y.push_back(static_cast<float>(y));
-    }
-  }
-  cloud.SetScalar("object_id", std::move(object_id));
-  cloud.SetScalar("lit", std::move(lit));
-  cloud.SetScalar("proj_x", std::move(proj_x));
-  cloud.SetScalar("proj_y", std::move(proj_y));
-  cloud.SetScalar("pixel_x", std::move(pixel_x));
-  cloud.SetScalar("pixel_y", std::move(pixel_y));
-  return cloud;
-}
-
-void WriteGroundTruth(const GeometryBuffer& g, const std::filesystem::path& dir) {
-  std::filesystem::create_directories(dir);
-  cv::Mat ids(g.height, g.width, CV_16UC1);
-  for (int y = 0; y < g.height; ++y) {
-    for (int x = 0; x < g.width; ++x) ids.at<uint16_t>(y, x) = static_cast<uint16_t>(g.object_id.at<int32_t>(y, x) + 1);
-  }
-  const std::vector<std::pair<std::string, cv::Mat>> files = {
-      {"depth_mm.npy", g.depth_mm},          {"point_in_rig_mm.npy", g.point_in_rig},
-      {"normal_in_rig.npy", g.normal_in_rig}, {"proj_x.npy", g.projector.proj_x},
-      {"proj_y.npy", g.projector.proj_y},     {"status.png", g.projector.status},
-      {"visibility.png", g.visibility},       {"object_id.png", ids}};
-  tbb::parallel_for(size_t{0}, files.size() + 1, [&](size_t i) {
-    if (i < files.size()) {
-      if (files[i].first.ends_with(".npy")) {
-        WriteNpy(dir / files[i].first, files[i].second);
-      } else {
-        WriteImage(dir / files[i].first, files[i].second);
-      }
-    } else {
-      WritePly(dir / "surface.ply", VisibleSurface(g), PlyWriteOptions{true, false});
-    }
-  });
-}
-
-GroundTruth ReadGroundTruth(const std::filesystem::path& dir) {
-  GroundTruth gt;
-  gt.depth_mm = ReadNpy(dir / "depth_mm.npy", 1);
-  gt.point_in_rig = ReadNpy(dir / "point_in_rig_mm.npy", 3);
-  gt.normal_in_rig = ReadNpy(dir / "normal_in_rig.npy", 3);
-  gt.visibility = ReadImage(dir / "visibility.png", CV_8UC1);
-  const cv::Mat ids = ReadImage(dir / "object_id.png", CV_16UC1);
-  ids.convertTo(gt.object_id, CV_32SC1, 1, -1);
-  gt.projector.proj_x = ReadNpy(dir / "proj_x.npy", 1);
-  gt.projector.proj_y = ReadNpy(dir / "proj_y.npy", 1);
-  gt.projector.status = ReadImage(dir / "status.png", CV_8UC1);
-  gt.projector.quality = cv::Mat(gt.projector.status.size(), CV_32FC1, cv::Scalar(0));
-  gt.projector.has_x = gt.projector.has_y = true;
-  return gt;
 }
 
 }  // namespace slshadow

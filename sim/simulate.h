@@ -132,7 +132,7 @@ SimulateSummary SimulateScan(const Scene& scene, const Rig& rig, const std::vect
                              const nlohmann::json& pattern_spec, const std::filesystem::path& out_dir,
                              const SimulateOptions& options = {});
 
-// Ground truth of one camera as files (layout above) and back.
+// Ground truth of one camera as files (layout above) and back (sim/ground_truth.cc).
 void WriteGroundTruth(const GeometryBuffer& geometry, const std::filesystem::path& dir);
 struct GroundTruth {
   cv::Mat depth_mm, point_in_rig, normal_in_rig, visibility, object_id;  // object_id CV_32SC1, -1 none
@@ -141,5 +141,9 @@ struct GroundTruth {
 GroundTruth ReadGroundTruth(const std::filesystem::path& dir);
 // The visible surface of one camera as a cloud (rig frame) with the scalars listed above.
 PointCloud VisibleSurface(const GeometryBuffer& geometry);
+
+// Frees the simulator's cache of recycled image and geometry blocks (up to ~640 MB kept after a
+// scan so the next one does not fault its pages in again): for a process done simulating.
+void ReleaseSimulatorPool();
 
 }  // namespace slshadow

@@ -1,8 +1,10 @@
 #include "compare/compare.h"
+#include "compare/mesh_distance.h"
 
 #include <cmath>
 #include <random>
 
+#include <limits>
 #include <gtest/gtest.h>
 
 #include "core/config.h"
@@ -109,6 +111,36 @@ TEST(Compare, M3C2FieldsAndBadInput) {
   EXPECT_THROW(Compare(PointCloud{}, ref, CompareOptions{}), Error);
 }
 
+// The reference's shared hierarchy, one built inside Compare, and brute force over every
+// triangle give the same deviations; moving the cloud in gives the same result as copying it.
+TEST(Compare, SharedHierarchyAndMovedCloudChangeNothing) {
+  const TriangleMesh mesh = IcoSphere(10.0, 3);
+  Reference shared = ReferenceFromMesh(mesh, "sphere", 5000);
+  ASSERT_NE(shared.mesh_distance, nullptr);
+  Reference own = shared;
+  own.mesh_distance.reset();
+  const PointCloud cloud = OffsetUpperHalf(mesh, 0.05, 43, 4);
+  const CompareResult a = Compare(cloud, shared, CompareOptions{});
+  const CompareResult b = Compare(cloud, own, CompareOptions{});
+  const CompareResult c = Compare(PointCloud(cloud), shared, CompareOptions{});
+  ASSERT_EQ(a.deviations_mm.size(), cloud.size());
+  EXPECT_EQ(a.deviations_mm, b.deviations_mm);
+  EXPECT_EQ(a.deviations_mm, c.deviations_mm);
+  EXPECT_EQ(a.compared.points, c.compared.points);
+  for (size_t i = 0; i < cloud.size(); i += 7) {
+    double best = std::numeric_limits<double>::infinity();
+    for (size_t t = 0; t < mesh.triangles.size(); ++t) {
+      const auto& f = mesh.triangles[t];
+      int feature = 0;
+      const Eigen::Vector3d q = ClosestPointOnTriangle(cloud.points[i], mesh.vertices[static_cast<size_t>(f[0])],
+                                                       mesh.vertices[static_cast<size_t>(f[1])],
+                                                       mesh.vertices[static_cast<size_t>(f[2])], &feature);
+      best = std::min(best, (cloud.points[i] - q).squaredNorm());
+    }
+    EXPECT_EQ(std::abs(a.deviations_mm[i]), std::sqrt(best));
+  }
+}
+
 TEST(LoadReference, ReadsMeshesAndClouds) {
   slshadow::testing::TempDir tmp;
   const TriangleMesh mesh = IcoSphere(5.0, 2);
@@ -146,6 +178,7 @@ TEST(CompareOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
   o.threshold_mm = 0.1;
   o.coverage_radius_mm = 0.4;
   o.histogram_bins = 40;
+  o.color_range_mm = 0.05;
   o.m3c2 = true;
   o.m3c2_options.projection_radius_mm = 0.8;
   o.m3c2_options.max_depth_mm = 3;
@@ -168,6 +201,7 @@ TEST(CompareOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
     EXPECT_EQ(r.registration.seed, 42u);
     EXPECT_EQ(r.c2c.local_model, LocalModel::kQuadric);
     EXPECT_EQ(r.threshold_mm, 0.1);
+    EXPECT_EQ(r.color_range_mm, 0.05);
     EXPECT_TRUE(r.m3c2);
     ASSERT_TRUE(r.artefacts.has_value());
     EXPECT_EQ(r.artefacts->pairs.size(), 1u);

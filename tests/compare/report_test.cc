@@ -62,6 +62,22 @@ TEST(WriteReport, WritesEveryFileAndTheJsonSchema) {
     EXPECT_EQ((*back.Scalar("deviation"))[i], static_cast<float>(r.deviations_mm[i]));
   }
   EXPECT_TRUE(back.HasColors());
+  // Positions as float (the sphere is far below 8192 mm): within 2^-11 mm, i.e. 1 um fidelity.
+  for (size_t i = 0; i < back.size(); ++i) {
+    ASSERT_EQ(back.points[i], r.compared.points[i].cast<float>().cast<double>());
+    ASSERT_LE((back.points[i] - r.compared.points[i]).cwiseAbs().maxCoeff(), std::ldexp(1.0, -11));
+  }
+}
+
+// Coordinates of 8192 mm or more keep double positions (float would round them by > 0.49 um).
+TEST(WriteReport, FarCoordinatesKeepDoublePositions) {
+  slshadow::testing::TempDir tmp;
+  CompareResult r = SmallResult();
+  r.compared.points[7].x() += 9000.0;
+  WriteReport(tmp / "report", r);
+  const PointCloud back = ReadPly(tmp / "report" / "compared.ply");
+  ASSERT_EQ(back.size(), r.compared.size());
+  for (size_t i = 0; i < back.size(); ++i) ASSERT_EQ(back.points[i], r.compared.points[i]);
 }
 
 TEST(WriteReport, RefusesToOverwriteWhenAskedAndLeavesTheOldReport) {

@@ -316,7 +316,10 @@ TEST(ResidualStatsTest, QuantilesMatchASortedCopy) {
   std::sort(sorted.begin(), sorted.end());
   const ResidualStats s = ComputeResidualStats(values);
   EXPECT_EQ(s.count, 10000);
-  const auto at = [&](double q) { return sorted[static_cast<size_t>(std::floor(q * (sorted.size() - 1) + 0.5))]; };
+  // The nearest rank (core/statistics.h): rank ceil(q n), 1-based, at least 1.
+  const auto at = [&](double q) {
+    return sorted[static_cast<size_t>(std::max(1.0, std::ceil(q * static_cast<double>(sorted.size())))) - 1];
+  };
   EXPECT_EQ(s.median, at(0.5));
   EXPECT_EQ(s.p95, at(0.95));
   EXPECT_EQ(s.max, sorted.back());
@@ -342,7 +345,10 @@ TEST(ResidualStatsTest, QuantilesAreExactWithTiesSignsAndTinySets) {
     std::vector<float> sorted = values;
     std::sort(sorted.begin(), sorted.end());
     const ResidualStats s = ComputeResidualStats(values);
-    const auto at = [&](double q) { return sorted[static_cast<size_t>(std::floor(q * (sorted.size() - 1) + 0.5))]; };
+    // The nearest rank (core/statistics.h): rank ceil(q n), 1-based, at least 1.
+    const auto at = [&](double q) {
+      return sorted[static_cast<size_t>(std::max(1.0, std::ceil(q * static_cast<double>(sorted.size())))) - 1];
+    };
     EXPECT_EQ(s.count, static_cast<int64_t>(n));
     EXPECT_EQ(s.median, at(0.5)) << n;
     EXPECT_EQ(s.p95, at(0.95)) << n;
