@@ -32,7 +32,7 @@ namespace slshadow {
 class ConfigNode;
 
 enum class ReconstructMode { kProjector, kStereo };
-const char* ToString(ReconstructMode mode);  // "projector", "stereo"
+std::string ToString(ReconstructMode mode);  // "projector", "stereo"
 ReconstructMode ReconstructModeFromString(const std::string& name);  // throws on unknown names
 
 // Stereo: how the cameras' maps are resampled on the rectified grids and the crossings located.
@@ -45,7 +45,7 @@ ReconstructMode ReconstructModeFromString(const std::string& name);  // throws o
 //  kAuto: cubic when both maps are CV_64F (exact or ground-truth codes), linear for decoded
 //    (CV_32F) maps.
 enum class StereoInterpolation { kAuto, kLinear, kCubic };
-const char* ToString(StereoInterpolation interpolation);  // "auto", "linear", "cubic"
+std::string ToString(StereoInterpolation interpolation);  // "auto", "linear", "cubic"
 StereoInterpolation StereoInterpolationFromString(const std::string& name);  // throws on unknown names
 
 struct ReconstructOptions {

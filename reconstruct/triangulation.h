@@ -32,7 +32,7 @@
 namespace slshadow {
 
 enum class TriangulationMethod { kMidpoint, kDlt, kOptimal };
-const char* ToString(TriangulationMethod method);  // "midpoint", "dlt", "optimal"
+std::string ToString(TriangulationMethod method);  // "midpoint", "dlt", "optimal"
 // Parses the names above; throws slshadow::Error listing them on anything else.
 TriangulationMethod TriangulationMethodFromString(const std::string& name);
 
