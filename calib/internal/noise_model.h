@@ -13,7 +13,7 @@
 
 #include "calib/internal/calibration_problem.h"
 
-namespace slshadow::calib_internal {
+namespace slshadow::calib::internal {
 
 // Covariance (px^2, 2x2) of the errors of point ia of view va and point ib of view vb of the same
 // pose under the view-correlated noise model (CalibrationResult::correlated_covariance): each
@@ -51,4 +51,4 @@ std::vector<ViewNoiseKernel> EstimateViewKernels(const CalibrationInput& input, 
 // cancels), so k = mean(d^T C_i^-1 d) / 2 (medians with a robust loss, below).
 NoiseModel EstimateNoise(const CalibrationInput& input, const State& s, bool robust);
 
-}  // namespace slshadow::calib_internal
+}  // namespace slshadow::calib::internal
