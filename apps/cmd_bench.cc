@@ -37,7 +37,7 @@ int RunBenchCommand(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    return ExitOnParseError(app, e);
   }
   options.with_opencv = !no_opencv;
   options.with_open3d = !no_open3d;

@@ -505,7 +505,7 @@ int RunCalibrate(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    return ExitOnParseError(app, e);
   }
   nlohmann::json extra;
   std::string cmdline;

@@ -83,7 +83,7 @@ int RunCapture(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    return ExitOnParseError(app, e);
   }
   const Rig rig = LoadRig(rig_path);
   const PatternSpec spec = LoadPatternSpec(patterns_path);

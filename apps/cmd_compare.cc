@@ -40,6 +40,9 @@ int RunCompare(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--threshold-mm", options.threshold_mm, "inlier threshold on |deviation|, mm")
       ->capture_default_str();
+  app.add_option("--color-range-mm", options.color_range_mm,
+                 "colour range of the deviation map, histogram and PLY colours, +-mm (0: the 99th percentile of |deviation|)")
+      ->capture_default_str();
   app.add_option("--local-model", local_model,
                  "C2C only: none, or a least-squares plane / quadric fitted on the nearest reference "
                  "point's neighbours; the distance is min(nearest, model) as in CloudCompare")
@@ -78,7 +81,7 @@ int RunCompare(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    return ExitOnParseError(app, e);
   }
   options.registration.method = compare::RegistrationMethodFromString(method);
   options.c2c.local_model = compare::LocalModelFromString(local_model);

@@ -41,7 +41,7 @@ int RunDemo(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    return ExitOnParseError(app, e);
   }
   const DemoResult result = RunDemoJob(options);
   std::printf("slshadow demo: virtual scan of the demo part, reconstructed and compared with its ground truth\n\n");

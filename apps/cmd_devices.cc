@@ -23,7 +23,7 @@ int RunDevices(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    return ExitOnParseError(app, e);
   }
   capture::DeviceListOptions options;
   options.addresses = addresses;

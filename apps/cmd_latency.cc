@@ -49,7 +49,7 @@ int RunLatency(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    return ExitOnParseError(app, e);
   }
   if (!devices_path.empty()) {
     const capture::DevicesConfig devices = capture::LoadDevices(devices_path);

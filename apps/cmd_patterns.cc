@@ -52,7 +52,7 @@ int RunPatterns(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    return ExitOnParseError(app, e);
   }
 
   const PatternSpec spec = LoadPatternSpec(spec_path);

@@ -33,7 +33,7 @@ int RunProjector(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    return ExitOnParseError(app, e);
   }
   const auto transport = capture::OpenLightCrafterUsb(usb);
   capture::dlpc350::Client client(*transport);

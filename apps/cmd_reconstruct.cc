@@ -113,7 +113,7 @@ int RunReconstruct(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    return ExitOnParseError(app, e);
   }
   const ImageSet image_set = ImageSet::Open(imageset_dir);
   const Rig rig = rig_path.empty() ? image_set.rig() : LoadRig(rig_path);

@@ -21,7 +21,7 @@ int RunRig(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    return ExitOnParseError(app, e);
   }
   const Rig rig = LoadRig(rig_path);
   std::printf("%s", DescribeRig(rig).c_str());

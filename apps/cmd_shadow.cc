@@ -47,7 +47,7 @@ int RunShadowCommand(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    return ExitOnParseError(app, e);
   }
   if (!pose.empty()) {
     const Eigen::Vector3d r(pose[0], pose[1], pose[2]);

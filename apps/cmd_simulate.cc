@@ -51,7 +51,7 @@ int RunSimulate(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    return ExitOnParseError(app, e);
   }
   const Rig rig = LoadRig(rig_path);
   const Scene scene = LoadScene(scene_path);

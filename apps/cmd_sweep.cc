@@ -46,7 +46,7 @@ int RunSweep(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    return ExitOnParseError(app, e);
   }
   if (plan->parsed()) {
     const workflow::SweepPlanSummary s = workflow::PlanSweep(study, out);
@@ -68,9 +68,17 @@ int RunSweep(int argc, char** argv) {
     std::printf("%d jobs merged: %d rows in %s/results.csv (+ results.json, timings.csv)\n", s.jobs,
                 s.rows, out.c_str());
     std::printf(
-        "Pareto front of decode + reconstruct time against RMS (%s/pareto.csv, time_vs_rms.png):\n",
+        "Pareto front of decode + reconstruct time against RMS (%s/pareto.csv, time_vs_rms.png/.svg):\n",
         out.c_str());
     for (const auto& f : s.front) std::printf("  %s\n", f.c_str());
+    if (!s.break_points.empty()) {
+      std::printf("Break points (%s/break_points.csv, curves_*.png):\n", out.c_str());
+      for (const auto& b : s.break_points) std::printf("  %s\n", b.c_str());
+    }
+    if (!s.effects.empty()) {
+      std::printf("Effects against the baseline (%s/effects.csv):\n", out.c_str());
+      for (const auto& e : s.effects) std::printf("  %s\n", e.c_str());
+    }
   }
   return EXIT_SUCCESS;
 }

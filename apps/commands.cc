@@ -4,6 +4,9 @@
 #include <cstdlib>
 #include <cstring>
 #include <exception>
+#include <string>
+
+#include <CLI/CLI.hpp>
 
 #include "core/error.h"
 
@@ -31,6 +34,16 @@ const std::vector<Command>& Commands() {
       {"sweep", "studies as independent jobs: sweep plan STUDY.yaml --out JOBS | run JOBS --shard I/N | merge JOBS --out RESULT", RunSweep},
   };
   return commands;
+}
+
+int ExitOnParseError(const CLI::App& app, const CLI::ParseError& error) {
+  if (error.get_exit_code() == static_cast<int>(CLI::ExitCodes::Success)) return app.exit(error);
+  std::string message = error.what();
+  for (char& c : message) {
+    if (c == '\n') c = ' ';
+  }
+  std::fprintf(stderr, "slshadow: error: %s: %s (--help lists the options)\n", app.get_name().c_str(), message.c_str());
+  return error.get_exit_code();
 }
 
 namespace {

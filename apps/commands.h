@@ -6,6 +6,11 @@
 #include <string>
 #include <vector>
 
+namespace CLI {
+class App;
+class ParseError;
+}  // namespace CLI
+
 namespace slshadow::app {
 
 struct Command {
@@ -20,6 +25,11 @@ const std::vector<Command>& Commands();
 // Entry point: dispatches argv[1] to its subcommand. Catches slshadow::Error (and any other
 // exception), prints one line "slshadow: error: ..." and returns EXIT_FAILURE.
 int Main(int argc, char** argv);
+
+// A subcommand's answer to a command-line parse error: --help and --version print as CLI11 does;
+// anything else is one line on stderr ("slshadow: error: slshadow rig: RIG is required ...") and
+// CLI11's non-zero exit code.
+int ExitOnParseError(const CLI::App& app, const CLI::ParseError& error);
 
 // Subcommands.
 int RunRig(int argc, char** argv);

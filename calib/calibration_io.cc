@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <optional>
 #include <utility>
 
@@ -85,6 +86,15 @@ cv::Mat ReadAnyMat(const cv::FileStorage& fs, const std::string& key, const std:
     return cv::Mat(values, true).reshape(1, 1);
   }
   if (node.isReal() || node.isInt()) return cv::Mat(1, 1, CV_64F, cv::Scalar(static_cast<double>(node)));
+  // OpenCV allocates rows x cols before reading the data: the claimed size is checked against the
+  // values present first (a header claiming 10^5 x 10^5 is an error, not a 80 GB allocation).
+  if (node.isMap() && node["rows"].isInt() && node["cols"].isInt()) {
+    const int64_t rows = static_cast<int>(node["rows"]), cols = static_cast<int>(node["cols"]);
+    const cv::FileNode data = node["data"];
+    const int64_t values = data.isSeq() ? static_cast<int64_t>(data.size()) : 0;
+    SLSHADOW_THROW_IF(rows < 0 || cols < 0 || rows * cols > values, path.string(), ": ", key, ": matrix claims ", rows,
+                      " x ", cols, " but holds ", values, " values");
+  }
   try {
     node >> m;
   } catch (const cv::Exception&) {
@@ -159,6 +169,14 @@ cv::Mat ReadDist(const cv::FileStorage& fs, const std::string& key, const std::f
   return m;
 }
 
+// A size or count read as a double (FileStorage stores numbers as either), as an int: a value that
+// is not finite, not whole or beyond +-10^6 is bad input (converting it would be undefined).
+int CheckedInt(double v, const std::filesystem::path& path, const std::string& key) {
+  SLSHADOW_THROW_IF(!(std::abs(v) <= 1e6) || v != std::floor(v), path.string(), ": ", key,
+                    ": expected a whole number within +-1000000 (got ", v, ")");
+  return static_cast<int>(v);
+}
+
 // An image size node: [width, height] (cv::Size) or a matrix of two numbers; nullopt if absent.
 std::optional<std::pair<int, int>> ReadSize(const cv::FileStorage& fs, const std::string& key,
                                             const std::filesystem::path& path) {
@@ -166,7 +184,7 @@ std::optional<std::pair<int, int>> ReadSize(const cv::FileStorage& fs, const std
   const cv::Mat m = ReadAnyMat(fs, key, path);
   SLSHADOW_THROW_IF(m.total() != 2, path.string(), ": ", key, ": expected an image size [width, height] (got ",
                     m.total(), " numbers)");
-  return std::pair<int, int>(static_cast<int>(m.at<double>(0)), static_cast<int>(m.at<double>(1)));
+  return std::pair<int, int>(CheckedInt(m.at<double>(0), path, key), CheckedInt(m.at<double>(1), path, key));
 }
 
 // "cam_K (3x3 matrix), dist (1x5 matrix), S ([2 numbers]), name (string)": the top-level nodes.
@@ -231,10 +249,10 @@ Rig ReadMappedLayout(const cv::FileStorage& fs, const OpenCvNodeMap& map, const 
   return rig;
 }
 
-int IntOr(const cv::FileStorage& fs, const std::string& key, int fallback) {
+int IntOr(const cv::FileStorage& fs, const std::string& key, int fallback, const std::filesystem::path& path) {
   const cv::FileNode n = fs[key];
   if (n.empty()) return fallback;
-  return static_cast<int>(static_cast<double>(n));
+  return CheckedInt(static_cast<double>(n), path, key);
 }
 
 }  // namespace
@@ -517,8 +535,10 @@ OpenCvNodeMap ParseOpenCvNodeMap(const std::string& text) {
   return map;
 }
 
-Rig ReadOpenCvCalibration(const std::filesystem::path& path, int default_width, int default_height, int projector_width,
-                          int projector_height, const OpenCvNodeMap& node_map) {
+namespace {
+
+Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_width, int default_height,
+                               int projector_width, int projector_height, const OpenCvNodeMap& node_map) {
   SLSHADOW_THROW_IF(!std::filesystem::exists(path), path.string(), ": file not found");
   cv::FileStorage fs;
   try {
@@ -536,7 +556,7 @@ Rig ReadOpenCvCalibration(const std::filesystem::path& path, int default_width, 
     return std::pair<int, int>(w, h);
   };
   if (!fs["camera_matrix"].empty()) {
-    const auto [w, h] = size_or_throw(IntOr(fs, "image_width", default_width), IntOr(fs, "image_height", default_height),
+    const auto [w, h] = size_or_throw(IntOr(fs, "image_width", default_width, path), IntOr(fs, "image_height", default_height, path),
                                       "camera_matrix");
     RigDevice d;
     d.name = fs["device_name"].empty() ? "camera" : static_cast<std::string>(fs["device_name"]);
@@ -552,8 +572,8 @@ Rig ReadOpenCvCalibration(const std::filesystem::path& path, int default_width, 
       fs["img_shape"] >> shape;
       shape.convertTo(shape, CV_64F);
       if (shape.total() >= 2) {
-        cam_h = static_cast<int>(shape.at<double>(0));
-        cam_w = static_cast<int>(shape.at<double>(1));
+        cam_h = CheckedInt(shape.at<double>(0), path, "img_shape");
+        cam_w = CheckedInt(shape.at<double>(1), path, "img_shape");
       }
     }
     const auto [w, h] = size_or_throw(cam_w, cam_h, "cam_int");
@@ -578,13 +598,13 @@ Rig ReadOpenCvCalibration(const std::filesystem::path& path, int default_width, 
                     ". Known: camera_matrix (OpenCV calibration sample), M1/D1/M2/D2/R/T (stereo_calib), "
                     "M1/D1/M2/D2/Rlr/Tlr/S, cam1_intrinsics/cam1_distorsion/cam2_*/R/T, cam_int/proj_int (procam); "
                     "name the nodes of another layout with --map K1=NODE,D1=NODE[,K2=..,D2=..,R=..,T=..,size1=..]");
-  const int num = IntOr(fs, "num_devices", fs["M2"].empty() ? 1 : 2);
-  const bool has_projector = IntOr(fs, "has_projector", 0) != 0;
+  const int num = IntOr(fs, "num_devices", fs["M2"].empty() ? 1 : 2, path);
+  const bool has_projector = IntOr(fs, "has_projector", 0, path) != 0;
   for (int i = 1; i <= num; ++i) {
     const std::string s = std::to_string(i);
     const bool is_proj = has_projector && i == num;
-    const auto [w, h] = size_or_throw(IntOr(fs, "image_width_" + s, is_proj ? projector_width : default_width),
-                                      IntOr(fs, "image_height_" + s, is_proj ? projector_height : default_height), "M" + s);
+    const auto [w, h] = size_or_throw(IntOr(fs, "image_width_" + s, is_proj ? projector_width : default_width, path),
+                                      IntOr(fs, "image_height_" + s, is_proj ? projector_height : default_height, path), "M" + s);
     RigDevice d;
     d.name = fs["device_name_" + s].empty() ? (is_proj ? "projector" : "camera" + s) : static_cast<std::string>(fs["device_name_" + s]);
     d.model = ModelFromMats(ReadMat(fs, "M" + s, path, 3, 3), ReadDist(fs, "D" + s, path), w, h, file + ": M" + s);
@@ -599,6 +619,19 @@ Rig ReadOpenCvCalibration(const std::filesystem::path& path, int default_width, 
     }
   }
   return rig;
+}
+
+}  // namespace
+
+Rig ReadOpenCvCalibration(const std::filesystem::path& path, int default_width, int default_height, int projector_width,
+                          int projector_height, const OpenCvNodeMap& node_map) {
+  // cv::FileNode throws cv::Exception on content of an unexpected shape (the top level not a
+  // mapping, a string read as a matrix, ...): bad input, reported as such in one line.
+  try {
+    return ReadOpenCvCalibrationNodes(path, default_width, default_height, projector_width, projector_height, node_map);
+  } catch (const cv::Exception& e) {
+    SLSHADOW_THROW(path.string(), ": malformed OpenCV FileStorage content (", e.err, " in ", e.func, ")");
+  }
 }
 
 }  // namespace slshadow

@@ -223,10 +223,13 @@ nlohmann::json CalibrationReportJson(const CalibrationReport& r) {
 void WriteCalibrationReport(const std::filesystem::path& dir, const CalibrationReport& r, bool overwrite) {
   SLSHADOW_CHECK(r.input && r.options && r.result);
   const std::filesystem::path staged = TemporarySibling(dir);
-  std::filesystem::create_directories(staged);
+  std::error_code created;
+  std::filesystem::create_directories(staged, created);
+  SLSHADOW_THROW_IF(created, staged.string(), ": cannot create folder: ", created.message());
   try {
-    std::ofstream(staged / "summary.json") << CalibrationReportJson(r).dump(2) << "\n";
-    std::ofstream(staged / "report.txt") << FullText(r);
+    // Checked writes: a full disk fails the report instead of committing truncated text.
+    WriteTextFileAtomically(staged / "summary.json", CalibrationReportJson(r).dump(2) + "\n");
+    WriteTextFileAtomically(staged / "report.txt", FullText(r));
     PerViewChart(staged / "per_view_rms.png", r.result->summary);
     for (size_t d = 0; d < r.result->devices.size(); ++d) {
       const auto& dev = r.result->devices[d];

@@ -73,13 +73,15 @@ void WriteDeviationMapPng(const std::filesystem::path& path, const ValueImage& i
                         image.values.size() != static_cast<size_t>(image.width) * static_cast<size_t>(image.height),
                     path.string(), ": bad deviation image size ", image.width, "x", image.height);
   SLSHADOW_THROW_IF(!(chart.hi > chart.lo), path.string(), ": empty colour range");
+  SLSHADOW_THROW_IF(chart.max_width_px < 16 || chart.max_height_px < 16, path.string(), ": map drawn smaller than 16 px");
   const auto lock = plot::LockPlplot();
   // Page: the image at its own aspect ratio plus room for the colour bar and labels.
   const int img_w = image.width, img_h = image.height;
-  const double scale = std::min(1.0, std::min(1100.0 / img_w, 800.0 / img_h));
+  const double scale = std::min(1.0, std::min(static_cast<double>(chart.max_width_px) / img_w, static_cast<double>(chart.max_height_px) / img_h));
   // Fixed pixel margins: left for the y ticks and label, right for the colour bar and its
   // labels, bottom for the x ticks and label, top for the title.
-  constexpr int kLeft = 145, kRight = 250, kBottom = 100, kTop = 70;
+  constexpr int kLeft = 145, kRight = 250, kTop = 70;
+  const int kBottom = 100 + 38 * static_cast<int>(chart.notes.size());
   const int page_w = static_cast<int>(img_w * scale) + kLeft + kRight;
   const int page_h = static_cast<int>(img_h * scale) + kBottom + kTop;
   WriteFileAtomically(path, [&](const std::filesystem::path& tmp) {
@@ -120,8 +122,11 @@ void WriteDeviationMapPng(const std::filesystem::path& path, const ValueImage& i
                  chart.lo, chart.hi, nullptr, nullptr);
     pls->col0(1);
     pls->box("bcnst", 0, 0, "bcnstv", 0, 0);
-    pls->lab("image x (px)", "image y (px)", chart.title.c_str());
-    plot::HeatColorBar(*pls, chart.lo, chart.hi, chart.colorbar_label, 25.0 / page_w, 35.0 / page_w);
+    pls->lab(chart.x_label.c_str(), chart.y_label.c_str(), chart.title.c_str());
+    plot::HeatColorBar(*pls, chart.lo, chart.hi, chart.colorbar_label, 25.0 / page_w, 35.0 / page_w, chart.marks);
+    for (size_t i = 0; i < chart.notes.size(); ++i) {
+      pls->mtex("b", 5.0 + 1.4 * static_cast<double>(i), 0.0, 0.0, chart.notes[i].c_str());
+    }
   });
 }
 

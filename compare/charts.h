@@ -38,6 +38,10 @@ struct MapChart {
   std::string title;
   std::string colorbar_label = "deviation (mm)";
   double lo = -1.0, hi = 1.0;  // colour range; values outside are drawn in the end colours
+  std::vector<double> marks;   // values marked on the colour bar (e.g. +-threshold) where in range
+  std::vector<std::string> notes;  // short lines under the colour bar's label (e.g. what the range is)
+  std::string x_label = "image x (px)", y_label = "image y (px)";
+  int max_width_px = 1100, max_height_px = 800;  // the image is drawn at most this large (block means)
 };
 void WriteDeviationMapPng(const std::filesystem::path& path, const ValueImage& image,
                           const MapChart& chart);

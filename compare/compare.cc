@@ -95,6 +95,8 @@ void CompareOptions::Check() const {
                     "threshold_mm: must be finite and > 0 (got ", threshold_mm, ")");
   SLSHADOW_THROW_IF(!(coverage_radius_mm >= 0) || !std::isfinite(coverage_radius_mm),
                     "coverage_radius_mm: must be finite and >= 0 (got ", coverage_radius_mm, ")");
+  SLSHADOW_THROW_IF(!(color_range_mm >= 0) || !std::isfinite(color_range_mm),
+                    "color_range_mm: must be finite and >= 0 (0: scaled to the data; got ", color_range_mm, ")");
   SLSHADOW_THROW_IF(histogram_bins < 2 || histogram_bins > 10000,
                     "histogram_bins: must be in [2, 10000] (got ", histogram_bins, ")");
   if (m3c2) m3c2_options.Check();
@@ -142,6 +144,7 @@ nlohmann::json CompareOptionsToJson(const CompareOptions& o) {
   j["threshold_mm"] = o.threshold_mm;
   j["coverage_radius_mm"] = o.coverage_radius_mm;
   j["histogram_bins"] = o.histogram_bins;
+  j["color_range_mm"] = o.color_range_mm;
   j["m3c2"] = o.m3c2;
   j["m3c2_options"] = {{"projection_radius_mm", o.m3c2_options.projection_radius_mm},
                        {"max_depth_mm", o.m3c2_options.max_depth_mm},
@@ -155,7 +158,7 @@ nlohmann::json CompareOptionsToJson(const CompareOptions& o) {
 CompareOptions CompareOptionsFromConfig(const ConfigNode& node) {
   if (!node.IsObject()) node.Fail("expected a mapping of compare options");
   node.RejectUnknownKeys({"registration", "c2c", "threshold_mm", "coverage_radius_mm", "histogram_bins", "m3c2",
-                          "m3c2_options", "artefacts", "vdi2634"});
+                          "m3c2_options", "artefacts", "vdi2634", "color_range_mm"});
   CompareOptions o;
   if (node.Has("registration")) {
     const ConfigNode n = node["registration"];
@@ -186,6 +189,7 @@ CompareOptions CompareOptionsFromConfig(const ConfigNode& node) {
   o.threshold_mm = node.GetDouble("threshold_mm", o.threshold_mm);
   o.coverage_radius_mm = node.GetDouble("coverage_radius_mm", o.coverage_radius_mm);
   o.histogram_bins = static_cast<int>(node.GetInt("histogram_bins", o.histogram_bins));
+  o.color_range_mm = node.GetDouble("color_range_mm", o.color_range_mm);
   o.m3c2 = node.GetBool("m3c2", o.m3c2);
   if (node.Has("m3c2_options")) {
     const ConfigNode n = node["m3c2_options"];
@@ -251,8 +255,8 @@ CompareResult Compare(PointCloud&& cloud, const Reference& reference, const Comp
     r.deviations_mm = std::move(c2c.distances_mm);
     r.num_not_found = c2c.num_not_found;
   }
-  r.c2c = ComputeStats(r.deviations_mm, false, options.threshold_mm, options.histogram_bins);
-  if (is_signed) r.c2m = ComputeStats(r.deviations_mm, true, options.threshold_mm, options.histogram_bins);
+  r.c2c = ComputeStats(r.deviations_mm, false, options.threshold_mm, options.histogram_bins, options.color_range_mm);
+  if (is_signed) r.c2m = ComputeStats(r.deviations_mm, true, options.threshold_mm, options.histogram_bins, options.color_range_mm);
 
   // Coverage (the reached points freed at once: a second copy of most of the cloud).
   r.coverage_radius_mm = options.coverage_radius_mm > 0
@@ -293,7 +297,7 @@ CompareResult Compare(PointCloud&& cloud, const Reference& reference, const Comp
     s.options = options.m3c2_options;
     s.num_valid = m.num_valid;
     s.num_significant = m.num_significant;
-    s.stats = ComputeStats(m.distance_mm, true, options.threshold_mm, options.histogram_bins);
+    s.stats = ComputeStats(m.distance_mm, true, options.threshold_mm, options.histogram_bins, options.color_range_mm);
     double lod = 0;
     std::vector<float> d(pts.size()), l(pts.size()), sig(pts.size());
     for (size_t i = 0; i < pts.size(); ++i) {

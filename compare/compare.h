@@ -67,6 +67,9 @@ struct CompareOptions {
   double threshold_mm = 0.25;        // inlier / outlier threshold
   double coverage_radius_mm = 0.0;   // 0: automatic (see above)
   int histogram_bins = 60;
+  // Colour (and histogram) range of the deviation map, histogram and PLY colours, mm: 0 scales
+  // to the data (symmetric at the 99th percentile of |deviation|), > 0 fixes it at +-range.
+  double color_range_mm = 0.0;
   bool m3c2 = false;                 // also compute M3C2 distances at every compared point
   M3C2Options m3c2_options;
   // VDI/VDE 2634-2 figures of the artefacts in the (registered) compared cloud, when given.

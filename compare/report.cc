@@ -223,6 +223,10 @@ void WriteReport(const fs::path& dir, const CompareResult& r, const ReportOption
                     ": exists and is not a folder");
   SLSHADOW_THROW_IF(fs::exists(dir, ec) && !options.overwrite, dir.string(),
                     ": already exists and is kept (overwriting was disabled)");
+  // Replacing is for an earlier report only: a folder of anything else (a typo'd --out naming a
+  // folder of the user's) is kept. An empty folder holds nothing to lose.
+  SLSHADOW_THROW_IF(fs::exists(dir, ec) && !fs::exists(dir / "report.json", ec) && !fs::is_empty(dir, ec), dir.string(),
+                    ": exists and is not a compare report (no report.json); it is kept, choose another --out");
   const fs::path target = fs::absolute(dir);
   if (target.has_parent_path()) fs::create_directories(target.parent_path(), ec);
   const fs::path staged = TemporarySibling(target);
@@ -247,6 +251,10 @@ void WriteReport(const fs::path& dir, const CompareResult& r, const ReportOption
                 "beyond " + Fmt("%.3f mm", s.threshold_mm) + ": " + Fmt("%.3f %%", out_pct),
                 "coverage " + Fmt("%.1f %%", 100.0 * r.coverage)};
     if (r.c2m) hc.notes.insert(hc.notes.begin() + 1, "signed mean " + Fmt("%+.4f mm", r.c2m->signed_mean_mm));
+    const size_t beyond = s.histogram.underflow + s.histogram.overflow;
+    if (beyond > 0 && s.count > 0) {
+      hc.notes.push_back(Fmt("%.2f %% beyond the axis", 100.0 * static_cast<double>(beyond) / static_cast<double>(s.count)));
+    }
     WriteHistogramPng(staged / "histogram.png", s.histogram, hc);
     const ViewCamera view = options.view ? *options.view : FitView(r.compared);
     const ValueImage img = RenderValues(r.compared.points, r.deviations_mm, view);
@@ -255,6 +263,12 @@ void WriteReport(const fs::path& dir, const CompareResult& r, const ReportOption
     mc.colorbar_label = r.c2m ? "signed deviation (mm)" : "distance (mm)";
     mc.lo = s.histogram.lo_mm;
     mc.hi = s.histogram.hi_mm;
+    mc.marks = {s.threshold_mm};
+    if (s.is_signed) mc.marks.push_back(-s.threshold_mm);
+    mc.notes = {Fmt(r.options.color_range_mm > 0 ? "colour range +-%.4g mm (fixed)" : "colour range +-%.4g mm (99 %% of points)",
+                    s.histogram.hi_mm)};
+    if (s.threshold_mm >= s.histogram.hi_mm) mc.notes.push_back(Fmt("threshold %.4g mm: beyond the range", s.threshold_mm));
+    else mc.notes.push_back(Fmt("threshold %.4g mm: black lines", s.threshold_mm));
     WriteDeviationMapPng(staged / "deviation_map.png", img, mc);
     WriteTextFileAtomically(staged / "summary.txt", r.Summary());
     CommitDirectory(staged, target, options.overwrite);

@@ -172,7 +172,8 @@ class PointGrid {
 }  // namespace
 
 DistanceStats ComputeStats(const std::vector<double>& distances_mm, bool is_signed,
-                           double threshold_mm, int bins) {
+                           double threshold_mm, int bins, double range_mm) {
+  SLSHADOW_THROW_IF(!(range_mm >= 0) || !std::isfinite(range_mm), "colour range: must be finite and >= 0 (got ", range_mm, ")");
   SLSHADOW_THROW_IF(!(threshold_mm >= 0) || !std::isfinite(threshold_mm),
                     "threshold_mm: must be finite and >= 0 (got ", threshold_mm, ")");
   SLSHADOW_THROW_IF(bins < 1, "histogram bins: must be >= 1 (got ", bins, ")");
@@ -200,7 +201,7 @@ DistanceStats ComputeStats(const std::vector<double>& distances_mm, bool is_sign
   s.outliers = s.count - s.inliers;
   if (s.count == 0) {
     s.histogram.counts.assign(static_cast<size_t>(bins), 0);
-    s.histogram.hi_mm = std::max(threshold_mm, 1e-3);
+    s.histogram.hi_mm = range_mm > 0 ? range_mm : std::max(threshold_mm, 1e-3);
     s.histogram.lo_mm = is_signed ? -s.histogram.hi_mm : 0.0;
     return s;
   }
@@ -223,16 +224,16 @@ DistanceStats ComputeStats(const std::vector<double>& distances_mm, bool is_sign
   // The nearest-rank percentiles by successive selections (each on the part above the previous
   // rank): the same values a full sort gives, in O(n).
   const size_t i50 = PercentileIndex(abs_d.size(), 50), i95 = PercentileIndex(abs_d.size(), 95),
-               i999 = PercentileIndex(abs_d.size(), 99.9);
+               i99 = PercentileIndex(abs_d.size(), 99);
   const auto at = [&](size_t i) { return abs_d.begin() + static_cast<std::ptrdiff_t>(i); };
   std::nth_element(abs_d.begin(), at(i50), abs_d.end());
   s.median_mm = abs_d[i50];
   std::nth_element(at(i50), at(i95), abs_d.end());
   s.p95_mm = abs_d[i95];
-  std::nth_element(at(i95), at(i999), abs_d.end());
+  std::nth_element(at(i95), at(i99), abs_d.end());
   Histogram& h = s.histogram;
-  h.hi_mm = std::max({abs_d[i999], threshold_mm, 1e-6});
-  s.max_mm = *std::max_element(at(i999), abs_d.end());
+  h.hi_mm = range_mm > 0 ? range_mm : std::max(abs_d[i99], 1e-6);
+  s.max_mm = *std::max_element(at(i99), abs_d.end());
   h.lo_mm = is_signed ? -h.hi_mm : 0.0;
   h.counts.assign(static_cast<size_t>(bins), 0);
   const double w = h.BinWidth();

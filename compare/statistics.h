@@ -38,8 +38,12 @@ struct DistanceStats {
   Histogram histogram;
 };
 
+// The histogram's range (also the colour range of the deviation map and of the PLY colours):
+// range_mm > 0: [-range, range] (signed) or [0, range]; 0: scaled to the data, at the 99th
+// percentile of |d| (1e-6 at least), so small deviations are not one flat colour; the values
+// beyond fall in underflow / overflow, the threshold is marked where it falls in range.
 DistanceStats ComputeStats(const std::vector<double>& distances_mm, bool is_signed,
-                           double threshold_mm, int bins = 60);
+                           double threshold_mm, int bins = 60, double range_mm = 0);
 
 // Coverage of the reference surface: the fraction of `reference_samples` (points that sample
 // the reference surface uniformly by area, or the reference cloud's own points) that have a

@@ -57,12 +57,45 @@ nlohmann::json YamlToJson(const YAML::Node& node) {
   return nullptr;
 }
 
+// Offset of the first byte that is not part of a well-formed UTF-8 sequence, or npos.
+size_t FirstInvalidUtf8(const std::string& text) {
+  const auto* p = reinterpret_cast<const unsigned char*>(text.data());
+  const size_t n = text.size();
+  for (size_t i = 0; i < n;) {
+    const unsigned char c = p[i];
+    size_t len = 0;
+    uint32_t cp = 0;
+    if (c < 0x80) {
+      ++i;
+      continue;
+    } else if ((c & 0xE0) == 0xC0) {
+      len = 2, cp = c & 0x1Fu;
+    } else if ((c & 0xF0) == 0xE0) {
+      len = 3, cp = c & 0x0Fu;
+    } else if ((c & 0xF8) == 0xF0) {
+      len = 4, cp = c & 0x07u;
+    } else {
+      return i;
+    }
+    if (i + len > n) return i;
+    for (size_t k = 1; k < len; ++k) {
+      if ((p[i + k] & 0xC0) != 0x80) return i;
+      cp = (cp << 6) | (p[i + k] & 0x3Fu);
+    }
+    const uint32_t min_cp = len == 2 ? 0x80 : len == 3 ? 0x800 : 0x10000;
+    if (cp < min_cp || cp > 0x10FFFF || (cp >= 0xD800 && cp <= 0xDFFF)) return i;
+    i += len;
+  }
+  return std::string::npos;
+}
+
 std::string Abbreviate(const nlohmann::json& json) {
   if (json.is_number_float() && !std::isfinite(json.get<double>())) {
     const double v = json.get<double>();
     return std::isnan(v) ? "NaN" : (v > 0 ? "inf" : "-inf");
   }
-  std::string s = json.is_string() ? "\"" + json.get<std::string>() + "\"" : json.dump();
+  // Invalid UTF-8 in a value is shown replaced (U+FFFD) rather than failing the message.
+  std::string s = json.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
   if (s.size() > 60) s = s.substr(0, 57) + "...";
   return s;
 }
@@ -114,14 +147,20 @@ ConfigNode ConfigNode::FromJson(nlohmann::json json, const std::string& file, co
 }
 
 ConfigNode ConfigNode::ParseYaml(const std::string& text, const std::string& file) {
-  YAML::Node node;
+  // Text must be UTF-8 (as JSON's is): every string read here may be written back into JSON.
+  if (const size_t bad = FirstInvalidUtf8(text); bad != std::string::npos) {
+    SLSHADOW_THROW(file, ": not valid UTF-8 text (byte ", bad, ")");
+  }
+  nlohmann::json json;
   try {
-    node = YAML::Load(text);
+    // A mapping key that is itself a list or mapping fails in YamlToJson's as<std::string>().
+    json = YamlToJson(YAML::Load(text));
   } catch (const YAML::Exception& e) {
+    if (e.mark.is_null()) SLSHADOW_THROW(file, ": not valid YAML: ", e.msg);
     SLSHADOW_THROW(file, ": not valid YAML at line ", e.mark.line + 1, ", column ", e.mark.column + 1,
                    ": ", e.msg);
   }
-  return FromJson(YamlToJson(node), file);
+  return FromJson(std::move(json), file);
 }
 
 ConfigNode ConfigNode::LoadFile(const std::filesystem::path& path) {
@@ -130,7 +169,7 @@ ConfigNode ConfigNode::LoadFile(const std::filesystem::path& path) {
   if (ext == ".json") {
     try {
       return FromJson(nlohmann::json::parse(text), path.string());
-    } catch (const nlohmann::json::parse_error& e) {
+    } catch (const nlohmann::json::exception& e) {  // parse_error, or out_of_range for 1e309
       SLSHADOW_THROW(path.string(), ": not valid JSON: ", e.what());
     }
   }

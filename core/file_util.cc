@@ -1,6 +1,13 @@
 #include "core/file_util.h"
 
+#include <fcntl.h>
+#include <sys/syscall.h>
 #include <unistd.h>
+
+#include <climits>
+#include <csignal>
+#include <cstddef>
+#include <cstdint>
 
 #include <atomic>
 #include <chrono>
@@ -27,10 +34,136 @@ std::string ReadTextFile(const fs::path& path) {
   return s.str();
 }
 
+// ---------------------------------------------------------------------------------------------
+// Unfinished outputs and interrupts. The registry is a fixed array of slots the signal handler can
+// read without locks or allocation: a slot is free (0), being filled (1) or holds a path (2).
+
+namespace {
+
+constexpr int kSlots = 512;
+struct UnfinishedSlot {
+  std::atomic<int> state{0};
+  char path[PATH_MAX];
+};
+UnfinishedSlot g_unfinished[kSlots];
+std::atomic<int> g_critical{0};        // CommitDirectory swaps in progress
+std::atomic<int> g_pending_signal{0};  // a signal held back by a swap
+
+void RememberUnfinished(const fs::path& path) {
+  std::error_code ec;
+  const std::string abs = fs::absolute(path, ec).string();
+  if (ec || abs.size() >= PATH_MAX) return;
+  for (auto& slot : g_unfinished) {
+    int expected = 0;
+    if (slot.state.compare_exchange_strong(expected, 1)) {
+      std::memcpy(slot.path, abs.c_str(), abs.size() + 1);
+      slot.state.store(2);
+      return;
+    }
+  }
+  // All slots taken: this output is then not removed on an interrupt (still never moved into place).
+}
+
+void ForgetUnfinished(const fs::path& path) {
+  std::error_code ec;
+  const std::string abs = fs::absolute(path, ec).string();
+  for (auto& slot : g_unfinished) {
+    if (slot.state.load() == 2 && abs == slot.path) slot.state.store(0);
+  }
+}
+
+// Removes a file or a folder tree with async-signal-safe calls only (openat, getdents64, unlinkat).
+void RemoveTreeSignalSafe(int dir_fd, const char* name, int depth) {
+  if (::unlinkat(dir_fd, name, 0) == 0 || errno == ENOENT) return;
+  if (depth > 32) return;
+  const int fd = ::openat(dir_fd, name, O_RDONLY | O_DIRECTORY | O_NOFOLLOW | O_CLOEXEC);
+  if (fd < 0) return;
+  for (int pass = 0; pass < 3; ++pass) {  // other threads may still be adding files
+    alignas(8) char buf[2048];
+    for (;;) {
+      const long n = ::syscall(SYS_getdents64, fd, buf, sizeof(buf));
+      if (n <= 0) break;
+      for (long off = 0; off < n;) {
+        struct Dirent64 {
+          uint64_t ino;
+          int64_t off;
+          unsigned short reclen;
+          unsigned char type;
+          char name[1];
+        };
+        const auto* d = reinterpret_cast<const Dirent64*>(buf + off);
+        const char* child = buf + off + offsetof(Dirent64, name);
+        if (!(child[0] == '.' && (child[1] == '\0' || (child[1] == '.' && child[2] == '\0')))) {
+          RemoveTreeSignalSafe(fd, child, depth + 1);
+        }
+        off += d->reclen;
+      }
+    }
+    if (::unlinkat(dir_fd, name, AT_REMOVEDIR) == 0 || errno == ENOENT) break;
+    ::lseek(fd, 0, SEEK_SET);
+  }
+  ::close(fd);
+}
+
+void WriteSignalSafe(const char* text) {
+  size_t n = 0;
+  while (text[n] != '\0') ++n;
+  while (n > 0) {
+    const ssize_t w = ::write(STDERR_FILENO, text, n);
+    if (w <= 0) return;
+    text += w;
+    n -= static_cast<size_t>(w);
+  }
+}
+
+void CleanUpAndReraise(int sig) {
+  for (auto& slot : g_unfinished) {
+    if (slot.state.load() == 2) RemoveTreeSignalSafe(AT_FDCWD, slot.path, 0);
+  }
+  WriteSignalSafe(sig == SIGINT ? "slshadow: interrupted (SIGINT): unfinished outputs removed, existing files untouched\n"
+                                : "slshadow: terminated (SIGTERM): unfinished outputs removed, existing files untouched\n");
+  ::signal(sig, SIG_DFL);
+  ::raise(sig);
+}
+
+void OnInterrupt(int sig) {
+  if (g_critical.load() > 0) {
+    g_pending_signal.store(sig);
+    return;
+  }
+  CleanUpAndReraise(sig);
+}
+
+// Holds SIGINT / SIGTERM (when InstallInterruptCleanup's handler is in place) until the scope ends.
+class HoldInterrupts {
+ public:
+  HoldInterrupts() { ++g_critical; }
+  ~HoldInterrupts() {
+    if (--g_critical == 0) {
+      const int sig = g_pending_signal.exchange(0);
+      if (sig != 0) CleanUpAndReraise(sig);
+    }
+  }
+  HoldInterrupts(const HoldInterrupts&) = delete;
+  HoldInterrupts& operator=(const HoldInterrupts&) = delete;
+};
+
+}  // namespace
+
+void InstallInterruptCleanup() {
+  struct sigaction action {};
+  action.sa_handler = OnInterrupt;
+  sigemptyset(&action.sa_mask);
+  action.sa_flags = SA_RESTART;
+  ::sigaction(SIGINT, &action, nullptr);
+  ::sigaction(SIGTERM, &action, nullptr);
+}
+
 fs::path TemporarySibling(const fs::path& path) {
   static std::atomic<int> counter{0};
   fs::path tmp = path;
   tmp += ".partial-" + std::to_string(::getpid()) + "-" + std::to_string(counter++);
+  RememberUnfinished(tmp);
   return tmp;
 }
 
@@ -43,6 +176,7 @@ void WriteFileAtomically(const fs::path& path, const std::function<void(const fs
     write(tmp);
   } catch (...) {
     fs::remove(tmp, ec);
+    ForgetUnfinished(tmp);
     throw;
   }
   fs::rename(tmp, path, ec);
@@ -50,6 +184,7 @@ void WriteFileAtomically(const fs::path& path, const std::function<void(const fs
     fs::remove(tmp, ec);
     SLSHADOW_THROW(path.string(), ": cannot move finished file into place: ", ec.message());
   }
+  ForgetUnfinished(tmp);
 }
 
 void WriteTextFileAtomically(const fs::path& path, const std::string& text) {
@@ -63,6 +198,7 @@ void WriteTextFileAtomically(const fs::path& path, const std::string& text) {
 }
 
 void CommitDirectory(const fs::path& staged, const fs::path& target, bool overwrite) {
+  const HoldInterrupts hold;  // the existing target is never left moved aside
   std::error_code ec;
   fs::path old;
   if (fs::exists(target, ec)) {
@@ -76,7 +212,11 @@ void CommitDirectory(const fs::path& staged, const fs::path& target, bool overwr
     if (!old.empty()) fs::rename(old, target);
     SLSHADOW_THROW(target.string(), ": cannot move finished folder into place: ", ec.message());
   }
-  if (!old.empty()) fs::remove_all(old, ec);
+  ForgetUnfinished(staged);
+  if (!old.empty()) {
+    fs::remove_all(old, ec);
+    ForgetUnfinished(old);
+  }
 }
 
 StagingDirectory::StagingDirectory(std::filesystem::path target)
@@ -88,7 +228,10 @@ StagingDirectory::StagingDirectory(std::filesystem::path target)
 
 StagingDirectory::~StagingDirectory() {
   std::error_code ec;
-  if (!committed_) std::filesystem::remove_all(staging_, ec);
+  if (!committed_) {
+    std::filesystem::remove_all(staging_, ec);
+    ForgetUnfinished(staging_);
+  }
 }
 
 void StagingDirectory::Commit(bool overwrite) {

@@ -19,8 +19,17 @@ void WriteFileAtomically(const std::filesystem::path& path,
 // Writes `text` to `path` atomically.
 void WriteTextFileAtomically(const std::filesystem::path& path, const std::string& text);
 
-// A unique temporary sibling name of `path` ("<name>.partial-<pid>-<n>").
+// A unique temporary sibling name of `path` ("<name>.partial-<pid>-<n>"). The name is
+// remembered as unfinished output until CommitDirectory or WriteFileAtomically moves it into place:
+// an interrupt (InstallInterruptCleanup) removes whatever exists under an unfinished name.
 std::filesystem::path TemporarySibling(const std::filesystem::path& path);
+
+// Installs handlers for SIGINT and SIGTERM that remove every unfinished output (files and folders
+// under TemporarySibling names not yet moved into place), print one line to stderr and end the
+// process by the same signal (exit status 128 + signal in a shell). A signal arriving while a
+// finished folder replaces an existing one (CommitDirectory) is held until the swap is done, so
+// the existing folder is never lost. Called once by the command line's Main.
+void InstallInterruptCleanup();
 
 // Replaces directory `target` by the complete directory `staged` (a sibling): an existing target
 // is moved aside, the staged one renamed in, and the old one removed. Throws when target exists

@@ -6,8 +6,11 @@
 
 #include <algorithm>
 #include <cerrno>
+#include <cctype>
 #include <cstring>
+#include <fstream>
 #include <map>
+#include <optional>
 
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -71,6 +74,48 @@ nlohmann::json RecordToJson(const ImageRecord& r) {
   return j;
 }
 
+// Pattern indices beyond this are bad input (a sequence of a million images is not a capture);
+// the bound keeps PatternCount() and per-pattern allocations sane.
+constexpr int64_t kMaxPatternIndex = 999999;
+
+// The pixel size a PNG (IHDR) or binary PGM (P5) header declares, read without decoding, so an
+// image whose header claims a size other than the camera's is refused before the decoder
+// allocates for it. Empty for other formats (OpenCV's decoder then applies its own size limit).
+std::optional<cv::Size> PeekImageSize(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  char head[64] = {};
+  in.read(head, sizeof(head));
+  const size_t n = static_cast<size_t>(in.gcount());
+  const auto* u = reinterpret_cast<const unsigned char*>(head);
+  if (n >= 24 && std::memcmp(head, "\x89PNG\r\n\x1a\n", 8) == 0 && std::memcmp(head + 12, "IHDR", 4) == 0) {
+    const auto be32 = [&](size_t at) {
+      return (uint64_t{u[at]} << 24) | (uint64_t{u[at + 1]} << 16) | (uint64_t{u[at + 2]} << 8) | u[at + 3];
+    };
+    const uint64_t w = be32(16), h = be32(20);
+    if (w > INT32_MAX || h > INT32_MAX) return cv::Size(-1, -1);
+    return cv::Size(static_cast<int>(w), static_cast<int>(h));
+  }
+  if (n >= 2 && head[0] == 'P' && head[1] == '5') {
+    // "P5" whitespace width whitespace height, with '#' comments to the end of a line.
+    std::vector<uint64_t> values;
+    for (size_t i = 2; i < n && values.size() < 2;) {
+      if (head[i] == '#') {
+        while (i < n && head[i] != '\n') ++i;
+      } else if (std::isdigit(u[i])) {
+        uint64_t v = 0;
+        for (; i < n && std::isdigit(u[i]) && v < (1ull << 40); ++i) v = v * 10 + static_cast<uint64_t>(head[i] - '0');
+        values.push_back(v);
+      } else {
+        ++i;
+      }
+    }
+    if (values.size() < 2) return std::nullopt;
+    if (values[0] > INT32_MAX || values[1] > INT32_MAX) return cv::Size(-1, -1);
+    return cv::Size(static_cast<int>(values[0]), static_cast<int>(values[1]));
+  }
+  return std::nullopt;
+}
+
 // One image record of a manifest (or a capture journal line, which may carry "type"); the file
 // must exist under `dir`.
 ImageRecord RecordFromConfig(const ConfigNode& n, const Rig& rig, const fs::path& dir, bool allow_type = false) {
@@ -82,8 +127,11 @@ ImageRecord RecordFromConfig(const ConfigNode& n, const Rig& rig, const fs::path
   ImageRecord r;
   r.camera = n["camera"].AsString();
   if (rig.CameraIndex(r.camera) < 0) n["camera"].Fail("no camera of this name in the manifest's rig");
-  r.pattern_index = static_cast<int>(n["pattern"].AsInt());
-  if (r.pattern_index < 0) n["pattern"].Fail("pattern index must be >= 0");
+  const int64_t pattern = n["pattern"].AsInt();
+  if (pattern < 0 || pattern > kMaxPatternIndex) {
+    n["pattern"].Fail("pattern index must be 0.." + std::to_string(kMaxPatternIndex));
+  }
+  r.pattern_index = static_cast<int>(pattern);
   r.file = n["file"].AsString();
   const fs::path file(r.file);
   if (file.is_absolute() || r.file.find("..") != std::string::npos) {
@@ -106,7 +154,10 @@ ImageRecord RecordFromConfig(const ConfigNode& n, const Rig& rig, const fs::path
   };
   r.frame_id = non_negative("frame_id");
   r.device_timestamp_ns = non_negative("device_timestamp_ns");
-  if (const auto retries = non_negative("retries")) r.retries = static_cast<int>(*retries);
+  if (const auto retries = non_negative("retries")) {
+    if (*retries > 1000000) n["retries"].Fail("must be 0..1000000");
+    r.retries = static_cast<int>(*retries);
+  }
   return r;
 }
 
@@ -128,9 +179,38 @@ std::string ToString(ImageEncoding encoding) {
   return "png";
 }
 
+namespace {
+
+// A PNG's chunk structure (lengths and types, not CRCs) up to IEND, so a truncated file is named
+// as such instead of reaching libpng, which prints its own error on stderr before failing.
+void CheckPngStructure(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  unsigned char head[8] = {};
+  in.read(reinterpret_cast<char*>(head), 8);
+  if (in.gcount() < 8 || std::memcmp(head, "\x89PNG\r\n\x1a\n", 8) != 0) return;
+  std::error_code ec;
+  const uint64_t size = fs::file_size(path, ec);
+  if (ec) return;
+  for (uint64_t pos = 8;;) {
+    unsigned char chunk[8];
+    in.seekg(static_cast<std::streamoff>(pos));
+    in.read(reinterpret_cast<char*>(chunk), 8);
+    SLSHADOW_THROW_IF(in.gcount() < 8, path.string(), ": truncated PNG: no IEND chunk (the file ends at byte ", size, ")");
+    const uint64_t length = (uint64_t{chunk[0]} << 24) | (uint64_t{chunk[1]} << 16) | (uint64_t{chunk[2]} << 8) | chunk[3];
+    const std::string type(reinterpret_cast<const char*>(chunk + 4), 4);
+    SLSHADOW_THROW_IF(pos + 12 + length > size, path.string(), ": truncated PNG: chunk '", type, "' at byte ", pos,
+                      " needs ", 12 + length, " bytes, the file ends at byte ", size);
+    if (type == "IEND") return;
+    pos += 12 + length;
+  }
+}
+
+}  // namespace
+
 cv::Mat ReadGrayImage(const fs::path& path) {
   std::error_code ec;
   SLSHADOW_THROW_IF(!fs::is_regular_file(path, ec), path.string(), ": image file not found");
+  CheckPngStructure(path);
   cv::Mat image = cv::imread(path.string(), cv::IMREAD_UNCHANGED);
   SLSHADOW_THROW_IF(image.empty(), path.string(), ": cannot decode image (corrupt or unsupported format)");
   return image;
@@ -260,13 +340,27 @@ cv::Mat ImageSet::Load(const std::string& camera, int pattern_index) const {
   SLSHADOW_THROW_IF(r == nullptr, (dir_ / "manifest.json").string(), ": no image for camera '", camera,
                     "', pattern ", pattern_index);
   const fs::path path = dir_ / r->file;
+  const RigDevice& device = rig_.Camera(camera);
+  if (const auto size = PeekImageSize(path); size && (size->width != device.model.width || size->height != device.model.height)) {
+    SLSHADOW_THROW(path.string(), ": wrong image size ", size->width, "x", size->height, " in its header, camera '",
+                   camera, "' is ", device.model.width, "x", device.model.height);
+  }
   cv::Mat image = ReadGrayImage(path);
-  CheckImage(image, rig_.Camera(camera), path.string(), r->bit_depth);
+  CheckImage(image, device, path.string(), r->bit_depth);
   return image;
 }
 
 std::vector<cv::Mat> ImageSet::LoadCamera(const std::string& camera) const {
   const int n = PatternCount();
+  // Every pattern must be there before anything is allocated for n of them.
+  std::vector<bool> present(static_cast<size_t>(n), false);
+  for (const auto& r : records_) {
+    if (r.camera == camera) present[static_cast<size_t>(r.pattern_index)] = true;
+  }
+  for (int i = 0; i < n; ++i) {
+    SLSHADOW_THROW_IF(!present[static_cast<size_t>(i)], (dir_ / "manifest.json").string(), ": no image for camera '",
+                      camera, "', pattern ", i, " (the manifest has patterns up to ", n - 1, ")");
+  }
   std::vector<cv::Mat> images(n);
   std::vector<std::string> errors(n);
   cv::parallel_for_(cv::Range(0, n), [&](const cv::Range& range) {

@@ -226,6 +226,8 @@ TriangleMesh ReadPlyMesh(const fs::path& path) {
   SLSHADOW_THROW_IF(f == nullptr, path.string(), ": PLY has no 'face' element (a point cloud, not a mesh)");
   const int ix = v->PropertyIndex("x"), iy = v->PropertyIndex("y"), iz = v->PropertyIndex("z");
   SLSHADOW_THROW_IF(ix < 0 || iy < 0 || iz < 0, path.string(), ": PLY vertex element lacks x, y or z");
+  SLSHADOW_THROW_IF(v->properties[ix].is_list || v->properties[iy].is_list || v->properties[iz].is_list, path.string(),
+                    ": PLY vertex x, y and z must be numbers, not lists");
   int ilist = f->PropertyIndex("vertex_indices");
   if (ilist < 0) ilist = f->PropertyIndex("vertex_index");
   SLSHADOW_THROW_IF(ilist < 0 || !f->properties[ilist].is_list, path.string(),

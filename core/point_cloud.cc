@@ -236,6 +236,19 @@ class BinaryCursor {
   const std::string& file_;
 };
 
+// A list entry (e.g. a vertex index) as an integer; a non-integral, non-finite or huge value
+// (a float list type allows them) is bad input, not a conversion with undefined behaviour.
+int64_t ListValue(double v, const std::string& file, const std::string& element, size_t row, const std::string& name) {
+  SLSHADOW_THROW_IF(!(std::abs(v) <= 9.0e15) || v != std::floor(v), file, ": element '", element, "' row ", row,
+                    " property '", name, "': list value ", v, " is not an integer");
+  return static_cast<int64_t>(v);
+}
+
+void PushListOffset(std::vector<uint32_t>& offsets, size_t end, const std::string& file, const std::string& element) {
+  SLSHADOW_THROW_IF(end > UINT32_MAX, file, ": element '", element, "': more than 2^32 list values");
+  offsets.push_back(static_cast<uint32_t>(end));
+}
+
 }  // namespace
 
 int PlyElement::PropertyIndex(const std::string& n) const {
@@ -283,8 +296,7 @@ PlyData ReadPlyData(const fs::path& path) {
     } else if (key == "element") {
       PlyElement e;
       long long count = -1;
-      words >> e.name >> count;
-      SLSHADOW_THROW_IF(e.name.empty() || count < 0, file, ": PLY header line ", line_no,
+      SLSHADOW_THROW_IF(!(words >> e.name >> count) || count < 0, file, ": PLY header line ", line_no,
                         ": bad element line '", line, "'");
       e.count = static_cast<size_t>(count);
       ply.elements.push_back(std::move(e));
@@ -313,6 +325,24 @@ PlyData ReadPlyData(const fs::path& path) {
     }
   }
   SLSHADOW_THROW_IF(ply.format.empty(), file, ": PLY header has no format line");
+  // Element counts come from the header: bound them by the data actually present before
+  // anything is allocated. A binary row takes at least the sizes of its scalar properties and
+  // list counts; an ASCII value at least two characters (a digit and a separator).
+  {
+    const bool ascii = ply.format == "ascii";
+    uint64_t left = data.size() - body;
+    for (const auto& e : ply.elements) {
+      uint64_t row = 0;
+      for (const auto& p : e.properties) row += ascii ? 2 : TypeSize(p.is_list ? p.count_type : p.type);
+      row = std::max<uint64_t>(row, 1);
+      // The last ASCII value may end the file without a separator.
+      const uint64_t room = left + (ascii ? 1 : 0);
+      SLSHADOW_THROW_IF(e.count > room / row, file, ": PLY header: element '", e.name, "' claims ", e.count,
+                        " rows, but the file has only ", data.size() - body, " bytes of data (at least ", row,
+                        " bytes per row)");
+      left -= std::min<uint64_t>(left, e.count * row);
+    }
+  }
   for (auto& e : ply.elements) {
     e.columns.assign(e.properties.size(), {});
     e.list_offsets.assign(e.properties.size(), {});
@@ -344,10 +374,13 @@ PlyData ReadPlyData(const fs::path& path) {
           };
           if (p.is_list) {
             const double n = read_value();
-            SLSHADOW_THROW_IF(n < 0 || n != std::floor(n), file, ": element '", e.name, "' row ", row,
-                              ": bad list length ", n);
-            for (int i = 0; i < static_cast<int>(n); ++i) e.list_values[k].push_back(static_cast<int64_t>(read_value()));
-            e.list_offsets[k].push_back(static_cast<uint32_t>(e.list_values[k].size()));
+            // Each value takes at least one byte, which bounds a sane length.
+            SLSHADOW_THROW_IF(!(n >= 0 && n <= static_cast<double>(data.size())) || n != std::floor(n), file,
+                              ": element '", e.name, "' row ", row, " property '", p.name, "': bad list length ", n);
+            for (size_t i = 0; i < static_cast<size_t>(n); ++i) {
+              e.list_values[k].push_back(ListValue(read_value(), file, e.name, row, p.name));
+            }
+            PushListOffset(e.list_offsets[k], e.list_values[k].size(), file, e.name);
           } else {
             e.columns[k].push_back(read_value());
           }
@@ -362,11 +395,13 @@ PlyData ReadPlyData(const fs::path& path) {
           const auto& p = e.properties[k];
           if (p.is_list) {
             const double n = cursor.Read(p.count_type, e.name, row);
-            SLSHADOW_THROW_IF(n < 0, file, ": element '", e.name, "' row ", row, ": bad list length ", n);
-            for (int i = 0; i < static_cast<int>(n); ++i) {
-              e.list_values[k].push_back(static_cast<int64_t>(cursor.Read(p.type, e.name, row)));
+            SLSHADOW_THROW_IF(n < 0, file, ": element '", e.name, "' row ", row, " property '", p.name,
+                              "': bad list length ", n);
+            // n <= 2^32 - 1 (an integer count type); a value beyond the data throws 'truncated'.
+            for (size_t i = 0; i < static_cast<size_t>(n); ++i) {
+              e.list_values[k].push_back(ListValue(cursor.Read(p.type, e.name, row), file, e.name, row, p.name));
             }
-            e.list_offsets[k].push_back(static_cast<uint32_t>(e.list_values[k].size()));
+            PushListOffset(e.list_offsets[k], e.list_values[k].size(), file, e.name);
           } else {
             e.columns[k].push_back(cursor.Read(p.type, e.name, row));
           }
@@ -381,7 +416,14 @@ PointCloud ReadPly(const fs::path& path) {
   const PlyData ply = ReadPlyData(path);
   const PlyElement* v = ply.Find("vertex");
   SLSHADOW_THROW_IF(v == nullptr, path.string(), ": PLY has no 'vertex' element");
-  const int ix = v->PropertyIndex("x"), iy = v->PropertyIndex("y"), iz = v->PropertyIndex("z");
+  // Index of a scalar vertex property, -1 when absent; a list of that name is bad input.
+  const auto scalar = [&](const char* name) {
+    const int i = v->PropertyIndex(name);
+    SLSHADOW_THROW_IF(i >= 0 && v->properties[i].is_list, path.string(), ": PLY vertex property '", name,
+                      "' is a list, expected a number");
+    return i;
+  };
+  const int ix = scalar("x"), iy = scalar("y"), iz = scalar("z");
   SLSHADOW_THROW_IF(ix < 0 || iy < 0 || iz < 0, path.string(), ": PLY vertex element lacks x, y or z");
   PointCloud cloud;
   cloud.points.resize(v->count);
@@ -391,7 +433,7 @@ PointCloud ReadPly(const fs::path& path) {
   }
   std::vector<bool> used(v->properties.size(), false);
   used[ix] = used[iy] = used[iz] = true;
-  const int inx = v->PropertyIndex("nx"), iny = v->PropertyIndex("ny"), inz = v->PropertyIndex("nz");
+  const int inx = scalar("nx"), iny = scalar("ny"), inz = scalar("nz");
   if (inx >= 0 && iny >= 0 && inz >= 0) {
     cloud.normals.resize(v->count);
     for (size_t i = 0; i < v->count; ++i) {
@@ -399,7 +441,7 @@ PointCloud ReadPly(const fs::path& path) {
     }
     used[inx] = used[iny] = used[inz] = true;
   }
-  const int ir = v->PropertyIndex("red"), ig = v->PropertyIndex("green"), ib = v->PropertyIndex("blue");
+  const int ir = scalar("red"), ig = scalar("green"), ib = scalar("blue");
   if (ir >= 0 && ig >= 0 && ib >= 0) {
     cloud.colors.resize(v->count);
     const bool is_float = v->properties[ir].type == "float" || v->properties[ir].type == "double";
@@ -407,7 +449,7 @@ PointCloud ReadPly(const fs::path& path) {
       for (int k = 0; k < 3; ++k) {
         double c = v->columns[k == 0 ? ir : k == 1 ? ig : ib][i];
         if (is_float) c *= 255.0;
-        cloud.colors[i][k] = static_cast<uint8_t>(std::clamp(std::lround(c), 0L, 255L));
+        cloud.colors[i][k] = std::isnan(c) ? 0 : static_cast<uint8_t>(std::lround(std::clamp(c, 0.0, 255.0)));
       }
     }
     used[ir] = used[ig] = used[ib] = true;

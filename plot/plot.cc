@@ -38,20 +38,49 @@ void SetHeatColorMap(plstream& pls) {
   pls.scmap1l(true, 5, pos, r, g, b);
 }
 
-void HeatColorBar(plstream& pls, double lo, double hi, const std::string& label, double offset, double width) {
-  constexpr int kValues = 64;
-  std::vector<PLFLT> values(kValues);
-  for (int i = 0; i < kValues; ++i) values[static_cast<size_t>(i)] = lo + (hi - lo) * i / (kValues - 1);
-  const PLFLT* value_ptrs[1] = {values.data()};
-  PLINT n_vals[1] = {kValues};
-  const char* axis_opts[1] = {"bcvtm"};
-  PLFLT ticks[1] = {0.0};
-  PLINT sub_ticks[1] = {0};
-  PLINT label_opts[1] = {PL_COLORBAR_LABEL_RIGHT};
-  const char* labels[1] = {label.c_str()};
-  PLFLT bar_w = 0, bar_h = 0;
-  pls.colorbar(&bar_w, &bar_h, PL_COLORBAR_GRADIENT, PL_POSITION_RIGHT | PL_POSITION_OUTSIDE, offset, 0.0, width, 0.9, 0, 1, 1,
-               0.0, 0.0, 0, 0.0, 1, label_opts, labels, 1, axis_opts, ticks, sub_ticks, n_vals, value_ptrs);
+void HeatColorBar(plstream& pls, double lo, double hi, const std::string& label, double offset, double width,
+                  const std::vector<double>& marks) {
+  if (marks.empty()) {  // PLplot's own colour bar (its label placed to fit)
+    constexpr int kValues = 64;
+    std::vector<PLFLT> values(kValues);
+    for (int i = 0; i < kValues; ++i) values[static_cast<size_t>(i)] = lo + (hi - lo) * i / (kValues - 1);
+    const PLFLT* value_ptrs[1] = {values.data()};
+    PLINT n_vals[1] = {kValues};
+    const char* axis_opts[1] = {"bcvtm"};
+    PLFLT ticks[1] = {0.0};
+    PLINT sub_ticks[1] = {0};
+    PLINT label_opts[1] = {PL_COLORBAR_LABEL_RIGHT};
+    const char* labels[1] = {label.c_str()};
+    PLFLT bar_w = 0, bar_h = 0;
+    pls.colorbar(&bar_w, &bar_h, PL_COLORBAR_GRADIENT, PL_POSITION_RIGHT | PL_POSITION_OUTSIDE, offset, 0.0, width, 0.9, 0, 1,
+                 1, 0.0, 0.0, 0, 0.0, 1, label_opts, labels, 1, axis_opts, ticks, sub_ticks, n_vals, value_ptrs);
+    return;
+  }
+  // With marks, drawn by hand (an image column, a box with the values on its right): plcolorbar's
+  // placement moves with its labels, and the marks must land on their values.
+  PLFLT x0 = 0, x1 = 0, y0 = 0, y1 = 0, wx0 = 0, wx1 = 0, wy0 = 0, wy1 = 0;
+  pls.gvpd(x0, x1, y0, y1);
+  pls.gvpw(wx0, wx1, wy0, wy1);
+  const double vh = y1 - y0;
+  pls.vpor(x1 + offset, x1 + offset + width, y0 + 0.05 * vh, y1 - 0.05 * vh);
+  pls.wind(0, 1, lo, hi);
+  constexpr int kSteps = 256;
+  std::vector<PLFLT> column(kSteps);
+  for (int i = 0; i < kSteps; ++i) column[static_cast<size_t>(i)] = lo + (hi - lo) * (i + 0.5) / kSteps;
+  const PLFLT* columns[2] = {column.data(), column.data()};  // two columns: PLplot needs a cell edge
+  pls.imagefr(columns, 2, kSteps, 0, 1, lo, hi, lo, hi, lo, hi, nullptr, nullptr);
+  pls.col0(1);
+  pls.box("bc", 0, 0, "bcmstv", 0, 0);
+  pls.mtex("r", 5.2, 0.5, 0.5, label.c_str());
+  pls.width(3);
+  for (double m : marks) {
+    if (!(m > lo && m < hi)) continue;
+    const PLFLT xs[2] = {0, 1}, ys[2] = {m, m};
+    pls.line(2, xs, ys);
+  }
+  pls.width(1);
+  pls.vpor(x0, x1, y0, y1);
+  pls.wind(wx0, wx1, wy0, wy1);
 }
 
 std::unique_lock<std::mutex> LockPlplot() {
@@ -59,10 +88,12 @@ std::unique_lock<std::mutex> LockPlplot() {
   return std::unique_lock<std::mutex>(m);
 }
 
-std::unique_ptr<plstream> OpenPng(const std::filesystem::path& file, int width, int height,
-                                  std::initializer_list<std::array<int, 3>> palette) {
+namespace {
+
+std::unique_ptr<plstream> Open(const char* device, const std::filesystem::path& file, int width,
+                               int height, std::initializer_list<std::array<int, 3>> palette) {
   auto pls = std::make_unique<plstream>();
-  pls->sdev("pngcairo");
+  pls->sdev(device);
   pls->sfnam(file.c_str());
   pls->spage(0, 0, width, height, 0, 0);
   pls->scol0(0, 255, 255, 255);
@@ -72,6 +103,18 @@ std::unique_ptr<plstream> OpenPng(const std::filesystem::path& file, int width, 
   pls->init();
   pls->col0(1);
   return pls;
+}
+
+}  // namespace
+
+std::unique_ptr<plstream> OpenPng(const std::filesystem::path& file, int width, int height,
+                                  std::initializer_list<std::array<int, 3>> palette) {
+  return Open("pngcairo", file, width, height, palette);
+}
+
+std::unique_ptr<plstream> OpenSvg(const std::filesystem::path& file, int width, int height,
+                                  std::initializer_list<std::array<int, 3>> palette) {
+  return Open("svgcairo", file, width, height, palette);
 }
 
 }  // namespace slshadow::plot

@@ -1,5 +1,5 @@
 #pragma once
-// PNG charts through PLplot, shared by the report writers of calib/ and compare/.
+// PNG (and SVG) charts through PLplot, shared by the report writers of calib/ and compare/.
 //
 // PLplot keeps process-wide state (stream table, current stream), so a chart must hold
 // LockPlplot() for as long as its stream lives; reports may then be written from several threads.
@@ -11,6 +11,7 @@
 #include <memory>
 #include <mutex>
 #include <string>
+#include <vector>
 
 #include <plstream.h>
 
@@ -26,7 +27,10 @@ void SetHeatColorMap(plstream& pls);
 
 // A vertical colour bar of the heat map right of the current viewport: values lo..hi, `label`
 // on its right; `offset` from the viewport and `width` in normalised page units.
-void HeatColorBar(plstream& pls, double lo, double hi, const std::string& label, double offset, double width);
+// `marks` (e.g. a threshold) are drawn as black lines across the bar where they fall in range
+// (then the bar is drawn by hand, its label 5 characters right of it: leave room).
+void HeatColorBar(plstream& pls, double lo, double hi, const std::string& label, double offset, double width,
+                  const std::vector<double>& marks = {});
 
 // Serialises PLplot use across threads.
 [[nodiscard]] std::unique_lock<std::mutex> LockPlplot();
@@ -35,6 +39,10 @@ void HeatColorBar(plstream& pls, double lo, double hi, const std::string& label,
 // background, colour 1 black (axes, text), and `palette` becomes colours 2, 3, ... in order.
 // The stream is initialised and drawing in colour 1.
 std::unique_ptr<plstream> OpenPng(const std::filesystem::path& file, int width, int height,
+                                  std::initializer_list<std::array<int, 3>> palette);
+
+// The same as an SVG (svgcairo) of width x height points: vector output of the same drawing.
+std::unique_ptr<plstream> OpenSvg(const std::filesystem::path& file, int width, int height,
                                   std::initializer_list<std::array<int, 3>> palette);
 
 }  // namespace slshadow::plot

@@ -18,6 +18,8 @@ PACKAGES=(
   libcli11-dev
   # tests and benchmarks
   libgtest-dev libgmock-dev libbenchmark-dev
+  # libFuzzer harnesses (fuzz/, docs/fuzzing.md): clang with its libFuzzer and sanitizer runtimes
+  clang
   # benchmark peer: the digital-model paper's Python/Open3D approach (bench/paper_peer)
   python3-open3d
   # devices and their mocks
@@ -31,6 +33,8 @@ PACKAGES=(
   xserver-xorg-core xserver-xorg-video-dummy x11-xserver-utils
   # sweeps: shards run through GNU parallel (tests/shadow/sweep_test.cc, docs/sweeps.md)
   parallel
+  # sweeps: a single-node Slurm started by tests/shadow/slurm_sweep.sh (array shards, dependent merge)
+  slurm-wlm munge
 )
 
 missing=()

@@ -60,17 +60,28 @@ double PatternIntensity(const cv::Mat& pattern, const std::vector<float>& respon
   return v;
 }
 
-double Correlation(const std::vector<float>& a, const std::vector<float>& b) {
-  const size_t n = a.size();
-  double ma = 0, mb = 0;
-  for (size_t i = 0; i < n; ++i) ma += a[i], mb += b[i];
-  ma /= static_cast<double>(n), mb /= static_cast<double>(n);
-  double sab = 0, saa = 0, sbb = 0;
-  for (size_t i = 0; i < n; ++i) {
-    const double da = a[i] - ma, db = b[i] - mb;
-    sab += da * db, saa += da * da, sbb += db * db;
+// a - mean(a), scaled to unit norm (left zero when constant).
+void Standardise(std::vector<float>* a) {
+  double m = 0, ss = 0;
+  for (float x : *a) m += x;
+  m /= static_cast<double>(a->size());
+  for (float x : *a) ss += (x - m) * (x - m);
+  const double scale = ss > 0 ? 1 / std::sqrt(ss) : 0.0;
+  for (float& x : *a) x = static_cast<float>((x - m) * scale);
+}
+
+// Correlation of two standardised vectors.
+double Dot(const std::vector<float>& a, const std::vector<float>& b) {
+  // Eight partial sums: vectorised, and float error stays far below the thresholds (~0.05).
+  float s[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+  const size_t n = a.size(), m = n - n % 8;
+  for (size_t i = 0; i < m; i += 8) {
+    for (size_t j = 0; j < 8; ++j) s[j] += a[i + j] * b[i + j];
   }
-  return saa > 0 && sbb > 0 ? sab / std::sqrt(saa * sbb) : 0.0;
+  double sum = 0;
+  for (float x : s) sum += x;
+  for (size_t i = m; i < n; ++i) sum += static_cast<double>(a[i]) * b[i];
+  return sum;
 }
 
 double StdDev(const std::vector<float>& a) {
@@ -180,9 +191,13 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
   std::vector<Field> fields(cameras.size());
   for (size_t c = 0; c < cameras.size(); ++c) {
     const CameraEvidence& cam = cameras[c];
-    cv::Mat dx = cam.real_x - cam.gt_x, dy = cam.real_y - cam.gt_y;  // NaN propagates
-    fields[c].x = SmoothField(dx, cam.mask, &fields[c].rms_x, &fields[c].mean_x);
-    if (!cam.real_y.empty() && !cam.gt_y.empty()) fields[c].y = SmoothField(dy, cam.mask, &fields[c].rms_y, &fields[c].mean_y);
+    // NaN propagates; an axis the spec does not code has empty maps.
+    if (!cam.real_x.empty() && !cam.gt_x.empty()) {
+      fields[c].x = SmoothField(cam.real_x - cam.gt_x, cam.mask, &fields[c].rms_x, &fields[c].mean_x);
+    }
+    if (!cam.real_y.empty() && !cam.gt_y.empty()) {
+      fields[c].y = SmoothField(cam.real_y - cam.gt_y, cam.mask, &fields[c].rms_y, &fields[c].mean_y);
+    }
   }
 
   // --- wrong frame ---
@@ -227,14 +242,16 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
     }
     std::vector<double> rstd(nf), pstd(nf);
     for (size_t k = 0; k < nf; ++k) rstd[k] = StdDev(r[k]), pstd[k] = StdDev(p[k]);
+    // Each frame centred and scaled to unit norm once: a correlation is then one dot product.
+    for (size_t k = 0; k < nf; ++k) Standardise(&r[k]), Standardise(&p[k]);
     for (size_t k = 0; k < nf; ++k) {
       if (rstd[k] < 2 || pstd[k] < 2) continue;
-      const double own = Correlation(r[k], p[k]);
+      const double own = Dot(r[k], p[k]);
       double best = -2;
       size_t best_j = k;
       for (size_t j = 0; j < nf; ++j) {
         if (j == k || pstd[j] < 2) continue;
-        const double cj = Correlation(r[k], p[j]);
+        const double cj = Dot(r[k], p[j]);
         if (cj > best) best = cj, best_j = j;
       }
       if (best >= options.wrong_frame_min_corr && own < best - options.wrong_frame_margin) {
@@ -281,23 +298,47 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
     cal.evidence["cameras"] = nlohmann::json::array();
     for (size_t c = 0; c < cameras.size(); ++c) {
       const Field& f = fields[c];
+      const CameraEvidence& cam = cameras[c];
       const double rms = std::hypot(f.rms_x, f.rms_y);
-      const double rot_y_deg = std::atan(f.mean_x / cameras[c].projector_fx) * 180 / M_PI;
-      const double rot_x_deg = std::atan(f.mean_y / cameras[c].projector_fy) * 180 / M_PI;
-      cal.evidence["cameras"].push_back({{"camera", cameras[c].camera},
-                                         {"field_rms_px", rms},
-                                         {"field_rms_x_px", f.rms_x},
-                                         {"field_rms_y_px", f.rms_y},
-                                         {"field_mean_x_px", f.mean_x},
-                                         {"field_mean_y_px", f.mean_y},
-                                         {"equivalent_projector_rotation_about_y_deg", rot_y_deg},
-                                         {"equivalent_projector_rotation_about_x_deg", rot_x_deg}});
+      const double rot_y_deg = std::atan(f.mean_x / cam.projector_fx) * 180 / M_PI;
+      const double rot_x_deg = std::atan(f.mean_y / cam.projector_fy) * 180 / M_PI;
+      // Focal-length equivalent: a projector focal error df moves a coordinate by
+      // (df / f) (u - cx), so the field's slope against u - cx (least squares, with an offset)
+      // times f is the focal error that explains its linear part.
+      const auto focal_error = [&](const cv::Mat& field, const cv::Mat& truth, double principal, double focal) {
+        if (field.empty() || truth.empty()) return std::nan("");
+        double n = 0, sx = 0, sy = 0, sxx = 0, sxy = 0;
+        const int stride = std::max(1, std::min(cam.width, cam.height) / 200);
+        for (int y = 0; y < cam.height; y += stride) {
+          for (int x = 0; x < cam.width; x += stride) {
+            if (!cam.mask.at<uint8_t>(y, x)) continue;
+            const double u = truth.at<float>(y, x) - principal, d = field.at<float>(y, x);
+            if (!std::isfinite(u) || !std::isfinite(d)) continue;
+            n += 1, sx += u, sy += d, sxx += u * u, sxy += u * d;
+          }
+        }
+        const double den = n * sxx - sx * sx;
+        return n > 50 && den > 0 ? focal * (n * sxy - sx * sy) / den : std::nan("");
+      };
+      const double dfx = focal_error(f.x, cam.gt_x, cam.projector_cx, cam.projector_fx);
+      const double dfy = focal_error(f.y, cam.gt_y, cam.projector_cy, cam.projector_fy);
+      nlohmann::json ev = {{"camera", cam.camera},
+                           {"field_rms_px", rms},
+                           {"field_rms_x_px", f.rms_x},
+                           {"field_rms_y_px", f.rms_y},
+                           {"field_mean_x_px", f.mean_x},
+                           {"field_mean_y_px", f.mean_y},
+                           {"equivalent_projector_rotation_about_y_deg", rot_y_deg},
+                           {"equivalent_projector_rotation_about_x_deg", rot_x_deg}};
+      if (std::isfinite(dfx)) ev["equivalent_projector_focal_error_x_px"] = dfx;
+      if (std::isfinite(dfy)) ev["equivalent_projector_focal_error_y_px"] = dfy;
+      cal.evidence["cameras"].push_back(ev);
       if (rms > worst) {
         worst = rms;
-        cal.message = Fmt("smooth projector-coordinate field of %.3f px RMS (mean %.3f, %.3f px): equivalent projector "
-                          "rotation %.4f deg about y, %.4f deg about x",
-                          rms, f.mean_x, f.mean_y, rot_y_deg) +
-                      Fmt(" / %.4f", rot_x_deg);
+        cal.message = Fmt("smooth projector-coordinate field of %.3f px RMS (mean %.3f, %.3f px): ", rms, f.mean_x, f.mean_y) +
+                      Fmt("equivalent projector rotation %.4f deg about y, %.4f deg about x", rot_y_deg, rot_x_deg);
+        if (std::isfinite(dfx)) cal.message += Fmt(", or a projector focal length off by %.2f px (fx %.1f)", dfx, cam.projector_fx);
+        if (std::isfinite(dfy)) cal.message += Fmt(" / %.2f px (fy)", dfy);
       }
     }
     cal.evidence["threshold_px"] = options.calibration_field_px;

@@ -65,6 +65,7 @@ struct CameraEvidence {
   const std::vector<cv::Mat>* real = nullptr;  // real images, spec order
   cv::Mat white, black;      // real white / black levels (WhiteBlackImages), CV_32FC1
   double projector_fx = 1, projector_fy = 1;
+  double projector_cx = 0, projector_cy = 0;  // the principal point, for the field's focal-length equivalent
 };
 
 // Per reconstruction mode: the clouds against the part.

@@ -9,6 +9,7 @@
 #include <opencv2/core/utility.hpp>
 
 #include "core/error.h"
+#include "patterns/codec.h"
 
 namespace slshadow::workflow {
 namespace {
@@ -60,6 +61,8 @@ double BandSigma(const std::vector<double>& values) {
 
 struct Sample {
   float white = 0, black = 0, factor = 0, albedo = 0;
+  float gain = 1;         // the illumination field at the pixel (1 until that layer is kept)
+  float twin_albedo = 0;  // the albedo the fitted twin renders there (after the albedo layers)
   int camera = 0, y = 0, x = 0, band = 0, object = 0;
   bool heldout = false;
 };
@@ -99,6 +102,106 @@ std::vector<std::pair<int, int>> InversePairs(const std::vector<FrameInfo>& fram
   return pairs;
 }
 
+// The white - black contrast a pixel needs to count as well lit: 0.3 x the median over the samples.
+double WellLitContrast(const std::vector<Sample>& samples) {
+  std::vector<double> contrast;
+  contrast.reserve(samples.size());
+  for (const Sample& s : samples) contrast.push_back(s.white - s.black);
+  return 0.3 * Median(std::move(contrast));
+}
+
+// Monomials u^i v^j, 1 <= i + j <= degree (u, v in [-1, 1] over the image).
+std::vector<std::pair<int, int>> IlluminationTerms(int degree) {
+  std::vector<std::pair<int, int>> t;
+  for (int d = 1; d <= degree; ++d) {
+    for (int j = 0; j <= d; ++j) t.emplace_back(d - j, j);
+  }
+  return t;
+}
+
+// 1 and the monomials of IlluminationTerms(degree) at (u, v), into out[0..terms.size()].
+void MonomialRow(const std::vector<std::pair<int, int>>& terms, int degree, double u, double v, double* out) {
+  double pu[8] = {1}, pv[8] = {1};
+  for (int k = 1; k <= degree && k < 8; ++k) pu[k] = pu[k - 1] * u, pv[k] = pv[k - 1] * v;
+  out[0] = 1;
+  for (size_t k = 0; k < terms.size(); ++k) out[k + 1] = pu[terms[k].first] * pv[terms[k].second];
+}
+
+std::string TermName(const std::pair<int, int>& t) {
+  const auto power = [](const char* v, int k) { return k == 0 ? std::string() : k == 1 ? std::string(v) : v + std::string("^") + std::to_string(k); };
+  const std::string a = power("u", t.first), b = power("v", t.second);
+  return a.empty() ? b : b.empty() ? a : a + " " + b;
+}
+
+double NormalisedCoordinate(int x, int size) { return (x - 0.5 * size) / (0.5 * size); }
+
+// Linear least squares y = X beta over rows in bands (kBands), with one reweighting pass that
+// drops rows beyond 4 robust sigmas of the first fit, and the delete-one-band solutions for a
+// jackknife of any function of beta.
+struct LinearFit {
+  Eigen::VectorXd beta;
+  std::vector<Eigen::VectorXd> jackknife;  // one per band that had rows
+  int64_t rows = 0, inliers = 0;
+  bool ok = false;
+};
+
+LinearFit FitLinear(const std::vector<double>& x, const std::vector<double>& y, const std::vector<int>& band, int p) {
+  LinearFit f;
+  const size_t n = y.size();
+  f.rows = static_cast<int64_t>(n);
+  if (n < static_cast<size_t>(10 * p)) return f;
+  const auto solve = [&](const std::vector<char>& use, Eigen::VectorXd* beta, std::vector<Eigen::VectorXd>* jack) {
+    std::vector<Eigen::MatrixXd> ab(kBands, Eigen::MatrixXd::Zero(p, p));
+    std::vector<Eigen::VectorXd> rb(kBands, Eigen::VectorXd::Zero(p));
+    std::vector<int64_t> nb(kBands, 0);
+    for (size_t i = 0; i < n; ++i) {
+      if (!use[i]) continue;
+      const Eigen::Map<const Eigen::VectorXd> xi(&x[i * static_cast<size_t>(p)], p);
+      const auto b = static_cast<size_t>(band[i]);
+      ab[b].selfadjointView<Eigen::Lower>().rankUpdate(xi);
+      rb[b] += xi * y[i];
+      ++nb[b];
+    }
+    Eigen::MatrixXd a = Eigen::MatrixXd::Zero(p, p);
+    Eigen::VectorXd r = Eigen::VectorXd::Zero(p);
+    for (int b = 0; b < kBands; ++b) a += ab[static_cast<size_t>(b)], r += rb[static_cast<size_t>(b)];
+    const auto sym = [](const Eigen::MatrixXd& m) { return Eigen::MatrixXd(m.selfadjointView<Eigen::Lower>()); };
+    *beta = sym(a).ldlt().solve(r);
+    if (!jack) return;
+    jack->clear();
+    for (int b = 0; b < kBands; ++b) {
+      if (nb[static_cast<size_t>(b)] == 0) continue;
+      jack->push_back(sym(a - ab[static_cast<size_t>(b)]).ldlt().solve(r - rb[static_cast<size_t>(b)]));
+    }
+  };
+  std::vector<char> use(n, 1);
+  Eigen::VectorXd beta;
+  solve(use, &beta, nullptr);
+  std::vector<double> res(n);
+  for (size_t i = 0; i < n; ++i) res[i] = y[i] - Eigen::Map<const Eigen::VectorXd>(&x[i * static_cast<size_t>(p)], p).dot(beta);
+  std::vector<double> abs_res(n);
+  for (size_t i = 0; i < n; ++i) abs_res[i] = std::abs(res[i]);
+  const double gate = 4 * 1.4826 * std::max(Median(abs_res), 1e-12);
+  for (size_t i = 0; i < n; ++i) use[i] = std::abs(res[i]) <= gate;
+  f.inliers = std::count(use.begin(), use.end(), 1);
+  solve(use, &f.beta, &f.jackknife);
+  f.ok = f.beta.allFinite() && f.jackknife.size() >= 3;
+  return f;
+}
+
+// Jackknife standard deviation of a statistic over the delete-one-band solutions.
+template <typename F>
+double JackknifeSigma(const LinearFit& fit, F&& statistic) {
+  std::vector<double> v;
+  for (const auto& b : fit.jackknife) v.push_back(statistic(b));
+  if (v.size() < 2) return std::nan("");
+  const double mean = std::accumulate(v.begin(), v.end(), 0.0) / static_cast<double>(v.size());
+  double ss = 0;
+  for (double x : v) ss += (x - mean) * (x - mean);
+  const double m = static_cast<double>(v.size());
+  return std::sqrt((m - 1) / m * ss);
+}
+
 }  // namespace
 
 void WhiteBlackImages(const PatternSpec& spec, const std::vector<cv::Mat>& images, cv::Mat* white, cv::Mat* black) {
@@ -113,39 +216,46 @@ void WhiteBlackImages(const PatternSpec& spec, const std::vector<cv::Mat>& image
   const cv::Mat& first = images.at(0);
   white->create(first.size(), CV_32FC1);
   black->create(first.size(), CV_32FC1);
-  const bool bytes = first.depth() == CV_8U;
-  cv::parallel_for_(cv::Range(0, first.rows), [&](const cv::Range& rows) {
-    const size_t n = pairs.size();
-    std::vector<float> hi(n), lo(n);
-    std::vector<const uint8_t*> p8(n), q8(n);
-    std::vector<const uint16_t*> p16(n), q16(n);
-    const auto mid = static_cast<std::ptrdiff_t>(n / 2);
-    for (int y = rows.start; y < rows.end; ++y) {
-      for (size_t k = 0; k < n; ++k) {
-        const cv::Mat& a = images[static_cast<size_t>(pairs[k].first)];
-        const cv::Mat& b = images[static_cast<size_t>(pairs[k].second)];
-        if (bytes) {
-          p8[k] = a.ptr<uint8_t>(y), q8[k] = b.ptr<uint8_t>(y);
-        } else {
-          p16[k] = a.ptr<uint16_t>(y), q16[k] = b.ptr<uint16_t>(y);
-        }
-      }
-      float* w = white->ptr<float>(y);
-      float* bl = black->ptr<float>(y);
-      for (int x = 0; x < first.cols; ++x) {
+  // Per row: hi_k = max(P_k, I_k), lo_k = min(P_k, I_k) of every pair, sorted across k by a
+  // compare-exchange network over whole rows (vectorised), then the element n/2 of each.
+  const auto medians = [&](auto zero) {
+    using T = decltype(zero);
+    cv::parallel_for_(cv::Range(0, first.rows), [&](const cv::Range& rows) {
+      const size_t n = pairs.size(), w = static_cast<size_t>(first.cols);
+      std::vector<T> hi(n * w), lo(n * w);
+      for (int y = rows.start; y < rows.end; ++y) {
         for (size_t k = 0; k < n; ++k) {
-          const float p = bytes ? p8[k][x] : p16[k][x];
-          const float q = bytes ? q8[k][x] : q16[k][x];
-          hi[k] = std::max(p, q);
-          lo[k] = std::min(p, q);
+          const T* p = images[static_cast<size_t>(pairs[k].first)].ptr<T>(y);
+          const T* q = images[static_cast<size_t>(pairs[k].second)].ptr<T>(y);
+          T* h = &hi[k * w];
+          T* l = &lo[k * w];
+          for (size_t x = 0; x < w; ++x) h[x] = std::max(p[x], q[x]), l[x] = std::min(p[x], q[x]);
         }
-        std::nth_element(hi.begin(), hi.begin() + mid, hi.end());
-        std::nth_element(lo.begin(), lo.begin() + mid, lo.end());
-        w[x] = hi[static_cast<size_t>(mid)];
-        bl[x] = lo[static_cast<size_t>(mid)];
+        for (size_t i = 0; i + 1 < n; ++i) {
+          for (size_t j = i + 1; j < n; ++j) {
+            for (std::vector<T>* v : {&hi, &lo}) {
+              T* a = &(*v)[i * w];
+              T* b = &(*v)[j * w];
+              for (size_t x = 0; x < w; ++x) {
+                const T lo_ab = std::min(a[x], b[x]), hi_ab = std::max(a[x], b[x]);
+                a[x] = lo_ab, b[x] = hi_ab;
+              }
+            }
+          }
+        }
+        const T* hm = &hi[(n / 2) * w];
+        const T* lm = &lo[(n / 2) * w];
+        float* wr = white->ptr<float>(y);
+        float* br = black->ptr<float>(y);
+        for (size_t x = 0; x < w; ++x) wr[x] = hm[x], br[x] = lm[x];
       }
-    }
-  });
+    });
+  };
+  if (first.depth() == CV_8U) {
+    medians(uint8_t{0});
+  } else {
+    medians(uint16_t{0});
+  }
 }
 
 nlohmann::json PhysicsLayer::ToJson() const {
@@ -170,6 +280,8 @@ void PhysicsFitOptions::Check() const {
   SLSHADOW_THROW_IF(!(min_factor >= 0), "physics fit: min_factor must be >= 0 (got ", min_factor, ")");
   SLSHADOW_THROW_IF(!(min_heldout_drop >= 0 && min_heldout_drop < 1),
                     "physics fit: min_heldout_drop must be in [0, 1) (got ", min_heldout_drop, ")");
+  SLSHADOW_THROW_IF(illumination_degree < 0 || illumination_degree > 4, "physics fit: illumination_degree must be in 0..4 (got ",
+                    illumination_degree, ")");
 }
 
 const PhysicsLayer* PhysicsFit::Find(const std::string& name) const {
@@ -194,7 +306,7 @@ std::string PhysicsFit::Table() const {
   std::string out;
   for (const auto& l : layers) {
     char buf[512];
-    std::snprintf(buf, sizeof(buf), "  %-13s %-5s %12.5g +- %-10.3g %-10s %s\n", l.name.c_str(),
+    std::snprintf(buf, sizeof(buf), "  %-20s %-5s %12.5g +- %-10.3g %-10s %s\n", l.name.c_str(),
                   !l.observable ? "n/a" : (l.kept ? "kept" : "off"), l.value, l.sigma, l.unit.c_str(), l.reason.c_str());
     out += buf;
   }
@@ -237,6 +349,76 @@ Scene PhysicsFit::Apply(const Scene& twin, const Rig& rig, double projector_dept
     scene.layers.seed = noise_seed;
   }
   return scene;
+}
+
+cv::Mat IlluminationField(const PhysicsFit& fit, const std::string& camera, int width, int height) {
+  cv::Mat g(height, width, CV_32FC1, cv::Scalar(1));
+  const PhysicsLayer* l = fit.Find("illumination_" + camera);
+  if (!l || !l->kept) return g;
+  const int degree = l->extra.at("degree").get<int>();
+  const std::vector<std::pair<int, int>> terms = IlluminationTerms(degree);
+  const auto& c = l->extra.at("coefficients");
+  const std::vector<double> coefficients = c.get<std::vector<double>>();
+  SLSHADOW_THROW_IF(c.size() != terms.size() + 1, "illumination field of '", camera, "': ", c.size(), " coefficients for ",
+                    terms.size() + 1, " terms");
+  // The field was fitted on images of extra.width x extra.height; scale coordinates to this size.
+  const int fw = l->extra.value("width", width), fh = l->extra.value("height", height);
+  cv::parallel_for_(cv::Range(0, height), [&](const cv::Range& rows) {
+    std::vector<double> row(terms.size() + 1);
+    for (int y = rows.start; y < rows.end; ++y) {
+      float* out = g.ptr<float>(y);
+      const double v = NormalisedCoordinate(static_cast<int>(std::lround((y + 0.5) * fh / height - 0.5)), fh);
+      for (int x = 0; x < width; ++x) {
+        const double u = NormalisedCoordinate(static_cast<int>(std::lround((x + 0.5) * fw / width - 0.5)), fw);
+        MonomialRow(terms, degree, u, v, row.data());
+        double sum = 0;
+        for (size_t k = 0; k < row.size(); ++k) sum += coefficients[k] * row[k];
+        out[x] = static_cast<float>(sum);
+      }
+    }
+  });
+  return g;
+}
+
+std::vector<double> PatternMeans(const std::vector<cv::Mat>& projector_images) {
+  std::vector<double> m;
+  for (const cv::Mat& p : projector_images) m.push_back(cv::mean(p)[0] / (p.depth() == CV_8U ? 255.0 : 65535.0));
+  return m;
+}
+
+void ApplyImageLayers(const PhysicsFit& fit, const PatternSpec& spec, const std::vector<double>& pattern_means,
+                      const std::string& camera, std::vector<cv::Mat>* images) {
+  const PhysicsLayer* bl = fit.Find("black_level_" + camera);
+  const double offset = bl && bl->kept ? bl->value : 0.0;
+  const bool field = fit.Kept("illumination_" + camera);
+  const double global = fit.Kept("global_light") ? fit.Find("global_light")->value : 0.0;
+  if ((offset == 0 && !field && global == 0) || images->empty()) return;
+  SLSHADOW_THROW_IF(pattern_means.size() != images->size(), "image layers: ", pattern_means.size(), " pattern means for ",
+                    images->size(), " images");
+  const auto first = std::find_if(images->begin(), images->end(), [](const cv::Mat& m) { return !m.empty(); });
+  if (first == images->end()) return;
+  const cv::Mat g = IlluminationField(fit, camera, first->cols, first->rows);
+  cv::Mat white, black;
+  if (global != 0) WhiteBlackImages(spec, *images, &white, &black);
+  cv::parallel_for_(cv::Range(0, static_cast<int>(images->size())), [&](const cv::Range& r) {
+    cv::Mat f;
+    for (int i = r.start; i < r.end; ++i) {
+      cv::Mat& img = (*images)[static_cast<size_t>(i)];
+      if (img.empty()) continue;  // a frame not rendered
+      img.convertTo(f, CV_32F);
+      if (global != 0) {  // B + (1 - g) (I - B) + g m (W - B)
+        const float keep = static_cast<float>(1 - global), m = static_cast<float>(global * pattern_means[static_cast<size_t>(i)]);
+        for (int y = 0; y < f.rows; ++y) {
+          float* p = f.ptr<float>(y);
+          const float* w = white.ptr<float>(y);
+          const float* b = black.ptr<float>(y);
+          for (int x = 0; x < f.cols; ++x) p[x] = b[x] + keep * (p[x] - b[x]) + m * (w[x] - b[x]);
+        }
+      }
+      if (field) cv::multiply(f, g, f);
+      f.convertTo(img, img.depth(), 1.0, offset);  // rounds and saturates
+    }
+  });
 }
 
 PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vector<CameraData>& cameras,
@@ -306,7 +488,7 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     return s.object == reference && (!board || std::abs(s.albedo - board->light) < 1e-3);
   };
   const auto is_dark = [&](const Sample& s) { return board && std::abs(s.albedo - board->dark) < 1e-3; };
-  const auto ratio = [&](const Sample& s) { return (s.white - s.black) / (fs * s.factor * range); };
+  const auto ratio = [&](const Sample& s) { return (s.white - s.black) / (fs * s.factor * range * s.gain); };
   std::vector<double> all;
   std::vector<std::vector<double>> band(kBands);
   for (const Sample& s : samples) {
@@ -342,6 +524,96 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
   const double e = exposure.value;
   if (twin.objects.size() > 1) fit.layers.back().reason += " (object '" + twin.objects[static_cast<size_t>(reference)].name + "')";
 
+  // --- illumination field per camera (reference pixels: (W - B) / (FS factor range) = E G(u, v)) ---
+  const std::vector<std::pair<int, int>> terms = IlluminationTerms(options.illumination_degree);
+  const int p = 1 + static_cast<int>(terms.size());
+  for (size_t c = 0; c < cameras.size() && !terms.empty(); ++c) {
+    const GeometryBuffer& g = *cameras[c].geometry;
+    PhysicsLayer il;
+    il.name = "illumination_" + cameras[c].camera;
+    il.unit = "RMS of G - 1";
+    il.residual_unit = "DN RMS of white - black, reference pixels";
+    const auto row = [&](const Sample& s, double* out) {
+      MonomialRow(terms, options.illumination_degree, NormalisedCoordinate(s.x, g.width), NormalisedCoordinate(s.y, g.height), out);
+    };
+    std::vector<double> x, y;
+    std::vector<int> bands;
+    for (const Sample& s : samples) {
+      if (s.heldout || s.camera != static_cast<int>(c) || !is_light(s)) continue;
+      x.resize(x.size() + static_cast<size_t>(p));
+      row(s, &x[x.size() - static_cast<size_t>(p)]);
+      y.push_back(ratio(s) / e);
+      bands.push_back(s.band);
+    }
+    const LinearFit lf = FitLinear(x, y, bands, p);
+    if (!lf.ok) {
+      il.observable = false;
+      il.reason = "too few reference pixels spread over the image for the illumination field";
+      fit.layers.push_back(il);
+      continue;
+    }
+    std::vector<double> buf(static_cast<size_t>(p));
+    const auto field = [&](const Eigen::VectorXd& beta, const Sample& s) {
+      row(s, buf.data());
+      return Eigen::Map<const Eigen::VectorXd>(buf.data(), p).dot(beta);
+    };
+    // The field's RMS deviation from 1 over the lit part: on up to ~20000 of its pixels.
+    std::vector<double> lit_rows;
+    {
+      int64_t count = 0;
+      for (const Sample& s : samples) count += s.camera == static_cast<int>(c);
+      const int64_t step = std::max<int64_t>(1, count / 20000);
+      int64_t i = 0;
+      for (const Sample& s : samples) {
+        if (s.camera != static_cast<int>(c) || i++ % step) continue;
+        lit_rows.resize(lit_rows.size() + static_cast<size_t>(p));
+        row(s, &lit_rows[lit_rows.size() - static_cast<size_t>(p)]);
+      }
+    }
+    const Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> lit_basis(
+        lit_rows.data(), static_cast<Eigen::Index>(lit_rows.size() / static_cast<size_t>(p)), p);
+    const auto rms_dev = [&](const Eigen::VectorXd& beta) {
+      return lit_basis.rows() ? std::sqrt(((lit_basis * beta).array() - 1).square().mean()) : 0.0;
+    };
+    il.value = rms_dev(lf.beta);
+    il.sigma = JackknifeSigma(lf, rms_dev);
+    il.samples = lf.inliers;
+    const Eigen::VectorXd lit_field = lit_basis * lf.beta;
+    const double lo = lit_field.size() ? lit_field.minCoeff() : 1.0, hi = lit_field.size() ? lit_field.maxCoeff() : 1.0;
+    nlohmann::json names = nlohmann::json::array(), coeffs = nlohmann::json::array(), sigmas = nlohmann::json::array();
+    for (int k = 0; k < p; ++k) {
+      names.push_back(k == 0 ? std::string("1") : TermName(terms[static_cast<size_t>(k - 1)]));
+      coeffs.push_back(lf.beta(k));
+      sigmas.push_back(JackknifeSigma(lf, [k](const Eigen::VectorXd& b) { return b(k); }));
+    }
+    il.extra = {{"degree", options.illumination_degree}, {"terms", names}, {"coefficients", coeffs},
+                {"coefficient_sigmas", sigmas}, {"width", g.width}, {"height", g.height},
+                {"min", lo}, {"max", hi},
+                {"coordinates", "u = (x - width/2) / (width/2), v = (y - height/2) / (height/2), x, y pixel centres"}};
+    std::vector<double> off, on;
+    for (const Sample& s : samples) {
+      if (!s.heldout || s.camera != static_cast<int>(c) || !is_light(s)) continue;
+      const double model = e * fs * s.factor * range;
+      off.push_back(s.white - s.black - model);
+      on.push_back(s.white - s.black - model * field(lf.beta, s));
+    }
+    il.heldout_residual_off = Rms(off);
+    il.heldout_residual_on = Rms(on);
+    const bool significant = il.value > std::max(3 * il.sigma, options.illumination_floor);
+    const bool drops = il.heldout_residual_on < (1 - options.min_heldout_drop) * il.heldout_residual_off;
+    il.kept = significant && drops;
+    il.reason = il.kept ? Fmt("the lit part is %.3f..%.3f of its mean brightness, smoothly: held-out residual %.2f -> %.2f DN", lo, hi,
+                              il.heldout_residual_off, il.heldout_residual_on)
+                        : Fmt("uniform within noise (field %.3f..%.3f, held-out residual %.2f vs %.2f DN)", lo, hi,
+                              il.heldout_residual_off, il.heldout_residual_on);
+    if (il.kept) {
+      for (Sample& s : samples) {
+        if (s.camera == static_cast<int>(c)) s.gain = static_cast<float>(field(lf.beta, s));
+      }
+    }
+    fit.layers.push_back(il);
+  }
+
   // --- exposure x albedo of the other objects ---
   for (size_t o = 0; o < twin.objects.size(); ++o) {
     const SceneObject& object = twin.objects[o];
@@ -373,8 +645,8 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     std::vector<double> off, on;
     for (const Sample& s : samples) {
       if (!s.heldout || s.object != static_cast<int>(o)) continue;
-      off.push_back(s.white - s.black - e * fs * s.factor * range);
-      on.push_back(s.white - s.black - e * fs * s.factor * range * a.value / object.albedo.value);
+      off.push_back(s.white - s.black - e * fs * s.factor * s.gain * range);
+      on.push_back(s.white - s.black - e * fs * s.factor * s.gain * range * a.value / object.albedo.value);
     }
     a.heldout_residual_off = Rms(off);
     a.heldout_residual_on = Rms(on);
@@ -413,7 +685,7 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
       std::vector<double> off, on;
       for (const Sample& s : samples) {
         if (!s.heldout || !is_dark(s)) continue;
-        const double g = s.factor / board->dark;
+        const double g = s.factor * s.gain / board->dark;
         off.push_back(s.white - s.black - e * fs * g * board->dark * range);
         on.push_back(s.white - s.black - e * fs * g * dark.value * range);
       }
@@ -430,8 +702,20 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     fit.layers.push_back(dark);
   }
 
-  // --- ambient ---
+  // --- ambient and black level: B = o_c + E FS ambient albedo G ---
   {
+    // The albedo the fitted twin renders at each sample.
+    for (Sample& s : samples) {
+      s.twin_albedo = s.albedo;
+      if (is_dark(s) && fit.Kept("albedo_dark")) s.twin_albedo = static_cast<float>(fit.Find("albedo_dark")->value);
+      const SceneObject& o = twin.objects[static_cast<size_t>(s.object)];
+      if (o.albedo.kind == Albedo::Kind::kUniform && fit.Kept("albedo_" + o.name)) {
+        s.twin_albedo = static_cast<float>(fit.Find("albedo_" + o.name)->value);
+      }
+    }
+    const std::string no_black_frame =
+        has_white_black ? "" : " (no black frame: the black level is the darker of each inverse pair, which projector blur raises near stripe edges: an upper bound)";
+    const auto regressor = [&](const Sample& s) { return e * fs * s.twin_albedo * s.gain; };
     PhysicsLayer amb;
     amb.name = "ambient";
     amb.unit = "fraction of projector white";
@@ -439,8 +723,8 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     std::vector<double> v;
     std::vector<std::vector<double>> vb(kBands);
     for (const Sample& s : samples) {
-      if (s.heldout || s.albedo < 0.02f) continue;
-      const double a = s.black / (e * fs * s.albedo);
+      if (s.heldout || s.twin_albedo < 0.02f) continue;
+      const double a = s.black / regressor(s);
       v.push_back(a);
       vb[static_cast<size_t>(s.band)].push_back(a);
     }
@@ -453,17 +737,154 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     for (const Sample& s : samples) {
       if (!s.heldout) continue;
       off.push_back(s.black);
-      on.push_back(s.black - e * fs * amb.value * s.albedo);
+      on.push_back(s.black - amb.value * regressor(s));
     }
     amb.heldout_residual_off = Rms(off);
     amb.heldout_residual_on = Rms(on);
-    const bool significant = amb.value > std::max(3 * amb.sigma, 0.002);
-    const bool drops = amb.heldout_residual_on < (1 - options.min_heldout_drop) * amb.heldout_residual_off;
-    amb.kept = significant && drops;
-    amb.reason = amb.kept ? Fmt("the black frame is lit: %.2f DN mean; held-out residual %.2f -> %.2f DN",
-                                 amb.heldout_residual_off, amb.heldout_residual_off, amb.heldout_residual_on)
+    {
+      const bool significant = amb.value > std::max(3 * amb.sigma, 0.002);
+      const bool drops = amb.heldout_residual_on < (1 - options.min_heldout_drop) * amb.heldout_residual_off;
+      amb.kept = significant && drops;
+    }
+    amb.reason = amb.kept ? Fmt("the black frame is lit: %.2f DN mean; held-out residual %.2f -> %.2f DN", amb.heldout_residual_off,
+                                 amb.heldout_residual_off, amb.heldout_residual_on)
                           : Fmt("the black frame is dark within noise (held-out RMS %.2f DN)", amb.heldout_residual_off);
+
+    // Black-level offsets: observable on a camera whose lit pixels span reflectances (the
+    // regressor's coefficient of variation), fitted jointly with ambient: unknowns (ambient, o_c).
+    const size_t nc = cameras.size();
+    std::vector<int> column(nc, -1);  // the offset's column in the joint fit, -1: not observable
+    int cols = 1;
+    for (size_t c = 0; c < nc; ++c) {
+      double sum = 0, ss = 0;
+      int64_t n = 0;
+      for (const Sample& s : samples) {
+        if (s.heldout || s.camera != static_cast<int>(c)) continue;
+        const double r = s.twin_albedo * s.gain;
+        sum += r, ss += r * r, ++n;
+      }
+      const double mean = n ? sum / static_cast<double>(n) : 0.0;
+      const double cv = n > 100 && mean > 0 ? std::sqrt(std::max(0.0, ss / static_cast<double>(n) - mean * mean)) / mean : 0.0;
+      if (cv > 0.25) column[c] = cols++;
+    }
+    const auto joint = [&] {
+      std::vector<double> x, y;
+      std::vector<int> bands;
+      for (const Sample& s : samples) {
+        if (s.heldout || column[static_cast<size_t>(s.camera)] < 0) continue;
+        const size_t at = x.size();
+        x.resize(at + static_cast<size_t>(cols), 0.0);
+        x[at] = regressor(s);
+        x[at + static_cast<size_t>(column[static_cast<size_t>(s.camera)])] = 1;
+        y.push_back(s.black);
+        bands.push_back(s.band);
+      }
+      return FitLinear(x, y, bands, cols);
+    };
+    std::vector<PhysicsLayer> offsets;
+    if (cols > 1) {
+      const LinearFit both = joint();
+      LinearFit only;  // offsets alone: o_c = mean black level of camera c
+      {
+        std::vector<double> x, y;
+        std::vector<int> bands;
+        for (const Sample& s : samples) {
+          if (s.heldout || column[static_cast<size_t>(s.camera)] < 0) continue;
+          const size_t at = x.size();
+          x.resize(at + static_cast<size_t>(cols - 1), 0.0);
+          x[at + static_cast<size_t>(column[static_cast<size_t>(s.camera)] - 1)] = 1;
+          y.push_back(s.black);
+          bands.push_back(s.band);
+        }
+        only = FitLinear(x, y, bands, cols - 1);
+      }
+      if (both.ok && only.ok) {
+        // Held-out black-frame residuals per camera under: ambient only, offsets + ambient, offsets only.
+        const auto residuals = [&](int camera, double a, const Eigen::VectorXd* beta, int shift) {
+          std::vector<double> r;
+          for (const Sample& s : samples) {
+            if (!s.heldout || s.camera != camera) continue;
+            const double o = beta ? (*beta)(column[static_cast<size_t>(camera)] - shift) : 0.0;
+            r.push_back(s.black - o - a * regressor(s));
+          }
+          return Rms(r);
+        };
+        bool any_kept = false;
+        for (size_t c = 0; c < nc; ++c) {
+          PhysicsLayer bl;
+          bl.name = "black_level_" + cameras[c].camera;
+          bl.unit = "DN";
+          bl.residual_unit = "DN RMS of the black frame";
+          if (column[c] < 0) {
+            bl.observable = false;
+            bl.reason = "one reflectance in view: a black-level offset and ambient light look alike in the black frame; ambient stands for both";
+            offsets.push_back(bl);
+            continue;
+          }
+          const int k = column[c];
+          bl.value = both.beta(k);
+          bl.sigma = JackknifeSigma(both, [k](const Eigen::VectorXd& b) { return b(k); });
+          bl.samples = both.inliers;
+          bl.heldout_residual_off = residuals(static_cast<int>(c), amb.kept ? amb.value : 0.0, nullptr, 0);
+          bl.heldout_residual_on = residuals(static_cast<int>(c), both.beta(0), &both.beta, 0);
+          const bool significant = std::abs(bl.value) > std::max(3 * bl.sigma, options.black_level_floor * fs);
+          const bool drops = bl.heldout_residual_on < (1 - options.min_heldout_drop) * bl.heldout_residual_off;
+          bl.kept = significant && drops;
+          any_kept = any_kept || bl.kept;
+          offsets.push_back(bl);
+        }
+        if (any_kept) {
+          // Ambient judged again with the offsets in: offsets + ambient against offsets alone.
+          amb.value = both.beta(0);
+          amb.sigma = JackknifeSigma(both, [](const Eigen::VectorXd& b) { return b(0); });
+          std::vector<double> off2, on2;
+          for (const Sample& s : samples) {
+            if (!s.heldout || column[static_cast<size_t>(s.camera)] < 0) continue;
+            const int k = column[static_cast<size_t>(s.camera)];
+            off2.push_back(s.black - only.beta(k - 1));
+            on2.push_back(s.black - both.beta(k) - both.beta(0) * regressor(s));
+          }
+          amb.heldout_residual_off = Rms(off2);
+          amb.heldout_residual_on = Rms(on2);
+          const bool significant = amb.value > std::max(3 * amb.sigma, 0.002);
+          const bool drops = amb.heldout_residual_on < (1 - options.min_heldout_drop) * amb.heldout_residual_off;
+          amb.kept = significant && drops;
+          amb.reason = amb.kept ? Fmt("the black frame scales with reflectance beyond the offset: %.4f of white; held-out residual %.2f -> %.2f DN",
+                                       amb.value, amb.heldout_residual_off, amb.heldout_residual_on)
+                                : Fmt("with the black-level offset in, the black frame does not scale with reflectance (%.4f +- %.4f); held-out residual %.2f vs %.2f DN",
+                                      amb.value, amb.sigma, amb.heldout_residual_off, amb.heldout_residual_on);
+          for (size_t c = 0; c < nc; ++c) {
+            PhysicsLayer& bl = offsets[c];
+            if (!bl.kept) continue;
+            if (!amb.kept) {  // the offset alone: its own fit
+              bl.value = only.beta(column[c] - 1);
+              bl.sigma = JackknifeSigma(only, [k = column[c] - 1](const Eigen::VectorXd& b) { return b(k); });
+              bl.heldout_residual_on = residuals(static_cast<int>(c), 0.0, &only.beta, 1);
+            }
+            bl.reason = Fmt("the black frame sits %.2f DN above what ambient light on the print explains, on every reflectance: held-out residual %.2f -> %.2f DN",
+                            bl.value, bl.heldout_residual_off, bl.heldout_residual_on);
+          }
+        }
+        for (PhysicsLayer& bl : offsets) {
+          if (bl.observable && !bl.kept) bl.reason = Fmt("no offset beyond noise (%.2f +- %.2f DN)", bl.value, bl.sigma);
+        }
+      }
+    } else {
+      for (size_t c = 0; c < nc; ++c) {
+        PhysicsLayer bl;
+        bl.name = "black_level_" + cameras[c].camera;
+        bl.unit = "DN";
+        bl.observable = false;
+        bl.reason = "one reflectance in view: a black-level offset and ambient light look alike in the black frame; ambient stands for both";
+        offsets.push_back(bl);
+      }
+    }
+    amb.reason += no_black_frame;
     fit.layers.push_back(amb);
+    for (PhysicsLayer& bl : offsets) {
+      if (bl.observable) bl.reason += no_black_frame;
+      fit.layers.push_back(bl);
+    }
   }
 
   // --- projector response (gamma), phase codecs only ---
@@ -489,9 +910,7 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     } else {
       // Per well-lit pixel the mean of its normalised phase values, which is a0(gamma), the mean
       // of (0.5 + 0.5 cos)^gamma over a period, whatever the phase, blur or frame order.
-      std::vector<double> contrast;
-      for (const Sample& s : samples) contrast.push_back(s.white - s.black);
-      const double min_contrast = 0.3 * Median(contrast);
+      const double min_contrast = WellLitContrast(samples);
       std::vector<double> fit_mean, held_mean;
       std::vector<std::vector<double>> band_mean(kBands);
       for (const Sample& s : samples) {
@@ -549,6 +968,73 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     fit.layers.push_back(gamma);
   }
 
+  // --- global light: (1 - gamma) of the white level is direct, gamma arrives scattered from the
+  // whole lit projector image, so a frame with lit fraction m reads B + (W - B) ((1 - g) p + g m).
+  // Coarse inverse pairs (both about half lit) then differ by (1 - g) (W - B) away from edges. ---
+  {
+    PhysicsLayer gl;
+    gl.name = "global_light";
+    gl.unit = "fraction of white - black";
+    gl.residual_unit = "RMS of |P - I| / (W - B) - (1 - g), coarse inverse pairs";
+    const std::vector<double> means = PatternMeans(GeneratePatterns(spec));
+    int max_bit[2] = {-1, -1};
+    for (const FrameInfo& f : frames) {
+      if (f.role == FrameRole::kGrayBit) max_bit[f.axis] = std::max(max_bit[f.axis], f.bit);
+    }
+    std::vector<std::pair<int, int>> coarse;
+    for (const auto& [a, b] : InversePairs(frames)) {
+      const FrameInfo& f = frames[static_cast<size_t>(a)];
+      const double ma = means[static_cast<size_t>(a)], mb = means[static_cast<size_t>(b)];
+      if (2 * f.bit >= max_bit[f.axis] && std::abs(ma - mb) < 0.1 && ma > 0.3 && ma < 0.7) coarse.emplace_back(a, b);
+    }
+    if (!has_white_black) {
+      gl.observable = false;
+      gl.reason = "no white and black frames: the levels come from the inverse pairs themselves, so scattered light is folded into them";
+    } else if (coarse.size() < 2) {
+      gl.observable = false;
+      gl.reason = "the sequence has too few coarse inverse pairs (about half lit) to separate direct from scattered light";
+    } else {
+      const double min_contrast = WellLitContrast(samples);
+      std::vector<double> fit_r, held_r;
+      std::vector<std::vector<double>> band_r(kBands);
+      std::vector<double> per(coarse.size());
+      for (const Sample& s : samples) {
+        if (s.white - s.black < min_contrast) continue;
+        const auto& real = cameras[static_cast<size_t>(s.camera)].real;
+        for (size_t k = 0; k < coarse.size(); ++k) {
+          per[k] = std::abs(Pixel(real[static_cast<size_t>(coarse[k].first)], s.y, s.x) -
+                            Pixel(real[static_cast<size_t>(coarse[k].second)], s.y, s.x)) / (s.white - s.black);
+        }
+        const double r = Median(per);  // a pixel near one bit's edge is outvoted by the others
+        (s.heldout ? held_r : fit_r).push_back(r);
+        if (!s.heldout) band_r[static_cast<size_t>(s.band)].push_back(r);
+      }
+      if (fit_r.size() < 100) {
+        gl.observable = false;
+        gl.reason = "too few well-lit pixels for the global-light fit";
+      } else {
+        gl.value = 1 - Median(fit_r);
+        std::vector<double> bv;
+        for (auto& b : band_r) bv.push_back(b.size() > 20 ? 1 - Median(b) : std::nan(""));
+        gl.sigma = BandSigma(bv);
+        gl.samples = static_cast<int64_t>(fit_r.size());
+        std::vector<double> off, on;
+        for (double r : held_r) off.push_back(r - 1), on.push_back(r - (1 - gl.value));
+        gl.heldout_residual_off = Rms(off);
+        gl.heldout_residual_on = Rms(on);
+        gl.extra["pairs"] = coarse.size();
+        const bool significant = gl.value > std::max(3 * gl.sigma, options.global_light_floor);
+        const bool drops = gl.heldout_residual_on < (1 - options.min_heldout_drop) * gl.heldout_residual_off;
+        gl.kept = significant && drops;
+        gl.reason = gl.kept ? Fmt("coarse stripes reach %.1f %% of white - black: %.1f %% of the light is scattered from the lit "
+                                  "projector image; held-out residual %.3f -> %.3f",
+                                  100 * (1 - gl.value), 100 * gl.value, gl.heldout_residual_off, gl.heldout_residual_on)
+                            : Fmt("coarse stripes reach %.1f %% of white - black: direct light explains them", 100 * (1 - gl.value));
+      }
+    }
+    fit.layers.push_back(gl);
+  }
+
   // --- sensor noise from inverse pairs ---
   {
     PhysicsLayer noise;
@@ -581,7 +1067,10 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
           sums.push_back(a + b);
         }
         if (saturated) continue;
-        for (size_t k = 0; k + 1 < sums.size(); k += 2) obs.push_back({sums[k] + sums[k + 1], sums[k] - sums[k + 1], s.heldout});
+        // The signal is what sits above the black level (shot noise does not see the offset).
+        const PhysicsLayer* bl = fit.Find("black_level_" + cameras[static_cast<size_t>(s.camera)].camera);
+        const double offset4 = bl && bl->kept ? 4 * bl->value : 0.0;
+        for (size_t k = 0; k + 1 < sums.size(); k += 2) obs.push_back({sums[k] + sums[k + 1] - offset4, sums[k] - sums[k + 1], s.heldout});
       }
       // Bin by signal into 10 quantile bins; per bin the robust variance of r.
       const auto binned = [&](bool held, std::vector<double>* centre, std::vector<double>* var) {
@@ -660,6 +1149,18 @@ double ModulationPeriodPx(const PatternSpec& spec) {
   return spec.PeriodsPx().front();
 }
 
+std::vector<int> ModulationFrames(const PatternSpec& spec) {
+  const std::vector<FrameInfo> frames = spec.Frames();
+  const int axis = spec.code_x ? 0 : 1;
+  std::vector<int> idx;
+  if (spec.kind == PatternKind::kGrayCode) {
+    idx = {FindFrame(frames, FrameRole::kGrayBit, axis, 0, 0, 0), FindFrame(frames, FrameRole::kGrayBitInverse, axis, 0, 0, 0)};
+  } else {
+    for (int k = 0; k < spec.phase_steps; ++k) idx.push_back(FindFrame(frames, FrameRole::kPhase, axis, 0, 0, k));
+  }
+  return idx;
+}
+
 cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>& images) {
   cv::Mat w, b;
   WhiteBlackImages(spec, images, &w, &b);
@@ -667,18 +1168,11 @@ cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>
 }
 
 cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>& images, const cv::Mat& w, const cv::Mat& b) {
-  const std::vector<FrameInfo> frames = spec.Frames();
-  const int axis = spec.code_x ? 0 : 1;
   cv::Mat out(w.size(), CV_32FC1, cv::Scalar(std::nanf("")));
-  std::vector<int> idx;
-  if (spec.kind == PatternKind::kGrayCode) {
-    idx = {FindFrame(frames, FrameRole::kGrayBit, axis, 0, 0, 0), FindFrame(frames, FrameRole::kGrayBitInverse, axis, 0, 0, 0)};
-  } else {
-    for (int k = 0; k < spec.phase_steps; ++k) idx.push_back(FindFrame(frames, FrameRole::kPhase, axis, 0, 0, k));
-  }
+  const std::vector<int> idx = ModulationFrames(spec);
   for (int i : idx) SLSHADOW_THROW_IF(i < 0, "fringe modulation: the sequence lacks its finest fringe frames");
   const int n = static_cast<int>(idx.size());
-  const bool bytes = images[0].depth() == CV_8U;
+  const bool bytes = images.at(static_cast<size_t>(idx[0])).depth() == CV_8U;
   cv::parallel_for_(cv::Range(0, w.rows), [&](const cv::Range& rows) {
     std::vector<const uint8_t*> p8(static_cast<size_t>(n));
     for (int y = rows.start; y < rows.end; ++y) {

@@ -7,16 +7,22 @@
 #include "core/stage_meter.h"
 #include "patterns/codec.h"
 #include "patterns/pattern_spec.h"
+#include "plot/plot.h"
 #include "reconstruct/reconstruct.h"
+#include "shadow/scan_pipeline.h"
+#include "shadow/sweep_reuse.h"
 #include "sim/scene.h"
 #include "sim/simulate.h"
 
-#include "plot/plot.h"
-#include "shadow/scan_pipeline.h"
+#include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
+#include <initializer_list>
+#include <limits>
 #include <map>
 #include <memory>
 #include <optional>
@@ -36,6 +42,12 @@ constexpr int kVersion = 1;
 // The top-level keys of a job an axis or a `set` entry may write into.
 const std::vector<std::string> kSettable = {"scene",  "rig",         "patterns",
                                             "decode", "reconstruct", "compare"};
+
+// The figures a study's `curves` may chart and limit. Error figures break upwards (above the
+// limit), coverage figures downwards.
+const std::vector<std::string> kCurveMetrics = {"p95_mm", "rms_mm", "outlier_fraction", "coverage",
+                                                "visible_coverage"};
+bool BreaksAbove(const std::string& metric) { return metric.find("coverage") == std::string::npos; }
 
 std::string JobName(int id) {
   char buf[32];
@@ -159,7 +171,8 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
   const ConfigNode study = ConfigNode::LoadFile(study_file);
   const fs::path study_dir = fs::absolute(study_file).parent_path();
   study.RejectUnknownKeys({"format", "version", "name", "description", "scene", "rig", "patterns",
-                           "modes", "decode", "reconstruct", "compare", "set", "axes"});
+                           "modes", "decode", "reconstruct", "compare", "set", "axes", "curves",
+                           "effects", "pareto"});
   if (study["format"].AsString() != kStudyFormat)
     study["format"].Fail(std::string("must be ") + kStudyFormat);
   if (study["version"].AsInt() != kVersion) study["version"].Fail("must be 1");
@@ -201,9 +214,13 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
   base["compare"] = compare::CompareOptionsToJson(
       study.Has("compare") ? compare::CompareOptionsFromConfig(study["compare"])
                            : compare::CompareOptions{});
+  std::vector<std::pair<json::json_pointer, json>> set_entries;
   if (study.Has("set")) {
     const ConfigNode set = study["set"];
-    for (const std::string& key : set.Keys()) base[SetPath(key, set[key])] = set[key].json();
+    for (const std::string& key : set.Keys()) {
+      set_entries.emplace_back(SetPath(key, set[key]), set[key].json());
+      base[set_entries.back().first] = set_entries.back().second;
+    }
   }
 
   // Axes: the cartesian product, first axis slowest.
@@ -212,7 +229,7 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
     const ConfigNode list = study["axes"];
     for (size_t a = 0; a < list.size(); ++a) {
       const ConfigNode n = list.at(a);
-      n.RejectUnknownKeys({"name", "set", "values", "range", "files"});
+      n.RejectUnknownKeys({"name", "set", "values", "labels", "range", "files"});
       Axis axis;
       axis.name = n["name"].AsString();
       for (const auto& other : axes) {
@@ -222,10 +239,19 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
       axis.target = SetPath(axis.target_text, n["set"]);
       const int kinds = int(n.Has("values")) + int(n.Has("range")) + int(n.Has("files"));
       if (kinds != 1) n.Fail("needs exactly one of values, range, files");
+      if (n.Has("labels") && !n.Has("values")) n["labels"].Fail("labels go with values");
       if (n.Has("values")) {
         for (size_t i = 0; i < n["values"].size(); ++i)
           axis.values.push_back(n["values"].at(i).json());
         axis.labels = axis.values;
+        // Names for values that read badly in tables and charts (e.g. mappings of layers).
+        if (n.Has("labels")) {
+          const ConfigNode labels = n["labels"];
+          if (labels.size() != axis.values.size()) {
+            labels.Fail("needs one label per value (" + std::to_string(axis.values.size()) + ")");
+          }
+          for (size_t i = 0; i < labels.size(); ++i) axis.labels[i] = labels.at(i).AsString();
+        }
       } else if (n.Has("range")) {
         const ConfigNode r = n["range"];
         r.RejectUnknownKeys({"first", "count", "step"});
@@ -252,6 +278,43 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
       axes.push_back(std::move(axis));
     }
   }
+  if (study.Has("curves")) {
+    const ConfigNode c = study["curves"];
+    c.RejectUnknownKeys({"x", "limits"});
+    const std::string x = c["x"].AsString();
+    const auto it =
+        std::find_if(axes.begin(), axes.end(), [&](const Axis& a) { return a.name == x; });
+    if (it == axes.end()) c["x"].Fail("'" + x + "' is not an axis of the study");
+    for (const json& v : it->labels) {
+      if (!v.is_number())
+        c["x"].Fail("axis '" + x + "' has a value that is not a number: " + v.dump());
+    }
+    if (c.Has("limits")) {
+      const ConfigNode limits = c["limits"];
+      limits.RejectUnknownKeys(kCurveMetrics);
+      for (const std::string& k : limits.Keys()) limits[k].AsDouble();
+    }
+  }
+  if (study.Has("pareto")) {
+    const ConfigNode pareto = study["pareto"];
+    pareto.RejectUnknownKeys({"by"});
+    const std::string name = pareto["by"].AsString();
+    if (std::none_of(axes.begin(), axes.end(), [&](const Axis& a) { return a.name == name; })) {
+      pareto["by"].Fail("'" + name + "' is not an axis of the study");
+    }
+  }
+  if (study.Has("effects")) {
+    const ConfigNode e = study["effects"];
+    e.RejectUnknownKeys({"axis", "baseline", "tolerance_mm"});
+    const std::string name = e["axis"].AsString();
+    const auto it =
+        std::find_if(axes.begin(), axes.end(), [&](const Axis& a) { return a.name == name; });
+    if (it == axes.end()) e["axis"].Fail("'" + name + "' is not an axis of the study");
+    if (std::find(it->labels.begin(), it->labels.end(), e["baseline"].json()) == it->labels.end()) {
+      e["baseline"].Fail("is not a value (or label) of axis '" + name + "'");
+    }
+    if (!(e["tolerance_mm"].AsDouble() >= 0)) e["tolerance_mm"].Fail("must be >= 0");
+  }
   size_t total = 1;
   for (const auto& a : axes) total *= a.values.size();
   if (total > 1000000) study["axes"].Fail("more than 1000000 jobs");
@@ -274,6 +337,19 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
       job[axis.target] = axis.values[index[a]];
       if (!axis.base_dirs.empty()) job["scene_base_dir"] = axis.base_dirs[index[a]];
       params[axis.name] = axis.labels[index[a]];
+    }
+    // `set` entries under a tree an axis replaced whole (e.g. a scene file) apply to it too,
+    // unless an axis sets that path or one under it.
+    for (const auto& [path, value] : set_entries) {
+      bool replaced = false, set_by_axis = false;
+      for (const Axis& axis : axes) {
+        const std::string t = axis.target.to_string(), p = path.to_string();
+        replaced = replaced ||
+                   (p.size() > t.size() && p.compare(0, t.size(), t) == 0 && p[t.size()] == '/');
+        set_by_axis = set_by_axis || (t.compare(0, p.size(), p) == 0 &&
+                                      (t.size() == p.size() || t[p.size()] == '/'));
+      }
+      if (replaced && !set_by_axis) job[path] = value;
     }
     job["params"] = params;
     // The spec's derived image count follows what the axes changed (e.g. patterns.phase_steps);
@@ -367,14 +443,18 @@ json ReadJob(const fs::path& jobs_dir, int id) {
   return job;
 }
 
-// What a geometry group keeps for its jobs.
+// What a geometry group keeps for its jobs (shadow/sweep_reuse.h).
 struct Group {
   std::string key;
   Scene scene;  // the first job's scene (geometry of all)
   Rig rig;
   std::unique_ptr<Simulator> simulator;
-  std::optional<compare::Reference> reference;
-  std::vector<Eigen::Vector3d> visible;
+  std::unique_ptr<GroundTruthScorer> scorer;
+  // The noise-free images of the last noisy job's patterns and noise-free scene, and the image
+  // buffers every job renders into.
+  std::string noise_free_key;
+  std::unique_ptr<NoiseFreeImages> noise_free;
+  std::vector<std::vector<cv::Mat>> images;
 };
 
 json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group, int* traces) {
@@ -386,6 +466,13 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
   json timing = json::object();
   const double cpu0 = ProcessCpuSeconds();
   const auto t0 = clock();
+  // CPU seconds of the process (every thread) since the previous stage ended.
+  double cpu_mark = cpu0;
+  const auto stage_cpu = [&](const char* name) {
+    const double now = ProcessCpuSeconds();
+    timing[name] = now - cpu_mark;
+    cpu_mark = now;
+  };
 
   Scene scene = SceneFromConfig(node("scene"), job.at("scene_base_dir").get<std::string>());
   if (!group || group->key != key) {
@@ -395,21 +482,34 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
     g->scene = scene;
     g->rig = RigFromConfig(node("rig"));
     g->simulator = std::make_unique<Simulator>(g->scene, g->rig);
-    g->reference.emplace(
-        compare::ReferenceFromMesh(SceneSurface(g->scene, what + ": scene"), "scene ground truth"));
-    g->visible = LitVisibleSurface(g->simulator->geometry(0));
+    g->scorer = std::make_unique<GroundTruthScorer>(GroundTruthSurface(g->scene, what + ": scene"),
+                                                    LitVisibleSurface(g->simulator->geometry(0)),
+                                                    "scene ground truth");
     group = std::move(g);
     ++*traces;
   }
   const auto t1 = clock();
   timing["setup_s"] = seconds(t0, t1);
+  stage_cpu("setup_cpu_s");
 
   const PatternSpec spec = PatternSpecFromConfig(node("patterns"));
-  const std::vector<cv::Mat> projector_images = GeneratePatterns(spec);
-  const std::vector<std::vector<cv::Mat>> images =
-      group->simulator->Render(projector_images, &scene);
+  if (scene.layers.noise_enabled) {
+    // Noise per seed on the noise-free images rendered once (bit for bit Simulator::Render's).
+    const std::string images_key = NoiseFreeImages::Key(job.at("scene"), job.at("patterns"));
+    if (!group->noise_free || group->noise_free_key != images_key) {
+      group->noise_free.reset();
+      group->noise_free = std::make_unique<NoiseFreeImages>(*group->simulator, scene, group->rig,
+                                                            GeneratePatterns(spec));
+      group->noise_free_key = images_key;
+    }
+    group->noise_free->Render(scene, &group->images);
+  } else {
+    group->images = group->simulator->Render(GeneratePatterns(spec), &scene);
+  }
+  const std::vector<std::vector<cv::Mat>>& images = group->images;
   const auto t2 = clock();
   timing["render_s"] = seconds(t1, t2);
+  stage_cpu("render_cpu_s");
 
   std::vector<ReconstructMode> modes;
   for (const auto& m : job.at("modes"))
@@ -429,12 +529,14 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
   }
   const auto t3 = clock();
   timing["decode_s"] = seconds(t2, t3);
+  stage_cpu("decode_cpu_s");
 
   const ReconstructOptions reconstruct = ReconstructOptionsFromConfig(node("reconstruct"));
   std::vector<StageMeasurement> stages;
   std::vector<Reconstruction> recs = ReconstructModes(decoded, modes, reconstruct, &stages);
   const auto t4 = clock();
   timing["reconstruct_s"] = seconds(t3, t4);
+  stage_cpu("reconstruct_cpu_s");
   // Per mode, what the method costs: decoding the cameras it reads, then its reconstruction.
   json method_s = json::object();
   for (size_t k = 0; k < modes.size() && k < stages.size(); ++k) {
@@ -446,16 +548,26 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
 
   const compare::CompareOptions compare_options =
       compare::CompareOptionsFromConfig(node("compare"));
+  // The modes' measurements are independent and partly serial: run them side by side.
+  std::vector<ModeAccuracy> measured(modes.size());
+  // A method that reconstructs nothing (it broke) has no error figures: null, and coverage 0.
+  tbb::parallel_for(size_t{0}, modes.size(), [&](size_t k) {
+    measured[k].mode = ToString(modes[k]);
+    if (recs[k].cloud.empty()) return;
+    measured[k] = group->scorer->Measure(recs[k].cloud, compare_options, ToString(modes[k]));
+  });
   json accuracy = json::array();
-  for (size_t k = 0; k < modes.size(); ++k) {
-    const std::string name = ToString(modes[k]);
-    const compare::CompareResult cmp =
-        compare::Compare(recs[k].cloud, *group->reference, compare_options, name);
-    const ModeAccuracy m = MeasureAccuracy(name, cmp, group->visible);
-    accuracy.push_back(ModeAccuracyToJson(m));
+  for (const ModeAccuracy& m : measured) {
+    json a = ModeAccuracyToJson(m);
+    if (m.points == 0) {
+      for (const char* k : {"mean_mm", "rms_mm", "p95_mm", "max_mm", "outlier_fraction"})
+        a[k] = nullptr;
+    }
+    accuracy.push_back(a);
   }
   const auto t5 = clock();
   timing["compare_s"] = seconds(t4, t5);
+  stage_cpu("compare_cpu_s");
   timing["total_s"] = seconds(t0, t5);
   timing["cpu_s"] = ProcessCpuSeconds() - cpu0;
   return {{"format", kResultFormat},    {"version", kVersion}, {"id", job.at("id")},
@@ -525,6 +637,8 @@ std::string CsvField(const json& v, int digits = 10) {
   std::string s;
   if (v.is_string()) {
     s = v.get<std::string>();
+  } else if (v.is_null()) {
+    s = "";  // a figure a job could not have (e.g. the error of an empty cloud)
   } else if (v.is_number_float()) {
     char buf[64];
     std::snprintf(buf, sizeof(buf), "%.*g", digits, v.get<double>());
@@ -541,10 +655,11 @@ std::string CsvField(const json& v, int digits = 10) {
   return s;
 }
 
-// Per mode: a job is on the Pareto front of (method time, RMS) when no other job of that mode is
-// at least as fast and as accurate and better in one of the two.
+// Per group (the mode, or the mode and a value of the study's `pareto.by` axis): a job is on the
+// Pareto front of (method time, RMS) when no other job of that group is at least as fast and as
+// accurate and better in one of the two.
 struct FrontPoint {
-  std::string id, mode, label;
+  std::string id, mode, group, label;
   double time_s = 0, rms_mm = 0;
   bool on_front = false;
 };
@@ -553,7 +668,7 @@ void MarkFront(std::vector<FrontPoint>& points) {
   for (auto& p : points) {
     p.on_front = true;
     for (const auto& q : points) {
-      if (q.mode != p.mode || &q == &p) continue;
+      if (q.group != p.group || &q == &p) continue;
       if (q.time_s <= p.time_s && q.rms_mm <= p.rms_mm &&
           (q.time_s < p.time_s || q.rms_mm < p.rms_mm)) {
         p.on_front = false;
@@ -563,6 +678,11 @@ void MarkFront(std::vector<FrontPoint>& points) {
   }
 }
 
+constexpr std::initializer_list<std::array<int, 3>> kFrontPalette = {
+    {40, 90, 200},   {200, 60, 0},  {30, 150, 60}, {150, 40, 160},
+    {120, 120, 120}, {220, 160, 0}, {0, 170, 190}, {120, 60, 20}};
+
+// The chart as `path`.png and `path`.svg (the same drawing), each written atomically.
 void WriteFrontChart(const fs::path& path, const std::vector<FrontPoint>& points,
                      const std::string& study) {
   double xmax = 0, ymax = 0;
@@ -571,40 +691,174 @@ void WriteFrontChart(const fs::path& path, const std::vector<FrontPoint>& points
     ymax = std::max(ymax, p.rms_mm);
   }
   const auto lock = plot::LockPlplot();
-  WriteFileAtomically(path, [&](const fs::path& tmp) {
-    auto pls = plot::OpenPng(tmp, 1000, 700, {{40, 90, 200}, {200, 60, 0}, {150, 150, 150}});
-    pls->env(0, xmax * 1.1 + 1e-9, 0, ymax * 1.15 + 1e-12, 0, 0);
-    pls->lab("decode (cameras the mode reads) + reconstruct time (s)", "RMS deviation (mm)",
-             (study + ": time against error, Pareto front per mode").c_str());
-    std::vector<std::string> modes;
-    for (const auto& p : points) {
-      if (std::find(modes.begin(), modes.end(), p.mode) == modes.end()) modes.push_back(p.mode);
-    }
-    for (size_t m = 0; m < modes.size(); ++m) {
-      std::vector<FrontPoint> front;
-      pls->col0(static_cast<PLINT>(2 + m % 2));
-      for (const auto& p : points) {
-        if (p.mode != modes[m]) continue;
-        PLFLT x = p.time_s, y = p.rms_mm;
-        pls->ssym(0, p.on_front ? 2.5 : 1.0);
-        pls->poin(1, &x, &y, p.on_front ? 17 : 4);
-        if (p.on_front) front.push_back(p);
+  for (const char* ext : {".png", ".svg"}) {
+    fs::path file = path;
+    file += ext;
+    WriteFileAtomically(file, [&](const fs::path& tmp) {
+      auto pls = std::string(ext) == ".png" ? plot::OpenPng(tmp, 1000, 700, kFrontPalette)
+                                            : plot::OpenSvg(tmp, 1000, 700, kFrontPalette);
+      size_t groups = 0;  // room above the points for one legend line per group
+      for (size_t i = 0; i < points.size(); ++i) {
+        groups += std::none_of(points.begin(), points.begin() + static_cast<std::ptrdiff_t>(i),
+                               [&](const FrontPoint& q) { return q.group == points[i].group; });
       }
-      std::sort(front.begin(), front.end(),
-                [](const auto& a, const auto& b) { return a.time_s < b.time_s; });
-      std::vector<PLFLT> xs, ys;
-      for (const auto& p : front) {
-        xs.push_back(p.time_s);
-        ys.push_back(p.rms_mm);
-        pls->schr(0, 0.6);
-        pls->ptex(p.time_s, p.rms_mm, 1, 0, -0.1, (" " + p.label).c_str());
+      pls->env(0, xmax * 1.1 + 1e-9, 0,
+               ymax * (1.15 + 0.07 * static_cast<double>(groups > 2 ? groups : 0)) + 1e-12, 0, 0);
+      pls->lab("decode (cameras the mode reads) + reconstruct time (s)", "RMS deviation (mm)",
+               (study + ": time against error, Pareto front per " +
+                (points.empty() || points[0].group == points[0].mode ? "mode" : "group"))
+                   .c_str());
+      std::vector<std::string> modes;  // the groups, in order of appearance
+      for (const auto& p : points) {
+        if (std::find(modes.begin(), modes.end(), p.group) == modes.end()) modes.push_back(p.group);
+      }
+      for (size_t m = 0; m < modes.size(); ++m) {
+        std::vector<FrontPoint> front;
+        pls->col0(static_cast<PLINT>(2 + m % 8));
+        for (const auto& p : points) {
+          if (p.group != modes[m]) continue;
+          PLFLT x = p.time_s, y = p.rms_mm;
+          pls->ssym(0, p.on_front ? 2.5 : 1.0);
+          pls->poin(1, &x, &y, p.on_front ? 17 : 4);
+          if (p.on_front) front.push_back(p);
+        }
+        std::sort(front.begin(), front.end(),
+                  [](const auto& a, const auto& b) { return a.time_s < b.time_s; });
+        std::vector<PLFLT> xs, ys;
+        for (const auto& p : front) {
+          xs.push_back(p.time_s);
+          ys.push_back(p.rms_mm);
+          pls->schr(0, 0.6);
+          pls->ptex(p.time_s, p.rms_mm, 1, 0, -0.1, (" " + p.label).c_str());
+          pls->schr(0, 1.0);
+        }
+        if (xs.size() > 1) pls->line(static_cast<PLINT>(xs.size()), xs.data(), ys.data());
+        pls->schr(0, modes.size() > 2 ? 0.75 : 1.0);
+        pls->mtex("t", -1.5 - (modes.size() > 2 ? 1.2 : 1.5) * static_cast<double>(m), 0.98, 1.0,
+                  (modes[m] + " (filled: on the front)").c_str());
         pls->schr(0, 1.0);
       }
-      if (xs.size() > 1) pls->line(static_cast<PLINT>(xs.size()), xs.data(), ys.data());
-      pls->mtex("t", -1.5 - 1.5 * static_cast<double>(m), 0.98, 1.0,
-                (modes[m] + " (filled: on the front)").c_str());
+    });
+  }
+}
+
+// The axis values of a job as a label ("graycode_phase 4 midpoint"), `skip` left out; files axes
+// by their file's stem, not their path (scene.yaml, rig.yaml, patterns.yaml by their folder's
+// name).
+std::string ParamsLabel(const json& params, const std::vector<std::string>& axes,
+                        const std::string& skip) {
+  std::string label;
+  for (const auto& a : axes) {
+    if (a == skip) continue;
+    if (!label.empty()) label += ' ';
+    const json& v = params.at(a);
+    if (v.is_string() && v.get<std::string>().find_first_of("/.") != std::string::npos) {
+      // config/demo/scene.yaml reads better as its folder's name.
+      const fs::path file(v.get<std::string>());
+      const std::string stem = file.stem().string();
+      label += (stem == "scene" || stem == "rig" || stem == "patterns") &&
+                       !file.parent_path().filename().empty()
+                   ? file.parent_path().filename().string()
+                   : stem;
+    } else {
+      label += CsvField(v);
     }
-  });
+  }
+  return label;
+}
+
+// One curve: a metric of one mode and one combination of the other axes, against the x axis.
+struct Curve {
+  std::string series, mode;
+  std::vector<std::pair<double, json>> points;  // (x, the mode's accuracy), by increasing x
+};
+
+// Where a curve first crosses `limit`: linearly interpolated between the last x inside and the
+// first x beyond; "at_first" when the first x is already beyond, "never" when no x is.
+struct BreakPoint {
+  std::string status;
+  double x = 0;
+};
+// A figure of a mode's accuracy; NaN when the job has none (null: nothing was reconstructed).
+double Figure(const json& accuracy, const std::string& metric) {
+  const json& v = accuracy.at(metric);
+  return v.is_null() ? std::numeric_limits<double>::quiet_NaN() : v.get<double>();
+}
+
+// A curve is beyond its limit where the figure is past it or missing (no cloud: broken). The break
+// is linearly interpolated between the last x inside and the first beyond when both figures exist,
+// else at that first x beyond.
+BreakPoint FindBreak(const Curve& c, const std::string& metric, double limit) {
+  const bool above = BreaksAbove(metric);
+  const auto beyond = [&](double v) { return std::isnan(v) || (above ? v > limit : v < limit); };
+  for (size_t i = 0; i < c.points.size(); ++i) {
+    const double v = Figure(c.points[i].second, metric);
+    if (!beyond(v)) continue;
+    if (i == 0) return {"at_first", c.points[0].first};
+    const double x0 = c.points[i - 1].first, x1 = c.points[i].first;
+    const double v0 = Figure(c.points[i - 1].second, metric);
+    const double t = !std::isnan(v) && v != v0 ? (limit - v0) / (v - v0) : 1.0;
+    return {"broke", x0 + std::clamp(t, 0.0, 1.0) * (x1 - x0)};
+  }
+  return {"never", 0};
+}
+
+// curves_<metric>.png / .svg for each metric: every curve, the limit as a dashed line.
+void WriteCurveCharts(const fs::path& out_dir, const std::vector<Curve>& curves,
+                      const std::string& x_axis, const std::vector<std::string>& metrics,
+                      const json& limits, const std::string& study) {
+  const auto lock = plot::LockPlplot();
+  const std::initializer_list<std::array<int, 3>> palette = {
+      {40, 90, 200}, {200, 60, 0}, {30, 150, 60}, {150, 40, 160}, {120, 120, 120}, {220, 160, 0}};
+  for (const std::string& metric : metrics) {
+    double xmin = 1e300, xmax = -1e300, ymax = 0;
+    for (const auto& c : curves) {
+      for (const auto& [x, m] : c.points) {
+        xmin = std::min(xmin, x);
+        xmax = std::max(xmax, x);
+        const double v = Figure(m, metric);
+        if (!std::isnan(v)) ymax = std::max(ymax, v);
+      }
+    }
+    if (limits.contains(metric)) ymax = std::max(ymax, limits.at(metric).get<double>());
+    if (!(xmax > xmin)) xmax = xmin + 1;
+    const double ytop = metric.find("coverage") != std::string::npos ? 1.05 : ymax * 1.15 + 1e-12;
+    for (const char* ext : {".png", ".svg"}) {
+      const fs::path file = out_dir / ("curves_" + metric + ext);
+      WriteFileAtomically(file, [&](const fs::path& tmp) {
+        auto pls = std::string(ext) == ".png" ? plot::OpenPng(tmp, 1000, 700, palette)
+                                              : plot::OpenSvg(tmp, 1000, 700, palette);
+        pls->env(xmin, xmax, 0, ytop, 0, 0);
+        pls->lab(x_axis.c_str(), metric.c_str(),
+                 (study + ": " + metric + " against " + x_axis).c_str());
+        if (limits.contains(metric)) {
+          const PLFLT lx[2] = {xmin, xmax};
+          const PLFLT ly[2] = {limits.at(metric).get<double>(), limits.at(metric).get<double>()};
+          pls->lsty(3);
+          pls->line(2, lx, ly);
+          pls->lsty(1);
+        }
+        for (size_t k = 0; k < curves.size(); ++k) {
+          const Curve& c = curves[k];
+          std::vector<PLFLT> xs, ys;
+          for (const auto& [x, m] : c.points) {
+            if (std::isnan(Figure(m, metric))) continue;  // nothing reconstructed: no point
+            xs.push_back(x);
+            ys.push_back(Figure(m, metric));
+          }
+          pls->col0(static_cast<PLINT>(2 + k % 6));
+          pls->lsty(c.mode == "stereo" ? 2 : 1);
+          if (!xs.empty()) pls->line(static_cast<PLINT>(xs.size()), xs.data(), ys.data());
+          if (!xs.empty()) pls->poin(static_cast<PLINT>(xs.size()), xs.data(), ys.data(), 17);
+          pls->lsty(1);
+          pls->schr(0, 0.7);
+          pls->mtex("t", -1.5 - 1.3 * static_cast<double>(k), 0.02, 0.0,
+                    (c.series.empty() ? c.mode : c.series + ", " + c.mode).c_str());
+          pls->schr(0, 1.0);
+        }
+      });
+    }
+  }
 }
 
 }  // namespace
@@ -652,7 +906,9 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
     csv += m;
   }
   csv += "\n";
-  std::string timings = "id,setup_s,render_s,decode_s,reconstruct_s,compare_s,total_s,cpu_s\n";
+  std::string timings =
+      "id,setup_s,render_s,decode_s,reconstruct_s,compare_s,total_s,cpu_s,setup_cpu_s,render_cpu_s,"
+      "decode_cpu_s,reconstruct_cpu_s,compare_cpu_s\n";
   json merged = {
       {"format", "slshadow-sweep-results"},      {"version", kVersion}, {"study", plan.at("study")},
       {"study_config", plan.at("study_config")}, {"axes", axes},        {"jobs", json::array()}};
@@ -677,9 +933,10 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
     const json& t = r.at("timing");
     timings += id;
     for (const char* k :
-         {"setup_s", "render_s", "decode_s", "reconstruct_s", "compare_s", "total_s", "cpu_s"}) {
+         {"setup_s", "render_s", "decode_s", "reconstruct_s", "compare_s", "total_s", "cpu_s",
+          "setup_cpu_s", "render_cpu_s", "decode_cpu_s", "reconstruct_cpu_s", "compare_cpu_s"}) {
       timings += ',';
-      timings += CsvField(t.at(k));
+      timings += t.contains(k) ? CsvField(t.at(k)) : std::string();  // older results: empty
     }
     timings += "\n";
     merged["jobs"].push_back(
@@ -694,37 +951,130 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
 
   // Time against error: decode + reconstruct time (the method's cost; rendering and comparing are
   // the study's) against RMS, per mode, with the Pareto front. Measured times: not reproducible.
+  const json& config = plan.at("study_config");
+  const std::string by =
+      config.contains("pareto") ? config.at("pareto").at("by").get<std::string>() : "";
   std::vector<FrontPoint> points;
   for (const auto& r : results) {
-    std::string label;
-    for (const auto& a : axes) {
-      if (!label.empty()) label += ' ';
-      const json& v = r.at("params").at(a);
-      // Files axes: the file's stem (graycode_phase), not its path.
-      label += v.is_string() && v.get<std::string>().find_first_of("/.") != std::string::npos
-                   ? fs::path(v.get<std::string>()).stem().string()
-                   : CsvField(v);
-    }
+    const std::string label = ParamsLabel(r.at("params"), axes, by);
+    const std::string by_value = by.empty() ? "" : ParamsLabel(r.at("params"), {by}, "");
     const json& t = r.at("timing");
     for (const auto& m : r.at("modes")) {
+      if (m.at("rms_mm").is_null()) continue;  // nothing reconstructed: not on the chart
       FrontPoint p;
       p.id = JobName(r.at("id").get<int>());
       p.mode = m.at("mode").get<std::string>();
       p.label = label.empty() ? p.id : label;
+      p.group = by.empty() ? p.mode : p.mode + " " + by_value;
       p.time_s = t.at("method_s").at(p.mode).get<double>();
       p.rms_mm = m.at("rms_mm").get<double>();
       points.push_back(p);
     }
   }
   MarkFront(points);
-  std::string front_csv = "id,mode,label,time_s,rms_mm,on_front\n";
+  std::string front_csv =
+      std::string("id,mode,label,time_s,rms_mm,on_front") + (by.empty() ? "\n" : ",group\n");
   for (const auto& p : points) {
     front_csv += p.id + ',' + p.mode + ',' + CsvField(p.label) + ',' + CsvField(p.time_s, 17) +
-                 ',' + CsvField(p.rms_mm, 17) + ',' + (p.on_front ? "1" : "0") + '\n';
-    if (p.on_front) summary.front.push_back(p.mode + ": " + p.id + " (" + p.label + ")");
+                 ',' + CsvField(p.rms_mm, 17) + ',' + (p.on_front ? "1" : "0") +
+                 (by.empty() ? "" : "," + CsvField(p.group)) + '\n';
+    if (p.on_front) summary.front.push_back(p.group + ": " + p.id + " (" + p.label + ")");
   }
   WriteTextFileAtomically(out_dir / "pareto.csv", front_csv);
-  WriteFrontChart(out_dir / "time_vs_rms.png", points, plan.at("study").get<std::string>());
+  WriteFrontChart(out_dir / "time_vs_rms", points, plan.at("study").get<std::string>());
+
+  // Curves against one axis and break points (study key `curves`): from the accuracy figures
+  // only, so as reproducible as results.csv.
+  if (config.contains("curves")) {
+    const json& spec = config.at("curves");
+    const std::string x_axis = spec.at("x").get<std::string>();
+    const json limits = spec.value("limits", json::object());
+    std::vector<std::string> metrics;
+    for (const auto& m : kCurveMetrics) {
+      if (limits.contains(m)) metrics.push_back(m);
+    }
+    if (metrics.empty()) metrics = {"p95_mm", "visible_coverage"};
+    std::vector<Curve> curves;
+    std::map<std::string, size_t> index;
+    for (const auto& r : results) {
+      const std::string series = ParamsLabel(r.at("params"), axes, x_axis);
+      const double x = r.at("params").at(x_axis).get<double>();
+      for (const auto& m : r.at("modes")) {
+        const std::string mode = m.at("mode").get<std::string>();
+        const auto it = index.emplace(series + '\n' + mode, curves.size()).first;
+        if (it->second == curves.size()) curves.push_back({series, mode, {}});
+        curves[it->second].points.emplace_back(x, m);
+      }
+    }
+    for (auto& c : curves) {
+      std::stable_sort(c.points.begin(), c.points.end(),
+                       [](const auto& a, const auto& b) { return a.first < b.first; });
+    }
+    std::string breaks = "series,mode,metric,limit,status," + CsvField(x_axis) + "\n";
+    for (const auto& c : curves) {
+      for (const auto& metric : metrics) {
+        if (!limits.contains(metric)) continue;
+        const double limit = limits.at(metric).get<double>();
+        const BreakPoint b = FindBreak(c, metric, limit);
+        breaks += CsvField(c.series) + ',' + c.mode + ',' + metric + ',' + CsvField(json(limit)) +
+                  ',' + b.status + ',' + (b.status == "never" ? "" : CsvField(json(b.x))) + '\n';
+        summary.break_points.push_back(
+            (c.series.empty() ? "" : c.series + ", ") + c.mode + ": " + metric +
+            (BreaksAbove(metric) ? " > " : " < ") + CsvField(json(limit)) + " " +
+            (b.status == "never" ? "nowhere in the sweep"
+                                 : (b.status == "at_first" ? "already at " : "at ") + x_axis +
+                                       " = " + CsvField(json(b.x), 4)));
+      }
+    }
+    WriteTextFileAtomically(out_dir / "break_points.csv", breaks);
+    WriteCurveCharts(out_dir, curves, x_axis, metrics, limits, plan.at("study").get<std::string>());
+  }
+  // Effects of one axis's values against a baseline value (study key `effects`).
+  if (config.contains("effects")) {
+    const json& spec = config.at("effects");
+    const std::string axis = spec.at("axis").get<std::string>();
+    const json& baseline = spec.at("baseline");
+    const double tolerance = spec.at("tolerance_mm").get<double>();
+    std::map<std::string, json> base;  // series + mode -> the baseline job's accuracy
+    for (const auto& r : results) {
+      if (r.at("params").at(axis) != baseline) continue;
+      for (const auto& m : r.at("modes")) {
+        base[ParamsLabel(r.at("params"), axes, axis) + '\n' + m.at("mode").get<std::string>()] = m;
+      }
+    }
+    std::string csv_effects =
+        "series,mode," + CsvField(axis) + ",rms_mm,p95_mm,d_rms_mm,d_p95_mm,needed,render_s\n";
+    for (const auto& r : results) {
+      const std::string series = ParamsLabel(r.at("params"), axes, axis);
+      const json& value = r.at("params").at(axis);
+      for (const auto& m : r.at("modes")) {
+        const std::string mode = m.at("mode").get<std::string>();
+        const auto b = base.find(series + '\n' + mode);
+        std::string d_rms, d_p95, needed;
+        if (b != base.end()) {
+          const double dr = Figure(m, "rms_mm") - Figure(b->second, "rms_mm");
+          const double dp = Figure(m, "p95_mm") - Figure(b->second, "p95_mm");
+          // A missing figure (nothing reconstructed on one side) is a change beyond any tolerance.
+          const bool need = std::isnan(dr) || std::isnan(dp) || std::abs(dr) > tolerance ||
+                            std::abs(dp) > tolerance;
+          d_rms = std::isnan(dr) ? "" : CsvField(json(dr));
+          d_p95 = std::isnan(dp) ? "" : CsvField(json(dp));
+          needed = value == baseline ? "" : (need ? "1" : "0");
+          if (value != baseline) {
+            summary.effects.push_back((series.empty() ? "" : series + ", ") + mode + ": " +
+                                      CsvField(value) + (need ? " changes" : " does not change") +
+                                      " RMS or p95 by more than " + CsvField(json(tolerance)) +
+                                      " mm");
+          }
+        }
+        csv_effects += CsvField(series) + ',' + mode + ',' + CsvField(value) + ',' +
+                       CsvField(m.at("rms_mm")) + ',' + CsvField(m.at("p95_mm")) + ',' + d_rms +
+                       ',' + d_p95 + ',' + needed + ',' + CsvField(r.at("timing").at("render_s")) +
+                       '\n';
+      }
+    }
+    WriteTextFileAtomically(out_dir / "effects.csv", csv_effects);
+  }
   summary.jobs = n;
   summary.out_dir = out_dir;
   return summary;

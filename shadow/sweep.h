@@ -81,6 +81,10 @@ struct SweepMergeSummary {
   int jobs = 0;
   int rows = 0;                    // results.csv rows (one per job and mode)
   std::vector<std::string> front;  // "mode: id (axis values)" of the jobs on the Pareto front
+  // With the study key `curves`: "series, mode: metric > limit at x = value" per curve and limit.
+  std::vector<std::string> break_points;
+  // With the study key `effects`: "series, mode: value changes / does not change ..." per job.
+  std::vector<std::string> effects;
   std::filesystem::path out_dir;
 };
 

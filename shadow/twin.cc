@@ -12,7 +12,9 @@
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "compare/charts.h"
 #include "compare/compare.h"
+#include "compare/statistics.h"
 #include "compare/kdtree.h"
 #include "compare/mesh_distance.h"
 #include "core/config.h"
@@ -20,6 +22,7 @@
 #include "core/file_util.h"
 #include "core/image_set.h"
 #include "core/point_cloud.h"
+#include "plot/plot.h"
 #include "sim/simulate.h"
 
 namespace slshadow::workflow {
@@ -65,6 +68,12 @@ Stats ComputeStats(std::vector<double> v) {
   return s;
 }
 
+std::string Fmt(const char* format, double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof(buf), format, v);
+  return buf;
+}
+
 nlohmann::json PoseToJson(const Rigid3d& p) {
   const Eigen::AngleAxisd aa(p.rotation);
   const Eigen::Vector3d r = aa.angle() * aa.axis();
@@ -73,21 +82,80 @@ nlohmann::json PoseToJson(const Rigid3d& p) {
           {"translation_mm", {p.translation.x(), p.translation.y(), p.translation.z()}}};
 }
 
-// Diverging colour (blue - white - red) of t in [-1, 1]; NaN black.
-cv::Vec3b Diverging(double t) {
-  if (!std::isfinite(t)) return {0, 0, 0};
-  t = std::clamp(t, -1.0, 1.0);
-  const auto c = [](double v) { return static_cast<uint8_t>(std::lround(255 * std::clamp(v, 0.0, 1.0))); };
-  if (t < 0) return {255, c(1 + t), c(1 + t)};  // BGR: towards blue
-  return {c(1 - t), c(1 - t), 255};              // towards red
+// A camera-image map (CV_32FC1, NaN where unknown) as a chart with a colour bar: symmetric at the
+// 99th percentile of |value| over the finite pixels (at least `floor`), `marks` drawn on the bar
+// and described by `mark_note`. Returns the colour range used.
+double WriteMapChart(const fs::path& path, const cv::Mat& values, const std::string& title, const std::string& unit,
+                     const std::vector<double>& marks, const std::string& mark_note, double floor) {
+  compare::ValueImage img;
+  img.width = values.cols;
+  img.height = values.rows;
+  img.values.assign(values.begin<float>(), values.end<float>());
+  std::vector<float> finite;
+  for (size_t i = 0; i < img.values.size(); i += 7) {
+    if (std::isfinite(img.values[i])) finite.push_back(std::abs(img.values[i]));
+  }
+  double range = floor;
+  if (!finite.empty()) {
+    const size_t k = std::min(finite.size() - 1, static_cast<size_t>(0.99 * static_cast<double>(finite.size())));
+    std::nth_element(finite.begin(), finite.begin() + static_cast<std::ptrdiff_t>(k), finite.end());
+    range = std::max(floor, static_cast<double>(finite[k]));
+  }
+  compare::MapChart chart;
+  chart.title = title;
+  chart.colorbar_label = unit;
+  chart.lo = -range;
+  chart.hi = range;
+  chart.marks = marks;
+  chart.max_width_px = 640;  // ~3x fewer PLplot cells than compare's maps: four maps per camera
+  chart.max_height_px = 440;
+  char buf[160];
+  std::snprintf(buf, sizeof(buf), "range +-%.3g (99 %% of pixels); white: not compared", range);
+  chart.notes = {buf};
+  bool any_in = false;
+  for (double m : marks) any_in = any_in || std::abs(m) < range;
+  if (!mark_note.empty()) chart.notes.push_back(mark_note + (any_in ? ": lines on the bar" : ": beyond the range"));
+  compare::WriteDeviationMapPng(path, img, chart);
+  return range;
 }
 
-void WriteDivergingMap(const fs::path& path, const cv::Mat& values, double scale) {
-  cv::Mat out(values.size(), CV_8UC3);
-  for (int y = 0; y < values.rows; ++y) {
-    for (int x = 0; x < values.cols; ++x) out.at<cv::Vec3b>(y, x) = Diverging(values.at<float>(y, x) / scale);
-  }
-  SLSHADOW_THROW_IF(!cv::imwrite(path.string(), out), path.string(), ": cannot write PNG");
+// Per frame, per camera: the share of compared pixels within 5 % of full scale (points joined by
+// lines, one colour per camera), the 95 % goal dashed.
+void WriteFrameAgreementChart(const fs::path& path, const nlohmann::json& cameras) {
+  const auto lock = plot::LockPlplot();
+  WriteFileAtomically(path, [&](const fs::path& tmp) {
+    auto pls = plot::OpenPng(tmp, 1100, 600, {{200, 30, 30}, {30, 90, 200}, {30, 150, 60}, {120, 120, 120}});
+    size_t frames = 0;
+    double lowest = 95;
+    for (const auto& c : cameras) {
+      frames = std::max(frames, c["patterns"].size());
+      for (const auto& f : c["patterns"]) lowest = std::min(lowest, 100 * f["within_5pct"].get<double>());
+    }
+    const double ymin = std::max(0.0, std::floor((lowest - 2) / 5) * 5 - 0.15 * (100 - lowest));
+    pls->env(-0.5, static_cast<double>(frames) - 0.5, ymin, 100.5, 0, 0);
+    pls->lab("frame (spec order)", "pixels within 5 % of full scale (%)", "real vs twin intensity, per frame");
+    const PLFLT gx[2] = {-0.5, static_cast<double>(frames) - 0.5}, gy[2] = {95, 95};
+    pls->col0(5);
+    pls->lsty(2);
+    pls->line(2, gx, gy);
+    pls->lsty(1);
+    for (size_t c = 0; c < cameras.size(); ++c) {
+      std::vector<PLFLT> x, y;
+      for (const auto& f : cameras[c]["patterns"]) {
+        x.push_back(f["index"].get<double>());
+        y.push_back(100 * f["within_5pct"].get<double>());
+      }
+      pls->col0(static_cast<PLINT>(2 + c % 3));
+      pls->line(static_cast<PLINT>(x.size()), x.data(), y.data());
+      pls->poin(static_cast<PLINT>(x.size()), x.data(), y.data(), 17);
+      char name[128];
+      std::snprintf(name, sizeof(name), "%s: %.1f %% over all frames", cameras[c]["camera"].get<std::string>().c_str(),
+                    100 * cameras[c]["within_5pct_all_frames"].get<double>());
+      pls->mtex("b", -1.0 - 1.3 * static_cast<double>(cameras.size() - 1 - c), 0.98, 1.0, name);
+    }
+    pls->col0(5);
+    pls->mtex("b", -1.0, 0.02, 0.0, "dashed: the 95 % goal");
+  });
 }
 
 struct ModeClouds {
@@ -433,8 +501,40 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
   // 4. Virtual re-scan with the fitted physics; defocus from its fringes against the real ones.
   meter = StageMeter("twin: render (+ defocus fit)");
   Scene fitted = fit.Apply(twin, twin_rig, projector_depth_mm, options.noise_seed);
-  std::vector<std::vector<cv::Mat>> rendered = simulator->Render(projector_images, &fitted);
+  std::vector<std::vector<cv::Mat>> rendered;
+  // The image layers the renderer does not model (black level, illumination field, global light).
+  const std::vector<double> pattern_means = PatternMeans(projector_images);
+  const auto apply_image_layers = [&] {
+    for (const auto& name : cameras) {
+      ApplyImageLayers(fit, spec, pattern_means, name, &rendered[static_cast<size_t>(twin_rig.CameraIndex(name))]);
+    }
+  };
+  const auto render_all = [&] {
+    rendered.clear();
+    rendered = simulator->Render(projector_images, &fitted);
+    apply_image_layers();
+  };
   if (options.fit_physics) {
+    // The defocus fit reads only the white, black and finest fringe frames: with white and black
+    // frames in the sequence only those are rendered for it (the rest once the physics is final).
+    std::vector<int> fit_frames;
+    if (spec.WhiteFrameIndex() >= 0 && spec.BlackFrameIndex() >= 0) {
+      fit_frames = ModulationFrames(spec);
+      fit_frames.push_back(spec.WhiteFrameIndex());
+      fit_frames.push_back(spec.BlackFrameIndex());
+    }
+    if (fit_frames.empty()) {
+      render_all();
+    } else {
+      std::vector<cv::Mat> subset;
+      for (int i : fit_frames) subset.push_back(projector_images[static_cast<size_t>(i)]);
+      const std::vector<std::vector<cv::Mat>> part = simulator->Render(subset, &fitted);
+      rendered.assign(part.size(), std::vector<cv::Mat>(projector_images.size()));
+      for (size_t cam = 0; cam < part.size(); ++cam) {
+        for (size_t k = 0; k < fit_frames.size(); ++k) rendered[cam][static_cast<size_t>(fit_frames[k])] = part[cam][k];
+      }
+      apply_image_layers();
+    }
     for (size_t c = 0; c < cameras.size(); ++c) data[c].twin = rendered[static_cast<size_t>(twin_rig.CameraIndex(cameras[c]))];
     FitDefocus(spec, data, options.physics, &fit);
     for (auto& d : data) d.twin.clear();
@@ -443,8 +543,13 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
       for (auto& d : data) d.twin_modulation = d.twin_white = d.twin_black = cv::Mat(), d.geometry = nullptr;
       rendered.clear();
       simulator = std::make_unique<Simulator>(fitted, twin_rig);
-      rendered = simulator->Render(projector_images, &fitted);
+      render_all();
+    } else if (!fit_frames.empty()) {
+      for (auto& d : data) d.twin_modulation = d.twin_white = d.twin_black = cv::Mat();
+      render_all();
     }
+  } else {
+    render_all();
   }
   result.stages.push_back(meter.Stop());
   report["physics"] = {{"layers", fit.ToJson()}, {"twin_scene", SceneToJson(fitted)}};
@@ -457,7 +562,7 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
   result.stages.push_back(meter.Stop());
 
   // 5. Images.
-  meter = StageMeter("compare images + clouds");
+  meter = StageMeter("compare images");
   std::vector<float> response(256);
   for (int v = 0; v < 256; ++v) response[static_cast<size_t>(v)] = static_cast<float>(fitted.layers.response_enabled ? std::pow(v / 255.0, fitted.layers.gamma) : v / 255.0);
   std::vector<CameraEvidence> evidence(cameras.size());
@@ -576,6 +681,8 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
     ev.black = data[c].black;
     ev.projector_fx = twin_rig.projector->model.fx();
     ev.projector_fy = twin_rig.projector->model.fy();
+    ev.projector_cx = twin_rig.projector->model.cx();
+    ev.projector_cy = twin_rig.projector->model.cy();
     cv::Mat twin_white = data[c].twin_white, twin_black = data[c].twin_black;
     if (twin_white.empty() || twin_black.empty()) WhiteBlackImages(spec, timg, &twin_white, &twin_black);
     const cv::Mat mr = data[c].real_modulation.empty() ? NormalisedModulation(spec, rimg, ev.white, ev.black) : data[c].real_modulation;
@@ -599,9 +706,14 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
     modulation_maps.push_back(mod);
   }
 
+  result.stages.push_back(meter.Stop());
+
   // Clouds.
+  meter = StageMeter("compare clouds");
   std::vector<ModeClouds> clouds;
   std::vector<ModeEvidence> mode_evidence;
+  std::vector<std::vector<double>> mode_diffs;  // real - twin C2M per mode, for the charts
+  std::vector<double> mode_lod95;
   report["clouds"]["modes"] = nlohmann::json::array();
   for (size_t m = 0; m < real_rec.modes.size(); ++m) {
     ModeClouds mc;
@@ -666,6 +778,8 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
          {"twin_summary", twin_rec.modes[m].second.summary.ToJson()}});
     mode_evidence.push_back(std::move(me));
     clouds.push_back(std::move(mc));
+    mode_diffs.push_back(std::move(diff));
+    mode_lod95.push_back(lod95);
   }
   result.stages.push_back(meter.Stop());
 
@@ -686,19 +800,53 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
     report["maps"] = nlohmann::json::array();
     for (size_t c = 0; c < cameras.size(); ++c) {
       const std::string& n = cameras[c];
-      WriteDivergingMap(staging / "maps" / (n + "_projector_residual.png"), residual_maps[c], 2.0);
-      WriteDivergingMap(staging / "maps" / (n + "_white_difference.png"), white_diff_maps[c], 0.05 * fs_dn);
+      const double cal = options.diagnose.calibration_field_px;
+      const double residual_range = WriteMapChart(
+          staging / "maps" / (n + "_projector_residual.png"), residual_maps[c],
+          n + ": decoded projector " + (spec.code_x ? "x" : "y") + " - twin truth", "projector px", {-cal, cal},
+          "+-" + Fmt("%.2f", cal) + " px (calibration-field threshold)", 0.05);
+      const double white_range = WriteMapChart(staging / "maps" / (n + "_white_difference.png"), white_diff_maps[c],
+                                               n + ": white level, real - twin", "DN", {-0.05 * fs_dn, 0.05 * fs_dn},
+                                               "+-" + Fmt("%.4g", 0.05 * fs_dn) + " DN (5 % of full scale)", 1.0);
       cv::Mat ratio = modulation_maps[c] - 1.0f;
-      WriteDivergingMap(staging / "maps" / (n + "_modulation_ratio.png"), ratio, 0.5);
+      const double mr = options.diagnose.multipath_ratio;
+      const double modulation_range = WriteMapChart(staging / "maps" / (n + "_modulation_ratio.png"), ratio,
+                                                    n + ": fringe modulation, real / twin - 1", "relative", {mr - 1},
+                                                    Fmt("%.2f", mr - 1) + " (multipath threshold)", 0.05);
       SLSHADOW_THROW_IF(!cv::imwrite((staging / "maps" / (n + "_validity.png")).string(), validity_maps[c]),
                         "cannot write the validity map");
       report["maps"].push_back({{"camera", n},
                                 {"projector_residual", "maps/" + n + "_projector_residual.png"},
-                                {"projector_residual_scale_px", 2.0},
+                                {"projector_residual_range_px", residual_range},
                                 {"white_difference", "maps/" + n + "_white_difference.png"},
-                                {"white_difference_scale_dn", 0.05 * fs_dn},
+                                {"white_difference_range_dn", white_range},
                                 {"modulation_ratio", "maps/" + n + "_modulation_ratio.png"},
-                                {"validity", "maps/" + n + "_validity.png"}});
+                                {"modulation_ratio_range", modulation_range},
+                                {"validity", "maps/" + n + "_validity.png"},
+                                {"validity_legend", "green: valid in both; red: real only; blue: twin only; black: neither"}});
+    }
+    fs::create_directories(staging / "charts", ec);
+    SLSHADOW_THROW_IF(ec, (staging / "charts").string(), ": cannot create folder: ", ec.message());
+    WriteFrameAgreementChart(staging / "charts" / "intensity_per_frame.png", report["images"]["cameras"]);
+    report["charts"] = {{"intensity_per_frame", "charts/intensity_per_frame.png"}};
+    for (size_t m = 0; m < clouds.size(); ++m) {
+      std::vector<double> finite;
+      for (double d : mode_diffs[m]) {
+        if (std::isfinite(d)) finite.push_back(d);
+      }
+      if (finite.size() < 10) continue;
+      const compare::DistanceStats st = compare::ComputeStats(finite, true, mode_lod95[m], 60);
+      compare::HistogramChart hc;
+      hc.title = clouds[m].mode + ": real - twin deviation from the part";
+      hc.x_label = "real C2M - twin C2M at the nearest twin point (mm)";
+      hc.is_signed = true;
+      hc.threshold_mm = mode_lod95[m];
+      const double beyond = 100.0 * static_cast<double>(st.outliers) / static_cast<double>(st.count);
+      hc.notes = {std::to_string(st.count) + " points on the part", "RMS " + Fmt("%.4f mm", st.rms_mm),
+                  "dashed: LoD95 " + Fmt("%.4f mm", mode_lod95[m]), "beyond LoD95: " + Fmt("%.2f %%", beyond)};
+      const std::string file = "charts/real_vs_twin_" + clouds[m].mode + ".png";
+      compare::WriteHistogramPng(staging / file, st.histogram, hc);
+      report["charts"]["real_vs_twin_" + clouds[m].mode] = file;
     }
     if (options.write_clouds) {
       fs::create_directories(staging / "clouds", ec);

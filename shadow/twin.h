@@ -14,8 +14,8 @@
 //      ground truth; pixels valid in one and not the other) and clouds (real vs part, virtual vs
 //      part: signed C2M; real vs virtual: the difference of the two at the nearest virtual point);
 //   6. diagnosis by signatures (shadow/diagnose.h);
-//   7. a report folder: report.json (docs/formats.md, "Shadow report"), summary.txt, maps/*.png,
-//      clouds/*.ply (scalar field c2m_part_mm), written atomically.
+//   7. a report folder: report.json (docs/formats.md, "Shadow report"), summary.txt, maps/*.png
+//      (with colour bars), charts/*.png, clouds/*.ply (scalar field c2m_part_mm), written atomically.
 #pragma once
 
 #include <filesystem>

@@ -14,6 +14,7 @@
 
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/npy.h"
 #include "core/point_cloud.h"
 #include "sim/simulate.h"
 
@@ -27,51 +28,6 @@ void WriteImage(const std::filesystem::path& path, const cv::Mat& image) {
     SLSHADOW_THROW_IF(!cv::imwrite(with_ext.string(), image), path.string(), ": cannot write image");
     std::filesystem::rename(with_ext, tmp);
   });
-}
-
-// NumPy .npy version 1.0, little-endian float32, C order, shape (rows, cols) or (rows, cols, 3).
-void WriteNpy(const std::filesystem::path& path, const cv::Mat& m) {
-  SLSHADOW_CHECK(m.depth() == CV_32F && (m.channels() == 1 || m.channels() == 3) && m.isContinuous());
-  std::string header = "{'descr': '<f4', 'fortran_order': False, 'shape': (" + std::to_string(m.rows) + ", " +
-                       std::to_string(m.cols) + (m.channels() == 3 ? ", 3), }" : "), }");
-  const size_t total = 10 + header.size() + 1;
-  header.append((64 - total % 64) % 64, ' ');
-  header += '\n';
-  WriteFileAtomically(path, [&](const std::filesystem::path& tmp) {
-    std::FILE* f = std::fopen(tmp.c_str(), "wb");
-    SLSHADOW_THROW_IF(!f, path.string(), ": cannot write");
-    const char magic[8] = {'\x93', 'N', 'U', 'M', 'P', 'Y', 1, 0};
-    const uint16_t len = static_cast<uint16_t>(header.size());
-    const unsigned char len_le[2] = {static_cast<unsigned char>(len & 0xff), static_cast<unsigned char>(len >> 8)};
-    const size_t bytes = m.total() * m.elemSize();
-    const bool ok = std::fwrite(magic, 1, 8, f) == 8 && std::fwrite(len_le, 1, 2, f) == 2 &&
-                    std::fwrite(header.data(), 1, header.size(), f) == header.size() &&
-                    std::fwrite(m.data, 1, bytes, f) == bytes;
-    std::fclose(f);
-    SLSHADOW_THROW_IF(!ok, path.string(), ": write failed");
-  });
-}
-
-cv::Mat ReadNpy(const std::filesystem::path& path, int channels) {
-  const std::string data = ReadTextFile(path);
-  SLSHADOW_THROW_IF(data.size() < 10 || data.compare(0, 6, "\x93NUMPY") != 0, path.string(), ": not a .npy file");
-  const size_t len = static_cast<unsigned char>(data[8]) | (static_cast<size_t>(static_cast<unsigned char>(data[9])) << 8);
-  SLSHADOW_THROW_IF(data.size() < 10 + len, path.string(), ": truncated header");
-  const std::string header = data.substr(10, len);
-  SLSHADOW_THROW_IF(header.find("'<f4'") == std::string::npos || header.find("False") == std::string::npos, path.string(),
-                    ": expected little-endian float32 in C order (header ", header, ")");
-  int rows = 0, cols = 0, ch = 1;
-  const size_t open = header.find("'shape': (");
-  SLSHADOW_THROW_IF(open == std::string::npos, path.string(), ": no shape in header");
-  const int n = std::sscanf(header.c_str() + open + 10, "%d, %d, %d", &rows, &cols, &ch);
-  SLSHADOW_THROW_IF(n < 2 || rows <= 0 || cols <= 0, path.string(), ": bad shape in header ", header);
-  if (n == 2) ch = 1;
-  SLSHADOW_THROW_IF(ch != channels, path.string(), ": expected ", channels, " channels (got ", ch, ")");
-  cv::Mat m(rows, cols, CV_32FC(channels));
-  const size_t bytes = m.total() * m.elemSize();
-  SLSHADOW_THROW_IF(data.size() != 10 + len + bytes, path.string(), ": size does not match the shape");
-  std::memcpy(m.data, data.data() + 10 + len, bytes);
-  return m;
 }
 
 cv::Mat ReadImage(const std::filesystem::path& path, int expected_type) {

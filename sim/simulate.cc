@@ -260,7 +260,7 @@ SimulateSummary SimulateScan(const Scene& scene, const Rig& rig, const std::vect
   rig.Check("rig '" + rig.name + "'");
   CheckImages(rig, projector_images);
   SLSHADOW_THROW_IF(std::filesystem::exists(out_dir) && !options.writer.overwrite, out_dir.string(),
-                    ": exists (pass overwrite to replace it)");
+                    ": already exists (pass --overwrite to replace it)");
   SimulateSummary sum;
   ImageSetWriter writer(out_dir, rig, pattern_spec, options.writer);
   nlohmann::json extra = ExtraWithProvenance(VirtualScanProvenance(scene, options, "slshadow simulate"));

@@ -291,5 +291,32 @@ TEST(CalibrationIo, NodeMapParsing) {
   EXPECT_NE(message("K2=a,D2=b").find("must name at least K1 and D1"), std::string::npos);
 }
 
+// Fuzzer findings in the OpenCV import (fuzz/regressions/opencv_calibration/), each now one clear
+// error naming the file: content whose top level is not a mapping (cv::Exception escaped), a
+// size beyond int (undefined conversion), a matrix header claiming more than its data (OpenCV
+// allocated rows x cols first).
+TEST(CalibrationIo, FuzzerFindingsInOpenCvFilesAreClearErrors) {
+  testing::TempDir tmp;
+  const auto error_of = [&](const std::string& name, const std::string& text) {
+    std::ofstream(tmp / name) << text;
+    try {
+      ReadOpenCvCalibration(tmp / name, 640, 480);
+    } catch (const Error& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  const std::string not_map = error_of("list.yml", "%YAML:1.0\n---\n- 1\n- 2\n");
+  EXPECT_EQ(not_map.find((tmp / "list.yml").string() + ": "), 0u) << not_map;
+  const std::string camera = "camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
+                             "   data: [ 500., 0., 320., 0., 500., 240., 0., 0., 1. ]\n"
+                             "distortion_coefficients: [ 0., 0., 0., 0., 0. ]\n";
+  EXPECT_EQ(error_of("huge.yml", "%YAML:1.0\n---\nimage_width: 640\nimage_height: 1.7e308\n" + camera),
+            (tmp / "huge.yml").string() + ": image_height: expected a whole number within +-1000000 (got 1.7e+308)");
+  EXPECT_EQ(error_of("claims.yml", "%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 100000\n   cols: 100000\n"
+                                   "   dt: d\n   data: [ 1., 2. ]\ndistortion_coefficients: [ 0., 0., 0., 0., 0. ]\n"),
+            (tmp / "claims.yml").string() + ": camera_matrix: matrix claims 100000 x 100000 but holds 2 values");
+}
+
 }  // namespace
 }  // namespace slshadow

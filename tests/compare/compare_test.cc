@@ -178,6 +178,7 @@ TEST(CompareOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
   o.threshold_mm = 0.1;
   o.coverage_radius_mm = 0.4;
   o.histogram_bins = 40;
+  o.color_range_mm = 0.05;
   o.m3c2 = true;
   o.m3c2_options.projection_radius_mm = 0.8;
   o.m3c2_options.max_depth_mm = 3;
@@ -200,6 +201,7 @@ TEST(CompareOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
     EXPECT_EQ(r.registration.seed, 42u);
     EXPECT_EQ(r.c2c.local_model, LocalModel::kQuadric);
     EXPECT_EQ(r.threshold_mm, 0.1);
+    EXPECT_EQ(r.color_range_mm, 0.05);
     EXPECT_TRUE(r.m3c2);
     ASSERT_TRUE(r.artefacts.has_value());
     EXPECT_EQ(r.artefacts->pairs.size(), 1u);

@@ -94,8 +94,14 @@ TEST(ComputeStats, PercentilesEqualTheSortedNearestRanks) {
     EXPECT_EQ(s.median_mm, rank(50)) << n;
     EXPECT_EQ(s.p95_mm, rank(95)) << n;
     EXPECT_EQ(s.max_mm, sorted.back()) << n;
-    EXPECT_EQ(s.histogram.hi_mm, std::max({rank(99.9), 0.1, 1e-6})) << n;
+    EXPECT_EQ(s.histogram.hi_mm, std::max(rank(99), 1e-6)) << n;  // scaled to the data, not to the threshold
+    const DistanceStats fixed = ComputeStats(d, false, 0.1, 60, 0.25);
+    EXPECT_EQ(fixed.histogram.hi_mm, 0.25) << n;
+    size_t binned = fixed.histogram.overflow;
+    for (size_t c : fixed.histogram.counts) binned += c;
+    EXPECT_EQ(binned, n);  // every value in a bin or beyond the fixed range
   }
+  EXPECT_THROW(ComputeStats({1.0}, false, 0.1, 60, -1.0), Error);
 }
 
 // The grid overload against the tree overload (itself checked above) and a brute-force count,

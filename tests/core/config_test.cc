@@ -5,19 +5,13 @@
 #include <gtest/gtest.h>
 
 #include "core/error.h"
+#include "tests/testing/error_of.h"
 #include "tests/testing/temp_dir.h"
 
 namespace slshadow {
 namespace {
 
-std::string ErrorOf(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
-}
+using testing::ErrorOf;
 
 TEST(Config, YamlScalarsAreTyped) {
   const auto n = ConfigNode::ParseYaml("a: 3\nb: 2.5\nc: true\nd: hello\ne: \"42\"\nf: [1, 2.0, -3e2]\ng: ~\n", "x.yaml");
@@ -55,6 +49,28 @@ TEST(Config, JsonToYamlRoundTripsExactly) {
                       {"nested", {{"s", "true"}, {"list", nlohmann::json::array({{{"a", 1}}, {{"a", 2}}})}}}};
   const auto back = ConfigNode::ParseYaml(JsonToYaml(j), "t.yaml").json();
   EXPECT_EQ(back, j) << JsonToYaml(j);
+}
+
+// Inputs the fuzzer found escaping as exceptions other than slshadow::Error (fuzz/regressions/):
+// each is now one clear error naming the file.
+TEST(Config, FuzzerFindingsAreClearErrors) {
+  testing::TempDir dir;
+  // Invalid UTF-8 in a YAML value: the error message used to throw nlohmann's type_error 316.
+  EXPECT_EQ(ErrorOf([&] { ConfigNode::ParseYaml("name: ab\xff\n", "rig.yaml"); }),
+            "rig.yaml: not valid UTF-8 text (byte 8)");
+  EXPECT_EQ(ErrorOf([&] { ConfigNode::ParseYaml("n: \xc0\xaf\n", "rig.yaml"); }),  // overlong '/'
+            "rig.yaml: not valid UTF-8 text (byte 3)");
+  EXPECT_EQ(ConfigNode::ParseYaml("name: caf\xc3\xa9\n", "rig.yaml")["name"].AsString(), "caf\xc3\xa9");
+  // A mapping key that is itself a list (yaml-cpp's TypedBadConversion).
+  EXPECT_NE(ErrorOf([&] { ConfigNode::ParseYaml("? [a, b]\n: 1\n", "rig.yaml"); }).find("rig.yaml: not valid YAML"),
+            std::string::npos);
+  // A JSON number beyond double range (nlohmann's out_of_range 406).
+  { std::ofstream(dir / "m.json") << "{\"a\": 1e309}"; }
+  EXPECT_NE(ErrorOf([&] { ConfigNode::LoadFile(dir / "m.json"); }).find((dir / "m.json").string() + ": not valid JSON"),
+            std::string::npos);
+  // A value with a control character is shown JSON-escaped in one line.
+  const auto n = ConfigNode::ParseYaml("fx: \"a\\nb\"\n", "rig.yaml");
+  EXPECT_EQ(ErrorOf([&] { n["fx"].AsDouble(); }), "rig.yaml: fx: expected a number (got \"a\\nb\")");
 }
 
 }  // namespace

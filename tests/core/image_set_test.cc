@@ -7,6 +7,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "core/error.h"
+#include "tests/testing/error_of.h"
 #include "tests/testing/temp_dir.h"
 
 namespace slshadow {
@@ -31,14 +32,7 @@ cv::Mat RandomImage(int depth, int seed) {
   return m;
 }
 
-std::string ErrorOf(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
-}
+using testing::ErrorOf;
 
 TEST(ImageSet, WriteReadRoundTripIsBitExact) {
   testing::TempDir dir;
@@ -194,6 +188,41 @@ TEST_F(BadManifest, WrongImageSizeOrCorruptFileIsNamed) {
   { std::ofstream(dir_ / "set" / "manifest.json") << "{ broken"; }
   EXPECT_NE(ErrorOf([&] { ImageSet::Open(dir_ / "set"); }).find("not valid JSON"), std::string::npos);
   EXPECT_NE(ErrorOf([&] { ImageSet::Open(dir_ / "nothing"); }).find("not an ImageSet folder"), std::string::npos);
+}
+
+// Sizes from a manifest or an image header are bounded before anything is allocated for them.
+TEST_F(BadManifest, HugePatternIndexAndHugeImageHeaderAreRefusedBeforeAllocation) {
+  const std::string m = (dir_ / "set" / "manifest.json").string();
+  nlohmann::json j = manifest_;
+  j["images"][0]["pattern"] = 4294967296LL;  // would truncate to 0 as an int
+  EXPECT_EQ(OpenWith(j), m + ": images[0].pattern: pattern index must be 0..999999 (got 4294967296)");
+  // A gap: LoadCamera would allocate for 1000000 patterns; it names the first missing one instead.
+  j = manifest_;
+  j["images"][0]["pattern"] = 999999;
+  { std::ofstream(dir_ / "set" / "manifest.json") << j.dump(); }
+  EXPECT_EQ(ErrorOf([&] { ImageSet::Open(dir_ / "set").LoadCamera("left"); }),
+            m + ": no image for camera 'left', pattern 0 (the manifest has patterns up to 999999)");
+  // A PNG whose IHDR claims 100000 x 100000 pixels (10^10, 10 GB at 8 bits): refused from its
+  // header, before the decoder allocates, naming the file and the claimed size.
+  { std::ofstream(dir_ / "set" / "manifest.json") << manifest_.dump(); }
+  const auto png = dir_ / "set" / "left" / "0000.png";
+  std::string bytes;
+  {
+    std::ifstream in(png, std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  ASSERT_EQ(bytes.substr(12, 4), "IHDR");
+  const unsigned char big[4] = {0x00, 0x01, 0x86, 0xA0};  // 100000, big-endian
+  bytes.replace(16, 4, reinterpret_cast<const char*>(big), 4);
+  bytes.replace(20, 4, reinterpret_cast<const char*>(big), 4);
+  { std::ofstream(png, std::ios::binary) << bytes; }
+  EXPECT_EQ(ErrorOf([&] { ImageSet::Open(dir_ / "set").Load("left", 0); }),
+            png.string() + ": wrong image size 100000x100000 in its header, camera 'left' is 64x48");
+  // The same for a binary PGM header.
+  const auto pgm = dir_ / "set" / "right" / "0000.png";
+  { std::ofstream(pgm, std::ios::binary) << "P5\n# comment\n1000000 1000000\n255\n" << std::string(16, '\0'); }
+  EXPECT_EQ(ErrorOf([&] { ImageSet::Open(dir_ / "set").Load("right", 0); }),
+            pgm.string() + ": wrong image size 1000000x1000000 in its header, camera 'right' is 64x48");
 }
 
 }  // namespace

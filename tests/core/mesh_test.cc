@@ -1,5 +1,6 @@
 #include "core/mesh.h"
 
+#include <cstring>
 #include <fstream>
 
 #include <gtest/gtest.h>
@@ -122,6 +123,38 @@ TEST(Mesh, CheckNamesTheFirstBadTriangle) {
   TriangleMesh only_degenerate = grid;
   only_degenerate.triangles[250001] = Eigen::Vector3i(5, 6, 5);
   EXPECT_NO_THROW(only_degenerate.Check("grid.ply", /*reject_degenerate=*/false));
+}
+
+// A face count in a PLY mesh header is bounded by the data before allocation; a binary STL whose
+// triangle count disagrees with its size is not read as binary.
+TEST(Mesh, HugeHeaderCountsAreRefusedBeforeAllocation) {
+  testing::TempDir dir;
+  const std::string ply = (dir / "huge_faces.ply").string();
+  std::ofstream(ply, std::ios::binary) << "ply\nformat binary_little_endian 1.0\nelement vertex 3\n"
+                                          "property float x\nproperty float y\nproperty float z\n"
+                                          "element face 1000000000000\nproperty list uchar int vertex_indices\n"
+                                          "end_header\n"
+                                       << std::string(36 + 13, '\0');
+  try {
+    ReadMesh(ply);
+    FAIL() << "no error";
+  } catch (const Error& e) {
+    EXPECT_EQ(std::string(e.what()), ply + ": PLY header: element 'face' claims 1000000000000 rows, but the file has "
+                                           "only 49 bytes of data (at least 1 bytes per row)");
+  }
+  const std::string stl = (dir / "huge.stl").string();
+  std::string bytes(84, '\0');
+  const uint32_t count = 0xFFFFFFFFu;
+  std::memcpy(bytes.data() + 80, &count, 4);
+  std::ofstream(stl, std::ios::binary) << bytes;
+  try {
+    ReadMesh(stl);
+    FAIL() << "no error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find(stl + ": not an STL file (binary size does not match its triangle count"),
+              std::string::npos)
+        << e.what();
+  }
 }
 
 }  // namespace

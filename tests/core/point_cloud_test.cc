@@ -7,10 +7,13 @@
 #include <gtest/gtest.h>
 
 #include "core/error.h"
+#include "tests/testing/error_of.h"
 #include "tests/testing/temp_dir.h"
 
 namespace slshadow {
 namespace {
+
+using testing::ErrorOf;
 
 PointCloud RandomCloud(size_t n, bool normals, bool colors, int seed = 3) {
   std::mt19937 rng(seed);
@@ -32,9 +35,14 @@ PointCloud RandomCloud(size_t n, bool normals, bool colors, int seed = 3) {
 
 void ExpectBitExact(const PointCloud& a, const PointCloud& b) {
   ASSERT_EQ(a.size(), b.size());
-  EXPECT_EQ(0, std::memcmp(a.points.data(), b.points.data(), a.size() * sizeof(Eigen::Vector3d)));
+  // memcmp only over non-empty arrays (an empty vector's data() may be null: UB for memcmp, UBSan).
+  if (!a.points.empty()) {
+    EXPECT_EQ(0, std::memcmp(a.points.data(), b.points.data(), a.size() * sizeof(Eigen::Vector3d)));
+  }
   ASSERT_EQ(a.normals.size(), b.normals.size());
-  EXPECT_EQ(0, std::memcmp(a.normals.data(), b.normals.data(), a.normals.size() * sizeof(Eigen::Vector3f)));
+  if (!a.normals.empty()) {
+    EXPECT_EQ(0, std::memcmp(a.normals.data(), b.normals.data(), a.normals.size() * sizeof(Eigen::Vector3f)));
+  }
   EXPECT_EQ(a.colors, b.colors);
   ASSERT_EQ(a.scalars.size(), b.scalars.size());
   for (size_t k = 0; k < a.scalars.size(); ++k) {
@@ -138,7 +146,24 @@ TEST(PointCloud, BadPlyFilesGiveClearErrors) {
     ReadPly(dir / "truncated.ply");
     FAIL();
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("truncated binary PLY"), std::string::npos) << e.what();
+    // Fixed-size rows: the header's count is checked against the data before reading.
+    EXPECT_NE(std::string(e.what()).find("PLY header: element 'vertex' claims 100 rows, but the file has only"),
+              std::string::npos)
+        << e.what();
+  }
+  // Lists have no fixed size: data ending inside a list is found while reading.
+  {
+    std::ofstream out(dir / "truncated_list.ply", std::ios::binary);
+    out << "ply\nformat binary_little_endian 1.0\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n";
+    out.put(3);
+    out.write("\0\0\0\0\1\0\0\0", 8);
+  }
+  try {
+    ReadPlyData(dir / "truncated_list.ply");
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("truncated binary PLY: data ends in element 'face' row 0"), std::string::npos)
+        << e.what();
   }
   { std::ofstream out(dir / "nomagic.ply"); out << "hello\n"; }
   EXPECT_THROW(ReadPly(dir / "nomagic.ply"), Error);
@@ -171,6 +196,43 @@ TEST(PointCloud, FailedWriteKeepsExistingFile) {
   bad.normals.resize(3);
   EXPECT_THROW(WritePly(dir / "out.ply", bad), Error);
   ExpectBitExact(good, ReadPly(dir / "out.ply"));
+}
+
+// Element counts in a PLY header are bounded by the data that follows before anything is
+// allocated: a header claiming 10^12 vertices is a clear error naming the file and the count.
+TEST(PointCloud, HugeHeaderCountsAreRefusedBeforeAllocation) {
+  testing::TempDir dir;
+  const auto write = [&](const std::string& name, const std::string& text) {
+    std::ofstream(dir / name, std::ios::binary) << text;
+    return (dir / name).string();
+  };
+  const std::string bin = write("huge.ply",
+                                "ply\nformat binary_little_endian 1.0\nelement vertex 1000000000000\n"
+                                "property double x\nproperty double y\nproperty double z\nend_header\n" +
+                                    std::string(48, '\0'));
+  EXPECT_EQ(ErrorOf([&] { ReadPly(bin); }), bin + ": PLY header: element 'vertex' claims 1000000000000 rows, but the "
+                                                  "file has only 48 bytes of data (at least 24 bytes per row)");
+  const std::string ascii = write("huge_ascii.ply",
+                                  "ply\nformat ascii 1.0\nelement vertex 1000000000000\nproperty float x\n"
+                                  "property float y\nproperty float z\nend_header\n1 2 3\n");
+  EXPECT_NE(ErrorOf([&] { ReadPly(ascii); }).find(ascii + ": PLY header: element 'vertex' claims 1000000000000 rows"),
+            std::string::npos);
+  // A count that does not fit in 64 bits is a bad element line, not LLONG_MAX rows.
+  const std::string overflow = write("overflow.ply",
+                                     "ply\nformat ascii 1.0\nelement vertex 99999999999999999999\nproperty float x\n"
+                                     "end_header\n");
+  EXPECT_THROW(ReadPly(overflow), Error);
+  // Lists: a NaN vertex index (a float list type allows it) and x given as a list.
+  const std::string nan_index = write("nan_index.ply",
+                                      "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                                      "property float z\nelement face 1\nproperty list uchar float vertex_indices\n"
+                                      "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 nan\n");
+  EXPECT_EQ(ErrorOf([&] { ReadPlyData(nan_index); }),
+            nan_index + ": element 'face' row 0 property 'vertex_indices': list value nan is not an integer");
+  const std::string x_list = write("x_list.ply",
+                                   "ply\nformat ascii 1.0\nelement vertex 1\nproperty list uchar int x\n"
+                                   "property float y\nproperty float z\nend_header\n1 5 0 0\n");
+  EXPECT_EQ(ErrorOf([&] { ReadPly(x_list); }), x_list + ": PLY vertex property 'x' is a list, expected a number");
 }
 
 }  // namespace

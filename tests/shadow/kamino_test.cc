@@ -139,11 +139,20 @@ TEST(ShadowKamino, RealVsVirtualPerPose) {
     table += line;
     // Goals (issue 13): decoded projector coordinates within 0.3 px RMS of the twin's truth (met
     // on every pose: 0.271-0.289 px measured); intensity within 5 % of full scale on >= 95 % of
-    // the lit board pixels (not met: 91.5-94.7 % measured over all 42 frames; asserted at what is
-    // achieved, docs/benchmarks.md says what is left and why).
+    // the lit board pixels over all 42 frames (met since the black-level, illumination-field and
+    // global-light layers: 96.6-98.3 % measured; 91.5-94.7 % without them).
     EXPECT_LT(pc["real_vs_truth_rms_px"].get<double>(), 0.3) << "pose " << p;
-    EXPECT_GT(cam["within_5pct_all_frames"].get<double>(), 0.90) << "pose " << p;
+    EXPECT_GT(cam["within_5pct_all_frames"].get<double>(), 0.95) << "pose " << p;
     EXPECT_GT(cam["lit_part_pixels"].get<int64_t>(), 150000) << "pose " << p;
+    // The camera's black level: the black frame reads 6 DN on dark and light squares alike
+    // (6.28-6.49 DN fitted), so the offset is kept and ambient left off (0.002 of white, 10 sigma,
+    // but the held-out residual drops by less than 5 %).
+    ASSERT_NE(r.physics.Find("black_level_camera"), nullptr);
+    EXPECT_TRUE(r.physics.Kept("black_level_camera")) << "pose " << p;
+    EXPECT_NEAR(r.physics.Find("black_level_camera")->value, 6.4, 0.5) << "pose " << p;
+    EXPECT_FALSE(r.physics.Kept("ambient")) << "pose " << p;
+    // Coarse stripes reach only 80-94 % of white - black: scattered light, kept.
+    EXPECT_TRUE(r.physics.Kept("global_light")) << "pose " << p;
     // The fit sees the board's print: dark squares a few to 15 % of the light ones.
     ASSERT_NE(r.physics.Find("albedo_dark"), nullptr);
     const double dark_ratio = r.physics.Find("albedo_dark")->value / 0.9;  // 0.068-0.108 measured

@@ -1,21 +1,25 @@
 // Sweeps (shadow/sweep.h): plan, shards, merge. Oracles: the merged result of one process against
-// that of shards run in another order and through GNU parallel (byte for byte); resumption runs
-// only missing jobs; the accuracy of noisy scans of the demo part against its ground truth; bad
-// input.
+// that of shards run in another order, through GNU parallel and through a single-node Slurm (byte
+// for byte); resumption runs only missing jobs; the accuracy of noisy scans of the demo part
+// against its ground truth; bad input.
 #include "shadow/sweep.h"
 
 #include "core/error.h"
 #include "core/file_util.h"
-
 #include "tests/testing/temp_dir.h"
+
 #include <gtest/gtest.h>
+#include <sys/wait.h>
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <cstdio>
 #include <cstdlib>
 #include <fstream>
+#include <map>
 #include <sstream>
 #include <string>
+#include <vector>
 
 namespace slshadow::workflow {
 namespace {
@@ -181,6 +185,190 @@ TEST(Sweep, GnuParallelShardsMergeToTheOneProcessResult) {
   EXPECT_EQ(std::count(joblog.begin(), joblog.end(), '\n'), 1 + 3) << joblog;  // header + 3 shards
 }
 
+// The small study through a real single-node Slurm (Debian's slurm-wlm and munge), configured
+// and started by tests/shadow/slurm_sweep.sh in a temporary folder inside a private network
+// namespace (loopback only) and stopped afterwards: the shards as an `sbatch --array`, the merge as
+// a job depending on them (afterok). Equal byte for byte to the one-process result. Skips, naming
+// what failed, when Slurm or MUNGE cannot start here.
+TEST(Sweep, SlurmArrayShardsAndDependentMergeGiveTheOneProcessResult) {
+  if (std::system("unshare -n true > /dev/null 2>&1") != 0) {
+    GTEST_SKIP() << "cannot make a private network namespace (unshare -n) for the Slurm daemons";
+  }
+  TempDir tmp;
+  WriteSmallStudy(tmp / "study.yaml");
+  PlanSweep(tmp / "study.yaml", tmp / "one");
+  RunSweepShard(tmp / "one", Shard(0, 1));
+  MergeSweep(tmp / "one", tmp / "one_result");
+
+  PlanSweep(tmp / "study.yaml", tmp / "slurm");
+  const fs::path log = tmp / "slurm_sweep.log";
+  const std::string cmd =
+      "unshare -n bash " + (SourceDir() / "tests/shadow/slurm_sweep.sh").string() + " " +
+      SLSHADOW_BINARY + " " + (tmp / "slurm").string() + " " + (tmp / "slurm_result").string() +
+      " " + (tmp / "slurm_work").string() + " 2 > " + log.string() + " 2>&1";
+  const int status = std::system(cmd.c_str());
+  const int code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  const std::string output = ReadTextFile(log);
+  if (code == 77) GTEST_SKIP() << output;
+  ASSERT_EQ(code, 0) << cmd << "\n" << output;
+  EXPECT_EQ(ReadTextFile(tmp / "one_result/results.csv"),
+            ReadTextFile(tmp / "slurm_result/results.csv"));
+  EXPECT_EQ(ReadTextFile(tmp / "one_result/results.json"),
+            ReadTextFile(tmp / "slurm_result/results.json"));
+  // Each array task took its thread budget from Slurm's allocation (--cpus-per-task=1).
+  EXPECT_EQ(output, "threads: 1 (SLURM_CPUS_PER_TASK)\nthreads: 1 (SLURM_CPUS_PER_TASK)\n");
+}
+
+// Study 2's machinery on three read-noise levels up to one where stereo reconstructs nothing: the
+// shard does not stop (graceful failure: the empty cloud's figures are null, no NaN anywhere), the
+// error grows with the noise, and each break point is where the curve crosses its limit, linearly
+// interpolated (recomputed here from results.json).
+TEST(Sweep, CurvesAndBreakPointsAgainstOneAxis) {
+  TempDir tmp;
+  std::ofstream(tmp / "study.yaml")
+      << "format: slshadow-study\nversion: 1\nname: curves\n"
+      << "rig: " << (SourceDir() / "config/studies/quarter_demo_rig.yaml").string() << "\n"
+      << "patterns: " << (SourceDir() / "config/patterns/multi_frequency.yaml").string() << "\n"
+      << "modes: [projector, stereo]\n"
+         "compare: {threshold_mm: 0.5}\n"
+         "set:\n  scene.layers.noise: {full_well_e: 10000, read_noise_e: 6, seed: 1}\n"
+         "axes:\n"
+         "  - {name: read_noise_e, set: scene.layers.noise.read_noise_e, values: [5, 300, 1500]}\n"
+         "curves: {x: read_noise_e, limits: {p95_mm: 0.5, visible_coverage: 0.8}}\n";
+  PlanSweep(tmp / "study.yaml", tmp / "jobs");
+  EXPECT_EQ(RunSweepShard(tmp / "jobs", Shard(0, 1)).ran, 3);
+  const SweepMergeSummary merged = MergeSweep(tmp / "jobs", tmp / "result");
+  EXPECT_EQ(merged.break_points.size(), 4u);  // 2 modes x 2 limits
+  const std::string json_text = ReadTextFile(tmp / "result/results.json");
+  const std::string csv = ReadTextFile(tmp / "result/results.csv");
+  for (const std::string* text : {&json_text, &csv}) {
+    EXPECT_EQ(text->find("nan"), std::string::npos);
+    EXPECT_EQ(text->find("inf"), std::string::npos);
+  }
+  const nlohmann::json jobs = nlohmann::json::parse(json_text)["jobs"];
+  ASSERT_EQ(jobs.size(), 3u);
+  // figure[mode][job]
+  std::map<std::string, std::vector<nlohmann::json>> by_mode;
+  for (const auto& job : jobs) {
+    for (const auto& m : job["modes"]) by_mode[m["mode"].get<std::string>()].push_back(m);
+  }
+  const double xs[3] = {5, 300, 1500};
+  const std::string breaks = ReadTextFile(tmp / "result/break_points.csv");
+  for (const auto& [mode, figures] : by_mode) {
+    ASSERT_EQ(figures.size(), 3u);
+    ASSERT_FALSE(figures[0]["p95_mm"].is_null()) << mode;
+    ASSERT_FALSE(figures[1]["p95_mm"].is_null()) << mode;
+    EXPECT_GT(figures[1]["p95_mm"].get<double>(), figures[0]["p95_mm"].get<double>()) << mode;
+    EXPECT_LT(figures[0]["p95_mm"].get<double>(), 0.5) << mode;
+    for (const auto& f : figures) {
+      if (f["points"].get<int>() == 0) {
+        EXPECT_TRUE(f["p95_mm"].is_null());
+        EXPECT_EQ(f["visible_coverage"].get<double>(), 0.0);
+      }
+    }
+    // The p95 break: the first x whose p95 is beyond 0.5 or missing.
+    size_t i = 1;
+    while (i < 3 && !figures[i]["p95_mm"].is_null() && figures[i]["p95_mm"].get<double>() <= 0.5)
+      ++i;
+    std::string expected = mode + ",p95_mm,0.5,";
+    if (i == 3) {
+      expected += "never,";
+    } else {
+      const double v0 = figures[i - 1]["p95_mm"].get<double>();
+      const double t = figures[i]["p95_mm"].is_null()
+                           ? 1.0
+                           : (0.5 - v0) / (figures[i]["p95_mm"].get<double>() - v0);
+      char buf[64];
+      std::snprintf(buf, sizeof(buf), "%.10g", xs[i - 1] + t * (xs[i] - xs[i - 1]));
+      expected += std::string("broke,") + buf;
+    }
+    EXPECT_NE(breaks.find(expected + "\n"), std::string::npos) << expected << "\n" << breaks;
+  }
+  // The highest noise breaks stereo entirely here: the case above that must not crash the shard.
+  EXPECT_EQ(by_mode["stereo"][2]["points"].get<int>(), 0) << by_mode["stereo"][2].dump();
+  for (const char* chart : {"curves_p95_mm.png", "curves_p95_mm.svg", "curves_visible_coverage.png",
+                            "time_vs_rms.svg"}) {
+    EXPECT_GT(fs::file_size(tmp / "result" / chart), 1000u) << chart;
+  }
+}
+
+// Study 3's machinery: an axis of layer mappings with labels, each against the baseline `none`.
+// effects.csv's changes are the differences of results.json's figures, `needed` their comparison
+// with the tolerance. Also: the study's `set` reaches the scene a files axis puts in each job.
+TEST(Sweep, EffectsOfEachAxisValueAgainstABaseline) {
+  TempDir tmp;
+  std::ofstream(tmp / "study.yaml")
+      << "format: slshadow-study\nversion: 1\nname: effects\n"
+      << "rig: " << (SourceDir() / "config/studies/quarter_demo_rig.yaml").string() << "\n"
+      << "scene: " << (SourceDir() / "config/scenes/flat_plane.yaml").string() << "\n"
+      << "modes: [projector]\n"
+         "axes:\n"
+         "  - name: layer\n"
+         "    set: scene.layers\n"
+         "    labels: [none, ambient, gamma]\n"
+         "    values: [{}, {ambient: {level: 0.05}}, {projector_response: {gamma: 2.2}}]\n"
+         "effects: {axis: layer, baseline: none, tolerance_mm: 0.002}\n"
+         "pareto: {by: layer}\n";
+  PlanSweep(tmp / "study.yaml", tmp / "jobs");
+  RunSweepShard(tmp / "jobs", Shard(0, 1));
+  const SweepMergeSummary merged = MergeSweep(tmp / "jobs", tmp / "result");
+  EXPECT_EQ(merged.effects.size(), 2u);  // ambient, gamma
+  const nlohmann::json jobs =
+      nlohmann::json::parse(ReadTextFile(tmp / "result/results.json"))["jobs"];
+  ASSERT_EQ(jobs.size(), 3u);
+  EXPECT_EQ(jobs[2]["params"]["layer"], "gamma");
+  const auto figure = [&](int job, const char* key) {
+    return jobs[job]["modes"][0][key].get<double>();
+  };
+  const std::string csv = ReadTextFile(tmp / "result/effects.csv");
+  std::istringstream lines(csv);
+  std::string line;
+  std::getline(lines, line);
+  EXPECT_EQ(line, "series,mode,layer,rms_mm,p95_mm,d_rms_mm,d_p95_mm,needed,render_s");
+  const auto g = [](double v) {
+    char buf[64];
+    std::snprintf(buf, sizeof(buf), "%.10g", v);
+    return std::string(buf);
+  };
+  for (int job = 0; job < 3; ++job) {
+    ASSERT_TRUE(std::getline(lines, line));
+    const double dr = figure(job, "rms_mm") - figure(0, "rms_mm");
+    const double dp = figure(job, "p95_mm") - figure(0, "p95_mm");
+    const std::string needed =
+        job == 0 ? "" : (std::abs(dr) > 0.002 || std::abs(dp) > 0.002 ? "1" : "0");
+    const std::string expected = ",projector," + jobs[job]["params"]["layer"].get<std::string>() +
+                                 "," + g(figure(job, "rms_mm")) + "," + g(figure(job, "p95_mm")) +
+                                 "," + g(dr) + "," + g(dp) + "," + needed + ",";
+    EXPECT_EQ(line.substr(0, expected.size()), expected);
+  }
+
+  // A front per mode and layer: one job each, so each is on its front.
+  const std::string pareto = ReadTextFile(tmp / "result/pareto.csv");
+  EXPECT_EQ(pareto.substr(0, pareto.find('\n')), "id,mode,label,time_s,rms_mm,on_front,group");
+  EXPECT_NE(pareto.find(",1,projector gamma\n"), std::string::npos) << pareto;
+  EXPECT_EQ(merged.front.size(), 3u);
+
+  // `set` under a tree a files axis replaces: applied to each file's tree; not where an axis sets
+  // that path or one under it.
+  std::ofstream(tmp / "files.yaml")
+      << "format: slshadow-study\nversion: 1\nname: files\n"
+      << "rig: " << (SourceDir() / "config/studies/quarter_demo_rig.yaml").string() << "\n"
+      << "set:\n  scene.layers.noise: {full_well_e: 9000, read_noise_e: 7}\n"
+      << "  scene.radiometry.exposure: 0.5\n"
+      << "axes:\n"
+      << "  - {name: scene, set: scene, files: ["
+      << (SourceDir() / "config/scenes/flat_plane.yaml").string() << ", "
+      << (SourceDir() / "config/scenes/ball_bar.yaml").string() << "]}\n"
+      << "  - {name: exposure, set: scene.radiometry.exposure, values: [0.6]}\n";
+  PlanSweep(tmp / "files.yaml", tmp / "files_jobs");
+  for (const char* id : {"000000", "000001"}) {
+    const nlohmann::json job =
+        nlohmann::json::parse(ReadTextFile(tmp / "files_jobs/jobs" / (std::string(id) + ".json")));
+    EXPECT_EQ(job["scene"]["layers"]["noise"]["full_well_e"], 9000) << id;
+    EXPECT_EQ(job["scene"]["radiometry"]["exposure"], 0.6) << id;  // the axis, not `set`
+  }
+}
+
 void ExpectPlanError(const TempDir& tmp, const std::string& yaml, const std::string& needle) {
   const fs::path file = tmp / "bad.yaml";
   std::ofstream(file) << "format: slshadow-study\nversion: 1\nname: bad\n" << yaml;
@@ -213,6 +401,22 @@ TEST(Sweep, BadStudiesAreRejectedNamingFileAndFieldAndWriteNothing) {
       "bogus");
   ExpectPlanError(tmp, rig + "axes:\n  - {name: g, set: decode.shadow_threshold, values: [-3]}\n",
                   "shadow_threshold");
+  const std::string noise_axis =
+      "axes:\n  - {name: r, set: scene.layers.noise.read_noise_e, values: [5, 50]}\n";
+  ExpectPlanError(tmp, rig + noise_axis + "curves: {x: q}\n", "'q' is not an axis");
+  ExpectPlanError(tmp, rig + noise_axis + "pareto: {by: q}\n", "'q' is not an axis");
+  ExpectPlanError(tmp, rig + noise_axis + "effects: {axis: r, baseline: 7, tolerance_mm: 0.1}\n",
+                  "baseline");
+  ExpectPlanError(tmp,
+                  rig +
+                      "axes:\n  - {name: r, set: scene.layers.noise.read_noise_e, values: [5, "
+                      "50], labels: [low]}\n",
+                  "one label per value");
+  ExpectPlanError(tmp, rig + noise_axis + "curves: {x: r, limits: {p99_mm: 1}}\n", "p99_mm");
+  ExpectPlanError(tmp,
+                  rig + "axes:\n  - {name: m, set: reconstruct.method, values: [midpoint]}\n" +
+                      "curves: {x: m}\n",
+                  "not a number");
 
   WriteSmallStudy(tmp / "study.yaml");
   fs::create_directories(tmp / "exists");

@@ -76,6 +76,13 @@ TEST(ShadowTwin, CleanSyntheticScanEndToEnd) {
   }
   EXPECT_TRUE(std::filesystem::exists(tmp / "out" / "summary.txt"));
   EXPECT_TRUE(std::filesystem::exists(tmp / "out" / "maps" / "left_projector_residual.png"));
+  EXPECT_TRUE(std::filesystem::exists(tmp / "out" / "charts" / "intensity_per_frame.png"));
+  EXPECT_TRUE(std::filesystem::exists(tmp / "out" / "charts" / "real_vs_twin_stereo.png"));
+  // Map colour ranges scale to the data: the clean scan's decoded residual is a fraction of a
+  // projector pixel (p99 of |residual|), not a fixed +-2 px.
+  const double range = report["maps"][0]["projector_residual_range_px"].get<double>();
+  EXPECT_GT(range, 0.05);
+  EXPECT_LT(range, 0.6);
   EXPECT_TRUE(std::filesystem::exists(tmp / "out" / "clouds" / "real_stereo.ply"));
 }
 
@@ -312,6 +319,182 @@ TEST(ShadowTwin, ExposureTimesAlbedoPerObject) {
     EXPECT_NEAR(e * part_albedo->value, 0.8 * 0.7, 0.01);
   }
   EXPECT_EQ(r.diagnosis.verdict, "consistent with the model") << r.diagnosis.Summary();
+}
+
+}  // namespace
+}  // namespace slshadow
+
+namespace slshadow {
+namespace {
+
+// A checkerboard plane facing the half demo rig: two reflectances in view, so a black-level offset
+// and ambient light can be told apart. `part_frame`: in its own frame (the shadow's part), else at
+// its pose in the rig.
+Rigid3d BoardPose() {
+  return Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.15, Eigen::Vector3d::UnitY())), Eigen::Vector3d(100, 0, 520));
+}
+
+Scene BoardScene(bool part_frame) {
+  Scene s;
+  s.name = "board";
+  s.radiometry.exposure = 0.6;
+  SceneObject o;
+  o.name = "board";
+  o.type = ObjectType::kPlane;
+  o.size_mm = Eigen::Vector3d(300, 220, 0);
+  o.albedo.kind = Albedo::Kind::kCheckerboard;
+  o.albedo.square_mm = 20;
+  o.albedo.squares_x = 15;
+  o.albedo.squares_y = 11;
+  o.albedo.dark = 0.1;
+  o.albedo.light = 0.8;
+  o.albedo_offset_mm = Eigen::Vector2d(140, 100);
+  if (!part_frame) o.rig_from_object = BoardPose();
+  s.objects.push_back(o);
+  return s;
+}
+
+// What the camera adds beyond the renderer, written out here as the oracle: a share `global` of
+// the light scattered from the whole lit projector image, an illumination field
+// G = 1 + cu u + cv v + cuu u^2 (u, v in [-1, 1] over the image), a black-level offset.
+struct CameraPhysics {
+  double offset_dn = 0, global = 0, cu = 0, cv = 0, cuu = 0;
+  double Field(int x, int y, int w, int h) const {
+    const double u = (x - 0.5 * w) / (0.5 * w), v = (y - 0.5 * h) / (0.5 * h);
+    return 1 + cu * u + cv * v + cuu * u * u;
+  }
+};
+
+void AddCameraPhysics(const PatternSpec& spec, const CameraPhysics& truth, std::vector<cv::Mat>* images) {
+  const std::vector<cv::Mat> projector = GeneratePatterns(spec);
+  const cv::Mat white = (*images)[static_cast<size_t>(spec.WhiteFrameIndex())].clone();
+  const cv::Mat black = (*images)[static_cast<size_t>(spec.BlackFrameIndex())].clone();
+  for (size_t k = 0; k < images->size(); ++k) {
+    const double m = cv::mean(projector[k])[0] / 255;
+    cv::Mat& img = (*images)[k];
+    for (int y = 0; y < img.rows; ++y) {
+      for (int x = 0; x < img.cols; ++x) {
+        const double b = black.at<uint8_t>(y, x), w = white.at<uint8_t>(y, x), i = img.at<uint8_t>(y, x);
+        const double scattered = b + (1 - truth.global) * (i - b) + truth.global * m * (w - b);
+        img.at<uint8_t>(y, x) = cv::saturate_cast<uint8_t>(truth.offset_dn + truth.Field(x, y, img.cols, img.rows) * scattered);
+      }
+    }
+  }
+}
+
+workflow::ShadowResult ShadowBoard(const CameraPhysics& truth) {
+  const Rig rig = testing::HalfDemoRig();
+  PatternSpec spec;
+  spec.kind = PatternKind::kGrayCode;
+  spec.projector_width = 1280;
+  spec.projector_height = 800;
+  spec.code_y = false;
+  spec.Check();
+  Scene real = BoardScene(false);
+  real.layers.ambient = 0.01;
+  real.layers.noise_enabled = true;
+  real.layers.full_well_e = 10000;
+  real.layers.read_noise_e = 6;
+  real.layers.seed = 99;
+  std::map<std::string, std::vector<cv::Mat>> images = testing::Render(real, rig, spec);
+  for (auto& [camera, frames] : images) AddCameraPhysics(spec, truth, &frames);
+  workflow::ShadowPart part;
+  part.source = "board";
+  part.scene = BoardScene(true);
+  part.surface = workflow::SceneSurface(part.scene, part.source, workflow::kPartPlaneCells);
+  workflow::ShadowOptions options;
+  options.rig_from_part = BoardPose();
+  options.refine_pose = false;
+  options.write_clouds = false;
+  workflow::ShadowResult r = workflow::RunShadowOnImages(rig, spec, images, part, options);
+  std::printf("%s\n", r.physics.Table().c_str());
+  return r;
+}
+
+// Oracle: a black level of 6 DN, an illumination field of +-8 % and 8 % scattered light added to
+// a rendered scan are recovered within their uncertainty, kept, and put into the twin; on the
+// clean scan the same layers are left off.
+TEST(ShadowTwin, BlackLevelIlluminationAndGlobalLightRecovered) {
+  CameraPhysics truth;
+  truth.offset_dn = 6;
+  truth.global = 0.08;
+  truth.cu = 0.06;
+  truth.cv = -0.04;
+  truth.cuu = 0.05;
+  const workflow::ShadowResult r = ShadowBoard(truth);
+  for (const std::string camera : {"left", "right"}) {
+    const workflow::PhysicsLayer* bl = r.physics.Find("black_level_" + camera);
+    ASSERT_NE(bl, nullptr);
+    EXPECT_TRUE(bl->kept) << bl->reason;
+    // Within max(3 sigma, the keep floor 0.002 FS = 0.5 DN): the jackknife sigma does not see the
+    // bias of a mean of integers when the black frame's noise is below 1 DN (0.14 DN here).
+    EXPECT_NEAR(bl->value, truth.offset_dn, std::max(3 * bl->sigma, 0.002 * 255)) << camera;
+    const workflow::PhysicsLayer* il = r.physics.Find("illumination_" + camera);
+    ASSERT_NE(il, nullptr);
+    EXPECT_TRUE(il->kept) << il->reason;
+    // The fitted field times the exposure is the true one times the true exposure, at every lit
+    // pixel (the fit leaves the split between E and the field's mean free).
+    const Rig rig = testing::HalfDemoRig();
+    const auto& model = rig.cameras[static_cast<size_t>(rig.CameraIndex(camera))].model;
+    const cv::Mat g = workflow::IlluminationField(r.physics, camera, model.width, model.height);
+    const double e = r.physics.Find("exposure")->value;
+    double worst = 0;
+    for (int y = 0; y < model.height; y += 10) {
+      for (int x = 0; x < model.width; x += 10) worst = std::max(worst, std::abs(e * g.at<float>(y, x) / 0.6 - truth.Field(x, y, model.width, model.height)));
+    }
+    EXPECT_LT(worst, 0.02) << camera;  // over the whole image, extrapolated beyond the board too
+  }
+  ASSERT_NE(r.physics.Find("global_light"), nullptr);
+  EXPECT_TRUE(r.physics.Kept("global_light"));
+  EXPECT_NEAR(r.physics.Find("global_light")->value, truth.global, 3 * r.physics.Find("global_light")->sigma + 0.01);
+  for (const auto& cam : r.report["images"]["cameras"]) EXPECT_GT(cam["within_5pct_all_frames"].get<double>(), 0.99) << cam["camera"];
+
+  const workflow::ShadowResult clean = ShadowBoard(CameraPhysics{});
+  for (const std::string camera : {"left", "right"}) {
+    const workflow::PhysicsLayer* bl = clean.physics.Find("black_level_" + camera);
+    ASSERT_NE(bl, nullptr);
+    EXPECT_TRUE(bl->observable) << bl->reason;
+    EXPECT_FALSE(bl->kept) << bl->reason;
+    EXPECT_FALSE(clean.physics.Kept("illumination_" + camera)) << clean.physics.Find("illumination_" + camera)->reason;
+  }
+  EXPECT_FALSE(clean.physics.Kept("global_light")) << clean.physics.Find("global_light")->reason;
+  EXPECT_TRUE(clean.physics.Kept("ambient")) << clean.physics.Find("ambient")->reason;
+  EXPECT_NEAR(clean.physics.Find("ambient")->value, 0.01, 0.003);
+}
+
+}  // namespace
+}  // namespace slshadow
+
+namespace slshadow {
+namespace {
+
+// Oracle: the real projector's focal length 4 px longer than the rig file says: the calibration
+// finding names the focal-length equivalent of the smooth projector-coordinate field, about 4 px.
+TEST(ShadowTwin, CalibrationFieldNamesItsFocalLengthEquivalent) {
+  const Rig rig = testing::HalfDemoRig();
+  Rig real_rig = rig;
+  real_rig.projector->model.params[CameraModel::kFx] += 4;
+  real_rig.projector->model.params[CameraModel::kFy] += 4;
+  const PatternSpec spec = testing::DemoSpec();
+  const Rigid3d truth = DemoPartPose();
+  const auto images = testing::Render(testing::RealScene(DemoPart(), truth), real_rig, spec);
+  workflow::ShadowOptions options;
+  options.rig_from_part = truth;
+  options.write_clouds = false;
+  const workflow::ShadowResult r =
+      workflow::RunShadowOnImages(rig, spec, images, testing::PartFromMesh(DemoPart(), "demo_part"), options);
+  std::printf("%s\n", r.diagnosis.Summary().c_str());
+  const workflow::Finding* cal = nullptr;
+  for (const auto& f : r.diagnosis.findings) {
+    if (f.cause == "calibration") cal = &f;
+  }
+  ASSERT_NE(cal, nullptr);
+  EXPECT_TRUE(cal->detected) << cal->message;
+  EXPECT_NE(cal->message.find("focal length off by"), std::string::npos) << cal->message;
+  for (const auto& cam : cal->evidence["cameras"]) {
+    ASSERT_TRUE(cam.contains("equivalent_projector_focal_error_x_px")) << cam.dump();
+    EXPECT_NEAR(cam["equivalent_projector_focal_error_x_px"].get<double>(), 4.0, 1.0) << cam["camera"];
+  }
 }
 
 }  // namespace

@@ -1,0 +1,388 @@
+#include "shadow/sweep_reuse.h"
+
+#include "compare/statistics.h"
+#include "core/error.h"
+#include "sim/renderer.h"
+#include "sim/shapes.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+
+namespace slshadow::workflow {
+
+namespace {
+
+// The renderer's hash (sim/renderer.cc): SplitMix64.
+inline uint64_t Mix(uint64_t x) {
+  x += 0x9E3779B97F4A7C15ull;
+  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
+  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
+  return x ^ (x >> 31);
+}
+
+// std::clamp(std::round(x), 0, full) as an integer, for |x| < 2^62, without branches:
+// t = trunc(x) and x - t are exact, so t + 1 (x - t >= 0.5) or t - 1 (x - t <= -0.5) is
+// std::round's half-away-from-zero result.
+inline int64_t RoundAndClip(double x, int64_t full) {
+  const auto t = static_cast<int64_t>(x);
+  const double f = x - static_cast<double>(t);
+  const int64_t q = t + static_cast<int64_t>(f >= 0.5) - static_cast<int64_t>(f <= -0.5);
+  return std::min<int64_t>(std::max<int64_t>(q, 0), full);
+}
+
+// Rounds and clips a non-negative float to [0, full]: the renderer's noise-free ADC.
+inline int QuantizeValue(float v, float full) {
+  if (!(v > 0)) return 0;
+  if (v >= full) return static_cast<int>(full);
+  return static_cast<int>(v + 0.5f);
+}
+
+template <typename Out>
+void QuantizeRows(const cv::Mat& irradiance, const Scene& scene, int camera_index,
+                  int pattern_index, cv::Mat& out) {
+  const SceneLayers& l = scene.layers;
+  const int w = irradiance.cols, h = irradiance.rows;
+  const double full = std::ldexp(1.0, scene.radiometry.adc_bits) - 1;
+  const float full_f = static_cast<float>(full);
+  const auto full_i = static_cast<int64_t>(full);
+  const double k_dn_per_e = full / l.full_well_e;
+  // Locals: the image rows written below may alias anything (unsigned char).
+  const double read_noise_e = l.read_noise_e, full_well_e = l.full_well_e;
+  const bool noise = l.noise_enabled;
+  const uint64_t stream =
+      Mix(l.seed ^ Mix((static_cast<uint64_t>(camera_index) << 32) ^
+                       static_cast<uint64_t>(static_cast<uint32_t>(pattern_index))));
+  // Without signal (mu_e = 0) the electrons are read_noise_e * n2 with |n2| <= rad =
+  // sqrt(-2 log u1): when read_noise_e * rad * K < 0.5 the pixel rounds (and clips) to 0 whatever
+  // n2's sign. rad_max leaves a 1 % margin for logf's and sqrtf's rounding; u1 >= u_min (as its
+  // 24-bit integer) guarantees rad <= rad_max.
+  const double zero_bound = read_noise_e * k_dn_per_e;
+  uint64_t zero_from_bits = 0;  // u1 bits at and above which a signal-free pixel is 0
+  if (zero_bound > 0) {
+    const double rad_max = 0.49 / zero_bound * 0.99;
+    const double u_min = std::exp(-0.5 * rad_max * rad_max);
+    zero_from_bits = static_cast<uint64_t>(std::ceil(u_min * 0x1.0p24)) + 1;
+  }
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const tbb::blocked_range<int>& r) {
+    for (int y = r.begin(); y < r.end(); ++y) {
+      const float* src = irradiance.ptr<float>(y);
+      Out* dst = out.ptr<Out>(y);
+      if (!noise) {
+        for (int x = 0; x < w; ++x) dst[x] = static_cast<Out>(QuantizeValue(src[x], full_f));
+        continue;
+      }
+      for (int x = 0; x < w; ++x) {
+        double dn = src[x];
+        const double mu_e = std::max(0.0, dn / k_dn_per_e);
+        const uint64_t r1 = Mix(stream + static_cast<uint64_t>(y) * w + x);
+        if (mu_e == 0 && (r1 >> 40) >= zero_from_bits) {
+          dst[x] = 0;
+          continue;
+        }
+        const uint64_t r2 = Mix(r1);
+        // Box-Muller as the renderer computes it (single-precision uniforms and functions).
+        const float u1 = (static_cast<float>(r1 >> 40) + 0.5f) * 0x1.0p-24f;
+        const float u2 = static_cast<float>(r2 >> 40) * 0x1.0p-24f;
+        const float rad = std::sqrt(-2.0f * std::log(u1));
+        const float angle = 6.2831853f * u2;
+        const double n1 = rad * std::cos(angle), n2 = rad * std::sin(angle);
+        const double e = std::min(mu_e + std::sqrt(mu_e) * n1 + read_noise_e * n2, full_well_e);
+        dn = e * k_dn_per_e;
+        dst[x] = static_cast<Out>(RoundAndClip(dn, full_i));
+      }
+    }
+  });
+}
+
+}  // namespace
+
+void QuantizeIrradiance(const cv::Mat& irradiance, const Scene& scene, int camera_index,
+                        int pattern_index, cv::Mat* out) {
+  SLSHADOW_THROW_IF(irradiance.type() != CV_32FC1,
+                    "QuantizeIrradiance: irradiance must be CV_32FC1");
+  const bool wide = scene.radiometry.adc_bits > 8;
+  out->create(irradiance.rows, irradiance.cols, wide ? CV_16UC1 : CV_8UC1);
+  if (wide) {
+    QuantizeRows<uint16_t>(irradiance, scene, camera_index, pattern_index, *out);
+  } else {
+    QuantizeRows<uint8_t>(irradiance, scene, camera_index, pattern_index, *out);
+  }
+}
+
+std::string NoiseFreeImages::Key(const nlohmann::json& scene, const nlohmann::json& patterns) {
+  nlohmann::json s = scene;
+  s.erase("name");
+  if (s.contains("layers") && s["layers"].is_object()) s["layers"].erase("noise");
+  return nlohmann::json{{"scene", s}, {"patterns", patterns}}.dump();
+}
+
+NoiseFreeImages::NoiseFreeImages(const Simulator& simulator, const Scene& scene, const Rig& rig,
+                                 const std::vector<cv::Mat>& projector_images) {
+  const int batch = PatternRenderer::kMaxBatch;
+  irradiance_.resize(static_cast<size_t>(simulator.num_cameras()));
+  for (int c = 0; c < simulator.num_cameras(); ++c) {
+    const PatternRenderer renderer(scene, rig, c, simulator.geometry(c));
+    auto& out = irradiance_[static_cast<size_t>(c)];
+    for (size_t first = 0; first < projector_images.size(); first += batch) {
+      const std::vector<cv::Mat> chunk(
+          projector_images.begin() + static_cast<std::ptrdiff_t>(first),
+          projector_images.begin() +
+              static_cast<std::ptrdiff_t>(std::min(first + batch, projector_images.size())));
+      for (cv::Mat& m : renderer.RenderIrradianceBatch(chunk)) out.push_back(std::move(m));
+    }
+  }
+}
+
+void NoiseFreeImages::Render(const Scene& scene, std::vector<std::vector<cv::Mat>>* images) const {
+  images->resize(irradiance_.size());
+  for (size_t c = 0; c < irradiance_.size(); ++c) {
+    auto& cam = (*images)[c];
+    cam.resize(irradiance_[c].size());
+    for (size_t p = 0; p < cam.size(); ++p) {
+      // A buffer shared with a caller (e.g. a decoded view) is not overwritten: a new one is made.
+      if (cam[p].u && cam[p].u->refcount > 1) cam[p].release();
+      QuantizeIrradiance(irradiance_[c][p], scene, static_cast<int>(c), static_cast<int>(p),
+                         &cam[p]);
+    }
+  }
+}
+
+namespace {
+
+constexpr int kSegments = 512;
+
+// A closed cylinder of radius r along z, from z = -h/2 to h/2: `sides` facets and two capped ends.
+TriangleMesh CylinderMesh(double r, double h, int sides) {
+  TriangleMesh m;
+  for (int k = 0; k < sides; ++k) {
+    const double a = 2 * M_PI * k / sides;
+    m.vertices.emplace_back(r * std::cos(a), r * std::sin(a), -h / 2);
+    m.vertices.emplace_back(r * std::cos(a), r * std::sin(a), h / 2);
+  }
+  const int bottom = static_cast<int>(m.vertices.size());
+  m.vertices.emplace_back(0, 0, -h / 2);
+  m.vertices.emplace_back(0, 0, h / 2);
+  for (int k = 0; k < sides; ++k) {
+    const int a0 = 2 * k, a1 = 2 * k + 1, b0 = 2 * ((k + 1) % sides), b1 = b0 + 1;
+    m.triangles.emplace_back(a0, b0, b1);  // outward (counter-clockwise seen from outside)
+    m.triangles.emplace_back(a0, b1, a1);
+    m.triangles.emplace_back(bottom, b0, a0);
+    m.triangles.emplace_back(bottom + 1, a1, b1);
+  }
+  return m;
+}
+
+}  // namespace
+
+TriangleMesh GroundTruthSurface(const Scene& scene, const std::string& what) {
+  TriangleMesh surface;
+  for (const SceneObject& object : scene.objects) {
+    TriangleMesh part;
+    if (object.type == ObjectType::kSphere) {
+      part = MakeSphereMesh(object.radius_mm, kSegments);
+    } else if (object.type == ObjectType::kCylinder) {
+      part = CylinderMesh(object.radius_mm, object.height_mm, kSegments);
+    } else {
+      Scene one;
+      one.objects = {object};
+      surface.Append(SceneSurface(one, what));
+      continue;
+    }
+    part.Transform(object.rig_from_object.rotation.toRotationMatrix(),
+                   object.rig_from_object.translation);
+    surface.Append(part);
+  }
+  return surface;
+}
+
+// The samples of the reference surface followed by the visible points, sorted into a dense
+// uniform grid (~4 points per cell, at most 8 M cells; counting sort), built once. A coverage
+// query marks, for every reached point, the samples within the radius in the cells around it:
+// exactly compare::Coverage's criterion, (sample - reached).squaredNorm() < nextafter(r)^2, with
+// no grid to build over the millions of reached points of each cloud.
+struct GroundTruthScorer::SampleGrid {
+  size_t num_reference = 0, num_visible = 0;
+  Eigen::Vector3d lo = Eigen::Vector3d::Zero();
+  double cell = 1, inv = 1;
+  int64_t nx = 0, ny = 0, nz = 0;
+  std::vector<uint32_t> start;          // per cell, its first point; one more at the end
+  std::vector<Eigen::Vector3d> points;  // by cell
+  std::vector<uint8_t> is_reference;    // by cell order: a reference sample (else visible)
+
+  SampleGrid(const std::vector<Eigen::Vector3d>& reference,
+             const std::vector<Eigen::Vector3d>& visible)
+      : num_reference(reference.size()), num_visible(visible.size()) {
+    const auto each = [&](auto&& f) {
+      for (const auto& p : reference) f(p, uint8_t{1});
+      for (const auto& p : visible) f(p, uint8_t{0});
+    };
+    Eigen::Vector3d hi = Eigen::Vector3d::Constant(-std::numeric_limits<double>::infinity());
+    lo = -hi;
+    each([&](const Eigen::Vector3d& p, uint8_t) {
+      if (!p.allFinite()) return;  // never within a finite distance of anything
+      lo = lo.cwiseMin(p);
+      hi = hi.cwiseMax(p);
+    });
+    if (!(lo.x() <= hi.x())) return;
+    const Eigen::Vector3d extent = (hi - lo).cwiseMax(1e-9);
+    // About 4 points per cell of a surface (the two largest extents), at most 8 M cells.
+    Eigen::Vector3d e = extent;
+    std::sort(e.data(), e.data() + 3, std::greater<>());
+    const double n = static_cast<double>(reference.size() + visible.size());
+    cell = std::max({2 * std::sqrt(e[0] * e[1] / n), std::cbrt(extent.prod() / 8e6), e[0] / 4096});
+    inv = 1 / cell;
+    nx = static_cast<int64_t>(extent.x() * inv) + 1;
+    ny = static_cast<int64_t>(extent.y() * inv) + 1;
+    nz = static_cast<int64_t>(extent.z() * inv) + 1;
+    start.assign(static_cast<size_t>(nx * ny * nz) + 1, 0);
+    std::vector<uint32_t> cell_of;
+    each([&](const Eigen::Vector3d& p, uint8_t) {
+      if (!p.allFinite()) return;
+      cell_of.push_back(static_cast<uint32_t>(Cell(p)));
+      ++start[cell_of.back() + 1];
+    });
+    for (size_t c = 1; c < start.size(); ++c) start[c] += start[c - 1];
+    points.resize(cell_of.size());
+    is_reference.resize(cell_of.size());
+    std::vector<uint32_t> fill(start.begin(), start.end() - 1);
+    size_t k = 0;
+    each([&](const Eigen::Vector3d& p, uint8_t ref) {
+      if (!p.allFinite()) return;
+      const uint32_t slot = fill[cell_of[k++]]++;
+      points[slot] = p;
+      is_reference[slot] = ref;
+    });
+  }
+
+  int64_t Cell(const Eigen::Vector3d& p) const {
+    const Eigen::Vector3d c = ((p - lo) * inv).array().floor();
+    const int64_t x = std::clamp<int64_t>(static_cast<int64_t>(c.x()), 0, nx - 1);
+    const int64_t y = std::clamp<int64_t>(static_cast<int64_t>(c.y()), 0, ny - 1);
+    const int64_t z = std::clamp<int64_t>(static_cast<int64_t>(c.z()), 0, nz - 1);
+    return (z * ny + y) * nx + x;
+  }
+
+  // (reference coverage, visible coverage) of `reached` within `radius_mm`, as compare::Coverage
+  // gives each. False when the radius is not a positive finite bound (compare::Coverage then
+  // takes another path).
+  bool Cover(const std::vector<Eigen::Vector3d>& reached, double radius_mm, double* reference_cov,
+             double* visible_cov) const {
+    const double r = std::nextafter(radius_mm, 1e300);
+    const double bound = r * r;
+    if (!(bound > 0) || !std::isfinite(bound)) return false;
+    *reference_cov = *visible_cov = 0;
+    if (reached.empty() || points.empty()) return true;
+    const auto reach = static_cast<int64_t>(std::ceil(r * 1.001 * inv));  // margin: rounding
+    std::unique_ptr<std::atomic<uint8_t>[]> covered(new std::atomic<uint8_t>[points.size()]);
+    for (size_t i = 0; i < points.size(); ++i) covered[i].store(0, std::memory_order_relaxed);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, reached.size(), 8192),
+                      [&](const tbb::blocked_range<size_t>& range) {
+                        for (size_t i = range.begin(); i < range.end(); ++i) {
+                          const Eigen::Vector3d& q = reached[i];
+                          if (!q.allFinite()) continue;
+                          const Eigen::Vector3d c = ((q - lo) * inv).array().floor();
+                          if ((c.array() < -static_cast<double>(reach)).any() ||
+                              c.x() > static_cast<double>(nx + reach) ||
+                              c.y() > static_cast<double>(ny + reach) ||
+                              c.z() > static_cast<double>(nz + reach)) {
+                            continue;
+                          }
+                          const auto cx = static_cast<int64_t>(c.x()),
+                                     cy = static_cast<int64_t>(c.y()),
+                                     cz = static_cast<int64_t>(c.z());
+                          for (int64_t z = std::max<int64_t>(cz - reach, 0);
+                               z <= std::min(cz + reach, nz - 1); ++z) {
+                            for (int64_t y = std::max<int64_t>(cy - reach, 0);
+                                 y <= std::min(cy + reach, ny - 1); ++y) {
+                              const int64_t row = (z * ny + y) * nx;
+                              const int64_t x0 = std::max<int64_t>(cx - reach, 0),
+                                            x1 = std::min(cx + reach, nx - 1);
+                              if (x0 > x1) continue;
+                              for (uint32_t k = start[static_cast<size_t>(row + x0)];
+                                   k < start[static_cast<size_t>(row + x1 + 1)]; ++k) {
+                                if (covered[k].load(std::memory_order_relaxed)) continue;
+                                if ((points[k] - q).squaredNorm() < bound)
+                                  covered[k].store(1, std::memory_order_relaxed);
+                              }
+                            }
+                          }
+                        }
+                      });
+    size_t ref = 0, vis = 0;
+    for (size_t k = 0; k < points.size(); ++k) {
+      if (!covered[k].load(std::memory_order_relaxed)) continue;
+      (is_reference[k] ? ref : vis) += 1;
+    }
+    if (num_reference)
+      *reference_cov = static_cast<double>(ref) / static_cast<double>(num_reference);
+    if (num_visible) *visible_cov = static_cast<double>(vis) / static_cast<double>(num_visible);
+    return true;
+  }
+};
+
+GroundTruthScorer::GroundTruthScorer(TriangleMesh surface, std::vector<Eigen::Vector3d> visible,
+                                     const std::string& what)
+    : reference_(compare::ReferenceFromMesh(std::move(surface), what)),
+      distance_(reference_.mesh),
+      visible_(std::move(visible)),
+      samples_(std::make_unique<SampleGrid>(reference_.cloud.points, visible_)) {}
+
+GroundTruthScorer::~GroundTruthScorer() = default;
+
+ModeAccuracy GroundTruthScorer::Measure(const PointCloud& cloud,
+                                        const compare::CompareOptions& options,
+                                        const std::string& mode) const {
+  if (options.registration.method != compare::RegistrationMethod::kNone || options.m3c2 ||
+      options.artefacts) {
+    return MeasureAccuracy(mode, compare::Compare(cloud, reference_, options, mode), visible_);
+  }
+  options.Check();
+  cloud.Check(mode);
+  SLSHADOW_THROW_IF(cloud.empty(), mode, ": the compared cloud has no points");
+  const std::vector<Eigen::Vector3d>& pts = cloud.points;
+  // Signed distances: the result does not depend on the warm-start hint (compare/mesh_distance.h);
+  // clouds come in grid order, so the previous point's triangle is a good one.
+  std::vector<double> deviations(pts.size());
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, pts.size(), 4096),
+                    [&](const tbb::blocked_range<size_t>& r) {
+                      uint32_t hint = std::numeric_limits<uint32_t>::max();
+                      for (size_t i = r.begin(); i < r.end(); ++i) {
+                        const compare::MeshHit hit = distance_.Closest(pts[i], hint);
+                        deviations[i] = hit.signed_distance_mm;
+                        hint = hit.triangle;
+                      }
+                    });
+  const compare::DistanceStats stats = compare::ComputeStats(
+      deviations, /*is_signed=*/false, options.threshold_mm, options.histogram_bins);
+  std::vector<Eigen::Vector3d> reached;
+  reached.reserve(pts.size());
+  for (size_t i = 0; i < pts.size(); ++i) {
+    if (std::abs(deviations[i]) <= options.threshold_mm) reached.push_back(pts[i]);
+  }
+  const double radius = options.coverage_radius_mm > 0
+                            ? options.coverage_radius_mm
+                            : std::max(options.threshold_mm, 3.0 * compare::MedianSpacing(pts));
+  ModeAccuracy m;
+  m.mode = mode;
+  m.points = pts.size();
+  if (!samples_->Cover(reached, radius, &m.coverage, &m.visible_coverage)) {
+    m.coverage = compare::Coverage(reference_.cloud.points, reached, radius);
+    m.visible_coverage = compare::Coverage(visible_, reached, radius);
+  }
+  m.mean_mm = stats.mean_mm;
+  m.rms_mm = stats.rms_mm;
+  m.p95_mm = stats.p95_mm;
+  m.max_mm = stats.max_mm;
+  m.outliers = stats.outliers;
+  m.outlier_fraction =
+      stats.count ? static_cast<double>(stats.outliers) / static_cast<double>(stats.count) : 0;
+  return m;
+}
+
+}  // namespace slshadow::workflow

@@ -1,0 +1,213 @@
+// What a sweep shard reuses between jobs (shadow/sweep_reuse.h). Oracles: the images of
+// sim::Simulator::Render (what `slshadow simulate` writes) for the same scene and seed, bit for
+// bit; MeasureAccuracy(compare::Compare(...)) for the accuracy figures, double for double.
+#include "shadow/sweep_reuse.h"
+
+#include "core/config.h"
+#include "core/error.h"
+#include "patterns/codec.h"
+#include "reconstruct/reconstruct.h"
+#include "shadow/scan_pipeline.h"
+#include "sim/scene.h"
+#include "tests/testing/temp_dir.h"
+
+#include <gtest/gtest.h>
+
+#include <memory>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace slshadow::workflow {
+namespace {
+using testing::SourceDir;
+
+struct Fixture {
+  Rig rig = LoadRig(SourceDir() / "config/studies/quarter_demo_rig.yaml");
+  Scene scene = LoadSceneOrDemo("");
+  PatternSpec spec = LoadPatternSpecOrDemo("");
+  std::vector<cv::Mat> patterns = GeneratePatterns(spec);
+};
+
+Fixture& Shared() {
+  static Fixture* f = new Fixture();
+  return *f;
+}
+
+int CountDifferentPixels(const cv::Mat& a, const cv::Mat& b) {
+  if (a.size() != b.size() || a.type() != b.type()) return -1;
+  cv::Mat diff;
+  cv::compare(a, b, diff, cv::CMP_NE);
+  return cv::countNonZero(diff);
+}
+
+// Each seed's images from the noise-free images equal the renderer's, for 8- and 12-bit ADCs,
+// with and without other radiometric layers, and with a read noise so large that signal-free
+// pixels are often not 0 (the short cut for them must then not be taken).
+TEST(NoiseFreeImages, EverySeedGivesTheRenderersImagesBitForBit) {
+  Fixture& f = Shared();
+  const Simulator sim(f.scene, f.rig);
+  struct Case {
+    int adc_bits;
+    double read_noise_e, full_well_e, ambient, gamma;
+  };
+  const std::vector<Case> cases = {
+      {8, 6, 10000, 0, 1}, {12, 6, 10000, 0, 1}, {8, 400, 10000, 0.05, 1.8}, {10, 30, 2000, 0, 1}};
+  for (const Case& c : cases) {
+    Scene noisy = f.scene;
+    noisy.radiometry.adc_bits = c.adc_bits;
+    noisy.layers.noise_enabled = true;
+    noisy.layers.read_noise_e = c.read_noise_e;
+    noisy.layers.full_well_e = c.full_well_e;
+    noisy.layers.ambient = c.ambient;
+    noisy.layers.response_enabled = c.gamma != 1;
+    noisy.layers.gamma = c.gamma;
+    const NoiseFreeImages cache(sim, noisy, f.rig, f.patterns);
+    ASSERT_EQ(cache.num_cameras(), 2);
+    ASSERT_EQ(cache.num_patterns(), static_cast<int>(f.patterns.size()));
+    std::vector<std::vector<cv::Mat>> images;  // reused across seeds, as in a shard
+    for (uint64_t seed : {1u, 2u, 977u}) {
+      noisy.layers.seed = seed;
+      cache.Render(noisy, &images);
+      const auto expected = sim.Render(f.patterns, &noisy);
+      int zeros = 0;
+      for (size_t cam = 0; cam < expected.size(); ++cam) {
+        for (size_t p = 0; p < expected[cam].size(); ++p) {
+          ASSERT_EQ(CountDifferentPixels(images[cam][p], expected[cam][p]), 0)
+              << "adc " << c.adc_bits << " read noise " << c.read_noise_e << " seed " << seed
+              << " camera " << cam << " pattern " << p;
+          zeros += cv::countNonZero(images[cam][p] == 0);
+        }
+      }
+      // The short cut for signal-free pixels is exercised: many pixels are dark.
+      EXPECT_GT(zeros, 1000);
+    }
+  }
+}
+
+TEST(NoiseFreeImages, SeedsDifferAndNoiseOffIsTheNoiseFreeAdc) {
+  Fixture& f = Shared();
+  const Simulator sim(f.scene, f.rig);
+  Scene noisy = f.scene;
+  noisy.layers.noise_enabled = true;
+  const NoiseFreeImages cache(sim, noisy, f.rig, f.patterns);
+  std::vector<std::vector<cv::Mat>> a, b, off;
+  noisy.layers.seed = 5;
+  cache.Render(noisy, &a);
+  noisy.layers.seed = 6;
+  cache.Render(noisy, &b);
+  EXPECT_GT(CountDifferentPixels(a[0][3], b[0][3]), a[0][3].rows * a[0][3].cols / 10);
+  // Noise off: the renderer's noise-free images (its fused kernel), bit for bit.
+  cache.Render(f.scene, &off);
+  const auto expected = sim.Render(f.patterns, &f.scene);
+  for (size_t cam = 0; cam < expected.size(); ++cam) {
+    for (size_t p = 0; p < expected[cam].size(); ++p) {
+      ASSERT_EQ(CountDifferentPixels(off[cam][p], expected[cam][p]), 0) << cam << " " << p;
+    }
+  }
+}
+
+TEST(NoiseFreeImages, KeyIgnoresNameAndNoiseOnly) {
+  const nlohmann::json scene = {{"name", "a"},
+                                {"layers", {{"noise", {{"seed", 1}}}, {"ambient", 0.1}}}};
+  nlohmann::json other_seed = scene, other_name = scene, other_ambient = scene;
+  other_seed["layers"]["noise"]["seed"] = 2;
+  other_name["name"] = "b";
+  other_ambient["layers"]["ambient"] = 0.2;
+  const nlohmann::json patterns = {{"kind", "gray_code"}};
+  EXPECT_EQ(NoiseFreeImages::Key(scene, patterns), NoiseFreeImages::Key(other_seed, patterns));
+  EXPECT_EQ(NoiseFreeImages::Key(scene, patterns), NoiseFreeImages::Key(other_name, patterns));
+  EXPECT_NE(NoiseFreeImages::Key(scene, patterns), NoiseFreeImages::Key(other_ambient, patterns));
+  EXPECT_NE(NoiseFreeImages::Key(scene, patterns),
+            NoiseFreeImages::Key(scene, nlohmann::json{{"kind", "phase_shift"}}));
+}
+
+// Exact spheres and cylinders (here the parts of a ball bar and a VDI sphere) as meshes whose
+// distance to points on the true surfaces stays under 0.5 um; meshes and planes as SceneSurface.
+TEST(GroundTruthSurface, TessellatedPrimitivesWithinAFractionOfAMicrometre) {
+  const Scene ball_bar = LoadScene(SourceDir() / "config/scenes/ball_bar.yaml");
+  const Scene sphere = LoadScene(SourceDir() / "config/scenes/vdi2634_sphere.yaml");
+  for (const Scene* scene : {&ball_bar, &sphere}) {
+    const TriangleMesh surface = GroundTruthSurface(*scene, "test");
+    const compare::MeshDistance distance(surface);
+    int checked = 0;
+    for (const SceneObject& o : scene->objects) {
+      if (o.type != ObjectType::kSphere) continue;
+      // Points on the true sphere in every direction (a Fibonacci sphere), and 1 mm outside it.
+      for (int i = 0; i < 2000; ++i) {
+        const double z = -1 + 2 * (i + 0.5) / 2000, phi = i * 2.399963229728653;
+        const Eigen::Vector3d dir(std::sqrt(1 - z * z) * std::cos(phi),
+                                  std::sqrt(1 - z * z) * std::sin(phi), z);
+        const Eigen::Vector3d on = o.rig_from_object * Eigen::Vector3d(o.radius_mm * dir);
+        const Eigen::Vector3d out = o.rig_from_object * Eigen::Vector3d((o.radius_mm + 1) * dir);
+        const double d = std::abs(distance.Closest(on).signed_distance_mm);
+        // Where the bar enters the sphere its (inner) surface may be nearer: at most as near.
+        EXPECT_LT(d, 0.5e-3) << o.name << " " << i;
+        // Outside (away from the ball bar's bar and from the plate behind the single sphere).
+        if (scene == &sphere) {
+          EXPECT_NEAR(distance.Closest(out).signed_distance_mm, 1.0, 0.5e-3) << o.name << " " << i;
+        }
+        ++checked;
+      }
+    }
+    EXPECT_GE(checked, 2000);
+  }
+  // Planes (and meshes) are SceneSurface's.
+  const Scene plane = LoadScene(SourceDir() / "config/scenes/flat_plane.yaml");
+  const TriangleMesh a = GroundTruthSurface(plane, "plane"), b = SceneSurface(plane, "plane");
+  EXPECT_EQ(a.vertices, b.vertices);
+  EXPECT_EQ(a.triangles, b.triangles);
+  Scene box;
+  box.objects.emplace_back();
+  box.objects.back().type = ObjectType::kBox;
+  box.objects.back().name = "crate";
+  EXPECT_THROW(GroundTruthSurface(box, "boxes"), Error);
+}
+
+// The scorer's figures are those of the demo's path (compare::Compare, then MeasureAccuracy),
+// for both modes of a noisy scan and two thresholds; an empty cloud is rejected as Compare does.
+TEST(GroundTruthScorer, EqualsCompareThenMeasureAccuracy) {
+  Fixture& f = Shared();
+  const Simulator sim(f.scene, f.rig);
+  Scene noisy = f.scene;
+  noisy.layers.noise_enabled = true;
+  noisy.layers.seed = 3;
+  const auto images = sim.Render(f.patterns, &noisy);
+  DecodedScan decoded;
+  decoded.rig = f.rig;
+  decoded.spec = f.spec;
+  for (size_t c = 0; c < 2; ++c) {
+    decoded.cameras.push_back(f.rig.cameras[c].name);
+    decoded.maps.push_back(DecodePatterns(f.spec, images[c], DecodeOptions{}));
+  }
+  const std::vector<ReconstructMode> modes = {ReconstructMode::kProjector,
+                                              ReconstructMode::kStereo};
+  const auto recs = ReconstructModes(decoded, modes, ReconstructOptions{});
+  const TriangleMesh surface = SceneSurface(f.scene, "demo");
+  const std::vector<Eigen::Vector3d> visible = LitVisibleSurface(sim.geometry(0));
+  const GroundTruthScorer scorer(surface, visible, "truth");
+  const compare::Reference reference = compare::ReferenceFromMesh(surface, "truth");
+  // The automatic coverage radius, and one of several grid cells.
+  for (const auto& [threshold, radius] :
+       std::vector<std::pair<double, double>>{{0.1, 0.0}, {0.5, 0.0}, {0.5, 6.0}}) {
+    compare::CompareOptions options;
+    options.threshold_mm = threshold;
+    options.coverage_radius_mm = radius;
+    for (size_t k = 0; k < modes.size(); ++k) {
+      const std::string mode = ToString(modes[k]);
+      ASSERT_GT(recs[k].cloud.size(), 10000u);
+      const ModeAccuracy got = scorer.Measure(recs[k].cloud, options, mode);
+      const ModeAccuracy want =
+          MeasureAccuracy(mode, compare::Compare(recs[k].cloud, reference, options, mode), visible);
+      EXPECT_EQ(ModeAccuracyToJson(got).dump(), ModeAccuracyToJson(want).dump())
+          << mode << " threshold " << threshold << " radius " << radius;
+      EXPECT_GT(got.coverage, 0.1);
+      EXPECT_GT(got.visible_coverage, 0.5);
+      EXPECT_LT(got.rms_mm, threshold * 2);
+    }
+  }
+  EXPECT_THROW(scorer.Measure(PointCloud{}, compare::CompareOptions{}, "empty"), Error);
+}
+
+}  // namespace
+}  // namespace slshadow::workflow
