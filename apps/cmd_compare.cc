@@ -83,8 +83,8 @@ int RunCompare(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     return ExitOnParseError(app, e);
   }
-  options.registration.method = compare::ParseRegistrationMethod(method);
-  options.c2c.local_model = compare::ParseLocalModel(local_model);
+  options.registration.method = compare::RegistrationMethodFromString(method);
+  options.c2c.local_model = compare::LocalModelFromString(local_model);
   report.overwrite = !no_overwrite;
   if (!view_rig.empty()) {
     const Rig rig = LoadRig(view_rig);

@@ -27,7 +27,7 @@
 namespace slshadow {
 namespace {
 
-using namespace calib_internal;  // NOLINT: calib's own internal helpers
+using namespace calib::internal;  // NOLINT: calib's own internal helpers
 
 // One Levenberg-Marquardt solve over `input`, starting from and updating `s`. With `noise`, carried
 // points are whitened jointly with their source points and every other point is weighted by

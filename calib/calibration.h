@@ -126,11 +126,10 @@ struct CalibrationOptions {
   // whitened by the inverse Cholesky factor inside one cost (the robust loss applies to the
   // whitened 4-vector, its scale loss_scale_px / s). Every other point of device d is weighted by
   // 1 / s_d. false: every point is an independent, equally weighted 2D residual (the carried
-  // point's share of its source's error then counts twice). Off by default: on the kamino
-  // capture the residuals are correlated across the corners of a pose (neighbouring corners
-  // +0.4, the carried points' own part +0.57), which neither model describes, and the joint
-  // model's covariance is the more optimistic of the two there (docs/benchmarks.md,
-  // "Calibration"); it is the right model when the corner errors are independent (tested).
+  // point's share of its source's error then counts twice). Off by default: on real captures
+  // the residuals can be correlated across the corners of a pose, which neither model describes,
+  // and the joint model's covariance is then the more optimistic of the two
+  // (docs/benchmarks/log/calibration.md); it is the right model when the corner errors are independent (tested).
   bool correlated_carried_noise = false;
   // Bound every estimated device's principal point to its image: -0.5 <= cx <= width - 0.5 and
   // -0.5 <= cy <= height - 0.5 (pixel centres at integers), as Ceres parameter bounds (a start

@@ -7,7 +7,7 @@
 
 #include "core/error.h"
 
-namespace slshadow::calib_internal {
+namespace slshadow::calib::internal {
 
 std::vector<cv::Point3f> ToCv(const std::vector<Eigen::Vector3d>& v) {
   std::vector<cv::Point3f> out;
@@ -133,4 +133,4 @@ Rigid3d Medoid(const std::vector<Rigid3d>& candidates) {
   return candidates[best];
 }
 
-}  // namespace slshadow::calib_internal
+}  // namespace slshadow::calib::internal

@@ -13,7 +13,7 @@
 #include "core/error.h"
 #include "core/threads.h"
 
-namespace slshadow::calib_internal {
+namespace slshadow::calib::internal {
 
 // Covariance (px^2, 2x2) of the errors of point ia of view va and point ib of view vb of the same
 // pose under the view-correlated noise model (CalibrationResult::correlated_covariance): each
@@ -377,4 +377,4 @@ NoiseModel EstimateNoise(const CalibrationInput& input, const State& s, bool rob
   return noise;
 }
 
-}  // namespace slshadow::calib_internal
+}  // namespace slshadow::calib::internal

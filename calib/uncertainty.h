@@ -77,7 +77,7 @@ double NeighbourResidualCorrelation(const CalibrationInput& input, const Calibra
 // residual correlation) and the view-correlated covariance widens fx's sigma by more than
 // `max_ratio` (GuidanceOptions::max_correlated_sigma_ratio, 1.5: the criterion of calibrate's
 // warning), the view-correlated one (intrinsics_covariance_view_correlated) is quoted instead:
-// the standard one is then optimistic (kamino: 1.9-3.8x against the jackknife). Otherwise the
+// the standard one is then optimistic (docs/benchmarks/log/calibration.md). Otherwise the
 // standard one, unchanged.
 struct QuotedCovariance {
   bool available = false;        // a standard covariance exists for the device (else all zero)

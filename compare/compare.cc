@@ -128,7 +128,7 @@ unsigned GetSeed(const ConfigNode& node, const std::string& key, unsigned fallba
 nlohmann::json CompareOptionsToJson(const CompareOptions& o) {
   const RegistrationOptions& r = o.registration;
   nlohmann::json j;
-  j["registration"] = {{"method", RegistrationMethodName(r.method)},
+  j["registration"] = {{"method", ToString(r.method)},
                        {"voxel_mm", r.voxel_mm},
                        {"feature_radius_mm", r.feature_radius_mm},
                        {"ransac_iterations", r.ransac_iterations},
@@ -139,7 +139,7 @@ nlohmann::json CompareOptionsToJson(const CompareOptions& o) {
                        {"icp_max_points", r.icp_max_points},
                        {"icp_tolerance", r.icp_tolerance}};
   j["c2c"] = {{"max_distance_mm", o.c2c.max_distance_mm},
-              {"local_model", LocalModelName(o.c2c.local_model)},
+              {"local_model", ToString(o.c2c.local_model)},
               {"local_model_neighbors", o.c2c.local_model_neighbors}};
   j["threshold_mm"] = o.threshold_mm;
   j["coverage_radius_mm"] = o.coverage_radius_mm;
@@ -166,7 +166,7 @@ CompareOptions CompareOptionsFromConfig(const ConfigNode& node) {
                          "seed", "icp_max_correspondence_mm", "icp_max_iterations", "icp_max_points",
                          "icp_tolerance"});
     RegistrationOptions& r = o.registration;
-    if (n.Has("method")) r.method = ParseName(n["method"], [](const std::string& s) { return ParseRegistrationMethod(s); });
+    if (n.Has("method")) r.method = ParseName(n["method"], [](const std::string& s) { return RegistrationMethodFromString(s); });
     r.voxel_mm = n.GetDouble("voxel_mm", r.voxel_mm);
     r.feature_radius_mm = n.GetDouble("feature_radius_mm", r.feature_radius_mm);
     r.ransac_iterations = static_cast<int>(n.GetInt("ransac_iterations", r.ransac_iterations));
@@ -182,7 +182,7 @@ CompareOptions CompareOptionsFromConfig(const ConfigNode& node) {
     n.RejectUnknownKeys({"max_distance_mm", "local_model", "local_model_neighbors"});
     o.c2c.max_distance_mm = n.GetDouble("max_distance_mm", o.c2c.max_distance_mm);
     if (n.Has("local_model")) {
-      o.c2c.local_model = ParseName(n["local_model"], [](const std::string& s) { return ParseLocalModel(s); });
+      o.c2c.local_model = ParseName(n["local_model"], [](const std::string& s) { return LocalModelFromString(s); });
     }
     o.c2c.local_model_neighbors = static_cast<int>(n.GetInt("local_model_neighbors", o.c2c.local_model_neighbors));
   }
@@ -326,7 +326,7 @@ std::string CompareResult::Summary() const {
   o << registration.BriefReport() << "\n";
   o << "distance: " << (reference_is_mesh ? "signed point-to-triangle (C2M)" : "nearest neighbour (C2C)");
   if (!reference_is_mesh && options.c2c.local_model != LocalModel::kNone) {
-    o << ", local model " << LocalModelName(options.c2c.local_model);
+    o << ", local model " << ToString(options.c2c.local_model);
   }
   o << "\n";
   const DistanceStats& s = c2c;

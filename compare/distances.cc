@@ -103,7 +103,7 @@ double QuadricDistance(const std::vector<Eigen::Vector3d>& pts, const std::vecto
 
 }  // namespace
 
-std::string LocalModelName(LocalModel model) {
+std::string ToString(LocalModel model) {
   switch (model) {
     case LocalModel::kNone: return "none";
     case LocalModel::kPlane: return "plane";
@@ -112,11 +112,11 @@ std::string LocalModelName(LocalModel model) {
   return "none";
 }
 
-LocalModel ParseLocalModel(const std::string& name) {
+LocalModel LocalModelFromString(const std::string& name) {
   if (name == "none") return LocalModel::kNone;
   if (name == "plane") return LocalModel::kPlane;
   if (name == "quadric") return LocalModel::kQuadric;
-  SLSHADOW_THROW("local model: must be none, plane or quadric (got '", name, "')");
+  SLSHADOW_THROW("local model: unknown name (got '", name, "'; expected none, plane or quadric)");
 }
 
 void C2COptions::Check() const {

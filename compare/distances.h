@@ -27,8 +27,8 @@ class KdTree;
 class MeshDistance;
 
 enum class LocalModel { kNone, kPlane, kQuadric };
-std::string LocalModelName(LocalModel model);               // "none", "plane", "quadric"
-LocalModel ParseLocalModel(const std::string& name);        // throws slshadow::Error on others
+std::string ToString(LocalModel model);                    // "none", "plane", "quadric"
+LocalModel LocalModelFromString(const std::string& name);  // throws slshadow::Error on others
 
 struct C2COptions {
   // Points farther than this from every reference point get distance = max_distance_mm and

@@ -49,7 +49,7 @@ class KdTree {
 };
 
 // A permutation of the points along a Morton (Z-order) curve over their bounding box. Queries
-// processed in this order hit the tree's memory coherently: ~10x faster on shuffled clouds.
+// processed in this order hit the tree's memory coherently (faster on shuffled clouds).
 std::vector<uint32_t> SpatialOrder(const std::vector<Eigen::Vector3d>& points);
 
 // Median distance from each point to its nearest other point (exact, on at most max_samples

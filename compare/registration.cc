@@ -288,7 +288,7 @@ IcpAcc Correspond(const std::vector<Eigen::Vector3d>& src, const Rigid3d& t, con
 
 }  // namespace
 
-std::string RegistrationMethodName(RegistrationMethod m) {
+std::string ToString(RegistrationMethod m) {
   switch (m) {
     case RegistrationMethod::kNone: return "none";
     case RegistrationMethod::kIcp: return "icp";
@@ -297,11 +297,11 @@ std::string RegistrationMethodName(RegistrationMethod m) {
   return "none";
 }
 
-RegistrationMethod ParseRegistrationMethod(const std::string& name) {
+RegistrationMethod RegistrationMethodFromString(const std::string& name) {
   if (name == "none") return RegistrationMethod::kNone;
   if (name == "icp") return RegistrationMethod::kIcp;
   if (name == "global+icp") return RegistrationMethod::kGlobalIcp;
-  SLSHADOW_THROW("registration method: must be none, icp or global+icp (got '", name, "')");
+  SLSHADOW_THROW("registration method: unknown name (got '", name, "'; expected none, icp or global+icp)");
 }
 
 void RegistrationOptions::Check() const {
@@ -328,7 +328,7 @@ std::string RegistrationResult::BriefReport() const {
   std::snprintf(buf, sizeof(buf),
                 "registration %s: rotation %.4f deg, translation (%.4f, %.4f, %.4f) mm, fitness %.4f, "
                 "inlier RMSE %.4f mm at %.3f mm, %d ICP iterations%s, %.2f s",
-                RegistrationMethodName(method).c_str(), aa.angle() * 180.0 / M_PI,
+                ToString(method).c_str(), aa.angle() * 180.0 / M_PI,
                 reference_from_cloud.translation.x(), reference_from_cloud.translation.y(),
                 reference_from_cloud.translation.z(), fitness, inlier_rmse_mm, max_correspondence_mm,
                 icp_iterations, converged ? "" : " (not converged)", time_s);

@@ -25,8 +25,8 @@
 namespace slshadow::compare {
 
 enum class RegistrationMethod { kNone, kIcp, kGlobalIcp };
-std::string RegistrationMethodName(RegistrationMethod m);     // "none", "icp", "global+icp"
-RegistrationMethod ParseRegistrationMethod(const std::string& name);  // throws on others
+std::string ToString(RegistrationMethod m);                                 // "none", "icp", "global+icp"
+RegistrationMethod RegistrationMethodFromString(const std::string& name);  // throws slshadow::Error on others
 
 struct RegistrationOptions {
   RegistrationMethod method = RegistrationMethod::kGlobalIcp;

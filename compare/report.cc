@@ -168,7 +168,7 @@ nlohmann::json ReportJson(const CompareResult& r) {
                  {r.reference_is_mesh ? "reference_triangles" : "reference_points", r.reference_size}};
   const CompareOptions& o = r.options;
   j["options"] = {{"threshold_mm", o.threshold_mm},
-                  {"local_model", LocalModelName(o.c2c.local_model)},
+                  {"local_model", ToString(o.c2c.local_model)},
                   {"local_model_neighbors", o.c2c.local_model_neighbors},
                   {"max_distance_mm", o.c2c.max_distance_mm},
                   {"coverage_radius_mm", o.coverage_radius_mm},
@@ -178,7 +178,7 @@ nlohmann::json ReportJson(const CompareResult& r) {
   const Eigen::Matrix4d m = g.reference_from_cloud.ToMatrix();
   nlohmann::json rows = nlohmann::json::array();
   for (int i = 0; i < 4; ++i) rows.push_back({m(i, 0), m(i, 1), m(i, 2), m(i, 3)});
-  j["registration"] = {{"method", RegistrationMethodName(g.method)},
+  j["registration"] = {{"method", ToString(g.method)},
                        {"transform", rows},
                        {"transform_is", "reference_from_cloud, row-major 4x4, mm"},
                        {"rmse_mm", g.inlier_rmse_mm},

@@ -52,7 +52,7 @@ DistanceStats ComputeStats(const std::vector<double>& distances_mm, bool is_sign
 double Coverage(const std::vector<Eigen::Vector3d>& reference_samples, const KdTree& reached,
                 double radius_mm);
 // The same value from the reached points themselves, through a uniform grid of cell ~radius
-// (no tree to build: ~10x cheaper on millions of reached points).
+// (no tree to build: cheaper on millions of reached points).
 double Coverage(const std::vector<Eigen::Vector3d>& reference_samples, const std::vector<Eigen::Vector3d>& reached,
                 double radius_mm);
 

@@ -85,7 +85,7 @@ class ImageSet {
 
 // Lossless image encodings an ImageSetWriter can use.
 enum class ImageEncoding {
-  kPng,  // portable; costs 10-25 ms per 1920x1200 image at the default level
+  kPng,  // portable, compressed (png_compression); the slowest to write
   kPgm,  // raw binary PGM (P5): a memcpy, the fastest lossless option; 16-bit big-endian
   kTiff  // uncompressed TIFF
 };

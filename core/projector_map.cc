@@ -4,7 +4,7 @@
 
 namespace slshadow {
 
-const char* ToString(PixelStatus status) {
+std::string ToString(PixelStatus status) {
   switch (status) {
     case PixelStatus::kValid: return "valid";
     case PixelStatus::kShadow: return "shadow";

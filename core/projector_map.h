@@ -21,7 +21,7 @@ enum class PixelStatus : uint8_t {
   kFiltered = 5,     // removed by a later filter (e.g. reconstruction gates)
 };
 constexpr int kNumPixelStatus = 6;
-const char* ToString(PixelStatus status);  // "valid", "shadow", ...
+std::string ToString(PixelStatus status);  // "valid", "shadow", ...
 
 struct ProjectorMap {
   // Projector column / row coordinate in projector pixels (OpenCV convention: integer values are

@@ -67,8 +67,7 @@ DecodeOptions DecodeOptionsFromConfig(const ConfigNode& node);
 // Decodes one camera's images of `spec` (spec.NumImages() images in spec order, all CV_8UC1 or
 // all CV_16UC1, of one size) into a ProjectorMap of the camera's size. Throws slshadow::Error on
 // a bad spec, options, image count, type or size. Undecodable pixels are a status, not an error.
-// Rows run in parallel (options.parallel); about 57 MPix/s per core for Gray code + 4-step phase
-// shift on both axes, 8-bit (docs/benchmarks.md, "Pattern decoding").
+// Rows run in parallel (options.parallel). Speed: docs/benchmarks.md, "Pattern decoding".
 ProjectorMap DecodePatterns(const PatternSpec& spec, const std::vector<cv::Mat>& camera_images,
                             const DecodeOptions& options = {});
 

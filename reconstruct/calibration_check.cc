@@ -84,7 +84,7 @@ const char* Cause(int group, bool stereo) {
 
 }  // namespace
 
-const char* ResidualName(CalibrationResidual residual) {
+std::string ToString(CalibrationResidual residual) {
   return residual == CalibrationResidual::kEpipolarError ? "epipolar error" : "projector error";
 }
 
@@ -92,7 +92,7 @@ const char* ResidualKey(CalibrationResidual residual) {
   return residual == CalibrationResidual::kEpipolarError ? "epipolar_error_px" : "projector_error_px";
 }
 
-const char* CalibrationCheck::GroupName(int group) {
+std::string CalibrationCheck::GroupName(int group) {
   static const char* const kNames[kNumGroups] = {"offset", "linear", "quadratic", "radial"};
   return group >= 0 && group < kNumGroups ? kNames[group] : "unknown";
 }
@@ -113,7 +113,7 @@ CalibrationCheck FitCalibrationCheck(const std::vector<float>& x, const std::vec
   if (count < static_cast<size_t>(kMinCount)) {
     return UnavailableCalibrationCheck(
         setup.pair, "only " + std::to_string(count) + " correspondences have " + (setup.residual == CalibrationResidual::kEpipolarError ? "an " : "a ") +
-                        ResidualName(setup.residual) + " (at least " + std::to_string(kMinCount) + " are needed)");
+                        ToString(setup.residual) + " (at least " + std::to_string(kMinCount) + " are needed)");
   }
   CalibrationCheck c;
   c.available = true;
@@ -203,7 +203,7 @@ std::string CalibrationCheck::Message() const {
   if (!available) return "calibration check: not available for " + pair + ", because " + unavailable_reason;
   const bool off = !std::isfinite(threshold_px);
   std::string m = "calibration check: " + std::string(warn ? "" : off ? "reported only (--calibration-warning-px inf): " : "passed: ") +
-                  "the " + ResidualName(residual) + " of " + std::to_string(count) + " dense " + pair +
+                  "the " + ToString(residual) + " of " + std::to_string(count) + " dense " + pair +
                   " correspondences has a systematic part of " + Fixed(systematic_px) + " projector px RMS (median " +
                   Fixed(median_px, "%+.3g") + " px; decode noise " + Fixed(noise_px) + " px)";
   if (off) return m;

@@ -46,7 +46,7 @@ namespace slshadow {
 
 // The residual checked: its name in text and its key in JSON.
 enum class CalibrationResidual { kEpipolarError, kProjectorError };
-const char* ResidualName(CalibrationResidual residual);  // "epipolar error", "projector error"
+std::string ToString(CalibrationResidual residual);  // "epipolar error", "projector error"
 const char* ResidualKey(CalibrationResidual residual);   // "epipolar_error_px", "projector_error_px"
 
 struct CalibrationCheckSetup {
@@ -65,7 +65,7 @@ struct CalibrationCheckSetup {
 
 struct CalibrationCheck {
   static constexpr int kNumGroups = 4;
-  static const char* GroupName(int group);  // "offset", "linear", "quadratic", "radial"
+  static std::string GroupName(int group);  // "offset", "linear", "quadratic", "radial"
 
   bool available = false;
   std::string unavailable_reason;  // when !available: why (one clause, "because ...")

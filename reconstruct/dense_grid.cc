@@ -8,7 +8,7 @@
 
 namespace slshadow {
 
-const char* ToString(RejectReason reason) {
+std::string ToString(RejectReason reason) {
   switch (reason) {
     case RejectReason::kAccepted: return "accepted";
     case RejectReason::kNotDecoded: return "not_decoded";

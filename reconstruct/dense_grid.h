@@ -6,6 +6,7 @@
 
 #include <array>
 #include <cstdint>
+#include <string>
 #include <vector>
 
 #include <Eigen/Core>
@@ -32,7 +33,7 @@ enum class RejectReason : uint8_t {
   kOutsideImage = 13,      // stereo: the rectified cell falls outside the camera image
 };
 constexpr int kNumRejectReasons = 14;
-const char* ToString(RejectReason reason);  // "accepted", "not_decoded", ...
+std::string ToString(RejectReason reason);  // "accepted", "not_decoded", ...
 
 struct DenseGrid {
   int width = 0;

@@ -32,20 +32,19 @@ namespace slshadow {
 class ConfigNode;
 
 enum class ReconstructMode { kProjector, kStereo };
-const char* ToString(ReconstructMode mode);  // "projector", "stereo"
+std::string ToString(ReconstructMode mode);  // "projector", "stereo"
 ReconstructMode ReconstructModeFromString(const std::string& name);  // throws on unknown names
 
 // Stereo: how the cameras' maps are resampled on the rectified grids and the crossings located.
-//  kCubic: bicubic resampling (4x4 Lagrange) and the crossing on the 4-sample cubic: O(h^4), on
-//    smooth noise-free maps ~1e-9 um on a plane (docs/benchmarks.md), but the 4-point weights
-//    raise the decoding noise by up to ~1.3x (noise-free demo scan: stereo RMS 0.0127 mm instead
-//    of 0.0106 mm).
-//  kLinear: bilinear resampling and linear crossings: O(h^2) bias (0.01-1 um on smooth surfaces,
-//    far below decoding noise), the least noise.
+//  kCubic: bicubic resampling (4x4 Lagrange) and the crossing on the 4-sample cubic: O(h^4)
+//    interpolation error, but the 4-point weights amplify the decoding noise.
+//  kLinear: bilinear resampling and linear crossings: O(h^2) bias, below the decoding noise on
+//    smooth surfaces; the least noise.
+//  (Measured errors and noise of both: docs/benchmarks/log/reconstruction.md.)
 //  kAuto: cubic when both maps are CV_64F (exact or ground-truth codes), linear for decoded
 //    (CV_32F) maps.
 enum class StereoInterpolation { kAuto, kLinear, kCubic };
-const char* ToString(StereoInterpolation interpolation);  // "auto", "linear", "cubic"
+std::string ToString(StereoInterpolation interpolation);  // "auto", "linear", "cubic"
 StereoInterpolation StereoInterpolationFromString(const std::string& name);  // throws on unknown names
 
 struct ReconstructOptions {
@@ -94,8 +93,7 @@ struct ReconstructOptions {
   // threshold is calibration_noise_factor x the decode noise of this capture (the scatter about
   // the field), at least calibration_min_warning_px; > 0: this fixed threshold; infinity: the
   // check reports but never warns. The default factor 1 warns when the calibration, not the
-  // decoding, dominates a point's error (docs/benchmarks.md, "Calibration check": margins measured
-  // on simulated errors, clean seeds and the kamino capture).
+  // decoding, dominates a point's error (the margins: docs/benchmarks/log/calibration-check.md).
   double calibration_warning_px = 0;
   double calibration_noise_factor = 1.0;
   // Floor of the automatic threshold, projector px: exact (noise-free) maps leave no noise to

@@ -218,7 +218,7 @@ std::string ImageSetReconstruction::EmptyCloudReason() const {
     std::snprintf(line, sizeof(line), "%s%s-%s: %.0f %% of %lld cells %s (%s)", k ? "; " : "", s.camera.c_str(),
                   s.other_device.c_str(), share, static_cast<long long>(s.cells),
                   meaning(static_cast<RejectReason>(best), s.mode == ReconstructMode::kStereo),
-                    ToString(static_cast<RejectReason>(best)));
+                    ToString(static_cast<RejectReason>(best)).c_str());
     out << line;
     if (s.calibration_check.warn) out << " (" << s.calibration_check.Message() << ")";
   }

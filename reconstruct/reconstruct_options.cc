@@ -8,11 +8,11 @@
 
 namespace slshadow {
 
-const char* ToString(ReconstructMode mode) {
+std::string ToString(ReconstructMode mode) {
   return mode == ReconstructMode::kProjector ? "projector" : "stereo";
 }
 
-const char* ToString(StereoInterpolation interpolation) {
+std::string ToString(StereoInterpolation interpolation) {
   switch (interpolation) {
     case StereoInterpolation::kAuto: return "auto";
     case StereoInterpolation::kLinear: return "linear";

@@ -95,11 +95,11 @@ std::string ReconstructSummary::BriefReport() const {
     std::snprintf(check, sizeof(check), "calibration check not available");
   } else {
     std::snprintf(check, sizeof(check), "calibration check %s: %s systematic %.3g of %.3g projector px",
-                  c.warn ? "WARNING" : std::isfinite(c.threshold_px) ? "passed" : "reported", ResidualName(c.residual),
+                  c.warn ? "WARNING" : std::isfinite(c.threshold_px) ? "passed" : "reported", ToString(c.residual).c_str(),
                   c.systematic_px, c.threshold_px);
   }
-  std::snprintf(buf, sizeof(buf), "%s/%s %s-%s: %lld points of %lld cells (%s); %s; %.3f s", ToString(mode),
-                ToString(method), camera.c_str(), other_device.c_str(), static_cast<long long>(points),
+  std::snprintf(buf, sizeof(buf), "%s/%s %s-%s: %lld points of %lld cells (%s); %s; %.3f s", ToString(mode).c_str(),
+                ToString(method).c_str(), camera.c_str(), other_device.c_str(), static_cast<long long>(points),
                 static_cast<long long>(cells), Percent(points, cells).c_str(), check, total_s);
   return buf;
 }
@@ -112,7 +112,7 @@ std::string ReconstructSummary::FullReport() const {
   for (int r = 0; r < kNumRejectReasons; ++r) {
     if (rejected[static_cast<size_t>(r)] == 0) continue;
     char line[128];
-    std::snprintf(line, sizeof(line), "    %-20s %10lld  %6s\n", ToString(static_cast<RejectReason>(r)),
+    std::snprintf(line, sizeof(line), "    %-20s %10lld  %6s\n", ToString(static_cast<RejectReason>(r)).c_str(),
                   static_cast<long long>(rejected[static_cast<size_t>(r)]),
                   Percent(rejected[static_cast<size_t>(r)], cells).c_str());
     out << line;

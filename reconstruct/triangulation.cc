@@ -8,7 +8,7 @@
 
 namespace slshadow {
 
-const char* ToString(TriangulationMethod method) {
+std::string ToString(TriangulationMethod method) {
   switch (method) {
     case TriangulationMethod::kMidpoint: return "midpoint";
     case TriangulationMethod::kDlt: return "dlt";

@@ -10,7 +10,7 @@
 //  - kDlt: linear triangulation (DLT) of the 4x4 system f [x P3 - P1; y P3 - P2] X = 0 (both
 //    views, rows in pixel units), in its inhomogeneous form X = (X, Y, Z, 1) solved by linear least
 //    squares (Hartley & Zisserman, 2nd ed., sec. 12.2). Minimises an algebraic error: image errors
-//    weighted by the point's depth. (The homogeneous SVD form costs ~5x more per point.)
+//    weighted by the point's depth. (Not the homogeneous SVD form, which costs more per point.)
 //  - kOptimal: Lindstrom's niter2 ("Triangulation made easy", CVPR 2010): the smallest correction
 //    of both observations, in pixels, that satisfies the epipolar constraint exactly (to second
 //    order, which equals Hartley-Sturm's optimum to machine precision in practice), then the
@@ -32,7 +32,7 @@
 namespace slshadow {
 
 enum class TriangulationMethod { kMidpoint, kDlt, kOptimal };
-const char* ToString(TriangulationMethod method);  // "midpoint", "dlt", "optimal"
+std::string ToString(TriangulationMethod method);  // "midpoint", "dlt", "optimal"
 // Parses the names above; throws slshadow::Error listing them on anything else.
 TriangulationMethod TriangulationMethodFromString(const std::string& name);
 

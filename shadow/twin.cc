@@ -234,7 +234,7 @@ Rigid3d PolishPose(const TriangleMesh& part_surface, const std::vector<Eigen::Ve
 
 }  // namespace
 
-const char* ToString(PoseSource source) {
+std::string ToString(PoseSource source) {
   switch (source) {
     case PoseSource::kGivenFixed:
       return "given";

@@ -57,7 +57,7 @@ ShadowPart LoadShadowPart(const std::filesystem::path& path);
 inline constexpr int kPartPlaneCells = 16;
 
 enum class PoseSource { kGivenFixed, kGivenRefined, kRegistered };
-const char* ToString(PoseSource source);  // "given", "given+icp", "global+icp"
+std::string ToString(PoseSource source);  // "given", "given+icp", "global+icp"
 
 struct ShadowOptions {
   // rig_from_part: with refine_pose a starting guess for ICP, else used as it is. Absent: global

@@ -388,7 +388,7 @@ double Albedo::Evaluate(double x_mm, double y_mm) const {
   return value;
 }
 
-const char* ToString(ObjectType type) {
+std::string ToString(ObjectType type) {
   switch (type) {
     case ObjectType::kMesh: return "mesh";
     case ObjectType::kPointCloud: return "point_cloud";

@@ -63,7 +63,7 @@ struct Albedo {
 };
 
 enum class ObjectType { kMesh, kPointCloud, kPlane, kSphere, kCylinder, kBox };
-const char* ToString(ObjectType type);
+std::string ToString(ObjectType type);
 
 // One object. Shapes in the object frame:
 //   kMesh        triangles (mm, already scaled from the file's units)

@@ -45,7 +45,7 @@ struct SimulateOptions {
   bool write_ground_truth = true;   // DIR/ground_truth/<camera>/...; false: not even computed
   TraceMode trace_mode = TraceMode::kPacket16;
   // A BVH built once for many scans of this scene (RayCaster of the same Scene object), or null:
-  // SimulateScan builds its own (0.3 CPU s for 1 M triangles).
+  // SimulateScan builds its own.
   const RayCaster* shared_bvh = nullptr;
   void Check() const;
 };
@@ -94,7 +94,7 @@ class Simulator {
   Simulator(const Scene& scene, const Rig& rig, TraceMode mode = TraceMode::kPacket16, bool ground_truth = true);
   // Traces with a BVH built once by the caller, e.g. for many scans of one part from other rig
   // poses or by other rigs: a scan then costs its geometry passes and pattern passes, not the
-  // build (0.3 CPU s for 1 M triangles). The scene is `caster.scene()`; `caster` is needed only
+  // build. The scene is `caster.scene()`; `caster` is needed only
   // during construction.
   Simulator(const RayCaster& caster, const Rig& rig, TraceMode mode = TraceMode::kPacket16, bool ground_truth = true);
   ~Simulator();

@@ -15,7 +15,7 @@
 #include "calib/internal/cost_functions.h"
 #include "core/rigid3.h"
 
-namespace slshadow::calib_internal {
+namespace slshadow::calib::internal {
 
 using Pose6 = std::array<double, 6>;  // angle-axis (rad), translation (mm)
 using Intr9 = std::array<double, CameraModel::kNumParams>;
@@ -131,4 +131,4 @@ struct SolveOutput {
   bool repeat = false;  // a principal-point coordinate was pinned to its bound: solve again
 };
 
-}  // namespace slshadow::calib_internal
+}  // namespace slshadow::calib::internal

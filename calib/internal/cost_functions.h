@@ -11,7 +11,7 @@
 
 #include "core/camera_model.h"
 
-namespace slshadow::calib_internal {
+namespace slshadow::calib::internal {
 
 // r = weight * (ImgFromCam(intrinsics, dev_from_rig * rig_from_board * W(X)) - u). With aspect > 0 the
 // model's fy is aspect * fx (the fy entry of the block is held constant and ignored). W adds the
@@ -88,4 +88,4 @@ inline std::optional<Eigen::Matrix4d> PairWhitening(double sigma, const Eigen::M
   return w;
 }
 
-}  // namespace slshadow::calib_internal
+}  // namespace slshadow::calib::internal

@@ -10,7 +10,7 @@
 
 #include "calib/internal/calibration_problem.h"
 
-namespace slshadow::calib_internal {
+namespace slshadow::calib::internal {
 
 std::vector<cv::Point3f> ToCv(const std::vector<Eigen::Vector3d>& v);
 std::vector<cv::Point2f> ToCv(const std::vector<Eigen::Vector2d>& v);
@@ -30,4 +30,4 @@ double Median(std::vector<double> v);
 // The candidate transform closest (in translation, then rotation) to all others: robust average.
 Rigid3d Medoid(const std::vector<Rigid3d>& candidates);
 
-}  // namespace slshadow::calib_internal
+}  // namespace slshadow::calib::internal

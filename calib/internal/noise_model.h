@@ -13,7 +13,7 @@
 
 #include "calib/internal/calibration_problem.h"
 
-namespace slshadow::calib_internal {
+namespace slshadow::calib::internal {
 
 // Covariance (px^2, 2x2) of the errors of point ia of view va and point ib of view vb of the same
 // pose under the view-correlated noise model (CalibrationResult::correlated_covariance): each
@@ -40,8 +40,7 @@ Eigen::MatrixXd ViewCorrelatedCovariance(const CalibrationInput& input, const st
 // their RMS per coordinate, and their correlation at 1 and sqrt(2) squares (rho1, rho2) fixes the
 // Gaussian: length^2 = 1 / (2 ln(rho1 / rho2)), share = rho1 exp(1 / (2 length^2)), at most 1;
 // rho1 <= 0.1 counts as independent errors (share 0). The fit absorbs the smooth part of the
-// errors, so residuals are smaller and shorter-correlated than the errors (measured: share 0.66
-// over 0.77 squares for a true 0.6 over 1.0); Solve() then fits the kernel to the residual
+// errors, so residuals are smaller and shorter-correlated than the errors; Solve() then fits the kernel to the residual
 // moments through the residual-maker matrix I - J (J^T J)^-1 J^T.
 std::vector<ViewNoiseKernel> EstimateViewKernels(const CalibrationInput& input, const State& s);
 
@@ -51,4 +50,4 @@ std::vector<ViewNoiseKernel> EstimateViewKernels(const CalibrationInput& input, 
 // cancels), so k = mean(d^T C_i^-1 d) / 2 (medians with a robust loss, below).
 NoiseModel EstimateNoise(const CalibrationInput& input, const State& s, bool robust);
 
-}  // namespace slshadow::calib_internal
+}  // namespace slshadow::calib::internal

@@ -239,7 +239,7 @@ class ClosedLoop : public ::testing::Test {
       size_t differing = 0;
       for (size_t k = 0; k < a.size(); ++k) differing += a.points[k] != b.points[k];
       EXPECT_EQ(differing, 0u) << ToString(mode);
-      std::printf("reconstruction (%s): %zu points, %zu differ\n", ToString(mode), a.size(), differing);
+      std::printf("reconstruction (%s): %zu points, %zu differ\n", ToString(mode).c_str(), a.size(), differing);
     }
   }
 

@@ -184,8 +184,8 @@ TEST(M3C2, RejectsBadOptions) {
   C2COptions c;
   c.max_distance_mm = -1;
   EXPECT_THROW(c.Check(), Error);
-  EXPECT_THROW(ParseLocalModel("cubic"), Error);
-  EXPECT_EQ(ParseLocalModel("quadric"), LocalModel::kQuadric);
+  EXPECT_THROW(LocalModelFromString("cubic"), Error);
+  EXPECT_EQ(LocalModelFromString("quadric"), LocalModel::kQuadric);
 }
 
 TEST(EstimateNormals, OrientedTowardsTheViewpoint) {

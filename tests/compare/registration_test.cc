@@ -80,8 +80,8 @@ TEST(Register, NoneIsTheIdentityAndBadOptionsThrow) {
   EXPECT_EQ(r.reference_from_cloud.ToMatrix(), Eigen::Matrix4d::Identity());
   o.icp_max_iterations = 0;
   EXPECT_THROW(Register(reference, reference, {}, o), Error);
-  EXPECT_THROW(ParseRegistrationMethod("ransac"), Error);
-  EXPECT_EQ(ParseRegistrationMethod("global+icp"), RegistrationMethod::kGlobalIcp);
+  EXPECT_THROW(RegistrationMethodFromString("ransac"), Error);
+  EXPECT_EQ(RegistrationMethodFromString("global+icp"), RegistrationMethod::kGlobalIcp);
 }
 
 }  // namespace
