@@ -2,6 +2,7 @@
 // output is written to a temporary sibling and renamed into place only when complete.
 #pragma once
 
+#include <chrono>
 #include <filesystem>
 #include <functional>
 #include <string>
@@ -56,5 +57,7 @@ class StagingDirectory {
 
 // The current UTC time as ISO 8601 with milliseconds, e.g. "2026-11-22T06:30:00.123Z".
 std::string UtcTimestamp();
+// The same for a given time.
+std::string UtcTimestamp(std::chrono::system_clock::time_point time);
 
 }  // namespace slshadow

@@ -17,16 +17,7 @@ double ThreadCpuSeconds() {
 }
 
 std::string FormatUtc(std::chrono::system_clock::time_point tp) {
-  if (tp.time_since_epoch().count() == 0) return UtcTimestamp();
-  const std::time_t t = std::chrono::system_clock::to_time_t(tp);
-  const auto ms = std::chrono::duration_cast<std::chrono::milliseconds>(tp.time_since_epoch()).count() % 1000;
-  std::tm tm{};
-  gmtime_r(&t, &tm);
-  char buf[64];
-  std::strftime(buf, sizeof(buf), "%Y-%m-%dT%H:%M:%S", &tm);
-  char out[80];
-  std::snprintf(out, sizeof(out), "%s.%03dZ", buf, static_cast<int>(ms));
-  return out;
+  return tp.time_since_epoch().count() == 0 ? UtcTimestamp() : UtcTimestamp(tp);
 }
 
 double FullScale(PixelFormat f) {
