@@ -88,7 +88,11 @@ cv::Mat ReadAnyMat(const cv::FileStorage& fs, const std::string& key, const std:
   if (node.isReal() || node.isInt()) return cv::Mat(1, 1, CV_64F, cv::Scalar(static_cast<double>(node)));
   // OpenCV allocates rows x cols before reading the data: the claimed size is checked against the
   // values present first (a header claiming 10^5 x 10^5 is an error, not a 80 GB allocation).
-  if (node.isMap() && node["rows"].isInt() && node["cols"].isInt()) {
+  if (node.isMap()) {
+    // A rows or cols that is not an integer is read by OpenCV as some other count (found by
+    // fuzzing: fuzz/regressions/opencv_calibration/matrix-rows-not-an-integer.yml).
+    SLSHADOW_THROW_IF(!node["rows"].isInt() || !node["cols"].isInt(), path.string(), ": ", key,
+                      ": a matrix needs integer 'rows' and 'cols'");
     const int64_t rows = static_cast<int>(node["rows"]), cols = static_cast<int>(node["cols"]);
     const cv::FileNode data = node["data"];
     const int64_t values = data.isSeq() ? static_cast<int64_t>(data.size()) : 0;
@@ -540,6 +544,16 @@ namespace {
 Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_width, int default_height,
                                int projector_width, int projector_height, const OpenCvNodeMap& node_map) {
   SLSHADOW_THROW_IF(!std::filesystem::exists(path), path.string(), ": file not found");
+  {
+    // OpenCV 4.6's YAML reader can loop forever on a bare carriage return (found by fuzzing:
+    // fuzz/regressions/opencv_calibration/bare-carriage-return-hang.yml), so such files are refused.
+    const std::string text = ReadTextFile(path);
+    for (size_t i = 0; i < text.size(); ++i) {
+      SLSHADOW_THROW_IF(text[i] == '\r' && (i + 1 == text.size() || text[i + 1] != '\n'), path.string(),
+                        ": bare carriage return at byte ", i,
+                        " (old Mac line endings); convert the file to LF or CR LF line endings");
+    }
+  }
   cv::FileStorage fs;
   try {
     fs.open(path.string(), cv::FileStorage::READ);
