@@ -545,13 +545,31 @@ Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_wi
                                int projector_width, int projector_height, const OpenCvNodeMap& node_map) {
   SLSHADOW_THROW_IF(!std::filesystem::exists(path), path.string(), ": file not found");
   {
-    // OpenCV 4.6's YAML reader can loop forever on a bare carriage return (found by fuzzing:
-    // fuzz/regressions/opencv_calibration/bare-carriage-return-hang.yml), so such files are refused.
+    // OpenCV 4.6's readers can loop forever on a bare carriage return and crash on a NUL byte
+    // (found by fuzzing: fuzz/regressions/opencv_calibration/), so files that are not plain text
+    // in that sense are refused before OpenCV sees them.
     const std::string text = ReadTextFile(path);
     for (size_t i = 0; i < text.size(); ++i) {
+      SLSHADOW_THROW_IF(text[i] == '\0', path.string(), ": NUL byte at byte ", i, " (not a text file)");
       SLSHADOW_THROW_IF(text[i] == '\r' && (i + 1 == text.size() || text[i + 1] != '\n'), path.string(),
                         ": bare carriage return at byte ", i,
                         " (old Mac line endings); convert the file to LF or CR LF line endings");
+    }
+    // OpenCV's YAML reader can also loop forever on malformed YAML
+    // (fuzz/regressions/opencv_calibration/yaml-hang-document-markers.yml): the text must parse as
+    // YAML (yaml-cpp; OpenCV's "%YAML:1.0" first line is not a standard directive) first.
+    if (text.rfind("%YAML", 0) == 0) {
+      // A line starting with "---" or "..." followed by more text also hangs OpenCV, though it is
+      // valid YAML (a plain scalar): such lines are refused too.
+      int line = 1;
+      for (size_t i = 0; i < text.size(); i = text.find('\n', i) == std::string::npos ? text.size() : text.find('\n', i) + 1, ++line) {
+        const bool marker = text.compare(i, 3, "---") == 0 || text.compare(i, 3, "...") == 0;
+        const char next = i + 3 < text.size() ? text[i + 3] : '\n';
+        SLSHADOW_THROW_IF(marker && next != ' ' && next != '\t' && next != '\r' && next != '\n', path.string(), ": line ",
+                          line, ": '", text.substr(i, 3), "' must stand alone or be followed by a space");
+      }
+      const size_t eol = text.find('\n');
+      ConfigNode::ParseYaml(eol == std::string::npos ? std::string() : text.substr(eol + 1), path.string());
     }
   }
   cv::FileStorage fs;
