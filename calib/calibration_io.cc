@@ -2,13 +2,17 @@
 
 #include <algorithm>
 #include <array>
+#include <cerrno>
+#include <climits>
 #include <cmath>
+#include <cstdlib>
 #include <cstdint>
 #include <optional>
 #include <utility>
 
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
+#include <yaml-cpp/yaml.h>
 
 #include "core/config.h"
 #include "core/error.h"
@@ -541,9 +545,59 @@ OpenCvNodeMap ParseOpenCvNodeMap(const std::string& text) {
 
 namespace {
 
+// The YAML tree (read by yaml-cpp) as JSON for OpenCV's JSON reader, read as OpenCV would have read
+// the YAML: keys in file order, a mapping with rows, cols, dt and data is an opencv-matrix (the
+// tag yaml-cpp drops). Values JSON cannot hold (empty, not finite) are refused, naming the node.
+nlohmann::ordered_json YamlToOpenCvJson(const YAML::Node& node, const std::string& file, const std::string& where) {
+  const std::string name = where.empty() ? std::string("(top level)") : where;
+  switch (node.Type()) {
+    case YAML::NodeType::Sequence: {
+      nlohmann::ordered_json out = nlohmann::ordered_json::array();
+      for (size_t i = 0; i < node.size(); ++i) {
+        out.push_back(YamlToOpenCvJson(node[i], file, where + "[" + std::to_string(i) + "]"));
+      }
+      return out;
+    }
+    case YAML::NodeType::Map: {
+      nlohmann::ordered_json out = nlohmann::ordered_json::object();
+      for (const auto& kv : node) {
+        SLSHADOW_THROW_IF(!kv.first.IsScalar(), file, ": ", name, ": a key that is not a name");
+        const std::string key = kv.first.Scalar();
+        out[key] = YamlToOpenCvJson(kv.second, file, where.empty() ? key : where + "." + key);
+      }
+      if (out.contains("rows") && out.contains("cols") && out.contains("dt") && out.contains("data")) {
+        out["type_id"] = "opencv-matrix";
+      }
+      return out;
+    }
+    case YAML::NodeType::Scalar: {
+      const std::string& s = node.Scalar();
+      if (node.Tag() == "!") return s;  // quoted
+      char* end = nullptr;
+      errno = 0;
+      const long long i = std::strtoll(s.c_str(), &end, 10);
+      if (!s.empty() && *end == '\0' && errno == 0 && i >= INT32_MIN && i <= INT32_MAX) return i;
+      const double d = std::strtod(s.c_str(), &end);
+      if (!s.empty() && end != s.c_str() && *end == '\0') {
+        SLSHADOW_THROW_IF(!std::isfinite(d), file, ": ", name, ": not a finite number (", s, ")");
+        return d;
+      }
+      SLSHADOW_THROW_IF(s == ".nan" || s == ".NaN" || s == ".inf" || s == "-.inf" || s == ".Inf" || s == "-.Inf", file, ": ",
+                        name, ": not a finite number (", s, ")");
+      return s;
+    }
+    case YAML::NodeType::Null:
+    case YAML::NodeType::Undefined:
+      break;
+  }
+  SLSHADOW_THROW(file, ": ", name, ": empty value");
+}
+
 Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_width, int default_height,
                                int projector_width, int projector_height, const OpenCvNodeMap& node_map) {
   SLSHADOW_THROW_IF(!std::filesystem::exists(path), path.string(), ": file not found");
+  cv::FileStorage fs;
+  bool read_as_yaml = false;
   {
     // OpenCV 4.6's readers can loop forever on a bare carriage return and crash on a NUL byte
     // (found by fuzzing: fuzz/regressions/opencv_calibration/), so files that are not plain text
@@ -555,28 +609,32 @@ Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_wi
                         ": bare carriage return at byte ", i,
                         " (old Mac line endings); convert the file to LF or CR LF line endings");
     }
-    // OpenCV's YAML reader can also loop forever on malformed YAML
-    // (fuzz/regressions/opencv_calibration/yaml-hang-document-markers.yml): the text must parse as
-    // YAML (yaml-cpp; OpenCV's "%YAML:1.0" first line is not a standard directive) first.
-    if (text.rfind("%YAML", 0) == 0) {
-      // A line starting with "---" or "..." followed by more text also hangs OpenCV, though it is
-      // valid YAML (a plain scalar): such lines are refused too.
-      int line = 1;
-      for (size_t i = 0; i < text.size(); i = text.find('\n', i) == std::string::npos ? text.size() : text.find('\n', i) + 1, ++line) {
-        const bool marker = text.compare(i, 3, "---") == 0 || text.compare(i, 3, "...") == 0;
-        const char next = i + 3 < text.size() ? text[i + 3] : '\n';
-        SLSHADOW_THROW_IF(marker && next != ' ' && next != '\t' && next != '\r' && next != '\n', path.string(), ": line ",
-                          line, ": '", text.substr(i, 3), "' must stand alone or be followed by a space");
-      }
+    read_as_yaml = text.rfind("%YAML", 0) == 0;
+    if (read_as_yaml) {
+      // OpenCV 4.6's YAML reader loops forever on several kinds of malformed YAML (found by
+      // fuzzing: fuzz/regressions/opencv_calibration/yaml-hang-*), and each fix of one shape
+      // left another. So OpenCV never reads YAML text: yaml-cpp parses it (after OpenCV's
+      // "%YAML:1.0" line, which is not a standard directive) and OpenCV reads the same tree as
+      // JSON written here, which is well formed by construction.
       const size_t eol = text.find('\n');
-      ConfigNode::ParseYaml(eol == std::string::npos ? std::string() : text.substr(eol + 1), path.string());
+      const std::string body = eol == std::string::npos ? std::string() : text.substr(eol + 1);
+      ConfigNode::ParseYaml(body, path.string());  // the checks and messages of every YAML input
+      const YAML::Node root = YAML::Load(body);
+      SLSHADOW_THROW_IF(!root.IsMap(), path.string(), ": the top level is not a mapping of named nodes");
+      const nlohmann::ordered_json tree = YamlToOpenCvJson(root, path.string(), "");
+      try {
+        fs.open(tree.dump(), cv::FileStorage::READ | cv::FileStorage::MEMORY | cv::FileStorage::FORMAT_JSON);
+      } catch (const cv::Exception& e) {
+        SLSHADOW_THROW(path.string(), ": cannot read as an OpenCV FileStorage file (", e.what(), ")");
+      }
     }
   }
-  cv::FileStorage fs;
-  try {
-    fs.open(path.string(), cv::FileStorage::READ);
-  } catch (const cv::Exception& e) {
-    SLSHADOW_THROW(path.string(), ": cannot parse as an OpenCV FileStorage file (", e.what(), ")");
+  if (!read_as_yaml) {
+    try {
+      fs.open(path.string(), cv::FileStorage::READ);
+    } catch (const cv::Exception& e) {
+      SLSHADOW_THROW(path.string(), ": cannot parse as an OpenCV FileStorage file (", e.what(), ")");
+    }
   }
   SLSHADOW_THROW_IF(!fs.isOpened(), path.string(), ": cannot open as an OpenCV FileStorage file");
   const std::string file = path.string();

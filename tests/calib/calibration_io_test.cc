@@ -316,6 +316,28 @@ TEST(CalibrationIo, FuzzerFindingsInOpenCvFilesAreClearErrors) {
   EXPECT_EQ(error_of("claims.yml", "%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 100000\n   cols: 100000\n"
                                    "   dt: d\n   data: [ 1., 2. ]\ndistortion_coefficients: [ 0., 0., 0., 0., 0. ]\n"),
             (tmp / "claims.yml").string() + ": camera_matrix: matrix claims 100000 x 100000 but holds 2 values");
+  // OpenCV's YAML reader looped forever on these; yaml-cpp reads them (OpenCV reads them as JSON).
+  EXPECT_EQ(error_of("dash.yml", "%YAML:1.0\n  - a\n--x-\n"),
+            (tmp / "dash.yml").string() + ": the top level is not a mapping of named nodes");
+  const std::string marker = error_of("marker.yml", "%YAML:1.0\n---\n---x: 1\n");
+  EXPECT_EQ(marker.find((tmp / "marker.yml").string() + ": no known calibration layout among the nodes found: ---x (number)"),
+            0u)
+      << marker;
+  EXPECT_EQ(error_of("nan.yml", "%YAML:1.0\n---\nimage_width: 640\nimage_height: 480\n" +
+                                    std::string(camera).replace(camera.find("500.,"), 5, ".nan,")),
+            (tmp / "nan.yml").string() + ": camera_matrix.data[0]: not a finite number (.nan)");
+  EXPECT_EQ(error_of("empty.yml", "%YAML:1.0\n---\nimage_width:\n" + camera),
+            (tmp / "empty.yml").string() + ": image_width: empty value");
+  // Integers in a double matrix, CR LF line endings and keys in file order still read.
+  std::string crlf = "%YAML:1.0\r\n---\r\nimage_width: 640\r\nimage_height: 480\r\ncamera_matrix: !!opencv-matrix\r\n"
+                     "   rows: 3\r\n   cols: 3\r\n   dt: d\r\n   data: [ 500, 0, 320, 0, 500, 240, 0, 0, 1 ]\r\n"
+                     "distortion_coefficients: [ 0.1, 0., 0., 0., 0. ]\r\n";
+  std::ofstream(tmp / "crlf.yml") << crlf;
+  const Rig rig = ReadOpenCvCalibration(tmp / "crlf.yml", 0, 0);
+  ASSERT_EQ(rig.cameras.size(), 1u);
+  EXPECT_EQ(rig.cameras[0].model.width, 640);
+  EXPECT_DOUBLE_EQ(rig.cameras[0].model.fx(), 500.0);
+  EXPECT_DOUBLE_EQ(rig.cameras[0].model.k1(), 0.1);
 }
 
 }  // namespace
