@@ -280,8 +280,11 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
   }
   if (study.Has("curves")) {
     const ConfigNode c = study["curves"];
-    c.RejectUnknownKeys({"x", "limits"});
+    c.RejectUnknownKeys({"x", "limits", "worse"});
     const std::string x = c["x"].AsString();
+    if (c.Has("worse") && c["worse"].AsString() != "increasing" && c["worse"].AsString() != "decreasing") {
+      c["worse"].Fail("must be 'increasing' (the default: the perturbation grows with x) or 'decreasing'");
+    }
     const auto it =
         std::find_if(axes.begin(), axes.end(), [&](const Axis& a) { return a.name == x; });
     if (it == axes.end()) c["x"].Fail("'" + x + "' is not an axis of the study");
@@ -770,7 +773,7 @@ std::string ParamsLabel(const json& params, const std::vector<std::string>& axes
 // One curve: a metric of one mode and one combination of the other axes, against the x axis.
 struct Curve {
   std::string series, mode;
-  std::vector<std::pair<double, json>> points;  // (x, the mode's accuracy), by increasing x
+  std::vector<std::pair<double, json>> points;  // (x, the mode's accuracy), worst last
 };
 
 // Where a curve first crosses `limit`: linearly interpolated between the last x inside and the
@@ -786,8 +789,8 @@ double Figure(const json& accuracy, const std::string& metric) {
 }
 
 // A curve is beyond its limit where the figure is past it or missing (no cloud: broken). The break
-// is linearly interpolated between the last x inside and the first beyond when both figures exist,
-// else at that first x beyond.
+// is linearly interpolated between the last x inside and the first beyond (in the curve's order,
+// the perturbation growing) when both figures exist, else at that first x beyond.
 BreakPoint FindBreak(const Curve& c, const std::string& metric, double limit) {
   const bool above = BreaksAbove(metric);
   const auto beyond = [&](double v) { return std::isnan(v) || (above ? v > limit : v < limit); };
@@ -1006,9 +1009,13 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
         curves[it->second].points.emplace_back(x, m);
       }
     }
+    // Points in the order the perturbation grows: by increasing x, or decreasing with
+    // `worse: decreasing` (e.g. albedo: darker is worse).
+    const bool decreasing = spec.value("worse", std::string("increasing")) == "decreasing";
     for (auto& c : curves) {
-      std::stable_sort(c.points.begin(), c.points.end(),
-                       [](const auto& a, const auto& b) { return a.first < b.first; });
+      std::stable_sort(c.points.begin(), c.points.end(), [&](const auto& a, const auto& b) {
+        return decreasing ? a.first > b.first : a.first < b.first;
+      });
     }
     std::string breaks = "series,mode,metric,limit,status," + CsvField(x_axis) + "\n";
     for (const auto& c : curves) {

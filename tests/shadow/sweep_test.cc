@@ -292,6 +292,44 @@ TEST(Sweep, CurvesAndBreakPointsAgainstOneAxis) {
   }
 }
 
+// `worse: decreasing`: darker parts are worse, so the curve runs from the brightest albedo down and
+// the break lies between the last albedo inside the limit and the first beyond it. At albedo 0.02
+// the part is under the shadow threshold (only the table is left).
+TEST(Sweep, BreakPointsWhenSmallerValuesAreWorse) {
+  TempDir tmp;
+  std::ofstream(tmp / "study.yaml")
+      << "format: slshadow-study\nversion: 1\nname: dark\n"
+      << "rig: " << (SourceDir() / "config/studies/quarter_demo_rig.yaml").string() << "\n"
+      << "modes: [projector]\n"
+         "set:\n  scene.layers.noise: {full_well_e: 10000, read_noise_e: 6, seed: 1}\n"
+         "axes:\n  - {name: albedo, set: scene.objects.0.albedo, values: [0.02, 0.7, 0.2]}\n"
+         "curves: {x: albedo, worse: decreasing, limits: {visible_coverage: 0.9}}\n";
+  PlanSweep(tmp / "study.yaml", tmp / "jobs");
+  EXPECT_EQ(RunSweepShard(tmp / "jobs", Shard(0, 1)).ran, 3);
+  MergeSweep(tmp / "jobs", tmp / "result");
+  const nlohmann::json jobs = nlohmann::json::parse(ReadTextFile(tmp / "result/results.json"))["jobs"];
+  ASSERT_EQ(jobs.size(), 3u);
+  std::map<double, double> coverage;  // albedo -> visible coverage
+  for (const auto& job : jobs) coverage[job["params"]["albedo"].get<double>()] = job["modes"][0]["visible_coverage"];
+  ASSERT_GT(coverage[0.7], 0.9);
+  ASSERT_GT(coverage[0.2], 0.9);
+  ASSERT_LT(coverage[0.02], 0.9);
+  const double t = (0.9 - coverage[0.2]) / (coverage[0.02] - coverage[0.2]);
+  char buf[64];
+  std::snprintf(buf, sizeof(buf), "%.10g", 0.2 + t * (0.02 - 0.2));
+  const std::string breaks = ReadTextFile(tmp / "result/break_points.csv");
+  EXPECT_NE(breaks.find(std::string("projector,visible_coverage,0.9,broke,") + buf + "\n"), std::string::npos)
+      << buf << "\n" << breaks;
+  std::ofstream(tmp / "bad.yaml") << ReadTextFile(tmp / "study.yaml").replace(
+      ReadTextFile(tmp / "study.yaml").find("decreasing"), 10, "downwards");
+  try {
+    PlanSweep(tmp / "bad.yaml", tmp / "jobs2");
+    ADD_FAILURE() << "no error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("curves.worse: must be 'increasing'"), std::string::npos) << e.what();
+  }
+}
+
 // Study 3's machinery: an axis of layer mappings with labels, each against the baseline `none`.
 // effects.csv's changes are the differences of results.json's figures, `needed` their comparison
 // with the tolerance. Also: the study's `set` reaches the scene a files axis puts in each job.
