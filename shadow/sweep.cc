@@ -250,7 +250,15 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
           if (labels.size() != axis.values.size()) {
             labels.Fail("needs one label per value (" + std::to_string(axis.values.size()) + ")");
           }
-          for (size_t i = 0; i < labels.size(); ++i) axis.labels[i] = labels.at(i).AsString();
+          // A label is a name, or a number (e.g. an angle for a value that is a rotation vector),
+          // which `curves` can then chart against.
+          for (size_t i = 0; i < labels.size(); ++i) {
+            const ConfigNode label = labels.at(i);
+            if (label.json().is_number_float() && !std::isfinite(label.json().get<double>())) {
+              label.Fail("a label must be a name or a finite number");
+            }
+            axis.labels[i] = label.json().is_number() ? label.json() : json(label.AsString());
+          }
         }
       } else if (n.Has("range")) {
         const ConfigNode r = n["range"];

@@ -157,6 +157,20 @@ namespace {
 
 constexpr int kSegments = 512;
 
+// The box |x|, |y|, |z| <= size / 2: exact, 12 triangles with outward normals.
+TriangleMesh BoxMesh(const Eigen::Vector3d& size) {
+  TriangleMesh m;
+  const Eigen::Vector3d h = size / 2;
+  for (int k = 0; k < 8; ++k) {
+    m.vertices.emplace_back(k & 1 ? h.x() : -h.x(), k & 2 ? h.y() : -h.y(), k & 4 ? h.z() : -h.z());
+  }
+  // Two triangles per face, counter-clockwise seen from outside.
+  m.triangles = {{0, 2, 3}, {0, 3, 1}, {4, 5, 7}, {4, 7, 6},   // z = -h, z = +h
+                 {0, 1, 5}, {0, 5, 4}, {2, 6, 7}, {2, 7, 3},   // y = -h, y = +h
+                 {0, 4, 6}, {0, 6, 2}, {1, 3, 7}, {1, 7, 5}};  // x = -h, x = +h
+  return m;
+}
+
 // A closed cylinder of radius r along z, from z = -h/2 to h/2: `sides` facets and two capped ends.
 TriangleMesh CylinderMesh(double r, double h, int sides) {
   TriangleMesh m;
@@ -188,6 +202,8 @@ TriangleMesh GroundTruthSurface(const Scene& scene, const std::string& what) {
       part = MakeSphereMesh(object.radius_mm, kSegments);
     } else if (object.type == ObjectType::kCylinder) {
       part = CylinderMesh(object.radius_mm, object.height_mm, kSegments);
+    } else if (object.type == ObjectType::kBox) {
+      part = BoxMesh(object.size_mm);
     } else {
       Scene one;
       one.objects = {object};

@@ -75,7 +75,7 @@ class NoiseFreeImages {
 // them; exact spheres and cylinders (also those of a ball bar) tessellated finely enough that
 // their true surface lies within 0.5 um of the mesh (UV spheres of 512 segments, cylinders of 512
 // sides with caps; sim/shapes.h MakeSphereMesh). Throws slshadow::Error naming `what` and the
-// object for other types (boxes, point clouds).
+// object for other types (point clouds). Boxes are exact (12 triangles).
 TriangleMesh GroundTruthSurface(const Scene& scene, const std::string& what);
 
 // The accuracy figures of clouds against one ground-truth surface, with the hierarchy and the

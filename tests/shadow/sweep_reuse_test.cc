@@ -13,6 +13,8 @@
 
 #include <gtest/gtest.h>
 
+#include <random>
+
 #include <memory>
 #include <string>
 #include <utility>
@@ -157,11 +159,32 @@ TEST(GroundTruthSurface, TessellatedPrimitivesWithinAFractionOfAMicrometre) {
   const TriangleMesh a = GroundTruthSurface(plane, "plane"), b = SceneSurface(plane, "plane");
   EXPECT_EQ(a.vertices, b.vertices);
   EXPECT_EQ(a.triangles, b.triangles);
+  // A box is exact: the signed distance of points along random directions from its centre
+  // equals the analytic distance to |x|, |y|, |z| <= size / 2, inside (negative) and outside.
   Scene box;
   box.objects.emplace_back();
   box.objects.back().type = ObjectType::kBox;
   box.objects.back().name = "crate";
-  EXPECT_THROW(GroundTruthSurface(box, "boxes"), Error);
+  box.objects.back().size_mm = Eigen::Vector3d(60, 40, 20);
+  box.objects.back().rig_from_object = Rigid3d(
+      Eigen::Quaterniond(Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, 2, 3).normalized())), Eigen::Vector3d(5, -3, 500));
+  const TriangleMesh box_surface = GroundTruthSurface(box, "box");
+  EXPECT_EQ(box_surface.NumTriangles(), 12u);
+  const compare::MeshDistance box_distance(box_surface);
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(-45, 45);
+  for (int i = 0; i < 500; ++i) {
+    const Eigen::Vector3d local(u(rng), u(rng) / 1.5, u(rng) / 3);
+    const Eigen::Vector3d h(30, 20, 10), q = local.cwiseAbs() - h;
+    const double truth = q.maxCoeff() <= 0 ? q.maxCoeff() : q.cwiseMax(0.0).norm();
+    const Eigen::Vector3d p = box.objects.back().rig_from_object * local;
+    EXPECT_NEAR(box_distance.Closest(p).signed_distance_mm, truth, 1e-9) << local.transpose();
+  }
+  Scene cloud;
+  cloud.objects.emplace_back();
+  cloud.objects.back().type = ObjectType::kPointCloud;
+  cloud.objects.back().name = "scan";
+  EXPECT_THROW(GroundTruthSurface(cloud, "clouds"), Error);
 }
 
 // The scorer's figures are those of the demo's path (compare::Compare, then MeasureAccuracy),

@@ -455,6 +455,17 @@ TEST(Sweep, BadStudiesAreRejectedNamingFileAndFieldAndWriteNothing) {
                   rig + "axes:\n  - {name: m, set: reconstruct.method, values: [midpoint]}\n" +
                       "curves: {x: m}\n",
                   "not a number");
+  ExpectPlanError(tmp,
+                  rig + "axes:\n  - {name: t, set: scene.objects.0.albedo, values: [0.5, 0.6], labels: [1, .nan]}\n",
+                  "axes[0].labels[1]: a label must be a name or a finite number");
+  // Numeric labels (e.g. angles for rotation vectors) can be a curve's x.
+  std::ofstream(tmp / "labels.yaml") << "format: slshadow-study\nversion: 1\nname: labels\n" << rig
+                                     << "axes:\n  - {name: t, set: scene.objects.0.albedo, values: [0.5, 0.6], "
+                                        "labels: [10, 20.5]}\ncurves: {x: t}\n";
+  PlanSweep(tmp / "labels.yaml", tmp / "labels_jobs");
+  const nlohmann::json job = nlohmann::json::parse(ReadTextFile(tmp / "labels_jobs/jobs/000001.json"));
+  EXPECT_EQ(job["params"]["t"], 20.5);
+  EXPECT_EQ(job["scene"]["objects"][0]["albedo"], 0.6);
 
   WriteSmallStudy(tmp / "study.yaml");
   fs::create_directories(tmp / "exists");
