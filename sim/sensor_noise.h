@@ -3,12 +3,14 @@
 // One definition, used by PatternRenderer and by the sweep's reuse of noise-free images
 // (shadow/sweep_reuse.h), so both give the same image bit for bit.
 //
-// The noise generator (docs/simulator.md, "Sensor noise"): per pixel, a 32-bit counter-based
-// hash of (seed, camera, pattern, pixel index) gives two uniforms; Box-Muller turns them into two
-// independent standard normals (shot and read noise), with its own polynomial log, sine and
-// cosine (Cephes' single-precision coefficients, ~1e-7 relative error) computed eight pixels at a
-// time. Deterministic for a seed whatever the thread count or the CPU (the same IEEE operations in
-// every code path, no FMA).
+// The noise generator (docs/formats.md, layer `noise`): per pixel, SplitMix64 of (the image's
+// stream, a hash of seed, camera and pattern) + the pixel index y * width + x, and SplitMix64 of
+// that, give two 24-bit uniforms; Box-Muller turns them into two independent standard normals
+// (shot and read noise). Eight pixels at a time: the hashes in 64-bit lanes, log, sine and cosine
+// as polynomials (Cephes' single-precision ones, within ~2 ulp of the C library's logf / sinf /
+// cosf that computed them before, so the images stay those of earlier versions but for a rare
+// pixel at a rounding boundary), the signal in double lanes. Deterministic for a seed whatever
+// the thread count or the CPU (the same IEEE operations in every code path, no FMA).
 #pragma once
 
 #include <cstdint>
@@ -30,7 +32,7 @@ void QuantizeIrradiance(const cv::Mat& irradiance, const Scene& scene, int camer
 // The per-pixel standard normals of the noise layer for (seed, camera, pattern) at pixel indices
 // first .. first + count - 1 (index = y * width + x): n1 (shot noise) and n2 (read noise). For
 // tests of the generator's statistics.
-void SensorNoiseNormals(uint64_t seed, int camera_index, int pattern_index, uint32_t first,
+void SensorNoiseNormals(uint64_t seed, int camera_index, int pattern_index, uint64_t first,
                         int count, float* n1, float* n2);
 
 }  // namespace slshadow

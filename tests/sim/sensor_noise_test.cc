@@ -81,7 +81,7 @@ TEST(SensorNoise, StreamsDifferAndBlocksAgree) {
   for (const int first : {1000, 1003, 1517}) {
     const int count = 4096 - (first - 1000) - 5;
     std::vector<float> c1(static_cast<size_t>(count)), c2(static_cast<size_t>(count));
-    SensorNoiseNormals(7, 0, 3, static_cast<uint32_t>(first), count, c1.data(), c2.data());
+    SensorNoiseNormals(7, 0, 3, static_cast<uint64_t>(first), count, c1.data(), c2.data());
     for (int i = 0; i < count; ++i) {
       ASSERT_EQ(c1[static_cast<size_t>(i)], a1[static_cast<size_t>(first - 1000 + i)]);
       ASSERT_EQ(c2[static_cast<size_t>(i)], a2[static_cast<size_t>(first - 1000 + i)]);
@@ -131,8 +131,8 @@ TEST(SensorNoise, ImageFollowsEmvaModelAndRowsDoNotDependOnThreads) {
   std::vector<float> n1(static_cast<size_t>(out.cols)), n2(static_cast<size_t>(out.cols));
   int off_by_more = 0;
   for (int y = 0; y < out.rows; ++y) {
-    SensorNoiseNormals(3, 0, 5, static_cast<uint32_t>(y * out.cols), out.cols, n1.data(),
-                       n2.data());
+    SensorNoiseNormals(3, 0, 5, static_cast<uint64_t>(y) * static_cast<uint64_t>(out.cols),
+                       out.cols, n1.data(), n2.data());
     for (int x = 0; x < out.cols; ++x) {
       const double mu_e = irradiance.at<float>(y, x) / k;
       const double e = std::min(
