@@ -143,10 +143,12 @@ cv::Mat SmoothField(const cv::Mat& residual, const cv::Mat& mask, double* rms_px
   if (rms_px) *rms_px = n ? std::sqrt(ss / static_cast<double>(n)) : 0.0;
   if (mean_px) *mean_px = n ? sum / static_cast<double>(n) : 0.0;
   cv::Mat field(h, w, CV_32FC1);
-  for (int y = 0; y < h; ++y) {
-    float* f = field.ptr<float>(y);
-    for (int x = 0; x < w; ++x) f[x] = static_cast<float>(coef.dot(Basis(x, y, w, h)));
-  }
+  cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
+    for (int y = rows.start; y < rows.end; ++y) {
+      float* f = field.ptr<float>(y);
+      for (int x = 0; x < w; ++x) f[x] = static_cast<float>(coef.dot(Basis(x, y, w, h)));
+    }
+  });
   return field;
 }
 

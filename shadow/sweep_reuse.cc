@@ -3,6 +3,7 @@
 #include "compare/statistics.h"
 #include "core/error.h"
 #include "sim/renderer.h"
+#include "sim/sensor_noise.h"
 #include "sim/shapes.h"
 
 #include <tbb/blocked_range.h>
@@ -15,105 +16,6 @@
 #include <limits>
 
 namespace slshadow::workflow {
-
-namespace {
-
-// The renderer's hash (sim/renderer.cc): SplitMix64.
-inline uint64_t Mix(uint64_t x) {
-  x += 0x9E3779B97F4A7C15ull;
-  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
-  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
-  return x ^ (x >> 31);
-}
-
-// std::clamp(std::round(x), 0, full) as an integer, for |x| < 2^62, without branches:
-// t = trunc(x) and x - t are exact, so t + 1 (x - t >= 0.5) or t - 1 (x - t <= -0.5) is
-// std::round's half-away-from-zero result.
-inline int64_t RoundAndClip(double x, int64_t full) {
-  const auto t = static_cast<int64_t>(x);
-  const double f = x - static_cast<double>(t);
-  const int64_t q = t + static_cast<int64_t>(f >= 0.5) - static_cast<int64_t>(f <= -0.5);
-  return std::min<int64_t>(std::max<int64_t>(q, 0), full);
-}
-
-// Rounds and clips a non-negative float to [0, full]: the renderer's noise-free ADC.
-inline int QuantizeValue(float v, float full) {
-  if (!(v > 0)) return 0;
-  if (v >= full) return static_cast<int>(full);
-  return static_cast<int>(v + 0.5f);
-}
-
-template <typename Out>
-void QuantizeRows(const cv::Mat& irradiance, const Scene& scene, int camera_index,
-                  int pattern_index, cv::Mat& out) {
-  const SceneLayers& l = scene.layers;
-  const int w = irradiance.cols, h = irradiance.rows;
-  const double full = std::ldexp(1.0, scene.radiometry.adc_bits) - 1;
-  const float full_f = static_cast<float>(full);
-  const auto full_i = static_cast<int64_t>(full);
-  const double k_dn_per_e = full / l.full_well_e;
-  // Locals: the image rows written below may alias anything (unsigned char).
-  const double read_noise_e = l.read_noise_e, full_well_e = l.full_well_e;
-  const bool noise = l.noise_enabled;
-  const uint64_t stream =
-      Mix(l.seed ^ Mix((static_cast<uint64_t>(camera_index) << 32) ^
-                       static_cast<uint64_t>(static_cast<uint32_t>(pattern_index))));
-  // Without signal (mu_e = 0) the electrons are read_noise_e * n2 with |n2| <= rad =
-  // sqrt(-2 log u1): when read_noise_e * rad * K < 0.5 the pixel rounds (and clips) to 0 whatever
-  // n2's sign. rad_max leaves a 1 % margin for logf's and sqrtf's rounding; u1 >= u_min (as its
-  // 24-bit integer) guarantees rad <= rad_max.
-  const double zero_bound = read_noise_e * k_dn_per_e;
-  uint64_t zero_from_bits = 0;  // u1 bits at and above which a signal-free pixel is 0
-  if (zero_bound > 0) {
-    const double rad_max = 0.49 / zero_bound * 0.99;
-    const double u_min = std::exp(-0.5 * rad_max * rad_max);
-    zero_from_bits = static_cast<uint64_t>(std::ceil(u_min * 0x1.0p24)) + 1;
-  }
-  tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const tbb::blocked_range<int>& r) {
-    for (int y = r.begin(); y < r.end(); ++y) {
-      const float* src = irradiance.ptr<float>(y);
-      Out* dst = out.ptr<Out>(y);
-      if (!noise) {
-        for (int x = 0; x < w; ++x) dst[x] = static_cast<Out>(QuantizeValue(src[x], full_f));
-        continue;
-      }
-      for (int x = 0; x < w; ++x) {
-        double dn = src[x];
-        const double mu_e = std::max(0.0, dn / k_dn_per_e);
-        const uint64_t r1 = Mix(stream + static_cast<uint64_t>(y) * w + x);
-        if (mu_e == 0 && (r1 >> 40) >= zero_from_bits) {
-          dst[x] = 0;
-          continue;
-        }
-        const uint64_t r2 = Mix(r1);
-        // Box-Muller as the renderer computes it (single-precision uniforms and functions).
-        const float u1 = (static_cast<float>(r1 >> 40) + 0.5f) * 0x1.0p-24f;
-        const float u2 = static_cast<float>(r2 >> 40) * 0x1.0p-24f;
-        const float rad = std::sqrt(-2.0f * std::log(u1));
-        const float angle = 6.2831853f * u2;
-        const double n1 = rad * std::cos(angle), n2 = rad * std::sin(angle);
-        const double e = std::min(mu_e + std::sqrt(mu_e) * n1 + read_noise_e * n2, full_well_e);
-        dn = e * k_dn_per_e;
-        dst[x] = static_cast<Out>(RoundAndClip(dn, full_i));
-      }
-    }
-  });
-}
-
-}  // namespace
-
-void QuantizeIrradiance(const cv::Mat& irradiance, const Scene& scene, int camera_index,
-                        int pattern_index, cv::Mat* out) {
-  SLSHADOW_THROW_IF(irradiance.type() != CV_32FC1,
-                    "QuantizeIrradiance: irradiance must be CV_32FC1");
-  const bool wide = scene.radiometry.adc_bits > 8;
-  out->create(irradiance.rows, irradiance.cols, wide ? CV_16UC1 : CV_8UC1);
-  if (wide) {
-    QuantizeRows<uint16_t>(irradiance, scene, camera_index, pattern_index, *out);
-  } else {
-    QuantizeRows<uint8_t>(irradiance, scene, camera_index, pattern_index, *out);
-  }
-}
 
 std::string NoiseFreeImages::Key(const nlohmann::json& scene, const nlohmann::json& patterns) {
   nlohmann::json s = scene;

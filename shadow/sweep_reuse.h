@@ -3,7 +3,8 @@
 //
 //   NoiseFreeImages     the noise-free irradiance of every pattern seen by every camera, rendered
 //                       once per geometry group, pattern sequence and noise-free scene; each
-//                       seed then costs only the sensor-noise and quantisation pass, written into
+//                       seed then costs only the sensor-noise and quantisation pass (the
+//                       renderer's own: sim/sensor_noise.h QuantizeIrradiance), written into
 //                       image buffers reused from job to job.
 //   GroundTruthScorer   the ground-truth surface's distance hierarchy (compare::MeshDistance),
 //                       its area samples and the lit visible surface, built once per geometry
@@ -32,17 +33,6 @@
 #include <vector>
 
 namespace slshadow::workflow {
-
-// The sensor-noise layer and the ADC of the renderer (sim/scene.h SceneLayers, EMVA 1288 style)
-// applied to one noise-free irradiance image (CV_32FC1, DN as float: what
-// PatternRenderer::RenderIrradiance gives), for camera `camera_index` and pattern
-// `pattern_index` of a scan: the same per-pixel random numbers (a hash of seed, camera, pattern,
-// pixel) and the same arithmetic, so `out` is bit for bit PatternRenderer::Render's image for
-// that scene. CV_8UC1 when radiometry.adc_bits <= 8, else CV_16UC1; `out` is reused when it has
-// that size and type. Pixels without signal (irradiance 0) whose read noise provably rounds to
-// 0 skip the transcendental functions. Noise off: rounding and clipping only.
-void QuantizeIrradiance(const cv::Mat& irradiance, const Scene& scene, int camera_index,
-                        int pattern_index, cv::Mat* out);
 
 // The noise-free irradiance images of one pattern sequence seen by every camera of a Simulator.
 class NoiseFreeImages {

@@ -6,7 +6,11 @@
 #include <atomic>
 #include <cmath>
 #include <cstdio>
+#include <exception>
 #include <mutex>
+#include <optional>
+#include <thread>
+#include <utility>
 
 #include <Eigen/Dense>
 #include <opencv2/core/utility.hpp>
@@ -157,6 +161,36 @@ void WriteFrameAgreementChart(const fs::path& path, const nlohmann::json& camera
     pls->mtex("b", -1.0, 0.02, 0.0, "dashed: the 95 % goal");
   });
 }
+
+// One task on a thread of its own, joined (its exception rethrown) by Join() or, on the way out
+// of an exception, by the destructor (the exception then dropped).
+class BackgroundTask {
+ public:
+  BackgroundTask() = default;
+  BackgroundTask(const BackgroundTask&) = delete;
+  BackgroundTask& operator=(const BackgroundTask&) = delete;
+  ~BackgroundTask() {
+    if (thread_.joinable()) thread_.join();
+  }
+  template <typename F>
+  void Start(F&& task) {
+    thread_ = std::thread([this, task = std::forward<F>(task)] {
+      try {
+        task();
+      } catch (...) {
+        error_ = std::current_exception();
+      }
+    });
+  }
+  void Join() {
+    if (thread_.joinable()) thread_.join();
+    if (error_) std::rethrow_exception(std::exchange(error_, nullptr));
+  }
+
+ private:
+  std::thread thread_;
+  std::exception_ptr error_;
+};
 
 struct ModeClouds {
   std::string mode;
@@ -569,7 +603,16 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
   std::vector<cv::Mat> residual_maps, validity_maps, white_diff_maps, modulation_maps;
   report["images"]["cameras"] = nlohmann::json::array();
   const std::vector<FrameInfo> frames = spec.Frames();
-  for (size_t c = 0; c < cameras.size(); ++c) {
+  // The cameras side by side (each mostly serial work); the report gets them in rig order.
+  const size_t num_cameras = cameras.size();
+  std::vector<nlohmann::json> camera_json(num_cameras);
+  residual_maps.resize(num_cameras);
+  validity_maps.resize(num_cameras);
+  white_diff_maps.resize(num_cameras);
+  modulation_maps.resize(num_cameras);
+  cv::parallel_for_(cv::Range(0, static_cast<int>(num_cameras)), [&](const cv::Range& camera_range) {
+  for (int camera_index = camera_range.start; camera_index < camera_range.end; ++camera_index) {
+    const size_t c = static_cast<size_t>(camera_index);
     const GeometryBuffer& g = simulator->geometry(twin_rig.CameraIndex(cameras[c]));
     const std::vector<cv::Mat>& rimg = *real_images[c];
     const std::vector<cv::Mat>& timg = *twin_images[c];
@@ -663,7 +706,7 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
                                    {"valid_real_only", real_only},
                                    {"valid_twin_only", twin_only},
                                    {"outlier_gate_px", 20}};
-    report["images"]["cameras"].push_back(cj);
+    camera_json[c] = std::move(cj);
 
     CameraEvidence& ev = evidence[c];
     ev.camera = cameras[c];
@@ -688,25 +731,68 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
     const cv::Mat mr = data[c].real_modulation.empty() ? NormalisedModulation(spec, rimg, ev.white, ev.black) : data[c].real_modulation;
     const cv::Mat mt = data[c].twin_modulation.empty() ? NormalisedModulation(spec, timg, twin_white, twin_black) : data[c].twin_modulation;
     ev.modulation_ratio = mr / mt;
-    residual_maps.push_back(residual);
-    validity_maps.push_back(validity);
+    residual_maps[c] = residual;
+    validity_maps[c] = validity;
     cv::Mat wd(g.height, g.width, CV_32FC1, cv::Scalar(std::nanf("")));
     for (int y = 0; y < g.height; ++y) {
       for (int x = 0; x < g.width; ++x) {
         if (mask.at<uint8_t>(y, x)) wd.at<float>(y, x) = ev.white.at<float>(y, x) - twin_white.at<float>(y, x);
       }
     }
-    white_diff_maps.push_back(wd);
+    white_diff_maps[c] = wd;
     cv::Mat mod = ev.modulation_ratio.clone();
     for (int y = 0; y < g.height; ++y) {
       for (int x = 0; x < g.width; ++x) {
         if (!mask.at<uint8_t>(y, x)) mod.at<float>(y, x) = std::nanf("");
       }
     }
-    modulation_maps.push_back(mod);
+    modulation_maps[c] = mod;
   }
+  });
+  for (auto& cj : camera_json) report["images"]["cameras"].push_back(std::move(cj));
 
   result.stages.push_back(meter.Stop());
+
+  // The report's maps depend on the images only: drawn on a thread of their own (PLplot and PNG
+  // encoding are single-threaded) while the clouds are compared and the diagnosis runs.
+  std::optional<StagingDirectory> staged;
+  nlohmann::json maps_json = nlohmann::json::array();
+  BackgroundTask maps_writer;
+  if (!out_dir.empty()) {
+    staged.emplace(out_dir);
+    const fs::path maps_dir = staged->path() / "maps";
+    fs::create_directories(maps_dir, ec);
+    SLSHADOW_THROW_IF(ec, maps_dir.string(), ": cannot create folder: ", ec.message());
+    maps_writer.Start([&, maps_dir] {
+      for (size_t c = 0; c < cameras.size(); ++c) {
+        const std::string& n = cameras[c];
+        const double cal = options.diagnose.calibration_field_px;
+        const double residual_range = WriteMapChart(
+            maps_dir / (n + "_projector_residual.png"), residual_maps[c],
+            n + ": decoded projector " + (spec.code_x ? "x" : "y") + " - twin truth", "projector px", {-cal, cal},
+            "+-" + Fmt("%.2f", cal) + " px (calibration-field threshold)", 0.05);
+        const double white_range = WriteMapChart(maps_dir / (n + "_white_difference.png"), white_diff_maps[c],
+                                                 n + ": white level, real - twin", "DN", {-0.05 * fs_dn, 0.05 * fs_dn},
+                                                 "+-" + Fmt("%.4g", 0.05 * fs_dn) + " DN (5 % of full scale)", 1.0);
+        cv::Mat ratio = modulation_maps[c] - 1.0f;
+        const double mr = options.diagnose.multipath_ratio;
+        const double modulation_range = WriteMapChart(maps_dir / (n + "_modulation_ratio.png"), ratio,
+                                                      n + ": fringe modulation, real / twin - 1", "relative", {mr - 1},
+                                                      Fmt("%.2f", mr - 1) + " (multipath threshold)", 0.05);
+        SLSHADOW_THROW_IF(!cv::imwrite((maps_dir / (n + "_validity.png")).string(), validity_maps[c]),
+                          "cannot write the validity map");
+        maps_json.push_back({{"camera", n},
+                             {"projector_residual", "maps/" + n + "_projector_residual.png"},
+                             {"projector_residual_range_px", residual_range},
+                             {"white_difference", "maps/" + n + "_white_difference.png"},
+                             {"white_difference_range_dn", white_range},
+                             {"modulation_ratio", "maps/" + n + "_modulation_ratio.png"},
+                             {"modulation_ratio_range", modulation_range},
+                             {"validity", "maps/" + n + "_validity.png"},
+                             {"validity_legend", "green: valid in both; red: real only; blue: twin only; black: neither"}});
+      }
+    });
+  }
 
   // Clouds.
   meter = StageMeter("compare clouds");
@@ -793,38 +879,10 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
   // 7. Report folder.
   if (!out_dir.empty()) {
     meter = StageMeter("write report");
-    StagingDirectory staged(out_dir);
-    const fs::path& staging = staged.path();
-    fs::create_directories(staging / "maps", ec);
-    SLSHADOW_THROW_IF(ec, (staging / "maps").string(), ": cannot create folder: ", ec.message());
-    report["maps"] = nlohmann::json::array();
-    for (size_t c = 0; c < cameras.size(); ++c) {
-      const std::string& n = cameras[c];
-      const double cal = options.diagnose.calibration_field_px;
-      const double residual_range = WriteMapChart(
-          staging / "maps" / (n + "_projector_residual.png"), residual_maps[c],
-          n + ": decoded projector " + (spec.code_x ? "x" : "y") + " - twin truth", "projector px", {-cal, cal},
-          "+-" + Fmt("%.2f", cal) + " px (calibration-field threshold)", 0.05);
-      const double white_range = WriteMapChart(staging / "maps" / (n + "_white_difference.png"), white_diff_maps[c],
-                                               n + ": white level, real - twin", "DN", {-0.05 * fs_dn, 0.05 * fs_dn},
-                                               "+-" + Fmt("%.4g", 0.05 * fs_dn) + " DN (5 % of full scale)", 1.0);
-      cv::Mat ratio = modulation_maps[c] - 1.0f;
-      const double mr = options.diagnose.multipath_ratio;
-      const double modulation_range = WriteMapChart(staging / "maps" / (n + "_modulation_ratio.png"), ratio,
-                                                    n + ": fringe modulation, real / twin - 1", "relative", {mr - 1},
-                                                    Fmt("%.2f", mr - 1) + " (multipath threshold)", 0.05);
-      SLSHADOW_THROW_IF(!cv::imwrite((staging / "maps" / (n + "_validity.png")).string(), validity_maps[c]),
-                        "cannot write the validity map");
-      report["maps"].push_back({{"camera", n},
-                                {"projector_residual", "maps/" + n + "_projector_residual.png"},
-                                {"projector_residual_range_px", residual_range},
-                                {"white_difference", "maps/" + n + "_white_difference.png"},
-                                {"white_difference_range_dn", white_range},
-                                {"modulation_ratio", "maps/" + n + "_modulation_ratio.png"},
-                                {"modulation_ratio_range", modulation_range},
-                                {"validity", "maps/" + n + "_validity.png"},
-                                {"validity_legend", "green: valid in both; red: real only; blue: twin only; black: neither"}});
-    }
+    const fs::path& staging = staged->path();
+    // The maps (drawn in the background since the images were compared).
+    maps_writer.Join();
+    report["maps"] = maps_json;
     fs::create_directories(staging / "charts", ec);
     SLSHADOW_THROW_IF(ec, (staging / "charts").string(), ": cannot create folder: ", ec.message());
     WriteFrameAgreementChart(staging / "charts" / "intensity_per_frame.png", report["images"]["cameras"]);
@@ -866,7 +924,7 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
     }
     WriteTextFileAtomically(staging / "report.json", report.dump(2) + "\n");
     WriteTextFileAtomically(staging / "summary.txt", result.Summary());
-    staged.Commit(options.overwrite);
+    staged->Commit(options.overwrite);
   } else {
     report["stages"] = nlohmann::json::array();
     for (const auto& s : result.stages) {

@@ -25,6 +25,7 @@
 #include "core/error.h"
 #include "sim/internal/pattern_kernels.h"
 #include "sim/pooled_mats.h"
+#include "sim/sensor_noise.h"
 
 namespace slshadow {
 namespace {
@@ -60,13 +61,6 @@ cv::Mat Blur(const cv::Mat& image, double sigma) {
   cv::Mat out;
   cv::GaussianBlur(image, out, cv::Size(0, 0), sigma, sigma, cv::BORDER_REPLICATE);
   return out;
-}
-
-inline uint64_t SplitMix64(uint64_t x) {
-  x += 0x9E3779B97F4A7C15ull;
-  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
-  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
-  return x ^ (x >> 31);
 }
 
 }  // namespace
@@ -400,43 +394,8 @@ cv::Mat PatternRenderer::Render(const cv::Mat& projector_image, int pattern_inde
 }
 
 cv::Mat PatternRenderer::Quantize(const cv::Mat& irradiance, int pattern_index) const {
-  const SceneLayers& l = scene_.layers;
-  const int w = geometry_.width, h = geometry_.height;
-  const bool wide = scene_.radiometry.adc_bits > 8;
-  cv::Mat out(h, w, wide ? CV_16UC1 : CV_8UC1);
-  const double full = full_scale_dn_;
-  const double k_dn_per_e = full / l.full_well_e;
-  const uint64_t stream = SplitMix64(l.seed ^ SplitMix64((static_cast<uint64_t>(camera_index_) << 32) ^
-                                                          static_cast<uint64_t>(static_cast<uint32_t>(pattern_index))));
-  tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const tbb::blocked_range<int>& r) {
-    for (int y = r.begin(); y < r.end(); ++y) {
-      const float* src = irradiance.ptr<float>(y);
-      for (int x = 0; x < w; ++x) {
-        double dn = src[x];
-        if (l.noise_enabled) {
-          const double mu_e = std::max(0.0, dn / k_dn_per_e);
-          const uint64_t r1 = SplitMix64(stream + static_cast<uint64_t>(y) * w + x);
-          const uint64_t r2 = SplitMix64(r1);
-          // Box-Muller: two independent standard normals.
-          // (single precision: 24-bit uniforms are plenty for sensor noise, and ~2x faster)
-          const float u1 = (static_cast<float>(r1 >> 40) + 0.5f) * 0x1.0p-24f;
-          const float u2 = static_cast<float>(r2 >> 40) * 0x1.0p-24f;
-          const float rad = std::sqrt(-2.0f * std::log(u1));
-          const float angle = 6.2831853f * u2;
-          const double n1 = rad * std::cos(angle), n2 = rad * std::sin(angle);
-          const double e = std::min(mu_e + std::sqrt(mu_e) * n1 + l.read_noise_e * n2, l.full_well_e);
-          dn = e * k_dn_per_e;
-        }
-        const int q = l.noise_enabled ? static_cast<int>(std::clamp(std::round(dn), 0.0, full))
-                                      : QuantizeValue(src[x], static_cast<float>(full));
-        if (wide) {
-          out.ptr<uint16_t>(y)[x] = static_cast<uint16_t>(q);
-        } else {
-          out.ptr<uint8_t>(y)[x] = static_cast<uint8_t>(q);
-        }
-      }
-    }
-  });
+  cv::Mat out;
+  QuantizeIrradiance(irradiance, scene_, camera_index_, pattern_index, &out);
   return out;
 }
 
