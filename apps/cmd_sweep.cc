@@ -106,14 +106,15 @@ int RunSweep(int argc, char** argv) {
       for (const auto& e : s.effects) std::printf("  %s\n", e.c_str());
     }
     if (!s.acceptance.empty()) {
-      std::printf(
-          "VDI/VDE 2634-2 figures, overall (%s/vdi2634_summary.csv, vdi2634.csv, vdi2634.png/.svg):\n",
-          out.c_str());
+      std::printf("VDI/VDE 2634-2 figures, overall (%s/vdi2634_summary.csv, vdi2634.csv, "
+                  "vdi2634.png/.svg):\n",
+                  out.c_str());
       for (const auto& a : s.acceptance) std::printf("  %s\n", a.c_str());
     }
     if (!s.uncertainty.empty()) {
-      std::printf("Scan uncertainty (%s/uncertainty_summary.csv, uncertainty.ply, uncertainty.png):\n",
-                  out.c_str());
+      std::printf(
+          "Scan uncertainty (%s/uncertainty_summary.csv, uncertainty.ply, uncertainty.png):\n",
+          out.c_str());
       for (const auto& u : s.uncertainty) std::printf("  %s\n", u.c_str());
     }
   }

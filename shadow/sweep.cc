@@ -291,8 +291,10 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
       const std::string& t = axes[a].target_text;
       if (axes[a].name == "position" || t == "scene" || t == "rig" || t.rfind("rig.", 0) == 0 ||
           t.rfind("scene.objects", 0) == 0) {
-        study["axes"].at(a).Fail("with vdi2634, an axis may not be named position nor set the "
-                                 "scene, its objects or the rig (got '" + axes[a].name + "' setting '" + t + "')");
+        study["axes"].at(a).Fail(
+            "with vdi2634, an axis may not be named position nor set the scene, its objects or "
+            "the rig (got '" +
+            axes[a].name + "' setting '" + t + "')");
       }
     }
     const Rig rig = RigFromConfig(ConfigNode::FromJson(base["rig"], study_file.string(), "rig"));
@@ -324,7 +326,9 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
   if (study.Has("monte_carlo")) {
     const ConfigNode mc = study["monte_carlo"];
     if (study.Has("vdi2634")) mc.Fail("a study has at most one of monte_carlo and vdi2634");
-    if (!axes.empty()) study["axes"].Fail("a monte_carlo study has no other axes (its jobs are its samples)");
+    if (!axes.empty()) {
+      study["axes"].Fail("a monte_carlo study has no other axes (its jobs are its samples)");
+    }
     const Rig rig = RigFromConfig(ConfigNode::FromJson(base["rig"], study_file.string(), "rig"));
     const MonteCarloStudy m = MonteCarloStudyFromConfig(mc, rig);
     Axis axis;
@@ -585,10 +589,11 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
   const DecodeOptions decode = DecodeOptionsFromConfig(node("decode"));
   DecodedScan decoded;
   // Study 4: scanned with the true rig, decoded and reconstructed with a sampled calibration.
-  decoded.rig = job.contains("monte_carlo")
-                    ? RigFromConfig(ConfigNode::FromJson(job.at("monte_carlo").at("reconstruct_rig"),
-                                                         what, "monte_carlo.reconstruct_rig"))
-                    : group->rig;
+  decoded.rig = group->rig;
+  if (job.contains("monte_carlo")) {
+    decoded.rig = RigFromConfig(ConfigNode::FromJson(
+        job.at("monte_carlo").at("reconstruct_rig"), what, "monte_carlo.reconstruct_rig"));
+  }
   decoded.spec = spec;
   std::vector<double> decode_camera_s;
   for (size_t c = 0; c < (stereo ? 2u : 1u); ++c) {
@@ -608,8 +613,8 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
   if (job.contains("monte_carlo")) {
     // The first mode's grid, next to the result (written first: a job without its result reruns).
     const Reconstruction& first = recs.at(0);
-    WriteMonteCarloGrid(MonteCarloGridFile(file.parent_path().parent_path(), job.at("id").get<int>()),
-                        first.grid);
+    const fs::path jobs_dir = file.parent_path().parent_path();
+    WriteMonteCarloGrid(MonteCarloGridFile(jobs_dir, job.at("id").get<int>()), first.grid);
     const Eigen::Vector3d& v = first.grid.viewpoint_in_rig;
     monte_carlo = {{"sample", job.at("monte_carlo").at("sample")},
                    {"set", job.at("monte_carlo").at("set")},

@@ -67,7 +67,8 @@ void PerturbDevice(RigDevice* device, const std::array<double, 9>& sigma, const 
     // x = V sqrt(max(lambda, 0)) z: a positive semi-definite covariance (held parameters: 0 rows).
     Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 9, 9>> eig(*cov);
     Eigen::Matrix<double, 9, 1> zz;
-    for (int i = 0; i < 9; ++i) zz[i] = z[static_cast<size_t>(i)] * std::sqrt(std::max(0.0, eig.eigenvalues()[i]));
+    for (int i = 0; i < 9; ++i)
+      zz[i] = z[static_cast<size_t>(i)] * std::sqrt(std::max(0.0, eig.eigenvalues()[i]));
     const Eigen::Matrix<double, 9, 1> dx = eig.eigenvectors() * zz;
     for (int i = 0; i < 9; ++i) device->model.params[static_cast<size_t>(i)] += dx[i];
     if (used_covariance) used_covariance->push_back(device->name);
@@ -83,8 +84,8 @@ void PerturbDevice(RigDevice* device, const std::array<double, 9>& sigma, const 
       w.norm() > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(w.norm(), w.normalized()))
                    : Eigen::Quaterniond::Identity();
   const Eigen::Vector3d dt = rs.translation_mm * Eigen::Vector3d(p[3], p[4], p[5]);
-  device->cam_from_rig = Rigid3d(dq * device->cam_from_rig.rotation,
-                                 dq * device->cam_from_rig.translation + dt);
+  device->cam_from_rig =
+      Rigid3d(dq * device->cam_from_rig.rotation, dq * device->cam_from_rig.translation + dt);
 }
 
 std::array<double, 9> SigmaFromConfig(const ConfigNode& node) {
@@ -188,7 +189,8 @@ void WriteMonteCarloGrid(const fs::path& file, const DenseGrid& grid) {
   const float nan = std::numeric_limits<float>::quiet_NaN();
   for (int y = 0; y < grid.height; ++y) {
     for (int x = 0; x < grid.width; ++x) {
-      const size_t i = static_cast<size_t>(y) * static_cast<size_t>(grid.width) + static_cast<size_t>(x);
+      const size_t i =
+          static_cast<size_t>(y) * static_cast<size_t>(grid.width) + static_cast<size_t>(x);
       const bool ok = grid.reason[i] == static_cast<uint8_t>(RejectReason::kAccepted);
       const Eigen::Vector3d& p = grid.point_in_rig[i];
       m.at<cv::Vec3f>(y, x) = ok ? cv::Vec3f(static_cast<float>(p.x()), static_cast<float>(p.y()),
@@ -301,8 +303,8 @@ std::vector<std::string> WriteMonteCarloResults(const fs::path& jobs_dir, const 
   chart.lo = 0;
   chart.hi = p95 > 0 ? p95 : 1e-6;
   chart.notes = {std::to_string(pred.size()) + " samples; colour range 0 to the 95th percentile",
-                 "2-sigma coverage of " + std::to_string(rep.size()) + " replicates: " +
-                     Num(100 * coverage, 4) + " %"};
+                 "2-sigma coverage of " + std::to_string(rep.size()) +
+                     " replicates: " + Num(100 * coverage, 4) + " %"};
   compare::WriteDeviationMapPng(out_dir / "uncertainty.png", map, chart);
   return {std::to_string(us.size()) + " pixels with a point in all " +
               std::to_string(pred.size() + rep.size()) + " jobs: u median " + Num(med, 4) +

@@ -162,8 +162,8 @@ json Vdi2634Study::ToJson() const {
 
 Vdi2634Study Vdi2634StudyFromConfig(const ConfigNode& node, const Rig& rig,
                                     const std::vector<std::string>& modes) {
-  node.RejectUnknownKeys({"volume", "sphere", "ball_bar", "plane", "albedo", "search_margin_mm",
-                          "options", "mpe"});
+  node.RejectUnknownKeys(
+      {"volume", "sphere", "ball_bar", "plane", "albedo", "search_margin_mm", "options", "mpe"});
   const std::string what = node.file() + ": " + node.path();
   Vdi2634Study study;
   const std::vector<const RigDevice*> devices = StudyDevices(rig, modes);
@@ -205,7 +205,9 @@ Vdi2634Study Vdi2634StudyFromConfig(const ConfigNode& node, const Rig& rig,
 
   // Sphere: centre, then the corners (inset by the radius), opposite corners one after another.
   {
-    const ConfigNode n = node.Has("sphere") ? node["sphere"] : ConfigNode::FromJson(json::object(), node.file(), node.path() + ".sphere");
+    const ConfigNode n = node.Has("sphere") ? node["sphere"]
+                                            : ConfigNode::FromJson(json::object(), node.file(),
+                                                                   node.path() + ".sphere");
     n.RejectUnknownKeys({"diameter_mm", "positions"});
     const double d = PositiveOr(n, "diameter_mm", std::round(0.1 * l0 * 10) / 10);
     const int count = CountOr(n, "positions", 9, 9);
@@ -234,8 +236,7 @@ Vdi2634Study Vdi2634StudyFromConfig(const ConfigNode& node, const Rig& rig,
         const Eigen::Vector3d sign(s[0], s[1], s[2]);
         at = c + sign.cwiseProduct(half - Eigen::Vector3d::Constant(r));
         p.description = std::string("corner (") + (s[0] < 0 ? "-x" : "+x") + ", " +
-                        (s[1] < 0 ? "-y" : "+y") + ", " + (s[2] < 0 ? "-z near" : "+z far") +
-                        ")";
+                        (s[1] < 0 ? "-y" : "+y") + ", " + (s[2] < 0 ? "-z near" : "+z far") + ")";
       }
       p.object = {{"name", "sphere"},
                   {"type", "sphere"},
@@ -252,23 +253,29 @@ Vdi2634Study Vdi2634StudyFromConfig(const ConfigNode& node, const Rig& rig,
 
   // Ball bar: centred, along the 4 space diagonals, x, and the 2 diagonals of the xy mid-plane.
   {
-    const ConfigNode n = node.Has("ball_bar") ? node["ball_bar"] : ConfigNode::FromJson(json::object(), node.file(), node.path() + ".ball_bar");
+    const ConfigNode n = node.Has("ball_bar") ? node["ball_bar"]
+                                              : ConfigNode::FromJson(json::object(), node.file(),
+                                                                     node.path() + ".ball_bar");
     n.RejectUnknownKeys({"sphere_diameter_mm", "length_mm", "bar_radius_mm", "orientations"});
     const double d = PositiveOr(n, "sphere_diameter_mm", std::round(0.1 * l0 * 10) / 10);
     const int count = CountOr(n, "orientations", 7, 7);
     const double r = d / 2;
     const double bar_r = n.Has("bar_radius_mm") ? n["bar_radius_mm"].AsDouble() : 0.0;
     if (!(bar_r >= 0 && bar_r < r)) n["bar_radius_mm"].Fail("must be in [0, sphere radius)");
-    const std::array<Eigen::Vector3d, 7> dirs = {
-        Eigen::Vector3d(half.x(), half.y(), half.z()),  Eigen::Vector3d(-half.x(), half.y(), half.z()),
-        Eigen::Vector3d(half.x(), -half.y(), half.z()), Eigen::Vector3d(half.x(), half.y(), -half.z()),
-        Eigen::Vector3d(1, 0, 0),                       Eigen::Vector3d(half.x(), half.y(), 0),
-        Eigen::Vector3d(half.x(), -half.y(), 0)};
-    const std::array<const char*, 7> names = {
-        "space diagonal (-x -y -z) to (+x +y +z)", "space diagonal (+x -y -z) to (-x +y +z)",
-        "space diagonal (-x +y -z) to (+x -y +z)", "space diagonal (-x -y +z) to (+x +y -z)",
-        "along x, mid-plane",                      "xy diagonal (-x -y) to (+x +y), mid-depth",
-        "xy diagonal (-x +y) to (+x -y), mid-depth"};
+    const std::array<Eigen::Vector3d, 7> dirs = {Eigen::Vector3d(half.x(), half.y(), half.z()),
+                                                 Eigen::Vector3d(-half.x(), half.y(), half.z()),
+                                                 Eigen::Vector3d(half.x(), -half.y(), half.z()),
+                                                 Eigen::Vector3d(half.x(), half.y(), -half.z()),
+                                                 Eigen::Vector3d(1, 0, 0),
+                                                 Eigen::Vector3d(half.x(), half.y(), 0),
+                                                 Eigen::Vector3d(half.x(), -half.y(), 0)};
+    const std::array<const char*, 7> names = {"space diagonal (-x -y -z) to (+x +y +z)",
+                                              "space diagonal (+x -y -z) to (-x +y +z)",
+                                              "space diagonal (-x +y -z) to (+x -y +z)",
+                                              "space diagonal (-x -y +z) to (+x +y -z)",
+                                              "along x, mid-plane",
+                                              "xy diagonal (-x -y) to (+x +y), mid-depth",
+                                              "xy diagonal (-x +y) to (+x -y), mid-depth"};
     // The longest bar every selected orientation holds inside the volume.
     double fit = std::numeric_limits<double>::infinity();
     for (int k = 0; k < count; ++k) {
@@ -280,10 +287,11 @@ Vdi2634Study Vdi2634StudyFromConfig(const ConfigNode& node, const Rig& rig,
     const double fallback = std::floor(std::min(2.0 / 3.0 * l0, fit));
     const double length = PositiveOr(n, "length_mm", fallback);
     if (count > 0 && (length > fit * (1 + 1e-12) || length <= d)) {
-      (n.Has("length_mm") ? n["length_mm"] : n).Fail(
-          "a ball bar of " + Num(length) + " mm with spheres of " + Num(d) +
-          " mm must be longer than a sphere's diameter and fit in every orientation inside the " +
-          Point(vol.size_mm) + " mm volume (at most " + Num(fit) + " mm)");
+      (n.Has("length_mm") ? n["length_mm"] : n)
+          .Fail("a ball bar of " + Num(length) + " mm with spheres of " + Num(d) +
+                " mm must be longer than a sphere's diameter and fit in every orientation inside "
+                "the " +
+                Point(vol.size_mm) + " mm volume (at most " + Num(fit) + " mm)");
     }
     for (int k = 0; k < count; ++k) {
       const Eigen::Vector3d u = dirs[static_cast<size_t>(k)].normalized();
@@ -293,9 +301,8 @@ Vdi2634Study Vdi2634StudyFromConfig(const ConfigNode& node, const Rig& rig,
       p.label = "bar_" + std::to_string(k + 1);
       p.artefact = "ball_bar";
       p.description = names[static_cast<size_t>(k)];
-      p.object = {{"name", "ball_bar"},          {"type", "ball_bar"},
-                  {"radius_mm", r},              {"distance_mm", length},
-                  {"bar_radius_mm", bar_r},      {"albedo", albedo},
+      p.object = {{"name", "ball_bar"},           {"type", "ball_bar"},     {"radius_mm", r},
+                  {"distance_mm", length},        {"bar_radius_mm", bar_r}, {"albedo", albedo},
                   {"rig_from_object", Pose(q, c)}};
       p.artefacts = artefact_file(
           json::array({{{"name", "a"}, {"center_mm", Vec(a)}, {"diameter_mm", d}},
@@ -312,7 +319,9 @@ Vdi2634Study Vdi2634StudyFromConfig(const ConfigNode& node, const Rig& rig,
 
   // Plane: frontal at the centre, tilted about y and about x, at the front and the back.
   {
-    const ConfigNode n = node.Has("plane") ? node["plane"] : ConfigNode::FromJson(json::object(), node.file(), node.path() + ".plane");
+    const ConfigNode n = node.Has("plane") ? node["plane"]
+                                           : ConfigNode::FromJson(json::object(), node.file(),
+                                                                  node.path() + ".plane");
     n.RejectUnknownKeys({"size_mm", "tilt_deg", "positions"});
     const double tilt_deg = n.Has("tilt_deg") ? n["tilt_deg"].AsDouble() : 25.0;
     if (!(tilt_deg > 0 && tilt_deg < 80)) n["tilt_deg"].Fail("must be in (0, 80)");
@@ -350,12 +359,13 @@ Vdi2634Study Vdi2634StudyFromConfig(const ConfigNode& node, const Rig& rig,
       const Eigen::Matrix3d rot = w.q.toRotationMatrix();
       for (int i = 0; i < 4; ++i) {
         const Eigen::Vector3d corner =
-            w.at + rot * Eigen::Vector3d((i & 1 ? 0.5 : -0.5) * length, (i & 2 ? 0.5 : -0.5) * width, 0);
+            w.at +
+            rot * Eigen::Vector3d((i & 1 ? 0.5 : -0.5) * length, (i & 2 ? 0.5 : -0.5) * width, 0);
         if (!Inside(vol, corner)) {
-          (n.Has("size_mm") ? n["size_mm"] : n).Fail(
-              "a plane of " + Num(length) + " x " + Num(width) + " mm at position " +
-              std::to_string(k + 1) + " (" + w.description + ") leaves the " +
-              Point(vol.size_mm) + " mm volume at " + Point(corner) + " mm");
+          (n.Has("size_mm") ? n["size_mm"] : n)
+              .Fail("a plane of " + Num(length) + " x " + Num(width) + " mm at position " +
+                    std::to_string(k + 1) + " (" + w.description + ") leaves the " +
+                    Point(vol.size_mm) + " mm volume at " + Point(corner) + " mm");
         }
       }
       const Eigen::Vector3d normal = rot * Eigen::Vector3d::UnitZ();
@@ -368,13 +378,14 @@ Vdi2634Study Vdi2634StudyFromConfig(const ConfigNode& node, const Rig& rig,
                   {"size_mm", {length, width}},
                   {"albedo", albedo},
                   {"rig_from_object", Pose(w.q, w.at)}};
-      p.artefacts = artefact_file(
-          json::array(), json::array(),
-          json::array({{{"name", "plane"},
-                        {"point_mm", Vec(w.at)},
-                        {"normal", Vec(normal)},
-                        {"half_size_mm", 0.5 * std::hypot(length, width)}}}));
-      p.geometry = {{"center_mm", Vec(w.at)}, {"normal", Vec(normal)}, {"size_mm", {length, width}}};
+      p.artefacts =
+          artefact_file(json::array(), json::array(),
+                        json::array({{{"name", "plane"},
+                                      {"point_mm", Vec(w.at)},
+                                      {"normal", Vec(normal)},
+                                      {"half_size_mm", 0.5 * std::hypot(length, width)}}}));
+      p.geometry = {
+          {"center_mm", Vec(w.at)}, {"normal", Vec(normal)}, {"size_mm", {length, width}}};
       study.placements.push_back(std::move(p));
     }
   }
@@ -472,8 +483,8 @@ std::vector<std::string> WriteVdi2634Results(const fs::path& out_dir,
     order.push_back(p.at("label").get<std::string>());
   }
   const json& mpe = plan_vdi2634.at("mpe");
-  const bool series = std::any_of(rows.begin(), rows.end(),
-                                  [](const Vdi2634Row& r) { return !r.series.empty(); });
+  const bool series =
+      std::any_of(rows.begin(), rows.end(), [](const Vdi2634Row& r) { return !r.series.empty(); });
 
   std::string csv = std::string("id,") + (series ? "series," : "") +
                     "position,artefact,mode,found,points,pf_mm,ps_mm,diameter_mm,sd_mm,"
@@ -487,12 +498,13 @@ std::vector<std::string> WriteVdi2634Results(const fs::path& out_dir,
   std::map<std::string, int> index_of;  // label -> 1-based index within its artefact
   {
     std::map<std::string, int> counts;
-    for (const auto& l : order) index_of[l] = ++counts[placement[l].at("artefact").get<std::string>()];
+    for (const auto& l : order)
+      index_of[l] = ++counts[placement[l].at("artefact").get<std::string>()];
   }
   for (const auto& r : rows) {
     const auto it = placement.find(r.position);
-    SLSHADOW_THROW_IF(it == placement.end(), "sweep merge: position '", r.position,
-                      "' of job ", r.id, " is not in the plan's vdi2634 placements");
+    SLSHADOW_THROW_IF(it == placement.end(), "sweep merge: position '", r.position, "' of job ",
+                      r.id, " is not in the plan's vdi2634 placements");
     const std::string artefact = it->second.at("artefact").get<std::string>();
     const Figures f = RowFigures(artefact, r.figures);
     csv += r.id + ',' + (series ? Field(r.series) + ',' : "") + r.position + ',' + artefact + ',' +
@@ -555,24 +567,28 @@ std::vector<std::string> WriteVdi2634Results(const fs::path& out_dir,
     summary_csv += '\n';
     lines.push_back(line);
   }
-  std::string positions = "position,artefact,description,center_x_mm,center_y_mm,center_z_mm,"
-                          "direction_or_normal_x,direction_or_normal_y,direction_or_normal_z,"
-                          "size\n";
+  std::string positions =
+      "position,artefact,description,center_x_mm,center_y_mm,center_z_mm,"
+      "direction_or_normal_x,direction_or_normal_y,direction_or_normal_z,"
+      "size\n";
   for (const auto& l : order) {
     const json& p = placement[l];
     const json& g = p.at("geometry");
     const json dir = g.contains("direction") ? g.at("direction")
                                              : (g.contains("normal") ? g.at("normal") : json());
     std::string size;
-    if (g.contains("diameter_mm")) size = "diameter " + Num(g.at("diameter_mm").get<double>()) + " mm";
+    if (g.contains("diameter_mm"))
+      size = "diameter " + Num(g.at("diameter_mm").get<double>()) + " mm";
     if (g.contains("length_mm"))
       size = "length " + Num(g.at("length_mm").get<double>()) + " mm, spheres " +
              Num(g.at("sphere_diameter_mm").get<double>()) + " mm";
     if (g.contains("size_mm"))
-      size = Num(g.at("size_mm")[0].get<double>()) + " x " + Num(g.at("size_mm")[1].get<double>()) + " mm";
+      size = Num(g.at("size_mm")[0].get<double>()) + " x " + Num(g.at("size_mm")[1].get<double>()) +
+             " mm";
     positions += l + ',' + p.at("artefact").get<std::string>() + ',' + Field(p.at("description"));
     for (int i = 0; i < 3; ++i) positions += ',' + Num(g.at("center_mm")[i].get<double>(), 10);
-    for (int i = 0; i < 3; ++i) positions += ',' + (dir.is_null() ? "" : Num(dir[i].get<double>(), 10));
+    for (int i = 0; i < 3; ++i)
+      positions += ',' + (dir.is_null() ? "" : Num(dir[i].get<double>(), 10));
     positions += ',' + Field(size) + '\n';
   }
   WriteTextFileAtomically(out_dir / "vdi2634.csv", csv);
@@ -580,9 +596,9 @@ std::vector<std::string> WriteVdi2634Results(const fs::path& out_dir,
   WriteTextFileAtomically(out_dir / "positions.csv", positions);
 
   // The chart: four panels, the figure against the position index, one line per series and mode.
-  const std::array<const char*, 4> titles = {"PF probing error, form (mm)",
-                                             "PS probing error, size (mm)",
-                                             "SD sphere-spacing error (mm)", "F flatness error (mm)"};
+  const std::array<const char*, 4> titles = {
+      "PF probing error, form (mm)", "PS probing error, size (mm)", "SD sphere-spacing error (mm)",
+      "F flatness error (mm)"};
   const std::array<const char*, 4> xlabels = {"sphere position", "sphere position",
                                               "ball bar orientation", "plane position"};
   const std::array<const char*, 4> artefacts = {"sphere", "sphere", "ball_bar", "plane"};

@@ -58,10 +58,10 @@ MeasuringVolume AutoMeasuringVolume(const Rig& rig, const std::vector<std::strin
 
 // One placement of an artefact.
 struct Vdi2634Placement {
-  std::string label;        // "sphere_1", "bar_3", "plane_2": the value of the axis `position`
-  std::string artefact;     // "sphere", "ball_bar", "plane"
-  std::string description;  // where, in words ("corner (-x, -y, -z)", "space diagonal ...")
-  nlohmann::json object;    // the scene object (scene YAML tree)
+  std::string label;         // "sphere_1", "bar_3", "plane_2": the value of the axis `position`
+  std::string artefact;      // "sphere", "ball_bar", "plane"
+  std::string description;   // where, in words ("corner (-x, -y, -z)", "space diagonal ...")
+  nlohmann::json object;     // the scene object (scene YAML tree)
   nlohmann::json artefacts;  // the artefact file tree (compare/vdi2634.h) of this placement
   nlohmann::json geometry;   // centre(s), direction or normal, sizes: for positions.csv
 };

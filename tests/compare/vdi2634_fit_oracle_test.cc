@@ -4,8 +4,8 @@
 // fails an algebraic (Kasa) fit, which it checks too: the two differ on a noisy cap.
 #include "compare/vdi2634.h"
 
-#include <Eigen/Geometry>
 #include <gtest/gtest.h>
+#include <Eigen/Geometry>
 
 #include <cmath>
 #include <random>
@@ -168,7 +168,8 @@ TEST(FitSphereOracle, NoisyCapFitIsTheBruteForceMinimumOfTheGeometricCost) {
   }
   const Eigen::Vector4d x = a.colPivHouseholderQr().solve(b);
   const Vector3d kasa = c0 - 0.5 * x.head<3>();
-  const double kasa_cost = SphereCost(pts, kasa, std::sqrt(0.25 * x.head<3>().squaredNorm() - x[3]));
+  const double kasa_cost =
+      SphereCost(pts, kasa, std::sqrt(0.25 * x.head<3>().squaredNorm() - x[3]));
   EXPECT_GT(kasa_cost, fit_cost * (1 + 1e-6));
 }
 

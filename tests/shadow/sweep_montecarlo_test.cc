@@ -42,20 +42,26 @@ TEST(MonteCarlo, SampledRigsHaveTheStatedSpread) {
     const Rig s = SampleRig(rig, sigma, 1000 + static_cast<uint64_t>(k));
     s_fx += std::pow(s.cameras[1].model.fx() - rig.cameras[1].model.fx(), 2);
     s_cy_proj += std::pow(s.projector->model.cy() - rig.projector->model.cy(), 2);
-    s_tx += std::pow(s.cameras[1].cam_from_rig.translation.x() -
-                         (s.cameras[1].cam_from_rig.rotation * rig.cameras[1].cam_from_rig.rotation.conjugate() *
-                          rig.cameras[1].cam_from_rig.translation).x(),
-                     2);
-    s_rot += std::pow(s.projector->cam_from_rig.rotation.angularDistance(rig.projector->cam_from_rig.rotation), 2);
-    cam0_moved += (s.cameras[0].cam_from_rig.translation.norm() > 0 ||
-                   s.cameras[0].cam_from_rig.rotation.angularDistance(Eigen::Quaterniond::Identity()) > 0);
+    s_tx += std::pow(
+        s.cameras[1].cam_from_rig.translation.x() -
+            (s.cameras[1].cam_from_rig.rotation * rig.cameras[1].cam_from_rig.rotation.conjugate() *
+             rig.cameras[1].cam_from_rig.translation)
+                .x(),
+        2);
+    s_rot += std::pow(
+        s.projector->cam_from_rig.rotation.angularDistance(rig.projector->cam_from_rig.rotation),
+        2);
+    cam0_moved +=
+        (s.cameras[0].cam_from_rig.translation.norm() > 0 ||
+         s.cameras[0].cam_from_rig.rotation.angularDistance(Eigen::Quaterniond::Identity()) > 0);
   }
   // Standard deviations within 5 % (4000 samples: the estimate's own spread is ~1.1 %).
   EXPECT_NEAR(std::sqrt(s_fx / n), 0.5, 0.025);
   EXPECT_NEAR(std::sqrt(s_cy_proj / n), 8, 0.4);
   EXPECT_NEAR(std::sqrt(s_tx / n), 0.1, 0.005);
   // The angle of a rotation with N(0, s^2) per axis: E[angle^2] = 3 s^2.
-  EXPECT_NEAR(std::sqrt(s_rot / n), std::sqrt(3.0) * 0.05 * M_PI / 180, 0.05 * std::sqrt(3.0) * 0.05 * M_PI / 180);
+  EXPECT_NEAR(std::sqrt(s_rot / n), std::sqrt(3.0) * 0.05 * M_PI / 180,
+              0.05 * std::sqrt(3.0) * 0.05 * M_PI / 180);
   EXPECT_EQ(cam0_moved, 0) << "the first camera is the rig frame";
   // Same seed, same rig.
   EXPECT_EQ(RigToJson(SampleRig(rig, sigma, 7)), RigToJson(SampleRig(rig, sigma, 7)));
@@ -64,7 +70,8 @@ TEST(MonteCarlo, SampledRigsHaveTheStatedSpread) {
   Rig with = rig;
   std::vector<double> cov(81, 0.0);
   cov[0] = 4.0;  // var(fx) = 4 px^2
-  with.calibration = {{"devices", {{{"name", rig.cameras[0].name}}}}, {"intrinsics_covariance", {cov}}};
+  with.calibration = {{"devices", {{{"name", rig.cameras[0].name}}}},
+                      {"intrinsics_covariance", {cov}}};
   double s0 = 0, s_cx = 0;
   std::vector<std::string> used;
   for (int k = 0; k < n; ++k) {
@@ -141,7 +148,8 @@ TEST(MonteCarlo, PredictedUncertaintyCoversIndependentReplicateScans) {
   EXPECT_LT(ratio, 1.25);
   for (const char* f : {"uncertainty.ply", "uncertainty.png", "uncertainty.csv"})
     EXPECT_TRUE(fs::exists(tmp / "result" / f)) << f;
-  EXPECT_NE(ReadTextFile(tmp / "result/uncertainty.ply").find("property float u_mm"), std::string::npos);
+  EXPECT_NE(ReadTextFile(tmp / "result/uncertainty.ply").find("property float u_mm"),
+            std::string::npos);
 }
 
 TEST(MonteCarlo, GnuParallelShardsMergeToTheOneProcessResult) {
@@ -167,9 +175,17 @@ TEST(MonteCarlo, GnuParallelShardsMergeToTheOneProcessResult) {
                          " > /dev/null")
                             .c_str()),
             0);
+  // `sweep study`: plan, run and merge in one command; run again, it resumes (nothing to run).
+  const std::string whole = bin + " sweep study " + (tmp / "study.yaml").string() + " --out " +
+                            (tmp / "whole").string() + " > " + (tmp / "whole.log").string();
+  ASSERT_EQ(std::system(whole.c_str()), 0) << whole;
+  ASSERT_EQ(std::system(whole.c_str()), 0) << whole;
+  EXPECT_NE(ReadTextFile(tmp / "whole.log").find("resuming"), std::string::npos);
+  EXPECT_NE(ReadTextFile(tmp / "whole.log").find("0 run"), std::string::npos);
   for (const char* f : {"results.csv", "results.json", "uncertainty.csv", "uncertainty_summary.csv",
                         "uncertainty.ply"}) {
     EXPECT_EQ(ReadTextFile(tmp / "one_result" / f), ReadTextFile(tmp / "par_result" / f)) << f;
+    EXPECT_EQ(ReadTextFile(tmp / "one_result" / f), ReadTextFile(tmp / "whole" / f)) << f;
   }
 }
 

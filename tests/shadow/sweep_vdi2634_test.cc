@@ -36,7 +36,9 @@ Vdi2634Study StudyFrom(const std::string& yaml, const Rig& rig) {
   return Vdi2634StudyFromConfig(node["vdi2634"], rig, {"projector", "stereo"});
 }
 
-Eigen::Vector3d V(const json& j) { return {j[0].get<double>(), j[1].get<double>(), j[2].get<double>()}; }
+Eigen::Vector3d V(const json& j) {
+  return {j[0].get<double>(), j[1].get<double>(), j[2].get<double>()};
+}
 
 bool InVolume(const MeasuringVolume& v, const Eigen::Vector3d& p) {
   return ((p - v.center_mm).cwiseAbs() - 0.5 * v.size_mm).maxCoeff() <= 1e-6;
@@ -81,7 +83,8 @@ TEST(Vdi2634Study, PlacementsFollowTheGuidelinesSchemeInsideTheVolume) {
     } else if (p.artefact == "ball_bar") {
       ++bars;
       const Eigen::Vector3d c = V(g["center_mm"]), u = V(g["direction"]);
-      const double len = g["length_mm"].get<double>(), r = g["sphere_diameter_mm"].get<double>() / 2;
+      const double len = g["length_mm"].get<double>(),
+                   r = g["sphere_diameter_mm"].get<double>() / 2;
       EXPECT_LE(len, 2.0 / 3.0 * l0 + 1e-9);
       for (const double side : {-0.5, 0.5}) {
         for (int i = 0; i < 3; ++i) {
@@ -96,8 +99,10 @@ TEST(Vdi2634Study, PlacementsFollowTheGuidelinesSchemeInsideTheVolume) {
       }
       // The scene object and the artefact file agree with the geometry.
       EXPECT_EQ(p.object["distance_mm"].get<double>(), len);
-      EXPECT_LT((V(p.artefacts["spheres"][1]["center_mm"]) - V(p.artefacts["spheres"][0]["center_mm"]) -
-                 len * u).norm(), 1e-9);
+      EXPECT_LT((V(p.artefacts["spheres"][1]["center_mm"]) -
+                 V(p.artefacts["spheres"][0]["center_mm"]) - len * u)
+                    .norm(),
+                1e-9);
       for (const auto& d : directions) EXPECT_LT(std::abs(d.dot(u)), 1 - 1e-6) << "parallel bars";
       directions.push_back(u);
     } else {
@@ -128,8 +133,9 @@ TEST(Vdi2634Study, BadInputNamesTheField) {
   fails_with("vdi2634: {volume: {center_mm: [0, 0, 500], size_mm: [2000, 100, 100]}}\n",
              "vdi2634.volume");
   fails_with("vdi2634: {sphere: {positions: 10}}\n", "vdi2634.sphere.positions");
-  fails_with("vdi2634: {sphere: {positions: 0}, ball_bar: {orientations: 0}, plane: {positions: 0}}\n",
-             "places no artefact");
+  fails_with(
+      "vdi2634: {sphere: {positions: 0}, ball_bar: {orientations: 0}, plane: {positions: 0}}\n",
+      "places no artefact");
   fails_with("vdi2634: {spheres: {}}\n", "spheres");
 }
 
@@ -184,7 +190,8 @@ TEST(Vdi2634Study, SmallStudyScansFitsAndShardsThroughGnuParallelToTheSameResult
     for (const auto& m : job["modes"]) {
       const json& v = m["vdi2634"];
       ASSERT_FALSE(v.is_null()) << position;
-      const std::string key = position + " " + std::to_string(noise) + " " + m["mode"].get<std::string>();
+      const std::string key =
+          position + " " + std::to_string(noise) + " " + m["mode"].get<std::string>();
       SCOPED_TRACE(key + ": " + v.dump());
       if (position == "sphere_1") {
         ASSERT_TRUE(v["spheres"][0]["found"].get<bool>());
@@ -206,7 +213,8 @@ TEST(Vdi2634Study, SmallStudyScansFitsAndShardsThroughGnuParallelToTheSameResult
   }
   for (const char* mode : {"projector", "stereo"}) {
     for (const char* pos : {"sphere_1", "plane_1"}) {
-      const std::string lo = std::string(pos) + " 6 " + mode, hi = std::string(pos) + " 300 " + mode;
+      const std::string lo = std::string(pos) + " 6 " + mode,
+                        hi = std::string(pos) + " 300 " + mode;
       EXPECT_GT(figure[hi], 1.5 * figure[lo]) << pos << " " << mode;
       EXPECT_GT(figure[lo], 0) << pos << " " << mode;
     }
@@ -240,8 +248,8 @@ TEST(Vdi2634Study, SmallStudyScansFitsAndShardsThroughGnuParallelToTheSameResult
   ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
   ASSERT_EQ(
       std::system((bin + " sweep merge " + jobs + " --out " + result + " > /dev/null").c_str()), 0);
-  for (const char* f : {"results.csv", "results.json", "vdi2634.csv", "vdi2634_summary.csv",
-                        "positions.csv"}) {
+  for (const char* f :
+       {"results.csv", "results.json", "vdi2634.csv", "vdi2634_summary.csv", "positions.csv"}) {
     EXPECT_EQ(ReadTextFile(tmp / "one_result" / f), ReadTextFile(tmp / "par_result" / f)) << f;
   }
 }
