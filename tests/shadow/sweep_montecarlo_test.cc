@@ -1,8 +1,14 @@
 // Study 4 (shadow/sweep_montecarlo.h): scan uncertainty by Monte Carlo. Oracles: the sampled rigs'
-// parameters have the stated standard deviations; a scan's per-pixel standard uncertainty from 100
-// prediction samples covers an independent set of 50 replicate scans at 2 sigma between 90 % and
-// 98 % (the check fails with few samples: 6 give about 50 % on this scene); the same study through
-// GNU parallel merges to identical files; bad input.
+// parameters have the stated standard deviations; a scan's per-pixel standard uncertainty from 400
+// prediction samples covers an independent set of 400 replicate scans at 2 sigma between 90 % and
+// 98 %; the same study through GNU parallel and `sweep study` merges to identical files; bad input.
+//
+// The coverage check can fail: every pixel of a scan shares its rig sample, so the coverage has the
+// sampling spread of a standard deviation estimated from the prediction samples and of a share
+// estimated from the replicates, not of the pixel count. With 6 samples and 4 replicates it gave
+// 50 % on the demo; with 100 and 50 it gave 98.9 % for one of three seeds. With 400 and 400 its
+// spread is about 1.3 % around the expected 95 %, so the test uses 400 + 400 scans of a camera
+// reduced to 120 x 75 px (the figure depends on the number of rig samples, not of pixels).
 #include "shadow/sweep_montecarlo.h"
 
 #include "core/config.h"
@@ -85,15 +91,16 @@ TEST(MonteCarlo, SampledRigsHaveTheStatedSpread) {
   EXPECT_LT(s_cx, 1e-20);  // no variance of cx in that covariance
 }
 
-// The quarter-resolution demo rig with its cameras halved again (240 x 150 px).
-void WriteEighthRig(const fs::path& file) {
+// The quarter-resolution demo rig with its cameras reduced by `factor` again.
+void WriteSmallRig(const fs::path& file, int factor) {
   json rig = RigToJson(LoadRig(SourceDir() / "config/studies/quarter_demo_rig.yaml"));
   for (auto& c : rig["cameras"]) {
-    c["width"] = c["width"].get<int>() / 2;
-    c["height"] = c["height"].get<int>() / 2;
-    for (const char* k : {"fx", "fy"}) c["intrinsics"][k] = c["intrinsics"][k].get<double>() / 2;
+    c["width"] = c["width"].get<int>() / factor;
+    c["height"] = c["height"].get<int>() / factor;
+    for (const char* k : {"fx", "fy"})
+      c["intrinsics"][k] = c["intrinsics"][k].get<double>() / factor;
     for (const char* k : {"cx", "cy"})
-      c["intrinsics"][k] = (c["intrinsics"][k].get<double>() + 0.5) / 2 - 0.5;
+      c["intrinsics"][k] = (c["intrinsics"][k].get<double>() + 0.5) / factor - 0.5;
   }
   std::ofstream(file) << rig.dump(1);
 }
@@ -107,7 +114,7 @@ void WriteStudy(const fs::path& file, const fs::path& rig, int samples, int repl
          "monte_carlo:\n  samples: "
       << samples << "\n  replicates: " << replicates
       << "\n  seed: 1\n"
-         "  sigma:\n    camera: {fx: 0.034, fy: 0.034, cx: 0.014, cy: 0.015}\n"
+         "  sigma:\n    camera: {fx: 0.068, fy: 0.068, cx: 0.028, cy: 0.03}\n"
          "    projector: {fx: 3.1, fy: 3.1, cx: 2.9, cy: 7.9}\n"
          "    rotation_deg: 0.026\n    translation_mm: 0.03\n";
 }
@@ -125,10 +132,10 @@ std::vector<std::string> SummaryRow(const fs::path& file) {
 
 TEST(MonteCarlo, PredictedUncertaintyCoversIndependentReplicateScans) {
   TempDir tmp;
-  WriteEighthRig(tmp / "rig.json");
-  WriteStudy(tmp / "study.yaml", tmp / "rig.json", 100, 50);
+  WriteSmallRig(tmp / "rig.json", 4);
+  WriteStudy(tmp / "study.yaml", tmp / "rig.json", 400, 400);
   const SweepPlanSummary plan = PlanSweep(tmp / "study.yaml", tmp / "jobs");
-  EXPECT_EQ(plan.jobs, 150);
+  EXPECT_EQ(plan.jobs, 800);
   EXPECT_EQ(plan.geometry_groups, 1);
   RunSweepShard(tmp / "jobs", SweepRunOptions{});
   const SweepMergeSummary m = MergeSweep(tmp / "jobs", tmp / "result");
@@ -137,15 +144,15 @@ TEST(MonteCarlo, PredictedUncertaintyCoversIndependentReplicateScans) {
   ASSERT_EQ(s.size(), 9u);
   SCOPED_TRACE(m.uncertainty[0] + "\n" + m.uncertainty[1]);
   std::printf("%s\n%s\n", m.uncertainty[0].c_str(), m.uncertainty[1].c_str());  // in the test log
-  EXPECT_GT(std::stoi(s[0]), 10000);  // pixels with a point in every job
+  EXPECT_GT(std::stoi(s[0]), 5000);  // pixels with a point in every job (of 9000)
   const double median_u = std::stod(s[3]), coverage = std::stod(s[6]), ratio = std::stod(s[8]);
   EXPECT_GT(median_u, 0.01);
   EXPECT_GE(coverage, 0.90);
   EXPECT_LE(coverage, 0.98);
   EXPECT_EQ(s[7], "1");
-  // The replicates' own spread agrees with the prediction (50 replicates: ~10 % per pixel).
-  EXPECT_GT(ratio, 0.8);
-  EXPECT_LT(ratio, 1.25);
+  // The replicates' own spread agrees with the prediction (400 each: ~3.5 % per pixel).
+  EXPECT_GT(ratio, 0.9);
+  EXPECT_LT(ratio, 1.1);
   for (const char* f : {"uncertainty.ply", "uncertainty.png", "uncertainty.csv"})
     EXPECT_TRUE(fs::exists(tmp / "result" / f)) << f;
   EXPECT_NE(ReadTextFile(tmp / "result/uncertainty.ply").find("property float u_mm"),
@@ -157,7 +164,7 @@ TEST(MonteCarlo, GnuParallelShardsMergeToTheOneProcessResult) {
     GTEST_SKIP() << "GNU parallel is not installed (scripts/setup.sh installs it)";
   }
   TempDir tmp;
-  WriteEighthRig(tmp / "rig.json");
+  WriteSmallRig(tmp / "rig.json", 2);
   WriteStudy(tmp / "study.yaml", tmp / "rig.json", 3, 2);
   PlanSweep(tmp / "study.yaml", tmp / "one");
   RunSweepShard(tmp / "one", SweepRunOptions{});
