@@ -1,4 +1,5 @@
 // slshadow sweep plan STUDY.yaml --out JOBS/ | run JOBS/ [--shard I/N] | merge JOBS/ --out RESULT/
+//               | study STUDY.yaml --out RESULT/ (the three in one process)
 #include "apps/commands.h"
 #include "core/error.h"
 #include "core/threads.h"
@@ -8,6 +9,7 @@
 
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <string>
 
 namespace slshadow::app {
@@ -22,6 +24,8 @@ int RunSweep(int argc, char** argv) {
       "result are skipped\n"
       "  sweep merge JOBS/ --out RESULT/      RESULT/results.csv, results.json (reproducible), "
       "timings.csv\n"
+      "  sweep study STUDY.yaml --out RESULT/  plan into RESULT/jobs/ (kept: a second call resumes "
+      "it), run every job, merge into RESULT/\n"
       "Merged results are identical byte for byte whatever the sharding.",
       argv[0]};
   app.require_subcommand(1);
@@ -43,16 +47,37 @@ int RunSweep(int argc, char** argv) {
   CLI::App* merge = app.add_subcommand("merge", "merge the results of all jobs");
   merge->add_option("jobs", jobs, "jobs folder")->required();
   merge->add_option("--out", out, "result folder")->required();
+  CLI::App* whole = app.add_subcommand("study", "plan, run and merge a study in one process");
+  whole->add_option("study", study, "study YAML")->required();
+  whole->add_option("--out", out, "result folder (its jobs in RESULT/jobs/)")->required();
+  whole->add_flag("--verbose", verbose, "one line per job");
+  whole->add_option("--threads", threads,
+                    "threads for OpenCV, TBB and Ceres (default: SLURM_CPUS_PER_TASK when set, "
+                    "else all cores)");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return ExitOnParseError(app, e);
   }
+  if (whole->parsed()) {
+    // A jobs folder with a plan is resumed (only its missing jobs run), else planned anew.
+    const std::filesystem::path jobs_dir = std::filesystem::path(out) / "jobs";
+    std::error_code ec;
+    if (std::filesystem::exists(jobs_dir / "plan.json", ec)) {
+      std::printf("resuming %s\n", jobs_dir.string().c_str());
+    } else {
+      const workflow::SweepPlanSummary s = workflow::PlanSweep(study, jobs_dir);
+      std::printf("study %s: %d jobs (%d geometry groups) in %s\n", s.study.c_str(), s.jobs,
+                  s.geometry_groups, jobs_dir.string().c_str());
+    }
+    jobs = jobs_dir.string();
+  }
   if (plan->parsed()) {
     const workflow::SweepPlanSummary s = workflow::PlanSweep(study, out);
     std::printf("study %s: %d jobs (%d geometry groups) in %s\n", s.study.c_str(), s.jobs,
                 s.geometry_groups, out.c_str());
-  } else if (run->parsed()) {
+  }
+  if (run->parsed() || whole->parsed()) {
     workflow::SweepRunOptions options;
     workflow::ParseShard(shard, "--shard", &options);
     options.verbose = verbose;
@@ -63,7 +88,8 @@ int RunSweep(int argc, char** argv) {
     const workflow::SweepRunSummary s = workflow::RunSweepShard(jobs, options);
     std::printf("shard %d/%d: %s\n", options.shard_index, options.shard_count,
                 s.BriefReport().c_str());
-  } else {
+  }
+  if (merge->parsed() || whole->parsed()) {
     const workflow::SweepMergeSummary s = workflow::MergeSweep(jobs, out);
     std::printf("%d jobs merged: %d rows in %s/results.csv (+ results.json, timings.csv)\n", s.jobs,
                 s.rows, out.c_str());
@@ -78,6 +104,18 @@ int RunSweep(int argc, char** argv) {
     if (!s.effects.empty()) {
       std::printf("Effects against the baseline (%s/effects.csv):\n", out.c_str());
       for (const auto& e : s.effects) std::printf("  %s\n", e.c_str());
+    }
+    if (!s.acceptance.empty()) {
+      std::printf("VDI/VDE 2634-2 figures, overall (%s/vdi2634_summary.csv, vdi2634.csv, "
+                  "vdi2634.png/.svg):\n",
+                  out.c_str());
+      for (const auto& a : s.acceptance) std::printf("  %s\n", a.c_str());
+    }
+    if (!s.uncertainty.empty()) {
+      std::printf(
+          "Scan uncertainty (%s/uncertainty_summary.csv, uncertainty.ply, uncertainty.png):\n",
+          out.c_str());
+      for (const auto& u : s.uncertainty) std::printf("  %s\n", u.c_str());
     }
   }
   return EXIT_SUCCESS;

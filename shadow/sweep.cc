@@ -11,6 +11,8 @@
 #include "reconstruct/reconstruct.h"
 #include "shadow/scan_pipeline.h"
 #include "shadow/sweep_reuse.h"
+#include "shadow/sweep_montecarlo.h"
+#include "shadow/sweep_vdi2634.h"
 #include "sim/scene.h"
 #include "sim/simulate.h"
 
@@ -135,6 +137,9 @@ struct Axis {
   std::vector<json> values;            // written at target (files: the loaded trees)
   std::vector<json> labels;            // the value in the results (files: the path as written)
   std::vector<std::string> base_dirs;  // scene files only
+  // A study kind's axis (vdi2634's `position`): per value, also written at job[extra_key].
+  std::string extra_key;
+  std::vector<json> extras;
 };
 
 // Checks a job by the codecs that will read it; `what` names it in errors.
@@ -172,7 +177,7 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
   const fs::path study_dir = fs::absolute(study_file).parent_path();
   study.RejectUnknownKeys({"format", "version", "name", "description", "scene", "rig", "patterns",
                            "modes", "decode", "reconstruct", "compare", "set", "axes", "curves",
-                           "effects", "pareto"});
+                           "effects", "pareto", "vdi2634", "monte_carlo"});
   if (study["format"].AsString() != kStudyFormat)
     study["format"].Fail(std::string("must be ") + kStudyFormat);
   if (study["version"].AsInt() != kVersion) study["version"].Fail("must be 1");
@@ -286,6 +291,68 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
       axes.push_back(std::move(axis));
     }
   }
+  // Study 5 (shadow/sweep_vdi2634.h): the artefact placements as the first axis, `position`.
+  json vdi2634_plan;
+  if (study.Has("vdi2634")) {
+    const ConfigNode v = study["vdi2634"];
+    for (size_t a = 0; a < axes.size(); ++a) {
+      const std::string& t = axes[a].target_text;
+      if (axes[a].name == "position" || t == "scene" || t == "rig" || t.rfind("rig.", 0) == 0 ||
+          t.rfind("scene.objects", 0) == 0) {
+        study["axes"].at(a).Fail(
+            "with vdi2634, an axis may not be named position nor set the scene, its objects or "
+            "the rig (got '" +
+            axes[a].name + "' setting '" + t + "')");
+      }
+    }
+    const Rig rig = RigFromConfig(ConfigNode::FromJson(base["rig"], study_file.string(), "rig"));
+    const Vdi2634Study vdi =
+        Vdi2634StudyFromConfig(v, rig, base["modes"].get<std::vector<std::string>>());
+    Axis axis;
+    axis.name = "position";
+    axis.target_text = "scene";
+    axis.target = json::json_pointer("/scene");
+    axis.extra_key = "vdi2634";
+    for (const Vdi2634Placement& p : vdi.placements) {
+      json scene = base["scene"];  // radiometry and layers of the study's scene
+      scene["name"] = "vdi2634_" + p.label;
+      scene["objects"] = json::array({p.object});
+      axis.values.push_back(scene);
+      axis.labels.push_back(p.label);
+      axis.base_dirs.push_back(base["scene_base_dir"].get<std::string>());
+      axis.extras.push_back({{"position", p.label},
+                             {"artefact", p.artefact},
+                             {"artefacts", p.artefacts},
+                             {"options", vdi.options}});
+    }
+    summary.axes.insert(summary.axes.begin(), axis.name);
+    axes.insert(axes.begin(), std::move(axis));
+    vdi2634_plan = vdi.ToJson();
+  }
+  // Study 4 (shadow/sweep_montecarlo.h): the Monte Carlo samples as the only axis, `sample`.
+  json monte_carlo_plan;
+  if (study.Has("monte_carlo")) {
+    const ConfigNode mc = study["monte_carlo"];
+    if (study.Has("vdi2634")) mc.Fail("a study has at most one of monte_carlo and vdi2634");
+    if (!axes.empty()) {
+      study["axes"].Fail("a monte_carlo study has no other axes (its jobs are its samples)");
+    }
+    const Rig rig = RigFromConfig(ConfigNode::FromJson(base["rig"], study_file.string(), "rig"));
+    const MonteCarloStudy m = MonteCarloStudyFromConfig(mc, rig);
+    Axis axis;
+    axis.name = "sample";
+    axis.target_text = "scene.layers.noise.seed";
+    axis.target = json::json_pointer("/scene/layers/noise/seed");
+    axis.extra_key = "monte_carlo";
+    for (const json& j : m.jobs) {
+      axis.values.push_back(j.at("noise_seed"));
+      axis.labels.push_back(j.at("sample"));
+      axis.extras.push_back(j);
+    }
+    summary.axes.insert(summary.axes.begin(), axis.name);
+    axes.insert(axes.begin(), std::move(axis));
+    monte_carlo_plan = m.ToJson();
+  }
   if (study.Has("curves")) {
     const ConfigNode c = study["curves"];
     c.RejectUnknownKeys({"x", "limits", "worse"});
@@ -347,6 +414,7 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
       const Axis& axis = axes[a];
       job[axis.target] = axis.values[index[a]];
       if (!axis.base_dirs.empty()) job["scene_base_dir"] = axis.base_dirs[index[a]];
+      if (!axis.extras.empty()) job[axis.extra_key] = axis.extras[index[a]];
       params[axis.name] = axis.labels[index[a]];
     }
     // `set` entries under a tree an axis replaced whole (e.g. a scene file) apply to it too,
@@ -384,7 +452,7 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
   fs::create_directories(staging / "results", ec);
   for (const auto& job : jobs)
     WriteTextFileAtomically(JobFile(staging, job["id"].get<int>()), job.dump(1) + "\n");
-  const json plan = {{"format", kPlanFormat},
+  json plan = {{"format", kPlanFormat},
                      {"version", kVersion},
                      {"study", summary.study},
                      {"study_file", fs::absolute(study_file).lexically_normal().string()},
@@ -392,6 +460,8 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
                      {"axes", summary.axes},
                      {"jobs", summary.jobs},
                      {"geometry_groups", summary.geometry_groups}};
+  if (!vdi2634_plan.is_null()) plan["vdi2634"] = vdi2634_plan;
+  if (!monte_carlo_plan.is_null()) plan["monte_carlo"] = monte_carlo_plan;
   WriteTextFileAtomically(staging / "plan.json", plan.dump(2) + "\n");
   staged.Commit(/*overwrite=*/false);
   return summary;
@@ -529,7 +599,12 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
       std::find(modes.begin(), modes.end(), ReconstructMode::kStereo) != modes.end();
   const DecodeOptions decode = DecodeOptionsFromConfig(node("decode"));
   DecodedScan decoded;
+  // Study 4: scanned with the true rig, decoded and reconstructed with a sampled calibration.
   decoded.rig = group->rig;
+  if (job.contains("monte_carlo")) {
+    decoded.rig = RigFromConfig(ConfigNode::FromJson(
+        job.at("monte_carlo").at("reconstruct_rig"), what, "monte_carlo.reconstruct_rig"));
+  }
   decoded.spec = spec;
   std::vector<double> decode_camera_s;
   for (size_t c = 0; c < (stereo ? 2u : 1u); ++c) {
@@ -545,6 +620,17 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
   const ReconstructOptions reconstruct = ReconstructOptionsFromConfig(node("reconstruct"));
   std::vector<StageMeasurement> stages;
   std::vector<Reconstruction> recs = ReconstructModes(decoded, modes, reconstruct, &stages);
+  json monte_carlo;
+  if (job.contains("monte_carlo")) {
+    // The first mode's grid, next to the result (written first: a job without its result reruns).
+    const Reconstruction& first = recs.at(0);
+    const fs::path jobs_dir = file.parent_path().parent_path();
+    WriteMonteCarloGrid(MonteCarloGridFile(jobs_dir, job.at("id").get<int>()), first.grid);
+    const Eigen::Vector3d& v = first.grid.viewpoint_in_rig;
+    monte_carlo = {{"sample", job.at("monte_carlo").at("sample")},
+                   {"set", job.at("monte_carlo").at("set")},
+                   {"viewpoint_in_rig_mm", {v.x(), v.y(), v.z()}}};
+  }
   const auto t4 = clock();
   timing["reconstruct_s"] = seconds(t3, t4);
   stage_cpu("reconstruct_cpu_s");
@@ -576,13 +662,29 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
     }
     accuracy.push_back(a);
   }
+  // Study 5: the VDI/VDE 2634-2 figures of the job's artefact in each mode (null: no cloud).
+  if (job.contains("vdi2634")) {
+    const json& v = job.at("vdi2634");
+    const compare::ArtefactSpec artefacts = compare::ArtefactSpecFromConfig(
+        ConfigNode::FromJson(v.at("artefacts"), what, "vdi2634.artefacts"));
+    const compare::Vdi2634Options options = compare::Vdi2634OptionsFromConfig(
+        ConfigNode::FromJson(v.at("options"), what, "vdi2634.options"));
+    for (size_t k = 0; k < modes.size(); ++k) {
+      accuracy[k]["vdi2634"] =
+          recs[k].cloud.empty()
+              ? json()
+              : compare::EvaluateVdi2634(recs[k].cloud, artefacts, options).ToJson();
+    }
+  }
   const auto t5 = clock();
   timing["compare_s"] = seconds(t4, t5);
   stage_cpu("compare_cpu_s");
   timing["total_s"] = seconds(t0, t5);
   timing["cpu_s"] = ProcessCpuSeconds() - cpu0;
-  return {{"format", kResultFormat},    {"version", kVersion}, {"id", job.at("id")},
-          {"params", job.at("params")}, {"modes", accuracy},   {"timing", timing}};
+  json result = {{"format", kResultFormat},    {"version", kVersion}, {"id", job.at("id")},
+                 {"params", job.at("params")}, {"modes", accuracy},   {"timing", timing}};
+  if (!monte_carlo.is_null()) result["monte_carlo"] = monte_carlo;
+  return result;
 }
 
 }  // namespace
@@ -1089,6 +1191,33 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
       }
     }
     WriteTextFileAtomically(out_dir / "effects.csv", csv_effects);
+  }
+  // Study 5: the acceptance test's table, summary and chart.
+  if (plan.contains("vdi2634")) {
+    std::vector<Vdi2634Row> rows;
+    for (const auto& r : results) {
+      for (const auto& m : r.at("modes")) {
+        rows.push_back({JobName(r.at("id").get<int>()),
+                        ParamsLabel(r.at("params"), axes, "position"),
+                        r.at("params").at("position").get<std::string>(),
+                        m.at("mode").get<std::string>(), m.value("vdi2634", json())});
+      }
+    }
+    summary.acceptance = WriteVdi2634Results(out_dir, rows, plan.at("vdi2634"),
+                                             plan.at("study").get<std::string>());
+  }
+  // Study 4: the uncertainty from the samples' grids, checked against the replicates.
+  if (plan.contains("monte_carlo")) {
+    std::vector<int> ids;
+    std::vector<std::string> sets;
+    for (const auto& r : results) {
+      ids.push_back(r.at("id").get<int>());
+      sets.push_back(r.at("monte_carlo").at("set").get<std::string>());
+    }
+    summary.uncertainty =
+        WriteMonteCarloResults(jobs_dir, out_dir, ids, sets,
+                               results.at(0).at("monte_carlo").at("viewpoint_in_rig_mm"),
+                               plan.at("study").get<std::string>());
   }
   summary.jobs = n;
   summary.out_dir = out_dir;

@@ -85,6 +85,10 @@ struct SweepMergeSummary {
   std::vector<std::string> break_points;
   // With the study key `effects`: "series, mode: value changes / does not change ..." per job.
   std::vector<std::string> effects;
+  // With the study key `vdi2634`: "series, mode: PF .. PS .. SD .. F .." per series and mode.
+  std::vector<std::string> acceptance;
+  // With the study key `monte_carlo`: the uncertainty's summary and its 2-sigma coverage.
+  std::vector<std::string> uncertainty;
   std::filesystem::path out_dir;
 };
 
