@@ -149,9 +149,10 @@ DemoResult RunDemoJob(const DemoOptions& options) {
   // 5. Reconstruct both modes, then compare and report them concurrently: each comparison is
   // parallel inside, but its report (PLY, map, charts) and parts of the comparison are serial.
   const std::vector<std::string> mode_names = {"projector", "stereo"};
-  // One mode at a time, stereo first: its working set (rectified maps, matches, ~150 MB) is the
-  // larger, so it runs before the other cloud exists; then its per-thread buffers are freed.
-  // The demo keeps each cloud and summary, not its grid (~100 MB).
+  // One mode at a time, stereo first: its working set (rectified maps and matches, ~150 MB more
+  // than the projector mode's) then runs before the other cloud exists. The demo keeps each cloud
+  // and summary, not its grid (~100 MB); after each mode the reconstruction's reused buffers are
+  // freed (the other mode's grid differs in size).
   std::vector<Reconstruction> recs(mode_names.size());
   for (const ReconstructMode mode : {ReconstructMode::kStereo, ReconstructMode::kProjector}) {
     Reconstruction& rec = recs[mode == ReconstructMode::kProjector ? 0 : 1];
