@@ -221,9 +221,10 @@ CompareResult Compare(PointCloud&& cloud, const Reference& reference, const Comp
   return Compare(std::move(cloud), reference, options, cloud_source, {});
 }
 
-CompareResult Compare(PointCloud&& cloud, const Reference& reference, const CompareOptions& options,
-                      const std::string& cloud_source,
-                      const std::vector<const std::vector<Eigen::Vector3d>*>& extra_coverage_samples) {
+CompareResult Compare(
+    PointCloud&& cloud, const Reference& reference, const CompareOptions& options,
+    const std::string& cloud_source,
+    const std::vector<const std::vector<Eigen::Vector3d>*>& extra_coverage_samples) {
   options.Check();
   cloud.Check(cloud_source);
   SLSHADOW_THROW_IF(cloud.empty(), cloud_source, ": the compared cloud has no points");

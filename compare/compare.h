@@ -129,8 +129,9 @@ CompareResult Compare(PointCloud&& cloud, const Reference& reference, const Comp
                       const std::string& cloud_source = "cloud");
 // The same, also measuring the coverage of each of `extra_coverage_samples` (in
 // CompareResult::extra_coverage, in that order) from the same index of the inliers.
-CompareResult Compare(PointCloud&& cloud, const Reference& reference, const CompareOptions& options,
-                      const std::string& cloud_source,
-                      const std::vector<const std::vector<Eigen::Vector3d>*>& extra_coverage_samples);
+CompareResult Compare(
+    PointCloud&& cloud, const Reference& reference, const CompareOptions& options,
+    const std::string& cloud_source,
+    const std::vector<const std::vector<Eigen::Vector3d>*>& extra_coverage_samples);
 
 }  // namespace slshadow::compare

@@ -122,7 +122,9 @@ ValueImage RenderValues(const std::vector<Eigen::Vector3d>& points, const std::v
   if (points.empty()) return img;
   // Each point in the view's frame, computed where it is needed (a copy of a 2 M-point cloud
   // would cost ~50 MB of fresh pages).
-  const auto in_cam = [&](size_t i) -> Eigen::Vector3d { return view.cam_from_reference * points[i]; };
+  const auto in_cam = [&](size_t i) -> Eigen::Vector3d {
+    return view.cam_from_reference * points[i];
+  };
   if (splat_px <= 0) {
     // Point spacing at the median depth, in pixels.
     std::vector<double> zs;

@@ -54,7 +54,9 @@ class PointGrid {
     // open-addressing set of keys.
     std::vector<uint64_t> marked;
     size_t marked_mask = 0;
-    const auto mark_hash = [](uint64_t key) { return static_cast<size_t>((key * 0x9E3779B97F4A7C15ull) >> 20); };
+    const auto mark_hash = [](uint64_t key) {
+      return static_cast<size_t>((key * 0x9E3779B97F4A7C15ull) >> 20);
+    };
     if (focus) {
       size_t capacity = 16;
       while (capacity < 2 * 27 * focus->size()) capacity *= 2;
@@ -63,10 +65,12 @@ class PointGrid {
       for (const size_t i : *focus) {
         if (!points[i].allFinite()) continue;
         const Eigen::Vector3d c = ((points[i] - lo_) * inv_).array().floor();
-        const auto cx = static_cast<int64_t>(c.x()), cy = static_cast<int64_t>(c.y()), cz = static_cast<int64_t>(c.z());
+        const auto cx = static_cast<int64_t>(c.x()), cy = static_cast<int64_t>(c.y()),
+                   cz = static_cast<int64_t>(c.z());
         for (int64_t z = std::max<int64_t>(cz - 1, 0); z <= std::min(cz + 1, max_cell_[2]); ++z) {
           for (int64_t y = std::max<int64_t>(cy - 1, 0); y <= std::min(cy + 1, max_cell_[1]); ++y) {
-            for (int64_t x = std::max<int64_t>(cx - 1, 0); x <= std::min(cx + 1, max_cell_[0]); ++x) {
+            for (int64_t x = std::max<int64_t>(cx - 1, 0); x <= std::min(cx + 1, max_cell_[0]);
+                 ++x) {
               const uint64_t key = Key(x, y, z);
               size_t h = mark_hash(key) & marked_mask;
               while (marked[h] != kNoKey && marked[h] != key) h = (h + 1) & marked_mask;
@@ -90,9 +94,9 @@ class PointGrid {
       for (size_t i = r.begin(); i != r.end(); ++i) {
         if (!points[i].allFinite()) continue;
         const Eigen::Vector3d c = ((points[i] - lo_) * inv_).array().floor();
-        const uint64_t key =
-            Key(std::min(static_cast<int64_t>(c.x()), max_cell_[0]), std::min(static_cast<int64_t>(c.y()), max_cell_[1]),
-                std::min(static_cast<int64_t>(c.z()), max_cell_[2]));
+        const uint64_t key = Key(std::min(static_cast<int64_t>(c.x()), max_cell_[0]),
+                                 std::min(static_cast<int64_t>(c.y()), max_cell_[1]),
+                                 std::min(static_cast<int64_t>(c.z()), max_cell_[2]));
         if (focus && !is_marked(key)) continue;
         keys[i] = key;
       }
@@ -327,7 +331,9 @@ std::vector<double> Coverages(const std::vector<const std::vector<Eigen::Vector3
   const double bound = r * r;
   if (!(bound > 0) || !std::isfinite(bound)) {
     const KdTree tree(reached);
-    for (size_t k = 0; k < sample_sets.size(); ++k) out[k] = Coverage(*sample_sets[k], tree, radius_mm);
+    for (size_t k = 0; k < sample_sets.size(); ++k) {
+      out[k] = Coverage(*sample_sets[k], tree, radius_mm);
+    }
     return out;
   }
   const PointGrid grid(reached, r * 1.001);  // margin: cell assignment rounds

@@ -173,7 +173,8 @@ TEST_F(ReconstructTest, ReleasingTheReusedBuffersChangesNoResult) {
   EXPECT_EQ(RayCacheSize(), 0u);
   const auto second = run();
   ReleaseReconstructionBuffers();
-  for (const auto& [a, b] : {std::make_pair(&first.first, &second.first), std::make_pair(&first.second, &second.second)}) {
+  for (const auto& [a, b] : {std::make_pair(&first.first, &second.first),
+                             std::make_pair(&first.second, &second.second)}) {
     ASSERT_GT(a->size(), 1000u);
     ASSERT_EQ(a->size(), b->size());
     EXPECT_EQ(a->points, b->points);

@@ -192,7 +192,8 @@ TEST_F(ScanPipeline, AccuracyOfTheGroundTruthCloudIsPerfectAndHalfCoversHalf) {
   // The visible coverage measured inside Compare (the demo's path, one grid for both sample sets)
   // is the same double.
   const compare::CompareResult with_extra =
-      compare::Compare(PointCloud(half), reference, options, "half", {&visible, &reference.cloud.points});
+      compare::Compare(PointCloud(half), reference, options, "half",
+                       {&visible, &reference.cloud.points});
   ASSERT_EQ(with_extra.extra_coverage.size(), 2u);
   EXPECT_EQ(with_extra.extra_coverage[0], part.visible_coverage);
   EXPECT_EQ(with_extra.extra_coverage[1], part.coverage);
