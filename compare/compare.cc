@@ -218,6 +218,13 @@ CompareResult Compare(const PointCloud& cloud, const Reference& reference, const
 
 CompareResult Compare(PointCloud&& cloud, const Reference& reference, const CompareOptions& options,
                       const std::string& cloud_source) {
+  return Compare(std::move(cloud), reference, options, cloud_source, {});
+}
+
+CompareResult Compare(
+    PointCloud&& cloud, const Reference& reference, const CompareOptions& options,
+    const std::string& cloud_source,
+    const std::vector<const std::vector<Eigen::Vector3d>*>& extra_coverage_samples) {
   options.Check();
   cloud.Check(cloud_source);
   SLSHADOW_THROW_IF(cloud.empty(), cloud_source, ": the compared cloud has no points");
@@ -268,7 +275,11 @@ CompareResult Compare(PointCloud&& cloud, const Reference& reference, const Comp
     for (size_t i = 0; i < pts.size(); ++i) {
       if (std::abs(r.deviations_mm[i]) <= options.threshold_mm) reached.push_back(pts[i]);
     }
-    r.coverage = Coverage(reference.cloud.points, reached, r.coverage_radius_mm);
+    std::vector<const std::vector<Eigen::Vector3d>*> sets = {&reference.cloud.points};
+    sets.insert(sets.end(), extra_coverage_samples.begin(), extra_coverage_samples.end());
+    std::vector<double> coverages = Coverages(sets, reached, r.coverage_radius_mm);
+    r.coverage = coverages.front();
+    r.extra_coverage.assign(coverages.begin() + 1, coverages.end());
   }
   r.coverage_samples = reference.cloud.size();
 

@@ -113,6 +113,9 @@ struct CompareResult {
   // range).
   PointCloud compared;
   std::vector<double> deviations_mm;  // one per compared point (same as the "deviation" field)
+  // Coverage of each extra sample set given to Compare (e.g. the surface a camera sees), with
+  // the criterion and radius of `coverage`: Coverage(samples, inliers, coverage_radius_mm).
+  std::vector<double> extra_coverage;
   double time_s = 0.0;
 
   // One screen of text: inputs, registration, statistics, coverage.
@@ -124,5 +127,11 @@ CompareResult Compare(const PointCloud& cloud, const Reference& reference, const
 // The same, moving the cloud into CompareResult::compared instead of copying it.
 CompareResult Compare(PointCloud&& cloud, const Reference& reference, const CompareOptions& options,
                       const std::string& cloud_source = "cloud");
+// The same, also measuring the coverage of each of `extra_coverage_samples` (in
+// CompareResult::extra_coverage, in that order) from the same index of the inliers.
+CompareResult Compare(
+    PointCloud&& cloud, const Reference& reference, const CompareOptions& options,
+    const std::string& cloud_source,
+    const std::vector<const std::vector<Eigen::Vector3d>*>& extra_coverage_samples);
 
 }  // namespace slshadow::compare

@@ -120,14 +120,19 @@ ValueImage RenderValues(const std::vector<Eigen::Vector3d>& points, const std::v
   img.values.assign(static_cast<size_t>(w) * static_cast<size_t>(h), std::numeric_limits<float>::quiet_NaN());
   std::vector<float> depth(img.values.size(), std::numeric_limits<float>::infinity());
   if (points.empty()) return img;
-  std::vector<Eigen::Vector3d> in_cam(points.size());
-  for (size_t i = 0; i < points.size(); ++i) in_cam[i] = view.cam_from_reference * points[i];
+  // Each point in the view's frame, computed where it is needed (a copy of a 2 M-point cloud
+  // would cost ~50 MB of fresh pages).
+  const auto in_cam = [&](size_t i) -> Eigen::Vector3d {
+    return view.cam_from_reference * points[i];
+  };
   if (splat_px <= 0) {
     // Point spacing at the median depth, in pixels.
     std::vector<double> zs;
     const size_t stride = std::max<size_t>(1, points.size() / 20000);
-    for (size_t i = 0; i < points.size(); i += stride)
-      if (in_cam[i].z() > 0) zs.push_back(in_cam[i].z());
+    for (size_t i = 0; i < points.size(); i += stride) {
+      const double z = in_cam(i).z();
+      if (z > 0) zs.push_back(z);
+    }
     double spacing_px = 1.0;
     if (!zs.empty()) {
       std::nth_element(zs.begin(), zs.begin() + static_cast<long>(zs.size() / 2), zs.end());
@@ -137,10 +142,11 @@ ValueImage RenderValues(const std::vector<Eigen::Vector3d>& points, const std::v
   }
   for (size_t i = 0; i < points.size(); ++i) {
     if (!std::isfinite(values[i])) continue;
-    const auto px = view.camera.Project(in_cam[i]);
+    const Eigen::Vector3d p = in_cam(i);
+    const auto px = view.camera.Project(p);
     if (!px) continue;
     const int u = static_cast<int>(std::lround(px->x())), v = static_cast<int>(std::lround(px->y()));
-    const auto z = static_cast<float>(in_cam[i].z());
+    const auto z = static_cast<float>(p.z());
     for (int dv = -splat_px; dv <= splat_px; ++dv) {
       for (int du = -splat_px; du <= splat_px; ++du) {
         const int x = u + du, y = v + dv;

@@ -4,6 +4,7 @@
 #include <atomic>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <utility>
 
 #include <tbb/blocked_range.h>
@@ -25,9 +26,14 @@ size_t PercentileIndex(size_t n, double p) {
 // A uniform grid over points (points copied cell by cell, cells found through an open-addressing
 // hash table): the points within one cell size of a query lie in the 27 cells around the query's
 // cell. Built in O(n): cell keys in parallel, a stable radix sort of the points by key.
+//
+// With `focus` (indices into points), only the points in the 27 cells around each focus point's
+// cell are kept: ForNeighbours(points[focus[k]], f, 1) still sees every point it would see in
+// the full grid, for a fraction of the sorting and copying.
 class PointGrid {
  public:
-  PointGrid(const std::vector<Eigen::Vector3d>& points, double cell) {
+  PointGrid(const std::vector<Eigen::Vector3d>& points, double cell,
+            const std::vector<size_t>* focus = nullptr) {
     lo_ = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
     Eigen::Vector3d hi = -lo_;
     for (const auto& p : points) {
@@ -44,6 +50,42 @@ class PointGrid {
       bits_[a] = 1;
       while ((int64_t{1} << bits_[a]) <= max_cell_[a]) ++bits_[a];
     }
+    // The cells around the focus points (the ranges ForNeighbours visits with reach 1), as an
+    // open-addressing set of keys.
+    std::vector<uint64_t> marked;
+    size_t marked_mask = 0;
+    const auto mark_hash = [](uint64_t key) {
+      return static_cast<size_t>((key * 0x9E3779B97F4A7C15ull) >> 20);
+    };
+    if (focus) {
+      size_t capacity = 16;
+      while (capacity < 2 * 27 * focus->size()) capacity *= 2;
+      marked.assign(capacity, kNoKey);
+      marked_mask = capacity - 1;
+      for (const size_t i : *focus) {
+        if (!points[i].allFinite()) continue;
+        const Eigen::Vector3d c = ((points[i] - lo_) * inv_).array().floor();
+        const auto cx = static_cast<int64_t>(c.x()), cy = static_cast<int64_t>(c.y()),
+                   cz = static_cast<int64_t>(c.z());
+        for (int64_t z = std::max<int64_t>(cz - 1, 0); z <= std::min(cz + 1, max_cell_[2]); ++z) {
+          for (int64_t y = std::max<int64_t>(cy - 1, 0); y <= std::min(cy + 1, max_cell_[1]); ++y) {
+            for (int64_t x = std::max<int64_t>(cx - 1, 0); x <= std::min(cx + 1, max_cell_[0]);
+                 ++x) {
+              const uint64_t key = Key(x, y, z);
+              size_t h = mark_hash(key) & marked_mask;
+              while (marked[h] != kNoKey && marked[h] != key) h = (h + 1) & marked_mask;
+              marked[h] = key;
+            }
+          }
+        }
+      }
+    }
+    const auto is_marked = [&](uint64_t key) {
+      for (size_t h = mark_hash(key) & marked_mask;; h = (h + 1) & marked_mask) {
+        if (marked[h] == key) return true;
+        if (marked[h] == kNoKey) return false;
+      }
+    };
     // Keys of the finite points (packed cell coordinates), then a stable LSD radix sort by key in
     // passes of 16 bits.
     const size_t n = points.size();
@@ -52,8 +94,11 @@ class PointGrid {
       for (size_t i = r.begin(); i != r.end(); ++i) {
         if (!points[i].allFinite()) continue;
         const Eigen::Vector3d c = ((points[i] - lo_) * inv_).array().floor();
-        keys[i] = Key(std::min(static_cast<int64_t>(c.x()), max_cell_[0]), std::min(static_cast<int64_t>(c.y()), max_cell_[1]),
-                      std::min(static_cast<int64_t>(c.z()), max_cell_[2]));
+        const uint64_t key = Key(std::min(static_cast<int64_t>(c.x()), max_cell_[0]),
+                                 std::min(static_cast<int64_t>(c.y()), max_cell_[1]),
+                                 std::min(static_cast<int64_t>(c.z()), max_cell_[2]));
+        if (focus && !is_marked(key)) continue;
+        keys[i] = key;
       }
     });
     std::vector<uint32_t> order;
@@ -272,26 +317,42 @@ double Coverage(const std::vector<Eigen::Vector3d>& reference_samples, const KdT
 
 double Coverage(const std::vector<Eigen::Vector3d>& reference_samples, const std::vector<Eigen::Vector3d>& reached,
                 double radius_mm) {
-  if (reference_samples.empty() || reached.empty()) return 0.0;
+  return Coverages({&reference_samples}, reached, radius_mm).front();
+}
+
+std::vector<double> Coverages(const std::vector<const std::vector<Eigen::Vector3d>*>& sample_sets,
+                              const std::vector<Eigen::Vector3d>& reached, double radius_mm) {
+  std::vector<double> out(sample_sets.size(), 0.0);
+  bool any = false;
+  for (const auto* samples : sample_sets) any = any || !samples->empty();
+  if (!any || reached.empty()) return out;
   // The criterion of the KdTree overload, bit for bit: squared distance < nextafter(radius)^2.
   const double r = std::nextafter(radius_mm, 1e300);
   const double bound = r * r;
   if (!(bound > 0) || !std::isfinite(bound)) {
     const KdTree tree(reached);
-    return Coverage(reference_samples, tree, radius_mm);
+    for (size_t k = 0; k < sample_sets.size(); ++k) {
+      out[k] = Coverage(*sample_sets[k], tree, radius_mm);
+    }
+    return out;
   }
   const PointGrid grid(reached, r * 1.001);  // margin: cell assignment rounds
-  const std::vector<uint32_t> order = SpatialOrder(reference_samples);
-  const size_t covered = tbb::parallel_reduce(
-      tbb::blocked_range<size_t>(0, reference_samples.size(), 2048), size_t{0},
-      [&](const tbb::blocked_range<size_t>& range, size_t acc) {
-        for (size_t k = range.begin(); k != range.end(); ++k) {
-          if (grid.AnyWithin(reference_samples[order[k]], bound)) ++acc;
-        }
-        return acc;
-      },
-      [](size_t a, size_t b) { return a + b; });
-  return static_cast<double>(covered) / static_cast<double>(reference_samples.size());
+  for (size_t k = 0; k < sample_sets.size(); ++k) {
+    const std::vector<Eigen::Vector3d>& samples = *sample_sets[k];
+    if (samples.empty()) continue;
+    const std::vector<uint32_t> order = SpatialOrder(samples);
+    const size_t covered = tbb::parallel_reduce(
+        tbb::blocked_range<size_t>(0, samples.size(), 2048), size_t{0},
+        [&](const tbb::blocked_range<size_t>& range, size_t acc) {
+          for (size_t i = range.begin(); i != range.end(); ++i) {
+            if (grid.AnyWithin(samples[order[i]], bound)) ++acc;
+          }
+          return acc;
+        },
+        [](size_t a, size_t b) { return a + b; });
+    out[k] = static_cast<double>(covered) / static_cast<double>(samples.size());
+  }
+  return out;
 }
 
 double MedianSpacing(const std::vector<Eigen::Vector3d>& points, size_t max_samples) {
@@ -312,13 +373,35 @@ double MedianSpacing(const std::vector<Eigen::Vector3d>& points, size_t max_samp
     const double n = static_cast<double>(points.size());
     double cell = e[1] > 0 ? 2.0 * std::sqrt(e[0] * e[1] / n) : 2.0 * e[0] / n;
     cell = std::max(cell, 1e-9 * std::max(e[0], 1.0));
-    const PointGrid grid(points, cell * 1.001);
     const double reach = cell * cell;  // within it, the grid's answer is exact
-    for (size_t i = 0; i < points.size(); i += stride) {
-      // Cubes of 1, 2, 4, 8 cells around the point: exact as soon as the nearest lies within
-      // the cube's inscribed radius.
+    std::vector<size_t> samples;
+    for (size_t i = 0; i < points.size(); i += stride) samples.push_back(i);
+    // Cubes of 1, 2, 4, 8 cells around the point: exact as soon as the nearest lies within the
+    // cube's inscribed radius. The cube of 1 cell from a grid of the points around the samples
+    // only (most samples are answered there); the larger ones from a grid of all points.
+    std::vector<size_t> pending;
+    {
+      const PointGrid near(points, cell * 1.001, &samples);
+      for (const size_t i : samples) {
+        double best = std::numeric_limits<double>::infinity();
+        near.ForNeighbours(
+            points[i], [&](const Eigen::Vector3d& p, uint32_t j) {
+              if (j != i) best = std::min(best, (points[i] - p).squaredNorm());
+            },
+            1);
+        if (best <= reach) {
+          d.push_back(std::sqrt(best));
+        } else {
+          pending.push_back(i);
+        }
+      }
+    }
+    const std::unique_ptr<PointGrid> full =
+        pending.empty() ? nullptr : std::make_unique<PointGrid>(points, cell * 1.001);
+    for (const size_t i : pending) {
+      const PointGrid& grid = *full;
       bool found = false;
-      for (int64_t cells = 1; cells <= 8 && !found; cells *= 2) {
+      for (int64_t cells = 2; cells <= 8 && !found; cells *= 2) {
         double best = std::numeric_limits<double>::infinity();
         grid.ForNeighbours(
             points[i], [&](const Eigen::Vector3d& p, uint32_t j) {

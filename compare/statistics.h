@@ -55,6 +55,10 @@ double Coverage(const std::vector<Eigen::Vector3d>& reference_samples, const KdT
 // (no tree to build: cheaper on millions of reached points).
 double Coverage(const std::vector<Eigen::Vector3d>& reference_samples, const std::vector<Eigen::Vector3d>& reached,
                 double radius_mm);
+// Coverage(*sample_sets[k], reached, radius_mm) for every k, bit for bit, from one grid over the
+// reached points (built once instead of once per sample set).
+std::vector<double> Coverages(const std::vector<const std::vector<Eigen::Vector3d>*>& sample_sets,
+                              const std::vector<Eigen::Vector3d>& reached, double radius_mm);
 
 // MedianSpacing(KdTree(points), max_samples) without the tree: a uniform grid answers the
 // samples whose nearest other point lies within its cell, a tree only the others.

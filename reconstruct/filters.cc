@@ -30,15 +30,16 @@ void ParallelFill(std::vector<T>& v, size_t n, const T& value) {
   });
 }
 
+thread_local std::vector<double> scratch_doubles;
+thread_local std::array<std::vector<uint8_t>, 2> scratch_bytes;
+
 std::vector<double>& ScratchDoubles(size_t n, double fill) {
-  thread_local std::vector<double> buffer;
-  std::vector<double>& b = buffer;
+  std::vector<double>& b = scratch_doubles;
   ParallelFill(b, n, fill);
   return b;
 }
 std::vector<uint8_t>& ScratchBytes(size_t n, int slot) {
-  thread_local std::array<std::vector<uint8_t>, 2> buffers;
-  std::vector<uint8_t>& buffer = buffers[static_cast<size_t>(slot)];
+  std::vector<uint8_t>& buffer = scratch_bytes[static_cast<size_t>(slot)];
   ParallelFill(buffer, n, uint8_t{0});
   return buffer;
 }
@@ -46,6 +47,11 @@ std::vector<uint8_t>& ScratchBytes(size_t n, int slot) {
 double Range(const DenseGrid& grid, size_t i) { return (grid.point_in_rig[i] - grid.viewpoint_in_rig).norm(); }
 
 }  // namespace
+
+void ReleaseFilterScratch() {
+  std::vector<double>().swap(scratch_doubles);
+  for (auto& b : scratch_bytes) std::vector<uint8_t>().swap(b);
+}
 
 int64_t FilterDepthDiscontinuities(DenseGrid& grid, double max_jump_footprints, int dilation_px) {
   const int w = grid.width, h = grid.height;

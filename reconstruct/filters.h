@@ -41,4 +41,7 @@ std::vector<Eigen::Vector3f> EstimateNormals(const DenseGrid& grid, int64_t* fal
 // The same into `normals` (resized; its capacity is reused across calls).
 void EstimateNormals(const DenseGrid& grid, std::vector<Eigen::Vector3f>* normals, int64_t* fallback_count = nullptr);
 
+// Frees the calling thread's filter buffers (the next filter call allocates them again).
+void ReleaseFilterScratch();
+
 }  // namespace slshadow

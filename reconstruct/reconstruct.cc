@@ -19,6 +19,14 @@ namespace slshadow {
 
 namespace {
 
+// Per-thread buffers reused by the next reconstruction on the same thread (fresh pages cost page
+// faults); ReleaseReconstructionBuffers frees the calling thread's. (Referenced, not named, inside
+// parallel bodies: a worker naming a thread_local gets its own.)
+thread_local std::vector<float> reproj_buffer, epi_buffer;
+thread_local std::vector<Eigen::Vector3f> normals_buffer;
+thread_local RectifiedMap left_buffer, right_buffer;
+thread_local StereoMatches matches_buffer;
+
 constexpr uint8_t Code(RejectReason r) { return static_cast<uint8_t>(r); }
 
 inline double ReadCoord(const cv::Mat& m, int x, int y) {
@@ -116,9 +124,7 @@ void Finish(const ReconstructOptions& options, Reconstruction* out) {
   DenseGrid& grid = out->grid;
   ReconstructSummary& s = out->summary;
   StageTimer t0;
-  // Per-thread buffers reused by the next reconstruction (fresh pages cost page faults).
-  // (Referenced, not named, inside parallel bodies: a worker naming a thread_local gets its own.)
-  thread_local std::vector<float> reproj_buffer, epi_buffer;
+  // Per-thread buffers (see reproj_buffer above).
   std::vector<float>& reproj = reproj_buffer;
   std::vector<float>& epi = epi_buffer;
   // The residuals of the accepted cells in row-major order, gathered row-parallel: rows are
@@ -173,7 +179,6 @@ void Finish(const ReconstructOptions& options, Reconstruction* out) {
   }
   t0.Elapsed(&s.filter_s, &s.filter_cpu_s);
   t0.Restart();
-  thread_local std::vector<Eigen::Vector3f> normals_buffer;
   std::vector<Eigen::Vector3f>& normals = normals_buffer;
   if (options.estimate_normals) EstimateNormals(grid, &normals, &s.normal_fallbacks);
   out->cloud = grid.ToPointCloud(options.estimate_normals ? &normals : nullptr);
@@ -494,9 +499,7 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
 
   StageTimer t0;
   const StereoRectification rect = ComputeStereoRectification(left, right);
-  // Per-thread buffers reused by the next stereo reconstruction (fresh pages cost page faults).
-  thread_local RectifiedMap left_buffer, right_buffer;
-  thread_local StereoMatches matches_buffer;
+  // Per-thread buffers reused by the next stereo reconstruction (see reproj_buffer above).
   RectifiedMap& lm = left_buffer;
   RectifiedMap& rm = right_buffer;
   const bool cubic = options.stereo_interpolation == StereoInterpolation::kCubic ||
@@ -580,6 +583,18 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
   out.projector_error_px = std::move(projector_error);
   start.Elapsed(&s.total_s, &s.total_cpu_s);
   return out;
+}
+
+void ReleaseReconstructionBuffers() {
+  std::vector<float>().swap(reproj_buffer);
+  std::vector<float>().swap(epi_buffer);
+  std::vector<Eigen::Vector3f>().swap(normals_buffer);
+  left_buffer = RectifiedMap();
+  right_buffer = RectifiedMap();
+  matches_buffer = StereoMatches();
+  ReleaseFilterScratch();
+  ClearRayCache();
+  DenseGrid::ReleasePool();
 }
 
 }  // namespace slshadow

@@ -209,4 +209,10 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left, const 
                                  const ProjectorMap& left_map, const ProjectorMap& right_map,
                                  const ReconstructOptions& options = {});
 
+// Frees what reconstructions keep for the next one: the calling thread's reused buffers (rectified
+// maps, matches, residuals, normals, filter scratch), the ray cache and the grid pool (several
+// hundred MB after a stereo reconstruction of 1920x1200 cameras). The next reconstruction
+// allocates them again; results do not change.
+void ReleaseReconstructionBuffers();
+
 }  // namespace slshadow

@@ -92,7 +92,7 @@ DemoResult RunDemoJob(const DemoOptions& options) {
                     "': needs two cameras and a projector");
   const Scene scene = LoadSceneOrDemo(options.scene_path);
   const PatternSpec spec = LoadPatternSpecOrDemo(options.patterns_path);
-  const std::vector<cv::Mat> projector_images = GeneratePatterns(spec);
+  std::vector<cv::Mat> projector_images = GeneratePatterns(spec);
   const TriangleMesh truth =
       SceneSurface(scene, options.scene_path.empty() ? "demo scene" : options.scene_path.string());
   result.stages.push_back(meter.Stop());
@@ -106,6 +106,7 @@ DemoResult RunDemoJob(const DemoOptions& options) {
   // 2. The virtual scan, in memory.
   meter = StageMeter("simulate (ray cast + patterns)");
   VirtualScan scan = RenderVirtualScan(scene, rig, projector_images);
+  std::vector<cv::Mat>().swap(projector_images);  // ~50 MB not needed any more
   result.stages.push_back(meter.Stop());
   if (verbose) std::printf("%s\n", scan.summary.BriefReport().c_str());
 
@@ -148,16 +149,21 @@ DemoResult RunDemoJob(const DemoOptions& options) {
   // 5. Reconstruct both modes, then compare and report them concurrently: each comparison is
   // parallel inside, but its report (PLY, map, charts) and parts of the comparison are serial.
   const std::vector<std::string> mode_names = {"projector", "stereo"};
-  // One mode at a time: the demo keeps each cloud and summary, not its grid (~100 MB), whose
-  // buffers the next mode reuses.
-  std::vector<Reconstruction> recs;
-  for (const ReconstructMode mode : {ReconstructMode::kProjector, ReconstructMode::kStereo}) {
-    recs.push_back(std::move(ReconstructModes(*decoded, {mode}, reconstruct_options, &result.stages).front()));
-    recs.back().grid = DenseGrid();
-    recs.back().projector_error_px = {};
+  // One mode at a time, stereo first: its working set (rectified maps and matches, ~150 MB more
+  // than the projector mode's) then runs before the other cloud exists. The demo keeps each cloud
+  // and summary, not its grid (~100 MB); after each mode the reconstruction's reused buffers are
+  // freed (the other mode's grid differs in size).
+  std::vector<Reconstruction> recs(mode_names.size());
+  for (const ReconstructMode mode : {ReconstructMode::kStereo, ReconstructMode::kProjector}) {
+    Reconstruction& rec = recs[mode == ReconstructMode::kProjector ? 0 : 1];
+    rec = std::move(
+        ReconstructModes(*decoded, {mode}, reconstruct_options, &result.stages).front());
+    rec.grid = DenseGrid();
+    std::vector<float>().swap(rec.projector_error_px);
+    ReleaseReconstructionBuffers();
+    malloc_trim(0);
   }
-  decoded.reset();  // the maps and the reconstruction's pooled grids are not needed any more
-  DenseGrid::ReleasePool();
+  decoded.reset();  // the maps are not needed any more
   malloc_trim(0);
   if (verbose) {
     for (const auto& rec : recs) std::printf("%s\n", rec.summary.FullReport().c_str());
@@ -172,7 +178,8 @@ DemoResult RunDemoJob(const DemoOptions& options) {
       const std::string& mode = mode_names[k];
       const auto t0 = std::chrono::steady_clock::now();
       compare::CompareResult cmp =
-          compare::Compare(std::move(recs[k].cloud), reference, compare_options, mode + " reconstruction");
+          compare::Compare(std::move(recs[k].cloud), reference, compare_options,
+                           mode + " reconstruction", {&visible});
       const auto t1 = std::chrono::steady_clock::now();
       compare::ReportOptions report_options;
       report_options.view = compare::ViewCamera{image_set.rig().cameras[0].model,
@@ -180,7 +187,7 @@ DemoResult RunDemoJob(const DemoOptions& options) {
       compare::WriteReport(staging / mode, cmp, report_options);
       const auto t2 = std::chrono::steady_clock::now();
       DemoModeResult& m = modes[k];
-      static_cast<ModeAccuracy&>(m) = MeasureAccuracy(mode, cmp, visible);
+      static_cast<ModeAccuracy&>(m) = MeasureAccuracy(mode, cmp, cmp.extra_coverage.front());
       m.report_dir = out_dir / mode;
       if (verbose) {
         char buf[160];

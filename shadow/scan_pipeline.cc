@@ -221,11 +221,16 @@ double VisibleCoverage(const compare::CompareResult& result, const std::vector<E
 
 ModeAccuracy MeasureAccuracy(const std::string& mode, const compare::CompareResult& result,
                              const std::vector<Eigen::Vector3d>& visible) {
+  return MeasureAccuracy(mode, result, VisibleCoverage(result, visible));
+}
+
+ModeAccuracy MeasureAccuracy(const std::string& mode, const compare::CompareResult& result,
+                             double visible_coverage) {
   ModeAccuracy m;
   m.mode = mode;
   m.points = result.compared.size();
   m.coverage = result.coverage;
-  m.visible_coverage = VisibleCoverage(result, visible);
+  m.visible_coverage = visible_coverage;
   m.mean_mm = result.c2c.mean_mm;
   m.rms_mm = result.c2c.rms_mm;
   m.p95_mm = result.c2c.p95_mm;

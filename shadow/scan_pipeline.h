@@ -142,6 +142,10 @@ struct ModeAccuracy {
 };
 ModeAccuracy MeasureAccuracy(const std::string& mode, const compare::CompareResult& result,
                              const std::vector<Eigen::Vector3d>& visible);
+// The same with the visible coverage already measured (e.g. by compare::Compare as an extra
+// coverage sample set: the same value VisibleCoverage gives).
+ModeAccuracy MeasureAccuracy(const std::string& mode, const compare::CompareResult& result,
+                             double visible_coverage);
 // {"mode", "points", "coverage", "visible_coverage", "mean_mm", "rms_mm", "p95_mm", "max_mm",
 //  "outliers", "outlier_fraction"}: what the demo's demo.json and a sweep job's result record.
 nlohmann::json ModeAccuracyToJson(const ModeAccuracy& accuracy);

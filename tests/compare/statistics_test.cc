@@ -133,17 +133,48 @@ TEST(Coverage, GridEqualsTreeAndBruteForce) {
   EXPECT_EQ(Coverage(ref, std::vector<Eigen::Vector3d>{}, 1.0), 0.0);
 }
 
+// Several sample sets from one grid: each the value Coverage gives it alone.
+TEST(Coverage, SeveralSampleSetsEqualEachAlone) {
+  std::mt19937 rng(25);
+  std::uniform_real_distribution<double> u(0.0, 10.0);
+  std::vector<Eigen::Vector3d> a, b, reached;
+  const std::vector<Eigen::Vector3d> empty;
+  for (int i = 0; i < 2000; ++i) a.emplace_back(u(rng), u(rng), 0.05 * u(rng));
+  for (int i = 0; i < 500; ++i) b.emplace_back(u(rng), 0.5 * u(rng), 0.0);
+  for (int i = 0; i < 8000; ++i) {
+    const Eigen::Vector3d p(u(rng), u(rng), 0.02 * u(rng));
+    if (p.x() > 3) reached.push_back(p);
+  }
+  for (const double r : {0.0, 0.02, 0.1, 0.7, 40.0}) {
+    const std::vector<double> all = Coverages({&a, &empty, &b}, reached, r);
+    ASSERT_EQ(all.size(), 3u);
+    EXPECT_EQ(all[0], Coverage(a, reached, r)) << r;
+    EXPECT_EQ(all[1], 0.0);
+    EXPECT_EQ(all[2], Coverage(b, reached, r)) << r;
+    if (r >= 0.7) {
+      EXPECT_GT(all[0], 0.5) << r;  // the test is not vacuous: 70 % of `a` lies by the inliers
+    }
+  }
+  EXPECT_EQ(Coverages({&a, &b}, empty, 1.0), (std::vector<double>{0.0, 0.0}));
+  EXPECT_TRUE(Coverages({}, reached, 1.0).empty());
+}
+
 TEST(MedianSpacing, GridEqualsTree) {
   std::mt19937 rng(24);
   std::uniform_real_distribution<double> u(0.0, 10.0);
   // A dense surface, a sparse volume (many samples fall back to the tree), a line with
   // duplicates, a flat plane, and a single point.
-  std::vector<std::vector<Eigen::Vector3d>> clouds(5);
+  std::vector<std::vector<Eigen::Vector3d>> clouds(6);
   for (int i = 0; i < 50000; ++i) clouds[0].emplace_back(u(rng), u(rng), 0.1 * std::sin(u(rng)));
   for (int i = 0; i < 200; ++i) clouds[1].emplace_back(u(rng), u(rng), u(rng));
   for (int i = 0; i < 1000; ++i) clouds[2].emplace_back(0.5 * (i / 2), 0, 0);
   for (int i = 0; i < 3000; ++i) clouds[3].emplace_back(u(rng), u(rng), 1.0);
   clouds[4].emplace_back(1, 2, 3);
+  // A dense surface with far outliers every 50th point (samples the one-cell grid around the
+  // samples cannot settle).
+  for (int i = 0; i < 20000; ++i) {
+    clouds[5].emplace_back(u(rng), u(rng), i % 50 == 0 ? 5 + u(rng) : 0.01 * u(rng));
+  }
   for (const auto& c : clouds) {
     const KdTree tree(c);
     for (const size_t samples : {size_t{20000}, size_t{100}}) {

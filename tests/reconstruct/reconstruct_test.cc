@@ -1,6 +1,7 @@
 #include "reconstruct/reconstruct.h"
 
 #include <algorithm>
+#include <cstring>
 #include <array>
 #include <cstdio>
 #include <cmath>
@@ -13,6 +14,7 @@
 #include "core/config.h"
 #include "reconstruct/reconstruct_image_set.h"
 #include "core/error.h"
+#include "reconstruct/ray_cache.h"
 #include "tests/reconstruct/analytic_scene.h"
 #include "tests/testing/temp_dir.h"
 
@@ -153,6 +155,36 @@ TEST_F(ReconstructTest, StereoModeExactMapsLandOnTheSurfaceForEveryMethod) {
                      std::to_string(p99) + " " + std::to_string(worst));
       EXPECT_LT(rec.summary.reprojection_error_px.p95, 1e-3);
       EXPECT_LT(rec.summary.epipolar_error_px.p95, 1e-3);  // cross-axis: projector rows agree
+    }
+  }
+}
+
+// ReleaseReconstructionBuffers frees the reused buffers, ray cache and grid pool: the next
+// reconstruction allocates them again and gives the same cloud, bit for bit.
+TEST_F(ReconstructTest, ReleasingTheReusedBuffersChangesNoResult) {
+  const AnalyticView left = RenderAnalytic(rig_, rig_.cameras[0], SphereSurface());
+  const AnalyticView right = RenderAnalytic(rig_, rig_.cameras[1], SphereSurface());
+  const auto run = [&] {
+    return std::make_pair(ReconstructStereo(rig_, "left", "right", left.map, right.map).cloud,
+                          ReconstructWithProjector(rig_, "left", left.map).cloud);
+  };
+  const auto first = run();
+  ReleaseReconstructionBuffers();
+  EXPECT_EQ(RayCacheSize(), 0u);
+  const auto second = run();
+  ReleaseReconstructionBuffers();
+  for (const auto& [a, b] : {std::make_pair(&first.first, &second.first),
+                             std::make_pair(&first.second, &second.second)}) {
+    ASSERT_GT(a->size(), 1000u);
+    ASSERT_EQ(a->size(), b->size());
+    EXPECT_EQ(a->points, b->points);
+    EXPECT_EQ(a->normals, b->normals);
+    ASSERT_EQ(a->scalars.size(), b->scalars.size());
+    for (size_t k = 0; k < a->scalars.size(); ++k) {
+      EXPECT_EQ(a->scalars[k].name, b->scalars[k].name);
+      EXPECT_EQ(0, std::memcmp(a->scalars[k].values.data(), b->scalars[k].values.data(),
+                               a->scalars[k].values.size() * sizeof(float)))
+          << a->scalars[k].name;
     }
   }
 }

@@ -188,6 +188,19 @@ TEST_F(ScanPipeline, AccuracyOfTheGroundTruthCloudIsPerfectAndHalfCoversHalf) {
   EXPECT_GT(part.visible_coverage, 0.45);
   EXPECT_LT(part.visible_coverage, 0.55);
   EXPECT_LT(part.coverage, full.coverage);
+
+  // The visible coverage measured inside Compare (the demo's path, one grid for both sample sets)
+  // is the same double.
+  const compare::CompareResult with_extra =
+      compare::Compare(PointCloud(half), reference, options, "half",
+                       {&visible, &reference.cloud.points});
+  ASSERT_EQ(with_extra.extra_coverage.size(), 2u);
+  EXPECT_EQ(with_extra.extra_coverage[0], part.visible_coverage);
+  EXPECT_EQ(with_extra.extra_coverage[1], part.coverage);
+  EXPECT_EQ(with_extra.coverage, part.coverage);
+  const ModeAccuracy same = MeasureAccuracy("half", with_extra, with_extra.extra_coverage[0]);
+  EXPECT_EQ(same.visible_coverage, part.visible_coverage);
+  EXPECT_EQ(same.rms_mm, part.rms_mm);
 }
 
 // Every image of `b` equals the same (camera, pattern) image of `a`, pixel for pixel, and both have
