@@ -15,6 +15,7 @@
 #include "core/error.h"
 #include "core/file_util.h"
 #include "shadow/sweep.h"
+#include "tests/shadow/sweep_cli.h"
 #include "tests/testing/temp_dir.h"
 
 #include <gtest/gtest.h>
@@ -170,18 +171,9 @@ TEST(MonteCarlo, GnuParallelShardsMergeToTheOneProcessResult) {
   RunSweepShard(tmp / "one", SweepRunOptions{});
   MergeSweep(tmp / "one", tmp / "one_result");
   const std::string bin = SLSHADOW_BINARY;
-  const std::string jobs = (tmp / "par").string();
-  ASSERT_EQ(std::system((bin + " sweep plan " + (tmp / "study.yaml").string() + " --out " + jobs +
-                         " > /dev/null")
-                            .c_str()),
-            0);
-  const std::string cmd = "parallel --will-cite --halt now,fail=1 -j 2 " + bin + " sweep run " +
-                          jobs + " --shard {}/3 ::: 2 0 1 > /dev/null";
-  ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
-  ASSERT_EQ(std::system((bin + " sweep merge " + jobs + " --out " + (tmp / "par_result").string() +
-                         " > /dev/null")
-                            .c_str()),
-            0);
+  ASSERT_EQ(testing::SweepThroughGnuParallel(bin, tmp / "study.yaml", tmp / "par", tmp / "par_result",
+                                             "2 0 1", 3),
+            "");
   // `sweep study`: plan, run and merge in one command; run again, it resumes (nothing to run).
   const std::string whole = bin + " sweep study " + (tmp / "study.yaml").string() + " --out " +
                             (tmp / "whole").string() + " > " + (tmp / "whole.log").string();

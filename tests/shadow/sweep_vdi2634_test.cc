@@ -9,6 +9,7 @@
 #include "core/error.h"
 #include "core/file_util.h"
 #include "shadow/sweep.h"
+#include "tests/shadow/sweep_cli.h"
 #include "tests/testing/temp_dir.h"
 
 #include <gtest/gtest.h>
@@ -237,17 +238,10 @@ TEST(Vdi2634Study, SmallStudyScansFitsAndShardsThroughGnuParallelToTheSameResult
   if (std::system("parallel --version > /dev/null 2>&1") != 0) {
     GTEST_SKIP() << "GNU parallel is not installed (scripts/setup.sh installs it)";
   }
-  const std::string bin = SLSHADOW_BINARY;
-  const std::string jobs = (tmp / "par").string(), result = (tmp / "par_result").string();
-  ASSERT_EQ(std::system((bin + " sweep plan " + (tmp / "study.yaml").string() + " --out " + jobs +
-                         " > /dev/null")
-                            .c_str()),
-            0);
-  const std::string cmd = "parallel --will-cite --halt now,fail=1 -j 2 " + bin + " sweep run " +
-                          jobs + " --shard {}/4 ::: 3 1 2 0 > /dev/null";
-  ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
-  ASSERT_EQ(
-      std::system((bin + " sweep merge " + jobs + " --out " + result + " > /dev/null").c_str()), 0);
+  const std::string result = (tmp / "par_result").string();
+  ASSERT_EQ(testing::SweepThroughGnuParallel(SLSHADOW_BINARY, tmp / "study.yaml", tmp / "par",
+                                             result, "3 1 2 0", 4),
+            "");
   for (const char* f :
        {"results.csv", "results.json", "vdi2634.csv", "vdi2634_summary.csv", "positions.csv"}) {
     EXPECT_EQ(ReadTextFile(tmp / "one_result" / f), ReadTextFile(tmp / "par_result" / f)) << f;
