@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <numbers>
 #include <type_traits>
@@ -611,7 +612,11 @@ class Decoder {
     const cv::v_float32x4 vnan = cv::v_setall_f32(nan);
     const int vec4 = width - width % 4;
     for (int x = 0; x < vec4; x += 4) {
-      const cv::v_uint32x4 st = cv::v_load_expand_q(status + x);
+      // v_load_expand_q reads its 4 bytes as one int: status rows of odd-width maps are not
+      // 4-byte aligned (UB, found by UBSan), so the bytes go through an aligned copy first.
+      uint32_t st4;
+      std::memcpy(&st4, status + x, sizeof st4);
+      const cv::v_uint32x4 st = cv::v_load_expand_q(reinterpret_cast<const uint8_t*>(&st4));
       const cv::v_float32x4 valid = cv::v_reinterpret_as_f32(st == cv::v_setzero_u32());
       cv::v_store(px + x, has_x ? cv::v_select(valid, cv::v_load(cx + x), vnan) : vnan);
       cv::v_store(py + x, has_y ? cv::v_select(valid, cv::v_load(cy + x), vnan) : vnan);
