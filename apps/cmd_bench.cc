@@ -7,10 +7,10 @@
 #include "shadow/bench.h"
 
 namespace slshadow::app {
-using workflow::BenchOptions;
-using workflow::BenchToJson;
-using workflow::FormatBench;
-using workflow::RunBench;
+using shadow::BenchOptions;
+using shadow::BenchToJson;
+using shadow::FormatBench;
+using shadow::RunBench;
 
 int RunBenchCommand(int argc, char** argv) {
   BenchOptions options;

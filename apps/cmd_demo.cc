@@ -6,9 +6,9 @@
 #include "shadow/demo.h"
 
 namespace slshadow::app {
-using workflow::DemoOptions;
-using workflow::DemoResult;
-using workflow::RunDemoJob;
+using shadow::DemoOptions;
+using shadow::DemoResult;
+using shadow::RunDemoJob;
 
 int RunDemo(int argc, char** argv) {
   DemoOptions options;

@@ -23,7 +23,7 @@ int RunShadowCommand(int argc, char** argv) {
   std::string image_set, part_path, out_dir, rig_path;
   std::vector<double> pose;
   bool fixed_pose = false, no_fit = false, overwrite = false, no_clouds = false;
-  workflow::ShadowOptions options;
+  shadow::ShadowOptions options;
   app.add_option("REAL_IMAGESET", image_set, "the real scan (ImageSet folder)")->required()->check(CLI::ExistingDirectory);
   app.add_option("--part", part_path, "the part: mesh (.stl/.ply/.obj) or scene (.yaml)")->required()->check(CLI::ExistingFile);
   app.add_option("--out", out_dir, "report folder")->required();
@@ -60,10 +60,10 @@ int RunShadowCommand(int argc, char** argv) {
   options.fit_physics = !no_fit;
   options.overwrite = overwrite;
   options.write_clouds = !no_clouds;
-  const workflow::ShadowPart part = workflow::LoadShadowPart(part_path);
+  const shadow::ShadowPart part = shadow::LoadShadowPart(part_path);
   std::optional<Rig> rig;
   if (!rig_path.empty()) rig = LoadRig(rig_path);
-  const workflow::ShadowResult result = workflow::RunShadow(image_set, part, options, out_dir, rig ? &*rig : nullptr);
+  const shadow::ShadowResult result = shadow::RunShadow(image_set, part, options, out_dir, rig ? &*rig : nullptr);
   std::printf("%sreport: %s\n", result.Summary().c_str(), out_dir.c_str());
   return 0;
 }

@@ -66,31 +66,31 @@ int RunSweep(int argc, char** argv) {
     if (std::filesystem::exists(jobs_dir / "plan.json", ec)) {
       std::printf("resuming %s\n", jobs_dir.string().c_str());
     } else {
-      const workflow::SweepPlanSummary s = workflow::PlanSweep(study, jobs_dir);
+      const shadow::SweepPlanSummary s = shadow::PlanSweep(study, jobs_dir);
       std::printf("study %s: %d jobs (%d geometry groups) in %s\n", s.study.c_str(), s.jobs,
                   s.geometry_groups, jobs_dir.string().c_str());
     }
     jobs = jobs_dir.string();
   }
   if (plan->parsed()) {
-    const workflow::SweepPlanSummary s = workflow::PlanSweep(study, out);
+    const shadow::SweepPlanSummary s = shadow::PlanSweep(study, out);
     std::printf("study %s: %d jobs (%d geometry groups) in %s\n", s.study.c_str(), s.jobs,
                 s.geometry_groups, out.c_str());
   }
   if (run->parsed() || whole->parsed()) {
-    workflow::SweepRunOptions options;
-    workflow::ParseShard(shard, "--shard", &options);
+    shadow::SweepRunOptions options;
+    shadow::ParseShard(shard, "--shard", &options);
     options.verbose = verbose;
     std::string source;
     const int budget = ResolveThreadBudget(threads, &source);
     if (budget > 0) SetThreadBudget(budget);
     std::printf("threads: %d (%s)\n", ThreadBudget(), source.c_str());
-    const workflow::SweepRunSummary s = workflow::RunSweepShard(jobs, options);
+    const shadow::SweepRunSummary s = shadow::RunSweepShard(jobs, options);
     std::printf("shard %d/%d: %s\n", options.shard_index, options.shard_count,
                 s.BriefReport().c_str());
   }
   if (merge->parsed() || whole->parsed()) {
-    const workflow::SweepMergeSummary s = workflow::MergeSweep(jobs, out);
+    const shadow::SweepMergeSummary s = shadow::MergeSweep(jobs, out);
     std::printf("%d jobs merged: %d rows in %s/results.csv (+ results.json, timings.csv)\n", s.jobs,
                 s.rows, out.c_str());
     std::printf(

@@ -29,7 +29,7 @@
 #include "sim/simulate.h"
 #include "shadow/scan_pipeline.h"
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 namespace {
 
 struct Timing {
@@ -486,4 +486,4 @@ std::string BenchToJson(const std::vector<BenchEntry>& entries, const BenchOptio
   return json.dump(2) + "\n";
 }
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

@@ -22,7 +22,7 @@
 #include <string>
 #include <vector>
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 
 struct BenchOptions {
   int repetitions = 5;              // per entry; the median is reported
@@ -65,4 +65,4 @@ std::string FormatBench(const std::vector<BenchEntry>& entries);
 // exactly (round-trip doubles); docs/benchmarks.md is rendered from such a file.
 std::string BenchToJson(const std::vector<BenchEntry>& entries, const BenchOptions& options);
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

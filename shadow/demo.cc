@@ -20,7 +20,7 @@
 #include "shadow/scan_pipeline.h"
 #include "sim/simulate.h"
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 namespace fs = std::filesystem;
 
 namespace {
@@ -221,4 +221,4 @@ DemoResult RunDemoJob(const DemoOptions& options) {
   return result;
 }
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

@@ -15,7 +15,7 @@
 #include "core/stage_meter.h"
 #include "shadow/scan_pipeline.h"
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 
 struct DemoOptions {
   std::filesystem::path out_dir = "slshadow-demo";  // replaced only if it holds an earlier demo
@@ -48,4 +48,4 @@ struct DemoResult {
 // atomically (a complete new folder replaces an earlier demo output).
 DemoResult RunDemoJob(const DemoOptions& options);
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

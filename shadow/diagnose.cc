@@ -11,7 +11,7 @@
 #include "compare/kdtree.h"
 #include "core/error.h"
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 namespace {
 
 double Median(std::vector<double> v) {
@@ -715,4 +715,4 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
   return diag;
 }
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

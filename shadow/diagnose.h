@@ -40,7 +40,7 @@
 #include "patterns/pattern_spec.h"
 #include "shadow/physics_fit.h"
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 
 struct DiagnoseOptions {
   double calibration_field_px = 0.25;   // field RMS above this: calibration error
@@ -103,4 +103,4 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
 // empty Mat when fewer than 50 samples.
 cv::Mat SmoothField(const cv::Mat& residual, const cv::Mat& mask, double* rms_px = nullptr, double* mean_px = nullptr);
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

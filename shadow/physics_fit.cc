@@ -11,7 +11,7 @@
 #include "core/error.h"
 #include "patterns/codec.h"
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 namespace {
 
 constexpr int kBands = 8;
@@ -1293,4 +1293,4 @@ void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras, const
   fit->layers.push_back(d);
 }
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

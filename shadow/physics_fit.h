@@ -62,7 +62,7 @@
 #include "sim/renderer.h"
 #include "sim/scene.h"
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 
 struct PhysicsLayer {
   std::string name;       // "exposure", "albedo_<object>", "albedo_dark", "ambient", "gamma", "defocus", "noise"
@@ -164,4 +164,4 @@ std::vector<int> ModulationFrames(const PatternSpec& spec);
 // The fringe period the modulation above refers to, projector px.
 double ModulationPeriodPx(const PatternSpec& spec);
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

@@ -9,7 +9,7 @@
 #include "core/error.h"
 #include "shadow/demo_config.h"  // generated: the embedded config/demo files
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 namespace fs = std::filesystem;
 
 Rig LoadRigOrDemo(const fs::path& path) {
@@ -255,4 +255,4 @@ nlohmann::json ModeAccuracyToJson(const ModeAccuracy& m) {
           {"outlier_fraction", m.outlier_fraction}};
 }
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

@@ -3,8 +3,8 @@
 // real capture is written; an ImageSet decoded once and reconstructed in any set of modes from
 // those maps; a cloud compared against a reference with the demo's coverage figures.
 //
-// Namespace slshadow::workflow: the shadow/ folder holds workflows (DESIGN.md); `shadow::` would
-// read as the code of the one workflow called `slshadow shadow`.
+// Namespace slshadow::shadow, the module's name as for every module above the foundation
+// (docs/conventions.md): it holds all the workflows (DESIGN.md), not only `slshadow shadow`'s.
 //
 // Frames and units: rig frame (the first camera's), mm, px (OpenCV's pixel convention).
 #pragma once
@@ -30,7 +30,7 @@
 #include "sim/scene.h"
 #include "sim/simulate.h"
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 
 // ---- Configuration: the embedded demo (config/demo/, compiled in) or a file in its place.
 
@@ -150,4 +150,4 @@ ModeAccuracy MeasureAccuracy(const std::string& mode, const compare::CompareResu
 //  "outliers", "outlier_fraction"}: what the demo's demo.json and a sweep job's result record.
 nlohmann::json ModeAccuracyToJson(const ModeAccuracy& accuracy);
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

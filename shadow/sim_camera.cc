@@ -5,7 +5,7 @@
 #include "core/error.h"
 #include "sim/raycaster.h"
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 
 void ShownPattern::Load(std::vector<cv::Mat> images) {
   std::lock_guard<std::mutex> lock(mutex_);
@@ -204,4 +204,4 @@ void SimCamera::Flush() { pending_.clear(); }
 
 capture::StreamStatistics SimCamera::Statistics() const { return statistics_; }
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

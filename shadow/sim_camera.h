@@ -28,7 +28,7 @@
 #include "sim/renderer.h"
 #include "sim/scene.h"
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 
 // What the projector currently shows: the loaded sequence and the index on the output (or
 // black). Shared between a SimProjector and the SimCameras that look at its light. Thread-safe.
@@ -115,4 +115,4 @@ class SimCamera : public capture::Camera {
   capture::StreamStatistics statistics_;
 };
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

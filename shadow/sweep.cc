@@ -30,7 +30,7 @@
 #include <optional>
 #include <set>
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 namespace fs = std::filesystem;
 using nlohmann::json;
 
@@ -1224,4 +1224,4 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
   return summary;
 }
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

@@ -27,7 +27,7 @@
 #include <string>
 #include <vector>
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 
 // ---- Plan.
 
@@ -103,4 +103,4 @@ struct SweepMergeSummary {
 SweepMergeSummary MergeSweep(const std::filesystem::path& jobs_dir,
                              const std::filesystem::path& out_dir);
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

@@ -18,7 +18,7 @@
 #include <limits>
 #include <random>
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 namespace fs = std::filesystem;
 using nlohmann::json;
 
@@ -314,4 +314,4 @@ std::vector<std::string> WriteMonteCarloResults(const fs::path& jobs_dir, const 
               " 90..98 %); median replicate sd / u = " + Num(ratio, 4)};
 }
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

@@ -28,7 +28,7 @@ class ConfigNode;
 struct DenseGrid;
 }  // namespace slshadow
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 
 // Standard deviations of the rig's parameters where the rig carries no covariance.
 struct RigSigma {
@@ -78,4 +78,4 @@ std::vector<std::string> WriteMonteCarloResults(const std::filesystem::path& job
                                                 const nlohmann::json& viewpoint,
                                                 const std::string& study);
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

@@ -15,7 +15,7 @@
 #include <cstdint>
 #include <limits>
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 
 std::string NoiseFreeImages::Key(const nlohmann::json& scene, const nlohmann::json& patterns) {
   nlohmann::json s = scene;
@@ -303,4 +303,4 @@ ModeAccuracy GroundTruthScorer::Measure(const PointCloud& cloud,
   return m;
 }
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

@@ -32,7 +32,7 @@
 #include <string>
 #include <vector>
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 
 // The noise-free irradiance images of one pattern sequence seen by every camera of a Simulator.
 class NoiseFreeImages {
@@ -96,4 +96,4 @@ class GroundTruthScorer {
   std::unique_ptr<const SampleGrid> samples_;
 };
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

@@ -16,7 +16,7 @@
 #include <map>
 #include <set>
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 namespace fs = std::filesystem;
 using nlohmann::json;
 
@@ -672,4 +672,4 @@ std::vector<std::string> WriteVdi2634Results(const fs::path& out_dir,
   return lines;
 }
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

@@ -30,7 +30,7 @@ namespace slshadow {
 class ConfigNode;
 }  // namespace slshadow
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 
 // An axis-aligned box in the rig frame (the first camera's frame).
 struct MeasuringVolume {
@@ -101,4 +101,4 @@ std::vector<std::string> WriteVdi2634Results(const std::filesystem::path& out_di
                                              const nlohmann::json& plan_vdi2634,
                                              const std::string& study);
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

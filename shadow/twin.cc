@@ -29,7 +29,7 @@
 #include "plot/plot.h"
 #include "sim/simulate.h"
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 namespace fs = std::filesystem;
 
 namespace {
@@ -946,4 +946,4 @@ ShadowResult RunShadow(const fs::path& image_set_dir, const ShadowPart& part, co
   return RunShadowOnImages(rig ? *rig : set.rig(), spec, images, part, options, out_dir, image_set_dir.string(), {read});
 }
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

@@ -39,7 +39,7 @@
 #include "shadow/physics_fit.h"
 #include "sim/scene.h"
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 
 // The part: its objects (in the part's own frame: each object's rig_from_object is read as
 // part_from_object) with their albedo, and its surface for registration and C2M.
@@ -99,4 +99,4 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
 ShadowResult RunShadow(const std::filesystem::path& image_set_dir, const ShadowPart& part, const ShadowOptions& options,
                        const std::filesystem::path& out_dir, const Rig* rig = nullptr);
 
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

@@ -15,7 +15,7 @@
 #include <tbb/parallel_for.h>
 
 #include "core/error.h"
-#include "sim/lanes.h"
+#include "sim/internal/lanes.h"
 #include "sim/pooled_mats.h"
 
 namespace slshadow {
@@ -24,7 +24,7 @@ namespace {
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 constexpr int kBlock = 4;  // 4 x 4 pixels = one packet of 16 rays
 
-using namespace lanes;  // NOLINT: the lane vector helpers of sim/lanes.h
+using namespace lanes;  // NOLINT: the lane vector helpers of sim/internal/lanes.h
 
 inline V4l Wide(V4i mask) { return __builtin_convertvector(mask, V4l); }
 inline V4d ToDouble(V4f v) { return __builtin_convertvector(v, V4d); }

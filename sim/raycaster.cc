@@ -13,7 +13,7 @@
 #include <tbb/parallel_for.h>
 
 #include "core/error.h"
-#include "sim/lanes.h"
+#include "sim/internal/lanes.h"
 
 namespace slshadow {
 namespace {
@@ -22,7 +22,7 @@ constexpr float kInf = std::numeric_limits<float>::infinity();
 // Up to this many analytic primitives are tested outside Embree by every ray.
 constexpr std::ptrdiff_t kMaxDirectPrimitives = 8;
 
-using namespace lanes;  // NOLINT: the lane vector helpers of sim/lanes.h
+using namespace lanes;  // NOLINT: the lane vector helpers of sim/internal/lanes.h
 
 // A packet's 16 float lanes as doubles (exact). A plain loop: GCC converts whole registers
 // there, but one 4-float vector through two halves.

@@ -9,7 +9,7 @@
 #include "core/error.h"
 #include "patterns/pattern_spec.h"
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 namespace {
 
 // `--only decode` runs exactly the decode entry, over the demo's own pattern sequence (its
@@ -61,4 +61,4 @@ TEST(Bench, BadOptionsAreNamed) {
 }
 
 }  // namespace
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

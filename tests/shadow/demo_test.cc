@@ -10,7 +10,7 @@
 #include "core/point_cloud.h"
 #include "tests/testing/temp_dir.h"
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 namespace {
 
 // The whole digital-shadow loop on the embedded demo, checked against the accuracy goal:
@@ -87,4 +87,4 @@ TEST(Demo, RefusesToReplaceAFolderThatIsNotADemoOutput) {
 }
 
 }  // namespace
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

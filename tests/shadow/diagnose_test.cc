@@ -5,7 +5,7 @@
 
 #include <gtest/gtest.h>
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 namespace {
 
 // The robust quadratic field recovers a planted smooth field under noise and 10 % gross outliers
@@ -40,4 +40,4 @@ TEST(Diagnose, SmoothFieldRecoversPlantedQuadratic) {
 }
 
 }  // namespace
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

@@ -24,8 +24,8 @@ constexpr double kSquareMm = 75;
 // simulator's checkerboard has its corner square (at -75..0, -75..0) dark; when the real board's
 // corner square is light the plane is turned 180 degrees about its y axis, which mirrors the
 // texture onto the other (dark) corner.
-workflow::ShadowPart KaminoBoard(bool flipped) {
-  workflow::ShadowPart part;
+shadow::ShadowPart KaminoBoard(bool flipped) {
+  shadow::ShadowPart part;
   part.source = flipped ? "kamino board (texture mirrored)" : "kamino board";
   SceneObject o;
   o.name = "board";
@@ -46,7 +46,7 @@ workflow::ShadowPart KaminoBoard(bool flipped) {
   part.scene.radiometry.exposure = 0.5;
   part.scene.layers.supersampling = 3;  // anti-aliased square edges, as a real lens gives
   part.scene.objects.push_back(o);
-  part.surface = workflow::SceneSurface(part.scene, part.source, workflow::kPartPlaneCells);
+  part.surface = shadow::SceneSurface(part.scene, part.source, shadow::kPartPlaneCells);
   return part;
 }
 
@@ -110,7 +110,7 @@ TEST(ShadowKamino, RealVsVirtualPerPose) {
       return px ? static_cast<double>(white.at<uint8_t>(static_cast<int>(std::lround(px->y())), static_cast<int>(std::lround(px->x())))) : 0.0;
     };
     const bool flipped = sample(-37.5, -37.5) > sample(37.5, -37.5);
-    workflow::ShadowOptions options;
+    shadow::ShadowOptions options;
     options.rig_from_part = rig_from_board;
     options.refine_pose = false;  // a plane leaves registration blind in-plane: the calibration's pose
     options.decode.shadow_threshold = 40;
@@ -119,7 +119,7 @@ TEST(ShadowKamino, RealVsVirtualPerPose) {
     // SLSHADOW_KEEP_KAMINO_SHADOW=DIR keeps the report folders (maps, clouds) for a look.
     const char* keep = std::getenv("SLSHADOW_KEEP_KAMINO_SHADOW");
     const auto out = (keep ? std::filesystem::path(keep) : tmp.path()) / ("shadow_" + std::to_string(p));
-    const workflow::ShadowResult r = workflow::RunShadow(tmp / ("capture_" + std::to_string(p)), KaminoBoard(flipped), options, out, &rig);
+    const shadow::ShadowResult r = shadow::RunShadow(tmp / ("capture_" + std::to_string(p)), KaminoBoard(flipped), options, out, &rig);
     std::printf("%s\n", r.Summary().c_str());
     const auto& cam = r.report["images"]["cameras"][0];
     const auto& pc = cam["projector_coordinates"];

@@ -9,7 +9,7 @@
 #include "patterns/codec.h"
 #include "tests/testing/temp_dir.h"
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 namespace {
 
 // Camera images of the demo spec (phase shift + complementary Gray code, no white / black frame)
@@ -89,4 +89,4 @@ TEST(PhysicsFit, OptionsCheckNamesTheField) {
 }
 
 }  // namespace
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

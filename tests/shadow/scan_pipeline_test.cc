@@ -8,7 +8,7 @@
 #include "core/error.h"
 #include "tests/testing/temp_dir.h"
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 namespace {
 
 // Byte equality of two images (type, size and every byte; NaN payloads compare as bytes).
@@ -289,4 +289,4 @@ TEST_F(ScanPipeline, RedoRefusesScansItCannotRebuild) {
 }
 
 }  // namespace
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

@@ -9,7 +9,7 @@
 #include "shadow/scan_pipeline.h"
 #include "sim/simulate.h"
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 namespace {
 
 bool SameBytes(const cv::Mat& a, const cv::Mat& b) {
@@ -160,4 +160,4 @@ TEST(SimCamera, RefusedSettingsAndImagesAreNamed) {
 }
 
 }  // namespace
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

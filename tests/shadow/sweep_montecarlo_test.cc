@@ -29,7 +29,7 @@
 #include <string>
 #include <vector>
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 namespace {
 namespace fs = std::filesystem;
 using nlohmann::json;
@@ -208,4 +208,4 @@ TEST(MonteCarlo, BadInputNamesTheField) {
 }
 
 }  // namespace
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

@@ -20,7 +20,7 @@
 #include <utility>
 #include <vector>
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 namespace {
 using testing::SourceDir;
 
@@ -233,4 +233,4 @@ TEST(GroundTruthScorer, EqualsCompareThenMeasureAccuracy) {
 }
 
 }  // namespace
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

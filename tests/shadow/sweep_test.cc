@@ -21,7 +21,7 @@
 #include <string>
 #include <vector>
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 namespace {
 namespace fs = std::filesystem;
 using testing::SourceDir;
@@ -481,4 +481,4 @@ TEST(Sweep, BadStudiesAreRejectedNamingFileAndFieldAndWriteNothing) {
 }
 
 }  // namespace
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

@@ -23,7 +23,7 @@
 #include <string>
 #include <vector>
 
-namespace slshadow::workflow {
+namespace slshadow::shadow {
 namespace {
 namespace fs = std::filesystem;
 using nlohmann::json;
@@ -249,4 +249,4 @@ TEST(Vdi2634Study, SmallStudyScansFitsAndShardsThroughGnuParallelToTheSameResult
 }
 
 }  // namespace
-}  // namespace slshadow::workflow
+}  // namespace slshadow::shadow

@@ -42,8 +42,8 @@ inline Rigid3d DemoPartPose() {
 }
 
 // The part as the shadow reads a mesh file: one mesh object, albedo 0.8.
-inline workflow::ShadowPart PartFromMesh(const TriangleMesh& mesh, const std::string& name) {
-  workflow::ShadowPart part;
+inline shadow::ShadowPart PartFromMesh(const TriangleMesh& mesh, const std::string& name) {
+  shadow::ShadowPart part;
   part.source = name;
   SceneObject o;
   o.name = name;

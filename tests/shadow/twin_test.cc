@@ -44,11 +44,11 @@ TEST(ShadowTwin, CleanSyntheticScanEndToEnd) {
   const PatternSpec spec = testing::DemoSpec();
   const Rigid3d truth = DemoPartPose();
   WriteImageSet(tmp / "real", rig, spec, testing::Render(testing::RealScene(DemoPart(), truth), rig, spec));
-  const workflow::ShadowPart part = testing::PartFromMesh(DemoPart(), "demo_part");
-  workflow::ShadowOptions options;
+  const shadow::ShadowPart part = testing::PartFromMesh(DemoPart(), "demo_part");
+  shadow::ShadowOptions options;
   options.rig_from_part = Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.5 * M_PI / 180, Eigen::Vector3d::UnitX())) * truth.rotation,
                                   truth.translation + Eigen::Vector3d(1, 0, 0));
-  const workflow::ShadowResult r = workflow::RunShadow(tmp / "real", part, options, tmp / "out");
+  const shadow::ShadowResult r = shadow::RunShadow(tmp / "real", part, options, tmp / "out");
   std::printf("%s\n", r.Summary().c_str());
   EXPECT_LT((r.rig_from_part.translation - truth.translation).norm(), 0.1);
   EXPECT_LT(compare::RotationDifferenceDeg(r.rig_from_part, truth), 0.02);
@@ -135,7 +135,7 @@ TEST(ShadowTwin, ConfusionTableNamesEachCauseAndNoOther) {
   const Rig rig = testing::HalfDemoRig();
   const PatternSpec spec = testing::DemoSpec();
   const Rigid3d truth = DemoPartPose();
-  const workflow::ShadowPart part = testing::PartFromMesh(DemoPart(), "demo_part");
+  const shadow::ShadowPart part = testing::PartFromMesh(DemoPart(), "demo_part");
   const std::vector<Case> cases = {{"clean", {}},
                                    {"gamma 2.2", {"projector_response"}},
                                    {"projector bumped 0.1 deg", {"calibration"}},
@@ -178,9 +178,9 @@ TEST(ShadowTwin, ConfusionTableNamesEachCauseAndNoOther) {
       ASSERT_GE(b, 0);
       for (auto& [camera, frames_of_camera] : images) std::swap(frames_of_camera[static_cast<size_t>(a)], frames_of_camera[static_cast<size_t>(b)]);
     }
-    workflow::ShadowOptions options;
+    shadow::ShadowOptions options;
     options.rig_from_part = truth;
-    const workflow::ShadowResult r = workflow::RunShadowOnImages(rig, spec, images, part, options);
+    const shadow::ShadowResult r = shadow::RunShadowOnImages(rig, spec, images, part, options);
     std::string named;
     for (const auto& cause : r.diagnosis.causes) named += (named.empty() ? "" : ", ") + cause;
     // The evidence behind each signature, for the table in docs/benchmarks.md.
@@ -295,19 +295,19 @@ TEST(ShadowTwin, ExposureTimesAlbedoPerObject) {
   table.albedo.value = 0.4;
   table.rig_from_object = Rigid3d(truth.rotation, truth.translation + truth.rotation * Eigen::Vector3d(0, 0, -0.05));
   real.objects.push_back(table);
-  workflow::ShadowPart part = testing::PartFromMesh(DemoPart(), "demo_part");
+  shadow::ShadowPart part = testing::PartFromMesh(DemoPart(), "demo_part");
   SceneObject table_in_part = table;
   table_in_part.albedo.value = 0.8;
   table_in_part.rig_from_object = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0, -0.05));
   part.scene.objects.push_back(table_in_part);
-  part.surface = workflow::SceneSurface(part.scene, "part + table", workflow::kPartPlaneCells);
-  workflow::ShadowOptions options;
+  part.surface = shadow::SceneSurface(part.scene, "part + table", shadow::kPartPlaneCells);
+  shadow::ShadowOptions options;
   options.rig_from_part = truth;
-  const workflow::ShadowResult r = workflow::RunShadowOnImages(rig, spec, testing::Render(real, rig, spec), part, options);
+  const shadow::ShadowResult r = shadow::RunShadowOnImages(rig, spec, testing::Render(real, rig, spec), part, options);
   std::printf("%s", r.physics.Table().c_str());
   const double e = r.physics.Find("exposure")->value;
-  const workflow::PhysicsLayer* part_albedo = r.physics.Find("albedo_demo_part");
-  const workflow::PhysicsLayer* table_albedo = r.physics.Find("albedo_table");
+  const shadow::PhysicsLayer* part_albedo = r.physics.Find("albedo_demo_part");
+  const shadow::PhysicsLayer* table_albedo = r.physics.Find("albedo_table");
   ASSERT_TRUE(part_albedo || table_albedo);
   if (table_albedo) {  // the part is the reference object
     EXPECT_NEAR(e * 0.8, 0.8 * 0.7, 0.01);
@@ -382,7 +382,7 @@ void AddCameraPhysics(const PatternSpec& spec, const CameraPhysics& truth, std::
   }
 }
 
-workflow::ShadowResult ShadowBoard(const CameraPhysics& truth) {
+shadow::ShadowResult ShadowBoard(const CameraPhysics& truth) {
   const Rig rig = testing::HalfDemoRig();
   PatternSpec spec;
   spec.kind = PatternKind::kGrayCode;
@@ -398,15 +398,15 @@ workflow::ShadowResult ShadowBoard(const CameraPhysics& truth) {
   real.layers.seed = 99;
   std::map<std::string, std::vector<cv::Mat>> images = testing::Render(real, rig, spec);
   for (auto& [camera, frames] : images) AddCameraPhysics(spec, truth, &frames);
-  workflow::ShadowPart part;
+  shadow::ShadowPart part;
   part.source = "board";
   part.scene = BoardScene(true);
-  part.surface = workflow::SceneSurface(part.scene, part.source, workflow::kPartPlaneCells);
-  workflow::ShadowOptions options;
+  part.surface = shadow::SceneSurface(part.scene, part.source, shadow::kPartPlaneCells);
+  shadow::ShadowOptions options;
   options.rig_from_part = BoardPose();
   options.refine_pose = false;
   options.write_clouds = false;
-  workflow::ShadowResult r = workflow::RunShadowOnImages(rig, spec, images, part, options);
+  shadow::ShadowResult r = shadow::RunShadowOnImages(rig, spec, images, part, options);
   std::printf("%s\n", r.physics.Table().c_str());
   return r;
 }
@@ -421,22 +421,22 @@ TEST(ShadowTwin, BlackLevelIlluminationAndGlobalLightRecovered) {
   truth.cu = 0.06;
   truth.cv = -0.04;
   truth.cuu = 0.05;
-  const workflow::ShadowResult r = ShadowBoard(truth);
+  const shadow::ShadowResult r = ShadowBoard(truth);
   for (const std::string camera : {"left", "right"}) {
-    const workflow::PhysicsLayer* bl = r.physics.Find("black_level_" + camera);
+    const shadow::PhysicsLayer* bl = r.physics.Find("black_level_" + camera);
     ASSERT_NE(bl, nullptr);
     EXPECT_TRUE(bl->kept) << bl->reason;
     // Within max(3 sigma, the keep floor 0.002 FS = 0.5 DN): the jackknife sigma does not see the
     // bias of a mean of integers when the black frame's noise is below 1 DN (0.14 DN here).
     EXPECT_NEAR(bl->value, truth.offset_dn, std::max(3 * bl->sigma, 0.002 * 255)) << camera;
-    const workflow::PhysicsLayer* il = r.physics.Find("illumination_" + camera);
+    const shadow::PhysicsLayer* il = r.physics.Find("illumination_" + camera);
     ASSERT_NE(il, nullptr);
     EXPECT_TRUE(il->kept) << il->reason;
     // The fitted field times the exposure is the true one times the true exposure, at every lit
     // pixel (the fit leaves the split between E and the field's mean free).
     const Rig rig = testing::HalfDemoRig();
     const auto& model = rig.cameras[static_cast<size_t>(rig.CameraIndex(camera))].model;
-    const cv::Mat g = workflow::IlluminationField(r.physics, camera, model.width, model.height);
+    const cv::Mat g = shadow::IlluminationField(r.physics, camera, model.width, model.height);
     const double e = r.physics.Find("exposure")->value;
     double worst = 0;
     for (int y = 0; y < model.height; y += 10) {
@@ -449,9 +449,9 @@ TEST(ShadowTwin, BlackLevelIlluminationAndGlobalLightRecovered) {
   EXPECT_NEAR(r.physics.Find("global_light")->value, truth.global, 3 * r.physics.Find("global_light")->sigma + 0.01);
   for (const auto& cam : r.report["images"]["cameras"]) EXPECT_GT(cam["within_5pct_all_frames"].get<double>(), 0.99) << cam["camera"];
 
-  const workflow::ShadowResult clean = ShadowBoard(CameraPhysics{});
+  const shadow::ShadowResult clean = ShadowBoard(CameraPhysics{});
   for (const std::string camera : {"left", "right"}) {
-    const workflow::PhysicsLayer* bl = clean.physics.Find("black_level_" + camera);
+    const shadow::PhysicsLayer* bl = clean.physics.Find("black_level_" + camera);
     ASSERT_NE(bl, nullptr);
     EXPECT_TRUE(bl->observable) << bl->reason;
     EXPECT_FALSE(bl->kept) << bl->reason;
@@ -478,13 +478,13 @@ TEST(ShadowTwin, CalibrationFieldNamesItsFocalLengthEquivalent) {
   const PatternSpec spec = testing::DemoSpec();
   const Rigid3d truth = DemoPartPose();
   const auto images = testing::Render(testing::RealScene(DemoPart(), truth), real_rig, spec);
-  workflow::ShadowOptions options;
+  shadow::ShadowOptions options;
   options.rig_from_part = truth;
   options.write_clouds = false;
-  const workflow::ShadowResult r =
-      workflow::RunShadowOnImages(rig, spec, images, testing::PartFromMesh(DemoPart(), "demo_part"), options);
+  const shadow::ShadowResult r =
+      shadow::RunShadowOnImages(rig, spec, images, testing::PartFromMesh(DemoPart(), "demo_part"), options);
   std::printf("%s\n", r.diagnosis.Summary().c_str());
-  const workflow::Finding* cal = nullptr;
+  const shadow::Finding* cal = nullptr;
   for (const auto& f : r.diagnosis.findings) {
     if (f.cause == "calibration") cal = &f;
   }
