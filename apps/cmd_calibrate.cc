@@ -35,7 +35,8 @@ namespace fs = std::filesystem;
 std::pair<int, int> ParseSize(const std::string& s, const std::string& option) {
   int w = 0, h = 0;
   char x = 0;
-  if (std::sscanf(s.c_str(), "%d%c%d", &w, &x, &h) != 3 || (x != 'x' && x != 'X') || w <= 0 || h <= 0) {
+  if (std::sscanf(s.c_str(), "%d%c%d", &w, &x, &h) != 3 || (x != 'x' && x != 'X') || w <= 0 ||
+      h <= 0) {
     SLSHADOW_THROW(option, ": expected WIDTHxHEIGHT in pixels, e.g. 1024x768 (got '", s, "')");
   }
   return {w, h};
@@ -60,34 +61,58 @@ struct CommonOptions {
   bool principal_point_inside = false;
 
   void Add(CLI::App* app, bool needs_target = true) {
-    auto* t = app->add_option("--target", target, "target YAML (docs/formats.md, \"Calibration target YAML\"; examples in config/targets/)");
+    auto* t = app->add_option(
+        "--target", target,
+        "target YAML (docs/formats.md, \"Calibration target YAML\"; examples in config/targets/)");
     if (needs_target) t->required();
-    app->add_option("--out", out, "rig file to write (YAML, docs/formats.md \"Rig YAML\"); keeps the calibration evidence")->required();
-    app->add_option("--report", report, "report folder (summary.json, report.txt, PNG charts); default: <out without extension>_report");
-    app->add_option("--opencv-out", opencv_out, "also write an OpenCV FileStorage file (.yml/.xml: camera_matrix... or M1 D1 M2 D2 R T)");
+    app->add_option(
+           "--out", out,
+           "rig file to write (YAML, docs/formats.md \"Rig YAML\"); keeps the calibration evidence")
+        ->required();
+    app->add_option("--report", report,
+                    "report folder (summary.json, report.txt, PNG charts); default: <out without "
+                    "extension>_report");
+    app->add_option(
+        "--opencv-out", opencv_out,
+        "also write an OpenCV FileStorage file (.yml/.xml: camera_matrix... or M1 D1 M2 D2 R T)");
     app->add_option("--name", name, "rig name")->capture_default_str();
     app->add_flag("--fix-aspect", fix_aspect, "hold fy/fx at 1 (OpenCV CALIB_FIX_ASPECT_RATIO)");
-    app->add_flag("--fix-principal-point", fix_principal_point, "hold cx, cy at the image centre (CALIB_FIX_PRINCIPAL_POINT)");
+    app->add_flag("--fix-principal-point", fix_principal_point,
+                  "hold cx, cy at the image centre (CALIB_FIX_PRINCIPAL_POINT)");
     app->add_flag("--zero-tangential", zero_tangential, "p1 = p2 = 0 (CALIB_ZERO_TANGENT_DIST)");
     app->add_flag("--fix-k3", fix_k3, "k3 = 0 (CALIB_FIX_K3)");
-    app->add_option("--loss", loss, "robust loss on point residuals: none, huber or cauchy")->capture_default_str();
-    app->add_option("--loss-scale-px", loss_scale_px, "residual (px) where the robust loss starts to bend")->capture_default_str();
-    app->add_flag("--no-cross-validation", no_cross_validation, "skip calibrating the even and odd poses separately");
-    app->add_flag("--board-warp", board_warp, "estimate a board warp (two paraboloid terms, mm) shared by all poses");
-    app->add_option("--min-views", min_views, "fewer views per device than this is reported as too few")->capture_default_str();
+    app->add_option("--loss", loss, "robust loss on point residuals: none, huber or cauchy")
+        ->capture_default_str();
+    app->add_option("--loss-scale-px", loss_scale_px,
+                    "residual (px) where the robust loss starts to bend")
+        ->capture_default_str();
+    app->add_flag("--no-cross-validation", no_cross_validation,
+                  "skip calibrating the even and odd poses separately");
+    app->add_flag("--board-warp", board_warp,
+                  "estimate a board warp (two paraboloid terms, mm) shared by all poses");
+    app->add_option("--min-views", min_views,
+                    "fewer views per device than this is reported as too few")
+        ->capture_default_str();
   }
   // Camera-projector commands only.
   void AddSelectModel(CLI::App* app) {
     app->add_flag("--select-model", select_model,
-                  "choose the distortion models (cameras: k1 k2 p1 p2 k3 or without k3; projector: all five, without k3, "
-                  "k1 k2, or k1) by leave-one-pose-out cross-validation: calibrate without each pose, pose its board from "
-                  "the first camera, predict its projector corners; the lowest prediction RMS (px) wins. Needs 3+ poses; "
+                  "choose the distortion models (cameras: k1 k2 p1 p2 k3 or without k3; projector: "
+                  "all five, without k3, "
+                  "k1 k2, or k1) by leave-one-pose-out cross-validation: calibrate without each "
+                  "pose, pose its board from "
+                  "the first camera, predict its projector corners; the lowest prediction RMS (px) "
+                  "wins. Needs 3+ poses; "
                   "costs ~8 x (poses + 1) solves. Default off (all five terms for every device)");
     app->add_flag("--principal-point-inside", principal_point_inside,
-                  "bound each device's principal point to its image (-0.5 <= cx <= width - 0.5, same for cy, px) "
-                  "instead of letting the data place it. Default off: a projector with lens offset (throwing upwards "
-                  "from a table) has it outside its image, and forcing it in then costs fit and held-out accuracy. "
-                  "Use it when the optics are known to be centred and the poses too few to locate it; the report "
+                  "bound each device's principal point to its image (-0.5 <= cx <= width - 0.5, "
+                  "same for cy, px) "
+                  "instead of letting the data place it. Default off: a projector with lens offset "
+                  "(throwing upwards "
+                  "from a table) has it outside its image, and forcing it in then costs fit and "
+                  "held-out accuracy. "
+                  "Use it when the optics are known to be centred and the poses too few to locate "
+                  "it; the report "
                   "names a bound that ends active (the data pull the point outside)");
   }
 
@@ -116,8 +141,8 @@ struct CommonOptions {
 void PrintModelSelection(const ModelSelection& selection) {
   std::printf("model selection (leave-one-pose-out, projector corners):\n");
   for (const auto& s : selection.scores) {
-    std::printf("  %-45s fit %.4f px, predicted %.4f px (%d corners)\n", s.name.c_str(), s.fit_rms_px,
-                s.prediction_rms_px, s.num_predicted);
+    std::printf("  %-45s fit %.4f px, predicted %.4f px (%d corners)\n", s.name.c_str(),
+                s.fit_rms_px, s.prediction_rms_px, s.num_predicted);
   }
   std::printf("  chosen: %s\n", selection.scores[selection.chosen].name.c_str());
 }
@@ -125,8 +150,8 @@ void PrintModelSelection(const ModelSelection& selection) {
 // Calibrates (--select-model: the distortion models chosen by leave-one-pose-out, the chosen
 // candidate's all-pose solve kept), cross-validates, reviews, writes the rig, the OpenCV file and
 // the report, prints the summary.
-int CalibrateAndWrite(CalibrationInput input, const std::vector<ImageCheck>& checks, const CommonOptions& common,
-                      nlohmann::json extra) {
+int CalibrateAndWrite(CalibrationInput input, const std::vector<ImageCheck>& checks,
+                      const CommonOptions& common, nlohmann::json extra) {
   const CalibrationOptions options = common.Options();
   CalibrationResult result;
   if (common.select_model) {
@@ -142,7 +167,9 @@ int CalibrateAndWrite(CalibrationInput input, const std::vector<ImageCheck>& che
     if (CanCrossValidate(input)) {
       cv = CrossValidate(input, options);
     } else {
-      std::printf("cross-validation skipped: needs at least 2 views per device among the even and among the odd poses\n");
+      std::printf(
+          "cross-validation skipped: needs at least 2 views per device among the even and among "
+          "the odd poses\n");
     }
   }
   GuidanceOptions go;
@@ -164,12 +191,18 @@ int CalibrateAndWrite(CalibrationInput input, const std::vector<ImageCheck>& che
   std::printf("%s\n", result.summary.BriefReport().c_str());
   for (const auto& d : result.devices) {
     const auto& m = d.model;
-    std::printf("  %s: %dx%d fx %.3f fy %.3f cx %.3f cy %.3f k1 %.5f k2 %.5f p1 %.6f p2 %.6f k3 %.5f\n", d.name.c_str(), m.width,
-                m.height, m.fx(), m.fy(), m.cx(), m.cy(), m.k1(), m.k2(), m.p1(), m.p2(), m.k3());
+    std::printf(
+        "  %s: %dx%d fx %.3f fy %.3f cx %.3f cy %.3f k1 %.5f k2 %.5f p1 %.6f p2 %.6f k3 %.5f\n",
+        d.name.c_str(), m.width, m.height, m.fx(), m.fy(), m.cx(), m.cy(), m.k1(), m.k2(), m.p1(),
+        m.p2(), m.k3());
   }
-  for (const auto& s : result.summary.devices) std::printf("  %s: RMS %.4f px over %d points\n", s.name.c_str(), s.rms_px, s.num_points);
+  for (const auto& s : result.summary.devices)
+    std::printf("  %s: RMS %.4f px over %d points\n", s.name.c_str(), s.rms_px, s.num_points);
   for (const auto& b : result.summary.bounds_active) {
-    std::printf("  --principal-point-inside: %s; the data pull it outside the image (compare the fit without the flag)\n", b.c_str());
+    std::printf(
+        "  --principal-point-inside: %s; the data pull it outside the image (compare the fit "
+        "without the flag)\n",
+        b.c_str());
   }
   for (const auto& f : findings) std::printf("%s\n", f.Text().c_str());
   std::printf("wrote %s and report %s\n", common.out.c_str(), common.ReportDir().string().c_str());
@@ -196,11 +229,15 @@ struct ProcamArgs {
 
   void Add(CLI::App* app, bool long_help) {
     app->add_option("--shadow-threshold", shadow_threshold,
-                    long_help ? "decode: minimum white - black, grey levels (8-bit scale)" : "decode: minimum white - black, grey levels")
+                    long_help ? "decode: minimum white - black, grey levels (8-bit scale)"
+                              : "decode: minimum white - black, grey levels")
         ->capture_default_str();
-    app->add_option("--contrast-threshold", contrast_threshold, "decode: minimum |bit - inverse|, grey levels")->capture_default_str();
+    app->add_option("--contrast-threshold", contrast_threshold,
+                    "decode: minimum |bit - inverse|, grey levels")
+        ->capture_default_str();
     app->add_option("--window", window,
-                    long_help ? "local homography half window, camera px (window 2n+1)" : "local homography half window, camera px")
+                    long_help ? "local homography half window, camera px (window 2n+1)"
+                              : "local homography half window, camera px")
         ->capture_default_str();
   }
   DecodeOptions Decode() const {
@@ -250,7 +287,8 @@ int RunCalibrateStereo(const StereoArgs& a, nlohmann::json extra) {
   const auto lf = ImageFiles(a.left, "--left"), rf = ImageFiles(a.right, "--right");
   SLSHADOW_THROW_IF(lf.size() != rf.size(), "stereo: ", lf.size(), " left images but ", rf.size(),
                     " right images; give the same poses in the same (name) order");
-  SLSHADOW_THROW_IF(a.left_name == a.right_name, "stereo: --left-name and --right-name must differ (got '", a.left_name, "')");
+  SLSHADOW_THROW_IF(a.left_name == a.right_name,
+                    "stereo: --left-name and --right-name must differ (got '", a.left_name, "')");
   CalibrationInput input;
   input.devices = {CalibrationDevice::Camera(a.left_name), CalibrationDevice::Camera(a.right_name)};
   input.num_poses = static_cast<int>(lf.size());
@@ -276,7 +314,8 @@ int RunCalibrateProjector(const ProjectorArgs& a, nlohmann::json extra) {
   const PatternSpec patterns = LoadPatternSpec(a.patterns_path);
   CalibrationInput input;
   input.devices = {CalibrationDevice::Camera(a.camera_name),
-                   CalibrationDevice::Projector("projector", patterns.projector_width, patterns.projector_height)};
+                   CalibrationDevice::Projector("projector", patterns.projector_width,
+                                                patterns.projector_height)};
   if (!a.camera_rig.empty()) {
     const Rig known = LoadRig(a.camera_rig);
     input.devices[0].initial = known.cameras.at(0).model;
@@ -287,7 +326,8 @@ int RunCalibrateProjector(const ProjectorArgs& a, nlohmann::json extra) {
   for (const auto& capture : a.captures) files.push_back(ImageFiles({capture}, "--captures"));
   std::vector<ImageCheck> checks;
   std::vector<std::string> skipped;
-  AddProcamCaptures(patterns, a.patterns_path, spec, files, a.captures, procam, &input, &checks, &skipped);
+  AddProcamCaptures(patterns, a.patterns_path, spec, files, a.captures, procam, &input, &checks,
+                    &skipped);
   for (const auto& s : skipped) std::printf("%s\n", s.c_str());
   PrintMissed(checks);
   extra["target"] = a.common.target;
@@ -340,11 +380,13 @@ int RunCalibrateRefine(const RefineArgs& a) {
   const std::string cam = a.camera.empty() ? rig.cameras.at(0).name : a.camera;
   const int index = rig.CameraIndex(cam);
   SLSHADOW_THROW_IF(index < 0, a.rig, ": no camera named '", cam, "'");
-  const PatternSpec patterns =
-      PatternSpecFromConfig(ConfigNode::FromJson(scan.patterns(), (fs::path(a.scan) / "manifest.json").string(), "patterns"));
-  SLSHADOW_THROW_IF(!patterns.code_x || !patterns.code_y, a.scan, ": patterns must code both projector axes to check the calibration");
-  SLSHADOW_THROW_IF(a.stereo.empty() && !rig.projector, a.rig, ": rig '", rig.name,
-                    "' has no projector: refine the pose of one camera against another with --stereo NAME");
+  const PatternSpec patterns = PatternSpecFromConfig(ConfigNode::FromJson(
+      scan.patterns(), (fs::path(a.scan) / "manifest.json").string(), "patterns"));
+  SLSHADOW_THROW_IF(!patterns.code_x || !patterns.code_y, a.scan,
+                    ": patterns must code both projector axes to check the calibration");
+  SLSHADOW_THROW_IF(
+      a.stereo.empty() && !rig.projector, a.rig, ": rig '", rig.name,
+      "' has no projector: refine the pose of one camera against another with --stereo NAME");
   const ProjectorMap map = DecodePatterns(patterns, scan.LoadCamera(cam), decode);
   RefineOptions ro;
   ro.refine_focal = a.refine_focal;
@@ -372,7 +414,8 @@ int RunCalibrateRefine(const RefineArgs& a) {
   if (a.stereo.empty()) {
     r = RefineProjectorPose(rig, index, SampleCorrespondences(map), ro);
   } else {
-    r = RefineStereoPose(rig, index, rig.CameraIndex(a.stereo), StereoCorrespondences(map, *map_b), ro);
+    r = RefineStereoPose(rig, index, rig.CameraIndex(a.stereo), StereoCorrespondences(map, *map_b),
+                         ro);
   }
   // A refused solution writes nothing: the report says why.
   SLSHADOW_THROW_IF(r.rejected, a.rig, ": calibrate refine: ", r.message);
@@ -409,34 +452,57 @@ int RunCalibrateExport(const std::string& in, const std::string& out) {
 
 int RunCalibrate(int argc, char** argv) {
   CLI::App app{
-      "Calibrate cameras, stereo pairs and projectors from images of a board (Ceres bundle adjustment).\n\n"
-      "Every solve writes RIG.yaml (cameras, projector, poses; rig frame = first camera; mm, px) with the\n"
-      "evidence needed to recompute it (observations, options, covariance), and a report folder: summary.json,\n"
-      "report.txt, per-view RMS chart, residual vectors, projection uncertainty and cross-validation maps (px).\n"
-      "The camera model is OpenCV's (fx fy cx cy k1 k2 p1 p2 k3). Findings name problems in the data (too few\n"
-      "views, fronto-parallel boards, corners only in the centre, saturated images, outlier views) and what\n"
+      "Calibrate cameras, stereo pairs and projectors from images of a board (Ceres bundle "
+      "adjustment).\n\n"
+      "Every solve writes RIG.yaml (cameras, projector, poses; rig frame = first camera; mm, px) "
+      "with the\n"
+      "evidence needed to recompute it (observations, options, covariance), and a report folder: "
+      "summary.json,\n"
+      "report.txt, per-view RMS chart, residual vectors, projection uncertainty and "
+      "cross-validation maps (px).\n"
+      "The camera model is OpenCV's (fx fy cx cy k1 k2 p1 p2 k3). Findings name problems in the "
+      "data (too few\n"
+      "views, fronto-parallel boards, corners only in the centre, saturated images, outlier views) "
+      "and what\n"
       "to capture next.\n\n"
       "  camera    --target T.yaml --images DIR|FILES... --out RIG.yaml\n"
-      "  stereo    --target T.yaml --left DIR --right DIR --out RIG.yaml     (pairs in sorted name order)\n"
+      "  stereo    --target T.yaml --left DIR --right DIR --out RIG.yaml     (pairs in sorted name "
+      "order)\n"
       "  projector --target T.yaml --patterns P.yaml --captures DIR... --out RIG.yaml\n"
-      "            each DIR holds one board pose: the camera's images of the pattern sequence in name order;\n"
-      "            corners are carried into the projector by local homographies (Moreno & Taubin 2012)\n"
+      "            each DIR holds one board pose: the camera's images of the pattern sequence in "
+      "name order;\n"
+      "            corners are carried into the projector by local homographies (Moreno & Taubin "
+      "2012)\n"
       "  rig       --target T.yaml --imagesets DIR... --out RIG.yaml\n"
-      "            each DIR an ImageSet (one board pose) with all cameras; projector and cameras jointly\n"
-      "  refine    --rig RIG.yaml --imageset SCAN --out RIG2.yaml [--camera NAME] [--stereo NAME] [--refine-focal]\n"
+      "            each DIR an ImageSet (one board pose) with all cameras; projector and cameras "
+      "jointly\n"
+      "  refine    --rig RIG.yaml --imageset SCAN --out RIG2.yaml [--camera NAME] [--stereo NAME] "
+      "[--refine-focal]\n"
       "            [--baseline-mm MM | --known-distance U1,V1,U2,V2,MM]\n"
-      "            the scale is the rig file's baseline (\"scale not verified\") unless a known length sets it: the\n"
-      "            baseline, or the distance between the scene points at pixels (U1,V1), (U2,V2) of --camera;\n"
-      "            solutions behind a device (twisted pair) or fitting under half the correspondences are refused\n"
-      "            check the rig against a scan's dense camera-projector correspondences (epipolar residual,\n"
-      "            projector px: median, p95) and re-estimate the projector's pose, keeping the baseline length;\n"
-      "            with --stereo NAME the pose of camera NAME relative to --camera instead (camera-camera matches:\n"
-      "            pixels decoding to the same projector coordinate; residual in NAME's px); --refine-focal also\n"
-      "            re-estimates the focal length (fx, fy by one factor) of the projector, or of NAME with --stereo\n"
-      "  import    OPENCV.yml --out RIG.yaml [--image-size WxH] [--projector-size WxH] [--map K1=NODE,D1=NODE,...]\n"
-      "            layouts: calibration sample, stereo_calib (M1 D1 M2 D2 R T), M1 D1 M2 D2 Rlr Tlr S,\n"
-      "            cam1_intrinsics cam1_distorsion cam2_* R T cam1_size, procam (cam_int proj_int); --map names\n"
-      "            the nodes of any other one- or two-camera layout (keys K1 D1 K2 D2 R T size1 size2)\n"
+      "            the scale is the rig file's baseline (\"scale not verified\") unless a known "
+      "length sets it: the\n"
+      "            baseline, or the distance between the scene points at pixels (U1,V1), (U2,V2) "
+      "of --camera;\n"
+      "            solutions behind a device (twisted pair) or fitting under half the "
+      "correspondences are refused\n"
+      "            check the rig against a scan's dense camera-projector correspondences (epipolar "
+      "residual,\n"
+      "            projector px: median, p95) and re-estimate the projector's pose, keeping the "
+      "baseline length;\n"
+      "            with --stereo NAME the pose of camera NAME relative to --camera instead "
+      "(camera-camera matches:\n"
+      "            pixels decoding to the same projector coordinate; residual in NAME's px); "
+      "--refine-focal also\n"
+      "            re-estimates the focal length (fx, fy by one factor) of the projector, or of "
+      "NAME with --stereo\n"
+      "  import    OPENCV.yml --out RIG.yaml [--image-size WxH] [--projector-size WxH] [--map "
+      "K1=NODE,D1=NODE,...]\n"
+      "            layouts: calibration sample, stereo_calib (M1 D1 M2 D2 R T), M1 D1 M2 D2 Rlr "
+      "Tlr S,\n"
+      "            cam1_intrinsics cam1_distorsion cam2_* R T cam1_size, procam (cam_int "
+      "proj_int); --map names\n"
+      "            the nodes of any other one- or two-camera layout (keys K1 D1 K2 D2 R T size1 "
+      "size2)\n"
       "  export    RIG.yaml --out OPENCV.yml",
       argv[0]};
   app.require_subcommand(1);
@@ -444,61 +510,104 @@ int RunCalibrate(int argc, char** argv) {
   CameraArgs camera_args;
   auto* camera = app.add_subcommand("camera", "calibrate one camera from images of the board");
   camera_args.common.Add(camera);
-  camera->add_option("--images", camera_args.images, "image files or folders (all images in name order)")->required();
-  camera->add_option("--camera-name", camera_args.camera_name, "camera name in the rig")->capture_default_str();
+  camera
+      ->add_option("--images", camera_args.images,
+                   "image files or folders (all images in name order)")
+      ->required();
+  camera->add_option("--camera-name", camera_args.camera_name, "camera name in the rig")
+      ->capture_default_str();
 
   StereoArgs stereo_args;
-  auto* stereo = app.add_subcommand("stereo", "calibrate two cameras and their relative pose from image pairs");
+  auto* stereo = app.add_subcommand(
+      "stereo", "calibrate two cameras and their relative pose from image pairs");
   stereo_args.common.Add(stereo);
-  stereo->add_option("--left", stereo_args.left, "first camera's images (files or folders); defines the rig frame")->required();
-  stereo->add_option("--right", stereo_args.right, "second camera's images, same count and order")->required();
-  stereo->add_option("--left-name", stereo_args.left_name, "first camera's name")->capture_default_str();
-  stereo->add_option("--right-name", stereo_args.right_name, "second camera's name")->capture_default_str();
+  stereo
+      ->add_option("--left", stereo_args.left,
+                   "first camera's images (files or folders); defines the rig frame")
+      ->required();
+  stereo->add_option("--right", stereo_args.right, "second camera's images, same count and order")
+      ->required();
+  stereo->add_option("--left-name", stereo_args.left_name, "first camera's name")
+      ->capture_default_str();
+  stereo->add_option("--right-name", stereo_args.right_name, "second camera's name")
+      ->capture_default_str();
 
   ProjectorArgs projector_args;
-  auto* projector = app.add_subcommand("projector", "calibrate a camera and a projector from fringe captures of the board");
+  auto* projector = app.add_subcommand(
+      "projector", "calibrate a camera and a projector from fringe captures of the board");
   projector_args.common.Add(projector);
   projector_args.common.AddSelectModel(projector);
-  projector->add_option("--patterns", projector_args.patterns_path, "pattern spec YAML (docs/formats.md \"Pattern spec\"), must code x and y and have a white frame")->required();
-  projector->add_option("--captures", projector_args.captures, "one folder per board pose with the camera's images in sequence (name) order")->required();
-  projector->add_option("--camera-name", projector_args.camera_name, "camera name in the rig")->capture_default_str();
-  projector->add_option("--camera-rig", projector_args.camera_rig, "rig file whose first camera's intrinsics are held fixed (else estimated jointly)");
+  projector
+      ->add_option("--patterns", projector_args.patterns_path,
+                   "pattern spec YAML (docs/formats.md \"Pattern spec\"), must code x and y and "
+                   "have a white frame")
+      ->required();
+  projector
+      ->add_option("--captures", projector_args.captures,
+                   "one folder per board pose with the camera's images in sequence (name) order")
+      ->required();
+  projector->add_option("--camera-name", projector_args.camera_name, "camera name in the rig")
+      ->capture_default_str();
+  projector->add_option(
+      "--camera-rig", projector_args.camera_rig,
+      "rig file whose first camera's intrinsics are held fixed (else estimated jointly)");
   projector_args.procam.Add(projector, true);
 
   RigArgs rig_args;
-  auto* rig_cmd = app.add_subcommand("rig", "calibrate all cameras and the projector of a rig from ImageSets of the board");
+  auto* rig_cmd = app.add_subcommand(
+      "rig", "calibrate all cameras and the projector of a rig from ImageSets of the board");
   rig_args.common.Add(rig_cmd);
   rig_args.common.AddSelectModel(rig_cmd);
-  rig_cmd->add_option("--imagesets", rig_args.imagesets, "one ImageSet folder per board pose (manifest with rig and pattern spec)")->required();
+  rig_cmd
+      ->add_option("--imagesets", rig_args.imagesets,
+                   "one ImageSet folder per board pose (manifest with rig and pattern spec)")
+      ->required();
   rig_args.procam.Add(rig_cmd, false);
 
   RefineArgs refine_args;
-  auto* refine = app.add_subcommand("refine", "check a rig against a scan and re-estimate the projector pose (self-calibration)");
+  auto* refine = app.add_subcommand(
+      "refine", "check a rig against a scan and re-estimate the projector pose (self-calibration)");
   refine->add_option("--rig", refine_args.rig, "rig file to check")->required();
-  refine->add_option("--imageset", refine_args.scan, "ImageSet of a scan (any object) with the rig's camera and a pattern spec coding x and y")->required();
+  refine
+      ->add_option(
+          "--imageset", refine_args.scan,
+          "ImageSet of a scan (any object) with the rig's camera and a pattern spec coding x and y")
+      ->required();
   refine->add_option("--out", refine_args.out, "refined rig file to write")->required();
-  refine->add_option("--camera", refine_args.camera, "camera to use (default: the rig's first camera)");
-  refine->add_option("--stereo", refine_args.stereo,
-                     "second camera: refine its pose relative to --camera from camera-camera correspondences "
-                     "(default: none, refine the projector)");
-  refine->add_option("--baseline-mm", refine_args.known_baseline_mm,
-                     "known baseline length between --camera and the refined device, mm: fixes the scale");
-  refine->add_option("--known-distance", refine_args.known_distance,
-                     "U1,V1,U2,V2,MM: two pixels of --camera seeing scene points MM mm apart: fixes the scale");
+  refine->add_option("--camera", refine_args.camera,
+                     "camera to use (default: the rig's first camera)");
+  refine->add_option(
+      "--stereo", refine_args.stereo,
+      "second camera: refine its pose relative to --camera from camera-camera correspondences "
+      "(default: none, refine the projector)");
+  refine->add_option(
+      "--baseline-mm", refine_args.known_baseline_mm,
+      "known baseline length between --camera and the refined device, mm: fixes the scale");
+  refine->add_option(
+      "--known-distance", refine_args.known_distance,
+      "U1,V1,U2,V2,MM: two pixels of --camera seeing scene points MM mm apart: fixes the scale");
   refine->add_flag("--refine-focal", refine_args.refine_focal,
-                   "also re-estimate the focal length of the projector (or of the --stereo camera); default off");
+                   "also re-estimate the focal length of the projector (or of the --stereo "
+                   "camera); default off");
 
   ImportArgs import_args;
-  auto* import = app.add_subcommand("import", "convert an OpenCV calibration file (calibrateCamera / stereoCalibrate / procam layout) to a rig");
-  import->add_option("OPENCV", import_args.in, "OpenCV FileStorage file (.yml/.yaml/.xml)")->required();
+  auto* import = app.add_subcommand("import",
+                                    "convert an OpenCV calibration file (calibrateCamera / "
+                                    "stereoCalibrate / procam layout) to a rig");
+  import->add_option("OPENCV", import_args.in, "OpenCV FileStorage file (.yml/.yaml/.xml)")
+      ->required();
   import->add_option("--out", import_args.out, "rig file to write")->required();
-  import->add_option("--image-size", import_args.image_size, "camera image size WxH when the file has none");
-  import->add_option("--projector-size", import_args.projector_size, "projector size WxH when the file has a projector without size");
+  import->add_option("--image-size", import_args.image_size,
+                     "camera image size WxH when the file has none");
+  import->add_option("--projector-size", import_args.projector_size,
+                     "projector size WxH when the file has a projector without size");
   import->add_option("--map", import_args.map,
-                     "node names of a layout slshadow does not know: K1=NODE,D1=NODE[,K2=,D2=,R=,T=,size1=,size2=]");
+                     "node names of a layout slshadow does not know: "
+                     "K1=NODE,D1=NODE[,K2=,D2=,R=,T=,size1=,size2=]");
 
   std::string export_in, export_out;
-  auto* exp = app.add_subcommand("export", "write a rig as an OpenCV calibration file (camera_matrix... or M1 D1 M2 D2 R T)");
+  auto* exp = app.add_subcommand(
+      "export", "write a rig as an OpenCV calibration file (camera_matrix... or M1 D1 M2 D2 R T)");
   exp->add_option("RIG", export_in, "rig file")->required();
   exp->add_option("--out", export_out, "OpenCV FileStorage file (.yml/.xml)")->required();
 

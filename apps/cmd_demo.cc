@@ -14,28 +14,40 @@ int RunDemo(int argc, char** argv) {
   DemoOptions options;
   CLI::App app{
       "The digital-shadow loop on the embedded demo, in one command:\n"
-      "  1. simulate: the demo rig (two 1920x1200 cameras 200 mm apart, a 1280x800 projector) scans\n"
-      "     the demo part (a machined block with steps, a pocket, holes and a dome, generated in code)\n"
+      "  1. simulate: the demo rig (two 1920x1200 cameras 200 mm apart, a 1280x800 projector) "
+      "scans\n"
+      "     the demo part (a machined block with steps, a pocket, holes and a dome, generated in "
+      "code)\n"
       "     with a Gray code + 4-step phase shift sequence (38 images per camera), noise-free;\n"
-      "  2. the scan is written as an ImageSet (OUT/scan), then read back and decoded like a real capture;\n"
+      "  2. the scan is written as an ImageSet (OUT/scan), then read back and decoded like a real "
+      "capture;\n"
       "  3. reconstruct in both modes: camera-projector (left camera) and stereo (left-right);\n"
       "  4. compare each cloud with the ground-truth surface (OUT/ground_truth.ply): per-point\n"
-      "     deviation, RMS, p95, outliers beyond the threshold, coverage; reports in OUT/projector\n"
-      "     and OUT/stereo (report.json, cloud PLY with deviations, histogram and deviation map PNG).\n"
+      "     deviation, RMS, p95, outliers beyond the threshold, coverage; reports in "
+      "OUT/projector\n"
+      "     and OUT/stereo (report.json, cloud PLY with deviations, histogram and deviation map "
+      "PNG).\n"
       "Prints a table per mode and the wall time, CPU time and peak memory of each stage.\n"
-      "'coverage' is the share of the whole ground-truth surface reached within the threshold (faces\n"
+      "'coverage' is the share of the whole ground-truth surface reached within the threshold "
+      "(faces\n"
       "no camera sees count as missed); 'visible cov.' the share of what the left camera sees lit.",
       argv[0]};
   app.add_option("--out", options.out_dir,
                  "output folder; replaced only when it holds an earlier demo output")
       ->capture_default_str();
-  app.add_option("--rig", options.rig_path, "rig YAML instead of the embedded config/demo/rig.yaml");
-  app.add_option("--scene", options.scene_path, "scene YAML instead of the embedded config/demo/scene.yaml");
+  app.add_option("--rig", options.rig_path,
+                 "rig YAML instead of the embedded config/demo/rig.yaml");
+  app.add_option("--scene", options.scene_path,
+                 "scene YAML instead of the embedded config/demo/scene.yaml");
   app.add_option("--patterns", options.patterns_path,
                  "pattern spec instead of the embedded config/demo/patterns.yaml");
-  app.add_option("--method", options.method, "triangulation: midpoint | dlt | optimal")->capture_default_str();
-  app.add_option("--threshold-mm", options.threshold_mm, "outlier threshold, mm")->capture_default_str();
-  app.add_option("--encoding", options.encoding, "ImageSet image encoding, all lossless: pgm (default, fastest to write and read) | png (smaller files, slower to write) | tiff")
+  app.add_option("--method", options.method, "triangulation: midpoint | dlt | optimal")
+      ->capture_default_str();
+  app.add_option("--threshold-mm", options.threshold_mm, "outlier threshold, mm")
+      ->capture_default_str();
+  app.add_option("--encoding", options.encoding,
+                 "ImageSet image encoding, all lossless: pgm (default, fastest to write and read) "
+                 "| png (smaller files, slower to write) | tiff")
       ->capture_default_str();
   app.add_flag("--verbose", options.verbose, "print each stage's full report");
   try {
@@ -44,10 +56,14 @@ int RunDemo(int argc, char** argv) {
     return ExitOnParseError(app, e);
   }
   const DemoResult result = RunDemoJob(options);
-  std::printf("slshadow demo: virtual scan of the demo part, reconstructed and compared with its ground truth\n\n");
+  std::printf(
+      "slshadow demo: virtual scan of the demo part, reconstructed and compared with its ground "
+      "truth\n\n");
   std::printf("%s", result.Table().c_str());
-  std::printf("\nreports: %s/{projector,stereo}/ (report.json, summary.txt, PNG charts, cloud PLY); scan: %s/scan\n",
-              result.out_dir.string().c_str(), result.out_dir.string().c_str());
+  std::printf(
+      "\nreports: %s/{projector,stereo}/ (report.json, summary.txt, PNG charts, cloud PLY); scan: "
+      "%s/scan\n",
+      result.out_dir.string().c_str(), result.out_dir.string().c_str());
   return 0;
 }
 

@@ -18,13 +18,20 @@ int RunLatency(int argc, char** argv) {
   CLI::App app{
       "Projector latency: how long `slshadow capture` must wait after showing a pattern before it\n"
       "triggers the cameras (the devices file's projector.latency_us).\n\n"
-      "With --devices: the projector of DEVICES switches between full black and full white while a camera of\n"
-      "DEVICES watches (--camera, default the first); with a software trigger, a binary search finds the\n"
-      "shortest wait after which every repetition's frame shows the change (the camera's own trigger delay\n"
-      "included); free-running cameras count frames instead. The camera must see the projected area.\n\n"
-      "Without --devices: opens the window projector (an SDL2 fullscreen borderless window on the X display\n"
-      "$DISPLAY), alternates black and white and reads the window back from the X server until each frame\n"
-      "is there: the present-to-framebuffer latency (under Xvfb, the whole latency). A real projector adds\n"
+      "With --devices: the projector of DEVICES switches between full black and full white while a "
+      "camera of\n"
+      "DEVICES watches (--camera, default the first); with a software trigger, a binary search "
+      "finds the\n"
+      "shortest wait after which every repetition's frame shows the change (the camera's own "
+      "trigger delay\n"
+      "included); free-running cameras count frames instead. The camera must see the projected "
+      "area.\n\n"
+      "Without --devices: opens the window projector (an SDL2 fullscreen borderless window on the "
+      "X display\n"
+      "$DISPLAY), alternates black and white and reads the window back from the X server until "
+      "each frame\n"
+      "is there: the present-to-framebuffer latency (under Xvfb, the whole latency). A real "
+      "projector adds\n"
       "its own input lag, which only a camera sees.\n\n"
       "Examples:\n"
       "  slshadow latency --devices config/devices/stereo_gige_hdmi.yaml --camera left\n"
@@ -34,16 +41,24 @@ int RunLatency(int argc, char** argv) {
   double resolution_ms = 1;
   std::string geometry, renderer = "software", devices_path, camera_name;
   bool no_vsync = false;
-  app.add_option("--devices", devices_path, "devices file (docs/formats.md \"Devices YAML\"): its projector and a camera");
-  app.add_option("--camera", camera_name, "with --devices: the camera that watches (default: the first)");
-  app.add_option("--repetitions", repetitions, "with --devices: measurements; the largest is reported")
+  app.add_option("--devices", devices_path,
+                 "devices file (docs/formats.md \"Devices YAML\"): its projector and a camera");
+  app.add_option("--camera", camera_name,
+                 "with --devices: the camera that watches (default: the first)");
+  app.add_option("--repetitions", repetitions,
+                 "with --devices: measurements; the largest is reported")
       ->capture_default_str();
-  app.add_option("--max-ms", max_ms, "with --devices: longest latency searched, ms")->capture_default_str();
-  app.add_option("--resolution-ms", resolution_ms, "with --devices: resolution of the search, ms")->capture_default_str();
-  app.add_option("--display", display, "SDL display index of the projector (fullscreen window)")->capture_default_str();
-  app.add_option("--geometry", geometry, "window at x,y,w,h on the X screen instead of a fullscreen display");
-  app.add_option("--renderer", renderer, "SDL renderer")->capture_default_str()->check(
-      CLI::IsMember({"software", "opengl", "auto"}));
+  app.add_option("--max-ms", max_ms, "with --devices: longest latency searched, ms")
+      ->capture_default_str();
+  app.add_option("--resolution-ms", resolution_ms, "with --devices: resolution of the search, ms")
+      ->capture_default_str();
+  app.add_option("--display", display, "SDL display index of the projector (fullscreen window)")
+      ->capture_default_str();
+  app.add_option("--geometry", geometry,
+                 "window at x,y,w,h on the X screen instead of a fullscreen display");
+  app.add_option("--renderer", renderer, "SDL renderer")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"software", "opengl", "auto"}));
   app.add_flag("--no-vsync", no_vsync, "present without waiting for the refresh");
   app.add_option("--samples", samples, "black/white pairs (window mode)")->capture_default_str();
   try {
@@ -53,8 +68,10 @@ int RunLatency(int argc, char** argv) {
   }
   if (!devices_path.empty()) {
     const capture::DevicesConfig devices = capture::LoadDevices(devices_path);
-    SLSHADOW_THROW_IF(devices.cameras.empty(), devices_path, ": cameras: the latency needs a camera that watches the projector");
-    const capture::CameraEntry* entry = camera_name.empty() ? &devices.cameras[0] : devices.Camera(camera_name);
+    SLSHADOW_THROW_IF(devices.cameras.empty(), devices_path,
+                      ": cameras: the latency needs a camera that watches the projector");
+    const capture::CameraEntry* entry =
+        camera_name.empty() ? &devices.cameras[0] : devices.Camera(camera_name);
     SLSHADOW_THROW_IF(!entry, "--camera: '", camera_name, "' is not a camera of ", devices_path);
     capture::LatencyOptions options;
     options.repetitions = repetitions;
@@ -65,9 +82,11 @@ int RunLatency(int argc, char** argv) {
     const auto projector = capture::OpenProjector(devices.projector);
     const auto camera = capture::OpenCamera(*entry);
     camera->Configure(entry->settings);
-    const capture::LatencyMeasurement m = capture::MeasureProjectorLatency(*camera, *projector, options);
-    std::printf("projector %s %s, camera %s (%s): %s\n", projector->Info().backend.c_str(), projector->Info().id.c_str(),
-                entry->name.c_str(), camera->Info().id.c_str(), m.BriefReport().c_str());
+    const capture::LatencyMeasurement m =
+        capture::MeasureProjectorLatency(*camera, *projector, options);
+    std::printf("projector %s %s, camera %s (%s): %s\n", projector->Info().backend.c_str(),
+                projector->Info().id.c_str(), entry->name.c_str(), camera->Info().id.c_str(),
+                m.BriefReport().c_str());
     std::printf("latency_us: %lld\n", static_cast<long long>(m.latency.count()));
     return 0;
   }
@@ -79,8 +98,9 @@ int RunLatency(int argc, char** argv) {
   options.vsync = !no_vsync;
   capture::WindowProjector projector(options);
   const capture::ProjectorInfo info = projector.Info();
-  std::printf("projector: window %s, %dx%d, %.0f Hz, %s renderer, vsync %s\n", info.id.c_str(), info.width, info.height,
-              info.refresh_hz, projector.RendererName().c_str(), options.vsync ? "on" : "off");
+  std::printf("projector: window %s, %dx%d, %.0f Hz, %s renderer, vsync %s\n", info.id.c_str(),
+              info.width, info.height, info.refresh_hz, projector.RendererName().c_str(),
+              options.vsync ? "on" : "off");
   std::printf("%s\n", projector.MeasurePresentLatency(samples).BriefReport().c_str());
   return 0;
 }

@@ -26,29 +26,44 @@ std::string FrameFileName(int index, int count) {
 int RunPatterns(int argc, char** argv) {
   CLI::App app{
       "Structured-light pattern sequences (docs/formats.md, \"Pattern spec\").\n\n"
-      "  generate SPEC --out DIR   write the projector images of SPEC as 8-bit PNGs, one per frame in\n"
-      "                            projection order (DIR/pattern_00.png, ...; 3 digits past 100 frames),\n"
-      "                            plus DIR/patterns.json (the spec, with num_images; loads back as a\n"
+      "  generate SPEC --out DIR   write the projector images of SPEC as 8-bit PNGs, one per frame "
+      "in\n"
+      "                            projection order (DIR/pattern_00.png, ...; 3 digits past 100 "
+      "frames),\n"
+      "                            plus DIR/patterns.json (the spec, with num_images; loads back "
+      "as a\n"
       "                            SPEC) and DIR/frames.json (file name and role of every frame).\n"
-      "                            Each image has the projector's resolution (pixels). The folder is\n"
+      "                            Each image has the projector's resolution (pixels). The folder "
+      "is\n"
       "                            written under a temporary name and renamed when complete.\n"
       "  show SPEC                 print the spec, its image count and the role of every frame.\n\n"
       "SPEC is a .yaml or .json file with the spec's fields, or an ImageSet manifest.json (its\n"
-      "\"patterns\" member). Examples: config/patterns/graycode_phase.yaml (Gray code + 4-step phase\n"
-      "shift, 1280x800), config/patterns/kamino_opencv_graycode.yaml (OpenCV GrayCodePattern order),\n"
-      "config/patterns/phase12_gray7_no_inverse.yaml (12 steps, Gray bits without inverse, phase offset\n"
-      "and direction), phase_shifted_gray.yaml (shifted Gray code), phase_frame_order.yaml (own frame\n"
-      "order). The frame names `show` prints, as a `frame_order` list, read back as the same sequence.",
+      "\"patterns\" member). Examples: config/patterns/graycode_phase.yaml (Gray code + 4-step "
+      "phase\n"
+      "shift, 1280x800), config/patterns/kamino_opencv_graycode.yaml (OpenCV GrayCodePattern "
+      "order),\n"
+      "config/patterns/phase12_gray7_no_inverse.yaml (12 steps, Gray bits without inverse, phase "
+      "offset\n"
+      "and direction), phase_shifted_gray.yaml (shifted Gray code), phase_frame_order.yaml (own "
+      "frame\n"
+      "order). The frame names `show` prints, as a `frame_order` list, read back as the same "
+      "sequence.",
       argv[0]};
   app.require_subcommand(1);
   std::string spec_path, out_dir;
   bool overwrite = false;
   auto* generate = app.add_subcommand("generate", "write the projector images of a pattern spec");
-  generate->add_option("SPEC", spec_path, "pattern spec (.yaml / .json) or ImageSet manifest")->required();
-  generate->add_option("--out", out_dir, "output folder (created; must not exist unless --overwrite)")->required();
-  generate->add_flag("--overwrite", overwrite, "replace an existing output folder (default: refuse)");
-  auto* show = app.add_subcommand("show", "describe a pattern spec: kind, image count, frame roles");
-  show->add_option("SPEC", spec_path, "pattern spec (.yaml / .json) or ImageSet manifest")->required();
+  generate->add_option("SPEC", spec_path, "pattern spec (.yaml / .json) or ImageSet manifest")
+      ->required();
+  generate
+      ->add_option("--out", out_dir, "output folder (created; must not exist unless --overwrite)")
+      ->required();
+  generate->add_flag("--overwrite", overwrite,
+                     "replace an existing output folder (default: refuse)");
+  auto* show =
+      app.add_subcommand("show", "describe a pattern spec: kind, image count, frame roles");
+  show->add_option("SPEC", spec_path, "pattern spec (.yaml / .json) or ImageSet manifest")
+      ->required();
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -59,7 +74,8 @@ int RunPatterns(int argc, char** argv) {
   const std::vector<FrameInfo> frames = spec.Frames();
   if (show->parsed()) {
     std::printf("%s\n", PatternSpecToJson(spec).dump(2).c_str());
-    for (size_t i = 0; i < frames.size(); ++i) std::printf("%3zu  %s\n", i, frames[i].Name().c_str());
+    for (size_t i = 0; i < frames.size(); ++i)
+      std::printf("%3zu  %s\n", i, frames[i].Name().c_str());
     return 0;
   }
 
@@ -88,8 +104,8 @@ int RunPatterns(int argc, char** argv) {
     std::filesystem::remove_all(staged, ec);
     throw;
   }
-  std::printf("wrote %zu %dx%d pattern images and patterns.json to %s\n", images.size(), spec.projector_width,
-              spec.projector_height, target.string().c_str());
+  std::printf("wrote %zu %dx%d pattern images and patterns.json to %s\n", images.size(),
+              spec.projector_width, spec.projector_height, target.string().c_str());
   return 0;
 }
 

@@ -18,17 +18,22 @@ const char* ModeName(capture::dlpc350::DisplayMode mode) {
 }  // namespace
 
 int RunProjector(int argc, char** argv) {
-  CLI::App app{"A TI DLP LightCrafter 4500 (DLPC350) over USB: firmware and display mode (info), switch\n"
-               "between video mode (an HDMI display) and pattern-sequence mode (mode video|pattern),\n"
-               "or validate the programmed pattern sequence and print every status bit (validate).",
-               argv[0]};
+  CLI::App app{
+      "A TI DLP LightCrafter 4500 (DLPC350) over USB: firmware and display mode (info), switch\n"
+      "between video mode (an HDMI display) and pattern-sequence mode (mode video|pattern),\n"
+      "or validate the programmed pattern sequence and print every status bit (validate).",
+      argv[0]};
   app.require_subcommand(1);
   std::string usb;
-  app.add_option("--usb", usb, "BUS:ADDRESS of the LightCrafter (default: the only one; `slshadow devices` lists them)");
+  app.add_option(
+      "--usb", usb,
+      "BUS:ADDRESS of the LightCrafter (default: the only one; `slshadow devices` lists them)");
   app.add_subcommand("info", "firmware versions and display mode");
   auto* mode_cmd = app.add_subcommand("mode", "set the display mode");
   std::string mode;
-  mode_cmd->add_option("MODE", mode, "video | pattern")->required()->check(CLI::IsMember({"video", "pattern"}));
+  mode_cmd->add_option("MODE", mode, "video | pattern")
+      ->required()
+      ->check(CLI::IsMember({"video", "pattern"}));
   app.add_subcommand("validate", "validate the pattern sequence (polls until the device is done)");
   try {
     app.parse(argc, argv);
@@ -39,14 +44,17 @@ int RunProjector(int argc, char** argv) {
   capture::dlpc350::Client client(*transport);
   if (app.got_subcommand("info")) {
     const auto version = client.GetVersion();
-    std::printf("%s\nfirmware: %s\ndisplay mode: %s\n", transport->Describe().c_str(), version.ToString().c_str(),
-                ModeName(client.GetDisplayMode()));
+    std::printf("%s\nfirmware: %s\ndisplay mode: %s\n", transport->Describe().c_str(),
+                version.ToString().c_str(), ModeName(client.GetDisplayMode()));
   } else if (app.got_subcommand("mode")) {
-    const auto wanted = mode == "video" ? capture::dlpc350::DisplayMode::kVideo : capture::dlpc350::DisplayMode::kPatternSequence;
-    if (wanted == capture::dlpc350::DisplayMode::kVideo) client.SetSequence(capture::dlpc350::SequenceControl::kStop);
+    const auto wanted = mode == "video" ? capture::dlpc350::DisplayMode::kVideo
+                                        : capture::dlpc350::DisplayMode::kPatternSequence;
+    if (wanted == capture::dlpc350::DisplayMode::kVideo)
+      client.SetSequence(capture::dlpc350::SequenceControl::kStop);
     client.SetDisplayMode(wanted);
     const auto now = client.GetDisplayMode();
-    SLSHADOW_THROW_IF(now != wanted, transport->Describe(), ": display mode reads back as ", ModeName(now), " after setting ", mode);
+    SLSHADOW_THROW_IF(now != wanted, transport->Describe(), ": display mode reads back as ",
+                      ModeName(now), " after setting ", mode);
     std::printf("%s: display mode %s\n", transport->Describe().c_str(), ModeName(now));
   } else {
     const auto v = client.Validate();

@@ -8,12 +8,13 @@
 namespace slshadow::app {
 
 int RunRig(int argc, char** argv) {
-  CLI::App app{"Inspect a rig file (docs/formats.md, \"Rig YAML\").\n\n"
-               "  show RIG.yaml   print every camera and the projector (resolution, intrinsics, field of\n"
-               "                  view, position) and, per pair, the baseline, the triangulation angle at\n"
-               "                  the working distance and the share of the first device's image whose\n"
-               "                  rays at the working distance also land in the second device's image.",
-               argv[0]};
+  CLI::App app{
+      "Inspect a rig file (docs/formats.md, \"Rig YAML\").\n\n"
+      "  show RIG.yaml   print every camera and the projector (resolution, intrinsics, field of\n"
+      "                  view, position) and, per pair, the baseline, the triangulation angle at\n"
+      "                  the working distance and the share of the first device's image whose\n"
+      "                  rays at the working distance also land in the second device's image.",
+      argv[0]};
   app.require_subcommand(1);
   std::string rig_path;
   auto* show = app.add_subcommand("show", "print the rig's geometry");

@@ -11,12 +11,16 @@ namespace slshadow::app {
 
 int RunShadowCommand(int argc, char** argv) {
   CLI::App app{
-      "The digital shadow of a real scan: reconstruct it, place the part in the rig, fit the twin's\n"
+      "The digital shadow of a real scan: reconstruct it, place the part in the rig, fit the "
+      "twin's\n"
       "physics from the real images (a layer only when the images need it), re-scan the twin\n"
-      "virtually with the same rig, patterns and exposure, compare images and clouds, and name what\n"
-      "the differences point to (calibration, projector response, defocus, multipath, a wrong frame,\n"
+      "virtually with the same rig, patterns and exposure, compare images and clouds, and name "
+      "what\n"
+      "the differences point to (calibration, projector response, defocus, multipath, a wrong "
+      "frame,\n"
       "or the part itself), or say the scan is consistent with the model.\n\n"
-      "PART is a mesh (.stl/.ply/.obj, mm, albedo 0.8) or a scene file (.yaml) whose objects are the\n"
+      "PART is a mesh (.stl/.ply/.obj, mm, albedo 0.8) or a scene file (.yaml) whose objects are "
+      "the\n"
       "part in its own frame (e.g. a plane with a printed checkerboard). Writes DIR/report.json\n"
       "(docs/formats.md \"Shadow report\"), DIR/summary.txt, DIR/maps/*.png, DIR/clouds/*.ply.",
       argv[0]};
@@ -24,22 +28,35 @@ int RunShadowCommand(int argc, char** argv) {
   std::vector<double> pose;
   bool fixed_pose = false, no_fit = false, overwrite = false, no_clouds = false;
   shadow::ShadowOptions options;
-  app.add_option("REAL_IMAGESET", image_set, "the real scan (ImageSet folder)")->required()->check(CLI::ExistingDirectory);
-  app.add_option("--part", part_path, "the part: mesh (.stl/.ply/.obj) or scene (.yaml)")->required()->check(CLI::ExistingFile);
-  app.add_option("--out", out_dir, "report folder")->required();
-  app.add_option("--rig", rig_path, "rig file to use instead of the ImageSet's own (e.g. a later calibration)")
+  app.add_option("REAL_IMAGESET", image_set, "the real scan (ImageSet folder)")
+      ->required()
+      ->check(CLI::ExistingDirectory);
+  app.add_option("--part", part_path, "the part: mesh (.stl/.ply/.obj) or scene (.yaml)")
+      ->required()
       ->check(CLI::ExistingFile);
-  app.add_option("--pose", pose, "rig_from_part as rx ry rz (Rodrigues, rad) tx ty tz (mm): ICP starts here")->expected(6);
-  app.add_flag("--fixed-pose", fixed_pose, "use --pose as it is (no ICP), e.g. a plane whose in-plane pose ICP cannot see");
-  app.add_option("--min-fitness", options.min_fitness, "credible pose: share of the cloud within 1 mm of the part")
+  app.add_option("--out", out_dir, "report folder")->required();
+  app.add_option("--rig", rig_path,
+                 "rig file to use instead of the ImageSet's own (e.g. a later calibration)")
+      ->check(CLI::ExistingFile);
+  app.add_option("--pose", pose,
+                 "rig_from_part as rx ry rz (Rodrigues, rad) tx ty tz (mm): ICP starts here")
+      ->expected(6);
+  app.add_flag("--fixed-pose", fixed_pose,
+               "use --pose as it is (no ICP), e.g. a plane whose in-plane pose ICP cannot see");
+  app.add_option("--min-fitness", options.min_fitness,
+                 "credible pose: share of the cloud within 1 mm of the part")
       ->capture_default_str();
-  app.add_option("--max-rmse-mm", options.max_rmse_mm, "credible pose: RMS of those distances, mm")->capture_default_str();
-  app.add_option("--shadow-threshold", options.decode.shadow_threshold, "decoding: minimum white - black, 8-bit levels")
+  app.add_option("--max-rmse-mm", options.max_rmse_mm, "credible pose: RMS of those distances, mm")
       ->capture_default_str();
-  app.add_option("--contrast-threshold", options.decode.contrast_threshold, "decoding: minimum bit contrast, 8-bit levels")
+  app.add_option("--shadow-threshold", options.decode.shadow_threshold,
+                 "decoding: minimum white - black, 8-bit levels")
       ->capture_default_str();
-  app.add_option("--calibration-field-px", options.diagnose.calibration_field_px,
-                 "diagnosis: a smooth projector-coordinate field above this RMS is a calibration error")
+  app.add_option("--contrast-threshold", options.decode.contrast_threshold,
+                 "decoding: minimum bit contrast, 8-bit levels")
+      ->capture_default_str();
+  app.add_option(
+         "--calibration-field-px", options.diagnose.calibration_field_px,
+         "diagnosis: a smooth projector-coordinate field above this RMS is a calibration error")
       ->capture_default_str();
   app.add_flag("--no-physics-fit", no_fit, "keep the part file's radiometry; fit no layer");
   app.add_flag("--no-clouds", no_clouds, "do not write the clouds");
@@ -52,7 +69,8 @@ int RunShadowCommand(int argc, char** argv) {
   if (!pose.empty()) {
     const Eigen::Vector3d r(pose[0], pose[1], pose[2]);
     const double angle = r.norm();
-    const Eigen::Quaterniond q = angle > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, r / angle)) : Eigen::Quaterniond::Identity();
+    const Eigen::Quaterniond q = angle > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, r / angle))
+                                           : Eigen::Quaterniond::Identity();
     options.rig_from_part = Rigid3d(q, Eigen::Vector3d(pose[3], pose[4], pose[5]));
   }
   SLSHADOW_THROW_IF(fixed_pose && pose.empty(), "--fixed-pose: needs --pose");
@@ -63,7 +81,8 @@ int RunShadowCommand(int argc, char** argv) {
   const shadow::ShadowPart part = shadow::LoadShadowPart(part_path);
   std::optional<Rig> rig;
   if (!rig_path.empty()) rig = LoadRig(rig_path);
-  const shadow::ShadowResult result = shadow::RunShadow(image_set, part, options, out_dir, rig ? &*rig : nullptr);
+  const shadow::ShadowResult result =
+      shadow::RunShadow(image_set, part, options, out_dir, rig ? &*rig : nullptr);
   std::printf("%sreport: %s\n", result.Summary().c_str(), out_dir.c_str());
   return 0;
 }

@@ -14,38 +14,52 @@ namespace slshadow::app {
 
 int RunSimulate(int argc, char** argv) {
   CLI::App app{
-      "Virtual scan: ray-cast the rig over a scene and write the ImageSet a real capture would write\n"
+      "Virtual scan: ray-cast the rig over a scene and write the ImageSet a real capture would "
+      "write\n"
       "(docs/formats.md: \"Scene YAML\", \"Simulator ground truth\").\n\n"
-      "Every camera of RIG sees every projector image of SPEC projected onto SCENE: one geometry pass\n"
-      "per camera (Embree: hit point, normal, projector coordinate through the projector's distortion,\n"
-      "shadow ray), then per image DN = exposure * full_scale * (ambient * albedo + albedo * cos_p *\n"
-      "(d_ref / d_p)^2 * I) and the scene's optional layers (supersampling, defocus, gamma, vignetting,\n"
+      "Every camera of RIG sees every projector image of SPEC projected onto SCENE: one geometry "
+      "pass\n"
+      "per camera (Embree: hit point, normal, projector coordinate through the projector's "
+      "distortion,\n"
+      "shadow ray), then per image DN = exposure * full_scale * (ambient * albedo + albedo * cos_p "
+      "*\n"
+      "(d_ref / d_p)^2 * I) and the scene's optional layers (supersampling, defocus, gamma, "
+      "vignetting,\n"
       "ambient, EMVA 1288 noise, fill factor; all off unless the scene enables them).\n\n"
-      "Output DIR (written atomically): manifest.json with source \"virtual\" and the scan's provenance (scene,\n"
+      "Output DIR (written atomically): manifest.json with source \"virtual\" and the scan's "
+      "provenance (scene,\n"
       "simulator options: docs/formats.md \"Scan provenance\") in `extra.provenance`,\n"
-      "<camera>/NNNN.<png|pgm|tiff> images, and ground_truth/<camera>/ with depth, 3D points (rig frame,\n"
-      "mm), normals, true projector coordinates, shadow/visibility masks, object ids and the visible\n"
+      "<camera>/NNNN.<png|pgm|tiff> images, and ground_truth/<camera>/ with depth, 3D points (rig "
+      "frame,\n"
+      "mm), normals, true projector coordinates, shadow/visibility masks, object ids and the "
+      "visible\n"
       "surface as surface.ply. Units: mm, px. Example:\n"
       "  slshadow simulate --rig config/demo/rig.yaml --scene config/demo/scene.yaml \\\n"
       "      --patterns config/patterns/graycode_phase.yaml --out scan_virtual --encoding pgm",
       argv[0]};
   std::string rig_path, scene_path, patterns_path, out_dir, encoding = "png";
   bool overwrite = false, no_ground_truth = false, quiet = false;
-  app.add_option("--rig", rig_path, "rig file (.yaml/.json, docs/formats.md \"Rig YAML\"); needs a projector")
+  app.add_option("--rig", rig_path,
+                 "rig file (.yaml/.json, docs/formats.md \"Rig YAML\"); needs a projector")
       ->required();
-  app.add_option("--scene", scene_path, "scene file (.yaml/.json, docs/formats.md \"Scene YAML\")")->required();
+  app.add_option("--scene", scene_path, "scene file (.yaml/.json, docs/formats.md \"Scene YAML\")")
+      ->required();
   app.add_option("--patterns", patterns_path,
-                 "pattern spec (.yaml/.json, docs/formats.md \"Pattern spec\"), e.g. config/patterns/graycode_phase.yaml; "
+                 "pattern spec (.yaml/.json, docs/formats.md \"Pattern spec\"), e.g. "
+                 "config/patterns/graycode_phase.yaml; "
                  "its projector size must match the rig's projector")
       ->required();
-  app.add_option("--out", out_dir, "output ImageSet folder (must not exist unless --overwrite)")->required();
+  app.add_option("--out", out_dir, "output ImageSet folder (must not exist unless --overwrite)")
+      ->required();
   app.add_option("--encoding", encoding,
-                 "image encoding: png (portable, ~10-25 ms per 1920x1200 image), pgm (raw, fastest lossless) or tiff")
+                 "image encoding: png (portable, ~10-25 ms per 1920x1200 image), pgm (raw, fastest "
+                 "lossless) or tiff")
       ->capture_default_str()
       ->check(CLI::IsMember({"png", "pgm", "tiff"}));
   app.add_flag("--overwrite", overwrite, "replace an existing output folder");
   app.add_flag("--no-ground-truth", no_ground_truth,
-               "skip ground_truth/ (images and manifest only; the ground-truth maps are then not computed either, "
+               "skip ground_truth/ (images and manifest only; the ground-truth maps are then not "
+               "computed either, "
                "about a quarter less ray-casting time)");
   app.add_flag("--quiet", quiet, "do not print the timing summary");
   try {
@@ -57,17 +71,22 @@ int RunSimulate(int argc, char** argv) {
   const Scene scene = LoadScene(scene_path);
   const PatternSpec spec = LoadPatternSpec(patterns_path);
   SLSHADOW_THROW_IF(!rig.projector, rig_path, ": rig has no projector: the simulator needs one");
-  SLSHADOW_THROW_IF(spec.projector_width != rig.projector->model.width || spec.projector_height != rig.projector->model.height,
-                    patterns_path, ": projector size ", spec.projector_width, "x", spec.projector_height,
-                    " does not match the rig's projector (", rig.projector->model.width, "x", rig.projector->model.height,
-                    " in ", rig_path, ")");
+  SLSHADOW_THROW_IF(spec.projector_width != rig.projector->model.width ||
+                        spec.projector_height != rig.projector->model.height,
+                    patterns_path, ": projector size ", spec.projector_width, "x",
+                    spec.projector_height, " does not match the rig's projector (",
+                    rig.projector->model.width, "x", rig.projector->model.height, " in ", rig_path,
+                    ")");
   const std::vector<cv::Mat> images = GeneratePatterns(spec);
   SimulateOptions options;
   options.writer.encoding = ImageEncodingFromString(encoding);
   options.writer.overwrite = overwrite;
   options.write_ground_truth = !no_ground_truth;
-  const SimulateSummary summary = SimulateScan(scene, rig, images, PatternSpecToJson(spec), out_dir, options);
-  if (!quiet) std::printf("simulate: %s -> %s\n%s\n", scene_path.c_str(), out_dir.c_str(), summary.BriefReport().c_str());
+  const SimulateSummary summary =
+      SimulateScan(scene, rig, images, PatternSpecToJson(spec), out_dir, options);
+  if (!quiet)
+    std::printf("simulate: %s -> %s\n%s\n", scene_path.c_str(), out_dir.c_str(),
+                summary.BriefReport().c_str());
   return 0;
 }
 

@@ -4,8 +4,8 @@
 #include "core/error.h"
 #include "core/threads.h"
 
-#include "shadow/sweep.h"
 #include <CLI/CLI.hpp>
+#include "shadow/sweep.h"
 
 #include <cstdio>
 #include <cstdlib>
@@ -94,7 +94,8 @@ int RunSweep(int argc, char** argv) {
     std::printf("%d jobs merged: %d rows in %s/results.csv (+ results.json, timings.csv)\n", s.jobs,
                 s.rows, out.c_str());
     std::printf(
-        "Pareto front of decode + reconstruct time against RMS (%s/pareto.csv, time_vs_rms.png/.svg):\n",
+        "Pareto front of decode + reconstruct time against RMS (%s/pareto.csv, "
+        "time_vs_rms.png/.svg):\n",
         out.c_str());
     for (const auto& f : s.front) std::printf("  %s\n", f.c_str());
     if (!s.break_points.empty()) {
@@ -106,9 +107,10 @@ int RunSweep(int argc, char** argv) {
       for (const auto& e : s.effects) std::printf("  %s\n", e.c_str());
     }
     if (!s.acceptance.empty()) {
-      std::printf("VDI/VDE 2634-2 figures, overall (%s/vdi2634_summary.csv, vdi2634.csv, "
-                  "vdi2634.png/.svg):\n",
-                  out.c_str());
+      std::printf(
+          "VDI/VDE 2634-2 figures, overall (%s/vdi2634_summary.csv, vdi2634.csv, "
+          "vdi2634.png/.svg):\n",
+          out.c_str());
       for (const auto& a : s.acceptance) std::printf("  %s\n", a.c_str());
     }
     if (!s.uncertainty.empty()) {

@@ -18,20 +18,59 @@ namespace slshadow::app {
 
 const std::vector<Command>& Commands() {
   static const std::vector<Command> commands = {
-      {"demo", "the main job: simulate the demo rig scanning the demo part, reconstruct both modes, compare with truth", RunDemo},
-      {"simulate", "virtual scan: ray-cast a rig over a scene into an ImageSet + ground truth (simulate --rig --scene --patterns --out)", RunSimulate},
-      {"patterns", "pattern sequences: write projector images of a spec (patterns generate SPEC --out DIR), describe one", RunPatterns},
-      {"reconstruct", "decode an ImageSet and triangulate a point cloud (reconstruct IMAGESET --out CLOUD.ply [--mode projector|stereo])", RunReconstruct},
-      {"compare", "compare a cloud against a reference mesh or cloud: registration, deviations, report folder", RunCompare},
-      {"calibrate", "calibrate cameras, stereo, projector or rig from board images (calibrate camera|stereo|projector|rig|import|export)", RunCalibrate},
-      {"bench", "speed of simulate, decode, reconstruct and compare on the demo, with peers in the same run", RunBenchCommand},
-      {"shadow", "real vs virtual: a real scan against its twin re-scan of the part; physics fitted, causes named (shadow IMAGESET --part PART --out DIR)", RunShadowCommand},
-      {"rig", "inspect a rig file: cameras, projector, baselines, angles, overlap (rig show RIG.yaml)", RunRig},
-      {"latency", "projector-to-camera latency to wait after each pattern (latency --devices DEVICES.yaml), or the window's present latency", RunLatency},
-      {"capture", "real capture: projector + cameras from a devices file into a resumable ImageSet (capture --rig --devices --patterns --out)", RunCapture},
-      {"devices", "list cameras and displays to capture with (devices [--address IP]... [--discover]: discovery broadcasts)", RunDevices},
-      {"projector", "a DLP LightCrafter 4500 over USB: firmware and mode, switch video/pattern mode, validate (projector info|mode|validate)", RunProjector},
-      {"sweep", "studies as independent jobs: sweep plan STUDY.yaml --out JOBS | run JOBS --shard I/N | merge JOBS --out RESULT", RunSweep},
+      {"demo",
+       "the main job: simulate the demo rig scanning the demo part, reconstruct both modes, "
+       "compare with truth",
+       RunDemo},
+      {"simulate",
+       "virtual scan: ray-cast a rig over a scene into an ImageSet + ground truth (simulate --rig "
+       "--scene --patterns --out)",
+       RunSimulate},
+      {"patterns",
+       "pattern sequences: write projector images of a spec (patterns generate SPEC --out DIR), "
+       "describe one",
+       RunPatterns},
+      {"reconstruct",
+       "decode an ImageSet and triangulate a point cloud (reconstruct IMAGESET --out CLOUD.ply "
+       "[--mode projector|stereo])",
+       RunReconstruct},
+      {"compare",
+       "compare a cloud against a reference mesh or cloud: registration, deviations, report folder",
+       RunCompare},
+      {"calibrate",
+       "calibrate cameras, stereo, projector or rig from board images (calibrate "
+       "camera|stereo|projector|rig|import|export)",
+       RunCalibrate},
+      {"bench",
+       "speed of simulate, decode, reconstruct and compare on the demo, with peers in the same run",
+       RunBenchCommand},
+      {"shadow",
+       "real vs virtual: a real scan against its twin re-scan of the part; physics fitted, causes "
+       "named (shadow IMAGESET --part PART --out DIR)",
+       RunShadowCommand},
+      {"rig",
+       "inspect a rig file: cameras, projector, baselines, angles, overlap (rig show RIG.yaml)",
+       RunRig},
+      {"latency",
+       "projector-to-camera latency to wait after each pattern (latency --devices DEVICES.yaml), "
+       "or the window's present latency",
+       RunLatency},
+      {"capture",
+       "real capture: projector + cameras from a devices file into a resumable ImageSet (capture "
+       "--rig --devices --patterns --out)",
+       RunCapture},
+      {"devices",
+       "list cameras and displays to capture with (devices [--address IP]... [--discover]: "
+       "discovery broadcasts)",
+       RunDevices},
+      {"projector",
+       "a DLP LightCrafter 4500 over USB: firmware and mode, switch video/pattern mode, validate "
+       "(projector info|mode|validate)",
+       RunProjector},
+      {"sweep",
+       "studies as independent jobs: sweep plan STUDY.yaml --out JOBS | run JOBS --shard I/N | "
+       "merge JOBS --out RESULT",
+       RunSweep},
   };
   return commands;
 }
@@ -42,7 +81,8 @@ int ExitOnParseError(const CLI::App& app, const CLI::ParseError& error) {
   for (char& c : message) {
     if (c == '\n') c = ' ';
   }
-  std::fprintf(stderr, "slshadow: error: %s: %s (--help lists the options)\n", app.get_name().c_str(), message.c_str());
+  std::fprintf(stderr, "slshadow: error: %s: %s (--help lists the options)\n",
+               app.get_name().c_str(), message.c_str());
   return error.get_exit_code();
 }
 
@@ -56,7 +96,8 @@ void PrintHelp() {
       SLSHADOW_VERSION);
   for (const auto& c : Commands()) std::printf("  %-12s %s\n", c.name.c_str(), c.summary.c_str());
   std::printf(
-      "\nconventions: millimetres, radians, pixels (OpenCV: (0,0) is the centre of the top-left pixel);\n"
+      "\nconventions: millimetres, radians, pixels (OpenCV: (0,0) is the centre of the top-left "
+      "pixel);\n"
       "file formats are documented in docs/formats.md.\n");
 }
 
@@ -87,7 +128,9 @@ int Main(int argc, char** argv) {
     }
     return EXIT_FAILURE;
   }
-  std::fprintf(stderr, "slshadow: error: unknown command '%s' (slshadow --help lists the commands)\n", argv[1]);
+  std::fprintf(stderr,
+               "slshadow: error: unknown command '%s' (slshadow --help lists the commands)\n",
+               argv[1]);
   return EXIT_FAILURE;
 }
 

@@ -14,8 +14,8 @@ class ParseError;
 namespace slshadow::app {
 
 struct Command {
-  std::string name;     // first word after "slshadow"
-  std::string summary;  // one line for `slshadow --help`
+  std::string name;                   // first word after "slshadow"
+  std::string summary;                // one line for `slshadow --help`
   int (*run)(int argc, char** argv);  // argv[0] is "slshadow <name>"
 };
 

@@ -3,9 +3,9 @@
 #include <algorithm>
 #include <array>
 #include <chrono>
-#include <map>
 #include <cmath>
 #include <cstdio>
+#include <map>
 #include <memory>
 #include <numeric>
 #include <sstream>
@@ -45,8 +45,10 @@ using namespace calib::internal;  // NOLINT: calib's own internal helpers
 // its image is clamped to the bound and added to `pinned`, and the solve returns `repeat` (before
 // the covariance) for Solve to solve again with it held: an active-set method, which converges
 // where Ceres' projected steps on parameter bounds stalled (kamino: 433 iterations, not converged).
-SolveOutput SolveOnce(const CalibrationInput& input, const CalibrationOptions& options, State* s, bool want_covariance,
-                      const NoiseModel* noise, std::vector<ViewNoiseKernel>* kernels, std::vector<std::vector<int>>* pinned) {
+SolveOutput SolveOnce(const CalibrationInput& input, const CalibrationOptions& options, State* s,
+                      bool want_covariance, const NoiseModel* noise,
+                      std::vector<ViewNoiseKernel>* kernels,
+                      std::vector<std::vector<int>>* pinned) {
   auto held_of = [&](size_t d) {
     std::vector<int> held = HeldIntrinsics(options, input.devices[d], s->aspect[d]);
     held.insert(held.end(), (*pinned)[d].begin(), (*pinned)[d].end());
@@ -55,7 +57,8 @@ SolveOutput SolveOnce(const CalibrationInput& input, const CalibrationOptions& o
     return held;
   };
   ceres::Problem problem;
-  std::vector<bool> device_used(input.devices.size(), false), pose_used(static_cast<size_t>(input.num_poses), false);
+  std::vector<bool> device_used(input.devices.size(), false),
+      pose_used(static_cast<size_t>(input.num_poses), false);
   // Points in a joint pair, per view (not added again alone).
   std::vector<std::vector<bool>> paired(input.views.size());
   // Single-point residual blocks in order, and their (view, point).
@@ -64,7 +67,8 @@ SolveOutput SolveOnce(const CalibrationInput& input, const CalibrationOptions& o
   for (size_t vi = 0; noise && vi < input.views.size(); ++vi) {
     const BoardView& v = input.views[vi];
     if (!v.IsCarried() || !s->pose_known[v.pose]) continue;
-    const auto si = static_cast<size_t>(FindView(input, v.source_device, v.pose));  // exists (input.Check())
+    const auto si =
+        static_cast<size_t>(FindView(input, v.source_device, v.pose));  // exists (input.Check())
     const BoardView& src = input.views[si];
     paired[vi].resize(v.pixels_px.size(), false);
     paired[si].resize(src.pixels_px.size(), false);
@@ -72,15 +76,20 @@ SolveOutput SolveOnce(const CalibrationInput& input, const CalibrationOptions& o
     for (size_t i = 0; i < v.pixels_px.size(); ++i) {
       const auto j = static_cast<size_t>(v.source_points[i]);
       if (paired[si][j]) continue;  // a source point pairs once
-      const auto w = PairWhitening(sigma, v.source_jacobians[i], noise->carry_scale * v.carry_covariances_px2[i]);
+      const auto w = PairWhitening(sigma, v.source_jacobians[i],
+                                   noise->carry_scale * v.carry_covariances_px2[i]);
       if (!w) continue;
-      auto* cost = new ceres::AutoDiffCostFunction<CarriedPairFunctor, 4, CameraModel::kNumParams, 6,
-                                                   CameraModel::kNumParams, 6, 6, 2>(new CarriedPairFunctor{
-          ReprojectionFunctor(src.points_in_board_mm[j], src.pixels_px[j], s->aspect[src.device], s->extent),
-          ReprojectionFunctor(v.points_in_board_mm[i], v.pixels_px[i], s->aspect[v.device], s->extent), *w});
-      problem.AddResidualBlock(cost, MakeLoss(options, options.loss_scale_px / sigma), s->intrinsics[src.device].data(),
-                               s->dev_from_rig[src.device].data(), s->intrinsics[v.device].data(),
-                               s->dev_from_rig[v.device].data(), s->rig_from_board[v.pose].data(), s->warp.data());
+      auto* cost = new ceres::AutoDiffCostFunction<CarriedPairFunctor, 4, CameraModel::kNumParams,
+                                                   6, CameraModel::kNumParams, 6, 6, 2>(
+          new CarriedPairFunctor{ReprojectionFunctor(src.points_in_board_mm[j], src.pixels_px[j],
+                                                     s->aspect[src.device], s->extent),
+                                 ReprojectionFunctor(v.points_in_board_mm[i], v.pixels_px[i],
+                                                     s->aspect[v.device], s->extent),
+                                 *w});
+      problem.AddResidualBlock(cost, MakeLoss(options, options.loss_scale_px / sigma),
+                               s->intrinsics[src.device].data(), s->dev_from_rig[src.device].data(),
+                               s->intrinsics[v.device].data(), s->dev_from_rig[v.device].data(),
+                               s->rig_from_board[v.pose].data(), s->warp.data());
       paired[vi][i] = paired[si][j] = true;
     }
   }
@@ -90,13 +99,17 @@ SolveOutput SolveOnce(const CalibrationInput& input, const CalibrationOptions& o
     const double weight = noise ? 1 / noise->sigma_px[v.device] : 1.0;
     for (size_t i = 0; i < v.points_in_board_mm.size(); ++i) {
       if (!paired[vi].empty() && paired[vi][i]) continue;
-      auto* f = new ReprojectionFunctor(v.points_in_board_mm[i], v.pixels_px[i], s->aspect[v.device], s->extent);
+      auto* f = new ReprojectionFunctor(v.points_in_board_mm[i], v.pixels_px[i],
+                                        s->aspect[v.device], s->extent);
       f->weight = weight;
-      auto* cost = new ceres::AutoDiffCostFunction<ReprojectionFunctor, 2, CameraModel::kNumParams, 6, 6, 2>(f);
+      auto* cost =
+          new ceres::AutoDiffCostFunction<ReprojectionFunctor, 2, CameraModel::kNumParams, 6, 6, 2>(
+              f);
       // The loss is owned by the problem, one per residual.
       block_points.emplace_back(static_cast<int>(vi), static_cast<int>(i));
-      block_ids.push_back(problem.AddResidualBlock(cost, MakeLoss(options, options.loss_scale_px * weight), s->intrinsics[v.device].data(),
-                               s->dev_from_rig[v.device].data(), s->rig_from_board[v.pose].data(), s->warp.data()));
+      block_ids.push_back(problem.AddResidualBlock(
+          cost, MakeLoss(options, options.loss_scale_px * weight), s->intrinsics[v.device].data(),
+          s->dev_from_rig[v.device].data(), s->rig_from_board[v.pose].data(), s->warp.data()));
     }
     device_used[v.device] = true;
     pose_used[v.pose] = true;
@@ -109,7 +122,8 @@ SolveOutput SolveOnce(const CalibrationInput& input, const CalibrationOptions& o
     if (options.fix_intrinsics || input.devices[d].hold_intrinsics) {
       problem.SetParameterBlockConstant(intr);
     } else {
-      if (!held.empty()) problem.SetManifold(intr, new ceres::SubsetManifold(CameraModel::kNumParams, held));
+      if (!held.empty())
+        problem.SetManifold(intr, new ceres::SubsetManifold(CameraModel::kNumParams, held));
       out.num_free_parameters += CameraModel::kNumParams - static_cast<int>(held.size());
     }
     if (d == 0) {
@@ -121,7 +135,8 @@ SolveOutput SolveOnce(const CalibrationInput& input, const CalibrationOptions& o
   for (int p = 0; p < input.num_poses; ++p) {
     if (pose_used[p]) out.num_free_parameters += 6;
   }
-  const bool estimate_warp = options.estimate_board_warp && problem.HasParameterBlock(s->warp.data());
+  const bool estimate_warp =
+      options.estimate_board_warp && problem.HasParameterBlock(s->warp.data());
   if (problem.HasParameterBlock(s->warp.data())) {
     if (estimate_warp) {
       out.num_free_parameters += 2;
@@ -143,7 +158,8 @@ SolveOutput SolveOnce(const CalibrationInput& input, const CalibrationOptions& o
     const auto held = held_of(d);
     for (int i : {CameraModel::kCx, CameraModel::kCy}) {
       if (std::find(held.begin(), held.end(), i) != held.end()) continue;
-      const double upper = (i == CameraModel::kCx ? input.devices[d].width : input.devices[d].height) - 0.5;
+      const double upper =
+          (i == CameraModel::kCx ? input.devices[d].width : input.devices[d].height) - 0.5;
       double& v = s->intrinsics[d][static_cast<size_t>(i)];
       if (v >= -0.5 && v <= upper) continue;
       v = std::clamp(v, -0.5, upper);
@@ -193,7 +209,8 @@ SolveOutput SolveOnce(const CalibrationInput& input, const CalibrationOptions& o
       Eigen::MatrixXd jtj = Eigen::MatrixXd::Zero(cols, cols);
       for (int r = 0; r < crs.num_rows; ++r) {
         for (int a = crs.rows[r]; a < crs.rows[r + 1]; ++a) {
-          for (int b = crs.rows[r]; b < crs.rows[r + 1]; ++b) jtj(crs.cols[a], crs.cols[b]) += crs.values[a] * crs.values[b];
+          for (int b = crs.rows[r]; b < crs.rows[r + 1]; ++b)
+            jtj(crs.cols[a], crs.cols[b]) += crs.values[a] * crs.values[b];
         }
       }
       const Eigen::VectorXd scale = jtj.diagonal().cwiseMax(1e-300).cwiseSqrt().cwiseInverse();
@@ -201,10 +218,11 @@ SolveOutput SolveOnce(const CalibrationInput& input, const CalibrationOptions& o
       const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(scaled);
       const double max_ev = es.eigenvalues().maxCoeff();
       if (es.info() == Eigen::Success && es.eigenvalues().minCoeff() > 1e-12 * max_ev) {
-        const Eigen::MatrixXd inv = scale.asDiagonal() *
-                                    (es.eigenvectors() * es.eigenvalues().cwiseInverse().asDiagonal() *
-                                     es.eigenvectors().transpose()) *
-                                    scale.asDiagonal();
+        const Eigen::MatrixXd inv =
+            scale.asDiagonal() *
+            (es.eigenvectors() * es.eigenvalues().cwiseInverse().asDiagonal() *
+             es.eigenvectors().transpose()) *
+            scale.asDiagonal();
         // Per device: lift from the tangent space (free coordinates in order) to the 9 parameters.
         auto lift = [&](const Eigen::MatrixXd& full, size_t d) {
           Matrix9d c = Matrix9d::Zero();
@@ -216,7 +234,8 @@ SolveOutput SolveOnce(const CalibrationInput& input, const CalibrationOptions& o
           }
           for (size_t a = 0; a < free.size(); ++a) {
             for (size_t b = 0; b < free.size(); ++b) {
-              c(free[a], free[b]) = full(intr_column[d] + static_cast<int>(a), intr_column[d] + static_cast<int>(b));
+              c(free[a], free[b]) =
+                  full(intr_column[d] + static_cast<int>(a), intr_column[d] + static_cast<int>(b));
             }
           }
           if (s->aspect[d] > 0) {  // fy = aspect * fx
@@ -231,7 +250,8 @@ SolveOutput SolveOnce(const CalibrationInput& input, const CalibrationOptions& o
         if (sandwich) {
           const Eigen::MatrixXd sandwich_cov =
               ViewCorrelatedCovariance(input, block_points, residuals, crs, inv, cols, kernels);
-          for (size_t d = 0; d < input.devices.size(); ++d) out.correlated_covariance.push_back(lift(sandwich_cov, d));
+          for (size_t d = 0; d < input.devices.size(); ++d)
+            out.correlated_covariance.push_back(lift(sandwich_cov, d));
         }
       }
     }
@@ -240,8 +260,9 @@ SolveOutput SolveOnce(const CalibrationInput& input, const CalibrationOptions& o
 }
 
 // SolveOnce until no principal-point coordinate leaves its image (at most once per coordinate).
-SolveOutput Solve(const CalibrationInput& input, const CalibrationOptions& options, State* s, bool want_covariance,
-                  const NoiseModel* noise = nullptr, std::vector<ViewNoiseKernel>* kernels = nullptr) {
+SolveOutput Solve(const CalibrationInput& input, const CalibrationOptions& options, State* s,
+                  bool want_covariance, const NoiseModel* noise = nullptr,
+                  std::vector<ViewNoiseKernel>* kernels = nullptr) {
   // A solve with iterations finds its own active set; an evaluation (max_iterations 0, the
   // covariance at a solution) keeps the one the solution was found with.
   std::vector<std::vector<int>> pinned(input.devices.size());
@@ -261,9 +282,12 @@ SolveOutput Solve(const CalibrationInput& input, const CalibrationOptions& optio
 
 std::string ToString(LossType loss) {
   switch (loss) {
-    case LossType::kNone: return "none";
-    case LossType::kHuber: return "huber";
-    case LossType::kCauchy: return "cauchy";
+    case LossType::kNone:
+      return "none";
+    case LossType::kHuber:
+      return "huber";
+    case LossType::kCauchy:
+      return "cauchy";
   }
   return "?";
 }
@@ -276,11 +300,16 @@ LossType LossTypeFromString(const std::string& name) {
 }
 
 void CalibrationOptions::Check() const {
-  SLSHADOW_THROW_IF(!(aspect_ratio > 0 && std::isfinite(aspect_ratio)), "calibration options: aspect_ratio: must be positive (got ",
-                    aspect_ratio, ")");
-  SLSHADOW_THROW_IF(!(loss_scale_px > 0), "calibration options: loss_scale_px: must be positive (got ", loss_scale_px, ")");
-  SLSHADOW_THROW_IF(max_iterations < 1, "calibration options: max_iterations: must be at least 1 (got ", max_iterations, ")");
-  SLSHADOW_THROW_IF(!(outlier_view_factor > 1), "calibration options: outlier_view_factor: must be > 1 (got ",
+  SLSHADOW_THROW_IF(!(aspect_ratio > 0 && std::isfinite(aspect_ratio)),
+                    "calibration options: aspect_ratio: must be positive (got ", aspect_ratio, ")");
+  SLSHADOW_THROW_IF(!(loss_scale_px > 0),
+                    "calibration options: loss_scale_px: must be positive (got ", loss_scale_px,
+                    ")");
+  SLSHADOW_THROW_IF(max_iterations < 1,
+                    "calibration options: max_iterations: must be at least 1 (got ", max_iterations,
+                    ")");
+  SLSHADOW_THROW_IF(!(outlier_view_factor > 1),
+                    "calibration options: outlier_view_factor: must be > 1 (got ",
                     outlier_view_factor, ")");
 }
 
@@ -288,57 +317,72 @@ void CalibrationInput::Check() const {
   SLSHADOW_THROW_IF(devices.empty(), "calibration: no devices");
   SLSHADOW_THROW_IF(num_poses < 1, "calibration: no board poses (got num_poses ", num_poses, ")");
   for (const auto& d : devices) {
-    SLSHADOW_THROW_IF(d.width <= 0 || d.height <= 0, "calibration: device '", d.name, "': image size must be positive (got ",
-                      d.width, "x", d.height, ")");
+    SLSHADOW_THROW_IF(d.width <= 0 || d.height <= 0, "calibration: device '", d.name,
+                      "': image size must be positive (got ", d.width, "x", d.height, ")");
     if (d.initial) d.initial->Check("calibration: device '" + d.name + "': initial model");
     SLSHADOW_THROW_IF(d.hold_intrinsics && !d.initial, "calibration: device '", d.name,
                       "': hold_intrinsics needs initial intrinsics");
     for (int i : d.held_params) {
       SLSHADOW_THROW_IF(i < 0 || i >= CameraModel::kNumParams, "calibration: device '", d.name,
-                        "': held_params: parameter index must be in 0..", CameraModel::kNumParams - 1, " (got ", i, ")");
+                        "': held_params: parameter index must be in 0..",
+                        CameraModel::kNumParams - 1, " (got ", i, ")");
     }
-    SLSHADOW_THROW_IF(d.initial && (d.initial->width != d.width || d.initial->height != d.height), "calibration: device '",
-                      d.name, "': initial model is ", d.initial->width, "x", d.initial->height, " but the device is ", d.width,
-                      "x", d.height, " (mismatched image sizes)");
+    SLSHADOW_THROW_IF(d.initial && (d.initial->width != d.width || d.initial->height != d.height),
+                      "calibration: device '", d.name, "': initial model is ", d.initial->width,
+                      "x", d.initial->height, " but the device is ", d.width, "x", d.height,
+                      " (mismatched image sizes)");
   }
   std::vector<int> views_per_device(devices.size(), 0);
   for (const auto& v : views) {
     const std::string what = "calibration: view '" + v.label + "'";
-    SLSHADOW_THROW_IF(v.device < 0 || v.device >= static_cast<int>(devices.size()), what, ": device index out of range (got ",
-                      v.device, ")");
-    SLSHADOW_THROW_IF(v.pose < 0 || v.pose >= num_poses, what, ": pose index out of range (got ", v.pose, ")");
-    SLSHADOW_THROW_IF(v.points_in_board_mm.size() != v.pixels_px.size(), what, ": ", v.points_in_board_mm.size(),
-                      " board points but ", v.pixels_px.size(), " pixels");
-    SLSHADOW_THROW_IF(v.pixels_px.size() < 4, what, ": needs at least 4 points (got ", v.pixels_px.size(), ")");
+    SLSHADOW_THROW_IF(v.device < 0 || v.device >= static_cast<int>(devices.size()), what,
+                      ": device index out of range (got ", v.device, ")");
+    SLSHADOW_THROW_IF(v.pose < 0 || v.pose >= num_poses, what, ": pose index out of range (got ",
+                      v.pose, ")");
+    SLSHADOW_THROW_IF(v.points_in_board_mm.size() != v.pixels_px.size(), what, ": ",
+                      v.points_in_board_mm.size(), " board points but ", v.pixels_px.size(),
+                      " pixels");
+    SLSHADOW_THROW_IF(v.pixels_px.size() < 4, what, ": needs at least 4 points (got ",
+                      v.pixels_px.size(), ")");
     const auto& dev = devices[static_cast<size_t>(v.device)];
     for (const auto& px : v.pixels_px) {
       // 2 px of slack: noisy detections at the border.
-      SLSHADOW_THROW_IF(!px.allFinite() || px.x() < -2.5 || px.y() < -2.5 || px.x() > dev.width + 1.5 ||
-                            px.y() > dev.height + 1.5,
-                        what, ": pixel (", px.x(), ", ", px.y(), ") outside the ", dev.width, "x", dev.height,
-                        " image of device '", dev.name, "' (mismatched image sizes?)");
+      SLSHADOW_THROW_IF(!px.allFinite() || px.x() < -2.5 || px.y() < -2.5 ||
+                            px.x() > dev.width + 1.5 || px.y() > dev.height + 1.5,
+                        what, ": pixel (", px.x(), ", ", px.y(), ") outside the ", dev.width, "x",
+                        dev.height, " image of device '", dev.name, "' (mismatched image sizes?)");
     }
     if (v.IsCarried()) {
-      SLSHADOW_THROW_IF(v.source_device >= static_cast<int>(devices.size()) || v.source_device == v.device, what,
-                        ": source_device must be another device of the input (got ", v.source_device, ")");
+      SLSHADOW_THROW_IF(
+          v.source_device >= static_cast<int>(devices.size()) || v.source_device == v.device, what,
+          ": source_device must be another device of the input (got ", v.source_device, ")");
       const size_t n = v.pixels_px.size();
-      SLSHADOW_THROW_IF(v.source_points.size() != n || v.source_jacobians.size() != n || v.carry_covariances_px2.size() != n,
-                        what, ": a carried view needs one source point, Jacobian and carry covariance per point (", n,
-                        " points, ", v.source_points.size(), " source points, ", v.source_jacobians.size(), " Jacobians, ",
-                        v.carry_covariances_px2.size(), " covariances)");
+      SLSHADOW_THROW_IF(
+          v.source_points.size() != n || v.source_jacobians.size() != n ||
+              v.carry_covariances_px2.size() != n,
+          what,
+          ": a carried view needs one source point, Jacobian and carry covariance per point (", n,
+          " points, ", v.source_points.size(), " source points, ", v.source_jacobians.size(),
+          " Jacobians, ", v.carry_covariances_px2.size(), " covariances)");
       const int si = FindView(*this, v.source_device, v.pose);
-      SLSHADOW_THROW_IF(si < 0, what, ": carried from device '", devices[static_cast<size_t>(v.source_device)].name,
+      SLSHADOW_THROW_IF(si < 0, what, ": carried from device '",
+                        devices[static_cast<size_t>(v.source_device)].name,
                         "', which has no view of pose ", v.pose);
       const BoardView& src = views[static_cast<size_t>(si)];
       for (size_t i = 0; i < n; ++i) {
         const int j = v.source_points[i];
-        SLSHADOW_THROW_IF(j < 0 || j >= static_cast<int>(src.pixels_px.size()) ||
-                              (src.points_in_board_mm[static_cast<size_t>(j)] - v.points_in_board_mm[i]).norm() > 1e-9,
-                          what, ": point ", i, ": source point ", j, " is not the same board point in view '", src.label, "'");
+        SLSHADOW_THROW_IF(
+            j < 0 || j >= static_cast<int>(src.pixels_px.size()) ||
+                (src.points_in_board_mm[static_cast<size_t>(j)] - v.points_in_board_mm[i]).norm() >
+                    1e-9,
+            what, ": point ", i, ": source point ", j, " is not the same board point in view '",
+            src.label, "'");
         const Eigen::Matrix2d& c = v.carry_covariances_px2[i];
-        SLSHADOW_THROW_IF(!v.source_jacobians[i].allFinite() || !c.allFinite() || std::abs(c(0, 1) - c(1, 0)) > 1e-9 * c.norm() ||
+        SLSHADOW_THROW_IF(!v.source_jacobians[i].allFinite() || !c.allFinite() ||
+                              std::abs(c(0, 1) - c(1, 0)) > 1e-9 * c.norm() ||
                               Eigen::LLT<Eigen::Matrix2d>(c).info() != Eigen::Success,
-                          what, ": point ", i, ": the source Jacobian must be finite and the carry covariance symmetric "
+                          what, ": point ", i,
+                          ": the source Jacobian must be finite and the carry covariance symmetric "
                           "positive definite");
       }
     }
@@ -347,20 +391,25 @@ void CalibrationInput::Check() const {
     Eigen::Vector3d mean = Eigen::Vector3d::Zero();
     for (const auto& p : v.points_in_board_mm) mean += p;
     mean /= static_cast<double>(v.points_in_board_mm.size());
-    for (size_t i = 0; i < v.points_in_board_mm.size(); ++i) centred.col(static_cast<Eigen::Index>(i)) = v.points_in_board_mm[i] - mean;
+    for (size_t i = 0; i < v.points_in_board_mm.size(); ++i)
+      centred.col(static_cast<Eigen::Index>(i)) = v.points_in_board_mm[i] - mean;
     const Eigen::JacobiSVD<Eigen::MatrixXd> svd(centred);
     const auto sv = svd.singularValues();
-    SLSHADOW_THROW_IF(!(sv(1) > 1e-6 * sv(0)) || !(sv(0) > 0), what,
-                      ": the board points are collinear; a view needs points spanning the board in 2D");
+    SLSHADOW_THROW_IF(
+        !(sv(1) > 1e-6 * sv(0)) || !(sv(0) > 0), what,
+        ": the board points are collinear; a view needs points spanning the board in 2D");
     ++views_per_device[static_cast<size_t>(v.device)];
   }
   for (size_t d = 0; d < devices.size(); ++d) {
     if (devices[d].initial) {
-      SLSHADOW_THROW_IF(views_per_device[d] < 1, "calibration: device '", devices[d].name, "': no views");
+      SLSHADOW_THROW_IF(views_per_device[d] < 1, "calibration: device '", devices[d].name,
+                        "': no views");
     } else {
-      SLSHADOW_THROW_IF(views_per_device[d] < 2, "calibration: device '", devices[d].name, "': ", views_per_device[d],
-                        " view(s); calibrating intrinsics needs at least 2 (better 10-20) views of the board in "
-                        "different orientations");
+      SLSHADOW_THROW_IF(
+          views_per_device[d] < 2, "calibration: device '", devices[d].name,
+          "': ", views_per_device[d],
+          " view(s); calibrating intrinsics needs at least 2 (better 10-20) views of the board in "
+          "different orientations");
     }
   }
 }
@@ -386,7 +435,8 @@ CalibrationResult Calibrate(const CalibrationInput& input, const CalibrationOpti
     iterations += static_cast<int>(direct.summary.iterations.size());
     State t = InitDevice(sub, options);
     CalibrationInput pinhole = sub;
-    for (int i : {CameraModel::kK1, CameraModel::kK2, CameraModel::kP1, CameraModel::kP2, CameraModel::kK3}) {
+    for (int i : {CameraModel::kK1, CameraModel::kK2, CameraModel::kP1, CameraModel::kP2,
+                  CameraModel::kK3}) {
       pinhole.devices[0].held_params.push_back(i);
     }
     iterations += static_cast<int>(Solve(pinhole, options, &t, false).summary.iterations.size());
@@ -420,7 +470,8 @@ CalibrationResult Calibrate(const CalibrationInput& input, const CalibrationOpti
       std::vector<Rigid3d> candidates;
       for (int p = 0; p < input.num_poses; ++p) {
         if (s.pose_known[p] && per_device[d].pose_known[p]) {
-          candidates.push_back(FromPose6(per_device[d].rig_from_board[p]) * FromPose6(s.rig_from_board[p]).Inverse());
+          candidates.push_back(FromPose6(per_device[d].rig_from_board[p]) *
+                               FromPose6(s.rig_from_board[p]).Inverse());
         }
       }
       if (candidates.empty()) continue;
@@ -428,7 +479,8 @@ CalibrationResult Calibrate(const CalibrationInput& input, const CalibrationOpti
       s.dev_from_rig[d] = ToPose6(dev_from_rig);
       for (int p = 0; p < input.num_poses; ++p) {
         if (!s.pose_known[p] && per_device[d].pose_known[p]) {
-          s.rig_from_board[p] = ToPose6(dev_from_rig.Inverse() * FromPose6(per_device[d].rig_from_board[p]));
+          s.rig_from_board[p] =
+              ToPose6(dev_from_rig.Inverse() * FromPose6(per_device[d].rig_from_board[p]));
           s.pose_known[p] = true;
         }
       }
@@ -437,8 +489,9 @@ CalibrationResult Calibrate(const CalibrationInput& input, const CalibrationOpti
     }
   }
   for (int d = 1; d < num_devices; ++d) {
-    SLSHADOW_THROW_IF(!placed[d], "calibration: device '", input.devices[d].name, "' shares no board pose with device '",
-                      input.devices[0].name, "' (directly or through other devices): its pose in the rig is unknown; "
+    SLSHADOW_THROW_IF(!placed[d], "calibration: device '", input.devices[d].name,
+                      "' shares no board pose with device '", input.devices[0].name,
+                      "' (directly or through other devices): its pose in the rig is unknown; "
                       "capture poses where both see the board");
   }
 
@@ -446,7 +499,8 @@ CalibrationResult Calibrate(const CalibrationInput& input, const CalibrationOpti
   // weights, estimate the noise model from its residuals, solve whitened, re-estimate once, and
   // solve whitened again (with the covariance).
   bool joint = false;
-  for (const auto& v : input.views) joint = joint || (options.correlated_carried_noise && v.IsCarried());
+  for (const auto& v : input.views)
+    joint = joint || (options.correlated_carried_noise && v.IsCarried());
   SolveOutput final_solve = Solve(input, options, &s, options.compute_covariance && !joint);
   iterations += static_cast<int>(final_solve.summary.iterations.size());
   NoiseModel noise;
@@ -462,7 +516,8 @@ CalibrationResult Calibrate(const CalibrationInput& input, const CalibrationOpti
     kernels = EstimateViewKernels(input, s);
     CalibrationOptions evaluate_only = options;
     evaluate_only.max_iterations = 0;
-    correlated_covariance = Solve(input, evaluate_only, &s, true, nullptr, &kernels).correlated_covariance;
+    correlated_covariance =
+        Solve(input, evaluate_only, &s, true, nullptr, &kernels).correlated_covariance;
   }
 
   CalibrationResult result;
@@ -491,8 +546,8 @@ CalibrationResult Calibrate(const CalibrationInput& input, const CalibrationOpti
   sum.final_cost = final_solve.summary.final_cost;
   sum.iterations = iterations;
   sum.converged = final_solve.summary.termination_type == ceres::CONVERGENCE;
-  sum.termination = ceres::TerminationTypeToString(final_solve.summary.termination_type) + std::string(": ") +
-                    final_solve.summary.message;
+  sum.termination = ceres::TerminationTypeToString(final_solve.summary.termination_type) +
+                    std::string(": ") + final_solve.summary.message;
   sum.num_free_parameters = final_solve.num_free_parameters;
   sum.devices.resize(static_cast<size_t>(num_devices));
   std::vector<double> dev_sq(static_cast<size_t>(num_devices), 0);
@@ -555,11 +610,12 @@ CalibrationResult Calibrate(const CalibrationInput& input, const CalibrationOpti
   for (int d = 0; options.principal_point_inside && d < num_devices; ++d) {
     const CalibrationDevice& dev = input.devices[static_cast<size_t>(d)];
     for (int i : {CameraModel::kCx, CameraModel::kCy}) {
-      const double v = s.intrinsics[d][i], upper = (i == CameraModel::kCx ? dev.width : dev.height) - 0.5;
+      const double v = s.intrinsics[d][i],
+                   upper = (i == CameraModel::kCx ? dev.width : dev.height) - 0.5;
       if (std::abs(v - upper) > 1e-6 && std::abs(v + 0.5) > 1e-6) continue;
       char line[160];
-      std::snprintf(line, sizeof(line), "%s %s = %.1f (%s bound)", dev.name.c_str(), i == CameraModel::kCx ? "cx" : "cy", v,
-                    v > 0 ? "upper" : "lower");
+      std::snprintf(line, sizeof(line), "%s %s = %.1f (%s bound)", dev.name.c_str(),
+                    i == CameraModel::kCx ? "cx" : "cy", v, v > 0 ? "upper" : "lower");
       sum.bounds_active.push_back(line);
     }
   }
@@ -580,9 +636,11 @@ void BoardView::DropCarry() {
 }
 
 std::vector<Eigen::Vector2d> Reproject(const CalibrationResult& result, const BoardView& view) {
-  SLSHADOW_THROW_IF(view.device < 0 || view.device >= static_cast<int>(result.devices.size()) || view.pose < 0 ||
-                        view.pose >= static_cast<int>(result.rig_from_board.size()) || !result.rig_from_board[view.pose],
-                    "Reproject: view '", view.label, "' has no device or estimated pose in this result");
+  SLSHADOW_THROW_IF(
+      view.device < 0 || view.device >= static_cast<int>(result.devices.size()) || view.pose < 0 ||
+          view.pose >= static_cast<int>(result.rig_from_board.size()) ||
+          !result.rig_from_board[view.pose],
+      "Reproject: view '", view.label, "' has no device or estimated pose in this result");
   const RigDevice& dev = result.devices[view.device];
   const Pose6 dev_from_rig = ToPose6(dev.cam_from_rig);
   const Pose6 rig_from_board = ToPose6(*result.rig_from_board[view.pose]);
@@ -600,10 +658,11 @@ std::vector<Eigen::Vector2d> Reproject(const CalibrationResult& result, const Bo
 std::string CalibrationSummary::BriefReport() const {
   std::ostringstream out;
   out.precision(4);
-  out << "calibration: " << devices.size() << " device(s), " << views.size() << " views, " << num_points
-      << " points: RMS " << rms_px << " px (worst " << max_px << " px), " << num_outlier_views
-      << " outlier view(s); cost " << initial_cost << " -> " << final_cost << ", " << iterations << " iterations, "
-      << (converged ? "converged" : "NOT converged") << ", " << solve_time_s << " s";
+  out << "calibration: " << devices.size() << " device(s), " << views.size() << " views, "
+      << num_points << " points: RMS " << rms_px << " px (worst " << max_px << " px), "
+      << num_outlier_views << " outlier view(s); cost " << initial_cost << " -> " << final_cost
+      << ", " << iterations << " iterations, " << (converged ? "converged" : "NOT converged")
+      << ", " << solve_time_s << " s";
   return out.str();
 }
 
@@ -611,38 +670,43 @@ std::string CalibrationSummary::FullReport() const {
   std::ostringstream out;
   out << BriefReport() << "\n";
   char line[512];
-  std::snprintf(line, sizeof(line), "termination: %s\nfree parameters: %d, residual sigma %.4f px per coordinate\n",
+  std::snprintf(line, sizeof(line),
+                "termination: %s\nfree parameters: %d, residual sigma %.4f px per coordinate\n",
                 termination.c_str(), num_free_parameters, residual_sigma_px);
   out << line;
   if (joint_noise) {
-    out << "noise model: carried points whitened with their source points; corner noise per device (px):";
+    out << "noise model: carried points whitened with their source points; corner noise per device "
+           "(px):";
     for (size_t d = 0; d < noise_sigma_px.size(); ++d) {
       std::snprintf(line, sizeof(line), " %s %.4f", devices[d].name.c_str(), noise_sigma_px[d]);
       out << line;
     }
-    std::snprintf(line, sizeof(line), "; carry scale %.4g; chi2/dof %.4f\n", carry_scale, variance_factor);
+    std::snprintf(line, sizeof(line), "; carry scale %.4g; chi2/dof %.4f\n", carry_scale,
+                  variance_factor);
     out << line;
   }
   if (!view_noise.empty()) {
     out << "corner errors within a view (sigma px, correlated share, length in squares):";
     for (size_t d = 0; d < view_noise.size() && d < devices.size(); ++d) {
-      std::snprintf(line, sizeof(line), " %s %.4f %.2f %.2f", devices[d].name.c_str(), view_noise[d].sigma_px,
-                    view_noise[d].share, view_noise[d].length_squares);
+      std::snprintf(line, sizeof(line), " %s %.4f %.2f %.2f", devices[d].name.c_str(),
+                    view_noise[d].sigma_px, view_noise[d].share, view_noise[d].length_squares);
       out << line;
     }
     out << "\n";
   }
-  for (const auto& b : bounds_active) out << "principal point on its bound (the data pull it outside the image): " << b << "\n";
+  for (const auto& b : bounds_active)
+    out << "principal point on its bound (the data pull it outside the image): " << b << "\n";
   out << "device           views  points  RMS px   worst px\n";
   for (const auto& d : devices) {
-    std::snprintf(line, sizeof(line), "%-16s %5d %7d %8.4f %9.4f\n", d.name.c_str(), d.num_views, d.num_points,
-                  d.rms_px, d.max_px);
+    std::snprintf(line, sizeof(line), "%-16s %5d %7d %8.4f %9.4f\n", d.name.c_str(), d.num_views,
+                  d.num_points, d.rms_px, d.max_px);
     out << line;
   }
   out << "view                             device pose points  RMS px   worst px\n";
   for (const auto& v : views) {
-    std::snprintf(line, sizeof(line), "%-32s %6d %4d %6d %8.4f %9.4f%s\n", v.label.c_str(), v.device, v.pose,
-                  v.num_points, v.rms_px, v.max_px, v.outlier ? "  OUTLIER" : (v.num_points ? "" : "  (not posed)"));
+    std::snprintf(line, sizeof(line), "%-32s %6d %4d %6d %8.4f %9.4f%s\n", v.label.c_str(),
+                  v.device, v.pose, v.num_points, v.rms_px, v.max_px,
+                  v.outlier ? "  OUTLIER" : (v.num_points ? "" : "  (not posed)"));
     out << line;
   }
   return out.str();

@@ -111,8 +111,9 @@ struct CalibrationOptions {
   LossType loss = LossType::kNone;   // robust loss on each point's residual
   double loss_scale_px = 1.0;        // residual size where the robust loss starts to bend, px
   int max_iterations = 200;          // Levenberg-Marquardt iterations per solve
-  double outlier_view_factor = 3.0;  // a view is an outlier when its RMS > factor * its device's median view RMS
-  bool compute_covariance = true;    // intrinsics covariance from the Jacobian at the solution
+  double outlier_view_factor =
+      3.0;  // a view is an outlier when its RMS > factor * its device's median view RMS
+  bool compute_covariance = true;  // intrinsics covariance from the Jacobian at the solution
   // Estimate a board warp shared by all poses: z += w_x (1 - s^2) + w_y (1 - t^2) mm, (s, t) the
   // point's position across the board's extent scaled to [-1, 1] (mrcal's board deformation).
   bool estimate_board_warp = false;
@@ -129,7 +130,8 @@ struct CalibrationOptions {
   // point's share of its source's error then counts twice). Off by default: on real captures
   // the residuals can be correlated across the corners of a pose, which neither model describes,
   // and the joint model's covariance is then the more optimistic of the two
-  // (docs/benchmarks/log/calibration.md); it is the right model when the corner errors are independent (tested).
+  // (docs/benchmarks/log/calibration.md); it is the right model when the corner errors are
+  // independent (tested).
   bool correlated_carried_noise = false;
   // Bound every estimated device's principal point to its image: -0.5 <= cx <= width - 0.5 and
   // -0.5 <= cy <= height - 0.5 (pixel centres at integers), as Ceres parameter bounds (a start
@@ -166,9 +168,10 @@ struct DeviceStats {
 
 // What the solver did, in the spirit of ceres::Solver::Summary.
 struct CalibrationSummary {
-  double initial_cost = 0;  // Ceres cost (half the sum of squared, loss-mapped residuals) at the start
+  double initial_cost =
+      0;  // Ceres cost (half the sum of squared, loss-mapped residuals) at the start
   double final_cost = 0;
-  double rms_px = 0;        // over all points and devices: sqrt(sum |r|^2 / N points)
+  double rms_px = 0;  // over all points and devices: sqrt(sum |r|^2 / N points)
   double max_px = 0;
   double residual_sigma_px = 0;  // per-coordinate noise estimate sqrt(sum r^2 / (2N - free params))
   int num_points = 0;
@@ -188,12 +191,12 @@ struct CalibrationSummary {
   std::vector<double> noise_sigma_px;  // per device
   double carry_scale = 0;
   double variance_factor = 0;
-  // The view-correlated noise model behind CalibrationResult::intrinsics_covariance_view_correlated,
-  // per device (for a carried device: its own error, beyond the source's carried through J):
-  // sigma per coordinate, and the correlation of two corners delta squares apart,
-  // share * exp(-delta^2 / (2 length^2)). Fitted to the residuals' moments at 0, 1 and sqrt(2)
-  // squares through the residual-maker matrix (the fit absorbs part of correlated errors).
-  // share 0: the residuals look independent (neighbour correlation <= 0.1).
+  // The view-correlated noise model behind
+  // CalibrationResult::intrinsics_covariance_view_correlated, per device (for a carried device: its
+  // own error, beyond the source's carried through J): sigma per coordinate, and the correlation of
+  // two corners delta squares apart, share * exp(-delta^2 / (2 length^2)). Fitted to the residuals'
+  // moments at 0, 1 and sqrt(2) squares through the residual-maker matrix (the fit absorbs part of
+  // correlated errors). share 0: the residuals look independent (neighbour correlation <= 0.1).
   struct ViewNoise {
     double sigma_px = 0;
     double share = 0;
@@ -212,7 +215,8 @@ using Matrix9d = Eigen::Matrix<double, 9, 9>;
 
 struct CalibrationResult {
   std::vector<RigDevice> devices;  // models and cam_from_rig (device 0: identity)
-  // Per pose: rig_from_board (x_in_rig = rig_from_board * x_in_board), absent when no device saw it.
+  // Per pose: rig_from_board (x_in_rig = rig_from_board * x_in_board), absent when no device saw
+  // it.
   std::vector<std::optional<Rigid3d>> rig_from_board;
   // Per device: covariance of (fx fy cx cy k1 k2 p1 p2 k3), scaled by residual_sigma_px^2 (with
   // summary.joint_noise: J of the whitened residuals, scaled by summary.variance_factor): the
@@ -228,8 +232,9 @@ struct CalibrationResult {
   // independent. Equals intrinsics_covariance (up to the dof correction) when the residuals look
   // independent. Empty when not computed (no covariance, fix_intrinsics, correlated_carried_noise).
   std::vector<Matrix9d> intrinsics_covariance_view_correlated;
-  Eigen::Vector2d board_warp_mm = Eigen::Vector2d::Zero();   // (w_x, w_y); zero unless estimated
-  Eigen::Vector4d board_extent_mm = Eigen::Vector4d::Zero();  // xmin xmax ymin ymax of the board points
+  Eigen::Vector2d board_warp_mm = Eigen::Vector2d::Zero();  // (w_x, w_y); zero unless estimated
+  Eigen::Vector4d board_extent_mm =
+      Eigen::Vector4d::Zero();  // xmin xmax ymin ymax of the board points
   CalibrationSummary summary;
 };
 

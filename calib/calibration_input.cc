@@ -14,7 +14,8 @@ namespace slshadow {
 namespace fs = std::filesystem;
 
 std::vector<fs::path> ImageFiles(const std::vector<std::string>& args, const std::string& what) {
-  static const std::set<std::string> kExt = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"};
+  static const std::set<std::string> kExt = {".png", ".jpg",  ".jpeg", ".bmp",
+                                             ".tif", ".tiff", ".pgm",  ".ppm"};
   std::vector<fs::path> files;
   for (const auto& a : args) {
     const fs::path p(a);
@@ -23,11 +24,13 @@ std::vector<fs::path> ImageFiles(const std::vector<std::string>& args, const std
       std::vector<fs::path> in_dir;
       for (const auto& e : fs::directory_iterator(p)) {
         std::string ext = e.path().extension().string();
-        std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+        std::transform(ext.begin(), ext.end(), ext.begin(),
+                       [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
         if (e.is_regular_file() && kExt.count(ext)) in_dir.push_back(e.path());
       }
       std::sort(in_dir.begin(), in_dir.end());
-      SLSHADOW_THROW_IF(in_dir.empty(), what, ": ", a, ": folder holds no images (.png .jpg .bmp .tif .pgm)");
+      SLSHADOW_THROW_IF(in_dir.empty(), what, ": ", a,
+                        ": folder holds no images (.png .jpg .bmp .tif .pgm)");
       files.insert(files.end(), in_dir.begin(), in_dir.end());
     } else {
       files.push_back(p);
@@ -36,8 +39,8 @@ std::vector<fs::path> ImageFiles(const std::vector<std::string>& args, const std
   return files;
 }
 
-void AddBoardViews(const TargetSpec& spec, const std::vector<fs::path>& files, int device, CalibrationInput* input,
-                   std::vector<ImageCheck>* checks) {
+void AddBoardViews(const TargetSpec& spec, const std::vector<fs::path>& files, int device,
+                   CalibrationInput* input, std::vector<ImageCheck>* checks) {
   const auto board = BoardPoints(spec);
   auto& dev = input->devices[static_cast<size_t>(device)];
   for (size_t p = 0; p < files.size(); ++p) {
@@ -46,8 +49,9 @@ void AddBoardViews(const TargetSpec& spec, const std::vector<fs::path>& files, i
       dev.width = det.width;
       dev.height = det.height;
     }
-    SLSHADOW_THROW_IF(det.width != dev.width || det.height != dev.height, files[p].string(), ": image is ", det.width, "x",
-                      det.height, " but the first image of '", dev.name, "' is ", dev.width, "x", dev.height,
+    SLSHADOW_THROW_IF(det.width != dev.width || det.height != dev.height, files[p].string(),
+                      ": image is ", det.width, "x", det.height, " but the first image of '",
+                      dev.name, "' is ", dev.width, "x", dev.height,
                       " (mismatched image sizes: one camera per list)");
     checks->push_back({files[p].string(), device, det.found, det.reason, det.saturated_fraction});
     if (!det.found) continue;
@@ -74,33 +78,37 @@ void AddProcamPose(const ProcamPose& pose, CalibrationInput* input) {
 
 }  // namespace
 
-void AddProcamCaptures(const PatternSpec& patterns, const std::string& patterns_path, const TargetSpec& spec,
-                       const std::vector<std::vector<fs::path>>& captures, const std::vector<std::string>& labels,
-                       const ProcamInputOptions& options, CalibrationInput* input, std::vector<ImageCheck>* checks,
+void AddProcamCaptures(const PatternSpec& patterns, const std::string& patterns_path,
+                       const TargetSpec& spec, const std::vector<std::vector<fs::path>>& captures,
+                       const std::vector<std::string>& labels, const ProcamInputOptions& options,
+                       CalibrationInput* input, std::vector<ImageCheck>* checks,
                        std::vector<std::string>* skipped) {
   options.Check();
-  SLSHADOW_THROW_IF(labels.size() != captures.size(), "AddProcamCaptures: ", labels.size(), " labels for ",
-                    captures.size(), " captures");
+  SLSHADOW_THROW_IF(labels.size() != captures.size(), "AddProcamCaptures: ", labels.size(),
+                    " labels for ", captures.size(), " captures");
   for (size_t p = 0; p < captures.size(); ++p) {
     const auto& files = captures[p];
-    SLSHADOW_THROW_IF(static_cast<int>(files.size()) != patterns.NumImages(), labels[p], ": ", files.size(),
-                      " images but the pattern sequence ", patterns_path, " has ", patterns.NumImages());
+    SLSHADOW_THROW_IF(static_cast<int>(files.size()) != patterns.NumImages(), labels[p], ": ",
+                      files.size(), " images but the pattern sequence ", patterns_path, " has ",
+                      patterns.NumImages());
     std::vector<cv::Mat> frames;
     for (const auto& f : files) frames.push_back(ReadGrayImage(f));
     if (input->devices[0].width == 0) {
       input->devices[0].width = frames[0].cols;
       input->devices[0].height = frames[0].rows;
     }
-    const ProcamPose pose =
-        MakeProcamPose(patterns, frames, spec, static_cast<int>(p), 0, 1, labels[p], options.decode, options.local);
-    checks->push_back({labels[p], 0, pose.detection.found, pose.detection.reason, pose.detection.saturated_fraction});
+    const ProcamPose pose = MakeProcamPose(patterns, frames, spec, static_cast<int>(p), 0, 1,
+                                           labels[p], options.decode, options.local);
+    checks->push_back({labels[p], 0, pose.detection.found, pose.detection.reason,
+                       pose.detection.saturated_fraction});
     for (const auto& s : pose.projector.skipped) skipped->push_back(labels[p] + ": skipped " + s);
     AddProcamPose(pose, input);
   }
 }
 
-CalibrationInput ProcamInputFromImageSets(const std::vector<std::string>& imagesets, const TargetSpec& spec,
-                                          const ProcamInputOptions& options, std::vector<ImageCheck>* checks) {
+CalibrationInput ProcamInputFromImageSets(const std::vector<std::string>& imagesets,
+                                          const TargetSpec& spec, const ProcamInputOptions& options,
+                                          std::vector<ImageCheck>* checks) {
   options.Check();
   CalibrationInput input;
   input.num_poses = static_cast<int>(imagesets.size());
@@ -108,8 +116,8 @@ CalibrationInput ProcamInputFromImageSets(const std::vector<std::string>& images
   int projector_device = -1;
   for (size_t p = 0; p < imagesets.size(); ++p) {
     const ImageSet set = ImageSet::Open(imagesets[p]);
-    const PatternSpec patterns =
-        PatternSpecFromConfig(ConfigNode::FromJson(set.patterns(), (fs::path(imagesets[p]) / "manifest.json").string(), "patterns"));
+    const PatternSpec patterns = PatternSpecFromConfig(ConfigNode::FromJson(
+        set.patterns(), (fs::path(imagesets[p]) / "manifest.json").string(), "patterns"));
     if (p == 0) {
       for (const auto& name : set.CameraNames()) {
         const auto& cam = set.rig().Camera(name);
@@ -117,15 +125,19 @@ CalibrationInput ProcamInputFromImageSets(const std::vector<std::string>& images
         names.push_back(name);
       }
       projector_device = static_cast<int>(input.devices.size());
-      input.devices.push_back(CalibrationDevice::Projector(set.rig().projector ? set.rig().projector->name : "projector",
-                                                           patterns.projector_width, patterns.projector_height));
+      input.devices.push_back(CalibrationDevice::Projector(
+          set.rig().projector ? set.rig().projector->name : "projector", patterns.projector_width,
+          patterns.projector_height));
     }
-    SLSHADOW_THROW_IF(set.CameraNames() != names, imagesets[p], ": cameras differ from the first ImageSet's");
+    SLSHADOW_THROW_IF(set.CameraNames() != names, imagesets[p],
+                      ": cameras differ from the first ImageSet's");
     for (size_t d = 0; d < names.size(); ++d) {
       const std::string label = imagesets[p] + "/" + names[d];
-      const ProcamPose pose = MakeProcamPose(patterns, set.LoadCamera(names[d]), spec, static_cast<int>(p),
-                                             static_cast<int>(d), projector_device, label, options.decode, options.local);
-      checks->push_back({label, static_cast<int>(d), pose.detection.found, pose.detection.reason, pose.detection.saturated_fraction});
+      const ProcamPose pose = MakeProcamPose(
+          patterns, set.LoadCamera(names[d]), spec, static_cast<int>(p), static_cast<int>(d),
+          projector_device, label, options.decode, options.local);
+      checks->push_back({label, static_cast<int>(d), pose.detection.found, pose.detection.reason,
+                         pose.detection.saturated_fraction});
       AddProcamPose(pose, &input);
     }
   }

@@ -24,13 +24,14 @@ namespace slshadow {
 // .tif .tiff .pgm .ppm, extension case ignored) in name order. Throws slshadow::Error naming
 // `what` (e.g. "--images") and the argument for a path that does not exist or a folder without
 // images.
-std::vector<std::filesystem::path> ImageFiles(const std::vector<std::string>& args, const std::string& what);
+std::vector<std::filesystem::path> ImageFiles(const std::vector<std::string>& args,
+                                              const std::string& what);
 
 // Detects the target in each file and adds the found boards as views of `device` (pose = index in
 // `files`); sets the device's image size from the first file when it is 0. Throws slshadow::Error
 // when an image's size differs from the device's. Appends one ImageCheck per file.
-void AddBoardViews(const TargetSpec& spec, const std::vector<std::filesystem::path>& files, int device,
-                   CalibrationInput* input, std::vector<ImageCheck>* checks);
+void AddBoardViews(const TargetSpec& spec, const std::vector<std::filesystem::path>& files,
+                   int device, CalibrationInput* input, std::vector<ImageCheck>* checks);
 
 // Decoding and corner-carrying settings of the camera-projector inputs below.
 struct ProcamInputOptions {
@@ -45,18 +46,22 @@ struct ProcamInputOptions {
 // A camera and a projector (devices 0 and 1; `input` must hold them) from one folder of images per
 // board pose: `captures[p]` are the camera's images of `patterns` (read from `patterns_path`, named
 // in errors) in sequence order, labelled `labels[p]`. The camera's image size is set from the first
-// capture when it is 0. Throws slshadow::Error when a capture does not hold one image per pattern. Appends one ImageCheck per capture and prints nothing;
-// corners skipped by the local homographies are returned in `skipped` ("<label>: skipped ...").
-void AddProcamCaptures(const PatternSpec& patterns, const std::string& patterns_path, const TargetSpec& spec,
+// capture when it is 0. Throws slshadow::Error when a capture does not hold one image per pattern.
+// Appends one ImageCheck per capture and prints nothing; corners skipped by the local homographies
+// are returned in `skipped` ("<label>: skipped ...").
+void AddProcamCaptures(const PatternSpec& patterns, const std::string& patterns_path,
+                       const TargetSpec& spec,
                        const std::vector<std::vector<std::filesystem::path>>& captures,
                        const std::vector<std::string>& labels, const ProcamInputOptions& options,
-                       CalibrationInput* input, std::vector<ImageCheck>* checks, std::vector<std::string>* skipped);
+                       CalibrationInput* input, std::vector<ImageCheck>* checks,
+                       std::vector<std::string>* skipped);
 
 // Every camera of the ImageSets and the projector, one ImageSet per board pose (each with its rig
 // and pattern spec in its manifest): devices are the first ImageSet's cameras in its order, then
 // the projector (named as in its rig, else "projector", sized by the pattern spec). Throws
 // slshadow::Error when an ImageSet's cameras differ from the first one's.
-CalibrationInput ProcamInputFromImageSets(const std::vector<std::string>& imagesets, const TargetSpec& spec,
-                                          const ProcamInputOptions& options, std::vector<ImageCheck>* checks);
+CalibrationInput ProcamInputFromImageSets(const std::vector<std::string>& imagesets,
+                                          const TargetSpec& spec, const ProcamInputOptions& options,
+                                          std::vector<ImageCheck>* checks);
 
 }  // namespace slshadow

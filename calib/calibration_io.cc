@@ -5,14 +5,14 @@
 #include <cerrno>
 #include <climits>
 #include <cmath>
-#include <cstdlib>
 #include <cstdint>
+#include <cstdlib>
 #include <optional>
 #include <utility>
 
+#include <yaml-cpp/yaml.h>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
-#include <yaml-cpp/yaml.h>
 
 #include "core/config.h"
 #include "core/error.h"
@@ -23,7 +23,8 @@ namespace {
 
 constexpr int kEvidenceVersion = 1;
 // CameraModel parameter order.
-constexpr std::array<const char*, CameraModel::kNumParams> kParamNames = {"fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"};
+constexpr std::array<const char*, CameraModel::kNumParams> kParamNames = {
+    "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"};
 
 nlohmann::json PoseToJson(const Rigid3d& t) {
   const auto& q = t.rotation;
@@ -46,50 +47,66 @@ nlohmann::json StatsToJson(const CalibrationSummary& s) {
                       {"solve_time_s", s.solve_time_s}};
   j["devices"] = nlohmann::json::array();
   for (const auto& d : s.devices) {
-    j["devices"].push_back({{"name", d.name}, {"num_views", d.num_views}, {"num_points", d.num_points},
-                            {"rms_px", d.rms_px}, {"max_px", d.max_px}});
+    j["devices"].push_back({{"name", d.name},
+                            {"num_views", d.num_views},
+                            {"num_points", d.num_points},
+                            {"rms_px", d.rms_px},
+                            {"max_px", d.max_px}});
   }
   if (!s.view_noise.empty()) {
     j["view_noise"] = nlohmann::json::array();
     for (const auto& k : s.view_noise) {
-      j["view_noise"].push_back({{"sigma_px", k.sigma_px}, {"share", k.share}, {"length_squares", k.length_squares}});
+      j["view_noise"].push_back(
+          {{"sigma_px", k.sigma_px}, {"share", k.share}, {"length_squares", k.length_squares}});
     }
   }
   if (!s.bounds_active.empty()) j["bounds_active"] = s.bounds_active;
   if (s.joint_noise) {
-    j["joint_noise"] = {{"noise_sigma_px", s.noise_sigma_px}, {"carry_scale", s.carry_scale}, {"variance_factor", s.variance_factor}};
+    j["joint_noise"] = {{"noise_sigma_px", s.noise_sigma_px},
+                        {"carry_scale", s.carry_scale},
+                        {"variance_factor", s.variance_factor}};
   }
   j["views"] = nlohmann::json::array();
   for (const auto& v : s.views) {
-    j["views"].push_back({{"label", v.label}, {"device", v.device}, {"pose", v.pose}, {"num_points", v.num_points},
-                          {"rms_px", std::isfinite(v.rms_px) ? nlohmann::json(v.rms_px) : nlohmann::json()},
-                          {"max_px", std::isfinite(v.max_px) ? nlohmann::json(v.max_px) : nlohmann::json()},
-                          {"outlier", v.outlier}});
+    j["views"].push_back(
+        {{"label", v.label},
+         {"device", v.device},
+         {"pose", v.pose},
+         {"num_points", v.num_points},
+         {"rms_px", std::isfinite(v.rms_px) ? nlohmann::json(v.rms_px) : nlohmann::json()},
+         {"max_px", std::isfinite(v.max_px) ? nlohmann::json(v.max_px) : nlohmann::json()},
+         {"outlier", v.outlier}});
   }
   return j;
 }
 
 nlohmann::json MapStats(const PixelMap& m) {
   auto num = [](double x) { return std::isfinite(x) ? nlohmann::json(x) : nlohmann::json(); };
-  return {{"median_px", num(m.median)}, {"p95_px", num(m.p95)}, {"max_px", num(m.max)}, {"centre_px", num(m.centre)},
+  return {{"median_px", num(m.median)},
+          {"p95_px", num(m.p95)},
+          {"max_px", num(m.max)},
+          {"centre_px", num(m.centre)},
           {"cell_px", m.cell_px}};
 }
 
 // A matrix node (!!opencv-matrix) or a plain list of numbers (as a 1xN matrix), CV_64F; empty
 // when the node is absent.
-cv::Mat ReadAnyMat(const cv::FileStorage& fs, const std::string& key, const std::filesystem::path& path) {
+cv::Mat ReadAnyMat(const cv::FileStorage& fs, const std::string& key,
+                   const std::filesystem::path& path) {
   const cv::FileNode node = fs[key];
   cv::Mat m;
   if (node.empty()) return m;
   if (node.isSeq()) {
     std::vector<double> values;
     for (const cv::FileNode& v : node) {
-      SLSHADOW_THROW_IF(!v.isReal() && !v.isInt(), path.string(), ": ", key, ": expected numbers in the list");
+      SLSHADOW_THROW_IF(!v.isReal() && !v.isInt(), path.string(), ": ", key,
+                        ": expected numbers in the list");
       values.push_back(static_cast<double>(v));
     }
     return cv::Mat(values, true).reshape(1, 1);
   }
-  if (node.isReal() || node.isInt()) return cv::Mat(1, 1, CV_64F, cv::Scalar(static_cast<double>(node)));
+  if (node.isReal() || node.isInt())
+    return cv::Mat(1, 1, CV_64F, cv::Scalar(static_cast<double>(node)));
   // OpenCV allocates rows x cols before reading the data: the claimed size is checked against the
   // values present first (a header claiming 10^5 x 10^5 is an error, not a 80 GB allocation).
   if (node.isMap()) {
@@ -100,42 +117,49 @@ cv::Mat ReadAnyMat(const cv::FileStorage& fs, const std::string& key, const std:
     const int64_t rows = static_cast<int>(node["rows"]), cols = static_cast<int>(node["cols"]);
     const cv::FileNode data = node["data"];
     const int64_t values = data.isSeq() ? static_cast<int64_t>(data.size()) : 0;
-    SLSHADOW_THROW_IF(rows < 0 || cols < 0 || rows * cols > values, path.string(), ": ", key, ": matrix claims ", rows,
-                      " x ", cols, " but holds ", values, " values");
+    SLSHADOW_THROW_IF(rows < 0 || cols < 0 || rows * cols > values, path.string(), ": ", key,
+                      ": matrix claims ", rows, " x ", cols, " but holds ", values, " values");
   }
   try {
     node >> m;
   } catch (const cv::Exception&) {
     SLSHADOW_THROW(path.string(), ": ", key, ": not a matrix or a list of numbers");
   }
-  SLSHADOW_THROW_IF(m.empty() && !node.empty(), path.string(), ": ", key, ": not a matrix or a list of numbers");
+  SLSHADOW_THROW_IF(m.empty() && !node.empty(), path.string(), ": ", key,
+                    ": not a matrix or a list of numbers");
   m.convertTo(m, CV_64F);
   return m;
 }
 
-cv::Mat ReadMat(const cv::FileStorage& fs, const std::string& key, const std::filesystem::path& path, int rows, int cols) {
+cv::Mat ReadMat(const cv::FileStorage& fs, const std::string& key,
+                const std::filesystem::path& path, int rows, int cols) {
   cv::Mat m = ReadAnyMat(fs, key, path);
   SLSHADOW_THROW_IF(m.empty(), path.string(), ": ", key, ": missing");
   m.convertTo(m, CV_64F);
-  if (rows * cols == static_cast<int>(m.total()) && (m.rows != rows || m.cols != cols)) m = m.reshape(1, rows);
-  SLSHADOW_THROW_IF(m.rows != rows || m.cols != cols, path.string(), ": ", key, ": expected a ", rows, "x", cols,
-                    " matrix (got ", m.rows, "x", m.cols, ")");
+  if (rows * cols == static_cast<int>(m.total()) && (m.rows != rows || m.cols != cols))
+    m = m.reshape(1, rows);
+  SLSHADOW_THROW_IF(m.rows != rows || m.cols != cols, path.string(), ": ", key, ": expected a ",
+                    rows, "x", cols, " matrix (got ", m.rows, "x", m.cols, ")");
   return m;
 }
 
-CameraModel ModelFromMats(const cv::Mat& k, const cv::Mat& dist_in, int width, int height, const std::string& what) {
+CameraModel ModelFromMats(const cv::Mat& k, const cv::Mat& dist_in, int width, int height,
+                          const std::string& what) {
   cv::Mat dist = dist_in.reshape(1, 1);
-  SLSHADOW_THROW_IF(dist.total() < 4, what, ": distortion: needs at least 4 coefficients (got ", dist.total(), ")");
+  SLSHADOW_THROW_IF(dist.total() < 4, what, ": distortion: needs at least 4 coefficients (got ",
+                    dist.total(), ")");
   for (size_t i = 5; i < dist.total(); ++i) {
-    SLSHADOW_THROW_IF(dist.at<double>(0, static_cast<int>(i)) != 0.0, what, ": distortion: coefficient ", i,
-                      " is not zero; slshadow's model has k1 k2 p1 p2 k3 only (OpenCV's rational/thin-prism terms "
+    SLSHADOW_THROW_IF(dist.at<double>(0, static_cast<int>(i)) != 0.0, what,
+                      ": distortion: coefficient ", i,
+                      " is not zero; slshadow's model has k1 k2 p1 p2 k3 only (OpenCV's "
+                      "rational/thin-prism terms "
                       "cannot be imported)");
   }
   auto d = [&](int i) { return i < static_cast<int>(dist.total()) ? dist.at<double>(0, i) : 0.0; };
-  CameraModel m(width, height, k.at<double>(0, 0), k.at<double>(1, 1), k.at<double>(0, 2), k.at<double>(1, 2), d(0), d(1),
-                d(2), d(3), d(4));
-  SLSHADOW_THROW_IF(std::abs(k.at<double>(0, 1)) > 1e-9, what, ": camera matrix has skew ", k.at<double>(0, 1),
-                    "; slshadow's model has none");
+  CameraModel m(width, height, k.at<double>(0, 0), k.at<double>(1, 1), k.at<double>(0, 2),
+                k.at<double>(1, 2), d(0), d(1), d(2), d(3), d(4));
+  SLSHADOW_THROW_IF(std::abs(k.at<double>(0, 1)) > 1e-9, what, ": camera matrix has skew ",
+                    k.at<double>(0, 1), "; slshadow's model has none");
   m.Check(what);
   return m;
 }
@@ -152,10 +176,12 @@ Rigid3d PoseFromRT(const cv::Mat& r, const cv::Mat& t) {
   for (int i = 0; i < 3; ++i) {
     for (int j = 0; j < 3; ++j) rot(i, j) = r.at<double>(i, j);
   }
-  return Rigid3d(Eigen::Quaterniond(rot), Eigen::Vector3d(t.at<double>(0), t.at<double>(1), t.at<double>(2)));
+  return Rigid3d(Eigen::Quaterniond(rot),
+                 Eigen::Vector3d(t.at<double>(0), t.at<double>(1), t.at<double>(2)));
 }
 
-cv::Mat RotationMatrixOrRvec(const cv::FileStorage& fs, const std::string& key, const std::filesystem::path& path) {
+cv::Mat RotationMatrixOrRvec(const cv::FileStorage& fs, const std::string& key,
+                             const std::filesystem::path& path) {
   cv::Mat m = ReadAnyMat(fs, key, path);
   SLSHADOW_THROW_IF(m.empty(), path.string(), ": ", key, ": missing");
   if (m.total() == 9) m = m.reshape(1, 3);
@@ -164,14 +190,18 @@ cv::Mat RotationMatrixOrRvec(const cv::FileStorage& fs, const std::string& key, 
     cv::Rodrigues(m.reshape(1, 3), r);
     return r;
   }
-  SLSHADOW_THROW_IF(m.rows != 3 || m.cols != 3, path.string(), ": ", key, ": expected a 3x3 rotation matrix or a Rodrigues vector");
-  const Eigen::Matrix3d e = Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(m.ptr<double>());
-  SLSHADOW_THROW_IF((e * e.transpose() - Eigen::Matrix3d::Identity()).norm() > 1e-5 || e.determinant() < 0, path.string(),
-                    ": ", key, ": not a rotation matrix");
+  SLSHADOW_THROW_IF(m.rows != 3 || m.cols != 3, path.string(), ": ", key,
+                    ": expected a 3x3 rotation matrix or a Rodrigues vector");
+  const Eigen::Matrix3d e =
+      Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(m.ptr<double>());
+  SLSHADOW_THROW_IF(
+      (e * e.transpose() - Eigen::Matrix3d::Identity()).norm() > 1e-5 || e.determinant() < 0,
+      path.string(), ": ", key, ": not a rotation matrix");
   return m;
 }
 
-cv::Mat ReadDist(const cv::FileStorage& fs, const std::string& key, const std::filesystem::path& path) {
+cv::Mat ReadDist(const cv::FileStorage& fs, const std::string& key,
+                 const std::filesystem::path& path) {
   cv::Mat m = ReadAnyMat(fs, key, path);
   SLSHADOW_THROW_IF(m.empty(), path.string(), ": ", key, ": missing");
   return m;
@@ -190,9 +220,10 @@ std::optional<std::pair<int, int>> ReadSize(const cv::FileStorage& fs, const std
                                             const std::filesystem::path& path) {
   if (key.empty() || fs[key].empty()) return std::nullopt;
   const cv::Mat m = ReadAnyMat(fs, key, path);
-  SLSHADOW_THROW_IF(m.total() != 2, path.string(), ": ", key, ": expected an image size [width, height] (got ",
-                    m.total(), " numbers)");
-  return std::pair<int, int>(CheckedInt(m.at<double>(0), path, key), CheckedInt(m.at<double>(1), path, key));
+  SLSHADOW_THROW_IF(m.total() != 2, path.string(), ": ", key,
+                    ": expected an image size [width, height] (got ", m.total(), " numbers)");
+  return std::pair<int, int>(CheckedInt(m.at<double>(0), path, key),
+                             CheckedInt(m.at<double>(1), path, key));
 }
 
 // "cam_K (3x3 matrix), dist (1x5 matrix), S ([2 numbers]), name (string)": the top-level nodes.
@@ -205,7 +236,8 @@ std::string DescribeNodes(const cv::FileStorage& fs) {
       what = internal::Concat("[", n.size(), " values]");
     } else if (n.isMap()) {
       what = !n["rows"].empty() && !n["cols"].empty()
-                 ? internal::Concat(static_cast<int>(n["rows"]), "x", static_cast<int>(n["cols"]), " matrix")
+                 ? internal::Concat(static_cast<int>(n["rows"]), "x", static_cast<int>(n["cols"]),
+                                    " matrix")
                  : std::string("mapping");
     } else {
       what = n.isString() ? "string" : "number";
@@ -224,16 +256,18 @@ OpenCvNodeMap StructuredLightSampleLayout(const cv::FileStorage& fs) {
 OpenCvNodeMap BinocularLayout() { return {"M1", "D1", "M2", "D2", "Rlr", "Tlr", "S", ""}; }
 
 // One or two cameras from explicitly named nodes.
-Rig ReadMappedLayout(const cv::FileStorage& fs, const OpenCvNodeMap& map, const std::filesystem::path& path,
-                     int default_width, int default_height) {
+Rig ReadMappedLayout(const cv::FileStorage& fs, const OpenCvNodeMap& map,
+                     const std::filesystem::path& path, int default_width, int default_height) {
   const std::string file = path.string();
   SLSHADOW_THROW_IF(map.k1.empty() || map.d1.empty(), file, ": the node map needs K1 and D1");
-  SLSHADOW_THROW_IF(map.k2.empty() != map.d2.empty(), file, ": the node map needs both K2 and D2, or neither");
+  SLSHADOW_THROW_IF(map.k2.empty() != map.d2.empty(), file,
+                    ": the node map needs both K2 and D2, or neither");
   SLSHADOW_THROW_IF(!map.k2.empty() && (map.r.empty() || map.t.empty()), file,
                     ": the node map names a second camera (K2) but not its pose (R and T)");
-  for (const std::string* key : {&map.k1, &map.d1, &map.k2, &map.d2, &map.r, &map.t, &map.size1, &map.size2}) {
-    SLSHADOW_THROW_IF(!key->empty() && fs[*key].empty(), file, ": ", *key, ": missing (nodes found: ",
-                      DescribeNodes(fs), ")");
+  for (const std::string* key :
+       {&map.k1, &map.d1, &map.k2, &map.d2, &map.r, &map.t, &map.size1, &map.size2}) {
+    SLSHADOW_THROW_IF(!key->empty() && fs[*key].empty(), file, ": ", *key,
+                      ": missing (nodes found: ", DescribeNodes(fs), ")");
   }
   const auto size1 = ReadSize(fs, map.size1, path);
   const auto size2 = ReadSize(fs, map.size2, path);
@@ -242,22 +276,26 @@ Rig ReadMappedLayout(const cv::FileStorage& fs, const OpenCvNodeMap& map, const 
   const auto device = [&](const std::string& name, const std::string& k, const std::string& d,
                           const std::optional<std::pair<int, int>>& size) {
     const int w = size ? size->first : default_width, h = size ? size->second : default_height;
-    SLSHADOW_THROW_IF(w <= 0 || h <= 0, file, ": ", k, ": no image size in the file; give it (e.g. --image-size)");
+    SLSHADOW_THROW_IF(w <= 0 || h <= 0, file, ": ", k,
+                      ": no image size in the file; give it (e.g. --image-size)");
     RigDevice dev;
     dev.name = name;
-    dev.model = ModelFromMats(ReadMat(fs, k, path, 3, 3), ReadDist(fs, d, path), w, h, file + ": " + k);
+    dev.model =
+        ModelFromMats(ReadMat(fs, k, path, 3, 3), ReadDist(fs, d, path), w, h, file + ": " + k);
     return dev;
   };
   rig.cameras.push_back(device(map.k2.empty() ? "camera" : "camera1", map.k1, map.d1, size1));
   if (!map.k2.empty()) {
     RigDevice second = device("camera2", map.k2, map.d2, size2 ? size2 : size1);
-    second.cam_from_rig = PoseFromRT(RotationMatrixOrRvec(fs, map.r, path), ReadMat(fs, map.t, path, 3, 1));
+    second.cam_from_rig =
+        PoseFromRT(RotationMatrixOrRvec(fs, map.r, path), ReadMat(fs, map.t, path, 3, 1));
     rig.cameras.push_back(second);
   }
   return rig;
 }
 
-int IntOr(const cv::FileStorage& fs, const std::string& key, int fallback, const std::filesystem::path& path) {
+int IntOr(const cv::FileStorage& fs, const std::string& key, int fallback,
+          const std::filesystem::path& path) {
   const cv::FileNode n = fs[key];
   if (n.empty()) return fallback;
   return CheckedInt(static_cast<double>(n), path, key);
@@ -265,20 +303,24 @@ int IntOr(const cv::FileStorage& fs, const std::string& key, int fallback, const
 
 }  // namespace
 
-Rig RigFromCalibration(const CalibrationInput& input, const CalibrationResult& result, const std::string& name) {
+Rig RigFromCalibration(const CalibrationInput& input, const CalibrationResult& result,
+                       const std::string& name) {
   Rig rig;
   rig.name = name;
   for (size_t d = 0; d < result.devices.size(); ++d) {
     if (input.devices[d].is_projector) {
-      SLSHADOW_THROW_IF(rig.projector.has_value(), "calibration: more than one projector device ('", rig.projector->name,
-                        "', '", result.devices[d].name, "'); a rig has at most one");
+      SLSHADOW_THROW_IF(rig.projector.has_value(), "calibration: more than one projector device ('",
+                        rig.projector->name, "', '", result.devices[d].name,
+                        "'); a rig has at most one");
       rig.projector = result.devices[d];
     } else {
       rig.cameras.push_back(result.devices[d]);
     }
   }
-  SLSHADOW_THROW_IF(rig.cameras.empty(), "calibration: no camera device; a rig needs at least one camera");
-  SLSHADOW_THROW_IF(input.devices[0].is_projector, "calibration: device 0 must be a camera (it defines the rig frame)");
+  SLSHADOW_THROW_IF(rig.cameras.empty(),
+                    "calibration: no camera device; a rig needs at least one camera");
+  SLSHADOW_THROW_IF(input.devices[0].is_projector,
+                    "calibration: device 0 must be a camera (it defines the rig frame)");
   // Working distance: median board distance along the first camera's axis.
   std::vector<double> z;
   for (const auto& p : result.rig_from_board) {
@@ -292,20 +334,28 @@ Rig RigFromCalibration(const CalibrationInput& input, const CalibrationResult& r
 }
 
 nlohmann::json CalibrationOptionsToJson(const CalibrationOptions& o) {
-  return {{"fix_aspect_ratio", o.fix_aspect_ratio}, {"aspect_ratio", o.aspect_ratio},
-          {"fix_principal_point", o.fix_principal_point}, {"zero_tangential", o.zero_tangential},
-          {"fix_k3", o.fix_k3}, {"fix_intrinsics", o.fix_intrinsics}, {"loss", ToString(o.loss)},
-          {"loss_scale_px", o.loss_scale_px}, {"max_iterations", o.max_iterations},
-          {"outlier_view_factor", o.outlier_view_factor}, {"compute_covariance", o.compute_covariance},
-          {"estimate_board_warp", o.estimate_board_warp}, {"correlated_carried_noise", o.correlated_carried_noise},
+  return {{"fix_aspect_ratio", o.fix_aspect_ratio},
+          {"aspect_ratio", o.aspect_ratio},
+          {"fix_principal_point", o.fix_principal_point},
+          {"zero_tangential", o.zero_tangential},
+          {"fix_k3", o.fix_k3},
+          {"fix_intrinsics", o.fix_intrinsics},
+          {"loss", ToString(o.loss)},
+          {"loss_scale_px", o.loss_scale_px},
+          {"max_iterations", o.max_iterations},
+          {"outlier_view_factor", o.outlier_view_factor},
+          {"compute_covariance", o.compute_covariance},
+          {"estimate_board_warp", o.estimate_board_warp},
+          {"correlated_carried_noise", o.correlated_carried_noise},
           {"principal_point_inside", o.principal_point_inside}};
 }
 
 CalibrationOptions CalibrationOptionsFromJson(const nlohmann::json& json, const std::string& file) {
   const ConfigNode n = ConfigNode::FromJson(json, file, "calibration.options");
-  n.RejectUnknownKeys({"fix_aspect_ratio", "aspect_ratio", "fix_principal_point", "zero_tangential", "fix_k3",
-                       "fix_intrinsics", "loss", "loss_scale_px", "max_iterations", "outlier_view_factor",
-                       "compute_covariance", "estimate_board_warp", "correlated_carried_noise", "principal_point_inside"});
+  n.RejectUnknownKeys({"fix_aspect_ratio", "aspect_ratio", "fix_principal_point", "zero_tangential",
+                       "fix_k3", "fix_intrinsics", "loss", "loss_scale_px", "max_iterations",
+                       "outlier_view_factor", "compute_covariance", "estimate_board_warp",
+                       "correlated_carried_noise", "principal_point_inside"});
   CalibrationOptions o;
   o.fix_aspect_ratio = n.GetBool("fix_aspect_ratio", o.fix_aspect_ratio);
   o.aspect_ratio = n.GetDouble("aspect_ratio", o.aspect_ratio);
@@ -335,7 +385,8 @@ CalibrationOptions CalibrationOptionsFromJson(const nlohmann::json& json, const 
   return o;
 }
 
-nlohmann::json CalibrationEvidenceToJson(const CalibrationInput& input, const CalibrationOptions& options,
+nlohmann::json CalibrationEvidenceToJson(const CalibrationInput& input,
+                                         const CalibrationOptions& options,
                                          const CalibrationResult& result,
                                          const std::optional<CrossValidation>& cross_validation) {
   nlohmann::json j;
@@ -347,20 +398,27 @@ nlohmann::json CalibrationEvidenceToJson(const CalibrationInput& input, const Ca
   for (const auto& d : input.devices) {
     nlohmann::json held = nlohmann::json::array();
     for (int i : d.held_params) held.push_back(kParamNames.at(static_cast<size_t>(i)));
-    j["devices"].push_back(
-        {{"name", d.name}, {"width", d.width}, {"height", d.height}, {"is_projector", d.is_projector}, {"held_params", held}});
+    j["devices"].push_back({{"name", d.name},
+                            {"width", d.width},
+                            {"height", d.height},
+                            {"is_projector", d.is_projector},
+                            {"held_params", held}});
   }
   j["views"] = nlohmann::json::array();
   for (const auto& v : input.views) {
     nlohmann::json pts = nlohmann::json::array(), pix = nlohmann::json::array();
     for (const auto& p : v.points_in_board_mm) pts.push_back({p.x(), p.y(), p.z()});
     for (const auto& p : v.pixels_px) pix.push_back({p.x(), p.y()});
-    j["views"].push_back({{"label", v.label}, {"device", v.device}, {"pose", v.pose}, {"points_in_board_mm", pts},
+    j["views"].push_back({{"label", v.label},
+                          {"device", v.device},
+                          {"pose", v.pose},
+                          {"points_in_board_mm", pts},
                           {"pixels_px", pix}});
     if (v.IsCarried()) {
       nlohmann::json jac = nlohmann::json::array(), cov = nlohmann::json::array();
       for (const auto& m : v.source_jacobians) jac.push_back({m(0, 0), m(0, 1), m(1, 0), m(1, 1)});
-      for (const auto& m : v.carry_covariances_px2) cov.push_back({m(0, 0), m(0, 1), m(1, 0), m(1, 1)});
+      for (const auto& m : v.carry_covariances_px2)
+        cov.push_back({m(0, 0), m(0, 1), m(1, 0), m(1, 1)});
       j["views"].back()["source_device"] = v.source_device;
       j["views"].back()["source_points"] = v.source_points;
       j["views"].back()["source_jacobians"] = jac;
@@ -368,7 +426,8 @@ nlohmann::json CalibrationEvidenceToJson(const CalibrationInput& input, const Ca
     }
   }
   j["rig_from_board"] = nlohmann::json::array();
-  for (const auto& p : result.rig_from_board) j["rig_from_board"].push_back(p ? PoseToJson(*p) : nlohmann::json());
+  for (const auto& p : result.rig_from_board)
+    j["rig_from_board"].push_back(p ? PoseToJson(*p) : nlohmann::json());
   j["summary"] = StatsToJson(result.summary);
   j["board_warp_mm"] = {result.board_warp_mm.x(), result.board_warp_mm.y()};
   if (!result.intrinsics_covariance.empty()) {
@@ -391,7 +450,8 @@ nlohmann::json CalibrationEvidenceToJson(const CalibrationInput& input, const Ca
     j["projection_uncertainty_view_correlated"] = nlohmann::json::array();
     for (size_t d = 0; d < result.intrinsics_covariance_view_correlated.size(); ++d) {
       const Matrix9d& c = result.intrinsics_covariance_view_correlated[d];
-      j["intrinsics_covariance_view_correlated"].push_back(std::vector<double>(c.data(), c.data() + 81));  // symmetric
+      j["intrinsics_covariance_view_correlated"].push_back(
+          std::vector<double>(c.data(), c.data() + 81));  // symmetric
       nlohmann::json u = MapStats(ProjectionUncertaintyMap(result.devices[d].model, c, 16));
       u["device"] = result.devices[d].name;
       j["projection_uncertainty_view_correlated"].push_back(u);
@@ -408,14 +468,17 @@ nlohmann::json CalibrationEvidenceToJson(const CalibrationInput& input, const Ca
   return j;
 }
 
-CalibrationEvidence CalibrationEvidenceFromJson(const nlohmann::json& json, const std::string& file) {
+CalibrationEvidence CalibrationEvidenceFromJson(const nlohmann::json& json,
+                                                const std::string& file) {
   const ConfigNode n = ConfigNode::FromJson(json, file, "calibration");
   SLSHADOW_THROW_IF(n.GetString("format", "") != "slshadow-calibration-evidence", file,
-                    ": calibration.format: not slshadow calibration evidence (got '", n.GetString("format", ""), "')");
+                    ": calibration.format: not slshadow calibration evidence (got '",
+                    n.GetString("format", ""), "')");
   const int64_t version = n["version"].AsInt();
   if (version != kEvidenceVersion) n["version"].Fail("unsupported version");
   CalibrationEvidence e;
-  e.options = n.Has("options") ? CalibrationOptionsFromJson(n["options"].json(), file) : CalibrationOptions{};
+  e.options = n.Has("options") ? CalibrationOptionsFromJson(n["options"].json(), file)
+                               : CalibrationOptions{};
   e.input.num_poses = static_cast<int>(n["num_poses"].AsInt());
   const auto devs = n["devices"];
   for (size_t i = 0; i < devs.size(); ++i) {
@@ -430,7 +493,8 @@ CalibrationEvidence CalibrationEvidenceFromJson(const nlohmann::json& json, cons
       for (size_t k = 0; k < held.size(); ++k) {
         const std::string name = held.at(k).AsString();
         const auto it = std::find(kParamNames.begin(), kParamNames.end(), name);
-        if (it == kParamNames.end()) held.at(k).Fail("unknown parameter (use fx fy cx cy k1 k2 p1 p2 k3)");
+        if (it == kParamNames.end())
+          held.at(k).Fail("unknown parameter (use fx fy cx cy k1 k2 p1 p2 k3)");
         cd.held_params.push_back(static_cast<int>(it - kParamNames.begin()));
       }
     }
@@ -454,8 +518,10 @@ CalibrationEvidence CalibrationEvidenceFromJson(const nlohmann::json& json, cons
     }
     if (v.Has("source_device")) {
       bv.source_device = static_cast<int>(v["source_device"].AsInt());
-      const auto ids = v["source_points"], jac = v["source_jacobians"], cov = v["carry_covariances_px2"];
-      for (size_t k = 0; k < ids.size(); ++k) bv.source_points.push_back(static_cast<int>(ids.at(k).AsInt()));
+      const auto ids = v["source_points"], jac = v["source_jacobians"],
+                 cov = v["carry_covariances_px2"];
+      for (size_t k = 0; k < ids.size(); ++k)
+        bv.source_points.push_back(static_cast<int>(ids.at(k).AsInt()));
       auto matrix = [](const ConfigNode& node) {
         const auto m = node.AsDoubles(4);
         return (Eigen::Matrix2d() << m[0], m[1], m[2], m[3]).finished();
@@ -485,15 +551,18 @@ void WriteOpenCvCalibration(const Rig& rig, const std::filesystem::path& path) {
       cv::FileStorage fs(tmp_ext.string(), cv::FileStorage::WRITE);
       SLSHADOW_THROW_IF(!fs.isOpened(), path.string(), ": cannot open for writing");
       if (devices.size() == 1) {
-        fs << "image_width" << devices[0]->model.width << "image_height" << devices[0]->model.height;
-        fs << "camera_matrix" << KMat(devices[0]->model) << "distortion_coefficients" << DMat(devices[0]->model);
+        fs << "image_width" << devices[0]->model.width << "image_height"
+           << devices[0]->model.height;
+        fs << "camera_matrix" << KMat(devices[0]->model) << "distortion_coefficients"
+           << DMat(devices[0]->model);
         fs << "device_name" << devices[0]->name;
       } else {
         const Rigid3d rig_from_1 = devices[0]->cam_from_rig.Inverse();
         for (size_t i = 0; i < devices.size(); ++i) {
           const std::string s = std::to_string(i + 1);
           fs << "M" + s << KMat(devices[i]->model) << "D" + s << DMat(devices[i]->model);
-          fs << "image_width_" + s << devices[i]->model.width << "image_height_" + s << devices[i]->model.height;
+          fs << "image_width_" + s << devices[i]->model.width << "image_height_" + s
+             << devices[i]->model.height;
           fs << "device_name_" + s << devices[i]->name;
           if (i == 0) continue;
           const Rigid3d i_from_1 = devices[i]->cam_from_rig * rig_from_1;
@@ -506,7 +575,8 @@ void WriteOpenCvCalibration(const Rig& rig, const std::filesystem::path& path) {
           const std::string suffix = i == 1 ? "" : s;
           fs << "R" + suffix << rm << "T" + suffix << tm;
         }
-        fs << "num_devices" << static_cast<int>(devices.size()) << "has_projector" << static_cast<int>(rig.projector.has_value());
+        fs << "num_devices" << static_cast<int>(devices.size()) << "has_projector"
+           << static_cast<int>(rig.projector.has_value());
       }
       fs.release();
     }
@@ -523,7 +593,8 @@ OpenCvNodeMap ParseOpenCvNodeMap(const std::string& text) {
     start = end + 1;
     if (entry.empty()) continue;
     const size_t eq = entry.find('=');
-    SLSHADOW_THROW_IF(eq == std::string::npos || eq == 0 || eq + 1 == entry.size(), "node map: entry '", entry,
+    SLSHADOW_THROW_IF(eq == std::string::npos || eq == 0 || eq + 1 == entry.size(),
+                      "node map: entry '", entry,
                       "' is not KEY=NODE (keys: K1 D1 K2 D2 R T size1 size2)");
     const std::string key = entry.substr(0, eq), node = entry.substr(eq + 1);
     std::string* slot = key == "K1"      ? &map.k1
@@ -539,7 +610,8 @@ OpenCvNodeMap ParseOpenCvNodeMap(const std::string& text) {
                       "' (keys: K1 D1 K2 D2 R T size1 size2)");
     *slot = node;
   }
-  SLSHADOW_THROW_IF(map.k1.empty() || map.d1.empty(), "node map: '", text, "' must name at least K1 and D1");
+  SLSHADOW_THROW_IF(map.k1.empty() || map.d1.empty(), "node map: '", text,
+                    "' must name at least K1 and D1");
   return map;
 }
 
@@ -548,7 +620,8 @@ namespace {
 // The YAML tree (read by yaml-cpp) as JSON for OpenCV's JSON reader, read as OpenCV would have read
 // the YAML: keys in file order, a mapping with rows, cols, dt and data is an opencv-matrix (the
 // tag yaml-cpp drops). Values JSON cannot hold (empty, not finite) are refused, naming the node.
-nlohmann::ordered_json YamlToOpenCvJson(const YAML::Node& node, const std::string& file, const std::string& where) {
+nlohmann::ordered_json YamlToOpenCvJson(const YAML::Node& node, const std::string& file,
+                                        const std::string& where) {
   const std::string name = where.empty() ? std::string("(top level)") : where;
   switch (node.Type()) {
     case YAML::NodeType::Sequence: {
@@ -565,7 +638,8 @@ nlohmann::ordered_json YamlToOpenCvJson(const YAML::Node& node, const std::strin
         const std::string key = kv.first.Scalar();
         out[key] = YamlToOpenCvJson(kv.second, file, where.empty() ? key : where + "." + key);
       }
-      if (out.contains("rows") && out.contains("cols") && out.contains("dt") && out.contains("data")) {
+      if (out.contains("rows") && out.contains("cols") && out.contains("dt") &&
+          out.contains("data")) {
         out["type_id"] = "opencv-matrix";
       }
       return out;
@@ -582,8 +656,9 @@ nlohmann::ordered_json YamlToOpenCvJson(const YAML::Node& node, const std::strin
         SLSHADOW_THROW_IF(!std::isfinite(d), file, ": ", name, ": not a finite number (", s, ")");
         return d;
       }
-      SLSHADOW_THROW_IF(s == ".nan" || s == ".NaN" || s == ".inf" || s == "-.inf" || s == ".Inf" || s == "-.Inf", file, ": ",
-                        name, ": not a finite number (", s, ")");
+      SLSHADOW_THROW_IF(
+          s == ".nan" || s == ".NaN" || s == ".inf" || s == "-.inf" || s == ".Inf" || s == "-.Inf",
+          file, ": ", name, ": not a finite number (", s, ")");
       return s;
     }
     case YAML::NodeType::Null:
@@ -593,8 +668,9 @@ nlohmann::ordered_json YamlToOpenCvJson(const YAML::Node& node, const std::strin
   SLSHADOW_THROW(file, ": ", name, ": empty value");
 }
 
-Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_width, int default_height,
-                               int projector_width, int projector_height, const OpenCvNodeMap& node_map) {
+Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_width,
+                               int default_height, int projector_width, int projector_height,
+                               const OpenCvNodeMap& node_map) {
   SLSHADOW_THROW_IF(!std::filesystem::exists(path), path.string(), ": file not found");
   cv::FileStorage fs;
   bool read_as_yaml = false;
@@ -604,9 +680,10 @@ Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_wi
     // in that sense are refused before OpenCV sees them.
     const std::string text = ReadTextFile(path);
     for (size_t i = 0; i < text.size(); ++i) {
-      SLSHADOW_THROW_IF(text[i] == '\0', path.string(), ": NUL byte at byte ", i, " (not a text file)");
-      SLSHADOW_THROW_IF(text[i] == '\r' && (i + 1 == text.size() || text[i + 1] != '\n'), path.string(),
-                        ": bare carriage return at byte ", i,
+      SLSHADOW_THROW_IF(text[i] == '\0', path.string(), ": NUL byte at byte ", i,
+                        " (not a text file)");
+      SLSHADOW_THROW_IF(text[i] == '\r' && (i + 1 == text.size() || text[i + 1] != '\n'),
+                        path.string(), ": bare carriage return at byte ", i,
                         " (old Mac line endings); convert the file to LF or CR LF line endings");
     }
     read_as_yaml = text.rfind("%YAML", 0) == 0;
@@ -620,12 +697,15 @@ Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_wi
       const std::string body = eol == std::string::npos ? std::string() : text.substr(eol + 1);
       ConfigNode::ParseYaml(body, path.string());  // the checks and messages of every YAML input
       const YAML::Node root = YAML::Load(body);
-      SLSHADOW_THROW_IF(!root.IsMap(), path.string(), ": the top level is not a mapping of named nodes");
+      SLSHADOW_THROW_IF(!root.IsMap(), path.string(),
+                        ": the top level is not a mapping of named nodes");
       const nlohmann::ordered_json tree = YamlToOpenCvJson(root, path.string(), "");
       try {
-        fs.open(tree.dump(), cv::FileStorage::READ | cv::FileStorage::MEMORY | cv::FileStorage::FORMAT_JSON);
+        fs.open(tree.dump(),
+                cv::FileStorage::READ | cv::FileStorage::MEMORY | cv::FileStorage::FORMAT_JSON);
       } catch (const cv::Exception& e) {
-        SLSHADOW_THROW(path.string(), ": cannot read as an OpenCV FileStorage file (", e.what(), ")");
+        SLSHADOW_THROW(path.string(), ": cannot read as an OpenCV FileStorage file (", e.what(),
+                       ")");
       }
     }
   }
@@ -633,7 +713,8 @@ Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_wi
     try {
       fs.open(path.string(), cv::FileStorage::READ);
     } catch (const cv::Exception& e) {
-      SLSHADOW_THROW(path.string(), ": cannot parse as an OpenCV FileStorage file (", e.what(), ")");
+      SLSHADOW_THROW(path.string(), ": cannot parse as an OpenCV FileStorage file (", e.what(),
+                     ")");
     }
   }
   SLSHADOW_THROW_IF(!fs.isOpened(), path.string(), ": cannot open as an OpenCV FileStorage file");
@@ -642,15 +723,18 @@ Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_wi
   rig.name = path.stem().string();
   if (!node_map.Empty()) return ReadMappedLayout(fs, node_map, path, default_width, default_height);
   auto size_or_throw = [&](int w, int h, const std::string& what) {
-    SLSHADOW_THROW_IF(w <= 0 || h <= 0, file, ": ", what, ": no image size in the file; give it (e.g. --image-size)");
+    SLSHADOW_THROW_IF(w <= 0 || h <= 0, file, ": ", what,
+                      ": no image size in the file; give it (e.g. --image-size)");
     return std::pair<int, int>(w, h);
   };
   if (!fs["camera_matrix"].empty()) {
-    const auto [w, h] = size_or_throw(IntOr(fs, "image_width", default_width, path), IntOr(fs, "image_height", default_height, path),
-                                      "camera_matrix");
+    const auto [w, h] =
+        size_or_throw(IntOr(fs, "image_width", default_width, path),
+                      IntOr(fs, "image_height", default_height, path), "camera_matrix");
     RigDevice d;
     d.name = fs["device_name"].empty() ? "camera" : static_cast<std::string>(fs["device_name"]);
-    d.model = ModelFromMats(ReadMat(fs, "camera_matrix", path, 3, 3), ReadDist(fs, "distortion_coefficients", path), w, h,
+    d.model = ModelFromMats(ReadMat(fs, "camera_matrix", path, 3, 3),
+                            ReadDist(fs, "distortion_coefficients", path), w, h,
                             file + ": camera_matrix");
     rig.cameras.push_back(d);
     return rig;
@@ -667,40 +751,54 @@ Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_wi
       }
     }
     const auto [w, h] = size_or_throw(cam_w, cam_h, "cam_int");
-    const auto [pw, ph] = size_or_throw(projector_width, projector_height, "proj_int (projector size)");
+    const auto [pw, ph] =
+        size_or_throw(projector_width, projector_height, "proj_int (projector size)");
     RigDevice cam, proj;
     cam.name = "camera";
     auto dist = [&](const std::string& key) { return ReadDist(fs, key, path); };
-    cam.model = ModelFromMats(ReadMat(fs, "cam_int", path, 3, 3), dist("cam_dist"), w, h, file + ": cam_int");
+    cam.model = ModelFromMats(ReadMat(fs, "cam_int", path, 3, 3), dist("cam_dist"), w, h,
+                              file + ": cam_int");
     proj.name = "projector";
-    proj.model = ModelFromMats(ReadMat(fs, "proj_int", path, 3, 3), dist("proj_dist"), pw, ph, file + ": proj_int");
+    proj.model = ModelFromMats(ReadMat(fs, "proj_int", path, 3, 3), dist("proj_dist"), pw, ph,
+                               file + ": proj_int");
     const std::string rkey = fs["rotation"].empty() ? "roration" : "rotation";
-    proj.cam_from_rig = PoseFromRT(RotationMatrixOrRvec(fs, rkey, path), ReadMat(fs, "translation", path, 3, 1));
+    proj.cam_from_rig =
+        PoseFromRT(RotationMatrixOrRvec(fs, rkey, path), ReadMat(fs, "translation", path, 3, 1));
     rig.cameras.push_back(cam);
     rig.projector = proj;
     return rig;
   }
-  if (!fs["cam1_intrinsics"].empty()) return ReadMappedLayout(fs, StructuredLightSampleLayout(fs), path, default_width, default_height);
+  if (!fs["cam1_intrinsics"].empty())
+    return ReadMappedLayout(fs, StructuredLightSampleLayout(fs), path, default_width,
+                            default_height);
   if (!fs["M1"].empty() && fs["R"].empty() && !fs["Rlr"].empty()) {
     return ReadMappedLayout(fs, BinocularLayout(), path, default_width, default_height);
   }
-  SLSHADOW_THROW_IF(fs["M1"].empty(), file, ": no known calibration layout among the nodes found: ", DescribeNodes(fs),
-                    ". Known: camera_matrix (OpenCV calibration sample), M1/D1/M2/D2/R/T (stereo_calib), "
-                    "M1/D1/M2/D2/Rlr/Tlr/S, cam1_intrinsics/cam1_distorsion/cam2_*/R/T, cam_int/proj_int (procam); "
-                    "name the nodes of another layout with --map K1=NODE,D1=NODE[,K2=..,D2=..,R=..,T=..,size1=..]");
+  SLSHADOW_THROW_IF(
+      fs["M1"].empty(), file,
+      ": no known calibration layout among the nodes found: ", DescribeNodes(fs),
+      ". Known: camera_matrix (OpenCV calibration sample), M1/D1/M2/D2/R/T (stereo_calib), "
+      "M1/D1/M2/D2/Rlr/Tlr/S, cam1_intrinsics/cam1_distorsion/cam2_*/R/T, cam_int/proj_int "
+      "(procam); "
+      "name the nodes of another layout with --map "
+      "K1=NODE,D1=NODE[,K2=..,D2=..,R=..,T=..,size1=..]");
   const int num = IntOr(fs, "num_devices", fs["M2"].empty() ? 1 : 2, path);
   const bool has_projector = IntOr(fs, "has_projector", 0, path) != 0;
   for (int i = 1; i <= num; ++i) {
     const std::string s = std::to_string(i);
     const bool is_proj = has_projector && i == num;
-    const auto [w, h] = size_or_throw(IntOr(fs, "image_width_" + s, is_proj ? projector_width : default_width, path),
-                                      IntOr(fs, "image_height_" + s, is_proj ? projector_height : default_height, path), "M" + s);
+    const auto [w, h] = size_or_throw(
+        IntOr(fs, "image_width_" + s, is_proj ? projector_width : default_width, path),
+        IntOr(fs, "image_height_" + s, is_proj ? projector_height : default_height, path), "M" + s);
     RigDevice d;
-    d.name = fs["device_name_" + s].empty() ? (is_proj ? "projector" : "camera" + s) : static_cast<std::string>(fs["device_name_" + s]);
-    d.model = ModelFromMats(ReadMat(fs, "M" + s, path, 3, 3), ReadDist(fs, "D" + s, path), w, h, file + ": M" + s);
+    d.name = fs["device_name_" + s].empty() ? (is_proj ? "projector" : "camera" + s)
+                                            : static_cast<std::string>(fs["device_name_" + s]);
+    d.model = ModelFromMats(ReadMat(fs, "M" + s, path, 3, 3), ReadDist(fs, "D" + s, path), w, h,
+                            file + ": M" + s);
     if (i > 1) {
       const std::string suffix = i == 2 ? "" : s;
-      d.cam_from_rig = PoseFromRT(RotationMatrixOrRvec(fs, "R" + suffix, path), ReadMat(fs, "T" + suffix, path, 3, 1));
+      d.cam_from_rig = PoseFromRT(RotationMatrixOrRvec(fs, "R" + suffix, path),
+                                  ReadMat(fs, "T" + suffix, path, 3, 1));
     }
     if (is_proj) {
       rig.projector = d;
@@ -713,14 +811,17 @@ Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_wi
 
 }  // namespace
 
-Rig ReadOpenCvCalibration(const std::filesystem::path& path, int default_width, int default_height, int projector_width,
-                          int projector_height, const OpenCvNodeMap& node_map) {
+Rig ReadOpenCvCalibration(const std::filesystem::path& path, int default_width, int default_height,
+                          int projector_width, int projector_height,
+                          const OpenCvNodeMap& node_map) {
   // cv::FileNode throws cv::Exception on content of an unexpected shape (the top level not a
   // mapping, a string read as a matrix, ...): bad input, reported as such in one line.
   try {
-    return ReadOpenCvCalibrationNodes(path, default_width, default_height, projector_width, projector_height, node_map);
+    return ReadOpenCvCalibrationNodes(path, default_width, default_height, projector_width,
+                                      projector_height, node_map);
   } catch (const cv::Exception& e) {
-    SLSHADOW_THROW(path.string(), ": malformed OpenCV FileStorage content (", e.err, " in ", e.func, ")");
+    SLSHADOW_THROW(path.string(), ": malformed OpenCV FileStorage content (", e.err, " in ", e.func,
+                   ")");
   }
 }
 

@@ -19,14 +19,16 @@ namespace slshadow {
 
 // A rig from a calibration: devices marked is_projector become the rig's projector (at most one;
 // throws otherwise), the others its cameras in input order; the rig frame is device 0's frame.
-Rig RigFromCalibration(const CalibrationInput& input, const CalibrationResult& result, const std::string& name);
+Rig RigFromCalibration(const CalibrationInput& input, const CalibrationResult& result,
+                       const std::string& name);
 
 // Everything needed to recompute a calibration and its uncertainty: the options, the devices,
 // every observation (board points in mm and pixels), and the results derived from them (board
 // poses, intrinsics covariance, summary, uncertainty and cross-validation statistics).
-nlohmann::json CalibrationEvidenceToJson(const CalibrationInput& input, const CalibrationOptions& options,
-                                         const CalibrationResult& result,
-                                         const std::optional<CrossValidation>& cross_validation = std::nullopt);
+nlohmann::json CalibrationEvidenceToJson(
+    const CalibrationInput& input, const CalibrationOptions& options,
+    const CalibrationResult& result,
+    const std::optional<CrossValidation>& cross_validation = std::nullopt);
 
 struct CalibrationEvidence {
   CalibrationInput input;
@@ -34,7 +36,8 @@ struct CalibrationEvidence {
 };
 // Reads the inputs back (the derived results are recomputed by calling Calibrate). `file` names
 // the source in error messages. Throws slshadow::Error naming the field on malformed evidence.
-CalibrationEvidence CalibrationEvidenceFromJson(const nlohmann::json& json, const std::string& file);
+CalibrationEvidence CalibrationEvidenceFromJson(const nlohmann::json& json,
+                                                const std::string& file);
 
 nlohmann::json CalibrationOptionsToJson(const CalibrationOptions& options);
 CalibrationOptions CalibrationOptionsFromJson(const nlohmann::json& json, const std::string& file);
@@ -51,9 +54,9 @@ void WriteOpenCvCalibration(const Rig& rig, const std::filesystem::path& path);
 // Node names of a one- or two-camera calibration file, for ReadOpenCvCalibration: the built-in
 // layouts are such maps, and a user names the nodes of any other layout with one.
 struct OpenCvNodeMap {
-  std::string k1, d1;        // first camera: 3x3 camera matrix, distortion (k1 k2 p1 p2 [k3]); required
-  std::string k2, d2;        // second camera (both or neither)
-  std::string r, t;          // x_in_2 = R x_in_1 + T: 3x3 matrix or Rodrigues vector, 3-vector (mm)
+  std::string k1, d1;  // first camera: 3x3 camera matrix, distortion (k1 k2 p1 p2 [k3]); required
+  std::string k2, d2;  // second camera (both or neither)
+  std::string r, t;    // x_in_2 = R x_in_1 + T: 3x3 matrix or Rodrigues vector, 3-vector (mm)
   std::string size1, size2;  // image sizes as [width, height] (cv::Size) or a 1x2 matrix; optional,
                              // size2 defaults to size1
   bool Empty() const { return k1.empty(); }
@@ -73,7 +76,8 @@ OpenCvNodeMap ParseOpenCvNodeMap(const std::string& text);
 // when present, else from `default_width` x `default_height` (throws when neither gives one). A
 // file of no known layout throws an error that lists the nodes it has. Throws slshadow::Error
 // naming the file and the missing or malformed node.
-Rig ReadOpenCvCalibration(const std::filesystem::path& path, int default_width = 0, int default_height = 0,
-                          int projector_width = 0, int projector_height = 0, const OpenCvNodeMap& node_map = {});
+Rig ReadOpenCvCalibration(const std::filesystem::path& path, int default_width = 0,
+                          int default_height = 0, int projector_width = 0, int projector_height = 0,
+                          const OpenCvNodeMap& node_map = {});
 
 }  // namespace slshadow

@@ -11,7 +11,9 @@ namespace slshadow::calib::internal {
 
 std::vector<cv::Point3f> ToCv(const std::vector<Eigen::Vector3d>& v) {
   std::vector<cv::Point3f> out;
-  for (const auto& p : v) out.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
+  for (const auto& p : v)
+    out.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()),
+                     static_cast<float>(p.z()));
   return out;
 }
 std::vector<cv::Point2f> ToCv(const std::vector<Eigen::Vector2d>& v) {
@@ -23,16 +25,20 @@ std::vector<cv::Point2f> ToCv(const std::vector<Eigen::Vector2d>& v) {
 // Pose of the board in the device frame from one view, by PnP with the current intrinsics.
 std::optional<Pose6> PoseByPnP(const Intr9& params, const BoardView& v) {
   using M = CameraModel;
-  cv::Mat k = (cv::Mat_<double>(3, 3) << params[M::kFx], 0, params[M::kCx], 0, params[M::kFy], params[M::kCy], 0, 0, 1);
-  cv::Mat dist = (cv::Mat_<double>(1, 5) << params[M::kK1], params[M::kK2], params[M::kP1], params[M::kP2], params[M::kK3]);
+  cv::Mat k = (cv::Mat_<double>(3, 3) << params[M::kFx], 0, params[M::kCx], 0, params[M::kFy],
+               params[M::kCy], 0, 0, 1);
+  cv::Mat dist = (cv::Mat_<double>(1, 5) << params[M::kK1], params[M::kK2], params[M::kP1],
+                  params[M::kP2], params[M::kK3]);
   cv::Mat rvec, tvec;
   std::vector<cv::Point3d> obj;
   std::vector<cv::Point2d> img;
   for (size_t i = 0; i < v.pixels_px.size(); ++i) {
-    obj.emplace_back(v.points_in_board_mm[i].x(), v.points_in_board_mm[i].y(), v.points_in_board_mm[i].z());
+    obj.emplace_back(v.points_in_board_mm[i].x(), v.points_in_board_mm[i].y(),
+                     v.points_in_board_mm[i].z());
     img.emplace_back(v.pixels_px[i].x(), v.pixels_px[i].y());
   }
-  if (!cv::solvePnP(obj, img, k, dist, rvec, tvec, false, cv::SOLVEPNP_ITERATIVE)) return std::nullopt;
+  if (!cv::solvePnP(obj, img, k, dist, rvec, tvec, false, cv::SOLVEPNP_ITERATIVE))
+    return std::nullopt;
   Pose6 p{rvec.at<double>(0), rvec.at<double>(1), rvec.at<double>(2),
           tvec.at<double>(0), tvec.at<double>(1), tvec.at<double>(2)};
   for (double x : p) {
@@ -80,15 +86,26 @@ State InitDevice(const CalibrationInput& sub, const CalibrationOptions& options)
     try {
       k = cv::initCameraMatrix2D(obj, img, cv::Size(dev.width, dev.height), cv_aspect);
     } catch (const cv::Exception& e) {
-      SLSHADOW_THROW("device '", dev.name, "': cannot initialise the intrinsics from the board homographies (",
-                     e.what(), ")");
+      SLSHADOW_THROW("device '", dev.name,
+                     "': cannot initialise the intrinsics from the board homographies (", e.what(),
+                     ")");
     }
-    params = {k.at<double>(0, 0), k.at<double>(1, 1), k.at<double>(0, 2), k.at<double>(1, 2), 0, 0, 0, 0, 0};
-    SLSHADOW_THROW_IF(!(params[CameraModel::kFx] > 0 && params[CameraModel::kFy] > 0 && std::isfinite(params[CameraModel::kFx]) &&
-                        std::isfinite(params[CameraModel::kFy])),
-                      "device '", dev.name, "': the board homographies give no valid focal length (fx ", params[CameraModel::kFx],
-                      ", fy ", params[CameraModel::kFy], "): the views are degenerate (all parallel to the image plane, or ",
-                      "too few); capture the board tilted by 20-40 degrees in several directions");
+    params = {k.at<double>(0, 0),
+              k.at<double>(1, 1),
+              k.at<double>(0, 2),
+              k.at<double>(1, 2),
+              0,
+              0,
+              0,
+              0,
+              0};
+    SLSHADOW_THROW_IF(
+        !(params[CameraModel::kFx] > 0 && params[CameraModel::kFy] > 0 &&
+          std::isfinite(params[CameraModel::kFx]) && std::isfinite(params[CameraModel::kFy])),
+        "device '", dev.name, "': the board homographies give no valid focal length (fx ",
+        params[CameraModel::kFx], ", fy ", params[CameraModel::kFy],
+        "): the views are degenerate (all parallel to the image plane, or ",
+        "too few); capture the board tilted by 20-40 degrees in several directions");
   }
   if (options.fix_principal_point && !dev.initial) {
     params[CameraModel::kCx] = (dev.width - 1) / 2.0;
@@ -104,7 +121,8 @@ State InitDevice(const CalibrationInput& sub, const CalibrationOptions& options)
     s.pose_known[v.pose] = true;
     ++posed;
   }
-  SLSHADOW_THROW_IF(posed == 0, "device '", dev.name, "': no view could be posed (solvePnP failed on all views)");
+  SLSHADOW_THROW_IF(posed == 0, "device '", dev.name,
+                    "': no view could be posed (solvePnP failed on all views)");
   return s;
 }
 

@@ -27,25 +27,27 @@ struct ModelCandidate {
 
 struct ModelScore {
   std::string name;
-  double fit_rms_px = 0;         // target device's RMS with all poses
-  double prediction_rms_px = 0;  // target device's RMS on held-out poses, predicted
-  int num_predicted = 0;         // held-out corners predicted
+  double fit_rms_px = 0;                 // target device's RMS with all poses
+  double prediction_rms_px = 0;          // target device's RMS on held-out poses, predicted
+  int num_predicted = 0;                 // held-out corners predicted
   std::vector<CameraModel> fold_models;  // target device's model from each fold, in pose order
-  CalibrationResult result;      // with all poses
+  CalibrationResult result;              // with all poses
 };
 
 // Scores each candidate (throws slshadow::Error when a candidate's held_params does not have one
 // entry per device, or fewer than 3 poses are seen by both devices). Devices' own held_params
 // in `input` are replaced by the candidate's.
-std::vector<ModelScore> ScoreModelsByLeaveOnePoseOut(const CalibrationInput& input, const CalibrationOptions& options,
-                                                     const std::vector<ModelCandidate>& candidates, int reference_device,
-                                                     int target_device);
+std::vector<ModelScore> ScoreModelsByLeaveOnePoseOut(const CalibrationInput& input,
+                                                     const CalibrationOptions& options,
+                                                     const std::vector<ModelCandidate>& candidates,
+                                                     int reference_device, int target_device);
 
 // The candidate grid of `slshadow calibrate --select-model`: every camera "k1 k2 p1 p2 k3" or
 // "k1 k2 p1 p2" (k3 held) crossed with the projector "k1 k2 p1 p2 k3", "k1 k2 p1 p2", "k1 k2" or
 // "k1": 8 candidates named "cameras <model> / projector <model>", held_params one entry per device
 // of `input`. Throws slshadow::Error when `projector_device` is not a projector of the input.
-std::vector<ModelCandidate> DistortionModelCandidates(const CalibrationInput& input, int projector_device);
+std::vector<ModelCandidate> DistortionModelCandidates(const CalibrationInput& input,
+                                                      int projector_device);
 
 struct ModelSelection {
   std::vector<ModelScore> scores;  // per candidate of DistortionModelCandidates, in its order

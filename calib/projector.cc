@@ -11,7 +11,8 @@ namespace slshadow {
 namespace {
 
 // Normalised DLT homography dst ~ H src by least squares over all pairs (Hartley normalisation).
-bool FitHomography(const std::vector<Eigen::Vector2d>& src, const std::vector<Eigen::Vector2d>& dst, Eigen::Matrix3d* h) {
+bool FitHomography(const std::vector<Eigen::Vector2d>& src, const std::vector<Eigen::Vector2d>& dst,
+                   Eigen::Matrix3d* h) {
   const size_t n = src.size();
   if (n < 4) return false;
   auto normaliser = [](const std::vector<Eigen::Vector2d>& p) {
@@ -45,15 +46,19 @@ bool FitHomography(const std::vector<Eigen::Vector2d>& src, const std::vector<Ei
   return h->allFinite();
 }
 
-Eigen::Vector2d Apply(const Eigen::Matrix3d& h, const Eigen::Vector2d& x) { return (h * x.homogeneous()).hnormalized(); }
+Eigen::Vector2d Apply(const Eigen::Matrix3d& h, const Eigen::Vector2d& x) {
+  return (h * x.homogeneous()).hnormalized();
+}
 
 // Jacobian d(H c)/dc and the fit's covariance of H c (white-noise propagation), from the fitted
 // H and its inlier pairs. H is re-expressed around the corner, G(u) = H(c + u) - H c with
 // G's (2,2) entry 1; there G(0) = 0, dG/du(0) is G's upper-left 2x2, and G(0) moves only with
 // G's entries (0,2) and (1,2), whose covariance is sigma^2 (A^T A)^-1, A the Jacobian of the pairs'
 // residuals in G's 8 free entries, sigma^2 the residual variance per coordinate.
-void LocalFitAtCorner(const Eigen::Matrix3d& h, const Eigen::Vector2d& c, const std::vector<Eigen::Vector2d>& cam,
-                      const std::vector<Eigen::Vector2d>& proj, Eigen::Matrix2d* jacobian, Eigen::Matrix2d* covariance) {
+void LocalFitAtCorner(const Eigen::Matrix3d& h, const Eigen::Vector2d& c,
+                      const std::vector<Eigen::Vector2d>& cam,
+                      const std::vector<Eigen::Vector2d>& proj, Eigen::Matrix2d* jacobian,
+                      Eigen::Matrix2d* covariance) {
   const Eigen::Vector2d hc = Apply(h, c);
   Eigen::Matrix3d to_corner, from_image;
   to_corner << 1, 0, c.x(), 0, 1, c.y(), 0, 0, 1;
@@ -84,21 +89,29 @@ void LocalFitAtCorner(const Eigen::Matrix3d& h, const Eigen::Vector2d& c, const 
 }  // namespace
 
 void LocalHomographyOptions::Check() const {
-  SLSHADOW_THROW_IF(half_window_px < 2 || half_window_px > 200, "local homography: half_window_px: must be in 2..200 (got ",
-                    half_window_px, ")");
-  SLSHADOW_THROW_IF(min_valid_pixels < 8, "local homography: min_valid_pixels: must be at least 8 (got ", min_valid_pixels, ")");
-  SLSHADOW_THROW_IF(!(inlier_threshold_px > 0), "local homography: inlier_threshold_px: must be positive (got ",
+  SLSHADOW_THROW_IF(half_window_px < 2 || half_window_px > 200,
+                    "local homography: half_window_px: must be in 2..200 (got ", half_window_px,
+                    ")");
+  SLSHADOW_THROW_IF(min_valid_pixels < 8,
+                    "local homography: min_valid_pixels: must be at least 8 (got ",
+                    min_valid_pixels, ")");
+  SLSHADOW_THROW_IF(!(inlier_threshold_px > 0),
+                    "local homography: inlier_threshold_px: must be positive (got ",
                     inlier_threshold_px, ")");
-  SLSHADOW_THROW_IF(!(max_fit_rms_px > 0), "local homography: max_fit_rms_px: must be positive (got ", max_fit_rms_px, ")");
+  SLSHADOW_THROW_IF(!(max_fit_rms_px > 0),
+                    "local homography: max_fit_rms_px: must be positive (got ", max_fit_rms_px,
+                    ")");
 }
 
-ProjectorCorners ProjectorCornersByLocalHomography(const ProjectorMap& map, const TargetDetection& detection,
+ProjectorCorners ProjectorCornersByLocalHomography(const ProjectorMap& map,
+                                                   const TargetDetection& detection,
                                                    const LocalHomographyOptions& options) {
   options.Check();
-  SLSHADOW_THROW_IF(!map.has_x || !map.has_y, "local homography: the decoded patterns must code both projector axes");
+  SLSHADOW_THROW_IF(!map.has_x || !map.has_y,
+                    "local homography: the decoded patterns must code both projector axes");
   SLSHADOW_THROW_IF(map.width() != detection.width || map.height() != detection.height,
-                    "local homography: decoded map is ", map.width(), "x", map.height(), " but the board image is ",
-                    detection.width, "x", detection.height);
+                    "local homography: decoded map is ", map.width(), "x", map.height(),
+                    " but the board image is ", detection.width, "x", detection.height);
   ProjectorCorners out;
   const int w = options.half_window_px;
   for (size_t k = 0; k < detection.pixels_px.size(); ++k) {
@@ -110,14 +123,17 @@ ProjectorCorners ProjectorCornersByLocalHomography(const ProjectorMap& map, cons
       const float* px = map.proj_x.ptr<float>(y);
       const float* py = map.proj_y.ptr<float>(y);
       for (int x = std::max(0, cx - w); x <= std::min(map.width() - 1, cx + w); ++x) {
-        if (status[x] != static_cast<uint8_t>(PixelStatus::kValid) || !std::isfinite(px[x]) || !std::isfinite(py[x])) continue;
+        if (status[x] != static_cast<uint8_t>(PixelStatus::kValid) || !std::isfinite(px[x]) ||
+            !std::isfinite(py[x]))
+          continue;
         cam.emplace_back(x, y);
         proj.emplace_back(px[x], py[x]);
       }
     }
     const std::string id = "corner " + std::to_string(detection.point_ids[k]);
     if (static_cast<int>(cam.size()) < options.min_valid_pixels) {
-      out.skipped.push_back(id + ": " + std::to_string(cam.size()) + " decoded pixels in the window (need " +
+      out.skipped.push_back(id + ": " + std::to_string(cam.size()) +
+                            " decoded pixels in the window (need " +
                             std::to_string(options.min_valid_pixels) + ")");
       continue;
     }
@@ -146,12 +162,13 @@ ProjectorCorners ProjectorCornersByLocalHomography(const ProjectorMap& map, cons
       ok = FitHomography(cam, proj, &h);
     }
     if (!ok) {
-      out.skipped.push_back(id + ": no consistent homography (too few consistently decoded pixels)");
+      out.skipped.push_back(id +
+                            ": no consistent homography (too few consistently decoded pixels)");
       continue;
     }
     if (rms > options.max_fit_rms_px) {
-      out.skipped.push_back(id + ": local homography fits to " + std::to_string(rms) + " projector px (limit " +
-                            std::to_string(options.max_fit_rms_px) + ")");
+      out.skipped.push_back(id + ": local homography fits to " + std::to_string(rms) +
+                            " projector px (limit " + std::to_string(options.max_fit_rms_px) + ")");
       continue;
     }
     ProjectorCorner pc;
@@ -166,15 +183,20 @@ ProjectorCorners ProjectorCornersByLocalHomography(const ProjectorMap& map, cons
   return out;
 }
 
-ProcamPose MakeProcamPose(const PatternSpec& patterns, const std::vector<cv::Mat>& images, const TargetSpec& target,
-                          int pose, int camera_device, int projector_device, const std::string& label,
+ProcamPose MakeProcamPose(const PatternSpec& patterns, const std::vector<cv::Mat>& images,
+                          const TargetSpec& target, int pose, int camera_device,
+                          int projector_device, const std::string& label,
                           const DecodeOptions& decode, const LocalHomographyOptions& local) {
   const int white = patterns.WhiteFrameIndex();
-  SLSHADOW_THROW_IF(white < 0, "projector calibration: the pattern sequence has no all-white frame to find the board in");
-  SLSHADOW_THROW_IF(!patterns.code_x || !patterns.code_y,
-                    "projector calibration: the patterns must code both projector axes (code_x and code_y)");
-  SLSHADOW_THROW_IF(static_cast<int>(images.size()) != patterns.NumImages(), "projector calibration: ", label, ": ",
-                    images.size(), " images but the pattern sequence has ", patterns.NumImages());
+  SLSHADOW_THROW_IF(
+      white < 0,
+      "projector calibration: the pattern sequence has no all-white frame to find the board in");
+  SLSHADOW_THROW_IF(
+      !patterns.code_x || !patterns.code_y,
+      "projector calibration: the patterns must code both projector axes (code_x and code_y)");
+  SLSHADOW_THROW_IF(static_cast<int>(images.size()) != patterns.NumImages(),
+                    "projector calibration: ", label, ": ", images.size(),
+                    " images but the pattern sequence has ", patterns.NumImages());
   ProcamPose out;
   out.detection = DetectTarget(target, images[static_cast<size_t>(white)]);
   out.camera_view.device = camera_device;
@@ -188,15 +210,18 @@ ProcamPose MakeProcamPose(const PatternSpec& patterns, const std::vector<cv::Mat
   out.projector = ProjectorCornersByLocalHomography(map, out.detection, local);
   const auto board = BoardPoints(target);
   for (size_t i = 0; i < out.detection.pixels_px.size(); ++i) {
-    out.camera_view.points_in_board_mm.push_back(board[static_cast<size_t>(out.detection.point_ids[i])]);
+    out.camera_view.points_in_board_mm.push_back(
+        board[static_cast<size_t>(out.detection.point_ids[i])]);
     out.camera_view.pixels_px.push_back(out.detection.pixels_px[i]);
   }
   out.projector_view.source_device = camera_device;
   for (const auto& c : out.projector.corners) {
     out.projector_view.points_in_board_mm.push_back(board[static_cast<size_t>(c.point_id)]);
     out.projector_view.pixels_px.push_back(c.projector_px);
-    const auto at = std::find(out.detection.point_ids.begin(), out.detection.point_ids.end(), c.point_id);
-    out.projector_view.source_points.push_back(static_cast<int>(at - out.detection.point_ids.begin()));
+    const auto at =
+        std::find(out.detection.point_ids.begin(), out.detection.point_ids.end(), c.point_id);
+    out.projector_view.source_points.push_back(
+        static_cast<int>(at - out.detection.point_ids.begin()));
     out.projector_view.source_jacobians.push_back(c.jacobian);
     out.projector_view.carry_covariances_px2.push_back(c.fit_covariance_px2);
   }

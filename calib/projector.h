@@ -33,10 +33,10 @@
 namespace slshadow {
 
 struct LocalHomographyOptions {
-  int half_window_px = 20;          // camera pixels each side of the corner: window (2n+1)^2
-  int min_valid_pixels = 100;       // fewer decoded pixels in the window: corner skipped
+  int half_window_px = 20;           // camera pixels each side of the corner: window (2n+1)^2
+  int min_valid_pixels = 100;        // fewer decoded pixels in the window: corner skipped
   double inlier_threshold_px = 1.5;  // projector px; pairs farther from the fit are dropped, refit
-  double max_fit_rms_px = 0.8;      // projector px; a corner whose inlier RMS exceeds this is skipped
+  double max_fit_rms_px = 0.8;  // projector px; a corner whose inlier RMS exceeds this is skipped
   // Throws slshadow::Error naming the first violated constraint.
   void Check() const;
 };
@@ -64,7 +64,8 @@ struct ProjectorCorners {
 
 // Maps every detected corner into projector pixels. `map` must have both axes coded and the
 // camera image's size (throws slshadow::Error otherwise).
-ProjectorCorners ProjectorCornersByLocalHomography(const ProjectorMap& map, const TargetDetection& detection,
+ProjectorCorners ProjectorCornersByLocalHomography(const ProjectorMap& map,
+                                                   const TargetDetection& detection,
                                                    const LocalHomographyOptions& options = {});
 
 // One board pose of a camera-projector capture, ready for Calibrate(): the camera's view (board
@@ -72,10 +73,10 @@ ProjectorCorners ProjectorCornersByLocalHomography(const ProjectorMap& map, cons
 // projector pixels, a carried view: BoardView::source_device is the camera, with each corner's
 // Jacobian and fit covariance), plus what was found along the way.
 struct ProcamPose {
-  TargetDetection detection;      // in the white frame
-  ProjectorCorners projector;     // corners in projector pixels, and skipped ones
-  BoardView camera_view;          // device camera_device, pose `pose`
-  BoardView projector_view;       // device projector_device, pose `pose`
+  TargetDetection detection;   // in the white frame
+  ProjectorCorners projector;  // corners in projector pixels, and skipped ones
+  BoardView camera_view;       // device camera_device, pose `pose`
+  BoardView projector_view;    // device projector_device, pose `pose`
   std::array<int64_t, kNumPixelStatus> decode_counts{};  // decoded pixels by status
 };
 
@@ -83,8 +84,10 @@ struct ProcamPose {
 // white frame and maps its corners into the projector. Throws slshadow::Error when the sequence
 // has no white frame or does not code both axes; a board not found is a result (detection.found
 // false, empty views).
-ProcamPose MakeProcamPose(const PatternSpec& patterns, const std::vector<cv::Mat>& images, const TargetSpec& target,
-                          int pose, int camera_device, int projector_device, const std::string& label,
-                          const DecodeOptions& decode = {}, const LocalHomographyOptions& local = {});
+ProcamPose MakeProcamPose(const PatternSpec& patterns, const std::vector<cv::Mat>& images,
+                          const TargetSpec& target, int pose, int camera_device,
+                          int projector_device, const std::string& label,
+                          const DecodeOptions& decode = {},
+                          const LocalHomographyOptions& local = {});
 
 }  // namespace slshadow

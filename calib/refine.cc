@@ -30,13 +30,16 @@ struct EpipolarFunctor {
     const T c[3] = {T(xc.x()), T(xc.y()), T(xc.z())};
     T rc[3];
     ceres::AngleAxisRotatePoint(rvec, c, rc);
-    const T t[3] = {T(baseline) * direction[0], T(baseline) * direction[1], T(baseline) * direction[2]};
+    const T t[3] = {T(baseline) * direction[0], T(baseline) * direction[1],
+                    T(baseline) * direction[2]};
     // E x_c = t x (R x_c).
-    const T ex[3] = {t[1] * rc[2] - t[2] * rc[1], t[2] * rc[0] - t[0] * rc[2], t[0] * rc[1] - t[1] * rc[0]};
+    const T ex[3] = {t[1] * rc[2] - t[2] * rc[1], t[2] * rc[0] - t[0] * rc[2],
+                     t[0] * rc[1] - t[1] * rc[0]};
     const T p[3] = {T(xp.x()) / scale[0], T(xp.y()) / scale[0], T(xp.z())};
     const T e = p[0] * ex[0] + p[1] * ex[1] + p[2] * ex[2];
     // E^T x_p = R^T (x_p x t)  (since x_p . (t x v) = (x_p x t) . v).
-    const T pxt[3] = {p[1] * t[2] - p[2] * t[1], p[2] * t[0] - p[0] * t[2], p[0] * t[1] - p[1] * t[0]};
+    const T pxt[3] = {p[1] * t[2] - p[2] * t[1], p[2] * t[0] - p[0] * t[2],
+                      p[0] * t[1] - p[1] * t[0]};
     const T minus_r[3] = {-rvec[0], -rvec[1], -rvec[2]};
     T etx[3];
     ceres::AngleAxisRotatePoint(minus_r, pxt, etx);
@@ -53,7 +56,8 @@ struct Rays {
 };
 
 // Rays of both devices; `proj` is the second device of the pair (projector or camera_b).
-Rays Unproject(const CameraModel& cam, const CameraModel& proj, const std::vector<Correspondence>& corr) {
+Rays Unproject(const CameraModel& cam, const CameraModel& proj,
+               const std::vector<Correspondence>& corr) {
   Rays r;
   for (const auto& c : corr) {
     const auto a = cam.UndistortToNormalized(c.camera_px);
@@ -106,7 +110,8 @@ struct PairResult {
 
 // Depths (along the rays, in ray units) of the midpoint triangulation of rays xa (frame a) and xb
 // (frame b); nullopt for parallel rays.
-std::optional<Eigen::Vector2d> Depths(const Rigid3d& b_from_a, const Eigen::Vector3d& xa, const Eigen::Vector3d& xb) {
+std::optional<Eigen::Vector2d> Depths(const Rigid3d& b_from_a, const Eigen::Vector3d& xa,
+                                      const Eigen::Vector3d& xb) {
   const Eigen::Matrix3d rt = b_from_a.rotation.toRotationMatrix().transpose();
   const Eigen::Vector3d cb = -rt * b_from_a.translation, db = rt * xb;
   Eigen::Matrix<double, 3, 2> a;
@@ -118,8 +123,8 @@ std::optional<Eigen::Vector2d> Depths(const Rigid3d& b_from_a, const Eigen::Vect
 }
 
 // The midpoint of a correspondence in frame a (mm at the pose's scale).
-std::optional<Eigen::Vector3d> Triangulate(const CameraModel& ma, const CameraModel& mb, const Rigid3d& b_from_a,
-                                           const Correspondence& c) {
+std::optional<Eigen::Vector3d> Triangulate(const CameraModel& ma, const CameraModel& mb,
+                                           const Rigid3d& b_from_a, const Correspondence& c) {
   const auto a = ma.UndistortToNormalized(c.camera_px);
   const auto b = mb.UndistortToNormalized(c.projector_px);
   if (!a || !b) return std::nullopt;
@@ -132,15 +137,18 @@ std::optional<Eigen::Vector3d> Triangulate(const CameraModel& ma, const CameraMo
 }
 
 // Refines b_from_a (and optionally model_b's focal length) of the pair.
-PairResult RefinePair(const CameraModel& model_a, const CameraModel& model_b_in, const Rigid3d& initial,
-                      const std::vector<Correspondence>& correspondences, const RefineOptions& options) {
+PairResult RefinePair(const CameraModel& model_a, const CameraModel& model_b_in,
+                      const Rigid3d& initial, const std::vector<Correspondence>& correspondences,
+                      const RefineOptions& options) {
   const double length = initial.translation.norm();
-  SLSHADOW_THROW_IF(!(length > 0), "calibrate refine: the two devices share a centre (zero baseline)");
+  SLSHADOW_THROW_IF(!(length > 0),
+                    "calibrate refine: the two devices share a centre (zero baseline)");
   PairResult out;
   out.model_b = model_b_in;
   Rays rays = Unproject(model_a, out.model_b, correspondences);
   SLSHADOW_THROW_IF(rays.cam.size() < 20, "calibrate refine: only ", rays.cam.size(),
-                    " usable correspondences (need at least 20): is the scan decoded, and the rig the right one?");
+                    " usable correspondences (need at least 20): is the scan decoded, and the rig "
+                    "the right one?");
   out.before = Stats(Residuals(rays, initial, out.model_b.fx()));
 
   const Eigen::AngleAxisd aa(initial.rotation);
@@ -153,9 +161,10 @@ PairResult RefinePair(const CameraModel& model_a, const CameraModel& model_b_in,
     double scale = 1.0;
     ceres::Problem problem;
     for (size_t i = 0; i < rays.cam.size(); ++i) {
-      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<EpipolarFunctor, 1, 3, 3, 1>(
-                                   new EpipolarFunctor(rays.cam[i], rays.proj[i], length, out.model_b.fx())),
-                               new ceres::CauchyLoss(options.loss_scale_px), rvec.data(), dir.data(), &scale);
+      problem.AddResidualBlock(
+          new ceres::AutoDiffCostFunction<EpipolarFunctor, 1, 3, 3, 1>(
+              new EpipolarFunctor(rays.cam[i], rays.proj[i], length, out.model_b.fx())),
+          new ceres::CauchyLoss(options.loss_scale_px), rvec.data(), dir.data(), &scale);
     }
     problem.SetManifold(dir.data(), new ceres::SphereManifold<3>());
     if (!options.refine_focal) problem.SetParameterBlockConstant(&scale);
@@ -174,8 +183,9 @@ PairResult RefinePair(const CameraModel& model_a, const CameraModel& model_b_in,
     }
   }
   const double angle = rvec.norm();
-  const Eigen::Quaterniond q =
-      angle > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, rvec / angle)) : Eigen::Quaterniond::Identity();
+  const Eigen::Quaterniond q = angle > 0
+                                   ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, rvec / angle))
+                                   : Eigen::Quaterniond::Identity();
   out.b_from_a = Rigid3d(q, length * dir.normalized());
   const std::vector<double> after = Residuals(rays, out.b_from_a, out.model_b.fx());
   out.after = Stats(after);
@@ -195,55 +205,69 @@ PairResult RefinePair(const CameraModel& model_a, const CameraModel& model_b_in,
   if (options.known_baseline_mm > 0) {
     out.b_from_a.translation = options.known_baseline_mm * dir.normalized();
     out.scale_verified = true;
-    std::snprintf(note, sizeof(note), "scale set by the known baseline: %.3f mm (rig file: %.3f mm)",
+    std::snprintf(note, sizeof(note),
+                  "scale set by the known baseline: %.3f mm (rig file: %.3f mm)",
                   options.known_baseline_mm, length);
     out.scale_note = note;
   } else if (!options.known_distances.empty()) {
     const KnownDistance& k = options.known_distances[0];
     const auto p1 = Triangulate(model_a, out.model_b, out.b_from_a, k.first);
     const auto p2 = Triangulate(model_a, out.model_b, out.b_from_a, k.second);
-    SLSHADOW_THROW_IF(!p1 || !p2, "calibrate refine: a point of the known distance does not triangulate");
+    SLSHADOW_THROW_IF(!p1 || !p2,
+                      "calibrate refine: a point of the known distance does not triangulate");
     const double measured = (*p1 - *p2).norm();
-    SLSHADOW_THROW_IF(!(measured > 0), "calibrate refine: the two points of the known distance coincide");
+    SLSHADOW_THROW_IF(!(measured > 0),
+                      "calibrate refine: the two points of the known distance coincide");
     out.b_from_a.translation *= k.distance_mm / measured;
     out.scale_verified = true;
     std::snprintf(note, sizeof(note),
-                  "scale set by the known distance %.3f mm (%.3f mm with the rig file's baseline): baseline %.3f -> %.3f mm",
+                  "scale set by the known distance %.3f mm (%.3f mm with the rig file's baseline): "
+                  "baseline %.3f -> %.3f mm",
                   k.distance_mm, measured, length, out.b_from_a.translation.norm());
     out.scale_note = note;
   } else {
     std::snprintf(note, sizeof(note),
-                  "scale not verified: the baseline is the rig file's %.3f mm (self-calibration cannot measure scale; "
+                  "scale not verified: the baseline is the rig file's %.3f mm (self-calibration "
+                  "cannot measure scale; "
                   "give a known baseline or a measured distance between two scene points)",
                   length);
     out.scale_note = note;
   }
   out.rotation_change_rad = out.b_from_a.rotation.angularDistance(initial.rotation);
-  out.direction_change_rad = std::acos(std::clamp(dir.normalized().dot(initial.translation / length), -1.0, 1.0));
+  out.direction_change_rad =
+      std::acos(std::clamp(dir.normalized().dot(initial.translation / length), -1.0, 1.0));
   return out;
 }
 
 std::string Message(const PairResult& r, const std::string& second, const RefineOptions& options) {
   char msg[600];
-  std::snprintf(msg, sizeof(msg),
-                "epipolar residual median %.3f -> %.3f px, p95 %.3f -> %.3f px (%d correspondences); %s rotated "
-                "%.4f deg, baseline direction turned %.4f deg, baseline %.3f mm%s%s",
-                r.before.median_px, r.after.median_px, r.before.p95_px, r.after.p95_px, r.after.count, second.c_str(),
-                r.rotation_change_rad * 180 / M_PI, r.direction_change_rad * 180 / M_PI, r.b_from_a.translation.norm(),
-                options.refine_focal ? (", focal length x" + std::to_string(r.focal_scale)).c_str() : "",
-                r.before.median_px > options.warn_median_px
-                    ? "; WARNING: before refinement the calibration did not fit this scan (bumped rig, swapped devices or wrong file?)"
-                    : "");
+  std::snprintf(
+      msg, sizeof(msg),
+      "epipolar residual median %.3f -> %.3f px, p95 %.3f -> %.3f px (%d correspondences); %s "
+      "rotated "
+      "%.4f deg, baseline direction turned %.4f deg, baseline %.3f mm%s%s",
+      r.before.median_px, r.after.median_px, r.before.p95_px, r.after.p95_px, r.after.count,
+      second.c_str(), r.rotation_change_rad * 180 / M_PI, r.direction_change_rad * 180 / M_PI,
+      r.b_from_a.translation.norm(),
+      options.refine_focal ? (", focal length x" + std::to_string(r.focal_scale)).c_str() : "",
+      r.before.median_px > options.warn_median_px
+          ? "; WARNING: before refinement the calibration did not fit this scan (bumped rig, "
+            "swapped devices or wrong file?)"
+          : "");
   std::string out = msg;
   if (r.rotation_change_rad > 1.0 * M_PI / 180 || r.direction_change_rad > 5.0 * M_PI / 180) {
-    out += "; WARNING: the correction is far larger than a bump (swapped camera names or a rig file of another rig?): "
-           "check before trusting the refined rig";
+    out +=
+        "; WARNING: the correction is far larger than a bump (swapped camera names or a rig file "
+        "of another rig?): "
+        "check before trusting the refined rig";
   }
   // Not the figure `slshadow reconstruct` quotes: its calibration check fits a smooth field to the
   // dense epipolar error and judges it against the capture's decode noise (issue 14: say so).
   return out + "; " + r.scale_note +
-         "; (this is the Sampson residual of the sparse correspondences refine fits, px of " + second +
-         "; `slshadow reconstruct` quotes another figure: the systematic part of the dense epipolar error "
+         "; (this is the Sampson residual of the sparse correspondences refine fits, px of " +
+         second +
+         "; `slshadow reconstruct` quotes another figure: the systematic part of the dense "
+         "epipolar error "
          "against the capture's decode noise)";
 }
 
@@ -252,16 +276,20 @@ std::string Rejection(const PairResult& r, const RefineOptions& options) {
   char msg[400];
   if (r.inlier_share < options.min_inlier_share) {
     std::snprintf(msg, sizeof(msg),
-                  "rejected: the refined pose fits only %.0f %% of the correspondences within %.1f px (need %.0f %%): "
+                  "rejected: the refined pose fits only %.0f %% of the correspondences within %.1f "
+                  "px (need %.0f %%): "
                   "most correspondences are lost (wrong scan or rig file, or a decoding failure?)",
                   100 * r.inlier_share, options.inlier_px, 100 * options.min_inlier_share);
     return msg;
   }
   if (r.front_share < options.min_front_share) {
     std::snprintf(msg, sizeof(msg),
-                  "rejected: only %.0f %% of the fitting correspondences triangulate in front of both devices (cheirality; "
-                  "need %.0f %%): the solution is the twisted pair or the reversed baseline of the true pose, a "
-                  "mirror image that fits the epipolar geometry equally well; the rig file is too far off (wrong "
+                  "rejected: only %.0f %% of the fitting correspondences triangulate in front of "
+                  "both devices (cheirality; "
+                  "need %.0f %%): the solution is the twisted pair or the reversed baseline of the "
+                  "true pose, a "
+                  "mirror image that fits the epipolar geometry equally well; the rig file is too "
+                  "far off (wrong "
                   "file or swapped devices?)",
                   100 * r.front_share, 100 * options.min_front_share);
     return msg;
@@ -270,12 +298,14 @@ std::string Rejection(const PairResult& r, const RefineOptions& options) {
 }
 
 void CheckCamera(const Rig& rig, int camera, const char* what) {
-  SLSHADOW_THROW_IF(camera < 0 || camera >= static_cast<int>(rig.cameras.size()), what, ": camera index ", camera,
-                    " out of range (rig '", rig.name, "' has ", rig.cameras.size(), " cameras)");
+  SLSHADOW_THROW_IF(camera < 0 || camera >= static_cast<int>(rig.cameras.size()), what,
+                    ": camera index ", camera, " out of range (rig '", rig.name, "' has ",
+                    rig.cameras.size(), " cameras)");
 }
 
 Rigid3d BFromA(const Rig& rig, int a, int b) {
-  return rig.cameras[static_cast<size_t>(b)].cam_from_rig * rig.cameras[static_cast<size_t>(a)].cam_from_rig.Inverse();
+  return rig.cameras[static_cast<size_t>(b)].cam_from_rig *
+         rig.cameras[static_cast<size_t>(a)].cam_from_rig.Inverse();
 }
 
 // Sub-pixel position in `b` of projector coordinate (u, v), from b's pixels around `seed`.
@@ -314,7 +344,8 @@ std::vector<Correspondence> SampleCorrespondences(const ProjectorMap& map, int m
     const float* px = map.proj_x.ptr<float>(y);
     const float* py = map.proj_y.ptr<float>(y);
     for (int x = 0; x < map.width(); ++x) {
-      if (st[x] == static_cast<uint8_t>(PixelStatus::kValid) && std::isfinite(px[x]) && std::isfinite(py[x])) {
+      if (st[x] == static_cast<uint8_t>(PixelStatus::kValid) && std::isfinite(px[x]) &&
+          std::isfinite(py[x])) {
         all.push_back({Eigen::Vector2d(x, y), Eigen::Vector2d(px[x], py[x])});
       }
     }
@@ -326,12 +357,15 @@ std::vector<Correspondence> SampleCorrespondences(const ProjectorMap& map, int m
   return out;
 }
 
-EpipolarStats EpipolarResiduals(const Rig& rig, int camera, const std::vector<Correspondence>& correspondences,
+EpipolarStats EpipolarResiduals(const Rig& rig, int camera,
+                                const std::vector<Correspondence>& correspondences,
                                 std::vector<double>* residuals_px) {
   SLSHADOW_THROW_IF(!rig.projector, "calibration check: rig '", rig.name, "' has no projector");
   CheckCamera(rig, camera, "calibration check");
-  const Rays rays = Unproject(rig.cameras[static_cast<size_t>(camera)].model, rig.projector->model, correspondences);
-  const Rigid3d proj_from_cam = rig.projector->cam_from_rig * rig.cameras[static_cast<size_t>(camera)].cam_from_rig.Inverse();
+  const Rays rays = Unproject(rig.cameras[static_cast<size_t>(camera)].model, rig.projector->model,
+                              correspondences);
+  const Rigid3d proj_from_cam =
+      rig.projector->cam_from_rig * rig.cameras[static_cast<size_t>(camera)].cam_from_rig.Inverse();
   std::vector<double> res = Residuals(rays, proj_from_cam, rig.projector->model.fx());
   if (residuals_px) *residuals_px = res;
   return Stats(std::move(res));
@@ -340,8 +374,9 @@ EpipolarStats EpipolarResiduals(const Rig& rig, int camera, const std::vector<Co
 // The refined rig (device b moved to b_from_a * a_from_rig, with its refined model) and the
 // figures of one pair refinement.
 template <typename DeviceB>
-RefineResult PairToResult(const PairResult& p, const Rig& rig, DeviceB device_b, const Rigid3d& a_from_rig,
-                          const std::string& b_label, const Rigid3d& initial, const RefineOptions& options) {
+RefineResult PairToResult(const PairResult& p, const Rig& rig, DeviceB device_b,
+                          const Rigid3d& a_from_rig, const std::string& b_label,
+                          const Rigid3d& initial, const RefineOptions& options) {
   RefineResult out;
   out.before = p.before;
   out.after = p.after;
@@ -367,47 +402,55 @@ RefineResult PairToResult(const PairResult& p, const Rig& rig, DeviceB device_b,
 
 void RefineOptions::Check() const {
   const char* p = "refine options: ";
-  SLSHADOW_THROW_IF(!(loss_scale_px > 0), p, "loss_scale_px: must be > 0 (got ", loss_scale_px, ")");
-  SLSHADOW_THROW_IF(max_iterations < 1, p, "max_iterations: must be >= 1 (got ", max_iterations, ")");
+  SLSHADOW_THROW_IF(!(loss_scale_px > 0), p, "loss_scale_px: must be > 0 (got ", loss_scale_px,
+                    ")");
+  SLSHADOW_THROW_IF(max_iterations < 1, p, "max_iterations: must be >= 1 (got ", max_iterations,
+                    ")");
   SLSHADOW_THROW_IF(!(known_baseline_mm >= 0) || !std::isfinite(known_baseline_mm), p,
                     "known_baseline_mm: must be >= 0 (got ", known_baseline_mm, ")");
-  SLSHADOW_THROW_IF(known_distances.size() > 1, p, "known_distances: at most one (got ", known_distances.size(), ")");
+  SLSHADOW_THROW_IF(known_distances.size() > 1, p, "known_distances: at most one (got ",
+                    known_distances.size(), ")");
   SLSHADOW_THROW_IF(known_baseline_mm > 0 && !known_distances.empty(), p,
                     "known_baseline_mm, known_distances: give one known length, not both");
   for (const auto& k : known_distances) {
     SLSHADOW_THROW_IF(!(k.distance_mm > 0) || !std::isfinite(k.distance_mm), p,
                       "known_distances: distance_mm must be > 0 (got ", k.distance_mm, ")");
   }
-  SLSHADOW_THROW_IF(!(min_front_share >= 0 && min_front_share <= 1), p, "min_front_share: must be in [0, 1] (got ",
-                    min_front_share, ")");
+  SLSHADOW_THROW_IF(!(min_front_share >= 0 && min_front_share <= 1), p,
+                    "min_front_share: must be in [0, 1] (got ", min_front_share, ")");
   SLSHADOW_THROW_IF(!(min_inlier_share >= 0 && min_inlier_share <= 1), p,
                     "min_inlier_share: must be in [0, 1] (got ", min_inlier_share, ")");
   SLSHADOW_THROW_IF(!(inlier_px > 0), p, "inlier_px: must be > 0 (got ", inlier_px, ")");
 }
 
-RefineResult RefineProjectorPose(const Rig& rig, int camera, const std::vector<Correspondence>& correspondences,
+RefineResult RefineProjectorPose(const Rig& rig, int camera,
+                                 const std::vector<Correspondence>& correspondences,
                                  const RefineOptions& options) {
   options.Check();
-  SLSHADOW_THROW_IF(!rig.projector, "calibrate refine: rig '", rig.name,
-                    "' has no projector: refine a camera pair instead (--stereo CAMERA, cameras: ",
-                    [&] {
-                      std::string names;
-                      for (const auto& c : rig.cameras) names += (names.empty() ? "" : ", ") + c.name;
-                      return names;
-                    }(),
-                    ")");
+  SLSHADOW_THROW_IF(
+      !rig.projector, "calibrate refine: rig '", rig.name,
+      "' has no projector: refine a camera pair instead (--stereo CAMERA, cameras: ",
+      [&] {
+        std::string names;
+        for (const auto& c : rig.cameras) names += (names.empty() ? "" : ", ") + c.name;
+        return names;
+      }(),
+      ")");
   CheckCamera(rig, camera, "calibrate refine");
   const auto& cam = rig.cameras[static_cast<size_t>(camera)];
   const Rigid3d initial = rig.projector->cam_from_rig * cam.cam_from_rig.Inverse();
-  const PairResult p = RefinePair(cam.model, rig.projector->model, initial, correspondences, options);
-  return PairToResult(p, rig, [](Rig& r) -> RigDevice& { return *r.projector; }, cam.cam_from_rig, "projector", initial,
-                      options);
+  const PairResult p =
+      RefinePair(cam.model, rig.projector->model, initial, correspondences, options);
+  return PairToResult(
+      p, rig, [](Rig& r) -> RigDevice& { return *r.projector; }, cam.cam_from_rig, "projector",
+      initial, options);
 }
 
 namespace {
-// Stereo matches of `a`'s samples in `b`, or of the one correspondence `only` (a pixel of a with its
-// projector coordinate).
-std::vector<Correspondence> StereoMatches(const ProjectorMap& a, const ProjectorMap& b, int max_samples,
+// Stereo matches of `a`'s samples in `b`, or of the one correspondence `only` (a pixel of a with
+// its projector coordinate).
+std::vector<Correspondence> StereoMatches(const ProjectorMap& a, const ProjectorMap& b,
+                                          int max_samples,
                                           const std::optional<Correspondence>& only) {
   SLSHADOW_THROW_IF(a.proj_x.empty() || a.proj_y.empty() || b.proj_x.empty() || b.proj_y.empty(),
                     "stereo correspondences: both projector maps must decode both projector axes");
@@ -417,7 +460,8 @@ std::vector<Correspondence> StereoMatches(const ProjectorMap& a, const Projector
     for (int x = 0; x < b.width(); ++x) {
       if (b.status.at<uint8_t>(y, x) != static_cast<uint8_t>(PixelStatus::kValid)) continue;
       const float u = b.proj_x.at<float>(y, x), v = b.proj_y.at<float>(y, x);
-      if (std::isfinite(u) && std::isfinite(v)) max_u = std::max<double>(max_u, u), max_v = std::max<double>(max_v, v);
+      if (std::isfinite(u) && std::isfinite(v))
+        max_u = std::max<double>(max_u, u), max_v = std::max<double>(max_v, v);
     }
   }
   const int gw = static_cast<int>(max_u) + 2, gh = static_cast<int>(max_v) + 2;
@@ -427,30 +471,36 @@ std::vector<Correspondence> StereoMatches(const ProjectorMap& a, const Projector
       if (b.status.at<uint8_t>(y, x) != static_cast<uint8_t>(PixelStatus::kValid)) continue;
       const float u = b.proj_x.at<float>(y, x), v = b.proj_y.at<float>(y, x);
       if (!std::isfinite(u) || !std::isfinite(v) || u < 0 || v < 0) continue;
-      grid.at<int32_t>(static_cast<int>(std::lround(v)), static_cast<int>(std::lround(u))) = y * b.width() + x;
+      grid.at<int32_t>(static_cast<int>(std::lround(v)), static_cast<int>(std::lround(u))) =
+          y * b.width() + x;
     }
   }
   const std::vector<Correspondence> samples =
       only ? std::vector<Correspondence>{*only} : SampleCorrespondences(a, max_samples);
   std::vector<Correspondence> out;
   for (const auto& s : samples) {
-    const int gu = static_cast<int>(std::lround(s.projector_px.x())), gv = static_cast<int>(std::lround(s.projector_px.y()));
+    const int gu = static_cast<int>(std::lround(s.projector_px.x())),
+              gv = static_cast<int>(std::lround(s.projector_px.y()));
     if (gu < 0 || gv < 0 || gu >= gw || gv >= gh) continue;
     const int idx = grid.at<int32_t>(gv, gu);
     if (idx < 0) continue;
-    const auto m = MatchIn(b, idx % b.width(), idx / b.width(), s.projector_px.x(), s.projector_px.y());
+    const auto m =
+        MatchIn(b, idx % b.width(), idx / b.width(), s.projector_px.x(), s.projector_px.y());
     if (m) out.push_back({s.camera_px, *m});
   }
   return out;
 }
 }  // namespace
 
-std::vector<Correspondence> StereoCorrespondences(const ProjectorMap& a, const ProjectorMap& b, int max_samples) {
+std::vector<Correspondence> StereoCorrespondences(const ProjectorMap& a, const ProjectorMap& b,
+                                                  int max_samples) {
   return StereoMatches(a, b, max_samples, std::nullopt);
 }
 
-std::optional<Correspondence> CorrespondenceAt(const ProjectorMap& a, const ProjectorMap* b, const Eigen::Vector2d& pixel) {
-  const int x = static_cast<int>(std::lround(pixel.x())), y = static_cast<int>(std::lround(pixel.y()));
+std::optional<Correspondence> CorrespondenceAt(const ProjectorMap& a, const ProjectorMap* b,
+                                               const Eigen::Vector2d& pixel) {
+  const int x = static_cast<int>(std::lround(pixel.x())),
+            y = static_cast<int>(std::lround(pixel.y()));
   if (x < 0 || y < 0 || x >= a.width() || y >= a.height()) return std::nullopt;
   if (a.status.at<uint8_t>(y, x) != static_cast<uint8_t>(PixelStatus::kValid)) return std::nullopt;
   const float u = a.proj_x.at<float>(y, x), v = a.proj_y.at<float>(y, x);
@@ -463,40 +513,53 @@ std::optional<Correspondence> CorrespondenceAt(const ProjectorMap& a, const Proj
 }
 
 EpipolarStats StereoEpipolarResiduals(const Rig& rig, int camera_a, int camera_b,
-                                      const std::vector<Correspondence>& correspondences, std::vector<double>* residuals_px) {
+                                      const std::vector<Correspondence>& correspondences,
+                                      std::vector<double>* residuals_px) {
   CheckCamera(rig, camera_a, "calibration check");
   CheckCamera(rig, camera_b, "calibration check");
   const auto& mb = rig.cameras[static_cast<size_t>(camera_b)].model;
-  const Rays rays = Unproject(rig.cameras[static_cast<size_t>(camera_a)].model, mb, correspondences);
+  const Rays rays =
+      Unproject(rig.cameras[static_cast<size_t>(camera_a)].model, mb, correspondences);
   std::vector<double> res = Residuals(rays, BFromA(rig, camera_a, camera_b), mb.fx());
   if (residuals_px) *residuals_px = res;
   return Stats(std::move(res));
 }
 
-RefineResult RefineStereoPose(const Rig& rig, int camera_a, int camera_b, const std::vector<Correspondence>& correspondences,
+RefineResult RefineStereoPose(const Rig& rig, int camera_a, int camera_b,
+                              const std::vector<Correspondence>& correspondences,
                               const RefineOptions& options) {
   options.Check();
   CheckCamera(rig, camera_a, "calibrate refine");
   CheckCamera(rig, camera_b, "calibrate refine");
-  SLSHADOW_THROW_IF(camera_a == camera_b, "calibrate refine: stereo needs two different cameras (both are ", camera_a, ")");
+  SLSHADOW_THROW_IF(camera_a == camera_b,
+                    "calibrate refine: stereo needs two different cameras (both are ", camera_a,
+                    ")");
   const auto& a = rig.cameras[static_cast<size_t>(camera_a)];
   const auto& b = rig.cameras[static_cast<size_t>(camera_b)];
   const Rigid3d initial = BFromA(rig, camera_a, camera_b);
   const PairResult p = RefinePair(a.model, b.model, initial, correspondences, options);
-  return PairToResult(p, rig, [camera_b](Rig& r) -> RigDevice& { return r.cameras[static_cast<size_t>(camera_b)]; },
-                      a.cam_from_rig, "camera '" + b.name + "'", initial, options);
+  return PairToResult(
+      p, rig, [camera_b](Rig& r) -> RigDevice& { return r.cameras[static_cast<size_t>(camera_b)]; },
+      a.cam_from_rig, "camera '" + b.name + "'", initial, options);
 }
 
-nlohmann::json RefineRecordToJson(const RefineResult& r, const std::string& imageset, const std::string& camera,
-                                  const std::string& stereo) {
-  return {{"imageset", imageset}, {"camera", camera}, {"stereo", stereo},
+nlohmann::json RefineRecordToJson(const RefineResult& r, const std::string& imageset,
+                                  const std::string& camera, const std::string& stereo) {
+  return {{"imageset", imageset},
+          {"camera", camera},
+          {"stereo", stereo},
           {"focal_scale", r.focal_scale},
-          {"before_median_px", r.before.median_px}, {"before_p95_px", r.before.p95_px},
-          {"after_median_px", r.after.median_px}, {"after_p95_px", r.after.p95_px},
+          {"before_median_px", r.before.median_px},
+          {"before_p95_px", r.before.p95_px},
+          {"after_median_px", r.after.median_px},
+          {"after_p95_px", r.after.p95_px},
           {"rotation_change_rad", r.rotation_change_rad},
-          {"direction_change_rad", r.direction_change_rad}, {"converged", r.converged},
-          {"front_share", r.front_share}, {"inlier_share", r.inlier_share},
-          {"baseline_mm", r.baseline_mm}, {"scale_verified", r.scale_verified}};
+          {"direction_change_rad", r.direction_change_rad},
+          {"converged", r.converged},
+          {"front_share", r.front_share},
+          {"inlier_share", r.inlier_share},
+          {"baseline_mm", r.baseline_mm},
+          {"scale_verified", r.scale_verified}};
 }
 
 }  // namespace slshadow

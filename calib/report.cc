@@ -57,7 +57,8 @@ void PerViewChart(const std::filesystem::path& path, const CalibrationSummary& s
   pls->mtex("t", -1.5, 0.98, 1.0, note);
 }
 
-void ResidualChart(const std::filesystem::path& path, const CalibrationInput& input, const CalibrationResult& result, int device) {
+void ResidualChart(const std::filesystem::path& path, const CalibrationInput& input,
+                   const CalibrationResult& result, int device) {
   const auto& dev = input.devices[static_cast<size_t>(device)];
   // Magnify so the 95th-percentile residual is drawn 1/25 of the image width long.
   std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>> arrows;
@@ -77,13 +78,15 @@ void ResidualChart(const std::filesystem::path& path, const CalibrationInput& in
   }
   const double mag = dev.width / 25.0 / p95;
   const double scale = std::min(1.0, 1000.0 / dev.width);
-  auto pls = OpenPng(path, static_cast<int>(dev.width * scale) + 160, static_cast<int>(dev.height * scale) + 130);
+  auto pls = OpenPng(path, static_cast<int>(dev.width * scale) + 160,
+                     static_cast<int>(dev.height * scale) + 130);
   pls->adv(0);
   pls->vpor(0.1, 0.95, 0.1, 0.9);
   pls->wind(-0.5, dev.width - 0.5, dev.height - 0.5, -0.5);
   pls->box("bcnst", 0, 0, "bcnstv", 0, 0);
   char title[160];
-  std::snprintf(title, sizeof(title), "%s: residuals (projected - observed) x%.0f", dev.name.c_str(), mag);
+  std::snprintf(title, sizeof(title), "%s: residuals (projected - observed) x%.0f",
+                dev.name.c_str(), mag);
   pls->lab("image x (px)", "image y (px)", title);
   pls->col0(4);
   for (const auto& [p, r] : arrows) {
@@ -91,15 +94,16 @@ void ResidualChart(const std::filesystem::path& path, const CalibrationInput& in
     pls->poin(1, x, y, 1);
   }
   pls->col0(3);
-  for (const auto& [p, r] : arrows) pls->join(p.x(), p.y(), p.x() + mag * r.x(), p.y() + mag * r.y());
+  for (const auto& [p, r] : arrows)
+    pls->join(p.x(), p.y(), p.x() + mag * r.x(), p.y() + mag * r.y());
   pls->col0(1);
   char note[128];
   std::snprintf(note, sizeof(note), "95%% of residuals below %.3f px", p95);
   pls->mtex("t", -1.5, 0.98, 1.0, note);
 }
 
-void MapChart(const std::filesystem::path& path, const PixelMap& map, int width, int height, const std::string& title,
-              const std::string& bar_label) {
+void MapChart(const std::filesystem::path& path, const PixelMap& map, int width, int height,
+              const std::string& title, const std::string& bar_label) {
   const int nx = map.values.cols, ny = map.values.rows;
   double hi = 0;
   for (int r = 0; r < ny; ++r) {
@@ -114,7 +118,8 @@ void MapChart(const std::filesystem::path& path, const PixelMap& map, int width,
   hi = hi > 0 ? hi : 1.0;
   const double lo = 0;
   const double scale = std::min(1.0, 1000.0 / width);
-  const int page_w = static_cast<int>(width * scale) + 330, page_h = static_cast<int>(height * scale) + 150;
+  const int page_w = static_cast<int>(width * scale) + 330,
+            page_h = static_cast<int>(height * scale) + 150;
   auto pls = OpenPng(path, page_w, page_h);
   plot::SetHeatColorMap(*pls.pls);
   pls->adv(0);
@@ -122,12 +127,14 @@ void MapChart(const std::filesystem::path& path, const PixelMap& map, int width,
   const double vy0 = 80.0 / page_h, vy1 = vy0 + height * scale / page_h;
   pls->vpor(vx0, vx1, vy0, vy1);
   pls->wind(-0.5, width - 0.5, height - 0.5, -0.5);
-  std::vector<std::vector<PLFLT>> cols(static_cast<size_t>(nx), std::vector<PLFLT>(static_cast<size_t>(ny)));
+  std::vector<std::vector<PLFLT>> cols(static_cast<size_t>(nx),
+                                       std::vector<PLFLT>(static_cast<size_t>(ny)));
   std::vector<const PLFLT*> ptrs(static_cast<size_t>(nx));
   for (int x = 0; x < nx; ++x) {
     for (int y = 0; y < ny; ++y) {
       const float v = map.values.at<float>(y, x);
-      cols[static_cast<size_t>(x)][static_cast<size_t>(y)] = std::isfinite(v) ? std::clamp<double>(v, lo, hi) : lo - 10 * hi;
+      cols[static_cast<size_t>(x)][static_cast<size_t>(y)] =
+          std::isfinite(v) ? std::clamp<double>(v, lo, hi) : lo - 10 * hi;
     }
     ptrs[static_cast<size_t>(x)] = cols[static_cast<size_t>(x)].data();
   }
@@ -142,7 +149,8 @@ void MapChart(const std::filesystem::path& path, const PixelMap& map, int width,
 
 std::string SafeName(const std::string& s) {
   std::string out;
-  for (char c : s) out += (std::isalnum(static_cast<unsigned char>(c)) || c == '-' || c == '_') ? c : '_';
+  for (char c : s)
+    out += (std::isalnum(static_cast<unsigned char>(c)) || c == '-' || c == '_') ? c : '_';
   return out.empty() ? "device" : out;
 }
 
@@ -151,28 +159,33 @@ std::string FullText(const CalibrationReport& r) {
   for (size_t d = 0; d < r.result->devices.size(); ++d) {
     const auto& m = r.result->devices[d].model;
     char line[400];
-    std::snprintf(line, sizeof(line), "%s: fx %.4f fy %.4f cx %.4f cy %.4f k1 %.6f k2 %.6f p1 %.7f p2 %.7f k3 %.6f\n",
-                  r.result->devices[d].name.c_str(), m.fx(), m.fy(), m.cx(), m.cy(), m.k1(), m.k2(), m.p1(), m.p2(),
-                  m.k3());
+    std::snprintf(line, sizeof(line),
+                  "%s: fx %.4f fy %.4f cx %.4f cy %.4f k1 %.6f k2 %.6f p1 %.7f p2 %.7f k3 %.6f\n",
+                  r.result->devices[d].name.c_str(), m.fx(), m.fy(), m.cx(), m.cy(), m.k1(), m.k2(),
+                  m.p1(), m.p2(), m.k3());
     text += line;
     const QuotedCovariance q = PreferredCovariance(*r.result, static_cast<int>(d));
     if (q.available) {
       const auto& c = q.covariance;
-      std::snprintf(line, sizeof(line), "%s: 1-sigma fx %.4f fy %.4f cx %.4f cy %.4f (%s)\n", r.result->devices[d].name.c_str(),
-                    std::sqrt(c(0, 0)), std::sqrt(c(1, 1)), std::sqrt(c(2, 2)), std::sqrt(c(3, 3)), q.reason.c_str());
+      std::snprintf(line, sizeof(line), "%s: 1-sigma fx %.4f fy %.4f cx %.4f cy %.4f (%s)\n",
+                    r.result->devices[d].name.c_str(), std::sqrt(c(0, 0)), std::sqrt(c(1, 1)),
+                    std::sqrt(c(2, 2)), std::sqrt(c(3, 3)), q.reason.c_str());
       text += line;
       if (q.view_correlated) {
         const auto& s = r.result->intrinsics_covariance[d];
-        std::snprintf(line, sizeof(line), "%s: 1-sigma, standard covariance (independent errors, optimistic here): fx %.4f fy %.4f cx %.4f cy %.4f\n",
-                      r.result->devices[d].name.c_str(), std::sqrt(s(0, 0)), std::sqrt(s(1, 1)), std::sqrt(s(2, 2)), std::sqrt(s(3, 3)));
+        std::snprintf(line, sizeof(line),
+                      "%s: 1-sigma, standard covariance (independent errors, optimistic here): fx "
+                      "%.4f fy %.4f cx %.4f cy %.4f\n",
+                      r.result->devices[d].name.c_str(), std::sqrt(s(0, 0)), std::sqrt(s(1, 1)),
+                      std::sqrt(s(2, 2)), std::sqrt(s(3, 3)));
         text += line;
       }
     }
     if (d > 0) {
       const auto& t = r.result->devices[d].cam_from_rig;
       std::snprintf(line, sizeof(line), "%s: baseline to %s %.4f mm, t = (%.4f, %.4f, %.4f) mm\n",
-                    r.result->devices[d].name.c_str(), r.result->devices[0].name.c_str(), t.translation.norm(),
-                    t.translation.x(), t.translation.y(), t.translation.z());
+                    r.result->devices[d].name.c_str(), r.result->devices[0].name.c_str(),
+                    t.translation.norm(), t.translation.x(), t.translation.y(), t.translation.z());
       text += line;
     }
   }
@@ -189,15 +202,19 @@ nlohmann::json CalibrationReportJson(const CalibrationReport& r) {
   j["format"] = "slshadow-calibration-report";
   j["findings"] = nlohmann::json::array();
   for (const auto& f : r.findings) {
-    j["findings"].push_back({{"severity", ToString(f.severity)}, {"device", f.device}, {"problem", f.problem}, {"advice", f.advice}});
+    j["findings"].push_back({{"severity", ToString(f.severity)},
+                             {"device", f.device},
+                             {"problem", f.problem},
+                             {"advice", f.advice}});
   }
   j["devices_result"] = nlohmann::json::array();
   for (size_t d = 0; d < r.result->devices.size(); ++d) {
     const auto& dev = r.result->devices[d];
     nlohmann::json dj = {{"name", dev.name}, {"params", dev.model.params}};
     const auto& t = dev.cam_from_rig;
-    dj["cam_from_rig"] = {{"rotation_quat_wxyz", {t.rotation.w(), t.rotation.x(), t.rotation.y(), t.rotation.z()}},
-                          {"translation_mm", {t.translation.x(), t.translation.y(), t.translation.z()}}};
+    dj["cam_from_rig"] = {
+        {"rotation_quat_wxyz", {t.rotation.w(), t.rotation.x(), t.rotation.y(), t.rotation.z()}},
+        {"translation_mm", {t.translation.x(), t.translation.y(), t.translation.z()}}};
     const QuotedCovariance q = PreferredCovariance(*r.result, static_cast<int>(d));
     if (q.available) {
       std::vector<double> sigma, standard;
@@ -211,7 +228,9 @@ nlohmann::json CalibrationReportJson(const CalibrationReport& r) {
       dj["covariance_reason"] = q.reason;
       const PixelMap u = ProjectionUncertaintyMap(dev.model, q.covariance, 16);
       auto num = [](double x) { return std::isfinite(x) ? nlohmann::json(x) : nlohmann::json(); };
-      dj["projection_uncertainty"] = {{"median_px", num(u.median)}, {"p95_px", num(u.p95)}, {"max_px", num(u.max)},
+      dj["projection_uncertainty"] = {{"median_px", num(u.median)},
+                                      {"p95_px", num(u.p95)},
+                                      {"max_px", num(u.max)},
                                       {"covariance", dj["covariance_used"]}};
     }
     j["devices_result"].push_back(dj);
@@ -220,7 +239,8 @@ nlohmann::json CalibrationReportJson(const CalibrationReport& r) {
   return j;
 }
 
-void WriteCalibrationReport(const std::filesystem::path& dir, const CalibrationReport& r, bool overwrite) {
+void WriteCalibrationReport(const std::filesystem::path& dir, const CalibrationReport& r,
+                            bool overwrite) {
   SLSHADOW_CHECK(r.input && r.options && r.result);
   const std::filesystem::path staged = TemporarySibling(dir);
   std::error_code created;
@@ -234,21 +254,27 @@ void WriteCalibrationReport(const std::filesystem::path& dir, const CalibrationR
     for (size_t d = 0; d < r.result->devices.size(); ++d) {
       const auto& dev = r.result->devices[d];
       const std::string name = SafeName(dev.name);
-      ResidualChart(staged / ("residuals_" + name + ".png"), *r.input, *r.result, static_cast<int>(d));
+      ResidualChart(staged / ("residuals_" + name + ".png"), *r.input, *r.result,
+                    static_cast<int>(d));
       const QuotedCovariance q = PreferredCovariance(*r.result, static_cast<int>(d));
       if (q.available && q.covariance.norm() > 0) {
         const PixelMap u = ProjectionUncertaintyMap(dev.model, q.covariance, 16);
         char title[240];
-        std::snprintf(title, sizeof(title), "%s: projection uncertainty (1 sigma, worst direction, %s covariance), median %.3f px",
-                      dev.name.c_str(), q.view_correlated ? "view-correlated" : "standard", u.median);
-        MapChart(staged / ("uncertainty_" + name + ".png"), u, dev.model.width, dev.model.height, title, "px");
+        std::snprintf(
+            title, sizeof(title),
+            "%s: projection uncertainty (1 sigma, worst direction, %s covariance), median %.3f px",
+            dev.name.c_str(), q.view_correlated ? "view-correlated" : "standard", u.median);
+        MapChart(staged / ("uncertainty_" + name + ".png"), u, dev.model.width, dev.model.height,
+                 title, "px");
       }
       if (r.cross_validation && d < r.cross_validation->difference.size()) {
         const PixelMap& c = r.cross_validation->difference[d];
         char title[200];
-        std::snprintf(title, sizeof(title), "%s: cross-validation (even vs odd poses), median %.3f px", dev.name.c_str(),
+        std::snprintf(title, sizeof(title),
+                      "%s: cross-validation (even vs odd poses), median %.3f px", dev.name.c_str(),
                       c.median);
-        MapChart(staged / ("cross_validation_" + name + ".png"), c, dev.model.width, dev.model.height, title, "px");
+        MapChart(staged / ("cross_validation_" + name + ".png"), c, dev.model.width,
+                 dev.model.height, title, "px");
       }
     }
     CommitDirectory(staged, dir, overwrite);

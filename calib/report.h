@@ -10,7 +10,8 @@
 //   uncertainty_<device>.png     projection uncertainty map (px), rotation-compensated, from the
 //                                covariance PreferredCovariance (calib/uncertainty.h) picks: the
 //                                view-correlated one when corner errors correlate across views,
-//                                else the standard one; summary.json and report.txt say which and why
+//                                else the standard one; summary.json and report.txt say which and
+//                                why
 //   cross_validation_<device>.png  projection difference of the two halves (px)
 // The folder is written to a temporary sibling and renamed into place.
 #pragma once
@@ -41,6 +42,7 @@ struct CalibrationReport {
 nlohmann::json CalibrationReportJson(const CalibrationReport& report);
 
 // Writes the whole folder; replaces an existing folder when `overwrite` (else throws).
-void WriteCalibrationReport(const std::filesystem::path& dir, const CalibrationReport& report, bool overwrite = true);
+void WriteCalibrationReport(const std::filesystem::path& dir, const CalibrationReport& report,
+                            bool overwrite = true);
 
 }  // namespace slshadow

@@ -22,21 +22,24 @@ SyntheticRig SyntheticRig::Stereo() {
   cam.name = "cam1";
   cam.model = CameraModel(1280, 1024, 1390, 1392, 630, 515, -0.12, 0.08, -0.0002, 0.0004, 0.0);
   // Centre at (150, 0, 0) in the rig, looking 10 degrees towards -x (towards the rig axis).
-  const Eigen::Quaterniond rig_from_cam_rot(Eigen::AngleAxisd(-10.0 * M_PI / 180.0, Eigen::Vector3d::UnitY()));
+  const Eigen::Quaterniond rig_from_cam_rot(
+      Eigen::AngleAxisd(-10.0 * M_PI / 180.0, Eigen::Vector3d::UnitY()));
   const Rigid3d rig_from_cam(rig_from_cam_rot, Eigen::Vector3d(150, 0, 0));
   cam.cam_from_rig = rig_from_cam.Inverse();
   rig.devices.push_back(cam);
   return rig;
 }
 
-SyntheticData MakeSyntheticData(const SyntheticRig& rig, int num_poses, double noise_px, uint32_t seed) {
+SyntheticData MakeSyntheticData(const SyntheticRig& rig, int num_poses, double noise_px,
+                                uint32_t seed) {
   SLSHADOW_THROW_IF(rig.devices.empty(), "MakeSyntheticData: rig has no devices");
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> u(-1.0, 1.0);
   std::normal_distribution<double> noise(0.0, noise_px > 0 ? noise_px : 1.0);
   std::vector<Eigen::Vector3d> board;
   for (int r = 0; r < rig.board_rows; ++r) {
-    for (int c = 0; c < rig.board_cols; ++c) board.emplace_back(c * rig.square_size_mm, r * rig.square_size_mm, 0);
+    for (int c = 0; c < rig.board_cols; ++c)
+      board.emplace_back(c * rig.square_size_mm, r * rig.square_size_mm, 0);
   }
   const Eigen::Vector3d board_centre((rig.board_cols - 1) * rig.square_size_mm / 2,
                                      (rig.board_rows - 1) * rig.square_size_mm / 2, 0);
@@ -58,12 +61,13 @@ SyntheticData MakeSyntheticData(const SyntheticRig& rig, int num_poses, double n
   for (int p = 0; p < num_poses; ++p) {
     for (int attempt = 0;; ++attempt) {
       SLSHADOW_CHECK(attempt < 10000);
-      const Eigen::Quaterniond rot = Eigen::AngleAxisd(0.3 * u(rng), Eigen::Vector3d::UnitZ()) *
-                                     Eigen::AngleAxisd(rig.max_tilt_rad * u(rng), Eigen::Vector3d::UnitX()) *
-                                     Eigen::AngleAxisd(rig.max_tilt_rad * u(rng), Eigen::Vector3d::UnitY());
+      const Eigen::Quaterniond rot =
+          Eigen::AngleAxisd(0.3 * u(rng), Eigen::Vector3d::UnitZ()) *
+          Eigen::AngleAxisd(rig.max_tilt_rad * u(rng), Eigen::Vector3d::UnitX()) *
+          Eigen::AngleAxisd(rig.max_tilt_rad * u(rng), Eigen::Vector3d::UnitY());
       const double shift = rig.shift_fraction * rig.distance_mm;
-      const Eigen::Vector3d centre =
-          aim + Eigen::Vector3d(shift * u(rng), 0.75 * shift * u(rng), 0.2 * rig.distance_mm * u(rng));
+      const Eigen::Vector3d centre = aim + Eigen::Vector3d(shift * u(rng), 0.75 * shift * u(rng),
+                                                           0.2 * rig.distance_mm * u(rng));
       const Rigid3d rig_from_board(rot, centre - rot * board_centre);
       bool all_inside = true;
       std::vector<BoardView> views;
@@ -72,12 +76,15 @@ SyntheticData MakeSyntheticData(const SyntheticRig& rig, int num_poses, double n
         v.device = static_cast<int>(d);
         v.pose = p;
         v.label = rig.devices[d].name + "/pose" + std::to_string(p);
-        const double w = (rig.board_cols - 1) * rig.square_size_mm, h = (rig.board_rows - 1) * rig.square_size_mm;
+        const double w = (rig.board_cols - 1) * rig.square_size_mm,
+                     h = (rig.board_rows - 1) * rig.square_size_mm;
         for (const auto& x : board) {
           const double s = 2 * x.x() / w - 1, t = 2 * x.y() / h - 1;
-          const Eigen::Vector3d warped(x.x(), x.y(),
-                                       rig.board_warp_mm.x() * (1 - s * s) + rig.board_warp_mm.y() * (1 - t * t));
-          const auto px = rig.devices[d].model.Project(rig.devices[d].cam_from_rig * (rig_from_board * warped));
+          const Eigen::Vector3d warped(
+              x.x(), x.y(),
+              rig.board_warp_mm.x() * (1 - s * s) + rig.board_warp_mm.y() * (1 - t * t));
+          const auto px =
+              rig.devices[d].model.Project(rig.devices[d].cam_from_rig * (rig_from_board * warped));
           if (!px || px->x() < 10 || px->y() < 10 || px->x() > rig.devices[d].model.width - 11 ||
               px->y() > rig.devices[d].model.height - 11) {
             all_inside = false;

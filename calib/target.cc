@@ -18,17 +18,27 @@ namespace {
 const std::vector<std::pair<std::string, int>>& Dictionaries() {
   using namespace cv::aruco;
   static const std::vector<std::pair<std::string, int>> kDicts = {
-      {"DICT_4X4_50", DICT_4X4_50},       {"DICT_4X4_100", DICT_4X4_100},
-      {"DICT_4X4_250", DICT_4X4_250},     {"DICT_4X4_1000", DICT_4X4_1000},
-      {"DICT_5X5_50", DICT_5X5_50},       {"DICT_5X5_100", DICT_5X5_100},
-      {"DICT_5X5_250", DICT_5X5_250},     {"DICT_5X5_1000", DICT_5X5_1000},
-      {"DICT_6X6_50", DICT_6X6_50},       {"DICT_6X6_100", DICT_6X6_100},
-      {"DICT_6X6_250", DICT_6X6_250},     {"DICT_6X6_1000", DICT_6X6_1000},
-      {"DICT_7X7_50", DICT_7X7_50},       {"DICT_7X7_100", DICT_7X7_100},
-      {"DICT_7X7_250", DICT_7X7_250},     {"DICT_7X7_1000", DICT_7X7_1000},
+      {"DICT_4X4_50", DICT_4X4_50},
+      {"DICT_4X4_100", DICT_4X4_100},
+      {"DICT_4X4_250", DICT_4X4_250},
+      {"DICT_4X4_1000", DICT_4X4_1000},
+      {"DICT_5X5_50", DICT_5X5_50},
+      {"DICT_5X5_100", DICT_5X5_100},
+      {"DICT_5X5_250", DICT_5X5_250},
+      {"DICT_5X5_1000", DICT_5X5_1000},
+      {"DICT_6X6_50", DICT_6X6_50},
+      {"DICT_6X6_100", DICT_6X6_100},
+      {"DICT_6X6_250", DICT_6X6_250},
+      {"DICT_6X6_1000", DICT_6X6_1000},
+      {"DICT_7X7_50", DICT_7X7_50},
+      {"DICT_7X7_100", DICT_7X7_100},
+      {"DICT_7X7_250", DICT_7X7_250},
+      {"DICT_7X7_1000", DICT_7X7_1000},
       {"DICT_ARUCO_ORIGINAL", DICT_ARUCO_ORIGINAL},
-      {"DICT_APRILTAG_16h5", DICT_APRILTAG_16h5}, {"DICT_APRILTAG_25h9", DICT_APRILTAG_25h9},
-      {"DICT_APRILTAG_36h10", DICT_APRILTAG_36h10}, {"DICT_APRILTAG_36h11", DICT_APRILTAG_36h11},
+      {"DICT_APRILTAG_16h5", DICT_APRILTAG_16h5},
+      {"DICT_APRILTAG_25h9", DICT_APRILTAG_25h9},
+      {"DICT_APRILTAG_36h10", DICT_APRILTAG_36h10},
+      {"DICT_APRILTAG_36h11", DICT_APRILTAG_36h11},
   };
   return kDicts;
 }
@@ -41,9 +51,10 @@ int DictionaryId(const std::string& name) {
 }
 
 cv::Ptr<cv::aruco::CharucoBoard> MakeCharucoBoard(const TargetSpec& spec) {
-  return cv::aruco::CharucoBoard::create(spec.cols, spec.rows, static_cast<float>(spec.square_size_mm),
-                                         static_cast<float>(spec.marker_size_mm),
-                                         cv::aruco::getPredefinedDictionary(DictionaryId(spec.dictionary)));
+  return cv::aruco::CharucoBoard::create(
+      spec.cols, spec.rows, static_cast<float>(spec.square_size_mm),
+      static_cast<float>(spec.marker_size_mm),
+      cv::aruco::getPredefinedDictionary(DictionaryId(spec.dictionary)));
 }
 
 // 8-bit single-channel view of any supported image.
@@ -81,24 +92,30 @@ std::string Hint(const TargetDetection& d) {
 // Saturated share inside the convex hull of the detected points.
 void SaturationInBoard(const cv::Mat& gray, const TargetSpec& spec, TargetDetection* d) {
   std::vector<cv::Point> pts, hull;
-  for (const auto& p : d->pixels_px) pts.emplace_back(static_cast<int>(std::lround(p.x())), static_cast<int>(std::lround(p.y())));
+  for (const auto& p : d->pixels_px)
+    pts.emplace_back(static_cast<int>(std::lround(p.x())), static_cast<int>(std::lround(p.y())));
   if (pts.size() < 3) return;
   cv::convexHull(pts, hull);
   cv::Mat mask(gray.size(), CV_8UC1, cv::Scalar(0));
   cv::fillConvexPoly(mask, hull, cv::Scalar(255));
   const int area = cv::countNonZero(mask);
   if (area == 0) return;
-  d->saturated_fraction = static_cast<double>(cv::countNonZero((gray >= spec.saturation_level) & mask)) / area;
+  d->saturated_fraction =
+      static_cast<double>(cv::countNonZero((gray >= spec.saturation_level) & mask)) / area;
 }
 
 }  // namespace
 
 std::string ToString(TargetType type) {
   switch (type) {
-    case TargetType::kChessboard: return "chessboard";
-    case TargetType::kCharuco: return "charuco";
-    case TargetType::kCirclesSymmetric: return "circles";
-    case TargetType::kCirclesAsymmetric: return "circles_asymmetric";
+    case TargetType::kChessboard:
+      return "chessboard";
+    case TargetType::kCharuco:
+      return "charuco";
+    case TargetType::kCirclesSymmetric:
+      return "circles";
+    case TargetType::kCirclesAsymmetric:
+      return "circles_asymmetric";
   }
   return "?";
 }
@@ -110,16 +127,18 @@ int TargetSpec::NumPoints() const {
 
 void TargetSpec::Check(const std::string& what) const {
   const int min_size = type == TargetType::kCharuco ? 3 : 2;
-  SLSHADOW_THROW_IF(cols < min_size || rows < min_size, what, ": size: need at least ", min_size, "x",
-                    min_size, (type == TargetType::kCharuco ? " squares" : " points"), " (got ", cols, "x",
-                    rows, ")");
-  SLSHADOW_THROW_IF(!(square_size_mm > 0), what, ": square_size_mm: must be positive (got ", square_size_mm, ")");
+  SLSHADOW_THROW_IF(cols < min_size || rows < min_size, what, ": size: need at least ", min_size,
+                    "x", min_size, (type == TargetType::kCharuco ? " squares" : " points"),
+                    " (got ", cols, "x", rows, ")");
+  SLSHADOW_THROW_IF(!(square_size_mm > 0), what, ": square_size_mm: must be positive (got ",
+                    square_size_mm, ")");
   if (type == TargetType::kCharuco) {
     SLSHADOW_THROW_IF(!(marker_size_mm > 0 && marker_size_mm < square_size_mm), what,
                       ": marker_size_mm: must be positive and smaller than square_size_mm (got ",
                       marker_size_mm, ")");
-    SLSHADOW_THROW_IF(DictionaryId(dictionary) < 0, what, ": dictionary: unknown ArUco dictionary (got '",
-                      dictionary, "'; e.g. DICT_6X6_250)");
+    SLSHADOW_THROW_IF(DictionaryId(dictionary) < 0, what,
+                      ": dictionary: unknown ArUco dictionary (got '", dictionary,
+                      "'; e.g. DICT_6X6_250)");
     SLSHADOW_THROW_IF(min_charuco_corners < 4, what, ": min_corners: must be at least 4 (got ",
                       min_charuco_corners, ")");
   }
@@ -130,9 +149,9 @@ void TargetSpec::Check(const std::string& what) const {
 }
 
 TargetSpec TargetSpecFromConfig(const ConfigNode& node) {
-  node.RejectUnknownKeys({"format", "version", "type", "cols", "rows", "square_size_mm", "marker_size_mm",
-                          "dictionary", "detector", "subpix_half_window_px", "subpix_epsilon_px", "min_corners",
-                          "saturation_level"});
+  node.RejectUnknownKeys({"format", "version", "type", "cols", "rows", "square_size_mm",
+                          "marker_size_mm", "dictionary", "detector", "subpix_half_window_px",
+                          "subpix_epsilon_px", "min_corners", "saturation_level"});
   TargetSpec spec;
   const auto type_node = node["type"];
   const std::string type = type_node.AsString();
@@ -158,7 +177,8 @@ TargetSpec TargetSpecFromConfig(const ConfigNode& node) {
       for (const auto& d : Dictionaries()) known += (known.empty() ? "" : ", ") + d.first;
       node["dictionary"].Fail("unknown ArUco dictionary (known: " + known + ")");
     }
-    spec.min_charuco_corners = static_cast<int>(node.GetInt("min_corners", spec.min_charuco_corners));
+    spec.min_charuco_corners =
+        static_cast<int>(node.GetInt("min_corners", spec.min_charuco_corners));
   }
   if (node.Has("detector")) {
     const auto det = node["detector"];
@@ -190,7 +210,8 @@ std::vector<Eigen::Vector3d> BoardPoints(const TargetSpec& spec) {
     case TargetType::kChessboard:
     case TargetType::kCirclesSymmetric:
       for (int r = 0; r < spec.rows; ++r) {
-        for (int c = 0; c < spec.cols; ++c) points.emplace_back(c * spec.square_size_mm, r * spec.square_size_mm, 0);
+        for (int c = 0; c < spec.cols; ++c)
+          points.emplace_back(c * spec.square_size_mm, r * spec.square_size_mm, 0);
       }
       break;
     case TargetType::kCirclesAsymmetric:
@@ -216,8 +237,8 @@ TargetDetection DetectTarget(const TargetSpec& spec, const cv::Mat& image) {
   d.height = image.rows;
   const cv::Mat gray = ToGray8(image);
   d.mean_grey = cv::mean(gray)[0];
-  d.saturated_fraction =
-      static_cast<double>(cv::countNonZero(gray >= spec.saturation_level)) / static_cast<double>(gray.total());
+  d.saturated_fraction = static_cast<double>(cv::countNonZero(gray >= spec.saturation_level)) /
+                         static_cast<double>(gray.total());
 
   std::vector<cv::Point2f> corners;
   const cv::Size size(spec.cols, spec.rows);
@@ -226,15 +247,17 @@ TargetDetection DetectTarget(const TargetSpec& spec, const cv::Mat& image) {
     case TargetType::kChessboard: {
       bool ok = false;
       if (spec.detector == ChessboardDetector::kSectorBased) {
-        ok = cv::findChessboardCornersSB(gray, size, corners, cv::CALIB_CB_NORMALIZE_IMAGE | cv::CALIB_CB_EXHAUSTIVE |
-                                                                  cv::CALIB_CB_ACCURACY);
+        ok = cv::findChessboardCornersSB(
+            gray, size, corners,
+            cv::CALIB_CB_NORMALIZE_IMAGE | cv::CALIB_CB_EXHAUSTIVE | cv::CALIB_CB_ACCURACY);
       } else {
         ok = cv::findChessboardCorners(gray, size, corners,
                                        cv::CALIB_CB_ADAPTIVE_THRESH | cv::CALIB_CB_NORMALIZE_IMAGE);
         if (ok) {
           const int w = spec.subpix_half_window_px;
           cv::cornerSubPix(gray, corners, cv::Size(w, w), cv::Size(-1, -1),
-                           cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 30, spec.subpix_epsilon_px));
+                           cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 30,
+                                            spec.subpix_epsilon_px));
         }
       }
       if (!ok) {
@@ -265,10 +288,12 @@ TargetDetection DetectTarget(const TargetSpec& spec, const cv::Mat& image) {
       }
       std::vector<cv::Point2f> charuco_corners;
       std::vector<int> charuco_ids;
-      cv::aruco::interpolateCornersCharuco(marker_corners, marker_ids, gray, board, charuco_corners, charuco_ids);
+      cv::aruco::interpolateCornersCharuco(marker_corners, marker_ids, gray, board, charuco_corners,
+                                           charuco_ids);
       if (static_cast<int>(charuco_ids.size()) < spec.min_charuco_corners) {
-        d.reason = std::to_string(marker_ids.size()) + " markers but only " + std::to_string(charuco_ids.size()) +
-                   " ChArUco corners (need " + std::to_string(spec.min_charuco_corners) + ")" + Hint(d);
+        d.reason = std::to_string(marker_ids.size()) + " markers but only " +
+                   std::to_string(charuco_ids.size()) + " ChArUco corners (need " +
+                   std::to_string(spec.min_charuco_corners) + ")" + Hint(d);
         return d;
       }
       d.found = true;

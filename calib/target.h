@@ -43,7 +43,7 @@ struct TargetSpec {
   // Classic detector: cornerSubPix stops when a corner moves less than this, px (OpenCV's
   // TermCriteria EPS; 30 iterations at most). OpenCV 2.x's calibration sample used 0.1.
   double subpix_epsilon_px = 0.001;
-  int min_charuco_corners = 6;     // ChArUco: fewer interpolated corners count as not found
+  int min_charuco_corners = 6;  // ChArUco: fewer interpolated corners count as not found
   // Grey level at or above which a pixel counts as saturated (8-bit scale), for the report.
   double saturation_level = 250;
 
@@ -63,15 +63,16 @@ std::vector<Eigen::Vector3d> BoardPoints(const TargetSpec& spec);
 // Result of looking for the target in one image.
 struct TargetDetection {
   bool found = false;
-  std::string reason;  // empty when found; else why not, for the user (e.g. "9x6 chessboard not found")
-  int width = 0;       // image size, pixels
+  std::string
+      reason;     // empty when found; else why not, for the user (e.g. "9x6 chessboard not found")
+  int width = 0;  // image size, pixels
   int height = 0;
   std::vector<Eigen::Vector2d> pixels_px;  // detected points (OpenCV pixel convention)
   std::vector<int> point_ids;              // index into BoardPoints() for each detected point
   // Share of pixels at or above spec.saturation_level: inside the convex hull of the detected
   // points when found (what biases corners), else over the whole image.
   double saturated_fraction = 0;
-  double mean_grey = 0;           // on the 8-bit scale
+  double mean_grey = 0;  // on the 8-bit scale
 };
 
 // Finds the target in an 8- or 16-bit, 1- or 3-channel image. Never throws for "not found"

@@ -49,7 +49,8 @@ PixelMap MakeMap(int width, int height, int cell_px) {
 
 // d ImgFromCam / d (params, frame rotation) at the ray through `pixel`: 2x9 and 2x3.
 bool ProjectionJacobians(const CameraModel& model, const Eigen::Vector2d& pixel,
-                         Eigen::Matrix<double, 2, 9>* j_params, Eigen::Matrix<double, 2, 3>* j_rot) {
+                         Eigen::Matrix<double, 2, 9>* j_params,
+                         Eigen::Matrix<double, 2, 3>* j_rot) {
   const auto xy = model.UndistortToNormalized(pixel);
   if (!xy) return false;
   using Jet = ceres::Jet<double, 12>;
@@ -91,7 +92,8 @@ struct RotationFitFunctor {
 
 }  // namespace
 
-std::optional<Eigen::Matrix2d> ProjectionCovariance(const CameraModel& model, const Matrix9d& covariance,
+std::optional<Eigen::Matrix2d> ProjectionCovariance(const CameraModel& model,
+                                                    const Matrix9d& covariance,
                                                     const Eigen::Vector2d& pixel) {
   const auto xy = model.UndistortToNormalized(pixel);
   if (!xy) return std::nullopt;
@@ -142,9 +144,11 @@ PixelMap ProjectionUncertaintyMap(const CameraModel& model, const Matrix9d& cova
   return m;
 }
 
-PixelMap ProjectionDifferenceMap(const CameraModel& a, const CameraModel& b, int cell_px, bool fit_rotation) {
-  SLSHADOW_THROW_IF(a.width != b.width || a.height != b.height, "projection difference: image sizes differ (",
-                    a.width, "x", a.height, " vs ", b.width, "x", b.height, ")");
+PixelMap ProjectionDifferenceMap(const CameraModel& a, const CameraModel& b, int cell_px,
+                                 bool fit_rotation) {
+  SLSHADOW_THROW_IF(a.width != b.width || a.height != b.height,
+                    "projection difference: image sizes differ (", a.width, "x", a.height, " vs ",
+                    b.width, "x", b.height, ")");
   PixelMap m = MakeMap(a.width, a.height, cell_px);
   double omega[3] = {0, 0, 0};
   if (fit_rotation) {
@@ -154,7 +158,8 @@ PixelMap ProjectionDifferenceMap(const CameraModel& a, const CameraModel& b, int
         const Eigen::Vector2d q = PixelMap::CellCentre(c, r, cell_px);
         const auto xy = a.UndistortToNormalized(q);
         if (!xy) continue;
-        problem.AddResidualBlock(new ceres::AutoDiffCostFunction<RotationFitFunctor, 2, 3>(new RotationFitFunctor(b, *xy, q)),
+        problem.AddResidualBlock(new ceres::AutoDiffCostFunction<RotationFitFunctor, 2, 3>(
+                                     new RotationFitFunctor(b, *xy, q)),
                                  nullptr, omega);
       }
     }
@@ -183,11 +188,14 @@ PixelMap ProjectionDifferenceMap(const CameraModel& a, const CameraModel& b, int
   return m;
 }
 
-double NeighbourResidualCorrelation(const CalibrationInput& input, const CalibrationResult& result, int device) {
+double NeighbourResidualCorrelation(const CalibrationInput& input, const CalibrationResult& result,
+                                    int device) {
   double products = 0, energy = 0;
   int pairs = 0, points = 0;
   for (const auto& v : input.views) {
-    if (v.device != device || v.pose >= static_cast<int>(result.rig_from_board.size()) || !result.rig_from_board[v.pose]) continue;
+    if (v.device != device || v.pose >= static_cast<int>(result.rig_from_board.size()) ||
+        !result.rig_from_board[v.pose])
+      continue;
     const auto px = Reproject(result, v);
     const auto& x = v.points_in_board_mm;
     double spacing = 1e300;
@@ -221,7 +229,8 @@ bool CanCrossValidate(const CalibrationInput& input) {
   return true;
 }
 
-CrossValidation CrossValidate(const CalibrationInput& input, const CalibrationOptions& options, int cell_px) {
+CrossValidation CrossValidate(const CalibrationInput& input, const CalibrationOptions& options,
+                              int cell_px) {
   CalibrationInput halves[2];
   for (int h = 0; h < 2; ++h) {
     halves[h].devices = input.devices;
@@ -235,8 +244,9 @@ CrossValidation CrossValidate(const CalibrationInput& input, const CalibrationOp
     for (size_t d = 0; d < input.devices.size(); ++d) {
       int n = 0;
       for (const auto& v : halves[h].views) n += v.device == static_cast<int>(d);
-      SLSHADOW_THROW_IF(n < 2, "cross-validation: device '", input.devices[d].name, "' has ", n, " view(s) among the ",
-                        h == 0 ? "even" : "odd", " poses; cross-validation needs at least 4 views per device");
+      SLSHADOW_THROW_IF(n < 2, "cross-validation: device '", input.devices[d].name, "' has ", n,
+                        " view(s) among the ", h == 0 ? "even" : "odd",
+                        " poses; cross-validation needs at least 4 views per device");
     }
   }
   CalibrationOptions o = options;
@@ -247,13 +257,15 @@ CrossValidation CrossValidate(const CalibrationInput& input, const CalibrationOp
   for (size_t d = 0; d < input.devices.size(); ++d) {
     cv.half_a.push_back(a.devices[d].model);
     cv.half_b.push_back(b.devices[d].model);
-    cv.difference.push_back(ProjectionDifferenceMap(a.devices[d].model, b.devices[d].model, cell_px));
+    cv.difference.push_back(
+        ProjectionDifferenceMap(a.devices[d].model, b.devices[d].model, cell_px));
   }
   cv.summaries = {a.summary, b.summary};
   return cv;
 }
 
-QuotedCovariance PreferredCovariance(const CalibrationResult& result, int device, double max_ratio) {
+QuotedCovariance PreferredCovariance(const CalibrationResult& result, int device,
+                                     double max_ratio) {
   QuotedCovariance q;
   const auto d = static_cast<size_t>(device);
   if (d >= result.intrinsics_covariance.size() || !(result.intrinsics_covariance[d](0, 0) > 0)) {
@@ -262,24 +274,30 @@ QuotedCovariance PreferredCovariance(const CalibrationResult& result, int device
   }
   q.available = true;
   q.covariance = result.intrinsics_covariance[d];
-  const bool have_view = d < result.intrinsics_covariance_view_correlated.size() && d < result.summary.view_noise.size();
+  const bool have_view = d < result.intrinsics_covariance_view_correlated.size() &&
+                         d < result.summary.view_noise.size();
   if (!have_view) {
-    q.reason = "standard covariance (independent corner errors); no view-correlated covariance was computed";
+    q.reason =
+        "standard covariance (independent corner errors); no view-correlated covariance was "
+        "computed";
     return q;
   }
   const auto& k = result.summary.view_noise[d];
-  q.fx_sigma_ratio = std::sqrt(result.intrinsics_covariance_view_correlated[d](0, 0) / result.intrinsics_covariance[d](0, 0));
+  q.fx_sigma_ratio = std::sqrt(result.intrinsics_covariance_view_correlated[d](0, 0) /
+                               result.intrinsics_covariance[d](0, 0));
   char line[300];
   if (k.share > 0 && q.fx_sigma_ratio > max_ratio) {
     q.view_correlated = true;
     q.covariance = result.intrinsics_covariance_view_correlated[d];
     std::snprintf(line, sizeof(line),
-                  "view-correlated covariance: corner errors correlate across each view (share %.2f over %.1f squares), "
+                  "view-correlated covariance: corner errors correlate across each view (share "
+                  "%.2f over %.1f squares), "
                   "which widens fx's sigma %.2fx over the standard covariance (> %.2f)",
                   k.share, k.length_squares, q.fx_sigma_ratio, max_ratio);
   } else {
     std::snprintf(line, sizeof(line),
-                  "standard covariance: corner errors look independent enough (correlated share %.2f, fx sigma ratio %.2f <= "
+                  "standard covariance: corner errors look independent enough (correlated share "
+                  "%.2f, fx sigma ratio %.2f <= "
                   "%.2f or no correlation)",
                   k.share, q.fx_sigma_ratio, max_ratio);
   }

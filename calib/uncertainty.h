@@ -50,12 +50,13 @@ struct PixelMap {
 
 // Covariance (2x2, px^2) of the projection of the ray through `pixel` under intrinsics
 // covariance `covariance`. std::nullopt when the pixel cannot be unprojected.
-std::optional<Eigen::Matrix2d> ProjectionCovariance(const CameraModel& model, const Matrix9d& covariance,
+std::optional<Eigen::Matrix2d> ProjectionCovariance(const CameraModel& model,
+                                                    const Matrix9d& covariance,
                                                     const Eigen::Vector2d& pixel);
 
 // Worst-direction projection standard deviation (px) on a grid of `cell_px` cells.
-PixelMap ProjectionUncertaintyMap(const CameraModel& model, const Matrix9d& covariance, int cell_px = 16,
-                                  bool compensate_rotation = true);
+PixelMap ProjectionUncertaintyMap(const CameraModel& model, const Matrix9d& covariance,
+                                  int cell_px = 16, bool compensate_rotation = true);
 
 // |Project_b(Unproject_a(q)) - q| (px) on a grid of `cell_px` cells. Both models must have the
 // same image size (throws slshadow::Error otherwise).
@@ -69,7 +70,8 @@ PixelMap ProjectionDifferenceMap(const CameraModel& a, const CameraModel& b, int
 // means errors shared across a pose (board deformation, detector or decoding bias), which the
 // covariance does not see: it is then optimistic. NaN when no view of the device has a
 // neighbour pair.
-double NeighbourResidualCorrelation(const CalibrationInput& input, const CalibrationResult& result, int device);
+double NeighbourResidualCorrelation(const CalibrationInput& input, const CalibrationResult& result,
+                                    int device);
 
 // The covariance a report should quote for one device. The standard one
 // (CalibrationResult::intrinsics_covariance) assumes independent corner errors; when the residuals
@@ -83,22 +85,25 @@ struct QuotedCovariance {
   bool available = false;        // a standard covariance exists for the device (else all zero)
   bool view_correlated = false;  // which one `covariance` is
   Matrix9d covariance = Matrix9d::Zero();
-  double fx_sigma_ratio = 1;  // view-correlated / standard sigma of fx (1 when there is no view-correlated one)
-  std::string reason;         // one line, for reports
+  double fx_sigma_ratio =
+      1;  // view-correlated / standard sigma of fx (1 when there is no view-correlated one)
+  std::string reason;  // one line, for reports
 };
-QuotedCovariance PreferredCovariance(const CalibrationResult& result, int device, double max_ratio = 1.5);
+QuotedCovariance PreferredCovariance(const CalibrationResult& result, int device,
+                                     double max_ratio = 1.5);
 
 struct CrossValidation {
-  std::vector<CameraModel> half_a;  // per device, from the even poses
-  std::vector<CameraModel> half_b;  // per device, from the odd poses
-  std::vector<PixelMap> difference;  // per device
+  std::vector<CameraModel> half_a;            // per device, from the even poses
+  std::vector<CameraModel> half_b;            // per device, from the odd poses
+  std::vector<PixelMap> difference;           // per device
   std::vector<CalibrationSummary> summaries;  // of the two halves
 };
 
 // Calibrates the even and the odd board poses separately with the same options and compares
 // the models per device. Throws slshadow::Error when a half cannot be calibrated (too few views:
 // cross-validation needs at least 4 poses per device).
-CrossValidation CrossValidate(const CalibrationInput& input, const CalibrationOptions& options, int cell_px = 16);
+CrossValidation CrossValidate(const CalibrationInput& input, const CalibrationOptions& options,
+                              int cell_px = 16);
 
 // Whether CrossValidate can run: every device has views of at least 2 distinct even and 2
 // distinct odd poses.

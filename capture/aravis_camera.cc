@@ -19,7 +19,8 @@
 namespace slshadow::capture {
 
 void AravisOpenOptions::Check() const {
-  SLSHADOW_THROW_IF(device.empty(), "aravis: device: an IPv4 address, serial or device id is needed");
+  SLSHADOW_THROW_IF(device.empty(),
+                    "aravis: device: an IPv4 address, serial or device id is needed");
   SLSHADOW_THROW_IF(n_buffers < 2 || n_buffers > 256, "aravis ", device,
                     ": n_buffers: must be in 2..256 (got ", n_buffers, ")");
 }
@@ -106,15 +107,24 @@ int GrantedReceiveBuffer(uint16_t port) {
 
 std::string StatusName(ArvBufferStatus status) {
   switch (status) {
-    case ARV_BUFFER_STATUS_SUCCESS: return "success";
-    case ARV_BUFFER_STATUS_CLEARED: return "cleared";
-    case ARV_BUFFER_STATUS_TIMEOUT: return "timeout";
-    case ARV_BUFFER_STATUS_MISSING_PACKETS: return "missing packets";
-    case ARV_BUFFER_STATUS_WRONG_PACKET_ID: return "wrong packet id";
-    case ARV_BUFFER_STATUS_SIZE_MISMATCH: return "size mismatch";
-    case ARV_BUFFER_STATUS_FILLING: return "filling";
-    case ARV_BUFFER_STATUS_ABORTED: return "aborted";
-    default: return "unknown";
+    case ARV_BUFFER_STATUS_SUCCESS:
+      return "success";
+    case ARV_BUFFER_STATUS_CLEARED:
+      return "cleared";
+    case ARV_BUFFER_STATUS_TIMEOUT:
+      return "timeout";
+    case ARV_BUFFER_STATUS_MISSING_PACKETS:
+      return "missing packets";
+    case ARV_BUFFER_STATUS_WRONG_PACKET_ID:
+      return "wrong packet id";
+    case ARV_BUFFER_STATUS_SIZE_MISMATCH:
+      return "size mismatch";
+    case ARV_BUFFER_STATUS_FILLING:
+      return "filling";
+    case ARV_BUFFER_STATUS_ABORTED:
+      return "aborted";
+    default:
+      return "unknown";
   }
 }
 
@@ -177,9 +187,10 @@ class AravisCamera final : public Camera {
     // Region of interest.
     Roi roi = settings.roi;
     if (roi.Full()) roi = Roi{0, 0, info_.sensor_width, info_.sensor_height};
-    SLSHADOW_THROW_IF(roi.x + roi.width > info_.sensor_width || roi.y + roi.height > info_.sensor_height,
-                      who, ": roi: ", roi.x, ",", roi.y, ",", roi.width, ",", roi.height,
-                      " exceeds the sensor (", info_.sensor_width, "x", info_.sensor_height, ")");
+    SLSHADOW_THROW_IF(
+        roi.x + roi.width > info_.sensor_width || roi.y + roi.height > info_.sensor_height, who,
+        ": roi: ", roi.x, ",", roi.y, ",", roi.width, ",", roi.height, " exceeds the sensor (",
+        info_.sensor_width, "x", info_.sensor_height, ")");
     arv_camera_set_region(camera_, roi.x, roi.y, roi.width, roi.height, &error);
     ThrowOn(error, "roi", roi.width, "x", roi.height, "+", roi.x, "+", roi.y);
     int x = 0, y = 0, w = 0, h = 0;
@@ -219,25 +230,29 @@ class AravisCamera final : public Camera {
     arv_camera_clear_triggers(camera_, &error);
     ThrowOn(error, "trigger", "TriggerMode Off");
     if (settings.trigger != TriggerMode::kFreeRun) {
-      const std::string source =
-          settings.trigger == TriggerMode::kSoftware ? std::string("Software") : settings.trigger_line;
+      const std::string source = settings.trigger == TriggerMode::kSoftware
+                                     ? std::string("Software")
+                                     : settings.trigger_line;
       if (IsAvailable("TriggerSelector")) {
         arv_camera_set_string(camera_, "TriggerSelector", "FrameStart", &error);
         ThrowOn(error, "trigger", "TriggerSelector FrameStart");
       }
       guint n = 0;
-      const char** names = arv_camera_dup_available_enumerations_as_strings(camera_, "TriggerSource", &n, &error);
+      const char** names =
+          arv_camera_dup_available_enumerations_as_strings(camera_, "TriggerSource", &n, &error);
       const auto sources = TakeStrings(names, n);
       ThrowOn(error, "trigger", "TriggerSource");
-      SLSHADOW_THROW_IF(std::find(sources.begin(), sources.end(), source) == sources.end(), who,
-                        settings.trigger == TriggerMode::kSoftware ? ": trigger: " : ": trigger_line: ",
-                        source, " is not a trigger source of the device (it offers ", Join(sources), ")");
+      SLSHADOW_THROW_IF(
+          std::find(sources.begin(), sources.end(), source) == sources.end(), who,
+          settings.trigger == TriggerMode::kSoftware ? ": trigger: " : ": trigger_line: ", source,
+          " is not a trigger source of the device (it offers ", Join(sources), ")");
       arv_camera_set_string(camera_, "TriggerMode", "On", &error);
       ThrowOn(error, "trigger", "TriggerMode On");
       arv_camera_set_string(camera_, "TriggerSource", source.c_str(), &error);
       ThrowOn(error, "trigger", source);
       if (IsAvailable("TriggerActivation") &&
-          arv_camera_is_enumeration_entry_available(camera_, "TriggerActivation", "RisingEdge", &error)) {
+          arv_camera_is_enumeration_entry_available(camera_, "TriggerActivation", "RisingEdge",
+                                                    &error)) {
         arv_camera_set_string(camera_, "TriggerActivation", "RisingEdge", &error);
       }
       g_clear_error(&error);
@@ -256,7 +271,8 @@ class AravisCamera final : public Camera {
                           settings.packet_size_bytes);
       }
     } else if (settings.packet_size_bytes > 0 || settings.socket_buffer_bytes > 0) {
-      AddWarning(who + ": packet_size_bytes / socket_buffer_bytes apply to GigE Vision only; ignored");
+      AddWarning(who +
+                 ": packet_size_bytes / socket_buffer_bytes apply to GigE Vision only; ignored");
     }
     settings_ = settings;
     configured_ = true;
@@ -329,11 +345,13 @@ class AravisCamera final : public Camera {
       g_object_set(stream_, "packet-resend",
                    settings_.packet_resend ? ARV_GV_STREAM_PACKET_RESEND_ALWAYS
                                            : ARV_GV_STREAM_PACKET_RESEND_NEVER,
-                   "socket-buffer", fixed ? ARV_GV_STREAM_SOCKET_BUFFER_FIXED : ARV_GV_STREAM_SOCKET_BUFFER_AUTO,
+                   "socket-buffer",
+                   fixed ? ARV_GV_STREAM_SOCKET_BUFFER_FIXED : ARV_GV_STREAM_SOCKET_BUFFER_AUTO,
                    "socket-buffer-size", fixed ? settings_.socket_buffer_bytes : 0, nullptr);
       requested_socket_buffer_ = fixed ? settings_.socket_buffer_bytes : static_cast<int>(payload_);
     }
-    for (int i = 0; i < n_buffers_; ++i) arv_stream_push_buffer(stream_, arv_buffer_new_allocate(payload_));
+    for (int i = 0; i < n_buffers_; ++i)
+      arv_stream_push_buffer(stream_, arv_buffer_new_allocate(payload_));
     arv_camera_start_acquisition(camera_, &error);
     if (error != nullptr) {
       g_clear_object(&stream_);
@@ -374,7 +392,8 @@ class AravisCamera final : public Camera {
     Frame frame;
     if (!running_) return Failed(FrameStatus::kAborted, Who() + ": not started");
     if (device_lost_) return Failed(FrameStatus::kAborted, lost_message_);
-    ArvBuffer* buffer = arv_stream_timeout_pop_buffer(stream_, static_cast<guint64>(timeout.count()) * 1000);
+    ArvBuffer* buffer =
+        arv_stream_timeout_pop_buffer(stream_, static_cast<guint64>(timeout.count()) * 1000);
     if (buffer == nullptr) return NoFrame(timeout);
     frame = Convert(buffer);
     arv_stream_push_buffer(stream_, buffer);
@@ -500,22 +519,34 @@ class AravisCamera final : public Camera {
 
   Frame Convert(ArvBuffer* buffer) {
     Frame frame;
-    frame.host_timestamp = std::chrono::system_clock::time_point(std::chrono::duration_cast<
-        std::chrono::system_clock::duration>(std::chrono::nanoseconds(arv_buffer_get_system_timestamp(buffer))));
-    if (arv_buffer_get_system_timestamp(buffer) == 0) frame.host_timestamp = std::chrono::system_clock::now();
+    frame.host_timestamp = std::chrono::system_clock::time_point(
+        std::chrono::duration_cast<std::chrono::system_clock::duration>(
+            std::chrono::nanoseconds(arv_buffer_get_system_timestamp(buffer))));
+    if (arv_buffer_get_system_timestamp(buffer) == 0)
+      frame.host_timestamp = std::chrono::system_clock::now();
     frame.exposure_us = exposure_us_;
     const ArvBufferStatus status = arv_buffer_get_status(buffer);
     if (status != ARV_BUFFER_STATUS_SUCCESS) {
       // The leader may be lost, so the buffer's id may be stale: a damaged frame has id 0.
       ++failed_since_ok_;
       switch (status) {
-        case ARV_BUFFER_STATUS_MISSING_PACKETS: frame.status = FrameStatus::kMissingPackets; break;
+        case ARV_BUFFER_STATUS_MISSING_PACKETS:
+          frame.status = FrameStatus::kMissingPackets;
+          break;
         // Aravis's TIMEOUT is a frame that arrived but stayed incomplete until its retention
         // expired (missing packets not resent): kTimeout is reserved for "nothing arrived".
-        case ARV_BUFFER_STATUS_TIMEOUT: frame.status = FrameStatus::kMissingPackets; break;
-        case ARV_BUFFER_STATUS_SIZE_MISMATCH: frame.status = FrameStatus::kSizeMismatch; break;
-        case ARV_BUFFER_STATUS_ABORTED: frame.status = FrameStatus::kAborted; break;
-        default: frame.status = FrameStatus::kOtherError; break;
+        case ARV_BUFFER_STATUS_TIMEOUT:
+          frame.status = FrameStatus::kMissingPackets;
+          break;
+        case ARV_BUFFER_STATUS_SIZE_MISMATCH:
+          frame.status = FrameStatus::kSizeMismatch;
+          break;
+        case ARV_BUFFER_STATUS_ABORTED:
+          frame.status = FrameStatus::kAborted;
+          break;
+        default:
+          frame.status = FrameStatus::kOtherError;
+          break;
       }
       frame.message = Who() + ": damaged frame (Aravis buffer status: " + StatusName(status) + ")";
       if (status == ARV_BUFFER_STATUS_TIMEOUT) {
@@ -528,13 +559,15 @@ class AravisCamera final : public Camera {
     const int w = arv_buffer_get_image_width(buffer);
     const int h = arv_buffer_get_image_height(buffer);
     const ArvPixelFormat format = arv_buffer_get_image_pixel_format(buffer);
-    if (data == nullptr || size != payload_ || w != width_ || h != height_ || format != pixel_format_) {
+    if (data == nullptr || size != payload_ || w != width_ || h != height_ ||
+        format != pixel_format_) {
       ++failed_since_ok_;
       frame.status = FrameStatus::kSizeMismatch;
-      frame.message = Who() + ": frame of " + std::to_string(size) + " bytes, " + std::to_string(w) +
-                      "x" + std::to_string(h) + ", pixel format 0x" + Hex(format) + "; expected " +
-                      std::to_string(payload_) + " bytes, " + std::to_string(width_) + "x" +
-                      std::to_string(height_) + ", 0x" + Hex(pixel_format_);
+      frame.message = Who() + ": frame of " + std::to_string(size) + " bytes, " +
+                      std::to_string(w) + "x" + std::to_string(h) + ", pixel format 0x" +
+                      Hex(format) + "; expected " + std::to_string(payload_) + " bytes, " +
+                      std::to_string(width_) + "x" + std::to_string(height_) + ", 0x" +
+                      Hex(pixel_format_);
       return frame;
     }
     frame.frame_id = arv_buffer_get_frame_id(buffer);
@@ -577,10 +610,11 @@ class AravisCamera final : public Camera {
       return;
     }
     if (granted_socket_buffer_ < requested_socket_buffer_) {
-      AddWarning(Who() + ": socket_buffer_bytes: asked for " + std::to_string(requested_socket_buffer_) +
-                 " bytes, the kernel granted " + std::to_string(granted_socket_buffer_) +
-                 " (net.core.rmem_max = " + std::to_string(ReadRmemMax()) +
-                 "; raise it with: sysctl -w net.core.rmem_max=" + std::to_string(requested_socket_buffer_) + ")");
+      AddWarning(Who() + ": socket_buffer_bytes: asked for " +
+                 std::to_string(requested_socket_buffer_) + " bytes, the kernel granted " +
+                 std::to_string(granted_socket_buffer_) + " (net.core.rmem_max = " +
+                 std::to_string(ReadRmemMax()) + "; raise it with: sysctl -w net.core.rmem_max=" +
+                 std::to_string(requested_socket_buffer_) + ")");
     }
   }
 
@@ -639,8 +673,10 @@ std::unique_ptr<Camera> OpenAravisCamera(const AravisOpenOptions& options) {
   std::string why;
   if (IsIpv4Address(options.device)) {
     // Direct GVCP to the address: no discovery broadcast.
-    device = arv_interface_open_device(arv_gv_interface_get_instance(), options.device.c_str(), &error);
-    if (device == nullptr) why = error != nullptr ? TakeMessage(error) : "no GigE Vision device answered";
+    device =
+        arv_interface_open_device(arv_gv_interface_get_instance(), options.device.c_str(), &error);
+    if (device == nullptr)
+      why = error != nullptr ? TakeMessage(error) : "no GigE Vision device answered";
   } else {
     // A serial number or device id is matched against the listed devices here, then opened by
     // the listing's own id (USB3 Vision) or address (GigE Vision): Aravis would otherwise try the
@@ -650,7 +686,8 @@ std::unique_ptr<Camera> OpenAravisCamera(const AravisOpenOptions& options) {
       for (unsigned i = 0; i < arv_interface_get_n_devices(iface); ++i) {
         if (options.device == Str(arv_interface_get_device_id(iface, i)) ||
             options.device == Str(arv_interface_get_device_serial_nbr(iface, i))) {
-          return Str(by_address ? arv_interface_get_device_address(iface, i) : arv_interface_get_device_id(iface, i));
+          return Str(by_address ? arv_interface_get_device_address(iface, i)
+                                : arv_interface_get_device_id(iface, i));
         }
       }
       return "";
@@ -667,10 +704,11 @@ std::unique_ptr<Camera> OpenAravisCamera(const AravisOpenOptions& options) {
       if (device == nullptr) why = error != nullptr ? TakeMessage(error) : "it did not answer";
       g_clear_error(&error);
     } else {
-      why = options.allow_discovery
-                ? "no USB3 Vision or GigE Vision device has this id or serial"
-                : "no USB3 Vision device has this id or serial; a GigE Vision camera is opened by "
-                  "its IP address (or allow discovery, which broadcasts on every network interface)";
+      why =
+          options.allow_discovery
+              ? "no USB3 Vision or GigE Vision device has this id or serial"
+              : "no USB3 Vision device has this id or serial; a GigE Vision camera is opened by "
+                "its IP address (or allow discovery, which broadcasts on every network interface)";
     }
   }
   SLSHADOW_THROW_IF(device == nullptr, "aravis: device '", options.device, "': cannot open: ", why);

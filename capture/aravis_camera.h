@@ -25,10 +25,10 @@
 // with the stream's own counters returned by Statistics(): there, missing_frames counts frames lost
 // whole (ids skipped between two complete frames, less the damaged frames delivered between them),
 // each such gap also being one line of Warnings(). A damaged frame has frame_id 0: its leader
-// packet, which carries the id, may be the packet that was lost. A device that stops answering turns
-// Grab into kAborted frames with a message naming the device; nothing blocks longer than the grab
-// timeout plus one GVCP probe (Aravis 0.8 retries GVCP 5 x 500 ms, so about 5 s); Stop() and the
-// destructor of a lost camera take several seconds more for the same reason, and then return.
+// packet, which carries the id, may be the packet that was lost. A device that stops answering
+// turns Grab into kAborted frames with a message naming the device; nothing blocks longer than the
+// grab timeout plus one GVCP probe (Aravis 0.8 retries GVCP 5 x 500 ms, so about 5 s); Stop() and
+// the destructor of a lost camera take several seconds more for the same reason, and then return.
 #pragma once
 
 #include <memory>
@@ -57,7 +57,7 @@ struct AravisDeviceEntry {
   std::string id;        // Aravis device id (opens it with allow_discovery, or by address)
   std::string protocol;  // "GigEVision" or "USB3Vision"
   std::string vendor, model, serial;
-  std::string address;   // IPv4 address (GigE Vision) or USB bus address
+  std::string address;  // IPv4 address (GigE Vision) or USB bus address
 };
 
 // Lists USB3 Vision devices (local USB enumeration) and, only when `gige_discovery` is set, GigE

@@ -8,9 +8,12 @@ namespace slshadow::capture {
 
 std::string ToString(PixelFormat format) {
   switch (format) {
-    case PixelFormat::kMono8: return "Mono8";
-    case PixelFormat::kMono12: return "Mono12";
-    case PixelFormat::kMono16: return "Mono16";
+    case PixelFormat::kMono8:
+      return "Mono8";
+    case PixelFormat::kMono12:
+      return "Mono12";
+    case PixelFormat::kMono16:
+      return "Mono16";
   }
   return "unknown";
 }
@@ -26,9 +29,12 @@ int BitDepthOf(PixelFormat format) { return format == PixelFormat::kMono8 ? 8 : 
 
 std::string ToString(TriggerMode mode) {
   switch (mode) {
-    case TriggerMode::kFreeRun: return "free-run";
-    case TriggerMode::kSoftware: return "software";
-    case TriggerMode::kHardware: return "hardware";
+    case TriggerMode::kFreeRun:
+      return "free-run";
+    case TriggerMode::kSoftware:
+      return "software";
+    case TriggerMode::kHardware:
+      return "hardware";
   }
   return "unknown";
 }
@@ -42,12 +48,18 @@ TriggerMode TriggerModeFromString(const std::string& name) {
 
 std::string ToString(FrameStatus status) {
   switch (status) {
-    case FrameStatus::kOk: return "ok";
-    case FrameStatus::kTimeout: return "timeout";
-    case FrameStatus::kMissingPackets: return "missing packets";
-    case FrameStatus::kSizeMismatch: return "size mismatch";
-    case FrameStatus::kAborted: return "aborted";
-    case FrameStatus::kOtherError: return "error";
+    case FrameStatus::kOk:
+      return "ok";
+    case FrameStatus::kTimeout:
+      return "timeout";
+    case FrameStatus::kMissingPackets:
+      return "missing packets";
+    case FrameStatus::kSizeMismatch:
+      return "size mismatch";
+    case FrameStatus::kAborted:
+      return "aborted";
+    case FrameStatus::kOtherError:
+      return "error";
   }
   return "unknown";
 }

@@ -21,16 +21,16 @@
 namespace slshadow::capture {
 
 enum class PixelFormat { kMono8, kMono12, kMono16 };
-std::string ToString(PixelFormat format);              // "Mono8", "Mono12", "Mono16"
+std::string ToString(PixelFormat format);                    // "Mono8", "Mono12", "Mono16"
 PixelFormat PixelFormatFromString(const std::string& name);  // throws slshadow::Error
-int BitDepthOf(PixelFormat format);                    // 8 or 16: the depth of the stored image
+int BitDepthOf(PixelFormat format);  // 8 or 16: the depth of the stored image
 
 enum class TriggerMode {
   kFreeRun,   // the camera streams at its own rate; Trigger() is a no-op
   kSoftware,  // one frame per Trigger()
   kHardware   // one frame per edge on the configured input line; Trigger() is a no-op
 };
-std::string ToString(TriggerMode mode);                // "free-run", "software", "hardware"
+std::string ToString(TriggerMode mode);                      // "free-run", "software", "hardware"
 TriggerMode TriggerModeFromString(const std::string& name);  // throws slshadow::Error
 
 // Region of interest in sensor pixels; width/height 0 means the full sensor.
@@ -73,12 +73,12 @@ std::string ToString(FrameStatus status);
 
 struct Frame {
   FrameStatus status = FrameStatus::kOtherError;
-  std::string message;        // why, when status != kOk (backend words, for the user)
-  cv::Mat image;              // CV_8UC1 or CV_16UC1 (Mono12 is stored in 16 bits), owned
-  uint64_t frame_id = 0;      // device frame counter (GigE Vision: 16-bit, 0 invalid, wraps)
+  std::string message;               // why, when status != kOk (backend words, for the user)
+  cv::Mat image;                     // CV_8UC1 or CV_16UC1 (Mono12 is stored in 16 bits), owned
+  uint64_t frame_id = 0;             // device frame counter (GigE Vision: 16-bit, 0 invalid, wraps)
   uint64_t device_timestamp_ns = 0;  // 0 when the device has none
   std::chrono::system_clock::time_point host_timestamp{};
-  double exposure_us = 0;     // the exposure the frame was taken with (0 when unknown)
+  double exposure_us = 0;  // the exposure the frame was taken with (0 when unknown)
   bool ok() const { return status == FrameStatus::kOk; }
 };
 
@@ -87,7 +87,7 @@ struct Frame {
 struct StreamStatistics {
   uint64_t completed_frames = 0;
   uint64_t failed_frames = 0;
-  uint64_t missing_frames = 0;   // frame-id gaps seen by the transport
+  uint64_t missing_frames = 0;  // frame-id gaps seen by the transport
   uint64_t missing_packets = 0;
   uint64_t resend_requests = 0;
   uint64_t underruns = 0;

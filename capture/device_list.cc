@@ -33,21 +33,24 @@ void Append(const Sink* out, const char* format, Args... args) {
   (*out)(std::string(line.data()));
 }
 
-void AppendCamera(const Sink* out, const CameraInfo& info, const std::string& protocol, const std::string& address) {
-  Append(out, "camera  %-10s %-16s vendor=%s model=%s serial=%s sensor=%dx%d formats=%s\n", protocol.c_str(),
-         address.c_str(), info.vendor.c_str(), info.model.c_str(), info.serial.c_str(), info.sensor_width,
-         info.sensor_height, Formats(info).c_str());
+void AppendCamera(const Sink* out, const CameraInfo& info, const std::string& protocol,
+                  const std::string& address) {
+  Append(out, "camera  %-10s %-16s vendor=%s model=%s serial=%s sensor=%dx%d formats=%s\n",
+         protocol.c_str(), address.c_str(), info.vendor.c_str(), info.model.c_str(),
+         info.serial.c_str(), info.sensor_width, info.sensor_height, Formats(info).c_str());
 }
 
 }  // namespace
 
 void DeviceListOptions::Check() const {
   for (const auto& address : addresses) {
-    SLSHADOW_THROW_IF(!IsIpv4Address(address), "--address: '", address, "' is not an IPv4 address (e.g. 192.168.1.20)");
+    SLSHADOW_THROW_IF(!IsIpv4Address(address), "--address: '", address,
+                      "' is not an IPv4 address (e.g. 192.168.1.20)");
   }
 }
 
-void ListDevices(const DeviceListOptions& options, const std::function<void(const std::string& line)>& print) {
+void ListDevices(const DeviceListOptions& options,
+                 const std::function<void(const std::string& line)>& print) {
   options.Check();
   const Sink* out = &print;
   // Cameras opened by address: full information, or the error naming the address.
@@ -64,12 +67,15 @@ void ListDevices(const DeviceListOptions& options, const std::function<void(cons
         const auto camera = OpenAravisCamera({.device = open_by});
         AppendCamera(out, camera->Info(), entry.protocol, entry.address);
       } catch (const Error& e) {
-        Append(out, "camera  %-10s %-16s vendor=%s model=%s serial=%s (cannot open: %s)\n", entry.protocol.c_str(),
-               entry.address.c_str(), entry.vendor.c_str(), entry.model.c_str(), entry.serial.c_str(), e.what());
+        Append(out, "camera  %-10s %-16s vendor=%s model=%s serial=%s (cannot open: %s)\n",
+               entry.protocol.c_str(), entry.address.c_str(), entry.vendor.c_str(),
+               entry.model.c_str(), entry.serial.c_str(), e.what());
       }
     }
-    if (!options.discover) print("(GigE Vision cameras: --address IP opens one; --discover broadcasts to find them)\n");
-    // UVC cameras (V4L2 nodes; metadata nodes say why they cannot capture) and LightCrafters on USB.
+    if (!options.discover)
+      print("(GigE Vision cameras: --address IP opens one; --discover broadcasts to find them)\n");
+    // UVC cameras (V4L2 nodes; metadata nodes say why they cannot capture) and LightCrafters on
+    // USB.
     for (const auto& node : ListV4l2Nodes()) {
       try {
         AppendCamera(out, V4l2Camera(node).Info(), "V4L2", node);
@@ -79,10 +85,11 @@ void ListDevices(const DeviceListOptions& options, const std::function<void(cons
     }
     try {
       for (const auto& usb : ListLightCrafters()) {
-        Append(out,
-               "projector LightCrafter 4500 on USB %s (devices.yaml projector: backend lightcrafter; "
-               "`slshadow projector info`)\n",
-               usb.c_str());
+        Append(
+            out,
+            "projector LightCrafter 4500 on USB %s (devices.yaml projector: backend lightcrafter; "
+            "`slshadow projector info`)\n",
+            usb.c_str());
       }
     } catch (const Error& e) {
       Append(out, "(USB projectors: cannot list: %s)\n", e.what());
@@ -93,8 +100,11 @@ void ListDevices(const DeviceListOptions& options, const std::function<void(cons
     print("(displays: $DISPLAY is not set, no X display to list)\n");
   } else {
     for (const auto& d : ListDisplays()) {
-      Append(out, "display %-2d %-14s at %d,%d,%d,%d %.0f Hz (devices.yaml projector: backend window, display %d)\n",
-             d.index, d.name.c_str(), d.bounds.x, d.bounds.y, d.bounds.width, d.bounds.height, d.refresh_hz, d.index);
+      Append(out,
+             "display %-2d %-14s at %d,%d,%d,%d %.0f Hz (devices.yaml projector: backend window, "
+             "display %d)\n",
+             d.index, d.name.c_str(), d.bounds.x, d.bounds.y, d.bounds.width, d.bounds.height,
+             d.refresh_hz, d.index);
     }
   }
 }

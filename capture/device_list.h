@@ -19,10 +19,12 @@ struct DeviceListOptions {
   void Check() const;
 };
 
-// The listing, handed to `print` one line per device as it is found (each ending in '\n'): "camera  <protocol> <address> vendor=...
-// model=... serial=... sensor=WxH formats=..." (or why it cannot be opened), V4L2 nodes, USB
-// LightCrafters, "display <index> ..." per X display, and notes in parentheses for what was not
-// looked for. Throws slshadow::Error when a camera given by address cannot be opened.
-void ListDevices(const DeviceListOptions& options, const std::function<void(const std::string& line)>& print);
+// The listing, handed to `print` one line per device as it is found (each ending in '\n'): "camera
+// <protocol> <address> vendor=... model=... serial=... sensor=WxH formats=..." (or why it cannot be
+// opened), V4L2 nodes, USB LightCrafters, "display <index> ..." per X display, and notes in
+// parentheses for what was not looked for. Throws slshadow::Error when a camera given by address
+// cannot be opened.
+void ListDevices(const DeviceListOptions& options,
+                 const std::function<void(const std::string& line)>& print);
 
 }  // namespace slshadow::capture

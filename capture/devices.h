@@ -62,7 +62,7 @@ struct ProjectorEntry {
   int64_t exposure_us = 0;          // pattern-sequence: LED time per pattern; 0: the whole period
   int bit_depth = 0;                // pattern-sequence: 1..8; 0: 1 for binary patterns, else 8
   bool trigger_inverted = false;    // pattern-sequence: TRIG_OUT1 active low
-  std::string where;             // "FILE: projector" for messages
+  std::string where;                // "FILE: projector" for messages
 };
 
 struct DevicesConfig {

@@ -11,7 +11,8 @@
 namespace slshadow::capture {
 namespace {
 
-[[noreturn]] void NotBuilt(const std::string& where, const std::string& backend, const std::string& what) {
+[[noreturn]] void NotBuilt(const std::string& where, const std::string& backend,
+                           const std::string& what) {
   SLSHADOW_THROW(where, ".backend: backend '", backend, "' is not built into this slshadow (", what,
                  "; `slshadow capture --help` lists the backends built in)");
 }
@@ -36,9 +37,9 @@ static WindowProjectorOptions WindowOptionsOf(const ProjectorEntry& entry) {
     int index = -1;
     try {
       index = std::stoi(entry.display, &used);
-    } catch (const std::exception&) {
-    }
-    SLSHADOW_THROW_IF(index < 0 || used != entry.display.size(), entry.where, ".display: '", entry.display,
+    } catch (const std::exception&) {}
+    SLSHADOW_THROW_IF(index < 0 || used != entry.display.size(), entry.where, ".display: '",
+                      entry.display,
                       "' is neither a display index (0, 1, ...) nor a geometry x,y,w,h");
     options.display_index = index;
   }
@@ -48,13 +49,16 @@ static WindowProjectorOptions WindowOptionsOf(const ProjectorEntry& entry) {
 std::unique_ptr<Camera> OpenCamera(const CameraEntry& entry) {
   // One case per camera backend.
   if (entry.backend == "replay") {
-    return std::make_unique<ReplayCamera>(entry.imageset,
-                                          ReplayCameraOptions{entry.imageset_camera, entry.first_frame_id, entry.serial});
+    return std::make_unique<ReplayCamera>(
+        entry.imageset,
+        ReplayCameraOptions{entry.imageset_camera, entry.first_frame_id, entry.serial});
   }
   if (entry.backend == "aravis") {
     // The address opens a GigE Vision camera directly; an id or serial is looked up among USB3
     // Vision devices only: devices.yaml never makes slshadow broadcast a GigE Vision discovery.
-    const std::string& device = !entry.address.empty() ? entry.address : !entry.id.empty() ? entry.id : entry.serial;
+    const std::string& device = !entry.address.empty() ? entry.address
+                                : !entry.id.empty()    ? entry.id
+                                                       : entry.serial;
     try {
       return OpenAravisCamera(AravisOpenOptions{.device = device});
     } catch (const Error& e) {
@@ -69,7 +73,8 @@ std::unique_ptr<Camera> OpenCamera(const CameraEntry& entry) {
     }
   }
   if (entry.backend == "sim") {
-    NotBuilt(entry.where, entry.backend, "a simulator camera is built by the workflow layer, not by capture/");
+    NotBuilt(entry.where, entry.backend,
+             "a simulator camera is built by the workflow layer, not by capture/");
   }
   NotBuilt(entry.where, entry.backend, "no camera backend of this name");
 }
@@ -80,14 +85,17 @@ bool RunsSequenceItself(const ProjectorEntry& entry) {
 
 std::unique_ptr<SequenceProjector> OpenSequenceProjector(const ProjectorEntry& entry) {
   SLSHADOW_THROW_IF(!RunsSequenceItself(entry), entry.where, ": backend '", entry.backend,
-                    "' shows patterns one by one (only backend lightcrafter with mode: pattern-sequence runs them itself)");
+                    "' shows patterns one by one (only backend lightcrafter with mode: "
+                    "pattern-sequence runs them itself)");
   return OpenLightCrafterSequenceProjector(entry);
 }
 
 std::unique_ptr<Projector> OpenProjector(const ProjectorEntry& entry) {
   const std::chrono::microseconds latency(entry.latency_us);
-  SLSHADOW_THROW_IF(RunsSequenceItself(entry), entry.where, ".mode: pattern-sequence: the LightCrafter runs the ",
-                    "sequence itself and triggers the cameras; it is not shown pattern by pattern (use mode: video ",
+  SLSHADOW_THROW_IF(RunsSequenceItself(entry), entry.where,
+                    ".mode: pattern-sequence: the LightCrafter runs the ",
+                    "sequence itself and triggers the cameras; it is not shown pattern by pattern "
+                    "(use mode: video ",
                     "for this command)");
   // One case per projector backend.
   if (entry.backend == "none") return std::make_unique<NoneProjector>(latency);

@@ -32,8 +32,8 @@ std::vector<std::string> BuiltInProjectorBackends();
 // order), opened, with their settings and timeouts, and the projector. Owns the devices.
 struct OpenedDevices {
   std::vector<std::unique_ptr<Camera>> owned;
-  std::vector<CaptureCamera> cameras;  // point into `owned`
-  std::unique_ptr<Projector> projector;  // null when sequence_projector is set
+  std::vector<CaptureCamera> cameras;                     // point into `owned`
+  std::unique_ptr<Projector> projector;                   // null when sequence_projector is set
   std::unique_ptr<SequenceProjector> sequence_projector;  // RunsSequenceItself(entry)
   std::chrono::microseconds settle{0};
 };

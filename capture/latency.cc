@@ -12,13 +12,18 @@ using std::chrono::microseconds;
 using Clock = std::chrono::steady_clock;
 
 void LatencyOptions::Check() const {
-  SLSHADOW_THROW_IF(repetitions < 1, "latency: repetitions must be positive (got ", repetitions, ")");
-  SLSHADOW_THROW_IF(resolution.count() <= 0, "latency: resolution must be positive (got ", resolution.count(), " us)");
+  SLSHADOW_THROW_IF(repetitions < 1, "latency: repetitions must be positive (got ", repetitions,
+                    ")");
+  SLSHADOW_THROW_IF(resolution.count() <= 0, "latency: resolution must be positive (got ",
+                    resolution.count(), " us)");
   SLSHADOW_THROW_IF(max_latency < resolution, "latency: max_latency (", max_latency.count(),
                     " us) must be at least the resolution (", resolution.count(), " us)");
-  SLSHADOW_THROW_IF(grab_timeout.count() <= 0, "latency: grab_timeout must be positive (got ", grab_timeout.count(), " ms)");
-  SLSHADOW_THROW_IF(!(threshold > 0 && threshold < 1), "latency: threshold must be in (0, 1) (got ", threshold, ")");
-  SLSHADOW_THROW_IF(!(min_contrast_dn > 0), "latency: min_contrast_dn must be positive (got ", min_contrast_dn, ")");
+  SLSHADOW_THROW_IF(grab_timeout.count() <= 0, "latency: grab_timeout must be positive (got ",
+                    grab_timeout.count(), " ms)");
+  SLSHADOW_THROW_IF(!(threshold > 0 && threshold < 1), "latency: threshold must be in (0, 1) (got ",
+                    threshold, ")");
+  SLSHADOW_THROW_IF(!(min_contrast_dn > 0), "latency: min_contrast_dn must be positive (got ",
+                    min_contrast_dn, ")");
 }
 
 std::string LatencyMeasurement::BriefReport() const {
@@ -30,9 +35,11 @@ std::string LatencyMeasurement::BriefReport() const {
   }
   char line[256];
   std::snprintf(line, sizeof line,
-                "latency %.1f ms (%s; per repetition [%s] ms; black %.1f DN, white %.1f DN; %d frames, %d late trials "
+                "latency %.1f ms (%s; per repetition [%s] ms; black %.1f DN, white %.1f DN; %d "
+                "frames, %d late trials "
                 "repeated)",
-                latency.count() / 1000.0, mode.c_str(), per.c_str(), black_mean_dn, white_mean_dn, frames, late_trials);
+                latency.count() / 1000.0, mode.c_str(), per.c_str(), black_mean_dn, white_mean_dn,
+                frames, late_trials);
   return line;
 }
 
@@ -46,7 +53,8 @@ class Session {
   double GrabMean() {
     const Frame frame = camera_.Grab(options_.grab_timeout);
     ++frames_;
-    SLSHADOW_THROW_IF(!frame.ok(), "latency: camera '", camera_.Info().id, "': frame not received (", ToString(frame.status),
+    SLSHADOW_THROW_IF(!frame.ok(), "latency: camera '", camera_.Info().id,
+                      "': frame not received (", ToString(frame.status),
                       frame.message.empty() ? "" : ": " + frame.message, ")");
     return cv::mean(frame.image)[0];
   }
@@ -74,8 +82,9 @@ class Session {
     while (true) {
       const auto shown = projector_.Show(index);
       if (IsWhite(TriggeredMean(shown, wait)) == (index == 1)) return;
-      SLSHADOW_THROW_IF(Clock::now() > deadline, "latency: camera '", camera_.Info().id, "' did not see the projector turn ",
-                        index == 1 ? "white" : "black", " within ", (options_.max_latency * 4).count() / 1000, " ms");
+      SLSHADOW_THROW_IF(Clock::now() > deadline, "latency: camera '", camera_.Info().id,
+                        "' did not see the projector turn ", index == 1 ? "white" : "black",
+                        " within ", (options_.max_latency * 4).count() / 1000, " ms");
       wait = std::min(options_.max_latency, wait * 2 + options_.resolution);
     }
   }
@@ -83,8 +92,8 @@ class Session {
   LatencyMeasurement Run() {
     LatencyMeasurement m;
     const ProjectorInfo info = projector_.Info();
-    SLSHADOW_THROW_IF(info.width <= 0 || info.height <= 0, "latency: projector '", info.backend, ":", info.id,
-                      "' has no image size (a 'none' projector cannot be measured)");
+    SLSHADOW_THROW_IF(info.width <= 0 || info.height <= 0, "latency: projector '", info.backend,
+                      ":", info.id, "' has no image size (a 'none' projector cannot be measured)");
     projector_.Load({cv::Mat(info.height, info.width, CV_8UC1, cv::Scalar(0)),
                      cv::Mat(info.height, info.width, CV_8UC1, cv::Scalar(255))});
     const bool software = camera_.Settings().trigger == TriggerMode::kSoftware;
@@ -101,16 +110,18 @@ class Session {
       }
       m.black_mean_dn = black_;
       m.white_mean_dn = white_;
-      SLSHADOW_THROW_IF(white_ - black_ < options_.min_contrast_dn, "latency: camera '", camera_.Info().id,
-                        "' sees no change between projector black (mean ", black_, " DN) and white (mean ", white_,
-                        " DN); min_contrast_dn is ", options_.min_contrast_dn, ": is it looking at the projector?");
+      SLSHADOW_THROW_IF(white_ - black_ < options_.min_contrast_dn, "latency: camera '",
+                        camera_.Info().id, "' sees no change between projector black (mean ",
+                        black_, " DN) and white (mean ", white_, " DN); min_contrast_dn is ",
+                        options_.min_contrast_dn, ": is it looking at the projector?");
       for (int r = 0; r < options_.repetitions; ++r) {
         if (software) {
           microseconds lo(0), hi = options_.max_latency;
           Settle(0, hi);
           if (!IsWhite(TriggeredMean(projector_.Show(1), hi, 1))) {
-            SLSHADOW_THROW("latency: camera '", camera_.Info().id, "' did not see the projector turn white within ",
-                           hi.count() / 1000, " ms (max_latency)");
+            SLSHADOW_THROW("latency: camera '", camera_.Info().id,
+                           "' did not see the projector turn white within ", hi.count() / 1000,
+                           " ms (max_latency)");
           }
           // Invariant: a wait of hi showed white; lo is the largest wait that showed black, or 0.
           bool zero_tried = false;
@@ -136,15 +147,17 @@ class Session {
             const Frame frame = camera_.Grab(options_.grab_timeout);
             ++frames_;
             ++count;
-            SLSHADOW_THROW_IF(!frame.ok(), "latency: camera '", camera_.Info().id, "': frame not received (",
-                              ToString(frame.status), ")");
+            SLSHADOW_THROW_IF(!frame.ok(), "latency: camera '", camera_.Info().id,
+                              "': frame not received (", ToString(frame.status), ")");
             if (IsWhite(cv::mean(frame.image)[0])) {
-              m.per_repetition.push_back(std::chrono::duration_cast<microseconds>(Clock::now() - shown));
+              m.per_repetition.push_back(
+                  std::chrono::duration_cast<microseconds>(Clock::now() - shown));
               break;
             }
-            SLSHADOW_THROW_IF(Clock::now() - shown > options_.max_latency * 4, "latency: camera '", camera_.Info().id,
-                              "' did not see the projector turn white within ", (options_.max_latency * 4).count() / 1000,
-                              " ms (", count, " frames)");
+            SLSHADOW_THROW_IF(Clock::now() - shown > options_.max_latency * 4, "latency: camera '",
+                              camera_.Info().id, "' did not see the projector turn white within ",
+                              (options_.max_latency * 4).count() / 1000, " ms (", count,
+                              " frames)");
           }
           m.frames_until_change.push_back(count);
         }
@@ -174,7 +187,8 @@ class Session {
 
 }  // namespace
 
-LatencyMeasurement MeasureProjectorLatency(Camera& camera, Projector& projector, const LatencyOptions& options) {
+LatencyMeasurement MeasureProjectorLatency(Camera& camera, Projector& projector,
+                                           const LatencyOptions& options) {
   options.Check();
   Session session(camera, projector, options);
   LatencyMeasurement m = session.Run();

@@ -26,21 +26,23 @@ namespace slshadow::capture {
 
 struct LatencyOptions {
   int repetitions = 5;
-  std::chrono::microseconds resolution{1000};      // binary search step (software trigger)
-  std::chrono::microseconds max_latency{500000};   // upper end of the search; also the settle time of the references
-  std::chrono::milliseconds grab_timeout{2000};    // per frame
-  double threshold = 0.5;        // fraction of the way from the black to the white reference mean
-  double min_contrast_dn = 10;   // white mean - black mean must exceed this (the camera sees the projector)
-  void Check() const;            // throws slshadow::Error naming the field
+  std::chrono::microseconds resolution{1000};  // binary search step (software trigger)
+  std::chrono::microseconds max_latency{
+      500000};  // upper end of the search; also the settle time of the references
+  std::chrono::milliseconds grab_timeout{2000};  // per frame
+  double threshold = 0.5;  // fraction of the way from the black to the white reference mean
+  double min_contrast_dn =
+      10;              // white mean - black mean must exceed this (the camera sees the projector)
+  void Check() const;  // throws slshadow::Error naming the field
 };
 
 struct LatencyMeasurement {
-  std::string mode;                               // "software trigger" or "frame counting"
-  std::chrono::microseconds latency{0};           // what to SetLatency() / write into devices.yaml
+  std::string mode;                      // "software trigger" or "frame counting"
+  std::chrono::microseconds latency{0};  // what to SetLatency() / write into devices.yaml
   std::vector<std::chrono::microseconds> per_repetition;
-  std::vector<int> frames_until_change;           // frame counting: frames grabbed after Show until white
-  double black_mean_dn = 0, white_mean_dn = 0;    // references
-  int frames = 0;                                 // frames grabbed in all
+  std::vector<int> frames_until_change;  // frame counting: frames grabbed after Show until white
+  double black_mean_dn = 0, white_mean_dn = 0;  // references
+  int frames = 0;                               // frames grabbed in all
   int late_trials = 0;  // software trigger: trials repeated because the trigger left late
   std::string BriefReport() const;
 };
@@ -49,6 +51,7 @@ struct LatencyMeasurement {
 // Replaces the projector's loaded sequence with {black, white} and ends on black. Throws
 // slshadow::Error when a frame does not arrive (naming its status), when the camera sees no
 // contrast between black and white, or when no change is seen within max_latency.
-LatencyMeasurement MeasureProjectorLatency(Camera& camera, Projector& projector, const LatencyOptions& options = {});
+LatencyMeasurement MeasureProjectorLatency(Camera& camera, Projector& projector,
+                                           const LatencyOptions& options = {});
 
 }  // namespace slshadow::capture

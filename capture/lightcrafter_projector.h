@@ -3,14 +3,14 @@
 // the patterns are shown on its HDMI input by another projector (a window on that output), to
 // which Load / Show / ShowBlack / latency are delegated.
 //
-// The LightCrafter 4500 in pattern-sequence mode is a SequenceProjector (capture/sequence_projector.h):
-// the DLPC350 runs the pattern LUT on its own clock and TRIG_OUT1 pulses the cameras' trigger
-// lines once per pattern; capture/pattern_sequence_capture.h grabs and matches the frames. The
-// images come from the device's flash, which must hold the pattern sequence packed as
-// dlpc350::SequenceFor lays it out: pattern i in flash image i / (24 / bit depth), bit-plane
-// group i % (24 / bit depth) (TI's LightCrafter 4500 GUI builds a flash image from the images
-// `slshadow patterns generate SPEC --out DIR` writes). slshadow cannot read the flash back: the
-// capture's Gray-pair checks catch a flash that holds other patterns.
+// The LightCrafter 4500 in pattern-sequence mode is a SequenceProjector
+// (capture/sequence_projector.h): the DLPC350 runs the pattern LUT on its own clock and TRIG_OUT1
+// pulses the cameras' trigger lines once per pattern; capture/pattern_sequence_capture.h grabs and
+// matches the frames. The images come from the device's flash, which must hold the pattern sequence
+// packed as dlpc350::SequenceFor lays it out: pattern i in flash image i / (24 / bit depth),
+// bit-plane group i % (24 / bit depth) (TI's LightCrafter 4500 GUI builds a flash image from the
+// images `slshadow patterns generate SPEC --out DIR` writes). slshadow cannot read the flash back:
+// the capture's Gray-pair checks catch a flash that holds other patterns.
 #pragma once
 
 #include <memory>
@@ -26,7 +26,8 @@ class LightCrafterProjector : public Projector {
  public:
   // Takes the USB link and the HDMI output; throws slshadow::Error naming the device when it does
   // not take video mode.
-  LightCrafterProjector(std::unique_ptr<dlpc350::Transport> transport, std::unique_ptr<Projector> hdmi_output);
+  LightCrafterProjector(std::unique_ptr<dlpc350::Transport> transport,
+                        std::unique_ptr<Projector> hdmi_output);
 
   ProjectorInfo Info() const override;
   void Load(const std::vector<cv::Mat>& images) override { output_->Load(images); }
@@ -49,16 +50,18 @@ class LightCrafterProjector : public Projector {
 struct LightCrafterSequenceOptions {
   uint32_t frame_period_us = 16667;  // one pattern (and one trigger pulse) every this many us
   uint32_t exposure_us = 0;          // LED on time per pattern; 0: the whole frame period
-  int bit_depth = 0;                 // 1..8; 0: 1 when every image is binary (only 0 and 255), else 8
-  dlpc350::TrigOut trig_out1;        // the camera trigger: polarity and edge delays
-  void Check(const std::string& where) const;  // throws slshadow::Error naming `where` and the field
+  int bit_depth = 0;           // 1..8; 0: 1 when every image is binary (only 0 and 255), else 8
+  dlpc350::TrigOut trig_out1;  // the camera trigger: polarity and edge delays
+  void Check(
+      const std::string& where) const;  // throws slshadow::Error naming `where` and the field
 };
 
 class LightCrafterSequenceProjector : public SequenceProjector {
  public:
   // Takes the USB link; reads the firmware version and stops any running sequence. Throws
   // slshadow::Error naming the device.
-  LightCrafterSequenceProjector(std::unique_ptr<dlpc350::Transport> transport, LightCrafterSequenceOptions options);
+  LightCrafterSequenceProjector(std::unique_ptr<dlpc350::Transport> transport,
+                                LightCrafterSequenceOptions options);
 
   ProjectorInfo Info() const override;
   // Stop, TRIG_OUT1, then dlpc350::Client::Program of SequenceFor(images, bit depth, internal

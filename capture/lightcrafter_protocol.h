@@ -21,8 +21,8 @@
 
 namespace slshadow::capture::dlpc350 {
 
-inline constexpr size_t kReportSize = 64;    // HID report, both directions
-inline constexpr size_t kMaxMessage = 512;   // header + command + data, bytes
+inline constexpr size_t kReportSize = 64;   // HID report, both directions
+inline constexpr size_t kMaxMessage = 512;  // header + command + data, bytes
 using Report = std::array<uint8_t, kReportSize>;
 
 inline constexpr uint8_t kFlagRead = 0x80;
@@ -64,17 +64,27 @@ class Transport {
 };
 
 // Pure framing (exposed for tests and for emulators).
-std::vector<Report> EncodeRequest(uint8_t flags, uint8_t seq, uint16_t command, std::span<const uint8_t> data);
+std::vector<Report> EncodeRequest(uint8_t flags, uint8_t seq, uint16_t command,
+                                  std::span<const uint8_t> data);
 
 enum class DisplayMode : uint8_t { kVideo = 0, kPatternSequence = 1 };
 enum class PatternSource : uint8_t { kVideoPort = 0, kFlash = 3 };
 enum class PatternTriggerMode : uint8_t {
-  kVsync = 0, kInternalOrExternal = 1, kTrigIn1Pairs = 2, kVariableExposureIntExt = 3, kVariableExposureVsync = 4
+  kVsync = 0,
+  kInternalOrExternal = 1,
+  kTrigIn1Pairs = 2,
+  kVariableExposureIntExt = 3,
+  kVariableExposureVsync = 4
 };
 enum class SequenceControl : uint8_t { kStop = 0, kPause = 1, kStart = 2 };
 
 // Per-entry trigger of the pattern LUT.
-enum class EntryTrigger : uint8_t { kInternal = 0, kExternalRising = 1, kExternalFalling = 2, kContinue = 3 };
+enum class EntryTrigger : uint8_t {
+  kInternal = 0,
+  kExternalRising = 1,
+  kExternalFalling = 2,
+  kContinue = 3
+};
 
 // LED bits of a pattern LUT entry.
 inline constexpr uint8_t kLedRed = 1, kLedGreen = 2, kLedBlue = 4, kLedWhite = 7;
@@ -82,13 +92,13 @@ inline constexpr uint8_t kLedRed = 1, kLedGreen = 2, kLedBlue = 4, kLedWhite = 7
 // One pattern LUT entry: which bit plane(s) of the current image, with which LEDs and trigger.
 struct PatternEntry {
   EntryTrigger trigger = EntryTrigger::kInternal;
-  int pattern_number = 0;   // bit-plane group in the 24-bit image: 0 .. 24 / bit_depth - 1
-  int bit_depth = 1;        // 1..8
+  int pattern_number = 0;    // bit-plane group in the 24-bit image: 0 .. 24 / bit_depth - 1
+  int bit_depth = 1;         // 1..8
   uint8_t leds = kLedWhite;  // kLedRed | kLedGreen | kLedBlue; 0 = off (black)
   bool invert = false;
-  bool insert_black = false;      // black after the pattern (needed between 1-bit patterns at rates)
-  bool buffer_swap = false;       // move to the next image of the image LUT before this entry
-  bool trig_out_prev = false;     // share TRIG_OUT with the previous entry
+  bool insert_black = false;   // black after the pattern (needed between 1-bit patterns at rates)
+  bool buffer_swap = false;    // move to the next image of the image LUT before this entry
+  bool trig_out_prev = false;  // share TRIG_OUT with the previous entry
 };
 // The 24-bit LUT word; throws slshadow::Error naming `where` and the bad field.
 uint32_t EncodePatternEntry(const PatternEntry& entry, const std::string& where);
@@ -100,10 +110,10 @@ struct PatternSequence {
   PatternSource source = PatternSource::kVideoPort;
   PatternTriggerMode trigger_mode = PatternTriggerMode::kInternalOrExternal;
   bool repeat = true;
-  int patterns_per_trig_out2 = 1;     // TRIG_OUT2 pulses once every this many entries
+  int patterns_per_trig_out2 = 1;  // TRIG_OUT2 pulses once every this many entries
   uint32_t exposure_us = 16667;
-  uint32_t frame_period_us = 16667;   // == exposure, or >= exposure + 230
-  void Check() const;                 // throws slshadow::Error naming the field
+  uint32_t frame_period_us = 16667;  // == exposure, or >= exposure + 230
+  void Check() const;                // throws slshadow::Error naming the field
 };
 
 // The sequence that shows `patterns` patterns of `bit_depth` bits from flash images packed
@@ -138,10 +148,10 @@ struct Validation {
 Validation DecodeValidation(uint8_t status);
 
 struct ClientOptions {
-  std::chrono::milliseconds timeout{1000};          // per report, write and read
-  std::chrono::milliseconds validate_poll{10};      // between busy polls
-  std::chrono::milliseconds validate_timeout{5000}; // busy longer than this is an error
-  std::chrono::milliseconds drain_timeout{20};      // after a timeout: wait this long for late replies
+  std::chrono::milliseconds timeout{1000};           // per report, write and read
+  std::chrono::milliseconds validate_poll{10};       // between busy polls
+  std::chrono::milliseconds validate_timeout{5000};  // busy longer than this is an error
+  std::chrono::milliseconds drain_timeout{20};  // after a timeout: wait this long for late replies
 };
 
 // The DLPC350 command set over a Transport. Not thread-safe.
@@ -161,7 +171,8 @@ class Client {
   void SetExposure(uint32_t exposure_us, uint32_t frame_period_us);
   void SetPatternConfig(int lut_entries, bool repeat, int patterns_per_trig_out2, int images);
   void WritePatternLut(const std::vector<PatternEntry>& entries);
-  void WriteImageLut(const std::vector<uint8_t>& images);  // swaps the first two entries on the wire
+  void WriteImageLut(
+      const std::vector<uint8_t>& images);  // swaps the first two entries on the wire
   void SetTrigOut1(const TrigOut& trig);
   void SetTrigOut2(const TrigOut& trig);
   // Writes validate, polls until not busy; returns every bit as a message.
@@ -177,7 +188,8 @@ class Client {
 
  private:
   std::vector<uint8_t> Transact(uint8_t flags, uint16_t command, std::span<const uint8_t> data);
-  [[noreturn]] void Fail(uint16_t command, std::span<const uint8_t> data, const std::string& why) const;
+  [[noreturn]] void Fail(uint16_t command, std::span<const uint8_t> data,
+                         const std::string& why) const;
 
   Transport& transport_;
   ClientOptions options_;

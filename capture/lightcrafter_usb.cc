@@ -11,7 +11,9 @@ constexpr unsigned char kEndpointOut = 0x01;
 constexpr unsigned char kEndpointIn = 0x81;
 constexpr int kInterface = 0;
 
-std::string UsbError(int code) { return std::string(libusb_error_name(code)) + " (" + libusb_strerror(code) + ")"; }
+std::string UsbError(int code) {
+  return std::string(libusb_error_name(code)) + " (" + libusb_strerror(code) + ")";
+}
 
 struct Context {
   libusb_context* ctx = nullptr;
@@ -25,7 +27,8 @@ struct Context {
 };
 
 std::string BusAddress(libusb_device* dev) {
-  return std::to_string(libusb_get_bus_number(dev)) + ":" + std::to_string(libusb_get_device_address(dev));
+  return std::to_string(libusb_get_bus_number(dev)) + ":" +
+         std::to_string(libusb_get_device_address(dev));
 }
 
 // Calls f(device, "bus:address") for every 0451:6401.
@@ -33,11 +36,13 @@ template <typename F>
 void ForEachLightCrafter(libusb_context* ctx, F f) {
   libusb_device** list = nullptr;
   const ssize_t n = libusb_get_device_list(ctx, &list);
-  SLSHADOW_THROW_IF(n < 0, "LightCrafter over USB: cannot list USB devices: ", UsbError(static_cast<int>(n)));
+  SLSHADOW_THROW_IF(
+      n < 0, "LightCrafter over USB: cannot list USB devices: ", UsbError(static_cast<int>(n)));
   for (ssize_t i = 0; i < n; ++i) {
     libusb_device_descriptor d{};
     if (libusb_get_device_descriptor(list[i], &d) != 0) continue;
-    if (d.idVendor == kLightCrafterVendor && d.idProduct == kLightCrafterProduct) f(list[i], BusAddress(list[i]));
+    if (d.idVendor == kLightCrafterVendor && d.idProduct == kLightCrafterProduct)
+      f(list[i], BusAddress(list[i]));
   }
   libusb_free_device_list(list, 1);
 }
@@ -61,19 +66,22 @@ class UsbTransport : public dlpc350::Transport {
       SLSHADOW_THROW("LightCrafter over USB: ", found.size(), " LightCrafters found (", all,
                      "): name one with its BUS:ADDRESS");
     }
-    SLSHADOW_THROW_IF(chosen == nullptr, "LightCrafter over USB: no LightCrafter 4500 (USB 0451:6401)",
-                      bus_address.empty() ? std::string() : " at " + bus_address, " (found: ",
-                      all.empty() ? "none" : all, ")");
+    SLSHADOW_THROW_IF(chosen == nullptr,
+                      "LightCrafter over USB: no LightCrafter 4500 (USB 0451:6401)",
+                      bus_address.empty() ? std::string() : " at " + bus_address,
+                      " (found: ", all.empty() ? "none" : all, ")");
     describe_ = "LightCrafter 4500 on USB " + BusAddress(chosen);
     const int rc = libusb_open(chosen, &handle_);
     libusb_unref_device(chosen);
-    SLSHADOW_THROW_IF(rc != 0, describe_, ": cannot open: ", UsbError(rc),
-                      rc == LIBUSB_ERROR_ACCESS ? " (a udev rule granting access to 0451:6401 is needed)" : "");
+    SLSHADOW_THROW_IF(
+        rc != 0, describe_, ": cannot open: ", UsbError(rc),
+        rc == LIBUSB_ERROR_ACCESS ? " (a udev rule granting access to 0451:6401 is needed)" : "");
     libusb_set_auto_detach_kernel_driver(handle_, 1);  // not supported everywhere; claim tells
     const int claim = libusb_claim_interface(handle_, kInterface);
     if (claim != 0) {
       libusb_close(handle_);
-      SLSHADOW_THROW(describe_, ": cannot claim HID interface 0: ", UsbError(claim), " (another program holds it?)");
+      SLSHADOW_THROW(describe_, ": cannot claim HID interface 0: ", UsbError(claim),
+                     " (another program holds it?)");
     }
   }
   ~UsbTransport() override {
@@ -92,15 +100,18 @@ class UsbTransport : public dlpc350::Transport {
   std::string Describe() const override { return describe_; }
 
  private:
-  bool Transfer(unsigned char endpoint, unsigned char* data, std::chrono::milliseconds timeout, const char* what) {
+  bool Transfer(unsigned char endpoint, unsigned char* data, std::chrono::milliseconds timeout,
+                const char* what) {
     int done = 0;
-    const int rc = libusb_interrupt_transfer(handle_, endpoint, data, static_cast<int>(dlpc350::kReportSize), &done,
-                                             static_cast<unsigned>(std::max<int64_t>(1, timeout.count())));
+    const int rc = libusb_interrupt_transfer(
+        handle_, endpoint, data, static_cast<int>(dlpc350::kReportSize), &done,
+        static_cast<unsigned>(std::max<int64_t>(1, timeout.count())));
     if (rc == LIBUSB_ERROR_TIMEOUT) return false;
-    SLSHADOW_THROW_IF(rc == LIBUSB_ERROR_NO_DEVICE, describe_, ": the device was unplugged (", what, " failed)");
+    SLSHADOW_THROW_IF(rc == LIBUSB_ERROR_NO_DEVICE, describe_, ": the device was unplugged (", what,
+                      " failed)");
     SLSHADOW_THROW_IF(rc != 0, describe_, ": interrupt ", what, " failed: ", UsbError(rc));
-    SLSHADOW_THROW_IF(static_cast<size_t>(done) != dlpc350::kReportSize, describe_, ": interrupt ", what, " moved ",
-                      done, " bytes, expected ", dlpc350::kReportSize);
+    SLSHADOW_THROW_IF(static_cast<size_t>(done) != dlpc350::kReportSize, describe_, ": interrupt ",
+                      what, " moved ", done, " bytes, expected ", dlpc350::kReportSize);
     return true;
   }
 
@@ -114,7 +125,8 @@ class UsbTransport : public dlpc350::Transport {
 std::vector<std::string> ListLightCrafters() {
   Context context;
   std::vector<std::string> out;
-  ForEachLightCrafter(context.ctx, [&](libusb_device*, const std::string& where) { out.push_back(where); });
+  ForEachLightCrafter(context.ctx,
+                      [&](libusb_device*, const std::string& where) { out.push_back(where); });
   return out;
 }
 

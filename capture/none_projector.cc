@@ -2,6 +2,8 @@
 
 namespace slshadow::capture {
 
-std::chrono::steady_clock::time_point NoneProjector::Show(int /*index*/) { return std::chrono::steady_clock::now(); }
+std::chrono::steady_clock::time_point NoneProjector::Show(int /*index*/) {
+  return std::chrono::steady_clock::now();
+}
 
 }  // namespace slshadow::capture

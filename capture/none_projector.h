@@ -9,11 +9,16 @@ namespace slshadow::capture {
 
 class NoneProjector : public Projector {
  public:
-  explicit NoneProjector(std::chrono::microseconds latency = std::chrono::microseconds(0)) : latency_(latency) {}
+  explicit NoneProjector(std::chrono::microseconds latency = std::chrono::microseconds(0))
+      : latency_(latency) {}
   ProjectorInfo Info() const override { return {"none", "", 0, 0, 0}; }
-  void Load(const std::vector<cv::Mat>& images) override { size_ = static_cast<int>(images.size()); }
+  void Load(const std::vector<cv::Mat>& images) override {
+    size_ = static_cast<int>(images.size());
+  }
   std::chrono::steady_clock::time_point Show(int index) override;
-  std::chrono::steady_clock::time_point ShowBlack() override { return std::chrono::steady_clock::now(); }
+  std::chrono::steady_clock::time_point ShowBlack() override {
+    return std::chrono::steady_clock::now();
+  }
   std::chrono::microseconds Latency() const override { return latency_; }
   void SetLatency(std::chrono::microseconds latency) override { latency_ = latency; }
   int size() const override { return size_; }

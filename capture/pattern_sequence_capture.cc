@@ -51,18 +51,27 @@ std::string Ms(double seconds) {
 
 class PatternSequenceCapture {
  public:
-  PatternSequenceCapture(const Rig& rig, const PatternSpec& spec, const std::vector<CaptureCamera>& cameras,
-                         SequenceProjector& projector, const fs::path& out, const SequencerOptions& options)
-      : rig_(rig), spec_(spec), projector_(projector), out_(out), options_(options), cameras_(cameras) {
+  PatternSequenceCapture(const Rig& rig, const PatternSpec& spec,
+                         const std::vector<CaptureCamera>& cameras, SequenceProjector& projector,
+                         const fs::path& out, const SequencerOptions& options)
+      : rig_(rig),
+        spec_(spec),
+        projector_(projector),
+        out_(out),
+        options_(options),
+        cameras_(cameras) {
     options_.Check();
     spec_.Check();
-    SLSHADOW_THROW_IF(options_.auto_exposure, "capture: auto exposure is not available when the projector runs the ",
+    SLSHADOW_THROW_IF(options_.auto_exposure,
+                      "capture: auto exposure is not available when the projector runs the ",
                       "pattern sequence itself; set exposure_us per camera");
     CheckCaptureCameras(rig, cameras);
     for (const auto& c : cameras) {
-      SLSHADOW_THROW_IF(c.settings.trigger != TriggerMode::kHardware, "capture: camera '", c.name, "': trigger is ",
-                        ToString(c.settings.trigger), "; with a projector that runs the sequence itself every camera ",
-                        "takes trigger: hardware on the line wired to the projector's trigger output");
+      SLSHADOW_THROW_IF(
+          c.settings.trigger != TriggerMode::kHardware, "capture: camera '", c.name,
+          "': trigger is ", ToString(c.settings.trigger),
+          "; with a projector that runs the sequence itself every camera ",
+          "takes trigger: hardware on the line wired to the projector's trigger output");
       SequenceCamera s;
       s.cam = &c;
       s.full_scale = FullScale(c.settings.pixel_format);
@@ -109,8 +118,11 @@ class PatternSequenceCapture {
     // lost (a fault at pattern 0); give them the settle time, at least kArmTime.
     std::this_thread::sleep_for(std::max<std::chrono::microseconds>(options_.settle, kArmTime));
     const ProjectorInfo pinfo = projector_.Info();
-    nlohmann::json start_note = {{"started", UtcTimestamp()},  {"resumed", writer.resumed()}, {"validate", validate_},
-                                 {"projector", pinfo.backend}, {"projector_id", pinfo.id},
+    nlohmann::json start_note = {{"started", UtcTimestamp()},
+                                 {"resumed", writer.resumed()},
+                                 {"validate", validate_},
+                                 {"projector", pinfo.backend},
+                                 {"projector_id", pinfo.id},
                                  {"mode", "pattern-sequence"},
                                  {"frame_period_us", projector_.FramePeriod().count()}};
     for (const auto& s : cams_) {
@@ -133,7 +145,8 @@ class PatternSequenceCapture {
         }
         if (attempt > 0) ++summary_.retries;
         SequenceRun run = RunOnce();
-        const std::string invalid = Validate(run);  // earlier than run.fault: it judges matched frames only
+        const std::string invalid =
+            Validate(run);  // earlier than run.fault: it judges matched frames only
         const std::string fault = invalid.empty() ? run.fault : invalid;
         matched += static_cast<int>(run.frames.size());
         run_seconds += run.seconds;
@@ -147,8 +160,10 @@ class PatternSequenceCapture {
         if (fault.empty()) continue;
         (first_fault.empty() ? first_fault : last_fault) = fault;
         if (attempt >= options_.max_retries) {
-          failure = "pattern-sequence capture failed after " + std::to_string(attempt + 1) + " run(s): " + first_fault +
-                    (last_fault.empty() || last_fault == first_fault ? "" : "; last run: " + last_fault);
+          failure =
+              "pattern-sequence capture failed after " + std::to_string(attempt + 1) +
+              " run(s): " + first_fault +
+              (last_fault.empty() || last_fault == first_fault ? "" : "; last run: " + last_fault);
           break;
         }
       }
@@ -228,12 +243,14 @@ class PatternSequenceCapture {
           break;
         }
         SequenceCamera& s = cams_[c];
-        const auto timeout = s.cam->grab_timeout + std::chrono::ceil<std::chrono::milliseconds>(period);
+        const auto timeout =
+            s.cam->grab_timeout + std::chrono::ceil<std::chrono::milliseconds>(period);
         Frame f = s.cam->camera->Grab(timeout);
         if (f.status == FrameStatus::kTimeout || f.status == FrameStatus::kAborted) {
           s.stats.timeouts += f.status == FrameStatus::kTimeout;
           ended[c] = ": no frame within " + std::to_string(timeout.count()) + " ms" +
-                     (f.message.empty() ? "" : " (" + f.message + ")") + ": its trigger never came" + ProjectorState();
+                     (f.message.empty() ? "" : " (" + f.message + ")") +
+                     ": its trigger never came" + ProjectorState();
           continue;
         }
         ++s.stats.frames_grabbed;
@@ -261,7 +278,8 @@ class PatternSequenceCapture {
       stop_error = std::string("stopping the sequence: ") + e.what();
     }
     // Frames of triggers after a fault (or spurious ones after the last pattern) are dropped.
-    const auto drain = std::chrono::ceil<std::chrono::milliseconds>(period) + std::chrono::milliseconds(50);
+    const auto drain =
+        std::chrono::ceil<std::chrono::milliseconds>(period) + std::chrono::milliseconds(50);
     for (auto& s : cams_) {
       // Bounded, and a lost camera (kAborted at once, every time) ends it too.
       for (int i = 0; i < n; ++i) {
@@ -272,16 +290,20 @@ class PatternSequenceCapture {
     }
     int prefix = n;
     for (size_t c = 0; c < cams_.size(); ++c) {
-      const auto [first_bad, why] = MatchFrames(got[c], lost_ids[c], started, ended[c], run.stopped);
+      const auto [first_bad, why] =
+          MatchFrames(got[c], lost_ids[c], started, ended[c], run.stopped);
       if (!why.empty()) ++cams_[c].stats.missed_triggers;
       if (first_bad >= prefix) continue;
       prefix = first_bad;
-      run.fault = why.empty() ? "" : model_->Name(first_bad) + ", camera '" + cams_[c].cam->name + "'" + why;
+      run.fault = why.empty()
+                      ? ""
+                      : model_->Name(first_bad) + ", camera '" + cams_[c].cam->name + "'" + why;
     }
     if (run.fault.empty() && !stop_error.empty() && !run.stopped) run.fault = stop_error;
     for (int k = 0; k < prefix; ++k) {
       std::vector<Frame> round;
-      for (size_t c = 0; c < cams_.size(); ++c) round.push_back(std::move(got[c][static_cast<size_t>(k)]));
+      for (size_t c = 0; c < cams_.size(); ++c)
+        round.push_back(std::move(got[c][static_cast<size_t>(k)]));
       run.frames.push_back(std::move(round));
     }
     return run;
@@ -291,8 +313,10 @@ class PatternSequenceCapture {
   // period apart, the first one anchored at pattern 0 by its arrival within a period after Start
   // (pattern 1's trigger comes no earlier) or by the count (frames spanning every pattern).
   // Returns the first pattern without a frame of its own and why ("" when stopped), or n.
-  std::pair<int, std::string> MatchFrames(const std::vector<Frame>& f, const std::vector<int64_t>& lost_ids,
-                                          SysClock::time_point started, const std::string& ended, bool stopped) const {
+  std::pair<int, std::string> MatchFrames(const std::vector<Frame>& f,
+                                          const std::vector<int64_t>& lost_ids,
+                                          SysClock::time_point started, const std::string& ended,
+                                          bool stopped) const {
     const int n = spec_.NumImages();
     const double period_s = std::chrono::duration<double>(projector_.FramePeriod()).count();
     const std::string end = stopped ? "" : ended.empty() ? ": no frame (the run ended)" : ended;
@@ -311,9 +335,11 @@ class PatternSequenceCapture {
         continue;
       }
       const Frame& r = f[static_cast<size_t>(last_good)];
-      const double dt = f[j].device_timestamp_ns != 0 && r.device_timestamp_ns != 0
-                            ? 1e-9 * (static_cast<double>(f[j].device_timestamp_ns) - static_cast<double>(r.device_timestamp_ns))
-                            : std::chrono::duration<double>(f[j].host_timestamp - r.host_timestamp).count();
+      const double dt =
+          f[j].device_timestamp_ns != 0 && r.device_timestamp_ns != 0
+              ? 1e-9 * (static_cast<double>(f[j].device_timestamp_ns) -
+                        static_cast<double>(r.device_timestamp_ns))
+              : std::chrono::duration<double>(f[j].host_timestamp - r.host_timestamp).count();
       const int64_t at = slot[static_cast<size_t>(last_good)] + std::llround(dt / period_s);
       if (at <= slot.back()) {  // a spurious frame: the slots end before it
         spurious_s = dt;
@@ -326,25 +352,30 @@ class PatternSequenceCapture {
     const double first_s = std::chrono::duration<double>(f[0].host_timestamp - started).count();
     const bool anchored = first_s < period_s || (slot.back() == n - 1 && slot.size() == f.size());
     if (!anchored || slot.back() > n - 1) {
-      return {0, ": cannot tell which pattern its first frame shows: it came " + Ms(first_s) + " after Start (more than " +
-                     "the frame period " + Ms(period_s) + ") and the frames span " + std::to_string(slot.back() + 1) +
-                     " of " + std::to_string(n) + " patterns: a frame is missing at the start or at the end" +
+      return {0, ": cannot tell which pattern its first frame shows: it came " + Ms(first_s) +
+                     " after Start (more than " + "the frame period " + Ms(period_s) +
+                     ") and the frames span " + std::to_string(slot.back() + 1) + " of " +
+                     std::to_string(n) +
+                     " patterns: a frame is missing at the start or at the end" +
                      (ended.empty() ? "" : "; the last one" + ended)};
     }
     for (size_t j = 0; j < slot.size(); ++j) {
       const int k = static_cast<int>(j);
       if (slot[j] == static_cast<int64_t>(j) && !f[j].ok()) {
-        return {k, ": frame " + ToString(f[j].status) + (f[j].message.empty() ? "" : " (" + f[j].message + ")")};
+        return {k, ": frame " + ToString(f[j].status) +
+                       (f[j].message.empty() ? "" : " (" + f[j].message + ")")};
       }
       if (slot[j] == static_cast<int64_t>(j)) continue;
-      return {k, ": no frame: the next one came " + Ms(gap_s[j]) + " after " + model_->Name(k - 1) + "'s (frame period " +
-                     Ms(period_s) + "): " +
-                     (lost_ids[j] > 0 ? "the frame of this pattern was lost in transport (frame-id gap)"
-                                      : "the camera missed this pattern's trigger")};
+      return {
+          k, ": no frame: the next one came " + Ms(gap_s[j]) + " after " + model_->Name(k - 1) +
+                 "'s (frame period " + Ms(period_s) + "): " +
+                 (lost_ids[j] > 0 ? "the frame of this pattern was lost in transport (frame-id gap)"
+                                  : "the camera missed this pattern's trigger")};
     }
     const int k = static_cast<int>(slot.size());
     if (slot.size() < f.size()) {
-      return {k, ": a frame only " + Ms(spurious_s) + " after " + model_->Name(k - 1) + "'s (frame period " + Ms(period_s) +
+      return {k, ": a frame only " + Ms(spurious_s) + " after " + model_->Name(k - 1) +
+                     "'s (frame period " + Ms(period_s) +
                      "): a spurious trigger or a late frame, this pattern's frame cannot be told"};
     }
     return {k, k == n ? "" : end};
@@ -353,7 +384,8 @@ class PatternSequenceCapture {
   // The frame of pattern k of camera c: from this run, an earlier run, or the staging folder;
   // nullptr when there is none yet.
   const cv::Mat* FrameOf(const SequenceRun& run, size_t c, int k, cv::Mat* holder) const {
-    if (k < static_cast<int>(run.frames.size())) return &run.frames[static_cast<size_t>(k)][c].image;
+    if (k < static_cast<int>(run.frames.size()))
+      return &run.frames[static_cast<size_t>(k)][c].image;
     const auto kept = cams_[c].reference_images.find(k);
     if (kept != cams_[c].reference_images.end()) return &kept->second;
     if (!writer_->Has(cams_[c].cam->name, k)) return nullptr;
@@ -402,8 +434,11 @@ class PatternSequenceCapture {
           const double lit = LitShare(wb, lit_threshold, s.stride);
           if (lit < options_.validation.min_lit_share) {
             char buf[200];
-            std::snprintf(buf, sizeof buf, ": white and black frames do not differ (%.2f %% of the image lit)", 100 * lit);
-            why = model_->Name(g.first) + " and " + model_->Name(g.first + 1) + ", camera '" + s.cam->name + "'" + buf;
+            std::snprintf(buf, sizeof buf,
+                          ": white and black frames do not differ (%.2f %% of the image lit)",
+                          100 * lit);
+            why = model_->Name(g.first) + " and " + model_->Name(g.first + 1) + ", camera '" +
+                  s.cam->name + "'" + buf;
           }
           if (g.opening) pair_at = g.first + 2;
         } else if (role == FrameRole::kGrayBit) {
@@ -412,19 +447,22 @@ class PatternSequenceCapture {
         if (why.empty() && pair_at >= 0 && refs.ready()) {
           int samples = 0;
           const double q = ComplementaryShare(run.frames[static_cast<size_t>(pair_at)][c].image,
-                                              run.frames[static_cast<size_t>(pair_at + 1)][c].image, refs, lit_threshold,
-                                              s.stride, &samples);
+                                              run.frames[static_cast<size_t>(pair_at + 1)][c].image,
+                                              refs, lit_threshold, s.stride, &samples);
           if (samples >= options_.validation.min_samples) {
             ++s.stats.pair_checks;
             s.stats.min_complementary_share = std::min(s.stats.min_complementary_share, q);
             if (q < options_.validation.min_complementary) {
               char buf[320];
               std::snprintf(buf, sizeof buf,
-                            ": not complementary: %.1f %% of %d decisive pixels on opposite sides, at least %.1f %% "
-                            "expected: the frames do not show the programmed patterns (the device's images differ "
+                            ": not complementary: %.1f %% of %d decisive pixels on opposite sides, "
+                            "at least %.1f %% "
+                            "expected: the frames do not show the programmed patterns (the "
+                            "device's images differ "
                             "from the pattern spec, or the frames were taken of other patterns)",
                             100 * q, samples, 100 * options_.validation.min_complementary);
-              why = model_->Name(pair_at) + " and " + model_->Name(pair_at + 1) + ", camera '" + s.cam->name + "'" + buf;
+              why = model_->Name(pair_at) + " and " + model_->Name(pair_at + 1) + ", camera '" +
+                    s.cam->name + "'" + buf;
             }
           }
         }
@@ -446,10 +484,12 @@ class PatternSequenceCapture {
         if (s.queued[k]) continue;
         const Frame& f = run.frames[k][c];
         const auto& refs = model_->reference_frames;
-        if (std::find(refs.begin(), refs.end(), static_cast<int>(k)) != refs.end()) s.reference_images[static_cast<int>(k)] = f.image;
+        if (std::find(refs.begin(), refs.end(), static_cast<int>(k)) != refs.end())
+          s.reference_images[static_cast<int>(k)] = f.image;
         s.queued[k] = 1;
         ++s.stats.frames_stored;
-        store.Push(RecordOf(*s.cam, s.info, s.cam->settings, static_cast<int>(k), f, attempt), f.image);
+        store.Push(RecordOf(*s.cam, s.info, s.cam->settings, static_cast<int>(k), f, attempt),
+                   f.image);
       }
     }
   }
@@ -470,8 +510,10 @@ class PatternSequenceCapture {
 
 }  // namespace
 
-CaptureSummary CapturePatternSequence(const Rig& rig, const PatternSpec& spec, const std::vector<CaptureCamera>& cameras,
-                                      SequenceProjector& projector, const fs::path& out, const SequencerOptions& options) {
+CaptureSummary CapturePatternSequence(const Rig& rig, const PatternSpec& spec,
+                                      const std::vector<CaptureCamera>& cameras,
+                                      SequenceProjector& projector, const fs::path& out,
+                                      const SequencerOptions& options) {
   PatternSequenceCapture capture(rig, spec, cameras, projector, out, options);
   return capture.Run();
 }

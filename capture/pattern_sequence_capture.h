@@ -50,8 +50,10 @@ namespace slshadow::capture {
 // max_latency and sleep_until do not; auto_exposure must be off. The summary's mean_pattern_ms
 // is the runs' time (Start to the last frame grabbed) over the patterns they matched;
 // CameraCaptureStats::missed_triggers counts the faults of each camera. Throws like Capture.
-CaptureSummary CapturePatternSequence(const Rig& rig, const PatternSpec& spec, const std::vector<CaptureCamera>& cameras,
-                                      SequenceProjector& projector, const std::filesystem::path& out,
+CaptureSummary CapturePatternSequence(const Rig& rig, const PatternSpec& spec,
+                                      const std::vector<CaptureCamera>& cameras,
+                                      SequenceProjector& projector,
+                                      const std::filesystem::path& out,
                                       const SequencerOptions& options);
 
 }  // namespace slshadow::capture

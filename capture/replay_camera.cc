@@ -11,15 +11,17 @@ ReplayCamera::ReplayCamera(const std::filesystem::path& imageset, ReplayCameraOp
   const auto names = set_.CameraNames();
   SLSHADOW_THROW_IF(names.empty(), imageset.string(), ": replay: the ImageSet has no images");
   if (options_.camera.empty()) options_.camera = names.front();
-  SLSHADOW_THROW_IF(std::find(names.begin(), names.end(), options_.camera) == names.end(), imageset.string(),
-                    ": replay: no images of camera '", options_.camera, "'");
-  SLSHADOW_THROW_IF(options_.first_frame_id < 1 || options_.first_frame_id > 65535, imageset.string(),
-                    ": replay: first_frame_id must be in [1, 65535] (got ", options_.first_frame_id, ")");
+  SLSHADOW_THROW_IF(std::find(names.begin(), names.end(), options_.camera) == names.end(),
+                    imageset.string(), ": replay: no images of camera '", options_.camera, "'");
+  SLSHADOW_THROW_IF(options_.first_frame_id < 1 || options_.first_frame_id > 65535,
+                    imageset.string(), ": replay: first_frame_id must be in [1, 65535] (got ",
+                    options_.first_frame_id, ")");
   if (options_.serial.empty()) options_.serial = "replay-" + options_.camera;
   count_ = set_.PatternCount();
   for (int i = 0; i < count_; ++i) {
     const ImageRecord* r = set_.Find(options_.camera, i);
-    SLSHADOW_THROW_IF(r == nullptr, imageset.string(), ": replay: camera '", options_.camera, "' has no image of pattern ", i);
+    SLSHADOW_THROW_IF(r == nullptr, imageset.string(), ": replay: camera '", options_.camera,
+                      "' has no image of pattern ", i);
     bit_depth_ = r->bit_depth;
   }
   settings_.pixel_format = bit_depth_ == 8 ? PixelFormat::kMono8 : PixelFormat::kMono16;
@@ -36,22 +38,24 @@ CameraInfo ReplayCamera::Info() const {
   const RigDevice& cam = set_.rig().Camera(options_.camera);
   info.sensor_width = cam.model.width;
   info.sensor_height = cam.model.height;
-  info.pixel_formats = bit_depth_ == 8 ? std::vector<PixelFormat>{PixelFormat::kMono8}
-                                       : std::vector<PixelFormat>{PixelFormat::kMono12, PixelFormat::kMono16};
+  info.pixel_formats = bit_depth_ == 8
+                           ? std::vector<PixelFormat>{PixelFormat::kMono8}
+                           : std::vector<PixelFormat>{PixelFormat::kMono12, PixelFormat::kMono16};
   return info;
 }
 
 void ReplayCamera::Configure(const CameraSettings& settings) {
   const std::string what = "replay camera " + Info().id;
   settings.Check(what);
-  SLSHADOW_THROW_IF(BitDepthOf(settings.pixel_format) != bit_depth_, what, ": pixel_format: the recording is ",
-                    bit_depth_, "-bit, ", ToString(settings.pixel_format), " cannot be served");
+  SLSHADOW_THROW_IF(BitDepthOf(settings.pixel_format) != bit_depth_, what,
+                    ": pixel_format: the recording is ", bit_depth_, "-bit, ",
+                    ToString(settings.pixel_format), " cannot be served");
   const RigDevice& cam = set_.rig().Camera(options_.camera);
   SLSHADOW_THROW_IF(!settings.roi.Full() && (settings.roi.x != 0 || settings.roi.y != 0 ||
                                              settings.roi.width != cam.model.width ||
                                              settings.roi.height != cam.model.height),
-                    what, ": roi: a replay serves the full recorded image (", cam.model.width, "x", cam.model.height,
-                    ")");
+                    what, ": roi: a replay serves the full recorded image (", cam.model.width, "x",
+                    cam.model.height, ")");
   settings_ = settings;
 }
 
@@ -87,8 +91,8 @@ Frame ReplayCamera::Grab(std::chrono::milliseconds /*timeout*/) {
   }
   if (pattern < 0 || pattern >= count_) {
     frame.status = FrameStatus::kTimeout;
-    frame.message = "replay exhausted: the recording has patterns 0.." + std::to_string(count_ - 1) +
-                    ", asked for " + std::to_string(pattern);
+    frame.message = "replay exhausted: the recording has patterns 0.." +
+                    std::to_string(count_ - 1) + ", asked for " + std::to_string(pattern);
     ++statistics_.timeouts;
     return frame;
   }

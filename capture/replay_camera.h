@@ -20,9 +20,9 @@
 namespace slshadow::capture {
 
 struct ReplayCameraOptions {
-  std::string camera;          // camera of the ImageSet to play (empty: its first camera)
-  int first_frame_id = 1;      // 1..65535
-  std::string serial;          // reported serial (empty: "replay-<camera>")
+  std::string camera;      // camera of the ImageSet to play (empty: its first camera)
+  int first_frame_id = 1;  // 1..65535
+  std::string serial;      // reported serial (empty: "replay-<camera>")
 };
 
 class ReplayCamera : public Camera {

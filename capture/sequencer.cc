@@ -26,7 +26,7 @@ struct CameraState {
   CameraSettings settings;
   double full_scale = 255;
   int expected_depth = CV_8U;
-  cv::Mat prev;            // accepted frame of pattern prev_index
+  cv::Mat prev;  // accepted frame of pattern prev_index
   int prev_index = -1;
   References refs;
   std::map<int, cv::Mat> reference_images;  // accepted frames of the reference patterns
@@ -43,9 +43,14 @@ struct Verdict {
 
 class Sequencer {
  public:
-  Sequencer(const Rig& rig, const PatternSpec& spec, const std::vector<CaptureCamera>& cameras, Projector& projector,
-            const fs::path& out, const SequencerOptions& options)
-      : rig_(rig), spec_(spec), projector_(projector), out_(out), options_(options), cameras_(cameras) {
+  Sequencer(const Rig& rig, const PatternSpec& spec, const std::vector<CaptureCamera>& cameras,
+            Projector& projector, const fs::path& out, const SequencerOptions& options)
+      : rig_(rig),
+        spec_(spec),
+        projector_(projector),
+        out_(out),
+        options_(options),
+        cameras_(cameras) {
     options_.Check();
     spec_.Check();
     CheckCaptureCameras(rig, cameras);
@@ -84,8 +89,10 @@ class Sequencer {
     }
     // The projector gets the sequence plus a white and a black frame for the exposure assistant.
     std::vector<cv::Mat> loaded = images_;
-    loaded.push_back(cv::Mat(spec_.projector_height, spec_.projector_width, CV_8UC1, cv::Scalar(spec_.intensity_max)));
-    loaded.push_back(cv::Mat(spec_.projector_height, spec_.projector_width, CV_8UC1, cv::Scalar(spec_.intensity_min)));
+    loaded.push_back(cv::Mat(spec_.projector_height, spec_.projector_width, CV_8UC1,
+                             cv::Scalar(spec_.intensity_max)));
+    loaded.push_back(cv::Mat(spec_.projector_height, spec_.projector_width, CV_8UC1,
+                             cv::Scalar(spec_.intensity_min)));
     projector_.Load(loaded);
     for (auto& s : states_) {
       s.cam->camera->Configure(s.settings);
@@ -99,13 +106,17 @@ class Sequencer {
       s.stats.exposure_us = s.settings.exposure_us.value_or(0);
       s.info = s.cam->camera->Info();
     }
-    nlohmann::json start_note = {{"started", UtcTimestamp()}, {"resumed", writer.resumed()}, {"validate", validate_},
+    nlohmann::json start_note = {{"started", UtcTimestamp()},
+                                 {"resumed", writer.resumed()},
+                                 {"validate", validate_},
                                  {"projector", projector_.Info().backend},
-                                 {"latency_us", projector_.Latency().count()}, {"settle_us", options_.settle.count()}};
+                                 {"latency_us", projector_.Latency().count()},
+                                 {"settle_us", options_.settle.count()}};
     for (const auto& s : states_) {
       start_note["cameras"][s.cam->name] = CameraNote(s.info, s.settings, s.stats.exposure_us);
     }
-    if (!summary_.auto_exposure_us.empty()) start_note["auto_exposure_us"] = summary_.auto_exposure_us;
+    if (!summary_.auto_exposure_us.empty())
+      start_note["auto_exposure_us"] = summary_.auto_exposure_us;
     writer.AppendSession(start_note);
 
     StoreQueue store(writer, static_cast<size_t>(options_.store_queue_images));
@@ -151,7 +162,8 @@ class Sequencer {
       storage_error = e.what();
     }
     summary_.images_stored = store.stored();
-    if (failure.empty() && storage_error.empty() && !summary_.interrupted && validate_ && model_->references_last) {
+    if (failure.empty() && storage_error.empty() && !summary_.interrupted && validate_ &&
+        model_->references_last) {
       // White and black came last: now every Gray pair can be judged against them, and a pair
       // that fails (a stale frame the pattern-to-pattern check could not see) is taken again.
       try {
@@ -167,15 +179,22 @@ class Sequencer {
     summary_.learned_latency_us = std::chrono::duration<double, std::micro>(learned_extra_).count();
     if (learned_extra_.count() > 0) {
       std::fprintf(stderr,
-                   "warning: frames showed the previous pattern after the projector's latency (%.1f ms) + settle (%.1f ms); "
-                   "the capture waited %.1f ms longer after each Show from then on. Measure the latency with "
+                   "warning: frames showed the previous pattern after the projector's latency "
+                   "(%.1f ms) + settle (%.1f ms); "
+                   "the capture waited %.1f ms longer after each Show from then on. Measure the "
+                   "latency with "
                    "`slshadow latency` and set latency_us in the devices file.\n",
-                   projector_.Latency().count() / 1000.0, options_.settle.count() / 1000.0, summary_.learned_latency_us / 1000.0);
+                   projector_.Latency().count() / 1000.0, options_.settle.count() / 1000.0,
+                   summary_.learned_latency_us / 1000.0);
     }
     summary_.mean_pattern_ms = acquired_patterns ? 1e3 * acquire_s / acquired_patterns : 0;
     summary_.overhead_ms_per_pattern =
-        acquired_patterns ? 1e3 * (acquire_s - std::chrono::duration<double>(device_time_).count()) / acquired_patterns : 0;
-    summary_.overhead_cpu_ms_per_pattern = acquired_patterns ? 1e3 * (acquire_cpu_s - device_cpu_s_) / acquired_patterns : 0;
+        acquired_patterns
+            ? 1e3 * (acquire_s - std::chrono::duration<double>(device_time_).count()) /
+                  acquired_patterns
+            : 0;
+    summary_.overhead_cpu_ms_per_pattern =
+        acquired_patterns ? 1e3 * (acquire_cpu_s - device_cpu_s_) / acquired_patterns : 0;
     for (auto& s : states_) {
       s.stats.stream = s.cam->camera->Statistics();
       s.stats.missing_frame_ids = s.ids.missing();
@@ -187,13 +206,14 @@ class Sequencer {
     if (summary_.interrupted) return summary_;
     for (const auto& s : states_) {
       for (int k = 0; k < n; ++k) {
-        SLSHADOW_THROW_IF(!writer.Has(s.cam->name, k), "capture: camera '", s.cam->name, "' has no image of ",
-                          model_->Name(k), " (internal)");
+        SLSHADOW_THROW_IF(!writer.Has(s.cam->name, k), "capture: camera '", s.cam->name,
+                          "' has no image of ", model_->Name(k), " (internal)");
       }
     }
     nlohmann::json extra = options_.extra.is_null() ? nlohmann::json::object() : options_.extra;
     extra["capture"]["sessions"] = writer.Sessions();
-    if (!summary_.auto_exposure_us.empty()) extra["capture"]["auto_exposure_us"] = summary_.auto_exposure_us;
+    if (!summary_.auto_exposure_us.empty())
+      extra["capture"]["auto_exposure_us"] = summary_.auto_exposure_us;
     extra["capture"]["learned_latency_us"] = summary_.learned_latency_us;
     extra["capture"]["wait_after_show_us"] = summary_.wait_after_show_us;
     writer.SetExtra(extra);
@@ -221,7 +241,9 @@ class Sequencer {
 
   // The wait after a Show before the cameras are triggered: the projector's latency, the settle
   // time, and what this capture learned of an underestimated latency.
-  Clock::duration BaseWait() const { return projector_.Latency() + options_.settle + learned_extra_; }
+  Clock::duration BaseWait() const {
+    return projector_.Latency() + options_.settle + learned_extra_;
+  }
 
   // Waits until the last Show + BaseWait() + attempt x retry_backoff (and at least `after`);
   // returns the time waited for (the trigger time).
@@ -240,7 +262,8 @@ class Sequencer {
   void LearnLatency(Clock::time_point fresh) {
     const Clock::duration base = projector_.Latency() + options_.settle;
     const Clock::duration observed = fresh - last_show_ - base;
-    const Clock::duration bound = std::max<Clock::duration>(Clock::duration{}, Clock::duration(options_.max_latency) - base);
+    const Clock::duration bound =
+        std::max<Clock::duration>(Clock::duration{}, Clock::duration(options_.max_latency) - base);
     learned_extra_ = std::min(std::max(learned_extra_, observed), bound);
   }
 
@@ -248,7 +271,8 @@ class Sequencer {
   // asked for, the display pipeline may still be bringing it), trigger every camera, grab every
   // camera. Never a second Show of a pattern whose first is not known to be on screen: a display
   // queues Shows, so a re-Show brings back older patterns behind the pending one.
-  std::vector<Frame> TriggerRound(int index, int attempt, bool show = true, Clock::time_point after = {}) {
+  std::vector<Frame> TriggerRound(int index, int attempt, bool show = true,
+                                  Clock::time_point after = {}) {
     struct AddTime {
       Clock::time_point t0;
       double cpu0;
@@ -323,45 +347,55 @@ class Sequencer {
     });
   }
 
-  Verdict CheckFrame(CameraState& s, int k, const Frame& f, const cv::Mat* prev_override, int prev_pattern) {
+  Verdict CheckFrame(CameraState& s, int k, const Frame& f, const cv::Mat* prev_override,
+                     int prev_pattern) {
     const std::string who = model_->Name(k) + ", camera '" + s.cam->name + "'";
     if (f.status == FrameStatus::kTimeout) {
       ++s.stats.timeouts;
-      return {false, who + ": no frame within " + std::to_string(s.cam->grab_timeout.count()) + " ms" +
-                         (f.message.empty() ? "" : " (" + f.message + ")")};
+      return {false, who + ": no frame within " + std::to_string(s.cam->grab_timeout.count()) +
+                         " ms" + (f.message.empty() ? "" : " (" + f.message + ")")};
     }
     if (f.status != FrameStatus::kOk) {
       ++s.stats.damaged;
-      return {false, who + ": frame " + ToString(f.status) + (f.message.empty() ? "" : " (" + f.message + ")")};
+      return {false, who + ": frame " + ToString(f.status) +
+                         (f.message.empty() ? "" : " (" + f.message + ")")};
     }
     const RigDevice& dev = rig_.Camera(s.cam->name);
-    if (f.image.cols != dev.model.width || f.image.rows != dev.model.height || f.image.type() != CV_MAKETYPE(s.expected_depth, 1)) {
+    if (f.image.cols != dev.model.width || f.image.rows != dev.model.height ||
+        f.image.type() != CV_MAKETYPE(s.expected_depth, 1)) {
       ++s.stats.damaged;
-      return {false, who + ": frame of " + std::to_string(f.image.cols) + "x" + std::to_string(f.image.rows) + ", " +
+      return {false, who + ": frame of " + std::to_string(f.image.cols) + "x" +
+                         std::to_string(f.image.rows) + ", " +
                          (f.image.depth() == CV_8U ? "8" : "16") + "-bit; the rig camera is " +
-                         std::to_string(dev.model.width) + "x" + std::to_string(dev.model.height) + ", " +
-                         ToString(s.settings.pixel_format)};
+                         std::to_string(dev.model.width) + "x" + std::to_string(dev.model.height) +
+                         ", " + ToString(s.settings.pixel_format)};
     }
     if (!validate_) return {};
-    if (!prev_override && prev_pattern != k - 1) return {};  // out of sequence, nothing known on screen
+    if (!prev_override && prev_pattern != k - 1)
+      return {};  // out of sequence, nothing known on screen
     const double e = model_->Change(images_, half_range_, prev_pattern, k);
     const cv::Mat* prev = prev_override ? prev_override : Previous(s, k);
     if (prev == nullptr || e < options_.validation.min_pattern_change) return {};
     EnsureReferences(s);
     const double scale = s.full_scale / 255.0;
     int samples = 0;
-    const double changed = ChangedShare(f.image, *prev, s.refs, options_.validation.lit_threshold * scale,
-                                        options_.validation.change_threshold * scale, s.stride, &samples);
+    const double changed =
+        ChangedShare(f.image, *prev, s.refs, options_.validation.lit_threshold * scale,
+                     options_.validation.change_threshold * scale, s.stride, &samples);
     if (samples < options_.validation.min_samples) return {};
-    const double lit = s.refs.ready() ? 1.0 : std::max(s.lit_estimate, options_.validation.min_lit_share_floor);
+    const double lit =
+        s.refs.ready() ? 1.0 : std::max(s.lit_estimate, options_.validation.min_lit_share_floor);
     const double needed = options_.validation.stale_ratio * e * lit;
     if (changed < needed) {
       ++s.stats.stale;
       char buf[256];
-      std::snprintf(buf, sizeof(buf),
-                    ": frame nearly equal to %s: %.1f %% of the %s pixels changed, at least %.1f %% expected; the "
-                    "projector had not switched yet (raise latency_us or settle_us in the devices file)",
-                    model_->Name(prev_pattern).c_str(), 100 * changed, s.refs.ready() ? "lit" : "sampled", 100 * needed);
+      std::snprintf(
+          buf, sizeof(buf),
+          ": frame nearly equal to %s: %.1f %% of the %s pixels changed, at least %.1f %% "
+          "expected; the "
+          "projector had not switched yet (raise latency_us or settle_us in the devices file)",
+          model_->Name(prev_pattern).c_str(), 100 * changed, s.refs.ready() ? "lit" : "sampled",
+          100 * needed);
       return {false, who + buf, true};
     }
     if (!s.refs.ready() && e >= 0.9) s.lit_estimate = std::max(s.lit_estimate, changed);
@@ -372,13 +406,15 @@ class Sequencer {
   // complementary; in the opening group (white, black, first Gray pair) the pair also lies
   // between black and white everywhere: a frame brighter than white or darker than black where
   // the patterns say otherwise means the white or black frame showed another pattern.
-  Verdict CheckGroup(CameraState& s, const SequenceModel::Group& g, const std::vector<const cv::Mat*>& f) {
+  Verdict CheckGroup(CameraState& s, const SequenceModel::Group& g,
+                     const std::vector<const cv::Mat*>& f) {
     if (!validate_ || !g.pair) return {};
     const double scale = s.full_scale / 255.0;
     const double lit_threshold = options_.validation.lit_threshold * scale;
     const int stride = s.stride;
     char buf[320];
-    if (model_->frames[static_cast<size_t>(g.first)].role == FrameRole::kPhase) return CheckPhaseSteps(s, g, f);
+    if (model_->frames[static_cast<size_t>(g.first)].role == FrameRole::kPhase)
+      return CheckPhaseSteps(s, g, f);
     References refs;
     const FrameRole role = model_->frames[static_cast<size_t>(g.first)].role;
     size_t pair_at = 0;
@@ -389,10 +425,12 @@ class Sequencer {
       if (lit < options_.validation.min_lit_share) {
         ++s.stats.not_complementary;
         std::snprintf(buf, sizeof(buf),
-                      ": white and black frames do not differ (%.2f %% of the image lit, at least %.2f %% expected): "
+                      ": white and black frames do not differ (%.2f %% of the image lit, at least "
+                      "%.2f %% expected): "
                       "the projector did not switch, or this camera sees none of its light",
                       100 * lit, 100 * options_.validation.min_lit_share);
-        return {false, model_->Name(g.first) + " and " + model_->Name(g.first + 1) + ", camera '" + s.cam->name + "'" + buf};
+        return {false, model_->Name(g.first) + " and " + model_->Name(g.first + 1) + ", camera '" +
+                           s.cam->name + "'" + buf};
       }
       if (!g.opening) return {};
       pair_at = 2;
@@ -400,19 +438,26 @@ class Sequencer {
       const double tolerance = lit_threshold;
       for (size_t i = 2; i < 4; ++i) {
         ForEachSample(f[i]->rows, f[i]->cols, stride, [&](int y, int x) {
-          const double v = f[i]->depth() == CV_8U ? f[i]->at<uint8_t>(y, x) : f[i]->at<uint16_t>(y, x);
+          const double v =
+              f[i]->depth() == CV_8U ? f[i]->at<uint8_t>(y, x) : f[i]->at<uint16_t>(y, x);
           ++count;
-          outside += v > refs.white.at<float>(y, x) + tolerance || v < refs.black.at<float>(y, x) - tolerance;
+          outside += v > refs.white.at<float>(y, x) + tolerance ||
+                     v < refs.black.at<float>(y, x) - tolerance;
         });
       }
       const double share = count ? static_cast<double>(outside) / static_cast<double>(count) : 0.0;
-      if (outside >= options_.validation.min_samples && share > 1 - options_.validation.min_complementary) {
+      if (outside >= options_.validation.min_samples &&
+          share > 1 - options_.validation.min_complementary) {
         ++s.stats.not_complementary;
         std::snprintf(buf, sizeof(buf),
-                      ": %.1f %% of the pixels of %s / %s are brighter than the white frame or darker than the black "
-                      "frame: the white or black frame showed another pattern (raise latency_us or settle_us)",
-                      100 * share, model_->Name(g.first + 2).c_str(), model_->Name(g.first + 3).c_str());
-        return {false, model_->Name(g.first) + " and " + model_->Name(g.first + 1) + ", camera '" + s.cam->name + "'" + buf};
+                      ": %.1f %% of the pixels of %s / %s are brighter than the white frame or "
+                      "darker than the black "
+                      "frame: the white or black frame showed another pattern (raise latency_us or "
+                      "settle_us)",
+                      100 * share, model_->Name(g.first + 2).c_str(),
+                      model_->Name(g.first + 3).c_str());
+        return {false, model_->Name(g.first) + " and " + model_->Name(g.first + 1) + ", camera '" +
+                           s.cam->name + "'" + buf};
       }
     } else {
       EnsureReferences(s);
@@ -420,18 +465,22 @@ class Sequencer {
       refs = s.refs;
     }
     int samples = 0;
-    const double q = ComplementaryShare(*f[pair_at], *f[pair_at + 1], refs, lit_threshold, stride, &samples);
+    const double q =
+        ComplementaryShare(*f[pair_at], *f[pair_at + 1], refs, lit_threshold, stride, &samples);
     if (samples < options_.validation.min_samples) return {};
     s.stats.min_complementary_share = std::min(s.stats.min_complementary_share, q);
     ++s.stats.pair_checks;
     if (q >= options_.validation.min_complementary) return {};
     ++s.stats.not_complementary;
-    std::snprintf(buf, sizeof(buf),
-                  ": not complementary: %.1f %% of %d decisive pixels are on opposite sides, at least %.1f %% expected; "
-                  "one of them shows another pattern (raise latency_us or settle_us in the devices file)",
-                  100 * q, samples, 100 * options_.validation.min_complementary);
+    std::snprintf(
+        buf, sizeof(buf),
+        ": not complementary: %.1f %% of %d decisive pixels are on opposite sides, at least %.1f "
+        "%% expected; "
+        "one of them shows another pattern (raise latency_us or settle_us in the devices file)",
+        100 * q, samples, 100 * options_.validation.min_complementary);
     const int k = g.first + static_cast<int>(pair_at);
-    return {false, model_->Name(k) + " and " + model_->Name(k + 1) + ", camera '" + s.cam->name + "'" + buf};
+    return {false, model_->Name(k) + " and " + model_->Name(k + 1) + ", camera '" + s.cam->name +
+                       "'" + buf};
   }
 
   static std::string Join(const std::vector<std::string>& errors) {
@@ -445,8 +494,10 @@ class Sequencer {
   // of k-1). Pattern k is shown once: a stale, missing or damaged frame is triggered again after a
   // longer wait, never re-shown (see TriggerRound). A stale frame followed by a fresh one teaches
   // the capture its real latency (LearnLatency).
-  std::optional<std::vector<Frame>> AcquirePattern(int k, const std::vector<const cv::Mat*>& prev, int prev_pattern,
-                                                   int extra_wait, int* attempts_used, std::vector<std::string>* errors) {
+  std::optional<std::vector<Frame>> AcquirePattern(int k, const std::vector<const cv::Mat*>& prev,
+                                                   int prev_pattern, int extra_wait,
+                                                   int* attempts_used,
+                                                   std::vector<std::string>* errors) {
     bool saw_stale = false;
     for (int attempt = 0; attempt <= options_.max_retries; ++attempt) {
       if (attempt > 0) {
@@ -485,9 +536,12 @@ class Sequencer {
     std::vector<Frame> before;
     for (int round = 0; round <= options_.max_retries + 1; ++round) {
       FlushAll();
-      const Clock::time_point earliest = round == 0 ? Clock::time_point{} : last_trigger_ + std::max<Clock::duration>(
-                                                                               BaseWait(), options_.retry_backoff);
-      std::vector<Frame> frames = TriggerRound(last_shown_, group_attempt + round, /*show=*/false, earliest);
+      const Clock::time_point earliest =
+          round == 0
+              ? Clock::time_point{}
+              : last_trigger_ + std::max<Clock::duration>(BaseWait(), options_.retry_backoff);
+      std::vector<Frame> frames =
+          TriggerRound(last_shown_, group_attempt + round, /*show=*/false, earliest);
       errors->clear();
       for (size_t c = 0; c < states_.size(); ++c) {
         CameraState& s = states_[c];
@@ -498,8 +552,10 @@ class Sequencer {
         }
         if (f.status == FrameStatus::kTimeout) ++s.stats.timeouts;
         if (!f.ok() && f.status != FrameStatus::kTimeout) ++s.stats.damaged;
-        if (!f.ok()) errors->push_back("settling on " + model_->Name(last_shown_) + ", camera '" + s.cam->name +
-                                       "': frame " + ToString(f.status) + (f.message.empty() ? "" : " (" + f.message + ")"));
+        if (!f.ok())
+          errors->push_back("settling on " + model_->Name(last_shown_) + ", camera '" +
+                            s.cam->name + "': frame " + ToString(f.status) +
+                            (f.message.empty() ? "" : " (" + f.message + ")"));
       }
       if (!errors->empty()) {
         before.clear();
@@ -508,14 +564,16 @@ class Sequencer {
       bool equal = !before.empty();
       for (size_t c = 0; equal && c < states_.size(); ++c) {
         const CameraState& s = states_[c];
-        if (frames[c].image.size() != before[c].image.size() || frames[c].image.type() != before[c].image.type()) {
+        if (frames[c].image.size() != before[c].image.size() ||
+            frames[c].image.type() != before[c].image.type()) {
           equal = false;
           break;
         }
         const double scale = s.full_scale / 255.0;
         int samples = 0;
-        const double changed = ChangedShare(frames[c].image, before[c].image, s.refs, options_.validation.lit_threshold * scale,
-                                            options_.validation.change_threshold * scale, s.stride, &samples);
+        const double changed = ChangedShare(
+            frames[c].image, before[c].image, s.refs, options_.validation.lit_threshold * scale,
+            options_.validation.change_threshold * scale, s.stride, &samples);
         equal = changed <= kSettledChange;
       }
       if (equal) return frames;
@@ -523,13 +581,17 @@ class Sequencer {
       before = std::move(frames);
     }
     errors->push_back("the display did not settle on " + model_->Name(last_shown_) + " within " +
-                      std::to_string(options_.max_retries + 2) + " frames (raise latency_us or settle_us)");
+                      std::to_string(options_.max_retries + 2) +
+                      " frames (raise latency_us or settle_us)");
     return std::nullopt;
   }
-  static constexpr double kSettledChange = 0.01;  // share of samples allowed to change between settled frames
+  static constexpr double kSettledChange =
+      0.01;  // share of samples allowed to change between settled frames
 
   void AcceptReference(CameraState& s, int k, const cv::Mat& image) {
-    if (std::find(model_->reference_frames.begin(), model_->reference_frames.end(), k) == model_->reference_frames.end()) return;
+    if (std::find(model_->reference_frames.begin(), model_->reference_frames.end(), k) ==
+        model_->reference_frames.end())
+      return;
     s.reference_images[k] = image;
   }
 
@@ -543,7 +605,8 @@ class Sequencer {
     std::vector<std::string> first_errors;
     const auto fail = [&] {
       const std::string first = Join(first_errors), last = Join(errors);
-      SLSHADOW_THROW("capture failed after ", options_.max_retries + 1, " attempts: ", first.empty() ? last : first,
+      SLSHADOW_THROW("capture failed after ", options_.max_retries + 1,
+                     " attempts: ", first.empty() ? last : first,
                      first.empty() || first == last ? "" : "; taken again as a group: " + last);
     };
     for (int group_attempt = 0; group_attempt <= options_.max_retries; ++group_attempt) {
@@ -552,9 +615,12 @@ class Sequencer {
       // nothing pending, so that the first frame can be compared with what is on screen.
       std::optional<std::vector<Frame>> settled;
       if ((group_attempt > 0 || out_of_sequence_) && last_shown_ >= 0) {
-        if (group_attempt > 0) learned_extra_ = std::min<Clock::duration>(
-            std::max<Clock::duration>(2 * learned_extra_, options_.retry_backoff),
-            std::max<Clock::duration>(Clock::duration{}, Clock::duration(options_.max_latency) - projector_.Latency() - options_.settle));
+        if (group_attempt > 0)
+          learned_extra_ = std::min<Clock::duration>(
+              std::max<Clock::duration>(2 * learned_extra_, options_.retry_backoff),
+              std::max<Clock::duration>(
+                  Clock::duration{},
+                  Clock::duration(options_.max_latency) - projector_.Latency() - options_.settle));
         settled = Settle(group_attempt, &errors);
         if (!settled) fail();
       }
@@ -565,7 +631,8 @@ class Sequencer {
         std::vector<const cv::Mat*> prev(states_.size(), nullptr);
         int prev_pattern = k - 1;
         if (i > 0) {
-          for (size_t c = 0; c < states_.size(); ++c) prev[c] = &frames[static_cast<size_t>(i - 1)][c].image;
+          for (size_t c = 0; c < states_.size(); ++c)
+            prev[c] = &frames[static_cast<size_t>(i - 1)][c].image;
         } else if (settled) {
           for (size_t c = 0; c < states_.size(); ++c) prev[c] = &(*settled)[c].image;
           prev_pattern = last_shown_;
@@ -577,7 +644,8 @@ class Sequencer {
         retries[static_cast<size_t>(i)] += attempts;
         if (!got) {
           // The first frame of a group has only accepted frames before it: its failure is its own.
-          // A failing second frame may accuse the first (a stale white looks like black): retake both.
+          // A failing second frame may accuse the first (a stale white looks like black): retake
+          // both.
           if (i == 0 || !g.pair) fail();
           taken = false;
           break;
@@ -619,7 +687,8 @@ class Sequencer {
   // S sin(2 pi n / N) fitted by least squares; a frame that shows another pattern leaves a
   // residual (rms over the steps) above a third of the modulation B = sqrt(C^2 + S^2) at many
   // pixels. (Three steps fit exactly: nothing to check.)
-  Verdict CheckPhaseSteps(CameraState& s, const SequenceModel::Group& g, const std::vector<const cv::Mat*>& f) {
+  Verdict CheckPhaseSteps(CameraState& s, const SequenceModel::Group& g,
+                          const std::vector<const cv::Mat*>& f) {
     const int n = g.size;
     const double lit_threshold = options_.validation.lit_threshold * s.full_scale / 255.0;
     std::vector<double> c(static_cast<size_t>(n)), sn(static_cast<size_t>(n));
@@ -645,21 +714,26 @@ class Sequencer {
       if (2 * b < lit_threshold) return;
       double r2 = 0;
       for (int i = 0; i < n; ++i) {
-        const double e = v[static_cast<size_t>(i)] - a - cc * c[static_cast<size_t>(i)] - ss * sn[static_cast<size_t>(i)];
+        const double e = v[static_cast<size_t>(i)] - a - cc * c[static_cast<size_t>(i)] -
+                         ss * sn[static_cast<size_t>(i)];
         r2 += e * e;
       }
       ++count;
       bad += std::sqrt(r2 / n) > b / 3;
     });
     const double share = count ? static_cast<double>(bad) / static_cast<double>(count) : 0.0;
-    if (count < options_.validation.min_samples || share <= 1 - options_.validation.min_complementary) return {};
+    if (count < options_.validation.min_samples ||
+        share <= 1 - options_.validation.min_complementary)
+      return {};
     ++s.stats.not_complementary;
     char buf[320];
     std::snprintf(buf, sizeof(buf),
-                  ": the %d phase steps do not fit one sinusoid at %.1f %% of %lld modulated pixels: one of them shows "
+                  ": the %d phase steps do not fit one sinusoid at %.1f %% of %lld modulated "
+                  "pixels: one of them shows "
                   "another pattern (raise latency_us or settle_us in the devices file)",
                   n, 100 * share, static_cast<long long>(count));
-    return {false, model_->Name(g.first) + " .. " + model_->Name(g.first + n - 1) + ", camera '" + s.cam->name + "'" + buf};
+    return {false, model_->Name(g.first) + " .. " + model_->Name(g.first + n - 1) + ", camera '" +
+                       s.cam->name + "'" + buf};
   }
 
   // Judges every stored Gray pair against the references (white and black last) and takes a
@@ -670,10 +744,12 @@ class Sequencer {
       if (!s.refs.ready()) return true;
     }
     for (const auto& g : model_->groups) {
-      if (!g.pair || model_->frames[static_cast<size_t>(g.first)].role != FrameRole::kGrayBit) continue;
+      if (!g.pair || model_->frames[static_cast<size_t>(g.first)].role != FrameRole::kGrayBit)
+        continue;
       bool bad = false;
       for (auto& s : states_) {
-        const cv::Mat a = writer_->Load(s.cam->name, g.first), b = writer_->Load(s.cam->name, g.first + 1);
+        const cv::Mat a = writer_->Load(s.cam->name, g.first),
+                      b = writer_->Load(s.cam->name, g.first + 1);
         bad = !CheckGroup(s, g, {&a, &b}).ok || bad;
       }
       if (!bad) continue;
@@ -695,7 +771,8 @@ class Sequencer {
       if (!session.contains("auto_exposure_us")) continue;
       for (auto& s : states_) {
         if (session["auto_exposure_us"].contains(s.cam->name)) {
-          summary_.auto_exposure_us[s.cam->name] = session["auto_exposure_us"][s.cam->name].get<double>();
+          summary_.auto_exposure_us[s.cam->name] =
+              session["auto_exposure_us"][s.cam->name].get<double>();
         }
       }
     }
@@ -711,8 +788,8 @@ class Sequencer {
     if (lit_by_projector) {
       std::vector<Frame> frames = TriggerRound(black, 0);
       for (size_t c = 0; c < states_.size(); ++c) {
-        SLSHADOW_THROW_IF(!frames[c].ok(), "auto exposure: camera '", states_[c].cam->name, "': black frame ",
-                          ToString(frames[c].status), " ", frames[c].message);
+        SLSHADOW_THROW_IF(!frames[c].ok(), "auto exposure: camera '", states_[c].cam->name,
+                          "': black frame ", ToString(frames[c].status), " ", frames[c].message);
         frames[c].image.convertTo(dark[c], CV_32F);
       }
     }
@@ -726,8 +803,8 @@ class Sequencer {
       for (size_t c = 0; c < states_.size(); ++c) {
         if (done[c]) continue;
         CameraState& s = states_[c];
-        SLSHADOW_THROW_IF(!frames[c].ok(), "auto exposure: camera '", s.cam->name, "': white frame ",
-                          ToString(frames[c].status), " ", frames[c].message);
+        SLSHADOW_THROW_IF(!frames[c].ok(), "auto exposure: camera '", s.cam->name,
+                          "': white frame ", ToString(frames[c].status), " ", frames[c].message);
         cv::Mat w;
         frames[c].image.convertTo(w, CV_32F);
         std::vector<float> lit;
@@ -736,7 +813,8 @@ class Sequencer {
           const float* pw = w.ptr<float>(y);
           const float* pd = dark[c].empty() ? nullptr : dark[c].ptr<float>(y);
           for (int x = 0; x < w.cols; x += 2) {
-            if (!pd || pw[x] - pd[x] >= lit_threshold || pw[x] >= s.full_scale) lit.push_back(pw[x]);
+            if (!pd || pw[x] - pd[x] >= lit_threshold || pw[x] >= s.full_scale)
+              lit.push_back(pw[x]);
           }
         }
         const double exposure = *s.settings.exposure_us;
@@ -744,7 +822,8 @@ class Sequencer {
         if (lit.empty()) {
           next = exposure * 4;  // nothing lit yet: much longer
         } else {
-          const size_t at = std::min(lit.size() - 1, static_cast<size_t>(o.percentile * static_cast<double>(lit.size())));
+          const size_t at = std::min(
+              lit.size() - 1, static_cast<size_t>(o.percentile * static_cast<double>(lit.size())));
           std::nth_element(lit.begin(), lit.begin() + static_cast<std::ptrdiff_t>(at), lit.end());
           const double level = lit[at] / s.full_scale;
           if (std::abs(level - o.target_fraction) <= o.tolerance) {
@@ -752,7 +831,9 @@ class Sequencer {
             summary_.auto_exposure_us[s.cam->name] = exposure;
             continue;
           }
-          next = level >= 0.999 ? exposure * 0.5 : exposure * std::clamp(o.target_fraction / std::max(level, 1e-3), 0.25, 4.0);
+          next = level >= 0.999
+                     ? exposure * 0.5
+                     : exposure * std::clamp(o.target_fraction / std::max(level, 1e-3), 0.25, 4.0);
         }
         next = std::clamp(next, o.min_exposure_us, o.max_exposure_us);
         if (next == exposure) {  // at a bound: take it
@@ -789,22 +870,26 @@ class Sequencer {
   std::vector<cv::Mat> images_;
   std::unique_ptr<SequenceModel> model_;
   bool validate_ = true;
-  Clock::duration device_time_{};  // inside device calls (see CaptureSummary::overhead_ms_per_pattern)
-  double device_cpu_s_ = 0;        // the same on the thread's CPU clock
-  bool out_of_sequence_ = false;   // re-taking a pair out of sequence: settle first, compare with what is on screen
-  double half_range_ = 127.5;       // half the pattern intensity range (SequenceModel::Change)
-  Clock::time_point last_show_{};   // when the last Show returned
-  int last_shown_ = -1;             // its pattern
+  Clock::duration
+      device_time_{};        // inside device calls (see CaptureSummary::overhead_ms_per_pattern)
+  double device_cpu_s_ = 0;  // the same on the thread's CPU clock
+  bool out_of_sequence_ =
+      false;  // re-taking a pair out of sequence: settle first, compare with what is on screen
+  double half_range_ = 127.5;         // half the pattern intensity range (SequenceModel::Change)
+  Clock::time_point last_show_{};     // when the last Show returned
+  int last_shown_ = -1;               // its pattern
   Clock::time_point last_trigger_{};  // when the last trigger round was triggered
-  Clock::duration learned_extra_{};   // wait added to latency + settle after a stale frame (LearnLatency)
+  Clock::duration
+      learned_extra_{};  // wait added to latency + settle after a stale frame (LearnLatency)
   ResumableImageSetWriter* writer_ = nullptr;
   CaptureSummary summary_;
 };
 
 }  // namespace
 
-CaptureSummary Capture(const Rig& rig, const PatternSpec& spec, const std::vector<CaptureCamera>& cameras,
-                       Projector& projector, const fs::path& out, const SequencerOptions& options) {
+CaptureSummary Capture(const Rig& rig, const PatternSpec& spec,
+                       const std::vector<CaptureCamera>& cameras, Projector& projector,
+                       const fs::path& out, const SequencerOptions& options) {
   Sequencer sequencer(rig, spec, cameras, projector, out, options);
   return sequencer.Run();
 }

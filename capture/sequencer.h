@@ -61,7 +61,7 @@ namespace slshadow::capture {
 
 // One camera as the sequencer uses it: the rig camera it plays, the device, its settings.
 struct CaptureCamera {
-  std::string name;    // a camera name of the rig
+  std::string name;          // a camera name of the rig
   Camera* camera = nullptr;  // not owned
   CameraSettings settings;
   std::chrono::milliseconds grab_timeout{1000};
@@ -72,16 +72,17 @@ struct ValidationOptions {
   // target_samples pixels are checked (1920x1200: every 8th; small images: every pixel).
   int stride_px = 0;
   int target_samples = 32768;
-  double min_pattern_change = 0.25;  // pattern pairs changing less (in some tile) are not stale-checked
-  double stale_ratio = 0.3;          // stale: changed share < stale_ratio x expected change share
+  double min_pattern_change =
+      0.25;                  // pattern pairs changing less (in some tile) are not stale-checked
+  double stale_ratio = 0.3;  // stale: changed share < stale_ratio x expected change share
   // Without references: a pixel changed when |frame - previous| >= this (8-bit grey levels,
   // scaled to the camera's full scale), and the lit share is taken as at least this floor.
   double change_threshold = 16;
   double min_lit_share_floor = 0.02;
-  double lit_threshold = 12;         // lit: white - black >= this (8-bit grey levels, scaled)
-  double min_lit_share = 0.01;       // white vs black: at least this share of the image lit
-  double min_complementary = 0.9;    // share of decisive pixels on opposite sides in a Gray pair
-  int min_samples = 64;              // fewer lit / decisive samples than this: the check is skipped
+  double lit_threshold = 12;       // lit: white - black >= this (8-bit grey levels, scaled)
+  double min_lit_share = 0.01;     // white vs black: at least this share of the image lit
+  double min_complementary = 0.9;  // share of decisive pixels on opposite sides in a Gray pair
+  int min_samples = 64;            // fewer lit / decisive samples than this: the check is skipped
   void Check() const;
 };
 
@@ -95,73 +96,74 @@ struct AutoExposureOptions {
 };
 
 struct SequencerOptions {
-  std::chrono::microseconds settle{0};         // waited after the projector's latency
-  int max_retries = 3;                         // extra attempts per pattern (and per pair)
+  std::chrono::microseconds settle{0};  // waited after the projector's latency
+  int max_retries = 3;                  // extra attempts per pattern (and per pair)
   std::chrono::microseconds retry_backoff{std::chrono::milliseconds(20)};  // extra wait per attempt
   // Upper bound of the wait after a Show the capture may learn when frames show that the
   // projector's latency was underestimated (CaptureSummary::learned_latency_us).
   std::chrono::microseconds max_latency{std::chrono::seconds(1)};
-  bool validate = true;                        // only effective when the projector shows patterns
+  bool validate = true;  // only effective when the projector shows patterns
   ValidationOptions validation;
-  bool auto_exposure = false;                  // exposure assistant before the sequence
+  bool auto_exposure = false;  // exposure assistant before the sequence
   AutoExposureOptions auto_exposure_options;
   // Writer: encoding, resume, overwrite, durability (core/image_set.h).
   ResumableImageSetWriterOptions writer;
-  int store_queue_images = 64;                 // frames waiting for storage before Capture waits
+  int store_queue_images = 64;  // frames waiting for storage before Capture waits
   // Set from another thread or a signal handler to stop between frames; the capture returns
   // with interrupted = true and the staging folder resumable.
   const std::atomic<bool>* stop = nullptr;
-  bool progress = true;                        // progress line on stderr (core/progress.h)
+  bool progress = true;  // progress line on stderr (core/progress.h)
   // How the sequencer waits for the projector (until latency + settle + backoff after Show).
   // Empty: std::this_thread::sleep_until. Tests pass a virtual clock shared with a test projector.
   std::function<void(std::chrono::steady_clock::time_point)> sleep_until;
-  nlohmann::json extra;                        // caller's provenance, stored in the manifest's extra
+  nlohmann::json extra;  // caller's provenance, stored in the manifest's extra
   void Check() const;
 };
 
 // Counters of one camera in one capture run.
 struct CameraCaptureStats {
   std::string serial;
-  int64_t frames_grabbed = 0;    // frames that arrived (any status)
+  int64_t frames_grabbed = 0;  // frames that arrived (any status)
   int64_t frames_stored = 0;
-  int64_t timeouts = 0;          // Grab returned kTimeout
-  int64_t damaged = 0;           // arrived with another status than kOk, or a wrong size / depth
-  int64_t stale = 0;             // rejected: still showed the previous pattern
-  int64_t not_complementary = 0; // rejected with its pair: Gray bit / inverse (or white / black) check
-  int64_t missing_frame_ids = 0; // frame ids never grabbed (16-bit ids wrap 65535 -> 1; 0 invalid)
-  int64_t invalid_frame_ids = 0; // frames with id 0
-  double exposure_us = 0;        // the exposure used (auto-exposure: the value chosen)
+  int64_t timeouts = 0;  // Grab returned kTimeout
+  int64_t damaged = 0;   // arrived with another status than kOk, or a wrong size / depth
+  int64_t stale = 0;     // rejected: still showed the previous pattern
+  int64_t not_complementary =
+      0;  // rejected with its pair: Gray bit / inverse (or white / black) check
+  int64_t missing_frame_ids = 0;  // frame ids never grabbed (16-bit ids wrap 65535 -> 1; 0 invalid)
+  int64_t invalid_frame_ids = 0;  // frames with id 0
+  double exposure_us = 0;         // the exposure used (auto-exposure: the value chosen)
   // Lowest share of decisive pixels on opposite sides seen in a Gray pair check (1: none made);
   // how far the accepted pairs were from the min_complementary limit.
   double min_complementary_share = 1;
-  int64_t pair_checks = 0;       // Gray pair complementarity checks made (enough decisive pixels)
+  int64_t pair_checks = 0;  // Gray pair complementarity checks made (enough decisive pixels)
   // Pattern-sequence capture (capture/pattern_sequence_capture.h): frames missed or not matching
   // their pattern's trigger (missing, two periods late, a spurious one), and frames that came
   // after the last pattern of a run.
   int64_t missed_triggers = 0;
   int64_t extra_frames = 0;
-  StreamStatistics stream;       // the camera's own transport counters at the end
+  StreamStatistics stream;  // the camera's own transport counters at the end
   nlohmann::json ToJson() const;
 };
 
 struct CaptureSummary {
-  std::filesystem::path out;       // the ImageSet (when complete)
-  std::filesystem::path staging;   // the staging folder (when interrupted)
-  bool complete = false;           // committed
-  bool interrupted = false;        // stopped by options.stop; resumable
-  bool resumed = false;            // continued an existing staging folder
-  int patterns = 0;                // in the sequence
-  int images_total = 0;            // patterns x cameras
-  int images_before = 0;           // already stored when this run started (resume)
-  int images_stored = 0;           // stored by this run
-  int retries = 0;                 // extra attempts, all patterns
+  std::filesystem::path out;      // the ImageSet (when complete)
+  std::filesystem::path staging;  // the staging folder (when interrupted)
+  bool complete = false;          // committed
+  bool interrupted = false;       // stopped by options.stop; resumable
+  bool resumed = false;           // continued an existing staging folder
+  int patterns = 0;               // in the sequence
+  int images_total = 0;           // patterns x cameras
+  int images_before = 0;          // already stored when this run started (resume)
+  int images_stored = 0;          // stored by this run
+  int retries = 0;                // extra attempts, all patterns
   // The wait after a Show this capture ended with (latency + settle + what it learned from stale
   // frames); above latency_us + settle_us the configured latency was too low: measure it with
   // `slshadow latency`.
   double wait_after_show_us = 0;
-  double learned_latency_us = 0;   // what the capture added to latency + settle (0: none)
+  double learned_latency_us = 0;  // what the capture added to latency + settle (0: none)
   double seconds = 0;
-  double mean_pattern_ms = 0;      // wall time per pattern acquired by this run
+  double mean_pattern_ms = 0;  // wall time per pattern acquired by this run
   // The sequencer's own cost per pattern acquired: wall time minus the time inside device calls
   // (projector Show, the latency / settle wait, camera Trigger, Grab, Flush): validation, frame-id
   // bookkeeping, queueing for storage (including waiting for a full storage queue).
@@ -179,8 +181,9 @@ struct CaptureSummary {
 // Throws slshadow::Error on bad arguments, on a camera or projector that refuses its settings,
 // and when a pattern fails max_retries + 1 times (message: pattern, camera, why; the staging
 // folder stays resumable). Returns interrupted = true when options.stop was raised.
-CaptureSummary Capture(const Rig& rig, const PatternSpec& spec, const std::vector<CaptureCamera>& cameras,
-                       Projector& projector, const std::filesystem::path& out, const SequencerOptions& options);
+CaptureSummary Capture(const Rig& rig, const PatternSpec& spec,
+                       const std::vector<CaptureCamera>& cameras, Projector& projector,
+                       const std::filesystem::path& out, const SequencerOptions& options);
 
 // Board poses one after another (`slshadow capture --poses N`): before each pose, writes a prompt
 // to `prompt` and waits for a line on `input` (Enter); pose p goes to OUT/pose_PP (two digits),
@@ -189,11 +192,13 @@ CaptureSummary Capture(const Rig& rig, const PatternSpec& spec, const std::vecto
 struct PosesSummary {
   std::vector<CaptureSummary> poses;  // the poses captured by this run
   bool interrupted = false;
-  int skipped = 0;                    // already complete
+  int skipped = 0;  // already complete
 };
-PosesSummary CapturePoses(const Rig& rig, const PatternSpec& spec, const std::vector<CaptureCamera>& cameras,
-                          Projector& projector, const std::filesystem::path& out, int num_poses,
-                          const SequencerOptions& options, std::istream& input, std::ostream& prompt);
+PosesSummary CapturePoses(const Rig& rig, const PatternSpec& spec,
+                          const std::vector<CaptureCamera>& cameras, Projector& projector,
+                          const std::filesystem::path& out, int num_poses,
+                          const SequencerOptions& options, std::istream& input,
+                          std::ostream& prompt);
 // OUT/pose_PP.
 std::filesystem::path PoseDir(const std::filesystem::path& out, int pose);
 

@@ -9,9 +9,9 @@
 
 #include <algorithm>
 #include <cerrno>
-#include <filesystem>
 #include <cmath>
 #include <cstring>
+#include <filesystem>
 #include <thread>
 
 #include "core/error.h"
@@ -42,7 +42,9 @@ std::vector<std::string> ListV4l2Nodes(const std::string& dir) {
     const std::string name = e.path().filename().string();
     if (name.size() <= 5 || name.compare(0, 5, "video") != 0) continue;
     const std::string digits = name.substr(5);
-    if (digits.size() > 6 || !std::all_of(digits.begin(), digits.end(), [](char c) { return c >= '0' && c <= '9'; })) continue;
+    if (digits.size() > 6 ||
+        !std::all_of(digits.begin(), digits.end(), [](char c) { return c >= '0' && c <= '9'; }))
+      continue;
     found.emplace_back(std::stoi(digits), e.path().string());
   }
   std::sort(found.begin(), found.end());
@@ -52,7 +54,8 @@ std::vector<std::string> ListV4l2Nodes(const std::string& dir) {
 }
 
 void V4l2CameraOptions::Check() const {
-  SLSHADOW_THROW_IF(buffers < 2 || buffers > 32, "v4l2 camera: buffers: must be 2..32 (got ", buffers, ")");
+  SLSHADOW_THROW_IF(buffers < 2 || buffers > 32, "v4l2 camera: buffers: must be 2..32 (got ",
+                    buffers, ")");
 }
 
 struct V4l2Camera::Impl {
@@ -89,7 +92,8 @@ struct V4l2Camera::Impl {
     v4l2_control c{};
     c.id = id;
     c.value = value;
-    if (Xioctl(fd, VIDIOC_S_CTRL, &c) != 0) Fail(what, "the device refused value " + std::to_string(value) + " (" + Errno() + ")");
+    if (Xioctl(fd, VIDIOC_S_CTRL, &c) != 0)
+      Fail(what, "the device refused value " + std::to_string(value) + " (" + Errno() + ")");
   }
   std::optional<int32_t> GetControl(uint32_t id) const {
     v4l2_control c{};
@@ -117,13 +121,15 @@ struct V4l2Camera::Impl {
     b.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
     b.memory = V4L2_MEMORY_MMAP;
     b.index = index;
-    if (Xioctl(fd, VIDIOC_QBUF, &b) != 0) Fail("QBUF", "buffer " + std::to_string(index) + " refused (" + Errno() + ")");
+    if (Xioctl(fd, VIDIOC_QBUF, &b) != 0)
+      Fail("QBUF", "buffer " + std::to_string(index) + " refused (" + Errno() + ")");
   }
 
   cv::Mat Convert(const uint8_t* data) const {
     if (fourcc == V4L2_PIX_FMT_GREY) {
       cv::Mat m(height, width, CV_8UC1);
-      for (int y = 0; y < height; ++y) std::memcpy(m.ptr(y), data + size_t(y) * bytesperline, size_t(width));
+      for (int y = 0; y < height; ++y)
+        std::memcpy(m.ptr(y), data + size_t(y) * bytesperline, size_t(width));
       return m;
     }
     if (fourcc == V4L2_PIX_FMT_Y16) {  // little-endian 16-bit
@@ -131,7 +137,8 @@ struct V4l2Camera::Impl {
       for (int y = 0; y < height; ++y) {
         const uint8_t* row = data + size_t(y) * bytesperline;
         uint16_t* out = m.ptr<uint16_t>(y);
-        for (int x = 0; x < width; ++x) out[x] = static_cast<uint16_t>(row[2 * x] | row[2 * x + 1] << 8);
+        for (int x = 0; x < width; ++x)
+          out[x] = static_cast<uint16_t>(row[2 * x] | row[2 * x + 1] << 8);
       }
       return m;
     }
@@ -146,7 +153,8 @@ struct V4l2Camera::Impl {
   }
 };
 
-V4l2Camera::V4l2Camera(const std::string& device, V4l2CameraOptions options) : impl_(std::make_unique<Impl>()) {
+V4l2Camera::V4l2Camera(const std::string& device, V4l2CameraOptions options)
+    : impl_(std::make_unique<Impl>()) {
   options.Check();
   Impl& d = *impl_;
   d.device = device;
@@ -159,10 +167,12 @@ V4l2Camera::V4l2Camera(const std::string& device, V4l2CameraOptions options) : i
     ::close(d.fd);
     SLSHADOW_THROW(device, ": not a V4L2 device (VIDIOC_QUERYCAP: ", why, ")");
   }
-  const uint32_t caps = (cap.capabilities & V4L2_CAP_DEVICE_CAPS) ? cap.device_caps : cap.capabilities;
+  const uint32_t caps =
+      (cap.capabilities & V4L2_CAP_DEVICE_CAPS) ? cap.device_caps : cap.capabilities;
   if (!(caps & V4L2_CAP_VIDEO_CAPTURE) || !(caps & V4L2_CAP_STREAMING)) {
     ::close(d.fd);
-    SLSHADOW_THROW(device, ": cannot capture video with streaming I/O (a metadata or output node?)");
+    SLSHADOW_THROW(device,
+                   ": cannot capture video with streaming I/O (a metadata or output node?)");
   }
   d.info.backend = "v4l2";
   d.info.id = device;
@@ -176,7 +186,8 @@ V4l2Camera::V4l2Camera(const std::string& device, V4l2CameraOptions options) : i
     if (Xioctl(d.fd, VIDIOC_ENUM_FMT, &f) != 0) break;
     d.formats.push_back(f.pixelformat);
     if (f.pixelformat == V4L2_PIX_FMT_Y16) d.info.pixel_formats.push_back(PixelFormat::kMono16);
-    if (f.pixelformat == V4L2_PIX_FMT_GREY || f.pixelformat == V4L2_PIX_FMT_YUYV) d.info.pixel_formats.push_back(PixelFormat::kMono8);
+    if (f.pixelformat == V4L2_PIX_FMT_GREY || f.pixelformat == V4L2_PIX_FMT_YUYV)
+      d.info.pixel_formats.push_back(PixelFormat::kMono8);
   }
   v4l2_format fmt{};
   fmt.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
@@ -202,9 +213,11 @@ void V4l2Camera::Configure(const CameraSettings& s) {
   s.Check(d.device);
   SLSHADOW_THROW_IF(d.streaming, d.device, ": Configure while streaming (call Stop first)");
   if (s.trigger == TriggerMode::kHardware) {
-    d.Fail("settings.trigger", "UVC cameras have no trigger input (got hardware; use free-run or software)");
+    d.Fail("settings.trigger",
+           "UVC cameras have no trigger input (got hardware; use free-run or software)");
   }
-  if (s.roi.x != 0 || s.roi.y != 0) d.Fail("settings.roi", "V4L2 capture sets a frame size, not an offset (x, y must be 0)");
+  if (s.roi.x != 0 || s.roi.y != 0)
+    d.Fail("settings.roi", "V4L2 capture sets a frame size, not an offset (x, y must be 0)");
   d.FreeBuffers();  // drivers refuse a new format while buffers are allocated
   // Pixel format: the device formats that give the requested one.
   std::vector<uint32_t> wanted;
@@ -212,14 +225,18 @@ void V4l2Camera::Configure(const CameraSettings& s) {
   if (s.pixel_format == PixelFormat::kMono16) wanted = {V4L2_PIX_FMT_Y16};
   uint32_t fourcc = 0;
   for (uint32_t w : wanted) {
-    if (fourcc == 0 && std::find(d.formats.begin(), d.formats.end(), w) != d.formats.end()) fourcc = w;
+    if (fourcc == 0 && std::find(d.formats.begin(), d.formats.end(), w) != d.formats.end())
+      fourcc = w;
   }
   if (fourcc == 0) {
     std::string offered;
     for (uint32_t f : d.formats) offered += (offered.empty() ? "" : ", ") + FourCc(f);
-    d.Fail("settings.pixel_format", ToString(s.pixel_format) + " needs " +
-                                        (s.pixel_format == PixelFormat::kMono16 ? "Y16" : s.pixel_format == PixelFormat::kMono8 ? "GREY or YUYV" : "a format V4L2 UVC does not offer") +
-                                        " but the device offers " + (offered.empty() ? "nothing" : offered));
+    d.Fail("settings.pixel_format",
+           ToString(s.pixel_format) + " needs " +
+               (s.pixel_format == PixelFormat::kMono16  ? "Y16"
+                : s.pixel_format == PixelFormat::kMono8 ? "GREY or YUYV"
+                                                        : "a format V4L2 UVC does not offer") +
+               " but the device offers " + (offered.empty() ? "nothing" : offered));
   }
   v4l2_format fmt{};
   fmt.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
@@ -230,13 +247,18 @@ void V4l2Camera::Configure(const CameraSettings& s) {
     fmt.fmt.pix.height = static_cast<uint32_t>(s.roi.height);
   }
   fmt.fmt.pix.field = V4L2_FIELD_NONE;
-  if (Xioctl(d.fd, VIDIOC_S_FMT, &fmt) != 0) d.Fail("settings.pixel_format", "VIDIOC_S_FMT refused " + FourCc(fourcc) + " (" + d.Errno() + ")");
+  if (Xioctl(d.fd, VIDIOC_S_FMT, &fmt) != 0)
+    d.Fail("settings.pixel_format",
+           "VIDIOC_S_FMT refused " + FourCc(fourcc) + " (" + d.Errno() + ")");
   if (fmt.fmt.pix.pixelformat != fourcc) {
-    d.Fail("settings.pixel_format", "asked for " + FourCc(fourcc) + ", the device gave " + FourCc(fmt.fmt.pix.pixelformat));
+    d.Fail("settings.pixel_format",
+           "asked for " + FourCc(fourcc) + ", the device gave " + FourCc(fmt.fmt.pix.pixelformat));
   }
-  if (!s.roi.Full() && (int(fmt.fmt.pix.width) != s.roi.width || int(fmt.fmt.pix.height) != s.roi.height)) {
-    d.Fail("settings.roi", "asked for " + std::to_string(s.roi.width) + "x" + std::to_string(s.roi.height) +
-                               ", the device offers " + std::to_string(fmt.fmt.pix.width) + "x" +
+  if (!s.roi.Full() &&
+      (int(fmt.fmt.pix.width) != s.roi.width || int(fmt.fmt.pix.height) != s.roi.height)) {
+    d.Fail("settings.roi", "asked for " + std::to_string(s.roi.width) + "x" +
+                               std::to_string(s.roi.height) + ", the device offers " +
+                               std::to_string(fmt.fmt.pix.width) + "x" +
                                std::to_string(fmt.fmt.pix.height));
   }
   const int bpp = fourcc == V4L2_PIX_FMT_GREY ? 1 : 2;
@@ -244,16 +266,21 @@ void V4l2Camera::Configure(const CameraSettings& s) {
   d.width = static_cast<int>(fmt.fmt.pix.width);
   d.height = static_cast<int>(fmt.fmt.pix.height);
   d.bytesperline = std::max<int>(static_cast<int>(fmt.fmt.pix.bytesperline), d.width * bpp);
-  d.sizeimage = std::max<uint32_t>(fmt.fmt.pix.sizeimage, static_cast<uint32_t>(d.bytesperline * d.height));
+  d.sizeimage =
+      std::max<uint32_t>(fmt.fmt.pix.sizeimage, static_cast<uint32_t>(d.bytesperline * d.height));
   if (s.exposure_us) {
-    if (!d.HasControl(V4L2_CID_EXPOSURE_ABSOLUTE)) d.Fail("settings.exposure_us", "the device has no exposure control");
-    if (d.HasControl(V4L2_CID_EXPOSURE_AUTO)) d.SetControl(V4L2_CID_EXPOSURE_AUTO, V4L2_EXPOSURE_MANUAL, "exposure_auto");
+    if (!d.HasControl(V4L2_CID_EXPOSURE_ABSOLUTE))
+      d.Fail("settings.exposure_us", "the device has no exposure control");
+    if (d.HasControl(V4L2_CID_EXPOSURE_AUTO))
+      d.SetControl(V4L2_CID_EXPOSURE_AUTO, V4L2_EXPOSURE_MANUAL, "exposure_auto");
     const long units = std::lround(*s.exposure_us / 100.0);  // V4L2 absolute exposure: 100 us units
     if (units < 1 || std::abs(units * 100.0 - *s.exposure_us) > 1e-6) {
-      d.warnings.push_back(d.device + ": exposure " + std::to_string(*s.exposure_us) + " us rounded to " +
-                           std::to_string(std::max<long>(units, 1) * 100) + " us (V4L2 steps of 100 us)");
+      d.warnings.push_back(d.device + ": exposure " + std::to_string(*s.exposure_us) +
+                           " us rounded to " + std::to_string(std::max<long>(units, 1) * 100) +
+                           " us (V4L2 steps of 100 us)");
     }
-    d.SetControl(V4L2_CID_EXPOSURE_ABSOLUTE, static_cast<int32_t>(std::max<long>(units, 1)), "settings.exposure_us");
+    d.SetControl(V4L2_CID_EXPOSURE_ABSOLUTE, static_cast<int32_t>(std::max<long>(units, 1)),
+                 "settings.exposure_us");
   }
   if (s.gain_db) {
     if (!d.HasControl(V4L2_CID_GAIN)) d.Fail("settings.gain_db", "the device has no gain control");
@@ -268,8 +295,10 @@ void V4l2Camera::Configure(const CameraSettings& s) {
   req.count = static_cast<uint32_t>(d.options.buffers);
   req.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
   req.memory = V4L2_MEMORY_MMAP;
-  if (Xioctl(d.fd, VIDIOC_REQBUFS, &req) != 0) d.Fail("VIDIOC_REQBUFS", "no mmap streaming (" + d.Errno() + ")");
-  if (req.count < 2) d.Fail("VIDIOC_REQBUFS", "granted " + std::to_string(req.count) + " buffers, need at least 2");
+  if (Xioctl(d.fd, VIDIOC_REQBUFS, &req) != 0)
+    d.Fail("VIDIOC_REQBUFS", "no mmap streaming (" + d.Errno() + ")");
+  if (req.count < 2)
+    d.Fail("VIDIOC_REQBUFS", "granted " + std::to_string(req.count) + " buffers, need at least 2");
   for (uint32_t i = 0; i < req.count; ++i) {
     v4l2_buffer b{};
     b.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
@@ -338,7 +367,8 @@ Frame V4l2Camera::Grab(std::chrono::milliseconds timeout) {
   }
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   for (;;) {
-    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
+        deadline - std::chrono::steady_clock::now());
     pollfd p{d.fd, POLLIN, 0};
     const int ready = poll(&p, 1, static_cast<int>(std::max<int64_t>(0, left.count())));
     if (ready < 0 && errno != EINTR) {
@@ -358,7 +388,8 @@ Frame V4l2Camera::Grab(std::chrono::milliseconds timeout) {
       if (Xioctl(d.fd, VIDIOC_DQBUF, &b) == 0) {
         frame.frame_id = b.sequence;
         frame.host_timestamp = std::chrono::system_clock::now();
-        frame.device_timestamp_ns = uint64_t(b.timestamp.tv_sec) * 1000000000ull + uint64_t(b.timestamp.tv_usec) * 1000ull;
+        frame.device_timestamp_ns =
+            uint64_t(b.timestamp.tv_sec) * 1000000000ull + uint64_t(b.timestamp.tv_usec) * 1000ull;
         frame.exposure_us = d.settings.exposure_us.value_or(0);
         if (d.last_sequence >= 0 && int64_t(b.sequence) > d.last_sequence + 1) {
           d.stats.missing_frames += b.sequence - uint64_t(d.last_sequence) - 1;
@@ -366,11 +397,13 @@ Frame V4l2Camera::Grab(std::chrono::milliseconds timeout) {
         d.last_sequence = b.sequence;
         if (b.flags & V4L2_BUF_FLAG_ERROR) {
           frame.status = FrameStatus::kOtherError;
-          frame.message = d.device + ": the driver flagged frame " + std::to_string(b.sequence) + " as damaged";
-        } else if (b.bytesused < static_cast<uint32_t>(d.bytesperline) * uint32_t(d.height) || b.index >= d.buffers.size()) {
+          frame.message =
+              d.device + ": the driver flagged frame " + std::to_string(b.sequence) + " as damaged";
+        } else if (b.bytesused < static_cast<uint32_t>(d.bytesperline) * uint32_t(d.height) ||
+                   b.index >= d.buffers.size()) {
           frame.status = FrameStatus::kSizeMismatch;
-          frame.message = d.device + ": frame of " + std::to_string(b.bytesused) + " bytes, expected " +
-                          std::to_string(d.bytesperline * d.height);
+          frame.message = d.device + ": frame of " + std::to_string(b.bytesused) +
+                          " bytes, expected " + std::to_string(d.bytesperline * d.height);
         } else {
           frame.image = d.Convert(static_cast<const uint8_t*>(d.buffers[b.index].data));
           frame.status = FrameStatus::kOk;

@@ -45,40 +45,49 @@ bool InitVideo() {
   return false;
 }
 
-double Ms(std::chrono::steady_clock::duration d) { return std::chrono::duration<double, std::milli>(d).count(); }
+double Ms(std::chrono::steady_clock::duration d) {
+  return std::chrono::duration<double, std::milli>(d).count();
+}
 
 }  // namespace
 
 WindowGeometry ParseWindowGeometry(const std::string& text) {
   WindowGeometry g;
   int consumed = -1;
-  const int fields = std::sscanf(text.c_str(), " %d , %d , %d , %d %n", &g.x, &g.y, &g.width, &g.height, &consumed);
+  const int fields = std::sscanf(text.c_str(), " %d , %d , %d , %d %n", &g.x, &g.y, &g.width,
+                                 &g.height, &consumed);
   SLSHADOW_THROW_IF(fields != 4 || consumed != static_cast<int>(text.size()), "geometry: '", text,
                     "' is not x,y,w,h (four integers, e.g. 1920,0,1280,800)");
-  SLSHADOW_THROW_IF(g.width <= 0 || g.height <= 0, "geometry: '", text, "': width and height must be positive");
+  SLSHADOW_THROW_IF(g.width <= 0 || g.height <= 0, "geometry: '", text,
+                    "': width and height must be positive");
   return g;
 }
 
 void WindowProjectorOptions::Check() const {
-  SLSHADOW_THROW_IF(display_index < 0, "window projector: display_index must not be negative (got ", display_index, ")");
+  SLSHADOW_THROW_IF(display_index < 0, "window projector: display_index must not be negative (got ",
+                    display_index, ")");
   if (geometry) {
-    SLSHADOW_THROW_IF(geometry->width <= 0 || geometry->height <= 0, "window projector: geometry: width and height must be ",
-                      "positive (got ", geometry->width, "x", geometry->height, ")");
+    SLSHADOW_THROW_IF(geometry->width <= 0 || geometry->height <= 0,
+                      "window projector: geometry: width and height must be ", "positive (got ",
+                      geometry->width, "x", geometry->height, ")");
   }
-  SLSHADOW_THROW_IF(renderer != "software" && renderer != "opengl" && renderer != "auto", "window projector: renderer: '",
-                    renderer, "' is not software, opengl or auto");
-  SLSHADOW_THROW_IF(latency.count() < 0, "window projector: latency must not be negative (got ", latency.count(), " us)");
+  SLSHADOW_THROW_IF(renderer != "software" && renderer != "opengl" && renderer != "auto",
+                    "window projector: renderer: '", renderer, "' is not software, opengl or auto");
+  SLSHADOW_THROW_IF(latency.count() < 0, "window projector: latency must not be negative (got ",
+                    latency.count(), " us)");
   SLSHADOW_THROW_IF(!(fallback_refresh_hz > 0 && fallback_refresh_hz <= 1000),
-                    "window projector: fallback_refresh_hz must be in (0, 1000] (got ", fallback_refresh_hz, ")");
+                    "window projector: fallback_refresh_hz must be in (0, 1000] (got ",
+                    fallback_refresh_hz, ")");
 }
 
 std::string PresentLatency::BriefReport() const {
   char line[320];
   std::snprintf(line, sizeof line,
-                "present latency over %d frames: call to screen median %.2f ms (max %.2f), return to screen median %.2f ms "
+                "present latency over %d frames: call to screen median %.2f ms (max %.2f), return "
+                "to screen median %.2f ms "
                 "(max %.2f), Show() median %.2f ms",
-                samples, call_to_screen_ms_median, call_to_screen_ms_max, return_to_screen_ms_median,
-                return_to_screen_ms_max, show_ms_median);
+                samples, call_to_screen_ms_median, call_to_screen_ms_max,
+                return_to_screen_ms_median, return_to_screen_ms_max, show_ms_median);
   return line;
 }
 
@@ -155,8 +164,8 @@ struct WindowProjector::Impl {
     SDL_Event event;
     bool redraw = false;
     while (SDL_PollEvent(&event)) {
-      if (event.type == SDL_WINDOWEVENT &&
-          (event.window.event == SDL_WINDOWEVENT_EXPOSED || event.window.event == SDL_WINDOWEVENT_RESTORED)) {
+      if (event.type == SDL_WINDOWEVENT && (event.window.event == SDL_WINDOWEVENT_EXPOSED ||
+                                            event.window.event == SDL_WINDOWEVENT_RESTORED)) {
         redraw = true;
       }
     }
@@ -206,13 +215,14 @@ struct WindowProjector::Impl {
     if (!std::getenv("SDL_VIDEODRIVER")) SDL_SetHint(SDL_HINT_VIDEODRIVER, "x11");
     if (!InitVideo()) {
       const char* display = std::getenv("DISPLAY");
-      SLSHADOW_THROW("window projector: no display: SDL cannot start video (DISPLAY='", display ? display : "",
-                     "'): ", SdlError());
+      SLSHADOW_THROW("window projector: no display: SDL cannot start video (DISPLAY='",
+                     display ? display : "", "'): ", SdlError());
     }
     video_initialised = true;
     const std::string driver = SDL_GetCurrentVideoDriver() ? SDL_GetCurrentVideoDriver() : "";
-    SLSHADOW_THROW_IF(driver == "offscreen" || driver == "dummy", "window projector: no display: SDL video driver '",
-                      driver, "' shows nothing");
+    SLSHADOW_THROW_IF(driver == "offscreen" || driver == "dummy",
+                      "window projector: no display: SDL video driver '", driver,
+                      "' shows nothing");
     const int displays = SDL_GetNumVideoDisplays();
     SLSHADOW_THROW_IF(displays < 1, "window projector: SDL finds no display: ", SdlError());
     Uint32 flags = SDL_WINDOW_BORDERLESS | SDL_WINDOW_SHOWN;
@@ -224,51 +234,58 @@ struct WindowProjector::Impl {
       for (int d = 0; d < displays && !inside; ++d) {
         SDL_Rect b;
         if (SDL_GetDisplayBounds(d, &b) != 0) continue;
-        inside = geometry.x >= b.x && geometry.y >= b.y && geometry.x + geometry.width <= b.x + b.w &&
+        inside = geometry.x >= b.x && geometry.y >= b.y &&
+                 geometry.x + geometry.width <= b.x + b.w &&
                  geometry.y + geometry.height <= b.y + b.h;
         if (inside) SDL_GetCurrentDisplayMode(d, &mode);
       }
-      SLSHADOW_THROW_IF(!inside, "window projector: geometry ", geometry.x, ",", geometry.y, ",", geometry.width, ",",
-                        geometry.height, " does not lie on a display (", displays, " display(s); display 0 is ",
-                        DisplayText(0), ")");
+      SLSHADOW_THROW_IF(!inside, "window projector: geometry ", geometry.x, ",", geometry.y, ",",
+                        geometry.width, ",", geometry.height, " does not lie on a display (",
+                        displays, " display(s); display 0 is ", DisplayText(0), ")");
       info.id = "geometry:" + std::to_string(geometry.x) + "," + std::to_string(geometry.y) + "," +
                 std::to_string(geometry.width) + "," + std::to_string(geometry.height);
     } else {
-      SLSHADOW_THROW_IF(options.display_index >= displays, "window projector: display_index ", options.display_index,
-                        " does not exist (", displays, " display(s): 0..", displays - 1, ")");
+      SLSHADOW_THROW_IF(options.display_index >= displays, "window projector: display_index ",
+                        options.display_index, " does not exist (", displays, " display(s): 0..",
+                        displays - 1, ")");
       SDL_Rect b;
-      SLSHADOW_THROW_IF(SDL_GetDisplayBounds(options.display_index, &b) != 0, "window projector: display ",
-                        options.display_index, ": ", SdlError());
+      SLSHADOW_THROW_IF(SDL_GetDisplayBounds(options.display_index, &b) != 0,
+                        "window projector: display ", options.display_index, ": ", SdlError());
       geometry = {b.x, b.y, b.w, b.h};
       SDL_GetCurrentDisplayMode(options.display_index, &mode);
       flags |= SDL_WINDOW_FULLSCREEN_DESKTOP;
       info.id = "display:" + std::to_string(options.display_index);
     }
-    window = SDL_CreateWindow("slshadow projector", geometry.x, geometry.y, geometry.width, geometry.height, flags);
-    SLSHADOW_THROW_IF(!window, "window projector: cannot create the window (", info.id, "): ", SdlError());
+    window = SDL_CreateWindow("slshadow projector", geometry.x, geometry.y, geometry.width,
+                              geometry.height, flags);
+    SLSHADOW_THROW_IF(!window, "window projector: cannot create the window (", info.id,
+                      "): ", SdlError());
     SDL_ShowCursor(SDL_DISABLE);
     Uint32 renderer_flags = sdl_vsync ? SDL_RENDERER_PRESENTVSYNC : 0;
     renderer_flags |= options.renderer == "software" ? SDL_RENDERER_SOFTWARE : 0;
     renderer = SDL_CreateRenderer(window, -1, renderer_flags);
-    SLSHADOW_THROW_IF(!renderer, "window projector: renderer '", options.renderer, "' unavailable: ", SdlError());
+    SLSHADOW_THROW_IF(!renderer, "window projector: renderer '", options.renderer,
+                      "' unavailable: ", SdlError());
     SDL_RendererInfo rinfo{};
     SDL_GetRendererInfo(renderer, &rinfo);
     renderer_name = rinfo.name ? rinfo.name : "";
     int w = 0, h = 0;
     SDL_GetRendererOutputSize(renderer, &w, &h);
-    SLSHADOW_THROW_IF(w != geometry.width || h != geometry.height, "window projector: the window (", info.id, ") is ", w,
-                      "x", h, ", not the requested ", geometry.width, "x", geometry.height,
-                      " (a window manager resized it?)");
+    SLSHADOW_THROW_IF(w != geometry.width || h != geometry.height, "window projector: the window (",
+                      info.id, ") is ", w, "x", h, ", not the requested ", geometry.width, "x",
+                      geometry.height, " (a window manager resized it?)");
     int wx = 0, wy = 0;
     SDL_GetWindowPosition(window, &wx, &wy);
-    SLSHADOW_THROW_IF(wx != geometry.x || wy != geometry.y, "window projector: the window (", info.id, ") is at ", wx, ",",
-                      wy, ", not at the requested ", geometry.x, ",", geometry.y, " (a window manager moved it?)");
+    SLSHADOW_THROW_IF(wx != geometry.x || wy != geometry.y, "window projector: the window (",
+                      info.id, ") is at ", wx, ",", wy, ", not at the requested ", geometry.x, ",",
+                      geometry.y, " (a window manager moved it?)");
     info.backend = "window";
     info.width = geometry.width;
     info.height = geometry.height;
     info.refresh_hz = mode.refresh_rate > 0 ? mode.refresh_rate : options.fallback_refresh_hz;
     own_pacing = options.vsync && !sdl_vsync;
-    period = std::chrono::duration_cast<std::chrono::steady_clock::duration>(std::chrono::duration<double>(1.0 / info.refresh_hz));
+    period = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+        std::chrono::duration<double>(1.0 / info.refresh_hz));
     PumpEvents();
     Draw(-1);
   }
@@ -276,7 +293,8 @@ struct WindowProjector::Impl {
   static std::string DisplayText(int d) {
     SDL_Rect b;
     if (SDL_GetDisplayBounds(d, &b) != 0) return "unknown";
-    return std::to_string(b.x) + "," + std::to_string(b.y) + "," + std::to_string(b.w) + "," + std::to_string(b.h);
+    return std::to_string(b.x) + "," + std::to_string(b.y) + "," + std::to_string(b.w) + "," +
+           std::to_string(b.h);
   }
 
   void DestroyTextures() {
@@ -295,11 +313,13 @@ struct WindowProjector::Impl {
   }
 };
 
-WindowProjector::WindowProjector(const WindowProjectorOptions& options) : impl_(std::make_unique<Impl>()) {
+WindowProjector::WindowProjector(const WindowProjectorOptions& options)
+    : impl_(std::make_unique<Impl>()) {
   options.Check();
   bool expected = false;
-  SLSHADOW_THROW_IF(!g_window_open.compare_exchange_strong(expected, true),
-                    "window projector: another window projector is open in this process (one at a time)");
+  SLSHADOW_THROW_IF(
+      !g_window_open.compare_exchange_strong(expected, true),
+      "window projector: another window projector is open in this process (one at a time)");
   impl_->options = options;
   impl_->latency_us = options.latency.count();
   impl_->thread = std::thread([this] { impl_->Loop(); });
@@ -308,8 +328,7 @@ WindowProjector::WindowProjector(const WindowProjectorOptions& options) : impl_(
   } catch (...) {
     try {
       impl_->Run([this] { impl_->Close(); });
-    } catch (...) {
-    }
+    } catch (...) {}
     {
       std::lock_guard<std::mutex> lock(impl_->mutex);
       impl_->quit = true;
@@ -324,8 +343,7 @@ WindowProjector::WindowProjector(const WindowProjectorOptions& options) : impl_(
 WindowProjector::~WindowProjector() {
   try {
     impl_->Run([this] { impl_->Close(); });
-  } catch (...) {
-  }
+  } catch (...) {}
   {
     std::lock_guard<std::mutex> lock(impl_->mutex);
     impl_->quit = true;
@@ -337,8 +355,9 @@ WindowProjector::~WindowProjector() {
 
 std::vector<DisplayEntry> ListDisplays() {
   bool expected = false;
-  SLSHADOW_THROW_IF(!g_window_open.compare_exchange_strong(expected, true),
-                    "displays: a window projector is open in this process; list the displays before opening it");
+  SLSHADOW_THROW_IF(
+      !g_window_open.compare_exchange_strong(expected, true),
+      "displays: a window projector is open in this process; list the displays before opening it");
   std::vector<DisplayEntry> out;
   std::string error;
   // SDL video on a thread of its own, initialised and shut down there (like the projector).
@@ -346,7 +365,8 @@ std::vector<DisplayEntry> ListDisplays() {
     if (!std::getenv("SDL_VIDEODRIVER")) SDL_SetHint(SDL_HINT_VIDEODRIVER, "x11");
     if (!InitVideo()) {
       const char* display = std::getenv("DISPLAY");
-      error = "displays: no display: SDL cannot start video (DISPLAY='" + std::string(display ? display : "") + "'): " + SdlError();
+      error = "displays: no display: SDL cannot start video (DISPLAY='" +
+              std::string(display ? display : "") + "'): " + SdlError();
       return;
     }
     for (int d = 0; d < SDL_GetNumVideoDisplays(); ++d) {
@@ -371,9 +391,12 @@ std::vector<DisplayEntry> ListDisplays() {
 ProjectorInfo WindowProjector::Info() const { return impl_->info; }
 WindowGeometry WindowProjector::Geometry() const { return impl_->geometry; }
 std::string WindowProjector::RendererName() const { return impl_->renderer_name; }
-std::chrono::microseconds WindowProjector::Latency() const { return std::chrono::microseconds(impl_->latency_us.load()); }
+std::chrono::microseconds WindowProjector::Latency() const {
+  return std::chrono::microseconds(impl_->latency_us.load());
+}
 void WindowProjector::SetLatency(std::chrono::microseconds latency) {
-  SLSHADOW_THROW_IF(latency.count() < 0, "window projector: latency must not be negative (got ", latency.count(), " us)");
+  SLSHADOW_THROW_IF(latency.count() < 0, "window projector: latency must not be negative (got ",
+                    latency.count(), " us)");
   impl_->latency_us = latency.count();
 }
 int WindowProjector::size() const { return impl_->num_images; }
@@ -382,8 +405,9 @@ void WindowProjector::Load(const std::vector<cv::Mat>& images) {
   const int w = impl_->info.width, h = impl_->info.height;
   for (size_t i = 0; i < images.size(); ++i) {
     const cv::Mat& m = images[i];
-    SLSHADOW_THROW_IF(m.type() != CV_8UC1 || m.cols != w || m.rows != h, "window projector: image ", i, " is ", m.cols, "x",
-                      m.rows, (m.type() == CV_8UC1 ? " 8-bit grey" : " not 8-bit grey (CV_8UC1)"),
+    SLSHADOW_THROW_IF(m.type() != CV_8UC1 || m.cols != w || m.rows != h, "window projector: image ",
+                      i, " is ", m.cols, "x", m.rows,
+                      (m.type() == CV_8UC1 ? " 8-bit grey" : " not 8-bit grey (CV_8UC1)"),
                       ", the projector window is ", w, "x", h, " 8-bit grey");
   }
   impl_->Run([&] {
@@ -391,10 +415,12 @@ void WindowProjector::Load(const std::vector<cv::Mat>& images) {
     std::vector<SDL_Texture*> textures;
     std::vector<uint32_t> argb(static_cast<size_t>(w) * static_cast<size_t>(h));
     for (size_t i = 0; i < images.size(); ++i) {
-      SDL_Texture* t = SDL_CreateTexture(s.renderer, SDL_PIXELFORMAT_ARGB8888, SDL_TEXTUREACCESS_STATIC, w, h);
+      SDL_Texture* t =
+          SDL_CreateTexture(s.renderer, SDL_PIXELFORMAT_ARGB8888, SDL_TEXTUREACCESS_STATIC, w, h);
       if (!t) {
         for (SDL_Texture* u : textures) SDL_DestroyTexture(u);
-        SLSHADOW_THROW("window projector: cannot create texture ", i, " (", w, "x", h, "): ", SdlError());
+        SLSHADOW_THROW("window projector: cannot create texture ", i, " (", w, "x", h,
+                       "): ", SdlError());
       }
       SDL_SetTextureBlendMode(t, SDL_BLENDMODE_NONE);
       for (int y = 0; y < h; ++y) {
@@ -413,8 +439,8 @@ void WindowProjector::Load(const std::vector<cv::Mat>& images) {
 }
 
 std::chrono::steady_clock::time_point WindowProjector::Show(int index) {
-  SLSHADOW_THROW_IF(index < 0 || index >= impl_->num_images, "window projector: Show(", index, "): ", impl_->num_images,
-                    " image(s) loaded");
+  SLSHADOW_THROW_IF(index < 0 || index >= impl_->num_images, "window projector: Show(", index,
+                    "): ", impl_->num_images, " image(s) loaded");
   std::chrono::steady_clock::time_point shown;
   impl_->Run([&] {
     impl_->Draw(index);
@@ -435,13 +461,16 @@ std::chrono::steady_clock::time_point WindowProjector::ShowBlack() {
 }
 
 PresentLatency WindowProjector::MeasurePresentLatency(int samples) {
-  SLSHADOW_THROW_IF(samples < 1, "window projector: MeasurePresentLatency: samples must be positive (got ", samples, ")");
+  SLSHADOW_THROW_IF(samples < 1,
+                    "window projector: MeasurePresentLatency: samples must be positive (got ",
+                    samples, ")");
   XScreenReader screen;
   const WindowGeometry g = impl_->geometry;
   // Five probes spread over the window: a frame counts as on screen when all have the new level.
   std::vector<cv::Rect> probes;
   for (auto [fx, fy] : {std::pair{0.5, 0.5}, {0.1, 0.1}, {0.9, 0.1}, {0.1, 0.9}, {0.9, 0.9}}) {
-    probes.emplace_back(g.x + static_cast<int>(fx * (g.width - 1)), g.y + static_cast<int>(fy * (g.height - 1)), 1, 1);
+    probes.emplace_back(g.x + static_cast<int>(fx * (g.width - 1)),
+                        g.y + static_cast<int>(fy * (g.height - 1)), 1, 1);
   }
   auto on_screen = [&](uint8_t level) {
     for (const cv::Rect& r : probes) {
@@ -452,8 +481,9 @@ PresentLatency WindowProjector::MeasurePresentLatency(int samples) {
   auto wait_for = [&](uint8_t level) {
     const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(5);
     while (!on_screen(level)) {
-      SLSHADOW_THROW_IF(std::chrono::steady_clock::now() > deadline, "window projector: level ", int{level},
-                        " did not reach the X screen '", screen.display_name(), "' within 5 s");
+      SLSHADOW_THROW_IF(std::chrono::steady_clock::now() > deadline, "window projector: level ",
+                        int{level}, " did not reach the X screen '", screen.display_name(),
+                        "' within 5 s");
     }
     return std::chrono::steady_clock::now();
   };

@@ -32,8 +32,8 @@ struct WindowGeometry {
 WindowGeometry ParseWindowGeometry(const std::string& text);
 
 struct WindowProjectorOptions {
-  int display_index = 0;                    // SDL display for the fullscreen window
-  std::optional<WindowGeometry> geometry;   // set: a borderless window here instead
+  int display_index = 0;                   // SDL display for the fullscreen window
+  std::optional<WindowGeometry> geometry;  // set: a borderless window here instead
   // SDL render driver: "software" (default; pixel-exact, needs no GPU), "opengl", or "auto"
   // (SDL's choice).
   std::string renderer = "software";
@@ -43,7 +43,7 @@ struct WindowProjectorOptions {
   // Refresh rate assumed when the display reports none (Xvfb reports 0 Hz), Hz.
   double fallback_refresh_hz = 60;
   std::chrono::microseconds latency{0};  // initial Latency() (configured or measured)
-  void Check() const;  // throws slshadow::Error naming the field
+  void Check() const;                    // throws slshadow::Error naming the field
 };
 
 // Present latency of the window measured through the X server (MeasurePresentLatency): from the
@@ -52,9 +52,10 @@ struct WindowProjectorOptions {
 // display's own delay comes on top (measure that with a camera: `slshadow latency`).
 struct PresentLatency {
   int samples = 0;
-  double call_to_screen_ms_median = 0, call_to_screen_ms_max = 0;      // from Show()'s call
-  double return_to_screen_ms_median = 0, return_to_screen_ms_max = 0;  // from Show()'s return (<= 0: on screen before it returned)
-  double show_ms_median = 0;  // duration of Show() itself (vsync wait included)
+  double call_to_screen_ms_median = 0, call_to_screen_ms_max = 0;  // from Show()'s call
+  double return_to_screen_ms_median = 0,
+         return_to_screen_ms_max = 0;  // from Show()'s return (<= 0: on screen before it returned)
+  double show_ms_median = 0;           // duration of Show() itself (vsync wait included)
   std::string BriefReport() const;
 };
 

@@ -41,14 +41,19 @@ struct XScreenReader::Impl {
         FreeShm();
         Visual* visual = DefaultVisual(display, DefaultScreen(display));
         const int depth = DefaultDepth(display, DefaultScreen(display));
-        shm_image = XShmCreateImage(display, visual, static_cast<unsigned>(depth), ZPixmap, nullptr, &shm_info,
-                                    static_cast<unsigned>(rect.width), static_cast<unsigned>(rect.height));
+        shm_image = XShmCreateImage(display, visual, static_cast<unsigned>(depth), ZPixmap, nullptr,
+                                    &shm_info, static_cast<unsigned>(rect.width),
+                                    static_cast<unsigned>(rect.height));
         if (shm_image) {
-          shm_info.shmid = shmget(IPC_PRIVATE, static_cast<size_t>(shm_image->bytes_per_line) * static_cast<size_t>(rect.height),
-                                  IPC_CREAT | 0600);
-          shm_info.shmaddr = shm_image->data = static_cast<char*>(shmat(shm_info.shmid, nullptr, 0));
+          shm_info.shmid = shmget(
+              IPC_PRIVATE,
+              static_cast<size_t>(shm_image->bytes_per_line) * static_cast<size_t>(rect.height),
+              IPC_CREAT | 0600);
+          shm_info.shmaddr = shm_image->data =
+              static_cast<char*>(shmat(shm_info.shmid, nullptr, 0));
           shm_info.readOnly = False;
-          const bool attached = shm_info.shmaddr != reinterpret_cast<char*>(-1) && XShmAttach(display, &shm_info);
+          const bool attached =
+              shm_info.shmaddr != reinterpret_cast<char*>(-1) && XShmAttach(display, &shm_info);
           XSync(display, False);
           shmctl(shm_info.shmid, IPC_RMID, nullptr);  // freed when both sides detach
           if (!attached) {
@@ -64,12 +69,13 @@ struct XScreenReader::Impl {
       }
     }
     *owned = true;
-    return XGetImage(display, root, rect.x, rect.y, static_cast<unsigned>(rect.width), static_cast<unsigned>(rect.height),
-                     AllPlanes, ZPixmap);
+    return XGetImage(display, root, rect.x, rect.y, static_cast<unsigned>(rect.width),
+                     static_cast<unsigned>(rect.height), AllPlanes, ZPixmap);
   }
 };
 
-XScreenReader::XScreenReader(const std::string& display_name, bool allow_shm) : impl_(std::make_unique<Impl>()) {
+XScreenReader::XScreenReader(const std::string& display_name, bool allow_shm)
+    : impl_(std::make_unique<Impl>()) {
   const char* env = std::getenv("DISPLAY");
   impl_->name = !display_name.empty() ? display_name : (env ? env : "");
   SLSHADOW_THROW_IF(impl_->name.empty(), "X screen: no display given and $DISPLAY is not set");
@@ -81,11 +87,12 @@ XScreenReader::XScreenReader(const std::string& display_name, bool allow_shm) : 
   impl_->height = DisplayHeight(impl_->display, screen);
   Visual* visual = DefaultVisual(impl_->display, screen);
   const int depth = DefaultDepth(impl_->display, screen);
-  if ((depth != 24 && depth != 32) || visual->red_mask != 0xff0000 || visual->green_mask != 0x00ff00 ||
-      visual->blue_mask != 0x0000ff) {
+  if ((depth != 24 && depth != 32) || visual->red_mask != 0xff0000 ||
+      visual->green_mask != 0x00ff00 || visual->blue_mask != 0x0000ff) {
     XCloseDisplay(impl_->display);
-    SLSHADOW_THROW("X screen '", impl_->name, "': depth ", depth,
-                   " is not 24-bit TrueColor with 8-bit R, G, B (start the server with -screen 0 WxHx24)");
+    SLSHADOW_THROW(
+        "X screen '", impl_->name, "': depth ", depth,
+        " is not 24-bit TrueColor with 8-bit R, G, B (start the server with -screen 0 WxHx24)");
   }
   // Shared memory only with a local server (":N", "unix:N"): for a remote one XShmAttach fails with
   // an X error, which Xlib's default handler turns into exit().
@@ -106,10 +113,10 @@ int XScreenReader::height() const { return impl_->height; }
 namespace {
 
 void CheckRect(const cv::Rect& rect, const std::string& name, int width, int height) {
-  SLSHADOW_THROW_IF(rect.width <= 0 || rect.height <= 0 || rect.x < 0 || rect.y < 0 || rect.x + rect.width > width ||
-                        rect.y + rect.height > height,
-                    "X screen '", name, "': region ", rect.x, ",", rect.y, ",", rect.width, ",", rect.height,
-                    " is not inside the ", width, "x", height, " screen");
+  SLSHADOW_THROW_IF(rect.width <= 0 || rect.height <= 0 || rect.x < 0 || rect.y < 0 ||
+                        rect.x + rect.width > width || rect.y + rect.height > height,
+                    "X screen '", name, "': region ", rect.x, ",", rect.y, ",", rect.width, ",",
+                    rect.height, " is not inside the ", width, "x", height, " screen");
 }
 
 }  // namespace
@@ -125,7 +132,8 @@ cv::Mat XScreenReader::Read(const cv::Rect& rect, int channels) {
   SLSHADOW_CHECK(image->bits_per_pixel == 32 && image->byte_order == LSBFirst);
   cv::Mat out(rect.height, rect.width, channels == 3 ? CV_8UC3 : CV_8UC1);
   for (int y = 0; y < rect.height; ++y) {
-    const auto* src = reinterpret_cast<const uint8_t*>(image->data + static_cast<ptrdiff_t>(y) * image->bytes_per_line);
+    const auto* src = reinterpret_cast<const uint8_t*>(image->data + static_cast<ptrdiff_t>(y) *
+                                                                         image->bytes_per_line);
     auto* dst = out.ptr<uint8_t>(y);
     if (channels == 3) {
       for (int x = 0; x < rect.width; ++x) {  // LSB-first 0x00RRGGBB: bytes B, G, R, X

@@ -25,7 +25,7 @@ class XScreenReader {
   XScreenReader& operator=(const XScreenReader&) = delete;
 
   const std::string& display_name() const;
-  int width() const;   // default screen, pixels
+  int width() const;  // default screen, pixels
   int height() const;
 
   // The screen content of `rect` (screen pixels, must lie inside the screen) as CV_8UC3 in BGR

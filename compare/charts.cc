@@ -23,7 +23,8 @@ std::unique_ptr<plstream> OpenChart(const std::filesystem::path& file, int width
 
 std::array<uint8_t, 3> DeviationColor(double t) { return plot::HeatColor(t); }
 
-void WriteHistogramPng(const std::filesystem::path& path, const Histogram& h, const HistogramChart& chart) {
+void WriteHistogramPng(const std::filesystem::path& path, const Histogram& h,
+                       const HistogramChart& chart) {
   SLSHADOW_THROW_IF(h.counts.empty(), path.string(), ": histogram has no bins");
   const auto lock = plot::LockPlplot();
   WriteFileAtomically(path, [&](const std::filesystem::path& tmp) {
@@ -68,16 +69,20 @@ void WriteHistogramPng(const std::filesystem::path& path, const Histogram& h, co
   });
 }
 
-void WriteDeviationMapPng(const std::filesystem::path& path, const ValueImage& image, const MapChart& chart) {
+void WriteDeviationMapPng(const std::filesystem::path& path, const ValueImage& image,
+                          const MapChart& chart) {
   SLSHADOW_THROW_IF(image.width <= 0 || image.height <= 0 ||
-                        image.values.size() != static_cast<size_t>(image.width) * static_cast<size_t>(image.height),
+                        image.values.size() !=
+                            static_cast<size_t>(image.width) * static_cast<size_t>(image.height),
                     path.string(), ": bad deviation image size ", image.width, "x", image.height);
   SLSHADOW_THROW_IF(!(chart.hi > chart.lo), path.string(), ": empty colour range");
-  SLSHADOW_THROW_IF(chart.max_width_px < 16 || chart.max_height_px < 16, path.string(), ": map drawn smaller than 16 px");
+  SLSHADOW_THROW_IF(chart.max_width_px < 16 || chart.max_height_px < 16, path.string(),
+                    ": map drawn smaller than 16 px");
   const auto lock = plot::LockPlplot();
   // Page: the image at its own aspect ratio plus room for the colour bar and labels.
   const int img_w = image.width, img_h = image.height;
-  const double scale = std::min(1.0, std::min(static_cast<double>(chart.max_width_px) / img_w, static_cast<double>(chart.max_height_px) / img_h));
+  const double scale = std::min(1.0, std::min(static_cast<double>(chart.max_width_px) / img_w,
+                                              static_cast<double>(chart.max_height_px) / img_h));
   // Fixed pixel margins: left for the y ticks and label, right for the colour bar and its
   // labels, bottom for the x ticks and label, top for the title.
   constexpr int kLeft = 145, kRight = 250, kTop = 70;
@@ -98,14 +103,19 @@ void WriteDeviationMapPng(const std::filesystem::path& path, const ValueImage& i
     // the range; plimagefr skips values outside [valuemin, valuemax] (white background).
     const int cell_w = std::max(1, static_cast<int>(std::ceil(img_w * scale))),
               cell_h = std::max(1, static_cast<int>(std::ceil(img_h * scale)));
-    std::vector<std::vector<PLFLT>> cols(static_cast<size_t>(cell_w), std::vector<PLFLT>(static_cast<size_t>(cell_h), 0.0));
-    std::vector<std::vector<int>> counts(static_cast<size_t>(cell_w), std::vector<int>(static_cast<size_t>(cell_h), 0));
+    std::vector<std::vector<PLFLT>> cols(static_cast<size_t>(cell_w),
+                                         std::vector<PLFLT>(static_cast<size_t>(cell_h), 0.0));
+    std::vector<std::vector<int>> counts(static_cast<size_t>(cell_w),
+                                         std::vector<int>(static_cast<size_t>(cell_h), 0));
     for (int y = 0; y < img_h; ++y) {
-      const auto cy = static_cast<size_t>(std::min(cell_h - 1, static_cast<int>(static_cast<int64_t>(y) * cell_h / img_h)));
+      const auto cy = static_cast<size_t>(
+          std::min(cell_h - 1, static_cast<int>(static_cast<int64_t>(y) * cell_h / img_h)));
       for (int x = 0; x < img_w; ++x) {
-        const float v = image.values[static_cast<size_t>(y) * static_cast<size_t>(img_w) + static_cast<size_t>(x)];
+        const float v = image.values[static_cast<size_t>(y) * static_cast<size_t>(img_w) +
+                                     static_cast<size_t>(x)];
         if (!std::isfinite(v)) continue;
-        const auto cx = static_cast<size_t>(std::min(cell_w - 1, static_cast<int>(static_cast<int64_t>(x) * cell_w / img_w)));
+        const auto cx = static_cast<size_t>(
+            std::min(cell_w - 1, static_cast<int>(static_cast<int64_t>(x) * cell_w / img_w)));
         cols[cx][cy] += v;
         ++counts[cx][cy];
       }
@@ -114,16 +124,19 @@ void WriteDeviationMapPng(const std::filesystem::path& path, const ValueImage& i
     const double below = chart.lo - 10.0 * (chart.hi - chart.lo);
     for (size_t x = 0; x < cols.size(); ++x) {
       for (size_t y = 0; y < cols[x].size(); ++y) {
-        cols[x][y] = counts[x][y] > 0 ? std::clamp<double>(cols[x][y] / counts[x][y], chart.lo, chart.hi) : below;
+        cols[x][y] = counts[x][y] > 0
+                         ? std::clamp<double>(cols[x][y] / counts[x][y], chart.lo, chart.hi)
+                         : below;
       }
       ptrs[x] = cols[x].data();
     }
-    pls->imagefr(ptrs.data(), cell_w, cell_h, -0.5, img_w - 0.5, img_h - 0.5, -0.5, chart.lo, chart.hi,
-                 chart.lo, chart.hi, nullptr, nullptr);
+    pls->imagefr(ptrs.data(), cell_w, cell_h, -0.5, img_w - 0.5, img_h - 0.5, -0.5, chart.lo,
+                 chart.hi, chart.lo, chart.hi, nullptr, nullptr);
     pls->col0(1);
     pls->box("bcnst", 0, 0, "bcnstv", 0, 0);
     pls->lab(chart.x_label.c_str(), chart.y_label.c_str(), chart.title.c_str());
-    plot::HeatColorBar(*pls, chart.lo, chart.hi, chart.colorbar_label, 25.0 / page_w, 35.0 / page_w, chart.marks);
+    plot::HeatColorBar(*pls, chart.lo, chart.hi, chart.colorbar_label, 25.0 / page_w, 35.0 / page_w,
+                       chart.marks);
     for (size_t i = 0; i < chart.notes.size(); ++i) {
       pls->mtex("b", 5.0 + 1.4 * static_cast<double>(i), 0.0, 0.0, chart.notes[i].c_str());
     }

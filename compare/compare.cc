@@ -53,7 +53,8 @@ Reference ReferenceFromMesh(TriangleMesh mesh, const std::string& source, size_t
   for (size_t i = 0; i < samples; ++i) {
     const double r = u(rng) * total;
     const size_t t = std::min<size_t>(
-        static_cast<size_t>(std::upper_bound(cumulative.begin(), cumulative.end(), r) - cumulative.begin()),
+        static_cast<size_t>(std::upper_bound(cumulative.begin(), cumulative.end(), r) -
+                            cumulative.begin()),
         mesh.NumTriangles() - 1);
     const Eigen::Vector3i& f = mesh.triangles[t];
     const double s = std::sqrt(u(rng)), b = u(rng);
@@ -79,12 +80,16 @@ Reference ReferenceFromCloud(PointCloud cloud, const std::string& source) {
 
 Reference LoadReference(const fs::path& path, size_t mesh_samples) {
   std::string ext = path.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
-  if (ext == ".stl" || ext == ".obj") return ReferenceFromMesh(ReadMesh(path), path.string(), mesh_samples);
-  SLSHADOW_THROW_IF(ext != ".ply", path.string(), ": reference must be .ply, .stl or .obj (got '", ext, "')");
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return std::tolower(c); });
+  if (ext == ".stl" || ext == ".obj")
+    return ReferenceFromMesh(ReadMesh(path), path.string(), mesh_samples);
+  SLSHADOW_THROW_IF(ext != ".ply", path.string(), ": reference must be .ply, .stl or .obj (got '",
+                    ext, "')");
   const PlyData ply = ReadPlyData(path);
   const PlyElement* faces = ply.Find("face");
-  if (faces && faces->count > 0) return ReferenceFromMesh(ReadMesh(path), path.string(), mesh_samples);
+  if (faces && faces->count > 0)
+    return ReferenceFromMesh(ReadMesh(path), path.string(), mesh_samples);
   return ReferenceFromCloud(ReadPly(path), path.string());
 }
 
@@ -96,7 +101,8 @@ void CompareOptions::Check() const {
   SLSHADOW_THROW_IF(!(coverage_radius_mm >= 0) || !std::isfinite(coverage_radius_mm),
                     "coverage_radius_mm: must be finite and >= 0 (got ", coverage_radius_mm, ")");
   SLSHADOW_THROW_IF(!(color_range_mm >= 0) || !std::isfinite(color_range_mm),
-                    "color_range_mm: must be finite and >= 0 (0: scaled to the data; got ", color_range_mm, ")");
+                    "color_range_mm: must be finite and >= 0 (0: scaled to the data; got ",
+                    color_range_mm, ")");
   SLSHADOW_THROW_IF(histogram_bins < 2 || histogram_bins > 10000,
                     "histogram_bins: must be in [2, 10000] (got ", histogram_bins, ")");
   if (m3c2) m3c2_options.Check();
@@ -157,22 +163,26 @@ nlohmann::json CompareOptionsToJson(const CompareOptions& o) {
 
 CompareOptions CompareOptionsFromConfig(const ConfigNode& node) {
   if (!node.IsObject()) node.Fail("expected a mapping of compare options");
-  node.RejectUnknownKeys({"registration", "c2c", "threshold_mm", "coverage_radius_mm", "histogram_bins", "m3c2",
-                          "m3c2_options", "artefacts", "vdi2634", "color_range_mm"});
+  node.RejectUnknownKeys({"registration", "c2c", "threshold_mm", "coverage_radius_mm",
+                          "histogram_bins", "m3c2", "m3c2_options", "artefacts", "vdi2634",
+                          "color_range_mm"});
   CompareOptions o;
   if (node.Has("registration")) {
     const ConfigNode n = node["registration"];
-    n.RejectUnknownKeys({"method", "voxel_mm", "feature_radius_mm", "ransac_iterations", "ransac_inlier_fraction",
-                         "seed", "icp_max_correspondence_mm", "icp_max_iterations", "icp_max_points",
-                         "icp_tolerance"});
+    n.RejectUnknownKeys({"method", "voxel_mm", "feature_radius_mm", "ransac_iterations",
+                         "ransac_inlier_fraction", "seed", "icp_max_correspondence_mm",
+                         "icp_max_iterations", "icp_max_points", "icp_tolerance"});
     RegistrationOptions& r = o.registration;
-    if (n.Has("method")) r.method = ParseName(n["method"], [](const std::string& s) { return RegistrationMethodFromString(s); });
+    if (n.Has("method"))
+      r.method = ParseName(n["method"],
+                           [](const std::string& s) { return RegistrationMethodFromString(s); });
     r.voxel_mm = n.GetDouble("voxel_mm", r.voxel_mm);
     r.feature_radius_mm = n.GetDouble("feature_radius_mm", r.feature_radius_mm);
     r.ransac_iterations = static_cast<int>(n.GetInt("ransac_iterations", r.ransac_iterations));
     r.ransac_inlier_fraction = n.GetDouble("ransac_inlier_fraction", r.ransac_inlier_fraction);
     r.seed = GetSeed(n, "seed", r.seed);
-    r.icp_max_correspondence_mm = n.GetDouble("icp_max_correspondence_mm", r.icp_max_correspondence_mm);
+    r.icp_max_correspondence_mm =
+        n.GetDouble("icp_max_correspondence_mm", r.icp_max_correspondence_mm);
     r.icp_max_iterations = static_cast<int>(n.GetInt("icp_max_iterations", r.icp_max_iterations));
     r.icp_max_points = static_cast<int>(n.GetInt("icp_max_points", r.icp_max_points));
     r.icp_tolerance = n.GetDouble("icp_tolerance", r.icp_tolerance);
@@ -182,9 +192,11 @@ CompareOptions CompareOptionsFromConfig(const ConfigNode& node) {
     n.RejectUnknownKeys({"max_distance_mm", "local_model", "local_model_neighbors"});
     o.c2c.max_distance_mm = n.GetDouble("max_distance_mm", o.c2c.max_distance_mm);
     if (n.Has("local_model")) {
-      o.c2c.local_model = ParseName(n["local_model"], [](const std::string& s) { return LocalModelFromString(s); });
+      o.c2c.local_model =
+          ParseName(n["local_model"], [](const std::string& s) { return LocalModelFromString(s); });
     }
-    o.c2c.local_model_neighbors = static_cast<int>(n.GetInt("local_model_neighbors", o.c2c.local_model_neighbors));
+    o.c2c.local_model_neighbors =
+        static_cast<int>(n.GetInt("local_model_neighbors", o.c2c.local_model_neighbors));
   }
   o.threshold_mm = node.GetDouble("threshold_mm", o.threshold_mm);
   o.coverage_radius_mm = node.GetDouble("coverage_radius_mm", o.coverage_radius_mm);
@@ -193,14 +205,16 @@ CompareOptions CompareOptionsFromConfig(const ConfigNode& node) {
   o.m3c2 = node.GetBool("m3c2", o.m3c2);
   if (node.Has("m3c2_options")) {
     const ConfigNode n = node["m3c2_options"];
-    n.RejectUnknownKeys({"projection_radius_mm", "max_depth_mm", "registration_error_mm", "min_points"});
+    n.RejectUnknownKeys(
+        {"projection_radius_mm", "max_depth_mm", "registration_error_mm", "min_points"});
     M3C2Options& m = o.m3c2_options;
     m.projection_radius_mm = n.GetDouble("projection_radius_mm", m.projection_radius_mm);
     m.max_depth_mm = n.GetDouble("max_depth_mm", m.max_depth_mm);
     m.registration_error_mm = n.GetDouble("registration_error_mm", m.registration_error_mm);
     m.min_points = static_cast<int>(n.GetInt("min_points", m.min_points));
   }
-  if (node.Has("artefacts") && !node["artefacts"].json().is_null()) o.artefacts = ArtefactSpecFromConfig(node["artefacts"]);
+  if (node.Has("artefacts") && !node["artefacts"].json().is_null())
+    o.artefacts = ArtefactSpecFromConfig(node["artefacts"]);
   if (node.Has("vdi2634")) o.vdi2634 = Vdi2634OptionsFromConfig(node["vdi2634"]);
   try {
     o.Check();
@@ -211,8 +225,8 @@ CompareOptions CompareOptionsFromConfig(const ConfigNode& node) {
   return o;
 }
 
-CompareResult Compare(const PointCloud& cloud, const Reference& reference, const CompareOptions& options,
-                      const std::string& cloud_source) {
+CompareResult Compare(const PointCloud& cloud, const Reference& reference,
+                      const CompareOptions& options, const std::string& cloud_source) {
   return Compare(PointCloud(cloud), reference, options, cloud_source);
 }
 
@@ -238,7 +252,8 @@ CompareResult Compare(
   r.options = options;
 
   const auto ref_normals = NormalsAsDouble(reference.cloud);
-  r.registration = Register(cloud.points, reference.cloud.points, ref_normals, options.registration);
+  r.registration =
+      Register(cloud.points, reference.cloud.points, ref_normals, options.registration);
   r.compared = std::move(cloud);
   const Rigid3d& t = r.registration.reference_from_cloud;
   for (auto& p : r.compared.points) p = t * p;
@@ -248,7 +263,8 @@ CompareResult Compare(
 
   // Trees only where a query needs them: C2M and the coverage use none.
   std::unique_ptr<KdTree> ref_tree;
-  if (!reference.IsMesh() || options.m3c2) ref_tree = std::make_unique<KdTree>(reference.cloud.points);
+  if (!reference.IsMesh() || options.m3c2)
+    ref_tree = std::make_unique<KdTree>(reference.cloud.points);
   bool is_signed = false;
   if (reference.IsMesh()) {
     r.distance_method = "nearest_triangle";
@@ -262,8 +278,11 @@ CompareResult Compare(
     r.deviations_mm = std::move(c2c.distances_mm);
     r.num_not_found = c2c.num_not_found;
   }
-  r.c2c = ComputeStats(r.deviations_mm, false, options.threshold_mm, options.histogram_bins, options.color_range_mm);
-  if (is_signed) r.c2m = ComputeStats(r.deviations_mm, true, options.threshold_mm, options.histogram_bins, options.color_range_mm);
+  r.c2c = ComputeStats(r.deviations_mm, false, options.threshold_mm, options.histogram_bins,
+                       options.color_range_mm);
+  if (is_signed)
+    r.c2m = ComputeStats(r.deviations_mm, true, options.threshold_mm, options.histogram_bins,
+                         options.color_range_mm);
 
   // Coverage (the reached points freed at once: a second copy of most of the cloud).
   r.coverage_radius_mm = options.coverage_radius_mm > 0
@@ -308,13 +327,15 @@ CompareResult Compare(
     s.options = options.m3c2_options;
     s.num_valid = m.num_valid;
     s.num_significant = m.num_significant;
-    s.stats = ComputeStats(m.distance_mm, true, options.threshold_mm, options.histogram_bins, options.color_range_mm);
+    s.stats = ComputeStats(m.distance_mm, true, options.threshold_mm, options.histogram_bins,
+                           options.color_range_mm);
     double lod = 0;
     std::vector<float> d(pts.size()), l(pts.size()), sig(pts.size());
     for (size_t i = 0; i < pts.size(); ++i) {
       d[i] = static_cast<float>(m.distance_mm[i]);
       l[i] = static_cast<float>(m.lod95_mm[i]);
-      sig[i] = std::isfinite(m.distance_mm[i]) && std::abs(m.distance_mm[i]) > m.lod95_mm[i] ? 1.f : 0.f;
+      sig[i] =
+          std::isfinite(m.distance_mm[i]) && std::abs(m.distance_mm[i]) > m.lod95_mm[i] ? 1.f : 0.f;
       if (std::isfinite(m.lod95_mm[i])) lod += m.lod95_mm[i];
     }
     s.mean_lod95_mm = m.num_valid ? lod / static_cast<double>(m.num_valid) : 0.0;
@@ -323,41 +344,50 @@ CompareResult Compare(
     r.compared.SetScalar("m3c2_significant", std::move(sig));
     r.m3c2 = s;
   }
-  if (options.artefacts) r.vdi2634 = EvaluateVdi2634(r.compared, *options.artefacts, options.vdi2634);
+  if (options.artefacts)
+    r.vdi2634 = EvaluateVdi2634(r.compared, *options.artefacts, options.vdi2634);
   r.time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return r;
 }
 
 std::string CompareResult::Summary() const {
   std::ostringstream o;
-  const auto pct = [](size_t a, size_t b) { return b ? 100.0 * static_cast<double>(a) / static_cast<double>(b) : 0.0; };
+  const auto pct = [](size_t a, size_t b) {
+    return b ? 100.0 * static_cast<double>(a) / static_cast<double>(b) : 0.0;
+  };
   o << "compare: " << cloud_source << " (" << compared.size() << " points)\n"
-    << "     vs " << reference_source << " (" << (reference_is_mesh ? "mesh, " : "cloud, ") << reference_size
-    << (reference_is_mesh ? " triangles)\n" : " points)\n");
+    << "     vs " << reference_source << " (" << (reference_is_mesh ? "mesh, " : "cloud, ")
+    << reference_size << (reference_is_mesh ? " triangles)\n" : " points)\n");
   o << registration.BriefReport() << "\n";
-  o << "distance: " << (reference_is_mesh ? "signed point-to-triangle (C2M)" : "nearest neighbour (C2C)");
+  o << "distance: "
+    << (reference_is_mesh ? "signed point-to-triangle (C2M)" : "nearest neighbour (C2C)");
   if (!reference_is_mesh && options.c2c.local_model != LocalModel::kNone) {
     o << ", local model " << ToString(options.c2c.local_model);
   }
   o << "\n";
   const DistanceStats& s = c2c;
-  o << "  points      " << s.count << (s.num_invalid ? " (" + std::to_string(s.num_invalid) + " invalid)" : "") << "\n"
-    << "  mean        " << Fmt("%.4f mm", s.mean_mm) << "    std " << Fmt("%.4f mm", s.std_mm) << "\n"
-    << "  rms         " << Fmt("%.4f mm", s.rms_mm) << "    median " << Fmt("%.4f mm", s.median_mm) << "\n"
-    << "  p95         " << Fmt("%.4f mm", s.p95_mm) << "    max " << Fmt("%.4f mm", s.max_mm) << "\n";
+  o << "  points      " << s.count
+    << (s.num_invalid ? " (" + std::to_string(s.num_invalid) + " invalid)" : "") << "\n"
+    << "  mean        " << Fmt("%.4f mm", s.mean_mm) << "    std " << Fmt("%.4f mm", s.std_mm)
+    << "\n"
+    << "  rms         " << Fmt("%.4f mm", s.rms_mm) << "    median " << Fmt("%.4f mm", s.median_mm)
+    << "\n"
+    << "  p95         " << Fmt("%.4f mm", s.p95_mm) << "    max " << Fmt("%.4f mm", s.max_mm)
+    << "\n";
   if (c2m) {
     o << "  signed mean " << Fmt("%+.4f mm", c2m->signed_mean_mm) << "    signed std "
       << Fmt("%.4f mm", c2m->signed_std_mm) << "\n";
   }
-  o << "  threshold   " << Fmt("%.3f mm", s.threshold_mm) << ": " << s.inliers << " inliers, " << s.outliers
-    << " outliers (" << Fmt("%.3f %%", pct(s.outliers, s.count)) << ")\n";
+  o << "  threshold   " << Fmt("%.3f mm", s.threshold_mm) << ": " << s.inliers << " inliers, "
+    << s.outliers << " outliers (" << Fmt("%.3f %%", pct(s.outliers, s.count)) << ")\n";
   if (num_not_found) o << "  beyond max search distance: " << num_not_found << "\n";
-  o << "coverage: " << Fmt("%.2f %%", 100.0 * coverage) << " of the reference surface (" << coverage_samples
-    << " samples, radius " << Fmt("%.3f mm", coverage_radius_mm) << ")\n";
+  o << "coverage: " << Fmt("%.2f %%", 100.0 * coverage) << " of the reference surface ("
+    << coverage_samples << " samples, radius " << Fmt("%.3f mm", coverage_radius_mm) << ")\n";
   if (m3c2) {
     o << "M3C2: " << m3c2->num_valid << " valid, " << m3c2->num_significant << " significant ("
       << Fmt("%.2f %%", pct(m3c2->num_significant, m3c2->num_valid)) << "), mean "
-      << Fmt("%+.4f mm", m3c2->stats.signed_mean_mm) << ", mean LoD95 " << Fmt("%.4f mm", m3c2->mean_lod95_mm) << "\n";
+      << Fmt("%+.4f mm", m3c2->stats.signed_mean_mm) << ", mean LoD95 "
+      << Fmt("%.4f mm", m3c2->mean_lod95_mm) << "\n";
   }
   if (vdi2634) o << vdi2634->Summary();
   o << "time: " << Fmt("%.2f s", time_s) << "\n";

@@ -63,14 +63,14 @@ struct CompareOptions {
     r.method = RegistrationMethod::kNone;  // clouds from slshadow share the reference's frame
     return r;
   }();
-  C2COptions c2c;                    // cloud references only
-  double threshold_mm = 0.25;        // inlier / outlier threshold
-  double coverage_radius_mm = 0.0;   // 0: automatic (see above)
+  C2COptions c2c;                   // cloud references only
+  double threshold_mm = 0.25;       // inlier / outlier threshold
+  double coverage_radius_mm = 0.0;  // 0: automatic (see above)
   int histogram_bins = 60;
   // Colour (and histogram) range of the deviation map, histogram and PLY colours, mm: 0 scales
   // to the data (symmetric at the 99th percentile of |deviation|), > 0 fixes it at +-range.
   double color_range_mm = 0.0;
-  bool m3c2 = false;                 // also compute M3C2 distances at every compared point
+  bool m3c2 = false;  // also compute M3C2 distances at every compared point
   M3C2Options m3c2_options;
   // VDI/VDE 2634-2 figures of the artefacts in the (registered) compared cloud, when given.
   std::optional<ArtefactSpec> artefacts;
@@ -95,13 +95,13 @@ struct M3C2Summary {
 struct CompareResult {
   std::string cloud_source, reference_source;
   bool reference_is_mesh = false;
-  size_t reference_size = 0;          // triangles (mesh) or points (cloud)
+  size_t reference_size = 0;  // triangles (mesh) or points (cloud)
   CompareOptions options;
   RegistrationResult registration;
-  std::string distance_method;        // "nearest_triangle" (C2M) or "nearest_point" (C2C)
-  DistanceStats c2c;                  // unsigned statistics (see the header comment)
-  std::optional<DistanceStats> c2m;   // signed statistics, mesh references only
-  size_t num_not_found = 0;           // C2C points beyond c2c.max_distance_mm
+  std::string distance_method;       // "nearest_triangle" (C2M) or "nearest_point" (C2C)
+  DistanceStats c2c;                 // unsigned statistics (see the header comment)
+  std::optional<DistanceStats> c2m;  // signed statistics, mesh references only
+  size_t num_not_found = 0;          // C2C points beyond c2c.max_distance_mm
   double coverage = 0.0;
   double coverage_radius_mm = 0.0;
   size_t coverage_samples = 0;
@@ -122,8 +122,8 @@ struct CompareResult {
   std::string Summary() const;
 };
 
-CompareResult Compare(const PointCloud& cloud, const Reference& reference, const CompareOptions& options,
-                      const std::string& cloud_source = "cloud");
+CompareResult Compare(const PointCloud& cloud, const Reference& reference,
+                      const CompareOptions& options, const std::string& cloud_source = "cloud");
 // The same, moving the cloud into CompareResult::compared instead of copying it.
 CompareResult Compare(PointCloud&& cloud, const Reference& reference, const CompareOptions& options,
                       const std::string& cloud_source = "cloud");

@@ -3,9 +3,9 @@
 #include <algorithm>
 #include <cmath>
 
-#include <Eigen/Eigenvalues>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <Eigen/Eigenvalues>
 
 #include "compare/kdtree.h"
 #include "compare/mesh_distance.h"
@@ -16,9 +16,10 @@ namespace {
 
 template <typename F>
 void ParallelFor(size_t n, F&& f) {
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 1024), [&](const tbb::blocked_range<size_t>& r) {
-    for (size_t i = r.begin(); i != r.end(); ++i) f(i);
-  });
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 1024),
+                    [&](const tbb::blocked_range<size_t>& r) {
+                      for (size_t i = r.begin(); i != r.end(); ++i) f(i);
+                    });
 }
 
 // f(i) for every query point, visited along a Morton curve (SpatialOrder) so that consecutive
@@ -105,9 +106,12 @@ double QuadricDistance(const std::vector<Eigen::Vector3d>& pts, const std::vecto
 
 std::string ToString(LocalModel model) {
   switch (model) {
-    case LocalModel::kNone: return "none";
-    case LocalModel::kPlane: return "plane";
-    case LocalModel::kQuadric: return "quadric";
+    case LocalModel::kNone:
+      return "none";
+    case LocalModel::kPlane:
+      return "plane";
+    case LocalModel::kQuadric:
+      return "quadric";
   }
   return "none";
 }
@@ -122,8 +126,9 @@ LocalModel LocalModelFromString(const std::string& name) {
 void C2COptions::Check() const {
   SLSHADOW_THROW_IF(!(max_distance_mm >= 0) || !std::isfinite(max_distance_mm),
                     "c2c.max_distance_mm: must be finite and >= 0 (got ", max_distance_mm, ")");
-  SLSHADOW_THROW_IF(local_model_neighbors < 0 || local_model_neighbors == 1 || local_model_neighbors == 2,
-                    "c2c.local_model_neighbors: must be 0 (auto) or >= 3 (got ", local_model_neighbors, ")");
+  SLSHADOW_THROW_IF(
+      local_model_neighbors < 0 || local_model_neighbors == 1 || local_model_neighbors == 2,
+      "c2c.local_model_neighbors: must be 0 (auto) or >= 3 (got ", local_model_neighbors, ")");
 }
 
 C2CResult CloudToCloud(const std::vector<Eigen::Vector3d>& compared, const KdTree& reference,
@@ -135,7 +140,7 @@ C2CResult CloudToCloud(const std::vector<Eigen::Vector3d>& compared, const KdTre
   result.distances_mm.resize(n);
   result.nearest.resize(n);
   const double max_d = options.max_distance_mm > 0 ? options.max_distance_mm
-                                                    : std::numeric_limits<double>::infinity();
+                                                   : std::numeric_limits<double>::infinity();
   const int k = options.local_model_neighbors > 0
                     ? options.local_model_neighbors
                     : (options.local_model == LocalModel::kQuadric ? 12 : 6);
@@ -156,8 +161,9 @@ C2CResult CloudToCloud(const std::vector<Eigen::Vector3d>& compared, const KdTre
       thread_local std::vector<Neighbor> nn;
       reference.KNearest(ref_pts[nb.index], k, &nn);
       if (nn.size() >= 3) {
-        const double m = options.local_model == LocalModel::kPlane ? PlaneDistance(ref_pts, nn, compared[i])
-                                                                   : QuadricDistance(ref_pts, nn, compared[i]);
+        const double m = options.local_model == LocalModel::kPlane
+                             ? PlaneDistance(ref_pts, nn, compared[i])
+                             : QuadricDistance(ref_pts, nn, compared[i]);
         d = std::min(d, m);
       }
     }
@@ -175,16 +181,17 @@ C2MResult CloudToMesh(const std::vector<Eigen::Vector3d>& compared, const MeshDi
   C2MResult result;
   result.signed_distances_mm.resize(compared.size());
   result.triangles.resize(compared.size());
-  ParallelChunksSpatial(compared, [&](size_t begin, size_t end, const std::vector<uint32_t>& order) {
-    uint32_t hint = std::numeric_limits<uint32_t>::max();
-    for (size_t k = begin; k < end; ++k) {
-      const size_t i = order[k];
-      const MeshHit hit = md.Closest(compared[i], hint);
-      result.signed_distances_mm[i] = hit.signed_distance_mm;
-      result.triangles[i] = hit.triangle;
-      hint = hit.triangle;
-    }
-  });
+  ParallelChunksSpatial(compared,
+                        [&](size_t begin, size_t end, const std::vector<uint32_t>& order) {
+                          uint32_t hint = std::numeric_limits<uint32_t>::max();
+                          for (size_t k = begin; k < end; ++k) {
+                            const size_t i = order[k];
+                            const MeshHit hit = md.Closest(compared[i], hint);
+                            result.signed_distances_mm[i] = hit.signed_distance_mm;
+                            result.triangles[i] = hit.triangle;
+                            hint = hit.triangle;
+                          }
+                        });
   return result;
 }
 
@@ -202,7 +209,8 @@ std::vector<Eigen::Vector3d> EstimateNormals(const std::vector<Eigen::Vector3d>&
     tree.KNearest(queries[i], k, &nn);
     Eigen::Vector3d n = Eigen::Vector3d::UnitZ();
     if (nn.size() >= 3) n = PcaFrame(pts, nn, /*fast=*/true).axes.col(0);
-    const Eigen::Vector3d toward = hints.empty() ? Eigen::Vector3d(viewpoint - queries[i]) : hints[i];
+    const Eigen::Vector3d toward =
+        hints.empty() ? Eigen::Vector3d(viewpoint - queries[i]) : hints[i];
     if (n.dot(toward) < 0) n = -n;
     normals[i] = n;
   });
@@ -214,8 +222,8 @@ void M3C2Options::Check() const {
                     "m3c2.projection_radius_mm: must be > 0 (got ", projection_radius_mm, ")");
   SLSHADOW_THROW_IF(!(max_depth_mm > 0) || !std::isfinite(max_depth_mm),
                     "m3c2.max_depth_mm: must be > 0 (got ", max_depth_mm, ")");
-  SLSHADOW_THROW_IF(!(registration_error_mm >= 0),
-                    "m3c2.registration_error_mm: must be >= 0 (got ", registration_error_mm, ")");
+  SLSHADOW_THROW_IF(!(registration_error_mm >= 0), "m3c2.registration_error_mm: must be >= 0 (got ",
+                    registration_error_mm, ")");
   SLSHADOW_THROW_IF(min_points < 2, "m3c2.min_points: must be >= 2 (got ", min_points, ")");
 }
 
@@ -223,8 +231,8 @@ M3C2Result M3C2(const std::vector<Eigen::Vector3d>& core_points,
                 const std::vector<Eigen::Vector3d>& normals, const KdTree& cloud1,
                 const KdTree& cloud2, const M3C2Options& options) {
   options.Check();
-  SLSHADOW_THROW_IF(normals.size() != core_points.size(), "M3C2: ", normals.size(),
-                    " normals for ", core_points.size(), " core points");
+  SLSHADOW_THROW_IF(normals.size() != core_points.size(), "M3C2: ", normals.size(), " normals for ",
+                    core_points.size(), " core points");
   const size_t n = core_points.size();
   const double nan = std::numeric_limits<double>::quiet_NaN();
   M3C2Result r;

@@ -2,7 +2,8 @@
 //  - C2C: distance from each compared point to the nearest reference point, with CloudCompare's
 //    options (maximum search distance; optional local model fitted on the reference around the
 //    nearest point, reporting min(nearest distance, distance to the model) as CloudCompare does);
-//  - C2M: signed distance from each compared point to the nearest triangle (compare/mesh_distance.h);
+//  - C2M: signed distance from each compared point to the nearest triangle
+//  (compare/mesh_distance.h);
 //  - M3C2 (Lague, Brodu & Leroux 2013): signed distance along a normal between the mean positions
 //    of both clouds inside a cylinder, with its level of detection at 95 %:
 //      LoD95 = 1.96 * (sqrt(sigma1^2 / n1 + sigma2^2 / n2) + registration_error)
@@ -64,16 +65,16 @@ C2MResult CloudToMesh(const std::vector<Eigen::Vector3d>& compared, const MeshDi
 // Unit normals by PCA of the k nearest points of `tree` around each query point. Each normal is
 // oriented to agree with `hints` (one per query, e.g. the reference's stored normals) when given,
 // else to point towards `viewpoint` (e.g. the scanner's optical centre).
-std::vector<Eigen::Vector3d> EstimateNormals(const std::vector<Eigen::Vector3d>& queries,
-                                             const KdTree& tree, int k,
-                                             const std::vector<Eigen::Vector3d>& hints,
-                                             const Eigen::Vector3d& viewpoint = Eigen::Vector3d::Zero());
+std::vector<Eigen::Vector3d> EstimateNormals(
+    const std::vector<Eigen::Vector3d>& queries, const KdTree& tree, int k,
+    const std::vector<Eigen::Vector3d>& hints,
+    const Eigen::Vector3d& viewpoint = Eigen::Vector3d::Zero());
 
 struct M3C2Options {
-  double projection_radius_mm = 0.5;  // cylinder radius (M3C2's d / 2)
-  double max_depth_mm = 2.0;          // cylinder half-length along the normal
-  double registration_error_mm = 0.0; // added inside LoD95 (see above)
-  int min_points = 3;                 // per cloud in the cylinder, else the core point is skipped
+  double projection_radius_mm = 0.5;   // cylinder radius (M3C2's d / 2)
+  double max_depth_mm = 2.0;           // cylinder half-length along the normal
+  double registration_error_mm = 0.0;  // added inside LoD95 (see above)
+  int min_points = 3;                  // per cloud in the cylinder, else the core point is skipped
   void Check() const;
 };
 

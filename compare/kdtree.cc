@@ -38,14 +38,17 @@ std::vector<uint32_t> SpatialOrder(const std::vector<Eigen::Vector3d>& points) {
   // (a stable radix sort, two passes of 15 bits), as a sort of (key << 32 | index) would.
   const double scale = 1023.0 / extent;
   std::vector<uint32_t> keys(points.size());
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 16384), [&](const tbb::blocked_range<size_t>& r) {
-    for (size_t i = r.begin(); i != r.end(); ++i) {
-      const Eigen::Vector3d q = ((points[i] - lo) * scale).cwiseMax(0.0).cwiseMin(1023.0);
-      keys[i] = q.allFinite() ? Spread3(static_cast<uint32_t>(q.x())) | (Spread3(static_cast<uint32_t>(q.y())) << 1) |
-                                    (Spread3(static_cast<uint32_t>(q.z())) << 2)
-                              : 0x3FFFFFFFu;
-    }
-  });
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 16384),
+                    [&](const tbb::blocked_range<size_t>& r) {
+                      for (size_t i = r.begin(); i != r.end(); ++i) {
+                        const Eigen::Vector3d q =
+                            ((points[i] - lo) * scale).cwiseMax(0.0).cwiseMin(1023.0);
+                        keys[i] = q.allFinite() ? Spread3(static_cast<uint32_t>(q.x())) |
+                                                      (Spread3(static_cast<uint32_t>(q.y())) << 1) |
+                                                      (Spread3(static_cast<uint32_t>(q.z())) << 2)
+                                                : 0x3FFFFFFFu;
+                      }
+                    });
   constexpr uint32_t kBits = 15, kBuckets = 1u << kBits;
   std::vector<uint32_t> tmp(points.size());
   std::vector<uint32_t> count(kBuckets);
@@ -56,7 +59,8 @@ std::vector<uint32_t> SpatialOrder(const std::vector<Eigen::Vector3d>& points) {
     uint32_t sum = 0;
     for (uint32_t& c : count) sum += std::exchange(c, sum);
     if (pass == 0) {
-      for (size_t i = 0; i < keys.size(); ++i) tmp[count[keys[i] & (kBuckets - 1)]++] = static_cast<uint32_t>(i);
+      for (size_t i = 0; i < keys.size(); ++i)
+        tmp[count[keys[i] & (kBuckets - 1)]++] = static_cast<uint32_t>(i);
     } else {
       for (uint32_t i : tmp) order[count[keys[i] >> shift]++] = i;
     }
@@ -134,8 +138,8 @@ std::pair<uint32_t, uint32_t> NodeCounts(size_t n, size_t leaf) {
 // widest, the split the median (nth_element), so the tree's shape depends only on the points and
 // each subtree's node range is known before it is built: the halves are built in parallel and
 // the result does not depend on the number of threads. Returns the subtree's bounding box.
-Box Build(std::vector<Item>& items, std::vector<Node>& nodes, size_t leaf, uint32_t index, size_t begin,
-          size_t end) {
+Box Build(std::vector<Item>& items, std::vector<Node>& nodes, size_t leaf, uint32_t index,
+          size_t begin, size_t end) {
   const size_t n = end - begin;
   Node& node = nodes[index];
   if (n <= leaf) {
@@ -147,7 +151,8 @@ Box Build(std::vector<Item>& items, std::vector<Node>& nodes, size_t leaf, uint3
   int dim = 0;
   (box.hi - box.lo).maxCoeff(&dim);
   const size_t mid = begin + n / 2;
-  std::nth_element(items.begin() + static_cast<std::ptrdiff_t>(begin), items.begin() + static_cast<std::ptrdiff_t>(mid),
+  std::nth_element(items.begin() + static_cast<std::ptrdiff_t>(begin),
+                   items.begin() + static_cast<std::ptrdiff_t>(mid),
                    items.begin() + static_cast<std::ptrdiff_t>(end),
                    [dim](const Item& a, const Item& b) { return a.p[dim] < b.p[dim]; });
   const uint32_t right = index + 1 + NodeCounts(mid - begin, leaf).first;
@@ -186,19 +191,22 @@ struct KdTree::Impl {
     const size_t n = points.size();
     if (n == 0) return;
     std::vector<Item> items(n);
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 16384), [&](const tbb::blocked_range<size_t>& r) {
-      for (size_t i = r.begin(); i != r.end(); ++i) items[i] = {points[i], static_cast<uint32_t>(i)};
-    });
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 16384),
+                      [&](const tbb::blocked_range<size_t>& r) {
+                        for (size_t i = r.begin(); i != r.end(); ++i)
+                          items[i] = {points[i], static_cast<uint32_t>(i)};
+                      });
     nodes.resize(NodeCounts(n, leaf).first);
     root = Build(items, nodes, leaf, 0, 0, n);
     ordered.resize(n);
     original.resize(n);
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 16384), [&](const tbb::blocked_range<size_t>& r) {
-      for (size_t i = r.begin(); i != r.end(); ++i) {
-        ordered[i] = items[i].p;
-        original[i] = items[i].index;
-      }
-    });
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 16384),
+                      [&](const tbb::blocked_range<size_t>& r) {
+                        for (size_t i = r.begin(); i != r.end(); ++i) {
+                          ordered[i] = items[i].p;
+                          original[i] = items[i].index;
+                        }
+                      });
   }
 
   // Depth-first search, nearer child first; `visit` sees (squared distance, leaf-order index)
@@ -263,14 +271,17 @@ struct NearestVisitor {
 struct KnnVisitor {
   size_t k;
   std::vector<Neighbor>* out;
-  double worst() const { return out->size() < k ? std::numeric_limits<double>::infinity() : out->back().distance_sq; }
+  double worst() const {
+    return out->size() < k ? std::numeric_limits<double>::infinity() : out->back().distance_sq;
+  }
   void Add(double d2, uint32_t i) {
     if (out->size() == k) {
       if (!(d2 < out->back().distance_sq)) return;
       out->pop_back();
     }
     out->push_back({i, d2});
-    for (size_t j = out->size() - 1; j > 0 && (*out)[j].distance_sq < (*out)[j - 1].distance_sq; --j) {
+    for (size_t j = out->size() - 1; j > 0 && (*out)[j].distance_sq < (*out)[j - 1].distance_sq;
+         --j) {
       std::swap((*out)[j], (*out)[j - 1]);
     }
   }
@@ -288,7 +299,8 @@ struct RadiusVisitor {
 }  // namespace
 
 KdTree::KdTree(const std::vector<Eigen::Vector3d>& points, int leaf_size)
-    : points_(&points), impl_(std::make_unique<Impl>(points, static_cast<size_t>(std::clamp(leaf_size, 1, 4096)))) {}
+    : points_(&points),
+      impl_(std::make_unique<Impl>(points, static_cast<size_t>(std::clamp(leaf_size, 1, 4096)))) {}
 
 KdTree::~KdTree() = default;
 
@@ -296,7 +308,8 @@ size_t KdTree::size() const { return points_->size(); }
 
 bool KdTree::Nearest(const Eigen::Vector3d& query, Neighbor* nearest, double max_distance) const {
   if (points_->empty()) return false;
-  NearestVisitor visit{std::isfinite(max_distance) ? max_distance * max_distance : std::numeric_limits<double>::max()};
+  NearestVisitor visit{std::isfinite(max_distance) ? max_distance * max_distance
+                                                   : std::numeric_limits<double>::max()};
   impl_->Run(query, visit);
   if (!visit.found) return false;
   nearest->index = impl_->original[visit.index];
@@ -313,7 +326,8 @@ void KdTree::KNearest(const Eigen::Vector3d& query, int k, std::vector<Neighbor>
   for (auto& nb : *out) nb.index = impl_->original[nb.index];
 }
 
-void KdTree::Radius(const Eigen::Vector3d& query, double radius, std::vector<Neighbor>* out, bool sorted) const {
+void KdTree::Radius(const Eigen::Vector3d& query, double radius, std::vector<Neighbor>* out,
+                    bool sorted) const {
   out->clear();
   if (points_->empty() || !(radius >= 0)) return;
   RadiusVisitor visit{radius * radius, out};

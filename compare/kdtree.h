@@ -18,8 +18,8 @@
 namespace slshadow::compare {
 
 struct Neighbor {
-  uint32_t index = 0;         // into the indexed points
-  double distance_sq = 0.0;   // squared Euclidean distance, mm^2
+  uint32_t index = 0;        // into the indexed points
+  double distance_sq = 0.0;  // squared Euclidean distance, mm^2
 };
 
 class KdTree {

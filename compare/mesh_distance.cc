@@ -40,8 +40,9 @@ double AngleBetween(const Eigen::Vector3d& u, const Eigen::Vector3d& v) {
 namespace {
 
 // The closest-point routine, inlined into the traversal; ClosestPointOnTriangle is the same code.
-inline Eigen::Vector3d ClosestPoint(const Eigen::Vector3d& p, const Eigen::Vector3d& a, const Eigen::Vector3d& b,
-                                    const Eigen::Vector3d& c, int* feature) {
+inline Eigen::Vector3d ClosestPoint(const Eigen::Vector3d& p, const Eigen::Vector3d& a,
+                                    const Eigen::Vector3d& b, const Eigen::Vector3d& c,
+                                    int* feature) {
   const Eigen::Vector3d ab = b - a, ac = c - a, ap = p - a;
   const double d1 = ab.dot(ap), d2 = ac.dot(ap);
   if (d1 <= 0 && d2 <= 0) {
@@ -182,9 +183,11 @@ int BuildBinary(Builder& b, std::vector<Node>& nodes, uint32_t begin, uint32_t e
   }
   if (!split) {
     mid = begin + (end - begin) / 2;
-    std::nth_element(b.order.begin() + begin, b.order.begin() + mid, b.order.begin() + end, [&](uint32_t x, uint32_t y) {
-      return b.centroid[x][axis] < b.centroid[y][axis] || (b.centroid[x][axis] == b.centroid[y][axis] && x < y);
-    });
+    std::nth_element(b.order.begin() + begin, b.order.begin() + mid, b.order.begin() + end,
+                     [&](uint32_t x, uint32_t y) {
+                       return b.centroid[x][axis] < b.centroid[y][axis] ||
+                              (b.centroid[x][axis] == b.centroid[y][axis] && x < y);
+                     });
   }
   const int l = BuildBinary(b, nodes, begin, mid, depth + 1);
   const int r = BuildBinary(b, nodes, mid, end, depth + 1);
@@ -199,14 +202,16 @@ MeshDistance::MeshDistance(const TriangleMesh& mesh) {
   mesh.Check("reference mesh", /*reject_degenerate=*/false);
   const size_t nt = mesh.triangles.size();
   SLSHADOW_THROW_IF(nt == 0, "reference mesh: no triangles");
-  SLSHADOW_THROW_IF(nt >= std::numeric_limits<uint32_t>::max() / 2, "reference mesh: too many triangles");
+  SLSHADOW_THROW_IF(nt >= std::numeric_limits<uint32_t>::max() / 2,
+                    "reference mesh: too many triangles");
   // Pseudo-normals: angle-weighted vertex normals, and per undirected edge the sum of the
   // adjacent face normals.
   std::vector<Eigen::Vector3d> vnormal(mesh.vertices.size(), Eigen::Vector3d::Zero());
   std::unordered_map<uint64_t, Eigen::Vector3d> enormal;
   enormal.reserve(nt * 2);
   auto edge_key = [](int i, int j) {
-    const auto lo = static_cast<uint64_t>(std::min(i, j)), hi = static_cast<uint64_t>(std::max(i, j));
+    const auto lo = static_cast<uint64_t>(std::min(i, j)),
+               hi = static_cast<uint64_t>(std::max(i, j));
     return (lo << 32) | hi;
   };
   normals_.resize(nt);
@@ -223,7 +228,8 @@ MeshDistance::MeshDistance(const TriangleMesh& mesh) {
     for (int k = 0; k < 3; ++k) {
       const double angle = AngleBetween(*v[(k + 1) % 3] - *v[k], *v[(k + 2) % 3] - *v[k]);
       vnormal[static_cast<size_t>(f[k])] += angle * normals_[t].face;
-      auto [it, inserted] = enormal.try_emplace(edge_key(f[k], f[(k + 1) % 3]), Eigen::Vector3d::Zero());
+      auto [it, inserted] =
+          enormal.try_emplace(edge_key(f[k], f[(k + 1) % 3]), Eigen::Vector3d::Zero());
       it->second += normals_[t].face;
     }
     tlo[t] = a.cwiseMin(b).cwiseMin(c);
@@ -258,7 +264,8 @@ MeshDistance::MeshDistance(const TriangleMesh& mesh) {
     const TriGeom& g = geom_[s];
     const Eigen::Vector3d n = normals_[t].face;  // zero for a degenerate triangle: no bound
     const Eigen::Vector3d* v[3] = {&g.a, &g.b, &g.c};
-    Eigen::Vector3d u[4] = {n, Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()};
+    Eigen::Vector3d u[4] = {n, Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(),
+                            Eigen::Vector3d::Zero()};
     double offset[4] = {n.dot(g.a), 0, 0, 0};
     if (n.squaredNorm() > 0) {
       for (int k = 0; k < 3; ++k) {
@@ -269,7 +276,8 @@ MeshDistance::MeshDistance(const TriangleMesh& mesh) {
       }
     }
     for (int k = 0; k < 4; ++k) {
-      for (int axis = 0; axis < 3; ++axis) bound_[s].plane[k][axis] = static_cast<float>(u[k][axis]);
+      for (int axis = 0; axis < 3; ++axis)
+        bound_[s].plane[k][axis] = static_cast<float>(u[k][axis]);
       bound_[s].plane[k][3] = static_cast<float>(offset[k]);
     }
   }
@@ -367,9 +375,11 @@ MeshHit MeshDistance::Closest(const Eigen::Vector3d& p, uint32_t hint) const {
   const bool prune = m < 1e30;
   const float slack = static_cast<float>(4.0 * std::ldexp(m, -24));
   constexpr double kShrink = 1.0 - 1e-6;
-  const float px = static_cast<float>(p.x()), py = static_cast<float>(p.y()), pz = static_cast<float>(p.z());
+  const float px = static_cast<float>(p.x()), py = static_cast<float>(p.y()),
+              pz = static_cast<float>(p.z());
 #if defined(__SSE2__)
-  const __m128 vx = _mm_set1_ps(px), vy = _mm_set1_ps(py), vz = _mm_set1_ps(pz), vslack = _mm_set1_ps(slack);
+  const __m128 vx = _mm_set1_ps(px), vy = _mm_set1_ps(py), vz = _mm_set1_ps(pz),
+               vslack = _mm_set1_ps(slack);
 #endif
 
   // Triangle bound: with h the distance to the triangle's plane and e the largest outside distance
@@ -381,8 +391,9 @@ MeshHit MeshDistance::Closest(const Eigen::Vector3d& p, uint32_t hint) const {
   // anything up to best / kShrink (rounded up to float) is visited.
   const auto threshold = [&](double b2) {
     const double t = b2 / kShrink;
-    return !prune || t >= static_cast<double>(std::numeric_limits<float>::max()) ? std::numeric_limits<float>::infinity()
-                                                                                  : Up(t);
+    return !prune || t >= static_cast<double>(std::numeric_limits<float>::max())
+               ? std::numeric_limits<float>::infinity()
+               : Up(t);
   };
   float bestf = threshold(best);
   auto visit_triangles = [&](uint32_t first, uint32_t count) {
@@ -429,16 +440,20 @@ MeshHit MeshDistance::Closest(const Eigen::Vector3d& p, uint32_t hint) const {
 #if defined(__SSE2__)
     {
       const __m128 zero = _mm_setzero_ps();
-      const __m128 gx = _mm_max_ps(
-          _mm_sub_ps(_mm_max_ps(_mm_sub_ps(_mm_load_ps(node.lo[0]), vx), _mm_sub_ps(vx, _mm_load_ps(node.hi[0]))), vslack),
-          zero);
-      const __m128 gy = _mm_max_ps(
-          _mm_sub_ps(_mm_max_ps(_mm_sub_ps(_mm_load_ps(node.lo[1]), vy), _mm_sub_ps(vy, _mm_load_ps(node.hi[1]))), vslack),
-          zero);
-      const __m128 gz = _mm_max_ps(
-          _mm_sub_ps(_mm_max_ps(_mm_sub_ps(_mm_load_ps(node.lo[2]), vz), _mm_sub_ps(vz, _mm_load_ps(node.hi[2]))), vslack),
-          zero);
-      const __m128 vd = _mm_add_ps(_mm_add_ps(_mm_mul_ps(gx, gx), _mm_mul_ps(gy, gy)), _mm_mul_ps(gz, gz));
+      const __m128 gx = _mm_max_ps(_mm_sub_ps(_mm_max_ps(_mm_sub_ps(_mm_load_ps(node.lo[0]), vx),
+                                                         _mm_sub_ps(vx, _mm_load_ps(node.hi[0]))),
+                                              vslack),
+                                   zero);
+      const __m128 gy = _mm_max_ps(_mm_sub_ps(_mm_max_ps(_mm_sub_ps(_mm_load_ps(node.lo[1]), vy),
+                                                         _mm_sub_ps(vy, _mm_load_ps(node.hi[1]))),
+                                              vslack),
+                                   zero);
+      const __m128 gz = _mm_max_ps(_mm_sub_ps(_mm_max_ps(_mm_sub_ps(_mm_load_ps(node.lo[2]), vz),
+                                                         _mm_sub_ps(vz, _mm_load_ps(node.hi[2]))),
+                                              vslack),
+                                   zero);
+      const __m128 vd =
+          _mm_add_ps(_mm_add_ps(_mm_mul_ps(gx, gx), _mm_mul_ps(gy, gy)), _mm_mul_ps(gz, gz));
       _mm_store_ps(d, vd);
       mask = static_cast<unsigned>(_mm_movemask_ps(_mm_cmple_ps(vd, _mm_set1_ps(bestf))));
     }
@@ -485,9 +500,17 @@ MeshHit MeshDistance::Closest(const Eigen::Vector3d& p, uint32_t hint) const {
   const TriNormals& t = normals_[best_tri];
   const Eigen::Vector3d* n = nullptr;
   switch (best_feature) {
-    case 0: n = &t.face; break;
-    case 1: case 2: case 3: n = &t.vertex[best_feature - 1]; break;
-    default: n = &t.edge[best_feature - 4]; break;
+    case 0:
+      n = &t.face;
+      break;
+    case 1:
+    case 2:
+    case 3:
+      n = &t.vertex[best_feature - 1];
+      break;
+    default:
+      n = &t.edge[best_feature - 4];
+      break;
   }
   MeshHit hit;
   const double dist = std::sqrt(best);

@@ -26,9 +26,9 @@
 namespace slshadow::compare {
 
 struct MeshHit {
-  double signed_distance_mm = 0.0;  // |p - closest|, signed by the pseudo-normal
+  double signed_distance_mm = 0.0;                    // |p - closest|, signed by the pseudo-normal
   Eigen::Vector3d closest = Eigen::Vector3d::Zero();  // closest point on the mesh
-  uint32_t triangle = 0;                               // index of the closest triangle
+  uint32_t triangle = 0;                              // index of the closest triangle
 };
 
 class MeshDistance {

@@ -9,13 +9,13 @@
 #include <random>
 #include <unordered_map>
 
-#include <Eigen/Cholesky>
-#include <Eigen/Geometry>
 #include <pcl/features/fpfh_omp.h>
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_reduce.h>
+#include <Eigen/Cholesky>
+#include <Eigen/Geometry>
 
 #include "compare/distances.h"
 #include "compare/kdtree.h"
@@ -34,7 +34,8 @@ double Diagonal(const std::vector<Eigen::Vector3d>& pts) {
 }
 
 // Centroid of the points in each occupied voxel (deterministic order: first occurrence).
-std::vector<Eigen::Vector3d> VoxelDownsample(const std::vector<Eigen::Vector3d>& pts, double voxel) {
+std::vector<Eigen::Vector3d> VoxelDownsample(const std::vector<Eigen::Vector3d>& pts,
+                                             double voxel) {
   struct Acc {
     Eigen::Vector3d sum = Eigen::Vector3d::Zero();
     int n = 0;
@@ -103,19 +104,22 @@ std::vector<std::pair<uint32_t, uint32_t>> MatchFeatures(const pcl::PointCloud<F
   auto to_mat = [](const pcl::PointCloud<FeatureT>& f) {
     Mat m(static_cast<long>(f.size()), kDim);
     for (size_t i = 0; i < f.size(); ++i)
-      for (int k = 0; k < kDim; ++k) m(static_cast<long>(i), k) = std::isfinite(f[i].histogram[k]) ? f[i].histogram[k] : 0.f;
+      for (int k = 0; k < kDim; ++k)
+        m(static_cast<long>(i), k) = std::isfinite(f[i].histogram[k]) ? f[i].histogram[k] : 0.f;
     return m;
   };
   const Mat a = to_mat(src), b = to_mat(dst);
   const Eigen::VectorXf an = a.rowwise().squaredNorm(), bn = b.rowwise().squaredNorm();
-  std::vector<uint32_t> best_ab(static_cast<size_t>(a.rows())), best_ba(static_cast<size_t>(b.rows()));
+  std::vector<uint32_t> best_ab(static_cast<size_t>(a.rows())),
+      best_ba(static_cast<size_t>(b.rows()));
   std::vector<float> dist_ba(static_cast<size_t>(b.rows()), std::numeric_limits<float>::max());
   std::vector<float> dist_ab(static_cast<size_t>(a.rows()));
   constexpr long kBlock = 256;
   for (long r0 = 0; r0 < a.rows(); r0 += kBlock) {
     const long rows = std::min(kBlock, a.rows() - r0);
     // |a - b|^2 = |a|^2 + |b|^2 - 2 a.b, a block of rows at a time.
-    const Eigen::MatrixXf d = (-2.0f * (a.middleRows(r0, rows) * b.transpose())).rowwise() + bn.transpose();
+    const Eigen::MatrixXf d =
+        (-2.0f * (a.middleRows(r0, rows) * b.transpose())).rowwise() + bn.transpose();
     for (long i = 0; i < rows; ++i) {
       long j = 0;
       const float di = d.row(i).minCoeff(&j) + an[r0 + i];
@@ -290,9 +294,12 @@ IcpAcc Correspond(const std::vector<Eigen::Vector3d>& src, const Rigid3d& t, con
 
 std::string ToString(RegistrationMethod m) {
   switch (m) {
-    case RegistrationMethod::kNone: return "none";
-    case RegistrationMethod::kIcp: return "icp";
-    case RegistrationMethod::kGlobalIcp: return "global+icp";
+    case RegistrationMethod::kNone:
+      return "none";
+    case RegistrationMethod::kIcp:
+      return "icp";
+    case RegistrationMethod::kGlobalIcp:
+      return "global+icp";
   }
   return "none";
 }
@@ -301,7 +308,8 @@ RegistrationMethod RegistrationMethodFromString(const std::string& name) {
   if (name == "none") return RegistrationMethod::kNone;
   if (name == "icp") return RegistrationMethod::kIcp;
   if (name == "global+icp") return RegistrationMethod::kGlobalIcp;
-  SLSHADOW_THROW("registration method: unknown name (got '", name, "'; expected none, icp or global+icp)");
+  SLSHADOW_THROW("registration method: unknown name (got '", name,
+                 "'; expected none, icp or global+icp)");
 }
 
 void RegistrationOptions::Check() const {
@@ -315,23 +323,27 @@ void RegistrationOptions::Check() const {
   SLSHADOW_THROW_IF(ransac_iterations < 1, "registration.ransac_iterations: must be >= 1 (got ",
                     ransac_iterations, ")");
   SLSHADOW_THROW_IF(!(ransac_inlier_fraction > 0 && ransac_inlier_fraction <= 1),
-                    "registration.ransac_inlier_fraction: must be in (0, 1] (got ", ransac_inlier_fraction, ")");
+                    "registration.ransac_inlier_fraction: must be in (0, 1] (got ",
+                    ransac_inlier_fraction, ")");
   SLSHADOW_THROW_IF(icp_max_iterations < 1, "registration.icp_max_iterations: must be >= 1 (got ",
                     icp_max_iterations, ")");
-  SLSHADOW_THROW_IF(icp_max_points < 10, "registration.icp_max_points: must be >= 10 (got ", icp_max_points, ")");
-  SLSHADOW_THROW_IF(!(icp_tolerance > 0), "registration.icp_tolerance: must be > 0 (got ", icp_tolerance, ")");
+  SLSHADOW_THROW_IF(icp_max_points < 10, "registration.icp_max_points: must be >= 10 (got ",
+                    icp_max_points, ")");
+  SLSHADOW_THROW_IF(!(icp_tolerance > 0), "registration.icp_tolerance: must be > 0 (got ",
+                    icp_tolerance, ")");
 }
 
 std::string RegistrationResult::BriefReport() const {
   char buf[320];
   const Eigen::AngleAxisd aa(reference_from_cloud.rotation);
-  std::snprintf(buf, sizeof(buf),
-                "registration %s: rotation %.4f deg, translation (%.4f, %.4f, %.4f) mm, fitness %.4f, "
-                "inlier RMSE %.4f mm at %.3f mm, %d ICP iterations%s, %.2f s",
-                ToString(method).c_str(), aa.angle() * 180.0 / M_PI,
-                reference_from_cloud.translation.x(), reference_from_cloud.translation.y(),
-                reference_from_cloud.translation.z(), fitness, inlier_rmse_mm, max_correspondence_mm,
-                icp_iterations, converged ? "" : " (not converged)", time_s);
+  std::snprintf(
+      buf, sizeof(buf),
+      "registration %s: rotation %.4f deg, translation (%.4f, %.4f, %.4f) mm, fitness %.4f, "
+      "inlier RMSE %.4f mm at %.3f mm, %d ICP iterations%s, %.2f s",
+      ToString(method).c_str(), aa.angle() * 180.0 / M_PI, reference_from_cloud.translation.x(),
+      reference_from_cloud.translation.y(), reference_from_cloud.translation.z(), fitness,
+      inlier_rmse_mm, max_correspondence_mm, icp_iterations, converged ? "" : " (not converged)",
+      time_s);
   return buf;
 }
 
@@ -348,16 +360,20 @@ RegistrationResult Register(const std::vector<Eigen::Vector3d>& cloud,
   RegistrationResult r;
   r.method = options.method;
   if (options.method == RegistrationMethod::kNone) return r;
-  SLSHADOW_THROW_IF(cloud.size() < 10, "registration: the compared cloud has ", cloud.size(), " points (need >= 10)");
-  SLSHADOW_THROW_IF(reference.size() < 10, "registration: the reference has ", reference.size(), " points (need >= 10)");
+  SLSHADOW_THROW_IF(cloud.size() < 10, "registration: the compared cloud has ", cloud.size(),
+                    " points (need >= 10)");
+  SLSHADOW_THROW_IF(reference.size() < 10, "registration: the reference has ", reference.size(),
+                    " points (need >= 10)");
   SLSHADOW_THROW_IF(!reference_normals.empty() && reference_normals.size() != reference.size(),
-                    "registration: ", reference_normals.size(), " reference normals for ", reference.size(), " points");
+                    "registration: ", reference_normals.size(), " reference normals for ",
+                    reference.size(), " points");
   const double diag = Diagonal(reference);
   const double voxel = options.voxel_mm > 0 ? options.voxel_mm : diag / 60.0;
   const KdTree tree(reference);
   const std::vector<Eigen::Vector3d> normals =
-      reference_normals.empty() ? EstimateNormals(reference, tree, 12, {}, Eigen::Vector3d(0, 0, 1e6))
-                                : reference_normals;
+      reference_normals.empty()
+          ? EstimateNormals(reference, tree, 12, {}, Eigen::Vector3d(0, 0, 1e6))
+          : reference_normals;
   double gate = options.icp_max_correspondence_mm;
   if (options.method == RegistrationMethod::kGlobalIcp) {
     const double radius = options.feature_radius_mm > 0 ? options.feature_radius_mm : 5.0 * voxel;
@@ -370,7 +386,8 @@ RegistrationResult Register(const std::vector<Eigen::Vector3d>& cloud,
   if (gate == 0) gate = 0.05 * diag;
   // ICP subset: evenly strided.
   std::vector<Eigen::Vector3d> src;
-  const size_t stride = std::max<size_t>(1, cloud.size() / static_cast<size_t>(options.icp_max_points));
+  const size_t stride =
+      std::max<size_t>(1, cloud.size() / static_cast<size_t>(options.icp_max_points));
   for (size_t i = 0; i < cloud.size(); i += stride) src.push_back(cloud[i]);
   {
     // Morton order: coherent kd-tree queries in every ICP iteration.
@@ -393,8 +410,9 @@ RegistrationResult Register(const std::vector<Eigen::Vector3d>& cloud,
     const Eigen::Matrix<double, 6, 1> x = ata.ldlt().solve(-acc.atb);
     const Eigen::Vector3d w = x.head<3>();
     const double angle = w.norm();
-    const Eigen::Quaterniond dq =
-        angle > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, w / angle)) : Eigen::Quaterniond::Identity();
+    const Eigen::Quaterniond dq = angle > 0
+                                      ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, w / angle))
+                                      : Eigen::Quaterniond::Identity();
     t = Rigid3d(dq, x.tail<3>()) * t;
     const double rms = std::sqrt(acc.sum_sq_p2p / static_cast<double>(acc.n));
     const double motion = angle * diag + x.tail<3>().norm();
@@ -405,9 +423,11 @@ RegistrationResult Register(const std::vector<Eigen::Vector3d>& cloud,
     // statistical noise floor RMS / sqrt(n)): a symmetric part (a sphere, a cylinder) leaves
     // such motions unobservable, and they would never settle.
     const double normal_motion =
-        std::sqrt(std::max(0.0, x.dot(acc.ata.selfadjointView<Eigen::Upper>() * x)) / static_cast<double>(acc.n));
+        std::sqrt(std::max(0.0, x.dot(acc.ata.selfadjointView<Eigen::Upper>() * x)) /
+                  static_cast<double>(acc.n));
     const double noise_floor = 0.1 * rms / std::sqrt(static_cast<double>(acc.n));
-    if ((motion < options.icp_tolerance * diag || normal_motion < noise_floor) && next_gate >= gate) {
+    if ((motion < options.icp_tolerance * diag || normal_motion < noise_floor) &&
+        next_gate >= gate) {
       r.converged = true;
       break;
     }

@@ -25,8 +25,9 @@
 namespace slshadow::compare {
 
 enum class RegistrationMethod { kNone, kIcp, kGlobalIcp };
-std::string ToString(RegistrationMethod m);                                 // "none", "icp", "global+icp"
-RegistrationMethod RegistrationMethodFromString(const std::string& name);  // throws slshadow::Error on others
+std::string ToString(RegistrationMethod m);  // "none", "icp", "global+icp"
+RegistrationMethod RegistrationMethodFromString(
+    const std::string& name);  // throws slshadow::Error on others
 
 struct RegistrationOptions {
   RegistrationMethod method = RegistrationMethod::kGlobalIcp;
@@ -34,29 +35,29 @@ struct RegistrationOptions {
   // normals from 12 neighbours, feature radius = 5 voxels.
   double voxel_mm = 0.0;
   double feature_radius_mm = 0.0;
-  int ransac_iterations = 20000;   // SampleConsensusPrerejective iterations
+  int ransac_iterations = 20000;        // SampleConsensusPrerejective iterations
   double ransac_inlier_fraction = 0.2;  // of the downsampled cloud, to accept a pose
   unsigned seed = 1;                    // for the random draws (results are reproducible)
   // ICP. 0 means automatic: 2 voxels after the global stage, 5 % of the diagonal without it.
   double icp_max_correspondence_mm = 0.0;
   int icp_max_iterations = 60;
-  int icp_max_points = 100000;    // cloud points used by ICP (evenly strided subset)
-  double icp_tolerance = 1e-7;    // stop when an update moves points by less than this x diagonal
+  int icp_max_points = 100000;  // cloud points used by ICP (evenly strided subset)
+  double icp_tolerance = 1e-7;  // stop when an update moves points by less than this x diagonal
   void Check() const;
 };
 
 struct RegistrationResult {
   RegistrationMethod method = RegistrationMethod::kNone;
   Rigid3d reference_from_cloud;
-  double fitness = 1.0;              // see above, in [0, 1]
+  double fitness = 1.0;  // see above, in [0, 1]
   double inlier_rmse_mm = 0.0;
   double max_correspondence_mm = 0.0;  // the final gate fitness and RMSE refer to
   int icp_iterations = 0;
-  bool converged = true;             // ICP stopped by tolerance (not by the iteration limit)
-  bool global_found = true;          // global stage found a pose (false: ICP from identity)
-  double global_fitness = 0.0;       // inlier fraction of the global pose on the voxel clouds
+  bool converged = true;        // ICP stopped by tolerance (not by the iteration limit)
+  bool global_found = true;     // global stage found a pose (false: ICP from identity)
+  double global_fitness = 0.0;  // inlier fraction of the global pose on the voxel clouds
   double time_s = 0.0;
-  std::string BriefReport() const;   // one line
+  std::string BriefReport() const;  // one line
 };
 
 // reference_normals: one unit normal per reference point, or empty to estimate them (PCA of 12

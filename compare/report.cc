@@ -33,7 +33,8 @@ nlohmann::json StatsJson(const DistanceStats& s) {
   j["threshold_mm"] = s.threshold_mm;
   j["inliers"] = s.inliers;
   j["outliers"] = s.outliers;
-  j["outlier_fraction"] = s.count ? static_cast<double>(s.outliers) / static_cast<double>(s.count) : 0.0;
+  j["outlier_fraction"] =
+      s.count ? static_cast<double>(s.outliers) / static_cast<double>(s.count) : 0.0;
   j["histogram"] = {{"signed", s.is_signed},
                     {"lo_mm", s.histogram.lo_mm},
                     {"hi_mm", s.histogram.hi_mm},
@@ -102,22 +103,24 @@ ViewCamera FitView(const PointCloud& cloud, int width_px) {
     mx = std::max(mx, std::abs(p.x() / p.z()));
     my = std::max(my, std::abs(p.y() / p.z()));
   }
-  const int height = std::clamp(static_cast<int>(std::lround(width_px * my / mx)), width_px / 2, width_px);
+  const int height =
+      std::clamp(static_cast<int>(std::lround(width_px * my / mx)), width_px / 2, width_px);
   const double f = std::min((width_px / 2.0 - 1) / (1.04 * mx), (height / 2.0 - 1) / (1.04 * my));
   v.camera = CameraModel(width_px, height, f, f, (width_px - 1) / 2.0, (height - 1) / 2.0);
   return v;
 }
 
-ValueImage RenderValues(const std::vector<Eigen::Vector3d>& points, const std::vector<double>& values,
-                        const ViewCamera& view, int splat_px) {
-  SLSHADOW_THROW_IF(points.size() != values.size(), "deviation map: ", values.size(), " values for ",
-                    points.size(), " points");
+ValueImage RenderValues(const std::vector<Eigen::Vector3d>& points,
+                        const std::vector<double>& values, const ViewCamera& view, int splat_px) {
+  SLSHADOW_THROW_IF(points.size() != values.size(), "deviation map: ", values.size(),
+                    " values for ", points.size(), " points");
   view.camera.Check("deviation map camera");
   const int w = view.camera.width, h = view.camera.height;
   ValueImage img;
   img.width = w;
   img.height = h;
-  img.values.assign(static_cast<size_t>(w) * static_cast<size_t>(h), std::numeric_limits<float>::quiet_NaN());
+  img.values.assign(static_cast<size_t>(w) * static_cast<size_t>(h),
+                    std::numeric_limits<float>::quiet_NaN());
   std::vector<float> depth(img.values.size(), std::numeric_limits<float>::infinity());
   if (points.empty()) return img;
   // Each point in the view's frame, computed where it is needed (a copy of a 2 M-point cloud
@@ -136,7 +139,8 @@ ValueImage RenderValues(const std::vector<Eigen::Vector3d>& points, const std::v
     double spacing_px = 1.0;
     if (!zs.empty()) {
       std::nth_element(zs.begin(), zs.begin() + static_cast<long>(zs.size() / 2), zs.end());
-      spacing_px = view.camera.fx() * MedianSpacing(points, 5000) / zs[zs.size() / 2];  // grid: no tree
+      spacing_px =
+          view.camera.fx() * MedianSpacing(points, 5000) / zs[zs.size() / 2];  // grid: no tree
     }
     splat_px = std::clamp(static_cast<int>(std::ceil(0.5 * spacing_px)), 0, 4);
   }
@@ -145,7 +149,8 @@ ValueImage RenderValues(const std::vector<Eigen::Vector3d>& points, const std::v
     const Eigen::Vector3d p = in_cam(i);
     const auto px = view.camera.Project(p);
     if (!px) continue;
-    const int u = static_cast<int>(std::lround(px->x())), v = static_cast<int>(std::lround(px->y()));
+    const int u = static_cast<int>(std::lround(px->x())),
+              v = static_cast<int>(std::lround(px->y()));
     const auto z = static_cast<float>(p.z());
     for (int dv = -splat_px; dv <= splat_px; ++dv) {
       for (int du = -splat_px; du <= splat_px; ++du) {
@@ -167,11 +172,12 @@ nlohmann::json ReportJson(const CompareResult& r) {
   j["format"] = "slshadow.compare_report";
   j["version"] = 1;
   j["created_utc"] = UtcTimestamp();
-  j["inputs"] = {{"cloud", r.cloud_source},
-                 {"cloud_points", r.compared.size()},
-                 {"reference", r.reference_source},
-                 {"reference_kind", r.reference_is_mesh ? "mesh" : "cloud"},
-                 {r.reference_is_mesh ? "reference_triangles" : "reference_points", r.reference_size}};
+  j["inputs"] = {
+      {"cloud", r.cloud_source},
+      {"cloud_points", r.compared.size()},
+      {"reference", r.reference_source},
+      {"reference_kind", r.reference_is_mesh ? "mesh" : "cloud"},
+      {r.reference_is_mesh ? "reference_triangles" : "reference_points", r.reference_size}};
   const CompareOptions& o = r.options;
   j["options"] = {{"threshold_mm", o.threshold_mm},
                   {"local_model", ToString(o.c2c.local_model)},
@@ -231,8 +237,10 @@ void WriteReport(const fs::path& dir, const CompareResult& r, const ReportOption
                     ": already exists and is kept (overwriting was disabled)");
   // Replacing is for an earlier report only: a folder of anything else (a typo'd --out naming a
   // folder of the user's) is kept. An empty folder holds nothing to lose.
-  SLSHADOW_THROW_IF(fs::exists(dir, ec) && !fs::exists(dir / "report.json", ec) && !fs::is_empty(dir, ec), dir.string(),
-                    ": exists and is not a compare report (no report.json); it is kept, choose another --out");
+  SLSHADOW_THROW_IF(
+      fs::exists(dir, ec) && !fs::exists(dir / "report.json", ec) && !fs::is_empty(dir, ec),
+      dir.string(),
+      ": exists and is not a compare report (no report.json); it is kept, choose another --out");
   const fs::path target = fs::absolute(dir);
   if (target.has_parent_path()) fs::create_directories(target.parent_path(), ec);
   const fs::path staged = TemporarySibling(target);
@@ -251,15 +259,20 @@ void WriteReport(const fs::path& dir, const CompareResult& r, const ReportOption
     hc.x_label = r.c2m ? "signed deviation (mm, + outside)" : "distance (mm)";
     hc.is_signed = s.is_signed;
     hc.threshold_mm = s.threshold_mm;
-    const double out_pct = r.c2c.count ? 100.0 * static_cast<double>(r.c2c.outliers) / static_cast<double>(r.c2c.count) : 0.0;
+    const double out_pct =
+        r.c2c.count ? 100.0 * static_cast<double>(r.c2c.outliers) / static_cast<double>(r.c2c.count)
+                    : 0.0;
     hc.notes = {std::to_string(r.c2c.count) + " points",
                 "RMS " + Fmt("%.4f mm", r.c2c.rms_mm) + ", p95 " + Fmt("%.4f mm", r.c2c.p95_mm),
                 "beyond " + Fmt("%.3f mm", s.threshold_mm) + ": " + Fmt("%.3f %%", out_pct),
                 "coverage " + Fmt("%.1f %%", 100.0 * r.coverage)};
-    if (r.c2m) hc.notes.insert(hc.notes.begin() + 1, "signed mean " + Fmt("%+.4f mm", r.c2m->signed_mean_mm));
+    if (r.c2m)
+      hc.notes.insert(hc.notes.begin() + 1,
+                      "signed mean " + Fmt("%+.4f mm", r.c2m->signed_mean_mm));
     const size_t beyond = s.histogram.underflow + s.histogram.overflow;
     if (beyond > 0 && s.count > 0) {
-      hc.notes.push_back(Fmt("%.2f %% beyond the axis", 100.0 * static_cast<double>(beyond) / static_cast<double>(s.count)));
+      hc.notes.push_back(Fmt("%.2f %% beyond the axis",
+                             100.0 * static_cast<double>(beyond) / static_cast<double>(s.count)));
     }
     WriteHistogramPng(staged / "histogram.png", s.histogram, hc);
     const ViewCamera view = options.view ? *options.view : FitView(r.compared);
@@ -271,10 +284,13 @@ void WriteReport(const fs::path& dir, const CompareResult& r, const ReportOption
     mc.hi = s.histogram.hi_mm;
     mc.marks = {s.threshold_mm};
     if (s.is_signed) mc.marks.push_back(-s.threshold_mm);
-    mc.notes = {Fmt(r.options.color_range_mm > 0 ? "colour range +-%.4g mm (fixed)" : "colour range +-%.4g mm (99 %% of points)",
+    mc.notes = {Fmt(r.options.color_range_mm > 0 ? "colour range +-%.4g mm (fixed)"
+                                                 : "colour range +-%.4g mm (99 %% of points)",
                     s.histogram.hi_mm)};
-    if (s.threshold_mm >= s.histogram.hi_mm) mc.notes.push_back(Fmt("threshold %.4g mm: beyond the range", s.threshold_mm));
-    else mc.notes.push_back(Fmt("threshold %.4g mm: black lines", s.threshold_mm));
+    if (s.threshold_mm >= s.histogram.hi_mm)
+      mc.notes.push_back(Fmt("threshold %.4g mm: beyond the range", s.threshold_mm));
+    else
+      mc.notes.push_back(Fmt("threshold %.4g mm: black lines", s.threshold_mm));
     WriteDeviationMapPng(staged / "deviation_map.png", img, mc);
     WriteTextFileAtomically(staged / "summary.txt", r.Summary());
     CommitDirectory(staged, target, options.overwrite);
@@ -284,8 +300,9 @@ void WriteReport(const fs::path& dir, const CompareResult& r, const ReportOption
   }
 }
 
-CompareResult CompareAndReport(const PointCloud& cloud, const Reference& reference, const CompareOptions& options,
-                               const fs::path& out_dir, const ReportOptions& report_options,
+CompareResult CompareAndReport(const PointCloud& cloud, const Reference& reference,
+                               const CompareOptions& options, const fs::path& out_dir,
+                               const ReportOptions& report_options,
                                const std::string& cloud_source) {
   CompareResult r = Compare(cloud, reference, options, cloud_source);
   WriteReport(out_dir, r, report_options);

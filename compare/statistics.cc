@@ -90,17 +90,18 @@ class PointGrid {
     // passes of 16 bits.
     const size_t n = points.size();
     std::vector<uint64_t> keys(n, kNoKey);
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 16384), [&](const tbb::blocked_range<size_t>& r) {
-      for (size_t i = r.begin(); i != r.end(); ++i) {
-        if (!points[i].allFinite()) continue;
-        const Eigen::Vector3d c = ((points[i] - lo_) * inv_).array().floor();
-        const uint64_t key = Key(std::min(static_cast<int64_t>(c.x()), max_cell_[0]),
-                                 std::min(static_cast<int64_t>(c.y()), max_cell_[1]),
-                                 std::min(static_cast<int64_t>(c.z()), max_cell_[2]));
-        if (focus && !is_marked(key)) continue;
-        keys[i] = key;
-      }
-    });
+    tbb::parallel_for(
+        tbb::blocked_range<size_t>(0, n, 16384), [&](const tbb::blocked_range<size_t>& r) {
+          for (size_t i = r.begin(); i != r.end(); ++i) {
+            if (!points[i].allFinite()) continue;
+            const Eigen::Vector3d c = ((points[i] - lo_) * inv_).array().floor();
+            const uint64_t key = Key(std::min(static_cast<int64_t>(c.x()), max_cell_[0]),
+                                     std::min(static_cast<int64_t>(c.y()), max_cell_[1]),
+                                     std::min(static_cast<int64_t>(c.z()), max_cell_[2]));
+            if (focus && !is_marked(key)) continue;
+            keys[i] = key;
+          }
+        });
     std::vector<uint32_t> order;
     order.reserve(n);
     for (size_t i = 0; i < n; ++i) {
@@ -147,11 +148,17 @@ class PointGrid {
     if (points_.empty() || !q.allFinite()) return;
     const Eigen::Vector3d c = ((q - lo_) * inv_).array().floor();
     constexpr double kMax = double(1 << 21);
-    if ((c.array() < -static_cast<double>(reach)).any() || (c.array() > kMax + static_cast<double>(reach)).any()) return;
-    const auto cx = static_cast<int64_t>(c.x()), cy = static_cast<int64_t>(c.y()), cz = static_cast<int64_t>(c.z());
-    for (int64_t z = std::max<int64_t>(cz - reach, 0); z <= std::min(cz + reach, max_cell_[2]); ++z) {
-      for (int64_t y = std::max<int64_t>(cy - reach, 0); y <= std::min(cy + reach, max_cell_[1]); ++y) {
-        for (int64_t x = std::max<int64_t>(cx - reach, 0); x <= std::min(cx + reach, max_cell_[0]); ++x) {
+    if ((c.array() < -static_cast<double>(reach)).any() ||
+        (c.array() > kMax + static_cast<double>(reach)).any())
+      return;
+    const auto cx = static_cast<int64_t>(c.x()), cy = static_cast<int64_t>(c.y()),
+               cz = static_cast<int64_t>(c.z());
+    for (int64_t z = std::max<int64_t>(cz - reach, 0); z <= std::min(cz + reach, max_cell_[2]);
+         ++z) {
+      for (int64_t y = std::max<int64_t>(cy - reach, 0); y <= std::min(cy + reach, max_cell_[1]);
+           ++y) {
+        for (int64_t x = std::max<int64_t>(cx - reach, 0); x <= std::min(cx + reach, max_cell_[0]);
+             ++x) {
           if (const Slot* slot = Find(Key(x, y, z))) {
             for (uint32_t k = slot->begin; k < slot->end; ++k) f(points_[k], index_[k]);
           }
@@ -166,9 +173,11 @@ class PointGrid {
     if (points_.empty() || !q.allFinite()) return false;
     const Eigen::Vector3d c = ((q - lo_) * inv_).array().floor();
     if ((c.array() < -1.0).any() || (c.array() > double(1 << 21) + 1.0).any()) return false;
-    const auto cx = static_cast<int64_t>(c.x()), cy = static_cast<int64_t>(c.y()), cz = static_cast<int64_t>(c.z());
+    const auto cx = static_cast<int64_t>(c.x()), cy = static_cast<int64_t>(c.y()),
+               cz = static_cast<int64_t>(c.z());
     const auto cell_has = [&](int64_t x, int64_t y, int64_t z) {
-      if (x < 0 || y < 0 || z < 0 || x > max_cell_[0] || y > max_cell_[1] || z > max_cell_[2]) return false;
+      if (x < 0 || y < 0 || z < 0 || x > max_cell_[0] || y > max_cell_[1] || z > max_cell_[2])
+        return false;
       const Slot* slot = Find(Key(x, y, z));
       if (!slot) return false;
       for (uint32_t k = slot->begin; k < slot->end; ++k) {
@@ -194,8 +203,8 @@ class PointGrid {
     uint32_t begin, end;  // the cell's points: points_[begin, end)
   };
   uint64_t Key(int64_t x, int64_t y, int64_t z) const {
-    return (static_cast<uint64_t>(z) << (bits_[0] + bits_[1])) | (static_cast<uint64_t>(y) << bits_[0]) |
-           static_cast<uint64_t>(x);
+    return (static_cast<uint64_t>(z) << (bits_[0] + bits_[1])) |
+           (static_cast<uint64_t>(y) << bits_[0]) | static_cast<uint64_t>(x);
   }
   const Slot* Find(uint64_t key) const {
     for (size_t h = Hash(key);; h = (h + 1) & mask_) {
@@ -203,7 +212,9 @@ class PointGrid {
       if (table_[h].key == kNoKey) return nullptr;
     }
   }
-  size_t Hash(uint64_t key) const { return static_cast<size_t>((key * 0x9E3779B97F4A7C15ull) >> 20) & mask_; }
+  size_t Hash(uint64_t key) const {
+    return static_cast<size_t>((key * 0x9E3779B97F4A7C15ull) >> 20) & mask_;
+  }
   Eigen::Vector3d lo_ = Eigen::Vector3d::Zero();
   double cell_ = 1.0, inv_ = 1.0;
   int64_t max_cell_[3] = {0, 0, 0};  // largest cell coordinate of a point, per axis
@@ -218,7 +229,8 @@ class PointGrid {
 
 DistanceStats ComputeStats(const std::vector<double>& distances_mm, bool is_signed,
                            double threshold_mm, int bins, double range_mm) {
-  SLSHADOW_THROW_IF(!(range_mm >= 0) || !std::isfinite(range_mm), "colour range: must be finite and >= 0 (got ", range_mm, ")");
+  SLSHADOW_THROW_IF(!(range_mm >= 0) || !std::isfinite(range_mm),
+                    "colour range: must be finite and >= 0 (got ", range_mm, ")");
   SLSHADOW_THROW_IF(!(threshold_mm >= 0) || !std::isfinite(threshold_mm),
                     "threshold_mm: must be finite and >= 0 (got ", threshold_mm, ")");
   SLSHADOW_THROW_IF(bins < 1, "histogram bins: must be >= 1 (got ", bins, ")");
@@ -307,7 +319,8 @@ double Coverage(const std::vector<Eigen::Vector3d>& reference_samples, const KdT
         Neighbor nb;
         for (size_t k = r.begin(); k != r.end(); ++k) {
           // Nearest() finds points strictly closer than the bound: nudge it to make it inclusive.
-          if (reached.Nearest(reference_samples[order[k]], &nb, std::nextafter(radius_mm, 1e300))) ++acc;
+          if (reached.Nearest(reference_samples[order[k]], &nb, std::nextafter(radius_mm, 1e300)))
+            ++acc;
         }
         return acc;
       },
@@ -315,8 +328,8 @@ double Coverage(const std::vector<Eigen::Vector3d>& reference_samples, const KdT
   return static_cast<double>(covered) / static_cast<double>(reference_samples.size());
 }
 
-double Coverage(const std::vector<Eigen::Vector3d>& reference_samples, const std::vector<Eigen::Vector3d>& reached,
-                double radius_mm) {
+double Coverage(const std::vector<Eigen::Vector3d>& reference_samples,
+                const std::vector<Eigen::Vector3d>& reached, double radius_mm) {
   return Coverages({&reference_samples}, reached, radius_mm).front();
 }
 
@@ -385,7 +398,8 @@ double MedianSpacing(const std::vector<Eigen::Vector3d>& points, size_t max_samp
       for (const size_t i : samples) {
         double best = std::numeric_limits<double>::infinity();
         near.ForNeighbours(
-            points[i], [&](const Eigen::Vector3d& p, uint32_t j) {
+            points[i],
+            [&](const Eigen::Vector3d& p, uint32_t j) {
               if (j != i) best = std::min(best, (points[i] - p).squaredNorm());
             },
             1);
@@ -404,7 +418,8 @@ double MedianSpacing(const std::vector<Eigen::Vector3d>& points, size_t max_samp
       for (int64_t cells = 2; cells <= 8 && !found; cells *= 2) {
         double best = std::numeric_limits<double>::infinity();
         grid.ForNeighbours(
-            points[i], [&](const Eigen::Vector3d& p, uint32_t j) {
+            points[i],
+            [&](const Eigen::Vector3d& p, uint32_t j) {
               if (j != i) best = std::min(best, (points[i] - p).squaredNorm());
             },
             cells);

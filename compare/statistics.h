@@ -24,7 +24,9 @@ struct Histogram {
   double lo_mm = 0.0, hi_mm = 0.0;  // range of the bins
   std::vector<size_t> counts;       // equal-width bins over [lo, hi)
   size_t underflow = 0, overflow = 0;
-  double BinWidth() const { return counts.empty() ? 0.0 : (hi_mm - lo_mm) / static_cast<double>(counts.size()); }
+  double BinWidth() const {
+    return counts.empty() ? 0.0 : (hi_mm - lo_mm) / static_cast<double>(counts.size());
+  }
 };
 
 struct DistanceStats {
@@ -53,8 +55,8 @@ double Coverage(const std::vector<Eigen::Vector3d>& reference_samples, const KdT
                 double radius_mm);
 // The same value from the reached points themselves, through a uniform grid of cell ~radius
 // (no tree to build: cheaper on millions of reached points).
-double Coverage(const std::vector<Eigen::Vector3d>& reference_samples, const std::vector<Eigen::Vector3d>& reached,
-                double radius_mm);
+double Coverage(const std::vector<Eigen::Vector3d>& reference_samples,
+                const std::vector<Eigen::Vector3d>& reached, double radius_mm);
 // Coverage(*sample_sets[k], reached, radius_mm) for every k, bit for bit, from one grid over the
 // reached points (built once instead of once per sample set).
 std::vector<double> Coverages(const std::vector<const std::vector<Eigen::Vector3d>*>& sample_sets,

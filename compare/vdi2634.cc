@@ -53,8 +53,8 @@ std::vector<double> PlaneResiduals(const std::vector<Eigen::Vector3d>& pts, cons
 }
 
 // Keeps the points with |residual| <= gate.
-std::vector<Eigen::Vector3d> Gate(const std::vector<Eigen::Vector3d>& pts, const std::vector<double>& res,
-                                  double gate) {
+std::vector<Eigen::Vector3d> Gate(const std::vector<Eigen::Vector3d>& pts,
+                                  const std::vector<double>& res, double gate) {
   std::vector<Eigen::Vector3d> out;
   for (size_t i = 0; i < pts.size(); ++i)
     if (std::abs(res[i]) <= gate) out.push_back(pts[i]);
@@ -148,25 +148,29 @@ bool FitPlane(const std::vector<Eigen::Vector3d>& pts, PlaneFit* fit) {
 }
 
 void ArtefactSpec::Check(const std::string& what) const {
-  SLSHADOW_THROW_IF(!(search_margin_mm > 0), what, ": search_margin_mm: must be > 0 (got ", search_margin_mm, ")");
+  SLSHADOW_THROW_IF(!(search_margin_mm > 0), what, ": search_margin_mm: must be > 0 (got ",
+                    search_margin_mm, ")");
   std::map<std::string, int> names;
   for (size_t i = 0; i < spheres.size(); ++i) {
     SLSHADOW_THROW_IF(!(spheres[i].calibrated_diameter_mm > 0), what, ": spheres[", i,
                       "].diameter_mm: must be > 0 (got ", spheres[i].calibrated_diameter_mm, ")");
-    SLSHADOW_THROW_IF(names.count(spheres[i].name), what, ": spheres[", i, "].name: duplicate '", spheres[i].name, "'");
+    SLSHADOW_THROW_IF(names.count(spheres[i].name), what, ": spheres[", i, "].name: duplicate '",
+                      spheres[i].name, "'");
     names[spheres[i].name] = static_cast<int>(i);
   }
   for (size_t i = 0; i < pairs.size(); ++i) {
     for (const auto* s : {&pairs[i].sphere_a, &pairs[i].sphere_b}) {
-      SLSHADOW_THROW_IF(!names.count(*s), what, ": sphere_pairs[", i, "].spheres: unknown sphere '", *s, "'");
+      SLSHADOW_THROW_IF(!names.count(*s), what, ": sphere_pairs[", i, "].spheres: unknown sphere '",
+                        *s, "'");
     }
     SLSHADOW_THROW_IF(!(pairs[i].calibrated_distance_mm > 0), what, ": sphere_pairs[", i,
                       "].distance_mm: must be > 0 (got ", pairs[i].calibrated_distance_mm, ")");
   }
   for (size_t i = 0; i < planes.size(); ++i) {
-    SLSHADOW_THROW_IF(!(planes[i].half_size_mm > 0), what, ": planes[", i, "].half_size_mm: must be > 0 (got ",
-                      planes[i].half_size_mm, ")");
-    SLSHADOW_THROW_IF(!(planes[i].nominal_normal.norm() > 0), what, ": planes[", i, "].normal: must not be zero");
+    SLSHADOW_THROW_IF(!(planes[i].half_size_mm > 0), what, ": planes[", i,
+                      "].half_size_mm: must be > 0 (got ", planes[i].half_size_mm, ")");
+    SLSHADOW_THROW_IF(!(planes[i].nominal_normal.norm() > 0), what, ": planes[", i,
+                      "].normal: must not be zero");
   }
 }
 
@@ -175,7 +179,8 @@ ArtefactSpec LoadArtefactSpec(const std::filesystem::path& path) {
 }
 
 ArtefactSpec ArtefactSpecFromConfig(const ConfigNode& root) {
-  root.RejectUnknownKeys({"format", "version", "search_margin_mm", "spheres", "sphere_pairs", "planes"});
+  root.RejectUnknownKeys(
+      {"format", "version", "search_margin_mm", "spheres", "sphere_pairs", "planes"});
   ArtefactSpec spec;
   spec.search_margin_mm = root.GetDouble("search_margin_mm", spec.search_margin_mm);
   if (root.Has("spheres")) {
@@ -183,7 +188,8 @@ ArtefactSpec ArtefactSpecFromConfig(const ConfigNode& root) {
     for (size_t i = 0; i < s.size(); ++i) {
       const ConfigNode e = s.at(i);
       e.RejectUnknownKeys({"name", "center_mm", "diameter_mm"});
-      spec.spheres.push_back({e["name"].AsString(), ReadVec3(e["center_mm"]), e["diameter_mm"].AsDouble()});
+      spec.spheres.push_back(
+          {e["name"].AsString(), ReadVec3(e["center_mm"]), e["diameter_mm"].AsDouble()});
     }
   }
   if (root.Has("sphere_pairs")) {
@@ -202,8 +208,8 @@ ArtefactSpec ArtefactSpecFromConfig(const ConfigNode& root) {
     for (size_t i = 0; i < s.size(); ++i) {
       const ConfigNode e = s.at(i);
       e.RejectUnknownKeys({"name", "point_mm", "normal", "half_size_mm"});
-      spec.planes.push_back({e["name"].AsString(), ReadVec3(e["point_mm"]), ReadVec3(e["normal"]).normalized(),
-                             e["half_size_mm"].AsDouble()});
+      spec.planes.push_back({e["name"].AsString(), ReadVec3(e["point_mm"]),
+                             ReadVec3(e["normal"]).normalized(), e["half_size_mm"].AsDouble()});
     }
   }
   spec.Check(root.path().empty() ? root.file() : root.file() + ": " + root.path());
@@ -215,12 +221,15 @@ nlohmann::json ArtefactSpecToJson(const ArtefactSpec& spec) {
   nlohmann::json j = {{"search_margin_mm", spec.search_margin_mm}};
   j["spheres"] = nlohmann::json::array();
   for (const auto& s : spec.spheres) {
-    j["spheres"].push_back({{"name", s.name}, {"center_mm", vec(s.nominal_center_mm)}, {"diameter_mm", s.calibrated_diameter_mm}});
+    j["spheres"].push_back({{"name", s.name},
+                            {"center_mm", vec(s.nominal_center_mm)},
+                            {"diameter_mm", s.calibrated_diameter_mm}});
   }
   j["sphere_pairs"] = nlohmann::json::array();
   for (const auto& p : spec.pairs) {
-    j["sphere_pairs"].push_back(
-        {{"name", p.name}, {"spheres", {p.sphere_a, p.sphere_b}}, {"distance_mm", p.calibrated_distance_mm}});
+    j["sphere_pairs"].push_back({{"name", p.name},
+                                 {"spheres", {p.sphere_a, p.sphere_b}},
+                                 {"distance_mm", p.calibrated_distance_mm}});
   }
   j["planes"] = nlohmann::json::array();
   for (const auto& p : spec.planes) {
@@ -259,11 +268,13 @@ Vdi2634Options Vdi2634OptionsFromConfig(const ConfigNode& node) {
 void Vdi2634Options::Check() const {
   SLSHADOW_THROW_IF(!(exclude_fraction >= 0 && exclude_fraction <= 0.003),
                     "vdi2634.exclude_fraction: must be in [0, 0.003] (got ", exclude_fraction, ")");
-  SLSHADOW_THROW_IF(ransac_iterations < 1, "vdi2634.ransac_iterations: must be >= 1 (got ", ransac_iterations, ")");
+  SLSHADOW_THROW_IF(ransac_iterations < 1, "vdi2634.ransac_iterations: must be >= 1 (got ",
+                    ransac_iterations, ")");
   SLSHADOW_THROW_IF(min_points < 4, "vdi2634.min_points: must be >= 4 (got ", min_points, ")");
 }
 
-Vdi2634Result EvaluateVdi2634(const PointCloud& cloud, const ArtefactSpec& spec, const Vdi2634Options& options) {
+Vdi2634Result EvaluateVdi2634(const PointCloud& cloud, const ArtefactSpec& spec,
+                              const Vdi2634Options& options) {
   options.Check();
   spec.Check("artefact spec");
   Vdi2634Result result;
@@ -280,13 +291,15 @@ Vdi2634Result EvaluateVdi2634(const PointCloud& cloud, const ArtefactSpec& spec,
       if (std::abs((p - a.nominal_center_mm).norm() - r0) <= margin) cand.push_back(p);
     }
     if (static_cast<int>(cand.size()) >= options.min_points) {
-      // RANSAC: 4-point spheres with a radius near the calibrated one; most points within margin / 4.
+      // RANSAC: 4-point spheres with a radius near the calibrated one; most points within margin
+      // / 4.
       std::uniform_int_distribution<size_t> pick(0, cand.size() - 1);
       const double band = margin / 4;
       SphereFit best;
       size_t best_n = 0;
       for (int it = 0; it < options.ransac_iterations; ++it) {
-        const Eigen::Vector3d s[4] = {cand[pick(rng)], cand[pick(rng)], cand[pick(rng)], cand[pick(rng)]};
+        const Eigen::Vector3d s[4] = {cand[pick(rng)], cand[pick(rng)], cand[pick(rng)],
+                                      cand[pick(rng)]};
         SphereFit h;
         if (!SphereFrom4(s, &h) || std::abs(h.radius - r0) > margin) continue;
         size_t n = 0;
@@ -390,8 +403,8 @@ std::string Vdi2634Result::Summary() const {
       o << "  sphere " << s.name << ": not found\n";
       continue;
     }
-    std::snprintf(buf, sizeof(buf), "  sphere %-10s %7zu pts  D %.4f mm  PF %.4f mm  PS %+.4f mm\n", s.name.c_str(),
-                  s.points, 2 * s.fit.radius, s.pf_mm, s.ps_mm);
+    std::snprintf(buf, sizeof(buf), "  sphere %-10s %7zu pts  D %.4f mm  PF %.4f mm  PS %+.4f mm\n",
+                  s.name.c_str(), s.points, 2 * s.fit.radius, s.pf_mm, s.ps_mm);
     o << buf;
   }
   for (const auto& p : pairs) {
@@ -399,8 +412,8 @@ std::string Vdi2634Result::Summary() const {
       o << "  pair   " << p.name << ": a sphere was not found\n";
       continue;
     }
-    std::snprintf(buf, sizeof(buf), "  pair   %-10s L %.4f mm  SD %+.4f mm\n", p.name.c_str(), p.measured_distance_mm,
-                  p.sd_mm);
+    std::snprintf(buf, sizeof(buf), "  pair   %-10s L %.4f mm  SD %+.4f mm\n", p.name.c_str(),
+                  p.measured_distance_mm, p.sd_mm);
     o << buf;
   }
   for (const auto& p : planes) {
@@ -408,7 +421,8 @@ std::string Vdi2634Result::Summary() const {
       o << "  plane  " << p.name << ": not found\n";
       continue;
     }
-    std::snprintf(buf, sizeof(buf), "  plane  %-10s %7zu pts  F %.4f mm\n", p.name.c_str(), p.points, p.f_mm);
+    std::snprintf(buf, sizeof(buf), "  plane  %-10s %7zu pts  F %.4f mm\n", p.name.c_str(),
+                  p.points, p.f_mm);
     o << buf;
   }
   return o.str();
@@ -429,8 +443,10 @@ nlohmann::json Vdi2634Result::ToJson() const {
   }
   j["sphere_pairs"] = nlohmann::json::array();
   for (const auto& p : pairs) {
-    j["sphere_pairs"].push_back(
-        {{"name", p.name}, {"found", p.found}, {"distance_mm", p.measured_distance_mm}, {"sd_mm", p.sd_mm}});
+    j["sphere_pairs"].push_back({{"name", p.name},
+                                 {"found", p.found},
+                                 {"distance_mm", p.measured_distance_mm},
+                                 {"sd_mm", p.sd_mm}});
   }
   j["planes"] = nlohmann::json::array();
   for (const auto& p : planes) {

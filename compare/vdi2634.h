@@ -37,7 +37,7 @@ struct SphereFit {
   double rms_mm = 0.0;
 };
 struct PlaneFit {
-  Eigen::Vector3d point = Eigen::Vector3d::Zero();   // centroid
+  Eigen::Vector3d point = Eigen::Vector3d::Zero();    // centroid
   Eigen::Vector3d normal = Eigen::Vector3d::UnitZ();  // unit
   double rms_mm = 0.0;
 };
@@ -82,7 +82,7 @@ nlohmann::json ArtefactSpecToJson(const ArtefactSpec& spec);
 struct Vdi2634Options {
   double exclude_fraction = 0.0;  // in [0, 0.003]: share of largest residuals dropped
   int ransac_iterations = 500;
-  int min_points = 50;            // per artefact, else it is reported as not found
+  int min_points = 50;  // per artefact, else it is reported as not found
   unsigned seed = 7;
   void Check() const;
 };
@@ -109,7 +109,7 @@ struct PlaneFigures {
   bool found = false;
   size_t points = 0;
   PlaneFit fit;
-  double f_mm = 0.0;   // flatness error
+  double f_mm = 0.0;  // flatness error
 };
 struct Vdi2634Result {
   std::vector<SphereFigures> spheres;

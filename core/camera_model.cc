@@ -19,14 +19,18 @@ bool CameraModel::HasDistortion() const {
 
 void CameraModel::Check(const std::string& what) const {
   static const char* kNames[kNumParams] = {"fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"};
-  SLSHADOW_THROW_IF(width <= 0, what, ": width: must be a positive number of pixels (got ", width, ")");
-  SLSHADOW_THROW_IF(height <= 0, what, ": height: must be a positive number of pixels (got ", height, ")");
+  SLSHADOW_THROW_IF(width <= 0, what, ": width: must be a positive number of pixels (got ", width,
+                    ")");
+  SLSHADOW_THROW_IF(height <= 0, what, ": height: must be a positive number of pixels (got ",
+                    height, ")");
   for (int i = 0; i < kNumParams; ++i) {
     SLSHADOW_THROW_IF(!std::isfinite(params[i]), what, ": ", kNames[i], ": must be finite (got ",
                       params[i], ")");
   }
-  SLSHADOW_THROW_IF(params[kFx] <= 0, what, ": fx: focal length must be positive (got ", params[kFx], ")");
-  SLSHADOW_THROW_IF(params[kFy] <= 0, what, ": fy: focal length must be positive (got ", params[kFy], ")");
+  SLSHADOW_THROW_IF(params[kFx] <= 0, what, ": fx: focal length must be positive (got ",
+                    params[kFx], ")");
+  SLSHADOW_THROW_IF(params[kFy] <= 0, what, ": fy: focal length must be positive (got ",
+                    params[kFy], ")");
 }
 
 std::optional<Eigen::Vector2d> CameraModel::Project(const Eigen::Vector3d& point_in_cam) const {
@@ -58,7 +62,9 @@ std::optional<Eigen::Vector2d> CameraModel::UndistortToNormalized(const Eigen::V
     const double det = a * d - b * b;
     if (!(det > 0)) return std::nullopt;  // past the fold of the distortion
     if (residual.squaredNorm() < 1e-26) return xy;
-    xy -= Eigen::Vector2d(d * residual.x() - b * residual.y(), a * residual.y() - b * residual.x()) / det;
+    xy -=
+        Eigen::Vector2d(d * residual.x() - b * residual.y(), a * residual.y() - b * residual.x()) /
+        det;
     if (!xy.allFinite()) return std::nullopt;
   }
   return std::nullopt;

@@ -141,7 +141,8 @@ ConfigNode::ConfigNode(std::shared_ptr<const nlohmann::json> root, const nlohman
                        std::shared_ptr<const std::string> file, std::string path)
     : root_(std::move(root)), json_(json), file_(std::move(file)), path_(std::move(path)) {}
 
-ConfigNode ConfigNode::FromJson(nlohmann::json json, const std::string& file, const std::string& path) {
+ConfigNode ConfigNode::FromJson(nlohmann::json json, const std::string& file,
+                                const std::string& path) {
   auto root = std::make_shared<const nlohmann::json>(std::move(json));
   return ConfigNode(root, root.get(), std::make_shared<const std::string>(file), path);
 }
@@ -157,8 +158,8 @@ ConfigNode ConfigNode::ParseYaml(const std::string& text, const std::string& fil
     json = YamlToJson(YAML::Load(text));
   } catch (const YAML::Exception& e) {
     if (e.mark.is_null()) SLSHADOW_THROW(file, ": not valid YAML: ", e.msg);
-    SLSHADOW_THROW(file, ": not valid YAML at line ", e.mark.line + 1, ", column ", e.mark.column + 1,
-                   ": ", e.msg);
+    SLSHADOW_THROW(file, ": not valid YAML at line ", e.mark.line + 1, ", column ",
+                   e.mark.column + 1, ": ", e.msg);
   }
   return FromJson(std::move(json), file);
 }
@@ -201,7 +202,8 @@ ConfigNode ConfigNode::operator[](const std::string& key) const {
 ConfigNode ConfigNode::at(size_t index) const {
   if (!json_->is_array()) Fail("expected a list");
   if (index >= json_->size()) {
-    SLSHADOW_THROW(Describe(), ": list has ", json_->size(), " entries, entry ", index, " is missing");
+    SLSHADOW_THROW(Describe(), ": list has ", json_->size(), " entries, entry ", index,
+                   " is missing");
   }
   return ConfigNode(root_, &(*json_)[index], file_, path_ + "[" + std::to_string(index) + "]");
 }
@@ -229,7 +231,8 @@ int64_t ConfigNode::AsInt() const {
   if (json_->is_number_integer() || json_->is_number_unsigned()) return json_->get<int64_t>();
   if (json_->is_number_float()) {
     const double v = json_->get<double>();
-    if (std::isfinite(v) && v == std::floor(v) && std::abs(v) < 9e15) return static_cast<int64_t>(v);
+    if (std::isfinite(v) && v == std::floor(v) && std::abs(v) < 9e15)
+      return static_cast<int64_t>(v);
   }
   Fail("expected a whole number");
 }

@@ -21,7 +21,8 @@ class ConfigNode {
   // Parses YAML text; `file` is only used in messages.
   static ConfigNode ParseYaml(const std::string& text, const std::string& file);
   // Wraps an already parsed tree; `file` and `path` are only used in messages.
-  static ConfigNode FromJson(nlohmann::json json, const std::string& file, const std::string& path = "");
+  static ConfigNode FromJson(nlohmann::json json, const std::string& file,
+                             const std::string& path = "");
 
   const std::string& file() const { return *file_; }
   // Dotted field path from the root, e.g. "cameras[1].intrinsics.fx" (empty for the root).
@@ -35,7 +36,7 @@ class ConfigNode {
   ConfigNode operator[](const std::string& key) const;
   // Array element; throws when out of range or not an array.
   ConfigNode at(size_t index) const;
-  size_t size() const;  // number of array elements (throws if not an array)
+  size_t size() const;                    // number of array elements (throws if not an array)
   std::vector<std::string> Keys() const;  // object keys (throws if not an object)
 
   // Typed values. Numbers must be finite; AsInt rejects fractions.

@@ -32,15 +32,15 @@ std::string Concat(const Args&... args) {
 }  // namespace slshadow
 
 // Internal invariant; aborts (tier a).
-#define SLSHADOW_CHECK(expr)                                                     \
-  do {                                                                           \
+#define SLSHADOW_CHECK(expr)                                                       \
+  do {                                                                             \
     if (!(expr)) ::slshadow::internal::CheckFailed(__FILE__, __LINE__, #expr, ""); \
   } while (0)
 
 // Bad input (tier b): throws slshadow::Error with the concatenated message parts.
 #define SLSHADOW_THROW(...) throw ::slshadow::Error(::slshadow::internal::Concat(__VA_ARGS__))
 
-#define SLSHADOW_THROW_IF(cond, ...) \
-  do {                               \
+#define SLSHADOW_THROW_IF(cond, ...)       \
+  do {                                     \
     if (cond) SLSHADOW_THROW(__VA_ARGS__); \
   } while (0)

@@ -25,7 +25,8 @@ namespace fs = std::filesystem;
 std::string ReadTextFile(const fs::path& path) {
   std::error_code ec;
   if (!fs::exists(path, ec)) SLSHADOW_THROW(path.string(), ": file not found");
-  if (fs::is_directory(path, ec)) SLSHADOW_THROW(path.string(), ": is a directory, expected a file");
+  if (fs::is_directory(path, ec))
+    SLSHADOW_THROW(path.string(), ": is a directory, expected a file");
   std::ifstream in(path, std::ios::binary);
   if (!in) SLSHADOW_THROW(path.string(), ": cannot open for reading: ", std::strerror(errno));
   std::ostringstream s;
@@ -61,7 +62,8 @@ void RememberUnfinished(const fs::path& path) {
       return;
     }
   }
-  // All slots taken: this output is then not removed on an interrupt (still never moved into place).
+  // All slots taken: this output is then not removed on an interrupt (still never moved into
+  // place).
 }
 
 void ForgetUnfinished(const fs::path& path) {
@@ -120,8 +122,11 @@ void CleanUpAndReraise(int sig) {
   for (auto& slot : g_unfinished) {
     if (slot.state.load() == 2) RemoveTreeSignalSafe(AT_FDCWD, slot.path, 0);
   }
-  WriteSignalSafe(sig == SIGINT ? "slshadow: interrupted (SIGINT): unfinished outputs removed, existing files untouched\n"
-                                : "slshadow: terminated (SIGTERM): unfinished outputs removed, existing files untouched\n");
+  WriteSignalSafe(
+      sig == SIGINT
+          ? "slshadow: interrupted (SIGINT): unfinished outputs removed, existing files untouched\n"
+          : "slshadow: terminated (SIGTERM): unfinished outputs removed, existing files "
+            "untouched\n");
   ::signal(sig, SIG_DFL);
   ::raise(sig);
 }
@@ -202,10 +207,12 @@ void CommitDirectory(const fs::path& staged, const fs::path& target, bool overwr
   std::error_code ec;
   fs::path old;
   if (fs::exists(target, ec)) {
-    if (!overwrite) SLSHADOW_THROW(target.string(), ": already exists (pass --overwrite to replace it)");
+    if (!overwrite)
+      SLSHADOW_THROW(target.string(), ": already exists (pass --overwrite to replace it)");
     old = TemporarySibling(target);
     fs::rename(target, old, ec);
-    if (ec) SLSHADOW_THROW(target.string(), ": cannot move the existing folder aside: ", ec.message());
+    if (ec)
+      SLSHADOW_THROW(target.string(), ": cannot move the existing folder aside: ", ec.message());
   }
   fs::rename(staged, target, ec);
   if (ec) {

@@ -5,8 +5,8 @@
 #include <unistd.h>
 
 #include <algorithm>
-#include <cerrno>
 #include <cctype>
+#include <cerrno>
 #include <cstring>
 #include <fstream>
 #include <map>
@@ -24,9 +24,12 @@ namespace fs = std::filesystem;
 
 std::string ToString(ImageSource source) {
   switch (source) {
-    case ImageSource::kDevice: return "device";
-    case ImageSource::kVirtual: return "virtual";
-    case ImageSource::kReplay: return "replay";
+    case ImageSource::kDevice:
+      return "device";
+    case ImageSource::kVirtual:
+      return "virtual";
+    case ImageSource::kReplay:
+      return "replay";
   }
   return "device";
 }
@@ -43,14 +46,18 @@ ImageSource SourceFromConfig(const ConfigNode& node) {
 
 const char* Extension(ImageEncoding e) {
   switch (e) {
-    case ImageEncoding::kPng: return ".png";
-    case ImageEncoding::kPgm: return ".pgm";
-    case ImageEncoding::kTiff: return ".tif";
+    case ImageEncoding::kPng:
+      return ".png";
+    case ImageEncoding::kPgm:
+      return ".pgm";
+    case ImageEncoding::kTiff:
+      return ".tif";
   }
   return ".png";
 }
 
-void CheckImage(const cv::Mat& image, const RigDevice& camera, const std::string& what, int bit_depth) {
+void CheckImage(const cv::Mat& image, const RigDevice& camera, const std::string& what,
+                int bit_depth) {
   SLSHADOW_THROW_IF(image.channels() != 1, what, ": expected a single-channel (grey) image, got ",
                     image.channels(), " channels");
   const int depth = image.depth() == CV_8U ? 8 : image.depth() == CV_16U ? 16 : 0;
@@ -62,11 +69,11 @@ void CheckImage(const cv::Mat& image, const RigDevice& camera, const std::string
                     "' is ", camera.model.width, "x", camera.model.height);
 }
 
-
 nlohmann::json RecordToJson(const ImageRecord& r) {
-  nlohmann::json j = {{"camera", r.camera},       {"pattern", r.pattern_index},   {"file", r.file},
-                      {"bit_depth", r.bit_depth}, {"exposure_us", r.exposure_us}, {"timestamp", r.timestamp},
-                      {"source", ToString(r.source)}};
+  nlohmann::json j = {
+      {"camera", r.camera},          {"pattern", r.pattern_index},   {"file", r.file},
+      {"bit_depth", r.bit_depth},    {"exposure_us", r.exposure_us}, {"timestamp", r.timestamp},
+      {"source", ToString(r.source)}};
   if (!r.device_serial.empty()) j["device_serial"] = r.device_serial;
   if (r.frame_id) j["frame_id"] = *r.frame_id;
   if (r.device_timestamp_ns) j["device_timestamp_ns"] = *r.device_timestamp_ns;
@@ -87,9 +94,11 @@ std::optional<cv::Size> PeekImageSize(const fs::path& path) {
   in.read(head, sizeof(head));
   const size_t n = static_cast<size_t>(in.gcount());
   const auto* u = reinterpret_cast<const unsigned char*>(head);
-  if (n >= 24 && std::memcmp(head, "\x89PNG\r\n\x1a\n", 8) == 0 && std::memcmp(head + 12, "IHDR", 4) == 0) {
+  if (n >= 24 && std::memcmp(head, "\x89PNG\r\n\x1a\n", 8) == 0 &&
+      std::memcmp(head + 12, "IHDR", 4) == 0) {
     const auto be32 = [&](size_t at) {
-      return (uint64_t{u[at]} << 24) | (uint64_t{u[at + 1]} << 16) | (uint64_t{u[at + 2]} << 8) | u[at + 3];
+      return (uint64_t{u[at]} << 24) | (uint64_t{u[at + 1]} << 16) | (uint64_t{u[at + 2]} << 8) |
+             u[at + 3];
     };
     const uint64_t w = be32(16), h = be32(20);
     if (w > INT32_MAX || h > INT32_MAX) return cv::Size(-1, -1);
@@ -103,7 +112,8 @@ std::optional<cv::Size> PeekImageSize(const fs::path& path) {
         while (i < n && head[i] != '\n') ++i;
       } else if (std::isdigit(u[i])) {
         uint64_t v = 0;
-        for (; i < n && std::isdigit(u[i]) && v < (1ull << 40); ++i) v = v * 10 + static_cast<uint64_t>(head[i] - '0');
+        for (; i < n && std::isdigit(u[i]) && v < (1ull << 40); ++i)
+          v = v * 10 + static_cast<uint64_t>(head[i] - '0');
         values.push_back(v);
       } else {
         ++i;
@@ -118,15 +128,17 @@ std::optional<cv::Size> PeekImageSize(const fs::path& path) {
 
 // One image record of a manifest (or a capture journal line, which may carry "type"); the file
 // must exist under `dir`.
-ImageRecord RecordFromConfig(const ConfigNode& n, const Rig& rig, const fs::path& dir, bool allow_type = false) {
-  std::vector<std::string> keys = {"camera",    "pattern", "file",          "bit_depth",          "exposure_us",
-                                   "timestamp", "source",  "device_serial", "frame_id", "device_timestamp_ns",
-                                   "retries"};
+ImageRecord RecordFromConfig(const ConfigNode& n, const Rig& rig, const fs::path& dir,
+                             bool allow_type = false) {
+  std::vector<std::string> keys = {
+      "camera", "pattern",       "file",     "bit_depth",           "exposure_us", "timestamp",
+      "source", "device_serial", "frame_id", "device_timestamp_ns", "retries"};
   if (allow_type) keys.push_back("type");
   n.RejectUnknownKeys(keys);
   ImageRecord r;
   r.camera = n["camera"].AsString();
-  if (rig.CameraIndex(r.camera) < 0) n["camera"].Fail("no camera of this name in the manifest's rig");
+  if (rig.CameraIndex(r.camera) < 0)
+    n["camera"].Fail("no camera of this name in the manifest's rig");
   const int64_t pattern = n["pattern"].AsInt();
   if (pattern < 0 || pattern > kMaxPatternIndex) {
     n["pattern"].Fail("pattern index must be 0.." + std::to_string(kMaxPatternIndex));
@@ -138,7 +150,8 @@ ImageRecord RecordFromConfig(const ConfigNode& n, const Rig& rig, const fs::path
     n["file"].Fail("must be a path relative to the ImageSet folder, without '..'");
   }
   std::error_code ec;
-  if (!fs::is_regular_file(dir / file, ec)) n["file"].Fail("image file not found in " + dir.string());
+  if (!fs::is_regular_file(dir / file, ec))
+    n["file"].Fail("image file not found in " + dir.string());
   r.bit_depth = static_cast<int>(n.GetInt("bit_depth", 8));
   if (r.bit_depth != 8 && r.bit_depth != 16) n["bit_depth"].Fail("must be 8 or 16");
   r.exposure_us = n.GetDouble("exposure_us", 0.0);
@@ -172,9 +185,12 @@ ImageEncoding ImageEncodingFromString(const std::string& name) {
 
 std::string ToString(ImageEncoding encoding) {
   switch (encoding) {
-    case ImageEncoding::kPng: return "png";
-    case ImageEncoding::kPgm: return "pgm";
-    case ImageEncoding::kTiff: return "tiff";
+    case ImageEncoding::kPng:
+      return "png";
+    case ImageEncoding::kPgm:
+      return "pgm";
+    case ImageEncoding::kTiff:
+      return "tiff";
   }
   return "png";
 }
@@ -195,11 +211,14 @@ void CheckPngStructure(const fs::path& path) {
     unsigned char chunk[8];
     in.seekg(static_cast<std::streamoff>(pos));
     in.read(reinterpret_cast<char*>(chunk), 8);
-    SLSHADOW_THROW_IF(in.gcount() < 8, path.string(), ": truncated PNG: no IEND chunk (the file ends at byte ", size, ")");
-    const uint64_t length = (uint64_t{chunk[0]} << 24) | (uint64_t{chunk[1]} << 16) | (uint64_t{chunk[2]} << 8) | chunk[3];
+    SLSHADOW_THROW_IF(in.gcount() < 8, path.string(),
+                      ": truncated PNG: no IEND chunk (the file ends at byte ", size, ")");
+    const uint64_t length = (uint64_t{chunk[0]} << 24) | (uint64_t{chunk[1]} << 16) |
+                            (uint64_t{chunk[2]} << 8) | chunk[3];
     const std::string type(reinterpret_cast<const char*>(chunk + 4), 4);
-    SLSHADOW_THROW_IF(pos + 12 + length > size, path.string(), ": truncated PNG: chunk '", type, "' at byte ", pos,
-                      " needs ", 12 + length, " bytes, the file ends at byte ", size);
+    SLSHADOW_THROW_IF(pos + 12 + length > size, path.string(), ": truncated PNG: chunk '", type,
+                      "' at byte ", pos, " needs ", 12 + length, " bytes, the file ends at byte ",
+                      size);
     if (type == "IEND") return;
     pos += 12 + length;
   }
@@ -212,7 +231,8 @@ cv::Mat ReadGrayImage(const fs::path& path) {
   SLSHADOW_THROW_IF(!fs::is_regular_file(path, ec), path.string(), ": image file not found");
   CheckPngStructure(path);
   cv::Mat image = cv::imread(path.string(), cv::IMREAD_UNCHANGED);
-  SLSHADOW_THROW_IF(image.empty(), path.string(), ": cannot decode image (corrupt or unsupported format)");
+  SLSHADOW_THROW_IF(image.empty(), path.string(),
+                    ": cannot decode image (corrupt or unsupported format)");
   return image;
 }
 
@@ -222,17 +242,19 @@ namespace {
 // images (the simulator writes ~100 MB of these per scan). 16-bit samples are big-endian, as the
 // format requires.
 void WritePgm(const fs::path& path, const cv::Mat& image) {
-  SLSHADOW_THROW_IF(image.channels() != 1 || (image.depth() != CV_8U && image.depth() != CV_16U), path.string(),
+  SLSHADOW_THROW_IF(image.channels() != 1 || (image.depth() != CV_8U && image.depth() != CV_16U),
+                    path.string(),
                     ": cannot write image: PGM takes 8- or 16-bit single-channel images");
   const bool wide = image.depth() == CV_16U;
-  const std::string header = "P5\n" + std::to_string(image.cols) + " " + std::to_string(image.rows) + "\n" +
-                             (wide ? "65535" : "255") + "\n";
+  const std::string header = "P5\n" + std::to_string(image.cols) + " " +
+                             std::to_string(image.rows) + "\n" + (wide ? "65535" : "255") + "\n";
   cv::Mat data = image.isContinuous() ? image : image.clone();
   if (wide) {
     cv::Mat swapped(data.size(), CV_16U);
     const uint16_t* in = data.ptr<uint16_t>();
     uint16_t* out = swapped.ptr<uint16_t>();
-    for (size_t i = 0, n = data.total(); i < n; ++i) out[i] = static_cast<uint16_t>((in[i] >> 8) | (in[i] << 8));
+    for (size_t i = 0, n = data.total(); i < n; ++i)
+      out[i] = static_cast<uint16_t>((in[i] >> 8) | (in[i] << 8));
     data = swapped;
   }
   const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
@@ -253,11 +275,13 @@ void WritePgm(const fs::path& path, const cv::Mat& image) {
     if (written <= 0) {
       const int error = errno;
       ::close(fd);
-      SLSHADOW_THROW(path.string(), ": cannot write image: ", written < 0 ? std::strerror(error) : "nothing written");
+      SLSHADOW_THROW(path.string(), ": cannot write image: ",
+                     written < 0 ? std::strerror(error) : "nothing written");
     }
     done += static_cast<size_t>(written);
   }
-  SLSHADOW_THROW_IF(::close(fd) != 0, path.string(), ": cannot write image: ", std::strerror(errno));
+  SLSHADOW_THROW_IF(::close(fd) != 0, path.string(),
+                    ": cannot write image: ", std::strerror(errno));
 }
 
 }  // namespace
@@ -282,11 +306,13 @@ void WriteGrayImage(const fs::path& path, const cv::Mat& image, int png_compress
 
 ImageSet ImageSet::Open(const fs::path& dir) {
   std::error_code ec;
-  SLSHADOW_THROW_IF(!fs::is_directory(dir, ec), dir.string(), ": not an ImageSet folder (no such directory)");
+  SLSHADOW_THROW_IF(!fs::is_directory(dir, ec), dir.string(),
+                    ": not an ImageSet folder (no such directory)");
   const fs::path manifest_path = dir / "manifest.json";
   const ConfigNode root = ConfigNode::LoadFile(manifest_path);
   root.RejectUnknownKeys({"format", "version", "created", "rig", "patterns", "images", "extra"});
-  if (root["format"].AsString() != "slshadow-imageset") root["format"].Fail("expected \"slshadow-imageset\"");
+  if (root["format"].AsString() != "slshadow-imageset")
+    root["format"].Fail("expected \"slshadow-imageset\"");
   if (root["version"].AsInt() != kFormatVersion) {
     root["version"].Fail("unsupported ImageSet version (this slshadow reads version 1)");
   }
@@ -302,7 +328,8 @@ ImageSet ImageSet::Open(const fs::path& dir) {
     const auto n = images.at(i);
     ImageRecord r = RecordFromConfig(n, set.rig_, dir);
     if (!seen.emplace(std::make_pair(r.camera, r.pattern_index), i).second) {
-      n.Fail("duplicate image for camera '" + r.camera + "', pattern " + std::to_string(r.pattern_index));
+      n.Fail("duplicate image for camera '" + r.camera + "', pattern " +
+             std::to_string(r.pattern_index));
     }
     set.records_.push_back(std::move(r));
   }
@@ -337,13 +364,15 @@ const ImageRecord* ImageSet::Find(const std::string& camera, int pattern_index) 
 
 cv::Mat ImageSet::Load(const std::string& camera, int pattern_index) const {
   const ImageRecord* r = Find(camera, pattern_index);
-  SLSHADOW_THROW_IF(r == nullptr, (dir_ / "manifest.json").string(), ": no image for camera '", camera,
-                    "', pattern ", pattern_index);
+  SLSHADOW_THROW_IF(r == nullptr, (dir_ / "manifest.json").string(), ": no image for camera '",
+                    camera, "', pattern ", pattern_index);
   const fs::path path = dir_ / r->file;
   const RigDevice& device = rig_.Camera(camera);
-  if (const auto size = PeekImageSize(path); size && (size->width != device.model.width || size->height != device.model.height)) {
-    SLSHADOW_THROW(path.string(), ": wrong image size ", size->width, "x", size->height, " in its header, camera '",
-                   camera, "' is ", device.model.width, "x", device.model.height);
+  if (const auto size = PeekImageSize(path);
+      size && (size->width != device.model.width || size->height != device.model.height)) {
+    SLSHADOW_THROW(path.string(), ": wrong image size ", size->width, "x", size->height,
+                   " in its header, camera '", camera, "' is ", device.model.width, "x",
+                   device.model.height);
   }
   cv::Mat image = ReadGrayImage(path);
   CheckImage(image, device, path.string(), r->bit_depth);
@@ -358,8 +387,9 @@ std::vector<cv::Mat> ImageSet::LoadCamera(const std::string& camera) const {
     if (r.camera == camera) present[static_cast<size_t>(r.pattern_index)] = true;
   }
   for (int i = 0; i < n; ++i) {
-    SLSHADOW_THROW_IF(!present[static_cast<size_t>(i)], (dir_ / "manifest.json").string(), ": no image for camera '",
-                      camera, "', pattern ", i, " (the manifest has patterns up to ", n - 1, ")");
+    SLSHADOW_THROW_IF(!present[static_cast<size_t>(i)], (dir_ / "manifest.json").string(),
+                      ": no image for camera '", camera, "', pattern ", i,
+                      " (the manifest has patterns up to ", n - 1, ")");
   }
   std::vector<cv::Mat> images(n);
   std::vector<std::string> errors(n);
@@ -376,10 +406,15 @@ std::vector<cv::Mat> ImageSet::LoadCamera(const std::string& camera) const {
   return images;
 }
 
-ImageSetWriter::ImageSetWriter(fs::path dir, Rig rig, nlohmann::json patterns, ImageSetWriterOptions options)
-    : dir_(std::move(dir)), rig_(std::move(rig)), patterns_(std::move(patterns)), options_(options) {
+ImageSetWriter::ImageSetWriter(fs::path dir, Rig rig, nlohmann::json patterns,
+                               ImageSetWriterOptions options)
+    : dir_(std::move(dir)),
+      rig_(std::move(rig)),
+      patterns_(std::move(patterns)),
+      options_(options) {
   rig_.Check(dir_.string() + " (rig)");
-  SLSHADOW_THROW_IF(patterns_.is_null(), dir_.string(), ": patterns: an ImageSet needs its pattern specification");
+  SLSHADOW_THROW_IF(patterns_.is_null(), dir_.string(),
+                    ": patterns: an ImageSet needs its pattern specification");
   std::error_code ec;
   SLSHADOW_THROW_IF(fs::exists(dir_, ec) && !options_.overwrite, dir_.string(),
                     ": already exists (choose another folder or pass --overwrite)");
@@ -417,8 +452,9 @@ void ImageSetWriter::Add(const std::string& camera, int pattern_index, const cv:
   {
     std::lock_guard<std::mutex> lock(mutex_);
     for (const auto& other : records_) {
-      SLSHADOW_THROW_IF(other.camera == camera && other.pattern_index == pattern_index, dir_.string(),
-                        ": duplicate image for camera '", camera, "', pattern ", pattern_index);
+      SLSHADOW_THROW_IF(other.camera == camera && other.pattern_index == pattern_index,
+                        dir_.string(), ": duplicate image for camera '", camera, "', pattern ",
+                        pattern_index);
     }
     records_.push_back(r);
   }
@@ -465,9 +501,12 @@ void FsyncPath(const fs::path& path, bool directory) {
 
 std::string EncodingName(ImageEncoding e) {
   switch (e) {
-    case ImageEncoding::kPng: return "png";
-    case ImageEncoding::kPgm: return "pgm";
-    case ImageEncoding::kTiff: return "tiff";
+    case ImageEncoding::kPng:
+      return "png";
+    case ImageEncoding::kPgm:
+      return "pgm";
+    case ImageEncoding::kTiff:
+      return "tiff";
   }
   return "png";
 }
@@ -488,9 +527,13 @@ fs::path ResumableImageSetWriter::StagingDirFor(const fs::path& dir) {
 
 ResumableImageSetWriter::ResumableImageSetWriter(fs::path dir, Rig rig, nlohmann::json patterns,
                                                  ResumableImageSetWriterOptions options)
-    : dir_(std::move(dir)), rig_(std::move(rig)), patterns_(std::move(patterns)), options_(options) {
+    : dir_(std::move(dir)),
+      rig_(std::move(rig)),
+      patterns_(std::move(patterns)),
+      options_(options) {
   rig_.Check(dir_.string() + " (rig)");
-  SLSHADOW_THROW_IF(patterns_.is_null(), dir_.string(), ": patterns: an ImageSet needs its pattern specification");
+  SLSHADOW_THROW_IF(patterns_.is_null(), dir_.string(),
+                    ": patterns: an ImageSet needs its pattern specification");
   SLSHADOW_THROW_IF(options_.png_compression < 0 || options_.png_compression > 9,
                     "png_compression: must be 0..9 (got ", options_.png_compression, ")");
   staging_ = StagingDirFor(dir_);
@@ -504,19 +547,26 @@ ResumableImageSetWriter::ResumableImageSetWriter(fs::path dir, Rig rig, nlohmann
                                  {"encoding", EncodingName(options_.encoding)}};
   if (fs::exists(staging_, ec)) {
     SLSHADOW_THROW_IF(!options_.resume, staging_.string(),
-                      ": an interrupted capture is staged here; continue it with --resume, or delete the folder to "
+                      ": an interrupted capture is staged here; continue it with --resume, or "
+                      "delete the folder to "
                       "start over");
     const ConfigNode root = ConfigNode::LoadFile(staging_ / kStagingHeader);
-    if (root["format"].AsString() != "slshadow-imageset-staging") root["format"].Fail("expected \"slshadow-imageset-staging\"");
-    if (root["version"].AsInt() != 1) root["version"].Fail("unsupported staging version (this slshadow reads 1)");
-    const std::string what = staging_.string() + ": cannot resume: the staged capture was started with ";
+    if (root["format"].AsString() != "slshadow-imageset-staging")
+      root["format"].Fail("expected \"slshadow-imageset-staging\"");
+    if (root["version"].AsInt() != 1)
+      root["version"].Fail("unsupported staging version (this slshadow reads 1)");
+    const std::string what =
+        staging_.string() + ": cannot resume: the staged capture was started with ";
     SLSHADOW_THROW_IF(root["rig"].json() != header["rig"], what,
-                      "another rig (cameras, projector or calibration differ); use the same rig file, or delete the "
+                      "another rig (cameras, projector or calibration differ); use the same rig "
+                      "file, or delete the "
                       "folder to start over");
-    SLSHADOW_THROW_IF(root["patterns"].json() != header["patterns"], what,
-                      "another pattern spec; use the same patterns file, or delete the folder to start over");
+    SLSHADOW_THROW_IF(
+        root["patterns"].json() != header["patterns"], what,
+        "another pattern spec; use the same patterns file, or delete the folder to start over");
     SLSHADOW_THROW_IF(root["encoding"].AsString() != header["encoding"], what, "image encoding '",
-                      root["encoding"].AsString(), "', this run asks for '", EncodingName(options_.encoding), "'");
+                      root["encoding"].AsString(), "', this run asks for '",
+                      EncodingName(options_.encoding), "'");
     resumed_ = true;
     LoadJournal();
   } else {
@@ -528,8 +578,10 @@ ResumableImageSetWriter::ResumableImageSetWriter(fs::path dir, Rig rig, nlohmann
     fs::create_directories(staging_ / c.name, ec);
     SLSHADOW_THROW_IF(ec, (staging_ / c.name).string(), ": cannot create folder: ", ec.message());
   }
-  journal_fd_ = ::open((staging_ / kJournal).c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
-  SLSHADOW_THROW_IF(journal_fd_ < 0, (staging_ / kJournal).string(), ": cannot open: ", std::strerror(errno));
+  journal_fd_ =
+      ::open((staging_ / kJournal).c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
+  SLSHADOW_THROW_IF(journal_fd_ < 0, (staging_ / kJournal).string(),
+                    ": cannot open: ", std::strerror(errno));
   if (options_.durable) FsyncPath(staging_, true);
 }
 
@@ -555,8 +607,9 @@ void ResumableImageSetWriter::LoadJournal() {
     const size_t nl = text.find('\n', begin);
     Line line{begin, nl == std::string::npos ? text.size() : nl + 1, false, {}};
     if (nl != std::string::npos) {
-      line.json = nlohmann::json::parse(text.begin() + static_cast<std::ptrdiff_t>(begin),
-                                        text.begin() + static_cast<std::ptrdiff_t>(nl), nullptr, false);
+      line.json =
+          nlohmann::json::parse(text.begin() + static_cast<std::ptrdiff_t>(begin),
+                                text.begin() + static_cast<std::ptrdiff_t>(nl), nullptr, false);
       line.ok = line.json.is_object() && line.json.contains("type");
     }
     lines.push_back(std::move(line));
@@ -566,9 +619,10 @@ void ResumableImageSetWriter::LoadJournal() {
   for (size_t i = 0; i < lines.size(); ++i) {
     if (lines[i].ok) continue;
     for (size_t j = i + 1; j < lines.size(); ++j) {
-      SLSHADOW_THROW_IF(lines[j].ok, path.string(), ": line ", i + 1,
-                        ": unreadable journal line followed by readable ones (the file was edited or damaged; "
-                        "delete the staging folder to start over)");
+      SLSHADOW_THROW_IF(
+          lines[j].ok, path.string(), ": line ", i + 1,
+          ": unreadable journal line followed by readable ones (the file was edited or damaged; "
+          "delete the staging folder to start over)");
     }
     good = i;
     break;
@@ -579,7 +633,8 @@ void ResumableImageSetWriter::LoadJournal() {
                       ": cannot cut off the torn last line: ", std::strerror(errno));
   }
   for (size_t i = 0; i < good; ++i) {
-    const ConfigNode node = ConfigNode::FromJson(lines[i].json, path.string(), "line " + std::to_string(i + 1));
+    const ConfigNode node =
+        ConfigNode::FromJson(lines[i].json, path.string(), "line " + std::to_string(i + 1));
     const std::string type = node["type"].AsString();
     if (type == "session") {
       sessions_.push_back(node["session"].json());
@@ -605,12 +660,13 @@ void ResumableImageSetWriter::AppendJournalLine(const std::string& line) {
   for (size_t done = 0; done < text.size();) {
     const ssize_t n = ::write(journal_fd_, text.data() + done, text.size() - done);
     if (n < 0 && errno == EINTR) continue;
-    SLSHADOW_THROW_IF(n <= 0, (staging_ / kJournal).string(), ": cannot append: ", std::strerror(errno));
+    SLSHADOW_THROW_IF(n <= 0, (staging_ / kJournal).string(),
+                      ": cannot append: ", std::strerror(errno));
     done += static_cast<size_t>(n);
   }
   if (options_.durable) {
-    SLSHADOW_THROW_IF(::fsync(journal_fd_) != 0, (staging_ / kJournal).string(), ": fsync failed: ",
-                      std::strerror(errno));
+    SLSHADOW_THROW_IF(::fsync(journal_fd_) != 0, (staging_ / kJournal).string(),
+                      ": fsync failed: ", std::strerror(errno));
   }
 }
 
@@ -618,7 +674,8 @@ bool ResumableImageSetWriter::Has(const std::string& camera, int pattern_index) 
   return Find(camera, pattern_index).has_value();
 }
 
-std::optional<ImageRecord> ResumableImageSetWriter::Find(const std::string& camera, int pattern_index) const {
+std::optional<ImageRecord> ResumableImageSetWriter::Find(const std::string& camera,
+                                                         int pattern_index) const {
   std::lock_guard<std::mutex> lock(mutex_);
   for (const auto& r : records_) {
     if (r.camera == camera && r.pattern_index == pattern_index) return r;
@@ -641,7 +698,8 @@ std::vector<ImageRecord> ResumableImageSetWriter::Records() const {
 
 cv::Mat ResumableImageSetWriter::Load(const std::string& camera, int pattern_index) const {
   const auto r = Find(camera, pattern_index);
-  SLSHADOW_THROW_IF(!r, staging_.string(), ": no finished image for camera '", camera, "', pattern ", pattern_index);
+  SLSHADOW_THROW_IF(!r, staging_.string(), ": no finished image for camera '", camera,
+                    "', pattern ", pattern_index);
   const fs::path path = staging_ / r->file;
   cv::Mat image = ReadGrayImage(path);
   CheckImage(image, rig_.Camera(camera), path.string(), r->bit_depth);
@@ -651,7 +709,8 @@ cv::Mat ResumableImageSetWriter::Load(const std::string& camera, int pattern_ind
 ImageRecord ResumableImageSetWriter::Add(ImageRecord record, const cv::Mat& image) {
   SLSHADOW_THROW_IF(committed_, dir_.string(), ": ImageSet already committed");
   const RigDevice& device = rig_.Camera(record.camera);
-  SLSHADOW_THROW_IF(record.pattern_index < 0, "pattern index must be >= 0 (got ", record.pattern_index, ")");
+  SLSHADOW_THROW_IF(record.pattern_index < 0, "pattern index must be >= 0 (got ",
+                    record.pattern_index, ")");
   record.file = RecordFileName(record.camera, record.pattern_index, options_.encoding);
   CheckImage(image, device, dir_.string() + "/" + record.file, 0);
   record.bit_depth = image.depth() == CV_16U ? 16 : 8;
@@ -716,7 +775,8 @@ void ResumableImageSetWriter::Commit() {
   for (const auto& c : rig_.cameras) {
     for (const auto& entry : fs::directory_iterator(staging_ / c.name, ec)) {
       const std::string name = entry.path().filename().string();
-      if (!name.empty() && name[0] == '.' && name.find(".tmp") != std::string::npos) fs::remove(entry.path(), ec);
+      if (!name.empty() && name[0] == '.' && name.find(".tmp") != std::string::npos)
+        fs::remove(entry.path(), ec);
     }
   }
   CommitDirectory(staging_, dir_, options_.overwrite);

@@ -26,17 +26,17 @@ enum class ImageSource { kDevice, kVirtual, kReplay };
 std::string ToString(ImageSource source);  // "device", "virtual", "replay"
 
 struct ImageRecord {
-  std::string camera;         // a camera name of the rig
-  int pattern_index = 0;      // index into the pattern sequence, 0-based
-  std::string file;           // path relative to the ImageSet folder
-  int bit_depth = 8;          // 8 or 16
-  double exposure_us = 0;     // exposure time, microseconds (0 when unknown)
-  std::string timestamp;      // ISO 8601 UTC (device captures: host clock at arrival), or empty
+  std::string camera;      // a camera name of the rig
+  int pattern_index = 0;   // index into the pattern sequence, 0-based
+  std::string file;        // path relative to the ImageSet folder
+  int bit_depth = 8;       // 8 or 16
+  double exposure_us = 0;  // exposure time, microseconds (0 when unknown)
+  std::string timestamp;   // ISO 8601 UTC (device captures: host clock at arrival), or empty
   ImageSource source = ImageSource::kDevice;
   // Device provenance, optional (written to the manifest only when set): the camera's serial,
   // its frame counter (GigE Vision: 16-bit, wraps, 0 invalid), its own clock, and how many
   // times the pattern was re-acquired before this frame was accepted.
-  std::string device_serial;                    // empty: unknown
+  std::string device_serial;  // empty: unknown
   std::optional<uint64_t> frame_id;
   std::optional<uint64_t> device_timestamp_ns;
   std::optional<int> retries;
@@ -212,6 +212,7 @@ class ResumableImageSetWriter {
 // Reads / writes one single-channel 8- or 16-bit image losslessly (by extension: .png, .pgm,
 // .tif/.tiff). Throws slshadow::Error naming the file on failure.
 cv::Mat ReadGrayImage(const std::filesystem::path& path);
-void WriteGrayImage(const std::filesystem::path& path, const cv::Mat& image, int png_compression = 1);
+void WriteGrayImage(const std::filesystem::path& path, const cv::Mat& image,
+                    int png_compression = 1);
 
 }  // namespace slshadow

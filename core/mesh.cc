@@ -20,7 +20,8 @@ namespace fs = std::filesystem;
 
 Eigen::Vector3d TriangleMesh::FaceNormal(size_t i) const {
   const auto& t = triangles[i];
-  const Eigen::Vector3d n = (vertices[t[1]] - vertices[t[0]]).cross(vertices[t[2]] - vertices[t[0]]);
+  const Eigen::Vector3d n =
+      (vertices[t[1]] - vertices[t[0]]).cross(vertices[t[2]] - vertices[t[0]]);
   const double len = n.norm();
   return len > 0 ? Eigen::Vector3d(n / len) : Eigen::Vector3d::Zero();
 }
@@ -48,7 +49,8 @@ Eigen::Vector3d TriangleMesh::BoundsMax() const {
   return m;
 }
 
-void TriangleMesh::Transform(const Eigen::Matrix3d& rotation, const Eigen::Vector3d& translation, double scale) {
+void TriangleMesh::Transform(const Eigen::Matrix3d& rotation, const Eigen::Vector3d& translation,
+                             double scale) {
   for (auto& v : vertices) v = rotation * (scale * v) + translation;
 }
 
@@ -60,7 +62,8 @@ void TriangleMesh::Append(const TriangleMesh& other) {
 
 void TriangleMesh::Check(const std::string& what, bool reject_degenerate) const {
   SLSHADOW_THROW_IF(triangles.empty(), what, ": mesh has no triangles");
-  Eigen::Vector3d low = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), high = -low;
+  Eigen::Vector3d low = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()),
+                  high = -low;
   for (size_t i = 0; i < vertices.size(); ++i) {
     SLSHADOW_THROW_IF(!vertices[i].allFinite(), what, ": vertex ", i, " is not finite");
     low = low.cwiseMin(vertices[i]);
@@ -71,25 +74,31 @@ void TriangleMesh::Check(const std::string& what, bool reject_degenerate) const 
   const auto bad = [&](size_t i) {
     const auto& t = triangles[i];
     if (t[0] < 0 || t[0] >= n || t[1] < 0 || t[1] >= n || t[2] < 0 || t[2] >= n) return true;
-    return reject_degenerate && (t[0] == t[1] || t[1] == t[2] || t[0] == t[2] || TriangleArea(i) < 1e-12 * diag2);
+    return reject_degenerate &&
+           (t[0] == t[1] || t[1] == t[2] || t[0] == t[2] || TriangleArea(i) < 1e-12 * diag2);
   };
   // Triangles in parallel (a simulated scan checks its 1 M-triangle part every time); the
   // lowest-numbered bad triangle is reported, as a serial loop would.
   std::atomic<size_t> first_bad{triangles.size()};
-  cv::parallel_for_(cv::Range(0, static_cast<int>(triangles.size())), [&](const cv::Range& r) {
-    for (int i = r.start; i < r.end && static_cast<size_t>(i) < first_bad.load(std::memory_order_relaxed); ++i) {
-      if (!bad(static_cast<size_t>(i))) continue;
-      size_t seen = first_bad.load();
-      while (static_cast<size_t>(i) < seen && !first_bad.compare_exchange_weak(seen, static_cast<size_t>(i))) {
-      }
-      return;
-    }
-  }, 64);
+  cv::parallel_for_(
+      cv::Range(0, static_cast<int>(triangles.size())),
+      [&](const cv::Range& r) {
+        for (int i = r.start;
+             i < r.end && static_cast<size_t>(i) < first_bad.load(std::memory_order_relaxed); ++i) {
+          if (!bad(static_cast<size_t>(i))) continue;
+          size_t seen = first_bad.load();
+          while (static_cast<size_t>(i) < seen &&
+                 !first_bad.compare_exchange_weak(seen, static_cast<size_t>(i))) {}
+          return;
+        }
+      },
+      64);
   const size_t i = first_bad.load();
   if (i == triangles.size()) return;
   const auto& t = triangles[i];
   for (int k = 0; k < 3; ++k) {
-    SLSHADOW_THROW_IF(t[k] < 0 || t[k] >= n, what, ": triangle ", i, " refers to vertex ", t[k], " of ", n);
+    SLSHADOW_THROW_IF(t[k] < 0 || t[k] >= n, what, ": triangle ", i, " refers to vertex ", t[k],
+                      " of ", n);
   }
   SLSHADOW_THROW(what, ": triangle ", i, " is degenerate (zero area)");
 }
@@ -156,8 +165,9 @@ TriangleMesh ReadStl(const fs::path& path, const std::string& data) {
       return mesh;
     }
   }
-  SLSHADOW_THROW_IF(data.compare(0, 5, "solid") != 0, file,
-                    ": not an STL file (binary size does not match its triangle count, and no 'solid' header)");
+  SLSHADOW_THROW_IF(
+      data.compare(0, 5, "solid") != 0, file,
+      ": not an STL file (binary size does not match its triangle count, and no 'solid' header)");
   std::istringstream in(data);
   std::string line;
   int line_no = 0;
@@ -169,11 +179,12 @@ TriangleMesh ReadStl(const fs::path& path, const std::string& data) {
     words >> key;
     if (key == "vertex") {
       float x, y, z;
-      SLSHADOW_THROW_IF(!(words >> x >> y >> z), file, ": line ", line_no, ": bad vertex line '", line, "'");
+      SLSHADOW_THROW_IF(!(words >> x >> y >> z), file, ": line ", line_no, ": bad vertex line '",
+                        line, "'");
       corners.push_back(welder.Add(Eigen::Vector3f(x, y, z), mesh));
     } else if (key == "endfacet") {
-      SLSHADOW_THROW_IF(corners.size() != 3, file, ": line ", line_no, ": facet with ", corners.size(),
-                        " vertices, expected 3");
+      SLSHADOW_THROW_IF(corners.size() != 3, file, ": line ", line_no, ": facet with ",
+                        corners.size(), " vertices, expected 3");
       mesh.triangles.emplace_back(corners[0], corners[1], corners[2]);
       corners.clear();
     }
@@ -182,7 +193,8 @@ TriangleMesh ReadStl(const fs::path& path, const std::string& data) {
 }
 
 void AddPolygon(const std::vector<int>& polygon, TriangleMesh& mesh) {
-  for (size_t k = 2; k < polygon.size(); ++k) mesh.triangles.emplace_back(polygon[0], polygon[k - 1], polygon[k]);
+  for (size_t k = 2; k < polygon.size(); ++k)
+    mesh.triangles.emplace_back(polygon[0], polygon[k - 1], polygon[k]);
 }
 
 TriangleMesh ReadObj(const fs::path& path, const std::string& data) {
@@ -198,7 +210,8 @@ TriangleMesh ReadObj(const fs::path& path, const std::string& data) {
     words >> key;
     if (key == "v") {
       double x, y, z;
-      SLSHADOW_THROW_IF(!(words >> x >> y >> z), file, ": line ", line_no, ": bad vertex line '", line, "'");
+      SLSHADOW_THROW_IF(!(words >> x >> y >> z), file, ": line ", line_no, ": bad vertex line '",
+                        line, "'");
       mesh.vertices.emplace_back(x, y, z);
     } else if (key == "f") {
       std::vector<int> polygon;
@@ -211,7 +224,8 @@ TriangleMesh ReadObj(const fs::path& path, const std::string& data) {
                           ": face refers to vertex ", token, " of ", n);
         polygon.push_back(static_cast<int>(resolved));
       }
-      SLSHADOW_THROW_IF(polygon.size() < 3, file, ": line ", line_no, ": face with fewer than 3 vertices");
+      SLSHADOW_THROW_IF(polygon.size() < 3, file, ": line ", line_no,
+                        ": face with fewer than 3 vertices");
       AddPolygon(polygon, mesh);
     }
   }
@@ -223,28 +237,33 @@ TriangleMesh ReadPlyMesh(const fs::path& path) {
   const PlyElement* v = ply.Find("vertex");
   const PlyElement* f = ply.Find("face");
   SLSHADOW_THROW_IF(v == nullptr, path.string(), ": PLY has no 'vertex' element");
-  SLSHADOW_THROW_IF(f == nullptr, path.string(), ": PLY has no 'face' element (a point cloud, not a mesh)");
+  SLSHADOW_THROW_IF(f == nullptr, path.string(),
+                    ": PLY has no 'face' element (a point cloud, not a mesh)");
   const int ix = v->PropertyIndex("x"), iy = v->PropertyIndex("y"), iz = v->PropertyIndex("z");
-  SLSHADOW_THROW_IF(ix < 0 || iy < 0 || iz < 0, path.string(), ": PLY vertex element lacks x, y or z");
-  SLSHADOW_THROW_IF(v->properties[ix].is_list || v->properties[iy].is_list || v->properties[iz].is_list, path.string(),
-                    ": PLY vertex x, y and z must be numbers, not lists");
+  SLSHADOW_THROW_IF(ix < 0 || iy < 0 || iz < 0, path.string(),
+                    ": PLY vertex element lacks x, y or z");
+  SLSHADOW_THROW_IF(
+      v->properties[ix].is_list || v->properties[iy].is_list || v->properties[iz].is_list,
+      path.string(), ": PLY vertex x, y and z must be numbers, not lists");
   int ilist = f->PropertyIndex("vertex_indices");
   if (ilist < 0) ilist = f->PropertyIndex("vertex_index");
   SLSHADOW_THROW_IF(ilist < 0 || !f->properties[ilist].is_list, path.string(),
                     ": PLY face element lacks a vertex_indices list");
   TriangleMesh mesh;
   mesh.vertices.resize(v->count);
-  for (size_t i = 0; i < v->count; ++i) mesh.vertices[i] = {v->columns[ix][i], v->columns[iy][i], v->columns[iz][i]};
+  for (size_t i = 0; i < v->count; ++i)
+    mesh.vertices[i] = {v->columns[ix][i], v->columns[iy][i], v->columns[iz][i]};
   const auto& offsets = f->list_offsets[ilist];
   const auto& values = f->list_values[ilist];
   for (size_t i = 0; i < f->count; ++i) {
     std::vector<int> polygon;
     for (uint32_t k = offsets[i]; k < offsets[i + 1]; ++k) {
-      SLSHADOW_THROW_IF(values[k] < 0 || values[k] >= static_cast<int64_t>(v->count), path.string(), ": face ", i,
-                        " refers to vertex ", values[k], " of ", v->count);
+      SLSHADOW_THROW_IF(values[k] < 0 || values[k] >= static_cast<int64_t>(v->count), path.string(),
+                        ": face ", i, " refers to vertex ", values[k], " of ", v->count);
       polygon.push_back(static_cast<int>(values[k]));
     }
-    SLSHADOW_THROW_IF(polygon.size() < 3, path.string(), ": face ", i, " has fewer than 3 vertices");
+    SLSHADOW_THROW_IF(polygon.size() < 3, path.string(), ": face ", i,
+                      " has fewer than 3 vertices");
     AddPolygon(polygon, mesh);
   }
   return mesh;
@@ -254,7 +273,8 @@ TriangleMesh ReadPlyMesh(const fs::path& path) {
 
 TriangleMesh ReadMesh(const fs::path& path) {
   std::string ext = path.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return std::tolower(c); });
   TriangleMesh mesh;
   if (ext == ".ply") {
     mesh = ReadPlyMesh(path);
@@ -277,7 +297,8 @@ void WriteMesh(const fs::path& path, const TriangleMesh& mesh) {
     out = "ply\nformat binary_little_endian 1.0\ncomment written by slshadow\nelement vertex " +
           std::to_string(mesh.vertices.size()) +
           "\nproperty double x\nproperty double y\nproperty double z\nelement face " +
-          std::to_string(mesh.triangles.size()) + "\nproperty list uchar int vertex_indices\nend_header\n";
+          std::to_string(mesh.triangles.size()) +
+          "\nproperty list uchar int vertex_indices\nend_header\n";
     out.reserve(out.size() + mesh.vertices.size() * 24 + mesh.triangles.size() * 13);
     for (const auto& v : mesh.vertices) out.append(reinterpret_cast<const char*>(v.data()), 24);
     for (const auto& t : mesh.triangles) {

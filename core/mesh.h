@@ -24,7 +24,8 @@ struct TriangleMesh {
   Eigen::Vector3d BoundsMin() const;
   Eigen::Vector3d BoundsMax() const;
   // Applies p -> rotation * p + translation (e.g. a scene pose) and a unit scale first.
-  void Transform(const Eigen::Matrix3d& rotation, const Eigen::Vector3d& translation, double scale = 1.0);
+  void Transform(const Eigen::Matrix3d& rotation, const Eigen::Vector3d& translation,
+                 double scale = 1.0);
   void Append(const TriangleMesh& other);
 
   // Throws slshadow::Error naming `what` when the mesh is empty, an index is out of range, a

@@ -43,7 +43,8 @@ PointCloud PointCloud::Select(const std::vector<bool>& keep) const {
     out.points.push_back(points[i]);
     if (HasNormals()) out.normals.push_back(normals[i]);
     if (HasColors()) out.colors.push_back(colors[i]);
-    for (size_t k = 0; k < scalars.size(); ++k) out.scalars[k].values.push_back(scalars[k].values[i]);
+    for (size_t k = 0; k < scalars.size(); ++k)
+      out.scalars[k].values.push_back(scalars[k].values[i]);
   }
   return out;
 }
@@ -60,8 +61,10 @@ void PointCloud::Append(const PointCloud& other) {
   normals.insert(normals.end(), other.normals.begin(), other.normals.end());
   colors.insert(colors.end(), other.colors.begin(), other.colors.end());
   for (size_t k = 0; k < scalars.size(); ++k) {
-    SLSHADOW_THROW_IF(scalars[k].name != other.scalars[k].name, "cannot append point clouds with different scalar fields");
-    scalars[k].values.insert(scalars[k].values.end(), other.scalars[k].values.begin(), other.scalars[k].values.end());
+    SLSHADOW_THROW_IF(scalars[k].name != other.scalars[k].name,
+                      "cannot append point clouds with different scalar fields");
+    scalars[k].values.insert(scalars[k].values.end(), other.scalars[k].values.begin(),
+                             other.scalars[k].values.end());
   }
 }
 
@@ -75,7 +78,8 @@ void PointCloud::Check(const std::string& what) const {
                       s.values.size(), " values for ", points.size(), " points");
     bool ok = !s.name.empty() && !std::isdigit(static_cast<unsigned char>(s.name[0]));
     for (char c : s.name) ok = ok && (std::isalnum(static_cast<unsigned char>(c)) || c == '_');
-    SLSHADOW_THROW_IF(!ok, what, ": scalar field name '", s.name, "' is not a valid PLY property name");
+    SLSHADOW_THROW_IF(!ok, what, ": scalar field name '", s.name,
+                      "' is not a valid PLY property name");
   }
 }
 
@@ -83,7 +87,6 @@ void PointCloud::Check(const std::string& what) const {
 // Writing
 
 namespace {
-
 
 std::string FormatDouble(double v) {
   char buf[32];
@@ -119,9 +122,11 @@ void WritePly(const fs::path& path, const PointCloud& cloud, const PlyWriteOptio
   if (options.binary) {
     // Fixed-size records written with memcpy (little-endian host assumed, as x86-64 and AArch64
     // Linux are; checked at compile time).
-    static_assert(std::endian::native == std::endian::little, "binary PLY writer assumes a little-endian host");
+    static_assert(std::endian::native == std::endian::little,
+                  "binary PLY writer assumes a little-endian host");
     const size_t pos_size = options.double_positions ? 24 : 12;
-    const size_t stride = pos_size + (cloud.HasNormals() ? 12 : 0) + (cloud.HasColors() ? 3 : 0) + 4 * cloud.scalars.size();
+    const size_t stride = pos_size + (cloud.HasNormals() ? 12 : 0) + (cloud.HasColors() ? 3 : 0) +
+                          4 * cloud.scalars.size();
     write_records = [&cloud, &options, n, pos_size, stride](std::ofstream& f) {
       std::string buffer(std::min(n, kChunk) * stride, '\0');
       for (size_t first = 0; first < n; first += kChunk) {
@@ -163,8 +168,10 @@ void WritePly(const fs::path& path, const PointCloud& cloud, const PlyWriteOptio
                                      : FormatFloat(static_cast<float>(cloud.points[i][k])),
             k == 0);
       }
-      if (cloud.HasNormals()) for (int k = 0; k < 3; ++k) put(FormatFloat(cloud.normals[i][k]), false);
-      if (cloud.HasColors()) for (int k = 0; k < 3; ++k) put(std::to_string(cloud.colors[i][k]), false);
+      if (cloud.HasNormals())
+        for (int k = 0; k < 3; ++k) put(FormatFloat(cloud.normals[i][k]), false);
+      if (cloud.HasColors())
+        for (int k = 0; k < 3; ++k) put(std::to_string(cloud.colors[i][k]), false);
       for (const auto& s : cloud.scalars) put(FormatFloat(s.values[i]), false);
       out.push_back('\n');
     }
@@ -211,19 +218,48 @@ class BinaryCursor {
   double Read(const std::string& type, const std::string& element, size_t row) {
     const int size = TypeSize(type);
     if (pos_ + size > data_.size()) {
-      SLSHADOW_THROW(file_, ": truncated binary PLY: data ends in element '", element, "' row ", row);
+      SLSHADOW_THROW(file_, ": truncated binary PLY: data ends in element '", element, "' row ",
+                     row);
     }
     char b[8];
     std::memcpy(b, data_.data() + pos_, size);
     pos_ += size;
     if (big_ != (std::endian::native == std::endian::big)) std::reverse(b, b + size);
-    if (type == "char") { int8_t v; std::memcpy(&v, b, 1); return v; }
-    if (type == "uchar") { uint8_t v; std::memcpy(&v, b, 1); return v; }
-    if (type == "short") { int16_t v; std::memcpy(&v, b, 2); return v; }
-    if (type == "ushort") { uint16_t v; std::memcpy(&v, b, 2); return v; }
-    if (type == "int") { int32_t v; std::memcpy(&v, b, 4); return v; }
-    if (type == "uint") { uint32_t v; std::memcpy(&v, b, 4); return v; }
-    if (type == "float") { float v; std::memcpy(&v, b, 4); return v; }
+    if (type == "char") {
+      int8_t v;
+      std::memcpy(&v, b, 1);
+      return v;
+    }
+    if (type == "uchar") {
+      uint8_t v;
+      std::memcpy(&v, b, 1);
+      return v;
+    }
+    if (type == "short") {
+      int16_t v;
+      std::memcpy(&v, b, 2);
+      return v;
+    }
+    if (type == "ushort") {
+      uint16_t v;
+      std::memcpy(&v, b, 2);
+      return v;
+    }
+    if (type == "int") {
+      int32_t v;
+      std::memcpy(&v, b, 4);
+      return v;
+    }
+    if (type == "uint") {
+      uint32_t v;
+      std::memcpy(&v, b, 4);
+      return v;
+    }
+    if (type == "float") {
+      float v;
+      std::memcpy(&v, b, 4);
+      return v;
+    }
     double v;
     std::memcpy(&v, b, 8);
     return v;
@@ -238,14 +274,17 @@ class BinaryCursor {
 
 // A list entry (e.g. a vertex index) as an integer; a non-integral, non-finite or huge value
 // (a float list type allows them) is bad input, not a conversion with undefined behaviour.
-int64_t ListValue(double v, const std::string& file, const std::string& element, size_t row, const std::string& name) {
-  SLSHADOW_THROW_IF(!(std::abs(v) <= 9.0e15) || v != std::floor(v), file, ": element '", element, "' row ", row,
-                    " property '", name, "': list value ", v, " is not an integer");
+int64_t ListValue(double v, const std::string& file, const std::string& element, size_t row,
+                  const std::string& name) {
+  SLSHADOW_THROW_IF(!(std::abs(v) <= 9.0e15) || v != std::floor(v), file, ": element '", element,
+                    "' row ", row, " property '", name, "': list value ", v, " is not an integer");
   return static_cast<int64_t>(v);
 }
 
-void PushListOffset(std::vector<uint32_t>& offsets, size_t end, const std::string& file, const std::string& element) {
-  SLSHADOW_THROW_IF(end > UINT32_MAX, file, ": element '", element, "': more than 2^32 list values");
+void PushListOffset(std::vector<uint32_t>& offsets, size_t end, const std::string& file,
+                    const std::string& element) {
+  SLSHADOW_THROW_IF(end > UINT32_MAX, file, ": element '", element,
+                    "': more than 2^32 list values");
   offsets.push_back(static_cast<uint32_t>(end));
 }
 
@@ -296,12 +335,13 @@ PlyData ReadPlyData(const fs::path& path) {
     } else if (key == "element") {
       PlyElement e;
       long long count = -1;
-      SLSHADOW_THROW_IF(!(words >> e.name >> count) || count < 0, file, ": PLY header line ", line_no,
-                        ": bad element line '", line, "'");
+      SLSHADOW_THROW_IF(!(words >> e.name >> count) || count < 0, file, ": PLY header line ",
+                        line_no, ": bad element line '", line, "'");
       e.count = static_cast<size_t>(count);
       ply.elements.push_back(std::move(e));
     } else if (key == "property") {
-      SLSHADOW_THROW_IF(ply.elements.empty(), file, ": PLY header line ", line_no, ": property before any element");
+      SLSHADOW_THROW_IF(ply.elements.empty(), file, ": PLY header line ", line_no,
+                        ": property before any element");
       PlyProperty p;
       std::string type;
       words >> type;
@@ -311,14 +351,15 @@ PlyData ReadPlyData(const fs::path& path) {
         words >> count_type >> value_type >> p.name;
         p.count_type = NormaliseType(count_type);
         p.type = NormaliseType(value_type);
-        SLSHADOW_THROW_IF(TypeSize(p.count_type) == 0 || p.count_type == "float" || p.count_type == "double",
-                          file, ": PLY header line ", line_no, ": bad list count type '", count_type, "'");
+        SLSHADOW_THROW_IF(
+            TypeSize(p.count_type) == 0 || p.count_type == "float" || p.count_type == "double",
+            file, ": PLY header line ", line_no, ": bad list count type '", count_type, "'");
       } else {
         p.type = NormaliseType(type);
         words >> p.name;
       }
-      SLSHADOW_THROW_IF(TypeSize(p.type) == 0 || p.name.empty(), file, ": PLY header line ", line_no,
-                        ": bad property line '", line, "'");
+      SLSHADOW_THROW_IF(TypeSize(p.type) == 0 || p.name.empty(), file, ": PLY header line ",
+                        line_no, ": bad property line '", line, "'");
       ply.elements.back().properties.push_back(p);
     } else {
       SLSHADOW_THROW(file, ": PLY header line ", line_no, ": unknown keyword '", key, "'");
@@ -333,13 +374,14 @@ PlyData ReadPlyData(const fs::path& path) {
     uint64_t left = data.size() - body;
     for (const auto& e : ply.elements) {
       uint64_t row = 0;
-      for (const auto& p : e.properties) row += ascii ? 2 : TypeSize(p.is_list ? p.count_type : p.type);
+      for (const auto& p : e.properties)
+        row += ascii ? 2 : TypeSize(p.is_list ? p.count_type : p.type);
       row = std::max<uint64_t>(row, 1);
       // The last ASCII value may end the file without a separator.
       const uint64_t room = left + (ascii ? 1 : 0);
-      SLSHADOW_THROW_IF(e.count > room / row, file, ": PLY header: element '", e.name, "' claims ", e.count,
-                        " rows, but the file has only ", data.size() - body, " bytes of data (at least ", row,
-                        " bytes per row)");
+      SLSHADOW_THROW_IF(e.count > room / row, file, ": PLY header: element '", e.name, "' claims ",
+                        e.count, " rows, but the file has only ", data.size() - body,
+                        " bytes of data (at least ", row, " bytes per row)");
       left -= std::min<uint64_t>(left, e.count * row);
     }
   }
@@ -364,19 +406,22 @@ PlyData ReadPlyData(const fs::path& path) {
           const auto& p = e.properties[k];
           auto read_value = [&]() {
             std::string token;
-            SLSHADOW_THROW_IF(!(in >> token), file, ": truncated ASCII PLY: data ends in element '", e.name,
-                              "' row ", row);
+            SLSHADOW_THROW_IF(!(in >> token), file, ": truncated ASCII PLY: data ends in element '",
+                              e.name, "' row ", row);
             char* end = nullptr;
             const double v = std::strtod(token.c_str(), &end);
-            SLSHADOW_THROW_IF(end == token.c_str() || *end != '\0', file, ": element '", e.name, "' row ", row,
-                              " property '", p.name, "': not a number (got \"", token, "\")");
+            SLSHADOW_THROW_IF(end == token.c_str() || *end != '\0', file, ": element '", e.name,
+                              "' row ", row, " property '", p.name, "': not a number (got \"",
+                              token, "\")");
             return v;
           };
           if (p.is_list) {
             const double n = read_value();
             // Each value takes at least one byte, which bounds a sane length.
-            SLSHADOW_THROW_IF(!(n >= 0 && n <= static_cast<double>(data.size())) || n != std::floor(n), file,
-                              ": element '", e.name, "' row ", row, " property '", p.name, "': bad list length ", n);
+            SLSHADOW_THROW_IF(
+                !(n >= 0 && n <= static_cast<double>(data.size())) || n != std::floor(n), file,
+                ": element '", e.name, "' row ", row, " property '", p.name, "': bad list length ",
+                n);
             for (size_t i = 0; i < static_cast<size_t>(n); ++i) {
               e.list_values[k].push_back(ListValue(read_value(), file, e.name, row, p.name));
             }
@@ -395,11 +440,12 @@ PlyData ReadPlyData(const fs::path& path) {
           const auto& p = e.properties[k];
           if (p.is_list) {
             const double n = cursor.Read(p.count_type, e.name, row);
-            SLSHADOW_THROW_IF(n < 0, file, ": element '", e.name, "' row ", row, " property '", p.name,
-                              "': bad list length ", n);
+            SLSHADOW_THROW_IF(n < 0, file, ": element '", e.name, "' row ", row, " property '",
+                              p.name, "': bad list length ", n);
             // n <= 2^32 - 1 (an integer count type); a value beyond the data throws 'truncated'.
             for (size_t i = 0; i < static_cast<size_t>(n); ++i) {
-              e.list_values[k].push_back(ListValue(cursor.Read(p.type, e.name, row), file, e.name, row, p.name));
+              e.list_values[k].push_back(
+                  ListValue(cursor.Read(p.type, e.name, row), file, e.name, row, p.name));
             }
             PushListOffset(e.list_offsets[k], e.list_values[k].size(), file, e.name);
           } else {
@@ -419,17 +465,19 @@ PointCloud ReadPly(const fs::path& path) {
   // Index of a scalar vertex property, -1 when absent; a list of that name is bad input.
   const auto scalar = [&](const char* name) {
     const int i = v->PropertyIndex(name);
-    SLSHADOW_THROW_IF(i >= 0 && v->properties[i].is_list, path.string(), ": PLY vertex property '", name,
-                      "' is a list, expected a number");
+    SLSHADOW_THROW_IF(i >= 0 && v->properties[i].is_list, path.string(), ": PLY vertex property '",
+                      name, "' is a list, expected a number");
     return i;
   };
   const int ix = scalar("x"), iy = scalar("y"), iz = scalar("z");
-  SLSHADOW_THROW_IF(ix < 0 || iy < 0 || iz < 0, path.string(), ": PLY vertex element lacks x, y or z");
+  SLSHADOW_THROW_IF(ix < 0 || iy < 0 || iz < 0, path.string(),
+                    ": PLY vertex element lacks x, y or z");
   PointCloud cloud;
   cloud.points.resize(v->count);
   for (size_t i = 0; i < v->count; ++i) {
     cloud.points[i] = {v->columns[ix][i], v->columns[iy][i], v->columns[iz][i]};
-    SLSHADOW_THROW_IF(!cloud.points[i].allFinite(), path.string(), ": vertex ", i, " has a non-finite coordinate");
+    SLSHADOW_THROW_IF(!cloud.points[i].allFinite(), path.string(), ": vertex ", i,
+                      " has a non-finite coordinate");
   }
   std::vector<bool> used(v->properties.size(), false);
   used[ix] = used[iy] = used[iz] = true;
@@ -437,7 +485,8 @@ PointCloud ReadPly(const fs::path& path) {
   if (inx >= 0 && iny >= 0 && inz >= 0) {
     cloud.normals.resize(v->count);
     for (size_t i = 0; i < v->count; ++i) {
-      cloud.normals[i] = Eigen::Vector3d(v->columns[inx][i], v->columns[iny][i], v->columns[inz][i]).cast<float>();
+      cloud.normals[i] =
+          Eigen::Vector3d(v->columns[inx][i], v->columns[iny][i], v->columns[inz][i]).cast<float>();
     }
     used[inx] = used[iny] = used[inz] = true;
   }
@@ -449,7 +498,8 @@ PointCloud ReadPly(const fs::path& path) {
       for (int k = 0; k < 3; ++k) {
         double c = v->columns[k == 0 ? ir : k == 1 ? ig : ib][i];
         if (is_float) c *= 255.0;
-        cloud.colors[i][k] = std::isnan(c) ? 0 : static_cast<uint8_t>(std::lround(std::clamp(c, 0.0, 255.0)));
+        cloud.colors[i][k] =
+            std::isnan(c) ? 0 : static_cast<uint8_t>(std::lround(std::clamp(c, 0.0, 255.0)));
       }
     }
     used[ir] = used[ig] = used[ib] = true;

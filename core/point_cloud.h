@@ -21,9 +21,9 @@ struct ScalarField {
 
 struct PointCloud {
   std::vector<Eigen::Vector3d> points;
-  std::vector<Eigen::Vector3f> normals;              // empty, or one unit vector per point
-  std::vector<std::array<uint8_t, 3>> colors;        // empty, or one RGB per point
-  std::vector<ScalarField> scalars;                  // each with one value per point
+  std::vector<Eigen::Vector3f> normals;        // empty, or one unit vector per point
+  std::vector<std::array<uint8_t, 3>> colors;  // empty, or one RGB per point
+  std::vector<ScalarField> scalars;            // each with one value per point
 
   size_t size() const { return points.size(); }
   bool empty() const { return points.empty(); }
@@ -49,7 +49,8 @@ struct PlyWriteOptions {
   bool double_positions = true;  // x, y, z as double (bit-exact round trip), else float
 };
 
-void WritePly(const std::filesystem::path& path, const PointCloud& cloud, const PlyWriteOptions& options = {});
+void WritePly(const std::filesystem::path& path, const PointCloud& cloud,
+              const PlyWriteOptions& options = {});
 // Reads the vertex element: x, y, z (float or double), optional nx, ny, nz, red, green, blue;
 // every other scalar vertex property becomes a scalar field. Faces, if any, are ignored.
 PointCloud ReadPly(const std::filesystem::path& path);
@@ -58,7 +59,8 @@ PointCloud ReadPly(const std::filesystem::path& path);
 // are widened to double; list properties (e.g. vertex_indices) are kept as offsets + values.
 struct PlyProperty {
   std::string name;
-  std::string type;        // PLY type name of the value, normalised: char uchar short ushort int uint float double
+  std::string type;  // PLY type name of the value, normalised: char uchar short ushort int uint
+                     // float double
   bool is_list = false;
   std::string count_type;  // for lists
 };
@@ -67,8 +69,8 @@ struct PlyElement {
   size_t count = 0;
   std::vector<PlyProperty> properties;
   std::vector<std::vector<double>> columns;  // per scalar property (empty for list properties)
-  std::vector<std::vector<uint32_t>> list_offsets;  // per list property: count + 1 offsets
-  std::vector<std::vector<int64_t>> list_values;    // per list property: concatenated values
+  std::vector<std::vector<uint32_t>> list_offsets;   // per list property: count + 1 offsets
+  std::vector<std::vector<int64_t>> list_values;     // per list property: concatenated values
   int PropertyIndex(const std::string& name) const;  // -1 when absent
 };
 struct PlyData {

@@ -9,7 +9,10 @@
 namespace slshadow {
 
 Progress::Progress(std::string task, int64_t total)
-    : task_(std::move(task)), total_(total), start_(std::chrono::steady_clock::now()), last_print_(start_) {
+    : task_(std::move(task)),
+      total_(total),
+      start_(std::chrono::steady_clock::now()),
+      last_print_(start_) {
   const char* env = std::getenv("SLSHADOW_PROGRESS");
   enabled_ = env ? std::strcmp(env, "0") != 0 : ::isatty(STDERR_FILENO) == 1;
 }
@@ -35,9 +38,11 @@ void Progress::Advance(int64_t steps) {
 void Progress::Print(int64_t done, bool final) {
   if (!enabled_) return;
   shown_ = true;
-  const double pct = total_ > 0 ? 100.0 * static_cast<double>(done) / static_cast<double>(total_) : 100.0;
-  std::fprintf(stderr, "\r%s: %3.0f%% (%lld/%lld), %.1f s%s", task_.c_str(), pct, static_cast<long long>(done),
-               static_cast<long long>(total_), ElapsedSeconds(), final ? "\n" : "");
+  const double pct =
+      total_ > 0 ? 100.0 * static_cast<double>(done) / static_cast<double>(total_) : 100.0;
+  std::fprintf(stderr, "\r%s: %3.0f%% (%lld/%lld), %.1f s%s", task_.c_str(), pct,
+               static_cast<long long>(done), static_cast<long long>(total_), ElapsedSeconds(),
+               final ? "\n" : "");
   std::fflush(stderr);
 }
 

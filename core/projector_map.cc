@@ -6,12 +6,18 @@ namespace slshadow {
 
 std::string ToString(PixelStatus status) {
   switch (status) {
-    case PixelStatus::kValid: return "valid";
-    case PixelStatus::kShadow: return "shadow";
-    case PixelStatus::kLowContrast: return "low_contrast";
-    case PixelStatus::kSaturated: return "saturated";
-    case PixelStatus::kCodeError: return "code_error";
-    case PixelStatus::kFiltered: return "filtered";
+    case PixelStatus::kValid:
+      return "valid";
+    case PixelStatus::kShadow:
+      return "shadow";
+    case PixelStatus::kLowContrast:
+      return "low_contrast";
+    case PixelStatus::kSaturated:
+      return "saturated";
+    case PixelStatus::kCodeError:
+      return "code_error";
+    case PixelStatus::kFiltered:
+      return "filtered";
   }
   return "unknown";
 }

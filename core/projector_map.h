@@ -28,15 +28,16 @@ struct ProjectorMap {
   // projector pixel centres). CV_32FC1, NaN where invalid or where that axis is not coded.
   cv::Mat proj_x;
   cv::Mat proj_y;
-  cv::Mat status;   // CV_8UC1 of PixelStatus
-  cv::Mat quality;  // CV_32FC1: modulation (phase codecs) or contrast (Gray code), grey levels
+  cv::Mat status;      // CV_8UC1 of PixelStatus
+  cv::Mat quality;     // CV_32FC1: modulation (phase codecs) or contrast (Gray code), grey levels
   bool has_x = false;  // the pattern codes projector columns
   bool has_y = false;  // the pattern codes projector rows
 
   int width() const { return status.cols; }
   int height() const { return status.rows; }
   // Allocates all maps at the given size, every pixel invalid with status `initial`.
-  void Allocate(int width, int height, bool code_x, bool code_y, PixelStatus initial = PixelStatus::kShadow);
+  void Allocate(int width, int height, bool code_x, bool code_y,
+                PixelStatus initial = PixelStatus::kShadow);
   // Number of pixels per status, indexed by PixelStatus.
   std::array<int64_t, kNumPixelStatus> CountByStatus() const;
 };

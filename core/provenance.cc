@@ -10,7 +10,8 @@ nlohmann::json ScanProvenance::ToJson() const {
   return {{"format", "slshadow-provenance"},
           {"version", kVersion},
           {"generator", generator},
-          {"scene", {{"config", scene_config}, {"base_dir", scene_base_dir}, {"summary", scene_summary}}},
+          {"scene",
+           {{"config", scene_config}, {"base_dir", scene_base_dir}, {"summary", scene_summary}}},
           {"simulate", simulate},
           {"decode", decode},
           {"reconstruct", reconstruct},
@@ -19,8 +20,10 @@ nlohmann::json ScanProvenance::ToJson() const {
 
 ScanProvenance ScanProvenanceFromConfig(const ConfigNode& node) {
   if (!node.IsObject()) node.Fail("expected a provenance mapping");
-  node.RejectUnknownKeys({"format", "version", "generator", "scene", "simulate", "decode", "reconstruct", "compare"});
-  if (node["format"].AsString() != "slshadow-provenance") node["format"].Fail("expected slshadow-provenance");
+  node.RejectUnknownKeys(
+      {"format", "version", "generator", "scene", "simulate", "decode", "reconstruct", "compare"});
+  if (node["format"].AsString() != "slshadow-provenance")
+    node["format"].Fail("expected slshadow-provenance");
   if (node["version"].AsInt() != ScanProvenance::kVersion) {
     node["version"].Fail("unsupported provenance version (this build reads 1)");
   }
@@ -50,8 +53,8 @@ ScanProvenance ScanProvenanceFromConfig(const ConfigNode& node) {
 std::optional<ScanProvenance> ReadScanProvenance(const ImageSet& image_set) {
   const nlohmann::json& extra = image_set.extra();
   if (!extra.is_object() || !extra.contains("provenance")) return std::nullopt;
-  return ScanProvenanceFromConfig(
-      ConfigNode::FromJson(extra, (image_set.dir() / "manifest.json").string(), "extra")["provenance"]);
+  return ScanProvenanceFromConfig(ConfigNode::FromJson(
+      extra, (image_set.dir() / "manifest.json").string(), "extra")["provenance"]);
 }
 
 nlohmann::json ExtraWithProvenance(const ScanProvenance& provenance) {

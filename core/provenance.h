@@ -11,8 +11,8 @@
 //       version: 1
 //       generator: "slshadow simulate"      # who wrote the scan
 //       scene:                              # virtual scans: how to rebuild the scene
-//         config: {...}                     # the scene file's tree as read, or null (built in code)
-//         base_dir: /abs/folder             # relative paths in `config` resolve against it
+//         config: {...}                     # the scene file's tree as read, or null (built in
+//         code) base_dir: /abs/folder             # relative paths in `config` resolve against it
 //         summary: {...}                    # sim/ SceneToJson of the scene rendered
 //       simulate: {...}                     # sim/ SimulateOptionsToJson, null for real captures
 //       decode: {...}                       # the settings the writing job used downstream,
@@ -39,8 +39,8 @@ struct ScanProvenance {
   nlohmann::json scene_config;
   std::string scene_base_dir;
   nlohmann::json scene_summary;
-  nlohmann::json simulate;     // simulator options, null for real captures
-  nlohmann::json decode;       // downstream settings of the writing job, null when not run
+  nlohmann::json simulate;  // simulator options, null for real captures
+  nlohmann::json decode;    // downstream settings of the writing job, null when not run
   nlohmann::json reconstruct;
   nlohmann::json compare;
 

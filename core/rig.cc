@@ -17,11 +17,15 @@ namespace {
 constexpr int kRigFormatVersion = 1;
 
 Rigid3d PoseFromConfig(const ConfigNode& node) {
-  node.RejectUnknownKeys({"rotation_quat_wxyz", "rotation_rvec_rad", "rotation_matrix", "translation_mm"});
+  node.RejectUnknownKeys(
+      {"rotation_quat_wxyz", "rotation_rvec_rad", "rotation_matrix", "translation_mm"});
   const auto t = node["translation_mm"].AsDoubles(3);
-  const int n_rot = node.Has("rotation_quat_wxyz") + node.Has("rotation_rvec_rad") + node.Has("rotation_matrix");
+  const int n_rot =
+      node.Has("rotation_quat_wxyz") + node.Has("rotation_rvec_rad") + node.Has("rotation_matrix");
   if (n_rot != 1) {
-    node.Fail("give exactly one of rotation_quat_wxyz, rotation_rvec_rad (Rodrigues, as OpenCV) or rotation_matrix");
+    node.Fail(
+        "give exactly one of rotation_quat_wxyz, rotation_rvec_rad (Rodrigues, as OpenCV) or "
+        "rotation_matrix");
   }
   Eigen::Quaterniond q;
   if (node.Has("rotation_quat_wxyz")) {
@@ -34,7 +38,8 @@ Rigid3d PoseFromConfig(const ConfigNode& node) {
     const auto v = node["rotation_rvec_rad"].AsDoubles(3);
     const Eigen::Vector3d r(v[0], v[1], v[2]);
     const double angle = r.norm();
-    q = angle > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, r / angle)) : Eigen::Quaterniond::Identity();
+    q = angle > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, r / angle))
+                  : Eigen::Quaterniond::Identity();
   } else {
     const auto c = node["rotation_matrix"];
     const auto v = c.AsDoubles(9);
@@ -80,7 +85,8 @@ nlohmann::json DeviceToJson(const RigDevice& d) {
   j["name"] = d.name;
   j["width"] = d.model.width;
   j["height"] = d.model.height;
-  j["intrinsics"] = {{"fx", d.model.fx()}, {"fy", d.model.fy()}, {"cx", d.model.cx()}, {"cy", d.model.cy()}};
+  j["intrinsics"] = {
+      {"fx", d.model.fx()}, {"fy", d.model.fy()}, {"cx", d.model.cx()}, {"cy", d.model.cy()}};
   const auto& p = d.model.params;
   j["distortion"] = {{"k1", p[4]}, {"k2", p[5]}, {"p1", p[6]}, {"p2", p[7]}, {"k3", p[8]}};
   const auto& q = d.cam_from_rig.rotation;
@@ -123,7 +129,8 @@ Eigen::Vector3d Rig::WorkingPointInRig() const {
   return cameras[0].CenterInRig() + working_distance_mm * cameras[0].AxisInRig();
 }
 
-double Rig::TriangulationAngleRad(const RigDevice& a, const RigDevice& b, const Eigen::Vector3d& point_in_rig) {
+double Rig::TriangulationAngleRad(const RigDevice& a, const RigDevice& b,
+                                  const Eigen::Vector3d& point_in_rig) {
   const Eigen::Vector3d ra = (point_in_rig - a.CenterInRig()).normalized();
   const Eigen::Vector3d rb = (point_in_rig - b.CenterInRig()).normalized();
   return std::acos(std::clamp(ra.dot(rb), -1.0, 1.0));
@@ -157,21 +164,25 @@ double Rig::OverlapAtWorkingDistance(const RigDevice& a, const RigDevice& b, int
 void Rig::Check(const std::string& what) const {
   SLSHADOW_THROW_IF(cameras.empty(), what, ": cameras: a rig needs at least one camera");
   SLSHADOW_THROW_IF(!(working_distance_mm > 0) || !std::isfinite(working_distance_mm), what,
-                    ": working_distance_mm: must be a positive number (got ", working_distance_mm, ")");
+                    ": working_distance_mm: must be a positive number (got ", working_distance_mm,
+                    ")");
   std::set<std::string> names;
   auto check_device = [&](const RigDevice& d, const std::string& where) {
-    SLSHADOW_THROW_IF(!names.insert(d.name).second, what, ": ", where, ".name: duplicate device name '",
-                      d.name, "'");
+    SLSHADOW_THROW_IF(!names.insert(d.name).second, what, ": ", where,
+                      ".name: duplicate device name '", d.name, "'");
     d.model.Check(what + ": " + where);
-    SLSHADOW_THROW_IF(!d.cam_from_rig.translation.allFinite() || !d.cam_from_rig.rotation.coeffs().allFinite(),
-                      what, ": ", where, ".cam_from_rig: pose must be finite");
+    SLSHADOW_THROW_IF(
+        !d.cam_from_rig.translation.allFinite() || !d.cam_from_rig.rotation.coeffs().allFinite(),
+        what, ": ", where, ".cam_from_rig: pose must be finite");
   };
-  for (size_t i = 0; i < cameras.size(); ++i) check_device(cameras[i], "cameras[" + std::to_string(i) + "]");
+  for (size_t i = 0; i < cameras.size(); ++i)
+    check_device(cameras[i], "cameras[" + std::to_string(i) + "]");
   if (projector) check_device(*projector, "projector");
 }
 
 Rig RigFromConfig(const ConfigNode& node) {
-  node.RejectUnknownKeys({"format", "version", "name", "working_distance_mm", "cameras", "projector", "calibration"});
+  node.RejectUnknownKeys(
+      {"format", "version", "name", "working_distance_mm", "cameras", "projector", "calibration"});
   if (node.Has("format") && node["format"].AsString() != "slshadow-rig") {
     node["format"].Fail("expected \"slshadow-rig\"");
   }
@@ -190,7 +201,8 @@ Rig RigFromConfig(const ConfigNode& node) {
   for (size_t i = 0; i < cams.size(); ++i) {
     rig.cameras.push_back(DeviceFromConfig(cams.at(i), false));
     for (size_t j = 0; j < i; ++j) {
-      if (rig.cameras[j].name == rig.cameras[i].name) cams.at(i)["name"].Fail("duplicate camera name");
+      if (rig.cameras[j].name == rig.cameras[i].name)
+        cams.at(i)["name"].Fail("duplicate camera name");
     }
   }
   if (node.Has("projector")) rig.projector = DeviceFromConfig(node["projector"], true);
@@ -217,8 +229,9 @@ Rig LoadRig(const std::filesystem::path& path) { return RigFromConfig(ConfigNode
 void SaveRig(const Rig& rig, const std::filesystem::path& path) {
   rig.Check(path.string());
   const nlohmann::json j = RigToJson(rig);
-  const std::string text = path.extension() == ".json" ? j.dump(2) + "\n"
-                                                        : "# slshadow rig (docs/formats.md)\n" + JsonToYaml(j);
+  const std::string text = path.extension() == ".json"
+                               ? j.dump(2) + "\n"
+                               : "# slshadow rig (docs/formats.md)\n" + JsonToYaml(j);
   WriteTextFileAtomically(path, text);
 }
 
@@ -232,27 +245,34 @@ std::string DescribeRig(const Rig& rig) {
   std::vector<const RigDevice*> devices;
   for (const auto& c : rig.cameras) devices.push_back(&c);
   if (rig.projector) devices.push_back(&*rig.projector);
-  out << "device        kind       resolution    fx        fy        cx        cy       k1       FOV h x v (deg)   centre in rig (mm)\n";
+  out << "device        kind       resolution    fx        fy        cx        cy       k1       "
+         "FOV h x v (deg)   centre in rig (mm)\n";
   for (const auto* d : devices) {
     const Eigen::Vector3d c = d->CenterInRig() + Eigen::Vector3d::Zero();  // no "-0.0"
 
-    std::snprintf(buf, sizeof(buf), "%-13s %-10s %5dx%-7d %-9.2f %-9.2f %-9.2f %-8.2f %-8.4f %6.2f x %-8.2f (%.1f, %.1f, %.1f)\n",
+    std::snprintf(buf, sizeof(buf),
+                  "%-13s %-10s %5dx%-7d %-9.2f %-9.2f %-9.2f %-8.2f %-8.4f %6.2f x %-8.2f (%.1f, "
+                  "%.1f, %.1f)\n",
                   d->name.c_str(), rig.projector && d == &*rig.projector ? "projector" : "camera",
                   d->model.width, d->model.height, d->model.fx(), d->model.fy(), d->model.cx(),
-                  d->model.cy(), d->model.params[CameraModel::kK1], d->model.HorizontalFovRad() * kDeg,
-                  d->model.VerticalFovRad() * kDeg, c.x(), c.y(), c.z());
+                  d->model.cy(), d->model.params[CameraModel::kK1],
+                  d->model.HorizontalFovRad() * kDeg, d->model.VerticalFovRad() * kDeg, c.x(),
+                  c.y(), c.z());
     out << buf;
   }
   const Eigen::Vector3d wp = rig.WorkingPointInRig();
-  std::snprintf(buf, sizeof(buf), "\nworking point in rig frame: (%.1f, %.1f, %.1f) mm\n", wp.x(), wp.y(), wp.z());
+  std::snprintf(buf, sizeof(buf), "\nworking point in rig frame: (%.1f, %.1f, %.1f) mm\n", wp.x(),
+                wp.y(), wp.z());
   out << buf;
-  out << "pair                     baseline (mm)  triangulation angle (deg)  overlap at working distance\n";
+  out << "pair                     baseline (mm)  triangulation angle (deg)  overlap at working "
+         "distance\n";
   for (size_t i = 0; i < devices.size(); ++i) {
     for (size_t j = i + 1; j < devices.size(); ++j) {
       const auto& a = *devices[i];
       const auto& b = *devices[j];
-      std::snprintf(buf, sizeof(buf), "%-24s %13.2f  %25.2f  %26.1f%%\n", (a.name + " - " + b.name).c_str(),
-                    rig.BaselineMm(a, b), Rig::TriangulationAngleRad(a, b, wp) * kDeg,
+      std::snprintf(buf, sizeof(buf), "%-24s %13.2f  %25.2f  %26.1f%%\n",
+                    (a.name + " - " + b.name).c_str(), rig.BaselineMm(a, b),
+                    Rig::TriangulationAngleRad(a, b, wp) * kDeg,
                     100.0 * rig.OverlapAtWorkingDistance(a, b));
       out << buf;
     }

@@ -27,7 +27,9 @@ struct RigDevice {
   // Optical centre in the rig frame.
   Eigen::Vector3d CenterInRig() const { return cam_from_rig.TargetOriginInSource(); }
   // Optical axis (+z of the device) in the rig frame.
-  Eigen::Vector3d AxisInRig() const { return cam_from_rig.rotation.conjugate() * Eigen::Vector3d::UnitZ(); }
+  Eigen::Vector3d AxisInRig() const {
+    return cam_from_rig.rotation.conjugate() * Eigen::Vector3d::UnitZ();
+  }
 };
 
 struct Rig {
@@ -64,7 +66,7 @@ struct Rig {
 // Reading and writing. The YAML and JSON trees are identical (docs/formats.md).
 Rig RigFromConfig(const ConfigNode& node);
 nlohmann::json RigToJson(const Rig& rig);
-Rig LoadRig(const std::filesystem::path& path);  // .yaml/.yml/.json
+Rig LoadRig(const std::filesystem::path& path);                   // .yaml/.yml/.json
 void SaveRig(const Rig& rig, const std::filesystem::path& path);  // atomically; YAML unless .json
 
 // Human-readable geometry summary (what `slshadow rig show` prints).

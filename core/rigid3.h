@@ -12,7 +12,8 @@ struct Rigid3d {
   Eigen::Vector3d translation = Eigen::Vector3d::Zero();
 
   Rigid3d() = default;
-  Rigid3d(const Eigen::Quaterniond& r, const Eigen::Vector3d& t) : rotation(r.normalized()), translation(t) {}
+  Rigid3d(const Eigen::Quaterniond& r, const Eigen::Vector3d& t)
+      : rotation(r.normalized()), translation(t) {}
 
   // Applies the transform to a point: x_in_target.
   Eigen::Vector3d operator*(const Eigen::Vector3d& x_in_source) const {
@@ -36,7 +37,8 @@ struct Rigid3d {
     return m;
   }
   static Rigid3d FromMatrix(const Eigen::Matrix4d& m) {
-    return Rigid3d(Eigen::Quaterniond(Eigen::Matrix3d(m.topLeftCorner<3, 3>())), m.topRightCorner<3, 1>());
+    return Rigid3d(Eigen::Quaterniond(Eigen::Matrix3d(m.topLeftCorner<3, 3>())),
+                   m.topRightCorner<3, 1>());
   }
 };
 

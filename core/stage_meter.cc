@@ -66,15 +66,16 @@ std::string FormatStageTable(const std::vector<StageMeasurement>& stages) {
   char buf[160];
   double wall = 0, cpu = 0, peak = 0;
   for (const auto& s : stages) {
-    std::snprintf(buf, sizeof(buf), "%-30s %8.3f  %8.3f  %8.2f  %13.0f%s\n", s.name.c_str(), s.wall_s, s.cpu_s,
-                  s.wall_s > 0 ? s.cpu_s / s.wall_s : 0.0, s.peak_rss_mb, s.peak_is_process_wide ? " *" : "");
+    std::snprintf(buf, sizeof(buf), "%-30s %8.3f  %8.3f  %8.2f  %13.0f%s\n", s.name.c_str(),
+                  s.wall_s, s.cpu_s, s.wall_s > 0 ? s.cpu_s / s.wall_s : 0.0, s.peak_rss_mb,
+                  s.peak_is_process_wide ? " *" : "");
     out += buf;
     wall += s.wall_s;
     cpu += s.cpu_s;
     peak = std::max(peak, s.peak_rss_mb);
   }
-  std::snprintf(buf, sizeof(buf), "%-30s %8.3f  %8.3f  %8.2f  %13.0f\n", "total", wall, cpu, wall > 0 ? cpu / wall : 0.0,
-                peak);
+  std::snprintf(buf, sizeof(buf), "%-30s %8.3f  %8.3f  %8.2f  %13.0f\n", "total", wall, cpu,
+                wall > 0 ? cpu / wall : 0.0, peak);
   out += buf;
   return out;
 }

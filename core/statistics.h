@@ -1,8 +1,9 @@
 // One rank convention for every median and percentile slshadow reports (calibration, reconstruction
-// and comparison summaries, reports and maps): the nearest rank. The p-th percentile (0 <= p <= 100)
-// of n values is the value of rank ceil(p / 100 * n) in ascending order (1-based, at least 1), so it
-// is always one of the values, never an interpolation; the median is the 50th percentile, i.e. the
-// lower of the two middle values for an even count (docs/formats.md says so for every report).
+// and comparison summaries, reports and maps): the nearest rank. The p-th percentile (0 <= p <=
+// 100) of n values is the value of rank ceil(p / 100 * n) in ascending order (1-based, at least 1),
+// so it is always one of the values, never an interpolation; the median is the 50th percentile,
+// i.e. the lower of the two middle values for an even count (docs/formats.md says so for every
+// report).
 #pragma once
 
 #include <algorithm>

@@ -2,8 +2,8 @@
 
 #include "core/error.h"
 
-#include <opencv2/core/utility.hpp>
 #include <tbb/global_control.h>
+#include <opencv2/core/utility.hpp>
 
 #include <atomic>
 #include <cstdlib>

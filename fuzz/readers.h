@@ -41,8 +41,9 @@ inline const std::filesystem::path& ScratchDir() {
   struct Scratch {
     std::filesystem::path dir;
     Scratch() {
-      const std::filesystem::path base = std::filesystem::exists("/dev/shm") ? std::filesystem::path("/dev/shm")
-                                                                             : std::filesystem::temp_directory_path();
+      const std::filesystem::path base = std::filesystem::exists("/dev/shm")
+                                             ? std::filesystem::path("/dev/shm")
+                                             : std::filesystem::temp_directory_path();
       dir = base / ("slshadow-fuzz-" + std::to_string(::getpid()));
       std::filesystem::create_directories(dir);
     }
@@ -85,7 +86,8 @@ inline void ReadSceneBytes(const uint8_t* data, size_t size) {
 }
 
 inline void ReadPatternSpecBytes(const uint8_t* data, size_t size) {
-  const PatternSpec spec = LoadPatternSpec(WriteInput(data, size, ConfigName(data, size, "patterns")));
+  const PatternSpec spec =
+      LoadPatternSpec(WriteInput(data, size, ConfigName(data, size, "patterns")));
   (void)PatternSpecToJson(spec);
 }
 
@@ -108,7 +110,8 @@ inline void ReadManifestBytes(const uint8_t* data, size_t size) {
       cv::Mat a(6, 8, CV_8U), b(6, 8, CV_8U, cv::Scalar(200));
       cv::randu(a, 0, 255);
       const cv::Mat wide(6, 8, CV_16U, cv::Scalar(40000)), small(4, 4, CV_8U, cv::Scalar(7));
-      if (!cv::imwrite((set / camera / "0000.png").string(), a) || !cv::imwrite((set / camera / "0001.png").string(), b) ||
+      if (!cv::imwrite((set / camera / "0000.png").string(), a) ||
+          !cv::imwrite((set / camera / "0001.png").string(), b) ||
           !cv::imwrite((set / camera / "0002.png").string(), wide) ||
           !cv::imwrite((set / camera / "0003.png").string(), small)) {
         std::abort();
@@ -143,9 +146,13 @@ inline void ReadPlyBytes(const uint8_t* data, size_t size) {
   ReadAsAnyOf({[&] { (void)ReadPly(path); }, [&] { (void)ReadMesh(path); }});
 }
 
-inline void ReadStlBytes(const uint8_t* data, size_t size) { (void)ReadMesh(WriteInput(data, size, "input.stl")); }
+inline void ReadStlBytes(const uint8_t* data, size_t size) {
+  (void)ReadMesh(WriteInput(data, size, "input.stl"));
+}
 
-inline void ReadObjBytes(const uint8_t* data, size_t size) { (void)ReadMesh(WriteInput(data, size, "input.obj")); }
+inline void ReadObjBytes(const uint8_t* data, size_t size) {
+  (void)ReadMesh(WriteInput(data, size, "input.obj"));
+}
 
 // The .npy float-map reader, as one and as three channels.
 inline void ReadNpyBytes(const uint8_t* data, size_t size) {
@@ -155,17 +162,26 @@ inline void ReadNpyBytes(const uint8_t* data, size_t size) {
 
 // OpenCV FileStorage calibration import: YAML; XML when the input starts with '<', JSON with '{'.
 inline void ReadOpenCvCalibrationBytes(const uint8_t* data, size_t size) {
-  const char* ext = size > 0 && data[0] == '<' ? ".xml" : size > 0 && data[0] == '{' ? ".json" : ".yml";
+  const char* ext = size > 0 && data[0] == '<'   ? ".xml"
+                    : size > 0 && data[0] == '{' ? ".json"
+                                                 : ".yml";
   (void)ReadOpenCvCalibration(WriteInput(data, size, std::string("calibration") + ext), 640, 480);
 }
 
 // Format name (the fuzz/regressions/ and fuzz/seeds/ folder names) -> reader.
 inline const std::map<std::string, std::function<void(const uint8_t*, size_t)>>& Readers() {
   static const std::map<std::string, std::function<void(const uint8_t*, size_t)>> readers = {
-      {"rig", ReadRigBytes},         {"scene", ReadSceneBytes}, {"pattern_spec", ReadPatternSpecBytes},
-      {"target", ReadTargetBytes},   {"devices", ReadDevicesBytes}, {"manifest", ReadManifestBytes},
-      {"ply", ReadPlyBytes},         {"stl", ReadStlBytes},     {"obj", ReadObjBytes},
-      {"npy", ReadNpyBytes},         {"opencv_calibration", ReadOpenCvCalibrationBytes}};
+      {"rig", ReadRigBytes},
+      {"scene", ReadSceneBytes},
+      {"pattern_spec", ReadPatternSpecBytes},
+      {"target", ReadTargetBytes},
+      {"devices", ReadDevicesBytes},
+      {"manifest", ReadManifestBytes},
+      {"ply", ReadPlyBytes},
+      {"stl", ReadStlBytes},
+      {"obj", ReadObjBytes},
+      {"npy", ReadNpyBytes},
+      {"opencv_calibration", ReadOpenCvCalibrationBytes}};
   return readers;
 }
 
@@ -176,7 +192,6 @@ inline const std::map<std::string, std::function<void(const uint8_t*, size_t)>>&
   extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) { \
     try {                                                                   \
       ::slshadow::fuzz::reader(data, size);                                 \
-    } catch (const ::slshadow::Error&) {                                    \
-    }                                                                       \
+    } catch (const ::slshadow::Error&) {}                                   \
     return 0;                                                               \
   }

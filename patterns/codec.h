@@ -85,8 +85,8 @@ struct DirectGlobal {
   cv::Mat direct;  // CV_32FC1
   cv::Mat global;  // CV_32FC1, >= 0
 };
-DirectGlobal SeparateDirectGlobal(const PatternSpec& spec, const std::vector<cv::Mat>& camera_images,
-                                  int fine_bits = 2);
+DirectGlobal SeparateDirectGlobal(const PatternSpec& spec,
+                                  const std::vector<cv::Mat>& camera_images, int fine_bits = 2);
 
 // A fast atan2 in cycles: atan2(y, x) / (2 pi) wrapped to [0, 1); absolute error < 2e-6 cycles.
 // Exposed for tests.

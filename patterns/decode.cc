@@ -25,8 +25,10 @@ constexpr uint8_t kFlagSaturated = 1, kFlagShadow = 2, kFlagLowContrast = 4, kFl
 
 // The first reason by priority: saturated, shadow, low contrast, code error; indexed by flags.
 constexpr uint8_t kStatusOfFlags[16] = {0, 3, 1, 3, 2, 3, 1, 3, 4, 3, 1, 3, 2, 3, 1, 3};
-static_assert(static_cast<int>(PixelStatus::kSaturated) == 3 && static_cast<int>(PixelStatus::kShadow) == 1 &&
-              static_cast<int>(PixelStatus::kLowContrast) == 2 && static_cast<int>(PixelStatus::kCodeError) == 4);
+static_assert(static_cast<int>(PixelStatus::kSaturated) == 3 &&
+              static_cast<int>(PixelStatus::kShadow) == 1 &&
+              static_cast<int>(PixelStatus::kLowContrast) == 2 &&
+              static_cast<int>(PixelStatus::kCodeError) == 4);
 
 // floor and round-to-nearest for |v| < 2^23 without libm calls (SSE2 has no roundps).
 inline float Floor(float v) {
@@ -42,7 +44,8 @@ inline float Atan2CyclesInline(float y, float x) {
   const float mx = ax > ay ? ax : ay, mn = ax > ay ? ay : ax;
   const float a = mn / (mx > 1e-30f ? mx : 1e-30f);
   const float s = a * a;
-  float r = a * (0.9998660f + s * (-0.3302995f + s * (0.1801410f + s * (-0.0851330f + s * 0.0208351f))));
+  float r =
+      a * (0.9998660f + s * (-0.3302995f + s * (0.1801410f + s * (-0.0851330f + s * 0.0208351f))));
   r = ay > ax ? 1.57079632679f - r : r;
   r = x < 0 ? 3.14159265359f - r : r;
   r = y < 0 ? -r : r;
@@ -75,8 +78,8 @@ inline cv::v_uint16x8 Load8<uint16_t>(const uint16_t* p) {
 
 // Scalar tail shared by both input types.
 template <typename T>
-void GrayAxisTail(const T* const* frames, int nbits, int x0, int width, uint16_t* code, uint16_t* min1,
-                  uint16_t* min2, uint16_t* min_bit) {
+void GrayAxisTail(const T* const* frames, int nbits, int x0, int width, uint16_t* code,
+                  uint16_t* min1, uint16_t* min2, uint16_t* min_bit) {
   for (int x = x0; x < width; ++x) {
     uint32_t c_code = 0, c_min1 = 0xFFFF, c_min2 = 0xFFFF, c_bit = 0;
     for (int b = 0; b < nbits; ++b) {
@@ -98,7 +101,8 @@ void GrayAxisTail(const T* const* frames, int nbits, int x0, int width, uint16_t
 // 65536 pixels).
 template <typename T, bool kTrackMask>
 void GrayAxisRow(const T* const* frames, int nbits, int width, uint16_t* __restrict code,
-                 uint16_t* __restrict min1, uint16_t* __restrict min2, uint16_t* __restrict min_bit) {
+                 uint16_t* __restrict min1, uint16_t* __restrict min2,
+                 uint16_t* __restrict min_bit) {
   const int vec_end = width - width % 8;
   const cv::v_uint16x8 one = cv::v_setall_u16(1);
   for (int x = 0; x < vec_end; x += 8) {
@@ -108,9 +112,11 @@ void GrayAxisRow(const T* const* frames, int nbits, int width, uint16_t* __restr
       const cv::v_uint16x8 p = Load8<T>(frames[2 * b] + x), q = Load8<T>(frames[2 * b + 1] + x);
       const cv::v_uint16x8 g = (p > q) & one;
       const cv::v_uint16x8 c = cv::v_absdiff(p, q);
-      c_code = cv::v_shl<1>(c_code) | ((c_code & one) ^ g);  // binary bit = previous binary XOR Gray
+      c_code =
+          cv::v_shl<1>(c_code) | ((c_code & one) ^ g);  // binary bit = previous binary XOR Gray
       if constexpr (kTrackMask) {
-        c_bit = cv::v_select(c < c_min1, cv::v_setall_u16(static_cast<uint16_t>(nbits - 1 - b)), c_bit);
+        c_bit =
+            cv::v_select(c < c_min1, cv::v_setall_u16(static_cast<uint16_t>(nbits - 1 - b)), c_bit);
       }
       c_min2 = cv::v_min(c_min2, cv::v_max(c_min1, c));
       c_min1 = cv::v_min(c_min1, c);
@@ -127,11 +133,13 @@ void GrayAxisRow(const T* const* frames, int nbits, int width, uint16_t* __restr
 // comparison and the contrast); the code is built as a high and a low byte.
 template <bool kTrackMask>
 void GrayAxisRow8(const uint8_t* const* frames, int nbits, int width, uint16_t* __restrict code,
-                  uint16_t* __restrict min1, uint16_t* __restrict min2, uint16_t* __restrict min_bit) {
+                  uint16_t* __restrict min1, uint16_t* __restrict min2,
+                  uint16_t* __restrict min_bit) {
   const int vec_end = width - width % 16;
   const cv::v_uint8x16 one = cv::v_setall_u8(1), zero = cv::v_setzero_u8();
   for (int x = 0; x < vec_end; x += 16) {
-    cv::v_uint8x16 hi = zero, lo = zero, bin = zero, c_min1 = cv::v_setall_u8(0xFF), c_min2 = c_min1, c_bit = zero;
+    cv::v_uint8x16 hi = zero, lo = zero, bin = zero, c_min1 = cv::v_setall_u8(0xFF),
+                   c_min2 = c_min1, c_bit = zero;
     for (int b = 0; b < nbits; ++b) {
       const cv::v_uint8x16 p = cv::v_load(frames[2 * b] + x), q = cv::v_load(frames[2 * b + 1] + x);
       const cv::v_uint8x16 pq = p - q, qp = q - p;  // saturating: pq > 0 exactly where p > q
@@ -143,7 +151,8 @@ void GrayAxisRow8(const uint8_t* const* frames, int nbits, int width, uint16_t* 
       } else {
         lo = cv::v_add_wrap(lo, lo) | (bin & one);
       }
-      if constexpr (kTrackMask) c_bit = cv::v_select(c < c_min1, cv::v_setall_u8(static_cast<uint8_t>(k)), c_bit);
+      if constexpr (kTrackMask)
+        c_bit = cv::v_select(c < c_min1, cv::v_setall_u8(static_cast<uint8_t>(k)), c_bit);
       c_min2 = cv::v_min(c_min2, cv::v_max(c_min1, c));
       c_min1 = cv::v_min(c_min1, c);
     }
@@ -170,8 +179,8 @@ void GrayAxisRow8(const uint8_t* const* frames, int nbits, int width, uint16_t* 
 
 // Dispatch: byte kernel for 8-bit input.
 template <typename T, bool kTrackMask>
-void GrayAxis(const T* const* frames, int nbits, int width, uint16_t* code, uint16_t* min1, uint16_t* min2,
-              uint16_t* min_bit) {
+void GrayAxis(const T* const* frames, int nbits, int width, uint16_t* code, uint16_t* min1,
+              uint16_t* min2, uint16_t* min_bit) {
   if constexpr (std::is_same_v<T, uint8_t>) {
     GrayAxisRow8<kTrackMask>(frames, nbits, width, code, min1, min2, min_bit);
   } else {
@@ -184,8 +193,8 @@ void GrayAxis(const T* const* frames, int nbits, int width, uint16_t* code, uint
 // `standard` says the coefficients are sin / cos(2 pi n / N) (no offset, direction +1), which
 // allows the exact integer path for 4 steps.
 template <typename T>
-void PhaseRow(const T* const* frames, int steps, bool standard, const float* sn, const float* cn, int width,
-              float* __restrict sum_s, float* __restrict sum_c, float* __restrict cycles,
+void PhaseRow(const T* const* frames, int steps, bool standard, const float* sn, const float* cn,
+              int width, float* __restrict sum_s, float* __restrict sum_c, float* __restrict cycles,
               float* __restrict modulation, int32_t* __restrict maxv) {
   const int vec_end = width - width % 8;
   if constexpr (std::is_same_v<T, uint8_t>) {
@@ -207,7 +216,8 @@ void PhaseRow(const T* const* frames, int steps, bool standard, const float* sn,
         cv::v_uint32x4 tlo, thi;
         cv::v_expand(top, tlo, thi);
         cv::v_store(maxv + x, cv::v_max(cv::v_load(maxv + x), cv::v_reinterpret_as_s32(tlo)));
-        cv::v_store(maxv + x + 4, cv::v_max(cv::v_load(maxv + x + 4), cv::v_reinterpret_as_s32(thi)));
+        cv::v_store(maxv + x + 4,
+                    cv::v_max(cv::v_load(maxv + x + 4), cv::v_reinterpret_as_s32(thi)));
       }
     }
   }
@@ -249,7 +259,7 @@ void PhaseRow(const T* const* frames, int steps, bool standard, const float* sn,
     sum_c[x] = cc;
   }
   const float scale = 2.0f / static_cast<float>(steps);
-  #pragma omp simd
+#pragma omp simd
   for (int x = 0; x < width; ++x) {
     const float s = sum_s[x], c = sum_c[x];
     cycles[x] = Atan2CyclesInline(s, c);
@@ -275,7 +285,8 @@ struct Scratch {
 
 class Decoder {
  public:
-  Decoder(const PatternSpec& spec, const std::vector<cv::Mat>& images, const Levels& levels, ProjectorMap* out)
+  Decoder(const PatternSpec& spec, const std::vector<cv::Mat>& images, const Levels& levels,
+          ProjectorMap* out)
       : spec_(spec), images_(images), levels_(levels), out_(out), frames_(spec.Frames()) {
     for (int n = 0; n < spec.phase_steps; ++n) {
       const double d = spec.PhaseStepAngle(n);
@@ -288,7 +299,8 @@ class Decoder {
     // frames by step, whatever the projection order.
     for (int a = 0; a < 2; ++a) {
       const int nbits = spec.Codes(a) ? spec.GrayBits(a) : 0;
-      for (int code = 0; code < 2; ++code) gray_[a][code].assign(static_cast<size_t>(nbits), {-1, -1});
+      for (int code = 0; code < 2; ++code)
+        gray_[a][code].assign(static_cast<size_t>(nbits), {-1, -1});
       for (int f = 0; f < 3; ++f) phase_[a][f].assign(static_cast<size_t>(spec.phase_steps), -1);
     }
     for (size_t i = 0; i < frames_.size(); ++i) {
@@ -299,7 +311,8 @@ class Decoder {
         auto& slot = bits[bits.size() - 1 - static_cast<size_t>(fr.bit)];
         (fr.role == FrameRole::kGrayBit ? slot.first : slot.second) = idx;
       }
-      if (fr.role == FrameRole::kPhase) phase_[fr.axis][fr.frequency][static_cast<size_t>(fr.step)] = idx;
+      if (fr.role == FrameRole::kPhase)
+        phase_[fr.axis][fr.frequency][static_cast<size_t>(fr.step)] = idx;
       if (fr.role == FrameRole::kWhite) white_ = idx;
       if (fr.role == FrameRole::kBlack) black_ = idx;
     }
@@ -347,9 +360,15 @@ class Decoder {
       }
       std::fill(s.flags.begin(), s.flags.end(), uint8_t{0});
       switch (spec_.kind) {
-        case PatternKind::kGrayCode: GrayCodeRow<T>(rows, s); break;
-        case PatternKind::kPhaseShift: PhaseShiftRow<T>(rows, s); break;
-        case PatternKind::kMultiFrequency: MultiFrequencyRow<T>(rows, s); break;
+        case PatternKind::kGrayCode:
+          GrayCodeRow<T>(rows, s);
+          break;
+        case PatternKind::kPhaseShift:
+          PhaseShiftRow<T>(rows, s);
+          break;
+        case PatternKind::kMultiFrequency:
+          MultiFrequencyRow<T>(rows, s);
+          break;
       }
       Write(y, s);
     }
@@ -357,7 +376,8 @@ class Decoder {
 
  private:
   template <typename T>
-  void GatherRows(const std::vector<const T*>& rows, const std::vector<int>& idx, std::vector<const T*>& out) const {
+  void GatherRows(const std::vector<const T*>& rows, const std::vector<int>& idx,
+                  std::vector<const T*>& out) const {
     out.resize(idx.size());
     for (size_t i = 0; i < idx.size(); ++i) out[i] = rows[static_cast<size_t>(idx[i])];
   }
@@ -366,7 +386,8 @@ class Decoder {
   // without an inverse gets the reference row, computed here (white_black: (white + black + 1) / 2;
   // phase_mean: the rounded mean of the axis' phase frames).
   template <typename T>
-  void GrayRows(const std::vector<const T*>& rows, int a, int code, Scratch& s, std::vector<const T*>& out) const {
+  void GrayRows(const std::vector<const T*>& rows, int a, int code, Scratch& s,
+                std::vector<const T*>& out) const {
     const auto& bits = gray_[a][code];
     out.resize(2 * bits.size());
     const T* reference = nullptr;
@@ -376,7 +397,8 @@ class Decoder {
       if (reference_ == GrayReference::kWhiteBlack) {
         const T* w = rows[static_cast<size_t>(white_)];
         const T* b = rows[static_cast<size_t>(black_)];
-        for (int x = 0; x < width; ++x) ref[x] = static_cast<T>((int32_t{w[x]} + int32_t{b[x]} + 1) >> 1);
+        for (int x = 0; x < width; ++x)
+          ref[x] = static_cast<T>((int32_t{w[x]} + int32_t{b[x]} + 1) >> 1);
       } else {
         int32_t* sum = s.sum.data();
         std::fill(sum, sum + width, 0);
@@ -406,12 +428,13 @@ class Decoder {
     uint8_t* __restrict flags = s.flags.data();
     float* __restrict quality = s.quality.data();
     const int32_t saturation = levels_.saturation;
-    // The white frame is the brightest a pixel gets: it alone decides saturation.
-    #pragma omp simd
+// The white frame is the brightest a pixel gets: it alone decides saturation.
+#pragma omp simd
     for (int x = 0; x < width; ++x) {
       const int32_t wv = white[x], bv = black[x];
-      flags[x] = static_cast<uint8_t>((static_cast<float>(wv - bv) < levels_.shadow ? kFlagShadow : 0) |
-                                      ((wv >= saturation) | (bv >= saturation) ? kFlagSaturated : 0));
+      flags[x] =
+          static_cast<uint8_t>((static_cast<float>(wv - bv) < levels_.shadow ? kFlagShadow : 0) |
+                               ((wv >= saturation) | (bv >= saturation) ? kFlagSaturated : 0));
       quality[x] = std::numeric_limits<float>::max();
     }
     const int32_t threshold = levels_.contrast;
@@ -430,7 +453,7 @@ class Decoder {
       const int32_t size = spec_.AxisSize(a);
       const uint16_t* __restrict code = s.code[a].data();
       float* __restrict coord = s.coord[a].data();
-      #pragma omp simd
+#pragma omp simd
       for (int x = 0; x < width; ++x) {
         const int32_t c = code[x];
         // One unreadable bit whose flip gives the adjacent code: the pixel sees the edge between
@@ -438,7 +461,8 @@ class Decoder {
         // Flipping Gray bit k flips binary bits k..0.
         const int32_t other = c ^ ((2 << min_bit[x]) - 1);
         const int32_t m1 = min1[x], m2 = min2[x];
-        const bool edge = edges & (m1 < threshold) & (m2 >= threshold) & ((c - other) * (c - other) == 1);
+        const bool edge =
+            edges & (m1 < threshold) & (m2 >= threshold) & ((c - other) * (c - other) == 1);
         const bool low = (m1 < threshold) & !edge;
         coord[x] = edge ? 0.5f * static_cast<float>(c + other) : static_cast<float>(c);
         flags[x] |= (c >= size ? kFlagCodeError : 0) | (low ? kFlagLowContrast : 0);
@@ -462,12 +486,13 @@ class Decoder {
     for (int a = 0; a < 2; ++a) {
       if (!spec_.Codes(a)) continue;
       GatherRows(rows, phase_[a][0], frames);
-      PhaseRow<T>(frames.data(), spec_.phase_steps, standard_phase_, sin_.data(), cos_.data(), width,
-                  s.sum_s.data(), s.sum_c.data(), s.cycles[0].data(), s.modulation[0].data(), maxv);
+      PhaseRow<T>(frames.data(), spec_.phase_steps, standard_phase_, sin_.data(), cos_.data(),
+                  width, s.sum_s.data(), s.sum_c.data(), s.cycles[0].data(), s.modulation[0].data(),
+                  maxv);
       GrayRows(rows, a, 0, s, frames);
       const int nbits = spec_.GrayBits(a);
-      GrayAxis<T, false>(frames.data(), nbits, width, s.code[a].data(), s.min1.data(), s.min2.data(),
-                         s.min_bit.data());
+      GrayAxis<T, false>(frames.data(), nbits, width, s.code[a].data(), s.min1.data(),
+                         s.min2.data(), s.min_bit.data());
       const uint16_t* __restrict h = s.code[a].data();
       const float* __restrict f = s.cycles[0].data();
       const float* __restrict mod = s.modulation[0].data();
@@ -476,13 +501,13 @@ class Decoder {
       const float lo = -1.0f, hi = static_cast<float>(spec_.AxisSize(a));
       if (spec_.gray_code == GrayCodeVariant::kShifted) {
         GrayRows(rows, a, 1, s, frames);
-        GrayAxis<T, false>(frames.data(), nbits, width, s.code_b.data(), s.min1_b.data(), s.min2_b.data(),
-                           s.min_bit_b.data());
+        GrayAxis<T, false>(frames.data(), nbits, width, s.code_b.data(), s.min1_b.data(),
+                           s.min2_b.data(), s.min_bit_b.data());
         const uint16_t* __restrict h2 = s.code_b.data();
         const uint16_t* __restrict min1_b = s.min1_b.data();
         const int32_t k1_max = static_cast<int32_t>(spec_.GrayValue(0, spec_.AxisSize(a) - 1));
         const int32_t k2_max = static_cast<int32_t>(spec_.GrayValue(1, spec_.AxisSize(a) - 1));
-        #pragma omp simd
+#pragma omp simd
         for (int x = 0; x < width; ++x) {
           // k1 = floor(x / P) has its edges at the phase wraps, k2 = floor(x / P + 1/2) half a
           // period away: use k2 near the wraps and k1 in the middle, and only that code's contrast.
@@ -494,15 +519,17 @@ class Decoder {
           coord[x] = xc;
           const int32_t contrast = middle ? min1[x] : min1_b[x];
           const bool bad = (k1 > k1_max) | (k2 > k2_max) | (xc < lo) | (xc > hi);
-          flags[x] |= (bad ? kFlagCodeError : 0) | (2.0f * mod[x] < levels_.shadow ? kFlagShadow : 0) |
+          flags[x] |= (bad ? kFlagCodeError : 0) |
+                      (2.0f * mod[x] < levels_.shadow ? kFlagShadow : 0) |
                       (contrast < levels_.contrast ? kFlagLowContrast : 0);
           quality[x] = mod[x] < quality[x] ? mod[x] : quality[x];
         }
         continue;
       }
-      const auto h_max = static_cast<int32_t>(std::floor(2.0 * (spec_.AxisSize(a) - 1) / spec_.period_px));
+      const auto h_max =
+          static_cast<int32_t>(std::floor(2.0 * (spec_.AxisSize(a) - 1) / spec_.period_px));
       const uint16_t* __restrict contrast = nbits >= 2 ? min2 : min1;
-      #pragma omp simd
+#pragma omp simd
       for (int x = 0; x < width; ++x) {
         // Complementary unwrapping: k1 = h >> 1 has its edges at the phase wraps, k2 = (h + 1) >> 1
         // half a period away; use k2 near the wraps and k1 in the middle of the period.
@@ -513,12 +540,13 @@ class Decoder {
         const float xc = (static_cast<float>(k) + fx) * period;
         coord[x] = xc;
         const bool bad = (hx > h_max) | (xc < lo) | (xc > hi);
-        flags[x] |= (bad ? kFlagCodeError : 0) | (2.0f * mod[x] < levels_.shadow ? kFlagShadow : 0) |
+        flags[x] |= (bad ? kFlagCodeError : 0) |
+                    (2.0f * mod[x] < levels_.shadow ? kFlagShadow : 0) |
                     (static_cast<int32_t>(contrast[x]) < levels_.contrast ? kFlagLowContrast : 0);
         quality[x] = mod[x] < quality[x] ? mod[x] : quality[x];
       }
     }
-    #pragma omp simd
+#pragma omp simd
     for (int x = 0; x < width; ++x) flags[x] |= maxv[x] >= levels_.saturation ? kFlagSaturated : 0;
   }
 
@@ -539,8 +567,9 @@ class Decoder {
       if (!spec_.Codes(a)) continue;
       for (int fq = 0; fq < 3; ++fq) {
         GatherRows(rows, phase_[a][fq], frames);
-        PhaseRow<T>(frames.data(), spec_.phase_steps, standard_phase_, sin_.data(), cos_.data(), width,
-                    s.sum_s.data(), s.sum_c.data(), s.cycles[fq].data(), s.modulation[fq].data(), maxv);
+        PhaseRow<T>(frames.data(), spec_.phase_steps, standard_phase_, sin_.data(), cos_.data(),
+                    width, s.sum_s.data(), s.sum_c.data(), s.cycles[fq].data(),
+                    s.modulation[fq].data(), maxv);
       }
       const float* __restrict f1 = s.cycles[0].data();
       const float* __restrict f2 = s.cycles[1].data();
@@ -553,7 +582,7 @@ class Decoder {
       const float centre = 0.5f * (size - 1.0f);  // middle of the decodable range [-0.5, S - 0.5]
       const float lo = -1.0f, hi = size;
       const float inv_p12 = 1.0f / p12, inv_p1 = 1.0f / p1, centre_cycles = centre / p123;
-      #pragma omp simd
+#pragma omp simd
       for (int x = 0; x < width; ++x) {
         float f12 = f1[x] - f2[x];
         f12 -= Floor(f12);
@@ -572,14 +601,15 @@ class Decoder {
         const float k1 = Round(u1);
         const float xc = p1 * (f1[x] + k1);
         coord[x] = xc;
-        const bool bad = (std::fabs(u12 - k12) > tol) | (std::fabs(u1 - k1) > tol) | (xc < lo) | (xc > hi);
+        const bool bad =
+            (std::fabs(u12 - k12) > tol) | (std::fabs(u1 - k1) > tol) | (xc < lo) | (xc > hi);
         const float m12 = m1[x] < m2[x] ? m1[x] : m2[x];
         const float mod = m12 < m3[x] ? m12 : m3[x];
         flags[x] |= (bad ? kFlagCodeError : 0) | (2.0f * mod < levels_.shadow ? kFlagShadow : 0);
         quality[x] = mod < quality[x] ? mod : quality[x];
       }
     }
-    #pragma omp simd
+#pragma omp simd
     for (int x = 0; x < width; ++x) flags[x] |= maxv[x] >= levels_.saturation ? kFlagSaturated : 0;
   }
 
@@ -636,8 +666,9 @@ class Decoder {
   std::vector<float> sin_, cos_;
   bool standard_phase_ = true;
   GrayReference reference_ = GrayReference::kAuto;
-  std::vector<std::pair<int, int>> gray_[2][2];  // [axis][code][bit, MSB first]: (pattern, inverse or -1)
-  std::vector<int> phase_[2][3];                 // [axis][frequency][step]: frame index
+  std::vector<std::pair<int, int>>
+      gray_[2][2];                // [axis][code][bit, MSB first]: (pattern, inverse or -1)
+  std::vector<int> phase_[2][3];  // [axis][frequency][step]: frame index
   int white_ = -1, black_ = -1;
 };
 
@@ -652,11 +683,13 @@ void DecodeOptions::Check() const {
   SLSHADOW_THROW_IF(!std::isfinite(contrast_threshold) || contrast_threshold < 0, p,
                     "contrast_threshold: must be finite and >= 0 (got ", contrast_threshold, ")");
   SLSHADOW_THROW_IF(saturation_level != -1 && (saturation_level < 1 || saturation_level > 65535), p,
-                    "saturation_level: must be -1 (auto) or in [1, 65535] (got ", saturation_level, ")");
+                    "saturation_level: must be -1 (auto) or in [1, 65535] (got ", saturation_level,
+                    ")");
   SLSHADOW_THROW_IF(full_scale != -1 && (full_scale < 1 || full_scale > 65535), p,
                     "full_scale: must be -1 (auto) or in [1, 65535] (got ", full_scale, ")");
   SLSHADOW_THROW_IF(!(unwrap_tolerance_cycles > 0 && unwrap_tolerance_cycles <= 0.5), p,
-                    "unwrap_tolerance_cycles: must be in (0, 0.5] (got ", unwrap_tolerance_cycles, ")");
+                    "unwrap_tolerance_cycles: must be in (0, 0.5] (got ", unwrap_tolerance_cycles,
+                    ")");
 }
 
 nlohmann::json DecodeOptionsToJson(const DecodeOptions& o) {
@@ -671,8 +704,9 @@ nlohmann::json DecodeOptionsToJson(const DecodeOptions& o) {
 
 DecodeOptions DecodeOptionsFromConfig(const ConfigNode& node) {
   if (!node.IsObject()) node.Fail("expected a mapping of decode options");
-  node.RejectUnknownKeys({"shadow_threshold", "contrast_threshold", "saturation_level", "full_scale",
-                          "gray_edge_midpoint", "unwrap_tolerance_cycles", "parallel"});
+  node.RejectUnknownKeys({"shadow_threshold", "contrast_threshold", "saturation_level",
+                          "full_scale", "gray_edge_midpoint", "unwrap_tolerance_cycles",
+                          "parallel"});
   DecodeOptions o;
   o.shadow_threshold = node.GetDouble("shadow_threshold", o.shadow_threshold);
   o.contrast_threshold = node.GetDouble("contrast_threshold", o.contrast_threshold);
@@ -694,20 +728,24 @@ ProjectorMap DecodePatterns(const PatternSpec& spec, const std::vector<cv::Mat>&
   spec.Check();
   options.Check();
   const int expected = spec.NumImages();
-  SLSHADOW_THROW_IF(static_cast<int>(camera_images.size()) != expected, "decode: the ", ToString(spec.kind),
-                    " spec has ", expected, " images per camera (got ", camera_images.size(), ")");
+  SLSHADOW_THROW_IF(static_cast<int>(camera_images.size()) != expected, "decode: the ",
+                    ToString(spec.kind), " spec has ", expected, " images per camera (got ",
+                    camera_images.size(), ")");
   const int type = camera_images[0].type();
   SLSHADOW_THROW_IF(type != CV_8UC1 && type != CV_16UC1,
-                    "decode: camera images must be CV_8UC1 or CV_16UC1 (got image 0 of type ", type, ")");
+                    "decode: camera images must be CV_8UC1 or CV_16UC1 (got image 0 of type ", type,
+                    ")");
   const cv::Size size = camera_images[0].size();
   SLSHADOW_THROW_IF(size.width < 1 || size.height < 1, "decode: image 0 is empty");
   for (size_t i = 1; i < camera_images.size(); ++i) {
     SLSHADOW_THROW_IF(camera_images[i].type() != type, "decode: image ", i, " has type ",
                       camera_images[i].type(), ", image 0 has type ", type);
-    SLSHADOW_THROW_IF(camera_images[i].size() != size, "decode: image ", i, " is ", camera_images[i].cols, "x",
-                      camera_images[i].rows, ", image 0 is ", size.width, "x", size.height);
+    SLSHADOW_THROW_IF(camera_images[i].size() != size, "decode: image ", i, " is ",
+                      camera_images[i].cols, "x", camera_images[i].rows, ", image 0 is ",
+                      size.width, "x", size.height);
   }
-  const int full_scale = options.full_scale > 0 ? options.full_scale : (type == CV_8UC1 ? 255 : 65535);
+  const int full_scale =
+      options.full_scale > 0 ? options.full_scale : (type == CV_8UC1 ? 255 : 65535);
   const double scale = full_scale / 255.0;
   Levels levels;
   levels.shadow = static_cast<float>(options.shadow_threshold * scale);

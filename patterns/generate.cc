@@ -14,8 +14,12 @@ std::vector<uint8_t> FrameProfile(const PatternSpec& spec, const FrameInfo& fram
   const auto lo = static_cast<uint8_t>(spec.intensity_min);
   const auto hi = static_cast<uint8_t>(spec.intensity_max);
   switch (frame.role) {
-    case FrameRole::kWhite: std::fill(line.begin(), line.end(), hi); break;
-    case FrameRole::kBlack: std::fill(line.begin(), line.end(), lo); break;
+    case FrameRole::kWhite:
+      std::fill(line.begin(), line.end(), hi);
+      break;
+    case FrameRole::kBlack:
+      std::fill(line.begin(), line.end(), lo);
+      break;
     case FrameRole::kGrayBit:
     case FrameRole::kGrayBitInverse: {
       const bool inverse = frame.role == FrameRole::kGrayBitInverse;
@@ -54,7 +58,8 @@ std::vector<cv::Mat> GeneratePatterns(const PatternSpec& spec) {
     const FrameInfo& frame = frames[i];
     const std::vector<uint8_t> line = FrameProfile(spec, frame);
     cv::Mat image(spec.projector_height, spec.projector_width, CV_8UC1);
-    const bool columns = frame.role == FrameRole::kWhite || frame.role == FrameRole::kBlack || frame.axis == 0;
+    const bool columns =
+        frame.role == FrameRole::kWhite || frame.role == FrameRole::kBlack || frame.axis == 0;
     for (int r = 0; r < image.rows; ++r) {
       uint8_t* row = image.ptr<uint8_t>(r);
       if (columns) {

@@ -23,9 +23,12 @@ const char* AxisName(int axis) { return axis == 0 ? "x" : "y"; }
 
 std::string ToString(PatternKind kind) {
   switch (kind) {
-    case PatternKind::kGrayCode: return "gray_code";
-    case PatternKind::kPhaseShift: return "phase_shift";
-    case PatternKind::kMultiFrequency: return "multi_frequency";
+    case PatternKind::kGrayCode:
+      return "gray_code";
+    case PatternKind::kPhaseShift:
+      return "phase_shift";
+    case PatternKind::kMultiFrequency:
+      return "multi_frequency";
   }
   return "unknown";
 }
@@ -44,9 +47,12 @@ std::string ToString(GrayCodeVariant variant) {
 
 std::string ToString(GrayReference reference) {
   switch (reference) {
-    case GrayReference::kAuto: return "auto";
-    case GrayReference::kWhiteBlack: return "white_black";
-    case GrayReference::kPhaseMean: return "phase_mean";
+    case GrayReference::kAuto:
+      return "auto";
+    case GrayReference::kWhiteBlack:
+      return "white_black";
+    case GrayReference::kPhaseMean:
+      return "phase_mean";
   }
   return "unknown";
 }
@@ -54,12 +60,16 @@ std::string ToString(GrayReference reference) {
 std::string FrameInfo::Name() const {
   const char* code_name = code == 1 ? "_shifted" : "";
   switch (role) {
-    case FrameRole::kWhite: return "white";
-    case FrameRole::kBlack: return "black";
-    case FrameRole::kGrayBit: return internal::Concat("gray_", AxisName(axis), code_name, "_bit", bit);
+    case FrameRole::kWhite:
+      return "white";
+    case FrameRole::kBlack:
+      return "black";
+    case FrameRole::kGrayBit:
+      return internal::Concat("gray_", AxisName(axis), code_name, "_bit", bit);
     case FrameRole::kGrayBitInverse:
       return internal::Concat("gray_", AxisName(axis), code_name, "_bit", bit, "_inv");
-    case FrameRole::kPhase: return internal::Concat("phase_", AxisName(axis), "_f", frequency, "_s", step);
+    case FrameRole::kPhase:
+      return internal::Concat("phase_", AxisName(axis), "_f", frequency, "_s", step);
   }
   return "unknown";
 }
@@ -67,13 +77,16 @@ std::string FrameInfo::Name() const {
 int PatternSpec::DerivedGrayBits(int axis) const {
   const int size = AxisSize(axis);
   switch (kind) {
-    case PatternKind::kGrayCode: return BitsFor(size);
+    case PatternKind::kGrayCode:
+      return BitsFor(size);
     case PatternKind::kPhaseShift: {
       // The largest code value (at the last pixel c = S - 1), plus one.
-      const auto max_value = static_cast<int64_t>(GrayValue(gray_code == GrayCodeVariant::kShifted ? 1 : 0, size - 1));
+      const auto max_value =
+          static_cast<int64_t>(GrayValue(gray_code == GrayCodeVariant::kShifted ? 1 : 0, size - 1));
       return BitsFor(max_value + 1);
     }
-    case PatternKind::kMultiFrequency: return 0;
+    case PatternKind::kMultiFrequency:
+      return 0;
   }
   return 0;
 }
@@ -100,15 +113,19 @@ double PatternSpec::PhaseStepAngle(int step) const {
 
 uint32_t PatternSpec::GrayValue(int code, int c) const {
   if (kind == PatternKind::kGrayCode) return static_cast<uint32_t>(c);
-  if (gray_code == GrayCodeVariant::kComplementary) return static_cast<uint32_t>(std::floor(2.0 * c / period_px));
+  if (gray_code == GrayCodeVariant::kComplementary)
+    return static_cast<uint32_t>(std::floor(2.0 * c / period_px));
   return static_cast<uint32_t>(std::floor(c / period_px + (code == 1 ? 0.5 : 0.0)));
 }
 
 std::vector<double> PatternSpec::PeriodsPx() const {
   switch (kind) {
-    case PatternKind::kGrayCode: return {};
-    case PatternKind::kPhaseShift: return {period_px};
-    case PatternKind::kMultiFrequency: return periods_px;
+    case PatternKind::kGrayCode:
+      return {};
+    case PatternKind::kPhaseShift:
+      return {period_px};
+    case PatternKind::kMultiFrequency:
+      return periods_px;
   }
   return {};
 }
@@ -149,7 +166,8 @@ std::vector<FrameInfo> PatternSpec::DefaultFrames() const {
 
 std::vector<FrameInfo> PatternSpec::Frames() const {
   std::vector<FrameInfo> frames = DefaultFrames();
-  if (frame_order.empty() || frame_order.size() != frames.size()) return frames;  // Check() rejects the latter
+  if (frame_order.empty() || frame_order.size() != frames.size())
+    return frames;  // Check() rejects the latter
   std::map<std::string, FrameInfo> by_name;
   for (const FrameInfo& f : frames) by_name[f.Name()] = f;
   std::vector<FrameInfo> ordered;
@@ -193,14 +211,15 @@ void PatternSpec::Check() const {
                     "projector_width: must be in [2, 65536] (got ", projector_width, ")");
   SLSHADOW_THROW_IF(projector_height < 2 || projector_height > 65536, p,
                     "projector_height: must be in [2, 65536] (got ", projector_height, ")");
-  SLSHADOW_THROW_IF(!code_x && !code_y, p, "code_x, code_y: at least one axis must be coded (got both false)");
+  SLSHADOW_THROW_IF(!code_x && !code_y, p,
+                    "code_x, code_y: at least one axis must be coded (got both false)");
   SLSHADOW_THROW_IF(intensity_min < 0 || intensity_min > 254, p,
                     "intensity_min: must be in [0, 254] (got ", intensity_min, ")");
   SLSHADOW_THROW_IF(intensity_max <= intensity_min || intensity_max > 255, p,
                     "intensity_max: must be in (intensity_min, 255] (got ", intensity_max, ")");
   if (opencv_order) {
-    SLSHADOW_THROW_IF(kind != PatternKind::kGrayCode, p, "opencv_order: only for kind gray_code (got kind ",
-                      ToString(kind), ")");
+    SLSHADOW_THROW_IF(kind != PatternKind::kGrayCode, p,
+                      "opencv_order: only for kind gray_code (got kind ", ToString(kind), ")");
     SLSHADOW_THROW_IF(!code_x || !code_y, p,
                       "opencv_order: OpenCV's GrayCodePattern codes both axes (got code_x=", code_x,
                       ", code_y=", code_y, ")");
@@ -211,34 +230,39 @@ void PatternSpec::Check() const {
   }
   if (kind != PatternKind::kPhaseShift) {
     SLSHADOW_THROW_IF(gray_code != GrayCodeVariant::kComplementary, p,
-                      "gray_code: a Gray-code variant is only for kind phase_shift (got ", ToString(gray_code), ")");
-    SLSHADOW_THROW_IF(white_black, p, "white_black: only for kind phase_shift (gray_code always has them)");
+                      "gray_code: a Gray-code variant is only for kind phase_shift (got ",
+                      ToString(gray_code), ")");
+    SLSHADOW_THROW_IF(white_black, p,
+                      "white_black: only for kind phase_shift (gray_code always has them)");
   }
   if (kind == PatternKind::kMultiFrequency) {
     SLSHADOW_THROW_IF(!gray_inverse || gray_bits != 0 || gray_reference != GrayReference::kAuto, p,
                       "gray_inverse, gray_bits, gray_reference: multi_frequency has no Gray code");
   } else {
-    SLSHADOW_THROW_IF(gray_bits < 0 || gray_bits > 16, p, "gray_bits: must be 0 (derived) or in [1, 16] (got ",
-                      gray_bits, ")");
+    SLSHADOW_THROW_IF(gray_bits < 0 || gray_bits > 16, p,
+                      "gray_bits: must be 0 (derived) or in [1, 16] (got ", gray_bits, ")");
     for (int axis = 0; axis < 2; ++axis) {
       if (!Codes(axis) || gray_bits == 0) continue;
-      SLSHADOW_THROW_IF(gray_bits < DerivedGrayBits(axis), p, "gray_bits: the ", AxisName(axis), " axis needs ",
-                        DerivedGrayBits(axis), " bits (got ", gray_bits, ")");
+      SLSHADOW_THROW_IF(gray_bits < DerivedGrayBits(axis), p, "gray_bits: the ", AxisName(axis),
+                        " axis needs ", DerivedGrayBits(axis), " bits (got ", gray_bits, ")");
     }
     for (int axis = 0; axis < 2; ++axis) {
-      SLSHADOW_THROW_IF(Codes(axis) && GrayBits(axis) > 16, p, "the ", AxisName(axis), " axis needs ",
-                        GrayBits(axis), " Gray bits, more than the 16 the decoder reads");
+      SLSHADOW_THROW_IF(Codes(axis) && GrayBits(axis) > 16, p, "the ", AxisName(axis),
+                        " axis needs ", GrayBits(axis),
+                        " Gray bits, more than the 16 the decoder reads");
     }
     if (gray_inverse) {
       SLSHADOW_THROW_IF(gray_reference != GrayReference::kAuto, p,
                         "gray_reference: only for bits without inverse (gray_inverse: false; got ",
                         ToString(gray_reference), ")");
     } else {
-      SLSHADOW_THROW_IF(gray_reference == GrayReference::kPhaseMean && kind == PatternKind::kGrayCode, p,
-                        "gray_reference: gray_code has no phase frames (got phase_mean; use white_black)");
-      SLSHADOW_THROW_IF(gray_reference == GrayReference::kWhiteBlack && !HasWhiteBlack(), p,
-                        "gray_reference: white_black needs white_black: true (the sequence has no white and "
-                        "black frames)");
+      SLSHADOW_THROW_IF(
+          gray_reference == GrayReference::kPhaseMean && kind == PatternKind::kGrayCode, p,
+          "gray_reference: gray_code has no phase frames (got phase_mean; use white_black)");
+      SLSHADOW_THROW_IF(
+          gray_reference == GrayReference::kWhiteBlack && !HasWhiteBlack(), p,
+          "gray_reference: white_black needs white_black: true (the sequence has no white and "
+          "black frames)");
     }
   }
   if (!frame_order.empty()) {
@@ -247,20 +271,24 @@ void PatternSpec::Check() const {
     for (const FrameInfo& f : frames) count[f.Name()] = 0;
     for (size_t i = 0; i < frame_order.size(); ++i) {
       const auto it = count.find(frame_order[i]);
-      SLSHADOW_THROW_IF(it == count.end(), p, "frame_order[", i, "]: no such frame in this spec (got \"",
-                        frame_order[i], "\"; `slshadow patterns show` lists the frames)");
-      SLSHADOW_THROW_IF(++it->second > 1, p, "frame_order[", i, "]: frame \"", frame_order[i], "\" appears twice");
+      SLSHADOW_THROW_IF(it == count.end(), p, "frame_order[", i,
+                        "]: no such frame in this spec (got \"", frame_order[i],
+                        "\"; `slshadow patterns show` lists the frames)");
+      SLSHADOW_THROW_IF(++it->second > 1, p, "frame_order[", i, "]: frame \"", frame_order[i],
+                        "\" appears twice");
     }
     for (const FrameInfo& f : frames) {
-      SLSHADOW_THROW_IF(count[f.Name()] == 0, p, "frame_order: frame \"", f.Name(), "\" is missing (the spec has ",
-                        frames.size(), " frames, the order lists ", frame_order.size(), ")");
+      SLSHADOW_THROW_IF(count[f.Name()] == 0, p, "frame_order: frame \"", f.Name(),
+                        "\" is missing (the spec has ", frames.size(), " frames, the order lists ",
+                        frame_order.size(), ")");
     }
   }
   if (kind == PatternKind::kGrayCode) return;
-  SLSHADOW_THROW_IF(!std::isfinite(phase_offset_rad) || std::fabs(phase_offset_rad) > 2 * std::numbers::pi + 1e-9,
-                    p, "phase_offset_rad: must be in [-2 pi, 2 pi] (got ", phase_offset_rad, ")");
-  SLSHADOW_THROW_IF(phase_direction != 1 && phase_direction != -1, p, "phase_direction: must be 1 or -1 (got ",
-                    phase_direction, ")");
+  SLSHADOW_THROW_IF(
+      !std::isfinite(phase_offset_rad) || std::fabs(phase_offset_rad) > 2 * std::numbers::pi + 1e-9,
+      p, "phase_offset_rad: must be in [-2 pi, 2 pi] (got ", phase_offset_rad, ")");
+  SLSHADOW_THROW_IF(phase_direction != 1 && phase_direction != -1, p,
+                    "phase_direction: must be 1 or -1 (got ", phase_direction, ")");
   SLSHADOW_THROW_IF(phase_steps < 3 || phase_steps > 64, p, "phase_steps: must be in [3, 64] (got ",
                     phase_steps, ")");
   if (kind == PatternKind::kPhaseShift) {
@@ -268,19 +296,20 @@ void PatternSpec::Check() const {
                       "period_px: must be in [4, 65536] projector pixels (got ", period_px, ")");
     return;
   }
-  SLSHADOW_THROW_IF(periods_px.size() != 3, p, "periods_px: needs exactly 3 periods (got ", periods_px.size(),
-                    ")");
+  SLSHADOW_THROW_IF(periods_px.size() != 3, p, "periods_px: needs exactly 3 periods (got ",
+                    periods_px.size(), ")");
   for (size_t i = 0; i < 3; ++i) {
     SLSHADOW_THROW_IF(!std::isfinite(periods_px[i]) || periods_px[i] < 4, p, "periods_px[", i,
                       "]: must be >= 4 projector pixels (got ", periods_px[i], ")");
   }
   SLSHADOW_THROW_IF(!(periods_px[0] < periods_px[1] && periods_px[1] < periods_px[2]), p,
-                    "periods_px: must be strictly increasing (got [", periods_px[0], ", ", periods_px[1], ", ",
-                    periods_px[2], "])");
+                    "periods_px: must be strictly increasing (got [", periods_px[0], ", ",
+                    periods_px[1], ", ", periods_px[2], "])");
   const double p12 = BeatPeriod12Px(), p23 = BeatPeriod23Px();
-  SLSHADOW_THROW_IF(!(p12 < p23), p,
-                    "periods_px: the beat of P1, P2 must be shorter than that of P2, P3 (got P12 = ", p12,
-                    ", P23 = ", p23, ")");
+  SLSHADOW_THROW_IF(
+      !(p12 < p23), p,
+      "periods_px: the beat of P1, P2 must be shorter than that of P2, P3 (got P12 = ", p12,
+      ", P23 = ", p23, ")");
   const double p123 = BeatPeriod123Px();
   for (int axis = 0; axis < 2; ++axis) {
     SLSHADOW_THROW_IF(Codes(axis) && p123 < AxisSize(axis) * (1 - 1e-9), p,
@@ -290,7 +319,8 @@ void PatternSpec::Check() const {
 }
 
 PatternSpec PatternSpecFromConfig(const ConfigNode& root) {
-  if (root.IsObject() && root.Has("patterns") && !root.Has("kind")) return PatternSpecFromConfig(root["patterns"]);
+  if (root.IsObject() && root.Has("patterns") && !root.Has("kind"))
+    return PatternSpecFromConfig(root["patterns"]);
   if (!root.IsObject()) root.Fail("expected a pattern spec mapping");
   PatternSpec spec;
   const ConfigNode kind_node = root["kind"];
@@ -299,11 +329,13 @@ PatternSpec PatternSpecFromConfig(const ConfigNode& root) {
   } catch (const Error&) {
     kind_node.Fail("unknown pattern kind (known: gray_code, phase_shift, multi_frequency)");
   }
-  std::vector<std::string> allowed = {"kind", "projector_width", "projector_height", "code_x", "code_y",
-                                      "intensity_min", "intensity_max", "num_images"};
+  std::vector<std::string> allowed = {"kind",          "projector_width", "projector_height",
+                                      "code_x",        "code_y",          "intensity_min",
+                                      "intensity_max", "num_images"};
   allowed.push_back("frame_order");
   const std::vector<std::string> gray_keys = {"gray_inverse", "gray_reference", "gray_bits"};
-  const std::vector<std::string> phase_keys = {"phase_steps", "phase_offset_rad", "phase_direction"};
+  const std::vector<std::string> phase_keys = {"phase_steps", "phase_offset_rad",
+                                               "phase_direction"};
   switch (spec.kind) {
     case PatternKind::kGrayCode:
       allowed.push_back("opencv_order");
@@ -365,7 +397,8 @@ PatternSpec PatternSpecFromConfig(const ConfigNode& root) {
   }
   if (root.Has("frame_order")) {
     const ConfigNode order = root["frame_order"];
-    if (!order.IsArray()) order.Fail("expected a list of frame names (as `slshadow patterns show` prints them)");
+    if (!order.IsArray())
+      order.Fail("expected a list of frame names (as `slshadow patterns show` prints them)");
     for (size_t i = 0; i < order.size(); ++i) spec.frame_order.push_back(order.at(i).AsString());
   }
   try {
@@ -374,7 +407,8 @@ PatternSpec PatternSpecFromConfig(const ConfigNode& root) {
     SLSHADOW_THROW(root.file(), ": ", root.path().empty() ? "" : root.path() + ": ", e.what());
   }
   if (root.Has("num_images") && root["num_images"].AsInt() != spec.NumImages()) {
-    root["num_images"].Fail(internal::Concat("does not match the spec, which has ", spec.NumImages(), " images"));
+    root["num_images"].Fail(
+        internal::Concat("does not match the spec, which has ", spec.NumImages(), " images"));
   }
   return spec;
 }
@@ -395,7 +429,8 @@ nlohmann::json PatternSpecToJson(const PatternSpec& spec) {
   // The variant fields only when they differ from their defaults: a spec without them is written
   // as it was before they existed.
   if (!spec.gray_inverse) j["gray_inverse"] = false;
-  if (spec.gray_reference != GrayReference::kAuto) j["gray_reference"] = ToString(spec.gray_reference);
+  if (spec.gray_reference != GrayReference::kAuto)
+    j["gray_reference"] = ToString(spec.gray_reference);
   if (spec.gray_bits != 0) j["gray_bits"] = spec.gray_bits;
   if (spec.gray_code != GrayCodeVariant::kComplementary) j["gray_code"] = ToString(spec.gray_code);
   if (spec.white_black) j["white_black"] = true;

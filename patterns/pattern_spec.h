@@ -8,7 +8,8 @@
 // [-0.5, S - 0.5] in projector pixels.
 //
 // Codecs (per coded axis, x first, then y):
-//   kGrayCode:       binary-reflected Gray code g = c ^ (c >> 1) of the pixel index, n = ceil(log2 S)
+//   kGrayCode:       binary-reflected Gray code g = c ^ (c >> 1) of the pixel index, n = ceil(log2
+//   S)
 //                    bits, MSB first, each bit as a pattern / inverse pair; plus an all-white and
 //                    an all-black frame (first, or last in OpenCV order). Decodes to integers.
 //   kPhaseShift:     N-step phase shift of period P px, I_n = A + B cos(2 pi x / P - 2 pi n / N),
@@ -45,7 +46,7 @@ enum class PatternKind {
   kPhaseShift,      // N-step phase shift + complementary Gray code (inverse pairs)
   kMultiFrequency,  // three-frequency heterodyne phase shift
 };
-std::string ToString(PatternKind kind);            // "gray_code", "phase_shift", "multi_frequency"
+std::string ToString(PatternKind kind);  // "gray_code", "phase_shift", "multi_frequency"
 PatternKind PatternKindFromString(const std::string& name);  // throws slshadow::Error
 
 // What one projected frame is (for manifests, logs and capture sequencers).
@@ -56,7 +57,7 @@ struct FrameInfo {
   int bit = 0;        // Gray-code bit (0 = least significant) for kGrayBit / kGrayBitInverse
   int frequency = 0;  // period index into PeriodsPx() for kPhase
   int step = 0;       // phase step n in 0..phase_steps-1 for kPhase
-  int code = 0;       // Gray code 0, or 1 for the half-period shifted code (GrayCodeVariant::kShifted)
+  int code = 0;  // Gray code 0, or 1 for the half-period shifted code (GrayCodeVariant::kShifted)
   // e.g. "white", "gray_x_bit9", "gray_x_bit9_inv", "gray_x_shifted_bit5", "phase_y_f0_s2".
   std::string Name() const;
 };
@@ -65,7 +66,7 @@ struct FrameInfo {
 enum class GrayCodeVariant {
   kComplementary,  // one code of the half-period index h = floor(2 x / P): gray(floor(x / P)) plus
                    // one complementary bit whose edges lie half a period from the phase wraps
-  kShifted,        // two codes: k1 = floor(x / P) and the half-period shifted k2 = floor(x / P + 1/2)
+  kShifted,  // two codes: k1 = floor(x / P) and the half-period shifted k2 = floor(x / P + 1/2)
 };
 std::string ToString(GrayCodeVariant variant);  // "complementary", "shifted"
 
@@ -86,11 +87,11 @@ struct PatternSpec {
   // Gray code only: the frame order of cv::structured_light::GrayCodePattern followed by white
   // and black (column pairs, row pairs, white, black). Requires code_x and code_y.
   bool opencv_order = false;
-  int phase_steps = 4;               // N >= 3, phase codecs
-  double period_px = 16;             // fringe period P in projector pixels (kPhaseShift), >= 4
-  std::vector<double> periods_px;    // three periods P1 < P2 < P3 (kMultiFrequency)
-  int intensity_min = 0;             // 8-bit projector level of "black" / fringe minimum
-  int intensity_max = 255;           // 8-bit projector level of "white" / fringe maximum
+  int phase_steps = 4;             // N >= 3, phase codecs
+  double period_px = 16;           // fringe period P in projector pixels (kPhaseShift), >= 4
+  std::vector<double> periods_px;  // three periods P1 < P2 < P3 (kMultiFrequency)
+  int intensity_min = 0;           // 8-bit projector level of "black" / fringe minimum
+  int intensity_max = 255;         // 8-bit projector level of "white" / fringe maximum
 
   // Gray bits (gray_code, phase_shift).
   bool gray_inverse = true;  // each bit is followed by its inverse frame; false: bits stand alone

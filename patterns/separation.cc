@@ -7,18 +7,19 @@
 
 namespace slshadow {
 
-DirectGlobal SeparateDirectGlobal(const PatternSpec& spec, const std::vector<cv::Mat>& camera_images,
-                                  int fine_bits) {
+DirectGlobal SeparateDirectGlobal(const PatternSpec& spec,
+                                  const std::vector<cv::Mat>& camera_images, int fine_bits) {
   spec.Check();
-  SLSHADOW_THROW_IF(static_cast<int>(camera_images.size()) != spec.NumImages(), "direct/global separation: the ",
-                    ToString(spec.kind), " spec has ", spec.NumImages(), " images per camera (got ",
-                    camera_images.size(), ")");
-  SLSHADOW_THROW_IF(fine_bits < 1, "direct/global separation: fine_bits must be >= 1 (got ", fine_bits, ")");
+  SLSHADOW_THROW_IF(static_cast<int>(camera_images.size()) != spec.NumImages(),
+                    "direct/global separation: the ", ToString(spec.kind), " spec has ",
+                    spec.NumImages(), " images per camera (got ", camera_images.size(), ")");
+  SLSHADOW_THROW_IF(fine_bits < 1, "direct/global separation: fine_bits must be >= 1 (got ",
+                    fine_bits, ")");
   std::vector<cv::Mat> images(camera_images.size());
   for (size_t i = 0; i < images.size(); ++i) {
     const cv::Mat& im = camera_images[i];
-    SLSHADOW_THROW_IF(im.type() != CV_8UC1 && im.type() != CV_16UC1, "direct/global separation: image ", i,
-                      " must be CV_8UC1 or CV_16UC1");
+    SLSHADOW_THROW_IF(im.type() != CV_8UC1 && im.type() != CV_16UC1,
+                      "direct/global separation: image ", i, " must be CV_8UC1 or CV_16UC1");
     SLSHADOW_THROW_IF(im.size() != camera_images[0].size(), "direct/global separation: image ", i,
                       " differs in size from image 0");
     im.convertTo(images[i], CV_32F);
@@ -29,7 +30,9 @@ DirectGlobal SeparateDirectGlobal(const PatternSpec& spec, const std::vector<cv:
     cv::Mat lit, dark;
     for (size_t i = 0; i < frames.size(); ++i) {
       const FrameInfo& f = frames[i];
-      if ((f.role != FrameRole::kGrayBit && f.role != FrameRole::kGrayBitInverse) || f.bit >= fine_bits) continue;
+      if ((f.role != FrameRole::kGrayBit && f.role != FrameRole::kGrayBitInverse) ||
+          f.bit >= fine_bits)
+        continue;
       if (lit.empty()) {
         lit = images[i].clone();
         dark = images[i].clone();
@@ -45,7 +48,8 @@ DirectGlobal SeparateDirectGlobal(const PatternSpec& spec, const std::vector<cv:
   }
   // Phase codecs: the N steps of the finest period of the first coded axis.
   const int axis = spec.code_x ? 0 : 1;
-  cv::Mat sum_s = cv::Mat::zeros(images[0].size(), CV_32F), sum_c = sum_s.clone(), sum = sum_s.clone();
+  cv::Mat sum_s = cv::Mat::zeros(images[0].size(), CV_32F), sum_c = sum_s.clone(),
+          sum = sum_s.clone();
   for (size_t i = 0; i < frames.size(); ++i) {
     const FrameInfo& f = frames[i];
     if (f.role != FrameRole::kPhase || f.axis != axis || f.frequency != 0) continue;

@@ -15,25 +15,31 @@ void CameraSimOptions::Check() const {
   SLSHADOW_THROW_IF(!std::isfinite(offset), p, "offset: must be finite (got ", offset, ")");
   SLSHADOW_THROW_IF(!std::isfinite(gain) || gain < 0, p, "gain: must be >= 0 (got ", gain, ")");
   SLSHADOW_THROW_IF(!std::isfinite(gamma) || gamma <= 0, p, "gamma: must be > 0 (got ", gamma, ")");
-  SLSHADOW_THROW_IF(!std::isfinite(blur_sigma_px) || blur_sigma_px < 0, p, "blur_sigma_px: must be >= 0 (got ",
-                    blur_sigma_px, ")");
-  SLSHADOW_THROW_IF(!std::isfinite(noise_sigma) || noise_sigma < 0, p, "noise_sigma: must be >= 0 (got ",
-                    noise_sigma, ")");
-  SLSHADOW_THROW_IF(bit_depth != 8 && bit_depth != 16, p, "bit_depth: must be 8 or 16 (got ", bit_depth, ")");
-  SLSHADOW_THROW_IF(!gain_map.empty() && gain_map.type() != CV_32FC1, p, "gain_map: must be CV_32FC1");
-  SLSHADOW_THROW_IF(!offset_map.empty() && offset_map.type() != CV_32FC1, p, "offset_map: must be CV_32FC1");
+  SLSHADOW_THROW_IF(!std::isfinite(blur_sigma_px) || blur_sigma_px < 0, p,
+                    "blur_sigma_px: must be >= 0 (got ", blur_sigma_px, ")");
+  SLSHADOW_THROW_IF(!std::isfinite(noise_sigma) || noise_sigma < 0, p,
+                    "noise_sigma: must be >= 0 (got ", noise_sigma, ")");
+  SLSHADOW_THROW_IF(bit_depth != 8 && bit_depth != 16, p, "bit_depth: must be 8 or 16 (got ",
+                    bit_depth, ")");
+  SLSHADOW_THROW_IF(!gain_map.empty() && gain_map.type() != CV_32FC1, p,
+                    "gain_map: must be CV_32FC1");
+  SLSHADOW_THROW_IF(!offset_map.empty() && offset_map.type() != CV_32FC1, p,
+                    "offset_map: must be CV_32FC1");
 }
 
 std::vector<cv::Mat> SimulateStandardView(const PatternSpec& spec, int width, int height,
-                                          const CameraSimOptions& options, cv::Mat* map_x, cv::Mat* map_y) {
-  SLSHADOW_THROW_IF(width < 2 || height < 2, "camera simulation: camera size must be at least 2x2 (got ", width,
-                    "x", height, ")");
+                                          const CameraSimOptions& options, cv::Mat* map_x,
+                                          cv::Mat* map_y) {
+  SLSHADOW_THROW_IF(width < 2 || height < 2,
+                    "camera simulation: camera size must be at least 2x2 (got ", width, "x", height,
+                    ")");
   const double a = 10 * std::numbers::pi / 180;
   const double s = 0.8 * spec.projector_width / width;  // projector px per camera px
   const cv::Matx33d centre_cam(1, 0, -width / 2.0, 0, 1, -height / 2.0, 0, 0, 1);
   const cv::Matx33d view(s * std::cos(a), -s * std::sin(a), 0, s * std::sin(a), s * std::cos(a), 0,
                          0.05 / width, 0.02 / height, 1);
-  const cv::Matx33d to_proj(1, 0, spec.projector_width / 2.0, 0, 1, spec.projector_height / 2.0, 0, 0, 1);
+  const cv::Matx33d to_proj(1, 0, spec.projector_width / 2.0, 0, 1, spec.projector_height / 2.0, 0,
+                            0, 1);
   cv::Mat mx, my;
   HomographyMaps(to_proj * view * centre_cam, width, height, &mx, &my);
   std::vector<cv::Mat> images = SimulateCameraImages(GeneratePatterns(spec), mx, my, options);
@@ -54,8 +60,9 @@ void HomographyMaps(const cv::Matx33d& h, int width, int height, cv::Mat* map_x,
   }
 }
 
-std::vector<cv::Mat> SimulateCameraImages(const std::vector<cv::Mat>& projector_images, const cv::Mat& map_x_in,
-                                          const cv::Mat& map_y_in, const CameraSimOptions& options) {
+std::vector<cv::Mat> SimulateCameraImages(const std::vector<cv::Mat>& projector_images,
+                                          const cv::Mat& map_x_in, const cv::Mat& map_y_in,
+                                          const CameraSimOptions& options) {
   options.Check();
   SLSHADOW_THROW_IF(map_x_in.size() != map_y_in.size() || map_x_in.empty(),
                     "camera simulation: map_x and map_y must be non-empty and of one size");
@@ -70,11 +77,13 @@ std::vector<cv::Mat> SimulateCameraImages(const std::vector<cv::Mat>& projector_
   std::vector<cv::Mat> out(projector_images.size());
   // Projector response lookup table.
   std::vector<double> response(256);
-  for (int v = 0; v < 256; ++v) response[static_cast<size_t>(v)] = 255.0 * std::pow(v / 255.0, options.gamma);
+  for (int v = 0; v < 256; ++v)
+    response[static_cast<size_t>(v)] = 255.0 * std::pow(v / 255.0, options.gamma);
 
   for (size_t i = 0; i < projector_images.size(); ++i) {
     const cv::Mat& proj = projector_images[i];
-    SLSHADOW_THROW_IF(proj.type() != CV_8UC1, "camera simulation: projector image ", i, " must be CV_8UC1");
+    SLSHADOW_THROW_IF(proj.type() != CV_8UC1, "camera simulation: projector image ", i,
+                      " must be CV_8UC1");
     const int pw = proj.cols, ph = proj.rows;
     cv::Mat level(height, width, CV_32FC1);
     cv::parallel_for_(cv::Range(0, height), [&](const cv::Range& range) {
@@ -115,7 +124,8 @@ std::vector<cv::Mat> SimulateCameraImages(const std::vector<cv::Mat>& projector_
     cv::parallel_for_(cv::Range(0, height), [&](const cv::Range& range) {
       for (int v = range.start; v < range.end; ++v) {
         // One generator per (seed, image, row): deterministic whatever the thread split.
-        cv::RNG rng(options.seed * 0x9E3779B97F4A7C15ull + i * 0x100000001B3ull + static_cast<uint64_t>(v) + 1);
+        cv::RNG rng(options.seed * 0x9E3779B97F4A7C15ull + i * 0x100000001B3ull +
+                    static_cast<uint64_t>(v) + 1);
         const float* src = level.ptr<float>(v);
         for (int u = 0; u < width; ++u) {
           double c = src[u];

@@ -8,8 +8,11 @@ namespace slshadow::plot {
 namespace {
 
 // Colour map control points: position, r, g, b.
-constexpr double kStops[5][4] = {
-    {0.00, 0, 0, 255}, {0.25, 0, 255, 255}, {0.50, 0, 255, 0}, {0.75, 255, 255, 0}, {1.00, 255, 0, 0}};
+constexpr double kStops[5][4] = {{0.00, 0, 0, 255},
+                                 {0.25, 0, 255, 255},
+                                 {0.50, 0, 255, 0},
+                                 {0.75, 255, 255, 0},
+                                 {1.00, 255, 0, 0}};
 
 }  // namespace
 
@@ -20,8 +23,8 @@ std::array<uint8_t, 3> HeatColor(double t) {
   const double f = (t - kStops[i][0]) / (kStops[i + 1][0] - kStops[i][0]);
   std::array<uint8_t, 3> c{};
   for (int k = 0; k < 3; ++k) {
-    c[static_cast<size_t>(k)] =
-        static_cast<uint8_t>(std::lround(kStops[i][k + 1] + f * (kStops[i + 1][k + 1] - kStops[i][k + 1])));
+    c[static_cast<size_t>(k)] = static_cast<uint8_t>(
+        std::lround(kStops[i][k + 1] + f * (kStops[i + 1][k + 1] - kStops[i][k + 1])));
   }
   return c;
 }
@@ -38,12 +41,13 @@ void SetHeatColorMap(plstream& pls) {
   pls.scmap1l(true, 5, pos, r, g, b);
 }
 
-void HeatColorBar(plstream& pls, double lo, double hi, const std::string& label, double offset, double width,
-                  const std::vector<double>& marks) {
+void HeatColorBar(plstream& pls, double lo, double hi, const std::string& label, double offset,
+                  double width, const std::vector<double>& marks) {
   if (marks.empty()) {  // PLplot's own colour bar (its label placed to fit)
     constexpr int kValues = 64;
     std::vector<PLFLT> values(kValues);
-    for (int i = 0; i < kValues; ++i) values[static_cast<size_t>(i)] = lo + (hi - lo) * i / (kValues - 1);
+    for (int i = 0; i < kValues; ++i)
+      values[static_cast<size_t>(i)] = lo + (hi - lo) * i / (kValues - 1);
     const PLFLT* value_ptrs[1] = {values.data()};
     PLINT n_vals[1] = {kValues};
     const char* axis_opts[1] = {"bcvtm"};
@@ -52,8 +56,9 @@ void HeatColorBar(plstream& pls, double lo, double hi, const std::string& label,
     PLINT label_opts[1] = {PL_COLORBAR_LABEL_RIGHT};
     const char* labels[1] = {label.c_str()};
     PLFLT bar_w = 0, bar_h = 0;
-    pls.colorbar(&bar_w, &bar_h, PL_COLORBAR_GRADIENT, PL_POSITION_RIGHT | PL_POSITION_OUTSIDE, offset, 0.0, width, 0.9, 0, 1,
-                 1, 0.0, 0.0, 0, 0.0, 1, label_opts, labels, 1, axis_opts, ticks, sub_ticks, n_vals, value_ptrs);
+    pls.colorbar(&bar_w, &bar_h, PL_COLORBAR_GRADIENT, PL_POSITION_RIGHT | PL_POSITION_OUTSIDE,
+                 offset, 0.0, width, 0.9, 0, 1, 1, 0.0, 0.0, 0, 0.0, 1, label_opts, labels, 1,
+                 axis_opts, ticks, sub_ticks, n_vals, value_ptrs);
     return;
   }
   // With marks, drawn by hand (an image column, a box with the values on its right): plcolorbar's
@@ -66,8 +71,10 @@ void HeatColorBar(plstream& pls, double lo, double hi, const std::string& label,
   pls.wind(0, 1, lo, hi);
   constexpr int kSteps = 256;
   std::vector<PLFLT> column(kSteps);
-  for (int i = 0; i < kSteps; ++i) column[static_cast<size_t>(i)] = lo + (hi - lo) * (i + 0.5) / kSteps;
-  const PLFLT* columns[2] = {column.data(), column.data()};  // two columns: PLplot needs a cell edge
+  for (int i = 0; i < kSteps; ++i)
+    column[static_cast<size_t>(i)] = lo + (hi - lo) * (i + 0.5) / kSteps;
+  const PLFLT* columns[2] = {column.data(),
+                             column.data()};  // two columns: PLplot needs a cell edge
   pls.imagefr(columns, 2, kSteps, 0, 1, lo, hi, lo, hi, lo, hi, nullptr, nullptr);
   pls.col0(1);
   pls.box("bc", 0, 0, "bcmstv", 0, 0);

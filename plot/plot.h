@@ -22,15 +22,16 @@ namespace slshadow::plot {
 // [0, 1]; NaN gives the middle (green).
 std::array<uint8_t, 3> HeatColor(double t);
 
-// Loads the same heat map into PLplot's colour map 1 (256 entries), for shade plots and colour bars.
+// Loads the same heat map into PLplot's colour map 1 (256 entries), for shade plots and colour
+// bars.
 void SetHeatColorMap(plstream& pls);
 
 // A vertical colour bar of the heat map right of the current viewport: values lo..hi, `label`
 // on its right; `offset` from the viewport and `width` in normalised page units.
 // `marks` (e.g. a threshold) are drawn as black lines across the bar where they fall in range
 // (then the bar is drawn by hand, its label 5 characters right of it: leave room).
-void HeatColorBar(plstream& pls, double lo, double hi, const std::string& label, double offset, double width,
-                  const std::vector<double>& marks = {});
+void HeatColorBar(plstream& pls, double lo, double hi, const std::string& label, double offset,
+                  double width, const std::vector<double>& marks = {});
 
 // Serialises PLplot use across threads.
 [[nodiscard]] std::unique_lock<std::mutex> LockPlplot();

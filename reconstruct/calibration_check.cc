@@ -45,7 +45,8 @@ struct Normal {
   Terms atb = Terms::Zero();
 };
 
-Normal Accumulate(const std::vector<Terms>& basis, const std::vector<double>& e, const std::vector<double>& w) {
+Normal Accumulate(const std::vector<Terms>& basis, const std::vector<double>& e,
+                  const std::vector<double>& w) {
   Normal n;
   for (size_t i = 0; i < e.size(); ++i) {
     n.ata.noalias() += (w[i] * basis[i]) * basis[i].transpose();
@@ -75,9 +76,12 @@ const char* Cause(int group, bool stereo) {
     case 0:
       return stereo ? "a principal point of either camera or a rotation between the cameras"
                     : "a principal point (camera or projector) or a rotation of the pose";
-    case 1: return "a focal length or a rotation of the pose";
-    case 2: return "the pose (rotation or baseline)";
-    case 3: return "the lens distortion";
+    case 1:
+      return "a focal length or a rotation of the pose";
+    case 2:
+      return "the pose (rotation or baseline)";
+    case 3:
+      return "the lens distortion";
   }
   return "";
 }
@@ -89,7 +93,8 @@ std::string ToString(CalibrationResidual residual) {
 }
 
 const char* ResidualKey(CalibrationResidual residual) {
-  return residual == CalibrationResidual::kEpipolarError ? "epipolar_error_px" : "projector_error_px";
+  return residual == CalibrationResidual::kEpipolarError ? "epipolar_error_px"
+                                                         : "projector_error_px";
 }
 
 std::string CalibrationCheck::GroupName(int group) {
@@ -105,15 +110,20 @@ CalibrationCheck UnavailableCalibrationCheck(const std::string& pair, const std:
 }
 
 CalibrationCheck FitCalibrationCheck(const std::vector<float>& x, const std::vector<float>& y,
-                                     const std::vector<float>& error_px, const CalibrationCheckSetup& setup) {
+                                     const std::vector<float>& error_px,
+                                     const CalibrationCheckSetup& setup) {
   const size_t n_all = std::min({x.size(), y.size(), error_px.size()});
-  auto finite = [&](size_t i) { return std::isfinite(x[i]) && std::isfinite(y[i]) && std::isfinite(error_px[i]); };
+  auto finite = [&](size_t i) {
+    return std::isfinite(x[i]) && std::isfinite(y[i]) && std::isfinite(error_px[i]);
+  };
   size_t count = 0;
   for (size_t i = 0; i < n_all; ++i) count += finite(i) ? 1 : 0;
   if (count < static_cast<size_t>(kMinCount)) {
     return UnavailableCalibrationCheck(
-        setup.pair, "only " + std::to_string(count) + " correspondences have " + (setup.residual == CalibrationResidual::kEpipolarError ? "an " : "a ") +
-                        ToString(setup.residual) + " (at least " + std::to_string(kMinCount) + " are needed)");
+        setup.pair, "only " + std::to_string(count) + " correspondences have " +
+                        (setup.residual == CalibrationResidual::kEpipolarError ? "an " : "a ") +
+                        ToString(setup.residual) + " (at least " + std::to_string(kMinCount) +
+                        " are needed)");
   }
   CalibrationCheck c;
   c.available = true;
@@ -177,35 +187,46 @@ CalibrationCheck FitCalibrationCheck(const std::vector<float>& x, const std::vec
     c.threshold_source = "user";
     c.threshold_px = setup.warning_px;
   } else {
-    c.threshold_px = c.noise_px * std::max(setup.noise_factor, 5.0 * std::sqrt(kTerms / static_cast<double>(n)));
+    c.threshold_px =
+        c.noise_px * std::max(setup.noise_factor, 5.0 * std::sqrt(kTerms / static_cast<double>(n)));
     c.threshold_source = "noise";
     if (!(c.threshold_px >= setup.min_warning_px)) {
       c.threshold_px = setup.min_warning_px;
       c.threshold_source = "floor";
     }
   }
-  c.threshold_mm = std::isfinite(c.threshold_px) && setup.mm_per_px > 0 ? c.threshold_px * setup.mm_per_px : 0;
+  c.threshold_mm =
+      std::isfinite(c.threshold_px) && setup.mm_per_px > 0 ? c.threshold_px * setup.mm_per_px : 0;
   c.warn = std::isfinite(c.threshold_px) && c.systematic_px > c.threshold_px;
   if (c.warn) {
-    if (c.systematic_px > 1.0) c.likely_causes.push_back("a bumped rig, swapped camera names or a wrong rig file");
+    if (c.systematic_px > 1.0)
+      c.likely_causes.push_back("a bumped rig, swapped camera names or a wrong rig file");
     const double top = *std::max_element(c.group_rms_px.begin(), c.group_rms_px.end());
     for (int g = 0; g < CalibrationCheck::kNumGroups; ++g) {
-      if (c.group_rms_px[static_cast<size_t>(g)] >= 0.3 * top) c.likely_causes.push_back(Cause(g, setup.stereo));
+      if (c.group_rms_px[static_cast<size_t>(g)] >= 0.3 * top)
+        c.likely_causes.push_back(Cause(g, setup.stereo));
     }
     if (setup.residual == CalibrationResidual::kProjectorError) {
-      c.likely_causes.push_back("the projector's own calibration (the third view checked; the stereo cloud does not use it)");
+      c.likely_causes.push_back(
+          "the projector's own calibration (the third view checked; the stereo cloud does not use "
+          "it)");
     }
   }
   return c;
 }
 
 std::string CalibrationCheck::Message() const {
-  if (!available) return "calibration check: not available for " + pair + ", because " + unavailable_reason;
+  if (!available)
+    return "calibration check: not available for " + pair + ", because " + unavailable_reason;
   const bool off = !std::isfinite(threshold_px);
-  std::string m = "calibration check: " + std::string(warn ? "" : off ? "reported only (--calibration-warning-px inf): " : "passed: ") +
+  std::string m = "calibration check: " +
+                  std::string(warn  ? ""
+                              : off ? "reported only (--calibration-warning-px inf): "
+                                    : "passed: ") +
                   "the " + ToString(residual) + " of " + std::to_string(count) + " dense " + pair +
-                  " correspondences has a systematic part of " + Fixed(systematic_px) + " projector px RMS (median " +
-                  Fixed(median_px, "%+.3g") + " px; decode noise " + Fixed(noise_px) + " px)";
+                  " correspondences has a systematic part of " + Fixed(systematic_px) +
+                  " projector px RMS (median " + Fixed(median_px, "%+.3g") + " px; decode noise " +
+                  Fixed(noise_px) + " px)";
   if (off) return m;
   m += std::string(warn ? ", above" : ", within") + " the threshold " + Fixed(threshold_px) + " px";
   if (threshold_source == "user") {
@@ -215,13 +236,15 @@ std::string CalibrationCheck::Message() const {
   } else {
     m += " (" + Fixed(threshold_px / noise_px, "%.2g") + " x the decode noise";
   }
-  m += threshold_mm > 0 ? ", = " + Fixed(threshold_mm) + " mm in depth at the " + Fixed(working_distance_mm, "%.0f") +
-                              " mm working distance of this scan)"
-                        : "; no mm equivalent without a projector model)";
+  m += threshold_mm > 0
+           ? ", = " + Fixed(threshold_mm) + " mm in depth at the " +
+                 Fixed(working_distance_mm, "%.0f") + " mm working distance of this scan)"
+           : "; no mm equivalent without a projector model)";
   if (!warn) return m;
   std::string shape = "(";
   for (int g = 0; g < kNumGroups; ++g) {
-    shape += std::string(g ? ", " : "") + GroupName(g) + " " + Fixed(group_rms_px[static_cast<size_t>(g)], "%.2g");
+    shape += std::string(g ? ", " : "") + GroupName(g) + " " +
+             Fixed(group_rms_px[static_cast<size_t>(g)], "%.2g");
   }
   shape += " px)";
   m += ": the rig file does not fit these captures; the field's shape " + shape + " points at ";
@@ -231,7 +254,11 @@ std::string CalibrationCheck::Message() const {
 }
 
 nlohmann::json CalibrationCheck::ToJson() const {
-  if (!available) return {{"available", false}, {"reason", unavailable_reason}, {"warning", false}, {"message", Message()}};
+  if (!available)
+    return {{"available", false},
+            {"reason", unavailable_reason},
+            {"warning", false},
+            {"message", Message()}};
   auto num = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json("inf"); };
   nlohmann::json field = nlohmann::json::object();
   for (int g = 0; g < kNumGroups; ++g) field[GroupName(g)] = group_rms_px[static_cast<size_t>(g)];

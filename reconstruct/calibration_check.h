@@ -46,18 +46,18 @@ namespace slshadow {
 
 // The residual checked: its name in text and its key in JSON.
 enum class CalibrationResidual { kEpipolarError, kProjectorError };
-std::string ToString(CalibrationResidual residual);  // "epipolar error", "projector error"
-const char* ResidualKey(CalibrationResidual residual);   // "epipolar_error_px", "projector_error_px"
+std::string ToString(CalibrationResidual residual);     // "epipolar error", "projector error"
+const char* ResidualKey(CalibrationResidual residual);  // "epipolar_error_px", "projector_error_px"
 
 struct CalibrationCheckSetup {
   CalibrationResidual residual = CalibrationResidual::kEpipolarError;
-  std::string pair;           // "<camera>-<other device>", for messages
-  bool stereo = false;        // wording of the likely causes
+  std::string pair;     // "<camera>-<other device>", for messages
+  bool stereo = false;  // wording of the likely causes
   // Fixed threshold on the systematic part, px; 0: automatic (noise_factor x noise); infinity:
   // the check runs and reports but never warns.
   double warning_px = 0;
-  double noise_factor = 1.0;  // automatic threshold in units of the noise (> 0)
-  double min_warning_px = 0.01;  // floor of the automatic threshold, px
+  double noise_factor = 1.0;       // automatic threshold in units of the noise (> 0)
+  double min_warning_px = 0.01;    // floor of the automatic threshold, px
   double working_distance_mm = 0;  // Z
   // Depth error per px of epipolar error at the working distance, Z^2 / (f B); 0: not known.
   double mm_per_px = 0;
@@ -71,13 +71,13 @@ struct CalibrationCheck {
   std::string unavailable_reason;  // when !available: why (one clause, "because ...")
   std::string pair;
   CalibrationResidual residual = CalibrationResidual::kEpipolarError;
-  int64_t count = 0;            // correspondences used
-  double median_px = 0;         // signed median of the residual, projector px
-  double noise_px = 0;          // robust scatter about the fitted field, projector px
-  double systematic_px = 0;     // RMS of the fitted field over the correspondences, projector px
-  double threshold_px = 0;      // what systematic_px is judged against
+  int64_t count = 0;             // correspondences used
+  double median_px = 0;          // signed median of the residual, projector px
+  double noise_px = 0;           // robust scatter about the fitted field, projector px
+  double systematic_px = 0;      // RMS of the fitted field over the correspondences, projector px
+  double threshold_px = 0;       // what systematic_px is judged against
   std::string threshold_source;  // "noise" (automatic), "floor" (min_warning_px) or "user"
-  double threshold_mm = 0;      // threshold_px as depth error at the working distance (0: unknown)
+  double threshold_mm = 0;       // threshold_px as depth error at the working distance (0: unknown)
   double working_distance_mm = 0;
   std::array<double, kNumGroups> group_rms_px{};  // what each nested group adds to the field
   std::vector<std::string> likely_causes;         // named from the dominant groups
@@ -92,7 +92,8 @@ struct CalibrationCheck {
 // reference camera's undistorted image plane, scaled so that the image's half width is ~1).
 // Non-finite entries are ignored; fewer than 100 finite ones make the check unavailable.
 CalibrationCheck FitCalibrationCheck(const std::vector<float>& x, const std::vector<float>& y,
-                                     const std::vector<float>& error_px, const CalibrationCheckSetup& setup);
+                                     const std::vector<float>& error_px,
+                                     const CalibrationCheckSetup& setup);
 
 // The check that cannot run, with its reason ("only projector columns are coded: ...").
 CalibrationCheck UnavailableCalibrationCheck(const std::string& pair, const std::string& reason);

@@ -10,20 +10,34 @@ namespace slshadow {
 
 std::string ToString(RejectReason reason) {
   switch (reason) {
-    case RejectReason::kAccepted: return "accepted";
-    case RejectReason::kNotDecoded: return "not_decoded";
-    case RejectReason::kLowQuality: return "low_quality";
-    case RejectReason::kNoRay: return "no_ray";
-    case RejectReason::kNoMatch: return "no_match";
-    case RejectReason::kAmbiguousMatch: return "ambiguous_match";
-    case RejectReason::kParallelRays: return "parallel_rays";
-    case RejectReason::kBehindDevice: return "behind_device";
-    case RejectReason::kOutOfDepthRange: return "out_of_depth_range";
-    case RejectReason::kReprojectionError: return "reprojection_error";
-    case RejectReason::kEpipolarError: return "epipolar_error";
-    case RejectReason::kDepthDiscontinuity: return "depth_discontinuity";
-    case RejectReason::kOutlier: return "outlier";
-    case RejectReason::kOutsideImage: return "outside_image";
+    case RejectReason::kAccepted:
+      return "accepted";
+    case RejectReason::kNotDecoded:
+      return "not_decoded";
+    case RejectReason::kLowQuality:
+      return "low_quality";
+    case RejectReason::kNoRay:
+      return "no_ray";
+    case RejectReason::kNoMatch:
+      return "no_match";
+    case RejectReason::kAmbiguousMatch:
+      return "ambiguous_match";
+    case RejectReason::kParallelRays:
+      return "parallel_rays";
+    case RejectReason::kBehindDevice:
+      return "behind_device";
+    case RejectReason::kOutOfDepthRange:
+      return "out_of_depth_range";
+    case RejectReason::kReprojectionError:
+      return "reprojection_error";
+    case RejectReason::kEpipolarError:
+      return "epipolar_error";
+    case RejectReason::kDepthDiscontinuity:
+      return "depth_discontinuity";
+    case RejectReason::kOutlier:
+      return "outlier";
+    case RejectReason::kOutsideImage:
+      return "outside_image";
   }
   return "unknown";
 }
@@ -56,8 +70,9 @@ DenseGrid::~DenseGrid() {
   GridPool& pool = Pool();
   std::lock_guard<std::mutex> lock(pool.mutex);
   if (pool.free.size() >= static_cast<size_t>(kPooledGrids)) return;
-  pool.free.push_back({std::move(point_in_rig), std::move(reason), std::move(quality), std::move(source_u),
-                       std::move(source_v), std::move(reprojection_error_px), std::move(epipolar_error_px)});
+  pool.free.push_back({std::move(point_in_rig), std::move(reason), std::move(quality),
+                       std::move(source_u), std::move(source_v), std::move(reprojection_error_px),
+                       std::move(epipolar_error_px)});
 }
 
 void DenseGrid::ReleasePool() {
@@ -77,7 +92,8 @@ void DenseGrid::Allocate(int w, int h) {
     // The pooled set with the largest capacity (a too small one grows below as a fresh one would).
     auto best = pool.free.end();
     for (auto it = pool.free.begin(); it != pool.free.end(); ++it) {
-      if (best == pool.free.end() || it->point_in_rig.capacity() > best->point_in_rig.capacity()) best = it;
+      if (best == pool.free.end() || it->point_in_rig.capacity() > best->point_in_rig.capacity())
+        best = it;
     }
     if (best != pool.free.end()) {
       point_in_rig = std::move(best->point_in_rig);
@@ -103,12 +119,16 @@ void DenseGrid::Allocate(int w, int h) {
   const Eigen::Vector3d nan3 = Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN());
   cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
     const size_t a = static_cast<size_t>(rows.start) * w, b = static_cast<size_t>(rows.end) * w;
-    std::fill(point_in_rig.begin() + static_cast<std::ptrdiff_t>(a), point_in_rig.begin() + static_cast<std::ptrdiff_t>(b), nan3);
-    std::fill(reason.begin() + static_cast<std::ptrdiff_t>(a), reason.begin() + static_cast<std::ptrdiff_t>(b),
+    std::fill(point_in_rig.begin() + static_cast<std::ptrdiff_t>(a),
+              point_in_rig.begin() + static_cast<std::ptrdiff_t>(b), nan3);
+    std::fill(reason.begin() + static_cast<std::ptrdiff_t>(a),
+              reason.begin() + static_cast<std::ptrdiff_t>(b),
               static_cast<uint8_t>(RejectReason::kNotDecoded));
-    std::fill(quality.begin() + static_cast<std::ptrdiff_t>(a), quality.begin() + static_cast<std::ptrdiff_t>(b), 0.0f);
+    std::fill(quality.begin() + static_cast<std::ptrdiff_t>(a),
+              quality.begin() + static_cast<std::ptrdiff_t>(b), 0.0f);
     for (auto* f : {&source_u, &source_v, &reprojection_error_px, &epipolar_error_px}) {
-      std::fill(f->begin() + static_cast<std::ptrdiff_t>(a), f->begin() + static_cast<std::ptrdiff_t>(b), nan);
+      std::fill(f->begin() + static_cast<std::ptrdiff_t>(a),
+                f->begin() + static_cast<std::ptrdiff_t>(b), nan);
     }
   });
 }
@@ -122,7 +142,8 @@ std::array<int64_t, kNumRejectReasons> DenseGrid::CountByReason() const {
 }
 
 PointCloud DenseGrid::ToPointCloud(const std::vector<Eigen::Vector3f>* normals) const {
-  // Rows are counted, then filled in parallel at their prefix offsets (same order as a serial scan).
+  // Rows are counted, then filled in parallel at their prefix offsets (same order as a serial
+  // scan).
   std::vector<size_t> row_start(static_cast<size_t>(height) + 1, 0);
   cv::parallel_for_(cv::Range(0, height), [&](const cv::Range& rows) {
     for (int v = rows.start; v < rows.end; ++v) {
@@ -131,7 +152,8 @@ PointCloud DenseGrid::ToPointCloud(const std::vector<Eigen::Vector3f>* normals) 
       row_start[static_cast<size_t>(v) + 1] = n;
     }
   });
-  for (int v = 0; v < height; ++v) row_start[static_cast<size_t>(v) + 1] += row_start[static_cast<size_t>(v)];
+  for (int v = 0; v < height; ++v)
+    row_start[static_cast<size_t>(v) + 1] += row_start[static_cast<size_t>(v)];
   const size_t count = row_start.back();
   PointCloud cloud;
   cloud.points.resize(count);

@@ -29,8 +29,8 @@ enum class RejectReason : uint8_t {
   kReprojectionError = 9,  // reprojection error above the gate
   kEpipolarError = 10,     // |epipolar error| above the gate (both modes; calibration_check.h)
   kDepthDiscontinuity = 11,  // at or next to a depth jump
-  kOutlier = 12,           // statistical outlier removal
-  kOutsideImage = 13,      // stereo: the rectified cell falls outside the camera image
+  kOutlier = 12,             // statistical outlier removal
+  kOutsideImage = 13,        // stereo: the rectified cell falls outside the camera image
 };
 constexpr int kNumRejectReasons = 14;
 std::string ToString(RejectReason reason);  // "accepted", "not_decoded", ...
@@ -63,7 +63,9 @@ struct DenseGrid {
 
   void Allocate(int width, int height);  // every cell kNotDecoded (row-parallel fill)
   size_t Index(int u, int v) const { return static_cast<size_t>(v) * width + u; }
-  bool Accepted(size_t i) const { return reason[i] == static_cast<uint8_t>(RejectReason::kAccepted); }
+  bool Accepted(size_t i) const {
+    return reason[i] == static_cast<uint8_t>(RejectReason::kAccepted);
+  }
   std::array<int64_t, kNumRejectReasons> CountByReason() const;
   // The accepted cells as a cloud with scalar fields quality, u, v, reprojection_error_px (and
   // normals when `normals` has one entry per cell).

@@ -25,8 +25,10 @@ void ParallelFill(std::vector<T>& v, size_t n, const T& value) {
   constexpr size_t kBlock = size_t{1} << 16;
   const int blocks = static_cast<int>((n + kBlock - 1) / kBlock);
   cv::parallel_for_(cv::Range(0, blocks), [&](const cv::Range& r) {
-    const size_t a = static_cast<size_t>(r.start) * kBlock, b = std::min(n, static_cast<size_t>(r.end) * kBlock);
-    std::fill(v.begin() + static_cast<std::ptrdiff_t>(a), v.begin() + static_cast<std::ptrdiff_t>(b), value);
+    const size_t a = static_cast<size_t>(r.start) * kBlock,
+                 b = std::min(n, static_cast<size_t>(r.end) * kBlock);
+    std::fill(v.begin() + static_cast<std::ptrdiff_t>(a),
+              v.begin() + static_cast<std::ptrdiff_t>(b), value);
   });
 }
 
@@ -44,7 +46,9 @@ std::vector<uint8_t>& ScratchBytes(size_t n, int slot) {
   return buffer;
 }
 
-double Range(const DenseGrid& grid, size_t i) { return (grid.point_in_rig[i] - grid.viewpoint_in_rig).norm(); }
+double Range(const DenseGrid& grid, size_t i) {
+  return (grid.point_in_rig[i] - grid.viewpoint_in_rig).norm();
+}
 
 }  // namespace
 
@@ -125,12 +129,13 @@ int64_t FilterDepthDiscontinuities(DenseGrid& grid, double max_jump_footprints, 
   return rejected.load();
 }
 
-int64_t FilterStatisticalOutliers(DenseGrid& grid, int window_radius_px, int neighbors, double std_ratio,
-                                  double min_distance_footprints) {
+int64_t FilterStatisticalOutliers(DenseGrid& grid, int window_radius_px, int neighbors,
+                                  double std_ratio, double min_distance_footprints) {
   const int w = grid.width, h = grid.height, r = std::max(1, window_radius_px);
   const int k = std::max(1, neighbors);
   const double inf = std::numeric_limits<double>::infinity();
-  std::vector<double>& score = ScratchDoubles(grid.reason.size(), -1.0);  // -1: not an accepted cell
+  std::vector<double>& score =
+      ScratchDoubles(grid.reason.size(), -1.0);  // -1: not an accepted cell
   if (r == 1 && k <= 8) {
     // 3x3 window: the 8 squared distances (+inf where no accepted neighbour) ordered by a
     // branch-free sorting network; the sum of the k smallest in ascending order is then the same
@@ -146,7 +151,8 @@ int64_t FilterStatisticalOutliers(DenseGrid& grid, int window_radius_px, int nei
           if (u > 0 && v > 0 && u < w - 1 && v < h - 1) {
             // Interior cell: no bounds tests.
             const size_t row = static_cast<size_t>(w);
-            const size_t js[8] = {i - row - 1, i - row, i - row + 1, i - 1, i + 1, i + row - 1, i + row, i + row + 1};
+            const size_t js[8] = {i - row - 1, i - row,     i - row + 1, i - 1,
+                                  i + 1,       i + row - 1, i + row,     i + row + 1};
             for (size_t j : js) {
               const bool ok = grid.reason[j] == kAccepted;
               d[q++] = ok ? (grid.point_in_rig[j] - p).squaredNorm() : inf;
@@ -179,16 +185,30 @@ int64_t FilterStatisticalOutliers(DenseGrid& grid, int window_radius_px, int nei
             d[b] = hi;
           };
           // Batcher's odd-even merge sort for 8 inputs (19 comparators).
-          cswap(0, 1); cswap(2, 3); cswap(4, 5); cswap(6, 7);
-          cswap(0, 2); cswap(1, 3); cswap(4, 6); cswap(5, 7);
-          cswap(1, 2); cswap(5, 6);
-          cswap(0, 4); cswap(1, 5); cswap(2, 6); cswap(3, 7);
-          cswap(2, 4); cswap(3, 5);
-          cswap(1, 2); cswap(3, 4); cswap(5, 6);
+          cswap(0, 1);
+          cswap(2, 3);
+          cswap(4, 5);
+          cswap(6, 7);
+          cswap(0, 2);
+          cswap(1, 3);
+          cswap(4, 6);
+          cswap(5, 7);
+          cswap(1, 2);
+          cswap(5, 6);
+          cswap(0, 4);
+          cswap(1, 5);
+          cswap(2, 6);
+          cswap(3, 7);
+          cswap(2, 4);
+          cswap(3, 5);
+          cswap(1, 2);
+          cswap(3, 4);
+          cswap(5, 6);
           const int take = std::min(m, k);
           double sum = 0;
           for (int t = 0; t < take; ++t) sum += d[t];
-          score[i] = std::sqrt(sum / take * (grid.focal_px * grid.focal_px) / (p - grid.viewpoint_in_rig).squaredNorm());
+          score[i] = std::sqrt(sum / take * (grid.focal_px * grid.focal_px) /
+                               (p - grid.viewpoint_in_rig).squaredNorm());
         }
       }
     });
@@ -227,7 +247,8 @@ int64_t FilterStatisticalOutliers(DenseGrid& grid, int window_radius_px, int nei
           double sum = 0;
           for (int q = 0; q < m; ++q) sum += best[static_cast<size_t>(q)];
           // RMS distance to the m nearest, in footprints (one square root per cell).
-          score[i] = std::sqrt(sum / m * (grid.focal_px * grid.focal_px) / (p - grid.viewpoint_in_rig).squaredNorm());
+          score[i] = std::sqrt(sum / m * (grid.focal_px * grid.focal_px) /
+                               (p - grid.viewpoint_in_rig).squaredNorm());
         }
       }
     });
@@ -280,18 +301,22 @@ std::vector<Eigen::Vector3f> EstimateNormals(const DenseGrid& grid, int64_t* fal
   return normals;
 }
 
-void EstimateNormals(const DenseGrid& grid, std::vector<Eigen::Vector3f>* out, int64_t* fallback_count) {
+void EstimateNormals(const DenseGrid& grid, std::vector<Eigen::Vector3f>* out,
+                     int64_t* fallback_count) {
   const int w = grid.width, h = grid.height;
   out->resize(grid.reason.size());  // every cell is written below
   std::vector<Eigen::Vector3f>& normals = *out;
   std::atomic<int64_t> fallbacks{0};
   cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
     int64_t local = 0;
-    auto accepted = [&](int u, int v) { return u >= 0 && v >= 0 && u < w && v < h && grid.Accepted(grid.Index(u, v)); };
+    auto accepted = [&](int u, int v) {
+      return u >= 0 && v >= 0 && u < w && v < h && grid.Accepted(grid.Index(u, v));
+    };
     auto tangent = [&](int u, int v, int du, int dv, Eigen::Vector3d* t) {
       const bool fwd = accepted(u + du, v + dv), back = accepted(u - du, v - dv);
       if (fwd && back) {
-        *t = grid.point_in_rig[grid.Index(u + du, v + dv)] - grid.point_in_rig[grid.Index(u - du, v - dv)];
+        *t = grid.point_in_rig[grid.Index(u + du, v + dv)] -
+             grid.point_in_rig[grid.Index(u - du, v - dv)];
       } else if (fwd) {
         *t = grid.point_in_rig[grid.Index(u + du, v + dv)] - grid.point_in_rig[grid.Index(u, v)];
       } else if (back) {

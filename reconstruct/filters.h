@@ -30,16 +30,18 @@ int64_t FilterDepthDiscontinuities(DenseGrid& grid, double max_jump_footprints, 
 // of that value over all cells, and above min_distance_footprints, are rejected, and so are cells
 // with no accepted neighbour at all. (The floor keeps the border of a perfect grid, whose cells
 // have fewer close neighbours, from being taken for outliers when the spread is tiny.)
-int64_t FilterStatisticalOutliers(DenseGrid& grid, int window_radius_px, int neighbors, double std_ratio,
-                                  double min_distance_footprints = 3.0);
+int64_t FilterStatisticalOutliers(DenseGrid& grid, int window_radius_px, int neighbors,
+                                  double std_ratio, double min_distance_footprints = 3.0);
 
 // Unit normals per cell (zero for rejected cells) from the cross product of the grid tangents
 // (central differences, one-sided at borders and holes), oriented toward the viewpoint. A cell
 // without a horizontal and a vertical accepted neighbour gets the unit vector toward the
 // viewpoint; `fallback_count` (optional) receives how many did.
-std::vector<Eigen::Vector3f> EstimateNormals(const DenseGrid& grid, int64_t* fallback_count = nullptr);
+std::vector<Eigen::Vector3f> EstimateNormals(const DenseGrid& grid,
+                                             int64_t* fallback_count = nullptr);
 // The same into `normals` (resized; its capacity is reused across calls).
-void EstimateNormals(const DenseGrid& grid, std::vector<Eigen::Vector3f>* normals, int64_t* fallback_count = nullptr);
+void EstimateNormals(const DenseGrid& grid, std::vector<Eigen::Vector3f>* normals,
+                     int64_t* fallback_count = nullptr);
 
 // Frees the calling thread's filter buffers (the next filter call allocates them again).
 void ReleaseFilterScratch();

@@ -2,8 +2,8 @@
 
 #include <cmath>
 #include <cstring>
-#include <list>
 #include <limits>
+#include <list>
 #include <mutex>
 #include <utility>
 
@@ -13,7 +13,8 @@ namespace slshadow {
 
 std::optional<Eigen::Vector2d> UndistortFrom(const CameraModel& model, const Eigen::Vector2d& pixel,
                                              const Eigen::Vector2d& initial, int max_iterations) {
-  const Eigen::Vector2d target((pixel.x() - model.cx()) / model.fx(), (pixel.y() - model.cy()) / model.fy());
+  const Eigen::Vector2d target((pixel.x() - model.cx()) / model.fx(),
+                               (pixel.y() - model.cy()) / model.fy());
   if (!model.HasDistortion()) return target;
   const double* p = model.params.data();
   const double k1 = p[CameraModel::kK1], k2 = p[CameraModel::kK2], p1 = p[CameraModel::kP1],
@@ -67,7 +68,8 @@ RayGrid ComputeRayGrid(const CameraModel& model) {
       std::optional<Eigen::Vector2d> previous;
       for (int u = 0; u < model.width; ++u) {
         const Eigen::Vector2d pixel(u, v);
-        auto xy = previous ? UndistortFrom(model, pixel, *previous) : model.UndistortToNormalized(pixel);
+        auto xy =
+            previous ? UndistortFrom(model, pixel, *previous) : model.UndistortToNormalized(pixel);
         if (!xy && previous) xy = model.UndistortToNormalized(pixel);  // the cold start decides
         out[u] = xy ? *xy : Eigen::Vector2d(nan, nan);
         previous = xy;

@@ -32,7 +32,8 @@ struct RayGrid {
 // convergence test and fold check) started at `initial` instead of the distorted coordinate:
 // from a close start it converges in one or two steps.
 std::optional<Eigen::Vector2d> UndistortFrom(const CameraModel& model, const Eigen::Vector2d& pixel,
-                                             const Eigen::Vector2d& initial, int max_iterations = 50);
+                                             const Eigen::Vector2d& initial,
+                                             int max_iterations = 50);
 
 // Undistortion of any sub-pixel position, started from the bilinear interpolation of `grid`
 // (the model's RayGrid) and finished by UndistortFrom: agrees with

@@ -35,8 +35,9 @@ inline double ReadCoord(const cv::Mat& m, int x, int y) {
 
 void CheckMap(const ProjectorMap& map, const RigDevice& camera) {
   SLSHADOW_THROW_IF(map.width() != camera.model.width || map.height() != camera.model.height,
-                    "reconstruct: camera '", camera.name, "': projector map is ", map.width(), "x", map.height(),
-                    " but the camera is ", camera.model.width, "x", camera.model.height);
+                    "reconstruct: camera '", camera.name, "': projector map is ", map.width(), "x",
+                    map.height(), " but the camera is ", camera.model.width, "x",
+                    camera.model.height);
   SLSHADOW_THROW_IF(!map.has_x && !map.has_y, "reconstruct: camera '", camera.name,
                     "': the projector map codes neither projector columns nor rows");
   auto check = [&](const cv::Mat& m, const char* name, bool coded) {
@@ -48,9 +49,11 @@ void CheckMap(const ProjectorMap& map, const RigDevice& camera) {
   };
   check(map.proj_x, "proj_x", map.has_x);
   check(map.proj_y, "proj_y", map.has_y);
-  SLSHADOW_THROW_IF(map.status.type() != CV_8UC1, "reconstruct: camera '", camera.name, "': status must be CV_8UC1");
+  SLSHADOW_THROW_IF(map.status.type() != CV_8UC1, "reconstruct: camera '", camera.name,
+                    "': status must be CV_8UC1");
   SLSHADOW_THROW_IF(map.quality.type() != CV_32FC1 || map.quality.size() != map.status.size(),
-                    "reconstruct: camera '", camera.name, "': quality must be CV_32FC1 of the camera's size");
+                    "reconstruct: camera '", camera.name,
+                    "': quality must be CV_32FC1 of the camera's size");
 }
 
 double FocalOf(const CameraModel& m) { return 0.5 * (m.fx() + m.fy()); }
@@ -65,8 +68,10 @@ class GridUndistorter {
  public:
   GridUndistorter(const CameraModel& model, const RayGrid& grid) : model_(model), grid_(grid) {
     const double* p = model.params.data();
-    fx_ = p[CameraModel::kFx], fy_ = p[CameraModel::kFy], cx_ = p[CameraModel::kCx], cy_ = p[CameraModel::kCy];
-    k1_ = p[CameraModel::kK1], k2_ = p[CameraModel::kK2], p1_ = p[CameraModel::kP1], p2_ = p[CameraModel::kP2];
+    fx_ = p[CameraModel::kFx], fy_ = p[CameraModel::kFy], cx_ = p[CameraModel::kCx],
+    cy_ = p[CameraModel::kCy];
+    k1_ = p[CameraModel::kK1], k2_ = p[CameraModel::kK2], p1_ = p[CameraModel::kP1],
+    p2_ = p[CameraModel::kP2];
     k3_ = p[CameraModel::kK3];
     distorted_ = model.HasDistortion();
   }
@@ -83,8 +88,10 @@ class GridUndistorter {
       const double ax = px - x0, ay = py - y0;
       const Eigen::Vector2d* row0 = grid_.xy.data() + static_cast<size_t>(y0) * grid_.width + x0;
       const Eigen::Vector2d* row1 = row0 + grid_.width;
-      const double x = (1 - ay) * ((1 - ax) * row0[0].x() + ax * row0[1].x()) + ay * ((1 - ax) * row1[0].x() + ax * row1[1].x());
-      const double y = (1 - ay) * ((1 - ax) * row0[0].y() + ax * row0[1].y()) + ay * ((1 - ax) * row1[0].y() + ax * row1[1].y());
+      const double x = (1 - ay) * ((1 - ax) * row0[0].x() + ax * row0[1].x()) +
+                       ay * ((1 - ax) * row1[0].x() + ax * row1[1].x());
+      const double y = (1 - ay) * ((1 - ax) * row0[0].y() + ax * row0[1].y()) +
+                       ay * ((1 - ax) * row1[0].y() + ax * row1[1].y());
       if (std::isfinite(x) && std::isfinite(y)) {
         const double x2 = x * x, y2 = y * y, r2 = x2 + y2;
         const double radial = 1 + r2 * (k1_ + r2 * (k2_ + r2 * k3_));
@@ -171,7 +178,8 @@ void Finish(const ReconstructOptions& options, Reconstruction* out) {
     }
   });
   if (options.filter_depth_discontinuities) {
-    FilterDepthDiscontinuities(grid, options.max_depth_jump_footprints, options.discontinuity_dilation_px);
+    FilterDepthDiscontinuities(grid, options.max_depth_jump_footprints,
+                               options.discontinuity_dilation_px);
   }
   if (options.filter_outliers) {
     FilterStatisticalOutliers(grid, options.outlier_window_radius_px, options.outlier_neighbors,
@@ -198,9 +206,9 @@ namespace {
 // grid's epipolar errors, or the projector error of one-axis stereo), at the reference camera's
 // source pixels in normalised coordinates scaled to +-1 across its width. `reason_unavailable`
 // non-empty: the mode leaves no residual; the check says why.
-void RunCalibrationCheck(const DenseGrid& grid, const std::vector<float>& residual_px, const CameraModel& reference,
-                         const CalibrationCheckSetup& setup, const std::string& reason_unavailable,
-                         ReconstructSummary* s) {
+void RunCalibrationCheck(const DenseGrid& grid, const std::vector<float>& residual_px,
+                         const CameraModel& reference, const CalibrationCheckSetup& setup,
+                         const std::string& reason_unavailable, ReconstructSummary* s) {
   if (!reason_unavailable.empty()) {
     s->calibration_check = UnavailableCalibrationCheck(setup.pair, reason_unavailable);
     return;
@@ -213,13 +221,16 @@ void RunCalibrationCheck(const DenseGrid& grid, const std::vector<float>& residu
     x.push_back(static_cast<float>((grid.source_u[i] - reference.cx()) / half_width));
     y.push_back(static_cast<float>((grid.source_v[i] - reference.cy()) / half_width * aspect));
     e.push_back(residual_px[i]);
-    if (e.size() % 16 == 0 && grid.point_in_rig[i].allFinite()) range_mm.push_back((grid.point_in_rig[i] - grid.viewpoint_in_rig).norm());
+    if (e.size() % 16 == 0 && grid.point_in_rig[i].allFinite())
+      range_mm.push_back((grid.point_in_rig[i] - grid.viewpoint_in_rig).norm());
   }
   // The working distance of this scan: the median range of its points (the rig file's nominal
   // working_distance_mm when too few).
   CalibrationCheckSetup at = setup;
   if (range_mm.size() >= 10) {
-    std::nth_element(range_mm.begin(), range_mm.begin() + static_cast<std::ptrdiff_t>(range_mm.size() / 2), range_mm.end());
+    std::nth_element(range_mm.begin(),
+                     range_mm.begin() + static_cast<std::ptrdiff_t>(range_mm.size() / 2),
+                     range_mm.end());
     at.working_distance_mm = range_mm[range_mm.size() / 2];
   }
   // setup.mm_per_px holds 1 / (f B) until the distance is known.
@@ -228,8 +239,8 @@ void RunCalibrationCheck(const DenseGrid& grid, const std::vector<float>& residu
   if (s->calibration_check.warn) s->warnings.push_back(s->calibration_check.Message());
 }
 
-CalibrationCheckSetup CheckSetup(const ReconstructOptions& options, const Rig& rig, const RigDevice& a,
-                                 const RigDevice& b, bool stereo) {
+CalibrationCheckSetup CheckSetup(const ReconstructOptions& options, const Rig& rig,
+                                 const RigDevice& a, const RigDevice& b, bool stereo) {
   CalibrationCheckSetup setup;
   setup.pair = a.name + "-" + b.name;
   setup.stereo = stereo;
@@ -238,17 +249,20 @@ CalibrationCheckSetup CheckSetup(const ReconstructOptions& options, const Rig& r
   setup.min_warning_px = options.calibration_min_warning_px;
   setup.working_distance_mm = rig.working_distance_mm;
   const double baseline_mm = (a.CenterInRig() - b.CenterInRig()).norm();
-  if (rig.projector && baseline_mm > 0) setup.mm_per_px = 1.0 / (FocalOf(rig.projector->model) * baseline_mm);
+  if (rig.projector && baseline_mm > 0)
+    setup.mm_per_px = 1.0 / (FocalOf(rig.projector->model) * baseline_mm);
   return setup;
 }
 
 }  // namespace
 
-Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camera_name, const ProjectorMap& map,
+Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camera_name,
+                                        const ProjectorMap& map,
                                         const ReconstructOptions& options) {
   options.Check();
   const StageTimer start;
-  SLSHADOW_THROW_IF(!rig.projector, "reconstruct: rig '", rig.name, "' has no projector (projector mode needs one)");
+  SLSHADOW_THROW_IF(!rig.projector, "reconstruct: rig '", rig.name,
+                    "' has no projector (projector mode needs one)");
   const RigDevice& cam = rig.Camera(camera_name);
   const RigDevice& proj = *rig.projector;
   CheckMap(map, cam);
@@ -325,12 +339,13 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
             continue;
           }
           if (midpoint) {
-            // Rays c0 + s d0 (c0 = 0) and c1 + t d1 in the camera frame; the closest points' midpoint
-            // (as TwoViewTriangulator::MidpointOfRays, whose denominator |d0 x d1|^2 also gives the
-            // angle: sin^2 = denom / (|d0|^2 |d1|^2)).
+            // Rays c0 + s d0 (c0 = 0) and c1 + t d1 in the camera frame; the closest points'
+            // midpoint (as TwoViewTriangulator::MidpointOfRays, whose denominator |d0 x d1|^2 also
+            // gives the angle: sin^2 = denom / (|d0|^2 |d1|^2)).
             const double x = xy.x(), y = xy.y();
             const Eigen::Vector3d d1 = r_cp.col(0) * pxy.x() + r_cp.col(1) * pxy.y() + r_cp.col(2);
-            const double a = x * x + y * y + 1, b = x * d1.x() + y * d1.y() + d1.z(), c = d1.squaredNorm();
+            const double a = x * x + y * y + 1, b = x * d1.x() + y * d1.y() + d1.z(),
+                         c = d1.squaredNorm();
             const double d = -(x * proj_center.x() + y * proj_center.y() + proj_center.z());
             const double e = -d1.dot(proj_center);
             const double denom = a * c - b * b;
@@ -363,8 +378,9 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
           epipolar = tri.SignedEpipolarDistancePx(xy, pxy);
         } else {
           double sin_angle = 0;
-          const auto p = TriangulateRayAxis(cam_view.center_in_rig, cam_view.RayInRig(xy), proj.model, proj_view, axis,
-                                            axis == 0 ? px : py, &sin_angle);
+          const auto p =
+              TriangulateRayAxis(cam_view.center_in_rig, cam_view.RayInRig(xy), proj.model,
+                                 proj_view, axis, axis == 0 ? px : py, &sin_angle);
           if (!(sin_angle >= sin_min)) {
             reason = Code(RejectReason::kParallelRays);
             continue;
@@ -401,16 +417,19 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
   });
   t0.Elapsed(&s.triangulate_s, &s.triangulate_cpu_s);
   Finish(options, &out);
-  RunCalibrationCheck(grid, grid.epipolar_error_px, cam.model, CheckSetup(options, rig, cam, proj, false),
-                      both ? "" : std::string("only projector ") + (map.has_x ? "columns" : "rows") +
-                                      " are coded: the one-axis triangulation meets the projector's plane exactly and "
-                                      "leaves no epipolar error to check (code both axes for a check)",
-                      &s);
+  RunCalibrationCheck(
+      grid, grid.epipolar_error_px, cam.model, CheckSetup(options, rig, cam, proj, false),
+      both ? ""
+           : std::string("only projector ") + (map.has_x ? "columns" : "rows") +
+                 " are coded: the one-axis triangulation meets the projector's plane exactly and "
+                 "leaves no epipolar error to check (code both axes for a check)",
+      &s);
   start.Elapsed(&s.total_s, &s.total_cpu_s);
   return out;
 }
 
-StereoTriangulator::StereoTriangulator(const RigDevice& left, const RigDevice& right, const StereoRectification& rect,
+StereoTriangulator::StereoTriangulator(const RigDevice& left, const RigDevice& right,
+                                       const StereoRectification& rect,
                                        const ReconstructOptions& options)
     : rect_(rect),
       view0_(rect.RectCamFromRig(0), rect.focal_px),
@@ -427,8 +446,10 @@ StereoTriangulator::StereoTriangulator(const RigDevice& left, const RigDevice& r
       min_depth_mm_(options.min_depth_mm),
       max_depth_mm_(options.max_depth_mm) {}
 
-RejectReason StereoTriangulator::Triangulate(double u, double v, double ur, const Eigen::Vector2d& left_source_px,
-                                             Eigen::Vector3d* point_in_rig, double* reprojection_error_px) const {
+RejectReason StereoTriangulator::Triangulate(double u, double v, double ur,
+                                             const Eigen::Vector2d& left_source_px,
+                                             Eigen::Vector3d* point_in_rig,
+                                             double* reprojection_error_px) const {
   const Eigen::Vector2d xy0 = rect_.Normalized(0, u, v);
   const Eigen::Vector2d xy1 = rect_.Normalized(1, ur, v);
   Eigen::Vector3d p, in_rect0;
@@ -441,7 +462,8 @@ RejectReason StereoTriangulator::Triangulate(double u, double v, double ur, cons
     // them: |d0 x d1| = |x0 - x1| sqrt(1 + y^2).
     const double x0 = xy0.x(), x1 = xy1.x(), y = xy0.y();
     const double dx = x0 - x1;
-    const double sin_angle = std::abs(dx) * std::sqrt(1 + y * y) / std::sqrt((x0 * x0 + y * y + 1) * (x1 * x1 + y * y + 1));
+    const double sin_angle = std::abs(dx) * std::sqrt(1 + y * y) /
+                             std::sqrt((x0 * x0 + y * y + 1) * (x1 * x1 + y * y + 1));
     if (!(sin_angle >= sin_min_) || !(std::abs(dx) > 1e-12)) return RejectReason::kParallelRays;
     const double z = rect_.baseline_mm / dx;
     in_rect0 = Eigen::Vector3d(z * x0, z * y, z);
@@ -450,7 +472,8 @@ RejectReason StereoTriangulator::Triangulate(double u, double v, double ur, cons
     z1 = z;
   } else {
     const Eigen::Vector3d d0 = view0_.RayInRig(xy0), d1 = view1_.RayInRig(xy1);
-    if (!(TwoViewTriangulator::SinAngleOfRays(d0, d1) >= sin_min_)) return RejectReason::kParallelRays;
+    if (!(TwoViewTriangulator::SinAngleOfRays(d0, d1) >= sin_min_))
+      return RejectReason::kParallelRays;
     const auto q = tri_.Triangulate(xy0, xy1, method_);
     if (!q) return RejectReason::kParallelRays;
     p = *q;
@@ -459,12 +482,15 @@ RejectReason StereoTriangulator::Triangulate(double u, double v, double ur, cons
   }
   const Eigen::Vector3d in_left = left_view_.ToCam(p);
   const Eigen::Vector3d in_right = right_view_.ToCam(p);
-  if (!(in_rect0.z() > 0 && z1 > 0 && in_left.z() > 0 && in_right.z() > 0)) return RejectReason::kBehindDevice;
-  if (in_rect0.z() < min_depth_mm_ || in_rect0.z() > max_depth_mm_) return RejectReason::kOutOfDepthRange;
+  if (!(in_rect0.z() > 0 && z1 > 0 && in_left.z() > 0 && in_right.z() > 0))
+    return RejectReason::kBehindDevice;
+  if (in_rect0.z() < min_depth_mm_ || in_rect0.z() > max_depth_mm_)
+    return RejectReason::kOutOfDepthRange;
   // Observed positions in the original images: the left cell's source, the right match's.
   double left_px[2];
   CameraModel::ImgFromCam(left_params_.data(), in_left.data(), left_px);
-  const double el2 = std::pow(left_px[0] - left_source_px.x(), 2) + std::pow(left_px[1] - left_source_px.y(), 2);
+  const double el2 =
+      std::pow(left_px[0] - left_source_px.x(), 2) + std::pow(left_px[1] - left_source_px.y(), 2);
   double er2 = 0;  // the closed-form midpoint lies on the right ray (x1, y, 1) by construction
   if (method_ != TriangulationMethod::kMidpoint) {
     const Eigen::Vector3d right_ray = right_from_rect_ * Eigen::Vector3d(xy1.x(), xy1.y(), 1.0);
@@ -478,14 +504,16 @@ RejectReason StereoTriangulator::Triangulate(double u, double v, double ur, cons
   return RejectReason::kAccepted;
 }
 
-Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, const std::string& right_name,
-                                 const ProjectorMap& left_map, const ProjectorMap& right_map,
-                                 const ReconstructOptions& options) {
+Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name,
+                                 const std::string& right_name, const ProjectorMap& left_map,
+                                 const ProjectorMap& right_map, const ReconstructOptions& options) {
   options.Check();
   const StageTimer start;
   const RigDevice& left = rig.Camera(left_name);
   const RigDevice& right = rig.Camera(right_name);
-  SLSHADOW_THROW_IF(left.name == right.name, "reconstruct: stereo needs two different cameras (got '", left.name, "' twice)");
+  SLSHADOW_THROW_IF(left.name == right.name,
+                    "reconstruct: stereo needs two different cameras (got '", left.name,
+                    "' twice)");
   CheckMap(left_map, left);
   CheckMap(right_map, right);
   Reconstruction out;
@@ -495,7 +523,9 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
   s.camera = left.name;
   s.other_device = right.name;
   const auto dl = left_map.CountByStatus(), dr = right_map.CountByStatus();
-  for (int k = 0; k < kNumPixelStatus; ++k) s.decode_status[static_cast<size_t>(k)] = dl[static_cast<size_t>(k)] + dr[static_cast<size_t>(k)];
+  for (int k = 0; k < kNumPixelStatus; ++k)
+    s.decode_status[static_cast<size_t>(k)] =
+        dl[static_cast<size_t>(k)] + dr[static_cast<size_t>(k)];
 
   StageTimer t0;
   const StereoRectification rect = ComputeStereoRectification(left, right);
@@ -505,15 +535,17 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
   const bool cubic = options.stereo_interpolation == StereoInterpolation::kCubic ||
                      (options.stereo_interpolation == StereoInterpolation::kAuto &&
                       left_map.proj_x.depth() == CV_64F && right_map.proj_x.depth() == CV_64F);
-  RectifyProjectorMap(rect, 0, left, left_map, options.max_code_step_px, options.min_quality, cubic, &lm);
-  RectifyProjectorMap(rect, 1, right, right_map, options.max_code_step_px, options.min_quality, cubic, &rm);
+  RectifyProjectorMap(rect, 0, left, left_map, options.max_code_step_px, options.min_quality, cubic,
+                      &lm);
+  RectifyProjectorMap(rect, 1, right, right_map, options.max_code_step_px, options.min_quality,
+                      cubic, &rm);
   t0.Elapsed(&s.rays_s, &s.rays_cpu_s);
 
   t0.Restart();
   const double fb = rect.focal_px * rect.baseline_mm;
   StereoMatches& matches = matches_buffer;
-  MatchRectifiedMaps(rect, lm, rm, fb / options.max_depth_mm, fb / options.min_depth_mm, options.max_code_step_px,
-                     cubic, &matches);
+  MatchRectifiedMaps(rect, lm, rm, fb / options.max_depth_mm, fb / options.min_depth_mm,
+                     options.max_code_step_px, cubic, &matches);
   t0.Elapsed(&s.match_s, &s.match_cpu_s);
 
   t0.Restart();
@@ -527,7 +559,9 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
   // decoded projector column of the left cell minus the column the stereo point projects to.
   const bool third_view = !both_axes && rig.projector.has_value();
   std::vector<float> projector_error;
-  if (third_view) projector_error.assign(static_cast<size_t>(grid.width) * grid.height, std::numeric_limits<float>::quiet_NaN());
+  if (third_view)
+    projector_error.assign(static_cast<size_t>(grid.width) * grid.height,
+                           std::numeric_limits<float>::quiet_NaN());
   const double* proj_params = third_view ? rig.projector->model.params.data() : nullptr;
   cv::parallel_for_(cv::Range(0, grid.height), [&](const cv::Range& rows) {
     for (int v = rows.start; v < rows.end; ++v) {
@@ -542,16 +576,16 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
         const double ur = matches.right_u[i];
         Eigen::Vector3d point;
         double reprojection_error = 0;
-        const RejectReason r = tri.Triangulate(u, v, ur, Eigen::Vector2d(lm.source_u[i], lm.source_v[i]), &point,
-                                               &reprojection_error);
+        const RejectReason r = tri.Triangulate(
+            u, v, ur, Eigen::Vector2d(lm.source_u[i], lm.source_v[i]), &point, &reprojection_error);
         if (r != RejectReason::kAccepted) {
           reason = Code(r);
           continue;
         }
         grid.reprojection_error_px[i] = static_cast<float>(reprojection_error);
         if (both_axes) {
-          const double y = InterpolateRow(rm.proj_y.data() + rm.Index(0, v), rm.width, ur, options.max_code_step_px,
-                                          cubic);
+          const double y = InterpolateRow(rm.proj_y.data() + rm.Index(0, v), rm.width, ur,
+                                          options.max_code_step_px, cubic);
           if (std::isfinite(y)) grid.epipolar_error_px[i] = static_cast<float>(lm.proj_y[i] - y);
         } else if (third_view) {
           const Eigen::Vector3d in_proj = rig.projector->cam_from_rig * point;
@@ -571,15 +605,17 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name, c
   if (third_view) {
     setup.residual = CalibrationResidual::kProjectorError;
     // The projector error's depth equivalent is along the left camera-projector baseline.
-    setup.mm_per_px = 1.0 / (FocalOf(rig.projector->model) * (left.CenterInRig() - rig.projector->CenterInRig()).norm());
+    setup.mm_per_px = 1.0 / (FocalOf(rig.projector->model) *
+                             (left.CenterInRig() - rig.projector->CenterInRig()).norm());
   }
-  RunCalibrationCheck(grid, third_view ? projector_error : grid.epipolar_error_px, left.model, setup,
-                      both_axes || third_view
-                          ? ""
-                          : "only projector columns are coded and the rig has no projector: the stereo matches lie "
-                            "on the rectified epipolar lines by construction and leave no epipolar error to check, "
-                            "and no third view can check them (code projector rows, or calibrate the projector)",
-                      &s);
+  RunCalibrationCheck(
+      grid, third_view ? projector_error : grid.epipolar_error_px, left.model, setup,
+      both_axes || third_view
+          ? ""
+          : "only projector columns are coded and the rig has no projector: the stereo matches lie "
+            "on the rectified epipolar lines by construction and leave no epipolar error to check, "
+            "and no third view can check them (code projector rows, or calibrate the projector)",
+      &s);
   out.projector_error_px = std::move(projector_error);
   start.Elapsed(&s.total_s, &s.total_cpu_s);
   return out;

@@ -32,7 +32,7 @@ namespace slshadow {
 class ConfigNode;
 
 enum class ReconstructMode { kProjector, kStereo };
-std::string ToString(ReconstructMode mode);  // "projector", "stereo"
+std::string ToString(ReconstructMode mode);                          // "projector", "stereo"
 ReconstructMode ReconstructModeFromString(const std::string& name);  // throws on unknown names
 
 // Stereo: how the cameras' maps are resampled on the rectified grids and the crossings located.
@@ -45,15 +45,16 @@ ReconstructMode ReconstructModeFromString(const std::string& name);  // throws o
 //    (CV_32F) maps.
 enum class StereoInterpolation { kAuto, kLinear, kCubic };
 std::string ToString(StereoInterpolation interpolation);  // "auto", "linear", "cubic"
-StereoInterpolation StereoInterpolationFromString(const std::string& name);  // throws on unknown names
+StereoInterpolation StereoInterpolationFromString(
+    const std::string& name);  // throws on unknown names
 
 struct ReconstructOptions {
   // Two-view solver (camera-projector with both axes coded, and stereo). With one coded projector
   // axis the exact ray-surface solve is used whatever the method.
   TriangulationMethod method = TriangulationMethod::kMidpoint;
   // Noise of the reference pixel position relative to that of the matched coordinate (sigma ratio,
-  // > 0), used by the optimal method only. The reference pixel (camera pixel, rectified left cell) is
-  // exact and the decoded / matched coordinate carries the noise, hence small.
+  // > 0), used by the optimal method only. The reference pixel (camera pixel, rectified left cell)
+  // is exact and the decoded / matched coordinate carries the noise, hence small.
   double reference_noise_ratio = 0.01;
   // Depth gate along the reference camera's optical axis (rectified axis in stereo), mm.
   double min_depth_mm = 50;
@@ -127,14 +128,14 @@ struct ReconstructSummary {
   ReconstructMode mode = ReconstructMode::kProjector;
   TriangulationMethod method = TriangulationMethod::kMidpoint;
   // Noise of the reference pixel position relative to that of the matched coordinate (sigma ratio,
-  // > 0), used by the optimal method only. The reference pixel (camera pixel, rectified left cell) is
-  // exact and the decoded / matched coordinate carries the noise, hence small.
+  // > 0), used by the optimal method only. The reference pixel (camera pixel, rectified left cell)
+  // is exact and the decoded / matched coordinate carries the noise, hence small.
   double reference_noise_ratio = 0.01;
-  std::string camera;        // reference camera
-  std::string other_device;  // "projector" or the right camera
+  std::string camera;                   // reference camera
+  std::string other_device;             // "projector" or the right camera
   int grid_width = 0, grid_height = 0;  // reference grid (camera image, or rectified left image)
   int64_t cells = 0;
-  int64_t points = 0;  // accepted
+  int64_t points = 0;                                 // accepted
   std::array<int64_t, kNumRejectReasons> rejected{};  // by RejectReason (index 0: accepted)
   // Decoder statuses of the reference camera's pixels (stereo: of both cameras), by PixelStatus.
   std::array<int64_t, kNumPixelStatus> decode_status{};
@@ -154,7 +155,8 @@ struct ReconstructSummary {
   // Wall-clock seconds per stage.
   double rays_s = 0, match_s = 0, triangulate_s = 0, filter_s = 0, normals_s = 0, total_s = 0;
   // Process CPU seconds (user + system, all threads) per stage: CPU / wall ~ 2 on 2 idle cores.
-  double rays_cpu_s = 0, match_cpu_s = 0, triangulate_cpu_s = 0, filter_cpu_s = 0, normals_cpu_s = 0, total_cpu_s = 0;
+  double rays_cpu_s = 0, match_cpu_s = 0, triangulate_cpu_s = 0, filter_cpu_s = 0,
+         normals_cpu_s = 0, total_cpu_s = 0;
 
   std::string BriefReport() const;
   std::string FullReport() const;
@@ -162,8 +164,8 @@ struct ReconstructSummary {
 };
 
 struct Reconstruction {
-  PointCloud cloud;   // rig frame, mm
-  DenseGrid grid;     // the organised result with per-cell reasons
+  PointCloud cloud;  // rig frame, mm
+  DenseGrid grid;    // the organised result with per-cell reasons
   ReconstructSummary summary;
   // Stereo with one coded axis and a projector in the rig: the signed projector error per grid
   // cell, projector px (calibration_check.h; NaN where none); empty otherwise.
@@ -172,7 +174,8 @@ struct Reconstruction {
 
 // Camera `camera` of the rig against its projector. Throws slshadow::Error when the rig has no
 // projector, the camera is unknown, the map's size differs from the camera's or no axis is coded.
-Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camera, const ProjectorMap& map,
+Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camera,
+                                        const ProjectorMap& map,
                                         const ReconstructOptions& options = {});
 
 // Stereo mode's triangulation of one correspondence, what ReconstructStereo runs on every matched

@@ -13,7 +13,9 @@ namespace slshadow {
 
 namespace {
 using Clock = std::chrono::steady_clock;
-double Seconds(Clock::time_point since) { return std::chrono::duration<double>(Clock::now() - since).count(); }
+double Seconds(Clock::time_point since) {
+  return std::chrono::duration<double>(Clock::now() - since).count();
+}
 
 // The cameras to decode, checked against the rig and the available images.
 std::vector<std::string> SelectCameras(const Rig& rig, const std::vector<std::string>& available,
@@ -21,7 +23,8 @@ std::vector<std::string> SelectCameras(const Rig& rig, const std::vector<std::st
   std::vector<std::string> cameras = options.cameras;
   if (cameras.empty()) {
     for (const auto& cam : rig.cameras) {
-      if (std::find(available.begin(), available.end(), cam.name) != available.end()) cameras.push_back(cam.name);
+      if (std::find(available.begin(), available.end(), cam.name) != available.end())
+        cameras.push_back(cam.name);
     }
     if (options.mode == ReconstructMode::kStereo && cameras.size() > 2) cameras.resize(2);
   }
@@ -31,7 +34,9 @@ std::vector<std::string> SelectCameras(const Rig& rig, const std::vector<std::st
                       "reconstruct: camera '", name, "' has no images");
   }
   if (options.mode == ReconstructMode::kStereo) {
-    SLSHADOW_THROW_IF(cameras.size() != 2, "reconstruct: stereo mode needs exactly two cameras (got ", cameras.size(), ")");
+    SLSHADOW_THROW_IF(cameras.size() != 2,
+                      "reconstruct: stereo mode needs exactly two cameras (got ", cameras.size(),
+                      ")");
   } else {
     SLSHADOW_THROW_IF(cameras.empty(), "reconstruct: no camera has images");
   }
@@ -51,7 +56,8 @@ cv::Mat ResidualMap(const Reconstruction& rec) {
     float* row = map.ptr<float>(v);
     for (int u = 0; u < g.width; ++u) {
       const size_t i = g.Index(u, v);
-      if (i < values.size() && std::isfinite(values[i])) row[u] = std::abs(values[i]);  // epipolar: signed
+      if (i < values.size() && std::isfinite(values[i]))
+        row[u] = std::abs(values[i]);  // epipolar: signed
     }
   }
   return map;
@@ -67,7 +73,8 @@ void ImageSetReconstructOptions::Check() const {
   reconstruct.Check();
   decode.Check();
   SLSHADOW_THROW_IF(mode == ReconstructMode::kStereo && !cameras.empty() && cameras.size() != 2,
-                    "reconstruct options: cameras: stereo mode takes two cameras (got ", cameras.size(), ")");
+                    "reconstruct options: cameras: stereo mode takes two cameras (got ",
+                    cameras.size(), ")");
 }
 
 nlohmann::json ImageSetReconstructOptions::ToJson() const {
@@ -103,42 +110,49 @@ ImageSetReconstructOptions ImageSetReconstructOptionsFromConfig(const ConfigNode
   return o;
 }
 
-ImageSetReconstruction ReconstructFromImages(const Rig& rig, const PatternSpec& spec,
-                                             const std::map<std::string, std::vector<cv::Mat>>& images,
-                                             const ImageSetReconstructOptions& options) {
+ImageSetReconstruction ReconstructFromImages(
+    const Rig& rig, const PatternSpec& spec,
+    const std::map<std::string, std::vector<cv::Mat>>& images,
+    const ImageSetReconstructOptions& options) {
   options.Check();
   spec.Check();
   std::vector<std::string> available;
   for (const auto& [name, frames] : images) available.push_back(name);
   ImageSetReconstruction out;
-  SLSHADOW_THROW_IF(options.mode == ReconstructMode::kProjector && !rig.projector, "reconstruct: rig '", rig.name,
-                    "' has no projector, which projector mode needs; reconstruct in stereo mode (--mode stereo) ",
-                    "with two of its ", rig.cameras.size(), " camera(s)");
+  SLSHADOW_THROW_IF(
+      options.mode == ReconstructMode::kProjector && !rig.projector, "reconstruct: rig '", rig.name,
+      "' has no projector, which projector mode needs; reconstruct in stereo mode (--mode stereo) ",
+      "with two of its ", rig.cameras.size(), " camera(s)");
   out.cameras = SelectCameras(rig, available, options);
   for (const auto& name : out.cameras) {
     const CameraModel& model = rig.Camera(name).model;
     const cv::Size size = images.at(name).empty() ? cv::Size() : images.at(name)[0].size();
-    SLSHADOW_THROW_IF(size.width != model.width || size.height != model.height, "reconstruct: rig '", rig.name,
-                      "' camera '", name, "' is ", model.width, "x", model.height, " px but its images are ",
-                      size.width, "x", size.height, ": a rig of another camera?");
+    SLSHADOW_THROW_IF(size.width != model.width || size.height != model.height,
+                      "reconstruct: rig '", rig.name, "' camera '", name, "' is ", model.width, "x",
+                      model.height, " px but its images are ", size.width, "x", size.height,
+                      ": a rig of another camera?");
   }
   std::map<std::string, ProjectorMap> maps;
   auto t0 = Clock::now();
-  for (const auto& name : out.cameras) maps[name] = DecodePatterns(spec, images.at(name), options.decode);
+  for (const auto& name : out.cameras)
+    maps[name] = DecodePatterns(spec, images.at(name), options.decode);
   out.decode_s = Seconds(t0);
   t0 = Clock::now();
   if (options.mode == ReconstructMode::kStereo) {
-    Reconstruction rec = ReconstructStereo(rig, out.cameras[0], out.cameras[1], maps[out.cameras[0]],
-                                           maps[out.cameras[1]], options.reconstruct);
+    Reconstruction rec =
+        ReconstructStereo(rig, out.cameras[0], out.cameras[1], maps[out.cameras[0]],
+                          maps[out.cameras[1]], options.reconstruct);
     TagCamera(&rec.cloud, rig.CameraIndex(out.cameras[0]));
-    out.residual_maps.emplace_back(rec.summary.camera + "-" + rec.summary.other_device, ResidualMap(rec));
+    out.residual_maps.emplace_back(rec.summary.camera + "-" + rec.summary.other_device,
+                                   ResidualMap(rec));
     out.cloud = std::move(rec.cloud);
     out.summaries.push_back(rec.summary);
   } else {
     for (const auto& name : out.cameras) {
       Reconstruction rec = ReconstructWithProjector(rig, name, maps[name], options.reconstruct);
       TagCamera(&rec.cloud, rig.CameraIndex(name));
-      out.residual_maps.emplace_back(rec.summary.camera + "-" + rec.summary.other_device, ResidualMap(rec));
+      out.residual_maps.emplace_back(rec.summary.camera + "-" + rec.summary.other_device,
+                                     ResidualMap(rec));
       if (out.cloud.empty() && out.summaries.empty()) {
         out.cloud = std::move(rec.cloud);
       } else {
@@ -155,23 +169,25 @@ ReconstructMode DefaultReconstructMode(const Rig& rig) {
   return rig.projector ? ReconstructMode::kProjector : ReconstructMode::kStereo;
 }
 
-ImageSetReconstruction ReconstructImageSet(const ImageSet& image_set, const ImageSetReconstructOptions& options) {
+ImageSetReconstruction ReconstructImageSet(const ImageSet& image_set,
+                                           const ImageSetReconstructOptions& options) {
   return ReconstructImageSet(image_set, options, image_set.rig());
 }
 
-ImageSetReconstruction ReconstructImageSet(const ImageSet& image_set, const ImageSetReconstructOptions& options,
+ImageSetReconstruction ReconstructImageSet(const ImageSet& image_set,
+                                           const ImageSetReconstructOptions& options,
                                            const Rig& rig) {
   options.Check();
-  const PatternSpec spec =
-      PatternSpecFromConfig(ConfigNode::FromJson(image_set.patterns(), (image_set.dir() / "manifest.json").string(), "patterns"));
+  const PatternSpec spec = PatternSpecFromConfig(ConfigNode::FromJson(
+      image_set.patterns(), (image_set.dir() / "manifest.json").string(), "patterns"));
   const std::vector<std::string> cameras = SelectCameras(rig, image_set.CameraNames(), options);
   auto t0 = Clock::now();
   std::map<std::string, std::vector<cv::Mat>> images;
   for (const auto& name : cameras) {
     images[name] = image_set.LoadCamera(name);
-    SLSHADOW_THROW_IF(static_cast<int>(images[name].size()) != spec.NumImages(), image_set.dir().string(),
-                      ": camera '", name, "' has ", images[name].size(), " images but the pattern spec has ",
-                      spec.NumImages());
+    SLSHADOW_THROW_IF(static_cast<int>(images[name].size()) != spec.NumImages(),
+                      image_set.dir().string(), ": camera '", name, "' has ", images[name].size(),
+                      " images but the pattern spec has ", spec.NumImages());
   }
   const double load_s = Seconds(t0);
   ImageSetReconstructOptions selected = options;
@@ -191,18 +207,25 @@ std::string ImageSetReconstruction::EmptyCloudReason() const {
   if (!cloud.empty()) return "";
   const auto meaning = [](RejectReason r, bool stereo) -> const char* {
     switch (r) {
-      case RejectReason::kNotDecoded: return "were not decoded: wrong pattern spec, or images too dark / saturated?";
-      case RejectReason::kLowQuality: return "were below --min-quality";
+      case RejectReason::kNotDecoded:
+        return "were not decoded: wrong pattern spec, or images too dark / saturated?";
+      case RejectReason::kLowQuality:
+        return "were below --min-quality";
       case RejectReason::kNoMatch:
-      case RejectReason::kAmbiguousMatch: return "found no stereo match: wrong rig file?";
+      case RejectReason::kAmbiguousMatch:
+        return "found no stereo match: wrong rig file?";
       case RejectReason::kBehindDevice:
         return stereo ? "triangulated behind a camera: wrong rig file, or left and right swapped?"
                       : "triangulated behind a device: wrong rig file?";
-      case RejectReason::kParallelRays: return "had near-parallel rays: wrong rig file?";
-      case RejectReason::kOutOfDepthRange: return "fell outside the depth range (--min-depth-mm, --max-depth-mm)";
+      case RejectReason::kParallelRays:
+        return "had near-parallel rays: wrong rig file?";
+      case RejectReason::kOutOfDepthRange:
+        return "fell outside the depth range (--min-depth-mm, --max-depth-mm)";
       case RejectReason::kReprojectionError:
-      case RejectReason::kEpipolarError: return "failed the residual gates: wrong rig file, or a rig that does not fit the images?";
-      default: return "were rejected";
+      case RejectReason::kEpipolarError:
+        return "failed the residual gates: wrong rig file, or a rig that does not fit the images?";
+      default:
+        return "were rejected";
     }
   };
   std::ostringstream out;
@@ -213,12 +236,14 @@ std::string ImageSetReconstruction::EmptyCloudReason() const {
     for (int r = 1; r < kNumRejectReasons; ++r) {
       if (s.rejected[static_cast<size_t>(r)] > s.rejected[static_cast<size_t>(best)]) best = r;
     }
-    const double share = s.cells > 0 ? 100.0 * static_cast<double>(s.rejected[static_cast<size_t>(best)]) / s.cells : 0;
+    const double share =
+        s.cells > 0 ? 100.0 * static_cast<double>(s.rejected[static_cast<size_t>(best)]) / s.cells
+                    : 0;
     char line[320];
-    std::snprintf(line, sizeof(line), "%s%s-%s: %.0f %% of %lld cells %s (%s)", k ? "; " : "", s.camera.c_str(),
-                  s.other_device.c_str(), share, static_cast<long long>(s.cells),
+    std::snprintf(line, sizeof(line), "%s%s-%s: %.0f %% of %lld cells %s (%s)", k ? "; " : "",
+                  s.camera.c_str(), s.other_device.c_str(), share, static_cast<long long>(s.cells),
                   meaning(static_cast<RejectReason>(best), s.mode == ReconstructMode::kStereo),
-                    ToString(static_cast<RejectReason>(best)).c_str());
+                  ToString(static_cast<RejectReason>(best)).c_str());
     out << line;
     if (s.calibration_check.warn) out << " (" << s.calibration_check.Message() << ")";
   }
@@ -229,7 +254,8 @@ std::string ImageSetReconstruction::FullReport() const {
   std::ostringstream out;
   for (const auto& s : summaries) out << s.FullReport();
   char line[256];
-  std::snprintf(line, sizeof(line), "cloud: %zu points; time: load %.3f s, decode %.3f s, reconstruct %.3f s\n",
+  std::snprintf(line, sizeof(line),
+                "cloud: %zu points; time: load %.3f s, decode %.3f s, reconstruct %.3f s\n",
                 cloud.size(), load_s, decode_s, reconstruct_s);
   out << line;
   return out.str();

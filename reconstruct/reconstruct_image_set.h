@@ -67,16 +67,19 @@ struct ImageSetReconstruction {
 // From images already in memory: `images` maps camera name -> that camera's images in pattern
 // order (spec.NumImages() each). Throws slshadow::Error on unknown cameras, missing images or a
 // bad spec / options.
-ImageSetReconstruction ReconstructFromImages(const Rig& rig, const PatternSpec& spec,
-                                             const std::map<std::string, std::vector<cv::Mat>>& images,
-                                             const ImageSetReconstructOptions& options);
+ImageSetReconstruction ReconstructFromImages(
+    const Rig& rig, const PatternSpec& spec,
+    const std::map<std::string, std::vector<cv::Mat>>& images,
+    const ImageSetReconstructOptions& options);
 
 // Loads the ImageSet's images (in parallel) and calls ReconstructFromImages with the rig and
 // the pattern spec stored in its manifest.
-ImageSetReconstruction ReconstructImageSet(const ImageSet& image_set, const ImageSetReconstructOptions& options);
+ImageSetReconstruction ReconstructImageSet(const ImageSet& image_set,
+                                           const ImageSetReconstructOptions& options);
 // The same with another rig than the manifest's (e.g. a refined one; the manifest is not read
 // for it): it must name the ImageSet's cameras, at the images' size.
-ImageSetReconstruction ReconstructImageSet(const ImageSet& image_set, const ImageSetReconstructOptions& options,
+ImageSetReconstruction ReconstructImageSet(const ImageSet& image_set,
+                                           const ImageSetReconstructOptions& options,
                                            const Rig& rig);
 
 // The mode a rig supports by default: projector mode when it has a projector, else stereo.

@@ -13,7 +13,8 @@ namespace {
 
 std::string Percent(int64_t part, int64_t whole) {
   char buf[32];
-  std::snprintf(buf, sizeof(buf), "%.1f%%", whole > 0 ? 100.0 * static_cast<double>(part) / static_cast<double>(whole) : 0.0);
+  std::snprintf(buf, sizeof(buf), "%.1f%%",
+                whole > 0 ? 100.0 * static_cast<double>(part) / static_cast<double>(whole) : 0.0);
   return buf;
 }
 
@@ -50,8 +51,10 @@ std::pair<float, float> SelectRanks(std::vector<float>& values, size_t k0, size_
   if (b1 != b0) c1.reserve(hist[b1]);
   for (float v : values) {
     const uint32_t b = SortKey(v) >> 16;
-    if (b == b0) c0.push_back(v);
-    else if (b == b1) c1.push_back(v);
+    if (b == b0)
+      c0.push_back(v);
+    else if (b == b1)
+      c1.push_back(v);
   }
   std::vector<float>& d1 = b1 == b0 ? c0 : c1;
   std::nth_element(c0.begin(), c0.begin() + static_cast<std::ptrdiff_t>(r0), c0.end());
@@ -63,7 +66,9 @@ std::pair<float, float> SelectRanks(std::vector<float>& values, size_t k0, size_
 }  // namespace
 
 ResidualStats ComputeResidualStats(std::vector<float>& values) {
-  values.erase(std::remove_if(values.begin(), values.end(), [](float v) { return !std::isfinite(v); }), values.end());
+  values.erase(
+      std::remove_if(values.begin(), values.end(), [](float v) { return !std::isfinite(v); }),
+      values.end());
   ResidualStats s;
   s.count = static_cast<int64_t>(values.size());
   if (values.empty()) return s;
@@ -94,55 +99,71 @@ std::string ReconstructSummary::BriefReport() const {
   if (!c.available) {
     std::snprintf(check, sizeof(check), "calibration check not available");
   } else {
-    std::snprintf(check, sizeof(check), "calibration check %s: %s systematic %.3g of %.3g projector px",
-                  c.warn ? "WARNING" : std::isfinite(c.threshold_px) ? "passed" : "reported", ToString(c.residual).c_str(),
-                  c.systematic_px, c.threshold_px);
+    std::snprintf(check, sizeof(check),
+                  "calibration check %s: %s systematic %.3g of %.3g projector px",
+                  c.warn                          ? "WARNING"
+                  : std::isfinite(c.threshold_px) ? "passed"
+                                                  : "reported",
+                  ToString(c.residual).c_str(), c.systematic_px, c.threshold_px);
   }
-  std::snprintf(buf, sizeof(buf), "%s/%s %s-%s: %lld points of %lld cells (%s); %s; %.3f s", ToString(mode).c_str(),
-                ToString(method).c_str(), camera.c_str(), other_device.c_str(), static_cast<long long>(points),
-                static_cast<long long>(cells), Percent(points, cells).c_str(), check, total_s);
+  std::snprintf(buf, sizeof(buf), "%s/%s %s-%s: %lld points of %lld cells (%s); %s; %.3f s",
+                ToString(mode).c_str(), ToString(method).c_str(), camera.c_str(),
+                other_device.c_str(), static_cast<long long>(points), static_cast<long long>(cells),
+                Percent(points, cells).c_str(), check, total_s);
   return buf;
 }
 
 std::string ReconstructSummary::FullReport() const {
   std::ostringstream out;
   out << BriefReport() << "\n";
-  out << "  grid " << grid_width << "x" << grid_height << " (" << (mode == ReconstructMode::kStereo ? "rectified left camera" : "camera image") << ")\n";
+  out << "  grid " << grid_width << "x" << grid_height << " ("
+      << (mode == ReconstructMode::kStereo ? "rectified left camera" : "camera image") << ")\n";
   out << "  cells by outcome:\n";
   for (int r = 0; r < kNumRejectReasons; ++r) {
     if (rejected[static_cast<size_t>(r)] == 0) continue;
     char line[128];
-    std::snprintf(line, sizeof(line), "    %-20s %10lld  %6s\n", ToString(static_cast<RejectReason>(r)).c_str(),
+    std::snprintf(line, sizeof(line), "    %-20s %10lld  %6s\n",
+                  ToString(static_cast<RejectReason>(r)).c_str(),
                   static_cast<long long>(rejected[static_cast<size_t>(r)]),
                   Percent(rejected[static_cast<size_t>(r)], cells).c_str());
     out << line;
   }
   out << "  decoder status of the camera pixels:";
   for (int k = 0; k < kNumPixelStatus; ++k) {
-    out << " " << ToString(static_cast<PixelStatus>(k)) << "=" << decode_status[static_cast<size_t>(k)];
+    out << " " << ToString(static_cast<PixelStatus>(k)) << "="
+        << decode_status[static_cast<size_t>(k)];
   }
   out << "\n";
   auto stats = [&](const char* name, const ResidualStats& r, const char* unit) {
     char line[320];
-    std::snprintf(line, sizeof(line), "  %-22s n=%lld median %.4g p95 %.4g rms %.4g max %.4g %s\n", name,
-                  static_cast<long long>(r.count), r.median, r.p95, r.rms, r.max, unit);
+    std::snprintf(line, sizeof(line), "  %-22s n=%lld median %.4g p95 %.4g rms %.4g max %.4g %s\n",
+                  name, static_cast<long long>(r.count), r.median, r.p95, r.rms, r.max, unit);
     out << line;
   };
   stats("reprojection error", reprojection_error_px,
         mode == ReconstructMode::kStereo
-            ? (method == TriangulationMethod::kMidpoint ? "camera px (~0 by construction in stereo: no calibration evidence)"
-                                                        : "camera px (small by construction in stereo: no calibration evidence)")
-            : epipolar_error_px.count > 0 ? "px (RMS of camera px and projector px)"
-                                          : "px (~0 by construction with one coded axis: no calibration evidence)");
-  if (epipolar_error_px.count > 0) stats("epipolar error", epipolar_error_px, "projector px (|signed|)");
+            ? (method == TriangulationMethod::kMidpoint
+                   ? "camera px (~0 by construction in stereo: no calibration evidence)"
+                   : "camera px (small by construction in stereo: no calibration evidence)")
+        : epipolar_error_px.count > 0
+            ? "px (RMS of camera px and projector px)"
+            : "px (~0 by construction with one coded axis: no calibration evidence)");
+  if (epipolar_error_px.count > 0)
+    stats("epipolar error", epipolar_error_px, "projector px (|signed|)");
   out << "  " << calibration_check.Message() << "\n";
-  if (normal_fallbacks > 0) out << "  normals facing the camera (too few neighbours): " << normal_fallbacks << "\n";
+  if (normal_fallbacks > 0)
+    out << "  normals facing the camera (too few neighbours): " << normal_fallbacks << "\n";
   char line[256];
-  std::snprintf(line, sizeof(line), "  time: rays %.3f s, match %.3f s, triangulate %.3f s, filters %.3f s, normals+cloud %.3f s, total %.3f s\n",
+  std::snprintf(line, sizeof(line),
+                "  time: rays %.3f s, match %.3f s, triangulate %.3f s, filters %.3f s, "
+                "normals+cloud %.3f s, total %.3f s\n",
                 rays_s, match_s, triangulate_s, filter_s, normals_s, total_s);
   out << line;
-  std::snprintf(line, sizeof(line), "  CPU:  rays %.3f s, match %.3f s, triangulate %.3f s, filters %.3f s, normals+cloud %.3f s, total %.3f s\n",
-                rays_cpu_s, match_cpu_s, triangulate_cpu_s, filter_cpu_s, normals_cpu_s, total_cpu_s);
+  std::snprintf(line, sizeof(line),
+                "  CPU:  rays %.3f s, match %.3f s, triangulate %.3f s, filters %.3f s, "
+                "normals+cloud %.3f s, total %.3f s\n",
+                rays_cpu_s, match_cpu_s, triangulate_cpu_s, filter_cpu_s, normals_cpu_s,
+                total_cpu_s);
   out << line;
   for (const auto& w : warnings) out << "  WARNING: " << w << "\n";
   return out.str();
@@ -150,9 +171,11 @@ std::string ReconstructSummary::FullReport() const {
 
 nlohmann::json ReconstructSummary::ToJson() const {
   nlohmann::json rejected_json = nlohmann::json::object();
-  for (int r = 1; r < kNumRejectReasons; ++r) rejected_json[ToString(static_cast<RejectReason>(r))] = rejected[static_cast<size_t>(r)];
+  for (int r = 1; r < kNumRejectReasons; ++r)
+    rejected_json[ToString(static_cast<RejectReason>(r))] = rejected[static_cast<size_t>(r)];
   nlohmann::json decode_json = nlohmann::json::object();
-  for (int k = 0; k < kNumPixelStatus; ++k) decode_json[ToString(static_cast<PixelStatus>(k))] = decode_status[static_cast<size_t>(k)];
+  for (int k = 0; k < kNumPixelStatus; ++k)
+    decode_json[ToString(static_cast<PixelStatus>(k))] = decode_status[static_cast<size_t>(k)];
   return {{"mode", ToString(mode)},
           {"method", ToString(method)},
           {"camera", camera},
@@ -168,10 +191,20 @@ nlohmann::json ReconstructSummary::ToJson() const {
           {"epipolar_error_px", epipolar_error_px.ToJson()},
           {"calibration_check", calibration_check.ToJson()},
           {"warnings", warnings},
-          {"time_s", {{"rays", rays_s}, {"match", match_s}, {"triangulate", triangulate_s}, {"filters", filter_s},
-                      {"normals", normals_s}, {"total", total_s}}},
-          {"cpu_s", {{"rays", rays_cpu_s}, {"match", match_cpu_s}, {"triangulate", triangulate_cpu_s},
-                     {"filters", filter_cpu_s}, {"normals", normals_cpu_s}, {"total", total_cpu_s}}}};
+          {"time_s",
+           {{"rays", rays_s},
+            {"match", match_s},
+            {"triangulate", triangulate_s},
+            {"filters", filter_s},
+            {"normals", normals_s},
+            {"total", total_s}}},
+          {"cpu_s",
+           {{"rays", rays_cpu_s},
+            {"match", match_cpu_s},
+            {"triangulate", triangulate_cpu_s},
+            {"filters", filter_cpu_s},
+            {"normals", normals_cpu_s},
+            {"total", total_cpu_s}}}};
 }
 
 }  // namespace slshadow

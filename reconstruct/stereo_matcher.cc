@@ -40,7 +40,8 @@ inline bool SmoothRun(const double* s, double max_step) {
   for (int k = 0; k < 4; ++k) {
     if (!std::isfinite(s[k])) return false;
   }
-  return std::abs(s[1] - s[0]) <= max_step && std::abs(s[2] - s[1]) <= max_step && std::abs(s[3] - s[2]) <= max_step;
+  return std::abs(s[1] - s[0]) <= max_step && std::abs(s[2] - s[1]) <= max_step &&
+         std::abs(s[3] - s[2]) <= max_step;
 }
 
 // Per source pixel (x0, y0), 1 when the 4x4 block x0 - 1 .. x0 + 2, y0 - 1 .. y0 + 2 is fit for
@@ -54,13 +55,15 @@ std::vector<uint8_t> SmoothBlocks(const ProjectorMap& map, double max_step) {
   constexpr uint8_t kRight = 1, kDown = 2;
   std::vector<uint8_t> pairs(n, 0), runs(n, 0), blocks(n, 0);
   auto ok = [&](const uint8_t* status, const T* px, const T* py, int x) {
-    return status[x] == static_cast<uint8_t>(PixelStatus::kValid) && std::isfinite(static_cast<double>(px[x])) &&
+    return status[x] == static_cast<uint8_t>(PixelStatus::kValid) &&
+           std::isfinite(static_cast<double>(px[x])) &&
            (!py || std::isfinite(static_cast<double>(py[x])));
   };
   auto close = [&](const T* a, const T* b, int xa, int xb) {
     return !a || std::abs(static_cast<double>(a[xa]) - static_cast<double>(b[xb])) <= max_step;
   };
-  // pairs: bit kRight when (x, y) and (x + 1, y) are fit neighbours, kDown for (x, y) and (x, y + 1).
+  // pairs: bit kRight when (x, y) and (x + 1, y) are fit neighbours, kDown for (x, y) and (x, y +
+  // 1).
   cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
     for (int y = rows.start; y < rows.end; ++y) {
       const uint8_t* s0 = map.status.ptr<uint8_t>(y);
@@ -74,14 +77,16 @@ std::vector<uint8_t> SmoothBlocks(const ProjectorMap& map, double max_step) {
       for (int x = 0; x < w; ++x) {
         if (!ok(s0, x0, y0, x)) continue;
         uint8_t bits = 0;
-        if (x + 1 < w && ok(s0, x0, y0, x + 1) && close(x0, x0, x, x + 1) && close(y0, y0, x, x + 1)) bits |= kRight;
+        if (x + 1 < w && ok(s0, x0, y0, x + 1) && close(x0, x0, x, x + 1) &&
+            close(y0, y0, x, x + 1))
+          bits |= kRight;
         if (below && ok(s1, x1, y1, x) && close(x0, x1, x, x) && close(y0, y1, x, x)) bits |= kDown;
         out[x] = bits;
       }
     }
   });
-  // runs: kRight when the 3 right-pairs from x - 1 (a row of 4) are fit, kDown when the 4 down-pairs
-  // of columns x - 1 .. x + 2 are.
+  // runs: kRight when the 3 right-pairs from x - 1 (a row of 4) are fit, kDown when the 4
+  // down-pairs of columns x - 1 .. x + 2 are.
   cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
     for (int y = rows.start; y < rows.end; ++y) {
       const uint8_t* in = pairs.data() + static_cast<size_t>(y) * w;
@@ -101,7 +106,8 @@ std::vector<uint8_t> SmoothBlocks(const ProjectorMap& map, double max_step) {
       const uint8_t* r3 = r2 + w;
       uint8_t* out = blocks.data() + static_cast<size_t>(y) * w;
       for (int x = 1; x + 2 < w; ++x) {
-        out[x] = (r0[x] & r1[x] & r2[x] & r3[x] & kRight) && (r0[x] & r1[x] & r2[x] & kDown) ? 1 : 0;
+        out[x] =
+            (r0[x] & r1[x] & r2[x] & r3[x] & kRight) && (r0[x] & r1[x] & r2[x] & kDown) ? 1 : 0;
       }
     }
   });
@@ -119,7 +125,9 @@ void GatherBlock(const cv::Mat& m, int x0, int y0, double b[16]) {
 
 inline double Bicubic(const double b[16], const double wx[4], const double wy[4]) {
   double sum = 0;
-  for (int j = 0; j < 4; ++j) sum += wy[j] * (wx[0] * b[4 * j] + wx[1] * b[4 * j + 1] + wx[2] * b[4 * j + 2] + wx[3] * b[4 * j + 3]);
+  for (int j = 0; j < 4; ++j)
+    sum += wy[j] *
+           (wx[0] * b[4 * j] + wx[1] * b[4 * j + 1] + wx[2] * b[4 * j + 2] + wx[3] * b[4 * j + 3]);
   return sum;
 }
 
@@ -153,20 +161,24 @@ double RefineCrossing(const double s[4], double value, double t) {
 // recently used first out; keyed by every number it depends on).
 constexpr size_t kMaxCachedSourceGrids = 4;
 
-std::vector<double> SourceGridKey(const StereoRectification& rect, int camera, const RigDevice& device) {
-  std::vector<double> key(rect.rect_from_rig_rotation.data(), rect.rect_from_rig_rotation.data() + 9);
+std::vector<double> SourceGridKey(const StereoRectification& rect, int camera,
+                                  const RigDevice& device) {
+  std::vector<double> key(rect.rect_from_rig_rotation.data(),
+                          rect.rect_from_rig_rotation.data() + 9);
   const Eigen::Quaterniond& q = device.cam_from_rig.rotation;
   const Eigen::Vector3d& t = device.cam_from_rig.translation;
   for (double v : {rect.focal_px, rect.cy, rect.cx[camera], static_cast<double>(rect.width[camera]),
                    static_cast<double>(rect.height), static_cast<double>(device.model.width),
-                   static_cast<double>(device.model.height), q.w(), q.x(), q.y(), q.z(), t.x(), t.y(), t.z()}) {
+                   static_cast<double>(device.model.height), q.w(), q.x(), q.y(), q.z(), t.x(),
+                   t.y(), t.z()}) {
     key.push_back(v);
   }
   key.insert(key.end(), device.model.params.begin(), device.model.params.end());
   return key;
 }
 
-std::vector<Eigen::Vector2d> ComputeSourceGrid(const StereoRectification& rect, int camera, const RigDevice& device) {
+std::vector<Eigen::Vector2d> ComputeSourceGrid(const StereoRectification& rect, int camera,
+                                               const RigDevice& device) {
   const int width = rect.width[camera], height = rect.height;
   std::vector<Eigen::Vector2d> grid(static_cast<size_t>(width) * height);
   const Eigen::Matrix3d cam_from_rect =
@@ -181,7 +193,8 @@ std::vector<Eigen::Vector2d> ComputeSourceGrid(const StereoRectification& rect, 
       Eigen::Vector2d* out = grid.data() + static_cast<size_t>(v) * width;
       for (int u = 0; u < width; ++u) {
         out[u] = Eigen::Vector2d(nan, nan);
-        const Eigen::Vector3d ray = cam_from_rect * Eigen::Vector3d((u - rect.cx[camera]) * inv_f, yn, 1.0);
+        const Eigen::Vector3d ray =
+            cam_from_rect * Eigen::Vector3d((u - rect.cx[camera]) * inv_f, yn, 1.0);
         if (!(ray.z() > 0)) continue;
         double pixel[2];
         CameraModel::ImgFromCam(params, ray.data(), pixel);
@@ -193,14 +206,15 @@ std::vector<Eigen::Vector2d> ComputeSourceGrid(const StereoRectification& rect, 
   return grid;
 }
 
-std::shared_ptr<const std::vector<Eigen::Vector2d>> CachedSourceGrid(const StereoRectification& rect, int camera,
-                                                                      const RigDevice& device) {
+std::shared_ptr<const std::vector<Eigen::Vector2d>> CachedSourceGrid(
+    const StereoRectification& rect, int camera, const RigDevice& device) {
   using Entry = std::pair<std::vector<double>, std::shared_ptr<const std::vector<Eigen::Vector2d>>>;
   static std::mutex mutex;
   static std::list<Entry> entries;  // most recent first
   const std::vector<double> key = SourceGridKey(rect, camera, device);
   auto same = [&](const std::vector<double>& k) {
-    return k.size() == key.size() && std::memcmp(k.data(), key.data(), sizeof(double) * key.size()) == 0;
+    return k.size() == key.size() &&
+           std::memcmp(k.data(), key.data(), sizeof(double) * key.size()) == 0;
   };
   {
     std::lock_guard<std::mutex> lock(mutex);
@@ -211,7 +225,8 @@ std::shared_ptr<const std::vector<Eigen::Vector2d>> CachedSourceGrid(const Stere
       }
     }
   }
-  auto grid = std::make_shared<const std::vector<Eigen::Vector2d>>(ComputeSourceGrid(rect, camera, device));
+  auto grid =
+      std::make_shared<const std::vector<Eigen::Vector2d>>(ComputeSourceGrid(rect, camera, device));
   std::lock_guard<std::mutex> lock(mutex);
   entries.emplace_front(key, grid);
   while (entries.size() > kMaxCachedSourceGrids) entries.pop_back();
@@ -246,13 +261,14 @@ StereoRectification ComputeStereoRectification(const RigDevice& left, const RigD
   rect.center_in_rig[1] = right.CenterInRig();
   const Eigen::Vector3d baseline = rect.center_in_rig[1] - rect.center_in_rig[0];
   rect.baseline_mm = baseline.norm();
-  SLSHADOW_THROW_IF(!(rect.baseline_mm > 1e-9), "stereo: cameras '", left.name, "' and '", right.name,
-                    "' have the same optical centre (baseline ", rect.baseline_mm, " mm)");
+  SLSHADOW_THROW_IF(!(rect.baseline_mm > 1e-9), "stereo: cameras '", left.name, "' and '",
+                    right.name, "' have the same optical centre (baseline ", rect.baseline_mm,
+                    " mm)");
   const Eigen::Vector3d e1 = baseline / rect.baseline_mm;
   const Eigen::Vector3d axis = 0.5 * (left.AxisInRig() + right.AxisInRig());
   Eigen::Vector3d e3 = axis - axis.dot(e1) * e1;
-  SLSHADOW_THROW_IF(!(e3.norm() > 1e-6), "stereo: the optical axes of '", left.name, "' and '", right.name,
-                    "' are along the baseline; cannot rectify");
+  SLSHADOW_THROW_IF(!(e3.norm() > 1e-6), "stereo: the optical axes of '", left.name, "' and '",
+                    right.name, "' are along the baseline; cannot rectify");
   e3.normalize();
   const Eigen::Vector3d e2 = e3.cross(e1);
   rect.rect_from_rig_rotation.row(0) = e1;
@@ -260,7 +276,8 @@ StereoRectification ComputeStereoRectification(const RigDevice& left, const RigD
   rect.rect_from_rig_rotation.row(2) = e3;
   rect.focal_px = 0.5 * (left.model.fx() + left.model.fy());
 
-  double vmin = -std::numeric_limits<double>::infinity(), vmax = std::numeric_limits<double>::infinity();
+  double vmin = -std::numeric_limits<double>::infinity(),
+         vmax = std::numeric_limits<double>::infinity();
   const RigDevice* devices[2] = {&left, &right};
   for (int c = 0; c < 2; ++c) {
     const RigDevice& dev = *devices[c];
@@ -289,7 +306,8 @@ StereoRectification ComputeStereoRectification(const RigDevice& left, const RigD
       add(0, std::min(y, h - 1));
       add(w - 1, std::min(y, h - 1));
     }
-    SLSHADOW_THROW_IF(!std::isfinite(umin_c), "stereo: camera '", dev.name, "' sees nothing in front of the rectified plane");
+    SLSHADOW_THROW_IF(!std::isfinite(umin_c), "stereo: camera '", dev.name,
+                      "' sees nothing in front of the rectified plane");
     const double max_w = max_size_factor * w;
     if (umax_c - umin_c > max_w) {
       const double mid = 0.5 * (umin_c + umax_c);
@@ -314,20 +332,23 @@ StereoRectification ComputeStereoRectification(const RigDevice& left, const RigD
   return rect;
 }
 
-RectifiedMap RectifyProjectorMap(const StereoRectification& rect, int camera, const RigDevice& device,
-                                 const ProjectorMap& map, double max_step_px, float min_quality, bool cubic) {
+RectifiedMap RectifyProjectorMap(const StereoRectification& rect, int camera,
+                                 const RigDevice& device, const ProjectorMap& map,
+                                 double max_step_px, float min_quality, bool cubic) {
   RectifiedMap out;
   RectifyProjectorMap(rect, camera, device, map, max_step_px, min_quality, cubic, &out);
   return out;
 }
 
-void RectifyProjectorMap(const StereoRectification& rect, int camera, const RigDevice& device, const ProjectorMap& map,
-                         double max_step_px, float min_quality, bool cubic, RectifiedMap* out_map) {
+void RectifyProjectorMap(const StereoRectification& rect, int camera, const RigDevice& device,
+                         const ProjectorMap& map, double max_step_px, float min_quality, bool cubic,
+                         RectifiedMap* out_map) {
   SLSHADOW_THROW_IF(!map.has_x, "stereo: camera '", device.name,
                     "': the pattern does not code projector columns; stereo matching needs them");
   SLSHADOW_THROW_IF(map.width() != device.model.width || map.height() != device.model.height,
-                    "stereo: camera '", device.name, "': projector map is ", map.width(), "x", map.height(),
-                    " but the camera is ", device.model.width, "x", device.model.height);
+                    "stereo: camera '", device.name, "': projector map is ", map.width(), "x",
+                    map.height(), " but the camera is ", device.model.width, "x",
+                    device.model.height);
   RectifiedMap& out = *out_map;
   out.width = rect.width[camera];
   out.height = rect.height;
@@ -342,10 +363,11 @@ void RectifyProjectorMap(const StereoRectification& rect, int camera, const RigD
   out.source_u.resize(n);
   out.source_v.resize(n);
   out.reason.resize(n);
-  const std::shared_ptr<const std::vector<Eigen::Vector2d>> sources = CachedSourceGrid(rect, camera, device);
+  const std::shared_ptr<const std::vector<Eigen::Vector2d>> sources =
+      CachedSourceGrid(rect, camera, device);
   const int w = map.width(), h = map.height();
   const bool is_double = map.proj_x.depth() == CV_64F;
-  const std::vector<uint8_t> blocks = !cubic    ? std::vector<uint8_t>()
+  const std::vector<uint8_t> blocks = !cubic      ? std::vector<uint8_t>()
                                       : is_double ? SmoothBlocks<double>(map, max_step_px)
                                                   : SmoothBlocks<float>(map, max_step_px);
   cv::parallel_for_(cv::Range(0, out.height), [&](const cv::Range& rows) {
@@ -372,7 +394,8 @@ void RectifyProjectorMap(const StereoRectification& rect, int camera, const RigD
         const int ys[4] = {y0, y0, y0 + 1, y0 + 1};
         RejectReason reason = RejectReason::kAccepted;
         double px = 0, py = 0, q = 0;
-        double xmin = std::numeric_limits<double>::infinity(), xmax = -xmin, ymin = xmin, ymax = -xmin;
+        double xmin = std::numeric_limits<double>::infinity(), xmax = -xmin, ymin = xmin,
+               ymax = -xmin;
         for (int k = 0; k < 4; ++k) {
           if (map.status.at<uint8_t>(ys[k], xs[k]) != static_cast<uint8_t>(PixelStatus::kValid)) {
             reason = RejectReason::kNotDecoded;
@@ -394,7 +417,8 @@ void RectifyProjectorMap(const StereoRectification& rect, int camera, const RigD
           py += wts[k] * cy;
           q += wts[k] * qk;
         }
-        if (reason == RejectReason::kAccepted && (xmax - xmin > max_step_px || ymax - ymin > max_step_px)) {
+        if (reason == RejectReason::kAccepted &&
+            (xmax - xmin > max_step_px || ymax - ymin > max_step_px)) {
           reason = RejectReason::kDepthDiscontinuity;
         }
         out.reason[o] = static_cast<uint8_t>(reason);
@@ -403,10 +427,12 @@ void RectifyProjectorMap(const StereoRectification& rect, int camera, const RigD
           double b[16], wx[4], wy[4];
           CubicWeights(ax, wx);
           CubicWeights(ay, wy);
-          is_double ? GatherBlock<double>(map.proj_x, x0, y0, b) : GatherBlock<float>(map.proj_x, x0, y0, b);
+          is_double ? GatherBlock<double>(map.proj_x, x0, y0, b)
+                    : GatherBlock<float>(map.proj_x, x0, y0, b);
           px = Bicubic(b, wx, wy);
           if (map.has_y) {
-            is_double ? GatherBlock<double>(map.proj_y, x0, y0, b) : GatherBlock<float>(map.proj_y, x0, y0, b);
+            is_double ? GatherBlock<double>(map.proj_y, x0, y0, b)
+                      : GatherBlock<float>(map.proj_y, x0, y0, b);
             py = Bicubic(b, wx, wy);
           }
         }
@@ -422,13 +448,14 @@ StereoMatches MatchRectifiedMaps(const StereoRectification& rect, const Rectifie
                                  const RectifiedMap& right, double min_disparity_px,
                                  double max_disparity_px, double max_step_px, bool cubic) {
   StereoMatches matches;
-  MatchRectifiedMaps(rect, left, right, min_disparity_px, max_disparity_px, max_step_px, cubic, &matches);
+  MatchRectifiedMaps(rect, left, right, min_disparity_px, max_disparity_px, max_step_px, cubic,
+                     &matches);
   return matches;
 }
 
-void MatchRectifiedMaps(const StereoRectification& rect, const RectifiedMap& left, const RectifiedMap& right,
-                        double min_disparity_px, double max_disparity_px, double max_step_px, bool cubic,
-                        StereoMatches* out) {
+void MatchRectifiedMaps(const StereoRectification& rect, const RectifiedMap& left,
+                        const RectifiedMap& right, double min_disparity_px, double max_disparity_px,
+                        double max_step_px, bool cubic, StereoMatches* out) {
   SLSHADOW_CHECK(left.height == right.height);
   StereoMatches& matches = *out;
   const size_t n = left.proj_x.size();
@@ -443,14 +470,17 @@ void MatchRectifiedMaps(const StereoRectification& rect, const RectifiedMap& lef
       {
         const size_t a = left.Index(0, v), b = a + static_cast<size_t>(left.width);
         std::fill(matches.right_u.begin() + static_cast<std::ptrdiff_t>(a),
-                  matches.right_u.begin() + static_cast<std::ptrdiff_t>(b), std::numeric_limits<double>::quiet_NaN());
-        std::copy(left.reason.begin() + static_cast<std::ptrdiff_t>(a), left.reason.begin() + static_cast<std::ptrdiff_t>(b),
+                  matches.right_u.begin() + static_cast<std::ptrdiff_t>(b),
+                  std::numeric_limits<double>::quiet_NaN());
+        std::copy(left.reason.begin() + static_cast<std::ptrdiff_t>(a),
+                  left.reason.begin() + static_cast<std::ptrdiff_t>(b),
                   matches.reason.begin() + static_cast<std::ptrdiff_t>(a));
       }
       const double* r = right.proj_x.data() + right.Index(0, v);
       double lo = std::numeric_limits<double>::infinity(), hi = -lo;
       for (int k = 0; k + 1 < wr; ++k) {
-        if (std::isfinite(r[k]) && std::isfinite(r[k + 1]) && std::abs(r[k + 1] - r[k]) <= max_step_px) {
+        if (std::isfinite(r[k]) && std::isfinite(r[k + 1]) &&
+            std::abs(r[k + 1] - r[k]) <= max_step_px) {
           lo = std::min(lo, std::min(r[k], r[k + 1]));
           hi = std::max(hi, std::max(r[k], r[k + 1]));
         }
@@ -467,16 +497,21 @@ void MatchRectifiedMaps(const StereoRectification& rect, const RectifiedMap& lef
       };
       if (any) {
         for (int k = 0; k + 1 < wr; ++k) {
-          if (std::isfinite(r[k]) && std::isfinite(r[k + 1]) && std::abs(r[k + 1] - r[k]) <= max_step_px) {
+          if (std::isfinite(r[k]) && std::isfinite(r[k + 1]) &&
+              std::abs(r[k + 1] - r[k]) <= max_step_px) {
             for_bins(k, [&](int bin) { ++offsets[static_cast<size_t>(bin) + 1]; });
           }
         }
-        for (int b = 0; b < nb; ++b) offsets[static_cast<size_t>(b) + 1] += offsets[static_cast<size_t>(b)];
+        for (int b = 0; b < nb; ++b)
+          offsets[static_cast<size_t>(b) + 1] += offsets[static_cast<size_t>(b)];
         bucket.resize(static_cast<size_t>(offsets[static_cast<size_t>(nb)]));
         cursor.assign(offsets.begin(), offsets.end() - 1);
         for (int k = 0; k + 1 < wr; ++k) {
-          if (std::isfinite(r[k]) && std::isfinite(r[k + 1]) && std::abs(r[k + 1] - r[k]) <= max_step_px) {
-            for_bins(k, [&](int bin) { bucket[static_cast<size_t>(cursor[static_cast<size_t>(bin)]++)] = k; });
+          if (std::isfinite(r[k]) && std::isfinite(r[k + 1]) &&
+              std::abs(r[k + 1] - r[k]) <= max_step_px) {
+            for_bins(k, [&](int bin) {
+              bucket[static_cast<size_t>(cursor[static_cast<size_t>(bin)]++)] = k;
+            });
           }
         }
       }

@@ -68,19 +68,22 @@ struct RectifiedMap {
 };
 // Accepts proj_x / proj_y of type CV_32F or CV_64F. Requires map.has_x.
 // cubic = false: bilinear everywhere (the O(h^2) bias, but the least noise on decoded maps).
-RectifiedMap RectifyProjectorMap(const StereoRectification& rect, int camera, const RigDevice& device,
-                                 const ProjectorMap& map, double max_step_px, float min_quality, bool cubic = true);
+RectifiedMap RectifyProjectorMap(const StereoRectification& rect, int camera,
+                                 const RigDevice& device, const ProjectorMap& map,
+                                 double max_step_px, float min_quality, bool cubic = true);
 // The same into `out`, reusing its buffers (every cell is written, row-parallel): a caller that
 // rectifies repeatedly keeps the pages it has touched.
-void RectifyProjectorMap(const StereoRectification& rect, int camera, const RigDevice& device, const ProjectorMap& map,
-                         double max_step_px, float min_quality, bool cubic, RectifiedMap* out);
+void RectifyProjectorMap(const StereoRectification& rect, int camera, const RigDevice& device,
+                         const ProjectorMap& map, double max_step_px, float min_quality, bool cubic,
+                         RectifiedMap* out);
 
 // The value of a rectified row (`row`, `width` samples) at fractional column u: the cubic through
 // the 4 samples around u (4-point Lagrange) when they are finite and no two neighbours differ by
 // more than max_step_px, else linear between the 2 around u; NaN when those are not finite or u is
 // outside [0, width - 1].
 // cubic = false: always linear.
-double InterpolateRow(const double* row, int width, double u, double max_step_px, bool cubic = true);
+double InterpolateRow(const double* row, int width, double u, double max_step_px,
+                      bool cubic = true);
 
 // For every left rectified cell with a valid code, the right rectified column u_r with equal
 // projector column on the same row and disparity in [min_disparity_px, max_disparity_px]. The
@@ -100,8 +103,8 @@ StereoMatches MatchRectifiedMaps(const StereoRectification& rect, const Rectifie
                                  const RectifiedMap& right, double min_disparity_px,
                                  double max_disparity_px, double max_step_px, bool cubic = true);
 // The same into `out`, reusing its buffers.
-void MatchRectifiedMaps(const StereoRectification& rect, const RectifiedMap& left, const RectifiedMap& right,
-                        double min_disparity_px, double max_disparity_px, double max_step_px, bool cubic,
-                        StereoMatches* out);
+void MatchRectifiedMaps(const StereoRectification& rect, const RectifiedMap& left,
+                        const RectifiedMap& right, double min_disparity_px, double max_disparity_px,
+                        double max_step_px, bool cubic, StereoMatches* out);
 
 }  // namespace slshadow

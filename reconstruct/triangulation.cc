@@ -10,9 +10,12 @@ namespace slshadow {
 
 std::string ToString(TriangulationMethod method) {
   switch (method) {
-    case TriangulationMethod::kMidpoint: return "midpoint";
-    case TriangulationMethod::kDlt: return "dlt";
-    case TriangulationMethod::kOptimal: return "optimal";
+    case TriangulationMethod::kMidpoint:
+      return "midpoint";
+    case TriangulationMethod::kDlt:
+      return "dlt";
+    case TriangulationMethod::kOptimal:
+      return "optimal";
   }
   return "unknown";
 }
@@ -21,7 +24,8 @@ TriangulationMethod TriangulationMethodFromString(const std::string& name) {
   if (name == "midpoint") return TriangulationMethod::kMidpoint;
   if (name == "dlt") return TriangulationMethod::kDlt;
   if (name == "optimal") return TriangulationMethod::kOptimal;
-  SLSHADOW_THROW("triangulation method: unknown name (got '", name, "'; expected midpoint, dlt or optimal)");
+  SLSHADOW_THROW("triangulation method: unknown name (got '", name,
+                 "'; expected midpoint, dlt or optimal)");
 }
 
 TriangulationView::TriangulationView(const Rigid3d& cam_from_rig, double focal)
@@ -40,8 +44,9 @@ Eigen::Matrix3d Skew(const Eigen::Vector3d& v) {
 
 }  // namespace
 
-TwoViewTriangulator::TwoViewTriangulator(const TriangulationView& view0, const TriangulationView& view1,
-                                         double sigma0_px, double sigma1_px)
+TwoViewTriangulator::TwoViewTriangulator(const TriangulationView& view0,
+                                         const TriangulationView& view1, double sigma0_px,
+                                         double sigma1_px)
     : view0_(view0), view1_(view1) {
   SLSHADOW_CHECK(sigma0_px > 0 && sigma1_px > 0);
   scale0_ = view0.focal_px / sigma0_px;
@@ -66,7 +71,8 @@ double TwoViewTriangulator::SinAngle(const Eigen::Vector2d& xy0, const Eigen::Ve
   return SinAngleOfRays(view0_.RayInRig(xy0), view1_.RayInRig(xy1));
 }
 
-double TwoViewTriangulator::SignedEpipolarDistancePx(const Eigen::Vector2d& xy0, const Eigen::Vector2d& xy1) const {
+double TwoViewTriangulator::SignedEpipolarDistancePx(const Eigen::Vector2d& xy0,
+                                                     const Eigen::Vector2d& xy1) const {
   const Eigen::Vector3d x0(view0_.focal_px * xy0.x(), view0_.focal_px * xy0.y(), 1.0);
   const Eigen::Vector3d x1(view1_.focal_px * xy1.x(), view1_.focal_px * xy1.y(), 1.0);
   const Eigen::Vector3d line_in_1 = fundamental_.transpose() * x0;  // l1 = F^T x0
@@ -97,7 +103,8 @@ std::optional<Eigen::Vector3d> TwoViewTriangulator::Dlt(const Eigen::Vector2d& x
   const Eigen::Matrix3d normal = a3.transpose() * a3;
   const Eigen::Vector3d rhs = -(a3.transpose() * a.col(3));
   const Eigen::LDLT<Eigen::Matrix3d> ldlt(normal);
-  if (ldlt.info() != Eigen::Success || !(ldlt.vectorD().minCoeff() > 1e-12 * ldlt.vectorD().maxCoeff())) {
+  if (ldlt.info() != Eigen::Success ||
+      !(ldlt.vectorD().minCoeff() > 1e-12 * ldlt.vectorD().maxCoeff())) {
     return std::nullopt;
   }
   const Eigen::Vector3d point = ldlt.solve(rhs);
@@ -106,7 +113,8 @@ std::optional<Eigen::Vector3d> TwoViewTriangulator::Dlt(const Eigen::Vector2d& x
 }
 
 bool TwoViewTriangulator::CorrectNiter2(const Eigen::Vector2d& xy0, const Eigen::Vector2d& xy1,
-                                        Eigen::Vector2d* corrected0, Eigen::Vector2d* corrected1) const {
+                                        Eigen::Vector2d* corrected0,
+                                        Eigen::Vector2d* corrected1) const {
   // Lindstrom 2010, algorithm niter2, with x = view 0 and x' = view 1 in noise-scaled coordinates.
   const double f0 = scale0_, f1 = scale1_;
   const Eigen::Vector3d x(f0 * xy0.x(), f0 * xy0.y(), 1.0);
@@ -148,9 +156,12 @@ std::optional<Eigen::Vector3d> TwoViewTriangulator::Triangulate(const Eigen::Vec
                                                                 const Eigen::Vector2d& xy1,
                                                                 TriangulationMethod method) const {
   switch (method) {
-    case TriangulationMethod::kMidpoint: return Midpoint(xy0, xy1);
-    case TriangulationMethod::kDlt: return Dlt(xy0, xy1);
-    case TriangulationMethod::kOptimal: return Optimal(xy0, xy1);
+    case TriangulationMethod::kMidpoint:
+      return Midpoint(xy0, xy1);
+    case TriangulationMethod::kDlt:
+      return Dlt(xy0, xy1);
+    case TriangulationMethod::kOptimal:
+      return Optimal(xy0, xy1);
   }
   return std::nullopt;
 }
@@ -232,7 +243,8 @@ std::optional<Eigen::Vector3d> TriangulateRayAxis(const Eigen::Vector3d& center_
   if (!(q.z() > 0)) return std::nullopt;
   if (sin_angle) {
     // Normal of the coded surface: gradient of the coordinate with respect to q.
-    const Eigen::Vector3d grad_q(gx / q.z(), gy / q.z(), -(gx * q.x() + gy * q.y()) / (q.z() * q.z()));
+    const Eigen::Vector3d grad_q(gx / q.z(), gy / q.z(),
+                                 -(gx * q.x() + gy * q.y()) / (q.z() * q.z()));
     const double gn = grad_q.norm(), bn = b.norm();
     *sin_angle = gn > 0 && bn > 0 ? std::abs(grad_q.dot(b)) / (gn * bn) : 0.0;
   }

@@ -5,7 +5,8 @@
 // frame), i.e. CameraModel::UndistortToNormalized of the pixel. Results are in the rig frame, mm.
 //
 // Methods (all exact for noise-free observations):
-//  - kMidpoint: midpoint of the common perpendicular of the two rays (Hartley & Sturm 1997, sec. 5.3;
+//  - kMidpoint: midpoint of the common perpendicular of the two rays (Hartley & Sturm 1997,
+//  sec. 5.3;
 //    the method of the structured-light benchmark in ../shared/seeds/).
 //  - kDlt: linear triangulation (DLT) of the 4x4 system f [x P3 - P1; y P3 - P2] X = 0 (both
 //    views, rows in pixel units), in its inhomogeneous form X = (X, Y, Z, 1) solved by linear least
@@ -64,8 +65,8 @@ class TwoViewTriangulator {
   // only to the optimal method, which minimises (e0 / sigma0)^2 + (e1 / sigma1)^2 over the image
   // residuals e (e.g. a reference camera pixel is exact and the decoded coordinate carries the
   // noise: sigma0 << sigma1).
-  TwoViewTriangulator(const TriangulationView& view0, const TriangulationView& view1, double sigma0_px = 1.0,
-                      double sigma1_px = 1.0);
+  TwoViewTriangulator(const TriangulationView& view0, const TriangulationView& view1,
+                      double sigma0_px = 1.0, double sigma1_px = 1.0);
 
   const TriangulationView& view0() const { return view0_; }
   const TriangulationView& view1() const { return view1_; }
@@ -85,7 +86,8 @@ class TwoViewTriangulator {
   static double SinAngleOfRays(const Eigen::Vector3d& d0, const Eigen::Vector3d& d1) {
     return d0.cross(d1).norm() / (d0.norm() * d1.norm());
   }
-  std::optional<Eigen::Vector3d> MidpointOfRays(const Eigen::Vector3d& d0, const Eigen::Vector3d& d1) const {
+  std::optional<Eigen::Vector3d> MidpointOfRays(const Eigen::Vector3d& d0,
+                                                const Eigen::Vector3d& d1) const {
     const Eigen::Vector3d w = view0_.center_in_rig - view1_.center_in_rig;
     const double a = d0.squaredNorm(), b = d0.dot(d1), c = d1.squaredNorm();
     const double d = d0.dot(w), e = d1.dot(w);
@@ -110,17 +112,20 @@ class TwoViewTriangulator {
   double SignedEpipolarDistancePx(const Eigen::Vector2d& xy0, const Eigen::Vector2d& xy1) const;
 
   // The individual methods.
-  std::optional<Eigen::Vector3d> Midpoint(const Eigen::Vector2d& xy0, const Eigen::Vector2d& xy1) const;
+  std::optional<Eigen::Vector3d> Midpoint(const Eigen::Vector2d& xy0,
+                                          const Eigen::Vector2d& xy1) const;
   std::optional<Eigen::Vector3d> Dlt(const Eigen::Vector2d& xy0, const Eigen::Vector2d& xy1) const;
-  std::optional<Eigen::Vector3d> Optimal(const Eigen::Vector2d& xy0, const Eigen::Vector2d& xy1) const;
+  std::optional<Eigen::Vector3d> Optimal(const Eigen::Vector2d& xy0,
+                                         const Eigen::Vector2d& xy1) const;
   // Lindstrom's niter2 correction alone: the corrected normalised observations.
-  bool CorrectNiter2(const Eigen::Vector2d& xy0, const Eigen::Vector2d& xy1, Eigen::Vector2d* corrected0,
-                     Eigen::Vector2d* corrected1) const;
+  bool CorrectNiter2(const Eigen::Vector2d& xy0, const Eigen::Vector2d& xy1,
+                     Eigen::Vector2d* corrected0, Eigen::Vector2d* corrected1) const;
 
  private:
   TriangulationView view0_, view1_;
   Eigen::Matrix3d fundamental_;  // pixel-scaled: x0~^T F x1~ = 0
-  double scale0_, scale1_;       // focal / sigma: the units in which the optimal method's noise is isotropic
+  double scale0_,
+      scale1_;  // focal / sigma: the units in which the optimal method's noise is isotropic
   Eigen::Matrix3d weighted_fundamental_;  // the same in those units
   Eigen::Matrix<double, 3, 4> proj0_, proj1_;
 };
@@ -137,6 +142,7 @@ std::optional<Eigen::Vector3d> TriangulateRayAxis(const Eigen::Vector3d& center_
                                                   const Eigen::Vector3d& ray_in_rig,
                                                   const CameraModel& projector,
                                                   const TriangulationView& projector_view, int axis,
-                                                  double proj_coord_px, double* sin_angle = nullptr);
+                                                  double proj_coord_px,
+                                                  double* sin_angle = nullptr);
 
 }  // namespace slshadow

@@ -13,14 +13,17 @@ namespace slshadow {
 
 namespace fs = std::filesystem;
 
-ReconstructionOutputs WriteReconstruction(const ImageSetReconstruction& rec, const ImageSetReconstructOptions& options,
-                                          const Rig& rig, const ReconstructionOutputOptions& output) {
+ReconstructionOutputs WriteReconstruction(const ImageSetReconstruction& rec,
+                                          const ImageSetReconstructOptions& options, const Rig& rig,
+                                          const ReconstructionOutputOptions& output) {
   // An empty cloud is a failure with a reason, not a result (nothing is written).
-  SLSHADOW_THROW_IF(rec.cloud.empty(), output.imageset, ": the reconstruction has 0 points: ", rec.EmptyCloudReason());
+  SLSHADOW_THROW_IF(rec.cloud.empty(), output.imageset,
+                    ": the reconstruction has 0 points: ", rec.EmptyCloudReason());
   ReconstructionOutputs out;
   out.cloud = output.cloud_path;
   out.summary = output.summary_path;
-  if (out.summary.empty()) out.summary = (out.cloud.parent_path() / out.cloud.stem()).string() + ".summary.json";
+  if (out.summary.empty())
+    out.summary = (out.cloud.parent_path() / out.cloud.stem()).string() + ".summary.json";
   PlyWriteOptions ply;
   ply.binary = output.binary_ply;
   WritePly(out.cloud, rec.cloud, ply);
@@ -29,10 +32,11 @@ ReconstructionOutputs WriteReconstruction(const ImageSetReconstruction& rec, con
   summary["cloud"] = out.cloud.string();
   summary["options"] = options.ToJson();
   // Provenance of the rig: the manifest's, or the file given instead.
-  summary["rig"] = {{"name", rig.name},
-                    {"source", output.rig_file.empty() ? "manifest" : "file"},
-                    {"file", output.rig_file.empty() ? (fs::path(output.imageset) / "manifest.json").string()
-                                                     : fs::absolute(output.rig_file).string()}};
+  summary["rig"] = {
+      {"name", rig.name},
+      {"source", output.rig_file.empty() ? "manifest" : "file"},
+      {"file", output.rig_file.empty() ? (fs::path(output.imageset) / "manifest.json").string()
+                                       : fs::absolute(output.rig_file).string()}};
   // Calibration-check maps: the dense correspondences' |epipolar error|, colour-coded from 0 (blue)
   // to 2 x the check's threshold (red); black where no correspondence. Each entry carries the
   // check's verdict and the likely causes it named.
@@ -41,15 +45,19 @@ ReconstructionOutputs WriteReconstruction(const ImageSetReconstruction& rec, con
     const auto& [name, residuals] = rec.residual_maps[k];
     const CalibrationCheck& check = rec.summaries.at(k).calibration_check;
     const double map_max_px =
-        check.available && std::isfinite(check.threshold_px) && check.threshold_px > 0 ? 2 * check.threshold_px : 1.0;
-    const fs::path map_path = out.cloud.parent_path() / (out.cloud.stem().string() + ".residuals_" + name + ".png");
+        check.available && std::isfinite(check.threshold_px) && check.threshold_px > 0
+            ? 2 * check.threshold_px
+            : 1.0;
+    const fs::path map_path =
+        out.cloud.parent_path() / (out.cloud.stem().string() + ".residuals_" + name + ".png");
     cv::Mat scaled, mask = residuals == residuals;  // false at NaN
     residuals.convertTo(scaled, CV_8U, 255.0 / map_max_px);
     cv::Mat colour;
     cv::applyColorMap(scaled, colour, cv::COLORMAP_TURBO);
     colour.setTo(cv::Scalar(0, 0, 0), ~mask);
     WriteFileAtomically(map_path, [&](const fs::path& tmp) {
-      SLSHADOW_THROW_IF(!cv::imwrite(tmp.string() + ".png", colour), map_path.string(), ": cannot write image");
+      SLSHADOW_THROW_IF(!cv::imwrite(tmp.string() + ".png", colour), map_path.string(),
+                        ": cannot write image");
       fs::rename(tmp.string() + ".png", tmp);
     });
     maps.push_back({{"reconstruction", name},

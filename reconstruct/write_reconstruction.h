@@ -17,7 +17,8 @@ struct ReconstructionOutputOptions {
   std::filesystem::path cloud_path;    // CLOUD.ply
   std::filesystem::path summary_path;  // empty: CLOUD's folder / <CLOUD stem>.summary.json
   bool binary_ply = true;
-  std::string imageset;  // the ImageSet folder, recorded in the summary (and its manifest as the rig's source)
+  std::string imageset;  // the ImageSet folder, recorded in the summary (and its manifest as the
+                         // rig's source)
   std::string rig_file;  // the rig file used instead of the manifest's (empty: the manifest's rig)
 };
 

@@ -25,9 +25,9 @@
 #include "patterns/pattern_spec.h"
 #include "reconstruct/reconstruct.h"
 #include "shadow/c2m_peer_py.h"
+#include "shadow/scan_pipeline.h"
 #include "sim/scene.h"
 #include "sim/simulate.h"
-#include "shadow/scan_pipeline.h"
 
 namespace slshadow::shadow {
 namespace {
@@ -48,13 +48,15 @@ Timing Median(int n, const std::function<void()>& work, int* median_run = nullpt
                      ProcessCpuSeconds() - cpu0},
                     i});
   }
-  std::sort(runs.begin(), runs.end(), [](const auto& a, const auto& b) { return a.first.wall_s < b.first.wall_s; });
+  std::sort(runs.begin(), runs.end(),
+            [](const auto& a, const auto& b) { return a.first.wall_s < b.first.wall_s; });
   if (median_run) *median_run = runs[runs.size() / 2].second;
   return runs[runs.size() / 2].first;
 }
 
 // Adds a stage's wall and CPU seconds to the entry named `name` of `stages` (appended when new).
-void AddStage(std::vector<BenchStage>* stages, const std::string& name, double wall_s, double cpu_s) {
+void AddStage(std::vector<BenchStage>* stages, const std::string& name, double wall_s,
+              double cpu_s) {
   for (auto& s : *stages) {
     if (s.name == name) {
       s.wall_s += wall_s;
@@ -82,7 +84,8 @@ BenchEntry MakeEntry(const std::string& name, const std::string& what) {
 }
 
 bool Wanted(const BenchOptions& options, const std::string& name) {
-  return options.only.empty() || std::find(options.only.begin(), options.only.end(), name) != options.only.end();
+  return options.only.empty() ||
+         std::find(options.only.begin(), options.only.end(), name) != options.only.end();
 }
 
 // The number after "key": in a one-line JSON object (the peer script's output); 0 when absent.
@@ -96,10 +99,12 @@ double JsonNumber(const std::string& json, const std::string& key) {
 // `why` set when the peer cannot run.
 // With `mesh` null, the C2C peer: `points` against `reference`.
 std::string RunOpen3dPeer(const std::vector<Eigen::Vector3d>& points, const TriangleMesh* mesh,
-                          const std::vector<Eigen::Vector3d>* reference, int reps, std::string* why) {
+                          const std::vector<Eigen::Vector3d>* reference, int reps,
+                          std::string* why) {
   namespace fs = std::filesystem;
   const std::string python = fs::exists("/usr/bin/python3") ? "/usr/bin/python3" : "python3";
-  const fs::path dir = fs::temp_directory_path() / ("slshadow_bench_c2m_" + std::to_string(::getpid()));
+  const fs::path dir =
+      fs::temp_directory_path() / ("slshadow_bench_c2m_" + std::to_string(::getpid()));
   fs::create_directories(dir);
   auto write = [&](const std::string& name, const void* data, size_t bytes) {
     std::ofstream f(dir / name, std::ios::binary);
@@ -115,13 +120,15 @@ std::string RunOpen3dPeer(const std::vector<Eigen::Vector3d>& points, const Tria
       for (int k = 0; k < 3; ++k) tris.push_back(static_cast<uint32_t>(t[k]));
     }
     write("triangles.u32", tris.data(), tris.size() * sizeof(uint32_t));
-    args = (dir / "points.f64").string() + " " + (dir / "vertices.f64").string() + " " + (dir / "triangles.u32").string();
+    args = (dir / "points.f64").string() + " " + (dir / "vertices.f64").string() + " " +
+           (dir / "triangles.u32").string();
   } else {
     write("reference.f64", reference->data(), reference->size() * sizeof(Eigen::Vector3d));
     args = "c2c " + (dir / "points.f64").string() + " " + (dir / "reference.f64").string();
   }
-  const std::string cmd = python + " " + (dir / "open3d_c2m.py").string() + " " + args + " " + std::to_string(reps) +
-                          " > " + (dir / "out.json").string() + " 2> " + (dir / "err.txt").string();
+  const std::string cmd = python + " " + (dir / "open3d_c2m.py").string() + " " + args + " " +
+                          std::to_string(reps) + " > " + (dir / "out.json").string() + " 2> " +
+                          (dir / "err.txt").string();
   const int status = std::system(cmd.c_str());
   std::stringstream out, err;
   out << std::ifstream(dir / "out.json").rdbuf();
@@ -129,7 +136,8 @@ std::string RunOpen3dPeer(const std::vector<Eigen::Vector3d>& points, const Tria
   std::error_code ec;
   fs::remove_all(dir, ec);
   if (status != 0) {
-    *why = err.str().empty() ? "the Open3D peer failed (exit status " + std::to_string(status) + ")" : err.str();
+    *why = err.str().empty() ? "the Open3D peer failed (exit status " + std::to_string(status) + ")"
+                             : err.str();
     while (!why->empty() && why->back() == '\n') why->pop_back();
     return "";
   }
@@ -140,14 +148,16 @@ std::string RunOpen3dPeer(const std::vector<Eigen::Vector3d>& points, const Tria
 // Time", file loading excluded) for `-C2C_DIST` of `points` against `reference`, headless, `reps`
 // runs; the median run's seconds and its mean distance. Returns false with `why` set when
 // CloudCompare is absent or fails.
-bool RunCloudComparePeer(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& reference,
-                         int reps, double* seconds, double* mean_mm, std::string* why) {
+bool RunCloudComparePeer(const std::vector<Eigen::Vector3d>& points,
+                         const std::vector<Eigen::Vector3d>& reference, int reps, double* seconds,
+                         double* mean_mm, std::string* why) {
   namespace fs = std::filesystem;
   if (std::system("command -v CloudCompare > /dev/null 2>&1") != 0) {
     *why = "CloudCompare not installed (apt-get install cloudcompare)";
     return false;
   }
-  const fs::path dir = fs::temp_directory_path() / ("slshadow_bench_cc_" + std::to_string(::getpid()));
+  const fs::path dir =
+      fs::temp_directory_path() / ("slshadow_bench_cc_" + std::to_string(::getpid()));
   fs::create_directories(dir);
   PlyWriteOptions f;
   f.double_positions = false;  // CloudCompare keeps float coordinates
@@ -157,9 +167,10 @@ bool RunCloudComparePeer(const std::vector<Eigen::Vector3d>& points, const std::
   cloud.points = reference;
   WritePly(dir / "reference.ply", cloud, f);
   cloud = PointCloud();
-  const std::string cmd = "cd '" + dir.string() +
-                          "' && QT_QPA_PLATFORM=offscreen CloudCompare -SILENT -NO_TIMESTAMP -AUTO_SAVE OFF "
-                          "-O compared.ply -O reference.ply -C2C_DIST > cc.log 2>&1";
+  const std::string cmd =
+      "cd '" + dir.string() +
+      "' && QT_QPA_PLATFORM=offscreen CloudCompare -SILENT -NO_TIMESTAMP -AUTO_SAVE OFF "
+      "-O compared.ply -O reference.ply -C2C_DIST > cc.log 2>&1";
   std::vector<std::pair<double, double>> runs;  // seconds, mean distance
   for (int i = 0; i < reps; ++i) {
     const int status = std::system(cmd.c_str());
@@ -178,7 +189,8 @@ bool RunCloudComparePeer(const std::vector<Eigen::Vector3d>& points, const std::
     const auto at = log.find("Mean distance = ");
     if (at != std::string::npos) mean = std::atof(log.c_str() + at + 16);
     if (status != 0 || !timed) {
-      *why = "CloudCompare failed (exit status " + std::to_string(status) + "); its log: " + (dir / "cc.log").string();
+      *why = "CloudCompare failed (exit status " + std::to_string(status) +
+             "); its log: " + (dir / "cc.log").string();
       return false;  // the folder is kept for the log
     }
     runs.push_back({s, mean});
@@ -194,10 +206,12 @@ bool RunCloudComparePeer(const std::vector<Eigen::Vector3d>& points, const std::
 }  // namespace
 
 void BenchOptions::Check() const {
-  SLSHADOW_THROW_IF(repetitions < 1 || repetitions > 100, "--repetitions: must be 1..100 (got ", repetitions, ")");
+  SLSHADOW_THROW_IF(repetitions < 1 || repetitions > 100, "--repetitions: must be 1..100 (got ",
+                    repetitions, ")");
   for (const auto& name : only) {
-    SLSHADOW_THROW_IF(name != "simulate" && name != "decode" && name != "reconstruct" && name != "compare",
-                      "--only: unknown entry '", name, "' (entries: simulate, decode, reconstruct, compare)");
+    SLSHADOW_THROW_IF(
+        name != "simulate" && name != "decode" && name != "reconstruct" && name != "compare",
+        "--only: unknown entry '", name, "' (entries: simulate, decode, reconstruct, compare)");
   }
 }
 
@@ -214,7 +228,8 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
   std::vector<std::vector<cv::Mat>> images;
   std::vector<GeometryBuffer> geometry;
   {
-    BenchEntry e = MakeEntry("simulate", "render 2 cameras x " + std::to_string(spec.NumImages()) + " patterns, demo part");
+    BenchEntry e = MakeEntry("simulate", "render 2 cameras x " + std::to_string(spec.NumImages()) +
+                                             " patterns, demo part");
     SimulateSummary summary;
     const Timing t = Median(Wanted(options, "simulate") ? reps : 1, [&] {
       geometry.clear();
@@ -223,9 +238,11 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
     if (Wanted(options, "simulate")) {
       e.median_wall_s = t.wall_s;
       e.cpu_s = t.cpu_s;
-      e.throughput = static_cast<double>(summary.primary_rays + summary.shadow_rays) / 1e6 / summary.geometry_seconds;
+      e.throughput = static_cast<double>(summary.primary_rays + summary.shadow_rays) / 1e6 /
+                     summary.geometry_seconds;
       e.unit = "Mrays/s (geometry pass, primary + shadow rays)";
-      e.what += " (primary rays only: " + std::to_string(static_cast<int>(summary.PrimaryMraysPerSecond() + 0.5)) + " M/s)";
+      e.what += " (primary rays only: " +
+                std::to_string(static_cast<int>(summary.PrimaryMraysPerSecond() + 0.5)) + " M/s)";
       entries.push_back(e);
     }
   }
@@ -233,7 +250,8 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
   const std::string left = rig.cameras[0].name, right = rig.cameras[1].name;
   std::vector<ProjectorMap> maps(2);
   if (Wanted(options, "decode")) {
-    BenchEntry e = MakeEntry("decode", "DecodePatterns, 2 cameras, " + std::to_string(spec.NumImages()) + " images each");
+    BenchEntry e = MakeEntry("decode", "DecodePatterns, 2 cameras, " +
+                                           std::to_string(spec.NumImages()) + " images each");
     const Timing t = Median(reps, [&] {
       for (int c = 0; c < 2; ++c) maps[c] = DecodePatterns(spec, images[c]);
     });
@@ -254,7 +272,8 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
       params.height = gray.projector_height;
       const auto graycode = cv::structured_light::GrayCodePattern::create(params);
       const size_t n = graycode->getNumberOfPatternImages();
-      const std::vector<cv::Mat> codes(gray_images.begin(), gray_images.begin() + static_cast<std::ptrdiff_t>(n));
+      const std::vector<cv::Mat> codes(gray_images.begin(),
+                                       gray_images.begin() + static_cast<std::ptrdiff_t>(n));
       const cv::Mat& white = gray_images[n];
       const cv::Mat& black = gray_images[n + 1];
       const Timing p = Median(std::min(reps, 3), [&] {
@@ -280,7 +299,8 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
 
   Reconstruction stereo;
   if (Wanted(options, "reconstruct")) {
-    BenchEntry e = MakeEntry("reconstruct", "decode + triangulate 2 cameras (camera-projector), 2 x 1920x1200");
+    BenchEntry e = MakeEntry("reconstruct",
+                             "decode + triangulate 2 cameras (camera-projector), 2 x 1920x1200");
     std::vector<std::vector<BenchStage>> run_stages;
     int median_run = 0;
     const Timing t = Median(
@@ -291,7 +311,8 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
             const double cpu0 = ProcessCpuSeconds();
             const auto t0 = std::chrono::steady_clock::now();
             const ProjectorMap map = DecodePatterns(spec, images[c]);
-            AddStage(&stages, "decode", std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
+            AddStage(&stages, "decode",
+                     std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
                      ProcessCpuSeconds() - cpu0);
             AddStages(&stages, ReconstructWithProjector(rig, rig.cameras[c].name, map).summary);
           }
@@ -307,7 +328,8 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
     // The same with the two cameras concurrently, one task each: OpenCV runs the loops nested in a
     // parallel region serially, so each camera's decode and reconstruction run on one core without
     // the parallel loops' serial parts and joins (ReconstructFromImages still runs them in turn).
-    BenchEntry ec = MakeEntry("reconstruct", "the same, the 2 cameras concurrently (one core each)");
+    BenchEntry ec =
+        MakeEntry("reconstruct", "the same, the 2 cameras concurrently (one core each)");
     const Timing tc = Median(reps, [&] {
       cv::parallel_for_(cv::Range(0, 2), [&](const cv::Range& r) {
         for (int c = r.start; c < r.end; ++c) {
@@ -343,8 +365,11 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
     if (stereo.cloud.empty()) stereo = ReconstructStereo(rig, left, right, maps[0], maps[1]);
     const TriangleMesh truth = SceneMeshSurface(scene);
     const compare::Reference reference = compare::ReferenceFromMesh(truth, "demo part");
-    BenchEntry e = MakeEntry("compare", "C2M of the stereo cloud (" + std::to_string(stereo.cloud.size()) + " points) to the part mesh");
-    const Timing t = Median(reps, [&] { compare::Compare(stereo.cloud, reference, compare::CompareOptions{}); });
+    BenchEntry e =
+        MakeEntry("compare", "C2M of the stereo cloud (" + std::to_string(stereo.cloud.size()) +
+                                 " points) to the part mesh");
+    const Timing t =
+        Median(reps, [&] { compare::Compare(stereo.cloud, reference, compare::CompareOptions{}); });
     e.median_wall_s = t.wall_s;
     e.cpu_s = t.cpu_s;
     e.throughput = static_cast<double>(stereo.cloud.size()) / 1e6 / t.wall_s;
@@ -370,11 +395,12 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
         std::fprintf(stderr, "bench: C2M peer skipped: %s\n", why.c_str());
       } else {
         char what[256];
-        std::snprintf(what, sizeof(what),
-                      "Open3D RaycastingScene compute_signed_distance, scene + query (CPU %.3f s; unsigned "
-                      "compute_distance %.3f s, CPU %.3f s; mean |d| %.4f mm, slshadow %.4f mm)",
-                      JsonNumber(json, "signed_cpu_s"), JsonNumber(json, "unsigned_s"), JsonNumber(json, "unsigned_cpu_s"),
-                      JsonNumber(json, "signed_mean_abs_mm"), mean_abs);
+        std::snprintf(
+            what, sizeof(what),
+            "Open3D RaycastingScene compute_signed_distance, scene + query (CPU %.3f s; unsigned "
+            "compute_distance %.3f s, CPU %.3f s; mean |d| %.4f mm, slshadow %.4f mm)",
+            JsonNumber(json, "signed_cpu_s"), JsonNumber(json, "unsigned_s"),
+            JsonNumber(json, "unsigned_cpu_s"), JsonNumber(json, "signed_mean_abs_mm"), mean_abs);
         c.peer = what;
         c.peer_median_wall_s = JsonNumber(json, "signed_s");
         c.peer_throughput = static_cast<double>(stereo.cloud.size()) / 1e6 / c.peer_median_wall_s;
@@ -387,9 +413,11 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
 
     // C2C, about 1 M -> 1 M: the stereo cloud's even-indexed points against its odd-indexed ones.
     std::vector<Eigen::Vector3d> even, odd;
-    for (size_t i = 0; i < stereo.cloud.size(); ++i) (i % 2 ? odd : even).push_back(stereo.cloud.points[i]);
-    BenchEntry cc = MakeEntry("compare", "C2C " + std::to_string(even.size()) + " -> " + std::to_string(odd.size()) +
-                                             " points (stereo cloud, even to odd points; kd-tree + queries)");
+    for (size_t i = 0; i < stereo.cloud.size(); ++i)
+      (i % 2 ? odd : even).push_back(stereo.cloud.points[i]);
+    BenchEntry cc = MakeEntry(
+        "compare", "C2C " + std::to_string(even.size()) + " -> " + std::to_string(odd.size()) +
+                       " points (stereo cloud, even to odd points; kd-tree + queries)");
     double c2c_mean = 0;
     const Timing t2 = Median(reps, [&] {
       const compare::KdTree tree(odd);
@@ -410,7 +438,8 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
       } else {
         char what[256];
         std::snprintf(what, sizeof(what),
-                      "Open3D PointCloud compute_point_cloud_distance (CPU %.3f s; mean d %.5f mm, slshadow %.5f mm)",
+                      "Open3D PointCloud compute_point_cloud_distance (CPU %.3f s; mean d %.5f mm, "
+                      "slshadow %.5f mm)",
                       JsonNumber(json, "c2c_cpu_s"), JsonNumber(json, "c2c_mean_mm"), c2c_mean);
         cc.peer = what;
         cc.peer_median_wall_s = JsonNumber(json, "c2c_s");
@@ -430,7 +459,8 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
                  " points, against CloudCompare";
         char what[256];
         std::snprintf(what, sizeof(what),
-                      "CloudCompare -C2C_DIST, its logged compute time, median of %d (mean d %.5f mm, slshadow %.5f mm)",
+                      "CloudCompare -C2C_DIST, its logged compute time, median of %d (mean d %.5f "
+                      "mm, slshadow %.5f mm)",
                       std::min(reps, 3), cc_mean, c2c_mean);
         m.peer = what;
         m.peer_median_wall_s = cc_s;
@@ -447,16 +477,18 @@ std::string FormatBench(const std::vector<BenchEntry>& entries) {
   std::string out = "entry        median wall (s)  CPU (s)  throughput            what\n";
   char buf[512];
   for (const auto& e : entries) {
-    std::snprintf(buf, sizeof(buf), "%-12s %15.3f  %7.3f  %8.2f %-12s %s\n", e.name.c_str(), e.median_wall_s, e.cpu_s,
-                  e.throughput, e.unit.c_str(), e.what.c_str());
+    std::snprintf(buf, sizeof(buf), "%-12s %15.3f  %7.3f  %8.2f %-12s %s\n", e.name.c_str(),
+                  e.median_wall_s, e.cpu_s, e.throughput, e.unit.c_str(), e.what.c_str());
     out += buf;
     if (!e.peer.empty()) {
-      std::snprintf(buf, sizeof(buf), "  peer       %15.3f           %8.2f %-12s %s -> slshadow is %.1fx\n",
-                    e.peer_median_wall_s, e.peer_throughput, e.unit.c_str(), e.peer.c_str(), e.ratio);
+      std::snprintf(
+          buf, sizeof(buf), "  peer       %15.3f           %8.2f %-12s %s -> slshadow is %.1fx\n",
+          e.peer_median_wall_s, e.peer_throughput, e.unit.c_str(), e.peer.c_str(), e.ratio);
       out += buf;
     }
     for (const auto& stage : e.stages) {
-      std::snprintf(buf, sizeof(buf), "  %-14s %13.3f  %7.3f\n", stage.name.c_str(), stage.wall_s, stage.cpu_s);
+      std::snprintf(buf, sizeof(buf), "  %-14s %13.3f  %7.3f\n", stage.name.c_str(), stage.wall_s,
+                    stage.cpu_s);
       out += buf;
     }
   }
@@ -464,7 +496,8 @@ std::string FormatBench(const std::vector<BenchEntry>& entries) {
 }
 
 std::string BenchToJson(const std::vector<BenchEntry>& entries, const BenchOptions& options) {
-  nlohmann::ordered_json json = {{"format", "slshadow-bench"}, {"version", 1}, {"repetitions", options.repetitions}};
+  nlohmann::ordered_json json = {
+      {"format", "slshadow-bench"}, {"version", 1}, {"repetitions", options.repetitions}};
   json["entries"] = nlohmann::ordered_json::array();
   for (const auto& e : entries) {
     nlohmann::ordered_json entry = {{"name", e.name},
@@ -479,7 +512,8 @@ std::string BenchToJson(const std::vector<BenchEntry>& entries, const BenchOptio
                                     {"ratio", e.ratio}};
     entry["stages"] = nlohmann::ordered_json::array();
     for (const auto& stage : e.stages) {
-      entry["stages"].push_back({{"name", stage.name}, {"wall_s", stage.wall_s}, {"cpu_s", stage.cpu_s}});
+      entry["stages"].push_back(
+          {{"name", stage.name}, {"wall_s", stage.wall_s}, {"cpu_s", stage.cpu_s}});
     }
     json["entries"].push_back(std::move(entry));
   }

@@ -12,10 +12,10 @@
 //                then concurrently one camera per core), and stereo; per-stage wall and CPU
 //   compare      C2M of the stereo cloud against the ground-truth mesh (the whole Compare, then
 //                CloudToMesh alone); peer: Open3D's RaycastingScene signed distance
-//                (bench/c2m_peer/open3d_c2m.py, run by /usr/bin/python3) on the same cloud and mesh;
-//                C2C of the stereo cloud's even points to its odd ones (~1 M each); peer: Open3D's
-//                compute_point_cloud_distance. Where CloudCompare is installed, one more entry
-//                repeats the C2C figure against CloudCompare's -C2C_DIST (its logged compute
+//                (bench/c2m_peer/open3d_c2m.py, run by /usr/bin/python3) on the same cloud and
+//                mesh; C2C of the stereo cloud's even points to its odd ones (~1 M each); peer:
+//                Open3D's compute_point_cloud_distance. Where CloudCompare is installed, one more
+//                entry repeats the C2C figure against CloudCompare's -C2C_DIST (its logged compute
 //                time, file loading excluded; float coordinates)
 #pragma once
 
@@ -25,11 +25,11 @@
 namespace slshadow::shadow {
 
 struct BenchOptions {
-  int repetitions = 5;              // per entry; the median is reported
-  std::vector<std::string> only;    // entry names to run; empty: all
-  bool with_opencv = true;          // run the OpenCV peer (slow: ~1 s per repetition)
-  bool with_open3d = true;          // run the Open3D C2M peer (skipped with a message when absent)
-  bool with_cloudcompare = true;    // run CloudCompare's C2C (skipped with a message when absent)
+  int repetitions = 5;            // per entry; the median is reported
+  std::vector<std::string> only;  // entry names to run; empty: all
+  bool with_opencv = true;        // run the OpenCV peer (slow: ~1 s per repetition)
+  bool with_open3d = true;        // run the Open3D C2M peer (skipped with a message when absent)
+  bool with_cloudcompare = true;  // run CloudCompare's C2C (skipped with a message when absent)
   void Check() const;
 };
 
@@ -45,13 +45,13 @@ struct BenchEntry {
   std::string name;
   std::string what;
   double median_wall_s = 0;
-  double cpu_s = 0;             // CPU time of the median run
-  double throughput = 0;        // in `unit`
+  double cpu_s = 0;       // CPU time of the median run
+  double throughput = 0;  // in `unit`
   std::string unit;
-  std::string peer;             // empty when none
+  std::string peer;  // empty when none
   double peer_median_wall_s = 0;
   double peer_throughput = 0;
-  double ratio = 0;             // throughput / peer throughput (per pixel), 0 without a peer
+  double ratio = 0;                // throughput / peer throughput (per pixel), 0 without a peer
   std::vector<BenchStage> stages;  // of the median run; empty when the entry has none
 };
 

@@ -156,8 +156,8 @@ DemoResult RunDemoJob(const DemoOptions& options) {
   std::vector<Reconstruction> recs(mode_names.size());
   for (const ReconstructMode mode : {ReconstructMode::kStereo, ReconstructMode::kProjector}) {
     Reconstruction& rec = recs[mode == ReconstructMode::kProjector ? 0 : 1];
-    rec = std::move(
-        ReconstructModes(*decoded, {mode}, reconstruct_options, &result.stages).front());
+    rec =
+        std::move(ReconstructModes(*decoded, {mode}, reconstruct_options, &result.stages).front());
     rec.grid = DenseGrid();
     std::vector<float>().swap(rec.projector_error_px);
     ReleaseReconstructionBuffers();

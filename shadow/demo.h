@@ -19,13 +19,13 @@ namespace slshadow::shadow {
 
 struct DemoOptions {
   std::filesystem::path out_dir = "slshadow-demo";  // replaced only if it holds an earlier demo
-  std::filesystem::path rig_path;       // empty: the embedded config/demo/rig.yaml
-  std::filesystem::path scene_path;     // empty: the embedded config/demo/scene.yaml
-  std::filesystem::path patterns_path;  // empty: the embedded config/demo/patterns.yaml
-  std::string method = "midpoint";      // triangulation method (reconstruct/triangulation.h)
-  double threshold_mm = 0.25;           // outlier threshold of the comparison
-  std::string encoding = "pgm";         // ImageSet image encoding: pgm (fastest) | png | tiff
-  bool verbose = false;                 // print each stage's full report
+  std::filesystem::path rig_path;                   // empty: the embedded config/demo/rig.yaml
+  std::filesystem::path scene_path;                 // empty: the embedded config/demo/scene.yaml
+  std::filesystem::path patterns_path;              // empty: the embedded config/demo/patterns.yaml
+  std::string method = "midpoint";  // triangulation method (reconstruct/triangulation.h)
+  double threshold_mm = 0.25;       // outlier threshold of the comparison
+  std::string encoding = "pgm";     // ImageSet image encoding: pgm (fastest) | png | tiff
+  bool verbose = false;             // print each stage's full report
   void Check() const;
 };
 

@@ -35,7 +35,8 @@ std::string Fmt(const char* format, double a, double b = 0, double c = 0, double
 }
 
 float PixelValue(const cv::Mat& m, int y, int x) {
-  return m.depth() == CV_8U ? static_cast<float>(m.at<uint8_t>(y, x)) : static_cast<float>(m.at<uint16_t>(y, x));
+  return m.depth() == CV_8U ? static_cast<float>(m.at<uint8_t>(y, x))
+                            : static_cast<float>(m.at<uint16_t>(y, x));
 }
 
 Eigen::Matrix<double, 6, 1> Basis(double x, double y, int w, int h) {
@@ -46,13 +47,15 @@ Eigen::Matrix<double, 6, 1> Basis(double x, double y, int w, int h) {
 }
 
 // Projector pattern value through the response, bilinear between texels.
-double PatternIntensity(const cv::Mat& pattern, const std::vector<float>& response, double x, double y) {
+double PatternIntensity(const cv::Mat& pattern, const std::vector<float>& response, double x,
+                        double y) {
   const int x0 = static_cast<int>(std::floor(x)), y0 = static_cast<int>(std::floor(y));
   const double fx = x - x0, fy = y - y0;
   double v = 0;
   for (int dy = 0; dy < 2; ++dy) {
     for (int dx = 0; dx < 2; ++dx) {
-      const int xi = std::clamp(x0 + dx, 0, pattern.cols - 1), yi = std::clamp(y0 + dy, 0, pattern.rows - 1);
+      const int xi = std::clamp(x0 + dx, 0, pattern.cols - 1),
+                yi = std::clamp(y0 + dy, 0, pattern.rows - 1);
       const double w = (dx ? fx : 1 - fx) * (dy ? fy : 1 - fy);
       v += w * response[pattern.at<uint8_t>(yi, xi)];
     }
@@ -95,10 +98,12 @@ double StdDev(const std::vector<float>& a) {
 }  // namespace
 
 void DiagnoseOptions::Check() const {
-  SLSHADOW_THROW_IF(!(calibration_field_px > 0), "diagnose: calibration_field_px must be > 0 (got ", calibration_field_px, ")");
-  SLSHADOW_THROW_IF(!(multipath_ratio > 0 && multipath_ratio < 1), "diagnose: multipath_ratio must be in (0, 1) (got ",
-                    multipath_ratio, ")");
-  SLSHADOW_THROW_IF(smoothing_neighbors < 1, "diagnose: smoothing_neighbors must be >= 1 (got ", smoothing_neighbors, ")");
+  SLSHADOW_THROW_IF(!(calibration_field_px > 0), "diagnose: calibration_field_px must be > 0 (got ",
+                    calibration_field_px, ")");
+  SLSHADOW_THROW_IF(!(multipath_ratio > 0 && multipath_ratio < 1),
+                    "diagnose: multipath_ratio must be in (0, 1) (got ", multipath_ratio, ")");
+  SLSHADOW_THROW_IF(smoothing_neighbors < 1, "diagnose: smoothing_neighbors must be >= 1 (got ",
+                    smoothing_neighbors, ")");
 }
 
 cv::Mat SmoothField(const cv::Mat& residual, const cv::Mat& mask, double* rms_px, double* mean_px) {
@@ -131,7 +136,8 @@ cv::Mat SmoothField(const cv::Mat& residual, const cv::Mat& mask, double* rms_px
     std::vector<double> res;
     for (size_t i = 0; i < values.size(); ++i) res.push_back(values[i] - coef.dot(basis[i]));
     const double sigma = Mad(res, 0.0);
-    for (size_t i = 0; i < values.size(); ++i) inlier[i] = std::abs(res[i]) < std::max(3 * sigma, 0.5);
+    for (size_t i = 0; i < values.size(); ++i)
+      inlier[i] = std::abs(res[i]) < std::max(3 * sigma, 0.5);
   }
   double ss = 0, sum = 0;
   int64_t n = 0;
@@ -170,14 +176,15 @@ nlohmann::json Diagnosis::ToJson() const {
 std::string Diagnosis::Summary() const {
   std::string out = "verdict: " + verdict + "\n";
   for (const auto& f : findings) {
-    out += "  " + std::string(f.detected ? "[FOUND] " : (f.evaluated ? "[  ok ] " : "[ n/a ] ")) + f.cause + ": " + f.message +
-           "\n";
+    out += "  " + std::string(f.detected ? "[FOUND] " : (f.evaluated ? "[  ok ] " : "[ n/a ] ")) +
+           f.cause + ": " + f.message + "\n";
   }
   return out;
 }
 
-Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projector_images, const std::vector<float>& response,
-                   const PhysicsFit& physics, const std::vector<CameraEvidence>& cameras,
+Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projector_images,
+                   const std::vector<float>& response, const PhysicsFit& physics,
+                   const std::vector<CameraEvidence>& cameras,
                    const std::vector<ModeEvidence>& modes, const DiagnoseOptions& options) {
   options.Check();
   SLSHADOW_THROW_IF(cameras.empty(), "diagnose: no camera evidence");
@@ -195,10 +202,12 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
     const CameraEvidence& cam = cameras[c];
     // NaN propagates; an axis the spec does not code has empty maps.
     if (!cam.real_x.empty() && !cam.gt_x.empty()) {
-      fields[c].x = SmoothField(cam.real_x - cam.gt_x, cam.mask, &fields[c].rms_x, &fields[c].mean_x);
+      fields[c].x =
+          SmoothField(cam.real_x - cam.gt_x, cam.mask, &fields[c].rms_x, &fields[c].mean_x);
     }
     if (!cam.real_y.empty() && !cam.gt_y.empty()) {
-      fields[c].y = SmoothField(cam.real_y - cam.gt_y, cam.mask, &fields[c].rms_y, &fields[c].mean_y);
+      fields[c].y =
+          SmoothField(cam.real_y - cam.gt_y, cam.mask, &fields[c].rms_y, &fields[c].mean_y);
     }
   }
 
@@ -214,11 +223,13 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
     std::vector<cv::Point> px;
     std::vector<double> cx, cy;
     int64_t inside = cv::countNonZero(cam.mask);
-    const int stride = std::max(1, static_cast<int>(std::sqrt(static_cast<double>(inside) / 40000.0)));
+    const int stride =
+        std::max(1, static_cast<int>(std::sqrt(static_cast<double>(inside) / 40000.0)));
     for (int y = 0; y < cam.height; y += stride) {
       for (int x = 0; x < cam.width; x += stride) {
         if (!cam.mask.at<uint8_t>(y, x)) continue;
-        double u = cam.gt_x.empty() ? 0 : cam.gt_x.at<float>(y, x), v = cam.gt_y.empty() ? 0 : cam.gt_y.at<float>(y, x);
+        double u = cam.gt_x.empty() ? 0 : cam.gt_x.at<float>(y, x),
+               v = cam.gt_y.empty() ? 0 : cam.gt_y.at<float>(y, x);
         if (!std::isfinite(u) || !std::isfinite(v)) continue;
         if (!fields[c].x.empty()) u += fields[c].x.at<float>(y, x);
         if (!fields[c].y.empty()) v += fields[c].y.at<float>(y, x);
@@ -239,7 +250,8 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
       const float b = cam.black.at<float>(px[i].y, px[i].x);
       for (size_t k = 0; k < nf; ++k) {
         r[k][i] = PixelValue(real[k], px[i].y, px[i].x);
-        p[k][i] = static_cast<float>(b + (w - b) * PatternIntensity(projector_images[k], response, cx[i], cy[i]));
+        p[k][i] = static_cast<float>(
+            b + (w - b) * PatternIntensity(projector_images[k], response, cx[i], cy[i]));
       }
     }
     std::vector<double> rstd(nf), pstd(nf);
@@ -271,8 +283,9 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
   if (wrong.detected) {
     std::string list;
     for (const auto& f : wrong.evidence["frames"]) {
-      list += (list.empty() ? "" : ", ") + f["camera"].get<std::string>() + " frame " + std::to_string(f["frame"].get<int>()) +
-              " (" + f["frame_name"].get<std::string>() + ") shows pattern " + std::to_string(f["matches_pattern"].get<int>()) + " (" +
+      list += (list.empty() ? "" : ", ") + f["camera"].get<std::string>() + " frame " +
+              std::to_string(f["frame"].get<int>()) + " (" + f["frame_name"].get<std::string>() +
+              ") shows pattern " + std::to_string(f["matches_pattern"].get<int>()) + " (" +
               f["matches_pattern_name"].get<std::string>() + ")";
     }
     wrong.message = "wrong or late frame: " + list + "; check the projector-camera synchronisation";
@@ -307,7 +320,8 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
       // Focal-length equivalent: a projector focal error df moves a coordinate by
       // (df / f) (u - cx), so the field's slope against u - cx (least squares, with an offset)
       // times f is the focal error that explains its linear part.
-      const auto focal_error = [&](const cv::Mat& field, const cv::Mat& truth, double principal, double focal) {
+      const auto focal_error = [&](const cv::Mat& field, const cv::Mat& truth, double principal,
+                                   double focal) {
         if (field.empty() || truth.empty()) return std::nan("");
         double n = 0, sx = 0, sy = 0, sxx = 0, sxy = 0;
         const int stride = std::max(1, std::min(cam.width, cam.height) / 200);
@@ -337,9 +351,14 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
       cal.evidence["cameras"].push_back(ev);
       if (rms > worst) {
         worst = rms;
-        cal.message = Fmt("smooth projector-coordinate field of %.3f px RMS (mean %.3f, %.3f px): ", rms, f.mean_x, f.mean_y) +
-                      Fmt("equivalent projector rotation %.4f deg about y, %.4f deg about x", rot_y_deg, rot_x_deg);
-        if (std::isfinite(dfx)) cal.message += Fmt(", or a projector focal length off by %.2f px (fx %.1f)", dfx, cam.projector_fx);
+        cal.message =
+            Fmt("smooth projector-coordinate field of %.3f px RMS (mean %.3f, %.3f px): ", rms,
+                f.mean_x, f.mean_y) +
+            Fmt("equivalent projector rotation %.4f deg about y, %.4f deg about x", rot_y_deg,
+                rot_x_deg);
+        if (std::isfinite(dfx))
+          cal.message +=
+              Fmt(", or a projector focal length off by %.2f px (fx %.1f)", dfx, cam.projector_fx);
         if (std::isfinite(dfy)) cal.message += Fmt(" / %.2f px (fy)", dfy);
       }
     }
@@ -348,7 +367,8 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
     if (cal.detected) {
       cal.message = "calibration error: " + cal.message + "; run `slshadow calibrate refine`";
     } else {
-      cal.message = Fmt("no smooth field above %.2f px (largest %.3f px RMS)", options.calibration_field_px, worst);
+      cal.message = Fmt("no smooth field above %.2f px (largest %.3f px RMS)",
+                        options.calibration_field_px, worst);
     }
     calibration_found = cal.detected;
     diag.findings.push_back(cal);
@@ -381,7 +401,8 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
           Eigen::VectorXd b(9);
           const double phi = 2 * M_PI * gx / period;
           b(0) = 1;
-          for (int m = 1; m <= 4; ++m) b(2 * m - 1) = std::cos(m * phi), b(2 * m) = std::sin(m * phi);
+          for (int m = 1; m <= 4; ++m)
+            b(2 * m - 1) = std::cos(m * phi), b(2 * m) = std::sin(m * phi);
           ata += b * b.transpose();
           atb += b * r;
           ss += r * r;
@@ -396,16 +417,21 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
         for (int m = 1; m <= 4; ++m) {
           const double a = std::hypot(coef(2 * m - 1), coef(2 * m));
           largest = std::max(largest, a);
-          amps.push_back({{"harmonic", m}, {"amplitude_px", a}, {"standard_error_px", std::sqrt(2 * var / static_cast<double>(n))}});
+          amps.push_back({{"harmonic", m},
+                          {"amplitude_px", a},
+                          {"standard_error_px", std::sqrt(2 * var / static_cast<double>(n))}});
         }
         resp.evidence["ripple"] = amps;
         resp.evidence["ripple_largest_px"] = largest;
       }
     }
     if (resp.detected) {
-      resp.message = Fmt("projector response is not linear: gamma %.3f +- %.3f fitted from the phase frames", g->value, g->sigma);
+      resp.message =
+          Fmt("projector response is not linear: gamma %.3f +- %.3f fitted from the phase frames",
+              g->value, g->sigma);
       if (resp.evidence.contains("ripple_largest_px"))
-        resp.message += Fmt(" (coordinate ripple at the fringe harmonics up to %.4f px)", resp.evidence["ripple_largest_px"].get<double>());
+        resp.message += Fmt(" (coordinate ripple at the fringe harmonics up to %.4f px)",
+                            resp.evidence["ripple_largest_px"].get<double>());
     } else {
       resp.message = g ? g->reason : "no response fit";
     }
@@ -420,7 +446,8 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
     d.evaluated = l && l->observable;
     d.detected = l && l->kept;
     if (l) d.evidence["defocus"] = l->ToJson();
-    d.message = d.detected ? Fmt("projector defocus: Gaussian blur sigma %.2f +- %.2f projector px (fringe modulation %.1f %% of focused)",
+    d.message = d.detected ? Fmt("projector defocus: Gaussian blur sigma %.2f +- %.2f projector px "
+                                 "(fringe modulation %.1f %% of focused)",
                                  l->value, l->sigma, 100 * l->extra.value("modulation_ratio", 1.0))
                            : (l ? l->reason : "no defocus fit");
     diag.findings.push_back(d);
@@ -443,13 +470,15 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
         std::vector<double> range;
         for (int y = 0; y < cam.height; y += 2) {
           for (int x = 0; x < cam.width; x += 2) {
-            if (cam.mask.at<uint8_t>(y, x)) range.push_back(cam.white.at<float>(y, x) - cam.black.at<float>(y, x));
+            if (cam.mask.at<uint8_t>(y, x))
+              range.push_back(cam.white.at<float>(y, x) - cam.black.at<float>(y, x));
           }
         }
         const double min_range = 0.3 * Median(range);
         for (int y = 0; y < cam.height; ++y) {
           for (int x = 0; x < cam.width; ++x) {
-            if (cam.white.at<float>(y, x) - cam.black.at<float>(y, x) < min_range) usable.at<uint8_t>(y, x) = 0;
+            if (cam.white.at<float>(y, x) - cam.black.at<float>(y, x) < min_range)
+              usable.at<uint8_t>(y, x) = 0;
           }
         }
       }
@@ -490,7 +519,8 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
               if (std::isfinite(r)) v.push_back(r);
             }
           }
-          if (full && v.size() >= 48 && Median(v) < options.multipath_ratio * med) flag[static_cast<size_t>(by * bw + bx)] = 1;
+          if (full && v.size() >= 48 && Median(v) < options.multipath_ratio * med)
+            flag[static_cast<size_t>(by * bw + bx)] = 1;
         }
       }
       // Connected blobs (4-neighbourhood).
@@ -527,9 +557,11 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
     mp.evidence["largest_blob_blocks"] = largest;
     mp.evidence["block_px"] = 8;
     mp.detected = largest >= options.min_blob_blocks;
-    mp.message = mp.detected ? "multipath / specular / subsurface: real fringe modulation below the twin's in a blob of " +
+    mp.message = mp.detected ? "multipath / specular / subsurface: real fringe modulation below "
+                               "the twin's in a blob of " +
                                    std::to_string(largest) + " 8x8 blocks, " + where
-                             : "no local loss of fringe modulation (largest blob " + std::to_string(largest) + " blocks)";
+                             : "no local loss of fringe modulation (largest blob " +
+                                   std::to_string(largest) + " blocks)";
     diag.findings.push_back(mp);
   }
 
@@ -548,7 +580,8 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
       if (m.real_points.size() < 100 || m.virtual_points.size() < 100) {
         all_detect = false;
         mode_means.emplace_back();
-        part.evidence["modes"].push_back({{"mode", m.mode}, {"detected", false}, {"compared_points", 0}});
+        part.evidence["modes"].push_back(
+            {{"mode", m.mode}, {"detected", false}, {"compared_points", 0}});
         continue;
       }
       const compare::KdTree real_tree(m.real_points), virt_tree(m.virtual_points);
@@ -567,12 +600,14 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
           sr /= static_cast<double>(nb.size());
           virt_tree.KNearest(p, k, &nb);
           double sv = 0, svv = 0;
-          for (const auto& q : nb) sv += m.virtual_c2m[q.index], svv += m.virtual_c2m[q.index] * m.virtual_c2m[q.index];
+          for (const auto& q : nb)
+            sv += m.virtual_c2m[q.index], svv += m.virtual_c2m[q.index] * m.virtual_c2m[q.index];
           sv /= static_cast<double>(nb.size());
           d[static_cast<size_t>(i)] = sr - sv;
           // The twin's own local scatter: large at edges and mixed pixels, where the real scan
           // scatters too; such places say nothing about the part.
-          spread[static_cast<size_t>(i)] = std::sqrt(std::max(0.0, svv / static_cast<double>(nb.size()) - sv * sv));
+          spread[static_cast<size_t>(i)] =
+              std::sqrt(std::max(0.0, svv / static_cast<double>(nb.size()) - sv * sv));
         }
       });
       const double spread_limit = 3 * Median(spread);
@@ -582,7 +617,8 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
         std::vector<Eigen::Vector3d> pts;
         std::vector<double> vals;
         for (size_t i = 0; i < idx.size(); ++i) {
-          if (spread[i] <= spread_limit) pts.push_back(m.real_points[idx[i]]), vals.push_back(d[i] - med);
+          if (spread[i] <= spread_limit)
+            pts.push_back(m.real_points[idx[i]]), vals.push_back(d[i] - med);
         }
         mode_means.emplace_back(std::move(pts), std::move(vals));
       }
@@ -631,7 +667,8 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
             }
           }
         }
-        const int best = static_cast<int>(std::max_element(size_of.begin(), size_of.end()) - size_of.begin());
+        const int best =
+            static_cast<int>(std::max_element(size_of.begin(), size_of.end()) - size_of.begin());
         for (size_t i = 0; i < sig.size(); ++i) {
           if (label[i] != best) continue;
           ++coherent;
@@ -639,21 +676,23 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
           peak = std::max(peak, std::abs(sig_d[i]));
           mean_dev += sig_d[i];
         }
-        if (coherent) centroid /= static_cast<double>(coherent), mean_dev /= static_cast<double>(coherent);
+        if (coherent)
+          centroid /= static_cast<double>(coherent), mean_dev /= static_cast<double>(coherent);
       }
       const double fraction = static_cast<double>(coherent) / static_cast<double>(idx.size());
       const bool found = fraction >= options.part_min_fraction && coherent >= 20;
-      part.evidence["modes"].push_back({{"mode", m.mode},
-                                        {"compared_points", idx.size()},
-                                        {"noise_sigma_mm", sigma},
-                                        {"threshold_mm", thr},
-                                        {"significant_points", sig.size()},
-                                        {"clustered_points", coherent},
-                                        {"clustered_fraction", fraction},
-                                        {"mean_deviation_mm", mean_dev},
-                                        {"peak_deviation_mm", peak},
-                                        {"centroid_in_rig_mm", {centroid.x(), centroid.y(), centroid.z()}},
-                                        {"detected", found}});
+      part.evidence["modes"].push_back(
+          {{"mode", m.mode},
+           {"compared_points", idx.size()},
+           {"noise_sigma_mm", sigma},
+           {"threshold_mm", thr},
+           {"significant_points", sig.size()},
+           {"clustered_points", coherent},
+           {"clustered_fraction", fraction},
+           {"mean_deviation_mm", mean_dev},
+           {"peak_deviation_mm", peak},
+           {"centroid_in_rig_mm", {centroid.x(), centroid.y(), centroid.z()}},
+           {"detected", found}});
       if (found) {
         centroids.push_back(centroid);
         signs.push_back(mean_dev);
@@ -680,7 +719,9 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
         }
         const double mean = n ? sum / static_cast<double>(n) : 0.0;
         part.evidence["modes"][mi]["mean_at_strongest_cluster_mm"] = mean;
-        if (!(n > 0 && mean * signs[primary] > 0 && std::abs(mean) >= 0.5 * std::abs(signs[primary]))) consistent = false;
+        if (!(n > 0 && mean * signs[primary] > 0 &&
+              std::abs(mean) >= 0.5 * std::abs(signs[primary])))
+          consistent = false;
       }
       centroids = {centroids[primary]};
       signs = {signs[primary]};
@@ -689,10 +730,12 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
     part.detected = consistent && !calibration_found;
     if (part.detected) {
       const auto& first = part.evidence["modes"][0];
-      part.message = Fmt("deviation on the part's surface: %.3f mm mean, %.3f mm peak", first["mean_deviation_mm"].get<double>(),
-                         first["peak_deviation_mm"].get<double>()) +
-                     Fmt(" around (%.1f, %.1f, %.1f) mm in the rig frame", centroids[0].x(), centroids[0].y(), centroids[0].z()) +
-                     ", in every mode, not explained by the rig: the part differs from its model";
+      part.message =
+          Fmt("deviation on the part's surface: %.3f mm mean, %.3f mm peak",
+              first["mean_deviation_mm"].get<double>(), first["peak_deviation_mm"].get<double>()) +
+          Fmt(" around (%.1f, %.1f, %.1f) mm in the rig frame", centroids[0].x(), centroids[0].y(),
+              centroids[0].z()) +
+          ", in every mode, not explained by the rig: the part differs from its model";
     } else if (consistent && calibration_found) {
       part.message = "surface deviations are explained by the calibration error";
     } else if (!centroids.empty()) {
@@ -710,7 +753,8 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
     diag.verdict = "consistent with the model";
   } else {
     diag.verdict = "differences found: ";
-    for (size_t i = 0; i < diag.causes.size(); ++i) diag.verdict += (i ? ", " : "") + diag.causes[i];
+    for (size_t i = 0; i < diag.causes.size(); ++i)
+      diag.verdict += (i ? ", " : "") + diag.causes[i];
   }
   return diag;
 }

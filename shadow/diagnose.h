@@ -43,13 +43,13 @@
 namespace slshadow::shadow {
 
 struct DiagnoseOptions {
-  double calibration_field_px = 0.25;   // field RMS above this: calibration error
-  double wrong_frame_margin = 0.2;      // corr(own) must trail corr(best other) by this
-  double wrong_frame_min_corr = 0.8;    // and the best other must reach this
+  double calibration_field_px = 0.25;  // field RMS above this: calibration error
+  double wrong_frame_margin = 0.2;     // corr(own) must trail corr(best other) by this
+  double wrong_frame_min_corr = 0.8;   // and the best other must reach this
   double multipath_ratio = 0.65;
   int min_blob_blocks = 6;
   double part_min_mm = 0.015;
-  double part_min_fraction = 0.001;     // of the compared points, in a cluster
+  double part_min_fraction = 0.001;  // of the compared points, in a cluster
   int smoothing_neighbors = 64;
   void Check() const;
 };
@@ -63,16 +63,17 @@ struct CameraEvidence {
   cv::Mat gt_x, gt_y;        // twin's true projector coordinates, NaN where not lit
   cv::Mat modulation_ratio;  // real / twin normalised fringe modulation, NaN where none
   const std::vector<cv::Mat>* real = nullptr;  // real images, spec order
-  cv::Mat white, black;      // real white / black levels (WhiteBlackImages), CV_32FC1
+  cv::Mat white, black;  // real white / black levels (WhiteBlackImages), CV_32FC1
   double projector_fx = 1, projector_fy = 1;
-  double projector_cx = 0, projector_cy = 0;  // the principal point, for the field's focal-length equivalent
+  double projector_cx = 0,
+         projector_cy = 0;  // the principal point, for the field's focal-length equivalent
 };
 
 // Per reconstruction mode: the clouds against the part.
 struct ModeEvidence {
   std::string mode;
   std::vector<Eigen::Vector3d> real_points, virtual_points;  // rig frame
-  std::vector<double> real_c2m, virtual_c2m;                  // signed distance to the part, mm
+  std::vector<double> real_c2m, virtual_c2m;                 // signed distance to the part, mm
 };
 
 struct Finding {
@@ -88,19 +89,20 @@ struct Diagnosis {
   std::vector<std::string> causes;  // detected causes, in the order above
   std::string verdict;              // "consistent with the model" or the causes named
   nlohmann::json ToJson() const;
-  std::string Summary() const;      // a few lines
+  std::string Summary() const;  // a few lines
 };
 
 // `projector_images` are the spec's projector images (CV_8UC1); `response` the projector value ->
 // intensity table (256 entries) of the fitted twin.
 Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projector_images,
                    const std::vector<float>& response, const PhysicsFit& physics,
-                   const std::vector<CameraEvidence>& cameras, const std::vector<ModeEvidence>& modes,
-                   const DiagnoseOptions& options = {});
+                   const std::vector<CameraEvidence>& cameras,
+                   const std::vector<ModeEvidence>& modes, const DiagnoseOptions& options = {});
 
 // The robust quadratic field of a coordinate residual (exposed for maps and tests): per pixel of
 // `residual` (NaN where unknown, restricted to `mask`), the fitted field value (CV_32FC1), or an
 // empty Mat when fewer than 50 samples.
-cv::Mat SmoothField(const cv::Mat& residual, const cv::Mat& mask, double* rms_px = nullptr, double* mean_px = nullptr);
+cv::Mat SmoothField(const cv::Mat& residual, const cv::Mat& mask, double* rms_px = nullptr,
+                    double* mean_px = nullptr);
 
 }  // namespace slshadow::shadow

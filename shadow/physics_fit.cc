@@ -17,7 +17,8 @@ namespace {
 constexpr int kBands = 8;
 
 float Pixel(const cv::Mat& m, int y, int x) {
-  return m.depth() == CV_8U ? static_cast<float>(m.at<uint8_t>(y, x)) : static_cast<float>(m.at<uint16_t>(y, x));
+  return m.depth() == CV_8U ? static_cast<float>(m.at<uint8_t>(y, x))
+                            : static_cast<float>(m.at<uint16_t>(y, x));
 }
 
 double Median(std::vector<double> v) {
@@ -56,7 +57,8 @@ double BandSigma(const std::vector<double>& values) {
   const double mean = std::accumulate(v.begin(), v.end(), 0.0) / static_cast<double>(v.size());
   double ss = 0;
   for (double x : v) ss += (x - mean) * (x - mean);
-  return std::sqrt(ss / static_cast<double>(v.size() - 1)) / std::sqrt(static_cast<double>(v.size()));
+  return std::sqrt(ss / static_cast<double>(v.size() - 1)) /
+         std::sqrt(static_cast<double>(v.size()));
 }
 
 struct Sample {
@@ -67,14 +69,17 @@ struct Sample {
   bool heldout = false;
 };
 
-int FindFrame(const std::vector<FrameInfo>& frames, FrameRole role, int axis, int bit, int frequency, int step) {
+int FindFrame(const std::vector<FrameInfo>& frames, FrameRole role, int axis, int bit,
+              int frequency, int step) {
   for (size_t i = 0; i < frames.size(); ++i) {
     const FrameInfo& f = frames[i];
     if (f.role != role) continue;
     if (role == FrameRole::kWhite || role == FrameRole::kBlack) return static_cast<int>(i);
     if (f.axis != axis) continue;
-    if ((role == FrameRole::kGrayBit || role == FrameRole::kGrayBitInverse) && f.bit == bit) return static_cast<int>(i);
-    if (role == FrameRole::kPhase && f.frequency == frequency && f.step == step) return static_cast<int>(i);
+    if ((role == FrameRole::kGrayBit || role == FrameRole::kGrayBitInverse) && f.bit == bit)
+      return static_cast<int>(i);
+    if (role == FrameRole::kPhase && f.frequency == frequency && f.step == step)
+      return static_cast<int>(i);
   }
   return -1;
 }
@@ -96,7 +101,8 @@ std::vector<std::pair<int, int>> InversePairs(const std::vector<FrameInfo>& fram
   std::vector<std::pair<int, int>> pairs;
   for (size_t i = 0; i < frames.size(); ++i) {
     if (frames[i].role != FrameRole::kGrayBit) continue;
-    const int inv = FindFrame(frames, FrameRole::kGrayBitInverse, frames[i].axis, frames[i].bit, 0, 0);
+    const int inv =
+        FindFrame(frames, FrameRole::kGrayBitInverse, frames[i].axis, frames[i].bit, 0, 0);
     if (inv >= 0) pairs.emplace_back(static_cast<int>(i), inv);
   }
   return pairs;
@@ -120,7 +126,8 @@ std::vector<std::pair<int, int>> IlluminationTerms(int degree) {
 }
 
 // 1 and the monomials of IlluminationTerms(degree) at (u, v), into out[0..terms.size()].
-void MonomialRow(const std::vector<std::pair<int, int>>& terms, int degree, double u, double v, double* out) {
+void MonomialRow(const std::vector<std::pair<int, int>>& terms, int degree, double u, double v,
+                 double* out) {
   double pu[8] = {1}, pv[8] = {1};
   for (int k = 1; k <= degree && k < 8; ++k) pu[k] = pu[k - 1] * u, pv[k] = pv[k - 1] * v;
   out[0] = 1;
@@ -128,7 +135,11 @@ void MonomialRow(const std::vector<std::pair<int, int>>& terms, int degree, doub
 }
 
 std::string TermName(const std::pair<int, int>& t) {
-  const auto power = [](const char* v, int k) { return k == 0 ? std::string() : k == 1 ? std::string(v) : v + std::string("^") + std::to_string(k); };
+  const auto power = [](const char* v, int k) {
+    return k == 0   ? std::string()
+           : k == 1 ? std::string(v)
+                    : v + std::string("^") + std::to_string(k);
+  };
   const std::string a = power("u", t.first), b = power("v", t.second);
   return a.empty() ? b : b.empty() ? a : a + " " + b;
 }
@@ -145,12 +156,14 @@ struct LinearFit {
   bool ok = false;
 };
 
-LinearFit FitLinear(const std::vector<double>& x, const std::vector<double>& y, const std::vector<int>& band, int p) {
+LinearFit FitLinear(const std::vector<double>& x, const std::vector<double>& y,
+                    const std::vector<int>& band, int p) {
   LinearFit f;
   const size_t n = y.size();
   f.rows = static_cast<int64_t>(n);
   if (n < static_cast<size_t>(10 * p)) return f;
-  const auto solve = [&](const std::vector<char>& use, Eigen::VectorXd* beta, std::vector<Eigen::VectorXd>* jack) {
+  const auto solve = [&](const std::vector<char>& use, Eigen::VectorXd* beta,
+                         std::vector<Eigen::VectorXd>* jack) {
     std::vector<Eigen::MatrixXd> ab(kBands, Eigen::MatrixXd::Zero(p, p));
     std::vector<Eigen::VectorXd> rb(kBands, Eigen::VectorXd::Zero(p));
     std::vector<int64_t> nb(kBands, 0);
@@ -164,21 +177,26 @@ LinearFit FitLinear(const std::vector<double>& x, const std::vector<double>& y, 
     }
     Eigen::MatrixXd a = Eigen::MatrixXd::Zero(p, p);
     Eigen::VectorXd r = Eigen::VectorXd::Zero(p);
-    for (int b = 0; b < kBands; ++b) a += ab[static_cast<size_t>(b)], r += rb[static_cast<size_t>(b)];
-    const auto sym = [](const Eigen::MatrixXd& m) { return Eigen::MatrixXd(m.selfadjointView<Eigen::Lower>()); };
+    for (int b = 0; b < kBands; ++b)
+      a += ab[static_cast<size_t>(b)], r += rb[static_cast<size_t>(b)];
+    const auto sym = [](const Eigen::MatrixXd& m) {
+      return Eigen::MatrixXd(m.selfadjointView<Eigen::Lower>());
+    };
     *beta = sym(a).ldlt().solve(r);
     if (!jack) return;
     jack->clear();
     for (int b = 0; b < kBands; ++b) {
       if (nb[static_cast<size_t>(b)] == 0) continue;
-      jack->push_back(sym(a - ab[static_cast<size_t>(b)]).ldlt().solve(r - rb[static_cast<size_t>(b)]));
+      jack->push_back(
+          sym(a - ab[static_cast<size_t>(b)]).ldlt().solve(r - rb[static_cast<size_t>(b)]));
     }
   };
   std::vector<char> use(n, 1);
   Eigen::VectorXd beta;
   solve(use, &beta, nullptr);
   std::vector<double> res(n);
-  for (size_t i = 0; i < n; ++i) res[i] = y[i] - Eigen::Map<const Eigen::VectorXd>(&x[i * static_cast<size_t>(p)], p).dot(beta);
+  for (size_t i = 0; i < n; ++i)
+    res[i] = y[i] - Eigen::Map<const Eigen::VectorXd>(&x[i * static_cast<size_t>(p)], p).dot(beta);
   std::vector<double> abs_res(n);
   for (size_t i = 0; i < n; ++i) abs_res[i] = std::abs(res[i]);
   const double gate = 4 * 1.4826 * std::max(Median(abs_res), 1e-12);
@@ -204,7 +222,8 @@ double JackknifeSigma(const LinearFit& fit, F&& statistic) {
 
 }  // namespace
 
-void WhiteBlackImages(const PatternSpec& spec, const std::vector<cv::Mat>& images, cv::Mat* white, cv::Mat* black) {
+void WhiteBlackImages(const PatternSpec& spec, const std::vector<cv::Mat>& images, cv::Mat* white,
+                      cv::Mat* black) {
   const int w = spec.WhiteFrameIndex(), b = spec.BlackFrameIndex();
   if (w >= 0 && b >= 0) {
     images.at(static_cast<size_t>(w)).convertTo(*white, CV_32F);
@@ -212,7 +231,9 @@ void WhiteBlackImages(const PatternSpec& spec, const std::vector<cv::Mat>& image
     return;
   }
   const auto pairs = InversePairs(spec.Frames());
-  SLSHADOW_THROW_IF(pairs.empty(), "white / black levels: the sequence has neither white and black frames nor inverse pairs");
+  SLSHADOW_THROW_IF(
+      pairs.empty(),
+      "white / black levels: the sequence has neither white and black frames nor inverse pairs");
   const cv::Mat& first = images.at(0);
   white->create(first.size(), CV_32FC1);
   black->create(first.size(), CV_32FC1);
@@ -277,11 +298,13 @@ nlohmann::json PhysicsLayer::ToJson() const {
 
 void PhysicsFitOptions::Check() const {
   SLSHADOW_THROW_IF(stride_px < 1, "physics fit: stride_px must be >= 1 (got ", stride_px, ")");
-  SLSHADOW_THROW_IF(!(min_factor >= 0), "physics fit: min_factor must be >= 0 (got ", min_factor, ")");
+  SLSHADOW_THROW_IF(!(min_factor >= 0), "physics fit: min_factor must be >= 0 (got ", min_factor,
+                    ")");
   SLSHADOW_THROW_IF(!(min_heldout_drop >= 0 && min_heldout_drop < 1),
                     "physics fit: min_heldout_drop must be in [0, 1) (got ", min_heldout_drop, ")");
-  SLSHADOW_THROW_IF(illumination_degree < 0 || illumination_degree > 4, "physics fit: illumination_degree must be in 0..4 (got ",
-                    illumination_degree, ")");
+  SLSHADOW_THROW_IF(illumination_degree < 0 || illumination_degree > 4,
+                    "physics fit: illumination_degree must be in 0..4 (got ", illumination_degree,
+                    ")");
 }
 
 const PhysicsLayer* PhysicsFit::Find(const std::string& name) const {
@@ -307,22 +330,25 @@ std::string PhysicsFit::Table() const {
   for (const auto& l : layers) {
     char buf[512];
     std::snprintf(buf, sizeof(buf), "  %-20s %-5s %12.5g +- %-10.3g %-10s %s\n", l.name.c_str(),
-                  !l.observable ? "n/a" : (l.kept ? "kept" : "off"), l.value, l.sigma, l.unit.c_str(), l.reason.c_str());
+                  !l.observable ? "n/a" : (l.kept ? "kept" : "off"), l.value, l.sigma,
+                  l.unit.c_str(), l.reason.c_str());
     out += buf;
   }
   return out;
 }
 
-Scene PhysicsFit::Apply(const Scene& twin, const Rig& rig, double projector_depth_mm, uint64_t noise_seed) const {
+Scene PhysicsFit::Apply(const Scene& twin, const Rig& rig, double projector_depth_mm,
+                        uint64_t noise_seed) const {
   Scene scene = twin;
-  if (const PhysicsLayer* e = Find("exposure")) scene.radiometry.exposure = e->value;
+  if (const PhysicsLayer* e = Find("exposure")) scene.radiometry.exposure_fraction = e->value;
   if (const PhysicsLayer* d = Find("albedo_dark"); d && d->kept) {
     for (auto& o : scene.objects) {
       if (o.albedo.kind == Albedo::Kind::kCheckerboard) o.albedo.dark = d->value;
     }
   }
   for (auto& o : scene.objects) {
-    if (const PhysicsLayer* a = Find("albedo_" + o.name); a && a->kept && o.albedo.kind == Albedo::Kind::kUniform) {
+    if (const PhysicsLayer* a = Find("albedo_" + o.name);
+        a && a->kept && o.albedo.kind == Albedo::Kind::kUniform) {
       o.albedo.value = a->value;
     }
   }
@@ -359,17 +385,19 @@ cv::Mat IlluminationField(const PhysicsFit& fit, const std::string& camera, int 
   const std::vector<std::pair<int, int>> terms = IlluminationTerms(degree);
   const auto& c = l->extra.at("coefficients");
   const std::vector<double> coefficients = c.get<std::vector<double>>();
-  SLSHADOW_THROW_IF(c.size() != terms.size() + 1, "illumination field of '", camera, "': ", c.size(), " coefficients for ",
-                    terms.size() + 1, " terms");
+  SLSHADOW_THROW_IF(c.size() != terms.size() + 1, "illumination field of '", camera,
+                    "': ", c.size(), " coefficients for ", terms.size() + 1, " terms");
   // The field was fitted on images of extra.width x extra.height; scale coordinates to this size.
   const int fw = l->extra.value("width", width), fh = l->extra.value("height", height);
   cv::parallel_for_(cv::Range(0, height), [&](const cv::Range& rows) {
     std::vector<double> row(terms.size() + 1);
     for (int y = rows.start; y < rows.end; ++y) {
       float* out = g.ptr<float>(y);
-      const double v = NormalisedCoordinate(static_cast<int>(std::lround((y + 0.5) * fh / height - 0.5)), fh);
+      const double v =
+          NormalisedCoordinate(static_cast<int>(std::lround((y + 0.5) * fh / height - 0.5)), fh);
       for (int x = 0; x < width; ++x) {
-        const double u = NormalisedCoordinate(static_cast<int>(std::lround((x + 0.5) * fw / width - 0.5)), fw);
+        const double u =
+            NormalisedCoordinate(static_cast<int>(std::lround((x + 0.5) * fw / width - 0.5)), fw);
         MonomialRow(terms, degree, u, v, row.data());
         double sum = 0;
         for (size_t k = 0; k < row.size(); ++k) sum += coefficients[k] * row[k];
@@ -382,20 +410,23 @@ cv::Mat IlluminationField(const PhysicsFit& fit, const std::string& camera, int 
 
 std::vector<double> PatternMeans(const std::vector<cv::Mat>& projector_images) {
   std::vector<double> m;
-  for (const cv::Mat& p : projector_images) m.push_back(cv::mean(p)[0] / (p.depth() == CV_8U ? 255.0 : 65535.0));
+  for (const cv::Mat& p : projector_images)
+    m.push_back(cv::mean(p)[0] / (p.depth() == CV_8U ? 255.0 : 65535.0));
   return m;
 }
 
-void ApplyImageLayers(const PhysicsFit& fit, const PatternSpec& spec, const std::vector<double>& pattern_means,
-                      const std::string& camera, std::vector<cv::Mat>* images) {
+void ApplyImageLayers(const PhysicsFit& fit, const PatternSpec& spec,
+                      const std::vector<double>& pattern_means, const std::string& camera,
+                      std::vector<cv::Mat>* images) {
   const PhysicsLayer* bl = fit.Find("black_level_" + camera);
   const double offset = bl && bl->kept ? bl->value : 0.0;
   const bool field = fit.Kept("illumination_" + camera);
   const double global = fit.Kept("global_light") ? fit.Find("global_light")->value : 0.0;
   if ((offset == 0 && !field && global == 0) || images->empty()) return;
-  SLSHADOW_THROW_IF(pattern_means.size() != images->size(), "image layers: ", pattern_means.size(), " pattern means for ",
-                    images->size(), " images");
-  const auto first = std::find_if(images->begin(), images->end(), [](const cv::Mat& m) { return !m.empty(); });
+  SLSHADOW_THROW_IF(pattern_means.size() != images->size(), "image layers: ", pattern_means.size(),
+                    " pattern means for ", images->size(), " images");
+  const auto first =
+      std::find_if(images->begin(), images->end(), [](const cv::Mat& m) { return !m.empty(); });
   if (first == images->end()) return;
   const cv::Mat g = IlluminationField(fit, camera, first->cols, first->rows);
   cv::Mat white, black;
@@ -407,7 +438,8 @@ void ApplyImageLayers(const PhysicsFit& fit, const PatternSpec& spec, const std:
       if (img.empty()) continue;  // a frame not rendered
       img.convertTo(f, CV_32F);
       if (global != 0) {  // B + (1 - g) (I - B) + g m (W - B)
-        const float keep = static_cast<float>(1 - global), m = static_cast<float>(global * pattern_means[static_cast<size_t>(i)]);
+        const float keep = static_cast<float>(1 - global),
+                    m = static_cast<float>(global * pattern_means[static_cast<size_t>(i)]);
         for (int y = 0; y < f.rows; ++y) {
           float* p = f.ptr<float>(y);
           const float* w = white.ptr<float>(y);
@@ -421,8 +453,8 @@ void ApplyImageLayers(const PhysicsFit& fit, const PatternSpec& spec, const std:
   });
 }
 
-PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vector<CameraData>& cameras,
-                      const PhysicsFitOptions& options) {
+PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin,
+                      const std::vector<CameraData>& cameras, const PhysicsFitOptions& options) {
   options.Check();
   SLSHADOW_THROW_IF(cameras.empty(), "physics fit: no camera");
   std::vector<cv::Mat> whites(cameras.size()), blacks(cameras.size());
@@ -436,7 +468,8 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
   const bool has_white_black = spec.WhiteFrameIndex() >= 0 && spec.BlackFrameIndex() >= 0;
   const double fs = cameras[0].real.at(0).depth() == CV_8U ? 255.0 : 65535.0;
   const std::vector<FrameInfo> frames = spec.Frames();
-  const double range = (spec.intensity_max - spec.intensity_min) / 255.0;  // R(max) - R(min), linear
+  const double range =
+      (spec.intensity_max - spec.intensity_min) / 255.0;  // R(max) - R(min), linear
 
   // Checkerboard part: its dark / light reflectances.
   const Albedo* board = nullptr;
@@ -453,8 +486,9 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
       for (int x = 0; x < g.width; x += options.stride_px) {
         if (g.visibility.at<uint8_t>(y, x) != 2 || g.object_id.at<int32_t>(y, x) < 0) continue;
         Sample s;
-        const size_t base = (static_cast<size_t>(y) * static_cast<size_t>(g.width) + static_cast<size_t>(x)) *
-                            static_cast<size_t>(n2);
+        const size_t base =
+            (static_cast<size_t>(y) * static_cast<size_t>(g.width) + static_cast<size_t>(x)) *
+            static_cast<size_t>(n2);
         for (int k = 0; k < n2; ++k) {
           s.factor += g.factor[base + static_cast<size_t>(k)] / static_cast<float>(n2);
           s.albedo += g.albedo[base + static_cast<size_t>(k)] / static_cast<float>(n2);
@@ -473,22 +507,28 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
       }
     }
   }
-  SLSHADOW_THROW_IF(samples.size() < 100, "physics fit: only ", samples.size(),
-                    " lit part pixels in the twin; is the part in front of the cameras at the estimated pose?");
+  SLSHADOW_THROW_IF(
+      samples.size() < 100, "physics fit: only ", samples.size(),
+      " lit part pixels in the twin; is the part in front of the cameras at the estimated pose?");
 
   // The exposure comes from the object with most lit pixels; the others get their own
   // exposure x albedo ratio below ("albedo_<name>" layers).
   std::vector<int64_t> per_object(twin.objects.size(), 0);
   for (const Sample& s : samples) ++per_object[static_cast<size_t>(s.object)];
-  const int reference = static_cast<int>(std::max_element(per_object.begin(), per_object.end()) - per_object.begin());
+  const int reference =
+      static_cast<int>(std::max_element(per_object.begin(), per_object.end()) - per_object.begin());
 
   PhysicsFit fit;
   // --- exposure (and checkerboard albedo) ---
   const auto is_light = [&](const Sample& s) {
     return s.object == reference && (!board || std::abs(s.albedo - board->light) < 1e-3);
   };
-  const auto is_dark = [&](const Sample& s) { return board && std::abs(s.albedo - board->dark) < 1e-3; };
-  const auto ratio = [&](const Sample& s) { return (s.white - s.black) / (fs * s.factor * range * s.gain); };
+  const auto is_dark = [&](const Sample& s) {
+    return board && std::abs(s.albedo - board->dark) < 1e-3;
+  };
+  const auto ratio = [&](const Sample& s) {
+    return (s.white - s.black) / (fs * s.factor * range * s.gain);
+  };
   std::vector<double> all;
   std::vector<std::vector<double>> band(kBands);
   for (const Sample& s : samples) {
@@ -496,7 +536,8 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     all.push_back(ratio(s));
     band[static_cast<size_t>(s.band)].push_back(ratio(s));
   }
-  SLSHADOW_THROW_IF(all.size() < 50, "physics fit: too few lit part pixels to fit the exposure (", all.size(), ")");
+  SLSHADOW_THROW_IF(all.size() < 50, "physics fit: too few lit part pixels to fit the exposure (",
+                    all.size(), ")");
   PhysicsLayer exposure;
   exposure.name = "exposure";
   exposure.unit = "fraction of full scale";
@@ -504,7 +545,7 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
   std::vector<double> band_values;
   for (auto& b : band) band_values.push_back(b.size() > 20 ? Median(b) : std::nan(""));
   exposure.sigma = BandSigma(band_values);
-  exposure.off_value = twin.radiometry.exposure;
+  exposure.off_value = twin.radiometry.exposure_fraction;
   exposure.samples = static_cast<int64_t>(all.size());
   exposure.residual_unit = "DN RMS of white - black";
   {
@@ -518,13 +559,17 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     exposure.heldout_residual_on = Rms(on);
   }
   exposure.kept = true;
-  exposure.reason = "core radiometry: exposure x albedo from white - black over the twin's geometric factor";
+  exposure.reason =
+      "core radiometry: exposure x albedo from white - black over the twin's geometric factor";
   if (board) exposure.reason += " (light squares)";
   fit.layers.push_back(exposure);
   const double e = exposure.value;
-  if (twin.objects.size() > 1) fit.layers.back().reason += " (object '" + twin.objects[static_cast<size_t>(reference)].name + "')";
+  if (twin.objects.size() > 1)
+    fit.layers.back().reason +=
+        " (object '" + twin.objects[static_cast<size_t>(reference)].name + "')";
 
-  // --- illumination field per camera (reference pixels: (W - B) / (FS factor range) = E G(u, v)) ---
+  // --- illumination field per camera (reference pixels: (W - B) / (FS factor range) = E G(u, v))
+  // ---
   const std::vector<std::pair<int, int>> terms = IlluminationTerms(options.illumination_degree);
   const int p = 1 + static_cast<int>(terms.size());
   for (size_t c = 0; c < cameras.size() && !terms.empty(); ++c) {
@@ -534,7 +579,8 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     il.unit = "RMS of G - 1";
     il.residual_unit = "DN RMS of white - black, reference pixels";
     const auto row = [&](const Sample& s, double* out) {
-      MonomialRow(terms, options.illumination_degree, NormalisedCoordinate(s.x, g.width), NormalisedCoordinate(s.y, g.height), out);
+      MonomialRow(terms, options.illumination_degree, NormalisedCoordinate(s.x, g.width),
+                  NormalisedCoordinate(s.y, g.height), out);
     };
     std::vector<double> x, y;
     std::vector<int> bands;
@@ -570,8 +616,9 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
         row(s, &lit_rows[lit_rows.size() - static_cast<size_t>(p)]);
       }
     }
-    const Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> lit_basis(
-        lit_rows.data(), static_cast<Eigen::Index>(lit_rows.size() / static_cast<size_t>(p)), p);
+    const Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>
+        lit_basis(lit_rows.data(),
+                  static_cast<Eigen::Index>(lit_rows.size() / static_cast<size_t>(p)), p);
     const auto rms_dev = [&](const Eigen::VectorXd& beta) {
       return lit_basis.rows() ? std::sqrt(((lit_basis * beta).array() - 1).square().mean()) : 0.0;
     };
@@ -579,17 +626,26 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     il.sigma = JackknifeSigma(lf, rms_dev);
     il.samples = lf.inliers;
     const Eigen::VectorXd lit_field = lit_basis * lf.beta;
-    const double lo = lit_field.size() ? lit_field.minCoeff() : 1.0, hi = lit_field.size() ? lit_field.maxCoeff() : 1.0;
-    nlohmann::json names = nlohmann::json::array(), coeffs = nlohmann::json::array(), sigmas = nlohmann::json::array();
+    const double lo = lit_field.size() ? lit_field.minCoeff() : 1.0,
+                 hi = lit_field.size() ? lit_field.maxCoeff() : 1.0;
+    nlohmann::json names = nlohmann::json::array(), coeffs = nlohmann::json::array(),
+                   sigmas = nlohmann::json::array();
     for (int k = 0; k < p; ++k) {
       names.push_back(k == 0 ? std::string("1") : TermName(terms[static_cast<size_t>(k - 1)]));
       coeffs.push_back(lf.beta(k));
       sigmas.push_back(JackknifeSigma(lf, [k](const Eigen::VectorXd& b) { return b(k); }));
     }
-    il.extra = {{"degree", options.illumination_degree}, {"terms", names}, {"coefficients", coeffs},
-                {"coefficient_sigmas", sigmas}, {"width", g.width}, {"height", g.height},
-                {"min", lo}, {"max", hi},
-                {"coordinates", "u = (x - width/2) / (width/2), v = (y - height/2) / (height/2), x, y pixel centres"}};
+    il.extra = {
+        {"degree", options.illumination_degree},
+        {"terms", names},
+        {"coefficients", coeffs},
+        {"coefficient_sigmas", sigmas},
+        {"width", g.width},
+        {"height", g.height},
+        {"min", lo},
+        {"max", hi},
+        {"coordinates",
+         "u = (x - width/2) / (width/2), v = (y - height/2) / (height/2), x, y pixel centres"}};
     std::vector<double> off, on;
     for (const Sample& s : samples) {
       if (!s.heldout || s.camera != static_cast<int>(c) || !is_light(s)) continue;
@@ -600,12 +656,15 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     il.heldout_residual_off = Rms(off);
     il.heldout_residual_on = Rms(on);
     const bool significant = il.value > std::max(3 * il.sigma, options.illumination_floor);
-    const bool drops = il.heldout_residual_on < (1 - options.min_heldout_drop) * il.heldout_residual_off;
+    const bool drops =
+        il.heldout_residual_on < (1 - options.min_heldout_drop) * il.heldout_residual_off;
     il.kept = significant && drops;
-    il.reason = il.kept ? Fmt("the lit part is %.3f..%.3f of its mean brightness, smoothly: held-out residual %.2f -> %.2f DN", lo, hi,
-                              il.heldout_residual_off, il.heldout_residual_on)
-                        : Fmt("uniform within noise (field %.3f..%.3f, held-out residual %.2f vs %.2f DN)", lo, hi,
-                              il.heldout_residual_off, il.heldout_residual_on);
+    il.reason =
+        il.kept ? Fmt("the lit part is %.3f..%.3f of its mean brightness, smoothly: held-out "
+                      "residual %.2f -> %.2f DN",
+                      lo, hi, il.heldout_residual_off, il.heldout_residual_on)
+                : Fmt("uniform within noise (field %.3f..%.3f, held-out residual %.2f vs %.2f DN)",
+                      lo, hi, il.heldout_residual_off, il.heldout_residual_on);
     if (il.kept) {
       for (Sample& s : samples) {
         if (s.camera == static_cast<int>(c)) s.gain = static_cast<float>(field(lf.beta, s));
@@ -646,16 +705,20 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     for (const Sample& s : samples) {
       if (!s.heldout || s.object != static_cast<int>(o)) continue;
       off.push_back(s.white - s.black - e * fs * s.factor * s.gain * range);
-      on.push_back(s.white - s.black - e * fs * s.factor * s.gain * range * a.value / object.albedo.value);
+      on.push_back(s.white - s.black -
+                   e * fs * s.factor * s.gain * range * a.value / object.albedo.value);
     }
     a.heldout_residual_off = Rms(off);
     a.heldout_residual_on = Rms(on);
     const bool significant = std::abs(a.value - a.off_value) > std::max(3 * a.sigma, 0.01);
-    const bool drops = a.heldout_residual_on < (1 - options.min_heldout_drop) * a.heldout_residual_off;
+    const bool drops =
+        a.heldout_residual_on < (1 - options.min_heldout_drop) * a.heldout_residual_off;
     a.kept = significant && drops;
-    a.reason = a.kept ? Fmt("reflects %.3f, not %.3f, relative to the reference object: held-out residual %.2f -> %.2f DN", a.value,
-                            a.off_value, a.heldout_residual_off, a.heldout_residual_on)
-                      : Fmt("the file's albedo %.3f fits within noise (fitted %.3f)", a.off_value, a.value);
+    a.reason = a.kept ? Fmt("reflects %.3f, not %.3f, relative to the reference object: held-out "
+                            "residual %.2f -> %.2f DN",
+                            a.value, a.off_value, a.heldout_residual_off, a.heldout_residual_on)
+                      : Fmt("the file's albedo %.3f fits within noise (fitted %.3f)", a.off_value,
+                            a.value);
     fit.layers.push_back(a);
   }
 
@@ -691,12 +754,15 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
       }
       dark.heldout_residual_off = Rms(off);
       dark.heldout_residual_on = Rms(on);
-      const bool significant = std::abs(dark.value - dark.off_value) > std::max(3 * dark.sigma, 0.005);
-      const bool drops = dark.heldout_residual_on < (1 - options.min_heldout_drop) * dark.heldout_residual_off;
+      const bool significant =
+          std::abs(dark.value - dark.off_value) > std::max(3 * dark.sigma, 0.005);
+      const bool drops =
+          dark.heldout_residual_on < (1 - options.min_heldout_drop) * dark.heldout_residual_off;
       dark.kept = significant && drops;
-      dark.reason = dark.kept ? Fmt("dark squares reflect %.3f of the light ones' exposure, not %.3f: held-out residual %.2f -> %.2f DN",
-                                    dark.value / board->light, board->dark / board->light, dark.heldout_residual_off,
-                                    dark.heldout_residual_on)
+      dark.reason = dark.kept ? Fmt("dark squares reflect %.3f of the light ones' exposure, not "
+                                    "%.3f: held-out residual %.2f -> %.2f DN",
+                                    dark.value / board->light, board->dark / board->light,
+                                    dark.heldout_residual_off, dark.heldout_residual_on)
                               : "the part's dark reflectance already fits within noise";
     }
     fit.layers.push_back(dark);
@@ -707,14 +773,17 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     // The albedo the fitted twin renders at each sample.
     for (Sample& s : samples) {
       s.twin_albedo = s.albedo;
-      if (is_dark(s) && fit.Kept("albedo_dark")) s.twin_albedo = static_cast<float>(fit.Find("albedo_dark")->value);
+      if (is_dark(s) && fit.Kept("albedo_dark"))
+        s.twin_albedo = static_cast<float>(fit.Find("albedo_dark")->value);
       const SceneObject& o = twin.objects[static_cast<size_t>(s.object)];
       if (o.albedo.kind == Albedo::Kind::kUniform && fit.Kept("albedo_" + o.name)) {
         s.twin_albedo = static_cast<float>(fit.Find("albedo_" + o.name)->value);
       }
     }
     const std::string no_black_frame =
-        has_white_black ? "" : " (no black frame: the black level is the darker of each inverse pair, which projector blur raises near stripe edges: an upper bound)";
+        has_white_black ? ""
+                        : " (no black frame: the black level is the darker of each inverse pair, "
+                          "which projector blur raises near stripe edges: an upper bound)";
     const auto regressor = [&](const Sample& s) { return e * fs * s.twin_albedo * s.gain; };
     PhysicsLayer amb;
     amb.name = "ambient";
@@ -743,12 +812,15 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     amb.heldout_residual_on = Rms(on);
     {
       const bool significant = amb.value > std::max(3 * amb.sigma, 0.002);
-      const bool drops = amb.heldout_residual_on < (1 - options.min_heldout_drop) * amb.heldout_residual_off;
+      const bool drops =
+          amb.heldout_residual_on < (1 - options.min_heldout_drop) * amb.heldout_residual_off;
       amb.kept = significant && drops;
     }
-    amb.reason = amb.kept ? Fmt("the black frame is lit: %.2f DN mean; held-out residual %.2f -> %.2f DN", amb.heldout_residual_off,
-                                 amb.heldout_residual_off, amb.heldout_residual_on)
-                          : Fmt("the black frame is dark within noise (held-out RMS %.2f DN)", amb.heldout_residual_off);
+    amb.reason =
+        amb.kept ? Fmt("the black frame is lit: %.2f DN mean; held-out residual %.2f -> %.2f DN",
+                       amb.heldout_residual_off, amb.heldout_residual_off, amb.heldout_residual_on)
+                 : Fmt("the black frame is dark within noise (held-out RMS %.2f DN)",
+                       amb.heldout_residual_off);
 
     // Black-level offsets: observable on a camera whose lit pixels span reflectances (the
     // regressor's coefficient of variation), fitted jointly with ambient: unknowns (ambient, o_c).
@@ -764,7 +836,10 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
         sum += r, ss += r * r, ++n;
       }
       const double mean = n ? sum / static_cast<double>(n) : 0.0;
-      const double cv = n > 100 && mean > 0 ? std::sqrt(std::max(0.0, ss / static_cast<double>(n) - mean * mean)) / mean : 0.0;
+      const double cv =
+          n > 100 && mean > 0
+              ? std::sqrt(std::max(0.0, ss / static_cast<double>(n) - mean * mean)) / mean
+              : 0.0;
       if (cv > 0.25) column[c] = cols++;
     }
     const auto joint = [&] {
@@ -799,7 +874,8 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
         only = FitLinear(x, y, bands, cols - 1);
       }
       if (both.ok && only.ok) {
-        // Held-out black-frame residuals per camera under: ambient only, offsets + ambient, offsets only.
+        // Held-out black-frame residuals per camera under: ambient only, offsets + ambient, offsets
+        // only.
         const auto residuals = [&](int camera, double a, const Eigen::VectorXd* beta, int shift) {
           std::vector<double> r;
           for (const Sample& s : samples) {
@@ -817,7 +893,9 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
           bl.residual_unit = "DN RMS of the black frame";
           if (column[c] < 0) {
             bl.observable = false;
-            bl.reason = "one reflectance in view: a black-level offset and ambient light look alike in the black frame; ambient stands for both";
+            bl.reason =
+                "one reflectance in view: a black-level offset and ambient light look alike in the "
+                "black frame; ambient stands for both";
             offsets.push_back(bl);
             continue;
           }
@@ -825,10 +903,13 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
           bl.value = both.beta(k);
           bl.sigma = JackknifeSigma(both, [k](const Eigen::VectorXd& b) { return b(k); });
           bl.samples = both.inliers;
-          bl.heldout_residual_off = residuals(static_cast<int>(c), amb.kept ? amb.value : 0.0, nullptr, 0);
+          bl.heldout_residual_off =
+              residuals(static_cast<int>(c), amb.kept ? amb.value : 0.0, nullptr, 0);
           bl.heldout_residual_on = residuals(static_cast<int>(c), both.beta(0), &both.beta, 0);
-          const bool significant = std::abs(bl.value) > std::max(3 * bl.sigma, options.black_level_floor * fs);
-          const bool drops = bl.heldout_residual_on < (1 - options.min_heldout_drop) * bl.heldout_residual_off;
+          const bool significant =
+              std::abs(bl.value) > std::max(3 * bl.sigma, options.black_level_floor * fs);
+          const bool drops =
+              bl.heldout_residual_on < (1 - options.min_heldout_drop) * bl.heldout_residual_off;
           bl.kept = significant && drops;
           any_kept = any_kept || bl.kept;
           offsets.push_back(bl);
@@ -847,26 +928,35 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
           amb.heldout_residual_off = Rms(off2);
           amb.heldout_residual_on = Rms(on2);
           const bool significant = amb.value > std::max(3 * amb.sigma, 0.002);
-          const bool drops = amb.heldout_residual_on < (1 - options.min_heldout_drop) * amb.heldout_residual_off;
+          const bool drops =
+              amb.heldout_residual_on < (1 - options.min_heldout_drop) * amb.heldout_residual_off;
           amb.kept = significant && drops;
-          amb.reason = amb.kept ? Fmt("the black frame scales with reflectance beyond the offset: %.4f of white; held-out residual %.2f -> %.2f DN",
-                                       amb.value, amb.heldout_residual_off, amb.heldout_residual_on)
-                                : Fmt("with the black-level offset in, the black frame does not scale with reflectance (%.4f +- %.4f); held-out residual %.2f vs %.2f DN",
-                                      amb.value, amb.sigma, amb.heldout_residual_off, amb.heldout_residual_on);
+          amb.reason =
+              amb.kept
+                  ? Fmt("the black frame scales with reflectance beyond the offset: %.4f of white; "
+                        "held-out residual %.2f -> %.2f DN",
+                        amb.value, amb.heldout_residual_off, amb.heldout_residual_on)
+                  : Fmt("with the black-level offset in, the black frame does not scale with "
+                        "reflectance (%.4f +- %.4f); held-out residual %.2f vs %.2f DN",
+                        amb.value, amb.sigma, amb.heldout_residual_off, amb.heldout_residual_on);
           for (size_t c = 0; c < nc; ++c) {
             PhysicsLayer& bl = offsets[c];
             if (!bl.kept) continue;
             if (!amb.kept) {  // the offset alone: its own fit
               bl.value = only.beta(column[c] - 1);
-              bl.sigma = JackknifeSigma(only, [k = column[c] - 1](const Eigen::VectorXd& b) { return b(k); });
+              bl.sigma = JackknifeSigma(
+                  only, [k = column[c] - 1](const Eigen::VectorXd& b) { return b(k); });
               bl.heldout_residual_on = residuals(static_cast<int>(c), 0.0, &only.beta, 1);
             }
-            bl.reason = Fmt("the black frame sits %.2f DN above what ambient light on the print explains, on every reflectance: held-out residual %.2f -> %.2f DN",
-                            bl.value, bl.heldout_residual_off, bl.heldout_residual_on);
+            bl.reason =
+                Fmt("the black frame sits %.2f DN above what ambient light on the print explains, "
+                    "on every reflectance: held-out residual %.2f -> %.2f DN",
+                    bl.value, bl.heldout_residual_off, bl.heldout_residual_on);
           }
         }
         for (PhysicsLayer& bl : offsets) {
-          if (bl.observable && !bl.kept) bl.reason = Fmt("no offset beyond noise (%.2f +- %.2f DN)", bl.value, bl.sigma);
+          if (bl.observable && !bl.kept)
+            bl.reason = Fmt("no offset beyond noise (%.2f +- %.2f DN)", bl.value, bl.sigma);
         }
       }
     } else {
@@ -875,7 +965,9 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
         bl.name = "black_level_" + cameras[c].camera;
         bl.unit = "DN";
         bl.observable = false;
-        bl.reason = "one reflectance in view: a black-level offset and ambient light look alike in the black frame; ambient stands for both";
+        bl.reason =
+            "one reflectance in view: a black-level offset and ambient light look alike in the "
+            "black frame; ambient stands for both";
         offsets.push_back(bl);
       }
     }
@@ -898,7 +990,8 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     const int n = spec.phase_steps;
     std::vector<int> phase_frames;
     if (spec.kind != PatternKind::kGrayCode) {
-      for (int k = 0; k < n; ++k) phase_frames.push_back(FindFrame(frames, FrameRole::kPhase, spec.code_x ? 0 : 1, 0, 0, k));
+      for (int k = 0; k < n; ++k)
+        phase_frames.push_back(FindFrame(frames, FrameRole::kPhase, spec.code_x ? 0 : 1, 0, 0, k));
     }
     if (spec.kind == PatternKind::kGrayCode) {
       gamma.observable = false;
@@ -917,7 +1010,10 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
         if (s.white - s.black < min_contrast) continue;
         double m = 0;
         for (int k = 0; k < n; ++k) {
-          const float p = Pixel(cameras[static_cast<size_t>(s.camera)].real[static_cast<size_t>(phase_frames[static_cast<size_t>(k)])], s.y, s.x);
+          const float p =
+              Pixel(cameras[static_cast<size_t>(s.camera)]
+                        .real[static_cast<size_t>(phase_frames[static_cast<size_t>(k)])],
+                    s.y, s.x);
           m += (p - s.black) / (s.white - s.black) / n;
         }
         if (s.heldout) {
@@ -930,7 +1026,8 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
       const auto a0 = [](double g) {
         double sum = 0;
         const int steps = 360;
-        for (int i = 0; i < steps; ++i) sum += std::pow(0.5 + 0.5 * std::cos(2 * M_PI * (i + 0.5) / steps), g);
+        for (int i = 0; i < steps; ++i)
+          sum += std::pow(0.5 + 0.5 * std::cos(2 * M_PI * (i + 0.5) / steps), g);
         return sum / steps;
       };
       const auto invert = [&](double mean) {  // a0 decreases with gamma
@@ -956,13 +1053,18 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
         for (double m : held_mean) off.push_back(m - 0.5), on.push_back(m - on_level);
         gamma.heldout_residual_off = Rms(off);
         gamma.heldout_residual_on = Rms(on);
-        const bool significant = std::abs(gamma.value - 1) > std::max(3 * gamma.sigma, options.gamma_floor);
-        const bool drops = gamma.heldout_residual_on < (1 - options.min_heldout_drop) * gamma.heldout_residual_off;
+        const bool significant =
+            std::abs(gamma.value - 1) > std::max(3 * gamma.sigma, options.gamma_floor);
+        const bool drops =
+            gamma.heldout_residual_on < (1 - options.min_heldout_drop) * gamma.heldout_residual_off;
         gamma.kept = significant && drops;
-        gamma.reason = gamma.kept ? Fmt("phase frames average %.3f of white, not 0.5: held-out residual %.4f -> %.4f", on_level,
-                                        gamma.heldout_residual_off, gamma.heldout_residual_on)
-                                  : Fmt("a linear response fits within noise (gamma %.3f, held-out residual %.4f vs %.4f)",
-                                        gamma.value, gamma.heldout_residual_off, gamma.heldout_residual_on);
+        gamma.reason =
+            gamma.kept
+                ? Fmt("phase frames average %.3f of white, not 0.5: held-out residual %.4f -> %.4f",
+                      on_level, gamma.heldout_residual_off, gamma.heldout_residual_on)
+                : Fmt("a linear response fits within noise (gamma %.3f, held-out residual %.4f vs "
+                      "%.4f)",
+                      gamma.value, gamma.heldout_residual_off, gamma.heldout_residual_on);
       }
     }
     fit.layers.push_back(gamma);
@@ -985,14 +1087,19 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
     for (const auto& [a, b] : InversePairs(frames)) {
       const FrameInfo& f = frames[static_cast<size_t>(a)];
       const double ma = means[static_cast<size_t>(a)], mb = means[static_cast<size_t>(b)];
-      if (2 * f.bit >= max_bit[f.axis] && std::abs(ma - mb) < 0.1 && ma > 0.3 && ma < 0.7) coarse.emplace_back(a, b);
+      if (2 * f.bit >= max_bit[f.axis] && std::abs(ma - mb) < 0.1 && ma > 0.3 && ma < 0.7)
+        coarse.emplace_back(a, b);
     }
     if (!has_white_black) {
       gl.observable = false;
-      gl.reason = "no white and black frames: the levels come from the inverse pairs themselves, so scattered light is folded into them";
+      gl.reason =
+          "no white and black frames: the levels come from the inverse pairs themselves, so "
+          "scattered light is folded into them";
     } else if (coarse.size() < 2) {
       gl.observable = false;
-      gl.reason = "the sequence has too few coarse inverse pairs (about half lit) to separate direct from scattered light";
+      gl.reason =
+          "the sequence has too few coarse inverse pairs (about half lit) to separate direct from "
+          "scattered light";
     } else {
       const double min_contrast = WellLitContrast(samples);
       std::vector<double> fit_r, held_r;
@@ -1003,7 +1110,8 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
         const auto& real = cameras[static_cast<size_t>(s.camera)].real;
         for (size_t k = 0; k < coarse.size(); ++k) {
           per[k] = std::abs(Pixel(real[static_cast<size_t>(coarse[k].first)], s.y, s.x) -
-                            Pixel(real[static_cast<size_t>(coarse[k].second)], s.y, s.x)) / (s.white - s.black);
+                            Pixel(real[static_cast<size_t>(coarse[k].second)], s.y, s.x)) /
+                   (s.white - s.black);
         }
         const double r = Median(per);  // a pixel near one bit's edge is outvoted by the others
         (s.heldout ? held_r : fit_r).push_back(r);
@@ -1024,12 +1132,18 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
         gl.heldout_residual_on = Rms(on);
         gl.extra["pairs"] = coarse.size();
         const bool significant = gl.value > std::max(3 * gl.sigma, options.global_light_floor);
-        const bool drops = gl.heldout_residual_on < (1 - options.min_heldout_drop) * gl.heldout_residual_off;
+        const bool drops =
+            gl.heldout_residual_on < (1 - options.min_heldout_drop) * gl.heldout_residual_off;
         gl.kept = significant && drops;
-        gl.reason = gl.kept ? Fmt("coarse stripes reach %.1f %% of white - black: %.1f %% of the light is scattered from the lit "
-                                  "projector image; held-out residual %.3f -> %.3f",
-                                  100 * (1 - gl.value), 100 * gl.value, gl.heldout_residual_off, gl.heldout_residual_on)
-                            : Fmt("coarse stripes reach %.1f %% of white - black: direct light explains them", 100 * (1 - gl.value));
+        gl.reason =
+            gl.kept
+                ? Fmt("coarse stripes reach %.1f %% of white - black: %.1f %% of the light is "
+                      "scattered from the lit "
+                      "projector image; held-out residual %.3f -> %.3f",
+                      100 * (1 - gl.value), 100 * gl.value, gl.heldout_residual_off,
+                      gl.heldout_residual_on)
+                : Fmt("coarse stripes reach %.1f %% of white - black: direct light explains them",
+                      100 * (1 - gl.value));
       }
     }
     fit.layers.push_back(gl);
@@ -1062,15 +1176,18 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
         if (has_white_black) sums.push_back(s.white + s.black);
         bool saturated = false;
         for (const auto& [p, q] : pairs) {
-          const double a = Pixel(real[static_cast<size_t>(p)], s.y, s.x), b = Pixel(real[static_cast<size_t>(q)], s.y, s.x);
+          const double a = Pixel(real[static_cast<size_t>(p)], s.y, s.x),
+                       b = Pixel(real[static_cast<size_t>(q)], s.y, s.x);
           saturated = saturated || a >= 0.98 * fs || b >= 0.98 * fs;
           sums.push_back(a + b);
         }
         if (saturated) continue;
         // The signal is what sits above the black level (shot noise does not see the offset).
-        const PhysicsLayer* bl = fit.Find("black_level_" + cameras[static_cast<size_t>(s.camera)].camera);
+        const PhysicsLayer* bl =
+            fit.Find("black_level_" + cameras[static_cast<size_t>(s.camera)].camera);
         const double offset4 = bl && bl->kept ? 4 * bl->value : 0.0;
-        for (size_t k = 0; k + 1 < sums.size(); k += 2) obs.push_back({sums[k] + sums[k + 1] - offset4, sums[k] - sums[k + 1], s.heldout});
+        for (size_t k = 0; k + 1 < sums.size(); k += 2)
+          obs.push_back({sums[k] + sums[k + 1] - offset4, sums[k] - sums[k + 1], s.heldout});
       }
       // Bin by signal into 10 quantile bins; per bin the robust variance of r.
       const auto binned = [&](bool held, std::vector<double>* centre, std::vector<double>* var) {
@@ -1121,7 +1238,8 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
         noise.samples = static_cast<int64_t>(obs.size());
         const bool above_quant = mean_var > 2 * quant;
         const bool significant = k > 3 * sigma_k && k > 0;
-        const bool drops = noise.heldout_residual_on < (1 - options.min_heldout_drop) * noise.heldout_residual_off;
+        const bool drops =
+            noise.heldout_residual_on < (1 - options.min_heldout_drop) * noise.heldout_residual_off;
         if (k > 0) {
           noise.value = fs / k;
           noise.sigma = fs * sigma_k / (k * k);
@@ -1132,11 +1250,12 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin, const std::vec
         noise.extra["variance_offset_dn2"] = kc(1);
         noise.extra["mean_pair_variance_dn2"] = mean_var;
         noise.kept = above_quant && significant && drops;
-        noise.reason = noise.kept
-                           ? Fmt("inverse pairs vary by %.2f DN^2 (quantisation alone: %.2f), growing with signal: shot noise",
-                                 mean_var, quant)
-                           : Fmt("inverse-pair variance %.2f DN^2 is what quantisation (%.2f) explains, or does not grow with signal",
-                                 mean_var, quant);
+        noise.reason = noise.kept ? Fmt("inverse pairs vary by %.2f DN^2 (quantisation alone: "
+                                        "%.2f), growing with signal: shot noise",
+                                        mean_var, quant)
+                                  : Fmt("inverse-pair variance %.2f DN^2 is what quantisation "
+                                        "(%.2f) explains, or does not grow with signal",
+                                        mean_var, quant);
       }
     }
     fit.layers.push_back(noise);
@@ -1154,9 +1273,11 @@ std::vector<int> ModulationFrames(const PatternSpec& spec) {
   const int axis = spec.code_x ? 0 : 1;
   std::vector<int> idx;
   if (spec.kind == PatternKind::kGrayCode) {
-    idx = {FindFrame(frames, FrameRole::kGrayBit, axis, 0, 0, 0), FindFrame(frames, FrameRole::kGrayBitInverse, axis, 0, 0, 0)};
+    idx = {FindFrame(frames, FrameRole::kGrayBit, axis, 0, 0, 0),
+           FindFrame(frames, FrameRole::kGrayBitInverse, axis, 0, 0, 0)};
   } else {
-    for (int k = 0; k < spec.phase_steps; ++k) idx.push_back(FindFrame(frames, FrameRole::kPhase, axis, 0, 0, k));
+    for (int k = 0; k < spec.phase_steps; ++k)
+      idx.push_back(FindFrame(frames, FrameRole::kPhase, axis, 0, 0, k));
   }
   return idx;
 }
@@ -1167,10 +1288,12 @@ cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>
   return NormalisedModulation(spec, images, w, b);
 }
 
-cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>& images, const cv::Mat& w, const cv::Mat& b) {
+cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>& images,
+                             const cv::Mat& w, const cv::Mat& b) {
   cv::Mat out(w.size(), CV_32FC1, cv::Scalar(std::nanf("")));
   const std::vector<int> idx = ModulationFrames(spec);
-  for (int i : idx) SLSHADOW_THROW_IF(i < 0, "fringe modulation: the sequence lacks its finest fringe frames");
+  for (int i : idx)
+    SLSHADOW_THROW_IF(i < 0, "fringe modulation: the sequence lacks its finest fringe frames");
   const int n = static_cast<int>(idx.size());
   const bool bytes = images.at(static_cast<size_t>(idx[0])).depth() == CV_8U;
   cv::parallel_for_(cv::Range(0, w.rows), [&](const cv::Range& rows) {
@@ -1180,7 +1303,9 @@ cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>
       const float* wr = w.ptr<float>(y);
       const float* br = b.ptr<float>(y);
       if (bytes) {
-        for (int k = 0; k < n; ++k) p8[static_cast<size_t>(k)] = images[static_cast<size_t>(idx[static_cast<size_t>(k)])].ptr<uint8_t>(y);
+        for (int k = 0; k < n; ++k)
+          p8[static_cast<size_t>(k)] =
+              images[static_cast<size_t>(idx[static_cast<size_t>(k)])].ptr<uint8_t>(y);
       }
       for (int x = 0; x < w.cols; ++x) {
         const float range = wr[x] - br[x];
@@ -1194,13 +1319,17 @@ cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>
               const float v = p8[static_cast<size_t>(k)][x];
               sum += v, ss += v * v;
             }
-            const float var = std::max(0.0f, ss / static_cast<float>(n) - (sum / static_cast<float>(n)) * (sum / static_cast<float>(n)));
+            const float var =
+                std::max(0.0f, ss / static_cast<float>(n) -
+                                   (sum / static_cast<float>(n)) * (sum / static_cast<float>(n)));
             o[x] = std::sqrt(2 * var) / range;
           }
           continue;
         }
         if (spec.kind == PatternKind::kGrayCode) {
-          o[x] = std::abs(Pixel(images[static_cast<size_t>(idx[0])], y, x) - Pixel(images[static_cast<size_t>(idx[1])], y, x)) / range;
+          o[x] = std::abs(Pixel(images[static_cast<size_t>(idx[0])], y, x) -
+                          Pixel(images[static_cast<size_t>(idx[1])], y, x)) /
+                 range;
         } else {
           // N equally spaced samples of A + B' cos(.) have variance B'^2 / 2 whatever their
           // order: the amplitude does not depend on frame order or phase.
@@ -1218,8 +1347,8 @@ cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>
   return out;
 }
 
-void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras, const PhysicsFitOptions& options,
-                PhysicsFit* fit) {
+void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras,
+                const PhysicsFitOptions& options, PhysicsFit* fit) {
   PhysicsLayer d;
   d.name = "defocus";
   d.unit = "projector px (Gaussian sigma)";
@@ -1233,7 +1362,8 @@ void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras, const
   std::vector<Obs> obs;
   for (CameraData& cam : cameras) {
     if (cam.twin.empty()) continue;
-    if (cam.white.empty() || cam.black.empty()) WhiteBlackImages(spec, cam.real, &cam.white, &cam.black);
+    if (cam.white.empty() || cam.black.empty())
+      WhiteBlackImages(spec, cam.real, &cam.white, &cam.black);
     cam.real_modulation = NormalisedModulation(spec, cam.real, cam.white, cam.black);
     WhiteBlackImages(spec, cam.twin, &cam.twin_white, &cam.twin_black);
     cam.twin_modulation = NormalisedModulation(spec, cam.twin, cam.twin_white, cam.twin_black);
@@ -1245,7 +1375,8 @@ void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras, const
         if (g.visibility.at<uint8_t>(y, x) != 2) continue;
         const float a = mr.at<float>(y, x), b = mt.at<float>(y, x);
         if (!std::isfinite(a) || !std::isfinite(b) || b < 0.05f) continue;
-        obs.push_back({a, b, std::min(kBands - 1, y * kBands / g.height), (y / options.stride_px) % 2 == 1});
+        obs.push_back(
+            {a, b, std::min(kBands - 1, y * kBands / g.height), (y / options.stride_px) % 2 == 1});
       }
     }
   }
@@ -1266,11 +1397,14 @@ void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras, const
   std::vector<double> bv;
   for (auto& b : rb) bv.push_back(b.size() > 20 ? Median(b) : std::nan(""));
   const double sigma_rho = BandSigma(bv);
-  const auto sigma_of = [&](double q) { return q < 1 ? period / (M_PI * std::sqrt(2.0)) * std::sqrt(-std::log(q)) : 0.0; };
+  const auto sigma_of = [&](double q) {
+    return q < 1 ? period / (M_PI * std::sqrt(2.0)) * std::sqrt(-std::log(q)) : 0.0;
+  };
   d.value = sigma_of(rho);
   // d sigma / d rho at rho (finite difference), for the uncertainty.
   const double h = 1e-4;
-  d.sigma = rho < 1 - 2 * h ? std::abs(sigma_of(rho + h) - sigma_of(rho - h)) / (2 * h) * sigma_rho : std::nan("");
+  d.sigma = rho < 1 - 2 * h ? std::abs(sigma_of(rho + h) - sigma_of(rho - h)) / (2 * h) * sigma_rho
+                            : std::nan("");
   d.samples = static_cast<int64_t>(r.size());
   std::vector<double> off, on;
   for (const Obs& o : obs) {
@@ -1285,11 +1419,16 @@ void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras, const
   d.extra["period_px"] = period;
   const double loss = 1 - rho;
   const bool significant = loss > std::max(3 * sigma_rho, options.defocus_min_loss);
-  const bool drops = d.heldout_residual_on < (1 - options.min_heldout_drop) * d.heldout_residual_off;
+  const bool drops =
+      d.heldout_residual_on < (1 - options.min_heldout_drop) * d.heldout_residual_off;
   d.kept = significant && drops;
-  d.reason = d.kept ? Fmt("fringes reach %.1f %% of the focused twin's modulation: held-out residual %.4f -> %.4f", 100 * rho,
-                          d.heldout_residual_off, d.heldout_residual_on)
-                    : Fmt("fringe modulation %.1f %% of the focused twin's: focus explains it within noise", 100 * rho);
+  d.reason =
+      d.kept
+          ? Fmt("fringes reach %.1f %% of the focused twin's modulation: held-out residual %.4f -> "
+                "%.4f",
+                100 * rho, d.heldout_residual_off, d.heldout_residual_on)
+          : Fmt("fringe modulation %.1f %% of the focused twin's: focus explains it within noise",
+                100 * rho);
   fit->layers.push_back(d);
 }
 

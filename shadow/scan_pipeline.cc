@@ -13,47 +13,53 @@ namespace slshadow::shadow {
 namespace fs = std::filesystem;
 
 Rig LoadRigOrDemo(const fs::path& path) {
-  return path.empty() ? RigFromConfig(ConfigNode::ParseYaml(kDemoRigYaml, "<embedded config/demo/rig.yaml>"))
-                      : LoadRig(path);
+  return path.empty()
+             ? RigFromConfig(ConfigNode::ParseYaml(kDemoRigYaml, "<embedded config/demo/rig.yaml>"))
+             : LoadRig(path);
 }
 
 Scene LoadSceneOrDemo(const fs::path& path, const fs::path& base_dir) {
-  return path.empty()
-             ? SceneFromConfig(ConfigNode::ParseYaml(kDemoSceneYaml, "<embedded config/demo/scene.yaml>"), base_dir)
-             : LoadScene(path);
+  return path.empty() ? SceneFromConfig(ConfigNode::ParseYaml(kDemoSceneYaml,
+                                                              "<embedded config/demo/scene.yaml>"),
+                                        base_dir)
+                      : LoadScene(path);
 }
 
 PatternSpec LoadPatternSpecOrDemo(const fs::path& path) {
-  return path.empty()
-             ? PatternSpecFromConfig(ConfigNode::ParseYaml(kDemoPatternsYaml, "<embedded config/demo/patterns.yaml>"))
-             : LoadPatternSpec(path);
+  return path.empty() ? PatternSpecFromConfig(ConfigNode::ParseYaml(
+                            kDemoPatternsYaml, "<embedded config/demo/patterns.yaml>"))
+                      : LoadPatternSpec(path);
 }
 
-VirtualScan RenderVirtualScan(const Scene& scene, const Rig& rig, const std::vector<cv::Mat>& projector_images) {
+VirtualScan RenderVirtualScan(const Scene& scene, const Rig& rig,
+                              const std::vector<cv::Mat>& projector_images) {
   VirtualScan scan;
   scan.images = RenderScan(scene, rig, projector_images, &scan.geometry, &scan.summary);
   return scan;
 }
 
-void WriteVirtualScan(const fs::path& dir, const Rig& rig, const PatternSpec& spec, const Scene& scene,
-                      const std::vector<std::vector<cv::Mat>>& images, const ImageSetWriterOptions& writer_options,
-                      const nlohmann::json& extra) {
+void WriteVirtualScan(const fs::path& dir, const Rig& rig, const PatternSpec& spec,
+                      const Scene& scene, const std::vector<std::vector<cv::Mat>>& images,
+                      const ImageSetWriterOptions& writer_options, const nlohmann::json& extra) {
   const int num_cameras = static_cast<int>(images.size());
   const int num_patterns = spec.NumImages();
-  SLSHADOW_THROW_IF(num_cameras != static_cast<int>(rig.cameras.size()), "WriteVirtualScan: ", num_cameras,
-                    " cameras of images for a rig of ", rig.cameras.size());
+  SLSHADOW_THROW_IF(num_cameras != static_cast<int>(rig.cameras.size()),
+                    "WriteVirtualScan: ", num_cameras, " cameras of images for a rig of ",
+                    rig.cameras.size());
   for (const auto& camera_images : images) {
-    SLSHADOW_THROW_IF(static_cast<int>(camera_images.size()) != num_patterns, "WriteVirtualScan: ",
-                      camera_images.size(), " images for a pattern spec of ", num_patterns);
+    SLSHADOW_THROW_IF(static_cast<int>(camera_images.size()) != num_patterns,
+                      "WriteVirtualScan: ", camera_images.size(), " images for a pattern spec of ",
+                      num_patterns);
   }
   ImageSetWriter writer(dir, rig, PatternSpecToJson(spec), writer_options);
   std::vector<std::string> errors(static_cast<size_t>(num_cameras * num_patterns));
   cv::parallel_for_(cv::Range(0, num_cameras * num_patterns), [&](const cv::Range& range) {
     for (int k = range.start; k < range.end; ++k) {
       try {
-        writer.Add(rig.cameras[static_cast<size_t>(k / num_patterns)].name, k % num_patterns,
-                   images[static_cast<size_t>(k / num_patterns)][static_cast<size_t>(k % num_patterns)],
-                   scene.radiometry.exposure_us, ImageSource::kVirtual);
+        writer.Add(
+            rig.cameras[static_cast<size_t>(k / num_patterns)].name, k % num_patterns,
+            images[static_cast<size_t>(k / num_patterns)][static_cast<size_t>(k % num_patterns)],
+            scene.radiometry.exposure_us, ImageSource::kVirtual);
       } catch (const Error& e) {
         errors[static_cast<size_t>(k)] = e.what();
       }
@@ -69,10 +75,13 @@ ScanSettings ScanSettingsFromProvenance(const ScanProvenance& provenance, const 
   const auto node = [&file](const nlohmann::json& json, const char* key) {
     return ConfigNode::FromJson(json, file, std::string("extra.provenance.") + key);
   };
-  if (!provenance.simulate.is_null()) settings.simulate = SimulateOptionsFromConfig(node(provenance.simulate, "simulate"));
-  if (!provenance.decode.is_null()) settings.decode = DecodeOptionsFromConfig(node(provenance.decode, "decode"));
+  if (!provenance.simulate.is_null())
+    settings.simulate = SimulateOptionsFromConfig(node(provenance.simulate, "simulate"));
+  if (!provenance.decode.is_null())
+    settings.decode = DecodeOptionsFromConfig(node(provenance.decode, "decode"));
   if (!provenance.reconstruct.is_null()) {
-    settings.reconstruct = ReconstructOptionsFromConfig(node(provenance.reconstruct, "reconstruct"));
+    settings.reconstruct =
+        ReconstructOptionsFromConfig(node(provenance.reconstruct, "reconstruct"));
   }
   if (!provenance.compare.is_null()) {
     settings.compare = compare::CompareOptionsFromConfig(node(provenance.compare, "compare"));
@@ -84,14 +93,17 @@ SimulateSummary RedoVirtualScan(const fs::path& scan_dir, const fs::path& out_di
   const ImageSet image_set = ImageSet::Open(scan_dir);
   const std::string manifest = (scan_dir / "manifest.json").string();
   const std::optional<ScanProvenance> provenance = ReadScanProvenance(image_set);
-  SLSHADOW_THROW_IF(!provenance, manifest, ": extra.provenance: missing; the scan cannot be redone from its folder");
+  SLSHADOW_THROW_IF(!provenance, manifest,
+                    ": extra.provenance: missing; the scan cannot be redone from its folder");
   SLSHADOW_THROW_IF(provenance->scene_config.is_null(), manifest,
-                    ": extra.provenance.scene.config: null (the scene was built in code); the scan cannot be redone");
+                    ": extra.provenance.scene.config: null (the scene was built in code); the scan "
+                    "cannot be redone");
   const Scene scene = SceneFromConfig(
       ConfigNode::FromJson(provenance->scene_config, manifest, "extra.provenance.scene.config"),
       provenance->scene_base_dir);
   SLSHADOW_THROW_IF(SceneToJson(scene) != provenance->scene_summary, manifest,
-                    ": extra.provenance.scene: the scene rebuilt from its config differs from the recorded summary "
+                    ": extra.provenance.scene: the scene rebuilt from its config differs from the "
+                    "recorded summary "
                     "(a mesh or image file changed, or the scene was edited after loading)");
   ScanSettings settings = ScanSettingsFromProvenance(*provenance, manifest);
   settings.simulate.writer.overwrite = false;
@@ -112,8 +124,8 @@ DecodedScan DecodeImageSet(const ImageSet& image_set, const std::vector<std::str
                            const DecodeOptions& options) {
   DecodedScan scan;
   scan.rig = image_set.rig();
-  scan.spec = PatternSpecFromConfig(
-      ConfigNode::FromJson(image_set.patterns(), (image_set.dir() / "manifest.json").string(), "patterns"));
+  scan.spec = PatternSpecFromConfig(ConfigNode::FromJson(
+      image_set.patterns(), (image_set.dir() / "manifest.json").string(), "patterns"));
   scan.cameras = cameras;
   if (scan.cameras.empty()) {
     for (size_t c = 0; c < std::min<size_t>(2, scan.rig.cameras.size()); ++c) {
@@ -126,17 +138,20 @@ DecodedScan DecodeImageSet(const ImageSet& image_set, const std::vector<std::str
   return scan;
 }
 
-Reconstruction ReconstructFromMaps(const DecodedScan& scan, ReconstructMode mode, const ReconstructOptions& options) {
+Reconstruction ReconstructFromMaps(const DecodedScan& scan, ReconstructMode mode,
+                                   const ReconstructOptions& options) {
   SLSHADOW_THROW_IF(scan.cameras.empty(), "reconstruct: no camera was decoded");
   if (mode == ReconstructMode::kProjector) {
     return ReconstructWithProjector(scan.rig, scan.cameras[0], scan.maps[0], options);
   }
   SLSHADOW_THROW_IF(scan.cameras.size() < 2, "reconstruct stereo: needs two decoded cameras (got ",
                     scan.cameras.size(), ")");
-  return ReconstructStereo(scan.rig, scan.cameras[0], scan.cameras[1], scan.maps[0], scan.maps[1], options);
+  return ReconstructStereo(scan.rig, scan.cameras[0], scan.cameras[1], scan.maps[0], scan.maps[1],
+                           options);
 }
 
-std::vector<Reconstruction> ReconstructModes(const DecodedScan& scan, const std::vector<ReconstructMode>& modes,
+std::vector<Reconstruction> ReconstructModes(const DecodedScan& scan,
+                                             const std::vector<ReconstructMode>& modes,
                                              const ReconstructOptions& options,
                                              std::vector<StageMeasurement>* stages) {
   std::vector<Reconstruction> recs;
@@ -152,7 +167,8 @@ std::vector<Reconstruction> ReconstructModes(const DecodedScan& scan, const std:
 namespace {
 
 TriangleMesh ObjectSurfaceInRig(const SceneObject& object, TriangleMesh part) {
-  part.Transform(object.rig_from_object.rotation.toRotationMatrix(), object.rig_from_object.translation);
+  part.Transform(object.rig_from_object.rotation.toRotationMatrix(),
+                 object.rig_from_object.translation);
   return part;
 }
 
@@ -172,7 +188,8 @@ TriangleMesh SceneSurface(const Scene& scene, const std::string& what, int plane
     } else if (object.type == ObjectType::kPlane) {
       const int n = plane_cells;
       for (int j = 0; j <= n; ++j) {
-        for (int i = 0; i <= n; ++i) part.vertices.emplace_back(-hx + 2 * hx * i / n, -hy + 2 * hy * j / n, 0);
+        for (int i = 0; i <= n; ++i)
+          part.vertices.emplace_back(-hx + 2 * hx * i / n, -hy + 2 * hy * j / n, 0);
       }
       for (int j = 0; j < n; ++j) {
         for (int i = 0; i < n; ++i) {
@@ -210,11 +227,13 @@ std::vector<Eigen::Vector3d> LitVisibleSurface(const GeometryBuffer& geometry) {
   return points;
 }
 
-double VisibleCoverage(const compare::CompareResult& result, const std::vector<Eigen::Vector3d>& visible) {
+double VisibleCoverage(const compare::CompareResult& result,
+                       const std::vector<Eigen::Vector3d>& visible) {
   std::vector<Eigen::Vector3d> reached;
   reached.reserve(result.compared.size());
   for (size_t i = 0; i < result.compared.size(); ++i) {
-    if (std::abs(result.deviations_mm[i]) <= result.options.threshold_mm) reached.push_back(result.compared.points[i]);
+    if (std::abs(result.deviations_mm[i]) <= result.options.threshold_mm)
+      reached.push_back(result.compared.points[i]);
   }
   return compare::Coverage(visible, reached, result.coverage_radius_mm);
 }
@@ -236,23 +255,18 @@ ModeAccuracy MeasureAccuracy(const std::string& mode, const compare::CompareResu
   m.p95_mm = result.c2c.p95_mm;
   m.max_mm = result.c2c.max_mm;
   m.outliers = result.c2c.outliers;
-  m.outlier_fraction = result.c2c.count
-                           ? static_cast<double>(result.c2c.outliers) / static_cast<double>(result.c2c.count)
-                           : 0;
+  m.outlier_fraction = result.c2c.count ? static_cast<double>(result.c2c.outliers) /
+                                              static_cast<double>(result.c2c.count)
+                                        : 0;
   return m;
 }
 
 nlohmann::json ModeAccuracyToJson(const ModeAccuracy& m) {
-  return {{"mode", m.mode},
-          {"points", m.points},
-          {"coverage", m.coverage},
-          {"visible_coverage", m.visible_coverage},
-          {"mean_mm", m.mean_mm},
-          {"rms_mm", m.rms_mm},
-          {"p95_mm", m.p95_mm},
-          {"max_mm", m.max_mm},
-          {"outliers", m.outliers},
-          {"outlier_fraction", m.outlier_fraction}};
+  return {{"mode", m.mode},         {"points", m.points},
+          {"coverage", m.coverage}, {"visible_coverage", m.visible_coverage},
+          {"mean_mm", m.mean_mm},   {"rms_mm", m.rms_mm},
+          {"p95_mm", m.p95_mm},     {"max_mm", m.max_mm},
+          {"outliers", m.outliers}, {"outlier_fraction", m.outlier_fraction}};
 }
 
 }  // namespace slshadow::shadow

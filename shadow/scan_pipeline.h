@@ -53,14 +53,15 @@ struct VirtualScan {
 
 // Renders every projector image seen by every camera of `rig` in memory (sim/ RenderScan).
 // Throws slshadow::Error on an invalid scene or rig, or projector images of the wrong size.
-VirtualScan RenderVirtualScan(const Scene& scene, const Rig& rig, const std::vector<cv::Mat>& projector_images);
+VirtualScan RenderVirtualScan(const Scene& scene, const Rig& rig,
+                              const std::vector<cv::Mat>& projector_images);
 
 // Writes images[camera][pattern] (rig camera order, spec.NumImages() per camera) as an ImageSet
 // at `dir`, source "virtual", exposure scene.radiometry.exposure_us, the manifest's `extra` set
 // to `extra`. Images are encoded in parallel; the folder appears complete or not at all.
-void WriteVirtualScan(const std::filesystem::path& dir, const Rig& rig, const PatternSpec& spec, const Scene& scene,
-                      const std::vector<std::vector<cv::Mat>>& images, const ImageSetWriterOptions& writer_options,
-                      const nlohmann::json& extra);
+void WriteVirtualScan(const std::filesystem::path& dir, const Rig& rig, const PatternSpec& spec,
+                      const Scene& scene, const std::vector<std::vector<cv::Mat>>& images,
+                      const ImageSetWriterOptions& writer_options, const nlohmann::json& extra);
 
 // ---- Settings and provenance as files (core/provenance.h; each module reads its own options).
 
@@ -81,7 +82,8 @@ ScanSettings ScanSettingsFromProvenance(const ScanProvenance& provenance, const 
 // ImageSet at `out_dir` (SimulateScan). Throws slshadow::Error when the ImageSet has no
 // provenance, its scene was built in code (no config), or the rebuilt scene's summary differs from
 // the recorded one (a mesh file changed, or the scene was edited after loading).
-SimulateSummary RedoVirtualScan(const std::filesystem::path& scan_dir, const std::filesystem::path& out_dir);
+SimulateSummary RedoVirtualScan(const std::filesystem::path& scan_dir,
+                                const std::filesystem::path& out_dir);
 
 // ---- Decode once, reconstruct any set of modes.
 
@@ -103,11 +105,13 @@ DecodedScan DecodeImageSet(const ImageSet& image_set, const std::vector<std::str
 
 // One reconstruction from decoded maps: kProjector, the first decoded camera against the
 // projector; kStereo, the first decoded camera (left) against the second (right).
-Reconstruction ReconstructFromMaps(const DecodedScan& scan, ReconstructMode mode, const ReconstructOptions& options);
+Reconstruction ReconstructFromMaps(const DecodedScan& scan, ReconstructMode mode,
+                                   const ReconstructOptions& options);
 
 // The reconstructions of `modes`, in that order, each from the same maps. `stages`, if not null,
 // receives one StageMeasurement per mode, named "reconstruct <mode>".
-std::vector<Reconstruction> ReconstructModes(const DecodedScan& scan, const std::vector<ReconstructMode>& modes,
+std::vector<Reconstruction> ReconstructModes(const DecodedScan& scan,
+                                             const std::vector<ReconstructMode>& modes,
                                              const ReconstructOptions& options,
                                              std::vector<StageMeasurement>* stages = nullptr);
 
@@ -128,7 +132,8 @@ std::vector<Eigen::Vector3d> LitVisibleSurface(const GeometryBuffer& geometry);
 
 // The share of `visible` that the comparison's inliers (|deviation| <= threshold) reach within
 // its coverage radius (compare::Coverage).
-double VisibleCoverage(const compare::CompareResult& result, const std::vector<Eigen::Vector3d>& visible);
+double VisibleCoverage(const compare::CompareResult& result,
+                       const std::vector<Eigen::Vector3d>& visible);
 
 // The demo's accuracy figures of one compared cloud.
 struct ModeAccuracy {

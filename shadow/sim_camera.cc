@@ -36,7 +36,8 @@ int ShownPattern::size() const {
   return static_cast<int>(images_.size());
 }
 
-SimProjector::SimProjector(const Rig& rig, std::shared_ptr<ShownPattern> shown) : shown_(std::move(shown)) {
+SimProjector::SimProjector(const Rig& rig, std::shared_ptr<ShownPattern> shown)
+    : shown_(std::move(shown)) {
   SLSHADOW_THROW_IF(!rig.projector, "sim projector: rig '", rig.name, "' has no projector");
   SLSHADOW_THROW_IF(!shown_, "sim projector: no shown-pattern object");
   width_ = rig.projector->model.width;
@@ -54,9 +55,10 @@ capture::ProjectorInfo SimProjector::Info() const {
 
 void SimProjector::Load(const std::vector<cv::Mat>& images) {
   for (size_t i = 0; i < images.size(); ++i) {
-    SLSHADOW_THROW_IF(images[i].type() != CV_8UC1 || images[i].cols != width_ || images[i].rows != height_,
-                      "sim projector: image ", i, ": must be CV_8UC1 of ", width_, "x", height_, " (got ",
-                      images[i].cols, "x", images[i].rows, ", type ", images[i].type(), ")");
+    SLSHADOW_THROW_IF(
+        images[i].type() != CV_8UC1 || images[i].cols != width_ || images[i].rows != height_,
+        "sim projector: image ", i, ": must be CV_8UC1 of ", width_, "x", height_, " (got ",
+        images[i].cols, "x", images[i].rows, ", type ", images[i].type(), ")");
   }
   shown_->Load(images);
 }
@@ -77,18 +79,20 @@ SimCamera::SimCamera(const Scene& scene, const Rig& rig, const std::string& came
     : scene_(scene), rendered_scene_(scene), rig_(rig), camera_(camera), shown_(std::move(shown)) {
   SLSHADOW_THROW_IF(!shown_, "sim camera '", camera, "': no shown-pattern object");
   camera_index_ = rig_.CameraIndex(camera);
-  SLSHADOW_THROW_IF(camera_index_ < 0, "sim camera: rig '", rig_.name, "' has no camera '", camera, "'");
+  SLSHADOW_THROW_IF(camera_index_ < 0, "sim camera: rig '", rig_.name, "' has no camera '", camera,
+                    "'");
   SLSHADOW_THROW_IF(!rig_.projector, "sim camera: rig '", rig_.name, "' has no projector");
   scene_.Check("scene '" + scene_.name + "'");
   rig_.Check("rig '" + rig_.name + "'");
   {
     // The geometry pass, once (with ground truth, as RenderScan traces it).
     const RayCaster caster(scene_);
-    const CameraRays rays = ComputeCameraRays(rig_.cameras[static_cast<size_t>(camera_index_)].model,
-                                              scene_.layers.supersampling);
+    const CameraRays rays = ComputeCameraRays(
+        rig_.cameras[static_cast<size_t>(camera_index_)].model, scene_.layers.supersampling);
     geometry_ = TraceGeometry(caster, rig_, camera_index_, rays);
   }
-  settings_.pixel_format = scene_.radiometry.adc_bits <= 8 ? capture::PixelFormat::kMono8 : capture::PixelFormat::kMono16;
+  settings_.pixel_format = scene_.radiometry.adc_bits <= 8 ? capture::PixelFormat::kMono8
+                                                           : capture::PixelFormat::kMono16;
   settings_.exposure_us = scene_.radiometry.exposure_us;
   settings_.gain_db = 0.0;
   renderer_ = std::make_unique<PatternRenderer>(rendered_scene_, rig_, camera_index_, geometry_);
@@ -121,8 +125,8 @@ void SimCamera::Configure(const capture::CameraSettings& settings) {
   bool format_ok = false;
   for (const auto f : info.pixel_formats) format_ok = format_ok || f == settings.pixel_format;
   SLSHADOW_THROW_IF(!format_ok, what, ": pixel_format: ", capture::ToString(settings.pixel_format),
-                    " is not offered (the scene has ", scene_.radiometry.adc_bits, "-bit samples: ",
-                    capture::ToString(info.pixel_formats.front()), ")");
+                    " is not offered (the scene has ", scene_.radiometry.adc_bits,
+                    "-bit samples: ", capture::ToString(info.pixel_formats.front()), ")");
   SLSHADOW_THROW_IF(!settings.roi.Full() && !(settings.roi.x == 0 && settings.roi.y == 0 &&
                                               settings.roi.width == geometry_.width &&
                                               settings.roi.height == geometry_.height),
@@ -133,13 +137,17 @@ void SimCamera::Configure(const capture::CameraSettings& settings) {
   capture::CameraSettings applied = settings;
   if (!applied.exposure_us) applied.exposure_us = settings_.exposure_us;
   if (!applied.gain_db) applied.gain_db = settings_.gain_db;
-  SLSHADOW_THROW_IF(!(*applied.exposure_us > 0), what, ": exposure_us: must be positive (got ", *applied.exposure_us, ")");
-  SLSHADOW_THROW_IF(!(scene_.radiometry.exposure_us > 0) && *applied.exposure_us != scene_.radiometry.exposure_us, what,
-                    ": exposure_us: the scene records no exposure time to scale from");
-  const double time_ratio =
-      scene_.radiometry.exposure_us > 0 ? *applied.exposure_us / scene_.radiometry.exposure_us : 1.0;
+  SLSHADOW_THROW_IF(!(*applied.exposure_us > 0), what, ": exposure_us: must be positive (got ",
+                    *applied.exposure_us, ")");
+  SLSHADOW_THROW_IF(
+      !(scene_.radiometry.exposure_us > 0) && *applied.exposure_us != scene_.radiometry.exposure_us,
+      what, ": exposure_us: the scene records no exposure time to scale from");
+  const double time_ratio = scene_.radiometry.exposure_us > 0
+                                ? *applied.exposure_us / scene_.radiometry.exposure_us
+                                : 1.0;
   rendered_scene_ = scene_;
-  rendered_scene_.radiometry.exposure = scene_.radiometry.exposure * time_ratio * std::pow(10.0, *applied.gain_db / 20);
+  rendered_scene_.radiometry.exposure_fraction =
+      scene_.radiometry.exposure_fraction * time_ratio * std::pow(10.0, *applied.gain_db / 20);
   rendered_scene_.radiometry.exposure_us = *applied.exposure_us;
   renderer_ = std::make_unique<PatternRenderer>(rendered_scene_, rig_, camera_index_, geometry_);
   settings_ = applied;

@@ -83,7 +83,8 @@ class SimProjector : public capture::Projector {
 // Grab: kAborted when not started, kTimeout when no frame is pending (nothing else will come).
 class SimCamera : public capture::Camera {
  public:
-  SimCamera(const Scene& scene, const Rig& rig, const std::string& camera, std::shared_ptr<const ShownPattern> shown);
+  SimCamera(const Scene& scene, const Rig& rig, const std::string& camera,
+            std::shared_ptr<const ShownPattern> shown);
   ~SimCamera() override;
   SimCamera(const SimCamera&) = delete;  // the renderer refers to the members
   SimCamera& operator=(const SimCamera&) = delete;
@@ -100,7 +101,7 @@ class SimCamera : public capture::Camera {
  private:
   capture::Frame Render(int index, const cv::Mat& projector_image);
 
-  Scene scene_;         // the scene as given; rendered_scene_ has the configured exposure
+  Scene scene_;  // the scene as given; rendered_scene_ has the configured exposure
   Scene rendered_scene_;
   Rig rig_;
   int camera_index_ = 0;

@@ -10,8 +10,8 @@
 #include "plot/plot.h"
 #include "reconstruct/reconstruct.h"
 #include "shadow/scan_pipeline.h"
-#include "shadow/sweep_reuse.h"
 #include "shadow/sweep_montecarlo.h"
+#include "shadow/sweep_reuse.h"
 #include "shadow/sweep_vdi2634.h"
 #include "sim/scene.h"
 #include "sim/simulate.h"
@@ -357,8 +357,10 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
     const ConfigNode c = study["curves"];
     c.RejectUnknownKeys({"x", "limits", "worse"});
     const std::string x = c["x"].AsString();
-    if (c.Has("worse") && c["worse"].AsString() != "increasing" && c["worse"].AsString() != "decreasing") {
-      c["worse"].Fail("must be 'increasing' (the default: the perturbation grows with x) or 'decreasing'");
+    if (c.Has("worse") && c["worse"].AsString() != "increasing" &&
+        c["worse"].AsString() != "decreasing") {
+      c["worse"].Fail(
+          "must be 'increasing' (the default: the perturbation grows with x) or 'decreasing'");
     }
     const auto it =
         std::find_if(axes.begin(), axes.end(), [&](const Axis& a) { return a.name == x; });
@@ -453,13 +455,13 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
   for (const auto& job : jobs)
     WriteTextFileAtomically(JobFile(staging, job["id"].get<int>()), job.dump(1) + "\n");
   json plan = {{"format", kPlanFormat},
-                     {"version", kVersion},
-                     {"study", summary.study},
-                     {"study_file", fs::absolute(study_file).lexically_normal().string()},
-                     {"study_config", study.json()},
-                     {"axes", summary.axes},
-                     {"jobs", summary.jobs},
-                     {"geometry_groups", summary.geometry_groups}};
+               {"version", kVersion},
+               {"study", summary.study},
+               {"study_file", fs::absolute(study_file).lexically_normal().string()},
+               {"study_config", study.json()},
+               {"axes", summary.axes},
+               {"jobs", summary.jobs},
+               {"geometry_groups", summary.geometry_groups}};
   if (!vdi2634_plan.is_null()) plan["vdi2634"] = vdi2634_plan;
   if (!monte_carlo_plan.is_null()) plan["monte_carlo"] = monte_carlo_plan;
   WriteTextFileAtomically(staging / "plan.json", plan.dump(2) + "\n");
@@ -602,8 +604,8 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
   // Study 4: scanned with the true rig, decoded and reconstructed with a sampled calibration.
   decoded.rig = group->rig;
   if (job.contains("monte_carlo")) {
-    decoded.rig = RigFromConfig(ConfigNode::FromJson(
-        job.at("monte_carlo").at("reconstruct_rig"), what, "monte_carlo.reconstruct_rig"));
+    decoded.rig = RigFromConfig(ConfigNode::FromJson(job.at("monte_carlo").at("reconstruct_rig"),
+                                                     what, "monte_carlo.reconstruct_rig"));
   }
   decoded.spec = spec;
   std::vector<double> decode_camera_s;
@@ -1203,8 +1205,8 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
                         m.at("mode").get<std::string>(), m.value("vdi2634", json())});
       }
     }
-    summary.acceptance = WriteVdi2634Results(out_dir, rows, plan.at("vdi2634"),
-                                             plan.at("study").get<std::string>());
+    summary.acceptance =
+        WriteVdi2634Results(out_dir, rows, plan.at("vdi2634"), plan.at("study").get<std::string>());
   }
   // Study 4: the uncertainty from the samples' grids, checked against the replicates.
   if (plan.contains("monte_carlo")) {
@@ -1214,10 +1216,9 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
       ids.push_back(r.at("id").get<int>());
       sets.push_back(r.at("monte_carlo").at("set").get<std::string>());
     }
-    summary.uncertainty =
-        WriteMonteCarloResults(jobs_dir, out_dir, ids, sets,
-                               results.at(0).at("monte_carlo").at("viewpoint_in_rig_mm"),
-                               plan.at("study").get<std::string>());
+    summary.uncertainty = WriteMonteCarloResults(
+        jobs_dir, out_dir, ids, sets, results.at(0).at("monte_carlo").at("viewpoint_in_rig_mm"),
+        plan.at("study").get<std::string>());
   }
   summary.jobs = n;
   summary.out_dir = out_dir;

@@ -18,9 +18,9 @@
 
 #include "compare/charts.h"
 #include "compare/compare.h"
-#include "compare/statistics.h"
 #include "compare/kdtree.h"
 #include "compare/mesh_distance.h"
+#include "compare/statistics.h"
 #include "core/config.h"
 #include "core/error.h"
 #include "core/file_util.h"
@@ -38,15 +38,20 @@ constexpr const char* kFormat = "slshadow-shadow-report";
 constexpr int kVersion = 1;
 
 float Pixel(const cv::Mat& m, int y, int x) {
-  return m.depth() == CV_8U ? static_cast<float>(m.at<uint8_t>(y, x)) : static_cast<float>(m.at<uint16_t>(y, x));
+  return m.depth() == CV_8U ? static_cast<float>(m.at<uint8_t>(y, x))
+                            : static_cast<float>(m.at<uint16_t>(y, x));
 }
 
 struct Stats {
   int64_t count = 0;
   double mean = 0, stddev = 0, rms = 0, median = 0, p95_abs = 0, max_abs = 0;
   nlohmann::json ToJson(const std::string& unit) const {
-    return {{"count", count},          {"mean_" + unit, mean},       {"std_" + unit, stddev},
-            {"rms_" + unit, rms},      {"median_" + unit, median},   {"p95_abs_" + unit, p95_abs},
+    return {{"count", count},
+            {"mean_" + unit, mean},
+            {"std_" + unit, stddev},
+            {"rms_" + unit, rms},
+            {"median_" + unit, median},
+            {"p95_abs_" + unit, p95_abs},
             {"max_abs_" + unit, max_abs}};
   }
 };
@@ -89,8 +94,9 @@ nlohmann::json PoseToJson(const Rigid3d& p) {
 // A camera-image map (CV_32FC1, NaN where unknown) as a chart with a colour bar: symmetric at the
 // 99th percentile of |value| over the finite pixels (at least `floor`), `marks` drawn on the bar
 // and described by `mark_note`. Returns the colour range used.
-double WriteMapChart(const fs::path& path, const cv::Mat& values, const std::string& title, const std::string& unit,
-                     const std::vector<double>& marks, const std::string& mark_note, double floor) {
+double WriteMapChart(const fs::path& path, const cv::Mat& values, const std::string& title,
+                     const std::string& unit, const std::vector<double>& marks,
+                     const std::string& mark_note, double floor) {
   compare::ValueImage img;
   img.width = values.cols;
   img.height = values.rows;
@@ -101,7 +107,8 @@ double WriteMapChart(const fs::path& path, const cv::Mat& values, const std::str
   }
   double range = floor;
   if (!finite.empty()) {
-    const size_t k = std::min(finite.size() - 1, static_cast<size_t>(0.99 * static_cast<double>(finite.size())));
+    const size_t k =
+        std::min(finite.size() - 1, static_cast<size_t>(0.99 * static_cast<double>(finite.size())));
     std::nth_element(finite.begin(), finite.begin() + static_cast<std::ptrdiff_t>(k), finite.end());
     range = std::max(floor, static_cast<double>(finite[k]));
   }
@@ -118,7 +125,8 @@ double WriteMapChart(const fs::path& path, const cv::Mat& values, const std::str
   chart.notes = {buf};
   bool any_in = false;
   for (double m : marks) any_in = any_in || std::abs(m) < range;
-  if (!mark_note.empty()) chart.notes.push_back(mark_note + (any_in ? ": lines on the bar" : ": beyond the range"));
+  if (!mark_note.empty())
+    chart.notes.push_back(mark_note + (any_in ? ": lines on the bar" : ": beyond the range"));
   compare::WriteDeviationMapPng(path, img, chart);
   return range;
 }
@@ -128,16 +136,19 @@ double WriteMapChart(const fs::path& path, const cv::Mat& values, const std::str
 void WriteFrameAgreementChart(const fs::path& path, const nlohmann::json& cameras) {
   const auto lock = plot::LockPlplot();
   WriteFileAtomically(path, [&](const fs::path& tmp) {
-    auto pls = plot::OpenPng(tmp, 1100, 600, {{200, 30, 30}, {30, 90, 200}, {30, 150, 60}, {120, 120, 120}});
+    auto pls = plot::OpenPng(tmp, 1100, 600,
+                             {{200, 30, 30}, {30, 90, 200}, {30, 150, 60}, {120, 120, 120}});
     size_t frames = 0;
     double lowest = 95;
     for (const auto& c : cameras) {
       frames = std::max(frames, c["patterns"].size());
-      for (const auto& f : c["patterns"]) lowest = std::min(lowest, 100 * f["within_5pct"].get<double>());
+      for (const auto& f : c["patterns"])
+        lowest = std::min(lowest, 100 * f["within_5pct"].get<double>());
     }
     const double ymin = std::max(0.0, std::floor((lowest - 2) / 5) * 5 - 0.15 * (100 - lowest));
     pls->env(-0.5, static_cast<double>(frames) - 0.5, ymin, 100.5, 0, 0);
-    pls->lab("frame (spec order)", "pixels within 5 % of full scale (%)", "real vs twin intensity, per frame");
+    pls->lab("frame (spec order)", "pixels within 5 % of full scale (%)",
+             "real vs twin intensity, per frame");
     const PLFLT gx[2] = {-0.5, static_cast<double>(frames) - 0.5}, gy[2] = {95, 95};
     pls->col0(5);
     pls->lsty(2);
@@ -153,7 +164,8 @@ void WriteFrameAgreementChart(const fs::path& path, const nlohmann::json& camera
       pls->line(static_cast<PLINT>(x.size()), x.data(), y.data());
       pls->poin(static_cast<PLINT>(x.size()), x.data(), y.data(), 17);
       char name[128];
-      std::snprintf(name, sizeof(name), "%s: %.1f %% over all frames", cameras[c]["camera"].get<std::string>().c_str(),
+      std::snprintf(name, sizeof(name), "%s: %.1f %% over all frames",
+                    cameras[c]["camera"].get<std::string>().c_str(),
                     100 * cameras[c]["within_5pct_all_frames"].get<double>());
       pls->mtex("b", -1.0 - 1.3 * static_cast<double>(cameras.size() - 1 - c), 0.98, 1.0, name);
     }
@@ -198,10 +210,12 @@ struct ModeClouds {
   std::vector<double> real_c2m, twin_c2m;
 };
 
-std::vector<double> SignedC2M(const compare::MeshDistance& mesh, const std::vector<Eigen::Vector3d>& points) {
+std::vector<double> SignedC2M(const compare::MeshDistance& mesh,
+                              const std::vector<Eigen::Vector3d>& points) {
   std::vector<double> d(points.size());
   cv::parallel_for_(cv::Range(0, static_cast<int>(points.size())), [&](const cv::Range& r) {
-    for (int i = r.start; i < r.end; ++i) d[static_cast<size_t>(i)] = mesh.Closest(points[static_cast<size_t>(i)]).signed_distance_mm;
+    for (int i = r.start; i < r.end; ++i)
+      d[static_cast<size_t>(i)] = mesh.Closest(points[static_cast<size_t>(i)]).signed_distance_mm;
   });
   return d;
 }
@@ -211,13 +225,18 @@ struct Reconstructions {
   std::vector<std::pair<std::string, Reconstruction>> modes;
 };
 
-Reconstructions DecodeAndReconstruct(const Rig& rig, const PatternSpec& spec, const std::vector<std::string>& cameras,
-                                     const std::vector<const std::vector<cv::Mat>*>& images, const ShadowOptions& options) {
+Reconstructions DecodeAndReconstruct(const Rig& rig, const PatternSpec& spec,
+                                     const std::vector<std::string>& cameras,
+                                     const std::vector<const std::vector<cv::Mat>*>& images,
+                                     const ShadowOptions& options) {
   Reconstructions out;
-  for (size_t c = 0; c < cameras.size(); ++c) out.maps.push_back(DecodePatterns(spec, *images[c], options.decode));
-  out.modes.emplace_back("projector", ReconstructWithProjector(rig, cameras[0], out.maps[0], options.reconstruct));
+  for (size_t c = 0; c < cameras.size(); ++c)
+    out.maps.push_back(DecodePatterns(spec, *images[c], options.decode));
+  out.modes.emplace_back(
+      "projector", ReconstructWithProjector(rig, cameras[0], out.maps[0], options.reconstruct));
   if (cameras.size() >= 2 && spec.code_x) {
-    out.modes.emplace_back("stereo", ReconstructStereo(rig, cameras[0], cameras[1], out.maps[0], out.maps[1], options.reconstruct));
+    out.modes.emplace_back("stereo", ReconstructStereo(rig, cameras[0], cameras[1], out.maps[0],
+                                                       out.maps[1], options.reconstruct));
   }
   return out;
 }
@@ -227,7 +246,8 @@ Reconstructions DecodeAndReconstruct(const Rig& rig, const PatternSpec& spec, co
 // (n_i the closest triangle's normal), points beyond 3 robust sigmas (at least 0.05 mm) left
 // out, so a local defect on the part does not pull the pose. Polishes ICP's pose (which stops at
 // its sampled correspondences) to the noise of the whole cloud.
-Rigid3d PolishPose(const TriangleMesh& part_surface, const std::vector<Eigen::Vector3d>& cloud, Rigid3d part_from_rig) {
+Rigid3d PolishPose(const TriangleMesh& part_surface, const std::vector<Eigen::Vector3d>& cloud,
+                   Rigid3d part_from_rig) {
   const compare::MeshDistance mesh(part_surface);
   const size_t step = std::max<size_t>(1, cloud.size() / 60000);
   for (int iter = 0; iter < 6; ++iter) {
@@ -258,8 +278,9 @@ Rigid3d PolishPose(const TriangleMesh& part_surface, const std::vector<Eigen::Ve
     }
     const Eigen::Matrix<double, 6, 1> delta = -jtj.ldlt().solve(jtr);
     const Eigen::Vector3d w = delta.tail<3>();
-    const Eigen::Quaterniond dq = w.norm() > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(w.norm(), w / w.norm()))
-                                              : Eigen::Quaterniond::Identity();
+    const Eigen::Quaterniond dq =
+        w.norm() > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(w.norm(), w / w.norm()))
+                     : Eigen::Quaterniond::Identity();
     part_from_rig = Rigid3d(dq, delta.head<3>()) * part_from_rig;
     if (delta.head<3>().norm() < 1e-5 && w.norm() < 1e-8) break;
   }
@@ -284,7 +305,8 @@ ShadowPart LoadShadowPart(const fs::path& path) {
   ShadowPart part;
   part.source = path.string();
   std::string ext = path.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
   if (ext == ".yaml" || ext == ".yml" || ext == ".json") {
     part.scene = LoadScene(path);
   } else if (ext == ".stl" || ext == ".ply" || ext == ".obj") {
@@ -298,14 +320,16 @@ ShadowPart LoadShadowPart(const fs::path& path) {
     part.scene.name = object.name;
     part.scene.objects.push_back(object);
   } else {
-    SLSHADOW_THROW(path.string(), ": unknown part format '", ext, "' (expected .stl, .ply, .obj or a scene .yaml/.json)");
+    SLSHADOW_THROW(path.string(), ": unknown part format '", ext,
+                   "' (expected .stl, .ply, .obj or a scene .yaml/.json)");
   }
   part.surface = SceneSurface(part.scene, path.string(), kPartPlaneCells);
   return part;
 }
 
 void ShadowOptions::Check() const {
-  SLSHADOW_THROW_IF(!(min_fitness >= 0 && min_fitness <= 1), "shadow: min_fitness must be in [0, 1] (got ", min_fitness, ")");
+  SLSHADOW_THROW_IF(!(min_fitness >= 0 && min_fitness <= 1),
+                    "shadow: min_fitness must be in [0, 1] (got ", min_fitness, ")");
   SLSHADOW_THROW_IF(!(max_rmse_mm > 0), "shadow: max_rmse_mm must be > 0 (got ", max_rmse_mm, ")");
   decode.Check();
   reconstruct.Check();
@@ -318,34 +342,43 @@ std::string ShadowResult::Summary() const {
                     report.value("part", std::string()) + "\n\n";
   char buf[512];
   const auto& pose = report["pose"];
-  std::snprintf(buf, sizeof(buf), "pose (%s): fitness %.3f, inlier RMSE %.4f mm\n\n", pose["source"].get<std::string>().c_str(),
-                pose["fitness"].get<double>(), pose["inlier_rmse_mm"].get<double>());
+  std::snprintf(buf, sizeof(buf), "pose (%s): fitness %.3f, inlier RMSE %.4f mm\n\n",
+                pose["source"].get<std::string>().c_str(), pose["fitness"].get<double>(),
+                pose["inlier_rmse_mm"].get<double>());
   out += buf;
   out += "physics (layer, kept?, value +- sigma, why):\n" + physics.Table() + "\n";
   out += "images (per camera, over the twin's lit part pixels):\n";
   for (const auto& c : report["images"]["cameras"]) {
     const auto& pc = c["projector_coordinates"];
-    std::snprintf(buf, sizeof(buf),
-                  "  %-8s intensity within 5%% FS: %.1f%% of pixel-frames (worst frame %.1f%%); decoded vs twin truth "
-                  "%.3f px RMS (twin's own decoding %.3f px), real vs twin decoded %.3f px RMS; valid both %lld, real only "
-                  "%lld, twin only %lld\n",
-                  c["camera"].get<std::string>().c_str(), 100 * c["within_5pct_all_frames"].get<double>(),
-                  100 * c["within_5pct_worst_frame"].get<double>(), pc["real_vs_truth_rms_px"].get<double>(),
-                  pc["twin_vs_truth_rms_px"].get<double>(), pc["real_vs_twin_decoded_rms_px"].get<double>(),
-                  static_cast<long long>(pc["valid_both"].get<int64_t>()), static_cast<long long>(pc["valid_real_only"].get<int64_t>()),
-                  static_cast<long long>(pc["valid_twin_only"].get<int64_t>()));
+    std::snprintf(
+        buf, sizeof(buf),
+        "  %-8s intensity within 5%% FS: %.1f%% of pixel-frames (worst frame %.1f%%); decoded vs "
+        "twin truth "
+        "%.3f px RMS (twin's own decoding %.3f px), real vs twin decoded %.3f px RMS; valid both "
+        "%lld, real only "
+        "%lld, twin only %lld\n",
+        c["camera"].get<std::string>().c_str(), 100 * c["within_5pct_all_frames"].get<double>(),
+        100 * c["within_5pct_worst_frame"].get<double>(), pc["real_vs_truth_rms_px"].get<double>(),
+        pc["twin_vs_truth_rms_px"].get<double>(), pc["real_vs_twin_decoded_rms_px"].get<double>(),
+        static_cast<long long>(pc["valid_both"].get<int64_t>()),
+        static_cast<long long>(pc["valid_real_only"].get<int64_t>()),
+        static_cast<long long>(pc["valid_twin_only"].get<int64_t>()));
     out += buf;
   }
   out += "\nclouds (signed C2M to the part, mm):\n";
   for (const auto& m : report["clouds"]["modes"]) {
-    std::snprintf(buf, sizeof(buf),
-                  "  %-9s real %7lld pts mean %+.4f RMS %.4f | twin %7lld pts mean %+.4f RMS %.4f | real - twin RMS %.4f, "
-                  "%.2f%% beyond LoD95 %.4f\n",
-                  m["mode"].get<std::string>().c_str(), static_cast<long long>(m["real_vs_part"]["count"].get<int64_t>()),
-                  m["real_vs_part"]["mean_mm"].get<double>(), m["real_vs_part"]["rms_mm"].get<double>(),
-                  static_cast<long long>(m["twin_vs_part"]["count"].get<int64_t>()), m["twin_vs_part"]["mean_mm"].get<double>(),
-                  m["twin_vs_part"]["rms_mm"].get<double>(), m["real_vs_twin"]["rms_mm"].get<double>(),
-                  100 * m["real_vs_twin_significant_fraction"].get<double>(), m["lod95_mm"].get<double>());
+    std::snprintf(
+        buf, sizeof(buf),
+        "  %-9s real %7lld pts mean %+.4f RMS %.4f | twin %7lld pts mean %+.4f RMS %.4f | real - "
+        "twin RMS %.4f, "
+        "%.2f%% beyond LoD95 %.4f\n",
+        m["mode"].get<std::string>().c_str(),
+        static_cast<long long>(m["real_vs_part"]["count"].get<int64_t>()),
+        m["real_vs_part"]["mean_mm"].get<double>(), m["real_vs_part"]["rms_mm"].get<double>(),
+        static_cast<long long>(m["twin_vs_part"]["count"].get<int64_t>()),
+        m["twin_vs_part"]["mean_mm"].get<double>(), m["twin_vs_part"]["rms_mm"].get<double>(),
+        m["real_vs_twin"]["rms_mm"].get<double>(),
+        100 * m["real_vs_twin_significant_fraction"].get<double>(), m["lod95_mm"].get<double>());
     out += buf;
   }
   out += "\n" + diagnosis.Summary();
@@ -353,9 +386,11 @@ std::string ShadowResult::Summary() const {
   return out;
 }
 
-ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const std::map<std::string, std::vector<cv::Mat>>& real,
-                               const ShadowPart& part, const ShadowOptions& options, const fs::path& out_dir,
-                               const std::string& source, const std::vector<StageMeasurement>& earlier_stages) {
+ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec,
+                               const std::map<std::string, std::vector<cv::Mat>>& real,
+                               const ShadowPart& part, const ShadowOptions& options,
+                               const fs::path& out_dir, const std::string& source,
+                               const std::vector<StageMeasurement>& earlier_stages) {
   options.Check();
   spec.Check();
   SLSHADOW_THROW_IF(!rig.projector, "shadow: the rig '", rig.name, "' has no projector");
@@ -371,8 +406,9 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
   for (const auto& cam : rig.cameras) {
     auto it = real.find(cam.name);
     if (it == real.end()) continue;
-    SLSHADOW_THROW_IF(static_cast<int>(it->second.size()) != spec.NumImages(), "shadow: camera '", cam.name, "' has ",
-                      it->second.size(), " images, the pattern spec needs ", spec.NumImages());
+    SLSHADOW_THROW_IF(static_cast<int>(it->second.size()) != spec.NumImages(), "shadow: camera '",
+                      cam.name, "' has ", it->second.size(), " images, the pattern spec needs ",
+                      spec.NumImages());
     cameras.push_back(cam.name);
     real_images.push_back(&it->second);
   }
@@ -396,9 +432,11 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
 
   // 2. Pose.
   meter = StageMeter("pose");
-  const compare::Reference reference = compare::ReferenceFromMesh(part.surface, part.source, 100000);
+  const compare::Reference reference =
+      compare::ReferenceFromMesh(part.surface, part.source, 100000);
   const PointCloud& reg_cloud = real_rec.modes.back().second.cloud;  // stereo when there is one
-  SLSHADOW_THROW_IF(reg_cloud.size() < 100 && !(options.rig_from_part && !options.refine_pose), "shadow: the real scan reconstructed only ", reg_cloud.size(),
+  SLSHADOW_THROW_IF(reg_cloud.size() < 100 && !(options.rig_from_part && !options.refine_pose),
+                    "shadow: the real scan reconstructed only ", reg_cloud.size(),
                     " points; cannot place the part");
   PoseSource pose_source;
   compare::RegistrationResult reg;
@@ -423,7 +461,9 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
     normals.reserve(reference.cloud.size());
     for (const auto& n : reference.cloud.normals) normals.push_back(n.cast<double>());
     reg = compare::Register(cloud, reference.cloud.points, normals, ro);
-    rig_from_part = PolishPose(part.surface, reg_cloud.points, reg.reference_from_cloud * part_from_rig_guess).Inverse();
+    rig_from_part =
+        PolishPose(part.surface, reg_cloud.points, reg.reference_from_cloud * part_from_rig_guess)
+            .Inverse();
   }
   // Fitness and RMSE of the final pose, measured the same way for every source: share of the
   // registration cloud within 1 mm of the part, RMS of those distances.
@@ -432,14 +472,16 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
   {
     const compare::MeshDistance registered(surface_in_rig);
     std::vector<Eigen::Vector3d> sample;
-    for (size_t i = 0; i < reg_cloud.size(); i += std::max<size_t>(1, reg_cloud.size() / 100000)) sample.push_back(reg_cloud.points[i]);
+    for (size_t i = 0; i < reg_cloud.size(); i += std::max<size_t>(1, reg_cloud.size() / 100000))
+      sample.push_back(reg_cloud.points[i]);
     const std::vector<double> d = SignedC2M(registered, sample);
     int64_t in = 0;
     double ss = 0;
     for (double x : d) {
       if (std::abs(x) < 1.0) ++in, ss += x * x;
     }
-    const double fitness = d.empty() ? 0.0 : static_cast<double>(in) / static_cast<double>(d.size());
+    const double fitness =
+        d.empty() ? 0.0 : static_cast<double>(in) / static_cast<double>(d.size());
     const double rmse = in ? std::sqrt(ss / static_cast<double>(in)) : 0.0;
     report["pose"] = {{"source", ToString(pose_source)},
                       {"rig_from_part", PoseToJson(rig_from_part)},
@@ -457,25 +499,33 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
                                         {"global_found", reg.global_found}};
     }
     if (options.rig_from_part) {
-      report["pose"]["moved_from_given_mm"] = (rig_from_part.translation - options.rig_from_part->translation).norm();
-      report["pose"]["rotated_from_given_deg"] = compare::RotationDifferenceDeg(rig_from_part, *options.rig_from_part);
+      report["pose"]["moved_from_given_mm"] =
+          (rig_from_part.translation - options.rig_from_part->translation).norm();
+      report["pose"]["rotated_from_given_deg"] =
+          compare::RotationDifferenceDeg(rig_from_part, *options.rig_from_part);
     }
     const bool credible = in > 0 && fitness >= options.min_fitness && rmse <= options.max_rmse_mm;
     report["pose"]["credible"] = credible;
     // Not credible: stop, unless a pose was given; then the job goes on from the given pose
     // (a scan corrupted e.g. by a wrong frame still deserves its diagnosis), and says so.
-    SLSHADOW_THROW_IF(!credible && !options.rig_from_part, "shadow: the part's pose is not credible (", ToString(pose_source),
-                      "): fitness ", fitness, " (need >= ", options.min_fitness, "), inlier RMSE ", rmse, " mm over ", in,
-                      " points (need <= ", options.max_rmse_mm, "); give a pose guess with --pose, or check the part file");
+    SLSHADOW_THROW_IF(!credible && !options.rig_from_part,
+                      "shadow: the part's pose is not credible (", ToString(pose_source),
+                      "): fitness ", fitness, " (need >= ", options.min_fitness, "), inlier RMSE ",
+                      rmse, " mm over ", in, " points (need <= ", options.max_rmse_mm,
+                      "); give a pose guess with --pose, or check the part file");
     if (pose_source == PoseSource::kGivenFixed) {
-      report["pose"]["used"] = "given";  // no registration ran: fitness and RMSE are for information
+      report["pose"]["used"] =
+          "given";  // no registration ran: fitness and RMSE are for information
     } else if (!credible) {
       rig_from_part = *options.rig_from_part;
       surface_in_rig = part.surface;
-      surface_in_rig.Transform(rig_from_part.rotation.toRotationMatrix(), rig_from_part.translation);
+      surface_in_rig.Transform(rig_from_part.rotation.toRotationMatrix(),
+                               rig_from_part.translation);
       report["pose"]["used"] = "given";
       report["pose"]["rig_from_part"] = PoseToJson(rig_from_part);
-      report["pose"]["warning"] = "registration not credible (the real cloud is far from the part); the given pose is used as it is";
+      report["pose"]["warning"] =
+          "registration not credible (the real cloud is far from the part); the given pose is used "
+          "as it is";
     } else {
       report["pose"]["used"] = ToString(pose_source);
     }
@@ -506,11 +556,14 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
       for (int x = 0; x < g0.width; x += 8) {
         if (g0.visibility.at<uint8_t>(y, x) != 2) continue;
         const cv::Vec3f p = g0.point_in_rig.at<cv::Vec3f>(y, x);
-        depths.push_back((twin_rig.projector->cam_from_rig * Eigen::Vector3d(p[0], p[1], p[2])).z());
+        depths.push_back(
+            (twin_rig.projector->cam_from_rig * Eigen::Vector3d(p[0], p[1], p[2])).z());
       }
     }
-    SLSHADOW_THROW_IF(depths.empty(), "shadow: the part at its pose is not seen lit by camera '", cameras[0], "'");
-    std::nth_element(depths.begin(), depths.begin() + static_cast<std::ptrdiff_t>(depths.size() / 2), depths.end());
+    SLSHADOW_THROW_IF(depths.empty(), "shadow: the part at its pose is not seen lit by camera '",
+                      cameras[0], "'");
+    std::nth_element(depths.begin(),
+                     depths.begin() + static_cast<std::ptrdiff_t>(depths.size() / 2), depths.end());
     projector_depth_mm = depths[depths.size() / 2];
   }
   for (size_t c = 0; c < cameras.size(); ++c) {
@@ -526,7 +579,7 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
     PhysicsLayer e;
     e.name = "exposure";
     e.kept = true;
-    e.value = part.scene.radiometry.exposure;
+    e.value = part.scene.radiometry.exposure_fraction;
     e.reason = "from the part file (--no-physics-fit)";
     fit.layers.push_back(e);
   }
@@ -540,7 +593,8 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
   const std::vector<double> pattern_means = PatternMeans(projector_images);
   const auto apply_image_layers = [&] {
     for (const auto& name : cameras) {
-      ApplyImageLayers(fit, spec, pattern_means, name, &rendered[static_cast<size_t>(twin_rig.CameraIndex(name))]);
+      ApplyImageLayers(fit, spec, pattern_means, name,
+                       &rendered[static_cast<size_t>(twin_rig.CameraIndex(name))]);
     }
   };
   const auto render_all = [&] {
@@ -565,16 +619,19 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
       const std::vector<std::vector<cv::Mat>> part = simulator->Render(subset, &fitted);
       rendered.assign(part.size(), std::vector<cv::Mat>(projector_images.size()));
       for (size_t cam = 0; cam < part.size(); ++cam) {
-        for (size_t k = 0; k < fit_frames.size(); ++k) rendered[cam][static_cast<size_t>(fit_frames[k])] = part[cam][k];
+        for (size_t k = 0; k < fit_frames.size(); ++k)
+          rendered[cam][static_cast<size_t>(fit_frames[k])] = part[cam][k];
       }
       apply_image_layers();
     }
-    for (size_t c = 0; c < cameras.size(); ++c) data[c].twin = rendered[static_cast<size_t>(twin_rig.CameraIndex(cameras[c]))];
+    for (size_t c = 0; c < cameras.size(); ++c)
+      data[c].twin = rendered[static_cast<size_t>(twin_rig.CameraIndex(cameras[c]))];
     FitDefocus(spec, data, options.physics, &fit);
     for (auto& d : data) d.twin.clear();
     if (fit.Kept("defocus")) {
       fitted = fit.Apply(twin, twin_rig, projector_depth_mm, options.noise_seed);
-      for (auto& d : data) d.twin_modulation = d.twin_white = d.twin_black = cv::Mat(), d.geometry = nullptr;
+      for (auto& d : data)
+        d.twin_modulation = d.twin_white = d.twin_black = cv::Mat(), d.geometry = nullptr;
       rendered.clear();
       simulator = std::make_unique<Simulator>(fitted, twin_rig);
       render_all();
@@ -591,14 +648,17 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
 
   meter = StageMeter("twin: decode + reconstruct");
   std::vector<const std::vector<cv::Mat>*> twin_images;
-  for (const auto& name : cameras) twin_images.push_back(&rendered[static_cast<size_t>(twin_rig.CameraIndex(name))]);
+  for (const auto& name : cameras)
+    twin_images.push_back(&rendered[static_cast<size_t>(twin_rig.CameraIndex(name))]);
   Reconstructions twin_rec = DecodeAndReconstruct(twin_rig, spec, cameras, twin_images, options);
   result.stages.push_back(meter.Stop());
 
   // 5. Images.
   meter = StageMeter("compare images");
   std::vector<float> response(256);
-  for (int v = 0; v < 256; ++v) response[static_cast<size_t>(v)] = static_cast<float>(fitted.layers.response_enabled ? std::pow(v / 255.0, fitted.layers.gamma) : v / 255.0);
+  for (int v = 0; v < 256; ++v)
+    response[static_cast<size_t>(v)] = static_cast<float>(
+        fitted.layers.response_enabled ? std::pow(v / 255.0, fitted.layers.gamma) : v / 255.0);
   std::vector<CameraEvidence> evidence(cameras.size());
   std::vector<cv::Mat> residual_maps, validity_maps, white_diff_maps, modulation_maps;
   report["images"]["cameras"] = nlohmann::json::array();
@@ -610,145 +670,165 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
   validity_maps.resize(num_cameras);
   white_diff_maps.resize(num_cameras);
   modulation_maps.resize(num_cameras);
-  cv::parallel_for_(cv::Range(0, static_cast<int>(num_cameras)), [&](const cv::Range& camera_range) {
-  for (int camera_index = camera_range.start; camera_index < camera_range.end; ++camera_index) {
-    const size_t c = static_cast<size_t>(camera_index);
-    const GeometryBuffer& g = simulator->geometry(twin_rig.CameraIndex(cameras[c]));
-    const std::vector<cv::Mat>& rimg = *real_images[c];
-    const std::vector<cv::Mat>& timg = *twin_images[c];
-    cv::Mat mask(g.height, g.width, CV_8UC1, cv::Scalar(0));
-    for (int y = 0; y < g.height; ++y) {
-      for (int x = 0; x < g.width; ++x) {
-        if (g.visibility.at<uint8_t>(y, x) == 2 && g.object_id.at<int32_t>(y, x) >= 0) mask.at<uint8_t>(y, x) = 255;
-      }
-    }
-    const int64_t lit = cv::countNonZero(mask);
-    // Per pattern intensity differences.
-    const int nf = spec.NumImages();
-    std::vector<nlohmann::json> per(static_cast<size_t>(nf));
-    std::vector<int64_t> within(static_cast<size_t>(nf), 0);
-    const double tol = 0.05 * fs_dn;
-    cv::parallel_for_(cv::Range(0, nf), [&](const cv::Range& r) {
-      for (int k = r.start; k < r.end; ++k) {
-        double sum = 0, ss = 0;
-        int64_t n = 0, in = 0;
-        const cv::Mat& a = rimg[static_cast<size_t>(k)];
-        const cv::Mat& b = timg[static_cast<size_t>(k)];
-        const bool bytes = a.depth() == CV_8U && b.depth() == CV_8U;
-        for (int y = 0; y < g.height; ++y) {
-          const uint8_t* m = mask.ptr<uint8_t>(y);
-          const uint8_t* pa = bytes ? a.ptr<uint8_t>(y) : nullptr;
-          const uint8_t* pb = bytes ? b.ptr<uint8_t>(y) : nullptr;
-          for (int x = 0; x < g.width; ++x) {
-            if (!m[x]) continue;
-            const double d = bytes ? static_cast<double>(pa[x]) - pb[x] : Pixel(a, y, x) - Pixel(b, y, x);
-            sum += d, ss += d * d, ++n;
-            if (std::abs(d) <= tol) ++in;
+  cv::parallel_for_(
+      cv::Range(0, static_cast<int>(num_cameras)), [&](const cv::Range& camera_range) {
+        for (int camera_index = camera_range.start; camera_index < camera_range.end;
+             ++camera_index) {
+          const size_t c = static_cast<size_t>(camera_index);
+          const GeometryBuffer& g = simulator->geometry(twin_rig.CameraIndex(cameras[c]));
+          const std::vector<cv::Mat>& rimg = *real_images[c];
+          const std::vector<cv::Mat>& timg = *twin_images[c];
+          cv::Mat mask(g.height, g.width, CV_8UC1, cv::Scalar(0));
+          for (int y = 0; y < g.height; ++y) {
+            for (int x = 0; x < g.width; ++x) {
+              if (g.visibility.at<uint8_t>(y, x) == 2 && g.object_id.at<int32_t>(y, x) >= 0)
+                mask.at<uint8_t>(y, x) = 255;
+            }
           }
-        }
-        within[static_cast<size_t>(k)] = in;
-        per[static_cast<size_t>(k)] = {{"index", k},
-                                       {"name", frames[static_cast<size_t>(k)].Name()},
-                                       {"mean_dn", n ? sum / static_cast<double>(n) : 0.0},
-                                       {"rms_dn", n ? std::sqrt(ss / static_cast<double>(n)) : 0.0},
-                                       {"within_5pct", n ? static_cast<double>(in) / static_cast<double>(n) : 0.0}};
-      }
-    });
-    int64_t in_all = 0;
-    double worst = 1;
-    for (int k = 0; k < nf; ++k) {
-      in_all += within[static_cast<size_t>(k)];
-      worst = std::min(worst, per[static_cast<size_t>(k)]["within_5pct"].get<double>());
-    }
-    // Decoded projector coordinates.
-    const ProjectorMap& rm = real_rec.maps[c];
-    const ProjectorMap& tm = twin_rec.maps[c];
-    const ProjectorMap& gt = g.projector;
-    std::vector<double> real_truth, twin_truth, real_twin;
-    int64_t both = 0, real_only = 0, twin_only = 0;
-    cv::Mat residual(g.height, g.width, CV_32FC1, cv::Scalar(std::nanf("")));
-    cv::Mat validity(g.height, g.width, CV_8UC3, cv::Scalar(0, 0, 0));
-    for (int y = 0; y < g.height; ++y) {
-      for (int x = 0; x < g.width; ++x) {
-        const bool rv = rm.status.at<uint8_t>(y, x) == 0, tv = tm.status.at<uint8_t>(y, x) == 0;
-        if (rv && tv) ++both, validity.at<cv::Vec3b>(y, x) = {80, 200, 80};
-        if (rv && !tv) ++real_only, validity.at<cv::Vec3b>(y, x) = {60, 60, 255};
-        if (!rv && tv) ++twin_only, validity.at<cv::Vec3b>(y, x) = {255, 120, 60};
-        if (!mask.at<uint8_t>(y, x)) continue;
-        for (int axis = 0; axis < 2; ++axis) {
-          if (!spec.Codes(axis)) continue;
-          const float r = (axis ? rm.proj_y : rm.proj_x).at<float>(y, x);
-          const float t = (axis ? tm.proj_y : tm.proj_x).at<float>(y, x);
-          const float tr = (axis ? gt.proj_y : gt.proj_x).at<float>(y, x);
-          if (std::isfinite(r) && std::isfinite(tr) && std::abs(r - tr) < 20) real_truth.push_back(r - tr);
-          if (std::isfinite(t) && std::isfinite(tr) && std::abs(t - tr) < 20) twin_truth.push_back(t - tr);
-          if (std::isfinite(r) && std::isfinite(t) && std::abs(r - t) < 20) real_twin.push_back(r - t);
-          if (axis == (spec.code_x ? 0 : 1) && std::isfinite(r) && std::isfinite(tr)) residual.at<float>(y, x) = r - tr;
-        }
-      }
-    }
-    // Outliers (|d| >= 20 px, wrong codes) are counted apart so they do not swamp the RMS.
-    const Stats srt = ComputeStats(real_truth), stt = ComputeStats(twin_truth), srw = ComputeStats(real_twin);
-    nlohmann::json cj = {{"camera", cameras[c]},
-                         {"lit_part_pixels", lit},
-                         {"full_scale_dn", fs_dn},
-                         {"within_5pct_all_frames", lit ? static_cast<double>(in_all) / static_cast<double>(lit * nf) : 0.0},
-                         {"within_5pct_worst_frame", worst},
-                         {"patterns", per}};
-    // Per axis RMS (x, y) are pooled: RMS over both axes' residuals is what "px RMS" means here.
-    cj["projector_coordinates"] = {{"real_vs_truth_rms_px", srt.rms},
-                                   {"real_vs_truth", srt.ToJson("px")},
-                                   {"twin_vs_truth_rms_px", stt.rms},
-                                   {"twin_vs_truth", stt.ToJson("px")},
-                                   {"real_vs_twin_decoded_rms_px", srw.rms},
-                                   {"real_vs_twin_decoded", srw.ToJson("px")},
-                                   {"valid_both", both},
-                                   {"valid_real_only", real_only},
-                                   {"valid_twin_only", twin_only},
-                                   {"outlier_gate_px", 20}};
-    camera_json[c] = std::move(cj);
+          const int64_t lit = cv::countNonZero(mask);
+          // Per pattern intensity differences.
+          const int nf = spec.NumImages();
+          std::vector<nlohmann::json> per(static_cast<size_t>(nf));
+          std::vector<int64_t> within(static_cast<size_t>(nf), 0);
+          const double tol = 0.05 * fs_dn;
+          cv::parallel_for_(cv::Range(0, nf), [&](const cv::Range& r) {
+            for (int k = r.start; k < r.end; ++k) {
+              double sum = 0, ss = 0;
+              int64_t n = 0, in = 0;
+              const cv::Mat& a = rimg[static_cast<size_t>(k)];
+              const cv::Mat& b = timg[static_cast<size_t>(k)];
+              const bool bytes = a.depth() == CV_8U && b.depth() == CV_8U;
+              for (int y = 0; y < g.height; ++y) {
+                const uint8_t* m = mask.ptr<uint8_t>(y);
+                const uint8_t* pa = bytes ? a.ptr<uint8_t>(y) : nullptr;
+                const uint8_t* pb = bytes ? b.ptr<uint8_t>(y) : nullptr;
+                for (int x = 0; x < g.width; ++x) {
+                  if (!m[x]) continue;
+                  const double d =
+                      bytes ? static_cast<double>(pa[x]) - pb[x] : Pixel(a, y, x) - Pixel(b, y, x);
+                  sum += d, ss += d * d, ++n;
+                  if (std::abs(d) <= tol) ++in;
+                }
+              }
+              within[static_cast<size_t>(k)] = in;
+              per[static_cast<size_t>(k)] = {
+                  {"index", k},
+                  {"name", frames[static_cast<size_t>(k)].Name()},
+                  {"mean_dn", n ? sum / static_cast<double>(n) : 0.0},
+                  {"rms_dn", n ? std::sqrt(ss / static_cast<double>(n)) : 0.0},
+                  {"within_5pct", n ? static_cast<double>(in) / static_cast<double>(n) : 0.0}};
+            }
+          });
+          int64_t in_all = 0;
+          double worst = 1;
+          for (int k = 0; k < nf; ++k) {
+            in_all += within[static_cast<size_t>(k)];
+            worst = std::min(worst, per[static_cast<size_t>(k)]["within_5pct"].get<double>());
+          }
+          // Decoded projector coordinates.
+          const ProjectorMap& rm = real_rec.maps[c];
+          const ProjectorMap& tm = twin_rec.maps[c];
+          const ProjectorMap& gt = g.projector;
+          std::vector<double> real_truth, twin_truth, real_twin;
+          int64_t both = 0, real_only = 0, twin_only = 0;
+          cv::Mat residual(g.height, g.width, CV_32FC1, cv::Scalar(std::nanf("")));
+          cv::Mat validity(g.height, g.width, CV_8UC3, cv::Scalar(0, 0, 0));
+          for (int y = 0; y < g.height; ++y) {
+            for (int x = 0; x < g.width; ++x) {
+              const bool rv = rm.status.at<uint8_t>(y, x) == 0,
+                         tv = tm.status.at<uint8_t>(y, x) == 0;
+              if (rv && tv) ++both, validity.at<cv::Vec3b>(y, x) = {80, 200, 80};
+              if (rv && !tv) ++real_only, validity.at<cv::Vec3b>(y, x) = {60, 60, 255};
+              if (!rv && tv) ++twin_only, validity.at<cv::Vec3b>(y, x) = {255, 120, 60};
+              if (!mask.at<uint8_t>(y, x)) continue;
+              for (int axis = 0; axis < 2; ++axis) {
+                if (!spec.Codes(axis)) continue;
+                const float r = (axis ? rm.proj_y : rm.proj_x).at<float>(y, x);
+                const float t = (axis ? tm.proj_y : tm.proj_x).at<float>(y, x);
+                const float tr = (axis ? gt.proj_y : gt.proj_x).at<float>(y, x);
+                if (std::isfinite(r) && std::isfinite(tr) && std::abs(r - tr) < 20)
+                  real_truth.push_back(r - tr);
+                if (std::isfinite(t) && std::isfinite(tr) && std::abs(t - tr) < 20)
+                  twin_truth.push_back(t - tr);
+                if (std::isfinite(r) && std::isfinite(t) && std::abs(r - t) < 20)
+                  real_twin.push_back(r - t);
+                if (axis == (spec.code_x ? 0 : 1) && std::isfinite(r) && std::isfinite(tr))
+                  residual.at<float>(y, x) = r - tr;
+              }
+            }
+          }
+          // Outliers (|d| >= 20 px, wrong codes) are counted apart so they do not swamp the RMS.
+          const Stats srt = ComputeStats(real_truth), stt = ComputeStats(twin_truth),
+                      srw = ComputeStats(real_twin);
+          nlohmann::json cj = {
+              {"camera", cameras[c]},
+              {"lit_part_pixels", lit},
+              {"full_scale_dn", fs_dn},
+              {"within_5pct_all_frames",
+               lit ? static_cast<double>(in_all) / static_cast<double>(lit * nf) : 0.0},
+              {"within_5pct_worst_frame", worst},
+              {"patterns", per}};
+          // Per axis RMS (x, y) are pooled: RMS over both axes' residuals is what "px RMS" means
+          // here.
+          cj["projector_coordinates"] = {{"real_vs_truth_rms_px", srt.rms},
+                                         {"real_vs_truth", srt.ToJson("px")},
+                                         {"twin_vs_truth_rms_px", stt.rms},
+                                         {"twin_vs_truth", stt.ToJson("px")},
+                                         {"real_vs_twin_decoded_rms_px", srw.rms},
+                                         {"real_vs_twin_decoded", srw.ToJson("px")},
+                                         {"valid_both", both},
+                                         {"valid_real_only", real_only},
+                                         {"valid_twin_only", twin_only},
+                                         {"outlier_gate_px", 20}};
+          camera_json[c] = std::move(cj);
 
-    CameraEvidence& ev = evidence[c];
-    ev.camera = cameras[c];
-    ev.width = g.width;
-    ev.height = g.height;
-    ev.mask = mask;
-    ev.real_x = rm.proj_x;
-    ev.real_y = rm.proj_y;
-    ev.gt_x = gt.proj_x;
-    ev.gt_y = gt.proj_y;
-    if (!spec.code_x) ev.real_x = ev.gt_x = cv::Mat();
-    if (!spec.code_y) ev.real_y = ev.gt_y = cv::Mat();
-    ev.real = real_images[c];
-    ev.white = data[c].white;
-    ev.black = data[c].black;
-    ev.projector_fx = twin_rig.projector->model.fx();
-    ev.projector_fy = twin_rig.projector->model.fy();
-    ev.projector_cx = twin_rig.projector->model.cx();
-    ev.projector_cy = twin_rig.projector->model.cy();
-    cv::Mat twin_white = data[c].twin_white, twin_black = data[c].twin_black;
-    if (twin_white.empty() || twin_black.empty()) WhiteBlackImages(spec, timg, &twin_white, &twin_black);
-    const cv::Mat mr = data[c].real_modulation.empty() ? NormalisedModulation(spec, rimg, ev.white, ev.black) : data[c].real_modulation;
-    const cv::Mat mt = data[c].twin_modulation.empty() ? NormalisedModulation(spec, timg, twin_white, twin_black) : data[c].twin_modulation;
-    ev.modulation_ratio = mr / mt;
-    residual_maps[c] = residual;
-    validity_maps[c] = validity;
-    cv::Mat wd(g.height, g.width, CV_32FC1, cv::Scalar(std::nanf("")));
-    for (int y = 0; y < g.height; ++y) {
-      for (int x = 0; x < g.width; ++x) {
-        if (mask.at<uint8_t>(y, x)) wd.at<float>(y, x) = ev.white.at<float>(y, x) - twin_white.at<float>(y, x);
-      }
-    }
-    white_diff_maps[c] = wd;
-    cv::Mat mod = ev.modulation_ratio.clone();
-    for (int y = 0; y < g.height; ++y) {
-      for (int x = 0; x < g.width; ++x) {
-        if (!mask.at<uint8_t>(y, x)) mod.at<float>(y, x) = std::nanf("");
-      }
-    }
-    modulation_maps[c] = mod;
-  }
-  });
+          CameraEvidence& ev = evidence[c];
+          ev.camera = cameras[c];
+          ev.width = g.width;
+          ev.height = g.height;
+          ev.mask = mask;
+          ev.real_x = rm.proj_x;
+          ev.real_y = rm.proj_y;
+          ev.gt_x = gt.proj_x;
+          ev.gt_y = gt.proj_y;
+          if (!spec.code_x) ev.real_x = ev.gt_x = cv::Mat();
+          if (!spec.code_y) ev.real_y = ev.gt_y = cv::Mat();
+          ev.real = real_images[c];
+          ev.white = data[c].white;
+          ev.black = data[c].black;
+          ev.projector_fx = twin_rig.projector->model.fx();
+          ev.projector_fy = twin_rig.projector->model.fy();
+          ev.projector_cx = twin_rig.projector->model.cx();
+          ev.projector_cy = twin_rig.projector->model.cy();
+          cv::Mat twin_white = data[c].twin_white, twin_black = data[c].twin_black;
+          if (twin_white.empty() || twin_black.empty())
+            WhiteBlackImages(spec, timg, &twin_white, &twin_black);
+          const cv::Mat mr = data[c].real_modulation.empty()
+                                 ? NormalisedModulation(spec, rimg, ev.white, ev.black)
+                                 : data[c].real_modulation;
+          const cv::Mat mt = data[c].twin_modulation.empty()
+                                 ? NormalisedModulation(spec, timg, twin_white, twin_black)
+                                 : data[c].twin_modulation;
+          ev.modulation_ratio = mr / mt;
+          residual_maps[c] = residual;
+          validity_maps[c] = validity;
+          cv::Mat wd(g.height, g.width, CV_32FC1, cv::Scalar(std::nanf("")));
+          for (int y = 0; y < g.height; ++y) {
+            for (int x = 0; x < g.width; ++x) {
+              if (mask.at<uint8_t>(y, x))
+                wd.at<float>(y, x) = ev.white.at<float>(y, x) - twin_white.at<float>(y, x);
+            }
+          }
+          white_diff_maps[c] = wd;
+          cv::Mat mod = ev.modulation_ratio.clone();
+          for (int y = 0; y < g.height; ++y) {
+            for (int x = 0; x < g.width; ++x) {
+              if (!mask.at<uint8_t>(y, x)) mod.at<float>(y, x) = std::nanf("");
+            }
+          }
+          modulation_maps[c] = mod;
+        }
+      });
   for (auto& cj : camera_json) report["images"]["cameras"].push_back(std::move(cj));
 
   result.stages.push_back(meter.Stop());
@@ -767,29 +847,35 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
       for (size_t c = 0; c < cameras.size(); ++c) {
         const std::string& n = cameras[c];
         const double cal = options.diagnose.calibration_field_px;
-        const double residual_range = WriteMapChart(
-            maps_dir / (n + "_projector_residual.png"), residual_maps[c],
-            n + ": decoded projector " + (spec.code_x ? "x" : "y") + " - twin truth", "projector px", {-cal, cal},
-            "+-" + Fmt("%.2f", cal) + " px (calibration-field threshold)", 0.05);
-        const double white_range = WriteMapChart(maps_dir / (n + "_white_difference.png"), white_diff_maps[c],
-                                                 n + ": white level, real - twin", "DN", {-0.05 * fs_dn, 0.05 * fs_dn},
-                                                 "+-" + Fmt("%.4g", 0.05 * fs_dn) + " DN (5 % of full scale)", 1.0);
+        const double residual_range =
+            WriteMapChart(maps_dir / (n + "_projector_residual.png"), residual_maps[c],
+                          n + ": decoded projector " + (spec.code_x ? "x" : "y") + " - twin truth",
+                          "projector px", {-cal, cal},
+                          "+-" + Fmt("%.2f", cal) + " px (calibration-field threshold)", 0.05);
+        const double white_range =
+            WriteMapChart(maps_dir / (n + "_white_difference.png"), white_diff_maps[c],
+                          n + ": white level, real - twin", "DN", {-0.05 * fs_dn, 0.05 * fs_dn},
+                          "+-" + Fmt("%.4g", 0.05 * fs_dn) + " DN (5 % of full scale)", 1.0);
         cv::Mat ratio = modulation_maps[c] - 1.0f;
         const double mr = options.diagnose.multipath_ratio;
-        const double modulation_range = WriteMapChart(maps_dir / (n + "_modulation_ratio.png"), ratio,
-                                                      n + ": fringe modulation, real / twin - 1", "relative", {mr - 1},
-                                                      Fmt("%.2f", mr - 1) + " (multipath threshold)", 0.05);
-        SLSHADOW_THROW_IF(!cv::imwrite((maps_dir / (n + "_validity.png")).string(), validity_maps[c]),
-                          "cannot write the validity map");
-        maps_json.push_back({{"camera", n},
-                             {"projector_residual", "maps/" + n + "_projector_residual.png"},
-                             {"projector_residual_range_px", residual_range},
-                             {"white_difference", "maps/" + n + "_white_difference.png"},
-                             {"white_difference_range_dn", white_range},
-                             {"modulation_ratio", "maps/" + n + "_modulation_ratio.png"},
-                             {"modulation_ratio_range", modulation_range},
-                             {"validity", "maps/" + n + "_validity.png"},
-                             {"validity_legend", "green: valid in both; red: real only; blue: twin only; black: neither"}});
+        const double modulation_range =
+            WriteMapChart(maps_dir / (n + "_modulation_ratio.png"), ratio,
+                          n + ": fringe modulation, real / twin - 1", "relative", {mr - 1},
+                          Fmt("%.2f", mr - 1) + " (multipath threshold)", 0.05);
+        SLSHADOW_THROW_IF(
+            !cv::imwrite((maps_dir / (n + "_validity.png")).string(), validity_maps[c]),
+            "cannot write the validity map");
+        maps_json.push_back(
+            {{"camera", n},
+             {"projector_residual", "maps/" + n + "_projector_residual.png"},
+             {"projector_residual_range_px", residual_range},
+             {"white_difference", "maps/" + n + "_white_difference.png"},
+             {"white_difference_range_dn", white_range},
+             {"modulation_ratio", "maps/" + n + "_modulation_ratio.png"},
+             {"modulation_ratio_range", modulation_range},
+             {"validity", "maps/" + n + "_validity.png"},
+             {"validity_legend",
+              "green: valid in both; red: real only; blue: twin only; black: neither"}});
       }
     });
   }
@@ -812,14 +898,15 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
       for (size_t i = 0; i < cloud.size(); i += stride) keep[i] = true;
       return cloud.Select(keep);
     };
-    const size_t real_total = real_rec.modes[m].second.cloud.size(), twin_total = twin_rec.modes[m].second.cloud.size();
+    const size_t real_total = real_rec.modes[m].second.cloud.size(),
+                 twin_total = twin_rec.modes[m].second.cloud.size();
     mc.real = thin(std::move(real_rec.modes[m].second.cloud));
     mc.twin = thin(std::move(twin_rec.modes[m].second.cloud));
     mc.real_c2m = SignedC2M(part_distance, mc.real.points);
     mc.twin_c2m = SignedC2M(part_distance, mc.twin.points);
     // Compare on the part only: points within 2 mm of it (the rest is background the twin lacks).
-    const auto on_part = [](const PointCloud& cloud, const std::vector<double>& d, std::vector<Eigen::Vector3d>* pts,
-                            std::vector<double>* vals) {
+    const auto on_part = [](const PointCloud& cloud, const std::vector<double>& d,
+                            std::vector<Eigen::Vector3d>* pts, std::vector<double>* vals) {
       for (size_t i = 0; i < cloud.size(); ++i) {
         if (std::abs(d[i]) < 2.0) pts->push_back(cloud.points[i]), vals->push_back(d[i]);
       }
@@ -832,15 +919,18 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
     if (!me.virtual_points.empty()) {
       const compare::KdTree tree(me.virtual_points);
       diff.resize(me.real_points.size(), std::nan(""));
-      cv::parallel_for_(cv::Range(0, static_cast<int>(me.real_points.size())), [&](const cv::Range& r) {
-        for (int i = r.start; i < r.end; ++i) {
-          compare::Neighbor nb;
-          if (tree.Nearest(me.real_points[static_cast<size_t>(i)], &nb, 1.0))
-            diff[static_cast<size_t>(i)] = me.real_c2m[static_cast<size_t>(i)] - me.virtual_c2m[nb.index];
-        }
-      });
+      cv::parallel_for_(cv::Range(0, static_cast<int>(me.real_points.size())),
+                        [&](const cv::Range& r) {
+                          for (int i = r.start; i < r.end; ++i) {
+                            compare::Neighbor nb;
+                            if (tree.Nearest(me.real_points[static_cast<size_t>(i)], &nb, 1.0))
+                              diff[static_cast<size_t>(i)] =
+                                  me.real_c2m[static_cast<size_t>(i)] - me.virtual_c2m[nb.index];
+                          }
+                        });
     }
-    const Stats sr = ComputeStats(me.real_c2m), st = ComputeStats(me.virtual_c2m), sd = ComputeStats(diff);
+    const Stats sr = ComputeStats(me.real_c2m), st = ComputeStats(me.virtual_c2m),
+                sd = ComputeStats(diff);
     // LoD95 of a real - twin difference from the twin's own scatter about the part (both scans
     // carry that noise): 1.96 sqrt(2) sigma.
     const double lod95 = 1.96 * std::sqrt(2.0) * st.stddev;
@@ -859,7 +949,8 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
          {"twin_vs_part", st.ToJson("mm")},
          {"real_vs_twin", sd.ToJson("mm")},
          {"lod95_mm", lod95},
-         {"real_vs_twin_significant_fraction", sd.count ? static_cast<double>(significant) / static_cast<double>(sd.count) : 0.0},
+         {"real_vs_twin_significant_fraction",
+          sd.count ? static_cast<double>(significant) / static_cast<double>(sd.count) : 0.0},
          {"real_summary", real_rec.modes[m].second.summary.ToJson()},
          {"twin_summary", twin_rec.modes[m].second.summary.ToJson()}});
     mode_evidence.push_back(std::move(me));
@@ -871,7 +962,8 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
 
   // 6. Diagnosis.
   meter = StageMeter("diagnose");
-  result.diagnosis = Diagnose(spec, projector_images, response, fit, evidence, mode_evidence, options.diagnose);
+  result.diagnosis =
+      Diagnose(spec, projector_images, response, fit, evidence, mode_evidence, options.diagnose);
   report["diagnosis"] = result.diagnosis.ToJson();
   result.physics = fit;
   result.stages.push_back(meter.Stop());
@@ -885,7 +977,8 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
     report["maps"] = maps_json;
     fs::create_directories(staging / "charts", ec);
     SLSHADOW_THROW_IF(ec, (staging / "charts").string(), ": cannot create folder: ", ec.message());
-    WriteFrameAgreementChart(staging / "charts" / "intensity_per_frame.png", report["images"]["cameras"]);
+    WriteFrameAgreementChart(staging / "charts" / "intensity_per_frame.png",
+                             report["images"]["cameras"]);
     report["charts"] = {{"intensity_per_frame", "charts/intensity_per_frame.png"}};
     for (size_t m = 0; m < clouds.size(); ++m) {
       std::vector<double> finite;
@@ -899,9 +992,12 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
       hc.x_label = "real C2M - twin C2M at the nearest twin point (mm)";
       hc.is_signed = true;
       hc.threshold_mm = mode_lod95[m];
-      const double beyond = 100.0 * static_cast<double>(st.outliers) / static_cast<double>(st.count);
-      hc.notes = {std::to_string(st.count) + " points on the part", "RMS " + Fmt("%.4f mm", st.rms_mm),
-                  "dashed: LoD95 " + Fmt("%.4f mm", mode_lod95[m]), "beyond LoD95: " + Fmt("%.2f %%", beyond)};
+      const double beyond =
+          100.0 * static_cast<double>(st.outliers) / static_cast<double>(st.count);
+      hc.notes = {std::to_string(st.count) + " points on the part",
+                  "RMS " + Fmt("%.4f mm", st.rms_mm),
+                  "dashed: LoD95 " + Fmt("%.4f mm", mode_lod95[m]),
+                  "beyond LoD95: " + Fmt("%.2f %%", beyond)};
       const std::string file = "charts/real_vs_twin_" + clouds[m].mode + ".png";
       compare::WriteHistogramPng(staging / file, st.histogram, hc);
       report["charts"]["real_vs_twin_" + clouds[m].mode] = file;
@@ -920,7 +1016,10 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
     result.stages.push_back(meter.Stop());
     report["stages"] = nlohmann::json::array();
     for (const auto& s : result.stages) {
-      report["stages"].push_back({{"name", s.name}, {"wall_s", s.wall_s}, {"cpu_s", s.cpu_s}, {"peak_rss_mb", s.peak_rss_mb}});
+      report["stages"].push_back({{"name", s.name},
+                                  {"wall_s", s.wall_s},
+                                  {"cpu_s", s.cpu_s},
+                                  {"peak_rss_mb", s.peak_rss_mb}});
     }
     WriteTextFileAtomically(staging / "report.json", report.dump(2) + "\n");
     WriteTextFileAtomically(staging / "summary.txt", result.Summary());
@@ -928,14 +1027,17 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const st
   } else {
     report["stages"] = nlohmann::json::array();
     for (const auto& s : result.stages) {
-      report["stages"].push_back({{"name", s.name}, {"wall_s", s.wall_s}, {"cpu_s", s.cpu_s}, {"peak_rss_mb", s.peak_rss_mb}});
+      report["stages"].push_back({{"name", s.name},
+                                  {"wall_s", s.wall_s},
+                                  {"cpu_s", s.cpu_s},
+                                  {"peak_rss_mb", s.peak_rss_mb}});
     }
   }
   return result;
 }
 
-ShadowResult RunShadow(const fs::path& image_set_dir, const ShadowPart& part, const ShadowOptions& options, const fs::path& out_dir,
-                       const Rig* rig) {
+ShadowResult RunShadow(const fs::path& image_set_dir, const ShadowPart& part,
+                       const ShadowOptions& options, const fs::path& out_dir, const Rig* rig) {
   StageMeter meter("read ImageSet");
   const ImageSet set = ImageSet::Open(image_set_dir);
   const PatternSpec spec = PatternSpecFromConfig(
@@ -943,7 +1045,8 @@ ShadowResult RunShadow(const fs::path& image_set_dir, const ShadowPart& part, co
   std::map<std::string, std::vector<cv::Mat>> images;
   for (const auto& name : set.CameraNames()) images[name] = set.LoadCamera(name);
   const StageMeasurement read = meter.Stop();
-  return RunShadowOnImages(rig ? *rig : set.rig(), spec, images, part, options, out_dir, image_set_dir.string(), {read});
+  return RunShadowOnImages(rig ? *rig : set.rig(), spec, images, part, options, out_dir,
+                           image_set_dir.string(), {read});
 }
 
 }  // namespace slshadow::shadow

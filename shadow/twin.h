@@ -15,7 +15,8 @@
 //      part: signed C2M; real vs virtual: the difference of the two at the nearest virtual point);
 //   6. diagnosis by signatures (shadow/diagnose.h);
 //   7. a report folder: report.json (docs/formats.md, "Shadow report"), summary.txt, maps/*.png
-//      (with colour bars), charts/*.png, clouds/*.ply (scalar field c2m_part_mm), written atomically.
+//      (with colour bars), charts/*.png, clouds/*.ply (scalar field c2m_part_mm), written
+//      atomically.
 #pragma once
 
 #include <filesystem>
@@ -64,39 +65,42 @@ struct ShadowOptions {
   // registration + ICP.
   std::optional<Rigid3d> rig_from_part;
   bool refine_pose = true;
-  double min_fitness = 0.5;       // credible registration: fitness at least this
-  double max_rmse_mm = 0.5;       // and inlier RMSE at most this
+  double min_fitness = 0.5;  // credible registration: fitness at least this
+  double max_rmse_mm = 0.5;  // and inlier RMSE at most this
   DecodeOptions decode;
   ReconstructOptions reconstruct;
   PhysicsFitOptions physics;
-  bool fit_physics = true;        // false: the twin keeps the part file's radiometry
+  bool fit_physics = true;  // false: the twin keeps the part file's radiometry
   DiagnoseOptions diagnose;
-  uint64_t noise_seed = 7919;     // the twin's noise (when the noise layer is kept)
+  uint64_t noise_seed = 7919;  // the twin's noise (when the noise layer is kept)
   bool write_clouds = true;
-  bool overwrite = false;         // replace an existing output folder
-  void Check() const;             // throws slshadow::Error
+  bool overwrite = false;  // replace an existing output folder
+  void Check() const;      // throws slshadow::Error
 };
 
 struct ShadowResult {
-  nlohmann::json report;            // what report.json holds
+  nlohmann::json report;  // what report.json holds
   PhysicsFit physics;
   Diagnosis diagnosis;
   Rigid3d rig_from_part;
   std::vector<StageMeasurement> stages;
-  std::string Summary() const;      // the one-screen summary (summary.txt)
+  std::string Summary() const;  // the one-screen summary (summary.txt)
 };
 
 // The whole job on images in memory (real[camera] = that camera's images in spec order).
 // `out_dir` empty: nothing is written. Throws slshadow::Error on bad input and on a registration
 // that is not credible.
-ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec, const std::map<std::string, std::vector<cv::Mat>>& real,
+ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec,
+                               const std::map<std::string, std::vector<cv::Mat>>& real,
                                const ShadowPart& part, const ShadowOptions& options,
-                               const std::filesystem::path& out_dir = {}, const std::string& source = "in memory",
+                               const std::filesystem::path& out_dir = {},
+                               const std::string& source = "in memory",
                                const std::vector<StageMeasurement>& earlier_stages = {});
 
 // Reads the ImageSet folder (pattern spec from its manifest; the rig too unless `rig` is given,
 // e.g. a calibration made after the capture) and runs the job.
-ShadowResult RunShadow(const std::filesystem::path& image_set_dir, const ShadowPart& part, const ShadowOptions& options,
-                       const std::filesystem::path& out_dir, const Rig* rig = nullptr);
+ShadowResult RunShadow(const std::filesystem::path& image_set_dir, const ShadowPart& part,
+                       const ShadowOptions& options, const std::filesystem::path& out_dir,
+                       const Rig* rig = nullptr);
 
 }  // namespace slshadow::shadow

@@ -65,7 +65,8 @@ struct PassContext {
   Eigen::Matrix3f rig_from_cam;
   Eigen::Vector3f cam_center;
   Eigen::Vector3d cam_center_d;
-  Eigen::Vector3d cam_from_rig_row_z;  // third row of cam_from_rig's rotation: depth = row . p + t_z
+  Eigen::Vector3d
+      cam_from_rig_row_z;  // third row of cam_from_rig's rotation: depth = row . p + t_z
   double cam_from_rig_tz;
   Eigen::Matrix3d proj_from_rig_rotation;
   Eigen::Vector3d proj_from_rig_translation;
@@ -97,20 +98,22 @@ struct LaneOutputs {
   alignas(64) double ox[16], oy[16], oz[16];  // shadow ray origin, slightly off the surface
   alignas(64) double lx[16], ly[16], lz[16];  // unit direction to the projector's centre
   alignas(64) double tfar[16];                // shadow ray length
-  alignas(64) double lit[16];                 // 1: faces the projector, in front of it, inside its image
+  alignas(64) double lit[16];  // 1: faces the projector, in front of it, inside its image
 };
 
-
-SLSHADOW_LANE_CLONES void ShadeLanes(const PassContext& c, const LaneInputs& __restrict in, LaneOutputs& __restrict out) {
+SLSHADOW_LANE_CLONES void ShadeLanes(const PassContext& c, const LaneInputs& __restrict in,
+                                     LaneOutputs& __restrict out) {
   const double cx = c.cam_center_d.x(), cy = c.cam_center_d.y(), cz = c.cam_center_d.z();
   const double qx0 = c.proj_center.x(), qy0 = c.proj_center.y(), qz0 = c.proj_center.z();
   const Eigen::Matrix3d& r = c.proj_from_rig_rotation;
-  const double r00 = r(0, 0), r01 = r(0, 1), r02 = r(0, 2), r10 = r(1, 0), r11 = r(1, 1), r12 = r(1, 2);
+  const double r00 = r(0, 0), r01 = r(0, 1), r02 = r(0, 2), r10 = r(1, 0), r11 = r(1, 1),
+               r12 = r(1, 2);
   const double r20 = r(2, 0), r21 = r(2, 1), r22 = r(2, 2);
   const double t0 = c.proj_from_rig_translation.x(), t1 = c.proj_from_rig_translation.y(),
                t2 = c.proj_from_rig_translation.z();
   const double* k = c.projector->params.data();
-  const double fx = k[CameraModel::kFx], fy = k[CameraModel::kFy], ppx = k[CameraModel::kCx], ppy = k[CameraModel::kCy];
+  const double fx = k[CameraModel::kFx], fy = k[CameraModel::kFy], ppx = k[CameraModel::kCx],
+               ppy = k[CameraModel::kCy];
   const double k1 = k[CameraModel::kK1], k2 = k[CameraModel::kK2], k3 = k[CameraModel::kK3];
   const double p1 = k[CameraModel::kP1], p2 = k[CameraModel::kP2];
   const double u_max = c.projector->width - 0.5, v_max = c.projector->height - 0.5;
@@ -162,8 +165,8 @@ SLSHADOW_LANE_CLONES void ShadeLanes(const PassContext& c, const LaneInputs& __r
 // One packet: 4 x 4 pixels (one sample each), traced, shaded and stored. Every per-lane step
 // without branches, a packet row (4 lanes) per vector; the values are those of the scalar
 // per-lane code it replaced, bit for bit (docs/benchmarks.md, Simulator).
-SLSHADOW_LANE_CLONES void TracePacket(const PassContext& c, const SampleTargets& out, int bx, int by, int s, int64_t* primary,
-                                      int64_t* shadow) {
+SLSHADOW_LANE_CLONES void TracePacket(const PassContext& c, const SampleTargets& out, int bx,
+                                      int by, int s, int64_t* primary, int64_t* shadow) {
   constexpr int kN = RayPacket::kSize;
   RayPacket p;
   RayPacket sh;
@@ -184,9 +187,11 @@ SLSHADOW_LANE_CLONES void TracePacket(const PassContext& c, const SampleTargets&
   // Camera rays to the rig frame: rig_from_cam * d in the order Eigen evaluates a 3x3 float
   // product (m0 x + (m1 y + m2 z)); lanes outside the image or without a ray (NaN) inactive.
   const Eigen::Matrix3f& m = c.rig_from_cam;
-  const float m00 = m(0, 0), m01 = m(0, 1), m02 = m(0, 2), m10 = m(1, 0), m11 = m(1, 1), m12 = m(1, 2);
+  const float m00 = m(0, 0), m01 = m(0, 1), m02 = m(0, 2), m10 = m(1, 0), m11 = m(1, 1),
+              m12 = m(1, 2);
   const float m20 = m(2, 0), m21 = m(2, 1), m22 = m(2, 2);
-  const V4f ox = Splat(c.cam_center.x()), oy = Splat(c.cam_center.y()), oz = Splat(c.cam_center.z());
+  const V4f ox = Splat(c.cam_center.x()), oy = Splat(c.cam_center.y()),
+            oz = Splat(c.cam_center.z());
   V4i n_primary = {0, 0, 0, 0};
   for (int r = 0; r < kBlock; ++r) {
     const int i = r * kBlock;
@@ -195,7 +200,8 @@ SLSHADOW_LANE_CLONES void TracePacket(const PassContext& c, const SampleTargets&
     const V4f x = {d[0]->x(), d[1]->x(), d[2]->x(), d[3]->x()};
     const V4f y = {d[0]->y(), d[1]->y(), d[2]->y(), d[3]->y()};
     const V4f z = {d[0]->z(), d[1]->z(), d[2]->z(), d[3]->z()};
-    const V4i finite = Load4<V4i>(inside + i) & (x - x == 0) & (y - y == 0) & (z - z == 0);  // Eigen's allFinite()
+    const V4i finite =
+        Load4<V4i>(inside + i) & (x - x == 0) & (y - y == 0) & (z - z == 0);  // Eigen's allFinite()
     Store4(p.org_x + i, ox);
     Store4(p.org_y + i, oy);
     Store4(p.org_z + i, oz);
@@ -237,9 +243,11 @@ SLSHADOW_LANE_CLONES void TracePacket(const PassContext& c, const SampleTargets&
       if (!hit[i] || !std::isnan(in.albedo[i])) continue;
       const size_t obj = static_cast<size_t>(p.object[i]);
       const SceneObject& o = c.scene->objects[obj];
-      const Eigen::Vector3d point = c.cam_center_d + in.t[i] * Eigen::Vector3d(in.dx[i], in.dy[i], in.dz[i]);
+      const Eigen::Vector3d point =
+          c.cam_center_d + in.t[i] * Eigen::Vector3d(in.dx[i], in.dy[i], in.dz[i]);
       const Eigen::Vector3d local = c.object_from_rig[obj] * point;
-      in.albedo[i] = o.albedo.Evaluate(local.x() + o.albedo_offset_mm.x(), local.y() + o.albedo_offset_mm.y());
+      in.albedo[i] =
+          o.albedo.Evaluate(local.x() + o.albedo_offset_mm.x(), local.y() + o.albedo_offset_mm.y());
     }
   }
   LaneOutputs sh_in;
@@ -248,7 +256,8 @@ SLSHADOW_LANE_CLONES void TracePacket(const PassContext& c, const SampleTargets&
   V4i n_shadow = {0, 0, 0, 0};
   for (int r = 0; r < kBlock; ++r) {
     const int i = r * kBlock;
-    const V4i a = Load4<V4i>(hit + i) & __builtin_convertvector(Load4<V4d>(sh_in.lit + i) != 0, V4i);
+    const V4i a =
+        Load4<V4i>(hit + i) & __builtin_convertvector(Load4<V4d>(sh_in.lit + i) != 0, V4i);
     Store4(sh.org_x + i, ToFloat(Load4<V4d>(sh_in.ox + i)));
     Store4(sh.org_y + i, ToFloat(Load4<V4d>(sh_in.oy + i)));
     Store4(sh.org_z + i, ToFloat(Load4<V4d>(sh_in.oz + i)));
@@ -301,7 +310,9 @@ SLSHADOW_LANE_CLONES void TracePacket(const PassContext& c, const SampleTargets&
       for (int i = 0; i < kN; ++i) {
         if (!inside[i]) continue;
         out.proj_sigma[static_cast<size_t>(index[i])] =
-            lit[i] ? static_cast<float>(c.proj_defocus->SigmaPx(c.projector->fx(), sh_in.proj_depth[i])) : 0.0f;
+            lit[i] ? static_cast<float>(
+                         c.proj_defocus->SigmaPx(c.projector->fx(), sh_in.proj_depth[i]))
+                   : 0.0f;
       }
     }
   }
@@ -310,7 +321,8 @@ SLSHADOW_LANE_CLONES void TracePacket(const PassContext& c, const SampleTargets&
       if (!inside[i]) continue;
       // Every pixel is written (no separate initialisation pass: first touch in parallel).
       const GroundTruthTargets& g = *out.gt;
-      const size_t q = static_cast<size_t>(y0 + i / kBlock) * static_cast<size_t>(c.width) + static_cast<size_t>(x0 + i % kBlock);
+      const size_t q = static_cast<size_t>(y0 + i / kBlock) * static_cast<size_t>(c.width) +
+                       static_cast<size_t>(x0 + i % kBlock);
       if (hit[i]) {
         const Eigen::Vector3d point(sh_in.px[i], sh_in.py[i], sh_in.pz[i]);
         g.depth[q] = static_cast<float>(c.cam_from_rig_row_z.dot(point) + c.cam_from_rig_tz);
@@ -344,16 +356,18 @@ SLSHADOW_LANE_CLONES void TracePacket(const PassContext& c, const SampleTargets&
 void RunPass(const PassContext& c, const SampleTargets& out, int64_t* primary, int64_t* shadow) {
   const int blocks_x = (c.width + kBlock - 1) / kBlock, blocks_y = (c.height + kBlock - 1) / kBlock;
   std::atomic<int64_t> n_primary{0}, n_shadow{0};
-  tbb::parallel_for(tbb::blocked_range2d<int>(0, blocks_y, 4, 0, blocks_x, 16), [&](const tbb::blocked_range2d<int>& r) {
-    int64_t local_primary = 0, local_shadow = 0;
-    for (int by = r.rows().begin(); by < r.rows().end(); ++by) {
-      for (int bx = r.cols().begin(); bx < r.cols().end(); ++bx) {
-        for (int s = 0; s < out.samples; ++s) TracePacket(c, out, bx, by, s, &local_primary, &local_shadow);
-      }
-    }
-    n_primary += local_primary;
-    n_shadow += local_shadow;
-  });
+  tbb::parallel_for(tbb::blocked_range2d<int>(0, blocks_y, 4, 0, blocks_x, 16),
+                    [&](const tbb::blocked_range2d<int>& r) {
+                      int64_t local_primary = 0, local_shadow = 0;
+                      for (int by = r.rows().begin(); by < r.rows().end(); ++by) {
+                        for (int bx = r.cols().begin(); bx < r.cols().end(); ++bx) {
+                          for (int s = 0; s < out.samples; ++s)
+                            TracePacket(c, out, bx, by, s, &local_primary, &local_shadow);
+                        }
+                      }
+                      n_primary += local_primary;
+                      n_shadow += local_shadow;
+                    });
   *primary += n_primary;
   *shadow += n_shadow;
 }
@@ -384,14 +398,18 @@ double RadialFoldR2(const CameraModel& cam) {
 struct Distortion {
   double k1, k2, k3, p1, p2;
   explicit Distortion(const CameraModel& cam)
-      : k1(cam.params[CameraModel::kK1]), k2(cam.params[CameraModel::kK2]), k3(cam.params[CameraModel::kK3]),
-        p1(cam.params[CameraModel::kP1]), p2(cam.params[CameraModel::kP2]) {}
+      : k1(cam.params[CameraModel::kK1]),
+        k2(cam.params[CameraModel::kK2]),
+        k3(cam.params[CameraModel::kK3]),
+        p1(cam.params[CameraModel::kP1]),
+        p2(cam.params[CameraModel::kP2]) {}
 };
 
 // One Newton step on distort(x, y) = (xd, yd) with the analytic Jacobian [a b; b d]: updates
 // (x, y) and returns the Jacobian's determinant (the step is meaningless unless it is > 0) and
 // |dx| + |dy| in `step`. Branch-free, so NewtonRow vectorises over it.
-inline double NewtonStep(const Distortion& k, double xd, double yd, double& x, double& y, double& step) {
+inline double NewtonStep(const Distortion& k, double xd, double yd, double& x, double& y,
+                         double& step) {
   const double x2 = x * x, y2 = y * y, xy = x * y, r2 = x2 + y2;
   const double radial = 1 + r2 * (k.k1 + r2 * (k.k2 + r2 * k.k3));
   const double dradial = 2 * (k.k1 + r2 * (2 * k.k2 + 3 * k.k3 * r2));  // d radial / d r2 * 2
@@ -413,7 +431,8 @@ inline double NewtonStep(const Distortion& k, double xd, double yd, double& x, d
 // from `guess` (the neighbouring sample's solution, so 1-3 iterations). Returns false when it
 // does not converge, the distortion folds over on the way, or the solution lies beyond the radial
 // fold `fold_r2` (then the caller falls back to CameraModel::UndistortToNormalized, which decides).
-bool UndistortFrom(const CameraModel& cam, double fold_r2, double xd_target, double yd_target, Eigen::Vector2d& guess) {
+bool UndistortFrom(const CameraModel& cam, double fold_r2, double xd_target, double yd_target,
+                   Eigen::Vector2d& guess) {
   const Distortion k(cam);
   double x = guess.x(), y = guess.y(), step = 0;
   for (int it = 0; it < 20; ++it) {
@@ -434,8 +453,9 @@ bool UndistortFrom(const CameraModel& cam, double fold_r2, double xd_target, dou
 // test: the error left is ~1e-20) and the solution lies inside the radial fold; other lanes are
 // flagged for the scalar solver.
 template <int Steps>
-SLSHADOW_LANE_CLONES void NewtonRow(const CameraModel& cam, double fold_r2, const double* __restrict xd, double yd,
-                                    double* __restrict x_io, double* __restrict y_io, uint8_t* __restrict ok, int n) {
+SLSHADOW_LANE_CLONES void NewtonRow(const CameraModel& cam, double fold_r2,
+                                    const double* __restrict xd, double yd, double* __restrict x_io,
+                                    double* __restrict y_io, uint8_t* __restrict ok, int n) {
   const Distortion k(cam);
   for (int i = 0; i < n; ++i) {
     double x = x_io[i], y = y_io[i], step = 0;
@@ -449,8 +469,9 @@ SLSHADOW_LANE_CLONES void NewtonRow(const CameraModel& cam, double fold_r2, cons
 
 // Unit ray directions (x, y, 1) / |(x, y, 1)| of one sample row (width pixels x nn samples) into
 // the sub-row that starts at `out` (float xyz; pixel px's samples are nn * nn directions apart).
-SLSHADOW_LANE_CLONES void DirectionsRow(const double* __restrict x, const double* __restrict y, double* __restrict scratch,
-                                        float* __restrict out, int width, int nn) {
+SLSHADOW_LANE_CLONES void DirectionsRow(const double* __restrict x, const double* __restrict y,
+                                        double* __restrict scratch, float* __restrict out,
+                                        int width, int nn) {
   const int m = width * nn;
   for (int i = 0; i < m; ++i) scratch[i] = 1 / std::sqrt(x[i] * x[i] + y[i] * y[i] + 1);
   int start = 0;
@@ -458,8 +479,10 @@ SLSHADOW_LANE_CLONES void DirectionsRow(const double* __restrict x, const double
     // One sample per pixel: 4 rays (12 consecutive floats) per step, the same conversions.
     for (; start + 4 <= width; start += 4) {
       const V4d s = Load4<V4d>(scratch + start);
-      const V4f fx = ToFloat(Load4<V4d>(x + start) * s), fy = ToFloat(Load4<V4d>(y + start) * s), fz = ToFloat(s);
-      const float xyz[12] = {fx[0], fy[0], fz[0], fx[1], fy[1], fz[1], fx[2], fy[2], fz[2], fx[3], fy[3], fz[3]};
+      const V4f fx = ToFloat(Load4<V4d>(x + start) * s), fy = ToFloat(Load4<V4d>(y + start) * s),
+                fz = ToFloat(s);
+      const float xyz[12] = {fx[0], fy[0], fz[0], fx[1], fy[1], fz[1],
+                             fx[2], fy[2], fz[2], fx[3], fy[3], fz[3]};
       std::memcpy(out + 3 * static_cast<ptrdiff_t>(start), xyz, sizeof(xyz));
     }
   }
@@ -476,8 +499,8 @@ SLSHADOW_LANE_CLONES void DirectionsRow(const double* __restrict x, const double
 }  // namespace
 
 CameraRays ComputeCameraRays(const CameraModel& camera, int samples_per_axis, CameraRays storage) {
-  SLSHADOW_THROW_IF(samples_per_axis < 1 || samples_per_axis > 16, "samples_per_axis must be in 1..16 (got ",
-                    samples_per_axis, ")");
+  SLSHADOW_THROW_IF(samples_per_axis < 1 || samples_per_axis > 16,
+                    "samples_per_axis must be in 1..16 (got ", samples_per_axis, ")");
   CameraRays rays = std::move(storage);
   rays.width = camera.width;
   rays.height = camera.height;
@@ -494,72 +517,84 @@ CameraRays ComputeCameraRays(const CameraModel& camera, int samples_per_axis, Ca
     const int row_samples = camera.width * nn;
     const size_t m = static_cast<size_t>(row_samples);
     dirs.resize(m * camera.height * nn);
-    std::vector<double> xd(m);  // normalised distorted x of every sample of a row (the same on each row)
+    std::vector<double> xd(
+        m);  // normalised distorted x of every sample of a row (the same on each row)
     for (int px = 0, j = 0; px < camera.width; ++px) {
-      for (int a = 0; a < nn; ++a, ++j) xd[static_cast<size_t>(j)] = (px + (a + 0.5) / nn - 0.5 - camera.cx()) / camera.fx();
+      for (int a = 0; a < nn; ++a, ++j)
+        xd[static_cast<size_t>(j)] = (px + (a + 0.5) / nn - 0.5 - camera.cx()) / camera.fx();
     }
-    tbb::parallel_for(tbb::blocked_range<int>(0, camera.height * nn, 32), [&](const tbb::blocked_range<int>& r) {
-      std::vector<double> x(m), y(m), x1(m), y1(m), x2(m), y2(m), scratch(m);
-      std::vector<uint8_t> ok(m);
-      for (int row = r.begin(); row < r.end(); ++row) {
-        const int py = row / nn, b = row % nn;
-        const double v = py + (b + 0.5) / nn - 0.5;
-        const double yd = (v - camera.cy()) / camera.fy();
-        const int k = row - r.begin();  // rows of this band already solved
-        if (!distorted) {
-          x = xd;
-          std::fill(y.begin(), y.end(), yd);
-          std::fill(ok.begin(), ok.end(), uint8_t{1});
-        } else if (k == 0) {
-          // From the distorted position: mild lens distortion moves points by ~1e-2, so five
-          // quadratically converging steps end below 1e-10 (3 + 2: GCC vectorises those).
-          x = xd;
-          std::fill(y.begin(), y.end(), yd);
-          NewtonRow<3>(camera, fold_r2, xd.data(), yd, x.data(), y.data(), ok.data(), row_samples);
-          NewtonRow<2>(camera, fold_r2, xd.data(), yd, x.data(), y.data(), ok.data(), row_samples);
-        } else if (k == 1) {
-          x = x1;
-          y = y1;
-          NewtonRow<3>(camera, fold_r2, xd.data(), yd, x.data(), y.data(), ok.data(), row_samples);
-        } else {
-          for (size_t j = 0; j < m; ++j) {
-            x[j] = 2 * x1[j] - x2[j];
-            y[j] = 2 * y1[j] - y2[j];
+    tbb::parallel_for(
+        tbb::blocked_range<int>(0, camera.height * nn, 32), [&](const tbb::blocked_range<int>& r) {
+          std::vector<double> x(m), y(m), x1(m), y1(m), x2(m), y2(m), scratch(m);
+          std::vector<uint8_t> ok(m);
+          for (int row = r.begin(); row < r.end(); ++row) {
+            const int py = row / nn, b = row % nn;
+            const double v = py + (b + 0.5) / nn - 0.5;
+            const double yd = (v - camera.cy()) / camera.fy();
+            const int k = row - r.begin();  // rows of this band already solved
+            if (!distorted) {
+              x = xd;
+              std::fill(y.begin(), y.end(), yd);
+              std::fill(ok.begin(), ok.end(), uint8_t{1});
+            } else if (k == 0) {
+              // From the distorted position: mild lens distortion moves points by ~1e-2, so five
+              // quadratically converging steps end below 1e-10 (3 + 2: GCC vectorises those).
+              x = xd;
+              std::fill(y.begin(), y.end(), yd);
+              NewtonRow<3>(camera, fold_r2, xd.data(), yd, x.data(), y.data(), ok.data(),
+                           row_samples);
+              NewtonRow<2>(camera, fold_r2, xd.data(), yd, x.data(), y.data(), ok.data(),
+                           row_samples);
+            } else if (k == 1) {
+              x = x1;
+              y = y1;
+              NewtonRow<3>(camera, fold_r2, xd.data(), yd, x.data(), y.data(), ok.data(),
+                           row_samples);
+            } else {
+              for (size_t j = 0; j < m; ++j) {
+                x[j] = 2 * x1[j] - x2[j];
+                y[j] = 2 * y1[j] - y2[j];
+              }
+              NewtonRow<2>(camera, fold_r2, xd.data(), yd, x.data(), y.data(), ok.data(),
+                           row_samples);
+            }
+            // Lanes not yet solved: started from the left neighbours' solutions (extrapolated when
+            // there are two), then the camera model's own solver, which decides (NaN: no solution
+            // past the fold of the distortion).
+            for (size_t j = 0; j < m; ++j) {
+              if (ok[j]) continue;
+              Eigen::Vector2d start(xd[j], yd);
+              const bool left1 = j >= 1 && std::isfinite(x[j - 1]),
+                         left2 = left1 && j >= 2 && std::isfinite(x[j - 2]);
+              if (left2) {
+                start = Eigen::Vector2d(2 * x[j - 1] - x[j - 2], 2 * y[j - 1] - y[j - 2]);
+              } else if (left1) {
+                start = Eigen::Vector2d(x[j - 1], y[j - 1]);
+              }
+              std::optional<Eigen::Vector2d> xy;
+              if (UndistortFrom(camera, fold_r2, xd[j], yd, start)) {
+                xy = start;
+              } else {
+                const double u = static_cast<double>(j / static_cast<size_t>(nn)) +
+                                 (static_cast<double>(j % static_cast<size_t>(nn)) + 0.5) / nn -
+                                 0.5;
+                xy = camera.UndistortToNormalized(Eigen::Vector2d(u, v));
+              }
+              x[j] = xy ? xy->x() : kNaN;
+              y[j] = xy ? xy->y() : kNaN;
+            }
+            // Sub-row b of pixel row py holds samples (px, a) at (py * width + px) * nn * nn + b *
+            // nn + a.
+            float* out =
+                dirs[static_cast<size_t>(py) * camera.width * nn * nn + static_cast<size_t>(b * nn)]
+                    .data();
+            DirectionsRow(x.data(), y.data(), scratch.data(), out, camera.width, nn);
+            std::swap(x2, x1);
+            std::swap(y2, y1);
+            std::swap(x1, x);
+            std::swap(y1, y);
           }
-          NewtonRow<2>(camera, fold_r2, xd.data(), yd, x.data(), y.data(), ok.data(), row_samples);
-        }
-        // Lanes not yet solved: started from the left neighbours' solutions (extrapolated when
-        // there are two), then the camera model's own solver, which decides (NaN: no solution
-        // past the fold of the distortion).
-        for (size_t j = 0; j < m; ++j) {
-          if (ok[j]) continue;
-          Eigen::Vector2d start(xd[j], yd);
-          const bool left1 = j >= 1 && std::isfinite(x[j - 1]), left2 = left1 && j >= 2 && std::isfinite(x[j - 2]);
-          if (left2) {
-            start = Eigen::Vector2d(2 * x[j - 1] - x[j - 2], 2 * y[j - 1] - y[j - 2]);
-          } else if (left1) {
-            start = Eigen::Vector2d(x[j - 1], y[j - 1]);
-          }
-          std::optional<Eigen::Vector2d> xy;
-          if (UndistortFrom(camera, fold_r2, xd[j], yd, start)) {
-            xy = start;
-          } else {
-            const double u = static_cast<double>(j / static_cast<size_t>(nn)) +
-                             (static_cast<double>(j % static_cast<size_t>(nn)) + 0.5) / nn - 0.5;
-            xy = camera.UndistortToNormalized(Eigen::Vector2d(u, v));
-          }
-          x[j] = xy ? xy->x() : kNaN;
-          y[j] = xy ? xy->y() : kNaN;
-        }
-        // Sub-row b of pixel row py holds samples (px, a) at (py * width + px) * nn * nn + b * nn + a.
-        float* out = dirs[static_cast<size_t>(py) * camera.width * nn * nn + static_cast<size_t>(b * nn)].data();
-        DirectionsRow(x.data(), y.data(), scratch.data(), out, camera.width, nn);
-        std::swap(x2, x1);
-        std::swap(y2, y1);
-        std::swap(x1, x);
-        std::swap(y1, y);
-      }
-    });
+        });
   };
   fill(rays.samples, n);
   if (spp > 1) {
@@ -570,17 +605,20 @@ CameraRays ComputeCameraRays(const CameraModel& camera, int samples_per_axis, Ca
   return rays;
 }
 
-GeometryBuffer TraceGeometry(const RayCaster& caster, const Rig& rig, int camera_index, const CameraRays& rays,
-                             TraceMode mode, bool ground_truth) {
+GeometryBuffer TraceGeometry(const RayCaster& caster, const Rig& rig, int camera_index,
+                             const CameraRays& rays, TraceMode mode, bool ground_truth) {
   const auto start = std::chrono::steady_clock::now();
   const Scene& scene = caster.scene();
-  SLSHADOW_THROW_IF(camera_index < 0 || camera_index >= static_cast<int>(rig.cameras.size()), "camera index ",
-                    camera_index, " out of range (rig has ", rig.cameras.size(), " cameras)");
-  SLSHADOW_THROW_IF(!rig.projector, "rig '", rig.name, "' has no projector: the simulator needs one");
+  SLSHADOW_THROW_IF(camera_index < 0 || camera_index >= static_cast<int>(rig.cameras.size()),
+                    "camera index ", camera_index, " out of range (rig has ", rig.cameras.size(),
+                    " cameras)");
+  SLSHADOW_THROW_IF(!rig.projector, "rig '", rig.name,
+                    "' has no projector: the simulator needs one");
   const RigDevice& cam = rig.cameras[static_cast<size_t>(camera_index)];
   SLSHADOW_THROW_IF(rays.width != cam.model.width || rays.height != cam.model.height ||
                         rays.samples_per_axis != scene.layers.supersampling,
-                    "camera rays do not match camera '", cam.name, "' and the scene's supersampling");
+                    "camera rays do not match camera '", cam.name,
+                    "' and the scene's supersampling");
   PassContext c;
   c.caster = &caster;
   c.scene = &scene;
@@ -596,12 +634,15 @@ GeometryBuffer TraceGeometry(const RayCaster& caster, const Rig& rig, int camera
   c.proj_from_rig_translation = rig.projector->cam_from_rig.translation;
   c.proj_center = rig.projector->CenterInRig();
   c.projector = &rig.projector->model;
-  const double d_ref = scene.radiometry.reference_distance_mm > 0 ? scene.radiometry.reference_distance_mm : rig.working_distance_mm;
+  const double d_ref = scene.radiometry.reference_distance_mm > 0
+                           ? scene.radiometry.reference_distance_mm
+                           : rig.working_distance_mm;
   c.ref_distance_sq = d_ref * d_ref;
   c.proj_defocus = &scene.layers.projector_defocus;
   for (const auto& o : scene.objects) {
     c.object_from_rig.push_back(o.rig_from_object.Inverse());
-    c.uniform_albedo.push_back(o.albedo.IsTextured() ? std::numeric_limits<double>::quiet_NaN() : o.albedo.value);
+    c.uniform_albedo.push_back(o.albedo.IsTextured() ? std::numeric_limits<double>::quiet_NaN()
+                                                     : o.albedo.value);
     c.any_textured = c.any_textured || o.albedo.IsTextured();
   }
 

@@ -29,10 +29,12 @@ struct CameraRays {
   int height = 0;
   int samples_per_axis = 1;
   std::vector<Eigen::Vector3f> samples;  // width * height * n^2
-  std::vector<Eigen::Vector3f> centers;  // width * height; empty when n = 1 (then samples are the centres)
+  std::vector<Eigen::Vector3f>
+      centers;  // width * height; empty when n = 1 (then samples are the centres)
 };
 // `storage`: rays no longer needed whose buffers are reused (no new allocation when large enough).
-CameraRays ComputeCameraRays(const CameraModel& camera, int samples_per_axis, CameraRays storage = {});
+CameraRays ComputeCameraRays(const CameraModel& camera, int samples_per_axis,
+                             CameraRays storage = {});
 
 // Per-sample floats of a geometry pass (index as CameraRays) in a continuous CV_32FC1 Mat from
 // the simulator's pool of large blocks (sim/pooled_mats.cc: recycled across passes and scans, so
@@ -70,13 +72,13 @@ struct GeometryBuffer {
   SampleBuffer proj_sigma_px;  // projector defocus sigma (px); empty unless that layer is on
 
   // Ground truth per pixel, from the pixel-centre ray:
-  cv::Mat depth_mm;       // CV_32FC1: z of the hit in the camera frame; NaN where no surface
-  cv::Mat point_in_rig;   // CV_32FC3: hit point in the rig frame, mm; NaN where no surface
-  cv::Mat normal_in_rig;  // CV_32FC3: unit surface normal facing the camera; NaN where no surface
-  cv::Mat visibility;     // CV_8UC1: 0 no surface, 1 surface not lit by the projector, 2 lit
-  cv::Mat object_id;      // CV_32SC1: index into Scene::objects, -1 where no surface
-  ProjectorMap projector; // true projector coordinates; status valid where lit, shadow elsewhere;
-                          // quality = the radiometric factor
+  cv::Mat depth_mm;        // CV_32FC1: z of the hit in the camera frame; NaN where no surface
+  cv::Mat point_in_rig;    // CV_32FC3: hit point in the rig frame, mm; NaN where no surface
+  cv::Mat normal_in_rig;   // CV_32FC3: unit surface normal facing the camera; NaN where no surface
+  cv::Mat visibility;      // CV_8UC1: 0 no surface, 1 surface not lit by the projector, 2 lit
+  cv::Mat object_id;       // CV_32SC1: index into Scene::objects, -1 where no surface
+  ProjectorMap projector;  // true projector coordinates; status valid where lit, shadow elsewhere;
+                           // quality = the radiometric factor
 
   // Counts and time of the pass (for benchmarks).
   int64_t primary_rays = 0;
@@ -90,7 +92,8 @@ struct GeometryBuffer {
 // ground_truth = false: only what the pattern pass needs (the per-sample buffers); the
 // ground-truth maps (depth_mm ... projector) stay empty, which saves about a quarter of the pass
 // and 30 bytes per pixel. The camera-defocus layer needs depth, so with it on they are made anyway.
-GeometryBuffer TraceGeometry(const RayCaster& caster, const Rig& rig, int camera_index, const CameraRays& rays,
-                             TraceMode mode = TraceMode::kPacket16, bool ground_truth = true);
+GeometryBuffer TraceGeometry(const RayCaster& caster, const Rig& rig, int camera_index,
+                             const CameraRays& rays, TraceMode mode = TraceMode::kPacket16,
+                             bool ground_truth = true);
 
 }  // namespace slshadow

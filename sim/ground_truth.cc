@@ -8,9 +8,9 @@
 #include <utility>
 #include <vector>
 
-#include <opencv2/imgcodecs.hpp>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <opencv2/imgcodecs.hpp>
 
 #include "core/error.h"
 #include "core/file_util.h"
@@ -25,7 +25,8 @@ void WriteImage(const std::filesystem::path& path, const cv::Mat& image) {
   WriteFileAtomically(path, [&](const std::filesystem::path& tmp) {
     // OpenCV picks the encoder from the extension; keep it on the temporary name.
     const std::filesystem::path with_ext = tmp.string() + path.extension().string();
-    SLSHADOW_THROW_IF(!cv::imwrite(with_ext.string(), image), path.string(), ": cannot write image");
+    SLSHADOW_THROW_IF(!cv::imwrite(with_ext.string(), image), path.string(),
+                      ": cannot write image");
     std::filesystem::rename(with_ext, tmp);
   });
 }
@@ -33,8 +34,8 @@ void WriteImage(const std::filesystem::path& path, const cv::Mat& image) {
 cv::Mat ReadImage(const std::filesystem::path& path, int expected_type) {
   const cv::Mat m = cv::imread(path.string(), cv::IMREAD_UNCHANGED);
   SLSHADOW_THROW_IF(m.empty(), path.string(), ": cannot read ground-truth image");
-  SLSHADOW_THROW_IF(m.type() != expected_type, path.string(), ": unexpected image type ", m.type(), " (expected ",
-                    expected_type, ")");
+  SLSHADOW_THROW_IF(m.type() != expected_type, path.string(), ": unexpected image type ", m.type(),
+                    " (expected ", expected_type, ")");
   return m;
 }
 
@@ -71,10 +72,11 @@ void WriteGroundTruth(const GeometryBuffer& g, const std::filesystem::path& dir)
   std::filesystem::create_directories(dir);
   cv::Mat ids(g.height, g.width, CV_16UC1);
   for (int y = 0; y < g.height; ++y) {
-    for (int x = 0; x < g.width; ++x) ids.at<uint16_t>(y, x) = static_cast<uint16_t>(g.object_id.at<int32_t>(y, x) + 1);
+    for (int x = 0; x < g.width; ++x)
+      ids.at<uint16_t>(y, x) = static_cast<uint16_t>(g.object_id.at<int32_t>(y, x) + 1);
   }
   const std::vector<std::pair<std::string, cv::Mat>> files = {
-      {"depth_mm.npy", g.depth_mm},          {"point_in_rig_mm.npy", g.point_in_rig},
+      {"depth_mm.npy", g.depth_mm},           {"point_in_rig_mm.npy", g.point_in_rig},
       {"normal_in_rig.npy", g.normal_in_rig}, {"proj_x.npy", g.projector.proj_x},
       {"proj_y.npy", g.projector.proj_y},     {"status.png", g.projector.status},
       {"visibility.png", g.visibility},       {"object_id.png", ids}};

@@ -12,14 +12,15 @@ namespace {
 // Large buffers (geometry buffers, rendered images) in page-aligned blocks rounded up to 2 MB
 // size classes, recycled through a bounded process-wide pool: the geometry pass writes ~60 bytes
 // per pixel into fresh buffers and the pattern pass ~2.3 MB per image, and the kernel's
-// first-touch faults (page zeroing) cost about a fifth of a scan. Freed blocks are kept (up to kPoolCap bytes: a 2-camera 1920x1200 scan with 38 patterns
-// recycles ~500 MB, exact size match) and handed to
-// the next allocation of the same size, e.g. the next scan's buffers. Not zeroed: every user
-// writes every element.
+// first-touch faults (page zeroing) cost about a fifth of a scan. Freed blocks are kept (up to
+// kPoolCap bytes: a 2-camera 1920x1200 scan with 38 patterns recycles ~500 MB, exact size match)
+// and handed to the next allocation of the same size, e.g. the next scan's buffers. Not zeroed:
+// every user writes every element.
 class BlockPool {
  public:
   static constexpr size_t kPage = 4096;
-  static constexpr size_t kHuge = size_t{2} << 20;  // size classes (pages past the end are never touched)
+  static constexpr size_t kHuge = size_t{2}
+                                  << 20;  // size classes (pages past the end are never touched)
   static constexpr size_t kPoolCap = size_t{640} << 20;
   static BlockPool& Get() {
     static BlockPool* pool = new BlockPool();  // never destroyed: buffers may outlive statics
@@ -76,8 +77,8 @@ class BlockPool {
 // cv::Mat storage from the BlockPool. Same bookkeeping as OpenCV's standard allocator.
 class PooledMatAllocator : public cv::MatAllocator {
  public:
-  cv::UMatData* allocate(int dims, const int* sizes, int type, void* data0, size_t* step, cv::AccessFlag,
-                         cv::UMatUsageFlags) const override {
+  cv::UMatData* allocate(int dims, const int* sizes, int type, void* data0, size_t* step,
+                         cv::AccessFlag, cv::UMatUsageFlags) const override {
     size_t total = CV_ELEM_SIZE(type);
     for (int i = dims - 1; i >= 0; i--) {
       if (step) {
@@ -97,7 +98,9 @@ class PooledMatAllocator : public cv::MatAllocator {
     if (data0) u->flags |= cv::UMatData::USER_ALLOCATED;
     return u;
   }
-  bool allocate(cv::UMatData* u, cv::AccessFlag, cv::UMatUsageFlags) const override { return u != nullptr; }
+  bool allocate(cv::UMatData* u, cv::AccessFlag, cv::UMatUsageFlags) const override {
+    return u != nullptr;
+  }
   void deallocate(cv::UMatData* u) const override {
     if (!u) return;
     if (!(u->flags & cv::UMatData::USER_ALLOCATED)) BlockPool::Get().Free(u->origdata, u->size);
@@ -108,7 +111,8 @@ class PooledMatAllocator : public cv::MatAllocator {
 }  // namespace
 
 cv::MatAllocator* PooledMats() {
-  static PooledMatAllocator* allocator = new PooledMatAllocator();  // never destroyed: Mats may outlive statics
+  static PooledMatAllocator* allocator =
+      new PooledMatAllocator();  // never destroyed: Mats may outlive statics
   return allocator;
 }
 

@@ -47,23 +47,36 @@ struct PrimitiveData {
   Eigen::Vector3f plane_normal = Eigen::Vector3f::Zero();
 };
 
-bool Better(double t, double t_near, double t_far, double best) { return t > t_near && t < t_far && t < best; }
+bool Better(double t, double t_near, double t_far, double best) {
+  return t > t_near && t < t_far && t < best;
+}
 
 void PrimitiveBounds(const struct RTCBoundsFunctionArguments* args) {
   const auto* data = static_cast<const PrimitiveData*>(args->geometryUserPtr);
   const SceneObject& o = *data->object;
   Eigen::Vector3d half;
   switch (o.type) {
-    case ObjectType::kPlane: half = Eigen::Vector3d(o.size_mm.x() / 2, o.size_mm.y() / 2, 0); break;
-    case ObjectType::kSphere: half = Eigen::Vector3d::Constant(o.radius_mm); break;
-    case ObjectType::kCylinder: half = Eigen::Vector3d(o.radius_mm, o.radius_mm, o.height_mm / 2); break;
-    case ObjectType::kBox: half = o.size_mm / 2; break;
-    default: half = Eigen::Vector3d::Zero(); break;
+    case ObjectType::kPlane:
+      half = Eigen::Vector3d(o.size_mm.x() / 2, o.size_mm.y() / 2, 0);
+      break;
+    case ObjectType::kSphere:
+      half = Eigen::Vector3d::Constant(o.radius_mm);
+      break;
+    case ObjectType::kCylinder:
+      half = Eigen::Vector3d(o.radius_mm, o.radius_mm, o.height_mm / 2);
+      break;
+    case ObjectType::kBox:
+      half = o.size_mm / 2;
+      break;
+    default:
+      half = Eigen::Vector3d::Zero();
+      break;
   }
   Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
   Eigen::Vector3d hi = -lo;
   for (int c = 0; c < 8; ++c) {
-    const Eigen::Vector3d corner((c & 1) ? half.x() : -half.x(), (c & 2) ? half.y() : -half.y(), (c & 4) ? half.z() : -half.z());
+    const Eigen::Vector3d corner((c & 1) ? half.x() : -half.x(), (c & 2) ? half.y() : -half.y(),
+                                 (c & 4) ? half.z() : -half.z());
     const Eigen::Vector3d p = data->rig_from_object_rotation * corner + data->translation;
     lo = lo.cwiseMin(p);
     hi = hi.cwiseMax(p);
@@ -77,26 +90,31 @@ void PrimitiveBounds(const struct RTCBoundsFunctionArguments* args) {
   args->bounds_o->upper_z = static_cast<float>(hi.z() + pad);
 }
 
-bool IntersectInRig(const PrimitiveData& data, float ox, float oy, float oz, float dx, float dy, float dz, float tnear,
-                    float tfar, PrimitiveHit* hit) {
+bool IntersectInRig(const PrimitiveData& data, float ox, float oy, float oz, float dx, float dy,
+                    float dz, float tnear, float tfar, PrimitiveHit* hit) {
   if (data.object->type == ObjectType::kPlane) {
     // The plane z = 0 of the object frame, as IntersectPrimitive does it but with only the rows
     // it needs (the table under a part is hit by nearly every ray: this is the hot case).
     const Eigen::Matrix3d& m = data.object_from_rig_rotation;
-    const double rx = ox - data.translation.x(), ry = oy - data.translation.y(), rz = oz - data.translation.z();
+    const double rx = ox - data.translation.x(), ry = oy - data.translation.y(),
+                 rz = oz - data.translation.z();
     const double o_z = m(2, 0) * rx + m(2, 1) * ry + m(2, 2) * rz;
     const double d_z = m(2, 0) * dx + m(2, 1) * dy + m(2, 2) * dz;
     if (d_z == 0) return false;
     const double t = -o_z / d_z;
     if (!(t > tnear && t < tfar)) return false;
-    const double px = (m(0, 0) * rx + m(0, 1) * ry + m(0, 2) * rz) + t * (m(0, 0) * dx + m(0, 1) * dy + m(0, 2) * dz);
-    const double py = (m(1, 0) * rx + m(1, 1) * ry + m(1, 2) * rz) + t * (m(1, 0) * dx + m(1, 1) * dy + m(1, 2) * dz);
-    if (std::abs(px) > data.object->size_mm.x() / 2 || std::abs(py) > data.object->size_mm.y() / 2) return false;
+    const double px = (m(0, 0) * rx + m(0, 1) * ry + m(0, 2) * rz) +
+                      t * (m(0, 0) * dx + m(0, 1) * dy + m(0, 2) * dz);
+    const double py = (m(1, 0) * rx + m(1, 1) * ry + m(1, 2) * rz) +
+                      t * (m(1, 0) * dx + m(1, 1) * dy + m(1, 2) * dz);
+    if (std::abs(px) > data.object->size_mm.x() / 2 || std::abs(py) > data.object->size_mm.y() / 2)
+      return false;
     hit->t = t;
     hit->normal = data.rig_from_object_rotation.col(2);
     return true;
   }
-  const Eigen::Vector3d o = data.object_from_rig_rotation * (Eigen::Vector3d(ox, oy, oz) - data.translation);
+  const Eigen::Vector3d o =
+      data.object_from_rig_rotation * (Eigen::Vector3d(ox, oy, oz) - data.translation);
   const Eigen::Vector3d d = data.object_from_rig_rotation * Eigen::Vector3d(dx, dy, dz);
   if (!IntersectPrimitive(*data.object, o, d, tnear, tfar, hit)) return false;
   hit->normal = data.rig_from_object_rotation * hit->normal;
@@ -111,8 +129,9 @@ void PrimitiveIntersect(const RTCIntersectFunctionNArguments* args) {
   for (unsigned i = 0; i < n; ++i) {
     if (args->valid[i] == 0) continue;
     PrimitiveHit hit;
-    if (!IntersectInRig(*data, RTCRayN_org_x(ray, n, i), RTCRayN_org_y(ray, n, i), RTCRayN_org_z(ray, n, i),
-                        RTCRayN_dir_x(ray, n, i), RTCRayN_dir_y(ray, n, i), RTCRayN_dir_z(ray, n, i),
+    if (!IntersectInRig(*data, RTCRayN_org_x(ray, n, i), RTCRayN_org_y(ray, n, i),
+                        RTCRayN_org_z(ray, n, i), RTCRayN_dir_x(ray, n, i),
+                        RTCRayN_dir_y(ray, n, i), RTCRayN_dir_z(ray, n, i),
                         RTCRayN_tnear(ray, n, i), RTCRayN_tfar(ray, n, i), &hit)) {
       continue;
     }
@@ -135,9 +154,10 @@ void PrimitiveOccluded(const RTCOccludedFunctionNArguments* args) {
   for (unsigned i = 0; i < n; ++i) {
     if (args->valid[i] == 0) continue;
     PrimitiveHit hit;
-    if (IntersectInRig(*data, RTCRayN_org_x(ray, n, i), RTCRayN_org_y(ray, n, i), RTCRayN_org_z(ray, n, i),
-                       RTCRayN_dir_x(ray, n, i), RTCRayN_dir_y(ray, n, i), RTCRayN_dir_z(ray, n, i),
-                       RTCRayN_tnear(ray, n, i), RTCRayN_tfar(ray, n, i), &hit)) {
+    if (IntersectInRig(*data, RTCRayN_org_x(ray, n, i), RTCRayN_org_y(ray, n, i),
+                       RTCRayN_org_z(ray, n, i), RTCRayN_dir_x(ray, n, i), RTCRayN_dir_y(ray, n, i),
+                       RTCRayN_dir_z(ray, n, i), RTCRayN_tnear(ray, n, i), RTCRayN_tfar(ray, n, i),
+                       &hit)) {
       RTCRayN_tfar(ray, n, i) = -kInf;
     }
   }
@@ -146,8 +166,9 @@ void PrimitiveOccluded(const RTCOccludedFunctionNArguments* args) {
 // Eigen's Vector3f::normalized() for 16 lanes (Embree's geometric normals), without branches:
 // the same operations (x^2 + (y^2 + z^2), then a division by its square root; unchanged when
 // that is not > 0), so the same bits.
-SLSHADOW_LANE_CLONES void NormalizedLanes(const float* __restrict x, const float* __restrict y, const float* __restrict z, float* __restrict ox,
-                     float* __restrict oy, float* __restrict oz) {
+SLSHADOW_LANE_CLONES void NormalizedLanes(const float* __restrict x, const float* __restrict y,
+                                          const float* __restrict z, float* __restrict ox,
+                                          float* __restrict oy, float* __restrict oz) {
   for (int i = 0; i < RayPacket::kSize; ++i) {
     const float n2 = x[i] * x[i] + (y[i] * y[i] + z[i] * z[i]);
     const float s = std::sqrt(n2);
@@ -163,7 +184,8 @@ SLSHADOW_LANE_CLONES void NormalizedLanes(const float* __restrict x, const float
 // 4j..4j+3 with their parameters t and hit masks. Inactive lanes compute garbage, ignored by
 // the callers (a ray parallel to the plane gives d_z == 0: no hit, whatever t is).
 template <class F>
-__attribute__((always_inline)) inline void ForPlaneLanes(const PrimitiveData& data, const RayPacket& p, F&& f) {
+__attribute__((always_inline)) inline void ForPlaneLanes(const PrimitiveData& data,
+                                                         const RayPacket& p, F&& f) {
   constexpr int kN = RayPacket::kSize;
   alignas(32) double ox[kN], oy[kN], oz[kN], dx[kN], dy[kN], dz[kN], tnear[kN], tfar[kN];
   Widen(p.org_x, ox);
@@ -175,19 +197,22 @@ __attribute__((always_inline)) inline void ForPlaneLanes(const PrimitiveData& da
   Widen(p.tnear, tnear);
   Widen(p.tfar, tfar);
   const Eigen::Matrix3d& m = data.object_from_rig_rotation;
-  const double m00 = m(0, 0), m01 = m(0, 1), m02 = m(0, 2), m10 = m(1, 0), m11 = m(1, 1), m12 = m(1, 2);
+  const double m00 = m(0, 0), m01 = m(0, 1), m02 = m(0, 2), m10 = m(1, 0), m11 = m(1, 1),
+               m12 = m(1, 2);
   const double m20 = m(2, 0), m21 = m(2, 1), m22 = m(2, 2);
   const double cx = data.translation.x(), cy = data.translation.y(), cz = data.translation.z();
   const double hx = data.object->size_mm.x() / 2, hy = data.object->size_mm.y() / 2;
   for (int j = 0; j < kN; j += 4) {
-    const V4d rx = Load4<V4d>(ox + j) - cx, ry = Load4<V4d>(oy + j) - cy, rz = Load4<V4d>(oz + j) - cz;
+    const V4d rx = Load4<V4d>(ox + j) - cx, ry = Load4<V4d>(oy + j) - cy,
+              rz = Load4<V4d>(oz + j) - cz;
     const V4d x = Load4<V4d>(dx + j), y = Load4<V4d>(dy + j), z = Load4<V4d>(dz + j);
     const V4d o_z = m20 * rx + m21 * ry + m22 * rz;
     const V4d d_z = m20 * x + m21 * y + m22 * z;
     const V4d t = -o_z / d_z;
     const V4d px = (m00 * rx + m01 * ry + m02 * rz) + t * (m00 * x + m01 * y + m02 * z);
     const V4d py = (m10 * rx + m11 * ry + m12 * rz) + t * (m10 * x + m11 * y + m12 * z);
-    const V4l hit = (d_z != 0) & (t > Load4<V4d>(tnear + j)) & (t < Load4<V4d>(tfar + j)) & ~(Abs(px) > hx) & ~(Abs(py) > hy);
+    const V4l hit = (d_z != 0) & (t > Load4<V4d>(tnear + j)) & (t < Load4<V4d>(tfar + j)) &
+                    ~(Abs(px) > hx) & ~(Abs(py) > hy);
     f(j, t, hit);
   }
 }
@@ -195,7 +220,8 @@ __attribute__((always_inline)) inline void ForPlaneLanes(const PrimitiveData& da
 // Closest hits with a plane for the active lanes (RayCaster::Intersect): as Embree's
 // user-geometry route, tfar and the normal stored as floats (PrimitiveData::plane_normal).
 SLSHADOW_LANE_CLONES void IntersectPlaneLanes(const PrimitiveData& data, RayPacket& p) {
-  const V4f nx = Splat(data.plane_normal.x()), ny = Splat(data.plane_normal.y()), nz = Splat(data.plane_normal.z());
+  const V4f nx = Splat(data.plane_normal.x()), ny = Splat(data.plane_normal.y()),
+            nz = Splat(data.plane_normal.z());
   ForPlaneLanes(data, p, [&](int j, const V4d& t, const V4l& hit) {
     const V4i take = MaskOf(p.active + j) & Narrow(hit);
     Store4(p.tfar + j, take ? __builtin_convertvector(t, V4f) : Load4<V4f>(p.tfar + j));
@@ -224,8 +250,8 @@ void ErrorCallback(void*, RTCError code, const char* message) {
 
 }  // namespace
 
-bool IntersectPrimitive(const SceneObject& object, const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_near,
-                        double t_far, PrimitiveHit* hit) {
+bool IntersectPrimitive(const SceneObject& object, const Eigen::Vector3d& o,
+                        const Eigen::Vector3d& d, double t_near, double t_far, PrimitiveHit* hit) {
   double best = std::numeric_limits<double>::infinity();
   Eigen::Vector3d normal = Eigen::Vector3d::Zero();
   switch (object.type) {
@@ -234,7 +260,8 @@ bool IntersectPrimitive(const SceneObject& object, const Eigen::Vector3d& o, con
       const double t = -o.z() / d.z();
       if (!Better(t, t_near, t_far, best)) return false;
       const Eigen::Vector3d p = o + t * d;
-      if (std::abs(p.x()) > object.size_mm.x() / 2 || std::abs(p.y()) > object.size_mm.y() / 2) return false;
+      if (std::abs(p.x()) > object.size_mm.x() / 2 || std::abs(p.y()) > object.size_mm.y() / 2)
+        return false;
       best = t;
       normal = Eigen::Vector3d::UnitZ();
       break;
@@ -291,7 +318,8 @@ bool IntersectPrimitive(const SceneObject& object, const Eigen::Vector3d& o, con
     }
     case ObjectType::kBox: {
       const Eigen::Vector3d half = object.size_mm / 2;
-      double t_enter = -std::numeric_limits<double>::infinity(), t_exit = std::numeric_limits<double>::infinity();
+      double t_enter = -std::numeric_limits<double>::infinity(),
+             t_exit = std::numeric_limits<double>::infinity();
       int axis_enter = 0, axis_exit = 0;
       double sign_enter = 1, sign_exit = 1;
       for (int k = 0; k < 3; ++k) {
@@ -305,8 +333,16 @@ bool IntersectPrimitive(const SceneObject& object, const Eigen::Vector3d& o, con
           std::swap(ta, tb);
           std::swap(sa, sb);
         }
-        if (ta > t_enter) { t_enter = ta; axis_enter = k; sign_enter = sa; }
-        if (tb < t_exit) { t_exit = tb; axis_exit = k; sign_exit = sb; }
+        if (ta > t_enter) {
+          t_enter = ta;
+          axis_enter = k;
+          sign_enter = sa;
+        }
+        if (tb < t_exit) {
+          t_exit = tb;
+          axis_exit = k;
+          sign_exit = sb;
+        }
       }
       if (t_enter > t_exit) return false;
       if (Better(t_enter, t_near, t_far, best)) {
@@ -339,7 +375,8 @@ struct RayCaster::Impl {
   // under a part is hit by nearly every ray, and Embree's user-geometry callbacks cost more than
   // the test itself). Nearest hit / any hit combined with Embree's result.
   std::vector<const PrimitiveData*> direct;
-  std::vector<std::vector<float>> disc_normals;  // shared with Embree; outlive the scene (released first)
+  std::vector<std::vector<float>>
+      disc_normals;  // shared with Embree; outlive the scene (released first)
   bool has_embree_geometry = false;
   // Embree's scene bounds, widened by a margin: a ray segment that misses this box cannot hit
   // anything Embree holds, so its lane skips the traversal (a packet of them skips the call).
@@ -354,11 +391,13 @@ struct RayCaster::Impl {
 namespace {
 void ThrowIfDeviceError(RTCDevice device, const std::string& what) {
   const RTCError e = rtcGetDeviceError(device);
-  SLSHADOW_THROW_IF(e != RTC_ERROR_NONE, "Embree: ", what, " failed (error code ", static_cast<int>(e), ")");
+  SLSHADOW_THROW_IF(e != RTC_ERROR_NONE, "Embree: ", what, " failed (error code ",
+                    static_cast<int>(e), ")");
 }
 }  // namespace
 
-RayCaster::RayCaster(const Scene& scene, bool cull_by_bounds) : scene_(scene), impl_(std::make_unique<Impl>()) {
+RayCaster::RayCaster(const Scene& scene, bool cull_by_bounds)
+    : scene_(scene), impl_(std::make_unique<Impl>()) {
   const auto start = std::chrono::steady_clock::now();
   impl_->device = rtcNewDevice(nullptr);
   SLSHADOW_THROW_IF(impl_->device == nullptr, "Embree: cannot create a device (error code ",
@@ -372,9 +411,11 @@ RayCaster::RayCaster(const Scene& scene, bool cull_by_bounds) : scene_(scene), i
   // a scan from scratch is 0.52 -> 0.37 s. The scene is still built once and never updated.
   rtcSetSceneFlags(impl_->scene, RTC_SCENE_FLAG_DYNAMIC);
   rtcSetSceneBuildQuality(impl_->scene, RTC_BUILD_QUALITY_LOW);
-  const auto is_primitive = [](const SceneObject& o) { return o.type != ObjectType::kMesh && o.type != ObjectType::kPointCloud; };
-  const bool direct_primitives =
-      std::count_if(scene.objects.begin(), scene.objects.end(), is_primitive) <= kMaxDirectPrimitives;
+  const auto is_primitive = [](const SceneObject& o) {
+    return o.type != ObjectType::kMesh && o.type != ObjectType::kPointCloud;
+  };
+  const bool direct_primitives = std::count_if(scene.objects.begin(), scene.objects.end(),
+                                               is_primitive) <= kMaxDirectPrimitives;
   for (size_t oi = 0; oi < scene.objects.size(); ++oi) {
     const SceneObject& o = scene.objects[oi];
     RTCGeometry geom = nullptr;
@@ -383,37 +424,46 @@ RayCaster::RayCaster(const Scene& scene, bool cull_by_bounds) : scene_(scene), i
     if (o.type == ObjectType::kMesh) {
       const TriangleMesh& m = *o.mesh;
       geom = rtcNewGeometry(impl_->device, RTC_GEOMETRY_TYPE_TRIANGLE);
-      auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                                            3 * sizeof(float), m.vertices.size()));
-      auto* t = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
-                                                               3 * sizeof(uint32_t), m.triangles.size()));
-      SLSHADOW_THROW_IF(v == nullptr || t == nullptr, "Embree: cannot allocate buffers for object '", o.name, "'");
+      auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0,
+                                                            RTC_FORMAT_FLOAT3, 3 * sizeof(float),
+                                                            m.vertices.size()));
+      auto* t = static_cast<uint32_t*>(
+          rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                  3 * sizeof(uint32_t), m.triangles.size()));
+      SLSHADOW_THROW_IF(v == nullptr || t == nullptr,
+                        "Embree: cannot allocate buffers for object '", o.name, "'");
       // In parallel: part of every scan from scratch (~10 ms serial for 1 M triangles).
-      tbb::parallel_for(tbb::blocked_range<size_t>(0, m.vertices.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t i = r.begin(); i < r.end(); ++i) {
-          const Eigen::Vector3d p = rotd * m.vertices[i] + o.rig_from_object.translation;
-          v[3 * i] = static_cast<float>(p.x());
-          v[3 * i + 1] = static_cast<float>(p.y());
-          v[3 * i + 2] = static_cast<float>(p.z());
-        }
-      });
-      tbb::parallel_for(tbb::blocked_range<size_t>(0, m.triangles.size(), 8192), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t i = r.begin(); i < r.end(); ++i) {
-          for (int k = 0; k < 3; ++k) t[3 * i + k] = static_cast<uint32_t>(m.triangles[i][k]);
-        }
-      });
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, m.vertices.size(), 4096),
+                        [&](const tbb::blocked_range<size_t>& r) {
+                          for (size_t i = r.begin(); i < r.end(); ++i) {
+                            const Eigen::Vector3d p =
+                                rotd * m.vertices[i] + o.rig_from_object.translation;
+                            v[3 * i] = static_cast<float>(p.x());
+                            v[3 * i + 1] = static_cast<float>(p.y());
+                            v[3 * i + 2] = static_cast<float>(p.z());
+                          }
+                        });
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, m.triangles.size(), 8192),
+                        [&](const tbb::blocked_range<size_t>& r) {
+                          for (size_t i = r.begin(); i < r.end(); ++i) {
+                            for (int k = 0; k < 3; ++k)
+                              t[3 * i + k] = static_cast<uint32_t>(m.triangles[i][k]);
+                          }
+                        });
       num_triangles_ += static_cast<int64_t>(m.triangles.size());
     } else if (o.type == ObjectType::kPointCloud) {
       const PointCloud& c = *o.points;
       geom = rtcNewGeometry(impl_->device, RTC_GEOMETRY_TYPE_ORIENTED_DISC_POINT);
-      auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4,
-                                                            4 * sizeof(float), c.size()));
+      auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(
+          geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4, 4 * sizeof(float), c.size()));
       // Our own, padded normal buffer: Embree 3.13.5 reads 4 bytes past the end of a FLOAT3 normal
       // buffer it allocates itself (valgrind: invalid read in rtcSetNewGeometryBuffer).
       impl_->disc_normals.emplace_back(3 * c.size() + 4, 0.0f);
       float* n = impl_->disc_normals.back().data();
-      rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_NORMAL, 0, RTC_FORMAT_FLOAT3, n, 0, 3 * sizeof(float), c.size());
-      SLSHADOW_THROW_IF(v == nullptr || n == nullptr, "Embree: cannot allocate buffers for object '", o.name, "'");
+      rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_NORMAL, 0, RTC_FORMAT_FLOAT3, n, 0,
+                                 3 * sizeof(float), c.size());
+      SLSHADOW_THROW_IF(v == nullptr || n == nullptr,
+                        "Embree: cannot allocate buffers for object '", o.name, "'");
       for (size_t i = 0; i < c.size(); ++i) {
         const Eigen::Vector3d p = rotd * c.points[i] + o.rig_from_object.translation;
         const Eigen::Vector3f nn = (rot * c.normals[i]).normalized();
@@ -460,7 +510,8 @@ RayCaster::RayCaster(const Scene& scene, bool cull_by_bounds) : scene_(scene), i
   if (impl_->cull) {
     RTCBounds b;
     rtcGetSceneBounds(impl_->scene, &b);
-    const double lo[3] = {b.lower_x, b.lower_y, b.lower_z}, hi[3] = {b.upper_x, b.upper_y, b.upper_z};
+    const double lo[3] = {b.lower_x, b.lower_y, b.lower_z},
+                 hi[3] = {b.upper_x, b.upper_y, b.upper_z};
     // Margin: far above float rounding of hit points and ray parameters at these scales (a
     // float ulp is 6e-5 mm at 1 m).
     double size = 0;
@@ -483,7 +534,8 @@ namespace {
 // that slab). Its one NaN case, an origin exactly on a face of the box with the ray running in
 // that face's plane, may go either way: the box is widened beyond all geometry, so such a ray
 // cannot hit anything.
-SLSHADOW_LANE_CLONES int CullLanesToBox(const double* __restrict lo, const double* __restrict hi, RayPacket& p) {
+SLSHADOW_LANE_CLONES int CullLanesToBox(const double* __restrict lo, const double* __restrict hi,
+                                        RayPacket& p) {
   constexpr int kN = RayPacket::kSize;
   alignas(32) double o[3][kN], d[3][kN], tnear[kN], tfar[kN];
   Widen(p.org_x, o[0]);
@@ -535,8 +587,8 @@ void RayCaster::Intersect(RayPacket& p, TraceMode mode, bool coherent) const {
     for (int i = 0; i < RayPacket::kSize; ++i) {
       if (!p.active[i]) continue;
       PrimitiveHit hit;
-      if (!IntersectInRig(*d, p.org_x[i], p.org_y[i], p.org_z[i], p.dir_x[i], p.dir_y[i], p.dir_z[i], p.tnear[i],
-                          p.tfar[i], &hit)) {
+      if (!IntersectInRig(*d, p.org_x[i], p.org_y[i], p.org_z[i], p.dir_x[i], p.dir_y[i],
+                          p.dir_z[i], p.tnear[i], p.tfar[i], &hit)) {
         continue;
       }
       p.tfar[i] = static_cast<float>(hit.t);
@@ -565,8 +617,8 @@ void RayCaster::Occluded(RayPacket& p, TraceMode mode) const {
     for (int i = 0; i < RayPacket::kSize; ++i) {
       if (!p.active[i]) continue;
       PrimitiveHit hit;
-      if (IntersectInRig(*d, p.org_x[i], p.org_y[i], p.org_z[i], p.dir_x[i], p.dir_y[i], p.dir_z[i], p.tnear[i], p.tfar[i],
-                         &hit)) {
+      if (IntersectInRig(*d, p.org_x[i], p.org_y[i], p.org_z[i], p.dir_x[i], p.dir_y[i], p.dir_z[i],
+                         p.tnear[i], p.tfar[i], &hit)) {
         p.occluded[i] = 1;
         p.active[i] = 0;
       }
@@ -615,7 +667,9 @@ void RayCaster::IntersectEmbree(RayPacket& p, TraceMode mode, bool coherent) con
       p.ng_x[i] = hit ? nx[i] : p.ng_x[i];
       p.ng_y[i] = hit ? ny[i] : p.ng_y[i];
       p.ng_z[i] = hit ? nz[i] : p.ng_z[i];
-      p.object[i] = hit ? geom_to_object[hit ? rh.hit.geomID[i] : 0] : p.active[i] ? -1 : p.object[i];
+      p.object[i] = hit           ? geom_to_object[hit ? rh.hit.geomID[i] : 0]
+                    : p.active[i] ? -1
+                                  : p.object[i];
     }
     return;
   }
@@ -675,7 +729,8 @@ void RayCaster::OccludedEmbree(RayPacket& p, TraceMode mode) const {
       r.flags[i] = 0;
     }
     rtcOccluded16(valid, impl_->scene, &context, &r);
-    for (int i = 0; i < RayPacket::kSize; ++i) p.occluded[i] = p.active[i] ? r.tfar[i] == -kInf : p.occluded[i];
+    for (int i = 0; i < RayPacket::kSize; ++i)
+      p.occluded[i] = p.active[i] ? r.tfar[i] == -kInf : p.occluded[i];
     return;
   }
   for (int i = 0; i < RayPacket::kSize; ++i) {

@@ -73,6 +73,7 @@ struct PrimitiveHit {
   Eigen::Vector3d normal = Eigen::Vector3d::Zero();
 };
 bool IntersectPrimitive(const SceneObject& object, const Eigen::Vector3d& origin_in_object,
-                        const Eigen::Vector3d& dir_in_object, double t_near, double t_far, PrimitiveHit* hit);
+                        const Eigen::Vector3d& dir_in_object, double t_near, double t_far,
+                        PrimitiveHit* hit);
 
 }  // namespace slshadow

@@ -55,7 +55,8 @@ class PatternBatch {
 // (vignetting, camera defocus levels), then renders any number of projector images.
 class PatternRenderer {
  public:
-  PatternRenderer(const Scene& scene, const Rig& rig, int camera_index, const GeometryBuffer& geometry);
+  PatternRenderer(const Scene& scene, const Rig& rig, int camera_index,
+                  const GeometryBuffer& geometry);
 
   // Renders the camera image for one projector image (CV_8UC1 at the projector's resolution).
   // Returns CV_8UC1 when radiometry.adc_bits <= 8, else CV_16UC1 (values up to 2^adc_bits - 1).
@@ -70,7 +71,8 @@ class PatternRenderer {
   // batch instead of once per image; the lookup weights are shared too): the same images as
   // Render(images[k], first_pattern_index + k). Batches of up to kMaxBatch images.
   static constexpr int kMaxBatch = 32;
-  std::vector<cv::Mat> RenderBatch(const std::vector<cv::Mat>& projector_images, int first_pattern_index) const;
+  std::vector<cv::Mat> RenderBatch(const std::vector<cv::Mat>& projector_images,
+                                   int first_pattern_index) const;
   std::vector<cv::Mat> RenderBatch(const PatternBatch& batch, int first_pattern_index) const;
   std::vector<cv::Mat> RenderIrradianceBatch(const std::vector<cv::Mat>& projector_images) const;
 

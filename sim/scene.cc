@@ -4,9 +4,9 @@
 #include <cmath>
 #include <map>
 
+#include <tbb/parallel_for.h>
 #include <nanoflann.hpp>
 #include <opencv2/imgcodecs.hpp>
-#include <tbb/parallel_for.h>
 
 #include "core/config.h"
 #include "core/error.h"
@@ -51,7 +51,7 @@ nlohmann::json PoseToJson(const Rigid3d& pose) {
 
 double UnitScale(const ConfigNode& node) {
   const std::string u = node.AsString();
-  static const std::map<std::string, double> units = {{"mm", 1.0}, {"cm", 10.0}, {"m", 1000.0},
+  static const std::map<std::string, double> units = {{"mm", 1.0},  {"cm", 10.0}, {"m", 1000.0},
                                                       {"um", 1e-3}, {"in", 25.4}, {"inch", 25.4}};
   const auto it = units.find(u);
   if (it == units.end()) node.Fail("unknown unit (use mm, cm, m, um, in)");
@@ -116,14 +116,15 @@ void ParseDefocus(const ConfigNode& node, SceneLayers::Defocus& d) {
 
 SceneLayers LayersFromConfig(const ConfigNode& node) {
   SceneLayers l;
-  node.RejectUnknownKeys({"supersampling", "camera_defocus", "projector_defocus", "projector_response", "vignetting",
-                          "ambient", "noise", "fill_factor"});
+  node.RejectUnknownKeys({"supersampling", "camera_defocus", "projector_defocus",
+                          "projector_response", "vignetting", "ambient", "noise", "fill_factor"});
   if (node.Has("supersampling")) {
     const auto n = node["supersampling"];
     n.RejectUnknownKeys({"enabled", "samples_per_axis"});
     if (n.GetBool("enabled", true)) {
       l.supersampling = static_cast<int>(n["samples_per_axis"].AsInt());
-      if (l.supersampling < 1 || l.supersampling > 16) n["samples_per_axis"].Fail("must be in 1..16");
+      if (l.supersampling < 1 || l.supersampling > 16)
+        n["samples_per_axis"].Fail("must be in 1..16");
     }
   }
   if (node.Has("camera_defocus")) ParseDefocus(node["camera_defocus"], l.camera_defocus);
@@ -192,8 +193,9 @@ SceneLayers LayersFromConfig(const ConfigNode& node) {
 
 Radiometry RadiometryFromConfig(const ConfigNode& node) {
   Radiometry r;
-  node.RejectUnknownKeys({"exposure", "exposure_us", "reference_distance_mm", "adc_bits", "lookup"});
-  if (node.Has("exposure")) r.exposure = Positive(node["exposure"]);
+  node.RejectUnknownKeys(
+      {"exposure", "exposure_us", "reference_distance_mm", "adc_bits", "lookup"});
+  if (node.Has("exposure")) r.exposure_fraction = Positive(node["exposure"]);
   if (node.Has("exposure_us")) r.exposure_us = Positive(node["exposure_us"]);
   if (node.Has("reference_distance_mm")) {  // 0: the rig's working distance (Radiometry)
     const auto n = node["reference_distance_mm"];
@@ -224,13 +226,15 @@ void AddObjects(const ConfigNode& node, const std::filesystem::path& base_dir, S
   const std::string type = node["type"].AsString();
   SceneObject o;
   o.name = node.GetString("name", type + "_" + std::to_string(scene.objects.size()));
-  o.rig_from_object = node.Has("rig_from_object") ? PoseFromConfig(node["rig_from_object"]) : Rigid3d();
+  o.rig_from_object =
+      node.Has("rig_from_object") ? PoseFromConfig(node["rig_from_object"]) : Rigid3d();
   if (node.Has("albedo")) o.albedo = AlbedoFromConfig(node["albedo"], base_dir);
   if (node.Has("texture_offset_mm")) {
     const auto v = node["texture_offset_mm"].AsDoubles(2);
     o.albedo_offset_mm = Eigen::Vector2d(v[0], v[1]);
   }
-  const std::vector<std::string> common = {"name", "type", "rig_from_object", "albedo", "texture_offset_mm"};
+  const std::vector<std::string> common = {"name", "type", "rig_from_object", "albedo",
+                                           "texture_offset_mm"};
   auto allow = [&](std::initializer_list<const char*> extra) {
     std::vector<std::string> keys = common;
     keys.insert(keys.end(), extra.begin(), extra.end());
@@ -249,7 +253,8 @@ void AddObjects(const ConfigNode& node, const std::filesystem::path& base_dir, S
     }
     const double scale = node.Has("units") ? UnitScale(node["units"]) : 1.0;
     if (scale != 1.0) mesh.Transform(Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero(), scale);
-    CheckSceneMesh(mesh, what + " (" + file.string() + ")", node.GetBool("allow_non_manifold", false));
+    CheckSceneMesh(mesh, what + " (" + file.string() + ")",
+                   node.GetBool("allow_non_manifold", false));
     o.type = ObjectType::kMesh;
     o.mesh = std::make_shared<const TriangleMesh>(std::move(mesh));
   } else if (type == "demo_part") {
@@ -274,13 +279,15 @@ void AddObjects(const ConfigNode& node, const std::filesystem::path& base_dir, S
       node["file"].Fail(e.what());
     }
     if (cloud.empty()) node["file"].Fail("point cloud has no points");
-    if (!cloud.HasNormals()) node["file"].Fail("point cloud has no normals (nx, ny, nz): discs need an orientation");
+    if (!cloud.HasNormals())
+      node["file"].Fail("point cloud has no normals (nx, ny, nz): discs need an orientation");
     const double scale = node.Has("units") ? UnitScale(node["units"]) : 1.0;
     for (auto& p : cloud.points) p *= scale;
     if (node.Has("radius_mm")) {
       o.disc_radii_mm.assign(cloud.size(), static_cast<float>(Positive(node["radius_mm"])));
     } else {
-      o.disc_radii_mm = DiscRadiiFromSpacing(cloud.points, node.Has("radius_scale") ? Positive(node["radius_scale"]) : 1.0);
+      o.disc_radii_mm = DiscRadiiFromSpacing(
+          cloud.points, node.Has("radius_scale") ? Positive(node["radius_scale"]) : 1.0);
     }
     o.type = ObjectType::kPointCloud;
     o.points = std::make_shared<const PointCloud>(std::move(cloud));
@@ -291,18 +298,22 @@ void AddObjects(const ConfigNode& node, const std::filesystem::path& base_dir, S
     if (!(s[0] > 0 && s[1] > 0)) node["size_mm"].Fail("must be positive");
     o.size_mm = Eigen::Vector3d(s[0], s[1], 0);
     const Eigen::Vector3d n = o.rig_from_object.rotation * Eigen::Vector3d::UnitZ();
-    scene.artefacts[o.name] = {{"type", "plane"},
-                               {"point_in_rig_mm", {center_in_rig.x(), center_in_rig.y(), center_in_rig.z()}},
-                               {"normal_in_rig", {n.x(), n.y(), n.z()}},
-                               {"size_mm", {s[0], s[1]}}};
+    scene.artefacts[o.name] = {
+        {"type", "plane"},
+        {"point_in_rig_mm", {center_in_rig.x(), center_in_rig.y(), center_in_rig.z()}},
+        {"normal_in_rig", {n.x(), n.y(), n.z()}},
+        {"size_mm", {s[0], s[1]}}};
   } else if (type == "sphere") {
     allow({"radius_mm", "diameter_mm"});
     o.type = ObjectType::kSphere;
-    if (node.Has("radius_mm") == node.Has("diameter_mm")) node.Fail("give exactly one of radius_mm or diameter_mm");
-    o.radius_mm = node.Has("radius_mm") ? Positive(node["radius_mm"]) : Positive(node["diameter_mm"]) / 2;
-    scene.artefacts[o.name] = {{"type", "sphere"},
-                               {"center_in_rig_mm", {center_in_rig.x(), center_in_rig.y(), center_in_rig.z()}},
-                               {"diameter_mm", 2 * o.radius_mm}};
+    if (node.Has("radius_mm") == node.Has("diameter_mm"))
+      node.Fail("give exactly one of radius_mm or diameter_mm");
+    o.radius_mm =
+        node.Has("radius_mm") ? Positive(node["radius_mm"]) : Positive(node["diameter_mm"]) / 2;
+    scene.artefacts[o.name] = {
+        {"type", "sphere"},
+        {"center_in_rig_mm", {center_in_rig.x(), center_in_rig.y(), center_in_rig.z()}},
+        {"diameter_mm", 2 * o.radius_mm}};
   } else if (type == "cylinder") {
     allow({"radius_mm", "height_mm"});
     o.type = ObjectType::kCylinder;
@@ -328,7 +339,8 @@ void AddObjects(const ConfigNode& node, const std::filesystem::path& base_dir, S
       s.name = o.name + (side < 0 ? "_a" : "_b");
       s.type = ObjectType::kSphere;
       s.radius_mm = r;
-      s.rig_from_object = o.rig_from_object * Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(side * dist / 2, 0, 0));
+      s.rig_from_object = o.rig_from_object * Rigid3d(Eigen::Quaterniond::Identity(),
+                                                      Eigen::Vector3d(side * dist / 2, 0, 0));
       const Eigen::Vector3d c = s.rig_from_object.translation;
       centers.push_back({c.x(), c.y(), c.z()});
       scene.objects.push_back(s);
@@ -339,15 +351,21 @@ void AddObjects(const ConfigNode& node, const std::filesystem::path& base_dir, S
       bar.type = ObjectType::kCylinder;
       bar.radius_mm = bar_r;
       bar.height_mm = dist - 2 * r * 0.9;  // ends inside the spheres
-      bar.rig_from_object = o.rig_from_object * Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitY())),
-                                                        Eigen::Vector3d::Zero());
+      bar.rig_from_object =
+          o.rig_from_object *
+          Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitY())),
+                  Eigen::Vector3d::Zero());
       scene.objects.push_back(bar);
     }
-    scene.artefacts[o.name] = {{"type", "ball_bar"}, {"sphere_diameter_mm", 2 * r}, {"distance_mm", dist},
+    scene.artefacts[o.name] = {{"type", "ball_bar"},
+                               {"sphere_diameter_mm", 2 * r},
+                               {"distance_mm", dist},
                                {"centers_in_rig_mm", centers}};
     return;
   } else {
-    node["type"].Fail("unknown object type (use mesh, point_cloud, plane, sphere, cylinder, box, ball_bar, demo_part)");
+    node["type"].Fail(
+        "unknown object type (use mesh, point_cloud, plane, sphere, cylinder, box, ball_bar, "
+        "demo_part)");
   }
   scene.objects.push_back(std::move(o));
 }
@@ -357,7 +375,9 @@ struct CloudAdaptor {
   size_t kdtree_get_point_count() const { return pts.size(); }
   double kdtree_get_pt(size_t i, size_t dim) const { return pts[i][static_cast<int>(dim)]; }
   template <class B>
-  bool kdtree_get_bbox(B&) const { return false; }
+  bool kdtree_get_bbox(B&) const {
+    return false;
+  }
 };
 
 }  // namespace
@@ -390,12 +410,18 @@ double Albedo::Evaluate(double x_mm, double y_mm) const {
 
 std::string ToString(ObjectType type) {
   switch (type) {
-    case ObjectType::kMesh: return "mesh";
-    case ObjectType::kPointCloud: return "point_cloud";
-    case ObjectType::kPlane: return "plane";
-    case ObjectType::kSphere: return "sphere";
-    case ObjectType::kCylinder: return "cylinder";
-    case ObjectType::kBox: return "box";
+    case ObjectType::kMesh:
+      return "mesh";
+    case ObjectType::kPointCloud:
+      return "point_cloud";
+    case ObjectType::kPlane:
+      return "plane";
+    case ObjectType::kSphere:
+      return "sphere";
+    case ObjectType::kCylinder:
+      return "cylinder";
+    case ObjectType::kBox:
+      return "box";
   }
   return "unknown";
 }
@@ -403,30 +429,41 @@ std::string ToString(ObjectType type) {
 double SceneLayers::Defocus::SigmaPx(double fx_px, double d_mm) const {
   const double f_mm = fx_px * pixel_pitch_um * 1e-3;
   if (!(d_mm > f_mm) || !(focus_distance_mm > f_mm)) return 0;
-  const double c_mm = (f_mm / f_number) * f_mm * std::abs(d_mm - focus_distance_mm) / (d_mm * (focus_distance_mm - f_mm));
+  const double c_mm = (f_mm / f_number) * f_mm * std::abs(d_mm - focus_distance_mm) /
+                      (d_mm * (focus_distance_mm - f_mm));
   return c_mm / (pixel_pitch_um * 1e-3) / 4;
 }
 
 void SceneLayers::Check(const std::string& what) const {
-  SLSHADOW_THROW_IF(supersampling < 1 || supersampling > 16, what, ": layers.supersampling.samples_per_axis must be in 1..16 (got ",
-                    supersampling, ")");
+  SLSHADOW_THROW_IF(supersampling < 1 || supersampling > 16, what,
+                    ": layers.supersampling.samples_per_axis must be in 1..16 (got ", supersampling,
+                    ")");
   for (const auto* d : {&camera_defocus, &projector_defocus}) {
-    SLSHADOW_THROW_IF(d->enabled && !(d->f_number > 0 && d->focus_distance_mm > 0 && d->pixel_pitch_um > 0), what,
-                      ": defocus needs positive f_number, focus_distance_mm and pixel_pitch_um");
+    SLSHADOW_THROW_IF(
+        d->enabled && !(d->f_number > 0 && d->focus_distance_mm > 0 && d->pixel_pitch_um > 0), what,
+        ": defocus needs positive f_number, focus_distance_mm and pixel_pitch_um");
   }
-  SLSHADOW_THROW_IF(!(gamma > 0), what, ": layers.projector_response.gamma must be positive (got ", gamma, ")");
-  SLSHADOW_THROW_IF(!response_lut.empty() && response_lut.size() != 256, what, ": layers.projector_response.lut needs 256 entries (got ",
-                    response_lut.size(), ")");
-  SLSHADOW_THROW_IF(!(ambient >= 0), what, ": layers.ambient.level must be >= 0 (got ", ambient, ")");
-  SLSHADOW_THROW_IF(!(full_well_e > 0) || !(read_noise_e >= 0), what, ": layers.noise needs full_well_e > 0 and read_noise_e >= 0");
-  SLSHADOW_THROW_IF(!(fill_factor > 0 && fill_factor <= 1), what, ": layers.fill_factor must be in (0, 1] (got ", fill_factor, ")");
+  SLSHADOW_THROW_IF(!(gamma > 0), what, ": layers.projector_response.gamma must be positive (got ",
+                    gamma, ")");
+  SLSHADOW_THROW_IF(!response_lut.empty() && response_lut.size() != 256, what,
+                    ": layers.projector_response.lut needs 256 entries (got ", response_lut.size(),
+                    ")");
+  SLSHADOW_THROW_IF(!(ambient >= 0), what, ": layers.ambient.level must be >= 0 (got ", ambient,
+                    ")");
+  SLSHADOW_THROW_IF(!(full_well_e > 0) || !(read_noise_e >= 0), what,
+                    ": layers.noise needs full_well_e > 0 and read_noise_e >= 0");
+  SLSHADOW_THROW_IF(!(fill_factor > 0 && fill_factor <= 1), what,
+                    ": layers.fill_factor must be in (0, 1] (got ", fill_factor, ")");
 }
 
 void Radiometry::Check(const std::string& what) const {
-  SLSHADOW_THROW_IF(!(exposure > 0) || !std::isfinite(exposure), what, ": radiometry.exposure must be positive (got ", exposure, ")");
-  SLSHADOW_THROW_IF(!(reference_distance_mm >= 0), what, ": radiometry.reference_distance_mm must be >= 0 (got ",
-                    reference_distance_mm, ")");
-  SLSHADOW_THROW_IF(adc_bits < 1 || adc_bits > 16, what, ": radiometry.adc_bits must be in 1..16 (got ", adc_bits, ")");
+  SLSHADOW_THROW_IF(!(exposure_fraction > 0) || !std::isfinite(exposure_fraction), what,
+                    ": radiometry.exposure must be positive (got ", exposure_fraction, ")");
+  SLSHADOW_THROW_IF(!(reference_distance_mm >= 0), what,
+                    ": radiometry.reference_distance_mm must be >= 0 (got ", reference_distance_mm,
+                    ")");
+  SLSHADOW_THROW_IF(adc_bits < 1 || adc_bits > 16, what,
+                    ": radiometry.adc_bits must be in 1..16 (got ", adc_bits, ")");
 }
 
 void CheckSceneMesh(const TriangleMesh& mesh, const std::string& what, bool allow_non_manifold) {
@@ -434,7 +471,8 @@ void CheckSceneMesh(const TriangleMesh& mesh, const std::string& what, bool allo
   if (!allow_non_manifold) {
     const size_t bad = mesh.CountNonManifoldEdges();
     SLSHADOW_THROW_IF(bad > 0, what, ": mesh has ", bad,
-                      " non-manifold edges (shared by more than two triangles); repair it or set allow_non_manifold: true");
+                      " non-manifold edges (shared by more than two triangles); repair it or set "
+                      "allow_non_manifold: true");
   }
 }
 
@@ -446,7 +484,8 @@ void Scene::Check(const std::string& what) const {
     const SceneObject& o = objects[i];
     const std::string w = what + ": objects[" + std::to_string(i) + "] '" + o.name + "'";
     SLSHADOW_THROW_IF(!PoseIsFinite(o.rig_from_object), w, ": rig_from_object is not finite");
-    SLSHADOW_THROW_IF(std::abs(o.rig_from_object.rotation.norm() - 1) > 1e-6, w, ": rotation is not a unit quaternion");
+    SLSHADOW_THROW_IF(std::abs(o.rig_from_object.rotation.norm() - 1) > 1e-6, w,
+                      ": rotation is not a unit quaternion");
     switch (o.type) {
       case ObjectType::kMesh:
         SLSHADOW_THROW_IF(!o.mesh, w, ": mesh missing");
@@ -454,34 +493,47 @@ void Scene::Check(const std::string& what) const {
         break;
       case ObjectType::kPointCloud:
         SLSHADOW_THROW_IF(!o.points || o.points->empty(), w, ": point cloud is empty");
-        SLSHADOW_THROW_IF(o.points->normals.size() != o.points->size(), w, ": point cloud needs one normal per point");
-        SLSHADOW_THROW_IF(o.disc_radii_mm.size() != o.points->size(), w, ": point cloud needs one disc radius per point");
-        for (float r : o.disc_radii_mm) SLSHADOW_THROW_IF(!(r > 0) || !std::isfinite(r), w, ": disc radius must be positive (got ", r, ")");
+        SLSHADOW_THROW_IF(o.points->normals.size() != o.points->size(), w,
+                          ": point cloud needs one normal per point");
+        SLSHADOW_THROW_IF(o.disc_radii_mm.size() != o.points->size(), w,
+                          ": point cloud needs one disc radius per point");
+        for (float r : o.disc_radii_mm)
+          SLSHADOW_THROW_IF(!(r > 0) || !std::isfinite(r), w,
+                            ": disc radius must be positive (got ", r, ")");
         break;
       case ObjectType::kPlane:
-        SLSHADOW_THROW_IF(!(o.size_mm.x() > 0 && o.size_mm.y() > 0) || !o.size_mm.allFinite(), w, ": plane size must be positive");
+        SLSHADOW_THROW_IF(!(o.size_mm.x() > 0 && o.size_mm.y() > 0) || !o.size_mm.allFinite(), w,
+                          ": plane size must be positive");
         break;
       case ObjectType::kSphere:
-        SLSHADOW_THROW_IF(!(o.radius_mm > 0) || !std::isfinite(o.radius_mm), w, ": sphere radius must be positive (got ", o.radius_mm, ")");
+        SLSHADOW_THROW_IF(!(o.radius_mm > 0) || !std::isfinite(o.radius_mm), w,
+                          ": sphere radius must be positive (got ", o.radius_mm, ")");
         break;
       case ObjectType::kCylinder:
-        SLSHADOW_THROW_IF(!(o.radius_mm > 0 && o.height_mm > 0), w, ": cylinder radius and height must be positive");
+        SLSHADOW_THROW_IF(!(o.radius_mm > 0 && o.height_mm > 0), w,
+                          ": cylinder radius and height must be positive");
         break;
       case ObjectType::kBox:
-        SLSHADOW_THROW_IF(!(o.size_mm.minCoeff() > 0) || !o.size_mm.allFinite(), w, ": box size must be positive");
+        SLSHADOW_THROW_IF(!(o.size_mm.minCoeff() > 0) || !o.size_mm.allFinite(), w,
+                          ": box size must be positive");
         break;
     }
-    if (o.albedo.kind == Albedo::Kind::kImage) SLSHADOW_THROW_IF(o.albedo.image.empty() || o.albedo.image.type() != CV_8UC1, w,
-                                                                 ": image albedo needs an 8-bit grey image");
-    if (o.albedo.kind == Albedo::Kind::kCheckerboard) SLSHADOW_THROW_IF(o.albedo.squares_x < 3 || o.albedo.squares_y < 3 || !(o.albedo.square_mm > 0),
-                                                                        w, ": checkerboard needs >= 3 x 3 squares of positive size");
+    if (o.albedo.kind == Albedo::Kind::kImage)
+      SLSHADOW_THROW_IF(o.albedo.image.empty() || o.albedo.image.type() != CV_8UC1, w,
+                        ": image albedo needs an 8-bit grey image");
+    if (o.albedo.kind == Albedo::Kind::kCheckerboard)
+      SLSHADOW_THROW_IF(
+          o.albedo.squares_x < 3 || o.albedo.squares_y < 3 || !(o.albedo.square_mm > 0), w,
+          ": checkerboard needs >= 3 x 3 squares of positive size");
   }
 }
 
 Scene SceneFromConfig(const ConfigNode& node, const std::filesystem::path& base_dir) {
   node.RejectUnknownKeys({"format", "version", "name", "radiometry", "layers", "objects"});
-  if (node.Has("format") && node["format"].AsString() != "slshadow-scene") node["format"].Fail("expected slshadow-scene");
-  if (node.Has("version") && node["version"].AsInt() != kSceneFormatVersion) node["version"].Fail("unsupported version (this build reads 1)");
+  if (node.Has("format") && node["format"].AsString() != "slshadow-scene")
+    node["format"].Fail("expected slshadow-scene");
+  if (node.Has("version") && node["version"].AsInt() != kSceneFormatVersion)
+    node["version"].Fail("unsupported version (this build reads 1)");
   Scene scene;
   scene.name = node.GetString("name", "scene");
   if (node.Has("radiometry")) scene.radiometry = RadiometryFromConfig(node["radiometry"]);
@@ -505,46 +557,76 @@ nlohmann::json SceneToJson(const Scene& scene) {
   nlohmann::json j;
   j["name"] = scene.name;
   const Radiometry& r = scene.radiometry;
-  j["radiometry"] = {{"exposure", r.exposure}, {"exposure_us", r.exposure_us}, {"reference_distance_mm", r.reference_distance_mm},
-                     {"adc_bits", r.adc_bits}, {"lookup", r.bilinear_lookup ? "bilinear" : "nearest"}};
+  j["radiometry"] = {{"exposure", r.exposure_fraction},
+                     {"exposure_us", r.exposure_us},
+                     {"reference_distance_mm", r.reference_distance_mm},
+                     {"adc_bits", r.adc_bits},
+                     {"lookup", r.bilinear_lookup ? "bilinear" : "nearest"}};
   const SceneLayers& l = scene.layers;
   nlohmann::json layers = nlohmann::json::object();
   if (l.supersampling > 1) layers["supersampling"] = {{"samples_per_axis", l.supersampling}};
   auto defocus = [](const SceneLayers::Defocus& d) {
-    return nlohmann::json{{"f_number", d.f_number}, {"focus_distance_mm", d.focus_distance_mm}, {"pixel_pitch_um", d.pixel_pitch_um}};
+    return nlohmann::json{{"f_number", d.f_number},
+                          {"focus_distance_mm", d.focus_distance_mm},
+                          {"pixel_pitch_um", d.pixel_pitch_um}};
   };
   if (l.camera_defocus.enabled) layers["camera_defocus"] = defocus(l.camera_defocus);
   if (l.projector_defocus.enabled) layers["projector_defocus"] = defocus(l.projector_defocus);
   if (l.response_enabled) {
-    layers["projector_response"] = l.response_lut.empty() ? nlohmann::json{{"gamma", l.gamma}} : nlohmann::json{{"lut", l.response_lut}};
+    layers["projector_response"] = l.response_lut.empty() ? nlohmann::json{{"gamma", l.gamma}}
+                                                          : nlohmann::json{{"lut", l.response_lut}};
   }
   if (l.vignetting_enabled) {
-    layers["vignetting"] = l.vignetting_cos4 ? nlohmann::json{{"model", "cos4"}}
-                                             : nlohmann::json{{"model", "polynomial"}, {"coefficients", l.vignetting_coefficients}};
+    layers["vignetting"] =
+        l.vignetting_cos4
+            ? nlohmann::json{{"model", "cos4"}}
+            : nlohmann::json{{"model", "polynomial"}, {"coefficients", l.vignetting_coefficients}};
   }
   if (l.ambient > 0) layers["ambient"] = {{"level", l.ambient}};
-  if (l.noise_enabled) layers["noise"] = {{"full_well_e", l.full_well_e}, {"read_noise_e", l.read_noise_e}, {"seed", l.seed}};
+  if (l.noise_enabled)
+    layers["noise"] = {
+        {"full_well_e", l.full_well_e}, {"read_noise_e", l.read_noise_e}, {"seed", l.seed}};
   if (l.fill_factor < 1) layers["fill_factor"] = {{"fill_factor", l.fill_factor}};
   j["layers"] = layers;
   nlohmann::json objects = nlohmann::json::array();
   for (const auto& o : scene.objects) {
-    nlohmann::json oj = {{"name", o.name}, {"type", ToString(o.type)}, {"rig_from_object", PoseToJson(o.rig_from_object)}};
+    nlohmann::json oj = {{"name", o.name},
+                         {"type", ToString(o.type)},
+                         {"rig_from_object", PoseToJson(o.rig_from_object)}};
     switch (o.type) {
-      case ObjectType::kMesh: oj["triangles"] = o.mesh ? o.mesh->NumTriangles() : 0; break;
-      case ObjectType::kPointCloud: oj["points"] = o.points ? o.points->size() : 0; break;
-      case ObjectType::kPlane: oj["size_mm"] = {o.size_mm.x(), o.size_mm.y()}; break;
-      case ObjectType::kSphere: oj["radius_mm"] = o.radius_mm; break;
-      case ObjectType::kCylinder: oj["radius_mm"] = o.radius_mm; oj["height_mm"] = o.height_mm; break;
-      case ObjectType::kBox: oj["size_mm"] = {o.size_mm.x(), o.size_mm.y(), o.size_mm.z()}; break;
+      case ObjectType::kMesh:
+        oj["triangles"] = o.mesh ? o.mesh->NumTriangles() : 0;
+        break;
+      case ObjectType::kPointCloud:
+        oj["points"] = o.points ? o.points->size() : 0;
+        break;
+      case ObjectType::kPlane:
+        oj["size_mm"] = {o.size_mm.x(), o.size_mm.y()};
+        break;
+      case ObjectType::kSphere:
+        oj["radius_mm"] = o.radius_mm;
+        break;
+      case ObjectType::kCylinder:
+        oj["radius_mm"] = o.radius_mm;
+        oj["height_mm"] = o.height_mm;
+        break;
+      case ObjectType::kBox:
+        oj["size_mm"] = {o.size_mm.x(), o.size_mm.y(), o.size_mm.z()};
+        break;
     }
     switch (o.albedo.kind) {
-      case Albedo::Kind::kUniform: oj["albedo"] = o.albedo.value; break;
+      case Albedo::Kind::kUniform:
+        oj["albedo"] = o.albedo.value;
+        break;
       case Albedo::Kind::kCheckerboard:
-        oj["albedo"] = {{"type", "checkerboard"}, {"square_mm", o.albedo.square_mm}, {"squares_x", o.albedo.squares_x},
-                        {"squares_y", o.albedo.squares_y}, {"dark", o.albedo.dark}, {"light", o.albedo.light}};
+        oj["albedo"] = {{"type", "checkerboard"},          {"square_mm", o.albedo.square_mm},
+                        {"squares_x", o.albedo.squares_x}, {"squares_y", o.albedo.squares_y},
+                        {"dark", o.albedo.dark},           {"light", o.albedo.light}};
         break;
       case Albedo::Kind::kImage:
-        oj["albedo"] = {{"type", "image"}, {"pixel_mm", o.albedo.pixel_mm}, {"size_px", {o.albedo.image.cols, o.albedo.image.rows}}};
+        oj["albedo"] = {{"type", "image"},
+                        {"pixel_mm", o.albedo.pixel_mm},
+                        {"size_px", {o.albedo.image.cols, o.albedo.image.rows}}};
         break;
     }
     objects.push_back(oj);
@@ -557,26 +639,30 @@ nlohmann::json SceneToJson(const Scene& scene) {
 std::vector<float> DiscRadiiFromSpacing(const std::vector<Eigen::Vector3d>& points, double scale) {
   std::vector<float> radii(points.size(), 1.0f);
   if (points.size() < 2) return radii;
-  using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<double, CloudAdaptor>, CloudAdaptor, 3, size_t>;
+  using Tree =
+      nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<double, CloudAdaptor>,
+                                          CloudAdaptor, 3, size_t>;
   CloudAdaptor adaptor{points};
   Tree tree(3, adaptor, nanoflann::KDTreeSingleIndexAdaptorParams(16));
   tree.buildIndex();
   const size_t k = std::min<size_t>(5, points.size());  // the point itself + 4 neighbours
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 1024), [&](const tbb::blocked_range<size_t>& range) {
-    std::vector<size_t> idx(k);
-    std::vector<double> d2(k);
-    for (size_t i = range.begin(); i < range.end(); ++i) {
-      const size_t n = tree.knnSearch(points[i].data(), k, idx.data(), d2.data());
-      double sum = 0;
-      int count = 0;
-      for (size_t m = 0; m < n; ++m) {
-        if (idx[m] == i) continue;
-        sum += std::sqrt(d2[m]);
-        ++count;
-      }
-      radii[i] = static_cast<float>(count > 0 && sum > 0 ? scale * sum / count : 1.0);
-    }
-  });
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 1024),
+                    [&](const tbb::blocked_range<size_t>& range) {
+                      std::vector<size_t> idx(k);
+                      std::vector<double> d2(k);
+                      for (size_t i = range.begin(); i < range.end(); ++i) {
+                        const size_t n = tree.knnSearch(points[i].data(), k, idx.data(), d2.data());
+                        double sum = 0;
+                        int count = 0;
+                        for (size_t m = 0; m < n; ++m) {
+                          if (idx[m] == i) continue;
+                          sum += std::sqrt(d2[m]);
+                          ++count;
+                        }
+                        radii[i] =
+                            static_cast<float>(count > 0 && sum > 0 ? scale * sum / count : 1.0);
+                      }
+                    });
   return radii;
 }
 

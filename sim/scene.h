@@ -7,7 +7,8 @@
 // rig frame (the first camera's frame, DESIGN.md). Millimetres, radians, pixels.
 //
 // Radiometry (the core model, always on): a camera pixel's value in digital numbers is
-//   DN = exposure * (2^adc_bits - 1) * (ambient * albedo + albedo * cos_p * (d_ref / d_p)^2 * I)
+//   DN = exposure_fraction * (2^adc_bits - 1) * (ambient * albedo + albedo * cos_p * (d_ref /
+//   d_p)^2 * I)
 // where cos_p is the cosine of the projector ray's incidence on the surface, d_p the distance
 // from the projector's centre, d_ref the reference distance and I in [0, 1] the projector's
 // intensity at the projector coordinate the surface point maps to (pattern value / 255 through
@@ -80,11 +81,11 @@ struct SceneObject {
   // Texture coordinates are the hit point's local (x, y) plus this offset (mm); lets a centred
   // plane carry a board whose own origin is elsewhere.
   Eigen::Vector2d albedo_offset_mm = Eigen::Vector2d::Zero();
-  std::shared_ptr<const TriangleMesh> mesh;     // kMesh
-  std::shared_ptr<const PointCloud> points;     // kPointCloud; normals required
-  std::vector<float> disc_radii_mm;             // kPointCloud: one per point
-  double radius_mm = 0;                         // kSphere, kCylinder
-  double height_mm = 0;                         // kCylinder
+  std::shared_ptr<const TriangleMesh> mesh;           // kMesh
+  std::shared_ptr<const PointCloud> points;           // kPointCloud; normals required
+  std::vector<float> disc_radii_mm;                   // kPointCloud: one per point
+  double radius_mm = 0;                               // kSphere, kCylinder
+  double height_mm = 0;                               // kCylinder
   Eigen::Vector3d size_mm = Eigen::Vector3d::Zero();  // kPlane (x, y), kBox (x, y, z)
 };
 
@@ -143,11 +144,11 @@ struct SceneLayers {
 };
 
 struct Radiometry {
-  double exposure = 0.8;              // DN fraction of full scale, see the header comment
-  double exposure_us = 10000;         // recorded in the ImageSet manifest only
-  double reference_distance_mm = 0;   // d_ref; 0: the rig's working distance
-  int adc_bits = 8;                   // 1..16; > 8 writes 16-bit images
-  bool bilinear_lookup = true;        // projector pattern lookup: bilinear or nearest pixel
+  double exposure_fraction = 0.8;    // DN fraction of full scale, see the header comment
+  double exposure_us = 10000;        // recorded in the ImageSet manifest only
+  double reference_distance_mm = 0;  // d_ref; 0: the rig's working distance
+  int adc_bits = 8;                  // 1..16; > 8 writes 16-bit images
+  bool bilinear_lookup = true;       // projector pattern lookup: bilinear or nearest pixel
   void Check(const std::string& what) const;
 };
 
@@ -179,7 +180,8 @@ nlohmann::json SceneToJson(const Scene& scene);
 
 // Disc radius per point from local spacing: radius = scale * mean distance to the k nearest
 // neighbours (k = 4; grid-hashed search). A single point gets radius 1 mm.
-std::vector<float> DiscRadiiFromSpacing(const std::vector<Eigen::Vector3d>& points, double scale = 1.0);
+std::vector<float> DiscRadiiFromSpacing(const std::vector<Eigen::Vector3d>& points,
+                                        double scale = 1.0);
 
 // Checks a mesh for use in a scene: Check() of core/mesh.h (empty, bad indices, non-finite,
 // degenerate) and, unless allow_non_manifold, no edge shared by more than two triangles.

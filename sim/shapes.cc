@@ -13,8 +13,8 @@ constexpr double kPi = 3.14159265358979323846;
 
 // Grid of nu x nv quads spanning p0 + [0,1] eu + [0,1] ev, two triangles each, oriented so that
 // the normal points along `outward`.
-void AddQuadGrid(TriangleMesh& mesh, const Eigen::Vector3d& p0, Eigen::Vector3d eu, Eigen::Vector3d ev,
-                 int nu, int nv, const Eigen::Vector3d& outward) {
+void AddQuadGrid(TriangleMesh& mesh, const Eigen::Vector3d& p0, Eigen::Vector3d eu,
+                 Eigen::Vector3d ev, int nu, int nv, const Eigen::Vector3d& outward) {
   if (eu.cross(ev).dot(outward) < 0) {
     std::swap(eu, ev);
     std::swap(nu, nv);
@@ -22,7 +22,8 @@ void AddQuadGrid(TriangleMesh& mesh, const Eigen::Vector3d& p0, Eigen::Vector3d 
   const int base = static_cast<int>(mesh.vertices.size());
   for (int j = 0; j <= nv; ++j) {
     for (int i = 0; i <= nu; ++i) {
-      mesh.vertices.push_back(p0 + eu * (static_cast<double>(i) / nu) + ev * (static_cast<double>(j) / nv));
+      mesh.vertices.push_back(p0 + eu * (static_cast<double>(i) / nu) +
+                              ev * (static_cast<double>(j) / nv));
     }
   }
   for (int j = 0; j < nv; ++j) {
@@ -51,13 +52,20 @@ void AddPointGrid(TriangleMesh& mesh, const std::vector<Eigen::Vector3d>& grid, 
       const int d = a + cols + 1;
       const int e = d + 1;
       const Eigen::Vector3d center = (grid[a - base] + grid[e - base]) / 2;
-      const Eigen::Vector3d n = (grid[b - base] - grid[a - base]).cross(grid[e - base] - grid[a - base]);
-      const Eigen::Vector3d n2 = (grid[e - base] - grid[a - base]).cross(grid[d - base] - grid[a - base]);
+      const Eigen::Vector3d n =
+          (grid[b - base] - grid[a - base]).cross(grid[e - base] - grid[a - base]);
+      const Eigen::Vector3d n2 =
+          (grid[e - base] - grid[a - base]).cross(grid[d - base] - grid[a - base]);
       const bool flip = (n + n2).dot(outward_at(center)) < 0;
       // Skip triangles collapsed at poles (two equal points).
       auto add = [&](int p, int q, int s) {
-        if (grid[p - base] == grid[q - base] || grid[q - base] == grid[s - base] || grid[p - base] == grid[s - base]) return;
-        if (flip) mesh.triangles.emplace_back(p, s, q); else mesh.triangles.emplace_back(p, q, s);
+        if (grid[p - base] == grid[q - base] || grid[q - base] == grid[s - base] ||
+            grid[p - base] == grid[s - base])
+          return;
+        if (flip)
+          mesh.triangles.emplace_back(p, s, q);
+        else
+          mesh.triangles.emplace_back(p, q, s);
       };
       add(a, b, e);
       add(a, e, d);
@@ -86,19 +94,24 @@ double TileHeight(int i, int j) {
   if (i <= 5) return 40;
   return 50;
 }
-bool IsHoleTile(int i, int j) { return (i == 3 && j == 1) || (i == 3 && j == 3) || (i == 6 && j == 3); }
+bool IsHoleTile(int i, int j) {
+  return (i == 3 && j == 1) || (i == 3 && j == 3) || (i == 6 && j == 3);
+}
 
 }  // namespace
 
 DemoPartFeatures DemoPartDescription() {
   DemoPartFeatures f;
   constexpr int kSphereI = 5, kSphereJ = 2;  // the tile the dome sits on
-  f.sphere_center_mm = Eigen::Vector3d(kX0 + (kSphereI + 0.5) * kTile, kY0 + (kSphereJ + 0.5) * kTile, TileHeight(kSphereI, kSphereJ) + kSphereLift);
+  f.sphere_center_mm =
+      Eigen::Vector3d(kX0 + (kSphereI + 0.5) * kTile, kY0 + (kSphereJ + 0.5) * kTile,
+                      TileHeight(kSphereI, kSphereJ) + kSphereLift);
   f.sphere_radius_mm = kSphereRadius;
   for (int i = 0; i < kTilesX; ++i) {
     for (int j = 0; j < kTilesY; ++j) {
       if (IsHoleTile(i, j)) {
-        f.hole_top_centers_mm.emplace_back(kX0 + (i + 0.5) * kTile, kY0 + (j + 0.5) * kTile, TileHeight(i, j));
+        f.hole_top_centers_mm.emplace_back(kX0 + (i + 0.5) * kTile, kY0 + (j + 0.5) * kTile,
+                                           TileHeight(i, j));
       }
     }
   }
@@ -108,18 +121,21 @@ DemoPartFeatures DemoPartDescription() {
 }
 
 double DemoPartResolutionFor(double triangles) {
-  SLSHADOW_THROW_IF(!(triangles > 0), "demo part: triangle count must be > 0 (got ", triangles, ")");
+  SLSHADOW_THROW_IF(!(triangles > 0), "demo part: triangle count must be > 0 (got ", triangles,
+                    ")");
   return std::sqrt(86696.0 / triangles);
 }
 
 TriangleMesh MakeDemoPart(double resolution_mm) {
-  SLSHADOW_THROW_IF(!(resolution_mm > 0.01 && resolution_mm <= 20), "demo part: resolution_mm must be in (0.01, 20] (got ",
-                    resolution_mm, ")");
+  SLSHADOW_THROW_IF(!(resolution_mm > 0.01 && resolution_mm <= 20),
+                    "demo part: resolution_mm must be in (0.01, 20] (got ", resolution_mm, ")");
   TriangleMesh mesh;
   const int n_tile = Segments(kTile, resolution_mm);
   // Circle segments: a multiple of 8 so the square's corners are sampled.
-  const int n_circle = std::max(16, 8 * static_cast<int>(std::ceil(2 * kPi * kHoleRadius / resolution_mm / 8)));
-  const Eigen::Vector3d ux = Eigen::Vector3d::UnitX(), uy = Eigen::Vector3d::UnitY(), uz = Eigen::Vector3d::UnitZ();
+  const int n_circle =
+      std::max(16, 8 * static_cast<int>(std::ceil(2 * kPi * kHoleRadius / resolution_mm / 8)));
+  const Eigen::Vector3d ux = Eigen::Vector3d::UnitX(), uy = Eigen::Vector3d::UnitY(),
+                        uz = Eigen::Vector3d::UnitZ();
 
   for (int i = 0; i < kTilesX; ++i) {
     for (int j = 0; j < kTilesY; ++j) {
@@ -138,7 +154,8 @@ TriangleMesh MakeDemoPart(double resolution_mm) {
             const double a = 2 * kPi * k / n_circle;
             const Eigen::Vector3d dir(std::cos(a), std::sin(a), 0);
             const Eigen::Vector3d on_circle = c + kHoleRadius * dir;
-            const Eigen::Vector3d on_square = c + (kTile / 2) / std::max(std::abs(dir.x()), std::abs(dir.y())) * dir;
+            const Eigen::Vector3d on_square =
+                c + (kTile / 2) / std::max(std::abs(dir.x()), std::abs(dir.y())) * dir;
             grid.push_back(on_circle + (on_square - on_circle) * (static_cast<double>(r) / rings));
           }
         }
@@ -168,7 +185,10 @@ TriangleMesh MakeDemoPart(double resolution_mm) {
         AddPointGrid(mesh, grid, n_radial, n_circle, [&](const Eigen::Vector3d&) { return uz; });
       }
       // Walls towards lower neighbours (and the outside, height 0) on the four sides.
-      struct Side { int di, dj; Eigen::Vector3d start, along, outward; };
+      struct Side {
+        int di, dj;
+        Eigen::Vector3d start, along, outward;
+      };
       const std::array<Side, 4> sides = {{
           {-1, 0, Eigen::Vector3d(x0, y0, 0), uy, -ux},
           {1, 0, Eigen::Vector3d(x0 + kTile, y0, 0), uy, ux},
@@ -179,35 +199,43 @@ TriangleMesh MakeDemoPart(double resolution_mm) {
         const double lo = TileHeight(i + s.di, j + s.dj);
         if (lo >= h) continue;
         const Eigen::Vector3d p0 = s.start + uz * lo;
-        AddQuadGrid(mesh, p0, s.along * kTile, uz * (h - lo), n_tile, Segments(h - lo, resolution_mm), s.outward);
+        AddQuadGrid(mesh, p0, s.along * kTile, uz * (h - lo), n_tile,
+                    Segments(h - lo, resolution_mm), s.outward);
       }
     }
   }
   // Bottom.
-  AddQuadGrid(mesh, Eigen::Vector3d(kX0, kY0, 0), ux * kTile * kTilesX, uy * kTile * kTilesY, kTilesX, kTilesY, -uz);
+  AddQuadGrid(mesh, Eigen::Vector3d(kX0, kY0, 0), ux * kTile * kTilesX, uy * kTile * kTilesY,
+              kTilesX, kTilesY, -uz);
 
   // Dome: the sphere's part above the top face (the rest is inside the block and not needed).
   const DemoPartFeatures f = DemoPartDescription();
-  const int n_sphere = std::max(16, 8 * static_cast<int>(std::ceil(2 * kPi * kSphereRadius / resolution_mm / 8)));
+  const int n_sphere =
+      std::max(16, 8 * static_cast<int>(std::ceil(2 * kPi * kSphereRadius / resolution_mm / 8)));
   // Polar angle from the top down to where the sphere meets the face z = h (cos = -lift / r).
   const double theta_max = std::acos(-kSphereLift / kSphereRadius);
-  const int n_theta = std::max(4, static_cast<int>(std::ceil(theta_max * kSphereRadius / resolution_mm)));
+  const int n_theta =
+      std::max(4, static_cast<int>(std::ceil(theta_max * kSphereRadius / resolution_mm)));
   std::vector<Eigen::Vector3d> grid;
   for (int r = 0; r <= n_theta; ++r) {
     const double theta = theta_max * r / n_theta;
     for (int k = 0; k <= n_sphere; ++k) {
       const double a = 2 * kPi * k / n_sphere;
-      grid.push_back(f.sphere_center_mm + kSphereRadius * Eigen::Vector3d(std::sin(theta) * std::cos(a),
-                                                                          std::sin(theta) * std::sin(a), std::cos(theta)));
+      grid.push_back(f.sphere_center_mm +
+                     kSphereRadius * Eigen::Vector3d(std::sin(theta) * std::cos(a),
+                                                     std::sin(theta) * std::sin(a),
+                                                     std::cos(theta)));
     }
   }
-  AddPointGrid(mesh, grid, n_theta, n_sphere, [&](const Eigen::Vector3d& p) { return p - f.sphere_center_mm; });
+  AddPointGrid(mesh, grid, n_theta, n_sphere,
+               [&](const Eigen::Vector3d& p) { return p - f.sphere_center_mm; });
   return mesh;
 }
 
 TriangleMesh MakeSphereMesh(double radius_mm, int segments) {
-  SLSHADOW_THROW_IF(!(radius_mm > 0) || segments < 4, "sphere mesh: need radius_mm > 0 and segments >= 4 (got ",
-                    radius_mm, ", ", segments, ")");
+  SLSHADOW_THROW_IF(!(radius_mm > 0) || segments < 4,
+                    "sphere mesh: need radius_mm > 0 and segments >= 4 (got ", radius_mm, ", ",
+                    segments, ")");
   TriangleMesh mesh;
   const int rings = std::max(2, segments / 2);
   std::vector<Eigen::Vector3d> grid;
@@ -228,8 +256,8 @@ TriangleMesh MakeSphereMesh(double radius_mm, int segments) {
 BoardScene MakeCheckerboardScene(int inner_corners_x, int inner_corners_y, double square_mm,
                                  const Rigid3d& rig_from_board, double dark, double light) {
   SLSHADOW_THROW_IF(inner_corners_x < 2 || inner_corners_y < 2 || !(square_mm > 0),
-                    "checkerboard: need >= 2 x 2 inner corners and square_mm > 0 (got ", inner_corners_x, " x ",
-                    inner_corners_y, ", ", square_mm, ")");
+                    "checkerboard: need >= 2 x 2 inner corners and square_mm > 0 (got ",
+                    inner_corners_x, " x ", inner_corners_y, ", ", square_mm, ")");
   BoardScene out;
   out.scene.name = "checkerboard";
   SceneObject board;
@@ -244,10 +272,12 @@ BoardScene MakeCheckerboardScene(int inner_corners_x, int inner_corners_y, doubl
   // The plane primitive is centred at its origin: shift it under the board's squares plus a
   // one-square margin, and keep the board frame for the albedo (Albedo uses object coordinates,
   // so the object frame is the board frame and the plane is offset inside it).
-  const double width = (inner_corners_x + 3) * square_mm, height = (inner_corners_y + 3) * square_mm;
+  const double width = (inner_corners_x + 3) * square_mm,
+               height = (inner_corners_y + 3) * square_mm;
   board.size_mm = Eigen::Vector3d(width, height, 0);
   // Plane centre in the board frame.
-  const Eigen::Vector3d center_in_board((inner_corners_x - 1) * square_mm / 2, (inner_corners_y - 1) * square_mm / 2, 0);
+  const Eigen::Vector3d center_in_board((inner_corners_x - 1) * square_mm / 2,
+                                        (inner_corners_y - 1) * square_mm / 2, 0);
   board.rig_from_object = rig_from_board * Rigid3d(Eigen::Quaterniond::Identity(), center_in_board);
   board.albedo_offset_mm = Eigen::Vector2d(center_in_board.x(), center_in_board.y());
   out.scene.objects.push_back(board);
@@ -267,12 +297,13 @@ BoardScene MakeCheckerboardScene(int inner_corners_x, int inner_corners_y, doubl
   return out;
 }
 
-Scene MakeImageBoardScene(const cv::Mat& image, double pixel_mm, const Rigid3d& rig_from_board, double margin_mm,
-                          double light) {
-  SLSHADOW_THROW_IF(image.empty() || image.type() != CV_8UC1, "image board: need a non-empty 8-bit grey image (got type ",
-                    image.type(), ")");
-  SLSHADOW_THROW_IF(!(pixel_mm > 0) || !(margin_mm >= 0), "image board: need pixel_mm > 0 and margin_mm >= 0 (got ", pixel_mm,
-                    ", ", margin_mm, ")");
+Scene MakeImageBoardScene(const cv::Mat& image, double pixel_mm, const Rigid3d& rig_from_board,
+                          double margin_mm, double light) {
+  SLSHADOW_THROW_IF(image.empty() || image.type() != CV_8UC1,
+                    "image board: need a non-empty 8-bit grey image (got type ", image.type(), ")");
+  SLSHADOW_THROW_IF(!(pixel_mm > 0) || !(margin_mm >= 0),
+                    "image board: need pixel_mm > 0 and margin_mm >= 0 (got ", pixel_mm, ", ",
+                    margin_mm, ")");
   Scene scene;
   scene.name = "image_board";
   SceneObject board;

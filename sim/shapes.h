@@ -55,13 +55,14 @@ struct BoardScene {
   std::vector<Eigen::Vector3d> corners_in_board;
 };
 BoardScene MakeCheckerboardScene(int inner_corners_x, int inner_corners_y, double square_mm,
-                                 const Rigid3d& rig_from_board, double dark = 0.05, double light = 0.9);
+                                 const Rigid3d& rig_from_board, double dark = 0.05,
+                                 double light = 0.9);
 
 // A plane printed with an arbitrary grey image (e.g. a ChArUco board drawn with cv::aruco):
 // image pixel (u, v) covers [u, u+1] x [v, v+1] * pixel_mm of the board frame's x-y plane, so
 // the image's top-left corner is the board origin; a margin_mm white (`light`) border surrounds
 // it. The image is CV_8UC1 (0..255 -> albedo 0..1).
-Scene MakeImageBoardScene(const cv::Mat& image, double pixel_mm, const Rigid3d& rig_from_board, double margin_mm = 10,
-                          double light = 0.9);
+Scene MakeImageBoardScene(const cv::Mat& image, double pixel_mm, const Rigid3d& rig_from_board,
+                          double margin_mm = 10, double light = 0.9);
 
 }  // namespace slshadow

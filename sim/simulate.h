@@ -30,8 +30,8 @@
 
 #include "core/image_set.h"
 #include "core/point_cloud.h"
-#include "core/provenance.h"
 #include "core/projector_map.h"
+#include "core/provenance.h"
 #include "core/rig.h"
 #include "sim/renderer.h"
 #include "sim/scene.h"
@@ -41,8 +41,8 @@ namespace slshadow {
 class ConfigNode;
 
 struct SimulateOptions {
-  ImageSetWriterOptions writer;     // encoding (PNG, PGM = fastest lossless, TIFF), overwrite
-  bool write_ground_truth = true;   // DIR/ground_truth/<camera>/...; false: not even computed
+  ImageSetWriterOptions writer;    // encoding (PNG, PGM = fastest lossless, TIFF), overwrite
+  bool write_ground_truth = true;  // DIR/ground_truth/<camera>/...; false: not even computed
   TraceMode trace_mode = TraceMode::kPacket16;
   // A BVH built once for many scans of this scene (RayCaster of the same Scene object), or null:
   // SimulateScan builds its own.
@@ -59,7 +59,8 @@ SimulateOptions SimulateOptionsFromConfig(const ConfigNode& node);
 
 // The provenance of a virtual scan of `scene` rendered with `options` (core/provenance.h): the
 // scene's source config and folder, its summary, the options; `generator` names the writer.
-ScanProvenance VirtualScanProvenance(const Scene& scene, const SimulateOptions& options, const std::string& generator);
+ScanProvenance VirtualScanProvenance(const Scene& scene, const SimulateOptions& options,
+                                     const std::string& generator);
 
 struct SimulateSummary {
   int cameras = 0;
@@ -91,22 +92,27 @@ class Simulator {
  public:
   // Builds the BVH of `scene`, traces the rig's cameras, then frees the BVH. ground_truth =
   // false: geometry buffers without the ground-truth maps (TraceGeometry), images only.
-  Simulator(const Scene& scene, const Rig& rig, TraceMode mode = TraceMode::kPacket16, bool ground_truth = true);
+  Simulator(const Scene& scene, const Rig& rig, TraceMode mode = TraceMode::kPacket16,
+            bool ground_truth = true);
   // Traces with a BVH built once by the caller, e.g. for many scans of one part from other rig
   // poses or by other rigs: a scan then costs its geometry passes and pattern passes, not the
   // build. The scene is `caster.scene()`; `caster` is needed only
   // during construction.
-  Simulator(const RayCaster& caster, const Rig& rig, TraceMode mode = TraceMode::kPacket16, bool ground_truth = true);
+  Simulator(const RayCaster& caster, const Rig& rig, TraceMode mode = TraceMode::kPacket16,
+            bool ground_truth = true);
   ~Simulator();
   int num_cameras() const { return static_cast<int>(geometry_.size()); }
-  const GeometryBuffer& geometry(int camera) const { return geometry_.at(static_cast<size_t>(camera)); }
+  const GeometryBuffer& geometry(int camera) const {
+    return geometry_.at(static_cast<size_t>(camera));
+  }
   // Hands the geometry buffers over (no copy); the Simulator has no cameras afterwards.
   std::vector<GeometryBuffer> ReleaseGeometry() { return std::move(geometry_); }
   // Timings of the set-up: BVH, camera rays, geometry passes.
   const SimulateSummary& setup() const { return setup_; }
   // images[camera][pattern] for `scene` (the constructor's scene, or a copy of it with other
   // radiometry / layers of the kinds listed above). `summary` gets render_seconds added.
-  std::vector<std::vector<cv::Mat>> Render(const std::vector<cv::Mat>& projector_images, const Scene* scene = nullptr,
+  std::vector<std::vector<cv::Mat>> Render(const std::vector<cv::Mat>& projector_images,
+                                           const Scene* scene = nullptr,
                                            SimulateSummary* summary = nullptr) const;
 
  private:
@@ -119,7 +125,8 @@ class Simulator {
 
 // Renders all images in memory: images[camera][pattern]. `geometry`, if not null, receives the
 // geometry buffers (ground truth) per camera.
-std::vector<std::vector<cv::Mat>> RenderScan(const Scene& scene, const Rig& rig, const std::vector<cv::Mat>& projector_images,
+std::vector<std::vector<cv::Mat>> RenderScan(const Scene& scene, const Rig& rig,
+                                             const std::vector<cv::Mat>& projector_images,
                                              std::vector<GeometryBuffer>* geometry = nullptr,
                                              SimulateSummary* summary = nullptr,
                                              TraceMode mode = TraceMode::kPacket16);
@@ -128,14 +135,17 @@ std::vector<std::vector<cv::Mat>> RenderScan(const Scene& scene, const Rig& rig,
 // `pattern_spec` is stored as the manifest's `patterns` (what patterns/ PatternSpecToJson gives).
 // Throws slshadow::Error on an invalid scene / rig, projector images of the wrong size, or an
 // existing out_dir without options.writer.overwrite.
-SimulateSummary SimulateScan(const Scene& scene, const Rig& rig, const std::vector<cv::Mat>& projector_images,
-                             const nlohmann::json& pattern_spec, const std::filesystem::path& out_dir,
+SimulateSummary SimulateScan(const Scene& scene, const Rig& rig,
+                             const std::vector<cv::Mat>& projector_images,
+                             const nlohmann::json& pattern_spec,
+                             const std::filesystem::path& out_dir,
                              const SimulateOptions& options = {});
 
 // Ground truth of one camera as files (layout above) and back (sim/ground_truth.cc).
 void WriteGroundTruth(const GeometryBuffer& geometry, const std::filesystem::path& dir);
 struct GroundTruth {
-  cv::Mat depth_mm, point_in_rig, normal_in_rig, visibility, object_id;  // object_id CV_32SC1, -1 none
+  cv::Mat depth_mm, point_in_rig, normal_in_rig, visibility,
+      object_id;           // object_id CV_32SC1, -1 none
   ProjectorMap projector;  // status valid / shadow; quality 0
 };
 GroundTruth ReadGroundTruth(const std::filesystem::path& dir);

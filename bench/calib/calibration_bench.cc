@@ -1,5 +1,6 @@
 // Calibration speed against OpenCV on the same corners (docs/benchmarks.md, "Calibration").
-//   build-*/bench/calib/calib_bench --benchmark_repetitions=5 --benchmark_report_aggregates_only=true
+//   build-*/bench/calib/calib_bench --benchmark_repetitions=5
+//   --benchmark_report_aggregates_only=true
 #include <benchmark/benchmark.h>
 
 #include <cstdio>
@@ -15,14 +16,16 @@ namespace {
 
 const CalibrationInput& LeftInput() {
   static const CalibrationInput input = [] {
-    const TargetSpec spec = LoadTargetSpec(std::string(SLSHADOW_SOURCE_DIR) + "/config/targets/opencv-stereo-chessboard.yaml");
+    const TargetSpec spec = LoadTargetSpec(std::string(SLSHADOW_SOURCE_DIR) +
+                                           "/config/targets/opencv-stereo-chessboard.yaml");
     const auto board = BoardPoints(spec);
     CalibrationInput in;
     in.devices = {CalibrationDevice::Camera("left", 640, 480)};
     int p = 0;
     for (int i : {1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 12, 13, 14}) {
       char name[256];
-      std::snprintf(name, sizeof(name), "%s/opencv-stereo-chessboard/left%02d.jpg", SLSHADOW_SHARED_DATA_DIR, i);
+      std::snprintf(name, sizeof(name), "%s/opencv-stereo-chessboard/left%02d.jpg",
+                    SLSHADOW_SHARED_DATA_DIR, i);
       const TargetDetection det = DetectTargetInFile(spec, name);
       BoardView v;
       v.pose = p++;
@@ -55,8 +58,10 @@ void BM_OpenCvCalibrateCameraLeft(benchmark::State& state) {
     obj.emplace_back();
     img.emplace_back();
     for (size_t i = 0; i < v.pixels_px.size(); ++i) {
-      obj.back().emplace_back(static_cast<float>(v.points_in_board_mm[i].x()), static_cast<float>(v.points_in_board_mm[i].y()), 0.f);
-      img.back().emplace_back(static_cast<float>(v.pixels_px[i].x()), static_cast<float>(v.pixels_px[i].y()));
+      obj.back().emplace_back(static_cast<float>(v.points_in_board_mm[i].x()),
+                              static_cast<float>(v.points_in_board_mm[i].y()), 0.f);
+      img.back().emplace_back(static_cast<float>(v.pixels_px[i].x()),
+                              static_cast<float>(v.pixels_px[i].y()));
     }
   }
   double rms = 0;
@@ -73,7 +78,9 @@ void BM_UncertaintyMap640x480(benchmark::State& state) {
   CalibrationOptions o;
   o.fix_aspect_ratio = true;
   const CalibrationResult r = Calibrate(LeftInput(), o);
-  for (auto _ : state) benchmark::DoNotOptimize(ProjectionUncertaintyMap(r.devices[0].model, r.intrinsics_covariance[0], 16).median);
+  for (auto _ : state)
+    benchmark::DoNotOptimize(
+        ProjectionUncertaintyMap(r.devices[0].model, r.intrinsics_covariance[0], 16).median);
 }
 BENCHMARK(BM_UncertaintyMap640x480)->Unit(benchmark::kMillisecond);
 

@@ -4,10 +4,10 @@
 //
 //   build/bench/capture/aravis_bench --benchmark_repetitions=3 --benchmark_report_aggregates_only
 //
-// Arguments: packet size in bytes, the camera's free-run rate in frames/s, socket buffer. Counters: fps (complete
-// frames per second, first to last), lost (frames served but not delivered complete: damaged or
-// lost whole), bad (complete frames whose content differs from what was served; checked on every
-// 25th frame).
+// Arguments: packet size in bytes, the camera's free-run rate in frames/s, socket buffer. Counters:
+// fps (complete frames per second, first to last), lost (frames served but not delivered complete:
+// damaged or lost whole), bad (complete frames whose content differs from what was served; checked
+// on every 25th frame).
 #include <benchmark/benchmark.h>
 
 #include <atomic>
@@ -60,7 +60,8 @@ RunResult Receive(Camera& camera, const cv::Mat& served) {
   return r;
 }
 
-std::unique_ptr<Camera> OpenFullFrame(const std::string& address, int packet_size, int socket_buffer) {
+std::unique_ptr<Camera> OpenFullFrame(const std::string& address, int packet_size,
+                                      int socket_buffer) {
   auto camera = OpenAravisCamera(AravisOpenOptions{.device = address, .n_buffers = 16});
   CameraSettings s;
   s.pixel_format = PixelFormat::kMono8;
@@ -92,10 +93,12 @@ void BM_OneCamera(benchmark::State& state) {
     return;
   }
   const cv::Mat served = TestImage(1);
-  testing::FakeGvCamera fake({.address = "127.0.0.2", .frame_rate_hz = static_cast<double>(state.range(1)),
+  testing::FakeGvCamera fake({.address = "127.0.0.2",
+                              .frame_rate_hz = static_cast<double>(state.range(1)),
                               .keep_served = 0});
   fake.SetFill([&served](const testing::FakeFrameRequest&) { return served; });
-  auto camera = OpenFullFrame(fake.address(), static_cast<int>(state.range(0)), static_cast<int>(state.range(2)));
+  auto camera = OpenFullFrame(fake.address(), static_cast<int>(state.range(0)),
+                              static_cast<int>(state.range(2)));
   for (auto _ : state) {
     const RunResult r = Receive(*camera, served);
     state.SetIterationTime(r.seconds);
@@ -111,11 +114,14 @@ void BM_TwoCameras(benchmark::State& state) {
   }
   const cv::Mat served_left = TestImage(1), served_right = TestImage(2);
   const double rate = static_cast<double>(state.range(1));
-  testing::FakeGvCamera left({.address = "127.0.0.2", .serial = "LEFT", .frame_rate_hz = rate, .keep_served = 0});
-  testing::FakeGvCamera right({.address = "127.0.0.3", .serial = "RIGHT", .frame_rate_hz = rate, .keep_served = 0});
+  testing::FakeGvCamera left(
+      {.address = "127.0.0.2", .serial = "LEFT", .frame_rate_hz = rate, .keep_served = 0});
+  testing::FakeGvCamera right(
+      {.address = "127.0.0.3", .serial = "RIGHT", .frame_rate_hz = rate, .keep_served = 0});
   left.SetFill([&](const testing::FakeFrameRequest&) { return served_left; });
   right.SetFill([&](const testing::FakeFrameRequest&) { return served_right; });
-  const int packet = static_cast<int>(state.range(0)), socket_buffer = static_cast<int>(state.range(2));
+  const int packet = static_cast<int>(state.range(0)),
+            socket_buffer = static_cast<int>(state.range(2));
   auto cam_left = OpenFullFrame(left.address(), packet, socket_buffer);
   auto cam_right = OpenFullFrame(right.address(), packet, socket_buffer);
   for (auto _ : state) {
@@ -130,10 +136,20 @@ void BM_TwoCameras(benchmark::State& state) {
 
 // Arguments: packet size (bytes), free-run rate asked of the camera (240/s is the goal; 1000/s
 // means as fast as it can send), socket buffer (0: one frame, Aravis's automatic size).
-BENCHMARK(BM_OneCamera)->Args({1400, 1000, 0})->Args({8192, 240, 0})->Args({8192, 1000, 0})
-    ->Iterations(1)->UseManualTime()->Unit(benchmark::kMillisecond);
-BENCHMARK(BM_TwoCameras)->Args({8192, 240, 0})->Args({8192, 240, 4 << 20})->Args({8192, 1000, 4 << 20})
-    ->Iterations(1)->UseManualTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_OneCamera)
+    ->Args({1400, 1000, 0})
+    ->Args({8192, 240, 0})
+    ->Args({8192, 1000, 0})
+    ->Iterations(1)
+    ->UseManualTime()
+    ->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_TwoCameras)
+    ->Args({8192, 240, 0})
+    ->Args({8192, 240, 4 << 20})
+    ->Args({8192, 1000, 4 << 20})
+    ->Iterations(1)
+    ->UseManualTime()
+    ->Unit(benchmark::kMillisecond);
 
 }  // namespace
 }  // namespace slshadow::capture

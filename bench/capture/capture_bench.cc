@@ -7,11 +7,12 @@
 //                 wall time minus the time inside Show / wait / Trigger / Grab / Flush)
 //   overhead_cpu_ms the same on the sequencer thread's CPU clock (not inflated by other load)
 //   pattern_ms    wall time per pattern, devices included
-// Run: build/bench/capture/capture_bench --benchmark_repetitions=5 (validate:1/stride:0 is the default)
+// Run: build/bench/capture/capture_bench --benchmark_repetitions=5 (validate:1/stride:0 is the
+// default)
 #include <benchmark/benchmark.h>
 
-#include <filesystem>
 #include <unistd.h>
+#include <filesystem>
 
 #include <opencv2/imgproc.hpp>
 
@@ -27,9 +28,12 @@ namespace fs = std::filesystem;
 // for the transfer).
 class PrerenderedCamera : public Camera {
  public:
-  PrerenderedCamera(const doubles::TestProjector& projector, std::vector<cv::Mat> renders, std::string serial)
+  PrerenderedCamera(const doubles::TestProjector& projector, std::vector<cv::Mat> renders,
+                    std::string serial)
       : projector_(projector), renders_(std::move(renders)), serial_(std::move(serial)) {}
-  CameraInfo Info() const override { return {"test", serial_, "slshadow", "prerendered", serial_, 1920, 1200, {PixelFormat::kMono8}}; }
+  CameraInfo Info() const override {
+    return {"test", serial_, "slshadow", "prerendered", serial_, 1920, 1200, {PixelFormat::kMono8}};
+  }
   void Configure(const CameraSettings& s) override { settings_ = s; }
   CameraSettings Settings() const override { return settings_; }
   void Start() override {}
@@ -64,8 +68,10 @@ void BM_SequencerStereo1920x1200(benchmark::State& state) {
   Rig rig;
   rig.name = "bench";
   rig.cameras.push_back({"left", CameraModel(1920, 1200, 2700, 2700, 959.5, 599.5), Rigid3d()});
-  rig.cameras.push_back({"right", CameraModel(1920, 1200, 2700, 2700, 959.5, 599.5), Rigid3d(Eigen::Quaterniond::Identity(), {-100, 0, 0})});
-  rig.projector = RigDevice{"projector", CameraModel(1280, 800, 1500, 1500, 639.5, 399.5), Rigid3d()};
+  rig.cameras.push_back({"right", CameraModel(1920, 1200, 2700, 2700, 959.5, 599.5),
+                         Rigid3d(Eigen::Quaterniond::Identity(), {-100, 0, 0})});
+  rig.projector =
+      RigDevice{"projector", CameraModel(1280, 800, 1500, 1500, 639.5, 399.5), Rigid3d()};
   std::vector<cv::Mat> projected = GeneratePatterns(spec);
   projected.push_back(cv::Mat(800, 1280, CV_8UC1, cv::Scalar(255)));
   projected.push_back(cv::Mat(800, 1280, CV_8UC1, cv::Scalar(0)));
@@ -81,8 +87,9 @@ void BM_SequencerStereo1920x1200(benchmark::State& state) {
   }
   doubles::TestProjector projector(1280, 800);
   PrerenderedCamera left(projector, left_renders, "L"), right(projector, right_renders, "R");
-  const std::vector<CaptureCamera> cameras = {{"left", &left, {}, std::chrono::milliseconds(100)},
-                                              {"right", &right, {}, std::chrono::milliseconds(100)}};
+  const std::vector<CaptureCamera> cameras = {
+      {"left", &left, {}, std::chrono::milliseconds(100)},
+      {"right", &right, {}, std::chrono::milliseconds(100)}};
   SequencerOptions options;
   options.progress = false;
   options.validate = validate;
@@ -114,7 +121,9 @@ BENCHMARK(BM_SequencerStereo1920x1200)
     ->Args({1, 0})  // validation, sampling stride chosen by the sequencer (8 here)
     ->Args({1, 4})  // validation, every 4th pixel
     ->Args({0, 0})  // no validation
-    ->ArgNames({"validate", "stride"})->Unit(benchmark::kMillisecond)->UseRealTime();
+    ->ArgNames({"validate", "stride"})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 }  // namespace
 }  // namespace slshadow::capture

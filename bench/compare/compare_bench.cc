@@ -34,7 +34,8 @@ const PointCloud& Cloud(int which) {
   static const std::vector<PointCloud> clouds = [] {
     std::vector<PointCloud> c(2);
     for (int i = 0; i < 2; ++i) {
-      c[static_cast<size_t>(i)].points = testing::SamplePart(1000000, 100.0, 81 + static_cast<unsigned>(i));
+      c[static_cast<size_t>(i)].points =
+          testing::SamplePart(1000000, 100.0, 81 + static_cast<unsigned>(i));
       std::mt19937 rng(91);
       std::normal_distribution<double> g(0.0, 0.05);
       for (auto& p : c[static_cast<size_t>(i)].points) {
@@ -50,8 +51,10 @@ const PointCloud& Cloud(int which) {
   return clouds[static_cast<size_t>(which)];
 }
 
-// Wall seconds of kd-tree build + queries; *cpu_s (when given) the process CPU seconds (all threads).
-double Ours(const PointCloud& compared, const PointCloud& reference, double* mean, double* cpu_s = nullptr) {
+// Wall seconds of kd-tree build + queries; *cpu_s (when given) the process CPU seconds (all
+// threads).
+double Ours(const PointCloud& compared, const PointCloud& reference, double* mean,
+            double* cpu_s = nullptr) {
   const std::clock_t c0 = std::clock();
   const auto t0 = std::chrono::steady_clock::now();
   const KdTree tree(reference.points);
@@ -95,9 +98,10 @@ void BM_C2C_1M_vs_CloudCompare(benchmark::State& state) {
   int n = 0;
   for (auto _ : state) {
     const double ours = Ours(Cloud(0), Cloud(1), &mean);
-    const std::string cmd = "cd '" + dir.string() +
-                            "' && QT_QPA_PLATFORM=offscreen CloudCompare -SILENT -NO_TIMESTAMP -C_EXPORT_FMT PLY "
-                            "-O a.ply -O b.ply -C2C_DIST > cc.log 2>&1";
+    const std::string cmd =
+        "cd '" + dir.string() +
+        "' && QT_QPA_PLATFORM=offscreen CloudCompare -SILENT -NO_TIMESTAMP -C_EXPORT_FMT PLY "
+        "-O a.ply -O b.ply -C2C_DIST > cc.log 2>&1";
     if (std::system(cmd.c_str()) != 0) {
       state.SkipWithError("CloudCompare failed");
       break;
@@ -108,11 +112,13 @@ void BM_C2C_1M_vs_CloudCompare(benchmark::State& state) {
     const std::string s = text.str();
     double cc = 0;
     const std::regex time_re(R"(\[(computeApproxDistances|ComputeDistances)\] Time: ([0-9.]+) s)");
-    for (auto it = std::sregex_iterator(s.begin(), s.end(), time_re); it != std::sregex_iterator(); ++it) {
+    for (auto it = std::sregex_iterator(s.begin(), s.end(), time_re); it != std::sregex_iterator();
+         ++it) {
       cc += std::stod((*it)[2]);
     }
     std::smatch m;
-    if (std::regex_search(s, m, std::regex(R"(Mean distance = ([0-9.eE+-]+))"))) cc_mean = std::stod(m[1]);
+    if (std::regex_search(s, m, std::regex(R"(Mean distance = ([0-9.eE+-]+))")))
+      cc_mean = std::stod(m[1]);
     ours_total += ours;
     cc_total += cc;
     ++n;
@@ -133,7 +139,8 @@ void BM_C2M_1M(benchmark::State& state) {
   std::vector<Eigen::Vector3d> pts;
   std::mt19937 rng(92);
   std::normal_distribution<double> g;
-  for (int i = 0; i < 1000000; ++i) pts.push_back((50.0 + 0.1 * g(rng)) * Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized());
+  for (int i = 0; i < 1000000; ++i)
+    pts.push_back((50.0 + 0.1 * g(rng)) * Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized());
   for (auto _ : state) {
     const C2MResult r = CloudToMesh(pts, mesh);
     benchmark::DoNotOptimize(r.signed_distances_mm.data());
@@ -144,12 +151,14 @@ BENCHMARK(BM_C2M_1M)->UseRealTime()->Unit(benchmark::kMillisecond)->Iterations(3
 void BM_Register_200k(benchmark::State& state) {
   const auto reference = testing::SamplePart(200000, 100.0, 31);
   const Rigid3d cloud_from_reference(
-      Eigen::Quaterniond(Eigen::AngleAxisd(20.0 * M_PI / 180.0, Eigen::Vector3d(1, 2, 3).normalized())),
+      Eigen::Quaterniond(
+          Eigen::AngleAxisd(20.0 * M_PI / 180.0, Eigen::Vector3d(1, 2, 3).normalized())),
       Eigen::Vector3d(6.0, -6.4, 4.8));
   auto cloud = testing::SamplePart(200000, 100.0, 32);
   std::mt19937 rng(33);
   std::normal_distribution<double> noise(0.0, 0.1);
-  for (auto& p : cloud) p = cloud_from_reference * (p + Eigen::Vector3d(noise(rng), noise(rng), noise(rng)));
+  for (auto& p : cloud)
+    p = cloud_from_reference * (p + Eigen::Vector3d(noise(rng), noise(rng), noise(rng)));
   RegistrationResult r;
   for (auto _ : state) {
     r = Register(cloud, reference, {}, RegistrationOptions{});

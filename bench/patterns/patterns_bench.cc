@@ -83,7 +83,8 @@ void BM_OpenCv_GrayCodePattern_decode(benchmark::State& state) {
   cv::structured_light::GrayCodePattern::Params params;
   params.width = kProjW;
   params.height = kProjH;
-  const cv::Ptr<cv::structured_light::GrayCodePattern> graycode = cv::structured_light::GrayCodePattern::create(params);
+  const cv::Ptr<cv::structured_light::GrayCodePattern> graycode =
+      cv::structured_light::GrayCodePattern::create(params);
   graycode->setWhiteThreshold(4);
   graycode->setBlackThreshold(12);
   const size_t n = graycode->getNumberOfPatternImages();
@@ -92,7 +93,8 @@ void BM_OpenCv_GrayCodePattern_decode(benchmark::State& state) {
   const std::vector<cv::Mat> white = {images[n], images[n]}, black = {images[n + 1], images[n + 1]};
   for (auto _ : state) {
     cv::Mat disparity;
-    const bool ok = graycode->decode(pattern, disparity, black, white, cv::structured_light::DECODE_3D_UNDERWORLD);
+    const bool ok = graycode->decode(pattern, disparity, black, white,
+                                     cv::structured_light::DECODE_3D_UNDERWORLD);
     benchmark::DoNotOptimize(ok);
   }
   Report(state, 2 * int64_t{kCamW} * kCamH);
@@ -128,17 +130,32 @@ void BM_OpenCv_GrayCodePattern_getProjPixel(benchmark::State& state) {
 // Arg 1: rows in parallel (cv::parallel_for_), wall-clock time; arg 0: one thread, CPU time
 // (robust on a loaded machine: the per-core throughput).
 BENCHMARK_CAPTURE(BM_Slshadow_Decode, gray_code_phase_shift, PhaseSpec())
-    ->ArgName("parallel")->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime();
+    ->ArgName("parallel")
+    ->Arg(1)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 BENCHMARK_CAPTURE(BM_Slshadow_Decode, gray_code_phase_shift, PhaseSpec())
-    ->ArgName("parallel")->Arg(0)->Unit(benchmark::kMillisecond);
+    ->ArgName("parallel")
+    ->Arg(0)
+    ->Unit(benchmark::kMillisecond);
 BENCHMARK_CAPTURE(BM_Slshadow_Decode, gray_code_opencv_order, GraySpec())
-    ->ArgName("parallel")->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime();
+    ->ArgName("parallel")
+    ->Arg(1)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 BENCHMARK_CAPTURE(BM_Slshadow_Decode, gray_code_opencv_order, GraySpec())
-    ->ArgName("parallel")->Arg(0)->Unit(benchmark::kMillisecond);
+    ->ArgName("parallel")
+    ->Arg(0)
+    ->Unit(benchmark::kMillisecond);
 BENCHMARK_CAPTURE(BM_Slshadow_Decode, multi_frequency, MultiSpec())
-    ->ArgName("parallel")->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime();
+    ->ArgName("parallel")
+    ->Arg(1)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 BENCHMARK_CAPTURE(BM_Slshadow_Decode, multi_frequency, MultiSpec())
-    ->ArgName("parallel")->Arg(0)->Unit(benchmark::kMillisecond);
+    ->ArgName("parallel")
+    ->Arg(0)
+    ->Unit(benchmark::kMillisecond);
 // OpenCV runs on one thread: CPU time.
 BENCHMARK(BM_OpenCv_GrayCodePattern_decode)->Unit(benchmark::kMillisecond)->Iterations(2);
 BENCHMARK(BM_OpenCv_GrayCodePattern_getProjPixel)->Unit(benchmark::kMillisecond)->Iterations(3);

@@ -34,7 +34,8 @@ struct Fixture {
     const std::vector<cv::Mat> patterns = GeneratePatterns(spec);
     const Eigen::Vector3d n = Eigen::Vector3d(0.1, -0.12, -1.0).normalized();
     for (const auto& cam : rig.cameras) {
-      const auto view = testing::RenderAnalytic(rig, cam, testing::Plane(n, n.dot(Eigen::Vector3d(0, 0, 520))));
+      const auto view =
+          testing::RenderAnalytic(rig, cam, testing::Plane(n, n.dot(Eigen::Vector3d(0, 0, 520))));
       CameraSimOptions sim;
       sim.noise_sigma = 1.0;
       images[cam.name] = SimulateCameraImages(patterns, view.map.proj_x, view.map.proj_y, sim);
@@ -51,9 +52,11 @@ const Fixture& GetFixture() {
 void BM_Decode2Cameras(benchmark::State& state) {
   const Fixture& f = GetFixture();
   for (auto _ : state) {
-    for (const auto& [name, images] : f.images) benchmark::DoNotOptimize(DecodePatterns(f.spec, images));
+    for (const auto& [name, images] : f.images)
+      benchmark::DoNotOptimize(DecodePatterns(f.spec, images));
   }
-  state.counters["MPix/s"] = benchmark::Counter(2 * 1920 * 1200 / 1e6, benchmark::Counter::kIsIterationInvariantRate);
+  state.counters["MPix/s"] =
+      benchmark::Counter(2 * 1920 * 1200 / 1e6, benchmark::Counter::kIsIterationInvariantRate);
 }
 
 void BM_TriangulateProjector2Cameras(benchmark::State& state) {
@@ -63,7 +66,9 @@ void BM_TriangulateProjector2Cameras(benchmark::State& state) {
   int64_t points = 0;
   for (auto _ : state) {
     points = 0;
-    for (const auto& cam : f.rig.cameras) points += ReconstructWithProjector(f.rig, cam.name, f.maps.at(cam.name), options).summary.points;
+    for (const auto& cam : f.rig.cameras)
+      points +=
+          ReconstructWithProjector(f.rig, cam.name, f.maps.at(cam.name), options).summary.points;
   }
   state.counters["points"] = static_cast<double>(points);
   state.SetLabel(ToString(options.method));
@@ -74,7 +79,10 @@ void BM_TriangulateStereo(benchmark::State& state) {
   ReconstructOptions options;
   options.method = static_cast<TriangulationMethod>(state.range(0));
   int64_t points = 0;
-  for (auto _ : state) points = ReconstructStereo(f.rig, "left", "right", f.maps.at("left"), f.maps.at("right"), options).summary.points;
+  for (auto _ : state)
+    points =
+        ReconstructStereo(f.rig, "left", "right", f.maps.at("left"), f.maps.at("right"), options)
+            .summary.points;
   state.counters["points"] = static_cast<double>(points);
   state.SetLabel(ToString(options.method));
 }
@@ -86,7 +94,9 @@ void BM_DecodeAndReconstruct(benchmark::State& state) {
   ImageSetReconstructOptions options;
   options.mode = static_cast<ReconstructMode>(state.range(0));
   int64_t points = 0;
-  for (auto _ : state) points = static_cast<int64_t>(ReconstructFromImages(f.rig, f.spec, f.images, options).cloud.size());
+  for (auto _ : state)
+    points =
+        static_cast<int64_t>(ReconstructFromImages(f.rig, f.spec, f.images, options).cloud.size());
   state.counters["points"] = static_cast<double>(points);
   state.SetLabel(ToString(options.mode));
 }
@@ -104,9 +114,12 @@ const OpenCvInput& GetOpenCvInput() {
   static const OpenCvInput in = [] {
     const Fixture& f = GetFixture();
     OpenCvInput in;
-    auto k = [](const CameraModel& m) -> cv::Mat { return cv::Mat((cv::Mat_<double>(3, 3) << m.fx(), 0, m.cx(), 0, m.fy(), m.cy(), 0, 0, 1)); };
+    auto k = [](const CameraModel& m) -> cv::Mat {
+      return cv::Mat((cv::Mat_<double>(3, 3) << m.fx(), 0, m.cx(), 0, m.fy(), m.cy(), 0, 0, 1));
+    };
     auto d = [](const CameraModel& m) -> cv::Mat {
-      return cv::Mat((cv::Mat_<double>(1, 5) << m.params[4], m.params[5], m.params[6], m.params[7], m.params[8]));
+      return cv::Mat((cv::Mat_<double>(1, 5) << m.params[4], m.params[5], m.params[6], m.params[7],
+                      m.params[8]));
     };
     auto p = [](const Rigid3d& pose) {
       cv::Mat out(3, 4, CV_64F);
@@ -164,11 +177,34 @@ void BM_RayGridColdCache(benchmark::State& state) {
 }
 
 BENCHMARK(BM_Decode2Cameras)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
-BENCHMARK(BM_TriangulateProjector2Cameras)->Arg(0)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
-BENCHMARK(BM_TriangulateStereo)->Arg(0)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
-BENCHMARK(BM_DecodeAndReconstruct)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
-BENCHMARK(BM_OpenCvUndistortTriangulate2Cameras)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
-BENCHMARK(BM_RayGridColdCache)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
+BENCHMARK(BM_TriangulateProjector2Cameras)
+    ->Arg(0)
+    ->Arg(1)
+    ->Arg(2)
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->UseRealTime();
+BENCHMARK(BM_TriangulateStereo)
+    ->Arg(0)
+    ->Arg(1)
+    ->Arg(2)
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->UseRealTime();
+BENCHMARK(BM_DecodeAndReconstruct)
+    ->Arg(0)
+    ->Arg(1)
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->UseRealTime();
+BENCHMARK(BM_OpenCvUndistortTriangulate2Cameras)
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->UseRealTime();
+BENCHMARK(BM_RayGridColdCache)
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->UseRealTime();
 
 }  // namespace
 }  // namespace slshadow

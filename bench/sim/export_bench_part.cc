@@ -1,5 +1,6 @@
-// export_bench_part: writes the scene of sim_bench's 1 M-triangle workload (BM_PaperWorkloadWritten)
-// for the same-run peer in bench/paper_peer/ (docs/benchmarks.md). Not a test.
+// export_bench_part: writes the scene of sim_bench's 1 M-triangle workload
+// (BM_PaperWorkloadWritten) for the same-run peer in bench/paper_peer/ (docs/benchmarks.md). Not a
+// test.
 //
 //   export_bench_part SOURCE_DIR OUT_DIR [TRIANGLES=1000000]
 //
@@ -51,7 +52,8 @@ int Run(int argc, char** argv) {
   const Rig rig = LoadRig(source / "config/demo/rig.yaml");
   SLSHADOW_THROW_IF(scene.objects.empty() || scene.objects[0].type != ObjectType::kMesh,
                     "config/demo/scene.yaml: the first object is not a mesh");
-  scene.objects[0].mesh = std::make_shared<const TriangleMesh>(MakeDemoPart(DemoPartResolutionFor(triangles)));
+  scene.objects[0].mesh =
+      std::make_shared<const TriangleMesh>(MakeDemoPart(DemoPartResolutionFor(triangles)));
 
   std::ofstream list(out / "scene.txt");
   const SceneObject& part = scene.objects[0];
@@ -70,12 +72,15 @@ int Run(int argc, char** argv) {
     WriteMesh(out / file, Posed(plane, o.rig_from_object));
     list << o.name << " " << file << " " << o.albedo.value << "\n";
     const Eigen::Vector3d n = o.rig_from_object.rotation * Eigen::Vector3d::UnitZ();
-    std::cout << "plane " << o.name << ": " << o.size_mm.x() << " x " << o.size_mm.y() << " mm, centre "
-              << o.rig_from_object.translation.transpose() << ", normal " << n.transpose() << "\n";
+    std::cout << "plane " << o.name << ": " << o.size_mm.x() << " x " << o.size_mm.y()
+              << " mm, centre " << o.rig_from_object.translation.transpose() << ", normal "
+              << n.transpose() << "\n";
   }
-  const double d_ref = scene.radiometry.reference_distance_mm > 0 ? scene.radiometry.reference_distance_mm
-                                                                  : rig.working_distance_mm;
-  list << "exposure " << scene.radiometry.exposure << "\nreference_distance_mm " << d_ref << "\n";
+  const double d_ref = scene.radiometry.reference_distance_mm > 0
+                           ? scene.radiometry.reference_distance_mm
+                           : rig.working_distance_mm;
+  list << "exposure " << scene.radiometry.exposure_fraction << "\nreference_distance_mm " << d_ref
+       << "\n";
 
   // The part's silhouette per camera from slshadow's own geometry pass (object id 0 first hit).
   const RayCaster caster(scene);

@@ -40,8 +40,8 @@ const Rig& DemoRig() {
 // The demo scene with the part tessellated to about `triangles` triangles (86.7 k at 1 mm).
 Scene DemoScene(int64_t triangles) {
   Scene scene = LoadScene(kSource / "config/demo/scene.yaml");
-  scene.objects[0].mesh =
-      std::make_shared<const TriangleMesh>(MakeDemoPart(DemoPartResolutionFor(static_cast<double>(triangles))));
+  scene.objects[0].mesh = std::make_shared<const TriangleMesh>(
+      MakeDemoPart(DemoPartResolutionFor(static_cast<double>(triangles))));
   return scene;
 }
 
@@ -53,7 +53,8 @@ const Scene& CachedScene(int64_t triangles) {
 }
 
 const std::vector<cv::Mat>& Patterns() {
-  static const std::vector<cv::Mat> images = GeneratePatterns(LoadPatternSpec(kSource / "config/patterns/graycode_phase.yaml"));
+  static const std::vector<cv::Mat> images =
+      GeneratePatterns(LoadPatternSpec(kSource / "config/patterns/graycode_phase.yaml"));
   return images;
 }
 
@@ -76,7 +77,8 @@ Rig ScaledRig(double megapixels) {
 void BM_CameraRays(benchmark::State& state) {
   const CameraModel& cam = DemoRig().cameras[0].model;
   for (auto _ : state) benchmark::DoNotOptimize(ComputeCameraRays(cam, 1));
-  state.counters["Mrays/s"] = benchmark::Counter(1920.0 * 1200 / 1e6, benchmark::Counter::kIsIterationInvariantRate);
+  state.counters["Mrays/s"] =
+      benchmark::Counter(1920.0 * 1200 / 1e6, benchmark::Counter::kIsIterationInvariantRate);
 }
 BENCHMARK(BM_CameraRays)->Unit(benchmark::kMillisecond)->UseRealTime();
 
@@ -87,10 +89,17 @@ void BM_BuildBvh(benchmark::State& state) {
     RayCaster caster(scene);
     benchmark::DoNotOptimize(caster.num_triangles());
   }
-  state.counters["cpu_s"] = static_cast<double>(std::clock() - cpu0) / CLOCKS_PER_SEC / static_cast<double>(state.iterations());
+  state.counters["cpu_s"] = static_cast<double>(std::clock() - cpu0) / CLOCKS_PER_SEC /
+                            static_cast<double>(state.iterations());
   state.counters["triangles"] = static_cast<double>(scene.objects[0].mesh->NumTriangles());
 }
-BENCHMARK(BM_BuildBvh)->Arg(10000)->Arg(100000)->Arg(1000000)->Arg(5000000)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_BuildBvh)
+    ->Arg(10000)
+    ->Arg(100000)
+    ->Arg(1000000)
+    ->Arg(5000000)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 // Geometry pass of one 1920x1200 camera: primary + shadow rays; arg 1 = packet16, 0 = single ray.
 void BM_GeometryPass(benchmark::State& state) {
@@ -106,14 +115,21 @@ void BM_GeometryPass(benchmark::State& state) {
   }
   // Process CPU time over all threads: throughput per core-second, robust to other load.
   const double cpu_s = static_cast<double>(std::clock() - cpu0) / CLOCKS_PER_SEC;
-  state.counters["Mrays/cpu_s"] = static_cast<double>(n_rays) * static_cast<double>(state.iterations()) / 1e6 / cpu_s;
+  state.counters["Mrays/cpu_s"] =
+      static_cast<double>(n_rays) * static_cast<double>(state.iterations()) / 1e6 / cpu_s;
   state.counters["triangles"] = static_cast<double>(caster.num_triangles());
   state.counters["Mrays"] = static_cast<double>(n_rays) / 1e6;
-  state.counters["Mrays/s"] = benchmark::Counter(static_cast<double>(n_rays) / 1e6, benchmark::Counter::kIsIterationInvariantRate);
+  state.counters["Mrays/s"] = benchmark::Counter(static_cast<double>(n_rays) / 1e6,
+                                                 benchmark::Counter::kIsIterationInvariantRate);
 }
 BENCHMARK(BM_GeometryPass)
-    ->Args({10000, 1})->Args({100000, 1})->Args({1000000, 1})->Args({5000000, 1})->Args({1000000, 0})
-    ->Unit(benchmark::kMillisecond)->UseRealTime();
+    ->Args({10000, 1})
+    ->Args({100000, 1})
+    ->Args({1000000, 1})
+    ->Args({5000000, 1})
+    ->Args({1000000, 0})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 // Geometry pass vs camera resolution (0.3, 2.3, 12 MP), 1 M triangles.
 void BM_GeometryPassPixels(benchmark::State& state) {
@@ -128,16 +144,35 @@ void BM_GeometryPassPixels(benchmark::State& state) {
     n_rays = g.primary_rays + g.shadow_rays;
   }
   const double cpu_s = static_cast<double>(std::clock() - cpu0) / CLOCKS_PER_SEC;
-  state.counters["Mrays/cpu_s"] = static_cast<double>(n_rays) * static_cast<double>(state.iterations()) / 1e6 / cpu_s;
+  state.counters["Mrays/cpu_s"] =
+      static_cast<double>(n_rays) * static_cast<double>(state.iterations()) / 1e6 / cpu_s;
   state.counters["MP"] = rig.cameras[0].model.width * rig.cameras[0].model.height / 1e6;
-  state.counters["Mrays/s"] = benchmark::Counter(static_cast<double>(n_rays) / 1e6, benchmark::Counter::kIsIterationInvariantRate);
+  state.counters["Mrays/s"] = benchmark::Counter(static_cast<double>(n_rays) / 1e6,
+                                                 benchmark::Counter::kIsIterationInvariantRate);
 }
-BENCHMARK(BM_GeometryPassPixels)->Arg(3)->Arg(23)->Arg(120)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_GeometryPassPixels)
+    ->Arg(3)
+    ->Arg(23)
+    ->Arg(120)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 // One pattern image (1920x1200) from a geometry buffer, per layer configuration.
-enum LayerCase { kCore, kSupersampling2, kCameraDefocus, kProjectorDefocus, kGamma, kVignetting, kAmbient, kNoise, kFillFactor, kAll };
-const char* kLayerNames[] = {"core", "supersampling_2x2", "camera_defocus", "projector_defocus", "projector_gamma",
-                             "vignetting", "ambient", "noise", "fill_factor", "all_layers"};
+enum LayerCase {
+  kCore,
+  kSupersampling2,
+  kCameraDefocus,
+  kProjectorDefocus,
+  kGamma,
+  kVignetting,
+  kAmbient,
+  kNoise,
+  kFillFactor,
+  kAll
+};
+const char* kLayerNames[] = {
+    "core",       "supersampling_2x2", "camera_defocus", "projector_defocus", "projector_gamma",
+    "vignetting", "ambient",           "noise",          "fill_factor",       "all_layers"};
 
 void BM_PatternPass(benchmark::State& state) {
   const auto which = static_cast<LayerCase>(state.range(0));
@@ -145,8 +180,10 @@ void BM_PatternPass(benchmark::State& state) {
   SceneLayers& l = scene.layers;
   const bool all = which == kAll;
   if (which == kSupersampling2 || all) l.supersampling = 2;
-  if (which == kCameraDefocus || all) l.camera_defocus.enabled = true, l.camera_defocus.focus_distance_mm = 450;
-  if (which == kProjectorDefocus || all) l.projector_defocus.enabled = true, l.projector_defocus.focus_distance_mm = 450;
+  if (which == kCameraDefocus || all)
+    l.camera_defocus.enabled = true, l.camera_defocus.focus_distance_mm = 450;
+  if (which == kProjectorDefocus || all)
+    l.projector_defocus.enabled = true, l.projector_defocus.focus_distance_mm = 450;
   if (which == kGamma || all) l.response_enabled = true, l.gamma = 2.2;
   if (which == kVignetting || all) l.vignetting_enabled = true;
   if (which == kAmbient || all) l.ambient = 0.05;
@@ -164,10 +201,11 @@ void BM_PatternPass(benchmark::State& state) {
     benchmark::DoNotOptimize(renderer.RenderBatch(batch, index));
     index += 8;
   }
-  state.counters["cpu_ms_per_image"] =
-      static_cast<double>(std::clock() - cpu0) / CLOCKS_PER_SEC * 1e3 / (8.0 * static_cast<double>(state.iterations()));
+  state.counters["cpu_ms_per_image"] = static_cast<double>(std::clock() - cpu0) / CLOCKS_PER_SEC *
+                                       1e3 / (8.0 * static_cast<double>(state.iterations()));
   state.SetLabel(kLayerNames[which]);
-  state.counters["per_image"] = benchmark::Counter(8, benchmark::Counter::kIsIterationInvariantRate | benchmark::Counter::kInvert);
+  state.counters["per_image"] = benchmark::Counter(
+      8, benchmark::Counter::kIsIterationInvariantRate | benchmark::Counter::kInvert);
   state.counters["geometry_ms"] = g.seconds * 1e3;
 }
 BENCHMARK(BM_PatternPass)->DenseRange(0, 9)->Unit(benchmark::kMillisecond)->UseRealTime();
@@ -189,7 +227,8 @@ void BM_DemoScan(benchmark::State& state) {
     // From scratch: each scan's rig differs by 1e-9 px in the principal point, so the BVH and
     // the cameras' rays are both made again (only the pooled buffers carry over).
     Rig rig = DemoRig();
-    for (RigDevice& c : rig.cameras) c.model.params[CameraModel::kCx] += 1e-9 * static_cast<double>(n + 1);
+    for (RigDevice& c : rig.cameras)
+      c.model.params[CameraModel::kCx] += 1e-9 * static_cast<double>(n + 1);
     if (ground_truth) {
       benchmark::DoNotOptimize(RenderScan(scene, rig, Patterns(), nullptr, &s));
     } else {
@@ -203,9 +242,12 @@ void BM_DemoScan(benchmark::State& state) {
   // The first scan of a process is cold (every buffer faulted in fresh); later scans reuse the
   // pooled buffers (sim/renderer.cc) and the evicted camera rays' storage.
   const std::clock_t cpu1 = std::clock();
-  state.counters["cpu_s"] = static_cast<double>(cpu1 - cpu0) / CLOCKS_PER_SEC / static_cast<double>(state.iterations());
+  state.counters["cpu_s"] =
+      static_cast<double>(cpu1 - cpu0) / CLOCKS_PER_SEC / static_cast<double>(state.iterations());
   state.counters["cpu_s_first"] = static_cast<double>(after_first - cpu0) / CLOCKS_PER_SEC;
-  if (n > 1) state.counters["cpu_s_later"] = static_cast<double>(cpu1 - after_first) / CLOCKS_PER_SEC / static_cast<double>(n - 1);
+  if (n > 1)
+    state.counters["cpu_s_later"] =
+        static_cast<double>(cpu1 - after_first) / CLOCKS_PER_SEC / static_cast<double>(n - 1);
   state.counters["triangles"] = static_cast<double>(s.triangles);
   state.counters["bvh_s"] = s.build_seconds;
   state.counters["camera_rays_s"] = s.camera_rays_seconds;
@@ -218,7 +260,8 @@ BENCHMARK(BM_DemoScan)->Arg(1)->Arg(0)->Unit(benchmark::kMillisecond)->UseRealTi
 
 // The rig moved rigidly about the vertical axis through its working point (0, 0, wd).
 Rig MovedRig(const Rig& base, double angle_deg) {
-  const Eigen::Matrix3d r = Eigen::AngleAxisd(angle_deg * M_PI / 180, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  const Eigen::Matrix3d r =
+      Eigen::AngleAxisd(angle_deg * M_PI / 180, Eigen::Vector3d::UnitY()).toRotationMatrix();
   const Eigen::Vector3d pivot(0, 0, base.working_distance_mm);
   const Rigid3d rig_from_moved = Rigid3d(Eigen::Quaterniond(r), pivot - r * pivot).Inverse();
   Rig rig = base;
@@ -260,7 +303,12 @@ void BM_DemoScanSharedBvh(benchmark::State& state) {
   state.counters["Mprimary"] = static_cast<double>(primary) / 1e6;
   state.counters["images"] = 2.0 * static_cast<double>(Patterns().size());
 }
-BENCHMARK(BM_DemoScanSharedBvh)->Arg(1)->Arg(0)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(5);
+BENCHMARK(BM_DemoScanSharedBvh)
+    ->Arg(1)
+    ->Arg(0)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->Iterations(5);
 
 // Re-scans from cached geometry (Simulator): the same 76 images, only the pattern passes.
 void BM_Rescan(benchmark::State& state) {
@@ -268,7 +316,8 @@ void BM_Rescan(benchmark::State& state) {
   const Simulator sim(scene, DemoRig());
   const std::clock_t cpu0 = std::clock();
   for (auto _ : state) benchmark::DoNotOptimize(sim.Render(Patterns()));
-  state.counters["cpu_s"] = static_cast<double>(std::clock() - cpu0) / CLOCKS_PER_SEC / static_cast<double>(state.iterations());
+  state.counters["cpu_s"] = static_cast<double>(std::clock() - cpu0) / CLOCKS_PER_SEC /
+                            static_cast<double>(state.iterations());
   state.counters["images"] = 2.0 * static_cast<double>(Patterns().size());
 }
 BENCHMARK(BM_Rescan)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(3);
@@ -319,12 +368,20 @@ void BM_PaperWorkloadWritten(benchmark::State& state) {
   state.counters["geometry_s"] = last.geometry_seconds;
   state.counters["render_write_s"] = last.render_seconds;
   state.counters["commit_s"] = last.write_seconds;
-  state.counters["cpu_s"] = static_cast<double>(std::clock() - cpu0) / CLOCKS_PER_SEC / static_cast<double>(state.iterations());
+  state.counters["cpu_s"] = static_cast<double>(std::clock() - cpu0) / CLOCKS_PER_SEC /
+                            static_cast<double>(state.iterations());
   std::filesystem::remove_all(out);
   const char* labels[] = {"pgm", "png", "pgm, shared BVH", "pgm, part alone"};
   state.SetLabel(labels[state.range(0)]);
 }
-BENCHMARK(BM_PaperWorkloadWritten)->Arg(0)->Arg(1)->Arg(2)->Arg(3)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(3);
+BENCHMARK(BM_PaperWorkloadWritten)
+    ->Arg(0)
+    ->Arg(1)
+    ->Arg(2)
+    ->Arg(3)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->Iterations(3);
 
 }  // namespace
 }  // namespace slshadow

@@ -29,8 +29,8 @@ inline Pose6 ToPose6(const Rigid3d& t) {
 inline Rigid3d FromPose6(const Pose6& p) {
   const Eigen::Vector3d r(p[0], p[1], p[2]);
   const double angle = r.norm();
-  const Eigen::Quaterniond q =
-      angle > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, r / angle)) : Eigen::Quaterniond::Identity();
+  const Eigen::Quaterniond q = angle > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, r / angle))
+                                         : Eigen::Quaterniond::Identity();
   return Rigid3d(q, Eigen::Vector3d(p[3], p[4], p[5]));
 }
 
@@ -72,7 +72,7 @@ struct State {
   std::vector<bool> pose_known;
   // Per device: principal-point coordinates pinned to their bound by the last solve (Solve).
   std::vector<std::vector<int>> pinned;
-  std::array<double, 2> warp{0, 0};            // board warp, mm
+  std::array<double, 2> warp{0, 0};                  // board warp, mm
   Eigen::Vector4d extent = Eigen::Vector4d::Zero();  // board xmin xmax ymin ymax, mm
 };
 
@@ -96,14 +96,16 @@ inline Intr9 EffectiveParams(const State& s, int d) {
 }
 
 inline Eigen::Vector2d ProjectView(const State& s, const BoardView& v, size_t i) {
-  const ReprojectionFunctor f(v.points_in_board_mm[i], Eigen::Vector2d::Zero(), s.aspect[v.device], s.extent);
+  const ReprojectionFunctor f(v.points_in_board_mm[i], Eigen::Vector2d::Zero(), s.aspect[v.device],
+                              s.extent);
   Eigen::Vector2d pixel;
-  f(s.intrinsics[v.device].data(), s.dev_from_rig[v.device].data(), s.rig_from_board[v.pose].data(), s.warp.data(),
-    pixel.data());
+  f(s.intrinsics[v.device].data(), s.dev_from_rig[v.device].data(), s.rig_from_board[v.pose].data(),
+    s.warp.data(), pixel.data());
   return pixel;
 }
 
-inline std::vector<int> HeldIntrinsics(const CalibrationOptions& o, const CalibrationDevice& device, double aspect) {
+inline std::vector<int> HeldIntrinsics(const CalibrationOptions& o, const CalibrationDevice& device,
+                                       double aspect) {
   std::vector<int> held;
   for (int i : device.held_params) {
     if (i != CameraModel::kFy || aspect <= 0) held.push_back(i);

@@ -13,23 +13,27 @@
 
 namespace slshadow::calib::internal {
 
-// r = weight * (ImgFromCam(intrinsics, dev_from_rig * rig_from_board * W(X)) - u). With aspect > 0 the
-// model's fy is aspect * fx (the fy entry of the block is held constant and ignored). W adds the
-// board warp z += w_x (1 - s^2) + w_y (1 - t^2), (s, t) the point's position across the board
+// r = weight * (ImgFromCam(intrinsics, dev_from_rig * rig_from_board * W(X)) - u). With aspect > 0
+// the model's fy is aspect * fx (the fy entry of the block is held constant and ignored). W adds
+// the board warp z += w_x (1 - s^2) + w_y (1 - t^2), (s, t) the point's position across the board
 // extent scaled to [-1, 1] (mrcal's board deformation).
 struct ReprojectionFunctor {
-  ReprojectionFunctor(const Eigen::Vector3d& point_in_board, const Eigen::Vector2d& pixel, double aspect,
-                      const Eigen::Vector4d& extent)
+  ReprojectionFunctor(const Eigen::Vector3d& point_in_board, const Eigen::Vector2d& pixel,
+                      double aspect, const Eigen::Vector4d& extent)
       : x(point_in_board), u(pixel), aspect_ratio(aspect) {
-    const double sx = extent[1] > extent[0] ? 2 * (x.x() - extent[0]) / (extent[1] - extent[0]) - 1 : 0;
-    const double sy = extent[3] > extent[2] ? 2 * (x.y() - extent[2]) / (extent[3] - extent[2]) - 1 : 0;
+    const double sx =
+        extent[1] > extent[0] ? 2 * (x.x() - extent[0]) / (extent[1] - extent[0]) - 1 : 0;
+    const double sy =
+        extent[3] > extent[2] ? 2 * (x.y() - extent[2]) / (extent[3] - extent[2]) - 1 : 0;
     warp_x = 1 - sx * sx;
     warp_y = 1 - sy * sy;
   }
 
   template <typename T>
-  bool operator()(const T* intrinsics, const T* dev_from_rig, const T* rig_from_board, const T* warp, T* residual) const {
-    const T point_in_board[3] = {T(x.x()), T(x.y()), T(x.z()) + warp[0] * T(warp_x) + warp[1] * T(warp_y)};
+  bool operator()(const T* intrinsics, const T* dev_from_rig, const T* rig_from_board,
+                  const T* warp, T* residual) const {
+    const T point_in_board[3] = {T(x.x()), T(x.y()),
+                                 T(x.z()) + warp[0] * T(warp_x) + warp[1] * T(warp_y)};
     T point_in_rig[3], point_in_dev[3];
     ceres::AngleAxisRotatePoint(rig_from_board, point_in_board, point_in_rig);
     for (int i = 0; i < 3; ++i) point_in_rig[i] += rig_from_board[3 + i];
@@ -56,8 +60,9 @@ struct ReprojectionFunctor {
 // W (r_source; r_carried), W = L^-1 for their 4x4 noise covariance C = L L^T.
 struct CarriedPairFunctor {
   template <typename T>
-  bool operator()(const T* source_intrinsics, const T* source_from_rig, const T* intrinsics, const T* dev_from_rig,
-                  const T* rig_from_board, const T* warp, T* residual) const {
+  bool operator()(const T* source_intrinsics, const T* source_from_rig, const T* intrinsics,
+                  const T* dev_from_rig, const T* rig_from_board, const T* warp,
+                  T* residual) const {
     T r[4];
     source(source_intrinsics, source_from_rig, rig_from_board, warp, r);
     carried(intrinsics, dev_from_rig, rig_from_board, warp, r + 2);
@@ -74,7 +79,8 @@ struct CarriedPairFunctor {
 
 // Whitening of a carried point and its source: C = [[s^2 I, s^2 J^T], [s^2 J, s^2 J J^T + carry]];
 // std::nullopt when C is not positive definite.
-inline std::optional<Eigen::Matrix4d> PairWhitening(double sigma, const Eigen::Matrix2d& jacobian, const Eigen::Matrix2d& carry) {
+inline std::optional<Eigen::Matrix4d> PairWhitening(double sigma, const Eigen::Matrix2d& jacobian,
+                                                    const Eigen::Matrix2d& carry) {
   const double s2 = sigma * sigma;
   Eigen::Matrix4d c;
   c.topLeftCorner<2, 2>() = s2 * Eigen::Matrix2d::Identity();

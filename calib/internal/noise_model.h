@@ -20,8 +20,9 @@ namespace slshadow::calib::internal {
 // point's error is M e(X) + h(X), e the error field of its source device (the device itself, or
 // the device its pixels were carried from, M = J then, else I) and h the carried device's own
 // field; each field is Gaussian-correlated across the board, independent between devices.
-Eigen::Matrix2d PointPairCovariance(const std::vector<ViewNoiseKernel>& kernels, const BoardView& va, size_t ia,
-                                    const BoardView& vb, size_t ib, double spacing_mm);
+Eigen::Matrix2d PointPairCovariance(const std::vector<ViewNoiseKernel>& kernels,
+                                    const BoardView& va, size_t ia, const BoardView& vb, size_t ib,
+                                    double spacing_mm);
 
 // Smallest distance between two board points of a view (the grid spacing), mm.
 double GridSpacing(const BoardView& v);
@@ -31,17 +32,19 @@ double GridSpacing(const BoardView& v);
 // rows of `crs` and `residuals` are the single-point blocks in `block_points` order (two each);
 // `inv` is (J^T J)^-1. When the first guess in `kernels` shows correlation, each device's kernel is
 // refitted to the residuals' moments first and written back (Solve's comment says how).
-Eigen::MatrixXd ViewCorrelatedCovariance(const CalibrationInput& input, const std::vector<std::pair<int, int>>& block_points,
-                                         const std::vector<double>& residuals, const ceres::CRSMatrix& crs,
-                                         const Eigen::MatrixXd& inv, int cols, std::vector<ViewNoiseKernel>* kernels);
+Eigen::MatrixXd ViewCorrelatedCovariance(const CalibrationInput& input,
+                                         const std::vector<std::pair<int, int>>& block_points,
+                                         const std::vector<double>& residuals,
+                                         const ceres::CRSMatrix& crs, const Eigen::MatrixXd& inv,
+                                         int cols, std::vector<ViewNoiseKernel>* kernels);
 
 // First guess of the view-correlated noise model's kernels from the residuals at `s`: per device,
 // the residuals of its points, or for a carried view their own part d = r - J r_source; sigma is
 // their RMS per coordinate, and their correlation at 1 and sqrt(2) squares (rho1, rho2) fixes the
 // Gaussian: length^2 = 1 / (2 ln(rho1 / rho2)), share = rho1 exp(1 / (2 length^2)), at most 1;
 // rho1 <= 0.1 counts as independent errors (share 0). The fit absorbs the smooth part of the
-// errors, so residuals are smaller and shorter-correlated than the errors; Solve() then fits the kernel to the residual
-// moments through the residual-maker matrix I - J (J^T J)^-1 J^T.
+// errors, so residuals are smaller and shorter-correlated than the errors; Solve() then fits the
+// kernel to the residual moments through the residual-maker matrix I - J (J^T J)^-1 J^T.
 std::vector<ViewNoiseKernel> EstimateViewKernels(const CalibrationInput& input, const State& s);
 
 // The joint noise model's weights from the residuals at `s`: each device's corner noise (RMS per

@@ -22,9 +22,12 @@ std::string FormatUtc(std::chrono::system_clock::time_point tp) {
 
 double FullScale(PixelFormat f) {
   switch (f) {
-    case PixelFormat::kMono8: return 255;
-    case PixelFormat::kMono12: return 4095;
-    case PixelFormat::kMono16: return 65535;
+    case PixelFormat::kMono8:
+      return 255;
+    case PixelFormat::kMono12:
+      return 4095;
+    case PixelFormat::kMono16:
+      return 65535;
   }
   return 255;
 }
@@ -38,7 +41,8 @@ ImageSource SourceOf(const std::string& backend) {
 int SampleStride(const ValidationOptions& validation, int width, int height) {
   return validation.stride_px > 0
              ? validation.stride_px
-             : std::max(1, static_cast<int>(std::sqrt(static_cast<double>(width) * height / validation.target_samples)));
+             : std::max(1, static_cast<int>(std::sqrt(static_cast<double>(width) * height /
+                                                      validation.target_samples)));
 }
 
 void CheckCaptureCameras(const Rig& rig, const std::vector<CaptureCamera>& cameras) {
@@ -46,8 +50,10 @@ void CheckCaptureCameras(const Rig& rig, const std::vector<CaptureCamera>& camer
   for (size_t i = 0; i < cameras.size(); ++i) {
     const CaptureCamera& c = cameras[i];
     SLSHADOW_THROW_IF(c.camera == nullptr, "capture: camera '", c.name, "' has no device");
-    SLSHADOW_THROW_IF(rig.CameraIndex(c.name) < 0, "capture: the rig '", rig.name, "' has no camera '", c.name, "'");
-    SLSHADOW_THROW_IF(c.grab_timeout.count() <= 0, "capture: camera '", c.name, "': grab timeout must be > 0");
+    SLSHADOW_THROW_IF(rig.CameraIndex(c.name) < 0, "capture: the rig '", rig.name,
+                      "' has no camera '", c.name, "'");
+    SLSHADOW_THROW_IF(c.grab_timeout.count() <= 0, "capture: camera '", c.name,
+                      "': grab timeout must be > 0");
     for (size_t j = 0; j < i; ++j) {
       SLSHADOW_THROW_IF(cameras[j].name == c.name, "capture: camera '", c.name, "' given twice");
     }
@@ -58,13 +64,12 @@ CamerasStopper::~CamerasStopper() {
   for (const auto& c : cameras_) {
     try {
       c.camera->Stop();
-    } catch (...) {
-    }
+    } catch (...) {}
   }
 }
 
-ImageRecord RecordOf(const CaptureCamera& camera, const CameraInfo& info, const CameraSettings& settings, int k,
-                     const Frame& frame, int retries) {
+ImageRecord RecordOf(const CaptureCamera& camera, const CameraInfo& info,
+                     const CameraSettings& settings, int k, const Frame& frame, int retries) {
   ImageRecord r;
   r.camera = camera.name;
   r.pattern_index = k;
@@ -78,7 +83,8 @@ ImageRecord RecordOf(const CaptureCamera& camera, const CameraInfo& info, const 
   return r;
 }
 
-nlohmann::json CameraNote(const CameraInfo& info, const CameraSettings& settings, double exposure_us) {
+nlohmann::json CameraNote(const CameraInfo& info, const CameraSettings& settings,
+                          double exposure_us) {
   return {{"backend", info.backend},
           {"id", info.id},
           {"serial", info.serial},
@@ -89,8 +95,8 @@ nlohmann::json CameraNote(const CameraInfo& info, const CameraSettings& settings
           {"trigger", ToString(settings.trigger)}};
 }
 
-void EndSession(ResumableImageSetWriter& writer, const CaptureSummary& summary, const std::string& failure,
-                const std::string& storage_error) {
+void EndSession(ResumableImageSetWriter& writer, const CaptureSummary& summary,
+                const std::string& failure, const std::string& storage_error) {
   nlohmann::json end_note = summary.ToJson();
   end_note["ended"] = UtcTimestamp();
   if (!failure.empty()) end_note["failure"] = failure;
@@ -100,19 +106,19 @@ void EndSession(ResumableImageSetWriter& writer, const CaptureSummary& summary, 
   } catch (const Error&) {
     // The records are what matters; a lost note is not worth hiding the real error.
   }
-  SLSHADOW_THROW_IF(!storage_error.empty(), storage_error, " (the capture is staged in ", writer.staging_dir().string(),
-                    "; continue it with --resume)");
-  SLSHADOW_THROW_IF(!failure.empty(), failure, " (", summary.images_before + summary.images_stored, " of ",
-                    summary.images_total, " images are staged in ", writer.staging_dir().string(),
-                    "; fix the cause and continue with --resume)");
+  SLSHADOW_THROW_IF(!storage_error.empty(), storage_error, " (the capture is staged in ",
+                    writer.staging_dir().string(), "; continue it with --resume)");
+  SLSHADOW_THROW_IF(!failure.empty(), failure, " (", summary.images_before + summary.images_stored,
+                    " of ", summary.images_total, " images are staged in ",
+                    writer.staging_dir().string(), "; fix the cause and continue with --resume)");
 }
 
 namespace {
 
 template <typename T>
 struct Sampler {
-  static double ChangedShare(const cv::Mat& f, const cv::Mat& prev, const References& refs, double lit_threshold,
-                             double abs_threshold, int stride, int* samples) {
+  static double ChangedShare(const cv::Mat& f, const cv::Mat& prev, const References& refs,
+                             double lit_threshold, double abs_threshold, int stride, int* samples) {
     int64_t count = 0, changed = 0;
     if (!refs.samples.empty()) {
       const uchar* a = f.data;
@@ -128,7 +134,8 @@ struct Sampler {
     }
     const bool refs_ready = refs.ready();
     ForEachSample(f.rows, f.cols, stride, [&](int y, int x) {
-      const double d = std::abs(static_cast<double>(f.at<T>(y, x)) - static_cast<double>(prev.at<T>(y, x)));
+      const double d =
+          std::abs(static_cast<double>(f.at<T>(y, x)) - static_cast<double>(prev.at<T>(y, x)));
       if (refs_ready) {
         const double contrast = refs.white.at<float>(y, x) - refs.black.at<float>(y, x);
         if (contrast < lit_threshold) return;
@@ -144,14 +151,16 @@ struct Sampler {
   }
   // Share of pixels decisive in both frames (a quarter of the contrast away from the middle)
   // that lie on opposite sides of it.
-  static double ComplementaryShare(const cv::Mat& p, const cv::Mat& q, const References& refs, double lit_threshold,
-                                   int stride, int* samples) {
+  static double ComplementaryShare(const cv::Mat& p, const cv::Mat& q, const References& refs,
+                                   double lit_threshold, int stride, int* samples) {
     int64_t count = 0, opposite = 0;
     if (!refs.samples.empty()) {
       const size_t sp = p.step[0], sq = q.step[0];
       for (const auto& r : refs.samples) {
-        const float da = reinterpret_cast<const T*>(p.data + static_cast<size_t>(r.y) * sp)[r.x] - r.mid;
-        const float db = reinterpret_cast<const T*>(q.data + static_cast<size_t>(r.y) * sq)[r.x] - r.mid;
+        const float da =
+            reinterpret_cast<const T*>(p.data + static_cast<size_t>(r.y) * sp)[r.x] - r.mid;
+        const float db =
+            reinterpret_cast<const T*>(q.data + static_cast<size_t>(r.y) * sq)[r.x] - r.mid;
         if (std::abs(da) < r.quarter || std::abs(db) < r.quarter) continue;
         ++count;
         opposite += (da > 0) != (db > 0);
@@ -176,16 +185,19 @@ struct Sampler {
 
 }  // namespace
 
-double ChangedShare(const cv::Mat& f, const cv::Mat& prev, const References& refs, double lit_threshold,
-                    double abs_threshold, int stride, int* samples) {
-  return f.depth() == CV_8U ? Sampler<uint8_t>::ChangedShare(f, prev, refs, lit_threshold, abs_threshold, stride, samples)
-                            : Sampler<uint16_t>::ChangedShare(f, prev, refs, lit_threshold, abs_threshold, stride, samples);
+double ChangedShare(const cv::Mat& f, const cv::Mat& prev, const References& refs,
+                    double lit_threshold, double abs_threshold, int stride, int* samples) {
+  return f.depth() == CV_8U ? Sampler<uint8_t>::ChangedShare(f, prev, refs, lit_threshold,
+                                                             abs_threshold, stride, samples)
+                            : Sampler<uint16_t>::ChangedShare(f, prev, refs, lit_threshold,
+                                                              abs_threshold, stride, samples);
 }
 
-double ComplementaryShare(const cv::Mat& p, const cv::Mat& q, const References& refs, double lit_threshold, int stride,
-                          int* samples) {
-  return p.depth() == CV_8U ? Sampler<uint8_t>::ComplementaryShare(p, q, refs, lit_threshold, stride, samples)
-                            : Sampler<uint16_t>::ComplementaryShare(p, q, refs, lit_threshold, stride, samples);
+double ComplementaryShare(const cv::Mat& p, const cv::Mat& q, const References& refs,
+                          double lit_threshold, int stride, int* samples) {
+  return p.depth() == CV_8U
+             ? Sampler<uint8_t>::ComplementaryShare(p, q, refs, lit_threshold, stride, samples)
+             : Sampler<uint16_t>::ComplementaryShare(p, q, refs, lit_threshold, stride, samples);
 }
 
 double LitShare(const References& refs, double lit_threshold, int stride) {
@@ -196,6 +208,5 @@ double LitShare(const References& refs, double lit_threshold, int stride) {
   });
   return count ? static_cast<double>(lit) / static_cast<double>(count) : 0.0;
 }
-
 
 }  // namespace slshadow::capture::internal

@@ -48,15 +48,16 @@ class CamerasStopper {
 };
 // The ImageSet record of an accepted frame of pattern k (exposure: the frame's, else the
 // configured one).
-ImageRecord RecordOf(const CaptureCamera& camera, const CameraInfo& info, const CameraSettings& settings, int k,
-                     const Frame& frame, int retries);
+ImageRecord RecordOf(const CaptureCamera& camera, const CameraInfo& info,
+                     const CameraSettings& settings, int k, const Frame& frame, int retries);
 // A camera's entry in a capture's start note (journaled session).
-nlohmann::json CameraNote(const CameraInfo& info, const CameraSettings& settings, double exposure_us);
+nlohmann::json CameraNote(const CameraInfo& info, const CameraSettings& settings,
+                          double exposure_us);
 // Journals a capture run's end note (the summary, `failure`, `storage_error`), then throws the
 // storage error or the failure, each naming the staging folder to resume; returns when both are
 // empty.
-void EndSession(ResumableImageSetWriter& writer, const CaptureSummary& summary, const std::string& failure,
-                const std::string& storage_error);
+void EndSession(ResumableImageSetWriter& writer, const CaptureSummary& summary,
+                const std::string& failure, const std::string& storage_error);
 
 // What the pattern sequence predicts, computed once per capture.
 struct SequenceModel {
@@ -69,7 +70,7 @@ struct SequenceModel {
     bool opening = false;  // white, black and the first Gray pair as one group (see CheckGroup)
   };
   std::vector<Group> groups;
-  std::vector<int> group_of;  // pattern -> group index
+  std::vector<int> group_of;          // pattern -> group index
   std::vector<int> reference_frames;  // white, black; or the first phase steps
   bool white_black = false;
   bool references_last = false;  // white and black after the Gray pairs (OpenCV order)
@@ -80,29 +81,34 @@ struct SequenceModel {
     expected_change.assign(static_cast<size_t>(n), 0.0);
     const double half_range = 0.5 * (spec.intensity_max - spec.intensity_min);
     for (int k = 1; k < n; ++k) {
-      expected_change[static_cast<size_t>(k)] =
-          TileChange(images[static_cast<size_t>(k)], images[static_cast<size_t>(k - 1)], half_range);
+      expected_change[static_cast<size_t>(k)] = TileChange(
+          images[static_cast<size_t>(k)], images[static_cast<size_t>(k - 1)], half_range);
     }
     group_of.assign(static_cast<size_t>(n), 0);
     for (int k = 0; k < n;) {
       Group g;
       g.first = k;
       const FrameInfo& f = frames[static_cast<size_t>(k)];
-      const bool gray_pair = f.role == FrameRole::kGrayBit && k + 1 < n &&
-                             frames[static_cast<size_t>(k + 1)].role == FrameRole::kGrayBitInverse &&
-                             frames[static_cast<size_t>(k + 1)].axis == f.axis && frames[static_cast<size_t>(k + 1)].bit == f.bit;
-      const bool refs_pair = f.role == FrameRole::kWhite && k + 1 < n && frames[static_cast<size_t>(k + 1)].role == FrameRole::kBlack;
+      const bool gray_pair =
+          f.role == FrameRole::kGrayBit && k + 1 < n &&
+          frames[static_cast<size_t>(k + 1)].role == FrameRole::kGrayBitInverse &&
+          frames[static_cast<size_t>(k + 1)].axis == f.axis &&
+          frames[static_cast<size_t>(k + 1)].bit == f.bit;
+      const bool refs_pair = f.role == FrameRole::kWhite && k + 1 < n &&
+                             frames[static_cast<size_t>(k + 1)].role == FrameRole::kBlack;
       if (gray_pair || refs_pair) {
         g.size = 2;
         g.pair = true;
       }
-      for (int i = 0; i < g.size; ++i) group_of[static_cast<size_t>(k + i)] = static_cast<int>(groups.size());
+      for (int i = 0; i < g.size; ++i)
+        group_of[static_cast<size_t>(k + i)] = static_cast<int>(groups.size());
       groups.push_back(g);
       k += g.size;
     }
     // White and black first: the white frame has no predecessor to be compared with, so it is
     // judged by the frames after it. White, black and the first Gray pair form one group.
-    if (groups.size() >= 2 && frames[0].role == FrameRole::kWhite && groups[0].size == 2 && groups[1].pair) {
+    if (groups.size() >= 2 && frames[0].role == FrameRole::kWhite && groups[0].size == 2 &&
+        groups[1].pair) {
       groups[0].size = 4;
       groups[0].opening = true;
       groups.erase(groups.begin() + 1);
@@ -112,11 +118,13 @@ struct SequenceModel {
     // Phase first (4 or more steps): the first frame has no predecessor either; the first period's
     // steps form one group whose per-pixel sinusoid fit must hold (see CheckGroup).
     const int steps = spec.phase_steps;
-    if (frames[0].role == FrameRole::kPhase && steps >= 4 && static_cast<int>(frames.size()) >= steps) {
+    if (frames[0].role == FrameRole::kPhase && steps >= 4 &&
+        static_cast<int>(frames.size()) >= steps) {
       bool same = true;
       for (int i = 0; i < steps; ++i) {
         same = same && frames[static_cast<size_t>(i)].role == FrameRole::kPhase &&
-               frames[static_cast<size_t>(i)].frequency == 0 && frames[static_cast<size_t>(i)].step == i;
+               frames[static_cast<size_t>(i)].frequency == 0 &&
+               frames[static_cast<size_t>(i)].step == i;
       }
       if (same) {
         groups.erase(groups.begin(), groups.begin() + steps);
@@ -140,7 +148,8 @@ struct SequenceModel {
       // max and min stand in for white and black.
       for (int k = 0; k < n; ++k) {
         const FrameInfo& f = frames[static_cast<size_t>(k)];
-        if (f.role == FrameRole::kPhase && f.frequency == 0 && f.axis == frames.front().axis) reference_frames.push_back(k);
+        if (f.role == FrameRole::kPhase && f.frequency == 0 && f.axis == frames.front().axis)
+          reference_frames.push_back(k);
       }
     }
   }
@@ -151,7 +160,8 @@ struct SequenceModel {
   double Change(const std::vector<cv::Mat>& images, double half_range, int from, int to) const {
     if (from == to - 1) return expected_change[static_cast<size_t>(to)];
     if (from < 0 || from == to) return 0;
-    return TileChange(images[static_cast<size_t>(from)], images[static_cast<size_t>(to)], half_range);
+    return TileChange(images[static_cast<size_t>(from)], images[static_cast<size_t>(to)],
+                      half_range);
   }
   static double TileChange(const cv::Mat& a, const cv::Mat& b, double half_range) {
     cv::Mat diff;
@@ -160,7 +170,8 @@ struct SequenceModel {
     double worst = 1;
     for (int ty = 0; ty < 8; ++ty) {
       for (int tx = 0; tx < 8; ++tx) {
-        const cv::Rect tile(tx * changed.cols / 8, ty * changed.rows / 8, (tx + 1) * changed.cols / 8 - tx * changed.cols / 8,
+        const cv::Rect tile(tx * changed.cols / 8, ty * changed.rows / 8,
+                            (tx + 1) * changed.cols / 8 - tx * changed.cols / 8,
                             (ty + 1) * changed.rows / 8 - ty * changed.rows / 8);
         if (tile.area() == 0) continue;
         worst = std::min(worst, cv::countNonZero(changed(tile)) / static_cast<double>(tile.area()));
@@ -189,7 +200,8 @@ struct References {
 // stride cannot alias onto one side of every stripe.
 template <typename F>
 void ForEachSample(int rows, int cols, int stride, F&& f) {
-  const int step = stride <= 2 ? 1 : (stride % 2 == 0 ? stride - 1 : stride - 2);  // coprime with stride
+  const int step =
+      stride <= 2 ? 1 : (stride % 2 == 0 ? stride - 1 : stride - 2);  // coprime with stride
   int row_offset = 0;  // (i * step) % stride, kept without a division per sample
   for (int i = 0;; ++i) {
     const int y = i * stride + row_offset;
@@ -209,12 +221,12 @@ void ForEachSample(int rows, int cols, int stride, F&& f) {
 
 // Share of the sampled (lit, when refs are ready) pixels that changed between two frames: by a
 // quarter of the local contrast with references, else by abs_threshold. *samples: how many.
-double ChangedShare(const cv::Mat& f, const cv::Mat& prev, const References& refs, double lit_threshold,
-                    double abs_threshold, int stride, int* samples);
+double ChangedShare(const cv::Mat& f, const cv::Mat& prev, const References& refs,
+                    double lit_threshold, double abs_threshold, int stride, int* samples);
 // Share of pixels decisive in both frames (a quarter of the contrast away from the middle of the
 // references) that lie on opposite sides of it; 1 when none is decisive.
-double ComplementaryShare(const cv::Mat& p, const cv::Mat& q, const References& refs, double lit_threshold, int stride,
-                          int* samples);
+double ComplementaryShare(const cv::Mat& p, const cv::Mat& q, const References& refs,
+                          double lit_threshold, int stride, int* samples);
 // Share of the sampled pixels where white - black >= lit_threshold.
 double LitShare(const References& refs, double lit_threshold, int stride);
 

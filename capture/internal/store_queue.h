@@ -20,14 +20,14 @@ namespace slshadow::capture::internal {
 // Storage on its own thread, in order, through the resumable writer.
 class StoreQueue {
  public:
-  StoreQueue(ResumableImageSetWriter& writer, size_t capacity) : writer_(writer), capacity_(capacity) {
+  StoreQueue(ResumableImageSetWriter& writer, size_t capacity)
+      : writer_(writer), capacity_(capacity) {
     thread_ = std::thread([this] { Run(); });
   }
   ~StoreQueue() {
     try {
       Finish();
-    } catch (...) {
-    }
+    } catch (...) {}
   }
   void Push(ImageRecord record, cv::Mat image) {
     std::unique_lock<std::mutex> lock(mutex_);

@@ -21,10 +21,12 @@ TEST(CmdCompare, WritesAReportAndRejectsBadInput) {
   const TriangleMesh mesh = testing::IcoSphere(20.0, 4);
   WriteMesh(tmp / "part.stl", mesh);
   PointCloud cloud;
-  for (const auto& v : mesh.vertices) cloud.points.push_back(v * (20.05 / 20.0));  // 0.05 mm outside
+  for (const auto& v : mesh.vertices)
+    cloud.points.push_back(v * (20.05 / 20.0));  // 0.05 mm outside
   WritePly(tmp / "scan.ply", cloud);
-  ASSERT_EQ(slshadow::testing::RunCli({"compare", (tmp / "scan.ply").string(), (tmp / "part.stl").string(), "--out",
-                 (tmp / "report").string(), "--threshold-mm", "0.1"}),
+  ASSERT_EQ(slshadow::testing::RunCli({"compare", (tmp / "scan.ply").string(),
+                                       (tmp / "part.stl").string(), "--out",
+                                       (tmp / "report").string(), "--threshold-mm", "0.1"}),
             0);
   const auto j = nlohmann::json::parse(ReadTextFile(tmp / "report" / "report.json"));
   EXPECT_EQ(j["c2c"]["count"].get<size_t>(), cloud.size());
@@ -36,16 +38,19 @@ TEST(CmdCompare, WritesAReportAndRejectsBadInput) {
   EXPECT_EQ(j["options"]["threshold_mm"].get<double>(), 0.1);
   // Refuses to replace with --no-overwrite and leaves the report untouched.
   const std::string before = ReadTextFile(tmp / "report" / "report.json");
-  EXPECT_NE(slshadow::testing::RunCli({"compare", (tmp / "scan.ply").string(), (tmp / "part.stl").string(), "--out",
-                 (tmp / "report").string(), "--no-overwrite"}),
+  EXPECT_NE(slshadow::testing::RunCli({"compare", (tmp / "scan.ply").string(),
+                                       (tmp / "part.stl").string(), "--out",
+                                       (tmp / "report").string(), "--no-overwrite"}),
             0);
   EXPECT_EQ(ReadTextFile(tmp / "report" / "report.json"), before);
   // Bad values fail with a non-zero exit and write nothing.
-  EXPECT_NE(slshadow::testing::RunCli({"compare", (tmp / "scan.ply").string(), (tmp / "part.stl").string(), "--out",
-                 (tmp / "r2").string(), "--threshold-mm", "-1"}),
+  EXPECT_NE(slshadow::testing::RunCli({"compare", (tmp / "scan.ply").string(),
+                                       (tmp / "part.stl").string(), "--out", (tmp / "r2").string(),
+                                       "--threshold-mm", "-1"}),
             0);
-  EXPECT_NE(slshadow::testing::RunCli({"compare", (tmp / "scan.ply").string(), (tmp / "part.stl").string(), "--out",
-                 (tmp / "r2").string(), "--register", "magic"}),
+  EXPECT_NE(slshadow::testing::RunCli({"compare", (tmp / "scan.ply").string(),
+                                       (tmp / "part.stl").string(), "--out", (tmp / "r2").string(),
+                                       "--register", "magic"}),
             0);
   EXPECT_FALSE(std::filesystem::exists(tmp / "r2"));
 }

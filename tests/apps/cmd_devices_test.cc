@@ -58,7 +58,8 @@ TEST_F(DevicesCommand, DiscoverFindsTheCameraOnTheOnlyInterface) {
   testing::FakeGvCamera fake({.address = "127.0.0.2", .serial = "GV79"});
   ASSERT_EQ(Run({"devices", "--discover"}), 0) << err_;
   EXPECT_NE(out_.find("GigEVision 127.0.0.2"), std::string::npos) << out_;
-  EXPECT_NE(out_.find("serial=GV79 sensor=2048x2048 formats=Mono8,Mono16"), std::string::npos) << out_;
+  EXPECT_NE(out_.find("serial=GV79 sensor=2048x2048 formats=Mono8,Mono16"), std::string::npos)
+      << out_;
 }
 
 }  // namespace

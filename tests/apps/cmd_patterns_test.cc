@@ -17,7 +17,8 @@ using slshadow::testing::RunCli;
 
 TEST(CmdPatterns, GenerateWritesEveryFrameAndASpecThatLoadsBack) {
   testing::TempDir tmp;
-  const std::string spec_path = (testing::SourceDir() / "config/patterns/graycode_phase.yaml").string();
+  const std::string spec_path =
+      (testing::SourceDir() / "config/patterns/graycode_phase.yaml").string();
   const std::filesystem::path out = tmp / "patterns";
   ::testing::internal::CaptureStdout();
   ASSERT_EQ(RunCli({"patterns", "generate", spec_path, "--out", out.string()}), 0);
@@ -41,10 +42,11 @@ TEST(CmdPatterns, GenerateWritesEveryFrameAndASpecThatLoadsBack) {
   // An existing folder is kept unless --overwrite.
   ::testing::internal::CaptureStderr();
   EXPECT_NE(RunCli({"patterns", "generate", spec_path, "--out", out.string()}), 0);
-  EXPECT_NE(::testing::internal::GetCapturedStderr().find("output folder exists"), std::string::npos);
+  EXPECT_NE(::testing::internal::GetCapturedStderr().find("output folder exists"),
+            std::string::npos);
   ::testing::internal::CaptureStdout();
-  EXPECT_EQ(RunCli({"patterns", "generate", (testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml")
-                                                .string(),
+  EXPECT_EQ(RunCli({"patterns", "generate",
+                    (testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml").string(),
                     "--out", out.string(), "--overwrite"}),
             0);
   ::testing::internal::GetCapturedStdout();
@@ -54,9 +56,10 @@ TEST(CmdPatterns, GenerateWritesEveryFrameAndASpecThatLoadsBack) {
 
 TEST(CmdPatterns, ShowListsFramesAndBadSpecsFailWithOneLine) {
   ::testing::internal::CaptureStdout();
-  EXPECT_EQ(RunCli({"patterns", "show", (testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml")
-                                            .string()}),
-            0);
+  EXPECT_EQ(
+      RunCli({"patterns", "show",
+              (testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml").string()}),
+      0);
   const std::string out = ::testing::internal::GetCapturedStdout();
   EXPECT_NE(out.find(" 40  white"), std::string::npos) << out;
   EXPECT_NE(out.find("  0  gray_x_bit9"), std::string::npos) << out;
@@ -71,7 +74,8 @@ TEST(CmdPatterns, ShowListsFramesAndBadSpecsFailWithOneLine) {
   ::testing::internal::CaptureStderr();
   EXPECT_NE(RunCli({"patterns", "generate", bad.string(), "--out", (tmp / "o").string()}), 0);
   const std::string err = ::testing::internal::GetCapturedStderr();
-  EXPECT_NE(err.find("bad.yaml: pattern spec: period_px: must be in [4, 65536]"), std::string::npos) << err;
+  EXPECT_NE(err.find("bad.yaml: pattern spec: period_px: must be in [4, 65536]"), std::string::npos)
+      << err;
   EXPECT_FALSE(std::filesystem::exists(tmp / "o"));
 }
 

@@ -37,16 +37,18 @@ class CmdReconstruct : public ::testing::Test {
     for (auto& c : rig.cameras) {
       c.model.width /= 2;
       c.model.height /= 2;
-      for (int k : {CameraModel::kFx, CameraModel::kFy}) c.model.params[static_cast<size_t>(k)] /= 2;
+      for (int k : {CameraModel::kFx, CameraModel::kFy})
+        c.model.params[static_cast<size_t>(k)] /= 2;
       for (int k : {CameraModel::kCx, CameraModel::kCy}) {
-        c.model.params[static_cast<size_t>(k)] = (c.model.params[static_cast<size_t>(k)] + 0.5) / 2 - 0.5;
+        c.model.params[static_cast<size_t>(k)] =
+            (c.model.params[static_cast<size_t>(k)] + 0.5) / 2 - 0.5;
       }
     }
     SaveRig(rig, *tmp_ / "rig.yaml");
     ASSERT_EQ(RunCli({"simulate", "--rig", (*tmp_ / "rig.yaml").string(), "--scene",
                       (testing::SourceDir() / "config/demo/scene.yaml").string(), "--patterns",
-                      (testing::SourceDir() / "config/demo/patterns.yaml").string(), "--out", Scan().string(),
-                      "--encoding", "pgm", "--no-ground-truth", "--quiet"}),
+                      (testing::SourceDir() / "config/demo/patterns.yaml").string(), "--out",
+                      Scan().string(), "--encoding", "pgm", "--no-ground-truth", "--quiet"}),
               0);
   }
   static void TearDownTestSuite() {
@@ -75,7 +77,8 @@ TEST_F(CmdReconstruct, ProjectorModeWritesCloudAndSummary) {
     EXPECT_TRUE(check["available"].get<bool>()) << check.dump();
     EXPECT_FALSE(check["warning"].get<bool>()) << check.dump();  // the scan's own rig
     EXPECT_EQ(summary["residual_maps"][k]["calibration_warning"], false);
-    EXPECT_DOUBLE_EQ(summary["residual_maps"][k]["scale_max_px"].get<double>(), 2 * check["threshold_px"].get<double>());
+    EXPECT_DOUBLE_EQ(summary["residual_maps"][k]["scale_max_px"].get<double>(),
+                     2 * check["threshold_px"].get<double>());
     EXPECT_TRUE(std::filesystem::exists(summary["residual_maps"][k]["file"].get<std::string>()));
   }
 }
@@ -100,11 +103,15 @@ TEST_F(CmdReconstruct, CalibrationCheckWarnsAboutAWrongRigFile) {
   EXPECT_NE(left["message"].get<std::string>().find("principal point"), std::string::npos);
   EXPECT_EQ(summary["residual_maps"][0]["calibration_warning"], true);
   EXPECT_FALSE(summary["residual_maps"][0]["likely_causes"].empty());
-  EXPECT_FALSE(summary["reconstructions"][1]["calibration_check"]["warning"].get<bool>());  // right camera fits
+  EXPECT_FALSE(summary["reconstructions"][1]["calibration_check"]["warning"]
+                   .get<bool>());  // right camera fits
   // A fixed threshold overrides the automatic one.
   const auto out2 = Dir() / "wrong_fixed.ply";
-  ASSERT_EQ(RunCli({"reconstruct", copy.string(), "--out", out2.string(), "--quiet", "--calibration-warning-px", "50"}), 0);
-  const nlohmann::json fixed = ReadJson(Dir() / "wrong_fixed.summary.json")["reconstructions"][0]["calibration_check"];
+  ASSERT_EQ(RunCli({"reconstruct", copy.string(), "--out", out2.string(), "--quiet",
+                    "--calibration-warning-px", "50"}),
+            0);
+  const nlohmann::json fixed =
+      ReadJson(Dir() / "wrong_fixed.summary.json")["reconstructions"][0]["calibration_check"];
   EXPECT_EQ(fixed["threshold_source"], "user");
   EXPECT_FALSE(fixed["warning"].get<bool>());
 }
@@ -132,16 +139,24 @@ TEST_F(CmdReconstruct, NoPointsIsAnErrorWithItsReason) {
 }
 
 TEST_F(CmdReconstruct, StereoInterpolationOptionReachesTheMatcher) {
-  const auto lin = Dir() / "stereo_linear.ply", cub = Dir() / "stereo_cubic.ply", def = Dir() / "stereo_auto.ply";
-  ASSERT_EQ(RunCli({"reconstruct", Scan().string(), "--mode", "stereo", "--stereo-interpolation", "linear", "--out",
-                    lin.string(), "--quiet"}),
+  const auto lin = Dir() / "stereo_linear.ply", cub = Dir() / "stereo_cubic.ply",
+             def = Dir() / "stereo_auto.ply";
+  ASSERT_EQ(RunCli({"reconstruct", Scan().string(), "--mode", "stereo", "--stereo-interpolation",
+                    "linear", "--out", lin.string(), "--quiet"}),
             0);
-  ASSERT_EQ(RunCli({"reconstruct", Scan().string(), "--mode", "stereo", "--stereo-interpolation", "cubic", "--out",
-                    cub.string(), "--quiet"}),
+  ASSERT_EQ(RunCli({"reconstruct", Scan().string(), "--mode", "stereo", "--stereo-interpolation",
+                    "cubic", "--out", cub.string(), "--quiet"}),
             0);
-  ASSERT_EQ(RunCli({"reconstruct", Scan().string(), "--mode", "stereo", "--out", def.string(), "--quiet"}), 0);
-  EXPECT_EQ(ReadJson(Dir() / "stereo_linear.summary.json")["options"]["reconstruct"]["stereo_interpolation"], "linear");
-  EXPECT_EQ(ReadJson(Dir() / "stereo_cubic.summary.json")["options"]["reconstruct"]["stereo_interpolation"], "cubic");
+  ASSERT_EQ(RunCli({"reconstruct", Scan().string(), "--mode", "stereo", "--out", def.string(),
+                    "--quiet"}),
+            0);
+  EXPECT_EQ(
+      ReadJson(Dir() /
+               "stereo_linear.summary.json")["options"]["reconstruct"]["stereo_interpolation"],
+      "linear");
+  EXPECT_EQ(ReadJson(Dir() /
+                     "stereo_cubic.summary.json")["options"]["reconstruct"]["stereo_interpolation"],
+            "cubic");
   const PointCloud a = ReadPly(lin), b = ReadPly(cub), c = ReadPly(def);
   ASSERT_GT(a.size(), 300000u);
   // Decoded maps are float, so auto means linear: the same cloud bit for bit.
@@ -154,16 +169,18 @@ TEST_F(CmdReconstruct, StereoInterpolationOptionReachesTheMatcher) {
 
 TEST_F(CmdReconstruct, BadInputFailsWithoutWriting) {
   const auto out = Dir() / "bad.ply";
-  EXPECT_NE(RunCli({"reconstruct", Scan().string(), "--mode", "stereo", "--stereo-interpolation", "quintic", "--out",
-                    out.string()}),
+  EXPECT_NE(RunCli({"reconstruct", Scan().string(), "--mode", "stereo", "--stereo-interpolation",
+                    "quintic", "--out", out.string()}),
             0);
   EXPECT_NE(RunCli({"reconstruct", (Dir() / "missing").string(), "--out", out.string()}), 0);
-  EXPECT_NE(RunCli({"reconstruct", Scan().string(), "--cameras", "nosuchcamera", "--out", out.string()}), 0);
-  EXPECT_NE(RunCli({"reconstruct", Scan().string(), "--max-depth-mm", "nan", "--out", out.string()}), 0);
+  EXPECT_NE(
+      RunCli({"reconstruct", Scan().string(), "--cameras", "nosuchcamera", "--out", out.string()}),
+      0);
+  EXPECT_NE(
+      RunCli({"reconstruct", Scan().string(), "--max-depth-mm", "nan", "--out", out.string()}), 0);
   EXPECT_FALSE(std::filesystem::exists(out));
   EXPECT_FALSE(std::filesystem::exists(Dir() / "bad.summary.json"));
 }
-
 
 std::string ReadFile(const std::filesystem::path& path) {
   std::ifstream in(path, std::ios::binary);
@@ -175,16 +192,20 @@ TEST_F(CmdReconstruct, RigOptionUsesAnotherRigAndRecordsIt) {
   const std::string manifest = ReadFile(Scan() / "manifest.json");
   Rig moved = LoadRig(Dir() / "rig.yaml");
   moved.name = "refined";
-  // A 0.2 % longer baseline (what a refinement may change): the same epipolar geometry, a scaled cloud.
+  // A 0.2 % longer baseline (what a refinement may change): the same epipolar geometry, a scaled
+  // cloud.
   moved.projector->cam_from_rig.translation *= 1.002;
   SaveRig(moved, Dir() / "refined.yaml");
   const auto base = Dir() / "rig_base.ply", refined = Dir() / "rig_refined.ply";
-  ASSERT_EQ(RunCli({"reconstruct", Scan().string(), "--cameras", "left", "--out", base.string(), "--quiet"}), 0);
-  ASSERT_EQ(RunCli({"reconstruct", Scan().string(), "--cameras", "left", "--rig", (Dir() / "refined.yaml").string(),
-                    "--out", refined.string(), "--quiet"}),
+  ASSERT_EQ(RunCli({"reconstruct", Scan().string(), "--cameras", "left", "--out", base.string(),
+                    "--quiet"}),
+            0);
+  ASSERT_EQ(RunCli({"reconstruct", Scan().string(), "--cameras", "left", "--rig",
+                    (Dir() / "refined.yaml").string(), "--out", refined.string(), "--quiet"}),
             0);
   EXPECT_EQ(ReadFile(Scan() / "manifest.json"), manifest);
-  const nlohmann::json a = ReadJson(Dir() / "rig_base.summary.json"), b = ReadJson(Dir() / "rig_refined.summary.json");
+  const nlohmann::json a = ReadJson(Dir() / "rig_base.summary.json"),
+                       b = ReadJson(Dir() / "rig_refined.summary.json");
   EXPECT_EQ(a["rig"]["source"], "manifest");
   EXPECT_EQ(b["rig"]["source"], "file");
   EXPECT_EQ(b["rig"]["name"], "refined");
@@ -201,16 +222,16 @@ TEST_F(CmdReconstruct, ProjectorlessRigDefaultsToStereo) {
   cameras_only.projector.reset();
   SaveRig(cameras_only, Dir() / "cameras_only.yaml");
   const auto out = Dir() / "auto_stereo.ply";
-  ASSERT_EQ(RunCli({"reconstruct", Scan().string(), "--rig", (Dir() / "cameras_only.yaml").string(), "--out",
-                    out.string(), "--quiet"}),
+  ASSERT_EQ(RunCli({"reconstruct", Scan().string(), "--rig", (Dir() / "cameras_only.yaml").string(),
+                    "--out", out.string(), "--quiet"}),
             0);
   EXPECT_EQ(ReadJson(Dir() / "auto_stereo.summary.json")["options"]["mode"], "stereo");
   EXPECT_GT(ReadPly(out).size(), 100000u);
   // With the manifest's rig (it has a projector) the default stays projector mode (above).
   const auto bad = Dir() / "projector_without_projector.ply";
   ::testing::internal::CaptureStderr();
-  EXPECT_NE(RunCli({"reconstruct", Scan().string(), "--rig", (Dir() / "cameras_only.yaml").string(), "--mode",
-                    "projector", "--out", bad.string()}),
+  EXPECT_NE(RunCli({"reconstruct", Scan().string(), "--rig", (Dir() / "cameras_only.yaml").string(),
+                    "--mode", "projector", "--out", bad.string()}),
             0);
   const std::string err = ::testing::internal::GetCapturedStderr();
   EXPECT_NE(err.find("has no projector"), std::string::npos) << err;
@@ -222,8 +243,8 @@ TEST_F(CmdReconstruct, ProjectorlessRigDefaultsToStereo) {
 TEST_F(CmdReconstruct, ZeroPointsIsAnErrorWithTheReason) {
   const auto out = Dir() / "empty.ply";
   ::testing::internal::CaptureStderr();
-  EXPECT_NE(RunCli({"reconstruct", Scan().string(), "--max-depth-mm", "10", "--min-depth-mm", "1", "--out",
-                    out.string(), "--quiet"}),
+  EXPECT_NE(RunCli({"reconstruct", Scan().string(), "--max-depth-mm", "10", "--min-depth-mm", "1",
+                    "--out", out.string(), "--quiet"}),
             0);
   const std::string err = ::testing::internal::GetCapturedStderr();
   EXPECT_NE(err.find("0 points"), std::string::npos) << err;

@@ -35,7 +35,8 @@ TEST(Commands, ErrorsAreOneLineAndNonZero) {
   EXPECT_EQ(err, "slshadow: error: /nonexistent/rig.yaml: file not found\n");
   ::testing::internal::CaptureStderr();
   EXPECT_NE(RunCli({"frobnicate"}), 0);
-  EXPECT_NE(::testing::internal::GetCapturedStderr().find("unknown command 'frobnicate'"), std::string::npos);
+  EXPECT_NE(::testing::internal::GetCapturedStderr().find("unknown command 'frobnicate'"),
+            std::string::npos);
 }
 
 }  // namespace

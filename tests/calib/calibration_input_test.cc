@@ -45,9 +45,11 @@ TEST(CalibrationInput, ImageFilesListsFoldersInNameOrderAndNamesBadArguments) {
   testing::TempDir dir;
   fs::create_directories(dir.path() / "imgs");
   fs::create_directories(dir.path() / "empty");
-  for (const char* name : {"b.PNG", "a.jpg", "c.txt", "d.pgm"}) std::ofstream(dir.path() / "imgs" / name) << "x";
+  for (const char* name : {"b.PNG", "a.jpg", "c.txt", "d.pgm"})
+    std::ofstream(dir.path() / "imgs" / name) << "x";
   std::ofstream(dir.path() / "single.bmp") << "x";
-  const auto files = ImageFiles({(dir.path() / "imgs").string(), (dir.path() / "single.bmp").string()}, "--images");
+  const auto files = ImageFiles(
+      {(dir.path() / "imgs").string(), (dir.path() / "single.bmp").string()}, "--images");
   ASSERT_EQ(files.size(), 4u);
   EXPECT_EQ(files[0].filename(), "a.jpg");
   EXPECT_EQ(files[1].filename(), "b.PNG");
@@ -70,7 +72,8 @@ TEST(CalibrationInput, AddBoardViewsDetectsEachFileAsAPoseOfTheDevice) {
   for (int i = 0; i < 3; ++i) {
     files.push_back(dir.path() / ("view" + std::to_string(i) + ".png"));
     // The second image shows no board.
-    cv::imwrite(files.back().string(), i == 1 ? cv::Mat(400, 600, CV_8UC1, cv::Scalar(128)) : Board(600, 400, 10 * i, 5 * i));
+    cv::imwrite(files.back().string(), i == 1 ? cv::Mat(400, 600, CV_8UC1, cv::Scalar(128))
+                                              : Board(600, 400, 10 * i, 5 * i));
   }
   CalibrationInput input;
   input.devices = {CalibrationDevice::Camera("cam")};
@@ -87,12 +90,14 @@ TEST(CalibrationInput, AddBoardViewsDetectsEachFileAsAPoseOfTheDevice) {
   const auto board = BoardPoints(spec);
   for (const auto& v : input.views) {
     EXPECT_EQ(v.device, 0);
-    const int shift = v.pose;  // pose = index in the list: the board is shifted by (10, 5) px per index
+    const int shift =
+        v.pose;  // pose = index in the list: the board is shifted by (10, 5) px per index
     ASSERT_EQ(v.pixels_px.size(), 54u);
     for (size_t i = 0; i < v.pixels_px.size(); ++i) {
       // Corners come in OpenCV's order; each pixel is its board point's position in the render.
       const Eigen::Vector3d& p = v.points_in_board_mm[i];
-      const int c = static_cast<int>(std::lround(p.x() / 25)), r = static_cast<int>(std::lround(p.y() / 25));
+      const int c = static_cast<int>(std::lround(p.x() / 25)),
+                r = static_cast<int>(std::lround(p.y() / 25));
       EXPECT_NEAR(v.pixels_px[i].x(), (c + 2) * 40 - 0.5 + 10 * shift, 0.1);
       EXPECT_NEAR(v.pixels_px[i].y(), (r + 2) * 40 - 0.5 + 5 * shift, 0.1);
       EXPECT_NE(std::find(board.begin(), board.end(), p), board.end());

@@ -16,7 +16,8 @@ namespace {
 void ExpectSameModel(const CameraModel& a, const CameraModel& b, double tol) {
   EXPECT_EQ(a.width, b.width);
   EXPECT_EQ(a.height, b.height);
-  for (int i = 0; i < CameraModel::kNumParams; ++i) EXPECT_NEAR(a.params[i], b.params[i], tol * (1 + std::abs(a.params[i]))) << i;
+  for (int i = 0; i < CameraModel::kNumParams; ++i)
+    EXPECT_NEAR(a.params[i], b.params[i], tol * (1 + std::abs(a.params[i]))) << i;
 }
 
 void ExpectSamePose(const Rigid3d& a, const Rigid3d& b, double tol) {
@@ -45,7 +46,8 @@ TEST(CalibrationIo, RigFileKeepsTheEvidenceToRecomputeTheCalibration) {
   ASSERT_EQ(rig.cameras.size(), 1u);
   ASSERT_TRUE(rig.projector);
   EXPECT_NEAR(rig.working_distance_mm, 650, 200);
-  rig.calibration = CalibrationEvidenceToJson(data.input, options, result, CrossValidate(data.input, options));
+  rig.calibration =
+      CalibrationEvidenceToJson(data.input, options, result, CrossValidate(data.input, options));
   EXPECT_TRUE(rig.calibration.contains("projection_uncertainty"));
   EXPECT_TRUE(rig.calibration.contains("cross_validation"));
   EXPECT_TRUE(rig.calibration.contains("intrinsics_covariance_view_correlated"));
@@ -64,7 +66,9 @@ TEST(CalibrationIo, RigFileKeepsTheEvidenceToRecomputeTheCalibration) {
     EXPECT_LT((again.intrinsics_covariance[d] - result.intrinsics_covariance[d]).norm(),
               1e-4 * result.intrinsics_covariance[d].norm());
     // ... and the view-correlated one, which needs the carried views' Jacobians.
-    EXPECT_LT((again.intrinsics_covariance_view_correlated.at(d) - result.intrinsics_covariance_view_correlated.at(d)).norm(),
+    EXPECT_LT((again.intrinsics_covariance_view_correlated.at(d) -
+               result.intrinsics_covariance_view_correlated.at(d))
+                  .norm(),
               1e-4 * result.intrinsics_covariance_view_correlated[d].norm());
   }
   for (size_t i = 0; i < ev.input.views.size(); ++i) {
@@ -79,10 +83,13 @@ TEST(CalibrationIo, RigFileKeepsTheEvidenceToRecomputeTheCalibration) {
     }
   }
   options.correlated_carried_noise = true;  // the joint noise model's option is kept too
-  EXPECT_TRUE(CalibrationOptionsFromJson(CalibrationOptionsToJson(options), "x").correlated_carried_noise);
+  EXPECT_TRUE(
+      CalibrationOptionsFromJson(CalibrationOptionsToJson(options), "x").correlated_carried_noise);
   options.principal_point_inside = true;  // and the principal-point bound
-  EXPECT_TRUE(CalibrationOptionsFromJson(CalibrationOptionsToJson(options), "x").principal_point_inside);
-  EXPECT_FALSE(CalibrationOptionsFromJson(CalibrationOptionsToJson(CalibrationOptions{}), "x").principal_point_inside);
+  EXPECT_TRUE(
+      CalibrationOptionsFromJson(CalibrationOptionsToJson(options), "x").principal_point_inside);
+  EXPECT_FALSE(CalibrationOptionsFromJson(CalibrationOptionsToJson(CalibrationOptions{}), "x")
+                   .principal_point_inside);
   // Malformed evidence names the field.
   nlohmann::json broken = back.calibration;
   broken["views"][0]["pixels_px"][0] = {1.0};
@@ -103,8 +110,9 @@ TEST(CalibrationIo, OpenCvFilesRoundTripInYamlAndXml) {
   RigDevice proj;
   proj.name = "projector";
   proj.model = CameraModel(1024, 768, 1950, 1935, 500, 700, 0.01, -0.02, 0.001, 0.002, 0.0);
-  proj.cam_from_rig = Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.2, Eigen::Vector3d(0.1, 1, 0.2).normalized())),
-                              Eigen::Vector3d(40, -280, -60));
+  proj.cam_from_rig =
+      Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.2, Eigen::Vector3d(0.1, 1, 0.2).normalized())),
+              Eigen::Vector3d(40, -280, -60));
   rig.projector = proj;
   for (const std::string ext : {".yml", ".xml"}) {
     WriteOpenCvCalibration(rig, tmp / ("rig" + ext));
@@ -123,18 +131,21 @@ TEST(CalibrationIo, OpenCvFilesRoundTripInYamlAndXml) {
   Rig one;
   one.cameras = {truth.devices[0]};
   WriteOpenCvCalibration(one, tmp / "one.yaml");
-  ExpectSameModel(ReadOpenCvCalibration(tmp / "one.yaml").cameras[0].model, one.cameras[0].model, 1e-12);
+  ExpectSameModel(ReadOpenCvCalibration(tmp / "one.yaml").cameras[0].model, one.cameras[0].model,
+                  1e-12);
 }
 
 TEST(CalibrationIo, ReadsUpstreamFiles) {
-  const Rig left = ReadOpenCvCalibration(testing::SharedDataDir() / "opencv-stereo-chessboard/left_intrinsics.yml");
+  const Rig left = ReadOpenCvCalibration(testing::SharedDataDir() /
+                                         "opencv-stereo-chessboard/left_intrinsics.yml");
   ASSERT_EQ(left.cameras.size(), 1u);
   EXPECT_NEAR(left.cameras[0].model.fx(), 535.9157, 1e-4);
   EXPECT_NEAR(left.cameras[0].model.cy(), 235.5708, 1e-4);
   EXPECT_NEAR(left.cameras[0].model.params[CameraModel::kK3], 0.23839, 1e-5);
   EXPECT_EQ(left.cameras[0].model.width, 640);
-  const Rig procam = ReadOpenCvCalibration(testing::SharedDataDir() / "kamino-procam-graycode/calibration_result_ccf1cd8.xml",
-                                           0, 0, 1024, 768);
+  const Rig procam = ReadOpenCvCalibration(
+      testing::SharedDataDir() / "kamino-procam-graycode/calibration_result_ccf1cd8.xml", 0, 0,
+      1024, 768);
   ASSERT_TRUE(procam.projector);
   EXPECT_EQ(procam.cameras[0].model.width, 1280);
   EXPECT_EQ(procam.cameras[0].model.height, 1024);
@@ -142,7 +153,9 @@ TEST(CalibrationIo, ReadsUpstreamFiles) {
   EXPECT_NEAR(procam.projector->model.fx(), 1947.16, 0.01);
   EXPECT_NEAR(procam.projector->cam_from_rig.translation.y(), -278.3, 0.05);
   // No projector size: a clear error.
-  EXPECT_THROW(ReadOpenCvCalibration(testing::SharedDataDir() / "kamino-procam-graycode/calibration_result.xml"), Error);
+  EXPECT_THROW(ReadOpenCvCalibration(testing::SharedDataDir() /
+                                     "kamino-procam-graycode/calibration_result.xml"),
+               Error);
 }
 
 TEST(CalibrationIo, BadOpenCvFilesGiveClearErrors) {
@@ -158,15 +171,17 @@ TEST(CalibrationIo, BadOpenCvFilesGiveClearErrors) {
   expect_error(tmp / "missing.yml", "not found");
   std::ofstream(tmp / "empty.yml") << "%YAML:1.0\n---\nfoo: 1\n";
   // Not "not an OpenCV calibration file": the file is one; the message lists what it has.
-  expect_error(tmp / "empty.yml", "no known calibration layout among the nodes found: foo (number)");
+  expect_error(tmp / "empty.yml",
+               "no known calibration layout among the nodes found: foo (number)");
   std::ofstream(tmp / "rational.yml")
-      << "%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 500., 0., 320., 0., 500., 240., 0., 0., 1. ]\n"
-         "distortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 8\n   dt: d\n   data: [ 0.1, 0.01, 0., 0., 0., 0.2, 0., 0. ]\n";
+      << "%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   "
+         "data: [ 500., 0., 320., 0., 500., 240., 0., 0., 1. ]\n"
+         "distortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 8\n   dt: d\n   data: [ "
+         "0.1, 0.01, 0., 0., 0., 0.2, 0., 0. ]\n";
   expect_error(tmp / "rational.yml", "rational");
   std::ofstream(tmp / "garbage.yml") << "this is: [not, closed\n";
   expect_error(tmp / "garbage.yml", "garbage.yml");
 }
-
 
 // The two-camera layouts other tools write, each as cv::FileStorage writes it, import to the
 // same rig; an unknown layout is named node by node and imports with an explicit node map.
@@ -175,8 +190,10 @@ class OpenCvLayouts : public ::testing::Test {
   void SetUp() override {
     const SyntheticRig truth = SyntheticRig::Stereo();
     rig_.cameras = truth.devices;
-    rig_.cameras[1].model = CameraModel(1280, 1024, 2410, 2405, 650, 500, -0.08, 0.12, 0.0005, -0.0007, 0.01);
-    const Rigid3d second_from_first = rig_.cameras[1].cam_from_rig * rig_.cameras[0].cam_from_rig.Inverse();
+    rig_.cameras[1].model =
+        CameraModel(1280, 1024, 2410, 2405, 650, 500, -0.08, 0.12, 0.0005, -0.0007, 0.01);
+    const Rigid3d second_from_first =
+        rig_.cameras[1].cam_from_rig * rig_.cameras[0].cam_from_rig.Inverse();
     const Eigen::Matrix3d r = second_from_first.rotation.toRotationMatrix();
     r_ = cv::Mat(3, 3, CV_64F);
     t_ = cv::Mat(3, 1, CV_64F);
@@ -185,7 +202,8 @@ class OpenCvLayouts : public ::testing::Test {
       t_.at<double>(a) = second_from_first.translation(a);
     }
     const Eigen::AngleAxisd aa(second_from_first.rotation);
-    rvec_ = (cv::Mat_<double>(3, 1) << aa.angle() * aa.axis().x(), aa.angle() * aa.axis().y(), aa.angle() * aa.axis().z());
+    rvec_ = (cv::Mat_<double>(3, 1) << aa.angle() * aa.axis().x(), aa.angle() * aa.axis().y(),
+             aa.angle() * aa.axis().z());
   }
   cv::Mat K(int i) const {
     const CameraModel& m = rig_.cameras[static_cast<size_t>(i)].model;
@@ -202,7 +220,8 @@ class OpenCvLayouts : public ::testing::Test {
   void ExpectSameRig(const Rig& back) const {
     ASSERT_EQ(back.cameras.size(), 2u);
     EXPECT_FALSE(back.projector);
-    for (size_t i = 0; i < 2; ++i) ExpectSameModel(back.cameras[i].model, rig_.cameras[i].model, 1e-12);
+    for (size_t i = 0; i < 2; ++i)
+      ExpectSameModel(back.cameras[i].model, rig_.cameras[i].model, 1e-12);
     // The file holds the relative pose; the rig frame is the first camera's.
     const Rigid3d expected = rig_.cameras[1].cam_from_rig * rig_.cameras[0].cam_from_rig.Inverse();
     ExpectSamePose(back.cameras[0].cam_from_rig, Rigid3d(), 1e-12);
@@ -216,7 +235,8 @@ class OpenCvLayouts : public ::testing::Test {
 TEST_F(OpenCvLayouts, EachImportsToTheSameRig) {
   // slshadow's own / stereo_calib.cpp's layout.
   Rig relative = rig_;
-  relative.cameras[1].cam_from_rig = rig_.cameras[1].cam_from_rig * rig_.cameras[0].cam_from_rig.Inverse();
+  relative.cameras[1].cam_from_rig =
+      rig_.cameras[1].cam_from_rig * rig_.cameras[0].cam_from_rig.Inverse();
   relative.cameras[0].cam_from_rig = Rigid3d();
   WriteOpenCvCalibration(relative, tmp_ / "stereo_calib.yml");
   ExpectSameRig(ReadOpenCvCalibration(tmp_ / "stereo_calib.yml"));
@@ -224,27 +244,31 @@ TEST_F(OpenCvLayouts, EachImportsToTheSameRig) {
     SCOPED_TRACE(ext);
     {  // The stereo structured-light sample's layout (with its spelling "distorsion").
       cv::FileStorage fs((tmp_ / ("sample" + ext)).string(), cv::FileStorage::WRITE);
-      fs << "cam1_intrinsics" << K(0) << "cam1_distorsion" << D(0) << "cam2_intrinsics" << K(1) << "cam2_distorsion"
-         << D(1) << "R" << r_ << "T" << t_ << "cam1_size" << Size(0) << "cam2_size" << Size(1);
+      fs << "cam1_intrinsics" << K(0) << "cam1_distorsion" << D(0) << "cam2_intrinsics" << K(1)
+         << "cam2_distorsion" << D(1) << "R" << r_ << "T" << t_ << "cam1_size" << Size(0)
+         << "cam2_size" << Size(1);
     }
     ExpectSameRig(ReadOpenCvCalibration(tmp_ / ("sample" + ext)));
     {  // The binocular layout: M1 D1 M2 D2, Rlr Tlr, the image size in S (one size for both).
       cv::FileStorage fs((tmp_ / ("binocular" + ext)).string(), cv::FileStorage::WRITE);
-      fs << "M1" << K(0) << "D1" << D(0) << "M2" << K(1) << "D2" << D(1) << "Rlr" << r_ << "Tlr" << t_ << "S"
-         << Size(0);
+      fs << "M1" << K(0) << "D1" << D(0) << "M2" << K(1) << "D2" << D(1) << "Rlr" << r_ << "Tlr"
+         << t_ << "S" << Size(0);
     }
     const Rig binocular = ReadOpenCvCalibration(tmp_ / ("binocular" + ext));
     ASSERT_EQ(binocular.cameras.size(), 2u);
-    EXPECT_EQ(binocular.cameras[1].model.width, rig_.cameras[0].model.width);  // S is both cameras' size
+    EXPECT_EQ(binocular.cameras[1].model.width,
+              rig_.cameras[0].model.width);  // S is both cameras' size
     EXPECT_NEAR(binocular.cameras[1].model.fx(), rig_.cameras[1].model.fx(), 1e-9);
-    ExpectSamePose(binocular.cameras[1].cam_from_rig, rig_.cameras[1].cam_from_rig * rig_.cameras[0].cam_from_rig.Inverse(),
-                   1e-9);
+    ExpectSamePose(binocular.cameras[1].cam_from_rig,
+                   rig_.cameras[1].cam_from_rig * rig_.cameras[0].cam_from_rig.Inverse(), 1e-9);
     {  // A layout of its own: plain number lists, a Rodrigues vector, the size as a 1x2 matrix.
       cv::FileStorage fs((tmp_ / ("own" + ext)).string(), cv::FileStorage::WRITE);
       const cv::Mat m0 = K(0), m1 = K(1);
-      std::vector<double> k0(m0.begin<double>(), m0.end<double>()), k1(m1.begin<double>(), m1.end<double>());
-      fs << "left_K" << k0 << "left_D" << D(0) << "right_K" << k1 << "right_D" << D(1) << "rvec" << rvec_ << "tvec"
-         << t_ << "left_size" << (cv::Mat_<int>(1, 2) << Size(0).width, Size(0).height) << "right_size" << Size(1);
+      std::vector<double> k0(m0.begin<double>(), m0.end<double>()),
+          k1(m1.begin<double>(), m1.end<double>());
+      fs << "left_K" << k0 << "left_D" << D(0) << "right_K" << k1 << "right_D" << D(1) << "rvec"
+         << rvec_ << "tvec" << t_ << "left_size"
+         << (cv::Mat_<int>(1, 2) << Size(0).width, Size(0).height) << "right_size" << Size(1);
     }
     try {
       ReadOpenCvCalibration(tmp_ / ("own" + ext));
@@ -257,8 +281,8 @@ TEST_F(OpenCvLayouts, EachImportsToTheSameRig) {
       EXPECT_NE(m.find("rvec (3x1 matrix)"), std::string::npos) << m;
       EXPECT_NE(m.find("--map K1=NODE"), std::string::npos) << m;
     }
-    const OpenCvNodeMap map =
-        ParseOpenCvNodeMap("K1=left_K,D1=left_D,K2=right_K,D2=right_D,R=rvec,T=tvec,size1=left_size,size2=right_size");
+    const OpenCvNodeMap map = ParseOpenCvNodeMap(
+        "K1=left_K,D1=left_D,K2=right_K,D2=right_D,R=rvec,T=tvec,size1=left_size,size2=right_size");
     ExpectSameRig(ReadOpenCvCalibration(tmp_ / ("own" + ext), 0, 0, 0, 0, map));
     // The map overrides a known layout too, and names a node it does not find.
     OpenCvNodeMap wrong = map;
@@ -267,7 +291,8 @@ TEST_F(OpenCvLayouts, EachImportsToTheSameRig) {
       ReadOpenCvCalibration(tmp_ / ("own" + ext), 0, 0, 0, 0, wrong);
       ADD_FAILURE() << "a missing mapped node imported";
     } catch (const Error& e) {
-      EXPECT_NE(std::string(e.what()).find("Rlr: missing (nodes found: left_K"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("Rlr: missing (nodes found: left_K"), std::string::npos)
+          << e.what();
     }
   }
 }
@@ -308,19 +333,26 @@ TEST(CalibrationIo, FuzzerFindingsInOpenCvFilesAreClearErrors) {
   };
   const std::string not_map = error_of("list.yml", "%YAML:1.0\n---\n- 1\n- 2\n");
   EXPECT_EQ(not_map.find((tmp / "list.yml").string() + ": "), 0u) << not_map;
-  const std::string camera = "camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
-                             "   data: [ 500., 0., 320., 0., 500., 240., 0., 0., 1. ]\n"
-                             "distortion_coefficients: [ 0., 0., 0., 0., 0. ]\n";
-  EXPECT_EQ(error_of("huge.yml", "%YAML:1.0\n---\nimage_width: 640\nimage_height: 1.7e308\n" + camera),
-            (tmp / "huge.yml").string() + ": image_height: expected a whole number within +-1000000 (got 1.7e+308)");
-  EXPECT_EQ(error_of("claims.yml", "%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 100000\n   cols: 100000\n"
-                                   "   dt: d\n   data: [ 1., 2. ]\ndistortion_coefficients: [ 0., 0., 0., 0., 0. ]\n"),
-            (tmp / "claims.yml").string() + ": camera_matrix: matrix claims 100000 x 100000 but holds 2 values");
+  const std::string camera =
+      "camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
+      "   data: [ 500., 0., 320., 0., 500., 240., 0., 0., 1. ]\n"
+      "distortion_coefficients: [ 0., 0., 0., 0., 0. ]\n";
+  EXPECT_EQ(
+      error_of("huge.yml", "%YAML:1.0\n---\nimage_width: 640\nimage_height: 1.7e308\n" + camera),
+      (tmp / "huge.yml").string() +
+          ": image_height: expected a whole number within +-1000000 (got 1.7e+308)");
+  EXPECT_EQ(
+      error_of("claims.yml",
+               "%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 100000\n   cols: 100000\n"
+               "   dt: d\n   data: [ 1., 2. ]\ndistortion_coefficients: [ 0., 0., 0., 0., 0. ]\n"),
+      (tmp / "claims.yml").string() +
+          ": camera_matrix: matrix claims 100000 x 100000 but holds 2 values");
   // OpenCV's YAML reader looped forever on these; yaml-cpp reads them (OpenCV reads them as JSON).
   EXPECT_EQ(error_of("dash.yml", "%YAML:1.0\n  - a\n--x-\n"),
             (tmp / "dash.yml").string() + ": the top level is not a mapping of named nodes");
   const std::string marker = error_of("marker.yml", "%YAML:1.0\n---\n---x: 1\n");
-  EXPECT_EQ(marker.find((tmp / "marker.yml").string() + ": no known calibration layout among the nodes found: ---x (number)"),
+  EXPECT_EQ(marker.find((tmp / "marker.yml").string() +
+                        ": no known calibration layout among the nodes found: ---x (number)"),
             0u)
       << marker;
   EXPECT_EQ(error_of("nan.yml", "%YAML:1.0\n---\nimage_width: 640\nimage_height: 480\n" +
@@ -329,9 +361,11 @@ TEST(CalibrationIo, FuzzerFindingsInOpenCvFilesAreClearErrors) {
   EXPECT_EQ(error_of("empty.yml", "%YAML:1.0\n---\nimage_width:\n" + camera),
             (tmp / "empty.yml").string() + ": image_width: empty value");
   // Integers in a double matrix, CR LF line endings and keys in file order still read.
-  std::string crlf = "%YAML:1.0\r\n---\r\nimage_width: 640\r\nimage_height: 480\r\ncamera_matrix: !!opencv-matrix\r\n"
-                     "   rows: 3\r\n   cols: 3\r\n   dt: d\r\n   data: [ 500, 0, 320, 0, 500, 240, 0, 0, 1 ]\r\n"
-                     "distortion_coefficients: [ 0.1, 0., 0., 0., 0. ]\r\n";
+  std::string crlf =
+      "%YAML:1.0\r\n---\r\nimage_width: 640\r\nimage_height: 480\r\ncamera_matrix: "
+      "!!opencv-matrix\r\n"
+      "   rows: 3\r\n   cols: 3\r\n   dt: d\r\n   data: [ 500, 0, 320, 0, 500, 240, 0, 0, 1 ]\r\n"
+      "distortion_coefficients: [ 0.1, 0., 0., 0., 0. ]\r\n";
   std::ofstream(tmp / "crlf.yml") << crlf;
   const Rig rig = ReadOpenCvCalibration(tmp / "crlf.yml", 0, 0);
   ASSERT_EQ(rig.cameras.size(), 1u);

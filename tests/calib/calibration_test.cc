@@ -8,13 +8,14 @@
 
 #include "calib/synthetic.h"
 #include "calib/target.h"
-#include "tests/testing/temp_dir.h"
 #include "core/error.h"
+#include "tests/testing/temp_dir.h"
 
 namespace slshadow {
 namespace {
 
-CalibrationInput MakeSyntheticInput(const SyntheticRig& rig, int n, double noise_px, uint32_t seed) {
+CalibrationInput MakeSyntheticInput(const SyntheticRig& rig, int n, double noise_px,
+                                    uint32_t seed) {
   return MakeSyntheticData(rig, n, noise_px, seed).input;
 }
 
@@ -76,7 +77,8 @@ TEST(Calibrate, OutlierViewIsFlaggedAndRobustLossResistsIt) {
   const SyntheticRig rig = SyntheticRig::OneCamera();
   CalibrationInput input = MakeSyntheticInput(rig, 12, 0.1, 5);
   // Corrupt view 4: a few corners off by 8 px (a mis-detection).
-  for (size_t i = 0; i < input.views[4].pixels_px.size(); i += 5) input.views[4].pixels_px[i] += Eigen::Vector2d(8, -6);
+  for (size_t i = 0; i < input.views[4].pixels_px.size(); i += 5)
+    input.views[4].pixels_px[i] += Eigen::Vector2d(8, -6);
   const CalibrationResult plain = Calibrate(input, {});
   ASSERT_EQ(plain.summary.num_outlier_views, 1) << plain.summary.FullReport();
   EXPECT_TRUE(plain.summary.views[4].outlier);
@@ -85,7 +87,8 @@ TEST(Calibrate, OutlierViewIsFlaggedAndRobustLossResistsIt) {
   robust.loss_scale_px = 0.5;
   const CalibrationResult r = Calibrate(input, robust);
   const double truth_fx = rig.devices[0].model.fx();
-  EXPECT_LT(std::abs(r.devices[0].model.fx() - truth_fx), std::abs(plain.devices[0].model.fx() - truth_fx));
+  EXPECT_LT(std::abs(r.devices[0].model.fx() - truth_fx),
+            std::abs(plain.devices[0].model.fx() - truth_fx));
   EXPECT_NEAR(r.devices[0].model.fx() / truth_fx, 1.0, 1e-3);
   const std::string full = r.summary.FullReport();
   EXPECT_NE(full.find("OUTLIER"), std::string::npos) << full;
@@ -101,9 +104,10 @@ TEST(Calibrate, OutlierViewIsFlaggedAndRobustLossResistsIt) {
 struct CarriedMonteCarlo {
   double spread[3] = {0, 0, 0};     // RMS error of fx, cx, cy against the truth
   double predicted[3] = {0, 0, 0};  // RMS of the predicted sigma
-  double predicted_view[3] = {0, 0, 0};  // RMS of the view-correlated model's sigma (independent weighting)
-  double carry_scale = 0;           // mean estimated k (truth 0.05^2 with C = I)
-  double camera_noise = 0;          // mean estimated corner noise of device 0
+  double predicted_view[3] = {
+      0, 0, 0};             // RMS of the view-correlated model's sigma (independent weighting)
+  double carry_scale = 0;   // mean estimated k (truth 0.05^2 with C = I)
+  double camera_noise = 0;  // mean estimated corner noise of device 0
 };
 
 CalibrationInput CarriedInput(const SyntheticRig& rig, int num_poses, uint32_t seed) {
@@ -113,7 +117,8 @@ CalibrationInput CarriedInput(const SyntheticRig& rig, int num_poses, uint32_t s
   std::normal_distribution<double> noise(0.0, 1.0);
   auto project = [&](int d, int pose, const Eigen::Vector3d& x) {
     const RigDevice& dev = rig.devices[static_cast<size_t>(d)];
-    return *dev.model.Project(dev.cam_from_rig * (data.rig_from_board[static_cast<size_t>(pose)] * x));
+    return *dev.model.Project(dev.cam_from_rig *
+                              (data.rig_from_board[static_cast<size_t>(pose)] * x));
   };
   for (auto& src : input.views) {
     if (src.device != 0) continue;
@@ -131,7 +136,8 @@ CalibrationInput CarriedInput(const SyntheticRig& rig, int num_poses, uint32_t s
         dp.col(k) = project(1, src.pose, x + step) - project(1, src.pose, x - step);
       }
       const Eigen::Matrix2d j = dp * dc.inverse();
-      const Eigen::Vector2d e(0.2 * noise(rng), 0.2 * noise(rng)), h(0.05 * noise(rng), 0.05 * noise(rng));
+      const Eigen::Vector2d e(0.2 * noise(rng), 0.2 * noise(rng)),
+          h(0.05 * noise(rng), 0.05 * noise(rng));
       src.pixels_px[i] += e;
       EXPECT_LT((v->points_in_board_mm[i] - x).norm(), 1e-12);
       v->pixels_px[i] += j * e + h;
@@ -150,15 +156,18 @@ CarriedMonteCarlo RunCarriedMonteCarlo(bool correlated, int runs) {
   CarriedMonteCarlo mc;
   const int params[3] = {CameraModel::kFx, CameraModel::kCx, CameraModel::kCy};
   for (int run = 0; run < runs; ++run) {
-    const CalibrationResult r = Calibrate(CarriedInput(rig, 8, static_cast<uint32_t>(40 + run)), options);
+    const CalibrationResult r =
+        Calibrate(CarriedInput(rig, 8, static_cast<uint32_t>(40 + run)), options);
     EXPECT_EQ(r.summary.joint_noise, correlated);
     EXPECT_EQ(r.intrinsics_covariance.size(), 2u);
     if (r.intrinsics_covariance.size() != 2) continue;
     for (int k = 0; k < 3; ++k) {
       const int i = params[k];
-      mc.spread[k] += std::pow(r.devices[1].model.params[i] - rig.devices[1].model.params[i], 2) / runs;
+      mc.spread[k] +=
+          std::pow(r.devices[1].model.params[i] - rig.devices[1].model.params[i], 2) / runs;
       mc.predicted[k] += r.intrinsics_covariance[1](i, i) / runs;
-      if (!correlated) mc.predicted_view[k] += r.intrinsics_covariance_view_correlated.at(1)(i, i) / runs;
+      if (!correlated)
+        mc.predicted_view[k] += r.intrinsics_covariance_view_correlated.at(1)(i, i) / runs;
     }
     if (correlated) {
       mc.carry_scale += r.summary.carry_scale / runs;
@@ -179,9 +188,11 @@ TEST(Calibrate, CarriedViewsWhitenedWithTheirSourceGiveHonestCovariance) {
   const CarriedMonteCarlo independent = RunCarriedMonteCarlo(false, runs);
   const char* names[3] = {"fx", "cx", "cy"};
   for (int k = 0; k < 3; ++k) {
-    std::printf("%s: joint spread %.3f predicted %.3f | independent spread %.3f predicted %.3f, view-correlated model %.3f\n",
-                names[k], joint.spread[k], joint.predicted[k], independent.spread[k], independent.predicted[k],
-                independent.predicted_view[k]);
+    std::printf(
+        "%s: joint spread %.3f predicted %.3f | independent spread %.3f predicted %.3f, "
+        "view-correlated model %.3f\n",
+        names[k], joint.spread[k], joint.predicted[k], independent.spread[k],
+        independent.predicted[k], independent.predicted_view[k]);
     // 16 runs estimate a sigma to about +-18 % (1 sigma).
     EXPECT_GT(joint.spread[k] / joint.predicted[k], 0.65) << names[k];
     EXPECT_LT(joint.spread[k] / joint.predicted[k], 1.4) << names[k];
@@ -196,7 +207,8 @@ TEST(Calibrate, CarriedViewsWhitenedWithTheirSourceGiveHonestCovariance) {
   EXPECT_GT(independent.spread[0], 1.25 * joint.spread[0]);
   EXPECT_GT(independent.spread[1], joint.spread[1]);
   EXPECT_GT(independent.spread[2], 1.25 * joint.spread[2]);
-  std::printf("joint: carry scale %.5f (truth %.5f), camera noise %.4f px\n", joint.carry_scale, 0.05 * 0.05, joint.camera_noise);
+  std::printf("joint: carry scale %.5f (truth %.5f), camera noise %.4f px\n", joint.carry_scale,
+              0.05 * 0.05, joint.camera_noise);
   EXPECT_NEAR(joint.carry_scale / (0.05 * 0.05), 1.0, 0.25);
   EXPECT_NEAR(joint.camera_noise, 0.2, 0.03);
 }
@@ -210,7 +222,8 @@ TEST(Calibrate, ViewCorrelatedCovariancePredictsSpreadOfCorrelatedCornerErrors) 
   const int runs = 30;
   const double sigma = 0.2, share = 0.6, length = 1.0;
   const int params[3] = {CameraModel::kFx, CameraModel::kCx, CameraModel::kCy};
-  double spread[3] = {0, 0, 0}, standard[3] = {0, 0, 0}, view[3] = {0, 0, 0}, est_share = 0, est_length = 0;
+  double spread[3] = {0, 0, 0}, standard[3] = {0, 0, 0}, view[3] = {0, 0, 0}, est_share = 0,
+         est_length = 0;
   for (int run = 0; run < runs; ++run) {
     SyntheticData data = MakeSyntheticData(rig, 10, 0.0, 300u + static_cast<uint32_t>(run));
     std::mt19937 rng(900u + static_cast<uint32_t>(run));
@@ -220,22 +233,27 @@ TEST(Calibrate, ViewCorrelatedCovariancePredictsSpreadOfCorrelatedCornerErrors) 
       Eigen::MatrixXd k(n, n);
       for (Eigen::Index i = 0; i < n; ++i) {
         for (Eigen::Index j = 0; j < n; ++j) {
-          const double d = (v.points_in_board_mm[static_cast<size_t>(i)] - v.points_in_board_mm[static_cast<size_t>(j)]).norm() /
+          const double d = (v.points_in_board_mm[static_cast<size_t>(i)] -
+                            v.points_in_board_mm[static_cast<size_t>(j)])
+                               .norm() /
                            rig.square_size_mm;
-          k(i, j) = sigma * sigma * (i == j ? 1.0 : share * std::exp(-d * d / (2 * length * length)));
+          k(i, j) =
+              sigma * sigma * (i == j ? 1.0 : share * std::exp(-d * d / (2 * length * length)));
         }
       }
       const Eigen::MatrixXd l = k.llt().matrixL();
       Eigen::MatrixXd z(n, 2);
       for (Eigen::Index i = 0; i < n; ++i) z.row(i) << normal(rng), normal(rng);
       const Eigen::MatrixXd e = l * z;
-      for (Eigen::Index i = 0; i < n; ++i) v.pixels_px[static_cast<size_t>(i)] += e.row(i).transpose();
+      for (Eigen::Index i = 0; i < n; ++i)
+        v.pixels_px[static_cast<size_t>(i)] += e.row(i).transpose();
     }
     const CalibrationResult r = Calibrate(data.input, {});
     ASSERT_EQ(r.intrinsics_covariance_view_correlated.size(), 1u);
     for (int q = 0; q < 3; ++q) {
       const int i = params[q];
-      spread[q] += std::pow(r.devices[0].model.params[i] - rig.devices[0].model.params[i], 2) / runs;
+      spread[q] +=
+          std::pow(r.devices[0].model.params[i] - rig.devices[0].model.params[i], 2) / runs;
       standard[q] += r.intrinsics_covariance[0](i, i) / runs;
       view[q] += r.intrinsics_covariance_view_correlated[0](i, i) / runs;
     }
@@ -247,7 +265,8 @@ TEST(Calibrate, ViewCorrelatedCovariancePredictsSpreadOfCorrelatedCornerErrors) 
     spread[q] = std::sqrt(spread[q]);
     standard[q] = std::sqrt(standard[q]);
     view[q] = std::sqrt(view[q]);
-    std::printf("%s: spread %.3f, standard covariance %.3f, view-correlated %.3f\n", names[q], spread[q], standard[q], view[q]);
+    std::printf("%s: spread %.3f, standard covariance %.3f, view-correlated %.3f\n", names[q],
+                spread[q], standard[q], view[q]);
     // Measured: spread / standard sigma 1.6-2.2; / view-correlated sigma 0.93-1.28 (the same as
     // with the true kernel; correlation read off the residuals alone, without the moment
     // matching, gave a kernel too short, share 0.66 over 0.77 squares, and 1.15-1.6).
@@ -255,7 +274,8 @@ TEST(Calibrate, ViewCorrelatedCovariancePredictsSpreadOfCorrelatedCornerErrors) 
     EXPECT_GT(spread[q] / view[q], 0.75) << names[q];
     EXPECT_LT(spread[q] / view[q], 1.45) << names[q];
   }
-  std::printf("estimated share %.3f (truth %.1f), length %.2f squares (truth %.1f)\n", est_share, share, est_length, length);
+  std::printf("estimated share %.3f (truth %.1f), length %.2f squares (truth %.1f)\n", est_share,
+              share, est_length, length);
   EXPECT_NEAR(est_share, share, 0.1);
   EXPECT_NEAR(est_length, length, 0.2);
 }
@@ -284,9 +304,11 @@ TEST(Calibrate, JointNoiseModelKeepsTheRobustLoss) {
   double plain_err = 0, robust_err = 0;
   for (int i : {CameraModel::kFx, CameraModel::kCx, CameraModel::kCy}) {
     plain_err += std::abs(plain.devices[1].model.params[i] - clean.devices[1].model.params[i]);
-    robust_err += std::abs(robust.devices[1].model.params[i] - robust_clean.devices[1].model.params[i]);
+    robust_err +=
+        std::abs(robust.devices[1].model.params[i] - robust_clean.devices[1].model.params[i]);
   }
-  std::printf("projector fx+cx+cy moved by the outlier: %.3f px without loss, %.3f px with Huber\n", plain_err, robust_err);
+  std::printf("projector fx+cx+cy moved by the outlier: %.3f px without loss, %.3f px with Huber\n",
+              plain_err, robust_err);
   // Measured 4.86 px without loss, 0.47 px with Huber (1.96 px before the noise levels were
   // estimated from medians under a robust loss: the outlier inflated the camera's sigma).
   EXPECT_LT(robust_err, 0.25 * plain_err);
@@ -313,9 +335,11 @@ TEST(Calibrate, PrincipalPointInsideBoundsHoldAndAgreeWhenTheTruthIsInside) {
     const auto& b = bounded.devices[0].model.params;
     const auto& truth = rig.devices[0].model.params;
     ASSERT_EQ(free.intrinsics_covariance.size(), 1u);
-    std::printf("true cy %.1f: free cy %.3f (sigma %.3f) RMS %.4f, bounded cy %.3f RMS %.4f, fx %.3f vs %.3f\n", true_cy, f[M::kCy],
-                std::sqrt(free.intrinsics_covariance[0](M::kCy, M::kCy)), free.summary.rms_px, b[M::kCy], bounded.summary.rms_px,
-                f[M::kFx], b[M::kFx]);
+    std::printf(
+        "true cy %.1f: free cy %.3f (sigma %.3f) RMS %.4f, bounded cy %.3f RMS %.4f, fx %.3f vs "
+        "%.3f\n",
+        true_cy, f[M::kCy], std::sqrt(free.intrinsics_covariance[0](M::kCy, M::kCy)),
+        free.summary.rms_px, b[M::kCy], bounded.summary.rms_px, f[M::kFx], b[M::kFx]);
     EXPECT_GE(b[M::kCx], -0.5);
     EXPECT_LE(b[M::kCx], 1280 - 0.5);
     EXPECT_GE(b[M::kCy], -0.5);
@@ -332,8 +356,11 @@ TEST(Calibrate, PrincipalPointInsideBoundsHoldAndAgreeWhenTheTruthIsInside) {
       EXPECT_TRUE(bounded.summary.bounds_active.empty());
     } else {
       ASSERT_EQ(bounded.summary.bounds_active.size(), 1u);
-      EXPECT_NE(bounded.summary.bounds_active[0].find("cy = 1023.5 (upper bound)"), std::string::npos) << bounded.summary.bounds_active[0];
-      EXPECT_NE(bounded.summary.FullReport().find("principal point on its bound"), std::string::npos);
+      EXPECT_NE(bounded.summary.bounds_active[0].find("cy = 1023.5 (upper bound)"),
+                std::string::npos)
+          << bounded.summary.bounds_active[0];
+      EXPECT_NE(bounded.summary.FullReport().find("principal point on its bound"),
+                std::string::npos);
       EXPECT_EQ(b[M::kCy], 1023.5);
       EXPECT_GT(bounded.summary.final_cost, free.summary.final_cost);
       // The bounded coordinate is held: no variance, in both covariances.
@@ -377,7 +404,9 @@ TEST(Calibrate, StereoRecoversBaselineAndRelativePose) {
   const double baseline_true = rig.devices[1].cam_from_rig.translation.norm();
   const double baseline = r.devices[1].cam_from_rig.translation.norm();
   EXPECT_NEAR(baseline / baseline_true, 1.0, 5e-4);
-  EXPECT_LT(r.devices[1].cam_from_rig.rotation.angularDistance(rig.devices[1].cam_from_rig.rotation), 2e-4);
+  EXPECT_LT(
+      r.devices[1].cam_from_rig.rotation.angularDistance(rig.devices[1].cam_from_rig.rotation),
+      2e-4);
   EXPECT_NEAR(r.devices[1].model.fx() / rig.devices[1].model.fx(), 1.0, 1e-3);
   EXPECT_EQ(r.summary.devices.size(), 2u);
   EXPECT_LT(r.summary.rms_px, 0.2);
@@ -437,7 +466,8 @@ struct Detected {
 };
 
 // Detects `spec` in each file; device d gets files[d], pose i is the i-th file of each list.
-Detected DetectAll(const TargetSpec& spec, const std::vector<std::vector<std::filesystem::path>>& files,
+Detected DetectAll(const TargetSpec& spec,
+                   const std::vector<std::vector<std::filesystem::path>>& files,
                    const std::vector<std::string>& names) {
   Detected out;
   const auto board = BoardPoints(spec);
@@ -479,7 +509,8 @@ std::vector<std::filesystem::path> StereoFiles(const std::string& side) {
 }
 
 TEST(CalibrateRealData, OpenCvStereoChessboardLeftReproducesOpenCvsStoredResult) {
-  TargetSpec spec = LoadTargetSpec(testing::SourceDir() / "config/targets/opencv-stereo-chessboard.yaml");
+  TargetSpec spec =
+      LoadTargetSpec(testing::SourceDir() / "config/targets/opencv-stereo-chessboard.yaml");
   const Detected det = DetectAll(spec, {StereoFiles("left")}, {"left"});
   ASSERT_TRUE(det.missed.empty()) << det.missed[0];
   CalibrationOptions o;
@@ -487,8 +518,8 @@ TEST(CalibrateRealData, OpenCvStereoChessboardLeftReproducesOpenCvsStoredResult)
   const CalibrationResult r = Calibrate(det.input, o);
   std::printf("classic: %s\n", r.summary.FullReport().c_str());
   const auto& p = r.devices[0].model.params;
-  std::printf("fx %.4f fy %.4f cx %.4f cy %.4f k %.5f %.5f %.7f %.8f %.5f\n", p[0], p[1], p[2], p[3], p[4], p[5], p[6],
-              p[7], p[8]);
+  std::printf("fx %.4f fy %.4f cx %.4f cy %.4f k %.5f %.5f %.7f %.8f %.5f\n", p[0], p[1], p[2],
+              p[3], p[4], p[5], p[6], p[7], p[8]);
   // OpenCV's avg_reprojection_error is sqrt(sum |r|^2 / N), our rms_px.
   EXPECT_NEAR(r.summary.rms_px, 0.39259, 0.0039);
   EXPECT_NEAR(p[0], 535.9157, 0.5);
@@ -504,54 +535,65 @@ TEST(CalibrateRealData, OpenCvStereoChessboardLeftReproducesOpenCvsStoredResult)
   spec.detector = ChessboardDetector::kSectorBased;
   const Detected sb = DetectAll(spec, {StereoFiles("left")}, {"left"});
   const CalibrationResult rs = Calibrate(sb.input, o);
-  std::printf("sb: %zu missed; %s\nfx %.4f cx %.4f cy %.4f\n", sb.missed.size(), rs.summary.BriefReport().c_str(),
-              rs.devices[0].model.fx(), rs.devices[0].model.cx(), rs.devices[0].model.cy());
+  std::printf("sb: %zu missed; %s\nfx %.4f cx %.4f cy %.4f\n", sb.missed.size(),
+              rs.summary.BriefReport().c_str(), rs.devices[0].model.fx(), rs.devices[0].model.cx(),
+              rs.devices[0].model.cy());
   EXPECT_NEAR(rs.devices[0].model.fx(), p[0], 5.0);
 }
 
 TEST(CalibrateRealData, OpenCvStereoChessboardPairs) {
-  const TargetSpec spec = LoadTargetSpec(testing::SourceDir() / "config/targets/opencv-stereo-chessboard.yaml");
-  const Detected det = DetectAll(spec, {StereoFiles("left"), StereoFiles("right")}, {"left", "right"});
+  const TargetSpec spec =
+      LoadTargetSpec(testing::SourceDir() / "config/targets/opencv-stereo-chessboard.yaml");
+  const Detected det =
+      DetectAll(spec, {StereoFiles("left"), StereoFiles("right")}, {"left", "right"});
   for (const auto& m : det.missed) std::printf("missed %s\n", m.c_str());
   CalibrationOptions o;
   o.fix_aspect_ratio = true;
   const CalibrationResult r = Calibrate(det.input, o);
   std::printf("stereo: %s\n", r.summary.FullReport().c_str());
   const Rigid3d& right_from_left = r.devices[1].cam_from_rig;
-  std::printf("baseline %.3f mm, t = %.3f %.3f %.3f\n", right_from_left.translation.norm(), right_from_left.translation.x(),
-              right_from_left.translation.y(), right_from_left.translation.z());
+  std::printf("baseline %.3f mm, t = %.3f %.3f %.3f\n", right_from_left.translation.norm(),
+              right_from_left.translation.x(), right_from_left.translation.y(),
+              right_from_left.translation.z());
   EXPECT_TRUE(r.summary.converged);
   EXPECT_LT(r.summary.rms_px, 0.6);
-  // The right camera sits to the right of the left one: x of the left centre in the right frame < 0.
+  // The right camera sits to the right of the left one: x of the left centre in the right frame <
+  // 0.
   EXPECT_LT(right_from_left.translation.x(), 0);
 }
 
 TEST(CalibrateRealData, OpenCvCharucoTutorial) {
-  const TargetSpec spec = LoadTargetSpec(testing::SourceDir() / "config/targets/opencv-charuco-tutorial.yaml");
+  const TargetSpec spec =
+      LoadTargetSpec(testing::SourceDir() / "config/targets/opencv-charuco-tutorial.yaml");
   std::vector<std::filesystem::path> files;
   for (int i = 0; i < 4; ++i) {
-    files.push_back(testing::SharedDataDir() / "opencv-charuco-tutorial" / ("img_0" + std::to_string(i) + ".jpg"));
+    files.push_back(testing::SharedDataDir() / "opencv-charuco-tutorial" /
+                    ("img_0" + std::to_string(i) + ".jpg"));
   }
   const Detected det = DetectAll(spec, {files}, {"camera"});
   ASSERT_TRUE(det.missed.empty()) << det.missed[0];
   const CalibrationResult r = Calibrate(det.input, {});
-  std::printf("charuco: %s\nfx %.4f fy %.4f cx %.4f cy %.4f\n", r.summary.FullReport().c_str(), r.devices[0].model.fx(),
-              r.devices[0].model.fy(), r.devices[0].model.cx(), r.devices[0].model.cy());
+  std::printf("charuco: %s\nfx %.4f fy %.4f cx %.4f cy %.4f\n", r.summary.FullReport().c_str(),
+              r.devices[0].model.fx(), r.devices[0].model.fy(), r.devices[0].model.cx(),
+              r.devices[0].model.cy());
   EXPECT_NEAR(r.devices[0].model.fx() / 452.5107, 1.0, 0.01);
   EXPECT_NEAR(r.devices[0].model.fy() / 456.7671, 1.0, 0.01);
 }
 
 TEST(CalibrateRealData, KaminoCameraFromWhiteFrames) {
-  const TargetSpec spec = LoadTargetSpec(testing::SourceDir() / "config/targets/kamino-procam-graycode.yaml");
+  const TargetSpec spec =
+      LoadTargetSpec(testing::SourceDir() / "config/targets/kamino-procam-graycode.yaml");
   std::vector<std::filesystem::path> files;
   for (int i = 0; i < 5; ++i) {
-    files.push_back(testing::SharedDataDir() / "kamino-procam-graycode" / ("capture_" + std::to_string(i)) / "graycode_40.png");
+    files.push_back(testing::SharedDataDir() / "kamino-procam-graycode" /
+                    ("capture_" + std::to_string(i)) / "graycode_40.png");
   }
   const Detected det = DetectAll(spec, {files}, {"camera"});
   ASSERT_TRUE(det.missed.empty()) << det.missed[0];
   const CalibrationResult r = Calibrate(det.input, {});
-  std::printf("kamino camera: %s\nfx %.4f fy %.4f cx %.4f cy %.4f\n", r.summary.BriefReport().c_str(),
-              r.devices[0].model.fx(), r.devices[0].model.fy(), r.devices[0].model.cx(), r.devices[0].model.cy());
+  std::printf("kamino camera: %s\nfx %.4f fy %.4f cx %.4f cy %.4f\n",
+              r.summary.BriefReport().c_str(), r.devices[0].model.fx(), r.devices[0].model.fy(),
+              r.devices[0].model.cx(), r.devices[0].model.cy());
   // Both upstream results: camera fx 3452.39 (README.md).
   EXPECT_NEAR(r.devices[0].model.fx() / 3452.39, 1.0, 0.001);
   EXPECT_NEAR(r.devices[0].model.fy() / 3449.92, 1.0, 0.001);

@@ -36,7 +36,8 @@ TEST(Guidance, CorrelatedCornerErrors) {
   SyntheticData data = MakeSyntheticData(SyntheticRig::OneCamera(), 15, 0.1, 2);
   for (auto& v : data.input.views) {
     for (size_t i = 0; i < v.pixels_px.size(); ++i) {
-      const double s = 0.02 * v.points_in_board_mm[i].x() + 0.7 * v.pose, t = 0.025 * v.points_in_board_mm[i].y() - 0.4 * v.pose;
+      const double s = 0.02 * v.points_in_board_mm[i].x() + 0.7 * v.pose,
+                   t = 0.025 * v.points_in_board_mm[i].y() - 0.4 * v.pose;
       v.pixels_px[i] += 0.5 * Eigen::Vector2d(std::sin(s + t), std::cos(s - t));
     }
   }
@@ -78,9 +79,11 @@ TEST(Guidance, CornersOnlyInTheCentre) {
 
 TEST(Guidance, SaturatedAndMissingImagesAndOutliers) {
   SyntheticData data = MakeSyntheticData(SyntheticRig::OneCamera(), 12, 0.1, 8);
-  for (auto& px : data.input.views[3].pixels_px) px += Eigen::Vector2d(1.5, -1.0) * ((&px - &data.input.views[3].pixels_px[0]) % 3 - 1);
+  for (auto& px : data.input.views[3].pixels_px)
+    px += Eigen::Vector2d(1.5, -1.0) * ((&px - &data.input.views[3].pixels_px[0]) % 3 - 1);
   const CalibrationResult r = Calibrate(data.input, {});
-  std::vector<ImageCheck> images = {{"a.png", 0, true, "", 0.15}, {"b.png", 0, false, "9x6 chessboard not found", 0.0}};
+  std::vector<ImageCheck> images = {{"a.png", 0, true, "", 0.15},
+                                    {"b.png", 0, false, "9x6 chessboard not found", 0.0}};
   const auto f = ReviewCalibration(data.input, r, images);
   EXPECT_TRUE(Has(f, "saturated image")) << All(f);
   EXPECT_TRUE(Has(f, "a.png")) << All(f);

@@ -82,9 +82,11 @@ TEST(ModelSelection, DistortionModelGridAndTheLowestPredictionIsChosen) {
   ASSERT_EQ(candidates.size(), 8u);
   EXPECT_EQ(candidates[0].name, "cameras k1 k2 p1 p2 k3 / projector k1 k2 p1 p2 k3");
   EXPECT_EQ(candidates[7].name, "cameras k1 k2 p1 p2 / projector k1");
-  EXPECT_EQ(candidates[2].held_params, (std::vector<std::vector<int>>{{}, {M::kP1, M::kP2, M::kK3}}));
+  EXPECT_EQ(candidates[2].held_params,
+            (std::vector<std::vector<int>>{{}, {M::kP1, M::kP2, M::kK3}}));
   EXPECT_EQ(candidates[5].held_params, (std::vector<std::vector<int>>{{M::kK3}, {M::kK3}}));
-  EXPECT_EQ(candidates[7].held_params, (std::vector<std::vector<int>>{{M::kK3}, {M::kK2, M::kP1, M::kP2, M::kK3}}));
+  EXPECT_EQ(candidates[7].held_params,
+            (std::vector<std::vector<int>>{{M::kK3}, {M::kK2, M::kP1, M::kP2, M::kK3}}));
   EXPECT_THROW(DistortionModelCandidates(data.input, 0), Error);  // not a projector
   EXPECT_THROW(DistortionModelCandidates(data.input, 2), Error);
 
@@ -93,9 +95,11 @@ TEST(ModelSelection, DistortionModelGridAndTheLowestPredictionIsChosen) {
   ASSERT_EQ(selection.scores.size(), 8u);
   for (size_t i = 0; i < selection.scores.size(); ++i) {
     EXPECT_EQ(selection.scores[i].name, candidates[i].name);
-    EXPECT_GE(selection.scores[i].prediction_rms_px, selection.scores[selection.chosen].prediction_rms_px);
+    EXPECT_GE(selection.scores[i].prediction_rms_px,
+              selection.scores[selection.chosen].prediction_rms_px);
   }
-  EXPECT_LT(selection.scores[selection.chosen].prediction_rms_px, 1e-4);  // noise-free: a candidate holds the truth
+  EXPECT_LT(selection.scores[selection.chosen].prediction_rms_px,
+            1e-4);  // noise-free: a candidate holds the truth
   EXPECT_EQ(selection.chosen_held_params, candidates[selection.chosen].held_params);
   EXPECT_EQ(input.devices[0].held_params, candidates[selection.chosen].held_params[0]);
   EXPECT_EQ(input.devices[1].held_params, candidates[selection.chosen].held_params[1]);
@@ -103,8 +107,10 @@ TEST(ModelSelection, DistortionModelGridAndTheLowestPredictionIsChosen) {
   EXPECT_EQ(json.at("chosen"), selection.scores[selection.chosen].name);
   ASSERT_EQ(json.at("candidates").size(), 8u);
   EXPECT_EQ(json.at("candidates")[3].at("model"), candidates[3].name);
-  EXPECT_EQ(json.at("candidates")[3].at("prediction_rms_px").get<double>(), selection.scores[3].prediction_rms_px);
-  EXPECT_EQ(json.at("candidates")[3].at("num_predicted").get<int>(), selection.scores[3].num_predicted);
+  EXPECT_EQ(json.at("candidates")[3].at("prediction_rms_px").get<double>(),
+            selection.scores[3].prediction_rms_px);
+  EXPECT_EQ(json.at("candidates")[3].at("num_predicted").get<int>(),
+            selection.scores[3].num_predicted);
 
   CalibrationInput cameras_only = data.input;
   cameras_only.devices[1].is_projector = false;

@@ -62,7 +62,8 @@ TEST(ProjectorCorners, LocalHomographyRecoversKnownMapping) {
     const cv::Vec3d t = proj_from_cam * cv::Vec3d(c.camera_px.x(), c.camera_px.y(), 1);
     Eigen::Matrix2d j;
     for (int r = 0; r < 2; ++r) {
-      for (int k = 0; k < 2; ++k) j(r, k) = (proj_from_cam(r, k) - t[r] / t[2] * proj_from_cam(2, k)) / t[2];
+      for (int k = 0; k < 2; ++k)
+        j(r, k) = (proj_from_cam(r, k) - t[r] / t[2] * proj_from_cam(2, k)) / t[2];
     }
     EXPECT_LT((c.jacobian - j).norm(), 0.01 * j.norm());
     const double trace = c.fit_covariance_px2.trace();
@@ -93,7 +94,8 @@ struct KaminoData {
 
 KaminoData LoadKamino(const DecodeOptions& decode, const LocalHomographyOptions& lh) {
   const PatternSpec spec = KaminoSpec();
-  const TargetSpec target = LoadTargetSpec(testing::SourceDir() / "config/targets/kamino-procam-graycode.yaml");
+  const TargetSpec target =
+      LoadTargetSpec(testing::SourceDir() / "config/targets/kamino-procam-graycode.yaml");
   KaminoData run;
   run.input.num_poses = 5;
   run.input.devices.resize(2);
@@ -105,14 +107,16 @@ KaminoData LoadKamino(const DecodeOptions& decode, const LocalHomographyOptions&
   run.input.devices[1].height = 768;
   run.input.devices[1].is_projector = true;
   for (int p = 0; p < 5; ++p) {
-    const auto dir = testing::SharedDataDir() / "kamino-procam-graycode" / ("capture_" + std::to_string(p));
+    const auto dir =
+        testing::SharedDataDir() / "kamino-procam-graycode" / ("capture_" + std::to_string(p));
     std::vector<cv::Mat> images;
     for (int i = 0; i < spec.NumImages(); ++i) {
       char name[32];
       std::snprintf(name, sizeof(name), "graycode_%02d.png", i);
       images.push_back(ReadGrayImage(dir / name));
     }
-    ProcamPose pose = MakeProcamPose(spec, images, target, p, 0, 1, "capture_" + std::to_string(p), decode, lh);
+    ProcamPose pose =
+        MakeProcamPose(spec, images, target, p, 0, 1, "capture_" + std::to_string(p), decode, lh);
     EXPECT_TRUE(pose.detection.found) << pose.detection.reason;
     EXPECT_EQ(pose.projector.corners.size(), 63u);
     run.input.views.push_back(pose.camera_view);
@@ -152,7 +156,8 @@ TEST(ProjectorCalibrationRealData, KaminoProcamGraycode) {
   decode.contrast_threshold = 5;
   const KaminoData data = LoadKamino(decode, {});
   using M = CameraModel;
-  const std::vector<int> full = {}, no_k3 = {M::kK3}, k1k2 = {M::kP1, M::kP2, M::kK3}, k1 = {M::kK2, M::kP1, M::kP2, M::kK3},
+  const std::vector<int> full = {}, no_k3 = {M::kK3}, k1k2 = {M::kP1, M::kP2, M::kK3},
+                         k1 = {M::kK2, M::kP1, M::kP2, M::kK3},
                          none = {M::kK1, M::kK2, M::kP1, M::kP2, M::kK3};
   const std::vector<ModelCandidate> candidates = {{"camera full / projector full", {full, full}},
                                                   {"camera k1k2p / projector full", {no_k3, full}},
@@ -165,11 +170,14 @@ TEST(ProjectorCalibrationRealData, KaminoProcamGraycode) {
     const auto& r = scores[i].result;
     const CameraModel& p = r.devices[1].model;
     const auto& c = r.intrinsics_covariance[1];
-    std::printf("%-32s fit %.4f px, predicted %.4f px | fx %.1f +- %.1f (jackknife %.1f) cx %.1f +- %.1f (%.1f) cy %.1f +- %.1f "
-                "(%.1f)\n",
-                scores[i].name.c_str(), scores[i].fit_rms_px, scores[i].prediction_rms_px, p.fx(), std::sqrt(c(0, 0)),
-                JackknifeSigma(scores[i], M::kFx), p.cx(), std::sqrt(c(2, 2)), JackknifeSigma(scores[i], M::kCx), p.cy(),
-                std::sqrt(c(3, 3)), JackknifeSigma(scores[i], M::kCy));
+    std::printf(
+        "%-32s fit %.4f px, predicted %.4f px | fx %.1f +- %.1f (jackknife %.1f) cx %.1f +- %.1f "
+        "(%.1f) cy %.1f +- %.1f "
+        "(%.1f)\n",
+        scores[i].name.c_str(), scores[i].fit_rms_px, scores[i].prediction_rms_px, p.fx(),
+        std::sqrt(c(0, 0)), JackknifeSigma(scores[i], M::kFx), p.cx(), std::sqrt(c(2, 2)),
+        JackknifeSigma(scores[i], M::kCx), p.cy(), std::sqrt(c(3, 3)),
+        JackknifeSigma(scores[i], M::kCy));
     EXPECT_EQ(scores[i].num_predicted, 5 * 63);
     if (scores[i].prediction_rms_px < scores[best].prediction_rms_px) best = i;
   }
@@ -177,7 +185,8 @@ TEST(ProjectorCalibrationRealData, KaminoProcamGraycode) {
   const CalibrationResult& result = chosen.result;
   std::printf("chosen: %s\n%s\n", chosen.name.c_str(), result.summary.FullReport().c_str());
   if (std::getenv("KAMINO_DUMP")) {
-    std::ofstream(std::getenv("KAMINO_DUMP")) << CalibrationEvidenceToJson(data.input, {}, result).dump();
+    std::ofstream(std::getenv("KAMINO_DUMP"))
+        << CalibrationEvidenceToJson(data.input, {}, result).dump();
   }
   EXPECT_TRUE(result.summary.converged);
   // Fewer parameters predict the held-out poses better than the full models (the full models fit
@@ -196,14 +205,16 @@ TEST(ProjectorCalibrationRealData, KaminoProcamGraycode) {
     const double sigma = std::sqrt(cov(i, i)), jack = JackknifeSigma(chosen, i);
     EXPECT_GT(jack, sigma / 2) << "parameter " << i;
     EXPECT_LT(jack, sigma * 5) << "parameter " << i;
-    for (const auto& m : chosen.fold_models) EXPECT_LT(std::abs(m.params[i] - proj.params[i]), 3 * jack) << "parameter " << i;
+    for (const auto& m : chosen.fold_models)
+      EXPECT_LT(std::abs(m.params[i] - proj.params[i]), 3 * jack) << "parameter " << i;
   }
   // Why: the covariance assumes independent corner errors, and they are not. Neighbouring
   // corners' residuals correlate (measured +0.38 camera, +0.41 projector; independent errors give
   // ~0, calib_uncertainty_test), errors shared across each pose that the covariance cannot see.
   const double camera_corr = NeighbourResidualCorrelation(data.input, result, 0);
   const double projector_corr = NeighbourResidualCorrelation(data.input, result, 1);
-  std::printf("neighbour residual correlation: camera %+.3f, projector %+.3f\n", camera_corr, projector_corr);
+  std::printf("neighbour residual correlation: camera %+.3f, projector %+.3f\n", camera_corr,
+              projector_corr);
   EXPECT_GT(camera_corr, 0.2);
   EXPECT_GT(projector_corr, 0.2);
   // The covariance under a noise model with corner errors correlated across each pose
@@ -216,11 +227,14 @@ TEST(ProjectorCalibrationRealData, KaminoProcamGraycode) {
   ASSERT_EQ(result.intrinsics_covariance_view_correlated.size(), 2u);
   const auto& vcov = result.intrinsics_covariance_view_correlated[1];
   for (const auto& k : result.summary.view_noise) {
-    std::printf("view noise: sigma %.4f px, share %.3f, length %.2f squares\n", k.sigma_px, k.share, k.length_squares);
+    std::printf("view noise: sigma %.4f px, share %.3f, length %.2f squares\n", k.sigma_px, k.share,
+                k.length_squares);
   }
   for (int i : {M::kFx, M::kCx, M::kCy}) {
-    const double sigma = std::sqrt(cov(i, i)), view = std::sqrt(vcov(i, i)), jack = JackknifeSigma(chosen, i);
-    std::printf("parameter %d: sigma %.2f, view-correlated %.2f, jackknife %.2f (x%.2f)\n", i, sigma, view, jack, jack / view);
+    const double sigma = std::sqrt(cov(i, i)), view = std::sqrt(vcov(i, i)),
+                 jack = JackknifeSigma(chosen, i);
+    std::printf("parameter %d: sigma %.2f, view-correlated %.2f, jackknife %.2f (x%.2f)\n", i,
+                sigma, view, jack, jack / view);
     EXPECT_GT(view, 1.2 * sigma) << "parameter " << i;
     EXPECT_LT(jack / view, i == M::kCx ? 2.5 : 1.5) << "parameter " << i;
     EXPECT_GT(jack / view, 0.6) << "parameter " << i;
@@ -238,17 +252,24 @@ TEST(ProjectorCalibrationRealData, KaminoProcamGraycode) {
       ScoreModelsByLeaveOnePoseOut(data.input, joint_options, {candidates[best]}, 0, 1).front();
   ASSERT_TRUE(joint.result.summary.joint_noise);
   const CalibrationSummary& js = joint.result.summary;
-  std::printf("joint noise model: %s\n  corner noise camera %.4f projector %.4f px, carry scale %.1f, chi2/dof %.3f; predicted %.4f px\n",
-              js.BriefReport().c_str(), js.noise_sigma_px[0], js.noise_sigma_px[1], js.carry_scale, js.variance_factor,
-              joint.prediction_rms_px);
+  std::printf(
+      "joint noise model: %s\n  corner noise camera %.4f projector %.4f px, carry scale %.1f, "
+      "chi2/dof %.3f; predicted %.4f px\n",
+      js.BriefReport().c_str(), js.noise_sigma_px[0], js.noise_sigma_px[1], js.carry_scale,
+      js.variance_factor, joint.prediction_rms_px);
   for (int i : {M::kFx, M::kCx, M::kCy}) {
-    const double sigma_i = std::sqrt(cov(i, i)), sigma_j = std::sqrt(joint.result.intrinsics_covariance[1](i, i));
-    std::printf("parameter %d: independent %.1f sigma %.2f jackknife %.2f (x%.2f) | joint %.1f sigma %.2f jackknife %.2f (x%.2f)\n", i,
-                proj.params[i], sigma_i, JackknifeSigma(chosen, i), JackknifeSigma(chosen, i) / sigma_i,
-                joint.result.devices[1].model.params[i], sigma_j, JackknifeSigma(joint, i), JackknifeSigma(joint, i) / sigma_j);
+    const double sigma_i = std::sqrt(cov(i, i)),
+                 sigma_j = std::sqrt(joint.result.intrinsics_covariance[1](i, i));
+    std::printf(
+        "parameter %d: independent %.1f sigma %.2f jackknife %.2f (x%.2f) | joint %.1f sigma %.2f "
+        "jackknife %.2f (x%.2f)\n",
+        i, proj.params[i], sigma_i, JackknifeSigma(chosen, i), JackknifeSigma(chosen, i) / sigma_i,
+        joint.result.devices[1].model.params[i], sigma_j, JackknifeSigma(joint, i),
+        JackknifeSigma(joint, i) / sigma_j);
     EXPECT_LT(sigma_j, sigma_i) << "parameter " << i;
     if (i != M::kFx) {
-      EXPECT_GT(JackknifeSigma(joint, i) / sigma_j, 1.5 * JackknifeSigma(chosen, i) / sigma_i) << "parameter " << i;
+      EXPECT_GT(JackknifeSigma(joint, i) / sigma_j, 1.5 * JackknifeSigma(chosen, i) / sigma_i)
+          << "parameter " << i;
     }
   }
   EXPECT_LE(joint.prediction_rms_px, 0.43);
@@ -256,10 +277,10 @@ TEST(ProjectorCalibrationRealData, KaminoProcamGraycode) {
   EXPECT_GT(proj.cx(), 0);
   EXPECT_LT(proj.cx(), 1024);
   // The principal point's row is NOT inside the 768-row image: the data put it ~90 px below
-  // (cy ~855 px, jackknife sigma ~15 px; every model the data support, every fold, decode threshold, window size
-  // and pixel convention agree), as for a table projector throwing upwards with ~110 % lens
-  // offset. Only a distortion-free projector model (rejected above) or OpenCV's local minimum
-  // (below) give cy ~720-740. Checked: not beyond 1.5 image heights.
+  // (cy ~855 px, jackknife sigma ~15 px; every model the data support, every fold, decode
+  // threshold, window size and pixel convention agree), as for a table projector throwing upwards
+  // with ~110 % lens offset. Only a distortion-free projector model (rejected above) or OpenCV's
+  // local minimum (below) give cy ~720-740. Checked: not beyond 1.5 image heights.
   EXPECT_GT(proj.cy(), 0);
   EXPECT_LT(proj.cy(), 1.5 * 768);
   // The wish, the principal point inside the 1024x768 image, as a constraint
@@ -272,17 +293,21 @@ TEST(ProjectorCalibrationRealData, KaminoProcamGraycode) {
   // view-correlated covariance, and worse on held-out poses.
   CalibrationOptions inside;
   inside.principal_point_inside = true;
-  const ModelScore bounded = ScoreModelsByLeaveOnePoseOut(data.input, inside, {candidates[best]}, 0, 1).front();
+  const ModelScore bounded =
+      ScoreModelsByLeaveOnePoseOut(data.input, inside, {candidates[best]}, 0, 1).front();
   const CalibrationResult& br = bounded.result;
   const double var_std = cov(M::kCy, M::kCy), var_vc = vcov(M::kCy, M::kCy);
   const double lr_iid = 2 * (br.summary.final_cost - result.summary.final_cost) /
                         (result.summary.residual_sigma_px * result.summary.residual_sigma_px);
-  std::printf("principal point inside: projector fx %.2f cx %.2f cy %.2f, fit RMS %.4f px (free %.4f), held-out %.4f px (free %.4f), "
-              "cost %.4f -> %.4f: LR %.1f independent, %.1f view-correlated; %s\n",
-              br.devices[1].model.fx(), br.devices[1].model.cx(), br.devices[1].model.cy(), br.summary.devices[1].rms_px,
-              result.summary.devices[1].rms_px, bounded.prediction_rms_px, chosen.prediction_rms_px, result.summary.final_cost,
-              br.summary.final_cost, lr_iid, lr_iid * var_std / var_vc,
-              br.summary.bounds_active.empty() ? "no bound active" : br.summary.bounds_active[0].c_str());
+  std::printf(
+      "principal point inside: projector fx %.2f cx %.2f cy %.2f, fit RMS %.4f px (free %.4f), "
+      "held-out %.4f px (free %.4f), "
+      "cost %.4f -> %.4f: LR %.1f independent, %.1f view-correlated; %s\n",
+      br.devices[1].model.fx(), br.devices[1].model.cx(), br.devices[1].model.cy(),
+      br.summary.devices[1].rms_px, result.summary.devices[1].rms_px, bounded.prediction_rms_px,
+      chosen.prediction_rms_px, result.summary.final_cost, br.summary.final_cost, lr_iid,
+      lr_iid * var_std / var_vc,
+      br.summary.bounds_active.empty() ? "no bound active" : br.summary.bounds_active[0].c_str());
   EXPECT_TRUE(br.summary.converged) << br.summary.termination;
   EXPECT_LE(br.devices[1].model.cy(), 767.5);
   EXPECT_GE(br.devices[1].model.cy(), -0.5);
@@ -308,11 +333,13 @@ TEST(ProjectorCalibrationRealData, KaminoProcamGraycode) {
     alone.views.back().DropCarry();  // its source, the camera, is not in this problem
   }
   const CalibrationResult ours_alone = Calibrate(alone, {});
-  std::printf("projector alone, full model: OpenCV (upstream's call) RMS %.4f px fx %.1f cx %.1f cy %.1f; ours RMS %.4f px fx %.1f "
-              "cx %.1f cy %.1f\n",
-              upstream_rms, k_upstream.at<double>(0, 0), k_upstream.at<double>(0, 2), k_upstream.at<double>(1, 2),
-              ours_alone.summary.rms_px, ours_alone.devices[0].model.fx(), ours_alone.devices[0].model.cx(),
-              ours_alone.devices[0].model.cy());
+  std::printf(
+      "projector alone, full model: OpenCV (upstream's call) RMS %.4f px fx %.1f cx %.1f cy %.1f; "
+      "ours RMS %.4f px fx %.1f "
+      "cx %.1f cy %.1f\n",
+      upstream_rms, k_upstream.at<double>(0, 0), k_upstream.at<double>(0, 2),
+      k_upstream.at<double>(1, 2), ours_alone.summary.rms_px, ours_alone.devices[0].model.fx(),
+      ours_alone.devices[0].model.cx(), ours_alone.devices[0].model.cy());
   EXPECT_LT(ours_alone.summary.rms_px, 0.9 * upstream_rms);
   // The camera's focal length moves by < 0.5 % from the camera-only value (3452.39) when the
   // projector joins (5 poses).

@@ -4,8 +4,8 @@
 // refinement must bring the truth back.
 #include <gtest/gtest.h>
 
-#include <cmath>
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <random>
 
@@ -55,12 +55,14 @@ std::vector<ProjectorMap>* RefineSim::maps_ = nullptr;
 
 // A bumped device: 0.2 degree about a skew axis and a 1 mm shift (in its own frame).
 Rigid3d Bump(const Rigid3d& cam_from_rig) {
-  const Eigen::Quaterniond r(Eigen::AngleAxisd(0.2 * kDeg, Eigen::Vector3d(0.3, 1.0, 0.2).normalized()));
+  const Eigen::Quaterniond r(
+      Eigen::AngleAxisd(0.2 * kDeg, Eigen::Vector3d(0.3, 1.0, 0.2).normalized()));
   return Rigid3d(r, Eigen::Vector3d(0.6, -0.8, 0.0)) * cam_from_rig;
 }
 
 double DirectionError(const Rigid3d& a, const Rigid3d& b) {
-  return std::acos(std::clamp(a.translation.normalized().dot(b.translation.normalized()), -1.0, 1.0));
+  return std::acos(
+      std::clamp(a.translation.normalized().dot(b.translation.normalized()), -1.0, 1.0));
 }
 
 TEST_F(RefineSim, BumpedStereoCameraIsDetectedAndRecovered) {
@@ -75,10 +77,11 @@ TEST_F(RefineSim, BumpedStereoCameraIsDetectedAndRecovered) {
   const Rigid3d t10 = truth.cameras[1].cam_from_rig * truth.cameras[0].cam_from_rig.Inverse();
   const Rigid3d r10 = r.rig.cameras[1].cam_from_rig * r.rig.cameras[0].cam_from_rig.Inverse();
   const Rigid3d b10 = bumped.cameras[1].cam_from_rig * bumped.cameras[0].cam_from_rig.Inverse();
-  std::printf("stereo: %zu correspondences; truth median %.4f px p95 %.4f; bumped median %.3f; %s\n"
-              "  rotation error %.5f deg, baseline direction error %.5f deg\n",
-              corr.size(), ok.median_px, ok.p95_px, bad.median_px, r.message.c_str(),
-              r10.rotation.angularDistance(t10.rotation) / kDeg, DirectionError(r10, t10) / kDeg);
+  std::printf(
+      "stereo: %zu correspondences; truth median %.4f px p95 %.4f; bumped median %.3f; %s\n"
+      "  rotation error %.5f deg, baseline direction error %.5f deg\n",
+      corr.size(), ok.median_px, ok.p95_px, bad.median_px, r.message.c_str(),
+      r10.rotation.angularDistance(t10.rotation) / kDeg, DirectionError(r10, t10) / kDeg);
   // 0.1 px decoding noise, averaged by the 5x5 affine match: the truth fits to ~0.05 px.
   EXPECT_LT(ok.median_px, 0.1);
   EXPECT_GT(bad.median_px, 10 * ok.median_px);
@@ -87,7 +90,8 @@ TEST_F(RefineSim, BumpedStereoCameraIsDetectedAndRecovered) {
   EXPECT_LT(r.after.median_px, 1.1 * ok.median_px);
   EXPECT_LT(r10.rotation.angularDistance(t10.rotation), 0.01 * kDeg);
   EXPECT_LT(DirectionError(r10, t10), 0.02 * kDeg);
-  EXPECT_NEAR(r10.translation.norm(), b10.translation.norm(), 1e-9);  // scale kept from the rig file
+  EXPECT_NEAR(r10.translation.norm(), b10.translation.norm(),
+              1e-9);  // scale kept from the rig file
   EXPECT_EQ(r.rig.cameras[0].cam_from_rig.translation, truth.cameras[0].cam_from_rig.translation);
 }
 
@@ -106,10 +110,12 @@ TEST_F(RefineSim, BumpedProjectorAndFocalLengthAreRecovered) {
   const Rigid3d tp = truth.projector->cam_from_rig * truth.cameras[0].cam_from_rig.Inverse();
   const Rigid3d rp = r.rig.projector->cam_from_rig * truth.cameras[0].cam_from_rig.Inverse();
   const double f_err = r.rig.projector->model.fx() / truth.projector->model.fx() - 1;
-  std::printf("procam: truth median %.4f px; %s\n  focal error %+.4f %%, rotation error %.5f deg, direction error %.5f "
-              "deg; pose only: after median %.4f px\n",
-              ok.median_px, r.message.c_str(), 100 * f_err, rp.rotation.angularDistance(tp.rotation) / kDeg,
-              DirectionError(rp, tp) / kDeg, pose_only.after.median_px);
+  std::printf(
+      "procam: truth median %.4f px; %s\n  focal error %+.4f %%, rotation error %.5f deg, "
+      "direction error %.5f "
+      "deg; pose only: after median %.4f px\n",
+      ok.median_px, r.message.c_str(), 100 * f_err, rp.rotation.angularDistance(tp.rotation) / kDeg,
+      DirectionError(rp, tp) / kDeg, pose_only.after.median_px);
   EXPECT_NE(r.message.find("WARNING"), std::string::npos);
   EXPECT_LT(r.after.median_px, 1.1 * ok.median_px + 0.01);
   EXPECT_LT(std::abs(f_err), 0.0005);
@@ -140,28 +146,34 @@ TEST_F(RefineSim, BumpedStereoCameraAndFocalLengthAreRecovered) {
   const Rigid3d r10 = r.rig.cameras[1].cam_from_rig * r.rig.cameras[0].cam_from_rig.Inverse();
   const Rigid3d b10 = bumped.cameras[1].cam_from_rig * bumped.cameras[0].cam_from_rig.Inverse();
   const double f_err = r.rig.cameras[1].model.fx() / truth.cameras[1].model.fx() - 1;
-  std::printf("stereo + focal: truth median %.4f px; %s\n  focal error %+.4f %%, rotation error %.5f deg, direction error "
-              "%.5f deg; pose only: after median %.4f px\n",
-              ok.median_px, r.message.c_str(), 100 * f_err, r10.rotation.angularDistance(t10.rotation) / kDeg,
-              DirectionError(r10, t10) / kDeg, pose_only.after.median_px);
+  std::printf(
+      "stereo + focal: truth median %.4f px; %s\n  focal error %+.4f %%, rotation error %.5f deg, "
+      "direction error "
+      "%.5f deg; pose only: after median %.4f px\n",
+      ok.median_px, r.message.c_str(), 100 * f_err,
+      r10.rotation.angularDistance(t10.rotation) / kDeg, DirectionError(r10, t10) / kDeg,
+      pose_only.after.median_px);
   EXPECT_NE(r.message.find("WARNING"), std::string::npos);
   EXPECT_LT(r.after.median_px, 1.1 * ok.median_px + 0.01);
   // Without the focal length the pose absorbs most of the residual of a 0.5 % focal error (the
   // two are weakly separable in epipolar residuals), at the cost of a wrong pose.
-  const Rigid3d p10 = pose_only.rig.cameras[1].cam_from_rig * pose_only.rig.cameras[0].cam_from_rig.Inverse();
-  std::printf("  pose only: rotation error %.5f deg, direction error %.5f deg\n", p10.rotation.angularDistance(t10.rotation) / kDeg,
-              DirectionError(p10, t10) / kDeg);
+  const Rigid3d p10 =
+      pose_only.rig.cameras[1].cam_from_rig * pose_only.rig.cameras[0].cam_from_rig.Inverse();
+  std::printf("  pose only: rotation error %.5f deg, direction error %.5f deg\n",
+              p10.rotation.angularDistance(t10.rotation) / kDeg, DirectionError(p10, t10) / kDeg);
   EXPECT_GT(DirectionError(p10, t10), 10 * DirectionError(r10, t10));
   EXPECT_LT(std::abs(f_err), 0.0005);  // 0.5 % error recovered to 0.05 %
   EXPECT_NEAR(r.rig.cameras[1].model.fy() / r.rig.cameras[1].model.fx(),
               truth.cameras[1].model.fy() / truth.cameras[1].model.fx(), 1e-12);
   EXPECT_LT(r10.rotation.angularDistance(t10.rotation), 0.02 * kDeg);
   EXPECT_LT(DirectionError(r10, t10), 0.05 * kDeg);
-  EXPECT_NEAR(r10.translation.norm(), b10.translation.norm(), 1e-9);  // scale kept from the rig file
+  EXPECT_NEAR(r10.translation.norm(), b10.translation.norm(),
+              1e-9);  // scale kept from the rig file
   // The first camera and the other intrinsics are untouched.
   EXPECT_EQ(r.rig.cameras[0].model.params, truth.cameras[0].model.params);
   EXPECT_EQ(r.rig.cameras[1].model.cx(), bumped.cameras[1].model.cx());
-  EXPECT_EQ(r.rig.cameras[1].model.params[CameraModel::kK1], bumped.cameras[1].model.params[CameraModel::kK1]);
+  EXPECT_EQ(r.rig.cameras[1].model.params[CameraModel::kK1],
+            bumped.cameras[1].model.params[CameraModel::kK1]);
 }
 
 TEST_F(RefineSim, SwappedCamerasAndWrongRigFileAreFlagged) {
@@ -182,9 +194,12 @@ TEST_F(RefineSim, SwappedCamerasAndWrongRigFileAreFlagged) {
   const RefineResult rw = RefineStereoPose(wrong, 0, 1, corr);
   // Swapped camera and projector check: the projector map of camera 1 against camera 0's entry.
   const EpipolarStats pw = EpipolarResiduals(truth, 0, SampleCorrespondences((*maps_)[1], 3000));
-  std::printf("truth median %.4f px; swapped %.2f px (p95 %.2f); wrong file %.2f px; camera 1's scan checked as camera "
-              "0: %.2f px\n  %s\n  %s\n",
-              ok.median_px, s.median_px, s.p95_px, w.median_px, pw.median_px, rs.message.c_str(), rw.message.c_str());
+  std::printf(
+      "truth median %.4f px; swapped %.2f px (p95 %.2f); wrong file %.2f px; camera 1's scan "
+      "checked as camera "
+      "0: %.2f px\n  %s\n  %s\n",
+      ok.median_px, s.median_px, s.p95_px, w.median_px, pw.median_px, rs.message.c_str(),
+      rw.message.c_str());
   EXPECT_GT(s.median_px, 50 * ok.median_px);
   EXPECT_GT(w.median_px, 20 * ok.median_px);
   EXPECT_GT(pw.median_px, 5.0);

@@ -38,7 +38,8 @@ std::vector<Correspondence> Make(const Rig& rig, int n, double noise_px, uint32_
     const Eigen::Vector3d x(200 * u(rng), 150 * u(rng), 550 + 150 * u(rng));
     const auto a = rig.cameras[0].model.Project(rig.cameras[0].cam_from_rig * x);
     const auto b = rig.projector->model.Project(rig.projector->cam_from_rig * x);
-    if (!a || !b || !rig.cameras[0].model.IsInImage(*a) || !rig.projector->model.IsInImage(*b)) continue;
+    if (!a || !b || !rig.cameras[0].model.IsInImage(*a) || !rig.projector->model.IsInImage(*b))
+      continue;
     Correspondence c{*a, *b};
     if (noise_px > 0) c.projector_px += Eigen::Vector2d(g(rng), g(rng));
     out.push_back(c);
@@ -54,7 +55,8 @@ TEST(Refine, CorrectRigFitsAndBumpedRigIsDetectedAndRepaired) {
   // Bump the projector: 0.5 degree about x and a 3 mm shift.
   Rig bumped = truth;
   const Eigen::Quaterniond bump(Eigen::AngleAxisd(0.5 * M_PI / 180, Eigen::Vector3d::UnitX()));
-  bumped.projector->cam_from_rig = Rigid3d(bump, Eigen::Vector3d(3, 0, 0)) * truth.projector->cam_from_rig;
+  bumped.projector->cam_from_rig =
+      Rigid3d(bump, Eigen::Vector3d(3, 0, 0)) * truth.projector->cam_from_rig;
   const EpipolarStats bad = EpipolarResiduals(bumped, 0, corr);
   EXPECT_GT(bad.median_px, 10 * ok.median_px);
   const RefineResult r = RefineProjectorPose(bumped, 0, corr);
@@ -64,12 +66,18 @@ TEST(Refine, CorrectRigFitsAndBumpedRigIsDetectedAndRepaired) {
   // With 0.2 px noise the rotation comes back to ~0.05 deg (rotation and baseline direction trade
   // off over a narrow field of view); without noise, exactly. The baseline length stays the bumped
   // one (epipolar geometry has no scale).
-  EXPECT_LT(r.rig.projector->cam_from_rig.rotation.angularDistance(truth.projector->cam_from_rig.rotation), 0.1 * M_PI / 180);
+  EXPECT_LT(r.rig.projector->cam_from_rig.rotation.angularDistance(
+                truth.projector->cam_from_rig.rotation),
+            0.1 * M_PI / 180);
   const RefineResult exact = RefineProjectorPose(bumped, 0, Make(truth, 3000, 0.0, 1));
-  EXPECT_LT(exact.rig.projector->cam_from_rig.rotation.angularDistance(truth.projector->cam_from_rig.rotation), 1e-5);
+  EXPECT_LT(exact.rig.projector->cam_from_rig.rotation.angularDistance(
+                truth.projector->cam_from_rig.rotation),
+            1e-5);
   EXPECT_LT(exact.after.median_px, 1e-4);
-  const double len = (r.rig.projector->cam_from_rig * truth.cameras[0].cam_from_rig.Inverse()).translation.norm();
-  const double len_bumped = (bumped.projector->cam_from_rig * truth.cameras[0].cam_from_rig.Inverse()).translation.norm();
+  const double len =
+      (r.rig.projector->cam_from_rig * truth.cameras[0].cam_from_rig.Inverse()).translation.norm();
+  const double len_bumped =
+      (bumped.projector->cam_from_rig * truth.cameras[0].cam_from_rig.Inverse()).translation.norm();
   EXPECT_NEAR(len, len_bumped, 1e-9);
   // An already good rig stays put.
   const RefineResult same = RefineProjectorPose(truth, 0, corr);
@@ -114,14 +122,17 @@ TEST(Refine, SwappedOrWrongRigIsFlagged) {
   const Rig truth = ProcamRig();
   const auto corr = Make(truth, 2000, 0.2, 2);
   Rig wrong = truth;
-  wrong.projector->cam_from_rig = Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.25, Eigen::Vector3d::UnitY())),
-                                          Eigen::Vector3d(180, 20, -10));  // mirrored geometry
+  wrong.projector->cam_from_rig =
+      Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.25, Eigen::Vector3d::UnitY())),
+              Eigen::Vector3d(180, 20, -10));  // mirrored geometry
   EXPECT_GT(EpipolarResiduals(wrong, 0, corr).median_px, 5.0);
   Rig no_projector = truth;
   no_projector.projector.reset();
   EXPECT_THROW(RefineProjectorPose(no_projector, 0, corr), Error);
   EXPECT_THROW(RefineProjectorPose(truth, 3, corr), Error);
-  EXPECT_THROW(RefineProjectorPose(truth, 0, std::vector<Correspondence>(corr.begin(), corr.begin() + 5)), Error);
+  EXPECT_THROW(
+      RefineProjectorPose(truth, 0, std::vector<Correspondence>(corr.begin(), corr.begin() + 5)),
+      Error);
 }
 
 TEST(Refine, SampleCorrespondencesTakesValidPixelsOnly) {
@@ -137,10 +148,10 @@ TEST(Refine, SampleCorrespondencesTakesValidPixelsOnly) {
   }
   const auto all = SampleCorrespondences(map, 100000);
   EXPECT_EQ(all.size(), 64u * 48u / 2u);
-  for (const auto& c : all) EXPECT_EQ(c.projector_px, Eigen::Vector2d(2 * c.camera_px.x(), 3 * c.camera_px.y()));
+  for (const auto& c : all)
+    EXPECT_EQ(c.projector_px, Eigen::Vector2d(2 * c.camera_px.x(), 3 * c.camera_px.y()));
   EXPECT_EQ(SampleCorrespondences(map, 100).size(), 100u);
 }
-
 
 // The twisted pair (the second device turned 180 degrees about the baseline) and the reversed
 // baseline fit the same epipolar geometry as the true pose: refinement started there stays there,
@@ -151,9 +162,11 @@ TEST(Refine, TwistedPairAndReversedBaselineAreRejected) {
   const Rigid3d proj_from_cam = truth.projector->cam_from_rig;  // the camera is the rig frame
   const Eigen::Vector3d baseline = proj_from_cam.translation.normalized();
   Rig twisted = truth;
-  // Turning the projector 180 degrees about the baseline axis (in its own frame) keeps E up to sign.
+  // Turning the projector 180 degrees about the baseline axis (in its own frame) keeps E up to
+  // sign.
   twisted.projector->cam_from_rig =
-      Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(M_PI, baseline)), Eigen::Vector3d::Zero()) * proj_from_cam;
+      Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(M_PI, baseline)), Eigen::Vector3d::Zero()) *
+      proj_from_cam;
   Rig reversed = truth;
   reversed.projector->cam_from_rig.translation = -proj_from_cam.translation;
   const RefineResult good = RefineProjectorPose(truth, 0, corr);
@@ -161,10 +174,11 @@ TEST(Refine, TwistedPairAndReversedBaselineAreRejected) {
   EXPECT_GT(good.front_share, 0.99);
   EXPECT_GT(good.inlier_share, 0.99);
   for (const Rig* rig : {&twisted, &reversed}) {
-    EXPECT_LT(EpipolarResiduals(*rig, 0, corr).median_px, 2 * EpipolarResiduals(truth, 0, corr).median_px);
+    EXPECT_LT(EpipolarResiduals(*rig, 0, corr).median_px,
+              2 * EpipolarResiduals(truth, 0, corr).median_px);
     const RefineResult r = RefineProjectorPose(*rig, 0, corr);
-    std::printf("%s: front %.3f, inliers %.3f: %s\n", rig == &twisted ? "twisted" : "reversed", r.front_share,
-                r.inlier_share, r.message.c_str());
+    std::printf("%s: front %.3f, inliers %.3f: %s\n", rig == &twisted ? "twisted" : "reversed",
+                r.front_share, r.inlier_share, r.message.c_str());
     EXPECT_TRUE(r.rejected);
     EXPECT_LT(r.front_share, 0.05);
     EXPECT_NE(r.rejection.find("cheirality"), std::string::npos) << r.rejection;
@@ -193,7 +207,8 @@ TEST(Refine, LosingMostCorrespondencesIsRejected) {
   const RefineResult most = RefineProjectorPose(truth, 0, with_garbage(3000));  // 75 % garbage
   EXPECT_TRUE(most.rejected);
   EXPECT_LT(most.inlier_share, 0.5);
-  EXPECT_NE(most.rejection.find("most correspondences are lost"), std::string::npos) << most.rejection;
+  EXPECT_NE(most.rejection.find("most correspondences are lost"), std::string::npos)
+      << most.rejection;
 }
 
 // Self-calibration keeps the rig file's baseline and says the scale is not verified; a known
@@ -208,7 +223,8 @@ TEST(Refine, ScaleIsNotVerifiedUnlessAKnownLengthSetsIt) {
   EXPECT_FALSE(plain.scale_verified);
   EXPECT_NE(plain.message.find("scale not verified"), std::string::npos) << plain.message;
   // The residual it quotes is not reconstruct's calibration-check figure, and it says so.
-  EXPECT_NE(plain.message.find("`slshadow reconstruct` quotes another figure"), std::string::npos) << plain.message;
+  EXPECT_NE(plain.message.find("`slshadow reconstruct` quotes another figure"), std::string::npos)
+      << plain.message;
   EXPECT_NEAR(plain.baseline_mm, 1.03 * true_baseline, 1e-6);
 
   RefineOptions by_baseline;
@@ -224,14 +240,16 @@ TEST(Refine, ScaleIsNotVerifiedUnlessAKnownLengthSetsIt) {
   k.distance_mm = 137.5;
   for (int i = 0; i < 2; ++i) {
     const Eigen::Vector3d& x = i == 0 ? x1 : x2;
-    const Correspondence c{*truth.cameras[0].model.Project(x), *truth.projector->model.Project(truth.projector->cam_from_rig * x)};
+    const Correspondence c{*truth.cameras[0].model.Project(x),
+                           *truth.projector->model.Project(truth.projector->cam_from_rig * x)};
     (i == 0 ? k.first : k.second) = c;
   }
   RefineOptions by_distance;
   by_distance.known_distances = {k};
   const RefineResult d = RefineProjectorPose(scaled, 0, corr, by_distance);
   EXPECT_TRUE(d.scale_verified);
-  EXPECT_NE(d.message.find("scale set by the known distance 137.500 mm"), std::string::npos) << d.message;
+  EXPECT_NE(d.message.find("scale set by the known distance 137.500 mm"), std::string::npos)
+      << d.message;
   EXPECT_NEAR(d.baseline_mm, true_baseline, 1e-6 * true_baseline);
   // Both at once, or a bad length: a clear error.
   by_distance.known_baseline_mm = 100;
@@ -253,7 +271,6 @@ TEST(Refine, ProjectorlessRigPointsAtStereo) {
   }
 }
 
-
 // The case: the second device rotated 47 degrees in the rig file. Refinement either
 // finds the true pose back or its solution is rejected; it never hands back a wrong rig silently.
 // Measured: about y, z and (x+y) the pose comes back (0.14 deg with 0.2 px noise); about x the
@@ -262,18 +279,23 @@ TEST(Refine, LargeRotationIsRecoveredOrRejected) {
   const Rig truth = ProcamRig();
   const auto corr = Make(truth, 2000, 0.2, 9);
   const std::vector<Eigen::Vector3d> axes = {Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitY(),
-                                             Eigen::Vector3d::UnitZ(), Eigen::Vector3d(1, 1, 0).normalized()};
+                                             Eigen::Vector3d::UnitZ(),
+                                             Eigen::Vector3d(1, 1, 0).normalized()};
   for (const Eigen::Vector3d& axis : axes) {
     for (double deg : {-47.0, 47.0}) {
       Rig bumped = truth;
       bumped.projector->cam_from_rig =
-          Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(deg * M_PI / 180, axis)), Eigen::Vector3d::Zero()) *
+          Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(deg * M_PI / 180, axis)),
+                  Eigen::Vector3d::Zero()) *
           truth.projector->cam_from_rig;
       const RefineResult r = RefineProjectorPose(bumped, 0, corr);
-      const double error_deg =
-          r.rig.projector->cam_from_rig.rotation.angularDistance(truth.projector->cam_from_rig.rotation) * 180 / M_PI;
-      std::printf("47 deg bump about (%.2f %.2f %.2f) x %+.0f: rejected %d, front %.3f, inliers %.3f, rotation error %.3f deg\n",
-                  axis.x(), axis.y(), axis.z(), deg, r.rejected, r.front_share, r.inlier_share, error_deg);
+      const double error_deg = r.rig.projector->cam_from_rig.rotation.angularDistance(
+                                   truth.projector->cam_from_rig.rotation) *
+                               180 / M_PI;
+      std::printf(
+          "47 deg bump about (%.2f %.2f %.2f) x %+.0f: rejected %d, front %.3f, inliers %.3f, "
+          "rotation error %.3f deg\n",
+          axis.x(), axis.y(), axis.z(), deg, r.rejected, r.front_share, r.inlier_share, error_deg);
       if (!r.rejected) {
         EXPECT_LT(error_deg, 0.2) << r.message;
       }

@@ -20,7 +20,8 @@ TEST(CalibrationReport, WritesSummaryTextAndCharts) {
   testing::TempDir tmp;
   SyntheticData data = MakeSyntheticData(SyntheticRig::Stereo(), 10, 0.2, 9);
   auto& bad = data.input.views[5].pixels_px;  // an outlier view: corners jittered by 1.8 px
-  for (size_t i = 0; i < bad.size(); ++i) bad[i] += Eigen::Vector2d(1.5, -1.0) * (static_cast<double>(i % 3) - 1.0);
+  for (size_t i = 0; i < bad.size(); ++i)
+    bad[i] += Eigen::Vector2d(1.5, -1.0) * (static_cast<double>(i % 3) - 1.0);
   const CalibrationOptions options;
   const CalibrationResult result = Calibrate(data.input, options);
   CalibrationReport report;
@@ -32,8 +33,9 @@ TEST(CalibrationReport, WritesSummaryTextAndCharts) {
   report.extra = {{"command", "test"}};
   const auto dir = tmp / "report";
   WriteCalibrationReport(dir, report);
-  for (const char* f : {"summary.json", "report.txt", "per_view_rms.png", "residuals_cam0.png", "residuals_cam1.png",
-                        "uncertainty_cam0.png", "uncertainty_cam1.png", "cross_validation_cam0.png", "cross_validation_cam1.png"}) {
+  for (const char* f : {"summary.json", "report.txt", "per_view_rms.png", "residuals_cam0.png",
+                        "residuals_cam1.png", "uncertainty_cam0.png", "uncertainty_cam1.png",
+                        "cross_validation_cam0.png", "cross_validation_cam1.png"}) {
     EXPECT_TRUE(std::filesystem::exists(dir / f)) << f;
   }
   const cv::Mat png = cv::imread((dir / "uncertainty_cam0.png").string());
@@ -71,7 +73,8 @@ TEST(CalibrationReport, QuotesTheViewCorrelatedCovarianceOnlyWhenErrorsCorrelate
     SyntheticData data = MakeSyntheticData(SyntheticRig::OneCamera(), 15, 0.1, 2);
     for (auto& v : data.input.views) {
       for (size_t i = 0; waves && i < v.pixels_px.size(); ++i) {
-        const double s = 0.02 * v.points_in_board_mm[i].x() + 0.7 * v.pose, t = 0.025 * v.points_in_board_mm[i].y() - 0.4 * v.pose;
+        const double s = 0.02 * v.points_in_board_mm[i].x() + 0.7 * v.pose,
+                     t = 0.025 * v.points_in_board_mm[i].y() - 0.4 * v.pose;
         v.pixels_px[i] += 0.5 * Eigen::Vector2d(std::sin(s + t), std::cos(s - t));
       }
     }
@@ -90,9 +93,12 @@ TEST(CalibrationReport, QuotesTheViewCorrelatedCovarianceOnlyWhenErrorsCorrelate
     const Matrix9d& standard = result.intrinsics_covariance[0];
     const PixelMap standard_map = ProjectionUncertaintyMap(result.devices[0].model, standard, 16);
     const double used_median = dev["projection_uncertainty"]["median_px"].get<double>();
-    std::printf("%s: %s; uncertainty median %.4f px (standard %.4f px, x%.2f), fx sigma %.4f (standard %.4f)\n",
-                waves ? "waves" : "independent", q.reason.c_str(), used_median, standard_map.median, used_median / standard_map.median,
-                dev["params_sigma"][0].get<double>(), dev["params_sigma_standard"][0].get<double>());
+    std::printf(
+        "%s: %s; uncertainty median %.4f px (standard %.4f px, x%.2f), fx sigma %.4f (standard "
+        "%.4f)\n",
+        waves ? "waves" : "independent", q.reason.c_str(), used_median, standard_map.median,
+        used_median / standard_map.median, dev["params_sigma"][0].get<double>(),
+        dev["params_sigma_standard"][0].get<double>());
     for (int i = 0; i < CameraModel::kNumParams; ++i) {
       EXPECT_EQ(dev["params_sigma_standard"][i].get<double>(), std::sqrt(standard(i, i)));
       if (!waves) {

@@ -40,7 +40,8 @@ cv::Mat RenderChessboard(int cols, int rows, int px) {
 // Warps `board` by homography h into a w x h image, blurred a little like a lens.
 cv::Mat Warp(const cv::Mat& board, const cv::Matx33d& hom, cv::Size size) {
   cv::Mat out;
-  cv::warpPerspective(board, out, cv::Mat(hom), size, cv::INTER_AREA, cv::BORDER_CONSTANT, cv::Scalar(255));
+  cv::warpPerspective(board, out, cv::Mat(hom), size, cv::INTER_AREA, cv::BORDER_CONSTANT,
+                      cv::Scalar(255));
   cv::GaussianBlur(out, out, cv::Size(5, 5), 0.8);
   return out;
 }
@@ -65,12 +66,14 @@ TEST(Target, ChessboardBothDetectorsFindWarpedCornersSubPixel) {
     // The corner order may start at either end of the board; it must follow the board points.
     const Eigen::Vector2d first = Apply(kHom, 2 * px - 0.5, 2 * px - 0.5);
     const Eigen::Vector2d last = Apply(kHom, 10 * px - 0.5, 7 * px - 0.5);
-    const bool reversed = (d.pixels_px.front() - last).norm() < (d.pixels_px.front() - first).norm();
+    const bool reversed =
+        (d.pixels_px.front() - last).norm() < (d.pixels_px.front() - first).norm();
     double worst = 0;
     for (size_t i = 0; i < d.pixels_px.size(); ++i) {
       const int id = reversed ? 53 - d.point_ids[i] : d.point_ids[i];
       const Eigen::Vector3d& b = board_points[static_cast<size_t>(id)];
-      const Eigen::Vector2d truth = Apply(kHom, (b.x() / 25 + 2) * px - 0.5, (b.y() / 25 + 2) * px - 0.5);
+      const Eigen::Vector2d truth =
+          Apply(kHom, (b.x() / 25 + 2) * px - 0.5, (b.y() / 25 + 2) * px - 0.5);
       worst = std::max(worst, (d.pixels_px[i] - truth).norm());
     }
     // The sector-based detector is the more accurate one on hard-edged renders.
@@ -80,7 +83,8 @@ TEST(Target, ChessboardBothDetectorsFindWarpedCornersSubPixel) {
 }
 
 TEST(Target, SaturationIsMeasuredInsideTheBoard) {
-  const cv::Mat bright = Warp(RenderChessboard(9, 6, 40), kHom, cv::Size(640, 480));  // white squares at 255
+  const cv::Mat bright =
+      Warp(RenderChessboard(9, 6, 40), kHom, cv::Size(640, 480));  // white squares at 255
   cv::Mat dim;
   bright.convertTo(dim, CV_8U, 0.7, 20);  // 20..198: nothing saturated
   const TargetSpec spec = Chessboard(9, 6, 25, ChessboardDetector::kSectorBased);
@@ -119,7 +123,8 @@ TEST(Target, CharucoDetectsIdsAtTheRightPlaces) {
   spec.dictionary = "DICT_6X6_250";
   spec.Check("test");
   const int px = 60;  // pixels per square in the drawn board
-  auto board = cv::aruco::CharucoBoard::create(5, 7, 40.f, 20.f, cv::aruco::getPredefinedDictionary(cv::aruco::DICT_6X6_250));
+  auto board = cv::aruco::CharucoBoard::create(
+      5, 7, 40.f, 20.f, cv::aruco::getPredefinedDictionary(cv::aruco::DICT_6X6_250));
   cv::Mat drawn;
   board->draw(cv::Size(5 * px, 7 * px), drawn, 0, 1);
   cv::Mat padded(7 * px + 2 * px, 5 * px + 2 * px, CV_8UC1, cv::Scalar(255));
@@ -137,7 +142,8 @@ TEST(Target, CharucoDetectsIdsAtTheRightPlaces) {
   for (size_t i = 0; i < d.pixels_px.size(); ++i) {
     const auto& b = pts[static_cast<size_t>(d.point_ids[i])];
     src.emplace_back(static_cast<float>(b.x()), static_cast<float>(b.y()));
-    dst.emplace_back(static_cast<float>(d.pixels_px[i].x()), static_cast<float>(d.pixels_px[i].y()));
+    dst.emplace_back(static_cast<float>(d.pixels_px[i].x()),
+                     static_cast<float>(d.pixels_px[i].y()));
   }
   const cv::Mat fit = cv::findHomography(src, dst, 0);
   std::vector<cv::Point2f> mapped;
@@ -153,7 +159,8 @@ TEST(Target, CharucoDetectsIdsAtTheRightPlaces) {
     const Eigen::Vector2d down = Apply(h, x, b.y() / 40 * px + px - 0.5);
     const Eigen::Vector2d up = Apply(h, x, (7 - b.y() / 40) * px + px - 0.5);
     // Within a pixel of the rendered truth (the drawing's edge convention costs ~0.5 px).
-    EXPECT_LT(std::min((d.pixels_px[i] - down).norm(), (d.pixels_px[i] - up).norm()), 1.0) << d.point_ids[i];
+    EXPECT_LT(std::min((d.pixels_px[i] - down).norm(), (d.pixels_px[i] - up).norm()), 1.0)
+        << d.point_ids[i];
   }
   // An image without markers: reason names the dictionary.
   const TargetDetection none = DetectTarget(spec, cv::Mat(480, 640, CV_8UC1, cv::Scalar(128)));
@@ -172,7 +179,9 @@ TEST(Target, CircleGridsSymmetricAndAsymmetric) {
     const double px_per_mm = 2.5, margin = 40;
     cv::Mat board(600, 600, CV_8UC1, cv::Scalar(255));
     for (const auto& p : pts) {
-      cv::circle(board, cv::Point(static_cast<int>(margin + p.x() * px_per_mm), static_cast<int>(margin + p.y() * px_per_mm)),
+      cv::circle(board,
+                 cv::Point(static_cast<int>(margin + p.x() * px_per_mm),
+                           static_cast<int>(margin + p.y() * px_per_mm)),
                  7, cv::Scalar(0), cv::FILLED, cv::LINE_AA);
     }
     const cv::Matx33d h(0.9, 0.05, 80, -0.02, 0.9, 30, 0.00005, 0.00005, 1);
@@ -185,22 +194,29 @@ TEST(Target, CircleGridsSymmetricAndAsymmetric) {
     for (size_t i = 0; i < pts.size(); ++i) {
       const auto& a = pts[i];
       const auto& b = pts[pts.size() - 1 - i];
-      fwd = std::max(fwd, (d.pixels_px[i] - Apply(h, margin + a.x() * px_per_mm, margin + a.y() * px_per_mm)).norm());
-      rev = std::max(rev, (d.pixels_px[i] - Apply(h, margin + b.x() * px_per_mm, margin + b.y() * px_per_mm)).norm());
+      fwd = std::max(
+          fwd, (d.pixels_px[i] - Apply(h, margin + a.x() * px_per_mm, margin + a.y() * px_per_mm))
+                   .norm());
+      rev = std::max(
+          rev, (d.pixels_px[i] - Apply(h, margin + b.x() * px_per_mm, margin + b.y() * px_per_mm))
+                   .norm());
     }
     EXPECT_LT(std::min(fwd, rev), 0.5) << (asym ? "asymmetric" : "symmetric");
   }
 }
 
 TEST(Target, YamlReadingAndErrorsNameTheField) {
-  const TargetSpec spec = LoadTargetSpec(testing::SourceDir() / "config/targets/opencv-charuco-tutorial.yaml");
+  const TargetSpec spec =
+      LoadTargetSpec(testing::SourceDir() / "config/targets/opencv-charuco-tutorial.yaml");
   EXPECT_EQ(spec.type, TargetType::kCharuco);
   EXPECT_EQ(spec.dictionary, "DICT_6X6_250");
   EXPECT_EQ(spec.NumPoints(), 24);
-  const TargetSpec chess = LoadTargetSpec(testing::SourceDir() / "config/targets/opencv-stereo-chessboard.yaml");
+  const TargetSpec chess =
+      LoadTargetSpec(testing::SourceDir() / "config/targets/opencv-stereo-chessboard.yaml");
   EXPECT_EQ(chess.detector, ChessboardDetector::kClassic);
   EXPECT_EQ(BoardPoints(chess)[10], Eigen::Vector3d(25, 25, 0));
-  const TargetSpec acircles = LoadTargetSpec(testing::SourceDir() / "config/targets/circles-asymmetric-4x11.yaml");
+  const TargetSpec acircles =
+      LoadTargetSpec(testing::SourceDir() / "config/targets/circles-asymmetric-4x11.yaml");
   EXPECT_EQ(BoardPoints(acircles)[5], Eigen::Vector3d(60, 20, 0));  // row 1, col 1: (2*1+1)*20
 
   auto expect_error = [](const std::string& yaml, const std::string& needle) {
@@ -214,12 +230,17 @@ TEST(Target, YamlReadingAndErrorsNameTheField) {
   expect_error("type: hexagons\ncols: 3\nrows: 3\nsquare_size_mm: 1\n", "type");
   expect_error("type: chessboard\ncols: 9\nrows: 6\nsquare_size_mm: -2\n", "square_size_mm");
   expect_error("type: chessboard\ncols: 9\nrows: 6\n", "square_size_mm");
-  expect_error("type: charuco\ncols: 5\nrows: 7\nsquare_size_mm: 40\nmarker_size_mm: 20\ndictionary: DICT_9X9\n",
-               "dictionary");
-  expect_error("type: charuco\ncols: 5\nrows: 7\nsquare_size_mm: 40\nmarker_size_mm: 50\ndictionary: DICT_6X6_250\n",
-               "marker_size_mm");
+  expect_error(
+      "type: charuco\ncols: 5\nrows: 7\nsquare_size_mm: 40\nmarker_size_mm: 20\ndictionary: "
+      "DICT_9X9\n",
+      "dictionary");
+  expect_error(
+      "type: charuco\ncols: 5\nrows: 7\nsquare_size_mm: 40\nmarker_size_mm: 50\ndictionary: "
+      "DICT_6X6_250\n",
+      "marker_size_mm");
   expect_error("type: chessboard\ncols: 9\nrows: 6\nsquare_size_mm: 2\ndetecter: sb\n", "detecter");
-  expect_error("type: chessboard\ncols: 9\nrows: 6\nsquare_size_mm: 2\ndetector: fast\n", "detector");
+  expect_error("type: chessboard\ncols: 9\nrows: 6\nsquare_size_mm: 2\ndetector: fast\n",
+               "detector");
   EXPECT_THROW(DetectTargetInFile(spec, "/nonexistent/image.png"), Error);
 }
 

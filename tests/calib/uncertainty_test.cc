@@ -22,10 +22,12 @@ TEST(Uncertainty, MonteCarloTruthInsidePredictedTwoSigma) {
   const double noise_px = 0.3;
   std::array<int, CameraModel::kNumParams> inside{};
   int proj_inside = 0, proj_total = 0;
-  const std::vector<Eigen::Vector2d> probes = {{640, 512}, {100, 100}, {1180, 900}, {200, 950}, {1100, 150}};
+  const std::vector<Eigen::Vector2d> probes = {
+      {640, 512}, {100, 100}, {1180, 900}, {200, 950}, {1100, 150}};
   std::vector<double> fx_estimates, fx_sigmas;
   for (int run = 0; run < runs; ++run) {
-    const SyntheticData data = MakeSyntheticData(rig, 10, noise_px, 1000u + static_cast<uint32_t>(run));
+    const SyntheticData data =
+        MakeSyntheticData(rig, 10, noise_px, 1000u + static_cast<uint32_t>(run));
     const CalibrationResult r = Calibrate(data.input, {});
     ASSERT_EQ(r.intrinsics_covariance.size(), 1u);
     const Matrix9d& cov = r.intrinsics_covariance[0];
@@ -49,17 +51,19 @@ TEST(Uncertainty, MonteCarloTruthInsidePredictedTwoSigma) {
   }
   int inside_all = 0;
   for (int i = 0; i < CameraModel::kNumParams; ++i) {
-    EXPECT_GE(inside[i], 0.9 * runs) << "parameter " << i << ": truth inside 2 sigma in " << inside[i] << "/" << runs;
+    EXPECT_GE(inside[i], 0.9 * runs)
+        << "parameter " << i << ": truth inside 2 sigma in " << inside[i] << "/" << runs;
     inside_all += inside[i];
   }
   // Bounded above too: a covariance twice too wide puts the truth inside "2 sigma" (really
   // 4 sigma) in 99.99 % of the cases. Over all 450 parameter checks 95.4 % is expected; at most
   // 98 % (a binomial 3.7-sigma excursion) is accepted.
   const int checks = CameraModel::kNumParams * runs;
-  EXPECT_LE(inside_all, 0.98 * checks) << inside_all << "/" << checks << " inside: covariance too wide";
+  EXPECT_LE(inside_all, 0.98 * checks)
+      << inside_all << "/" << checks << " inside: covariance too wide";
   EXPECT_GE(proj_inside, 0.9 * proj_total) << proj_inside << "/" << proj_total;
-  EXPECT_LE(proj_inside, 0.99 * proj_total) << proj_inside << "/" << proj_total
-                                            << " inside the 95 % ellipse: covariance too wide";
+  EXPECT_LE(proj_inside, 0.99 * proj_total)
+      << proj_inside << "/" << proj_total << " inside the 95 % ellipse: covariance too wide";
   // The scale itself: the predicted sigma(fx) (median over runs) is within a factor 2 of the
   // scatter of fx actually seen over the 50 runs (whose own sampling error is about 10 %).
   double mean_fx = 0;
@@ -68,9 +72,10 @@ TEST(Uncertainty, MonteCarloTruthInsidePredictedTwoSigma) {
   for (double f : fx_estimates) var_fx += (f - mean_fx) * (f - mean_fx) / (runs - 1);
   std::nth_element(fx_sigmas.begin(), fx_sigmas.begin() + runs / 2, fx_sigmas.end());
   const double predicted = fx_sigmas[runs / 2], seen = std::sqrt(var_fx);
-  std::printf("sigma(fx): predicted %.4f px, seen over %d runs %.4f px; inside 2 sigma %d/%d, "
-              "projection %d/%d\n", predicted, runs, seen, inside_all, checks, proj_inside,
-              proj_total);
+  std::printf(
+      "sigma(fx): predicted %.4f px, seen over %d runs %.4f px; inside 2 sigma %d/%d, "
+      "projection %d/%d\n",
+      predicted, runs, seen, inside_all, checks, proj_inside, proj_total);
   EXPECT_GT(predicted, 0.5 * seen);
   EXPECT_LT(predicted, 2.0 * seen);
 }
@@ -109,7 +114,8 @@ TEST(Uncertainty, MapsHaveTheRightShapeAndScale) {
   const PixelMap cx_comp = ProjectionUncertaintyMap(r.devices[0].model, only_cx, 64, true);
   EXPECT_LT(cx_comp.median, 0.1);
   // Compensation never increases the uncertainty much at any cell, and lowers the median.
-  const PixelMap raw = ProjectionUncertaintyMap(r.devices[0].model, r.intrinsics_covariance[0], 32, false);
+  const PixelMap raw =
+      ProjectionUncertaintyMap(r.devices[0].model, r.intrinsics_covariance[0], 32, false);
   EXPECT_LT(u.median, raw.median);
 }
 
@@ -118,7 +124,8 @@ TEST(Uncertainty, ProjectionDifferenceOfKnownChanges) {
   const PixelMap same = ProjectionDifferenceMap(a, a, 32);
   EXPECT_LT(same.max, 1e-6);
   CameraModel b = a;
-  b.params[CameraModel::kCx] += 1.5;  // principal point shifted: 1.5 px everywhere (no rotation fit)
+  b.params[CameraModel::kCx] +=
+      1.5;  // principal point shifted: 1.5 px everywhere (no rotation fit)
   const PixelMap shifted = ProjectionDifferenceMap(a, b, 32, false);
   EXPECT_NEAR(shifted.median, 1.5, 1e-6);
   EXPECT_NEAR(shifted.max, 1.5, 1e-6);
@@ -146,7 +153,8 @@ TEST(Uncertainty, CrossValidationAgreesWithPredictedUncertainty) {
     const CrossValidation c = CrossValidate(d.input, {});
     ASSERT_EQ(c.difference.size(), 1u);
     const CalibrationResult full = Calibrate(d.input, {});
-    const PixelMap u = ProjectionUncertaintyMap(full.devices[0].model, full.intrinsics_covariance[0], 16);
+    const PixelMap u =
+        ProjectionUncertaintyMap(full.devices[0].model, full.intrinsics_covariance[0], 16);
     // Each half has ~half the data: its uncertainty ~sqrt(2) u; the difference of two ~2 u.
     seen_sum += c.difference[0].median;
     predicted_sum += 2 * u.median;
@@ -158,7 +166,8 @@ TEST(Uncertainty, CrossValidationAgreesWithPredictedUncertainty) {
   const SyntheticData data = MakeSyntheticData(rig, 16, 0.3, 5);
   const CrossValidation cv = CrossValidate(data.input, {});
   const CalibrationResult full = Calibrate(data.input, {});
-  const PixelMap u = ProjectionUncertaintyMap(full.devices[0].model, full.intrinsics_covariance[0], 16);
+  const PixelMap u =
+      ProjectionUncertaintyMap(full.devices[0].model, full.intrinsics_covariance[0], 16);
   // Two halves from different cameras (the odd images stretched by 3 % in x, as if the lens had
   // been refocused between them) differ far beyond the uncertainty.
   CalibrationInput bad = data.input;
@@ -169,8 +178,8 @@ TEST(Uncertainty, CrossValidationAgreesWithPredictedUncertainty) {
   }
   const CrossValidation cv_bad = CrossValidate(bad, {});
   EXPECT_GT(cv_bad.difference[0].median, 3 * cv.difference[0].median);
-  std::printf("cross-validation median %.3f px (predicted 2u %.3f px), stretched %.3f px\n", cv.difference[0].median,
-              2 * u.median, cv_bad.difference[0].median);
+  std::printf("cross-validation median %.3f px (predicted 2u %.3f px), stretched %.3f px\n",
+              cv.difference[0].median, 2 * u.median, cv_bad.difference[0].median);
   // Too few views for two halves.
   const SyntheticData few = MakeSyntheticData(rig, 3, 0.3, 5);
   EXPECT_THROW(CrossValidate(few.input, {}), Error);
@@ -188,7 +197,8 @@ TEST(Uncertainty, NeighbourResidualCorrelationSeesErrorsSharedAcrossAView) {
   CalibrationInput shared = data.input;
   for (auto& v : shared.views) {  // 0.5 px waves across the board, phase per view
     for (size_t i = 0; i < v.pixels_px.size(); ++i) {
-      const double s = 0.02 * v.points_in_board_mm[i].x() + 0.7 * v.pose, t = 0.025 * v.points_in_board_mm[i].y() - 0.4 * v.pose;
+      const double s = 0.02 * v.points_in_board_mm[i].x() + 0.7 * v.pose,
+                   t = 0.025 * v.points_in_board_mm[i].y() - 0.4 * v.pose;
       v.pixels_px[i] += 0.5 * Eigen::Vector2d(std::sin(s + t), std::cos(s - t));
     }
   }

@@ -37,7 +37,8 @@ cv::Mat RandomImage(const FakeFrameRequest& r, uint64_t salt = 0) {
 }
 
 bool SameImage(const cv::Mat& a, const cv::Mat& b) {
-  return !a.empty() && a.size() == b.size() && a.type() == b.type() && cv::norm(a, b, cv::NORM_INF) == 0;
+  return !a.empty() && a.size() == b.size() && a.type() == b.type() &&
+         cv::norm(a, b, cv::NORM_INF) == 0;
 }
 
 CameraSettings SmallSoftware(PixelFormat format = PixelFormat::kMono8) {
@@ -62,8 +63,8 @@ class AravisCameraTest : public ::testing::Test {
 
 TEST(FrameIds, WrapAroundIsNotAGap) {
   EXPECT_EQ(FrameIdsSkipped(65400, 65401), 0u);
-  EXPECT_EQ(FrameIdsSkipped(65535, 1), 0u);   // 0 is invalid and skipped
-  EXPECT_EQ(FrameIdsSkipped(65534, 2), 2u);   // 65535 and 1 missing
+  EXPECT_EQ(FrameIdsSkipped(65535, 1), 0u);  // 0 is invalid and skipped
+  EXPECT_EQ(FrameIdsSkipped(65534, 2), 2u);  // 65535 and 1 missing
   EXPECT_EQ(FrameIdsSkipped(65535, 3), 2u);
   EXPECT_EQ(FrameIdsSkipped(10, 13), 2u);
   EXPECT_EQ(FrameIdsSkipped(70000, 70003), 2u);  // 64-bit ids (USB3 Vision) do not wrap at 16 bits
@@ -84,7 +85,8 @@ TEST_F(AravisCameraTest, OpensByAddressAndServesBitExactMono8AndMono16) {
   EXPECT_EQ(info.serial, "GV42");
   EXPECT_EQ(info.sensor_width, 2048);
   EXPECT_EQ(info.sensor_height, 2048);
-  EXPECT_EQ(info.pixel_formats, (std::vector<PixelFormat>{PixelFormat::kMono8, PixelFormat::kMono16}));
+  EXPECT_EQ(info.pixel_formats,
+            (std::vector<PixelFormat>{PixelFormat::kMono8, PixelFormat::kMono16}));
 
   for (PixelFormat format : {PixelFormat::kMono8, PixelFormat::kMono16}) {
     SCOPED_TRACE(ToString(format));
@@ -103,7 +105,8 @@ TEST_F(AravisCameraTest, OpensByAddressAndServesBitExactMono8AndMono16) {
       EXPECT_EQ(frame.image.rows, 240);
       EXPECT_EQ(frame.image.cols, 320);
       EXPECT_EQ(frame.image.type(), format == PixelFormat::kMono8 ? CV_8UC1 : CV_16UC1);
-      EXPECT_TRUE(SameImage(frame.image, fake.ServedImage(frame.frame_id))) << "frame " << frame.frame_id;
+      EXPECT_TRUE(SameImage(frame.image, fake.ServedImage(frame.frame_id)))
+          << "frame " << frame.frame_id;
       if (previous != 0) {
         EXPECT_EQ(FrameIdsSkipped(previous, frame.frame_id), 0u);
       }
@@ -172,7 +175,8 @@ TEST_F(AravisCameraTest, SfncNamesWithOlderNamesAsFallback) {
     EXPECT_EQ(seen.exposure_us, static_cast<uint32_t>(c.exposure_us));  // on the device's register
     EXPECT_EQ(seen.gain_raw, static_cast<uint32_t>(c.gain_db));
     bool gain_raw_warning = false;
-    for (const auto& w : camera->Warnings()) gain_raw_warning |= w.find("GainRaw") != std::string::npos;
+    for (const auto& w : camera->Warnings())
+      gain_raw_warning |= w.find("GainRaw") != std::string::npos;
     EXPECT_EQ(gain_raw_warning, !c.sfnc);  // only the older device has gain in raw units
 
     s.exposure_us = 1e9;  // beyond the device's range: refused with the field named
@@ -181,7 +185,8 @@ TEST_F(AravisCameraTest, SfncNamesWithOlderNamesAsFallback) {
       ADD_FAILURE() << "an exposure of 1e9 us was accepted";
     } catch (const Error& e) {
       EXPECT_NE(std::string(e.what()).find("exposure_us"), std::string::npos) << e.what();
-      EXPECT_NE(std::string(e.what()).find(c.sfnc ? "ExposureTime)" : "ExposureTimeAbs)"), std::string::npos)
+      EXPECT_NE(std::string(e.what()).find(c.sfnc ? "ExposureTime)" : "ExposureTimeAbs)"),
+                std::string::npos)
           << e.what();
     }
   }
@@ -263,7 +268,8 @@ TEST_F(AravisCameraTest, FactoryOpensAnAravisEntry) {
     OpenCamera(entry);
     ADD_FAILURE() << "opened 127.0.0.3";
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("dev.yaml: cameras[0]: aravis: device '127.0.0.3'"), std::string::npos)
+    EXPECT_NE(std::string(e.what()).find("dev.yaml: cameras[0]: aravis: device '127.0.0.3'"),
+              std::string::npos)
         << e.what();
   }
   entry.address.clear();  // none of address / id / serial
@@ -271,7 +277,9 @@ TEST_F(AravisCameraTest, FactoryOpensAnAravisEntry) {
     OpenCamera(entry);
     ADD_FAILURE() << "opened an entry without a device";
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("dev.yaml: cameras[0]: aravis: device:"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("dev.yaml: cameras[0]: aravis: device:"),
+              std::string::npos)
+        << e.what();
   }
 }
 
@@ -338,7 +346,8 @@ TEST_F(AravisCameraTest, WholeFrameLostIsAGap) {
   EXPECT_EQ(FrameIdsSkipped(first.frame_id, third.frame_id), 1u);
   EXPECT_EQ(camera->Statistics().missing_frames, 1u);
   ASSERT_EQ(camera->Warnings().size(), 1u);
-  EXPECT_NE(camera->Warnings()[0].find("never arrived"), std::string::npos) << camera->Warnings()[0];
+  EXPECT_NE(camera->Warnings()[0].find("never arrived"), std::string::npos)
+      << camera->Warnings()[0];
 }
 
 // Packet loss injected by the fake camera: no false alarm at 0; above, every damaged frame is
@@ -361,7 +370,8 @@ TEST_P(PacketLossTest, EveryDamagedFrameIsDetectedAndAccountedFor) {
   auto take = [&](const Frame& frame) {
     if (frame.ok()) {
       ++ok;
-      EXPECT_TRUE(SameImage(frame.image, fake.ServedImage(frame.frame_id))) << "frame " << frame.frame_id;
+      EXPECT_TRUE(SameImage(frame.image, fake.ServedImage(frame.frame_id)))
+          << "frame " << frame.frame_id;
     } else if (frame.status == FrameStatus::kTimeout) {
       ++no_frame;
     } else {
@@ -411,11 +421,12 @@ TEST_P(PacketLossTest, EveryDamagedFrameIsDetectedAndAccountedFor) {
     EXPECT_GE(stats.missing_packets, static_cast<uint64_t>(damaged));
     EXPECT_GT(stats.resend_requests, 0u);
   }
-  std::printf("loss %.3f: %d frames served, %d ok, %d damaged, %llu lost whole, %llu packets missing, "
-              "%llu resend requests\n",
-              ratio, n + 2, ok, damaged, static_cast<unsigned long long>(stats.missing_frames),
-              static_cast<unsigned long long>(stats.missing_packets),
-              static_cast<unsigned long long>(stats.resend_requests));
+  std::printf(
+      "loss %.3f: %d frames served, %d ok, %d damaged, %llu lost whole, %llu packets missing, "
+      "%llu resend requests\n",
+      ratio, n + 2, ok, damaged, static_cast<unsigned long long>(stats.missing_frames),
+      static_cast<unsigned long long>(stats.missing_packets),
+      static_cast<unsigned long long>(stats.resend_requests));
 }
 
 INSTANTIATE_TEST_SUITE_P(Ratios, PacketLossTest, ::testing::Values(0.0, 0.001, 0.01, 0.1));
@@ -445,7 +456,8 @@ TEST_F(AravisCameraTest, PacketLossWithoutResendInFreeRun) {
     if (frame.ok()) {
       ++ok;
       last_ok = frame.frame_id;
-      EXPECT_TRUE(SameImage(frame.image, fake.ServedImage(frame.frame_id))) << "frame " << frame.frame_id;
+      EXPECT_TRUE(SameImage(frame.image, fake.ServedImage(frame.frame_id)))
+          << "frame " << frame.frame_id;
     } else {
       ++damaged;
       EXPECT_EQ(frame.status, FrameStatus::kMissingPackets) << frame.message;
@@ -482,7 +494,8 @@ TEST_F(AravisCameraTest, FrameTimeoutIsReportedAndTheCameraStaysUsable) {
   camera->Start();
   const Frame none = camera->Grab(milliseconds(200));  // no trigger: nothing comes
   EXPECT_EQ(none.status, FrameStatus::kTimeout);
-  EXPECT_NE(none.message.find("no frame within 200 ms (software trigger)"), std::string::npos) << none.message;
+  EXPECT_NE(none.message.find("no frame within 200 ms (software trigger)"), std::string::npos)
+      << none.message;
   camera->Trigger();
   const Frame frame = camera->Grab(kPatience);
   ASSERT_TRUE(frame.ok()) << frame.message;
@@ -512,7 +525,8 @@ TEST_F(AravisCameraTest, CameraDisappearingMidStreamAbortsWithAMessage) {
     const int buffers = AravisOpenOptions{}.n_buffers;
     for (int i = 0; i < buffers && frame.ok(); ++i) frame = camera->Grab(milliseconds(300));
     EXPECT_EQ(frame.status, FrameStatus::kAborted) << frame.message;
-    EXPECT_NE(frame.message.find("127.0.0.2 (serial GONE) lost"), std::string::npos) << frame.message;
+    EXPECT_NE(frame.message.find("127.0.0.2 (serial GONE) lost"), std::string::npos)
+        << frame.message;
     const Frame again = camera->Grab(milliseconds(300));
     EXPECT_EQ(again.status, FrameStatus::kAborted);
     camera->Stop();  // returns; the destructor too
@@ -563,7 +577,8 @@ TEST_F(AravisCameraTest, SocketBufferIsReadBackAndAKernelCapWarned) {
     const bool capped = asked > rmem_max;
     EXPECT_EQ(granted, capped ? rmem_max : asked);
     bool warned = false;
-    for (const auto& w : camera->Warnings()) warned |= w.find("net.core.rmem_max") != std::string::npos;
+    for (const auto& w : camera->Warnings())
+      warned |= w.find("net.core.rmem_max") != std::string::npos;
     EXPECT_EQ(warned, capped);
     camera->Stop();
   }

@@ -65,10 +65,12 @@ fs::path TestDir(const std::string& name) {
 // projector image read back from the X screen at the moment the frame is taken.
 class SimulatedCameraOnScreen {
  public:
-  SimulatedCameraOnScreen(const Scene& scene, const Rig& rig, int camera, const GeometryBuffer& geometry,
-                          const std::string& address, const cv::Rect& projector_on_screen)
+  SimulatedCameraOnScreen(const Scene& scene, const Rig& rig, int camera,
+                          const GeometryBuffer& geometry, const std::string& address,
+                          const cv::Rect& projector_on_screen)
       : renderer_(scene, rig, camera, geometry),
-        fake_(testing::FakeGvCameraOptions{.address = address, .serial = rig.cameras[static_cast<size_t>(camera)].name}),
+        fake_(testing::FakeGvCameraOptions{
+            .address = address, .serial = rig.cameras[static_cast<size_t>(camera)].name}),
         rect_(projector_on_screen) {
     fake_.SetFill([this](const testing::FakeFrameRequest&) {
       const auto t0 = Clock::now();
@@ -86,8 +88,9 @@ class SimulatedCameraOnScreen {
   // Mean cost per frame of the fixture's fill: X read-back and simulator render, ms.
   std::string FillReport() const {
     char line[160];
-    std::snprintf(line, sizeof line, "%d fills: X read-back %.2f ms, render %.2f ms per frame", fills_.load(),
-                  1e3 * read_s_ / std::max(1, fills_.load()), 1e3 * render_s_ / std::max(1, fills_.load()));
+    std::snprintf(line, sizeof line, "%d fills: X read-back %.2f ms, render %.2f ms per frame",
+                  fills_.load(), 1e3 * read_s_ / std::max(1, fills_.load()),
+                  1e3 * render_s_ / std::max(1, fills_.load()));
     return line;
   }
 
@@ -136,7 +139,8 @@ class ClosedLoop : public ::testing::Test {
     // SLSHADOW_CLOSED_LOOP_SCALE=1: the full demo resolution (for the benchmark); default 4.
     const char* scale = std::getenv("SLSHADOW_CLOSED_LOOP_SCALE");
     rig_ = testing::ScaledDemoRig(scale ? std::atoi(scale) : 4);
-    scene_ = std::make_unique<Scene>(LoadScene(fs::path(SLSHADOW_SOURCE_DIR) / "config/demo/scene.yaml"));
+    scene_ = std::make_unique<Scene>(
+        LoadScene(fs::path(SLSHADOW_SOURCE_DIR) / "config/demo/scene.yaml"));
     spec_ = LoadPatternSpec(fs::path(SLSHADOW_SOURCE_DIR) / "config/patterns/graycode_phase.yaml");
     spec_.projector_width = rig_.projector->model.width;
     spec_.projector_height = rig_.projector->model.height;
@@ -148,17 +152,19 @@ class ClosedLoop : public ::testing::Test {
     SimulateOptions sim_options;
     sim_options.write_ground_truth = false;
     sim_options.writer.encoding = ImageEncoding::kPgm;
-    SimulateScan(*scene_, rig_, patterns_, PatternSpecToJson(spec_), dir_ / "simulated", sim_options);
+    SimulateScan(*scene_, rig_, patterns_, PatternSpecToJson(spec_), dir_ / "simulated",
+                 sim_options);
 
     const int pw = rig_.projector->model.width, ph = rig_.projector->model.height;
     projector_rect_ = cv::Rect(kMonitorWidth, 0, pw, ph);
     xvfb_ = std::make_unique<testing::XvfbServer>(kMonitorWidth + pw, std::max(480, ph));
 
-    simulator_ = std::make_unique<Simulator>(*scene_, rig_, TraceMode::kPacket16, /*ground_truth=*/false);
+    simulator_ =
+        std::make_unique<Simulator>(*scene_, rig_, TraceMode::kPacket16, /*ground_truth=*/false);
     for (int c = 0; c < 2; ++c) {
       const auto k = static_cast<size_t>(c);
-      devices_.push_back(std::make_unique<SimulatedCameraOnScreen>(*scene_, rig_, c, simulator_->geometry(c),
-                                                                   kAddresses[k], projector_rect_));
+      devices_.push_back(std::make_unique<SimulatedCameraOnScreen>(
+          *scene_, rig_, c, simulator_->geometry(c), kAddresses[k], projector_rect_));
       CameraSettings s;
       s.trigger = TriggerMode::kSoftware;
       s.roi = Roi{0, 0, rig_.cameras[k].model.width, rig_.cameras[k].model.height};
@@ -170,17 +176,21 @@ class ClosedLoop : public ::testing::Test {
 
   void OpenWindow() {
     WindowProjectorOptions wopt;
-    wopt.geometry = WindowGeometry{projector_rect_.x, projector_rect_.y, projector_rect_.width, projector_rect_.height};
+    wopt.geometry = WindowGeometry{projector_rect_.x, projector_rect_.y, projector_rect_.width,
+                                   projector_rect_.height};
     window_ = std::make_unique<WindowProjector>(wopt);
   }
   void OpenCameras() {
-    for (size_t k = 0; k < 2; ++k) cameras_.push_back(OpenAravisCamera(AravisOpenOptions{.device = kAddresses[k]}));
+    for (size_t k = 0; k < 2; ++k)
+      cameras_.push_back(OpenAravisCamera(AravisOpenOptions{.device = kAddresses[k]}));
   }
 
   // Captures the pattern sequence through `projector` with the sequencer into dir_/name.
-  CaptureSummary CaptureWith(Projector& projector, const std::string& name, int max_retries = 3, bool validate = true) {
+  CaptureSummary CaptureWith(Projector& projector, const std::string& name, int max_retries = 3,
+                             bool validate = true) {
     std::vector<CaptureCamera> cams;
-    for (size_t k = 0; k < 2; ++k) cams.push_back({names_[k], cameras_[k].get(), settings_[k], milliseconds(3000)});
+    for (size_t k = 0; k < 2; ++k)
+      cams.push_back({names_[k], cameras_[k].get(), settings_[k], milliseconds(3000)});
     SequencerOptions options;
     options.writer.encoding = ImageEncoding::kPgm;
     options.writer.durable = false;
@@ -188,17 +198,20 @@ class ClosedLoop : public ::testing::Test {
     options.max_retries = max_retries;
     options.validate = validate;
     const CaptureSummary summary = Capture(rig_, spec_, cams, projector, dir_ / name, options);
-    std::printf("closed loop (%s): %d patterns x 2 cameras (%dx%d, projector %dx%d, %.0f Hz, latency %.1f ms): "
-                "%.1f ms per pattern, %.1f patterns/s\n%s\n",
-                name.c_str(), summary.patterns, rig_.cameras[0].model.width, rig_.cameras[0].model.height,
-                rig_.projector->model.width, rig_.projector->model.height, projector.Info().refresh_hz,
-                projector.Latency().count() / 1000.0, summary.mean_pattern_ms, 1000.0 / summary.mean_pattern_ms,
-                summary.BriefReport().c_str());
+    std::printf(
+        "closed loop (%s): %d patterns x 2 cameras (%dx%d, projector %dx%d, %.0f Hz, latency %.1f "
+        "ms): "
+        "%.1f ms per pattern, %.1f patterns/s\n%s\n",
+        name.c_str(), summary.patterns, rig_.cameras[0].model.width, rig_.cameras[0].model.height,
+        rig_.projector->model.width, rig_.projector->model.height, projector.Info().refresh_hz,
+        projector.Latency().count() / 1000.0, summary.mean_pattern_ms,
+        1000.0 / summary.mean_pattern_ms, summary.BriefReport().c_str());
     PrintFillCosts();
     return summary;
   }
   void PrintFillCosts() const {
-    for (const auto& d : devices_) std::printf("  fake camera %s: %s\n", d->fake().serial().c_str(), d->FillReport().c_str());
+    for (const auto& d : devices_)
+      std::printf("  fake camera %s: %s\n", d->fake().serial().c_str(), d->FillReport().c_str());
   }
 
   // Images of the ImageSet at dir_/name that differ from the simulated ones.
@@ -216,7 +229,8 @@ class ClosedLoop : public ::testing::Test {
         std::string shows = "no pattern of the sequence";
         for (int j = 0; j < captured.PatternCount(); ++j) {
           const cv::Mat c = simulated.Load(camera, j);
-          if (c.type() == a.type() && cv::norm(a, c, cv::NORM_INF) == 0) shows = "pattern " + std::to_string(j);
+          if (c.type() == a.type() && cv::norm(a, c, cv::NORM_INF) == 0)
+            shows = "pattern " + std::to_string(j);
         }
         std::printf("  %s: %s pattern %d (%s) shows %s\n", name.c_str(), camera.c_str(), i,
                     spec_.Frames()[static_cast<size_t>(i)].Name().c_str(), shows.c_str());
@@ -239,7 +253,8 @@ class ClosedLoop : public ::testing::Test {
       size_t differing = 0;
       for (size_t k = 0; k < a.size(); ++k) differing += a.points[k] != b.points[k];
       EXPECT_EQ(differing, 0u) << ToString(mode);
-      std::printf("reconstruction (%s): %zu points, %zu differ\n", ToString(mode).c_str(), a.size(), differing);
+      std::printf("reconstruction (%s): %zu points, %zu differ\n", ToString(mode).c_str(), a.size(),
+                  differing);
     }
   }
 
@@ -293,7 +308,8 @@ TEST_F(ClosedLoop, CaptureThroughXAndGigEVisionEqualsSimulation) {
 // `slshadow capture --rig R.yaml --devices D.yaml --patterns P.json --out DIR`: the commands open
 // the Aravis cameras at 127.0.0.2/.3 and the window at its geometry from the devices file.
 TEST_F(ClosedLoop, SlshadowLatencyAndCaptureCommandsEqualSimulation) {
-  const fs::path rig_file = dir_ / "rig.yaml", patterns_file = dir_ / "patterns.json", devices_file = dir_ / "devices.yaml";
+  const fs::path rig_file = dir_ / "rig.yaml", patterns_file = dir_ / "patterns.json",
+                 devices_file = dir_ / "devices.yaml";
   SaveRig(rig_, rig_file);
   std::ofstream(patterns_file) << PatternSpecToJson(spec_).dump(2);
   auto write_devices = [&](long long latency_us) {
@@ -301,27 +317,36 @@ TEST_F(ClosedLoop, SlshadowLatencyAndCaptureCommandsEqualSimulation) {
     out << "format: slshadow-devices\nversion: 1\ncameras:\n";
     for (size_t k = 0; k < 2; ++k) {
       out << "  - name: " << names_[k] << "\n    backend: aravis\n    address: " << kAddresses[k]
-          << "\n    settings: {pixel_format: Mono8, trigger: software, roi: [0, 0, " << rig_.cameras[k].model.width
-          << ", " << rig_.cameras[k].model.height << "], packet_size_bytes: 8192}\n    grab_timeout_ms: 3000\n";
+          << "\n    settings: {pixel_format: Mono8, trigger: software, roi: [0, 0, "
+          << rig_.cameras[k].model.width << ", " << rig_.cameras[k].model.height
+          << "], packet_size_bytes: 8192}\n    grab_timeout_ms: 3000\n";
     }
-    out << "projector:\n  backend: window\n  display: \"" << projector_rect_.x << "," << projector_rect_.y << ","
-        << projector_rect_.width << "," << projector_rect_.height << "\"\n  latency_us: " << latency_us << "\n";
+    out << "projector:\n  backend: window\n  display: \"" << projector_rect_.x << ","
+        << projector_rect_.y << "," << projector_rect_.width << "," << projector_rect_.height
+        << "\"\n  latency_us: " << latency_us << "\n";
   };
   write_devices(0);
   std::string out;
   // The X display as `slshadow devices` lists it, and the window's own present latency.
   ASSERT_EQ(RunSlshadow({"devices"}, &out), 0);
-  EXPECT_NE(out.find("display 0  screen         at 0,0," + std::to_string(xvfb_->width()) + ","), std::string::npos) << out;
-  const std::string geometry = std::to_string(projector_rect_.x) + ",0," + std::to_string(projector_rect_.width) + "," +
+  EXPECT_NE(out.find("display 0  screen         at 0,0," + std::to_string(xvfb_->width()) + ","),
+            std::string::npos)
+      << out;
+  const std::string geometry = std::to_string(projector_rect_.x) + ",0," +
+                               std::to_string(projector_rect_.width) + "," +
                                std::to_string(projector_rect_.height);
   ASSERT_EQ(RunSlshadow({"latency", "--geometry", geometry, "--samples", "3"}, &out), 0);
   EXPECT_NE(out.find("present latency over 6 frames"), std::string::npos) << out;
-  ASSERT_EQ(RunSlshadow({"latency", "--devices", devices_file.string(), "--repetitions", "2", "--max-ms", "200"}, &out), 0);
+  ASSERT_EQ(RunSlshadow({"latency", "--devices", devices_file.string(), "--repetitions", "2",
+                         "--max-ms", "200"},
+                        &out),
+            0);
   const size_t at = out.find("latency_us: ");
   ASSERT_NE(at, std::string::npos) << out;
   write_devices(std::stoll(out.substr(at + 12)));
-  ASSERT_EQ(RunSlshadow({"capture", "--rig", rig_file.string(), "--devices", devices_file.string(), "--patterns",
-                         patterns_file.string(), "--out", (dir_ / "cli").string(), "--encoding", "pgm", "--quiet"},
+  ASSERT_EQ(RunSlshadow({"capture", "--rig", rig_file.string(), "--devices", devices_file.string(),
+                         "--patterns", patterns_file.string(), "--out", (dir_ / "cli").string(),
+                         "--encoding", "pgm", "--quiet"},
                         &out),
             0);
   PrintFillCosts();
@@ -336,12 +361,15 @@ TEST_F(ClosedLoop, SlshadowLatencyAndCaptureCommandsEqualSimulation) {
   text.replace(text.find("display: \"") + 10, std::to_string(projector_rect_.x).size(), "9000");
   std::ofstream(devices_file) << text;
   ::testing::internal::CaptureStderr();
-  EXPECT_NE(RunSlshadow({"capture", "--rig", rig_file.string(), "--devices", devices_file.string(), "--patterns",
-                         patterns_file.string(), "--out", (dir_ / "cli_bad").string(), "--quiet"},
+  EXPECT_NE(RunSlshadow({"capture", "--rig", rig_file.string(), "--devices", devices_file.string(),
+                         "--patterns", patterns_file.string(), "--out", (dir_ / "cli_bad").string(),
+                         "--quiet"},
                         &out),
             0);
   const std::string error = ::testing::internal::GetCapturedStderr();
-  EXPECT_NE(error.find("devices.yaml: projector: window projector: geometry 9000,0,"), std::string::npos) << error;
+  EXPECT_NE(error.find("devices.yaml: projector: window projector: geometry 9000,0,"),
+            std::string::npos)
+      << error;
   EXPECT_FALSE(fs::exists(dir_ / "cli_bad"));
   EXPECT_FALSE(fs::exists(dir_ / "cli_bad.partial"));
 }
@@ -358,8 +386,9 @@ TEST_F(ClosedLoop, StaleFramesAreSeenByTheOracle) {
   slow.SetLatency(std::chrono::microseconds(0));
   CaptureWith(slow, "unvalidated", 3, /*validate=*/false);
   const int stale = DifferingImages("unvalidated");
-  std::printf("latency 0 with a 40 ms display, no validation: %d of %d images differ from the simulation\n", stale,
-              2 * static_cast<int>(patterns_.size()));
+  std::printf(
+      "latency 0 with a 40 ms display, no validation: %d of %d images differ from the simulation\n",
+      stale, 2 * static_cast<int>(patterns_.size()));
   EXPECT_GT(stale, 0);
   EXPECT_GT(MeasureLatency(slow).latency.count(), 0);
 }
@@ -380,15 +409,19 @@ TEST_F(ClosedLoop, LateProjectorNeverStoresAWrongFrame) {
   try {
     const CaptureSummary summary = CaptureWith(slow, "latency_0", /*max_retries=*/8);
     int64_t stale = 0;
-    for (const auto& [camera, stats] : summary.cameras) stale += stats.stale + stats.not_complementary;
-    std::printf("latency 0 with a 40 ms display: %d retries, %lld frames refused as stale or not complementary\n",
-                summary.retries, static_cast<long long>(stale));
+    for (const auto& [camera, stats] : summary.cameras)
+      stale += stats.stale + stats.not_complementary;
+    std::printf(
+        "latency 0 with a 40 ms display: %d retries, %lld frames refused as stale or not "
+        "complementary\n",
+        summary.retries, static_cast<long long>(stale));
     EXPECT_GT(summary.retries, 0);
     EXPECT_EQ(DifferingImages("latency_0"), 0);
     std::printf("learned latency %.1f ms\n", summary.learned_latency_us / 1000);
     EXPECT_GT(summary.learned_latency_us, 0);
-    EXPECT_EQ(ImageSet::Open(dir_ / "latency_0").extra()["capture"]["learned_latency_us"].get<double>(),
-              summary.learned_latency_us);
+    EXPECT_EQ(
+        ImageSet::Open(dir_ / "latency_0").extra()["capture"]["learned_latency_us"].get<double>(),
+        summary.learned_latency_us);
   } catch (const Error& e) {
     std::printf("latency 0 with a 40 ms display: stopped: %s\n", e.what());
     EXPECT_NE(std::string(e.what()).find("pattern"), std::string::npos) << e.what();

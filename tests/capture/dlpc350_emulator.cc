@@ -34,7 +34,8 @@ bool Dlpc350Emulator::PopReply(Report* report) {
   return true;
 }
 
-void Dlpc350Emulator::Reply(const Request& request, uint8_t flags, const std::vector<uint8_t>& data) {
+void Dlpc350Emulator::Reply(const Request& request, uint8_t flags,
+                            const std::vector<uint8_t>& data) {
   if (silent || !(request.flags & dlpc350::kFlagReply)) return;
   Report r{};
   r[0] = flags;
@@ -48,7 +49,8 @@ void Dlpc350Emulator::Reply(const Request& request, uint8_t flags, const std::ve
   while (at < data.size()) {
     Report next{};
     const size_t n = std::min(data.size() - at, dlpc350::kReportSize);
-    std::copy(data.begin() + static_cast<long>(at), data.begin() + static_cast<long>(at + n), next.begin());
+    std::copy(data.begin() + static_cast<long>(at), data.begin() + static_cast<long>(at + n),
+              next.begin());
     queue.push_back(next);
     at += n;
   }
@@ -61,55 +63,83 @@ void Dlpc350Emulator::ReleaseHeld() {
 
 void Dlpc350Emulator::Handle(const Request& q) {
   const bool read = q.flags & dlpc350::kFlagRead;
-  if (q.command == nack_command) return Reply(q, static_cast<uint8_t>(q.flags | dlpc350::kFlagNack), {});
+  if (q.command == nack_command)
+    return Reply(q, static_cast<uint8_t>(q.flags | dlpc350::kFlagNack), {});
   auto need = [&](size_t n) { return q.data.size() == n; };
   using namespace dlpc350;
   if (read) {
     switch (q.command) {
-      case kDisplayMode: return Reply(q, q.flags, {display_mode});
-      case kSequenceControl: return Reply(q, q.flags, {sequence_control});
-      case kVersion: return Reply(q, q.flags, version);
+      case kDisplayMode:
+        return Reply(q, q.flags, {display_mode});
+      case kSequenceControl:
+        return Reply(q, q.flags, {sequence_control});
+      case kVersion:
+        return Reply(q, q.flags, version);
       case kValidate:
         if (busy_polls > 0) {
           --busy_polls;
           return Reply(q, q.flags, {0x80});
         }
         return Reply(q, q.flags, {validation_status});
-      default: return Reply(q, static_cast<uint8_t>(q.flags | kFlagNack), {});
+      default:
+        return Reply(q, static_cast<uint8_t>(q.flags | kFlagNack), {});
     }
   }
   bool ok = true;
   switch (q.command) {
-    case kDisplayMode: ok = need(1) && q.data[0] <= 1; if (ok) display_mode = q.data[0]; break;
+    case kDisplayMode:
+      ok = need(1) && q.data[0] <= 1;
+      if (ok) display_mode = q.data[0];
+      break;
     case kSequenceControl:
       ok = need(1) && q.data[0] <= 2;
       if (ok) sequence_control = q.data[0];
       if (ok && on_sequence_control) on_sequence_control(q.data[0]);
       break;
-    case kPatternSource: ok = need(1) && (q.data[0] == 0 || q.data[0] == 3); break;
-    case kPatternTrigger: ok = need(1) && q.data[0] <= 4; break;
+    case kPatternSource:
+      ok = need(1) && (q.data[0] == 0 || q.data[0] == 3);
+      break;
+    case kPatternTrigger:
+      ok = need(1) && q.data[0] <= 4;
+      break;
     case kExposure:
       ok = need(8);
       if (ok) {
-        exposure_us = uint32_t(q.data[0]) | uint32_t(q.data[1]) << 8 | uint32_t(q.data[2]) << 16 | uint32_t(q.data[3]) << 24;
-        frame_period_us = uint32_t(q.data[4]) | uint32_t(q.data[5]) << 8 | uint32_t(q.data[6]) << 16 | uint32_t(q.data[7]) << 24;
+        exposure_us = uint32_t(q.data[0]) | uint32_t(q.data[1]) << 8 | uint32_t(q.data[2]) << 16 |
+                      uint32_t(q.data[3]) << 24;
+        frame_period_us = uint32_t(q.data[4]) | uint32_t(q.data[5]) << 8 |
+                          uint32_t(q.data[6]) << 16 | uint32_t(q.data[7]) << 24;
       }
       break;
-    case kPatternConfig: ok = need(4); if (ok) pattern_config = q.data; break;
-    case kTrigOut1: ok = need(3); if (ok) trig_out1 = q.data; break;
-    case kTrigOut2: ok = need(2); break;
-    case kValidate: ok = need(1); break;
+    case kPatternConfig:
+      ok = need(4);
+      if (ok) pattern_config = q.data;
+      break;
+    case kTrigOut1:
+      ok = need(3);
+      if (ok) trig_out1 = q.data;
+      break;
+    case kTrigOut2:
+      ok = need(2);
+      break;
+    case kValidate:
+      ok = need(1);
+      break;
     case kMailboxOpen:
       ok = need(1) && q.data[0] <= 3;
       if (ok) mailbox = q.data[0];
       break;
-    case kMailboxAddress: ok = need(1) && q.data[0] < 128; if (ok) mailbox_address = q.data[0]; break;
+    case kMailboxAddress:
+      ok = need(1) && q.data[0] < 128;
+      if (ok) mailbox_address = q.data[0];
+      break;
     case kMailboxData:
       ok = mailbox == 1 || mailbox == 2;
       if (mailbox == 1) image_lut = q.data;
       if (mailbox == 2) pattern_lut = q.data;
       break;
-    default: ok = false;
+    default:
+      ok = false;
   }
   Reply(q, ok ? q.flags : static_cast<uint8_t>(q.flags | kFlagNack), {});
 }
@@ -215,6 +245,8 @@ bool MemoryTransport::Write(const Report& report, std::chrono::milliseconds) {
   return true;
 }
 
-bool MemoryTransport::Read(Report* report, std::chrono::milliseconds) { return device_.PopReply(report); }
+bool MemoryTransport::Read(Report* report, std::chrono::milliseconds) {
+  return device_.PopReply(report);
+}
 
 }  // namespace slshadow::capture::testing

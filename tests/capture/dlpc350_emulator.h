@@ -4,15 +4,15 @@
 // set, answers reads and acks like the device does, logs every request, and injects faults.
 #pragma once
 
-#include <chrono>
-#include <cstdint>
 #include <atomic>
+#include <chrono>
 #include <condition_variable>
+#include <cstdint>
 #include <deque>
 #include <functional>
 #include <mutex>
-#include <thread>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "capture/lightcrafter_protocol.h"
@@ -41,8 +41,9 @@ class Dlpc350Emulator {
   uint8_t mailbox = 0, mailbox_address = 0;
   std::vector<uint8_t> version = std::vector<uint8_t>(16, 0);
   uint32_t exposure_us = 0, frame_period_us = 0;  // 0x1A29
-  std::vector<uint8_t> pattern_config;            // 0x1A31: entries - 1, repeat, TRIG_OUT2 period - 1, images - 1
-  std::vector<uint8_t> trig_out1;                 // 0x1A1D: invert, rising, falling
+  std::vector<uint8_t>
+      pattern_config;              // 0x1A31: entries - 1, repeat, TRIG_OUT2 period - 1, images - 1
+  std::vector<uint8_t> trig_out1;  // 0x1A1D: invert, rising, falling
   // Called on every start / pause / stop write (under the caller's lock: must not call back).
   std::function<void(uint8_t control)> on_sequence_control;
   // The flash pattern each pattern-LUT entry shows, decoded from the LUTs as the device reads
@@ -52,10 +53,10 @@ class Dlpc350Emulator {
   // swaps. Empty when nothing is programmed.
   std::vector<int> LutPatterns() const;
   // Faults.
-  uint16_t nack_command = 0;      // NACK every request of this command
-  bool wrong_seq = false;         // echo seq + 1
-  bool silent = false;            // queue no replies (a timeout)
-  bool hold = false;              // keep replies back until ReleaseHeld() (a late device)
+  uint16_t nack_command = 0;  // NACK every request of this command
+  bool wrong_seq = false;     // echo seq + 1
+  bool silent = false;        // queue no replies (a timeout)
+  bool hold = false;          // keep replies back until ReleaseHeld() (a late device)
   void ReleaseHeld();
   int busy_polls = 0;             // validate reads report busy this many times
   uint8_t validation_status = 0;  // the final validation bits
@@ -84,10 +85,13 @@ class Dlpc350SequenceRunner {
   uint64_t runs() const { return runs_.load(); }
   // Set before Start. Runs on the runner's thread; `edge` is when the device's clock scheduled
   // the pulse (the thread may run late on a loaded machine; the DLPC350's clock does not).
-  std::function<void(int entry, int pattern, std::chrono::system_clock::time_point edge)> trigger_out;
-  std::atomic<int> drop_pulse_at{-1};  // the next run with this entry shows it without a pulse (once)
-  std::atomic<int> halt_at{-1};        // the next run reaching this entry dies there (once): dark, no pulse, on_halt
-  std::function<void()> on_halt;       // e.g. unplug the USB device
+  std::function<void(int entry, int pattern, std::chrono::system_clock::time_point edge)>
+      trigger_out;
+  std::atomic<int> drop_pulse_at{
+      -1};  // the next run with this entry shows it without a pulse (once)
+  std::atomic<int> halt_at{
+      -1};  // the next run reaching this entry dies there (once): dark, no pulse, on_halt
+  std::function<void()> on_halt;  // e.g. unplug the USB device
 
  private:
   void Loop();

@@ -28,7 +28,8 @@ constexpr guint32 kMono12 = 0x01100005;  // PFNC Mono12 (unpacked, 16 bits per p
 void ReplaceOnce(std::string& text, const std::string& from, const std::string& to) {
   const size_t at = text.find(from);
   if (at == std::string::npos || text.find(from, at + 1) != std::string::npos) {
-    throw std::runtime_error("FakeGvCamera: the built-in GenICam XML has not exactly one '" + from + "'");
+    throw std::runtime_error("FakeGvCamera: the built-in GenICam XML has not exactly one '" + from +
+                             "'");
   }
   text.replace(at, from.size(), to);
 }
@@ -59,7 +60,8 @@ std::string SfncXml() {
                "\t\t<pValue>GainRawRegister</pValue>\n\t</Converter>");
   ReplaceOnce(text, "<pValue>PixelFormatRegister</pValue>",
               "<EnumEntry Name=\"Mono12\" NameSpace=\"Standard\">\n\t\t\t<Value>" +
-                  std::to_string(kMono12) + "</Value>\n\t\t</EnumEntry>\n\t\t<pValue>PixelFormatRegister</pValue>");
+                  std::to_string(kMono12) +
+                  "</Value>\n\t\t</EnumEntry>\n\t\t<pValue>PixelFormatRegister</pValue>");
   // Line1 carries the software source's value: the camera then fires when the test writes its
   // trigger register (PulseLine), without any TriggerSoftware command from the client.
   ReplaceOnce(text, "<EnumEntry Name=\"Software\"",
@@ -91,7 +93,8 @@ struct FakeGvCamera::Impl {
   std::deque<std::pair<uint64_t, int64_t>> edges;
   bool armed = false;
 
-  static void Fill(ArvBuffer* buffer, void* data, guint32 exposure_us, guint32 gain, ArvPixelFormat format) {
+  static void Fill(ArvBuffer* buffer, void* data, guint32 exposure_us, guint32 gain,
+                   ArvPixelFormat format) {
     auto* self = static_cast<Impl*>(data);
     FakeFrameRequest request;
     request.frame_id = arv_buffer_get_frame_id(buffer);
@@ -125,7 +128,8 @@ struct FakeGvCamera::Impl {
     }
     if (self->options.keep_served > 0) {
       self->served.emplace_back(request.frame_id, target.clone());
-      while (static_cast<int>(self->served.size()) > self->options.keep_served) self->served.pop_front();
+      while (static_cast<int>(self->served.size()) > self->options.keep_served)
+        self->served.pop_front();
     }
     self->served_ids.push_back(request.frame_id);
     self->n_served.fetch_add(1);
@@ -137,7 +141,9 @@ FakeGvCamera::FakeGvCamera(const FakeGvCameraOptions& options) : impl_(std::make
   std::string xml_path;
   if (options.sfnc_xml) {
     const auto dir = std::filesystem::temp_directory_path();
-    xml_path = (dir / ("slshadow-fake-gv-" + std::to_string(getpid()) + "-" + options.serial + ".xml")).string();
+    xml_path =
+        (dir / ("slshadow-fake-gv-" + std::to_string(getpid()) + "-" + options.serial + ".xml"))
+            .string();
     std::ofstream(xml_path) << SfncXml();
   }
   impl_->gv = arv_gv_fake_camera_new_full(options.address.c_str(), options.serial.c_str(),
@@ -173,7 +179,8 @@ void FakeGvCamera::SeedLoss(uint32_t seed) { g_random_set_seed(seed); }
 void FakeGvCamera::PulseLine(int64_t tag, std::chrono::system_clock::time_point edge) {
   if (impl_->fake == nullptr) return;
   if (edge.time_since_epoch().count() == 0) edge = std::chrono::system_clock::now();
-  const auto ns = std::chrono::duration_cast<std::chrono::nanoseconds>(edge.time_since_epoch()).count();
+  const auto ns =
+      std::chrono::duration_cast<std::chrono::nanoseconds>(edge.time_since_epoch()).count();
   std::lock_guard<std::mutex> lock(impl_->line_mutex);
   impl_->edges.emplace_back(static_cast<uint64_t>(ns), tag);
   if (!impl_->armed) {
@@ -184,7 +191,8 @@ void FakeGvCamera::PulseLine(int64_t tag, std::chrono::system_clock::time_point 
 
 void FakeGvCamera::SetFrameRate(double hz) {
   if (impl_->fake != nullptr && hz > 0) {
-    arv_fake_camera_write_register(impl_->fake, kFramePeriodRegister, static_cast<guint32>(1e6 / hz));
+    arv_fake_camera_write_register(impl_->fake, kFramePeriodRegister,
+                                   static_cast<guint32>(1e6 / hz));
   }
 }
 
@@ -216,14 +224,19 @@ void RunInPrivateNetwork(int argc, char** argv) {
   if (std::system(probe) != 0) {
     setenv("SLSHADOW_NETNS_SKIP",
            "private network namespace unavailable (`unshare -n` with `ip` failed: needs root or "
-           "user namespaces and iproute2)", 1);
+           "user namespaces and iproute2)",
+           1);
     return;
   }
   std::error_code ec;
   const std::string self = std::filesystem::read_symlink("/proc/self/exe", ec).string();
   setenv("SLSHADOW_NETNS", "1", 1);
   std::vector<std::string> args = {
-      "unshare", "-n", "--", "sh", "-c",
+      "unshare",
+      "-n",
+      "--",
+      "sh",
+      "-c",
       "ip link set lo up && ip addr add 127.0.0.2/8 dev lo && ip addr add 127.0.0.3/8 dev lo && "
       "exec \"$0\" \"$@\"",
       ec ? std::string(argv[0]) : self};
@@ -233,7 +246,8 @@ void RunInPrivateNetwork(int argc, char** argv) {
   c_args.push_back(nullptr);
   execvp("unshare", c_args.data());
   unsetenv("SLSHADOW_NETNS");
-  setenv("SLSHADOW_NETNS_SKIP", "private network namespace unavailable (cannot execute unshare)", 1);
+  setenv("SLSHADOW_NETNS_SKIP", "private network namespace unavailable (cannot execute unshare)",
+         1);
 }
 
 std::string SkipReasonWithoutPrivateNetwork() {

@@ -27,7 +27,7 @@ namespace slshadow::testing {
 
 // What the fake camera is about to send: the fill function returns the image for it.
 struct FakeFrameRequest {
-  uint64_t frame_id = 0;  // 16-bit GigE Vision id (starts at 65401, wraps to 1)
+  uint64_t frame_id = 0;      // 16-bit GigE Vision id (starts at 65401, wraps to 1)
   int width = 0, height = 0;  // the client's region of interest
   capture::PixelFormat format = capture::PixelFormat::kMono8;
   uint32_t exposure_us = 0;  // the camera's exposure register when the frame is taken

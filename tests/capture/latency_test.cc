@@ -64,7 +64,8 @@ TEST(ProjectorLatency, AddedDisplayDelayIsFound) {
   s.trigger = TriggerMode::kSoftware;
   camera.Configure(s);
   const LatencyMeasurement m = MeasureProjectorLatency(camera, projector, FastOptions());
-  std::printf("window projector + 40 ms display delay, screen camera: %s\n", m.BriefReport().c_str());
+  std::printf("window projector + 40 ms display delay, screen camera: %s\n",
+              m.BriefReport().c_str());
   EXPECT_GE(m.latency, delay);
   EXPECT_LE(m.latency, FastOptions().max_latency);
 }
@@ -81,7 +82,8 @@ TEST(ProjectorLatency, FreeRunCountsFrames) {
   s.trigger = TriggerMode::kFreeRun;
   camera.Configure(s);
   const LatencyMeasurement m = MeasureProjectorLatency(camera, projector, FastOptions());
-  std::printf("window projector + 30 ms display delay, free-running screen camera: %s\n", m.BriefReport().c_str());
+  std::printf("window projector + 30 ms display delay, free-running screen camera: %s\n",
+              m.BriefReport().c_str());
   EXPECT_EQ(m.mode, "frame counting");
   ASSERT_EQ(m.frames_until_change.size(), 3u);
   for (int n : m.frames_until_change) EXPECT_GE(n, 1);
@@ -101,7 +103,9 @@ TEST(ProjectorLatency, NoContrastIsAnError) {
     MeasureProjectorLatency(camera, projector, FastOptions());
     ADD_FAILURE() << "no error";
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("sees no change between projector black"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("sees no change between projector black"),
+              std::string::npos)
+        << e.what();
   }
   LatencyOptions bad = FastOptions();
   bad.threshold = 1.5;

@@ -24,11 +24,13 @@ TEST(LightCrafterProjector, SwitchesToVideoModeAndDelegatesToTheHdmiOutput) {
   EXPECT_EQ(device.sequence_control, 0);
   std::vector<uint16_t> commands;
   for (const auto& q : device.log) commands.push_back(q.command);
-  EXPECT_EQ(commands, (std::vector<uint16_t>{dlpc350::kVersion, dlpc350::kSequenceControl, dlpc350::kDisplayMode,
-                                             dlpc350::kDisplayMode}));
+  EXPECT_EQ(commands, (std::vector<uint16_t>{dlpc350::kVersion, dlpc350::kSequenceControl,
+                                             dlpc350::kDisplayMode, dlpc350::kDisplayMode}));
   const ProjectorInfo info = projector.Info();
   EXPECT_EQ(info.backend, "lightcrafter");
-  EXPECT_NE(info.id.find("emulated LightCrafter 4500, video mode, firmware application 3.1.2"), std::string::npos) << info.id;
+  EXPECT_NE(info.id.find("emulated LightCrafter 4500, video mode, firmware application 3.1.2"),
+            std::string::npos)
+      << info.id;
   EXPECT_EQ(projector.Latency(), std::chrono::microseconds(1234));
   projector.SetLatency(std::chrono::microseconds(50));
   EXPECT_EQ(projector.Latency(), std::chrono::microseconds(50));
@@ -45,7 +47,8 @@ TEST(LightCrafterProjector, RefusedVideoModeIsOneErrorNamingTheDevice) {
                                     std::make_unique<NoneProjector>(std::chrono::microseconds(0)));
     FAIL() << "no error";
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("emulated LightCrafter 4500: display mode (0x1A1B) with data [00]: the device refused it"),
+    EXPECT_NE(std::string(e.what()).find("emulated LightCrafter 4500: display mode (0x1A1B) with "
+                                         "data [00]: the device refused it"),
               std::string::npos)
         << e.what();
   }
@@ -59,14 +62,17 @@ TEST(LightCrafterSequenceProjector, ProgramsTheSequenceStartsStopsAndChecks) {
   LightCrafterSequenceOptions options;
   options.frame_period_us = 8333;
   options.trig_out1.invert = true;
-  LightCrafterSequenceProjector projector(std::make_unique<testing::MemoryTransport>(device), options);
+  LightCrafterSequenceProjector projector(std::make_unique<testing::MemoryTransport>(device),
+                                          options);
   EXPECT_EQ(device.sequence_control, 0);  // a running sequence is stopped on opening
   std::vector<cv::Mat> binary;
-  for (int i = 0; i < 30; ++i) binary.push_back(cv::Mat(40, 64, CV_8UC1, cv::Scalar(i % 2 ? 255 : 0)));
+  for (int i = 0; i < 30; ++i)
+    binary.push_back(cv::Mat(40, 64, CV_8UC1, cv::Scalar(i % 2 ? 255 : 0)));
   projector.Load(binary);
   EXPECT_EQ(projector.bit_depth(), 1);
   EXPECT_EQ(device.display_mode, 1);
-  EXPECT_EQ(device.pattern_config, (std::vector<uint8_t>{29, 0, 29, 1}));  // 30 entries, no repeat, 2 images
+  EXPECT_EQ(device.pattern_config,
+            (std::vector<uint8_t>{29, 0, 29, 1}));  // 30 entries, no repeat, 2 images
   EXPECT_EQ(device.trig_out1, (std::vector<uint8_t>{1, 0xBB, 0xBB}));
   EXPECT_EQ(device.frame_period_us, 8333u);
   EXPECT_EQ(device.exposure_us, 8333u);
@@ -94,7 +100,8 @@ TEST(LightCrafterSequenceProjector, ProgramsTheSequenceStartsStopsAndChecks) {
     projector.CheckAlive();
     ADD_FAILURE() << "no error";
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("emulated LightCrafter 4500: the display mode reads back as video"),
+    EXPECT_NE(std::string(e.what()).find(
+                  "emulated LightCrafter 4500: the display mode reads back as video"),
               std::string::npos)
         << e.what();
   }
@@ -103,14 +110,18 @@ TEST(LightCrafterSequenceProjector, ProgramsTheSequenceStartsStopsAndChecks) {
     projector.Load(grey);
     ADD_FAILURE() << "no error";
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("refused the pattern sequence at validation: bit 0: exposure or frame period invalid"),
-              std::string::npos)
+    EXPECT_NE(
+        std::string(e.what()).find(
+            "refused the pattern sequence at validation: bit 0: exposure or frame period invalid"),
+        std::string::npos)
         << e.what();
   }
   LightCrafterSequenceOptions bad;
   bad.frame_period_us = 1000;
   bad.exposure_us = 900;  // must equal the period or leave 230 us
-  EXPECT_THROW(LightCrafterSequenceProjector(std::make_unique<testing::MemoryTransport>(device), bad), Error);
+  EXPECT_THROW(
+      LightCrafterSequenceProjector(std::make_unique<testing::MemoryTransport>(device), bad),
+      Error);
 }
 
 }  // namespace

@@ -48,7 +48,8 @@ using std::chrono::milliseconds;
 
 fs::path TestDir(const std::string& name) {
   const char* tmp = std::getenv("SLSHADOW_TEST_TMP");
-  fs::path dir = fs::path(tmp ? tmp : fs::temp_directory_path().string()) / ("lightcrafter_loop_" + name);
+  fs::path dir =
+      fs::path(tmp ? tmp : fs::temp_directory_path().string()) / ("lightcrafter_loop_" + name);
   fs::remove_all(dir);
   fs::create_directories(dir);
   return dir;
@@ -57,13 +58,15 @@ fs::path TestDir(const std::string& name) {
 class LightCrafterLoop : public ::testing::Test {
  protected:
   void SetUp() override {
-    if (!testing::UnderUmockdev()) GTEST_SKIP() << "needs umockdev-wrapper (LD_PRELOAD of libumockdev-preload)";
+    if (!testing::UnderUmockdev())
+      GTEST_SKIP() << "needs umockdev-wrapper (LD_PRELOAD of libumockdev-preload)";
     const std::string reason = slshadow::testing::SkipReasonWithoutPrivateNetwork();
     if (!reason.empty()) GTEST_SKIP() << reason;
     // SLSHADOW_LC_SCALE=1: the full demo resolution (for the benchmark); default 4.
     const char* scale = std::getenv("SLSHADOW_LC_SCALE");
     rig_ = slshadow::testing::ScaledDemoRig(scale ? std::atoi(scale) : 4);
-    scene_ = std::make_unique<Scene>(LoadScene(fs::path(SLSHADOW_SOURCE_DIR) / "config/demo/scene.yaml"));
+    scene_ = std::make_unique<Scene>(
+        LoadScene(fs::path(SLSHADOW_SOURCE_DIR) / "config/demo/scene.yaml"));
     spec_ = LoadPatternSpec(fs::path(SLSHADOW_SOURCE_DIR) / "config/patterns/graycode_phase.yaml");
     spec_.projector_width = rig_.projector->model.width;
     spec_.projector_height = rig_.projector->model.height;
@@ -76,7 +79,8 @@ class LightCrafterLoop : public ::testing::Test {
     SimulateOptions sim_options;
     sim_options.write_ground_truth = false;
     sim_options.writer.encoding = ImageEncoding::kPgm;
-    SimulateScan(*scene_, rig_, patterns_, PatternSpecToJson(spec_), dir_ / "simulated", sim_options);
+    SimulateScan(*scene_, rig_, patterns_, PatternSpecToJson(spec_), dir_ / "simulated",
+                 sim_options);
 
     // The emulated LightCrafter: USB through umockdev, its sequence on the runner's clock.
     usb_ = std::make_unique<testing::UsbLightCrafterEmulator>();
@@ -93,13 +97,15 @@ class LightCrafterLoop : public ::testing::Test {
     });
 
     // Two fake cameras whose Line1 is TRIG_OUT1, rendering what the emulator shows.
-    simulator_ = std::make_unique<Simulator>(*scene_, rig_, TraceMode::kPacket16, /*ground_truth=*/false);
+    simulator_ =
+        std::make_unique<Simulator>(*scene_, rig_, TraceMode::kPacket16, /*ground_truth=*/false);
     for (int c = 0; c < 2; ++c) {
       const auto k = static_cast<size_t>(c);
       // The simulator's render of every pattern (and of the dark DMD), made once.
       const PatternRenderer renderer(*scene_, rig_, c, simulator_->geometry(c));
       std::vector<cv::Mat> renders;
-      for (size_t p = 0; p < patterns_.size(); ++p) renders.push_back(renderer.Render(patterns_[p], static_cast<int>(p)));
+      for (size_t p = 0; p < patterns_.size(); ++p)
+        renders.push_back(renderer.Render(patterns_[p], static_cast<int>(p)));
       renders.push_back(renderer.Render(dark_, 0));
       renders_.push_back(std::move(renders));
       fakes_.push_back(MakeFakeCamera(k));
@@ -111,7 +117,8 @@ class LightCrafterLoop : public ::testing::Test {
       settings_.push_back(s);
       cameras_.push_back(OpenAravisCamera(AravisOpenOptions{.device = kAddresses[k]}));
     }
-    runner_->trigger_out = [this](int entry, int pattern, std::chrono::system_clock::time_point edge) {
+    runner_->trigger_out = [this](int entry, int pattern,
+                                  std::chrono::system_clock::time_point edge) {
       if (entry == unplug_camera_at_) {  // the right camera's cable pulled as this pattern starts
         unplug_camera_at_ = -1;
         fakes_[1]->Destroy();
@@ -123,8 +130,9 @@ class LightCrafterLoop : public ::testing::Test {
   // Fake camera k: Line1 is TRIG_OUT1; each frame is the simulator's render of the pattern the
   // emulator showed at the edge it answers (the edge's tag).
   std::unique_ptr<slshadow::testing::FakeGvCamera> MakeFakeCamera(size_t k) {
-    auto fake = std::make_unique<slshadow::testing::FakeGvCamera>(slshadow::testing::FakeGvCameraOptions{
-        .address = kAddresses[k], .serial = rig_.cameras[k].name, .sfnc_xml = true});
+    auto fake =
+        std::make_unique<slshadow::testing::FakeGvCamera>(slshadow::testing::FakeGvCameraOptions{
+            .address = kAddresses[k], .serial = rig_.cameras[k].name, .sfnc_xml = true});
     fake->SetFill([renders = renders_[k]](const slshadow::testing::FakeFrameRequest& r) {
       return renders[r.line_tag < 0 ? renders.size() - 1 : static_cast<size_t>(r.line_tag)];
     });
@@ -145,10 +153,11 @@ class LightCrafterLoop : public ::testing::Test {
     return std::make_unique<LightCrafterSequenceProjector>(OpenLightCrafterUsb(""), o);
   }
 
-  CaptureSummary CaptureInto(SequenceProjector& projector, const std::string& name, int max_retries, bool resume = false,
-                             milliseconds grab_timeout = milliseconds(1000)) {
+  CaptureSummary CaptureInto(SequenceProjector& projector, const std::string& name, int max_retries,
+                             bool resume = false, milliseconds grab_timeout = milliseconds(1000)) {
     std::vector<CaptureCamera> cams;
-    for (size_t k = 0; k < 2; ++k) cams.push_back({rig_.cameras[k].name, cameras_[k].get(), settings_[k], grab_timeout});
+    for (size_t k = 0; k < 2; ++k)
+      cams.push_back({rig_.cameras[k].name, cameras_[k].get(), settings_[k], grab_timeout});
     SequencerOptions options;
     options.writer.encoding = ImageEncoding::kPgm;
     options.writer.durable = false;
@@ -178,9 +187,11 @@ class LightCrafterLoop : public ::testing::Test {
     for (const auto& camera : rig_.cameras) {
       for (int i = 0; i < captured.PatternCount(); ++i) {
         const cv::Mat a = captured.Load(camera.name, i), b = simulated.Load(camera.name, i);
-        if (a.type() == b.type() && a.size() == b.size() && cv::norm(a, b, cv::NORM_INF) == 0) continue;
+        if (a.type() == b.type() && a.size() == b.size() && cv::norm(a, b, cv::NORM_INF) == 0)
+          continue;
         ++differing;
-        std::printf("  %s: %s pattern %d differs from the simulation\n", name.c_str(), camera.name.c_str(), i);
+        std::printf("  %s: %s pattern %d differs from the simulation\n", name.c_str(),
+                    camera.name.c_str(), i);
       }
     }
     return differing;
@@ -200,11 +211,13 @@ class LightCrafterLoop : public ::testing::Test {
   void PrintRate(const std::string& what, const CaptureSummary& s, uint32_t period_us) {
     int64_t missed = 0;
     for (const auto& [name, c] : s.cameras) missed += c.missed_triggers;
-    std::printf("[ MEASURE  ] %s: %d patterns x 2 cameras (%dx%d), programmed period %.3f ms (%.1f patterns/s): "
-                "%.3f ms per pattern, %.1f patterns/s, %d reruns, %lld missed triggers, %.2f s in all\n",
-                what.c_str(), s.patterns, rig_.cameras[0].model.width, rig_.cameras[0].model.height, period_us / 1000.0,
-                1e6 / period_us, s.mean_pattern_ms, 1000.0 / s.mean_pattern_ms, s.retries,
-                static_cast<long long>(missed), s.seconds);
+    std::printf(
+        "[ MEASURE  ] %s: %d patterns x 2 cameras (%dx%d), programmed period %.3f ms (%.1f "
+        "patterns/s): "
+        "%.3f ms per pattern, %.1f patterns/s, %d reruns, %lld missed triggers, %.2f s in all\n",
+        what.c_str(), s.patterns, rig_.cameras[0].model.width, rig_.cameras[0].model.height,
+        period_us / 1000.0, 1e6 / period_us, s.mean_pattern_ms, 1000.0 / s.mean_pattern_ms,
+        s.retries, static_cast<long long>(missed), s.seconds);
   }
 
   const std::vector<std::string> kAddresses = {"127.0.0.2", "127.0.0.3"};
@@ -228,7 +241,8 @@ class LightCrafterLoop : public ::testing::Test {
   std::unique_ptr<testing::UsbLightCrafterEmulator> usb_;
   std::unique_ptr<testing::Dlpc350SequenceRunner> runner_;
   std::unique_ptr<Simulator> simulator_;
-  std::vector<std::vector<cv::Mat>> renders_;  // per camera: every pattern's render, then the dark DMD's
+  std::vector<std::vector<cv::Mat>>
+      renders_;  // per camera: every pattern's render, then the dark DMD's
   std::vector<std::unique_ptr<slshadow::testing::FakeGvCamera>> fakes_;
   std::atomic<int> unplug_camera_at_{-1};
   std::vector<CameraSettings> settings_;
@@ -256,7 +270,8 @@ TEST_F(LightCrafterLoop, CaptureEqualsSimulationPixelForPixel) {
   EXPECT_EQ(DifferingImages("captured"), 0);
   EXPECT_EQ(runner_->runs(), 1u + static_cast<uint64_t>(s.retries));
   EXPECT_EQ(runner_->pulses(), runner_->runs() * patterns_.size());
-  EXPECT_EQ(projector->bit_depth(), 8);  // phase patterns are grey: 8-bit entries, 3 per flash image
+  EXPECT_EQ(projector->bit_depth(),
+            8);  // phase patterns are grey: 8-bit entries, 3 per flash image
   usb_->With([&](testing::Dlpc350Emulator& d) {
     EXPECT_EQ(d.display_mode, 1);
     EXPECT_EQ(d.frame_period_us, 16667u);
@@ -319,7 +334,8 @@ TEST_F(LightCrafterLoop, UnpluggedMidSequenceIsAClearErrorAndTheCaptureResumes) 
   std::printf("unplugged: %s\n", error.c_str());
   EXPECT_NE(error.find("pattern 8 ("), std::string::npos) << error;
   EXPECT_NE(error.find("no frame within"), std::string::npos) << error;
-  EXPECT_NE(error.find("LightCrafter 4500 on USB 1:2: the device was unplugged"), std::string::npos) << error;
+  EXPECT_NE(error.find("LightCrafter 4500 on USB 1:2: the device was unplugged"), std::string::npos)
+      << error;
   EXPECT_NE(error.find("continue with --resume"), std::string::npos) << error;
   EXPECT_EQ(Staged("unplugged").size(), 2u * 8u);
 
@@ -338,7 +354,8 @@ TEST_F(LightCrafterLoop, UnpluggedMidSequenceIsAClearErrorAndTheCaptureResumes) 
 TEST_F(LightCrafterLoop, CameraUnpluggedMidSequenceIsAClearErrorAndTheCaptureResumes) {
   auto projector = OpenProjector(kSlowerPeriodUs);
   unplug_camera_at_ = 10;
-  const std::string error = ErrorOf(*projector, "camera_unplugged", /*max_retries=*/0, milliseconds(400));
+  const std::string error =
+      ErrorOf(*projector, "camera_unplugged", /*max_retries=*/0, milliseconds(400));
   std::printf("camera unplugged: %s\n", error.c_str());
   EXPECT_NE(error.find("pattern 10 ("), std::string::npos) << error;
   EXPECT_NE(error.find("camera 'right': no frame within"), std::string::npos) << error;
@@ -357,25 +374,30 @@ TEST_F(LightCrafterLoop, CameraUnpluggedMidSequenceIsAClearErrorAndTheCaptureRes
 // What a user runs: `slshadow capture` with a devices file whose projector is a LightCrafter in
 // pattern-sequence mode and whose cameras take the hardware trigger.
 TEST_F(LightCrafterLoop, SlshadowCaptureCommandEqualsSimulation) {
-  const fs::path rig_file = dir_ / "rig.yaml", patterns_file = dir_ / "patterns.json", devices_file = dir_ / "devices.yaml";
+  const fs::path rig_file = dir_ / "rig.yaml", patterns_file = dir_ / "patterns.json",
+                 devices_file = dir_ / "devices.yaml";
   SaveRig(rig_, rig_file);
   std::ofstream(patterns_file) << PatternSpecToJson(spec_).dump(2);
   {
     std::ofstream out(devices_file);
     out << "format: slshadow-devices\nversion: 1\ncameras:\n";
     for (size_t k = 0; k < 2; ++k) {
-      out << "  - name: " << rig_.cameras[k].name << "\n    backend: aravis\n    address: " << kAddresses[k]
-          << "\n    settings: {pixel_format: Mono8, trigger: hardware, trigger_line: Line1, roi: [0, 0, "
+      out << "  - name: " << rig_.cameras[k].name
+          << "\n    backend: aravis\n    address: " << kAddresses[k]
+          << "\n    settings: {pixel_format: Mono8, trigger: hardware, trigger_line: Line1, roi: "
+             "[0, 0, "
           << rig_.cameras[k].model.width << ", " << rig_.cameras[k].model.height
           << "], packet_size_bytes: 8192}\n    grab_timeout_ms: 1000\n";
     }
-    out << "projector:\n  backend: lightcrafter\n  mode: pattern-sequence\n  usb: \"1:2\"\n  frame_period_us: 20000\n  settle_us: 250000\n";
+    out << "projector:\n  backend: lightcrafter\n  mode: pattern-sequence\n  usb: \"1:2\"\n  "
+           "frame_period_us: 20000\n  settle_us: 250000\n";
   }
   cameras_.clear();  // the command opens its own
-  ASSERT_EQ(slshadow::testing::RunCli({"capture", "--rig", rig_file.string(), "--devices", devices_file.string(),
-                                       "--patterns", patterns_file.string(), "--out", (dir_ / "cli").string(),
-                                       "--encoding", "pgm", "--quiet"}),
-            0);
+  ASSERT_EQ(
+      slshadow::testing::RunCli({"capture", "--rig", rig_file.string(), "--devices",
+                                 devices_file.string(), "--patterns", patterns_file.string(),
+                                 "--out", (dir_ / "cli").string(), "--encoding", "pgm", "--quiet"}),
+      0);
   EXPECT_EQ(DifferingImages("cli"), 0);
   EXPECT_EQ(usb_->With([](testing::Dlpc350Emulator& d) { return d.frame_period_us; }), 20000u);
   EXPECT_EQ(ImageSet::Open(dir_ / "cli").extra()["capture"]["mode"], "pattern-sequence");

@@ -46,7 +46,9 @@ class ScriptedProjector : public SequenceProjector {
  public:
   explicit ScriptedProjector(DeviceRun* run) : run_(run) {}
   ProjectorInfo Info() const override { return {"scripted", "scripted", 64, 40, 100}; }
-  void Load(const std::vector<cv::Mat>& images) override { loaded = static_cast<int>(images.size()); }
+  void Load(const std::vector<cv::Mat>& images) override {
+    loaded = static_cast<int>(images.size());
+  }
   SysClock::time_point Start() override {
     ++run_->index;
     run_->start = SysClock::now();
@@ -66,7 +68,9 @@ class ScriptedCamera : public Camera {
  public:
   ScriptedCamera(const DeviceRun* run, int width, int height, std::vector<std::vector<Shot>> runs)
       : run_(run), width_(width), height_(height), runs_(std::move(runs)) {}
-  CameraInfo Info() const override { return {"scripted", "cam", "", "", "S1", width_, height_, {}}; }
+  CameraInfo Info() const override {
+    return {"scripted", "cam", "", "", "S1", width_, height_, {}};
+  }
   void Configure(const CameraSettings& s) override { settings_ = s; }
   CameraSettings Settings() const override { return settings_; }
   void Start() override {}
@@ -87,13 +91,15 @@ class ScriptedCamera : public Camera {
     f.message = s.status == FrameStatus::kOk ? "" : "scripted damage";
     const auto edge = run_->start + s.slot * kPeriod;
     f.host_timestamp = std::chrono::time_point_cast<SysClock::duration>(edge + s.latency);
-    f.device_timestamp_ns = s.status == FrameStatus::kOk
-                                ? static_cast<uint64_t>(1000000000000 + run_->index * 1000000000LL +
-                                                        std::chrono::nanoseconds(s.slot * kPeriod).count())
-                                : 0;
+    f.device_timestamp_ns =
+        s.status == FrameStatus::kOk
+            ? static_cast<uint64_t>(1000000000000 + run_->index * 1000000000LL +
+                                    std::chrono::nanoseconds(s.slot * kPeriod).count())
+            : 0;
     f.frame_id = s.status == FrameStatus::kOk ? frame_id_ : 0;
     // The image says which pattern it shows, so the stored set tells whether a frame was shifted.
-    if (s.status == FrameStatus::kOk) f.image = cv::Mat(height_, width_, CV_8UC1, cv::Scalar(s.slot + 1));
+    if (s.status == FrameStatus::kOk)
+      f.image = cv::Mat(height_, width_, CV_8UC1, cv::Scalar(s.slot + 1));
     return f;
   }
 
@@ -133,7 +139,8 @@ class PatternSequenceFaults : public ::testing::Test {
   }
 
   // Captures with one scripted camera whose runs are `runs`; returns the error ("" when none).
-  std::string Capture(std::vector<std::vector<Shot>> runs, int max_retries, CaptureSummary* summary = nullptr) {
+  std::string Capture(std::vector<std::vector<Shot>> runs, int max_retries,
+                      CaptureSummary* summary = nullptr) {
     camera_ = std::make_unique<ScriptedCamera>(&run_, 32, 20, std::move(runs));
     projector_ = std::make_unique<ScriptedProjector>(&run_);
     CameraSettings s;
@@ -148,7 +155,8 @@ class PatternSequenceFaults : public ::testing::Test {
     options.max_retries = max_retries;
     options.settle = std::chrono::microseconds(0);
     try {
-      const CaptureSummary got = CapturePatternSequence(rig_, spec_, cams, *projector_, dir_.path() / "set", options);
+      const CaptureSummary got =
+          CapturePatternSequence(rig_, spec_, cams, *projector_, dir_.path() / "set", options);
       if (summary) *summary = got;
     } catch (const Error& e) {
       return e.what();
@@ -164,12 +172,14 @@ class PatternSequenceFaults : public ::testing::Test {
     std::vector<int> shows(static_cast<size_t>(n_), -1);
     if (fs::exists(dir_.path() / "set" / "manifest.json")) {
       const ImageSet set = ImageSet::Open(dir_.path() / "set");
-      for (int k = 0; k < n_; ++k) shows[static_cast<size_t>(k)] = set.Load("left", k).at<uint8_t>(0, 0) - 1;
+      for (int k = 0; k < n_; ++k)
+        shows[static_cast<size_t>(k)] = set.Load("left", k).at<uint8_t>(0, 0) - 1;
       return shows;
     }
     ResumableImageSetWriter writer(dir_.path() / "set", rig_, PatternSpecToJson(spec_), o);
     for (const auto& r : writer.Records()) {
-      shows[static_cast<size_t>(r.pattern_index)] = writer.Load("left", r.pattern_index).at<uint8_t>(0, 0) - 1;
+      shows[static_cast<size_t>(r.pattern_index)] =
+          writer.Load("left", r.pattern_index).at<uint8_t>(0, 0) - 1;
     }
     return shows;
   }
@@ -223,7 +233,8 @@ TEST_F(PatternSequenceFaults, AMissingFirstFrameThatCannotBePlacedStoresNothing)
   shots.erase(shots.begin());
   const std::string error = Capture({shots}, 0);
   EXPECT_NE(error.find("pattern 0 ("), std::string::npos) << error;
-  EXPECT_NE(error.find("cannot tell which pattern its first frame shows"), std::string::npos) << error;
+  EXPECT_NE(error.find("cannot tell which pattern its first frame shows"), std::string::npos)
+      << error;
   EXPECT_EQ(Stored(), FirstStored(0));
 }
 
@@ -257,7 +268,8 @@ TEST_F(PatternSequenceFaults, ADamagedFrameIsAFaultAtItsPattern) {
 }
 
 TEST_F(PatternSequenceFaults, TheProjectorGoneIsNamedWithTheMissingFrame) {
-  camera_ = std::make_unique<ScriptedCamera>(&run_, 32, 20, std::vector<std::vector<Shot>>{Clean(9)});
+  camera_ =
+      std::make_unique<ScriptedCamera>(&run_, 32, 20, std::vector<std::vector<Shot>>{Clean(9)});
   projector_ = std::make_unique<ScriptedProjector>(&run_);
   projector_->gone = true;
   CameraSettings s;
@@ -274,7 +286,8 @@ TEST_F(PatternSequenceFaults, TheProjectorGoneIsNamedWithTheMissingFrame) {
   } catch (const Error& e) {
     const std::string what = e.what();
     EXPECT_NE(what.find("pattern 9 ("), std::string::npos) << what;
-    EXPECT_NE(what.find("its trigger never came; scripted projector: gone"), std::string::npos) << what;
+    EXPECT_NE(what.find("its trigger never came; scripted projector: gone"), std::string::npos)
+        << what;
   }
   EXPECT_EQ(Stored(), FirstStored(9));
 }
@@ -290,18 +303,21 @@ TEST_F(PatternSequenceFaults, ARerunStoresOnlyTheMissingPatterns) {
   EXPECT_EQ(s.cameras.at("left").missed_triggers, 1);
   EXPECT_EQ(Stored(), FirstStored(n_));
   const ImageSet set = ImageSet::Open(dir_.path() / "set");
-  for (const auto& r : set.records()) EXPECT_EQ(r.retries, r.pattern_index < 5 ? 0 : 1) << r.pattern_index;
+  for (const auto& r : set.records())
+    EXPECT_EQ(r.retries, r.pattern_index < 5 ? 0 : 1) << r.pattern_index;
 }
 
 TEST_F(PatternSequenceFaults, CamerasMustTakeTheHardwareTrigger) {
-  camera_ = std::make_unique<ScriptedCamera>(&run_, 32, 20, std::vector<std::vector<Shot>>{Clean(n_)});
+  camera_ =
+      std::make_unique<ScriptedCamera>(&run_, 32, 20, std::vector<std::vector<Shot>>{Clean(n_)});
   projector_ = std::make_unique<ScriptedProjector>(&run_);
   std::vector<CaptureCamera> cams = {{"left", camera_.get(), CameraSettings{}, milliseconds(100)}};
   try {
     CapturePatternSequence(rig_, spec_, cams, *projector_, dir_.path() / "set", SequencerOptions{});
     ADD_FAILURE() << "no error";
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("capture: camera 'left': trigger is software; with a projector that runs"),
+    EXPECT_NE(std::string(e.what()).find(
+                  "capture: camera 'left': trigger is software; with a projector that runs"),
               std::string::npos)
         << e.what();
   }

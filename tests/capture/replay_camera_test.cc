@@ -28,7 +28,8 @@ Rig OneCameraRig() {
 
 std::vector<cv::Mat> WriteSet(const std::filesystem::path& dir, int n) {
   std::vector<cv::Mat> images;
-  ImageSetWriter writer(dir, OneCameraRig(), {{"kind", "gray_code"}}, {.encoding = ImageEncoding::kPgm});
+  ImageSetWriter writer(dir, OneCameraRig(), {{"kind", "gray_code"}},
+                        {.encoding = ImageEncoding::kPgm});
   for (int i = 0; i < n; ++i) {
     cv::Mat m(30, 40, CV_8UC1);
     cv::RNG rng(static_cast<uint64_t>(i + 1));
@@ -83,7 +84,7 @@ TEST(ReplayCamera, ServesThePatternTheSequencerAnnounces) {
   EXPECT_EQ(cv::norm(cam.Grab(milliseconds(1)).image, images[5], cv::NORM_INF), 0.0);
   cam.ExpectPattern(2);  // a retry of pattern 2
   cam.Trigger();
-  cam.Flush();           // the pending frame is dropped
+  cam.Flush();  // the pending frame is dropped
   EXPECT_EQ(cam.Grab(milliseconds(1)).status, FrameStatus::kTimeout);
   cam.ExpectPattern(2);
   cam.Trigger();
@@ -113,21 +114,30 @@ TEST(ReplayCamera, RefusesWhatARecordingCannotServe) {
   ReplayCamera cam(dir / "set");
   CameraSettings s;
   s.pixel_format = PixelFormat::kMono16;
-  EXPECT_NE(error_of([&] { cam.Configure(s); }).find("pixel_format: the recording is 8-bit, Mono16 cannot be served"),
+  EXPECT_NE(error_of([&] {
+              cam.Configure(s);
+            }).find("pixel_format: the recording is 8-bit, Mono16 cannot be served"),
             std::string::npos);
   s = {};
   s.roi = {0, 0, 20, 10};
-  EXPECT_NE(error_of([&] { cam.Configure(s); }).find("roi: a replay serves the full recorded image (40x30)"), std::string::npos);
-  EXPECT_NE(error_of([&] { ReplayCamera(dir / "set", ReplayCameraOptions{"left", 1, ""}); }).find("no images of camera 'left'"),
+  EXPECT_NE(error_of([&] {
+              cam.Configure(s);
+            }).find("roi: a replay serves the full recorded image (40x30)"),
             std::string::npos);
-  EXPECT_NE(error_of([&] { ReplayCamera(dir / "nothing"); }).find("not an ImageSet folder"), std::string::npos);
+  EXPECT_NE(error_of([&] {
+              ReplayCamera(dir / "set", ReplayCameraOptions{"left", 1, ""});
+            }).find("no images of camera 'left'"),
+            std::string::npos);
+  EXPECT_NE(error_of([&] { ReplayCamera(dir / "nothing"); }).find("not an ImageSet folder"),
+            std::string::npos);
 }
 
 TEST(ReplayCamera, TheFactoryOpensItFromADevicesEntry) {
   testing::TempDir dir;
   const auto images = WriteSet(dir / "set", 3);
   const std::string yaml =
-      "format: slshadow-devices\nversion: 1\ncameras:\n  - name: left\n    backend: replay\n    imageset: set\n"
+      "format: slshadow-devices\nversion: 1\ncameras:\n  - name: left\n    backend: replay\n    "
+      "imageset: set\n"
       "    imageset_camera: cam\n    first_frame_id: 7\n    serial: SN-7\n";
   { std::ofstream(dir / "devices.yaml") << yaml; }
   const DevicesConfig config = LoadDevices(dir / "devices.yaml");

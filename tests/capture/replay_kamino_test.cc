@@ -16,8 +16,8 @@
 #include "patterns/pattern_spec.h"
 #include "reconstruct/reconstruct_image_set.h"
 #include "tests/capture/test_devices.h"
-#include "tests/testing/run_cli.h"
 #include "tests/testing/kamino_rig.h"
+#include "tests/testing/run_cli.h"
 #include "tests/testing/temp_dir.h"
 
 namespace slshadow::capture {
@@ -30,7 +30,8 @@ using slshadow::testing::KaminoRig;
 TEST(ReplayKamino, CapturedFilesAreTheRecordedPixelsAndReconstructAsTheOriginals) {
   if (!fs::exists(KaminoDir() / "capture_0")) GTEST_SKIP() << "no shared data at " << KaminoDir();
   slshadow::testing::TempDir dir;
-  const fs::path spec_path = slshadow::testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml";
+  const fs::path spec_path =
+      slshadow::testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml";
   const PatternSpec spec = LoadPatternSpec(spec_path);
   const Rig rig = KaminoRig();
   std::vector<cv::Mat> originals;
@@ -54,15 +55,17 @@ TEST(ReplayKamino, CapturedFilesAreTheRecordedPixelsAndReconstructAsTheOriginals
   SequencerOptions options;
   options.progress = false;
   options.sleep_until = projector.Sleeper();
-  const CaptureSummary s = Capture(rig, spec, {{"camera", &camera, {}, std::chrono::milliseconds(100)}}, projector,
-                                   dir / "replayed", options);
+  const CaptureSummary s =
+      Capture(rig, spec, {{"camera", &camera, {}, std::chrono::milliseconds(100)}}, projector,
+              dir / "replayed", options);
   ASSERT_TRUE(s.complete);
   EXPECT_EQ(s.retries, 0);  // no false alarm on real frames
   const CameraCaptureStats& c = s.cameras.at("camera");
   EXPECT_EQ(c.stale + c.not_complementary + c.damaged + c.timeouts, 0);
   EXPECT_EQ(c.missing_frame_ids, 0);  // 65535 -> 1 is not a drop
   // The 20 Gray pairs were judged against white and black (they come last here).
-  std::printf("kamino pose 0: lowest complementary share of a Gray pair %.4f\n", c.min_complementary_share);
+  std::printf("kamino pose 0: lowest complementary share of a Gray pair %.4f\n",
+              c.min_complementary_share);
   EXPECT_EQ(c.pair_checks, 20);
   EXPECT_GE(c.min_complementary_share, options.validation.min_complementary);
   const ImageSet replayed = ImageSet::Open(dir / "replayed");
@@ -70,7 +73,8 @@ TEST(ReplayKamino, CapturedFilesAreTheRecordedPixelsAndReconstructAsTheOriginals
   for (int k = 0; k < spec.NumImages(); ++k) {
     const cv::Mat back = replayed.Load("camera", k);
     ASSERT_EQ(back.type(), CV_8UC1);
-    EXPECT_EQ(cv::norm(back, originals[static_cast<size_t>(k)], cv::NORM_INF), 0.0) << "pattern " << k;
+    EXPECT_EQ(cv::norm(back, originals[static_cast<size_t>(k)], cv::NORM_INF), 0.0)
+        << "pattern " << k;
     const ImageRecord* r = replayed.Find("camera", k);
     EXPECT_EQ(r->source, ImageSource::kReplay);
     EXPECT_EQ(r->frame_id, static_cast<uint64_t>((65500 + k - 1) % 65535 + 1));
@@ -79,19 +83,22 @@ TEST(ReplayKamino, CapturedFilesAreTheRecordedPixelsAndReconstructAsTheOriginals
 
   // 2. The command line: a devices file with the replay backend and no projector.
   {
-    std::ofstream(dir / "devices.yaml") << "format: slshadow-devices\nversion: 1\ncameras:\n"
-                                           "  - name: camera\n    backend: replay\n    imageset: recorded\n"
-                                           "projector:\n  backend: none\n";
+    std::ofstream(dir / "devices.yaml")
+        << "format: slshadow-devices\nversion: 1\ncameras:\n"
+           "  - name: camera\n    backend: replay\n    imageset: recorded\n"
+           "projector:\n  backend: none\n";
     std::ofstream out(dir / "rig.json");
     out << RigToJson(rig).dump(1);
   }
-  ASSERT_EQ(slshadow::testing::RunCli({"capture", "--rig", (dir / "rig.json").string(), "--devices",
-                                       (dir / "devices.yaml").string(), "--patterns", spec_path.string(), "--out",
-                                       (dir / "cli").string(), "--quiet"}),
-            0);
+  ASSERT_EQ(
+      slshadow::testing::RunCli({"capture", "--rig", (dir / "rig.json").string(), "--devices",
+                                 (dir / "devices.yaml").string(), "--patterns", spec_path.string(),
+                                 "--out", (dir / "cli").string(), "--quiet"}),
+      0);
   const ImageSet cli = ImageSet::Open(dir / "cli");
   for (int k = 0; k < spec.NumImages(); ++k) {
-    EXPECT_EQ(cv::norm(cli.Load("camera", k), originals[static_cast<size_t>(k)], cv::NORM_INF), 0.0) << "pattern " << k;
+    EXPECT_EQ(cv::norm(cli.Load("camera", k), originals[static_cast<size_t>(k)], cv::NORM_INF), 0.0)
+        << "pattern " << k;
   }
   EXPECT_EQ(cli.extra()["devices"], (dir / "devices.yaml").string());
 
@@ -99,10 +106,12 @@ TEST(ReplayKamino, CapturedFilesAreTheRecordedPixelsAndReconstructAsTheOriginals
   ImageSetReconstructOptions ro;
   const ImageSetReconstruction a = ReconstructFromImages(rig, spec, {{"camera", originals}}, ro);
   const ImageSetReconstruction b = ReconstructImageSet(replayed, ro);
-  EXPECT_EQ(a.summaries.at(0).decode_status[0], 996162);  // valid pixels, as in the reconstruct test
+  EXPECT_EQ(a.summaries.at(0).decode_status[0],
+            996162);  // valid pixels, as in the reconstruct test
   ASSERT_EQ(a.cloud.points.size(), b.cloud.points.size());
   EXPECT_GT(b.cloud.points.size(), 450000u);
-  for (size_t i = 0; i < a.cloud.points.size(); ++i) ASSERT_EQ(a.cloud.points[i], b.cloud.points[i]) << i;
+  for (size_t i = 0; i < a.cloud.points.size(); ++i)
+    ASSERT_EQ(a.cloud.points[i], b.cloud.points[i]) << i;
 }
 
 }  // namespace

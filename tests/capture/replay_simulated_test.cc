@@ -25,8 +25,8 @@ TEST(ReplaySimulated, AllLayersDemoScanPassesValidationWithoutRetries) {
   SimulateOptions sim;
   sim.writer.encoding = ImageEncoding::kPgm;
   sim.write_ground_truth = false;
-  SimulateScan(LoadScene(src / "config/scenes/layers_all.yaml"), rig, GeneratePatterns(spec), PatternSpecToJson(spec),
-               dir / "scan", sim);
+  SimulateScan(LoadScene(src / "config/scenes/layers_all.yaml"), rig, GeneratePatterns(spec),
+               PatternSpecToJson(spec), dir / "scan", sim);
 
   doubles::TestProjector projector(spec.projector_width, spec.projector_height);
   ReplayCamera left(dir / "scan", ReplayCameraOptions{"left", 1, ""});
@@ -52,7 +52,9 @@ TEST(ReplaySimulated, AllLayersDemoScanPassesValidationWithoutRetries) {
   }
   const ImageSet scan = ImageSet::Open(dir / "scan"), replayed = ImageSet::Open(dir / "replayed");
   for (const auto& r : scan.records()) {
-    EXPECT_EQ(cv::norm(scan.Load(r.camera, r.pattern_index), replayed.Load(r.camera, r.pattern_index), cv::NORM_INF), 0.0)
+    EXPECT_EQ(cv::norm(scan.Load(r.camera, r.pattern_index),
+                       replayed.Load(r.camera, r.pattern_index), cv::NORM_INF),
+              0.0)
         << r.camera << " " << r.pattern_index;
   }
 }

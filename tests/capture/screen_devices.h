@@ -31,7 +31,8 @@ using capture::XScreenReader;
 
 class XScreenCamera : public Camera {
  public:
-  XScreenCamera(const std::string& display, const cv::Rect& region, std::chrono::microseconds frame_period = std::chrono::milliseconds(10))
+  XScreenCamera(const std::string& display, const cv::Rect& region,
+                std::chrono::microseconds frame_period = std::chrono::milliseconds(10))
       : screen_(display), region_(region), period_(frame_period) {}
   CameraInfo Info() const override {
     CameraInfo info;
@@ -90,7 +91,8 @@ class XScreenCamera : public Camera {
 
 class DelayedProjector : public Projector {
  public:
-  DelayedProjector(Projector& inner, std::chrono::microseconds delay) : inner_(inner), delay_(delay) {
+  DelayedProjector(Projector& inner, std::chrono::microseconds delay)
+      : inner_(inner), delay_(delay) {
     worker_ = std::thread([this] { Work(); });
   }
   ~DelayedProjector() override {
@@ -134,7 +136,10 @@ class DelayedProjector : public Projector {
       busy_ = true;
       lock.unlock();
       std::this_thread::sleep_until(due);
-      if (index < 0) inner_.ShowBlack(); else inner_.Show(index);
+      if (index < 0)
+        inner_.ShowBlack();
+      else
+        inner_.Show(index);
       lock.lock();
       busy_ = false;
       cv_.notify_all();

@@ -20,7 +20,8 @@ TEST(SequencerSoak, TenThousandPatternsNoFrameUnderTheWrongPatternEveryDropAccou
   Rig rig;
   rig.name = "soak";
   rig.cameras.push_back({"left", CameraModel(64, 48, 60, 60, 31.5, 23.5), Rigid3d()});
-  rig.cameras.push_back({"right", CameraModel(64, 48, 60, 60, 31.5, 23.5), Rigid3d(Eigen::Quaterniond::Identity(), {-80, 0, 0})});
+  rig.cameras.push_back({"right", CameraModel(64, 48, 60, 60, 31.5, 23.5),
+                         Rigid3d(Eigen::Quaterniond::Identity(), {-80, 0, 0})});
   rig.projector = RigDevice{"projector", CameraModel(64, 32, 50, 50, 31.5, 15.5), Rigid3d()};
   PatternSpec spec;
   spec.kind = PatternKind::kGrayCode;
@@ -83,9 +84,10 @@ TEST(SequencerSoak, TenThousandPatternsNoFrameUnderTheWrongPatternEveryDropAccou
       const doubles::TestCamera& cam = r.camera == "left" ? left : right;
       const int shown = cam.ShownFor(*r.frame_id);
       wrong += shown != r.pattern_index;
-      ASSERT_LE(cv::norm(set.Load(r.camera, r.pattern_index), cam.RenderClean(patterns[static_cast<size_t>(r.pattern_index)]),
-                         cv::NORM_INF),
-                2.5)
+      ASSERT_LE(
+          cv::norm(set.Load(r.camera, r.pattern_index),
+                   cam.RenderClean(patterns[static_cast<size_t>(r.pattern_index)]), cv::NORM_INF),
+          2.5)
           << r.camera << " pattern " << r.pattern_index << " (showed " << shown << ")";
     }
     for (const auto& [name, c] : s.cameras) {
@@ -99,16 +101,23 @@ TEST(SequencerSoak, TenThousandPatternsNoFrameUnderTheWrongPatternEveryDropAccou
     captured += s.patterns;
     fs::remove_all(out);
   }
-  std::printf("soak: %d patterns in %d captures, %d retries, %lld slow switches; left: %lld dropped, %lld late, "
-              "%lld timeouts, %lld missing ids, %lld stale, %lld not complementary; right: %lld dropped, %lld late, "
-              "%lld timeouts, %lld missing ids, %lld stale, %lld not complementary\n",
-              captured, captures, retries, static_cast<long long>(slow_switches), static_cast<long long>(left.dropped()),
-              static_cast<long long>(left.late()), static_cast<long long>(total["left"].timeouts),
-              static_cast<long long>(total["left"].missing_frame_ids), static_cast<long long>(total["left"].stale),
-              static_cast<long long>(total["left"].not_complementary), static_cast<long long>(right.dropped()),
-              static_cast<long long>(right.late()), static_cast<long long>(total["right"].timeouts),
-              static_cast<long long>(total["right"].missing_frame_ids), static_cast<long long>(total["right"].stale),
-              static_cast<long long>(total["right"].not_complementary));
+  std::printf(
+      "soak: %d patterns in %d captures, %d retries, %lld slow switches; left: %lld dropped, %lld "
+      "late, "
+      "%lld timeouts, %lld missing ids, %lld stale, %lld not complementary; right: %lld dropped, "
+      "%lld late, "
+      "%lld timeouts, %lld missing ids, %lld stale, %lld not complementary\n",
+      captured, captures, retries, static_cast<long long>(slow_switches),
+      static_cast<long long>(left.dropped()), static_cast<long long>(left.late()),
+      static_cast<long long>(total["left"].timeouts),
+      static_cast<long long>(total["left"].missing_frame_ids),
+      static_cast<long long>(total["left"].stale),
+      static_cast<long long>(total["left"].not_complementary),
+      static_cast<long long>(right.dropped()), static_cast<long long>(right.late()),
+      static_cast<long long>(total["right"].timeouts),
+      static_cast<long long>(total["right"].missing_frame_ids),
+      static_cast<long long>(total["right"].stale),
+      static_cast<long long>(total["right"].not_complementary));
   EXPECT_EQ(wrong, 0);
   EXPECT_GE(captured, kPatterns);
   // The faults really happened...

@@ -29,7 +29,8 @@ Rig StereoRig() {
   Rig rig;
   rig.name = "stereo";
   rig.cameras.push_back({"left", CameraModel(64, 48, 60, 60, 31.5, 23.5), Rigid3d()});
-  rig.cameras.push_back({"right", CameraModel(64, 48, 60, 60, 31.5, 23.5), Rigid3d(Eigen::Quaterniond::Identity(), {-80, 0, 0})});
+  rig.cameras.push_back({"right", CameraModel(64, 48, 60, 60, 31.5, 23.5),
+                         Rigid3d(Eigen::Quaterniond::Identity(), {-80, 0, 0})});
   rig.projector = RigDevice{"projector", CameraModel(64, 32, 50, 50, 31.5, 15.5), Rigid3d()};
   return rig;
 }
@@ -57,7 +58,8 @@ struct Stereo {
   std::vector<CaptureCamera> cameras;
   explicit Stereo(TestCameraOptions l = {}, TestCameraOptions r = Right())
       : left(projector, l), right(projector, r) {
-    cameras = {{"left", &left, {}, std::chrono::milliseconds(100)}, {"right", &right, {}, std::chrono::milliseconds(100)}};
+    cameras = {{"left", &left, {}, std::chrono::milliseconds(100)},
+               {"right", &right, {}, std::chrono::milliseconds(100)}};
   }
   static TestCameraOptions Right() {
     TestCameraOptions o;
@@ -82,14 +84,16 @@ SequencerOptions Options(TestProjector& projector) {
 
 // Every stored frame was taken while its pattern was on screen, and equals the clean render of it
 // (within the noise).
-void ExpectEveryFrameOfItsPattern(const fs::path& dir, Stereo& rig, const PatternSpec& spec, double noise = 0) {
+void ExpectEveryFrameOfItsPattern(const fs::path& dir, Stereo& rig, const PatternSpec& spec,
+                                  double noise = 0) {
   const ImageSet set = ImageSet::Open(dir);
   const auto patterns = GeneratePatterns(spec);
   ASSERT_EQ(set.records().size(), 2 * patterns.size());
   for (const auto& r : set.records()) {
     TestCamera& cam = rig.Camera(r.camera);
     ASSERT_TRUE(r.frame_id.has_value());
-    EXPECT_EQ(cam.ShownFor(*r.frame_id), r.pattern_index) << r.camera << " pattern " << r.pattern_index;
+    EXPECT_EQ(cam.ShownFor(*r.frame_id), r.pattern_index)
+        << r.camera << " pattern " << r.pattern_index;
     const cv::Mat clean = cam.RenderClean(patterns[static_cast<size_t>(r.pattern_index)]);
     EXPECT_LE(cv::norm(set.Load(r.camera, r.pattern_index), clean, cv::NORM_INF), noise + 0.5)
         << r.camera << " pattern " << r.pattern_index;
@@ -109,13 +113,13 @@ TEST(FrameIdTracker, WrapIsNotADropAndGapsAreCounted) {
   FrameIdTracker t;
   for (uint64_t id : {65533u, 65534u, 65535u, 1u, 2u}) EXPECT_EQ(t.Next(id), 0) << id;
   EXPECT_EQ(t.missing(), 0);
-  EXPECT_EQ(t.Next(4), 1);       // 3 missing
+  EXPECT_EQ(t.Next(4), 1);          // 3 missing
   EXPECT_EQ(t.Next(65534), 65529);  // 5..65533 missing (a long outage)
-  EXPECT_EQ(t.Next(2), 2);       // 65535 and 1 missing across the wrap
-  EXPECT_EQ(t.Next(0), 0);       // invalid id
+  EXPECT_EQ(t.Next(2), 2);          // 65535 and 1 missing across the wrap
+  EXPECT_EQ(t.Next(0), 0);          // invalid id
   EXPECT_EQ(t.invalid(), 1);
   EXPECT_EQ(t.missing(), 1 + 65529 + 2);
-  FrameIdTracker wide;           // 64-bit ids (USB3 Vision) count up without wrapping
+  FrameIdTracker wide;  // 64-bit ids (USB3 Vision) count up without wrapping
   wide.Next(70000);
   EXPECT_EQ(wide.Next(70003), 2);
 }
@@ -125,7 +129,8 @@ TEST(Sequencer, StereoCaptureStoresEveryFrameUnderItsPatternWithProvenance) {
   TestCameraOptions l;
   l.first_frame_id = 65530;  // wraps within the capture
   Stereo rig(l);
-  const CaptureSummary s = Capture(StereoRig(), GraySpec(), rig.cameras, rig.projector, dir / "set", Options(rig.projector));
+  const CaptureSummary s = Capture(StereoRig(), GraySpec(), rig.cameras, rig.projector, dir / "set",
+                                   Options(rig.projector));
   EXPECT_TRUE(s.complete);
   EXPECT_EQ(s.images_total, 48);
   EXPECT_EQ(s.images_stored, 48);
@@ -153,7 +158,8 @@ TEST(Sequencer, LaggingProjectorIsCaughtAndRetriedGrayAndPhase) {
     slshadow::testing::TempDir dir;
     Stereo rig;
     rig.projector.true_latency = std::chrono::milliseconds(30);  // the sequencer assumes 0
-    const CaptureSummary s = Capture(StereoRig(), spec, rig.cameras, rig.projector, dir / "set", Options(rig.projector));
+    const CaptureSummary s =
+        Capture(StereoRig(), spec, rig.cameras, rig.projector, dir / "set", Options(rig.projector));
     EXPECT_TRUE(s.complete);
     ExpectEveryFrameOfItsPattern(dir / "set", rig, spec);
     EXPECT_GT(s.retries, 0);
@@ -172,44 +178,48 @@ TEST(Sequencer, LaggingProjectorIsCaughtAndRetriedGrayAndPhase) {
 // capture learns the latency (>= 40 ms, in the manifest) and stops queueing Shows.
 TEST(Sequencer, LateDisplayThatQueuesShowsNeverStoresAWrongFrame) {
   for (const PatternSpec& spec : {GraySpec(), PhaseSpec()})
-  for (const double noise : {0.0, 2.0}) {
-    SCOPED_TRACE(::testing::Message() << ToString(spec.kind) << ", noise " << noise);
-    slshadow::testing::TempDir dir;
-    TestCameraOptions l, r = Stereo::Right();
-    l.noise = r.noise = noise;
-    Stereo rig(l, r);
-    rig.projector.true_latency = std::chrono::milliseconds(40);  // the sequencer assumes 0
-    SequencerOptions o = Options(rig.projector);
-    o.max_retries = 8;
-    const CaptureSummary s = Capture(StereoRig(), spec, rig.cameras, rig.projector, dir / "set", o);
-    EXPECT_TRUE(s.complete);
-    ExpectEveryFrameOfItsPattern(dir / "set", rig, spec, noise);
-    EXPECT_GT(s.retries, 0);
-    EXPECT_GE(s.learned_latency_us, 40000);
-    EXPECT_LE(s.learned_latency_us, 40000 + 8 * 20000);
-    const ImageSet set = ImageSet::Open(dir / "set");
-    EXPECT_EQ(set.extra()["capture"]["learned_latency_us"].get<double>(), s.learned_latency_us);
-    std::printf("%s, noise %.0f: %d retries, learned latency %.0f ms, at most %d Shows pending at once\n",
-                ToString(spec.kind).c_str(), noise, s.retries, s.learned_latency_us / 1000, rig.projector.max_pending());
-  }
+    for (const double noise : {0.0, 2.0}) {
+      SCOPED_TRACE(::testing::Message() << ToString(spec.kind) << ", noise " << noise);
+      slshadow::testing::TempDir dir;
+      TestCameraOptions l, r = Stereo::Right();
+      l.noise = r.noise = noise;
+      Stereo rig(l, r);
+      rig.projector.true_latency = std::chrono::milliseconds(40);  // the sequencer assumes 0
+      SequencerOptions o = Options(rig.projector);
+      o.max_retries = 8;
+      const CaptureSummary s =
+          Capture(StereoRig(), spec, rig.cameras, rig.projector, dir / "set", o);
+      EXPECT_TRUE(s.complete);
+      ExpectEveryFrameOfItsPattern(dir / "set", rig, spec, noise);
+      EXPECT_GT(s.retries, 0);
+      EXPECT_GE(s.learned_latency_us, 40000);
+      EXPECT_LE(s.learned_latency_us, 40000 + 8 * 20000);
+      const ImageSet set = ImageSet::Open(dir / "set");
+      EXPECT_EQ(set.extra()["capture"]["learned_latency_us"].get<double>(), s.learned_latency_us);
+      std::printf(
+          "%s, noise %.0f: %d retries, learned latency %.0f ms, at most %d Shows pending at once\n",
+          ToString(spec.kind).c_str(), noise, s.retries, s.learned_latency_us / 1000,
+          rig.projector.max_pending());
+    }
 }
 
 TEST(Sequencer, StaleFramesAtEveryPatternAreCaughtWithNoise) {
   // One pattern at a time is late: whichever it is, nothing is stored under the wrong pattern.
   for (const PatternSpec& spec : {GraySpec(), PhaseSpec()})
-  for (int lagging = 0; lagging < spec.NumImages(); ++lagging) {
-    SCOPED_TRACE(::testing::Message() << ToString(spec.kind) << ", lagging pattern " << lagging);
-    slshadow::testing::TempDir dir;
-    TestCameraOptions l, r = Stereo::Right();
-    l.noise = r.noise = 2;
-    Stereo rig(l, r);
-    rig.projector.latency_for = [&](int index) {
-      return std::chrono::microseconds(index == lagging ? 30000 : 0);
-    };
-    const CaptureSummary s = Capture(StereoRig(), spec, rig.cameras, rig.projector, dir / "set", Options(rig.projector));
-    EXPECT_TRUE(s.complete);
-    ExpectEveryFrameOfItsPattern(dir / "set", rig, spec, 2);
-  }
+    for (int lagging = 0; lagging < spec.NumImages(); ++lagging) {
+      SCOPED_TRACE(::testing::Message() << ToString(spec.kind) << ", lagging pattern " << lagging);
+      slshadow::testing::TempDir dir;
+      TestCameraOptions l, r = Stereo::Right();
+      l.noise = r.noise = 2;
+      Stereo rig(l, r);
+      rig.projector.latency_for = [&](int index) {
+        return std::chrono::microseconds(index == lagging ? 30000 : 0);
+      };
+      const CaptureSummary s = Capture(StereoRig(), spec, rig.cameras, rig.projector, dir / "set",
+                                       Options(rig.projector));
+      EXPECT_TRUE(s.complete);
+      ExpectEveryFrameOfItsPattern(dir / "set", rig, spec, 2);
+    }
 }
 
 TEST(Sequencer, StaleFramesAreCaughtWhenWhiteAndBlackComeLast) {
@@ -223,8 +233,11 @@ TEST(Sequencer, StaleFramesAreCaughtWhenWhiteAndBlackComeLast) {
     TestCameraOptions l, r = Stereo::Right();
     l.noise = r.noise = 2;
     Stereo rig(l, r);
-    rig.projector.latency_for = [&](int index) { return std::chrono::microseconds(index == lagging ? 30000 : 0); };
-    const CaptureSummary s = Capture(StereoRig(), spec, rig.cameras, rig.projector, dir / "set", Options(rig.projector));
+    rig.projector.latency_for = [&](int index) {
+      return std::chrono::microseconds(index == lagging ? 30000 : 0);
+    };
+    const CaptureSummary s =
+        Capture(StereoRig(), spec, rig.cameras, rig.projector, dir / "set", Options(rig.projector));
     EXPECT_TRUE(s.complete);
     EXPECT_GT(s.retries, 0);
     ExpectEveryFrameOfItsPattern(dir / "set", rig, spec, 2);
@@ -236,9 +249,14 @@ TEST(Sequencer, ProjectorThatNeverSwitchesFailsNamingPatternAndCameraThenResumes
   const fs::path out = dir / "set";
   {
     Stereo rig;
-    rig.projector.latency_for = [](int index) { return std::chrono::microseconds(index == 9 ? 3600000000ll : 0); };
-    const std::string e = ErrorOf([&] { Capture(StereoRig(), GraySpec(), rig.cameras, rig.projector, out, Options(rig.projector)); });
-    EXPECT_NE(e.find("capture failed after 4 attempts: pattern 9 (gray_x_bit2_inv), camera 'left': frame nearly equal "
+    rig.projector.latency_for = [](int index) {
+      return std::chrono::microseconds(index == 9 ? 3600000000ll : 0);
+    };
+    const std::string e = ErrorOf([&] {
+      Capture(StereoRig(), GraySpec(), rig.cameras, rig.projector, out, Options(rig.projector));
+    });
+    EXPECT_NE(e.find("capture failed after 4 attempts: pattern 9 (gray_x_bit2_inv), camera 'left': "
+                     "frame nearly equal "
                      "to pattern 8 (gray_x_bit2)"),
               std::string::npos)
         << e;
@@ -263,7 +281,8 @@ TEST(Sequencer, DropsAndLateFramesAreRetriedAndAccountedFor) {
   l.late_triggers = {6};
   r.drop_triggers = {10, 17};
   Stereo rig(l, r);
-  const CaptureSummary s = Capture(StereoRig(), GraySpec(), rig.cameras, rig.projector, dir / "set", Options(rig.projector));
+  const CaptureSummary s = Capture(StereoRig(), GraySpec(), rig.cameras, rig.projector, dir / "set",
+                                   Options(rig.projector));
   EXPECT_TRUE(s.complete);
   ExpectEveryFrameOfItsPattern(dir / "set", rig, GraySpec());
   EXPECT_EQ(s.cameras.at("left").timeouts, 3);
@@ -294,13 +313,17 @@ TEST(Sequencer, ResumeAfterInterruptionEqualsUninterruptedCapture) {
   };
   {
     Stereo rig(deterministic({}), deterministic(Stereo::Right()));
-    ASSERT_TRUE(Capture(StereoRig(), GraySpec(), rig.cameras, rig.projector, dir / "reference", options(rig.projector, false)).complete);
+    ASSERT_TRUE(Capture(StereoRig(), GraySpec(), rig.cameras, rig.projector, dir / "reference",
+                        options(rig.projector, false))
+                    .complete);
   }
   const ImageSet reference = ImageSet::Open(dir / "reference");
   for (int stop_after : {1, 2, 3, 7, 16, 23}) {
     for (bool lost_camera : {false, true}) {
-      SCOPED_TRACE(::testing::Message() << "after " << stop_after << " trigger rounds, " << (lost_camera ? "lost camera" : "stop"));
-      const fs::path out = dir / ("set" + std::to_string(stop_after) + (lost_camera ? "lost" : "stop"));
+      SCOPED_TRACE(::testing::Message() << "after " << stop_after << " trigger rounds, "
+                                        << (lost_camera ? "lost camera" : "stop"));
+      const fs::path out =
+          dir / ("set" + std::to_string(stop_after) + (lost_camera ? "lost" : "stop"));
       {
         std::atomic<bool> stop{false};
         TestCameraOptions r = deterministic(Stereo::Right());
@@ -312,27 +335,32 @@ TEST(Sequencer, ResumeAfterInterruptionEqualsUninterruptedCapture) {
         SequencerOptions o = options(rig.projector, false);
         o.stop = &stop;
         if (lost_camera) {
-          EXPECT_NE(ErrorOf([&] { Capture(StereoRig(), GraySpec(), rig.cameras, rig.projector, out, o); })
-                        .find("camera 'right': frame aborted (device lost)"),
+          EXPECT_NE(ErrorOf([&] {
+                      Capture(StereoRig(), GraySpec(), rig.cameras, rig.projector, out, o);
+                    }).find("camera 'right': frame aborted (device lost)"),
                     std::string::npos);
         } else {
-          const CaptureSummary s = Capture(StereoRig(), GraySpec(), rig.cameras, rig.projector, out, o);
+          const CaptureSummary s =
+              Capture(StereoRig(), GraySpec(), rig.cameras, rig.projector, out, o);
           EXPECT_TRUE(s.interrupted);
           EXPECT_FALSE(s.complete);
         }
       }
       EXPECT_FALSE(fs::exists(out));
       Stereo rig(deterministic({}), deterministic(Stereo::Right()));
-      const CaptureSummary s = Capture(StereoRig(), GraySpec(), rig.cameras, rig.projector, out, options(rig.projector, true));
+      const CaptureSummary s = Capture(StereoRig(), GraySpec(), rig.cameras, rig.projector, out,
+                                       options(rig.projector, true));
       ASSERT_TRUE(s.complete);
       EXPECT_GT(s.images_stored, 0);
       const ImageSet set = ImageSet::Open(out);
       ASSERT_EQ(set.records().size(), reference.records().size());
       for (size_t i = 0; i < set.records().size(); ++i) {
         EXPECT_EQ(set.records()[i], reference.records()[i]) << i;
-        EXPECT_EQ(ReadTextFile(out / set.records()[i].file), ReadTextFile(dir / "reference" / reference.records()[i].file));
+        EXPECT_EQ(ReadTextFile(out / set.records()[i].file),
+                  ReadTextFile(dir / "reference" / reference.records()[i].file));
       }
-      EXPECT_EQ(set.extra()["capture"]["sessions"].size(), 4u);  // two runs, a start and an end note each
+      EXPECT_EQ(set.extra()["capture"]["sessions"].size(),
+                4u);  // two runs, a start and an end note each
     }
   }
 }
@@ -346,10 +374,12 @@ TEST(Sequencer, AutoExposurePutsTheBrightestLitPixelsBelowSaturation) {
     r.gain = 0.2;  // dim: 12 + 0.2 x 255
     l.sixteen_bit = r.sixteen_bit = sixteen;
     Stereo rig(l, r);
-    for (auto& c : rig.cameras) c.settings.pixel_format = sixteen ? PixelFormat::kMono16 : PixelFormat::kMono8;
+    for (auto& c : rig.cameras)
+      c.settings.pixel_format = sixteen ? PixelFormat::kMono16 : PixelFormat::kMono8;
     SequencerOptions o = Options(rig.projector);
     o.auto_exposure = true;
-    const CaptureSummary s = Capture(StereoRig(), GraySpec(), rig.cameras, rig.projector, dir / "set", o);
+    const CaptureSummary s =
+        Capture(StereoRig(), GraySpec(), rig.cameras, rig.projector, dir / "set", o);
     ASSERT_TRUE(s.complete);
     const ImageSet set = ImageSet::Open(dir / "set");
     const double full = sixteen ? 65535 : 255;
@@ -370,8 +400,8 @@ TEST(Sequencer, PosesGoToTheLayoutCalibrateRigReads) {
   Stereo rig;
   std::istringstream enter("\n\n\n");
   std::ostringstream prompt;
-  const PosesSummary s =
-      CapturePoses(StereoRig(), GraySpec(), rig.cameras, rig.projector, dir / "poses", 3, Options(rig.projector), enter, prompt);
+  const PosesSummary s = CapturePoses(StereoRig(), GraySpec(), rig.cameras, rig.projector,
+                                      dir / "poses", 3, Options(rig.projector), enter, prompt);
   EXPECT_FALSE(s.interrupted);
   ASSERT_EQ(s.poses.size(), 3u);
   for (int p = 0; p < 3; ++p) {
@@ -380,8 +410,8 @@ TEST(Sequencer, PosesGoToTheLayoutCalibrateRigReads) {
   EXPECT_NE(prompt.str().find("pose 3 of 3: place the board, then press Enter"), std::string::npos);
   // Run again with more poses: the three complete ones are skipped; end of input stops cleanly.
   std::istringstream one("\n");
-  const PosesSummary again =
-      CapturePoses(StereoRig(), GraySpec(), rig.cameras, rig.projector, dir / "poses", 5, Options(rig.projector), one, prompt);
+  const PosesSummary again = CapturePoses(StereoRig(), GraySpec(), rig.cameras, rig.projector,
+                                          dir / "poses", 5, Options(rig.projector), one, prompt);
   EXPECT_EQ(again.skipped, 3);
   EXPECT_EQ(again.poses.size(), 1u);
   EXPECT_TRUE(again.interrupted);
@@ -393,19 +423,27 @@ TEST(Sequencer, BadArgumentsAreNamed) {
   Stereo rig;
   auto cams = rig.cameras;
   cams[1].name = "centre";
-  EXPECT_NE(ErrorOf([&] { Capture(StereoRig(), GraySpec(), cams, rig.projector, dir / "a", Options(rig.projector)); })
-                .find("the rig 'stereo' has no camera 'centre'"),
+  EXPECT_NE(ErrorOf([&] {
+              Capture(StereoRig(), GraySpec(), cams, rig.projector, dir / "a",
+                      Options(rig.projector));
+            }).find("the rig 'stereo' has no camera 'centre'"),
             std::string::npos);
   SequencerOptions o = Options(rig.projector);
   o.max_retries = -1;
-  EXPECT_NE(ErrorOf([&] { Capture(StereoRig(), GraySpec(), rig.cameras, rig.projector, dir / "b", o); }).find("max_retries"),
+  EXPECT_NE(ErrorOf([&] {
+              Capture(StereoRig(), GraySpec(), rig.cameras, rig.projector, dir / "b", o);
+            }).find("max_retries"),
             std::string::npos);
   // A camera delivering another size than the rig says is damaged, retried, then named.
   TestCameraOptions small;
   small.width = 32;
   Stereo wrong(small);
-  EXPECT_NE(ErrorOf([&] { Capture(StereoRig(), GraySpec(), wrong.cameras, wrong.projector, dir / "c", Options(wrong.projector)); })
-                .find("pattern 0 (white), camera 'left': frame of 32x48, 8-bit; the rig camera is 64x48, Mono8"),
+  EXPECT_NE(ErrorOf([&] {
+              Capture(StereoRig(), GraySpec(), wrong.cameras, wrong.projector, dir / "c",
+                      Options(wrong.projector));
+            })
+                .find("pattern 0 (white), camera 'left': frame of 32x48, 8-bit; the rig camera is "
+                      "64x48, Mono8"),
             std::string::npos);
 }
 

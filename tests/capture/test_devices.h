@@ -65,12 +65,18 @@ class TestProjector : public Projector {
     return [this](std::chrono::steady_clock::time_point t) { SleepUntil(t); };
   }
   // What is on "screen" now: the loaded image, or black before anything was shown.
-  const cv::Mat& Visible() const { return visible_ < 0 ? black_ : images_[static_cast<size_t>(visible_)]; }
+  const cv::Mat& Visible() const {
+    return visible_ < 0 ? black_ : images_[static_cast<size_t>(visible_)];
+  }
   int visible() const { return visible_; }
   int64_t shows() const { return shows_; }
-  int64_t requests() const { return requests_; }  // Show calls that asked for another pattern than the last one
+  int64_t requests() const {
+    return requests_;
+  }  // Show calls that asked for another pattern than the last one
   int pending() const { return static_cast<int>(pending_.size()); }  // Shows not yet on screen
-  int max_pending() const { return max_pending_; }  // most Shows ever waiting at once (1 + a re-Show queued behind)
+  int max_pending() const {
+    return max_pending_;
+  }  // most Shows ever waiting at once (1 + a re-Show queued behind)
 
   std::chrono::microseconds true_latency{0};
   std::function<std::chrono::microseconds(int index)> latency_for;  // overrides true_latency
@@ -104,12 +110,13 @@ class TestProjector : public Projector {
 struct TestCameraOptions {
   std::string serial = "TEST-0";
   int width = 64, height = 48;
-  double gain = 1.0, offset = 8;     // level = offset + gain * projector level * exposure / 10000 us
-  double noise = 0;                  // uniform noise amplitude (grey levels)
+  double gain = 1.0, offset = 8;  // level = offset + gain * projector level * exposure / 10000 us
+  double noise = 0;               // uniform noise amplitude (grey levels)
   uint64_t seed = 1;
-  uint64_t first_frame_id = 65400;   // GigE Vision ids: 16-bit, wrap 65535 -> 1
-  bool ids_follow_pattern = false;   // frame id and host time = functions of the pattern (deterministic records)
-  bool sixteen_bit = false;          // Mono16: level x 256
+  uint64_t first_frame_id = 65400;  // GigE Vision ids: 16-bit, wrap 65535 -> 1
+  bool ids_follow_pattern =
+      false;  // frame id and host time = functions of the pattern (deterministic records)
+  bool sixteen_bit = false;  // Mono16: level x 256
   double drop_probability = 0, late_probability = 0;
   std::set<int64_t> drop_triggers, late_triggers;  // by trigger count (0-based)
   int64_t abort_after_triggers = -1;               // the camera disappears: Grab returns kAborted
@@ -118,7 +125,10 @@ struct TestCameraOptions {
 class TestCamera : public Camera {
  public:
   TestCamera(const TestProjector& projector, TestCameraOptions options)
-      : projector_(projector), options_(std::move(options)), rng_(options_.seed), next_id_(options_.first_frame_id) {
+      : projector_(projector),
+        options_(std::move(options)),
+        rng_(options_.seed),
+        next_id_(options_.first_frame_id) {
     settings_.exposure_us = 10000;
   }
   CameraInfo Info() const override {
@@ -149,11 +159,14 @@ class TestCamera : public Camera {
   void Trigger() override {
     const int64_t t = triggers_++;
     if (options_.abort_after_triggers >= 0 && t >= options_.abort_after_triggers) return;
-    const uint64_t id = options_.ids_follow_pattern ? Wrap(options_.first_frame_id + static_cast<uint64_t>(expected_pattern_))
-                                                    : next_id_;
+    const uint64_t id =
+        options_.ids_follow_pattern
+            ? Wrap(options_.first_frame_id + static_cast<uint64_t>(expected_pattern_))
+            : next_id_;
     next_id_ = Wrap(next_id_ + 1);
     const bool drop = options_.drop_triggers.count(t) || Chance(options_.drop_probability);
-    const bool late = !drop && (options_.late_triggers.count(t) || Chance(options_.late_probability));
+    const bool late =
+        !drop && (options_.late_triggers.count(t) || Chance(options_.late_probability));
     if (drop || late) lost_triggers_.insert(t);
     if (drop) {
       ++dropped_;
@@ -240,7 +253,8 @@ class TestCamera : public Camera {
     Frame f;
     f.status = FrameStatus::kOk;
     if (options_.ids_follow_pattern) {
-      std::mt19937_64 per_pattern(options_.seed * 1000003u + static_cast<uint64_t>(expected_pattern_));
+      std::mt19937_64 per_pattern(options_.seed * 1000003u +
+                                  static_cast<uint64_t>(expected_pattern_));
       f.image = Draw(projector_.Visible(), &per_pattern);
     } else {
       f.image = Draw(projector_.Visible(), &rng_);
@@ -249,7 +263,8 @@ class TestCamera : public Camera {
     f.exposure_us = settings_.exposure_us.value_or(0);
     const int64_t tick = options_.ids_follow_pattern ? expected_pattern_ : triggers_;
     f.device_timestamp_ns = 1000000000ull + static_cast<uint64_t>(tick) * 1000000ull;
-    f.host_timestamp = std::chrono::system_clock::time_point(std::chrono::seconds(1795000000) + std::chrono::milliseconds(tick * 20));
+    f.host_timestamp = std::chrono::system_clock::time_point(std::chrono::seconds(1795000000) +
+                                                             std::chrono::milliseconds(tick * 20));
     if (on_trigger) on_trigger(triggers_);
     return f;
   }

@@ -17,7 +17,8 @@ using dlpc350::Report;
 // Device, configuration, interface (HID), HID, endpoint 0x81 IN, endpoint 0x01 OUT descriptors.
 constexpr const char* kDescriptors =
     "120100020000004051040164000101020001"
-    "0902290001010080" "32"
+    "0902290001010080"
+    "32"
     "090400000203000000"
     "092111010001221d00"
     "0705810340000a"
@@ -33,17 +34,21 @@ bool UnderUmockdev() {
 UsbLightCrafterEmulator::UsbLightCrafterEmulator() {
   testbed_ = umockdev_testbed_new();
   handler_ = umockdev_ioctl_base_new();
-  g_signal_connect_after(handler_, "handle-ioctl", G_CALLBACK(&UsbLightCrafterEmulator::OnIoctl), this);
+  g_signal_connect_after(handler_, "handle-ioctl", G_CALLBACK(&UsbLightCrafterEmulator::OnIoctl),
+                         this);
   GError* error = nullptr;
   if (!umockdev_testbed_attach_ioctl(testbed_, "/dev/bus/usb/001/002", handler_, &error)) {
     ADD_FAILURE() << "attach_ioctl: " << (error ? error->message : "?");
     if (error) g_error_free(error);
   }
-  const std::string device = std::string(
-      "P: /devices/usb1/1-1\nN: bus/usb/001/002\nE: SUBSYSTEM=usb\nE: DRIVER=usb\nE: BUSNUM=001\nE: DEVNUM=002\n"
-      "E: DEVNAME=/dev/bus/usb/001/002\nE: DEVTYPE=usb_device\nE: PRODUCT=451/6401/100\n"
-      "A: bConfigurationValue=1\\n\nA: busnum=1\\n\nA: devnum=2\\n\nA: speed=12\\n\n"
-      "A: idVendor=0451\\n\nA: idProduct=6401\\n\nH: descriptors=") + kDescriptors + "\n";
+  const std::string device =
+      std::string(
+          "P: /devices/usb1/1-1\nN: bus/usb/001/002\nE: SUBSYSTEM=usb\nE: DRIVER=usb\nE: "
+          "BUSNUM=001\nE: DEVNUM=002\n"
+          "E: DEVNAME=/dev/bus/usb/001/002\nE: DEVTYPE=usb_device\nE: PRODUCT=451/6401/100\n"
+          "A: bConfigurationValue=1\\n\nA: busnum=1\\n\nA: devnum=2\\n\nA: speed=12\\n\n"
+          "A: idVendor=0451\\n\nA: idProduct=6401\\n\nH: descriptors=") +
+      kDescriptors + "\n";
   if (!umockdev_testbed_add_from_string(testbed_, device.c_str(), &error)) {
     ADD_FAILURE() << "add_from_string: " << (error ? error->message : "?");
     if (error) g_error_free(error);
@@ -57,7 +62,6 @@ UsbLightCrafterEmulator::~UsbLightCrafterEmulator() {
   g_object_unref(handler_);
   g_object_unref(testbed_);
 }
-
 
 void UsbLightCrafterEmulator::Unplug() {
   std::lock_guard lock(mutex_);
@@ -85,7 +89,8 @@ int UsbLightCrafterEmulator::Handle(UMockdevIoctlClient* client) {
   switch (request) {
     case USBDEVFS_GET_CAPABILITIES: {
       UMockdevIoctlData* d = umockdev_ioctl_data_resolve(arg, 0, sizeof(guint32), nullptr);
-      *reinterpret_cast<guint32*>(d->data) = USBDEVFS_CAP_ZERO_PACKET | USBDEVFS_CAP_NO_PACKET_SIZE_LIM;
+      *reinterpret_cast<guint32*>(d->data) =
+          USBDEVFS_CAP_ZERO_PACKET | USBDEVFS_CAP_NO_PACKET_SIZE_LIM;
       umockdev_ioctl_data_unref(d);
       umockdev_ioctl_client_complete(client, 0, 0);
       return TRUE;
@@ -105,10 +110,11 @@ int UsbLightCrafterEmulator::Handle(UMockdevIoctlClient* client) {
         umockdev_ioctl_client_complete(client, -1, ENODEV);
         return TRUE;
       }
-      UMockdevIoctlData* urb_data = umockdev_ioctl_data_resolve(arg, 0, sizeof(usbdevfs_urb), nullptr);
+      UMockdevIoctlData* urb_data =
+          umockdev_ioctl_data_resolve(arg, 0, sizeof(usbdevfs_urb), nullptr);
       auto* urb = reinterpret_cast<usbdevfs_urb*>(urb_data->data);
-      UMockdevIoctlData* buffer =
-          umockdev_ioctl_data_resolve(urb_data, G_STRUCT_OFFSET(usbdevfs_urb, buffer), urb->buffer_length, nullptr);
+      UMockdevIoctlData* buffer = umockdev_ioctl_data_resolve(
+          urb_data, G_STRUCT_OFFSET(usbdevfs_urb, buffer), urb->buffer_length, nullptr);
       if (urb->type != USBDEVFS_URB_TYPE_INTERRUPT || urb->buffer_length != 64 ||
           (urb->endpoint != 0x01 && urb->endpoint != 0x81)) {
         umockdev_ioctl_data_unref(buffer);

@@ -45,9 +45,11 @@ class V4l2CameraTest : public ::testing::Test {
     setenv("V4L2_SHIM_CONTROLS", "exposure,gain", 1);
   }
   // Writes `count` random frames of `bytes` each (seeded) and points the shim at them.
-  std::vector<std::vector<uint8_t>> Record(const std::string& format, int width, int height, int bpp, int count) {
+  std::vector<std::vector<uint8_t>> Record(const std::string& format, int width, int height,
+                                           int bpp, int count) {
     std::mt19937 rng(1234);
-    std::vector<std::vector<uint8_t>> frames(count, std::vector<uint8_t>(size_t(width) * height * bpp));
+    std::vector<std::vector<uint8_t>> frames(count,
+                                             std::vector<uint8_t>(size_t(width) * height * bpp));
     std::ofstream out(dir_ / "frames.raw", std::ios::binary);
     for (auto& f : frames) {
       for (auto& v : f) v = static_cast<uint8_t>(rng());
@@ -121,8 +123,9 @@ TEST_F(V4l2CameraTest, DamagedFramesAreReportedAndTheStreamGoesOn) {
   }
   unsetenv("V4L2_SHIM_ERROR_FRAME");
   unsetenv("V4L2_SHIM_SHORT_FRAME");
-  EXPECT_EQ(statuses, (std::vector<FrameStatus>{FrameStatus::kOk, FrameStatus::kOtherError, FrameStatus::kOk,
-                                                FrameStatus::kSizeMismatch, FrameStatus::kOk}));
+  EXPECT_EQ(statuses,
+            (std::vector<FrameStatus>{FrameStatus::kOk, FrameStatus::kOtherError, FrameStatus::kOk,
+                                      FrameStatus::kSizeMismatch, FrameStatus::kOk}));
   EXPECT_EQ(camera.Statistics().failed_frames, 2u);
   EXPECT_EQ(camera.Statistics().completed_frames, 3u);
 }
@@ -141,7 +144,8 @@ TEST_F(V4l2CameraTest, Y16IsLittleEndianSixteenBit) {
     for (int y = 0; y < 24; ++y) {
       for (int x = 0; x < 32; ++x) {
         const size_t at = 2 * (size_t(y) * 32 + x);
-        ASSERT_EQ(f.image.at<uint16_t>(y, x), frames[i][at] | frames[i][at + 1] << 8) << i << " " << x << "," << y;
+        ASSERT_EQ(f.image.at<uint16_t>(y, x), frames[i][at] | frames[i][at + 1] << 8)
+            << i << " " << x << "," << y;
       }
     }
   }
@@ -149,7 +153,8 @@ TEST_F(V4l2CameraTest, Y16IsLittleEndianSixteenBit) {
   CameraSettings mono8;
   camera.Stop();
   EXPECT_NE(ErrorOf([&] { camera.Configure(mono8); })
-                .find("/dev/video-slshadow-shim: settings.pixel_format: Mono8 needs GREY or YUYV but the device offers Y16"),
+                .find("/dev/video-slshadow-shim: settings.pixel_format: Mono8 needs GREY or YUYV "
+                      "but the device offers Y16"),
             std::string::npos);
 }
 
@@ -163,7 +168,8 @@ TEST_F(V4l2CameraTest, YuyvGivesTheLumaBytes) {
     ASSERT_TRUE(f.ok()) << f.message;
     ASSERT_EQ(f.image.type(), CV_8UC1);
     for (int y = 0; y < 30; ++y) {
-      for (int x = 0; x < 40; ++x) ASSERT_EQ(f.image.at<uint8_t>(y, x), frames[i][2 * (size_t(y) * 40 + x)]);
+      for (int x = 0; x < 40; ++x)
+        ASSERT_EQ(f.image.at<uint8_t>(y, x), frames[i][2 * (size_t(y) * 40 + x)]);
     }
   }
 }
@@ -184,26 +190,39 @@ TEST_F(V4l2CameraTest, ControlsReachTheDeviceOrAreRefusedByName) {
     EXPECT_EQ(camera.Settings().exposure_us, 5100.0);
     EXPECT_FALSE(camera.Warnings().empty());
     s.gain_db = 300;  // the device's range is 0..255
-    EXPECT_NE(ErrorOf([&] { camera.Configure(s); }).find("settings.gain_db: the device refused value 300"), std::string::npos);
+    EXPECT_NE(ErrorOf([&] {
+                camera.Configure(s);
+              }).find("settings.gain_db: the device refused value 300"),
+              std::string::npos);
     CameraSettings hw;
     hw.trigger = TriggerMode::kHardware;
-    EXPECT_NE(ErrorOf([&] { camera.Configure(hw); }).find("settings.trigger: UVC cameras have no trigger input"),
+    EXPECT_NE(ErrorOf([&] {
+                camera.Configure(hw);
+              }).find("settings.trigger: UVC cameras have no trigger input"),
               std::string::npos);
     CameraSettings roi;
     roi.roi = Roi{0, 0, 8, 8};
-    EXPECT_NE(ErrorOf([&] { camera.Configure(roi); }).find("settings.roi: asked for 8x8, the device offers 16x16"),
+    EXPECT_NE(ErrorOf([&] {
+                camera.Configure(roi);
+              }).find("settings.roi: asked for 8x8, the device offers 16x16"),
               std::string::npos);
   }
   setenv("V4L2_SHIM_CONTROLS", "", 1);
   V4l2Camera bare(kDevice);
   CameraSettings s;
   s.exposure_us = 1000;
-  EXPECT_NE(ErrorOf([&] { bare.Configure(s); }).find("settings.exposure_us: the device has no exposure control"),
+  EXPECT_NE(ErrorOf([&] {
+              bare.Configure(s);
+            }).find("settings.exposure_us: the device has no exposure control"),
             std::string::npos);
   s.exposure_us.reset();
   s.gain_db = 1;
-  EXPECT_NE(ErrorOf([&] { bare.Configure(s); }).find("settings.gain_db: the device has no gain control"), std::string::npos);
-  EXPECT_NE(ErrorOf([] { V4l2Camera("/dev/video-none-such"); }).find("/dev/video-none-such: cannot open the V4L2 device"),
+  EXPECT_NE(
+      ErrorOf([&] { bare.Configure(s); }).find("settings.gain_db: the device has no gain control"),
+      std::string::npos);
+  EXPECT_NE(ErrorOf([] {
+              V4l2Camera("/dev/video-none-such");
+            }).find("/dev/video-none-such: cannot open the V4L2 device"),
             std::string::npos);
 }
 
@@ -222,10 +241,12 @@ TEST_F(V4l2CameraTest, SoftwareTriggerDropsFramesAlreadyDelivered) {
   EXPECT_EQ(std::memcmp(next.image.data, frames[3].data(), frames[3].size()), 0);
 }
 
-// The devices.yaml example's v4l2 entries open through the factory (its node swapped for the shim's).
+// The devices.yaml example's v4l2 entries open through the factory (its node swapped for the
+// shim's).
 TEST_F(V4l2CameraTest, FactoryOpensTheExampleEntry) {
   const auto frames = Record("GREY", 16, 8, 1, 1);
-  DevicesConfig devices = LoadDevices(::slshadow::testing::SourceDir() / "config/devices/uvc_lightcrafter.yaml");
+  DevicesConfig devices =
+      LoadDevices(::slshadow::testing::SourceDir() / "config/devices/uvc_lightcrafter.yaml");
   ASSERT_EQ(devices.cameras.size(), 2u);
   EXPECT_EQ(devices.cameras[0].id, "/dev/video0");
   EXPECT_EQ(devices.projector.backend, "lightcrafter");
@@ -244,7 +265,8 @@ TEST_F(V4l2CameraTest, FactoryOpensTheExampleEntry) {
     OpenCamera(entry);
     FAIL() << "no error";
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("uvc_lightcrafter.yaml: cameras[0]: /dev/video-none-such: cannot open"),
+    EXPECT_NE(std::string(e.what()).find(
+                  "uvc_lightcrafter.yaml: cameras[0]: /dev/video-none-such: cannot open"),
               std::string::npos)
         << e.what();
   }
@@ -252,9 +274,11 @@ TEST_F(V4l2CameraTest, FactoryOpensTheExampleEntry) {
 
 TEST(V4l2Nodes, ListsVideoNodesInNumericOrder) {
   ::slshadow::testing::TempDir dir;
-  for (const char* name : {"video10", "video2", "video", "videoX", "media0", "video0"}) std::ofstream(dir / name) << "";
+  for (const char* name : {"video10", "video2", "video", "videoX", "media0", "video0"})
+    std::ofstream(dir / name) << "";
   EXPECT_EQ(ListV4l2Nodes(dir.path().string()),
-            (std::vector<std::string>{(dir / "video0").string(), (dir / "video2").string(), (dir / "video10").string()}));
+            (std::vector<std::string>{(dir / "video0").string(), (dir / "video2").string(),
+                                      (dir / "video10").string()}));
   EXPECT_TRUE(ListV4l2Nodes((dir / "missing").string()).empty());
 }
 
@@ -271,7 +295,8 @@ TEST_F(V4l2CameraTest, Throughput) {
   const auto start = std::chrono::steady_clock::now();
   int ok = 0;
   for (int i = 0; i < kN; ++i) ok += camera.Grab(1000ms).ok();
-  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   std::printf("[ MEASURE  ] %d GREY 640x480 frames: %.0f frames/s\n", kN, kN / seconds);
   EXPECT_EQ(ok, kN);
 }

@@ -1,8 +1,8 @@
 // An LD_PRELOAD shim that plays a UVC camera for tests of capture/v4l2_camera.cc (no V4L2 kernel
 // route exists on CI machines: ../shared/DEVICE-MOCKS.md). open() of the device path returns a
-// memfd; buffers live in it at page-aligned offsets index * stride, so mmap and poll work natively; ioctl()
-// on that fd implements QUERYCAP, ENUM_FMT, G/S/TRY_FMT, G/S_PARM, REQBUFS(MMAP), QUERYBUF, QBUF,
-// DQBUF, STREAMON/OFF, QUERYCTRL, G/S_CTRL. Every other fd goes to libc.
+// memfd; buffers live in it at page-aligned offsets index * stride, so mmap and poll work natively;
+// ioctl() on that fd implements QUERYCAP, ENUM_FMT, G/S/TRY_FMT, G/S_PARM, REQBUFS(MMAP), QUERYBUF,
+// QBUF, DQBUF, STREAMON/OFF, QUERYCTRL, G/S_CTRL. Every other fd goes to libc.
 //
 // Configured through the environment, read at open():
 //   V4L2_SHIM_DEVICE   device path (default /dev/video0)
@@ -90,7 +90,9 @@ int OpenShim() {
   return g_dev.fd;
 }
 
-bool IsShimPath(const char* path) { return path && std::strcmp(path, Env("V4L2_SHIM_DEVICE", "/dev/video0")) == 0; }
+bool IsShimPath(const char* path) {
+  return path && std::strcmp(path, Env("V4L2_SHIM_DEVICE", "/dev/video0")) == 0;
+}
 
 void FillFormat(v4l2_format* f) {
   f->type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
@@ -140,7 +142,8 @@ int ShimIoctl(unsigned long request, void* arg) {
     case VIDIOC_S_PARM: {
       auto* p = static_cast<v4l2_streamparm*>(arg);
       if (request == VIDIOC_S_PARM && p->parm.capture.timeperframe.numerator > 0) {
-        g_dev.fps = p->parm.capture.timeperframe.denominator / p->parm.capture.timeperframe.numerator;
+        g_dev.fps =
+            p->parm.capture.timeperframe.denominator / p->parm.capture.timeperframe.numerator;
       }
       p->parm.capture.capability = V4L2_CAP_TIMEPERFRAME;
       p->parm.capture.timeperframe = {1, g_dev.fps};
@@ -159,7 +162,8 @@ int ShimIoctl(unsigned long request, void* arg) {
     case VIDIOC_QUERYBUF:
     case VIDIOC_QBUF: {
       auto* b = static_cast<v4l2_buffer*>(arg);
-      if (b->index >= g_dev.buffers_len.size() || b->memory != V4L2_MEMORY_MMAP) return Fail(EINVAL);
+      if (b->index >= g_dev.buffers_len.size() || b->memory != V4L2_MEMORY_MMAP)
+        return Fail(EINVAL);
       if (request == VIDIOC_QBUF) {
         g_dev.queued.push_back(b->index);
         return 0;
@@ -175,8 +179,10 @@ int ShimIoctl(unsigned long request, void* arg) {
       if (g_dev.queued.empty() || g_dev.frames == nullptr) return Fail(EAGAIN);
       const uint32_t index = g_dev.queued.front();
       std::vector<char> frame(g_dev.sizeimage());
-      if (std::fread(frame.data(), 1, frame.size(), g_dev.frames) != frame.size()) return Fail(EAGAIN);  // stopped
-      if (pwrite(g_dev.fd, frame.data(), frame.size(), static_cast<off_t>(index) * g_dev.stride()) !=
+      if (std::fread(frame.data(), 1, frame.size(), g_dev.frames) != frame.size())
+        return Fail(EAGAIN);  // stopped
+      if (pwrite(g_dev.fd, frame.data(), frame.size(),
+                 static_cast<off_t>(index) * g_dev.stride()) !=
           static_cast<ssize_t>(frame.size())) {
         return Fail(EIO);
       }
@@ -193,7 +199,9 @@ int ShimIoctl(unsigned long request, void* arg) {
       b->timestamp.tv_usec = static_cast<long>((b->sequence % g_dev.fps) * (1000000 / g_dev.fps));
       return 0;
     }
-    case VIDIOC_STREAMON: g_dev.streaming = true; return 0;
+    case VIDIOC_STREAMON:
+      g_dev.streaming = true;
+      return 0;
     case VIDIOC_STREAMOFF:
       g_dev.streaming = false;
       g_dev.queued.clear();
@@ -204,11 +212,14 @@ int ShimIoctl(unsigned long request, void* arg) {
       std::memset(q, 0, sizeof *q);
       q->id = id;
       if (id == V4L2_CID_EXPOSURE_ABSOLUTE && g_dev.has_exposure) {
-        q->type = V4L2_CTRL_TYPE_INTEGER, q->minimum = 1, q->maximum = 10000, q->step = 1, q->default_value = 100;
+        q->type = V4L2_CTRL_TYPE_INTEGER, q->minimum = 1, q->maximum = 10000, q->step = 1,
+        q->default_value = 100;
       } else if (id == V4L2_CID_EXPOSURE_AUTO && g_dev.has_exposure) {
-        q->type = V4L2_CTRL_TYPE_MENU, q->minimum = 0, q->maximum = 3, q->step = 1, q->default_value = 3;
+        q->type = V4L2_CTRL_TYPE_MENU, q->minimum = 0, q->maximum = 3, q->step = 1,
+        q->default_value = 3;
       } else if (id == V4L2_CID_GAIN && g_dev.has_gain) {
-        q->type = V4L2_CTRL_TYPE_INTEGER, q->minimum = 0, q->maximum = 255, q->step = 1, q->default_value = 0;
+        q->type = V4L2_CTRL_TYPE_INTEGER, q->minimum = 0, q->maximum = 255, q->step = 1,
+        q->default_value = 0;
       } else {
         return Fail(EINVAL);
       }
@@ -227,7 +238,8 @@ int ShimIoctl(unsigned long request, void* arg) {
         return 0;
       }
       // UVC: absolute exposure only in manual mode.
-      if (slot == &g_dev.exposure && g_dev.exposure_auto != V4L2_EXPOSURE_MANUAL) return Fail(EACCES);
+      if (slot == &g_dev.exposure && g_dev.exposure_auto != V4L2_EXPOSURE_MANUAL)
+        return Fail(EACCES);
       if (c->value < 0 || (slot == &g_dev.exposure && (c->value < 1 || c->value > 10000)) ||
           (slot == &g_dev.gain && c->value > 255)) {
         return Fail(ERANGE);
@@ -235,7 +247,8 @@ int ShimIoctl(unsigned long request, void* arg) {
       *slot = c->value;
       return 0;
     }
-    default: return Fail(ENOTTY);
+    default:
+      return Fail(ENOTTY);
   }
 }
 

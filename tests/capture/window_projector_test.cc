@@ -32,7 +32,8 @@ std::vector<cv::Mat> TestPatterns(int width, int height) {
   out.push_back(noise);
   cv::Mat ramp(height, width, CV_8UC1);
   for (int y = 0; y < height; ++y)
-    for (int x = 0; x < width; ++x) ramp.at<uint8_t>(y, x) = static_cast<uint8_t>((x + 3 * y) % 256);
+    for (int x = 0; x < width; ++x)
+      ramp.at<uint8_t>(y, x) = static_cast<uint8_t>((x + 3 * y) % 256);
   out.push_back(ramp);
   cv::Mat stripes(height, width, CV_8UC1);
   for (int y = 0; y < height; ++y)
@@ -93,10 +94,13 @@ TEST_P(WindowProjectorScreen, EveryPatternShownEqualsTheScreen) {
   for (int i = projector.size() - 2; i >= 0; --i) order.push_back(i);
   for (int i : order) {
     projector.Show(i);
-    EXPECT_EQ(DifferingPixels(screen.ReadBgr(RectOf(g)), patterns[static_cast<size_t>(i)]), 0) << "pattern " << i;
+    EXPECT_EQ(DifferingPixels(screen.ReadBgr(RectOf(g)), patterns[static_cast<size_t>(i)]), 0)
+        << "pattern " << i;
   }
   projector.ShowBlack();
-  EXPECT_EQ(DifferingPixels(screen.ReadBgr(RectOf(g)), cv::Mat::zeros(size.height, size.width, CV_8UC1)), 0);
+  EXPECT_EQ(
+      DifferingPixels(screen.ReadBgr(RectOf(g)), cv::Mat::zeros(size.height, size.width, CV_8UC1)),
+      0);
   // A second sequence replaces the first.
   std::vector<cv::Mat> second = {patterns[1].clone()};
   cv::flip(second[0], second[0], 1);
@@ -107,10 +111,11 @@ TEST_P(WindowProjectorScreen, EveryPatternShownEqualsTheScreen) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Sizes, WindowProjectorScreen,
-                         ::testing::Values(ScreenSize{320, 200}, ScreenSize{912, 1140}, ScreenSize{1280, 800},
-                                           ScreenSize{1920, 1080}),
+                         ::testing::Values(ScreenSize{320, 200}, ScreenSize{912, 1140},
+                                           ScreenSize{1280, 800}, ScreenSize{1920, 1080}),
                          [](const auto& p) {
-                           return std::to_string(p.param.width) + "x" + std::to_string(p.param.height);
+                           return std::to_string(p.param.width) + "x" +
+                                  std::to_string(p.param.height);
                          });
 
 // One wide X screen (a 1920x1200 monitor and a 1280x800 projector side by side): the window at
@@ -174,7 +179,8 @@ TEST(WindowProjector, FullscreenOnSecondDisplay) {
   projector.Load(patterns);
   for (int i = 0; i < projector.size(); ++i) {
     projector.Show(i);
-    EXPECT_EQ(DifferingPixels(screen.ReadBgr(RectOf(g)), patterns[static_cast<size_t>(i)]), 0) << "pattern " << i;
+    EXPECT_EQ(DifferingPixels(screen.ReadBgr(RectOf(g)), patterns[static_cast<size_t>(i)]), 0)
+        << "pattern " << i;
     cv::Mat diff;
     cv::absdiff(screen.ReadBgr(monitor), before, diff);
     cv::Mat any;
@@ -199,7 +205,8 @@ TEST(WindowProjector, WrongImagesAreRejectedAndTheSequenceKept) {
   };
   expect_rejected({patterns[0], cv::Mat(200, 321, CV_8UC1, cv::Scalar(7))}, "image 1 is 321x200");
   expect_rejected({cv::Mat(201, 320, CV_8UC1)}, "image 0 is 320x201");
-  expect_rejected({patterns[0], patterns[1], cv::Mat(200, 320, CV_8UC3)}, "image 2 is 320x200 not 8-bit grey");
+  expect_rejected({patterns[0], patterns[1], cv::Mat(200, 320, CV_8UC3)},
+                  "image 2 is 320x200 not 8-bit grey");
   expect_rejected({cv::Mat(200, 320, CV_16UC1)}, "not 8-bit grey");
   // Nothing was replaced.
   ASSERT_EQ(projector.size(), static_cast<int>(patterns.size()));
@@ -221,7 +228,9 @@ TEST(WindowProjector, ClearErrorsWithoutADisplayOrWithABadPlace) {
       WindowProjector projector(options);
       ADD_FAILURE() << "display 1 of 1 accepted";
     } catch (const Error& e) {
-      EXPECT_NE(std::string(e.what()).find("display_index 1 does not exist (1 display(s)"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("display_index 1 does not exist (1 display(s)"),
+                std::string::npos)
+          << e.what();
     }
     options.display_index = 0;
     options.geometry = WindowGeometry{300, 0, 64, 64};
@@ -229,7 +238,8 @@ TEST(WindowProjector, ClearErrorsWithoutADisplayOrWithABadPlace) {
       WindowProjector projector(options);
       ADD_FAILURE() << "geometry off the screen accepted";
     } catch (const Error& e) {
-      EXPECT_NE(std::string(e.what()).find("geometry 300,0,64,64 does not lie on a display"), std::string::npos)
+      EXPECT_NE(std::string(e.what()).find("geometry 300,0,64,64 does not lie on a display"),
+                std::string::npos)
           << e.what();
     }
     // A failed open leaves nothing behind: the next one opens.
@@ -265,7 +275,9 @@ TEST(WindowProjector, ShowFromOtherThreads) {
     std::thread([&] {
       XScreenReader screen(xvfb.display());
       projector->Show(i);
-      EXPECT_EQ(DifferingPixels(screen.ReadBgr({0, 0, 640, 400}), patterns[static_cast<size_t>(i)]), 0) << i;
+      EXPECT_EQ(DifferingPixels(screen.ReadBgr({0, 0, 640, 400}), patterns[static_cast<size_t>(i)]),
+                0)
+          << i;
     }).join();
   }
   std::thread([&] { projector.reset(); }).join();
@@ -286,7 +298,8 @@ TEST(WindowProjector, OpenGlRendererEqualsTheScreen) {
     // A GL swap may reach the X server after it returns: wait (bounded) for the frame to land.
     int differing = -1;
     for (int k = 0; k < 200 && differing != 0; ++k) {
-      differing = DifferingPixels(screen.ReadBgr({0, 0, 640, 400}), patterns[static_cast<size_t>(i)]);
+      differing =
+          DifferingPixels(screen.ReadBgr({0, 0, 640, 400}), patterns[static_cast<size_t>(i)]);
       if (differing != 0) std::this_thread::sleep_for(std::chrono::milliseconds(5));
     }
     EXPECT_EQ(differing, 0) << "pattern " << i;
@@ -308,11 +321,13 @@ TEST(WindowProjector, VsyncPacingAndPresentLatencyMeasured) {
     projector.Show(0);
     const auto t0 = std::chrono::steady_clock::now();
     for (int i = 1; i <= frames; ++i) projector.Show(i % projector.size());
-    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const double seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     const double fps = frames / seconds;
     const PresentLatency latency = projector.MeasurePresentLatency(10);
-    std::printf("1280x800 %s renderer, vsync %s (display %.0f Hz): %.1f frames/s; %s\n", projector.RendererName().c_str(),
-                vsync ? "on" : "off", projector.Info().refresh_hz, fps, latency.BriefReport().c_str());
+    std::printf("1280x800 %s renderer, vsync %s (display %.0f Hz): %.1f frames/s; %s\n",
+                projector.RendererName().c_str(), vsync ? "on" : "off", projector.Info().refresh_hz,
+                fps, latency.BriefReport().c_str());
     RecordProperty(vsync ? "vsync_fps" : "no_vsync_fps", std::to_string(fps));
     EXPECT_EQ(latency.samples, 20);
     // Per sample, call-to-screen = Show()'s duration + return-to-screen, so the medians keep that

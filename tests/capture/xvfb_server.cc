@@ -1,10 +1,10 @@
 #include "tests/capture/xvfb_server.h"
 
 #include <fcntl.h>
-#include <sys/prctl.h>
 #include <poll.h>
 #include <signal.h>
 #include <spawn.h>
+#include <sys/prctl.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -22,7 +22,8 @@ namespace {
 
 // Spawns `args` with the write end of a fresh pipe as fd 3 and stdout/stderr to `log` (or
 // /dev/null), and returns what the child writes to fd 3 up to a newline (-displayfd), or throws.
-std::string SpawnWithDisplayFd(const std::vector<std::string>& args, const std::string& log, pid_t* pid) {
+std::string SpawnWithDisplayFd(const std::vector<std::string>& args, const std::string& log,
+                               pid_t* pid) {
   int fds[2];
   if (pipe2(fds, O_CLOEXEC) != 0) throw std::runtime_error("X server: pipe failed");
   std::vector<std::string> copy = args;
@@ -62,8 +63,11 @@ std::string SpawnWithDisplayFd(const std::vector<std::string>& args, const std::
   if (number.empty() || number.back() != '\n') {
     kill(*pid, SIGKILL);
     waitpid(*pid, nullptr, 0);
-    throw std::runtime_error(args[0] + ": did not start or report a display number within 15 s (is it installed? "
-                             "scripts/setup.sh installs it; log: " + log + ")");
+    throw std::runtime_error(
+        args[0] +
+        ": did not start or report a display number within 15 s (is it installed? "
+        "scripts/setup.sh installs it; log: " +
+        log + ")");
   }
   number.pop_back();
   return ":" + number;
@@ -99,28 +103,32 @@ void RunOrThrow(const std::vector<std::string>& args) {
 
 }  // namespace
 
-XorgDummyServer::XorgDummyServer(int monitor_width, int monitor_height, int projector_width, int projector_height,
-                                 bool set_display_env) {
+XorgDummyServer::XorgDummyServer(int monitor_width, int monitor_height, int projector_width,
+                                 int projector_height, bool set_display_env) {
   char tmpl[] = "/tmp/slshadow-xorg-XXXXXX";
   if (!mkdtemp(tmpl)) throw std::runtime_error("Xorg: mkdtemp failed");
   dir_ = tmpl;
   const std::string conf = dir_ + "/dummy.conf";
   const int virtual_w = monitor_width + projector_width;
   const int virtual_h = monitor_height > projector_height ? monitor_height : projector_height;
-  std::ofstream(conf) << "Section \"ServerFlags\"\n  Option \"AutoAddDevices\" \"false\"\n"
-                         "  Option \"AutoAddGPU\" \"false\"\nEndSection\n"
-                         "Section \"Device\"\n  Identifier \"dummy\"\n  Driver \"dummy\"\n  VideoRam 256000\nEndSection\n"
-                         "Section \"Monitor\"\n  Identifier \"monitor\"\n  HorizSync 5.0-1000.0\n"
-                         "  VertRefresh 5.0-200.0\nEndSection\n"
-                         "Section \"Screen\"\n  Identifier \"screen\"\n  Device \"dummy\"\n  Monitor \"monitor\"\n"
-                         "  DefaultDepth 24\n  SubSection \"Display\"\n    Depth 24\n    Virtual "
-                      << virtual_w << " " << virtual_h << "\n  EndSubSection\nEndSection\n";
-  display_ = SpawnWithDisplayFd({"Xorg", "-config", conf, "-noreset", "-nolisten", "tcp", "-logfile", dir_ + "/Xorg.log",
-                                 "-displayfd", "3"},
+  std::ofstream(conf)
+      << "Section \"ServerFlags\"\n  Option \"AutoAddDevices\" \"false\"\n"
+         "  Option \"AutoAddGPU\" \"false\"\nEndSection\n"
+         "Section \"Device\"\n  Identifier \"dummy\"\n  Driver \"dummy\"\n  VideoRam "
+         "256000\nEndSection\n"
+         "Section \"Monitor\"\n  Identifier \"monitor\"\n  HorizSync 5.0-1000.0\n"
+         "  VertRefresh 5.0-200.0\nEndSection\n"
+         "Section \"Screen\"\n  Identifier \"screen\"\n  Device \"dummy\"\n  Monitor \"monitor\"\n"
+         "  DefaultDepth 24\n  SubSection \"Display\"\n    Depth 24\n    Virtual "
+      << virtual_w << " " << virtual_h << "\n  EndSubSection\nEndSection\n";
+  display_ = SpawnWithDisplayFd({"Xorg", "-config", conf, "-noreset", "-nolisten", "tcp",
+                                 "-logfile", dir_ + "/Xorg.log", "-displayfd", "3"},
                                 dir_ + "/stderr.log", &pid_);
   try {
-    const std::string monitor = std::to_string(monitor_width) + "x" + std::to_string(monitor_height);
-    const std::string projector = std::to_string(projector_width) + "x" + std::to_string(projector_height);
+    const std::string monitor =
+        std::to_string(monitor_width) + "x" + std::to_string(monitor_height);
+    const std::string projector =
+        std::to_string(projector_width) + "x" + std::to_string(projector_height);
     RunOrThrow({"xrandr", "-d", display_, "--output", "DUMMY0", "--mode", monitor, "--pos", "0x0"});
     RunOrThrow({"xrandr", "-d", display_, "--addmode", "DUMMY1", projector});
     RunOrThrow({"xrandr", "-d", display_, "--output", "DUMMY1", "--mode", projector, "--pos",
@@ -141,10 +149,12 @@ XorgDummyServer::~XorgDummyServer() {
   std::filesystem::remove_all(dir_, ec);
 }
 
-XvfbServer::XvfbServer(int width, int height, bool set_display_env) : width_(width), height_(height) {
+XvfbServer::XvfbServer(int width, int height, bool set_display_env)
+    : width_(width), height_(height) {
   const std::string screen = std::to_string(width) + "x" + std::to_string(height) + "x24";
-  display_ = SpawnWithDisplayFd({"Xvfb", "-displayfd", "3", "-screen", "0", screen, "-nolisten", "tcp", "-nocursor"},
-                                "/dev/null", &pid_);
+  display_ = SpawnWithDisplayFd(
+      {"Xvfb", "-displayfd", "3", "-screen", "0", screen, "-nolisten", "tcp", "-nocursor"},
+      "/dev/null", &pid_);
   if (set_display_env) setenv("DISPLAY", display_.c_str(), 1);
 }
 

@@ -14,7 +14,8 @@ class XvfbServer {
  public:
   // Starts the server (throws std::runtime_error if Xvfb cannot start or does not answer within
   // 15 s). The server gets SIGTERM when the thread that started it ends (PR_SET_PDEATHSIG), so a
-  // crashed test leaves none behind; start it on the test's own thread. set_display_env: also sets $DISPLAY, which SDL reads (call before any thread uses SDL).
+  // crashed test leaves none behind; start it on the test's own thread. set_display_env: also sets
+  // $DISPLAY, which SDL reads (call before any thread uses SDL).
   XvfbServer(int width, int height, bool set_display_env = true);
   ~XvfbServer();  // SIGTERM, then waits for the process
   XvfbServer(const XvfbServer&) = delete;

@@ -40,7 +40,9 @@ PointCloud FloatPart(size_t n, unsigned seed, double noise) {
 }
 
 TEST(CloudCompare, C2CMeanAndMaxAgreeOnOneMillionPoints) {
-  if (!HaveCloudCompare()) GTEST_SKIP() << "CloudCompare not installed (apt-get install cloudcompare): cross-check skipped";
+  if (!HaveCloudCompare())
+    GTEST_SKIP()
+        << "CloudCompare not installed (apt-get install cloudcompare): cross-check skipped";
   slshadow::testing::TempDir tmp;
   const PointCloud compared = FloatPart(1000000, 71, 0.05);
   const PointCloud reference = FloatPart(1000000, 72, 0.0);
@@ -48,9 +50,10 @@ TEST(CloudCompare, C2CMeanAndMaxAgreeOnOneMillionPoints) {
   f.double_positions = false;
   WritePly(tmp / "a.ply", compared, f);
   WritePly(tmp / "b.ply", reference, f);
-  const std::string cmd = "cd '" + tmp.path().string() +
-                          "' && QT_QPA_PLATFORM=offscreen CloudCompare -SILENT -NO_TIMESTAMP -C_EXPORT_FMT PLY "
-                          "-O a.ply -O b.ply -C2C_DIST > cc.log 2>&1";
+  const std::string cmd =
+      "cd '" + tmp.path().string() +
+      "' && QT_QPA_PLATFORM=offscreen CloudCompare -SILENT -NO_TIMESTAMP -C_EXPORT_FMT PLY "
+      "-O a.ply -O b.ply -C2C_DIST > cc.log 2>&1";
   ASSERT_EQ(std::system(cmd.c_str()), 0) << "see " << (tmp / "cc.log");
   ASSERT_TRUE(fs::exists(tmp / "a_C2C_DIST.ply"));
   const PointCloud cc = ReadPly(tmp / "a_C2C_DIST.ply");

@@ -4,8 +4,8 @@
 #include <cmath>
 #include <random>
 
-#include <limits>
 #include <gtest/gtest.h>
+#include <limits>
 
 #include "core/config.h"
 #include "core/error.h"
@@ -19,7 +19,8 @@ using testing::IcoSphere;
 
 // Points on the upper half (z > 0) of a tessellated sphere, moved `offset` mm along their
 // triangle's outward normal: their exact signed distance to the mesh is `offset`.
-PointCloud OffsetUpperHalf(const TriangleMesh& mesh, double offset, unsigned seed, size_t per_triangle) {
+PointCloud OffsetUpperHalf(const TriangleMesh& mesh, double offset, unsigned seed,
+                           size_t per_triangle) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> u(0.0, 1.0);
   PointCloud c;
@@ -78,9 +79,11 @@ TEST(Compare, CloudReferenceUsesC2CAndIcpUndoesAMisalignment) {
   const Reference ref = ReferenceFromCloud(dense.cloud, "part samples");
   const Reference other = ReferenceFromMesh(part, "part", 60000);
   PointCloud cloud;
-  const Rigid3d cloud_from_ref(Eigen::Quaterniond(Eigen::AngleAxisd(0.05, Eigen::Vector3d(0, 0.6, 0.8))),
-                               Eigen::Vector3d(0.8, -0.5, 0.3));
-  for (size_t i = 0; i < other.cloud.size(); i += 2) cloud.points.push_back(cloud_from_ref * other.cloud.points[i]);
+  const Rigid3d cloud_from_ref(
+      Eigen::Quaterniond(Eigen::AngleAxisd(0.05, Eigen::Vector3d(0, 0.6, 0.8))),
+      Eigen::Vector3d(0.8, -0.5, 0.3));
+  for (size_t i = 0; i < other.cloud.size(); i += 2)
+    cloud.points.push_back(cloud_from_ref * other.cloud.points[i]);
   CompareOptions o;
   o.registration.method = RegistrationMethod::kIcp;
   const CompareResult r = Compare(cloud, ref, o, "moved samples");
@@ -132,9 +135,10 @@ TEST(Compare, SharedHierarchyAndMovedCloudChangeNothing) {
     for (size_t t = 0; t < mesh.triangles.size(); ++t) {
       const auto& f = mesh.triangles[t];
       int feature = 0;
-      const Eigen::Vector3d q = ClosestPointOnTriangle(cloud.points[i], mesh.vertices[static_cast<size_t>(f[0])],
-                                                       mesh.vertices[static_cast<size_t>(f[1])],
-                                                       mesh.vertices[static_cast<size_t>(f[2])], &feature);
+      const Eigen::Vector3d q =
+          ClosestPointOnTriangle(cloud.points[i], mesh.vertices[static_cast<size_t>(f[0])],
+                                 mesh.vertices[static_cast<size_t>(f[1])],
+                                 mesh.vertices[static_cast<size_t>(f[2])], &feature);
       best = std::min(best, (cloud.points[i] - q).squaredNorm());
     }
     EXPECT_EQ(std::abs(a.deviations_mm[i]), std::sqrt(best));
@@ -156,7 +160,6 @@ TEST(LoadReference, ReadsMeshesAndClouds) {
   EXPECT_EQ(rc.cloud.size(), mesh.vertices.size());
   EXPECT_THROW(LoadReference(tmp / "m.xyz"), Error);
 }
-
 
 // Options as files: every field (nested registration, c2c, M3C2, artefacts, VDI/VDE 2634) written
 // is read back from JSON and YAML; unknown keys at any level and bad values are refused.
@@ -186,7 +189,8 @@ TEST(CompareOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
   o.m3c2_options.min_points = 5;
   ArtefactSpec artefacts;
   artefacts.search_margin_mm = 3;
-  artefacts.spheres = {{"s1", Eigen::Vector3d(1, 2, 3), 25.0}, {"s2", Eigen::Vector3d(101, 2, 3), 25.0}};
+  artefacts.spheres = {{"s1", Eigen::Vector3d(1, 2, 3), 25.0},
+                       {"s2", Eigen::Vector3d(101, 2, 3), 25.0}};
   artefacts.pairs = {{"bar", "s1", "s2", 100.0}};
   artefacts.planes = {{"flat", Eigen::Vector3d(0, 0, 10), Eigen::Vector3d(0, 0, 1), 40.0}};
   o.artefacts = artefacts;
@@ -195,7 +199,8 @@ TEST(CompareOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
   o.vdi2634.min_points = 20;
   o.vdi2634.seed = 9;
   const nlohmann::json j = CompareOptionsToJson(o);
-  for (const ConfigNode& node : {ConfigNode::FromJson(j, "c.json"), ConfigNode::ParseYaml(JsonToYaml(j), "c.yaml")}) {
+  for (const ConfigNode& node :
+       {ConfigNode::FromJson(j, "c.json"), ConfigNode::ParseYaml(JsonToYaml(j), "c.yaml")}) {
     const CompareOptions r = CompareOptionsFromConfig(node);
     EXPECT_EQ(r.registration.method, RegistrationMethod::kIcp);
     EXPECT_EQ(r.registration.seed, 42u);
@@ -211,7 +216,8 @@ TEST(CompareOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
   }
   // Defaults (no registration, no artefacts) survive an empty file and a written default.
   const CompareOptions defaults;
-  EXPECT_EQ(CompareOptionsToJson(CompareOptionsFromConfig(ConfigNode::FromJson(nlohmann::json::object(), "c.json"))),
+  EXPECT_EQ(CompareOptionsToJson(
+                CompareOptionsFromConfig(ConfigNode::FromJson(nlohmann::json::object(), "c.json"))),
             CompareOptionsToJson(defaults));
   const CompareOptions read_defaults =
       CompareOptionsFromConfig(ConfigNode::FromJson(CompareOptionsToJson(defaults), "c.json"));

@@ -111,7 +111,8 @@ TEST(CloudToMesh, SignedDistancesToABox) {
   const Eigen::Vector3d h(3.0, 2.0, 1.0);
   const auto pts = RandomPoints(5000, 4.0, 16);
   const C2MResult r = CloudToMesh(pts, BoxMesh(h));
-  for (size_t i = 0; i < pts.size(); ++i) EXPECT_NEAR(r.signed_distances_mm[i], BoxSdf(pts[i], h), 1e-12);
+  for (size_t i = 0; i < pts.size(); ++i)
+    EXPECT_NEAR(r.signed_distances_mm[i], BoxSdf(pts[i], h), 1e-12);
 }
 
 // Two noisy samples of the plane z = shift: cloud 1 at z ~ N(0, s1), cloud 2 at z ~ N(shift, s2).
@@ -173,7 +174,8 @@ TEST(M3C2, DetectsAShiftAndAddsTheRegistrationError) {
   EXPECT_EQ(r.num_significant, r.num_valid);
   o.registration_error_mm = 0.2;
   const M3C2Result r2 = M3C2(p.cores, p.normals, t1, t2, o);
-  for (size_t i = 0; i < r.lod95_mm.size(); ++i) EXPECT_NEAR(r2.lod95_mm[i] - r.lod95_mm[i], 1.96 * 0.2, 1e-12);
+  for (size_t i = 0; i < r.lod95_mm.size(); ++i)
+    EXPECT_NEAR(r2.lod95_mm[i] - r.lod95_mm[i], 1.96 * 0.2, 1e-12);
   EXPECT_EQ(r2.num_significant, 0u);  // 0.1 mm shift < LoD95 > 0.39 mm
 }
 

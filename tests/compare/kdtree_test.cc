@@ -56,9 +56,11 @@ TEST(KdTree, KNearestAndRadiusEqualBruteForce) {
     std::sort(sorted.begin(), sorted.end());
     tree.KNearest(q, 7, &nn);
     ASSERT_EQ(nn.size(), 7u);
-    for (int i = 0; i < 7; ++i) EXPECT_EQ(nn[static_cast<size_t>(i)].distance_sq, sorted[static_cast<size_t>(i)]);
+    for (int i = 0; i < 7; ++i)
+      EXPECT_EQ(nn[static_cast<size_t>(i)].distance_sq, sorted[static_cast<size_t>(i)]);
     tree.Radius(q, 1.1, &nn, /*sorted=*/true);
-    const auto expected = std::count_if(d2.begin(), d2.end(), [](double v) { return v <= 1.1 * 1.1; });
+    const auto expected =
+        std::count_if(d2.begin(), d2.end(), [](double v) { return v <= 1.1 * 1.1; });
     EXPECT_EQ(static_cast<long>(nn.size()), expected);
     for (size_t i = 1; i < nn.size(); ++i) EXPECT_LE(nn[i - 1].distance_sq, nn[i].distance_sq);
   }
@@ -70,7 +72,8 @@ TEST(KdTree, KNearestAndRadiusEqualBruteForce) {
 TEST(KdTree, SameTreeWhateverTheThreadCount) {
   std::vector<Eigen::Vector3d> ref;
   for (int i = 0; i < 300; ++i)
-    for (int j = 0; j < 300; ++j) ref.emplace_back(0.25 * i, 0.25 * j, 0.01 * ((i * 7 + j * 3) % 5));
+    for (int j = 0; j < 300; ++j)
+      ref.emplace_back(0.25 * i, 0.25 * j, 0.01 * ((i * 7 + j * 3) % 5));
   const auto qs = RandomPoints(3000, 80.0, 7);
   const auto run = [&](int threads) {
     std::vector<std::vector<Neighbor>> out;

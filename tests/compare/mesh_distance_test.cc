@@ -66,9 +66,9 @@ TEST(MeshDistance, EqualsBruteForceOverAllTriangles) {
     double best = std::numeric_limits<double>::infinity();
     for (const auto& f : mesh.triangles) {
       int feature = 0;
-      const Eigen::Vector3d q =
-          ClosestPointOnTriangle(p, mesh.vertices[static_cast<size_t>(f[0])], mesh.vertices[static_cast<size_t>(f[1])],
-                                 mesh.vertices[static_cast<size_t>(f[2])], &feature);
+      const Eigen::Vector3d q = ClosestPointOnTriangle(
+          p, mesh.vertices[static_cast<size_t>(f[0])], mesh.vertices[static_cast<size_t>(f[1])],
+          mesh.vertices[static_cast<size_t>(f[2])], &feature);
       best = std::min(best, (p - q).norm());
     }
     EXPECT_EQ(std::abs(md.Closest(p).signed_distance_mm), best);
@@ -88,7 +88,8 @@ TEST(MeshDistance, WarmStartedQueriesEqualColdOnes) {
     const MeshHit cold = md.Closest(p);
     for (const uint32_t hint : {previous, tri(rng), std::numeric_limits<uint32_t>::max()}) {
       const MeshHit warm = md.Closest(p, hint);
-      ASSERT_EQ(warm.signed_distance_mm, cold.signed_distance_mm) << p.transpose() << " hint " << hint;
+      ASSERT_EQ(warm.signed_distance_mm, cold.signed_distance_mm)
+          << p.transpose() << " hint " << hint;
     }
     previous = cold.triangle;
   }
@@ -106,9 +107,9 @@ Brute BruteForce(const TriangleMesh& mesh, const Eigen::Vector3d& p) {
   for (size_t t = 0; t < mesh.triangles.size(); ++t) {
     const auto& f = mesh.triangles[t];
     int feature = 0;
-    const Eigen::Vector3d q =
-        ClosestPointOnTriangle(p, mesh.vertices[static_cast<size_t>(f[0])], mesh.vertices[static_cast<size_t>(f[1])],
-                               mesh.vertices[static_cast<size_t>(f[2])], &feature);
+    const Eigen::Vector3d q = ClosestPointOnTriangle(
+        p, mesh.vertices[static_cast<size_t>(f[0])], mesh.vertices[static_cast<size_t>(f[1])],
+        mesh.vertices[static_cast<size_t>(f[2])], &feature);
     const double d2 = (p - q).squaredNorm();
     if (d2 < b.d2) b = {d2, static_cast<uint32_t>(t), q};
   }
@@ -125,7 +126,8 @@ double WindingNumber(const TriangleMesh& mesh, const Eigen::Vector3d& p) {
     const Eigen::Vector3d b = mesh.vertices[static_cast<size_t>(f[1])] - p;
     const Eigen::Vector3d c = mesh.vertices[static_cast<size_t>(f[2])] - p;
     const double la = a.norm(), lb = b.norm(), lc = c.norm();
-    sum += 2 * std::atan2(a.dot(b.cross(c)), la * lb * lc + a.dot(b) * lc + b.dot(c) * la + c.dot(a) * lb);
+    sum += 2 * std::atan2(a.dot(b.cross(c)),
+                          la * lb * lc + a.dot(b) * lc + b.dot(c) * la + c.dot(a) * lb);
   }
   return sum / (4 * M_PI);
 }
@@ -133,7 +135,8 @@ double WindingNumber(const TriangleMesh& mesh, const Eigen::Vector3d& p) {
 // Query points for a mesh: random ones around it, and points exactly on its vertices, on its
 // edges and inside its faces (closest feature: vertex / edge / face, distance 0 or tiny), and
 // small offsets from them along random directions.
-std::vector<Eigen::Vector3d> QueryPoints(const TriangleMesh& mesh, size_t n_random, double extent, unsigned seed) {
+std::vector<Eigen::Vector3d> QueryPoints(const TriangleMesh& mesh, size_t n_random, double extent,
+                                         unsigned seed) {
   std::vector<Eigen::Vector3d> pts = RandomPoints(n_random, extent, seed);
   std::mt19937 rng(seed + 1);
   std::uniform_real_distribution<double> u(0.0, 1.0);
@@ -144,7 +147,8 @@ std::vector<Eigen::Vector3d> QueryPoints(const TriangleMesh& mesh, size_t n_rand
     const Eigen::Vector3d& b = mesh.vertices[static_cast<size_t>(f[1])];
     const Eigen::Vector3d& c = mesh.vertices[static_cast<size_t>(f[2])];
     const double s = u(rng), r = u(rng) * (1 - s);
-    for (const Eigen::Vector3d& q : {a, Eigen::Vector3d(a + s * (b - a)), Eigen::Vector3d(a + s * (b - a) + r * (c - a))}) {
+    for (const Eigen::Vector3d& q :
+         {a, Eigen::Vector3d(a + s * (b - a)), Eigen::Vector3d(a + s * (b - a) + r * (c - a))}) {
       pts.push_back(q);
       pts.push_back(q + Eigen::Vector3d(g(rng), g(rng), g(rng)));
     }
@@ -174,7 +178,8 @@ TEST(MeshDistance, EqualsBruteForceWithTiesOnVerticesEdgesAndFaces) {
       ASSERT_EQ(hit.closest, b.closest);
       if (std::abs(hit.signed_distance_mm) > 1e-6) {
         const bool inside = WindingNumber(mesh, p) > 0.5;
-        EXPECT_EQ(hit.signed_distance_mm < 0, inside) << p.transpose() << " d " << hit.signed_distance_mm;
+        EXPECT_EQ(hit.signed_distance_mm < 0, inside)
+            << p.transpose() << " d " << hit.signed_distance_mm;
       }
     }
   }
@@ -189,7 +194,8 @@ TEST(MeshDistance, RandomTriangleSoupEqualsBruteForce) {
   for (int t = 0; t < 300; ++t) {
     const Eigen::Vector3d c(u(rng), u(rng), u(rng));
     const int base = static_cast<int>(mesh.vertices.size());
-    for (int k = 0; k < 3; ++k) mesh.vertices.push_back(c + Eigen::Vector3d(g(rng), g(rng), g(rng)));
+    for (int k = 0; k < 3; ++k)
+      mesh.vertices.push_back(c + Eigen::Vector3d(g(rng), g(rng), g(rng)));
     if (t % 50 == 0) mesh.vertices.back() = mesh.vertices[static_cast<size_t>(base)];  // degenerate
     mesh.triangles.emplace_back(base, base + 1, base + 2);
   }
@@ -212,14 +218,16 @@ TEST(CloudToMesh, BitIdenticalRunToRunAndEqualToSerialColdQueries) {
   std::vector<Eigen::Vector3d> cloud;
   std::normal_distribution<double> noise(0.0, 0.05);
   for (const auto& v : mesh.vertices) {
-    for (int k = 0; k < 20; ++k) cloud.push_back(v * (1.0 + noise(rng) / 20.0) + Eigen::Vector3d(noise(rng), noise(rng), 0));
+    for (int k = 0; k < 20; ++k)
+      cloud.push_back(v * (1.0 + noise(rng) / 20.0) + Eigen::Vector3d(noise(rng), noise(rng), 0));
   }
   std::uniform_real_distribution<double> u(-60.0, 60.0);
   for (int k = 0; k < 100000; ++k) cloud.emplace_back(u(rng), u(rng), -25.0);
   const C2MResult a = CloudToMesh(cloud, mesh);
   const C2MResult b = CloudToMesh(cloud, mesh);
   ASSERT_EQ(a.signed_distances_mm.size(), cloud.size());
-  EXPECT_EQ(0, std::memcmp(a.signed_distances_mm.data(), b.signed_distances_mm.data(), cloud.size() * sizeof(double)));
+  EXPECT_EQ(0, std::memcmp(a.signed_distances_mm.data(), b.signed_distances_mm.data(),
+                           cloud.size() * sizeof(double)));
   EXPECT_EQ(a.triangles, b.triangles);
   const MeshDistance md(mesh);
   for (size_t i = 0; i < cloud.size(); i += 7) {

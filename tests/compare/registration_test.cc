@@ -32,14 +32,16 @@ std::vector<Eigen::Vector3d> MovedNoisySample(const Rigid3d& cloud_from_referenc
   auto pts = SamplePart(n, kSize, 32);
   std::mt19937 rng(33);
   std::normal_distribution<double> noise(0.0, 0.001 * kSize);
-  for (auto& p : pts) p = cloud_from_reference * (p + Eigen::Vector3d(noise(rng), noise(rng), noise(rng)));
+  for (auto& p : pts)
+    p = cloud_from_reference * (p + Eigen::Vector3d(noise(rng), noise(rng), noise(rng)));
   return pts;
 }
 
 TEST(Register, GlobalPlusIcpRecoversALargeMotionAt200kPoints) {
   const auto reference = SamplePart(200000, kSize, 31);
   const Rigid3d cloud_from_reference(
-      Eigen::Quaterniond(Eigen::AngleAxisd(20.0 * M_PI / 180.0, Eigen::Vector3d(1, 2, 3).normalized())),
+      Eigen::Quaterniond(
+          Eigen::AngleAxisd(20.0 * M_PI / 180.0, Eigen::Vector3d(1, 2, 3).normalized())),
       Eigen::Vector3d(0.1 * kSize * 0.6, -0.1 * kSize * 0.64, 0.1 * kSize * 0.48));  // |t| = 10 mm
   const auto cloud = MovedNoisySample(cloud_from_reference, 200000);
   RegistrationOptions o;
@@ -60,7 +62,8 @@ TEST(Register, GlobalPlusIcpRecoversALargeMotionAt200kPoints) {
 TEST(Register, IcpRefinesASmallMisalignment) {
   const auto reference = SamplePart(50000, kSize, 34);
   const Rigid3d cloud_from_reference(
-      Eigen::Quaterniond(Eigen::AngleAxisd(3.0 * M_PI / 180.0, Eigen::Vector3d(0.3, -1, 0.2).normalized())),
+      Eigen::Quaterniond(
+          Eigen::AngleAxisd(3.0 * M_PI / 180.0, Eigen::Vector3d(0.3, -1, 0.2).normalized())),
       Eigen::Vector3d(1.5, 1.0, -0.5));
   const auto cloud = MovedNoisySample(cloud_from_reference, 50000);
   RegistrationOptions o;

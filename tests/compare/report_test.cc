@@ -38,14 +38,15 @@ TEST(WriteReport, WritesEveryFileAndTheJsonSchema) {
   slshadow::testing::TempDir tmp;
   const CompareResult r = SmallResult();
   WriteReport(tmp / "report", r);
-  for (const char* f : {"report.json", "compared.ply", "histogram.png", "deviation_map.png", "summary.txt"}) {
+  for (const char* f :
+       {"report.json", "compared.ply", "histogram.png", "deviation_map.png", "summary.txt"}) {
     EXPECT_TRUE(std::filesystem::exists(tmp / "report" / f)) << f;
   }
   EXPECT_TRUE(IsPng(tmp / "report" / "histogram.png"));
   EXPECT_TRUE(IsPng(tmp / "report" / "deviation_map.png"));
   const auto j = nlohmann::json::parse(ReadTextFile(tmp / "report" / "report.json"));
-  for (const char* k : {"count", "mean_mm", "std_mm", "rms_mm", "median_mm", "p95_mm", "max_mm", "threshold_mm",
-                        "inliers", "outliers", "coverage"}) {
+  for (const char* k : {"count", "mean_mm", "std_mm", "rms_mm", "median_mm", "p95_mm", "max_mm",
+                        "threshold_mm", "inliers", "outliers", "coverage"}) {
     EXPECT_TRUE(j["c2c"].contains(k)) << k;
   }
   EXPECT_EQ(j["c2c"]["count"].get<size_t>(), r.c2c.count);

@@ -44,7 +44,8 @@ TEST(ComputeStats, MatchesTheDefinitionsOnRandomData) {
   EXPECT_EQ(s.p95_mm, a[9499]);
   EXPECT_EQ(s.max_mm, a.back());
   EXPECT_NEAR(s.signed_mean_mm, ssum / n, 1e-12);
-  const auto inl = static_cast<size_t>(std::count_if(a.begin(), a.end(), [](double v) { return v <= 0.25; }));
+  const auto inl =
+      static_cast<size_t>(std::count_if(a.begin(), a.end(), [](double v) { return v <= 0.25; }));
   EXPECT_EQ(s.inliers, inl);
   EXPECT_EQ(s.outliers, 10000u - inl);
   size_t total = s.histogram.underflow + s.histogram.overflow;
@@ -88,13 +89,15 @@ TEST(ComputeStats, PercentilesEqualTheSortedNearestRanks) {
     std::vector<double> sorted = d;
     std::sort(sorted.begin(), sorted.end());
     const auto rank = [&](double p) {
-      return sorted[static_cast<size_t>(std::clamp(std::ceil(p / 100.0 * static_cast<double>(n)), 1.0,
-                                                   static_cast<double>(n))) - 1];
+      return sorted[static_cast<size_t>(std::clamp(std::ceil(p / 100.0 * static_cast<double>(n)),
+                                                   1.0, static_cast<double>(n))) -
+                    1];
     };
     EXPECT_EQ(s.median_mm, rank(50)) << n;
     EXPECT_EQ(s.p95_mm, rank(95)) << n;
     EXPECT_EQ(s.max_mm, sorted.back()) << n;
-    EXPECT_EQ(s.histogram.hi_mm, std::max(rank(99), 1e-6)) << n;  // scaled to the data, not to the threshold
+    EXPECT_EQ(s.histogram.hi_mm, std::max(rank(99), 1e-6))
+        << n;  // scaled to the data, not to the threshold
     const DistanceStats fixed = ComputeStats(d, false, 0.1, 60, 0.25);
     EXPECT_EQ(fixed.histogram.hi_mm, 0.25) << n;
     size_t binned = fixed.histogram.overflow;
@@ -178,7 +181,8 @@ TEST(MedianSpacing, GridEqualsTree) {
   for (const auto& c : clouds) {
     const KdTree tree(c);
     for (const size_t samples : {size_t{20000}, size_t{100}}) {
-      EXPECT_EQ(MedianSpacing(c, samples), MedianSpacing(tree, samples)) << c.size() << " " << samples;
+      EXPECT_EQ(MedianSpacing(c, samples), MedianSpacing(tree, samples))
+          << c.size() << " " << samples;
     }
   }
 }

@@ -18,10 +18,12 @@ namespace slshadow::compare::testing {
 inline TriangleMesh BoxMesh(const Eigen::Vector3d& h) {
   TriangleMesh m;
   for (int i = 0; i < 8; ++i) {
-    m.vertices.emplace_back((i & 1) ? h.x() : -h.x(), (i & 2) ? h.y() : -h.y(), (i & 4) ? h.z() : -h.z());
+    m.vertices.emplace_back((i & 1) ? h.x() : -h.x(), (i & 2) ? h.y() : -h.y(),
+                            (i & 4) ? h.z() : -h.z());
   }
   // Quads as (v0, v1, v2, v3) counter-clockwise seen from outside.
-  const int quads[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
+  const int quads[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4},
+                           {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
   for (const auto& q : quads) {
     m.triangles.emplace_back(q[0], q[1], q[2]);
     m.triangles.emplace_back(q[0], q[2], q[3]);
@@ -39,11 +41,12 @@ inline double BoxSdf(const Eigen::Vector3d& p, const Eigen::Vector3d& h) {
 inline TriangleMesh IcoSphere(double radius, int subdivisions) {
   const double t = (1.0 + std::sqrt(5.0)) / 2.0;
   TriangleMesh m;
-  m.vertices = {{-1, t, 0}, {1, t, 0}, {-1, -t, 0}, {1, -t, 0}, {0, -1, t}, {0, 1, t},
-                {0, -1, -t}, {0, 1, -t}, {t, 0, -1}, {t, 0, 1}, {-t, 0, -1}, {-t, 0, 1}};
-  m.triangles = {{0, 11, 5}, {0, 5, 1}, {0, 1, 7}, {0, 7, 10}, {0, 10, 11}, {1, 5, 9}, {5, 11, 4},
-                 {11, 10, 2}, {10, 7, 6}, {7, 1, 8}, {3, 9, 4}, {3, 4, 2}, {3, 2, 6}, {3, 6, 8},
-                 {3, 8, 9}, {4, 9, 5}, {2, 4, 11}, {6, 2, 10}, {8, 6, 7}, {9, 8, 1}};
+  m.vertices = {{-1, t, 0},  {1, t, 0},  {-1, -t, 0}, {1, -t, 0}, {0, -1, t},  {0, 1, t},
+                {0, -1, -t}, {0, 1, -t}, {t, 0, -1},  {t, 0, 1},  {-t, 0, -1}, {-t, 0, 1}};
+  m.triangles = {{0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11},
+                 {1, 5, 9},  {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
+                 {3, 9, 4},  {3, 4, 2},  {3, 2, 6},   {3, 6, 8},  {3, 8, 9},
+                 {4, 9, 5},  {2, 4, 11}, {6, 2, 10},  {8, 6, 7},  {9, 8, 1}};
   for (auto& v : m.vertices) v.normalize();
   for (int s = 0; s < subdivisions; ++s) {
     std::vector<Eigen::Vector3i> next;
@@ -55,7 +58,9 @@ inline TriangleMesh IcoSphere(double radius, int subdivisions) {
         const auto key = std::minmax(i, j);
         auto it = midpoint.find(key);
         if (it == midpoint.end()) {
-          m.vertices.push_back((m.vertices[static_cast<size_t>(i)] + m.vertices[static_cast<size_t>(j)]).normalized());
+          m.vertices.push_back(
+              (m.vertices[static_cast<size_t>(i)] + m.vertices[static_cast<size_t>(j)])
+                  .normalized());
           it = midpoint.emplace(key, static_cast<int>(m.vertices.size()) - 1).first;
         }
         mid[k] = it->second;
@@ -72,8 +77,8 @@ inline TriangleMesh IcoSphere(double radius, int subdivisions) {
 }
 
 // A "part" with enough shape for registration: a height field over [-s/2, s/2]^2
-// z = s * (0.08 sin(3x/s * pi) cos(2y/s * pi) + 0.15 (x/s)^2 - 0.1 x y / s^2 + 0.05 exp(-((x-0.2s)^2 + y^2)/(0.02 s^2))),
-// sampled at n uniformly random (x, y).
+// z = s * (0.08 sin(3x/s * pi) cos(2y/s * pi) + 0.15 (x/s)^2 - 0.1 x y / s^2 + 0.05
+// exp(-((x-0.2s)^2 + y^2)/(0.02 s^2))), sampled at n uniformly random (x, y).
 inline double PartHeight(double x, double y, double s) {
   const double u = x / s, v = y / s;
   return s * (0.08 * std::sin(3 * M_PI * u) * std::cos(2 * M_PI * v) + 0.15 * u * u - 0.1 * u * v +

@@ -123,21 +123,24 @@ TEST(Vdi2634, MissingArtefactIsReportedNotThrown) {
 
 TEST(LoadArtefactSpec, ReadsYamlAndNamesBadFields) {
   slshadow::testing::TempDir tmp;
-  std::ofstream(tmp / "a.yaml") << "spheres:\n"
-                                   "  - {name: s1, center_mm: [-60, 0, 500], diameter_mm: 25.4}\n"
-                                   "  - {name: s2, center_mm: [60, 0, 500], diameter_mm: 25.4}\n"
-                                   "sphere_pairs:\n  - {name: bar, spheres: [s1, s2], distance_mm: 120}\n"
-                                   "planes:\n  - {name: flat, point_mm: [0, 0, 545], normal: [0, 0, -1], half_size_mm: 35}\n";
+  std::ofstream(tmp / "a.yaml")
+      << "spheres:\n"
+         "  - {name: s1, center_mm: [-60, 0, 500], diameter_mm: 25.4}\n"
+         "  - {name: s2, center_mm: [60, 0, 500], diameter_mm: 25.4}\n"
+         "sphere_pairs:\n  - {name: bar, spheres: [s1, s2], distance_mm: 120}\n"
+         "planes:\n  - {name: flat, point_mm: [0, 0, 545], normal: [0, 0, -1], half_size_mm: 35}\n";
   const ArtefactSpec s = LoadArtefactSpec(tmp / "a.yaml");
   EXPECT_EQ(s.spheres.size(), 2u);
   EXPECT_EQ(s.pairs[0].sphere_b, "s2");
   EXPECT_EQ(s.planes[0].nominal_normal, Eigen::Vector3d(0, 0, -1));
-  std::ofstream(tmp / "b.yaml") << "sphere_pairs:\n  - {name: bar, spheres: [s1, s9], distance_mm: 120}\n";
+  std::ofstream(tmp / "b.yaml")
+      << "sphere_pairs:\n  - {name: bar, spheres: [s1, s9], distance_mm: 120}\n";
   try {
     LoadArtefactSpec(tmp / "b.yaml");
     FAIL();
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("sphere_pairs[0].spheres: unknown sphere"), std::string::npos)
+    EXPECT_NE(std::string(e.what()).find("sphere_pairs[0].spheres: unknown sphere"),
+              std::string::npos)
         << e.what();
   }
 }

@@ -16,7 +16,8 @@ CameraModel MildDistortion() {
 }
 // Strong barrel distortion of a short lens (as from cv::calibrateCamera on a 4 mm lens).
 CameraModel StrongDistortion() {
-  return CameraModel(640, 480, 535.9, 535.9, 342.3, 235.6, -0.26637, -0.03859, 0.0017832, -0.00028122, 0.23839);
+  return CameraModel(640, 480, 535.9, 535.9, 342.3, 235.6, -0.26637, -0.03859, 0.0017832,
+                     -0.00028122, 0.23839);
 }
 
 void ExpectRoundTripOverImage(const CameraModel& model, double tolerance_px) {
@@ -34,9 +35,10 @@ void ExpectRoundTripOverImage(const CameraModel& model, double tolerance_px) {
     }
   }
   // The four extreme corners too.
-  for (const Eigen::Vector2d& corner : {Eigen::Vector2d(-0.5, -0.5), Eigen::Vector2d(model.width - 0.5, -0.5),
-                                       Eigen::Vector2d(-0.5, model.height - 0.5),
-                                       Eigen::Vector2d(model.width - 0.5, model.height - 0.5)}) {
+  for (const Eigen::Vector2d& corner :
+       {Eigen::Vector2d(-0.5, -0.5), Eigen::Vector2d(model.width - 0.5, -0.5),
+        Eigen::Vector2d(-0.5, model.height - 0.5),
+        Eigen::Vector2d(model.width - 0.5, model.height - 0.5)}) {
     const auto ray = model.Unproject(corner);
     ASSERT_TRUE(ray.has_value());
     EXPECT_NEAR((*model.Project(*ray) - corner).norm(), 0.0, tolerance_px);
@@ -47,7 +49,9 @@ void ExpectRoundTripOverImage(const CameraModel& model, double tolerance_px) {
 
 TEST(CameraModel, RoundTripWithoutDistortion) { ExpectRoundTripOverImage(NoDistortion(), 1e-9); }
 TEST(CameraModel, RoundTripWithMildDistortion) { ExpectRoundTripOverImage(MildDistortion(), 1e-9); }
-TEST(CameraModel, RoundTripWithStrongDistortion) { ExpectRoundTripOverImage(StrongDistortion(), 1e-9); }
+TEST(CameraModel, RoundTripWithStrongDistortion) {
+  ExpectRoundTripOverImage(StrongDistortion(), 1e-9);
+}
 
 TEST(CameraModel, ProjectAgreesWithOpenCv) {
   std::mt19937 rng(7);
@@ -108,7 +112,8 @@ TEST(CameraModel, CheckRejectsBadParameters) {
     m.Check("rig.yaml: cameras[0]");
     FAIL() << "expected an error";
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("rig.yaml: cameras[0]: k2"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("rig.yaml: cameras[0]: k2"), std::string::npos)
+        << e.what();
   }
   m = MildDistortion();
   m.width = 0;

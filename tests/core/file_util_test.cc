@@ -39,8 +39,7 @@ TEST(StagingDirectory, CommitsWholeOrLeavesNothing) {
     abandoned = staged.path();
     WriteTextFileAtomically(staged.path() / "a.txt", "second");
     throw std::runtime_error("an error midway");
-  } catch (const std::runtime_error&) {
-  }
+  } catch (const std::runtime_error&) {}
   EXPECT_FALSE(fs::exists(abandoned));
   EXPECT_EQ(Read(target / "a.txt"), "first");
   {

@@ -20,13 +20,16 @@ Rig SmallRig() {
   Rig rig;
   rig.name = "small";
   rig.cameras.push_back({"left", CameraModel(64, 48, 60, 60, 31.5, 23.5, -0.1), Rigid3d()});
-  rig.cameras.push_back({"right", CameraModel(64, 48, 61, 61, 32, 24),
-                         Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitY())), {-100, 0, 10})});
+  rig.cameras.push_back(
+      {"right", CameraModel(64, 48, 61, 61, 32, 24),
+       Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitY())),
+               {-100, 0, 10})});
   rig.projector = RigDevice{"projector", CameraModel(32, 20, 30, 30, 16, 10), Rigid3d()};
   return rig;
 }
 
-const nlohmann::json kSpec = {{"kind", "gray_code"}, {"projector_width", 32}, {"projector_height", 20}};
+const nlohmann::json kSpec = {
+    {"kind", "gray_code"}, {"projector_width", 32}, {"projector_height", 20}};
 constexpr int kPatterns = 7;
 
 // The k-th record of a capture, taken in sequencer order (pattern-major, cameras in rig order),
@@ -61,7 +64,8 @@ void ExpectSameSet(const fs::path& a, const fs::path& b) {
   ASSERT_EQ(sa.records().size(), sb.records().size());
   for (size_t i = 0; i < sa.records().size(); ++i) {
     EXPECT_EQ(sa.records()[i], sb.records()[i]) << "record " << i;
-    EXPECT_EQ(Bytes(a / sa.records()[i].file), Bytes(b / sb.records()[i].file)) << sa.records()[i].file;
+    EXPECT_EQ(Bytes(a / sa.records()[i].file), Bytes(b / sb.records()[i].file))
+        << sa.records()[i].file;
   }
   EXPECT_EQ(sa.extra(), sb.extra());
   // Only the manifest remains: no journal, no staging header, no temporary images.
@@ -79,7 +83,8 @@ void CaptureAll(const fs::path& out) {
 
 // Continues a staged capture as the sequencer does: every (camera, pattern) not finished.
 void Resume(const fs::path& out, int* taken = nullptr) {
-  ResumableImageSetWriter w(out, SmallRig(), kSpec, {.encoding = ImageEncoding::kPng, .resume = true});
+  ResumableImageSetWriter w(out, SmallRig(), kSpec,
+                            {.encoding = ImageEncoding::kPng, .resume = true});
   EXPECT_TRUE(w.resumed());
   int n = 0;
   for (int k = 0; k < kShots; ++k) {
@@ -108,7 +113,8 @@ TEST(ResumableImageSetWriter, UninterruptedCaptureReadsBackWithProvenance) {
     EXPECT_EQ(r->device_timestamp_ns, s.record.device_timestamp_ns);
     EXPECT_EQ(r->retries, s.record.retries);
     EXPECT_EQ(r->timestamp, s.record.timestamp);
-    EXPECT_EQ(cv::norm(set.Load(s.record.camera, s.record.pattern_index), s.image, cv::NORM_INF), 0.0);
+    EXPECT_EQ(cv::norm(set.Load(s.record.camera, s.record.pattern_index), s.image, cv::NORM_INF),
+              0.0);
   }
 }
 
@@ -150,14 +156,16 @@ TEST(ResumableImageSetWriter, TornJournalLineAndUnjournaledImageAreTakenAgain) {
     std::snprintf(name, sizeof(name), "%04d", next.record.pattern_index);
     const std::string file = next.record.camera + "/" + name + ".png";
     WriteGrayImage(staging / file, cv::Mat(48, 64, CV_8UC1, cv::Scalar(7)));
-    WriteGrayImage(staging / (next.record.camera + "/." + name + ".tmp.png"), cv::Mat(48, 64, CV_8UC1, cv::Scalar(9)));
+    WriteGrayImage(staging / (next.record.camera + "/." + name + ".tmp.png"),
+                   cv::Mat(48, 64, CV_8UC1, cv::Scalar(9)));
     {
       std::ofstream journal(staging / "journal.jsonl", std::ios::app);
-      journal << R"({"type":"image","camera":")" << next.record.camera << R"(","pattern":)" << next.record.pattern_index
-              << R"(,"file":")" << file << R"(","bit_de)";
+      journal << R"({"type":"image","camera":")" << next.record.camera << R"(","pattern":)"
+              << next.record.pattern_index << R"(,"file":")" << file << R"(","bit_de)";
     }
     {
-      ResumableImageSetWriter w(out, SmallRig(), kSpec, {.encoding = ImageEncoding::kPng, .resume = true});
+      ResumableImageSetWriter w(out, SmallRig(), kSpec,
+                                {.encoding = ImageEncoding::kPng, .resume = true});
       EXPECT_EQ(w.Records().size(), static_cast<size_t>(stop));
       EXPECT_FALSE(w.Has(next.record.camera, next.record.pattern_index));
     }
@@ -179,7 +187,10 @@ TEST(ResumableImageSetWriter, ZeroFilledJournalTailIsCutButDamageInTheMiddleIsRe
     for (int k = 0; k < 3; ++k) w.Add(MakeShot(k).record, MakeShot(k).image);
     w.AppendSession({{"note", "first"}});
   }
-  { std::ofstream(staging / "journal.jsonl", std::ios::app) << std::string(40, '\0') << "\n" << std::string(9, '\0'); }
+  {
+    std::ofstream(staging / "journal.jsonl", std::ios::app) << std::string(40, '\0') << "\n"
+                                                            << std::string(9, '\0');
+  }
   {
     ResumableImageSetWriter w(out, SmallRig(), kSpec, {.resume = true});
     EXPECT_EQ(w.Records().size(), 3u);
@@ -196,7 +207,9 @@ TEST(ResumableImageSetWriter, ZeroFilledJournalTailIsCutButDamageInTheMiddleIsRe
   } catch (const Error& e) {
     message = e.what();
   }
-  EXPECT_NE(message.find("journal.jsonl: line 1: unreadable journal line followed by readable ones"), std::string::npos)
+  EXPECT_NE(
+      message.find("journal.jsonl: line 1: unreadable journal line followed by readable ones"),
+      std::string::npos)
       << message;
 }
 
@@ -221,7 +234,10 @@ TEST(ResumableImageSetWriter, ALaterRecordReplacesAnEarlierOneAcrossSessions) {
 TEST(ResumableImageSetWriter, RefusesToLoseOrMixAStagedCapture) {
   testing::TempDir dir;
   const fs::path out = dir / "set";
-  { ResumableImageSetWriter w(out, SmallRig(), kSpec); w.Add(MakeShot(0).record, MakeShot(0).image); }
+  {
+    ResumableImageSetWriter w(out, SmallRig(), kSpec);
+    w.Add(MakeShot(0).record, MakeShot(0).image);
+  }
   const auto error_of = [](const std::function<void()>& f) -> std::string {
     try {
       f();
@@ -231,19 +247,25 @@ TEST(ResumableImageSetWriter, RefusesToLoseOrMixAStagedCapture) {
     return "";
   };
   // Without --resume the staged frames would be lost.
-  EXPECT_NE(error_of([&] { ResumableImageSetWriter(out, SmallRig(), kSpec); }).find("continue it with --resume"),
+  EXPECT_NE(error_of([&] {
+              ResumableImageSetWriter(out, SmallRig(), kSpec);
+            }).find("continue it with --resume"),
             std::string::npos);
   Rig other = SmallRig();
   other.cameras[1].model = CameraModel(64, 48, 70, 70, 32, 24);
-  EXPECT_NE(error_of([&] { ResumableImageSetWriter(out, other, kSpec, {.resume = true}); })
-                .find("cannot resume: the staged capture was started with another rig"),
+  EXPECT_NE(error_of([&] {
+              ResumableImageSetWriter(out, other, kSpec, {.resume = true});
+            }).find("cannot resume: the staged capture was started with another rig"),
             std::string::npos);
   nlohmann::json spec = kSpec;
   spec["projector_width"] = 64;
-  EXPECT_NE(error_of([&] { ResumableImageSetWriter(out, SmallRig(), spec, {.resume = true}); }).find("another pattern spec"),
+  EXPECT_NE(error_of([&] {
+              ResumableImageSetWriter(out, SmallRig(), spec, {.resume = true});
+            }).find("another pattern spec"),
             std::string::npos);
   EXPECT_NE(error_of([&] {
-              ResumableImageSetWriter(out, SmallRig(), kSpec, {.encoding = ImageEncoding::kPgm, .resume = true});
+              ResumableImageSetWriter(out, SmallRig(), kSpec,
+                                      {.encoding = ImageEncoding::kPgm, .resume = true});
             }).find("image encoding 'png', this run asks for 'pgm'"),
             std::string::npos);
   // The staged capture survived every refusal.

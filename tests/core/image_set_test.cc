@@ -17,8 +17,10 @@ Rig SmallRig() {
   Rig rig;
   rig.name = "small";
   rig.cameras.push_back({"left", CameraModel(64, 48, 60, 60, 31.5, 23.5, -0.1), Rigid3d()});
-  rig.cameras.push_back({"right", CameraModel(64, 48, 61, 61, 32, 24),
-                         Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitY())), {-100, 0, 10})});
+  rig.cameras.push_back(
+      {"right", CameraModel(64, 48, 61, 61, 32, 24),
+       Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitY())),
+               {-100, 0, 10})});
   rig.projector = RigDevice{"projector", CameraModel(32, 20, 30, 30, 16, 10), Rigid3d()};
   return rig;
 }
@@ -37,14 +39,16 @@ using testing::ErrorOf;
 TEST(ImageSet, WriteReadRoundTripIsBitExact) {
   testing::TempDir dir;
   const nlohmann::json spec = {{"kind", "gray_code"}, {"projector_width", 32}};
-  for (const ImageEncoding encoding : {ImageEncoding::kPng, ImageEncoding::kPgm, ImageEncoding::kTiff}) {
+  for (const ImageEncoding encoding :
+       {ImageEncoding::kPng, ImageEncoding::kPgm, ImageEncoding::kTiff}) {
     const auto out = dir / ("set" + std::to_string(static_cast<int>(encoding)));
     std::vector<cv::Mat> images;
     {
       ImageSetWriter writer(out, SmallRig(), spec, {.encoding = encoding});
       for (int i = 0; i < 6; ++i) {
         images.push_back(RandomImage(i < 3 ? 8 : 16, i));
-        writer.Add(i % 2 ? "right" : "left", i / 2, images.back(), 1000.0 + i, ImageSource::kVirtual);
+        writer.Add(i % 2 ? "right" : "left", i / 2, images.back(), 1000.0 + i,
+                   ImageSource::kVirtual);
       }
       writer.SetExtra({{"scene", "test"}});
       EXPECT_FALSE(std::filesystem::exists(out));  // nothing visible before Commit
@@ -78,7 +82,8 @@ TEST(ImageSet, PgmWriterRoundTripsThroughOpenCv) {
     const cv::Mat roi = full(cv::Rect(3, 2, full.cols - 7, full.rows - 5));
     ASSERT_FALSE(roi.isContinuous());
     for (const cv::Mat& image : {full, roi}) {
-      const auto path = dir / ("image" + std::to_string(depth) + "_" + std::to_string(image.cols) + ".pgm");
+      const auto path =
+          dir / ("image" + std::to_string(depth) + "_" + std::to_string(image.cols) + ".pgm");
       WriteGrayImage(path, image);
       const cv::Mat back = cv::imread(path.string(), cv::IMREAD_UNCHANGED);
       ASSERT_EQ(back.type(), image.type()) << path;
@@ -89,7 +94,9 @@ TEST(ImageSet, PgmWriterRoundTripsThroughOpenCv) {
   const std::string message = ErrorOf([&] { WriteGrayImage(missing, RandomImage(8, 1)); });
   EXPECT_NE(message.find(missing.string()), std::string::npos) << message;
   EXPECT_NE(message.find("No such file"), std::string::npos) << message;
-  EXPECT_NE(ErrorOf([&] { WriteGrayImage(dir / "color.pgm", cv::Mat(4, 4, CV_8UC3)); }).find("single-channel"),
+  EXPECT_NE(ErrorOf([&] {
+              WriteGrayImage(dir / "color.pgm", cv::Mat(4, 4, CV_8UC3));
+            }).find("single-channel"),
             std::string::npos);
 }
 
@@ -105,8 +112,9 @@ TEST(ImageSet, AbandonedWriterLeavesNothing) {
 TEST(ImageSet, WriterRejectsBadImages) {
   testing::TempDir dir;
   ImageSetWriter writer(dir / "set", SmallRig(), Spec());
-  EXPECT_NE(ErrorOf([&] { writer.Add("left", 0, cv::Mat(47, 64, CV_8UC1), 0, ImageSource::kDevice); })
-                .find("wrong image size 64x47, camera 'left' is 64x48"),
+  EXPECT_NE(ErrorOf([&] {
+              writer.Add("left", 0, cv::Mat(47, 64, CV_8UC1), 0, ImageSource::kDevice);
+            }).find("wrong image size 64x47, camera 'left' is 64x48"),
             std::string::npos);
   EXPECT_THROW(writer.Add("middle", 0, RandomImage(8, 0), 0, ImageSource::kDevice), Error);
   EXPECT_THROW(writer.Add("left", 0, cv::Mat(48, 64, CV_8UC3), 0, ImageSource::kDevice), Error);
@@ -158,7 +166,9 @@ TEST_F(BadManifest, EachDefectIsNamed) {
   EXPECT_NE(OpenWith(j).find("version: unsupported ImageSet version"), std::string::npos);
   j = manifest_;
   j["images"][0]["camera"] = "center";
-  EXPECT_EQ(OpenWith(j), m + ": images[0].camera: no camera of this name in the manifest's rig (got \"center\")");
+  EXPECT_EQ(
+      OpenWith(j),
+      m + ": images[0].camera: no camera of this name in the manifest's rig (got \"center\")");
   j = manifest_;
   j["images"][1]["bit_depth"] = "eight";
   EXPECT_EQ(OpenWith(j), m + ": images[1].bit_depth: expected a whole number (got \"eight\")");
@@ -173,21 +183,29 @@ TEST_F(BadManifest, EachDefectIsNamed) {
   EXPECT_NE(OpenWith(j).find("duplicate image for camera 'left', pattern 0"), std::string::npos);
   j = manifest_;
   j["rig"]["cameras"][0]["intrinsics"]["fx"] = -60;
-  EXPECT_EQ(OpenWith(j), m + ": rig.cameras[0].intrinsics.fx: focal length must be positive (got -60)");
+  EXPECT_EQ(OpenWith(j),
+            m + ": rig.cameras[0].intrinsics.fx: focal length must be positive (got -60)");
   j = manifest_;
   j["images"][0]["bit_depth"] = 16;
   EXPECT_NE(OpenWith(j).find("bit depth is 8, the manifest says 16"), std::string::npos);
 }
 
 TEST_F(BadManifest, WrongImageSizeOrCorruptFileIsNamed) {
-  cv::imwrite((dir_ / "set" / "left" / "0000.png").string(), cv::Mat(10, 10, CV_8UC1, cv::Scalar(3)));
-  EXPECT_NE(ErrorOf([&] { ImageSet::Open(dir_ / "set").Load("left", 0); }).find("left/0000.png: wrong image size 10x10"),
+  cv::imwrite((dir_ / "set" / "left" / "0000.png").string(),
+              cv::Mat(10, 10, CV_8UC1, cv::Scalar(3)));
+  EXPECT_NE(ErrorOf([&] {
+              ImageSet::Open(dir_ / "set").Load("left", 0);
+            }).find("left/0000.png: wrong image size 10x10"),
             std::string::npos);
   { std::ofstream(dir_ / "set" / "right" / "0000.png") << "not a png"; }
-  EXPECT_NE(ErrorOf([&] { ImageSet::Open(dir_ / "set").Load("right", 0); }).find("cannot decode image"), std::string::npos);
+  EXPECT_NE(
+      ErrorOf([&] { ImageSet::Open(dir_ / "set").Load("right", 0); }).find("cannot decode image"),
+      std::string::npos);
   { std::ofstream(dir_ / "set" / "manifest.json") << "{ broken"; }
-  EXPECT_NE(ErrorOf([&] { ImageSet::Open(dir_ / "set"); }).find("not valid JSON"), std::string::npos);
-  EXPECT_NE(ErrorOf([&] { ImageSet::Open(dir_ / "nothing"); }).find("not an ImageSet folder"), std::string::npos);
+  EXPECT_NE(ErrorOf([&] { ImageSet::Open(dir_ / "set"); }).find("not valid JSON"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([&] { ImageSet::Open(dir_ / "nothing"); }).find("not an ImageSet folder"),
+            std::string::npos);
 }
 
 // Sizes from a manifest or an image header are bounded before anything is allocated for them.
@@ -195,7 +213,8 @@ TEST_F(BadManifest, HugePatternIndexAndHugeImageHeaderAreRefusedBeforeAllocation
   const std::string m = (dir_ / "set" / "manifest.json").string();
   nlohmann::json j = manifest_;
   j["images"][0]["pattern"] = 4294967296LL;  // would truncate to 0 as an int
-  EXPECT_EQ(OpenWith(j), m + ": images[0].pattern: pattern index must be 0..999999 (got 4294967296)");
+  EXPECT_EQ(OpenWith(j),
+            m + ": images[0].pattern: pattern index must be 0..999999 (got 4294967296)");
   // A gap: LoadCamera would allocate for 1000000 patterns; it names the first missing one instead.
   j = manifest_;
   j["images"][0]["pattern"] = 999999;
@@ -216,13 +235,18 @@ TEST_F(BadManifest, HugePatternIndexAndHugeImageHeaderAreRefusedBeforeAllocation
   bytes.replace(16, 4, reinterpret_cast<const char*>(big), 4);
   bytes.replace(20, 4, reinterpret_cast<const char*>(big), 4);
   { std::ofstream(png, std::ios::binary) << bytes; }
-  EXPECT_EQ(ErrorOf([&] { ImageSet::Open(dir_ / "set").Load("left", 0); }),
-            png.string() + ": wrong image size 100000x100000 in its header, camera 'left' is 64x48");
+  EXPECT_EQ(
+      ErrorOf([&] { ImageSet::Open(dir_ / "set").Load("left", 0); }),
+      png.string() + ": wrong image size 100000x100000 in its header, camera 'left' is 64x48");
   // The same for a binary PGM header.
   const auto pgm = dir_ / "set" / "right" / "0000.png";
-  { std::ofstream(pgm, std::ios::binary) << "P5\n# comment\n1000000 1000000\n255\n" << std::string(16, '\0'); }
-  EXPECT_EQ(ErrorOf([&] { ImageSet::Open(dir_ / "set").Load("right", 0); }),
-            pgm.string() + ": wrong image size 1000000x1000000 in its header, camera 'right' is 64x48");
+  {
+    std::ofstream(pgm, std::ios::binary) << "P5\n# comment\n1000000 1000000\n255\n"
+                                         << std::string(16, '\0');
+  }
+  EXPECT_EQ(
+      ErrorOf([&] { ImageSet::Open(dir_ / "set").Load("right", 0); }),
+      pgm.string() + ": wrong image size 1000000x1000000 in its header, camera 'right' is 64x48");
 }
 
 }  // namespace

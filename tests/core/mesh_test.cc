@@ -53,15 +53,18 @@ TEST(Mesh, ReadsAsciiStlAndObjWithPolygons) {
   testing::TempDir dir;
   {
     std::ofstream f(dir / "a.stl");
-    f << "solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\nendloop\nendfacet\n"
-         "facet normal 0 0 1\nouter loop\nvertex 1 0 0\nvertex 1 1 0\nvertex 0 1 0\nendloop\nendfacet\nendsolid x\n";
+    f << "solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 "
+         "0\nendloop\nendfacet\n"
+         "facet normal 0 0 1\nouter loop\nvertex 1 0 0\nvertex 1 1 0\nvertex 0 1 "
+         "0\nendloop\nendfacet\nendsolid x\n";
   }
   const TriangleMesh stl = ReadMesh(dir / "a.stl");
   EXPECT_EQ(stl.vertices.size(), 4u);  // shared corners merged
   EXPECT_EQ(stl.triangles.size(), 2u);
   {
     std::ofstream f(dir / "q.obj");
-    f << "# quad\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//1 4//1\nf -4 -3 -2\n";
+    f << "# quad\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//1 4//1\nf -4 -3 "
+         "-2\n";
   }
   const TriangleMesh obj = ReadMesh(dir / "q.obj");
   EXPECT_EQ(obj.triangles.size(), 3u);
@@ -71,16 +74,25 @@ TEST(Mesh, ReadsAsciiStlAndObjWithPolygons) {
 TEST(Mesh, BadInputGivesClearErrors) {
   testing::TempDir dir;
   EXPECT_THROW(ReadMesh(dir / "missing.stl"), Error);
-  { std::ofstream f(dir / "bad.obj"); f << "v 0 0 0\nf 1 2 3\n"; }
+  {
+    std::ofstream f(dir / "bad.obj");
+    f << "v 0 0 0\nf 1 2 3\n";
+  }
   try {
     ReadMesh(dir / "bad.obj");
     FAIL();
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("line 2"), std::string::npos) << e.what();
   }
-  { std::ofstream f(dir / "empty.obj"); f << "v 0 0 0\n"; }
+  {
+    std::ofstream f(dir / "empty.obj");
+    f << "v 0 0 0\n";
+  }
   EXPECT_THROW(ReadMesh(dir / "empty.obj"), Error);
-  { std::ofstream f(dir / "x.off"); f << "OFF\n"; }
+  {
+    std::ofstream f(dir / "x.off");
+    f << "OFF\n";
+  }
   EXPECT_THROW(ReadMesh(dir / "x.off"), Error);
   TriangleMesh degenerate = Tetrahedron();
   degenerate.triangles.push_back({0, 1, 1});
@@ -117,9 +129,11 @@ TEST(Mesh, CheckNamesTheFirstBadTriangle) {
   TriangleMesh bad = grid;
   bad.triangles[250001] = Eigen::Vector3i(5, 6, 5);
   bad.triangles[318000] = Eigen::Vector3i(5, 6, 1 << 30);
-  EXPECT_NE(message(bad).find("grid.ply: triangle 250001 is degenerate"), std::string::npos) << message(bad);
+  EXPECT_NE(message(bad).find("grid.ply: triangle 250001 is degenerate"), std::string::npos)
+      << message(bad);
   bad.triangles[17] = Eigen::Vector3i(5, 6, -1);
-  EXPECT_NE(message(bad).find("grid.ply: triangle 17 refers to vertex -1"), std::string::npos) << message(bad);
+  EXPECT_NE(message(bad).find("grid.ply: triangle 17 refers to vertex -1"), std::string::npos)
+      << message(bad);
   TriangleMesh only_degenerate = grid;
   only_degenerate.triangles[250001] = Eigen::Vector3i(5, 6, 5);
   EXPECT_NO_THROW(only_degenerate.Check("grid.ply", /*reject_degenerate=*/false));
@@ -130,17 +144,20 @@ TEST(Mesh, CheckNamesTheFirstBadTriangle) {
 TEST(Mesh, HugeHeaderCountsAreRefusedBeforeAllocation) {
   testing::TempDir dir;
   const std::string ply = (dir / "huge_faces.ply").string();
-  std::ofstream(ply, std::ios::binary) << "ply\nformat binary_little_endian 1.0\nelement vertex 3\n"
-                                          "property float x\nproperty float y\nproperty float z\n"
-                                          "element face 1000000000000\nproperty list uchar int vertex_indices\n"
-                                          "end_header\n"
-                                       << std::string(36 + 13, '\0');
+  std::ofstream(ply, std::ios::binary)
+      << "ply\nformat binary_little_endian 1.0\nelement vertex 3\n"
+         "property float x\nproperty float y\nproperty float z\n"
+         "element face 1000000000000\nproperty list uchar int vertex_indices\n"
+         "end_header\n"
+      << std::string(36 + 13, '\0');
   try {
     ReadMesh(ply);
     FAIL() << "no error";
   } catch (const Error& e) {
-    EXPECT_EQ(std::string(e.what()), ply + ": PLY header: element 'face' claims 1000000000000 rows, but the file has "
-                                           "only 49 bytes of data (at least 1 bytes per row)");
+    EXPECT_EQ(std::string(e.what()),
+              ply +
+                  ": PLY header: element 'face' claims 1000000000000 rows, but the file has "
+                  "only 49 bytes of data (at least 1 bytes per row)");
   }
   const std::string stl = (dir / "huge.stl").string();
   std::string bytes(84, '\0');
@@ -151,7 +168,8 @@ TEST(Mesh, HugeHeaderCountsAreRefusedBeforeAllocation) {
     ReadMesh(stl);
     FAIL() << "no error";
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find(stl + ": not an STL file (binary size does not match its triangle count"),
+    EXPECT_NE(std::string(e.what()).find(
+                  stl + ": not an STL file (binary size does not match its triangle count"),
               std::string::npos)
         << e.what();
   }

@@ -53,11 +53,14 @@ TEST(Npy, HugeOrMalformedShapesAreRefusedBeforeAllocation) {
   EXPECT_EQ(ErrorOf([&] { ReadNpy(huge, 1); }),
             huge + ": shape 1000000 x 1000000 x 1 needs 4000000000000 data bytes, the file has 16");
   const std::string wide = write("wide.npy", Npy("4294967297, 1", std::string(16, '\0')));
-  EXPECT_EQ(ErrorOf([&] { ReadNpy(wide, 1); }), wide + ": shape: 4294967297 x 1 is outside 1..1048576 per side");
+  EXPECT_EQ(ErrorOf([&] { ReadNpy(wide, 1); }),
+            wide + ": shape: 4294967297 x 1 is outside 1..1048576 per side");
   const std::string digits = write("digits.npy", Npy("999999999999999999999, 1", ""));
-  EXPECT_NE(ErrorOf([&] { ReadNpy(digits, 1); }).find(digits + ": shape: malformed"), std::string::npos);
+  EXPECT_NE(ErrorOf([&] { ReadNpy(digits, 1); }).find(digits + ": shape: malformed"),
+            std::string::npos);
   const std::string channels = write("channels.npy", Npy("2, 2, 3", std::string(48, '\0')));
-  EXPECT_EQ(ErrorOf([&] { ReadNpy(channels, 1); }), channels + ": shape: expected 1 channels (got 3)");
+  EXPECT_EQ(ErrorOf([&] { ReadNpy(channels, 1); }),
+            channels + ": shape: expected 1 channels (got 3)");
   const std::string truncated = write("truncated.npy", Npy("2, 2", std::string(15, '\0')));
   EXPECT_EQ(ErrorOf([&] { ReadNpy(truncated, 1); }),
             truncated + ": shape 2 x 2 x 1 needs 16 data bytes, the file has 15");

@@ -24,7 +24,9 @@ PointCloud RandomCloud(size_t n, bool normals, bool colors, int seed = 3) {
   for (size_t i = 0; i < n; ++i) {
     c.points.emplace_back(g(rng), g(rng), 500 + g(rng));
     if (normals) c.normals.push_back(Eigen::Vector3f(g(rng), g(rng), g(rng)).normalized());
-    if (colors) c.colors.push_back({static_cast<uint8_t>(byte(rng)), static_cast<uint8_t>(byte(rng)), static_cast<uint8_t>(byte(rng))});
+    if (colors)
+      c.colors.push_back({static_cast<uint8_t>(byte(rng)), static_cast<uint8_t>(byte(rng)),
+                          static_cast<uint8_t>(byte(rng))});
     quality.push_back(static_cast<float>(g(rng)));
     u.push_back(static_cast<float>(i) + 0.5f);
   }
@@ -41,13 +43,15 @@ void ExpectBitExact(const PointCloud& a, const PointCloud& b) {
   }
   ASSERT_EQ(a.normals.size(), b.normals.size());
   if (!a.normals.empty()) {
-    EXPECT_EQ(0, std::memcmp(a.normals.data(), b.normals.data(), a.normals.size() * sizeof(Eigen::Vector3f)));
+    EXPECT_EQ(0, std::memcmp(a.normals.data(), b.normals.data(),
+                             a.normals.size() * sizeof(Eigen::Vector3f)));
   }
   EXPECT_EQ(a.colors, b.colors);
   ASSERT_EQ(a.scalars.size(), b.scalars.size());
   for (size_t k = 0; k < a.scalars.size(); ++k) {
     EXPECT_EQ(a.scalars[k].name, b.scalars[k].name);
-    EXPECT_EQ(0, std::memcmp(a.scalars[k].values.data(), b.scalars[k].values.data(), a.size() * sizeof(float)));
+    EXPECT_EQ(0, std::memcmp(a.scalars[k].values.data(), b.scalars[k].values.data(),
+                             a.size() * sizeof(float)));
   }
 }
 
@@ -77,7 +81,8 @@ TEST(PointCloud, ChunkedBinaryWritesRoundTrip) {
   for (auto& p : rounded.points) p = p.cast<float>().cast<double>();
   ExpectBitExact(rounded, f);
   // 12 bytes less per point, and "float" is one letter shorter than "double" in 3 header lines.
-  EXPECT_EQ(std::filesystem::file_size(dir / "d.ply") - std::filesystem::file_size(dir / "f.ply"), 40000u * 12u + 3u);
+  EXPECT_EQ(std::filesystem::file_size(dir / "d.ply") - std::filesystem::file_size(dir / "f.ply"),
+            40000u * 12u + 3u);
 }
 
 // An independent reader for the binary layout we promise in docs/formats.md: header lines, then
@@ -90,11 +95,21 @@ TEST(PointCloud, BinaryLayoutMatchesDocumentedHeader) {
   std::string line;
   std::vector<std::string> header;
   while (std::getline(f, line) && line != "end_header") header.push_back(line);
-  const std::vector<std::string> expected = {
-      "ply", "format binary_little_endian 1.0", "comment written by slshadow", "element vertex 50",
-      "property double x", "property double y", "property double z", "property float nx", "property float ny",
-      "property float nz", "property uchar red", "property uchar green", "property uchar blue",
-      "property float quality", "property float pixel_u"};
+  const std::vector<std::string> expected = {"ply",
+                                             "format binary_little_endian 1.0",
+                                             "comment written by slshadow",
+                                             "element vertex 50",
+                                             "property double x",
+                                             "property double y",
+                                             "property double z",
+                                             "property float nx",
+                                             "property float ny",
+                                             "property float nz",
+                                             "property uchar red",
+                                             "property uchar green",
+                                             "property uchar blue",
+                                             "property float quality",
+                                             "property float pixel_u"};
   EXPECT_EQ(header, expected);
   const std::streampos body = f.tellg();
   f.seekg(0, std::ios::end);
@@ -121,8 +136,10 @@ TEST(PointCloud, ReadsForeignPlyWithFloatPositionsAndFaces) {
   testing::TempDir dir;
   {
     std::ofstream f(dir / "foreign.ply");
-    f << "ply\nformat ascii 1.0\ncomment made by hand\nelement vertex 3\nproperty float32 x\nproperty float32 y\n"
-         "property float32 z\nproperty uchar intensity\nelement face 1\nproperty list uchar int vertex_indices\n"
+    f << "ply\nformat ascii 1.0\ncomment made by hand\nelement vertex 3\nproperty float32 "
+         "x\nproperty float32 y\n"
+         "property float32 z\nproperty uchar intensity\nelement face 1\nproperty list uchar int "
+         "vertex_indices\n"
          "end_header\n0 0 0 10\n1 0 0 20\n0 1 0 30\n3 0 1 2\n";
   }
   const PointCloud c = ReadPly(dir / "foreign.ply");
@@ -147,14 +164,16 @@ TEST(PointCloud, BadPlyFilesGiveClearErrors) {
     FAIL();
   } catch (const Error& e) {
     // Fixed-size rows: the header's count is checked against the data before reading.
-    EXPECT_NE(std::string(e.what()).find("PLY header: element 'vertex' claims 100 rows, but the file has only"),
+    EXPECT_NE(std::string(e.what()).find(
+                  "PLY header: element 'vertex' claims 100 rows, but the file has only"),
               std::string::npos)
         << e.what();
   }
   // Lists have no fixed size: data ending inside a list is found while reading.
   {
     std::ofstream out(dir / "truncated_list.ply", std::ios::binary);
-    out << "ply\nformat binary_little_endian 1.0\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n";
+    out << "ply\nformat binary_little_endian 1.0\nelement face 1\nproperty list uchar int "
+           "vertex_indices\nend_header\n";
     out.put(3);
     out.write("\0\0\0\0\1\0\0\0", 8);
   }
@@ -162,21 +181,38 @@ TEST(PointCloud, BadPlyFilesGiveClearErrors) {
     ReadPlyData(dir / "truncated_list.ply");
     FAIL();
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("truncated binary PLY: data ends in element 'face' row 0"), std::string::npos)
+    EXPECT_NE(std::string(e.what()).find("truncated binary PLY: data ends in element 'face' row 0"),
+              std::string::npos)
         << e.what();
   }
-  { std::ofstream out(dir / "nomagic.ply"); out << "hello\n"; }
+  {
+    std::ofstream out(dir / "nomagic.ply");
+    out << "hello\n";
+  }
   EXPECT_THROW(ReadPly(dir / "nomagic.ply"), Error);
-  { std::ofstream out(dir / "noxyz.ply"); out << "ply\nformat ascii 1.0\nelement vertex 1\nproperty float a\nend_header\n1\n"; }
+  {
+    std::ofstream out(dir / "noxyz.ply");
+    out << "ply\nformat ascii 1.0\nelement vertex 1\nproperty float a\nend_header\n1\n";
+  }
   EXPECT_THROW(ReadPly(dir / "noxyz.ply"), Error);
-  { std::ofstream out(dir / "nan.ply"); out << "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 nan 2\n"; }
+  {
+    std::ofstream out(dir / "nan.ply");
+    out << "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty "
+           "float z\nend_header\n1 nan 2\n";
+  }
   EXPECT_THROW(ReadPly(dir / "nan.ply"), Error);
-  { std::ofstream out(dir / "word.ply"); out << "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 two 2\n"; }
+  {
+    std::ofstream out(dir / "word.ply");
+    out << "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty "
+           "float z\nend_header\n1 two 2\n";
+  }
   try {
     ReadPly(dir / "word.ply");
     FAIL();
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("property 'y': not a number (got \"two\")"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("property 'y': not a number (got \"two\")"),
+              std::string::npos)
+        << e.what();
   }
   EXPECT_THROW(ReadPly(dir / "missing.ply"), Error);
   PointCloud bad = RandomCloud(10, false, false);
@@ -206,33 +242,45 @@ TEST(PointCloud, HugeHeaderCountsAreRefusedBeforeAllocation) {
     std::ofstream(dir / name, std::ios::binary) << text;
     return (dir / name).string();
   };
-  const std::string bin = write("huge.ply",
-                                "ply\nformat binary_little_endian 1.0\nelement vertex 1000000000000\n"
-                                "property double x\nproperty double y\nproperty double z\nend_header\n" +
-                                    std::string(48, '\0'));
-  EXPECT_EQ(ErrorOf([&] { ReadPly(bin); }), bin + ": PLY header: element 'vertex' claims 1000000000000 rows, but the "
-                                                  "file has only 48 bytes of data (at least 24 bytes per row)");
-  const std::string ascii = write("huge_ascii.ply",
-                                  "ply\nformat ascii 1.0\nelement vertex 1000000000000\nproperty float x\n"
-                                  "property float y\nproperty float z\nend_header\n1 2 3\n");
-  EXPECT_NE(ErrorOf([&] { ReadPly(ascii); }).find(ascii + ": PLY header: element 'vertex' claims 1000000000000 rows"),
+  const std::string bin =
+      write("huge.ply",
+            "ply\nformat binary_little_endian 1.0\nelement vertex 1000000000000\n"
+            "property double x\nproperty double y\nproperty double z\nend_header\n" +
+                std::string(48, '\0'));
+  EXPECT_EQ(ErrorOf([&] { ReadPly(bin); }),
+            bin +
+                ": PLY header: element 'vertex' claims 1000000000000 rows, but the "
+                "file has only 48 bytes of data (at least 24 bytes per row)");
+  const std::string ascii =
+      write("huge_ascii.ply",
+            "ply\nformat ascii 1.0\nelement vertex 1000000000000\nproperty float x\n"
+            "property float y\nproperty float z\nend_header\n1 2 3\n");
+  EXPECT_NE(ErrorOf([&] {
+              ReadPly(ascii);
+            }).find(ascii + ": PLY header: element 'vertex' claims 1000000000000 rows"),
             std::string::npos);
   // A count that does not fit in 64 bits is a bad element line, not LLONG_MAX rows.
-  const std::string overflow = write("overflow.ply",
-                                     "ply\nformat ascii 1.0\nelement vertex 99999999999999999999\nproperty float x\n"
-                                     "end_header\n");
+  const std::string overflow =
+      write("overflow.ply",
+            "ply\nformat ascii 1.0\nelement vertex 99999999999999999999\nproperty float x\n"
+            "end_header\n");
   EXPECT_THROW(ReadPly(overflow), Error);
   // Lists: a NaN vertex index (a float list type allows it) and x given as a list.
-  const std::string nan_index = write("nan_index.ply",
-                                      "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
-                                      "property float z\nelement face 1\nproperty list uchar float vertex_indices\n"
-                                      "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 nan\n");
-  EXPECT_EQ(ErrorOf([&] { ReadPlyData(nan_index); }),
-            nan_index + ": element 'face' row 0 property 'vertex_indices': list value nan is not an integer");
-  const std::string x_list = write("x_list.ply",
-                                   "ply\nformat ascii 1.0\nelement vertex 1\nproperty list uchar int x\n"
-                                   "property float y\nproperty float z\nend_header\n1 5 0 0\n");
-  EXPECT_EQ(ErrorOf([&] { ReadPly(x_list); }), x_list + ": PLY vertex property 'x' is a list, expected a number");
+  const std::string nan_index =
+      write("nan_index.ply",
+            "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+            "property float z\nelement face 1\nproperty list uchar float vertex_indices\n"
+            "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 nan\n");
+  EXPECT_EQ(
+      ErrorOf([&] { ReadPlyData(nan_index); }),
+      nan_index +
+          ": element 'face' row 0 property 'vertex_indices': list value nan is not an integer");
+  const std::string x_list =
+      write("x_list.ply",
+            "ply\nformat ascii 1.0\nelement vertex 1\nproperty list uchar int x\n"
+            "property float y\nproperty float z\nend_header\n1 5 0 0\n");
+  EXPECT_EQ(ErrorOf([&] { ReadPly(x_list); }),
+            x_list + ": PLY vertex property 'x' is a list, expected a number");
 }
 
 }  // namespace

@@ -28,7 +28,8 @@ TEST(ScanProvenance, RoundTripsThroughJsonAndYaml) {
   EXPECT_EQ(j["format"], "slshadow-provenance");
   EXPECT_EQ(j["version"], 1);
   EXPECT_TRUE(j["decode"].is_null());
-  for (const ConfigNode& node : {ConfigNode::FromJson(j, "p.json"), ConfigNode::ParseYaml(JsonToYaml(j), "p.yaml")}) {
+  for (const ConfigNode& node :
+       {ConfigNode::FromJson(j, "p.json"), ConfigNode::ParseYaml(JsonToYaml(j), "p.yaml")}) {
     const ScanProvenance r = ScanProvenanceFromConfig(node);
     EXPECT_EQ(r.generator, p.generator);
     EXPECT_EQ(r.scene_config, p.scene_config);

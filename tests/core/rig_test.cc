@@ -57,49 +57,77 @@ TEST(Rig, YamlAndJsonRoundTripBitExact) {
 }
 
 TEST(Rig, RotationForms) {
-  const std::string head = "cameras:\n  - name: a\n    width: 10\n    height: 10\n    intrinsics: {fx: 5, fy: 5, cx: 5, cy: 5}\n    cam_from_rig:\n";
-  const Rig r1 = RigFromConfig(ConfigNode::ParseYaml(head + "      rotation_rvec_rad: [0, 0.3, 0]\n      translation_mm: [1, 2, 3]\n", "a.yaml"));
+  const std::string head =
+      "cameras:\n  - name: a\n    width: 10\n    height: 10\n    intrinsics: {fx: 5, fy: 5, cx: 5, "
+      "cy: 5}\n    cam_from_rig:\n";
+  const Rig r1 = RigFromConfig(ConfigNode::ParseYaml(
+      head + "      rotation_rvec_rad: [0, 0.3, 0]\n      translation_mm: [1, 2, 3]\n", "a.yaml"));
   const Rig r2 = RigFromConfig(ConfigNode::ParseYaml(
-      head + "      rotation_matrix: [" + std::to_string(std::cos(0.3)) + ", 0, " + std::to_string(std::sin(0.3)) +
-          ", 0, 1, 0, " + std::to_string(-std::sin(0.3)) + ", 0, " + std::to_string(std::cos(0.3)) +
-          "]\n      translation_mm: [1, 2, 3]\n",
+      head + "      rotation_matrix: [" + std::to_string(std::cos(0.3)) + ", 0, " +
+          std::to_string(std::sin(0.3)) + ", 0, 1, 0, " + std::to_string(-std::sin(0.3)) + ", 0, " +
+          std::to_string(std::cos(0.3)) + "]\n      translation_mm: [1, 2, 3]\n",
       "b.yaml"));
-  EXPECT_NEAR(r1.cameras[0].cam_from_rig.rotation.angularDistance(r2.cameras[0].cam_from_rig.rotation), 0, 1e-6);
+  EXPECT_NEAR(
+      r1.cameras[0].cam_from_rig.rotation.angularDistance(r2.cameras[0].cam_from_rig.rotation), 0,
+      1e-6);
   EXPECT_EQ(r1.cameras[0].cam_from_rig.translation, Eigen::Vector3d(1, 2, 3));
 }
 
 // docs/formats.md: rotation_quat_wxyz is Hamilton's quaternion acting on rig-frame vectors
 // (X_cam = R(q) X_rig + t): [cos 45 deg, 0, 0, sin 45 deg] turns +x into +y; unit norm within 1e-6.
 TEST(Rig, QuaternionConvention) {
-  const std::string head = "cameras:\n  - name: a\n    width: 10\n    height: 10\n    intrinsics: {fx: 5, fy: 5, cx: 5, cy: 5}\n    cam_from_rig:\n";
+  const std::string head =
+      "cameras:\n  - name: a\n    width: 10\n    height: 10\n    intrinsics: {fx: 5, fy: 5, cx: 5, "
+      "cy: 5}\n    cam_from_rig:\n";
   const double h = std::sqrt(0.5);
-  const Rig rig = RigFromConfig(ConfigNode::ParseYaml(
-      head + "      rotation_quat_wxyz: [" + std::to_string(h) + ", 0, 0, " + std::to_string(h) + "]\n      translation_mm: [1, 2, 3]\n",
-      "q.yaml"));
+  const Rig rig = RigFromConfig(
+      ConfigNode::ParseYaml(head + "      rotation_quat_wxyz: [" + std::to_string(h) + ", 0, 0, " +
+                                std::to_string(h) + "]\n      translation_mm: [1, 2, 3]\n",
+                            "q.yaml"));
   const Eigen::Vector3d x_in_cam = rig.cameras[0].cam_from_rig * Eigen::Vector3d(1, 0, 0);
   EXPECT_NEAR((x_in_cam - Eigen::Vector3d(1, 3, 3)).norm(), 0, 1e-6);
   // The same rotation as rotation_rvec_rad [0, 0, pi/2] (OpenCV's Rodrigues).
-  const Rig rv = RigFromConfig(ConfigNode::ParseYaml(head + "      rotation_rvec_rad: [0, 0, 1.5707963267948966]\n      translation_mm: [0, 0, 0]\n", "r.yaml"));
-  EXPECT_NEAR(rv.cameras[0].cam_from_rig.rotation.angularDistance(rig.cameras[0].cam_from_rig.rotation), 0, 1e-6);
+  const Rig rv = RigFromConfig(ConfigNode::ParseYaml(
+      head +
+          "      rotation_rvec_rad: [0, 0, 1.5707963267948966]\n      translation_mm: [0, 0, 0]\n",
+      "r.yaml"));
+  EXPECT_NEAR(
+      rv.cameras[0].cam_from_rig.rotation.angularDistance(rig.cameras[0].cam_from_rig.rotation), 0,
+      1e-6);
   // Norm 1 + 5e-7 is accepted (and renormalised); 1 + 2e-6 is refused.
-  EXPECT_NO_THROW(RigFromConfig(ConfigNode::ParseYaml(head + "      rotation_quat_wxyz: [1.0000005, 0, 0, 0]\n      translation_mm: [0, 0, 0]\n", "n.yaml")));
-  EXPECT_NE(ErrorOf(head + "      rotation_quat_wxyz: [1.000002, 0, 0, 0]\n      translation_mm: [0, 0, 0]\n").find("unit norm"), std::string::npos);
+  EXPECT_NO_THROW(RigFromConfig(ConfigNode::ParseYaml(
+      head + "      rotation_quat_wxyz: [1.0000005, 0, 0, 0]\n      translation_mm: [0, 0, 0]\n",
+      "n.yaml")));
+  EXPECT_NE(
+      ErrorOf(head +
+              "      rotation_quat_wxyz: [1.000002, 0, 0, 0]\n      translation_mm: [0, 0, 0]\n")
+          .find("unit norm"),
+      std::string::npos);
 }
 
 TEST(Rig, MalformedRigsGiveClearErrors) {
-  const std::string cam = "  - name: a\n    width: 10\n    height: 10\n    intrinsics: {fx: 5, fy: 5, cx: 5, cy: 5}\n";
+  const std::string cam =
+      "  - name: a\n    width: 10\n    height: 10\n    intrinsics: {fx: 5, fy: 5, cx: 5, cy: 5}\n";
   EXPECT_EQ(ErrorOf("name: x\n"), "bad.yaml: cameras: missing required field");
-  EXPECT_EQ(ErrorOf("cameras:\n  - name: a\n    width: 10\n    height: 10\n    intrinsics: {fx: -5, fy: 5, cx: 5, cy: 5}\n"),
+  EXPECT_EQ(ErrorOf("cameras:\n  - name: a\n    width: 10\n    height: 10\n    intrinsics: {fx: "
+                    "-5, fy: 5, cx: 5, cy: 5}\n"),
             "bad.yaml: cameras[0].intrinsics.fx: focal length must be positive (got -5)");
-  EXPECT_EQ(ErrorOf("cameras:\n  - name: a\n    width: ten\n"), "bad.yaml: cameras[0].width: expected a whole number (got \"ten\")");
-  EXPECT_EQ(ErrorOf("cameras:\n  - name: a\n    width: 10\n    height: 10\n    intrinsics: {fx: .nan, fy: 5, cx: 5, cy: 5}\n"),
+  EXPECT_EQ(ErrorOf("cameras:\n  - name: a\n    width: ten\n"),
+            "bad.yaml: cameras[0].width: expected a whole number (got \"ten\")");
+  EXPECT_EQ(ErrorOf("cameras:\n  - name: a\n    width: 10\n    height: 10\n    intrinsics: {fx: "
+                    ".nan, fy: 5, cx: 5, cy: 5}\n"),
             "bad.yaml: cameras[0].intrinsics.fx: must be a finite number (got NaN)");
-  EXPECT_EQ(ErrorOf("cameras:\n" + cam + cam), "bad.yaml: cameras[1].name: duplicate camera name (got \"a\")");
-  EXPECT_NE(ErrorOf("cameras:\n" + cam + "    cam_from_rig: {rotation_quat_wxyz: [1, 1, 0, 0], translation_mm: [0, 0, 0]}\n")
-                .find("cameras[0].cam_from_rig.rotation_quat_wxyz: quaternion must have unit norm"),
+  EXPECT_EQ(ErrorOf("cameras:\n" + cam + cam),
+            "bad.yaml: cameras[1].name: duplicate camera name (got \"a\")");
+  EXPECT_NE(
+      ErrorOf("cameras:\n" + cam +
+              "    cam_from_rig: {rotation_quat_wxyz: [1, 1, 0, 0], translation_mm: [0, 0, 0]}\n")
+          .find("cameras[0].cam_from_rig.rotation_quat_wxyz: quaternion must have unit norm"),
+      std::string::npos);
+  EXPECT_NE(ErrorOf("cameras:\n" + cam + "    lens: 16mm\n").find("cameras[0].lens: unknown field"),
             std::string::npos);
-  EXPECT_NE(ErrorOf("cameras:\n" + cam + "    lens: 16mm\n").find("cameras[0].lens: unknown field"), std::string::npos);
-  EXPECT_NE(ErrorOf("working_distance_mm: -3\ncameras:\n" + cam).find("working_distance_mm: must be positive"),
+  EXPECT_NE(ErrorOf("working_distance_mm: -3\ncameras:\n" + cam)
+                .find("working_distance_mm: must be positive"),
             std::string::npos);
 }
 

@@ -5,8 +5,8 @@
 #include "core/error.h"
 
 #include <gtest/gtest.h>
-#include <opencv2/core/utility.hpp>
 #include <tbb/global_control.h>
+#include <opencv2/core/utility.hpp>
 
 #include <cstdlib>
 #include <string>

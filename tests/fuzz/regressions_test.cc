@@ -27,7 +27,8 @@ TEST(FuzzRegressions, EveryKeptCrasherIsReadOrRefusedWithOneClearError) {
   size_t replayed = 0;
   for (const auto& format_dir : fs::directory_iterator(root)) {
     const std::string format = format_dir.path().filename().string();
-    ASSERT_TRUE(fuzz::Readers().count(format)) << "fuzz/regressions/" << format << ": no reader of that name";
+    ASSERT_TRUE(fuzz::Readers().count(format))
+        << "fuzz/regressions/" << format << ": no reader of that name";
     const auto& read = fuzz::Readers().at(format);
     for (const auto& entry : fs::directory_iterator(format_dir.path())) {
       const std::string bytes = ReadBytes(entry.path());
@@ -55,7 +56,8 @@ TEST(FuzzRegressions, HandmadeSeedsAreValidInput) {
     const auto& read = fuzz::Readers().at(format_dir.path().filename().string());
     for (const auto& entry : fs::directory_iterator(format_dir.path())) {
       const std::string bytes = ReadBytes(entry.path());
-      EXPECT_NO_THROW(read(reinterpret_cast<const uint8_t*>(bytes.data()), bytes.size())) << entry.path();
+      EXPECT_NO_THROW(read(reinterpret_cast<const uint8_t*>(bytes.data()), bytes.size()))
+          << entry.path();
       ++read_ok;
     }
   }

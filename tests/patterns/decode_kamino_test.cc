@@ -23,11 +23,12 @@ std::filesystem::path KaminoDir() { return testing::SharedDataDir() / "kamino-pr
 
 struct PoseStats {
   int corners = 0;
-  double board_px = 0;         // camera pixels inside the board's corner hull
-  double valid_share = 0;      // share of them decoded valid
-  double fit_rms_px = 0;       // RMS residual of a homography fitted to the valid board pixels
-  double outlier_share = 0;    // share of valid board pixels more than 2 px off that homography
-  double monotone_share_x = 0; // share of neighbour pairs along the board's x that follow its direction
+  double board_px = 0;       // camera pixels inside the board's corner hull
+  double valid_share = 0;    // share of them decoded valid
+  double fit_rms_px = 0;     // RMS residual of a homography fitted to the valid board pixels
+  double outlier_share = 0;  // share of valid board pixels more than 2 px off that homography
+  double monotone_share_x =
+      0;  // share of neighbour pairs along the board's x that follow its direction
   double monotone_share_y = 0;
   int white_cells = 0, black_cells = 0;
   double white_cell_min_valid = 0;  // smallest share of valid pixels in a white cell
@@ -37,7 +38,8 @@ struct PoseStats {
 PoseStats Measure(int pose, const DecodeOptions& options) {
   PoseStats s;
   const std::filesystem::path dir = KaminoDir() / ("capture_" + std::to_string(pose));
-  const PatternSpec spec = LoadPatternSpec(testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml");
+  const PatternSpec spec =
+      LoadPatternSpec(testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml");
   std::vector<cv::Mat> images;
   for (int i = 0; i < spec.NumImages(); ++i) {
     char name[32];
@@ -66,11 +68,13 @@ PoseStats Measure(int pose, const DecodeOptions& options) {
   for (int j = 0; j < 6; ++j) {
     for (int i = 0; i < 8; ++i) {
       const std::vector<cv::Point2f> quad = {corners[j * 9 + i], corners[j * 9 + i + 1],
-                                             corners[(j + 1) * 9 + i + 1], corners[(j + 1) * 9 + i]};
+                                             corners[(j + 1) * 9 + i + 1],
+                                             corners[(j + 1) * 9 + i]};
       const cv::Point2f centre = (quad[0] + quad[1] + quad[2] + quad[3]) / 4;
       std::vector<cv::Point> shrunk;
       for (const auto& q : quad) {
-        shrunk.emplace_back(cvRound(centre.x + 0.7 * (q.x - centre.x)), cvRound(centre.y + 0.7 * (q.y - centre.y)));
+        shrunk.emplace_back(cvRound(centre.x + 0.7 * (q.x - centre.x)),
+                            cvRound(centre.y + 0.7 * (q.y - centre.y)));
       }
       const cv::Rect roi = cv::boundingRect(shrunk);
       cv::Mat cell(roi.size(), CV_8UC1, cv::Scalar(0));
@@ -87,7 +91,8 @@ PoseStats Measure(int pose, const DecodeOptions& options) {
       } else {
         ++s.black_cells;
         s.black_cell_shadow +=
-            cv::countNonZero((map.status(roi) == static_cast<int>(PixelStatus::kShadow)) & cell) / area;
+            cv::countNonZero((map.status(roi) == static_cast<int>(PixelStatus::kShadow)) & cell) /
+            area;
       }
     }
   }
@@ -144,7 +149,8 @@ PoseStats Measure(int pose, const DecodeOptions& options) {
         agree += d.dot(expected) >= 0;
       }
     }
-    (axis == 0 ? s.monotone_share_x : s.monotone_share_y) = static_cast<double>(agree) / static_cast<double>(total);
+    (axis == 0 ? s.monotone_share_x : s.monotone_share_y) =
+        static_cast<double>(agree) / static_cast<double>(total);
   }
   return s;
 }
@@ -155,10 +161,12 @@ TEST(DecodeKamino, AllPosesDecodeSmoothMonotoneMapsOverTheBoard) {
   }
   for (int pose = 0; pose < 5; ++pose) {
     const PoseStats s = Measure(pose, {});
-    std::printf("pose %d: corners %d, board %.0f px, valid %.4f, homography rms %.3f px, outliers %.5f, "
-                "monotone x %.5f y %.5f, white cells %d min valid %.4f, black cells %d shadow %.4f\n",
-                pose, s.corners, s.board_px, s.valid_share, s.fit_rms_px, s.outlier_share, s.monotone_share_x,
-                s.monotone_share_y, s.white_cells, s.white_cell_min_valid, s.black_cells, s.black_cell_shadow);
+    std::printf(
+        "pose %d: corners %d, board %.0f px, valid %.4f, homography rms %.3f px, outliers %.5f, "
+        "monotone x %.5f y %.5f, white cells %d min valid %.4f, black cells %d shadow %.4f\n",
+        pose, s.corners, s.board_px, s.valid_share, s.fit_rms_px, s.outlier_share,
+        s.monotone_share_x, s.monotone_share_y, s.white_cells, s.white_cell_min_valid,
+        s.black_cells, s.black_cell_shadow);
     SCOPED_TRACE(::testing::Message() << "pose " << pose);
     ASSERT_EQ(s.corners, 63);
     // Measured (2026-11, default DecodeOptions): every white cell fully valid; black ink returns

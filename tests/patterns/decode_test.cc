@@ -22,7 +22,8 @@ constexpr int kProjW = 400, kProjH = 300;
 void HomographyView(cv::Mat* mx, cv::Mat* my) {
   const double a = 10 * std::numbers::pi / 180, s = 1.05;
   const cv::Matx33d centre_cam(1, 0, -kCamW / 2.0, 0, 1, -kCamH / 2.0, 0, 0, 1);
-  const cv::Matx33d rot(s * std::cos(a), -s * std::sin(a), 0, s * std::sin(a), s * std::cos(a), 0, 2e-4, 1e-4, 1);
+  const cv::Matx33d rot(s * std::cos(a), -s * std::sin(a), 0, s * std::sin(a), s * std::cos(a), 0,
+                        2e-4, 1e-4, 1);
   const cv::Matx33d to_proj(1, 0, kProjW / 2.0, 0, 1, kProjH / 2.0, 0, 0, 1);
   HomographyMaps(to_proj * rot * centre_cam, kCamW, kCamH, mx, my);
 }
@@ -34,7 +35,8 @@ void WavyView(cv::Mat* mx, cv::Mat* my) {
   for (int v = 0; v < kCamH; ++v) {
     for (int u = 0; u < kCamW; ++u) {
       mx->at<double>(v, u) = 200 + 1.1 * (u - 160.0) + 6 * std::sin(2 * std::numbers::pi * v / 120);
-      my->at<double>(v, u) = 150 + 0.97 * (v - 120.0) + 4 * std::sin(2 * std::numbers::pi * u / 150);
+      my->at<double>(v, u) =
+          150 + 0.97 * (v - 120.0) + 4 * std::sin(2 * std::numbers::pi * u / 150);
     }
   }
 }
@@ -50,7 +52,9 @@ PatternSpec Spec(PatternKind kind) {
   return s;
 }
 
-bool Inside(double x, double y) { return x > 0.5 && x < kProjW - 1.5 && y > 0.5 && y < kProjH - 1.5; }
+bool Inside(double x, double y) {
+  return x > 0.5 && x < kProjW - 1.5 && y > 0.5 && y < kProjH - 1.5;
+}
 
 struct GrayResult {
   int64_t inside = 0, valid = 0, wrong = 0, valid_outside = 0, edges = 0;
@@ -59,7 +63,8 @@ struct GrayResult {
 
 // `border`: camera pixels to skip at the image edges (blur there replicates the edge pixel, which
 // no real camera does).
-GrayResult CheckGrayExact(const ProjectorMap& map, const cv::Mat& mx, const cv::Mat& my, int border = 0) {
+GrayResult CheckGrayExact(const ProjectorMap& map, const cv::Mat& mx, const cv::Mat& my,
+                          int border = 0) {
   GrayResult r;
   for (int v = border; v < kCamH - border; ++v) {
     for (int u = border; u < kCamW - border; ++u) {
@@ -94,33 +99,34 @@ TEST(DecodeGrayCode, NoiseFreeDecodesEveryValidPixelExactly) {
   HomographyView(&mx, &my);
   const PatternSpec spec = Spec(PatternKind::kGrayCode);
   for (int depth : {8, 16}) {
-   for (bool edges : {false, true}) {
-    CameraSimOptions sim;
-    sim.bit_depth = depth;
-    DecodeOptions options;
-    options.gray_edge_midpoint = edges;
-    const ProjectorMap map =
-        DecodePatterns(spec, SimulateCameraImages(GeneratePatterns(spec), mx, my, sim), options);
-    EXPECT_TRUE(map.has_x && map.has_y);
-    const GrayResult r = CheckGrayExact(map, mx, my);
-    SCOPED_TRACE(::testing::Message() << depth << "-bit, edges " << edges << ": valid " << r.valid << "/"
-                                      << r.inside << ", on edges " << r.edges);
-    EXPECT_EQ(r.wrong, 0);
-    EXPECT_EQ(r.valid_outside, 0);
-    if (edges) {
-      // A pixel that sees a projector pixel edge (bit contrast < threshold) decodes to the edge.
-      EXPECT_GT(r.edges, 0);
-      EXPECT_GT(r.valid, 0.999 * r.inside);
-    } else {
-      // Only pixels within ~1% of a projector pixel edge are rejected.
-      EXPECT_EQ(r.edges, 0);
-      EXPECT_GT(r.valid, 0.95 * r.inside);
+    for (bool edges : {false, true}) {
+      CameraSimOptions sim;
+      sim.bit_depth = depth;
+      DecodeOptions options;
+      options.gray_edge_midpoint = edges;
+      const ProjectorMap map =
+          DecodePatterns(spec, SimulateCameraImages(GeneratePatterns(spec), mx, my, sim), options);
+      EXPECT_TRUE(map.has_x && map.has_y);
+      const GrayResult r = CheckGrayExact(map, mx, my);
+      SCOPED_TRACE(::testing::Message() << depth << "-bit, edges " << edges << ": valid " << r.valid
+                                        << "/" << r.inside << ", on edges " << r.edges);
+      EXPECT_EQ(r.wrong, 0);
+      EXPECT_EQ(r.valid_outside, 0);
+      if (edges) {
+        // A pixel that sees a projector pixel edge (bit contrast < threshold) decodes to the edge.
+        EXPECT_GT(r.edges, 0);
+        EXPECT_GT(r.valid, 0.999 * r.inside);
+      } else {
+        // Only pixels within ~1% of a projector pixel edge are rejected.
+        EXPECT_EQ(r.edges, 0);
+        EXPECT_GT(r.valid, 0.95 * r.inside);
+      }
+      const auto counts = map.CountByStatus();
+      EXPECT_EQ(counts[static_cast<int>(PixelStatus::kSaturated)], 0);
+      EXPECT_EQ(counts[static_cast<int>(PixelStatus::kCodeError)], 0);
+      EXPECT_GT(counts[static_cast<int>(PixelStatus::kShadow)],
+                0);  // the corners see outside the projector
     }
-    const auto counts = map.CountByStatus();
-    EXPECT_EQ(counts[static_cast<int>(PixelStatus::kSaturated)], 0);
-    EXPECT_EQ(counts[static_cast<int>(PixelStatus::kCodeError)], 0);
-    EXPECT_GT(counts[static_cast<int>(PixelStatus::kShadow)], 0);  // the corners see outside the projector
-   }
   }
 }
 
@@ -145,11 +151,13 @@ TEST(DecodeGrayCode, GammaBlurNoiseAndVaryingAlbedoKeepValidPixelsExact) {
   }
   for (double noise : {0.0, 1.0}) {
     sim.noise_sigma = noise;
-    const ProjectorMap map = DecodePatterns(spec, SimulateCameraImages(GeneratePatterns(spec), mx, my, sim));
+    const ProjectorMap map =
+        DecodePatterns(spec, SimulateCameraImages(GeneratePatterns(spec), mx, my, sim));
     const GrayResult r = CheckGrayExact(map, mx, my, 2);
     const auto counts = map.CountByStatus();
-    SCOPED_TRACE(::testing::Message() << "noise " << noise << ": valid " << r.valid << "/" << r.inside << " wrong "
-                                      << r.wrong << " low contrast " << counts[2] << " shadow " << counts[1]);
+    SCOPED_TRACE(::testing::Message()
+                 << "noise " << noise << ": valid " << r.valid << "/" << r.inside << " wrong "
+                 << r.wrong << " low contrast " << counts[2] << " shadow " << counts[1]);
     if (noise == 0) {
       EXPECT_EQ(r.wrong, 0);
     } else {
@@ -169,7 +177,8 @@ struct PhaseResult {
 };
 
 // Errors of the decoded coordinates against the map, over pixels inside the projector.
-PhaseResult CheckPhase(const ProjectorMap& map, const cv::Mat& mx, const cv::Mat& my, double period) {
+PhaseResult CheckPhase(const ProjectorMap& map, const cv::Mat& mx, const cv::Mat& my,
+                       double period) {
   PhaseResult r;
   double sum = 0, sum2 = 0;
   int64_t n = 0;
@@ -181,7 +190,8 @@ PhaseResult CheckPhase(const ProjectorMap& map, const cv::Mat& mx, const cv::Mat
       if (map.status.at<uint8_t>(v, u) != 0) continue;
       ++r.valid;
       for (int axis = 0; axis < 2; ++axis) {
-        const double e = axis == 0 ? map.proj_x.at<float>(v, u) - x : map.proj_y.at<float>(v, u) - y;
+        const double e =
+            axis == 0 ? map.proj_x.at<float>(v, u) - x : map.proj_y.at<float>(v, u) - y;
         if (std::fabs(e) > period / 2) {
           ++r.unwrap_errors;
           continue;
@@ -211,13 +221,15 @@ TEST_P(DecodePhase, NoiseFreeIsWithinOneHundredthPixelWithoutUnwrappingErrors) {
     for (int depth : {8, 16}) {
       CameraSimOptions sim;
       sim.bit_depth = depth;
-      const ProjectorMap map = DecodePatterns(spec, SimulateCameraImages(GeneratePatterns(spec), mx, my, sim));
+      const ProjectorMap map =
+          DecodePatterns(spec, SimulateCameraImages(GeneratePatterns(spec), mx, my, sim));
       const PhaseResult r = CheckPhase(map, mx, my, spec.PeriodsPx()[0]);
-      SCOPED_TRACE(::testing::Message() << ToString(spec.kind) << " view " << view << " depth " << depth
-                                        << ": rms " << r.rms << " max " << r.max_abs << " valid " << r.valid
-                                        << "/" << r.inside);
-      std::printf("%s view %d %d-bit: rms %.4f px, max %.4f px, valid %lld/%lld\n", ToString(spec.kind).c_str(),
-                  view, depth, r.rms, r.max_abs, static_cast<long long>(r.valid), static_cast<long long>(r.inside));
+      SCOPED_TRACE(::testing::Message()
+                   << ToString(spec.kind) << " view " << view << " depth " << depth << ": rms "
+                   << r.rms << " max " << r.max_abs << " valid " << r.valid << "/" << r.inside);
+      std::printf("%s view %d %d-bit: rms %.4f px, max %.4f px, valid %lld/%lld\n",
+                  ToString(spec.kind).c_str(), view, depth, r.rms, r.max_abs,
+                  static_cast<long long>(r.valid), static_cast<long long>(r.inside));
       EXPECT_EQ(r.unwrap_errors, 0);
       EXPECT_LE(r.rms, 0.01);
       EXPECT_LE(r.max_abs, 0.05);
@@ -243,11 +255,13 @@ TEST_P(DecodePhase, NoiseGivesThePredictedPhaseStandardDeviation) {
     const PhaseResult r = CheckPhase(map, mx, my, period);
     // sigma_phi = sigma / (B sqrt(N / 2)) radians, B = gain * 127.5 grey levels.
     const double b = sim.gain * 127.5;
-    const double predicted_px = sim.noise_sigma / (b * std::sqrt(steps / 2.0)) * period / (2 * std::numbers::pi);
+    const double predicted_px =
+        sim.noise_sigma / (b * std::sqrt(steps / 2.0)) * period / (2 * std::numbers::pi);
     SCOPED_TRACE(::testing::Message() << ToString(spec.kind) << " N=" << steps << ": std " << r.std
                                       << " px, predicted " << predicted_px << " px");
     std::printf("%s N=%d sigma=%.1f: phase std %.5f px, predicted %.5f px, ratio %.3f\n",
-                ToString(spec.kind).c_str(), steps, sim.noise_sigma, r.std, predicted_px, r.std / predicted_px);
+                ToString(spec.kind).c_str(), steps, sim.noise_sigma, r.std, predicted_px,
+                r.std / predicted_px);
     EXPECT_EQ(r.unwrap_errors, 0);
     EXPECT_GE(r.valid, r.inside * 999 / 1000);
     EXPECT_LT(r.std, 1.2 * predicted_px);
@@ -267,7 +281,8 @@ TEST(DecodePhaseShift, GammaAndBlurGiveNoUnwrappingErrors) {
   sim.gamma = 1.8;
   sim.blur_sigma_px = 1.0;
   sim.noise_sigma = 1.0;
-  const ProjectorMap map = DecodePatterns(spec, SimulateCameraImages(GeneratePatterns(spec), mx, my, sim));
+  const ProjectorMap map =
+      DecodePatterns(spec, SimulateCameraImages(GeneratePatterns(spec), mx, my, sim));
   const PhaseResult r = CheckPhase(map, mx, my, spec.period_px);
   EXPECT_EQ(r.unwrap_errors, 0);
   EXPECT_GT(r.valid, 0.99 * r.inside);
@@ -303,7 +318,8 @@ TEST_P(DecodeFailures, AreMaskedWithTheirReason) {
   // phase shift: 6 bits, half-period index h <= 11 reads as 63 - h > 49), or for the heterodyne
   // the P3 frames rotated by one step (a quarter-cycle error).
   if (spec.kind != PatternKind::kMultiFrequency) {
-    const size_t msb = static_cast<size_t>(spec.kind == PatternKind::kGrayCode ? 2 : spec.phase_steps);
+    const size_t msb =
+        static_cast<size_t>(spec.kind == PatternKind::kGrayCode ? 2 : spec.phase_steps);
     cv::Mat p = images[msb](corrupt).clone();
     images[msb + 1](corrupt).copyTo(images[msb](corrupt));
     p.copyTo(images[msb + 1](corrupt));
@@ -322,7 +338,8 @@ TEST_P(DecodeFailures, AreMaskedWithTheirReason) {
   }
   const ProjectorMap map = DecodePatterns(spec, images);
   const auto share = [&](const cv::Rect& rect, PixelStatus status) {
-    return cv::countNonZero(map.status(rect) == static_cast<int>(status)) / static_cast<double>(rect.area());
+    return cv::countNonZero(map.status(rect) == static_cast<int>(status)) /
+           static_cast<double>(rect.area());
   };
   EXPECT_EQ(share(shadow, PixelStatus::kShadow), 1.0);
   EXPECT_EQ(share(saturated, PixelStatus::kSaturated), 1.0);
@@ -359,7 +376,8 @@ TEST(Decode, OneAxisLeavesTheOtherNaN) {
   spec.code_y = false;
   cv::Mat mx, my;
   HomographyView(&mx, &my);
-  const ProjectorMap map = DecodePatterns(spec, SimulateCameraImages(GeneratePatterns(spec), mx, my, {}));
+  const ProjectorMap map =
+      DecodePatterns(spec, SimulateCameraImages(GeneratePatterns(spec), mx, my, {}));
   EXPECT_TRUE(map.has_x);
   EXPECT_FALSE(map.has_y);
   EXPECT_EQ(cv::countNonZero(map.proj_y == map.proj_y), 0);  // all NaN
@@ -388,7 +406,8 @@ TEST(Decode, ParallelEqualsSerial) {
 TEST(Decode, OddWidthCropsEqualTheFullImage) {
   cv::Mat mx, my;
   WavyView(&mx, &my);
-  for (PatternKind kind : {PatternKind::kGrayCode, PatternKind::kPhaseShift, PatternKind::kMultiFrequency}) {
+  for (PatternKind kind :
+       {PatternKind::kGrayCode, PatternKind::kPhaseShift, PatternKind::kMultiFrequency}) {
     for (int depth : {8, 16}) {
       const PatternSpec spec = Spec(kind);
       CameraSimOptions sim;
@@ -402,7 +421,8 @@ TEST(Decode, OddWidthCropsEqualTheFullImage) {
       SCOPED_TRACE(::testing::Message() << ToString(kind) << " " << depth << "-bit");
       EXPECT_EQ(cv::norm(full.status(crop), part.status, cv::NORM_INF), 0);
       EXPECT_EQ(cv::norm(full.quality(crop), part.quality, cv::NORM_INF), 0);
-      for (const auto& [a, b] : {std::pair{full.proj_x(crop), part.proj_x}, std::pair{full.proj_y(crop), part.proj_y}}) {
+      for (const auto& [a, b] :
+           {std::pair{full.proj_x(crop), part.proj_x}, std::pair{full.proj_y(crop), part.proj_y}}) {
         cv::Mat fa = a.clone(), fb = b.clone();
         cv::patchNaNs(fa, -7);
         cv::patchNaNs(fb, -7);
@@ -415,7 +435,8 @@ TEST(Decode, OddWidthCropsEqualTheFullImage) {
 
 TEST(Decode, RejectsBadInput) {
   const PatternSpec spec = Spec(PatternKind::kGrayCode);
-  std::vector<cv::Mat> images(static_cast<size_t>(spec.NumImages()), cv::Mat(8, 8, CV_8UC1, cv::Scalar(0)));
+  std::vector<cv::Mat> images(static_cast<size_t>(spec.NumImages()),
+                              cv::Mat(8, 8, CV_8UC1, cv::Scalar(0)));
   EXPECT_NO_THROW(DecodePatterns(spec, images));
   auto few = images;
   few.pop_back();
@@ -445,7 +466,7 @@ TEST(Decode, TwelveBitDataIn16BitImagesWithFullScale) {
   cv::Mat mx, my;
   HomographyView(&mx, &my);
   auto images = SimulateCameraImages(GeneratePatterns(spec), mx, my, {});  // 8-bit
-  for (auto& im : images) im.convertTo(im, CV_16U, 16.0);  // 12-bit levels 0..4080
+  for (auto& im : images) im.convertTo(im, CV_16U, 16.0);                  // 12-bit levels 0..4080
   DecodeOptions options;
   options.full_scale = 4095;
   const ProjectorMap map = DecodePatterns(spec, images, options);
@@ -454,7 +475,9 @@ TEST(Decode, TwelveBitDataIn16BitImagesWithFullScale) {
   EXPECT_GT(r.valid, 0.95 * r.inside);
   // The saturation level follows the full scale: 4095 is saturated.
   for (auto& im : images) im(cv::Rect(100, 100, 10, 10)).setTo(4095);
-  EXPECT_EQ(DecodePatterns(spec, images, options).CountByStatus()[static_cast<int>(PixelStatus::kSaturated)], 100);
+  EXPECT_EQ(DecodePatterns(spec, images, options)
+                .CountByStatus()[static_cast<int>(PixelStatus::kSaturated)],
+            100);
 }
 
 TEST(Atan2Cycles, MatchesStdAtan2) {
@@ -462,8 +485,10 @@ TEST(Atan2Cycles, MatchesStdAtan2) {
   for (int i = 0; i < 100000; ++i) {
     const double angle = 2 * std::numbers::pi * i / 100000.0;
     for (double radius : {1e-3, 1.0, 3e4}) {
-      const float y = static_cast<float>(radius * std::sin(angle)), x = static_cast<float>(radius * std::cos(angle));
-      double expected = std::atan2(static_cast<double>(y), static_cast<double>(x)) / (2 * std::numbers::pi);
+      const float y = static_cast<float>(radius * std::sin(angle)),
+                  x = static_cast<float>(radius * std::cos(angle));
+      double expected =
+          std::atan2(static_cast<double>(y), static_cast<double>(x)) / (2 * std::numbers::pi);
       if (expected < 0) expected += 1;
       double d = std::fabs(Atan2Cycles(y, x) - expected);
       d = std::min(d, 1 - d);  // 0 and 1 are the same angle
@@ -474,7 +499,6 @@ TEST(Atan2Cycles, MatchesStdAtan2) {
   const float f = Atan2Cycles(-1e-30f, 1.0f);
   EXPECT_TRUE(f >= 0.0f && f < 1.0f);
 }
-
 
 // Options as files: every field written is read back (JSON and YAML), unknown keys and bad
 // values are refused naming the file and the field.
@@ -488,7 +512,8 @@ TEST(DecodeOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
   o.unwrap_tolerance_cycles = 0.2;
   o.parallel = false;
   const nlohmann::json j = DecodeOptionsToJson(o);
-  for (const ConfigNode& node : {ConfigNode::FromJson(j, "decode.json"), ConfigNode::ParseYaml(JsonToYaml(j), "decode.yaml")}) {
+  for (const ConfigNode& node : {ConfigNode::FromJson(j, "decode.json"),
+                                 ConfigNode::ParseYaml(JsonToYaml(j), "decode.yaml")}) {
     const DecodeOptions r = DecodeOptionsFromConfig(node);
     EXPECT_EQ(r.shadow_threshold, o.shadow_threshold);
     EXPECT_EQ(r.contrast_threshold, o.contrast_threshold);
@@ -500,7 +525,8 @@ TEST(DecodeOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
     EXPECT_EQ(DecodeOptionsToJson(r), j);
   }
   // Missing fields keep their defaults.
-  EXPECT_EQ(DecodeOptionsToJson(DecodeOptionsFromConfig(ConfigNode::FromJson(nlohmann::json::object(), "d.json"))),
+  EXPECT_EQ(DecodeOptionsToJson(
+                DecodeOptionsFromConfig(ConfigNode::FromJson(nlohmann::json::object(), "d.json"))),
             DecodeOptionsToJson(DecodeOptions{}));
   nlohmann::json typo = j;
   typo["shadow_treshold"] = 3;

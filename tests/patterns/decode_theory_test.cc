@@ -8,8 +8,8 @@
 //    sigma_phi = sqrt(2 / N) * sigma / B (rad), B the fringe amplitude in camera levels; in
 //    projector pixels sigma_x = sigma_phi * P / (2 pi).
 //  - Gray code with inverse frames: a bit is read from d = I_bit - I_inverse = +-C + n, n of
-//    variance 2 sigma^2, C the camera contrast; it flips with p = Q(C / (sqrt(2) sigma)), and a pixel
-//    of an n-bit axis decodes to a wrong column with 1 - (1 - p)^n.
+//    variance 2 sigma^2, C the camera contrast; it flips with p = Q(C / (sqrt(2) sigma)), and a
+//    pixel of an n-bit axis decodes to a wrong column with 1 - (1 - p)^n.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -74,8 +74,8 @@ PhaseStats MeasurePhase(int steps, double sigma) {
   sim.noise_sigma = sigma;
   sim.bit_depth = 16;
   sim.seed = 7 + static_cast<uint64_t>(steps);
-  const ProjectorMap map = DecodePatterns(spec, SimulateCameraImages(GeneratePatterns(spec), mx, my, sim),
-                                          AcceptEverything());
+  const ProjectorMap map = DecodePatterns(
+      spec, SimulateCameraImages(GeneratePatterns(spec), mx, my, sim), AcceptEverything());
   PhaseStats s;
   double sum2 = 0;
   for (int v = 0; v < kH; ++v) {
@@ -100,11 +100,13 @@ TEST(DecodeTheory, PhaseNoiseFollowsTheSurrelBound) {
   for (const int steps : {3, 4, 8}) {
     for (const double sigma : {2.0, 4.0, 8.0}) {
       const PhaseStats s = MeasurePhase(steps, sigma);
-      const double predicted = std::sqrt(2.0 / steps) * sigma / amplitude * 16 / (2 * std::numbers::pi);
-      SCOPED_TRACE(testing::Message() << "N = " << steps << ", sigma = " << sigma << " levels: measured "
-                                      << s.sigma_px << " px, predicted " << predicted << " px");
-      std::printf("MEASURE phase N=%d sigma=%.0f levels: %.5f px (Surrel %.5f px, ratio %.4f)\n", steps, sigma, s.sigma_px,
-                  predicted, s.sigma_px / predicted);
+      const double predicted =
+          std::sqrt(2.0 / steps) * sigma / amplitude * 16 / (2 * std::numbers::pi);
+      SCOPED_TRACE(testing::Message()
+                   << "N = " << steps << ", sigma = " << sigma << " levels: measured " << s.sigma_px
+                   << " px, predicted " << predicted << " px");
+      std::printf("MEASURE phase N=%d sigma=%.0f levels: %.5f px (Surrel %.5f px, ratio %.4f)\n",
+                  steps, sigma, s.sigma_px, predicted, s.sigma_px / predicted);
       EXPECT_GT(s.valid, int64_t{kW} * kH * 99 / 100);
       EXPECT_EQ(s.unwrap_errors, 0);
       // ~130 k samples: the standard deviation is known to 0.2 %; the 8-bit projector patterns
@@ -128,8 +130,8 @@ double GrayWrongFraction(double sigma, int64_t* decoded) {
   sim.noise_sigma = sigma;
   sim.bit_depth = 16;
   sim.seed = 11;
-  const ProjectorMap map = DecodePatterns(spec, SimulateCameraImages(GeneratePatterns(spec), mx, my, sim),
-                                          AcceptEverything());
+  const ProjectorMap map = DecodePatterns(
+      spec, SimulateCameraImages(GeneratePatterns(spec), mx, my, sim), AcceptEverything());
   int64_t wrong = 0;
   *decoded = 0;
   for (int v = 0; v < kH; ++v) {
@@ -158,16 +160,19 @@ TEST(DecodeTheory, GrayCodeBitErrorsAndBreakPointFollowTheNormalTail) {
     int64_t decoded = 0;
     const double f = GrayWrongFraction(sigma, &decoded);
     const double predicted = GrayWrongPredicted(sigma, bits);
-    SCOPED_TRACE(testing::Message() << "sigma " << sigma << ": wrong " << f << ", predicted " << predicted);
+    SCOPED_TRACE(testing::Message()
+                 << "sigma " << sigma << ": wrong " << f << ", predicted " << predicted);
     // The white - black test (threshold 0) fails like a bit: white - black = C + n.
     const double shadowed = Q(0.1 * 255 / (std::numbers::sqrt2 * sigma)) * kW * kH;
-    EXPECT_NEAR(static_cast<double>(int64_t{kW} * kH - decoded), shadowed, 5 * std::sqrt(shadowed) + 3);
+    EXPECT_NEAR(static_cast<double>(int64_t{kW} * kH - decoded), shadowed,
+                5 * std::sqrt(shadowed) + 3);
     // Binomial: with >= 300 expected wrong pixels, 5 standard errors stay within 30 %; below that
     // the count is checked against 5 standard errors of a Poisson count.
     const double expected = predicted * static_cast<double>(decoded);
     EXPECT_NEAR(f * static_cast<double>(decoded), expected, 5 * std::sqrt(expected) + 3);
-    std::printf("MEASURE gray sigma=%.0f levels: wrong %.5f (theory %.5f), undecoded %ld (theory %.0f)\n", sigma, f,
-                predicted, static_cast<long>(int64_t{kW} * kH - decoded), shadowed);
+    std::printf(
+        "MEASURE gray sigma=%.0f levels: wrong %.5f (theory %.5f), undecoded %ld (theory %.0f)\n",
+        sigma, f, predicted, static_cast<long>(int64_t{kW} * kH - decoded), shadowed);
     measured.push_back(f);
   }
   // The break point: the noise at which 1 % of the pixels decode to a wrong column, read off the
@@ -176,7 +181,8 @@ TEST(DecodeTheory, GrayCodeBitErrorsAndBreakPointFollowTheNormalTail) {
   double sweep_break = NAN;
   for (size_t i = 0; i + 1 < sigmas.size(); ++i) {
     if (measured[i] < limit && measured[i + 1] >= limit) {
-      const double t = (std::log(limit) - std::log(measured[i])) / (std::log(measured[i + 1]) - std::log(measured[i]));
+      const double t = (std::log(limit) - std::log(measured[i])) /
+                       (std::log(measured[i + 1]) - std::log(measured[i]));
       sweep_break = sigmas[i] + t * (sigmas[i + 1] - sigmas[i]);
     }
   }
@@ -185,9 +191,11 @@ TEST(DecodeTheory, GrayCodeBitErrorsAndBreakPointFollowTheNormalTail) {
     const double mid = 0.5 * (lo + hi);
     (GrayWrongPredicted(mid, bits) < limit ? lo : hi) = mid;
   }
-  std::printf("MEASURE gray break point (1 %% wrong): sweep %.3f levels, theory %.3f levels\n", sweep_break, lo);
+  std::printf("MEASURE gray break point (1 %% wrong): sweep %.3f levels, theory %.3f levels\n",
+              sweep_break, lo);
   ASSERT_TRUE(std::isfinite(sweep_break)) << "the sweep never crossed " << limit;
-  EXPECT_NEAR(sweep_break / lo, 1.0, 0.05) << "break point: sweep " << sweep_break << ", theory " << lo;
+  EXPECT_NEAR(sweep_break / lo, 1.0, 0.05)
+      << "break point: sweep " << sweep_break << ", theory " << lo;
 }
 
 }  // namespace

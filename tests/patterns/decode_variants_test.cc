@@ -36,7 +36,8 @@ struct Result {
 };
 
 // Decoded coordinates against the map, over camera pixels that see the projector's interior.
-Result Check(const PatternSpec& spec, const ProjectorMap& map, const cv::Mat& mx, const cv::Mat& my) {
+Result Check(const PatternSpec& spec, const ProjectorMap& map, const cv::Mat& mx,
+             const cv::Mat& my) {
   Result r;
   double sum = 0, sum2 = 0;
   int64_t n = 0;
@@ -44,7 +45,9 @@ Result Check(const PatternSpec& spec, const ProjectorMap& map, const cv::Mat& mx
   for (int v = 0; v < mx.rows; ++v) {
     for (int u = 0; u < mx.cols; ++u) {
       const double x = mx.at<double>(v, u), y = my.at<double>(v, u);
-      if (!(x > 0.5 && x < spec.projector_width - 1.5 && y > 0.5 && y < spec.projector_height - 1.5)) continue;
+      if (!(x > 0.5 && x < spec.projector_width - 1.5 && y > 0.5 &&
+            y < spec.projector_height - 1.5))
+        continue;
       ++r.inside;
       if (map.status.at<uint8_t>(v, u) != 0) continue;
       ++r.valid;
@@ -56,10 +59,11 @@ Result Check(const PatternSpec& spec, const ProjectorMap& map, const cv::Mat& mx
         const double truth = axis == 0 ? x : y;
         const double decoded = (axis == 0 ? map.proj_x : map.proj_y).at<float>(v, u);
         // Gray code: the projector pixel containing the point, or a decoded edge (half-integer).
-        const double e = spec.kind == PatternKind::kGrayCode
-                             ? (decoded == std::floor(decoded) ? decoded - std::round(truth)
-                                                               : (std::fabs(decoded - truth) <= 0.5 ? 0.0 : 1.0))
-                             : decoded - truth;
+        const double e =
+            spec.kind == PatternKind::kGrayCode
+                ? (decoded == std::floor(decoded) ? decoded - std::round(truth)
+                                                  : (std::fabs(decoded - truth) <= 0.5 ? 0.0 : 1.0))
+                : decoded - truth;
         if (std::fabs(e) > period / 2) {
           ++r.unwrap_errors;
           continue;
@@ -125,7 +129,8 @@ std::vector<Variant> Variants() {
        [](PatternSpec& s) {
          s.gray_inverse = false;
          const auto frames = s.Frames();
-         for (auto it = frames.rbegin(); it != frames.rend(); ++it) s.frame_order.push_back(it->Name());
+         for (auto it = frames.rbegin(); it != frames.rend(); ++it)
+           s.frame_order.push_back(it->Name());
        }},
   };
 }
@@ -147,10 +152,11 @@ TEST_P(PhaseVariant, NoiseFreeDecodesLikeTheDefaultCodec) {
     sim.bit_depth = depth;
     const Result baseline = RenderAndDecode(PhaseSpec(), sim);
     const Result r = RenderAndDecode(spec, sim);
-    std::printf("%s %d-bit: rms %.4f px (default %.4f), max %.4f px, valid %lld/%lld (default %lld)\n",
-                Variants()[GetParam()].name.c_str(), depth, r.rms, baseline.rms, r.max_abs,
-                static_cast<long long>(r.valid), static_cast<long long>(r.inside),
-                static_cast<long long>(baseline.valid));
+    std::printf(
+        "%s %d-bit: rms %.4f px (default %.4f), max %.4f px, valid %lld/%lld (default %lld)\n",
+        Variants()[GetParam()].name.c_str(), depth, r.rms, baseline.rms, r.max_abs,
+        static_cast<long long>(r.valid), static_cast<long long>(r.inside),
+        static_cast<long long>(baseline.valid));
     EXPECT_EQ(r.unwrap_errors, 0);
     EXPECT_LE(r.rms, 0.01);
     EXPECT_LE(r.max_abs, 0.05);
@@ -169,8 +175,9 @@ TEST_P(PhaseVariant, GammaBlurAndNoiseGiveNoUnwrappingErrors) {
   const Result baseline = RenderAndDecode(PhaseSpec(), sim);
   const Result r = RenderAndDecode(spec, sim);
   std::printf("%s gamma/blur/noise: rms %.4f px (default %.4f), valid %lld/%lld (default %lld)\n",
-              Variants()[GetParam()].name.c_str(), r.rms, baseline.rms, static_cast<long long>(r.valid),
-              static_cast<long long>(r.inside), static_cast<long long>(baseline.valid));
+              Variants()[GetParam()].name.c_str(), r.rms, baseline.rms,
+              static_cast<long long>(r.valid), static_cast<long long>(r.inside),
+              static_cast<long long>(baseline.valid));
   EXPECT_EQ(r.unwrap_errors, 0);
   EXPECT_GT(r.valid, 0.99 * r.inside);
   EXPECT_LT(r.rms, 0.5);
@@ -185,10 +192,11 @@ TEST_P(PhaseVariant, NoiseGivesThePredictedPhaseStandardDeviation) {
   sim.bit_depth = 16;
   const Result r = RenderAndDecode(spec, sim);
   // sigma_phi = sigma / (B sqrt(N / 2)) radians, B = gain * 127.5 grey levels.
-  const double predicted_px = sim.noise_sigma / (sim.gain * 127.5 * std::sqrt(spec.phase_steps / 2.0)) *
+  const double predicted_px = sim.noise_sigma /
+                              (sim.gain * 127.5 * std::sqrt(spec.phase_steps / 2.0)) *
                               spec.period_px / (2 * std::numbers::pi);
-  std::printf("%s N=%d: phase std %.5f px, predicted %.5f px\n", Variants()[GetParam()].name.c_str(),
-              spec.phase_steps, r.std, predicted_px);
+  std::printf("%s N=%d: phase std %.5f px, predicted %.5f px\n",
+              Variants()[GetParam()].name.c_str(), spec.phase_steps, r.std, predicted_px);
   EXPECT_EQ(r.unwrap_errors, 0);
   EXPECT_GE(r.valid, r.inside * 999 / 1000);
   EXPECT_LT(r.std, 1.2 * predicted_px);
@@ -200,7 +208,8 @@ INSTANTIATE_TEST_SUITE_P(Variants, PhaseVariant, ::testing::Range<size_t>(0, Var
 
 // Permuting the frames and the images alike changes nothing: the decoder finds frames by role.
 TEST(DecodeVariants, FrameOrderIsAPermutationOfTheSameDecode) {
-  for (PatternKind kind : {PatternKind::kGrayCode, PatternKind::kPhaseShift, PatternKind::kMultiFrequency}) {
+  for (PatternKind kind :
+       {PatternKind::kGrayCode, PatternKind::kPhaseShift, PatternKind::kMultiFrequency}) {
     PatternSpec spec = PhaseSpec();
     spec.kind = kind;
     spec.periods_px = {400.0 / 26, 400.0 / 24, 400.0 / 22.3};
@@ -227,7 +236,8 @@ TEST(DecodeVariants, FrameOrderIsAPermutationOfTheSameDecode) {
     }
     const ProjectorMap map = DecodePatterns(permuted, permuted_images);
     EXPECT_EQ(cv::norm(map.status, reference.status, cv::NORM_INF), 0) << ToString(kind);
-    for (const auto& [a, b] : {std::pair{map.proj_x, reference.proj_x}, std::pair{map.proj_y, reference.proj_y}}) {
+    for (const auto& [a, b] :
+         {std::pair{map.proj_x, reference.proj_x}, std::pair{map.proj_y, reference.proj_y}}) {
       cv::Mat pa = a.clone(), pb = b.clone();
       cv::patchNaNs(pa, -7);
       cv::patchNaNs(pb, -7);
@@ -255,11 +265,13 @@ TEST(DecodeVariants, GrayCodeWithoutInverseIsExact) {
       PatternSpec with_inverse = spec;
       with_inverse.gray_inverse = true;
       const Result baseline = RenderAndDecode(with_inverse, sim);
-      std::printf("gray_code without inverse, noise %.0f: valid %lld/%lld (with inverse %lld), wrong %lld (with "
-                  "inverse %lld)\n",
-                  noise, static_cast<long long>(r.valid), static_cast<long long>(r.inside),
-                  static_cast<long long>(baseline.valid), static_cast<long long>(r.unwrap_errors),
-                  static_cast<long long>(baseline.unwrap_errors));
+      std::printf(
+          "gray_code without inverse, noise %.0f: valid %lld/%lld (with inverse %lld), wrong %lld "
+          "(with "
+          "inverse %lld)\n",
+          noise, static_cast<long long>(r.valid), static_cast<long long>(r.inside),
+          static_cast<long long>(baseline.valid), static_cast<long long>(r.unwrap_errors),
+          static_cast<long long>(baseline.unwrap_errors));
       EXPECT_EQ(r.max_abs, 0.0);
       if (noise == 0) {
         EXPECT_EQ(r.unwrap_errors, 0);

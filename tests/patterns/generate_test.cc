@@ -32,7 +32,8 @@ TEST(GeneratePatterns, GrayCodeColumnsAndRowsDecodeToTheirIndex) {
       uint32_t gx = 0, gy = 0;
       for (size_t i = 2; i < frames.size(); ++i) {
         const uint8_t v = images[i].at<uint8_t>(r, c);
-        const uint8_t inv = images[i + (frames[i].role == FrameRole::kGrayBit ? 1 : -1)].at<uint8_t>(r, c);
+        const uint8_t inv =
+            images[i + (frames[i].role == FrameRole::kGrayBit ? 1 : -1)].at<uint8_t>(r, c);
         ASSERT_EQ(v + inv, 220);  // pattern and inverse are complementary
         if (frames[i].role != FrameRole::kGrayBit) continue;
         const uint32_t bit = v == 200 ? 1u : 0u;
@@ -65,7 +66,8 @@ TEST(GeneratePatterns, PhaseFramesFollowTheFormula) {
         const double x = frames[i].axis == 0 ? c : r;
         const double v =
             127.5 + 127.5 * std::cos(2 * std::numbers::pi * (x / 12.5 - frames[i].step / 3.0));
-        ASSERT_EQ(images[i].at<uint8_t>(r, c), static_cast<int>(std::floor(v + 0.5))) << frames[i].Name();
+        ASSERT_EQ(images[i].at<uint8_t>(r, c), static_cast<int>(std::floor(v + 0.5)))
+            << frames[i].Name();
       }
     }
   }

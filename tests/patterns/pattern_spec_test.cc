@@ -58,7 +58,8 @@ TEST(PatternSpec, NativeOrderAndBitCounts) {
   p.code_y = true;
   p.phase_steps = 4;
   p.period_px = 16;
-  // x: h = floor(2 * 1279 / 16) = 159 -> 160 codes -> 8 bits; y: floor(2 * 799 / 16) = 99 -> 7 bits.
+  // x: h = floor(2 * 1279 / 16) = 159 -> 160 codes -> 8 bits; y: floor(2 * 799 / 16) = 99 -> 7
+  // bits.
   EXPECT_EQ(p.GrayBits(0), 8);
   EXPECT_EQ(p.GrayBits(1), 7);
   EXPECT_EQ(p.NumImages(), (4 + 16) + (4 + 14));
@@ -140,7 +141,9 @@ TEST(PatternSpec, JsonRoundTripForEveryKind) {
     nlohmann::json manifest;
     manifest["patterns"] = j;
     manifest["version"] = 1;
-    EXPECT_EQ(PatternSpecToJson(PatternSpecFromConfig(ConfigNode::FromJson(manifest, "manifest.json"))), j);
+    EXPECT_EQ(
+        PatternSpecToJson(PatternSpecFromConfig(ConfigNode::FromJson(manifest, "manifest.json"))),
+        j);
   }
 }
 
@@ -153,38 +156,44 @@ TEST(PatternSpec, ConfigErrorsNameFileFieldAndValue) {
     }
     return std::string();
   };
-  EXPECT_NE(message("kind: stripes\nprojector_width: 64\nprojector_height: 64\n").find("p.yaml: kind"),
+  EXPECT_NE(
+      message("kind: stripes\nprojector_width: 64\nprojector_height: 64\n").find("p.yaml: kind"),
+      std::string::npos);
+  EXPECT_NE(message("kind: gray_code\nprojector_width: 64\n").find("projector_height: missing"),
             std::string::npos);
-  EXPECT_NE(message("kind: gray_code\nprojector_width: 64\n").find("projector_height: missing"), std::string::npos);
-  EXPECT_NE(message("kind: gray_code\nprojector_width: 64\nprojector_height: 64\nperiod_px: 16\n").find("period_px"),
+  EXPECT_NE(message("kind: gray_code\nprojector_width: 64\nprojector_height: 64\nperiod_px: 16\n")
+                .find("period_px"),
             std::string::npos);
-  EXPECT_NE(message("kind: phase_shift\nprojector_width: 64\nprojector_height: 64\nperiod_px: 2\n").find(
-                "p.yaml: pattern spec: period_px"),
+  EXPECT_NE(message("kind: phase_shift\nprojector_width: 64\nprojector_height: 64\nperiod_px: 2\n")
+                .find("p.yaml: pattern spec: period_px"),
             std::string::npos);
-  EXPECT_NE(message("kind: gray_code\nprojector_width: 64\nprojector_height: 64\nnum_images: 3\n").find(
-                "num_images"),
+  EXPECT_NE(message("kind: gray_code\nprojector_width: 64\nprojector_height: 64\nnum_images: 3\n")
+                .find("num_images"),
             std::string::npos);
-  EXPECT_EQ(message("kind: gray_code\nprojector_width: 64\nprojector_height: 64\nnum_images: 26\n"), "");
+  EXPECT_EQ(message("kind: gray_code\nprojector_width: 64\nprojector_height: 64\nnum_images: 26\n"),
+            "");
 }
 
 TEST(PatternSpec, ShippedExampleConfigsLoad) {
-  const PatternSpec kamino = LoadPatternSpec(testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml");
+  const PatternSpec kamino =
+      LoadPatternSpec(testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml");
   EXPECT_EQ(kamino.kind, PatternKind::kGrayCode);
   EXPECT_TRUE(kamino.opencv_order);
   EXPECT_EQ(kamino.NumImages(), 42);
-  const PatternSpec phase = LoadPatternSpec(testing::SourceDir() / "config/patterns/graycode_phase.yaml");
+  const PatternSpec phase =
+      LoadPatternSpec(testing::SourceDir() / "config/patterns/graycode_phase.yaml");
   EXPECT_EQ(phase.kind, PatternKind::kPhaseShift);
   EXPECT_EQ(phase.projector_width, 1280);
   EXPECT_EQ(phase.projector_height, 800);
   EXPECT_TRUE(phase.code_x && phase.code_y);
-  const PatternSpec multi = LoadPatternSpec(testing::SourceDir() / "config/patterns/multi_frequency.yaml");
+  const PatternSpec multi =
+      LoadPatternSpec(testing::SourceDir() / "config/patterns/multi_frequency.yaml");
   EXPECT_EQ(multi.kind, PatternKind::kMultiFrequency);
 
   testing::TempDir dir;
   WriteTextFileAtomically(dir / "spec.json", PatternSpecToJson(phase).dump(2));
   EXPECT_EQ(PatternSpecToJson(LoadPatternSpec(dir / "spec.json")), PatternSpecToJson(phase));
 }
-
 
 // The sequence variants: frame layout, JSON round trip, and errors that name the field.
 TEST(PatternSpec, VariantLayouts) {
@@ -245,7 +254,8 @@ TEST(PatternSpec, VariantErrorsNameTheField) {
   p.kind = PatternKind::kPhaseShift;
   p.period_px = 20;
   p.gray_bits = 5;
-  EXPECT_NE(message(p).find("gray_bits: the x axis needs 7 bits (got 5)"), std::string::npos) << message(p);
+  EXPECT_NE(message(p).find("gray_bits: the x axis needs 7 bits (got 5)"), std::string::npos)
+      << message(p);
   p.gray_bits = 17;
   EXPECT_NE(message(p).find("gray_bits"), std::string::npos);
   p.gray_bits = 0;
@@ -253,7 +263,8 @@ TEST(PatternSpec, VariantErrorsNameTheField) {
   EXPECT_NE(message(p).find("gray_reference: only for bits without inverse"), std::string::npos);
   p.gray_inverse = false;
   p.gray_reference = GrayReference::kWhiteBlack;
-  EXPECT_NE(message(p).find("gray_reference: white_black needs white_black: true"), std::string::npos);
+  EXPECT_NE(message(p).find("gray_reference: white_black needs white_black: true"),
+            std::string::npos);
   p.gray_reference = GrayReference::kAuto;
   p.phase_direction = 0;
   EXPECT_NE(message(p).find("phase_direction"), std::string::npos);
@@ -262,11 +273,14 @@ TEST(PatternSpec, VariantErrorsNameTheField) {
   EXPECT_NE(message(p).find("phase_offset_rad"), std::string::npos);
   p.phase_offset_rad = 0;
   p.frame_order = {"phase_x_f0_s0"};
-  EXPECT_NE(message(p).find("frame_order: frame \"phase_x_f0_s1\" is missing"), std::string::npos) << message(p);
+  EXPECT_NE(message(p).find("frame_order: frame \"phase_x_f0_s1\" is missing"), std::string::npos)
+      << message(p);
   p.frame_order = {"phase_x_f0_s9"};
-  EXPECT_NE(message(p).find("frame_order[0]: no such frame in this spec (got \"phase_x_f0_s9\""), std::string::npos);
+  EXPECT_NE(message(p).find("frame_order[0]: no such frame in this spec (got \"phase_x_f0_s9\""),
+            std::string::npos);
   p.frame_order = {"phase_x_f0_s0", "phase_x_f0_s0"};
-  EXPECT_NE(message(p).find("frame_order[1]: frame \"phase_x_f0_s0\" appears twice"), std::string::npos);
+  EXPECT_NE(message(p).find("frame_order[1]: frame \"phase_x_f0_s0\" appears twice"),
+            std::string::npos);
   PatternSpec g = Gray(64, 64);
   g.gray_code = GrayCodeVariant::kShifted;
   EXPECT_NE(message(g).find("gray_code"), std::string::npos);
@@ -296,7 +310,8 @@ TEST(PatternSpec, VariantJsonRoundTripAndFrameOrderReadBack) {
   const PatternSpec back = PatternSpecFromConfig(ConfigNode::FromJson(j, "spec.json"));
   EXPECT_EQ(PatternSpecToJson(back), j);
   ASSERT_EQ(back.Frames().size(), p.Frames().size());
-  for (size_t i = 0; i < p.Frames().size(); ++i) EXPECT_EQ(back.Frames()[i].Name(), p.Frames()[i].Name());
+  for (size_t i = 0; i < p.Frames().size(); ++i)
+    EXPECT_EQ(back.Frames()[i].Name(), p.Frames()[i].Name());
   // A default spec writes none of the variant fields.
   const nlohmann::json plain = PatternSpecToJson(Gray(64, 64));
   for (const char* key : {"gray_inverse", "gray_reference", "gray_bits", "gray_code", "white_black",
@@ -314,22 +329,27 @@ TEST(PatternSpec, VariantJsonRoundTripAndFrameOrderReadBack) {
   };
   const std::string base = "kind: phase_shift\nprojector_width: 64\nprojector_height: 64\n";
   EXPECT_NE(message(base + "gray_code: twisted\n").find("p.yaml: gray_code"), std::string::npos);
-  EXPECT_NE(message(base + "gray_reference: median\n").find("p.yaml: gray_reference"), std::string::npos);
+  EXPECT_NE(message(base + "gray_reference: median\n").find("p.yaml: gray_reference"),
+            std::string::npos);
   EXPECT_NE(message(base + "frame_order: white\n").find("p.yaml: frame_order"), std::string::npos);
-  EXPECT_NE(message("kind: multi_frequency\nprojector_width: 64\nprojector_height: 64\nperiods_px: [20, 21.875, "
+  EXPECT_NE(message("kind: multi_frequency\nprojector_width: 64\nprojector_height: 64\nperiods_px: "
+                    "[20, 21.875, "
                     "23.728813559322035]\ngray_inverse: false\n")
                 .find("gray_inverse"),
             std::string::npos);
 }
 
 TEST(PatternSpec, ShippedVariantExamplesLoad) {
-  const PatternSpec stereo = LoadPatternSpec(testing::SourceDir() / "config/patterns/phase12_gray7_no_inverse.yaml");
+  const PatternSpec stereo =
+      LoadPatternSpec(testing::SourceDir() / "config/patterns/phase12_gray7_no_inverse.yaml");
   EXPECT_EQ(stereo.NumImages(), 19);
   EXPECT_FALSE(stereo.gray_inverse);
   EXPECT_EQ(stereo.phase_direction, -1);
-  const PatternSpec shifted = LoadPatternSpec(testing::SourceDir() / "config/patterns/phase_shifted_gray.yaml");
+  const PatternSpec shifted =
+      LoadPatternSpec(testing::SourceDir() / "config/patterns/phase_shifted_gray.yaml");
   EXPECT_EQ(shifted.gray_code, GrayCodeVariant::kShifted);
-  const PatternSpec ordered = LoadPatternSpec(testing::SourceDir() / "config/patterns/phase_frame_order.yaml");
+  const PatternSpec ordered =
+      LoadPatternSpec(testing::SourceDir() / "config/patterns/phase_frame_order.yaml");
   EXPECT_FALSE(ordered.frame_order.empty());
   EXPECT_EQ(ordered.WhiteFrameIndex(), ordered.NumImages() - 2);
 }

@@ -25,14 +25,16 @@ TEST(SeparateDirectGlobal, GrayCodeRecoversDirectAndGlobal) {
   cv::Mat mx, my;
   View(&mx, &my);
   CameraSimOptions sim;
-  sim.gain = 0.6;     // direct: 0.6 * 255 = 153 grey levels under full white
-  sim.offset = 10;    // ambient
-  sim.bit_depth = 16; // keeps rounding small
+  sim.gain = 0.6;      // direct: 0.6 * 255 = 153 grey levels under full white
+  sim.offset = 10;     // ambient
+  sim.bit_depth = 16;  // keeps rounding small
   auto images = SimulateCameraImages(GeneratePatterns(spec), mx, my, sim);
   const double g = 40;  // global light under full white, 8-bit levels
   const auto frames = spec.Frames();
   for (size_t i = 0; i < images.size(); ++i) {
-    const double add = frames[i].role == FrameRole::kWhite ? g : frames[i].role == FrameRole::kBlack ? 0 : g / 2;
+    const double add = frames[i].role == FrameRole::kWhite   ? g
+                       : frames[i].role == FrameRole::kBlack ? 0
+                                                             : g / 2;
     images[i] += cv::Scalar(add * 257);
   }
   const DirectGlobal dg = SeparateDirectGlobal(spec, images, 2);
@@ -40,7 +42,8 @@ TEST(SeparateDirectGlobal, GrayCodeRecoversDirectAndGlobal) {
   const cv::Rect inner(10, 10, kW - 20, kH - 20);
   cv::Mat direct = dg.direct(inner) / 257, global = dg.global(inner) / 257;
   // Pixels exactly on a stripe edge see half lit in every fine frame: take the median.
-  std::vector<float> d(direct.begin<float>(), direct.end<float>()), gl(global.begin<float>(), global.end<float>());
+  std::vector<float> d(direct.begin<float>(), direct.end<float>()),
+      gl(global.begin<float>(), global.end<float>());
   std::nth_element(d.begin(), d.begin() + static_cast<long>(d.size() / 2), d.end());
   std::nth_element(gl.begin(), gl.begin() + static_cast<long>(gl.size() / 2), gl.end());
   EXPECT_NEAR(d[d.size() / 2], 0.6 * 255, 0.5);
@@ -67,7 +70,8 @@ TEST(SeparateDirectGlobal, PhaseShiftRecoversDirectAndGlobalPlusAmbient) {
   for (auto& im : images) im += cv::Scalar(g / 2 * 257);
   const DirectGlobal dg = SeparateDirectGlobal(spec, images);
   const cv::Rect inner(10, 10, kW - 20, kH - 20);
-  // Sinusoid with amplitude 0.6 * 127.5 about 0.6 * 127.5: d = 2 B' = 153, g = 2 (A - B') = g + 2 ambient.
+  // Sinusoid with amplitude 0.6 * 127.5 about 0.6 * 127.5: d = 2 B' = 153, g = 2 (A - B') = g + 2
+  // ambient.
   EXPECT_NEAR(cv::mean(dg.direct(inner))[0] / 257, 0.6 * 255, 1.0);
   EXPECT_NEAR(cv::mean(dg.global(inner))[0] / 257, g + 2 * 10, 1.0);
   EXPECT_THROW(SeparateDirectGlobal(spec, {images[0]}), Error);

@@ -35,7 +35,8 @@ TEST(SimulateCameraImages, BilinearSamplingGainOffsetAndOutside) {
   const auto out = SimulateCameraImages({proj}, mx, my, sim);
   ASSERT_EQ(out.size(), 1u);
   EXPECT_EQ(out[0].at<uint8_t>(0, 0), static_cast<int>(std::floor(10 + 0.5 * (12 + 35) + 0.5)));
-  EXPECT_EQ(out[0].at<uint8_t>(0, 1), static_cast<int>(std::floor(10 + 0.5 * (3 * 4.5 + 5 * 7.25) + 0.5)));
+  EXPECT_EQ(out[0].at<uint8_t>(0, 1),
+            static_cast<int>(std::floor(10 + 0.5 * (3 * 4.5 + 5 * 7.25) + 0.5)));
   EXPECT_EQ(out[0].at<uint8_t>(0, 2), 10);
   EXPECT_EQ(out[0].at<uint8_t>(0, 3), 10);
   sim.bit_depth = 16;

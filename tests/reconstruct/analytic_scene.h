@@ -19,7 +19,8 @@
 namespace slshadow::testing {
 
 // Ray parameter t >= 0 of the first hit of origin + t * dir (dir unit), or nullopt.
-using Surface = std::function<std::optional<double>(const Eigen::Vector3d& origin, const Eigen::Vector3d& dir)>;
+using Surface =
+    std::function<std::optional<double>(const Eigen::Vector3d& origin, const Eigen::Vector3d& dir)>;
 
 inline std::optional<double> HitPlane(const Eigen::Vector3d& n, double d, const Eigen::Vector3d& o,
                                       const Eigen::Vector3d& dir) {
@@ -33,11 +34,14 @@ inline std::optional<double> HitPlane(const Eigen::Vector3d& n, double d, const 
 // Plane n . x = d (rig frame).
 inline Surface Plane(const Eigen::Vector3d& normal, double d) {
   const Eigen::Vector3d n = normal.normalized();
-  return [n, d](const Eigen::Vector3d& o, const Eigen::Vector3d& dir) { return HitPlane(n, d, o, dir); };
+  return [n, d](const Eigen::Vector3d& o, const Eigen::Vector3d& dir) {
+    return HitPlane(n, d, o, dir);
+  };
 }
 
 inline Surface Sphere(const Eigen::Vector3d& center, double radius) {
-  return [center, radius](const Eigen::Vector3d& o, const Eigen::Vector3d& dir) -> std::optional<double> {
+  return [center, radius](const Eigen::Vector3d& o,
+                          const Eigen::Vector3d& dir) -> std::optional<double> {
     const Eigen::Vector3d oc = o - center;
     const double b = oc.dot(dir);
     const double c = oc.squaredNorm() - radius * radius;
@@ -63,14 +67,15 @@ inline Surface Step(double edge_x, double near_z, double far_z) {
     consider(HitPlane(z, near_z, o, dir), [&](const Eigen::Vector3d& p) { return p.x() < edge_x; });
     consider(HitPlane(z, far_z, o, dir), [&](const Eigen::Vector3d& p) { return p.x() >= edge_x; });
     const double zlo = std::min(near_z, far_z), zhi = std::max(near_z, far_z);
-    consider(HitPlane(x, edge_x, o, dir), [&](const Eigen::Vector3d& p) { return p.z() >= zlo && p.z() <= zhi; });
+    consider(HitPlane(x, edge_x, o, dir),
+             [&](const Eigen::Vector3d& p) { return p.z() >= zlo && p.z() <= zhi; });
     return best;
   };
 }
 
 // Ground truth per camera pixel.
 struct AnalyticView {
-  ProjectorMap map;   // CV_64F coordinates
+  ProjectorMap map;                   // CV_64F coordinates
   cv::Mat point_x, point_y, point_z;  // CV_64F true surface point (rig frame), NaN where none
   Eigen::Vector3d Point(int u, int v) const {
     return {point_x.at<double>(v, u), point_y.at<double>(v, u), point_z.at<double>(v, u)};
@@ -100,7 +105,8 @@ inline AnalyticView RenderAnalytic(const Rig& rig, const RigDevice& camera, cons
       for (int u = 0; u < w; ++u) {
         const auto xy = camera.model.UndistortToNormalized(Eigen::Vector2d(u, v));
         if (!xy) continue;
-        const Eigen::Vector3d dir = (rig_from_cam * Eigen::Vector3d(xy->x(), xy->y(), 1.0)).normalized();
+        const Eigen::Vector3d dir =
+            (rig_from_cam * Eigen::Vector3d(xy->x(), xy->y(), 1.0)).normalized();
         const auto t = surface(center, dir);
         if (!t) continue;
         const Eigen::Vector3d p = center + *t * dir;

@@ -63,7 +63,11 @@ Scene NoisyScene(uint64_t seed) {
 // (with the ground truth of each camera).
 class Scans {
  public:
-  Scans() : rig_(testing::SmallDemoRig(Divisor())), spec_(Spec(rig_)), scene_(NoisyScene(1)), sim_(scene_, rig_) {
+  Scans()
+      : rig_(testing::SmallDemoRig(Divisor())),
+        spec_(Spec(rig_)),
+        scene_(NoisyScene(1)),
+        sim_(scene_, rig_) {
     patterns_ = GeneratePatterns(spec_);
   }
   const Rig& rig() const { return rig_; }
@@ -104,8 +108,9 @@ double DepthRmsMm(const Reconstruction& rec, const Rig& rig, const Scans& scans,
     const int x0 = static_cast<int>(std::floor(u)), y0 = static_cast<int>(std::floor(v));
     if (x0 < 0 || y0 < 0 || x0 + 1 >= depth.cols || y0 + 1 >= depth.rows) continue;
     const double ax = u - x0, ay = v - y0;
-    const double d = (1 - ay) * ((1 - ax) * depth.at<float>(y0, x0) + ax * depth.at<float>(y0, x0 + 1)) +
-                     ay * ((1 - ax) * depth.at<float>(y0 + 1, x0) + ax * depth.at<float>(y0 + 1, x0 + 1));
+    const double d =
+        (1 - ay) * ((1 - ax) * depth.at<float>(y0, x0) + ax * depth.at<float>(y0, x0 + 1)) +
+        ay * ((1 - ax) * depth.at<float>(y0 + 1, x0) + ax * depth.at<float>(y0 + 1, x0 + 1));
     if (!std::isfinite(d)) continue;
     sum += std::pow((cam_from_rig * rec.cloud.points[i]).z() - d, 2);
     ++n;
@@ -125,16 +130,21 @@ void ShiftPrincipalPoint(RigDevice* d, double dx_full_px, double dy_full_px) {
 
 std::vector<RigError> Errors() {
   return {
-      {"camera principal point +0.5 px (x and y)", [](Rig* r) { ShiftPrincipalPoint(&r->cameras[0], 0.5, 0.5); }},
-      {"camera principal point +0.5 px (y)", [](Rig* r) { ShiftPrincipalPoint(&r->cameras[0], 0, 0.5); }},
+      {"camera principal point +0.5 px (x and y)",
+       [](Rig* r) { ShiftPrincipalPoint(&r->cameras[0], 0.5, 0.5); }},
+      {"camera principal point +0.5 px (y)",
+       [](Rig* r) { ShiftPrincipalPoint(&r->cameras[0], 0, 0.5); }},
       // Along the baseline: moves points along the epipolar lines, invisible to any epipolar check
       // (reported, not asserted).
-      {"camera principal point +0.5 px (x)", [](Rig* r) { ShiftPrincipalPoint(&r->cameras[0], 0.5, 0); }},
+      {"camera principal point +0.5 px (x)",
+       [](Rig* r) { ShiftPrincipalPoint(&r->cameras[0], 0.5, 0); }},
       {"camera distortion inverted",
        [](Rig* r) {
-         for (int k = CameraModel::kK1; k <= CameraModel::kK3; ++k) r->cameras[0].model.params[static_cast<size_t>(k)] *= -1;
+         for (int k = CameraModel::kK1; k <= CameraModel::kK3; ++k)
+           r->cameras[0].model.params[static_cast<size_t>(k)] *= -1;
        }},
-      {"projector principal point +0.5 px (x and y)", [](Rig* r) { ShiftPrincipalPoint(&*r->projector, 0.5, 0.5); }},
+      {"projector principal point +0.5 px (x and y)",
+       [](Rig* r) { ShiftPrincipalPoint(&*r->projector, 0.5, 0.5); }},
       {"camera focal length +0.2 %",
        [](Rig* r) {
          r->cameras[0].model.params[CameraModel::kFx] *= 1.002;
@@ -148,19 +158,22 @@ std::vector<RigError> Errors() {
       {"projector bumped 0.05 deg (about its x axis)",
        [](Rig* r) {
          r->projector->cam_from_rig =
-             Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.05 * kDeg, Eigen::Vector3d::UnitX())), Eigen::Vector3d::Zero()) *
+             Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.05 * kDeg, Eigen::Vector3d::UnitX())),
+                     Eigen::Vector3d::Zero()) *
              r->projector->cam_from_rig;
        }},
       {"projector bumped 0.05 deg (about its y axis)",
        [](Rig* r) {
          r->projector->cam_from_rig =
-             Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.05 * kDeg, Eigen::Vector3d::UnitY())), Eigen::Vector3d::Zero()) *
+             Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.05 * kDeg, Eigen::Vector3d::UnitY())),
+                     Eigen::Vector3d::Zero()) *
              r->projector->cam_from_rig;
        }},
       {"right camera bumped 0.05 deg (about its x axis)",
        [](Rig* r) {
          r->cameras[1].cam_from_rig =
-             Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.05 * kDeg, Eigen::Vector3d::UnitX())), Eigen::Vector3d::Zero()) *
+             Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.05 * kDeg, Eigen::Vector3d::UnitX())),
+                     Eigen::Vector3d::Zero()) *
              r->cameras[1].cam_from_rig;
        }},
   };
@@ -176,8 +189,8 @@ Outcome Reconstruct(const Rig& rig, const std::vector<ProjectorMap>& maps, const
   // The ground truth is the true rig's: depths are compared in the true camera frames.
   Outcome out;
   for (int cam = 0; cam < 2; ++cam) {
-    const Reconstruction rec =
-        ReconstructWithProjector(rig, rig.cameras[static_cast<size_t>(cam)].name, maps[static_cast<size_t>(cam)]);
+    const Reconstruction rec = ReconstructWithProjector(
+        rig, rig.cameras[static_cast<size_t>(cam)].name, maps[static_cast<size_t>(cam)]);
     out.depth_rms_mm.push_back(DepthRmsMm(rec, scans.rig(), scans, cam));
     out.summaries.push_back(rec.summary);
   }
@@ -187,17 +200,20 @@ Outcome Reconstruct(const Rig& rig, const std::vector<ProjectorMap>& maps, const
   return out;
 }
 
-// A table row; the depth error the rig error adds to the clean scan's (noise): sqrt(rms^2 - clean^2).
-void PrintRow(const std::string& what, const ReconstructSummary& s, double depth_rms_mm, double clean_rms_mm) {
+// A table row; the depth error the rig error adds to the clean scan's (noise): sqrt(rms^2 -
+// clean^2).
+void PrintRow(const std::string& what, const ReconstructSummary& s, double depth_rms_mm,
+              double clean_rms_mm) {
   const CalibrationCheck& c = s.calibration_check;
   char depth[64] = "no points pass the gates | -";
   if (std::isfinite(depth_rms_mm)) {
-    std::snprintf(depth, sizeof(depth), "%.3f | %.3f", depth_rms_mm,
-                  std::sqrt(std::max(0.0, depth_rms_mm * depth_rms_mm - clean_rms_mm * clean_rms_mm)));
+    std::snprintf(
+        depth, sizeof(depth), "%.3f | %.3f", depth_rms_mm,
+        std::sqrt(std::max(0.0, depth_rms_mm * depth_rms_mm - clean_rms_mm * clean_rms_mm)));
   }
-  std::printf("| %s | %s | %s | %.4f | %.4f | %.4f | %.3f | %s | %s |\n", what.c_str(), c.pair.c_str(), depth,
-              c.systematic_px, c.noise_px, c.threshold_px, c.threshold_mm, c.warn ? "**yes**" : "no",
-              c.likely_causes.empty() ? "" : c.likely_causes[0].c_str());
+  std::printf("| %s | %s | %s | %.4f | %.4f | %.4f | %.3f | %s | %s |\n", what.c_str(),
+              c.pair.c_str(), depth, c.systematic_px, c.noise_px, c.threshold_px, c.threshold_mm,
+              c.warn ? "**yes**" : "no", c.likely_causes.empty() ? "" : c.likely_causes[0].c_str());
 }
 
 bool Names(const CalibrationCheck& c, const std::string& word) {
@@ -216,13 +232,16 @@ TEST(CalibrationCheckSimTest, RigErrorsAreCaughtWhereObservable) {
   const Scans& scans = SharedScans();
   const auto maps = scans.Decode(1);
   const Rig& truth = scans.rig();
-  std::printf("| rig file error | pair | depth RMS, mm | added by the error, mm | systematic, px | noise, px | threshold, px | "
-              "threshold, mm | warning | first named cause |\n");
+  std::printf(
+      "| rig file error | pair | depth RMS, mm | added by the error, mm | systematic, px | noise, "
+      "px | threshold, px | "
+      "threshold, mm | warning | first named cause |\n");
   std::printf("|---|---|---|---|---|---|---|---|---|---|\n");
   const Outcome clean = Reconstruct(truth, maps, scans);
   for (size_t k = 0; k < 3; ++k) {
     PrintRow("none", clean.summaries[k], clean.depth_rms_mm[k], clean.depth_rms_mm[k]);
-    EXPECT_FALSE(clean.summaries[k].calibration_check.warn) << clean.summaries[k].calibration_check.Message();
+    EXPECT_FALSE(clean.summaries[k].calibration_check.warn)
+        << clean.summaries[k].calibration_check.Message();
     EXPECT_TRUE(clean.summaries[k].calibration_check.available);
   }
   const auto errors = Errors();
@@ -278,7 +297,8 @@ TEST(CalibrationCheckSimTest, CleanScansDoNotWarnOverTwentySeeds) {
       m.has_y = false;
       m.proj_y = cv::Mat();
     }
-    out.summaries.push_back(ReconstructStereo(scans.rig(), "left", "right", maps[0], maps[1]).summary);
+    out.summaries.push_back(
+        ReconstructStereo(scans.rig(), "left", "right", maps[0], maps[1]).summary);
     for (const auto& s : out.summaries) {
       const CalibrationCheck& c = s.calibration_check;
       ASSERT_TRUE(c.available);
@@ -289,8 +309,10 @@ TEST(CalibrationCheckSimTest, CleanScansDoNotWarnOverTwentySeeds) {
       EXPECT_TRUE(s.warnings.empty());
     }
   }
-  std::printf("false alarms: %d of %d checks (20 seeds x 4 checks); largest systematic part %.3f x its threshold\n",
-              alarms, checks, worst_ratio);
+  std::printf(
+      "false alarms: %d of %d checks (20 seeds x 4 checks); largest systematic part %.3f x its "
+      "threshold\n",
+      alarms, checks, worst_ratio);
   RecordProperty("false_alarms", alarms);
   RecordProperty("checks", checks);
   RecordProperty("worst_systematic_over_threshold", std::to_string(worst_ratio));
@@ -318,7 +340,10 @@ TEST(CalibrationCheckSimTest, OneCodedAxis) {
     EXPECT_FALSE(c.available);
     EXPECT_FALSE(c.warn);
     EXPECT_TRUE(s.warnings.empty());
-    EXPECT_EQ(c.Message().rfind("calibration check: not available for " + c.pair + ", because only projector columns are coded", 0), 0u)
+    EXPECT_EQ(c.Message().rfind("calibration check: not available for " + c.pair +
+                                    ", because only projector columns are coded",
+                                0),
+              0u)
         << c.Message();
     EXPECT_NE(s.FullReport().find(c.Message()), std::string::npos);
     EXPECT_FALSE(s.ToJson()["calibration_check"]["available"].get<bool>());
@@ -333,12 +358,14 @@ TEST(CalibrationCheckSimTest, OneCodedAxis) {
   for (double deg : {0.3, 0.05}) {
     Rig bumped = truth;
     bumped.cameras[1].cam_from_rig =
-        Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(deg * kDeg, Eigen::Vector3d::UnitY())), Eigen::Vector3d::Zero()) *
+        Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(deg * kDeg, Eigen::Vector3d::UnitY())),
+                Eigen::Vector3d::Zero()) *
         bumped.cameras[1].cam_from_rig;
     const Reconstruction rec = ReconstructStereo(bumped, "left", "right", maps[0], maps[1]);
     const CalibrationCheck& c = rec.summary.calibration_check;
-    std::printf("one axis, right camera turned %.2f deg about y: depth RMS %.3f mm (clean %.3f); %s\n", deg,
-                DepthRmsMm(rec, truth, scans, 0), out.depth_rms_mm[2], c.Message().c_str());
+    std::printf(
+        "one axis, right camera turned %.2f deg about y: depth RMS %.3f mm (clean %.3f); %s\n", deg,
+        DepthRmsMm(rec, truth, scans, 0), out.depth_rms_mm[2], c.Message().c_str());
     EXPECT_TRUE(c.warn) << deg << " deg: " << c.Message();
     EXPECT_EQ(rec.projector_error_px.size(), rec.grid.reason.size());  // the residual map's values
     EXPECT_GT(c.systematic_px, 1.3 * c.threshold_px) << c.Message();
@@ -346,14 +373,18 @@ TEST(CalibrationCheckSimTest, OneCodedAxis) {
   // The two cameras' images filed under each other's names.
   const Reconstruction swapped = ReconstructStereo(truth, "left", "right", maps[1], maps[0]);
   const CalibrationCheck& sc = swapped.summary.calibration_check;
-  std::printf("one axis, swapped cameras: %lld points; %s\n", static_cast<long long>(swapped.summary.points), sc.Message().c_str());
+  std::printf("one axis, swapped cameras: %lld points; %s\n",
+              static_cast<long long>(swapped.summary.points), sc.Message().c_str());
   EXPECT_TRUE(sc.warn) << sc.Message();
   // No projector in the rig: nothing to check.
   Rig no_projector = truth;
   no_projector.projector.reset();
-  const CalibrationCheck none = ReconstructStereo(no_projector, "left", "right", maps[0], maps[1]).summary.calibration_check;
+  const CalibrationCheck none =
+      ReconstructStereo(no_projector, "left", "right", maps[0], maps[1]).summary.calibration_check;
   EXPECT_FALSE(none.available);
-  EXPECT_NE(none.Message().find("because only projector columns are coded and the rig has no projector"), std::string::npos)
+  EXPECT_NE(
+      none.Message().find("because only projector columns are coded and the rig has no projector"),
+      std::string::npos)
       << none.Message();
 }
 

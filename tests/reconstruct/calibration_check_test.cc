@@ -19,7 +19,8 @@ struct Samples {
 };
 
 // n points uniform over a 1 x 0.625 image (normalised half-widths), error = field + N(0, sigma).
-Samples Make(int n, double sigma, const std::function<double(double, double)>& field, uint32_t seed = 7) {
+Samples Make(int n, double sigma, const std::function<double(double, double)>& field,
+             uint32_t seed = 7) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> ux(-1, 1), uy(-0.625, 0.625);
   std::normal_distribution<double> noise(0, sigma);
@@ -61,7 +62,8 @@ bool Names(const CalibrationCheck& c, const std::string& word) {
 
 TEST(CalibrationCheckTest, NoiseAloneDoesNotWarnAndIsMeasured) {
   for (uint32_t seed = 1; seed <= 10; ++seed) {
-    const Samples s = Make(50000, 0.05, [](double, double) { return 0.0; }, seed);
+    const Samples s = Make(
+        50000, 0.05, [](double, double) { return 0.0; }, seed);
     const CalibrationCheck c = Fit(s);
     ASSERT_TRUE(c.available);
     EXPECT_EQ(c.count, 50000);
@@ -89,7 +91,8 @@ TEST(CalibrationCheckTest, FieldsAreMeasuredAndNamedByShape) {
       {"offset", [](double, double) { return 0.06; }, 0, "principal point"},
       {"linear", [](double x, double y) { return 0.16 * x - 0.1 * y; }, 1, "focal length"},
       {"quadratic", [](double x, double y) { return 0.5 * x * y; }, 2, "pose"},
-      {"radial", [](double x, double y) { return 0.4 * x * (x * x + y * y) - 0.2 * x; }, 3, "distortion"},
+      {"radial", [](double x, double y) { return 0.4 * x * (x * x + y * y) - 0.2 * x; }, 3,
+       "distortion"},
   };
   for (const auto& k : cases) {
     SCOPED_TRACE(k.name);
@@ -102,7 +105,9 @@ TEST(CalibrationCheckTest, FieldsAreMeasuredAndNamedByShape) {
     // The group carries most of the field.
     EXPECT_GT(c.group_rms_px[static_cast<size_t>(k.group)], 0.5 * c.systematic_px) << c.Message();
     EXPECT_NE(c.Message().find("above the threshold"), std::string::npos);
-    EXPECT_NE(c.Message().find(" mm in depth at the 500 mm working distance of this scan"), std::string::npos) << c.Message();
+    EXPECT_NE(c.Message().find(" mm in depth at the 500 mm working distance of this scan"),
+              std::string::npos)
+        << c.Message();
     const nlohmann::json j = c.ToJson();
     EXPECT_TRUE(j["warning"].get<bool>());
     EXPECT_EQ(j["residual"], "epipolar_error_px");
@@ -153,13 +158,18 @@ TEST(CalibrationCheckTest, ThresholdFloorUserOverrideAndTooFewPoints) {
   EXPECT_FALSE(off.warn);
   EXPECT_NEAR(off.systematic_px, 0.1, 0.002);  // still measured and reported
   EXPECT_EQ(off.ToJson()["threshold_px"], "inf");
-  EXPECT_EQ(off.Message().rfind("calibration check: reported only (--calibration-warning-px inf): ", 0), 0u) << off.Message();
+  EXPECT_EQ(
+      off.Message().rfind("calibration check: reported only (--calibration-warning-px inf): ", 0),
+      0u)
+      << off.Message();
   // No projector model: no mm equivalent, and the message says so.
   CalibrationCheckSetup no_mm = DefaultSetup();
   no_mm.mm_per_px = 0;
   const CalibrationCheck unitless = Fit(s, no_mm);
   EXPECT_EQ(unitless.threshold_mm, 0);
-  EXPECT_NE(unitless.Message().find("no mm equivalent without a projector model"), std::string::npos) << unitless.Message();
+  EXPECT_NE(unitless.Message().find("no mm equivalent without a projector model"),
+            std::string::npos)
+      << unitless.Message();
   // Few points: a small-sample threshold (5 standard errors of a fitted field) guards the fit.
   const Samples few = Make(150, 0.05, [](double, double) { return 0.0; });
   EXPECT_GT(Fit(few).threshold_px, 0.05 * 5 * std::sqrt(8.0 / 150) * 0.8);
@@ -168,12 +178,15 @@ TEST(CalibrationCheckTest, ThresholdFloorUserOverrideAndTooFewPoints) {
   const CalibrationCheck none = Fit(tiny);
   EXPECT_FALSE(none.available);
   EXPECT_FALSE(none.warn);
-  EXPECT_EQ(none.Message().rfind("calibration check: not available for left-projector, because only 99", 0), 0u)
+  EXPECT_EQ(none.Message().rfind(
+                "calibration check: not available for left-projector, because only 99", 0),
+            0u)
       << none.Message();
   EXPECT_FALSE(none.ToJson()["available"].get<bool>());
   // NaN entries are skipped.
   Samples holes = Make(1000, 0.05, [](double, double) { return 0.0; });
-  for (size_t i = 0; i < holes.e.size(); i += 2) holes.e[i] = std::numeric_limits<float>::quiet_NaN();
+  for (size_t i = 0; i < holes.e.size(); i += 2)
+    holes.e[i] = std::numeric_limits<float>::quiet_NaN();
   EXPECT_EQ(Fit(holes).count, 500);
 }
 

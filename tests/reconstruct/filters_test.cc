@@ -7,8 +7,8 @@
 #include <set>
 #include <utility>
 
-#include <Eigen/Geometry>
 #include <gtest/gtest.h>
+#include <Eigen/Geometry>
 
 namespace slshadow {
 namespace {
@@ -25,7 +25,8 @@ DenseGrid MakeGrid(int w, int h, Depth depth) {
     for (int u = 0; u < w; ++u) {
       const size_t i = grid.Index(u, v);
       const double z = depth(u, v);
-      grid.point_in_rig[i] = Eigen::Vector3d((u - w / 2.0) / kFocal * z, (v - h / 2.0) / kFocal * z, z);
+      grid.point_in_rig[i] =
+          Eigen::Vector3d((u - w / 2.0) / kFocal * z, (v - h / 2.0) / kFocal * z, z);
       grid.reason[i] = static_cast<uint8_t>(RejectReason::kAccepted);
     }
   }
@@ -40,15 +41,19 @@ DenseGrid MakePlaneGrid(int w, int h, const Eigen::Vector3d& n, double d) {
   });
 }
 
-int64_t Count(const DenseGrid& g, RejectReason r) { return g.CountByReason()[static_cast<size_t>(r)]; }
+int64_t Count(const DenseGrid& g, RejectReason r) {
+  return g.CountByReason()[static_cast<size_t>(r)];
+}
 
 TEST(DepthDiscontinuityTest, MarksBothSidesOfAJumpAndTheDilation) {
   DenseGrid grid = MakeGrid(60, 40, [](int u, int) { return u < 30 ? 400.0 : 450.0; });
   const int64_t rejected = FilterDepthDiscontinuities(grid, 8, 0);
   EXPECT_EQ(rejected, 2 * 40);  // columns 29 and 30
   for (int v = 0; v < 40; ++v) {
-    EXPECT_EQ(grid.reason[grid.Index(29, v)], static_cast<uint8_t>(RejectReason::kDepthDiscontinuity));
-    EXPECT_EQ(grid.reason[grid.Index(30, v)], static_cast<uint8_t>(RejectReason::kDepthDiscontinuity));
+    EXPECT_EQ(grid.reason[grid.Index(29, v)],
+              static_cast<uint8_t>(RejectReason::kDepthDiscontinuity));
+    EXPECT_EQ(grid.reason[grid.Index(30, v)],
+              static_cast<uint8_t>(RejectReason::kDepthDiscontinuity));
     EXPECT_TRUE(grid.Accepted(grid.Index(28, v)));
   }
   DenseGrid dilated = MakeGrid(60, 40, [](int u, int) { return u < 30 ? 400.0 : 450.0; });
@@ -68,7 +73,8 @@ TEST(DepthDiscontinuityTest, KeepsSteepButContinuousSurfaces) {
 }
 
 TEST(DepthDiscontinuityTest, IsolatedSpikeAndItsNeighboursGo) {
-  DenseGrid grid = MakeGrid(20, 20, [](int u, int v) { return u == 10 && v == 10 ? 440.0 : 400.0; });
+  DenseGrid grid =
+      MakeGrid(20, 20, [](int u, int v) { return u == 10 && v == 10 ? 440.0 : 400.0; });
   // The spike and its 4 neighbours sit on jumps; dilated by 1: the 5x5 block less its corners.
   EXPECT_EQ(FilterDepthDiscontinuities(grid, 8, 1), 25 - 4);
 }
@@ -78,7 +84,9 @@ TEST(DepthDiscontinuityTest, MatchesABruteForceOracleForEveryDilation) {
   // literally.
   std::mt19937 rng(5);
   std::uniform_real_distribution<double> uniform(0.0, 1.0);
-  DenseGrid base = MakeGrid(53, 37, [&](int u, int v) { return 400.0 + 0.2 * u + (uniform(rng) < 0.03 ? 30.0 : 0.0) + 0.1 * v; });
+  DenseGrid base = MakeGrid(53, 37, [&](int u, int v) {
+    return 400.0 + 0.2 * u + (uniform(rng) < 0.03 ? 30.0 : 0.0) + 0.1 * v;
+  });
   for (size_t i = 0; i < base.reason.size(); ++i) {
     if (uniform(rng) < 0.1) base.reason[i] = static_cast<uint8_t>(RejectReason::kNotDecoded);
   }
@@ -89,7 +97,8 @@ TEST(DepthDiscontinuityTest, MatchesABruteForceOracleForEveryDilation) {
     for (int u = 0; u < w; ++u) {
       const size_t i = base.Index(u, v);
       if (!base.Accepted(i)) continue;
-      for (auto [un, vn] : {std::pair{u - 1, v}, std::pair{u + 1, v}, std::pair{u, v - 1}, std::pair{u, v + 1}}) {
+      for (auto [un, vn] :
+           {std::pair{u - 1, v}, std::pair{u + 1, v}, std::pair{u, v - 1}, std::pair{u, v + 1}}) {
         if (un < 0 || vn < 0 || un >= w || vn >= h || !base.Accepted(base.Index(un, vn))) continue;
         if (std::abs(range(base.Index(un, vn)) - range(i)) > 8 * range(i) / kFocal) jump[i] = 1;
       }
@@ -131,7 +140,8 @@ TEST(OutlierRemovalTest, CleanSurfaceKeepsEveryPointAndOffSurfacePointsGo) {
   std::set<size_t> moved;
   while (moved.size() < 30) {
     const size_t i = grid.Index(pu(rng), pv(rng));
-    if (moved.insert(i).second) grid.point_in_rig[i] += Eigen::Vector3d(0, 0, 15.0);  // 15 footprints off
+    if (moved.insert(i).second)
+      grid.point_in_rig[i] += Eigen::Vector3d(0, 0, 15.0);  // 15 footprints off
   }
   const int64_t rejected = FilterStatisticalOutliers(grid, 2, 8, 3.0);
   for (size_t i : moved) EXPECT_EQ(grid.reason[i], static_cast<uint8_t>(RejectReason::kOutlier));
@@ -141,7 +151,8 @@ TEST(OutlierRemovalTest, CleanSurfaceKeepsEveryPointAndOffSurfacePointsGo) {
 
 TEST(OutlierRemovalTest, PointsWithoutNeighboursGo) {
   DenseGrid grid = MakeGrid(30, 30, [](int, int) { return 500.0; });
-  for (size_t i = 0; i < grid.reason.size(); ++i) grid.reason[i] = static_cast<uint8_t>(RejectReason::kNotDecoded);
+  for (size_t i = 0; i < grid.reason.size(); ++i)
+    grid.reason[i] = static_cast<uint8_t>(RejectReason::kNotDecoded);
   grid.reason[grid.Index(5, 5)] = static_cast<uint8_t>(RejectReason::kAccepted);
   grid.reason[grid.Index(20, 20)] = static_cast<uint8_t>(RejectReason::kAccepted);
   grid.reason[grid.Index(21, 20)] = static_cast<uint8_t>(RejectReason::kAccepted);
@@ -152,7 +163,8 @@ TEST(OutlierRemovalTest, PointsWithoutNeighboursGo) {
 // Brute-force oracle of the statistical outlier removal: per accepted cell, all squared distances
 // to the accepted cells of the window, sorted, the k smallest summed; mean and std over the
 // cells with a neighbour; the same limit.
-std::vector<uint8_t> OutlierOracle(const DenseGrid& grid, int r, int k, double ratio, double floor) {
+std::vector<uint8_t> OutlierOracle(const DenseGrid& grid, int r, int k, double ratio,
+                                   double floor) {
   std::vector<double> score(grid.reason.size(), -1.0);
   for (int v = 0; v < grid.height; ++v) {
     for (int u = 0; u < grid.width; ++u) {
@@ -162,7 +174,8 @@ std::vector<uint8_t> OutlierOracle(const DenseGrid& grid, int r, int k, double r
       for (int vn = std::max(0, v - r); vn <= std::min(grid.height - 1, v + r); ++vn) {
         for (int un = std::max(0, u - r); un <= std::min(grid.width - 1, u + r); ++un) {
           const size_t j = grid.Index(un, vn);
-          if (j != i && grid.Accepted(j)) d.push_back((grid.point_in_rig[j] - grid.point_in_rig[i]).squaredNorm());
+          if (j != i && grid.Accepted(j))
+            d.push_back((grid.point_in_rig[j] - grid.point_in_rig[i]).squaredNorm());
         }
       }
       if (d.empty()) {
@@ -173,7 +186,8 @@ std::vector<uint8_t> OutlierOracle(const DenseGrid& grid, int r, int k, double r
       const int m = std::min<int>(k, static_cast<int>(d.size()));
       double sum = 0;
       for (int q = 0; q < m; ++q) sum += d[static_cast<size_t>(q)];
-      score[i] = std::sqrt(sum / m * (grid.focal_px * grid.focal_px) / (grid.point_in_rig[i] - grid.viewpoint_in_rig).squaredNorm());
+      score[i] = std::sqrt(sum / m * (grid.focal_px * grid.focal_px) /
+                           (grid.point_in_rig[i] - grid.viewpoint_in_rig).squaredNorm());
     }
   }
   double sum = 0, sum2 = 0;
@@ -201,11 +215,14 @@ TEST(OutlierRemovalTest, MatchesABruteForceOracleForEveryWindowAndNeighbourCount
   std::mt19937 rng(11);
   std::normal_distribution<double> noise(0.0, 0.3);
   std::uniform_real_distribution<double> uniform(0.0, 1.0);
-  DenseGrid base = MakeGrid(70, 50, [&](int u, int v) { return 450.0 + 10 * std::sin(0.2 * u) + 0.1 * v + noise(rng); });
+  DenseGrid base = MakeGrid(
+      70, 50, [&](int u, int v) { return 450.0 + 10 * std::sin(0.2 * u) + 0.1 * v + noise(rng); });
   for (size_t i = 0; i < base.reason.size(); ++i) {
     const double x = uniform(rng);
-    if (x < 0.15) base.reason[i] = static_cast<uint8_t>(RejectReason::kNotDecoded);
-    else if (x < 0.18) base.point_in_rig[i].z() += 20 + 40 * uniform(rng);
+    if (x < 0.15)
+      base.reason[i] = static_cast<uint8_t>(RejectReason::kNotDecoded);
+    else if (x < 0.18)
+      base.point_in_rig[i].z() += 20 + 40 * uniform(rng);
   }
   for (int r = 1; r <= 2; ++r) {
     for (int k = 1; k <= 8; ++k) {
@@ -214,7 +231,8 @@ TEST(OutlierRemovalTest, MatchesABruteForceOracleForEveryWindowAndNeighbourCount
         const std::vector<uint8_t> expected = OutlierOracle(grid, r, k, 2.0, floor);
         const int64_t rejected = FilterStatisticalOutliers(grid, r, k, 2.0, floor);
         int64_t expected_rejected = 0;
-        for (size_t i = 0; i < expected.size(); ++i) expected_rejected += expected[i] != base.reason[i] ? 1 : 0;
+        for (size_t i = 0; i < expected.size(); ++i)
+          expected_rejected += expected[i] != base.reason[i] ? 1 : 0;
         EXPECT_GT(expected_rejected, 0) << "r " << r << " k " << k;
         EXPECT_EQ(rejected, expected_rejected) << "r " << r << " k " << k << " floor " << floor;
         EXPECT_EQ(grid.reason, expected) << "r " << r << " k " << k << " floor " << floor;
@@ -225,7 +243,8 @@ TEST(OutlierRemovalTest, MatchesABruteForceOracleForEveryWindowAndNeighbourCount
 
 TEST(NormalsTest, PlaneNormalsAreExactAndFaceTheViewpoint) {
   const Eigen::Vector3d plane_normal = Eigen::Vector3d(0.3, -0.2, -1.0).normalized();
-  DenseGrid grid = MakePlaneGrid(40, 30, plane_normal, plane_normal.dot(Eigen::Vector3d(0, 0, 500)));
+  DenseGrid grid =
+      MakePlaneGrid(40, 30, plane_normal, plane_normal.dot(Eigen::Vector3d(0, 0, 500)));
   int64_t fallbacks = -1;
   const auto normals = EstimateNormals(grid, &fallbacks);
   EXPECT_EQ(fallbacks, 0);
@@ -242,7 +261,8 @@ TEST(NormalsTest, PlaneNormalsAreExactAndFaceTheViewpoint) {
 
 TEST(NormalsTest, IsolatedPointsFaceTheViewpoint) {
   DenseGrid grid = MakeGrid(5, 5, [](int, int) { return 300.0; });
-  for (size_t i = 0; i < grid.reason.size(); ++i) grid.reason[i] = static_cast<uint8_t>(RejectReason::kOutlier);
+  for (size_t i = 0; i < grid.reason.size(); ++i)
+    grid.reason[i] = static_cast<uint8_t>(RejectReason::kOutlier);
   const size_t i = grid.Index(2, 2);
   grid.reason[i] = static_cast<uint8_t>(RejectReason::kAccepted);
   int64_t fallbacks = 0;

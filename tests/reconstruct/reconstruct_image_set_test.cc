@@ -52,7 +52,8 @@ void WritePlaneImageSet(const Rig& rig, const PatternSpec& spec, const std::file
     CameraSimOptions sim;
     sim.offset = 10;
     sim.gain = 0.85;
-    const std::vector<cv::Mat> images = SimulateCameraImages(patterns, view.map.proj_x, view.map.proj_y, sim);
+    const std::vector<cv::Mat> images =
+        SimulateCameraImages(patterns, view.map.proj_x, view.map.proj_y, sim);
     for (size_t k = 0; k < images.size(); ++k) {
       writer.Add(cam.name, static_cast<int>(k), images[k], 1000, ImageSource::kVirtual);
     }
@@ -85,18 +86,22 @@ testing::TempDir* ReconstructImageSetTest::dir_ = nullptr;
 
 TEST_F(ReconstructImageSetTest, ProjectorModeReconstructsThePlaneFromBothCameras) {
   const ImageSet set = ImageSet::Open(dir_->path() / "plane");
-  for (auto method : {TriangulationMethod::kMidpoint, TriangulationMethod::kDlt, TriangulationMethod::kOptimal}) {
+  for (auto method :
+       {TriangulationMethod::kMidpoint, TriangulationMethod::kDlt, TriangulationMethod::kOptimal}) {
     ImageSetReconstructOptions options;
     options.reconstruct.method = method;
     const ImageSetReconstruction rec = ReconstructImageSet(set, options);
     ASSERT_EQ(rec.summaries.size(), 2u);
     const int64_t cells = rec.summaries[0].cells + rec.summaries[1].cells;
-    EXPECT_GT(static_cast<double>(rec.cloud.size()), 0.8 * static_cast<double>(cells)) << rec.FullReport();
+    EXPECT_GT(static_cast<double>(rec.cloud.size()), 0.8 * static_cast<double>(cells))
+        << rec.FullReport();
     const double rms = FlatnessRmsMm(rec.cloud);
-    RecordProperty(std::string("projector_flatness_rms_mm_") + ToString(method), std::to_string(rms));
+    RecordProperty(std::string("projector_flatness_rms_mm_") + ToString(method),
+                   std::to_string(rms));
     EXPECT_LT(rms, 0.02) << ToString(method);
     for (const auto& s : rec.summaries) EXPECT_LT(s.epipolar_error_px.median, 0.05);
-    EXPECT_TRUE(rec.Warnings().empty()) << rec.FullReport();  // a clean scan passes the calibration check
+    EXPECT_TRUE(rec.Warnings().empty())
+        << rec.FullReport();  // a clean scan passes the calibration check
     const auto* camera = rec.cloud.Scalar("camera");
     ASSERT_TRUE(camera);
     EXPECT_EQ(std::count(camera->begin(), camera->end(), 0.0f), rec.summaries[0].points);
@@ -110,11 +115,13 @@ TEST_F(ReconstructImageSetTest, StereoModeReconstructsThePlane) {
   options.mode = ReconstructMode::kStereo;
   const ImageSetReconstruction rec = ReconstructImageSet(set, options);
   ASSERT_EQ(rec.summaries.size(), 1u);
-  EXPECT_GT(static_cast<double>(rec.cloud.size()), 0.5 * static_cast<double>(rec.summaries[0].cells));
+  EXPECT_GT(static_cast<double>(rec.cloud.size()),
+            0.5 * static_cast<double>(rec.summaries[0].cells));
   const double rms = FlatnessRmsMm(rec.cloud);
   RecordProperty("stereo_flatness_rms_mm", std::to_string(rms));
   EXPECT_LT(rms, 0.02) << rec.FullReport();
-  EXPECT_LT(rec.summaries[0].epipolar_error_px.median, 0.05);  // projector rows agree across cameras
+  EXPECT_LT(rec.summaries[0].epipolar_error_px.median,
+            0.05);  // projector rows agree across cameras
   EXPECT_TRUE(rec.summaries[0].calibration_check.available);
   EXPECT_TRUE(rec.Warnings().empty()) << rec.FullReport();
 }
@@ -205,7 +212,8 @@ TEST(KaminoRealDataTest, ChessboardPoseReconstructsAndTheResidualsJudgeTheCalibr
   ImageSetReconstructOptions options;
   // The first upstream calibration (stereoCalibrate RMS 0.43 px): sub-pixel-to-pixel epipolar
   // residuals (Gray code decodes to whole projector pixels) and half a million points.
-  const ImageSetReconstruction good = ReconstructFromImages(KaminoRig("calibration_result_ccf1cd8.xml"), spec, images, options);
+  const ImageSetReconstruction good =
+      ReconstructFromImages(KaminoRig("calibration_result_ccf1cd8.xml"), spec, images, options);
   const ReconstructSummary& g = good.summaries.at(0);
   RecordProperty("ccf1cd8_epipolar_median_px", std::to_string(g.epipolar_error_px.median));
   EXPECT_EQ(g.decode_status[0], 996162);  // valid pixels of capture_0, measured
@@ -219,13 +227,15 @@ TEST(KaminoRealDataTest, ChessboardPoseReconstructsAndTheResidualsJudgeTheCalibr
   EXPECT_EQ(total, g.cells);
   // Upstream's later result (its projector principal point lies outside the image): the residual
   // statistics expose it, and the gates let no point through.
-  const ImageSetReconstruction bad = ReconstructFromImages(KaminoRig("calibration_result.xml"), spec, images, options);
+  const ImageSetReconstruction bad =
+      ReconstructFromImages(KaminoRig("calibration_result.xml"), spec, images, options);
   const ReconstructSummary& b = bad.summaries.at(0);
   RecordProperty("head_epipolar_median_px", std::to_string(b.epipolar_error_px.median));
   EXPECT_GT(b.epipolar_error_px.median, 100.0) << b.FullReport();  // measured 521
   EXPECT_LT(b.points, b.cells / 100);
   EXPECT_TRUE(b.calibration_check.warn);
-  EXPECT_NE(b.calibration_check.Message().find("wrong rig file"), std::string::npos) << b.calibration_check.Message();
+  EXPECT_NE(b.calibration_check.Message().find("wrong rig file"), std::string::npos)
+      << b.calibration_check.Message();
 }
 
 // The calibration check on the real capture: the first upstream calibration (ccf1cd8) does not
@@ -255,21 +265,24 @@ TEST(KaminoRealDataTest, CalibrationCheckFindsTheFocalLengthMisfitOfTheFirstUpst
       images["camera"].push_back(ReadGrayImage(dir / ("capture_" + std::to_string(pose)) / name));
     }
     const ReconstructSummary s =
-        ReconstructFromImages(KaminoRig("calibration_result_ccf1cd8.xml"), spec, images, {}).summaries.at(0);
+        ReconstructFromImages(KaminoRig("calibration_result_ccf1cd8.xml"), spec, images, {})
+            .summaries.at(0);
     const ReconstructSummary r = ReconstructFromImages(refined, spec, images, {}).summaries.at(0);
     const CalibrationCheck& c = s.calibration_check;
     SCOPED_TRACE("pose " + std::to_string(pose) + ": " + c.Message());
-    RecordProperty("pose" + std::to_string(pose) + "_systematic_px", std::to_string(c.systematic_px));
-    RecordProperty("pose" + std::to_string(pose) + "_refined_systematic_px", std::to_string(r.calibration_check.systematic_px));
+    RecordProperty("pose" + std::to_string(pose) + "_systematic_px",
+                   std::to_string(c.systematic_px));
+    RecordProperty("pose" + std::to_string(pose) + "_refined_systematic_px",
+                   std::to_string(r.calibration_check.systematic_px));
     EXPECT_GT(c.noise_px, 0.25);  // whole-pixel codes: ~0.29 px of quantisation across the line
     EXPECT_LT(c.noise_px, 0.45);
-    EXPECT_GT(c.systematic_px, 1.2);   // measured 1.49, 1.51
+    EXPECT_GT(c.systematic_px, 1.2);  // measured 1.49, 1.51
     EXPECT_TRUE(c.warn);
     ASSERT_FALSE(c.likely_causes.empty());
     EXPECT_NE(c.Message().find("focal length"), std::string::npos);
     EXPECT_GT(c.group_rms_px[1], 0.8 * c.systematic_px);  // linear: 1.37 of 1.49 px on pose 0
     EXPECT_LT(r.calibration_check.systematic_px, 0.5 * c.systematic_px);  // measured 0.61, 0.60
-    EXPECT_GT(r.points, s.points * 14 / 10);                             // measured +61 %, +62 %
+    EXPECT_GT(r.points, s.points * 14 / 10);                              // measured +61 %, +62 %
   }
 }
 
@@ -306,7 +319,8 @@ TEST(KaminoRealDataTest, CalibrationCheckPassesSlshadowsOwnCalibrationOnAllPoses
     // camera, the rig origin), not at the rig file's nominal working distance.
     std::vector<double> range;
     for (const auto& p : rec.cloud.points) range.push_back(p.norm());
-    std::nth_element(range.begin(), range.begin() + static_cast<std::ptrdiff_t>(range.size() / 2), range.end());
+    std::nth_element(range.begin(), range.begin() + static_cast<std::ptrdiff_t>(range.size() / 2),
+                     range.end());
     EXPECT_NEAR(c.working_distance_mm, range[range.size() / 2], 0.02 * range[range.size() / 2]);
     worst = std::max(worst, c.systematic_px / c.threshold_px);
   }

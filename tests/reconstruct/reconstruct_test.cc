@@ -1,10 +1,10 @@
 #include "reconstruct/reconstruct.h"
 
 #include <algorithm>
-#include <cstring>
 #include <array>
-#include <cstdio>
 #include <cmath>
+#include <cstdio>
+#include <cstring>
 #include <limits>
 #include <random>
 #include <set>
@@ -12,9 +12,9 @@
 #include <gtest/gtest.h>
 
 #include "core/config.h"
-#include "reconstruct/reconstruct_image_set.h"
 #include "core/error.h"
 #include "reconstruct/ray_cache.h"
+#include "reconstruct/reconstruct_image_set.h"
 #include "tests/reconstruct/analytic_scene.h"
 #include "tests/testing/temp_dir.h"
 
@@ -34,7 +34,8 @@ Rig SmallRig() {
   return rig;
 }
 
-const Eigen::Vector3d kPlaneNormal = Eigen::Vector3d(0.15, -0.1, -1.0).normalized();  // faces the rig
+const Eigen::Vector3d kPlaneNormal =
+    Eigen::Vector3d(0.15, -0.1, -1.0).normalized();  // faces the rig
 const double kPlaneD = kPlaneNormal.dot(Eigen::Vector3d(0, 0, 520));
 const Eigen::Vector3d kSphereCenter(10, -5, 600);
 const double kSphereRadius = 90;
@@ -71,7 +72,8 @@ void ExpectFiniteCloud(const Reconstruction& rec) {
   for (int64_t c : rec.summary.rejected) total += c;
   EXPECT_EQ(total, rec.summary.cells);
   EXPECT_EQ(rec.summary.points, static_cast<int64_t>(cloud.size()));
-  EXPECT_EQ(rec.summary.cells, static_cast<int64_t>(rec.summary.grid_width) * rec.summary.grid_height);
+  EXPECT_EQ(rec.summary.cells,
+            static_cast<int64_t>(rec.summary.grid_width) * rec.summary.grid_height);
 }
 
 class ReconstructTest : public ::testing::Test {
@@ -104,7 +106,8 @@ TEST_F(ReconstructTest, ProjectorModeExactMapsGiveTheTruePointsForEveryMethod) {
 
 TEST_F(ReconstructTest, ProjectorModeWithOneCodedAxisIsExact) {
   for (int axis = 0; axis < 2; ++axis) {
-    const AnalyticView truth = RenderAnalytic(rig_, rig_.cameras[0], PlaneSurface(), axis == 0, axis == 1);
+    const AnalyticView truth =
+        RenderAnalytic(rig_, rig_.cameras[0], PlaneSurface(), axis == 0, axis == 1);
     const Reconstruction rec = ReconstructWithProjector(rig_, "left", truth.map);
     ExpectFiniteCloud(rec);
     // Columns are well conditioned for the horizontal camera-projector baseline; rows much less so
@@ -126,7 +129,8 @@ TEST_F(ReconstructTest, FloatMapsAreAccurateToFloatPrecision) {
 }
 
 double DistanceToSurface(const Eigen::Vector3d& p, bool sphere) {
-  return sphere ? std::abs((p - kSphereCenter).norm() - kSphereRadius) : std::abs(kPlaneNormal.dot(p) - kPlaneD);
+  return sphere ? std::abs((p - kSphereCenter).norm() - kSphereRadius)
+                : std::abs(kPlaneNormal.dot(p) - kPlaneD);
 }
 
 TEST_F(ReconstructTest, StereoModeExactMapsLandOnTheSurfaceForEveryMethod) {
@@ -137,7 +141,8 @@ TEST_F(ReconstructTest, StereoModeExactMapsLandOnTheSurfaceForEveryMethod) {
     for (auto method : kMethods) {
       ReconstructOptions options;
       options.method = method;
-      const Reconstruction rec = ReconstructStereo(rig_, "left", "right", left.map, right.map, options);
+      const Reconstruction rec =
+          ReconstructStereo(rig_, "left", "right", left.map, right.map, options);
       ExpectFiniteCloud(rec);
       ASSERT_GT(rec.summary.points, CountValid(left.map) / 2);
       std::vector<double> errors;
@@ -196,7 +201,8 @@ TEST(StereoTriangulatorTest, ExactPixelPairsTriangulateToTheTruePointsForEveryMe
   const RigDevice& left = rig.cameras[0];
   const RigDevice& right = rig.cameras[1];
   const StereoRectification rect = ComputeStereoRectification(left, right);
-  const TriangulationView view0(rect.RectCamFromRig(0), rect.focal_px), view1(rect.RectCamFromRig(1), rect.focal_px);
+  const TriangulationView view0(rect.RectCamFromRig(0), rect.focal_px),
+      view1(rect.RectCamFromRig(1), rect.focal_px);
   std::mt19937 rng(7);
   std::uniform_real_distribution<double> lateral(-120, 120), depth(380, 720);
   for (auto method : kMethods) {
@@ -208,7 +214,8 @@ TEST(StereoTriangulatorTest, ExactPixelPairsTriangulateToTheTruePointsForEveryMe
     for (int k = 0; k < 2000; ++k) {
       const Eigen::Vector3d truth(lateral(rng), 0.6 * lateral(rng), depth(rng));
       const Eigen::Vector3d r0 = view0.ToCam(truth), r1 = view1.ToCam(truth);
-      const double u = rect.focal_px * r0.x() / r0.z() + rect.cx[0], v = rect.focal_px * r0.y() / r0.z() + rect.cy;
+      const double u = rect.focal_px * r0.x() / r0.z() + rect.cx[0],
+                   v = rect.focal_px * r0.y() / r0.z() + rect.cy;
       const double ur = rect.focal_px * r1.x() / r1.z() + rect.cx[1];
       // Rectified: the same row in both images.
       ASSERT_NEAR(rect.focal_px * r1.y() / r1.z() + rect.cy, v, 1e-9);
@@ -224,7 +231,8 @@ TEST(StereoTriangulatorTest, ExactPixelPairsTriangulateToTheTruePointsForEveryMe
     EXPECT_EQ(tested, 2000);
     EXPECT_LT(worst, 1e-6) << ToString(method);
     EXPECT_LT(worst_reprojection, 1e-6) << ToString(method);
-    RecordProperty(std::string("stereo_exact_pairs_mm_") + ToString(method), std::to_string(worst * 1e6) + " nm");
+    RecordProperty(std::string("stereo_exact_pairs_mm_") + ToString(method),
+                   std::to_string(worst * 1e6) + " nm");
   }
 }
 
@@ -238,7 +246,8 @@ TEST(StereoMatcherAccuracyTest, FullResolutionExactAndFloatMaps) {
     AnalyticView left = RenderAnalytic(rig, rig.cameras[0], surface);
     AnalyticView right = RenderAnalytic(rig, rig.cameras[1], surface);
     for (bool to_float : {false, true}) {
-      if (to_float && sphere) continue;  // the float bound is measured on the plane (keeps the test short)
+      if (to_float && sphere)
+        continue;  // the float bound is measured on the plane (keeps the test short)
       if (to_float) {
         for (AnalyticView* view : {&left, &right}) {
           view->map.proj_x.convertTo(view->map.proj_x, CV_32F);
@@ -247,7 +256,8 @@ TEST(StereoMatcherAccuracyTest, FullResolutionExactAndFloatMaps) {
       }
       ReconstructOptions options;
       options.stereo_interpolation = StereoInterpolation::kCubic;  // float maps too
-      const Reconstruction rec = ReconstructStereo(rig, "left", "right", left.map, right.map, options);
+      const Reconstruction rec =
+          ReconstructStereo(rig, "left", "right", left.map, right.map, options);
       ExpectFiniteCloud(rec);
       // All points, and those seen at less than 60 deg incidence from the left camera (the sphere's
       // rim is where its codes change fastest and least smoothly per pixel).
@@ -256,17 +266,23 @@ TEST(StereoMatcherAccuracyTest, FullResolutionExactAndFloatMaps) {
       for (const auto& p : rec.cloud.points) {
         const double e = DistanceToSurface(p, sphere);
         all.push_back(e);
-        const Eigen::Vector3d normal = sphere ? Eigen::Vector3d((p - kSphereCenter).normalized()) : Eigen::Vector3d(-kPlaneNormal);
+        const Eigen::Vector3d normal = sphere ? Eigen::Vector3d((p - kSphereCenter).normalized())
+                                              : Eigen::Vector3d(-kPlaneNormal);
         if (std::abs(normal.dot((eye - p).normalized())) > 0.5) facing.push_back(e);
       }
-      const std::string name = std::string(sphere ? "sphere" : "plane") + (to_float ? " float maps" : " exact maps");
+      const std::string name =
+          std::string(sphere ? "sphere" : "plane") + (to_float ? " float maps" : " exact maps");
       auto report = [&](std::vector<double>& errors, const char* which) {
         std::sort(errors.begin(), errors.end());
-        const double median = errors[errors.size() / 2], p99 = errors[errors.size() * 99 / 100], worst = errors.back();
-        std::printf("stereo full resolution, %s, %s: %zu points, median %.3g um, p99 %.3g um, max %.3g um\n",
-                    name.c_str(), which, errors.size(), median * 1e3, p99 * 1e3, worst * 1e3);
-        RecordProperty("stereo_full_um_" + name + "_" + which,
-                       std::to_string(median * 1e3) + " " + std::to_string(p99 * 1e3) + " " + std::to_string(worst * 1e3));
+        const double median = errors[errors.size() / 2], p99 = errors[errors.size() * 99 / 100],
+                     worst = errors.back();
+        std::printf(
+            "stereo full resolution, %s, %s: %zu points, median %.3g um, p99 %.3g um, max %.3g "
+            "um\n",
+            name.c_str(), which, errors.size(), median * 1e3, p99 * 1e3, worst * 1e3);
+        RecordProperty("stereo_full_um_" + name + "_" + which, std::to_string(median * 1e3) + " " +
+                                                                   std::to_string(p99 * 1e3) + " " +
+                                                                   std::to_string(worst * 1e3));
         return std::array<double, 3>{median, p99, worst};
       };
       const auto a = report(all, "all");
@@ -274,7 +290,8 @@ TEST(StereoMatcherAccuracyTest, FullResolutionExactAndFloatMaps) {
       ASSERT_GT(facing.size(), all.size() / 2);
       // Measured (exact maps, um): plane median 7e-10, max 0.02; sphere below 60 deg p99 0.005,
       // max 0.06; all sphere points p99 1.1, max 37 at the grazing rim. Float maps (plane): median
-      // 0.0065, p99 0.05, max 0.09 (the sphere below 60 deg measured the same: 0.0068 / 0.027 / 0.056).
+      // 0.0065, p99 0.05, max 0.09 (the sphere below 60 deg measured the same: 0.0068 / 0.027 /
+      // 0.056).
       EXPECT_LT(f[1], to_float ? 1e-4 : 1e-5) << name;
       EXPECT_LT(f[2], 5e-4) << name;
       EXPECT_LT(a[1], sphere ? 5e-3 : (to_float ? 1e-4 : 1e-5)) << name;
@@ -300,7 +317,8 @@ TEST_F(ReconstructTest, StereoInterpolationTradesBiasForNoise) {
     return std::sqrt(sum2 / static_cast<double>(rec.cloud.size()));
   };
   // Exact CV_64F maps: auto == cubic.
-  EXPECT_EQ(run(StereoInterpolation::kAuto).cloud.points, run(StereoInterpolation::kCubic).cloud.points);
+  EXPECT_EQ(run(StereoInterpolation::kAuto).cloud.points,
+            run(StereoInterpolation::kCubic).cloud.points);
   cv::RNG rng(11);
   for (AnalyticView* view : {&left, &right}) {
     for (cv::Mat* m : {&view->map.proj_x, &view->map.proj_y}) {
@@ -310,10 +328,12 @@ TEST_F(ReconstructTest, StereoInterpolationTradesBiasForNoise) {
       m->convertTo(*m, CV_32F);
     }
   }
-  const Reconstruction linear = run(StereoInterpolation::kLinear), cubic = run(StereoInterpolation::kCubic);
+  const Reconstruction linear = run(StereoInterpolation::kLinear),
+                       cubic = run(StereoInterpolation::kCubic);
   EXPECT_EQ(run(StereoInterpolation::kAuto).cloud.points, linear.cloud.points);
   const double rms_linear = rms(linear), rms_cubic = rms(cubic);
-  RecordProperty("noisy_plane_rms_mm_linear_cubic", std::to_string(rms_linear) + " " + std::to_string(rms_cubic));
+  RecordProperty("noisy_plane_rms_mm_linear_cubic",
+                 std::to_string(rms_linear) + " " + std::to_string(rms_cubic));
   EXPECT_LT(rms_linear, rms_cubic);
   EXPECT_GT(rms_cubic, 1.1 * rms_linear);
 }
@@ -350,7 +370,9 @@ TEST(ResidualStatsTest, QuantilesMatchASortedCopy) {
   EXPECT_EQ(s.count, 10000);
   // The nearest rank (core/statistics.h): rank ceil(q n), 1-based, at least 1.
   const auto at = [&](double q) {
-    return sorted[static_cast<size_t>(std::max(1.0, std::ceil(q * static_cast<double>(sorted.size())))) - 1];
+    return sorted[static_cast<size_t>(
+                      std::max(1.0, std::ceil(q * static_cast<double>(sorted.size())))) -
+                  1];
   };
   EXPECT_EQ(s.median, at(0.5));
   EXPECT_EQ(s.p95, at(0.95));
@@ -379,7 +401,9 @@ TEST(ResidualStatsTest, QuantilesAreExactWithTiesSignsAndTinySets) {
     const ResidualStats s = ComputeResidualStats(values);
     // The nearest rank (core/statistics.h): rank ceil(q n), 1-based, at least 1.
     const auto at = [&](double q) {
-      return sorted[static_cast<size_t>(std::max(1.0, std::ceil(q * static_cast<double>(sorted.size())))) - 1];
+      return sorted[static_cast<size_t>(
+                        std::max(1.0, std::ceil(q * static_cast<double>(sorted.size())))) -
+                    1];
     };
     EXPECT_EQ(s.count, static_cast<int64_t>(n));
     EXPECT_EQ(s.median, at(0.5)) << n;
@@ -388,8 +412,10 @@ TEST(ResidualStatsTest, QuantilesAreExactWithTiesSignsAndTinySets) {
 }
 
 double DistanceToStep(const Eigen::Vector3d& p, double edge_x, double near_z, double far_z) {
-  const double d_near = p.x() < edge_x ? std::abs(p.z() - near_z) : std::hypot(p.x() - edge_x, p.z() - near_z);
-  const double d_far = p.x() >= edge_x ? std::abs(p.z() - far_z) : std::hypot(p.x() - edge_x, p.z() - far_z);
+  const double d_near =
+      p.x() < edge_x ? std::abs(p.z() - near_z) : std::hypot(p.x() - edge_x, p.z() - near_z);
+  const double d_far =
+      p.x() >= edge_x ? std::abs(p.z() - far_z) : std::hypot(p.x() - edge_x, p.z() - far_z);
   const double zc = std::clamp(p.z(), std::min(near_z, far_z), std::max(near_z, far_z));
   const double d_face = std::hypot(p.x() - edge_x, p.z() - zc);
   return std::min({d_near, d_far, d_face});
@@ -438,7 +464,8 @@ TEST_F(ReconstructTest, DepthJumpsAreRejectedAndCounted) {
       options.filter_outliers = false;
       options.max_reprojection_error_px = std::numeric_limits<double>::infinity();
       options.max_epipolar_error_px = std::numeric_limits<double>::infinity();
-      options.max_code_step_px = 1e6;  // stereo: let the matcher bridge the jump, the filter must catch it
+      options.max_code_step_px =
+          1e6;  // stereo: let the matcher bridge the jump, the filter must catch it
       return mode == ReconstructMode::kProjector
                  ? ReconstructWithProjector(rig_, "left", mixed_left, options)
                  : ReconstructStereo(rig_, "left", "right", mixed_left, mixed_right, options);
@@ -453,7 +480,8 @@ TEST_F(ReconstructTest, DepthJumpsAreRejectedAndCounted) {
     ExpectFiniteCloud(filtered);
     EXPECT_GT(wrong(unfiltered.cloud), 50) << ToString(mode);  // the fixture does make bad points
     EXPECT_EQ(wrong(filtered.cloud), 0) << ToString(mode);
-    const int64_t jumps = filtered.summary.rejected[static_cast<size_t>(RejectReason::kDepthDiscontinuity)];
+    const int64_t jumps =
+        filtered.summary.rejected[static_cast<size_t>(RejectReason::kDepthDiscontinuity)];
     EXPECT_GE(jumps, wrong(unfiltered.cloud)) << ToString(mode);
     EXPECT_EQ(filtered.summary.points + jumps, unfiltered.summary.points) << ToString(mode);
   }
@@ -462,12 +490,14 @@ TEST_F(ReconstructTest, DepthJumpsAreRejectedAndCounted) {
 TEST_F(ReconstructTest, NearParallelRaysAreRejectedAndCounted) {
   // A projector 0.5 mm beside the left camera, looking the same way: no triangulation angle.
   Rig rig = rig_;
-  rig.projector->cam_from_rig = Rigid3d(rig.cameras[0].cam_from_rig.rotation, Eigen::Vector3d(-0.5, 0, 0));
+  rig.projector->cam_from_rig =
+      Rigid3d(rig.cameras[0].cam_from_rig.rotation, Eigen::Vector3d(-0.5, 0, 0));
   const AnalyticView truth = RenderAnalytic(rig, rig.cameras[0], PlaneSurface());
   const int64_t valid = CountValid(truth.map);
   ASSERT_GT(valid, 10000);
   for (bool one_axis : {false, true}) {
-    const AnalyticView view = one_axis ? RenderAnalytic(rig, rig.cameras[0], PlaneSurface(), true, false) : truth;
+    const AnalyticView view =
+        one_axis ? RenderAnalytic(rig, rig.cameras[0], PlaneSurface(), true, false) : truth;
     const Reconstruction rec = ReconstructWithProjector(rig, "left", view.map);
     ExpectFiniteCloud(rec);
     EXPECT_EQ(rec.summary.points, 0);
@@ -494,7 +524,8 @@ TEST_F(ReconstructTest, CorruptedCorrespondencesAreRejectedWithAReason) {
     if (map.status.at<uint8_t>(v, u) != 0 || corrupted.count({u, v})) continue;
     // Keep corrupted pixels apart so each is an isolated error.
     bool near = false;
-    for (const auto& c : corrupted) near |= std::abs(c.first - u) <= 3 && std::abs(c.second - v) <= 3;
+    for (const auto& c : corrupted)
+      near |= std::abs(c.first - u) <= 3 && std::abs(c.second - v) <= 3;
     if (near) continue;
     corrupted.insert({u, v});
     if (corrupted.size() % 2 == 0) {
@@ -526,11 +557,14 @@ TEST_F(ReconstructTest, CorruptedCorrespondencesAreRejectedWithAReason) {
     const auto& r = rec.summary.rejected;
     auto count = [&](RejectReason reason) { return r[static_cast<size_t>(reason)]; };
     // Random codes mostly fail the epipolar gate; some land behind a device or out of range first.
-    EXPECT_GE(count(RejectReason::kEpipolarError) + count(RejectReason::kReprojectionError), 50) << ToString(method);
+    EXPECT_GE(count(RejectReason::kEpipolarError) + count(RejectReason::kReprojectionError), 50)
+        << ToString(method);
     int64_t rejected = 0;
-    for (int k = static_cast<int>(RejectReason::kNoRay); k < kNumRejectReasons; ++k) rejected += r[static_cast<size_t>(k)];
+    for (int k = static_cast<int>(RejectReason::kNoRay); k < kNumRejectReasons; ++k)
+      rejected += r[static_cast<size_t>(k)];
     EXPECT_GE(rejected, 200) << ToString(method);
-    EXPECT_GE(count(RejectReason::kDepthDiscontinuity) + count(RejectReason::kOutlier), along) << ToString(method);
+    EXPECT_GE(count(RejectReason::kDepthDiscontinuity) + count(RejectReason::kOutlier), along)
+        << ToString(method);
   }
 }
 
@@ -552,12 +586,14 @@ TEST_F(ReconstructTest, WithNoisyCodesOptimalIsNoWorseThanMidpoint) {
     const auto* us = rec.cloud.Scalar("u");
     const auto* vs = rec.cloud.Scalar("v");
     for (size_t i = 0; i < rec.cloud.size(); ++i) {
-      sum += (rec.cloud.points[i] - truth.Point(static_cast<int>((*us)[i]), static_cast<int>((*vs)[i]))).squaredNorm();
+      sum += (rec.cloud.points[i] -
+              truth.Point(static_cast<int>((*us)[i]), static_cast<int>((*vs)[i])))
+                 .squaredNorm();
     }
     rms[method] = std::sqrt(sum / static_cast<double>(rec.cloud.size()));
     RecordProperty(std::string("rms_mm_") + ToString(method), std::to_string(rms[method]));
-    // Residual statistics: the epipolar residual is the noise across the epipolar line, |N(0, s^2)|,
-    // whose median is 0.674 s.
+    // Residual statistics: the epipolar residual is the noise across the epipolar line, |N(0,
+    // s^2)|, whose median is 0.674 s.
     EXPECT_NEAR(rec.summary.epipolar_error_px.median, 0.674 * sigma, 0.1 * sigma);
     EXPECT_GT(rec.summary.reprojection_error_px.median, 0.1 * sigma);
     EXPECT_LT(rec.summary.reprojection_error_px.median, 2 * sigma);
@@ -571,7 +607,8 @@ TEST_F(ReconstructTest, ResidualStatisticsRevealAMiscalibratedRig) {
   Rig wrong = rig_;
   // The projector's pose off by 0.1 degree about its x axis.
   wrong.projector->cam_from_rig =
-      Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.1 * M_PI / 180, Eigen::Vector3d::UnitX())), Eigen::Vector3d::Zero()) *
+      Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.1 * M_PI / 180, Eigen::Vector3d::UnitX())),
+              Eigen::Vector3d::Zero()) *
       wrong.projector->cam_from_rig;
   ReconstructOptions options;
   const Reconstruction good = ReconstructWithProjector(rig_, "left", truth.map, options);
@@ -585,7 +622,8 @@ TEST_F(ReconstructTest, ResidualStatisticsRevealAMiscalibratedRig) {
   // The calibration check warns about the bumped rig, and only about it.
   EXPECT_TRUE(good.summary.warnings.empty());
   ASSERT_EQ(bad.summary.warnings.size(), 1u);
-  EXPECT_NE(bad.summary.warnings[0].find("calibration check: the epipolar error of"), std::string::npos)
+  EXPECT_NE(bad.summary.warnings[0].find("calibration check: the epipolar error of"),
+            std::string::npos)
       << bad.summary.warnings[0];
   EXPECT_NE(bad.summary.FullReport().find("WARNING: calibration check"), std::string::npos);
   EXPECT_EQ(bad.summary.ToJson()["warnings"].size(), 1u);
@@ -662,16 +700,17 @@ TEST_F(ReconstructTest, BadInputThrows) {
   EXPECT_NO_THROW(ReconstructOptions().Check());
   EXPECT_THROW(bad([](ReconstructOptions& o) { o.min_depth_mm = 0; }).Check(), Error);
   EXPECT_THROW(bad([](ReconstructOptions& o) { o.max_depth_mm = 10; }).Check(), Error);
-  EXPECT_THROW(bad([](ReconstructOptions& o) { o.min_triangulation_angle_deg = 90; }).Check(), Error);
+  EXPECT_THROW(bad([](ReconstructOptions& o) { o.min_triangulation_angle_deg = 90; }).Check(),
+               Error);
   EXPECT_THROW(bad([](ReconstructOptions& o) { o.max_reprojection_error_px = 0; }).Check(), Error);
   EXPECT_THROW(bad([](ReconstructOptions& o) { o.max_epipolar_error_px = -1; }).Check(), Error);
   EXPECT_THROW(bad([](ReconstructOptions& o) { o.outlier_neighbors = 25; }).Check(), Error);
   EXPECT_THROW(bad([](ReconstructOptions& o) { o.outlier_window_radius_px = 0; }).Check(), Error);
-  EXPECT_THROW(bad([](ReconstructOptions& o) { o.max_code_step_px = std::nan(""); }).Check(), Error);
+  EXPECT_THROW(bad([](ReconstructOptions& o) { o.max_code_step_px = std::nan(""); }).Check(),
+               Error);
   EXPECT_THROW(ReconstructModeFromString("mono"), Error);
   EXPECT_EQ(ReconstructModeFromString("stereo"), ReconstructMode::kStereo);
 }
-
 
 // Options as files: every field written is read back (JSON and YAML, infinite gates as "inf"),
 // unknown keys and bad values are refused naming the file and the field.
@@ -699,7 +738,8 @@ TEST(ReconstructOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
   o.calibration_warning_px = std::numeric_limits<double>::infinity();
   const nlohmann::json j = o.ToJson();
   EXPECT_EQ(j["max_reprojection_error_px"], "inf");
-  for (const ConfigNode& node : {ConfigNode::FromJson(j, "r.json"), ConfigNode::ParseYaml(JsonToYaml(j), "r.yaml")}) {
+  for (const ConfigNode& node :
+       {ConfigNode::FromJson(j, "r.json"), ConfigNode::ParseYaml(JsonToYaml(j), "r.yaml")}) {
     const ReconstructOptions r = ReconstructOptionsFromConfig(node);
     EXPECT_EQ(r.method, o.method);
     EXPECT_EQ(r.max_reprojection_error_px, o.max_reprojection_error_px);
@@ -709,7 +749,8 @@ TEST(ReconstructOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
     EXPECT_EQ(r.calibration_warning_px, o.calibration_warning_px);
     EXPECT_EQ(r.ToJson(), j);  // every other field
   }
-  EXPECT_EQ(ReconstructOptionsFromConfig(ConfigNode::FromJson(nlohmann::json::object(), "r.json")).ToJson(),
+  EXPECT_EQ(ReconstructOptionsFromConfig(ConfigNode::FromJson(nlohmann::json::object(), "r.json"))
+                .ToJson(),
             ReconstructOptions{}.ToJson());
   nlohmann::json typo = j;
   typo["min_depth"] = 1;

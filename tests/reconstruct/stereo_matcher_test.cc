@@ -35,17 +35,22 @@ TEST(StereoRectificationTest, RowsAreEpipolarLinesAndDisparityGivesDepth) {
   for (int i = 0; i < 200; ++i) {
     const Eigen::Vector3d p(xy(rng), xy(rng), z(rng));
     const Eigen::Vector3d a = rect0 * p, b = rect1 * p;
-    const double ul = rect.focal_px * a.x() / a.z() + rect.cx[0], vl = rect.focal_px * a.y() / a.z() + rect.cy;
-    const double ur = rect.focal_px * b.x() / b.z() + rect.cx[1], vr = rect.focal_px * b.y() / b.z() + rect.cy;
+    const double ul = rect.focal_px * a.x() / a.z() + rect.cx[0],
+                 vl = rect.focal_px * a.y() / a.z() + rect.cy;
+    const double ur = rect.focal_px * b.x() / b.z() + rect.cx[1],
+                 vr = rect.focal_px * b.y() / b.z() + rect.cy;
     EXPECT_NEAR(vl, vr, 1e-9);
     EXPECT_NEAR(a.z(), b.z(), 1e-9);
-    EXPECT_NEAR((ul - rect.cx[0]) - (ur - rect.cx[1]), rect.focal_px * rect.baseline_mm / a.z(), 1e-9);
+    EXPECT_NEAR((ul - rect.cx[0]) - (ur - rect.cx[1]), rect.focal_px * rect.baseline_mm / a.z(),
+                1e-9);
   }
   // Each camera's image centre lies inside its rectified image.
   for (int c = 0; c < 2; ++c) {
     const RigDevice& cam = rig.cameras[static_cast<size_t>(c)];
-    const auto xy_c = cam.model.UndistortToNormalized(Eigen::Vector2d(cam.model.cx(), cam.model.cy()));
-    const Eigen::Vector3d ray = rect.rect_from_rig_rotation * cam.cam_from_rig.rotation.conjugate() *
+    const auto xy_c =
+        cam.model.UndistortToNormalized(Eigen::Vector2d(cam.model.cx(), cam.model.cy()));
+    const Eigen::Vector3d ray = rect.rect_from_rig_rotation *
+                                cam.cam_from_rig.rotation.conjugate() *
                                 Eigen::Vector3d(xy_c->x(), xy_c->y(), 1.0);
     const double u = rect.focal_px * ray.x() / ray.z() + rect.cx[c];
     const double v = rect.focal_px * ray.y() / ray.z() + rect.cy;
@@ -58,7 +63,8 @@ TEST(StereoRectificationTest, RowsAreEpipolarLinesAndDisparityGivesDepth) {
 
 TEST(StereoRectificationTest, CoincidentCentresThrow) {
   Rig rig = SmallRig();
-  rig.cameras[1].cam_from_rig = Rigid3d(rig.cameras[1].cam_from_rig.rotation, Eigen::Vector3d::Zero());
+  rig.cameras[1].cam_from_rig =
+      Rigid3d(rig.cameras[1].cam_from_rig.rotation, Eigen::Vector3d::Zero());
   EXPECT_THROW(ComputeStereoRectification(rig.cameras[0], rig.cameras[1]), Error);
 }
 
@@ -85,7 +91,8 @@ TEST(RectifyProjectorMapTest, ResampledCodesMatchTheAnalyticCodes) {
       const Eigen::Vector3d o = rig_from_rect.translation;
       const Eigen::Vector3d p = o + dir * ((d - n.dot(o)) / n.dot(dir));
       const Eigen::Vector2d code = *proj.model.Project(proj.cam_from_rig * p);
-      const double e = std::max(std::abs(map.proj_x[i] - code.x()), std::abs(map.proj_y[i] - code.y()));
+      const double e =
+          std::max(std::abs(map.proj_x[i] - code.x()), std::abs(map.proj_y[i] - code.y()));
       worst = std::max(worst, e);
       errors.push_back(e);
       ++checked;
@@ -96,7 +103,7 @@ TEST(RectifyProjectorMapTest, ResampledCodesMatchTheAnalyticCodes) {
   // where the 4x4 block leaves the decoded region (its border: the worst cells).
   std::sort(errors.begin(), errors.end());
   const double p99 = errors[errors.size() * 99 / 100];
-  EXPECT_LT(p99, 2e-4);  // measured 5.9e-5 px
+  EXPECT_LT(p99, 2e-4);    // measured 5.9e-5 px
   EXPECT_LT(worst, 2e-3);  // measured 2.8e-4 px
   RecordProperty("code_error_px_p99_max", std::to_string(p99) + " " + std::to_string(worst));
 }
@@ -133,7 +140,8 @@ TEST(MatchRectifiedMapsTest, FindsTheSubPixelCrossingWithinTheDisparityRange) {
   std::vector<double> right(20);
   for (int k = 0; k < 20; ++k) right[static_cast<size_t>(k)] = 10 + 0.5 * k;
   const RectifiedMap r = Row(right);
-  const RectifiedMap l = Row({nan, nan, nan, nan, nan, 12.25, 13.0, 30.0, nan, nan, 10.0, nan, nan, nan, nan, nan, nan, nan, nan, nan});
+  const RectifiedMap l = Row({nan,  nan, nan, nan, nan, 12.25, 13.0, 30.0, nan, nan,
+                              10.0, nan, nan, nan, nan, nan,   nan,  nan,  nan, nan});
   const StereoMatches m = MatchRectifiedMaps(RowRect(20), l, r, 0.0, 5.0, 4.0);
   EXPECT_NEAR(m.right_u[5], 4.5, 1e-12);  // 12.25 between samples 4 (12.0) and 5 (12.5)
   EXPECT_NEAR(m.right_u[6], 6.0, 1e-12);  // exactly on a sample shared by two segments: one match
@@ -174,7 +182,8 @@ double CubicCode(double k) { return 10 + 0.5 * k + 0.02 * k * k - 0.001 * k * k 
 TEST(InterpolateRowTest, CubicInsideLinearAtEndsAndJumps) {
   std::vector<double> row(12);
   for (int k = 0; k < 12; ++k) row[static_cast<size_t>(k)] = CubicCode(k);
-  for (double u : {1.0, 1.25, 4.5, 7.9, 9.999}) EXPECT_NEAR(InterpolateRow(row.data(), 12, u, 4.0), CubicCode(u), 1e-12) << u;
+  for (double u : {1.0, 1.25, 4.5, 7.9, 9.999})
+    EXPECT_NEAR(InterpolateRow(row.data(), 12, u, 4.0), CubicCode(u), 1e-12) << u;
   // First and last segments: linear.
   EXPECT_NEAR(InterpolateRow(row.data(), 12, 0.5, 4.0), 0.5 * (row[0] + row[1]), 1e-12);
   EXPECT_NEAR(InterpolateRow(row.data(), 12, 10.5, 4.0), 0.5 * (row[10] + row[11]), 1e-12);
@@ -193,7 +202,8 @@ TEST(InterpolateRowTest, CubicInsideLinearAtEndsAndJumps) {
 TEST(MatchRectifiedMapsTest, CubicCodesAreMatchedExactly) {
   const double nan = std::nan("");
   std::vector<double> right(30);
-  for (int k = 0; k < 30; ++k) right[static_cast<size_t>(k)] = CubicCode(k);  // increasing up to k ~ 24
+  for (int k = 0; k < 30; ++k)
+    right[static_cast<size_t>(k)] = CubicCode(k);  // increasing up to k ~ 24
   const RectifiedMap r = Row(right);
   std::vector<double> left_codes(30, nan);
   std::vector<double> truth(30, nan);
@@ -209,7 +219,9 @@ TEST(MatchRectifiedMapsTest, CubicCodesAreMatchedExactly) {
     EXPECT_NEAR(m.right_u[i], truth[i], 1e-12) << u;
     // What linear interpolation between the 2 samples gives (the matcher before the cubic step).
     const int k = static_cast<int>(truth[i]);
-    const double linear = k + (left_codes[i] - right[static_cast<size_t>(k)]) / (right[static_cast<size_t>(k) + 1] - right[static_cast<size_t>(k)]);
+    const double linear =
+        k + (left_codes[i] - right[static_cast<size_t>(k)]) /
+                (right[static_cast<size_t>(k) + 1] - right[static_cast<size_t>(k)]);
     worst_linear = std::max(worst_linear, std::abs(linear - truth[i]));
   }
   EXPECT_GT(worst_linear, 1e-3);  // the test would catch a linear matcher

@@ -51,7 +51,8 @@ TEST_F(TriangulationTest, ExactObservationsGiveTheTruePointForEveryMethodAndPair
       for (auto m : kMethods) {
         const auto q = tri.Triangulate(x0, x1, m);
         ASSERT_TRUE(q) << ToString(m);
-        EXPECT_LT((*q - p).norm(), 1e-6) << ToString(m) << " " << pair[0]->name << "-" << pair[1]->name;
+        EXPECT_LT((*q - p).norm(), 1e-6)
+            << ToString(m) << " " << pair[0]->name << "-" << pair[1]->name;
       }
       EXPECT_LT(tri.EpipolarDistancePx(x0, x1), 1e-6);
     }
@@ -180,7 +181,8 @@ TEST_F(TriangulationTest, RayAxisSolveIsExactAgainstTheDistortedProjector) {
         Eigen::Vector3d d = Eigen::Vector3d::Zero();
         d[k] = 1e-4;
         grad[k] = ((*proj.model.Project(proj.cam_from_rig * (p + d)))[axis] -
-                   (*proj.model.Project(proj.cam_from_rig * (p - d)))[axis]) / 2e-4;
+                   (*proj.model.Project(proj.cam_from_rig * (p - d)))[axis]) /
+                  2e-4;
       }
       EXPECT_NEAR(sin_angle, std::abs(grad.normalized().dot(ray)), 1e-6);
     }

@@ -24,8 +24,11 @@ TEST(Bench, DecodeEntryRunsOnTheDemoScan) {
   const auto entries = RunBench(options);
   ASSERT_EQ(entries.size(), 1u);
   EXPECT_EQ(entries[0].name, "decode");
-  const int images = LoadPatternSpec(std::filesystem::path(SLSHADOW_SOURCE_DIR) / "config/demo/patterns.yaml").NumImages();
-  EXPECT_EQ(entries[0].what, "DecodePatterns, 2 cameras, " + std::to_string(images) + " images each");
+  const int images =
+      LoadPatternSpec(std::filesystem::path(SLSHADOW_SOURCE_DIR) / "config/demo/patterns.yaml")
+          .NumImages();
+  EXPECT_EQ(entries[0].what,
+            "DecodePatterns, 2 cameras, " + std::to_string(images) + " images each");
   EXPECT_EQ(entries[0].unit, "MPix/s");
   EXPECT_TRUE(entries[0].peer.empty());
   EXPECT_EQ(entries[0].ratio, 0);

@@ -43,10 +43,11 @@ TEST(Demo, NoiseFreeDemoMeetsTheAccuracyGoalInBothModes) {
   // first, before the projector mode's cloud takes memory).
   std::vector<std::string> stage_names;
   for (const auto& s : result.stages) stage_names.push_back(s.name);
-  EXPECT_EQ(stage_names, (std::vector<std::string>{"load rig, build scene, patterns", "simulate (ray cast + patterns)",
-                                                   "write ImageSet", "reference: sample ground truth",
-                                                   "read ImageSet + decode", "reconstruct stereo",
-                                                   "reconstruct projector", "compare + report (2 modes at once)"}));
+  EXPECT_EQ(stage_names, (std::vector<std::string>{
+                             "load rig, build scene, patterns", "simulate (ray cast + patterns)",
+                             "write ImageSet", "reference: sample ground truth",
+                             "read ImageSet + decode", "reconstruct stereo",
+                             "reconstruct projector", "compare + report (2 modes at once)"}));
   const ImageSet scan = ImageSet::Open(options.out_dir / "scan");
   EXPECT_EQ(scan.CameraNames(), (std::vector<std::string>{"left", "right"}));
   EXPECT_EQ(scan.PatternCount(), 38);
@@ -55,7 +56,8 @@ TEST(Demo, NoiseFreeDemoMeetsTheAccuracyGoalInBothModes) {
   EXPECT_TRUE(std::filesystem::exists(options.out_dir / "demo.json"));
 
   // The scan's provenance holds the settings the demo ran with, and the scan renders again from
-  // its folder alone into identical images (the demo renders in memory, the redo with SimulateScan).
+  // its folder alone into identical images (the demo renders in memory, the redo with
+  // SimulateScan).
   const std::optional<ScanProvenance> provenance = ReadScanProvenance(scan);
   ASSERT_TRUE(provenance.has_value());
   EXPECT_EQ(provenance->generator, "slshadow demo");
@@ -67,7 +69,9 @@ TEST(Demo, NoiseFreeDemoMeetsTheAccuracyGoalInBothModes) {
   const ImageSet redo = ImageSet::Open(dir / "redo");
   ASSERT_EQ(redo.records().size(), scan.records().size());
   for (const ImageRecord& r : scan.records()) {
-    ASSERT_EQ(cv::norm(scan.Load(r.camera, r.pattern_index), redo.Load(r.camera, r.pattern_index), cv::NORM_INF), 0)
+    ASSERT_EQ(cv::norm(scan.Load(r.camera, r.pattern_index), redo.Load(r.camera, r.pattern_index),
+                       cv::NORM_INF),
+              0)
         << r.camera << " " << r.pattern_index;
   }
 }

@@ -22,7 +22,8 @@ TEST(Diagnose, SmoothFieldRecoversPlantedQuadratic) {
   };
   for (int y = 0; y < h; ++y) {
     for (int x = 0; x < w; ++x) {
-      residual.at<float>(y, x) = static_cast<float>(truth(x, y)) + noise(rng) + (u(rng) < 0.1f ? 3.0f : 0.0f);
+      residual.at<float>(y, x) =
+          static_cast<float>(truth(x, y)) + noise(rng) + (u(rng) < 0.1f ? 3.0f : 0.0f);
     }
   }
   double rms = 0, mean = 0;
@@ -30,7 +31,8 @@ TEST(Diagnose, SmoothFieldRecoversPlantedQuadratic) {
   ASSERT_FALSE(field.empty());
   double worst = 0;
   for (int y = 0; y < h; y += 5) {
-    for (int x = 0; x < w; x += 5) worst = std::max(worst, std::abs(field.at<float>(y, x) - truth(x, y)));
+    for (int x = 0; x < w; x += 5)
+      worst = std::max(worst, std::abs(field.at<float>(y, x) - truth(x, y)));
   }
   EXPECT_LT(worst, 0.03);
   EXPECT_NEAR(mean, 0.8 + 0.1 / 3, 0.03);  // mean of a^2 over [-1, 1] is 1/3

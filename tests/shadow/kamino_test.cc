@@ -40,10 +40,12 @@ shadow::ShadowPart KaminoBoard(bool flipped) {
   o.albedo.light = 0.9;
   const Eigen::Vector3d centre(4 * kSquareMm, 3 * kSquareMm, 0);
   o.albedo_offset_mm = Eigen::Vector2d(centre.x(), centre.y());
-  o.rig_from_object = flipped ? Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitY())), centre)
-                              : Rigid3d(Eigen::Quaterniond::Identity(), centre);
+  o.rig_from_object =
+      flipped
+          ? Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitY())), centre)
+          : Rigid3d(Eigen::Quaterniond::Identity(), centre);
   part.scene.name = "kamino board";
-  part.scene.radiometry.exposure = 0.5;
+  part.scene.radiometry.exposure_fraction = 0.5;
   part.scene.layers.supersampling = 3;  // anti-aliased square edges, as a real lens gives
   part.scene.objects.push_back(o);
   part.surface = shadow::SceneSurface(part.scene, part.source, shadow::kPartPlaneCells);
@@ -53,14 +55,16 @@ shadow::ShadowPart KaminoBoard(bool flipped) {
 Rigid3d PoseFromJson(const nlohmann::json& j) {
   const auto& q = j["rotation_quat_wxyz"];
   const auto& t = j["translation_mm"];
-  return Rigid3d(Eigen::Quaterniond(q[0].get<double>(), q[1].get<double>(), q[2].get<double>(), q[3].get<double>()),
+  return Rigid3d(Eigen::Quaterniond(q[0].get<double>(), q[1].get<double>(), q[2].get<double>(),
+                                    q[3].get<double>()),
                  Eigen::Vector3d(t[0].get<double>(), t[1].get<double>(), t[2].get<double>()));
 }
 
 TEST(ShadowKamino, RealVsVirtualPerPose) {
   testing::TempDir tmp;
   const auto kamino = testing::SharedDataDir() / "kamino-procam-graycode";
-  const std::string spec_path = (testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml").string();
+  const std::string spec_path =
+      (testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml").string();
   const PatternSpec spec = LoadPatternSpec(spec_path);
   // The five captures as ImageSets, then `slshadow calibrate rig` on them.
   const Rig nominal = [&] {
@@ -76,9 +80,21 @@ TEST(ShadowKamino, RealVsVirtualPerPose) {
     r.projector = proj;
     return r;
   }();
-  std::vector<std::string> args = {"calibrate", "rig", "--target", (testing::SourceDir() / "config/targets/kamino-procam-graycode.yaml").string(),
-                                   "--shadow-threshold", "40", "--contrast-threshold", "5", "--min-views", "5",
-                                   "--no-cross-validation", "--out", (tmp / "rig.yaml").string(), "--imagesets"};
+  std::vector<std::string> args = {
+      "calibrate",
+      "rig",
+      "--target",
+      (testing::SourceDir() / "config/targets/kamino-procam-graycode.yaml").string(),
+      "--shadow-threshold",
+      "40",
+      "--contrast-threshold",
+      "5",
+      "--min-views",
+      "5",
+      "--no-cross-validation",
+      "--out",
+      (tmp / "rig.yaml").string(),
+      "--imagesets"};
   for (int p = 0; p < 5; ++p) {
     ImageSetWriterOptions wo;
     wo.encoding = ImageEncoding::kPgm;
@@ -87,7 +103,8 @@ TEST(ShadowKamino, RealVsVirtualPerPose) {
     for (int i = 0; i < spec.NumImages(); ++i) {
       char name[32];
       std::snprintf(name, sizeof(name), "graycode_%02d.png", i);
-      writer.Add("camera", i, ReadGrayImage(kamino / ("capture_" + std::to_string(p)) / name), 0, ImageSource::kReplay);
+      writer.Add("camera", i, ReadGrayImage(kamino / ("capture_" + std::to_string(p)) / name), 0,
+                 ImageSource::kReplay);
     }
     writer.Commit();
     args.push_back(dir.string());
@@ -99,27 +116,35 @@ TEST(ShadowKamino, RealVsVirtualPerPose) {
   ASSERT_EQ(poses.size(), 5u);
 
   std::string table =
-      "pose  coords real-truth  real-twin dec.  twin-truth  within 5% FS (all / white)  kept layers                verdict\n";
+      "pose  coords real-truth  real-twin dec.  twin-truth  within 5% FS (all / white)  kept "
+      "layers                verdict\n";
   for (int p = 0; p < 5; ++p) {
     const Rigid3d rig_from_board = PoseFromJson(poses[static_cast<size_t>(p)]);
     // Which colour is the corner square? Compare the white frame at its centre and its neighbour's.
-    const cv::Mat white = ReadGrayImage(kamino / ("capture_" + std::to_string(p)) / "graycode_40.png");
+    const cv::Mat white =
+        ReadGrayImage(kamino / ("capture_" + std::to_string(p)) / "graycode_40.png");
     const auto sample = [&](double x, double y) {
-      const Eigen::Vector3d in_cam = rig.cameras[0].cam_from_rig * (rig_from_board * Eigen::Vector3d(x, y, 0));
+      const Eigen::Vector3d in_cam =
+          rig.cameras[0].cam_from_rig * (rig_from_board * Eigen::Vector3d(x, y, 0));
       const auto px = rig.cameras[0].model.Project(in_cam);
-      return px ? static_cast<double>(white.at<uint8_t>(static_cast<int>(std::lround(px->y())), static_cast<int>(std::lround(px->x())))) : 0.0;
+      return px ? static_cast<double>(white.at<uint8_t>(static_cast<int>(std::lround(px->y())),
+                                                        static_cast<int>(std::lround(px->x()))))
+                : 0.0;
     };
     const bool flipped = sample(-37.5, -37.5) > sample(37.5, -37.5);
     shadow::ShadowOptions options;
     options.rig_from_part = rig_from_board;
-    options.refine_pose = false;  // a plane leaves registration blind in-plane: the calibration's pose
+    options.refine_pose =
+        false;  // a plane leaves registration blind in-plane: the calibration's pose
     options.decode.shadow_threshold = 40;
     options.decode.contrast_threshold = 5;
     options.overwrite = true;
     // SLSHADOW_KEEP_KAMINO_SHADOW=DIR keeps the report folders (maps, clouds) for a look.
     const char* keep = std::getenv("SLSHADOW_KEEP_KAMINO_SHADOW");
-    const auto out = (keep ? std::filesystem::path(keep) : tmp.path()) / ("shadow_" + std::to_string(p));
-    const shadow::ShadowResult r = shadow::RunShadow(tmp / ("capture_" + std::to_string(p)), KaminoBoard(flipped), options, out, &rig);
+    const auto out =
+        (keep ? std::filesystem::path(keep) : tmp.path()) / ("shadow_" + std::to_string(p));
+    const shadow::ShadowResult r = shadow::RunShadow(tmp / ("capture_" + std::to_string(p)),
+                                                     KaminoBoard(flipped), options, out, &rig);
     std::printf("%s\n", r.Summary().c_str());
     const auto& cam = r.report["images"]["cameras"][0];
     const auto& pc = cam["projector_coordinates"];
@@ -132,10 +157,11 @@ TEST(ShadowKamino, RealVsVirtualPerPose) {
       if (l.kept) kept += (kept.empty() ? "" : ",") + l.name;
     }
     char line[512];
-    std::snprintf(line, sizeof(line), "%4d  %8.3f px  %11.3f px  %9.3f px  %9.1f%% / %5.1f%%  %-26s %s\n", p,
-                  pc["real_vs_truth_rms_px"].get<double>(), pc["real_vs_twin_decoded_rms_px"].get<double>(),
-                  pc["twin_vs_truth_rms_px"].get<double>(), 100 * cam["within_5pct_all_frames"].get<double>(), 100 * white_within,
-                  kept.c_str(), r.diagnosis.verdict.c_str());
+    std::snprintf(
+        line, sizeof(line), "%4d  %8.3f px  %11.3f px  %9.3f px  %9.1f%% / %5.1f%%  %-26s %s\n", p,
+        pc["real_vs_truth_rms_px"].get<double>(), pc["real_vs_twin_decoded_rms_px"].get<double>(),
+        pc["twin_vs_truth_rms_px"].get<double>(), 100 * cam["within_5pct_all_frames"].get<double>(),
+        100 * white_within, kept.c_str(), r.diagnosis.verdict.c_str());
     table += line;
     // Goals (issue 13): decoded projector coordinates within 0.3 px RMS of the twin's truth (met
     // on every pose: 0.271-0.289 px measured); intensity within 5 % of full scale on >= 95 % of

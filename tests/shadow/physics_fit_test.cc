@@ -21,7 +21,9 @@ std::vector<cv::Mat> FlatImages(const PatternSpec& spec, float w, float b) {
   for (const auto& p : projector) {
     cv::Mat img(64, 256, CV_8UC1);
     for (int y = 0; y < img.rows; ++y) {
-      for (int x = 0; x < img.cols; ++x) img.at<uint8_t>(y, x) = cv::saturate_cast<uint8_t>(b + (w - b) * p.at<uint8_t>(y, x) / 255.0f);
+      for (int x = 0; x < img.cols; ++x)
+        img.at<uint8_t>(y, x) =
+            cv::saturate_cast<uint8_t>(b + (w - b) * p.at<uint8_t>(y, x) / 255.0f);
     }
     out.push_back(img);
   }
@@ -69,8 +71,10 @@ TEST(PhysicsFit, NormalisedModulationIsOrderFree) {
   const auto frames = spec.Frames();
   int a = -1, b = -1;
   for (size_t i = 0; i < frames.size(); ++i) {
-    if (frames[i].role == FrameRole::kPhase && frames[i].axis == 0 && frames[i].step == 1) a = static_cast<int>(i);
-    if (frames[i].role == FrameRole::kPhase && frames[i].axis == 0 && frames[i].step == 2) b = static_cast<int>(i);
+    if (frames[i].role == FrameRole::kPhase && frames[i].axis == 0 && frames[i].step == 1)
+      a = static_cast<int>(i);
+    if (frames[i].role == FrameRole::kPhase && frames[i].axis == 0 && frames[i].step == 2)
+      b = static_cast<int>(i);
   }
   std::swap(images[static_cast<size_t>(a)], images[static_cast<size_t>(b)]);
   const cv::Mat swapped = NormalisedModulation(spec, images);

@@ -77,14 +77,15 @@ TEST_F(ScanPipeline, WrittenScanDecodesAndReconstructsLikeTheImagesInMemory) {
 
   std::vector<StageMeasurement> stages;
   const ReconstructOptions options;
-  const std::vector<Reconstruction> recs =
-      ReconstructModes(decoded, {ReconstructMode::kProjector, ReconstructMode::kStereo}, options, &stages);
+  const std::vector<Reconstruction> recs = ReconstructModes(
+      decoded, {ReconstructMode::kProjector, ReconstructMode::kStereo}, options, &stages);
   ASSERT_EQ(recs.size(), 2u);
   ASSERT_EQ(stages.size(), 2u);
   EXPECT_EQ(stages[0].name, "reconstruct projector");
   EXPECT_EQ(stages[1].name, "reconstruct stereo");
   const Reconstruction projector = ReconstructWithProjector(*rig_, "left", in_memory[0], options);
-  const Reconstruction stereo = ReconstructStereo(*rig_, "left", "right", in_memory[0], in_memory[1], options);
+  const Reconstruction stereo =
+      ReconstructStereo(*rig_, "left", "right", in_memory[0], in_memory[1], options);
   EXPECT_GT(projector.cloud.size(), 1000000u);
   EXPECT_GT(stereo.cloud.size(), 1000000u);
   EXPECT_EQ(recs[0].summary.mode, ReconstructMode::kProjector);
@@ -97,7 +98,8 @@ TEST_F(ScanPipeline, DecodeAndReconstructRefuseWhatWasNotDecoded) {
   testing::TempDir dir;
   ImageSetWriterOptions writer;
   writer.encoding = ImageEncoding::kPgm;
-  WriteVirtualScan(dir / "scan", *rig_, *spec_, *scene_, scan_->images, writer, nlohmann::json::object());
+  WriteVirtualScan(dir / "scan", *rig_, *spec_, *scene_, scan_->images, writer,
+                   nlohmann::json::object());
   const ImageSet image_set = ImageSet::Open(dir / "scan");
   EXPECT_THROW(DecodeImageSet(image_set, {"middle"}), Error);
   const DecodedScan left_only = DecodeImageSet(image_set, {"left"});
@@ -106,7 +108,8 @@ TEST_F(ScanPipeline, DecodeAndReconstructRefuseWhatWasNotDecoded) {
   // A wrong image count is refused before anything is written.
   std::vector<std::vector<cv::Mat>> short_scan = scan_->images;
   short_scan[1].pop_back();
-  EXPECT_THROW(WriteVirtualScan(dir / "short", *rig_, *spec_, *scene_, short_scan, writer, {}), Error);
+  EXPECT_THROW(WriteVirtualScan(dir / "short", *rig_, *spec_, *scene_, short_scan, writer, {}),
+               Error);
   EXPECT_FALSE(std::filesystem::exists(dir / "short"));
 }
 
@@ -162,11 +165,13 @@ TEST_F(ScanPipeline, LitVisibleSurfaceIsEverySecondLitPixel) {
 // covers about half.
 TEST_F(ScanPipeline, AccuracyOfTheGroundTruthCloudIsPerfectAndHalfCoversHalf) {
   const std::vector<Eigen::Vector3d> visible = LitVisibleSurface(scan_->geometry[0]);
-  const compare::Reference reference = compare::ReferenceFromMesh(SceneSurface(*scene_, "demo"), "truth");
+  const compare::Reference reference =
+      compare::ReferenceFromMesh(SceneSurface(*scene_, "demo"), "truth");
   PointCloud cloud;
   cloud.points = visible;
   const compare::CompareOptions options;
-  const ModeAccuracy full = MeasureAccuracy("truth", compare::Compare(cloud, reference, options), visible);
+  const ModeAccuracy full =
+      MeasureAccuracy("truth", compare::Compare(cloud, reference, options), visible);
   EXPECT_EQ(full.mode, "truth");
   EXPECT_EQ(full.points, visible.size());
   EXPECT_LT(full.rms_mm, 1e-3);
@@ -184,16 +189,16 @@ TEST_F(ScanPipeline, AccuracyOfTheGroundTruthCloudIsPerfectAndHalfCoversHalf) {
   for (const auto& p : visible) {
     if (p.x() < median_x) half.points.push_back(p);
   }
-  const ModeAccuracy part = MeasureAccuracy("half", compare::Compare(half, reference, options), visible);
+  const ModeAccuracy part =
+      MeasureAccuracy("half", compare::Compare(half, reference, options), visible);
   EXPECT_GT(part.visible_coverage, 0.45);
   EXPECT_LT(part.visible_coverage, 0.55);
   EXPECT_LT(part.coverage, full.coverage);
 
   // The visible coverage measured inside Compare (the demo's path, one grid for both sample sets)
   // is the same double.
-  const compare::CompareResult with_extra =
-      compare::Compare(PointCloud(half), reference, options, "half",
-                       {&visible, &reference.cloud.points});
+  const compare::CompareResult with_extra = compare::Compare(
+      PointCloud(half), reference, options, "half", {&visible, &reference.cloud.points});
   ASSERT_EQ(with_extra.extra_coverage.size(), 2u);
   EXPECT_EQ(with_extra.extra_coverage[0], part.visible_coverage);
   EXPECT_EQ(with_extra.extra_coverage[1], part.coverage);
@@ -209,7 +214,8 @@ void ExpectSameImages(const ImageSet& a, const ImageSet& b) {
   ASSERT_EQ(a.records().size(), b.records().size());
   for (const ImageRecord& r : a.records()) {
     const cv::Mat image = b.Load(r.camera, r.pattern_index);
-    ASSERT_TRUE(SameBytes(a.Load(r.camera, r.pattern_index), image)) << r.camera << " " << r.pattern_index;
+    ASSERT_TRUE(SameBytes(a.Load(r.camera, r.pattern_index), image))
+        << r.camera << " " << r.pattern_index;
     EXPECT_EQ(b.Find(r.camera, r.pattern_index)->exposure_us, r.exposure_us);
     EXPECT_EQ(b.Find(r.camera, r.pattern_index)->source, ImageSource::kVirtual);
   }
@@ -245,7 +251,9 @@ TEST_F(ScanPipeline, RedoFromTheFoldersProvenanceGivesIdenticalImages) {
   // The same images as the suite's in-memory render of the embedded demo (same files).
   for (size_t c = 0; c < 2; ++c) {
     for (int p = 0; p < spec.NumImages(); ++p) {
-      ASSERT_TRUE(SameBytes(redo.Load(rig.cameras[c].name, p), scan_->images[c][static_cast<size_t>(p)])) << c << " " << p;
+      ASSERT_TRUE(
+          SameBytes(redo.Load(rig.cameras[c].name, p), scan_->images[c][static_cast<size_t>(p)]))
+          << c << " " << p;
     }
   }
   // An existing output folder is not replaced.
@@ -266,8 +274,10 @@ TEST_F(ScanPipeline, RedoRefusesScansItCannotRebuild) {
     return "";
   };
   // No provenance at all.
-  WriteVirtualScan(dir / "bare", *rig_, *spec_, *scene_, scan_->images, writer, {{"note", "hand-made"}});
-  EXPECT_NE(message("bare").find("extra.provenance: missing"), std::string::npos) << message("bare");
+  WriteVirtualScan(dir / "bare", *rig_, *spec_, *scene_, scan_->images, writer,
+                   {{"note", "hand-made"}});
+  EXPECT_NE(message("bare").find("extra.provenance: missing"), std::string::npos)
+      << message("bare");
   // A scene built in code has no config to rebuild it from.
   Scene in_code = *scene_;
   in_code.source_config = nullptr;
@@ -276,15 +286,18 @@ TEST_F(ScanPipeline, RedoRefusesScansItCannotRebuild) {
   EXPECT_NE(message("code").find("built in code"), std::string::npos) << message("code");
   // A scene edited after loading: its config no longer rebuilds what was rendered.
   Scene edited = *scene_;
-  edited.radiometry.exposure = 0.5;
+  edited.radiometry.exposure_fraction = 0.5;
   WriteVirtualScan(dir / "edited", *rig_, *spec_, edited, scan_->images, writer,
                    ExtraWithProvenance(VirtualScanProvenance(edited, SimulateOptions{}, "test")));
-  EXPECT_NE(message("edited").find("differs from the recorded summary"), std::string::npos) << message("edited");
+  EXPECT_NE(message("edited").find("differs from the recorded summary"), std::string::npos)
+      << message("edited");
   // A malformed option in the provenance names the manifest and the field.
   ScanProvenance typo = VirtualScanProvenance(*scene_, SimulateOptions{}, "test");
   typo.simulate["trace"] = "packet16";
-  WriteVirtualScan(dir / "typo", *rig_, *spec_, *scene_, scan_->images, writer, ExtraWithProvenance(typo));
-  EXPECT_NE(message("typo").find("extra.provenance.simulate"), std::string::npos) << message("typo");
+  WriteVirtualScan(dir / "typo", *rig_, *spec_, *scene_, scan_->images, writer,
+                   ExtraWithProvenance(typo));
+  EXPECT_NE(message("typo").find("extra.provenance.simulate"), std::string::npos)
+      << message("typo");
   EXPECT_NE(message("typo").find("trace"), std::string::npos) << message("typo");
 }
 

@@ -63,7 +63,8 @@ TEST(SimCamera, CapturingFrameByFrameEqualsRenderScan) {
       ASSERT_TRUE(frame.ok()) << frame.message;
       EXPECT_EQ(frame.frame_id, static_cast<uint64_t>(i + 1));
       EXPECT_EQ(frame.exposure_us, scene.radiometry.exposure_us);
-      ASSERT_TRUE(SameBytes(frame.image, reference[c][static_cast<size_t>(i)])) << "camera " << c << " pattern " << i;
+      ASSERT_TRUE(SameBytes(frame.image, reference[c][static_cast<size_t>(i)]))
+          << "camera " << c << " pattern " << i;
     }
   }
   EXPECT_EQ(cameras[0]->Statistics().completed_frames, static_cast<uint64_t>(spec.NumImages()));
@@ -84,7 +85,9 @@ TEST(SimCamera, CapturingFrameByFrameEqualsRenderScan) {
   cameras[1]->Trigger();
   const capture::Frame dark = cameras[1]->Grab(kTimeout);
   ASSERT_TRUE(dark.ok());
-  ASSERT_TRUE(SameBytes(dark.image, PatternRenderer(scene, rig, 1, geometry[1]).Render(black[0], ShownPattern::kBlack)));
+  ASSERT_TRUE(SameBytes(
+      dark.image,
+      PatternRenderer(scene, rig, 1, geometry[1]).Render(black[0], ShownPattern::kBlack)));
 
   // Free-run: each Grab renders what is shown then.
   settings.trigger = capture::TriggerMode::kFreeRun;
@@ -100,7 +103,7 @@ TEST(SimCamera, CapturingFrameByFrameEqualsRenderScan) {
 TEST(SimCamera, ExposureAndGainScaleTheScenesExposure) {
   const Rig rig = LoadRigOrDemo("");
   Scene scene = LoadSceneOrDemo("");
-  scene.radiometry.exposure = 0.2;
+  scene.radiometry.exposure_fraction = 0.2;
   const std::vector<cv::Mat> patterns = GeneratePatterns(LoadPatternSpecOrDemo(""));
   auto shown = std::make_shared<ShownPattern>();
   SimProjector projector(rig, shown);
@@ -118,7 +121,8 @@ TEST(SimCamera, ExposureAndGainScaleTheScenesExposure) {
   ASSERT_TRUE(frame.ok());
   EXPECT_EQ(frame.exposure_us, 2 * scene.radiometry.exposure_us);
   Scene brighter = scene;
-  brighter.radiometry.exposure = scene.radiometry.exposure * 2 * std::pow(10.0, settings.gain_db.value() / 20);
+  brighter.radiometry.exposure_fraction =
+      scene.radiometry.exposure_fraction * 2 * std::pow(10.0, settings.gain_db.value() / 20);
   const std::vector<cv::Mat> one = {patterns[36]};
   ASSERT_TRUE(SameBytes(frame.image, RenderScan(brighter, rig, one)[0][0]));
   EXPECT_GT(cv::mean(frame.image)[0], 2 * cv::mean(RenderScan(scene, rig, one)[0][0])[0]);
@@ -137,11 +141,14 @@ TEST(SimCamera, RefusedSettingsAndImagesAreNamed) {
     }
     return "";
   };
-  EXPECT_NE(message([&] { projector.Load({cv::Mat::zeros(10, 10, CV_8UC1)}); }).find("image 0"), std::string::npos);
+  EXPECT_NE(message([&] { projector.Load({cv::Mat::zeros(10, 10, CV_8UC1)}); }).find("image 0"),
+            std::string::npos);
   EXPECT_NE(message([&] { projector.Show(0); }).find("not loaded"), std::string::npos);
-  EXPECT_NE(message([&] { SimCamera(scene, rig, "middle", shown); }).find("'middle'"), std::string::npos);
+  EXPECT_NE(message([&] { SimCamera(scene, rig, "middle", shown); }).find("'middle'"),
+            std::string::npos);
   SimCamera camera(scene, rig, "right", shown);
-  EXPECT_EQ(camera.Info().pixel_formats, std::vector<capture::PixelFormat>{capture::PixelFormat::kMono8});
+  EXPECT_EQ(camera.Info().pixel_formats,
+            std::vector<capture::PixelFormat>{capture::PixelFormat::kMono8});
   capture::CameraSettings settings;
   settings.pixel_format = capture::PixelFormat::kMono16;
   EXPECT_NE(message([&] { camera.Configure(settings); }).find("pixel_format"), std::string::npos);

@@ -171,8 +171,8 @@ TEST(MonteCarlo, GnuParallelShardsMergeToTheOneProcessResult) {
   RunSweepShard(tmp / "one", SweepRunOptions{});
   MergeSweep(tmp / "one", tmp / "one_result");
   const std::string bin = SLSHADOW_BINARY;
-  ASSERT_EQ(testing::SweepThroughGnuParallel(bin, tmp / "study.yaml", tmp / "par", tmp / "par_result",
-                                             "2 0 1", 3),
+  ASSERT_EQ(testing::SweepThroughGnuParallel(bin, tmp / "study.yaml", tmp / "par",
+                                             tmp / "par_result", "2 0 1", 3),
             "");
   // `sweep study`: plan, run and merge in one command; run again, it resumes (nothing to run).
   const std::string whole = bin + " sweep study " + (tmp / "study.yaml").string() + " --out " +

@@ -166,8 +166,9 @@ TEST(GroundTruthSurface, TessellatedPrimitivesWithinAFractionOfAMicrometre) {
   box.objects.back().type = ObjectType::kBox;
   box.objects.back().name = "crate";
   box.objects.back().size_mm = Eigen::Vector3d(60, 40, 20);
-  box.objects.back().rig_from_object = Rigid3d(
-      Eigen::Quaterniond(Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, 2, 3).normalized())), Eigen::Vector3d(5, -3, 500));
+  box.objects.back().rig_from_object =
+      Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, 2, 3).normalized())),
+              Eigen::Vector3d(5, -3, 500));
   const TriangleMesh box_surface = GroundTruthSurface(box, "box");
   EXPECT_EQ(box_surface.NumTriangles(), 12u);
   const compare::MeshDistance box_distance(box_surface);

@@ -307,10 +307,12 @@ TEST(Sweep, BreakPointsWhenSmallerValuesAreWorse) {
   PlanSweep(tmp / "study.yaml", tmp / "jobs");
   EXPECT_EQ(RunSweepShard(tmp / "jobs", Shard(0, 1)).ran, 3);
   MergeSweep(tmp / "jobs", tmp / "result");
-  const nlohmann::json jobs = nlohmann::json::parse(ReadTextFile(tmp / "result/results.json"))["jobs"];
+  const nlohmann::json jobs =
+      nlohmann::json::parse(ReadTextFile(tmp / "result/results.json"))["jobs"];
   ASSERT_EQ(jobs.size(), 3u);
   std::map<double, double> coverage;  // albedo -> visible coverage
-  for (const auto& job : jobs) coverage[job["params"]["albedo"].get<double>()] = job["modes"][0]["visible_coverage"];
+  for (const auto& job : jobs)
+    coverage[job["params"]["albedo"].get<double>()] = job["modes"][0]["visible_coverage"];
   ASSERT_GT(coverage[0.7], 0.9);
   ASSERT_GT(coverage[0.2], 0.9);
   ASSERT_LT(coverage[0.02], 0.9);
@@ -318,15 +320,20 @@ TEST(Sweep, BreakPointsWhenSmallerValuesAreWorse) {
   char buf[64];
   std::snprintf(buf, sizeof(buf), "%.10g", 0.2 + t * (0.02 - 0.2));
   const std::string breaks = ReadTextFile(tmp / "result/break_points.csv");
-  EXPECT_NE(breaks.find(std::string("projector,visible_coverage,0.9,broke,") + buf + "\n"), std::string::npos)
-      << buf << "\n" << breaks;
-  std::ofstream(tmp / "bad.yaml") << ReadTextFile(tmp / "study.yaml").replace(
-      ReadTextFile(tmp / "study.yaml").find("decreasing"), 10, "downwards");
+  EXPECT_NE(breaks.find(std::string("projector,visible_coverage,0.9,broke,") + buf + "\n"),
+            std::string::npos)
+      << buf << "\n"
+      << breaks;
+  std::ofstream(tmp / "bad.yaml") << ReadTextFile(tmp / "study.yaml")
+                                         .replace(
+                                             ReadTextFile(tmp / "study.yaml").find("decreasing"),
+                                             10, "downwards");
   try {
     PlanSweep(tmp / "bad.yaml", tmp / "jobs2");
     ADD_FAILURE() << "no error";
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("curves.worse: must be 'increasing'"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("curves.worse: must be 'increasing'"), std::string::npos)
+        << e.what();
   }
 }
 
@@ -456,14 +463,19 @@ TEST(Sweep, BadStudiesAreRejectedNamingFileAndFieldAndWriteNothing) {
                       "curves: {x: m}\n",
                   "not a number");
   ExpectPlanError(tmp,
-                  rig + "axes:\n  - {name: t, set: scene.objects.0.albedo, values: [0.5, 0.6], labels: [1, .nan]}\n",
+                  rig +
+                      "axes:\n  - {name: t, set: scene.objects.0.albedo, values: [0.5, 0.6], "
+                      "labels: [1, .nan]}\n",
                   "axes[0].labels[1]: a label must be a name or a finite number");
   // Numeric labels (e.g. angles for rotation vectors) can be a curve's x.
-  std::ofstream(tmp / "labels.yaml") << "format: slshadow-study\nversion: 1\nname: labels\n" << rig
-                                     << "axes:\n  - {name: t, set: scene.objects.0.albedo, values: [0.5, 0.6], "
-                                        "labels: [10, 20.5]}\ncurves: {x: t}\n";
+  std::ofstream(tmp / "labels.yaml")
+      << "format: slshadow-study\nversion: 1\nname: labels\n"
+      << rig
+      << "axes:\n  - {name: t, set: scene.objects.0.albedo, values: [0.5, 0.6], "
+         "labels: [10, 20.5]}\ncurves: {x: t}\n";
   PlanSweep(tmp / "labels.yaml", tmp / "labels_jobs");
-  const nlohmann::json job = nlohmann::json::parse(ReadTextFile(tmp / "labels_jobs/jobs/000001.json"));
+  const nlohmann::json job =
+      nlohmann::json::parse(ReadTextFile(tmp / "labels_jobs/jobs/000001.json"));
   EXPECT_EQ(job["params"]["t"], 20.5);
   EXPECT_EQ(job["scene"]["objects"][0]["albedo"], 0.6);
 

@@ -34,11 +34,14 @@ inline Rig HalfDemoRig() {
   return rig;
 }
 
-inline PatternSpec DemoSpec() { return LoadPatternSpec(SourceDir() / "config/patterns/graycode_phase.yaml"); }
+inline PatternSpec DemoSpec() {
+  return LoadPatternSpec(SourceDir() / "config/patterns/graycode_phase.yaml");
+}
 
 // The demo part's pose in the demo scene (config/demo/scene.yaml).
 inline Rigid3d DemoPartPose() {
-  return Rigid3d(Eigen::Quaterniond(0.17364817766693, -0.98480775301221, 0.0, 0.0), Eigen::Vector3d(0, 10, 545));
+  return Rigid3d(Eigen::Quaterniond(0.17364817766693, -0.98480775301221, 0.0, 0.0),
+                 Eigen::Vector3d(0, 10, 545));
 }
 
 // The part as the shadow reads a mesh file: one mesh object, albedo 0.8.
@@ -60,7 +63,7 @@ inline shadow::ShadowPart PartFromMesh(const TriangleMesh& mesh, const std::stri
 inline Scene RealScene(const TriangleMesh& mesh, const Rigid3d& rig_from_part) {
   Scene s;
   s.name = "real";
-  s.radiometry.exposure = 0.8;
+  s.radiometry.exposure_fraction = 0.8;
   s.layers.ambient = 0.03;
   s.layers.noise_enabled = true;
   s.layers.full_well_e = 10000;
@@ -76,7 +79,8 @@ inline Scene RealScene(const TriangleMesh& mesh, const Rigid3d& rig_from_part) {
   return s;
 }
 
-inline std::map<std::string, std::vector<cv::Mat>> Render(const Scene& scene, const Rig& rig, const PatternSpec& spec) {
+inline std::map<std::string, std::vector<cv::Mat>> Render(const Scene& scene, const Rig& rig,
+                                                          const PatternSpec& spec) {
   const auto images = RenderScan(scene, rig, GeneratePatterns(spec));
   std::map<std::string, std::vector<cv::Mat>> out;
   for (size_t c = 0; c < rig.cameras.size(); ++c) out[rig.cameras[c].name] = images[c];

@@ -30,7 +30,8 @@ void WriteImageSet(const std::filesystem::path& dir, const Rig& rig, const Patte
   wo.encoding = ImageEncoding::kPgm;
   ImageSetWriter writer(dir, rig, PatternSpecToJson(spec), wo);
   for (const auto& [camera, frames] : images) {
-    for (size_t i = 0; i < frames.size(); ++i) writer.Add(camera, static_cast<int>(i), frames[i], 10000, ImageSource::kVirtual);
+    for (size_t i = 0; i < frames.size(); ++i)
+      writer.Add(camera, static_cast<int>(i), frames[i], 10000, ImageSource::kVirtual);
   }
   writer.Commit();
 }
@@ -43,11 +44,14 @@ TEST(ShadowTwin, CleanSyntheticScanEndToEnd) {
   const Rig rig = testing::HalfDemoRig();
   const PatternSpec spec = testing::DemoSpec();
   const Rigid3d truth = DemoPartPose();
-  WriteImageSet(tmp / "real", rig, spec, testing::Render(testing::RealScene(DemoPart(), truth), rig, spec));
+  WriteImageSet(tmp / "real", rig, spec,
+                testing::Render(testing::RealScene(DemoPart(), truth), rig, spec));
   const shadow::ShadowPart part = testing::PartFromMesh(DemoPart(), "demo_part");
   shadow::ShadowOptions options;
-  options.rig_from_part = Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.5 * M_PI / 180, Eigen::Vector3d::UnitX())) * truth.rotation,
-                                  truth.translation + Eigen::Vector3d(1, 0, 0));
+  options.rig_from_part =
+      Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.5 * M_PI / 180, Eigen::Vector3d::UnitX())) *
+                  truth.rotation,
+              truth.translation + Eigen::Vector3d(1, 0, 0));
   const shadow::ShadowResult r = shadow::RunShadow(tmp / "real", part, options, tmp / "out");
   std::printf("%s\n", r.Summary().c_str());
   EXPECT_LT((r.rig_from_part.translation - truth.translation).norm(), 0.1);
@@ -118,7 +122,8 @@ TriangleMesh BumpedPart(Eigen::Vector3d* centre) {
   EXPECT_GT(best_count, 50);
   for (auto& v : mesh.vertices) {
     const double r = std::hypot(v.x() - best.x(), v.y() - best.y());
-    if (r < radius && std::abs(v.z() - best.z()) < 1e-9) v.z() += height * 0.5 * (1 + std::cos(M_PI * r / radius));
+    if (r < radius && std::abs(v.z() - best.z()) < 1e-9)
+      v.z() += height * 0.5 * (1 + std::cos(M_PI * r / radius));
   }
   *centre = best;
   return mesh;
@@ -152,7 +157,8 @@ TEST(ShadowTwin, ConfusionTableNamesEachCauseAndNoOther) {
       scene.layers.gamma = 2.2;
     } else if (c.name == "projector bumped 0.1 deg") {
       const Eigen::Quaterniond bump(Eigen::AngleAxisd(0.1 * M_PI / 180, Eigen::Vector3d::UnitY()));
-      real_rig.projector->cam_from_rig = Rigid3d(bump, Eigen::Vector3d::Zero()) * real_rig.projector->cam_from_rig;
+      real_rig.projector->cam_from_rig =
+          Rigid3d(bump, Eigen::Vector3d::Zero()) * real_rig.projector->cam_from_rig;
     } else if (c.name == "part shifted 0.2 mm + 50 um bump") {
       auto mesh = std::make_shared<TriangleMesh>(BumpedPart(&bump_centre));
       scene.objects[0].mesh = mesh;
@@ -171,12 +177,16 @@ TEST(ShadowTwin, ConfusionTableNamesEachCauseAndNoOther) {
       const auto frames = spec.Frames();
       int a = -1, b = -1;
       for (size_t i = 0; i < frames.size(); ++i) {
-        if (frames[i].role == FrameRole::kPhase && frames[i].axis == 0 && frames[i].step == 1) a = static_cast<int>(i);
-        if (frames[i].role == FrameRole::kPhase && frames[i].axis == 0 && frames[i].step == 2) b = static_cast<int>(i);
+        if (frames[i].role == FrameRole::kPhase && frames[i].axis == 0 && frames[i].step == 1)
+          a = static_cast<int>(i);
+        if (frames[i].role == FrameRole::kPhase && frames[i].axis == 0 && frames[i].step == 2)
+          b = static_cast<int>(i);
       }
       ASSERT_GE(a, 0);
       ASSERT_GE(b, 0);
-      for (auto& [camera, frames_of_camera] : images) std::swap(frames_of_camera[static_cast<size_t>(a)], frames_of_camera[static_cast<size_t>(b)]);
+      for (auto& [camera, frames_of_camera] : images)
+        std::swap(frames_of_camera[static_cast<size_t>(a)],
+                  frames_of_camera[static_cast<size_t>(b)]);
     }
     shadow::ShadowOptions options;
     options.rig_from_part = truth;
@@ -189,19 +199,26 @@ TEST(ShadowTwin, ConfusionTableNamesEachCauseAndNoOther) {
     int64_t cluster = 0;
     for (const auto& f : r.report["diagnosis"]["findings"]) {
       if (f["cause"] == "calibration" && f["evaluated"].get<bool>()) {
-        for (const auto& cam : f["evidence"]["cameras"]) field = std::max(field, cam["field_rms_px"].get<double>());
+        for (const auto& cam : f["evidence"]["cameras"])
+          field = std::max(field, cam["field_rms_px"].get<double>());
       }
-      if (f["cause"] == "wrong_frame") wrong_frames = static_cast<int>(f["evidence"]["frames"].size());
+      if (f["cause"] == "wrong_frame")
+        wrong_frames = static_cast<int>(f["evidence"]["frames"].size());
       if (f["cause"] == "part" && f["evaluated"].get<bool>()) {
-        for (const auto& m : f["evidence"]["modes"]) cluster = std::max<int64_t>(cluster, m.value("clustered_points", int64_t{0}));
+        for (const auto& m : f["evidence"]["modes"])
+          cluster = std::max<int64_t>(cluster, m.value("clustered_points", int64_t{0}));
       }
     }
     char line[512];
-    std::snprintf(line, sizeof(line), "%-34s %-20s field %.3f px, wrong frames %d, gamma %.2f, blur %.2f px, part cluster %lld pts\n",
-                  c.name.c_str(), named.empty() ? "-" : named.c_str(), field, wrong_frames, r.physics.Find("gamma")->value,
-                  r.physics.Find("defocus")->value, static_cast<long long>(cluster));
+    std::snprintf(line, sizeof(line),
+                  "%-34s %-20s field %.3f px, wrong frames %d, gamma %.2f, blur %.2f px, part "
+                  "cluster %lld pts\n",
+                  c.name.c_str(), named.empty() ? "-" : named.c_str(), field, wrong_frames,
+                  r.physics.Find("gamma")->value, r.physics.Find("defocus")->value,
+                  static_cast<long long>(cluster));
     table += line;
-    EXPECT_EQ(r.diagnosis.causes, c.expected) << c.name << "\n" << r.diagnosis.Summary() << r.physics.Table();
+    EXPECT_EQ(r.diagnosis.causes, c.expected) << c.name << "\n"
+                                              << r.diagnosis.Summary() << r.physics.Table();
     if (c.expected.empty()) {
       EXPECT_EQ(r.diagnosis.verdict, "consistent with the model");
     }
@@ -210,7 +227,8 @@ TEST(ShadowTwin, ConfusionTableNamesEachCauseAndNoOther) {
       EXPECT_NEAR((r.rig_from_part.translation - truth.translation).norm(), 0.2, 0.08);
       const auto& modes = r.report["diagnosis"]["findings"].back()["evidence"]["modes"];
       for (const auto& m : modes) {
-        const Eigen::Vector3d at(m["centroid_in_rig_mm"][0].get<double>(), m["centroid_in_rig_mm"][1].get<double>(),
+        const Eigen::Vector3d at(m["centroid_in_rig_mm"][0].get<double>(),
+                                 m["centroid_in_rig_mm"][1].get<double>(),
                                  m["centroid_in_rig_mm"][2].get<double>());
         EXPECT_LT((at - truth * bump_centre).norm(), 6.0) << m.dump();
         EXPECT_GT(m["mean_deviation_mm"].get<double>(), 0.01) << m.dump();
@@ -238,29 +256,32 @@ TEST(ShadowTwin, CommandLineRejectsBadInput) {
   testing::TempDir tmp;
   const Rig rig = testing::HalfDemoRig();
   const PatternSpec spec = testing::DemoSpec();
-  WriteImageSet(tmp / "real", rig, spec, testing::Render(testing::RealScene(DemoPart(), DemoPartPose()), rig, spec));
+  WriteImageSet(tmp / "real", rig, spec,
+                testing::Render(testing::RealScene(DemoPart(), DemoPartPose()), rig, spec));
   std::ofstream(tmp / "part.txt") << "not a mesh\n";
-  EXPECT_NE(testing::RunCli({"shadow", (tmp / "real").string(), "--part", (tmp / "part.txt").string(), "--out",
-                             (tmp / "out1").string()}),
+  EXPECT_NE(testing::RunCli({"shadow", (tmp / "real").string(), "--part",
+                             (tmp / "part.txt").string(), "--out", (tmp / "out1").string()}),
             0);
   EXPECT_FALSE(std::filesystem::exists(tmp / "out1"));
   // A sphere is not the scanned part: global registration cannot place it credibly.
   WriteMesh(tmp / "sphere.ply", MakeSphereMesh(20, 48));
-  EXPECT_NE(testing::RunCli({"shadow", (tmp / "real").string(), "--part", (tmp / "sphere.ply").string(), "--out",
-                             (tmp / "out2").string()}),
+  EXPECT_NE(testing::RunCli({"shadow", (tmp / "real").string(), "--part",
+                             (tmp / "sphere.ply").string(), "--out", (tmp / "out2").string()}),
             0);
   EXPECT_FALSE(std::filesystem::exists(tmp / "out2"));
   // --fixed-pose without --pose.
   WriteMesh(tmp / "part.ply", DemoPart());
-  EXPECT_NE(testing::RunCli({"shadow", (tmp / "real").string(), "--part", (tmp / "part.ply").string(), "--fixed-pose", "--out",
-                             (tmp / "out3").string()}),
-            0);
+  EXPECT_NE(
+      testing::RunCli({"shadow", (tmp / "real").string(), "--part", (tmp / "part.ply").string(),
+                       "--fixed-pose", "--out", (tmp / "out3").string()}),
+      0);
   EXPECT_FALSE(std::filesystem::exists(tmp / "out3"));
   // And the good case through the command line: --pose as a rotation vector and a translation.
   const Eigen::AngleAxisd aa(DemoPartPose().rotation);
   const Eigen::Vector3d r = aa.angle() * aa.axis(), t = DemoPartPose().translation;
-  std::vector<std::string> args = {"shadow", (tmp / "real").string(), "--part", (tmp / "part.ply").string(), "--out",
-                                   (tmp / "out4").string(), "--no-clouds", "--pose"};
+  std::vector<std::string> args = {
+      "shadow", (tmp / "real").string(), "--part",      (tmp / "part.ply").string(),
+      "--out",  (tmp / "out4").string(), "--no-clouds", "--pose"};
   for (double v : {r.x(), r.y(), r.z(), t.x(), t.y(), t.z()}) args.push_back(std::to_string(v));
   ASSERT_EQ(testing::RunCli(args), 0);
   std::ifstream in(tmp / "out4" / "report.json");
@@ -293,17 +314,20 @@ TEST(ShadowTwin, ExposureTimesAlbedoPerObject) {
   table.type = ObjectType::kPlane;
   table.size_mm = Eigen::Vector3d(400, 300, 0);
   table.albedo.value = 0.4;
-  table.rig_from_object = Rigid3d(truth.rotation, truth.translation + truth.rotation * Eigen::Vector3d(0, 0, -0.05));
+  table.rig_from_object =
+      Rigid3d(truth.rotation, truth.translation + truth.rotation * Eigen::Vector3d(0, 0, -0.05));
   real.objects.push_back(table);
   shadow::ShadowPart part = testing::PartFromMesh(DemoPart(), "demo_part");
   SceneObject table_in_part = table;
   table_in_part.albedo.value = 0.8;
-  table_in_part.rig_from_object = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0, -0.05));
+  table_in_part.rig_from_object =
+      Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0, -0.05));
   part.scene.objects.push_back(table_in_part);
   part.surface = shadow::SceneSurface(part.scene, "part + table", shadow::kPartPlaneCells);
   shadow::ShadowOptions options;
   options.rig_from_part = truth;
-  const shadow::ShadowResult r = shadow::RunShadowOnImages(rig, spec, testing::Render(real, rig, spec), part, options);
+  const shadow::ShadowResult r =
+      shadow::RunShadowOnImages(rig, spec, testing::Render(real, rig, spec), part, options);
   std::printf("%s", r.physics.Table().c_str());
   const double e = r.physics.Find("exposure")->value;
   const shadow::PhysicsLayer* part_albedo = r.physics.Find("albedo_demo_part");
@@ -331,13 +355,14 @@ namespace {
 // and ambient light can be told apart. `part_frame`: in its own frame (the shadow's part), else at
 // its pose in the rig.
 Rigid3d BoardPose() {
-  return Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.15, Eigen::Vector3d::UnitY())), Eigen::Vector3d(100, 0, 520));
+  return Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.15, Eigen::Vector3d::UnitY())),
+                 Eigen::Vector3d(100, 0, 520));
 }
 
 Scene BoardScene(bool part_frame) {
   Scene s;
   s.name = "board";
-  s.radiometry.exposure = 0.6;
+  s.radiometry.exposure_fraction = 0.6;
   SceneObject o;
   o.name = "board";
   o.type = ObjectType::kPlane;
@@ -365,7 +390,8 @@ struct CameraPhysics {
   }
 };
 
-void AddCameraPhysics(const PatternSpec& spec, const CameraPhysics& truth, std::vector<cv::Mat>* images) {
+void AddCameraPhysics(const PatternSpec& spec, const CameraPhysics& truth,
+                      std::vector<cv::Mat>* images) {
   const std::vector<cv::Mat> projector = GeneratePatterns(spec);
   const cv::Mat white = (*images)[static_cast<size_t>(spec.WhiteFrameIndex())].clone();
   const cv::Mat black = (*images)[static_cast<size_t>(spec.BlackFrameIndex())].clone();
@@ -374,9 +400,11 @@ void AddCameraPhysics(const PatternSpec& spec, const CameraPhysics& truth, std::
     cv::Mat& img = (*images)[k];
     for (int y = 0; y < img.rows; ++y) {
       for (int x = 0; x < img.cols; ++x) {
-        const double b = black.at<uint8_t>(y, x), w = white.at<uint8_t>(y, x), i = img.at<uint8_t>(y, x);
+        const double b = black.at<uint8_t>(y, x), w = white.at<uint8_t>(y, x),
+                     i = img.at<uint8_t>(y, x);
         const double scattered = b + (1 - truth.global) * (i - b) + truth.global * m * (w - b);
-        img.at<uint8_t>(y, x) = cv::saturate_cast<uint8_t>(truth.offset_dn + truth.Field(x, y, img.cols, img.rows) * scattered);
+        img.at<uint8_t>(y, x) = cv::saturate_cast<uint8_t>(
+            truth.offset_dn + truth.Field(x, y, img.cols, img.rows) * scattered);
       }
     }
   }
@@ -440,14 +468,18 @@ TEST(ShadowTwin, BlackLevelIlluminationAndGlobalLightRecovered) {
     const double e = r.physics.Find("exposure")->value;
     double worst = 0;
     for (int y = 0; y < model.height; y += 10) {
-      for (int x = 0; x < model.width; x += 10) worst = std::max(worst, std::abs(e * g.at<float>(y, x) / 0.6 - truth.Field(x, y, model.width, model.height)));
+      for (int x = 0; x < model.width; x += 10)
+        worst = std::max(worst, std::abs(e * g.at<float>(y, x) / 0.6 -
+                                         truth.Field(x, y, model.width, model.height)));
     }
     EXPECT_LT(worst, 0.02) << camera;  // over the whole image, extrapolated beyond the board too
   }
   ASSERT_NE(r.physics.Find("global_light"), nullptr);
   EXPECT_TRUE(r.physics.Kept("global_light"));
-  EXPECT_NEAR(r.physics.Find("global_light")->value, truth.global, 3 * r.physics.Find("global_light")->sigma + 0.01);
-  for (const auto& cam : r.report["images"]["cameras"]) EXPECT_GT(cam["within_5pct_all_frames"].get<double>(), 0.99) << cam["camera"];
+  EXPECT_NEAR(r.physics.Find("global_light")->value, truth.global,
+              3 * r.physics.Find("global_light")->sigma + 0.01);
+  for (const auto& cam : r.report["images"]["cameras"])
+    EXPECT_GT(cam["within_5pct_all_frames"].get<double>(), 0.99) << cam["camera"];
 
   const shadow::ShadowResult clean = ShadowBoard(CameraPhysics{});
   for (const std::string camera : {"left", "right"}) {
@@ -455,7 +487,8 @@ TEST(ShadowTwin, BlackLevelIlluminationAndGlobalLightRecovered) {
     ASSERT_NE(bl, nullptr);
     EXPECT_TRUE(bl->observable) << bl->reason;
     EXPECT_FALSE(bl->kept) << bl->reason;
-    EXPECT_FALSE(clean.physics.Kept("illumination_" + camera)) << clean.physics.Find("illumination_" + camera)->reason;
+    EXPECT_FALSE(clean.physics.Kept("illumination_" + camera))
+        << clean.physics.Find("illumination_" + camera)->reason;
   }
   EXPECT_FALSE(clean.physics.Kept("global_light")) << clean.physics.Find("global_light")->reason;
   EXPECT_TRUE(clean.physics.Kept("ambient")) << clean.physics.Find("ambient")->reason;
@@ -481,8 +514,8 @@ TEST(ShadowTwin, CalibrationFieldNamesItsFocalLengthEquivalent) {
   shadow::ShadowOptions options;
   options.rig_from_part = truth;
   options.write_clouds = false;
-  const shadow::ShadowResult r =
-      shadow::RunShadowOnImages(rig, spec, images, testing::PartFromMesh(DemoPart(), "demo_part"), options);
+  const shadow::ShadowResult r = shadow::RunShadowOnImages(
+      rig, spec, images, testing::PartFromMesh(DemoPart(), "demo_part"), options);
   std::printf("%s\n", r.diagnosis.Summary().c_str());
   const shadow::Finding* cal = nullptr;
   for (const auto& f : r.diagnosis.findings) {
@@ -493,7 +526,8 @@ TEST(ShadowTwin, CalibrationFieldNamesItsFocalLengthEquivalent) {
   EXPECT_NE(cal->message.find("focal length off by"), std::string::npos) << cal->message;
   for (const auto& cam : cal->evidence["cameras"]) {
     ASSERT_TRUE(cam.contains("equivalent_projector_focal_error_x_px")) << cam.dump();
-    EXPECT_NEAR(cam["equivalent_projector_focal_error_x_px"].get<double>(), 4.0, 1.0) << cam["camera"];
+    EXPECT_NEAR(cam["equivalent_projector_focal_error_x_px"].get<double>(), 4.0, 1.0)
+        << cam["camera"];
   }
 }
 

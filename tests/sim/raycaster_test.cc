@@ -19,16 +19,19 @@ using testing::Pose;
 // function ~ 0), and no point of the ray before it is inside the solid (sampled densely).
 double SignedDistance(const SceneObject& o, const Eigen::Vector3d& p) {
   switch (o.type) {
-    case ObjectType::kSphere: return p.norm() - o.radius_mm;
+    case ObjectType::kSphere:
+      return p.norm() - o.radius_mm;
     case ObjectType::kBox: {
       const Eigen::Vector3d q = p.cwiseAbs() - o.size_mm / 2;
       return q.cwiseMax(0.0).norm() + std::min(q.maxCoeff(), 0.0);
     }
     case ObjectType::kCylinder: {
-      const Eigen::Vector2d d(std::hypot(p.x(), p.y()) - o.radius_mm, std::abs(p.z()) - o.height_mm / 2);
+      const Eigen::Vector2d d(std::hypot(p.x(), p.y()) - o.radius_mm,
+                              std::abs(p.z()) - o.height_mm / 2);
       return std::min(std::max(d.x(), d.y()), 0.0) + d.cwiseMax(0.0).norm();
     }
-    default: return 0;
+    default:
+      return 0;
   }
 }
 
@@ -78,13 +81,19 @@ TEST(IntersectPrimitiveTest, PlaneIsBoundedAndTwoSided) {
   SceneObject o = MakePrimitive(ObjectType::kPlane, Rigid3d());
   o.size_mm = Eigen::Vector3d(10, 4, 0);
   PrimitiveHit hit;
-  ASSERT_TRUE(IntersectPrimitive(o, Eigen::Vector3d(4.9, 1.9, 5), Eigen::Vector3d(0, 0, -1), 0, 100, &hit));
+  ASSERT_TRUE(
+      IntersectPrimitive(o, Eigen::Vector3d(4.9, 1.9, 5), Eigen::Vector3d(0, 0, -1), 0, 100, &hit));
   EXPECT_DOUBLE_EQ(hit.t, 5);
-  ASSERT_TRUE(IntersectPrimitive(o, Eigen::Vector3d(0, 0, -5), Eigen::Vector3d(0, 0, 2), 0, 100, &hit));
+  ASSERT_TRUE(
+      IntersectPrimitive(o, Eigen::Vector3d(0, 0, -5), Eigen::Vector3d(0, 0, 2), 0, 100, &hit));
   EXPECT_DOUBLE_EQ(hit.t, 2.5);
-  EXPECT_FALSE(IntersectPrimitive(o, Eigen::Vector3d(5.1, 0, 5), Eigen::Vector3d(0, 0, -1), 0, 100, &hit));
-  EXPECT_FALSE(IntersectPrimitive(o, Eigen::Vector3d(0, 2.1, 5), Eigen::Vector3d(0, 0, -1), 0, 100, &hit));
-  EXPECT_FALSE(IntersectPrimitive(o, Eigen::Vector3d(0, 0, 5), Eigen::Vector3d(0, 0, -1), 0, 4.9, &hit)) << "beyond t_far";
+  EXPECT_FALSE(
+      IntersectPrimitive(o, Eigen::Vector3d(5.1, 0, 5), Eigen::Vector3d(0, 0, -1), 0, 100, &hit));
+  EXPECT_FALSE(
+      IntersectPrimitive(o, Eigen::Vector3d(0, 2.1, 5), Eigen::Vector3d(0, 0, -1), 0, 100, &hit));
+  EXPECT_FALSE(
+      IntersectPrimitive(o, Eigen::Vector3d(0, 0, 5), Eigen::Vector3d(0, 0, -1), 0, 4.9, &hit))
+      << "beyond t_far";
 }
 
 // The packet path and the single-ray path give identical hits on a scene with every geometry
@@ -155,11 +164,14 @@ RayPacket RandomPacket(std::mt19937& rng, int round) {
 // Lane i of two traces of the same ray: the same object and, on a hit, the same distance and
 // normal, bit for bit.
 ::testing::AssertionResult SameHit(const RayPacket& a, const RayPacket& b, int i) {
-  if (a.object[i] != b.object[i]) return ::testing::AssertionFailure() << "object " << a.object[i] << " vs " << b.object[i];
-  if (a.object[i] >= 0 && (a.tfar[i] != b.tfar[i] || a.ng_x[i] != b.ng_x[i] || a.ng_y[i] != b.ng_y[i] || a.ng_z[i] != b.ng_z[i])) {
-    return ::testing::AssertionFailure() << "t " << a.tfar[i] << " vs " << b.tfar[i] << ", normal (" << a.ng_x[i] << ", "
-                                         << a.ng_y[i] << ", " << a.ng_z[i] << ") vs (" << b.ng_x[i] << ", " << b.ng_y[i]
-                                         << ", " << b.ng_z[i] << ")";
+  if (a.object[i] != b.object[i])
+    return ::testing::AssertionFailure() << "object " << a.object[i] << " vs " << b.object[i];
+  if (a.object[i] >= 0 && (a.tfar[i] != b.tfar[i] || a.ng_x[i] != b.ng_x[i] ||
+                           a.ng_y[i] != b.ng_y[i] || a.ng_z[i] != b.ng_z[i])) {
+    return ::testing::AssertionFailure()
+           << "t " << a.tfar[i] << " vs " << b.tfar[i] << ", normal (" << a.ng_x[i] << ", "
+           << a.ng_y[i] << ", " << a.ng_z[i] << ") vs (" << b.ng_x[i] << ", " << b.ng_y[i] << ", "
+           << b.ng_z[i] << ")";
   }
   return ::testing::AssertionSuccess();
 }
@@ -221,7 +233,8 @@ TEST(RayCasterTest, VectorisedPlaneTestEqualsScalarOnEdgeCases) {
   direct_scene.objects.push_back(plane);
   embree_scene.objects.push_back(plane);
   for (int k = 0; k < 8; ++k) {  // 9 primitives: all go to Embree; these are never reached
-    SceneObject far = MakePrimitive(ObjectType::kSphere, Pose({0, 0, 0}, {5000.0 + 30 * k, 5000, -5000}));
+    SceneObject far =
+        MakePrimitive(ObjectType::kSphere, Pose({0, 0, 0}, {5000.0 + 30 * k, 5000, -5000}));
     far.radius_mm = 10;
     embree_scene.objects.push_back(far);
   }
@@ -234,22 +247,22 @@ TEST(RayCasterTest, VectorisedPlaneTestEqualsScalarOnEdgeCases) {
     bool hit;
   };
   const Case cases[RayPacket::kSize] = {
-      {0, 0, 10, 0, 0, -1, 0, 10, false},         // hit exactly at tfar
-      {0, 0, 10, 0, 0, -1, 0, up, true},          // one step inside tfar
-      {0, 0, 10, 0, 0, -1, 10, 20, false},        // exactly at tnear
-      {0, 0, 10, 0, 0, -1, down, 20, true},       // one step inside tnear
-      {0, 0, 5, 1, 0, 0, 0, inf, false},          // parallel, above
-      {0, 0, 0, 1, 0, 0, 0, inf, false},          // parallel, in the plane (t = NaN)
-      {0, 0, 0, 0, 0, 1, 0, inf, false},          // from the plane: t = -0, not > tnear
-      {50, 0, 10, 0, 0, -1, 0, inf, true},        // on the x edge
-      {edge_out, 0, 10, 0, 0, -1, 0, inf, false}, // one step beyond it
-      {-20, 30, 10, 0, 0, -1, 0, inf, true},      // on the y edge
-      {0, -30.5f, 10, 0, 0, -1, 0, inf, false},   // beyond it
-      {0, 0, -4, 0, 0, 2, 0, inf, true},          // from below: t = 2
+      {0, 0, 10, 0, 0, -1, 0, 10, false},               // hit exactly at tfar
+      {0, 0, 10, 0, 0, -1, 0, up, true},                // one step inside tfar
+      {0, 0, 10, 0, 0, -1, 10, 20, false},              // exactly at tnear
+      {0, 0, 10, 0, 0, -1, down, 20, true},             // one step inside tnear
+      {0, 0, 5, 1, 0, 0, 0, inf, false},                // parallel, above
+      {0, 0, 0, 1, 0, 0, 0, inf, false},                // parallel, in the plane (t = NaN)
+      {0, 0, 0, 0, 0, 1, 0, inf, false},                // from the plane: t = -0, not > tnear
+      {50, 0, 10, 0, 0, -1, 0, inf, true},              // on the x edge
+      {edge_out, 0, 10, 0, 0, -1, 0, inf, false},       // one step beyond it
+      {-20, 30, 10, 0, 0, -1, 0, inf, true},            // on the y edge
+      {0, -30.5f, 10, 0, 0, -1, 0, inf, false},         // beyond it
+      {0, 0, -4, 0, 0, 2, 0, inf, true},                // from below: t = 2
       {-20, 10, 8, 0.5f, -0.25f, -0.5f, 0, inf, true},  // oblique: t = 16 at (-12, 6)
       {-20, 10, 8, 0.5f, -0.25f, -0.5f, 0, 16, false},  // the same, tfar at the hit
-      {0, 0, 10, 0, 0, 1, 0, inf, false},         // pointing away
-      {49, 29, 1, 0, 0, -1, 0, inf, true}};       // near the corner
+      {0, 0, 10, 0, 0, 1, 0, inf, false},               // pointing away
+      {49, 29, 1, 0, 0, -1, 0, inf, true}};             // near the corner
   for (const TraceMode mode : {TraceMode::kPacket16, TraceMode::kSingleRay}) {
     for (int inactive = -1; inactive < RayPacket::kSize; inactive += 5) {
       RayPacket p;
@@ -259,7 +272,7 @@ TEST(RayCasterTest, VectorisedPlaneTestEqualsScalarOnEdgeCases) {
         p.dir_x[i] = c.dx, p.dir_y[i] = c.dy, p.dir_z[i] = c.dz;
         p.tnear[i] = c.tnear, p.tfar[i] = c.tfar;
         p.active[i] = i != inactive;
-        p.object[i] = 77;   // sentinels: inactive lanes keep them
+        p.object[i] = 77;  // sentinels: inactive lanes keep them
         p.occluded[i] = 5;
       }
       RayPacket a = p, b = p, sa = p, sb = p;

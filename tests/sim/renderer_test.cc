@@ -5,9 +5,9 @@
 
 #include <gtest/gtest.h>
 
+#include <opencv2/core.hpp>
 #include "core/error.h"
 #include "sim/shapes.h"
-#include <opencv2/core.hpp>
 #include "tests/sim/sim_test_util.h"
 
 namespace slshadow {
@@ -19,9 +19,11 @@ using testing::Pose;
 using testing::SameFloat;
 using testing::SmallDemoRig;
 
-GeometryBuffer Trace(const Scene& scene, const Rig& rig, int camera, TraceMode mode = TraceMode::kPacket16) {
+GeometryBuffer Trace(const Scene& scene, const Rig& rig, int camera,
+                     TraceMode mode = TraceMode::kPacket16) {
   const RayCaster caster(scene);
-  const CameraRays rays = ComputeCameraRays(rig.cameras[static_cast<size_t>(camera)].model, scene.layers.supersampling);
+  const CameraRays rays =
+      ComputeCameraRays(rig.cameras[static_cast<size_t>(camera)].model, scene.layers.supersampling);
   return TraceGeometry(caster, rig, camera, rays, mode);
 }
 
@@ -72,7 +74,8 @@ TEST(CameraRaysTest, EqualTheModelsUnprojectionIncludingPastTheFold) {
         for (int b = 0; b < n; ++b) {
           for (int a = 0; a < n; ++a) {
             const Eigen::Vector2d pixel(x + (a + 0.5) / n - 0.5, y + (b + 0.5) / n - 0.5);
-            const Eigen::Vector3f& d = rays.samples[(static_cast<size_t>(y) * cam.width + x) * n * n + b * n + a];
+            const Eigen::Vector3f& d =
+                rays.samples[(static_cast<size_t>(y) * cam.width + x) * n * n + b * n + a];
             const std::optional<Eigen::Vector3d> expected = cam.Unproject(pixel);
             if (!expected) {
               ++folded;
@@ -90,7 +93,7 @@ TEST(CameraRaysTest, EqualTheModelsUnprojectionIncludingPastTheFold) {
     }
     EXPECT_GT(folded, 0) << "the test lens should fold over in the image corners";
     EXPECT_LT(folded, cam.width * cam.height * n * n / 10);
-    EXPECT_LT(worst, 1e-7) << n;     // float rounding of a unit vector
+    EXPECT_LT(worst, 1e-7) << n;  // float rounding of a unit vector
     // Back through the model; near the fold the lens compresses the image, which magnifies the
     // float rounding of the direction in pixels.
     EXPECT_LT(worst_px, 1e-3) << n;
@@ -161,7 +164,8 @@ TEST(TraceGeometryTest, BoundsCullingChangesNothing) {
   for (int camera = 0; camera < 2; ++camera) {
     const CameraRays rays = ComputeCameraRays(rig.cameras[static_cast<size_t>(camera)].model, 1);
     for (const TraceMode mode : {TraceMode::kPacket16, TraceMode::kSingleRay}) {
-      ExpectSameBuffers(TraceGeometry(culled, rig, camera, rays, mode), TraceGeometry(full, rig, camera, rays, mode));
+      ExpectSameBuffers(TraceGeometry(culled, rig, camera, rays, mode),
+                        TraceGeometry(full, rig, camera, rays, mode));
     }
   }
 }
@@ -186,9 +190,11 @@ TEST(TraceGeometryTest, EdgePacketsAndMissingRaysEqualFullPackets) {
     small_rays.width = w;
     small_rays.height = h;
     small_rays.samples_per_axis = n;
-    const auto crop = [&](std::vector<Eigen::Vector3f>& from, std::vector<Eigen::Vector3f>& to, int per_pixel) {
+    const auto crop = [&](std::vector<Eigen::Vector3f>& from, std::vector<Eigen::Vector3f>& to,
+                          int per_pixel) {
       for (const cv::Point& q : no_ray) {
-        for (int k = 0; k < per_pixel; ++k) from[(static_cast<size_t>(q.y) * 240 + q.x) * per_pixel + k].setConstant(NAN);
+        for (int k = 0; k < per_pixel; ++k)
+          from[(static_cast<size_t>(q.y) * 240 + q.x) * per_pixel + k].setConstant(NAN);
       }
       for (int y = 0; y < h; ++y) {
         const auto row = from.begin() + static_cast<ptrdiff_t>(y) * 240 * per_pixel;
@@ -201,14 +207,17 @@ TEST(TraceGeometryTest, EdgePacketsAndMissingRaysEqualFullPackets) {
     scene.layers.supersampling = n;
     const RayCaster caster(scene);
     for (const bool ground_truth : {true, false}) {
-      const GeometryBuffer a = TraceGeometry(caster, big, 0, big_rays, TraceMode::kPacket16, ground_truth);
-      const GeometryBuffer b = TraceGeometry(caster, small, 0, small_rays, TraceMode::kPacket16, ground_truth);
+      const GeometryBuffer a =
+          TraceGeometry(caster, big, 0, big_rays, TraceMode::kPacket16, ground_truth);
+      const GeometryBuffer b =
+          TraceGeometry(caster, small, 0, small_rays, TraceMode::kPacket16, ground_truth);
       const size_t nn = static_cast<size_t>(n) * n;
       int lit = 0;
       for (int y = 0; y < h; ++y) {
         for (int x = 0; x < w; ++x) {
           for (size_t k = 0; k < nn; ++k) {
-            const size_t i = (static_cast<size_t>(y) * 240 + x) * nn + k, j = (static_cast<size_t>(y) * w + x) * nn + k;
+            const size_t i = (static_cast<size_t>(y) * 240 + x) * nn + k,
+                         j = (static_cast<size_t>(y) * w + x) * nn + k;
             ASSERT_TRUE(SameFloat(a.proj_x[i], b.proj_x[j])) << x << "," << y;
             ASSERT_TRUE(SameFloat(a.proj_y[i], b.proj_y[j])) << x << "," << y;
             ASSERT_EQ(a.factor[i], b.factor[j]) << x << "," << y;
@@ -216,14 +225,21 @@ TEST(TraceGeometryTest, EdgePacketsAndMissingRaysEqualFullPackets) {
             lit += !std::isnan(b.proj_x[j]);
           }
           if (!ground_truth) continue;
-          ASSERT_TRUE(SameFloat(a.depth_mm.at<float>(y, x), b.depth_mm.at<float>(y, x))) << x << "," << y;
+          ASSERT_TRUE(SameFloat(a.depth_mm.at<float>(y, x), b.depth_mm.at<float>(y, x)))
+              << x << "," << y;
           ASSERT_EQ(a.object_id.at<int32_t>(y, x), b.object_id.at<int32_t>(y, x)) << x << "," << y;
-          ASSERT_EQ(a.visibility.at<uint8_t>(y, x), b.visibility.at<uint8_t>(y, x)) << x << "," << y;
-          ASSERT_EQ(a.projector.status.at<uint8_t>(y, x), b.projector.status.at<uint8_t>(y, x)) << x << "," << y;
-          ASSERT_TRUE(SameFloat(a.projector.proj_x.at<float>(y, x), b.projector.proj_x.at<float>(y, x))) << x << "," << y;
+          ASSERT_EQ(a.visibility.at<uint8_t>(y, x), b.visibility.at<uint8_t>(y, x))
+              << x << "," << y;
+          ASSERT_EQ(a.projector.status.at<uint8_t>(y, x), b.projector.status.at<uint8_t>(y, x))
+              << x << "," << y;
+          ASSERT_TRUE(
+              SameFloat(a.projector.proj_x.at<float>(y, x), b.projector.proj_x.at<float>(y, x)))
+              << x << "," << y;
           for (int k = 0; k < 3; ++k) {
-            ASSERT_TRUE(SameFloat(a.point_in_rig.at<cv::Vec3f>(y, x)[k], b.point_in_rig.at<cv::Vec3f>(y, x)[k]));
-            ASSERT_TRUE(SameFloat(a.normal_in_rig.at<cv::Vec3f>(y, x)[k], b.normal_in_rig.at<cv::Vec3f>(y, x)[k]));
+            ASSERT_TRUE(SameFloat(a.point_in_rig.at<cv::Vec3f>(y, x)[k],
+                                  b.point_in_rig.at<cv::Vec3f>(y, x)[k]));
+            ASSERT_TRUE(SameFloat(a.normal_in_rig.at<cv::Vec3f>(y, x)[k],
+                                  b.normal_in_rig.at<cv::Vec3f>(y, x)[k]));
           }
         }
       }
@@ -231,7 +247,8 @@ TEST(TraceGeometryTest, EdgePacketsAndMissingRaysEqualFullPackets) {
       for (const cv::Point& q : no_ray) {
         for (size_t k = 0; k < nn; ++k) {
           const size_t j = (static_cast<size_t>(q.y) * w + q.x) * nn + k;
-          EXPECT_TRUE(std::isnan(b.proj_x[j]) && b.factor[j] == 0 && b.albedo[j] == 0) << "no ray: nothing seen";
+          EXPECT_TRUE(std::isnan(b.proj_x[j]) && b.factor[j] == 0 && b.albedo[j] == 0)
+              << "no ray: nothing seen";
         }
         if (ground_truth) {
           EXPECT_EQ(b.visibility.at<uint8_t>(q), 0);
@@ -239,8 +256,9 @@ TEST(TraceGeometryTest, EdgePacketsAndMissingRaysEqualFullPackets) {
           EXPECT_TRUE(std::isnan(b.depth_mm.at<float>(q)));
         }
       }
-      const int64_t expected_primary = (static_cast<int64_t>(w) * h - static_cast<int64_t>(no_ray.size())) *
-                                        (static_cast<int64_t>(nn) + (n > 1 && ground_truth ? 1 : 0));
+      const int64_t expected_primary =
+          (static_cast<int64_t>(w) * h - static_cast<int64_t>(no_ray.size())) *
+          (static_cast<int64_t>(nn) + (n > 1 && ground_truth ? 1 : 0));
       EXPECT_EQ(b.primary_rays, expected_primary);
     }
   }
@@ -259,7 +277,8 @@ TEST(RadiometryTest, TiltedPlaneFollowsCosOverDistanceSquared) {
   const Eigen::Vector3d proj_center = rig.projector->CenterInRig();
   for (int camera = 0; camera < 2; ++camera) {
     const GeometryBuffer g = Trace(scene, rig, camera);
-    const cv::Mat irradiance = PatternRenderer(scene, rig, camera, g).RenderIrradiance(FlatProjectorImage(rig, 255));
+    const cv::Mat irradiance =
+        PatternRenderer(scene, rig, camera, g).RenderIrradiance(FlatProjectorImage(rig, 255));
     const RigDevice& cam = rig.cameras[static_cast<size_t>(camera)];
     int lit = 0, checked = 0;
     for (int y = 0; y < g.height; y += 3) {
@@ -279,8 +298,11 @@ TEST(RadiometryTest, TiltedPlaneFollowsCosOverDistanceSquared) {
           ASSERT_EQ(irradiance.at<float>(y, x), 0) << "off the plane: black";
           continue;
         }
-        const double expected = 0.8 * full * 0.6 * (0.1 + (in_projector ? cos_p * d_ref * d_ref / to_proj.squaredNorm() : 0.0));
-        ASSERT_NEAR(irradiance.at<float>(y, x), expected, 2e-4 * expected) << camera << " " << x << "," << y;
+        const double expected =
+            0.8 * full * 0.6 *
+            (0.1 + (in_projector ? cos_p * d_ref * d_ref / to_proj.squaredNorm() : 0.0));
+        ASSERT_NEAR(irradiance.at<float>(y, x), expected, 2e-4 * expected)
+            << camera << " " << x << "," << y;
         ASSERT_NEAR(g.depth_mm.at<float>(y, x), (cam.cam_from_rig * p).z(), 1e-3);
         lit += in_projector;
         ++checked;
@@ -295,14 +317,16 @@ TEST(RadiometryTest, TiltedPlaneFollowsCosOverDistanceSquared) {
 TEST(RadiometryTest, ShadowedPixelsGetAmbientOnly) {
   const Rig rig = SmallDemoRig(4);
   Scene scene = PlaneScene(Pose(Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 0, 560)), 0.5);
-  SceneObject box = MakePrimitive(ObjectType::kBox, Pose(Eigen::Vector3d(0.2, 0.3, 0), Eigen::Vector3d(-30, 10, 470)), 0.9);
+  SceneObject box = MakePrimitive(
+      ObjectType::kBox, Pose(Eigen::Vector3d(0.2, 0.3, 0), Eigen::Vector3d(-30, 10, 470)), 0.9);
   box.size_mm = Eigen::Vector3d(40, 30, 20);
   scene.objects.push_back(box);
   scene.layers.ambient = 0.05;
   const Eigen::Vector3d proj_center = rig.projector->CenterInRig();
   const Rigid3d box_from_rig = box.rig_from_object.Inverse();
   const GeometryBuffer g = Trace(scene, rig, 0);
-  const cv::Mat irradiance = PatternRenderer(scene, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 255));
+  const cv::Mat irradiance =
+      PatternRenderer(scene, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 255));
   int shadowed = 0, lit = 0;
   for (int y = 0; y < g.height; ++y) {
     for (int x = 0; x < g.width; ++x) {
@@ -357,7 +381,8 @@ TEST(TessellationTest, AnalyticSphereVsMeshDifferOnlyByTessellationError) {
     double gap = 0;
     for (size_t f = 0; f < mesh.mesh->NumTriangles(); ++f) {
       const auto& t = mesh.mesh->triangles[f];
-      const Eigen::Vector3d a = mesh.mesh->vertices[static_cast<size_t>(t[0])], b = mesh.mesh->vertices[static_cast<size_t>(t[1])],
+      const Eigen::Vector3d a = mesh.mesh->vertices[static_cast<size_t>(t[0])],
+                            b = mesh.mesh->vertices[static_cast<size_t>(t[1])],
                             c = mesh.mesh->vertices[static_cast<size_t>(t[2])];
       for (int i = 0; i <= 20; ++i) {
         for (int j = 0; i + j <= 20; ++j) {
@@ -379,7 +404,8 @@ TEST(TessellationTest, AnalyticSphereVsMeshDifferOnlyByTessellationError) {
         // Depth difference = distance along the ray * view.z.
         const double along_ray = (dm - da) / view.z();
         ASSERT_GE(along_ray, -1e-3) << "mesh vertices lie on the sphere, faces inside it";
-        ASSERT_LE(along_ray, 1.05 * gap / cos_inc + 1e-3) << segments << " segments at " << x << "," << y;
+        ASSERT_LE(along_ray, 1.05 * gap / cos_inc + 1e-3)
+            << segments << " segments at " << x << "," << y;
         max_excess = std::max(max_excess, along_ray * cos_inc);
         ++compared;
       }
@@ -426,10 +452,14 @@ TEST(PointCloudTest, DiscsMatchMeshOfTheSameSurface) {
   for (int y = 0; y < gd.height; ++y) {
     for (int x = 0; x < gd.width; ++x) {
       const float dd = gd.depth_mm.at<float>(y, x), dm = gm.depth_mm.at<float>(y, x);
-      if (std::isnan(dd) || std::isnan(dm) || gd.visibility.at<uint8_t>(y, x) != gm.visibility.at<uint8_t>(y, x)) continue;
+      if (std::isnan(dd) || std::isnan(dm) ||
+          gd.visibility.at<uint8_t>(y, x) != gm.visibility.at<uint8_t>(y, x))
+        continue;
       const cv::Vec3f nf = gm.normal_in_rig.at<cv::Vec3f>(y, x);
       const cv::Vec3f pf = gm.point_in_rig.at<cv::Vec3f>(y, x);
-      const double cos_inc = std::abs(Eigen::Vector3d(pf[0], pf[1], pf[2]).normalized().dot(Eigen::Vector3d(nf[0], nf[1], nf[2])));
+      const double cos_inc = std::abs(Eigen::Vector3d(pf[0], pf[1], pf[2])
+                                          .normalized()
+                                          .dot(Eigen::Vector3d(nf[0], nf[1], nf[2])));
       if (cos_inc < 0.3) continue;
       ASSERT_NEAR(dd, dm, 0.02) << x << "," << y;
       const int diff = std::abs(id.at<uint8_t>(y, x) - im.at<uint8_t>(y, x));
@@ -439,7 +469,8 @@ TEST(PointCloudTest, DiscsMatchMeshOfTheSameSurface) {
     }
   }
   EXPECT_GT(compared, 3000);
-  std::printf("discs vs mesh: %d pixels, max |dDN| %d, mean %.3f\n", compared, max_dn, sum_dn / compared);
+  std::printf("discs vs mesh: %d pixels, max |dDN| %d, mean %.3f\n", compared, max_dn,
+              sum_dn / compared);
   EXPECT_LE(max_dn, 4);
   EXPECT_LE(sum_dn / compared, 1.0);
 }
@@ -447,7 +478,9 @@ TEST(PointCloudTest, DiscsMatchMeshOfTheSameSurface) {
 // ---- Optional layers: each checked against what it claims to model. ----
 
 // A plane facing the rig head-on, filling the view.
-Scene FacingPlane() { return PlaneScene(Pose(Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 0, 500)), 0.7); }
+Scene FacingPlane() {
+  return PlaneScene(Pose(Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 0, 500)), 0.7);
+}
 
 cv::Mat Stripes(const Rig& rig, int period) {
   cv::Mat m(rig.projector->model.height, rig.projector->model.width, CV_8UC1);
@@ -462,13 +495,14 @@ TEST(LayersTest, BatchEqualsSingleImagesWithAllLayers) {
   const Rig rig = SmallDemoRig(8);
   Scene scene = LoadScene(testing::SourceDir() / "config/scenes/layers_all.yaml");
   for (int variant = 0; variant < 3; ++variant) {
-    if (variant == 1) scene.layers = SceneLayers();                   // core only, direct 8-bit lookups
-    if (variant == 2) scene.radiometry.bilinear_lookup = false;      // nearest
+    if (variant == 1) scene.layers = SceneLayers();              // core only, direct 8-bit lookups
+    if (variant == 2) scene.radiometry.bilinear_lookup = false;  // nearest
     const GeometryBuffer g = Trace(scene, rig, 0);
     const PatternRenderer r(scene, rig, 0, g);
     std::vector<cv::Mat> patterns;
     // 22 images: the fused path (three vectors of lanes when vectorised); 8 and 5 as well, below.
-    for (int period : {3, 5, 8, 13, 21, 34, 55, 89, 144, 4, 7, 11, 233, 2, 6, 9, 10, 12, 14, 15, 17, 19}) {
+    for (int period :
+         {3, 5, 8, 13, 21, 34, 55, 89, 144, 4, 7, 11, 233, 2, 6, 9, 10, 12, 14, 15, 17, 19}) {
       patterns.push_back(Stripes(rig, period));
     }
     const auto batch = r.RenderBatch(patterns, 10);
@@ -478,7 +512,9 @@ TEST(LayersTest, BatchEqualsSingleImagesWithAllLayers) {
     const auto batch8 = r.RenderBatch(eight, 10);
     ASSERT_EQ(batch.size(), patterns.size());
     for (size_t k = 0; k < patterns.size(); ++k) {
-      EXPECT_EQ(cv::norm(batch[k], r.Render(patterns[k], 10 + static_cast<int>(k)), cv::NORM_INF), 0) << variant << " " << k;
+      EXPECT_EQ(cv::norm(batch[k], r.Render(patterns[k], 10 + static_cast<int>(k)), cv::NORM_INF),
+                0)
+          << variant << " " << k;
       if (k < 5) {
         EXPECT_EQ(cv::norm(batch[k], batch5[k], cv::NORM_INF), 0) << variant << " " << k;
       }
@@ -493,7 +529,8 @@ TEST(LayersTest, BatchEqualsSingleImagesWithAllLayers) {
           for (int x = 0; x < irradiance.cols; ++x) {
             const float v = irradiance.at<float>(y, x);
             const float full = 4095;  // layers_all.yaml: 12-bit ADC, 16-bit images
-            const int q = v <= 0 ? 0 : (v >= full ? static_cast<int>(full) : static_cast<int>(v + 0.5f));
+            const int q =
+                v <= 0 ? 0 : (v >= full ? static_cast<int>(full) : static_cast<int>(v + 0.5f));
             ASSERT_EQ(batch[k].at<uint16_t>(y, x), q) << k << " " << x << "," << y;
           }
         }
@@ -515,8 +552,8 @@ TEST(LayersTest, BatchesOf8BitImagesEqualSingleImagesAndIrradiance) {
   const GeometryBuffer g = Trace(scene, rig, 0);
   const PatternRenderer r(scene, rig, 0, g);
   std::vector<cv::Mat> patterns, single, expected;
-  for (int period : {3, 5, 8, 13, 21, 34, 55, 89, 144, 4, 7, 11, 233, 2, 6, 9,
-                     10, 12, 14, 15, 17, 19, 20, 23, 25, 27, 29, 31, 37, 41, 43, 47}) {
+  for (int period : {3,  5,  8,  13, 21, 34, 55, 89, 144, 4,  7,  11, 233, 2,  6,  9,
+                     10, 12, 14, 15, 17, 19, 20, 23, 25,  27, 29, 31, 37,  41, 43, 47}) {
     patterns.push_back(Stripes(rig, period));
   }
   ASSERT_EQ(patterns.size(), static_cast<size_t>(PatternRenderer::kMaxBatch));
@@ -529,7 +566,8 @@ TEST(LayersTest, BatchesOf8BitImagesEqualSingleImagesAndIrradiance) {
     for (int y = 0; y < irradiance.rows; ++y) {
       for (int x = 0; x < irradiance.cols; ++x) {
         const float v = irradiance.at<float>(y, x);
-        q.at<uint8_t>(y, x) = static_cast<uint8_t>(v <= 0 ? 0 : (v >= 255 ? 255 : static_cast<int>(v + 0.5f)));
+        q.at<uint8_t>(y, x) =
+            static_cast<uint8_t>(v <= 0 ? 0 : (v >= 255 ? 255 : static_cast<int>(v + 0.5f)));
         lit += q.at<uint8_t>(y, x) > 0;
       }
     }
@@ -539,7 +577,8 @@ TEST(LayersTest, BatchesOf8BitImagesEqualSingleImagesAndIrradiance) {
   // Full and partial batches: one and two tiles of 16 images, vectors of 8 lanes full and partial
   // (a 22-pattern sequence renders as one batch of 22).
   for (const size_t n : {32u, 22u, 17u, 16u, 9u, 6u, 1u}) {
-    const std::vector<cv::Mat> some(patterns.begin(), patterns.begin() + static_cast<std::ptrdiff_t>(n));
+    const std::vector<cv::Mat> some(patterns.begin(),
+                                    patterns.begin() + static_cast<std::ptrdiff_t>(n));
     const auto batch = r.RenderBatch(some, 0);
     ASSERT_EQ(batch.size(), n);
     for (size_t k = 0; k < n; ++k) {
@@ -547,7 +586,8 @@ TEST(LayersTest, BatchesOf8BitImagesEqualSingleImagesAndIrradiance) {
       EXPECT_EQ(cv::norm(batch[k], single[k], cv::NORM_INF), 0) << n << " " << k;
       for (int y = 0; y < batch[k].rows; ++y) {
         for (int x = 0; x < batch[k].cols; ++x) {
-          ASSERT_EQ(batch[k].at<uint8_t>(y, x), expected[k].at<uint8_t>(y, x)) << n << " " << k << " " << x << "," << y;
+          ASSERT_EQ(batch[k].at<uint8_t>(y, x), expected[k].at<uint8_t>(y, x))
+              << n << " " << k << " " << x << "," << y;
         }
       }
     }
@@ -571,30 +611,37 @@ TEST(LayersTest, PatternBatchIsSharedAcrossCamerasAndChecked) {
   const uint8_t* inter = shared.Interleaved();
   const size_t n = patterns[0].total();
   for (size_t i = 0; i < n; i += 97) {
-    for (int k = 0; k < shared.size(); ++k) ASSERT_EQ(inter[i * 20 + static_cast<size_t>(k)], patterns[static_cast<size_t>(k)].data[i]) << i;
+    for (int k = 0; k < shared.size(); ++k)
+      ASSERT_EQ(inter[i * 20 + static_cast<size_t>(k)], patterns[static_cast<size_t>(k)].data[i])
+          << i;
   }
-  for (int k = 0; k < PatternBatch::kPadding; ++k) EXPECT_EQ(inter[n * 20 + static_cast<size_t>(k)], 0);
+  for (int k = 0; k < PatternBatch::kPadding; ++k)
+    EXPECT_EQ(inter[n * 20 + static_cast<size_t>(k)], 0);
   for (int camera = 0; camera < 2; ++camera) {
     const GeometryBuffer g = Trace(scene, rig, camera);
     const PatternRenderer r(scene, rig, camera, g);
     const auto a = r.RenderBatch(shared, 0);
     const auto b = r.RenderBatch(patterns, 0);
     ASSERT_EQ(a.size(), patterns.size());
-    for (size_t k = 0; k < a.size(); ++k) EXPECT_EQ(cv::norm(a[k], b[k], cv::NORM_INF), 0) << camera << " " << k;
+    for (size_t k = 0; k < a.size(); ++k)
+      EXPECT_EQ(cv::norm(a[k], b[k], cv::NORM_INF), 0) << camera << " " << k;
     // More images than a batch holds.
     std::vector<cv::Mat> too_many(static_cast<size_t>(PatternRenderer::kMaxBatch) + 1, patterns[0]);
     EXPECT_THROW(r.RenderBatch(too_many, 0), Error);
   }
   EXPECT_THROW(PatternBatch(std::vector<cv::Mat>{}), Error);
-  EXPECT_THROW(PatternBatch({patterns[0], cv::Mat(patterns[0].rows, patterns[0].cols + 1, CV_8UC1, cv::Scalar(0))}), Error);
-  EXPECT_THROW(PatternBatch({patterns[0], cv::Mat(patterns[0].size(), CV_16UC1, cv::Scalar(0))}), Error);
+  EXPECT_THROW(PatternBatch({patterns[0], cv::Mat(patterns[0].rows, patterns[0].cols + 1, CV_8UC1,
+                                                  cv::Scalar(0))}),
+               Error);
+  EXPECT_THROW(PatternBatch({patterns[0], cv::Mat(patterns[0].size(), CV_16UC1, cv::Scalar(0))}),
+               Error);
 }
 
 TEST(LayersTest, LayersAreOffByDefault) {
   const SceneLayers l;
   EXPECT_EQ(l.supersampling, 1);
-  EXPECT_FALSE(l.camera_defocus.enabled || l.projector_defocus.enabled || l.response_enabled || l.vignetting_enabled ||
-               l.noise_enabled);
+  EXPECT_FALSE(l.camera_defocus.enabled || l.projector_defocus.enabled || l.response_enabled ||
+               l.vignetting_enabled || l.noise_enabled);
   EXPECT_EQ(l.ambient, 0);
   EXPECT_EQ(l.fill_factor, 1);
 }
@@ -633,8 +680,10 @@ TEST(LayersTest, NoiseFollowsEmvaModelAndIsSeeded) {
   const double mean = sum / n, sd = std::sqrt(sum_sq / n - mean * mean);
   EXPECT_NEAR(mean, 0, 0.02);
   EXPECT_NEAR(sd, 1, 0.02);
-  EXPECT_EQ(cv::norm(noisy, r.Render(pattern, 3), cv::NORM_INF), 0) << "same seed, camera, pattern: same image";
-  EXPECT_GT(cv::norm(noisy, r.Render(pattern, 4), cv::NORM_L1), 0) << "another pattern index: other noise";
+  EXPECT_EQ(cv::norm(noisy, r.Render(pattern, 3), cv::NORM_INF), 0)
+      << "same seed, camera, pattern: same image";
+  EXPECT_GT(cv::norm(noisy, r.Render(pattern, 4), cv::NORM_L1), 0)
+      << "another pattern index: other noise";
   Scene other = scene;
   other.layers.seed = 6;
   EXPECT_GT(cv::norm(noisy, PatternRenderer(other, rig, 0, g).Render(pattern, 3), cv::NORM_L1), 0);
@@ -643,7 +692,7 @@ TEST(LayersTest, NoiseFollowsEmvaModelAndIsSeeded) {
 TEST(LayersTest, SaturationClipsAtFullScale) {
   const Rig rig = SmallDemoRig(4);
   Scene scene = FacingPlane();
-  scene.radiometry.exposure = 5;  // far over full scale
+  scene.radiometry.exposure_fraction = 5;  // far over full scale
   const GeometryBuffer g = Trace(scene, rig, 0);
   const cv::Mat img = PatternRenderer(scene, rig, 0, g).Render(FlatProjectorImage(rig, 255), 0);
   double max_value;
@@ -662,10 +711,14 @@ TEST(LayersTest, ProjectorGammaAndLut) {
   lut.layers.response_enabled = true;
   lut.layers.response_lut.assign(256, 0.25);
   const GeometryBuffer g = Trace(linear, rig, 0);
-  const cv::Mat white = PatternRenderer(linear, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 255));
-  const cv::Mat mid_linear = PatternRenderer(linear, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 128));
-  const cv::Mat mid_gamma = PatternRenderer(gamma, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 128));
-  const cv::Mat quarter = PatternRenderer(lut, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 77));
+  const cv::Mat white =
+      PatternRenderer(linear, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 255));
+  const cv::Mat mid_linear =
+      PatternRenderer(linear, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 128));
+  const cv::Mat mid_gamma =
+      PatternRenderer(gamma, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 128));
+  const cv::Mat quarter =
+      PatternRenderer(lut, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 77));
   int n = 0;
   for (int y = 0; y < g.height; y += 5) {
     for (int x = 0; x < g.width; x += 5) {
@@ -686,7 +739,8 @@ TEST(LayersTest, VignettingIsCos4OfTheViewingAngle) {
   Scene vig = plain;
   vig.layers.vignetting_enabled = true;
   const GeometryBuffer g = Trace(plain, rig, 0);
-  const cv::Mat a = PatternRenderer(plain, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 255));
+  const cv::Mat a =
+      PatternRenderer(plain, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 255));
   const cv::Mat b = PatternRenderer(vig, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 255));
   const CameraModel& cam = rig.cameras[0].model;
   double min_ratio = 1;
@@ -709,12 +763,15 @@ TEST(LayersTest, AmbientAddsAlbedoTimesLevelEverywhereOnTheSurface) {
   Scene b = a;
   b.layers.ambient = 0.1;
   const GeometryBuffer g = Trace(a, rig, 0);
-  const cv::Mat black_a = PatternRenderer(a, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 0));
-  const cv::Mat black_b = PatternRenderer(b, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 0));
+  const cv::Mat black_a =
+      PatternRenderer(a, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 0));
+  const cv::Mat black_b =
+      PatternRenderer(b, rig, 0, g).RenderIrradiance(FlatProjectorImage(rig, 0));
   EXPECT_EQ(cv::countNonZero(black_a), 0);
   for (int y = 0; y < g.height; y += 5) {
     for (int x = 0; x < g.width; x += 5) {
-      const float expected = g.visibility.at<uint8_t>(y, x) ? static_cast<float>(0.8 * 255 * 0.1 * 0.7) : 0.0f;
+      const float expected =
+          g.visibility.at<uint8_t>(y, x) ? static_cast<float>(0.8 * 255 * 0.1 * 0.7) : 0.0f;
       EXPECT_FLOAT_EQ(black_b.at<float>(y, x), expected);
     }
   }
@@ -795,13 +852,13 @@ TEST(LayersTest, DefocusBlursOnlyOutOfFocus) {
   }
 }
 
-
 // A sinusoidal projector image cos(2 pi u / P) on the facing plane, 8-bit.
 cv::Mat SineFringe(const Rig& rig, double period_px) {
   cv::Mat m(rig.projector->model.height, rig.projector->model.width, CV_8UC1);
   for (int y = 0; y < m.rows; ++y) {
     for (int x = 0; x < m.cols; ++x) {
-      m.at<uint8_t>(y, x) = cv::saturate_cast<uint8_t>(127.5 + 100 * std::cos(2 * M_PI * x / period_px));
+      m.at<uint8_t>(y, x) =
+          cv::saturate_cast<uint8_t>(127.5 + 100 * std::cos(2 * M_PI * x / period_px));
     }
   }
   return m;
@@ -810,7 +867,8 @@ cv::Mat SineFringe(const Rig& rig, double period_px) {
 // Fringe amplitude of `image` / `white` (the radiometric factor divided out) over the pixels of a
 // central window lit in `g`: least squares of A + B cos(2 pi u / P) + C sin(2 pi u / P) against
 // the true projector column u; returns sqrt(B^2 + C^2).
-double FringeAmplitude(const cv::Mat& image, const cv::Mat& white, const GeometryBuffer& g, double period_px) {
+double FringeAmplitude(const cv::Mat& image, const cv::Mat& white, const GeometryBuffer& g,
+                       double period_px) {
   Eigen::Matrix3d ata = Eigen::Matrix3d::Zero();
   Eigen::Vector3d atb = Eigen::Vector3d::Zero();
   for (int y = g.height / 4; y < 3 * g.height / 4; ++y) {
@@ -818,7 +876,8 @@ double FringeAmplitude(const cv::Mat& image, const cv::Mat& white, const Geometr
       const float u = g.projector.proj_x.at<float>(y, x);
       const float w = white.at<float>(y, x);
       if (!std::isfinite(u) || !(w > 0)) continue;
-      const Eigen::Vector3d a(1, std::cos(2 * M_PI * u / period_px), std::sin(2 * M_PI * u / period_px));
+      const Eigen::Vector3d a(1, std::cos(2 * M_PI * u / period_px),
+                              std::sin(2 * M_PI * u / period_px));
       ata += a * a.transpose();
       atb += a * (image.at<float>(y, x) / w);
     }
@@ -837,15 +896,18 @@ TEST(LayersTest, DefocusContrastFollowsTheGaussianTransferFunction) {
   const cv::Mat fringe = SineFringe(rig, period_px), white = FlatProjectorImage(rig, 255);
   const Scene sharp = FacingPlane();
   const GeometryBuffer g = Trace(sharp, rig, 0);
-  const double sharp_amplitude = FringeAmplitude(PatternRenderer(sharp, rig, 0, g).RenderIrradiance(fringe),
-                                                 PatternRenderer(sharp, rig, 0, g).RenderIrradiance(white), g, period_px);
+  const double sharp_amplitude =
+      FringeAmplitude(PatternRenderer(sharp, rig, 0, g).RenderIrradiance(fringe),
+                      PatternRenderer(sharp, rig, 0, g).RenderIrradiance(white), g, period_px);
   // The 8-bit fringe of amplitude 100 read back through the factor: 100 / 255 of the white, less
   // the few per cent that bilinear lookups of a 10-px sampled sinusoid lose (the same in both).
   EXPECT_NEAR(sharp_amplitude, 100.0 / 255, 0.02);
   // Camera period: P / |grad u| at the image centre (the plane's projector map is nearly affine).
   const int cx = g.width / 2, cy = g.height / 2;
-  const double dudx = (g.projector.proj_x.at<float>(cy, cx + 4) - g.projector.proj_x.at<float>(cy, cx - 4)) / 8;
-  const double dudy = (g.projector.proj_x.at<float>(cy + 4, cx) - g.projector.proj_x.at<float>(cy - 4, cx)) / 8;
+  const double dudx =
+      (g.projector.proj_x.at<float>(cy, cx + 4) - g.projector.proj_x.at<float>(cy, cx - 4)) / 8;
+  const double dudy =
+      (g.projector.proj_x.at<float>(cy + 4, cx) - g.projector.proj_x.at<float>(cy - 4, cx)) / 8;
   const double camera_period_px = period_px / std::hypot(dudx, dudy);
   for (int which = 0; which < 2; ++which) {
     Scene blurred = sharp;
@@ -856,10 +918,12 @@ TEST(LayersTest, DefocusContrastFollowsTheGaussianTransferFunction) {
     d.focus_distance_mm = 300;
     const GeometryBuffer gb = Trace(blurred, rig, 0);
     const PatternRenderer r(blurred, rig, 0, gb);
-    const double amplitude = FringeAmplitude(r.RenderIrradiance(fringe), r.RenderIrradiance(white), gb, period_px);
+    const double amplitude =
+        FringeAmplitude(r.RenderIrradiance(fringe), r.RenderIrradiance(white), gb, period_px);
     double sigma_px = 0, period = 0;
     if (which == 0) {
-      sigma_px = d.SigmaPx(rig.cameras[0].model.fx(), 500);  // the facing plane: depth 500 everywhere
+      sigma_px =
+          d.SigmaPx(rig.cameras[0].model.fx(), 500);  // the facing plane: depth 500 everywhere
       period = camera_period_px;
     } else {
       std::vector<float> sigmas;
@@ -873,10 +937,12 @@ TEST(LayersTest, DefocusContrastFollowsTheGaussianTransferFunction) {
     }
     const double expected = std::exp(-2 * M_PI * M_PI * sigma_px * sigma_px / (period * period));
     std::printf("%s defocus: sigma %.3f px, period %.2f px, contrast kept %.4f (analytic %.4f)\n",
-                which == 0 ? "camera" : "projector", sigma_px, period, amplitude / sharp_amplitude, expected);
+                which == 0 ? "camera" : "projector", sigma_px, period, amplitude / sharp_amplitude,
+                expected);
     ASSERT_GT(expected, 0.2) << "the set-up should blur the fringe measurably, not erase it";
     ASSERT_LT(expected, 0.9);
-    EXPECT_NEAR(amplitude / sharp_amplitude, expected, 0.03) << (which == 0 ? "camera" : "projector");
+    EXPECT_NEAR(amplitude / sharp_amplitude, expected, 0.03)
+        << (which == 0 ? "camera" : "projector");
   }
 }
 

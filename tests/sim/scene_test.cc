@@ -45,7 +45,8 @@ TEST(SceneTest, DemoSceneLoads) {
 
 TEST(SceneTest, EveryExampleSceneLoads) {
   int n = 0;
-  for (const auto& entry : std::filesystem::directory_iterator(testing::SourceDir() / "config/scenes")) {
+  for (const auto& entry :
+       std::filesystem::directory_iterator(testing::SourceDir() / "config/scenes")) {
     if (entry.path().extension() != ".yaml") continue;
     SCOPED_TRACE(entry.path().string());
     const Scene scene = LoadScene(entry.path());
@@ -132,50 +133,72 @@ TEST(SceneTest, BadScenesGiveClearErrors) {
   testing::TempDir tmp;
   // Missing file.
   WriteText(tmp / "missing.yaml", "objects:\n  - {type: mesh, file: nowhere.stl}\n");
-  EXPECT_THAT(ErrorOf([&] { LoadScene(tmp / "missing.yaml"); }),
-              AllOf(HasSubstr("missing.yaml"), HasSubstr("objects[0].file"), HasSubstr("not found")));
+  EXPECT_THAT(
+      ErrorOf([&] { LoadScene(tmp / "missing.yaml"); }),
+      AllOf(HasSubstr("missing.yaml"), HasSubstr("objects[0].file"), HasSubstr("not found")));
   // Empty mesh: an ASCII STL without facets.
   WriteText(tmp / "empty.stl", "solid empty\nendsolid empty\n");
   WriteText(tmp / "empty.yaml", "objects:\n  - {type: mesh, file: empty.stl}\n");
-  EXPECT_THAT(ErrorOf([&] { LoadScene(tmp / "empty.yaml"); }), AllOf(HasSubstr("empty"), HasSubstr("objects[0]")));
+  EXPECT_THAT(ErrorOf([&] { LoadScene(tmp / "empty.yaml"); }),
+              AllOf(HasSubstr("empty"), HasSubstr("objects[0]")));
   // Degenerate triangle (zero area).
   TriangleMesh degenerate;
   degenerate.vertices = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {2, 0, 0}};
   degenerate.triangles = {{0, 1, 2}, {0, 1, 3}};
   WriteMesh(tmp / "degenerate.ply", degenerate);
   WriteText(tmp / "degenerate.yaml", "objects:\n  - {type: mesh, file: degenerate.ply}\n");
-  EXPECT_THAT(ErrorOf([&] { LoadScene(tmp / "degenerate.yaml"); }), AllOf(HasSubstr("degenerate.ply"), HasSubstr("area")));
+  EXPECT_THAT(ErrorOf([&] { LoadScene(tmp / "degenerate.yaml"); }),
+              AllOf(HasSubstr("degenerate.ply"), HasSubstr("area")));
   // Non-manifold: three triangles on one edge.
   TriangleMesh fan;
   fan.vertices = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}};
   fan.triangles = {{0, 1, 2}, {1, 0, 3}, {0, 1, 4}};
   WriteMesh(tmp / "fan.ply", fan);
   WriteText(tmp / "fan.yaml", "objects:\n  - {type: mesh, file: fan.ply}\n");
-  EXPECT_THAT(ErrorOf([&] { LoadScene(tmp / "fan.yaml"); }), AllOf(HasSubstr("fan.ply"), HasSubstr("non-manifold")));
-  WriteText(tmp / "fan_ok.yaml", "objects:\n  - {type: mesh, file: fan.ply, allow_non_manifold: true}\n");
+  EXPECT_THAT(ErrorOf([&] { LoadScene(tmp / "fan.yaml"); }),
+              AllOf(HasSubstr("fan.ply"), HasSubstr("non-manifold")));
+  WriteText(tmp / "fan_ok.yaml",
+            "objects:\n  - {type: mesh, file: fan.ply, allow_non_manifold: true}\n");
   EXPECT_NO_THROW(LoadScene(tmp / "fan_ok.yaml"));
   // NaN pose.
   EXPECT_THAT(ErrorOf([&] {
-                ParseScene("objects:\n  - {type: sphere, radius_mm: 5, rig_from_object: {rotation_quat_wxyz: [1, 0, 0, 0], "
-                           "translation_mm: [.nan, 0, 500]}}\n");
+                ParseScene(
+                    "objects:\n  - {type: sphere, radius_mm: 5, rig_from_object: "
+                    "{rotation_quat_wxyz: [1, 0, 0, 0], "
+                    "translation_mm: [.nan, 0, 500]}}\n");
               }),
               AllOf(HasSubstr("scene.yaml"), HasSubstr("translation_mm")));
   // Unknown layer.
-  EXPECT_THAT(ErrorOf([&] { ParseScene("layers: {motion_blur: {}}\nobjects:\n  - {type: sphere, radius_mm: 5}\n"); }),
-              AllOf(HasSubstr("scene.yaml"), HasSubstr("layers"), HasSubstr("motion_blur")));
+  EXPECT_THAT(
+      ErrorOf([&] {
+        ParseScene("layers: {motion_blur: {}}\nobjects:\n  - {type: sphere, radius_mm: 5}\n");
+      }),
+      AllOf(HasSubstr("scene.yaml"), HasSubstr("layers"), HasSubstr("motion_blur")));
   // Unknown object type, bad values, point cloud without normals, empty scene.
-  EXPECT_THAT(ErrorOf([&] { ParseScene("objects:\n  - {type: torus}\n"); }), HasSubstr("unknown object type"));
+  EXPECT_THAT(ErrorOf([&] { ParseScene("objects:\n  - {type: torus}\n"); }),
+              HasSubstr("unknown object type"));
   EXPECT_THAT(ErrorOf([&] { ParseScene("objects:\n  - {type: sphere, radius_mm: -1}\n"); }),
               AllOf(HasSubstr("radius_mm"), HasSubstr("positive")));
   EXPECT_THAT(ErrorOf([&] { ParseScene("objects: []\n"); }), HasSubstr("no objects"));
-  EXPECT_THAT(ErrorOf([&] { ParseScene("layers: {noise: {full_well_e: 0}}\nobjects:\n  - {type: sphere, radius_mm: 5}\n"); }),
-              HasSubstr("full_well_e"));
+  EXPECT_THAT(
+      ErrorOf([&] {
+        ParseScene(
+            "layers: {noise: {full_well_e: 0}}\nobjects:\n  - {type: sphere, radius_mm: 5}\n");
+      }),
+      HasSubstr("full_well_e"));
   // reference_distance_mm: 0 is the rig's working distance (docs/formats.md); negative is refused.
-  EXPECT_EQ(ParseScene("radiometry: {reference_distance_mm: 0}\nobjects:\n  - {type: sphere, radius_mm: 5}\n")
-                .radiometry.reference_distance_mm,
-            0);
-  EXPECT_THAT(ErrorOf([&] { ParseScene("radiometry: {reference_distance_mm: -1}\nobjects:\n  - {type: sphere, radius_mm: 5}\n"); }),
-              AllOf(HasSubstr("scene.yaml"), HasSubstr("reference_distance_mm"), HasSubstr(">= 0")));
+  EXPECT_EQ(
+      ParseScene(
+          "radiometry: {reference_distance_mm: 0}\nobjects:\n  - {type: sphere, radius_mm: 5}\n")
+          .radiometry.reference_distance_mm,
+      0);
+  EXPECT_THAT(
+      ErrorOf([&] {
+        ParseScene(
+            "radiometry: {reference_distance_mm: -1}\nobjects:\n  - {type: sphere, radius_mm: "
+            "5}\n");
+      }),
+      AllOf(HasSubstr("scene.yaml"), HasSubstr("reference_distance_mm"), HasSubstr(">= 0")));
   PointCloud cloud;
   cloud.points = {{0, 0, 0}, {1, 0, 0}};
   WritePly(tmp / "cloud.ply", cloud);

@@ -22,13 +22,15 @@ TEST(DemoPartTest, ValidMeshWithExpectedExtentAndScalableResolution) {
   EXPECT_NEAR(coarse.BoundsMax().y(), 50, 1e-9);
   EXPECT_NEAR(coarse.BoundsMin().z(), 0, 1e-9);
   const DemoPartFeatures f = DemoPartDescription();
-  EXPECT_NEAR(coarse.BoundsMax().z(), f.sphere_center_mm.z() + f.sphere_radius_mm, 1e-9) << "the dome's top";
+  EXPECT_NEAR(coarse.BoundsMax().z(), f.sphere_center_mm.z() + f.sphere_radius_mm, 1e-9)
+      << "the dome's top";
   // The flat faces are exact: their area does not change with resolution (only curved parts do).
   EXPECT_NEAR(coarse.SurfaceArea(), fine.SurfaceArea(), 0.01 * fine.SurfaceArea());
   // Every vertex of the dome lies on its sphere; hole-wall vertices on the hole cylinders.
   int on_dome = 0;
   for (const auto& v : fine.vertices) {
-    if ((v - f.sphere_center_mm).norm() < f.sphere_radius_mm + 1e-9 && v.z() > f.sphere_center_mm.z() - 4 + 1e-9) {
+    if ((v - f.sphere_center_mm).norm() < f.sphere_radius_mm + 1e-9 &&
+        v.z() > f.sphere_center_mm.z() - 4 + 1e-9) {
       EXPECT_NEAR((v - f.sphere_center_mm).norm(), f.sphere_radius_mm, 1e-9);
       ++on_dome;
     }
@@ -50,7 +52,9 @@ TEST(DemoPartTest, OutwardNormals) {
   const TriangleMesh m = MakeDemoPart(2.0);
   double volume = 0;
   for (const auto& t : m.triangles) {
-    volume += m.vertices[static_cast<size_t>(t[0])].dot(m.vertices[static_cast<size_t>(t[1])].cross(m.vertices[static_cast<size_t>(t[2])])) / 6;
+    volume += m.vertices[static_cast<size_t>(t[0])].dot(m.vertices[static_cast<size_t>(t[1])].cross(
+                  m.vertices[static_cast<size_t>(t[2])])) /
+              6;
   }
   // Steps 30/40/50 mm over 60/60/40 mm of x, 100 mm of y, minus the pocket (40 x 40 x 12),
   // minus three holes, plus the dome cap above the face.
@@ -75,7 +79,8 @@ TEST(SphereMeshTest, VerticesOnSphere) {
 // The board seen by the camera: dark/light squares where the ground-truth corners say.
 TEST(CheckerboardSceneTest, CornersAndSquaresWhereTheCameraSeesThem) {
   const Rig rig = testing::SmallDemoRig(2);
-  const Rigid3d rig_from_board = testing::Pose(Eigen::Vector3d(0.1, -0.2, 0.05), Eigen::Vector3d(-90, -60, 480));
+  const Rigid3d rig_from_board =
+      testing::Pose(Eigen::Vector3d(0.1, -0.2, 0.05), Eigen::Vector3d(-90, -60, 480));
   const BoardScene board = MakeCheckerboardScene(9, 6, 20, rig_from_board);
   ASSERT_EQ(board.corners_in_rig.size(), 54u);
   EXPECT_NEAR((board.corners_in_rig[1] - board.corners_in_rig[0]).norm(), 20, 1e-9);
@@ -83,16 +88,19 @@ TEST(CheckerboardSceneTest, CornersAndSquaresWhereTheCameraSeesThem) {
   const RayCaster caster(board.scene);
   const CameraRays rays = ComputeCameraRays(rig.cameras[0].model, 1);
   const GeometryBuffer g = TraceGeometry(caster, rig, 0, rays);
-  const cv::Mat img = PatternRenderer(board.scene, rig, 0, g).Render(testing::FlatProjectorImage(rig, 255), 0);
+  const cv::Mat img =
+      PatternRenderer(board.scene, rig, 0, g).Render(testing::FlatProjectorImage(rig, 255), 0);
   // Sample the centre of each square next to corner (i, j): the square with both indices
   // +0.5 offsets is dark when (i + j) is even (the corner square at (-1,-1) is dark).
   int checked = 0;
   for (int j = 0; j < 5; ++j) {
     for (int i = 0; i < 8; ++i) {
-      const Eigen::Vector3d center = rig_from_board * Eigen::Vector3d((i + 0.5) * 20, (j + 0.5) * 20, 0);
+      const Eigen::Vector3d center =
+          rig_from_board * Eigen::Vector3d((i + 0.5) * 20, (j + 0.5) * 20, 0);
       const auto px = rig.cameras[0].model.Project(center);
       ASSERT_TRUE(px && rig.cameras[0].model.IsInImage(*px));
-      const int x = static_cast<int>(std::lround(px->x())), y = static_cast<int>(std::lround(px->y()));
+      const int x = static_cast<int>(std::lround(px->x())),
+                y = static_cast<int>(std::lround(px->y()));
       if (g.visibility.at<uint8_t>(y, x) != 2) continue;
       const int v = img.at<uint8_t>(y, x);
       if ((i + j) % 2 == 0) {
@@ -111,16 +119,21 @@ TEST(ImageBoardSceneTest, CameraSeesThePrintedImage) {
   const Rig rig = testing::SmallDemoRig(2);
   cv::Mat image(60, 90, CV_8UC1, cv::Scalar(230));
   image(cv::Rect(30, 20, 30, 20)).setTo(10);  // a dark block in the middle
-  const Rigid3d rig_from_board = testing::Pose(Eigen::Vector3d(0.05, 0.1, 0), Eigen::Vector3d(-90, -60, 500));
+  const Rigid3d rig_from_board =
+      testing::Pose(Eigen::Vector3d(0.05, 0.1, 0), Eigen::Vector3d(-90, -60, 500));
   const Scene scene = MakeImageBoardScene(image, 2.0, rig_from_board);
   const RayCaster caster(scene);
-  const GeometryBuffer g = TraceGeometry(caster, rig, 0, ComputeCameraRays(rig.cameras[0].model, 1));
-  const cv::Mat img = PatternRenderer(scene, rig, 0, g).Render(testing::FlatProjectorImage(rig, 255), 0);
+  const GeometryBuffer g =
+      TraceGeometry(caster, rig, 0, ComputeCameraRays(rig.cameras[0].model, 1));
+  const cv::Mat img =
+      PatternRenderer(scene, rig, 0, g).Render(testing::FlatProjectorImage(rig, 255), 0);
   auto value_at = [&](double u, double v) {
     // Board coordinates of image pixel centre (u, v).
-    const auto px = rig.cameras[0].model.Project(rig_from_board * Eigen::Vector3d((u + 0.5) * 2.0, (v + 0.5) * 2.0, 0));
+    const auto px = rig.cameras[0].model.Project(
+        rig_from_board * Eigen::Vector3d((u + 0.5) * 2.0, (v + 0.5) * 2.0, 0));
     EXPECT_TRUE(px && rig.cameras[0].model.IsInImage(*px));
-    return img.at<uint8_t>(static_cast<int>(std::lround(px->y())), static_cast<int>(std::lround(px->x())));
+    return img.at<uint8_t>(static_cast<int>(std::lround(px->y())),
+                           static_cast<int>(std::lround(px->x())));
   };
   EXPECT_LT(value_at(45, 30), 15);   // inside the dark block
   EXPECT_GT(value_at(10, 10), 100);  // light part of the image

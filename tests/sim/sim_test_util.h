@@ -30,10 +30,12 @@ inline Rig SmallDemoRig(int divisor = 8) {
 }
 
 inline cv::Mat FlatProjectorImage(const Rig& rig, int value) {
-  return cv::Mat(rig.projector->model.height, rig.projector->model.width, CV_8UC1, cv::Scalar(value));
+  return cv::Mat(rig.projector->model.height, rig.projector->model.width, CV_8UC1,
+                 cv::Scalar(value));
 }
 
-inline SceneObject MakePrimitive(ObjectType type, const Rigid3d& rig_from_object, double albedo = 0.8) {
+inline SceneObject MakePrimitive(ObjectType type, const Rigid3d& rig_from_object,
+                                 double albedo = 0.8) {
   SceneObject o;
   o.name = ToString(type);
   o.type = type;
@@ -44,7 +46,9 @@ inline SceneObject MakePrimitive(ObjectType type, const Rigid3d& rig_from_object
 
 inline Rigid3d Pose(const Eigen::Vector3d& axis_angle_rad, const Eigen::Vector3d& t) {
   const double a = axis_angle_rad.norm();
-  return Rigid3d(a > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(a, axis_angle_rad / a)) : Eigen::Quaterniond::Identity(), t);
+  return Rigid3d(a > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(a, axis_angle_rad / a))
+                       : Eigen::Quaterniond::Identity(),
+                 t);
 }
 
 // Both NaN, or equal.

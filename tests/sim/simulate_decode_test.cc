@@ -26,13 +26,14 @@ struct Comparison {
   int64_t samples = 0;      // axis values compared (coded axes of decoded pixels, minus edge)
 };
 
-Comparison Compare(const ProjectorMap& decoded, const ProjectorMap& truth, double tolerance_px, bool gray,
-                   int truth_width, int truth_height) {
+Comparison Compare(const ProjectorMap& decoded, const ProjectorMap& truth, double tolerance_px,
+                   bool gray, int truth_width, int truth_height) {
   Comparison c;
   for (int y = 0; y < truth.height(); ++y) {
     for (int x = 0; x < truth.width(); ++x) {
       const bool lit = truth.status.at<uint8_t>(y, x) == static_cast<uint8_t>(PixelStatus::kValid);
-      const bool valid = decoded.status.at<uint8_t>(y, x) == static_cast<uint8_t>(PixelStatus::kValid);
+      const bool valid =
+          decoded.status.at<uint8_t>(y, x) == static_cast<uint8_t>(PixelStatus::kValid);
       if (!lit) {
         c.false_valid += valid;
         continue;
@@ -75,7 +76,8 @@ Comparison Compare(const ProjectorMap& decoded, const ProjectorMap& truth, doubl
 
 class DecodeGroundTruthTest : public ::testing::Test {
  protected:
-  void Run(const PatternSpec& spec, double tolerance_px, double max_rms_px, bool gray, int adc_bits = 8) {
+  void Run(const PatternSpec& spec, double tolerance_px, double max_rms_px, bool gray,
+           int adc_bits = 8) {
     const Rig rig = testing::SmallDemoRig(4);
     Scene scene = LoadScene(testing::SourceDir() / "config/demo/scene.yaml");
     scene.radiometry.adc_bits = adc_bits;
@@ -83,11 +85,15 @@ class DecodeGroundTruthTest : public ::testing::Test {
     const auto images = RenderScan(scene, rig, GeneratePatterns(spec), &geometry);
     for (size_t cam = 0; cam < rig.cameras.size(); ++cam) {
       const ProjectorMap decoded = DecodePatterns(spec, images[cam]);
-      const Comparison c = Compare(decoded, geometry[cam].projector, tolerance_px, gray, spec.projector_width, spec.projector_height);
+      const Comparison c = Compare(decoded, geometry[cam].projector, tolerance_px, gray,
+                                   spec.projector_width, spec.projector_height);
       const double rms = std::sqrt(c.sum_sq / std::max<double>(static_cast<double>(c.samples), 1));
-      std::printf("%s camera %zu: %lld lit, %lld decoded, %lld wrong, RMS %.4f px, %lld decoded outside light\n",
-                  ToString(spec.kind).c_str(), cam, static_cast<long long>(c.lit), static_cast<long long>(c.decoded),
-                  static_cast<long long>(c.wrong), rms, static_cast<long long>(c.false_valid));
+      std::printf(
+          "%s camera %zu: %lld lit, %lld decoded, %lld wrong, RMS %.4f px, %lld decoded outside "
+          "light\n",
+          ToString(spec.kind).c_str(), cam, static_cast<long long>(c.lit),
+          static_cast<long long>(c.decoded), static_cast<long long>(c.wrong), rms,
+          static_cast<long long>(c.false_valid));
       EXPECT_GT(c.lit, rig.cameras[cam].model.width * rig.cameras[cam].model.height / 3);
       EXPECT_GT(c.decoded, c.lit * 95 / 100) << "nearly every lit pixel decodes";
       EXPECT_EQ(c.wrong, 0);
@@ -139,7 +145,8 @@ TEST_F(DecodeGroundTruthTest, PhaseShiftVariantsWithinTwoHundredthsOfAPixel) {
   shifted.gray_code = GrayCodeVariant::kShifted;
   shifted.gray_inverse = false;
   shifted.white_black = true;
-  PatternSpec sample = base;  // 12 steps, cos(2 pi x / P - pi + 2 pi s / N), one axis, 7 bits, no inverse
+  PatternSpec sample =
+      base;  // 12 steps, cos(2 pi x / P - pi + 2 pi s / N), one axis, 7 bits, no inverse
   sample.phase_steps = 12;
   sample.period_px = 10;  // 32 periods across 320 px (6 bits needed, 7 projected)
   sample.phase_offset_rad = -std::numbers::pi;

@@ -44,7 +44,8 @@ TEST(SimulateTest, WritesImageSetAndGroundTruth) {
     EXPECT_EQ(summary.cameras, 2);
     EXPECT_EQ(summary.patterns, 4);
     // One primary ray per pixel of each camera (no supersampling in the demo scene).
-    EXPECT_EQ(summary.primary_rays, int64_t{2} * rig.cameras[0].model.width * rig.cameras[0].model.height);
+    EXPECT_EQ(summary.primary_rays,
+              int64_t{2} * rig.cameras[0].model.width * rig.cameras[0].model.height);
     EXPECT_FALSE(summary.BriefReport().empty());
 
     const ImageSet set = ImageSet::Open(dir);
@@ -53,9 +54,11 @@ TEST(SimulateTest, WritesImageSetAndGroundTruth) {
     EXPECT_EQ(set.extra()["provenance"]["scene"]["summary"]["name"], "demo");
     EXPECT_EQ(set.extra()["provenance"]["generator"], "slshadow simulate");
     EXPECT_EQ(set.extra()["provenance"]["simulate"], SimulateOptionsToJson(options));
-    // The reference distance as rendered: the demo scene leaves it at 0, the rig's working distance.
+    // The reference distance as rendered: the demo scene leaves it at 0, the rig's working
+    // distance.
     ASSERT_EQ(scene.radiometry.reference_distance_mm, 0);
-    EXPECT_EQ(set.extra()["radiometry_as_rendered"]["reference_distance_mm"], rig.working_distance_mm);
+    EXPECT_EQ(set.extra()["radiometry_as_rendered"]["reference_distance_mm"],
+              rig.working_distance_mm);
     for (const auto& r : set.records()) EXPECT_EQ(r.source, ImageSource::kVirtual);
 
     std::vector<GeometryBuffer> geometry;
@@ -63,7 +66,8 @@ TEST(SimulateTest, WritesImageSetAndGroundTruth) {
     for (size_t c = 0; c < 2; ++c) {
       const std::string name = rig.cameras[c].name;
       for (int p = 0; p < 4; ++p) {
-        EXPECT_EQ(cv::norm(set.Load(name, p), rendered[c][static_cast<size_t>(p)], cv::NORM_INF), 0) << name << " " << p;
+        EXPECT_EQ(cv::norm(set.Load(name, p), rendered[c][static_cast<size_t>(p)], cv::NORM_INF), 0)
+            << name << " " << p;
       }
       const GroundTruth gt = ReadGroundTruth(dir / "ground_truth" / name);
       const GeometryBuffer& g = geometry[c];
@@ -73,8 +77,10 @@ TEST(SimulateTest, WritesImageSetAndGroundTruth) {
       for (int y = 0; y < g.height; ++y) {
         for (int x = 0; x < g.width; ++x) {
           ASSERT_TRUE(SameFloat(gt.depth_mm.at<float>(y, x), g.depth_mm.at<float>(y, x)));
-          ASSERT_TRUE(SameFloat(gt.projector.proj_x.at<float>(y, x), g.projector.proj_x.at<float>(y, x)));
-          ASSERT_TRUE(SameFloat(gt.point_in_rig.at<cv::Vec3f>(y, x)[2], g.point_in_rig.at<cv::Vec3f>(y, x)[2]));
+          ASSERT_TRUE(
+              SameFloat(gt.projector.proj_x.at<float>(y, x), g.projector.proj_x.at<float>(y, x)));
+          ASSERT_TRUE(SameFloat(gt.point_in_rig.at<cv::Vec3f>(y, x)[2],
+                                g.point_in_rig.at<cv::Vec3f>(y, x)[2]));
         }
       }
       const PointCloud surface = ReadPly(dir / "ground_truth" / name / "surface.ply");
@@ -92,18 +98,20 @@ TEST(SimulateTest, SimulatorReusesGeometryAcrossScans) {
   const auto images = StripeImages(rig);
   const Simulator sim(scene, rig);
   EXPECT_EQ(sim.num_cameras(), 2);
-  EXPECT_EQ(sim.setup().primary_rays, int64_t{2} * rig.cameras[0].model.width * rig.cameras[0].model.height);
+  EXPECT_EQ(sim.setup().primary_rays,
+            int64_t{2} * rig.cameras[0].model.width * rig.cameras[0].model.height);
   Scene other = scene;
   other.layers.noise_enabled = true;
   other.layers.seed = 11;
   other.layers.response_enabled = true;
   other.layers.gamma = 1.8;
-  other.radiometry.exposure = 0.6;
+  other.radiometry.exposure_fraction = 0.6;
   for (const Scene* s : {&scene, static_cast<const Scene*>(&other)}) {
     const auto cached = sim.Render(images, s);
     const auto fresh = RenderScan(*s, rig, images);
     for (size_t c = 0; c < 2; ++c) {
-      for (size_t p = 0; p < images.size(); ++p) EXPECT_EQ(cv::norm(cached[c][p], fresh[c][p], cv::NORM_INF), 0);
+      for (size_t p = 0; p < images.size(); ++p)
+        EXPECT_EQ(cv::norm(cached[c][p], fresh[c][p], cv::NORM_INF), 0);
     }
   }
   Scene supersampled = scene;
@@ -120,7 +128,8 @@ TEST(SimulateTest, SharedBvhEqualsOwnBvhForMovedRigs) {
   const RayCaster caster(scene);
   for (double angle_deg : {0.0, 4.0, -7.0}) {
     // Rotate the whole rig about the vertical axis through the working point (0, 0, 500).
-    const Eigen::Matrix3d r = Eigen::AngleAxisd(angle_deg * M_PI / 180, Eigen::Vector3d::UnitY()).toRotationMatrix();
+    const Eigen::Matrix3d r =
+        Eigen::AngleAxisd(angle_deg * M_PI / 180, Eigen::Vector3d::UnitY()).toRotationMatrix();
     const Eigen::Vector3d pivot(0, 0, base.working_distance_mm);
     const Rigid3d moved_from_rig(Eigen::Quaterniond(r), pivot - r * pivot);
     Rig rig = base;
@@ -134,14 +143,17 @@ TEST(SimulateTest, SharedBvhEqualsOwnBvhForMovedRigs) {
     const auto a = shared.Render(images);
     const auto b = own.Render(images);
     for (size_t c = 0; c < 2; ++c) {
-      EXPECT_EQ(cv::norm(shared.geometry(static_cast<int>(c)).visibility, own.geometry(static_cast<int>(c)).visibility,
-                         cv::NORM_INF), 0);
-      for (size_t p = 0; p < images.size(); ++p) EXPECT_EQ(cv::norm(a[c][p], b[c][p], cv::NORM_INF), 0) << angle_deg;
+      EXPECT_EQ(cv::norm(shared.geometry(static_cast<int>(c)).visibility,
+                         own.geometry(static_cast<int>(c)).visibility, cv::NORM_INF),
+                0);
+      for (size_t p = 0; p < images.size(); ++p)
+        EXPECT_EQ(cv::norm(a[c][p], b[c][p], cv::NORM_INF), 0) << angle_deg;
     }
     // The views differ between poses (the rig really moved).
     if (angle_deg != 0) {
       const Simulator still(caster, base);
-      EXPECT_GT(cv::norm(still.geometry(0).visibility, shared.geometry(0).visibility, cv::NORM_L1), 0);
+      EXPECT_GT(cv::norm(still.geometry(0).visibility, shared.geometry(0).visibility, cv::NORM_L1),
+                0);
     }
   }
 }
@@ -166,7 +178,9 @@ TEST(SimulateTest, SimulateScanWithSharedBvh) {
   const auto rendered = RenderScan(scene, rig, images);
   for (size_t c = 0; c < 2; ++c) {
     for (int p = 0; p < 4; ++p) {
-      EXPECT_EQ(cv::norm(set.Load(rig.cameras[c].name, p), rendered[c][static_cast<size_t>(p)], cv::NORM_INF), 0);
+      EXPECT_EQ(cv::norm(set.Load(rig.cameras[c].name, p), rendered[c][static_cast<size_t>(p)],
+                         cv::NORM_INF),
+                0);
     }
   }
   const Scene copy = scene;
@@ -189,15 +203,18 @@ TEST(SimulateTest, ImagesWithoutGroundTruthAreTheSame) {
     }
     const Simulator with(scene, rig);
     const Simulator without(scene, rig, TraceMode::kPacket16, /*ground_truth=*/false);
-    EXPECT_EQ(without.setup().primary_rays, with.setup().primary_rays - (variant == 1 ? 2 * rig.cameras[0].model.width *
-                                                                                            rig.cameras[0].model.height : 0));
+    EXPECT_EQ(
+        without.setup().primary_rays,
+        with.setup().primary_rays -
+            (variant == 1 ? 2 * rig.cameras[0].model.width * rig.cameras[0].model.height : 0));
     EXPECT_EQ(without.geometry(0).depth_mm.empty(), variant != 2) << variant;
     EXPECT_EQ(without.geometry(1).projector.proj_x.empty(), variant != 2) << variant;
     EXPECT_FALSE(with.geometry(0).depth_mm.empty());
     const auto a = with.Render(images);
     const auto b = without.Render(images);
     for (size_t c = 0; c < 2; ++c) {
-      for (size_t p = 0; p < images.size(); ++p) EXPECT_EQ(cv::norm(a[c][p], b[c][p], cv::NORM_INF), 0) << variant;
+      for (size_t p = 0; p < images.size(); ++p)
+        EXPECT_EQ(cv::norm(a[c][p], b[c][p], cv::NORM_INF), 0) << variant;
     }
   }
 }
@@ -217,7 +234,6 @@ TEST(SimulateTest, RefusesToOverwriteAndChecksImages) {
   EXPECT_THROW(SimulateScan(scene, no_projector, images, {}, tmp / "new"), Error);
 }
 
-
 // Options as files: every field written is read back from JSON and YAML; unknown keys and bad
 // values are refused naming the file and the field.
 TEST(SimulateOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
@@ -228,7 +244,8 @@ TEST(SimulateOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
   o.write_ground_truth = false;
   o.trace_mode = TraceMode::kSingleRay;
   const nlohmann::json j = SimulateOptionsToJson(o);
-  for (const ConfigNode& node : {ConfigNode::FromJson(j, "s.json"), ConfigNode::ParseYaml(JsonToYaml(j), "s.yaml")}) {
+  for (const ConfigNode& node :
+       {ConfigNode::FromJson(j, "s.json"), ConfigNode::ParseYaml(JsonToYaml(j), "s.yaml")}) {
     const SimulateOptions r = SimulateOptionsFromConfig(node);
     EXPECT_EQ(r.writer.encoding, ImageEncoding::kTiff);
     EXPECT_EQ(r.writer.png_compression, 6);
@@ -238,7 +255,8 @@ TEST(SimulateOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
     EXPECT_EQ(r.shared_bvh, nullptr);
     EXPECT_EQ(SimulateOptionsToJson(r), j);
   }
-  EXPECT_EQ(SimulateOptionsToJson(SimulateOptionsFromConfig(ConfigNode::FromJson(nlohmann::json::object(), "s.json"))),
+  EXPECT_EQ(SimulateOptionsToJson(SimulateOptionsFromConfig(
+                ConfigNode::FromJson(nlohmann::json::object(), "s.json"))),
             SimulateOptionsToJson(SimulateOptions{}));
   nlohmann::json typo = j;
   typo["ground_truth"] = true;

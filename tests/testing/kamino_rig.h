@@ -27,8 +27,9 @@ inline Rig KaminoRig(const std::string& xml = "calibration_result_ccf1cd8.xml") 
   fs["roration"] >> r;  // sic
   fs["translation"] >> t;
   auto model = [](int w, int h, const cv::Mat& k, const cv::Mat& d) {
-    return CameraModel(w, h, k.at<double>(0, 0), k.at<double>(1, 1), k.at<double>(0, 2), k.at<double>(1, 2),
-                       d.at<double>(0), d.at<double>(1), d.at<double>(2), d.at<double>(3), d.at<double>(4));
+    return CameraModel(w, h, k.at<double>(0, 0), k.at<double>(1, 1), k.at<double>(0, 2),
+                       k.at<double>(1, 2), d.at<double>(0), d.at<double>(1), d.at<double>(2),
+                       d.at<double>(3), d.at<double>(4));
   };
   Rig rig;
   rig.name = "kamino";
@@ -38,8 +39,10 @@ inline Rig KaminoRig(const std::string& xml = "calibration_result_ccf1cd8.xml") 
   for (int i = 0; i < 3; ++i) {
     for (int j = 0; j < 3; ++j) rot(i, j) = r.at<double>(i, j);
   }
-  rig.projector = RigDevice{"projector", model(1024, 768, pk, pd),
-                            Rigid3d(Eigen::Quaterniond(rot), Eigen::Vector3d(t.at<double>(0), t.at<double>(1), t.at<double>(2)))};
+  rig.projector =
+      RigDevice{"projector", model(1024, 768, pk, pd),
+                Rigid3d(Eigen::Quaterniond(rot),
+                        Eigen::Vector3d(t.at<double>(0), t.at<double>(1), t.at<double>(2)))};
   rig.Check("kamino");
   return rig;
 }
