@@ -98,10 +98,14 @@ std::unique_lock<std::mutex> LockPlplot() {
 namespace {
 
 std::unique_ptr<plstream> Open(const char* device, const std::filesystem::path& file, int width,
-                               int height, std::initializer_list<std::array<int, 3>> palette) {
+                               int height, std::initializer_list<std::array<int, 3>> palette,
+                               uint8_t* memory = nullptr) {
   auto pls = std::make_unique<plstream>();
   pls->sdev(device);
-  pls->sfnam(file.c_str());
+  if (memory != nullptr)
+    pls->smem(width, height, memory);
+  else
+    pls->sfnam(file.c_str());
   pls->spage(0, 0, width, height, 0, 0);
   pls->scol0(0, 255, 255, 255);
   pls->scol0(1, 0, 0, 0);
@@ -117,6 +121,11 @@ std::unique_ptr<plstream> Open(const char* device, const std::filesystem::path& 
 std::unique_ptr<plstream> OpenPng(const std::filesystem::path& file, int width, int height,
                                   std::initializer_list<std::array<int, 3>> palette) {
   return Open("pngcairo", file, width, height, palette);
+}
+
+std::unique_ptr<plstream> OpenRgbMemory(uint8_t* rgb, int width, int height,
+                                        std::initializer_list<std::array<int, 3>> palette) {
+  return Open("memcairo", {}, width, height, palette, rgb);
 }
 
 std::unique_ptr<plstream> OpenSvg(const std::filesystem::path& file, int width, int height,

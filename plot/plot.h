@@ -42,6 +42,13 @@ void HeatColorBar(plstream& pls, double lo, double hi, const std::string& label,
 std::unique_ptr<plstream> OpenPng(const std::filesystem::path& file, int width, int height,
                                   std::initializer_list<std::array<int, 3>> palette);
 
+// A stream drawing (memcairo) onto `rgb`, a caller-owned width x height x 3 byte buffer (row-major,
+// row 0 at the top, R G B), over what the buffer already holds: nothing is cleared, so an image
+// filled in beforehand stays under the axes and text drawn on it. The buffer holds the drawing
+// once the stream is destroyed. Colours as OpenPng.
+std::unique_ptr<plstream> OpenRgbMemory(uint8_t* rgb, int width, int height,
+                                        std::initializer_list<std::array<int, 3>> palette);
+
 // The same as an SVG (svgcairo) of width x height points: vector output of the same drawing.
 std::unique_ptr<plstream> OpenSvg(const std::filesystem::path& file, int width, int height,
                                   std::initializer_list<std::array<int, 3>> palette);

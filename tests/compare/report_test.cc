@@ -1,9 +1,13 @@
 #include "compare/report.h"
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
+#include <limits>
+#include <vector>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
 
 #include "core/error.h"
 #include "core/file_util.h"
@@ -116,6 +120,77 @@ TEST(RenderValues, APointLandsOnItsPixelWithItsValue) {
   EXPECT_EQ(at(32, 24), 2.0f);  // the nearer point wins the z-buffer
   EXPECT_EQ(at(41, 28), 3.0f);  // (20, 10, 100) -> (31.5 + 10, 23.5 + 5)
   EXPECT_TRUE(std::isnan(at(5, 5)));
+}
+
+// The map's pixels are drawn one per image pixel in the heat colours, row 0 at the top (where the
+// y axis has its 0), NaN pixels white. Image 400 x 200: the top-left quarter at the low end of the
+// range (blue), the top-right above the range (clamped: red), the bottom-right in the middle
+// (green), the bottom-left empty.
+TEST(WriteDeviationMapPng, DrawsEachPixelInItsPlaceAndColour) {
+  ValueImage img;
+  img.width = 400;
+  img.height = 200;
+  img.values.assign(400 * 200, std::numeric_limits<float>::quiet_NaN());
+  for (int y = 0; y < 200; ++y) {
+    for (int x = 0; x < 400; ++x) {
+      float& v = img.values[static_cast<size_t>(y * 400 + x)];
+      if (y < 100) v = x < 200 ? -0.5f : 7.0f;
+      if (y >= 100 && x >= 200) v = 0.0f;
+    }
+  }
+  MapChart chart;
+  chart.lo = -0.5;
+  chart.hi = 0.5;
+  chart.notes = {"a note"};
+  const slshadow::testing::TempDir tmp;
+  const auto path = tmp / "map.png";
+  WriteDeviationMapPng(path, img, chart);
+  const cv::Mat png = cv::imread(path.string(), cv::IMREAD_COLOR);  // BGR
+  ASSERT_FALSE(png.empty());
+  EXPECT_GT(png.cols, 400);
+  EXPECT_GT(png.rows, 200);
+  // Pixels of exactly one colour: their count and median position (the colour bar holds a few
+  // of each too, far fewer than a 200 x 100 block).
+  struct Found {
+    size_t count = 0;
+    int x = 0, y = 0;
+  };
+  const auto find = [&](int r, int g, int b) {
+    std::vector<int> xs, ys;
+    for (int y = 0; y < png.rows; ++y) {
+      for (int x = 0; x < png.cols; ++x) {
+        const cv::Vec3b c = png.at<cv::Vec3b>(y, x);
+        if (c[2] == r && c[1] == g && c[0] == b) {
+          xs.push_back(x);
+          ys.push_back(y);
+        }
+      }
+    }
+    Found f;
+    f.count = xs.size();
+    if (xs.empty()) return f;
+    std::nth_element(xs.begin(), xs.begin() + static_cast<long>(xs.size() / 2), xs.end());
+    std::nth_element(ys.begin(), ys.begin() + static_cast<long>(ys.size() / 2), ys.end());
+    f.x = xs[xs.size() / 2];
+    f.y = ys[ys.size() / 2];
+    return f;
+  };
+  const Found blue = find(0, 0, 255), red = find(255, 0, 0), green = find(0, 255, 0);
+  const size_t block = 200 * 100;
+  EXPECT_GE(blue.count, block * 95 / 100);
+  EXPECT_LE(blue.count, block * 105 / 100);
+  EXPECT_GE(red.count, block * 95 / 100);
+  EXPECT_LE(red.count, block * 105 / 100);
+  EXPECT_GE(green.count, block * 95 / 100);
+  EXPECT_LE(green.count, block * 105 / 100);
+  // Blue and red side by side on the top half, 200 px apart; green 100 px below red.
+  EXPECT_NEAR(red.x - blue.x, 200, 2);
+  EXPECT_NEAR(red.y, blue.y, 2);
+  EXPECT_NEAR(green.x, red.x, 2);
+  EXPECT_NEAR(green.y - red.y, 100, 2);
+  // The empty quarter is white (left of green, level with it).
+  const cv::Vec3b empty = png.at<cv::Vec3b>(green.y, blue.x);
+  EXPECT_EQ(empty, cv::Vec3b(255, 255, 255));
 }
 
 }  // namespace
