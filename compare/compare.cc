@@ -278,16 +278,21 @@ CompareResult Compare(
     r.deviations_mm = std::move(c2c.distances_mm);
     r.num_not_found = c2c.num_not_found;
   }
-  r.c2c = ComputeStats(r.deviations_mm, false, options.threshold_mm, options.histogram_bins,
-                       options.color_range_mm);
-  if (is_signed)
-    r.c2m = ComputeStats(r.deviations_mm, true, options.threshold_mm, options.histogram_bins,
+  if (is_signed) {
+    UnsignedAndSigned both = ComputeUnsignedAndSignedStats(
+        r.deviations_mm, options.threshold_mm, options.histogram_bins, options.color_range_mm);
+    r.c2c = std::move(both.unsigned_stats);
+    r.c2m = std::move(both.signed_stats);
+  } else {
+    r.c2c = ComputeStats(r.deviations_mm, false, options.threshold_mm, options.histogram_bins,
                          options.color_range_mm);
+  }
 
   // Coverage (the reached points freed at once: a second copy of most of the cloud).
+  if (!(options.coverage_radius_mm > 0)) r.median_spacing_mm = MedianSpacing(pts);
   r.coverage_radius_mm = options.coverage_radius_mm > 0
                              ? options.coverage_radius_mm
-                             : std::max(options.threshold_mm, 3.0 * MedianSpacing(pts));
+                             : std::max(options.threshold_mm, 3.0 * r.median_spacing_mm);
   {
     std::vector<Eigen::Vector3d> reached;
     reached.reserve(pts.size());

@@ -105,6 +105,8 @@ struct CompareResult {
   double coverage = 0.0;
   double coverage_radius_mm = 0.0;
   size_t coverage_samples = 0;
+  // MedianSpacing of the compared points when the automatic coverage radius needed it, else 0.
+  double median_spacing_mm = 0.0;
   std::optional<M3C2Summary> m3c2;
   std::optional<Vdi2634Result> vdi2634;
   // The compared cloud moved into the reference frame, with scalar fields "deviation" (signed

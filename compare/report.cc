@@ -2,9 +2,12 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <limits>
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 #include <Eigen/Eigenvalues>
 
 #include "compare/statistics.h"
@@ -111,7 +114,8 @@ ViewCamera FitView(const PointCloud& cloud, int width_px) {
 }
 
 ValueImage RenderValues(const std::vector<Eigen::Vector3d>& points,
-                        const std::vector<double>& values, const ViewCamera& view, int splat_px) {
+                        const std::vector<double>& values, const ViewCamera& view, int splat_px,
+                        double spacing_mm) {
   SLSHADOW_THROW_IF(points.size() != values.size(), "deviation map: ", values.size(),
                     " values for ", points.size(), " points");
   view.camera.Check("deviation map camera");
@@ -121,12 +125,13 @@ ValueImage RenderValues(const std::vector<Eigen::Vector3d>& points,
   img.height = h;
   img.values.assign(static_cast<size_t>(w) * static_cast<size_t>(h),
                     std::numeric_limits<float>::quiet_NaN());
-  std::vector<float> depth(img.values.size(), std::numeric_limits<float>::infinity());
   if (points.empty()) return img;
   // Each point in the view's frame, computed where it is needed (a copy of a 2 M-point cloud
   // would cost ~50 MB of fresh pages).
+  const Eigen::Matrix3d rotation = view.cam_from_reference.rotation.toRotationMatrix();
+  const Eigen::Vector3d translation = view.cam_from_reference.translation;
   const auto in_cam = [&](size_t i) -> Eigen::Vector3d {
-    return view.cam_from_reference * points[i];
+    return rotation * points[i] + translation;
   };
   if (splat_px <= 0) {
     // Point spacing at the median depth, in pixels.
@@ -139,26 +144,42 @@ ValueImage RenderValues(const std::vector<Eigen::Vector3d>& points,
     double spacing_px = 1.0;
     if (!zs.empty()) {
       std::nth_element(zs.begin(), zs.begin() + static_cast<long>(zs.size() / 2), zs.end());
-      spacing_px =
-          view.camera.fx() * MedianSpacing(points, 5000) / zs[zs.size() / 2];  // grid: no tree
+      if (!(spacing_mm > 0)) spacing_mm = MedianSpacing(points, 5000);  // grid: no tree
+      spacing_px = view.camera.fx() * spacing_mm / zs[zs.size() / 2];
     }
     splat_px = std::clamp(static_cast<int>(std::ceil(0.5 * spacing_px)), 0, 4);
   }
+  // The projections in parallel (each point's pixel and depth), then the z-buffer in point order.
+  struct Landing {
+    int32_t u = 0, v = 0;
+    float z = std::numeric_limits<float>::infinity();  // infinite: not drawn
+  };
+  std::vector<Landing> landings(points.size());
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 16384),
+                    [&](const tbb::blocked_range<size_t>& r) {
+                      for (size_t i = r.begin(); i != r.end(); ++i) {
+                        if (!std::isfinite(values[i])) continue;
+                        const Eigen::Vector3d p = in_cam(i);
+                        const auto px = view.camera.Project(p);
+                        if (!px || !(std::abs(px->x()) < 1e9 && std::abs(px->y()) < 1e9)) continue;
+                        landings[i] = {static_cast<int32_t>(std::lround(px->x())),
+                                       static_cast<int32_t>(std::lround(px->y())),
+                                       static_cast<float>(p.z())};
+                      }
+                    });
+  std::vector<float> depth(img.values.size(), std::numeric_limits<float>::infinity());
   for (size_t i = 0; i < points.size(); ++i) {
-    if (!std::isfinite(values[i])) continue;
-    const Eigen::Vector3d p = in_cam(i);
-    const auto px = view.camera.Project(p);
-    if (!px) continue;
-    const int u = static_cast<int>(std::lround(px->x())),
-              v = static_cast<int>(std::lround(px->y()));
-    const auto z = static_cast<float>(p.z());
+    const Landing& l = landings[i];
+    if (!(l.z < std::numeric_limits<float>::infinity())) continue;
     for (int dv = -splat_px; dv <= splat_px; ++dv) {
+      const int y = l.v + dv;
+      if (y < 0 || y >= h) continue;
       for (int du = -splat_px; du <= splat_px; ++du) {
-        const int x = u + du, y = v + dv;
-        if (x < 0 || y < 0 || x >= w || y >= h) continue;
+        const int x = l.u + du;
+        if (x < 0 || x >= w) continue;
         const size_t k = static_cast<size_t>(y) * static_cast<size_t>(w) + static_cast<size_t>(x);
-        if (z < depth[k]) {
-          depth[k] = z;
+        if (l.z < depth[k]) {
+          depth[k] = l.z;
           img.values[k] = static_cast<float>(values[i]);
         }
       }
@@ -276,7 +297,8 @@ void WriteReport(const fs::path& dir, const CompareResult& r, const ReportOption
     }
     WriteHistogramPng(staged / "histogram.png", s.histogram, hc);
     const ViewCamera view = options.view ? *options.view : FitView(r.compared);
-    const ValueImage img = RenderValues(r.compared.points, r.deviations_mm, view);
+    const ValueImage img =
+        RenderValues(r.compared.points, r.deviations_mm, view, 0, r.median_spacing_mm);
     MapChart mc;
     mc.title = r.c2m ? "signed deviation (mm)" : "distance to reference (mm)";
     mc.colorbar_label = r.c2m ? "signed deviation (mm)" : "distance (mm)";

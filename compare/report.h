@@ -38,10 +38,12 @@ ViewCamera FitView(const PointCloud& cloud, int width_px = 1024);
 
 // Renders `values` (one per point) by projecting each point into the view with a z-buffer;
 // each point covers a square splat of `splat_px` pixels radius (0: automatic from the point
-// spacing at the median depth, up to 4 px). Pixels no point reaches are NaN.
+// spacing at the median depth, up to 4 px). Pixels no point reaches are NaN. `spacing_mm`: the
+// points' median spacing when the caller knows it (CompareResult::median_spacing_mm), else 0
+// (measured here on 5 000 samples). Of points landing at the same depth, the first one wins.
 ValueImage RenderValues(const std::vector<Eigen::Vector3d>& points,
-                        const std::vector<double>& values, const ViewCamera& view,
-                        int splat_px = 0);
+                        const std::vector<double>& values, const ViewCamera& view, int splat_px = 0,
+                        double spacing_mm = 0);
 
 struct ReportOptions {
   std::optional<ViewCamera> view;  // default: FitView(compared cloud)

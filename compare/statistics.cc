@@ -4,7 +4,6 @@
 #include <atomic>
 #include <cmath>
 #include <limits>
-#include <memory>
 #include <utility>
 
 #include <tbb/blocked_range.h>
@@ -309,6 +308,33 @@ DistanceStats ComputeStats(const std::vector<double>& distances_mm, bool is_sign
   return s;
 }
 
+UnsignedAndSigned ComputeUnsignedAndSignedStats(const std::vector<double>& distances_mm,
+                                                double threshold_mm, int bins, double range_mm) {
+  UnsignedAndSigned out;
+  out.signed_stats = ComputeStats(distances_mm, true, threshold_mm, bins, range_mm);
+  DistanceStats& u = out.unsigned_stats;
+  u = out.signed_stats;
+  u.is_signed = false;
+  u.signed_mean_mm = u.signed_std_mm = std::numeric_limits<double>::quiet_NaN();
+  // The same range (both from |d|), binned over [0, hi] as |d|.
+  Histogram& h = u.histogram;
+  h.lo_mm = 0.0;
+  std::fill(h.counts.begin(), h.counts.end(), size_t{0});
+  h.underflow = h.overflow = 0;
+  const double w = h.BinWidth();
+  for (double d : distances_mm) {
+    if (!std::isfinite(d)) continue;
+    const double v = std::abs(d);
+    if (v > h.hi_mm) {
+      ++h.overflow;
+    } else {
+      const auto b = std::min(static_cast<size_t>((v - h.lo_mm) / w), h.counts.size() - 1);
+      ++h.counts[b];
+    }
+  }
+  return out;
+}
+
 double Coverage(const std::vector<Eigen::Vector3d>& reference_samples, const KdTree& reached,
                 double radius_mm) {
   if (reference_samples.empty() || reached.size() == 0) return 0.0;
@@ -389,9 +415,9 @@ double MedianSpacing(const std::vector<Eigen::Vector3d>& points, size_t max_samp
     const double reach = cell * cell;  // within it, the grid's answer is exact
     std::vector<size_t> samples;
     for (size_t i = 0; i < points.size(); i += stride) samples.push_back(i);
-    // Cubes of 1, 2, 4, 8 cells around the point: exact as soon as the nearest lies within the
-    // cube's inscribed radius. The cube of 1 cell from a grid of the points around the samples
-    // only (most samples are answered there); the larger ones from a grid of all points.
+    // The 27 cells around the point's cell: exact as soon as the nearest lies within one cell
+    // (the cube's inscribed radius), from a grid of the points around the samples only (most
+    // samples are answered there).
     std::vector<size_t> pending;
     {
       const PointGrid near(points, cell * 1.001, &samples);
@@ -410,25 +436,26 @@ double MedianSpacing(const std::vector<Eigen::Vector3d>& points, size_t max_samp
         }
       }
     }
-    const std::unique_ptr<PointGrid> full =
-        pending.empty() ? nullptr : std::make_unique<PointGrid>(points, cell * 1.001);
-    for (const size_t i : pending) {
-      const PointGrid& grid = *full;
-      bool found = false;
-      for (int64_t cells = 2; cells <= 8 && !found; cells *= 2) {
+    // The rest (isolated points, usually a handful): a grid of cells 8 times larger, again of
+    // only the points around them. Its 27 cells around a sample hold every point within 8 cells
+    // of it, so a nearest point found within that distance is exact.
+    if (!pending.empty()) {
+      const double wide = 8.0 * cell;
+      const PointGrid far(points, wide * 1.001, &pending);
+      for (const size_t i : pending) {
         double best = std::numeric_limits<double>::infinity();
-        grid.ForNeighbours(
+        far.ForNeighbours(
             points[i],
             [&](const Eigen::Vector3d& p, uint32_t j) {
               if (j != i) best = std::min(best, (points[i] - p).squaredNorm());
             },
-            cells);
-        if (best <= reach * static_cast<double>(cells * cells)) {
+            1);
+        if (best <= wide * wide) {
           d.push_back(std::sqrt(best));
-          found = true;
+        } else {
+          missed.push_back(i);
         }
       }
-      if (!found) missed.push_back(i);
     }
   } else {
     for (size_t i = 0; i < points.size(); i += stride) missed.push_back(i);

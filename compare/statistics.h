@@ -46,6 +46,15 @@ struct DistanceStats {
 // beyond fall in underflow / overflow, the threshold is marked where it falls in range.
 DistanceStats ComputeStats(const std::vector<double>& distances_mm, bool is_signed,
                            double threshold_mm, int bins = 60, double range_mm = 0);
+// {ComputeStats(d, false, ...), ComputeStats(d, true, ...)}, equal field for field, from one pass
+// over the distances and one set of percentile selections (what the two share: everything of
+// |d|; the signed one adds the signed mean and std and bins d instead of |d|).
+struct UnsignedAndSigned {
+  DistanceStats unsigned_stats, signed_stats;
+};
+UnsignedAndSigned ComputeUnsignedAndSignedStats(const std::vector<double>& distances_mm,
+                                                double threshold_mm, int bins = 60,
+                                                double range_mm = 0);
 
 // Coverage of the reference surface: the fraction of `reference_samples` (points that sample
 // the reference surface uniformly by area, or the reference cloud's own points) that have a

@@ -2,8 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numeric>
 #include <random>
+#include <utility>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -53,6 +56,49 @@ TEST(ComputeStats, MatchesTheDefinitionsOnRandomData) {
   EXPECT_EQ(total, s.count);
   EXPECT_EQ(s.histogram.counts.size(), 40u);
   EXPECT_DOUBLE_EQ(s.histogram.lo_mm, -s.histogram.hi_mm);
+}
+
+// Field for field (bit-exact doubles, NaN where NaN) the two ComputeStats calls it replaces.
+TEST(ComputeUnsignedAndSignedStats, EqualsTheTwoSeparateCalls) {
+  std::mt19937 rng(27);
+  std::normal_distribution<double> g(0.1, 0.3);
+  std::vector<double> d(20001);
+  for (auto& v : d) v = g(rng);
+  d[5] = std::numeric_limits<double>::quiet_NaN();
+  d[6] = std::numeric_limits<double>::infinity();
+  d[7] = 7.0;  // beyond the histogram range
+  d[8] = -7.0;
+  const auto same = [](double a, double b) { return a == b || (std::isnan(a) && std::isnan(b)); };
+  const auto expect_equal = [&](const DistanceStats& a, const DistanceStats& b) {
+    EXPECT_EQ(a.is_signed, b.is_signed);
+    EXPECT_EQ(a.count, b.count);
+    EXPECT_EQ(a.num_invalid, b.num_invalid);
+    for (const auto& [x, y] : {std::pair{a.mean_mm, b.mean_mm},
+                               {a.std_mm, b.std_mm},
+                               {a.rms_mm, b.rms_mm},
+                               {a.median_mm, b.median_mm},
+                               {a.p95_mm, b.p95_mm},
+                               {a.max_mm, b.max_mm},
+                               {a.signed_mean_mm, b.signed_mean_mm},
+                               {a.signed_std_mm, b.signed_std_mm},
+                               {a.threshold_mm, b.threshold_mm},
+                               {a.histogram.lo_mm, b.histogram.lo_mm},
+                               {a.histogram.hi_mm, b.histogram.hi_mm}}) {
+      EXPECT_TRUE(same(x, y)) << x << " " << y;
+    }
+    EXPECT_EQ(a.inliers, b.inliers);
+    EXPECT_EQ(a.outliers, b.outliers);
+    EXPECT_EQ(a.histogram.counts, b.histogram.counts);
+    EXPECT_EQ(a.histogram.underflow, b.histogram.underflow);
+    EXPECT_EQ(a.histogram.overflow, b.histogram.overflow);
+  };
+  for (const double range : {0.0, 0.5}) {
+    for (const auto& data : {d, std::vector<double>{}, std::vector<double>(3, NAN)}) {
+      const UnsignedAndSigned both = ComputeUnsignedAndSignedStats(data, 0.2, 40, range);
+      expect_equal(both.unsigned_stats, ComputeStats(data, false, 0.2, 40, range));
+      expect_equal(both.signed_stats, ComputeStats(data, true, 0.2, 40, range));
+    }
+  }
 }
 
 TEST(ComputeStats, UnsignedHasNoSignedMeanAndHandlesEmpty) {
@@ -177,6 +223,13 @@ TEST(MedianSpacing, GridEqualsTree) {
   // samples cannot settle).
   for (int i = 0; i < 20000; ++i) {
     clouds[5].emplace_back(u(rng), u(rng), i % 50 == 0 ? 5 + u(rng) : 0.01 * u(rng));
+  }
+  // A jittered 3D lattice (spacing 1 mm, 12^3 points): every sample's nearest point lies beyond
+  // the grid's cell (sized for a surface), within 8 cells: all are settled by the wider grid.
+  clouds.emplace_back();
+  for (int i = 0; i < 12 * 12 * 12; ++i) {
+    clouds.back().emplace_back(i % 12 + 0.1 * u(rng), (i / 12) % 12 + 0.1 * u(rng),
+                               i / 144 + 0.1 * u(rng));
   }
   for (const auto& c : clouds) {
     const KdTree tree(c);
