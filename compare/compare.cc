@@ -8,6 +8,9 @@
 #include <random>
 #include <sstream>
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include "compare/charts.h"
 #include "compare/kdtree.h"
 #include "compare/mesh_distance.h"
@@ -288,20 +291,18 @@ CompareResult Compare(
                          options.color_range_mm);
   }
 
-  // Coverage (the reached points freed at once: a second copy of most of the cloud).
+  // Coverage: the grid of the reached points (those within the threshold) taken from the cloud.
   if (!(options.coverage_radius_mm > 0)) r.median_spacing_mm = MedianSpacing(pts);
   r.coverage_radius_mm = options.coverage_radius_mm > 0
                              ? options.coverage_radius_mm
                              : std::max(options.threshold_mm, 3.0 * r.median_spacing_mm);
   {
-    std::vector<Eigen::Vector3d> reached;
-    reached.reserve(pts.size());
-    for (size_t i = 0; i < pts.size(); ++i) {
-      if (std::abs(r.deviations_mm[i]) <= options.threshold_mm) reached.push_back(pts[i]);
-    }
+    std::vector<uint8_t> reached(pts.size());
+    for (size_t i = 0; i < pts.size(); ++i)
+      reached[i] = std::abs(r.deviations_mm[i]) <= options.threshold_mm ? 1 : 0;
     std::vector<const std::vector<Eigen::Vector3d>*> sets = {&reference.cloud.points};
     sets.insert(sets.end(), extra_coverage_samples.begin(), extra_coverage_samples.end());
-    std::vector<double> coverages = Coverages(sets, reached, r.coverage_radius_mm);
+    std::vector<double> coverages = Coverages(sets, pts, reached, r.coverage_radius_mm);
     r.coverage = coverages.front();
     r.extra_coverage.assign(coverages.begin() + 1, coverages.end());
   }
@@ -309,13 +310,17 @@ CompareResult Compare(
 
   // Scalar fields and colours.
   std::vector<float> dev(pts.size());
-  for (size_t i = 0; i < pts.size(); ++i) dev[i] = static_cast<float>(r.deviations_mm[i]);
-  r.compared.SetScalar("deviation", std::move(dev));
   const Histogram& h = is_signed ? r.c2m->histogram : r.c2c.histogram;
   r.compared.colors.resize(pts.size());
-  for (size_t i = 0; i < pts.size(); ++i) {
-    r.compared.colors[i] = DeviationColor((r.deviations_mm[i] - h.lo_mm) / (h.hi_mm - h.lo_mm));
-  }
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, pts.size(), 65536),
+                    [&](const tbb::blocked_range<size_t>& range) {
+                      for (size_t i = range.begin(); i != range.end(); ++i) {
+                        dev[i] = static_cast<float>(r.deviations_mm[i]);
+                        r.compared.colors[i] =
+                            DeviationColor((r.deviations_mm[i] - h.lo_mm) / (h.hi_mm - h.lo_mm));
+                      }
+                    });
+  r.compared.SetScalar("deviation", std::move(dev));
 
   if (options.m3c2) {
     std::vector<Eigen::Vector3d> hints(pts.size(), Eigen::Vector3d::UnitZ());

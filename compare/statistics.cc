@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <utility>
 
@@ -28,15 +29,18 @@ size_t PercentileIndex(size_t n, double p) {
 //
 // With `focus` (indices into points), only the points in the 27 cells around each focus point's
 // cell are kept: ForNeighbours(points[focus[k]], f, 1) still sees every point it would see in
-// the full grid, for a fraction of the sorting and copying.
+// the full grid, for a fraction of the sorting and copying. With `selected` (one flag per point),
+// only the points flagged non-zero are in the grid.
 class PointGrid {
  public:
   PointGrid(const std::vector<Eigen::Vector3d>& points, double cell,
-            const std::vector<size_t>* focus = nullptr) {
+            const std::vector<size_t>* focus = nullptr, const uint8_t* selected = nullptr) {
     lo_ = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
     Eigen::Vector3d hi = -lo_;
-    for (const auto& p : points) {
+    for (size_t i = 0; i < points.size(); ++i) {
+      const Eigen::Vector3d& p = points[i];
       if (!p.allFinite()) continue;  // never within a finite distance of anything
+      if (selected && !selected[i]) continue;
       lo_ = lo_.cwiseMin(p);
       hi = hi.cwiseMax(p);
     }
@@ -92,7 +96,7 @@ class PointGrid {
     tbb::parallel_for(
         tbb::blocked_range<size_t>(0, n, 16384), [&](const tbb::blocked_range<size_t>& r) {
           for (size_t i = r.begin(); i != r.end(); ++i) {
-            if (!points[i].allFinite()) continue;
+            if (!points[i].allFinite() || (selected && !selected[i])) continue;
             const Eigen::Vector3d c = ((points[i] - lo_) * inv_).array().floor();
             const uint64_t key = Key(std::min(static_cast<int64_t>(c.x()), max_cell_[0]),
                                      std::min(static_cast<int64_t>(c.y()), max_cell_[1]),
@@ -361,21 +365,34 @@ double Coverage(const std::vector<Eigen::Vector3d>& reference_samples,
 
 std::vector<double> Coverages(const std::vector<const std::vector<Eigen::Vector3d>*>& sample_sets,
                               const std::vector<Eigen::Vector3d>& reached, double radius_mm) {
+  return Coverages(sample_sets, reached, std::vector<uint8_t>(reached.size(), 1), radius_mm);
+}
+
+std::vector<double> Coverages(const std::vector<const std::vector<Eigen::Vector3d>*>& sample_sets,
+                              const std::vector<Eigen::Vector3d>& points,
+                              const std::vector<uint8_t>& reached, double radius_mm) {
+  SLSHADOW_THROW_IF(reached.size() != points.size(), "coverage: ", reached.size(), " flags for ",
+                    points.size(), " points");
   std::vector<double> out(sample_sets.size(), 0.0);
   bool any = false;
   for (const auto* samples : sample_sets) any = any || !samples->empty();
-  if (!any || reached.empty()) return out;
+  if (!any || std::none_of(reached.begin(), reached.end(), [](uint8_t f) { return f != 0; }))
+    return out;
   // The criterion of the KdTree overload, bit for bit: squared distance < nextafter(radius)^2.
   const double r = std::nextafter(radius_mm, 1e300);
   const double bound = r * r;
   if (!(bound > 0) || !std::isfinite(bound)) {
-    const KdTree tree(reached);
+    std::vector<Eigen::Vector3d> kept;
+    for (size_t i = 0; i < points.size(); ++i) {
+      if (reached[i]) kept.push_back(points[i]);
+    }
+    const KdTree tree(kept);
     for (size_t k = 0; k < sample_sets.size(); ++k) {
       out[k] = Coverage(*sample_sets[k], tree, radius_mm);
     }
     return out;
   }
-  const PointGrid grid(reached, r * 1.001);  // margin: cell assignment rounds
+  const PointGrid grid(points, r * 1.001, nullptr, reached.data());  // margin: cells round
   for (size_t k = 0; k < sample_sets.size(); ++k) {
     const std::vector<Eigen::Vector3d>& samples = *sample_sets[k];
     if (samples.empty()) continue;

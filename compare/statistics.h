@@ -12,6 +12,7 @@
 #pragma once
 
 #include <cstddef>
+#include <cstdint>
 #include <vector>
 
 #include <Eigen/Core>
@@ -70,6 +71,11 @@ double Coverage(const std::vector<Eigen::Vector3d>& reference_samples,
 // reached points (built once instead of once per sample set).
 std::vector<double> Coverages(const std::vector<const std::vector<Eigen::Vector3d>*>& sample_sets,
                               const std::vector<Eigen::Vector3d>& reached, double radius_mm);
+// The same with the reached points given as flags over `points` (non-zero: reached), without
+// copying them out.
+std::vector<double> Coverages(const std::vector<const std::vector<Eigen::Vector3d>*>& sample_sets,
+                              const std::vector<Eigen::Vector3d>& points,
+                              const std::vector<uint8_t>& reached, double radius_mm);
 
 // MedianSpacing(KdTree(points), max_samples) without the tree: a uniform grid answers the
 // samples whose nearest other point lies within its cell, a tree only the others.

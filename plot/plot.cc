@@ -23,8 +23,12 @@ std::array<uint8_t, 3> HeatColor(double t) {
   const double f = (t - kStops[i][0]) / (kStops[i + 1][0] - kStops[i][0]);
   std::array<uint8_t, 3> c{};
   for (int k = 0; k < 3; ++k) {
-    c[static_cast<size_t>(k)] = static_cast<uint8_t>(
-        std::lround(kStops[i][k + 1] + f * (kStops[i + 1][k + 1] - kStops[i][k + 1])));
+    // std::lround without the library call: v is in [0, 255], its integer part t is exact and
+    // so is v - t (Sterbenz), so this rounds half away from zero exactly as lround does.
+    const double v = kStops[i][k + 1] + f * (kStops[i + 1][k + 1] - kStops[i][k + 1]);
+    int t = static_cast<int>(v);
+    if (v - t >= 0.5) ++t;
+    c[static_cast<size_t>(k)] = static_cast<uint8_t>(t);
   }
   return c;
 }

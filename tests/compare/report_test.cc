@@ -1,7 +1,9 @@
 #include "compare/report.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <cstdint>
 #include <fstream>
 #include <limits>
 #include <vector>
@@ -120,6 +122,37 @@ TEST(RenderValues, APointLandsOnItsPixelWithItsValue) {
   EXPECT_EQ(at(32, 24), 2.0f);  // the nearer point wins the z-buffer
   EXPECT_EQ(at(41, 28), 3.0f);  // (20, 10, 100) -> (31.5 + 10, 23.5 + 5)
   EXPECT_TRUE(std::isnan(at(5, 5)));
+}
+
+// The colour map: its five stops exactly, and in between the linear interpolation rounded half
+// away from zero (std::lround), on a dense sweep of t.
+TEST(DeviationColor, StopsAndRoundedInterpolation) {
+  EXPECT_EQ(DeviationColor(0.0), (std::array<uint8_t, 3>{0, 0, 255}));
+  EXPECT_EQ(DeviationColor(0.25), (std::array<uint8_t, 3>{0, 255, 255}));
+  EXPECT_EQ(DeviationColor(0.5), (std::array<uint8_t, 3>{0, 255, 0}));
+  EXPECT_EQ(DeviationColor(0.75), (std::array<uint8_t, 3>{255, 255, 0}));
+  EXPECT_EQ(DeviationColor(1.0), (std::array<uint8_t, 3>{255, 0, 0}));
+  EXPECT_EQ(DeviationColor(-3.0), DeviationColor(0.0));
+  EXPECT_EQ(DeviationColor(7.0), DeviationColor(1.0));
+  EXPECT_EQ(DeviationColor(std::numeric_limits<double>::quiet_NaN()), DeviationColor(0.5));
+  const double stops[5][4] = {{0.00, 0, 0, 255},
+                              {0.25, 0, 255, 255},
+                              {0.50, 0, 255, 0},
+                              {0.75, 255, 255, 0},
+                              {1.00, 255, 0, 0}};
+  for (int j = 0; j <= 400000; ++j) {
+    // Includes the t whose channel values land exactly on .5 (t = (k + 0.5) / 1020).
+    const double t = j % 2 == 0 ? j / 400000.0 : (j % 1020 + 0.5) / 1020.0;
+    int i = 0;
+    while (i < 3 && t > stops[i + 1][0]) ++i;
+    const double f = (t - stops[i][0]) / (stops[i + 1][0] - stops[i][0]);
+    const std::array<uint8_t, 3> c = DeviationColor(t);
+    for (int k = 0; k < 3; ++k) {
+      const auto expected = static_cast<uint8_t>(
+          std::lround(stops[i][k + 1] + f * (stops[i + 1][k + 1] - stops[i][k + 1])));
+      ASSERT_EQ(c[static_cast<size_t>(k)], expected) << "t " << t << " channel " << k;
+    }
+  }
 }
 
 // The map's pixels are drawn one per image pixel in the heat colours, row 0 at the top (where the

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <numeric>
 #include <random>
@@ -206,6 +207,37 @@ TEST(Coverage, SeveralSampleSetsEqualEachAlone) {
   }
   EXPECT_EQ(Coverages({&a, &b}, empty, 1.0), (std::vector<double>{0.0, 0.0}));
   EXPECT_TRUE(Coverages({}, reached, 1.0).empty());
+}
+
+// Reached points given as flags over a cloud: the same values as the flagged points copied out
+// (the tree for bit-exactness, the grid overload on the copy), and nothing flagged covers nothing.
+TEST(Coverage, FlaggedPointsEqualTheCopiedSubset) {
+  std::mt19937 rng(26);
+  std::uniform_real_distribution<double> u(0.0, 10.0);
+  std::vector<Eigen::Vector3d> a, cloud, subset;
+  for (int i = 0; i < 2000; ++i) a.emplace_back(u(rng), u(rng), 0.05 * u(rng));
+  std::vector<uint8_t> flags;
+  for (int i = 0; i < 9000; ++i) {
+    cloud.emplace_back(u(rng), u(rng), 0.02 * u(rng));
+    // Flagged: right of x = 3; the unflagged ones (left, and a far block) must not count.
+    flags.push_back(cloud.back().x() > 3 ? 1 : 0);
+    if (flags.back()) subset.push_back(cloud.back());
+  }
+  for (int i = 0; i < 500; ++i) {
+    cloud.emplace_back(u(rng) - 20, u(rng), 0.0);
+    flags.push_back(0);
+  }
+  const KdTree tree(subset);
+  for (const double r : {0.0, 0.02, 0.1, 0.7, 40.0}) {
+    const std::vector<double> flagged = Coverages({&a}, cloud, flags, r);
+    ASSERT_EQ(flagged.size(), 1u);
+    EXPECT_EQ(flagged[0], Coverage(a, tree, r)) << r;
+    EXPECT_EQ(flagged[0], Coverages({&a}, subset, r)[0]) << r;
+  }
+  EXPECT_GT(Coverages({&a}, cloud, flags, 0.7)[0], 0.5);
+  EXPECT_LT(Coverages({&a}, cloud, flags, 0.7)[0], 0.9);  // the left 30 % of `a` is not reached
+  EXPECT_EQ(Coverages({&a}, cloud, std::vector<uint8_t>(cloud.size(), 0), 5.0)[0], 0.0);
+  EXPECT_THROW(Coverages({&a}, cloud, std::vector<uint8_t>(3, 1), 1.0), Error);
 }
 
 TEST(MedianSpacing, GridEqualsTree) {
