@@ -8,6 +8,7 @@
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
 
 #include <algorithm>
 #include <atomic>
@@ -121,9 +122,9 @@ TriangleMesh GroundTruthSurface(const Scene& scene, const std::string& what) {
 
 // The samples of the reference surface followed by the visible points, sorted into a dense
 // uniform grid (~4 points per cell, at most 8 M cells; counting sort), built once. A coverage
-// query marks, for every reached point, the samples within the radius in the cells around it:
-// exactly compare::Coverage's criterion, (sample - reached).squaredNorm() < nextafter(r)^2, with
-// no grid to build over the millions of reached points of each cloud.
+// query sorts the reached points into the same cells and asks, for every sample, whether one lies
+// within the radius: exactly compare::Coverage's criterion, (sample - reached).squaredNorm() <
+// nextafter(r)^2.
 struct GroundTruthScorer::SampleGrid {
   size_t num_reference = 0, num_visible = 0;
   Eigen::Vector3d lo = Eigen::Vector3d::Zero();
@@ -189,6 +190,12 @@ struct GroundTruthScorer::SampleGrid {
   // (reference coverage, visible coverage) of `reached` within `radius_mm`, as compare::Coverage
   // gives each. False when the radius is not a positive finite bound (compare::Coverage then
   // takes another path).
+  //
+  // The reached points are sorted into the samples' cells (counting sort; a point outside the
+  // grid into the nearest boundary cell, which moves it towards every sample, so a sample still
+  // finds it within `reach` cells; points more than `reach` cells outside reach no sample), then
+  // each sample looks for one reached point within the radius, its own cell first, and stops at
+  // the first: most samples are settled by the first few points they look at.
   bool Cover(const std::vector<Eigen::Vector3d>& reached, double radius_mm, double* reference_cov,
              double* visible_cov) const {
     const double r = std::nextafter(radius_mm, 1e300);
@@ -197,12 +204,14 @@ struct GroundTruthScorer::SampleGrid {
     *reference_cov = *visible_cov = 0;
     if (reached.empty() || points.empty()) return true;
     const auto reach = static_cast<int64_t>(std::ceil(r * 1.001 * inv));  // margin: rounding
-    std::unique_ptr<std::atomic<uint8_t>[]> covered(new std::atomic<uint8_t>[points.size()]);
-    for (size_t i = 0; i < points.size(); ++i) covered[i].store(0, std::memory_order_relaxed);
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, reached.size(), 8192),
+    const size_t cells = start.size() - 1;
+    constexpr uint32_t kOutside = std::numeric_limits<uint32_t>::max();
+    std::vector<uint32_t> cell_of(reached.size());
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, reached.size(), 16384),
                       [&](const tbb::blocked_range<size_t>& range) {
                         for (size_t i = range.begin(); i < range.end(); ++i) {
                           const Eigen::Vector3d& q = reached[i];
+                          cell_of[i] = kOutside;
                           if (!q.allFinite()) continue;
                           const Eigen::Vector3d c = ((q - lo) * inv).array().floor();
                           if ((c.array() < -static_cast<double>(reach)).any() ||
@@ -211,35 +220,63 @@ struct GroundTruthScorer::SampleGrid {
                               c.z() > static_cast<double>(nz + reach)) {
                             continue;
                           }
-                          const auto cx = static_cast<int64_t>(c.x()),
-                                     cy = static_cast<int64_t>(c.y()),
-                                     cz = static_cast<int64_t>(c.z());
-                          for (int64_t z = std::max<int64_t>(cz - reach, 0);
-                               z <= std::min(cz + reach, nz - 1); ++z) {
-                            for (int64_t y = std::max<int64_t>(cy - reach, 0);
-                                 y <= std::min(cy + reach, ny - 1); ++y) {
-                              const int64_t row = (z * ny + y) * nx;
-                              const int64_t x0 = std::max<int64_t>(cx - reach, 0),
-                                            x1 = std::min(cx + reach, nx - 1);
-                              if (x0 > x1) continue;
-                              for (uint32_t k = start[static_cast<size_t>(row + x0)];
-                                   k < start[static_cast<size_t>(row + x1 + 1)]; ++k) {
-                                if (covered[k].load(std::memory_order_relaxed)) continue;
-                                if ((points[k] - q).squaredNorm() < bound)
-                                  covered[k].store(1, std::memory_order_relaxed);
-                              }
-                            }
-                          }
+                          cell_of[i] = static_cast<uint32_t>(Cell(q));
                         }
                       });
-    size_t ref = 0, vis = 0;
-    for (size_t k = 0; k < points.size(); ++k) {
-      if (!covered[k].load(std::memory_order_relaxed)) continue;
-      (is_reference[k] ? ref : vis) += 1;
+    std::vector<uint32_t> first(cells + 1, 0);
+    for (const uint32_t c : cell_of) {
+      if (c != kOutside) ++first[c + 1];
     }
-    if (num_reference)
-      *reference_cov = static_cast<double>(ref) / static_cast<double>(num_reference);
-    if (num_visible) *visible_cov = static_cast<double>(vis) / static_cast<double>(num_visible);
+    for (size_t c = 1; c < first.size(); ++c) first[c] += first[c - 1];
+    std::vector<Eigen::Vector3d> sorted(first.back());
+    {
+      std::vector<uint32_t> fill(first.begin(), first.end() - 1);
+      for (size_t i = 0; i < reached.size(); ++i) {
+        if (cell_of[i] != kOutside) sorted[fill[cell_of[i]]++] = reached[i];
+      }
+    }
+    // Whether a reached point lies within the radius of sample p in cells [x0, x1] of row `row`.
+    const auto any_in = [&](const Eigen::Vector3d& p, int64_t row, int64_t x0, int64_t x1) {
+      const uint32_t end = first[static_cast<size_t>(row + x1 + 1)];
+      for (uint32_t k = first[static_cast<size_t>(row + x0)]; k < end; ++k) {
+        if ((p - sorted[k]).squaredNorm() < bound) return true;
+      }
+      return false;
+    };
+    using Counts = std::pair<size_t, size_t>;  // covered (reference samples, visible points)
+    const Counts covered = tbb::parallel_reduce(
+        tbb::blocked_range<size_t>(0, cells, 4096), Counts{0, 0},
+        [&](const tbb::blocked_range<size_t>& range, Counts acc) {
+          for (size_t c = range.begin(); c < range.end(); ++c) {
+            if (start[c] == start[c + 1]) continue;
+            const auto cx = static_cast<int64_t>(c) % nx;
+            const auto cy = static_cast<int64_t>(c) / nx % ny;
+            const auto cz = static_cast<int64_t>(c) / nx / ny;
+            const int64_t x0 = std::max<int64_t>(cx - reach, 0), x1 = std::min(cx + reach, nx - 1);
+            for (uint32_t k = start[c]; k < start[c + 1]; ++k) {
+              const Eigen::Vector3d& p = points[k];
+              bool hit = any_in(p, static_cast<int64_t>(c) - cx, cx, cx);
+              for (int64_t z = std::max<int64_t>(cz - reach, 0);
+                   !hit && z <= std::min(cz + reach, nz - 1); ++z) {
+                for (int64_t y = std::max<int64_t>(cy - reach, 0);
+                     !hit && y <= std::min(cy + reach, ny - 1); ++y) {
+                  hit = any_in(p, (z * ny + y) * nx, x0, x1);
+                }
+              }
+              if (hit) (is_reference[k] ? acc.first : acc.second) += 1;
+            }
+          }
+          return acc;
+        },
+        [](Counts a, Counts b) {
+          return Counts{a.first + b.first, a.second + b.second};
+        });
+    if (num_reference) {
+      *reference_cov = static_cast<double>(covered.first) / static_cast<double>(num_reference);
+    }
+    if (num_visible) {
+      *visible_cov = static_cast<double>(covered.second) / static_cast<double>(num_visible);
+    }
     return true;
   }
 };
