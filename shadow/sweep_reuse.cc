@@ -281,6 +281,122 @@ struct GroundTruthScorer::SampleGrid {
   }
 };
 
+double CloudMedianSpacing(const std::vector<Eigen::Vector3d>& pts) {
+  constexpr size_t kMaxSamples = 20000;  // compare::MedianSpacing's default
+  const size_t n = pts.size();
+  if (n < 2 || n >= std::numeric_limits<uint32_t>::max()) return compare::MedianSpacing(pts);
+  const bool finite = tbb::parallel_reduce(
+      tbb::blocked_range<size_t>(0, n, 65536), true,
+      [&](const tbb::blocked_range<size_t>& r, bool ok) {
+        for (size_t i = r.begin(); ok && i < r.end(); ++i) ok = pts[i].allFinite();
+        return ok;
+      },
+      [](bool a, bool b) { return a && b; });
+  if (!finite) return compare::MedianSpacing(pts);
+  const size_t stride = std::max<size_t>(1, n / kMaxSamples);
+  std::vector<uint32_t> samples;
+  for (size_t i = 0; i < n; i += stride) samples.push_back(static_cast<uint32_t>(i));
+  const size_t ns = samples.size();
+  // Upper bounds: the squared distance to the array neighbours (compare's expression, so that
+  // the true nearest neighbour gives compare's double).
+  std::vector<double> best(ns);
+  for (size_t k = 0; k < ns; ++k) {
+    const size_t i = samples[k];
+    double b = std::numeric_limits<double>::infinity();
+    if (i > 0) b = std::min(b, (pts[i] - pts[i - 1]).squaredNorm());
+    if (i + 1 < n) b = std::min(b, (pts[i] - pts[i + 1]).squaredNorm());
+    best[k] = b;
+  }
+  // Cells of twice the median bound (~4 points each on a surface). A sample whose bound is D
+  // finds every point nearer than D within floor(1.001 D / cell) + 1 cells of its own (the margin
+  // covers the rounding of the cell coordinates); one farther than 8 cells from its array
+  // neighbours (an isolated point) is compared with every point.
+  std::vector<double> sorted = best;
+  std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(ns / 2),
+                   sorted.end());
+  const double h = 2 * std::sqrt(sorted[ns / 2]);
+  if (!(h > 0) || !std::isfinite(h)) return compare::MedianSpacing(pts);
+  const double inv = 1 / h;
+  const auto rings_of = [&](double bound) {
+    return std::floor(std::sqrt(bound) * inv * 1.001) + 1;
+  };
+  size_t far = 0;
+  for (const double b : best) far += !(rings_of(b) <= 8);
+  if (far > 16) return compare::MedianSpacing(pts);
+  // Cell coordinates (and those 8 cells around them) must fit the hash's 21 bits a coordinate.
+  const auto cell = [&](const Eigen::Vector3d& p) {
+    return Eigen::Array3d(((p * inv).array().floor()));
+  };
+  const bool in_range = tbb::parallel_reduce(
+      tbb::blocked_range<size_t>(0, n, 65536), true,
+      [&](const tbb::blocked_range<size_t>& r, bool ok) {
+        for (size_t i = r.begin(); ok && i < r.end(); ++i) ok = (cell(pts[i]).abs() < 1e6).all();
+        return ok;
+      },
+      [](bool a, bool b) { return a && b; });
+  if (!in_range) return compare::MedianSpacing(pts);
+  size_t buckets = 1;
+  while (buckets < 2 * n) buckets *= 2;
+  const auto bucket_of = [&](int64_t x, int64_t y, int64_t z) {
+    const uint64_t key = (static_cast<uint64_t>(x + (1 << 20)) << 42) |
+                         (static_cast<uint64_t>(y + (1 << 20)) << 21) |
+                         static_cast<uint64_t>(z + (1 << 20));
+    return static_cast<uint32_t>(((key * 0x9E3779B97F4A7C15ull) >> 32) & (buckets - 1));
+  };
+  std::vector<uint32_t> bucket(n);
+  tbb::parallel_for(
+      tbb::blocked_range<size_t>(0, n, 65536), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t i = r.begin(); i < r.end(); ++i) {
+          const Eigen::Array3d c = cell(pts[i]);
+          bucket[i] = bucket_of(static_cast<int64_t>(c.x()), static_cast<int64_t>(c.y()),
+                                static_cast<int64_t>(c.z()));
+        }
+      });
+  std::vector<uint32_t> start(buckets + 1, 0);
+  for (const uint32_t b : bucket) ++start[b + 1];
+  for (size_t b = 1; b <= buckets; ++b) start[b] += start[b - 1];
+  std::vector<uint32_t> order(n);
+  {
+    std::vector<uint32_t> fill(start.begin(), start.end() - 1);
+    for (size_t i = 0; i < n; ++i) order[fill[bucket[i]]++] = static_cast<uint32_t>(i);
+  }
+  tbb::parallel_for(
+      tbb::blocked_range<size_t>(0, ns, 256), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t k = r.begin(); k < r.end(); ++k) {
+          const size_t i = samples[k];
+          const Eigen::Vector3d& p = pts[i];
+          double b = best[k];
+          const double rings = rings_of(b);
+          if (!(rings <= 8)) {  // far from its array neighbours: every point
+            for (size_t j = 0; j < n; ++j) {
+              if (j != i) b = std::min(b, (p - pts[j]).squaredNorm());
+            }
+          } else {
+            const auto reach = static_cast<int64_t>(rings);
+            const Eigen::Array3d c = cell(p);
+            const auto cx = static_cast<int64_t>(c.x()), cy = static_cast<int64_t>(c.y()),
+                       cz = static_cast<int64_t>(c.z());
+            for (int64_t z = cz - reach; z <= cz + reach; ++z) {
+              for (int64_t y = cy - reach; y <= cy + reach; ++y) {
+                for (int64_t x = cx - reach; x <= cx + reach; ++x) {
+                  const uint32_t bk = bucket_of(x, y, z);
+                  for (uint32_t m = start[bk]; m < start[bk + 1]; ++m) {
+                    const uint32_t j = order[m];
+                    if (j != i) b = std::min(b, (p - pts[j]).squaredNorm());
+                  }
+                }
+              }
+            }
+          }
+          best[k] = b;
+        }
+      });
+  std::vector<double> d(ns);
+  for (size_t k = 0; k < ns; ++k) d[k] = std::sqrt(best[k]);
+  std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(ns / 2), d.end());
+  return d[ns / 2];
+}
+
 GroundTruthScorer::GroundTruthScorer(TriangleMesh surface, std::vector<Eigen::Vector3d> visible,
                                      const std::string& what)
     : reference_(compare::ReferenceFromMesh(std::move(surface), what)),
@@ -322,7 +438,7 @@ ModeAccuracy GroundTruthScorer::Measure(const PointCloud& cloud,
   }
   const double radius = options.coverage_radius_mm > 0
                             ? options.coverage_radius_mm
-                            : std::max(options.threshold_mm, 3.0 * compare::MedianSpacing(pts));
+                            : std::max(options.threshold_mm, 3.0 * CloudMedianSpacing(pts));
   ModeAccuracy m;
   m.mode = mode;
   m.points = pts.size();
