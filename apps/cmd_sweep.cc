@@ -13,6 +13,14 @@
 #include <string>
 
 namespace slshadow::app {
+namespace {
+
+void PrintPlan(const shadow::SweepPlanSummary& s, const std::filesystem::path& jobs_dir) {
+  std::printf("study %s: %d jobs (%d geometry groups) in %s\n", s.study.c_str(), s.jobs,
+              s.geometry_groups, jobs_dir.string().c_str());
+}
+
+}  // namespace
 
 int RunSweep(int argc, char** argv) {
   CLI::App app{
@@ -59,38 +67,36 @@ int RunSweep(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     return ExitOnParseError(app, e);
   }
-  if (whole->parsed()) {
-    // A jobs folder with a plan is resumed (only its missing jobs run), else planned anew.
-    const std::filesystem::path jobs_dir = std::filesystem::path(out) / "jobs";
-    std::error_code ec;
-    if (std::filesystem::exists(jobs_dir / "plan.json", ec)) {
-      std::printf("resuming %s\n", jobs_dir.string().c_str());
-    } else {
-      const shadow::SweepPlanSummary s = shadow::PlanSweep(study, jobs_dir);
-      std::printf("study %s: %d jobs (%d geometry groups) in %s\n", s.study.c_str(), s.jobs,
-                  s.geometry_groups, jobs_dir.string().c_str());
-    }
-    jobs = jobs_dir.string();
-  }
-  if (plan->parsed()) {
-    const shadow::SweepPlanSummary s = shadow::PlanSweep(study, out);
-    std::printf("study %s: %d jobs (%d geometry groups) in %s\n", s.study.c_str(), s.jobs,
-                s.geometry_groups, out.c_str());
-  }
+  shadow::SweepRunOptions options;
+  if (plan->parsed()) PrintPlan(shadow::PlanSweep(study, out), out);
   if (run->parsed() || whole->parsed()) {
-    shadow::SweepRunOptions options;
     shadow::ParseShard(shard, "--shard", &options);
     options.verbose = verbose;
     std::string source;
     const int budget = ResolveThreadBudget(threads, &source);
     if (budget > 0) SetThreadBudget(budget);
     std::printf("threads: %d (%s)\n", ThreadBudget(), source.c_str());
-    const shadow::SweepRunSummary s = shadow::RunSweepShard(jobs, options);
-    std::printf("shard %d/%d: %s\n", options.shard_index, options.shard_count,
-                s.BriefReport().c_str());
   }
+  shadow::SweepRunSummary ran;
+  shadow::SweepMergeSummary merged;
+  if (whole->parsed()) {
+    const shadow::SweepStudySummary s = shadow::RunStudy(study, out, options);
+    if (s.resumed) {
+      std::printf("resuming %s\n", s.jobs_dir.string().c_str());
+    } else {
+      PrintPlan(s.plan, s.jobs_dir);
+    }
+    ran = s.run;
+    merged = s.merge;
+  }
+  if (run->parsed()) ran = shadow::RunSweepShard(jobs, options);
+  if (run->parsed() || whole->parsed()) {
+    std::printf("shard %d/%d: %s\n", options.shard_index, options.shard_count,
+                ran.BriefReport().c_str());
+  }
+  if (merge->parsed()) merged = shadow::MergeSweep(jobs, out);
   if (merge->parsed() || whole->parsed()) {
-    const shadow::SweepMergeSummary s = shadow::MergeSweep(jobs, out);
+    const shadow::SweepMergeSummary& s = merged;
     std::printf("%d jobs merged: %d rows in %s/results.csv (+ results.json, timings.csv)\n", s.jobs,
                 s.rows, out.c_str());
     std::printf(

@@ -7,8 +7,8 @@
 #include "core/stage_meter.h"
 #include "patterns/codec.h"
 #include "patterns/pattern_spec.h"
-#include "plot/plot.h"
 #include "reconstruct/reconstruct.h"
+#include "shadow/internal/sweep_files.h"
 #include "shadow/scan_pipeline.h"
 #include "shadow/sweep_montecarlo.h"
 #include "shadow/sweep_reuse.h"
@@ -17,6 +17,10 @@
 #include "sim/simulate.h"
 
 #include <tbb/parallel_for.h>
+
+#ifdef __GLIBC__
+#include <malloc.h>
+#endif
 
 #include <algorithm>
 #include <array>
@@ -34,19 +38,8 @@ namespace slshadow::shadow {
 namespace fs = std::filesystem;
 using nlohmann::json;
 
-namespace {
+namespace internal {
 
-constexpr const char* kStudyFormat = "slshadow-study";
-constexpr const char* kPlanFormat = "slshadow-sweep-plan";
-constexpr const char* kJobFormat = "slshadow-sweep-job";
-constexpr const char* kResultFormat = "slshadow-sweep-result";
-constexpr int kVersion = 1;
-// The top-level keys of a job an axis or a `set` entry may write into.
-const std::vector<std::string> kSettable = {"scene",  "rig",         "patterns",
-                                            "decode", "reconstruct", "compare"};
-
-// The figures a study's `curves` may chart and limit. Error figures break upwards (above the
-// limit), coverage figures downwards.
 const std::vector<std::string> kCurveMetrics = {"p95_mm", "rms_mm", "outlier_fraction", "coverage",
                                                 "visible_coverage"};
 bool BreaksAbove(const std::string& metric) { return metric.find("coverage") == std::string::npos; }
@@ -56,7 +49,6 @@ std::string JobName(int id) {
   std::snprintf(buf, sizeof(buf), "%06d", id);
   return buf;
 }
-fs::path JobFile(const fs::path& dir, int id) { return dir / "jobs" / (JobName(id) + ".json"); }
 fs::path ResultFile(const fs::path& dir, int id) {
   return dir / "results" / (JobName(id) + ".json");
 }
@@ -68,6 +60,29 @@ json ReadJsonFile(const fs::path& path) {
     SLSHADOW_THROW(path.string(), ": not valid JSON: ", e.what());
   }
 }
+
+json ReadPlan(const fs::path& jobs_dir) {
+  const fs::path file = jobs_dir / "plan.json";
+  const json plan = ReadJsonFile(file);
+  SLSHADOW_THROW_IF(!plan.is_object() || plan.value("format", "") != kPlanFormat ||
+                        plan.value("version", 0) != kVersion,
+                    file.string(), ": not a sweep plan (format ", kPlanFormat, ", version 1)");
+  return plan;
+}
+
+}  // namespace internal
+
+using namespace internal;  // NOLINT: the jobs folder's formats, shadow/internal/sweep_files.h
+
+namespace {
+
+constexpr const char* kStudyFormat = "slshadow-study";
+constexpr const char* kJobFormat = "slshadow-sweep-job";
+// The top-level keys of a job an axis or a `set` entry may write into.
+const std::vector<std::string> kSettable = {"scene",  "rig",         "patterns",
+                                            "decode", "reconstruct", "compare"};
+
+fs::path JobFile(const fs::path& dir, int id) { return dir / "jobs" / (JobName(id) + ".json"); }
 
 // "scene.layers.noise.seed" -> the JSON pointer into a job; `node` names the study field on error.
 json::json_pointer SetPath(const std::string& path, const ConfigNode& node) {
@@ -141,6 +156,35 @@ struct Axis {
   std::string extra_key;
   std::vector<json> extras;
 };
+
+// A value of a study kind's axis (study 4's `sample`, study 5's `position`): what it writes at the
+// axis's target, its label in the results, the tree written at job[extra_key] and, for scene
+// values, the job's scene_base_dir.
+struct KindValue {
+  json value, label, extra;
+  std::string base_dir;  // empty: not a scene
+};
+
+// Puts a study kind's axis first (the slowest), `target` a dotted path into the job.
+void PrependKindAxis(const std::string& name, const std::string& target,
+                     const std::string& extra_key, const std::vector<KindValue>& values,
+                     std::vector<Axis>* axes, std::vector<std::string>* names) {
+  Axis axis;
+  axis.name = name;
+  axis.target_text = target;
+  std::string pointer = "/" + target;
+  std::replace(pointer.begin(), pointer.end(), '.', '/');
+  axis.target = json::json_pointer(pointer);
+  axis.extra_key = extra_key;
+  for (const KindValue& v : values) {
+    axis.values.push_back(v.value);
+    axis.labels.push_back(v.label);
+    axis.extras.push_back(v.extra);
+    if (!v.base_dir.empty()) axis.base_dirs.push_back(v.base_dir);
+  }
+  names->insert(names->begin(), name);
+  axes->insert(axes->begin(), std::move(axis));
+}
 
 // Checks a job by the codecs that will read it; `what` names it in errors.
 void CheckJob(const json& job, const std::string& what, std::set<std::string>* seen_scenes) {
@@ -291,6 +335,9 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
       axes.push_back(std::move(axis));
     }
   }
+  const auto study_rig = [&] {
+    return RigFromConfig(ConfigNode::FromJson(base["rig"], study_file.string(), "rig"));
+  };
   // Study 5 (shadow/sweep_vdi2634.h): the artefact placements as the first axis, `position`.
   json vdi2634_plan;
   if (study.Has("vdi2634")) {
@@ -305,28 +352,22 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
             axes[a].name + "' setting '" + t + "')");
       }
     }
-    const Rig rig = RigFromConfig(ConfigNode::FromJson(base["rig"], study_file.string(), "rig"));
     const Vdi2634Study vdi =
-        Vdi2634StudyFromConfig(v, rig, base["modes"].get<std::vector<std::string>>());
-    Axis axis;
-    axis.name = "position";
-    axis.target_text = "scene";
-    axis.target = json::json_pointer("/scene");
-    axis.extra_key = "vdi2634";
+        Vdi2634StudyFromConfig(v, study_rig(), base["modes"].get<std::vector<std::string>>());
+    std::vector<KindValue> positions;
     for (const Vdi2634Placement& p : vdi.placements) {
       json scene = base["scene"];  // radiometry and layers of the study's scene
       scene["name"] = "vdi2634_" + p.label;
       scene["objects"] = json::array({p.object});
-      axis.values.push_back(scene);
-      axis.labels.push_back(p.label);
-      axis.base_dirs.push_back(base["scene_base_dir"].get<std::string>());
-      axis.extras.push_back({{"position", p.label},
-                             {"artefact", p.artefact},
-                             {"artefacts", p.artefacts},
-                             {"options", vdi.options}});
+      positions.push_back({scene,
+                           p.label,
+                           {{"position", p.label},
+                            {"artefact", p.artefact},
+                            {"artefacts", p.artefacts},
+                            {"options", vdi.options}},
+                           base["scene_base_dir"].get<std::string>()});
     }
-    summary.axes.insert(summary.axes.begin(), axis.name);
-    axes.insert(axes.begin(), std::move(axis));
+    PrependKindAxis("position", "scene", "vdi2634", positions, &axes, &summary.axes);
     vdi2634_plan = vdi.ToJson();
   }
   // Study 4 (shadow/sweep_montecarlo.h): the Monte Carlo samples as the only axis, `sample`.
@@ -337,20 +378,11 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
     if (!axes.empty()) {
       study["axes"].Fail("a monte_carlo study has no other axes (its jobs are its samples)");
     }
-    const Rig rig = RigFromConfig(ConfigNode::FromJson(base["rig"], study_file.string(), "rig"));
-    const MonteCarloStudy m = MonteCarloStudyFromConfig(mc, rig);
-    Axis axis;
-    axis.name = "sample";
-    axis.target_text = "scene.layers.noise.seed";
-    axis.target = json::json_pointer("/scene/layers/noise/seed");
-    axis.extra_key = "monte_carlo";
-    for (const json& j : m.jobs) {
-      axis.values.push_back(j.at("noise_seed"));
-      axis.labels.push_back(j.at("sample"));
-      axis.extras.push_back(j);
-    }
-    summary.axes.insert(summary.axes.begin(), axis.name);
-    axes.insert(axes.begin(), std::move(axis));
+    const MonteCarloStudy m = MonteCarloStudyFromConfig(mc, study_rig());
+    std::vector<KindValue> samples;
+    for (const json& j : m.jobs) samples.push_back({j.at("noise_seed"), j.at("sample"), j, ""});
+    PrependKindAxis("sample", "scene.layers.noise.seed", "monte_carlo", samples, &axes,
+                    &summary.axes);
     monte_carlo_plan = m.ToJson();
   }
   if (study.Has("curves")) {
@@ -507,15 +539,6 @@ std::string SweepRunSummary::BriefReport() const {
 }
 
 namespace {
-
-json ReadPlan(const fs::path& jobs_dir) {
-  const fs::path file = jobs_dir / "plan.json";
-  const json plan = ReadJsonFile(file);
-  SLSHADOW_THROW_IF(!plan.is_object() || plan.value("format", "") != kPlanFormat ||
-                        plan.value("version", 0) != kVersion,
-                    file.string(), ": not a sweep plan (format ", kPlanFormat, ", version 1)");
-  return plan;
-}
 
 json ReadJob(const fs::path& jobs_dir, int id) {
   const fs::path file = JobFile(jobs_dir, id);
@@ -716,6 +739,14 @@ std::vector<int> ShardJobs(const fs::path& jobs_dir, int shard_index, int shard_
 
 SweepRunSummary RunSweepShard(const fs::path& jobs_dir, const SweepRunOptions& options) {
   options.Check();
+#ifdef __GLIBC__
+  // Every job allocates and frees the same large buffers (images, maps, grids, clouds of millions
+  // of points). glibc would map each from the kernel and unmap it on free, so every job would
+  // fault in and zero its pages again (~10 % of a demo job's CPU time): keep freed memory in the
+  // heap for the next job instead (the demo noise sweep's peak memory: 2.76 GB, was 2.62 GB).
+  mallopt(M_MMAP_MAX, 0);
+  mallopt(M_TRIM_THRESHOLD, std::numeric_limits<int>::max());
+#endif
   const auto t0 = std::chrono::steady_clock::now();
   SweepRunSummary summary;
   const std::vector<int> ids = ShardJobs(jobs_dir, options.shard_index, options.shard_count);
@@ -743,485 +774,29 @@ SweepRunSummary RunSweepShard(const fs::path& jobs_dir, const SweepRunOptions& o
 }
 
 // ---------------------------------------------------------------------------------------------
-// Merge.
+// Plan, run and merge.
 
-namespace {
-
-// Floats with `digits` significant digits (17: exact round trip).
-std::string CsvField(const json& v, int digits = 10) {
-  std::string s;
-  if (v.is_string()) {
-    s = v.get<std::string>();
-  } else if (v.is_null()) {
-    s = "";  // a figure a job could not have (e.g. the error of an empty cloud)
-  } else if (v.is_number_float()) {
-    char buf[64];
-    std::snprintf(buf, sizeof(buf), "%.*g", digits, v.get<double>());
-    s = buf;
-  } else {
-    s = v.dump();
-  }
-  if (s.find_first_of(",\"\n") != std::string::npos) {
-    std::string q = "\"";
-    for (char c : s) q += (c == '"') ? std::string("\"\"") : std::string(1, c);
-    q += '"';
-    return q;
-  }
-  return s;
-}
-
-// Per group (the mode, or the mode and a value of the study's `pareto.by` axis): a job is on the
-// Pareto front of (method time, RMS) when no other job of that group is at least as fast and as
-// accurate and better in one of the two.
-struct FrontPoint {
-  std::string id, mode, group, label;
-  double time_s = 0, rms_mm = 0;
-  bool on_front = false;
-};
-
-void MarkFront(std::vector<FrontPoint>& points) {
-  for (auto& p : points) {
-    p.on_front = true;
-    for (const auto& q : points) {
-      if (q.group != p.group || &q == &p) continue;
-      if (q.time_s <= p.time_s && q.rms_mm <= p.rms_mm &&
-          (q.time_s < p.time_s || q.rms_mm < p.rms_mm)) {
-        p.on_front = false;
-        break;
-      }
-    }
-  }
-}
-
-constexpr std::initializer_list<std::array<int, 3>> kFrontPalette = {
-    {40, 90, 200},   {200, 60, 0},  {30, 150, 60}, {150, 40, 160},
-    {120, 120, 120}, {220, 160, 0}, {0, 170, 190}, {120, 60, 20}};
-
-// The chart as `path`.png and `path`.svg (the same drawing), each written atomically.
-void WriteFrontChart(const fs::path& path, const std::vector<FrontPoint>& points,
-                     const std::string& study) {
-  double xmax = 0, ymax = 0;
-  for (const auto& p : points) {
-    xmax = std::max(xmax, p.time_s);
-    ymax = std::max(ymax, p.rms_mm);
-  }
-  const auto lock = plot::LockPlplot();
-  for (const char* ext : {".png", ".svg"}) {
-    fs::path file = path;
-    file += ext;
-    WriteFileAtomically(file, [&](const fs::path& tmp) {
-      auto pls = std::string(ext) == ".png" ? plot::OpenPng(tmp, 1000, 700, kFrontPalette)
-                                            : plot::OpenSvg(tmp, 1000, 700, kFrontPalette);
-      size_t groups = 0;  // room above the points for one legend line per group
-      for (size_t i = 0; i < points.size(); ++i) {
-        groups += std::none_of(points.begin(), points.begin() + static_cast<std::ptrdiff_t>(i),
-                               [&](const FrontPoint& q) { return q.group == points[i].group; });
-      }
-      pls->env(0, xmax * 1.1 + 1e-9, 0,
-               ymax * (1.15 + 0.07 * static_cast<double>(groups > 2 ? groups : 0)) + 1e-12, 0, 0);
-      pls->lab("decode (cameras the mode reads) + reconstruct time (s)", "RMS deviation (mm)",
-               (study + ": time against error, Pareto front per " +
-                (points.empty() || points[0].group == points[0].mode ? "mode" : "group"))
-                   .c_str());
-      std::vector<std::string> modes;  // the groups, in order of appearance
-      for (const auto& p : points) {
-        if (std::find(modes.begin(), modes.end(), p.group) == modes.end()) modes.push_back(p.group);
-      }
-      for (size_t m = 0; m < modes.size(); ++m) {
-        std::vector<FrontPoint> front;
-        pls->col0(static_cast<PLINT>(2 + m % 8));
-        for (const auto& p : points) {
-          if (p.group != modes[m]) continue;
-          PLFLT x = p.time_s, y = p.rms_mm;
-          pls->ssym(0, p.on_front ? 2.5 : 1.0);
-          pls->poin(1, &x, &y, p.on_front ? 17 : 4);
-          if (p.on_front) front.push_back(p);
-        }
-        std::sort(front.begin(), front.end(),
-                  [](const auto& a, const auto& b) { return a.time_s < b.time_s; });
-        std::vector<PLFLT> xs, ys;
-        for (const auto& p : front) {
-          xs.push_back(p.time_s);
-          ys.push_back(p.rms_mm);
-          pls->schr(0, 0.6);
-          pls->ptex(p.time_s, p.rms_mm, 1, 0, -0.1, (" " + p.label).c_str());
-          pls->schr(0, 1.0);
-        }
-        if (xs.size() > 1) pls->line(static_cast<PLINT>(xs.size()), xs.data(), ys.data());
-        pls->schr(0, modes.size() > 2 ? 0.75 : 1.0);
-        pls->mtex("t", -1.5 - (modes.size() > 2 ? 1.2 : 1.5) * static_cast<double>(m), 0.98, 1.0,
-                  (modes[m] + " (filled: on the front)").c_str());
-        pls->schr(0, 1.0);
-      }
-    });
-  }
-}
-
-// The axis values of a job as a label ("graycode_phase 4 midpoint"), `skip` left out; files axes
-// by their file's stem, not their path (scene.yaml, rig.yaml, patterns.yaml by their folder's
-// name).
-std::string ParamsLabel(const json& params, const std::vector<std::string>& axes,
-                        const std::string& skip) {
-  std::string label;
-  for (const auto& a : axes) {
-    if (a == skip) continue;
-    if (!label.empty()) label += ' ';
-    const json& v = params.at(a);
-    if (v.is_string() && v.get<std::string>().find_first_of("/.") != std::string::npos) {
-      // config/demo/scene.yaml reads better as its folder's name.
-      const fs::path file(v.get<std::string>());
-      const std::string stem = file.stem().string();
-      label += (stem == "scene" || stem == "rig" || stem == "patterns") &&
-                       !file.parent_path().filename().empty()
-                   ? file.parent_path().filename().string()
-                   : stem;
-    } else {
-      label += CsvField(v);
-    }
-  }
-  return label;
-}
-
-// One curve: a metric of one mode and one combination of the other axes, against the x axis.
-struct Curve {
-  std::string series, mode;
-  std::vector<std::pair<double, json>> points;  // (x, the mode's accuracy), worst last
-};
-
-// Where a curve first crosses `limit`: linearly interpolated between the last x inside and the
-// first x beyond; "at_first" when the first x is already beyond, "never" when no x is.
-struct BreakPoint {
-  std::string status;
-  double x = 0;
-};
-// A figure of a mode's accuracy; NaN when the job has none (null: nothing was reconstructed).
-double Figure(const json& accuracy, const std::string& metric) {
-  const json& v = accuracy.at(metric);
-  return v.is_null() ? std::numeric_limits<double>::quiet_NaN() : v.get<double>();
-}
-
-// A curve is beyond its limit where the figure is past it or missing (no cloud: broken). The break
-// is linearly interpolated between the last x inside and the first beyond (in the curve's order,
-// the perturbation growing) when both figures exist, else at that first x beyond.
-BreakPoint FindBreak(const Curve& c, const std::string& metric, double limit) {
-  const bool above = BreaksAbove(metric);
-  const auto beyond = [&](double v) { return std::isnan(v) || (above ? v > limit : v < limit); };
-  for (size_t i = 0; i < c.points.size(); ++i) {
-    const double v = Figure(c.points[i].second, metric);
-    if (!beyond(v)) continue;
-    if (i == 0) return {"at_first", c.points[0].first};
-    const double x0 = c.points[i - 1].first, x1 = c.points[i].first;
-    const double v0 = Figure(c.points[i - 1].second, metric);
-    const double t = !std::isnan(v) && v != v0 ? (limit - v0) / (v - v0) : 1.0;
-    return {"broke", x0 + std::clamp(t, 0.0, 1.0) * (x1 - x0)};
-  }
-  return {"never", 0};
-}
-
-// curves_<metric>.png / .svg for each metric: every curve, the limit as a dashed line.
-void WriteCurveCharts(const fs::path& out_dir, const std::vector<Curve>& curves,
-                      const std::string& x_axis, const std::vector<std::string>& metrics,
-                      const json& limits, const std::string& study) {
-  const auto lock = plot::LockPlplot();
-  const std::initializer_list<std::array<int, 3>> palette = {
-      {40, 90, 200}, {200, 60, 0}, {30, 150, 60}, {150, 40, 160}, {120, 120, 120}, {220, 160, 0}};
-  for (const std::string& metric : metrics) {
-    double xmin = 1e300, xmax = -1e300, ymax = 0;
-    for (const auto& c : curves) {
-      for (const auto& [x, m] : c.points) {
-        xmin = std::min(xmin, x);
-        xmax = std::max(xmax, x);
-        const double v = Figure(m, metric);
-        if (!std::isnan(v)) ymax = std::max(ymax, v);
-      }
-    }
-    if (limits.contains(metric)) ymax = std::max(ymax, limits.at(metric).get<double>());
-    if (!(xmax > xmin)) xmax = xmin + 1;
-    const double ytop = metric.find("coverage") != std::string::npos ? 1.05 : ymax * 1.15 + 1e-12;
-    for (const char* ext : {".png", ".svg"}) {
-      const fs::path file = out_dir / ("curves_" + metric + ext);
-      WriteFileAtomically(file, [&](const fs::path& tmp) {
-        auto pls = std::string(ext) == ".png" ? plot::OpenPng(tmp, 1000, 700, palette)
-                                              : plot::OpenSvg(tmp, 1000, 700, palette);
-        pls->env(xmin, xmax, 0, ytop, 0, 0);
-        pls->lab(x_axis.c_str(), metric.c_str(),
-                 (study + ": " + metric + " against " + x_axis).c_str());
-        if (limits.contains(metric)) {
-          const PLFLT lx[2] = {xmin, xmax};
-          const PLFLT ly[2] = {limits.at(metric).get<double>(), limits.at(metric).get<double>()};
-          pls->lsty(3);
-          pls->line(2, lx, ly);
-          pls->lsty(1);
-        }
-        for (size_t k = 0; k < curves.size(); ++k) {
-          const Curve& c = curves[k];
-          std::vector<PLFLT> xs, ys;
-          for (const auto& [x, m] : c.points) {
-            if (std::isnan(Figure(m, metric))) continue;  // nothing reconstructed: no point
-            xs.push_back(x);
-            ys.push_back(Figure(m, metric));
-          }
-          pls->col0(static_cast<PLINT>(2 + k % 6));
-          pls->lsty(c.mode == "stereo" ? 2 : 1);
-          if (!xs.empty()) pls->line(static_cast<PLINT>(xs.size()), xs.data(), ys.data());
-          if (!xs.empty()) pls->poin(static_cast<PLINT>(xs.size()), xs.data(), ys.data(), 17);
-          pls->lsty(1);
-          pls->schr(0, 0.7);
-          pls->mtex("t", -1.5 - 1.3 * static_cast<double>(k), 0.02, 0.0,
-                    (c.series.empty() ? c.mode : c.series + ", " + c.mode).c_str());
-          pls->schr(0, 1.0);
-        }
-      });
-    }
-  }
-}
-
-}  // namespace
-
-SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) {
-  const json plan = ReadPlan(jobs_dir);
-  const int n = plan.at("jobs").get<int>();
-  const std::vector<std::string> axes = plan.at("axes").get<std::vector<std::string>>();
-  std::vector<json> results;
-  std::vector<std::string> missing;
-  for (int id = 0; id < n; ++id) {
-    std::error_code ec;
-    const fs::path file = ResultFile(jobs_dir, id);
-    if (!fs::exists(file, ec)) {
-      missing.push_back(JobName(id));
-      continue;
-    }
-    json r = ReadJsonFile(file);
-    SLSHADOW_THROW_IF(
-        !r.is_object() || r.value("format", "") != kResultFormat || r.value("id", -1) != id,
-        file.string(), ": not the result of job ", id);
-    results.push_back(std::move(r));
-  }
-  if (!missing.empty()) {
-    std::string list;
-    for (size_t i = 0; i < missing.size() && i < 10; ++i) {
-      if (i) list += ", ";
-      list += missing[i];
-    }
-    SLSHADOW_THROW(jobs_dir.string(), ": ", missing.size(), " of ", n, " jobs have no result (",
-                   list, missing.size() > 10 ? ", ..." : "", "); run their shards first");
-  }
-
-  const std::vector<std::string> metrics = {"points",  "coverage", "visible_coverage",
-                                            "mean_mm", "rms_mm",   "p95_mm",
-                                            "max_mm",  "outliers", "outlier_fraction"};
-  std::string csv = "id";
-  for (const auto& a : axes) {
-    csv += ',';
-    csv += CsvField(a);
-  }
-  csv += ",mode";
-  for (const auto& m : metrics) {
-    csv += ',';
-    csv += m;
-  }
-  csv += "\n";
-  std::string timings =
-      "id,setup_s,render_s,decode_s,reconstruct_s,compare_s,total_s,cpu_s,setup_cpu_s,render_cpu_s,"
-      "decode_cpu_s,reconstruct_cpu_s,compare_cpu_s\n";
-  json merged = {
-      {"format", "slshadow-sweep-results"},      {"version", kVersion}, {"study", plan.at("study")},
-      {"study_config", plan.at("study_config")}, {"axes", axes},        {"jobs", json::array()}};
-  SweepMergeSummary summary;
-  for (const auto& r : results) {
-    const std::string id = JobName(r.at("id").get<int>());
-    for (const auto& m : r.at("modes")) {
-      csv += id;
-      for (const auto& a : axes) {
-        csv += ',';
-        csv += CsvField(r.at("params").at(a));
-      }
-      csv += ',';
-      csv += CsvField(m.at("mode"));
-      for (const auto& k : metrics) {
-        csv += ',';
-        csv += CsvField(m.at(k));
-      }
-      csv += "\n";
-      ++summary.rows;
-    }
-    const json& t = r.at("timing");
-    timings += id;
-    for (const char* k :
-         {"setup_s", "render_s", "decode_s", "reconstruct_s", "compare_s", "total_s", "cpu_s",
-          "setup_cpu_s", "render_cpu_s", "decode_cpu_s", "reconstruct_cpu_s", "compare_cpu_s"}) {
-      timings += ',';
-      timings += t.contains(k) ? CsvField(t.at(k)) : std::string();  // older results: empty
-    }
-    timings += "\n";
-    merged["jobs"].push_back(
-        {{"id", r.at("id")}, {"params", r.at("params")}, {"modes", r.at("modes")}});
-  }
+SweepStudySummary RunStudy(const fs::path& study_file, const fs::path& out_dir,
+                           const SweepRunOptions& options) {
+  options.Check();
+  SweepStudySummary summary;
+  summary.jobs_dir = out_dir / "jobs";
   std::error_code ec;
-  fs::create_directories(out_dir, ec);
-  SLSHADOW_THROW_IF(ec, out_dir.string(), ": cannot create folder: ", ec.message());
-  WriteTextFileAtomically(out_dir / "results.csv", csv);
-  WriteTextFileAtomically(out_dir / "results.json", merged.dump(2) + "\n");
-  WriteTextFileAtomically(out_dir / "timings.csv", timings);
-
-  // Time against error: decode + reconstruct time (the method's cost; rendering and comparing are
-  // the study's) against RMS, per mode, with the Pareto front. Measured times: not reproducible.
-  const json& config = plan.at("study_config");
-  const std::string by =
-      config.contains("pareto") ? config.at("pareto").at("by").get<std::string>() : "";
-  std::vector<FrontPoint> points;
-  for (const auto& r : results) {
-    const std::string label = ParamsLabel(r.at("params"), axes, by);
-    const std::string by_value = by.empty() ? "" : ParamsLabel(r.at("params"), {by}, "");
-    const json& t = r.at("timing");
-    for (const auto& m : r.at("modes")) {
-      if (m.at("rms_mm").is_null()) continue;  // nothing reconstructed: not on the chart
-      FrontPoint p;
-      p.id = JobName(r.at("id").get<int>());
-      p.mode = m.at("mode").get<std::string>();
-      p.label = label.empty() ? p.id : label;
-      p.group = by.empty() ? p.mode : p.mode + " " + by_value;
-      p.time_s = t.at("method_s").at(p.mode).get<double>();
-      p.rms_mm = m.at("rms_mm").get<double>();
-      points.push_back(p);
-    }
+  const fs::path plan_file = summary.jobs_dir / "plan.json";
+  if (fs::exists(plan_file, ec)) {
+    // Resumed: only the jobs without a result run. The plan must be this study's.
+    const json plan = ReadPlan(summary.jobs_dir);
+    const json study = ConfigNode::LoadFile(study_file).json();
+    SLSHADOW_THROW_IF(plan.at("study_config") != study, plan_file.string(),
+                      ": planned from another study than ", study_file.string(), " (",
+                      plan.value("study_file", std::string("?")),
+                      "); remove the folder or choose another --out");
+    summary.resumed = true;
+  } else {
+    summary.plan = PlanSweep(study_file, summary.jobs_dir);
   }
-  MarkFront(points);
-  std::string front_csv =
-      std::string("id,mode,label,time_s,rms_mm,on_front") + (by.empty() ? "\n" : ",group\n");
-  for (const auto& p : points) {
-    front_csv += p.id + ',' + p.mode + ',' + CsvField(p.label) + ',' + CsvField(p.time_s, 17) +
-                 ',' + CsvField(p.rms_mm, 17) + ',' + (p.on_front ? "1" : "0") +
-                 (by.empty() ? "" : "," + CsvField(p.group)) + '\n';
-    if (p.on_front) summary.front.push_back(p.group + ": " + p.id + " (" + p.label + ")");
-  }
-  WriteTextFileAtomically(out_dir / "pareto.csv", front_csv);
-  WriteFrontChart(out_dir / "time_vs_rms", points, plan.at("study").get<std::string>());
-
-  // Curves against one axis and break points (study key `curves`): from the accuracy figures
-  // only, so as reproducible as results.csv.
-  if (config.contains("curves")) {
-    const json& spec = config.at("curves");
-    const std::string x_axis = spec.at("x").get<std::string>();
-    const json limits = spec.value("limits", json::object());
-    std::vector<std::string> metrics;
-    for (const auto& m : kCurveMetrics) {
-      if (limits.contains(m)) metrics.push_back(m);
-    }
-    if (metrics.empty()) metrics = {"p95_mm", "visible_coverage"};
-    std::vector<Curve> curves;
-    std::map<std::string, size_t> index;
-    for (const auto& r : results) {
-      const std::string series = ParamsLabel(r.at("params"), axes, x_axis);
-      const double x = r.at("params").at(x_axis).get<double>();
-      for (const auto& m : r.at("modes")) {
-        const std::string mode = m.at("mode").get<std::string>();
-        const auto it = index.emplace(series + '\n' + mode, curves.size()).first;
-        if (it->second == curves.size()) curves.push_back({series, mode, {}});
-        curves[it->second].points.emplace_back(x, m);
-      }
-    }
-    // Points in the order the perturbation grows: by increasing x, or decreasing with
-    // `worse: decreasing` (e.g. albedo: darker is worse).
-    const bool decreasing = spec.value("worse", std::string("increasing")) == "decreasing";
-    for (auto& c : curves) {
-      std::stable_sort(c.points.begin(), c.points.end(), [&](const auto& a, const auto& b) {
-        return decreasing ? a.first > b.first : a.first < b.first;
-      });
-    }
-    std::string breaks = "series,mode,metric,limit,status," + CsvField(x_axis) + "\n";
-    for (const auto& c : curves) {
-      for (const auto& metric : metrics) {
-        if (!limits.contains(metric)) continue;
-        const double limit = limits.at(metric).get<double>();
-        const BreakPoint b = FindBreak(c, metric, limit);
-        breaks += CsvField(c.series) + ',' + c.mode + ',' + metric + ',' + CsvField(json(limit)) +
-                  ',' + b.status + ',' + (b.status == "never" ? "" : CsvField(json(b.x))) + '\n';
-        summary.break_points.push_back(
-            (c.series.empty() ? "" : c.series + ", ") + c.mode + ": " + metric +
-            (BreaksAbove(metric) ? " > " : " < ") + CsvField(json(limit)) + " " +
-            (b.status == "never" ? "nowhere in the sweep"
-                                 : (b.status == "at_first" ? "already at " : "at ") + x_axis +
-                                       " = " + CsvField(json(b.x), 4)));
-      }
-    }
-    WriteTextFileAtomically(out_dir / "break_points.csv", breaks);
-    WriteCurveCharts(out_dir, curves, x_axis, metrics, limits, plan.at("study").get<std::string>());
-  }
-  // Effects of one axis's values against a baseline value (study key `effects`).
-  if (config.contains("effects")) {
-    const json& spec = config.at("effects");
-    const std::string axis = spec.at("axis").get<std::string>();
-    const json& baseline = spec.at("baseline");
-    const double tolerance = spec.at("tolerance_mm").get<double>();
-    std::map<std::string, json> base;  // series + mode -> the baseline job's accuracy
-    for (const auto& r : results) {
-      if (r.at("params").at(axis) != baseline) continue;
-      for (const auto& m : r.at("modes")) {
-        base[ParamsLabel(r.at("params"), axes, axis) + '\n' + m.at("mode").get<std::string>()] = m;
-      }
-    }
-    std::string csv_effects =
-        "series,mode," + CsvField(axis) + ",rms_mm,p95_mm,d_rms_mm,d_p95_mm,needed,render_s\n";
-    for (const auto& r : results) {
-      const std::string series = ParamsLabel(r.at("params"), axes, axis);
-      const json& value = r.at("params").at(axis);
-      for (const auto& m : r.at("modes")) {
-        const std::string mode = m.at("mode").get<std::string>();
-        const auto b = base.find(series + '\n' + mode);
-        std::string d_rms, d_p95, needed;
-        if (b != base.end()) {
-          const double dr = Figure(m, "rms_mm") - Figure(b->second, "rms_mm");
-          const double dp = Figure(m, "p95_mm") - Figure(b->second, "p95_mm");
-          // A missing figure (nothing reconstructed on one side) is a change beyond any tolerance.
-          const bool need = std::isnan(dr) || std::isnan(dp) || std::abs(dr) > tolerance ||
-                            std::abs(dp) > tolerance;
-          d_rms = std::isnan(dr) ? "" : CsvField(json(dr));
-          d_p95 = std::isnan(dp) ? "" : CsvField(json(dp));
-          needed = value == baseline ? "" : (need ? "1" : "0");
-          if (value != baseline) {
-            summary.effects.push_back((series.empty() ? "" : series + ", ") + mode + ": " +
-                                      CsvField(value) + (need ? " changes" : " does not change") +
-                                      " RMS or p95 by more than " + CsvField(json(tolerance)) +
-                                      " mm");
-          }
-        }
-        csv_effects += CsvField(series) + ',' + mode + ',' + CsvField(value) + ',' +
-                       CsvField(m.at("rms_mm")) + ',' + CsvField(m.at("p95_mm")) + ',' + d_rms +
-                       ',' + d_p95 + ',' + needed + ',' + CsvField(r.at("timing").at("render_s")) +
-                       '\n';
-      }
-    }
-    WriteTextFileAtomically(out_dir / "effects.csv", csv_effects);
-  }
-  // Study 5: the acceptance test's table, summary and chart.
-  if (plan.contains("vdi2634")) {
-    std::vector<Vdi2634Row> rows;
-    for (const auto& r : results) {
-      for (const auto& m : r.at("modes")) {
-        rows.push_back({JobName(r.at("id").get<int>()),
-                        ParamsLabel(r.at("params"), axes, "position"),
-                        r.at("params").at("position").get<std::string>(),
-                        m.at("mode").get<std::string>(), m.value("vdi2634", json())});
-      }
-    }
-    summary.acceptance =
-        WriteVdi2634Results(out_dir, rows, plan.at("vdi2634"), plan.at("study").get<std::string>());
-  }
-  // Study 4: the uncertainty from the samples' grids, checked against the replicates.
-  if (plan.contains("monte_carlo")) {
-    std::vector<int> ids;
-    std::vector<std::string> sets;
-    for (const auto& r : results) {
-      ids.push_back(r.at("id").get<int>());
-      sets.push_back(r.at("monte_carlo").at("set").get<std::string>());
-    }
-    summary.uncertainty = WriteMonteCarloResults(
-        jobs_dir, out_dir, ids, sets, results.at(0).at("monte_carlo").at("viewpoint_in_rig_mm"),
-        plan.at("study").get<std::string>());
-  }
-  summary.jobs = n;
-  summary.out_dir = out_dir;
+  summary.run = RunSweepShard(summary.jobs_dir, options);
+  summary.merge = MergeSweep(summary.jobs_dir, out_dir);
   return summary;
 }
 

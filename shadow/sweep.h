@@ -10,6 +10,8 @@
 //               missing
 //   MergeSweep  JOBS/ -> RESULT/results.csv + results.json (+ timings.csv, which is not
 //   reproducible)
+//   RunStudy    STUDY.yaml -> RESULT/ (the three in one process, jobs in RESULT/jobs/: planned
+//               when missing, else resumed)
 //
 // Determinism: jobs carry fixed seeds (the noise layer's seed is part of the scene tree), and the
 // shard of a job depends only on the plan and N, so results.csv and results.json are identical
@@ -102,5 +104,24 @@ struct SweepMergeSummary {
 // naming the missing jobs (at most 10) when some have no result.
 SweepMergeSummary MergeSweep(const std::filesystem::path& jobs_dir,
                              const std::filesystem::path& out_dir);
+
+// ---- Plan, run and merge in one process.
+
+struct SweepStudySummary {
+  // True when `out_dir`/jobs held a plan already (a previous call): only its jobs without a result
+  // ran. False: planned now, and `plan` describes it.
+  bool resumed = false;
+  SweepPlanSummary plan;
+  std::filesystem::path jobs_dir;  // out_dir / "jobs"
+  SweepRunSummary run;
+  SweepMergeSummary merge;
+};
+
+// Plans the study into `out_dir`/jobs (kept, so that a second call resumes it), runs the shard of
+// `options` (by default all jobs) and merges into `out_dir`. A plan that exists must come from the
+// same study (its study_config); otherwise slshadow::Error names both files. Throws as PlanSweep,
+// RunSweepShard and MergeSweep do.
+SweepStudySummary RunStudy(const std::filesystem::path& study_file,
+                           const std::filesystem::path& out_dir, const SweepRunOptions& options);
 
 }  // namespace slshadow::shadow

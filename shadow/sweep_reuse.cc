@@ -8,6 +8,7 @@
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
 
 #include <algorithm>
 #include <atomic>
@@ -121,9 +122,9 @@ TriangleMesh GroundTruthSurface(const Scene& scene, const std::string& what) {
 
 // The samples of the reference surface followed by the visible points, sorted into a dense
 // uniform grid (~4 points per cell, at most 8 M cells; counting sort), built once. A coverage
-// query marks, for every reached point, the samples within the radius in the cells around it:
-// exactly compare::Coverage's criterion, (sample - reached).squaredNorm() < nextafter(r)^2, with
-// no grid to build over the millions of reached points of each cloud.
+// query sorts the reached points into the same cells and asks, for every sample, whether one lies
+// within the radius: exactly compare::Coverage's criterion, (sample - reached).squaredNorm() <
+// nextafter(r)^2.
 struct GroundTruthScorer::SampleGrid {
   size_t num_reference = 0, num_visible = 0;
   Eigen::Vector3d lo = Eigen::Vector3d::Zero();
@@ -189,6 +190,12 @@ struct GroundTruthScorer::SampleGrid {
   // (reference coverage, visible coverage) of `reached` within `radius_mm`, as compare::Coverage
   // gives each. False when the radius is not a positive finite bound (compare::Coverage then
   // takes another path).
+  //
+  // The reached points are sorted into the samples' cells (counting sort; a point outside the
+  // grid into the nearest boundary cell, which moves it towards every sample, so a sample still
+  // finds it within `reach` cells; points more than `reach` cells outside reach no sample), then
+  // each sample looks for one reached point within the radius, its own cell first, and stops at
+  // the first: most samples are settled by the first few points they look at.
   bool Cover(const std::vector<Eigen::Vector3d>& reached, double radius_mm, double* reference_cov,
              double* visible_cov) const {
     const double r = std::nextafter(radius_mm, 1e300);
@@ -197,12 +204,14 @@ struct GroundTruthScorer::SampleGrid {
     *reference_cov = *visible_cov = 0;
     if (reached.empty() || points.empty()) return true;
     const auto reach = static_cast<int64_t>(std::ceil(r * 1.001 * inv));  // margin: rounding
-    std::unique_ptr<std::atomic<uint8_t>[]> covered(new std::atomic<uint8_t>[points.size()]);
-    for (size_t i = 0; i < points.size(); ++i) covered[i].store(0, std::memory_order_relaxed);
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, reached.size(), 8192),
+    const size_t cells = start.size() - 1;
+    constexpr uint32_t kOutside = std::numeric_limits<uint32_t>::max();
+    std::vector<uint32_t> cell_of(reached.size());
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, reached.size(), 16384),
                       [&](const tbb::blocked_range<size_t>& range) {
                         for (size_t i = range.begin(); i < range.end(); ++i) {
                           const Eigen::Vector3d& q = reached[i];
+                          cell_of[i] = kOutside;
                           if (!q.allFinite()) continue;
                           const Eigen::Vector3d c = ((q - lo) * inv).array().floor();
                           if ((c.array() < -static_cast<double>(reach)).any() ||
@@ -211,38 +220,182 @@ struct GroundTruthScorer::SampleGrid {
                               c.z() > static_cast<double>(nz + reach)) {
                             continue;
                           }
-                          const auto cx = static_cast<int64_t>(c.x()),
-                                     cy = static_cast<int64_t>(c.y()),
-                                     cz = static_cast<int64_t>(c.z());
-                          for (int64_t z = std::max<int64_t>(cz - reach, 0);
-                               z <= std::min(cz + reach, nz - 1); ++z) {
-                            for (int64_t y = std::max<int64_t>(cy - reach, 0);
-                                 y <= std::min(cy + reach, ny - 1); ++y) {
-                              const int64_t row = (z * ny + y) * nx;
-                              const int64_t x0 = std::max<int64_t>(cx - reach, 0),
-                                            x1 = std::min(cx + reach, nx - 1);
-                              if (x0 > x1) continue;
-                              for (uint32_t k = start[static_cast<size_t>(row + x0)];
-                                   k < start[static_cast<size_t>(row + x1 + 1)]; ++k) {
-                                if (covered[k].load(std::memory_order_relaxed)) continue;
-                                if ((points[k] - q).squaredNorm() < bound)
-                                  covered[k].store(1, std::memory_order_relaxed);
-                              }
-                            }
-                          }
+                          cell_of[i] = static_cast<uint32_t>(Cell(q));
                         }
                       });
-    size_t ref = 0, vis = 0;
-    for (size_t k = 0; k < points.size(); ++k) {
-      if (!covered[k].load(std::memory_order_relaxed)) continue;
-      (is_reference[k] ? ref : vis) += 1;
+    std::vector<uint32_t> first(cells + 1, 0);
+    for (const uint32_t c : cell_of) {
+      if (c != kOutside) ++first[c + 1];
     }
-    if (num_reference)
-      *reference_cov = static_cast<double>(ref) / static_cast<double>(num_reference);
-    if (num_visible) *visible_cov = static_cast<double>(vis) / static_cast<double>(num_visible);
+    for (size_t c = 1; c < first.size(); ++c) first[c] += first[c - 1];
+    std::vector<Eigen::Vector3d> sorted(first.back());
+    {
+      std::vector<uint32_t> fill(first.begin(), first.end() - 1);
+      for (size_t i = 0; i < reached.size(); ++i) {
+        if (cell_of[i] != kOutside) sorted[fill[cell_of[i]]++] = reached[i];
+      }
+    }
+    // Whether a reached point lies within the radius of sample p in cells [x0, x1] of row `row`.
+    const auto any_in = [&](const Eigen::Vector3d& p, int64_t row, int64_t x0, int64_t x1) {
+      const uint32_t end = first[static_cast<size_t>(row + x1 + 1)];
+      for (uint32_t k = first[static_cast<size_t>(row + x0)]; k < end; ++k) {
+        if ((p - sorted[k]).squaredNorm() < bound) return true;
+      }
+      return false;
+    };
+    using Counts = std::pair<size_t, size_t>;  // covered (reference samples, visible points)
+    const Counts covered = tbb::parallel_reduce(
+        tbb::blocked_range<size_t>(0, cells, 4096), Counts{0, 0},
+        [&](const tbb::blocked_range<size_t>& range, Counts acc) {
+          for (size_t c = range.begin(); c < range.end(); ++c) {
+            if (start[c] == start[c + 1]) continue;
+            const auto cx = static_cast<int64_t>(c) % nx;
+            const auto cy = static_cast<int64_t>(c) / nx % ny;
+            const auto cz = static_cast<int64_t>(c) / nx / ny;
+            const int64_t x0 = std::max<int64_t>(cx - reach, 0), x1 = std::min(cx + reach, nx - 1);
+            for (uint32_t k = start[c]; k < start[c + 1]; ++k) {
+              const Eigen::Vector3d& p = points[k];
+              bool hit = any_in(p, static_cast<int64_t>(c) - cx, cx, cx);
+              for (int64_t z = std::max<int64_t>(cz - reach, 0);
+                   !hit && z <= std::min(cz + reach, nz - 1); ++z) {
+                for (int64_t y = std::max<int64_t>(cy - reach, 0);
+                     !hit && y <= std::min(cy + reach, ny - 1); ++y) {
+                  hit = any_in(p, (z * ny + y) * nx, x0, x1);
+                }
+              }
+              if (hit) (is_reference[k] ? acc.first : acc.second) += 1;
+            }
+          }
+          return acc;
+        },
+        [](Counts a, Counts b) {
+          return Counts{a.first + b.first, a.second + b.second};
+        });
+    if (num_reference) {
+      *reference_cov = static_cast<double>(covered.first) / static_cast<double>(num_reference);
+    }
+    if (num_visible) {
+      *visible_cov = static_cast<double>(covered.second) / static_cast<double>(num_visible);
+    }
     return true;
   }
 };
+
+double CloudMedianSpacing(const std::vector<Eigen::Vector3d>& pts) {
+  constexpr size_t kMaxSamples = 20000;  // compare::MedianSpacing's default
+  const size_t n = pts.size();
+  if (n < 2 || n >= std::numeric_limits<uint32_t>::max()) return compare::MedianSpacing(pts);
+  const bool finite = tbb::parallel_reduce(
+      tbb::blocked_range<size_t>(0, n, 65536), true,
+      [&](const tbb::blocked_range<size_t>& r, bool ok) {
+        for (size_t i = r.begin(); ok && i < r.end(); ++i) ok = pts[i].allFinite();
+        return ok;
+      },
+      [](bool a, bool b) { return a && b; });
+  if (!finite) return compare::MedianSpacing(pts);
+  const size_t stride = std::max<size_t>(1, n / kMaxSamples);
+  std::vector<uint32_t> samples;
+  for (size_t i = 0; i < n; i += stride) samples.push_back(static_cast<uint32_t>(i));
+  const size_t ns = samples.size();
+  // Upper bounds: the squared distance to the array neighbours (compare's expression, so that
+  // the true nearest neighbour gives compare's double).
+  std::vector<double> best(ns);
+  for (size_t k = 0; k < ns; ++k) {
+    const size_t i = samples[k];
+    double b = std::numeric_limits<double>::infinity();
+    if (i > 0) b = std::min(b, (pts[i] - pts[i - 1]).squaredNorm());
+    if (i + 1 < n) b = std::min(b, (pts[i] - pts[i + 1]).squaredNorm());
+    best[k] = b;
+  }
+  // Cells of twice the median bound (~4 points each on a surface). A sample whose bound is D
+  // finds every point nearer than D within floor(1.001 D / cell) + 1 cells of its own (the margin
+  // covers the rounding of the cell coordinates); one farther than 8 cells from its array
+  // neighbours (an isolated point) is compared with every point.
+  std::vector<double> sorted = best;
+  std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(ns / 2),
+                   sorted.end());
+  const double h = 2 * std::sqrt(sorted[ns / 2]);
+  if (!(h > 0) || !std::isfinite(h)) return compare::MedianSpacing(pts);
+  const double inv = 1 / h;
+  const auto rings_of = [&](double bound) {
+    return std::floor(std::sqrt(bound) * inv * 1.001) + 1;
+  };
+  size_t far = 0;
+  for (const double b : best) far += !(rings_of(b) <= 8);
+  if (far > 16) return compare::MedianSpacing(pts);
+  // Cell coordinates (and those 8 cells around them) must fit the hash's 21 bits a coordinate.
+  const auto cell = [&](const Eigen::Vector3d& p) {
+    return Eigen::Array3d(((p * inv).array().floor()));
+  };
+  const bool in_range = tbb::parallel_reduce(
+      tbb::blocked_range<size_t>(0, n, 65536), true,
+      [&](const tbb::blocked_range<size_t>& r, bool ok) {
+        for (size_t i = r.begin(); ok && i < r.end(); ++i) ok = (cell(pts[i]).abs() < 1e6).all();
+        return ok;
+      },
+      [](bool a, bool b) { return a && b; });
+  if (!in_range) return compare::MedianSpacing(pts);
+  size_t buckets = 1;
+  while (buckets < 2 * n) buckets *= 2;
+  const auto bucket_of = [&](int64_t x, int64_t y, int64_t z) {
+    const uint64_t key = (static_cast<uint64_t>(x + (1 << 20)) << 42) |
+                         (static_cast<uint64_t>(y + (1 << 20)) << 21) |
+                         static_cast<uint64_t>(z + (1 << 20));
+    return static_cast<uint32_t>(((key * 0x9E3779B97F4A7C15ull) >> 32) & (buckets - 1));
+  };
+  std::vector<uint32_t> bucket(n);
+  tbb::parallel_for(
+      tbb::blocked_range<size_t>(0, n, 65536), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t i = r.begin(); i < r.end(); ++i) {
+          const Eigen::Array3d c = cell(pts[i]);
+          bucket[i] = bucket_of(static_cast<int64_t>(c.x()), static_cast<int64_t>(c.y()),
+                                static_cast<int64_t>(c.z()));
+        }
+      });
+  std::vector<uint32_t> start(buckets + 1, 0);
+  for (const uint32_t b : bucket) ++start[b + 1];
+  for (size_t b = 1; b <= buckets; ++b) start[b] += start[b - 1];
+  std::vector<uint32_t> order(n);
+  {
+    std::vector<uint32_t> fill(start.begin(), start.end() - 1);
+    for (size_t i = 0; i < n; ++i) order[fill[bucket[i]]++] = static_cast<uint32_t>(i);
+  }
+  tbb::parallel_for(
+      tbb::blocked_range<size_t>(0, ns, 256), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t k = r.begin(); k < r.end(); ++k) {
+          const size_t i = samples[k];
+          const Eigen::Vector3d& p = pts[i];
+          double b = best[k];
+          const double rings = rings_of(b);
+          if (!(rings <= 8)) {  // far from its array neighbours: every point
+            for (size_t j = 0; j < n; ++j) {
+              if (j != i) b = std::min(b, (p - pts[j]).squaredNorm());
+            }
+          } else {
+            const auto reach = static_cast<int64_t>(rings);
+            const Eigen::Array3d c = cell(p);
+            const auto cx = static_cast<int64_t>(c.x()), cy = static_cast<int64_t>(c.y()),
+                       cz = static_cast<int64_t>(c.z());
+            for (int64_t z = cz - reach; z <= cz + reach; ++z) {
+              for (int64_t y = cy - reach; y <= cy + reach; ++y) {
+                for (int64_t x = cx - reach; x <= cx + reach; ++x) {
+                  const uint32_t bk = bucket_of(x, y, z);
+                  for (uint32_t m = start[bk]; m < start[bk + 1]; ++m) {
+                    const uint32_t j = order[m];
+                    if (j != i) b = std::min(b, (p - pts[j]).squaredNorm());
+                  }
+                }
+              }
+            }
+          }
+          best[k] = b;
+        }
+      });
+  std::vector<double> d(ns);
+  for (size_t k = 0; k < ns; ++k) d[k] = std::sqrt(best[k]);
+  std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(ns / 2), d.end());
+  return d[ns / 2];
+}
 
 GroundTruthScorer::GroundTruthScorer(TriangleMesh surface, std::vector<Eigen::Vector3d> visible,
                                      const std::string& what)
@@ -285,7 +438,7 @@ ModeAccuracy GroundTruthScorer::Measure(const PointCloud& cloud,
   }
   const double radius = options.coverage_radius_mm > 0
                             ? options.coverage_radius_mm
-                            : std::max(options.threshold_mm, 3.0 * compare::MedianSpacing(pts));
+                            : std::max(options.threshold_mm, 3.0 * CloudMedianSpacing(pts));
   ModeAccuracy m;
   m.mode = mode;
   m.points = pts.size();

@@ -3,6 +3,7 @@
 // bit; MeasureAccuracy(compare::Compare(...)) for the accuracy figures, double for double.
 #include "shadow/sweep_reuse.h"
 
+#include "compare/statistics.h"
 #include "core/config.h"
 #include "core/error.h"
 #include "patterns/codec.h"
@@ -13,6 +14,8 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <limits>
 #include <random>
 
 #include <memory>
@@ -231,6 +234,29 @@ TEST(GroundTruthScorer, EqualsCompareThenMeasureAccuracy) {
     }
   }
   EXPECT_THROW(scorer.Measure(PointCloud{}, compare::CompareOptions{}, "empty"), Error);
+
+  // The median spacing behind the automatic radius, double for double: the scans' clouds (grid
+  // order), one shuffled (array neighbours far apart), with duplicates and isolated points, with a
+  // non-finite point, and tiny clouds.
+  std::mt19937 rng(7);
+  std::vector<std::vector<Eigen::Vector3d>> clouds = {recs[0].cloud.points, recs[1].cloud.points};
+  std::vector<Eigen::Vector3d> shuffled = recs[0].cloud.points;
+  std::shuffle(shuffled.begin(), shuffled.end(), rng);
+  clouds.push_back(shuffled);
+  std::vector<Eigen::Vector3d> odd = recs[1].cloud.points;
+  for (size_t i = 0; i < odd.size(); i += 997) odd[i + 1 < odd.size() ? i + 1 : i] = odd[i];
+  // Ten isolated samples (compare::MedianSpacing samples every stride-th point).
+  const size_t stride = std::max<size_t>(1, odd.size() / 20000);
+  for (size_t k = 1; k <= 10; ++k) odd[k * stride * (odd.size() / stride / 12)].z() += 40.0 + k;
+  clouds.push_back(odd);
+  std::vector<Eigen::Vector3d> nan = recs[0].cloud.points;
+  nan[nan.size() / 3].x() = std::numeric_limits<double>::quiet_NaN();
+  clouds.push_back(nan);
+  clouds.push_back({{0, 0, 0}, {1, 2, 3}});
+  clouds.push_back({{0, 0, 0}});
+  for (size_t c = 0; c < clouds.size(); ++c) {
+    EXPECT_EQ(CloudMedianSpacing(clouds[c]), compare::MedianSpacing(clouds[c])) << "cloud " << c;
+  }
 }
 
 }  // namespace

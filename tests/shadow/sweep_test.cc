@@ -137,6 +137,45 @@ TEST(Sweep, ShardsInAnyOrderMergeToTheOneProcessResultAndResumeOnlyMissingJobs) 
   EXPECT_EQ(csv, ReadTextFile(tmp / "sharded_result/results.csv"));
 }
 
+// RunStudy (`slshadow sweep study`): plans, runs and merges; called again it resumes the plan and
+// runs only the jobs without a result, merging to the same files; another study's plan is refused.
+TEST(Sweep, RunStudyPlansOnceThenResumesOnlyMissingJobs) {
+  TempDir tmp;
+  WriteSmallStudy(tmp / "study.yaml");
+  const SweepStudySummary first = RunStudy(tmp / "study.yaml", tmp / "out", SweepRunOptions{});
+  EXPECT_FALSE(first.resumed);
+  EXPECT_EQ(first.plan.jobs, 4);
+  EXPECT_EQ(first.jobs_dir, tmp / "out" / "jobs");
+  EXPECT_EQ(first.run.ran, 4);
+  EXPECT_EQ(first.merge.rows, 8);
+  const std::string csv = ReadTextFile(tmp / "out/results.csv");
+  const std::string json = ReadTextFile(tmp / "out/results.json");
+
+  const SweepStudySummary second = RunStudy(tmp / "study.yaml", tmp / "out", SweepRunOptions{});
+  EXPECT_TRUE(second.resumed);
+  EXPECT_EQ(second.run.ran, 0);
+  EXPECT_EQ(second.run.already_done, 4);
+  EXPECT_EQ(ReadTextFile(tmp / "out/results.csv"), csv);
+
+  fs::remove(tmp / "out/jobs/results/000002.json");
+  const SweepStudySummary third = RunStudy(tmp / "study.yaml", tmp / "out", SweepRunOptions{});
+  EXPECT_TRUE(third.resumed);
+  EXPECT_EQ(third.run.ran, 1);
+  EXPECT_EQ(ReadTextFile(tmp / "out/results.csv"), csv);
+  EXPECT_EQ(ReadTextFile(tmp / "out/results.json"), json);
+
+  std::string other = ReadTextFile(tmp / "study.yaml");
+  other.replace(other.find("name: small"), 11, "name: other");
+  WriteTextFileAtomically(tmp / "other.yaml", other);
+  try {
+    RunStudy(tmp / "other.yaml", tmp / "out", SweepRunOptions{});
+    ADD_FAILURE() << "resumed another study's plan";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("another study"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("other.yaml"), std::string::npos) << e.what();
+  }
+}
+
 TEST(Sweep, ShardsAreContiguousDisjointAndCoverEveryJob) {
   TempDir tmp;
   WriteSmallStudy(tmp / "study.yaml");
