@@ -1066,9 +1066,19 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec,
   if (!out_dir.empty()) {
     meter = StageMeter("write report");
     const fs::path& staging = staged->path();
-    // The maps (drawn in the background since the images were compared).
-    maps_writer.Join();
-    report["maps"] = maps_json;
+    // The clouds and charts first: the maps are still being drawn in the background (since the
+    // images were compared), and writing the clouds does not wait for PLplot.
+    if (options.write_clouds) {
+      fs::create_directories(staging / "clouds", ec);
+      for (auto& mc : clouds) {
+        std::vector<float> d(mc.real_c2m.begin(), mc.real_c2m.end());
+        mc.real.SetScalar("c2m_part_mm", std::move(d));
+        WritePly(staging / "clouds" / ("real_" + mc.mode + ".ply"), mc.real);
+        std::vector<float> e(mc.twin_c2m.begin(), mc.twin_c2m.end());
+        mc.twin.SetScalar("c2m_part_mm", std::move(e));
+        WritePly(staging / "clouds" / ("twin_" + mc.mode + ".ply"), mc.twin);
+      }
+    }
     fs::create_directories(staging / "charts", ec);
     SLSHADOW_THROW_IF(ec, (staging / "charts").string(), ": cannot create folder: ", ec.message());
     WriteFrameAgreementChart(staging / "charts" / "intensity_per_frame.png",
@@ -1096,17 +1106,8 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec,
       compare::WriteHistogramPng(staging / file, st.histogram, hc);
       report["charts"]["real_vs_twin_" + clouds[m].mode] = file;
     }
-    if (options.write_clouds) {
-      fs::create_directories(staging / "clouds", ec);
-      for (auto& mc : clouds) {
-        std::vector<float> d(mc.real_c2m.begin(), mc.real_c2m.end());
-        mc.real.SetScalar("c2m_part_mm", std::move(d));
-        WritePly(staging / "clouds" / ("real_" + mc.mode + ".ply"), mc.real);
-        std::vector<float> e(mc.twin_c2m.begin(), mc.twin_c2m.end());
-        mc.twin.SetScalar("c2m_part_mm", std::move(e));
-        WritePly(staging / "clouds" / ("twin_" + mc.mode + ".ply"), mc.twin);
-      }
-    }
+    maps_writer.Join();
+    report["maps"] = maps_json;
     result.stages.push_back(meter.Stop());
     report["stages"] = nlohmann::json::array();
     for (const auto& s : result.stages) {
