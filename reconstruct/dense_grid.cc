@@ -141,7 +141,8 @@ std::array<int64_t, kNumRejectReasons> DenseGrid::CountByReason() const {
   return counts;
 }
 
-PointCloud DenseGrid::ToPointCloud(const std::vector<Eigen::Vector3f>* normals) const {
+PointCloud DenseGrid::ToPointCloud(const std::vector<Eigen::Vector3f>* normals,
+                                   size_t max_points) const {
   // Rows are counted, then filled in parallel at their prefix offsets (same order as a serial
   // scan).
   std::vector<size_t> row_start(static_cast<size_t>(height) + 1, 0);
@@ -154,7 +155,11 @@ PointCloud DenseGrid::ToPointCloud(const std::vector<Eigen::Vector3f>* normals) 
   });
   for (int v = 0; v < height; ++v)
     row_start[static_cast<size_t>(v) + 1] += row_start[static_cast<size_t>(v)];
-  const size_t count = row_start.back();
+  const size_t accepted = row_start.back();
+  // Every stride-th accepted cell (its ordinal a multiple of stride) at position ordinal / stride.
+  const size_t stride =
+      max_points > 0 && accepted > max_points ? (accepted + max_points - 1) / max_points : 1;
+  const size_t count = (accepted + stride - 1) / stride;
   PointCloud cloud;
   cloud.points.resize(count);
   const bool with_normals = normals && normals->size() == reason.size();
@@ -170,17 +175,18 @@ PointCloud DenseGrid::ToPointCloud(const std::vector<Eigen::Vector3f>* normals) 
   std::vector<float>& e = fields[3];
   cv::parallel_for_(cv::Range(0, height), [&](const cv::Range& rows) {
     for (int v = rows.start; v < rows.end; ++v) {
-      size_t k = row_start[static_cast<size_t>(v)];
+      size_t ordinal = row_start[static_cast<size_t>(v)];
       for (int u = 0; u < width; ++u) {
         const size_t i = Index(u, v);
         if (!Accepted(i)) continue;
+        if (ordinal++ % stride != 0) continue;
+        const size_t k = (ordinal - 1) / stride;
         cloud.points[k] = point_in_rig[i];
         if (with_normals) cloud.normals[k] = (*normals)[i];
         q[k] = quality[i];
         us[k] = source_u[i];
         vs[k] = source_v[i];
         e[k] = reprojection_error_px[i];
-        ++k;
       }
     }
   });

@@ -68,8 +68,11 @@ struct DenseGrid {
   }
   std::array<int64_t, kNumRejectReasons> CountByReason() const;
   // The accepted cells as a cloud with scalar fields quality, u, v, reprojection_error_px (and
-  // normals when `normals` has one entry per cell).
-  PointCloud ToPointCloud(const std::vector<Eigen::Vector3f>* normals = nullptr) const;
+  // normals when `normals` has one entry per cell). max_points > 0: at most that many, every
+  // s-th accepted cell in row-major order from the first (s = ceil(accepted / max_points)), what
+  // PointCloud::Select of every s-th point of the whole cloud gives, without materialising it.
+  PointCloud ToPointCloud(const std::vector<Eigen::Vector3f>* normals = nullptr,
+                          size_t max_points = 0) const;
 };
 
 }  // namespace slshadow

@@ -127,7 +127,7 @@ class GridUndistorter {
 };
 
 // Residual statistics, gates, filters, normals and the cloud: the part both modes share.
-void Finish(const ReconstructOptions& options, Reconstruction* out) {
+void Finish(const ReconstructOptions& options, size_t max_cloud_points, Reconstruction* out) {
   DenseGrid& grid = out->grid;
   ReconstructSummary& s = out->summary;
   StageTimer t0;
@@ -189,7 +189,7 @@ void Finish(const ReconstructOptions& options, Reconstruction* out) {
   t0.Restart();
   std::vector<Eigen::Vector3f>& normals = normals_buffer;
   if (options.estimate_normals) EstimateNormals(grid, &normals, &s.normal_fallbacks);
-  out->cloud = grid.ToPointCloud(options.estimate_normals ? &normals : nullptr);
+  out->cloud = grid.ToPointCloud(options.estimate_normals ? &normals : nullptr, max_cloud_points);
   t0.Elapsed(&s.normals_s, &s.normals_cpu_s);
   s.grid_width = grid.width;
   s.grid_height = grid.height;
@@ -257,8 +257,8 @@ CalibrationCheckSetup CheckSetup(const ReconstructOptions& options, const Rig& r
 }  // namespace
 
 Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camera_name,
-                                        const ProjectorMap& map,
-                                        const ReconstructOptions& options) {
+                                        const ProjectorMap& map, const ReconstructOptions& options,
+                                        size_t max_cloud_points) {
   options.Check();
   const StageTimer start;
   SLSHADOW_THROW_IF(!rig.projector, "reconstruct: rig '", rig.name,
@@ -416,7 +416,7 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
     }
   });
   t0.Elapsed(&s.triangulate_s, &s.triangulate_cpu_s);
-  Finish(options, &out);
+  Finish(options, max_cloud_points, &out);
   RunCalibrationCheck(
       grid, grid.epipolar_error_px, cam.model, CheckSetup(options, rig, cam, proj, false),
       both ? ""
@@ -506,7 +506,8 @@ RejectReason StereoTriangulator::Triangulate(double u, double v, double ur,
 
 Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name,
                                  const std::string& right_name, const ProjectorMap& left_map,
-                                 const ProjectorMap& right_map, const ReconstructOptions& options) {
+                                 const ProjectorMap& right_map, const ReconstructOptions& options,
+                                 size_t max_cloud_points) {
   options.Check();
   const StageTimer start;
   const RigDevice& left = rig.Camera(left_name);
@@ -600,7 +601,7 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name,
     }
   });
   t0.Elapsed(&s.triangulate_s, &s.triangulate_cpu_s);
-  Finish(options, &out);
+  Finish(options, max_cloud_points, &out);
   CalibrationCheckSetup setup = CheckSetup(options, rig, left, right, true);
   if (third_view) {
     setup.residual = CalibrationResidual::kProjectorError;

@@ -174,9 +174,12 @@ struct Reconstruction {
 
 // Camera `camera` of the rig against its projector. Throws slshadow::Error when the rig has no
 // projector, the camera is unknown, the map's size differs from the camera's or no axis is coded.
+// max_cloud_points > 0: the cloud holds at most that many points, every s-th accepted cell
+// (DenseGrid::ToPointCloud); the grid and the summary are those of the whole reconstruction.
 Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camera,
                                         const ProjectorMap& map,
-                                        const ReconstructOptions& options = {});
+                                        const ReconstructOptions& options = {},
+                                        size_t max_cloud_points = 0);
 
 // Stereo mode's triangulation of one correspondence, what ReconstructStereo runs on every matched
 // cell: the left rectified pixel (u, v) and the right rectified column ur on the same rectified
@@ -208,9 +211,11 @@ class StereoTriangulator {
 // Cameras `left` and `right` matched by equal projector column along rectified epipolar lines.
 // The grid is the rectified left image (stereo_matcher.h). Throws when a camera is unknown, the
 // maps do not code projector columns or do not match their cameras' sizes.
+// max_cloud_points as for ReconstructWithProjector.
 Reconstruction ReconstructStereo(const Rig& rig, const std::string& left, const std::string& right,
                                  const ProjectorMap& left_map, const ProjectorMap& right_map,
-                                 const ReconstructOptions& options = {});
+                                 const ReconstructOptions& options = {},
+                                 size_t max_cloud_points = 0);
 
 // Frees what reconstructions keep for the next one: the calling thread's reused buffers (rectified
 // maps, matches, residuals, normals, filter scratch), the ray cache and the grid pool (several

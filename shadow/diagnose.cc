@@ -10,6 +10,7 @@
 
 #include "compare/kdtree.h"
 #include "core/error.h"
+#include "shadow/diagnose_neighbours.h"
 
 namespace slshadow::shadow {
 namespace {
@@ -106,8 +107,24 @@ void DiagnoseOptions::Check() const {
                     smoothing_neighbors, ")");
 }
 
-cv::Mat SmoothField(const cv::Mat& residual, const cv::Mat& mask, double* rms_px, double* mean_px) {
+namespace {
+
+// The fitted quadratic of SmoothField, evaluated where it is read (At gives the values
+// SmoothField's image holds, bit for bit): the diagnosis reads it at a sample of pixels, so the
+// whole image is not drawn (6 images of 2.3 M pixels on the demo rig).
+struct QuadraticField {
+  bool valid = false;
+  Eigen::Matrix<double, 6, 1> coef = Eigen::Matrix<double, 6, 1>::Zero();
+  int w = 0, h = 0;
+  float At(int x, int y) const { return static_cast<float>(coef.dot(Basis(x, y, w, h))); }
+};
+
+QuadraticField FitSmoothField(const cv::Mat& residual, const cv::Mat& mask, double* rms_px,
+                              double* mean_px) {
+  QuadraticField out;
   const int w = residual.cols, h = residual.rows;
+  out.w = w;
+  out.h = h;
   std::vector<Eigen::Matrix<double, 6, 1>> basis;
   std::vector<double> values;
   const int stride = std::max(1, std::min(w, h) / 200);
@@ -119,7 +136,7 @@ cv::Mat SmoothField(const cv::Mat& residual, const cv::Mat& mask, double* rms_px
       values.push_back(r);
     }
   }
-  if (values.size() < 50) return cv::Mat();
+  if (values.size() < 50) return out;
   const double med = Median(values);
   std::vector<bool> inlier(values.size());
   for (size_t i = 0; i < values.size(); ++i) inlier[i] = std::abs(values[i] - med) < 5.0;
@@ -148,11 +165,21 @@ cv::Mat SmoothField(const cv::Mat& residual, const cv::Mat& mask, double* rms_px
   }
   if (rms_px) *rms_px = n ? std::sqrt(ss / static_cast<double>(n)) : 0.0;
   if (mean_px) *mean_px = n ? sum / static_cast<double>(n) : 0.0;
-  cv::Mat field(h, w, CV_32FC1);
-  cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
+  out.coef = coef;
+  out.valid = true;
+  return out;
+}
+
+}  // namespace
+
+cv::Mat SmoothField(const cv::Mat& residual, const cv::Mat& mask, double* rms_px, double* mean_px) {
+  const QuadraticField q = FitSmoothField(residual, mask, rms_px, mean_px);
+  if (!q.valid) return cv::Mat();
+  cv::Mat field(q.h, q.w, CV_32FC1);
+  cv::parallel_for_(cv::Range(0, q.h), [&](const cv::Range& rows) {
     for (int y = rows.start; y < rows.end; ++y) {
       float* f = field.ptr<float>(y);
-      for (int x = 0; x < w; ++x) f[x] = static_cast<float>(coef.dot(Basis(x, y, w, h)));
+      for (int x = 0; x < q.w; ++x) f[x] = q.At(x, y);
     }
   });
   return field;
@@ -194,7 +221,7 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
 
   // Calibration fields per camera (used by the frame test too).
   struct Field {
-    cv::Mat x, y;
+    QuadraticField x, y;
     double rms_x = 0, rms_y = 0, mean_x = 0, mean_y = 0;
   };
   std::vector<Field> fields(cameras.size());
@@ -203,11 +230,11 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
     // NaN propagates; an axis the spec does not code has empty maps.
     if (!cam.real_x.empty() && !cam.gt_x.empty()) {
       fields[c].x =
-          SmoothField(cam.real_x - cam.gt_x, cam.mask, &fields[c].rms_x, &fields[c].mean_x);
+          FitSmoothField(cam.real_x - cam.gt_x, cam.mask, &fields[c].rms_x, &fields[c].mean_x);
     }
     if (!cam.real_y.empty() && !cam.gt_y.empty()) {
       fields[c].y =
-          SmoothField(cam.real_y - cam.gt_y, cam.mask, &fields[c].rms_y, &fields[c].mean_y);
+          FitSmoothField(cam.real_y - cam.gt_y, cam.mask, &fields[c].rms_y, &fields[c].mean_y);
     }
   }
 
@@ -231,8 +258,8 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
         double u = cam.gt_x.empty() ? 0 : cam.gt_x.at<float>(y, x),
                v = cam.gt_y.empty() ? 0 : cam.gt_y.at<float>(y, x);
         if (!std::isfinite(u) || !std::isfinite(v)) continue;
-        if (!fields[c].x.empty()) u += fields[c].x.at<float>(y, x);
-        if (!fields[c].y.empty()) v += fields[c].y.at<float>(y, x);
+        if (fields[c].x.valid) u += fields[c].x.At(x, y);
+        if (fields[c].y.valid) v += fields[c].y.At(x, y);
         px.emplace_back(x, y);
         cx.push_back(u);
         cy.push_back(v);
@@ -320,15 +347,15 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
       // Focal-length equivalent: a projector focal error df moves a coordinate by
       // (df / f) (u - cx), so the field's slope against u - cx (least squares, with an offset)
       // times f is the focal error that explains its linear part.
-      const auto focal_error = [&](const cv::Mat& field, const cv::Mat& truth, double principal,
-                                   double focal) {
-        if (field.empty() || truth.empty()) return std::nan("");
+      const auto focal_error = [&](const QuadraticField& field, const cv::Mat& truth,
+                                   double principal, double focal) {
+        if (!field.valid || truth.empty()) return std::nan("");
         double n = 0, sx = 0, sy = 0, sxx = 0, sxy = 0;
         const int stride = std::max(1, std::min(cam.width, cam.height) / 200);
         for (int y = 0; y < cam.height; y += stride) {
           for (int x = 0; x < cam.width; x += stride) {
             if (!cam.mask.at<uint8_t>(y, x)) continue;
-            const double u = truth.at<float>(y, x) - principal, d = field.at<float>(y, x);
+            const double u = truth.at<float>(y, x) - principal, d = field.At(x, y);
             if (!std::isfinite(u) || !std::isfinite(d)) continue;
             n += 1, sx += u, sy += d, sxx += u * u, sxy += u * d;
           }
@@ -396,7 +423,7 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
           const float gx = cam.gt_x.at<float>(y, x);
           double r = cam.real_x.at<float>(y, x) - gx;
           if (!std::isfinite(r)) continue;
-          if (!fields[0].x.empty()) r -= fields[0].x.at<float>(y, x);
+          if (fields[0].x.valid) r -= fields[0].x.At(x, y);
           if (std::abs(r) > 2) continue;
           Eigen::VectorXd b(9);
           const double phi = 2 * M_PI * gx / period;
@@ -485,11 +512,15 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
       // Relative to a smooth background (a robust quadratic over the image): a depth-dependent
       // blur on a tilted part is a smooth trend, multipath a local loss.
       cv::Mat ratio = cam.modulation_ratio.clone();
-      const cv::Mat background = SmoothField(cam.modulation_ratio, usable);
-      if (!background.empty()) {
+      // Normalised where it is read: the usable pixels (the others keep the raw ratio, unread).
+      const QuadraticField background =
+          FitSmoothField(cam.modulation_ratio, usable, nullptr, nullptr);
+      if (background.valid) {
         for (int y = 0; y < cam.height; ++y) {
+          const uint8_t* use = usable.ptr<uint8_t>(y);
           for (int x = 0; x < cam.width; ++x) {
-            const float b = background.at<float>(y, x);
+            if (!use[x]) continue;
+            const float b = background.At(x, y);
             ratio.at<float>(y, x) = b > 0.05f ? ratio.at<float>(y, x) / b : std::nanf("");
           }
         }
@@ -584,21 +615,24 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
             {{"mode", m.mode}, {"detected", false}, {"compared_points", 0}});
         continue;
       }
-      const compare::KdTree real_tree(m.real_points), virt_tree(m.virtual_points);
+      // Exact k-nearest neighbours on uniform grids (shadow/diagnose_neighbours.h: the same
+      // neighbours in the same order as compare::KdTree, ~5 x cheaper at k = 64).
+      const int k = options.smoothing_neighbors;
+      const NeighbourGrid real_grid(m.real_points, k), virt_grid(m.virtual_points, k);
       const size_t step = std::max<size_t>(1, m.real_points.size() / 40000);
       std::vector<size_t> idx;
       for (size_t i = 0; i < m.real_points.size(); i += step) idx.push_back(i);
       std::vector<double> d(idx.size()), spread(idx.size());
-      const int k = options.smoothing_neighbors;
       cv::parallel_for_(cv::Range(0, static_cast<int>(idx.size())), [&](const cv::Range& range) {
         std::vector<compare::Neighbor> nb;
+        NeighbourGrid::Scratch real_scratch, virt_scratch;
         for (int i = range.start; i < range.end; ++i) {
           const Eigen::Vector3d& p = m.real_points[idx[static_cast<size_t>(i)]];
-          real_tree.KNearest(p, k, &nb);
+          real_grid.KNearest(p, k, &real_scratch, &nb);
           double sr = 0;
           for (const auto& q : nb) sr += m.real_c2m[q.index];
           sr /= static_cast<double>(nb.size());
-          virt_tree.KNearest(p, k, &nb);
+          virt_grid.KNearest(p, k, &virt_scratch, &nb);
           double sv = 0, svv = 0;
           for (const auto& q : nb)
             sv += m.virtual_c2m[q.index], svv += m.virtual_c2m[q.index] * m.virtual_c2m[q.index];
@@ -639,8 +673,9 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
         std::vector<compare::Neighbor> nb;
         const double spacing = [&] {
           std::vector<double> s;
+          NeighbourGrid::Scratch scratch;
           for (size_t i = 0; i < idx.size(); i += std::max<size_t>(1, idx.size() / 500)) {
-            real_tree.KNearest(m.real_points[idx[i]], 2, &nb);
+            real_grid.KNearest(m.real_points[idx[i]], 2, &scratch, &nb);
             if (nb.size() == 2) s.push_back(std::sqrt(nb[1].distance_sq));
           }
           return Median(s) * static_cast<double>(step);

@@ -1,5 +1,6 @@
 #include "reconstruct/dense_grid.h"
 
+#include <algorithm>
 #include <set>
 #include <string>
 
@@ -53,6 +54,43 @@ TEST(DenseGridTest, CloudHoldsExactlyTheAcceptedCellsWithTheirFields) {
     EXPECT_EQ((*q)[k], 10 * (*u)[k] + (*v)[k]);
   }
   EXPECT_FALSE(grid.ToPointCloud().HasNormals());
+}
+
+// ToPointCloud(normals, max_points) is the whole cloud's every s-th point (s = ceil(accepted /
+// max_points)): the same points, normals and scalar fields as PointCloud::Select would keep.
+TEST(DenseGridTest, CappedCloudIsEverySthPointOfTheWholeCloud) {
+  DenseGrid grid;
+  const int w = 37, h = 23;
+  grid.Allocate(w, h);
+  std::vector<Eigen::Vector3f> normals(static_cast<size_t>(w * h), Eigen::Vector3f::Zero());
+  for (int v = 0; v < h; ++v) {
+    for (int u = 0; u < w; ++u) {
+      const size_t i = grid.Index(u, v);
+      if ((u * 7 + v * 3) % 5 == 0) continue;  // rejected cells scattered over the rows
+      grid.reason[i] = static_cast<uint8_t>(RejectReason::kAccepted);
+      grid.point_in_rig[i] = Eigen::Vector3d(u, v, 0.5 * u * v);
+      grid.quality[i] = static_cast<float>(u + 100 * v);
+      grid.source_u[i] = static_cast<float>(u);
+      grid.source_v[i] = static_cast<float>(v);
+      grid.reprojection_error_px[i] = 0.01f * static_cast<float>(u * v);
+      normals[i] = Eigen::Vector3f(static_cast<float>(u), static_cast<float>(v), 1).normalized();
+    }
+  }
+  const PointCloud whole = grid.ToPointCloud(&normals);
+  for (size_t max_points : {size_t{1}, size_t{7}, size_t{100}, size_t{339}, whole.size() - 1,
+                            whole.size(), whole.size() + 5}) {
+    const size_t stride = std::max<size_t>(1, (whole.size() + max_points - 1) / max_points);
+    std::vector<bool> keep(whole.size(), false);
+    for (size_t i = 0; i < whole.size(); i += stride) keep[i] = true;
+    const PointCloud expected = whole.Select(keep);
+    const PointCloud capped = grid.ToPointCloud(&normals, max_points);
+    ASSERT_EQ(capped.size(), expected.size()) << max_points;
+    EXPECT_LE(capped.size(), max_points);
+    EXPECT_EQ(capped.points, expected.points) << max_points;
+    EXPECT_EQ(capped.normals, expected.normals) << max_points;
+    for (const char* field : {"quality", "u", "v", "reprojection_error_px"})
+      EXPECT_EQ(*capped.Scalar(field), *expected.Scalar(field)) << field << " " << max_points;
+  }
 }
 
 }  // namespace
