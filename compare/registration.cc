@@ -262,9 +262,11 @@ struct IcpAcc {
   }
 };
 
+// Deterministic reduction: the same chunks summed in the same order whatever the threads do, so
+// the same input gives the same pose to the bit.
 IcpAcc Correspond(const std::vector<Eigen::Vector3d>& src, const Rigid3d& t, const KdTree& tree,
                   const std::vector<Eigen::Vector3d>& normals, double gate) {
-  return tbb::parallel_reduce(
+  return tbb::parallel_deterministic_reduce(
       tbb::blocked_range<size_t>(0, src.size(), 2048), IcpAcc{},
       [&](const tbb::blocked_range<size_t>& r, IcpAcc acc) {
         Neighbor nb;

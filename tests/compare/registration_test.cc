@@ -73,6 +73,17 @@ TEST(Register, IcpRefinesASmallMisalignment) {
   const Rigid3d error = r.reference_from_cloud * cloud_from_reference;
   EXPECT_LT(RotationDifferenceDeg(error, Rigid3d()), 0.05);
   EXPECT_LT(MaxDisplacementMm(error), 0.1);
+  // The same input gives the same pose to the bit, however the threads split the sums (a report
+  // of the same scan must not change in its last digits from run to run).
+  for (int run = 0; run < 6; ++run) {
+    const RegistrationResult again = Register(cloud, reference, {}, o);
+    EXPECT_TRUE(again.reference_from_cloud.rotation.coeffs() ==
+                r.reference_from_cloud.rotation.coeffs())
+        << "run " << run;
+    EXPECT_TRUE(again.reference_from_cloud.translation == r.reference_from_cloud.translation)
+        << "run " << run;
+    EXPECT_EQ(again.inlier_rmse_mm, r.inlier_rmse_mm) << "run " << run;
+  }
 }
 
 TEST(Register, NoneIsTheIdentityAndBadOptionsThrow) {
