@@ -165,7 +165,7 @@ double WriteMapChart(const fs::path& path, const cv::Mat& values, const std::str
   chart.lo = -range;
   chart.hi = range;
   chart.marks = marks;
-  chart.max_width_px = 640;  // ~3x fewer PLplot cells than compare's maps: four maps per camera
+  chart.max_width_px = 640;  // smaller than compare's maps: four maps per camera, block means
   chart.max_height_px = 440;
   char buf[160];
   std::snprintf(buf, sizeof(buf), "range +-%.3g (99 %% of pixels); white: not compared", range);
