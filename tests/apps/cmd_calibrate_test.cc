@@ -375,38 +375,18 @@ TEST_F(CmdCalibrateKamino, RigFromImageSetsMatchesProjectorFromFolders) {
   const std::string spec_path =
       (testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml").string();
   const std::string target = Target();
-  std::vector<std::string> rig_args = {"calibrate",
-                                       "rig",
-                                       "--target",
-                                       target,
-                                       "--shadow-threshold",
-                                       "40",
-                                       "--contrast-threshold",
-                                       "5",
-                                       "--min-views",
-                                       "5",
-                                       "--no-cross-validation",
-                                       "--principal-point-inside",
-                                       "--out",
-                                       (tmp / "rig.yaml").string(),
-                                       "--imagesets"};
-  std::vector<std::string> proj_args = {"calibrate",
-                                        "projector",
-                                        "--target",
-                                        target,
-                                        "--patterns",
-                                        spec_path,
-                                        "--shadow-threshold",
-                                        "40",
-                                        "--contrast-threshold",
-                                        "5",
-                                        "--min-views",
-                                        "5",
-                                        "--no-cross-validation",
-                                        "--principal-point-inside",
-                                        "--out",
-                                        (tmp / "procam.yaml").string(),
-                                        "--captures"};
+  // The same decoding and model options for both commands; each then names its output and inputs.
+  const auto args_for = [&](std::vector<std::string> head, const std::string& out,
+                            const std::string& inputs_flag) {
+    head.insert(head.end(),
+                {"--target", target, "--shadow-threshold", "40", "--contrast-threshold", "5",
+                 "--min-views", "5", "--no-cross-validation", "--principal-point-inside"});
+    head.insert(head.end(), {"--out", (tmp / out).string(), inputs_flag});
+    return head;
+  };
+  std::vector<std::string> rig_args = args_for({"calibrate", "rig"}, "rig.yaml", "--imagesets");
+  std::vector<std::string> proj_args =
+      args_for({"calibrate", "projector", "--patterns", spec_path}, "procam.yaml", "--captures");
   for (int p = 0; p < 5; ++p) {
     rig_args.push_back(ImageSetDir(p).string());
     proj_args.push_back((kamino / ("capture_" + std::to_string(p))).string());
