@@ -1,6 +1,7 @@
 #include "sim/renderer.h"
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -224,6 +225,44 @@ std::vector<cv::Mat> PatternRenderer::RenderIrradianceBatch(
             continue;
           }
           const float u = geometry_.proj_x[i], t = geometry_.proj_y[i];
+          // Bilinear weights, shared by every image of the batch; clamped at the borders.
+          const auto bilinear_at = [&] {
+            const float fx0 = std::floor(u), fy0 = std::floor(t);
+            const int x0 = std::clamp(static_cast<int>(fx0), 0, pw - 1),
+                      x1 = std::clamp(static_cast<int>(fx0) + 1, 0, pw - 1);
+            const int y0 = std::clamp(static_cast<int>(fy0), 0, ph - 1),
+                      y1 = std::clamp(static_cast<int>(fy0) + 1, 0, ph - 1);
+            return std::array<size_t, 4>{(static_cast<size_t>(y0) * pw + x0) * batch,
+                                         (static_cast<size_t>(y0) * pw + x1) * batch,
+                                         (static_cast<size_t>(y1) * pw + x0) * batch,
+                                         (static_cast<size_t>(y1) * pw + x1) * batch};
+          };
+          const auto bilinear_weights = [&] {
+            const float ax = u - std::floor(u), ay = t - std::floor(t);
+            return std::array<float, 4>{(1 - ax) * (1 - ay), ax * (1 - ay), (1 - ax) * ay, ax * ay};
+          };
+          // The blurred images at the point's blur: bilinear between the two nearest levels.
+          const auto add_blurred = [&](float gain) {
+            const auto [i00, i01, i10, i11] = bilinear_at();
+            const auto [w00, w01, w10, w11] = bilinear_weights();
+            int l0 = 0, l1 = 0;
+            float a = 0;
+            if (top_level > 0) {
+              const float lv = geometry_.proj_sigma_px[i] * level_scale;
+              l0 = std::min(static_cast<int>(lv), top_level);
+              l1 = std::min(l0 + 1, top_level);
+              a = lv - l0;
+            }
+            const float* p0 = inter_f[static_cast<size_t>(l0)].data();
+            const float* p1 = inter_f[static_cast<size_t>(l1)].data();
+            for (int k = 0; k < batch; ++k) {
+              const float v0 =
+                  w00 * p0[i00 + k] + w01 * p0[i01 + k] + w10 * p0[i10 + k] + w11 * p0[i11 + k];
+              const float v1 =
+                  w00 * p1[i00 + k] + w01 * p1[i01 + k] + w10 * p1[i10 + k] + w11 * p1[i11 + k];
+              acc[k] += gain * ((1 - a) * v0 + a * v1);
+            }
+          };
           if (fill || !bilinear) {
             // Pixel-exact: the projector pixel containing the point (dark in the fill gaps).
             const int xi = std::clamp(static_cast<int>(std::lround(u)), 0, pw - 1);
@@ -231,7 +270,20 @@ std::vector<cv::Mat> PatternRenderer::RenderIrradianceBatch(
             const bool lit = !fill || (std::abs(u - std::round(u)) <= half_side &&
                                        std::abs(t - std::round(t)) <= half_side);
             const size_t idx = (static_cast<size_t>(yi) * pw + xi) * batch;
-            const float g = lit ? f : 0.0f;
+            float g = lit ? f : 0.0f;
+            if (top_level > 0) {
+              // Projector blur: the pixel grid (its steps and fill gaps) keeps the Gaussian
+              // transfer of its 1-px period, exp(-2 pi^2 sigma^2); the rest of the light is the
+              // blurred image, smooth, at the fill factor's share of the pixel area.
+              const float sigma = geometry_.proj_sigma_px[i];
+              const float grid = std::exp(-2 * static_cast<float>(M_PI * M_PI) * sigma * sigma);
+              g *= grid;
+              for (int k = 0; k < batch; ++k) acc[k] += base;
+              add_blurred(f * (1 - grid) * static_cast<float>(l.fill_factor));
+              const float* p = inter_f[0].data() + idx;
+              for (int k = 0; k < batch; ++k) acc[k] += g * p[k];
+              continue;
+            }
             if (direct) {
               for (int k = 0; k < batch; ++k) acc[k] += base + g * (1.0f / 255) * inter8[idx + k];
             } else {
@@ -240,19 +292,8 @@ std::vector<cv::Mat> PatternRenderer::RenderIrradianceBatch(
             }
             continue;
           }
-          // Bilinear weights, shared by every image of the batch; clamped at the borders.
-          const float fx0 = std::floor(u), fy0 = std::floor(t);
-          const float ax = u - fx0, ay = t - fy0;
-          const int x0 = std::clamp(static_cast<int>(fx0), 0, pw - 1),
-                    x1 = std::clamp(static_cast<int>(fx0) + 1, 0, pw - 1);
-          const int y0 = std::clamp(static_cast<int>(fy0), 0, ph - 1),
-                    y1 = std::clamp(static_cast<int>(fy0) + 1, 0, ph - 1);
-          const size_t i00 = (static_cast<size_t>(y0) * pw + x0) * batch,
-                       i01 = (static_cast<size_t>(y0) * pw + x1) * batch;
-          const size_t i10 = (static_cast<size_t>(y1) * pw + x0) * batch,
-                       i11 = (static_cast<size_t>(y1) * pw + x1) * batch;
-          const float w00 = (1 - ax) * (1 - ay), w01 = ax * (1 - ay), w10 = (1 - ax) * ay,
-                      w11 = ax * ay;
+          const auto [i00, i01, i10, i11] = bilinear_at();
+          const auto [w00, w01, w10, w11] = bilinear_weights();
           if (direct) {
             const float g = f * (1.0f / 255);
             const uint8_t* p = inter8.data();

@@ -136,7 +136,9 @@ struct SceneLayers {
   uint64_t seed = 1;
 
   // Projector pixel fill factor in (0, 1]: each projector pixel is a lit square of area
-  // fill_factor centred in its cell, dark in the gaps (pixel-exact lookup). 1 = off.
+  // fill_factor centred in its cell, dark in the gaps (pixel-exact lookup). 1 = off. With
+  // projector_defocus, the pixel grid keeps exp(-2 pi^2 sigma^2) of its structure (the Gaussian
+  // transfer of its 1-px period) and the rest of the light is the blurred image at fill_factor.
   double fill_factor = 1.0;
 
   // Throws slshadow::Error naming `what` on an invalid value.

@@ -946,5 +946,41 @@ TEST(LayersTest, DefocusContrastFollowsTheGaussianTransferFunction) {
   }
 }
 
+// Projector defocus blurs a pixelated projector too (fill factor < 1: pixel-exact lookups with dark
+// gaps): a strong blur takes the same share of a sinusoidal fringe's contrast as without the fill
+// factor, and the light stays the fill factor's share. (It once had no effect at all there.)
+TEST(LayersTest, ProjectorDefocusBlursAPixelatedProjector) {
+  const Rig rig = SmallDemoRig(4);
+  const double period_px = 10;
+  const cv::Mat fringe = SineFringe(rig, period_px), white = FlatProjectorImage(rig, 255);
+  Scene sharp = FacingPlane();
+  sharp.layers.supersampling = 4;
+  Scene gaps = sharp;
+  gaps.layers.fill_factor = 0.6;
+  const auto blur = [&](Scene s) {
+    auto& d = s.layers.projector_defocus;
+    d.enabled = true;
+    d.f_number = 1.4;
+    d.pixel_pitch_um = 7.6 * 4;  // the rig is scaled down 4x in pixels
+    d.focus_distance_mm = 300;
+    return s;
+  };
+  const auto amplitude_and_light = [&](const Scene& s) {
+    const GeometryBuffer g = Trace(s, rig, 0);
+    const PatternRenderer r(s, rig, 0, g);
+    const cv::Mat w = r.RenderIrradiance(white);
+    return std::make_pair(FringeAmplitude(r.RenderIrradiance(fringe), w, g, period_px),
+                          cv::mean(w)[0]);
+  };
+  const auto [a_sharp, w_sharp] = amplitude_and_light(sharp);
+  const auto [a_blurred, w_blurred] = amplitude_and_light(blur(sharp));
+  const auto [a_gaps, w_gaps] = amplitude_and_light(gaps);
+  const auto [a_both, w_both] = amplitude_and_light(blur(gaps));
+  ASSERT_LT(a_blurred, 0.7 * a_sharp);  // the blur is strong
+  EXPECT_NEAR(a_both / a_gaps, a_blurred / a_sharp, 0.05);
+  EXPECT_NEAR(w_both / w_blurred, 0.6, 0.03);
+  EXPECT_NEAR(w_gaps / w_sharp, 0.6, 0.03);
+}
+
 }  // namespace
 }  // namespace slshadow
