@@ -10,11 +10,12 @@
 
 #include "core/error.h"
 #include "patterns/codec.h"
+#include "shadow/significance.h"
 
 namespace slshadow::shadow {
 namespace {
 
-constexpr int kBands = 8;
+constexpr int kBands = kSignificanceBands;
 
 float Pixel(const cv::Mat& m, int y, int x) {
   return m.depth() == CV_8U ? static_cast<float>(m.at<uint8_t>(y, x))
@@ -45,20 +46,6 @@ double RobustVariance(const std::vector<double>& v) {
   }
   const double mean = sum / static_cast<double>(n);
   return ss / static_cast<double>(n) - mean * mean;
-}
-
-// Standard deviation of the finite band values / sqrt(count).
-double BandSigma(const std::vector<double>& values) {
-  std::vector<double> v;
-  for (double x : values) {
-    if (std::isfinite(x)) v.push_back(x);
-  }
-  if (v.size() < 2) return std::nan("");
-  const double mean = std::accumulate(v.begin(), v.end(), 0.0) / static_cast<double>(v.size());
-  double ss = 0;
-  for (double x : v) ss += (x - mean) * (x - mean);
-  return std::sqrt(ss / static_cast<double>(v.size() - 1)) /
-         std::sqrt(static_cast<double>(v.size()));
 }
 
 struct Sample {
@@ -655,7 +642,8 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin,
     }
     il.heldout_residual_off = Rms(off);
     il.heldout_residual_on = Rms(on);
-    const bool significant = il.value > std::max(3 * il.sigma, options.illumination_floor);
+    const bool significant =
+        il.value > 0 && Significant(il.value, il.sigma, options.illumination_floor);
     const bool drops =
         il.heldout_residual_on < (1 - options.min_heldout_drop) * il.heldout_residual_off;
     il.kept = significant && drops;
@@ -710,7 +698,7 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin,
     }
     a.heldout_residual_off = Rms(off);
     a.heldout_residual_on = Rms(on);
-    const bool significant = std::abs(a.value - a.off_value) > std::max(3 * a.sigma, 0.01);
+    const bool significant = Significant(a.value - a.off_value, a.sigma, 0.01);
     const bool drops =
         a.heldout_residual_on < (1 - options.min_heldout_drop) * a.heldout_residual_off;
     a.kept = significant && drops;
@@ -754,8 +742,7 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin,
       }
       dark.heldout_residual_off = Rms(off);
       dark.heldout_residual_on = Rms(on);
-      const bool significant =
-          std::abs(dark.value - dark.off_value) > std::max(3 * dark.sigma, 0.005);
+      const bool significant = Significant(dark.value - dark.off_value, dark.sigma, 0.005);
       const bool drops =
           dark.heldout_residual_on < (1 - options.min_heldout_drop) * dark.heldout_residual_off;
       dark.kept = significant && drops;
@@ -811,7 +798,7 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin,
     amb.heldout_residual_off = Rms(off);
     amb.heldout_residual_on = Rms(on);
     {
-      const bool significant = amb.value > std::max(3 * amb.sigma, 0.002);
+      const bool significant = amb.value > 0 && Significant(amb.value, amb.sigma, 0.002);
       const bool drops =
           amb.heldout_residual_on < (1 - options.min_heldout_drop) * amb.heldout_residual_off;
       amb.kept = significant && drops;
@@ -906,8 +893,7 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin,
           bl.heldout_residual_off =
               residuals(static_cast<int>(c), amb.kept ? amb.value : 0.0, nullptr, 0);
           bl.heldout_residual_on = residuals(static_cast<int>(c), both.beta(0), &both.beta, 0);
-          const bool significant =
-              std::abs(bl.value) > std::max(3 * bl.sigma, options.black_level_floor * fs);
+          const bool significant = Significant(bl.value, bl.sigma, options.black_level_floor * fs);
           const bool drops =
               bl.heldout_residual_on < (1 - options.min_heldout_drop) * bl.heldout_residual_off;
           bl.kept = significant && drops;
@@ -927,7 +913,7 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin,
           }
           amb.heldout_residual_off = Rms(off2);
           amb.heldout_residual_on = Rms(on2);
-          const bool significant = amb.value > std::max(3 * amb.sigma, 0.002);
+          const bool significant = amb.value > 0 && Significant(amb.value, amb.sigma, 0.002);
           const bool drops =
               amb.heldout_residual_on < (1 - options.min_heldout_drop) * amb.heldout_residual_off;
           amb.kept = significant && drops;
@@ -1053,8 +1039,7 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin,
         for (double m : held_mean) off.push_back(m - 0.5), on.push_back(m - on_level);
         gamma.heldout_residual_off = Rms(off);
         gamma.heldout_residual_on = Rms(on);
-        const bool significant =
-            std::abs(gamma.value - 1) > std::max(3 * gamma.sigma, options.gamma_floor);
+        const bool significant = Significant(gamma.value - 1, gamma.sigma, options.gamma_floor);
         const bool drops =
             gamma.heldout_residual_on < (1 - options.min_heldout_drop) * gamma.heldout_residual_off;
         gamma.kept = significant && drops;
@@ -1131,7 +1116,8 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin,
         gl.heldout_residual_off = Rms(off);
         gl.heldout_residual_on = Rms(on);
         gl.extra["pairs"] = coarse.size();
-        const bool significant = gl.value > std::max(3 * gl.sigma, options.global_light_floor);
+        const bool significant =
+            gl.value > 0 && Significant(gl.value, gl.sigma, options.global_light_floor);
         const bool drops =
             gl.heldout_residual_on < (1 - options.min_heldout_drop) * gl.heldout_residual_off;
         gl.kept = significant && drops;
@@ -1237,7 +1223,7 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin,
         noise.heldout_residual_on = Rms(on);
         noise.samples = static_cast<int64_t>(obs.size());
         const bool above_quant = mean_var > 2 * quant;
-        const bool significant = k > 3 * sigma_k && k > 0;
+        const bool significant = k > 0 && Significant(k, sigma_k, 0);
         const bool drops =
             noise.heldout_residual_on < (1 - options.min_heldout_drop) * noise.heldout_residual_off;
         if (k > 0) {
@@ -1418,7 +1404,7 @@ void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras,
   d.extra["modulation_ratio_sigma"] = sigma_rho;
   d.extra["period_px"] = period;
   const double loss = 1 - rho;
-  const bool significant = loss > std::max(3 * sigma_rho, options.defocus_min_loss);
+  const bool significant = loss > 0 && Significant(loss, sigma_rho, options.defocus_min_loss);
   const bool drops =
       d.heldout_residual_on < (1 - options.min_heldout_drop) * d.heldout_residual_off;
   d.kept = significant && drops;

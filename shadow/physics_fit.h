@@ -49,7 +49,8 @@
 // least-squares layers (illumination, black level) use the delete-one-band jackknife instead,
 // which does not see the bias of a mean of integer DN when the frames' noise is below 1 DN (up to
 // ~0.3 DN at 8 bits): the keep floors cover it.
-// Keep rule: |value - off value| > max(3 sigma, a practical floor) AND the residual on held-out
+// Keep rule: |value - off value| > max(3 sigma, a practical floor) (shadow/significance.h
+// Significant: the rule the physics study judges layers by too) AND the residual on held-out
 // pixels (odd sample rows; fits use even rows) drops by more than the stated fraction.
 #pragma once
 

@@ -1,13 +1,16 @@
 #include "shadow/scan_pipeline.h"
 
+#include <tbb/parallel_for.h>
 #include <opencv2/core/utility.hpp>
 
 #include <cmath>
 #include <optional>
 
+#include "compare/statistics.h"
 #include "core/config.h"
 #include "core/error.h"
 #include "shadow/demo_config.h"  // generated: the embedded config/demo files
+#include "shadow/significance.h"
 
 namespace slshadow::shadow {
 namespace fs = std::filesystem;
@@ -258,15 +261,42 @@ ModeAccuracy MeasureAccuracy(const std::string& mode, const compare::CompareResu
   m.outlier_fraction = result.c2c.count ? static_cast<double>(result.c2c.outliers) /
                                               static_cast<double>(result.c2c.count)
                                         : 0;
+  MeasureFigureUncertainty(result.deviations_mm, result.options.threshold_mm, &m);
   return m;
 }
 
+void MeasureFigureUncertainty(const std::vector<double>& deviations_mm, double threshold_mm,
+                              ModeAccuracy* accuracy) {
+  const size_t n = deviations_mm.size(), bands = kSignificanceBands;
+  std::vector<double> rms(bands, std::nan("")), p95(bands, std::nan(""));
+  tbb::parallel_for(size_t{0}, bands, [&](size_t b) {
+    const std::vector<double> band(
+        deviations_mm.begin() + static_cast<std::ptrdiff_t>(n * b / bands),
+        deviations_mm.begin() + static_cast<std::ptrdiff_t>(n * (b + 1) / bands));
+    if (band.empty()) return;
+    const compare::DistanceStats s =
+        compare::ComputeStats(band, /*is_signed=*/false, threshold_mm, /*bins=*/1);
+    if (s.count == 0) return;
+    rms[b] = s.rms_mm;
+    p95[b] = s.p95_mm;
+  });
+  accuracy->rms_sigma_mm = BandSigma(rms);
+  accuracy->p95_sigma_mm = BandSigma(p95);
+}
+
 nlohmann::json ModeAccuracyToJson(const ModeAccuracy& m) {
-  return {{"mode", m.mode},         {"points", m.points},
-          {"coverage", m.coverage}, {"visible_coverage", m.visible_coverage},
-          {"mean_mm", m.mean_mm},   {"rms_mm", m.rms_mm},
-          {"p95_mm", m.p95_mm},     {"max_mm", m.max_mm},
-          {"outliers", m.outliers}, {"outlier_fraction", m.outlier_fraction}};
+  return {{"mode", m.mode},
+          {"points", m.points},
+          {"coverage", m.coverage},
+          {"visible_coverage", m.visible_coverage},
+          {"mean_mm", m.mean_mm},
+          {"rms_mm", m.rms_mm},
+          {"p95_mm", m.p95_mm},
+          {"max_mm", m.max_mm},
+          {"outliers", m.outliers},
+          {"outlier_fraction", m.outlier_fraction},
+          {"rms_sigma_mm", m.rms_sigma_mm},
+          {"p95_sigma_mm", m.p95_sigma_mm}};
 }
 
 }  // namespace slshadow::shadow

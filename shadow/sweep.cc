@@ -186,6 +186,50 @@ void PrependKindAxis(const std::string& name, const std::string& target,
   axes->insert(axes->begin(), std::move(axis));
 }
 
+// Study 3's "one layer off" (study key effects.full): for every value of `axis` but the baseline
+// and the full model, a value "without_<label>": the full model's mapping without that value's
+// keys (e.g. all layers but noise). The merge measures each layer's effect against the full model
+// from these (shadow/sweep.h).
+void AddOneLayerOffValues(const ConfigNode& effects, Axis* axis) {
+  const json full_label = effects["full"].json();
+  const json baseline = effects["baseline"].json();
+  const auto full_it = std::find(axis->labels.begin(), axis->labels.end(), full_label);
+  if (full_it == axis->labels.end()) {
+    effects["full"].Fail("is not a value (or label) of axis '" + axis->name + "'");
+  }
+  if (full_label == baseline) effects["full"].Fail("must differ from the baseline");
+  const std::string full_name =
+      full_label.is_string() ? full_label.get<std::string>() : full_label.dump();
+  const json full = axis->values[static_cast<size_t>(full_it - axis->labels.begin())];
+  if (!full.is_object()) {
+    effects["full"].Fail("the full model's value must be a mapping (e.g. of scene layers)");
+  }
+  const size_t n = axis->values.size();
+  for (size_t i = 0; i < n; ++i) {
+    const json& label = axis->labels[i];
+    if (label == baseline || label == full_label) continue;
+    const json& value = axis->values[i];
+    if (!value.is_object() || !label.is_string()) {
+      effects["full"].Fail("axis '" + axis->name + "' value " + label.dump() +
+                           ": one layer off needs named values that are mappings");
+    }
+    json without = full;
+    for (const auto& item : value.items()) {
+      if (!full.contains(item.key())) {
+        effects["full"].Fail("value '" + label.get<std::string>() + "' sets '" + item.key() +
+                             "', which the full model '" + full_name + "' does not");
+      }
+      without.erase(item.key());
+    }
+    const json without_label = "without_" + label.get<std::string>();
+    if (std::find(axis->labels.begin(), axis->labels.end(), without_label) != axis->labels.end()) {
+      effects["full"].Fail("axis '" + axis->name + "' already has a value " + without_label.dump());
+    }
+    axis->values.push_back(std::move(without));
+    axis->labels.push_back(without_label);
+  }
+}
+
 // Checks a job by the codecs that will read it; `what` names it in errors.
 void CheckJob(const json& job, const std::string& what, std::set<std::string>* seen_scenes) {
   const auto node = [&](const char* key) { return ConfigNode::FromJson(job.at(key), what, key); };
@@ -417,7 +461,7 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
   }
   if (study.Has("effects")) {
     const ConfigNode e = study["effects"];
-    e.RejectUnknownKeys({"axis", "baseline", "tolerance_mm"});
+    e.RejectUnknownKeys({"axis", "baseline", "full", "tolerance_mm"});
     const std::string name = e["axis"].AsString();
     const auto it =
         std::find_if(axes.begin(), axes.end(), [&](const Axis& a) { return a.name == name; });
@@ -426,6 +470,7 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
       e["baseline"].Fail("is not a value (or label) of axis '" + name + "'");
     }
     if (!(e["tolerance_mm"].AsDouble() >= 0)) e["tolerance_mm"].Fail("must be >= 0");
+    if (e.Has("full")) AddOneLayerOffValues(e, &*it);
   }
   size_t total = 1;
   for (const auto& a : axes) total *= a.values.size();
@@ -561,6 +606,9 @@ struct Group {
   std::string noise_free_key;
   std::unique_ptr<NoiseFreeImages> noise_free;
   std::vector<std::vector<cv::Mat>> images;
+  // Wall seconds of the geometry pass (the Simulator) and of the noise-free images: what a job
+  // reusing them would have paid itself (its timing's model_s).
+  double geometry_s = 0, noise_free_s = 0;
 };
 
 json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group, int* traces) {
@@ -587,7 +635,9 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
     g->key = key;
     g->scene = scene;
     g->rig = RigFromConfig(node("rig"));
+    const auto tg = clock();
     g->simulator = std::make_unique<Simulator>(g->scene, g->rig);
+    g->geometry_s = seconds(tg, clock());
     g->scorer = std::make_unique<GroundTruthScorer>(GroundTruthSurface(g->scene, what + ": scene"),
                                                     LitVisibleSurface(g->simulator->geometry(0)),
                                                     "scene ground truth");
@@ -607,10 +657,14 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
       group->noise_free = std::make_unique<NoiseFreeImages>(*group->simulator, scene, group->rig,
                                                             GeneratePatterns(spec));
       group->noise_free_key = images_key;
+      group->noise_free_s = seconds(t1, clock());
     }
+    const auto tn = clock();
     group->noise_free->Render(scene, &group->images);
+    timing["model_s"] = group->geometry_s + group->noise_free_s + seconds(tn, clock());
   } else {
     group->images = group->simulator->Render(GeneratePatterns(spec), &scene);
+    timing["model_s"] = group->geometry_s + seconds(t1, clock());
   }
   const std::vector<std::vector<cv::Mat>>& images = group->images;
   const auto t2 = clock();

@@ -6,6 +6,7 @@
 #include "core/file_util.h"
 #include "plot/plot.h"
 #include "shadow/internal/sweep_files.h"
+#include "shadow/significance.h"
 #include "shadow/sweep.h"
 #include "shadow/sweep_montecarlo.h"
 #include "shadow/sweep_vdi2634.h"
@@ -256,6 +257,156 @@ void WriteCurveCharts(const fs::path& out_dir, const std::vector<Curve>& curves,
   }
 }
 
+// A figure's standard uncertainty (`<metric>_sigma`): NaN when the job's result predates it or the
+// cloud was too small for bands.
+double FigureSigma(const json& accuracy, const std::string& metric) {
+  const std::string key =
+      metric.substr(0, metric.size() - 3) + "_sigma_mm";  // rms_mm -> rms_sigma_mm
+  return accuracy.contains(key) ? Figure(accuracy, key) : std::nan("");
+}
+
+// A layer's effect on RMS and p95: figures of `with` minus those of `without`, judged by
+// shadow/significance.h (the rule `slshadow shadow` keeps fitted layers by): needed when either
+// change exceeds max(3 sigma, tolerance), sigma the two jobs' standard uncertainties combined
+// (unknown ones count as 0). A missing figure (nothing reconstructed on one side) is a change
+// beyond any tolerance.
+struct LayerEffect {
+  double d_rms = 0, d_p95 = 0, threshold_rms = 0, threshold_p95 = 0;
+  bool needed = false;
+};
+LayerEffect MeasureLayerEffect(const json& with, const json& without, double tolerance) {
+  LayerEffect e;
+  const auto one = [&](const std::string& metric, double* delta, double* threshold) {
+    *delta = Figure(with, metric) - Figure(without, metric);
+    const auto known = [](double s) { return std::isnan(s) ? 0.0 : s; };
+    const double sigma =
+        std::hypot(known(FigureSigma(with, metric)), known(FigureSigma(without, metric)));
+    *threshold = SignificanceThreshold(sigma, tolerance);
+    return std::isnan(*delta) || Significant(*delta, sigma, tolerance);
+  };
+  const bool rms = one("rms_mm", &e.d_rms, &e.threshold_rms);
+  const bool p95 = one("p95_mm", &e.d_p95, &e.threshold_p95);
+  e.needed = rms || p95;
+  return e;
+}
+
+std::string OptionalField(double v) { return std::isnan(v) ? "" : CsvField(json(v)); }
+
+// Study 3 (study key `effects`): effects.csv (per job and mode: its figures, their
+// uncertainties, the effect of its value against the baseline or, for one-layer-off values,
+// of that layer in the full model) and layers.csv (per series, mode and value: both effects,
+// whether the scene needs the value at the tolerance, and its cost).
+void WriteEffects(const json& spec, const std::vector<std::string>& axes,
+                  const std::vector<json>& results, const fs::path& out_dir,
+                  SweepMergeSummary* summary) {
+  const std::string axis = spec.at("axis").get<std::string>();
+  const json& baseline = spec.at("baseline");
+  const json full = spec.value("full", json());
+  const double tolerance = spec.at("tolerance_mm").get<double>();
+  // series + mode -> value -> the job's accuracy (and its timing)
+  std::map<std::string, std::map<json, std::pair<json, json>>> jobs;
+  const auto key = [](const std::string& series, const std::string& mode) {
+    return series + '\n' + mode;
+  };
+  for (const auto& r : results) {
+    for (const auto& m : r.at("modes")) {
+      jobs[key(ParamsLabel(r.at("params"), axes, axis), m.at("mode").get<std::string>())]
+          [r.at("params").at(axis)] = {m, r.at("timing")};
+    }
+  }
+  const auto find = [&](const std::string& k, const json& value) -> const std::pair<json, json>* {
+    const auto s = jobs.find(k);
+    if (s == jobs.end()) return nullptr;
+    const auto v = s->second.find(value);
+    return v == s->second.end() ? nullptr : &v->second;
+  };
+  const auto without_label = [](const json& value) {
+    return json("without_" + value.get<std::string>());
+  };
+  const auto is_off = [&](const json& value) {
+    return !full.is_null() && value.is_string() &&
+           value.get<std::string>().rfind("without_", 0) == 0;
+  };
+  // What the cost compares: the model seconds (geometry + noise-free images + noise, as if not
+  // reused) of jobs that record them, else their render seconds.
+  const auto model_s = [](const json& timing) {
+    return timing.contains("model_s") ? timing.at("model_s").get<double>()
+                                      : timing.at("render_s").get<double>();
+  };
+
+  std::string effects = "series,mode," + CsvField(axis) +
+                        ",kind,rms_mm,rms_sigma_mm,p95_mm,p95_sigma_mm,d_rms_mm,d_p95_mm,"
+                        "threshold_rms_mm,threshold_p95_mm,needed,render_s,model_s\n";
+  std::string layers = "series,mode," + CsvField(axis) +
+                       ",alone_d_rms_mm,alone_d_p95_mm,alone_needed,off_d_rms_mm,off_d_p95_mm,"
+                       "off_threshold_rms_mm,off_threshold_p95_mm,off_needed,needed,cost_ms\n";
+  for (const auto& r : results) {
+    const std::string series = ParamsLabel(r.at("params"), axes, axis);
+    const json& value = r.at("params").at(axis);
+    for (const auto& m : r.at("modes")) {
+      const std::string mode = m.at("mode").get<std::string>();
+      const std::string k = key(series, mode);
+      std::string kind = "alone", d_rms, d_p95, t_rms, t_p95, needed;
+      const std::pair<json, json>* against = find(k, baseline);
+      if (value == baseline) {
+        kind = "baseline";
+        against = nullptr;
+      } else if (!full.is_null() && value == full) {
+        kind = "full";
+      } else if (is_off(value)) {
+        kind = "off";
+        against = find(k, full);
+      }
+      if (against) {
+        // alone / full: this job against the baseline; off: the full model against this job.
+        const LayerEffect e = kind == "off" ? MeasureLayerEffect(against->first, m, tolerance)
+                                            : MeasureLayerEffect(m, against->first, tolerance);
+        d_rms = OptionalField(e.d_rms);
+        d_p95 = OptionalField(e.d_p95);
+        t_rms = OptionalField(e.threshold_rms);
+        t_p95 = OptionalField(e.threshold_p95);
+        needed = e.needed ? "1" : "0";
+      }
+      effects += CsvField(series) + ',' + mode + ',' + CsvField(value) + ',' + kind + ',' +
+                 CsvField(m.at("rms_mm")) + ',' + OptionalField(FigureSigma(m, "rms_mm")) + ',' +
+                 CsvField(m.at("p95_mm")) + ',' + OptionalField(FigureSigma(m, "p95_mm")) + ',' +
+                 d_rms + ',' + d_p95 + ',' + t_rms + ',' + t_p95 + ',' + needed + ',' +
+                 CsvField(r.at("timing").at("render_s")) + ',' +
+                 CsvField(json(model_s(r.at("timing")))) + '\n';
+      if (kind != "alone") continue;
+      // The layer's row: alone against the baseline; off against the full model when planned.
+      const std::pair<json, json>* base = find(k, baseline);
+      if (!base) continue;
+      const LayerEffect alone = MeasureLayerEffect(m, base->first, tolerance);
+      const std::pair<json, json>* whole = full.is_null() ? nullptr : find(k, full);
+      const std::pair<json, json>* off =
+          whole && value.is_string() ? find(k, without_label(value)) : nullptr;
+      std::string off_fields = ",,,,";  // the five off columns, empty without the full model
+      LayerEffect shown = alone;
+      double cost = model_s(r.at("timing")) - model_s(base->second);
+      if (off) {
+        shown = MeasureLayerEffect(whole->first, off->first, tolerance);
+        off_fields = OptionalField(shown.d_rms) + ',' + OptionalField(shown.d_p95) + ',' +
+                     OptionalField(shown.threshold_rms) + ',' + OptionalField(shown.threshold_p95) +
+                     ',' + (shown.needed ? "1" : "0");
+        cost = model_s(whole->second) - model_s(off->second);
+      }
+      layers += CsvField(series) + ',' + mode + ',' + CsvField(value) + ',' +
+                OptionalField(alone.d_rms) + ',' + OptionalField(alone.d_p95) + ',' +
+                (alone.needed ? "1" : "0") + ',' + off_fields + ',' + (shown.needed ? "1" : "0") +
+                ',' + CsvField(json(1000 * cost), 4) + '\n';
+      summary->effects.push_back(
+          (series.empty() ? "" : series + ", ") + mode + ": " + CsvField(value) +
+          (shown.needed ? " needed" : " not needed") + " at " + CsvField(json(tolerance)) +
+          " mm (" + (off ? "off in the full model" : "on alone") + ": RMS " +
+          OptionalField(shown.d_rms) + " mm, p95 " + OptionalField(shown.d_p95) + " mm; costs " +
+          CsvField(json(1000 * cost), 3) + " ms)");
+    }
+  }
+  WriteTextFileAtomically(out_dir / "effects.csv", effects);
+  WriteTextFileAtomically(out_dir / "layers.csv", layers);
+}
+
 }  // namespace
 
 SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) {
@@ -428,52 +579,10 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
     WriteTextFileAtomically(out_dir / "break_points.csv", breaks);
     WriteCurveCharts(out_dir, curves, x_axis, metrics, limits, plan.at("study").get<std::string>());
   }
-  // Effects of one axis's values against a baseline value (study key `effects`).
-  if (config.contains("effects")) {
-    const json& spec = config.at("effects");
-    const std::string axis = spec.at("axis").get<std::string>();
-    const json& baseline = spec.at("baseline");
-    const double tolerance = spec.at("tolerance_mm").get<double>();
-    std::map<std::string, json> base;  // series + mode -> the baseline job's accuracy
-    for (const auto& r : results) {
-      if (r.at("params").at(axis) != baseline) continue;
-      for (const auto& m : r.at("modes")) {
-        base[ParamsLabel(r.at("params"), axes, axis) + '\n' + m.at("mode").get<std::string>()] = m;
-      }
-    }
-    std::string csv_effects =
-        "series,mode," + CsvField(axis) + ",rms_mm,p95_mm,d_rms_mm,d_p95_mm,needed,render_s\n";
-    for (const auto& r : results) {
-      const std::string series = ParamsLabel(r.at("params"), axes, axis);
-      const json& value = r.at("params").at(axis);
-      for (const auto& m : r.at("modes")) {
-        const std::string mode = m.at("mode").get<std::string>();
-        const auto b = base.find(series + '\n' + mode);
-        std::string d_rms, d_p95, needed;
-        if (b != base.end()) {
-          const double dr = Figure(m, "rms_mm") - Figure(b->second, "rms_mm");
-          const double dp = Figure(m, "p95_mm") - Figure(b->second, "p95_mm");
-          // A missing figure (nothing reconstructed on one side) is a change beyond any tolerance.
-          const bool need = std::isnan(dr) || std::isnan(dp) || std::abs(dr) > tolerance ||
-                            std::abs(dp) > tolerance;
-          d_rms = std::isnan(dr) ? "" : CsvField(json(dr));
-          d_p95 = std::isnan(dp) ? "" : CsvField(json(dp));
-          needed = value == baseline ? "" : (need ? "1" : "0");
-          if (value != baseline) {
-            summary.effects.push_back((series.empty() ? "" : series + ", ") + mode + ": " +
-                                      CsvField(value) + (need ? " changes" : " does not change") +
-                                      " RMS or p95 by more than " + CsvField(json(tolerance)) +
-                                      " mm");
-          }
-        }
-        csv_effects += CsvField(series) + ',' + mode + ',' + CsvField(value) + ',' +
-                       CsvField(m.at("rms_mm")) + ',' + CsvField(m.at("p95_mm")) + ',' + d_rms +
-                       ',' + d_p95 + ',' + needed + ',' + CsvField(r.at("timing").at("render_s")) +
-                       '\n';
-      }
-    }
-    WriteTextFileAtomically(out_dir / "effects.csv", csv_effects);
-  }
+  // Effects of one axis's values against a baseline value, and with `full`, of each value
+  // switched off in the full model (study key `effects`).
+  if (config.contains("effects"))
+    WriteEffects(config.at("effects"), axes, results, out_dir, &summary);
   // Study 5: the acceptance test's table, summary and chart.
   if (plan.contains("vdi2634")) {
     std::vector<Vdi2634Row> rows;

@@ -453,6 +453,7 @@ ModeAccuracy GroundTruthScorer::Measure(const PointCloud& cloud,
   m.outliers = stats.outliers;
   m.outlier_fraction =
       stats.count ? static_cast<double>(stats.outliers) / static_cast<double>(stats.count) : 0;
+  MeasureFigureUncertainty(deviations, options.threshold_mm, &m);
   return m;
 }
 

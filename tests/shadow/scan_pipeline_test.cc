@@ -1,11 +1,13 @@
 #include "shadow/scan_pipeline.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 
 #include <gtest/gtest.h>
 
 #include "core/error.h"
+#include "shadow/significance.h"
 #include "tests/testing/temp_dir.h"
 
 namespace slshadow::shadow {
@@ -299,6 +301,40 @@ TEST_F(ScanPipeline, RedoRefusesScansItCannotRebuild) {
   EXPECT_NE(message("typo").find("extra.provenance.simulate"), std::string::npos)
       << message("typo");
   EXPECT_NE(message("typo").find("trace"), std::string::npos) << message("typo");
+}
+
+// The rule shared by the physics fit and study 3: an effect counts beyond max(3 sigma, floor).
+TEST(Significance, AnEffectCountsBeyondThreeSigmaAndTheFloor) {
+  EXPECT_DOUBLE_EQ(SignificanceThreshold(0.01, 0.002), 0.03);
+  EXPECT_DOUBLE_EQ(SignificanceThreshold(0.0001, 0.002), 0.002);
+  EXPECT_TRUE(Significant(-0.031, 0.01, 0.002));
+  EXPECT_FALSE(Significant(0.029, 0.01, 0.002));
+  EXPECT_FALSE(Significant(0.0019, 0, 0.002));
+  EXPECT_FALSE(Significant(1e9, std::nan(""), 0.002));  // unknown uncertainty: nothing counts
+  // sd of 1..8 (sample) / sqrt(8); NaN values are left out; fewer than two: NaN.
+  EXPECT_NEAR(BandSigma({1, 2, 3, 4, 5, 6, 7, 8}), std::sqrt(6.0) / std::sqrt(8.0), 1e-15);
+  EXPECT_NEAR(BandSigma({1, std::nan(""), 3}), std::sqrt(2.0) / std::sqrt(2.0), 1e-15);
+  EXPECT_TRUE(std::isnan(BandSigma({1, std::nan("")})));
+}
+
+// A figure's uncertainty from 8 consecutive runs of the points: bands whose RMS and p95 are known
+// (each band one value, (b + 1) / 100 mm, signs mixed: the figures are of |d|).
+TEST(MeasureFigureUncertainty, IsTheSpreadOfTheFiguresOfEightConsecutiveBands) {
+  for (const size_t per_band : {size_t{1}, size_t{100}}) {
+    std::vector<double> d;
+    for (int b = 0; b < kSignificanceBands; ++b) {
+      for (size_t i = 0; i < per_band; ++i) d.push_back((i % 2 ? -1 : 1) * (b + 1) / 100.0);
+    }
+    ModeAccuracy m;
+    MeasureFigureUncertainty(d, 0.5, &m);
+    const double expected = std::sqrt(6.0) / std::sqrt(8.0) / 100;  // BandSigma of 0.01 .. 0.08
+    EXPECT_NEAR(m.rms_sigma_mm, expected, 1e-15) << per_band;
+    EXPECT_NEAR(m.p95_sigma_mm, expected, 1e-15) << per_band;
+  }
+  ModeAccuracy m;
+  MeasureFigureUncertainty({0.1}, 0.5, &m);  // one point: one band with a figure
+  EXPECT_TRUE(std::isnan(m.rms_sigma_mm));
+  EXPECT_TRUE(std::isnan(m.p95_sigma_mm));
 }
 
 }  // namespace

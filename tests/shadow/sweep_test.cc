@@ -376,10 +376,12 @@ TEST(Sweep, BreakPointsWhenSmallerValuesAreWorse) {
   }
 }
 
-// Study 3's machinery: an axis of layer mappings with labels, each against the baseline `none`.
-// effects.csv's changes are the differences of results.json's figures, `needed` their comparison
-// with the tolerance. Also: the study's `set` reaches the scene a files axis puts in each job.
-TEST(Sweep, EffectsOfEachAxisValueAgainstABaseline) {
+// Study 3's machinery: an axis of layer mappings with labels, each against the baseline `none`,
+// and with `full`, each switched off in the full model (the planned "without_" values).
+// effects.csv's and layers.csv's changes are the differences of results.json's figures, `needed`
+// their comparison with max(3 sigma, tolerance) (shadow/significance.h, sigma from the figures'
+// band uncertainties). Also: the study's `set` reaches the scene a files axis puts in each job.
+TEST(Sweep, EffectsOfEachAxisValueAgainstABaselineAndInTheFullModel) {
   TempDir tmp;
   std::ofstream(tmp / "study.yaml")
       << "format: slshadow-study\nversion: 1\nname: effects\n"
@@ -389,48 +391,90 @@ TEST(Sweep, EffectsOfEachAxisValueAgainstABaseline) {
          "axes:\n"
          "  - name: layer\n"
          "    set: scene.layers\n"
-         "    labels: [none, ambient, gamma]\n"
-         "    values: [{}, {ambient: {level: 0.05}}, {projector_response: {gamma: 2.2}}]\n"
-         "effects: {axis: layer, baseline: none, tolerance_mm: 0.002}\n"
+         "    labels: [none, ambient, gamma, all]\n"
+         "    values: [{}, {ambient: {level: 0.05}}, {projector_response: {gamma: 2.2}},\n"
+         "             {ambient: {level: 0.05}, projector_response: {gamma: 2.2}}]\n"
+         "effects: {axis: layer, baseline: none, full: all, tolerance_mm: 0.002}\n"
          "pareto: {by: layer}\n";
   PlanSweep(tmp / "study.yaml", tmp / "jobs");
+  // The one-layer-off values: the full model without each layer's keys.
+  const nlohmann::json job5 = nlohmann::json::parse(ReadTextFile(tmp / "jobs/jobs/000005.json"));
+  EXPECT_EQ(job5["params"]["layer"], "without_gamma");
+  EXPECT_TRUE(job5["scene"]["layers"].contains("ambient"));
+  EXPECT_FALSE(job5["scene"]["layers"].contains("projector_response"));
   RunSweepShard(tmp / "jobs", Shard(0, 1));
   const SweepMergeSummary merged = MergeSweep(tmp / "jobs", tmp / "result");
-  EXPECT_EQ(merged.effects.size(), 2u);  // ambient, gamma
+  ASSERT_EQ(merged.effects.size(), 2u);  // ambient, gamma
+  EXPECT_NE(merged.effects[0].find("ambient"), std::string::npos) << merged.effects[0];
+  EXPECT_NE(merged.effects[0].find("off in the full model"), std::string::npos);
   const nlohmann::json jobs =
       nlohmann::json::parse(ReadTextFile(tmp / "result/results.json"))["jobs"];
-  ASSERT_EQ(jobs.size(), 3u);
+  ASSERT_EQ(jobs.size(), 6u);
   EXPECT_EQ(jobs[2]["params"]["layer"], "gamma");
+  EXPECT_EQ(jobs[4]["params"]["layer"], "without_ambient");
   const auto figure = [&](int job, const char* key) {
     return jobs[job]["modes"][0][key].get<double>();
+  };
+  const auto g = [](double v, int digits = 10) {
+    char buf[64];
+    std::snprintf(buf, sizeof(buf), "%.*g", digits, v);
+    return std::string(buf);
+  };
+  // An effect of `with` against `without`: its changes, thresholds and verdict, as CSV fields.
+  const auto effect = [&](int with, int without) {
+    std::string fields, needed = "0";
+    for (const char* metric : {"rms", "p95"}) {
+      const std::string fig = std::string(metric) + "_mm", sig = std::string(metric) + "_sigma_mm";
+      const double d = figure(with, fig.c_str()) - figure(without, fig.c_str());
+      const double sigma = std::hypot(figure(with, sig.c_str()), figure(without, sig.c_str()));
+      EXPECT_GT(sigma, 0);
+      EXPECT_LT(sigma, 0.05);
+      if (std::abs(d) > std::max(3 * sigma, 0.002)) needed = "1";
+      fields += g(d) + ",";
+    }
+    return std::make_pair(fields, needed);
   };
   const std::string csv = ReadTextFile(tmp / "result/effects.csv");
   std::istringstream lines(csv);
   std::string line;
   std::getline(lines, line);
-  EXPECT_EQ(line, "series,mode,layer,rms_mm,p95_mm,d_rms_mm,d_p95_mm,needed,render_s");
-  const auto g = [](double v) {
-    char buf[64];
-    std::snprintf(buf, sizeof(buf), "%.10g", v);
-    return std::string(buf);
-  };
-  for (int job = 0; job < 3; ++job) {
+  EXPECT_EQ(line,
+            "series,mode,layer,kind,rms_mm,rms_sigma_mm,p95_mm,p95_sigma_mm,d_rms_mm,d_p95_mm,"
+            "threshold_rms_mm,threshold_p95_mm,needed,render_s,model_s");
+  const char* kinds[] = {"baseline", "alone", "alone", "full", "off", "off"};
+  for (int job = 0; job < 6; ++job) {
     ASSERT_TRUE(std::getline(lines, line));
-    const double dr = figure(job, "rms_mm") - figure(0, "rms_mm");
-    const double dp = figure(job, "p95_mm") - figure(0, "p95_mm");
-    const std::string needed =
-        job == 0 ? "" : (std::abs(dr) > 0.002 || std::abs(dp) > 0.002 ? "1" : "0");
-    const std::string expected = ",projector," + jobs[job]["params"]["layer"].get<std::string>() +
-                                 "," + g(figure(job, "rms_mm")) + "," + g(figure(job, "p95_mm")) +
-                                 "," + g(dr) + "," + g(dp) + "," + needed + ",";
-    EXPECT_EQ(line.substr(0, expected.size()), expected);
+    std::string expected = ",projector," + jobs[job]["params"]["layer"].get<std::string>() + "," +
+                           kinds[job] + "," + g(figure(job, "rms_mm")) + "," +
+                           g(figure(job, "rms_sigma_mm")) + "," + g(figure(job, "p95_mm")) + "," +
+                           g(figure(job, "p95_sigma_mm")) + ",";
+    // alone / full against the baseline; off: the full model (job 3) against the job.
+    if (job > 0) expected += (job < 4 ? effect(job, 0) : effect(3, job)).first;
+    EXPECT_EQ(line.substr(0, expected.size()), expected) << line;
   }
+  const std::string layers = ReadTextFile(tmp / "result/layers.csv");
+  std::istringstream layer_lines(layers);
+  std::getline(layer_lines, line);
+  EXPECT_EQ(line,
+            "series,mode,layer,alone_d_rms_mm,alone_d_p95_mm,alone_needed,off_d_rms_mm,"
+            "off_d_p95_mm,off_threshold_rms_mm,off_threshold_p95_mm,off_needed,needed,cost_ms");
+  for (int layer = 1; layer <= 2; ++layer) {  // ambient (off: job 4), gamma (off: job 5)
+    ASSERT_TRUE(std::getline(layer_lines, line));
+    const auto alone = effect(layer, 0), off = effect(3, layer + 3);
+    const std::string expected = ",projector," + jobs[layer]["params"]["layer"].get<std::string>() +
+                                 "," + alone.first + alone.second + "," + off.first;
+    EXPECT_EQ(line.substr(0, expected.size()), expected) << line;
+    // The verdict is the off one.
+    const size_t cost = line.rfind(',');
+    EXPECT_EQ(line.substr(cost - 2, 3), "," + off.second + ",") << line;
+  }
+  EXPECT_FALSE(std::getline(layer_lines, line));
 
   // A front per mode and layer: one job each, so each is on its front.
   const std::string pareto = ReadTextFile(tmp / "result/pareto.csv");
   EXPECT_EQ(pareto.substr(0, pareto.find('\n')), "id,mode,label,time_s,rms_mm,on_front,group");
   EXPECT_NE(pareto.find(",1,projector gamma\n"), std::string::npos) << pareto;
-  EXPECT_EQ(merged.front.size(), 3u);
+  EXPECT_EQ(merged.front.size(), 6u);
 
   // `set` under a tree a files axis replaces: applied to each file's tree; not where an axis sets
   // that path or one under it.
@@ -491,6 +535,15 @@ TEST(Sweep, BadStudiesAreRejectedNamingFileAndFieldAndWriteNothing) {
   ExpectPlanError(tmp, rig + noise_axis + "pareto: {by: q}\n", "'q' is not an axis");
   ExpectPlanError(tmp, rig + noise_axis + "effects: {axis: r, baseline: 7, tolerance_mm: 0.1}\n",
                   "baseline");
+  const std::string layer_axis =
+      "axes:\n  - {name: l, set: scene.layers, labels: [none, amb, all], values: [{}, {ambient: "
+      "{level: 0.1}}, {projector_response: {gamma: 2}}]}\n";
+  ExpectPlanError(
+      tmp, rig + layer_axis + "effects: {axis: l, baseline: none, full: most, tolerance_mm: 0.1}\n",
+      "effects.full: is not a value");
+  ExpectPlanError(
+      tmp, rig + layer_axis + "effects: {axis: l, baseline: none, full: all, tolerance_mm: 0.1}\n",
+      "value 'amb' sets 'ambient', which the full model 'all' does not");
   ExpectPlanError(tmp,
                   rig +
                       "axes:\n  - {name: r, set: scene.layers.noise.read_noise_e, values: [5, "
