@@ -282,6 +282,8 @@ void MeasureFigureUncertainty(const std::vector<double>& deviations_mm, double t
   });
   accuracy->rms_sigma_mm = BandSigma(rms);
   accuracy->p95_sigma_mm = BandSigma(p95);
+  accuracy->rms_bands_mm = std::move(rms);
+  accuracy->p95_bands_mm = std::move(p95);
 }
 
 nlohmann::json ModeAccuracyToJson(const ModeAccuracy& m) {
@@ -296,7 +298,9 @@ nlohmann::json ModeAccuracyToJson(const ModeAccuracy& m) {
           {"outliers", m.outliers},
           {"outlier_fraction", m.outlier_fraction},
           {"rms_sigma_mm", m.rms_sigma_mm},
-          {"p95_sigma_mm", m.p95_sigma_mm}};
+          {"p95_sigma_mm", m.p95_sigma_mm},
+          {"rms_bands_mm", m.rms_bands_mm},
+          {"p95_bands_mm", m.p95_bands_mm}};
 }
 
 }  // namespace slshadow::shadow

@@ -144,13 +144,17 @@ struct ModeAccuracy {
   double rms_mm = 0, p95_mm = 0, max_mm = 0, mean_mm = 0;
   size_t outliers = 0;
   double outlier_fraction = 0;
-  // Standard uncertainties of rms_mm and p95_mm: the figures on kSignificanceBands consecutive
-  // runs of the points (a scan's cloud is in image-row order, so horizontal bands of the image),
-  // shadow/significance.h BandSigma. NaN with fewer than 2 bands of points.
+  // RMS and p95 on kSignificanceBands consecutive runs of the points (a scan's cloud is in
+  // image-row order, so horizontal bands of the image; NaN for an empty band), and from them the
+  // standard uncertainties of rms_mm and p95_mm (shadow/significance.h BandSigma; NaN with fewer
+  // than 2 bands of points). Two scans of one scene by one rig have the same bands: the effect of
+  // a change between them is judged band by band (paired), which cancels what the bands' content
+  // adds to each figure's own spread.
+  std::vector<double> rms_bands_mm, p95_bands_mm;
   double rms_sigma_mm = 0, p95_sigma_mm = 0;
 };
-// Sets accuracy->rms_sigma_mm and p95_sigma_mm from the compared points' deviations (in cloud
-// order) as ComputeStats(deviations, unsigned, threshold) computes RMS and p95.
+// Sets accuracy's band figures and sigmas from the compared points' deviations (in cloud order),
+// each band's RMS and p95 as ComputeStats(band, unsigned, threshold) computes them.
 void MeasureFigureUncertainty(const std::vector<double>& deviations_mm, double threshold_mm,
                               ModeAccuracy* accuracy);
 ModeAccuracy MeasureAccuracy(const std::string& mode, const compare::CompareResult& result,
@@ -160,7 +164,8 @@ ModeAccuracy MeasureAccuracy(const std::string& mode, const compare::CompareResu
 ModeAccuracy MeasureAccuracy(const std::string& mode, const compare::CompareResult& result,
                              double visible_coverage);
 // {"mode", "points", "coverage", "visible_coverage", "mean_mm", "rms_mm", "p95_mm", "max_mm",
-//  "outliers", "outlier_fraction", "rms_sigma_mm", "p95_sigma_mm"}: what the demo's demo.json and a
+//  "outliers", "outlier_fraction", "rms_sigma_mm", "p95_sigma_mm", "rms_bands_mm",
+//  "p95_bands_mm"}: what the demo's demo.json and a
 //  sweep job's result record.
 nlohmann::json ModeAccuracyToJson(const ModeAccuracy& accuracy);
 

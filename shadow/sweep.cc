@@ -606,9 +606,9 @@ struct Group {
   std::string noise_free_key;
   std::unique_ptr<NoiseFreeImages> noise_free;
   std::vector<std::vector<cv::Mat>> images;
-  // Wall seconds of the geometry pass (the Simulator) and of the noise-free images: what a job
-  // reusing them would have paid itself (its timing's model_s).
-  double geometry_s = 0, noise_free_s = 0;
+  // CPU seconds (all threads) of the geometry pass (the Simulator) and of the noise-free images:
+  // what a job reusing them would have paid itself (its timing's model_cpu_s).
+  double geometry_cpu_s = 0, noise_free_cpu_s = 0;
 };
 
 json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group, int* traces) {
@@ -635,9 +635,9 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
     g->key = key;
     g->scene = scene;
     g->rig = RigFromConfig(node("rig"));
-    const auto tg = clock();
+    const double cg = ProcessCpuSeconds();
     g->simulator = std::make_unique<Simulator>(g->scene, g->rig);
-    g->geometry_s = seconds(tg, clock());
+    g->geometry_cpu_s = ProcessCpuSeconds() - cg;
     g->scorer = std::make_unique<GroundTruthScorer>(GroundTruthSurface(g->scene, what + ": scene"),
                                                     LitVisibleSurface(g->simulator->geometry(0)),
                                                     "scene ground truth");
@@ -649,6 +649,7 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
   stage_cpu("setup_cpu_s");
 
   const PatternSpec spec = PatternSpecFromConfig(node("patterns"));
+  const double c1 = ProcessCpuSeconds();
   if (scene.layers.noise_enabled) {
     // Noise per seed on the noise-free images rendered once (bit for bit Simulator::Render's).
     const std::string images_key = NoiseFreeImages::Key(job.at("scene"), job.at("patterns"));
@@ -657,14 +658,15 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
       group->noise_free = std::make_unique<NoiseFreeImages>(*group->simulator, scene, group->rig,
                                                             GeneratePatterns(spec));
       group->noise_free_key = images_key;
-      group->noise_free_s = seconds(t1, clock());
+      group->noise_free_cpu_s = ProcessCpuSeconds() - c1;
     }
-    const auto tn = clock();
+    const double cn = ProcessCpuSeconds();
     group->noise_free->Render(scene, &group->images);
-    timing["model_s"] = group->geometry_s + group->noise_free_s + seconds(tn, clock());
+    timing["model_cpu_s"] =
+        group->geometry_cpu_s + group->noise_free_cpu_s + (ProcessCpuSeconds() - cn);
   } else {
     group->images = group->simulator->Render(GeneratePatterns(spec), &scene);
-    timing["model_s"] = group->geometry_s + seconds(t1, clock());
+    timing["model_cpu_s"] = group->geometry_cpu_s + (ProcessCpuSeconds() - c1);
   }
   const std::vector<std::vector<cv::Mat>>& images = group->images;
   const auto t2 = clock();

@@ -265,11 +265,23 @@ double FigureSigma(const json& accuracy, const std::string& metric) {
   return accuracy.contains(key) ? Figure(accuracy, key) : std::nan("");
 }
 
+// A figure's values on the image bands (`<metric>` rms_mm -> rms_bands_mm); empty when the job's
+// result predates them.
+std::vector<double> FigureBands(const json& accuracy, const std::string& metric) {
+  const std::string key = metric.substr(0, metric.size() - 3) + "_bands_mm";
+  std::vector<double> bands;
+  if (!accuracy.contains(key)) return bands;
+  for (const json& v : accuracy.at(key))
+    bands.push_back(v.is_null() ? std::nan("") : v.get<double>());
+  return bands;
+}
+
 // A layer's effect on RMS and p95: figures of `with` minus those of `without`, judged by
 // shadow/significance.h (the rule `slshadow shadow` keeps fitted layers by): needed when either
-// change exceeds max(3 sigma, tolerance), sigma the two jobs' standard uncertainties combined
-// (unknown ones count as 0). A missing figure (nothing reconstructed on one side) is a change
-// beyond any tolerance.
+// change exceeds max(3 sigma, tolerance). Sigma is that of the change: paired, from the change on
+// each image band (BandSigma of the band differences) when both jobs have bands, else the two
+// figures' uncertainties combined (unknown ones count as 0). A missing figure (nothing
+// reconstructed on one side) is a change beyond any tolerance.
 struct LayerEffect {
   double d_rms = 0, d_p95 = 0, threshold_rms = 0, threshold_p95 = 0;
   bool needed = false;
@@ -278,9 +290,17 @@ LayerEffect MeasureLayerEffect(const json& with, const json& without, double tol
   LayerEffect e;
   const auto one = [&](const std::string& metric, double* delta, double* threshold) {
     *delta = Figure(with, metric) - Figure(without, metric);
-    const auto known = [](double s) { return std::isnan(s) ? 0.0 : s; };
-    const double sigma =
-        std::hypot(known(FigureSigma(with, metric)), known(FigureSigma(without, metric)));
+    const std::vector<double> a = FigureBands(with, metric), b = FigureBands(without, metric);
+    double sigma = 0;
+    if (!a.empty() && a.size() == b.size()) {
+      std::vector<double> d(a.size());
+      for (size_t i = 0; i < a.size(); ++i) d[i] = a[i] - b[i];
+      sigma = BandSigma(d);
+    } else {
+      const auto known = [](double s) { return std::isnan(s) ? 0.0 : s; };
+      sigma = std::hypot(known(FigureSigma(with, metric)), known(FigureSigma(without, metric)));
+    }
+    if (std::isnan(sigma)) sigma = 0;
     *threshold = SignificanceThreshold(sigma, tolerance);
     return std::isnan(*delta) || Significant(*delta, sigma, tolerance);
   };
@@ -327,16 +347,16 @@ void WriteEffects(const json& spec, const std::vector<std::string>& axes,
     return !full.is_null() && value.is_string() &&
            value.get<std::string>().rfind("without_", 0) == 0;
   };
-  // What the cost compares: the model seconds (geometry + noise-free images + noise, as if not
-  // reused) of jobs that record them, else their render seconds.
-  const auto model_s = [](const json& timing) {
-    return timing.contains("model_s") ? timing.at("model_s").get<double>()
-                                      : timing.at("render_s").get<double>();
+  // What the cost compares: the CPU seconds of the model (geometry + noise-free images + noise,
+  // as if not reused) of jobs that record them, else their render seconds.
+  const auto model_cpu_s = [](const json& timing) {
+    return timing.contains("model_cpu_s") ? timing.at("model_cpu_s").get<double>()
+                                          : timing.at("render_s").get<double>();
   };
 
   std::string effects = "series,mode," + CsvField(axis) +
                         ",kind,rms_mm,rms_sigma_mm,p95_mm,p95_sigma_mm,d_rms_mm,d_p95_mm,"
-                        "threshold_rms_mm,threshold_p95_mm,needed,render_s,model_s\n";
+                        "threshold_rms_mm,threshold_p95_mm,needed,render_s,model_cpu_s\n";
   std::string layers = "series,mode," + CsvField(axis) +
                        ",alone_d_rms_mm,alone_d_p95_mm,alone_needed,off_d_rms_mm,off_d_p95_mm,"
                        "off_threshold_rms_mm,off_threshold_p95_mm,off_needed,needed,cost_ms\n";
@@ -372,7 +392,7 @@ void WriteEffects(const json& spec, const std::vector<std::string>& axes,
                  CsvField(m.at("p95_mm")) + ',' + OptionalField(FigureSigma(m, "p95_mm")) + ',' +
                  d_rms + ',' + d_p95 + ',' + t_rms + ',' + t_p95 + ',' + needed + ',' +
                  CsvField(r.at("timing").at("render_s")) + ',' +
-                 CsvField(json(model_s(r.at("timing")))) + '\n';
+                 CsvField(json(model_cpu_s(r.at("timing")))) + '\n';
       if (kind != "alone") continue;
       // The layer's row: alone against the baseline; off against the full model when planned.
       const std::pair<json, json>* base = find(k, baseline);
@@ -383,13 +403,13 @@ void WriteEffects(const json& spec, const std::vector<std::string>& axes,
           whole && value.is_string() ? find(k, without_label(value)) : nullptr;
       std::string off_fields = ",,,,";  // the five off columns, empty without the full model
       LayerEffect shown = alone;
-      double cost = model_s(r.at("timing")) - model_s(base->second);
+      double cost = model_cpu_s(r.at("timing")) - model_cpu_s(base->second);
       if (off) {
         shown = MeasureLayerEffect(whole->first, off->first, tolerance);
         off_fields = OptionalField(shown.d_rms) + ',' + OptionalField(shown.d_p95) + ',' +
                      OptionalField(shown.threshold_rms) + ',' + OptionalField(shown.threshold_p95) +
                      ',' + (shown.needed ? "1" : "0");
-        cost = model_s(whole->second) - model_s(off->second);
+        cost = model_cpu_s(whole->second) - model_cpu_s(off->second);
       }
       layers += CsvField(series) + ',' + mode + ',' + CsvField(value) + ',' +
                 OptionalField(alone.d_rms) + ',' + OptionalField(alone.d_p95) + ',' +

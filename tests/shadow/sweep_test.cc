@@ -3,6 +3,7 @@
 // for byte); resumption runs only missing jobs; the accuracy of noisy scans of the demo part
 // against its ground truth; bad input.
 #include "shadow/sweep.h"
+#include "shadow/significance.h"
 
 #include "core/error.h"
 #include "core/file_util.h"
@@ -379,8 +380,8 @@ TEST(Sweep, BreakPointsWhenSmallerValuesAreWorse) {
 // Study 3's machinery: an axis of layer mappings with labels, each against the baseline `none`,
 // and with `full`, each switched off in the full model (the planned "without_" values).
 // effects.csv's and layers.csv's changes are the differences of results.json's figures, `needed`
-// their comparison with max(3 sigma, tolerance) (shadow/significance.h, sigma from the figures'
-// band uncertainties). Also: the study's `set` reaches the scene a files axis puts in each job.
+// their comparison with max(3 sigma, tolerance) (shadow/significance.h, sigma from the change on
+// each image band). Also: the study's `set` reaches the scene a files axis puts in each job.
 TEST(Sweep, EffectsOfEachAxisValueAgainstABaselineAndInTheFullModel) {
   TempDir tmp;
   std::ofstream(tmp / "study.yaml")
@@ -424,9 +425,16 @@ TEST(Sweep, EffectsOfEachAxisValueAgainstABaselineAndInTheFullModel) {
   const auto effect = [&](int with, int without) {
     std::string fields, needed = "0";
     for (const char* metric : {"rms", "p95"}) {
-      const std::string fig = std::string(metric) + "_mm", sig = std::string(metric) + "_sigma_mm";
+      const std::string fig = std::string(metric) + "_mm",
+                        bands = std::string(metric) + "_bands_mm";
       const double d = figure(with, fig.c_str()) - figure(without, fig.c_str());
-      const double sigma = std::hypot(figure(with, sig.c_str()), figure(without, sig.c_str()));
+      // Paired: the change on each of the 8 image bands.
+      std::vector<double> band_d;
+      for (int b = 0; b < 8; ++b) {
+        band_d.push_back(jobs[with]["modes"][0][bands][b].get<double>() -
+                         jobs[without]["modes"][0][bands][b].get<double>());
+      }
+      const double sigma = BandSigma(band_d);
       EXPECT_GT(sigma, 0);
       EXPECT_LT(sigma, 0.05);
       if (std::abs(d) > std::max(3 * sigma, 0.002)) needed = "1";
@@ -440,7 +448,7 @@ TEST(Sweep, EffectsOfEachAxisValueAgainstABaselineAndInTheFullModel) {
   std::getline(lines, line);
   EXPECT_EQ(line,
             "series,mode,layer,kind,rms_mm,rms_sigma_mm,p95_mm,p95_sigma_mm,d_rms_mm,d_p95_mm,"
-            "threshold_rms_mm,threshold_p95_mm,needed,render_s,model_s");
+            "threshold_rms_mm,threshold_p95_mm,needed,render_s,model_cpu_s");
   const char* kinds[] = {"baseline", "alone", "alone", "full", "off", "off"};
   for (int job = 0; job < 6; ++job) {
     ASSERT_TRUE(std::getline(lines, line));
