@@ -80,12 +80,15 @@ int RunSweep(int argc, char** argv) {
   shadow::SweepRunSummary ran;
   shadow::SweepMergeSummary merged;
   if (whole->parsed()) {
-    const shadow::SweepStudySummary s = shadow::RunStudy(study, out, options);
-    if (s.resumed) {
-      std::printf("resuming %s\n", s.jobs_dir.string().c_str());
-    } else {
-      PrintPlan(s.plan, s.jobs_dir);
-    }
+    const shadow::SweepStudySummary s =
+        shadow::RunStudy(study, out, options, [](const shadow::SweepStudySummary& p) {
+          if (p.resumed) {
+            std::printf("resuming %s\n", p.jobs_dir.string().c_str());
+          } else {
+            PrintPlan(p.plan, p.jobs_dir);
+          }
+          std::fflush(stdout);
+        });
     ran = s.run;
     merged = s.merge;
   }

@@ -833,7 +833,8 @@ SweepRunSummary RunSweepShard(const fs::path& jobs_dir, const SweepRunOptions& o
 // Plan, run and merge.
 
 SweepStudySummary RunStudy(const fs::path& study_file, const fs::path& out_dir,
-                           const SweepRunOptions& options) {
+                           const SweepRunOptions& options,
+                           const std::function<void(const SweepStudySummary&)>& planned) {
   options.Check();
   SweepStudySummary summary;
   summary.jobs_dir = out_dir / "jobs";
@@ -851,6 +852,7 @@ SweepStudySummary RunStudy(const fs::path& study_file, const fs::path& out_dir,
   } else {
     summary.plan = PlanSweep(study_file, summary.jobs_dir);
   }
+  if (planned) planned(summary);
   summary.run = RunSweepShard(summary.jobs_dir, options);
   summary.merge = MergeSweep(summary.jobs_dir, out_dir);
   return summary;

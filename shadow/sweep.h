@@ -26,6 +26,7 @@
 #include <nlohmann/json.hpp>
 
 #include <filesystem>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -120,8 +121,10 @@ struct SweepStudySummary {
 // Plans the study into `out_dir`/jobs (kept, so that a second call resumes it), runs the shard of
 // `options` (by default all jobs) and merges into `out_dir`. A plan that exists must come from the
 // same study (its study_config); otherwise slshadow::Error names both files. Throws as PlanSweep,
-// RunSweepShard and MergeSweep do.
+// RunSweepShard and MergeSweep do. `planned`, if given, is called once the plan is written or found
+// (resumed and plan set, run and merge not yet), before the jobs run: a command prints it then.
 SweepStudySummary RunStudy(const std::filesystem::path& study_file,
-                           const std::filesystem::path& out_dir, const SweepRunOptions& options);
+                           const std::filesystem::path& out_dir, const SweepRunOptions& options,
+                           const std::function<void(const SweepStudySummary&)>& planned = nullptr);
 
 }  // namespace slshadow::shadow

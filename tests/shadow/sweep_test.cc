@@ -143,7 +143,17 @@ TEST(Sweep, ShardsInAnyOrderMergeToTheOneProcessResultAndResumeOnlyMissingJobs) 
 TEST(Sweep, RunStudyPlansOnceThenResumesOnlyMissingJobs) {
   TempDir tmp;
   WriteSmallStudy(tmp / "study.yaml");
-  const SweepStudySummary first = RunStudy(tmp / "study.yaml", tmp / "out", SweepRunOptions{});
+  // `planned` is called once, after planning and before any job ran (what the command prints).
+  int calls = 0;
+  const SweepStudySummary first =
+      RunStudy(tmp / "study.yaml", tmp / "out", SweepRunOptions{}, [&](const SweepStudySummary& p) {
+        ++calls;
+        EXPECT_FALSE(p.resumed);
+        EXPECT_EQ(p.plan.jobs, 4);
+        EXPECT_TRUE(fs::exists(tmp / "out/jobs/plan.json"));
+        EXPECT_FALSE(fs::exists(tmp / "out/jobs/results/000000.json"));
+      });
+  EXPECT_EQ(calls, 1);
   EXPECT_FALSE(first.resumed);
   EXPECT_EQ(first.plan.jobs, 4);
   EXPECT_EQ(first.jobs_dir, tmp / "out" / "jobs");
@@ -159,7 +169,13 @@ TEST(Sweep, RunStudyPlansOnceThenResumesOnlyMissingJobs) {
   EXPECT_EQ(ReadTextFile(tmp / "out/results.csv"), csv);
 
   fs::remove(tmp / "out/jobs/results/000002.json");
-  const SweepStudySummary third = RunStudy(tmp / "study.yaml", tmp / "out", SweepRunOptions{});
+  const SweepStudySummary third =
+      RunStudy(tmp / "study.yaml", tmp / "out", SweepRunOptions{}, [&](const SweepStudySummary& p) {
+        ++calls;
+        EXPECT_TRUE(p.resumed);
+        EXPECT_FALSE(fs::exists(tmp / "out/jobs/results/000002.json"));
+      });
+  EXPECT_EQ(calls, 2);
   EXPECT_TRUE(third.resumed);
   EXPECT_EQ(third.run.ran, 1);
   EXPECT_EQ(ReadTextFile(tmp / "out/results.csv"), csv);
