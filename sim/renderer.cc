@@ -241,8 +241,9 @@ std::vector<cv::Mat> PatternRenderer::RenderIrradianceBatch(
             const float ax = u - std::floor(u), ay = t - std::floor(t);
             return std::array<float, 4>{(1 - ax) * (1 - ay), ax * (1 - ay), (1 - ax) * ay, ax * ay};
           };
-          // The blurred images at the point's blur: bilinear between the two nearest levels.
-          const auto add_blurred = [&](float gain) {
+          // base + gain x the blurred images at the point's blur (bilinear between the two nearest
+          // blur levels).
+          const auto add_blurred = [&](float base_light, float gain) {
             const auto [i00, i01, i10, i11] = bilinear_at();
             const auto [w00, w01, w10, w11] = bilinear_weights();
             int l0 = 0, l1 = 0;
@@ -260,7 +261,7 @@ std::vector<cv::Mat> PatternRenderer::RenderIrradianceBatch(
                   w00 * p0[i00 + k] + w01 * p0[i01 + k] + w10 * p0[i10 + k] + w11 * p0[i11 + k];
               const float v1 =
                   w00 * p1[i00 + k] + w01 * p1[i01 + k] + w10 * p1[i10 + k] + w11 * p1[i11 + k];
-              acc[k] += gain * ((1 - a) * v0 + a * v1);
+              acc[k] += base_light + gain * ((1 - a) * v0 + a * v1);
             }
           };
           if (fill || !bilinear) {
@@ -278,8 +279,7 @@ std::vector<cv::Mat> PatternRenderer::RenderIrradianceBatch(
               const float sigma = geometry_.proj_sigma_px[i];
               const float grid = std::exp(-2 * static_cast<float>(M_PI * M_PI) * sigma * sigma);
               g *= grid;
-              for (int k = 0; k < batch; ++k) acc[k] += base;
-              add_blurred(f * (1 - grid) * static_cast<float>(l.fill_factor));
+              add_blurred(base, f * (1 - grid) * static_cast<float>(l.fill_factor));
               const float* p = inter_f[0].data() + idx;
               for (int k = 0; k < batch; ++k) acc[k] += g * p[k];
               continue;
@@ -302,23 +302,7 @@ std::vector<cv::Mat> PatternRenderer::RenderIrradianceBatch(
                                     w11 * p[i11 + k]);
             }
           } else {
-            int l0 = 0, l1 = 0;
-            float a = 0;
-            if (top_level > 0) {
-              const float lv = geometry_.proj_sigma_px[i] * level_scale;
-              l0 = std::min(static_cast<int>(lv), top_level);
-              l1 = std::min(l0 + 1, top_level);
-              a = lv - l0;
-            }
-            const float* p0 = inter_f[static_cast<size_t>(l0)].data();
-            const float* p1 = inter_f[static_cast<size_t>(l1)].data();
-            for (int k = 0; k < batch; ++k) {
-              const float v0 =
-                  w00 * p0[i00 + k] + w01 * p0[i01 + k] + w10 * p0[i10 + k] + w11 * p0[i11 + k];
-              const float v1 =
-                  w00 * p1[i00 + k] + w01 * p1[i01 + k] + w10 * p1[i10 + k] + w11 * p1[i11 + k];
-              acc[k] += base + f * ((1 - a) * v0 + a * v1);
-            }
+            add_blurred(base, f);
           }
         }
         const float m = scale * (vig ? vig[x] : 1.0f);
