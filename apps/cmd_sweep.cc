@@ -112,7 +112,7 @@ int RunSweep(int argc, char** argv) {
       for (const auto& b : s.break_points) std::printf("  %s\n", b.c_str());
     }
     if (!s.effects.empty()) {
-      std::printf("Effects against the baseline (%s/effects.csv):\n", out.c_str());
+      std::printf("Which layers the scene needs (%s/layers.csv, effects.csv):\n", out.c_str());
       for (const auto& e : s.effects) std::printf("  %s\n", e.c_str());
     }
     if (!s.acceptance.empty()) {

@@ -86,7 +86,8 @@ struct SweepMergeSummary {
   std::vector<std::string> front;  // "mode: id (axis values)" of the jobs on the Pareto front
   // With the study key `curves`: "series, mode: metric > limit at x = value" per curve and limit.
   std::vector<std::string> break_points;
-  // With the study key `effects`: "series, mode: value changes / does not change ..." per job.
+  // With the study key `effects`: "series, mode: value needed / not needed at T mm (off in the full
+  // model | on alone: RMS .. mm, p95 .. mm; costs .. ms)" per layer (value) and mode.
   std::vector<std::string> effects;
   // With the study key `vdi2634`: "series, mode: PF .. PS .. SD .. F .." per series and mode.
   std::vector<std::string> acceptance;

@@ -415,12 +415,16 @@ void WriteEffects(const json& spec, const std::vector<std::string>& axes,
                 OptionalField(alone.d_rms) + ',' + OptionalField(alone.d_p95) + ',' +
                 (alone.needed ? "1" : "0") + ',' + off_fields + ',' + (shown.needed ? "1" : "0") +
                 ',' + CsvField(json(1000 * cost), 4) + '\n';
-      summary->effects.push_back(
-          (series.empty() ? "" : series + ", ") + mode + ": " + CsvField(value) +
-          (shown.needed ? " needed" : " not needed") + " at " + CsvField(json(tolerance)) +
-          " mm (" + (off ? "off in the full model" : "on alone") + ": RMS " +
-          OptionalField(shown.d_rms) + " mm, p95 " + OptionalField(shown.d_p95) + " mm; costs " +
-          CsvField(json(1000 * cost), 3) + " ms)");
+      char figures[160];
+      std::snprintf(figures, sizeof(figures), "RMS %+.4f mm, p95 %+.4f mm (thresholds %.4f, %.4f)",
+                    shown.d_rms, shown.d_p95, shown.threshold_rms, shown.threshold_p95);
+      char costs[48];
+      std::snprintf(costs, sizeof(costs), "%.0f CPU ms", 1000 * cost);
+      summary->effects.push_back((series.empty() ? "" : series + ", ") + mode + ": " +
+                                 CsvField(value) + (shown.needed ? " needed" : " not needed") +
+                                 " at " + CsvField(json(tolerance)) + " mm; " +
+                                 (off ? "off in the full model" : "on alone") + ": " + figures +
+                                 "; costs " + costs);
     }
   }
   WriteTextFileAtomically(out_dir / "effects.csv", effects);
