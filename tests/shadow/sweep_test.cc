@@ -412,7 +412,7 @@ TEST(Sweep, EffectsOfEachAxisValueAgainstABaselineAndInTheFullModel) {
          "    values: [{}, {ambient: {level: 0.05}}, {projector_response: {gamma: 2.2}},\n"
          "             {ambient: {level: 0.05}, projector_response: {gamma: 2.2}}]\n"
          "effects: {axis: layer, baseline: none, full: all, tolerance_mm: 0.002}\n"
-         "pareto: {by: layer}\n";
+         "pareto: {by: layer, time: cpu}\n";
   PlanSweep(tmp / "study.yaml", tmp / "jobs");
   // The one-layer-off values: the full model without each layer's keys.
   const nlohmann::json job5 = nlohmann::json::parse(ReadTextFile(tmp / "jobs/jobs/000005.json"));
@@ -494,8 +494,17 @@ TEST(Sweep, EffectsOfEachAxisValueAgainstABaselineAndInTheFullModel) {
   }
   EXPECT_FALSE(std::getline(layer_lines, line));
 
-  // A front per mode and layer: one job each, so each is on its front.
+  // A front per mode and layer: one job each, so each is on its front. Its time is the method's
+  // CPU seconds (pareto.time: cpu), with 17 digits.
   const std::string pareto = ReadTextFile(tmp / "result/pareto.csv");
+  const nlohmann::json result2 =
+      nlohmann::json::parse(ReadTextFile(tmp / "jobs/results/000002.json"));
+  const double cpu = result2["timing"]["method_cpu_s"]["projector"].get<double>();
+  EXPECT_GT(cpu, 0);
+  char cpu_text[64];
+  std::snprintf(cpu_text, sizeof(cpu_text), ",%.17g,", cpu);
+  EXPECT_NE(pareto.find("000002,projector,000002" + std::string(cpu_text)), std::string::npos)
+      << pareto << cpu_text;
   EXPECT_EQ(pareto.substr(0, pareto.find('\n')), "id,mode,label,time_s,rms_mm,on_front,group");
   EXPECT_NE(pareto.find(",1,projector gamma\n"), std::string::npos) << pareto;
   EXPECT_EQ(merged.front.size(), 6u);
@@ -557,6 +566,7 @@ TEST(Sweep, BadStudiesAreRejectedNamingFileAndFieldAndWriteNothing) {
       "axes:\n  - {name: r, set: scene.layers.noise.read_noise_e, values: [5, 50]}\n";
   ExpectPlanError(tmp, rig + noise_axis + "curves: {x: q}\n", "'q' is not an axis");
   ExpectPlanError(tmp, rig + noise_axis + "pareto: {by: q}\n", "'q' is not an axis");
+  ExpectPlanError(tmp, rig + noise_axis + "pareto: {time: cpus}\n", "pareto.time: must be");
   ExpectPlanError(tmp, rig + noise_axis + "effects: {axis: r, baseline: 7, tolerance_mm: 0.1}\n",
                   "baseline");
   const std::string layer_axis =
