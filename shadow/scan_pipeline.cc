@@ -6,9 +6,9 @@
 #include <cmath>
 #include <optional>
 
-#include "compare/statistics.h"
 #include "core/config.h"
 #include "core/error.h"
+#include "core/statistics.h"
 #include "shadow/demo_config.h"  // generated: the embedded config/demo files
 #include "shadow/significance.h"
 
@@ -261,24 +261,27 @@ ModeAccuracy MeasureAccuracy(const std::string& mode, const compare::CompareResu
   m.outlier_fraction = result.c2c.count ? static_cast<double>(result.c2c.outliers) /
                                               static_cast<double>(result.c2c.count)
                                         : 0;
-  MeasureFigureUncertainty(result.deviations_mm, result.options.threshold_mm, &m);
   return m;
 }
 
-void MeasureFigureUncertainty(const std::vector<double>& deviations_mm, double threshold_mm,
-                              ModeAccuracy* accuracy) {
+void MeasureFigureUncertainty(const std::vector<double>& deviations_mm, ModeAccuracy* accuracy) {
   const size_t n = deviations_mm.size(), bands = kSignificanceBands;
   std::vector<double> rms(bands, std::nan("")), p95(bands, std::nan(""));
   tbb::parallel_for(size_t{0}, bands, [&](size_t b) {
-    const std::vector<double> band(
-        deviations_mm.begin() + static_cast<std::ptrdiff_t>(n * b / bands),
-        deviations_mm.begin() + static_cast<std::ptrdiff_t>(n * (b + 1) / bands));
-    if (band.empty()) return;
-    const compare::DistanceStats s =
-        compare::ComputeStats(band, /*is_signed=*/false, threshold_mm, /*bins=*/1);
-    if (s.count == 0) return;
-    rms[b] = s.rms_mm;
-    p95[b] = s.p95_mm;
+    // ComputeStats's definitions: over the finite values, RMS of |d| and its nearest-rank 95th
+    // percentile (core/statistics.h Percentile), without its other figures.
+    std::vector<double> abs_d;
+    abs_d.reserve(n / bands + 1);
+    double sum2 = 0;
+    for (size_t i = n * b / bands; i < n * (b + 1) / bands; ++i) {
+      const double d = deviations_mm[i];
+      if (!std::isfinite(d)) continue;
+      abs_d.push_back(std::abs(d));
+      sum2 += d * d;
+    }
+    if (abs_d.empty()) return;
+    rms[b] = std::sqrt(sum2 / static_cast<double>(abs_d.size()));
+    p95[b] = Percentile(abs_d, 95.0);
   });
   accuracy->rms_sigma_mm = BandSigma(rms);
   accuracy->p95_sigma_mm = BandSigma(p95);
@@ -287,20 +290,18 @@ void MeasureFigureUncertainty(const std::vector<double>& deviations_mm, double t
 }
 
 nlohmann::json ModeAccuracyToJson(const ModeAccuracy& m) {
-  return {{"mode", m.mode},
-          {"points", m.points},
-          {"coverage", m.coverage},
-          {"visible_coverage", m.visible_coverage},
-          {"mean_mm", m.mean_mm},
-          {"rms_mm", m.rms_mm},
-          {"p95_mm", m.p95_mm},
-          {"max_mm", m.max_mm},
-          {"outliers", m.outliers},
-          {"outlier_fraction", m.outlier_fraction},
-          {"rms_sigma_mm", m.rms_sigma_mm},
-          {"p95_sigma_mm", m.p95_sigma_mm},
-          {"rms_bands_mm", m.rms_bands_mm},
-          {"p95_bands_mm", m.p95_bands_mm}};
+  nlohmann::json j = {{"mode", m.mode},         {"points", m.points},
+                      {"coverage", m.coverage}, {"visible_coverage", m.visible_coverage},
+                      {"mean_mm", m.mean_mm},   {"rms_mm", m.rms_mm},
+                      {"p95_mm", m.p95_mm},     {"max_mm", m.max_mm},
+                      {"outliers", m.outliers}, {"outlier_fraction", m.outlier_fraction}};
+  if (!m.rms_bands_mm.empty()) {
+    j["rms_sigma_mm"] = m.rms_sigma_mm;
+    j["p95_sigma_mm"] = m.p95_sigma_mm;
+    j["rms_bands_mm"] = m.rms_bands_mm;
+    j["p95_bands_mm"] = m.p95_bands_mm;
+  }
+  return j;
 }
 
 }  // namespace slshadow::shadow

@@ -144,8 +144,9 @@ struct ModeAccuracy {
   double rms_mm = 0, p95_mm = 0, max_mm = 0, mean_mm = 0;
   size_t outliers = 0;
   double outlier_fraction = 0;
-  // RMS and p95 on kSignificanceBands consecutive runs of the points (a scan's cloud is in
-  // image-row order, so horizontal bands of the image; NaN for an empty band), and from them the
+  // Set by MeasureFigureUncertainty (not by MeasureAccuracy: the sweeps ask for them, the demo
+  // does not). RMS and p95 on kSignificanceBands consecutive runs of the points (a scan's cloud is
+  // in image-row order, so horizontal bands of the image; NaN for an empty band), and from them the
   // standard uncertainties of rms_mm and p95_mm (shadow/significance.h BandSigma; NaN with fewer
   // than 2 bands of points). Two scans of one scene by one rig have the same bands: the effect of
   // a change between them is judged band by band (paired), which cancels what the bands' content
@@ -154,9 +155,8 @@ struct ModeAccuracy {
   double rms_sigma_mm = 0, p95_sigma_mm = 0;
 };
 // Sets accuracy's band figures and sigmas from the compared points' deviations (in cloud order),
-// each band's RMS and p95 as ComputeStats(band, unsigned, threshold) computes them.
-void MeasureFigureUncertainty(const std::vector<double>& deviations_mm, double threshold_mm,
-                              ModeAccuracy* accuracy);
+// each band's RMS and p95 as compare::ComputeStats(band, unsigned, ...) defines them.
+void MeasureFigureUncertainty(const std::vector<double>& deviations_mm, ModeAccuracy* accuracy);
 ModeAccuracy MeasureAccuracy(const std::string& mode, const compare::CompareResult& result,
                              const std::vector<Eigen::Vector3d>& visible);
 // The same with the visible coverage already measured (e.g. by compare::Compare as an extra
@@ -164,8 +164,8 @@ ModeAccuracy MeasureAccuracy(const std::string& mode, const compare::CompareResu
 ModeAccuracy MeasureAccuracy(const std::string& mode, const compare::CompareResult& result,
                              double visible_coverage);
 // {"mode", "points", "coverage", "visible_coverage", "mean_mm", "rms_mm", "p95_mm", "max_mm",
-//  "outliers", "outlier_fraction", "rms_sigma_mm", "p95_sigma_mm", "rms_bands_mm",
-//  "p95_bands_mm"}: what the demo's demo.json and a
+//  "outliers", "outlier_fraction"}, and when measured (MeasureFigureUncertainty) "rms_sigma_mm",
+//  "p95_sigma_mm", "rms_bands_mm", "p95_bands_mm": what the demo's demo.json and a
 //  sweep job's result record.
 nlohmann::json ModeAccuracyToJson(const ModeAccuracy& accuracy);
 

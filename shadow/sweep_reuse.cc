@@ -411,7 +411,10 @@ ModeAccuracy GroundTruthScorer::Measure(const PointCloud& cloud,
                                         const std::string& mode) const {
   if (options.registration.method != compare::RegistrationMethod::kNone || options.m3c2 ||
       options.artefacts) {
-    return MeasureAccuracy(mode, compare::Compare(cloud, reference_, options, mode), visible_);
+    const compare::CompareResult result = compare::Compare(cloud, reference_, options, mode);
+    ModeAccuracy m = MeasureAccuracy(mode, result, visible_);
+    MeasureFigureUncertainty(result.deviations_mm, &m);
+    return m;
   }
   options.Check();
   cloud.Check(mode);
@@ -453,7 +456,7 @@ ModeAccuracy GroundTruthScorer::Measure(const PointCloud& cloud,
   m.outliers = stats.outliers;
   m.outlier_fraction =
       stats.count ? static_cast<double>(stats.outliers) / static_cast<double>(stats.count) : 0;
-  MeasureFigureUncertainty(deviations, options.threshold_mm, &m);
+  MeasureFigureUncertainty(deviations, &m);
   return m;
 }
 

@@ -85,10 +85,10 @@ class GroundTruthScorer {
                     const std::string& what);
   ~GroundTruthScorer();
 
-  // MeasureAccuracy(mode, compare::Compare(cloud, reference, options, mode), visible), the same
-  // doubles, for options without registration, M3C2 or artefacts (what a sweep job's compare
-  // options may hold: anything else goes through compare::Compare). Throws slshadow::Error on an
-  // empty cloud, as compare::Compare does.
+  // MeasureAccuracy(mode, compare::Compare(cloud, reference, options, mode), visible) with
+  // MeasureFigureUncertainty of its deviations, the same doubles, for options without registration,
+  // M3C2 or artefacts (what a sweep job's compare options may hold: anything else goes through
+  // compare::Compare). Throws slshadow::Error on an empty cloud, as compare::Compare does.
   ModeAccuracy Measure(const PointCloud& cloud, const compare::CompareOptions& options,
                        const std::string& mode) const;
 

@@ -6,6 +6,7 @@
 
 #include <gtest/gtest.h>
 
+#include "compare/statistics.h"
 #include "core/error.h"
 #include "shadow/significance.h"
 #include "tests/testing/temp_dir.h"
@@ -326,13 +327,29 @@ TEST(MeasureFigureUncertainty, IsTheSpreadOfTheFiguresOfEightConsecutiveBands) {
       for (size_t i = 0; i < per_band; ++i) d.push_back((i % 2 ? -1 : 1) * (b + 1) / 100.0);
     }
     ModeAccuracy m;
-    MeasureFigureUncertainty(d, 0.5, &m);
+    MeasureFigureUncertainty(d, &m);
     const double expected = std::sqrt(6.0) / std::sqrt(8.0) / 100;  // BandSigma of 0.01 .. 0.08
     EXPECT_NEAR(m.rms_sigma_mm, expected, 1e-15) << per_band;
     EXPECT_NEAR(m.p95_sigma_mm, expected, 1e-15) << per_band;
   }
+  // Each band's figures are compare::ComputeStats's (non-finite values left out), band by band.
+  std::vector<double> d(1003);
+  for (size_t i = 0; i < d.size(); ++i) d[i] = std::sin(0.37 * i) * (i % 7 + 1) / 10;
+  d[5] = std::nan("");
+  d[600] = INFINITY;
+  ModeAccuracy bands;
+  MeasureFigureUncertainty(d, &bands);
+  ASSERT_EQ(bands.rms_bands_mm.size(), 8u);
+  for (size_t b = 0; b < 8; ++b) {
+    const std::vector<double> band(d.begin() + static_cast<std::ptrdiff_t>(d.size() * b / 8),
+                                   d.begin() + static_cast<std::ptrdiff_t>(d.size() * (b + 1) / 8));
+    const compare::DistanceStats s = compare::ComputeStats(band, false, 0.5);
+    EXPECT_NEAR(bands.rms_bands_mm[b], s.rms_mm, 1e-15) << b;
+    EXPECT_EQ(bands.p95_bands_mm[b], s.p95_mm) << b;
+  }
+  EXPECT_EQ(bands.rms_sigma_mm, BandSigma(bands.rms_bands_mm));
   ModeAccuracy m;
-  MeasureFigureUncertainty({0.1}, 0.5, &m);  // one point: one band with a figure
+  MeasureFigureUncertainty({0.1}, &m);  // one point: one band with a figure
   EXPECT_TRUE(std::isnan(m.rms_sigma_mm));
   EXPECT_TRUE(std::isnan(m.p95_sigma_mm));
 }

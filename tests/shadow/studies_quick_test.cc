@@ -89,10 +89,9 @@ TEST(QuickStudies, PhysicsLayersVerdictsFollowTheirChangesAndThresholds) {
   EXPECT_EQ(s.merge.effects.size(), 16u);
   for (const auto& r : layers) {
     const std::string what = r.at("layer") + " " + r.at("mode");
-    const bool off = std::abs(std::stod(r.at("off_d_rms_mm"))) >
-                         std::stod(r.at("off_threshold_rms_mm")) ||
-                     std::abs(std::stod(r.at("off_d_p95_mm"))) >
-                         std::stod(r.at("off_threshold_p95_mm"));
+    const bool off =
+        std::abs(std::stod(r.at("off_d_rms_mm"))) > std::stod(r.at("off_threshold_rms_mm")) ||
+        std::abs(std::stod(r.at("off_d_p95_mm"))) > std::stod(r.at("off_threshold_p95_mm"));
     EXPECT_EQ(r.at("off_needed"), off ? "1" : "0") << what;
     EXPECT_EQ(r.at("needed"), r.at("off_needed")) << what;
     EXPECT_GE(std::stod(r.at("off_threshold_rms_mm")), 0.005) << what;  // the tolerance

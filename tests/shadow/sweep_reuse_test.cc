@@ -224,8 +224,10 @@ TEST(GroundTruthScorer, EqualsCompareThenMeasureAccuracy) {
       const std::string mode = ToString(modes[k]);
       ASSERT_GT(recs[k].cloud.size(), 10000u);
       const ModeAccuracy got = scorer.Measure(recs[k].cloud, options, mode);
-      const ModeAccuracy want =
-          MeasureAccuracy(mode, compare::Compare(recs[k].cloud, reference, options, mode), visible);
+      const compare::CompareResult result =
+          compare::Compare(recs[k].cloud, reference, options, mode);
+      ModeAccuracy want = MeasureAccuracy(mode, result, visible);
+      MeasureFigureUncertainty(result.deviations_mm, &want);
       EXPECT_EQ(ModeAccuracyToJson(got).dump(), ModeAccuracyToJson(want).dump())
           << mode << " threshold " << threshold << " radius " << radius;
       EXPECT_GT(got.coverage, 0.1);
