@@ -16,8 +16,9 @@ namespace slshadow::app {
 namespace {
 
 void PrintPlan(const shadow::SweepPlanSummary& s, const std::filesystem::path& jobs_dir) {
-  std::printf("study %s: %d jobs (%d geometry groups) in %s\n", s.study.c_str(), s.jobs,
-              s.geometry_groups, jobs_dir.string().c_str());
+  std::printf("study %s: %d job%s (%d geometry group%s) in %s\n", s.study.c_str(), s.jobs,
+              s.jobs == 1 ? "" : "s", s.geometry_groups, s.geometry_groups == 1 ? "" : "s",
+              jobs_dir.string().c_str());
 }
 
 }  // namespace
