@@ -643,8 +643,9 @@ cv::Mat DecodeBmp(const uint8_t* data, size_t size, ImageReadMode mode, const st
   const int64_t height = top_down ? -signed_height : signed_height;
   SLSHADOW_THROW_IF(bpp != 8 && bpp != 24 && bpp != 32, name, ": BMP: unsupported bit depth ", bpp,
                     " (this reader takes 8, 24 and 32 bits per pixel)");
-  SLSHADOW_THROW_IF(compression != 0 && !(bpp == 32 && compression == 3), name,
-                    ": BMP: compressed bitmaps are not supported (compression ", compression, ")");
+  SLSHADOW_THROW_IF(compression != 0, name,
+                    ": BMP: compressed or bit-field bitmaps are not supported (compression ",
+                    compression, "; this reader takes BI_RGB)");
   CheckSize(name, "BMP", width, height, 4);
   std::vector<uint8_t> palette(256 * 4, 0);
   bool color = bpp > 8;

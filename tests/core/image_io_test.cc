@@ -334,5 +334,33 @@ TEST(ImageIo, CutOrDamagedFilesGiveOneClearError) {
             std::string::npos);
 }
 
+// What the reader does not take is refused with what the file holds, not misread.
+TEST(ImageIo, UnsupportedVariantsAreNamed) {
+  testing::TempDir dir;
+  ASSERT_TRUE(cv::imwrite((dir / "rgba.tif").string(), Random(4, 5, CV_8UC4, 1)));
+  EXPECT_NE(ErrorOf([&] {
+              (void)ReadImage(dir / "rgba.tif");
+            }).find("rgba.tif: TIFF: unsupported layout (photometric 2, 4 samples per pixel"),
+            std::string::npos);
+  ASSERT_TRUE(cv::imwrite((dir / "float.tif").string(), cv::Mat(4, 5, CV_32FC1, cv::Scalar(0.5))));
+  EXPECT_NE(ErrorOf([&] {
+              (void)ReadImage(dir / "float.tif");
+            }).find("float.tif: TIFF: unsupported sample type (32-bit, sample format 3"),
+            std::string::npos);
+  ASSERT_TRUE(cv::imwrite((dir / "a.bmp").string(), Random(4, 5, CV_8UC3, 1)));
+  std::string bmp = Bytes(dir / "a.bmp");
+  bmp[30] = 3;  // BI_BITFIELDS
+  WriteBytes(dir / "bitfields.bmp", bmp);
+  EXPECT_NE(ErrorOf([&] {
+              (void)ReadImage(dir / "bitfields.bmp");
+            }).find("bitfields.bmp: BMP: compressed or bit-field bitmaps are not supported"),
+            std::string::npos);
+  WriteBytes(dir / "ascii.pgm", "P2\n2 1\n255\n0 255\n");
+  EXPECT_NE(ErrorOf([&] {
+              (void)ReadImage(dir / "ascii.pgm");
+            }).find("ascii.pgm: PNM: only binary P5 (PGM) and P6 (PPM) are supported"),
+            std::string::npos);
+}
+
 }  // namespace
 }  // namespace slshadow
