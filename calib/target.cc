@@ -6,11 +6,11 @@
 
 #include <opencv2/aruco/charuco.hpp>
 #include <opencv2/calib3d.hpp>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "core/config.h"
 #include "core/error.h"
+#include "core/image_io.h"
 
 namespace slshadow {
 namespace {
@@ -316,9 +316,7 @@ TargetDetection DetectTarget(const TargetSpec& spec, const cv::Mat& image) {
 
 TargetDetection DetectTargetInFile(const TargetSpec& spec, const std::filesystem::path& path) {
   SLSHADOW_THROW_IF(!std::filesystem::exists(path), path.string(), ": image file not found");
-  const cv::Mat image = cv::imread(path.string(), cv::IMREAD_UNCHANGED);
-  SLSHADOW_THROW_IF(image.empty(), path.string(), ": cannot decode image");
-  return DetectTarget(spec, image);
+  return DetectTarget(spec, ReadImage(path, ImageReadMode::kUnchanged));
 }
 
 }  // namespace slshadow

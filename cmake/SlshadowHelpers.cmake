@@ -40,7 +40,8 @@ endfunction()
 function(slshadow_add_test)
   cmake_parse_arguments(ARG "" "NAME" "SRCS;LINK_LIBS;LABELS;PROPERTIES" ${ARGN})
   add_executable(${ARG_NAME} ${ARG_SRCS})
-  target_link_libraries(${ARG_NAME} PRIVATE ${ARG_LINK_LIBS} GTest::gtest GTest::gtest_main GTest::gmock)
+  # Tests may use cv::imread / cv::imwrite (the oracle of core/image_io); the libraries do not.
+  target_link_libraries(${ARG_NAME} PRIVATE ${ARG_LINK_LIBS} opencv_imgcodecs GTest::gtest GTest::gtest_main GTest::gmock)
   target_compile_options(${ARG_NAME} PRIVATE ${SLSHADOW_WARNINGS})
   target_compile_definitions(${ARG_NAME} PRIVATE
     SLSHADOW_SOURCE_DIR="${PROJECT_SOURCE_DIR}"

@@ -7,10 +7,9 @@
 #include <string>
 #include <vector>
 
-#include <opencv2/imgcodecs.hpp>
-
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/image_io.h"
 #include "plot/plot.h"
 
 namespace slshadow::compare {
@@ -37,8 +36,7 @@ void WriteRgbPng(const std::filesystem::path& path, const uint8_t* rgb, int widt
       out[2] = in[0];
     }
   }
-  std::vector<uchar> bytes;
-  SLSHADOW_THROW_IF(!cv::imencode(".png", bgr, bytes), path.string(), ": PNG encoding failed");
+  const std::vector<uint8_t> bytes = EncodePng(bgr, path.string());
   WriteTextFileAtomically(path, std::string(bytes.begin(), bytes.end()));
 }
 

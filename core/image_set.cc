@@ -13,11 +13,11 @@
 #include <optional>
 
 #include <opencv2/core/utility.hpp>
-#include <opencv2/imgcodecs.hpp>
 
 #include "core/config.h"
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/image_io.h"
 
 namespace slshadow {
 namespace fs = std::filesystem;
@@ -195,113 +195,20 @@ std::string ToString(ImageEncoding encoding) {
   return "png";
 }
 
-namespace {
-
-// A PNG's chunk structure (lengths and types, not CRCs) up to IEND, so a truncated file is named
-// as such instead of reaching libpng, which prints its own error on stderr before failing.
-void CheckPngStructure(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  unsigned char head[8] = {};
-  in.read(reinterpret_cast<char*>(head), 8);
-  if (in.gcount() < 8 || std::memcmp(head, "\x89PNG\r\n\x1a\n", 8) != 0) return;
-  std::error_code ec;
-  const uint64_t size = fs::file_size(path, ec);
-  if (ec) return;
-  for (uint64_t pos = 8;;) {
-    unsigned char chunk[8];
-    in.seekg(static_cast<std::streamoff>(pos));
-    in.read(reinterpret_cast<char*>(chunk), 8);
-    SLSHADOW_THROW_IF(in.gcount() < 8, path.string(),
-                      ": truncated PNG: no IEND chunk (the file ends at byte ", size, ")");
-    const uint64_t length = (uint64_t{chunk[0]} << 24) | (uint64_t{chunk[1]} << 16) |
-                            (uint64_t{chunk[2]} << 8) | chunk[3];
-    const std::string type(reinterpret_cast<const char*>(chunk + 4), 4);
-    SLSHADOW_THROW_IF(pos + 12 + length > size, path.string(), ": truncated PNG: chunk '", type,
-                      "' at byte ", pos, " needs ", 12 + length, " bytes, the file ends at byte ",
-                      size);
-    if (type == "IEND") return;
-    pos += 12 + length;
-  }
-}
-
-}  // namespace
+namespace {}  // namespace
 
 cv::Mat ReadGrayImage(const fs::path& path) {
   std::error_code ec;
   SLSHADOW_THROW_IF(!fs::is_regular_file(path, ec), path.string(), ": image file not found");
-  CheckPngStructure(path);
-  cv::Mat image = cv::imread(path.string(), cv::IMREAD_UNCHANGED);
-  SLSHADOW_THROW_IF(image.empty(), path.string(),
-                    ": cannot decode image (corrupt or unsupported format)");
-  return image;
+  return ReadImage(path, ImageReadMode::kUnchanged);
 }
-
-namespace {
-
-// Binary PGM (P5) in one writev of header and pixels: no encoder buffer, no row copies of 8-bit
-// images (the simulator writes ~100 MB of these per scan). 16-bit samples are big-endian, as the
-// format requires.
-void WritePgm(const fs::path& path, const cv::Mat& image) {
-  SLSHADOW_THROW_IF(image.channels() != 1 || (image.depth() != CV_8U && image.depth() != CV_16U),
-                    path.string(),
-                    ": cannot write image: PGM takes 8- or 16-bit single-channel images");
-  const bool wide = image.depth() == CV_16U;
-  const std::string header = "P5\n" + std::to_string(image.cols) + " " +
-                             std::to_string(image.rows) + "\n" + (wide ? "65535" : "255") + "\n";
-  cv::Mat data = image.isContinuous() ? image : image.clone();
-  if (wide) {
-    cv::Mat swapped(data.size(), CV_16U);
-    const uint16_t* in = data.ptr<uint16_t>();
-    uint16_t* out = swapped.ptr<uint16_t>();
-    for (size_t i = 0, n = data.total(); i < n; ++i)
-      out[i] = static_cast<uint16_t>((in[i] >> 8) | (in[i] << 8));
-    data = swapped;
-  }
-  const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  SLSHADOW_THROW_IF(fd < 0, path.string(), ": cannot write image: ", std::strerror(errno));
-  char* const pixels = reinterpret_cast<char*>(data.data);
-  const size_t pixel_bytes = data.total() * data.elemSize(), total = header.size() + pixel_bytes;
-  for (size_t done = 0; done < total;) {
-    iovec parts[2];
-    int n = 0;
-    if (done < header.size()) {
-      parts[n++] = {const_cast<char*>(header.data()) + done, header.size() - done};
-      parts[n++] = {pixels, pixel_bytes};
-    } else {
-      parts[n++] = {pixels + (done - header.size()), total - done};
-    }
-    const ssize_t written = ::writev(fd, parts, n);
-    if (written < 0 && errno == EINTR) continue;
-    if (written <= 0) {
-      const int error = errno;
-      ::close(fd);
-      SLSHADOW_THROW(path.string(), ": cannot write image: ",
-                     written < 0 ? std::strerror(error) : "nothing written");
-    }
-    done += static_cast<size_t>(written);
-  }
-  SLSHADOW_THROW_IF(::close(fd) != 0, path.string(),
-                    ": cannot write image: ", std::strerror(errno));
-}
-
-}  // namespace
 
 void WriteGrayImage(const fs::path& path, const cv::Mat& image, int png_compression) {
-  if (path.extension() == ".pgm") {
-    WritePgm(path, image);
-    return;
-  }
-  std::vector<int> params;
-  const std::string ext = path.extension().string();
-  if (ext == ".png") params = {cv::IMWRITE_PNG_COMPRESSION, png_compression};
-  if (ext == ".tif" || ext == ".tiff") params = {cv::IMWRITE_TIFF_COMPRESSION, 1};
-  bool ok = false;
-  try {
-    ok = cv::imwrite(path.string(), image, params);
-  } catch (const cv::Exception& e) {
-    SLSHADOW_THROW(path.string(), ": cannot write image: ", e.what());
-  }
-  SLSHADOW_THROW_IF(!ok, path.string(), ": cannot write image");
+  SLSHADOW_THROW_IF(image.channels() != 1 || (image.depth() != CV_8U && image.depth() != CV_16U),
+                    path.string(),
+                    ": cannot write image: ", path.extension() == ".pgm" ? "PGM" : "this writer",
+                    " takes 8- or 16-bit single-channel images");
+  WriteImage(path, image, ImageWriteOptions{png_compression});
 }
 
 ImageSet ImageSet::Open(const fs::path& dir) {

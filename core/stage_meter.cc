@@ -1,6 +1,7 @@
 #include "core/stage_meter.h"
 
 #include <sys/resource.h>
+#include <time.h>
 
 #include <algorithm>
 #include <cstdio>
@@ -42,6 +43,12 @@ double ProcessCpuSeconds() {
          1e-6 * static_cast<double>(usage.ru_utime.tv_usec + usage.ru_stime.tv_usec);
 }
 
+double ThreadCpuSeconds() {
+  timespec t{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+  return static_cast<double>(t.tv_sec) + 1e-9 * static_cast<double>(t.tv_nsec);
+}
+
 double CurrentRssMb() { return ReadStatusKb("VmRSS") / 1024.0; }
 double PeakRssMb() { return ReadStatusKb("VmHWM") / 1024.0; }
 
@@ -65,7 +72,15 @@ std::string FormatStageTable(const std::vector<StageMeasurement>& stages) {
   std::string out = "stage                          wall (s)   CPU (s)  CPU/wall  peak RSS (MB)\n";
   char buf[160];
   double wall = 0, cpu = 0, peak = 0;
+  bool any_concurrent = false;
   for (const auto& s : stages) {
+    if (s.concurrent) {
+      std::snprintf(buf, sizeof(buf), "%-30s %8.3f  %8.3f  %8.2f  %13s +\n", s.name.c_str(),
+                    s.wall_s, s.cpu_s, s.wall_s > 0 ? s.cpu_s / s.wall_s : 0.0, "-");
+      out += buf;
+      any_concurrent = true;
+      continue;
+    }
     std::snprintf(buf, sizeof(buf), "%-30s %8.3f  %8.3f  %8.2f  %13.0f%s\n", s.name.c_str(),
                   s.wall_s, s.cpu_s, s.wall_s > 0 ? s.cpu_s / s.wall_s : 0.0, s.peak_rss_mb,
                   s.peak_is_process_wide ? " *" : "");
@@ -77,6 +92,11 @@ std::string FormatStageTable(const std::vector<StageMeasurement>& stages) {
   std::snprintf(buf, sizeof(buf), "%-30s %8.3f  %8.3f  %8.2f  %13.0f\n", "total", wall, cpu,
                 wall > 0 ? cpu / wall : 0.0, peak);
   out += buf;
+  if (any_concurrent) {
+    out +=
+        "+ on a thread of its own, alongside the stages after it: its wall and CPU time are its "
+        "thread's, already inside theirs (not added to the total)\n";
+  }
   return out;
 }
 

@@ -18,6 +18,10 @@ struct StageMeasurement {
   double cpu_s = 0;
   double peak_rss_mb = 0;
   bool peak_is_process_wide = false;
+  // Ran on a thread of its own, alongside the stages after it: wall and CPU are that thread's
+  // (ThreadCpuSeconds), already part of the process CPU of the stages it overlapped, so a table's
+  // total leaves them out; it has no peak of its own (peak_rss_mb is 0).
+  bool concurrent = false;
 };
 
 class StageMeter {
@@ -49,11 +53,14 @@ class StageTimer {
 
 // Current process CPU time (user + system), seconds.
 double ProcessCpuSeconds();
+// CPU time of the calling thread (user + system), seconds.
+double ThreadCpuSeconds();
 // Current and peak resident set size of this process, MB (0 when unknown).
 double CurrentRssMb();
 double PeakRssMb();
 
-// A fixed-width table of measurements: stage, wall s, CPU s, CPU/wall, peak RSS MB.
+// A fixed-width table of measurements: stage, wall s, CPU s, CPU/wall, peak RSS MB. Concurrent
+// stages are marked "+" and a footnote says so; the total sums the others only.
 std::string FormatStageTable(const std::vector<StageMeasurement>& stages);
 
 }  // namespace slshadow

@@ -19,12 +19,11 @@
 #include <string>
 #include <vector>
 
-#include <opencv2/imgcodecs.hpp>
-
 #include "calib/calibration_io.h"
 #include "calib/target.h"
 #include "capture/devices.h"
 #include "core/error.h"
+#include "core/image_io.h"
 #include "core/image_set.h"
 #include "core/mesh.h"
 #include "core/npy.h"
@@ -110,12 +109,10 @@ inline void ReadManifestBytes(const uint8_t* data, size_t size) {
       cv::Mat a(6, 8, CV_8U), b(6, 8, CV_8U, cv::Scalar(200));
       cv::randu(a, 0, 255);
       const cv::Mat wide(6, 8, CV_16U, cv::Scalar(40000)), small(4, 4, CV_8U, cv::Scalar(7));
-      if (!cv::imwrite((set / camera / "0000.png").string(), a) ||
-          !cv::imwrite((set / camera / "0001.png").string(), b) ||
-          !cv::imwrite((set / camera / "0002.png").string(), wide) ||
-          !cv::imwrite((set / camera / "0003.png").string(), small)) {
-        std::abort();
-      }
+      WriteImage(set / camera / "0000.png", a);
+      WriteImage(set / camera / "0001.png", b);
+      WriteImage(set / camera / "0002.png", wide);
+      WriteImage(set / camera / "0003.png", small);
     }
     return true;
   }();
@@ -160,6 +157,15 @@ inline void ReadNpyBytes(const uint8_t* data, size_t size) {
   ReadAsAnyOf({[&] { (void)ReadNpy(path, 1); }, [&] { (void)ReadNpy(path, 3); }});
 }
 
+// Image files (core/image_io.h): PNG, JPEG, TIFF, BMP, PGM / PPM, found from the content, read
+// as stored, as gray and as colour (the three modes take different decoder paths).
+inline void ReadImageBytes(const uint8_t* data, size_t size) {
+  const std::filesystem::path path = WriteInput(data, size, "input.image");
+  ReadAsAnyOf({[&] { (void)ReadImage(path, ImageReadMode::kUnchanged); },
+               [&] { (void)ReadImage(path, ImageReadMode::kGrayscale); },
+               [&] { (void)ReadImage(path, ImageReadMode::kColor); }});
+}
+
 // OpenCV FileStorage calibration import: YAML; XML when the input starts with '<', JSON with '{'.
 inline void ReadOpenCvCalibrationBytes(const uint8_t* data, size_t size) {
   const char* ext = size > 0 && data[0] == '<'   ? ".xml"
@@ -181,6 +187,7 @@ inline const std::map<std::string, std::function<void(const uint8_t*, size_t)>>&
       {"stl", ReadStlBytes},
       {"obj", ReadObjBytes},
       {"npy", ReadNpyBytes},
+      {"image", ReadImageBytes},
       {"opencv_calibration", ReadOpenCvCalibrationBytes}};
   return readers;
 }

@@ -2,11 +2,11 @@
 
 #include <cmath>
 
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/image_io.h"
 #include "core/point_cloud.h"
 
 namespace slshadow {
@@ -56,8 +56,7 @@ ReconstructionOutputs WriteReconstruction(const ImageSetReconstruction& rec,
     cv::applyColorMap(scaled, colour, cv::COLORMAP_TURBO);
     colour.setTo(cv::Scalar(0, 0, 0), ~mask);
     WriteFileAtomically(map_path, [&](const fs::path& tmp) {
-      SLSHADOW_THROW_IF(!cv::imwrite(tmp.string() + ".png", colour), map_path.string(),
-                        ": cannot write image");
+      WriteImage(tmp.string() + ".png", colour);
       fs::rename(tmp.string() + ".png", tmp);
     });
     maps.push_back({{"reconstruction", name},

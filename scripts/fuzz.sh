@@ -2,7 +2,7 @@
 # Runs one libFuzzer harness of fuzz/ (docs/fuzzing.md) for SECONDS, niced, from its seed corpus.
 #   scripts/fuzz.sh NAME [SECONDS] [extra libFuzzer flags...]
 # NAME is a harness (rig, scene, pattern_spec, target, devices, manifest, ply, stl, obj, npy,
-# opencv_calibration). The clang build folder (default build-fuzz, $SLSHADOW_FUZZ_BUILD_DIR) is
+# image, opencv_calibration). The clang build folder (default build-fuzz, $SLSHADOW_FUZZ_BUILD_DIR) is
 # configured and the harness built when needed. The growing corpus stays in
 # <build>/fuzz/corpus/NAME, crashes land in <build>/fuzz/artifacts/NAME/, the log in
 # <build>/fuzz/logs/NAME.log; the last lines printed are libFuzzer's final stats (executions,

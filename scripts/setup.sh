@@ -10,6 +10,8 @@ PACKAGES=(
   clang-format clang-tidy
   # core
   libeigen3-dev libopencv-dev libopencv-contrib-dev libyaml-cpp-dev nlohmann-json3-dev
+  # image files (core/image_io.h) through the system codecs, not opencv_imgcodecs
+  libpng-dev libjpeg62-turbo-dev libtiff-dev
   # calibration, simulation, comparison
   libceres-dev libembree-dev libtbb-dev libnanoflann-dev libpcl-dev libplplot-dev plplot-driver-cairo
   # C2C cross-check and benchmark peer (compare tests skip without it; runs headless)

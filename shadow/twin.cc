@@ -17,7 +17,6 @@
 
 #include <Eigen/Dense>
 #include <opencv2/core/utility.hpp>
-#include <opencv2/imgcodecs.hpp>
 
 #include "compare/charts.h"
 #include "compare/compare.h"
@@ -27,6 +26,7 @@
 #include "core/config.h"
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/image_io.h"
 #include "core/image_set.h"
 #include "core/point_cloud.h"
 #include "plot/plot.h"
@@ -954,9 +954,7 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec,
             WriteMapChart(maps_dir / (n + "_modulation_ratio.png"), ratio,
                           n + ": fringe modulation, real / twin - 1", "relative", {mr - 1},
                           Fmt("%.2f", mr - 1) + " (multipath threshold)", 0.05);
-        SLSHADOW_THROW_IF(
-            !cv::imwrite((maps_dir / (n + "_validity.png")).string(), validity_maps[c]),
-            "cannot write the validity map");
+        WriteImage(maps_dir / (n + "_validity.png"), validity_maps[c]);
         maps_json.push_back(
             {{"camera", n},
              {"projector_residual", "maps/" + n + "_projector_residual.png"},

@@ -10,10 +10,10 @@
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
-#include <opencv2/imgcodecs.hpp>
 
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/image_io.h"
 #include "core/npy.h"
 #include "core/point_cloud.h"
 #include "sim/simulate.h"
@@ -21,19 +21,17 @@
 namespace slshadow {
 namespace {
 
-void WriteImage(const std::filesystem::path& path, const cv::Mat& image) {
+void WriteImageAtomically(const std::filesystem::path& path, const cv::Mat& image) {
   WriteFileAtomically(path, [&](const std::filesystem::path& tmp) {
-    // OpenCV picks the encoder from the extension; keep it on the temporary name.
+    // The encoder is picked from the extension; keep it on the temporary name.
     const std::filesystem::path with_ext = tmp.string() + path.extension().string();
-    SLSHADOW_THROW_IF(!cv::imwrite(with_ext.string(), image), path.string(),
-                      ": cannot write image");
+    WriteImage(with_ext, image);
     std::filesystem::rename(with_ext, tmp);
   });
 }
 
 cv::Mat ReadImage(const std::filesystem::path& path, int expected_type) {
-  const cv::Mat m = cv::imread(path.string(), cv::IMREAD_UNCHANGED);
-  SLSHADOW_THROW_IF(m.empty(), path.string(), ": cannot read ground-truth image");
+  const cv::Mat m = ReadImage(path, ImageReadMode::kUnchanged);
   SLSHADOW_THROW_IF(m.type() != expected_type, path.string(), ": unexpected image type ", m.type(),
                     " (expected ", expected_type, ")");
   return m;
@@ -85,7 +83,7 @@ void WriteGroundTruth(const GeometryBuffer& g, const std::filesystem::path& dir)
       if (files[i].first.ends_with(".npy")) {
         WriteNpy(dir / files[i].first, files[i].second);
       } else {
-        WriteImage(dir / files[i].first, files[i].second);
+        WriteImageAtomically(dir / files[i].first, files[i].second);
       }
     } else {
       WritePly(dir / "surface.ply", VisibleSurface(g), PlyWriteOptions{true, false});

@@ -6,10 +6,10 @@
 
 #include <tbb/parallel_for.h>
 #include <nanoflann.hpp>
-#include <opencv2/imgcodecs.hpp>
 
 #include "core/config.h"
 #include "core/error.h"
+#include "core/image_io.h"
 #include "sim/shapes.h"
 
 namespace slshadow {
@@ -96,8 +96,11 @@ Albedo AlbedoFromConfig(const ConfigNode& node, const std::filesystem::path& bas
     const auto file_node = node["file"];
     const std::filesystem::path file = base_dir / file_node.AsString();
     if (!std::filesystem::exists(file)) file_node.Fail("texture file not found: " + file.string());
-    a.image = cv::imread(file.string(), cv::IMREAD_GRAYSCALE);
-    if (a.image.empty()) file_node.Fail("cannot read texture image " + file.string());
+    try {
+      a.image = ReadImage(file, ImageReadMode::kGrayscale);
+    } catch (const Error& e) {
+      file_node.Fail(std::string("cannot read texture image: ") + e.what());
+    }
     a.pixel_mm = Positive(node["pixel_mm"]);
     if (node.Has("light")) a.light = UnitInterval(node["light"]);
   } else {

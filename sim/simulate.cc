@@ -12,7 +12,6 @@
 #include <sstream>
 
 #include <tbb/parallel_for.h>
-#include <opencv2/imgcodecs.hpp>
 
 #include "core/config.h"
 #include "core/error.h"
