@@ -672,6 +672,9 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
       compare::CompareOptionsFromConfig(node("compare"));
   // The modes' measurements are independent and partly serial: run them side by side.
   std::vector<ModeAccuracy> measured(modes.size());
+  std::vector<const PointCloud*> clouds;
+  for (const Reconstruction& r : recs) clouds.push_back(&r.cloud);
+  group->scorer->Prepare(clouds);
   // A method that reconstructs nothing (it broke) has no error figures: null, and coverage 0.
   tbb::parallel_for(size_t{0}, modes.size(), [&](size_t k) {
     measured[k].mode = ToString(modes[k]);

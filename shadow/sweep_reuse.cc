@@ -2,6 +2,7 @@
 
 #include "compare/statistics.h"
 #include "core/error.h"
+#include "shadow/internal/c2m_grid.h"
 #include "sim/renderer.h"
 #include "sim/sensor_noise.h"
 #include "sim/shapes.h"
@@ -406,6 +407,13 @@ GroundTruthScorer::GroundTruthScorer(TriangleMesh surface, std::vector<Eigen::Ve
 
 GroundTruthScorer::~GroundTruthScorer() = default;
 
+void GroundTruthScorer::Prepare(const std::vector<const PointCloud*>& clouds) {
+  // One job's clouds alone do not repay the cells (a geometry group of one job never builds them).
+  if (++prepared_ < 2) return;
+  if (!grid_) grid_ = std::make_unique<internal::C2mGrid>(reference_.mesh, distance_);
+  for (const PointCloud* cloud : clouds) grid_->Prepare(cloud->points);
+}
+
 ModeAccuracy GroundTruthScorer::Measure(const PointCloud& cloud,
                                         const compare::CompareOptions& options,
                                         const std::string& mode) const {
@@ -420,15 +428,19 @@ ModeAccuracy GroundTruthScorer::Measure(const PointCloud& cloud,
   // Signed distances: the result does not depend on the warm-start hint (compare/mesh_distance.h);
   // clouds come in grid order, so the previous point's triangle is a good one.
   std::vector<double> deviations(pts.size());
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, pts.size(), 4096),
-                    [&](const tbb::blocked_range<size_t>& r) {
-                      uint32_t hint = std::numeric_limits<uint32_t>::max();
-                      for (size_t i = r.begin(); i < r.end(); ++i) {
-                        const compare::MeshHit hit = distance_.Closest(pts[i], hint);
-                        deviations[i] = hit.signed_distance_mm;
-                        hint = hit.triangle;
-                      }
-                    });
+  if (grid_) {
+    grid_->SignedDistances(pts, &deviations);
+  } else {
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, pts.size(), 4096),
+                      [&](const tbb::blocked_range<size_t>& r) {
+                        uint32_t hint = std::numeric_limits<uint32_t>::max();
+                        for (size_t i = r.begin(); i < r.end(); ++i) {
+                          const compare::MeshHit hit = distance_.Closest(pts[i], hint);
+                          deviations[i] = hit.signed_distance_mm;
+                          hint = hit.triangle;
+                        }
+                      });
+  }
   const compare::DistanceStats stats = compare::ComputeStats(
       deviations, /*is_signed=*/false, options.threshold_mm, options.histogram_bins);
   std::vector<Eigen::Vector3d> reached;
