@@ -114,9 +114,9 @@ struct C2mGrid::Impl {
              (std::abs(q[0]) * half.x() + std::abs(q[1]) * half.y() + std::abs(q[2]) * half.z());
     };
     const double* n = t.plane[0];
-    const double hn = std::abs(n[0] * c.x() + n[1] * c.y() + n[2] * c.z() - n[3]) -
-                      (std::abs(n[0]) * half.x() + std::abs(n[1]) * half.y() +
-                       std::abs(n[2]) * half.z());
+    const double hn =
+        std::abs(n[0] * c.x() + n[1] * c.y() + n[2] * c.z() - n[3]) -
+        (std::abs(n[0]) * half.x() + std::abs(n[1]) * half.y() + std::abs(n[2]) * half.z());
     const double h = std::max(hn, 0.0);
     const double e = std::max({plane(1), plane(2), plane(3), 0.0});
     return std::max(box, std::sqrt(h * h + e * e));
@@ -366,7 +366,8 @@ void C2mGrid::Prepare(const std::vector<Eigen::Vector3d>& points) {
                     });
   for (size_t k = 0; k < wanted.size(); ++k) {
     int slot = 0;
-    std::unique_ptr<Impl::Block>& block = g.blocks[static_cast<size_t>(g.BlockOf(wanted[k], &slot))];
+    std::unique_ptr<Impl::Block>& block =
+        g.blocks[static_cast<size_t>(g.BlockOf(wanted[k], &slot))];
     if (!block) {
       block = std::make_unique<Impl::Block>();
       std::fill(std::begin(block->first), std::end(block->first), kUnbuilt);
