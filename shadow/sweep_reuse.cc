@@ -344,54 +344,85 @@ double CloudMedianSpacing(const std::vector<Eigen::Vector3d>& pts) {
                          static_cast<uint64_t>(z + (1 << 20));
     return static_cast<uint32_t>(((key * 0x9E3779B97F4A7C15ull) >> 32) & (buckets - 1));
   };
+  // The cells sample k searches: of the cells within its rings, those whose box lies within its
+  // bound of it (in cell units, with margins for the rounding of cell coordinates); every point
+  // nearer than its bound is in one of them. Only points in the buckets of such cells are sorted.
+  const auto for_cells = [&](size_t k, auto&& visit) {
+    const Eigen::Vector3d& p = pts[samples[k]];
+    const auto reach = static_cast<int64_t>(rings_of(best[k]));
+    const Eigen::Array3d t = (p * inv).array();
+    const Eigen::Array3d c = t.floor();
+    const double r = std::sqrt(best[k]) * inv * 1.001 + 1e-6, r2 = r * r;
+    const auto gap = [](int64_t cell_index, double coordinate) {
+      const auto lo = static_cast<double>(cell_index);
+      return std::max({0.0, lo - coordinate, coordinate - (lo + 1)});
+    };
+    const auto cx = static_cast<int64_t>(c.x()), cy = static_cast<int64_t>(c.y()),
+               cz = static_cast<int64_t>(c.z());
+    for (int64_t z = cz - reach; z <= cz + reach; ++z) {
+      const double gz = gap(z, t.z());
+      for (int64_t y = cy - reach; y <= cy + reach; ++y) {
+        const double gy = gap(y, t.y());
+        if (gz * gz + gy * gy > r2) continue;
+        for (int64_t x = cx - reach; x <= cx + reach; ++x) {
+          const double gx = gap(x, t.x());
+          if (gz * gz + gy * gy + gx * gx > r2) continue;
+          visit(bucket_of(x, y, z));
+        }
+      }
+    }
+  };
+  std::vector<uint64_t> searched((buckets + 63) / 64, 0);
+  for (size_t k = 0; k < ns; ++k) {
+    if (!(rings_of(best[k]) <= 8)) continue;  // compared with every point below
+    for_cells(k, [&](uint32_t bk) { searched[bk >> 6] |= uint64_t{1} << (bk & 63); });
+  }
+  constexpr uint32_t kNotSearched = std::numeric_limits<uint32_t>::max();
   std::vector<uint32_t> bucket(n);
   tbb::parallel_for(
       tbb::blocked_range<size_t>(0, n, 65536), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t i = r.begin(); i < r.end(); ++i) {
           const Eigen::Array3d c = cell(pts[i]);
-          bucket[i] = bucket_of(static_cast<int64_t>(c.x()), static_cast<int64_t>(c.y()),
-                                static_cast<int64_t>(c.z()));
+          const uint32_t bk = bucket_of(static_cast<int64_t>(c.x()), static_cast<int64_t>(c.y()),
+                                        static_cast<int64_t>(c.z()));
+          bucket[i] = (searched[bk >> 6] >> (bk & 63)) & 1 ? bk : kNotSearched;
         }
       });
   std::vector<uint32_t> start(buckets + 1, 0);
-  for (const uint32_t b : bucket) ++start[b + 1];
+  for (const uint32_t b : bucket) {
+    if (b != kNotSearched) ++start[b + 1];
+  }
   for (size_t b = 1; b <= buckets; ++b) start[b] += start[b - 1];
-  std::vector<uint32_t> order(n);
+  std::vector<uint32_t> order(start[buckets]);
   {
     std::vector<uint32_t> fill(start.begin(), start.end() - 1);
-    for (size_t i = 0; i < n; ++i) order[fill[bucket[i]]++] = static_cast<uint32_t>(i);
+    for (size_t i = 0; i < n; ++i) {
+      if (bucket[i] != kNotSearched) order[fill[bucket[i]]++] = static_cast<uint32_t>(i);
+    }
   }
-  tbb::parallel_for(
-      tbb::blocked_range<size_t>(0, ns, 256), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t k = r.begin(); k < r.end(); ++k) {
-          const size_t i = samples[k];
-          const Eigen::Vector3d& p = pts[i];
-          double b = best[k];
-          const double rings = rings_of(b);
-          if (!(rings <= 8)) {  // far from its array neighbours: every point
-            for (size_t j = 0; j < n; ++j) {
-              if (j != i) b = std::min(b, (p - pts[j]).squaredNorm());
-            }
-          } else {
-            const auto reach = static_cast<int64_t>(rings);
-            const Eigen::Array3d c = cell(p);
-            const auto cx = static_cast<int64_t>(c.x()), cy = static_cast<int64_t>(c.y()),
-                       cz = static_cast<int64_t>(c.z());
-            for (int64_t z = cz - reach; z <= cz + reach; ++z) {
-              for (int64_t y = cy - reach; y <= cy + reach; ++y) {
-                for (int64_t x = cx - reach; x <= cx + reach; ++x) {
-                  const uint32_t bk = bucket_of(x, y, z);
-                  for (uint32_t m = start[bk]; m < start[bk + 1]; ++m) {
-                    const uint32_t j = order[m];
-                    if (j != i) b = std::min(b, (p - pts[j]).squaredNorm());
-                  }
-                }
-              }
-            }
-          }
-          best[k] = b;
-        }
-      });
+  std::vector<double> found(ns);
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, ns, 256),
+                    [&](const tbb::blocked_range<size_t>& r) {
+                      for (size_t k = r.begin(); k < r.end(); ++k) {
+                        const size_t i = samples[k];
+                        const Eigen::Vector3d& p = pts[i];
+                        double b = best[k];
+                        if (!(rings_of(b) <= 8)) {  // far from its array neighbours: every point
+                          for (size_t j = 0; j < n; ++j) {
+                            if (j != i) b = std::min(b, (p - pts[j]).squaredNorm());
+                          }
+                        } else {
+                          for_cells(k, [&](uint32_t bk) {
+                            for (uint32_t m = start[bk]; m < start[bk + 1]; ++m) {
+                              const uint32_t j = order[m];
+                              if (j != i) b = std::min(b, (p - pts[j]).squaredNorm());
+                            }
+                          });
+                        }
+                        found[k] = b;
+                      }
+                    });
+  best.swap(found);
   std::vector<double> d(ns);
   for (size_t k = 0; k < ns; ++k) d[k] = std::sqrt(best[k]);
   std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(ns / 2), d.end());
