@@ -152,11 +152,21 @@ struct C2mGrid::Impl {
   }
 
   // MeshDistance::Closest(p).signed_distance_mm from the cell's candidates.
-  double FromCandidates(const Eigen::Vector3d& p, const Candidate* cand, uint16_t count) const {
+  // `hint` (the previous point's triangle, or out of range): evaluated first, its distance bounds
+  // the search from the start. The minimum and its ties do not depend on it: every triangle within
+  // the cell's U is a candidate, so a triangle tied with the best is one.
+  double FromCandidates(const Eigen::Vector3d& p, const Candidate* cand, uint16_t count,
+                        uint32_t* hint) const {
     double best = std::numeric_limits<double>::infinity();
     uint32_t best_tri = 0;
     int best_feature = 0;
     Eigen::Vector3d best_q = Eigen::Vector3d::Zero();
+    if (*hint < tris.size()) {
+      const Tri& tri = tris[*hint];
+      best_q = compare::ClosestPointOnTriangle(p, tri.a, tri.b, tri.c, &best_feature);
+      best = (p - best_q).squaredNorm();
+      best_tri = *hint;
+    }
     for (uint16_t k = 0; k < count; ++k) {
       const double b = static_cast<double>(cand[k].bound);
       if (b * b > best) break;  // this and every later triangle is farther than the best
@@ -196,6 +206,7 @@ struct C2mGrid::Impl {
         n = &nt.edge[best_feature - 4];
         break;
     }
+    *hint = best_tri;
     const double dist = std::sqrt(best);
     return (p - best_q).dot(*n) < 0 ? -dist : dist;
   }
@@ -399,7 +410,7 @@ void C2mGrid::SignedDistances(const std::vector<Eigen::Vector3d>& points,
                         uint16_t count = 0;
                         const uint32_t first = id >= 0 ? g.Entry(id, &count) : kUnbuilt;
                         if (first < kFar) {
-                          d[i] = g.FromCandidates(p, g.candidates.data() + first, count);
+                          d[i] = g.FromCandidates(p, g.candidates.data() + first, count, &hint);
                           continue;
                         }
                         const compare::MeshHit hit = g.distance.Closest(p, hint);
