@@ -365,5 +365,44 @@ TEST(C2mGrid, SignedDistancesAreMeshDistancesBitForBit) {
   }
 }
 
+// The sweep's deviation figures are compare::ComputeStats's, double for double: noisy deviations
+// of several scales, with ties, zeros of both signs, non-finite values, one value, none.
+TEST(DeviationFigures, EqualComputeStats) {
+  std::mt19937 rng(5);
+  std::normal_distribution<double> normal(0, 1);
+  std::vector<std::vector<double>> sets;
+  for (const size_t n : {size_t{1}, size_t{2}, size_t{19}, size_t{1000}, size_t{300001}}) {
+    std::vector<double> d(n);
+    for (double& v : d) v = 0.03 * normal(rng) * (normal(rng) > 2 ? 40 : 1);
+    sets.push_back(d);
+    for (size_t i = 0; i < n; i += 3) d[i] = std::round(d[i] * 100) / 100;  // many ties
+    if (n > 2) {
+      d[1] = -0.0;
+      d[2] = 0.0;
+    }
+    sets.push_back(d);
+    if (n > 2) {
+      d[0] = std::numeric_limits<double>::quiet_NaN();
+      d[n - 1] = -std::numeric_limits<double>::infinity();
+    }
+    sets.push_back(d);
+  }
+  sets.push_back(std::vector<double>(5000, 0.25));
+  sets.push_back({});
+  sets.push_back({std::numeric_limits<double>::quiet_NaN()});
+  for (size_t k = 0; k < sets.size(); ++k) {
+    for (const double threshold : {0.05, 0.5}) {
+      const compare::DistanceStats want = compare::ComputeStats(sets[k], false, threshold);
+      const DeviationFigures got = ComputeDeviationFigures(sets[k], threshold);
+      EXPECT_EQ(got.count, want.count) << k;
+      EXPECT_EQ(got.outliers, want.outliers) << k;
+      EXPECT_EQ(got.mean_mm, want.mean_mm) << k;
+      EXPECT_EQ(got.rms_mm, want.rms_mm) << k;
+      EXPECT_EQ(got.p95_mm, want.p95_mm) << k;
+      EXPECT_EQ(got.max_mm, want.max_mm) << k;
+    }
+  }
+}
+
 }  // namespace
 }  // namespace slshadow::shadow
