@@ -136,6 +136,7 @@ struct GroundTruthScorer::SampleGrid {
   std::vector<uint32_t> start;          // per cell, its first point; one more at the end
   std::vector<Eigen::Vector3d> points;  // by cell
   std::vector<uint8_t> is_reference;    // by cell order: a reference sample (else visible)
+  std::vector<uint32_t> occupied;       // the cells holding points, ascending
 
   SampleGrid(const std::vector<Eigen::Vector3d>& reference,
              const std::vector<Eigen::Vector3d>& visible)
@@ -169,7 +170,10 @@ struct GroundTruthScorer::SampleGrid {
       cell_of.push_back(static_cast<uint32_t>(Cell(p)));
       ++start[cell_of.back() + 1];
     });
-    for (size_t c = 1; c < start.size(); ++c) start[c] += start[c - 1];
+    for (size_t c = 1; c < start.size(); ++c) {
+      if (start[c] > 0) occupied.push_back(static_cast<uint32_t>(c - 1));
+      start[c] += start[c - 1];
+    }
     points.resize(cell_of.size());
     is_reference.resize(cell_of.size());
     std::vector<uint32_t> fill(start.begin(), start.end() - 1);
@@ -226,17 +230,16 @@ struct GroundTruthScorer::SampleGrid {
                           cell_of[i] = static_cast<uint32_t>(Cell(q));
                         }
                       });
+    // Counting sort: counts, inclusive prefix sums (cell c's end), then filled from the back, which
+    // leaves first[c] at cell c's start (the order within a cell does not matter below).
     std::vector<uint32_t> first(cells + 1, 0);
     for (const uint32_t c : cell_of) {
-      if (c != kOutside) ++first[c + 1];
+      if (c != kOutside) ++first[c];
     }
     for (size_t c = 1; c < first.size(); ++c) first[c] += first[c - 1];
     std::vector<Eigen::Vector3d> sorted(first.back());
-    {
-      std::vector<uint32_t> fill(first.begin(), first.end() - 1);
-      for (size_t i = 0; i < reached.size(); ++i) {
-        if (cell_of[i] != kOutside) sorted[fill[cell_of[i]]++] = reached[i];
-      }
+    for (size_t i = reached.size(); i-- > 0;) {
+      if (cell_of[i] != kOutside) sorted[--first[cell_of[i]]] = reached[i];
     }
     // Whether a reached point lies within the radius of sample p in cells [x0, x1] of row `row`.
     const auto any_in = [&](const Eigen::Vector3d& p, int64_t row, int64_t x0, int64_t x1) {
@@ -248,10 +251,10 @@ struct GroundTruthScorer::SampleGrid {
     };
     using Counts = std::pair<size_t, size_t>;  // covered (reference samples, visible points)
     const Counts covered = tbb::parallel_reduce(
-        tbb::blocked_range<size_t>(0, cells, 4096), Counts{0, 0},
+        tbb::blocked_range<size_t>(0, occupied.size(), 256), Counts{0, 0},
         [&](const tbb::blocked_range<size_t>& range, Counts acc) {
-          for (size_t c = range.begin(); c < range.end(); ++c) {
-            if (start[c] == start[c + 1]) continue;
+          for (size_t j = range.begin(); j < range.end(); ++j) {
+            const size_t c = occupied[j];
             const auto cx = static_cast<int64_t>(c) % nx;
             const auto cy = static_cast<int64_t>(c) / nx % ny;
             const auto cz = static_cast<int64_t>(c) / nx / ny;
