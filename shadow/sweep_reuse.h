@@ -8,7 +8,15 @@
 //                       image buffers reused from job to job.
 //   GroundTruthScorer   the ground-truth surface's distance hierarchy (compare::MeshDistance),
 //                       its area samples and the lit visible surface, built once per geometry
-//                       group; each cloud is then measured against them.
+//                       group, and from the group's second job on a grid of cells near the
+//                       surface listing the triangles that can be closest to a point in each
+//                       (shadow/internal/c2m_grid.h), kept job to job; each cloud is then
+//                       measured against them.
+//
+// Reconstruction needs nothing of its own here: what it computes from the rig and the image size
+// alone (undistorted pixel rays, rectified-to-source pixel maps, grid and scratch buffers) is
+// already kept process-wide between reconstructions (reconstruct/ray_cache.h, the rectified
+// source grids of reconstruct/stereo_matcher.cc, its per-thread buffers and grid pool).
 //
 // Both give exactly what the per-job path gives: the images bit for bit what
 // sim::Simulator::Render (and so `slshadow simulate`) renders for the job's scene, the figures
