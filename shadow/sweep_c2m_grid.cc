@@ -212,11 +212,28 @@ struct C2mGrid::Impl {
   }
 };
 
-C2mGrid::C2mGrid(const TriangleMesh& mesh, const compare::MeshDistance& distance)
+C2mGrid::C2mGrid(const TriangleMesh& mesh, const compare::MeshDistance& distance,
+                 double min_cell_mm)
     : impl_(std::make_unique<Impl>(distance)) {
   Impl& g = *impl_;
   const size_t nt = mesh.triangles.size();
   SLSHADOW_CHECK(nt == distance.NumTriangles());
+  if (nt == 0) return;
+  // Cells of the median longest edge (smaller ones, half or 0.3 of it, cost more to build and
+  // were no faster per point on the demo), at least min_cell_mm. A mesh much finer than that
+  // (e.g. a tessellated sphere scanned at a coarser point spacing) would put too many triangles
+  // in a cell, or a cell around nearly every point: no grid then.
+  std::vector<double> edges(nt);
+  for (size_t t = 0; t < nt; ++t) {
+    const Eigen::Vector3i& f = mesh.triangles[t];
+    const Eigen::Vector3d& a = mesh.vertices[static_cast<size_t>(f[0])];
+    const Eigen::Vector3d& b = mesh.vertices[static_cast<size_t>(f[1])];
+    const Eigen::Vector3d& c = mesh.vertices[static_cast<size_t>(f[2])];
+    edges[t] = std::max({(b - a).norm(), (c - b).norm(), (a - c).norm()});
+  }
+  std::nth_element(edges.begin(), edges.begin() + static_cast<std::ptrdiff_t>(nt / 2), edges.end());
+  const double median_edge = edges[nt / 2];
+  if (!(min_cell_mm <= 4 * median_edge)) return;
   // The pseudo-normals exactly as compare/mesh_distance.cc computes them (same operations in the
   // same order).
   std::vector<Eigen::Vector3d> vnormal(mesh.vertices.size(), Eigen::Vector3d::Zero());
@@ -230,7 +247,6 @@ C2mGrid::C2mGrid(const TriangleMesh& mesh, const compare::MeshDistance& distance
   g.normals.resize(nt);
   g.tris.resize(nt);
   double max_abs = 0;
-  std::vector<double> edges(nt);
   for (size_t t = 0; t < nt; ++t) {
     const Eigen::Vector3i& f = mesh.triangles[t];
     const Eigen::Vector3d& a = mesh.vertices[static_cast<size_t>(f[0])];
@@ -268,7 +284,6 @@ C2mGrid::C2mGrid(const TriangleMesh& mesh, const compare::MeshDistance& distance
         tri.plane[k + 1][3] = u.dot(*v[k]);
       }
     }
-    edges[t] = std::max({(b - a).norm(), (c - b).norm(), (a - c).norm()});
   }
   for (size_t t = 0; t < nt; ++t) {
     const Eigen::Vector3i& f = mesh.triangles[t];
@@ -278,16 +293,13 @@ C2mGrid::C2mGrid(const TriangleMesh& mesh, const compare::MeshDistance& distance
     }
   }
 
-  // Cells of the median longest edge: smaller ones (half, 0.3) cost more to build and were no
-  // faster per point on the demo.
-  if (nt == 0 || !(max_abs < 1e12)) return;
+  if (!(max_abs < 1e12)) return;
   Eigen::Vector3d lo = g.tris[0].lo, hi = g.tris[0].hi;
   for (const Impl::Tri& t : g.tris) {
     lo = lo.cwiseMin(t.lo);
     hi = hi.cwiseMax(t.hi);
   }
-  std::nth_element(edges.begin(), edges.begin() + static_cast<std::ptrdiff_t>(nt / 2), edges.end());
-  double cell = std::max(edges[nt / 2], (hi - lo).maxCoeff() / 4096);
+  double cell = std::max({median_edge, min_cell_mm, (hi - lo).maxCoeff() / 4096});
   if (!(cell > 0) || !std::isfinite(cell)) return;
   for (;; cell *= 2) {
     g.cell = cell;
@@ -345,6 +357,7 @@ C2mGrid::C2mGrid(const TriangleMesh& mesh, const compare::MeshDistance& distance
 
 C2mGrid::~C2mGrid() = default;
 
+bool C2mGrid::enabled() const { return impl_->enabled; }
 size_t C2mGrid::built_cells() const { return impl_->built; }
 size_t C2mGrid::far_cells() const { return impl_->far_cells; }
 double C2mGrid::cell_mm() const { return impl_->cell; }

@@ -488,7 +488,15 @@ GroundTruthScorer::~GroundTruthScorer() = default;
 void GroundTruthScorer::Prepare(const std::vector<const PointCloud*>& clouds) {
   // One job's clouds alone do not repay the cells (a geometry group of one job never builds them).
   if (++prepared_ < 2) return;
-  if (!grid_) grid_ = std::make_unique<internal::C2mGrid>(reference_.mesh, distance_);
+  if (!grid_) {
+    // Cells of at least twice the clouds' point spacing: each then serves several points.
+    double spacing = 0;
+    for (const PointCloud* cloud : clouds) {
+      if (cloud->size() >= 2) spacing = std::max(spacing, CloudMedianSpacing(cloud->points));
+    }
+    grid_ = std::make_unique<internal::C2mGrid>(reference_.mesh, distance_, 2 * spacing);
+  }
+  if (!grid_->enabled()) return;
   for (const PointCloud* cloud : clouds) grid_->Prepare(cloud->points);
 }
 
@@ -506,7 +514,7 @@ ModeAccuracy GroundTruthScorer::Measure(const PointCloud& cloud,
   // Signed distances: the result does not depend on the warm-start hint (compare/mesh_distance.h);
   // clouds come in grid order, so the previous point's triangle is a good one.
   std::vector<double> deviations(pts.size());
-  if (grid_) {
+  if (grid_ && grid_->enabled()) {
     grid_->SignedDistances(pts, &deviations);
   } else {
     tbb::parallel_for(tbb::blocked_range<size_t>(0, pts.size(), 4096),

@@ -30,8 +30,11 @@ namespace slshadow::shadow::internal {
 
 class C2mGrid {
  public:
-  // `distance` must be built from `mesh` and outlive the grid.
-  C2mGrid(const TriangleMesh& mesh, const compare::MeshDistance& distance);
+  // `distance` must be built from `mesh` and outlive the grid. Cells are as large as the mesh's
+  // median longest edge, at least min_cell_mm (e.g. twice the clouds' point spacing: a cell then
+  // serves several points); with min_cell_mm above 4 median edges there is no grid (every point
+  // is answered by `distance`).
+  C2mGrid(const TriangleMesh& mesh, const compare::MeshDistance& distance, double min_cell_mm = 0);
   ~C2mGrid();
 
   // Builds the cells that `points` fall in and that are not built yet (parallel). Not to be
@@ -42,6 +45,7 @@ class C2mGrid {
   // cells not built are answered by `distance`. Thread-safe (const).
   void SignedDistances(const std::vector<Eigen::Vector3d>& points, std::vector<double>* out) const;
 
+  bool enabled() const;
   size_t built_cells() const;  // including those answered by MeshDistance
   size_t far_cells() const;    // built, but answered by MeshDistance
   double cell_mm() const;

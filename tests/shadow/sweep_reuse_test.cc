@@ -336,6 +336,7 @@ TEST(C2mGrid, SignedDistancesAreMeshDistancesBitForBit) {
     std::memcpy(&b, &y, sizeof(b));
     return a == b;
   };
+  EXPECT_TRUE(grid.enabled());
   for (const bool prepared : {false, true}) {
     if (prepared) {
       for (const auto& points : sets) grid.Prepare(points);
@@ -362,6 +363,17 @@ TEST(C2mGrid, SignedDistancesAreMeshDistancesBitForBit) {
         EXPECT_GT(negative, got.size() / 10) << "set " << s;  // both signs are met
       }
     }
+  }
+  // Cells asked to be far larger than the triangles: no grid, MeshDistance answers every point.
+  internal::C2mGrid coarse(surface, distance, 100.0);
+  EXPECT_FALSE(coarse.enabled());
+  coarse.Prepare(sets[0]);
+  EXPECT_EQ(coarse.built_cells(), 0u);
+  std::vector<double> got;
+  coarse.SignedDistances(sets[0], &got);
+  ASSERT_EQ(got.size(), sets[0].size());
+  for (size_t i = 0; i < got.size(); i += 97) {
+    EXPECT_TRUE(same_bits(got[i], distance.Closest(sets[0][i]).signed_distance_mm)) << i;
   }
 }
 
