@@ -485,16 +485,16 @@ GroundTruthScorer::GroundTruthScorer(TriangleMesh surface, std::vector<Eigen::Ve
 
 GroundTruthScorer::~GroundTruthScorer() = default;
 
-void GroundTruthScorer::Prepare(const std::vector<const PointCloud*>& clouds) {
-  // One job's clouds alone do not repay the cells (a geometry group of one job never builds them).
+void GroundTruthScorer::Prepare(const std::vector<const PointCloud*>& clouds, int jobs_left) {
+  // A few jobs' clouds do not repay the cells (a geometry group of one job never builds them).
   if (++prepared_ < 2) return;
   if (!grid_) {
-    // Cells of at least twice the clouds' point spacing: each then serves several points.
-    double spacing = 0;
+    if (jobs_left < kGridJobs) return;
+    double spacing = 0;  // the clouds' point spacing (the coarsest)
     for (const PointCloud* cloud : clouds) {
       if (cloud->size() >= 2) spacing = std::max(spacing, CloudMedianSpacing(cloud->points));
     }
-    grid_ = std::make_unique<internal::C2mGrid>(reference_.mesh, distance_, 2 * spacing);
+    grid_ = std::make_unique<internal::C2mGrid>(reference_.mesh, distance_, spacing);
   }
   if (!grid_->enabled()) return;
   for (const PointCloud* cloud : clouds) grid_->Prepare(cloud->points);

@@ -116,12 +116,15 @@ class GroundTruthScorer {
                        const std::string& mode) const;
 
   // Announces the clouds about to be measured (one job's), before Measure is called on them; not
-  // to be called while Measure runs. From the second call on, the signed distances of the points
-  // come from a grid of cells near the surface (shadow/internal/c2m_grid.h: compare::MeshDistance's
-  // doubles, in a fraction of its time), whose cells this call builds for `clouds`: a noise
-  // sweep's clouds fall in the same cells job after job. Without it (or on the first call) Measure
+  // to be called while Measure runs. From the second call on, when at least kGridJobs jobs
+  // (`jobs_left`, this one included) are still to be measured and the clouds are dense on the
+  // ground truth's triangles (shadow/internal/c2m_grid.h), the signed distances of the points come
+  // from a grid of cells near the surface (compare::MeshDistance's doubles, in a fraction of its
+  // time), whose cells this call builds for `clouds`: a noise sweep's clouds fall in the same
+  // cells job after job (the cells cost about two jobs' worth of distances). Otherwise Measure
   // asks compare::MeshDistance for every point. Results are the same either way.
-  void Prepare(const std::vector<const PointCloud*>& clouds);
+  static constexpr int kGridJobs = 4;
+  void Prepare(const std::vector<const PointCloud*>& clouds, int jobs_left = kGridJobs);
 
   const compare::Reference& reference() const { return reference_; }
 

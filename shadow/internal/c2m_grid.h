@@ -31,10 +31,12 @@ namespace slshadow::shadow::internal {
 class C2mGrid {
  public:
   // `distance` must be built from `mesh` and outlive the grid. Cells are as large as the mesh's
-  // median longest edge, at least min_cell_mm (e.g. twice the clouds' point spacing: a cell then
-  // serves several points); with min_cell_mm above 4 median edges there is no grid (every point
-  // is answered by `distance`).
-  C2mGrid(const TriangleMesh& mesh, const compare::MeshDistance& distance, double min_cell_mm = 0);
+  // median longest edge. With the clouds' point spacing above a third of that (fewer than ~9
+  // points of a cloud per cell: the demo's part seen by the quarter-size rig, a tessellated
+  // sphere), the cells would not repay their building: no grid then (enabled() false, every
+  // point answered by `distance`).
+  C2mGrid(const TriangleMesh& mesh, const compare::MeshDistance& distance,
+          double point_spacing_mm = 0);
   ~C2mGrid();
 
   // Builds the cells that `points` fall in and that are not built yet (parallel). Not to be

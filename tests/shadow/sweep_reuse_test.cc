@@ -364,8 +364,8 @@ TEST(C2mGrid, SignedDistancesAreMeshDistancesBitForBit) {
       }
     }
   }
-  // Cells asked to be far larger than the triangles: no grid, MeshDistance answers every point.
-  internal::C2mGrid coarse(surface, distance, 100.0);
+  // Clouds far sparser than the triangles: no grid, MeshDistance answers every point.
+  internal::C2mGrid coarse(surface, distance, 1.0);
   EXPECT_FALSE(coarse.enabled());
   coarse.Prepare(sets[0]);
   EXPECT_EQ(coarse.built_cells(), 0u);
