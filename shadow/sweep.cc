@@ -617,7 +617,10 @@ struct Group {
   double geometry_cpu_s = 0, noise_free_cpu_s = 0;
 };
 
-json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group, int* traces) {
+// `group_jobs_left`: the jobs of this job's geometry group still to run in the shard, this one
+// included (GroundTruthScorer::Prepare's hint).
+json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group, int* traces,
+            int group_jobs_left) {
   const std::string what = file.string();
   const auto node = [&](const char* key) { return ConfigNode::FromJson(job.at(key), what, key); };
   const std::string key = GeometryKey(job);
@@ -739,6 +742,9 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
       compare::CompareOptionsFromConfig(node("compare"));
   // The modes' measurements are independent and partly serial: run them side by side.
   std::vector<ModeAccuracy> measured(modes.size());
+  std::vector<const PointCloud*> clouds;
+  for (const Reconstruction& r : recs) clouds.push_back(&r.cloud);
+  group->scorer->Prepare(clouds, group_jobs_left);
   // A method that reconstructs nothing (it broke) has no error figures: null, and coverage 0.
   tbb::parallel_for(size_t{0}, modes.size(), [&](size_t k) {
     measured[k].mode = ToString(modes[k]);
@@ -819,7 +825,26 @@ SweepRunSummary RunSweepShard(const fs::path& jobs_dir, const SweepRunOptions& o
   const std::vector<int> ids = ShardJobs(jobs_dir, options.shard_index, options.shard_count);
   summary.assigned = static_cast<int>(ids.size());
   std::unique_ptr<Group> group;
+  // Per job, how many of its geometry group's jobs are still to run (the shard's jobs come group
+  // by group): a scorer builds its C2M grid only for enough of them.
+  std::vector<int> group_jobs_left(ids.size(), 0);
+  {
+    std::vector<std::string> keys;
+    for (int id : ids) {
+      std::error_code ec;
+      const bool done = fs::exists(ResultFile(jobs_dir, id), ec);
+      keys.push_back(done ? std::string() : GeometryKey(ReadJob(jobs_dir, id)));
+    }
+    for (size_t k = ids.size(); k-- > 0;) {
+      if (keys[k].empty()) continue;
+      int left = 1;
+      for (size_t j = k + 1; j < ids.size() && left < 64; ++j) left += keys[j] == keys[k];
+      group_jobs_left[k] = left;
+    }
+  }
+  size_t position = 0;
   for (int id : ids) {
+    const int jobs_left = group_jobs_left[position++];
     std::error_code ec;
     const fs::path result_file = ResultFile(jobs_dir, id);
     if (fs::exists(result_file, ec)) {
@@ -827,7 +852,8 @@ SweepRunSummary RunSweepShard(const fs::path& jobs_dir, const SweepRunOptions& o
       continue;
     }
     const fs::path file = JobFile(jobs_dir, id);
-    const json result = RunJob(ReadJob(jobs_dir, id), file, group, &summary.geometry_traces);
+    const json result =
+        RunJob(ReadJob(jobs_dir, id), file, group, &summary.geometry_traces, jobs_left);
     WriteTextFileAtomically(result_file, result.dump(1) + "\n");
     ++summary.ran;
     if (options.verbose) {

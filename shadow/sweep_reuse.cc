@@ -2,6 +2,8 @@
 
 #include "compare/statistics.h"
 #include "core/error.h"
+#include "core/statistics.h"
+#include "shadow/internal/c2m_grid.h"
 #include "sim/renderer.h"
 #include "sim/sensor_noise.h"
 #include "sim/shapes.h"
@@ -14,6 +16,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 
 namespace slshadow::shadow {
@@ -133,6 +136,7 @@ struct GroundTruthScorer::SampleGrid {
   std::vector<uint32_t> start;          // per cell, its first point; one more at the end
   std::vector<Eigen::Vector3d> points;  // by cell
   std::vector<uint8_t> is_reference;    // by cell order: a reference sample (else visible)
+  std::vector<uint32_t> occupied;       // the cells holding points, ascending
 
   SampleGrid(const std::vector<Eigen::Vector3d>& reference,
              const std::vector<Eigen::Vector3d>& visible)
@@ -166,7 +170,10 @@ struct GroundTruthScorer::SampleGrid {
       cell_of.push_back(static_cast<uint32_t>(Cell(p)));
       ++start[cell_of.back() + 1];
     });
-    for (size_t c = 1; c < start.size(); ++c) start[c] += start[c - 1];
+    for (size_t c = 1; c < start.size(); ++c) {
+      if (start[c] > 0) occupied.push_back(static_cast<uint32_t>(c - 1));
+      start[c] += start[c - 1];
+    }
     points.resize(cell_of.size());
     is_reference.resize(cell_of.size());
     std::vector<uint32_t> fill(start.begin(), start.end() - 1);
@@ -223,17 +230,16 @@ struct GroundTruthScorer::SampleGrid {
                           cell_of[i] = static_cast<uint32_t>(Cell(q));
                         }
                       });
+    // Counting sort: counts, inclusive prefix sums (cell c's end), then filled from the back, which
+    // leaves first[c] at cell c's start (the order within a cell does not matter below).
     std::vector<uint32_t> first(cells + 1, 0);
     for (const uint32_t c : cell_of) {
-      if (c != kOutside) ++first[c + 1];
+      if (c != kOutside) ++first[c];
     }
     for (size_t c = 1; c < first.size(); ++c) first[c] += first[c - 1];
     std::vector<Eigen::Vector3d> sorted(first.back());
-    {
-      std::vector<uint32_t> fill(first.begin(), first.end() - 1);
-      for (size_t i = 0; i < reached.size(); ++i) {
-        if (cell_of[i] != kOutside) sorted[fill[cell_of[i]]++] = reached[i];
-      }
+    for (size_t i = reached.size(); i-- > 0;) {
+      if (cell_of[i] != kOutside) sorted[--first[cell_of[i]]] = reached[i];
     }
     // Whether a reached point lies within the radius of sample p in cells [x0, x1] of row `row`.
     const auto any_in = [&](const Eigen::Vector3d& p, int64_t row, int64_t x0, int64_t x1) {
@@ -245,10 +251,10 @@ struct GroundTruthScorer::SampleGrid {
     };
     using Counts = std::pair<size_t, size_t>;  // covered (reference samples, visible points)
     const Counts covered = tbb::parallel_reduce(
-        tbb::blocked_range<size_t>(0, cells, 4096), Counts{0, 0},
+        tbb::blocked_range<size_t>(0, occupied.size(), 256), Counts{0, 0},
         [&](const tbb::blocked_range<size_t>& range, Counts acc) {
-          for (size_t c = range.begin(); c < range.end(); ++c) {
-            if (start[c] == start[c + 1]) continue;
+          for (size_t j = range.begin(); j < range.end(); ++j) {
+            const size_t c = occupied[j];
             const auto cx = static_cast<int64_t>(c) % nx;
             const auto cy = static_cast<int64_t>(c) / nx % ny;
             const auto cz = static_cast<int64_t>(c) / nx / ny;
@@ -343,58 +349,131 @@ double CloudMedianSpacing(const std::vector<Eigen::Vector3d>& pts) {
                          static_cast<uint64_t>(z + (1 << 20));
     return static_cast<uint32_t>(((key * 0x9E3779B97F4A7C15ull) >> 32) & (buckets - 1));
   };
+  // The cells sample k searches: of the cells within its rings, those whose box lies within its
+  // bound of it (in cell units, with margins for the rounding of cell coordinates); every point
+  // nearer than its bound is in one of them. Only points in the buckets of such cells are sorted.
+  const auto for_cells = [&](size_t k, auto&& visit) {
+    const Eigen::Vector3d& p = pts[samples[k]];
+    const auto reach = static_cast<int64_t>(rings_of(best[k]));
+    const Eigen::Array3d t = (p * inv).array();
+    const Eigen::Array3d c = t.floor();
+    const double r = std::sqrt(best[k]) * inv * 1.001 + 1e-6, r2 = r * r;
+    const auto gap = [](int64_t cell_index, double coordinate) {
+      const auto lo = static_cast<double>(cell_index);
+      return std::max({0.0, lo - coordinate, coordinate - (lo + 1)});
+    };
+    const auto cx = static_cast<int64_t>(c.x()), cy = static_cast<int64_t>(c.y()),
+               cz = static_cast<int64_t>(c.z());
+    for (int64_t z = cz - reach; z <= cz + reach; ++z) {
+      const double gz = gap(z, t.z());
+      for (int64_t y = cy - reach; y <= cy + reach; ++y) {
+        const double gy = gap(y, t.y());
+        if (gz * gz + gy * gy > r2) continue;
+        for (int64_t x = cx - reach; x <= cx + reach; ++x) {
+          const double gx = gap(x, t.x());
+          if (gz * gz + gy * gy + gx * gx > r2) continue;
+          visit(bucket_of(x, y, z));
+        }
+      }
+    }
+  };
+  std::vector<uint64_t> searched((buckets + 63) / 64, 0);
+  for (size_t k = 0; k < ns; ++k) {
+    if (!(rings_of(best[k]) <= 8)) continue;  // compared with every point below
+    for_cells(k, [&](uint32_t bk) { searched[bk >> 6] |= uint64_t{1} << (bk & 63); });
+  }
+  constexpr uint32_t kNotSearched = std::numeric_limits<uint32_t>::max();
   std::vector<uint32_t> bucket(n);
   tbb::parallel_for(
       tbb::blocked_range<size_t>(0, n, 65536), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t i = r.begin(); i < r.end(); ++i) {
           const Eigen::Array3d c = cell(pts[i]);
-          bucket[i] = bucket_of(static_cast<int64_t>(c.x()), static_cast<int64_t>(c.y()),
-                                static_cast<int64_t>(c.z()));
+          const uint32_t bk = bucket_of(static_cast<int64_t>(c.x()), static_cast<int64_t>(c.y()),
+                                        static_cast<int64_t>(c.z()));
+          bucket[i] = (searched[bk >> 6] >> (bk & 63)) & 1 ? bk : kNotSearched;
         }
       });
   std::vector<uint32_t> start(buckets + 1, 0);
-  for (const uint32_t b : bucket) ++start[b + 1];
+  for (const uint32_t b : bucket) {
+    if (b != kNotSearched) ++start[b + 1];
+  }
   for (size_t b = 1; b <= buckets; ++b) start[b] += start[b - 1];
-  std::vector<uint32_t> order(n);
+  std::vector<uint32_t> order(start[buckets]);
   {
     std::vector<uint32_t> fill(start.begin(), start.end() - 1);
-    for (size_t i = 0; i < n; ++i) order[fill[bucket[i]]++] = static_cast<uint32_t>(i);
+    for (size_t i = 0; i < n; ++i) {
+      if (bucket[i] != kNotSearched) order[fill[bucket[i]]++] = static_cast<uint32_t>(i);
+    }
   }
-  tbb::parallel_for(
-      tbb::blocked_range<size_t>(0, ns, 256), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t k = r.begin(); k < r.end(); ++k) {
-          const size_t i = samples[k];
-          const Eigen::Vector3d& p = pts[i];
-          double b = best[k];
-          const double rings = rings_of(b);
-          if (!(rings <= 8)) {  // far from its array neighbours: every point
-            for (size_t j = 0; j < n; ++j) {
-              if (j != i) b = std::min(b, (p - pts[j]).squaredNorm());
-            }
-          } else {
-            const auto reach = static_cast<int64_t>(rings);
-            const Eigen::Array3d c = cell(p);
-            const auto cx = static_cast<int64_t>(c.x()), cy = static_cast<int64_t>(c.y()),
-                       cz = static_cast<int64_t>(c.z());
-            for (int64_t z = cz - reach; z <= cz + reach; ++z) {
-              for (int64_t y = cy - reach; y <= cy + reach; ++y) {
-                for (int64_t x = cx - reach; x <= cx + reach; ++x) {
-                  const uint32_t bk = bucket_of(x, y, z);
-                  for (uint32_t m = start[bk]; m < start[bk + 1]; ++m) {
-                    const uint32_t j = order[m];
-                    if (j != i) b = std::min(b, (p - pts[j]).squaredNorm());
-                  }
-                }
-              }
-            }
-          }
-          best[k] = b;
-        }
-      });
+  std::vector<double> found(ns);
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, ns, 256),
+                    [&](const tbb::blocked_range<size_t>& r) {
+                      for (size_t k = r.begin(); k < r.end(); ++k) {
+                        const size_t i = samples[k];
+                        const Eigen::Vector3d& p = pts[i];
+                        double b = best[k];
+                        if (!(rings_of(b) <= 8)) {  // far from its array neighbours: every point
+                          for (size_t j = 0; j < n; ++j) {
+                            if (j != i) b = std::min(b, (p - pts[j]).squaredNorm());
+                          }
+                        } else {
+                          for_cells(k, [&](uint32_t bk) {
+                            for (uint32_t m = start[bk]; m < start[bk + 1]; ++m) {
+                              const uint32_t j = order[m];
+                              if (j != i) b = std::min(b, (p - pts[j]).squaredNorm());
+                            }
+                          });
+                        }
+                        found[k] = b;
+                      }
+                    });
+  best.swap(found);
   std::vector<double> d(ns);
   for (size_t k = 0; k < ns; ++k) d[k] = std::sqrt(best[k]);
   std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(ns / 2), d.end());
   return d[ns / 2];
+}
+
+DeviationFigures ComputeDeviationFigures(const std::vector<double>& deviations,
+                                         double threshold_mm) {
+  // compare::ComputeStats's sums, in its order; the 95th percentile by a radix select on the bits
+  // of |d| (non-negative doubles order as their bit patterns): a histogram of the top 16 bits
+  // finds the bucket holding the rank, a selection within it the value.
+  DeviationFigures f;
+  double sum = 0, sum2 = 0;
+  size_t inliers = 0;
+  std::vector<uint32_t> histogram(size_t{1} << 16, 0);
+  const auto bits = [](double a) {
+    uint64_t b = 0;
+    std::memcpy(&b, &a, sizeof(b));
+    return b;
+  };
+  for (const double d : deviations) {
+    if (!std::isfinite(d)) continue;
+    const double a = std::abs(d);
+    ++f.count;
+    sum += a;
+    sum2 += a * a;
+    if (a <= threshold_mm) ++inliers;
+    ++histogram[bits(a) >> 48];
+    f.max_mm = std::max(f.max_mm, a);
+  }
+  f.outliers = f.count - inliers;
+  if (f.count == 0) return f;
+  const double n = static_cast<double>(f.count);
+  f.mean_mm = sum / n;
+  f.rms_mm = std::sqrt(sum2 / n);
+  size_t rank = PercentileRank(f.count, 95), bucket = 0;
+  while (rank >= histogram[bucket]) rank -= histogram[bucket++];
+  std::vector<double> in_bucket;
+  in_bucket.reserve(histogram[bucket]);
+  for (const double d : deviations) {
+    if (std::isfinite(d) && bits(std::abs(d)) >> 48 == bucket) in_bucket.push_back(std::abs(d));
+  }
+  std::nth_element(in_bucket.begin(), in_bucket.begin() + static_cast<std::ptrdiff_t>(rank),
+                   in_bucket.end());
+  f.p95_mm = in_bucket[rank];
+  return f;
 }
 
 GroundTruthScorer::GroundTruthScorer(TriangleMesh surface, std::vector<Eigen::Vector3d> visible,
@@ -405,6 +484,21 @@ GroundTruthScorer::GroundTruthScorer(TriangleMesh surface, std::vector<Eigen::Ve
       samples_(std::make_unique<SampleGrid>(reference_.cloud.points, visible_)) {}
 
 GroundTruthScorer::~GroundTruthScorer() = default;
+
+void GroundTruthScorer::Prepare(const std::vector<const PointCloud*>& clouds, int jobs_left) {
+  // A few jobs' clouds do not repay the cells (a geometry group of one job never builds them).
+  if (++prepared_ < 2) return;
+  if (!grid_) {
+    if (jobs_left < kGridJobs) return;
+    double spacing = 0;  // the clouds' point spacing (the coarsest)
+    for (const PointCloud* cloud : clouds) {
+      if (cloud->size() >= 2) spacing = std::max(spacing, CloudMedianSpacing(cloud->points));
+    }
+    grid_ = std::make_unique<internal::C2mGrid>(reference_.mesh, distance_, spacing);
+  }
+  if (!grid_->enabled()) return;
+  for (const PointCloud* cloud : clouds) grid_->Prepare(cloud->points);
+}
 
 ModeAccuracy GroundTruthScorer::Measure(const PointCloud& cloud,
                                         const compare::CompareOptions& options,
@@ -423,17 +517,20 @@ ModeAccuracy GroundTruthScorer::Measure(const PointCloud& cloud,
   // Signed distances: the result does not depend on the warm-start hint (compare/mesh_distance.h);
   // clouds come in grid order, so the previous point's triangle is a good one.
   std::vector<double> deviations(pts.size());
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, pts.size(), 4096),
-                    [&](const tbb::blocked_range<size_t>& r) {
-                      uint32_t hint = std::numeric_limits<uint32_t>::max();
-                      for (size_t i = r.begin(); i < r.end(); ++i) {
-                        const compare::MeshHit hit = distance_.Closest(pts[i], hint);
-                        deviations[i] = hit.signed_distance_mm;
-                        hint = hit.triangle;
-                      }
-                    });
-  const compare::DistanceStats stats = compare::ComputeStats(
-      deviations, /*is_signed=*/false, options.threshold_mm, options.histogram_bins);
+  if (grid_ && grid_->enabled()) {
+    grid_->SignedDistances(pts, &deviations);
+  } else {
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, pts.size(), 4096),
+                      [&](const tbb::blocked_range<size_t>& r) {
+                        uint32_t hint = std::numeric_limits<uint32_t>::max();
+                        for (size_t i = r.begin(); i < r.end(); ++i) {
+                          const compare::MeshHit hit = distance_.Closest(pts[i], hint);
+                          deviations[i] = hit.signed_distance_mm;
+                          hint = hit.triangle;
+                        }
+                      });
+  }
+  const DeviationFigures stats = ComputeDeviationFigures(deviations, options.threshold_mm);
   std::vector<Eigen::Vector3d> reached;
   reached.reserve(pts.size());
   for (size_t i = 0; i < pts.size(); ++i) {

@@ -8,7 +8,15 @@
 //                       image buffers reused from job to job.
 //   GroundTruthScorer   the ground-truth surface's distance hierarchy (compare::MeshDistance),
 //                       its area samples and the lit visible surface, built once per geometry
-//                       group; each cloud is then measured against them.
+//                       group, and from the group's second job on a grid of cells near the
+//                       surface listing the triangles that can be closest to a point in each
+//                       (shadow/internal/c2m_grid.h), kept job to job; each cloud is then
+//                       measured against them.
+//
+// Reconstruction needs nothing of its own here: what it computes from the rig and the image size
+// alone (undistorted pixel rays, rectified-to-source pixel maps, grid and scratch buffers) is
+// already kept process-wide between reconstructions (reconstruct/ray_cache.h, the rectified
+// source grids of reconstruct/stereo_matcher.cc, its per-thread buffers and grid pool).
 //
 // Both give exactly what the per-job path gives: the images bit for bit what
 // sim::Simulator::Render (and so `slshadow simulate`) renders for the job's scene, the figures
@@ -33,6 +41,10 @@
 #include <vector>
 
 namespace slshadow::shadow {
+
+namespace internal {
+class C2mGrid;
+}
 
 // The noise-free irradiance images of one pattern sequence seen by every camera of a Simulator.
 class NoiseFreeImages {
@@ -75,6 +87,17 @@ TriangleMesh GroundTruthSurface(const Scene& scene, const std::string& what);
 // Falls back to compare::MedianSpacing for non-finite points or too many far samples.
 double CloudMedianSpacing(const std::vector<Eigen::Vector3d>& points);
 
+// What a sweep reports of the deviations of a cloud: compare::ComputeStats(deviations,
+// false, threshold_mm)'s count, outliers, mean, rms, p95 and max, the same values (non-finite
+// deviations skipped as it skips them), without its other figures (standard deviations, median,
+// 99th percentile, histogram).
+struct DeviationFigures {
+  size_t count = 0, outliers = 0;
+  double mean_mm = 0, rms_mm = 0, p95_mm = 0, max_mm = 0;
+};
+DeviationFigures ComputeDeviationFigures(const std::vector<double>& deviations,
+                                         double threshold_mm);
+
 // The accuracy figures of clouds against one ground-truth surface, with the hierarchy and the
 // samples built once.
 class GroundTruthScorer {
@@ -92,6 +115,17 @@ class GroundTruthScorer {
   ModeAccuracy Measure(const PointCloud& cloud, const compare::CompareOptions& options,
                        const std::string& mode) const;
 
+  // Announces the clouds about to be measured (one job's), before Measure is called on them; not
+  // to be called while Measure runs. From the second call on, when at least kGridJobs jobs
+  // (`jobs_left`, this one included) are still to be measured and the clouds are dense on the
+  // ground truth's triangles (shadow/internal/c2m_grid.h), the signed distances of the points come
+  // from a grid of cells near the surface (compare::MeshDistance's doubles, in a fraction of its
+  // time), whose cells this call builds for `clouds`: a noise sweep's clouds fall in the same
+  // cells job after job (the cells cost about two jobs' worth of distances). Otherwise Measure
+  // asks compare::MeshDistance for every point. Results are the same either way.
+  static constexpr int kGridJobs = 4;
+  void Prepare(const std::vector<const PointCloud*>& clouds, int jobs_left = kGridJobs);
+
   const compare::Reference& reference() const { return reference_; }
 
  private:
@@ -101,6 +135,8 @@ class GroundTruthScorer {
   // The surface samples and the visible points in one uniform grid, for both coverages at once.
   struct SampleGrid;
   std::unique_ptr<const SampleGrid> samples_;
+  int prepared_ = 0;  // calls of Prepare
+  std::unique_ptr<internal::C2mGrid> grid_;
 };
 
 }  // namespace slshadow::shadow

@@ -8,6 +8,7 @@
 #include "core/error.h"
 #include "patterns/codec.h"
 #include "reconstruct/reconstruct.h"
+#include "shadow/internal/c2m_grid.h"
 #include "shadow/scan_pipeline.h"
 #include "sim/scene.h"
 #include "tests/testing/temp_dir.h"
@@ -15,6 +16,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cstring>
 #include <limits>
 #include <random>
 
@@ -193,46 +195,74 @@ TEST(GroundTruthSurface, TessellatedPrimitivesWithinAFractionOfAMicrometre) {
 
 // The scorer's figures are those of the demo's path (compare::Compare, then MeasureAccuracy),
 // for both modes of a noisy scan and two thresholds; an empty cloud is rejected as Compare does.
+// Both modes' clouds of a noisy scan (seed 3) of the fixture, and its lit visible surface.
+struct NoisyScan {
+  std::vector<ReconstructMode> modes = {ReconstructMode::kProjector, ReconstructMode::kStereo};
+  std::vector<Reconstruction> recs;
+  std::vector<Eigen::Vector3d> visible;
+};
+
+const NoisyScan& SharedScan() {
+  static const NoisyScan* scan = [] {
+    Fixture& f = Shared();
+    auto* s = new NoisyScan();
+    const Simulator sim(f.scene, f.rig);
+    Scene noisy = f.scene;
+    noisy.layers.noise_enabled = true;
+    noisy.layers.seed = 3;
+    const auto images = sim.Render(f.patterns, &noisy);
+    DecodedScan decoded;
+    decoded.rig = f.rig;
+    decoded.spec = f.spec;
+    for (size_t c = 0; c < 2; ++c) {
+      decoded.cameras.push_back(f.rig.cameras[c].name);
+      decoded.maps.push_back(DecodePatterns(f.spec, images[c], DecodeOptions{}));
+    }
+    s->recs = ReconstructModes(decoded, s->modes, ReconstructOptions{});
+    s->visible = LitVisibleSurface(sim.geometry(0));
+    return s;
+  }();
+  return *scan;
+}
+
+// The scorer's figures are those of the demo's path (compare::Compare, then MeasureAccuracy),
+// for both modes of a noisy scan and two thresholds, with the signed distances from
+// compare::MeshDistance (before Prepare) and from the grid of cells (after two); an empty cloud is
+// rejected as Compare does.
 TEST(GroundTruthScorer, EqualsCompareThenMeasureAccuracy) {
   Fixture& f = Shared();
-  const Simulator sim(f.scene, f.rig);
-  Scene noisy = f.scene;
-  noisy.layers.noise_enabled = true;
-  noisy.layers.seed = 3;
-  const auto images = sim.Render(f.patterns, &noisy);
-  DecodedScan decoded;
-  decoded.rig = f.rig;
-  decoded.spec = f.spec;
-  for (size_t c = 0; c < 2; ++c) {
-    decoded.cameras.push_back(f.rig.cameras[c].name);
-    decoded.maps.push_back(DecodePatterns(f.spec, images[c], DecodeOptions{}));
-  }
-  const std::vector<ReconstructMode> modes = {ReconstructMode::kProjector,
-                                              ReconstructMode::kStereo};
-  const auto recs = ReconstructModes(decoded, modes, ReconstructOptions{});
+  const NoisyScan& scan = SharedScan();
+  const std::vector<ReconstructMode>& modes = scan.modes;
+  const std::vector<Reconstruction>& recs = scan.recs;
+  const std::vector<Eigen::Vector3d>& visible = scan.visible;
   const TriangleMesh surface = SceneSurface(f.scene, "demo");
-  const std::vector<Eigen::Vector3d> visible = LitVisibleSurface(sim.geometry(0));
-  const GroundTruthScorer scorer(surface, visible, "truth");
+  GroundTruthScorer scorer(surface, visible, "truth");
   const compare::Reference reference = compare::ReferenceFromMesh(surface, "truth");
-  // The automatic coverage radius, and one of several grid cells.
-  for (const auto& [threshold, radius] :
-       std::vector<std::pair<double, double>>{{0.1, 0.0}, {0.5, 0.0}, {0.5, 6.0}}) {
-    compare::CompareOptions options;
-    options.threshold_mm = threshold;
-    options.coverage_radius_mm = radius;
-    for (size_t k = 0; k < modes.size(); ++k) {
-      const std::string mode = ToString(modes[k]);
-      ASSERT_GT(recs[k].cloud.size(), 10000u);
-      const ModeAccuracy got = scorer.Measure(recs[k].cloud, options, mode);
-      const compare::CompareResult result =
-          compare::Compare(recs[k].cloud, reference, options, mode);
-      ModeAccuracy want = MeasureAccuracy(mode, result, visible);
-      MeasureFigureUncertainty(result.deviations_mm, &want);
-      EXPECT_EQ(ModeAccuracyToJson(got).dump(), ModeAccuracyToJson(want).dump())
-          << mode << " threshold " << threshold << " radius " << radius;
-      EXPECT_GT(got.coverage, 0.1);
-      EXPECT_GT(got.visible_coverage, 0.5);
-      EXPECT_LT(got.rms_mm, threshold * 2);
+  for (const bool prepared : {false, true}) {
+    if (prepared) {
+      for (int k = 0; k < 2; ++k) scorer.Prepare({&recs[0].cloud, &recs[1].cloud});
+    }
+    // The automatic coverage radius, and one of several grid cells.
+    for (const auto& [threshold, radius] :
+         std::vector<std::pair<double, double>>{{0.1, 0.0}, {0.5, 0.0}, {0.5, 6.0}}) {
+      compare::CompareOptions options;
+      options.threshold_mm = threshold;
+      options.coverage_radius_mm = radius;
+      for (size_t k = 0; k < modes.size(); ++k) {
+        const std::string mode = ToString(modes[k]);
+        ASSERT_GT(recs[k].cloud.size(), 10000u);
+        const ModeAccuracy got = scorer.Measure(recs[k].cloud, options, mode);
+        const compare::CompareResult result =
+            compare::Compare(recs[k].cloud, reference, options, mode);
+        ModeAccuracy want = MeasureAccuracy(mode, result, visible);
+        MeasureFigureUncertainty(result.deviations_mm, &want);
+        EXPECT_EQ(ModeAccuracyToJson(got).dump(), ModeAccuracyToJson(want).dump())
+            << mode << " threshold " << threshold << " radius " << radius << " prepared "
+            << prepared;
+        EXPECT_GT(got.coverage, 0.1);
+        EXPECT_GT(got.visible_coverage, 0.5);
+        EXPECT_LT(got.rms_mm, threshold * 2);
+      }
     }
   }
   EXPECT_THROW(scorer.Measure(PointCloud{}, compare::CompareOptions{}, "empty"), Error);
@@ -258,6 +288,133 @@ TEST(GroundTruthScorer, EqualsCompareThenMeasureAccuracy) {
   clouds.push_back({{0, 0, 0}});
   for (size_t c = 0; c < clouds.size(); ++c) {
     EXPECT_EQ(CloudMedianSpacing(clouds[c]), compare::MedianSpacing(clouds[c])) << "cloud " << c;
+  }
+}
+
+// The grid's signed distances are compare::MeshDistance's, bit for bit (value and sign), for the
+// scan's clouds, for points scattered up to 3 mm off the demo's ground truth (part and table), on
+// its vertices and edges (ties between triangles), far from it and outside the grid; and most of
+// the clouds' cells are answered by the grid, not by MeshDistance.
+TEST(C2mGrid, SignedDistancesAreMeshDistancesBitForBit) {
+  Fixture& f = Shared();
+  const NoisyScan& scan = SharedScan();
+  const TriangleMesh surface = GroundTruthSurface(f.scene, "demo");
+  const compare::MeshDistance distance(surface);
+  internal::C2mGrid grid(surface, distance);
+  EXPECT_GT(grid.cell_mm(), 0.1);
+  EXPECT_LT(grid.cell_mm(), 2.0);
+  std::vector<std::vector<Eigen::Vector3d>> sets = {scan.recs[0].cloud.points,
+                                                    scan.recs[1].cloud.points};
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> unit(0, 1), offset(-3, 3);
+  std::uniform_int_distribution<size_t> pick(0, surface.triangles.size() - 1);
+  std::vector<Eigen::Vector3d> near, features, far;
+  for (int i = 0; i < 200000; ++i) {
+    const Eigen::Vector3i& t = surface.triangles[pick(rng)];
+    const Eigen::Vector3d a = surface.vertices[static_cast<size_t>(t[0])],
+                          b = surface.vertices[static_cast<size_t>(t[1])],
+                          c = surface.vertices[static_cast<size_t>(t[2])];
+    double u = unit(rng), v = unit(rng);
+    if (u + v > 1) u = 1 - u, v = 1 - v;
+    const Eigen::Vector3d n = (b - a).cross(c - a).normalized();
+    const double d = i % 4 == 0 ? offset(rng) : offset(rng) / 30;
+    near.push_back(a + u * (b - a) + v * (c - a) + d * n);
+    if (i % 8 == 0) {
+      features.push_back(a);
+      features.push_back(0.5 * (a + b));
+      features.push_back(a + 1e-3 * n);
+      features.push_back(0.5 * (b + c) - 1e-3 * n);
+    }
+    if (i % 50 == 0) far.push_back(a + (20 + 100 * unit(rng)) * n);
+  }
+  far.push_back({1e4, 0, 0});
+  far.push_back({0, -3e3, 500});
+  sets.push_back(near);
+  sets.push_back(features);
+  sets.push_back(far);
+  const auto same_bits = [](double x, double y) {
+    uint64_t a = 0, b = 0;
+    std::memcpy(&a, &x, sizeof(a));
+    std::memcpy(&b, &y, sizeof(b));
+    return a == b;
+  };
+  EXPECT_TRUE(grid.enabled());
+  for (const bool prepared : {false, true}) {
+    if (prepared) {
+      for (const auto& points : sets) grid.Prepare(points);
+      EXPECT_GT(grid.built_cells(), 10000u);
+      EXPECT_LT(grid.far_cells() * 4, grid.built_cells());
+    }
+    for (size_t s = 0; s < sets.size(); ++s) {
+      std::vector<double> got;
+      grid.SignedDistances(sets[s], &got);
+      ASSERT_EQ(got.size(), sets[s].size());
+      size_t differ = 0, negative = 0;
+      for (size_t i = 0; i < got.size(); ++i) {
+        const double want = distance.Closest(sets[s][i]).signed_distance_mm;
+        if (!same_bits(got[i], want)) {
+          if (++differ <= 5) {
+            ADD_FAILURE() << "set " << s << " point " << i << " (" << sets[s][i].transpose()
+                          << "): " << got[i] << " != " << want << " prepared " << prepared;
+          }
+        }
+        negative += got[i] < 0;
+      }
+      EXPECT_EQ(differ, 0u) << "set " << s << " prepared " << prepared;
+      if (s < 3) {
+        EXPECT_GT(negative, got.size() / 10) << "set " << s;  // both signs are met
+      }
+    }
+  }
+  // Clouds far sparser than the triangles: no grid, MeshDistance answers every point.
+  internal::C2mGrid coarse(surface, distance, 1.0);
+  EXPECT_FALSE(coarse.enabled());
+  coarse.Prepare(sets[0]);
+  EXPECT_EQ(coarse.built_cells(), 0u);
+  std::vector<double> got;
+  coarse.SignedDistances(sets[0], &got);
+  ASSERT_EQ(got.size(), sets[0].size());
+  for (size_t i = 0; i < got.size(); i += 97) {
+    EXPECT_TRUE(same_bits(got[i], distance.Closest(sets[0][i]).signed_distance_mm)) << i;
+  }
+}
+
+// The sweep's deviation figures are compare::ComputeStats's, double for double: noisy deviations
+// of several scales, with ties, zeros of both signs, non-finite values, one value, none.
+TEST(DeviationFigures, EqualComputeStats) {
+  std::mt19937 rng(5);
+  std::normal_distribution<double> normal(0, 1);
+  std::vector<std::vector<double>> sets;
+  for (const size_t n : {size_t{1}, size_t{2}, size_t{19}, size_t{1000}, size_t{300001}}) {
+    std::vector<double> d(n);
+    for (double& v : d) v = 0.03 * normal(rng) * (normal(rng) > 2 ? 40 : 1);
+    sets.push_back(d);
+    for (size_t i = 0; i < n; i += 3) d[i] = std::round(d[i] * 100) / 100;  // many ties
+    if (n > 2) {
+      d[1] = -0.0;
+      d[2] = 0.0;
+    }
+    sets.push_back(d);
+    if (n > 2) {
+      d[0] = std::numeric_limits<double>::quiet_NaN();
+      d[n - 1] = -std::numeric_limits<double>::infinity();
+    }
+    sets.push_back(d);
+  }
+  sets.push_back(std::vector<double>(5000, 0.25));
+  sets.push_back({});
+  sets.push_back({std::numeric_limits<double>::quiet_NaN()});
+  for (size_t k = 0; k < sets.size(); ++k) {
+    for (const double threshold : {0.05, 0.5}) {
+      const compare::DistanceStats want = compare::ComputeStats(sets[k], false, threshold);
+      const DeviationFigures got = ComputeDeviationFigures(sets[k], threshold);
+      EXPECT_EQ(got.count, want.count) << k;
+      EXPECT_EQ(got.outliers, want.outliers) << k;
+      EXPECT_EQ(got.mean_mm, want.mean_mm) << k;
+      EXPECT_EQ(got.rms_mm, want.rms_mm) << k;
+      EXPECT_EQ(got.p95_mm, want.p95_mm) << k;
+      EXPECT_EQ(got.max_mm, want.max_mm) << k;
+    }
   }
 }
 
