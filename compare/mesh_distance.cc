@@ -83,6 +83,27 @@ inline Eigen::Vector3d ClosestPoint(const Eigen::Vector3d& p, const Eigen::Vecto
 
 }  // namespace
 
+double MeshDistance::SignedDistance(const Eigen::Vector3d& point, const Eigen::Vector3d& closest,
+                                    uint32_t triangle, int feature, double squared_distance) const {
+  const TriNormals& t = normals_[triangle];
+  const Eigen::Vector3d* n = nullptr;
+  switch (feature) {
+    case 0:
+      n = &t.face;
+      break;
+    case 1:
+    case 2:
+    case 3:
+      n = &t.vertex[feature - 1];
+      break;
+    default:
+      n = &t.edge[feature - 4];
+      break;
+  }
+  const double dist = std::sqrt(squared_distance);
+  return (point - closest).dot(*n) < 0 ? -dist : dist;
+}
+
 Eigen::Vector3d ClosestPointOnTriangle(const Eigen::Vector3d& p, const Eigen::Vector3d& a,
                                        const Eigen::Vector3d& b, const Eigen::Vector3d& c,
                                        int* feature) {
@@ -497,24 +518,8 @@ MeshHit MeshDistance::Closest(const Eigen::Vector3d& p, uint32_t hint) const {
     for (int i = n_inner - 1; i >= 0; --i) stack[top++] = {node.child[inner[i]], d[inner[i]]};
   }
 
-  const TriNormals& t = normals_[best_tri];
-  const Eigen::Vector3d* n = nullptr;
-  switch (best_feature) {
-    case 0:
-      n = &t.face;
-      break;
-    case 1:
-    case 2:
-    case 3:
-      n = &t.vertex[best_feature - 1];
-      break;
-    default:
-      n = &t.edge[best_feature - 4];
-      break;
-  }
   MeshHit hit;
-  const double dist = std::sqrt(best);
-  hit.signed_distance_mm = (p - best_q).dot(*n) < 0 ? -dist : dist;
+  hit.signed_distance_mm = SignedDistance(p, best_q, best_tri, best_feature, best);
   hit.closest = best_q;
   hit.triangle = best_tri;
   return hit;

@@ -42,6 +42,13 @@ class MeshDistance {
   // fewer boxes are opened. Out-of-range hints are ignored.
   MeshHit Closest(const Eigen::Vector3d& point, uint32_t hint) const;
   size_t NumTriangles() const { return normals_.size(); }
+  // The signed distance of `point` whose closest point on the mesh is `closest`, on `triangle` at
+  // its `feature` (ClosestPointOnTriangle's), squared_distance = |point - closest|^2: the square
+  // root, negative when point - closest points against that feature's angle-weighted
+  // pseudo-normal. What Closest returns as signed_distance_mm (for searches of their own over
+  // this mesh's triangles, e.g. shadow/internal/c2m_grid.h).
+  double SignedDistance(const Eigen::Vector3d& point, const Eigen::Vector3d& closest,
+                        uint32_t triangle, int feature, double squared_distance) const;
 
  private:
   // 4-wide node: the boxes of up to four children, float, rounded outwards.

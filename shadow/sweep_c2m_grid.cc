@@ -8,7 +8,6 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
-#include <unordered_map>
 
 namespace slshadow::shadow::internal {
 namespace {
@@ -28,11 +27,6 @@ float Down(double v) {
   return f;
 }
 
-// compare/mesh_distance.cc's AngleBetween: the pseudo-normals below are its doubles.
-double AngleBetween(const Eigen::Vector3d& u, const Eigen::Vector3d& v) {
-  return std::atan2(u.cross(v).norm(), u.dot(v));
-}
-
 }  // namespace
 
 struct C2mGrid::Impl {
@@ -42,9 +36,6 @@ struct C2mGrid::Impl {
     // float TriBound but in double; all zero for a degenerate triangle.
     double plane[4][4];
     Eigen::Vector3d lo, hi;
-  };
-  struct Normals {
-    Eigen::Vector3d face, vertex[3], edge[3];
   };
   struct Candidate {
     uint32_t triangle;
@@ -57,7 +48,6 @@ struct C2mGrid::Impl {
 
   const compare::MeshDistance& distance;
   std::vector<Tri> tris;
-  std::vector<Normals> normals;
   bool enabled = false;
   Eigen::Vector3d lo = Eigen::Vector3d::Zero();
   double cell = 1, inv = 1, eps = 0, reach = 0;
@@ -191,24 +181,8 @@ struct C2mGrid::Impl {
         best_q = q;
       }
     }
-    const Normals& nt = normals[best_tri];
-    const Eigen::Vector3d* n = nullptr;
-    switch (best_feature) {
-      case 0:
-        n = &nt.face;
-        break;
-      case 1:
-      case 2:
-      case 3:
-        n = &nt.vertex[best_feature - 1];
-        break;
-      default:
-        n = &nt.edge[best_feature - 4];
-        break;
-    }
     *hint = best_tri;
-    const double dist = std::sqrt(best);
-    return (p - best_q).dot(*n) < 0 ? -dist : dist;
+    return distance.SignedDistance(p, best_q, best_tri, best_feature, best);
   }
 };
 
@@ -234,17 +208,6 @@ C2mGrid::C2mGrid(const TriangleMesh& mesh, const compare::MeshDistance& distance
   std::nth_element(edges.begin(), edges.begin() + static_cast<std::ptrdiff_t>(nt / 2), edges.end());
   const double median_edge = edges[nt / 2];
   if (!(3 * point_spacing_mm <= median_edge)) return;
-  // The pseudo-normals exactly as compare/mesh_distance.cc computes them (same operations in the
-  // same order).
-  std::vector<Eigen::Vector3d> vnormal(mesh.vertices.size(), Eigen::Vector3d::Zero());
-  std::unordered_map<uint64_t, Eigen::Vector3d> enormal;
-  enormal.reserve(nt * 2);
-  auto edge_key = [](int i, int j) {
-    const auto lo = static_cast<uint64_t>(std::min(i, j)),
-               hi = static_cast<uint64_t>(std::max(i, j));
-    return (lo << 32) | hi;
-  };
-  g.normals.resize(nt);
   g.tris.resize(nt);
   double max_abs = 0;
   for (size_t t = 0; t < nt; ++t) {
@@ -254,15 +217,9 @@ C2mGrid::C2mGrid(const TriangleMesh& mesh, const compare::MeshDistance& distance
     const Eigen::Vector3d& c = mesh.vertices[static_cast<size_t>(f[2])];
     const Eigen::Vector3d n = (b - a).cross(c - a);
     const double len = n.norm();
-    g.normals[t].face = len > 0 ? Eigen::Vector3d(n / len) : Eigen::Vector3d::Zero();
+    // The unit face normal as compare/mesh_distance.cc computes it (zero when degenerate).
+    const Eigen::Vector3d u0 = len > 0 ? Eigen::Vector3d(n / len) : Eigen::Vector3d::Zero();
     const Eigen::Vector3d* v[3] = {&a, &b, &c};
-    for (int k = 0; k < 3; ++k) {
-      const double angle = AngleBetween(*v[(k + 1) % 3] - *v[k], *v[(k + 2) % 3] - *v[k]);
-      vnormal[static_cast<size_t>(f[k])] += angle * g.normals[t].face;
-      auto [it, inserted] =
-          enormal.try_emplace(edge_key(f[k], f[(k + 1) % 3]), Eigen::Vector3d::Zero());
-      it->second += g.normals[t].face;
-    }
     Impl::Tri& tri = g.tris[t];
     tri.a = a;
     tri.b = b;
@@ -270,7 +227,6 @@ C2mGrid::C2mGrid(const TriangleMesh& mesh, const compare::MeshDistance& distance
     tri.lo = a.cwiseMin(b).cwiseMin(c);
     tri.hi = a.cwiseMax(b).cwiseMax(c);
     max_abs = std::max({max_abs, tri.lo.cwiseAbs().maxCoeff(), tri.hi.cwiseAbs().maxCoeff()});
-    const Eigen::Vector3d& u0 = g.normals[t].face;
     std::fill(&tri.plane[0][0], &tri.plane[0][0] + 16, 0.0);
     if (u0.squaredNorm() > 0) {
       for (int axis = 0; axis < 3; ++axis) tri.plane[0][axis] = u0[axis];
@@ -285,14 +241,6 @@ C2mGrid::C2mGrid(const TriangleMesh& mesh, const compare::MeshDistance& distance
       }
     }
   }
-  for (size_t t = 0; t < nt; ++t) {
-    const Eigen::Vector3i& f = mesh.triangles[t];
-    for (int k = 0; k < 3; ++k) {
-      g.normals[t].vertex[k] = vnormal[static_cast<size_t>(f[k])];
-      g.normals[t].edge[k] = enormal[edge_key(f[k], f[(k + 1) % 3])];
-    }
-  }
-
   if (!(max_abs < 1e12)) return;
   Eigen::Vector3d lo = g.tris[0].lo, hi = g.tris[0].hi;
   for (const Impl::Tri& t : g.tris) {
