@@ -42,6 +42,8 @@ class MeshDistance {
   // fewer boxes are opened. Out-of-range hints are ignored.
   MeshHit Closest(const Eigen::Vector3d& point, uint32_t hint) const;
   size_t NumTriangles() const { return normals_.size(); }
+  // Unit normal of triangle `t` (input order), (b - a) x (c - a) normalised; zero if degenerate.
+  const Eigen::Vector3d& FaceNormal(uint32_t t) const { return normals_[t].face; }
   // The signed distance of `point` whose closest point on the mesh is `closest`, on `triangle` at
   // its `feature` (ClosestPointOnTriangle's), squared_distance = |point - closest|^2: the square
   // root, negative when point - closest points against that feature's angle-weighted

@@ -215,10 +215,7 @@ C2mGrid::C2mGrid(const TriangleMesh& mesh, const compare::MeshDistance& distance
     const Eigen::Vector3d& a = mesh.vertices[static_cast<size_t>(f[0])];
     const Eigen::Vector3d& b = mesh.vertices[static_cast<size_t>(f[1])];
     const Eigen::Vector3d& c = mesh.vertices[static_cast<size_t>(f[2])];
-    const Eigen::Vector3d n = (b - a).cross(c - a);
-    const double len = n.norm();
-    // The unit face normal as compare/mesh_distance.cc computes it (zero when degenerate).
-    const Eigen::Vector3d u0 = len > 0 ? Eigen::Vector3d(n / len) : Eigen::Vector3d::Zero();
+    const Eigen::Vector3d& u0 = distance.FaceNormal(static_cast<uint32_t>(t));
     const Eigen::Vector3d* v[3] = {&a, &b, &c};
     Impl::Tri& tri = g.tris[t];
     tri.a = a;

@@ -78,16 +78,17 @@ TEST(BinaryLinks, SlshadowNeedsNoImgcodecsDirectlyOrThroughAnyLibrary) {
   EXPECT_TRUE(std::any_of(direct.begin(), direct.end(),
                           [](const std::string& n) { return n.starts_with("libpng16.so"); }));
   std::set<std::string> seen;
-  std::vector<std::pair<std::string, std::string>> todo;  // (library, who needs it)
-  for (const std::string& n : direct) todo.emplace_back(n, "slshadow");
-  while (!todo.empty()) {
-    const auto [name, parent] = todo.back();
-    todo.pop_back();
+  // Depth-first over the NEEDED entries: (library, the library that needs it) not yet visited.
+  std::vector<std::pair<std::string, std::string>> unvisited;
+  for (const std::string& n : direct) unvisited.emplace_back(n, "slshadow");
+  while (!unvisited.empty()) {
+    const auto [name, parent] = unvisited.back();
+    unvisited.pop_back();
     if (!seen.insert(name).second) continue;
     EXPECT_FALSE(Banned(name)) << name << " is needed by " << parent;
     const fs::path path = Resolve(name);
     if (path.empty()) continue;  // e.g. the loader itself under another folder
-    for (const std::string& n : Needed(path)) todo.emplace_back(n, name);
+    for (const std::string& n : Needed(path)) unvisited.emplace_back(n, name);
   }
   // What ldd reports today is ~124 libraries; with imgcodecs it was 221.
   EXPECT_GT(seen.size(), 20u);
