@@ -817,6 +817,10 @@ SweepRunSummary RunSweepShard(const fs::path& jobs_dir, const SweepRunOptions& o
   // of points). glibc would map each from the kernel and unmap it on free, so every job would
   // fault in and zero its pages again (~10 % of a demo job's CPU time): keep freed memory in the
   // heap for the next job instead (the demo noise sweep's peak memory: 2.76 GB, was 2.62 GB).
+  // One arena for every thread: a worker thread's own arena holds at most 64 MB per heap, and
+  // glibc maps anything larger (a cloud of 2 M points) from the kernel whatever M_MMAP_MAX says
+  // (the demo noise sweep: 25 % fewer page faults, half the system time, ~0.1 s wall a job).
+  mallopt(M_ARENA_MAX, 1);
   mallopt(M_MMAP_MAX, 0);
   mallopt(M_TRIM_THRESHOLD, std::numeric_limits<int>::max());
 #endif
