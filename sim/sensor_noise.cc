@@ -12,10 +12,10 @@
 // Eight-lane vectors passed between always-inlined helpers only (no calling convention involved).
 #pragma GCC diagnostic ignored "-Wpsabi"
 
-// Eight pixels per vector: the x86-64-v4 clone maps them to AVX-512 registers (64-bit multiplies
-// in one instruction), the avx2 clone to pairs of AVX2 ones, the default clone to SSE2 ones:
-// the same IEEE operations in the same order either way (no FMA: this file is compiled with
-// -ffp-contract=off), hence the same bits on every x86-64 CPU and in the portable build.
+// Eight lanes per vector: the x86-64-v4 clone maps them to AVX-512 registers (64-bit multiplies
+// in one instruction), the avx2 clone to AVX2 ones, the default clone to SSE2 ones: the same IEEE
+// operations in the same order either way (no FMA: this file is compiled with -ffp-contract=off),
+// hence the same bits on every x86-64 CPU and in the portable build.
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #define SLSHADOW_NOISE_CLONES __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
 #else
@@ -28,9 +28,11 @@ namespace {
 
 typedef float V8f __attribute__((vector_size(32)));
 typedef int32_t V8i __attribute__((vector_size(32)));
-typedef double V8d __attribute__((vector_size(64)));
-typedef int64_t V8l __attribute__((vector_size(64)));
 typedef uint64_t V8u __attribute__((vector_size(64)));
+typedef float V16f __attribute__((vector_size(64)));
+typedef int32_t V16i __attribute__((vector_size(64)));
+typedef uint8_t V16b __attribute__((vector_size(16)));
+typedef uint16_t V16s __attribute__((vector_size(32)));
 
 SLSHADOW_NOISE_INLINE V8u Mix(V8u x) {  // SplitMix64, lane by lane
   x += 0x9E3779B97F4A7C15ull;
@@ -52,7 +54,7 @@ uint64_t StreamOf(uint64_t seed, int camera_index, int pattern_index) {
 }
 
 SLSHADOW_NOISE_INLINE V8f SplatF(float v) { return V8f{v, v, v, v, v, v, v, v}; }
-SLSHADOW_NOISE_INLINE V8d SplatD(double v) { return V8d{v, v, v, v, v, v, v, v}; }
+SLSHADOW_NOISE_INLINE V16f Splat16(float v) { return V16f{} + v; }
 
 SLSHADOW_NOISE_INLINE V8f Sqrt(V8f v) {
   V8f r;
@@ -60,9 +62,9 @@ SLSHADOW_NOISE_INLINE V8f Sqrt(V8f v) {
   return r;
 }
 
-SLSHADOW_NOISE_INLINE V8d Sqrt(V8d v) {
-  V8d r;
-  for (int j = 0; j < 8; ++j) r[j] = __builtin_sqrt(v[j]);  // vsqrtpd / two sqrtpd
+SLSHADOW_NOISE_INLINE V16f Sqrt(V16f v) {
+  V16f r;
+  for (int j = 0; j < 16; ++j) r[j] = __builtin_sqrtf(v[j]);
   return r;
 }
 
@@ -70,8 +72,8 @@ SLSHADOW_NOISE_INLINE V8d Sqrt(V8d v) {
 SLSHADOW_NOISE_INLINE V8f Select(V8i mask, V8f a, V8f b) {
   return (V8f)(((V8i)a & mask) | ((V8i)b & ~mask));
 }
-SLSHADOW_NOISE_INLINE V8d Select(V8l mask, V8d a, V8d b) {
-  return (V8d)(((V8l)a & mask) | ((V8l)b & ~mask));
+SLSHADOW_NOISE_INLINE V16f Select(V16i mask, V16f a, V16f b) {
+  return (V16f)(((V16i)a & mask) | ((V16i)b & ~mask));
 }
 
 // ln x for x in (0, 1], Cephes' logf: x = m 2^e with m in [sqrt(1/2), sqrt(2)), ln(m) by a
@@ -119,57 +121,81 @@ SLSHADOW_NOISE_INLINE void CosSin(V8f a, V8f* cos_a, V8f* sin_a) {
   *sin_a = (V8f)((V8i)Select(swap, c, s) ^ ((q & 2) << 30));
 }
 
-// Two independent standard normals per lane for pixel indices `index` of the image `stream`
-// (Box-Muller on two 24-bit uniforms of SplitMix64(stream + index) and SplitMix64 of that).
-SLSHADOW_NOISE_INLINE void Normals(V8u index, uint64_t stream, V8f* n1, V8f* n2) {
-  const V8u r1 = Mix(index + stream);
-  const V8u r2 = Mix(r1);
+// The standard normals of the 16 pixels of block `block` (pixel indices 16 block .. 16 block +
+// 15) of the image `stream`: one SplitMix64 of (stream + 8 block + lane) per lane gives two 24-bit
+// uniforms (bits 40-63 and 16-39), Box-Muller two independent normals: the cosine one for pixel
+// 16 block + lane, the sine one for pixel 16 block + 8 + lane.
+SLSHADOW_NOISE_INLINE V16f BlockNormals(uint64_t block, uint64_t stream) {
+  const V8u lane = {0, 1, 2, 3, 4, 5, 6, 7};
+  const V8u r = Mix(lane + (stream + 8 * block));
   const V8f u1 =
-      (__builtin_convertvector(__builtin_convertvector(r1 >> 40, V8i), V8f) + 0.5f) * 0x1.0p-24f;
-  const V8f u2 = __builtin_convertvector(__builtin_convertvector(r2 >> 40, V8i), V8f) * 0x1.0p-24f;
+      (__builtin_convertvector(__builtin_convertvector(r >> 40, V8i), V8f) + 0.5f) * 0x1.0p-24f;
+  const V8f u2 = __builtin_convertvector(__builtin_convertvector((r >> 16) & 0xFFFFFFu, V8i), V8f) *
+                 0x1.0p-24f;
   const V8f rad = Sqrt(-2.0f * Log(u1));
   V8f c, s;
   CosSin(6.2831853f * u2, &c, &s);
-  *n1 = rad * c;
-  *n2 = rad * s;
+  return __builtin_shufflevector(rad * c, rad * s, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14,
+                                 15);
 }
 
 struct NoiseParams {
   uint64_t stream;
-  double k_dn_per_e, read_noise_e, full_well_e, full;
+  float dn_per_e, e_per_dn, read_var_e2, full_well_e, full;
 };
 
-// One row: irradiance (DN) -> electrons mu (>= 0); + sqrt(mu) n1 (shot) + read_noise n2, clipped
-// at the full well; back to DN, rounded (half away from zero) and clipped to [0, full].
+// Sixteen pixels: irradiance (DN) -> electrons mu (>= 0); + sqrt(mu + read^2) n (shot and read
+// noise, independent Gaussians, in one), clipped at the full well; back to DN, rounded half up
+// and clipped to [0, full].
+SLSHADOW_NOISE_INLINE V16i NoisyDn(V16f dn, V16f n, const NoiseParams& p) {
+  V16f mu = dn * p.e_per_dn;
+  mu = Select(mu > 0.0f, mu, Splat16(0));  // NaN and negatives: no signal
+  V16f e = mu + Sqrt(mu + p.read_var_e2) * n;
+  e = Select(e < p.full_well_e, e, Splat16(p.full_well_e));
+  V16f v = e * p.dn_per_e;
+  v = Select(v > 0.0f, v, Splat16(0));
+  v = v + 0.5f;
+  v = Select(v < p.full, v, Splat16(p.full));
+  return __builtin_convertvector(v, V16i);  // <= 65535
+}
+
+template <typename Out>
+struct OutVector;
+template <>
+struct OutVector<uint8_t> {
+  using type = V16b;
+};
+template <>
+struct OutVector<uint16_t> {
+  using type = V16s;
+};
+
+// One row of `w` pixels whose first pixel has index `first`: whole blocks of 16 straight from
+// the row, the partial blocks at its ends through a copy.
 template <typename Out>
 SLSHADOW_NOISE_INLINE void NoiseRowBody(const float* src, int w, uint64_t first,
                                         const NoiseParams& params, Out* dst) {
+  using OutV = typename OutVector<Out>::type;
   // Locals: the output row may alias anything (unsigned char), which would reload them per block.
   const NoiseParams p = params;
-  const V8u lane = {0, 1, 2, 3, 4, 5, 6, 7};
-  for (int x = 0; x < w; x += 8) {
-    const int n = std::min(8, w - x);
-    V8f dn = SplatF(0);
-    if (n == 8) {
-      std::memcpy(&dn, src + x, sizeof(dn));
+  const uint64_t end = first + static_cast<uint64_t>(w);
+  for (uint64_t block = first / 16; block * 16 < end; ++block) {
+    const uint64_t b0 = block * 16;
+    const uint64_t lo = std::max(b0, first), hi = std::min(b0 + 16, end);
+    const bool whole = lo == b0 && hi == b0 + 16;
+    V16f dn;
+    if (whole) {
+      std::memcpy(&dn, src + (b0 - first), sizeof(dn));
     } else {
-      for (int j = 0; j < n; ++j) dn[j] = src[x + j];
+      dn = Splat16(0);
+      for (uint64_t i = lo; i < hi; ++i) dn[i - b0] = src[i - first];
     }
-    V8f n1, n2;
-    Normals(lane + (first + static_cast<uint64_t>(x)), p.stream, &n1, &n2);
-    V8d mu = __builtin_convertvector(dn, V8d) / p.k_dn_per_e;
-    mu = Select(mu > 0.0, mu, SplatD(0));  // NaN and negatives: no signal
-    V8d e = mu + Sqrt(mu) * __builtin_convertvector(n1, V8d) +
-            p.read_noise_e * __builtin_convertvector(n2, V8d);
-    e = Select(e < p.full_well_e, e, SplatD(p.full_well_e));
-    V8d v = e * p.k_dn_per_e;
-    v = Select(v > 0.0, v, SplatD(0));
-    v = v + 0.5;
-    v = Select(v < p.full, v, SplatD(p.full));
-    const V8i q = __builtin_convertvector(v, V8i);  // <= 65535
-    Out out[8];
-    for (int j = 0; j < 8; ++j) out[j] = static_cast<Out>(q[j]);
-    std::memcpy(dst + x, out, sizeof(Out) * static_cast<size_t>(n));
+    const OutV out = __builtin_convertvector(NoisyDn(dn, BlockNormals(block, p.stream), p), OutV);
+    if (whole) {
+      std::memcpy(dst + (b0 - first), &out, sizeof(out));
+    } else {
+      for (uint64_t i = lo; i < hi; ++i) dst[i - first] = out[i - b0];
+    }
   }
 }
 
@@ -183,13 +209,14 @@ SLSHADOW_NOISE_CLONES void NoiseRow16(const float* src, int w, uint64_t first, c
   NoiseRowBody(src, w, first, p, dst);
 }
 
-SLSHADOW_NOISE_CLONES void NormalsBlock(uint64_t first, int count, uint64_t stream, float* n1,
-                                        float* n2) {
-  const V8u lane = {0, 1, 2, 3, 4, 5, 6, 7};
-  for (int i = 0; i < count; i += 8) {
-    V8f a, b;
-    Normals(lane + (first + static_cast<uint64_t>(i)), stream, &a, &b);
-    for (int j = 0; j < 8 && i + j < count; ++j) n1[i + j] = a[j], n2[i + j] = b[j];
+SLSHADOW_NOISE_CLONES void NormalsBlock(uint64_t first, int count, uint64_t stream, float* n) {
+  const uint64_t end = first + static_cast<uint64_t>(count);
+  for (uint64_t block = first / 16; block * 16 < end; ++block) {
+    const V16f v = BlockNormals(block, stream);
+    for (int j = 0; j < 16; ++j) {
+      const uint64_t i = block * 16 + static_cast<uint64_t>(j);
+      if (i >= first && i < end) n[i - first] = v[j];
+    }
   }
 }
 
@@ -208,10 +235,11 @@ void QuantizeRows(const cv::Mat& irradiance, const Scene& scene, int camera_inde
   const double full = std::ldexp(1.0, scene.radiometry.adc_bits) - 1;
   NoiseParams p;
   p.stream = StreamOf(l.seed, camera_index, pattern_index);
-  p.k_dn_per_e = full / l.full_well_e;
-  p.read_noise_e = l.read_noise_e;
-  p.full_well_e = l.full_well_e;
-  p.full = full;
+  p.dn_per_e = static_cast<float>(full / l.full_well_e);
+  p.e_per_dn = static_cast<float>(l.full_well_e / full);
+  p.read_var_e2 = static_cast<float>(l.read_noise_e * l.read_noise_e);
+  p.full_well_e = static_cast<float>(l.full_well_e);
+  p.full = static_cast<float>(full);
   const float full_f = static_cast<float>(full);
   const bool noise = l.noise_enabled;
   tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const tbb::blocked_range<int>& r) {
@@ -251,8 +279,8 @@ void QuantizeIrradiance(const cv::Mat& irradiance, const Scene& scene, int camer
 }
 
 void SensorNoiseNormals(uint64_t seed, int camera_index, int pattern_index, uint64_t first,
-                        int count, float* n1, float* n2) {
-  NormalsBlock(first, count, StreamOf(seed, camera_index, pattern_index), n1, n2);
+                        int count, float* n) {
+  NormalsBlock(first, count, StreamOf(seed, camera_index, pattern_index), n);
 }
 
 }  // namespace slshadow

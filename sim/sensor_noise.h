@@ -3,14 +3,15 @@
 // One definition, used by PatternRenderer and by the sweep's reuse of noise-free images
 // (shadow/sweep_reuse.h), so both give the same image bit for bit.
 //
-// The noise generator (docs/formats.md, layer `noise`): per pixel, SplitMix64 of (the image's
-// stream, a hash of seed, camera and pattern) + the pixel index y * width + x, and SplitMix64 of
-// that, give two 24-bit uniforms; Box-Muller turns them into two independent standard normals
-// (shot and read noise). Eight pixels at a time: the hashes in 64-bit lanes, log, sine and cosine
-// as polynomials (Cephes' single-precision ones, within ~2 ulp of the C library's logf / sinf /
-// cosf that computed them before, so the images stay those of earlier versions but for a rare
-// pixel at a rounding boundary), the signal in double lanes. Deterministic for a seed whatever
-// the thread count or the CPU (the same IEEE operations in every code path, no FMA).
+// The noise generator (docs/formats.md, layer `noise`): pixels in blocks of 16 by index
+// i = y * width + x. Per block b, lane l (0..7): SplitMix64(the image's stream, a hash of seed,
+// camera and pattern, + 8 b + l) gives two 24-bit uniforms, Box-Muller two independent standard
+// normals: the cosine one for pixel 16 b + l, the sine one for pixel 16 b + 8 + l. Shot and read
+// noise, independent Gaussians, enter as one: sqrt(mu_e + read^2) n. Log, sine and cosine as
+// polynomials (Cephes' single-precision ones), the signal in float. Deterministic for a seed
+// whatever the thread count or the CPU (the same IEEE operations in every code path, no FMA).
+// (Until 2026-11-25 each pixel drew two normals, shot and read, from two hashes, and the signal
+// was computed in double: the same distribution, 2.6 times the CPU time, other images.)
 #pragma once
 
 #include <cstdint>
@@ -29,10 +30,9 @@ namespace slshadow {
 void QuantizeIrradiance(const cv::Mat& irradiance, const Scene& scene, int camera_index,
                         int pattern_index, cv::Mat* out);
 
-// The per-pixel standard normals of the noise layer for (seed, camera, pattern) at pixel indices
-// first .. first + count - 1 (index = y * width + x): n1 (shot noise) and n2 (read noise). For
-// tests of the generator's statistics.
+// The per-pixel standard normals n of the noise layer for (seed, camera, pattern) at pixel indices
+// first .. first + count - 1 (index = y * width + x). For tests of the generator's statistics.
 void SensorNoiseNormals(uint64_t seed, int camera_index, int pattern_index, uint64_t first,
-                        int count, float* n1, float* n2);
+                        int count, float* n);
 
 }  // namespace slshadow
