@@ -709,7 +709,10 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
   timing["decode_s"] = seconds(t2, t3);
   stage_cpu("decode_cpu_s");
 
-  const ReconstructOptions reconstruct = ReconstructOptionsFromConfig(node("reconstruct"));
+  ReconstructOptions reconstruct = ReconstructOptionsFromConfig(node("reconstruct"));
+  // Nothing in a job reads the clouds' normals (the signed distances take the reference mesh's,
+  // registration and M3C2 the reference's or their own): no method pays for them.
+  reconstruct.estimate_normals = false;
   std::vector<StageMeasurement> stages;
   std::vector<Reconstruction> recs = ReconstructModes(decoded, modes, reconstruct, &stages);
   json monte_carlo;
