@@ -161,6 +161,7 @@ struct C2mGrid::Impl {
       const double b = static_cast<double>(cand[k].bound);
       if (b * b > best) break;  // this and every later triangle is farther than the best
       const uint32_t t = cand[k].triangle;
+      if (t == *hint) continue;  // evaluated above
       const Tri& tri = tris[t];
       const double* n = tri.plane[0];
       const double h = std::abs(n[0] * p.x() + n[1] * p.y() + n[2] * p.z() - n[3]) - eps;
