@@ -13,6 +13,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <initializer_list>
@@ -56,6 +57,8 @@ std::string CsvField(const json& v, int digits = 10) {
 // accurate and better in one of the two.
 struct FrontPoint {
   std::string id, mode, group, label;
+  std::string described;  // the axes as name=value
+  std::string key;        // on the front: its group's letter and rank by time ("P1"), else empty
   double time_s = 0, rms_mm = 0;
   bool on_front = false;
 };
@@ -74,11 +77,53 @@ void MarkFront(std::vector<FrontPoint>& points) {
   }
 }
 
+// The groups in order of appearance.
+std::vector<std::string> FrontGroups(const std::vector<FrontPoint>& points) {
+  std::vector<std::string> groups;
+  for (const auto& p : points) {
+    if (std::find(groups.begin(), groups.end(), p.group) == groups.end()) groups.push_back(p.group);
+  }
+  return groups;
+}
+
+// Keys of the front's points: per group a letter (the mode's initial, "P" and "S", when the groups
+// are the modes and their initials differ; else A, B, ...), then the rank by time, fastest 1.
+void KeyFront(std::vector<FrontPoint>& points) {
+  const std::vector<std::string> groups = FrontGroups(points);
+  std::vector<std::string> letters;
+  for (size_t g = 0; g < groups.size(); ++g)
+    letters.push_back(std::string(1, static_cast<char>('A' + g % 26)));
+  bool initials = true;
+  std::string seen;
+  for (const auto& p : points) initials = initials && p.group == p.mode && !p.mode.empty();
+  for (const auto& g : groups) {
+    const char c =
+        static_cast<char>(std::toupper(static_cast<unsigned char>(g.empty() ? '?' : g[0])));
+    initials = initials && seen.find(c) == std::string::npos;
+    seen += c;
+  }
+  if (initials) {
+    for (size_t g = 0; g < groups.size(); ++g) letters[g] = std::string(1, seen[g]);
+  }
+  for (size_t g = 0; g < groups.size(); ++g) {
+    std::vector<FrontPoint*> front;
+    for (auto& p : points) {
+      if (p.group == groups[g] && p.on_front) front.push_back(&p);
+    }
+    std::stable_sort(front.begin(), front.end(), [](const FrontPoint* a, const FrontPoint* b) {
+      return a->time_s < b->time_s;
+    });
+    for (size_t k = 0; k < front.size(); ++k) front[k]->key = letters[g] + std::to_string(k + 1);
+  }
+}
+
 constexpr std::initializer_list<std::array<int, 3>> kFrontPalette = {
     {40, 90, 200},   {200, 60, 0},  {30, 150, 60}, {150, 40, 160},
     {120, 120, 120}, {220, 160, 0}, {0, 170, 190}, {120, 60, 20}};
 
-// The chart as `path`.png and `path`.svg (the same drawing), each written atomically.
+// The chart as `path`.png and `path`.svg (the same drawing), each written atomically: every job
+// of every group, the front's points filled, joined and marked with their keys, and below the
+// chart one line per key: its time, RMS and combination.
 void WriteFrontChart(const fs::path& path, const std::vector<FrontPoint>& points,
                      const std::string& study, bool cpu_time) {
   double xmax = 0, ymax = 0;
@@ -86,69 +131,98 @@ void WriteFrontChart(const fs::path& path, const std::vector<FrontPoint>& points
     xmax = std::max(xmax, p.time_s);
     ymax = std::max(ymax, p.rms_mm);
   }
+  const std::vector<std::string> groups = FrontGroups(points);
+  std::vector<const FrontPoint*> keyed;  // by group, then rank
+  for (const auto& g : groups) {
+    std::vector<const FrontPoint*> front;
+    for (const auto& p : points) {
+      if (p.group == g && p.on_front) front.push_back(&p);
+    }
+    std::stable_sort(front.begin(), front.end(), [](const FrontPoint* a, const FrontPoint* b) {
+      return a->time_s < b->time_s;
+    });
+    keyed.insert(keyed.end(), front.begin(), front.end());
+  }
+  // 700 px for the chart, 20 px per key line below it.
+  constexpr double kChart = 700, kLine = 20;
+  const double height = kChart + kLine * static_cast<double>(keyed.size() + 1);
+  const double bottom = (kChart * 0.12 + kLine * static_cast<double>(keyed.size() + 1)) / height;
+  const double top = 1 - kChart * 0.1 / height;
   const auto lock = plot::LockPlplot();
   for (const char* ext : {".png", ".svg"}) {
     fs::path file = path;
     file += ext;
     WriteFileAtomically(file, [&](const fs::path& tmp) {
-      auto pls = std::string(ext) == ".png" ? plot::OpenPng(tmp, 1000, 700, kFrontPalette)
-                                            : plot::OpenSvg(tmp, 1000, 700, kFrontPalette);
-      size_t groups = 0;  // room above the points for one legend line per group
-      for (size_t i = 0; i < points.size(); ++i) {
-        groups += std::none_of(points.begin(), points.begin() + static_cast<std::ptrdiff_t>(i),
-                               [&](const FrontPoint& q) { return q.group == points[i].group; });
-      }
-      pls->env(0, xmax * 1.1 + 1e-9, 0,
-               ymax * (1.15 + 0.07 * static_cast<double>(groups > 2 ? groups : 0)) + 1e-12, 0, 0);
+      const int h = static_cast<int>(height);
+      auto pls = std::string(ext) == ".png" ? plot::OpenPng(tmp, 1000, h, kFrontPalette)
+                                            : plot::OpenSvg(tmp, 1000, h, kFrontPalette);
+      pls->adv(0);
+      pls->vpor(0.12, 0.95, bottom, top);
+      pls->wind(0, xmax * 1.1 + 1e-9, 0,
+                ymax * (1.15 + 0.07 * static_cast<double>(groups.size() > 2 ? groups.size() : 0)) +
+                    1e-12);
+      pls->col0(1);
+      pls->box("bcnst", 0, 0, "bcnstv", 0, 0);
       pls->lab(cpu_time ? "decode (cameras the mode reads) + reconstruct, CPU s (all threads)"
                         : "decode (cameras the mode reads) + reconstruct time (s)",
                "RMS deviation (mm)",
                (study + ": time against error, Pareto front per " +
                 (points.empty() || points[0].group == points[0].mode ? "mode" : "group"))
                    .c_str());
-      std::vector<std::string> modes;  // the groups, in order of appearance
-      for (const auto& p : points) {
-        if (std::find(modes.begin(), modes.end(), p.group) == modes.end()) modes.push_back(p.group);
-      }
-      for (size_t m = 0; m < modes.size(); ++m) {
-        std::vector<FrontPoint> front;
+      for (size_t m = 0; m < groups.size(); ++m) {
         pls->col0(static_cast<PLINT>(2 + m % 8));
+        std::vector<PLFLT> xs, ys;
+        for (const FrontPoint* p : keyed) {
+          if (p->group != groups[m]) continue;
+          xs.push_back(p->time_s);
+          ys.push_back(p->rms_mm);
+        }
+        if (xs.size() > 1) pls->line(static_cast<PLINT>(xs.size()), xs.data(), ys.data());
         for (const auto& p : points) {
-          if (p.group != modes[m]) continue;
+          if (p.group != groups[m]) continue;
           PLFLT x = p.time_s, y = p.rms_mm;
           pls->ssym(0, p.on_front ? 2.5 : 1.0);
           pls->poin(1, &x, &y, p.on_front ? 17 : 4);
-          if (p.on_front) front.push_back(p);
         }
-        std::sort(front.begin(), front.end(),
-                  [](const auto& a, const auto& b) { return a.time_s < b.time_s; });
-        std::vector<PLFLT> xs, ys;
-        for (const auto& p : front) {
-          xs.push_back(p.time_s);
-          ys.push_back(p.rms_mm);
-          pls->schr(0, 0.6);
-          pls->ptex(p.time_s, p.rms_mm, 1, 0, -0.1, (" " + p.label).c_str());
-          pls->schr(0, 1.0);
+        pls->schr(0, 0.75);
+        for (const FrontPoint* p : keyed) {
+          if (p->group == groups[m]) pls->ptex(p->time_s, p->rms_mm, 1, 0, -0.25, p->key.c_str());
         }
-        if (xs.size() > 1) pls->line(static_cast<PLINT>(xs.size()), xs.data(), ys.data());
-        pls->schr(0, modes.size() > 2 ? 0.75 : 1.0);
-        pls->mtex("t", -1.5 - (modes.size() > 2 ? 1.2 : 1.5) * static_cast<double>(m), 0.98, 1.0,
-                  (modes[m] + " (filled: on the front)").c_str());
-        pls->schr(0, 1.0);
+        pls->schr(0, groups.size() > 2 ? 0.75 : 1.0);
+        pls->mtex("t", -1.5 - (groups.size() > 2 ? 1.2 : 1.5) * static_cast<double>(m), 0.98, 1.0,
+                  (groups[m] + " (filled: on the front)").c_str());
+      }
+      // The key, in page coordinates below the chart.
+      pls->vpor(0, 1, 0, 1);
+      pls->wind(0, 1, 0, height);
+      pls->schr(0, 0.7);
+      for (size_t k = 0; k < keyed.size(); ++k) {
+        const FrontPoint& p = *keyed[k];
+        const size_t m =
+            static_cast<size_t>(std::find(groups.begin(), groups.end(), p.group) - groups.begin());
+        char figures[64];
+        std::snprintf(figures, sizeof(figures), "%.3f s  %.4f mm", p.time_s, p.rms_mm);
+        pls->col0(static_cast<PLINT>(2 + m % 8));
+        const double y = kLine * (static_cast<double>(keyed.size() - k) - 0.3);
+        pls->ptex(0.03, y, 1, 0, 0, p.key.c_str());
+        pls->col0(1);
+        pls->ptex(0.08, y, 1, 0, 0, (p.group + "  " + figures).c_str());
+        pls->ptex(0.36, y, 1, 0, 0, p.described.c_str());
       }
     });
   }
 }
 
-// The axis values of a job as a label ("graycode_phase 4 midpoint"), `skip` left out; files axes
-// by their file's stem, not their path (scene.yaml, rig.yaml, patterns.yaml by their folder's
-// name).
+// The axis values of a job as a label ("graycode_phase 4 midpoint", or named: "codec=graycode_phase
+// steps=4 triangulation=midpoint"), `skip` left out; files axes by their file's stem, not their
+// path (scene.yaml, rig.yaml, patterns.yaml by their folder's name).
 std::string ParamsLabel(const json& params, const std::vector<std::string>& axes,
-                        const std::string& skip) {
+                        const std::string& skip, bool named = false) {
   std::string label;
   for (const auto& a : axes) {
     if (a == skip) continue;
     if (!label.empty()) label += ' ';
+    if (named) label += a + '=';
     const json& v = params.at(a);
     if (v.is_string() && v.get<std::string>().find_first_of("/.") != std::string::npos) {
       // config/demo/scene.yaml reads better as its folder's name.
@@ -540,6 +614,7 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
       p.id = JobName(r.at("id").get<int>());
       p.mode = m.at("mode").get<std::string>();
       p.label = label.empty() ? p.id : label;
+      p.described = label.empty() ? "job " + p.id : ParamsLabel(r.at("params"), axes, by, true);
       p.group = by.empty() ? p.mode : p.mode + " " + by_value;
       p.time_s = t.at(cpu_time && t.contains("method_cpu_s") ? "method_cpu_s" : "method_s")
                      .at(p.mode)
@@ -549,13 +624,28 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
     }
   }
   MarkFront(points);
+  KeyFront(points);
   std::string front_csv =
-      std::string("id,mode,label,time_s,rms_mm,on_front") + (by.empty() ? "\n" : ",group\n");
+      std::string("id,mode,label,time_s,rms_mm,on_front") + (by.empty() ? "" : ",group") + ",key\n";
   for (const auto& p : points) {
     front_csv += p.id + ',' + p.mode + ',' + CsvField(p.label) + ',' + CsvField(p.time_s, 17) +
                  ',' + CsvField(p.rms_mm, 17) + ',' + (p.on_front ? "1" : "0") +
-                 (by.empty() ? "" : "," + CsvField(p.group)) + '\n';
-    if (p.on_front) summary.front.push_back(p.group + ": " + p.id + " (" + p.label + ")");
+                 (by.empty() ? "" : "," + CsvField(p.group)) + ',' + p.key + '\n';
+  }
+  {
+    const std::vector<std::string> groups = FrontGroups(points);
+    std::vector<const FrontPoint*> front;
+    for (const auto& p : points) {
+      if (p.on_front) front.push_back(&p);
+    }
+    const auto group_of = [&](const FrontPoint* p) {
+      return std::find(groups.begin(), groups.end(), p->group) - groups.begin();
+    };
+    std::stable_sort(front.begin(), front.end(), [&](const FrontPoint* a, const FrontPoint* b) {
+      return group_of(a) != group_of(b) ? group_of(a) < group_of(b) : a->time_s < b->time_s;
+    });
+    for (const FrontPoint* p : front)
+      summary.front.push_back(p->key + " " + p->group + ": " + p->id + " (" + p->described + ")");
   }
   WriteTextFileAtomically(out_dir / "pareto.csv", front_csv);
   WriteFrontChart(out_dir / "time_vs_rms", points, plan.at("study").get<std::string>(), cpu_time);

@@ -71,10 +71,28 @@ TEST(QuickStudies, SpeedAgainstAccuracyFrontIsTheBruteForceFront) {
     EXPECT_EQ(p.at("on_front"), dominated ? "0" : "1") << p.at("id") << " " << p.at("mode");
     if (!dominated) ++front_per_mode[p.at("mode")];
   }
+  // Keys: the mode's initial and the rank by time on its front (P1 fastest), none off the front.
+  for (const auto& p : points) {
+    if (p.at("on_front") == "0") {
+      EXPECT_EQ(p.at("key"), "") << p.at("id");
+      continue;
+    }
+    int faster = 0;
+    for (const auto& q : points) {
+      faster += q.at("mode") == p.at("mode") && q.at("on_front") == "1" &&
+                std::stod(q.at("time_s")) < std::stod(p.at("time_s"));
+    }
+    std::string key(1, p.at("mode") == "projector" ? 'P' : 'S');
+    key.append(std::to_string(faster + 1));
+    EXPECT_EQ(p.at("key"), key);
+  }
   EXPECT_GE(front_per_mode["projector"], 1);
   EXPECT_GE(front_per_mode["stereo"], 1);
-  EXPECT_EQ(s.merge.front.size(),
+  ASSERT_EQ(s.merge.front.size(),
             static_cast<size_t>(front_per_mode["projector"] + front_per_mode["stereo"]));
+  // Printed by key, each line naming the axes of its combination.
+  EXPECT_EQ(s.merge.front[0].rfind("P1 projector: ", 0), 0u) << s.merge.front[0];
+  EXPECT_NE(s.merge.front[0].find("codec="), std::string::npos) << s.merge.front[0];
 }
 
 // Study 3: 8 layers x 2 modes; each verdict is its change against its threshold (the full-model
