@@ -106,8 +106,10 @@ int RunReconstruct(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--max-code-step-px", r.max_code_step_px,
                  "stereo: no interpolation or matching across projector-coordinate steps larger "
-                 "than this between "
-                 "neighbouring pixels, projector px")
+                 "than this between neighbouring pixels, projector px; 0: automatic (for coarse "
+                 "cameras and oblique surfaces), 3 x the "
+                 "largest median step between decoded neighbours (per map and direction), at least "
+                 "4 (the summary's code_step_gate_px)")
       ->capture_default_str();
   app.add_flag("--no-discontinuity-filter", no_discontinuity, "keep points at depth jumps");
   app.add_option(

@@ -504,6 +504,41 @@ RejectReason StereoTriangulator::Triangulate(double u, double v, double ur,
   return RejectReason::kAccepted;
 }
 
+double AutoCodeStepGate(const ProjectorMap& left, const ProjectorMap& right) {
+  constexpr double kFloor = 4, kFactor = 3;  // 3 and 4 gave the same break points (docs/studies)
+  const auto median_step = [](const ProjectorMap& map) {
+    const cv::Mat* axes[2] = {map.has_x ? &map.proj_x : nullptr, map.has_y ? &map.proj_y : nullptr};
+    const auto at = [](const cv::Mat& m, int y, int x) {
+      return m.depth() == CV_64F ? m.at<double>(y, x) : static_cast<double>(m.at<float>(y, x));
+    };
+    std::vector<double> steps[2];  // to the right, below
+    for (int y = 0; y + 1 < map.height(); y += 2) {
+      for (int x = 0; x + 1 < map.width(); x += 2) {
+        // The larger step over the coded axes; NaN when a pixel of the pair is not decoded (NaN
+        // then stays, and fails the test below).
+        double horizontal = 0, vertical = 0;
+        for (const cv::Mat* m : axes) {
+          if (!m) continue;
+          const double c = at(*m, y, x);
+          const double h = std::abs(at(*m, y, x + 1) - c), v = std::abs(at(*m, y + 1, x) - c);
+          horizontal = std::isnan(h) ? h : std::max(horizontal, h);
+          vertical = std::isnan(v) ? v : std::max(vertical, v);
+        }
+        if (horizontal >= 0) steps[0].push_back(horizontal);
+        if (vertical >= 0) steps[1].push_back(vertical);
+      }
+    }
+    double median = 0;  // the larger of the two directions' medians
+    for (std::vector<double>& d : steps) {
+      if (d.empty()) continue;
+      std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(d.size() / 2), d.end());
+      median = std::max(median, d[d.size() / 2]);
+    }
+    return median;
+  };
+  return std::max(kFloor, kFactor * std::max(median_step(left), median_step(right)));
+}
+
 Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name,
                                  const std::string& right_name, const ProjectorMap& left_map,
                                  const ProjectorMap& right_map, const ReconstructOptions& options,
@@ -536,17 +571,18 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name,
   const bool cubic = options.stereo_interpolation == StereoInterpolation::kCubic ||
                      (options.stereo_interpolation == StereoInterpolation::kAuto &&
                       left_map.proj_x.depth() == CV_64F && right_map.proj_x.depth() == CV_64F);
-  RectifyProjectorMap(rect, 0, left, left_map, options.max_code_step_px, options.min_quality, cubic,
-                      &lm);
-  RectifyProjectorMap(rect, 1, right, right_map, options.max_code_step_px, options.min_quality,
-                      cubic, &rm);
+  const double gate = options.max_code_step_px > 0 ? options.max_code_step_px
+                                                   : AutoCodeStepGate(left_map, right_map);
+  s.code_step_gate_px = gate;
+  RectifyProjectorMap(rect, 0, left, left_map, gate, options.min_quality, cubic, &lm);
+  RectifyProjectorMap(rect, 1, right, right_map, gate, options.min_quality, cubic, &rm);
   t0.Elapsed(&s.rays_s, &s.rays_cpu_s);
 
   t0.Restart();
   const double fb = rect.focal_px * rect.baseline_mm;
   StereoMatches& matches = matches_buffer;
-  MatchRectifiedMaps(rect, lm, rm, fb / options.max_depth_mm, fb / options.min_depth_mm,
-                     options.max_code_step_px, cubic, &matches);
+  MatchRectifiedMaps(rect, lm, rm, fb / options.max_depth_mm, fb / options.min_depth_mm, gate,
+                     cubic, &matches);
   t0.Elapsed(&s.match_s, &s.match_cpu_s);
 
   t0.Restart();
@@ -585,8 +621,8 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name,
         }
         grid.reprojection_error_px[i] = static_cast<float>(reprojection_error);
         if (both_axes) {
-          const double y = InterpolateRow(rm.proj_y.data() + rm.Index(0, v), rm.width, ur,
-                                          options.max_code_step_px, cubic);
+          const double y =
+              InterpolateRow(rm.proj_y.data() + rm.Index(0, v), rm.width, ur, gate, cubic);
           if (std::isfinite(y)) grid.epipolar_error_px[i] = static_cast<float>(lm.proj_y[i] - y);
         } else if (third_view) {
           const Eigen::Vector3d in_proj = rig.projector->cam_from_rig * point;

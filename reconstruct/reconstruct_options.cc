@@ -55,8 +55,8 @@ void ReconstructOptions::Check() const {
     fail("max_epipolar_error_px", "must be positive", max_epipolar_error_px);
   if (!(min_quality >= 0) || !std::isfinite(min_quality))
     fail("min_quality", "must be finite and >= 0", min_quality);
-  if (!(max_code_step_px > 0) || !std::isfinite(max_code_step_px))
-    fail("max_code_step_px", "must be finite and positive", max_code_step_px);
+  if (!(max_code_step_px >= 0) || !std::isfinite(max_code_step_px))
+    fail("max_code_step_px", "must be finite and positive, or 0 (auto)", max_code_step_px);
   if (!(max_depth_jump_footprints > 0))
     fail("max_depth_jump_footprints", "must be positive", max_depth_jump_footprints);
   if (discontinuity_dilation_px < 0 || discontinuity_dilation_px > 16)
@@ -91,7 +91,8 @@ nlohmann::json ReconstructOptions::ToJson() const {
           {"max_reprojection_error_px", num(max_reprojection_error_px)},
           {"max_epipolar_error_px", num(max_epipolar_error_px)},
           {"min_quality", min_quality},
-          {"max_code_step_px", max_code_step_px},
+          {"max_code_step_px",
+           max_code_step_px > 0 ? nlohmann::json(max_code_step_px) : nlohmann::json("auto")},
           {"stereo_interpolation", ToString(stereo_interpolation)},
           {"filter_depth_discontinuities", filter_depth_discontinuities},
           {"max_depth_jump_footprints", max_depth_jump_footprints},
@@ -169,7 +170,13 @@ ReconstructOptions ReconstructOptionsFromConfig(const ConfigNode& node) {
       GetDoubleOrInf(node, "max_reprojection_error_px", o.max_reprojection_error_px);
   o.max_epipolar_error_px = GetDoubleOrInf(node, "max_epipolar_error_px", o.max_epipolar_error_px);
   o.min_quality = static_cast<float>(node.GetDouble("min_quality", o.min_quality));
-  o.max_code_step_px = node.GetDouble("max_code_step_px", o.max_code_step_px);
+  if (node.Has("max_code_step_px") && node["max_code_step_px"].json().is_string()) {
+    const ConfigNode n = node["max_code_step_px"];
+    if (n.AsString() != "auto") n.Fail("expected a number of projector px or \"auto\"");
+    o.max_code_step_px = 0;
+  } else {
+    o.max_code_step_px = node.GetDouble("max_code_step_px", o.max_code_step_px);
+  }
   if (node.Has("stereo_interpolation")) {
     o.stereo_interpolation = ParseEnum(node["stereo_interpolation"], [](const std::string& s) {
       return StereoInterpolationFromString(s);

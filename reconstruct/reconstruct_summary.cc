@@ -186,6 +186,7 @@ nlohmann::json ReconstructSummary::ToJson() const {
           {"points", points},
           {"rejected", rejected_json},
           {"decode_status", decode_json},
+          {"code_step_gate_px", code_step_gate_px},
           {"normal_fallbacks", normal_fallbacks},
           {"reprojection_error_px", reprojection_error_px.ToJson()},
           {"epipolar_error_px", epipolar_error_px.ToJson()},

@@ -767,6 +767,21 @@ TEST(ReconstructOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
   nlohmann::json bad_value = j;
   bad_value["min_depth_mm"] = 1000;  // above max_depth_mm
   EXPECT_THROW(ReconstructOptionsFromConfig(ConfigNode::FromJson(bad_value, "r.json")), Error);
+  // The code-step gate: "auto" (0) round-trips; another word names the field.
+  ReconstructOptions automatic;
+  automatic.max_code_step_px = 0;
+  EXPECT_EQ(automatic.ToJson()["max_code_step_px"], "auto");
+  nlohmann::json gate = j;
+  gate["max_code_step_px"] = "auto";
+  EXPECT_EQ(ReconstructOptionsFromConfig(ConfigNode::FromJson(gate, "r.json")).max_code_step_px, 0);
+  gate["max_code_step_px"] = "wide";
+  try {
+    ReconstructOptionsFromConfig(ConfigNode::FromJson(gate, "r.json"));
+    FAIL() << "a word other than auto accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("max_code_step_px"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("auto"), std::string::npos) << e.what();
+  }
 
   ImageSetReconstructOptions s;
   s.mode = ReconstructMode::kStereo;
@@ -788,6 +803,65 @@ TEST(ReconstructOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("parallell"), std::string::npos) << e.what();
   }
+}
+
+// The automatic code-step gate: 3 x the largest median of neighbour steps per map and direction
+// (brute force over every 2nd row and column), at least 4; undecoded pixels and uncoded axes left
+// out.
+TEST(AutoCodeStepGate, IsThreeMediansOfTheSteeperMapAndAtLeastFour) {
+  const auto ramp = [](int w, int h, double dx, double dy, bool both, int depth) {
+    ProjectorMap m;
+    m.Allocate(w, h, true, both);
+    m.proj_x.convertTo(m.proj_x, depth);
+    m.proj_y.convertTo(m.proj_y, depth);
+    for (int y = 0; y < h; ++y) {
+      for (int x = 0; x < w; ++x) {
+        const double u = dx * x + 0.3 * std::sin(0.7 * x + 1.3 * y), v = dy * y;
+        if (depth == CV_64F) {
+          m.proj_x.at<double>(y, x) = u;
+          if (both) m.proj_y.at<double>(y, x) = v;
+        } else {
+          m.proj_x.at<float>(y, x) = static_cast<float>(u);
+          if (both) m.proj_y.at<float>(y, x) = static_cast<float>(v);
+        }
+      }
+    }
+    return m;
+  };
+  const auto brute = [](const ProjectorMap& m) {
+    const auto at = [&](const cv::Mat& a, int y, int x) {
+      return a.depth() == CV_64F ? a.at<double>(y, x) : a.at<float>(y, x);
+    };
+    double median = 0;
+    for (const auto& [dy, dx] : {std::pair{0, 1}, std::pair{1, 0}}) {
+      std::vector<double> steps;
+      for (int y = 0; y + 1 < m.height(); y += 2) {
+        for (int x = 0; x + 1 < m.width(); x += 2) {
+          double step = std::abs(at(m.proj_x, y + dy, x + dx) - at(m.proj_x, y, x));
+          if (m.has_y) {
+            step = std::max(step, std::abs(at(m.proj_y, y + dy, x + dx) - at(m.proj_y, y, x)));
+          }
+          if (std::isfinite(step)) steps.push_back(step);
+        }
+      }
+      std::sort(steps.begin(), steps.end());
+      median = std::max(median, steps[steps.size() / 2]);
+    }
+    return median;
+  };
+  const ProjectorMap flat = ramp(64, 48, 0.5, 0.5, true, CV_32F);
+  EXPECT_EQ(AutoCodeStepGate(flat, flat), 4.0);  // the floor
+  ProjectorMap steep = ramp(64, 48, 2.5, 0.5, false, CV_64F);
+  for (int x = 0; x < 64; x += 5) steep.proj_x.at<double>(10, x) = std::nan("");
+  const double expected = 3 * std::max(brute(flat), brute(steep));
+  EXPECT_GT(expected, 4);
+  EXPECT_DOUBLE_EQ(AutoCodeStepGate(flat, steep), expected);
+  EXPECT_DOUBLE_EQ(AutoCodeStepGate(steep, flat), expected);
+  const ProjectorMap steep_y = ramp(64, 48, 0.5, 3.0, true, CV_32F);
+  EXPECT_DOUBLE_EQ(AutoCodeStepGate(steep_y, flat), 3 * brute(steep_y));
+  ProjectorMap none = ramp(8, 8, 1, 1, true, CV_32F);
+  none.proj_x.setTo(std::nan(""));
+  EXPECT_EQ(AutoCodeStepGate(none, none), 4.0);
 }
 
 }  // namespace
