@@ -48,6 +48,38 @@ double RobustVariance(const std::vector<double>& v) {
   return ss / static_cast<double>(n) - mean * mean;
 }
 
+// The band of image row y (kBands horizontal bands), and whether the row is held out (odd sample
+// rows; the fits use the even ones).
+int BandOfRow(int y, int height) { return std::min(kBands - 1, y * kBands / height); }
+bool HeldOutRow(int y, int stride_px) { return (y / stride_px) % 2 == 1; }
+
+// Values of a statistic, all of them and per band of the image.
+struct BandedValues {
+  std::vector<double> all;
+  std::vector<std::vector<double>> bands = std::vector<std::vector<double>>(kBands);
+  void Add(int band, double v) {
+    all.push_back(v);
+    bands[static_cast<size_t>(band)].push_back(v);
+  }
+  // BandSigma (shadow/significance.h) of `statistic` of each band's values; NaN for the bands with
+  // `min_values` values or fewer.
+  template <typename F>
+  double Sigma(size_t min_values, F&& statistic) const {
+    std::vector<double> v;
+    for (const auto& b : bands) v.push_back(b.size() > min_values ? statistic(b) : std::nan(""));
+    return BandSigma(v);
+  }
+  double MedianSigma() const {
+    return Sigma(20, [](const std::vector<double>& b) { return Median(b); });
+  }
+};
+
+// The keep rule's second half: the held-out residual with the layer on is below (1 - min_drop)
+// of the one with it off.
+bool HeldoutDrops(const PhysicsLayer& l, double min_drop) {
+  return l.heldout_residual_on < (1 - min_drop) * l.heldout_residual_off;
+}
+
 struct Sample {
   float white = 0, black = 0, factor = 0, albedo = 0;
   float gain = 1;         // the illumination field at the pixel (1 until that layer is kept)
@@ -205,6 +237,22 @@ double JackknifeSigma(const LinearFit& fit, F&& statistic) {
   for (double x : v) ss += (x - mean) * (x - mean);
   const double m = static_cast<double>(v.size());
   return std::sqrt((m - 1) / m * ss);
+}
+
+// Jackknife standard deviation of the coefficient k.
+double CoefficientSigma(const LinearFit& fit, int k) {
+  return JackknifeSigma(fit, [k](const Eigen::VectorXd& b) { return b(k); });
+}
+
+// The N phase frames of the first period on the coded axis (x unless only y is coded), spec
+// indices; -1 where the sequence lacks one.
+std::vector<int> FirstPeriodPhaseFrames(const PatternSpec& spec,
+                                        const std::vector<FrameInfo>& frames) {
+  const int axis = spec.code_x ? 0 : 1;
+  std::vector<int> idx;
+  for (int k = 0; k < spec.phase_steps; ++k)
+    idx.push_back(FindFrame(frames, FrameRole::kPhase, axis, 0, 0, k));
+  return idx;
 }
 
 }  // namespace
@@ -471,9 +519,9 @@ std::vector<Sample> LitPartSamples(const std::vector<CameraData>& cameras,
         s.camera = static_cast<int>(c);
         s.y = y;
         s.x = x;
-        s.band = std::min(kBands - 1, y * kBands / g.height);
+        s.band = BandOfRow(y, g.height);
         s.object = g.object_id.at<int32_t>(y, x);
-        s.heldout = (y / options.stride_px) % 2 == 1;
+        s.heldout = HeldOutRow(y, options.stride_px);
         samples.push_back(s);
       }
     }
@@ -546,28 +594,32 @@ FitContext::FitContext(const PatternSpec& spec_in, const Scene& twin_in,
       static_cast<int>(std::max_element(per_object.begin(), per_object.end()) - per_object.begin());
 }
 
+// `value` of the fitting (not held-out) samples that `select` picks, all and per band.
+template <typename Select, typename Value>
+BandedValues FittingValues(const std::vector<Sample>& samples, Select&& select, Value&& value) {
+  BandedValues v;
+  for (const Sample& s : samples) {
+    if (!s.heldout && select(s)) v.Add(s.band, value(s));
+  }
+  return v;
+}
+
 // --- exposure (from the light squares of a checkerboard) ---
 void FitExposure(FitContext& ctx) {
   const std::vector<Sample>& samples = ctx.samples;
   const double fs = ctx.fs, range = ctx.range;
-  std::vector<double> all;
-  std::vector<std::vector<double>> band(kBands);
-  for (const Sample& s : samples) {
-    if (s.heldout || !ctx.IsLight(s)) continue;
-    all.push_back(ctx.Ratio(s));
-    band[static_cast<size_t>(s.band)].push_back(ctx.Ratio(s));
-  }
-  SLSHADOW_THROW_IF(all.size() < 50, "physics fit: too few lit part pixels to fit the exposure (",
-                    all.size(), ")");
+  const BandedValues v = FittingValues(
+      samples, [&](const Sample& s) { return ctx.IsLight(s); },
+      [&](const Sample& s) { return ctx.Ratio(s); });
+  SLSHADOW_THROW_IF(v.all.size() < 50, "physics fit: too few lit part pixels to fit the exposure (",
+                    v.all.size(), ")");
   PhysicsLayer exposure;
   exposure.name = "exposure";
   exposure.unit = "fraction of full scale";
-  exposure.value = Median(all);
-  std::vector<double> band_values;
-  for (auto& b : band) band_values.push_back(b.size() > 20 ? Median(b) : std::nan(""));
-  exposure.sigma = BandSigma(band_values);
+  exposure.value = Median(v.all);
+  exposure.sigma = v.MedianSigma();
   exposure.off_value = ctx.twin.radiometry.exposure_fraction;
-  exposure.samples = static_cast<int64_t>(all.size());
+  exposure.samples = static_cast<int64_t>(v.all.size());
   exposure.residual_unit = "DN RMS of white - black";
   {
     std::vector<double> off, on;
@@ -657,7 +709,7 @@ PhysicsLayer FitIlluminationField(FitContext& ctx, size_t c,
   for (int k = 0; k < p; ++k) {
     names.push_back(k == 0 ? std::string("1") : TermName(terms[static_cast<size_t>(k - 1)]));
     coeffs.push_back(lf.beta(k));
-    sigmas.push_back(JackknifeSigma(lf, [k](const Eigen::VectorXd& b) { return b(k); }));
+    sigmas.push_back(CoefficientSigma(lf, k));
   }
   il.extra = {
       {"degree", options.illumination_degree},
@@ -681,9 +733,7 @@ PhysicsLayer FitIlluminationField(FitContext& ctx, size_t c,
   il.heldout_residual_on = Rms(on);
   const bool significant =
       il.value > 0 && Significant(il.value, il.sigma, options.illumination_floor);
-  const bool drops =
-      il.heldout_residual_on < (1 - options.min_heldout_drop) * il.heldout_residual_off;
-  il.kept = significant && drops;
+  il.kept = significant && HeldoutDrops(il, options.min_heldout_drop);
   il.reason =
       il.kept ? Fmt("the lit part is %.3f..%.3f of its mean brightness, smoothly: held-out "
                     "residual %.2f -> %.2f DN",
@@ -714,24 +764,17 @@ PhysicsLayer FitObjectAlbedo(const FitContext& ctx, size_t o) {
   a.unit = "reflectance";
   a.off_value = object.albedo.value;
   a.residual_unit = "DN RMS of white - black on this object";
-  std::vector<double> v;
-  std::vector<std::vector<double>> vb(kBands);
-  for (const Sample& s : samples) {
-    if (s.heldout || s.object != static_cast<int>(o)) continue;
-    const double value = object.albedo.value * ctx.Ratio(s) / e;
-    v.push_back(value);
-    vb[static_cast<size_t>(s.band)].push_back(value);
-  }
-  if (v.size() < 200) {
+  const BandedValues v = FittingValues(
+      samples, [&](const Sample& s) { return s.object == static_cast<int>(o); },
+      [&](const Sample& s) { return object.albedo.value * ctx.Ratio(s) / e; });
+  if (v.all.size() < 200) {
     a.observable = false;
     a.reason = "too few lit pixels on this object";
     return a;
   }
-  a.value = Median(v);
-  std::vector<double> bv;
-  for (auto& b : vb) bv.push_back(b.size() > 20 ? Median(b) : std::nan(""));
-  a.sigma = BandSigma(bv);
-  a.samples = static_cast<int64_t>(v.size());
+  a.value = Median(v.all);
+  a.sigma = v.MedianSigma();
+  a.samples = static_cast<int64_t>(v.all.size());
   std::vector<double> off, on;
   for (const Sample& s : samples) {
     if (!s.heldout || s.object != static_cast<int>(o)) continue;
@@ -742,9 +785,7 @@ PhysicsLayer FitObjectAlbedo(const FitContext& ctx, size_t o) {
   a.heldout_residual_off = Rms(off);
   a.heldout_residual_on = Rms(on);
   const bool significant = Significant(a.value - a.off_value, a.sigma, 0.01);
-  const bool drops =
-      a.heldout_residual_on < (1 - ctx.options.min_heldout_drop) * a.heldout_residual_off;
-  a.kept = significant && drops;
+  a.kept = significant && HeldoutDrops(a, ctx.options.min_heldout_drop);
   a.reason =
       a.kept ? Fmt("reflects %.3f, not %.3f, relative to the reference object: held-out "
                    "residual %.2f -> %.2f DN",
@@ -773,23 +814,16 @@ void FitDarkSquares(FitContext& ctx) {
   dark.unit = "reflectance";
   dark.off_value = board->dark;
   dark.residual_unit = "DN RMS of white - black, dark squares";
-  std::vector<double> d;
-  std::vector<std::vector<double>> db(kBands);
-  for (const Sample& s : samples) {
-    if (s.heldout || !ctx.IsDark(s)) continue;
-    const double a = board->dark * ctx.Ratio(s) / e;
-    d.push_back(a);
-    db[static_cast<size_t>(s.band)].push_back(a);
-  }
-  if (d.size() < 50) {
+  const BandedValues d = FittingValues(
+      samples, [&](const Sample& s) { return ctx.IsDark(s); },
+      [&](const Sample& s) { return board->dark * ctx.Ratio(s) / e; });
+  if (d.all.size() < 50) {
     dark.observable = false;
     dark.reason = "too few dark-square pixels lit";
   } else {
-    dark.value = Median(d);
-    std::vector<double> bv;
-    for (auto& b : db) bv.push_back(b.size() > 20 ? Median(b) : std::nan(""));
-    dark.sigma = BandSigma(bv);
-    dark.samples = static_cast<int64_t>(d.size());
+    dark.value = Median(d.all);
+    dark.sigma = d.MedianSigma();
+    dark.samples = static_cast<int64_t>(d.all.size());
     std::vector<double> off, on;
     for (const Sample& s : samples) {
       if (!s.heldout || !ctx.IsDark(s)) continue;
@@ -800,9 +834,7 @@ void FitDarkSquares(FitContext& ctx) {
     dark.heldout_residual_off = Rms(off);
     dark.heldout_residual_on = Rms(on);
     const bool significant = Significant(dark.value - dark.off_value, dark.sigma, 0.005);
-    const bool drops =
-        dark.heldout_residual_on < (1 - ctx.options.min_heldout_drop) * dark.heldout_residual_off;
-    dark.kept = significant && drops;
+    dark.kept = significant && HeldoutDrops(dark, ctx.options.min_heldout_drop);
     dark.reason = dark.kept ? Fmt("dark squares reflect %.3f of the light ones' exposure, not "
                                   "%.3f: held-out residual %.2f -> %.2f DN",
                                   dark.value / board->light, board->dark / board->light,
@@ -830,6 +862,12 @@ double AmbientRegressor(const FitContext& ctx, const Sample& s) {
   return ctx.e * ctx.fs * s.twin_albedo * s.gain;
 }
 
+// Ambient's keep rule (alone, or with the black-level offsets in).
+bool KeepAmbient(const PhysicsLayer& amb, const PhysicsFitOptions& options) {
+  const bool significant = amb.value > 0 && Significant(amb.value, amb.sigma, 0.002);
+  return significant && HeldoutDrops(amb, options.min_heldout_drop);
+}
+
 // --- ambient alone: B = E FS ambient albedo G ---
 PhysicsLayer FitAmbient(const FitContext& ctx) {
   const std::vector<Sample>& samples = ctx.samples;
@@ -838,19 +876,12 @@ PhysicsLayer FitAmbient(const FitContext& ctx) {
   amb.name = "ambient";
   amb.unit = "fraction of projector white";
   amb.residual_unit = "DN RMS of the black frame";
-  std::vector<double> v;
-  std::vector<std::vector<double>> vb(kBands);
-  for (const Sample& s : samples) {
-    if (s.heldout || s.twin_albedo < 0.02f) continue;
-    const double a = s.black / AmbientRegressor(ctx, s);
-    v.push_back(a);
-    vb[static_cast<size_t>(s.band)].push_back(a);
-  }
-  amb.value = Median(v);
-  std::vector<double> bv;
-  for (auto& b : vb) bv.push_back(b.size() > 20 ? Median(b) : std::nan(""));
-  amb.sigma = BandSigma(bv);
-  amb.samples = static_cast<int64_t>(v.size());
+  const BandedValues v = FittingValues(
+      samples, [](const Sample& s) { return !(s.twin_albedo < 0.02f); },
+      [&](const Sample& s) { return s.black / AmbientRegressor(ctx, s); });
+  amb.value = Median(v.all);
+  amb.sigma = v.MedianSigma();
+  amb.samples = static_cast<int64_t>(v.all.size());
   std::vector<double> off, on;
   for (const Sample& s : samples) {
     if (!s.heldout) continue;
@@ -859,12 +890,7 @@ PhysicsLayer FitAmbient(const FitContext& ctx) {
   }
   amb.heldout_residual_off = Rms(off);
   amb.heldout_residual_on = Rms(on);
-  {
-    const bool significant = amb.value > 0 && Significant(amb.value, amb.sigma, 0.002);
-    const bool drops =
-        amb.heldout_residual_on < (1 - options.min_heldout_drop) * amb.heldout_residual_off;
-    amb.kept = significant && drops;
-  }
+  amb.kept = KeepAmbient(amb, options);
   amb.reason =
       amb.kept ? Fmt("the black frame is lit: %.2f DN mean; held-out residual %.2f -> %.2f DN",
                      amb.heldout_residual_off, amb.heldout_residual_off, amb.heldout_residual_on)
@@ -873,24 +899,17 @@ PhysicsLayer FitAmbient(const FitContext& ctx) {
   return amb;
 }
 
-// --- black-level offsets, one per camera: B = o_c + E FS ambient albedo G ---
-// Observable on a camera whose lit pixels span reflectances (the regressor's coefficient of
-// variation), fitted jointly with ambient: unknowns (ambient, o_c). When an offset is kept, ambient
-// (`amb`, FitAmbient's) is judged again with the offsets in.
-std::vector<PhysicsLayer> FitBlackLevels(const FitContext& ctx, PhysicsLayer* amb_layer) {
-  const std::vector<Sample>& samples = ctx.samples;
-  const std::vector<CameraData>& cameras = ctx.cameras;
-  const PhysicsFitOptions& options = ctx.options;
-  const double fs = ctx.fs;
-  PhysicsLayer& amb = *amb_layer;
-  const auto regressor = [&](const Sample& s) { return AmbientRegressor(ctx, s); };
-  const size_t nc = cameras.size();
-  std::vector<int> column(nc, -1);  // the offset's column in the joint fit, -1: not observable
-  int cols = 1;
+// The black-level offsets' columns in the joint fit, per camera; -1 where not observable: an
+// offset is observable on a camera whose lit pixels span reflectances (the coefficient of variation
+// of albedo x G above 0.25). *cols: the joint fit's unknowns (ambient and the observable offsets).
+std::vector<int> BlackLevelColumns(const FitContext& ctx, int* cols) {
+  const size_t nc = ctx.cameras.size();
+  std::vector<int> column(nc, -1);
+  *cols = 1;
   for (size_t c = 0; c < nc; ++c) {
     double sum = 0, ss = 0;
     int64_t n = 0;
-    for (const Sample& s : samples) {
+    for (const Sample& s : ctx.samples) {
       if (s.heldout || s.camera != static_cast<int>(c)) continue;
       const double r = s.twin_albedo * s.gain;
       sum += r, ss += r * r, ++n;
@@ -900,135 +919,145 @@ std::vector<PhysicsLayer> FitBlackLevels(const FitContext& ctx, PhysicsLayer* am
         n > 100 && mean > 0
             ? std::sqrt(std::max(0.0, ss / static_cast<double>(n) - mean * mean)) / mean
             : 0.0;
-    if (cv > 0.25) column[c] = cols++;
+    if (cv > 0.25) column[c] = (*cols)++;
   }
-  const auto joint = [&] {
-    std::vector<double> x, y;
-    std::vector<int> bands;
-    for (const Sample& s : samples) {
-      if (s.heldout || column[static_cast<size_t>(s.camera)] < 0) continue;
-      const size_t at = x.size();
-      x.resize(at + static_cast<size_t>(cols), 0.0);
-      x[at] = regressor(s);
-      x[at + static_cast<size_t>(column[static_cast<size_t>(s.camera)])] = 1;
-      y.push_back(s.black);
-      bands.push_back(s.band);
+  return column;
+}
+
+// The black frame of the cameras with an offset column, least squares: B = o_c + ambient E FS
+// albedo G (with_ambient: unknowns ambient, then the offsets in their columns), else B = o_c
+// (the offsets alone, one column less: o_c = the mean black level of camera c).
+LinearFit FitBlackFrame(const FitContext& ctx, const std::vector<int>& column, int cols,
+                        bool with_ambient) {
+  const int shift = with_ambient ? 0 : 1;
+  std::vector<double> x, y;
+  std::vector<int> bands;
+  for (const Sample& s : ctx.samples) {
+    if (s.heldout || column[static_cast<size_t>(s.camera)] < 0) continue;
+    const size_t at = x.size();
+    x.resize(at + static_cast<size_t>(cols - shift), 0.0);
+    if (with_ambient) x[at] = AmbientRegressor(ctx, s);
+    x[at + static_cast<size_t>(column[static_cast<size_t>(s.camera)] - shift)] = 1;
+    y.push_back(s.black);
+    bands.push_back(s.band);
+  }
+  return FitLinear(x, y, bands, cols - shift);
+}
+
+// RMS of camera's held-out black-frame residual B - o - ambient E FS albedo G, with o from `beta`
+// (column - shift; none when null).
+double BlackFrameResidual(const FitContext& ctx, const std::vector<int>& column, int camera,
+                          double ambient, const Eigen::VectorXd* beta, int shift) {
+  std::vector<double> r;
+  for (const Sample& s : ctx.samples) {
+    if (!s.heldout || s.camera != camera) continue;
+    const double o = beta ? (*beta)(column[static_cast<size_t>(camera)] - shift) : 0.0;
+    r.push_back(s.black - o - ambient * AmbientRegressor(ctx, s));
+  }
+  return Rms(r);
+}
+
+// The layer of a camera whose offset the black frame cannot tell from ambient light.
+PhysicsLayer UnobservableBlackLevel(const std::string& camera) {
+  PhysicsLayer bl;
+  bl.name = "black_level_" + camera;
+  bl.unit = "DN";
+  bl.observable = false;
+  bl.reason =
+      "one reflectance in view: a black-level offset and ambient light look alike in the "
+      "black frame; ambient stands for both";
+  return bl;
+}
+
+// The offset of camera c from the joint fit `both`, judged against ambient alone (`amb`).
+PhysicsLayer FitBlackLevel(const FitContext& ctx, const std::vector<int>& column, size_t c,
+                           const LinearFit& both, const PhysicsLayer& amb) {
+  const PhysicsFitOptions& options = ctx.options;
+  if (column[c] < 0) {
+    PhysicsLayer bl = UnobservableBlackLevel(ctx.cameras[c].camera);
+    bl.residual_unit = "DN RMS of the black frame";
+    return bl;
+  }
+  PhysicsLayer bl;
+  bl.name = "black_level_" + ctx.cameras[c].camera;
+  bl.unit = "DN";
+  bl.residual_unit = "DN RMS of the black frame";
+  const int k = column[c];
+  bl.value = both.beta(k);
+  bl.sigma = CoefficientSigma(both, k);
+  bl.samples = both.inliers;
+  bl.heldout_residual_off =
+      BlackFrameResidual(ctx, column, static_cast<int>(c), amb.kept ? amb.value : 0.0, nullptr, 0);
+  bl.heldout_residual_on =
+      BlackFrameResidual(ctx, column, static_cast<int>(c), both.beta(0), &both.beta, 0);
+  const bool significant = Significant(bl.value, bl.sigma, options.black_level_floor * ctx.fs);
+  bl.kept = significant && HeldoutDrops(bl, options.min_heldout_drop);
+  return bl;
+}
+
+// With an offset kept: ambient judged again with the offsets in (offsets + ambient against offsets
+// alone); when ambient is then left off, the kept offsets take their values from `only`.
+void RejudgeAmbientWithOffsets(const FitContext& ctx, const std::vector<int>& column,
+                               const LinearFit& both, const LinearFit& only,
+                               PhysicsLayer* amb_layer, std::vector<PhysicsLayer>* offsets) {
+  PhysicsLayer& amb = *amb_layer;
+  amb.value = both.beta(0);
+  amb.sigma = CoefficientSigma(both, 0);
+  std::vector<double> off2, on2;
+  for (const Sample& s : ctx.samples) {
+    if (!s.heldout || column[static_cast<size_t>(s.camera)] < 0) continue;
+    const int k = column[static_cast<size_t>(s.camera)];
+    off2.push_back(s.black - only.beta(k - 1));
+    on2.push_back(s.black - both.beta(k) - both.beta(0) * AmbientRegressor(ctx, s));
+  }
+  amb.heldout_residual_off = Rms(off2);
+  amb.heldout_residual_on = Rms(on2);
+  amb.kept = KeepAmbient(amb, ctx.options);
+  amb.reason =
+      amb.kept ? Fmt("the black frame scales with reflectance beyond the offset: %.4f of white; "
+                     "held-out residual %.2f -> %.2f DN",
+                     amb.value, amb.heldout_residual_off, amb.heldout_residual_on)
+               : Fmt("with the black-level offset in, the black frame does not scale with "
+                     "reflectance (%.4f +- %.4f); held-out residual %.2f vs %.2f DN",
+                     amb.value, amb.sigma, amb.heldout_residual_off, amb.heldout_residual_on);
+  for (size_t c = 0; c < offsets->size(); ++c) {
+    PhysicsLayer& bl = (*offsets)[c];
+    if (!bl.kept) continue;
+    if (!amb.kept) {  // the offset alone: its own fit
+      bl.value = only.beta(column[c] - 1);
+      bl.sigma = CoefficientSigma(only, column[c] - 1);
+      bl.heldout_residual_on =
+          BlackFrameResidual(ctx, column, static_cast<int>(c), 0.0, &only.beta, 1);
     }
-    return FitLinear(x, y, bands, cols);
-  };
+    bl.reason =
+        Fmt("the black frame sits %.2f DN above what ambient light on the print explains, "
+            "on every reflectance: held-out residual %.2f -> %.2f DN",
+            bl.value, bl.heldout_residual_off, bl.heldout_residual_on);
+  }
+}
+
+// --- black-level offsets, one per camera: B = o_c + E FS ambient albedo G, fitted jointly with
+// ambient (`amb`, FitAmbient's; judged again when an offset is kept) ---
+std::vector<PhysicsLayer> FitBlackLevels(const FitContext& ctx, PhysicsLayer* amb) {
+  int cols = 1;
+  const std::vector<int> column = BlackLevelColumns(ctx, &cols);
   std::vector<PhysicsLayer> offsets;
-  if (cols > 1) {
-    const LinearFit both = joint();
-    LinearFit only;  // offsets alone: o_c = mean black level of camera c
-    {
-      std::vector<double> x, y;
-      std::vector<int> bands;
-      for (const Sample& s : samples) {
-        if (s.heldout || column[static_cast<size_t>(s.camera)] < 0) continue;
-        const size_t at = x.size();
-        x.resize(at + static_cast<size_t>(cols - 1), 0.0);
-        x[at + static_cast<size_t>(column[static_cast<size_t>(s.camera)] - 1)] = 1;
-        y.push_back(s.black);
-        bands.push_back(s.band);
-      }
-      only = FitLinear(x, y, bands, cols - 1);
-    }
-    if (both.ok && only.ok) {
-      // Held-out black-frame residuals per camera under: ambient only, offsets + ambient, offsets
-      // only.
-      const auto residuals = [&](int camera, double a, const Eigen::VectorXd* beta, int shift) {
-        std::vector<double> r;
-        for (const Sample& s : samples) {
-          if (!s.heldout || s.camera != camera) continue;
-          const double o = beta ? (*beta)(column[static_cast<size_t>(camera)] - shift) : 0.0;
-          r.push_back(s.black - o - a * regressor(s));
-        }
-        return Rms(r);
-      };
-      bool any_kept = false;
-      for (size_t c = 0; c < nc; ++c) {
-        PhysicsLayer bl;
-        bl.name = "black_level_" + cameras[c].camera;
-        bl.unit = "DN";
-        bl.residual_unit = "DN RMS of the black frame";
-        if (column[c] < 0) {
-          bl.observable = false;
-          bl.reason =
-              "one reflectance in view: a black-level offset and ambient light look alike in the "
-              "black frame; ambient stands for both";
-          offsets.push_back(bl);
-          continue;
-        }
-        const int k = column[c];
-        bl.value = both.beta(k);
-        bl.sigma = JackknifeSigma(both, [k](const Eigen::VectorXd& b) { return b(k); });
-        bl.samples = both.inliers;
-        bl.heldout_residual_off =
-            residuals(static_cast<int>(c), amb.kept ? amb.value : 0.0, nullptr, 0);
-        bl.heldout_residual_on = residuals(static_cast<int>(c), both.beta(0), &both.beta, 0);
-        const bool significant = Significant(bl.value, bl.sigma, options.black_level_floor * fs);
-        const bool drops =
-            bl.heldout_residual_on < (1 - options.min_heldout_drop) * bl.heldout_residual_off;
-        bl.kept = significant && drops;
-        any_kept = any_kept || bl.kept;
-        offsets.push_back(bl);
-      }
-      if (any_kept) {
-        // Ambient judged again with the offsets in: offsets + ambient against offsets alone.
-        amb.value = both.beta(0);
-        amb.sigma = JackknifeSigma(both, [](const Eigen::VectorXd& b) { return b(0); });
-        std::vector<double> off2, on2;
-        for (const Sample& s : samples) {
-          if (!s.heldout || column[static_cast<size_t>(s.camera)] < 0) continue;
-          const int k = column[static_cast<size_t>(s.camera)];
-          off2.push_back(s.black - only.beta(k - 1));
-          on2.push_back(s.black - both.beta(k) - both.beta(0) * regressor(s));
-        }
-        amb.heldout_residual_off = Rms(off2);
-        amb.heldout_residual_on = Rms(on2);
-        const bool significant = amb.value > 0 && Significant(amb.value, amb.sigma, 0.002);
-        const bool drops =
-            amb.heldout_residual_on < (1 - options.min_heldout_drop) * amb.heldout_residual_off;
-        amb.kept = significant && drops;
-        amb.reason =
-            amb.kept
-                ? Fmt("the black frame scales with reflectance beyond the offset: %.4f of white; "
-                      "held-out residual %.2f -> %.2f DN",
-                      amb.value, amb.heldout_residual_off, amb.heldout_residual_on)
-                : Fmt("with the black-level offset in, the black frame does not scale with "
-                      "reflectance (%.4f +- %.4f); held-out residual %.2f vs %.2f DN",
-                      amb.value, amb.sigma, amb.heldout_residual_off, amb.heldout_residual_on);
-        for (size_t c = 0; c < nc; ++c) {
-          PhysicsLayer& bl = offsets[c];
-          if (!bl.kept) continue;
-          if (!amb.kept) {  // the offset alone: its own fit
-            bl.value = only.beta(column[c] - 1);
-            bl.sigma = JackknifeSigma(
-                only, [k = column[c] - 1](const Eigen::VectorXd& b) { return b(k); });
-            bl.heldout_residual_on = residuals(static_cast<int>(c), 0.0, &only.beta, 1);
-          }
-          bl.reason =
-              Fmt("the black frame sits %.2f DN above what ambient light on the print explains, "
-                  "on every reflectance: held-out residual %.2f -> %.2f DN",
-                  bl.value, bl.heldout_residual_off, bl.heldout_residual_on);
-        }
-      }
-      for (PhysicsLayer& bl : offsets) {
-        if (bl.observable && !bl.kept)
-          bl.reason = Fmt("no offset beyond noise (%.2f +- %.2f DN)", bl.value, bl.sigma);
-      }
-    }
-  } else {
-    for (size_t c = 0; c < nc; ++c) {
-      PhysicsLayer bl;
-      bl.name = "black_level_" + cameras[c].camera;
-      bl.unit = "DN";
-      bl.observable = false;
-      bl.reason =
-          "one reflectance in view: a black-level offset and ambient light look alike in the "
-          "black frame; ambient stands for both";
-      offsets.push_back(bl);
-    }
+  if (cols == 1) {
+    for (const CameraData& cam : ctx.cameras) offsets.push_back(UnobservableBlackLevel(cam.camera));
+    return offsets;
+  }
+  const LinearFit both = FitBlackFrame(ctx, column, cols, true);
+  const LinearFit only = FitBlackFrame(ctx, column, cols, false);
+  if (!both.ok || !only.ok) return offsets;
+  bool any_kept = false;
+  for (size_t c = 0; c < ctx.cameras.size(); ++c) {
+    offsets.push_back(FitBlackLevel(ctx, column, c, both, *amb));
+    any_kept = any_kept || offsets.back().kept;
+  }
+  if (any_kept) RejudgeAmbientWithOffsets(ctx, column, both, only, amb, &offsets);
+  for (PhysicsLayer& bl : offsets) {
+    if (bl.observable && !bl.kept)
+      bl.reason = Fmt("no offset beyond noise (%.2f +- %.2f DN)", bl.value, bl.sigma);
   }
   return offsets;
 }
@@ -1081,11 +1110,7 @@ void FitGamma(FitContext& ctx) {
   gamma.residual_unit = "RMS of the mean normalised phase value - a0(gamma)";
   const int n = spec.phase_steps;
   std::vector<int> phase_frames;
-  if (spec.kind != PatternKind::kGrayCode) {
-    for (int k = 0; k < n; ++k)
-      phase_frames.push_back(
-          FindFrame(ctx.frames, FrameRole::kPhase, spec.code_x ? 0 : 1, 0, 0, k));
-  }
+  if (spec.kind != PatternKind::kGrayCode) phase_frames = FirstPeriodPhaseFrames(spec, ctx.frames);
   if (spec.kind == PatternKind::kGrayCode) {
     gamma.observable = false;
     gamma.reason = "binary patterns (0 / 255 only) do not see the projector's response";
@@ -1097,8 +1122,8 @@ void FitGamma(FitContext& ctx) {
     // Per well-lit pixel the mean of its normalised phase values, which is a0(gamma), the mean
     // of (0.5 + 0.5 cos)^gamma over a period, whatever the phase, blur or frame order.
     const double min_contrast = WellLitContrast(samples);
-    std::vector<double> fit_mean, held_mean;
-    std::vector<std::vector<double>> band_mean(kBands);
+    BandedValues fit_mean;
+    std::vector<double> held_mean;
     for (const Sample& s : samples) {
       if (s.white - s.black < min_contrast) continue;
       double m = 0;
@@ -1111,30 +1136,24 @@ void FitGamma(FitContext& ctx) {
       if (s.heldout) {
         held_mean.push_back(m);
       } else {
-        fit_mean.push_back(m);
-        band_mean[static_cast<size_t>(s.band)].push_back(m);
+        fit_mean.Add(s.band, m);
       }
     }
-    if (fit_mean.size() < 100) {
+    if (fit_mean.all.size() < 100) {
       gamma.observable = false;
       gamma.reason = "too few well-lit pixels for the response fit";
     } else {
-      gamma.value = GammaOfPhaseMean(Median(fit_mean));
-      std::vector<double> bv;
-      for (auto& b : band_mean)
-        bv.push_back(b.size() > 50 ? GammaOfPhaseMean(Median(b)) : std::nan(""));
-      gamma.sigma = BandSigma(bv);
-      gamma.samples = static_cast<int64_t>(fit_mean.size());
-      gamma.residual_unit = "RMS of the mean normalised phase value - a0(gamma)";
+      gamma.value = GammaOfPhaseMean(Median(fit_mean.all));
+      gamma.sigma = fit_mean.Sigma(
+          50, [](const std::vector<double>& b) { return GammaOfPhaseMean(Median(b)); });
+      gamma.samples = static_cast<int64_t>(fit_mean.all.size());
       std::vector<double> off, on;
       const double on_level = PhaseMeanOfGamma(gamma.value);
       for (double m : held_mean) off.push_back(m - 0.5), on.push_back(m - on_level);
       gamma.heldout_residual_off = Rms(off);
       gamma.heldout_residual_on = Rms(on);
       const bool significant = Significant(gamma.value - 1, gamma.sigma, ctx.options.gamma_floor);
-      const bool drops = gamma.heldout_residual_on <
-                         (1 - ctx.options.min_heldout_drop) * gamma.heldout_residual_off;
-      gamma.kept = significant && drops;
+      gamma.kept = significant && HeldoutDrops(gamma, ctx.options.min_heldout_drop);
       gamma.reason =
           gamma.kept
               ? Fmt("phase frames average %.3f of white, not 0.5: held-out residual %.4f -> %.4f",
@@ -1189,8 +1208,8 @@ void FitGlobalLight(FitContext& ctx) {
         "scattered light";
   } else {
     const double min_contrast = WellLitContrast(samples);
-    std::vector<double> fit_r, held_r;
-    std::vector<std::vector<double>> band_r(kBands);
+    BandedValues fit_r;
+    std::vector<double> held_r;
     std::vector<double> per(coarse.size());
     for (const Sample& s : samples) {
       if (s.white - s.black < min_contrast) continue;
@@ -1201,18 +1220,19 @@ void FitGlobalLight(FitContext& ctx) {
                  (s.white - s.black);
       }
       const double r = Median(per);  // a pixel near one bit's edge is outvoted by the others
-      (s.heldout ? held_r : fit_r).push_back(r);
-      if (!s.heldout) band_r[static_cast<size_t>(s.band)].push_back(r);
+      if (s.heldout) {
+        held_r.push_back(r);
+      } else {
+        fit_r.Add(s.band, r);
+      }
     }
-    if (fit_r.size() < 100) {
+    if (fit_r.all.size() < 100) {
       gl.observable = false;
       gl.reason = "too few well-lit pixels for the global-light fit";
     } else {
-      gl.value = 1 - Median(fit_r);
-      std::vector<double> bv;
-      for (auto& b : band_r) bv.push_back(b.size() > 20 ? 1 - Median(b) : std::nan(""));
-      gl.sigma = BandSigma(bv);
-      gl.samples = static_cast<int64_t>(fit_r.size());
+      gl.value = 1 - Median(fit_r.all);
+      gl.sigma = fit_r.Sigma(20, [](const std::vector<double>& b) { return 1 - Median(b); });
+      gl.samples = static_cast<int64_t>(fit_r.all.size());
       std::vector<double> off, on;
       for (double r : held_r) off.push_back(r - 1), on.push_back(r - (1 - gl.value));
       gl.heldout_residual_off = Rms(off);
@@ -1220,9 +1240,7 @@ void FitGlobalLight(FitContext& ctx) {
       gl.extra["pairs"] = coarse.size();
       const bool significant =
           gl.value > 0 && Significant(gl.value, gl.sigma, options.global_light_floor);
-      const bool drops =
-          gl.heldout_residual_on < (1 - options.min_heldout_drop) * gl.heldout_residual_off;
-      gl.kept = significant && drops;
+      gl.kept = significant && HeldoutDrops(gl, options.min_heldout_drop);
       gl.reason =
           gl.kept ? Fmt("coarse stripes reach %.1f %% of white - black: %.1f %% of the light is "
                         "scattered from the lit "
@@ -1250,6 +1268,12 @@ std::vector<NoiseObservation> NoiseObservations(const FitContext& ctx,
   const std::vector<Sample>& samples = ctx.samples;
   const double fs = ctx.fs;
   const size_t step = std::max<size_t>(1, samples.size() / 40000);
+  // The signal is what sits above the black level (shot noise does not see the offset): 4 o_c.
+  std::vector<double> offset4(ctx.cameras.size(), 0.0);
+  for (size_t c = 0; c < ctx.cameras.size(); ++c) {
+    const PhysicsLayer* bl = ctx.fit.Find("black_level_" + ctx.cameras[c].camera);
+    offset4[c] = bl && bl->kept ? 4 * bl->value : 0.0;
+  }
   std::vector<NoiseObservation> obs;
   for (size_t i = 0; i < samples.size(); i += step) {
     const Sample& s = samples[i];
@@ -1266,12 +1290,9 @@ std::vector<NoiseObservation> NoiseObservations(const FitContext& ctx,
       sums.push_back(a + b);
     }
     if (saturated) continue;
-    // The signal is what sits above the black level (shot noise does not see the offset).
-    const PhysicsLayer* bl =
-        ctx.fit.Find("black_level_" + ctx.cameras[static_cast<size_t>(s.camera)].camera);
-    const double offset4 = bl && bl->kept ? 4 * bl->value : 0.0;
+    const double o4 = offset4[static_cast<size_t>(s.camera)];
     for (size_t k = 0; k + 1 < sums.size(); k += 2)
-      obs.push_back({sums[k] + sums[k + 1] - offset4, sums[k] - sums[k + 1], s.heldout});
+      obs.push_back({sums[k] + sums[k + 1] - o4, sums[k] - sums[k + 1], s.heldout});
   }
   return obs;
 }
@@ -1343,8 +1364,7 @@ void FitNoise(FitContext& ctx) {
       noise.samples = static_cast<int64_t>(obs.size());
       const bool above_quant = mean_var > 2 * quant;
       const bool significant = k > 0 && Significant(k, sigma_k, 0);
-      const bool drops = noise.heldout_residual_on <
-                         (1 - ctx.options.min_heldout_drop) * noise.heldout_residual_off;
+      const bool drops = HeldoutDrops(noise, ctx.options.min_heldout_drop);
       if (k > 0) {
         noise.value = fs / k;
         noise.sigma = fs * sigma_k / (k * k);
@@ -1391,16 +1411,10 @@ double ModulationPeriodPx(const PatternSpec& spec) {
 
 std::vector<int> ModulationFrames(const PatternSpec& spec) {
   const std::vector<FrameInfo> frames = spec.Frames();
+  if (spec.kind != PatternKind::kGrayCode) return FirstPeriodPhaseFrames(spec, frames);
   const int axis = spec.code_x ? 0 : 1;
-  std::vector<int> idx;
-  if (spec.kind == PatternKind::kGrayCode) {
-    idx = {FindFrame(frames, FrameRole::kGrayBit, axis, 0, 0, 0),
-           FindFrame(frames, FrameRole::kGrayBitInverse, axis, 0, 0, 0)};
-  } else {
-    for (int k = 0; k < spec.phase_steps; ++k)
-      idx.push_back(FindFrame(frames, FrameRole::kPhase, axis, 0, 0, k));
-  }
-  return idx;
+  return {FindFrame(frames, FrameRole::kGrayBit, axis, 0, 0, 0),
+          FindFrame(frames, FrameRole::kGrayBitInverse, axis, 0, 0, 0)};
 }
 
 cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>& images) {
@@ -1496,8 +1510,7 @@ void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras,
         if (g.visibility.at<uint8_t>(y, x) != 2) continue;
         const float a = mr.at<float>(y, x), b = mt.at<float>(y, x);
         if (!std::isfinite(a) || !std::isfinite(b) || b < 0.05f) continue;
-        obs.push_back(
-            {a, b, std::min(kBands - 1, y * kBands / g.height), (y / options.stride_px) % 2 == 1});
+        obs.push_back({a, b, BandOfRow(y, g.height), HeldOutRow(y, options.stride_px)});
       }
     }
   }
@@ -1507,17 +1520,12 @@ void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras,
     fit->layers.push_back(d);
     return;
   }
-  std::vector<double> r;
-  std::vector<std::vector<double>> rb(kBands);
+  BandedValues r;
   for (const Obs& o : obs) {
-    if (o.held) continue;
-    r.push_back(o.real / o.twin);
-    rb[static_cast<size_t>(o.band)].push_back(o.real / o.twin);
+    if (!o.held) r.Add(o.band, o.real / o.twin);
   }
-  const double rho = Median(r);
-  std::vector<double> bv;
-  for (auto& b : rb) bv.push_back(b.size() > 20 ? Median(b) : std::nan(""));
-  const double sigma_rho = BandSigma(bv);
+  const double rho = Median(r.all);
+  const double sigma_rho = r.MedianSigma();
   const auto sigma_of = [&](double q) {
     return q < 1 ? period / (M_PI * std::sqrt(2.0)) * std::sqrt(-std::log(q)) : 0.0;
   };
@@ -1526,7 +1534,7 @@ void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras,
   const double h = 1e-4;
   d.sigma = rho < 1 - 2 * h ? std::abs(sigma_of(rho + h) - sigma_of(rho - h)) / (2 * h) * sigma_rho
                             : std::nan("");
-  d.samples = static_cast<int64_t>(r.size());
+  d.samples = static_cast<int64_t>(r.all.size());
   std::vector<double> off, on;
   for (const Obs& o : obs) {
     if (!o.held) continue;
@@ -1540,9 +1548,7 @@ void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras,
   d.extra["period_px"] = period;
   const double loss = 1 - rho;
   const bool significant = loss > 0 && Significant(loss, sigma_rho, options.defocus_min_loss);
-  const bool drops =
-      d.heldout_residual_on < (1 - options.min_heldout_drop) * d.heldout_residual_off;
-  d.kept = significant && drops;
+  d.kept = significant && HeldoutDrops(d, options.min_heldout_drop);
   d.reason =
       d.kept
           ? Fmt("fringes reach %.1f %% of the focused twin's modulation: held-out residual %.4f -> "
