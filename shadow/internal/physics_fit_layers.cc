@@ -162,23 +162,72 @@ void FitExposure(FitContext& ctx) {
 
 namespace {
 
-// --- illumination field of camera c: on the reference pixels (W - B) / (FS factor range) =
-// E G(u, v). When kept, the samples of camera c get the field as their gain. ---
+// The illumination field's basis on one camera's image: 1 and the monomials of `terms` at a pixel.
+struct FieldBasis {
+  const std::vector<std::pair<int, int>>& terms;
+  int degree = 0, width = 0, height = 0;
+  int Size() const { return 1 + static_cast<int>(terms.size()); }
+  void Row(const Sample& s, double* out) const {
+    MonomialRow(terms, degree, NormalisedCoordinate(s.x, width), NormalisedCoordinate(s.y, height),
+                out);
+  }
+};
+
+// The basis rows (row-major, basis.Size() columns) of up to ~20000 of camera c's lit part pixels.
+std::vector<double> LitPartRows(const std::vector<Sample>& samples, size_t c,
+                                const FieldBasis& basis) {
+  const int p = basis.Size();
+  std::vector<double> lit_rows;
+  int64_t count = 0;
+  for (const Sample& s : samples) count += s.camera == static_cast<int>(c);
+  const int64_t step = std::max<int64_t>(1, count / 20000);
+  int64_t i = 0;
+  for (const Sample& s : samples) {
+    if (s.camera != static_cast<int>(c) || i++ % step) continue;
+    lit_rows.resize(lit_rows.size() + static_cast<size_t>(p));
+    basis.Row(s, &lit_rows[lit_rows.size() - static_cast<size_t>(p)]);
+  }
+  return lit_rows;
+}
+
+// The field layer's extra: its terms, coefficients and their sigmas, the image size it was fitted
+// on and its range [lo, hi] over the lit part.
+nlohmann::json IlluminationExtra(const FieldBasis& basis, const LinearFit& lf, double lo,
+                                 double hi) {
+  nlohmann::json names = nlohmann::json::array(), coeffs = nlohmann::json::array(),
+                 sigmas = nlohmann::json::array();
+  for (int k = 0; k < basis.Size(); ++k) {
+    names.push_back(k == 0 ? std::string("1") : TermName(basis.terms[static_cast<size_t>(k - 1)]));
+    coeffs.push_back(lf.beta(k));
+    sigmas.push_back(CoefficientSigma(lf, k));
+  }
+  return {{"degree", basis.degree},
+          {"terms", names},
+          {"coefficients", coeffs},
+          {"coefficient_sigmas", sigmas},
+          {"width", basis.width},
+          {"height", basis.height},
+          {"min", lo},
+          {"max", hi},
+          {"coordinates",
+           "u = (x - width/2) / (width/2), v = (y - height/2) / (height/2), x, y pixel centres"}};
+}
+
+// The illumination field of camera c: on the reference pixels (W - B) / (FS factor range) =
+// E G(u, v). When kept, the samples of camera c get the field as their gain.
 PhysicsLayer FitIlluminationField(FitContext& ctx, size_t c,
                                   const std::vector<std::pair<int, int>>& terms) {
   std::vector<Sample>& samples = ctx.samples;
   const PhysicsFitOptions& options = ctx.options;
   const double fs = ctx.fs, range = ctx.range, e = ctx.e;
-  const int p = 1 + static_cast<int>(terms.size());
   const GeometryBuffer& g = *ctx.cameras[c].geometry;
+  const FieldBasis basis{terms, options.illumination_degree, g.width, g.height};
+  const int p = basis.Size();
   PhysicsLayer il;
   il.name = "illumination_" + ctx.cameras[c].camera;
   il.unit = "RMS of G - 1";
   il.residual_unit = "DN RMS of white - black, reference pixels";
-  const auto row = [&](const Sample& s, double* out) {
-    MonomialRow(terms, options.illumination_degree, NormalisedCoordinate(s.x, g.width),
-                NormalisedCoordinate(s.y, g.height), out);
-  };
+  const auto row = [&](const Sample& s, double* out) { basis.Row(s, out); };
   std::vector<double> x, y;
   std::vector<int> bands;
   for (const Sample& s : samples) {
@@ -200,18 +249,7 @@ PhysicsLayer FitIlluminationField(FitContext& ctx, size_t c,
     return Eigen::Map<const Eigen::VectorXd>(buf.data(), p).dot(beta);
   };
   // The field's RMS deviation from 1 over the lit part: on up to ~20000 of its pixels.
-  std::vector<double> lit_rows;
-  {
-    int64_t count = 0;
-    for (const Sample& s : samples) count += s.camera == static_cast<int>(c);
-    const int64_t step = std::max<int64_t>(1, count / 20000);
-    int64_t i = 0;
-    for (const Sample& s : samples) {
-      if (s.camera != static_cast<int>(c) || i++ % step) continue;
-      lit_rows.resize(lit_rows.size() + static_cast<size_t>(p));
-      row(s, &lit_rows[lit_rows.size() - static_cast<size_t>(p)]);
-    }
-  }
+  const std::vector<double> lit_rows = LitPartRows(samples, c, basis);
   const Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>
       lit_basis(lit_rows.data(),
                 static_cast<Eigen::Index>(lit_rows.size() / static_cast<size_t>(p)), p);
@@ -224,24 +262,7 @@ PhysicsLayer FitIlluminationField(FitContext& ctx, size_t c,
   const Eigen::VectorXd lit_field = lit_basis * lf.beta;
   const double lo = lit_field.size() ? lit_field.minCoeff() : 1.0,
                hi = lit_field.size() ? lit_field.maxCoeff() : 1.0;
-  nlohmann::json names = nlohmann::json::array(), coeffs = nlohmann::json::array(),
-                 sigmas = nlohmann::json::array();
-  for (int k = 0; k < p; ++k) {
-    names.push_back(k == 0 ? std::string("1") : TermName(terms[static_cast<size_t>(k - 1)]));
-    coeffs.push_back(lf.beta(k));
-    sigmas.push_back(CoefficientSigma(lf, k));
-  }
-  il.extra = {
-      {"degree", options.illumination_degree},
-      {"terms", names},
-      {"coefficients", coeffs},
-      {"coefficient_sigmas", sigmas},
-      {"width", g.width},
-      {"height", g.height},
-      {"min", lo},
-      {"max", hi},
-      {"coordinates",
-       "u = (x - width/2) / (width/2), v = (y - height/2) / (height/2), x, y pixel centres"}};
+  il.extra = IlluminationExtra(basis, lf, lo, hi);
   std::vector<double> off, on;
   for (const Sample& s : samples) {
     if (!s.heldout || s.camera != static_cast<int>(c) || !ctx.IsLight(s)) continue;
@@ -270,6 +291,7 @@ PhysicsLayer FitIlluminationField(FitContext& ctx, size_t c,
 
 }  // namespace
 
+// --- illumination field per camera ---
 void FitIlluminationFields(FitContext& ctx) {
   const std::vector<std::pair<int, int>> terms = IlluminationTerms(ctx.options.illumination_degree);
   for (size_t c = 0; c < ctx.cameras.size() && !terms.empty(); ++c)
