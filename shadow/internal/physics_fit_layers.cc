@@ -598,7 +598,16 @@ std::vector<PhysicsLayer> FitBlackLevels(const FitContext& ctx, PhysicsLayer* am
   }
   const LinearFit both = FitBlackFrame(ctx, column, cols, true);
   const LinearFit only = FitBlackFrame(ctx, column, cols, false);
-  if (!both.ok || !only.ok) return offsets;
+  if (!both.ok || !only.ok) {  // too few rows, or too few bands for the jackknife
+    for (size_t c = 0; c < ctx.cameras.size(); ++c) {
+      offsets.push_back(UnobservableBlackLevel(ctx.cameras[c].camera));
+      if (column[c] >= 0)
+        offsets.back().reason =
+            "too few lit pixels spread over the image (at least 3 of its 8 bands) for the "
+            "black-level fit";
+    }
+    return offsets;
+  }
   bool any_kept = false;
   for (size_t c = 0; c < ctx.cameras.size(); ++c) {
     offsets.push_back(FitBlackLevel(ctx, column, c, both, *amb));
