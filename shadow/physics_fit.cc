@@ -3,24 +3,18 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <numeric>
 
 #include <Eigen/Dense>
 #include <opencv2/core/utility.hpp>
 
 #include "core/error.h"
 #include "patterns/codec.h"
+#include "shadow/internal/physics_fit_layers.h"
 #include "shadow/significance.h"
 
 namespace slshadow::shadow {
-namespace {
-
-constexpr int kBands = kSignificanceBands;
-
-float Pixel(const cv::Mat& m, int y, int x) {
-  return m.depth() == CV_8U ? static_cast<float>(m.at<uint8_t>(y, x))
-                            : static_cast<float>(m.at<uint16_t>(y, x));
-}
+// The tools shadow/internal/physics_fit_layers.h declares.
+namespace internal {
 
 double Median(std::vector<double> v) {
   if (v.empty()) return std::nan("");
@@ -48,13 +42,11 @@ double RobustVariance(const std::vector<double>& v) {
   return ss / static_cast<double>(n) - mean * mean;
 }
 
-struct Sample {
-  float white = 0, black = 0, factor = 0, albedo = 0;
-  float gain = 1;         // the illumination field at the pixel (1 until that layer is kept)
-  float twin_albedo = 0;  // the albedo the fitted twin renders there (after the albedo layers)
-  int camera = 0, y = 0, x = 0, band = 0, object = 0;
-  bool heldout = false;
-};
+// The keep rule's second half: the held-out residual with the layer on is below (1 - min_drop)
+// of the one with it off.
+bool HeldoutDrops(const PhysicsLayer& l, double min_drop) {
+  return l.heldout_residual_on < (1 - min_drop) * l.heldout_residual_off;
+}
 
 int FindFrame(const std::vector<FrameInfo>& frames, FrameRole role, int axis, int bit,
               int frequency, int step) {
@@ -71,7 +63,7 @@ int FindFrame(const std::vector<FrameInfo>& frames, FrameRole role, int axis, in
   return -1;
 }
 
-std::string Fmt(const char* format, double a, double b = 0, double c = 0, double d = 0) {
+std::string Fmt(const char* format, double a, double b, double c, double d) {
   char buf[256];
   std::snprintf(buf, sizeof(buf), format, a, b, c, d);
   return buf;
@@ -95,14 +87,6 @@ std::vector<std::pair<int, int>> InversePairs(const std::vector<FrameInfo>& fram
   return pairs;
 }
 
-// The white - black contrast a pixel needs to count as well lit: 0.3 x the median over the samples.
-double WellLitContrast(const std::vector<Sample>& samples) {
-  std::vector<double> contrast;
-  contrast.reserve(samples.size());
-  for (const Sample& s : samples) contrast.push_back(s.white - s.black);
-  return 0.3 * Median(std::move(contrast));
-}
-
 // Monomials u^i v^j, 1 <= i + j <= degree (u, v in [-1, 1] over the image).
 std::vector<std::pair<int, int>> IlluminationTerms(int degree) {
   std::vector<std::pair<int, int>> t;
@@ -120,28 +104,6 @@ void MonomialRow(const std::vector<std::pair<int, int>>& terms, int degree, doub
   out[0] = 1;
   for (size_t k = 0; k < terms.size(); ++k) out[k + 1] = pu[terms[k].first] * pv[terms[k].second];
 }
-
-std::string TermName(const std::pair<int, int>& t) {
-  const auto power = [](const char* v, int k) {
-    return k == 0   ? std::string()
-           : k == 1 ? std::string(v)
-                    : v + std::string("^") + std::to_string(k);
-  };
-  const std::string a = power("u", t.first), b = power("v", t.second);
-  return a.empty() ? b : b.empty() ? a : a + " " + b;
-}
-
-double NormalisedCoordinate(int x, int size) { return (x - 0.5 * size) / (0.5 * size); }
-
-// Linear least squares y = X beta over rows in bands (kBands), with one reweighting pass that
-// drops rows beyond 4 robust sigmas of the first fit, and the delete-one-band solutions for a
-// jackknife of any function of beta.
-struct LinearFit {
-  Eigen::VectorXd beta;
-  std::vector<Eigen::VectorXd> jackknife;  // one per band that had rows
-  int64_t rows = 0, inliers = 0;
-  bool ok = false;
-};
 
 LinearFit FitLinear(const std::vector<double>& x, const std::vector<double>& y,
                     const std::vector<int>& band, int p) {
@@ -194,20 +156,38 @@ LinearFit FitLinear(const std::vector<double>& x, const std::vector<double>& y,
   return f;
 }
 
-// Jackknife standard deviation of a statistic over the delete-one-band solutions.
-template <typename F>
-double JackknifeSigma(const LinearFit& fit, F&& statistic) {
-  std::vector<double> v;
-  for (const auto& b : fit.jackknife) v.push_back(statistic(b));
-  if (v.size() < 2) return std::nan("");
-  const double mean = std::accumulate(v.begin(), v.end(), 0.0) / static_cast<double>(v.size());
-  double ss = 0;
-  for (double x : v) ss += (x - mean) * (x - mean);
-  const double m = static_cast<double>(v.size());
-  return std::sqrt((m - 1) / m * ss);
+// Jackknife standard deviation of the coefficient k.
+double CoefficientSigma(const LinearFit& fit, int k) {
+  return JackknifeSigma(fit, [k](const Eigen::VectorXd& b) { return b(k); });
 }
 
-}  // namespace
+// The N phase frames of the first period on the coded axis (x unless only y is coded), spec
+// indices; -1 where the sequence lacks one.
+std::vector<int> FirstPeriodPhaseFrames(const PatternSpec& spec,
+                                        const std::vector<FrameInfo>& frames) {
+  const int axis = spec.code_x ? 0 : 1;
+  std::vector<int> idx;
+  for (int k = 0; k < spec.phase_steps; ++k)
+    idx.push_back(FindFrame(frames, FrameRole::kPhase, axis, 0, 0, k));
+  return idx;
+}
+
+}  // namespace internal
+
+using internal::BandedValues;
+using internal::BandOfRow;
+using internal::FindFrame;
+using internal::FirstPeriodPhaseFrames;
+using internal::Fmt;
+using internal::HeldoutDrops;
+using internal::HeldOutRow;
+using internal::IlluminationTerms;
+using internal::InversePairs;
+using internal::Median;
+using internal::MonomialRow;
+using internal::NormalisedCoordinate;
+using internal::Pixel;
+using internal::Rms;
 
 void WhiteBlackImages(const PatternSpec& spec, const std::vector<cv::Mat>& images, cv::Mat* white,
                       cv::Mat* black) {
@@ -444,809 +424,16 @@ PhysicsFit FitPhysics(const PatternSpec& spec, const Scene& twin,
                       const std::vector<CameraData>& cameras, const PhysicsFitOptions& options) {
   options.Check();
   SLSHADOW_THROW_IF(cameras.empty(), "physics fit: no camera");
-  std::vector<cv::Mat> whites(cameras.size()), blacks(cameras.size());
-  for (size_t c = 0; c < cameras.size(); ++c) {
-    if (cameras[c].white.empty() || cameras[c].black.empty()) {
-      WhiteBlackImages(spec, cameras[c].real, &whites[c], &blacks[c]);
-    } else {
-      whites[c] = cameras[c].white, blacks[c] = cameras[c].black;
-    }
-  }
-  const bool has_white_black = spec.WhiteFrameIndex() >= 0 && spec.BlackFrameIndex() >= 0;
-  const double fs = cameras[0].real.at(0).depth() == CV_8U ? 255.0 : 65535.0;
-  const std::vector<FrameInfo> frames = spec.Frames();
-  const double range =
-      (spec.intensity_max - spec.intensity_min) / 255.0;  // R(max) - R(min), linear
-
-  // Checkerboard part: its dark / light reflectances.
-  const Albedo* board = nullptr;
-  for (const auto& o : twin.objects) {
-    if (o.albedo.kind == Albedo::Kind::kCheckerboard) board = &o.albedo;
-  }
-
-  std::vector<Sample> samples;
-  for (size_t c = 0; c < cameras.size(); ++c) {
-    const CameraData& cam = cameras[c];
-    const GeometryBuffer& g = *cam.geometry;
-    const int n2 = g.samples_per_axis * g.samples_per_axis;
-    for (int y = 0; y < g.height; y += options.stride_px) {
-      for (int x = 0; x < g.width; x += options.stride_px) {
-        if (g.visibility.at<uint8_t>(y, x) != 2 || g.object_id.at<int32_t>(y, x) < 0) continue;
-        Sample s;
-        const size_t base =
-            (static_cast<size_t>(y) * static_cast<size_t>(g.width) + static_cast<size_t>(x)) *
-            static_cast<size_t>(n2);
-        for (int k = 0; k < n2; ++k) {
-          s.factor += g.factor[base + static_cast<size_t>(k)] / static_cast<float>(n2);
-          s.albedo += g.albedo[base + static_cast<size_t>(k)] / static_cast<float>(n2);
-        }
-        if (s.factor < options.min_factor) continue;
-        s.white = whites[c].at<float>(y, x);
-        s.black = blacks[c].at<float>(y, x);
-        if (s.white >= 0.98 * fs) continue;  // saturated
-        s.camera = static_cast<int>(c);
-        s.y = y;
-        s.x = x;
-        s.band = std::min(kBands - 1, y * kBands / g.height);
-        s.object = g.object_id.at<int32_t>(y, x);
-        s.heldout = (y / options.stride_px) % 2 == 1;
-        samples.push_back(s);
-      }
-    }
-  }
-  SLSHADOW_THROW_IF(
-      samples.size() < 100, "physics fit: only ", samples.size(),
-      " lit part pixels in the twin; is the part in front of the cameras at the estimated pose?");
-
-  // The exposure comes from the object with most lit pixels; the others get their own
-  // exposure x albedo ratio below ("albedo_<name>" layers).
-  std::vector<int64_t> per_object(twin.objects.size(), 0);
-  for (const Sample& s : samples) ++per_object[static_cast<size_t>(s.object)];
-  const int reference =
-      static_cast<int>(std::max_element(per_object.begin(), per_object.end()) - per_object.begin());
-
-  PhysicsFit fit;
-  // --- exposure (and checkerboard albedo) ---
-  const auto is_light = [&](const Sample& s) {
-    return s.object == reference && (!board || std::abs(s.albedo - board->light) < 1e-3);
-  };
-  const auto is_dark = [&](const Sample& s) {
-    return board && std::abs(s.albedo - board->dark) < 1e-3;
-  };
-  const auto ratio = [&](const Sample& s) {
-    return (s.white - s.black) / (fs * s.factor * range * s.gain);
-  };
-  std::vector<double> all;
-  std::vector<std::vector<double>> band(kBands);
-  for (const Sample& s : samples) {
-    if (s.heldout || !is_light(s)) continue;
-    all.push_back(ratio(s));
-    band[static_cast<size_t>(s.band)].push_back(ratio(s));
-  }
-  SLSHADOW_THROW_IF(all.size() < 50, "physics fit: too few lit part pixels to fit the exposure (",
-                    all.size(), ")");
-  PhysicsLayer exposure;
-  exposure.name = "exposure";
-  exposure.unit = "fraction of full scale";
-  exposure.value = Median(all);
-  std::vector<double> band_values;
-  for (auto& b : band) band_values.push_back(b.size() > 20 ? Median(b) : std::nan(""));
-  exposure.sigma = BandSigma(band_values);
-  exposure.off_value = twin.radiometry.exposure_fraction;
-  exposure.samples = static_cast<int64_t>(all.size());
-  exposure.residual_unit = "DN RMS of white - black";
-  {
-    std::vector<double> off, on;
-    for (const Sample& s : samples) {
-      if (!s.heldout || !is_light(s)) continue;
-      off.push_back(s.white - s.black - exposure.off_value * fs * s.factor * range);
-      on.push_back(s.white - s.black - exposure.value * fs * s.factor * range);
-    }
-    exposure.heldout_residual_off = Rms(off);
-    exposure.heldout_residual_on = Rms(on);
-  }
-  exposure.kept = true;
-  exposure.reason =
-      "core radiometry: exposure x albedo from white - black over the twin's geometric factor";
-  if (board) exposure.reason += " (light squares)";
-  fit.layers.push_back(exposure);
-  const double e = exposure.value;
-  if (twin.objects.size() > 1)
-    fit.layers.back().reason +=
-        " (object '" + twin.objects[static_cast<size_t>(reference)].name + "')";
-
-  // --- illumination field per camera (reference pixels: (W - B) / (FS factor range) = E G(u, v))
-  // ---
-  const std::vector<std::pair<int, int>> terms = IlluminationTerms(options.illumination_degree);
-  const int p = 1 + static_cast<int>(terms.size());
-  for (size_t c = 0; c < cameras.size() && !terms.empty(); ++c) {
-    const GeometryBuffer& g = *cameras[c].geometry;
-    PhysicsLayer il;
-    il.name = "illumination_" + cameras[c].camera;
-    il.unit = "RMS of G - 1";
-    il.residual_unit = "DN RMS of white - black, reference pixels";
-    const auto row = [&](const Sample& s, double* out) {
-      MonomialRow(terms, options.illumination_degree, NormalisedCoordinate(s.x, g.width),
-                  NormalisedCoordinate(s.y, g.height), out);
-    };
-    std::vector<double> x, y;
-    std::vector<int> bands;
-    for (const Sample& s : samples) {
-      if (s.heldout || s.camera != static_cast<int>(c) || !is_light(s)) continue;
-      x.resize(x.size() + static_cast<size_t>(p));
-      row(s, &x[x.size() - static_cast<size_t>(p)]);
-      y.push_back(ratio(s) / e);
-      bands.push_back(s.band);
-    }
-    const LinearFit lf = FitLinear(x, y, bands, p);
-    if (!lf.ok) {
-      il.observable = false;
-      il.reason = "too few reference pixels spread over the image for the illumination field";
-      fit.layers.push_back(il);
-      continue;
-    }
-    std::vector<double> buf(static_cast<size_t>(p));
-    const auto field = [&](const Eigen::VectorXd& beta, const Sample& s) {
-      row(s, buf.data());
-      return Eigen::Map<const Eigen::VectorXd>(buf.data(), p).dot(beta);
-    };
-    // The field's RMS deviation from 1 over the lit part: on up to ~20000 of its pixels.
-    std::vector<double> lit_rows;
-    {
-      int64_t count = 0;
-      for (const Sample& s : samples) count += s.camera == static_cast<int>(c);
-      const int64_t step = std::max<int64_t>(1, count / 20000);
-      int64_t i = 0;
-      for (const Sample& s : samples) {
-        if (s.camera != static_cast<int>(c) || i++ % step) continue;
-        lit_rows.resize(lit_rows.size() + static_cast<size_t>(p));
-        row(s, &lit_rows[lit_rows.size() - static_cast<size_t>(p)]);
-      }
-    }
-    const Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>
-        lit_basis(lit_rows.data(),
-                  static_cast<Eigen::Index>(lit_rows.size() / static_cast<size_t>(p)), p);
-    const auto rms_dev = [&](const Eigen::VectorXd& beta) {
-      return lit_basis.rows() ? std::sqrt(((lit_basis * beta).array() - 1).square().mean()) : 0.0;
-    };
-    il.value = rms_dev(lf.beta);
-    il.sigma = JackknifeSigma(lf, rms_dev);
-    il.samples = lf.inliers;
-    const Eigen::VectorXd lit_field = lit_basis * lf.beta;
-    const double lo = lit_field.size() ? lit_field.minCoeff() : 1.0,
-                 hi = lit_field.size() ? lit_field.maxCoeff() : 1.0;
-    nlohmann::json names = nlohmann::json::array(), coeffs = nlohmann::json::array(),
-                   sigmas = nlohmann::json::array();
-    for (int k = 0; k < p; ++k) {
-      names.push_back(k == 0 ? std::string("1") : TermName(terms[static_cast<size_t>(k - 1)]));
-      coeffs.push_back(lf.beta(k));
-      sigmas.push_back(JackknifeSigma(lf, [k](const Eigen::VectorXd& b) { return b(k); }));
-    }
-    il.extra = {
-        {"degree", options.illumination_degree},
-        {"terms", names},
-        {"coefficients", coeffs},
-        {"coefficient_sigmas", sigmas},
-        {"width", g.width},
-        {"height", g.height},
-        {"min", lo},
-        {"max", hi},
-        {"coordinates",
-         "u = (x - width/2) / (width/2), v = (y - height/2) / (height/2), x, y pixel centres"}};
-    std::vector<double> off, on;
-    for (const Sample& s : samples) {
-      if (!s.heldout || s.camera != static_cast<int>(c) || !is_light(s)) continue;
-      const double model = e * fs * s.factor * range;
-      off.push_back(s.white - s.black - model);
-      on.push_back(s.white - s.black - model * field(lf.beta, s));
-    }
-    il.heldout_residual_off = Rms(off);
-    il.heldout_residual_on = Rms(on);
-    const bool significant =
-        il.value > 0 && Significant(il.value, il.sigma, options.illumination_floor);
-    const bool drops =
-        il.heldout_residual_on < (1 - options.min_heldout_drop) * il.heldout_residual_off;
-    il.kept = significant && drops;
-    il.reason =
-        il.kept ? Fmt("the lit part is %.3f..%.3f of its mean brightness, smoothly: held-out "
-                      "residual %.2f -> %.2f DN",
-                      lo, hi, il.heldout_residual_off, il.heldout_residual_on)
-                : Fmt("uniform within noise (field %.3f..%.3f, held-out residual %.2f vs %.2f DN)",
-                      lo, hi, il.heldout_residual_off, il.heldout_residual_on);
-    if (il.kept) {
-      for (Sample& s : samples) {
-        if (s.camera == static_cast<int>(c)) s.gain = static_cast<float>(field(lf.beta, s));
-      }
-    }
-    fit.layers.push_back(il);
-  }
-
-  // --- exposure x albedo of the other objects ---
-  for (size_t o = 0; o < twin.objects.size(); ++o) {
-    const SceneObject& object = twin.objects[o];
-    if (static_cast<int>(o) == reference || object.albedo.kind != Albedo::Kind::kUniform) continue;
-    PhysicsLayer a;
-    a.name = "albedo_" + object.name;
-    a.unit = "reflectance";
-    a.off_value = object.albedo.value;
-    a.residual_unit = "DN RMS of white - black on this object";
-    std::vector<double> v;
-    std::vector<std::vector<double>> vb(kBands);
-    for (const Sample& s : samples) {
-      if (s.heldout || s.object != static_cast<int>(o)) continue;
-      const double value = object.albedo.value * ratio(s) / e;
-      v.push_back(value);
-      vb[static_cast<size_t>(s.band)].push_back(value);
-    }
-    if (v.size() < 200) {
-      a.observable = false;
-      a.reason = "too few lit pixels on this object";
-      fit.layers.push_back(a);
-      continue;
-    }
-    a.value = Median(v);
-    std::vector<double> bv;
-    for (auto& b : vb) bv.push_back(b.size() > 20 ? Median(b) : std::nan(""));
-    a.sigma = BandSigma(bv);
-    a.samples = static_cast<int64_t>(v.size());
-    std::vector<double> off, on;
-    for (const Sample& s : samples) {
-      if (!s.heldout || s.object != static_cast<int>(o)) continue;
-      off.push_back(s.white - s.black - e * fs * s.factor * s.gain * range);
-      on.push_back(s.white - s.black -
-                   e * fs * s.factor * s.gain * range * a.value / object.albedo.value);
-    }
-    a.heldout_residual_off = Rms(off);
-    a.heldout_residual_on = Rms(on);
-    const bool significant = Significant(a.value - a.off_value, a.sigma, 0.01);
-    const bool drops =
-        a.heldout_residual_on < (1 - options.min_heldout_drop) * a.heldout_residual_off;
-    a.kept = significant && drops;
-    a.reason = a.kept ? Fmt("reflects %.3f, not %.3f, relative to the reference object: held-out "
-                            "residual %.2f -> %.2f DN",
-                            a.value, a.off_value, a.heldout_residual_off, a.heldout_residual_on)
-                      : Fmt("the file's albedo %.3f fits within noise (fitted %.3f)", a.off_value,
-                            a.value);
-    fit.layers.push_back(a);
-  }
-
-  if (board) {
-    PhysicsLayer dark;
-    dark.name = "albedo_dark";
-    dark.unit = "reflectance";
-    dark.off_value = board->dark;
-    dark.residual_unit = "DN RMS of white - black, dark squares";
-    std::vector<double> d;
-    std::vector<std::vector<double>> db(kBands);
-    for (const Sample& s : samples) {
-      if (s.heldout || !is_dark(s)) continue;
-      const double a = board->dark * ratio(s) / e;
-      d.push_back(a);
-      db[static_cast<size_t>(s.band)].push_back(a);
-    }
-    if (d.size() < 50) {
-      dark.observable = false;
-      dark.reason = "too few dark-square pixels lit";
-    } else {
-      dark.value = Median(d);
-      std::vector<double> bv;
-      for (auto& b : db) bv.push_back(b.size() > 20 ? Median(b) : std::nan(""));
-      dark.sigma = BandSigma(bv);
-      dark.samples = static_cast<int64_t>(d.size());
-      std::vector<double> off, on;
-      for (const Sample& s : samples) {
-        if (!s.heldout || !is_dark(s)) continue;
-        const double g = s.factor * s.gain / board->dark;
-        off.push_back(s.white - s.black - e * fs * g * board->dark * range);
-        on.push_back(s.white - s.black - e * fs * g * dark.value * range);
-      }
-      dark.heldout_residual_off = Rms(off);
-      dark.heldout_residual_on = Rms(on);
-      const bool significant = Significant(dark.value - dark.off_value, dark.sigma, 0.005);
-      const bool drops =
-          dark.heldout_residual_on < (1 - options.min_heldout_drop) * dark.heldout_residual_off;
-      dark.kept = significant && drops;
-      dark.reason = dark.kept ? Fmt("dark squares reflect %.3f of the light ones' exposure, not "
-                                    "%.3f: held-out residual %.2f -> %.2f DN",
-                                    dark.value / board->light, board->dark / board->light,
-                                    dark.heldout_residual_off, dark.heldout_residual_on)
-                              : "the part's dark reflectance already fits within noise";
-    }
-    fit.layers.push_back(dark);
-  }
-
-  // --- ambient and black level: B = o_c + E FS ambient albedo G ---
-  {
-    // The albedo the fitted twin renders at each sample.
-    for (Sample& s : samples) {
-      s.twin_albedo = s.albedo;
-      if (is_dark(s) && fit.Kept("albedo_dark"))
-        s.twin_albedo = static_cast<float>(fit.Find("albedo_dark")->value);
-      const SceneObject& o = twin.objects[static_cast<size_t>(s.object)];
-      if (o.albedo.kind == Albedo::Kind::kUniform && fit.Kept("albedo_" + o.name)) {
-        s.twin_albedo = static_cast<float>(fit.Find("albedo_" + o.name)->value);
-      }
-    }
-    const std::string no_black_frame =
-        has_white_black ? ""
-                        : " (no black frame: the black level is the darker of each inverse pair, "
-                          "which projector blur raises near stripe edges: an upper bound)";
-    const auto regressor = [&](const Sample& s) { return e * fs * s.twin_albedo * s.gain; };
-    PhysicsLayer amb;
-    amb.name = "ambient";
-    amb.unit = "fraction of projector white";
-    amb.residual_unit = "DN RMS of the black frame";
-    std::vector<double> v;
-    std::vector<std::vector<double>> vb(kBands);
-    for (const Sample& s : samples) {
-      if (s.heldout || s.twin_albedo < 0.02f) continue;
-      const double a = s.black / regressor(s);
-      v.push_back(a);
-      vb[static_cast<size_t>(s.band)].push_back(a);
-    }
-    amb.value = Median(v);
-    std::vector<double> bv;
-    for (auto& b : vb) bv.push_back(b.size() > 20 ? Median(b) : std::nan(""));
-    amb.sigma = BandSigma(bv);
-    amb.samples = static_cast<int64_t>(v.size());
-    std::vector<double> off, on;
-    for (const Sample& s : samples) {
-      if (!s.heldout) continue;
-      off.push_back(s.black);
-      on.push_back(s.black - amb.value * regressor(s));
-    }
-    amb.heldout_residual_off = Rms(off);
-    amb.heldout_residual_on = Rms(on);
-    {
-      const bool significant = amb.value > 0 && Significant(amb.value, amb.sigma, 0.002);
-      const bool drops =
-          amb.heldout_residual_on < (1 - options.min_heldout_drop) * amb.heldout_residual_off;
-      amb.kept = significant && drops;
-    }
-    amb.reason =
-        amb.kept ? Fmt("the black frame is lit: %.2f DN mean; held-out residual %.2f -> %.2f DN",
-                       amb.heldout_residual_off, amb.heldout_residual_off, amb.heldout_residual_on)
-                 : Fmt("the black frame is dark within noise (held-out RMS %.2f DN)",
-                       amb.heldout_residual_off);
-
-    // Black-level offsets: observable on a camera whose lit pixels span reflectances (the
-    // regressor's coefficient of variation), fitted jointly with ambient: unknowns (ambient, o_c).
-    const size_t nc = cameras.size();
-    std::vector<int> column(nc, -1);  // the offset's column in the joint fit, -1: not observable
-    int cols = 1;
-    for (size_t c = 0; c < nc; ++c) {
-      double sum = 0, ss = 0;
-      int64_t n = 0;
-      for (const Sample& s : samples) {
-        if (s.heldout || s.camera != static_cast<int>(c)) continue;
-        const double r = s.twin_albedo * s.gain;
-        sum += r, ss += r * r, ++n;
-      }
-      const double mean = n ? sum / static_cast<double>(n) : 0.0;
-      const double cv =
-          n > 100 && mean > 0
-              ? std::sqrt(std::max(0.0, ss / static_cast<double>(n) - mean * mean)) / mean
-              : 0.0;
-      if (cv > 0.25) column[c] = cols++;
-    }
-    const auto joint = [&] {
-      std::vector<double> x, y;
-      std::vector<int> bands;
-      for (const Sample& s : samples) {
-        if (s.heldout || column[static_cast<size_t>(s.camera)] < 0) continue;
-        const size_t at = x.size();
-        x.resize(at + static_cast<size_t>(cols), 0.0);
-        x[at] = regressor(s);
-        x[at + static_cast<size_t>(column[static_cast<size_t>(s.camera)])] = 1;
-        y.push_back(s.black);
-        bands.push_back(s.band);
-      }
-      return FitLinear(x, y, bands, cols);
-    };
-    std::vector<PhysicsLayer> offsets;
-    if (cols > 1) {
-      const LinearFit both = joint();
-      LinearFit only;  // offsets alone: o_c = mean black level of camera c
-      {
-        std::vector<double> x, y;
-        std::vector<int> bands;
-        for (const Sample& s : samples) {
-          if (s.heldout || column[static_cast<size_t>(s.camera)] < 0) continue;
-          const size_t at = x.size();
-          x.resize(at + static_cast<size_t>(cols - 1), 0.0);
-          x[at + static_cast<size_t>(column[static_cast<size_t>(s.camera)] - 1)] = 1;
-          y.push_back(s.black);
-          bands.push_back(s.band);
-        }
-        only = FitLinear(x, y, bands, cols - 1);
-      }
-      if (both.ok && only.ok) {
-        // Held-out black-frame residuals per camera under: ambient only, offsets + ambient, offsets
-        // only.
-        const auto residuals = [&](int camera, double a, const Eigen::VectorXd* beta, int shift) {
-          std::vector<double> r;
-          for (const Sample& s : samples) {
-            if (!s.heldout || s.camera != camera) continue;
-            const double o = beta ? (*beta)(column[static_cast<size_t>(camera)] - shift) : 0.0;
-            r.push_back(s.black - o - a * regressor(s));
-          }
-          return Rms(r);
-        };
-        bool any_kept = false;
-        for (size_t c = 0; c < nc; ++c) {
-          PhysicsLayer bl;
-          bl.name = "black_level_" + cameras[c].camera;
-          bl.unit = "DN";
-          bl.residual_unit = "DN RMS of the black frame";
-          if (column[c] < 0) {
-            bl.observable = false;
-            bl.reason =
-                "one reflectance in view: a black-level offset and ambient light look alike in the "
-                "black frame; ambient stands for both";
-            offsets.push_back(bl);
-            continue;
-          }
-          const int k = column[c];
-          bl.value = both.beta(k);
-          bl.sigma = JackknifeSigma(both, [k](const Eigen::VectorXd& b) { return b(k); });
-          bl.samples = both.inliers;
-          bl.heldout_residual_off =
-              residuals(static_cast<int>(c), amb.kept ? amb.value : 0.0, nullptr, 0);
-          bl.heldout_residual_on = residuals(static_cast<int>(c), both.beta(0), &both.beta, 0);
-          const bool significant = Significant(bl.value, bl.sigma, options.black_level_floor * fs);
-          const bool drops =
-              bl.heldout_residual_on < (1 - options.min_heldout_drop) * bl.heldout_residual_off;
-          bl.kept = significant && drops;
-          any_kept = any_kept || bl.kept;
-          offsets.push_back(bl);
-        }
-        if (any_kept) {
-          // Ambient judged again with the offsets in: offsets + ambient against offsets alone.
-          amb.value = both.beta(0);
-          amb.sigma = JackknifeSigma(both, [](const Eigen::VectorXd& b) { return b(0); });
-          std::vector<double> off2, on2;
-          for (const Sample& s : samples) {
-            if (!s.heldout || column[static_cast<size_t>(s.camera)] < 0) continue;
-            const int k = column[static_cast<size_t>(s.camera)];
-            off2.push_back(s.black - only.beta(k - 1));
-            on2.push_back(s.black - both.beta(k) - both.beta(0) * regressor(s));
-          }
-          amb.heldout_residual_off = Rms(off2);
-          amb.heldout_residual_on = Rms(on2);
-          const bool significant = amb.value > 0 && Significant(amb.value, amb.sigma, 0.002);
-          const bool drops =
-              amb.heldout_residual_on < (1 - options.min_heldout_drop) * amb.heldout_residual_off;
-          amb.kept = significant && drops;
-          amb.reason =
-              amb.kept
-                  ? Fmt("the black frame scales with reflectance beyond the offset: %.4f of white; "
-                        "held-out residual %.2f -> %.2f DN",
-                        amb.value, amb.heldout_residual_off, amb.heldout_residual_on)
-                  : Fmt("with the black-level offset in, the black frame does not scale with "
-                        "reflectance (%.4f +- %.4f); held-out residual %.2f vs %.2f DN",
-                        amb.value, amb.sigma, amb.heldout_residual_off, amb.heldout_residual_on);
-          for (size_t c = 0; c < nc; ++c) {
-            PhysicsLayer& bl = offsets[c];
-            if (!bl.kept) continue;
-            if (!amb.kept) {  // the offset alone: its own fit
-              bl.value = only.beta(column[c] - 1);
-              bl.sigma = JackknifeSigma(
-                  only, [k = column[c] - 1](const Eigen::VectorXd& b) { return b(k); });
-              bl.heldout_residual_on = residuals(static_cast<int>(c), 0.0, &only.beta, 1);
-            }
-            bl.reason =
-                Fmt("the black frame sits %.2f DN above what ambient light on the print explains, "
-                    "on every reflectance: held-out residual %.2f -> %.2f DN",
-                    bl.value, bl.heldout_residual_off, bl.heldout_residual_on);
-          }
-        }
-        for (PhysicsLayer& bl : offsets) {
-          if (bl.observable && !bl.kept)
-            bl.reason = Fmt("no offset beyond noise (%.2f +- %.2f DN)", bl.value, bl.sigma);
-        }
-      }
-    } else {
-      for (size_t c = 0; c < nc; ++c) {
-        PhysicsLayer bl;
-        bl.name = "black_level_" + cameras[c].camera;
-        bl.unit = "DN";
-        bl.observable = false;
-        bl.reason =
-            "one reflectance in view: a black-level offset and ambient light look alike in the "
-            "black frame; ambient stands for both";
-        offsets.push_back(bl);
-      }
-    }
-    amb.reason += no_black_frame;
-    fit.layers.push_back(amb);
-    for (PhysicsLayer& bl : offsets) {
-      if (bl.observable) bl.reason += no_black_frame;
-      fit.layers.push_back(bl);
-    }
-  }
-
-  // --- projector response (gamma), phase codecs only ---
-  {
-    PhysicsLayer gamma;
-    gamma.name = "gamma";
-    gamma.unit = "exponent";
-    gamma.off_value = 1;
-    gamma.value = 1;
-    gamma.residual_unit = "RMS of the mean normalised phase value - a0(gamma)";
-    const int n = spec.phase_steps;
-    std::vector<int> phase_frames;
-    if (spec.kind != PatternKind::kGrayCode) {
-      for (int k = 0; k < n; ++k)
-        phase_frames.push_back(FindFrame(frames, FrameRole::kPhase, spec.code_x ? 0 : 1, 0, 0, k));
-    }
-    if (spec.kind == PatternKind::kGrayCode) {
-      gamma.observable = false;
-      gamma.reason = "binary patterns (0 / 255 only) do not see the projector's response";
-    } else if (spec.intensity_min != 0 || spec.intensity_max != 255 ||
-               std::find(phase_frames.begin(), phase_frames.end(), -1) != phase_frames.end()) {
-      gamma.observable = false;
-      gamma.reason = "phase frames do not span 0..255; the response fit needs them";
-    } else {
-      // Per well-lit pixel the mean of its normalised phase values, which is a0(gamma), the mean
-      // of (0.5 + 0.5 cos)^gamma over a period, whatever the phase, blur or frame order.
-      const double min_contrast = WellLitContrast(samples);
-      std::vector<double> fit_mean, held_mean;
-      std::vector<std::vector<double>> band_mean(kBands);
-      for (const Sample& s : samples) {
-        if (s.white - s.black < min_contrast) continue;
-        double m = 0;
-        for (int k = 0; k < n; ++k) {
-          const float p =
-              Pixel(cameras[static_cast<size_t>(s.camera)]
-                        .real[static_cast<size_t>(phase_frames[static_cast<size_t>(k)])],
-                    s.y, s.x);
-          m += (p - s.black) / (s.white - s.black) / n;
-        }
-        if (s.heldout) {
-          held_mean.push_back(m);
-        } else {
-          fit_mean.push_back(m);
-          band_mean[static_cast<size_t>(s.band)].push_back(m);
-        }
-      }
-      const auto a0 = [](double g) {
-        double sum = 0;
-        const int steps = 360;
-        for (int i = 0; i < steps; ++i)
-          sum += std::pow(0.5 + 0.5 * std::cos(2 * M_PI * (i + 0.5) / steps), g);
-        return sum / steps;
-      };
-      const auto invert = [&](double mean) {  // a0 decreases with gamma
-        double lo = 0.2, hi = 5;
-        for (int i = 0; i < 50; ++i) {
-          const double mid = std::sqrt(lo * hi);
-          (a0(mid) > mean ? lo : hi) = mid;
-        }
-        return std::sqrt(lo * hi);
-      };
-      if (fit_mean.size() < 100) {
-        gamma.observable = false;
-        gamma.reason = "too few well-lit pixels for the response fit";
-      } else {
-        gamma.value = invert(Median(fit_mean));
-        std::vector<double> bv;
-        for (auto& b : band_mean) bv.push_back(b.size() > 50 ? invert(Median(b)) : std::nan(""));
-        gamma.sigma = BandSigma(bv);
-        gamma.samples = static_cast<int64_t>(fit_mean.size());
-        gamma.residual_unit = "RMS of the mean normalised phase value - a0(gamma)";
-        std::vector<double> off, on;
-        const double on_level = a0(gamma.value);
-        for (double m : held_mean) off.push_back(m - 0.5), on.push_back(m - on_level);
-        gamma.heldout_residual_off = Rms(off);
-        gamma.heldout_residual_on = Rms(on);
-        const bool significant = Significant(gamma.value - 1, gamma.sigma, options.gamma_floor);
-        const bool drops =
-            gamma.heldout_residual_on < (1 - options.min_heldout_drop) * gamma.heldout_residual_off;
-        gamma.kept = significant && drops;
-        gamma.reason =
-            gamma.kept
-                ? Fmt("phase frames average %.3f of white, not 0.5: held-out residual %.4f -> %.4f",
-                      on_level, gamma.heldout_residual_off, gamma.heldout_residual_on)
-                : Fmt("a linear response fits within noise (gamma %.3f, held-out residual %.4f vs "
-                      "%.4f)",
-                      gamma.value, gamma.heldout_residual_off, gamma.heldout_residual_on);
-      }
-    }
-    fit.layers.push_back(gamma);
-  }
-
-  // --- global light: (1 - gamma) of the white level is direct, gamma arrives scattered from the
-  // whole lit projector image, so a frame with lit fraction m reads B + (W - B) ((1 - g) p + g m).
-  // Coarse inverse pairs (both about half lit) then differ by (1 - g) (W - B) away from edges. ---
-  {
-    PhysicsLayer gl;
-    gl.name = "global_light";
-    gl.unit = "fraction of white - black";
-    gl.residual_unit = "RMS of |P - I| / (W - B) - (1 - g), coarse inverse pairs";
-    const std::vector<double> means = PatternMeans(GeneratePatterns(spec));
-    int max_bit[2] = {-1, -1};
-    for (const FrameInfo& f : frames) {
-      if (f.role == FrameRole::kGrayBit) max_bit[f.axis] = std::max(max_bit[f.axis], f.bit);
-    }
-    std::vector<std::pair<int, int>> coarse;
-    for (const auto& [a, b] : InversePairs(frames)) {
-      const FrameInfo& f = frames[static_cast<size_t>(a)];
-      const double ma = means[static_cast<size_t>(a)], mb = means[static_cast<size_t>(b)];
-      if (2 * f.bit >= max_bit[f.axis] && std::abs(ma - mb) < 0.1 && ma > 0.3 && ma < 0.7)
-        coarse.emplace_back(a, b);
-    }
-    if (!has_white_black) {
-      gl.observable = false;
-      gl.reason =
-          "no white and black frames: the levels come from the inverse pairs themselves, so "
-          "scattered light is folded into them";
-    } else if (coarse.size() < 2) {
-      gl.observable = false;
-      gl.reason =
-          "the sequence has too few coarse inverse pairs (about half lit) to separate direct from "
-          "scattered light";
-    } else {
-      const double min_contrast = WellLitContrast(samples);
-      std::vector<double> fit_r, held_r;
-      std::vector<std::vector<double>> band_r(kBands);
-      std::vector<double> per(coarse.size());
-      for (const Sample& s : samples) {
-        if (s.white - s.black < min_contrast) continue;
-        const auto& real = cameras[static_cast<size_t>(s.camera)].real;
-        for (size_t k = 0; k < coarse.size(); ++k) {
-          per[k] = std::abs(Pixel(real[static_cast<size_t>(coarse[k].first)], s.y, s.x) -
-                            Pixel(real[static_cast<size_t>(coarse[k].second)], s.y, s.x)) /
-                   (s.white - s.black);
-        }
-        const double r = Median(per);  // a pixel near one bit's edge is outvoted by the others
-        (s.heldout ? held_r : fit_r).push_back(r);
-        if (!s.heldout) band_r[static_cast<size_t>(s.band)].push_back(r);
-      }
-      if (fit_r.size() < 100) {
-        gl.observable = false;
-        gl.reason = "too few well-lit pixels for the global-light fit";
-      } else {
-        gl.value = 1 - Median(fit_r);
-        std::vector<double> bv;
-        for (auto& b : band_r) bv.push_back(b.size() > 20 ? 1 - Median(b) : std::nan(""));
-        gl.sigma = BandSigma(bv);
-        gl.samples = static_cast<int64_t>(fit_r.size());
-        std::vector<double> off, on;
-        for (double r : held_r) off.push_back(r - 1), on.push_back(r - (1 - gl.value));
-        gl.heldout_residual_off = Rms(off);
-        gl.heldout_residual_on = Rms(on);
-        gl.extra["pairs"] = coarse.size();
-        const bool significant =
-            gl.value > 0 && Significant(gl.value, gl.sigma, options.global_light_floor);
-        const bool drops =
-            gl.heldout_residual_on < (1 - options.min_heldout_drop) * gl.heldout_residual_off;
-        gl.kept = significant && drops;
-        gl.reason =
-            gl.kept
-                ? Fmt("coarse stripes reach %.1f %% of white - black: %.1f %% of the light is "
-                      "scattered from the lit "
-                      "projector image; held-out residual %.3f -> %.3f",
-                      100 * (1 - gl.value), 100 * gl.value, gl.heldout_residual_off,
-                      gl.heldout_residual_on)
-                : Fmt("coarse stripes reach %.1f %% of white - black: direct light explains them",
-                      100 * (1 - gl.value));
-      }
-    }
-    fit.layers.push_back(gl);
-  }
-
-  // --- sensor noise from inverse pairs ---
-  {
-    PhysicsLayer noise;
-    noise.name = "noise";
-    noise.unit = "full well, electrons";
-    noise.off_value = 0;
-    noise.residual_unit = "DN^2 RMS of the binned variance of P + I - W - B";
-    const std::vector<std::pair<int, int>> pairs = InversePairs(frames);
-    if (pairs.empty()) {
-      noise.observable = false;
-      noise.reason = "the sequence has no inverse pairs";
-    } else {
-      const size_t step = std::max<size_t>(1, samples.size() / 40000);
-      struct Obs {
-        double s, r;
-        bool held;
-      };
-      std::vector<Obs> obs;
-      for (size_t i = 0; i < samples.size(); i += step) {
-        const Sample& s = samples[i];
-        const auto& real = cameras[static_cast<size_t>(s.camera)].real;
-        // Sums of pairs (and W + B when those frames exist), each ideally W + B; differences of
-        // consecutive sums carry four images' noise and no signal.
-        std::vector<double> sums;
-        if (has_white_black) sums.push_back(s.white + s.black);
-        bool saturated = false;
-        for (const auto& [p, q] : pairs) {
-          const double a = Pixel(real[static_cast<size_t>(p)], s.y, s.x),
-                       b = Pixel(real[static_cast<size_t>(q)], s.y, s.x);
-          saturated = saturated || a >= 0.98 * fs || b >= 0.98 * fs;
-          sums.push_back(a + b);
-        }
-        if (saturated) continue;
-        // The signal is what sits above the black level (shot noise does not see the offset).
-        const PhysicsLayer* bl =
-            fit.Find("black_level_" + cameras[static_cast<size_t>(s.camera)].camera);
-        const double offset4 = bl && bl->kept ? 4 * bl->value : 0.0;
-        for (size_t k = 0; k + 1 < sums.size(); k += 2)
-          obs.push_back({sums[k] + sums[k + 1] - offset4, sums[k] - sums[k + 1], s.heldout});
-      }
-      // Bin by signal into 10 quantile bins; per bin the robust variance of r.
-      const auto binned = [&](bool held, std::vector<double>* centre, std::vector<double>* var) {
-        std::vector<const Obs*> o;
-        for (const Obs& x : obs) {
-          if (x.held == held) o.push_back(&x);
-        }
-        std::sort(o.begin(), o.end(), [](const Obs* a, const Obs* b) { return a->s < b->s; });
-        const size_t bins = 10;
-        for (size_t b = 0; b < bins && o.size() >= bins * 20; ++b) {
-          const size_t lo = b * o.size() / bins, hi = (b + 1) * o.size() / bins;
-          std::vector<double> r, s;
-          for (size_t i = lo; i < hi; ++i) r.push_back(o[i]->r), s.push_back(o[i]->s);
-          centre->push_back(Median(s));
-          var->push_back(RobustVariance(r));
-        }
-      };
-      std::vector<double> sc, sv, hc, hv;
-      binned(false, &sc, &sv);
-      binned(true, &hc, &hv);
-      if (sc.size() < 3) {
-        noise.observable = false;
-        noise.reason = "too few pixels for the noise fit";
-      } else {
-        // Least squares var = K s + c.
-        Eigen::MatrixXd a(static_cast<Eigen::Index>(sc.size()), 2);
-        Eigen::VectorXd b(static_cast<Eigen::Index>(sc.size()));
-        for (size_t i = 0; i < sc.size(); ++i) {
-          a(static_cast<Eigen::Index>(i), 0) = sc[i];
-          a(static_cast<Eigen::Index>(i), 1) = 1;
-          b(static_cast<Eigen::Index>(i)) = sv[i];
-        }
-        const Eigen::Vector2d kc = a.colPivHouseholderQr().solve(b);
-        const Eigen::VectorXd res = b - a * kc;
-        const double dof = std::max<double>(1, static_cast<double>(sc.size()) - 2);
-        const Eigen::Matrix2d cov = (res.squaredNorm() / dof) * (a.transpose() * a).inverse();
-        const double k = kc(0), sigma_k = std::sqrt(std::max(0.0, cov(0, 0)));
-        const double quant = 4.0 / 12.0;
-        double mean_var = 0;
-        for (double v : sv) mean_var += v / static_cast<double>(sv.size());
-        std::vector<double> off, on;
-        for (size_t i = 0; i < hc.size(); ++i) {
-          off.push_back(hv[i] - quant);
-          on.push_back(hv[i] - (k * hc[i] + kc(1)));
-        }
-        noise.heldout_residual_off = Rms(off);
-        noise.heldout_residual_on = Rms(on);
-        noise.samples = static_cast<int64_t>(obs.size());
-        const bool above_quant = mean_var > 2 * quant;
-        const bool significant = k > 0 && Significant(k, sigma_k, 0);
-        const bool drops =
-            noise.heldout_residual_on < (1 - options.min_heldout_drop) * noise.heldout_residual_off;
-        if (k > 0) {
-          noise.value = fs / k;
-          noise.sigma = fs * sigma_k / (k * k);
-          const double read_dn2 = std::max(0.0, kc(1) / 4 - 1.0 / 12);
-          noise.extra["read_noise_e"] = std::sqrt(read_dn2) / k;
-        }
-        noise.extra["dn_per_electron"] = k;
-        noise.extra["variance_offset_dn2"] = kc(1);
-        noise.extra["mean_pair_variance_dn2"] = mean_var;
-        noise.kept = above_quant && significant && drops;
-        noise.reason = noise.kept ? Fmt("inverse pairs vary by %.2f DN^2 (quantisation alone: "
-                                        "%.2f), growing with signal: shot noise",
-                                        mean_var, quant)
-                                  : Fmt("inverse-pair variance %.2f DN^2 is what quantisation "
-                                        "(%.2f) explains, or does not grow with signal",
-                                        mean_var, quant);
-      }
-    }
-    fit.layers.push_back(noise);
-  }
-  return fit;
+  internal::FitContext ctx(spec, twin, cameras, options);  // white / black, the lit part pixels
+  internal::FitExposure(ctx);
+  internal::FitIlluminationFields(ctx);
+  internal::FitObjectAlbedos(ctx);
+  internal::FitDarkSquares(ctx);
+  internal::FitAmbientAndBlackLevels(ctx);
+  internal::FitGamma(ctx);
+  internal::FitGlobalLight(ctx);
+  internal::FitNoise(ctx);
+  return std::move(ctx.fit);
 }
 
 double ModulationPeriodPx(const PatternSpec& spec) {
@@ -1256,16 +443,10 @@ double ModulationPeriodPx(const PatternSpec& spec) {
 
 std::vector<int> ModulationFrames(const PatternSpec& spec) {
   const std::vector<FrameInfo> frames = spec.Frames();
+  if (spec.kind != PatternKind::kGrayCode) return FirstPeriodPhaseFrames(spec, frames);
   const int axis = spec.code_x ? 0 : 1;
-  std::vector<int> idx;
-  if (spec.kind == PatternKind::kGrayCode) {
-    idx = {FindFrame(frames, FrameRole::kGrayBit, axis, 0, 0, 0),
-           FindFrame(frames, FrameRole::kGrayBitInverse, axis, 0, 0, 0)};
-  } else {
-    for (int k = 0; k < spec.phase_steps; ++k)
-      idx.push_back(FindFrame(frames, FrameRole::kPhase, axis, 0, 0, k));
-  }
-  return idx;
+  return {FindFrame(frames, FrameRole::kGrayBit, axis, 0, 0, 0),
+          FindFrame(frames, FrameRole::kGrayBitInverse, axis, 0, 0, 0)};
 }
 
 cv::Mat NormalisedModulation(const PatternSpec& spec, const std::vector<cv::Mat>& images) {
@@ -1361,8 +542,7 @@ void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras,
         if (g.visibility.at<uint8_t>(y, x) != 2) continue;
         const float a = mr.at<float>(y, x), b = mt.at<float>(y, x);
         if (!std::isfinite(a) || !std::isfinite(b) || b < 0.05f) continue;
-        obs.push_back(
-            {a, b, std::min(kBands - 1, y * kBands / g.height), (y / options.stride_px) % 2 == 1});
+        obs.push_back({a, b, BandOfRow(y, g.height), HeldOutRow(y, options.stride_px)});
       }
     }
   }
@@ -1372,17 +552,12 @@ void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras,
     fit->layers.push_back(d);
     return;
   }
-  std::vector<double> r;
-  std::vector<std::vector<double>> rb(kBands);
+  BandedValues r;
   for (const Obs& o : obs) {
-    if (o.held) continue;
-    r.push_back(o.real / o.twin);
-    rb[static_cast<size_t>(o.band)].push_back(o.real / o.twin);
+    if (!o.held) r.Add(o.band, o.real / o.twin);
   }
-  const double rho = Median(r);
-  std::vector<double> bv;
-  for (auto& b : rb) bv.push_back(b.size() > 20 ? Median(b) : std::nan(""));
-  const double sigma_rho = BandSigma(bv);
+  const double rho = Median(r.all);
+  const double sigma_rho = r.MedianSigma();
   const auto sigma_of = [&](double q) {
     return q < 1 ? period / (M_PI * std::sqrt(2.0)) * std::sqrt(-std::log(q)) : 0.0;
   };
@@ -1391,7 +566,7 @@ void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras,
   const double h = 1e-4;
   d.sigma = rho < 1 - 2 * h ? std::abs(sigma_of(rho + h) - sigma_of(rho - h)) / (2 * h) * sigma_rho
                             : std::nan("");
-  d.samples = static_cast<int64_t>(r.size());
+  d.samples = static_cast<int64_t>(r.all.size());
   std::vector<double> off, on;
   for (const Obs& o : obs) {
     if (!o.held) continue;
@@ -1405,9 +580,7 @@ void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras,
   d.extra["period_px"] = period;
   const double loss = 1 - rho;
   const bool significant = loss > 0 && Significant(loss, sigma_rho, options.defocus_min_loss);
-  const bool drops =
-      d.heldout_residual_on < (1 - options.min_heldout_drop) * d.heldout_residual_off;
-  d.kept = significant && drops;
+  d.kept = significant && HeldoutDrops(d, options.min_heldout_drop);
   d.reason =
       d.kept
           ? Fmt("fringes reach %.1f %% of the focused twin's modulation: held-out residual %.4f -> "

@@ -92,5 +92,63 @@ TEST(PhysicsFit, OptionsCheckNamesTheField) {
   }
 }
 
+// A camera sees two objects of albedo 0.8 and 0.2 side by side, lit only on image rows 0..15 of 64:
+// two reflectances, so its black-level offset is observable, but the pixels span only 2 of the 8
+// bands the least-squares fit needs at least 3 of (its jackknife). The fit cannot be made; the
+// layer must still be there, not observable, with its reason, like every other layer.
+TEST(PhysicsFit, BlackLevelLayerReportedWhenItsFitCannotBeMade) {
+  PatternSpec spec;
+  spec.kind = PatternKind::kGrayCode;
+  spec.projector_width = 256;
+  spec.projector_height = 64;
+  spec.code_y = false;
+  spec.Check();
+  Scene twin;
+  twin.radiometry.exposure_fraction = 0.5;
+  for (const auto& [name, albedo] : {std::pair<const char*, double>{"left", 0.8}, {"right", 0.2}}) {
+    SceneObject o;
+    o.name = name;
+    o.type = ObjectType::kPlane;
+    o.albedo.value = albedo;
+    twin.objects.push_back(o);
+  }
+  const int size = 64, lit_rows = 16;
+  GeometryBuffer g;
+  g.width = g.height = size;
+  g.factor = SampleBuffer(cv::Mat(1, size * size, CV_32FC1, cv::Scalar(0)));
+  g.albedo = SampleBuffer(cv::Mat(1, size * size, CV_32FC1, cv::Scalar(0)));
+  g.visibility = cv::Mat(size, size, CV_8UC1, cv::Scalar(0));
+  g.object_id = cv::Mat(size, size, CV_32SC1, cv::Scalar(-1));
+  CameraData cam;
+  cam.camera = "cam";
+  cam.geometry = &g;
+  cam.white = cv::Mat(size, size, CV_32FC1, cv::Scalar(0));
+  cam.black = cv::Mat(size, size, CV_32FC1, cv::Scalar(0));
+  for (int y = 0; y < lit_rows; ++y) {
+    for (int x = 0; x < size; ++x) {
+      const int object = x < size / 2 ? 0 : 1;
+      const float albedo =
+          static_cast<float>(twin.objects[static_cast<size_t>(object)].albedo.value);
+      const size_t i = static_cast<size_t>(y * size + x);
+      g.albedo[i] = albedo;
+      g.factor[i] = 0.9f * albedo;
+      g.visibility.at<uint8_t>(y, x) = 2;
+      g.object_id.at<int32_t>(y, x) = object;
+      cam.black.at<float>(y, x) = 6 + 3 * albedo;
+      cam.white.at<float>(y, x) = cam.black.at<float>(y, x) + 0.5f * 255 * 0.9f * albedo;
+    }
+  }
+  for (int i = 0; i < spec.NumImages(); ++i)
+    cam.real.push_back(cv::Mat(size, size, CV_8UC1, cv::Scalar(0)));
+  PhysicsFitOptions options;
+  options.stride_px = 1;
+  const PhysicsFit fit = FitPhysics(spec, twin, {cam}, options);
+  const PhysicsLayer* bl = fit.Find("black_level_cam");
+  ASSERT_NE(bl, nullptr) << fit.Table();
+  EXPECT_FALSE(bl->observable);
+  EXPECT_FALSE(bl->kept);
+  EXPECT_NE(bl->reason.find("black-level fit"), std::string::npos) << bl->reason;
+}
+
 }  // namespace
 }  // namespace slshadow::shadow
