@@ -59,35 +59,40 @@ struct C2mGrid::Impl {
 
   explicit Impl(const compare::MeshDistance& d) : distance(d) {}
 
-  // The cell of p, or -1 outside the grid (or not finite).
-  int64_t CellOf(const Eigen::Vector3d& p) const {
-    if (!enabled || !p.allFinite()) return -1;
-    const Eigen::Vector3d c = ((p - lo) * inv).array().floor();
-    if (!(c.x() >= 0 && c.y() >= 0 && c.z() >= 0 && c.x() < static_cast<double>(nx) &&
-          c.y() < static_cast<double>(ny) && c.z() < static_cast<double>(nz))) {
-      return -1;
-    }
-    const auto x = static_cast<int64_t>(c.x()), y = static_cast<int64_t>(c.y()),
-               z = static_cast<int64_t>(c.z());
-    return (z * ny + y) * nx + x;
-  }
   void Split(int64_t id, int64_t* x, int64_t* y, int64_t* z) const {
     *x = id % nx;
     *y = id / nx % ny;
     *z = id / nx / ny;
   }
-  int64_t BlockOf(int64_t id, int* slot) const {
-    int64_t x, y, z;
-    Split(id, &x, &y, &z);
+  // The block of cell (x, y, z), and the cell's slot in it.
+  int64_t BlockOf(int64_t x, int64_t y, int64_t z, int* slot) const {
     *slot = static_cast<int>(((z & (kBlockSide - 1)) * kBlockSide + (y & (kBlockSide - 1))) *
                                  kBlockSide +
                              (x & (kBlockSide - 1)));
     return ((z >> kBlockBits) * by + (y >> kBlockBits)) * bx + (x >> kBlockBits);
   }
-  // The cell's entry: its first candidate (or kUnbuilt, kFar) and count.
-  uint32_t Entry(int64_t id, uint16_t* count) const {
+  int64_t BlockOf(int64_t id, int* slot) const {
+    int64_t x, y, z;
+    Split(id, &x, &y, &z);
+    return BlockOf(x, y, z, slot);
+  }
+  // The cell of p as coordinates, false outside the grid (or not finite).
+  bool CellXyz(const Eigen::Vector3d& p, int64_t* x, int64_t* y, int64_t* z) const {
+    if (!enabled || !p.allFinite()) return false;
+    const Eigen::Vector3d c = ((p - lo) * inv).array().floor();
+    if (!(c.x() >= 0 && c.y() >= 0 && c.z() >= 0 && c.x() < static_cast<double>(nx) &&
+          c.y() < static_cast<double>(ny) && c.z() < static_cast<double>(nz))) {
+      return false;
+    }
+    *x = static_cast<int64_t>(c.x());
+    *y = static_cast<int64_t>(c.y());
+    *z = static_cast<int64_t>(c.z());
+    return true;
+  }
+  // The entry of cell (x, y, z): its first candidate (or kUnbuilt, kFar) and count.
+  uint32_t EntryXyz(int64_t x, int64_t y, int64_t z, uint16_t* count) const {
     int slot = 0;
-    const Block* b = blocks[static_cast<size_t>(BlockOf(id, &slot))].get();
+    const Block* b = blocks[static_cast<size_t>(BlockOf(x, y, z, &slot))].get();
     if (!b) return kUnbuilt;
     *count = b->count[slot];
     return b->first[slot];
@@ -315,9 +320,12 @@ void C2mGrid::Prepare(const std::vector<Eigen::Vector3d>& points) {
   tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 16384),
                     [&](const tbb::blocked_range<size_t>& r) {
                       for (size_t i = r.begin(); i < r.end(); ++i) {
-                        const int64_t id = g.CellOf(points[i]);
+                        int64_t x = 0, y = 0, z = 0;
                         uint16_t count = 0;
-                        wanted[i] = id >= 0 && g.Entry(id, &count) == kUnbuilt ? id : -1;
+                        wanted[i] = g.CellXyz(points[i], &x, &y, &z) &&
+                                            g.EntryXyz(x, y, z, &count) == kUnbuilt
+                                        ? (z * g.ny + y) * g.nx + x
+                                        : -1;
                       }
                     });
   wanted.erase(std::remove(wanted.begin(), wanted.end(), int64_t{-1}), wanted.end());
@@ -360,23 +368,23 @@ void C2mGrid::SignedDistances(const std::vector<Eigen::Vector3d>& points,
   const Impl& g = *impl_;
   out->resize(points.size());
   double* d = out->data();
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 4096),
-                    [&](const tbb::blocked_range<size_t>& r) {
-                      uint32_t hint = std::numeric_limits<uint32_t>::max();
-                      for (size_t i = r.begin(); i < r.end(); ++i) {
-                        const Eigen::Vector3d& p = points[i];
-                        const int64_t id = g.CellOf(p);
-                        uint16_t count = 0;
-                        const uint32_t first = id >= 0 ? g.Entry(id, &count) : kUnbuilt;
-                        if (first < kFar) {
-                          d[i] = g.FromCandidates(p, g.candidates.data() + first, count, &hint);
-                          continue;
-                        }
-                        const compare::MeshHit hit = g.distance.Closest(p, hint);
-                        d[i] = hit.signed_distance_mm;
-                        hint = hit.triangle;
-                      }
-                    });
+  tbb::parallel_for(
+      tbb::blocked_range<size_t>(0, points.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
+        uint32_t hint = std::numeric_limits<uint32_t>::max();
+        for (size_t i = r.begin(); i < r.end(); ++i) {
+          const Eigen::Vector3d& p = points[i];
+          int64_t x = 0, y = 0, z = 0;
+          uint16_t count = 0;
+          const uint32_t first = g.CellXyz(p, &x, &y, &z) ? g.EntryXyz(x, y, z, &count) : kUnbuilt;
+          if (first < kFar) {
+            d[i] = g.FromCandidates(p, g.candidates.data() + first, count, &hint);
+            continue;
+          }
+          const compare::MeshHit hit = g.distance.Closest(p, hint);
+          d[i] = hit.signed_distance_mm;
+          hint = hit.triangle;
+        }
+      });
 }
 
 }  // namespace slshadow::shadow::internal
