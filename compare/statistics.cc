@@ -4,6 +4,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <utility>
 
@@ -228,112 +229,182 @@ class PointGrid {
   size_t mask_ = 0;
 };
 
-}  // namespace
+// The bits of a non-negative double: they order as the values do.
+uint64_t Bits(double a) {
+  uint64_t b = 0;
+  std::memcpy(&b, &a, sizeof(b));
+  return b;
+}
 
-DistanceStats ComputeStats(const std::vector<double>& distances_mm, bool is_signed,
-                           double threshold_mm, int bins, double range_mm) {
+// Everything ComputeStats derives from |d| (shared by the signed and unsigned figures), the
+// signed mean and std, and the histogram range, from two passes over the distances: the sums in
+// ComputeStats's order (so the same doubles), and the nearest-rank median, p95 and p99 by a radix
+// select: a count of the top 16 bits of |d| finds the bucket holding each rank, a selection among
+// the values of that bucket the value (the same one a full sort puts at that rank).
+struct AbsFigures {
+  DistanceStats stats;  // without its histogram's counts, and signed figures NaN
+  double signed_mean = 0, signed_std = 0;
+};
+
+AbsFigures ComputeAbsFigures(const std::vector<double>& distances_mm, double threshold_mm, int bins,
+                             double range_mm) {
   SLSHADOW_THROW_IF(!(range_mm >= 0) || !std::isfinite(range_mm),
                     "colour range: must be finite and >= 0 (got ", range_mm, ")");
   SLSHADOW_THROW_IF(!(threshold_mm >= 0) || !std::isfinite(threshold_mm),
                     "threshold_mm: must be finite and >= 0 (got ", threshold_mm, ")");
   SLSHADOW_THROW_IF(bins < 1, "histogram bins: must be >= 1 (got ", bins, ")");
-  DistanceStats s;
-  s.is_signed = is_signed;
+  AbsFigures out;
+  DistanceStats& s = out.stats;
   s.threshold_mm = threshold_mm;
   const double nan = std::numeric_limits<double>::quiet_NaN();
   s.signed_mean_mm = s.signed_std_mm = nan;
-  std::vector<double> abs_d;
-  abs_d.reserve(distances_mm.size());
-  double sum = 0, sum2 = 0, ssum = 0;
-  for (double d : distances_mm) {
+  constexpr int kShift = 48;  // the top 16 bits: sign (0), exponent, 4 bits of mantissa
+  std::vector<uint32_t> counts(size_t{1} << (64 - kShift), 0);
+  double sum = 0, sum2 = 0, ssum = 0, max = 0;
+  for (const double d : distances_mm) {
     if (!std::isfinite(d)) {
       ++s.num_invalid;
       continue;
     }
     const double a = std::abs(d);
-    abs_d.push_back(a);
+    ++s.count;
     sum += a;
     sum2 += a * a;
     ssum += d;
     if (a <= threshold_mm) ++s.inliers;
+    ++counts[Bits(a) >> kShift];
+    max = std::max(max, a);
   }
-  s.count = abs_d.size();
   s.outliers = s.count - s.inliers;
+  s.histogram.counts.assign(static_cast<size_t>(bins), 0);
   if (s.count == 0) {
-    s.histogram.counts.assign(static_cast<size_t>(bins), 0);
     s.histogram.hi_mm = range_mm > 0 ? range_mm : std::max(threshold_mm, 1e-3);
-    s.histogram.lo_mm = is_signed ? -s.histogram.hi_mm : 0.0;
-    return s;
+    out.signed_mean = out.signed_std = nan;
+    return out;
   }
   const double n = static_cast<double>(s.count);
   s.mean_mm = sum / n;
   s.rms_mm = std::sqrt(sum2 / n);
-  // Two-pass for the standard deviations (numerically safe).
-  double var = 0, svar = 0;
-  const double smean = ssum / n;
-  for (double d : distances_mm) {
-    if (!std::isfinite(d)) continue;
-    var += (std::abs(d) - s.mean_mm) * (std::abs(d) - s.mean_mm);
-    svar += (d - smean) * (d - smean);
-  }
-  s.std_mm = std::sqrt(var / n);
-  if (is_signed) {
-    s.signed_mean_mm = smean;
-    s.signed_std_mm = std::sqrt(svar / n);
-  }
-  // The nearest-rank percentiles by successive selections (each on the part above the previous
-  // rank): the same values a full sort gives, in O(n).
-  const size_t i50 = PercentileIndex(abs_d.size(), 50), i95 = PercentileIndex(abs_d.size(), 95),
-               i99 = PercentileIndex(abs_d.size(), 99);
-  const auto at = [&](size_t i) { return abs_d.begin() + static_cast<std::ptrdiff_t>(i); };
-  std::nth_element(abs_d.begin(), at(i50), abs_d.end());
-  s.median_mm = abs_d[i50];
-  std::nth_element(at(i50), at(i95), abs_d.end());
-  s.p95_mm = abs_d[i95];
-  std::nth_element(at(i95), at(i99), abs_d.end());
-  Histogram& h = s.histogram;
-  h.hi_mm = range_mm > 0 ? range_mm : std::max(abs_d[i99], 1e-6);
-  s.max_mm = *std::max_element(at(i99), abs_d.end());
-  h.lo_mm = is_signed ? -h.hi_mm : 0.0;
-  h.counts.assign(static_cast<size_t>(bins), 0);
-  const double w = h.BinWidth();
-  for (double d : distances_mm) {
-    if (!std::isfinite(d)) continue;
-    const double v = is_signed ? d : std::abs(d);
-    if (v < h.lo_mm) {
-      ++h.underflow;
-    } else if (v > h.hi_mm) {
-      ++h.overflow;
-    } else {
-      const auto b = std::min(static_cast<size_t>((v - h.lo_mm) / w), h.counts.size() - 1);
-      ++h.counts[b];
+  s.max_mm = max;
+  // The buckets of the three ranks, and each rank within its bucket.
+  const size_t ranks[3] = {PercentileIndex(s.count, 50), PercentileIndex(s.count, 95),
+                           PercentileIndex(s.count, 99)};
+  size_t bucket[3], within[3];
+  {
+    size_t below = 0, b = 0;
+    for (int r = 0; r < 3; ++r) {  // ranks ascend
+      while (below + counts[b] <= ranks[r]) below += counts[b++];
+      bucket[r] = b;
+      within[r] = ranks[r] - below;
     }
   }
+  // Second pass: the deviations (ComputeStats's two-pass standard deviations) and the values of
+  // the (at most three) buckets holding the ranks.
+  std::vector<double> values[3];
+  for (int r = 0; r < 3; ++r) {
+    if (r == 0 || bucket[r] != bucket[r - 1]) values[r].reserve(counts[bucket[r]]);
+  }
+  const uint64_t b0 = bucket[0], b1 = bucket[1], b2 = bucket[2];
+  double var = 0, svar = 0;
+  const double smean = ssum / n;
+  for (const double d : distances_mm) {
+    if (!std::isfinite(d)) continue;
+    const double a = std::abs(d);
+    var += (a - s.mean_mm) * (a - s.mean_mm);
+    svar += (d - smean) * (d - smean);
+    const uint64_t b = Bits(a) >> kShift;
+    if (b == b0) {
+      values[0].push_back(a);
+    } else if (b == b1) {
+      values[1].push_back(a);
+    } else if (b == b2) {
+      values[2].push_back(a);
+    }
+  }
+  s.std_mm = std::sqrt(var / n);
+  out.signed_mean = smean;
+  out.signed_std = std::sqrt(svar / n);
+  double at[3];
+  for (int r = 0; r < 3; ++r) {
+    int v = r;
+    while (v > 0 && bucket[v - 1] == bucket[r]) --v;  // the bucket's values are in values[v]
+    std::vector<double>& x = values[v];
+    const auto k = x.begin() + static_cast<std::ptrdiff_t>(within[r]);
+    std::nth_element(x.begin(), k, x.end());
+    at[r] = *k;
+  }
+  s.median_mm = at[0];
+  s.p95_mm = at[1];
+  s.histogram.hi_mm = range_mm > 0 ? range_mm : std::max(at[2], 1e-6);
+  return out;
+}
+
+// Bins of the finite d (signed: d over [-hi, hi]; unsigned: |d| over [0, hi]) into h, whose range
+// and bins are set.
+void Bin(const std::vector<double>& distances_mm, bool is_signed, Histogram* h) {
+  const double w = h->BinWidth();
+  for (const double d : distances_mm) {
+    if (!std::isfinite(d)) continue;
+    const double v = is_signed ? d : std::abs(d);
+    if (v < h->lo_mm) {
+      ++h->underflow;
+    } else if (v > h->hi_mm) {
+      ++h->overflow;
+    } else {
+      const auto b = std::min(static_cast<size_t>((v - h->lo_mm) / w), h->counts.size() - 1);
+      ++h->counts[b];
+    }
+  }
+}
+
+}  // namespace
+
+DistanceStats ComputeStats(const std::vector<double>& distances_mm, bool is_signed,
+                           double threshold_mm, int bins, double range_mm) {
+  AbsFigures f = ComputeAbsFigures(distances_mm, threshold_mm, bins, range_mm);
+  DistanceStats s = std::move(f.stats);
+  s.is_signed = is_signed;
+  Histogram& h = s.histogram;
+  h.lo_mm = is_signed ? -h.hi_mm : 0.0;
+  if (s.count == 0) return s;
+  if (is_signed) {
+    s.signed_mean_mm = f.signed_mean;
+    s.signed_std_mm = f.signed_std;
+  }
+  Bin(distances_mm, is_signed, &h);
   return s;
 }
 
 UnsignedAndSigned ComputeUnsignedAndSignedStats(const std::vector<double>& distances_mm,
                                                 double threshold_mm, int bins, double range_mm) {
+  AbsFigures f = ComputeAbsFigures(distances_mm, threshold_mm, bins, range_mm);
   UnsignedAndSigned out;
-  out.signed_stats = ComputeStats(distances_mm, true, threshold_mm, bins, range_mm);
-  DistanceStats& u = out.unsigned_stats;
-  u = out.signed_stats;
-  u.is_signed = false;
-  u.signed_mean_mm = u.signed_std_mm = std::numeric_limits<double>::quiet_NaN();
-  // The same range (both from |d|), binned over [0, hi] as |d|.
-  Histogram& h = u.histogram;
-  h.lo_mm = 0.0;
-  std::fill(h.counts.begin(), h.counts.end(), size_t{0});
-  h.underflow = h.overflow = 0;
-  const double w = h.BinWidth();
-  for (double d : distances_mm) {
+  out.unsigned_stats = f.stats;
+  out.signed_stats = std::move(f.stats);
+  DistanceStats &u = out.unsigned_stats, &s = out.signed_stats;
+  s.is_signed = true;
+  s.histogram.lo_mm = -s.histogram.hi_mm;
+  if (s.count == 0) return out;
+  s.signed_mean_mm = f.signed_mean;
+  s.signed_std_mm = f.signed_std;
+  // Both histograms (the same range, from |d|) in one pass: d over [-hi, hi], |d| over [0, hi].
+  Histogram &hs = s.histogram, &hu = u.histogram;
+  const double ws = hs.BinWidth(), wu = hu.BinWidth();
+  const size_t last = hs.counts.size() - 1;
+  for (const double d : distances_mm) {
     if (!std::isfinite(d)) continue;
-    const double v = std::abs(d);
-    if (v > h.hi_mm) {
-      ++h.overflow;
+    if (d < hs.lo_mm) {
+      ++hs.underflow;
+    } else if (d > hs.hi_mm) {
+      ++hs.overflow;
     } else {
-      const auto b = std::min(static_cast<size_t>((v - h.lo_mm) / w), h.counts.size() - 1);
-      ++h.counts[b];
+      ++hs.counts[std::min(static_cast<size_t>((d - hs.lo_mm) / ws), last)];
+    }
+    const double a = std::abs(d);
+    if (a > hu.hi_mm) {
+      ++hu.overflow;
+    } else {
+      ++hu.counts[std::min(static_cast<size_t>((a - hu.lo_mm) / wu), last)];
     }
   }
   return out;

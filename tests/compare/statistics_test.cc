@@ -3,9 +3,12 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
+#include <iterator>
 #include <limits>
 #include <numeric>
 #include <random>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -98,6 +101,168 @@ TEST(ComputeUnsignedAndSignedStats, EqualsTheTwoSeparateCalls) {
       const UnsignedAndSigned both = ComputeUnsignedAndSignedStats(data, 0.2, 40, range);
       expect_equal(both.unsigned_stats, ComputeStats(data, false, 0.2, 40, range));
       expect_equal(both.signed_stats, ComputeStats(data, true, 0.2, 40, range));
+    }
+  }
+}
+
+// The oracle of ComputeStats: its definitions (compare/statistics.h) with the percentiles from a
+// full sort, the sums in the order of the distances (as ComputeStats adds them, so the same
+// doubles), the standard deviations by two passes.
+DistanceStats SortedStats(const std::vector<double>& d, bool is_signed, double threshold, int bins,
+                          double range) {
+  DistanceStats s;
+  s.is_signed = is_signed;
+  s.threshold_mm = threshold;
+  s.signed_mean_mm = s.signed_std_mm = std::numeric_limits<double>::quiet_NaN();
+  std::vector<double> a;
+  double sum = 0, sum2 = 0, ssum = 0;
+  for (const double v : d) {
+    if (!std::isfinite(v)) {
+      ++s.num_invalid;
+      continue;
+    }
+    a.push_back(std::abs(v));
+    sum += std::abs(v);
+    sum2 += std::abs(v) * std::abs(v);
+    ssum += v;
+    s.inliers += std::abs(v) <= threshold;
+  }
+  s.count = a.size();
+  s.outliers = s.count - s.inliers;
+  Histogram& h = s.histogram;
+  h.counts.assign(static_cast<size_t>(bins), 0);
+  if (a.empty()) {
+    h.hi_mm = range > 0 ? range : std::max(threshold, 1e-3);
+    h.lo_mm = is_signed ? -h.hi_mm : 0.0;
+    return s;
+  }
+  const double n = static_cast<double>(a.size());
+  s.mean_mm = sum / n;
+  s.rms_mm = std::sqrt(sum2 / n);
+  double var = 0, svar = 0;
+  for (const double v : d) {
+    if (!std::isfinite(v)) continue;
+    var += (std::abs(v) - s.mean_mm) * (std::abs(v) - s.mean_mm);
+    svar += (v - ssum / n) * (v - ssum / n);
+  }
+  s.std_mm = std::sqrt(var / n);
+  if (is_signed) {
+    s.signed_mean_mm = ssum / n;
+    s.signed_std_mm = std::sqrt(svar / n);
+  }
+  std::sort(a.begin(), a.end());
+  const auto rank = [&](double p) {  // nearest rank: element ceil(p/100 n) - 1
+    return a[static_cast<size_t>(std::clamp(std::ceil(p / 100.0 * n), 1.0, n)) - 1];
+  };
+  s.median_mm = rank(50);
+  s.p95_mm = rank(95);
+  s.max_mm = a.back();
+  h.hi_mm = range > 0 ? range : std::max(rank(99), 1e-6);
+  h.lo_mm = is_signed ? -h.hi_mm : 0.0;
+  const double w = (h.hi_mm - h.lo_mm) / bins;
+  for (const double v : d) {
+    if (!std::isfinite(v)) continue;
+    const double x = is_signed ? v : std::abs(v);
+    if (x < h.lo_mm) {
+      ++h.underflow;
+    } else if (x > h.hi_mm) {
+      ++h.overflow;
+    } else {
+      ++h.counts[std::min(static_cast<size_t>((x - h.lo_mm) / w), h.counts.size() - 1)];
+    }
+  }
+  return s;
+}
+
+// Field for field, the doubles bit for bit (NaN where NaN).
+void ExpectSameStats(const DistanceStats& a, const DistanceStats& b, const std::string& what) {
+  const auto bits = [](double x) {
+    uint64_t u = 0;
+    std::memcpy(&u, &x, sizeof(u));
+    return std::isnan(x) ? uint64_t{1} : u;
+  };
+  EXPECT_EQ(a.is_signed, b.is_signed) << what;
+  EXPECT_EQ(a.count, b.count) << what;
+  EXPECT_EQ(a.num_invalid, b.num_invalid) << what;
+  const std::pair<double, double> pairs[] = {{a.mean_mm, b.mean_mm},
+                                             {a.std_mm, b.std_mm},
+                                             {a.rms_mm, b.rms_mm},
+                                             {a.median_mm, b.median_mm},
+                                             {a.p95_mm, b.p95_mm},
+                                             {a.max_mm, b.max_mm},
+                                             {a.signed_mean_mm, b.signed_mean_mm},
+                                             {a.signed_std_mm, b.signed_std_mm},
+                                             {a.threshold_mm, b.threshold_mm},
+                                             {a.histogram.lo_mm, b.histogram.lo_mm},
+                                             {a.histogram.hi_mm, b.histogram.hi_mm}};
+  for (size_t k = 0; k < std::size(pairs); ++k) {
+    EXPECT_EQ(bits(pairs[k].first), bits(pairs[k].second))
+        << what << " field " << k << ": " << pairs[k].first << " " << pairs[k].second;
+  }
+  EXPECT_EQ(a.inliers, b.inliers) << what;
+  EXPECT_EQ(a.outliers, b.outliers) << what;
+  EXPECT_EQ(a.histogram.counts, b.histogram.counts) << what;
+  EXPECT_EQ(a.histogram.underflow, b.histogram.underflow) << what;
+  EXPECT_EQ(a.histogram.overflow, b.histogram.overflow) << what;
+}
+
+// ComputeStats (and ComputeUnsignedAndSignedStats) against the sorting oracle: noisy deviations
+// of several scales and sizes, with many ties, zeros of both signs, NaN and infinities; values
+// spanning the whole double range (denormals to the largest), values all in one radix bucket,
+// all equal, one value, none, only NaN.
+TEST(ComputeStats, EqualsTheSortingOracle) {
+  std::mt19937 rng(5);
+  std::normal_distribution<double> normal(0, 1);
+  std::vector<std::vector<double>> sets;
+  for (const size_t n : {size_t{1}, size_t{2}, size_t{19}, size_t{1000}, size_t{300001}}) {
+    std::vector<double> d(n);
+    for (double& v : d) v = 0.03 * normal(rng) * (normal(rng) > 2 ? 40 : 1);
+    sets.push_back(d);
+    for (size_t i = 0; i < n; i += 3) d[i] = std::round(d[i] * 100) / 100;  // many ties
+    if (n > 2) {
+      d[1] = -0.0;
+      d[2] = 0.0;
+    }
+    sets.push_back(d);
+    if (n > 2) {
+      d[0] = std::numeric_limits<double>::quiet_NaN();
+      d[n - 1] = -std::numeric_limits<double>::infinity();
+      d[n / 2] = std::numeric_limits<double>::infinity();
+    }
+    sets.push_back(d);
+  }
+  std::vector<double> wide;
+  for (int i = 0; i < 20000; ++i) {
+    wide.push_back((i % 2 ? -1 : 1) * std::ldexp(1.0 + std::abs(normal(rng)), i % 2046 - 1074));
+  }
+  wide.push_back(std::numeric_limits<double>::max());
+  wide.push_back(-std::numeric_limits<double>::denorm_min());
+  sets.push_back(wide);
+  std::vector<double> one_bucket;  // the same top 16 bits: the selection does all the work
+  for (int i = 0; i < 30000; ++i) one_bucket.push_back(1.0 + 1e-9 * (i * 7919 % 30000));
+  sets.push_back(one_bucket);
+  sets.push_back(std::vector<double>(5000, 0.25));
+  sets.push_back(std::vector<double>(5000, -0.0));
+  sets.push_back({0.7});
+  sets.push_back({});
+  sets.push_back({std::numeric_limits<double>::quiet_NaN()});
+  for (size_t k = 0; k < sets.size(); ++k) {
+    for (const double threshold : {0.0, 0.05, 0.5}) {
+      for (const double range : {0.0, 0.3}) {
+        for (const int bins : {1, 60}) {
+          const std::string what = "set " + std::to_string(k) + " threshold " +
+                                   std::to_string(threshold) + " range " + std::to_string(range) +
+                                   " bins " + std::to_string(bins);
+          const DistanceStats u = SortedStats(sets[k], false, threshold, bins, range);
+          const DistanceStats s = SortedStats(sets[k], true, threshold, bins, range);
+          ExpectSameStats(ComputeStats(sets[k], false, threshold, bins, range), u, what);
+          ExpectSameStats(ComputeStats(sets[k], true, threshold, bins, range), s, what);
+          const UnsignedAndSigned both =
+              ComputeUnsignedAndSignedStats(sets[k], threshold, bins, range);
+          ExpectSameStats(both.unsigned_stats, u, what + " (both)");
+          ExpectSameStats(both.signed_stats, s, what + " (both)");
+        }
+      }
     }
   }
 }
