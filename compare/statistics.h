@@ -80,8 +80,13 @@ std::vector<double> Coverages(const std::vector<const std::vector<Eigen::Vector3
                               const std::vector<Eigen::Vector3d>& points,
                               const std::vector<uint8_t>& reached, double radius_mm);
 
-// MedianSpacing(KdTree(points), max_samples) without the tree: a uniform grid answers the
-// samples whose nearest other point lies within its cell, a tree only the others.
+// MedianSpacing(KdTree(points), max_samples) without the tree, the same double. A cloud whose
+// array order follows space (a scan's cloud, in grid order): each sample's distance to its array
+// neighbours bounds its nearest, and one hashed grid of cells from those bounds, holding only
+// the points of the cells the samples search, answers every sample. Any other cloud (or one with
+// a non-finite sample or a far isolated one): a uniform grid from the bounding box answers the
+// samples whose nearest other point lies within its cell, a tree only the others
+// (compare/internal/median_spacing.h).
 double MedianSpacing(const std::vector<Eigen::Vector3d>& points, size_t max_samples = 20000);
 
 }  // namespace slshadow::compare

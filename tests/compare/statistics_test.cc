@@ -14,8 +14,10 @@
 
 #include <gtest/gtest.h>
 
+#include "compare/internal/median_spacing.h"
 #include "compare/kdtree.h"
 #include "core/error.h"
+#include "tests/compare/test_shapes.h"
 
 namespace slshadow::compare {
 namespace {
@@ -435,6 +437,142 @@ TEST(MedianSpacing, GridEqualsTree) {
           << c.size() << " " << samples;
     }
   }
+}
+
+// The brute-force median spacing: every stride-th point's nearest other finite point, the
+// squared distance as (p - q).squaredNorm(); all samples must be finite.
+double BruteForceSpacing(const std::vector<Eigen::Vector3d>& pts, size_t max_samples) {
+  if (pts.size() < 2) return 0.0;
+  const size_t stride = std::max<size_t>(1, pts.size() / std::max<size_t>(1, max_samples));
+  std::vector<double> d;
+  for (size_t i = 0; i < pts.size(); i += stride) {
+    double best = std::numeric_limits<double>::infinity();
+    for (size_t j = 0; j < pts.size(); ++j) {
+      if (j != i && pts[j].allFinite()) best = std::min(best, (pts[i] - pts[j]).squaredNorm());
+    }
+    d.push_back(std::sqrt(best));
+  }
+  std::nth_element(d.begin(), d.begin() + static_cast<long>(d.size() / 2), d.end());
+  return d[d.size() / 2];
+}
+
+// Whether MedianSpacing answers `pts` by its scan-order grid (else by MedianSpacingByCells).
+bool ScanOrder(const std::vector<Eigen::Vector3d>& pts, size_t max_samples) {
+  const size_t stride = std::max<size_t>(1, pts.size() / std::max<size_t>(1, max_samples));
+  std::vector<double> d((pts.size() + stride - 1) / stride);
+  return internal::ScanOrderSpacings(pts, stride, &d);
+}
+
+// MedianSpacing, double for double, against the method it had before the scan-order grid
+// (MedianSpacingByCells, itself checked against the tree above) and against a brute force or the
+// tree: on clouds in scan order as a reconstruction's (where the scan-order grid answers), the
+// same shuffled, with NaN and infinite points (unsampled: skipped; sampled: the general method),
+// duplicates, samples far from their array neighbours but near other points, isolated samples
+// far from everything (up to 16: compared with every point, beyond the general method's grids:
+// its tree's distance, the same double; more, or with a non-finite point in the cloud: the general
+// method), all points equal, far from the origin, and fewer than 2 points.
+TEST(MedianSpacing, ScanOrderGridEqualsTheGeneralMethodAndTheOracles) {
+  struct Case {
+    std::string name;
+    std::vector<Eigen::Vector3d> points;
+    bool scan_order;  // expected to be answered by the scan-order grid (max_samples 2000)
+    bool finite;      // the brute force (and the tree) are oracles
+  };
+  std::vector<Case> cases;
+  const std::vector<Eigen::Vector3d> scan = testing::ScanOrderCloud(320, 200, 0.15, 31);
+  ASSERT_GT(scan.size(), 50000u);
+  cases.push_back({"scan", scan, true, true});
+  std::mt19937 rng(32);
+  {
+    std::vector<Eigen::Vector3d> c = scan;
+    std::shuffle(c.begin(), c.end(), rng);
+    cases.push_back({"shuffled", c, false, true});
+  }
+  const size_t stride = scan.size() / 2000;  // the samples at max_samples 2000
+  {
+    std::vector<Eigen::Vector3d> c = scan;
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    const double inf = std::numeric_limits<double>::infinity();
+    for (size_t k = 0; k < 40; ++k) {  // beside samples: never a sample
+      c[(k * 997 % 1900 + 1) * stride + 1] = k % 3 == 0   ? Eigen::Vector3d(nan, 0, 0)
+                                             : k % 3 == 1 ? Eigen::Vector3d(0, inf, 0)
+                                                          : Eigen::Vector3d(1, 2, -inf);
+    }
+    cases.push_back({"non-finite unsampled", c, true, false});
+    c[7 * stride].z() = nan;
+    cases.push_back({"non-finite sample", c, false, false});
+  }
+  {
+    std::vector<Eigen::Vector3d> c = scan;
+    for (size_t i = 0; i + 1 < c.size(); i += 7) c[i + 1] = c[i];           // array neighbours
+    for (size_t i = 0; i + 5000 < c.size(); i += 1013) c[i] = c[i + 5000];  // far in the array
+    cases.push_back({"duplicates", c, true, true});
+  }
+  for (const size_t swaps : {size_t{10}, size_t{30}}) {
+    // Samples swapped with points elsewhere: far from their array neighbours, near others.
+    std::vector<Eigen::Vector3d> c = scan;
+    for (size_t k = 0; k < swaps; ++k) {
+      std::swap(c[(k * 61 + 5) * stride], c[(k * 61 + 905) % 1990 * stride + stride / 2]);
+    }
+    cases.push_back({"far samples " + std::to_string(swaps), c, true, true});
+  }
+  {
+    std::vector<Eigen::Vector3d> c = scan;
+    for (size_t k = 1; k <= 5; ++k) c[k * 300 * stride].z() += 40.0 + static_cast<double>(k);
+    cases.push_back({"isolated", c, true, true});
+    c[3 * stride + 2].y() = std::numeric_limits<double>::quiet_NaN();  // the general method's tree
+    cases.push_back({"isolated and non-finite", c, false, false});
+    c = scan;
+    for (size_t k = 1; k <= 20; ++k) c[k * 90 * stride].z() += 40.0 + 5.0 * static_cast<double>(k);
+    cases.push_back({"isolated 20", c, false, true});
+  }
+  {
+    std::vector<Eigen::Vector3d> c = scan;
+    for (auto& p : c) p += Eigen::Vector3d(1e6, -2e5, 1e5);  // cells beyond the hash's range
+    cases.push_back({"far from the origin", c, false, true});
+  }
+  {
+    std::vector<Eigen::Vector3d> line, plane;
+    for (int i = 0; i < 3000; ++i) line.emplace_back(0.5 * i, 0, 0);
+    for (int i = 0; i < 4000; ++i) plane.emplace_back(0.2 * (i % 80), 0.2 * (i / 80), 1.0);
+    cases.push_back({"line", line, true, true});
+    cases.push_back({"plane", plane, true, true});
+  }
+  cases.push_back(
+      {"equal", std::vector<Eigen::Vector3d>(500, Eigen::Vector3d(1, 2, 3)), false, true});
+  cases.push_back({"two", {{0, 0, 0}, {1, 2, 3}}, true, true});
+  cases.push_back({"one", {{1, 2, 3}}, false, true});
+  cases.push_back({"none", {}, false, true});
+  for (const Case& c : cases) {
+    for (const size_t samples : {size_t{2000}, size_t{20000}, size_t{7}, size_t{0}}) {
+      const std::string what = c.name + " samples " + std::to_string(samples);
+      const double got = MedianSpacing(c.points, samples);
+      EXPECT_EQ(got, internal::MedianSpacingByCells(c.points, samples)) << what;
+      if (c.finite) {
+        if (samples <= 2000) {
+          EXPECT_EQ(got, BruteForceSpacing(c.points, samples)) << what;
+        } else {
+          const KdTree tree(c.points);
+          EXPECT_EQ(got, MedianSpacing(tree, samples)) << what;
+        }
+      }
+      if (samples == 2000) {
+        EXPECT_EQ(ScanOrder(c.points, samples), c.scan_order) << what;
+      }
+    }
+  }
+  EXPECT_NEAR(MedianSpacing(scan), 0.15, 0.03);  // the pixel pitch at the table
+  EXPECT_EQ(MedianSpacing(cases.back().points), 0.0);
+}
+
+// A reconstruction-sized cloud (1920 x 1200 pixels, ~2.1 M points): the scan-order grid answers
+// it, and gives the tree's value.
+TEST(MedianSpacing, ScanOrderGridOnAReconstructionSizedCloud) {
+  const std::vector<Eigen::Vector3d> scan = testing::ScanOrderCloud(1920, 1200, 0.12, 33);
+  ASSERT_GT(scan.size(), 2000000u);
+  EXPECT_TRUE(ScanOrder(scan, 20000));
+  const KdTree tree(scan);
+  EXPECT_EQ(MedianSpacing(scan), MedianSpacing(tree));
 }
 
 }  // namespace
