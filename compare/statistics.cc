@@ -9,6 +9,7 @@
 #include <utility>
 
 #include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
 
@@ -499,11 +500,11 @@ double SurfaceCell(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, size_t 
 
 namespace internal {
 
-// Each sample's squared distance to its array neighbours bounds its nearest; one hashed grid, of
-// cells twice the median bound (~4 points each on a surface), holding only the points of the
-// cells the samples search (those within their bound, or within 7.5 cells when the bound is
-// larger), answers every sample exactly but the isolated ones (nothing within 7.5 cells), which
-// are compared with every point.
+// Each sample's squared distance to its array neighbours bounds its nearest. Hashed cells twice
+// the median bound (~4 points each on a surface) list the samples searching them (those within
+// whose bound they lie, or within 7.5 cells when the bound is larger); one pass over the points
+// compares each with the samples searching its cell. That answers every sample exactly but the
+// isolated ones (nothing within 7.5 cells), which are compared with every point.
 bool ScanOrderSpacings(const std::vector<Eigen::Vector3d>& pts, size_t stride,
                        std::vector<double>* spacings) {
   const size_t n = pts.size();
@@ -583,99 +584,93 @@ bool ScanOrderSpacings(const std::vector<Eigen::Vector3d>& pts, size_t stride,
   for (size_t k = 0; k < ns; ++k) {
     if (!(cell(pts[samples[k]]).abs() < 1e6).all()) return false;
   }
-  // Buckets: a power of two, at least 4 per cell searched (few points of unsearched cells share
-  // a bucket with a searched one: they are only compared in vain), at most 2 per point.
-  size_t visits = 0;
-  for (size_t k = 0; k < ns; ++k) {
-    for_cells(k, [&](int64_t, int64_t, int64_t) { ++visits; });
-  }
-  size_t buckets = 1024;
-  while (buckets < 4 * visits && buckets < 2 * n && buckets < (size_t{1} << 31)) buckets *= 2;
-  const auto bucket_of = [&](int64_t x, int64_t y, int64_t z) {
-    const uint64_t key = (static_cast<uint64_t>(x + (1 << 20)) << 42) |
-                         (static_cast<uint64_t>(y + (1 << 20)) << 21) |
-                         static_cast<uint64_t>(z + (1 << 20));
-    return static_cast<uint32_t>(((key * 0x9E3779B97F4A7C15ull) >> 32) & (buckets - 1));
+  // The cells each sample searches, as (cell key, sample) pairs; buckets: a power of two, at
+  // least 4 per pair (few points of unsearched cells share a bucket with a searched one: they
+  // are only compared in vain), at most 2 per point.
+  const auto key_of = [](int64_t x, int64_t y, int64_t z) {
+    return (static_cast<uint64_t>(x + (1 << 20)) << 42) |
+           (static_cast<uint64_t>(y + (1 << 20)) << 21) | static_cast<uint64_t>(z + (1 << 20));
   };
-  std::vector<uint64_t> searched((buckets + 63) / 64, 0);
+  std::vector<std::pair<uint64_t, uint32_t>> visits;
+  visits.reserve(16 * ns);
   for (size_t k = 0; k < ns; ++k) {
     for_cells(k, [&](int64_t x, int64_t y, int64_t z) {
-      const uint32_t bk = bucket_of(x, y, z);
-      searched[bk >> 6] |= uint64_t{1} << (bk & 63);
+      visits.emplace_back(key_of(x, y, z), static_cast<uint32_t>(k));
     });
   }
-  // One pass over the points: each finite one's bucket when it is searched, the bounding box of
-  // the finite points (for MedianSpacingByCells's reach), and whether all cells are in range.
-  constexpr uint32_t kNotSearched = std::numeric_limits<uint32_t>::max();
-  std::vector<uint32_t> bucket(n);
+  size_t buckets = 1024;
+  while (buckets < 4 * visits.size() && buckets < 2 * n && buckets < (size_t{1} << 31)) {
+    buckets *= 2;
+  }
+  const auto bucket_of = [&](uint64_t key) {
+    return static_cast<uint32_t>(((key * 0x9E3779B97F4A7C15ull) >> 32) & (buckets - 1));
+  };
+  // Per bucket, the samples searching it (first[b], first[b + 1]) in `searchers`; a bit per
+  // bucket says whether any does.
+  std::vector<uint32_t> first(buckets + 1, 0), searchers(visits.size());
+  std::vector<uint64_t> searched((buckets + 63) / 64, 0);
+  for (auto& [key, k] : visits) {
+    const uint32_t b = bucket_of(key);
+    key = b;
+    ++first[b + 1];
+    searched[b >> 6] |= uint64_t{1} << (b & 63);
+  }
+  for (size_t b = 1; b <= buckets; ++b) first[b] += first[b - 1];
+  {
+    std::vector<uint32_t> fill(first.begin(), first.end() - 1);
+    for (const auto& [b, k] : visits) searchers[fill[b]++] = k;
+  }
+  std::vector<Eigen::Vector3d> sample_points(ns);
+  for (size_t k = 0; k < ns; ++k) sample_points[k] = pts[samples[k]];
+  // One pass over the points: each finite one in a searched bucket is compared with the samples
+  // searching it (the smallest squared distance per sample, in a copy of the bounds per thread:
+  // the same minimum however the points are shared out); whether all cells are in range, and
+  // whether all points are finite.
+  tbb::enumerable_thread_specific<std::vector<double>> nearest([&] { return best; });
   struct Scan {
-    Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
-    Eigen::Vector3d hi = -lo;
     bool in_range = true, finite = true;
   };
   const Scan scan = tbb::parallel_reduce(
       tbb::blocked_range<size_t>(0, n, 65536), Scan(),
       [&](const tbb::blocked_range<size_t>& r, Scan acc) {
+        std::vector<double>& mine = nearest.local();
         for (size_t i = r.begin(); i < r.end(); ++i) {
           const Eigen::Vector3d& p = pts[i];
-          bucket[i] = kNotSearched;
-          if (!p.allFinite()) {  // never the nearest of a finite sample
-            acc.finite = false;
+          const Eigen::Array3d t = (p * inv).array();
+          if (!(t.abs() < 1e6).all()) {  // out of range, or not finite
+            if (p.allFinite()) {
+              acc.in_range = false;
+            } else {
+              acc.finite = false;  // never the nearest of a finite sample
+            }
             continue;
           }
-          acc.lo = acc.lo.cwiseMin(p);
-          acc.hi = acc.hi.cwiseMax(p);
-          const Eigen::Array3d c = cell(p);
-          if (!(c.abs() < 1e6).all()) {
-            acc.in_range = false;
-            continue;
+          // floor(t), as cell(p) gives it, without a call to floor.
+          const auto floor_of = [](double x) {
+            const auto f = static_cast<int64_t>(x);  // toward zero
+            return f - static_cast<int64_t>(static_cast<double>(f) > x);
+          };
+          const uint32_t b = bucket_of(key_of(floor_of(t.x()), floor_of(t.y()), floor_of(t.z())));
+          if (!((searched[b >> 6] >> (b & 63)) & 1)) continue;
+          for (uint32_t m = first[b]; m < first[b + 1]; ++m) {
+            const uint32_t k = searchers[m];
+            if (samples[k] == i) continue;
+            const double d2 = (sample_points[k] - p).squaredNorm();
+            if (d2 < mine[k]) mine[k] = d2;
           }
-          const uint32_t bk = bucket_of(static_cast<int64_t>(c.x()), static_cast<int64_t>(c.y()),
-                                        static_cast<int64_t>(c.z()));
-          if ((searched[bk >> 6] >> (bk & 63)) & 1) bucket[i] = bk;
         }
         return acc;
       },
       [](Scan a, const Scan& b) {
-        a.lo = a.lo.cwiseMin(b.lo);
-        a.hi = a.hi.cwiseMax(b.hi);
         a.in_range = a.in_range && b.in_range;
         a.finite = a.finite && b.finite;
         return a;
       });
   if (!scan.in_range) return false;
-  std::vector<uint32_t> start(buckets + 1, 0);
-  for (const uint32_t b : bucket) {
-    if (b != kNotSearched) ++start[b + 1];
+  *spacings = best;
+  for (const std::vector<double>& mine : nearest) {
+    for (size_t k = 0; k < ns; ++k) (*spacings)[k] = std::min((*spacings)[k], mine[k]);
   }
-  for (size_t b = 1; b <= buckets; ++b) start[b] += start[b - 1];
-  // The kept points (and their indices) copied bucket by bucket: a search reads them in a row.
-  std::vector<Eigen::Vector3d> kept(start[buckets]);
-  std::vector<uint32_t> index(start[buckets]);
-  {
-    std::vector<uint32_t> fill(start.begin(), start.end() - 1);
-    for (size_t i = 0; i < n; ++i) {
-      if (bucket[i] == kNotSearched) continue;
-      const uint32_t m = fill[bucket[i]]++;
-      kept[m] = pts[i];
-      index[m] = static_cast<uint32_t>(i);
-    }
-  }
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, ns, 256),
-                    [&](const tbb::blocked_range<size_t>& r) {
-                      for (size_t k = r.begin(); k < r.end(); ++k) {
-                        const size_t i = samples[k];
-                        const Eigen::Vector3d& p = pts[i];
-                        double b = best[k];
-                        for_cells(k, [&](int64_t x, int64_t y, int64_t z) {
-                          const uint32_t bk = bucket_of(x, y, z);
-                          for (uint32_t m = start[bk]; m < start[bk + 1]; ++m) {
-                            if (index[m] != i) b = std::min(b, (p - kept[m]).squaredNorm());
-                          }
-                        });
-                        (*spacings)[k] = b;
-                      }
-                    });
   // Isolated samples (no point within their search): compared with every point.
   std::vector<size_t> isolated;
   for (size_t k = 0; k < ns; ++k) {
@@ -694,11 +689,20 @@ bool ScanOrderSpacings(const std::vector<Eigen::Vector3d>& pts, size_t stride,
   // cells (the same squared distance), the others from its tree: the same squared distance too
   // (compare/kdtree.h) when every point is finite; with non-finite points in the tree, it is left
   // to answer them.
-  const double wide = 8.0 * SurfaceCell(scan.lo, scan.hi, n);
-  for (double& b : *spacings) {
-    if (!scan.finite && !(b <= wide * wide)) return false;
-    b = std::sqrt(b);
+  if (!scan.finite) {
+    Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+    Eigen::Vector3d hi = -lo;
+    for (const Eigen::Vector3d& p : pts) {
+      if (!p.allFinite()) continue;
+      lo = lo.cwiseMin(p);
+      hi = hi.cwiseMax(p);
+    }
+    const double wide = 8.0 * SurfaceCell(lo, hi, n);
+    for (const double b : *spacings) {
+      if (!(b <= wide * wide)) return false;
+    }
   }
+  for (double& b : *spacings) b = std::sqrt(b);
   return true;
 }
 

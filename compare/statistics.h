@@ -82,11 +82,11 @@ std::vector<double> Coverages(const std::vector<const std::vector<Eigen::Vector3
 
 // MedianSpacing(KdTree(points), max_samples) without the tree, the same double. A cloud whose
 // array order follows space (a scan's cloud, in grid order): each sample's distance to its array
-// neighbours bounds its nearest, and one hashed grid of cells from those bounds, holding only
-// the points of the cells the samples search, answers every sample. Any other cloud (or one with
-// a non-finite sample or a far isolated one): a uniform grid from the bounding box answers the
-// samples whose nearest other point lies within its cell, a tree only the others
-// (compare/internal/median_spacing.h).
+// neighbours bounds its nearest, hashed cells sized from those bounds list the samples searching
+// them, and one pass over the points compares each with the samples searching its cell. Any
+// other cloud (or one with a non-finite sample, or many isolated ones): a uniform grid from the
+// bounding box answers the samples whose nearest other point lies within its cell, a tree only
+// the others (compare/internal/median_spacing.h).
 double MedianSpacing(const std::vector<Eigen::Vector3d>& points, size_t max_samples = 20000);
 
 }  // namespace slshadow::compare

@@ -20,10 +20,12 @@ double MedianSpacingByCells(const std::vector<Eigen::Vector3d>& points, size_t m
 // for point k stride (spacings sized by the caller), each the square root of
 // (points[i] - points[j]).squaredNorm() minimised over the finite points j != i, as
 // MedianSpacingByCells computes it. Returns false, with nothing to conclude, when a sample is not
-// finite, when more than 16 samples lie more than 8 cells from both array neighbours (not a
-// scan's cloud), when the cells do not fit the hash's 21-bit coordinates, or, in a cloud with
-// non-finite points, when a sample's nearest point lies beyond MedianSpacingByCells's grids (its
-// tree answers those, and may not skip non-finite points as the grids do).
+// finite, when array neighbours lie much farther apart than the points' bounding box implies for
+// a surface (not a scan's cloud), when more than 16 samples have no point within 7.5 cells
+// (isolated: each is compared with every point), when the cells do not fit the hash's 21-bit
+// coordinates, or, in a cloud with non-finite points, when a sample's nearest point lies beyond
+// MedianSpacingByCells's grids (its tree answers those, and may not skip non-finite points as
+// the grids do).
 bool ScanOrderSpacings(const std::vector<Eigen::Vector3d>& points, size_t stride,
                        std::vector<double>* spacings);
 
