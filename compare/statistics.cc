@@ -238,18 +238,20 @@ uint64_t Bits(double a) {
   return b;
 }
 
-// Everything ComputeStats derives from |d| (shared by the signed and unsigned figures), the
-// signed mean and std, and the histogram range, from two passes over the distances: the sums in
-// ComputeStats's order (so the same doubles), and the nearest-rank median, p95 and p99 by a radix
-// select: a count of the top 16 bits of |d| finds the bucket holding each rank, a selection among
-// the values of that bucket the value (the same one a full sort puts at that rank).
+// ComputeStats's figures of |d| (shared by the signed and unsigned figures), the signed mean and
+// std, and the histograms asked for, from three passes over the distances: the sums in order (so
+// the same doubles) and a count of the top 16 bits of |d|; the values of the (at most three)
+// buckets holding the ranks of the median, p95 and p99, a selection among which gives each (the
+// value a full sort puts at that rank); the deviations from the means (ComputeStats's two-pass
+// standard deviations) and the histograms, whose range the 99th percentile sets.
 struct AbsFigures {
-  DistanceStats stats;  // without its histogram's counts, and signed figures NaN
+  DistanceStats stats;  // its histogram unset, its signed figures NaN
   double signed_mean = 0, signed_std = 0;
+  Histogram signed_histogram, unsigned_histogram;  // of d over [-hi, hi], of |d| over [0, hi]
 };
 
 AbsFigures ComputeAbsFigures(const std::vector<double>& distances_mm, double threshold_mm, int bins,
-                             double range_mm) {
+                             double range_mm, bool bin_signed, bool bin_unsigned) {
   SLSHADOW_THROW_IF(!(range_mm >= 0) || !std::isfinite(range_mm),
                     "colour range: must be finite and >= 0 (got ", range_mm, ")");
   SLSHADOW_THROW_IF(!(threshold_mm >= 0) || !std::isfinite(threshold_mm),
@@ -260,6 +262,7 @@ AbsFigures ComputeAbsFigures(const std::vector<double>& distances_mm, double thr
   s.threshold_mm = threshold_mm;
   const double nan = std::numeric_limits<double>::quiet_NaN();
   s.signed_mean_mm = s.signed_std_mm = nan;
+  out.signed_mean = out.signed_std = nan;
   constexpr int kShift = 48;  // the top 16 bits: sign (0), exponent, 4 bits of mantissa
   std::vector<uint32_t> counts(size_t{1} << (64 - kShift), 0);
   double sum = 0, sum2 = 0, ssum = 0, max = 0;
@@ -278,35 +281,63 @@ AbsFigures ComputeAbsFigures(const std::vector<double>& distances_mm, double thr
     max = std::max(max, a);
   }
   s.outliers = s.count - s.inliers;
-  s.histogram.counts.assign(static_cast<size_t>(bins), 0);
-  if (s.count == 0) {
-    s.histogram.hi_mm = range_mm > 0 ? range_mm : std::max(threshold_mm, 1e-3);
-    out.signed_mean = out.signed_std = nan;
-    return out;
-  }
-  const double n = static_cast<double>(s.count);
-  s.mean_mm = sum / n;
-  s.rms_mm = std::sqrt(sum2 / n);
-  s.max_mm = max;
-  // The buckets of the three ranks, and each rank within its bucket.
-  const size_t ranks[3] = {PercentileIndex(s.count, 50), PercentileIndex(s.count, 95),
-                           PercentileIndex(s.count, 99)};
-  size_t bucket[3], within[3];
-  {
-    size_t below = 0, b = 0;
-    for (int r = 0; r < 3; ++r) {  // ranks ascend
-      while (below + counts[b] <= ranks[r]) below += counts[b++];
-      bucket[r] = b;
-      within[r] = ranks[r] - below;
+  double hi = range_mm > 0 ? range_mm : std::max(threshold_mm, 1e-3);  // for no values
+  if (s.count > 0) {
+    const double n = static_cast<double>(s.count);
+    s.mean_mm = sum / n;
+    s.rms_mm = std::sqrt(sum2 / n);
+    s.max_mm = max;
+    // The buckets of the three ranks, and each rank within its bucket.
+    const size_t ranks[3] = {PercentileIndex(s.count, 50), PercentileIndex(s.count, 95),
+                             PercentileIndex(s.count, 99)};
+    size_t bucket[3], within[3];
+    {
+      size_t below = 0, b = 0;
+      for (int r = 0; r < 3; ++r) {  // ranks ascend
+        while (below + counts[b] <= ranks[r]) below += counts[b++];
+        bucket[r] = b;
+        within[r] = ranks[r] - below;
+      }
     }
+    std::vector<double> values[3];
+    for (int r = 0; r < 3; ++r) {
+      if (r == 0 || bucket[r] != bucket[r - 1]) values[r].reserve(counts[bucket[r]]);
+    }
+    const uint64_t b0 = bucket[0], b1 = bucket[1], b2 = bucket[2];
+    for (const double d : distances_mm) {
+      const uint64_t b = Bits(std::abs(d)) >> kShift;  // non-finite: beyond every finite bucket
+      if (b == b0) {
+        values[0].push_back(std::abs(d));
+      } else if (b == b1) {
+        values[1].push_back(std::abs(d));
+      } else if (b == b2) {
+        values[2].push_back(std::abs(d));
+      }
+    }
+    double at[3];
+    for (int r = 0; r < 3; ++r) {
+      int v = r;
+      while (v > 0 && bucket[v - 1] == bucket[r]) --v;  // the bucket's values are in values[v]
+      std::vector<double>& x = values[v];
+      const auto k = x.begin() + static_cast<std::ptrdiff_t>(within[r]);
+      std::nth_element(x.begin(), k, x.end());
+      at[r] = *k;
+    }
+    s.median_mm = at[0];
+    s.p95_mm = at[1];
+    hi = range_mm > 0 ? range_mm : std::max(at[2], 1e-6);
   }
-  // Second pass: the deviations (ComputeStats's two-pass standard deviations) and the values of
-  // the (at most three) buckets holding the ranks.
-  std::vector<double> values[3];
-  for (int r = 0; r < 3; ++r) {
-    if (r == 0 || bucket[r] != bucket[r - 1]) values[r].reserve(counts[bucket[r]]);
-  }
-  const uint64_t b0 = bucket[0], b1 = bucket[1], b2 = bucket[2];
+  Histogram &hs = out.signed_histogram, &hu = out.unsigned_histogram;
+  hs.hi_mm = hu.hi_mm = hi;
+  hs.lo_mm = -hi;
+  hu.lo_mm = 0.0;
+  if (bin_signed) hs.counts.assign(static_cast<size_t>(bins), 0);
+  if (bin_unsigned) hu.counts.assign(static_cast<size_t>(bins), 0);
+  if (s.count == 0) return out;
+  // The deviations from the means, and the histograms.
+  const double n = static_cast<double>(s.count);
+  const double ws = hs.BinWidth(), wu = hu.BinWidth();
+  const size_t last = static_cast<size_t>(bins) - 1;
   double var = 0, svar = 0;
   const double smean = ssum / n;
   for (const double d : distances_mm) {
@@ -314,100 +345,58 @@ AbsFigures ComputeAbsFigures(const std::vector<double>& distances_mm, double thr
     const double a = std::abs(d);
     var += (a - s.mean_mm) * (a - s.mean_mm);
     svar += (d - smean) * (d - smean);
-    const uint64_t b = Bits(a) >> kShift;
-    if (b == b0) {
-      values[0].push_back(a);
-    } else if (b == b1) {
-      values[1].push_back(a);
-    } else if (b == b2) {
-      values[2].push_back(a);
+    if (bin_signed) {
+      if (d < hs.lo_mm) {
+        ++hs.underflow;
+      } else if (d > hs.hi_mm) {
+        ++hs.overflow;
+      } else {
+        ++hs.counts[std::min(static_cast<size_t>((d - hs.lo_mm) / ws), last)];
+      }
+    }
+    if (bin_unsigned) {
+      if (a > hu.hi_mm) {
+        ++hu.overflow;
+      } else {
+        ++hu.counts[std::min(static_cast<size_t>((a - hu.lo_mm) / wu), last)];
+      }
     }
   }
   s.std_mm = std::sqrt(var / n);
   out.signed_mean = smean;
   out.signed_std = std::sqrt(svar / n);
-  double at[3];
-  for (int r = 0; r < 3; ++r) {
-    int v = r;
-    while (v > 0 && bucket[v - 1] == bucket[r]) --v;  // the bucket's values are in values[v]
-    std::vector<double>& x = values[v];
-    const auto k = x.begin() + static_cast<std::ptrdiff_t>(within[r]);
-    std::nth_element(x.begin(), k, x.end());
-    at[r] = *k;
-  }
-  s.median_mm = at[0];
-  s.p95_mm = at[1];
-  s.histogram.hi_mm = range_mm > 0 ? range_mm : std::max(at[2], 1e-6);
   return out;
-}
-
-// Bins of the finite d (signed: d over [-hi, hi]; unsigned: |d| over [0, hi]) into h, whose range
-// and bins are set.
-void Bin(const std::vector<double>& distances_mm, bool is_signed, Histogram* h) {
-  const double w = h->BinWidth();
-  for (const double d : distances_mm) {
-    if (!std::isfinite(d)) continue;
-    const double v = is_signed ? d : std::abs(d);
-    if (v < h->lo_mm) {
-      ++h->underflow;
-    } else if (v > h->hi_mm) {
-      ++h->overflow;
-    } else {
-      const auto b = std::min(static_cast<size_t>((v - h->lo_mm) / w), h->counts.size() - 1);
-      ++h->counts[b];
-    }
-  }
 }
 
 }  // namespace
 
 DistanceStats ComputeStats(const std::vector<double>& distances_mm, bool is_signed,
                            double threshold_mm, int bins, double range_mm) {
-  AbsFigures f = ComputeAbsFigures(distances_mm, threshold_mm, bins, range_mm);
+  AbsFigures f =
+      ComputeAbsFigures(distances_mm, threshold_mm, bins, range_mm, is_signed, !is_signed);
   DistanceStats s = std::move(f.stats);
   s.is_signed = is_signed;
-  Histogram& h = s.histogram;
-  h.lo_mm = is_signed ? -h.hi_mm : 0.0;
-  if (s.count == 0) return s;
-  if (is_signed) {
+  s.histogram = std::move(is_signed ? f.signed_histogram : f.unsigned_histogram);
+  if (is_signed && s.count > 0) {
     s.signed_mean_mm = f.signed_mean;
     s.signed_std_mm = f.signed_std;
   }
-  Bin(distances_mm, is_signed, &h);
   return s;
 }
 
 UnsignedAndSigned ComputeUnsignedAndSignedStats(const std::vector<double>& distances_mm,
                                                 double threshold_mm, int bins, double range_mm) {
-  AbsFigures f = ComputeAbsFigures(distances_mm, threshold_mm, bins, range_mm);
+  AbsFigures f = ComputeAbsFigures(distances_mm, threshold_mm, bins, range_mm, true, true);
   UnsignedAndSigned out;
   out.unsigned_stats = f.stats;
-  out.signed_stats = std::move(f.stats);
-  DistanceStats &u = out.unsigned_stats, &s = out.signed_stats;
+  out.unsigned_stats.histogram = std::move(f.unsigned_histogram);
+  DistanceStats& s = out.signed_stats;
+  s = std::move(f.stats);
   s.is_signed = true;
-  s.histogram.lo_mm = -s.histogram.hi_mm;
-  if (s.count == 0) return out;
-  s.signed_mean_mm = f.signed_mean;
-  s.signed_std_mm = f.signed_std;
-  // Both histograms (the same range, from |d|) in one pass: d over [-hi, hi], |d| over [0, hi].
-  Histogram &hs = s.histogram, &hu = u.histogram;
-  const double ws = hs.BinWidth(), wu = hu.BinWidth();
-  const size_t last = hs.counts.size() - 1;
-  for (const double d : distances_mm) {
-    if (!std::isfinite(d)) continue;
-    if (d < hs.lo_mm) {
-      ++hs.underflow;
-    } else if (d > hs.hi_mm) {
-      ++hs.overflow;
-    } else {
-      ++hs.counts[std::min(static_cast<size_t>((d - hs.lo_mm) / ws), last)];
-    }
-    const double a = std::abs(d);
-    if (a > hu.hi_mm) {
-      ++hu.overflow;
-    } else {
-      ++hu.counts[std::min(static_cast<size_t>((a - hu.lo_mm) / wu), last)];
-    }
+  s.histogram = std::move(f.signed_histogram);
+  if (s.count > 0) {
+    s.signed_mean_mm = f.signed_mean;
+    s.signed_std_mm = f.signed_std;
   }
   return out;
 }

@@ -45,9 +45,10 @@ struct DistanceStats {
 // range_mm > 0: [-range, range] (signed) or [0, range]; 0: scaled to the data, at the 99th
 // percentile of |d| (1e-6 at least), so small deviations are not one flat colour; the values
 // beyond fall in underflow / overflow, the threshold is marked where it falls in range.
-// Two passes over the distances (the sums in order, then the deviations from the means) and a
-// radix select for the percentiles: a count of the top 16 bits of |d| finds the bucket holding
-// each rank, a selection among that bucket's values the value (the one a full sort gives).
+// Three passes over the distances: the sums in order and a count of the top 16 bits of |d|, which
+// finds the bucket holding each percentile's rank; the values of those buckets, a selection among
+// which gives each percentile (the value a full sort gives); the deviations from the means and
+// the histogram.
 DistanceStats ComputeStats(const std::vector<double>& distances_mm, bool is_signed,
                            double threshold_mm, int bins = 60, double range_mm = 0);
 // {ComputeStats(d, false, ...), ComputeStats(d, true, ...)}, equal field for field, from one pass
