@@ -4,13 +4,16 @@
 #include <atomic>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <utility>
 
 #include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
 
+#include "compare/internal/median_spacing.h"
 #include "compare/kdtree.h"
 #include "core/error.h"
 #include "core/statistics.h"
@@ -228,113 +231,172 @@ class PointGrid {
   size_t mask_ = 0;
 };
 
-}  // namespace
+// The bits of a non-negative double: they order as the values do.
+uint64_t Bits(double a) {
+  uint64_t b = 0;
+  std::memcpy(&b, &a, sizeof(b));
+  return b;
+}
 
-DistanceStats ComputeStats(const std::vector<double>& distances_mm, bool is_signed,
-                           double threshold_mm, int bins, double range_mm) {
+// ComputeStats's figures of |d| (shared by the signed and unsigned figures), the signed mean and
+// std, and the histograms asked for, from three passes over the distances: the sums in order (so
+// the same doubles) and a count of the top 16 bits of |d|; the values of the (at most three)
+// buckets holding the ranks of the median, p95 and p99, a selection among which gives each (the
+// value a full sort puts at that rank); the deviations from the means (ComputeStats's two-pass
+// standard deviations) and the histograms, whose range the 99th percentile sets.
+struct AbsFigures {
+  DistanceStats stats;  // its histogram unset, its signed figures NaN
+  double signed_mean = 0, signed_std = 0;
+  Histogram signed_histogram, unsigned_histogram;  // of d over [-hi, hi], of |d| over [0, hi]
+};
+
+AbsFigures ComputeAbsFigures(const std::vector<double>& distances_mm, double threshold_mm, int bins,
+                             double range_mm, bool bin_signed, bool bin_unsigned) {
   SLSHADOW_THROW_IF(!(range_mm >= 0) || !std::isfinite(range_mm),
                     "colour range: must be finite and >= 0 (got ", range_mm, ")");
   SLSHADOW_THROW_IF(!(threshold_mm >= 0) || !std::isfinite(threshold_mm),
                     "threshold_mm: must be finite and >= 0 (got ", threshold_mm, ")");
   SLSHADOW_THROW_IF(bins < 1, "histogram bins: must be >= 1 (got ", bins, ")");
-  DistanceStats s;
-  s.is_signed = is_signed;
+  AbsFigures out;
+  DistanceStats& s = out.stats;
   s.threshold_mm = threshold_mm;
   const double nan = std::numeric_limits<double>::quiet_NaN();
   s.signed_mean_mm = s.signed_std_mm = nan;
-  std::vector<double> abs_d;
-  abs_d.reserve(distances_mm.size());
-  double sum = 0, sum2 = 0, ssum = 0;
-  for (double d : distances_mm) {
+  out.signed_mean = out.signed_std = nan;
+  constexpr int kShift = 48;  // the top 16 bits: sign (0), exponent, 4 bits of mantissa
+  std::vector<uint32_t> counts(size_t{1} << (64 - kShift), 0);
+  double sum = 0, sum2 = 0, ssum = 0, max = 0;
+  for (const double d : distances_mm) {
     if (!std::isfinite(d)) {
       ++s.num_invalid;
       continue;
     }
     const double a = std::abs(d);
-    abs_d.push_back(a);
+    ++s.count;
     sum += a;
     sum2 += a * a;
     ssum += d;
     if (a <= threshold_mm) ++s.inliers;
+    ++counts[Bits(a) >> kShift];
+    max = std::max(max, a);
   }
-  s.count = abs_d.size();
   s.outliers = s.count - s.inliers;
-  if (s.count == 0) {
-    s.histogram.counts.assign(static_cast<size_t>(bins), 0);
-    s.histogram.hi_mm = range_mm > 0 ? range_mm : std::max(threshold_mm, 1e-3);
-    s.histogram.lo_mm = is_signed ? -s.histogram.hi_mm : 0.0;
-    return s;
+  double hi = range_mm > 0 ? range_mm : std::max(threshold_mm, 1e-3);  // for no values
+  if (s.count > 0) {
+    const double n = static_cast<double>(s.count);
+    s.mean_mm = sum / n;
+    s.rms_mm = std::sqrt(sum2 / n);
+    s.max_mm = max;
+    // The buckets of the three ranks, and each rank within its bucket.
+    const size_t ranks[3] = {PercentileIndex(s.count, 50), PercentileIndex(s.count, 95),
+                             PercentileIndex(s.count, 99)};
+    size_t bucket[3], within[3];
+    {
+      size_t below = 0, b = 0;
+      for (int r = 0; r < 3; ++r) {  // ranks ascend
+        while (below + counts[b] <= ranks[r]) below += counts[b++];
+        bucket[r] = b;
+        within[r] = ranks[r] - below;
+      }
+    }
+    std::vector<double> values[3];
+    for (int r = 0; r < 3; ++r) {
+      if (r == 0 || bucket[r] != bucket[r - 1]) values[r].reserve(counts[bucket[r]]);
+    }
+    const uint64_t b0 = bucket[0], b1 = bucket[1], b2 = bucket[2];
+    for (const double d : distances_mm) {
+      const uint64_t b = Bits(std::abs(d)) >> kShift;  // non-finite: beyond every finite bucket
+      if (b == b0) {
+        values[0].push_back(std::abs(d));
+      } else if (b == b1) {
+        values[1].push_back(std::abs(d));
+      } else if (b == b2) {
+        values[2].push_back(std::abs(d));
+      }
+    }
+    double at[3];
+    for (int r = 0; r < 3; ++r) {
+      int v = r;
+      while (v > 0 && bucket[v - 1] == bucket[r]) --v;  // the bucket's values are in values[v]
+      std::vector<double>& x = values[v];
+      const auto k = x.begin() + static_cast<std::ptrdiff_t>(within[r]);
+      std::nth_element(x.begin(), k, x.end());
+      at[r] = *k;
+    }
+    s.median_mm = at[0];
+    s.p95_mm = at[1];
+    hi = range_mm > 0 ? range_mm : std::max(at[2], 1e-6);
   }
+  Histogram &hs = out.signed_histogram, &hu = out.unsigned_histogram;
+  hs.hi_mm = hu.hi_mm = hi;
+  hs.lo_mm = -hi;
+  hu.lo_mm = 0.0;
+  if (bin_signed) hs.counts.assign(static_cast<size_t>(bins), 0);
+  if (bin_unsigned) hu.counts.assign(static_cast<size_t>(bins), 0);
+  if (s.count == 0) return out;
+  // The deviations from the means, and the histograms.
   const double n = static_cast<double>(s.count);
-  s.mean_mm = sum / n;
-  s.rms_mm = std::sqrt(sum2 / n);
-  // Two-pass for the standard deviations (numerically safe).
+  const double ws = hs.BinWidth(), wu = hu.BinWidth();
+  const size_t last = static_cast<size_t>(bins) - 1;
   double var = 0, svar = 0;
   const double smean = ssum / n;
-  for (double d : distances_mm) {
+  for (const double d : distances_mm) {
     if (!std::isfinite(d)) continue;
-    var += (std::abs(d) - s.mean_mm) * (std::abs(d) - s.mean_mm);
+    const double a = std::abs(d);
+    var += (a - s.mean_mm) * (a - s.mean_mm);
     svar += (d - smean) * (d - smean);
+    if (bin_signed) {
+      if (d < hs.lo_mm) {
+        ++hs.underflow;
+      } else if (d > hs.hi_mm) {
+        ++hs.overflow;
+      } else {
+        ++hs.counts[std::min(static_cast<size_t>((d - hs.lo_mm) / ws), last)];
+      }
+    }
+    if (bin_unsigned) {
+      if (a > hu.hi_mm) {
+        ++hu.overflow;
+      } else {
+        ++hu.counts[std::min(static_cast<size_t>((a - hu.lo_mm) / wu), last)];
+      }
+    }
   }
   s.std_mm = std::sqrt(var / n);
-  if (is_signed) {
-    s.signed_mean_mm = smean;
-    s.signed_std_mm = std::sqrt(svar / n);
-  }
-  // The nearest-rank percentiles by successive selections (each on the part above the previous
-  // rank): the same values a full sort gives, in O(n).
-  const size_t i50 = PercentileIndex(abs_d.size(), 50), i95 = PercentileIndex(abs_d.size(), 95),
-               i99 = PercentileIndex(abs_d.size(), 99);
-  const auto at = [&](size_t i) { return abs_d.begin() + static_cast<std::ptrdiff_t>(i); };
-  std::nth_element(abs_d.begin(), at(i50), abs_d.end());
-  s.median_mm = abs_d[i50];
-  std::nth_element(at(i50), at(i95), abs_d.end());
-  s.p95_mm = abs_d[i95];
-  std::nth_element(at(i95), at(i99), abs_d.end());
-  Histogram& h = s.histogram;
-  h.hi_mm = range_mm > 0 ? range_mm : std::max(abs_d[i99], 1e-6);
-  s.max_mm = *std::max_element(at(i99), abs_d.end());
-  h.lo_mm = is_signed ? -h.hi_mm : 0.0;
-  h.counts.assign(static_cast<size_t>(bins), 0);
-  const double w = h.BinWidth();
-  for (double d : distances_mm) {
-    if (!std::isfinite(d)) continue;
-    const double v = is_signed ? d : std::abs(d);
-    if (v < h.lo_mm) {
-      ++h.underflow;
-    } else if (v > h.hi_mm) {
-      ++h.overflow;
-    } else {
-      const auto b = std::min(static_cast<size_t>((v - h.lo_mm) / w), h.counts.size() - 1);
-      ++h.counts[b];
-    }
+  out.signed_mean = smean;
+  out.signed_std = std::sqrt(svar / n);
+  return out;
+}
+
+}  // namespace
+
+DistanceStats ComputeStats(const std::vector<double>& distances_mm, bool is_signed,
+                           double threshold_mm, int bins, double range_mm) {
+  AbsFigures f =
+      ComputeAbsFigures(distances_mm, threshold_mm, bins, range_mm, is_signed, !is_signed);
+  DistanceStats s = std::move(f.stats);
+  s.is_signed = is_signed;
+  s.histogram = std::move(is_signed ? f.signed_histogram : f.unsigned_histogram);
+  if (is_signed && s.count > 0) {
+    s.signed_mean_mm = f.signed_mean;
+    s.signed_std_mm = f.signed_std;
   }
   return s;
 }
 
 UnsignedAndSigned ComputeUnsignedAndSignedStats(const std::vector<double>& distances_mm,
                                                 double threshold_mm, int bins, double range_mm) {
+  AbsFigures f = ComputeAbsFigures(distances_mm, threshold_mm, bins, range_mm, true, true);
   UnsignedAndSigned out;
-  out.signed_stats = ComputeStats(distances_mm, true, threshold_mm, bins, range_mm);
-  DistanceStats& u = out.unsigned_stats;
-  u = out.signed_stats;
-  u.is_signed = false;
-  u.signed_mean_mm = u.signed_std_mm = std::numeric_limits<double>::quiet_NaN();
-  // The same range (both from |d|), binned over [0, hi] as |d|.
-  Histogram& h = u.histogram;
-  h.lo_mm = 0.0;
-  std::fill(h.counts.begin(), h.counts.end(), size_t{0});
-  h.underflow = h.overflow = 0;
-  const double w = h.BinWidth();
-  for (double d : distances_mm) {
-    if (!std::isfinite(d)) continue;
-    const double v = std::abs(d);
-    if (v > h.hi_mm) {
-      ++h.overflow;
-    } else {
-      const auto b = std::min(static_cast<size_t>((v - h.lo_mm) / w), h.counts.size() - 1);
-      ++h.counts[b];
-    }
+  out.unsigned_stats = f.stats;
+  out.unsigned_stats.histogram = std::move(f.unsigned_histogram);
+  DistanceStats& s = out.signed_stats;
+  s = std::move(f.stats);
+  s.is_signed = true;
+  s.histogram = std::move(f.signed_histogram);
+  if (s.count > 0) {
+    s.signed_mean_mm = f.signed_mean;
+    s.signed_std_mm = f.signed_std;
   }
   return out;
 }
@@ -411,7 +473,229 @@ std::vector<double> Coverages(const std::vector<const std::vector<Eigen::Vector3
   return out;
 }
 
-double MedianSpacing(const std::vector<Eigen::Vector3d>& points, size_t max_samples) {
+namespace {
+
+// The cell of MedianSpacingByCells's first grid, from the finite points' bounding box [lo, hi]
+// and the number of points, assuming a surface: ~4 points per cell.
+double SurfaceCell(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, size_t num_points) {
+  Eigen::Vector3d e = hi - lo;
+  std::sort(e.data(), e.data() + 3, std::greater<>());
+  const double n = static_cast<double>(num_points);
+  const double cell = e[1] > 0 ? 2.0 * std::sqrt(e[0] * e[1] / n) : 2.0 * e[0] / n;
+  return std::max(cell, 1e-9 * std::max(e[0], 1.0));
+}
+
+}  // namespace
+
+namespace internal {
+
+// Each sample's squared distance to its array neighbours bounds its nearest. Hashed cells twice
+// the median bound (~4 points each on a surface) list the samples searching them (those within
+// whose bound they lie, or within 7.5 cells when the bound is larger); one pass over the points
+// compares each with the samples searching its cell. That answers every sample exactly but the
+// isolated ones (nothing within 7.5 cells), which are compared with every point.
+bool ScanOrderSpacings(const std::vector<Eigen::Vector3d>& pts, size_t stride,
+                       std::vector<double>* spacings) {
+  const size_t n = pts.size();
+  if (n < 2 || n >= std::numeric_limits<uint32_t>::max()) return false;
+  std::vector<uint32_t> samples;
+  for (size_t i = 0; i < n; i += stride) samples.push_back(static_cast<uint32_t>(i));
+  const size_t ns = samples.size();
+  // Upper bounds: the squared distance to the array neighbours (a non-finite neighbour gives NaN
+  // or infinity, which std::min keeps out unless both are).
+  std::vector<double> best(ns);
+  for (size_t k = 0; k < ns; ++k) {
+    const size_t i = samples[k];
+    if (!pts[i].allFinite()) return false;
+    double b = std::numeric_limits<double>::infinity();
+    if (i > 0) b = std::min(b, (pts[i] - pts[i - 1]).squaredNorm());
+    if (i + 1 < n) b = std::min(b, (pts[i] - pts[i + 1]).squaredNorm());
+    best[k] = b;
+  }
+  std::vector<double> sorted = best;
+  std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(ns / 2),
+                   sorted.end());
+  const double h = 2 * std::sqrt(sorted[ns / 2]);
+  if (!(h > 0) || !std::isfinite(h)) return false;
+  {
+    // Array neighbours apart by far more than a surface of this many points spreads them over the
+    // samples' bounding box: not a scan's cloud (the cells would hold too many points).
+    Eigen::Vector3d lo = pts[samples[0]], hi = lo;
+    for (const uint32_t i : samples) {
+      lo = lo.cwiseMin(pts[i]);
+      hi = hi.cwiseMax(pts[i]);
+    }
+    if (h > 8 * SurfaceCell(lo, hi, n)) return false;
+  }
+  // A sample searching within a squared distance D finds every point nearer than sqrt(D) within
+  // floor(1.001 sqrt(D) / h) + 1 cells of its own (the margin covers the rounding of the cell
+  // coordinates): its bound, or (7.5 h)^2 (8 cells) when the bound is larger.
+  const double inv = 1 / h;
+  const auto rings_of = [&](double bound) {
+    return std::floor(std::sqrt(bound) * inv * 1.001) + 1;
+  };
+  std::vector<double> reach2(ns);
+  for (size_t k = 0; k < ns; ++k) {
+    reach2[k] = rings_of(best[k]) <= 8 ? best[k] : (7.5 * h) * (7.5 * h);
+  }
+  const auto cell = [&](const Eigen::Vector3d& p) {
+    return Eigen::Array3d(((p * inv).array().floor()));
+  };
+  // The cells sample k searches: of the cells within its rings, those whose box lies within its
+  // bound of it (in cell units, with margins for the rounding of cell coordinates); every point
+  // nearer than its bound is in one of them. visit(x, y, z) for each.
+  const auto for_cells = [&](size_t k, auto&& visit) {
+    const Eigen::Vector3d& p = pts[samples[k]];
+    const auto reach = static_cast<int64_t>(rings_of(reach2[k]));
+    const Eigen::Array3d t = (p * inv).array();
+    const Eigen::Array3d c = t.floor();
+    const double r = std::sqrt(reach2[k]) * inv * 1.001 + 1e-6, r2 = r * r;
+    const auto gap = [](int64_t cell_index, double coordinate) {
+      const auto lo = static_cast<double>(cell_index);
+      return std::max({0.0, lo - coordinate, coordinate - (lo + 1)});
+    };
+    const auto cx = static_cast<int64_t>(c.x()), cy = static_cast<int64_t>(c.y()),
+               cz = static_cast<int64_t>(c.z());
+    for (int64_t z = cz - reach; z <= cz + reach; ++z) {
+      const double gz = gap(z, t.z());
+      for (int64_t y = cy - reach; y <= cy + reach; ++y) {
+        const double gy = gap(y, t.y());
+        if (gz * gz + gy * gy > r2) continue;
+        for (int64_t x = cx - reach; x <= cx + reach; ++x) {
+          const double gx = gap(x, t.x());
+          if (gz * gz + gy * gy + gx * gx > r2) continue;
+          visit(x, y, z);
+        }
+      }
+    }
+  };
+  // The samples' cells must fit the hash's 21 bits a coordinate (checked below for every point).
+  for (size_t k = 0; k < ns; ++k) {
+    if (!(cell(pts[samples[k]]).abs() < 1e6).all()) return false;
+  }
+  // The cells each sample searches, as (cell key, sample) pairs; buckets: a power of two, at
+  // least 4 per pair (few points of unsearched cells share a bucket with a searched one: they
+  // are only compared in vain), at most 2 per point.
+  const auto key_of = [](int64_t x, int64_t y, int64_t z) {
+    return (static_cast<uint64_t>(x + (1 << 20)) << 42) |
+           (static_cast<uint64_t>(y + (1 << 20)) << 21) | static_cast<uint64_t>(z + (1 << 20));
+  };
+  std::vector<std::pair<uint64_t, uint32_t>> visits;
+  visits.reserve(16 * ns);
+  for (size_t k = 0; k < ns; ++k) {
+    for_cells(k, [&](int64_t x, int64_t y, int64_t z) {
+      visits.emplace_back(key_of(x, y, z), static_cast<uint32_t>(k));
+    });
+  }
+  size_t buckets = 1024;
+  while (buckets < 4 * visits.size() && buckets < 2 * n && buckets < (size_t{1} << 31)) {
+    buckets *= 2;
+  }
+  const auto bucket_of = [&](uint64_t key) {
+    return static_cast<uint32_t>(((key * 0x9E3779B97F4A7C15ull) >> 32) & (buckets - 1));
+  };
+  // Per bucket, the samples searching it (first[b], first[b + 1]) in `searchers`; a bit per
+  // bucket says whether any does.
+  std::vector<uint32_t> first(buckets + 1, 0), searchers(visits.size());
+  std::vector<uint64_t> searched((buckets + 63) / 64, 0);
+  for (auto& [key, k] : visits) {
+    const uint32_t b = bucket_of(key);
+    key = b;
+    ++first[b + 1];
+    searched[b >> 6] |= uint64_t{1} << (b & 63);
+  }
+  for (size_t b = 1; b <= buckets; ++b) first[b] += first[b - 1];
+  {
+    std::vector<uint32_t> fill(first.begin(), first.end() - 1);
+    for (const auto& [b, k] : visits) searchers[fill[b]++] = k;
+  }
+  std::vector<Eigen::Vector3d> sample_points(ns);
+  for (size_t k = 0; k < ns; ++k) sample_points[k] = pts[samples[k]];
+  // One pass over the points: each finite one in a searched bucket is compared with the samples
+  // searching it (the smallest squared distance per sample, in a copy of the bounds per thread:
+  // the same minimum however the points are shared out); whether all cells are in range, and
+  // whether all points are finite.
+  tbb::enumerable_thread_specific<std::vector<double>> nearest([&] { return best; });
+  struct Scan {
+    bool in_range = true, finite = true;
+  };
+  const Scan scan = tbb::parallel_reduce(
+      tbb::blocked_range<size_t>(0, n, 65536), Scan(),
+      [&](const tbb::blocked_range<size_t>& r, Scan acc) {
+        std::vector<double>& mine = nearest.local();
+        for (size_t i = r.begin(); i < r.end(); ++i) {
+          const Eigen::Vector3d& p = pts[i];
+          const Eigen::Array3d t = (p * inv).array();
+          if (!(t.abs() < 1e6).all()) {  // out of range, or not finite
+            if (p.allFinite()) {
+              acc.in_range = false;
+            } else {
+              acc.finite = false;  // never the nearest of a finite sample
+            }
+            continue;
+          }
+          // floor(t), as cell(p) gives it, without a call to floor.
+          const auto floor_of = [](double x) {
+            const auto f = static_cast<int64_t>(x);  // toward zero
+            return f - static_cast<int64_t>(static_cast<double>(f) > x);
+          };
+          const uint32_t b = bucket_of(key_of(floor_of(t.x()), floor_of(t.y()), floor_of(t.z())));
+          if (!((searched[b >> 6] >> (b & 63)) & 1)) continue;
+          for (uint32_t m = first[b]; m < first[b + 1]; ++m) {
+            const uint32_t k = searchers[m];
+            if (samples[k] == i) continue;
+            const double d2 = (sample_points[k] - p).squaredNorm();
+            if (d2 < mine[k]) mine[k] = d2;
+          }
+        }
+        return acc;
+      },
+      [](Scan a, const Scan& b) {
+        a.in_range = a.in_range && b.in_range;
+        a.finite = a.finite && b.finite;
+        return a;
+      });
+  if (!scan.in_range) return false;
+  *spacings = best;
+  for (const std::vector<double>& mine : nearest) {
+    for (size_t k = 0; k < ns; ++k) (*spacings)[k] = std::min((*spacings)[k], mine[k]);
+  }
+  // Isolated samples (no point within their search): compared with every point.
+  std::vector<size_t> isolated;
+  for (size_t k = 0; k < ns; ++k) {
+    if (!((*spacings)[k] <= reach2[k])) isolated.push_back(k);
+  }
+  if (isolated.size() > 16) return false;
+  for (const size_t k : isolated) {
+    const size_t i = samples[k];
+    double b = (*spacings)[k];
+    for (size_t j = 0; j < n; ++j) {
+      if (j != i) b = std::min(b, (pts[i] - pts[j]).squaredNorm());
+    }
+    (*spacings)[k] = b;
+  }
+  // MedianSpacingByCells answers from its grids the samples whose nearest lies within 8 of its
+  // cells (the same squared distance), the others from its tree: the same squared distance too
+  // (compare/kdtree.h) when every point is finite; with non-finite points in the tree, it is left
+  // to answer them.
+  if (!scan.finite) {
+    Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+    Eigen::Vector3d hi = -lo;
+    for (const Eigen::Vector3d& p : pts) {
+      if (!p.allFinite()) continue;
+      lo = lo.cwiseMin(p);
+      hi = hi.cwiseMax(p);
+    }
+    const double wide = 8.0 * SurfaceCell(lo, hi, n);
+    for (const double b : *spacings) {
+      if (!(b <= wide * wide)) return false;
+    }
+  }
+  for (double& b : *spacings) b = std::sqrt(b);
+  return true;
+}
+
+double MedianSpacingByCells(const std::vector<Eigen::Vector3d>& points, size_t max_samples) {
   if (points.size() < 2) return 0.0;
   const size_t stride = std::max<size_t>(1, points.size() / std::max<size_t>(1, max_samples));
   // Cell from the bounding box, assuming a surface: ~4 points per cell.
@@ -424,11 +708,7 @@ double MedianSpacing(const std::vector<Eigen::Vector3d>& points, size_t max_samp
   std::vector<double> d;
   std::vector<size_t> missed;  // samples with no other point within the cell: answered by a tree
   if (lo.x() <= hi.x()) {
-    Eigen::Vector3d e = hi - lo;
-    std::sort(e.data(), e.data() + 3, std::greater<>());
-    const double n = static_cast<double>(points.size());
-    double cell = e[1] > 0 ? 2.0 * std::sqrt(e[0] * e[1] / n) : 2.0 * e[0] / n;
-    cell = std::max(cell, 1e-9 * std::max(e[0], 1.0));
+    const double cell = SurfaceCell(lo, hi, points.size());
     const double reach = cell * cell;  // within it, the grid's answer is exact
     std::vector<size_t> samples;
     for (size_t i = 0; i < points.size(); i += stride) samples.push_back(i);
@@ -486,6 +766,19 @@ double MedianSpacing(const std::vector<Eigen::Vector3d>& points, size_t max_samp
     }
   }
   if (d.empty()) return 0.0;
+  std::nth_element(d.begin(), d.begin() + static_cast<long>(d.size() / 2), d.end());
+  return d[d.size() / 2];
+}
+
+}  // namespace internal
+
+double MedianSpacing(const std::vector<Eigen::Vector3d>& points, size_t max_samples) {
+  if (points.size() < 2) return 0.0;
+  const size_t stride = std::max<size_t>(1, points.size() / std::max<size_t>(1, max_samples));
+  std::vector<double> d((points.size() + stride - 1) / stride);
+  if (!internal::ScanOrderSpacings(points, stride, &d)) {
+    return internal::MedianSpacingByCells(points, max_samples);
+  }
   std::nth_element(d.begin(), d.begin() + static_cast<long>(d.size() / 2), d.end());
   return d[d.size() / 2];
 }

@@ -45,6 +45,10 @@ struct DistanceStats {
 // range_mm > 0: [-range, range] (signed) or [0, range]; 0: scaled to the data, at the 99th
 // percentile of |d| (1e-6 at least), so small deviations are not one flat colour; the values
 // beyond fall in underflow / overflow, the threshold is marked where it falls in range.
+// Three passes over the distances: the sums in order and a count of the top 16 bits of |d|, which
+// finds the bucket holding each percentile's rank; the values of those buckets, a selection among
+// which gives each percentile (the value a full sort gives); the deviations from the means and
+// the histogram.
 DistanceStats ComputeStats(const std::vector<double>& distances_mm, bool is_signed,
                            double threshold_mm, int bins = 60, double range_mm = 0);
 // {ComputeStats(d, false, ...), ComputeStats(d, true, ...)}, equal field for field, from one pass
@@ -77,8 +81,13 @@ std::vector<double> Coverages(const std::vector<const std::vector<Eigen::Vector3
                               const std::vector<Eigen::Vector3d>& points,
                               const std::vector<uint8_t>& reached, double radius_mm);
 
-// MedianSpacing(KdTree(points), max_samples) without the tree: a uniform grid answers the
-// samples whose nearest other point lies within its cell, a tree only the others.
+// MedianSpacing(KdTree(points), max_samples) without the tree, the same double. A cloud whose
+// array order follows space (a scan's cloud, in grid order): each sample's distance to its array
+// neighbours bounds its nearest, hashed cells sized from those bounds list the samples searching
+// them, and one pass over the points compares each with the samples searching its cell. Any
+// other cloud (or one with a non-finite sample, or many isolated ones): a uniform grid from the
+// bounding box answers the samples whose nearest other point lies within its cell, a tree only
+// the others (compare/internal/median_spacing.h).
 double MedianSpacing(const std::vector<Eigen::Vector3d>& points, size_t max_samples = 20000);
 
 }  // namespace slshadow::compare

@@ -2,7 +2,6 @@
 
 #include "compare/statistics.h"
 #include "core/error.h"
-#include "core/statistics.h"
 #include "shadow/internal/c2m_grid.h"
 #include "sim/renderer.h"
 #include "sim/sensor_noise.h"
@@ -16,7 +15,6 @@
 #include <atomic>
 #include <cmath>
 #include <cstdint>
-#include <cstring>
 #include <limits>
 
 namespace slshadow::shadow {
@@ -287,195 +285,6 @@ struct GroundTruthScorer::SampleGrid {
   }
 };
 
-double CloudMedianSpacing(const std::vector<Eigen::Vector3d>& pts) {
-  constexpr size_t kMaxSamples = 20000;  // compare::MedianSpacing's default
-  const size_t n = pts.size();
-  if (n < 2 || n >= std::numeric_limits<uint32_t>::max()) return compare::MedianSpacing(pts);
-  const bool finite = tbb::parallel_reduce(
-      tbb::blocked_range<size_t>(0, n, 65536), true,
-      [&](const tbb::blocked_range<size_t>& r, bool ok) {
-        for (size_t i = r.begin(); ok && i < r.end(); ++i) ok = pts[i].allFinite();
-        return ok;
-      },
-      [](bool a, bool b) { return a && b; });
-  if (!finite) return compare::MedianSpacing(pts);
-  const size_t stride = std::max<size_t>(1, n / kMaxSamples);
-  std::vector<uint32_t> samples;
-  for (size_t i = 0; i < n; i += stride) samples.push_back(static_cast<uint32_t>(i));
-  const size_t ns = samples.size();
-  // Upper bounds: the squared distance to the array neighbours (compare's expression, so that
-  // the true nearest neighbour gives compare's double).
-  std::vector<double> best(ns);
-  for (size_t k = 0; k < ns; ++k) {
-    const size_t i = samples[k];
-    double b = std::numeric_limits<double>::infinity();
-    if (i > 0) b = std::min(b, (pts[i] - pts[i - 1]).squaredNorm());
-    if (i + 1 < n) b = std::min(b, (pts[i] - pts[i + 1]).squaredNorm());
-    best[k] = b;
-  }
-  // Cells of twice the median bound (~4 points each on a surface). A sample whose bound is D
-  // finds every point nearer than D within floor(1.001 D / cell) + 1 cells of its own (the margin
-  // covers the rounding of the cell coordinates); one farther than 8 cells from its array
-  // neighbours (an isolated point) is compared with every point.
-  std::vector<double> sorted = best;
-  std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(ns / 2),
-                   sorted.end());
-  const double h = 2 * std::sqrt(sorted[ns / 2]);
-  if (!(h > 0) || !std::isfinite(h)) return compare::MedianSpacing(pts);
-  const double inv = 1 / h;
-  const auto rings_of = [&](double bound) {
-    return std::floor(std::sqrt(bound) * inv * 1.001) + 1;
-  };
-  size_t far = 0;
-  for (const double b : best) far += !(rings_of(b) <= 8);
-  if (far > 16) return compare::MedianSpacing(pts);
-  // Cell coordinates (and those 8 cells around them) must fit the hash's 21 bits a coordinate.
-  const auto cell = [&](const Eigen::Vector3d& p) {
-    return Eigen::Array3d(((p * inv).array().floor()));
-  };
-  const bool in_range = tbb::parallel_reduce(
-      tbb::blocked_range<size_t>(0, n, 65536), true,
-      [&](const tbb::blocked_range<size_t>& r, bool ok) {
-        for (size_t i = r.begin(); ok && i < r.end(); ++i) ok = (cell(pts[i]).abs() < 1e6).all();
-        return ok;
-      },
-      [](bool a, bool b) { return a && b; });
-  if (!in_range) return compare::MedianSpacing(pts);
-  size_t buckets = 1;
-  while (buckets < 2 * n) buckets *= 2;
-  const auto bucket_of = [&](int64_t x, int64_t y, int64_t z) {
-    const uint64_t key = (static_cast<uint64_t>(x + (1 << 20)) << 42) |
-                         (static_cast<uint64_t>(y + (1 << 20)) << 21) |
-                         static_cast<uint64_t>(z + (1 << 20));
-    return static_cast<uint32_t>(((key * 0x9E3779B97F4A7C15ull) >> 32) & (buckets - 1));
-  };
-  // The cells sample k searches: of the cells within its rings, those whose box lies within its
-  // bound of it (in cell units, with margins for the rounding of cell coordinates); every point
-  // nearer than its bound is in one of them. Only points in the buckets of such cells are sorted.
-  const auto for_cells = [&](size_t k, auto&& visit) {
-    const Eigen::Vector3d& p = pts[samples[k]];
-    const auto reach = static_cast<int64_t>(rings_of(best[k]));
-    const Eigen::Array3d t = (p * inv).array();
-    const Eigen::Array3d c = t.floor();
-    const double r = std::sqrt(best[k]) * inv * 1.001 + 1e-6, r2 = r * r;
-    const auto gap = [](int64_t cell_index, double coordinate) {
-      const auto lo = static_cast<double>(cell_index);
-      return std::max({0.0, lo - coordinate, coordinate - (lo + 1)});
-    };
-    const auto cx = static_cast<int64_t>(c.x()), cy = static_cast<int64_t>(c.y()),
-               cz = static_cast<int64_t>(c.z());
-    for (int64_t z = cz - reach; z <= cz + reach; ++z) {
-      const double gz = gap(z, t.z());
-      for (int64_t y = cy - reach; y <= cy + reach; ++y) {
-        const double gy = gap(y, t.y());
-        if (gz * gz + gy * gy > r2) continue;
-        for (int64_t x = cx - reach; x <= cx + reach; ++x) {
-          const double gx = gap(x, t.x());
-          if (gz * gz + gy * gy + gx * gx > r2) continue;
-          visit(bucket_of(x, y, z));
-        }
-      }
-    }
-  };
-  std::vector<uint64_t> searched((buckets + 63) / 64, 0);
-  for (size_t k = 0; k < ns; ++k) {
-    if (!(rings_of(best[k]) <= 8)) continue;  // compared with every point below
-    for_cells(k, [&](uint32_t bk) { searched[bk >> 6] |= uint64_t{1} << (bk & 63); });
-  }
-  constexpr uint32_t kNotSearched = std::numeric_limits<uint32_t>::max();
-  std::vector<uint32_t> bucket(n);
-  tbb::parallel_for(
-      tbb::blocked_range<size_t>(0, n, 65536), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t i = r.begin(); i < r.end(); ++i) {
-          const Eigen::Array3d c = cell(pts[i]);
-          const uint32_t bk = bucket_of(static_cast<int64_t>(c.x()), static_cast<int64_t>(c.y()),
-                                        static_cast<int64_t>(c.z()));
-          bucket[i] = (searched[bk >> 6] >> (bk & 63)) & 1 ? bk : kNotSearched;
-        }
-      });
-  std::vector<uint32_t> start(buckets + 1, 0);
-  for (const uint32_t b : bucket) {
-    if (b != kNotSearched) ++start[b + 1];
-  }
-  for (size_t b = 1; b <= buckets; ++b) start[b] += start[b - 1];
-  std::vector<uint32_t> order(start[buckets]);
-  {
-    std::vector<uint32_t> fill(start.begin(), start.end() - 1);
-    for (size_t i = 0; i < n; ++i) {
-      if (bucket[i] != kNotSearched) order[fill[bucket[i]]++] = static_cast<uint32_t>(i);
-    }
-  }
-  std::vector<double> found(ns);
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, ns, 256),
-                    [&](const tbb::blocked_range<size_t>& r) {
-                      for (size_t k = r.begin(); k < r.end(); ++k) {
-                        const size_t i = samples[k];
-                        const Eigen::Vector3d& p = pts[i];
-                        double b = best[k];
-                        if (!(rings_of(b) <= 8)) {  // far from its array neighbours: every point
-                          for (size_t j = 0; j < n; ++j) {
-                            if (j != i) b = std::min(b, (p - pts[j]).squaredNorm());
-                          }
-                        } else {
-                          for_cells(k, [&](uint32_t bk) {
-                            for (uint32_t m = start[bk]; m < start[bk + 1]; ++m) {
-                              const uint32_t j = order[m];
-                              if (j != i) b = std::min(b, (p - pts[j]).squaredNorm());
-                            }
-                          });
-                        }
-                        found[k] = b;
-                      }
-                    });
-  best.swap(found);
-  std::vector<double> d(ns);
-  for (size_t k = 0; k < ns; ++k) d[k] = std::sqrt(best[k]);
-  std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(ns / 2), d.end());
-  return d[ns / 2];
-}
-
-DeviationFigures ComputeDeviationFigures(const std::vector<double>& deviations,
-                                         double threshold_mm) {
-  // compare::ComputeStats's sums, in its order; the 95th percentile by a radix select on the bits
-  // of |d| (non-negative doubles order as their bit patterns): a histogram of the top 16 bits
-  // finds the bucket holding the rank, a selection within it the value.
-  DeviationFigures f;
-  double sum = 0, sum2 = 0;
-  size_t inliers = 0;
-  std::vector<uint32_t> histogram(size_t{1} << 16, 0);
-  const auto bits = [](double a) {
-    uint64_t b = 0;
-    std::memcpy(&b, &a, sizeof(b));
-    return b;
-  };
-  for (const double d : deviations) {
-    if (!std::isfinite(d)) continue;
-    const double a = std::abs(d);
-    ++f.count;
-    sum += a;
-    sum2 += a * a;
-    if (a <= threshold_mm) ++inliers;
-    ++histogram[bits(a) >> 48];
-    f.max_mm = std::max(f.max_mm, a);
-  }
-  f.outliers = f.count - inliers;
-  if (f.count == 0) return f;
-  const double n = static_cast<double>(f.count);
-  f.mean_mm = sum / n;
-  f.rms_mm = std::sqrt(sum2 / n);
-  size_t rank = PercentileRank(f.count, 95), bucket = 0;
-  while (rank >= histogram[bucket]) rank -= histogram[bucket++];
-  std::vector<double> in_bucket;
-  in_bucket.reserve(histogram[bucket]);
-  for (const double d : deviations) {
-    if (std::isfinite(d) && bits(std::abs(d)) >> 48 == bucket) in_bucket.push_back(std::abs(d));
-  }
-  std::nth_element(in_bucket.begin(), in_bucket.begin() + static_cast<std::ptrdiff_t>(rank),
-                   in_bucket.end());
-  f.p95_mm = in_bucket[rank];
-  return f;
-}
-
 GroundTruthScorer::GroundTruthScorer(TriangleMesh surface, std::vector<Eigen::Vector3d> visible,
                                      const std::string& what)
     : reference_(compare::ReferenceFromMesh(std::move(surface), what)),
@@ -492,7 +301,7 @@ void GroundTruthScorer::Prepare(const std::vector<const PointCloud*>& clouds, in
     if (jobs_left < kGridJobs) return;
     double spacing = 0;  // the clouds' point spacing (the coarsest)
     for (const PointCloud* cloud : clouds) {
-      if (cloud->size() >= 2) spacing = std::max(spacing, CloudMedianSpacing(cloud->points));
+      if (cloud->size() >= 2) spacing = std::max(spacing, compare::MedianSpacing(cloud->points));
     }
     grid_ = std::make_unique<internal::C2mGrid>(reference_.mesh, distance_, spacing);
   }
@@ -530,7 +339,8 @@ ModeAccuracy GroundTruthScorer::Measure(const PointCloud& cloud,
                         }
                       });
   }
-  const DeviationFigures stats = ComputeDeviationFigures(deviations, options.threshold_mm);
+  const compare::DistanceStats stats =
+      compare::ComputeStats(deviations, false, options.threshold_mm);
   std::vector<Eigen::Vector3d> reached;
   reached.reserve(pts.size());
   for (size_t i = 0; i < pts.size(); ++i) {
@@ -538,7 +348,7 @@ ModeAccuracy GroundTruthScorer::Measure(const PointCloud& cloud,
   }
   const double radius = options.coverage_radius_mm > 0
                             ? options.coverage_radius_mm
-                            : std::max(options.threshold_mm, 3.0 * CloudMedianSpacing(pts));
+                            : std::max(options.threshold_mm, 3.0 * compare::MedianSpacing(pts));
   ModeAccuracy m;
   m.mode = mode;
   m.points = pts.size();

@@ -80,24 +80,6 @@ class NoiseFreeImages {
 // object for other types (point clouds). Boxes are exact (12 triangles).
 TriangleMesh GroundTruthSurface(const Scene& scene, const std::string& what);
 
-// compare::MedianSpacing(points) (its default of 20000 samples), the same double, in a fraction of
-// its time on a cloud of millions of points: each sample's distance to its neighbours in the array
-// (a scan's cloud is in grid order, so they are mostly its neighbours in space) bounds its
-// nearest-neighbour distance, and one hashed grid of that cell size answers all samples exactly.
-// Falls back to compare::MedianSpacing for non-finite points or too many far samples.
-double CloudMedianSpacing(const std::vector<Eigen::Vector3d>& points);
-
-// What a sweep reports of the deviations of a cloud: compare::ComputeStats(deviations,
-// false, threshold_mm)'s count, outliers, mean, rms, p95 and max, the same values (non-finite
-// deviations skipped as it skips them), without its other figures (standard deviations, median,
-// 99th percentile, histogram).
-struct DeviationFigures {
-  size_t count = 0, outliers = 0;
-  double mean_mm = 0, rms_mm = 0, p95_mm = 0, max_mm = 0;
-};
-DeviationFigures ComputeDeviationFigures(const std::vector<double>& deviations,
-                                         double threshold_mm);
-
 // The accuracy figures of clouds against one ground-truth surface, with the hierarchy and the
 // samples built once.
 class GroundTruthScorer {

@@ -3,16 +3,21 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
+#include <iterator>
 #include <limits>
 #include <numeric>
 #include <random>
+#include <string>
 #include <utility>
 #include <vector>
 
 #include <gtest/gtest.h>
 
+#include "compare/internal/median_spacing.h"
 #include "compare/kdtree.h"
 #include "core/error.h"
+#include "tests/compare/test_shapes.h"
 
 namespace slshadow::compare {
 namespace {
@@ -98,6 +103,168 @@ TEST(ComputeUnsignedAndSignedStats, EqualsTheTwoSeparateCalls) {
       const UnsignedAndSigned both = ComputeUnsignedAndSignedStats(data, 0.2, 40, range);
       expect_equal(both.unsigned_stats, ComputeStats(data, false, 0.2, 40, range));
       expect_equal(both.signed_stats, ComputeStats(data, true, 0.2, 40, range));
+    }
+  }
+}
+
+// The oracle of ComputeStats: its definitions (compare/statistics.h) with the percentiles from a
+// full sort, the sums in the order of the distances (as ComputeStats adds them, so the same
+// doubles), the standard deviations by two passes.
+DistanceStats SortedStats(const std::vector<double>& d, bool is_signed, double threshold, int bins,
+                          double range) {
+  DistanceStats s;
+  s.is_signed = is_signed;
+  s.threshold_mm = threshold;
+  s.signed_mean_mm = s.signed_std_mm = std::numeric_limits<double>::quiet_NaN();
+  std::vector<double> a;
+  double sum = 0, sum2 = 0, ssum = 0;
+  for (const double v : d) {
+    if (!std::isfinite(v)) {
+      ++s.num_invalid;
+      continue;
+    }
+    a.push_back(std::abs(v));
+    sum += std::abs(v);
+    sum2 += std::abs(v) * std::abs(v);
+    ssum += v;
+    s.inliers += std::abs(v) <= threshold;
+  }
+  s.count = a.size();
+  s.outliers = s.count - s.inliers;
+  Histogram& h = s.histogram;
+  h.counts.assign(static_cast<size_t>(bins), 0);
+  if (a.empty()) {
+    h.hi_mm = range > 0 ? range : std::max(threshold, 1e-3);
+    h.lo_mm = is_signed ? -h.hi_mm : 0.0;
+    return s;
+  }
+  const double n = static_cast<double>(a.size());
+  s.mean_mm = sum / n;
+  s.rms_mm = std::sqrt(sum2 / n);
+  double var = 0, svar = 0;
+  for (const double v : d) {
+    if (!std::isfinite(v)) continue;
+    var += (std::abs(v) - s.mean_mm) * (std::abs(v) - s.mean_mm);
+    svar += (v - ssum / n) * (v - ssum / n);
+  }
+  s.std_mm = std::sqrt(var / n);
+  if (is_signed) {
+    s.signed_mean_mm = ssum / n;
+    s.signed_std_mm = std::sqrt(svar / n);
+  }
+  std::sort(a.begin(), a.end());
+  const auto rank = [&](double p) {  // nearest rank: element ceil(p/100 n) - 1
+    return a[static_cast<size_t>(std::clamp(std::ceil(p / 100.0 * n), 1.0, n)) - 1];
+  };
+  s.median_mm = rank(50);
+  s.p95_mm = rank(95);
+  s.max_mm = a.back();
+  h.hi_mm = range > 0 ? range : std::max(rank(99), 1e-6);
+  h.lo_mm = is_signed ? -h.hi_mm : 0.0;
+  const double w = (h.hi_mm - h.lo_mm) / bins;
+  for (const double v : d) {
+    if (!std::isfinite(v)) continue;
+    const double x = is_signed ? v : std::abs(v);
+    if (x < h.lo_mm) {
+      ++h.underflow;
+    } else if (x > h.hi_mm) {
+      ++h.overflow;
+    } else {
+      ++h.counts[std::min(static_cast<size_t>((x - h.lo_mm) / w), h.counts.size() - 1)];
+    }
+  }
+  return s;
+}
+
+// Field for field, the doubles bit for bit (NaN where NaN).
+void ExpectSameStats(const DistanceStats& a, const DistanceStats& b, const std::string& what) {
+  const auto bits = [](double x) {
+    uint64_t u = 0;
+    std::memcpy(&u, &x, sizeof(u));
+    return std::isnan(x) ? uint64_t{1} : u;
+  };
+  EXPECT_EQ(a.is_signed, b.is_signed) << what;
+  EXPECT_EQ(a.count, b.count) << what;
+  EXPECT_EQ(a.num_invalid, b.num_invalid) << what;
+  const std::pair<double, double> pairs[] = {{a.mean_mm, b.mean_mm},
+                                             {a.std_mm, b.std_mm},
+                                             {a.rms_mm, b.rms_mm},
+                                             {a.median_mm, b.median_mm},
+                                             {a.p95_mm, b.p95_mm},
+                                             {a.max_mm, b.max_mm},
+                                             {a.signed_mean_mm, b.signed_mean_mm},
+                                             {a.signed_std_mm, b.signed_std_mm},
+                                             {a.threshold_mm, b.threshold_mm},
+                                             {a.histogram.lo_mm, b.histogram.lo_mm},
+                                             {a.histogram.hi_mm, b.histogram.hi_mm}};
+  for (size_t k = 0; k < std::size(pairs); ++k) {
+    EXPECT_EQ(bits(pairs[k].first), bits(pairs[k].second))
+        << what << " field " << k << ": " << pairs[k].first << " " << pairs[k].second;
+  }
+  EXPECT_EQ(a.inliers, b.inliers) << what;
+  EXPECT_EQ(a.outliers, b.outliers) << what;
+  EXPECT_EQ(a.histogram.counts, b.histogram.counts) << what;
+  EXPECT_EQ(a.histogram.underflow, b.histogram.underflow) << what;
+  EXPECT_EQ(a.histogram.overflow, b.histogram.overflow) << what;
+}
+
+// ComputeStats (and ComputeUnsignedAndSignedStats) against the sorting oracle: noisy deviations
+// of several scales and sizes, with many ties, zeros of both signs, NaN and infinities; values
+// spanning the whole double range (denormals to the largest), values all in one radix bucket,
+// all equal, one value, none, only NaN.
+TEST(ComputeStats, EqualsTheSortingOracle) {
+  std::mt19937 rng(5);
+  std::normal_distribution<double> normal(0, 1);
+  std::vector<std::vector<double>> sets;
+  for (const size_t n : {size_t{1}, size_t{2}, size_t{19}, size_t{1000}, size_t{300001}}) {
+    std::vector<double> d(n);
+    for (double& v : d) v = 0.03 * normal(rng) * (normal(rng) > 2 ? 40 : 1);
+    sets.push_back(d);
+    for (size_t i = 0; i < n; i += 3) d[i] = std::round(d[i] * 100) / 100;  // many ties
+    if (n > 2) {
+      d[1] = -0.0;
+      d[2] = 0.0;
+    }
+    sets.push_back(d);
+    if (n > 2) {
+      d[0] = std::numeric_limits<double>::quiet_NaN();
+      d[n - 1] = -std::numeric_limits<double>::infinity();
+      d[n / 2] = std::numeric_limits<double>::infinity();
+    }
+    sets.push_back(d);
+  }
+  std::vector<double> wide;
+  for (int i = 0; i < 20000; ++i) {
+    wide.push_back((i % 2 ? -1 : 1) * std::ldexp(1.0 + std::abs(normal(rng)), i % 2046 - 1074));
+  }
+  wide.push_back(std::numeric_limits<double>::max());
+  wide.push_back(-std::numeric_limits<double>::denorm_min());
+  sets.push_back(wide);
+  std::vector<double> one_bucket;  // the same top 16 bits: the selection does all the work
+  for (int i = 0; i < 30000; ++i) one_bucket.push_back(1.0 + 1e-9 * (i * 7919 % 30000));
+  sets.push_back(one_bucket);
+  sets.push_back(std::vector<double>(5000, 0.25));
+  sets.push_back(std::vector<double>(5000, -0.0));
+  sets.push_back({0.7});
+  sets.push_back({});
+  sets.push_back({std::numeric_limits<double>::quiet_NaN()});
+  for (size_t k = 0; k < sets.size(); ++k) {
+    for (const double threshold : {0.0, 0.05, 0.5}) {
+      for (const double range : {0.0, 0.3}) {
+        for (const int bins : {1, 60}) {
+          const std::string what = "set " + std::to_string(k) + " threshold " +
+                                   std::to_string(threshold) + " range " + std::to_string(range) +
+                                   " bins " + std::to_string(bins);
+          const DistanceStats u = SortedStats(sets[k], false, threshold, bins, range);
+          const DistanceStats s = SortedStats(sets[k], true, threshold, bins, range);
+          ExpectSameStats(ComputeStats(sets[k], false, threshold, bins, range), u, what);
+          ExpectSameStats(ComputeStats(sets[k], true, threshold, bins, range), s, what);
+          const UnsignedAndSigned both =
+              ComputeUnsignedAndSignedStats(sets[k], threshold, bins, range);
+          ExpectSameStats(both.unsigned_stats, u, what + " (both)");
+          ExpectSameStats(both.signed_stats, s, what + " (both)");
+        }
+      }
     }
   }
 }
@@ -270,6 +437,142 @@ TEST(MedianSpacing, GridEqualsTree) {
           << c.size() << " " << samples;
     }
   }
+}
+
+// The brute-force median spacing: every stride-th point's nearest other finite point, the
+// squared distance as (p - q).squaredNorm(); all samples must be finite.
+double BruteForceSpacing(const std::vector<Eigen::Vector3d>& pts, size_t max_samples) {
+  if (pts.size() < 2) return 0.0;
+  const size_t stride = std::max<size_t>(1, pts.size() / std::max<size_t>(1, max_samples));
+  std::vector<double> d;
+  for (size_t i = 0; i < pts.size(); i += stride) {
+    double best = std::numeric_limits<double>::infinity();
+    for (size_t j = 0; j < pts.size(); ++j) {
+      if (j != i && pts[j].allFinite()) best = std::min(best, (pts[i] - pts[j]).squaredNorm());
+    }
+    d.push_back(std::sqrt(best));
+  }
+  std::nth_element(d.begin(), d.begin() + static_cast<long>(d.size() / 2), d.end());
+  return d[d.size() / 2];
+}
+
+// Whether MedianSpacing answers `pts` by its scan-order grid (else by MedianSpacingByCells).
+bool ScanOrder(const std::vector<Eigen::Vector3d>& pts, size_t max_samples) {
+  const size_t stride = std::max<size_t>(1, pts.size() / std::max<size_t>(1, max_samples));
+  std::vector<double> d((pts.size() + stride - 1) / stride);
+  return internal::ScanOrderSpacings(pts, stride, &d);
+}
+
+// MedianSpacing, double for double, against the method it had before the scan-order grid
+// (MedianSpacingByCells, itself checked against the tree above) and against a brute force or the
+// tree: on clouds in scan order as a reconstruction's (where the scan-order grid answers), the
+// same shuffled, with NaN and infinite points (unsampled: skipped; sampled: the general method),
+// duplicates, samples far from their array neighbours but near other points, isolated samples
+// far from everything (up to 16: compared with every point, beyond the general method's grids:
+// its tree's distance, the same double; more, or with a non-finite point in the cloud: the general
+// method), all points equal, far from the origin, and fewer than 2 points.
+TEST(MedianSpacing, ScanOrderGridEqualsTheGeneralMethodAndTheOracles) {
+  struct Case {
+    std::string name;
+    std::vector<Eigen::Vector3d> points;
+    bool scan_order;  // expected to be answered by the scan-order grid (max_samples 2000)
+    bool finite;      // the brute force (and the tree) are oracles
+  };
+  std::vector<Case> cases;
+  const std::vector<Eigen::Vector3d> scan = testing::ScanOrderCloud(320, 200, 0.15, 31);
+  ASSERT_GT(scan.size(), 50000u);
+  cases.push_back({"scan", scan, true, true});
+  std::mt19937 rng(32);
+  {
+    std::vector<Eigen::Vector3d> c = scan;
+    std::shuffle(c.begin(), c.end(), rng);
+    cases.push_back({"shuffled", c, false, true});
+  }
+  const size_t stride = scan.size() / 2000;  // the samples at max_samples 2000
+  {
+    std::vector<Eigen::Vector3d> c = scan;
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    const double inf = std::numeric_limits<double>::infinity();
+    for (size_t k = 0; k < 40; ++k) {  // beside samples: never a sample
+      c[(k * 997 % 1900 + 1) * stride + 1] = k % 3 == 0   ? Eigen::Vector3d(nan, 0, 0)
+                                             : k % 3 == 1 ? Eigen::Vector3d(0, inf, 0)
+                                                          : Eigen::Vector3d(1, 2, -inf);
+    }
+    cases.push_back({"non-finite unsampled", c, true, false});
+    c[7 * stride].z() = nan;
+    cases.push_back({"non-finite sample", c, false, false});
+  }
+  {
+    std::vector<Eigen::Vector3d> c = scan;
+    for (size_t i = 0; i + 1 < c.size(); i += 7) c[i + 1] = c[i];           // array neighbours
+    for (size_t i = 0; i + 5000 < c.size(); i += 1013) c[i] = c[i + 5000];  // far in the array
+    cases.push_back({"duplicates", c, true, true});
+  }
+  for (const size_t swaps : {size_t{10}, size_t{30}}) {
+    // Samples swapped with points elsewhere: far from their array neighbours, near others.
+    std::vector<Eigen::Vector3d> c = scan;
+    for (size_t k = 0; k < swaps; ++k) {
+      std::swap(c[(k * 61 + 5) * stride], c[(k * 61 + 905) % 1990 * stride + stride / 2]);
+    }
+    cases.push_back({"far samples " + std::to_string(swaps), c, true, true});
+  }
+  {
+    std::vector<Eigen::Vector3d> c = scan;
+    for (size_t k = 1; k <= 5; ++k) c[k * 300 * stride].z() += 40.0 + static_cast<double>(k);
+    cases.push_back({"isolated", c, true, true});
+    c[3 * stride + 2].y() = std::numeric_limits<double>::quiet_NaN();  // the general method's tree
+    cases.push_back({"isolated and non-finite", c, false, false});
+    c = scan;
+    for (size_t k = 1; k <= 20; ++k) c[k * 90 * stride].z() += 40.0 + 5.0 * static_cast<double>(k);
+    cases.push_back({"isolated 20", c, false, true});
+  }
+  {
+    std::vector<Eigen::Vector3d> c = scan;
+    for (auto& p : c) p += Eigen::Vector3d(1e6, -2e5, 1e5);  // cells beyond the hash's range
+    cases.push_back({"far from the origin", c, false, true});
+  }
+  {
+    std::vector<Eigen::Vector3d> line, plane;
+    for (int i = 0; i < 3000; ++i) line.emplace_back(0.5 * i, 0, 0);
+    for (int i = 0; i < 4000; ++i) plane.emplace_back(0.2 * (i % 80), 0.2 * (i / 80), 1.0);
+    cases.push_back({"line", line, true, true});
+    cases.push_back({"plane", plane, true, true});
+  }
+  cases.push_back(
+      {"equal", std::vector<Eigen::Vector3d>(500, Eigen::Vector3d(1, 2, 3)), false, true});
+  cases.push_back({"two", {{0, 0, 0}, {1, 2, 3}}, true, true});
+  cases.push_back({"one", {{1, 2, 3}}, false, true});
+  cases.push_back({"none", {}, false, true});
+  for (const Case& c : cases) {
+    for (const size_t samples : {size_t{2000}, size_t{20000}, size_t{7}, size_t{0}}) {
+      const std::string what = c.name + " samples " + std::to_string(samples);
+      const double got = MedianSpacing(c.points, samples);
+      EXPECT_EQ(got, internal::MedianSpacingByCells(c.points, samples)) << what;
+      if (c.finite) {
+        if (samples <= 2000) {
+          EXPECT_EQ(got, BruteForceSpacing(c.points, samples)) << what;
+        } else {
+          const KdTree tree(c.points);
+          EXPECT_EQ(got, MedianSpacing(tree, samples)) << what;
+        }
+      }
+      if (samples == 2000) {
+        EXPECT_EQ(ScanOrder(c.points, samples), c.scan_order) << what;
+      }
+    }
+  }
+  EXPECT_NEAR(MedianSpacing(scan), 0.15, 0.03);  // the pixel pitch at the table
+  EXPECT_EQ(MedianSpacing(cases.back().points), 0.0);
+}
+
+// A reconstruction-sized cloud (1920 x 1200 pixels, ~2.1 M points): the scan-order grid answers
+// it, and gives the tree's value.
+TEST(MedianSpacing, ScanOrderGridOnAReconstructionSizedCloud) {
+  const std::vector<Eigen::Vector3d> scan = testing::ScanOrderCloud(1920, 1200, 0.12, 33);
+  ASSERT_GT(scan.size(), 2000000u);
+  EXPECT_TRUE(ScanOrder(scan, 20000));
+  const KdTree tree(scan);
+  EXPECT_EQ(MedianSpacing(scan), MedianSpacing(tree));
 }
 
 }  // namespace

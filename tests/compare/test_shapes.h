@@ -96,6 +96,36 @@ inline std::vector<Eigen::Vector3d> SamplePart(size_t n, double s, unsigned seed
   return pts;
 }
 
+// A cloud like a structured-light reconstruction's: the points a width x height camera 500 mm
+// above a table sees of the part (PartHeight, s = 0.6 of the field, raised 20 mm on a block)
+// through pixels of pitch_mm at the table, in scan order (row by row), with 0.02 mm of noise
+// along the ray; pixels that see nothing are left out (a shadow band beside the block, a round
+// hole in the table, 3 % of single pixels at random), so rows have gaps and differ in length.
+inline std::vector<Eigen::Vector3d> ScanOrderCloud(int width, int height, double pitch_mm,
+                                                   unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::normal_distribution<double> noise(0.0, 0.02);
+  const double distance = 500.0, fw = width * pitch_mm, s = 0.6 * fw;
+  std::vector<Eigen::Vector3d> pts;
+  pts.reserve(static_cast<size_t>(width) * static_cast<size_t>(height));
+  for (int v = 0; v < height; ++v) {
+    for (int c = 0; c < width; ++c) {
+      // The ray through the pixel, at the table (z = 0).
+      const double x0 = (c - 0.5 * width) * pitch_mm, y0 = (v - 0.5 * height) * pitch_mm;
+      const bool on_block = std::abs(x0) < s / 2 && std::abs(y0) < s / 2;
+      double z = on_block ? 20.0 + PartHeight(x0, y0, s) : 0.0;
+      if (!on_block && x0 >= s / 2 && x0 < s / 2 + 6 && std::abs(y0) < s / 2) continue;  // shadow
+      if (!on_block && std::hypot(x0 + 0.42 * fw, y0) < 0.04 * fw) continue;             // hole
+      if (u(rng) < 0.03) continue;
+      z += noise(rng);
+      const double scale = (distance - z) / distance;  // perspective: nearer is denser
+      pts.emplace_back(x0 * scale, y0 * scale, z);
+    }
+  }
+  return pts;
+}
+
 inline std::vector<Eigen::Vector3d> RandomPoints(size_t n, double extent, unsigned seed) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> u(-extent, extent);

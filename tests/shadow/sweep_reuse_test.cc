@@ -3,6 +3,7 @@
 // bit; MeasureAccuracy(compare::Compare(...)) for the accuracy figures, double for double.
 #include "shadow/sweep_reuse.h"
 
+#include "compare/internal/median_spacing.h"
 #include "compare/statistics.h"
 #include "core/config.h"
 #include "core/error.h"
@@ -267,27 +268,17 @@ TEST(GroundTruthScorer, EqualsCompareThenMeasureAccuracy) {
   }
   EXPECT_THROW(scorer.Measure(PointCloud{}, compare::CompareOptions{}, "empty"), Error);
 
-  // The median spacing behind the automatic radius, double for double: the scans' clouds (grid
-  // order), one shuffled (array neighbours far apart), with duplicates and isolated points, with a
-  // non-finite point, and tiny clouds.
-  std::mt19937 rng(7);
-  std::vector<std::vector<Eigen::Vector3d>> clouds = {recs[0].cloud.points, recs[1].cloud.points};
-  std::vector<Eigen::Vector3d> shuffled = recs[0].cloud.points;
-  std::shuffle(shuffled.begin(), shuffled.end(), rng);
-  clouds.push_back(shuffled);
-  std::vector<Eigen::Vector3d> odd = recs[1].cloud.points;
-  for (size_t i = 0; i < odd.size(); i += 997) odd[i + 1 < odd.size() ? i + 1 : i] = odd[i];
-  // Ten isolated samples (compare::MedianSpacing samples every stride-th point).
-  const size_t stride = std::max<size_t>(1, odd.size() / 20000);
-  for (size_t k = 1; k <= 10; ++k) odd[k * stride * (odd.size() / stride / 12)].z() += 40.0 + k;
-  clouds.push_back(odd);
-  std::vector<Eigen::Vector3d> nan = recs[0].cloud.points;
-  nan[nan.size() / 3].x() = std::numeric_limits<double>::quiet_NaN();
-  clouds.push_back(nan);
-  clouds.push_back({{0, 0, 0}, {1, 2, 3}});
-  clouds.push_back({{0, 0, 0}});
-  for (size_t c = 0; c < clouds.size(); ++c) {
-    EXPECT_EQ(CloudMedianSpacing(clouds[c]), compare::MedianSpacing(clouds[c])) << "cloud " << c;
+  // The median spacing behind the automatic radius on the scans' clouds (reconstructions, in grid
+  // order): compare::MedianSpacing answers them by its scan-order grid, the same double as its
+  // general method (tests/compare/statistics_test.cc checks both against a brute force and the
+  // tree on synthetic clouds).
+  for (size_t k = 0; k < 2; ++k) {
+    const std::vector<Eigen::Vector3d>& pts = recs[k].cloud.points;
+    const size_t stride = std::max<size_t>(1, pts.size() / 20000);
+    std::vector<double> d((pts.size() + stride - 1) / stride);
+    EXPECT_TRUE(compare::internal::ScanOrderSpacings(pts, stride, &d)) << k;
+    EXPECT_EQ(compare::MedianSpacing(pts), compare::internal::MedianSpacingByCells(pts, 20000))
+        << k;
   }
 }
 
@@ -376,45 +367,6 @@ TEST(C2mGrid, SignedDistancesAreMeshDistancesBitForBit) {
   ASSERT_EQ(got.size(), sets[0].size());
   for (size_t i = 0; i < got.size(); i += 97) {
     EXPECT_TRUE(same_bits(got[i], distance.Closest(sets[0][i]).signed_distance_mm)) << i;
-  }
-}
-
-// The sweep's deviation figures are compare::ComputeStats's, double for double: noisy deviations
-// of several scales, with ties, zeros of both signs, non-finite values, one value, none.
-TEST(DeviationFigures, EqualComputeStats) {
-  std::mt19937 rng(5);
-  std::normal_distribution<double> normal(0, 1);
-  std::vector<std::vector<double>> sets;
-  for (const size_t n : {size_t{1}, size_t{2}, size_t{19}, size_t{1000}, size_t{300001}}) {
-    std::vector<double> d(n);
-    for (double& v : d) v = 0.03 * normal(rng) * (normal(rng) > 2 ? 40 : 1);
-    sets.push_back(d);
-    for (size_t i = 0; i < n; i += 3) d[i] = std::round(d[i] * 100) / 100;  // many ties
-    if (n > 2) {
-      d[1] = -0.0;
-      d[2] = 0.0;
-    }
-    sets.push_back(d);
-    if (n > 2) {
-      d[0] = std::numeric_limits<double>::quiet_NaN();
-      d[n - 1] = -std::numeric_limits<double>::infinity();
-    }
-    sets.push_back(d);
-  }
-  sets.push_back(std::vector<double>(5000, 0.25));
-  sets.push_back({});
-  sets.push_back({std::numeric_limits<double>::quiet_NaN()});
-  for (size_t k = 0; k < sets.size(); ++k) {
-    for (const double threshold : {0.05, 0.5}) {
-      const compare::DistanceStats want = compare::ComputeStats(sets[k], false, threshold);
-      const DeviationFigures got = ComputeDeviationFigures(sets[k], threshold);
-      EXPECT_EQ(got.count, want.count) << k;
-      EXPECT_EQ(got.outliers, want.outliers) << k;
-      EXPECT_EQ(got.mean_mm, want.mean_mm) << k;
-      EXPECT_EQ(got.rms_mm, want.rms_mm) << k;
-      EXPECT_EQ(got.p95_mm, want.p95_mm) << k;
-      EXPECT_EQ(got.max_mm, want.max_mm) << k;
-    }
   }
 }
 
