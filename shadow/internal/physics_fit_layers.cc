@@ -433,19 +433,22 @@ PhysicsLayer FitAmbient(const FitContext& ctx) {
   amb.sigma = v.MedianSigma();
   amb.samples = static_cast<int64_t>(v.all.size());
   std::vector<double> off, on;
+  double off_sum = 0;
   for (const Sample& s : samples) {
     if (!s.heldout) continue;
     off.push_back(s.black);
+    off_sum += s.black;
     on.push_back(s.black - amb.value * AmbientRegressor(ctx, s));
   }
   amb.heldout_residual_off = Rms(off);
   amb.heldout_residual_on = Rms(on);
   amb.kept = KeepAmbient(amb, options);
-  amb.reason =
-      amb.kept ? Fmt("the black frame is lit: %.2f DN mean; held-out residual %.2f -> %.2f DN",
-                     amb.heldout_residual_off, amb.heldout_residual_off, amb.heldout_residual_on)
-               : Fmt("the black frame is dark within noise (held-out RMS %.2f DN)",
-                     amb.heldout_residual_off);
+  const double off_mean = off.empty() ? 0.0 : off_sum / static_cast<double>(off.size());
+  amb.reason = amb.kept
+                   ? Fmt("the black frame is lit: %.2f DN mean; held-out residual %.2f -> %.2f DN",
+                         off_mean, amb.heldout_residual_off, amb.heldout_residual_on)
+                   : Fmt("the black frame is dark within noise (held-out RMS %.2f DN)",
+                         amb.heldout_residual_off);
   return amb;
 }
 

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <random>
 
 #include <gtest/gtest.h>
@@ -81,6 +82,71 @@ TEST(PhysicsFit, NormalisedModulationIsOrderFree) {
   EXPECT_EQ(cv::norm(m, swapped, cv::NORM_INF), 0.0);
 }
 
+// A twin of two flat objects of albedo 0.8 ("left") and 0.2 ("right") for the physics fit's
+// synthetic cameras.
+Scene TwoAlbedoTwin() {
+  Scene twin;
+  twin.radiometry.exposure_fraction = 0.5;
+  for (const auto& [name, albedo] : {std::pair<const char*, double>{"left", 0.8}, {"right", 0.2}}) {
+    SceneObject o;
+    o.name = name;
+    o.type = ObjectType::kPlane;
+    o.albedo.value = albedo;
+    twin.objects.push_back(o);
+  }
+  return twin;
+}
+
+// A synthetic 64 x 64 camera of TwoAlbedoTwin() for `spec`: image rows 0 .. lit_rows - 1 see the
+// part lit, the left half "left", the right half "right" (both_objects) or "left" too (one
+// reflectance in view). Its black frame is black(albedo) plus uniform noise of +- 0.5 DN (seeded
+// by `seed`), its white frame that + 0.5 x 255 x 0.9 albedo (exposure 0.5, factor 0.9 albedo).
+CameraData SyntheticCamera(const std::string& name, const PatternSpec& spec, const Scene& twin,
+                           int lit_rows, bool both_objects,
+                           const std::function<float(float albedo)>& black, uint32_t seed,
+                           GeometryBuffer* g) {
+  const int size = 64;
+  g->width = g->height = size;
+  g->factor = SampleBuffer(cv::Mat(1, size * size, CV_32FC1, cv::Scalar(0)));
+  g->albedo = SampleBuffer(cv::Mat(1, size * size, CV_32FC1, cv::Scalar(0)));
+  g->visibility = cv::Mat(size, size, CV_8UC1, cv::Scalar(0));
+  g->object_id = cv::Mat(size, size, CV_32SC1, cv::Scalar(-1));
+  CameraData cam;
+  cam.camera = name;
+  cam.geometry = g;
+  cam.white = cv::Mat(size, size, CV_32FC1, cv::Scalar(0));
+  cam.black = cv::Mat(size, size, CV_32FC1, cv::Scalar(0));
+  std::mt19937 rng(seed);
+  for (int y = 0; y < lit_rows; ++y) {
+    for (int x = 0; x < size; ++x) {
+      const int object = both_objects && x >= size / 2 ? 1 : 0;
+      const float albedo =
+          static_cast<float>(twin.objects[static_cast<size_t>(object)].albedo.value);
+      const size_t i = static_cast<size_t>(y * size + x);
+      g->albedo[i] = albedo;
+      g->factor[i] = 0.9f * albedo;
+      g->visibility.at<uint8_t>(y, x) = 2;
+      g->object_id.at<int32_t>(y, x) = object;
+      const float noise = static_cast<float>(rng() / 4294967296.0 - 0.5);
+      cam.black.at<float>(y, x) = black(albedo) + noise;
+      cam.white.at<float>(y, x) = cam.black.at<float>(y, x) + 0.5f * 255 * 0.9f * albedo;
+    }
+  }
+  for (int i = 0; i < spec.NumImages(); ++i)
+    cam.real.push_back(cv::Mat(size, size, CV_8UC1, cv::Scalar(0)));
+  return cam;
+}
+
+PatternSpec GrayCodeSpec() {
+  PatternSpec spec;
+  spec.kind = PatternKind::kGrayCode;
+  spec.projector_width = 256;
+  spec.projector_height = 64;
+  spec.code_y = false;
+  spec.Check();
+  return spec;
+}
+
 TEST(PhysicsFit, OptionsCheckNamesTheField) {
   PhysicsFitOptions o;
   o.stride_px = 0;
@@ -148,6 +214,27 @@ TEST(PhysicsFit, BlackLevelLayerReportedWhenItsFitCannotBeMade) {
   EXPECT_FALSE(bl->observable);
   EXPECT_FALSE(bl->kept);
   EXPECT_NE(bl->reason.find("black-level fit"), std::string::npos) << bl->reason;
+}
+
+// A black frame lit by ambient light alone (40 DN x albedo: 32 DN on the left half, 8 on the right,
+// mean 20 DN, RMS 23.3 DN): ambient is kept and its reason gives the black frame's mean, not its
+// RMS (the held-out residual with ambient off, printed beside it).
+TEST(PhysicsFit, AmbientReasonGivesTheBlackFrameMean) {
+  const PatternSpec spec = GrayCodeSpec();
+  const Scene twin = TwoAlbedoTwin();
+  GeometryBuffer g;
+  const CameraData cam = SyntheticCamera(
+      "cam", spec, twin, 64, true, [](float albedo) { return 40 * albedo; }, 7, &g);
+  PhysicsFitOptions options;
+  options.stride_px = 1;
+  const PhysicsFit fit = FitPhysics(spec, twin, {cam}, options);
+  const PhysicsLayer* amb = fit.Find("ambient");
+  ASSERT_NE(amb, nullptr) << fit.Table();
+  ASSERT_TRUE(amb->kept) << amb->reason;
+  EXPECT_NEAR(amb->heldout_residual_off, 23.3, 0.1);
+  const std::string lead = "the black frame is lit: ";
+  ASSERT_EQ(amb->reason.rfind(lead, 0), 0u) << amb->reason;
+  EXPECT_NEAR(std::stod(amb->reason.substr(lead.size())), 20.0, 0.05) << amb->reason;
 }
 
 }  // namespace
