@@ -515,6 +515,7 @@ PhysicsLayer UnobservableBlackLevel(const std::string& camera) {
   PhysicsLayer bl;
   bl.name = "black_level_" + camera;
   bl.unit = "DN";
+  bl.residual_unit = "DN RMS of the black frame";
   bl.observable = false;
   bl.reason =
       "one reflectance in view: a black-level offset and ambient light look alike in the "
@@ -526,11 +527,7 @@ PhysicsLayer UnobservableBlackLevel(const std::string& camera) {
 PhysicsLayer FitBlackLevel(const FitContext& ctx, const std::vector<int>& column, size_t c,
                            const LinearFit& both, const PhysicsLayer& amb) {
   const PhysicsFitOptions& options = ctx.options;
-  if (column[c] < 0) {
-    PhysicsLayer bl = UnobservableBlackLevel(ctx.cameras[c].camera);
-    bl.residual_unit = "DN RMS of the black frame";
-    return bl;
-  }
+  if (column[c] < 0) return UnobservableBlackLevel(ctx.cameras[c].camera);
   PhysicsLayer bl;
   bl.name = "black_level_" + ctx.cameras[c].camera;
   bl.unit = "DN";

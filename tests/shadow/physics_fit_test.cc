@@ -214,6 +214,7 @@ TEST(PhysicsFit, BlackLevelLayerReportedWhenItsFitCannotBeMade) {
   EXPECT_FALSE(bl->observable);
   EXPECT_FALSE(bl->kept);
   EXPECT_NE(bl->reason.find("black-level fit"), std::string::npos) << bl->reason;
+  EXPECT_EQ(bl->residual_unit, "DN RMS of the black frame");
 }
 
 // A black frame lit by ambient light alone (40 DN x albedo: 32 DN on the left half, 8 on the right,
@@ -235,6 +236,33 @@ TEST(PhysicsFit, AmbientReasonGivesTheBlackFrameMean) {
   const std::string lead = "the black frame is lit: ";
   ASSERT_EQ(amb->reason.rfind(lead, 0), 0u) << amb->reason;
   EXPECT_NEAR(std::stod(amb->reason.substr(lead.size())), 20.0, 0.05) << amb->reason;
+}
+
+// A black-level layer that is not observable keeps the residual unit of its kind, whether another
+// camera's offset is observable (b beside a) or no camera's is (c alone).
+TEST(PhysicsFit, BlackLevelResidualUnitWhenNotObservable) {
+  const PatternSpec spec = GrayCodeSpec();
+  const Scene twin = TwoAlbedoTwin();
+  const auto black = [](float albedo) { return 6 + 3 * albedo; };
+  GeometryBuffer ga, gb, gc;
+  PhysicsFitOptions options;
+  options.stride_px = 1;
+  const PhysicsFit beside = FitPhysics(spec, twin,
+                                       {SyntheticCamera("a", spec, twin, 64, true, black, 1, &ga),
+                                        SyntheticCamera("b", spec, twin, 64, false, black, 2, &gb)},
+                                       options);
+  const PhysicsFit alone =
+      FitPhysics(spec, twin, {SyntheticCamera("c", spec, twin, 64, false, black, 3, &gc)}, options);
+  const PhysicsLayer* a = beside.Find("black_level_a");
+  const PhysicsLayer* b = beside.Find("black_level_b");
+  const PhysicsLayer* c = alone.Find("black_level_c");
+  ASSERT_TRUE(a && b && c) << beside.Table() << alone.Table();
+  EXPECT_TRUE(a->observable);
+  EXPECT_FALSE(b->observable);
+  EXPECT_FALSE(c->observable);
+  EXPECT_EQ(a->residual_unit, "DN RMS of the black frame");
+  EXPECT_EQ(b->residual_unit, a->residual_unit);
+  EXPECT_EQ(c->residual_unit, a->residual_unit);
 }
 
 }  // namespace
