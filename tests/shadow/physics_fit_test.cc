@@ -265,5 +265,34 @@ TEST(PhysicsFit, BlackLevelResidualUnitWhenNotObservable) {
   EXPECT_EQ(c->residual_unit, a->residual_unit);
 }
 
+// Two cameras with black-level offsets (8 and 4 DN) fitted jointly: camera a sees the part on all
+// 64 rows, camera b on 16; each layer's samples are its own camera's fitted pixels (the rows not
+// held out, every other one: 32 x 64 for a, 8 x 64 for b), not the joint fit's.
+TEST(PhysicsFit, BlackLevelSamplesAreThatCamerasOwn) {
+  const PatternSpec spec = GrayCodeSpec();
+  const Scene twin = TwoAlbedoTwin();
+  GeometryBuffer ga, gb;
+  PhysicsFitOptions options;
+  options.stride_px = 1;
+  const PhysicsFit fit =
+      FitPhysics(spec, twin,
+                 {SyntheticCamera(
+                      "a", spec, twin, 64, true, [](float) { return 8.0f; }, 1, &ga),
+                  SyntheticCamera(
+                      "b", spec, twin, 16, true, [](float) { return 4.0f; }, 2, &gb)},
+                 options);
+  const PhysicsLayer* a = fit.Find("black_level_a");
+  const PhysicsLayer* b = fit.Find("black_level_b");
+  ASSERT_TRUE(a && b) << fit.Table();
+  ASSERT_TRUE(a->observable && b->observable) << fit.Table();
+  EXPECT_TRUE(a->kept) << a->reason;
+  EXPECT_TRUE(b->kept) << b->reason;
+  EXPECT_NEAR(a->value, 8, 0.1);
+  EXPECT_NEAR(b->value, 4, 0.1);
+  // Uniform noise of +- 0.5 DN: every fitted pixel is within the fit's outlier gate.
+  EXPECT_EQ(a->samples, 32 * 64);
+  EXPECT_EQ(b->samples, 8 * 64);
+}
+
 }  // namespace
 }  // namespace slshadow::shadow
