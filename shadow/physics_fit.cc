@@ -152,6 +152,7 @@ LinearFit FitLinear(const std::vector<double>& x, const std::vector<double>& y,
   for (size_t i = 0; i < n; ++i) use[i] = std::abs(res[i]) <= gate;
   f.inliers = std::count(use.begin(), use.end(), 1);
   solve(use, &f.beta, &f.jackknife);
+  f.inlier = std::move(use);
   f.ok = f.beta.allFinite() && f.jackknife.size() >= 3;
   return f;
 }

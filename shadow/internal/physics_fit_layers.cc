@@ -433,19 +433,22 @@ PhysicsLayer FitAmbient(const FitContext& ctx) {
   amb.sigma = v.MedianSigma();
   amb.samples = static_cast<int64_t>(v.all.size());
   std::vector<double> off, on;
+  double off_sum = 0;
   for (const Sample& s : samples) {
     if (!s.heldout) continue;
     off.push_back(s.black);
+    off_sum += s.black;
     on.push_back(s.black - amb.value * AmbientRegressor(ctx, s));
   }
   amb.heldout_residual_off = Rms(off);
   amb.heldout_residual_on = Rms(on);
   amb.kept = KeepAmbient(amb, options);
-  amb.reason =
-      amb.kept ? Fmt("the black frame is lit: %.2f DN mean; held-out residual %.2f -> %.2f DN",
-                     amb.heldout_residual_off, amb.heldout_residual_off, amb.heldout_residual_on)
-               : Fmt("the black frame is dark within noise (held-out RMS %.2f DN)",
-                     amb.heldout_residual_off);
+  const double off_mean = off.empty() ? 0.0 : off_sum / static_cast<double>(off.size());
+  amb.reason = amb.kept
+                   ? Fmt("the black frame is lit: %.2f DN mean; held-out residual %.2f -> %.2f DN",
+                         off_mean, amb.heldout_residual_off, amb.heldout_residual_on)
+                   : Fmt("the black frame is dark within noise (held-out RMS %.2f DN)",
+                         amb.heldout_residual_off);
   return amb;
 }
 
@@ -477,11 +480,12 @@ std::vector<int> BlackLevelColumns(const FitContext& ctx, int* cols) {
 // The black frame of the cameras with an offset column, least squares: B = o_c + ambient E FS
 // albedo G (with_ambient: unknowns ambient, then the offsets in their columns), else B = o_c
 // (the offsets alone, one column less: o_c = the mean black level of camera c).
+// *camera_inliers: the fit's inlier rows per camera.
 LinearFit FitBlackFrame(const FitContext& ctx, const std::vector<int>& column, int cols,
-                        bool with_ambient) {
+                        bool with_ambient, std::vector<int64_t>* camera_inliers) {
   const int shift = with_ambient ? 0 : 1;
   std::vector<double> x, y;
-  std::vector<int> bands;
+  std::vector<int> bands, cameras;
   for (const Sample& s : ctx.samples) {
     if (s.heldout || column[static_cast<size_t>(s.camera)] < 0) continue;
     const size_t at = x.size();
@@ -490,8 +494,13 @@ LinearFit FitBlackFrame(const FitContext& ctx, const std::vector<int>& column, i
     x[at + static_cast<size_t>(column[static_cast<size_t>(s.camera)] - shift)] = 1;
     y.push_back(s.black);
     bands.push_back(s.band);
+    cameras.push_back(s.camera);
   }
-  return FitLinear(x, y, bands, cols - shift);
+  LinearFit fit = FitLinear(x, y, bands, cols - shift);
+  camera_inliers->assign(ctx.cameras.size(), 0);
+  for (size_t i = 0; i < fit.inlier.size(); ++i)
+    (*camera_inliers)[static_cast<size_t>(cameras[i])] += fit.inlier[i];
+  return fit;
 }
 
 // RMS of camera's held-out black-frame residual B - o - ambient E FS albedo G, with o from `beta`
@@ -512,6 +521,7 @@ PhysicsLayer UnobservableBlackLevel(const std::string& camera) {
   PhysicsLayer bl;
   bl.name = "black_level_" + camera;
   bl.unit = "DN";
+  bl.residual_unit = "DN RMS of the black frame";
   bl.observable = false;
   bl.reason =
       "one reflectance in view: a black-level offset and ambient light look alike in the "
@@ -519,15 +529,12 @@ PhysicsLayer UnobservableBlackLevel(const std::string& camera) {
   return bl;
 }
 
-// The offset of camera c from the joint fit `both`, judged against ambient alone (`amb`).
+// The offset of camera c from the joint fit `both` (`inliers`: camera c's inlier rows in it),
+// judged against ambient alone (`amb`).
 PhysicsLayer FitBlackLevel(const FitContext& ctx, const std::vector<int>& column, size_t c,
-                           const LinearFit& both, const PhysicsLayer& amb) {
+                           const LinearFit& both, int64_t inliers, const PhysicsLayer& amb) {
   const PhysicsFitOptions& options = ctx.options;
-  if (column[c] < 0) {
-    PhysicsLayer bl = UnobservableBlackLevel(ctx.cameras[c].camera);
-    bl.residual_unit = "DN RMS of the black frame";
-    return bl;
-  }
+  if (column[c] < 0) return UnobservableBlackLevel(ctx.cameras[c].camera);
   PhysicsLayer bl;
   bl.name = "black_level_" + ctx.cameras[c].camera;
   bl.unit = "DN";
@@ -535,7 +542,7 @@ PhysicsLayer FitBlackLevel(const FitContext& ctx, const std::vector<int>& column
   const int k = column[c];
   bl.value = both.beta(k);
   bl.sigma = CoefficientSigma(both, k);
-  bl.samples = both.inliers;
+  bl.samples = inliers;
   bl.heldout_residual_off =
       BlackFrameResidual(ctx, column, static_cast<int>(c), amb.kept ? amb.value : 0.0, nullptr, 0);
   bl.heldout_residual_on =
@@ -546,10 +553,12 @@ PhysicsLayer FitBlackLevel(const FitContext& ctx, const std::vector<int>& column
 }
 
 // With an offset kept: ambient judged again with the offsets in (offsets + ambient against offsets
-// alone); when ambient is then left off, the kept offsets take their values from `only`.
+// alone); when ambient is then left off, the kept offsets take their values (and samples: the
+// camera's inlier rows, `only_inliers`) from `only`.
 void RejudgeAmbientWithOffsets(const FitContext& ctx, const std::vector<int>& column,
                                const LinearFit& both, const LinearFit& only,
-                               PhysicsLayer* amb_layer, std::vector<PhysicsLayer>* offsets) {
+                               const std::vector<int64_t>& only_inliers, PhysicsLayer* amb_layer,
+                               std::vector<PhysicsLayer>* offsets) {
   PhysicsLayer& amb = *amb_layer;
   amb.value = both.beta(0);
   amb.sigma = CoefficientSigma(both, 0);
@@ -576,6 +585,7 @@ void RejudgeAmbientWithOffsets(const FitContext& ctx, const std::vector<int>& co
     if (!amb.kept) {  // the offset alone: its own fit
       bl.value = only.beta(column[c] - 1);
       bl.sigma = CoefficientSigma(only, column[c] - 1);
+      bl.samples = only_inliers[c];
       bl.heldout_residual_on =
           BlackFrameResidual(ctx, column, static_cast<int>(c), 0.0, &only.beta, 1);
     }
@@ -596,8 +606,9 @@ std::vector<PhysicsLayer> FitBlackLevels(const FitContext& ctx, PhysicsLayer* am
     for (const CameraData& cam : ctx.cameras) offsets.push_back(UnobservableBlackLevel(cam.camera));
     return offsets;
   }
-  const LinearFit both = FitBlackFrame(ctx, column, cols, true);
-  const LinearFit only = FitBlackFrame(ctx, column, cols, false);
+  std::vector<int64_t> both_inliers, only_inliers;
+  const LinearFit both = FitBlackFrame(ctx, column, cols, true, &both_inliers);
+  const LinearFit only = FitBlackFrame(ctx, column, cols, false, &only_inliers);
   if (!both.ok || !only.ok) {  // too few rows, or too few bands for the jackknife
     for (size_t c = 0; c < ctx.cameras.size(); ++c) {
       offsets.push_back(UnobservableBlackLevel(ctx.cameras[c].camera));
@@ -610,10 +621,10 @@ std::vector<PhysicsLayer> FitBlackLevels(const FitContext& ctx, PhysicsLayer* am
   }
   bool any_kept = false;
   for (size_t c = 0; c < ctx.cameras.size(); ++c) {
-    offsets.push_back(FitBlackLevel(ctx, column, c, both, *amb));
+    offsets.push_back(FitBlackLevel(ctx, column, c, both, both_inliers[c], *amb));
     any_kept = any_kept || offsets.back().kept;
   }
-  if (any_kept) RejudgeAmbientWithOffsets(ctx, column, both, only, amb, &offsets);
+  if (any_kept) RejudgeAmbientWithOffsets(ctx, column, both, only, only_inliers, amb, &offsets);
   for (PhysicsLayer& bl : offsets) {
     if (bl.observable && !bl.kept)
       bl.reason = Fmt("no offset beyond noise (%.2f +- %.2f DN)", bl.value, bl.sigma);

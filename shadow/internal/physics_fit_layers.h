@@ -87,6 +87,7 @@ struct LinearFit {
   Eigen::VectorXd beta;
   std::vector<Eigen::VectorXd> jackknife;  // one per band that had rows
   int64_t rows = 0, inliers = 0;
+  std::vector<char> inlier;  // per row: within the outlier gate (the rows the fit used)
   bool ok = false;
 };
 LinearFit FitLinear(const std::vector<double>& x, const std::vector<double>& y,
