@@ -64,6 +64,38 @@ TEST(ComputeStats, MatchesTheDefinitionsOnRandomData) {
   EXPECT_DOUBLE_EQ(s.histogram.lo_mm, -s.histogram.hi_mm);
 }
 
+// Field for field, the doubles bit for bit (NaN where NaN).
+void ExpectSameStats(const DistanceStats& a, const DistanceStats& b, const std::string& what) {
+  const auto bits = [](double x) {
+    uint64_t u = 0;
+    std::memcpy(&u, &x, sizeof(u));
+    return std::isnan(x) ? uint64_t{1} : u;
+  };
+  EXPECT_EQ(a.is_signed, b.is_signed) << what;
+  EXPECT_EQ(a.count, b.count) << what;
+  EXPECT_EQ(a.num_invalid, b.num_invalid) << what;
+  const std::pair<double, double> pairs[] = {{a.mean_mm, b.mean_mm},
+                                             {a.std_mm, b.std_mm},
+                                             {a.rms_mm, b.rms_mm},
+                                             {a.median_mm, b.median_mm},
+                                             {a.p95_mm, b.p95_mm},
+                                             {a.max_mm, b.max_mm},
+                                             {a.signed_mean_mm, b.signed_mean_mm},
+                                             {a.signed_std_mm, b.signed_std_mm},
+                                             {a.threshold_mm, b.threshold_mm},
+                                             {a.histogram.lo_mm, b.histogram.lo_mm},
+                                             {a.histogram.hi_mm, b.histogram.hi_mm}};
+  for (size_t k = 0; k < std::size(pairs); ++k) {
+    EXPECT_EQ(bits(pairs[k].first), bits(pairs[k].second))
+        << what << " field " << k << ": " << pairs[k].first << " " << pairs[k].second;
+  }
+  EXPECT_EQ(a.inliers, b.inliers) << what;
+  EXPECT_EQ(a.outliers, b.outliers) << what;
+  EXPECT_EQ(a.histogram.counts, b.histogram.counts) << what;
+  EXPECT_EQ(a.histogram.underflow, b.histogram.underflow) << what;
+  EXPECT_EQ(a.histogram.overflow, b.histogram.overflow) << what;
+}
+
 // Field for field (bit-exact doubles, NaN where NaN) the two ComputeStats calls it replaces.
 TEST(ComputeUnsignedAndSignedStats, EqualsTheTwoSeparateCalls) {
   std::mt19937 rng(27);
@@ -74,35 +106,11 @@ TEST(ComputeUnsignedAndSignedStats, EqualsTheTwoSeparateCalls) {
   d[6] = std::numeric_limits<double>::infinity();
   d[7] = 7.0;  // beyond the histogram range
   d[8] = -7.0;
-  const auto same = [](double a, double b) { return a == b || (std::isnan(a) && std::isnan(b)); };
-  const auto expect_equal = [&](const DistanceStats& a, const DistanceStats& b) {
-    EXPECT_EQ(a.is_signed, b.is_signed);
-    EXPECT_EQ(a.count, b.count);
-    EXPECT_EQ(a.num_invalid, b.num_invalid);
-    for (const auto& [x, y] : {std::pair{a.mean_mm, b.mean_mm},
-                               {a.std_mm, b.std_mm},
-                               {a.rms_mm, b.rms_mm},
-                               {a.median_mm, b.median_mm},
-                               {a.p95_mm, b.p95_mm},
-                               {a.max_mm, b.max_mm},
-                               {a.signed_mean_mm, b.signed_mean_mm},
-                               {a.signed_std_mm, b.signed_std_mm},
-                               {a.threshold_mm, b.threshold_mm},
-                               {a.histogram.lo_mm, b.histogram.lo_mm},
-                               {a.histogram.hi_mm, b.histogram.hi_mm}}) {
-      EXPECT_TRUE(same(x, y)) << x << " " << y;
-    }
-    EXPECT_EQ(a.inliers, b.inliers);
-    EXPECT_EQ(a.outliers, b.outliers);
-    EXPECT_EQ(a.histogram.counts, b.histogram.counts);
-    EXPECT_EQ(a.histogram.underflow, b.histogram.underflow);
-    EXPECT_EQ(a.histogram.overflow, b.histogram.overflow);
-  };
   for (const double range : {0.0, 0.5}) {
     for (const auto& data : {d, std::vector<double>{}, std::vector<double>(3, NAN)}) {
       const UnsignedAndSigned both = ComputeUnsignedAndSignedStats(data, 0.2, 40, range);
-      expect_equal(both.unsigned_stats, ComputeStats(data, false, 0.2, 40, range));
-      expect_equal(both.signed_stats, ComputeStats(data, true, 0.2, 40, range));
+      ExpectSameStats(both.unsigned_stats, ComputeStats(data, false, 0.2, 40, range), "unsigned");
+      ExpectSameStats(both.signed_stats, ComputeStats(data, true, 0.2, 40, range), "signed");
     }
   }
 }
@@ -174,38 +182,6 @@ DistanceStats SortedStats(const std::vector<double>& d, bool is_signed, double t
     }
   }
   return s;
-}
-
-// Field for field, the doubles bit for bit (NaN where NaN).
-void ExpectSameStats(const DistanceStats& a, const DistanceStats& b, const std::string& what) {
-  const auto bits = [](double x) {
-    uint64_t u = 0;
-    std::memcpy(&u, &x, sizeof(u));
-    return std::isnan(x) ? uint64_t{1} : u;
-  };
-  EXPECT_EQ(a.is_signed, b.is_signed) << what;
-  EXPECT_EQ(a.count, b.count) << what;
-  EXPECT_EQ(a.num_invalid, b.num_invalid) << what;
-  const std::pair<double, double> pairs[] = {{a.mean_mm, b.mean_mm},
-                                             {a.std_mm, b.std_mm},
-                                             {a.rms_mm, b.rms_mm},
-                                             {a.median_mm, b.median_mm},
-                                             {a.p95_mm, b.p95_mm},
-                                             {a.max_mm, b.max_mm},
-                                             {a.signed_mean_mm, b.signed_mean_mm},
-                                             {a.signed_std_mm, b.signed_std_mm},
-                                             {a.threshold_mm, b.threshold_mm},
-                                             {a.histogram.lo_mm, b.histogram.lo_mm},
-                                             {a.histogram.hi_mm, b.histogram.hi_mm}};
-  for (size_t k = 0; k < std::size(pairs); ++k) {
-    EXPECT_EQ(bits(pairs[k].first), bits(pairs[k].second))
-        << what << " field " << k << ": " << pairs[k].first << " " << pairs[k].second;
-  }
-  EXPECT_EQ(a.inliers, b.inliers) << what;
-  EXPECT_EQ(a.outliers, b.outliers) << what;
-  EXPECT_EQ(a.histogram.counts, b.histogram.counts) << what;
-  EXPECT_EQ(a.histogram.underflow, b.histogram.underflow) << what;
-  EXPECT_EQ(a.histogram.overflow, b.histogram.overflow) << what;
 }
 
 // ComputeStats (and ComputeUnsignedAndSignedStats) against the sorting oracle: noisy deviations

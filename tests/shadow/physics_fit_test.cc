@@ -169,15 +169,7 @@ TEST(PhysicsFit, BlackLevelLayerReportedWhenItsFitCannotBeMade) {
   spec.projector_height = 64;
   spec.code_y = false;
   spec.Check();
-  Scene twin;
-  twin.radiometry.exposure_fraction = 0.5;
-  for (const auto& [name, albedo] : {std::pair<const char*, double>{"left", 0.8}, {"right", 0.2}}) {
-    SceneObject o;
-    o.name = name;
-    o.type = ObjectType::kPlane;
-    o.albedo.value = albedo;
-    twin.objects.push_back(o);
-  }
+  const Scene twin = TwoAlbedoTwin();
   const int size = 64, lit_rows = 16;
   GeometryBuffer g;
   g.width = g.height = size;
