@@ -86,6 +86,21 @@ std::vector<std::string> FrontGroups(const std::vector<FrontPoint>& points) {
   return groups;
 }
 
+// The indices of the front's points in key order: by group (in order of appearance), then by
+// time, fastest first.
+std::vector<size_t> FrontInKeyOrder(const std::vector<FrontPoint>& points) {
+  std::vector<size_t> front;
+  for (const std::string& g : FrontGroups(points)) {
+    const size_t first = front.size();
+    for (size_t i = 0; i < points.size(); ++i) {
+      if (points[i].group == g && points[i].on_front) front.push_back(i);
+    }
+    std::stable_sort(front.begin() + static_cast<std::ptrdiff_t>(first), front.end(),
+                     [&](size_t a, size_t b) { return points[a].time_s < points[b].time_s; });
+  }
+  return front;
+}
+
 // Keys of the front's points: per group a letter (the mode's initial, "P" and "S", when the groups
 // are the modes and their initials differ; else A, B, ...), then the rank by time, fastest 1.
 void KeyFront(std::vector<FrontPoint>& points) {
@@ -105,15 +120,15 @@ void KeyFront(std::vector<FrontPoint>& points) {
   if (initials) {
     for (size_t g = 0; g < groups.size(); ++g) letters[g] = std::string(1, seen[g]);
   }
-  for (size_t g = 0; g < groups.size(); ++g) {
-    std::vector<FrontPoint*> front;
-    for (auto& p : points) {
-      if (p.group == groups[g] && p.on_front) front.push_back(&p);
-    }
-    std::stable_sort(front.begin(), front.end(), [](const FrontPoint* a, const FrontPoint* b) {
-      return a->time_s < b->time_s;
-    });
-    for (size_t k = 0; k < front.size(); ++k) front[k]->key = letters[g] + std::to_string(k + 1);
+  size_t rank = 0;
+  const FrontPoint* previous = nullptr;
+  for (const size_t i : FrontInKeyOrder(points)) {
+    FrontPoint* p = &points[i];
+    rank = previous && previous->group == p->group ? rank + 1 : 1;
+    const size_t g =
+        static_cast<size_t>(std::find(groups.begin(), groups.end(), p->group) - groups.begin());
+    p->key = letters[g] + std::to_string(rank);
+    previous = p;
   }
 }
 
@@ -132,17 +147,8 @@ void WriteFrontChart(const fs::path& path, const std::vector<FrontPoint>& points
     ymax = std::max(ymax, p.rms_mm);
   }
   const std::vector<std::string> groups = FrontGroups(points);
-  std::vector<const FrontPoint*> keyed;  // by group, then rank
-  for (const auto& g : groups) {
-    std::vector<const FrontPoint*> front;
-    for (const auto& p : points) {
-      if (p.group == g && p.on_front) front.push_back(&p);
-    }
-    std::stable_sort(front.begin(), front.end(), [](const FrontPoint* a, const FrontPoint* b) {
-      return a->time_s < b->time_s;
-    });
-    keyed.insert(keyed.end(), front.begin(), front.end());
-  }
+  std::vector<const FrontPoint*> keyed;  // in key order
+  for (const size_t i : FrontInKeyOrder(points)) keyed.push_back(&points[i]);
   // 700 px for the chart, 20 px per key line below it.
   constexpr double kChart = 700, kLine = 20;
   const double height = kChart + kLine * static_cast<double>(keyed.size() + 1);
@@ -632,20 +638,9 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
                  ',' + CsvField(p.rms_mm, 17) + ',' + (p.on_front ? "1" : "0") +
                  (by.empty() ? "" : "," + CsvField(p.group)) + ',' + p.key + '\n';
   }
-  {
-    const std::vector<std::string> groups = FrontGroups(points);
-    std::vector<const FrontPoint*> front;
-    for (const auto& p : points) {
-      if (p.on_front) front.push_back(&p);
-    }
-    const auto group_of = [&](const FrontPoint* p) {
-      return std::find(groups.begin(), groups.end(), p->group) - groups.begin();
-    };
-    std::stable_sort(front.begin(), front.end(), [&](const FrontPoint* a, const FrontPoint* b) {
-      return group_of(a) != group_of(b) ? group_of(a) < group_of(b) : a->time_s < b->time_s;
-    });
-    for (const FrontPoint* p : front)
-      summary.front.push_back(p->key + " " + p->group + ": " + p->id + " (" + p->described + ")");
+  for (const size_t i : FrontInKeyOrder(points)) {
+    const FrontPoint& p = points[i];
+    summary.front.push_back(p.key + " " + p.group + ": " + p.id + " (" + p.described + ")");
   }
   WriteTextFileAtomically(out_dir / "pareto.csv", front_csv);
   WriteFrontChart(out_dir / "time_vs_rms", points, plan.at("study").get<std::string>(), cpu_time);
