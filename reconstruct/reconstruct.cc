@@ -126,57 +126,74 @@ class GridUndistorter {
   bool distorted_;
 };
 
-// Residual statistics, gates, filters, normals and the cloud: the part both modes share.
+// Residual statistics (options.report_residuals), gates, filters, normals and the cloud: the part
+// both modes share.
 void Finish(const ReconstructOptions& options, size_t max_cloud_points, Reconstruction* out) {
   DenseGrid& grid = out->grid;
   ReconstructSummary& s = out->summary;
   StageTimer t0;
-  // Per-thread buffers (see reproj_buffer above).
-  std::vector<float>& reproj = reproj_buffer;
-  std::vector<float>& epi = epi_buffer;
-  // The residuals of the accepted cells in row-major order, gathered row-parallel: rows are
-  // counted, then filled at their prefix offsets while the gates are applied.
   const int w = grid.width, h = grid.height;
-  std::vector<std::array<size_t, 2>> row_start(static_cast<size_t>(h) + 1, {0, 0});
-  cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
-    for (int v = rows.start; v < rows.end; ++v) {
-      size_t n = 0, ne = 0;
-      for (size_t i = grid.Index(0, v), end = i + static_cast<size_t>(w); i < end; ++i) {
-        if (!grid.Accepted(i)) continue;
-        ++n;
-        ne += std::isfinite(grid.epipolar_error_px[i]) ? 1 : 0;
-      }
-      row_start[static_cast<size_t>(v) + 1] = {n, ne};
-    }
-  });
-  for (size_t v = 0; v < static_cast<size_t>(h); ++v) {
-    row_start[v + 1][0] += row_start[v][0];
-    row_start[v + 1][1] += row_start[v][1];
-  }
-  reproj.resize(row_start.back()[0]);
-  epi.resize(row_start.back()[1]);
-  cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
-    for (int v = rows.start; v < rows.end; ++v) {
-      size_t k = row_start[static_cast<size_t>(v)][0], ke = row_start[static_cast<size_t>(v)][1];
-      for (size_t i = grid.Index(0, v), end = i + static_cast<size_t>(w); i < end; ++i) {
-        if (!grid.Accepted(i)) continue;
-        reproj[k++] = grid.reprojection_error_px[i];
-        const float epipolar = std::abs(grid.epipolar_error_px[i]);  // signed in the grid
-        if (std::isfinite(epipolar)) epi[ke++] = epipolar;
-        if (!(grid.reprojection_error_px[i] <= options.max_reprojection_error_px)) {
-          grid.reason[i] = Code(RejectReason::kReprojectionError);
-        } else if (epipolar > options.max_epipolar_error_px) {
-          grid.reason[i] = Code(RejectReason::kEpipolarError);
+  if (!options.report_residuals) {
+    // The gates alone, without the residuals' statistics (left empty in the summary).
+    cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
+      for (int v = rows.start; v < rows.end; ++v) {
+        for (size_t i = grid.Index(0, v), end = i + static_cast<size_t>(w); i < end; ++i) {
+          if (!grid.Accepted(i)) continue;
+          if (!(grid.reprojection_error_px[i] <= options.max_reprojection_error_px)) {
+            grid.reason[i] = Code(RejectReason::kReprojectionError);
+          } else if (std::abs(grid.epipolar_error_px[i]) > options.max_epipolar_error_px) {
+            grid.reason[i] = Code(RejectReason::kEpipolarError);
+          }
         }
       }
+    });
+  } else {
+    // Per-thread buffers (see reproj_buffer above).
+    std::vector<float>& reproj = reproj_buffer;
+    std::vector<float>& epi = epi_buffer;
+    // The residuals of the accepted cells in row-major order, gathered row-parallel: rows are
+    // counted, then filled at their prefix offsets while the gates are applied.
+    std::vector<std::array<size_t, 2>> row_start(static_cast<size_t>(h) + 1, {0, 0});
+    cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
+      for (int v = rows.start; v < rows.end; ++v) {
+        size_t n = 0, ne = 0;
+        for (size_t i = grid.Index(0, v), end = i + static_cast<size_t>(w); i < end; ++i) {
+          if (!grid.Accepted(i)) continue;
+          ++n;
+          ne += std::isfinite(grid.epipolar_error_px[i]) ? 1 : 0;
+        }
+        row_start[static_cast<size_t>(v) + 1] = {n, ne};
+      }
+    });
+    for (size_t v = 0; v < static_cast<size_t>(h); ++v) {
+      row_start[v + 1][0] += row_start[v][0];
+      row_start[v + 1][1] += row_start[v][1];
     }
-  });
-  cv::parallel_for_(cv::Range(0, 2), [&](const cv::Range& r) {
-    for (int k = r.start; k < r.end; ++k) {
-      if (k == 0) s.reprojection_error_px = ComputeResidualStats(reproj);
-      if (k == 1) s.epipolar_error_px = ComputeResidualStats(epi);
-    }
-  });
+    reproj.resize(row_start.back()[0]);
+    epi.resize(row_start.back()[1]);
+    cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
+      for (int v = rows.start; v < rows.end; ++v) {
+        size_t k = row_start[static_cast<size_t>(v)][0], ke = row_start[static_cast<size_t>(v)][1];
+        for (size_t i = grid.Index(0, v), end = i + static_cast<size_t>(w); i < end; ++i) {
+          if (!grid.Accepted(i)) continue;
+          reproj[k++] = grid.reprojection_error_px[i];
+          const float epipolar = std::abs(grid.epipolar_error_px[i]);  // signed in the grid
+          if (std::isfinite(epipolar)) epi[ke++] = epipolar;
+          if (!(grid.reprojection_error_px[i] <= options.max_reprojection_error_px)) {
+            grid.reason[i] = Code(RejectReason::kReprojectionError);
+          } else if (epipolar > options.max_epipolar_error_px) {
+            grid.reason[i] = Code(RejectReason::kEpipolarError);
+          }
+        }
+      }
+    });
+    cv::parallel_for_(cv::Range(0, 2), [&](const cv::Range& r) {
+      for (int k = r.start; k < r.end; ++k) {
+        if (k == 0) s.reprojection_error_px = ComputeResidualStats(reproj);
+        if (k == 1) s.epipolar_error_px = ComputeResidualStats(epi);
+      }
+    });
+  }
   if (options.filter_depth_discontinuities) {
     FilterDepthDiscontinuities(grid, options.max_depth_jump_footprints,
                                options.discontinuity_dilation_px);
@@ -205,10 +222,17 @@ namespace {
 // The calibration check (calibration_check.h) of per-cell signed residuals `residual_px` (the
 // grid's epipolar errors, or the projector error of one-axis stereo), at the reference camera's
 // source pixels in normalised coordinates scaled to +-1 across its width. `reason_unavailable`
-// non-empty: the mode leaves no residual; the check says why.
-void RunCalibrationCheck(const DenseGrid& grid, const std::vector<float>& residual_px,
-                         const CameraModel& reference, const CalibrationCheckSetup& setup,
-                         const std::string& reason_unavailable, ReconstructSummary* s) {
+// non-empty: the mode leaves no residual; the check says why. Not run (and says so) when
+// options.report_residuals is false.
+void RunCalibrationCheck(const ReconstructOptions& options, const DenseGrid& grid,
+                         const std::vector<float>& residual_px, const CameraModel& reference,
+                         const CalibrationCheckSetup& setup, const std::string& reason_unavailable,
+                         ReconstructSummary* s) {
+  if (!options.report_residuals) {
+    s->calibration_check =
+        UnavailableCalibrationCheck(setup.pair, "the reconstruct option report_residuals is false");
+    return;
+  }
   if (!reason_unavailable.empty()) {
     s->calibration_check = UnavailableCalibrationCheck(setup.pair, reason_unavailable);
     return;
@@ -418,7 +442,7 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
   t0.Elapsed(&s.triangulate_s, &s.triangulate_cpu_s);
   Finish(options, max_cloud_points, &out);
   RunCalibrationCheck(
-      grid, grid.epipolar_error_px, cam.model, CheckSetup(options, rig, cam, proj, false),
+      options, grid, grid.epipolar_error_px, cam.model, CheckSetup(options, rig, cam, proj, false),
       both ? ""
            : std::string("only projector ") + (map.has_x ? "columns" : "rows") +
                  " are coded: the one-axis triangulation meets the projector's plane exactly and "
@@ -646,7 +670,7 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name,
                              (left.CenterInRig() - rig.projector->CenterInRig()).norm());
   }
   RunCalibrationCheck(
-      grid, third_view ? projector_error : grid.epipolar_error_px, left.model, setup,
+      options, grid, third_view ? projector_error : grid.epipolar_error_px, left.model, setup,
       both_axes || third_view
           ? ""
           : "only projector columns are coded and the rig has no projector: the stereo matches lie "

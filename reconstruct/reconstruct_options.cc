@@ -103,6 +103,7 @@ nlohmann::json ReconstructOptions::ToJson() const {
           {"outlier_std_ratio", outlier_std_ratio},
           {"outlier_min_distance_footprints", outlier_min_distance_footprints},
           {"estimate_normals", estimate_normals},
+          {"report_residuals", report_residuals},
           {"calibration_warning_px", num(calibration_warning_px)},
           {"calibration_noise_factor", calibration_noise_factor},
           {"calibration_min_warning_px", calibration_min_warning_px}};
@@ -153,6 +154,7 @@ ReconstructOptions ReconstructOptionsFromConfig(const ConfigNode& node) {
                           "outlier_std_ratio",
                           "outlier_min_distance_footprints",
                           "estimate_normals",
+                          "report_residuals",
                           "calibration_warning_px",
                           "calibration_noise_factor",
                           "calibration_min_warning_px"});
@@ -196,6 +198,7 @@ ReconstructOptions ReconstructOptionsFromConfig(const ConfigNode& node) {
   o.outlier_min_distance_footprints =
       node.GetDouble("outlier_min_distance_footprints", o.outlier_min_distance_footprints);
   o.estimate_normals = node.GetBool("estimate_normals", o.estimate_normals);
+  o.report_residuals = node.GetBool("report_residuals", o.report_residuals);
   o.calibration_warning_px =
       GetDoubleOrInf(node, "calibration_warning_px", o.calibration_warning_px);
   o.calibration_noise_factor =

@@ -5,7 +5,8 @@
 # left camera, stereo left-right), except that the sweep also compares both clouds with the ground
 # truth; the separate runs skip the ground truth (--no-ground-truth) and write PGM, the fastest
 # encoding. Prints wall and CPU seconds (user + system, all threads and processes) of each side
-# and their ratios. Optional: THREADS (sweep run --threads; default: all cores).
+# and their ratios, CPU also split into user and system time. Optional: THREADS (sweep run
+# --threads; default: all cores).
 # usage: scripts/bench_sweep.sh [N=100] [SLSHADOW=build/apps/slshadow]
 set -euo pipefail
 N=${1:-100}
@@ -44,15 +45,17 @@ python3 - "$N" "$WORK/sweep.time" "$WORK/separate.time" "$WORK/result/timings.cs
 import csv, sys
 n = int(sys.argv[1])
 def read(path):
-    wall, user, system = map(float, open(path).read().split()[-3:])
-    return wall, user + system
-(sw, sc), (pw, pc) = read(sys.argv[2]), read(sys.argv[3])
+    return tuple(map(float, open(path).read().split()[-3:]))  # wall, user, system
+(sw, su, ss), (pw, pu, ps) = read(sys.argv[2]), read(sys.argv[3])
+sc, pc = su + ss, pu + ps
 print(f"{n} noise seeds of the demo, both modes:")
-print(f"  sweep (plan + run + merge; also compares)  wall {sw:8.1f} s  CPU {sc:8.1f} s  "
-      f"{60 * n / sw:5.1f} scans/min")
-print(f"  separate simulate + 2 x reconstruct        wall {pw:8.1f} s  CPU {pc:8.1f} s  "
-      f"{60 * n / pw:5.1f} scans/min")
-print(f"  ratio separate / sweep: wall {pw / sw:.2f}x, CPU {pc / sc:.2f}x")
+print(f"  sweep (plan + run + merge; also compares)  wall {sw:8.1f} s  CPU {sc:8.1f} s "
+      f"(user {su:.1f}, system {ss:.1f})  {60 * n / sw:5.1f} scans/min")
+print(f"  separate simulate + 2 x reconstruct        wall {pw:8.1f} s  CPU {pc:8.1f} s "
+      f"(user {pu:.1f}, system {ps:.1f})  {60 * n / pw:5.1f} scans/min")
+print(f"  ratio separate / sweep: wall {pw / sw:.2f}x, CPU {pc / sc:.2f}x, user CPU {pu / su:.2f}x")
+# System time is mostly the kernel faulting in fresh memory: separate processes allocate every
+# buffer anew, a sweep keeps them from job to job; its cost per page differs between machines.
 rows = list(csv.DictReader(open(sys.argv[4])))
 stages = ["setup", "render", "decode", "reconstruct", "compare"]
 later = rows[1:] or rows

@@ -711,8 +711,10 @@ json RunJob(const json& job, const fs::path& file, std::unique_ptr<Group>& group
 
   ReconstructOptions reconstruct = ReconstructOptionsFromConfig(node("reconstruct"));
   // Nothing in a job reads the clouds' normals (the signed distances take the reference mesh's,
-  // registration and M3C2 the reference's or their own): no method pays for them.
+  // registration and M3C2 the reference's or their own), nor the summary's residual statistics
+  // and calibration check: no method pays for them.
   reconstruct.estimate_normals = false;
+  reconstruct.report_residuals = false;
   std::vector<StageMeasurement> stages;
   std::vector<Reconstruction> recs = ReconstructModes(decoded, modes, reconstruct, &stages);
   json monte_carlo;

@@ -631,6 +631,51 @@ TEST_F(ReconstructTest, ResidualStatisticsRevealAMiscalibratedRig) {
   EXPECT_TRUE(ReconstructWithProjector(wrong, "left", truth.map, options).summary.warnings.empty());
 }
 
+// report_residuals = false skips the residual statistics and the calibration check, nothing
+// else: the same gates reject the same cells (a miscalibrated rig's epipolar and reprojection
+// rejections), and the clouds are the same, bit for bit, in both modes.
+TEST_F(ReconstructTest, SkippingTheResidualReportChangesNoCloud) {
+  const AnalyticView left = RenderAnalytic(rig_, rig_.cameras[0], SphereSurface());
+  const AnalyticView right = RenderAnalytic(rig_, rig_.cameras[1], SphereSurface());
+  // The projector's pose off by 0.05 degree: projector mode's gates reject every cell.
+  Rig wrong = rig_;
+  wrong.projector->cam_from_rig =
+      Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.05 * M_PI / 180, Eigen::Vector3d::UnitX())),
+              Eigen::Vector3d::Zero()) *
+      wrong.projector->cam_from_rig;
+  ReconstructOptions full, bare;
+  bare.report_residuals = false;
+  for (const Rig* rig : {&rig_, &wrong}) {
+    const Reconstruction a[2] = {
+        ReconstructWithProjector(*rig, "left", left.map, full),
+        ReconstructStereo(*rig, "left", "right", left.map, right.map, full)};
+    const Reconstruction b[2] = {
+        ReconstructWithProjector(*rig, "left", left.map, bare),
+        ReconstructStereo(*rig, "left", "right", left.map, right.map, bare)};
+    for (int k = 0; k < 2; ++k) {
+      EXPECT_EQ(a[k].cloud.points, b[k].cloud.points) << k;
+      EXPECT_EQ(a[k].summary.rejected, b[k].summary.rejected) << k;
+      EXPECT_GT(a[k].summary.reprojection_error_px.count, 0) << k;
+      EXPECT_EQ(b[k].summary.reprojection_error_px.count, 0) << k;
+      EXPECT_EQ(b[k].summary.epipolar_error_px.count, 0) << k;
+      EXPECT_FALSE(b[k].summary.calibration_check.available) << k;
+      EXPECT_NE(b[k].summary.calibration_check.Message().find("report_residuals is false"),
+                std::string::npos)
+          << b[k].summary.calibration_check.Message();
+      if (rig == &rig_) {
+        ASSERT_GT(a[k].cloud.size(), 1000u) << k;
+        EXPECT_TRUE(a[k].summary.calibration_check.available) << k;
+      }
+    }
+    if (rig == &wrong) {
+      const auto& r = b[0].summary.rejected;
+      EXPECT_GT(r[static_cast<size_t>(RejectReason::kEpipolarError)] +
+                    r[static_cast<size_t>(RejectReason::kReprojectionError)],
+                1000);
+    }
+  }
+}
+
 TEST_F(ReconstructTest, CalibrationCheckCatchesSwappedStereoCameras) {
   const AnalyticView left = RenderAnalytic(rig_, rig_.cameras[0], PlaneSurface());
   const AnalyticView right = RenderAnalytic(rig_, rig_.cameras[1], PlaneSurface());
@@ -735,6 +780,7 @@ TEST(ReconstructOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
   o.outlier_std_ratio = 3;
   o.outlier_min_distance_footprints = 5;
   o.estimate_normals = false;
+  o.report_residuals = false;
   o.calibration_warning_px = std::numeric_limits<double>::infinity();
   const nlohmann::json j = o.ToJson();
   EXPECT_EQ(j["max_reprojection_error_px"], "inf");
