@@ -1,5 +1,6 @@
-// What shadow/sweep.cc (plan, run) and shadow/sweep_merge.cc (merge) share: the file formats of a
-// sweep's jobs folder and the study key `curves`' metrics. Included only by those two.
+// What shadow/sweep.cc (plan, run), shadow/sweep_job.cc (a job) and shadow/sweep_merge.cc (merge)
+// share: the file formats of a sweep's jobs folder and the study key `curves`' metrics. Included
+// only by those three.
 #pragma once
 
 #include <nlohmann/json.hpp>
