@@ -9,6 +9,7 @@
 #include <CLI/CLI.hpp>
 
 #include "core/error.h"
+#include "core/huge_pages.h"
 
 #ifndef SLSHADOW_VERSION
 #define SLSHADOW_VERSION "unknown"
@@ -110,7 +111,7 @@ int Main(int argc, char** argv) {
     return argc < 2 ? EXIT_FAILURE : EXIT_SUCCESS;
   }
   if (std::strcmp(argv[1], "--version") == 0 || std::strcmp(argv[1], "version") == 0) {
-    std::printf("slshadow %s\n", SLSHADOW_VERSION);
+    std::printf("slshadow %s\n%s\n", SLSHADOW_VERSION, HugePagesStatus().c_str());
     return EXIT_SUCCESS;
   }
   for (const auto& c : Commands()) {
