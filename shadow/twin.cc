@@ -1,12 +1,12 @@
 #include "shadow/twin.h"
 
 #include "shadow/diagnose_neighbours.h"
+#include "shadow/internal/twin_report.h"
 #include "shadow/scan_pipeline.h"
 
 #include <algorithm>
 #include <atomic>
 #include <cmath>
-#include <cstdio>
 #include <cstring>
 #include <exception>
 #include <mutex>
@@ -18,22 +18,27 @@
 #include <Eigen/Dense>
 #include <opencv2/core/utility.hpp>
 
-#include "compare/charts.h"
 #include "compare/compare.h"
 #include "compare/kdtree.h"
 #include "compare/mesh_distance.h"
-#include "compare/statistics.h"
 #include "core/config.h"
 #include "core/error.h"
 #include "core/file_util.h"
 #include "core/image_io.h"
 #include "core/image_set.h"
 #include "core/point_cloud.h"
-#include "plot/plot.h"
 #include "sim/simulate.h"
 
 namespace slshadow::shadow {
 namespace fs = std::filesystem;
+
+// The report folder's writers (shadow/twin_report.cc).
+using internal::ModeClouds;
+using internal::ShadowMaps;
+using internal::StagesToJson;
+using internal::WriteShadowCharts;
+using internal::WriteShadowClouds;
+using internal::WriteShadowMaps;
 
 namespace {
 
@@ -124,101 +129,12 @@ Stats ComputeStats(std::vector<T> v) {
   return s;
 }
 
-std::string Fmt(const char* format, double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof(buf), format, v);
-  return buf;
-}
-
 nlohmann::json PoseToJson(const Rigid3d& p) {
   const Eigen::AngleAxisd aa(p.rotation);
   const Eigen::Vector3d r = aa.angle() * aa.axis();
   return {{"rotation_quat_wxyz", {p.rotation.w(), p.rotation.x(), p.rotation.y(), p.rotation.z()}},
           {"rotation_rvec_rad", {r.x(), r.y(), r.z()}},
           {"translation_mm", {p.translation.x(), p.translation.y(), p.translation.z()}}};
-}
-
-// A camera-image map (CV_32FC1, NaN where unknown) as a chart with a colour bar: symmetric at the
-// 99th percentile of |value| over the finite pixels (at least `floor`), `marks` drawn on the bar
-// and described by `mark_note`. Returns the colour range used.
-double WriteMapChart(const fs::path& path, const cv::Mat& values, const std::string& title,
-                     const std::string& unit, const std::vector<double>& marks,
-                     const std::string& mark_note, double floor) {
-  compare::ValueImage img;
-  img.width = values.cols;
-  img.height = values.rows;
-  img.values.assign(values.begin<float>(), values.end<float>());
-  std::vector<float> finite;
-  for (size_t i = 0; i < img.values.size(); i += 7) {
-    if (std::isfinite(img.values[i])) finite.push_back(std::abs(img.values[i]));
-  }
-  double range = floor;
-  if (!finite.empty()) {
-    const size_t k =
-        std::min(finite.size() - 1, static_cast<size_t>(0.99 * static_cast<double>(finite.size())));
-    std::nth_element(finite.begin(), finite.begin() + static_cast<std::ptrdiff_t>(k), finite.end());
-    range = std::max(floor, static_cast<double>(finite[k]));
-  }
-  compare::MapChart chart;
-  chart.title = title;
-  chart.colorbar_label = unit;
-  chart.lo = -range;
-  chart.hi = range;
-  chart.marks = marks;
-  chart.max_width_px = 640;  // smaller than compare's maps: four maps per camera, block means
-  chart.max_height_px = 440;
-  char buf[160];
-  std::snprintf(buf, sizeof(buf), "range +-%.3g (99 %% of pixels); white: not compared", range);
-  chart.notes = {buf};
-  bool any_in = false;
-  for (double m : marks) any_in = any_in || std::abs(m) < range;
-  if (!mark_note.empty())
-    chart.notes.push_back(mark_note + (any_in ? ": lines on the bar" : ": beyond the range"));
-  compare::WriteDeviationMapPng(path, img, chart);
-  return range;
-}
-
-// Per frame, per camera: the share of compared pixels within 5 % of full scale (points joined by
-// lines, one colour per camera), the 95 % goal dashed.
-void WriteFrameAgreementChart(const fs::path& path, const nlohmann::json& cameras) {
-  const auto lock = plot::LockPlplot();
-  WriteFileAtomically(path, [&](const fs::path& tmp) {
-    auto pls = plot::OpenPng(tmp, 1100, 600,
-                             {{200, 30, 30}, {30, 90, 200}, {30, 150, 60}, {120, 120, 120}});
-    size_t frames = 0;
-    double lowest = 95;
-    for (const auto& c : cameras) {
-      frames = std::max(frames, c["patterns"].size());
-      for (const auto& f : c["patterns"])
-        lowest = std::min(lowest, 100 * f["within_5pct"].get<double>());
-    }
-    const double ymin = std::max(0.0, std::floor((lowest - 2) / 5) * 5 - 0.15 * (100 - lowest));
-    pls->env(-0.5, static_cast<double>(frames) - 0.5, ymin, 100.5, 0, 0);
-    pls->lab("frame (spec order)", "pixels within 5 % of full scale (%)",
-             "real vs twin intensity, per frame");
-    const PLFLT gx[2] = {-0.5, static_cast<double>(frames) - 0.5}, gy[2] = {95, 95};
-    pls->col0(5);
-    pls->lsty(2);
-    pls->line(2, gx, gy);
-    pls->lsty(1);
-    for (size_t c = 0; c < cameras.size(); ++c) {
-      std::vector<PLFLT> x, y;
-      for (const auto& f : cameras[c]["patterns"]) {
-        x.push_back(f["index"].get<double>());
-        y.push_back(100 * f["within_5pct"].get<double>());
-      }
-      pls->col0(static_cast<PLINT>(2 + c % 3));
-      pls->line(static_cast<PLINT>(x.size()), x.data(), y.data());
-      pls->poin(static_cast<PLINT>(x.size()), x.data(), y.data(), 17);
-      char name[128];
-      std::snprintf(name, sizeof(name), "%s: %.1f %% over all frames",
-                    cameras[c]["camera"].get<std::string>().c_str(),
-                    100 * cameras[c]["within_5pct_all_frames"].get<double>());
-      pls->mtex("b", -1.0 - 1.3 * static_cast<double>(cameras.size() - 1 - c), 0.98, 1.0, name);
-    }
-    pls->col0(5);
-    pls->mtex("b", -1.0, 0.02, 0.0, "dashed: the 95 % goal");
-  });
 }
 
 // One task on a thread of its own, joined (its exception rethrown) by Join() or, on the way out
@@ -249,12 +165,6 @@ class BackgroundTask {
  private:
   std::thread thread_;
   std::exception_ptr error_;
-};
-
-struct ModeClouds {
-  std::string mode;
-  PointCloud real, twin;
-  std::vector<double> real_c2m, twin_c2m;
 };
 
 std::vector<double> SignedC2M(const compare::MeshDistance& mesh,
@@ -398,60 +308,67 @@ void ShadowOptions::Check() const {
   diagnose.Check();
 }
 
-std::string ShadowResult::Summary() const {
-  std::string out = "slshadow shadow: " + report.value("image_set", std::string()) + " vs part " +
-                    report.value("part", std::string()) + "\n\n";
-  char buf[512];
-  const auto& pose = report["pose"];
-  std::snprintf(buf, sizeof(buf), "pose (%s): fitness %.3f, inlier RMSE %.4f mm\n\n",
-                pose["source"].get<std::string>().c_str(), pose["fitness"].get<double>(),
-                pose["inlier_rmse_mm"].get<double>());
-  out += buf;
-  out += "physics (layer, kept?, value +- sigma, why):\n" + physics.Table() + "\n";
-  out += "images (per camera, over the twin's lit part pixels):\n";
-  for (const auto& c : report["images"]["cameras"]) {
-    const auto& pc = c["projector_coordinates"];
-    std::snprintf(
-        buf, sizeof(buf),
-        "  %-8s intensity within 5%% FS: %.1f%% of pixel-frames (worst frame %.1f%%); decoded vs "
-        "twin truth "
-        "%.3f px RMS (twin's own decoding %.3f px), real vs twin decoded %.3f px RMS; valid both "
-        "%lld, real only "
-        "%lld, twin only %lld\n",
-        c["camera"].get<std::string>().c_str(), 100 * c["within_5pct_all_frames"].get<double>(),
-        100 * c["within_5pct_worst_frame"].get<double>(), pc["real_vs_truth_rms_px"].get<double>(),
-        pc["twin_vs_truth_rms_px"].get<double>(), pc["real_vs_twin_decoded_rms_px"].get<double>(),
-        static_cast<long long>(pc["valid_both"].get<int64_t>()),
-        static_cast<long long>(pc["valid_real_only"].get<int64_t>()),
-        static_cast<long long>(pc["valid_twin_only"].get<int64_t>()));
-    out += buf;
-  }
-  out += "\nclouds (signed C2M to the part, mm):\n";
-  for (const auto& m : report["clouds"]["modes"]) {
-    std::snprintf(
-        buf, sizeof(buf),
-        "  %-9s real %7lld pts mean %+.4f RMS %.4f | twin %7lld pts mean %+.4f RMS %.4f | real - "
-        "twin RMS %.4f, "
-        "%.2f%% beyond LoD95 %.4f\n",
-        m["mode"].get<std::string>().c_str(),
-        static_cast<long long>(m["real_vs_part"]["count"].get<int64_t>()),
-        m["real_vs_part"]["mean_mm"].get<double>(), m["real_vs_part"]["rms_mm"].get<double>(),
-        static_cast<long long>(m["twin_vs_part"]["count"].get<int64_t>()),
-        m["twin_vs_part"]["mean_mm"].get<double>(), m["twin_vs_part"]["rms_mm"].get<double>(),
-        m["real_vs_twin"]["rms_mm"].get<double>(),
-        100 * m["real_vs_twin_significant_fraction"].get<double>(), m["lod95_mm"].get<double>());
-    out += buf;
-  }
-  out += "\n" + diagnosis.Summary();
-  out += "\n" + FormatStageTable(stages);
-  return out;
-}
+namespace {
 
-ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec,
-                               const std::map<std::string, std::vector<cv::Mat>>& real,
-                               const ShadowPart& part, const ShadowOptions& options,
-                               const fs::path& out_dir, const std::string& source,
-                               const std::vector<StageMeasurement>& earlier_stages) {
+// What the stages of RunShadowOnImages share, in the order they fill it. The maps' writer comes
+// last: on the way out of an exception it is joined before what it reads (and the staging
+// folder) goes away.
+struct ShadowRun {
+  ShadowRun(const Rig& rig, const PatternSpec& spec, const ShadowPart& part,
+            const ShadowOptions& options, const fs::path& out_dir)
+      : rig(rig), spec(spec), part(part), options(options), out_dir(out_dir) {}
+
+  const Rig& rig;
+  const PatternSpec& spec;
+  const ShadowPart& part;
+  const ShadowOptions& options;
+  const fs::path& out_dir;
+  std::vector<std::string> cameras;  // cameras with images, in rig order
+  std::vector<const std::vector<cv::Mat>*> real_images;
+  bool sixteen = false;
+  double fs_dn = 255.0;
+  ShadowResult result;
+  // 1. The real scan.
+  Reconstructions real_rec;
+  // 2. Pose: the part's distance field at the pose used, for the fitness and the clouds.
+  Rigid3d rig_from_part;
+  TriangleMesh surface_in_rig;
+  std::optional<compare::MeshDistance> part_distance_at_pose;
+  // 3. The twin.
+  Scene twin;
+  std::vector<cv::Mat> projector_images;
+  Rig twin_rig;
+  std::unique_ptr<Simulator> simulator;
+  std::vector<CameraData> data;
+  double projector_depth_mm = 0;
+  PhysicsFit fit;
+  // 4. Virtual re-scan.
+  Scene fitted;
+  std::vector<std::vector<cv::Mat>> rendered;
+  std::vector<const std::vector<cv::Mat>*> twin_images;
+  Reconstructions twin_rec;
+  // 5. Images and clouds.
+  std::vector<float> response;
+  std::vector<CameraEvidence> evidence;
+  ShadowMaps maps;
+  std::vector<ModeClouds> clouds;
+  std::vector<ModeEvidence> mode_evidence;
+  std::vector<std::vector<double>> mode_diffs;  // real - twin C2M per mode, for the charts
+  std::vector<double> mode_lod95;
+  // 7. Report folder.
+  std::optional<StagingDirectory> staged;
+  nlohmann::json maps_json = nlohmann::json::array();
+  BackgroundTask maps_writer;
+};
+
+// The checks, the cameras with images, the report's header.
+void BeginRun(ShadowRun& run, const std::map<std::string, std::vector<cv::Mat>>& real,
+              const std::string& source, const std::vector<StageMeasurement>& earlier_stages) {
+  const Rig& rig = run.rig;
+  const PatternSpec& spec = run.spec;
+  const ShadowPart& part = run.part;
+  const ShadowOptions& options = run.options;
+  const fs::path& out_dir = run.out_dir;
   options.Check();
   spec.Check();
   SLSHADOW_THROW_IF(!rig.projector, "shadow: the rig '", rig.name, "' has no projector");
@@ -462,8 +379,8 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec,
                       ": exists; choose another --out or pass --overwrite");
   }
   // Cameras with images, in rig order.
-  std::vector<std::string> cameras;
-  std::vector<const std::vector<cv::Mat>*> real_images;
+  std::vector<std::string>& cameras = run.cameras;
+  std::vector<const std::vector<cv::Mat>*>& real_images = run.real_images;
   for (const auto& cam : rig.cameras) {
     auto it = real.find(cam.name);
     if (it == real.end()) continue;
@@ -474,10 +391,10 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec,
     real_images.push_back(&it->second);
   }
   SLSHADOW_THROW_IF(cameras.empty(), "shadow: no camera of the rig has images");
-  const bool sixteen = real_images[0]->front().depth() == CV_16U;
-  const double fs_dn = sixteen ? 65535.0 : 255.0;
+  run.sixteen = real_images[0]->front().depth() == CV_16U;
+  run.fs_dn = run.sixteen ? 65535.0 : 255.0;
 
-  ShadowResult result;
+  ShadowResult& result = run.result;
   result.stages = earlier_stages;
   nlohmann::json& report = result.report;
   report["format"] = kFormat;
@@ -485,18 +402,101 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec,
   report["image_set"] = source;
   report["part"] = part.source;
   report["cameras"] = cameras;
+}
 
-  // 1. The real scan.
+// 1. The real scan.
+void ScanReal(ShadowRun& run) {
   StageMeter meter("real: decode + reconstruct");
-  Reconstructions real_rec =
-      DecodeAndReconstruct(rig, spec, cameras, real_images, options, /*for_pose=*/true);
-  result.stages.push_back(meter.Stop());
+  run.real_rec = DecodeAndReconstruct(run.rig, run.spec, run.cameras, run.real_images, run.options,
+                                      /*for_pose=*/true);
+  run.result.stages.push_back(meter.Stop());
+}
 
-  // 2. Pose.
-  meter = StageMeter("pose");
+// 2. Pose, after PlacePart found it: fitness and RMSE of the final pose, measured the same way
+// for every source: share of the registration cloud within 1 mm of the part, RMS of those
+// distances. Not credible with a pose given: the given pose is used.
+void JudgePose(ShadowRun& run, PoseSource pose_source, const compare::RegistrationResult& reg,
+               Rigid3d rig_from_part) {
+  const ShadowPart& part = run.part;
+  const ShadowOptions& options = run.options;
+  nlohmann::json& report = run.result.report;
+  const PointCloud& reg_cloud = run.real_rec.modes.back().second.cloud;
+  TriangleMesh& surface_in_rig = run.surface_in_rig;
+  std::optional<compare::MeshDistance>& part_distance_at_pose = run.part_distance_at_pose;
+  surface_in_rig = part.surface;
+  surface_in_rig.Transform(rig_from_part.rotation.toRotationMatrix(), rig_from_part.translation);
+  // The part's distance field at the pose used: built once, for the fitness and the clouds.
+  part_distance_at_pose.emplace(surface_in_rig);
+  const compare::MeshDistance& registered = *part_distance_at_pose;
+  std::vector<Eigen::Vector3d> sample;
+  for (size_t i = 0; i < reg_cloud.size(); i += std::max<size_t>(1, reg_cloud.size() / 100000))
+    sample.push_back(reg_cloud.points[i]);
+  const std::vector<double> d = SignedC2M(registered, sample);
+  int64_t in = 0;
+  double ss = 0;
+  for (double x : d) {
+    if (std::abs(x) < 1.0) ++in, ss += x * x;
+  }
+  const double fitness = d.empty() ? 0.0 : static_cast<double>(in) / static_cast<double>(d.size());
+  const double rmse = in ? std::sqrt(ss / static_cast<double>(in)) : 0.0;
+  report["pose"] = {{"source", ToString(pose_source)},
+                    {"rig_from_part", PoseToJson(rig_from_part)},
+                    {"registration_cloud", run.real_rec.modes.back().first},
+                    {"fitness", fitness},
+                    {"inlier_rmse_mm", rmse},
+                    {"gate_mm", 1.0},
+                    {"min_fitness", options.min_fitness},
+                    {"max_rmse_mm", options.max_rmse_mm}};
+  if (pose_source != PoseSource::kGivenFixed) {
+    report["pose"]["registration"] = {{"fitness", reg.fitness},
+                                      {"inlier_rmse_mm", reg.inlier_rmse_mm},
+                                      {"icp_iterations", reg.icp_iterations},
+                                      {"converged", reg.converged},
+                                      {"global_found", reg.global_found}};
+  }
+  if (options.rig_from_part) {
+    report["pose"]["moved_from_given_mm"] =
+        (rig_from_part.translation - options.rig_from_part->translation).norm();
+    report["pose"]["rotated_from_given_deg"] =
+        compare::RotationDifferenceDeg(rig_from_part, *options.rig_from_part);
+  }
+  const bool credible = in > 0 && fitness >= options.min_fitness && rmse <= options.max_rmse_mm;
+  report["pose"]["credible"] = credible;
+  // Not credible: stop, unless a pose was given; then the job goes on from the given pose
+  // (a scan corrupted e.g. by a wrong frame still deserves its diagnosis), and says so.
+  SLSHADOW_THROW_IF(!credible && !options.rig_from_part,
+                    "shadow: the part's pose is not credible (", ToString(pose_source),
+                    "): fitness ", fitness, " (need >= ", options.min_fitness, "), inlier RMSE ",
+                    rmse, " mm over ", in, " points (need <= ", options.max_rmse_mm,
+                    "); give a pose guess with --pose, or check the part file");
+  if (pose_source == PoseSource::kGivenFixed) {
+    report["pose"]["used"] = "given";  // no registration ran: fitness and RMSE are for information
+  } else if (!credible) {
+    rig_from_part = *options.rig_from_part;
+    surface_in_rig = part.surface;
+    surface_in_rig.Transform(rig_from_part.rotation.toRotationMatrix(), rig_from_part.translation);
+    part_distance_at_pose.emplace(surface_in_rig);  // `registered` is not used after this
+    report["pose"]["used"] = "given";
+    report["pose"]["rig_from_part"] = PoseToJson(rig_from_part);
+    report["pose"]["warning"] =
+        "registration not credible (the real cloud is far from the part); the given pose is used "
+        "as it is";
+  } else {
+    report["pose"]["used"] = ToString(pose_source);
+  }
+  run.result.rig_from_part = rig_from_part;
+  run.rig_from_part = rig_from_part;
+}
+
+// 2. Pose: given, or registered to the real cloud (from the given pose when there is one) and
+// polished; then judged.
+void PlacePart(ShadowRun& run) {
+  StageMeter meter("pose");
+  const ShadowPart& part = run.part;
+  const ShadowOptions& options = run.options;
   const compare::Reference reference =
       compare::ReferenceFromMesh(part.surface, part.source, 100000);
-  const PointCloud& reg_cloud = real_rec.modes.back().second.cloud;  // stereo when there is one
+  const PointCloud& reg_cloud = run.real_rec.modes.back().second.cloud;  // stereo when there is one
   SLSHADOW_THROW_IF(reg_cloud.size() < 100 && !(options.rig_from_part && !options.refine_pose),
                     "shadow: the real scan reconstructed only ", reg_cloud.size(),
                     " points; cannot place the part");
@@ -527,96 +527,36 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec,
         PolishPose(part.surface, reg_cloud.points, reg.reference_from_cloud * part_from_rig_guess)
             .Inverse();
   }
-  // Fitness and RMSE of the final pose, measured the same way for every source: share of the
-  // registration cloud within 1 mm of the part, RMS of those distances.
-  TriangleMesh surface_in_rig = part.surface;
-  surface_in_rig.Transform(rig_from_part.rotation.toRotationMatrix(), rig_from_part.translation);
-  // The part's distance field at the pose used: built once, for the fitness and the clouds.
-  std::optional<compare::MeshDistance> part_distance_at_pose(std::in_place, surface_in_rig);
-  {
-    const compare::MeshDistance& registered = *part_distance_at_pose;
-    std::vector<Eigen::Vector3d> sample;
-    for (size_t i = 0; i < reg_cloud.size(); i += std::max<size_t>(1, reg_cloud.size() / 100000))
-      sample.push_back(reg_cloud.points[i]);
-    const std::vector<double> d = SignedC2M(registered, sample);
-    int64_t in = 0;
-    double ss = 0;
-    for (double x : d) {
-      if (std::abs(x) < 1.0) ++in, ss += x * x;
-    }
-    const double fitness =
-        d.empty() ? 0.0 : static_cast<double>(in) / static_cast<double>(d.size());
-    const double rmse = in ? std::sqrt(ss / static_cast<double>(in)) : 0.0;
-    report["pose"] = {{"source", ToString(pose_source)},
-                      {"rig_from_part", PoseToJson(rig_from_part)},
-                      {"registration_cloud", real_rec.modes.back().first},
-                      {"fitness", fitness},
-                      {"inlier_rmse_mm", rmse},
-                      {"gate_mm", 1.0},
-                      {"min_fitness", options.min_fitness},
-                      {"max_rmse_mm", options.max_rmse_mm}};
-    if (pose_source != PoseSource::kGivenFixed) {
-      report["pose"]["registration"] = {{"fitness", reg.fitness},
-                                        {"inlier_rmse_mm", reg.inlier_rmse_mm},
-                                        {"icp_iterations", reg.icp_iterations},
-                                        {"converged", reg.converged},
-                                        {"global_found", reg.global_found}};
-    }
-    if (options.rig_from_part) {
-      report["pose"]["moved_from_given_mm"] =
-          (rig_from_part.translation - options.rig_from_part->translation).norm();
-      report["pose"]["rotated_from_given_deg"] =
-          compare::RotationDifferenceDeg(rig_from_part, *options.rig_from_part);
-    }
-    const bool credible = in > 0 && fitness >= options.min_fitness && rmse <= options.max_rmse_mm;
-    report["pose"]["credible"] = credible;
-    // Not credible: stop, unless a pose was given; then the job goes on from the given pose
-    // (a scan corrupted e.g. by a wrong frame still deserves its diagnosis), and says so.
-    SLSHADOW_THROW_IF(!credible && !options.rig_from_part,
-                      "shadow: the part's pose is not credible (", ToString(pose_source),
-                      "): fitness ", fitness, " (need >= ", options.min_fitness, "), inlier RMSE ",
-                      rmse, " mm over ", in, " points (need <= ", options.max_rmse_mm,
-                      "); give a pose guess with --pose, or check the part file");
-    if (pose_source == PoseSource::kGivenFixed) {
-      report["pose"]["used"] =
-          "given";  // no registration ran: fitness and RMSE are for information
-    } else if (!credible) {
-      rig_from_part = *options.rig_from_part;
-      surface_in_rig = part.surface;
-      surface_in_rig.Transform(rig_from_part.rotation.toRotationMatrix(),
-                               rig_from_part.translation);
-      part_distance_at_pose.emplace(surface_in_rig);  // `registered` is not used after this
-      report["pose"]["used"] = "given";
-      report["pose"]["rig_from_part"] = PoseToJson(rig_from_part);
-      report["pose"]["warning"] =
-          "registration not credible (the real cloud is far from the part); the given pose is used "
-          "as it is";
-    } else {
-      report["pose"]["used"] = ToString(pose_source);
-    }
-    result.rig_from_part = rig_from_part;
-  }
-  const compare::MeshDistance& part_distance = *part_distance_at_pose;
-  result.stages.push_back(meter.Stop());
+  JudgePose(run, pose_source, reg, rig_from_part);
+  run.result.stages.push_back(meter.Stop());
+}
 
-  // 3. The twin: the part at its pose; geometry once (focused), then the physics fit.
-  meter = StageMeter("twin geometry + physics fit");
-  Scene twin = part.scene;
+// 3. The twin: the part at its pose; geometry once (focused), then the physics fit.
+void BuildTwin(ShadowRun& run) {
+  StageMeter meter("twin geometry + physics fit");
+  const PatternSpec& spec = run.spec;
+  const ShadowPart& part = run.part;
+  const ShadowOptions& options = run.options;
+  const std::vector<std::string>& cameras = run.cameras;
+  Scene& twin = run.twin;
+  twin = part.scene;
   twin.name = "twin of " + part.scene.name;
-  for (auto& o : twin.objects) o.rig_from_object = rig_from_part * o.rig_from_object;
-  twin.radiometry.adc_bits = sixteen ? 16 : 8;
+  for (auto& o : twin.objects) o.rig_from_object = run.rig_from_part * o.rig_from_object;
+  twin.radiometry.adc_bits = run.sixteen ? 16 : 8;
   twin.layers.noise_enabled = false;
   twin.layers.projector_defocus.enabled = false;
   twin.layers.response_enabled = false;
   twin.layers.ambient = 0;
-  const std::vector<cv::Mat> projector_images = GeneratePatterns(spec);
-  Rig twin_rig = rig;
-  auto simulator = std::make_unique<Simulator>(twin, twin_rig);
-  std::vector<CameraData> data(cameras.size());
-  double projector_depth_mm = twin_rig.working_distance_mm;
+  run.projector_images = GeneratePatterns(spec);
+  Rig& twin_rig = run.twin_rig;
+  twin_rig = run.rig;
+  run.simulator = std::make_unique<Simulator>(twin, twin_rig);
+  std::vector<CameraData>& data = run.data;
+  data.resize(cameras.size());
+  run.projector_depth_mm = twin_rig.working_distance_mm;
   {
     std::vector<double> depths;
-    const GeometryBuffer& g0 = simulator->geometry(twin_rig.CameraIndex(cameras[0]));
+    const GeometryBuffer& g0 = run.simulator->geometry(twin_rig.CameraIndex(cameras[0]));
     for (int y = 0; y < g0.height; y += 8) {
       for (int x = 0; x < g0.width; x += 8) {
         if (g0.visibility.at<uint8_t>(y, x) != 2) continue;
@@ -629,15 +569,15 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec,
                       cameras[0], "'");
     std::nth_element(depths.begin(),
                      depths.begin() + static_cast<std::ptrdiff_t>(depths.size() / 2), depths.end());
-    projector_depth_mm = depths[depths.size() / 2];
+    run.projector_depth_mm = depths[depths.size() / 2];
   }
   for (size_t c = 0; c < cameras.size(); ++c) {
     data[c].camera = cameras[c];
-    data[c].real = *real_images[c];
-    data[c].geometry = &simulator->geometry(twin_rig.CameraIndex(cameras[c]));
+    data[c].real = *run.real_images[c];
+    data[c].geometry = &run.simulator->geometry(twin_rig.CameraIndex(cameras[c]));
     WhiteBlackImages(spec, data[c].real, &data[c].white, &data[c].black);
   }
-  PhysicsFit fit;
+  PhysicsFit& fit = run.fit;
   if (options.fit_physics) {
     fit = FitPhysics(spec, twin, data, options.physics);
   } else {
@@ -648,12 +588,22 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec,
     e.reason = "from the part file (--no-physics-fit)";
     fit.layers.push_back(e);
   }
-  result.stages.push_back(meter.Stop());
+  run.result.stages.push_back(meter.Stop());
+}
 
-  // 4. Virtual re-scan with the fitted physics; defocus from its fringes against the real ones.
-  meter = StageMeter("twin: render (+ defocus fit)");
-  Scene fitted = fit.Apply(twin, twin_rig, projector_depth_mm, options.noise_seed);
-  std::vector<std::vector<cv::Mat>> rendered;
+// 4. Virtual re-scan with the fitted physics; defocus from its fringes against the real ones.
+void RenderTwin(ShadowRun& run) {
+  StageMeter meter("twin: render (+ defocus fit)");
+  const PatternSpec& spec = run.spec;
+  const ShadowOptions& options = run.options;
+  const std::vector<std::string>& cameras = run.cameras;
+  const std::vector<cv::Mat>& projector_images = run.projector_images;
+  const Rig& twin_rig = run.twin_rig;
+  PhysicsFit& fit = run.fit;
+  std::vector<CameraData>& data = run.data;
+  Scene& fitted = run.fitted;
+  std::vector<std::vector<cv::Mat>>& rendered = run.rendered;
+  fitted = fit.Apply(run.twin, twin_rig, run.projector_depth_mm, options.noise_seed);
   // The image layers the renderer does not model (black level, illumination field, global light).
   const std::vector<double> pattern_means = PatternMeans(projector_images);
   const auto apply_image_layers = [&] {
@@ -664,7 +614,7 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec,
   };
   const auto render_all = [&] {
     rendered.clear();
-    rendered = simulator->Render(projector_images, &fitted);
+    rendered = run.simulator->Render(projector_images, &fitted);
     apply_image_layers();
   };
   if (options.fit_physics) {
@@ -681,7 +631,7 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec,
     } else {
       std::vector<cv::Mat> subset;
       for (int i : fit_frames) subset.push_back(projector_images[static_cast<size_t>(i)]);
-      const std::vector<std::vector<cv::Mat>> part = simulator->Render(subset, &fitted);
+      const std::vector<std::vector<cv::Mat>> part = run.simulator->Render(subset, &fitted);
       rendered.assign(part.size(), std::vector<cv::Mat>(projector_images.size()));
       for (size_t cam = 0; cam < part.size(); ++cam) {
         for (size_t k = 0; k < fit_frames.size(); ++k)
@@ -694,11 +644,11 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec,
     FitDefocus(spec, data, options.physics, &fit);
     for (auto& d : data) d.twin.clear();
     if (fit.Kept("defocus")) {
-      fitted = fit.Apply(twin, twin_rig, projector_depth_mm, options.noise_seed);
+      fitted = fit.Apply(run.twin, twin_rig, run.projector_depth_mm, options.noise_seed);
       for (auto& d : data)
         d.twin_modulation = d.twin_white = d.twin_black = cv::Mat(), d.geometry = nullptr;
       rendered.clear();
-      simulator = std::make_unique<Simulator>(fitted, twin_rig);
+      run.simulator = std::make_unique<Simulator>(fitted, twin_rig);
       render_all();
     } else if (!fit_frames.empty()) {
       for (auto& d : data) d.twin_modulation = d.twin_white = d.twin_black = cv::Mat();
@@ -707,426 +657,434 @@ ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec,
   } else {
     render_all();
   }
-  result.stages.push_back(meter.Stop());
+  run.result.stages.push_back(meter.Stop());
+  nlohmann::json& report = run.result.report;
   report["physics"] = {{"layers", fit.ToJson()}, {"twin_scene", SceneToJson(fitted)}};
-  report["physics"]["projector_depth_mm"] = projector_depth_mm;
+  report["physics"]["projector_depth_mm"] = run.projector_depth_mm;
+}
 
-  meter = StageMeter("twin: decode + reconstruct");
-  std::vector<const std::vector<cv::Mat>*> twin_images;
-  for (const auto& name : cameras)
-    twin_images.push_back(&rendered[static_cast<size_t>(twin_rig.CameraIndex(name))]);
-  Reconstructions twin_rec =
-      DecodeAndReconstruct(twin_rig, spec, cameras, twin_images, options, /*for_pose=*/false);
-  result.stages.push_back(meter.Stop());
+// 4. The twin's images decoded and reconstructed like the real ones.
+void ScanTwin(ShadowRun& run) {
+  StageMeter meter("twin: decode + reconstruct");
+  for (const auto& name : run.cameras)
+    run.twin_images.push_back(&run.rendered[static_cast<size_t>(run.twin_rig.CameraIndex(name))]);
+  run.twin_rec = DecodeAndReconstruct(run.twin_rig, run.spec, run.cameras, run.twin_images,
+                                      run.options, /*for_pose=*/false);
+  run.result.stages.push_back(meter.Stop());
+}
 
-  // 5. Images.
-  meter = StageMeter("compare images");
-  std::vector<float> response(256);
-  for (int v = 0; v < 256; ++v)
-    response[static_cast<size_t>(v)] = static_cast<float>(
-        fitted.layers.response_enabled ? std::pow(v / 255.0, fitted.layers.gamma) : v / 255.0);
-  std::vector<CameraEvidence> evidence(cameras.size());
-  std::vector<cv::Mat> residual_maps, validity_maps, white_diff_maps, modulation_maps;
-  report["images"]["cameras"] = nlohmann::json::array();
-  const std::vector<FrameInfo> frames = spec.Frames();
-  // The cameras side by side (each mostly serial work); the report gets them in rig order.
-  const size_t num_cameras = cameras.size();
-  std::vector<nlohmann::json> camera_json(num_cameras);
-  residual_maps.resize(num_cameras);
-  validity_maps.resize(num_cameras);
-  white_diff_maps.resize(num_cameras);
-  modulation_maps.resize(num_cameras);
-  cv::parallel_for_(
-      cv::Range(0, static_cast<int>(num_cameras)), [&](const cv::Range& camera_range) {
-        for (int camera_index = camera_range.start; camera_index < camera_range.end;
-             ++camera_index) {
-          const size_t c = static_cast<size_t>(camera_index);
-          const GeometryBuffer& g = simulator->geometry(twin_rig.CameraIndex(cameras[c]));
-          const std::vector<cv::Mat>& rimg = *real_images[c];
-          const std::vector<cv::Mat>& timg = *twin_images[c];
-          cv::Mat mask(g.height, g.width, CV_8UC1, cv::Scalar(0));
-          for (int y = 0; y < g.height; ++y) {
-            for (int x = 0; x < g.width; ++x) {
-              if (g.visibility.at<uint8_t>(y, x) == 2 && g.object_id.at<int32_t>(y, x) >= 0)
-                mask.at<uint8_t>(y, x) = 255;
-            }
-          }
-          const int64_t lit = cv::countNonZero(mask);
-          // Per pattern intensity differences.
-          const int nf = spec.NumImages();
-          std::vector<nlohmann::json> per(static_cast<size_t>(nf));
-          std::vector<int64_t> within(static_cast<size_t>(nf), 0);
-          const double tol = 0.05 * fs_dn;
-          cv::parallel_for_(cv::Range(0, nf), [&](const cv::Range& r) {
-            for (int k = r.start; k < r.end; ++k) {
-              double sum = 0, ss = 0;
-              int64_t n = 0, in = 0;
-              const cv::Mat& a = rimg[static_cast<size_t>(k)];
-              const cv::Mat& b = timg[static_cast<size_t>(k)];
-              const bool bytes = a.depth() == CV_8U && b.depth() == CV_8U && g.width <= 32768;
-              if (bytes) {
-                // Integer differences summed as integers (branch-free, vectorised): the sums of
-                // integer-valued doubles below 2^53 are exact, so the figures are the same bits.
-                const int tol_dn = static_cast<int>(std::floor(tol));
-                int64_t isum = 0, iss = 0;
-                for (int y = 0; y < g.height; ++y) {
-                  const uint8_t* m = mask.ptr<uint8_t>(y);
-                  const uint8_t* pa = a.ptr<uint8_t>(y);
-                  const uint8_t* pb = b.ptr<uint8_t>(y);
-                  int32_t rsum = 0, rss = 0, rn = 0, rin = 0;  // a row: 1920 x 255^2 < 2^31
-                  for (int x = 0; x < g.width; ++x) {
-                    const int32_t w = m[x] != 0;
-                    const int32_t d = (static_cast<int32_t>(pa[x]) - pb[x]) * w;
-                    rsum += d, rss += d * d, rn += w;
-                    rin += w & static_cast<int32_t>(d <= tol_dn && d >= -tol_dn);
-                  }
-                  isum += rsum, iss += rss, n += rn, in += rin;
-                }
-                sum = static_cast<double>(isum);
-                ss = static_cast<double>(iss);
-              } else {
-                for (int y = 0; y < g.height; ++y) {
-                  const uint8_t* m = mask.ptr<uint8_t>(y);
-                  for (int x = 0; x < g.width; ++x) {
-                    if (!m[x]) continue;
-                    const double d = Pixel(a, y, x) - Pixel(b, y, x);
-                    sum += d, ss += d * d, ++n;
-                    if (std::abs(d) <= tol) ++in;
-                  }
-                }
-              }
-              within[static_cast<size_t>(k)] = in;
-              per[static_cast<size_t>(k)] = {
-                  {"index", k},
-                  {"name", frames[static_cast<size_t>(k)].Name()},
-                  {"mean_dn", n ? sum / static_cast<double>(n) : 0.0},
-                  {"rms_dn", n ? std::sqrt(ss / static_cast<double>(n)) : 0.0},
-                  {"within_5pct", n ? static_cast<double>(in) / static_cast<double>(n) : 0.0}};
-            }
-          });
-          int64_t in_all = 0;
-          double worst = 1;
-          for (int k = 0; k < nf; ++k) {
-            in_all += within[static_cast<size_t>(k)];
-            worst = std::min(worst, per[static_cast<size_t>(k)]["within_5pct"].get<double>());
-          }
-          // Decoded projector coordinates.
-          const ProjectorMap& rm = real_rec.maps[c];
-          const ProjectorMap& tm = twin_rec.maps[c];
-          const ProjectorMap& gt = g.projector;
-          // Differences of floats, kept as floats (exact) and reserved: ~4 M values per camera
-          // would otherwise be copied and page-faulted through every doubling of a vector.
-          std::vector<float> real_truth, twin_truth, real_twin;
-          const size_t most = static_cast<size_t>(lit) * (spec.code_x && spec.code_y ? 2 : 1);
-          real_truth.reserve(most);
-          twin_truth.reserve(most);
-          real_twin.reserve(most);
-          int64_t both = 0, real_only = 0, twin_only = 0;
-          cv::Mat residual(g.height, g.width, CV_32FC1, cv::Scalar(std::nanf("")));
-          cv::Mat validity(g.height, g.width, CV_8UC3, cv::Scalar(0, 0, 0));
-          for (int y = 0; y < g.height; ++y) {
-            for (int x = 0; x < g.width; ++x) {
-              const bool rv = rm.status.at<uint8_t>(y, x) == 0,
-                         tv = tm.status.at<uint8_t>(y, x) == 0;
-              if (rv && tv) ++both, validity.at<cv::Vec3b>(y, x) = {80, 200, 80};
-              if (rv && !tv) ++real_only, validity.at<cv::Vec3b>(y, x) = {60, 60, 255};
-              if (!rv && tv) ++twin_only, validity.at<cv::Vec3b>(y, x) = {255, 120, 60};
-              if (!mask.at<uint8_t>(y, x)) continue;
-              for (int axis = 0; axis < 2; ++axis) {
-                if (!spec.Codes(axis)) continue;
-                const float r = (axis ? rm.proj_y : rm.proj_x).at<float>(y, x);
-                const float t = (axis ? tm.proj_y : tm.proj_x).at<float>(y, x);
-                const float tr = (axis ? gt.proj_y : gt.proj_x).at<float>(y, x);
-                if (std::isfinite(r) && std::isfinite(tr) && std::abs(r - tr) < 20)
-                  real_truth.push_back(r - tr);
-                if (std::isfinite(t) && std::isfinite(tr) && std::abs(t - tr) < 20)
-                  twin_truth.push_back(t - tr);
-                if (std::isfinite(r) && std::isfinite(t) && std::abs(r - t) < 20)
-                  real_twin.push_back(r - t);
-                if (axis == (spec.code_x ? 0 : 1) && std::isfinite(r) && std::isfinite(tr))
-                  residual.at<float>(y, x) = r - tr;
-              }
-            }
-          }
-          // Outliers (|d| >= 20 px, wrong codes) are counted apart so they do not swamp the RMS.
-          const Stats srt = ComputeStats(std::move(real_truth)),
-                      stt = ComputeStats(std::move(twin_truth)),
-                      srw = ComputeStats(std::move(real_twin));
-          nlohmann::json cj = {
-              {"camera", cameras[c]},
-              {"lit_part_pixels", lit},
-              {"full_scale_dn", fs_dn},
-              {"within_5pct_all_frames",
-               lit ? static_cast<double>(in_all) / static_cast<double>(lit * nf) : 0.0},
-              {"within_5pct_worst_frame", worst},
-              {"patterns", per}};
-          // Per axis RMS (x, y) are pooled: RMS over both axes' residuals is what "px RMS" means
-          // here.
-          cj["projector_coordinates"] = {{"real_vs_truth_rms_px", srt.rms},
-                                         {"real_vs_truth", srt.ToJson("px")},
-                                         {"twin_vs_truth_rms_px", stt.rms},
-                                         {"twin_vs_truth", stt.ToJson("px")},
-                                         {"real_vs_twin_decoded_rms_px", srw.rms},
-                                         {"real_vs_twin_decoded", srw.ToJson("px")},
-                                         {"valid_both", both},
-                                         {"valid_real_only", real_only},
-                                         {"valid_twin_only", twin_only},
-                                         {"outlier_gate_px", 20}};
-          camera_json[c] = std::move(cj);
+// 5. Images, one camera: the twin's lit part pixels (visible, lit, on an object).
+cv::Mat LitPartMask(const GeometryBuffer& g) {
+  cv::Mat mask(g.height, g.width, CV_8UC1, cv::Scalar(0));
+  for (int y = 0; y < g.height; ++y) {
+    for (int x = 0; x < g.width; ++x) {
+      if (g.visibility.at<uint8_t>(y, x) == 2 && g.object_id.at<int32_t>(y, x) >= 0)
+        mask.at<uint8_t>(y, x) = 255;
+    }
+  }
+  return mask;
+}
 
-          CameraEvidence& ev = evidence[c];
-          ev.camera = cameras[c];
-          ev.width = g.width;
-          ev.height = g.height;
-          ev.mask = mask;
-          ev.real_x = rm.proj_x;
-          ev.real_y = rm.proj_y;
-          ev.gt_x = gt.proj_x;
-          ev.gt_y = gt.proj_y;
-          if (!spec.code_x) ev.real_x = ev.gt_x = cv::Mat();
-          if (!spec.code_y) ev.real_y = ev.gt_y = cv::Mat();
-          ev.real = real_images[c];
-          ev.white = data[c].white;
-          ev.black = data[c].black;
-          ev.projector_fx = twin_rig.projector->model.fx();
-          ev.projector_fy = twin_rig.projector->model.fy();
-          ev.projector_cx = twin_rig.projector->model.cx();
-          ev.projector_cy = twin_rig.projector->model.cy();
-          cv::Mat twin_white = data[c].twin_white, twin_black = data[c].twin_black;
-          if (twin_white.empty() || twin_black.empty())
-            WhiteBlackImages(spec, timg, &twin_white, &twin_black);
-          const cv::Mat mr = data[c].real_modulation.empty()
-                                 ? NormalisedModulation(spec, rimg, ev.white, ev.black)
-                                 : data[c].real_modulation;
-          const cv::Mat mt = data[c].twin_modulation.empty()
-                                 ? NormalisedModulation(spec, timg, twin_white, twin_black)
-                                 : data[c].twin_modulation;
-          ev.modulation_ratio = mr / mt;
-          residual_maps[c] = residual;
-          validity_maps[c] = validity;
-          cv::Mat wd(g.height, g.width, CV_32FC1, cv::Scalar(std::nanf("")));
-          for (int y = 0; y < g.height; ++y) {
-            for (int x = 0; x < g.width; ++x) {
-              if (mask.at<uint8_t>(y, x))
-                wd.at<float>(y, x) = ev.white.at<float>(y, x) - twin_white.at<float>(y, x);
-            }
+// Per pattern intensity differences, real - twin, over `mask`: the report's "patterns" entries,
+// the pixel-frames within 5 % of full scale and the worst frame's share.
+struct FrameAgreement {
+  std::vector<nlohmann::json> per;
+  int64_t in_all = 0;
+  double worst = 1;
+};
+FrameAgreement CompareFrames(const PatternSpec& spec, const std::vector<FrameInfo>& frames,
+                             const std::vector<cv::Mat>& rimg, const std::vector<cv::Mat>& timg,
+                             const cv::Mat& mask, const GeometryBuffer& g, double fs_dn) {
+  const int nf = spec.NumImages();
+  FrameAgreement out;
+  std::vector<nlohmann::json>& per = out.per;
+  per.resize(static_cast<size_t>(nf));
+  std::vector<int64_t> within(static_cast<size_t>(nf), 0);
+  const double tol = 0.05 * fs_dn;
+  cv::parallel_for_(cv::Range(0, nf), [&](const cv::Range& r) {
+    for (int k = r.start; k < r.end; ++k) {
+      double sum = 0, ss = 0;
+      int64_t n = 0, in = 0;
+      const cv::Mat& a = rimg[static_cast<size_t>(k)];
+      const cv::Mat& b = timg[static_cast<size_t>(k)];
+      const bool bytes = a.depth() == CV_8U && b.depth() == CV_8U && g.width <= 32768;
+      if (bytes) {
+        // Integer differences summed as integers (branch-free, vectorised): the sums of
+        // integer-valued doubles below 2^53 are exact, so the figures are the same bits.
+        const int tol_dn = static_cast<int>(std::floor(tol));
+        int64_t isum = 0, iss = 0;
+        for (int y = 0; y < g.height; ++y) {
+          const uint8_t* m = mask.ptr<uint8_t>(y);
+          const uint8_t* pa = a.ptr<uint8_t>(y);
+          const uint8_t* pb = b.ptr<uint8_t>(y);
+          int32_t rsum = 0, rss = 0, rn = 0, rin = 0;  // a row: 1920 x 255^2 < 2^31
+          for (int x = 0; x < g.width; ++x) {
+            const int32_t w = m[x] != 0;
+            const int32_t d = (static_cast<int32_t>(pa[x]) - pb[x]) * w;
+            rsum += d, rss += d * d, rn += w;
+            rin += w & static_cast<int32_t>(d <= tol_dn && d >= -tol_dn);
           }
-          white_diff_maps[c] = wd;
-          cv::Mat mod = ev.modulation_ratio.clone();
-          for (int y = 0; y < g.height; ++y) {
-            for (int x = 0; x < g.width; ++x) {
-              if (!mask.at<uint8_t>(y, x)) mod.at<float>(y, x) = std::nanf("");
-            }
-          }
-          modulation_maps[c] = mod;
+          isum += rsum, iss += rss, n += rn, in += rin;
         }
-      });
+        sum = static_cast<double>(isum);
+        ss = static_cast<double>(iss);
+      } else {
+        for (int y = 0; y < g.height; ++y) {
+          const uint8_t* m = mask.ptr<uint8_t>(y);
+          for (int x = 0; x < g.width; ++x) {
+            if (!m[x]) continue;
+            const double d = Pixel(a, y, x) - Pixel(b, y, x);
+            sum += d, ss += d * d, ++n;
+            if (std::abs(d) <= tol) ++in;
+          }
+        }
+      }
+      within[static_cast<size_t>(k)] = in;
+      per[static_cast<size_t>(k)] = {
+          {"index", k},
+          {"name", frames[static_cast<size_t>(k)].Name()},
+          {"mean_dn", n ? sum / static_cast<double>(n) : 0.0},
+          {"rms_dn", n ? std::sqrt(ss / static_cast<double>(n)) : 0.0},
+          {"within_5pct", n ? static_cast<double>(in) / static_cast<double>(n) : 0.0}};
+    }
+  });
+  for (int k = 0; k < nf; ++k) {
+    out.in_all += within[static_cast<size_t>(k)];
+    out.worst = std::min(out.worst, per[static_cast<size_t>(k)]["within_5pct"].get<double>());
+  }
+  return out;
+}
+
+// Decoded projector coordinates, real (`rm`) and twin (`tm`) against the twin's truth (`gt`) and
+// each other over `mask`: the report's "projector_coordinates", the residual map (the coded axis,
+// x when there is one) and the validity image.
+nlohmann::json CompareProjectorCoordinates(const PatternSpec& spec, const ProjectorMap& rm,
+                                           const ProjectorMap& tm, const ProjectorMap& gt,
+                                           const cv::Mat& mask, int64_t lit,
+                                           const GeometryBuffer& g, cv::Mat* residual_map,
+                                           cv::Mat* validity_map) {
+  // Differences of floats, kept as floats (exact) and reserved: ~4 M values per camera
+  // would otherwise be copied and page-faulted through every doubling of a vector.
+  std::vector<float> real_truth, twin_truth, real_twin;
+  const size_t most = static_cast<size_t>(lit) * (spec.code_x && spec.code_y ? 2 : 1);
+  real_truth.reserve(most);
+  twin_truth.reserve(most);
+  real_twin.reserve(most);
+  int64_t both = 0, real_only = 0, twin_only = 0;
+  cv::Mat residual(g.height, g.width, CV_32FC1, cv::Scalar(std::nanf("")));
+  cv::Mat validity(g.height, g.width, CV_8UC3, cv::Scalar(0, 0, 0));
+  for (int y = 0; y < g.height; ++y) {
+    for (int x = 0; x < g.width; ++x) {
+      const bool rv = rm.status.at<uint8_t>(y, x) == 0, tv = tm.status.at<uint8_t>(y, x) == 0;
+      if (rv && tv) ++both, validity.at<cv::Vec3b>(y, x) = {80, 200, 80};
+      if (rv && !tv) ++real_only, validity.at<cv::Vec3b>(y, x) = {60, 60, 255};
+      if (!rv && tv) ++twin_only, validity.at<cv::Vec3b>(y, x) = {255, 120, 60};
+      if (!mask.at<uint8_t>(y, x)) continue;
+      for (int axis = 0; axis < 2; ++axis) {
+        if (!spec.Codes(axis)) continue;
+        const float r = (axis ? rm.proj_y : rm.proj_x).at<float>(y, x);
+        const float t = (axis ? tm.proj_y : tm.proj_x).at<float>(y, x);
+        const float tr = (axis ? gt.proj_y : gt.proj_x).at<float>(y, x);
+        if (std::isfinite(r) && std::isfinite(tr) && std::abs(r - tr) < 20)
+          real_truth.push_back(r - tr);
+        if (std::isfinite(t) && std::isfinite(tr) && std::abs(t - tr) < 20)
+          twin_truth.push_back(t - tr);
+        if (std::isfinite(r) && std::isfinite(t) && std::abs(r - t) < 20)
+          real_twin.push_back(r - t);
+        if (axis == (spec.code_x ? 0 : 1) && std::isfinite(r) && std::isfinite(tr))
+          residual.at<float>(y, x) = r - tr;
+      }
+    }
+  }
+  *residual_map = residual;
+  *validity_map = validity;
+  // Outliers (|d| >= 20 px, wrong codes) are counted apart so they do not swamp the RMS.
+  const Stats srt = ComputeStats(std::move(real_truth)), stt = ComputeStats(std::move(twin_truth)),
+              srw = ComputeStats(std::move(real_twin));
+  // Per axis RMS (x, y) are pooled: RMS over both axes' residuals is what "px RMS" means
+  // here.
+  return {{"real_vs_truth_rms_px", srt.rms},
+          {"real_vs_truth", srt.ToJson("px")},
+          {"twin_vs_truth_rms_px", stt.rms},
+          {"twin_vs_truth", stt.ToJson("px")},
+          {"real_vs_twin_decoded_rms_px", srw.rms},
+          {"real_vs_twin_decoded", srw.ToJson("px")},
+          {"valid_both", both},
+          {"valid_real_only", real_only},
+          {"valid_twin_only", twin_only},
+          {"outlier_gate_px", 20}};
+}
+
+// Camera c's evidence for the diagnosis, and its white-difference and modulation-ratio maps.
+void CameraEvidenceAndMaps(ShadowRun& run, size_t c, const GeometryBuffer& g, const cv::Mat& mask,
+                           const std::vector<cv::Mat>& rimg, const std::vector<cv::Mat>& timg) {
+  const PatternSpec& spec = run.spec;
+  const ProjectorMap& rm = run.real_rec.maps[c];
+  const ProjectorMap& gt = g.projector;
+  const CameraData& data_c = run.data[c];
+  CameraEvidence& ev = run.evidence[c];
+  ev.camera = run.cameras[c];
+  ev.width = g.width;
+  ev.height = g.height;
+  ev.mask = mask;
+  ev.real_x = rm.proj_x;
+  ev.real_y = rm.proj_y;
+  ev.gt_x = gt.proj_x;
+  ev.gt_y = gt.proj_y;
+  if (!spec.code_x) ev.real_x = ev.gt_x = cv::Mat();
+  if (!spec.code_y) ev.real_y = ev.gt_y = cv::Mat();
+  ev.real = run.real_images[c];
+  ev.white = data_c.white;
+  ev.black = data_c.black;
+  ev.projector_fx = run.twin_rig.projector->model.fx();
+  ev.projector_fy = run.twin_rig.projector->model.fy();
+  ev.projector_cx = run.twin_rig.projector->model.cx();
+  ev.projector_cy = run.twin_rig.projector->model.cy();
+  cv::Mat twin_white = data_c.twin_white, twin_black = data_c.twin_black;
+  if (twin_white.empty() || twin_black.empty())
+    WhiteBlackImages(spec, timg, &twin_white, &twin_black);
+  const cv::Mat mr = data_c.real_modulation.empty()
+                         ? NormalisedModulation(spec, rimg, ev.white, ev.black)
+                         : data_c.real_modulation;
+  const cv::Mat mt = data_c.twin_modulation.empty()
+                         ? NormalisedModulation(spec, timg, twin_white, twin_black)
+                         : data_c.twin_modulation;
+  ev.modulation_ratio = mr / mt;
+  cv::Mat wd(g.height, g.width, CV_32FC1, cv::Scalar(std::nanf("")));
+  for (int y = 0; y < g.height; ++y) {
+    for (int x = 0; x < g.width; ++x) {
+      if (mask.at<uint8_t>(y, x))
+        wd.at<float>(y, x) = ev.white.at<float>(y, x) - twin_white.at<float>(y, x);
+    }
+  }
+  run.maps.white_difference[c] = wd;
+  cv::Mat mod = ev.modulation_ratio.clone();
+  for (int y = 0; y < g.height; ++y) {
+    for (int x = 0; x < g.width; ++x) {
+      if (!mask.at<uint8_t>(y, x)) mod.at<float>(y, x) = std::nanf("");
+    }
+  }
+  run.maps.modulation[c] = mod;
+}
+
+// 5. Images, camera c: its report entry, evidence and maps.
+nlohmann::json CompareCamera(ShadowRun& run, size_t c, const std::vector<FrameInfo>& frames) {
+  const GeometryBuffer& g = run.simulator->geometry(run.twin_rig.CameraIndex(run.cameras[c]));
+  const std::vector<cv::Mat>& rimg = *run.real_images[c];
+  const std::vector<cv::Mat>& timg = *run.twin_images[c];
+  const cv::Mat mask = LitPartMask(g);
+  const int64_t lit = cv::countNonZero(mask);
+  const int nf = run.spec.NumImages();
+  const FrameAgreement agreement = CompareFrames(run.spec, frames, rimg, timg, mask, g, run.fs_dn);
+  nlohmann::json projector_coordinates =
+      CompareProjectorCoordinates(run.spec, run.real_rec.maps[c], run.twin_rec.maps[c], g.projector,
+                                  mask, lit, g, &run.maps.residual[c], &run.maps.validity[c]);
+  nlohmann::json cj = {
+      {"camera", run.cameras[c]},
+      {"lit_part_pixels", lit},
+      {"full_scale_dn", run.fs_dn},
+      {"within_5pct_all_frames",
+       lit ? static_cast<double>(agreement.in_all) / static_cast<double>(lit * nf) : 0.0},
+      {"within_5pct_worst_frame", agreement.worst},
+      {"patterns", agreement.per}};
+  cj["projector_coordinates"] = std::move(projector_coordinates);
+  CameraEvidenceAndMaps(run, c, g, mask, rimg, timg);
+  return cj;
+}
+
+// 5. Images: the cameras side by side (each mostly serial work); the report gets them in rig
+// order.
+void CompareImages(ShadowRun& run) {
+  StageMeter meter("compare images");
+  const Scene& fitted = run.fitted;
+  run.response.resize(256);
+  for (int v = 0; v < 256; ++v)
+    run.response[static_cast<size_t>(v)] = static_cast<float>(
+        fitted.layers.response_enabled ? std::pow(v / 255.0, fitted.layers.gamma) : v / 255.0);
+  const size_t num_cameras = run.cameras.size();
+  run.evidence.resize(num_cameras);
+  nlohmann::json& report = run.result.report;
+  report["images"]["cameras"] = nlohmann::json::array();
+  const std::vector<FrameInfo> frames = run.spec.Frames();
+  std::vector<nlohmann::json> camera_json(num_cameras);
+  run.maps.residual.resize(num_cameras);
+  run.maps.validity.resize(num_cameras);
+  run.maps.white_difference.resize(num_cameras);
+  run.maps.modulation.resize(num_cameras);
+  cv::parallel_for_(cv::Range(0, static_cast<int>(num_cameras)),
+                    [&](const cv::Range& camera_range) {
+                      for (int camera_index = camera_range.start; camera_index < camera_range.end;
+                           ++camera_index) {
+                        const size_t c = static_cast<size_t>(camera_index);
+                        camera_json[c] = CompareCamera(run, c, frames);
+                      }
+                    });
   for (auto& cj : camera_json) report["images"]["cameras"].push_back(std::move(cj));
+  run.result.stages.push_back(meter.Stop());
+}
 
-  result.stages.push_back(meter.Stop());
+// The report's maps depend on the images only: drawn on a thread of their own (PLplot and PNG
+// encoding are single-threaded) while the clouds are compared and the diagnosis runs.
+void StartMapsWriter(ShadowRun& run) {
+  if (run.out_dir.empty()) return;
+  std::error_code ec;
+  run.staged.emplace(run.out_dir);
+  const fs::path maps_dir = run.staged->path() / "maps";
+  fs::create_directories(maps_dir, ec);
+  SLSHADOW_THROW_IF(ec, maps_dir.string(), ": cannot create folder: ", ec.message());
+  run.maps_writer.Start([&run, maps_dir] {
+    WriteShadowMaps(maps_dir, run.cameras, run.spec, run.options.diagnose, run.fs_dn, run.maps,
+                    &run.maps_json);
+  });
+}
 
-  // The report's maps depend on the images only: drawn on a thread of their own (PLplot and PNG
-  // encoding are single-threaded) while the clouds are compared and the diagnosis runs.
-  std::optional<StagingDirectory> staged;
-  nlohmann::json maps_json = nlohmann::json::array();
-  BackgroundTask maps_writer;
-  if (!out_dir.empty()) {
-    staged.emplace(out_dir);
-    const fs::path maps_dir = staged->path() / "maps";
-    fs::create_directories(maps_dir, ec);
-    SLSHADOW_THROW_IF(ec, maps_dir.string(), ": cannot create folder: ", ec.message());
-    maps_writer.Start([&, maps_dir] {
-      for (size_t c = 0; c < cameras.size(); ++c) {
-        const std::string& n = cameras[c];
-        const double cal = options.diagnose.calibration_field_px;
-        const double residual_range =
-            WriteMapChart(maps_dir / (n + "_projector_residual.png"), residual_maps[c],
-                          n + ": decoded projector " + (spec.code_x ? "x" : "y") + " - twin truth",
-                          "projector px", {-cal, cal},
-                          "+-" + Fmt("%.2f", cal) + " px (calibration-field threshold)", 0.05);
-        const double white_range =
-            WriteMapChart(maps_dir / (n + "_white_difference.png"), white_diff_maps[c],
-                          n + ": white level, real - twin", "DN", {-0.05 * fs_dn, 0.05 * fs_dn},
-                          "+-" + Fmt("%.4g", 0.05 * fs_dn) + " DN (5 % of full scale)", 1.0);
-        cv::Mat ratio = modulation_maps[c] - 1.0f;
-        const double mr = options.diagnose.multipath_ratio;
-        const double modulation_range =
-            WriteMapChart(maps_dir / (n + "_modulation_ratio.png"), ratio,
-                          n + ": fringe modulation, real / twin - 1", "relative", {mr - 1},
-                          Fmt("%.2f", mr - 1) + " (multipath threshold)", 0.05);
-        WriteImage(maps_dir / (n + "_validity.png"), validity_maps[c]);
-        maps_json.push_back(
-            {{"camera", n},
-             {"projector_residual", "maps/" + n + "_projector_residual.png"},
-             {"projector_residual_range_px", residual_range},
-             {"white_difference", "maps/" + n + "_white_difference.png"},
-             {"white_difference_range_dn", white_range},
-             {"modulation_ratio", "maps/" + n + "_modulation_ratio.png"},
-             {"modulation_ratio_range", modulation_range},
-             {"validity", "maps/" + n + "_validity.png"},
-             {"validity_legend",
-              "green: valid in both; red: real only; blue: twin only; black: neither"}});
-      }
-    });
+// Clouds, mode m: the real and twin clouds (thinned to kComparedPoints) against the part and
+// each other on the part; appended to the report and the run.
+void CompareMode(ShadowRun& run, size_t m) {
+  Reconstructions& real_rec = run.real_rec;
+  Reconstructions& twin_rec = run.twin_rec;
+  const compare::MeshDistance& part_distance = *run.part_distance_at_pose;
+  ModeClouds mc;
+  mc.mode = real_rec.modes[m].first;
+  // At most kComparedPoints per cloud: every s-th point (the clouds not needed whole were made
+  // that way by DecodeAndReconstruct: the same points).
+  const auto thin = [](PointCloud cloud) {
+    const size_t stride =
+        std::max<size_t>(1, (cloud.size() + kComparedPoints - 1) / kComparedPoints);
+    if (stride == 1) return cloud;
+    std::vector<bool> keep(cloud.size(), false);
+    for (size_t i = 0; i < cloud.size(); i += stride) keep[i] = true;
+    return cloud.Select(keep);
+  };
+  const int64_t real_total = real_rec.modes[m].second.summary.points,
+                twin_total = twin_rec.modes[m].second.summary.points;
+  mc.real = thin(std::move(real_rec.modes[m].second.cloud));
+  mc.twin = thin(std::move(twin_rec.modes[m].second.cloud));
+  mc.real_c2m = SignedC2M(part_distance, mc.real.points);
+  mc.twin_c2m = SignedC2M(part_distance, mc.twin.points);
+  // Compare on the part only: points within 2 mm of it (the rest is background the twin lacks).
+  const auto on_part = [](const PointCloud& cloud, const std::vector<double>& d,
+                          std::vector<Eigen::Vector3d>* pts, std::vector<double>* vals) {
+    for (size_t i = 0; i < cloud.size(); ++i) {
+      if (std::abs(d[i]) < 2.0) pts->push_back(cloud.points[i]), vals->push_back(d[i]);
+    }
+  };
+  ModeEvidence me;
+  me.mode = mc.mode;
+  on_part(mc.real, mc.real_c2m, &me.real_points, &me.real_c2m);
+  on_part(mc.twin, mc.twin_c2m, &me.virtual_points, &me.virtual_c2m);
+  std::vector<double> diff;
+  if (!me.virtual_points.empty()) {
+    const NeighbourGrid tree(me.virtual_points);
+    diff.resize(me.real_points.size(), std::nan(""));
+    cv::parallel_for_(cv::Range(0, static_cast<int>(me.real_points.size())),
+                      [&](const cv::Range& r) {
+                        for (int i = r.start; i < r.end; ++i) {
+                          compare::Neighbor nb;
+                          if (tree.Nearest(me.real_points[static_cast<size_t>(i)], &nb, 1.0))
+                            diff[static_cast<size_t>(i)] =
+                                me.real_c2m[static_cast<size_t>(i)] - me.virtual_c2m[nb.index];
+                        }
+                      });
   }
-
-  // Clouds.
-  meter = StageMeter("compare clouds");
-  std::vector<ModeClouds> clouds;
-  std::vector<ModeEvidence> mode_evidence;
-  std::vector<std::vector<double>> mode_diffs;  // real - twin C2M per mode, for the charts
-  std::vector<double> mode_lod95;
-  report["clouds"]["modes"] = nlohmann::json::array();
-  for (size_t m = 0; m < real_rec.modes.size(); ++m) {
-    ModeClouds mc;
-    mc.mode = real_rec.modes[m].first;
-    // At most kComparedPoints per cloud: every s-th point (the clouds not needed whole were made
-    // that way by DecodeAndReconstruct: the same points).
-    const auto thin = [](PointCloud cloud) {
-      const size_t stride =
-          std::max<size_t>(1, (cloud.size() + kComparedPoints - 1) / kComparedPoints);
-      if (stride == 1) return cloud;
-      std::vector<bool> keep(cloud.size(), false);
-      for (size_t i = 0; i < cloud.size(); i += stride) keep[i] = true;
-      return cloud.Select(keep);
-    };
-    const int64_t real_total = real_rec.modes[m].second.summary.points,
-                  twin_total = twin_rec.modes[m].second.summary.points;
-    mc.real = thin(std::move(real_rec.modes[m].second.cloud));
-    mc.twin = thin(std::move(twin_rec.modes[m].second.cloud));
-    mc.real_c2m = SignedC2M(part_distance, mc.real.points);
-    mc.twin_c2m = SignedC2M(part_distance, mc.twin.points);
-    // Compare on the part only: points within 2 mm of it (the rest is background the twin lacks).
-    const auto on_part = [](const PointCloud& cloud, const std::vector<double>& d,
-                            std::vector<Eigen::Vector3d>* pts, std::vector<double>* vals) {
-      for (size_t i = 0; i < cloud.size(); ++i) {
-        if (std::abs(d[i]) < 2.0) pts->push_back(cloud.points[i]), vals->push_back(d[i]);
-      }
-    };
-    ModeEvidence me;
-    me.mode = mc.mode;
-    on_part(mc.real, mc.real_c2m, &me.real_points, &me.real_c2m);
-    on_part(mc.twin, mc.twin_c2m, &me.virtual_points, &me.virtual_c2m);
-    std::vector<double> diff;
-    if (!me.virtual_points.empty()) {
-      const NeighbourGrid tree(me.virtual_points);
-      diff.resize(me.real_points.size(), std::nan(""));
-      cv::parallel_for_(cv::Range(0, static_cast<int>(me.real_points.size())),
-                        [&](const cv::Range& r) {
-                          for (int i = r.start; i < r.end; ++i) {
-                            compare::Neighbor nb;
-                            if (tree.Nearest(me.real_points[static_cast<size_t>(i)], &nb, 1.0))
-                              diff[static_cast<size_t>(i)] =
-                                  me.real_c2m[static_cast<size_t>(i)] - me.virtual_c2m[nb.index];
-                          }
-                        });
-    }
-    const Stats sr = ComputeStats(me.real_c2m), st = ComputeStats(me.virtual_c2m),
-                sd = ComputeStats(diff);
-    // LoD95 of a real - twin difference from the twin's own scatter about the part (both scans
-    // carry that noise): 1.96 sqrt(2) sigma.
-    const double lod95 = 1.96 * std::sqrt(2.0) * st.stddev;
-    int64_t significant = 0;
-    for (double d : diff) {
-      if (std::isfinite(d) && std::abs(d) > lod95) ++significant;
-    }
-    report["clouds"]["modes"].push_back(
-        {{"mode", mc.mode},
-         {"real_points", real_total},
-         {"twin_points", twin_total},
-         {"compared_real_points", mc.real.size()},
-         {"compared_twin_points", mc.twin.size()},
-         {"on_part_gate_mm", 2.0},
-         {"real_vs_part", sr.ToJson("mm")},
-         {"twin_vs_part", st.ToJson("mm")},
-         {"real_vs_twin", sd.ToJson("mm")},
-         {"lod95_mm", lod95},
-         {"real_vs_twin_significant_fraction",
-          sd.count ? static_cast<double>(significant) / static_cast<double>(sd.count) : 0.0},
-         {"real_summary", real_rec.modes[m].second.summary.ToJson()},
-         {"twin_summary", twin_rec.modes[m].second.summary.ToJson()}});
-    mode_evidence.push_back(std::move(me));
-    clouds.push_back(std::move(mc));
-    mode_diffs.push_back(std::move(diff));
-    mode_lod95.push_back(lod95);
+  const Stats sr = ComputeStats(me.real_c2m), st = ComputeStats(me.virtual_c2m),
+              sd = ComputeStats(diff);
+  // LoD95 of a real - twin difference from the twin's own scatter about the part (both scans
+  // carry that noise): 1.96 sqrt(2) sigma.
+  const double lod95 = 1.96 * std::sqrt(2.0) * st.stddev;
+  int64_t significant = 0;
+  for (double d : diff) {
+    if (std::isfinite(d) && std::abs(d) > lod95) ++significant;
   }
-  result.stages.push_back(meter.Stop());
+  run.result.report["clouds"]["modes"].push_back(
+      {{"mode", mc.mode},
+       {"real_points", real_total},
+       {"twin_points", twin_total},
+       {"compared_real_points", mc.real.size()},
+       {"compared_twin_points", mc.twin.size()},
+       {"on_part_gate_mm", 2.0},
+       {"real_vs_part", sr.ToJson("mm")},
+       {"twin_vs_part", st.ToJson("mm")},
+       {"real_vs_twin", sd.ToJson("mm")},
+       {"lod95_mm", lod95},
+       {"real_vs_twin_significant_fraction",
+        sd.count ? static_cast<double>(significant) / static_cast<double>(sd.count) : 0.0},
+       {"real_summary", real_rec.modes[m].second.summary.ToJson()},
+       {"twin_summary", twin_rec.modes[m].second.summary.ToJson()}});
+  run.mode_evidence.push_back(std::move(me));
+  run.clouds.push_back(std::move(mc));
+  run.mode_diffs.push_back(std::move(diff));
+  run.mode_lod95.push_back(lod95);
+}
 
-  // 6. Diagnosis.
-  meter = StageMeter("diagnose");
-  result.diagnosis =
-      Diagnose(spec, projector_images, response, fit, evidence, mode_evidence, options.diagnose);
-  report["diagnosis"] = result.diagnosis.ToJson();
-  result.physics = fit;
-  result.stages.push_back(meter.Stop());
+// 5. Clouds.
+void CompareClouds(ShadowRun& run) {
+  StageMeter meter("compare clouds");
+  run.result.report["clouds"]["modes"] = nlohmann::json::array();
+  for (size_t m = 0; m < run.real_rec.modes.size(); ++m) CompareMode(run, m);
+  run.result.stages.push_back(meter.Stop());
+}
 
-  // 7. Report folder.
-  if (!out_dir.empty()) {
-    meter = StageMeter("write report");
-    const fs::path& staging = staged->path();
-    // The clouds and charts first: the maps are still being drawn in the background (since the
-    // images were compared), and writing the clouds does not wait for PLplot.
-    if (options.write_clouds) {
-      fs::create_directories(staging / "clouds", ec);
-      for (auto& mc : clouds) {
-        std::vector<float> d(mc.real_c2m.begin(), mc.real_c2m.end());
-        mc.real.SetScalar("c2m_part_mm", std::move(d));
-        WritePly(staging / "clouds" / ("real_" + mc.mode + ".ply"), mc.real);
-        std::vector<float> e(mc.twin_c2m.begin(), mc.twin_c2m.end());
-        mc.twin.SetScalar("c2m_part_mm", std::move(e));
-        WritePly(staging / "clouds" / ("twin_" + mc.mode + ".ply"), mc.twin);
-      }
-    }
-    fs::create_directories(staging / "charts", ec);
-    SLSHADOW_THROW_IF(ec, (staging / "charts").string(), ": cannot create folder: ", ec.message());
-    WriteFrameAgreementChart(staging / "charts" / "intensity_per_frame.png",
-                             report["images"]["cameras"]);
-    report["charts"] = {{"intensity_per_frame", "charts/intensity_per_frame.png"}};
-    for (size_t m = 0; m < clouds.size(); ++m) {
-      std::vector<double> finite;
-      for (double d : mode_diffs[m]) {
-        if (std::isfinite(d)) finite.push_back(d);
-      }
-      if (finite.size() < 10) continue;
-      const compare::DistanceStats st = compare::ComputeStats(finite, true, mode_lod95[m], 60);
-      compare::HistogramChart hc;
-      hc.title = clouds[m].mode + ": real - twin deviation from the part";
-      hc.x_label = "real C2M - twin C2M at the nearest twin point (mm)";
-      hc.is_signed = true;
-      hc.threshold_mm = mode_lod95[m];
-      const double beyond =
-          100.0 * static_cast<double>(st.outliers) / static_cast<double>(st.count);
-      hc.notes = {std::to_string(st.count) + " points on the part",
-                  "RMS " + Fmt("%.4f mm", st.rms_mm),
-                  "dashed: LoD95 " + Fmt("%.4f mm", mode_lod95[m]),
-                  "beyond LoD95: " + Fmt("%.2f %%", beyond)};
-      const std::string file = "charts/real_vs_twin_" + clouds[m].mode + ".png";
-      compare::WriteHistogramPng(staging / file, st.histogram, hc);
-      report["charts"]["real_vs_twin_" + clouds[m].mode] = file;
-    }
-    maps_writer.Join();
-    report["maps"] = maps_json;
-    result.stages.push_back(meter.Stop());
-    report["stages"] = nlohmann::json::array();
-    for (const auto& s : result.stages) {
-      report["stages"].push_back({{"name", s.name},
-                                  {"wall_s", s.wall_s},
-                                  {"cpu_s", s.cpu_s},
-                                  {"peak_rss_mb", s.peak_rss_mb}});
-    }
-    WriteTextFileAtomically(staging / "report.json", report.dump(2) + "\n");
-    WriteTextFileAtomically(staging / "summary.txt", result.Summary());
-    staged->Commit(options.overwrite);
-  } else {
-    report["stages"] = nlohmann::json::array();
-    for (const auto& s : result.stages) {
-      report["stages"].push_back({{"name", s.name},
-                                  {"wall_s", s.wall_s},
-                                  {"cpu_s", s.cpu_s},
-                                  {"peak_rss_mb", s.peak_rss_mb}});
-    }
+// 6. Diagnosis.
+void DiagnoseRun(ShadowRun& run) {
+  StageMeter meter("diagnose");
+  ShadowResult& result = run.result;
+  result.diagnosis = Diagnose(run.spec, run.projector_images, run.response, run.fit, run.evidence,
+                              run.mode_evidence, run.options.diagnose);
+  result.report["diagnosis"] = result.diagnosis.ToJson();
+  result.physics = run.fit;
+  result.stages.push_back(meter.Stop());
+}
+
+// 7. Report folder (with no folder: the stages into the report only).
+void WriteReportFolder(ShadowRun& run) {
+  ShadowResult& result = run.result;
+  nlohmann::json& report = result.report;
+  if (run.out_dir.empty()) {
+    report["stages"] = StagesToJson(result.stages);
+    return;
   }
-  return result;
+  StageMeter meter("write report");
+  std::error_code ec;
+  const fs::path& staging = run.staged->path();
+  // The clouds and charts first: the maps are still being drawn in the background (since the
+  // images were compared), and writing the clouds does not wait for PLplot.
+  if (run.options.write_clouds) {
+    fs::create_directories(staging / "clouds", ec);
+    WriteShadowClouds(staging / "clouds", &run.clouds);
+  }
+  fs::create_directories(staging / "charts", ec);
+  SLSHADOW_THROW_IF(ec, (staging / "charts").string(), ": cannot create folder: ", ec.message());
+  WriteShadowCharts(staging, run.clouds, run.mode_diffs, run.mode_lod95, &report);
+  run.maps_writer.Join();
+  report["maps"] = run.maps_json;
+  result.stages.push_back(meter.Stop());
+  report["stages"] = StagesToJson(result.stages);
+  WriteTextFileAtomically(staging / "report.json", report.dump(2) + "\n");
+  WriteTextFileAtomically(staging / "summary.txt", result.Summary());
+  run.staged->Commit(run.options.overwrite);
+}
+
+}  // namespace
+
+ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec,
+                               const std::map<std::string, std::vector<cv::Mat>>& real,
+                               const ShadowPart& part, const ShadowOptions& options,
+                               const fs::path& out_dir, const std::string& source,
+                               const std::vector<StageMeasurement>& earlier_stages) {
+  ShadowRun run(rig, spec, part, options, out_dir);
+  BeginRun(run, real, source, earlier_stages);
+  ScanReal(run);           // 1. The real scan.
+  PlacePart(run);          // 2. Pose.
+  BuildTwin(run);          // 3. The twin: geometry and physics fit.
+  RenderTwin(run);         // 4. Virtual re-scan,
+  ScanTwin(run);           //    decoded and reconstructed.
+  CompareImages(run);      // 5. Images,
+  StartMapsWriter(run);    //    their maps drawn in the background,
+  CompareClouds(run);      //    clouds.
+  DiagnoseRun(run);        // 6. Diagnosis.
+  WriteReportFolder(run);  // 7. Report folder.
+  return std::move(run.result);
 }
 
 ShadowResult RunShadow(const fs::path& image_set_dir, const ShadowPart& part,
