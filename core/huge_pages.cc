@@ -64,8 +64,8 @@ std::optional<std::string> HugePageTunables(const char* tunables, const std::str
     why = thp_mode.empty() ? "the kernel's transparent huge page mode is unknown"
                            : "the kernel's transparent huge pages are '" + thp_mode + "'";
   } else if (glibc_major < 2 || (glibc_major == 2 && glibc_minor < 35)) {
-    why = "glibc " + std::to_string(glibc_major) + "." + std::to_string(glibc_minor) +
-          " has no " + kTunable + " (2.35 on)";
+    why = "glibc " + std::to_string(glibc_major) + "." + std::to_string(glibc_minor) + " has no " +
+          kTunable + " (2.35 on)";
   }
   if (!why.empty()) {
     if (reason) *reason = why;

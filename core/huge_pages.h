@@ -3,7 +3,7 @@
 // A command allocates hundreds of MB (images, projector maps, grids, clouds) and touches each page
 // once. Where the kernel's transparent huge pages are "madvise" (Debian's default), glibc's malloc
 // backs all of it with 4 KiB pages, one page fault each; on a virtual machine a fault can cost
-// ~9 us, and `slshadow demo` then spent ~40 % of its CPU time faulting
+// ~9 us: `slshadow demo` took 1.7x as long as it does with huge pages
 // (docs/benchmarks/log/2026-11-29-huge-pages.md). glibc's tunable glibc.malloc.hugetlb=1 (glibc
 // 2.35 on) makes malloc advise the kernel to back its heap with 2 MiB pages (madvise
 // MADV_HUGEPAGE), but glibc reads tunables only when a program starts: the command line therefore

@@ -171,10 +171,14 @@ void WriteFrontChart(const fs::path& path, const std::vector<FrontPoint>& points
       pls->box("bcnst", 0, 0, "bcnstv", 0, 0);
       pls->lab(cpu_time ? "decode (cameras the mode reads) + reconstruct, CPU s (all threads)"
                         : "decode (cameras the mode reads) + reconstruct time (s)",
-               "RMS deviation (mm)",
-               (study + ": time against error, Pareto front per " +
-                (points.empty() || points[0].group == points[0].mode ? "mode" : "group"))
-                   .c_str());
+               "RMS deviation (mm)", "");
+      // The title, smaller when long: about 64 characters fit the page at full size.
+      const std::string title =
+          study + ": time against error, Pareto front per " +
+          (points.empty() || points[0].group == points[0].mode ? "mode" : "group");
+      pls->schr(0, std::min(1.0, 64.0 / static_cast<double>(title.size())));
+      pls->mtex("t", 2.0, 0.5, 0.5, title.c_str());
+      pls->schr(0, 1.0);
       for (size_t m = 0; m < groups.size(); ++m) {
         pls->col0(static_cast<PLINT>(2 + m % 8));
         std::vector<PLFLT> xs, ys;
@@ -198,22 +202,29 @@ void WriteFrontChart(const fs::path& path, const std::vector<FrontPoint>& points
         pls->mtex("t", -1.5 - (groups.size() > 2 ? 1.2 : 1.5) * static_cast<double>(m), 0.98, 1.0,
                   (groups[m] + " (filled: on the front)").c_str());
       }
-      // The key, in page coordinates below the chart.
+      // The key, in page coordinates below the chart: one line per key, its text in one piece
+      // (columns would overlap for long group names), smaller when the longest line would not fit
+      // (about 90 characters at 0.7 from the key's column to the page's edge).
       pls->vpor(0, 1, 0, 1);
       pls->wind(0, 1, 0, height);
-      pls->schr(0, 0.7);
+      std::vector<std::string> lines;
+      size_t longest = 1;
+      for (const FrontPoint* p : keyed) {
+        char figures[64];
+        std::snprintf(figures, sizeof(figures), "%.3f s  %.4f mm", p->time_s, p->rms_mm);
+        lines.push_back(p->group + "  " + figures + "  " + p->described);
+        longest = std::max(longest, lines.back().size());
+      }
+      pls->schr(0, std::min(0.7, 0.7 * 90.0 / static_cast<double>(longest)));
       for (size_t k = 0; k < keyed.size(); ++k) {
         const FrontPoint& p = *keyed[k];
         const size_t m =
             static_cast<size_t>(std::find(groups.begin(), groups.end(), p.group) - groups.begin());
-        char figures[64];
-        std::snprintf(figures, sizeof(figures), "%.3f s  %.4f mm", p.time_s, p.rms_mm);
         pls->col0(static_cast<PLINT>(2 + m % 8));
         const double y = kLine * (static_cast<double>(keyed.size() - k) - 0.3);
         pls->ptex(0.03, y, 1, 0, 0, p.key.c_str());
         pls->col0(1);
-        pls->ptex(0.08, y, 1, 0, 0, (p.group + "  " + figures).c_str());
-        pls->ptex(0.36, y, 1, 0, 0, p.described.c_str());
+        pls->ptex(0.08, y, 1, 0, 0, lines[k].c_str());
       }
     });
   }
