@@ -602,14 +602,20 @@ TEST_F(ReconstructTest, WithNoisyCodesOptimalIsNoWorseThanMidpoint) {
   EXPECT_LE(rms[TriangulationMethod::kOptimal], rms[TriangulationMethod::kDlt] * 1.001);
 }
 
+// `rig` with its projector's pose turned by `degrees` about the projector's x axis.
+Rig WithProjectorTurned(const Rig& rig, double degrees) {
+  Rig turned = rig;
+  turned.projector->cam_from_rig =
+      Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(degrees * M_PI / 180, Eigen::Vector3d::UnitX())),
+              Eigen::Vector3d::Zero()) *
+      turned.projector->cam_from_rig;
+  return turned;
+}
+
 TEST_F(ReconstructTest, ResidualStatisticsRevealAMiscalibratedRig) {
   const AnalyticView truth = RenderAnalytic(rig_, rig_.cameras[0], PlaneSurface());
-  Rig wrong = rig_;
   // The projector's pose off by 0.1 degree about its x axis.
-  wrong.projector->cam_from_rig =
-      Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.1 * M_PI / 180, Eigen::Vector3d::UnitX())),
-              Eigen::Vector3d::Zero()) *
-      wrong.projector->cam_from_rig;
+  const Rig wrong = WithProjectorTurned(rig_, 0.1);
   ReconstructOptions options;
   const Reconstruction good = ReconstructWithProjector(rig_, "left", truth.map, options);
   const Reconstruction bad = ReconstructWithProjector(wrong, "left", truth.map, options);
@@ -638,14 +644,11 @@ TEST_F(ReconstructTest, SkippingTheResidualReportChangesNoCloud) {
   const AnalyticView left = RenderAnalytic(rig_, rig_.cameras[0], SphereSurface());
   const AnalyticView right = RenderAnalytic(rig_, rig_.cameras[1], SphereSurface());
   // The projector's pose off by 0.05 degree: projector mode's gates reject every cell.
-  Rig wrong = rig_;
-  wrong.projector->cam_from_rig =
-      Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.05 * M_PI / 180, Eigen::Vector3d::UnitX())),
-              Eigen::Vector3d::Zero()) *
-      wrong.projector->cam_from_rig;
+  const Rig wrong = WithProjectorTurned(rig_, 0.05);
   ReconstructOptions full, bare;
   bare.report_residuals = false;
-  for (const Rig* rig : {&rig_, &wrong}) {
+  const Rig* rigs[] = {&rig_, &wrong};
+  for (const Rig* rig : rigs) {
     const Reconstruction a[2] = {
         ReconstructWithProjector(*rig, "left", left.map, full),
         ReconstructStereo(*rig, "left", "right", left.map, right.map, full)};
