@@ -22,7 +22,16 @@ bool Disabled() {
   return v && std::strcmp(v, "0") == 0;
 }
 
-std::string ThpMode() {
+std::optional<std::string> TunablesForThisProcess(std::string* reason) {
+  int major = 0, minor = 0;
+  GlibcVersion(&major, &minor);
+  return HugePageTunables(std::getenv("GLIBC_TUNABLES"), KernelThpMode(), major, minor, Disabled(),
+                          reason);
+}
+
+}  // namespace
+
+std::string KernelThpMode() {
   std::ifstream in("/sys/kernel/mm/transparent_hugepage/enabled");
   std::stringstream text;
   text << in.rdbuf();
@@ -35,15 +44,6 @@ void GlibcVersion(int* major, int* minor) {
   std::sscanf(gnu_get_libc_version(), "%d.%d", major, minor);
 #endif
 }
-
-std::optional<std::string> TunablesForThisProcess(std::string* reason) {
-  int major = 0, minor = 0;
-  GlibcVersion(&major, &minor);
-  return HugePageTunables(std::getenv("GLIBC_TUNABLES"), ThpMode(), major, minor, Disabled(),
-                          reason);
-}
-
-}  // namespace
 
 std::string SelectedThpMode(const std::string& text) {
   const size_t open = text.find('['), close = text.find(']', open);
@@ -84,7 +84,7 @@ void ReexecWithHugePages(char** argv) {
 }
 
 std::string HugePagesStatus() {
-  const std::string mode = ThpMode();
+  const std::string mode = KernelThpMode();
   if (mode == "always") {
     return "memory: large buffers on transparent huge pages (the kernel's mode is 'always')";
   }

@@ -30,6 +30,11 @@ std::optional<std::string> HugePageTunables(const char* tunables, const std::str
 // ("always [madvise] never" -> "madvise"); "" when there is none.
 std::string SelectedThpMode(const std::string& text);
 
+// This machine's facts HugePageTunables judges by: the kernel's transparent huge page mode ("" when
+// unknown) and glibc's version (0.0 without glibc).
+std::string KernelThpMode();
+void GlibcVersion(int* major, int* minor);
+
 // Re-executes the running program (/proc/self/exe) with `argv` and GLIBC_TUNABLES as
 // HugePageTunables gives it for this process; returns only when there is nothing to do or the
 // re-execution failed (the program then simply runs with 4 KiB pages).

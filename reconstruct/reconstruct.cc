@@ -126,6 +126,16 @@ class GridUndistorter {
   bool distorted_;
 };
 
+// The residual gates of accepted cell i, whose |epipolar error| is `abs_epipolar_px` (NaN: none).
+inline void ApplyGates(const ReconstructOptions& options, float abs_epipolar_px, size_t i,
+                       DenseGrid* grid) {
+  if (!(grid->reprojection_error_px[i] <= options.max_reprojection_error_px)) {
+    grid->reason[i] = Code(RejectReason::kReprojectionError);
+  } else if (abs_epipolar_px > options.max_epipolar_error_px) {
+    grid->reason[i] = Code(RejectReason::kEpipolarError);
+  }
+}
+
 // Residual statistics (options.report_residuals), gates, filters, normals and the cloud: the part
 // both modes share.
 void Finish(const ReconstructOptions& options, size_t max_cloud_points, Reconstruction* out) {
@@ -138,12 +148,7 @@ void Finish(const ReconstructOptions& options, size_t max_cloud_points, Reconstr
     cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
       for (int v = rows.start; v < rows.end; ++v) {
         for (size_t i = grid.Index(0, v), end = i + static_cast<size_t>(w); i < end; ++i) {
-          if (!grid.Accepted(i)) continue;
-          if (!(grid.reprojection_error_px[i] <= options.max_reprojection_error_px)) {
-            grid.reason[i] = Code(RejectReason::kReprojectionError);
-          } else if (std::abs(grid.epipolar_error_px[i]) > options.max_epipolar_error_px) {
-            grid.reason[i] = Code(RejectReason::kEpipolarError);
-          }
+          if (grid.Accepted(i)) ApplyGates(options, std::abs(grid.epipolar_error_px[i]), i, &grid);
         }
       }
     });
@@ -179,11 +184,7 @@ void Finish(const ReconstructOptions& options, size_t max_cloud_points, Reconstr
           reproj[k++] = grid.reprojection_error_px[i];
           const float epipolar = std::abs(grid.epipolar_error_px[i]);  // signed in the grid
           if (std::isfinite(epipolar)) epi[ke++] = epipolar;
-          if (!(grid.reprojection_error_px[i] <= options.max_reprojection_error_px)) {
-            grid.reason[i] = Code(RejectReason::kReprojectionError);
-          } else if (epipolar > options.max_epipolar_error_px) {
-            grid.reason[i] = Code(RejectReason::kEpipolarError);
-          }
+          ApplyGates(options, epipolar, i, &grid);
         }
       }
     });

@@ -3,11 +3,8 @@
 // environment set per case.
 #include <array>
 #include <cstdio>
-#include <fstream>
-#include <sstream>
 #include <string>
 
-#include <gnu/libc-version.h>
 #include <gtest/gtest.h>
 
 #include "core/huge_pages.h"
@@ -27,16 +24,9 @@ std::string RunVersion(const std::string& env) {
   return out;
 }
 
-std::string ThpMode() {
-  std::ifstream in("/sys/kernel/mm/transparent_hugepage/enabled");
-  std::stringstream text;
-  text << in.rdbuf();
-  return slshadow::SelectedThpMode(text.str());
-}
-
 TEST(HugePagesCli, VersionSaysWhatTheProcessRunsWith) {
   const std::string off = RunVersion("SLSHADOW_HUGE_PAGES=0");
-  const std::string mode = ThpMode();
+  const std::string mode = slshadow::KernelThpMode();
   if (mode == "always") {
     EXPECT_NE(off.find("the kernel's mode is 'always'"), std::string::npos) << off;
     GTEST_SKIP() << "transparent huge pages are 'always' here: nothing to re-execute for";
@@ -44,7 +34,7 @@ TEST(HugePagesCli, VersionSaysWhatTheProcessRunsWith) {
   EXPECT_NE(off.find("memory: malloc on 4 KiB pages (SLSHADOW_HUGE_PAGES=0)"), std::string::npos)
       << off;
   int major = 0, minor = 0;
-  std::sscanf(gnu_get_libc_version(), "%d.%d", &major, &minor);
+  slshadow::GlibcVersion(&major, &minor);
   const std::string on = RunVersion("");
   const std::string other = RunVersion("GLIBC_TUNABLES=glibc.malloc.check=0");
   if (mode != "madvise" || major < 2 || (major == 2 && minor < 35)) {
