@@ -31,10 +31,12 @@ typedef int32_t V8i __attribute__((vector_size(32)));
 typedef uint64_t V8u __attribute__((vector_size(64)));
 typedef float V16f __attribute__((vector_size(64)));
 typedef int32_t V16i __attribute__((vector_size(64)));
+typedef uint64_t V16u __attribute__((vector_size(128)));
 typedef uint8_t V16b __attribute__((vector_size(16)));
 typedef uint16_t V16s __attribute__((vector_size(32)));
 
-SLSHADOW_NOISE_INLINE V8u Mix(V8u x) {  // SplitMix64, lane by lane
+template <typename VU>
+SLSHADOW_NOISE_INLINE VU Mix(VU x) {  // SplitMix64, lane by lane
   x += 0x9E3779B97F4A7C15ull;
   x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
   x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
@@ -53,7 +55,6 @@ uint64_t StreamOf(uint64_t seed, int camera_index, int pattern_index) {
                                       static_cast<uint64_t>(static_cast<uint32_t>(pattern_index))));
 }
 
-SLSHADOW_NOISE_INLINE V8f SplatF(float v) { return V8f{v, v, v, v, v, v, v, v}; }
 SLSHADOW_NOISE_INLINE V16f Splat16(float v) { return V16f{} + v; }
 
 SLSHADOW_NOISE_INLINE V8f Sqrt(V8f v) {
@@ -78,15 +79,16 @@ SLSHADOW_NOISE_INLINE V16f Select(V16i mask, V16f a, V16f b) {
 
 // ln x for x in (0, 1], Cephes' logf: x = m 2^e with m in [sqrt(1/2), sqrt(2)), ln(m) by a
 // polynomial in m - 1.
-SLSHADOW_NOISE_INLINE V8f Log(V8f v) {
-  const V8i bits = (V8i)v;
-  V8i e = (bits >> 23) - 126;
-  const V8f m = (V8f)((bits & 0x007FFFFF) | 0x3F000000);  // [1/2, 1)
-  const V8i small = m < 0.707106781186547524f;
+template <typename VF, typename VI>
+SLSHADOW_NOISE_INLINE VF Log(VF v) {
+  const VI bits = (VI)v;
+  VI e = (bits >> 23) - 126;
+  const VF m = (VF)((bits & 0x007FFFFF) | 0x3F000000);  // [1/2, 1)
+  const VI small = m < 0.707106781186547524f;
   e += small;  // -1 where m is doubled
-  const V8f x = (m + (V8f)((V8i)m & small)) - 1.0f;
-  const V8f z = x * x;
-  V8f p = SplatF(7.0376836292e-2f);
+  const VF x = (m + (VF)((VI)m & small)) - 1.0f;
+  const VF z = x * x;
+  VF p = VF{} + 7.0376836292e-2f;
   p = p * x + -1.1514610310e-1f;
   p = p * x + 1.1676998740e-1f;
   p = p * x + -1.2420140846e-1f;
@@ -95,8 +97,8 @@ SLSHADOW_NOISE_INLINE V8f Log(V8f v) {
   p = p * x + 2.0000714765e-1f;
   p = p * x + -2.4999993993e-1f;
   p = p * x + 3.3333331174e-1f;
-  const V8f fe = __builtin_convertvector(e, V8f);
-  V8f y = p * x * z;
+  const VF fe = __builtin_convertvector(e, VF);
+  VF y = p * x * z;
   y = y + fe * -2.12194440e-4f;
   y = y - 0.5f * z;
   return (x + y) + fe * 0.693359375f;
@@ -105,20 +107,21 @@ SLSHADOW_NOISE_INLINE V8f Log(V8f v) {
 // Cosine and sine of a in [0, 2 pi]: quarter turns j = round(a / (pi/2)) taken off in three
 // parts (Cody-Waite: exact products), Cephes' sinf / cosf polynomials on r in [-pi/4, pi/4],
 // then rotated by j quarter turns.
-SLSHADOW_NOISE_INLINE void CosSin(V8f a, V8f* cos_a, V8f* sin_a) {
-  const V8i j = __builtin_convertvector(a * 0.636619772367581343f + 0.5f, V8i);
-  const V8f fj = __builtin_convertvector(j, V8f);
-  const V8f r =
+template <typename VF, typename VI>
+SLSHADOW_NOISE_INLINE void CosSin(VF a, VF* cos_a, VF* sin_a) {
+  const VI j = __builtin_convertvector(a * 0.636619772367581343f + 0.5f, VI);
+  const VF fj = __builtin_convertvector(j, VF);
+  const VF r =
       ((a - fj * 1.5703125f) - fj * 4.837512969970703125e-4f) - fj * 7.54978995489188216e-8f;
-  const V8f z = r * r;
-  const V8f s = ((-1.9515295891e-4f * z + 8.3321608736e-3f) * z - 1.6666654611e-1f) * z * r + r;
-  const V8f c =
+  const VF z = r * r;
+  const VF s = ((-1.9515295891e-4f * z + 8.3321608736e-3f) * z - 1.6666654611e-1f) * z * r + r;
+  const VF c =
       ((2.443315711809948e-5f * z - 1.388731625493765e-3f) * z + 4.166664568298827e-2f) * z * z -
       0.5f * z + 1.0f;
-  const V8i q = j & 3;
-  const V8i swap = -(q & 1);
-  *cos_a = (V8f)((V8i)Select(swap, s, c) ^ (((q + 1) & 2) << 30));
-  *sin_a = (V8f)((V8i)Select(swap, c, s) ^ ((q & 2) << 30));
+  const VI q = j & 3;
+  const VI swap = -(q & 1);
+  *cos_a = (VF)((VI)Select(swap, s, c) ^ (((q + 1) & 2) << 30));
+  *sin_a = (VF)((VI)Select(swap, c, s) ^ ((q & 2) << 30));
 }
 
 // The standard normals of the 16 pixels of block `block` (pixel indices 16 block .. 16 block +
@@ -132,11 +135,31 @@ SLSHADOW_NOISE_INLINE V16f BlockNormals(uint64_t block, uint64_t stream) {
       (__builtin_convertvector(__builtin_convertvector(r >> 40, V8i), V8f) + 0.5f) * 0x1.0p-24f;
   const V8f u2 = __builtin_convertvector(__builtin_convertvector((r >> 16) & 0xFFFFFFu, V8i), V8f) *
                  0x1.0p-24f;
-  const V8f rad = Sqrt(-2.0f * Log(u1));
+  const V8f rad = Sqrt(-2.0f * Log<V8f, V8i>(u1));
   V8f c, s;
-  CosSin(6.2831853f * u2, &c, &s);
+  CosSin<V8f, V8i>(6.2831853f * u2, &c, &s);
   return __builtin_shufflevector(rad * c, rad * s, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14,
                                  15);
+}
+
+// BlockNormals(block, stream) into *n0 and BlockNormals(block + 1, stream) into *n1, the same
+// values, with the lanes of both blocks in one sixteen-lane vector: lane l of block + 1 is lane
+// 8 + l of (stream + 8 block + 0..15). Half the instructions where vectors hold sixteen floats.
+SLSHADOW_NOISE_INLINE void BlockPairNormals(uint64_t block, uint64_t stream, V16f* n0, V16f* n1) {
+  const V16u lane = {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15};
+  const V16u r = Mix(lane + (stream + 8 * block));
+  const V16f u1 =
+      (__builtin_convertvector(__builtin_convertvector(r >> 40, V16i), V16f) + 0.5f) * 0x1.0p-24f;
+  const V16f u2 =
+      __builtin_convertvector(__builtin_convertvector((r >> 16) & 0xFFFFFFu, V16i), V16f) *
+      0x1.0p-24f;
+  const V16f rad = Sqrt(-2.0f * Log<V16f, V16i>(u1));
+  V16f c, s;
+  CosSin<V16f, V16i>(6.2831853f * u2, &c, &s);
+  const V16f rc = rad * c, rs = rad * s;
+  *n0 = __builtin_shufflevector(rc, rs, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23);
+  *n1 = __builtin_shufflevector(rc, rs, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30,
+                                31);
 }
 
 struct NoiseParams {
@@ -179,8 +202,21 @@ SLSHADOW_NOISE_INLINE void NoiseRowBody(const float* src, int w, uint64_t first,
   // Locals: the output row may alias anything (unsigned char), which would reload them per block.
   const NoiseParams p = params;
   const uint64_t end = first + static_cast<uint64_t>(w);
-  for (uint64_t block = first / 16; block * 16 < end; ++block) {
+  const uint64_t end_block = (end + 15) / 16;
+  for (uint64_t block = first / 16; block < end_block;) {
     const uint64_t b0 = block * 16;
+    if (b0 >= first && b0 + 32 <= end) {  // two whole blocks
+      V16f dn0, dn1, n0, n1;
+      std::memcpy(&dn0, src + (b0 - first), sizeof(dn0));
+      std::memcpy(&dn1, src + (b0 + 16 - first), sizeof(dn1));
+      BlockPairNormals(block, p.stream, &n0, &n1);
+      const OutV out0 = __builtin_convertvector(NoisyDn(dn0, n0, p), OutV);
+      const OutV out1 = __builtin_convertvector(NoisyDn(dn1, n1, p), OutV);
+      std::memcpy(dst + (b0 - first), &out0, sizeof(out0));
+      std::memcpy(dst + (b0 + 16 - first), &out1, sizeof(out1));
+      block += 2;
+      continue;
+    }
     const uint64_t lo = std::max(b0, first), hi = std::min(b0 + 16, end);
     const bool whole = lo == b0 && hi == b0 + 16;
     V16f dn;
@@ -196,6 +232,7 @@ SLSHADOW_NOISE_INLINE void NoiseRowBody(const float* src, int w, uint64_t first,
     } else {
       for (uint64_t i = lo; i < hi; ++i) dst[i - first] = out[i - b0];
     }
+    ++block;
   }
 }
 

@@ -161,6 +161,22 @@ TEST(SensorNoise, ImageFollowsEmvaModelAndRowsDoNotDependOnThreads) {
   EXPECT_EQ(cv::norm(out, again, cv::NORM_INF), 0);
 }
 
+// Rows of whole block pairs take the sixteen-lane path, rows of one block the eight-lane one:
+// the same pixel indices give the same bits either way.
+TEST(SensorNoise, BlockPairsAgreeWithSingleBlocks) {
+  Scene scene;
+  scene.layers.noise_enabled = true;
+  scene.layers.seed = 11;
+  cv::Mat wide(320, 1000, CV_32FC1);
+  cv::randu(wide, cv::Scalar(-5), cv::Scalar(300));
+  const cv::Mat narrow = wide.reshape(1, 20000);  // 16 pixels a row: one block
+  cv::Mat a, b;
+  QuantizeIrradiance(wide, scene, 1, 2, &a);
+  QuantizeIrradiance(narrow, scene, 1, 2, &b);
+  ASSERT_EQ(a.type(), CV_8UC1);
+  EXPECT_EQ(cv::norm(a.reshape(1, 20000), b, cv::NORM_INF), 0);
+}
+
 TEST(SensorNoise, NoNoiseIsRoundingAndClipping) {
   Scene scene;
   scene.radiometry.adc_bits = 8;
