@@ -158,8 +158,8 @@ SLSHADOW_NOISE_INLINE void BlockPairNormals(uint64_t block, uint64_t stream, V16
   CosSin<V16f, V16i>(6.2831853f * u2, &c, &s);
   const V16f rc = rad * c, rs = rad * s;
   *n0 = __builtin_shufflevector(rc, rs, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23);
-  *n1 = __builtin_shufflevector(rc, rs, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30,
-                                31);
+  *n1 =
+      __builtin_shufflevector(rc, rs, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31);
 }
 
 struct NoiseParams {
