@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <mutex>
 
 namespace slshadow::shadow::internal {
 namespace {
@@ -56,6 +57,12 @@ struct C2mGrid::Impl {
   std::vector<std::unique_ptr<Block>> blocks;
   std::vector<Candidate> candidates;
   size_t built = 0, far_cells = 0;
+  // Cells SignedDistances found unbuilt (ids, unsorted, repeats), for BuildMissed.
+  mutable std::mutex missed_mutex;
+  mutable std::vector<int64_t> missed;
+
+  // Builds the cells `wanted` (ids, sorted, unique, none built yet).
+  void Build(const std::vector<int64_t>& wanted);
 
   explicit Impl(const compare::MeshDistance& d) : distance(d) {}
 
@@ -78,15 +85,17 @@ struct C2mGrid::Impl {
   }
   // The cell of p as coordinates, false outside the grid (or not finite).
   bool CellXyz(const Eigen::Vector3d& p, int64_t* x, int64_t* y, int64_t* z) const {
-    if (!enabled || !p.allFinite()) return false;
-    const Eigen::Vector3d c = ((p - lo) * inv).array().floor();
-    if (!(c.x() >= 0 && c.y() >= 0 && c.z() >= 0 && c.x() < static_cast<double>(nx) &&
-          c.y() < static_cast<double>(ny) && c.z() < static_cast<double>(nz))) {
+    if (!enabled) return false;
+    // floor(t) in [0, n) exactly when t is in [0, n) (n an integer; NaN fails), and then floor(t)
+    // is t truncated: no call to floor.
+    const Eigen::Vector3d t = (p - lo) * inv;
+    if (!(t.x() >= 0 && t.y() >= 0 && t.z() >= 0 && t.x() < static_cast<double>(nx) &&
+          t.y() < static_cast<double>(ny) && t.z() < static_cast<double>(nz))) {
       return false;
     }
-    *x = static_cast<int64_t>(c.x());
-    *y = static_cast<int64_t>(c.y());
-    *z = static_cast<int64_t>(c.z());
+    *x = static_cast<int64_t>(t.x());
+    *y = static_cast<int64_t>(t.y());
+    *z = static_cast<int64_t>(t.z());
     return true;
   }
   // The entry of cell (x, y, z): its first candidate (or kUnbuilt, kFar) and count.
@@ -331,6 +340,32 @@ void C2mGrid::Prepare(const std::vector<Eigen::Vector3d>& points) {
   wanted.erase(std::remove(wanted.begin(), wanted.end(), int64_t{-1}), wanted.end());
   std::sort(wanted.begin(), wanted.end());
   wanted.erase(std::unique(wanted.begin(), wanted.end()), wanted.end());
+  g.Build(wanted);
+}
+
+void C2mGrid::BuildMissed() {
+  Impl& g = *impl_;
+  std::vector<int64_t> wanted;
+  {
+    const std::lock_guard<std::mutex> lock(g.missed_mutex);
+    wanted.swap(g.missed);
+  }
+  std::sort(wanted.begin(), wanted.end());
+  wanted.erase(std::unique(wanted.begin(), wanted.end()), wanted.end());
+  // A cell may have been built since (by Prepare).
+  wanted.erase(std::remove_if(wanted.begin(), wanted.end(),
+                              [&](int64_t id) {
+                                int slot = 0;
+                                const Impl::Block* b =
+                                    g.blocks[static_cast<size_t>(g.BlockOf(id, &slot))].get();
+                                return b && b->first[slot] != kUnbuilt;
+                              }),
+               wanted.end());
+  g.Build(wanted);
+}
+
+void C2mGrid::Impl::Build(const std::vector<int64_t>& wanted) {
+  Impl& g = *this;
   if (wanted.empty()) return;
   std::vector<std::vector<Impl::Candidate>> lists(wanted.size());
   std::vector<uint8_t> far(wanted.size());
@@ -368,23 +403,33 @@ void C2mGrid::SignedDistances(const std::vector<Eigen::Vector3d>& points,
   const Impl& g = *impl_;
   out->resize(points.size());
   double* d = out->data();
-  tbb::parallel_for(
-      tbb::blocked_range<size_t>(0, points.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
-        uint32_t hint = std::numeric_limits<uint32_t>::max();
-        for (size_t i = r.begin(); i < r.end(); ++i) {
-          const Eigen::Vector3d& p = points[i];
-          int64_t x = 0, y = 0, z = 0;
-          uint16_t count = 0;
-          const uint32_t first = g.CellXyz(p, &x, &y, &z) ? g.EntryXyz(x, y, z, &count) : kUnbuilt;
-          if (first < kFar) {
-            d[i] = g.FromCandidates(p, g.candidates.data() + first, count, &hint);
-            continue;
-          }
-          const compare::MeshHit hit = g.distance.Closest(p, hint);
-          d[i] = hit.signed_distance_mm;
-          hint = hit.triangle;
-        }
-      });
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 4096),
+                    [&](const tbb::blocked_range<size_t>& r) {
+                      uint32_t hint = std::numeric_limits<uint32_t>::max();
+                      std::vector<int64_t> missed;
+                      for (size_t i = r.begin(); i < r.end(); ++i) {
+                        const Eigen::Vector3d& p = points[i];
+                        int64_t x = 0, y = 0, z = 0;
+                        uint16_t count = 0;
+                        const bool inside = g.CellXyz(p, &x, &y, &z);
+                        const uint32_t first = inside ? g.EntryXyz(x, y, z, &count) : kUnbuilt;
+                        if (first < kFar) {
+                          d[i] = g.FromCandidates(p, g.candidates.data() + first, count, &hint);
+                          continue;
+                        }
+                        if (inside && first == kUnbuilt) {
+                          const int64_t id = (z * g.ny + y) * g.nx + x;
+                          if (missed.empty() || missed.back() != id) missed.push_back(id);
+                        }
+                        const compare::MeshHit hit = g.distance.Closest(p, hint);
+                        d[i] = hit.signed_distance_mm;
+                        hint = hit.triangle;
+                      }
+                      if (!missed.empty()) {
+                        const std::lock_guard<std::mutex> lock(g.missed_mutex);
+                        g.missed.insert(g.missed.end(), missed.begin(), missed.end());
+                      }
+                    });
 }
 
 }  // namespace slshadow::shadow::internal

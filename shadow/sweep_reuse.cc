@@ -16,6 +16,8 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <memory>
+#include <mutex>
 
 namespace slshadow::shadow {
 
@@ -184,6 +186,15 @@ struct GroundTruthScorer::SampleGrid {
     });
   }
 
+  // The cell coordinate, clamped to [0, n - 1], of a point at t cells from the grid's origin
+  // along an axis of n cells: Cell's, without a call to floor. False when floor(t) lies more than
+  // `reach` cells outside (or t is not finite): the point reaches no sample then.
+  static bool Axis(double t, int64_t n, int64_t reach, int64_t* cell) {
+    if (!(t >= -static_cast<double>(reach) && t < static_cast<double>(n + reach + 1))) return false;
+    *cell = t < 0 ? 0 : t >= static_cast<double>(n) ? n - 1 : static_cast<int64_t>(t);
+    return true;
+  }
+
   int64_t Cell(const Eigen::Vector3d& p) const {
     const Eigen::Vector3d c = ((p - lo) * inv).array().floor();
     const int64_t x = std::clamp<int64_t>(static_cast<int64_t>(c.x()), 0, nx - 1);
@@ -192,57 +203,114 @@ struct GroundTruthScorer::SampleGrid {
     return (z * ny + y) * nx + x;
   }
 
-  // (reference coverage, visible coverage) of `reached` within `radius_mm`, as compare::Coverage
-  // gives each. False when the radius is not a positive finite bound (compare::Coverage then
-  // takes another path).
+  // The cells within `reach` cells of an occupied one (per axis, clamped to the grid): the only
+  // ones whose reached points can cover a sample. Numbered in cell order, so that consecutive
+  // cells of a row that are all near have consecutive numbers.
+  struct NearCells {
+    int64_t reach = -1;
+    std::vector<uint32_t> number;  // per cell: its number among the near cells, or kNotNear
+    uint32_t count = 0;
+  };
+  static constexpr uint32_t kNotNear = std::numeric_limits<uint32_t>::max();
+
+  // Scratch of Cover, reused from call to call (a sweep measures two clouds a job).
+  struct Scratch {
+    std::vector<uint32_t> cell_of, first;
+    std::vector<Eigen::Vector3d> sorted;
+  };
+
+  // `near` is built under near_mutex (no parallel work inside: a thread waiting in a parallel
+  // loop may run another call's tasks, which then wait for it); `scratch` is taken with try_lock
+  // only (a call finding it taken uses buffers of its own).
+  mutable std::mutex near_mutex, scratch_mutex;
+  mutable std::shared_ptr<const NearCells> near;
+  mutable Scratch scratch;
+
+  std::shared_ptr<const NearCells> NearFor(int64_t reach) const {
+    const std::lock_guard<std::mutex> lock(near_mutex);
+    if (near && near->reach == reach) return near;
+    auto n = std::make_shared<NearCells>();
+    n->reach = reach;
+    n->number.assign(start.size() - 1, kNotNear);
+    for (const uint32_t c : occupied) {
+      const auto cx = static_cast<int64_t>(c) % nx;
+      const auto cy = static_cast<int64_t>(c) / nx % ny;
+      const auto cz = static_cast<int64_t>(c) / nx / ny;
+      for (int64_t z = std::max<int64_t>(cz - reach, 0); z <= std::min(cz + reach, nz - 1); ++z) {
+        for (int64_t y = std::max<int64_t>(cy - reach, 0); y <= std::min(cy + reach, ny - 1); ++y) {
+          const int64_t row = (z * ny + y) * nx;
+          for (int64_t x = std::max<int64_t>(cx - reach, 0); x <= std::min(cx + reach, nx - 1);
+               ++x) {
+            n->number[static_cast<size_t>(row + x)] = 0;
+          }
+        }
+      }
+    }
+    for (uint32_t& k : n->number) {
+      if (k != kNotNear) k = n->count++;
+    }
+    near = n;
+    return n;
+  }
+
+  // (reference coverage, visible coverage), as compare::Coverage gives each, of the points
+  // pts[i] with |deviations[i]| <= threshold (the reached ones) within `radius_mm`. False when the
+  // radius is not a positive finite bound (compare::Coverage then takes another path).
   //
-  // The reached points are sorted into the samples' cells (counting sort; a point outside the
-  // grid into the nearest boundary cell, which moves it towards every sample, so a sample still
-  // finds it within `reach` cells; points more than `reach` cells outside reach no sample), then
-  // each sample looks for one reached point within the radius, its own cell first, and stops at
-  // the first: most samples are settled by the first few points they look at.
-  bool Cover(const std::vector<Eigen::Vector3d>& reached, double radius_mm, double* reference_cov,
+  // The reached points near a sample's cell are sorted into the near cells (counting sort; a
+  // point outside the grid into the nearest boundary cell, which moves it towards every sample,
+  // so a sample still finds it within `reach` cells; points more than `reach` cells outside, or
+  // in no near cell, reach no sample), then each sample looks for one reached point within the
+  // radius, its own cell first, and stops at the first: most samples are settled by the first few
+  // points they look at.
+  bool Cover(const std::vector<Eigen::Vector3d>& pts, const std::vector<double>& deviations,
+             double threshold_mm, double radius_mm, double* reference_cov,
              double* visible_cov) const {
     const double r = std::nextafter(radius_mm, 1e300);
     const double bound = r * r;
     if (!(bound > 0) || !std::isfinite(bound)) return false;
     *reference_cov = *visible_cov = 0;
-    if (reached.empty() || points.empty()) return true;
+    if (pts.empty() || points.empty()) return true;
     const auto reach = static_cast<int64_t>(std::ceil(r * 1.001 * inv));  // margin: rounding
-    const size_t cells = start.size() - 1;
-    constexpr uint32_t kOutside = std::numeric_limits<uint32_t>::max();
-    std::vector<uint32_t> cell_of(reached.size());
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, reached.size(), 16384),
+    const std::shared_ptr<const NearCells> near_cells = NearFor(reach);
+    const std::vector<uint32_t>& number = near_cells->number;
+    // This call's buffers: the shared scratch, or (another call holding it) its own.
+    const std::unique_lock<std::mutex> lock(scratch_mutex, std::try_to_lock);
+    Scratch own;
+    Scratch& buf = lock.owns_lock() ? scratch : own;
+    std::vector<uint32_t>& cell_of = buf.cell_of;
+    cell_of.resize(pts.size());
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, pts.size(), 16384),
                       [&](const tbb::blocked_range<size_t>& range) {
                         for (size_t i = range.begin(); i < range.end(); ++i) {
-                          const Eigen::Vector3d& q = reached[i];
-                          cell_of[i] = kOutside;
-                          if (!q.allFinite()) continue;
-                          const Eigen::Vector3d c = ((q - lo) * inv).array().floor();
-                          if ((c.array() < -static_cast<double>(reach)).any() ||
-                              c.x() > static_cast<double>(nx + reach) ||
-                              c.y() > static_cast<double>(ny + reach) ||
-                              c.z() > static_cast<double>(nz + reach)) {
-                            continue;
+                          cell_of[i] = kNotNear;
+                          if (!(std::abs(deviations[i]) <= threshold_mm)) continue;
+                          const Eigen::Vector3d t = (pts[i] - lo) * inv;
+                          int64_t x = 0, y = 0, z = 0;
+                          if (Axis(t.x(), nx, reach, &x) && Axis(t.y(), ny, reach, &y) &&
+                              Axis(t.z(), nz, reach, &z)) {
+                            cell_of[i] = number[static_cast<size_t>((z * ny + y) * nx + x)];
                           }
-                          cell_of[i] = static_cast<uint32_t>(Cell(q));
                         }
                       });
-    // Counting sort: counts, inclusive prefix sums (cell c's end), then filled from the back, which
-    // leaves first[c] at cell c's start (the order within a cell does not matter below).
-    std::vector<uint32_t> first(cells + 1, 0);
+    // Counting sort: counts, inclusive prefix sums (near cell c's end), then filled from the back,
+    // which leaves first[c] at near cell c's start (the order within a cell does not matter).
+    std::vector<uint32_t>& first = buf.first;
+    first.assign(static_cast<size_t>(near_cells->count) + 1, 0);
     for (const uint32_t c : cell_of) {
-      if (c != kOutside) ++first[c];
+      if (c != kNotNear) ++first[c];
     }
     for (size_t c = 1; c < first.size(); ++c) first[c] += first[c - 1];
-    std::vector<Eigen::Vector3d> sorted(first.back());
-    for (size_t i = reached.size(); i-- > 0;) {
-      if (cell_of[i] != kOutside) sorted[--first[cell_of[i]]] = reached[i];
+    std::vector<Eigen::Vector3d>& sorted = buf.sorted;
+    sorted.resize(first.back());
+    for (size_t i = pts.size(); i-- > 0;) {
+      if (cell_of[i] != kNotNear) sorted[--first[cell_of[i]]] = pts[i];
     }
-    // Whether a reached point lies within the radius of sample p in cells [x0, x1] of row `row`.
+    // Whether a reached point lies within the radius of sample p in cells [x0, x1] of row `row`
+    // (all near: they lie within `reach` of the sample's occupied cell).
     const auto any_in = [&](const Eigen::Vector3d& p, int64_t row, int64_t x0, int64_t x1) {
-      const uint32_t end = first[static_cast<size_t>(row + x1 + 1)];
-      for (uint32_t k = first[static_cast<size_t>(row + x0)]; k < end; ++k) {
+      const uint32_t end = first[number[static_cast<size_t>(row + x1)] + 1];
+      for (uint32_t k = first[number[static_cast<size_t>(row + x0)]]; k < end; ++k) {
         if ((p - sorted[k]).squaredNorm() < bound) return true;
       }
       return false;
@@ -297,14 +365,17 @@ GroundTruthScorer::~GroundTruthScorer() = default;
 void GroundTruthScorer::Prepare(const std::vector<const PointCloud*>& clouds, int jobs_left) {
   // A few jobs' clouds do not repay the cells (a geometry group of one job never builds them).
   if (++prepared_ < 2) return;
-  if (!grid_) {
-    if (jobs_left < kGridJobs) return;
-    double spacing = 0;  // the clouds' point spacing (the coarsest)
-    for (const PointCloud* cloud : clouds) {
-      if (cloud->size() >= 2) spacing = std::max(spacing, compare::MedianSpacing(cloud->points));
-    }
-    grid_ = std::make_unique<internal::C2mGrid>(reference_.mesh, distance_, spacing);
+  if (grid_) {
+    // The cells the previous clouds fell in unbuilt: this job's clouds fall in nearly the same.
+    if (grid_->enabled()) grid_->BuildMissed();
+    return;
   }
+  if (jobs_left < kGridJobs) return;
+  double spacing = 0;  // the clouds' point spacing (the coarsest)
+  for (const PointCloud* cloud : clouds) {
+    if (cloud->size() >= 2) spacing = std::max(spacing, compare::MedianSpacing(cloud->points));
+  }
+  grid_ = std::make_unique<internal::C2mGrid>(reference_.mesh, distance_, spacing);
   if (!grid_->enabled()) return;
   for (const PointCloud* cloud : clouds) grid_->Prepare(cloud->points);
 }
@@ -341,18 +412,18 @@ ModeAccuracy GroundTruthScorer::Measure(const PointCloud& cloud,
   }
   const compare::DistanceStats stats =
       compare::ComputeStats(deviations, false, options.threshold_mm);
-  std::vector<Eigen::Vector3d> reached;
-  reached.reserve(pts.size());
-  for (size_t i = 0; i < pts.size(); ++i) {
-    if (std::abs(deviations[i]) <= options.threshold_mm) reached.push_back(pts[i]);
-  }
   const double radius = options.coverage_radius_mm > 0
                             ? options.coverage_radius_mm
                             : std::max(options.threshold_mm, 3.0 * compare::MedianSpacing(pts));
   ModeAccuracy m;
   m.mode = mode;
   m.points = pts.size();
-  if (!samples_->Cover(reached, radius, &m.coverage, &m.visible_coverage)) {
+  if (!samples_->Cover(pts, deviations, options.threshold_mm, radius, &m.coverage,
+                       &m.visible_coverage)) {
+    std::vector<Eigen::Vector3d> reached;
+    for (size_t i = 0; i < pts.size(); ++i) {
+      if (std::abs(deviations[i]) <= options.threshold_mm) reached.push_back(pts[i]);
+    }
     m.coverage = compare::Coverage(reference_.cloud.points, reached, radius);
     m.visible_coverage = compare::Coverage(visible_, reached, radius);
   }

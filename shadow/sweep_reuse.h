@@ -102,9 +102,11 @@ class GroundTruthScorer {
   // (`jobs_left`, this one included) are still to be measured and the clouds are dense on the
   // ground truth's triangles (shadow/internal/c2m_grid.h), the signed distances of the points come
   // from a grid of cells near the surface (compare::MeshDistance's doubles, in a fraction of its
-  // time), whose cells this call builds for `clouds`: a noise sweep's clouds fall in the same
-  // cells job after job (the cells cost about two jobs' worth of distances). Otherwise Measure
-  // asks compare::MeshDistance for every point. Results are the same either way.
+  // time). The call that makes the grid builds the cells of `clouds`; each later call builds the
+  // cells that the points measured since fell in unbuilt (those points were answered by
+  // compare::MeshDistance): a noise sweep's clouds fall in the same cells job after job (the
+  // cells cost about two jobs' worth of distances). Otherwise Measure asks compare::MeshDistance
+  // for every point. Results are the same either way.
   static constexpr int kGridJobs = 4;
   void Prepare(const std::vector<const PointCloud*>& clouds, int jobs_left = kGridJobs);
 

@@ -13,8 +13,8 @@
 // the cell. Cells too far from the surface (U > 4 cells) or with too many candidates, and points
 // outside the grid, are answered by MeshDistance itself.
 //
-// Cells are built on demand (Prepare) and kept: the clouds of a noise sweep fall in the same
-// cells job after job.
+// Cells are built on demand (Prepare for given points, BuildMissed for those SignedDistances
+// found unbuilt) and kept: the clouds of a noise sweep fall in the same cells job after job.
 #pragma once
 
 #include "compare/mesh_distance.h"
@@ -43,8 +43,13 @@ class C2mGrid {
   // called while SignedDistances runs.
   void Prepare(const std::vector<Eigen::Vector3d>& points);
 
+  // Builds the cells that earlier SignedDistances calls found unbuilt (their points were answered
+  // by MeshDistance), as Prepare would have for those points. Not to be called while
+  // SignedDistances runs.
+  void BuildMissed();
+
   // distance.Closest(points[i]).signed_distance_mm for every point, into (*out)[i] (resized);
-  // cells not built are answered by `distance`. Thread-safe (const).
+  // cells not built are answered by `distance` (and noted for BuildMissed). Thread-safe (const).
   void SignedDistances(const std::vector<Eigen::Vector3d>& points, std::vector<double>* out) const;
 
   bool enabled() const;

@@ -228,7 +228,8 @@ const NoisyScan& SharedScan() {
 
 // The scorer's figures are those of the demo's path (compare::Compare, then MeasureAccuracy),
 // for both modes of a noisy scan and two thresholds, with the signed distances from
-// compare::MeshDistance (before Prepare) and from the grid of cells (after two); an empty cloud is
+// compare::MeshDistance (before Prepare), from the grid of cells (after two) and from it again
+// after a third (which builds the cells the measured points fell in unbuilt); an empty cloud is
 // rejected as Compare does.
 TEST(GroundTruthScorer, EqualsCompareThenMeasureAccuracy) {
   Fixture& f = Shared();
@@ -239,9 +240,9 @@ TEST(GroundTruthScorer, EqualsCompareThenMeasureAccuracy) {
   const TriangleMesh surface = SceneSurface(f.scene, "demo");
   GroundTruthScorer scorer(surface, visible, "truth");
   const compare::Reference reference = compare::ReferenceFromMesh(surface, "truth");
-  for (const bool prepared : {false, true}) {
-    if (prepared) {
-      for (int k = 0; k < 2; ++k) scorer.Prepare({&recs[0].cloud, &recs[1].cloud});
+  for (const int prepared : {0, 2, 3}) {
+    for (int k = prepared == 3 ? 2 : 0; k < prepared; ++k) {
+      scorer.Prepare({&recs[0].cloud, &recs[1].cloud});
     }
     // The automatic coverage radius, and one of several grid cells.
     for (const auto& [threshold, radius] :
@@ -357,6 +358,23 @@ TEST(C2mGrid, SignedDistancesAreMeshDistancesBitForBit) {
       }
     }
   }
+  // The cells SignedDistances finds unbuilt are those Prepare would build for the same points:
+  // BuildMissed builds them, and the distances stay the same bits.
+  internal::C2mGrid lazy(surface, distance), eager(surface, distance);
+  std::vector<double> before, after;
+  lazy.SignedDistances(sets[0], &before);
+  EXPECT_EQ(lazy.built_cells(), 0u);
+  lazy.BuildMissed();
+  eager.Prepare(sets[0]);
+  EXPECT_GT(lazy.built_cells(), 1000u);
+  EXPECT_EQ(lazy.built_cells(), eager.built_cells());
+  EXPECT_EQ(lazy.far_cells(), eager.far_cells());
+  lazy.SignedDistances(sets[0], &after);
+  ASSERT_EQ(after.size(), before.size());
+  for (size_t i = 0; i < after.size(); ++i) ASSERT_TRUE(same_bits(after[i], before[i])) << i;
+  lazy.BuildMissed();  // nothing was missed this time
+  EXPECT_EQ(lazy.built_cells(), eager.built_cells());
+
   // Clouds far sparser than the triangles: no grid, MeshDistance answers every point.
   internal::C2mGrid coarse(surface, distance, 1.0);
   EXPECT_FALSE(coarse.enabled());
