@@ -233,6 +233,110 @@ std::shared_ptr<const std::vector<Eigen::Vector2d>> CachedSourceGrid(
   return grid;
 }
 
+// The rows of RectifyProjectorMap for projector coordinates of type T (float or double): every
+// cell of `out` (sized) from the camera pixel `sources` gives for it. Pointers and sizes in
+// locals: the byte-wide `reason` writes may alias anything, which would reload them per cell.
+template <typename T>
+void RectifyRows(const ProjectorMap& map, const std::vector<Eigen::Vector2d>& sources,
+                 double max_step_px, float min_quality, bool cubic,
+                 const std::vector<uint8_t>& blocks, RectifiedMap* out_map) {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  const float nanf = std::numeric_limits<float>::quiet_NaN();
+  const int w = map.width(), h = map.height();
+  const bool has_y = map.has_y;
+  const uint8_t* const status = map.status.ptr<uint8_t>(0);
+  const size_t status_step = map.status.step1();
+  const T* const coord_x = map.proj_x.ptr<T>(0);
+  const size_t x_step = map.proj_x.step1();
+  const T* const coord_y = has_y ? map.proj_y.ptr<T>(0) : nullptr;
+  const size_t y_step = has_y ? map.proj_y.step1() : 0;
+  const float* const quality = map.quality.ptr<float>(0);
+  const size_t q_step = map.quality.step1();
+  const Eigen::Vector2d* const source_of = sources.data();
+  const uint8_t* const smooth = blocks.data();
+  RectifiedMap& out = *out_map;
+  const int out_w = out.width;
+  double* const out_x = out.proj_x.data();
+  double* const out_y = out.proj_y.data();
+  float* const out_q = out.quality.data();
+  float* const out_u = out.source_u.data();
+  float* const out_v = out.source_v.data();
+  uint8_t* const out_reason = out.reason.data();
+  constexpr auto kValid = static_cast<uint8_t>(PixelStatus::kValid);
+  cv::parallel_for_(cv::Range(0, out.height), [&](const cv::Range& rows) {
+    for (int v = rows.start; v < rows.end; ++v) {
+      for (int u = 0; u < out_w; ++u) {
+        const size_t o = static_cast<size_t>(v) * out_w + u;
+        out_x[o] = nan;
+        out_y[o] = nan;
+        out_q[o] = 0.0f;
+        out_u[o] = nanf;
+        out_v[o] = nanf;
+        out_reason[o] = static_cast<uint8_t>(RejectReason::kOutsideImage);
+        const Eigen::Vector2d& source = source_of[o];
+        const double x = source.x(), y = source.y();
+        if (!(x >= 0 && y >= 0 && x <= w - 1 && y <= h - 1)) continue;  // NaN: outside the image
+        out_u[o] = static_cast<float>(x);
+        out_v[o] = static_cast<float>(y);
+        int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
+        if (x0 >= w - 1) x0 = w - 2;
+        if (y0 >= h - 1) y0 = h - 2;
+        const double ax = x - x0, ay = y - y0;
+        const double wts[4] = {(1 - ax) * (1 - ay), ax * (1 - ay), (1 - ax) * ay, ax * ay};
+        const int xs[4] = {x0, x0 + 1, x0, x0 + 1};
+        const int ys[4] = {y0, y0, y0 + 1, y0 + 1};
+        RejectReason reason = RejectReason::kAccepted;
+        double px = 0, py = 0, q = 0;
+        double xmin = std::numeric_limits<double>::infinity(), xmax = -xmin, ymin = xmin,
+               ymax = -xmin;
+        for (int k = 0; k < 4; ++k) {
+          const auto yk = static_cast<size_t>(ys[k]);
+          const auto xk = static_cast<size_t>(xs[k]);
+          if (status[yk * status_step + xk] != kValid) {
+            reason = RejectReason::kNotDecoded;
+            break;
+          }
+          const double cx = static_cast<double>(coord_x[yk * x_step + xk]);
+          const double cy = has_y ? static_cast<double>(coord_y[yk * y_step + xk]) : 0.0;
+          if (!std::isfinite(cx) || !std::isfinite(cy)) {
+            reason = RejectReason::kNotDecoded;
+            break;
+          }
+          const float qk = quality[yk * q_step + xk];
+          if (qk < min_quality) reason = RejectReason::kLowQuality;
+          xmin = std::min(xmin, cx);
+          xmax = std::max(xmax, cx);
+          ymin = std::min(ymin, cy);
+          ymax = std::max(ymax, cy);
+          px += wts[k] * cx;
+          py += wts[k] * cy;
+          q += wts[k] * qk;
+        }
+        if (reason == RejectReason::kAccepted &&
+            (xmax - xmin > max_step_px || ymax - ymin > max_step_px)) {
+          reason = RejectReason::kDepthDiscontinuity;
+        }
+        out_reason[o] = static_cast<uint8_t>(reason);
+        if (reason != RejectReason::kAccepted) continue;
+        if (cubic && smooth[static_cast<size_t>(y0) * w + x0]) {
+          double b[16], wx[4], wy[4];
+          CubicWeights(ax, wx);
+          CubicWeights(ay, wy);
+          GatherBlock<T>(map.proj_x, x0, y0, b);
+          px = Bicubic(b, wx, wy);
+          if (has_y) {
+            GatherBlock<T>(map.proj_y, x0, y0, b);
+            py = Bicubic(b, wx, wy);
+          }
+        }
+        out_x[o] = px;
+        if (has_y) out_y[o] = py;
+        out_q[o] = static_cast<float>(q);
+      }
+    }
+  });
+}
+
 }  // namespace
 
 double InterpolateRow(const double* row, int width, double u, double max_step_px, bool cubic) {
@@ -354,8 +458,6 @@ void RectifyProjectorMap(const StereoRectification& rect, int camera, const RigD
   out.height = rect.height;
   out.has_y = map.has_y;
   const size_t n = static_cast<size_t>(out.width) * out.height;
-  const double nan = std::numeric_limits<double>::quiet_NaN();
-  const float nanf = std::numeric_limits<float>::quiet_NaN();
   // Sized only (kept buffers are not refilled here): the loop below writes every cell.
   out.proj_x.resize(n);
   out.proj_y.resize(n);
@@ -365,83 +467,21 @@ void RectifyProjectorMap(const StereoRectification& rect, int camera, const RigD
   out.reason.resize(n);
   const std::shared_ptr<const std::vector<Eigen::Vector2d>> sources =
       CachedSourceGrid(rect, camera, device);
-  const int w = map.width(), h = map.height();
   const bool is_double = map.proj_x.depth() == CV_64F;
   const std::vector<uint8_t> blocks = !cubic      ? std::vector<uint8_t>()
                                       : is_double ? SmoothBlocks<double>(map, max_step_px)
                                                   : SmoothBlocks<float>(map, max_step_px);
-  cv::parallel_for_(cv::Range(0, out.height), [&](const cv::Range& rows) {
-    for (int v = rows.start; v < rows.end; ++v) {
-      for (int u = 0; u < out.width; ++u) {
-        const size_t o = out.Index(u, v);
-        out.proj_x[o] = nan;
-        out.proj_y[o] = nan;
-        out.quality[o] = 0.0f;
-        out.source_u[o] = nanf;
-        out.source_v[o] = nanf;
-        out.reason[o] = static_cast<uint8_t>(RejectReason::kOutsideImage);
-        const Eigen::Vector2d& source = (*sources)[o];
-        const double x = source.x(), y = source.y();
-        if (!(x >= 0 && y >= 0 && x <= w - 1 && y <= h - 1)) continue;  // NaN: outside the image
-        out.source_u[o] = static_cast<float>(x);
-        out.source_v[o] = static_cast<float>(y);
-        int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
-        if (x0 >= w - 1) x0 = w - 2;
-        if (y0 >= h - 1) y0 = h - 2;
-        const double ax = x - x0, ay = y - y0;
-        const double wts[4] = {(1 - ax) * (1 - ay), ax * (1 - ay), (1 - ax) * ay, ax * ay};
-        const int xs[4] = {x0, x0 + 1, x0, x0 + 1};
-        const int ys[4] = {y0, y0, y0 + 1, y0 + 1};
-        RejectReason reason = RejectReason::kAccepted;
-        double px = 0, py = 0, q = 0;
-        double xmin = std::numeric_limits<double>::infinity(), xmax = -xmin, ymin = xmin,
-               ymax = -xmin;
-        for (int k = 0; k < 4; ++k) {
-          if (map.status.at<uint8_t>(ys[k], xs[k]) != static_cast<uint8_t>(PixelStatus::kValid)) {
-            reason = RejectReason::kNotDecoded;
-            break;
-          }
-          const double cx = ReadCoord(map.proj_x, xs[k], ys[k]);
-          const double cy = map.has_y ? ReadCoord(map.proj_y, xs[k], ys[k]) : 0.0;
-          if (!std::isfinite(cx) || !std::isfinite(cy)) {
-            reason = RejectReason::kNotDecoded;
-            break;
-          }
-          const float qk = map.quality.at<float>(ys[k], xs[k]);
-          if (qk < min_quality) reason = RejectReason::kLowQuality;
-          xmin = std::min(xmin, cx);
-          xmax = std::max(xmax, cx);
-          ymin = std::min(ymin, cy);
-          ymax = std::max(ymax, cy);
-          px += wts[k] * cx;
-          py += wts[k] * cy;
-          q += wts[k] * qk;
-        }
-        if (reason == RejectReason::kAccepted &&
-            (xmax - xmin > max_step_px || ymax - ymin > max_step_px)) {
-          reason = RejectReason::kDepthDiscontinuity;
-        }
-        out.reason[o] = static_cast<uint8_t>(reason);
-        if (reason != RejectReason::kAccepted) continue;
-        if (cubic && blocks[static_cast<size_t>(y0) * w + x0]) {
-          double b[16], wx[4], wy[4];
-          CubicWeights(ax, wx);
-          CubicWeights(ay, wy);
-          is_double ? GatherBlock<double>(map.proj_x, x0, y0, b)
-                    : GatherBlock<float>(map.proj_x, x0, y0, b);
-          px = Bicubic(b, wx, wy);
-          if (map.has_y) {
-            is_double ? GatherBlock<double>(map.proj_y, x0, y0, b)
-                      : GatherBlock<float>(map.proj_y, x0, y0, b);
-            py = Bicubic(b, wx, wy);
-          }
-        }
-        out.proj_x[o] = px;
-        if (map.has_y) out.proj_y[o] = py;
-        out.quality[o] = static_cast<float>(q);
-      }
-    }
-  });
+  if (map.has_y && map.proj_y.depth() != map.proj_x.depth()) {
+    // Mixed coordinate types: both as double (exactly the values read as double).
+    ProjectorMap wide = map;
+    map.proj_x.convertTo(wide.proj_x, CV_64F);
+    map.proj_y.convertTo(wide.proj_y, CV_64F);
+    RectifyRows<double>(wide, *sources, max_step_px, min_quality, cubic, blocks, &out);
+  } else if (is_double) {
+    RectifyRows<double>(map, *sources, max_step_px, min_quality, cubic, blocks, &out);
+  } else {
+    RectifyRows<float>(map, *sources, max_step_px, min_quality, cubic, blocks, &out);
+  }
 }
 
 StereoMatches MatchRectifiedMaps(const StereoRectification& rect, const RectifiedMap& left,
