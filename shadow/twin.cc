@@ -2,17 +2,16 @@
 
 #include "shadow/diagnose_neighbours.h"
 #include "shadow/internal/twin_report.h"
+#include "shadow/internal/twin_stats.h"
 #include "shadow/scan_pipeline.h"
 
 #include <algorithm>
 #include <atomic>
 #include <cmath>
-#include <cstring>
 #include <exception>
 #include <mutex>
 #include <optional>
 #include <thread>
-#include <type_traits>
 #include <utility>
 
 #include <Eigen/Dense>
@@ -33,7 +32,9 @@ namespace slshadow::shadow {
 namespace fs = std::filesystem;
 
 // The report folder's writers (shadow/twin_report.cc).
+using internal::ComputeSampleStats;
 using internal::ModeClouds;
+using internal::SampleStats;
 using internal::ShadowMaps;
 using internal::StagesToJson;
 using internal::WriteShadowCharts;
@@ -48,85 +49,6 @@ constexpr int kVersion = 1;
 float Pixel(const cv::Mat& m, int y, int x) {
   return m.depth() == CV_8U ? static_cast<float>(m.at<uint8_t>(y, x))
                             : static_cast<float>(m.at<uint16_t>(y, x));
-}
-
-struct Stats {
-  int64_t count = 0;
-  double mean = 0, stddev = 0, rms = 0, median = 0, p95_abs = 0, max_abs = 0;
-  nlohmann::json ToJson(const std::string& unit) const {
-    return {{"count", count},
-            {"mean_" + unit, mean},
-            {"std_" + unit, stddev},
-            {"rms_" + unit, rms},
-            {"median_" + unit, median},
-            {"p95_abs_" + unit, p95_abs},
-            {"max_abs_" + unit, max_abs}};
-  }
-};
-
-// The k-th smallest (0-based) of finite floats given as order-preserving keys (FloatKey), by two
-// passes of a 16-bit histogram: the value std::nth_element would place at k, in O(n) passes that
-// stream through the data (~5 x faster than nth_element on the ~4 M coordinate differences).
-uint32_t FloatKey(float x) {
-  uint32_t u;
-  std::memcpy(&u, &x, sizeof(u));
-  return (u & 0x80000000u) ? ~u : (u | 0x80000000u);
-}
-float KeyFloat(uint32_t key) {
-  const uint32_t u = (key & 0x80000000u) ? (key & 0x7FFFFFFFu) : ~key;
-  float x;
-  std::memcpy(&x, &u, sizeof(x));
-  return x;
-}
-template <typename KeyOf>
-float SelectKth(const std::vector<float>& v, size_t k, KeyOf key_of) {
-  std::vector<uint32_t> hist(65536, 0);
-  for (float x : v) ++hist[key_of(x) >> 16];
-  uint32_t high = 0;
-  size_t below = 0;
-  while (below + hist[high] <= k) below += hist[high++];
-  std::fill(hist.begin(), hist.end(), 0u);
-  for (float x : v) {
-    const uint32_t key = key_of(x);
-    if ((key >> 16) == high) ++hist[key & 0xFFFFu];
-  }
-  uint32_t low = 0;
-  while (below + hist[low] <= k) below += hist[low++];
-  return KeyFloat((high << 16) | low);
-}
-
-// T float or double: sums in double, the order statistics are values of v, so a float vector of
-// values that are floats gives bit for bit what the same values as doubles give.
-template <typename T>
-Stats ComputeStats(std::vector<T> v) {
-  Stats s;
-  v.erase(std::remove_if(v.begin(), v.end(), [](T x) { return !std::isfinite(x); }), v.end());
-  s.count = static_cast<int64_t>(v.size());
-  if (v.empty()) return s;
-  double sum = 0, ss = 0;
-  for (double x : v) sum += x, ss += x * x;
-  const double n = static_cast<double>(v.size());
-  s.mean = sum / n;
-  s.rms = std::sqrt(ss / n);
-  s.stddev = std::sqrt(std::max(0.0, ss / n - s.mean * s.mean));
-  const size_t k = std::min(v.size() - 1, static_cast<size_t>(0.95 * n));
-  if constexpr (std::is_same_v<T, float>) {
-    s.median = SelectKth(v, v.size() / 2, [](float x) { return FloatKey(x); });
-    // |x|: the key of a non-negative float orders as its bits.
-    const auto abs_key = [](float x) { return FloatKey(std::abs(x)); };
-    s.p95_abs = SelectKth(v, k, abs_key);
-    float largest = 0;
-    for (float x : v) largest = std::max(largest, std::abs(x));
-    s.max_abs = largest;
-    return s;
-  }
-  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
-  s.median = v[v.size() / 2];
-  for (T& x : v) x = std::abs(x);
-  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.end());
-  s.p95_abs = v[k];
-  s.max_abs = *std::max_element(v.begin(), v.end());
-  return s;
 }
 
 nlohmann::json PoseToJson(const Rigid3d& p) {
@@ -799,8 +721,9 @@ nlohmann::json CompareProjectorCoordinates(const PatternSpec& spec, const Projec
   *residual_map = residual;
   *validity_map = validity;
   // Outliers (|d| >= 20 px, wrong codes) are counted apart so they do not swamp the RMS.
-  const Stats srt = ComputeStats(std::move(real_truth)), stt = ComputeStats(std::move(twin_truth)),
-              srw = ComputeStats(std::move(real_twin));
+  const SampleStats srt = ComputeSampleStats(std::move(real_truth)),
+                    stt = ComputeSampleStats(std::move(twin_truth)),
+                    srw = ComputeSampleStats(std::move(real_twin));
   // Per axis RMS (x, y) are pooled: RMS over both axes' residuals is what "px RMS" means
   // here.
   return {{"real_vs_truth_rms_px", srt.rms},
@@ -987,8 +910,8 @@ void CompareMode(ShadowRun& run, size_t m) {
                         }
                       });
   }
-  const Stats sr = ComputeStats(me.real_c2m), st = ComputeStats(me.virtual_c2m),
-              sd = ComputeStats(diff);
+  const SampleStats sr = ComputeSampleStats(me.real_c2m), st = ComputeSampleStats(me.virtual_c2m),
+                    sd = ComputeSampleStats(diff);
   // LoD95 of a real - twin difference from the twin's own scatter about the part (both scans
   // carry that noise): 1.96 sqrt(2) sigma.
   const double lod95 = 1.96 * std::sqrt(2.0) * st.stddev;
