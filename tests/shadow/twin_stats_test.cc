@@ -20,7 +20,8 @@ TEST(SampleStats, NearestRankFiguresOfTheFiniteValues) {
   std::mt19937 rng(5);
   std::normal_distribution<float> normal(0.3f, 2.0f);
   // Even and odd counts, counts whose 95 % is a whole number (20, 2000), ties (rounded values).
-  for (const size_t n : {size_t{1}, size_t{2}, size_t{20}, size_t{21}, size_t{2000}, size_t{4097}}) {
+  for (const size_t n :
+       {size_t{1}, size_t{2}, size_t{20}, size_t{21}, size_t{2000}, size_t{4097}}) {
     for (const bool ties : {false, true}) {
       std::vector<float> v(n);
       for (float& x : v) x = ties ? std::round(normal(rng)) : normal(rng);
@@ -37,7 +38,8 @@ TEST(SampleStats, NearestRankFiguresOfTheFiniteValues) {
       for (const float x : v) sum += x, ss += static_cast<double>(x) * x;
 
       const SampleStats f = ComputeSampleStats(with_bad);
-      const SampleStats d = ComputeSampleStats(std::vector<double>(with_bad.begin(), with_bad.end()));
+      const SampleStats d =
+          ComputeSampleStats(std::vector<double>(with_bad.begin(), with_bad.end()));
       for (const SampleStats* s : {&f, &d}) {
         EXPECT_EQ(s->count, static_cast<int64_t>(n));
         EXPECT_EQ(s->median, sorted[NearestRankIndex(n, 50)]) << n << " ties " << ties;
