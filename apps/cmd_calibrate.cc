@@ -1,5 +1,6 @@
 // slshadow calibrate camera|stereo|projector|rig|refine|import|export ...: one function per
-// subcommand, each parsing into its arguments and making its calls into calib/.
+// subcommand, each parsing into its arguments and making its calls into calib/ and the workflows
+// of shadow/calibrate.h.
 #include <CLI/CLI.hpp>
 
 #include <algorithm>
@@ -26,6 +27,7 @@
 #include "core/image_set.h"
 #include "patterns/codec.h"
 #include "patterns/pattern_spec.h"
+#include "shadow/calibrate.h"
 
 namespace slshadow::app {
 namespace {
@@ -137,88 +139,26 @@ struct CommonOptions {
   }
 };
 
-// --select-model: prints the leave-one-pose-out table and the choice.
-void PrintModelSelection(const ModelSelection& selection) {
-  std::printf("model selection (leave-one-pose-out, projector corners):\n");
-  for (const auto& s : selection.scores) {
-    std::printf("  %-45s fit %.4f px, predicted %.4f px (%d corners)\n", s.name.c_str(),
-                s.fit_rms_px, s.prediction_rms_px, s.num_predicted);
-  }
-  std::printf("  chosen: %s\n", selection.scores[selection.chosen].name.c_str());
-}
-
-// Calibrates (--select-model: the distortion models chosen by leave-one-pose-out, the chosen
-// candidate's all-pose solve kept), cross-validates, reviews, writes the rig, the OpenCV file and
-// the report, prints the summary.
-int CalibrateAndWrite(CalibrationInput input, const std::vector<ImageCheck>& checks,
-                      const CommonOptions& common, nlohmann::json extra) {
-  const CalibrationOptions options = common.Options();
-  CalibrationResult result;
-  if (common.select_model) {
-    ModelSelection selection = SelectDistortionModels(&input, options);
-    PrintModelSelection(selection);
-    extra["model_selection"] = ModelSelectionToJson(selection);
-    result = std::move(selection.scores[selection.chosen].result);
-  } else {
-    result = Calibrate(input, options);
-  }
-  std::optional<CrossValidation> cv;
-  if (!common.no_cross_validation) {
-    if (CanCrossValidate(input)) {
-      cv = CrossValidate(input, options);
-    } else {
-      std::printf(
-          "cross-validation skipped: needs at least 2 views per device among the even and among "
-          "the odd poses\n");
-    }
-  }
-  GuidanceOptions go;
-  go.min_views = common.min_views;
-  const std::vector<Finding> findings = ReviewCalibration(input, result, checks, go);
-  Rig rig = RigFromCalibration(input, result, common.name);
-  rig.calibration = CalibrationEvidenceToJson(input, options, result, cv);
-  SaveRig(rig, common.out);
-  if (!common.opencv_out.empty()) WriteOpenCvCalibration(rig, common.opencv_out);
-  CalibrationReport report;
-  report.input = &input;
-  report.options = &options;
-  report.result = &result;
-  report.cross_validation = cv;
-  report.findings = findings;
-  report.extra = std::move(extra);
-  WriteCalibrationReport(common.ReportDir(), report);
-
-  std::printf("%s\n", result.summary.BriefReport().c_str());
-  for (const auto& d : result.devices) {
-    const auto& m = d.model;
-    std::printf(
-        "  %s: %dx%d fx %.3f fy %.3f cx %.3f cy %.3f k1 %.5f k2 %.5f p1 %.6f p2 %.6f k3 %.5f\n",
-        d.name.c_str(), m.width, m.height, m.fx(), m.fy(), m.cx(), m.cy(), m.k1(), m.k2(), m.p1(),
-        m.p2(), m.k3());
-  }
-  for (const auto& s : result.summary.devices)
-    std::printf("  %s: RMS %.4f px over %d points\n", s.name.c_str(), s.rms_px, s.num_points);
-  for (const auto& b : result.summary.bounds_active) {
-    std::printf(
-        "  --principal-point-inside: %s; the data pull it outside the image (compare the fit "
-        "without the flag)\n",
-        b.c_str());
-  }
-  for (const auto& f : findings) std::printf("%s\n", f.Text().c_str());
-  std::printf("wrote %s and report %s\n", common.out.c_str(), common.ReportDir().string().c_str());
-  return 0;
-}
+void Print(const std::string& text) { std::fputs(text.c_str(), stdout); }
 
 void PrintMissed(const std::vector<ImageCheck>& checks) {
-  int found = 0;
-  for (const auto& c : checks) {
-    if (c.found) {
-      ++found;
-    } else {
-      std::printf("not found: %s: %s\n", c.label.c_str(), c.reason.c_str());
-    }
-  }
-  std::printf("board found in %d of %zu images\n", found, checks.size());
+  Print(shadow::DescribeBoardDetections(checks));
+}
+
+// The workflow's options from the command line's.
+int CalibrateAndWrite(CalibrationInput input, const std::vector<ImageCheck>& checks,
+                      const CommonOptions& common, nlohmann::json extra) {
+  shadow::CalibrateWriteOptions o;
+  o.solve = common.Options();
+  o.select_model = common.select_model;
+  o.cross_validate = !common.no_cross_validation;
+  o.min_views = common.min_views;
+  o.rig_name = common.name;
+  o.rig_out = common.out;
+  o.report_dir = common.ReportDir();
+  o.opencv_out = common.opencv_out;
+  shadow::CalibrateAndWrite(std::move(input), checks, o, std::move(extra), Print);
+  return 0;
 }
 
 // Decoding and local-homography options of `projector` and `rig`.
@@ -374,55 +314,18 @@ std::vector<double> ParseKnownDistance(const std::string& text) {
 }
 
 int RunCalibrateRefine(const RefineArgs& a) {
-  const DecodeOptions decode = ProcamArgs{}.Decode();
-  const Rig rig = LoadRig(a.rig);
-  const ImageSet scan = ImageSet::Open(a.scan);
-  const std::string cam = a.camera.empty() ? rig.cameras.at(0).name : a.camera;
-  const int index = rig.CameraIndex(cam);
-  SLSHADOW_THROW_IF(index < 0, a.rig, ": no camera named '", cam, "'");
-  const PatternSpec patterns = PatternSpecFromConfig(ConfigNode::FromJson(
-      scan.patterns(), (fs::path(a.scan) / "manifest.json").string(), "patterns"));
-  SLSHADOW_THROW_IF(!patterns.code_x || !patterns.code_y, a.scan,
-                    ": patterns must code both projector axes to check the calibration");
-  SLSHADOW_THROW_IF(
-      a.stereo.empty() && !rig.projector, a.rig, ": rig '", rig.name,
-      "' has no projector: refine the pose of one camera against another with --stereo NAME");
-  const ProjectorMap map = DecodePatterns(patterns, scan.LoadCamera(cam), decode);
-  RefineOptions ro;
-  ro.refine_focal = a.refine_focal;
-  ro.known_baseline_mm = a.known_baseline_mm;
-  std::optional<ProjectorMap> map_b;
-  if (!a.stereo.empty()) {
-    const int index_b = rig.CameraIndex(a.stereo);
-    SLSHADOW_THROW_IF(index_b < 0, a.rig, ": no camera named '", a.stereo, "' (--stereo)");
-    map_b = DecodePatterns(patterns, scan.LoadCamera(a.stereo), decode);
-  }
-  if (!a.known_distance.empty()) {
-    const std::vector<double> v = ParseKnownDistance(a.known_distance);
-    KnownDistance k;
-    k.distance_mm = v[4];
-    for (int i = 0; i < 2; ++i) {
-      const Eigen::Vector2d px(v[static_cast<size_t>(2 * i)], v[static_cast<size_t>(2 * i + 1)]);
-      const auto c = CorrespondenceAt(map, map_b ? &*map_b : nullptr, px);
-      SLSHADOW_THROW_IF(!c, "--known-distance: pixel (", px.x(), ", ", px.y(), ") of camera '", cam,
-                        "' has no decoded correspondence", map_b ? " in both cameras" : "");
-      (i == 0 ? k.first : k.second) = *c;
-    }
-    ro.known_distances.push_back(k);
-  }
-  RefineResult r;
-  if (a.stereo.empty()) {
-    r = RefineProjectorPose(rig, index, SampleCorrespondences(map), ro);
-  } else {
-    r = RefineStereoPose(rig, index, rig.CameraIndex(a.stereo), StereoCorrespondences(map, *map_b),
-                         ro);
-  }
-  // A refused solution writes nothing: the report says why.
-  SLSHADOW_THROW_IF(r.rejected, a.rig, ": calibrate refine: ", r.message);
-  Rig out = r.rig;
-  out.calibration["refine"] = RefineRecordToJson(r, a.scan, cam, a.stereo);
-  SaveRig(out, a.out);
-  std::printf("%s\nwrote %s\n", r.message.c_str(), a.out.c_str());
+  shadow::RefineFromScanRequest r;
+  r.rig = a.rig;
+  r.scan = a.scan;
+  r.out = a.out;
+  r.camera = a.camera;
+  r.stereo = a.stereo;
+  if (!a.known_distance.empty()) r.known_distance = ParseKnownDistance(a.known_distance);
+  r.refine.refine_focal = a.refine_focal;
+  r.refine.known_baseline_mm = a.known_baseline_mm;
+  r.decode = ProcamArgs{}.Decode();
+  const RefineResult result = shadow::RefineRigFromScan(r);
+  std::printf("%s\nwrote %s\n", result.message.c_str(), a.out.c_str());
   return 0;
 }
 
