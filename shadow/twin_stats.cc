@@ -69,6 +69,7 @@ SampleStats Compute(std::vector<T> v) {
     s.p95_abs = Percentile(v, 95.0);
     s.max_abs = *std::max_element(v.begin(), v.end());
   }
+  s.median += 0.0;  // a zero median as +0 (the float keys order -0 below +0; JSON would say -0.0)
   return s;
 }
 
