@@ -21,11 +21,6 @@
 namespace slshadow::compare {
 namespace {
 
-// Index of the nearest-rank percentile p in n sorted values (n > 0).
-size_t PercentileIndex(size_t n, double p) {
-  return PercentileRank(n, p);  // core/statistics.h
-}
-
 // A uniform grid over points (points copied cell by cell, cells found through an open-addressing
 // hash table): the points within one cell size of a query lie in the 27 cells around the query's
 // cell. Built in O(n): cell keys in parallel, a stable radix sort of the points by key.
@@ -231,13 +226,6 @@ class PointGrid {
   size_t mask_ = 0;
 };
 
-// The bits of a non-negative double: they order as the values do.
-uint64_t Bits(double a) {
-  uint64_t b = 0;
-  std::memcpy(&b, &a, sizeof(b));
-  return b;
-}
-
 // ComputeStats's figures of |d| (shared by the signed and unsigned figures), the signed mean and
 // std, and the histograms asked for, from three passes over the distances: the sums in order (so
 // the same doubles) and a count of the top 16 bits of |d|; the values of the (at most three)
@@ -263,8 +251,7 @@ AbsFigures ComputeAbsFigures(const std::vector<double>& distances_mm, double thr
   const double nan = std::numeric_limits<double>::quiet_NaN();
   s.signed_mean_mm = s.signed_std_mm = nan;
   out.signed_mean = out.signed_std = nan;
-  constexpr int kShift = 48;  // the top 16 bits: sign (0), exponent, 4 bits of mantissa
-  std::vector<uint32_t> counts(size_t{1} << (64 - kShift), 0);
+  std::vector<uint32_t> counts(kAbsBuckets, 0);
   double sum = 0, sum2 = 0, ssum = 0, max = 0;
   for (const double d : distances_mm) {
     if (!std::isfinite(d)) {
@@ -277,7 +264,7 @@ AbsFigures ComputeAbsFigures(const std::vector<double>& distances_mm, double thr
     sum2 += a * a;
     ssum += d;
     if (a <= threshold_mm) ++s.inliers;
-    ++counts[Bits(a) >> kShift];
+    ++counts[AbsBucket(a)];
     max = std::max(max, a);
   }
   s.outliers = s.count - s.inliers;
@@ -287,42 +274,11 @@ AbsFigures ComputeAbsFigures(const std::vector<double>& distances_mm, double thr
     s.mean_mm = sum / n;
     s.rms_mm = std::sqrt(sum2 / n);
     s.max_mm = max;
-    // The buckets of the three ranks, and each rank within its bucket.
-    const size_t ranks[3] = {PercentileIndex(s.count, 50), PercentileIndex(s.count, 95),
-                             PercentileIndex(s.count, 99)};
-    size_t bucket[3], within[3];
-    {
-      size_t below = 0, b = 0;
-      for (int r = 0; r < 3; ++r) {  // ranks ascend
-        while (below + counts[b] <= ranks[r]) below += counts[b++];
-        bucket[r] = b;
-        within[r] = ranks[r] - below;
-      }
-    }
-    std::vector<double> values[3];
-    for (int r = 0; r < 3; ++r) {
-      if (r == 0 || bucket[r] != bucket[r - 1]) values[r].reserve(counts[bucket[r]]);
-    }
-    const uint64_t b0 = bucket[0], b1 = bucket[1], b2 = bucket[2];
-    for (const double d : distances_mm) {
-      const uint64_t b = Bits(std::abs(d)) >> kShift;  // non-finite: beyond every finite bucket
-      if (b == b0) {
-        values[0].push_back(std::abs(d));
-      } else if (b == b1) {
-        values[1].push_back(std::abs(d));
-      } else if (b == b2) {
-        values[2].push_back(std::abs(d));
-      }
-    }
+    const size_t ranks[3] = {PercentileRank(s.count, 50), PercentileRank(s.count, 95),
+                             PercentileRank(s.count, 99)};
     double at[3];
-    for (int r = 0; r < 3; ++r) {
-      int v = r;
-      while (v > 0 && bucket[v - 1] == bucket[r]) --v;  // the bucket's values are in values[v]
-      std::vector<double>& x = values[v];
-      const auto k = x.begin() + static_cast<std::ptrdiff_t>(within[r]);
-      std::nth_element(x.begin(), k, x.end());
-      at[r] = *k;
-    }
+    AbsValuesAtRanks(distances_mm.data(), distances_mm.data() + distances_mm.size(), counts, ranks,
+                     3, at);
     s.median_mm = at[0];
     s.p95_mm = at[1];
     hi = range_mm > 0 ? range_mm : std::max(at[2], 1e-6);
@@ -781,6 +737,44 @@ double MedianSpacing(const std::vector<Eigen::Vector3d>& points, size_t max_samp
   }
   std::nth_element(d.begin(), d.begin() + static_cast<long>(d.size() / 2), d.end());
   return d[d.size() / 2];
+}
+
+void AbsValuesAtRanks(const double* first, const double* last, const std::vector<uint32_t>& counts,
+                      const size_t* ranks, int num_ranks, double* out) {
+  SLSHADOW_CHECK(counts.size() == kAbsBuckets);
+  // The bucket of each rank (ranks ascend), and the rank within its bucket.
+  std::vector<uint32_t> bucket(static_cast<size_t>(num_ranks));
+  std::vector<size_t> within(static_cast<size_t>(num_ranks));
+  size_t below = 0;
+  uint32_t b = 0;
+  for (size_t r = 0; r < bucket.size(); ++r) {
+    while (below + counts[b] <= ranks[r]) below += counts[b++];
+    bucket[r] = b;
+    within[r] = ranks[r] - below;
+  }
+  // The values of each distinct bucket, in the first rank's list that has it.
+  std::vector<std::vector<double>> values(bucket.size());
+  for (size_t r = 0; r < bucket.size(); ++r) {
+    if (r == 0 || bucket[r] != bucket[r - 1]) values[r].reserve(counts[bucket[r]]);
+  }
+  for (const double* d = first; d != last; ++d) {
+    const double a = std::abs(*d);
+    const uint32_t k = AbsBucket(a);  // non-finite: beyond every finite bucket
+    for (size_t r = 0; r < bucket.size(); ++r) {
+      if (k == bucket[r]) {
+        values[r].push_back(a);
+        break;
+      }
+    }
+  }
+  for (size_t r = 0; r < bucket.size(); ++r) {
+    size_t v = r;
+    while (v > 0 && bucket[v - 1] == bucket[r]) --v;  // the bucket's values are in values[v]
+    std::vector<double>& x = values[v];
+    const auto k = x.begin() + static_cast<std::ptrdiff_t>(within[r]);
+    std::nth_element(x.begin(), k, x.end());
+    out[r] = *k;
+  }
 }
 
 }  // namespace slshadow::compare

@@ -4,9 +4,9 @@
 #include <opencv2/core/utility.hpp>
 
 #include <cmath>
-#include <cstring>
 #include <optional>
 
+#include "compare/statistics.h"
 #include "core/config.h"
 #include "core/error.h"
 #include "core/statistics.h"
@@ -268,32 +268,16 @@ ModeAccuracy MeasureAccuracy(const std::string& mode, const compare::CompareResu
 namespace {
 
 // The nearest-rank 95th percentile of |d| over the finite d of [first, last) (`count` of them,
-// > 0): Percentile's value, selected among the values of its rank's bucket only. Buckets: the
-// top 16 bits of |d| (sign, exponent, 4 bits of mantissa), which order non-negative doubles as
-// their values do.
+// > 0): Percentile's value, by compare's buckets of magnitudes.
 double AbsP95(const double* first, const double* last, size_t count) {
-  constexpr int kShift = 48;
-  const auto bits = [](double a) {
-    uint64_t b = 0;
-    std::memcpy(&b, &a, sizeof(b));
-    return b;
-  };
-  std::vector<uint32_t> counts(size_t{1} << (64 - kShift), 0);
+  std::vector<uint32_t> counts(compare::kAbsBuckets, 0);
   for (const double* d = first; d != last; ++d) {
-    if (std::isfinite(*d)) ++counts[bits(std::abs(*d)) >> kShift];
+    if (std::isfinite(*d)) ++counts[compare::AbsBucket(std::abs(*d))];
   }
   const size_t rank = PercentileRank(count, 95.0);
-  size_t below = 0, bucket = 0;
-  while (below + counts[bucket] <= rank) below += counts[bucket++];
-  std::vector<double> in_bucket;
-  in_bucket.reserve(counts[bucket]);
-  for (const double* d = first; d != last; ++d) {
-    const double a = std::abs(*d);
-    if (std::isfinite(a) && (bits(a) >> kShift) == bucket) in_bucket.push_back(a);
-  }
-  const auto k = in_bucket.begin() + static_cast<std::ptrdiff_t>(rank - below);
-  std::nth_element(in_bucket.begin(), k, in_bucket.end());
-  return *k;
+  double p95 = 0;
+  compare::AbsValuesAtRanks(first, last, counts, &rank, 1, &p95);
+  return p95;
 }
 
 }  // namespace
