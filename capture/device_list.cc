@@ -10,6 +10,7 @@
 #include "capture/v4l2_camera.h"
 #include "capture/window_projector.h"
 #include "core/error.h"
+#include "core/string_printf.h"
 
 namespace slshadow::capture {
 namespace {
@@ -28,9 +29,7 @@ using Sink = std::function<void(const std::string&)>;
 
 template <typename... Args>
 void Append(const Sink* out, const char* format, Args... args) {
-  std::vector<char> line(static_cast<size_t>(std::snprintf(nullptr, 0, format, args...)) + 1);
-  std::snprintf(line.data(), line.size(), format, args...);
-  (*out)(std::string(line.data()));
+  (*out)(StringPrintf(format, args...));
 }
 
 void AppendCamera(const Sink* out, const CameraInfo& info, const std::string& protocol,

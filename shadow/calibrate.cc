@@ -12,6 +12,7 @@
 #include "core/error.h"
 #include "core/image_set.h"
 #include "core/rig.h"
+#include "core/string_printf.h"
 #include "patterns/pattern_spec.h"
 
 namespace slshadow::shadow {
@@ -19,19 +20,11 @@ namespace {
 
 namespace fs = std::filesystem;
 
-template <typename... Args>
-std::string Format(const char* format, Args... args) {
-  const int n = std::snprintf(nullptr, 0, format, args...);
-  std::string s(static_cast<size_t>(std::max(n, 0)), '\0');
-  std::snprintf(s.data(), s.size() + 1, format, args...);
-  return s;
-}
-
 std::string DescribeModelSelection(const ModelSelection& selection) {
   std::string text = "model selection (leave-one-pose-out, projector corners):\n";
   for (const auto& s : selection.scores) {
-    text += Format("  %-45s fit %.4f px, predicted %.4f px (%d corners)\n", s.name.c_str(),
-                   s.fit_rms_px, s.prediction_rms_px, s.num_predicted);
+    text += StringPrintf("  %-45s fit %.4f px, predicted %.4f px (%d corners)\n", s.name.c_str(),
+                         s.fit_rms_px, s.prediction_rms_px, s.num_predicted);
   }
   text += "  chosen: " + selection.scores[selection.chosen].name + "\n";
   return text;
@@ -49,7 +42,7 @@ std::string DescribeBoardDetections(const std::vector<ImageCheck>& checks) {
       text += "not found: " + c.label + ": " + c.reason + "\n";
     }
   }
-  return text + Format("board found in %d of %zu images\n", found, checks.size());
+  return text + StringPrintf("board found in %d of %zu images\n", found, checks.size());
 }
 
 void CalibrateAndWrite(CalibrationInput input, const std::vector<ImageCheck>& checks,
@@ -94,13 +87,14 @@ void CalibrateAndWrite(CalibrationInput input, const std::vector<ImageCheck>& ch
   std::string text = result.summary.BriefReport() + "\n";
   for (const auto& d : result.devices) {
     const auto& m = d.model;
-    text += Format(
+    text += StringPrintf(
         "  %s: %dx%d fx %.3f fy %.3f cx %.3f cy %.3f k1 %.5f k2 %.5f p1 %.6f p2 %.6f k3 %.5f\n",
         d.name.c_str(), m.width, m.height, m.fx(), m.fy(), m.cx(), m.cy(), m.k1(), m.k2(), m.p1(),
         m.p2(), m.k3());
   }
   for (const auto& s : result.summary.devices) {
-    text += Format("  %s: RMS %.4f px over %d points\n", s.name.c_str(), s.rms_px, s.num_points);
+    text +=
+        StringPrintf("  %s: RMS %.4f px over %d points\n", s.name.c_str(), s.rms_px, s.num_points);
   }
   for (const auto& b : result.summary.bounds_active) {
     text += "  --principal-point-inside: " + b +
