@@ -7,6 +7,8 @@
 #include <opencv2/core.hpp>
 
 #include "core/rig.h"
+#include "sim/geometry_pass.h"
+#include "sim/raycaster.h"
 #include "sim/scene.h"
 #include "tests/testing/temp_dir.h"
 
@@ -53,5 +55,23 @@ inline Rigid3d Pose(const Eigen::Vector3d& axis_angle_rad, const Eigen::Vector3d
 
 // Both NaN, or equal.
 inline bool SameFloat(float a, float b) { return (std::isnan(a) && std::isnan(b)) || a == b; }
+
+// Traces camera `camera` of `rig` in `scene` (its supersampling).
+inline GeometryBuffer Trace(const Scene& scene, const Rig& rig, int camera,
+                            TraceMode mode = TraceMode::kPacket16) {
+  const RayCaster caster(scene);
+  const CameraRays rays =
+      ComputeCameraRays(rig.cameras[static_cast<size_t>(camera)].model, scene.layers.supersampling);
+  return TraceGeometry(caster, rig, camera, rays, mode);
+}
+
+// A 600 x 400 mm plane at `pose`.
+inline Scene PlaneScene(const Rigid3d& pose, double albedo = 0.6) {
+  Scene scene;
+  SceneObject plane = MakePrimitive(ObjectType::kPlane, pose, albedo);
+  plane.size_mm = Eigen::Vector3d(600, 400, 0);
+  scene.objects.push_back(plane);
+  return scene;
+}
 
 }  // namespace slshadow::testing
