@@ -12,8 +12,10 @@ set(allowed_calib "core;patterns;plot;calib")
 set(allowed_compare "core;plot;compare")
 # shadow/ (workflows) may use every module but apps/.
 set(allowed_shadow "core;plot;patterns;reconstruct;sim;capture;calib;compare;shadow")
-set(allowed_apps "core;plot;patterns;reconstruct;sim;capture;calib;compare;shadow;apps")
-set(modules core plot patterns reconstruct sim capture calib compare shadow apps)
+# workflows/<name>/ may use every module, shadow/ and the workflows before it (DESIGN.md).
+set(allowed_workflows "core;plot;patterns;reconstruct;sim;capture;calib;compare;shadow;workflows")
+set(allowed_apps "core;plot;patterns;reconstruct;sim;capture;calib;compare;shadow;workflows;apps")
+set(modules core plot patterns reconstruct sim capture calib compare shadow workflows apps)
 
 set(violations "")
 foreach(module IN LISTS modules)

@@ -96,7 +96,58 @@ nlohmann::json DeviceToJson(const RigDevice& d) {
   return j;
 }
 
+TurntableAxis TurntableFromConfig(const ConfigNode& node) {
+  node.RejectUnknownKeys({"axis_direction", "axis_point_mm", "angle_offset_deg", "angle_scale",
+                          "sigma_direction_deg", "sigma_point_mm", "sigma_angle_offset_deg",
+                          "sigma_angle_scale"});
+  TurntableAxis t;
+  const auto dir_node = node["axis_direction"];
+  const auto d = dir_node.AsDoubles(3);
+  const Eigen::Vector3d dir(d[0], d[1], d[2]);
+  if (!dir.allFinite() || dir.norm() < 1e-9) dir_node.Fail("must be a non-zero finite vector");
+  t.direction_in_rig = dir.normalized();
+  const auto p_node = node["axis_point_mm"];
+  const auto p = p_node.AsDoubles(3);
+  t.point_in_rig_mm = Eigen::Vector3d(p[0], p[1], p[2]);
+  if (!t.point_in_rig_mm.allFinite()) p_node.Fail("must be finite");
+  t.angle_offset_deg = node.GetDouble("angle_offset_deg", 0.0);
+  t.angle_scale = node.GetDouble("angle_scale", 1.0);
+  if (!std::isfinite(t.angle_offset_deg)) node["angle_offset_deg"].Fail("must be finite");
+  if (!(t.angle_scale > 0.5 && t.angle_scale < 2.0))
+    node["angle_scale"].Fail("must be a number in (0.5, 2) (true angle = scale x commanded)");
+  const char* sigma_names[] = {"sigma_direction_deg", "sigma_point_mm", "sigma_angle_offset_deg",
+                               "sigma_angle_scale"};
+  double* sigmas[] = {&t.sigma_direction_deg, &t.sigma_point_mm, &t.sigma_angle_offset_deg,
+                      &t.sigma_angle_scale};
+  for (int i = 0; i < 4; ++i) {
+    *sigmas[i] = node.GetDouble(sigma_names[i], 0.0);
+    if (!(*sigmas[i] >= 0) || !std::isfinite(*sigmas[i]))
+      node[sigma_names[i]].Fail("must be a finite number >= 0");
+  }
+  return t;
+}
+
+nlohmann::json TurntableToJson(const TurntableAxis& t) {
+  nlohmann::json j;
+  j["axis_direction"] = {t.direction_in_rig.x(), t.direction_in_rig.y(), t.direction_in_rig.z()};
+  j["axis_point_mm"] = {t.point_in_rig_mm.x(), t.point_in_rig_mm.y(), t.point_in_rig_mm.z()};
+  j["angle_offset_deg"] = t.angle_offset_deg;
+  j["angle_scale"] = t.angle_scale;
+  j["sigma_direction_deg"] = t.sigma_direction_deg;
+  j["sigma_point_mm"] = t.sigma_point_mm;
+  j["sigma_angle_offset_deg"] = t.sigma_angle_offset_deg;
+  j["sigma_angle_scale"] = t.sigma_angle_scale;
+  return j;
+}
+
 }  // namespace
+
+Rigid3d TurntableAxis::RigFromTableTurn(double commanded_deg) const {
+  const double angle_rad = TrueAngleDeg(commanded_deg) * M_PI / 180.0;
+  const Eigen::Quaterniond r(Eigen::AngleAxisd(angle_rad, direction_in_rig.normalized()));
+  // x' = R (x - p) + p
+  return Rigid3d(r, point_in_rig_mm - (r * point_in_rig_mm));
+}
 
 const RigDevice& Rig::Camera(const std::string& name) const {
   const int i = CameraIndex(name);
@@ -178,11 +229,18 @@ void Rig::Check(const std::string& what) const {
   for (size_t i = 0; i < cameras.size(); ++i)
     check_device(cameras[i], "cameras[" + std::to_string(i) + "]");
   if (projector) check_device(*projector, "projector");
+  if (turntable) {
+    SLSHADOW_THROW_IF(!turntable->direction_in_rig.allFinite() ||
+                          std::abs(turntable->direction_in_rig.norm() - 1.0) > 1e-6,
+                      what, ": turntable.axis_direction: must be a finite unit vector");
+    SLSHADOW_THROW_IF(!turntable->point_in_rig_mm.allFinite(), what,
+                      ": turntable.axis_point_mm: must be finite");
+  }
 }
 
 Rig RigFromConfig(const ConfigNode& node) {
-  node.RejectUnknownKeys(
-      {"format", "version", "name", "working_distance_mm", "cameras", "projector", "calibration"});
+  node.RejectUnknownKeys({"format", "version", "name", "working_distance_mm", "cameras",
+                          "projector", "calibration", "turntable"});
   if (node.Has("format") && node["format"].AsString() != "slshadow-rig") {
     node["format"].Fail("expected \"slshadow-rig\"");
   }
@@ -207,6 +265,7 @@ Rig RigFromConfig(const ConfigNode& node) {
   }
   if (node.Has("projector")) rig.projector = DeviceFromConfig(node["projector"], true);
   if (node.Has("calibration")) rig.calibration = node["calibration"].json();
+  if (node.Has("turntable")) rig.turntable = TurntableFromConfig(node["turntable"]);
   rig.Check(node.file());
   return rig;
 }
@@ -221,6 +280,7 @@ nlohmann::json RigToJson(const Rig& rig) {
   for (const auto& c : rig.cameras) j["cameras"].push_back(DeviceToJson(c));
   if (rig.projector) j["projector"] = DeviceToJson(*rig.projector);
   if (!rig.calibration.is_null()) j["calibration"] = rig.calibration;
+  if (rig.turntable) j["turntable"] = TurntableToJson(*rig.turntable);
   return j;
 }
 

@@ -32,6 +32,30 @@ struct RigDevice {
   }
 };
 
+// A turntable's rotation axis in the rig frame (docs/formats.md "Rig YAML", `turntable`), as
+// `slshadow calibrate turntable` measures it. A commanded table angle a (degrees) turns the part
+// by the true angle  angle_deg(a) = angle_scale * a + angle_offset_deg  about the axis through
+// point_in_rig_mm with unit direction direction_in_rig, right-handed (positive angles turn
+// counter-clockwise seen from the tip of direction_in_rig looking back at the table).
+// The sigma_* fields are 1-sigma uncertainties (0: unknown): the direction's as an angle.
+struct TurntableAxis {
+  Eigen::Vector3d direction_in_rig = Eigen::Vector3d::UnitY();  // unit
+  Eigen::Vector3d point_in_rig_mm = Eigen::Vector3d::Zero();    // any point on the axis
+  double angle_offset_deg = 0.0;
+  double angle_scale = 1.0;
+  double sigma_direction_deg = 0.0;
+  double sigma_point_mm = 0.0;  // perpendicular to the axis
+  double sigma_angle_offset_deg = 0.0;
+  double sigma_angle_scale = 0.0;
+
+  double TrueAngleDeg(double commanded_deg) const {
+    return angle_scale * commanded_deg + angle_offset_deg;
+  }
+  // The rigid motion of a part on the table commanded to `commanded_deg`, from its placement at
+  // commanded angle 0: x_at_angle = RigFromTableTurn(a) * x_at_zero, both in the rig frame.
+  Rigid3d RigFromTableTurn(double commanded_deg) const;
+};
+
 struct Rig {
   std::string name;
   double working_distance_mm = 500;  // nominal stand-off along the first camera's axis
@@ -40,6 +64,7 @@ struct Rig {
   // Free-form evidence kept with the rig (e.g. calibration inputs and covariance), round-tripped
   // untouched. Empty when absent.
   nlohmann::json calibration;
+  std::optional<TurntableAxis> turntable;  // the table's axis when the rig has one
 
   // Device by name; throws slshadow::Error listing the known names when absent.
   const RigDevice& Camera(const std::string& name) const;
