@@ -10,6 +10,7 @@
 
 #include "compare/kdtree.h"
 #include "core/error.h"
+#include "core/statistics.h"
 #include "shadow/diagnose_neighbours.h"
 
 namespace slshadow::shadow {
@@ -105,6 +106,9 @@ void DiagnoseOptions::Check() const {
                     "diagnose: multipath_ratio must be in (0, 1) (got ", multipath_ratio, ")");
   SLSHADOW_THROW_IF(smoothing_neighbors < 1, "diagnose: smoothing_neighbors must be >= 1 (got ",
                     smoothing_neighbors, ")");
+  SLSHADOW_THROW_IF(!(part_pose_sigmas >= 0) || !std::isfinite(part_pose_sigmas),
+                    "diagnose: part_pose_sigmas must be a finite number >= 0 (got ",
+                    part_pose_sigmas, ")");
 }
 
 namespace {
@@ -336,7 +340,8 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
   } else {
     Finding cal;
     cal.cause = "calibration";
-    double worst = 0;
+    double worst = 0, worst_threshold = options.calibration_field_px;
+    bool above = false;
     cal.evidence["cameras"] = nlohmann::json::array();
     for (size_t c = 0; c < cameras.size(); ++c) {
       const Field& f = fields[c];
@@ -373,11 +378,21 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
                            {"field_mean_y_px", f.mean_y},
                            {"equivalent_projector_rotation_about_y_deg", rot_y_deg},
                            {"equivalent_projector_rotation_about_x_deg", rot_x_deg}};
+      // The rig's own uncertainty, where its file says, raises the bar.
+      const double threshold = std::isfinite(cam.rig_uncertainty_px)
+                                   ? std::max(options.calibration_field_px, cam.rig_uncertainty_px)
+                                   : options.calibration_field_px;
+      ev["rig_uncertainty_px"] = std::isfinite(cam.rig_uncertainty_px)
+                                     ? nlohmann::json(cam.rig_uncertainty_px)
+                                     : nlohmann::json();
+      ev["threshold_px"] = threshold;
+      above = above || rms > threshold;
       if (std::isfinite(dfx)) ev["equivalent_projector_focal_error_x_px"] = dfx;
       if (std::isfinite(dfy)) ev["equivalent_projector_focal_error_y_px"] = dfy;
       cal.evidence["cameras"].push_back(ev);
       if (rms > worst) {
         worst = rms;
+        worst_threshold = threshold;
         cal.message =
             Fmt("smooth projector-coordinate field of %.3f px RMS (mean %.3f, %.3f px): ", rms,
                 f.mean_x, f.mean_y) +
@@ -390,9 +405,14 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
       }
     }
     cal.evidence["threshold_px"] = options.calibration_field_px;
-    cal.detected = worst > options.calibration_field_px;
+    cal.detected = above;
     if (cal.detected) {
       cal.message = "calibration error: " + cal.message + "; run `slshadow calibrate refine`";
+    } else if (worst > options.calibration_field_px) {
+      cal.message =
+          Fmt("a smooth field of %.3f px RMS, within what the rig's calibration "
+              "uncertainty explains (%.3f px)",
+              worst, worst_threshold);
     } else {
       cal.message = Fmt("no smooth field above %.2f px (largest %.3f px RMS)",
                         options.calibration_field_px, worst);
@@ -656,18 +676,30 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
         }
         mode_means.emplace_back(std::move(pts), std::move(vals));
       }
+      // What the pose's uncertainty explains at each point.
+      std::vector<double> pose_bound(idx.size(), 0.0);
+      if (m.pose_sigma_mm) {
+        cv::parallel_for_(cv::Range(0, static_cast<int>(idx.size())), [&](const cv::Range& r) {
+          for (int i = r.start; i < r.end; ++i) {
+            pose_bound[static_cast<size_t>(i)] =
+                options.part_pose_sigmas *
+                m.pose_sigma_mm(m.real_points[idx[static_cast<size_t>(i)]]);
+          }
+        });
+      }
       std::vector<Eigen::Vector3d> sig;
-      std::vector<double> sig_d;
+      std::vector<double> sig_d, sig_bound;
       for (size_t i = 0; i < idx.size(); ++i) {
-        if (std::abs(d[i] - med) > thr && spread[i] <= spread_limit) {
+        if (std::abs(d[i] - med) > std::max(thr, pose_bound[i]) && spread[i] <= spread_limit) {
           sig.push_back(m.real_points[idx[i]]);
           sig_d.push_back(d[i] - med);
+          sig_bound.push_back(pose_bound[i]);
         }
       }
       // The largest connected cluster of significant points (linked within 4 point spacings).
       size_t coherent = 0;
       Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
-      double peak = 0, mean_dev = 0;
+      double peak = 0, mean_dev = 0, cluster_bound = 0;
       if (sig.size() >= 10) {
         const compare::KdTree sig_tree(sig);
         std::vector<compare::Neighbor> nb;
@@ -710,6 +742,7 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
           centroid += sig[i];
           peak = std::max(peak, std::abs(sig_d[i]));
           mean_dev += sig_d[i];
+          cluster_bound = std::max(cluster_bound, sig_bound[i]);
         }
         if (coherent)
           centroid /= static_cast<double>(coherent), mean_dev /= static_cast<double>(coherent);
@@ -727,6 +760,9 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
            {"mean_deviation_mm", mean_dev},
            {"peak_deviation_mm", peak},
            {"centroid_in_rig_mm", {centroid.x(), centroid.y(), centroid.z()}},
+           {"pose_bound_known", static_cast<bool>(m.pose_sigma_mm)},
+           {"pose_bound_p95_mm", Percentile(pose_bound, 95)},
+           {"pose_bound_at_cluster_mm", cluster_bound},
            {"detected", found}});
       if (found) {
         centroids.push_back(centroid);
@@ -770,6 +806,10 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
               first["mean_deviation_mm"].get<double>(), first["peak_deviation_mm"].get<double>()) +
           Fmt(" around (%.1f, %.1f, %.1f) mm in the rig frame", centroids[0].x(), centroids[0].y(),
               centroids[0].z()) +
+          (first["pose_bound_known"].get<bool>()
+               ? Fmt(" (the pose's uncertainty explains up to %.3f mm there)",
+                     first["pose_bound_at_cluster_mm"].get<double>())
+               : std::string(" (the pose's uncertainty is unknown)")) +
           ", in every mode, not explained by the rig: the part differs from its model";
     } else if (consistent && calibration_found) {
       part.message = "surface deviations are explained by the calibration error";

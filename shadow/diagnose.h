@@ -10,7 +10,9 @@
 //                       are then not evaluated.
 //   calibration         a smooth low-order field in the projector-coordinate residual (real
 //                       decoded - twin ground truth): a quadratic in the camera pixel fitted
-//                       robustly; detected when its RMS exceeds calibration_field_px. Reported with
+//                       robustly; detected when its RMS exceeds calibration_field_px and the
+//                       error the rig's calibration uncertainty explains where the rig file
+//                       says (CameraEvidence::rig_uncertainty_px, reported beside). Reported with
 //                       the equivalent projector rotation; suggests `slshadow calibrate refine`.
 //   projector_response  the fitted response (gamma) kept by the physics fit; the ripple of the
 //                       residual at 1..4 x the fringe frequency is reported as its evidence.
@@ -25,11 +27,16 @@
 //                       neighbours) beyond max(4 robust sigma, part_min_mm) on a cluster of
 //                       points in one mode, and every other mode deviating the same way there
 //                       (mean at least half as large, same sign), and no calibration or
-//                       wrong-frame cause found.
+//                       wrong-frame cause found. A point counts only where its deviation also
+//                       exceeds part_pose_sigmas x the pose's uncertainty propagated to it
+//                       (ModeEvidence::pose_sigma_mm): what the registration cannot tell apart
+//                       from a moved part is not blamed on the part; the bound is reported.
 //
 // A scan with no cause found is "consistent with the model".
 #pragma once
 
+#include <functional>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -49,6 +56,7 @@ struct DiagnoseOptions {
   double multipath_ratio = 0.65;
   int min_blob_blocks = 6;
   double part_min_mm = 0.015;
+  double part_pose_sigmas = 3;  // a part deviation must also exceed this x the pose's sigma there
   double part_min_fraction = 0.001;  // of the compared points, in a cluster
   int smoothing_neighbors = 64;
   void Check() const;
@@ -67,6 +75,9 @@ struct CameraEvidence {
   double projector_fx = 1, projector_fy = 1;
   double projector_cx = 0,
          projector_cy = 0;  // the principal point, for the field's focal-length equivalent
+  // The projector-coordinate error (px, p95) the rig's own calibration uncertainty explains for
+  // this camera, from the rig file's calibration evidence; NaN when the rig does not say.
+  double rig_uncertainty_px = std::numeric_limits<double>::quiet_NaN();
 };
 
 // Per reconstruction mode: the clouds against the part.
@@ -74,6 +85,9 @@ struct ModeEvidence {
   std::string mode;
   std::vector<Eigen::Vector3d> real_points, virtual_points;  // rig frame
   std::vector<double> real_c2m, virtual_c2m;                 // signed distance to the part, mm
+  // 1-sigma of a real point's distance to the part that the pose's own uncertainty explains
+  // (PoseUncertainty::PointSigmaMm at the point), or empty when the pose's uncertainty is unknown.
+  std::function<double(const Eigen::Vector3d& point_in_rig)> pose_sigma_mm;
 };
 
 struct Finding {

@@ -2,6 +2,7 @@
 
 #include "shadow/diagnose_neighbours.h"
 #include "shadow/internal/twin_images.h"
+#include "shadow/internal/twin_pose.h"
 #include "shadow/internal/twin_report.h"
 #include "shadow/internal/twin_stats.h"
 #include "shadow/scan_pipeline.h"
@@ -134,52 +135,6 @@ Reconstructions DecodeAndReconstruct(const Rig& rig, const PatternSpec& spec,
   return out;
 }
 
-// Point-to-surface Gauss-Newton on the exact signed distance to the part's triangles, from
-// `part_from_rig`: r_i + n_i . (dt + dw x q_i) -> 0 over the cloud points q_i = part_from_rig p_i
-// (n_i the closest triangle's normal), points beyond 3 robust sigmas (at least 0.05 mm) left
-// out, so a local defect on the part does not pull the pose. Polishes ICP's pose (which stops at
-// its sampled correspondences) to the noise of the whole cloud.
-Rigid3d PolishPose(const TriangleMesh& part_surface, const std::vector<Eigen::Vector3d>& cloud,
-                   Rigid3d part_from_rig) {
-  const compare::MeshDistance mesh(part_surface);
-  const size_t step = std::max<size_t>(1, cloud.size() / 60000);
-  for (int iter = 0; iter < 6; ++iter) {
-    std::vector<Eigen::Vector3d> q, n;
-    std::vector<double> r;
-    for (size_t i = 0; i < cloud.size(); i += step) {
-      const Eigen::Vector3d p = part_from_rig * cloud[i];
-      const compare::MeshHit hit = mesh.Closest(p);
-      if (std::abs(hit.signed_distance_mm) > 1.0) continue;
-      q.push_back(p);
-      n.push_back(part_surface.FaceNormal(hit.triangle));
-      r.push_back(hit.signed_distance_mm);
-    }
-    if (r.size() < 100) break;
-    std::vector<double> a(r.size());
-    for (size_t i = 0; i < r.size(); ++i) a[i] = std::abs(r[i]);
-    std::nth_element(a.begin(), a.begin() + static_cast<std::ptrdiff_t>(a.size() / 2), a.end());
-    const double gate = std::max(3 * 1.4826 * a[a.size() / 2], 0.05);
-    Eigen::Matrix<double, 6, 6> jtj = Eigen::Matrix<double, 6, 6>::Zero();
-    Eigen::Matrix<double, 6, 1> jtr = Eigen::Matrix<double, 6, 1>::Zero();
-    for (size_t i = 0; i < r.size(); ++i) {
-      if (std::abs(r[i]) > gate) continue;
-      Eigen::Matrix<double, 6, 1> j;
-      j.head<3>() = n[i];
-      j.tail<3>() = q[i].cross(n[i]);
-      jtj += j * j.transpose();
-      jtr += j * r[i];
-    }
-    const Eigen::Matrix<double, 6, 1> delta = -jtj.ldlt().solve(jtr);
-    const Eigen::Vector3d w = delta.tail<3>();
-    const Eigen::Quaterniond dq =
-        w.norm() > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(w.norm(), w / w.norm()))
-                     : Eigen::Quaterniond::Identity();
-    part_from_rig = Rigid3d(dq, delta.head<3>()) * part_from_rig;
-    if (delta.head<3>().norm() < 1e-5 && w.norm() < 1e-8) break;
-  }
-  return part_from_rig;
-}
-
 }  // namespace
 
 std::string ToString(PoseSource source) {
@@ -252,7 +207,9 @@ struct ShadowRun {
   ShadowResult result;
   // 1. The real scan.
   Reconstructions real_rec;
-  // 2. Pose: the part's distance field at the pose used, for the fitness and the clouds.
+  // 2. Pose: the refinement (when it ran) and the part's distance field at the pose used, for
+  // the fitness and the clouds.
+  std::optional<internal::PoseRefinement> pose_fit;
   Rigid3d rig_from_part;
   TriangleMesh surface_in_rig;
   std::optional<compare::MeshDistance> part_distance_at_pose;
@@ -334,6 +291,79 @@ void ScanReal(ShadowRun& run) {
   run.result.stages.push_back(meter.Stop());
 }
 
+// The projector-coordinate error (px) that the rig's calibration uncertainty explains for
+// `camera`: the p95 projection uncertainties the rig file's calibration evidence keeps for the
+// projector and the camera (docs/formats.md "Calibration evidence", the larger of the two noise
+// models), the camera's in projector pixels, added in quadrature; NaN when the file has neither.
+double RigUncertaintyPx(const Rig& rig, const std::string& camera) {
+  const nlohmann::json& cal = rig.calibration;
+  if (!cal.is_object() || !rig.projector) return std::nan("");
+  const auto p95 = [&](const std::string& device) {
+    double best = std::nan("");
+    for (const char* key : {"projection_uncertainty", "projection_uncertainty_view_correlated"}) {
+      if (!cal.contains(key) || !cal[key].is_array()) continue;
+      for (const auto& u : cal[key]) {
+        if (u.is_object() && u.value("device", std::string()) == device && u.contains("p95_px") &&
+            u["p95_px"].is_number()) {
+          const double v = u["p95_px"].get<double>();
+          if (std::isfinite(v) && !(v <= best)) best = v;
+        }
+      }
+    }
+    return best;
+  };
+  const double proj = p95(rig.projector->name), cam = p95(camera);
+  if (!std::isfinite(proj) && !std::isfinite(cam)) return std::nan("");
+  const double cam_in_proj =
+      std::isfinite(cam) ? cam * rig.projector->model.fx() / rig.Camera(camera).model.fx() : 0.0;
+  return std::hypot(std::isfinite(proj) ? proj : 0.0, cam_in_proj);
+}
+
+// The refinement's figures for the report: its objective, and the pose's uncertainty; with a
+// given pose, how far the pose moved from it in units of that uncertainty.
+nlohmann::json PoseRefinementToJson(const internal::PoseRefinement& f,
+                                    const ShadowOptions& options) {
+  const internal::PoseUncertainty& u = f.uncertainty;
+  nlohmann::json j = {{"objective", "mean Geman-McClure loss of the exact signed C2M to the part"},
+                      {"scale_mm", f.scale_mm},
+                      {"points", f.points},
+                      {"start_cost", f.start_cost},
+                      {"final_cost", f.final_cost},
+                      {"kept_start", f.kept_start},
+                      {"stages", f.stages},
+                      {"iterations", f.iterations},
+                      {"accepted_steps", f.accepted_steps},
+                      {"rejected_steps", f.rejected_steps},
+                      {"rms_mm", f.rms_mm}};
+  j["uncertainty"] = {{"method", "cluster-robust covariance over 5 mm cells of the part"},
+                      {"sigma_translation_mm", u.sigma_translation_mm},
+                      {"sigma_rotation_deg", u.sigma_rotation_deg},
+                      {"cells", u.cells},
+                      {"weak_directions", u.weak_directions}};
+  if (options.rig_from_part) {
+    // The move from the given pose as the left update about the centroid, (dt, dw), and its
+    // Mahalanobis length under the covariance (its constrained directions).
+    const Rigid3d given = options.rig_from_part->Inverse();
+    const Rigid3d d = f.part_from_rig * given.Inverse();
+    const Eigen::Vector3d c = u.centroid_in_part;
+    const Eigen::AngleAxisd aa(d.rotation);
+    Eigen::Matrix<double, 6, 1> delta;
+    delta.head<3>() = d.rotation * c + d.translation - c;
+    delta.tail<3>() = aa.angle() * aa.axis();
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> eig(u.covariance);
+    const double emax = eig.eigenvalues().maxCoeff();
+    double m2 = 0;
+    for (int k = 0; k < 6; ++k) {
+      const double e = eig.eigenvalues()[k];
+      if (e > 1e-12 * emax && e > 0) m2 += std::pow(eig.eigenvectors().col(k).dot(delta), 2) / e;
+    }
+    j["moved_from_given"] = {{"translation_at_centre_mm", delta.head<3>().norm()},
+                             {"rotation_deg", aa.angle() * 180.0 / M_PI},
+                             {"sigmas", std::sqrt(m2)}};
+  }
+  return j;
+}
+
 // 2. Pose, after PlacePart found it: fitness and RMSE of the final pose, measured the same way
 // for every source: share of the registration cloud within 1 mm of the part, RMS of those
 // distances. Not credible with a pose given: the given pose is used.
@@ -382,6 +412,7 @@ void JudgePose(ShadowRun& run, PoseSource pose_source, const compare::Registrati
     report["pose"]["rotated_from_given_deg"] =
         compare::RotationDifferenceDeg(rig_from_part, *options.rig_from_part);
   }
+  if (run.pose_fit) report["pose"]["refinement"] = PoseRefinementToJson(*run.pose_fit, options);
   const bool credible = in > 0 && fitness >= options.min_fitness && rmse <= options.max_rmse_mm;
   report["pose"]["credible"] = credible;
   // Not credible: stop, unless a pose was given; then the job goes on from the given pose
@@ -445,9 +476,14 @@ void PlacePart(ShadowRun& run) {
     normals.reserve(reference.cloud.size());
     for (const auto& n : reference.cloud.normals) normals.push_back(n.cast<double>());
     reg = compare::Register(cloud, reference.cloud.points, normals, ro);
-    rig_from_part =
-        PolishPose(part.surface, reg_cloud.points, reg.reference_from_cloud * part_from_rig_guess)
-            .Inverse();
+    // ICP stops at its sampled correspondences: the pose is refined on the exact surface, from the
+    // better of the given pose and ICP's, and never left worse than the given one
+    // (shadow/internal/twin_pose.h).
+    std::vector<Rigid3d> starts;
+    if (options.rig_from_part) starts.push_back(options.rig_from_part->Inverse());
+    starts.push_back(reg.reference_from_cloud * part_from_rig_guess);
+    run.pose_fit = internal::RefinePoseOnSurface(part.surface, reg_cloud.points, starts);
+    rig_from_part = run.pose_fit->part_from_rig.Inverse();
   }
   JudgePose(run, pose_source, reg, rig_from_part);
   run.result.stages.push_back(meter.Stop());
@@ -621,6 +657,7 @@ void CameraEvidenceAndMaps(ShadowRun& run, size_t c, const GeometryBuffer& g, co
   ev.projector_fy = run.twin_rig.projector->model.fy();
   ev.projector_cx = run.twin_rig.projector->model.cx();
   ev.projector_cy = run.twin_rig.projector->model.cy();
+  ev.rig_uncertainty_px = RigUncertaintyPx(run.rig, ev.camera);
   cv::Mat twin_white = data_c.twin_white, twin_black = data_c.twin_black;
   if (twin_white.empty() || twin_black.empty())
     WhiteBlackImages(spec, timg, &twin_white, &twin_black);
@@ -752,6 +789,17 @@ void CompareMode(ShadowRun& run, size_t m) {
   };
   ModeEvidence me;
   me.mode = mc.mode;
+  if (run.pose_fit && run.pose_fit->points >= 100) {
+    // The pose's uncertainty at a point, from the normal of its closest triangle.
+    const internal::PoseUncertainty* u = &run.pose_fit->uncertainty;
+    const Rigid3d part_from_rig = run.rig_from_part.Inverse();
+    const compare::MeshDistance* mesh = &part_distance;
+    me.pose_sigma_mm = [u, part_from_rig, mesh](const Eigen::Vector3d& p) {
+      const compare::MeshHit hit = mesh->Closest(p);
+      return u->PointSigmaMm(part_from_rig * p,
+                             part_from_rig.rotation * mesh->FaceNormal(hit.triangle));
+    };
+  }
   on_part(mc.real, mc.real_c2m, &me.real_points, &me.real_c2m);
   on_part(mc.twin, mc.twin_c2m, &me.virtual_points, &me.virtual_c2m);
   std::vector<double> diff;

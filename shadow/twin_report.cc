@@ -205,10 +205,29 @@ std::string ShadowResult::Summary() const {
                     report.value("part", std::string()) + "\n\n";
   char buf[512];
   const auto& pose = report["pose"];
-  std::snprintf(buf, sizeof(buf), "pose (%s): fitness %.3f, inlier RMSE %.4f mm\n\n",
+  std::snprintf(buf, sizeof(buf), "pose (%s): fitness %.3f, inlier RMSE %.4f mm",
                 pose["source"].get<std::string>().c_str(), pose["fitness"].get<double>(),
                 pose["inlier_rmse_mm"].get<double>());
   out += buf;
+  if (pose.contains("refinement")) {
+    const auto& ref = pose["refinement"];
+    const auto& u = ref["uncertainty"];
+    std::snprintf(buf, sizeof(buf), "; uncertainty (1 sigma) %.4f mm, %.4f deg",
+                  u["sigma_translation_mm"].get<double>(), u["sigma_rotation_deg"].get<double>());
+    out += buf;
+    if (ref.contains("moved_from_given")) {
+      const auto& mv = ref["moved_from_given"];
+      std::snprintf(buf, sizeof(buf),
+                    "; moved %.4f mm, %.4f deg from the given pose (%.1f sigma)%s",
+                    mv["translation_at_centre_mm"].get<double>(), mv["rotation_deg"].get<double>(),
+                    mv["sigmas"].get<double>(),
+                    ref["kept_start"].get<bool>() ? ", kept: no step improved on it" : "");
+      out += buf;
+    }
+    for (const auto& w : u["weak_directions"])
+      out += "\n  not constrained by the part's surface: " + w.get<std::string>();
+  }
+  out += "\n\n";
   out += "physics (layer, kept?, value +- sigma, why):\n" + physics.Table() + "\n";
   out += "images (per camera, over the twin's lit part pixels):\n";
   for (const auto& c : report["images"]["cameras"]) {
