@@ -264,6 +264,14 @@ void RunCalibrationCheck(const ReconstructOptions& options, const DenseGrid& gri
   if (s->calibration_check.warn) s->warnings.push_back(s->calibration_check.Message());
 }
 
+// The local field of the fitted projector error: blocks across the image width.
+constexpr int kFittedProjectorBlocks = 16;
+// Its automatic threshold in units of calibration_noise_factor x the noise: the RMS over all the
+// points is diluted by the parts of the scene a fitted projector explains whatever the rig (a
+// plane), so a quarter of the noise, and a quarter of the floor (margins:
+// docs/benchmarks/log/calibration-check-one-axis.md).
+constexpr double kFittedProjectorNoiseFactor = 0.25;
+
 CalibrationCheckSetup CheckSetup(const ReconstructOptions& options, const Rig& rig,
                                  const RigDevice& a, const RigDevice& b, bool stereo) {
   CalibrationCheckSetup setup;
@@ -447,7 +455,15 @@ Reconstruction ReconstructWithProjector(const Rig& rig, const std::string& camer
       both ? ""
            : std::string("only projector ") + (map.has_x ? "columns" : "rows") +
                  " are coded: the one-axis triangulation meets the projector's plane exactly and "
-                 "leaves no epipolar error to check (code both axes for a check)",
+                 "leaves no epipolar error to check, so this capture cannot reveal a wrong rig: a "
+                 "projector turned about its " +
+                 (map.has_x ? "y" : "x") +
+                 " axis (parallel to the fringes), a projector focal length or principal point "
+                 "off across the fringes, a camera bumped or a wrong baseline move the whole "
+                 "cloud and leave no residual; to reveal them code projector " +
+                 (map.has_x ? "rows" : "columns") +
+                 " too (the epipolar error), or scan with a second camera (stereo then checks "
+                 "the projector as a third view)",
       &s);
   start.Elapsed(&s.total_s, &s.total_cpu_s);
   return out;
@@ -620,6 +636,8 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name,
   // One coded axis leaves no epipolar error; a calibrated projector is then a third view: the
   // decoded projector column of the left cell minus the column the stereo point projects to.
   const bool third_view = !both_axes && rig.projector.has_value();
+  // Without a projector in the rig, a 1-D projector is fitted to the stereo points and their
+  // decoded columns instead (calibration_check.h, the fitted projector error).
   std::vector<float> projector_error;
   if (third_view)
     projector_error.assign(static_cast<size_t>(grid.width) * grid.height,
@@ -662,6 +680,25 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name,
     }
   });
   t0.Elapsed(&s.triangulate_s, &s.triangulate_cpu_s);
+  const bool fitted_view = !both_axes && !third_view && options.report_residuals;
+  OneAxisProjectorFit fit;
+  if (fitted_view) {
+    std::vector<Eigen::Vector3d> points;
+    std::vector<double> columns;
+    for (size_t i = 0; i < grid.point_in_rig.size(); ++i) {
+      if (!grid.point_in_rig[i].allFinite() || !std::isfinite(lm.proj_x[i])) continue;
+      points.push_back(grid.point_in_rig[i]);
+      columns.push_back(lm.proj_x[i]);
+    }
+    fit = FitOneAxisProjector(points, columns);
+    if (fit.ok) {
+      projector_error.assign(grid.point_in_rig.size(), std::numeric_limits<float>::quiet_NaN());
+      for (size_t i = 0; i < grid.point_in_rig.size(); ++i) {
+        if (grid.point_in_rig[i].allFinite())
+          projector_error[i] = static_cast<float>(lm.proj_x[i] - fit.Column(grid.point_in_rig[i]));
+      }
+    }
+  }
   Finish(options, max_cloud_points, &out);
   CalibrationCheckSetup setup = CheckSetup(options, rig, left, right, true);
   if (third_view) {
@@ -670,14 +707,28 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name,
     setup.mm_per_px = 1.0 / (FocalOf(rig.projector->model) *
                              (left.CenterInRig() - rig.projector->CenterInRig()).norm());
   }
+  if (fitted_view && fit.ok) {
+    setup.residual = CalibrationResidual::kFittedProjectorError;
+    setup.local_blocks = kFittedProjectorBlocks;
+    setup.noise_factor *= kFittedProjectorNoiseFactor;
+    setup.min_warning_px *= kFittedProjectorNoiseFactor;
+    // The depth equivalent along the baseline of the left camera and the fitted projector.
+    const double baseline_mm = fit.BaselineMm(left.CenterInRig());
+    setup.mm_per_px = fit.fx > 0 && baseline_mm > 0 ? 1.0 / (fit.fx * baseline_mm) : 0;
+  }
   RunCalibrationCheck(
-      options, grid, third_view ? projector_error : grid.epipolar_error_px, left.model, setup,
-      both_axes || third_view
+      options, grid, !projector_error.empty() ? projector_error : grid.epipolar_error_px,
+      left.model, setup,
+      both_axes || third_view || fit.ok
           ? ""
-          : "only projector columns are coded and the rig has no projector: the stereo matches lie "
-            "on the rectified epipolar lines by construction and leave no epipolar error to check, "
-            "and no third view can check them (code projector rows, or calibrate the projector)",
+          : "only projector columns are coded, the rig has no projector and no 1-D projector fits "
+            "the stereo points (" +
+                fit.reason +
+                "): the stereo matches lie on the rectified epipolar lines by construction and "
+                "leave no epipolar error to check (code projector rows, or calibrate the "
+                "projector)",
       &s);
+  if (fit.ok) s.calibration_check.fitted_projector = fit.Describe();
   out.projector_error_px = std::move(projector_error);
   start.Elapsed(&s.total_s, &s.total_cpu_s);
   return out;

@@ -185,8 +185,9 @@ struct Reconstruction {
   PointCloud cloud;  // rig frame, mm
   DenseGrid grid;    // the organised result with per-cell reasons
   ReconstructSummary summary;
-  // Stereo with one coded axis and a projector in the rig: the signed projector error per grid
-  // cell, projector px (calibration_check.h; NaN where none); empty otherwise.
+  // Stereo with one coded axis: the signed projector error per grid cell (a projector in the rig)
+  // or the fitted projector error (none), projector px (calibration_check.h; NaN where none);
+  // empty otherwise.
   std::vector<float> projector_error_px;
 };
 

@@ -203,6 +203,14 @@ std::vector<std::string> ImageSetReconstruction::Warnings() const {
   return all;
 }
 
+std::vector<std::string> ImageSetReconstruction::Notices() const {
+  std::vector<std::string> all;
+  for (const auto& s : summaries) {
+    if (!s.calibration_check.available) all.push_back(s.calibration_check.Message());
+  }
+  return all;
+}
+
 std::string ImageSetReconstruction::EmptyCloudReason() const {
   if (!cloud.empty()) return "";
   const auto meaning = [](RejectReason r, bool stereo) -> const char* {

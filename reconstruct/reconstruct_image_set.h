@@ -51,6 +51,9 @@ struct ImageSetReconstruction {
   std::vector<std::pair<std::string, cv::Mat>> residual_maps;
   // All summaries' calibration-check warnings.
   std::vector<std::string> Warnings() const;
+  // The messages of the calibration checks that could not run: what this capture cannot reveal
+  // (e.g. camera-projector with one coded axis) and what would reveal it.
+  std::vector<std::string> Notices() const;
   // Why the cloud is empty, in one line: the largest rejection reasons per reconstruction with
   // their share of the cells and what they usually mean (e.g. "stereo left-right: 54 % of cells
   // found no stereo match: wrong rig file?"), and each

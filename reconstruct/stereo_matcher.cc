@@ -411,7 +411,8 @@ StereoRectification ComputeStereoRectification(const RigDevice& left, const RigD
       add(w - 1, std::min(y, h - 1));
     }
     SLSHADOW_THROW_IF(!std::isfinite(umin_c), "stereo: camera '", dev.name,
-                      "' sees nothing in front of the rectified plane");
+                      "' sees nothing in front of the rectified plane: wrong rig file? (the "
+                      "cameras of a stereo rig look the same way, at the scene in front of both)");
     const double max_w = max_size_factor * w;
     if (umax_c - umin_c > max_w) {
       const double mid = 0.5 * (umin_c + umax_c);

@@ -376,16 +376,149 @@ TEST(CalibrationCheckSimTest, OneCodedAxis) {
   std::printf("one axis, swapped cameras: %lld points; %s\n",
               static_cast<long long>(swapped.summary.points), sc.Message().c_str());
   EXPECT_TRUE(sc.warn) << sc.Message();
-  // No projector in the rig: nothing to check.
+  // No projector in the rig: a 1-D projector is fitted instead (FittedProjector below).
   Rig no_projector = truth;
   no_projector.projector.reset();
   const CalibrationCheck none =
       ReconstructStereo(no_projector, "left", "right", maps[0], maps[1]).summary.calibration_check;
-  EXPECT_FALSE(none.available);
-  EXPECT_NE(
-      none.Message().find("because only projector columns are coded and the rig has no projector"),
-      std::string::npos)
-      << none.Message();
+  EXPECT_TRUE(none.available) << none.Message();
+  EXPECT_EQ(none.residual, CalibrationResidual::kFittedProjectorError);
+}
+
+// One coded axis and a rig without a projector (the usual stereo phase-shift rig file): the stereo
+// points and the left camera's decoded columns must fit one 1-D projector (FitOneAxisProjector).
+// The errors of the issue (right camera turned 0.3 deg about its x axis, swapped camera names) and
+// smaller ones are caught; errors that map the cloud by a 3-D projective transform (a camera
+// turned about its y axis: a near-constant disparity offset; a baseline length: a similarity) are
+// absorbed by the fitted projector and reported, not asserted.
+Rig Turned(const Rig& rig, int camera, double deg, const Eigen::Vector3d& axis) {
+  Rig r = rig;
+  RigDevice& d = r.cameras[static_cast<size_t>(camera)];
+  d.cam_from_rig =
+      Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(deg * kDeg, axis)), Eigen::Vector3d::Zero()) *
+      d.cam_from_rig;
+  return r;
+}
+
+std::vector<ProjectorMap> ColumnsOnly(std::vector<ProjectorMap> maps) {
+  for (auto& m : maps) {
+    m.has_y = false;
+    m.proj_y = cv::Mat();
+  }
+  return maps;
+}
+
+void PrintFittedRow(const std::string& what, const Reconstruction& rec, double depth_rms_mm,
+                    double clean_rms_mm) {
+  const CalibrationCheck& c = rec.summary.calibration_check;
+  char depth[64] = "- | -";
+  if (std::isfinite(depth_rms_mm)) {
+    std::snprintf(
+        depth, sizeof(depth), "%.3f | %.3f", depth_rms_mm,
+        std::sqrt(std::max(0.0, depth_rms_mm * depth_rms_mm - clean_rms_mm * clean_rms_mm)));
+  }
+  std::printf("| %s | %lld | %s | %.4f | %.4f | %.4f (%.3f mm) | %.2f | %s | %s |\n", what.c_str(),
+              static_cast<long long>(rec.summary.points), depth, c.systematic_px, c.noise_px,
+              c.threshold_px, c.threshold_mm, c.systematic_px / c.threshold_px,
+              c.warn ? "**yes**" : "no", c.likely_causes.empty() ? "" : c.likely_causes[0].c_str());
+}
+
+TEST(CalibrationCheckSimTest, FittedProjectorCatchesStereoRigErrorsWithOneCodedAxis) {
+  const Scans& scans = SharedScans();
+  const auto maps = ColumnsOnly(scans.Decode(1));
+  Rig truth = scans.rig();
+  truth.projector.reset();
+  const Reconstruction clean = ReconstructStereo(truth, "left", "right", maps[0], maps[1]);
+  const double clean_depth = DepthRmsMm(clean, scans.rig(), scans, 0);
+  const CalibrationCheck& cc = clean.summary.calibration_check;
+  std::printf("fitted projector, clean: %s\n  %s\n", cc.Message().c_str(),
+              cc.fitted_projector.c_str());
+  std::printf(
+      "| rig file error | points | depth RMS, mm | added by the error, mm | systematic, px | "
+      "noise, "
+      "px | threshold, px (mm) | systematic / threshold | warning | first named cause |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|\n");
+  PrintFittedRow("none", clean, clean_depth, clean_depth);
+  ASSERT_TRUE(cc.available) << cc.Message();
+  EXPECT_EQ(cc.residual, CalibrationResidual::kFittedProjectorError);
+  EXPECT_FALSE(cc.warn) << cc.Message();
+  EXPECT_TRUE(clean.summary.warnings.empty());
+  EXPECT_LT(cc.systematic_px, 0.6 * cc.threshold_px) << cc.Message();
+  EXPECT_EQ(clean.summary.ToJson()["calibration_check"]["residual"], "fitted_projector_error_px");
+  // The demo projector's k1 = -0.031 is what the data ask a radial term for.
+  EXPECT_NE(cc.fitted_projector.find("radial"), std::string::npos) << cc.fitted_projector;
+  EXPECT_EQ(clean.projector_error_px.size(), clean.grid.reason.size());  // the map's values
+
+  struct Case {
+    std::string name;
+    Rig rig;
+    bool swap = false;
+    bool asserted = true;  // false: a blind spot, reported only
+    double margin = 1.5;   // systematic part over threshold at least (measured: the log below)
+  };
+  const Eigen::Vector3d x = Eigen::Vector3d::UnitX(), y = Eigen::Vector3d::UnitY();
+  Rig pp = truth;
+  ShiftPrincipalPoint(&pp.cameras[1], 0, 2.0);
+  Rig distortion = truth;
+  for (int k = CameraModel::kK1; k <= CameraModel::kK3; ++k)
+    distortion.cameras[0].model.params[static_cast<size_t>(k)] *= -1;
+  Rig baseline = truth;
+  baseline.cameras[1].cam_from_rig.translation *= 1.01;
+  const std::vector<Case> cases = {
+      {"right camera turned 0.3 deg about its x axis", Turned(truth, 1, 0.3, x)},
+      {"right camera turned 0.1 deg about its x axis", Turned(truth, 1, 0.1, x), false, true, 1.1},
+      {"right camera principal point +2 px (y)", pp, false, true, 1.1},
+      {"left camera distortion inverted", distortion},
+      {"camera names swapped", truth, true},
+      {"right camera turned 0.3 deg about its y axis", Turned(truth, 1, 0.3, y), false, false},
+      {"baseline 1 % long", baseline, false, false},
+  };
+  for (const Case& c : cases) {
+    const Reconstruction rec = c.swap ? ReconstructStereo(c.rig, "left", "right", maps[1], maps[0])
+                                      : ReconstructStereo(c.rig, "left", "right", maps[0], maps[1]);
+    PrintFittedRow(c.name, rec, DepthRmsMm(rec, scans.rig(), scans, 0), clean_depth);
+    const CalibrationCheck& check = rec.summary.calibration_check;
+    std::printf("  %s\n", check.fitted_projector.c_str());
+    if (!c.asserted) continue;
+    SCOPED_TRACE(c.name);
+    ASSERT_TRUE(check.available) << check.Message();
+    EXPECT_TRUE(check.warn) << check.Message();
+    // The margin (measured: docs/benchmarks/log/calibration-check-one-axis.md).
+    EXPECT_GT(check.systematic_px, c.margin * check.threshold_px) << check.Message();
+    EXPECT_TRUE(Names(check, "rows out of register")) << check.Message();
+    EXPECT_EQ(rec.summary.warnings.size(), 1u);
+  }
+}
+
+// False alarms of the fitted-projector check over 20 noise seeds of the clean one-axis scan.
+TEST(CalibrationCheckSimTest, FittedProjectorDoesNotWarnOnCleanScansOverTwentySeeds) {
+  const Scans& scans = SharedScans();
+  Rig truth = scans.rig();
+  truth.projector.reset();
+  int checks = 0, alarms = 0, radial = 0;
+  double worst_ratio = 0, noise_min = 1e9, noise_max = 0;
+  for (uint64_t seed = 201; seed < 221; ++seed) {
+    const auto maps = ColumnsOnly(scans.Decode(seed));
+    const Reconstruction rec = ReconstructStereo(truth, "left", "right", maps[0], maps[1]);
+    const CalibrationCheck& c = rec.summary.calibration_check;
+    ASSERT_TRUE(c.available) << c.Message();
+    ASSERT_EQ(c.residual, CalibrationResidual::kFittedProjectorError);
+    ++checks;
+    alarms += c.warn ? 1 : 0;
+    radial += c.fitted_projector.find("radial") != std::string::npos ? 1 : 0;
+    worst_ratio = std::max(worst_ratio, c.systematic_px / c.threshold_px);
+    noise_min = std::min(noise_min, c.noise_px);
+    noise_max = std::max(noise_max, c.noise_px);
+    EXPECT_FALSE(c.warn) << "seed " << seed << ": " << c.Message();
+  }
+  std::printf(
+      "fitted projector: false alarms %d of %d clean scans (seeds 201-220); largest systematic "
+      "part %.3f x its threshold; decode noise %.4f-%.4f px; radial model chosen %d times\n",
+      alarms, checks, worst_ratio, noise_min, noise_max, radial);
+  RecordProperty("false_alarms", alarms);
+  RecordProperty("worst_systematic_over_threshold", std::to_string(worst_ratio));
+  EXPECT_EQ(checks, 20);
+  EXPECT_LT(worst_ratio, 0.6);
 }
 
 }  // namespace
