@@ -7,7 +7,9 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdlib>
+#include <numbers>
 #include <optional>
+#include <set>
 #include <utility>
 
 #include <yaml-cpp/yaml.h>
@@ -25,6 +27,24 @@ constexpr int kEvidenceVersion = 1;
 // CameraModel parameter order.
 constexpr std::array<const char*, CameraModel::kNumParams> kParamNames = {
     "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"};
+
+// The top-level nodes of an OpenCV file, and which of them the import has read: operator[] looks
+// at a node (to recognise a layout), Read marks it as read.
+class Nodes {
+ public:
+  explicit Nodes(const cv::FileStorage& fs) : fs_(fs) {}
+  cv::FileNode operator[](const std::string& key) const { return fs_[key]; }
+  cv::FileNode Read(const std::string& key) {
+    used_.insert(key);
+    return fs_[key];
+  }
+  cv::FileNode root() const { return fs_.root(); }
+  bool WasRead(const std::string& key) const { return used_.count(key) > 0; }
+
+ private:
+  const cv::FileStorage& fs_;
+  std::set<std::string> used_;
+};
 
 nlohmann::json PoseToJson(const Rigid3d& t) {
   const auto& q = t.rotation;
@@ -91,9 +111,8 @@ nlohmann::json MapStats(const PixelMap& m) {
 
 // A matrix node (!!opencv-matrix) or a plain list of numbers (as a 1xN matrix), CV_64F; empty
 // when the node is absent.
-cv::Mat ReadAnyMat(const cv::FileStorage& fs, const std::string& key,
-                   const std::filesystem::path& path) {
-  const cv::FileNode node = fs[key];
+cv::Mat ReadAnyMat(Nodes& fs, const std::string& key, const std::filesystem::path& path) {
+  const cv::FileNode node = fs.Read(key);
   cv::Mat m;
   if (node.empty()) return m;
   if (node.isSeq()) {
@@ -131,8 +150,8 @@ cv::Mat ReadAnyMat(const cv::FileStorage& fs, const std::string& key,
   return m;
 }
 
-cv::Mat ReadMat(const cv::FileStorage& fs, const std::string& key,
-                const std::filesystem::path& path, int rows, int cols) {
+cv::Mat ReadMat(Nodes& fs, const std::string& key, const std::filesystem::path& path, int rows,
+                int cols) {
   cv::Mat m = ReadAnyMat(fs, key, path);
   SLSHADOW_THROW_IF(m.empty(), path.string(), ": ", key, ": missing");
   m.convertTo(m, CV_64F);
@@ -180,8 +199,7 @@ Rigid3d PoseFromRT(const cv::Mat& r, const cv::Mat& t) {
                  Eigen::Vector3d(t.at<double>(0), t.at<double>(1), t.at<double>(2)));
 }
 
-cv::Mat RotationMatrixOrRvec(const cv::FileStorage& fs, const std::string& key,
-                             const std::filesystem::path& path) {
+cv::Mat RotationMatrixOrRvec(Nodes& fs, const std::string& key, const std::filesystem::path& path) {
   cv::Mat m = ReadAnyMat(fs, key, path);
   SLSHADOW_THROW_IF(m.empty(), path.string(), ": ", key, ": missing");
   if (m.total() == 9) m = m.reshape(1, 3);
@@ -200,8 +218,7 @@ cv::Mat RotationMatrixOrRvec(const cv::FileStorage& fs, const std::string& key,
   return m;
 }
 
-cv::Mat ReadDist(const cv::FileStorage& fs, const std::string& key,
-                 const std::filesystem::path& path) {
+cv::Mat ReadDist(Nodes& fs, const std::string& key, const std::filesystem::path& path) {
   cv::Mat m = ReadAnyMat(fs, key, path);
   SLSHADOW_THROW_IF(m.empty(), path.string(), ": ", key, ": missing");
   return m;
@@ -216,7 +233,7 @@ int CheckedInt(double v, const std::filesystem::path& path, const std::string& k
 }
 
 // An image size node: [width, height] (cv::Size) or a matrix of two numbers; nullopt if absent.
-std::optional<std::pair<int, int>> ReadSize(const cv::FileStorage& fs, const std::string& key,
+std::optional<std::pair<int, int>> ReadSize(Nodes& fs, const std::string& key,
                                             const std::filesystem::path& path) {
   if (key.empty() || fs[key].empty()) return std::nullopt;
   const cv::Mat m = ReadAnyMat(fs, key, path);
@@ -226,79 +243,170 @@ std::optional<std::pair<int, int>> ReadSize(const cv::FileStorage& fs, const std
                              CheckedInt(m.at<double>(1), path, key));
 }
 
-// "cam_K (3x3 matrix), dist (1x5 matrix), S ([2 numbers]), name (string)": the top-level nodes.
-std::string DescribeNodes(const cv::FileStorage& fs) {
-  std::string out;
-  const cv::FileNode root = fs.root();
-  for (const cv::FileNode& n : root) {
-    std::string what;
-    if (n.isSeq()) {
-      what = internal::Concat("[", n.size(), " values]");
-    } else if (n.isMap()) {
-      what = !n["rows"].empty() && !n["cols"].empty()
-                 ? internal::Concat(static_cast<int>(n["rows"]), "x", static_cast<int>(n["cols"]),
-                                    " matrix")
-                 : std::string("mapping");
-    } else {
-      what = n.isString() ? "string" : "number";
-    }
-    out = internal::Concat(out, out.empty() ? "" : ", ", n.name(), " (", what, ")");
+// "cam_K (3x3 matrix)", "S ([2 values])", "name (string)": a top-level node and its shape.
+std::string DescribeNode(const cv::FileNode& n) {
+  std::string what;
+  if (n.isSeq()) {
+    what = internal::Concat("[", n.size(), " values]");
+  } else if (n.isMap()) {
+    what = !n["rows"].empty() && !n["cols"].empty()
+               ? internal::Concat(static_cast<int>(n["rows"]), "x", static_cast<int>(n["cols"]),
+                                  " matrix")
+               : std::string("mapping");
+  } else {
+    what = n.isString() ? "string" : "number";
   }
+  return internal::Concat(n.name(), " (", what, ")");
+}
+
+// All top-level nodes, described: "cam_K (3x3 matrix), dist (1x5 matrix), ...".
+std::string DescribeNodes(const Nodes& fs) {
+  std::string out;
+  for (const cv::FileNode& n : fs.root())
+    out = internal::Concat(out, out.empty() ? "" : ", ", DescribeNode(n));
   return out.empty() ? "none" : out;
 }
 
 // The built-in two-camera layouts other than slshadow's / stereo_calib.cpp's.
-OpenCvNodeMap StructuredLightSampleLayout(const cv::FileStorage& fs) {
+OpenCvNodeMap StructuredLightSampleLayout(const Nodes& fs) {
   const std::string d1 = fs["cam1_distorsion"].empty() ? "cam1_distortion" : "cam1_distorsion";
   const std::string d2 = fs["cam2_distorsion"].empty() ? "cam2_distortion" : "cam2_distorsion";
-  return {"cam1_intrinsics", d1, "cam2_intrinsics", d2, "R", "T", "cam1_size", "cam2_size"};
+  OpenCvNodeMap map;
+  map.k1 = "cam1_intrinsics";
+  map.d1 = d1;
+  map.k2 = "cam2_intrinsics";
+  map.d2 = d2;
+  map.r = "R";
+  map.t = "T";
+  map.size1 = "cam1_size";
+  map.size2 = "cam2_size";
+  return map;
 }
-OpenCvNodeMap BinocularLayout() { return {"M1", "D1", "M2", "D2", "Rlr", "Tlr", "S", ""}; }
 
-// One or two cameras from explicitly named nodes.
-Rig ReadMappedLayout(const cv::FileStorage& fs, const OpenCvNodeMap& map,
-                     const std::filesystem::path& path, int default_width, int default_height) {
+// The binocular layout: M1 D1, and M2 D2 with Rlr Tlr (left to right) when present, both cameras'
+// size in S; with Rlp Tlp (left to projector), the projector is the one matrix M<k> (k = 2..9,
+// with its D<k>) that is not a camera's. Throws, naming the candidates, when there are several.
+OpenCvNodeMap BinocularLayout(const Nodes& fs, const std::filesystem::path& path) {
+  OpenCvNodeMap map;
+  map.k1 = "M1";
+  map.d1 = "D1";
+  map.size1 = "S";
+  const bool second = !fs["Rlr"].empty();
+  if (second) {
+    map.k2 = "M2";
+    map.d2 = "D2";
+    map.r = "Rlr";
+    map.t = "Tlr";
+  }
+  if (!fs["Rlp"].empty() && !fs["Tlp"].empty()) {
+    std::vector<int> candidates;
+    for (int k = second ? 3 : 2; k <= 9; ++k) {
+      const std::string s = std::to_string(k);
+      if (!fs["M" + s].empty() && !fs["D" + s].empty()) candidates.push_back(k);
+    }
+    std::string names;
+    for (int k : candidates) names += internal::Concat(names.empty() ? "" : ", ", "M", k);
+    SLSHADOW_THROW_IF(candidates.size() > 1, path.string(),
+                      ": Rlp/Tlp give a projector pose, but which matrix is the projector's? (",
+                      names, "); name it with --map KP=NODE,DP=NODE,RP=Rlp,TP=Tlp");
+    if (candidates.size() == 1) {
+      map.kp = "M" + std::to_string(candidates[0]);
+      map.dp = "D" + std::to_string(candidates[0]);
+      map.rp = "Rlp";
+      map.tp = "Tlp";
+    }
+  }
+  return map;
+}
+
+// One or two cameras, and a projector, from explicitly named nodes.
+Rig ReadMappedLayout(Nodes& fs, const OpenCvNodeMap& map, const std::filesystem::path& path,
+                     int default_width, int default_height, int projector_width,
+                     int projector_height) {
   const std::string file = path.string();
   SLSHADOW_THROW_IF(map.k1.empty() || map.d1.empty(), file, ": the node map needs K1 and D1");
   SLSHADOW_THROW_IF(map.k2.empty() != map.d2.empty(), file,
                     ": the node map needs both K2 and D2, or neither");
   SLSHADOW_THROW_IF(!map.k2.empty() && (map.r.empty() || map.t.empty()), file,
                     ": the node map names a second camera (K2) but not its pose (R and T)");
-  for (const std::string* key :
-       {&map.k1, &map.d1, &map.k2, &map.d2, &map.r, &map.t, &map.size1, &map.size2}) {
+  SLSHADOW_THROW_IF(map.kp.empty() != map.dp.empty(), file,
+                    ": the node map needs both KP and DP (the projector), or neither");
+  SLSHADOW_THROW_IF(!map.kp.empty() && (map.rp.empty() || map.tp.empty()), file,
+                    ": the node map names a projector (KP) but not its pose (RP and TP)");
+  for (const std::string* key : {&map.k1, &map.d1, &map.k2, &map.d2, &map.r, &map.t, &map.size1,
+                                 &map.size2, &map.kp, &map.dp, &map.rp, &map.tp, &map.size_p}) {
     SLSHADOW_THROW_IF(!key->empty() && fs[*key].empty(), file, ": ", *key,
                       ": missing (nodes found: ", DescribeNodes(fs), ")");
   }
   const auto size1 = ReadSize(fs, map.size1, path);
   const auto size2 = ReadSize(fs, map.size2, path);
+  const auto size_p = ReadSize(fs, map.size_p, path);
   Rig rig;
   rig.name = path.stem().string();
   const auto device = [&](const std::string& name, const std::string& k, const std::string& d,
-                          const std::optional<std::pair<int, int>>& size) {
-    const int w = size ? size->first : default_width, h = size ? size->second : default_height;
+                          const std::optional<std::pair<int, int>>& size, bool is_projector) {
+    const int w = size ? size->first : is_projector ? projector_width : default_width;
+    const int h = size ? size->second : is_projector ? projector_height : default_height;
     SLSHADOW_THROW_IF(w <= 0 || h <= 0, file, ": ", k,
-                      ": no image size in the file; give it (e.g. --image-size)");
+                      is_projector ? ": no projector size in the file; give it (--projector-size)"
+                                   : ": no image size in the file; give it (e.g. --image-size)");
     RigDevice dev;
     dev.name = name;
     dev.model =
         ModelFromMats(ReadMat(fs, k, path, 3, 3), ReadDist(fs, d, path), w, h, file + ": " + k);
     return dev;
   };
-  rig.cameras.push_back(device(map.k2.empty() ? "camera" : "camera1", map.k1, map.d1, size1));
+  rig.cameras.push_back(
+      device(map.k2.empty() ? "camera" : "camera1", map.k1, map.d1, size1, false));
   if (!map.k2.empty()) {
-    RigDevice second = device("camera2", map.k2, map.d2, size2 ? size2 : size1);
+    RigDevice second = device("camera2", map.k2, map.d2, size2 ? size2 : size1, false);
     second.cam_from_rig =
         PoseFromRT(RotationMatrixOrRvec(fs, map.r, path), ReadMat(fs, map.t, path, 3, 1));
     rig.cameras.push_back(second);
   }
+  if (!map.kp.empty()) {
+    RigDevice projector = device("projector", map.kp, map.dp, size_p, true);
+    projector.cam_from_rig =
+        PoseFromRT(RotationMatrixOrRvec(fs, map.rp, path), ReadMat(fs, map.tp, path, 3, 1));
+    rig.projector = projector;
+  }
   return rig;
 }
 
-int IntOr(const cv::FileStorage& fs, const std::string& key, int fallback,
-          const std::filesystem::path& path) {
-  const cv::FileNode n = fs[key];
-  if (n.empty()) return fallback;
-  return CheckedInt(static_cast<double>(n), path, key);
+int IntOr(Nodes& fs, const std::string& key, int fallback, const std::filesystem::path& path) {
+  if (fs[key].empty()) return fallback;
+  return CheckedInt(static_cast<double>(fs.Read(key)), path, key);
+}
+
+// The depth along the first camera's axis of the point where the rays through the image centres
+// of the first camera and of the other device (the projector, else the second camera) come
+// closest (the midpoint of the shortest segment between them); nullopt when the rig has one
+// device, the rays are parallel within 0.01 degree, or they come closest behind either device.
+std::optional<double> CentralRaysDepthMm(const Rig& rig) {
+  if (rig.cameras.empty()) return std::nullopt;
+  const RigDevice& a = rig.cameras[0];
+  const RigDevice* b = rig.projector            ? &*rig.projector
+                       : rig.cameras.size() > 1 ? &rig.cameras[1]
+                                                : nullptr;
+  if (b == nullptr) return std::nullopt;
+  const auto central_ray = [](const RigDevice& d) -> std::optional<Eigen::Vector3d> {
+    const auto ray =
+        d.model.Unproject(Eigen::Vector2d(0.5 * (d.model.width - 1), 0.5 * (d.model.height - 1)));
+    if (!ray) return std::nullopt;
+    return (d.cam_from_rig.rotation.conjugate() * *ray).normalized();
+  };
+  const auto da = central_ray(a), db = central_ray(*b);
+  if (!da || !db) return std::nullopt;
+  const Eigen::Vector3d ca = a.CenterInRig(), cb = b->CenterInRig(), w = ca - cb;
+  const double k = da->dot(*db), d = da->dot(w), e = db->dot(w);
+  const double denom = 1 - k * k;
+  if (denom < std::pow(std::sin(0.01 * std::numbers::pi / 180), 2)) return std::nullopt;
+  const double s = (k * e - d) / denom, t = (e - k * d) / denom;
+  if (!(s > 0) || !(t > 0)) return std::nullopt;
+  const Eigen::Vector3d midpoint = 0.5 * ((ca + s * *da) + (cb + t * *db));
+  const double depth = (a.cam_from_rig * midpoint).z();
+  if (!(depth > 0) || !std::isfinite(depth)) return std::nullopt;
+  return depth;
 }
 
 }  // namespace
@@ -584,7 +692,21 @@ void WriteOpenCvCalibration(const Rig& rig, const std::filesystem::path& path) {
   });
 }
 
+void OpenCvImportOptions::Check() const {
+  SLSHADOW_THROW_IF((image_width > 0) != (image_height > 0) || image_width < 0 || image_height < 0,
+                    "OpenCV import: image size: both positive or both 0 (got ", image_width, "x",
+                    image_height, ")");
+  SLSHADOW_THROW_IF((projector_width > 0) != (projector_height > 0) || projector_width < 0 ||
+                        projector_height < 0,
+                    "OpenCV import: projector size: both positive or both 0 (got ", projector_width,
+                    "x", projector_height, ")");
+  SLSHADOW_THROW_IF(!std::isfinite(working_distance_mm) || working_distance_mm < 0,
+                    "OpenCV import: working distance: must be > 0 mm, or 0 to derive it (got ",
+                    working_distance_mm, ")");
+}
+
 OpenCvNodeMap ParseOpenCvNodeMap(const std::string& text) {
+  constexpr const char* kKeys = "K1 D1 K2 D2 R T size1 size2 KP DP RP TP sizeP";
   OpenCvNodeMap map;
   size_t start = 0;
   while (start <= text.size()) {
@@ -594,8 +716,7 @@ OpenCvNodeMap ParseOpenCvNodeMap(const std::string& text) {
     if (entry.empty()) continue;
     const size_t eq = entry.find('=');
     SLSHADOW_THROW_IF(eq == std::string::npos || eq == 0 || eq + 1 == entry.size(),
-                      "node map: entry '", entry,
-                      "' is not KEY=NODE (keys: K1 D1 K2 D2 R T size1 size2)");
+                      "node map: entry '", entry, "' is not KEY=NODE (keys: ", kKeys, ")");
     const std::string key = entry.substr(0, eq), node = entry.substr(eq + 1);
     std::string* slot = key == "K1"      ? &map.k1
                         : key == "D1"    ? &map.d1
@@ -605,9 +726,14 @@ OpenCvNodeMap ParseOpenCvNodeMap(const std::string& text) {
                         : key == "T"     ? &map.t
                         : key == "size1" ? &map.size1
                         : key == "size2" ? &map.size2
+                        : key == "KP"    ? &map.kp
+                        : key == "DP"    ? &map.dp
+                        : key == "RP"    ? &map.rp
+                        : key == "TP"    ? &map.tp
+                        : key == "sizeP" ? &map.size_p
                                          : nullptr;
     SLSHADOW_THROW_IF(slot == nullptr, "node map: unknown key '", key, "' in '", entry,
-                      "' (keys: K1 D1 K2 D2 R T size1 size2)");
+                      "' (keys: ", kKeys, ")");
     *slot = node;
   }
   SLSHADOW_THROW_IF(map.k1.empty() || map.d1.empty(), "node map: '", text,
@@ -668,11 +794,18 @@ nlohmann::ordered_json YamlToOpenCvJson(const YAML::Node& node, const std::strin
   SLSHADOW_THROW(file, ": ", name, ": empty value");
 }
 
+// The rig of one of the known layouts (or of `node_map`), read from `fs`.
+Rig ReadLayout(Nodes& fs, const std::filesystem::path& path, int default_width, int default_height,
+               int projector_width, int projector_height, const OpenCvNodeMap& node_map);
+
+// Opens `path` as ReadOpenCvCalibration describes and reads its rig; `unused` gets the top-level
+// nodes the rig was not read from.
 Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_width,
                                int default_height, int projector_width, int projector_height,
-                               const OpenCvNodeMap& node_map) {
+                               const OpenCvNodeMap& node_map, std::vector<std::string>* unused) {
   SLSHADOW_THROW_IF(!std::filesystem::exists(path), path.string(), ": file not found");
-  cv::FileStorage fs;
+  cv::FileStorage storage;
+  cv::FileStorage& fs = storage;
   bool read_as_yaml = false;
   {
     // OpenCV 4.6's readers can loop forever on a bare carriage return and crash on a NUL byte
@@ -718,10 +851,27 @@ Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_wi
     }
   }
   SLSHADOW_THROW_IF(!fs.isOpened(), path.string(), ": cannot open as an OpenCV FileStorage file");
+  Nodes nodes(storage);
+  Rig rig = ReadLayout(nodes, path, default_width, default_height, projector_width,
+                       projector_height, node_map);
+  if (const auto depth = CentralRaysDepthMm(rig)) rig.working_distance_mm = *depth;
+  if (unused != nullptr) {
+    for (const cv::FileNode& n : nodes.root()) {
+      if (!nodes.WasRead(n.name())) unused->push_back(DescribeNode(n));
+    }
+  }
+  return rig;
+}
+
+Rig ReadLayout(Nodes& fs, const std::filesystem::path& path, int default_width, int default_height,
+               int projector_width, int projector_height, const OpenCvNodeMap& node_map) {
   const std::string file = path.string();
   Rig rig;
   rig.name = path.stem().string();
-  if (!node_map.Empty()) return ReadMappedLayout(fs, node_map, path, default_width, default_height);
+  if (!node_map.Empty()) {
+    return ReadMappedLayout(fs, node_map, path, default_width, default_height, projector_width,
+                            projector_height);
+  }
   auto size_or_throw = [&](int w, int h, const std::string& what) {
     SLSHADOW_THROW_IF(w <= 0 || h <= 0, file, ": ", what,
                       ": no image size in the file; give it (e.g. --image-size)");
@@ -732,7 +882,8 @@ Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_wi
         size_or_throw(IntOr(fs, "image_width", default_width, path),
                       IntOr(fs, "image_height", default_height, path), "camera_matrix");
     RigDevice d;
-    d.name = fs["device_name"].empty() ? "camera" : static_cast<std::string>(fs["device_name"]);
+    d.name =
+        fs["device_name"].empty() ? "camera" : static_cast<std::string>(fs.Read("device_name"));
     d.model = ModelFromMats(ReadMat(fs, "camera_matrix", path, 3, 3),
                             ReadDist(fs, "distortion_coefficients", path), w, h,
                             file + ": camera_matrix");
@@ -743,7 +894,7 @@ Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_wi
     int cam_w = default_width, cam_h = default_height;
     if (!fs["img_shape"].empty()) {
       cv::Mat shape;
-      fs["img_shape"] >> shape;
+      fs.Read("img_shape") >> shape;
       shape.convertTo(shape, CV_64F);
       if (shape.total() >= 2) {
         cam_h = CheckedInt(shape.at<double>(0), path, "img_shape");
@@ -768,31 +919,36 @@ Rig ReadOpenCvCalibrationNodes(const std::filesystem::path& path, int default_wi
     rig.projector = proj;
     return rig;
   }
-  if (!fs["cam1_intrinsics"].empty())
+  if (!fs["cam1_intrinsics"].empty()) {
     return ReadMappedLayout(fs, StructuredLightSampleLayout(fs), path, default_width,
-                            default_height);
-  if (!fs["M1"].empty() && fs["R"].empty() && !fs["Rlr"].empty()) {
-    return ReadMappedLayout(fs, BinocularLayout(), path, default_width, default_height);
+                            default_height, projector_width, projector_height);
+  }
+  if (!fs["M1"].empty() && fs["R"].empty() && (!fs["Rlr"].empty() || !fs["Rlp"].empty())) {
+    return ReadMappedLayout(fs, BinocularLayout(fs, path), path, default_width, default_height,
+                            projector_width, projector_height);
   }
   SLSHADOW_THROW_IF(
       fs["M1"].empty(), file,
       ": no known calibration layout among the nodes found: ", DescribeNodes(fs),
       ". Known: camera_matrix (OpenCV calibration sample), M1/D1/M2/D2/R/T (stereo_calib), "
-      "M1/D1/M2/D2/Rlr/Tlr/S, cam1_intrinsics/cam1_distorsion/cam2_*/R/T, cam_int/proj_int "
-      "(procam); "
+      "M1/D1/M2/D2/Rlr/Tlr/S, M1/D1/M<k>/D<k>/Rlp/Tlp/S (camera, projector), "
+      "cam1_intrinsics/cam1_distorsion/cam2_*/R/T, cam_int/proj_int (procam); "
       "name the nodes of another layout with --map "
-      "K1=NODE,D1=NODE[,K2=..,D2=..,R=..,T=..,size1=..]");
+      "K1=NODE,D1=NODE[,K2=..,D2=..,R=..,T=..,size1=..,KP=..,DP=..,RP=..,TP=..,sizeP=..]");
   const int num = IntOr(fs, "num_devices", fs["M2"].empty() ? 1 : 2, path);
   const bool has_projector = IntOr(fs, "has_projector", 0, path) != 0;
+  // A camera without image_width_<i> / image_height_<i> takes the size in S, when the file has one.
+  const auto s_size = ReadSize(fs, "S", path);
   for (int i = 1; i <= num; ++i) {
     const std::string s = std::to_string(i);
     const bool is_proj = has_projector && i == num;
-    const auto [w, h] = size_or_throw(
-        IntOr(fs, "image_width_" + s, is_proj ? projector_width : default_width, path),
-        IntOr(fs, "image_height_" + s, is_proj ? projector_height : default_height, path), "M" + s);
+    const int fallback_w = is_proj ? projector_width : s_size ? s_size->first : default_width;
+    const int fallback_h = is_proj ? projector_height : s_size ? s_size->second : default_height;
+    const auto [w, h] = size_or_throw(IntOr(fs, "image_width_" + s, fallback_w, path),
+                                      IntOr(fs, "image_height_" + s, fallback_h, path), "M" + s);
     RigDevice d;
     d.name = fs["device_name_" + s].empty() ? (is_proj ? "projector" : "camera" + s)
-                                            : static_cast<std::string>(fs["device_name_" + s]);
+                                            : static_cast<std::string>(fs.Read("device_name_" + s));
     d.model = ModelFromMats(ReadMat(fs, "M" + s, path, 3, 3), ReadDist(fs, "D" + s, path), w, h,
                             file + ": M" + s);
     if (i > 1) {
@@ -818,11 +974,78 @@ Rig ReadOpenCvCalibration(const std::filesystem::path& path, int default_width, 
   // mapping, a string read as a matrix, ...): bad input, reported as such in one line.
   try {
     return ReadOpenCvCalibrationNodes(path, default_width, default_height, projector_width,
-                                      projector_height, node_map);
+                                      projector_height, node_map, nullptr);
   } catch (const cv::Exception& e) {
     SLSHADOW_THROW(path.string(), ": malformed OpenCV FileStorage content (", e.err, " in ", e.func,
                    ")");
   }
+}
+
+OpenCvImport ImportOpenCvCalibration(const std::filesystem::path& path,
+                                     const OpenCvImportOptions& options) {
+  options.Check();
+  const std::string file = path.string();
+  OpenCvImport out;
+  try {
+    out.rig = ReadOpenCvCalibrationNodes(path, options.image_width, options.image_height,
+                                         options.projector_width, options.projector_height,
+                                         options.node_map, &out.unused_nodes);
+  } catch (const cv::Exception& e) {
+    SLSHADOW_THROW(file, ": malformed OpenCV FileStorage content (", e.err, " in ", e.func, ")");
+  }
+  std::string unused;
+  for (const std::string& n : out.unused_nodes) unused += (unused.empty() ? "" : ", ") + n;
+  // A size option that the file contradicts, or a projector size with no projector, is refused:
+  // it would otherwise be ignored without a word. (A device whose size differs from the option
+  // took it from the file: the option is only the fallback.)
+  if (options.image_width > 0) {
+    for (const RigDevice& c : out.rig.cameras) {
+      SLSHADOW_THROW_IF(
+          c.model.width != options.image_width || c.model.height != options.image_height, file,
+          ": camera '", c.name, "' is ", c.model.width, "x", c.model.height,
+          " px in the file, but --image-size says ", options.image_width, "x",
+          options.image_height);
+    }
+  }
+  if (options.projector_width > 0) {
+    SLSHADOW_THROW_IF(!out.rig.projector, file, ": --projector-size ", options.projector_width, "x",
+                      options.projector_height,
+                      " given, but no projector was imported (nodes not "
+                      "read: ",
+                      unused.empty() ? std::string("none") : unused,
+                      "); name the projector's nodes with --map KP=..,DP=..,RP=..,TP=..");
+    const CameraModel& m = out.rig.projector->model;
+    SLSHADOW_THROW_IF(m.width != options.projector_width || m.height != options.projector_height,
+                      file, ": the projector is ", m.width, "x", m.height,
+                      " px in the file, but --projector-size says ", options.projector_width, "x",
+                      options.projector_height);
+  }
+  if (options.working_distance_mm > 0) {
+    out.rig.working_distance_mm = options.working_distance_mm;
+    out.working_distance_source = "given (--working-distance-mm)";
+  } else if (const auto depth = CentralRaysDepthMm(out.rig)) {
+    out.working_distance_source = internal::Concat(
+        "where the rays through the image centres of '", out.rig.cameras[0].name, "' and '",
+        out.rig.projector ? out.rig.projector->name : out.rig.cameras[1].name, "' come closest");
+  } else {
+    out.working_distance_source = "the default";
+    if (out.rig.projector || out.rig.cameras.size() > 1) {
+      out.warnings.push_back(internal::Concat(
+          "warning: working distance: the rays through the image centres of the first camera and ",
+          out.rig.projector ? "the projector" : "the second camera",
+          " are parallel or meet behind a device; ", out.rig.working_distance_mm,
+          " mm assumed (rig show reports overlap there): give --working-distance-mm"));
+    }
+  }
+  if (!out.unused_nodes.empty()) {
+    out.warnings.push_back(internal::Concat(
+        "warning: ", file, ": ", out.unused_nodes.size(), " node",
+        out.unused_nodes.size() == 1 ? "" : "s", " not imported: ", unused,
+        " (name a node with --map if it belongs to the rig: keys K1 D1 K2 D2 R T size1 size2 KP "
+        "DP RP TP sizeP)"));
+  }
+  out.rig.Check(file);
+  return out;
 }
 
 }  // namespace slshadow

@@ -239,36 +239,65 @@ PairResult RefinePair(const CameraModel& model_a, const CameraModel& model_b_in,
   return out;
 }
 
-std::string Message(const PairResult& r, const std::string& second, const RefineOptions& options) {
+// The report of a refinement, part by part (the figures first, then the warnings and notes).
+std::vector<std::string> MessageParts(const PairResult& r, const std::string& second,
+                                      const RefineOptions& options) {
   char msg[600];
   std::snprintf(
       msg, sizeof(msg),
       "epipolar residual median %.3f -> %.3f px, p95 %.3f -> %.3f px (%d correspondences); %s "
       "rotated "
-      "%.4f deg, baseline direction turned %.4f deg, baseline %.3f mm%s%s",
+      "%.4f deg, baseline direction turned %.4f deg, baseline %.3f mm%s",
       r.before.median_px, r.after.median_px, r.before.p95_px, r.after.p95_px, r.after.count,
       second.c_str(), r.rotation_change_rad * 180 / M_PI, r.direction_change_rad * 180 / M_PI,
       r.b_from_a.translation.norm(),
-      options.refine_focal ? (", focal length x" + std::to_string(r.focal_scale)).c_str() : "",
-      r.before.median_px > options.warn_median_px
-          ? "; WARNING: before refinement the calibration did not fit this scan (bumped rig, "
-            "swapped devices or wrong file?)"
-          : "");
-  std::string out = msg;
-  if (r.rotation_change_rad > 1.0 * M_PI / 180 || r.direction_change_rad > 5.0 * M_PI / 180) {
-    out +=
-        "; WARNING: the correction is far larger than a bump (swapped camera names or a rig file "
-        "of another rig?): "
-        "check before trusting the refined rig";
+      options.refine_focal ? (", focal length x" + std::to_string(r.focal_scale)).c_str() : "");
+  std::vector<std::string> parts = {msg};
+  if (r.before.median_px > options.warn_median_px) {
+    parts.push_back(
+        "WARNING: before refinement the calibration did not fit this scan (bumped rig, swapped "
+        "devices or wrong file?)");
   }
+  if (r.after.median_px > options.warn_median_px) {
+    // What the refined parameters cannot absorb stays: a pose cannot stand in for a focal length.
+    std::snprintf(msg, sizeof(msg), "%.3f px (above %.3g px)", r.after.median_px,
+                  options.warn_median_px);
+    parts.push_back(
+        options.refine_focal
+            ? std::string("WARNING: after refinement of the pose and the focal length the median "
+                          "residual is still ") +
+                  msg + ": another intrinsic (principal point, distortion) is off; recalibrate " +
+                  second
+            : std::string("WARNING: after refinement of the pose the median residual is still ") +
+                  msg + ": the likely cause is the focal length of " + second +
+                  ", which a pose cannot absorb; run again with --refine-focal");
+  }
+  if (r.rotation_change_rad > 1.0 * M_PI / 180 || r.direction_change_rad > 5.0 * M_PI / 180) {
+    parts.push_back(
+        "WARNING: the correction is far larger than a bump (swapped camera names or a rig file "
+        "of another rig?): check before trusting the refined rig");
+  }
+  parts.push_back(r.scale_note);
   // Not the figure `slshadow reconstruct` quotes: its calibration check fits a smooth field to the
   // dense epipolar error and judges it against the capture's decode noise (issue 14: say so).
-  return out + "; " + r.scale_note +
-         "; (this is the Sampson residual of the sparse correspondences refine fits, px of " +
-         second +
-         "; `slshadow reconstruct` quotes another figure: the systematic part of the dense "
-         "epipolar error "
-         "against the capture's decode noise)";
+  parts.push_back(
+      "(this is the Sampson residual of the sparse correspondences refine fits, px of " + second +
+      "; `slshadow reconstruct` quotes another figure: the systematic part of the "
+      "dense epipolar error against the capture's decode noise)");
+  return parts;
+}
+
+// Accepted: the parts in one paragraph. Rejected: "rejected: why" first, then the figures of the
+// refused solution, one part a line.
+std::string Message(const PairResult& r, const std::string& second, const RefineOptions& options,
+                    const std::string& rejection) {
+  const std::vector<std::string> parts = MessageParts(r, second, options);
+  std::string out =
+      rejection.empty() ? "" : rejection + "\nthe refused solution (nothing written):";
+  for (size_t i = 0; i < parts.size(); ++i) {
+    out += rejection.empty() ? (i ? "; " : "") + parts[i] : "\n  " + parts[i];
+  }
+  return out;
 }
 
 // Why a refined pair is refused, or empty.
@@ -394,8 +423,7 @@ RefineResult PairToResult(const PairResult& p, const Rig& rig, DeviceB device_b,
   out.scale_verified = p.scale_verified;
   out.rejection = Rejection(p, options);
   out.rejected = !out.rejection.empty();
-  out.message = Message(p, b_label, options);
-  if (out.rejected) out.message += "; " + out.rejection;
+  out.message = Message(p, b_label, options, out.rejection);
   (void)initial;
   return out;
 }

@@ -100,7 +100,10 @@ struct RefineResult {
   // `message`; `rig` must not be used.
   bool rejected = false;
   std::string rejection;
-  std::string message;  // the report for the user (one paragraph)
+  // The report for the user: accepted, one paragraph (figures, warnings, notes); rejected,
+  // `rejection` ("rejected: why") on the first line, then the refused solution's figures and
+  // notes, one a line.
+  std::string message;
 };
 
 // Refines the projector's pose relative to camera `camera` (throws slshadow::Error when the rig

@@ -4,6 +4,7 @@
 // unwrapping and status loops are branch-free (selects) under `#pragma omp simd`
 // (-fopenmp-simd, -fno-trapping-math let GCC if-convert the float compares).
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -489,16 +490,23 @@ class Decoder {
       PhaseRow<T>(frames.data(), spec_.phase_steps, standard_phase_, sin_.data(), cos_.data(),
                   width, s.sum_s.data(), s.sum_c.data(), s.cycles[0].data(), s.modulation[0].data(),
                   maxv);
-      GrayRows(rows, a, 0, s, frames);
+      GrayRows(rows, a, spec_.FirstGrayCode(), s, frames);
       const int nbits = spec_.GrayBits(a);
-      GrayAxis<T, false>(frames.data(), nbits, width, s.code[a].data(), s.min1.data(),
-                         s.min2.data(), s.min_bit.data());
       const uint16_t* __restrict h = s.code[a].data();
       const float* __restrict f = s.cycles[0].data();
       const float* __restrict mod = s.modulation[0].data();
       float* __restrict coord = s.coord[a].data();
       const float period = static_cast<float>(spec_.period_px);
       const float lo = -1.0f, hi = static_cast<float>(spec_.AxisSize(a));
+      if (spec_.gray_code == GrayCodeVariant::kShiftedOnly) {
+        GrayAxis<T, true>(frames.data(), nbits, width, s.code[a].data(), s.min1.data(),
+                          s.min2.data(), s.min_bit.data());
+        ShiftedOnlyUnwrap<T>(a, frames.data(), h, f, mod, s.min1.data(), s.min2.data(),
+                             s.min_bit.data(), width, coord, flags, quality);
+        continue;
+      }
+      GrayAxis<T, false>(frames.data(), nbits, width, s.code[a].data(), s.min1.data(),
+                         s.min2.data(), s.min_bit.data());
       if (spec_.gray_code == GrayCodeVariant::kShifted) {
         GrayRows(rows, a, 1, s, frames);
         GrayAxis<T, false>(frames.data(), nbits, width, s.code_b.data(), s.min1_b.data(),
@@ -548,6 +556,70 @@ class Decoder {
     }
 #pragma omp simd
     for (int x = 0; x < width; ++x) flags[x] |= maxv[x] >= levels_.saturation ? kFlagSaturated : 0;
+  }
+
+  // Unwrapping with the shifted code k2 = floor(x / P + 1/2) alone. Near the phase wraps (phi < 1/4
+  // or > 3/4) k2 is read a quarter period from its edges: k = k2, or k2 - 1 just before a wrap.
+  // In the middle of a period the pixel is near an edge of k2 (between codes m - 1 and m, at
+  // projector coordinate e(m) = ceil((m - 1/2) P) - 1/2, where the generated stripes change), and
+  // k = m - 1 on both sides of it, so what is needed is which edge, not which side:
+  //   - the Gray bit that toggles at the edge (ctz(m)) is weak near it, while every other bit is
+  //     at least 3/4 of a period from its own edges. Pattern / inverse pairs have one full
+  //     contrast in either state: the edge whose bit is the clearly weaker (below 3/4) of the two
+  //     candidates' (ctz(k2) below k2, ctz(k2 + 1) above) is the one. Bits without inverse are
+  //     compared with a reference whose contrast differs between the states: the edge is the one
+  //     of the weakest bit when it is below half the second weakest;
+  //   - otherwise the code is read clearly and the phase says the side: of the two candidates
+  //     x = (k2 + phi) P (below e(k2 + 1)) and x - P (above e(k2)), the one farther inside.
+  // Low contrast then looks at the second-smallest bit contrast where the smallest is one of the
+  // two candidates' (the weak edge bit is expected), else at the smallest.
+  template <typename T>
+  void ShiftedOnlyUnwrap(int a, const T* const* gray, const uint16_t* h, const float* f,
+                         const float* mod, const uint16_t* min1, const uint16_t* min2,
+                         const uint16_t* min_bit, int width, float* coord, uint8_t* flags,
+                         float* quality) const {
+    const double period = spec_.period_px;
+    const int nbits = spec_.GrayBits(a);
+    const auto k2_max = static_cast<int32_t>(spec_.GrayValue(1, spec_.AxisSize(a) - 1));
+    const float lo = -1.0f, hi = static_cast<float>(spec_.AxisSize(a));
+    const auto edge = [&](int32_t m) { return std::ceil((m - 0.5) * period) - 0.5; };
+    // |pattern - inverse| of Gray bit `bit` at pixel x; no such bit: larger than any contrast.
+    const auto contrast_of = [&](int bit, int x) -> double {
+      if (bit < 0 || bit >= nbits) return std::numeric_limits<double>::infinity();
+      const size_t i = static_cast<size_t>(nbits - 1 - bit);
+      const int32_t p = gray[2 * i][x], q = gray[2 * i + 1][x];
+      return p > q ? p - q : q - p;
+    };
+    for (int x = 0; x < width; ++x) {
+      const int32_t k2 = h[x];
+      const float fx = f[x];
+      int32_t k = fx < 0.25f ? k2 : k2 - 1;
+      int32_t contrast = min1[x];
+      if (fx >= 0.25f && fx <= 0.75f) {
+        const double x_above = (k2 + static_cast<double>(fx)) * period;
+        const double inside_above = edge(k2 + 1) - x_above;
+        const double inside_below = (x_above - period) - edge(k2);
+        k = inside_above > inside_below ? k2 : k2 - 1;
+        const int below = k2 > 0 ? std::countr_zero(static_cast<uint32_t>(k2)) : -1;
+        const int above = std::countr_zero(static_cast<uint32_t>(k2) + 1u);
+        const int weakest = min_bit[x];
+        int near = 0;  // -1: the edge below k2, +1: the edge above, 0: undecided
+        if (spec_.gray_inverse) {
+          const double c_below = contrast_of(below, x), c_above = contrast_of(above, x);
+          near = c_below < 0.75 * c_above ? -1 : c_above < 0.75 * c_below ? 1 : 0;
+        } else if (2 * int32_t{min1[x]} < int32_t{min2[x]}) {
+          near = weakest == below ? -1 : weakest == above ? 1 : 0;
+        }
+        if (near != 0) k = near < 0 ? k2 - 1 : k2;
+        if (weakest == below || weakest == above) contrast = min2[x];
+      }
+      const float xc = (static_cast<float>(k) + fx) * static_cast<float>(period);
+      coord[x] = xc;
+      const bool bad = (k2 > k2_max) | (xc < lo) | (xc > hi);
+      flags[x] |= (bad ? kFlagCodeError : 0) | (2.0f * mod[x] < levels_.shadow ? kFlagShadow : 0) |
+                  (contrast < levels_.contrast ? kFlagLowContrast : 0);
+      quality[x] = mod[x] < quality[x] ? mod[x] : quality[x];
+    }
   }
 
   template <typename T>

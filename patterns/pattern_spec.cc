@@ -6,6 +6,7 @@
 
 #include "core/config.h"
 #include "core/error.h"
+#include "core/rig.h"
 
 namespace slshadow {
 namespace {
@@ -42,7 +43,23 @@ PatternKind PatternKindFromString(const std::string& name) {
 }
 
 std::string ToString(GrayCodeVariant variant) {
-  return variant == GrayCodeVariant::kShifted ? "shifted" : "complementary";
+  switch (variant) {
+    case GrayCodeVariant::kComplementary:
+      return "complementary";
+    case GrayCodeVariant::kShifted:
+      return "shifted";
+    case GrayCodeVariant::kShiftedOnly:
+      return "shifted_only";
+  }
+  return "unknown";
+}
+
+GrayCodeVariant GrayCodeVariantFromString(const std::string& name) {
+  if (name == "complementary") return GrayCodeVariant::kComplementary;
+  if (name == "shifted") return GrayCodeVariant::kShifted;
+  if (name == "shifted_only") return GrayCodeVariant::kShiftedOnly;
+  SLSHADOW_THROW("pattern spec: gray_code: unknown Gray-code variant (got '", name,
+                 "'; expected complementary, shifted or shifted_only)");
 }
 
 std::string ToString(GrayReference reference) {
@@ -81,8 +98,8 @@ int PatternSpec::DerivedGrayBits(int axis) const {
       return BitsFor(size);
     case PatternKind::kPhaseShift: {
       // The largest code value (at the last pixel c = S - 1), plus one.
-      const auto max_value =
-          static_cast<int64_t>(GrayValue(gray_code == GrayCodeVariant::kShifted ? 1 : 0, size - 1));
+      const auto max_value = static_cast<int64_t>(
+          GrayValue(gray_code == GrayCodeVariant::kComplementary ? 0 : 1, size - 1));
       return BitsFor(max_value + 1);
     }
     case PatternKind::kMultiFrequency:
@@ -99,6 +116,10 @@ int PatternSpec::GrayBits(int axis) const {
 int PatternSpec::GrayCodes() const {
   if (kind == PatternKind::kMultiFrequency) return 0;
   return kind == PatternKind::kPhaseShift && gray_code == GrayCodeVariant::kShifted ? 2 : 1;
+}
+
+int PatternSpec::FirstGrayCode() const {
+  return kind == PatternKind::kPhaseShift && gray_code == GrayCodeVariant::kShiftedOnly ? 1 : 0;
 }
 
 GrayReference PatternSpec::ResolvedGrayReference() const {
@@ -133,7 +154,7 @@ std::vector<double> PatternSpec::PeriodsPx() const {
 std::vector<FrameInfo> PatternSpec::DefaultFrames() const {
   std::vector<FrameInfo> frames;
   const auto add_gray = [&](int axis) {
-    for (int code = 0; code < GrayCodes(); ++code) {
+    for (int code = FirstGrayCode(); code < FirstGrayCode() + GrayCodes(); ++code) {
       for (int bit = GrayBits(axis) - 1; bit >= 0; --bit) {
         frames.push_back({FrameRole::kGrayBit, axis, bit, 0, 0, code});
         if (gray_inverse) frames.push_back({FrameRole::kGrayBitInverse, axis, bit, 0, 0, code});
@@ -389,10 +410,12 @@ PatternSpec PatternSpecFromConfig(const ConfigNode& root) {
   }
   if (root.Has("gray_code")) {
     const std::string name = root["gray_code"].AsString();
-    if (name == "shifted") {
-      spec.gray_code = GrayCodeVariant::kShifted;
-    } else if (name != "complementary") {
-      root["gray_code"].Fail("unknown Gray-code variant (known: complementary, shifted)");
+    try {
+      spec.gray_code = GrayCodeVariantFromString(name);
+    } catch (const Error&) {
+      root["gray_code"].Fail(
+          internal::Concat("unknown Gray-code variant (got '", name,
+                           "'; expected complementary, shifted or shifted_only)"));
     }
   }
   if (root.Has("frame_order")) {
@@ -443,6 +466,16 @@ nlohmann::json PatternSpecToJson(const PatternSpec& spec) {
 
 PatternSpec LoadPatternSpec(const std::filesystem::path& yaml_or_json) {
   return PatternSpecFromConfig(ConfigNode::LoadFile(yaml_or_json));
+}
+
+void CheckProjectorSize(const Rig& rig, const PatternSpec& spec, const std::string& spec_what,
+                        const std::string& rig_what) {
+  if (!rig.projector) return;
+  const CameraModel& m = rig.projector->model;
+  SLSHADOW_THROW_IF(m.width != spec.projector_width || m.height != spec.projector_height, spec_what,
+                    ": the pattern spec codes a ", spec.projector_width, "x", spec.projector_height,
+                    " projector, but the rig's projector '", rig.projector->name, "' is ", m.width,
+                    "x", m.height, " px (", rig_what, "): a spec or a rig of another projector?");
 }
 
 }  // namespace slshadow

@@ -24,6 +24,7 @@
 //                          of the white and black frames, or of the axis' phase frames.
 //   gray_code = kShifted   (phase shift) two Gray codes of the period index, k1 = floor(x / P)
 //                          and k2 = floor(x / P + 1/2), instead of the complementary one.
+//   gray_code = kShiftedOnly  (phase shift) the shifted code k2 alone.
 //   gray_bits              more Gray bits than the axis needs (the extra high bits are 0).
 //   white_black            (phase shift) an all-white and an all-black frame first.
 //   phase_offset_rad, phase_direction: I_s = A + B cos(2 pi x / P + offset - d 2 pi s / N).
@@ -40,6 +41,7 @@
 namespace slshadow {
 
 class ConfigNode;
+struct Rig;
 
 enum class PatternKind {
   kGrayCode,        // Gray code with inverse pairs + white + black
@@ -66,9 +68,12 @@ struct FrameInfo {
 enum class GrayCodeVariant {
   kComplementary,  // one code of the half-period index h = floor(2 x / P): gray(floor(x / P)) plus
                    // one complementary bit whose edges lie half a period from the phase wraps
-  kShifted,  // two codes: k1 = floor(x / P) and the half-period shifted k2 = floor(x / P + 1/2)
+  kShifted,      // two codes: k1 = floor(x / P) and the half-period shifted k2 = floor(x / P + 1/2)
+  kShiftedOnly,  // the shifted code k2 = floor(x / P + 1/2) alone (no frames of k1)
 };
-std::string ToString(GrayCodeVariant variant);  // "complementary", "shifted"
+std::string ToString(GrayCodeVariant variant);  // "complementary", "shifted", "shifted_only"
+// Throws slshadow::Error naming the value and the accepted names.
+GrayCodeVariant GrayCodeVariantFromString(const std::string& name);
 
 // What a Gray bit without an inverse frame is compared with.
 enum class GrayReference {
@@ -117,11 +122,14 @@ struct PatternSpec {
   bool Codes(int axis) const { return axis == 0 ? code_x : code_y; }
   // Gray-code bits per coded axis (of each code): gray_bits when set, else derived: ceil(log2 S)
   // for kGrayCode; for kPhaseShift bits(floor(2 (S - 1) / P) + 1) (complementary) or
-  // bits(floor((S - 1) / P + 1/2) + 1) (shifted); 0 for kMultiFrequency.
+  // bits(floor((S - 1) / P + 1/2) + 1) (shifted, shifted_only); 0 for kMultiFrequency.
   int GrayBits(int axis) const;
   int DerivedGrayBits(int axis) const;  // the derived count alone
   // Number of Gray codes per axis: 2 for kShifted phase shift, else 1 (0 for kMultiFrequency).
   int GrayCodes() const;
+  // FrameInfo::code of the first Gray code: 1 (the shifted code) for kShiftedOnly, else 0; the
+  // codes are FirstGrayCode() .. FirstGrayCode() + GrayCodes() - 1.
+  int FirstGrayCode() const;
   // The reference of bits without inverse (kAuto resolved); kAuto when bits have inverses.
   GrayReference ResolvedGrayReference() const;
   // Whether the sequence has an all-white and an all-black frame.
@@ -130,7 +138,8 @@ struct PatternSpec {
   // phase frame is A + B cos(2 pi x / P - PhaseStepAngle(s)).
   double PhaseStepAngle(int step) const;
   // The value a Gray code of `code` (0 or 1) carries at projector pixel c of an axis:
-  // c (kGrayCode), floor(2 c / P) (complementary), floor(c / P) / floor(c / P + 1/2) (shifted).
+  // c (kGrayCode), floor(2 c / P) (complementary), floor(c / P) / floor(c / P + 1/2) (shifted;
+  // shifted_only has code 1 only).
   uint32_t GrayValue(int code, int c) const;
   // Periods in projector pixels: {period_px}, periods_px, or empty for kGrayCode.
   std::vector<double> PeriodsPx() const;
@@ -155,5 +164,14 @@ PatternSpec PatternSpecFromConfig(const ConfigNode& node);
 nlohmann::json PatternSpecToJson(const PatternSpec& spec);
 // Loads a .yaml/.yml/.json file holding a spec (or a manifest with a "patterns" member).
 PatternSpec LoadPatternSpec(const std::filesystem::path& yaml_or_json);
+
+// The spec codes the rig's projector: throws slshadow::Error unless a rig with a projector has
+// one of exactly spec.projector_width x spec.projector_height pixels, naming both sizes, e.g.
+// "patterns.yaml: the pattern spec codes a 1920x1080 projector, but the rig's projector
+// 'projector' is 1280x800 px (rig.yaml): a spec or a rig of another projector?". `spec_what`
+// and `rig_what` name the sources (files). A rig without projector passes (stereo rigs). Called
+// by capture::Capture, CapturePatternSequence, SimulateScan and ReconstructFromImages.
+void CheckProjectorSize(const Rig& rig, const PatternSpec& spec, const std::string& spec_what,
+                        const std::string& rig_what);
 
 }  // namespace slshadow

@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <fstream>
+#include <functional>
+#include <numbers>
 
 #include <opencv2/core.hpp>
 
@@ -297,6 +299,231 @@ TEST_F(OpenCvLayouts, EachImportsToTheSameRig) {
   }
 }
 
+// A camera + projector rig as other tools write it: the projector under camera-like names (M4 D4),
+// its pose from the camera in Rlp Tlp, the camera's size in S. The projector stands 300 mm to the
+// right of the camera and is turned so that the two image centres meet 3000 mm ahead.
+class ProcamFiles : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    camera_ = CameraModel(1920, 1200, 2400, 2400, 959.5, 599.5, -0.05, 0.02, 0, 0, 0);
+    projector_ = CameraModel(1280, 800, 2000, 2000, 639.5, 399.5, 0.01, 0, 0, 0, 0);
+    const Eigen::Vector3d centre(300, 0, 0), target(0, 0, 3000);
+    const Eigen::Vector3d z = (target - centre).normalized(), y = Eigen::Vector3d::UnitY();
+    Eigen::Matrix3d cam_from_proj;
+    cam_from_proj << y.cross(z), y, z;
+    const Eigen::Matrix3d r = cam_from_proj.transpose();
+    proj_from_cam_ = Rigid3d(Eigen::Quaterniond(r), -(r * centre));
+    r_ = cv::Mat(3, 3, CV_64F);
+    t_ = cv::Mat(3, 1, CV_64F);
+    for (int a = 0; a < 3; ++a) {
+      for (int b = 0; b < 3; ++b) r_.at<double>(a, b) = r(a, b);
+      t_.at<double>(a) = proj_from_cam_.translation(a);
+    }
+  }
+  static cv::Mat K(const CameraModel& m) {
+    return (cv::Mat_<double>(3, 3) << m.fx(), 0, m.cx(), 0, m.fy(), m.cy(), 0, 0, 1);
+  }
+  static cv::Mat D(const CameraModel& m) {
+    return (cv::Mat_<double>(1, 5) << m.k1(), m.k2(), m.p1(), m.p2(), m.k3());
+  }
+  // The layout of the issue: M1 D1 (camera), M4 D4 (projector), Rlp Tlp, S; and a note.
+  std::filesystem::path WriteBinocularProcam(const std::string& name) const {
+    const std::filesystem::path path = tmp_ / name;
+    cv::FileStorage fs(path.string(), cv::FileStorage::WRITE);
+    fs << "calibration_time"
+       << "Mon Nov 30 10:00:00 2026";
+    fs << "M1" << K(camera_) << "D1" << D(camera_) << "M4" << K(projector_) << "D4" << D(projector_)
+       << "Rlp" << r_ << "Tlp" << t_ << "S" << cv::Size(camera_.width, camera_.height);
+    fs << "rms" << 0.21;
+    return path;
+  }
+  void ExpectProcam(const Rig& rig) const {
+    ASSERT_EQ(rig.cameras.size(), 1u);
+    ASSERT_TRUE(rig.projector);
+    ExpectSameModel(rig.cameras[0].model, camera_, 1e-12);
+    ExpectSameModel(rig.projector->model, projector_, 1e-12);
+    ExpectSamePose(rig.cameras[0].cam_from_rig, Rigid3d(), 1e-12);
+    ExpectSamePose(rig.projector->cam_from_rig, proj_from_cam_, 1e-9);
+    // The working distance is where the image centres' rays meet, not the default 500 mm.
+    EXPECT_NEAR(rig.working_distance_mm, 3000, 1e-6);
+  }
+  static std::string ErrorOf(const std::function<void()>& f) {
+    try {
+      f();
+    } catch (const Error& e) {
+      return e.what();
+    }
+    return "";
+  }
+  CameraModel camera_, projector_;
+  Rigid3d proj_from_cam_;
+  cv::Mat r_, t_;
+  testing::TempDir tmp_;
+};
+
+TEST_F(ProcamFiles, BinocularLayoutWithRlpImportsTheProjector) {
+  for (const std::string ext : {".yml", ".xml"}) {
+    SCOPED_TRACE(ext);
+    const std::filesystem::path path = WriteBinocularProcam("procam" + ext);
+    // The camera's size comes from S; the projector's, absent from the file, must be given.
+    EXPECT_NE(ErrorOf([&] {
+                ReadOpenCvCalibration(path);
+              }).find("M4: no projector size in the file; give it (--projector-size)"),
+              std::string::npos)
+        << ErrorOf([&] { ReadOpenCvCalibration(path); });
+    ExpectProcam(ReadOpenCvCalibration(path, 0, 0, 1280, 800));
+    OpenCvImportOptions options;
+    options.projector_width = 1280;
+    options.projector_height = 800;
+    const OpenCvImport imported = ImportOpenCvCalibration(path, options);
+    ExpectProcam(imported.rig);
+    // Every node the rig was not read from is listed, with its shape.
+    ASSERT_EQ(imported.unused_nodes.size(), 2u);
+    EXPECT_EQ(imported.unused_nodes[0], "calibration_time (string)");
+    EXPECT_EQ(imported.unused_nodes[1], "rms (number)");
+    ASSERT_EQ(imported.warnings.size(), 1u);
+    EXPECT_NE(imported.warnings[0].find("2 nodes not imported: calibration_time (string), rms "
+                                        "(number)"),
+              std::string::npos)
+        << imported.warnings[0];
+    EXPECT_NE(imported.working_distance_source.find("come closest"), std::string::npos);
+    // A projector size the file does not contradict but the option does: no, the file has none;
+    // an image size that contradicts S is refused, naming both.
+    options.image_width = 1280;
+    options.image_height = 1024;
+    EXPECT_NE(ErrorOf([&] { ImportOpenCvCalibration(path, options); })
+                  .find("camera 'camera' is 1920x1200 px in the file, but --image-size says "
+                        "1280x1024"),
+              std::string::npos)
+        << ErrorOf([&] { ImportOpenCvCalibration(path, options); });
+    // A working distance given wins.
+    options.image_width = options.image_height = 0;
+    options.working_distance_mm = 2500;
+    EXPECT_EQ(ImportOpenCvCalibration(path, options).rig.working_distance_mm, 2500);
+  }
+  // Two matrices that could be the projector's: refused, naming them and the way out.
+  {
+    cv::FileStorage fs((tmp_ / "two.yml").string(), cv::FileStorage::WRITE);
+    fs << "M1" << K(camera_) << "D1" << D(camera_) << "M3" << K(projector_) << "D3" << D(projector_)
+       << "M4" << K(projector_) << "D4" << D(projector_) << "Rlp" << r_ << "Tlp" << t_ << "S"
+       << cv::Size(camera_.width, camera_.height);
+  }
+  const std::string two =
+      ErrorOf([&] { ReadOpenCvCalibration(tmp_ / "two.yml", 0, 0, 1280, 800); });
+  EXPECT_NE(two.find("which matrix is the projector's? (M3, M4); name it with --map KP=NODE"),
+            std::string::npos)
+      << two;
+}
+
+TEST_F(ProcamFiles, NodeMapNamesTheProjector) {
+  const std::filesystem::path path = tmp_ / "own.yml";
+  {
+    cv::FileStorage fs(path.string(), cv::FileStorage::WRITE);
+    fs << "cam_K" << K(camera_) << "cam_D" << D(camera_) << "proj_K" << K(projector_) << "proj_D"
+       << D(projector_) << "R_cp" << r_ << "T_cp" << t_ << "cam_size"
+       << cv::Size(camera_.width, camera_.height) << "proj_size"
+       << cv::Size(projector_.width, projector_.height) << "reprojection_error" << 0.3;
+  }
+  OpenCvImportOptions options;
+  options.node_map = ParseOpenCvNodeMap(
+      "K1=cam_K,D1=cam_D,KP=proj_K,DP=proj_D,RP=R_cp,TP=T_cp,size1=cam_size,sizeP=proj_size");
+  EXPECT_EQ(options.node_map.kp, "proj_K");
+  EXPECT_EQ(options.node_map.size_p, "proj_size");
+  const OpenCvImport imported = ImportOpenCvCalibration(path, options);
+  ExpectProcam(imported.rig);  // the projector, not a second camera; both sizes from the file
+  EXPECT_EQ(imported.unused_nodes, std::vector<std::string>{"reprojection_error (number)"});
+  // --projector-size against the file's size: refused, naming both.
+  options.projector_width = 1920;
+  options.projector_height = 1080;
+  EXPECT_NE(ErrorOf([&] { ImportOpenCvCalibration(path, options); })
+                .find("the projector is 1280x800 px in the file, but --projector-size says "
+                      "1920x1080"),
+            std::string::npos)
+      << ErrorOf([&] { ImportOpenCvCalibration(path, options); });
+  // The projector's size from --projector-size when the map names none.
+  options.node_map.size_p.clear();
+  options.projector_width = 1280;
+  options.projector_height = 800;
+  ExpectProcam(ImportOpenCvCalibration(path, options).rig);
+  // A projector without its pose, or half a projector, is refused.
+  OpenCvNodeMap no_pose =
+      ParseOpenCvNodeMap("K1=cam_K,D1=cam_D,KP=proj_K,DP=proj_D,size1=cam_size");
+  EXPECT_NE(ErrorOf([&] {
+              ReadOpenCvCalibration(path, 0, 0, 1280, 800, no_pose);
+            }).find("names a projector (KP) but not its pose (RP and TP)"),
+            std::string::npos);
+  OpenCvNodeMap half = ParseOpenCvNodeMap("K1=cam_K,D1=cam_D,KP=proj_K,RP=R_cp,TP=T_cp");
+  EXPECT_NE(ErrorOf([&] {
+              ReadOpenCvCalibration(path, 0, 0, 1280, 800, half);
+            }).find("needs both KP and DP"),
+            std::string::npos);
+}
+
+TEST_F(ProcamFiles, SizesFromTheFileAndOptionsThatWouldBeIgnored) {
+  // stereo_calib's layout with one camera and its size in S: S is read, no --image-size needed.
+  {
+    cv::FileStorage fs((tmp_ / "one.yml").string(), cv::FileStorage::WRITE);
+    fs << "M1" << K(camera_) << "D1" << D(camera_) << "S"
+       << cv::Size(camera_.width, camera_.height);
+  }
+  const OpenCvImport one = ImportOpenCvCalibration(tmp_ / "one.yml", {});
+  ASSERT_EQ(one.rig.cameras.size(), 1u);
+  ExpectSameModel(one.rig.cameras[0].model, camera_, 1e-12);
+  EXPECT_TRUE(one.unused_nodes.empty());
+  EXPECT_TRUE(one.warnings.empty());  // one device: no working distance to derive, none to warn
+  // --projector-size with no projector in the import: refused, listing what was not read.
+  const std::filesystem::path stray = WriteBinocularProcam("stray.yml");
+  OpenCvImportOptions options;
+  options.projector_width = 1280;
+  options.projector_height = 800;
+  EXPECT_NE(ErrorOf([&] { ImportOpenCvCalibration(tmp_ / "one.yml", options); })
+                .find("--projector-size 1280x800 given, but no projector was imported (nodes not "
+                      "read: none)"),
+            std::string::npos)
+      << ErrorOf([&] { ImportOpenCvCalibration(tmp_ / "one.yml", options); });
+  // A map of the camera alone leaves the projector's nodes unread: they are named.
+  options.node_map = ParseOpenCvNodeMap("K1=M1,D1=D1,size1=S");
+  const std::string e = ErrorOf([&] { ImportOpenCvCalibration(stray, options); });
+  EXPECT_NE(e.find("no projector was imported (nodes not read: calibration_time (string), M4 (3x3 "
+                   "matrix), D4 (1x5 matrix), Rlp (3x3 matrix), Tlp (3x1 matrix), rms (number))"),
+            std::string::npos)
+      << e;
+  options.projector_width = options.projector_height = 0;
+  const OpenCvImport camera_only = ImportOpenCvCalibration(stray, options);
+  EXPECT_FALSE(camera_only.rig.projector);
+  ASSERT_EQ(camera_only.warnings.size(), 1u);
+  EXPECT_NE(camera_only.warnings[0].find("6 nodes not imported: calibration_time (string), M4"),
+            std::string::npos)
+      << camera_only.warnings[0];
+}
+
+TEST_F(ProcamFiles, WorkingDistanceOfParallelDevicesIsTheDefaultWithAWarning) {
+  // Two cameras looking the same way (parallel central rays): nothing to derive.
+  Rig parallel;
+  parallel.cameras.push_back({"camera1", camera_, Rigid3d()});
+  parallel.cameras.push_back(
+      {"camera2", camera_, Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(-120, 0, 0))});
+  WriteOpenCvCalibration(parallel, tmp_ / "parallel.yml");
+  const OpenCvImport imported = ImportOpenCvCalibration(tmp_ / "parallel.yml", {});
+  EXPECT_EQ(imported.rig.working_distance_mm, Rig().working_distance_mm);
+  ASSERT_EQ(imported.warnings.size(), 1u);
+  EXPECT_NE(imported.warnings[0].find("are parallel or meet behind a device; 500 mm assumed"),
+            std::string::npos)
+      << imported.warnings[0];
+  // Toed in by 2 degrees each, they meet: the working distance is the crossing's depth.
+  const double a = 2 * std::numbers::pi / 180;
+  Rig toed = parallel;
+  const Eigen::Quaterniond in(Eigen::AngleAxisd(-a, Eigen::Vector3d::UnitY()));  // axis to +x
+  const Eigen::Quaterniond out(Eigen::AngleAxisd(a, Eigen::Vector3d::UnitY()));  // axis to -x
+  toed.cameras[0].cam_from_rig = Rigid3d(in, Eigen::Vector3d::Zero());
+  toed.cameras[1].cam_from_rig = Rigid3d(out, -(out * Eigen::Vector3d(120, 0, 0)));
+  WriteOpenCvCalibration(toed, tmp_ / "toed.yml");
+  const OpenCvImport met = ImportOpenCvCalibration(tmp_ / "toed.yml", {});
+  EXPECT_TRUE(met.warnings.empty());
+  // The axes cross at x = 60 mm, 60 / sin(2 deg) along the first camera's axis.
+  EXPECT_NEAR(met.rig.working_distance_mm, 60 / std::sin(a), 1e-6);
+}
+
 TEST(CalibrationIo, NodeMapParsing) {
   const OpenCvNodeMap one = ParseOpenCvNodeMap("K1=cam_K,D1=cam_D,size1=wh");
   EXPECT_EQ(one.k1, "cam_K");
@@ -314,6 +541,8 @@ TEST(CalibrationIo, NodeMapParsing) {
   EXPECT_NE(message("K1=a,D1=b,Q=c").find("unknown key 'Q'"), std::string::npos);
   EXPECT_NE(message("K1=a,D1").find("entry 'D1' is not KEY=NODE"), std::string::npos);
   EXPECT_NE(message("K2=a,D2=b").find("must name at least K1 and D1"), std::string::npos);
+  EXPECT_NE(message("K1=a,D1=b,KQ=c").find("(keys: K1 D1 K2 D2 R T size1 size2 KP DP RP TP sizeP)"),
+            std::string::npos);
 }
 
 // Fuzzer findings in the OpenCV import (fuzz/regressions/opencv_calibration/), each now one clear

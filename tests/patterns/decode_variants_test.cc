@@ -1,5 +1,6 @@
-// The sequence variants of the pattern spec (Gray bits without inverse, shifted Gray code, phase
-// offset and direction, explicit frame order, extra Gray bits, one coded axis), each generated,
+// The sequence variants of the pattern spec (Gray bits without inverse, shifted Gray code, the
+// shifted code alone, phase offset and direction, explicit frame order, extra Gray bits, one coded
+// axis), each generated,
 // rendered through a known camera-to-projector map (patterns/synthetic.h, no simulator) and
 // decoded against that map. The oracle for "as accurate as today's codecs" is the default
 // phase_shift spec decoded from the same view: the same accuracy bounds and no fewer valid pixels.
@@ -108,6 +109,22 @@ std::vector<Variant> Variants() {
        [](PatternSpec& s) {
          s.gray_code = GrayCodeVariant::kShifted;
          s.gray_inverse = false;
+       }},
+      // The shifted code alone (no frames of floor(x / P)), with inverse pairs.
+      {"shifted_only", [](PatternSpec& s) { s.gray_code = GrayCodeVariant::kShiftedOnly; }},
+      // The sequence of issue 31: columns only, 4 phase steps, then the 5 bits of the shifted
+      // code without inverse (9 frames).
+      {"shifted_only_no_inverse_one_axis",
+       [](PatternSpec& s) {
+         s.code_y = false;
+         s.gray_code = GrayCodeVariant::kShiftedOnly;
+         s.gray_inverse = false;
+       }},
+      // With a phase offset (the code's edges stay where they are; the phase moves).
+      {"shifted_only_offset",
+       [](PatternSpec& s) {
+         s.gray_code = GrayCodeVariant::kShiftedOnly;
+         s.phase_offset_rad = 1.0;
        }},
       // The sequence of issue 14: cos(2 pi c / P - pi + 2 pi i / N), 12 steps, Gray bits without
       // inverse, one more Gray bit than the axis needs.

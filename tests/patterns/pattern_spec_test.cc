@@ -7,6 +7,7 @@
 #include "core/config.h"
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/rig.h"
 #include "tests/testing/temp_dir.h"
 
 namespace slshadow {
@@ -241,6 +242,80 @@ TEST(PatternSpec, VariantLayouts) {
   EXPECT_EQ(g.Frames().front().Name(), "gray_y_bit0_inv");
 }
 
+// The shifted code alone: one code per axis, its frames named as the shifted code of kShifted,
+// its bits those of floor(x / P + 1/2); the 9-frame sequence of issue 31 (columns, 4 steps, 5 bits
+// without inverse) is described, and reads back from JSON.
+TEST(PatternSpec, ShiftedOnlyLayout) {
+  PatternSpec p = Gray(400, 300);
+  p.kind = PatternKind::kPhaseShift;
+  p.period_px = 16;
+  p.code_y = false;
+  p.gray_inverse = false;
+  p.gray_code = GrayCodeVariant::kShiftedOnly;
+  p.Check();
+  EXPECT_EQ(p.GrayCodes(), 1);
+  EXPECT_EQ(p.FirstGrayCode(), 1);
+  EXPECT_EQ(p.GrayBits(0), 5);  // floor(399 / 16 + 1/2) = 25 needs 5 bits
+  EXPECT_EQ(p.NumImages(), 9);
+  const std::vector<FrameInfo> frames = p.Frames();
+  EXPECT_EQ(frames[4].Name(), "gray_x_shifted_bit4");
+  EXPECT_EQ(frames[8].Name(), "gray_x_shifted_bit0");
+  for (const FrameInfo& f : frames) {
+    if (f.role != FrameRole::kPhase) {
+      EXPECT_EQ(f.code, 1);
+    }
+  }
+  EXPECT_EQ(p.GrayValue(1, 7), 0u);
+  EXPECT_EQ(p.GrayValue(1, 8), 1u);
+  // With inverse pairs and both axes: 2 x (4 + 2 n) frames; the y axis needs bits(19) = 5.
+  p.code_y = true;
+  p.gray_inverse = true;
+  EXPECT_EQ(p.NumImages(), (4 + 2 * 5) + (4 + 2 * 5));
+  const nlohmann::json j = PatternSpecToJson(p);
+  EXPECT_EQ(j["gray_code"], "shifted_only");
+  EXPECT_EQ(PatternSpecToJson(PatternSpecFromConfig(ConfigNode::FromJson(j, "spec.json"))), j);
+  EXPECT_EQ(GrayCodeVariantFromString("shifted_only"), GrayCodeVariant::kShiftedOnly);
+  EXPECT_EQ(ToString(GrayCodeVariant::kShiftedOnly), "shifted_only");
+  try {
+    PatternSpecFromConfig(ConfigNode::ParseYaml(
+        "kind: phase_shift\nprojector_width: 64\nprojector_height: 64\ngray_code: shifted-only\n",
+        "p.yaml"));
+    ADD_FAILURE() << "an unknown variant was accepted";
+  } catch (const Error& e) {
+    const std::string m = e.what();
+    EXPECT_NE(m.find("p.yaml: gray_code"), std::string::npos) << m;
+    EXPECT_NE(m.find("got 'shifted-only'; expected complementary, shifted or shifted_only"),
+              std::string::npos)
+        << m;
+  }
+  // Like the other variants, only for phase_shift.
+  PatternSpec g = Gray(64, 64);
+  g.gray_code = GrayCodeVariant::kShiftedOnly;
+  EXPECT_THROW(g.Check(), Error);
+}
+
+// The spec codes the rig's projector: the same size passes, another (smaller or larger) is refused
+// naming both sizes and the sources; a rig without projector passes.
+TEST(PatternSpec, CheckProjectorSizeNamesBothSizes) {
+  Rig rig;
+  rig.name = "wide";
+  rig.cameras.push_back({"left", CameraModel(640, 480, 500, 500, 319.5, 239.5), Rigid3d()});
+  rig.projector = RigDevice{"dlp", CameraModel(1280, 800, 1500, 1500, 639.5, 399.5), Rigid3d()};
+  const PatternSpec code = Gray(1920, 1080);
+  try {
+    CheckProjectorSize(rig, code, "patterns.yaml", "rig.yaml");
+    ADD_FAILURE() << "a 1920 px code was accepted for a 1280 px projector";
+  } catch (const Error& e) {
+    EXPECT_EQ(std::string(e.what()),
+              "patterns.yaml: the pattern spec codes a 1920x1080 projector, but the rig's "
+              "projector 'dlp' is 1280x800 px (rig.yaml): a spec or a rig of another projector?");
+  }
+  EXPECT_THROW(CheckProjectorSize(rig, Gray(1280, 720), "p", "r"), Error);
+  EXPECT_NO_THROW(CheckProjectorSize(rig, Gray(1280, 800), "p", "r"));
+  rig.projector.reset();
+  EXPECT_NO_THROW(CheckProjectorSize(rig, code, "p", "r"));
+}
+
 TEST(PatternSpec, VariantErrorsNameTheField) {
   const auto message = [](const PatternSpec& s) {
     try {
@@ -348,6 +423,10 @@ TEST(PatternSpec, ShippedVariantExamplesLoad) {
   const PatternSpec shifted =
       LoadPatternSpec(testing::SourceDir() / "config/patterns/phase_shifted_gray.yaml");
   EXPECT_EQ(shifted.gray_code, GrayCodeVariant::kShifted);
+  const PatternSpec shifted_only =
+      LoadPatternSpec(testing::SourceDir() / "config/patterns/phase_shifted_only.yaml");
+  EXPECT_EQ(shifted_only.gray_code, GrayCodeVariant::kShiftedOnly);
+  EXPECT_EQ(shifted_only.NumImages(), 4 + 7);
   const PatternSpec ordered =
       LoadPatternSpec(testing::SourceDir() / "config/patterns/phase_frame_order.yaml");
   EXPECT_FALSE(ordered.frame_order.empty());
