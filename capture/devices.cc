@@ -101,7 +101,7 @@ CameraSettings CameraSettingsFromConfig(const ConfigNode& node, const std::strin
 }
 
 DevicesConfig DevicesFromConfig(const ConfigNode& root) {
-  root.RejectUnknownKeys({"format", "version", "cameras", "projector"});
+  root.RejectUnknownKeys({"format", "version", "cameras", "projector", "turntable"});
   if (root["format"].AsString() != "slshadow-devices")
     root["format"].Fail("expected \"slshadow-devices\"");
   if (root["version"].AsInt() != 1)
@@ -186,6 +186,9 @@ DevicesConfig DevicesFromConfig(const ConfigNode& root) {
   } else {
     config.projector.where = root.file() + ": projector";
   }
+  config.turntable.where = root.file() + ": turntable";
+  if (root.Has("turntable"))
+    config.turntable = TurntableConfigFromConfig(root["turntable"], config.turntable.where);
   return config;
 }
 

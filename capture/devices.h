@@ -18,6 +18,10 @@
 //     settle_us: 2000            # extra settling time after the latency
 //   (or, a LightCrafter running the sequence itself: backend: lightcrafter, mode: pattern-sequence,
 //    frame_period_us: 16667; the cameras then take trigger: hardware, config/devices/)
+//   turntable:                   # optional; absent: backend none (one view)
+//     backend: grbl              # grbl | manual | none (capture/turntable.h)
+//     port: /dev/ttyUSB0
+//     axis: X
 #pragma once
 
 #include <cstdint>
@@ -26,6 +30,7 @@
 #include <vector>
 
 #include "capture/camera.h"
+#include "capture/turntable.h"
 
 namespace slshadow {
 class ConfigNode;
@@ -69,6 +74,7 @@ struct DevicesConfig {
   std::filesystem::path file;  // where it was read from (empty when built in code)
   std::vector<CameraEntry> cameras;
   ProjectorEntry projector;
+  TurntableConfig turntable;  // backend none when the file has no turntable entry
   // The entry of a camera, or nullptr.
   const CameraEntry* Camera(const std::string& name) const;
   // Every entry names a camera of the rig (a capture takes the rig cameras that have an entry, in
