@@ -25,8 +25,8 @@ struct Accumulator {
 };
 
 // Correspondences of b's ICP sample moved by a_from_b with a's flat points: nearest point within
-// the gate, normals compatible. Residual n_a . (s - q), Jacobian [s x n_a, n_a] of the left
-// perturbation s -> s + w x s + v.
+// the gate, normals compatible. Residual n . (s - q) with n the mean of both normals, Jacobian
+// [s x n, n] of the left perturbation s -> s + w x s + v (n held fixed).
 Accumulator Correspond(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d& a_from_b,
                        double gate, const MergeOptions& o) {
   Accumulator acc;
@@ -40,8 +40,11 @@ Accumulator Correspond(const ViewGeometry& a, const ViewGeometry& b, const Rigid
     const Eigen::Vector3d s = r * pb[i] + a_from_b.translation;
     if (!a.tree->Nearest(s, &nb, gate)) continue;
     if (a.variation[nb.index] > max_var) continue;
-    const Eigen::Vector3d& na = a.normals[nb.index];
-    if (na.dot(r * b.normals[i]) < cos_max) continue;
+    const Eigen::Vector3d nb_in_a = r * b.normals[i];
+    if (a.normals[nb.index].dot(nb_in_a) < cos_max) continue;
+    // Symmetric point-to-plane (Rusinkiewicz 2019): the mean of both normals, for which the
+    // residual of two points on one circle is zero, so curved surfaces add no bias.
+    const Eigen::Vector3d na = (a.normals[nb.index] + nb_in_a).normalized();
     const double res = na.dot(s - pa[nb.index]);
     Eigen::Matrix<double, 6, 1> j;
     j.head<3>() = s.cross(na);
