@@ -4,6 +4,7 @@
 
 #include "apps/commands.h"
 #include "shadow/demo.h"
+#include "workflows/multiview/multiview_demo.h"
 
 namespace slshadow::app {
 using shadow::DemoOptions;
@@ -50,10 +51,28 @@ int RunDemo(int argc, char** argv) {
                  "| png (smaller files, slower to write) | tiff")
       ->capture_default_str();
   app.add_flag("--verbose", options.verbose, "print each stage's full report");
+  int views = 0;
+  app.add_option("--views", views,
+                 "N > 0: the whole-part loop instead: the demo part on a turntable, N views over a "
+                 "full turn scanned, merged (slshadow merge) and compared with its CAD model; "
+                 "prints coverage, RMS and the poses' errors (--out, --encoding apply)");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return ExitOnParseError(app, e);
+  }
+  if (views > 0) {
+    multiview::MultiviewDemoOptions mv;
+    mv.views = views;
+    mv.out_dir =
+        app.count("--out") ? options.out_dir : std::filesystem::path("slshadow-demo-views");
+    mv.encoding = ImageEncodingFromString(options.encoding);
+    const multiview::MultiviewDemoResult result = multiview::RunMultiviewDemo(mv);
+    std::printf(
+        "slshadow demo --views %d: the demo part on a turntable, scanned, merged and "
+        "compared with its CAD model\n\n%s",
+        views, result.Table().c_str());
+    return 0;
   }
   const DemoResult result = RunDemoJob(options);
   std::printf(

@@ -9,6 +9,7 @@
 #include "patterns/pattern_spec.h"
 #include "sim/scene.h"
 #include "sim/simulate.h"
+#include "workflows/multiview/virtual_project.h"
 
 namespace slshadow::app {
 
@@ -35,7 +36,13 @@ int RunSimulate(int argc, char** argv) {
       "visible\n"
       "surface as surface.ply. Units: mm, px. Example:\n"
       "  slshadow simulate --rig config/demo/rig.yaml --scene config/demo/scene.yaml \\\n"
-      "      --patterns config/patterns/graycode_phase.yaml --out scan_virtual --encoding pgm",
+      "      --patterns config/patterns/graycode_phase.yaml --out scan_virtual --encoding pgm\n\n"
+      "With --views VIEWS.yaml (docs/formats.md \"Views YAML\"), a multi-view scan: the scene "
+      "turned "
+      "about the\nrig's turntable axis to each view's table angle (hand-placed views: placed at "
+      "their part_from_rig_guess)\nand scanned into a project folder OUT (docs/formats.md "
+      "\"Multi-view project\"): OUT/project.json and one\nImageSet per view in OUT/views/<name>/ "
+      "(no ground truth). --resume renders only the views missing.",
       argv[0]};
   std::string rig_path, scene_path, patterns_path, out_dir, encoding = "png";
   bool overwrite = false, no_ground_truth = false, quiet = false;
@@ -62,6 +69,13 @@ int RunSimulate(int argc, char** argv) {
                "computed either, "
                "about a quarter less ray-casting time)");
   app.add_flag("--quiet", quiet, "do not print the timing summary");
+  std::string views_path;
+  bool resume = false;
+  app.add_option(
+      "--views", views_path,
+      "views file (docs/formats.md \"Views YAML\"): write a multi-view project at --out");
+  app.add_flag("--resume", resume,
+               "with --views: continue the project at --out (missing views only)");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -77,6 +91,26 @@ int RunSimulate(int argc, char** argv) {
                     spec.projector_height, " does not match the rig's projector (",
                     rig.projector->model.width, "x", rig.projector->model.height, " in ", rig_path,
                     ")");
+  if (!views_path.empty()) {
+    SLSHADOW_THROW_IF(overwrite,
+                      "--overwrite: not with --views (use --resume to continue a project)");
+    multiview::VirtualProjectOptions project_options;
+    project_options.encoding = ImageEncodingFromString(encoding);
+    project_options.resume = resume;
+    if (!quiet) {
+      project_options.on_view = [](const std::string& name, size_t, bool rendered) {
+        std::printf("view %s: %s\n", name.c_str(), rendered ? "rendered" : "kept (complete)");
+        std::fflush(stdout);
+      };
+    }
+    const multiview::VirtualProjectSummary summary = multiview::SimulateProject(
+        scene, rig, spec, multiview::LoadViews(views_path), out_dir, project_options);
+    if (!quiet)
+      std::printf("simulate --views: %s -> %s\n%s\n", scene_path.c_str(), out_dir.c_str(),
+                  summary.BriefReport().c_str());
+    return 0;
+  }
+  SLSHADOW_THROW_IF(resume, "--resume: only with --views");
   const std::vector<cv::Mat> images = GeneratePatterns(spec);
   SimulateOptions options;
   options.writer.encoding = ImageEncodingFromString(encoding);

@@ -68,6 +68,10 @@ const std::vector<Command>& Commands() {
        "a DLP LightCrafter 4500 over USB: firmware and mode, switch video/pattern mode, validate "
        "(projector info|mode|validate)",
        RunProjector},
+      {"merge",
+       "merge a multi-view project into one model and compare it with the CAD model (merge PROJECT "
+       "--out MODEL [--cad MESH])",
+       RunMerge},
       {"sweep",
        "studies as independent jobs: sweep plan STUDY.yaml --out JOBS | run JOBS --shard I/N | "
        "merge JOBS --out RESULT",

@@ -46,5 +46,6 @@ int RunDevices(int argc, char** argv);
 int RunShadowCommand(int argc, char** argv);
 int RunProjector(int argc, char** argv);
 int RunSweep(int argc, char** argv);
+int RunMerge(int argc, char** argv);
 
 }  // namespace slshadow::app

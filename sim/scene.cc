@@ -272,6 +272,12 @@ void AddObjects(const ConfigNode& node, const std::filesystem::path& base_dir, S
                                {"dome_sphere_center_in_rig_mm", {c.x(), c.y(), c.z()}},
                                {"dome_sphere_diameter_mm", 2 * f.sphere_radius_mm},
                                {"hole_diameter_mm", 2 * f.hole_radius_mm}};
+  } else if (type == "occlusion_part") {
+    allow({"resolution_mm"});
+    o.type = ObjectType::kMesh;
+    const double res = node.Has("resolution_mm") ? Positive(node["resolution_mm"]) : 1.0;
+    if (res <= 0.05 || res > 5) node["resolution_mm"].Fail("must be in (0.05, 5] mm");
+    o.mesh = std::make_shared<const TriangleMesh>(MakeOcclusionPart(res));
   } else if (type == "point_cloud") {
     allow({"file", "units", "radius_mm", "radius_scale"});
     const auto file = ExistingFile(node["file"], base_dir);
@@ -368,7 +374,7 @@ void AddObjects(const ConfigNode& node, const std::filesystem::path& base_dir, S
   } else {
     node["type"].Fail(
         "unknown object type (use mesh, point_cloud, plane, sphere, cylinder, box, ball_bar, "
-        "demo_part)");
+        "demo_part, occlusion_part)");
   }
   scene.objects.push_back(std::move(o));
 }

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
+#include <unordered_map>
 
 #include "core/error.h"
 
@@ -118,6 +120,71 @@ DemoPartFeatures DemoPartDescription() {
   f.hole_radius_mm = kHoleRadius;
   f.hole_depth_mm = kHoleDepth;
   return f;
+}
+
+TriangleMesh MakeOcclusionPart(double resolution_mm) {
+  SLSHADOW_THROW_IF(!(resolution_mm > 0.05 && resolution_mm <= 5),
+                    "occlusion part: resolution_mm must be in (0.05, 5] (got ", resolution_mm, ")");
+  constexpr double kCell = 5;                  // voxel edge, mm
+  constexpr int kNx = 24, kNy = 16, kNz = 12;  // x from -60, y from -40, z from 0
+  const auto inside = [](int i, int j, int k) {
+    if (i < 0 || j < 0 || k < 0 || i >= kNx || j >= kNy || k >= kNz) return false;
+    const double x = -60 + kCell * (i + 0.5), y = -40 + kCell * (j + 0.5), z = kCell * (k + 0.5);
+    if (x > -40 && x < -30 && y > -5 && y < 5 && z > 10) return false;  // the deep hole
+    if (z < 20) return true;                                            // base slab
+    if (x < -10) return z < 60;                                         // tower
+    return x < 30 && z > 50 && z < 60;                                  // overhang
+  };
+  const int m = static_cast<int>(std::ceil(kCell / resolution_mm - 1e-9));
+  const double h = kCell / m;
+  TriangleMesh mesh;
+  // Vertices welded on the lattice of step h: key from integer lattice coordinates.
+  std::unordered_map<int64_t, int> index;
+  const auto vertex = [&](int a, int b, int c) {
+    const int64_t key = (static_cast<int64_t>(a) * 4096 + b) * 4096 + c;
+    const auto [it, added] = index.emplace(key, static_cast<int>(mesh.vertices.size()));
+    if (added) mesh.vertices.emplace_back(-60 + a * h, -40 + b * h, c * h);
+    return it->second;
+  };
+  for (int k = 0; k < kNz; ++k) {
+    for (int j = 0; j < kNy; ++j) {
+      for (int i = 0; i < kNx; ++i) {
+        if (!inside(i, j, k)) continue;
+        const int cell[3] = {i, j, k};
+        for (int d = 0; d < 3; ++d) {
+          for (const int side : {-1, 1}) {
+            int n[3] = {i, j, k};
+            n[d] += side;
+            if (inside(n[0], n[1], n[2])) continue;
+            // The face's lattice square: axis d fixed, u = d + 1, v = d + 2 (cyclic), so
+            // e_u x e_v = e_d; counter-clockwise (u, v) order for the +d side, reversed for -d.
+            const int u = (d + 1) % 3, v = (d + 2) % 3;
+            for (int b = 0; b < m; ++b) {
+              for (int a = 0; a < m; ++a) {
+                int q[4][3];
+                const int du[4] = {0, 1, 1, 0}, dv[4] = {0, 0, 1, 1};
+                for (int c = 0; c < 4; ++c) {
+                  q[c][d] = (cell[d] + (side > 0 ? 1 : 0)) * m;
+                  q[c][u] = cell[u] * m + a + du[c];
+                  q[c][v] = cell[v] * m + b + dv[c];
+                }
+                int id[4];
+                for (int c = 0; c < 4; ++c) id[c] = vertex(q[c][0], q[c][1], q[c][2]);
+                if (side > 0) {
+                  mesh.triangles.emplace_back(id[0], id[1], id[2]);
+                  mesh.triangles.emplace_back(id[0], id[2], id[3]);
+                } else {
+                  mesh.triangles.emplace_back(id[0], id[2], id[1]);
+                  mesh.triangles.emplace_back(id[0], id[3], id[2]);
+                }
+              }
+            }
+          }
+        }
+      }
+    }
+  }
+  return mesh;
 }
 
 double DemoPartResolutionFor(double triangles) {

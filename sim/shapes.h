@@ -39,6 +39,16 @@ struct DemoPartFeatures {
 };
 DemoPartFeatures DemoPartDescription();
 
+// The occlusion test part: a block no single view sees whole. Object frame: footprint x in
+// [-60, 60], y in [-40, 40], base at z = 0, top towards +z; a base slab 20 mm high; a tower over
+// x in [-60, -10] up to z = 60 with a deep square hole (x in [-40, -30], y in [-5, 5], from the
+// tower's top at z = 60 down to z = 10: 10 mm wide, 50 mm deep); and an overhang, a slab at
+// z in [50, 60] reaching from the tower over x in [-10, 30] (its underside 30 mm above the base
+// slab's top). Built from 5 mm voxels whose faces are split into squares of at most
+// resolution_mm, vertices welded: a closed manifold mesh, counter-clockwise seen from outside,
+// every triangle exactly on the part's surface. Throws on resolution_mm outside (0.05, 5].
+TriangleMesh MakeOcclusionPart(double resolution_mm);
+
 // UV sphere centred at the origin: `segments` around the equator, segments/2 rings. Vertices lie
 // on the sphere, so the mesh is inside it; the largest gap is r (1 - cos(pi / segments)).
 TriangleMesh MakeSphereMesh(double radius_mm, int segments);

@@ -2,6 +2,9 @@
 
 #include <gtest/gtest.h>
 
+#include <map>
+#include <utility>
+
 #include "core/error.h"
 #include "sim/renderer.h"
 #include "tests/sim/sim_test_util.h"
@@ -66,6 +69,53 @@ TEST(DemoPartTest, OutwardNormals) {
   // The dome is open at the bottom and the tile face under it is closed, so the faces enclose
   // the block plus the cap above the face.
   EXPECT_NEAR(volume, block - holes + cap, 0.01 * block);
+}
+
+TEST(OcclusionPartTest, ClosedManifoldWithTheDefinedVolumeAtAnyResolution) {
+  const TriangleMesh coarse = MakeOcclusionPart(5.0);
+  const TriangleMesh fine = MakeOcclusionPart(1.0);
+  for (const TriangleMesh* m : {&coarse, &fine}) {
+    m->Check("occlusion part");
+    EXPECT_EQ(m->CountNonManifoldEdges(), 0u);
+    // Closed and consistently oriented: every directed edge has its reverse, once.
+    std::map<std::pair<int, int>, int> edges;
+    for (const auto& t : m->triangles) {
+      for (int k = 0; k < 3; ++k) ++edges[{t[k], t[(k + 1) % 3]}];
+    }
+    for (const auto& [e, n] : edges) {
+      ASSERT_EQ(n, 1) << "edge " << e.first << "-" << e.second;
+      ASSERT_EQ(edges.count({e.second, e.first}), 1u) << "open edge " << e.first << "-" << e.second;
+    }
+    double volume = 0;
+    for (const auto& t : m->triangles) {
+      volume +=
+          m->vertices[static_cast<size_t>(t[0])].dot(m->vertices[static_cast<size_t>(t[1])].cross(
+              m->vertices[static_cast<size_t>(t[2])])) /
+          6;
+    }
+    // Base 120 x 80 x 20, tower 50 x 80 x 40, overhang 40 x 80 x 10, minus the hole 10 x 10 x 50.
+    EXPECT_NEAR(volume, 192000.0 + 160000.0 + 32000.0 - 5000.0, 1e-6);
+    EXPECT_NEAR(m->BoundsMin().x(), -60, 1e-12);
+    EXPECT_NEAR(m->BoundsMax().x(), 60, 1e-12);
+    EXPECT_NEAR(m->BoundsMax().z(), 60, 1e-12);
+  }
+  EXPECT_NEAR(coarse.SurfaceArea(), fine.SurfaceArea(), 1e-6);
+  EXPECT_EQ(fine.NumTriangles(), 25 * coarse.NumTriangles());
+  // The hole's bottom is 50 mm down, at z = 10.
+  bool bottom = false;
+  for (size_t i = 0; i < fine.NumTriangles(); ++i) {
+    const auto& t = fine.triangles[i];
+    const Eigen::Vector3d c =
+        (fine.vertices[static_cast<size_t>(t[0])] + fine.vertices[static_cast<size_t>(t[1])] +
+         fine.vertices[static_cast<size_t>(t[2])]) /
+        3;
+    if (std::abs(c.z() - 10) < 1e-9 && c.x() > -40 && c.x() < -30 && std::abs(c.y()) < 5) {
+      EXPECT_GT(fine.FaceNormal(i).z(), 0.999);
+      bottom = true;
+    }
+  }
+  EXPECT_TRUE(bottom);
+  EXPECT_THROW(MakeOcclusionPart(0.01), Error);
 }
 
 TEST(SphereMeshTest, VerticesOnSphere) {

@@ -1,0 +1,29 @@
+// The demo on its turntable at 1/scale of the demo rig's resolution (tests/capture's
+// ScaledDemoRig: same optics, coarser pixels), with the demo's pattern sequence resized to the
+// scaled projector, so multi-view tests render and reconstruct a view in a fraction of a second.
+#pragma once
+
+#include "patterns/pattern_spec.h"
+#include "shadow/scan_pipeline.h"
+#include "tests/capture/scaled_demo_rig.h"
+#include "workflows/multiview/turntable_scene.h"
+
+namespace slshadow::testing {
+
+inline multiview::TurntableSetup ScaledTurntableDemo(int scale) {
+  multiview::TurntableSetup setup = multiview::DemoTurntableSetup();
+  const std::optional<TurntableAxis> axis = setup.rig.turntable;
+  setup.rig = ScaledDemoRig(scale);
+  setup.rig.turntable = axis;
+  return setup;
+}
+
+inline PatternSpec ScaledDemoPatterns(const Rig& rig) {
+  PatternSpec spec = shadow::LoadPatternSpecOrDemo("");
+  spec.projector_width = rig.projector->model.width;
+  spec.projector_height = rig.projector->model.height;
+  spec.Check();
+  return spec;
+}
+
+}  // namespace slshadow::testing

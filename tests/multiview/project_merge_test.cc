@@ -1,0 +1,151 @@
+#include "workflows/multiview/project_merge.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <vector>
+
+#include "core/error.h"
+#include "core/file_util.h"
+#include "core/mesh.h"
+#include "tests/multiview/multiview_test_util.h"
+#include "tests/testing/error_of.h"
+#include "tests/testing/temp_dir.h"
+#include "workflows/multiview/virtual_project.h"
+
+namespace slshadow::multiview {
+namespace {
+namespace fs = std::filesystem;
+
+// One virtual project of four table views at 1/4 of the demo rig's resolution, shared by the
+// tests (rendered once).
+class ProjectMergeTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    tmp_ = new testing::TempDir();
+    setup_ = new TurntableSetup(testing::ScaledTurntableDemo(4));
+    cad_ = new TriangleMesh(PartSurface(setup_->scene));
+    SimulateProject(setup_->scene, setup_->rig, testing::ScaledDemoPatterns(setup_->rig),
+                    FullTurnViews(4, 15), project());
+  }
+  static void TearDownTestSuite() {
+    delete cad_;
+    delete setup_;
+    delete tmp_;
+  }
+  static fs::path project() { return tmp_->path() / "project"; }
+  // A copy of the project with only the first `n` views complete (the others missing).
+  static fs::path ProjectWithViews(size_t n, const std::string& name) {
+    const fs::path dir = tmp_->path() / name;
+    fs::copy(project(), dir, fs::copy_options::recursive);
+    ProjectManifest p = LoadProject(dir);
+    for (size_t i = n; i < p.views.size(); ++i) {
+      p.views[i].state = ViewState::kMissing;
+      p.views[i].source.clear();
+      fs::remove_all(dir / p.views[i].Folder());
+    }
+    SaveProject(p, dir);
+    return dir;
+  }
+  static testing::TempDir* tmp_;
+  static TurntableSetup* setup_;
+  static TriangleMesh* cad_;
+};
+testing::TempDir* ProjectMergeTest::tmp_ = nullptr;
+TurntableSetup* ProjectMergeTest::setup_ = nullptr;
+TriangleMesh* ProjectMergeTest::cad_ = nullptr;
+
+TEST_F(ProjectMergeTest, ViewsAtTheirTablePosesMergeOntoTheCad) {
+  const ProjectMergeResult r = MergeProject(project(), cad_);
+  ASSERT_EQ(r.views.size(), 4u);
+  size_t points = 0;
+  for (const MergedView& v : r.views) {
+    EXPECT_TRUE(v.merged) << v.name << ": " << v.reason;
+    EXPECT_GT(v.points, 10000u) << v.name;
+    ASSERT_TRUE(v.part_from_rig_true.has_value()) << v.name;
+    // The initial poses are the rig's axis at the commanded angles: the truth of a virtual scan.
+    EXPECT_LT(v.rotation_error_deg, 1e-9) << v.name;
+    EXPECT_LT(v.translation_error_mm, 1e-9) << v.name;
+    points += v.points;
+  }
+  EXPECT_EQ(r.merged.size(), points);
+  ASSERT_NE(r.merged.Scalar("view"), nullptr);
+  ASSERT_NE(r.merged.Scalar("deviation_mm"), nullptr);
+  ASSERT_TRUE(r.cad.has_value());
+  // The merged cloud lies on the CAD model as the views do (at 480x300 pixels the edges of the
+  // steps and holes dominate the RMS): the views' points pooled, so its RMS lies between theirs.
+  std::vector<double> rms;
+  for (const CadViewFigures& v : r.cad->views) {
+    EXPECT_LT(v.c2m.rms_mm, 0.5) << v.name;
+    EXPECT_LT(v.coverage, r.cad->coverage_reachable) << v.name << ": one view covers less";
+    rms.push_back(v.c2m.rms_mm);
+  }
+  std::sort(rms.begin(), rms.end());
+  EXPECT_LE(r.cad->merged_c2m.rms_mm, rms.back() + 1e-9);
+  EXPECT_GE(r.cad->merged_c2m.rms_mm, rms.front() - 1e-9);
+  EXPECT_LT(std::abs(r.cad->merged_c2m.signed_mean_mm), 0.05);
+  EXPECT_GT(r.cad->merged_c2m.inliers, r.cad->merged_c2m.count * 9 / 10);
+  EXPECT_GT(r.cad->coverage_reachable, 0.9);
+  EXPECT_NE(r.Summary().find("CAD comparison"), std::string::npos);
+}
+
+TEST_F(ProjectMergeTest, CoverageGrowsWithViews) {
+  double last = 0;
+  for (const size_t n : {1u, 2u, 4u}) {
+    const ProjectMergeResult r =
+        MergeProject(n == 4 ? project() : ProjectWithViews(n, "views" + std::to_string(n)), cad_);
+    ASSERT_TRUE(r.cad.has_value());
+    EXPECT_GT(r.cad->coverage_total, last + 0.05) << n << " views";
+    last = r.cad->coverage_total;
+    size_t left_out = 0;
+    for (const MergedView& v : r.views) {
+      if (v.merged) continue;
+      ++left_out;
+      EXPECT_NE(v.reason.find("missing"), std::string::npos) << v.name;
+    }
+    EXPECT_EQ(left_out, 4 - n);
+  }
+}
+
+TEST_F(ProjectMergeTest, ModelFolderAndLeftOutViews) {
+  const fs::path partial = ProjectWithViews(3, "partial");
+  const ProjectMergeResult r = MergeProject(partial, cad_);
+  const testing::TempDir out;
+  WriteModel(r, cad_, out / "model", false);
+  for (const char* f :
+       {"report.json", "summary.txt", "merged.ply", "cad_deviation.ply", "cad_coverage.ply"})
+    EXPECT_TRUE(fs::exists(out / "model" / f)) << f;
+  const nlohmann::json report = nlohmann::json::parse(ReadTextFile(out / "model/report.json"));
+  EXPECT_EQ(report["left_out"], nlohmann::json::array({"view_03"}));
+  EXPECT_FALSE(report["views"][3]["merged"].get<bool>());
+  EXPECT_TRUE(report["views"][0]["merged"].get<bool>());
+  EXPECT_EQ(report["views"][0]["table_deg"].get<double>(), 15.0);
+  EXPECT_EQ(ReadPly(out / "model/merged.ply").size(), r.merged.size());
+  EXPECT_EQ(ReadMesh(out / "model/cad_deviation.ply").NumTriangles(), cad_->NumTriangles());
+  EXPECT_NE(
+      testing::ErrorOf([&] { WriteModel(r, cad_, out / "model", false); }).find("already exists"),
+      std::string::npos);
+  // Without a CAD mesh: the merge alone.
+  const ProjectMergeResult plain = MergeProject(partial, nullptr);
+  EXPECT_FALSE(plain.cad.has_value());
+  EXPECT_EQ(plain.merged.size(), r.merged.size());
+}
+
+TEST_F(ProjectMergeTest, BadProjects) {
+  const testing::TempDir tmp;
+  EXPECT_NE(
+      testing::ErrorOf([&] { MergeProject(tmp.path(), nullptr); }).find("project.json: not found"),
+      std::string::npos);
+  const fs::path none = ProjectWithViews(0, "none");
+  EXPECT_NE(testing::ErrorOf([&] { MergeProject(none, nullptr); }).find("no view can be merged"),
+            std::string::npos);
+  ProjectMergeOptions options;
+  options.cad.samples = 3;
+  EXPECT_NE(testing::ErrorOf([&] {
+              MergeProject(project(), cad_, options);
+            }).find("samples must be at least 100"),
+            std::string::npos);
+}
+
+}  // namespace
+}  // namespace slshadow::multiview

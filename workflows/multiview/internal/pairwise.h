@@ -1,0 +1,65 @@
+// Per-view geometry (PCA normals, surface variation, k-d tree, samples) and the point-to-plane
+// ICP between two views with its information matrix (workflows/multiview/merge.h, step 2).
+// Internal to workflows/multiview/.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "compare/kdtree.h"
+#include "core/point_cloud.h"
+#include "core/rigid3.h"
+#include "workflows/multiview/merge.h"
+
+namespace slshadow::multiview::internal {
+
+using Matrix6d = Eigen::Matrix<double, 6, 6>;
+
+// One view prepared for registration, in its rig frame. Borrows the cloud's points.
+struct ViewGeometry {
+  const std::vector<Eigen::Vector3d>* points = nullptr;
+  std::vector<Eigen::Vector3d> normals;  // unit; the cloud's, else PCA oriented to the origin
+  std::vector<float> variation;          // PCA lambda_min / (lambda_0 + lambda_1 + lambda_2)
+  std::unique_ptr<compare::KdTree> tree;
+  double spacing_mm = 0;                 // median nearest-neighbour distance
+  double area_spacing_mm = 0;            // sqrt(area per point), from the median k-neighbour radius
+  std::vector<uint32_t> icp_sample;      // flat points (variation below the bound), Morton order
+  std::vector<uint32_t> overlap_sample;  // evenly strided over all points
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+};
+
+// Throws slshadow::Error when the cloud has fewer than normal_neighbors + 1 points.
+void PrepareView(const PointCloud& cloud, const MergeOptions& options, ViewGeometry* view);
+
+// Share of b's overlap samples that, moved by a_from_b, have a point of a within gate_mm whose
+// normal is within max_normal_angle_deg of theirs.
+double OverlapShare(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d& a_from_b,
+                    double gate_mm, double max_normal_angle_deg);
+
+struct IcpOutcome {
+  Rigid3d a_from_b;
+  // Information of the left perturbation (rotation vector, translation) of a_from_b in frame a:
+  // J^T J / sigma^2 at the result.
+  Matrix6d information = Matrix6d::Zero();
+  double rms_mm = 0;   // point-to-plane
+  double fitness = 0;  // matched share of b's ICP sample
+  int correspondences = 0;
+  int iterations = 0;
+  bool converged = false;
+  double gate_mm = 0;                                       // final correspondence gate
+  Eigen::Vector3d centroid_in_a = Eigen::Vector3d::Zero();  // of the matched points
+  double radius_mm = 0;  // RMS distance of the matched points from their centroid
+};
+
+// Point-to-plane ICP of b's ICP sample onto all of a's flat points from a_from_b_initial.
+IcpOutcome RegisterPair(const ViewGeometry& a, const ViewGeometry& b,
+                        const Rigid3d& a_from_b_initial, const MergeOptions& options);
+
+// The same statistics at a fixed a_from_b (no iteration), with the given gate.
+IcpOutcome EvaluatePair(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d& a_from_b,
+                        double gate_mm, const MergeOptions& options);
+
+}  // namespace slshadow::multiview::internal

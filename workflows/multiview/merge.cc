@@ -1,0 +1,540 @@
+#include "workflows/multiview/merge.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <set>
+
+#include <tbb/parallel_for.h>
+#include <Eigen/Eigenvalues>
+#include <Eigen/Geometry>
+
+#include "core/error.h"
+#include "core/string_printf.h"
+#include "workflows/multiview/internal/fusion.h"
+#include "workflows/multiview/internal/pairwise.h"
+#include "workflows/multiview/internal/pose_graph.h"
+
+namespace slshadow::multiview {
+namespace {
+
+using internal::Matrix6d;
+using Clock = std::chrono::steady_clock;
+
+double Seconds(Clock::time_point since) {
+  return std::chrono::duration<double>(Clock::now() - since).count();
+}
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  const size_t h = v.size() / 2;
+  return v.size() % 2 ? v[h] : 0.5 * (v[h - 1] + v[h]);
+}
+
+Eigen::Matrix3d Skew(const Eigen::Vector3d& v) {
+  Eigen::Matrix3d s;
+  s << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
+  return s;
+}
+
+double SqrtLargestEigenvalue(const Eigen::Matrix3d& c) {
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(0.5 * (c + c.transpose()));
+  return std::sqrt(std::max(0.0, eig.eigenvalues().maxCoeff()));
+}
+
+// Disagreement of a pair with the graph, in degrees and mm (merge.h, PairRegistration).
+void EdgeError(const Rigid3d& discrepancy, const Eigen::Vector3d& centroid, double radius,
+               double* deg, double* mm) {
+  const double angle = discrepancy.rotation.angularDistance(Eigen::Quaterniond::Identity());
+  *deg = angle * 180.0 / M_PI;
+  *mm = (discrepancy * centroid - centroid).norm() + angle * radius;
+}
+
+}  // namespace
+
+void MergeOptions::Check() const {
+  auto positive = [](double v, const char* field) {
+    SLSHADOW_THROW_IF(!(v > 0) || !std::isfinite(v), "merge options: ", field,
+                      ": must be finite and > 0 (got ", v, ")");
+  };
+  auto nonneg = [](double v, const char* field) {
+    SLSHADOW_THROW_IF(!(v >= 0) || !std::isfinite(v), "merge options: ", field,
+                      ": must be finite and >= 0 (got ", v, ")");
+  };
+  auto share = [](double v, const char* field) {
+    SLSHADOW_THROW_IF(!(v > 0 && v <= 1), "merge options: ", field, ": must be in (0, 1] (got ", v,
+                      ")");
+  };
+  positive(initial_gate_mm, "initial_gate_mm");
+  share(min_pair_overlap, "min_pair_overlap");
+  SLSHADOW_THROW_IF(max_pairs_per_view < 1, "merge options: max_pairs_per_view: must be >= 1 (got ",
+                    max_pairs_per_view, ")");
+  SLSHADOW_THROW_IF(overlap_samples < 10, "merge options: overlap_samples: must be >= 10 (got ",
+                    overlap_samples, ")");
+  SLSHADOW_THROW_IF(icp_points < 10, "merge options: icp_points: must be >= 10 (got ", icp_points,
+                    ")");
+  SLSHADOW_THROW_IF(icp_max_iterations < 1, "merge options: icp_max_iterations: must be >= 1 (got ",
+                    icp_max_iterations, ")");
+  positive(icp_tolerance_mm, "icp_tolerance_mm");
+  SLSHADOW_THROW_IF(!(icp_max_normal_angle_deg > 0 && icp_max_normal_angle_deg <= 180),
+                    "merge options: icp_max_normal_angle_deg: must be in (0, 180] (got ",
+                    icp_max_normal_angle_deg, ")");
+  SLSHADOW_THROW_IF(!(icp_max_surface_variation > 0 && icp_max_surface_variation <= 1.0 / 3.0),
+                    "merge options: icp_max_surface_variation: must be in (0, 1/3] (got ",
+                    icp_max_surface_variation, ")");
+  SLSHADOW_THROW_IF(normal_neighbors < 3, "merge options: normal_neighbors: must be >= 3 (got ",
+                    normal_neighbors, ")");
+  share(min_pair_fitness, "min_pair_fitness");
+  SLSHADOW_THROW_IF(!(max_pair_rms_ratio > 1) || !std::isfinite(max_pair_rms_ratio),
+                    "merge options: max_pair_rms_ratio: must be finite and > 1 (got ",
+                    max_pair_rms_ratio, ")");
+  SLSHADOW_THROW_IF(!(max_edge_error_ratio > 1) || !std::isfinite(max_edge_error_ratio),
+                    "merge options: max_edge_error_ratio: must be finite and > 1 (got ",
+                    max_edge_error_ratio, ")");
+  nonneg(min_edge_error_mm, "min_edge_error_mm");
+  nonneg(max_initial_departure_deg, "max_initial_departure_deg");
+  nonneg(max_initial_departure_mm, "max_initial_departure_mm");
+  global.Check();
+  nonneg(fuse_cell_mm, "fuse_cell_mm");
+  positive(fuse_k_sigma, "fuse_k_sigma");
+  nonneg(fuse_min_disagreement_mm, "fuse_min_disagreement_mm");
+}
+
+double RotationErrorDeg(const Rigid3d& a, const Rigid3d& b) {
+  return a.rotation.angularDistance(b.rotation) * 180.0 / M_PI;
+}
+
+double MaxDisplacementMm(const Rigid3d& a, const Rigid3d& b,
+                         const std::vector<Eigen::Vector3d>& points) {
+  double worst = 0;
+  for (const auto& p : points) worst = std::max(worst, (a * p - b * p).norm());
+  return worst;
+}
+
+int MergeResult::NumAccepted() const {
+  int n = 0;
+  for (const auto& v : views) n += v.accepted ? 1 : 0;
+  return n;
+}
+
+std::string MergeResult::BriefReport() const {
+  int kept = 0;
+  for (const auto& p : pairs) kept += p.kept ? 1 : 0;
+  std::string s = StringPrintf("merge: %d of %zu views, %d of %zu pairs", NumAccepted(),
+                               views.size(), kept, pairs.size());
+  if (has_loop) {
+    s += StringPrintf(", loop closure %.4f deg / %.4f mm -> %.4f deg / %.4f mm",
+                      loop_closure_before_deg, loop_closure_before_mm, loop_closure_after_deg,
+                      loop_closure_after_mm);
+  }
+  s += StringPrintf(", %zu points -> %zu (%zu disagree), %.2f s", input_points, merged.size(),
+                    disagree_points, time_s);
+  for (const auto& v : views)
+    if (!v.accepted) s += StringPrintf("; left out %s: %s", v.name.c_str(), v.reason.c_str());
+  return s;
+}
+
+std::string MergeResult::FullReport() const {
+  std::string s = BriefReport() + "\n";
+  s += "views (pose part_from_rig: rotation deg about axis, translation mm; 1-sigma):\n";
+  for (const auto& v : views) {
+    const Eigen::AngleAxisd aa(v.part_from_rig.rotation);
+    s += StringPrintf(
+        "  %-12s %s%-8s %7d points, %2d pairs, rotation %9.4f deg about (%.4f, %.4f, %.4f), "
+        "translation (%.4f, %.4f, %.4f), residual %.4f mm, noise %.4f mm, sigma %.2g deg / "
+        "%.2g mm%s%s\n",
+        v.name.c_str(), v.anchor ? "*" : " ", v.accepted ? "accepted" : "left out", v.points,
+        v.pairs, aa.angle() * 180.0 / M_PI, aa.axis().x(), aa.axis().y(), aa.axis().z(),
+        v.part_from_rig.translation.x(), v.part_from_rig.translation.y(),
+        v.part_from_rig.translation.z(), v.residual_rms_mm, v.noise_mm, v.sigma_rotation_deg,
+        v.sigma_translation_mm, v.reason.empty() ? "" : ": ", v.reason.c_str());
+  }
+  s += "pairs (a <- b):\n";
+  for (const auto& p : pairs) {
+    s += StringPrintf(
+        "  %-12s <- %-12s overlap %.2f, fitness %.2f, %6d matches, %2d iterations%s, rms %.4f "
+        "-> %.4f mm, graph error %.5f deg / %.5f mm%s%s\n",
+        views[static_cast<size_t>(p.view_a)].name.c_str(),
+        views[static_cast<size_t>(p.view_b)].name.c_str(), p.overlap_initial, p.fitness,
+        p.correspondences, p.iterations, p.converged ? "" : " (not converged)", p.rms_mm,
+        p.final_rms_mm, p.graph_error_deg, p.graph_error_mm,
+        p.kept ? "" : ", rejected: ", p.reason.c_str());
+  }
+  s += StringPrintf(
+      "pose graph: %d iterations, cost %.6g -> %.6g\n"
+      "model: cell %.4f mm, %zu input points -> %zu merged, %zu flagged where views disagree\n"
+      "time: normals %.2f s, pairs %.2f s, graph %.2f s, fusion %.2f s, total %.2f s\n",
+      graph_iterations, graph_initial_cost, graph_final_cost, fuse_cell_mm, input_points,
+      merged.size(), disagree_points, time_normals_s, time_pairs_s, time_graph_s, time_fuse_s,
+      time_s);
+  return s;
+}
+
+MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& options) {
+  options.Check();
+  const auto t_start = Clock::now();
+  SLSHADOW_THROW_IF(views.empty(), "merge: no views");
+  std::set<std::string> names;
+  for (size_t i = 0; i < views.size(); ++i) {
+    SLSHADOW_THROW_IF(views[i].cloud == nullptr, "merge: view ", i, " ('", views[i].name,
+                      "'): no cloud");
+    SLSHADOW_THROW_IF(views[i].cloud->empty(), "merge: view '", views[i].name, "': empty cloud");
+    views[i].cloud->Check("merge: view '" + views[i].name + "'");
+    SLSHADOW_THROW_IF(!names.insert(views[i].name).second, "merge: duplicate view name '",
+                      views[i].name, "'");
+  }
+  const size_t n = views.size();
+  MergeResult result;
+  result.views.resize(n);
+  for (size_t i = 0; i < n; ++i) {
+    ViewPose& v = result.views[i];
+    v.name = views[i].name;
+    v.points = static_cast<int>(views[i].cloud->size());
+    v.part_from_rig = v.part_from_rig_initial = views[i].part_from_rig_initial;
+  }
+
+  // Per-view geometry.
+  auto t0 = Clock::now();
+  std::vector<internal::ViewGeometry> geo(n);
+  for (size_t i = 0; i < n; ++i) internal::PrepareView(*views[i].cloud, options, &geo[i]);
+  result.time_normals_s = Seconds(t0);
+
+  // 1. Initial poses; views without one by global registration against the views posed so far.
+  t0 = Clock::now();
+  std::vector<bool> posed(n, false);
+  for (size_t i = 0; i < n; ++i) posed[i] = views[i].has_initial;
+  for (size_t i = 0; i < n; ++i) {
+    if (views[i].has_initial) continue;
+    ViewPose& v = result.views[i];
+    std::vector<Eigen::Vector3d> ref_points, ref_normals, cloud;
+    for (size_t j = 0; j < n; ++j) {
+      if (!posed[j]) continue;
+      const Rigid3d& pose = result.views[j].part_from_rig;
+      for (uint32_t k : geo[j].icp_sample) {
+        ref_points.push_back(pose * (*geo[j].points)[k]);
+        ref_normals.push_back(pose.rotation * geo[j].normals[k]);
+      }
+    }
+    if (ref_points.empty()) {  // the first view to be posed defines the part frame
+      v.part_from_rig = v.part_from_rig_initial = Rigid3d();
+      posed[i] = true;
+      continue;
+    }
+    for (uint32_t k : geo[i].icp_sample) cloud.push_back((*geo[i].points)[k]);
+    compare::RegistrationOptions g = options.global;
+    g.method = compare::RegistrationMethod::kGlobalIcp;
+    const compare::RegistrationResult r = compare::Register(cloud, ref_points, ref_normals, g);
+    if (!r.global_found || r.fitness < options.min_pair_fitness) {
+      v.reason =
+          StringPrintf("global registration found no pose (global fitness %.3f, ICP fitness %.3f)",
+                       r.global_fitness, r.fitness);
+      continue;
+    }
+    v.part_from_rig = v.part_from_rig_initial = r.reference_from_cloud;
+    posed[i] = true;
+  }
+
+  // 2. Pairs overlapping at the initial poses, then ICP (pairs in parallel, each serial).
+  struct Candidate {
+    int a, b;
+    double overlap;
+  };
+  std::vector<Candidate> all;
+  for (size_t a = 0; a < n; ++a) {
+    for (size_t b = a + 1; b < n; ++b) {
+      if (!posed[a] || !posed[b]) continue;
+      const Rigid3d a_from_b =
+          result.views[a].part_from_rig.Inverse() * result.views[b].part_from_rig;
+      const double share = std::max(
+          internal::OverlapShare(geo[a], geo[b], a_from_b, options.initial_gate_mm,
+                                 options.icp_max_normal_angle_deg),
+          internal::OverlapShare(geo[b], geo[a], a_from_b.Inverse(), options.initial_gate_mm,
+                                 options.icp_max_normal_angle_deg));
+      if (share >= options.min_pair_overlap)
+        all.push_back({static_cast<int>(a), static_cast<int>(b), share});
+    }
+  }
+  // Each view's most overlapping partners (ties: the lower index).
+  std::vector<bool> chosen(all.size(), false);
+  for (size_t v = 0; v < n; ++v) {
+    std::vector<size_t> mine;
+    for (size_t k = 0; k < all.size(); ++k)
+      if (all[k].a == static_cast<int>(v) || all[k].b == static_cast<int>(v)) mine.push_back(k);
+    std::stable_sort(mine.begin(), mine.end(),
+                     [&](size_t x, size_t y) { return all[x].overlap > all[y].overlap; });
+    for (size_t k = 0; k < mine.size() && k < static_cast<size_t>(options.max_pairs_per_view); ++k)
+      chosen[mine[k]] = true;
+  }
+  std::vector<Candidate> candidates;
+  for (size_t k = 0; k < all.size(); ++k)
+    if (chosen[k]) candidates.push_back(all[k]);
+  std::vector<internal::IcpOutcome> icp(candidates.size());
+  tbb::parallel_for(size_t{0}, candidates.size(), [&](size_t k) {
+    const auto& c = candidates[k];
+    const Rigid3d a_from_b = result.views[static_cast<size_t>(c.a)].part_from_rig.Inverse() *
+                             result.views[static_cast<size_t>(c.b)].part_from_rig;
+    icp[k] = internal::RegisterPair(geo[static_cast<size_t>(c.a)], geo[static_cast<size_t>(c.b)],
+                                    a_from_b, options);
+  });
+  result.pairs.resize(candidates.size());
+  std::vector<double> rms_of_good;
+  for (size_t k = 0; k < candidates.size(); ++k) {
+    PairRegistration& p = result.pairs[k];
+    p.view_a = candidates[k].a;
+    p.view_b = candidates[k].b;
+    p.overlap_initial = candidates[k].overlap;
+    p.a_from_b = icp[k].a_from_b;
+    p.fitness = icp[k].fitness;
+    p.rms_mm = icp[k].rms_mm;
+    p.correspondences = icp[k].correspondences;
+    p.iterations = icp[k].iterations;
+    p.converged = icp[k].converged;
+    p.kept = p.fitness >= options.min_pair_fitness && p.correspondences >= 7;
+    if (!p.kept)
+      p.reason = StringPrintf("overlap after ICP %.3f (min_pair_fitness %.3f)", p.fitness,
+                              options.min_pair_fitness);
+    else
+      rms_of_good.push_back(p.rms_mm);
+  }
+  const double median_rms = Median(rms_of_good);
+  for (auto& p : result.pairs) {
+    if (p.kept && p.rms_mm > options.max_pair_rms_ratio * median_rms) {
+      p.kept = false;
+      p.reason = StringPrintf("ICP residual %.4f mm, %.1f x the median of the pairs (%.4f mm)",
+                              p.rms_mm, p.rms_mm / median_rms, median_rms);
+    }
+  }
+  result.time_pairs_s = Seconds(t0);
+
+  // 3. Pose graph, rejecting pairs and views that do not fit, one at a time.
+  t0 = Clock::now();
+  std::vector<bool> active = posed;
+  std::vector<Rigid3d> initial(n);
+  for (size_t i = 0; i < n; ++i) initial[i] = result.views[i].part_from_rig_initial;
+  internal::GraphSolution sol;
+  std::vector<size_t> edge_pair;  // pair index of each graph edge
+  for (;;) {
+    int anchor = -1;
+    for (size_t i = 0; i < n && anchor < 0; ++i)
+      if (active[i]) anchor = static_cast<int>(i);
+    result.anchor = anchor;
+    if (anchor < 0) break;
+    // The anchor's connected component over kept pairs.
+    std::vector<bool> reached(n, false);
+    reached[static_cast<size_t>(anchor)] = true;
+    for (bool grew = true; grew;) {
+      grew = false;
+      for (const auto& p : result.pairs) {
+        if (!p.kept || !active[static_cast<size_t>(p.view_a)] ||
+            !active[static_cast<size_t>(p.view_b)])
+          continue;
+        const size_t a = static_cast<size_t>(p.view_a), b = static_cast<size_t>(p.view_b);
+        if (reached[a] != reached[b]) {
+          reached[a] = reached[b] = true;
+          grew = true;
+        }
+      }
+    }
+    for (size_t i = 0; i < n; ++i) {
+      if (!active[i] || reached[i]) continue;
+      active[i] = false;
+      int pairs_of_view = 0;
+      std::string why;
+      for (const auto& p : result.pairs) {
+        if (p.view_a != static_cast<int>(i) && p.view_b != static_cast<int>(i)) continue;
+        ++pairs_of_view;
+        if (!p.kept && why.empty()) why = p.reason;
+      }
+      result.views[i].reason =
+          pairs_of_view == 0
+              ? StringPrintf(
+                    "overlaps no other view at its initial pose (min_pair_overlap %.2f "
+                    "within %.2f mm)",
+                    options.min_pair_overlap, options.initial_gate_mm)
+              : "no kept pair connects it to " + result.views[static_cast<size_t>(anchor)].name +
+                    (why.empty() ? std::string() : " (" + why + ")");
+    }
+    std::vector<internal::GraphEdge> edges;
+    edge_pair.clear();
+    for (size_t k = 0; k < result.pairs.size(); ++k) {
+      const auto& p = result.pairs[k];
+      if (!p.kept || !active[static_cast<size_t>(p.view_a)] ||
+          !active[static_cast<size_t>(p.view_b)])
+        continue;
+      edges.push_back({p.view_a, p.view_b, p.a_from_b, icp[k].information});
+      edge_pair.push_back(k);
+    }
+    sol = internal::OptimizePoseGraph(initial, active, anchor, edges, false);
+    // The pair that disagrees most with the graph, if beyond the bound.
+    std::vector<double> errors;
+    for (size_t e = 0; e < edges.size(); ++e) {
+      PairRegistration& p = result.pairs[edge_pair[e]];
+      const auto& o = icp[edge_pair[e]];
+      EdgeError(internal::EdgeDiscrepancy(sol.part_from_rig, edges[e]), o.centroid_in_a,
+                o.radius_mm, &p.graph_error_deg, &p.graph_error_mm);
+      errors.push_back(p.graph_error_mm);
+    }
+    const double bound =
+        std::max(options.min_edge_error_mm, options.max_edge_error_ratio * Median(errors));
+    size_t worst = edges.size();
+    for (size_t e = 0; e < edges.size(); ++e)
+      if (errors[e] > bound && (worst == edges.size() || errors[e] > errors[worst])) worst = e;
+    if (worst < edges.size()) {
+      PairRegistration& p = result.pairs[edge_pair[worst]];
+      p.kept = false;
+      p.reason = StringPrintf("disagrees with the pose graph by %.4f deg / %.4f mm (bound %.4f mm)",
+                              p.graph_error_deg, p.graph_error_mm, bound);
+      continue;
+    }
+    // The view whose pose departs most from its initial one, if beyond the bounds.
+    int worst_view = -1;
+    double worst_excess = 1.0;
+    for (size_t i = 0; i < n; ++i) {
+      if (!active[i] || !views[i].has_initial || static_cast<int>(i) == anchor) continue;
+      const Eigen::Vector3d c = geo[i].centroid;
+      const double deg = RotationErrorDeg(sol.part_from_rig[i], initial[i]);
+      const double mm = (sol.part_from_rig[i] * c - initial[i] * c).norm();
+      double excess = 0;
+      if (options.max_initial_departure_deg > 0)
+        excess = std::max(excess, deg / options.max_initial_departure_deg);
+      if (options.max_initial_departure_mm > 0)
+        excess = std::max(excess, mm / options.max_initial_departure_mm);
+      if (excess > worst_excess) {
+        worst_excess = excess;
+        worst_view = static_cast<int>(i);
+        result.views[i].reason = StringPrintf(
+            "its registered pose departs from its initial pose by %.3f deg / %.3f mm (bounds "
+            "%.3f deg / %.3f mm): a wrong table angle, or the part moved",
+            deg, mm, options.max_initial_departure_deg, options.max_initial_departure_mm);
+      }
+    }
+    if (worst_view >= 0) {
+      active[static_cast<size_t>(worst_view)] = false;
+      for (size_t i = 0; i < n; ++i)
+        if (active[i] && static_cast<int>(i) != worst_view) result.views[i].reason.clear();
+      continue;
+    }
+    // Final solve with the covariance.
+    sol = internal::OptimizePoseGraph(initial, active, anchor, edges, true);
+    result.graph_iterations = sol.iterations;
+    result.graph_initial_cost = sol.initial_cost;
+    result.graph_final_cost = sol.final_cost;
+    break;
+  }
+  for (auto& p : result.pairs) {
+    if (p.kept &&
+        (!active[static_cast<size_t>(p.view_a)] || !active[static_cast<size_t>(p.view_b)])) {
+      p.kept = false;
+      p.reason = "a view of the pair is left out";
+    }
+  }
+
+  // Per-view outcome: pose, residuals at the final poses, noise, uncertainty.
+  std::vector<std::vector<double>> view_rms(n), view_sq(n);
+  for (size_t k = 0; k < result.pairs.size(); ++k) {
+    PairRegistration& p = result.pairs[k];
+    if (!p.kept) continue;
+    const size_t a = static_cast<size_t>(p.view_a), b = static_cast<size_t>(p.view_b);
+    const Rigid3d a_from_b = sol.part_from_rig[a].Inverse() * sol.part_from_rig[b];
+    const internal::IcpOutcome fin =
+        internal::EvaluatePair(geo[a], geo[b], a_from_b, icp[k].gate_mm, options);
+    p.final_rms_mm = fin.rms_mm;
+    for (size_t v : {a, b}) {
+      view_rms[v].push_back(fin.rms_mm);
+      ++result.views[v].pairs;
+    }
+  }
+  for (size_t i = 0; i < n; ++i) {
+    ViewPose& v = result.views[i];
+    v.accepted = active[i];
+    v.anchor = static_cast<int>(i) == result.anchor;
+    if (!v.accepted) {
+      if (v.reason.empty()) v.reason = "not registered";
+      continue;
+    }
+    v.reason.clear();
+    v.part_from_rig = sol.part_from_rig[i];
+    double sum_sq = 0;
+    for (double r : view_rms[i]) sum_sq += r * r;
+    v.residual_rms_mm =
+        view_rms[i].empty() ? 0.0 : std::sqrt(sum_sq / static_cast<double>(view_rms[i].size()));
+    v.noise_mm = Median(view_rms[i]) / std::sqrt(2.0);
+    if (v.anchor) continue;
+    if (!sol.covariance_ok) {
+      v.sigma_rotation_deg = v.sigma_translation_mm = std::numeric_limits<double>::quiet_NaN();
+      continue;
+    }
+    const Matrix6d& c = sol.covariance[i];
+    const Eigen::Vector3d centroid = v.part_from_rig * geo[i].centroid;
+    Eigen::Matrix<double, 3, 6> jac;  // displacement of the centroid per (w, dt)
+    jac.leftCols<3>() = -Skew(centroid - v.part_from_rig.translation);
+    jac.rightCols<3>() = Eigen::Matrix3d::Identity();
+    v.sigma_rotation_deg = SqrtLargestEigenvalue(c.topLeftCorner<3, 3>()) * 180.0 / M_PI;
+    v.sigma_translation_mm = SqrtLargestEigenvalue(jac * c * jac.transpose());
+  }
+
+  // Loop closure over the accepted views in input order.
+  std::vector<size_t> cycle;
+  for (size_t i = 0; i < n; ++i)
+    if (active[i]) cycle.push_back(i);
+  if (cycle.size() >= 3) {
+    Rigid3d chain;
+    double after_deg = 0, after_mm = 0;
+    bool closed = true;
+    for (size_t k = 0; k < cycle.size() && closed; ++k) {
+      const int u = static_cast<int>(cycle[k]), w = static_cast<int>(cycle[(k + 1) % cycle.size()]);
+      const PairRegistration* found = nullptr;
+      for (const auto& p : result.pairs)
+        if (p.kept && ((p.view_a == u && p.view_b == w) || (p.view_a == w && p.view_b == u)))
+          found = &p;
+      if (found == nullptr) {
+        closed = false;
+        break;
+      }
+      chain = chain * (found->view_a == u ? found->a_from_b : found->a_from_b.Inverse());
+      after_deg = std::max(after_deg, found->graph_error_deg);
+      after_mm = std::max(after_mm, found->graph_error_mm);
+    }
+    if (closed) {
+      const Eigen::Vector3d c = geo[cycle[0]].centroid;
+      result.has_loop = true;
+      result.loop_closure_before_deg =
+          chain.rotation.angularDistance(Eigen::Quaterniond::Identity()) * 180.0 / M_PI;
+      result.loop_closure_before_mm = (chain * c - c).norm();
+      result.loop_closure_after_deg = after_deg;
+      result.loop_closure_after_mm = after_mm;
+    }
+  }
+  result.time_graph_s = Seconds(t0);
+
+  // 4. Fusion.
+  t0 = Clock::now();
+  std::vector<internal::FusionView> fusion;
+  for (size_t i = 0; i < n; ++i) {
+    if (!active[i]) continue;
+    internal::FusionView f;
+    f.view = static_cast<int>(i);
+    f.points = geo[i].points;
+    f.normals = &geo[i].normals;
+    f.part_from_rig = result.views[i].part_from_rig;
+    f.sigma_mm = result.views[i].noise_mm > 0
+                     ? result.views[i].noise_mm
+                     : std::max(options.fuse_min_disagreement_mm / options.fuse_k_sigma, 1e-6);
+    fusion.push_back(f);
+  }
+  if (!fusion.empty()) {
+    result.fuse_cell_mm =
+        options.fuse_cell_mm > 0
+            ? options.fuse_cell_mm
+            : std::max(geo[static_cast<size_t>(result.anchor)].area_spacing_mm, 1e-3);
+    internal::FuseViews(fusion, result.fuse_cell_mm, options.fuse_k_sigma,
+                        options.fuse_min_disagreement_mm, &result);
+  }
+  result.time_fuse_s = Seconds(t0);
+  result.time_s = Seconds(t_start);
+  return result;
+}
+
+}  // namespace slshadow::multiview

@@ -1,0 +1,175 @@
+// MergeViews: the views of a multi-view scan (turntable angles or hand-placed), each reconstructed
+// in its own rig frame, registered into one part frame and fused into one model (issue 32,
+// "Scan and merge"). Four steps:
+//
+//  1. Initial poses. A view with has_initial keeps part_from_rig_initial (for a table view the
+//     inverse of TurntableAxis::RigFromTableTurn(angle)); a view without one is found by
+//     compare::Register (global+icp: FPFH + RANSAC, then ICP) against the views posed so far.
+//  2. Pairwise registration. Each view is paired with the (up to) max_pairs_per_view views it
+//     overlaps most at the initial poses (overlap: share of a view's sample points with a
+//     neighbour of the other view within initial_gate_mm and a compatible normal; at least
+//     min_pair_overlap); each pair is registered by point-to-plane ICP (Chen & Medioni 1991)
+//     from the initial relative pose: up to icp_points source points against all points of the
+//     other view, edge points (PCA surface variation above icp_max_surface_variation) left out,
+//     the gate shrinking from initial_gate_mm to 3 x the point spacing. Each pair yields
+//     a_from_b, the residual RMS and the 6x6 information J^T J / sigma^2 of the left
+//     perturbation (rotation vector, translation) of a_from_b in frame a, sigma^2 the residual
+//     variance.
+//  3. Pose graph. One Ceres optimisation of all view poses, residual sqrt(information) x
+//     Log(estimated a_from_b x measured a_from_b^-1) per pair, the anchor view (the first
+//     accepted view) fixed: its initial pose defines the part frame. Left out and named, with the
+//     reason: a pair whose ICP residual exceeds max_pair_rms_ratio x the median of the pairs or
+//     whose overlap after ICP is below min_pair_fitness; then, one at a time, the pair that
+//     disagrees most with the optimised graph when its disagreement exceeds
+//     max(min_edge_error_mm, max_edge_error_ratio x the median); a view left with no pair into
+//     the anchor's component; a view with an initial pose whose optimised pose departs from it by
+//     more than max_initial_departure_deg / _mm (a wrong table angle, or the part moved).
+//     Covariance of each pose from ceres::Covariance at the solution, relative to the anchor.
+//     Because it assumes independent point errors it is a lower bound of the real uncertainty.
+//  4. Fusion. The accepted views' points, in the part frame, are binned in cubic cells of
+//     fuse_cell_mm; within a cell, points whose normals agree (within 60 deg) form one surface,
+//     and each view's mean height along that surface's normal is compared with the others'. The
+//     largest set of views that agree within max(fuse_min_disagreement_mm,
+//     fuse_k_sigma x sqrt(sigma_a^2 / n_a + sigma_b^2 / n_b)) (sigma: the views' noise along the
+//     normal, n: their point counts in the cell) is fused into one point, the weighted mean
+//     (weights 1 / sigma^2); each other view keeps its own point; all points of such a surface
+//     cell are flagged `disagree`. So the merged cloud has about one point per surface cell
+//     and view group, however many views saw it.
+//
+// Units: mm, degrees where named. Frames: each view's cloud is in its rig frame (the first
+// camera's frame, camera at the origin, which is also the viewpoint normals are oriented to);
+// part_from_rig maps it into the part frame.
+// Every pair and the fusion run in parallel (TBB); results do not depend on the thread count.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "compare/registration.h"
+#include "core/point_cloud.h"
+#include "core/rigid3.h"
+
+namespace slshadow::multiview {
+
+// One view's reconstruction, in that view's rig frame. The cloud is borrowed: it must outlive the
+// MergeViews call.
+struct ViewCloud {
+  std::string name;                   // e.g. "view_03"; appears in reports and reasons
+  const PointCloud* cloud = nullptr;  // mm; normals used when present, else estimated (PCA)
+  // The view's pose guess: x_in_part = part_from_rig_initial * x_in_rig. For table views the
+  // inverse of RigFromTableTurn(angle); ignored when has_initial is false.
+  Rigid3d part_from_rig_initial;
+  bool has_initial = true;  // false: found by global registration against the views posed so far
+};
+
+struct MergeOptions {
+  // Pairing and ICP.
+  double initial_gate_mm = 5.0;   // bound on the initial poses' error where the views overlap:
+                                  // the overlap test's and the ICP's first correspondence gate
+  double min_pair_overlap = 0.1;  // share of sample points, at the initial poses, to pair views
+  int max_pairs_per_view = 4;     // each view is paired with its most overlapping views only
+  int overlap_samples = 2000;     // sample points per view for the overlap test
+  int icp_points = 20000;         // source points per pair (evenly strided subset)
+  int icp_max_iterations = 60;
+  double icp_tolerance_mm = 1e-5;  // stop when an update moves the source points less than this
+  double icp_max_normal_angle_deg = 30.0;   // correspondences with normals farther apart: dropped
+  double icp_max_surface_variation = 0.05;  // PCA lambda_min / sum: above it a point is an edge
+  int normal_neighbors = 12;                // k of the PCA normals and surface variation
+  // Rejection.
+  double min_pair_fitness = 0.05;    // share of source points matched after ICP, to keep a pair
+  double max_pair_rms_ratio = 3.0;   // ICP residual RMS vs the median of all pairs
+  double max_edge_error_ratio = 10;  // pair vs graph disagreement vs the median of all pairs
+  double min_edge_error_mm = 0.02;   // disagreements below this are never rejected
+  // For views with an initial pose: farther than this from it after the graph, the view is left
+  // out. 0 disables the check.
+  double max_initial_departure_deg = 2.0;
+  double max_initial_departure_mm = 10.0;
+  // Global registration for views without an initial pose (method forced to global+icp).
+  compare::RegistrationOptions global;
+  // Fusion.
+  double fuse_cell_mm = 0.0;  // 0: the anchor view's point spacing, sqrt(area per point)
+  double fuse_k_sigma = 4.0;  // agreement bound in combined standard deviations
+  double fuse_min_disagreement_mm = 0.05;  // agreement bound floor (sampling of curved surfaces)
+
+  // Throws slshadow::Error naming the field and its value when one is out of range.
+  void Check() const;
+};
+
+// One view's outcome. Poses are relative to the anchor view (see above).
+struct ViewPose {
+  std::string name;
+  Rigid3d part_from_rig;            // optimised (the initial or global guess when left out)
+  Rigid3d part_from_rig_initial;    // what the graph started from (the global result if found)
+  double residual_rms_mm = 0;       // point-to-plane RMS over the view's kept pairs, final poses
+  double noise_mm = 0;              // the view's noise along the normal, from its pairs' residuals
+  double sigma_rotation_deg = 0;    // 1-sigma along the worst axis (covariance, see above)
+  double sigma_translation_mm = 0;  // 1-sigma displacement of the view's centroid, worst axis
+  int pairs = 0;                    // kept pairs this view is in
+  int points = 0;                   // points of the view's cloud
+  bool anchor = false;              // the view that fixes the part frame
+  bool accepted = false;            // registered and merged
+  std::string reason;               // why it was left out (empty when accepted)
+};
+
+// One registered pair of views: view a is the reference, b is moved onto it.
+struct PairRegistration {
+  int view_a = 0, view_b = 0;  // indices into the views
+  double overlap_initial = 0;  // share of b's samples near a at the initial poses
+  Rigid3d a_from_b;            // ICP result: x_in_rig_a = a_from_b * x_in_rig_b
+  double fitness = 0;          // share of b's ICP points matched at the final gate
+  double rms_mm = 0;           // point-to-plane residual RMS at the ICP result
+  int correspondences = 0;
+  int iterations = 0;
+  bool converged = false;
+  // Disagreement with the optimised graph: rotation, and the displacement of the matched points'
+  // centroid plus rotation x their RMS radius.
+  double graph_error_deg = 0, graph_error_mm = 0;
+  double final_rms_mm = 0;  // point-to-plane RMS at the optimised poses
+  bool kept = false;
+  std::string reason;  // why it was rejected (empty when kept)
+};
+
+struct MergeResult {
+  std::vector<ViewPose> views;  // in input order
+  std::vector<PairRegistration> pairs;
+  int anchor = -1;  // index of the anchor view, -1 when no view is accepted
+  // Loop closure, when the accepted views in input order form a closed cycle of kept pairs
+  // (a full turn): before = the error of chaining the cycle's pairwise registrations (what a
+  // sequential merge leaves at its seam); after = the largest disagreement between one of the
+  // cycle's pairs and the optimised graph (the worst seam left). Rotation in degrees, translation
+  // as the displacement of the first view's centroid.
+  bool has_loop = false;
+  double loop_closure_before_deg = 0, loop_closure_before_mm = 0;
+  double loop_closure_after_deg = 0, loop_closure_after_mm = 0;
+  // Pose graph.
+  int graph_iterations = 0;
+  double graph_initial_cost = 0, graph_final_cost = 0;
+  // The merged model in the part frame, with normals and the scalar fields "view",
+  // "views_fused", "sigma_mm" and "disagree" (the vectors below, as floats).
+  PointCloud merged;
+  std::vector<int> point_view;        // the view with the most points in the point's cell
+  std::vector<uint8_t> point_views;   // views fused into the point (1 when kept apart)
+  std::vector<float> point_sigma_mm;  // standard deviation along the normal (its quality)
+  std::vector<uint8_t> disagree;      // 1: the views disagree beyond their noise here
+  double fuse_cell_mm = 0;            // the cell size used
+  size_t input_points = 0;            // points of the accepted views
+  size_t disagree_points = 0;
+  double time_normals_s = 0, time_pairs_s = 0, time_graph_s = 0, time_fuse_s = 0, time_s = 0;
+
+  int NumAccepted() const;
+  std::string BriefReport() const;  // one line
+  std::string FullReport() const;   // one line per view and per pair, then the model
+};
+
+// Throws slshadow::Error on bad options, no views, a null or empty cloud, or duplicate names.
+// A view that cannot be registered is reported in the result, not thrown.
+MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& options = {});
+
+// Rotation angle between two transforms (degrees) and the largest displacement they give the
+// points (mm): the error measures of the reports and tests.
+double RotationErrorDeg(const Rigid3d& a, const Rigid3d& b);
+double MaxDisplacementMm(const Rigid3d& a, const Rigid3d& b,
+                         const std::vector<Eigen::Vector3d>& points);
+
+}  // namespace slshadow::multiview

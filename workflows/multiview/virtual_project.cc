@@ -1,0 +1,179 @@
+#include "workflows/multiview/virtual_project.h"
+
+#include <chrono>
+
+#include "core/config.h"
+#include "core/error.h"
+#include "core/file_util.h"
+#include "core/provenance.h"
+#include "core/string_printf.h"
+#include "patterns/codec.h"
+#include "shadow/scan_pipeline.h"
+#include "sim/simulate.h"
+#include "workflows/multiview/turntable_scene.h"
+
+namespace slshadow::multiview {
+namespace fs = std::filesystem;
+
+namespace {
+
+double SecondsSince(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+SimulateOptions ViewSimulateOptions(const VirtualProjectOptions& options) {
+  SimulateOptions s;
+  s.writer.encoding = options.encoding;
+  s.writer.png_compression = options.png_compression;
+  s.write_ground_truth = false;
+  return s;
+}
+
+nlohmann::json ProjectProvenance(const Scene& scene, const VirtualProjectOptions& options) {
+  return {{"generator", options.generator},
+          {"scene",
+           {{"config", scene.source_config},
+            {"base_dir", scene.source_dir.string()},
+            {"summary", SceneToJson(scene)}}},
+          {"simulate", SimulateOptionsToJson(ViewSimulateOptions(options))},
+          {"fixed_objects", options.fixed_objects}};
+}
+
+// Why an existing project cannot be resumed with these inputs, or empty.
+std::string ResumeMismatch(const ProjectManifest& project, const Rig& rig,
+                           const nlohmann::json& patterns, const ViewsFile& views,
+                           const nlohmann::json& provenance) {
+  if (RigToJson(project.rig) != RigToJson(rig)) return "rig";
+  if (project.patterns != patterns) return "pattern spec";
+  const ViewsFile stored = project.Views();
+  if (stored.views.size() != views.views.size()) return "views (their number)";
+  for (size_t i = 0; i < views.views.size(); ++i) {
+    if (!(stored.views[i] == views.views[i])) return "views[" + std::to_string(i) + "]";
+  }
+  for (const char* key : {"scene", "simulate", "fixed_objects"}) {
+    if (!project.provenance.contains(key) || project.provenance[key] != provenance[key])
+      return std::string("provenance.") + key;
+  }
+  return "";
+}
+
+}  // namespace
+
+void VirtualProjectOptions::Check() const {
+  SLSHADOW_THROW_IF(png_compression < 0 || png_compression > 9,
+                    "virtual project: png_compression must be in 0..9 (got ", png_compression, ")");
+  SLSHADOW_THROW_IF(generator.empty(), "virtual project: generator must not be empty");
+}
+
+std::string VirtualProjectSummary::BriefReport() const {
+  return StringPrintf(
+      "views rendered %zu, kept %zu; render %.2f s, write %.2f s, total %.2f s wall",
+      rendered.size(), kept.size(), render_seconds, write_seconds, total_seconds);
+}
+
+Rigid3d VirtualViewPose(const ViewSpec& view, const Rig& rig) {
+  if (view.OnTable()) {
+    SLSHADOW_THROW_IF(!rig.turntable, "view '", view.name, "': table_deg ", *view.table_deg,
+                      ", but rig '", rig.name, "' has no turntable axis (rig.turntable)");
+    return rig.turntable->RigFromTableTurn(*view.table_deg).Inverse();
+  }
+  SLSHADOW_THROW_IF(
+      !view.part_from_rig_guess, "view '", view.name,
+      "': a view placed by hand needs part_from_rig_guess in a virtual scan (the pose "
+      "the part is rendered at)");
+  return *view.part_from_rig_guess;
+}
+
+VirtualProjectSummary SimulateProject(const Scene& scene, const Rig& rig, const PatternSpec& spec,
+                                      const ViewsFile& views, const fs::path& project_dir,
+                                      const VirtualProjectOptions& options) {
+  const auto t_start = std::chrono::steady_clock::now();
+  options.Check();
+  views.Check("views");
+  scene.Check("scene '" + scene.name + "'");
+  rig.Check("rig '" + rig.name + "'");
+  SLSHADOW_THROW_IF(!rig.projector, "rig '", rig.name,
+                    "': has no projector: the simulator needs one");
+  SLSHADOW_THROW_IF(spec.projector_width != rig.projector->model.width ||
+                        spec.projector_height != rig.projector->model.height,
+                    "pattern spec: projector size ", spec.projector_width, "x",
+                    spec.projector_height, " does not match the rig's projector (",
+                    rig.projector->model.width, "x", rig.projector->model.height, ")");
+  for (const ViewSpec& v : views.views) VirtualViewPose(v, rig);  // every view has a pose
+
+  const nlohmann::json patterns = PatternSpecToJson(spec);
+  const nlohmann::json provenance = ProjectProvenance(scene, options);
+  std::error_code ec;
+  ProjectManifest project;
+  if (fs::exists(project_dir / "project.json", ec)) {
+    SLSHADOW_THROW_IF(!options.resume, project_dir.string(),
+                      ": already holds a project (pass --resume to render its missing views)");
+    // Not LoadProject: a complete view whose folder was lost since is rendered again below.
+    project = ProjectFromConfig(ConfigNode::LoadFile(project_dir / "project.json"));
+    const std::string mismatch = ResumeMismatch(project, rig, patterns, views, provenance);
+    SLSHADOW_THROW_IF(!mismatch.empty(), (project_dir / "project.json").string(), ": ", mismatch,
+                      " differs from this run's; resume only with the inputs the project was "
+                      "started with");
+  } else {
+    SLSHADOW_THROW_IF(fs::exists(project_dir, ec) && !fs::is_empty(project_dir, ec),
+                      project_dir.string(),
+                      ": exists and is not a multi-view project (no project.json); choose another "
+                      "folder");
+    project = NewProject(rig, patterns, views, provenance);
+    fs::create_directories(project_dir / "views", ec);
+    SLSHADOW_THROW_IF(ec, project_dir.string(), ": cannot create the folder: ", ec.message());
+    SaveProject(project, project_dir);
+  }
+
+  VirtualProjectSummary summary;
+  const SimulateOptions simulate = ViewSimulateOptions(options);
+  std::vector<cv::Mat> projector_images;  // generated when the first view needs them
+  for (size_t i = 0; i < project.views.size(); ++i) {
+    ProjectView& view = project.views[i];
+    const fs::path dir = project_dir / view.Folder();
+    if (fs::exists(dir / "manifest.json", ec)) {
+      // Kept: complete on disk (also when an interruption struck between the ImageSet's commit
+      // and the manifest's update).
+      if (view.state != ViewState::kComplete) {
+        view.state = ViewState::kComplete;
+        view.source = "virtual";
+        view.completed = ImageSet::Open(dir).created();
+        SaveProject(project, project_dir);
+      }
+      summary.kept.push_back(view.spec.name);
+      if (options.on_view) options.on_view(view.spec.name, i, false);
+      continue;
+    }
+    if (view.state == ViewState::kComplete) {  // its folder was removed: render it again
+      view.state = ViewState::kMissing;
+      SaveProject(project, project_dir);
+    }
+    if (projector_images.empty()) projector_images = GeneratePatterns(spec);
+    const Rigid3d part_from_rig = VirtualViewPose(view.spec, rig);
+    const Scene placed = MoveScene(scene, part_from_rig.Inverse(), options.fixed_objects);
+    auto t0 = std::chrono::steady_clock::now();
+    std::vector<std::vector<cv::Mat>> images = RenderScan(placed, rig, projector_images);
+    summary.render_seconds += SecondsSince(t0);
+    t0 = std::chrono::steady_clock::now();
+    ScanProvenance scan_provenance = VirtualScanProvenance(placed, simulate, options.generator);
+    nlohmann::json extra = ExtraWithProvenance(scan_provenance);
+    extra["view"] = {{"name", view.spec.name},
+                     {"table_deg", view.spec.table_deg ? nlohmann::json(*view.spec.table_deg)
+                                                       : nlohmann::json(nullptr)},
+                     {"part_from_rig_true", PoseToJson(part_from_rig)}};
+    shadow::WriteVirtualScan(dir, rig, spec, placed, images, simulate.writer, extra);
+    summary.write_seconds += SecondsSince(t0);
+    images.clear();
+    view.state = ViewState::kComplete;
+    view.source = "virtual";
+    view.completed = ImageSet::Open(dir).created();
+    SaveProject(project, project_dir);
+    summary.rendered.push_back(view.spec.name);
+    if (options.on_view) options.on_view(view.spec.name, i, true);
+  }
+  ReleaseSimulatorPool();
+  summary.total_seconds = SecondsSince(t_start);
+  return summary;
+}
+
+}  // namespace slshadow::multiview
