@@ -62,6 +62,7 @@ nlohmann::json Matrix(const Rigid3d& t) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  std::setvbuf(stdout, nullptr, _IOLBF, 0);  // lines survive a peer that is stopped
   std::filesystem::path out = std::filesystem::temp_directory_path() / "slshadow_merge_bench";
   mv::testing::TurntableScanOptions so;
   double voxel_mm = 1.0;
