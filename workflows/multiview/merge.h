@@ -9,9 +9,11 @@
 //     overlaps most at the initial poses (overlap: share of a view's sample points with a
 //     neighbour of the other view within initial_gate_mm and a compatible normal; at least
 //     min_pair_overlap); each pair is registered by point-to-plane ICP (Chen & Medioni 1991)
-//     from the initial relative pose: up to icp_points source points against all points of the
-//     other view, edge points (PCA surface variation above icp_max_surface_variation) left out,
-//     the gate shrinking from initial_gate_mm to 3 x the point spacing. Each pair yields
+//     with the symmetric normal, the mean of both points' normals (Rusinkiewicz 2019, so curved
+//     surfaces add no bias), from the initial relative pose: up to icp_points source points
+//     against all points of the other view, edge points (PCA surface variation above
+//     icp_max_surface_variation) left out, the gate halving from initial_gate_mm down to 3 x the
+//     point spacing each time the pose has settled. Each pair yields
 //     a_from_b, the residual RMS and the 6x6 information J^T J / sigma^2 of the left
 //     perturbation (rotation vector, translation) of a_from_b in frame a, sigma^2 the residual
 //     variance.
