@@ -11,6 +11,7 @@
 #include <string>
 #include <utility>
 
+#include "apps/cmd_calibrate_turntable.h"
 #include "apps/commands.h"
 #include "calib/calibration.h"
 #include "calib/calibration_input.h"
@@ -406,7 +407,10 @@ int RunCalibrate(int argc, char** argv) {
       "proj_int); --map names\n"
       "            the nodes of any other one- or two-camera layout (keys K1 D1 K2 D2 R T size1 "
       "size2)\n"
-      "  export    RIG.yaml --out OPENCV.yml",
+      "  export    RIG.yaml --out OPENCV.yml"
+      "\n  turntable --rig RIG.yaml --target T.yaml --images DIR... [--angles A1,A2,...] --out "
+      "RIG2.yaml\n"
+      "            the turntable axis from a board on the table at 3+ commanded angles",
       argv[0]};
   app.require_subcommand(1);
 
@@ -514,6 +518,9 @@ int RunCalibrate(int argc, char** argv) {
   exp->add_option("RIG", export_in, "rig file")->required();
   exp->add_option("--out", export_out, "OpenCV FileStorage file (.yml/.xml)")->required();
 
+  CalibrateTurntableCommand turntable;
+  turntable.Register(&app);
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -531,6 +538,7 @@ int RunCalibrate(int argc, char** argv) {
   if (refine->parsed()) return RunCalibrateRefine(refine_args);
   if (import->parsed()) return RunCalibrateImport(import_args);
   if (exp->parsed()) return RunCalibrateExport(export_in, export_out);
+  if (turntable.command->parsed()) return turntable.Run();
   return 1;
 }
 
