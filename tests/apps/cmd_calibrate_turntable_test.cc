@@ -171,15 +171,20 @@ TEST_F(CmdCalibrateTurntable, RefusesBadInputAndWritesNothing) {
   }
   {  // all angles equal
     auto args = Args(out);
-    args.insert(args.end() - static_cast<long>(folders_.size()) - 1,
-                {"--angles", "5,5,5,5,5,5,5,5,5"});
-    EXPECT_NE(FailureOf(args).find("1 distinct commanded angle(s)"), std::string::npos);
+    std::string same = "5";
+    for (size_t i = 1; i < folders_.size(); ++i) same += ",5";
+    args.insert(args.end() - static_cast<long>(folders_.size()) - 1, {"--angles", same});
+    const std::string e = FailureOf(args);
+    EXPECT_NE(e.find("1 distinct commanded angle(s)"), std::string::npos) << e;
   }
   {  // a count mismatch
     auto args = Args(out);
     args.insert(args.end() - static_cast<long>(folders_.size()) - 1, {"--angles", "0,10,20"});
-    EXPECT_NE(FailureOf(args).find("--angles: 3 angle(s) for 9 --images folder(s)"),
-              std::string::npos);
+    const std::string e = FailureOf(args);
+    EXPECT_NE(e.find("--angles: 3 angle(s) for " + std::to_string(folders_.size()) +
+                     " --images folder(s)"),
+              std::string::npos)
+        << e;
   }
   {  // a folder where no camera finds the board
     const fs::path blank = *tmp_ / "25";
