@@ -2,13 +2,9 @@
 
 #include <CLI/CLI.hpp>
 
-#include <algorithm>
 #include <cstdio>
-#include <filesystem>
 
-#include "calib/turntable.h"
-#include "core/error.h"
-#include "core/rig.h"
+#include "shadow/calibrate.h"
 
 namespace slshadow::app {
 
@@ -54,48 +50,19 @@ void CalibrateTurntableCommand::Register(CLI::App* calibrate) {
 }
 
 int CalibrateTurntableCommand::Run() const {
-  namespace fs = std::filesystem;
-  Rig rig_in = LoadRig(rig);
-  const TargetSpec spec = LoadTargetSpec(target);
-  std::vector<fs::path> folders(images.begin(), images.end());
-  std::vector<double> angles = angles_deg;
-  if (angles.empty()) {
-    for (const auto& f : folders) angles.push_back(CommandedAngleFromFolderName(f));
-  }
-  SLSHADOW_THROW_IF(angles.size() != folders.size(), "--angles: ", angles.size(), " angle(s) for ",
-                    folders.size(), " --images folder(s)");
-  TurntableOptions options;
-  options.loss = LossTypeFromString(loss);
-  options.loss_scale_px = loss_scale_px;
-  options.Check();
-  std::vector<ImageCheck> checks;
-  const TurntableInput input = TurntableInputFromFolders(rig_in, spec, folders, angles, &checks);
-  for (const auto& c : checks) {
-    if (!c.found) std::printf("note: %s: no board (%s)\n", c.label.c_str(), c.reason.c_str());
-  }
-  const TurntableResult result = CalibrateTurntable(input, options);
-  std::printf("%s", result.FullReport().c_str());
-  if (!result.converged)
-    std::printf("warning: the solver did not converge (%s)\n", result.termination.c_str());
-  if (result.rms_px > max_rms_px) {
-    std::printf(
-        "warning: RMS %.4f px is above %.4g px: did the board move on the table, is an angle "
-        "wrong, or does the rig no longer fit the cameras?\n",
-        result.rms_px, max_rms_px);
-  }
-  const TurntableAxis& a = result.axis;
-  std::printf(
-      "axis (rig frame, 1-sigma):\n"
-      "  direction   %.6f %.6f %.6f  +- %.5f deg\n"
-      "  point       %.4f %.4f %.4f mm  +- %.5f mm (perpendicular to the axis)\n"
-      "  angle scale %.7f  +- %.2g (true degrees per commanded degree)\n"
-      "  offset      0 deg (by definition: angles count from the table at commanded 0)\n",
-      a.direction_in_rig.x(), a.direction_in_rig.y(), a.direction_in_rig.z(), a.sigma_direction_deg,
-      a.point_in_rig_mm.x(), a.point_in_rig_mm.y(), a.point_in_rig_mm.z(), a.sigma_point_mm,
-      a.angle_scale, a.sigma_angle_scale);
-  rig_in.turntable = a;
-  SaveRig(rig_in, out);
-  std::printf("wrote %s\n", out.c_str());
+  shadow::CalibrateTurntableRequest request;
+  request.rig = rig;
+  request.target = target;
+  request.out = out;
+  request.folders.assign(images.begin(), images.end());
+  request.commanded_deg = angles_deg;
+  request.options.loss = LossTypeFromString(loss);
+  request.options.loss_scale_px = loss_scale_px;
+  request.max_rms_px = max_rms_px;
+  shadow::CalibrateTurntableAndWrite(request, [](const std::string& text) {
+    std::fputs(text.c_str(), stdout);
+    std::fflush(stdout);
+  });
   return 0;
 }
 

@@ -61,6 +61,7 @@ int RunShadowCommand(int argc, char** argv) {
   app.add_flag("--no-physics-fit", no_fit, "keep the part file's radiometry; fit no layer");
   app.add_flag("--no-clouds", no_clouds, "do not write the clouds");
   app.add_flag("--overwrite", overwrite, "replace an existing report folder");
+  AddStrictOptions(&app, &options.strict);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -68,9 +69,7 @@ int RunShadowCommand(int argc, char** argv) {
   }
   if (!pose.empty()) {
     const Eigen::Vector3d r(pose[0], pose[1], pose[2]);
-    const double angle = r.norm();
-    const Eigen::Quaterniond q = angle > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, r / angle))
-                                           : Eigen::Quaterniond::Identity();
+    const Eigen::Quaterniond q = QuaternionFromRotationVector(r);
     options.rig_from_part = Rigid3d(q, Eigen::Vector3d(pose[3], pose[4], pose[5]));
   }
   SLSHADOW_THROW_IF(fixed_pose && pose.empty(), "--fixed-pose: needs --pose");

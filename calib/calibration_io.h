@@ -43,6 +43,12 @@ CalibrationEvidence CalibrationEvidenceFromJson(const nlohmann::json& json,
 nlohmann::json CalibrationOptionsToJson(const CalibrationOptions& options);
 CalibrationOptions CalibrationOptionsFromJson(const nlohmann::json& json, const std::string& file);
 
+// The p95 projection uncertainty (px) the evidence keeps for `device`: the larger of
+// `projection_uncertainty` and `projection_uncertainty_view_correlated` (docs/formats.md
+// "Calibration evidence"); NaN when the evidence has neither (e.g. a rig written by hand).
+double EvidenceProjectionUncertaintyP95Px(const nlohmann::json& evidence,
+                                          const std::string& device);
+
 // OpenCV calibration files (cv::FileStorage, .yml/.yaml/.xml/.json).
 //
 // Writing: one camera as OpenCV's calibration sample writes it (image_width, image_height,

@@ -412,9 +412,7 @@ RegistrationResult Register(const std::vector<Eigen::Vector3d>& cloud,
     const Eigen::Matrix<double, 6, 1> x = ata.ldlt().solve(-acc.atb);
     const Eigen::Vector3d w = x.head<3>();
     const double angle = w.norm();
-    const Eigen::Quaterniond dq = angle > 0
-                                      ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, w / angle))
-                                      : Eigen::Quaterniond::Identity();
+    const Eigen::Quaterniond dq = QuaternionFromRotationVector(w);
     t = Rigid3d(dq, x.tail<3>()) * t;
     const double rms = std::sqrt(acc.sum_sq_p2p / static_cast<double>(acc.n));
     const double motion = angle * diag + x.tail<3>().norm();

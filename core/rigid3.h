@@ -42,4 +42,12 @@ struct Rigid3d {
   }
 };
 
+// The rotation of a rotation vector r (axis r / |r|, angle |r| radians; OpenCV's rvec, Ceres'
+// angle-axis); the identity for r = 0.
+inline Eigen::Quaterniond QuaternionFromRotationVector(const Eigen::Vector3d& r) {
+  const double angle = r.norm();
+  return angle > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, r / angle))
+                   : Eigen::Quaterniond::Identity();
+}
+
 }  // namespace slshadow

@@ -157,4 +157,48 @@ RefineResult RefineRigFromScan(const RefineFromScanRequest& request) {
   return r;
 }
 
+TurntableResult CalibrateTurntableAndWrite(const CalibrateTurntableRequest& request,
+                                           const PrintFn& print) {
+  Rig rig = LoadRig(request.rig);
+  const TargetSpec spec = LoadTargetSpec(request.target);
+  std::vector<double> angles = request.commanded_deg;
+  if (angles.empty()) {
+    for (const auto& f : request.folders) angles.push_back(CommandedAngleFromFolderName(f));
+  }
+  SLSHADOW_THROW_IF(angles.size() != request.folders.size(), "--angles: ", angles.size(),
+                    " angle(s) for ", request.folders.size(), " --images folder(s)");
+  request.options.Check();
+  std::vector<ImageCheck> checks;
+  const TurntableInput input =
+      TurntableInputFromFolders(rig, spec, request.folders, angles, &checks);
+  for (const auto& c : checks) {
+    if (!c.found)
+      print(StringPrintf("note: %s: no board (%s)\n", c.label.c_str(), c.reason.c_str()));
+  }
+  const TurntableResult result = CalibrateTurntable(input, request.options);
+  print(result.FullReport());
+  if (!result.converged)
+    print("warning: the solver did not converge (" + result.termination + ")\n");
+  if (result.rms_px > request.max_rms_px) {
+    print(StringPrintf(
+        "warning: RMS %.4f px is above %.4g px: did the board move on the table, is an angle "
+        "wrong, or does the rig no longer fit the cameras?\n",
+        result.rms_px, request.max_rms_px));
+  }
+  const TurntableAxis& a = result.axis;
+  print(StringPrintf(
+      "axis (rig frame, 1-sigma):\n"
+      "  direction   %.6f %.6f %.6f  +- %.5f deg\n"
+      "  point       %.4f %.4f %.4f mm  +- %.5f mm (perpendicular to the axis)\n"
+      "  angle scale %.7f  +- %.2g (true degrees per commanded degree)\n"
+      "  offset      0 deg (by definition: angles count from the table at commanded 0)\n",
+      a.direction_in_rig.x(), a.direction_in_rig.y(), a.direction_in_rig.z(), a.sigma_direction_deg,
+      a.point_in_rig_mm.x(), a.point_in_rig_mm.y(), a.point_in_rig_mm.z(), a.sigma_point_mm,
+      a.angle_scale, a.sigma_angle_scale));
+  rig.turntable = a;
+  SaveRig(rig, request.out);
+  print("wrote " + request.out.string() + "\n");
+  return result;
+}
+
 }  // namespace slshadow::shadow

@@ -14,6 +14,7 @@
 #include "calib/calibration_input.h"
 #include "calib/guidance.h"
 #include "calib/refine.h"
+#include "calib/turntable.h"
 #include "patterns/codec.h"
 
 namespace slshadow::shadow {
@@ -68,5 +69,21 @@ struct RefineFromScanRequest {
 // camera, a scan coding one axis, a rig without projector and no stereo camera, a known-distance
 // pixel without a decoded correspondence, or a refused solution (nothing written then).
 RefineResult RefineRigFromScan(const RefineFromScanRequest& request);
+
+struct CalibrateTurntableRequest {
+  std::filesystem::path rig, target, out;      // the calibrated rig, the board, the rig to write
+  std::vector<std::filesystem::path> folders;  // one per table angle, one image per camera
+  std::vector<double> commanded_deg;           // one per folder; empty: from the folder names
+  TurntableOptions options;
+  double max_rms_px = 1.0;  // a fit above this RMS is warned about
+};
+
+// `slshadow calibrate turntable`: reads the rig, the target and the images, calibrates the axis
+// (calib/turntable.h), prints the boards not found, the fit's report, warnings (no convergence,
+// RMS above max_rms_px) and the axis with its 1-sigma, and writes the rig with `turntable:`
+// filled, atomically. Throws slshadow::Error on bad input (e.g. a count of angles that does not
+// match the folders); nothing is written then.
+TurntableResult CalibrateTurntableAndWrite(const CalibrateTurntableRequest& request,
+                                           const PrintFn& print);
 
 }  // namespace slshadow::shadow

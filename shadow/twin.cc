@@ -19,6 +19,7 @@
 #include <Eigen/Dense>
 #include <opencv2/core/utility.hpp>
 
+#include "calib/calibration_io.h"
 #include "compare/compare.h"
 #include "compare/kdtree.h"
 #include "compare/mesh_distance.h"
@@ -28,6 +29,7 @@
 #include "core/image_io.h"
 #include "core/image_set.h"
 #include "core/point_cloud.h"
+#include "core/pose_io.h"
 #include "sim/simulate.h"
 
 namespace slshadow::shadow {
@@ -52,12 +54,14 @@ namespace {
 constexpr const char* kFormat = "slshadow-shadow-report";
 constexpr int kVersion = 1;
 
-nlohmann::json PoseToJson(const Rigid3d& p) {
+// The rig file's pose (core/pose_io.h) with the rotation also as a Rodrigues vector, for readers
+// that think in OpenCV's rvec.
+nlohmann::json ReportPoseJson(const Rigid3d& p) {
+  nlohmann::json j = PoseToJson(p);
   const Eigen::AngleAxisd aa(p.rotation);
   const Eigen::Vector3d r = aa.angle() * aa.axis();
-  return {{"rotation_quat_wxyz", {p.rotation.w(), p.rotation.x(), p.rotation.y(), p.rotation.z()}},
-          {"rotation_rvec_rad", {r.x(), r.y(), r.z()}},
-          {"translation_mm", {p.translation.x(), p.translation.y(), p.translation.z()}}};
+  j["rotation_rvec_rad"] = {r.x(), r.y(), r.z()};
+  return j;
 }
 
 // One task on a thread of its own, joined (its exception rethrown) by Join() or, on the way out
@@ -183,6 +187,7 @@ void ShadowOptions::Check() const {
   reconstruct.Check();
   physics.Check();
   diagnose.Check();
+  strict.Check();
 }
 
 namespace {
@@ -289,6 +294,9 @@ void ScanReal(ShadowRun& run) {
   run.real_rec = DecodeAndReconstruct(run.rig, run.spec, run.cameras, run.real_images, run.options,
                                       /*for_pose=*/true);
   run.result.stages.push_back(meter.Stop());
+  std::vector<ReconstructSummary> summaries;
+  for (const auto& [mode, rec] : run.real_rec.modes) summaries.push_back(rec.summary);
+  EnforceStrict(summaries, run.options.strict, "shadow: the real scan");
 }
 
 // The projector-coordinate error (px) that the rig's calibration uncertainty explains for
@@ -296,72 +304,13 @@ void ScanReal(ShadowRun& run) {
 // projector and the camera (docs/formats.md "Calibration evidence", the larger of the two noise
 // models), the camera's in projector pixels, added in quadrature; NaN when the file has neither.
 double RigUncertaintyPx(const Rig& rig, const std::string& camera) {
-  const nlohmann::json& cal = rig.calibration;
-  if (!cal.is_object() || !rig.projector) return std::nan("");
-  const auto p95 = [&](const std::string& device) {
-    double best = std::nan("");
-    for (const char* key : {"projection_uncertainty", "projection_uncertainty_view_correlated"}) {
-      if (!cal.contains(key) || !cal[key].is_array()) continue;
-      for (const auto& u : cal[key]) {
-        if (u.is_object() && u.value("device", std::string()) == device && u.contains("p95_px") &&
-            u["p95_px"].is_number()) {
-          const double v = u["p95_px"].get<double>();
-          if (std::isfinite(v) && !(v <= best)) best = v;
-        }
-      }
-    }
-    return best;
-  };
-  const double proj = p95(rig.projector->name), cam = p95(camera);
+  if (!rig.projector) return std::nan("");
+  const double proj = EvidenceProjectionUncertaintyP95Px(rig.calibration, rig.projector->name);
+  const double cam = EvidenceProjectionUncertaintyP95Px(rig.calibration, camera);
   if (!std::isfinite(proj) && !std::isfinite(cam)) return std::nan("");
   const double cam_in_proj =
       std::isfinite(cam) ? cam * rig.projector->model.fx() / rig.Camera(camera).model.fx() : 0.0;
   return std::hypot(std::isfinite(proj) ? proj : 0.0, cam_in_proj);
-}
-
-// The refinement's figures for the report: its objective, and the pose's uncertainty; with a
-// given pose, how far the pose moved from it in units of that uncertainty.
-nlohmann::json PoseRefinementToJson(const internal::PoseRefinement& f,
-                                    const ShadowOptions& options) {
-  const internal::PoseUncertainty& u = f.uncertainty;
-  nlohmann::json j = {{"objective", "mean Geman-McClure loss of the exact signed C2M to the part"},
-                      {"scale_mm", f.scale_mm},
-                      {"points", f.points},
-                      {"start_cost", f.start_cost},
-                      {"final_cost", f.final_cost},
-                      {"kept_start", f.kept_start},
-                      {"stages", f.stages},
-                      {"iterations", f.iterations},
-                      {"accepted_steps", f.accepted_steps},
-                      {"rejected_steps", f.rejected_steps},
-                      {"rms_mm", f.rms_mm}};
-  j["uncertainty"] = {{"method", "cluster-robust covariance over 5 mm cells of the part"},
-                      {"sigma_translation_mm", u.sigma_translation_mm},
-                      {"sigma_rotation_deg", u.sigma_rotation_deg},
-                      {"cells", u.cells},
-                      {"weak_directions", u.weak_directions}};
-  if (options.rig_from_part) {
-    // The move from the given pose as the left update about the centroid, (dt, dw), and its
-    // Mahalanobis length under the covariance (its constrained directions).
-    const Rigid3d given = options.rig_from_part->Inverse();
-    const Rigid3d d = f.part_from_rig * given.Inverse();
-    const Eigen::Vector3d c = u.centroid_in_part;
-    const Eigen::AngleAxisd aa(d.rotation);
-    Eigen::Matrix<double, 6, 1> delta;
-    delta.head<3>() = d.rotation * c + d.translation - c;
-    delta.tail<3>() = aa.angle() * aa.axis();
-    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> eig(u.covariance);
-    const double emax = eig.eigenvalues().maxCoeff();
-    double m2 = 0;
-    for (int k = 0; k < 6; ++k) {
-      const double e = eig.eigenvalues()[k];
-      if (e > 1e-12 * emax && e > 0) m2 += std::pow(eig.eigenvectors().col(k).dot(delta), 2) / e;
-    }
-    j["moved_from_given"] = {{"translation_at_centre_mm", delta.head<3>().norm()},
-                             {"rotation_deg", aa.angle() * 180.0 / M_PI},
-                             {"sigmas", std::sqrt(m2)}};
-  }
-  return j;
 }
 
 // 2. Pose, after PlacePart found it: fitness and RMSE of the final pose, measured the same way
@@ -392,7 +341,7 @@ void JudgePose(ShadowRun& run, PoseSource pose_source, const compare::Registrati
   const double fitness = d.empty() ? 0.0 : static_cast<double>(in) / static_cast<double>(d.size());
   const double rmse = in ? std::sqrt(ss / static_cast<double>(in)) : 0.0;
   report["pose"] = {{"source", ToString(pose_source)},
-                    {"rig_from_part", PoseToJson(rig_from_part)},
+                    {"rig_from_part", ReportPoseJson(rig_from_part)},
                     {"registration_cloud", run.real_rec.modes.back().first},
                     {"fitness", fitness},
                     {"inlier_rmse_mm", rmse},
@@ -412,7 +361,11 @@ void JudgePose(ShadowRun& run, PoseSource pose_source, const compare::Registrati
     report["pose"]["rotated_from_given_deg"] =
         compare::RotationDifferenceDeg(rig_from_part, *options.rig_from_part);
   }
-  if (run.pose_fit) report["pose"]["refinement"] = PoseRefinementToJson(*run.pose_fit, options);
+  if (run.pose_fit)
+    report["pose"]["refinement"] = internal::PoseRefinementToJson(
+        *run.pose_fit, options.rig_from_part
+                           ? std::optional<Rigid3d>(options.rig_from_part->Inverse())
+                           : std::nullopt);
   const bool credible = in > 0 && fitness >= options.min_fitness && rmse <= options.max_rmse_mm;
   report["pose"]["credible"] = credible;
   // Not credible: stop, unless a pose was given; then the job goes on from the given pose
@@ -430,7 +383,7 @@ void JudgePose(ShadowRun& run, PoseSource pose_source, const compare::Registrati
     surface_in_rig.Transform(rig_from_part.rotation.toRotationMatrix(), rig_from_part.translation);
     part_distance_at_pose.emplace(surface_in_rig);  // `registered` is not used after this
     report["pose"]["used"] = "given";
-    report["pose"]["rig_from_part"] = PoseToJson(rig_from_part);
+    report["pose"]["rig_from_part"] = ReportPoseJson(rig_from_part);
     report["pose"]["warning"] =
         "registration not credible (the real cloud is far from the part); the given pose is used "
         "as it is";

@@ -36,6 +36,7 @@
 #include "patterns/codec.h"
 #include "patterns/pattern_spec.h"
 #include "reconstruct/reconstruct.h"
+#include "reconstruct/strict_policy.h"
 #include "shadow/diagnose.h"
 #include "shadow/physics_fit.h"
 #include "sim/scene.h"
@@ -75,7 +76,11 @@ struct ShadowOptions {
   uint64_t noise_seed = 7919;  // the twin's noise (when the noise layer is kept)
   bool write_clouds = true;
   bool overwrite = false;  // replace an existing output folder
-  void Check() const;      // throws slshadow::Error
+  // --strict (reconstruct/strict_policy.h): the real scan's reconstructions must pass their
+  // calibration check and keep min_point_share of their decoded pixels, else the job ends before
+  // the twin is built, with nothing written.
+  StrictOptions strict;
+  void Check() const;  // throws slshadow::Error
 };
 
 struct ShadowResult {

@@ -8,6 +8,8 @@
 #include <map>
 #include <unordered_map>
 
+#include <nlohmann/json.hpp>
+
 #include <Eigen/Dense>
 #include <Eigen/Geometry>
 #include <opencv2/core/utility.hpp>
@@ -166,9 +168,7 @@ Evaluation Evaluate(Problem& p, const Rigid3d& part_from_rig, double scale_mm, b
 // The motion of the part frame for a scaled step x = (dt, radius dw) about the centroid.
 Rigid3d StepMotion(const Problem& p, const Vec6& x) {
   const Eigen::Vector3d w = x.tail<3>() / p.radius_mm;
-  const Eigen::Quaterniond r = w.norm() > 0
-                                   ? Eigen::Quaterniond(Eigen::AngleAxisd(w.norm(), w / w.norm()))
-                                   : Eigen::Quaterniond::Identity();
+  const Eigen::Quaterniond r = QuaternionFromRotationVector(w);
   // q -> c + R (q - c) + dt
   return Rigid3d(r, p.centroid + x.head<3>() - r * p.centroid);
 }
@@ -399,6 +399,51 @@ PoseRefinement RefinePoseOnSurface(const TriangleMesh& part_surface,
                                                      .maxCoeff())) *
                          180.0 / M_PI;
   return out;
+}
+
+// The refinement's figures for the report: its objective, and the pose's uncertainty; with a
+// given pose, how far the pose moved from it in units of that uncertainty.
+nlohmann::json PoseRefinementToJson(const PoseRefinement& f,
+                                    const std::optional<Rigid3d>& given_part_from_rig) {
+  const PoseUncertainty& u = f.uncertainty;
+  nlohmann::json j = {{"objective", "mean Geman-McClure loss of the exact signed C2M to the part"},
+                      {"scale_mm", f.scale_mm},
+                      {"points", f.points},
+                      {"start_cost", f.start_cost},
+                      {"final_cost", f.final_cost},
+                      {"kept_start", f.kept_start},
+                      {"stages", f.stages},
+                      {"iterations", f.iterations},
+                      {"accepted_steps", f.accepted_steps},
+                      {"rejected_steps", f.rejected_steps},
+                      {"rms_mm", f.rms_mm}};
+  j["uncertainty"] = {{"method", "cluster-robust covariance over 5 mm cells of the part"},
+                      {"sigma_translation_mm", u.sigma_translation_mm},
+                      {"sigma_rotation_deg", u.sigma_rotation_deg},
+                      {"cells", u.cells},
+                      {"weak_directions", u.weak_directions}};
+  if (given_part_from_rig) {
+    // The move from the given pose as the left update about the centroid, (dt, dw), and its
+    // Mahalanobis length under the covariance (its constrained directions).
+    const Rigid3d& given = *given_part_from_rig;
+    const Rigid3d d = f.part_from_rig * given.Inverse();
+    const Eigen::Vector3d c = u.centroid_in_part;
+    const Eigen::AngleAxisd aa(d.rotation);
+    Eigen::Matrix<double, 6, 1> delta;
+    delta.head<3>() = d.rotation * c + d.translation - c;
+    delta.tail<3>() = aa.angle() * aa.axis();
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> eig(u.covariance);
+    const double emax = eig.eigenvalues().maxCoeff();
+    double m2 = 0;
+    for (int k = 0; k < 6; ++k) {
+      const double e = eig.eigenvalues()[k];
+      if (e > 1e-12 * emax && e > 0) m2 += std::pow(eig.eigenvectors().col(k).dot(delta), 2) / e;
+    }
+    j["moved_from_given"] = {{"translation_at_centre_mm", delta.head<3>().norm()},
+                             {"rotation_deg", aa.angle() * 180.0 / M_PI},
+                             {"sigmas", std::sqrt(m2)}};
+  }
+  return j;
 }
 
 }  // namespace slshadow::shadow::internal

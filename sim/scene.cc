@@ -10,6 +10,7 @@
 #include "core/config.h"
 #include "core/error.h"
 #include "core/image_io.h"
+#include "core/pose_io.h"
 #include "sim/shapes.h"
 
 namespace slshadow {
@@ -21,33 +22,7 @@ bool PoseIsFinite(const Rigid3d& pose) {
   return pose.rotation.coeffs().allFinite() && pose.translation.allFinite();
 }
 
-// Same keys as the rig's poses (docs/formats.md "Rig YAML").
-Rigid3d PoseFromConfig(const ConfigNode& node) {
-  node.RejectUnknownKeys({"rotation_quat_wxyz", "rotation_rvec_rad", "translation_mm"});
-  const auto t = node["translation_mm"].AsDoubles(3);
-  if (node.Has("rotation_quat_wxyz") == node.Has("rotation_rvec_rad")) {
-    node.Fail("give exactly one of rotation_quat_wxyz or rotation_rvec_rad (Rodrigues, as OpenCV)");
-  }
-  Eigen::Quaterniond q = Eigen::Quaterniond::Identity();
-  if (node.Has("rotation_quat_wxyz")) {
-    const auto c = node["rotation_quat_wxyz"];
-    const auto v = c.AsDoubles(4);
-    q = Eigen::Quaterniond(v[0], v[1], v[2], v[3]);
-    if (std::abs(q.norm() - 1.0) > 1e-6) c.Fail("quaternion must have unit norm");
-  } else {
-    const auto v = node["rotation_rvec_rad"].AsDoubles(3);
-    const Eigen::Vector3d r(v[0], v[1], v[2]);
-    const double angle = r.norm();
-    if (angle > 0) q = Eigen::Quaterniond(Eigen::AngleAxisd(angle, r / angle));
-  }
-  return Rigid3d(q, Eigen::Vector3d(t[0], t[1], t[2]));
-}
-
-nlohmann::json PoseToJson(const Rigid3d& pose) {
-  const auto& q = pose.rotation;
-  return {{"rotation_quat_wxyz", {q.w(), q.x(), q.y(), q.z()}},
-          {"translation_mm", {pose.translation.x(), pose.translation.y(), pose.translation.z()}}};
-}
+// Scene poses use the rig's pose reader and writer (core/pose_io.h).
 
 double UnitScale(const ConfigNode& node) {
   const std::string u = node.AsString();

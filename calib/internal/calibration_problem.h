@@ -28,9 +28,7 @@ inline Pose6 ToPose6(const Rigid3d& t) {
 
 inline Rigid3d FromPose6(const Pose6& p) {
   const Eigen::Vector3d r(p[0], p[1], p[2]);
-  const double angle = r.norm();
-  const Eigen::Quaterniond q = angle > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, r / angle))
-                                         : Eigen::Quaterniond::Identity();
+  const Eigen::Quaterniond q = QuaternionFromRotationVector(r);
   return Rigid3d(q, Eigen::Vector3d(p[3], p[4], p[5]));
 }
 

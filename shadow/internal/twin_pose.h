@@ -28,8 +28,11 @@
 // with normal n: sigma(q) = sqrt(J Sigma J^T).
 #pragma once
 
+#include <optional>
 #include <string>
 #include <vector>
+
+#include <nlohmann/json.hpp>
 
 #include <Eigen/Core>
 
@@ -88,5 +91,11 @@ PoseRefinement RefinePoseOnSurface(const TriangleMesh& part_surface,
                                    const std::vector<Eigen::Vector3d>& cloud_in_rig,
                                    const std::vector<Rigid3d>& starts,
                                    const PoseRefineOptions& options = {});
+
+// The refinement's figures for report.json's `pose.refinement` (docs/formats.md "Shadow report"):
+// its objective and the pose's uncertainty; with a given pose, how far the returned pose moved
+// from it, in mm, degrees and units of that uncertainty (its Mahalanobis length).
+nlohmann::json PoseRefinementToJson(const PoseRefinement& refinement,
+                                    const std::optional<Rigid3d>& given_part_from_rig);
 
 }  // namespace slshadow::shadow::internal

@@ -15,6 +15,7 @@
 
 #include "capture/grbl_protocol.h"
 #include "tests/capture/grbl_emulator.h"
+#include "tests/testing/error_of.h"
 
 namespace slshadow::capture {
 namespace {
@@ -43,13 +44,8 @@ std::string Device(const GrblEmulator& emulator, const std::string& axis = "X") 
 
 // The TurntableError `f` throws (fails the test when it throws none).
 TurntableError ErrorOf(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const TurntableError& e) {
-    return e;
-  }
-  ADD_FAILURE() << "no TurntableError thrown";
-  return TurntableError(TurntableFault::kRefused, "");
+  return slshadow::testing::ExceptionOf<TurntableError>(
+      f, TurntableError(TurntableFault::kRefused, ""));
 }
 
 int Count(const std::vector<std::string>& lines, const std::string& line) {

@@ -68,13 +68,8 @@ struct Pipe {
 };
 
 TurntableError TurntableErrorOf(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const TurntableError& e) {
-    return e;
-  }
-  ADD_FAILURE() << "no TurntableError thrown";
-  return TurntableError(TurntableFault::kRefused, "");
+  return slshadow::testing::ExceptionOf<TurntableError>(
+      f, TurntableError(TurntableFault::kRefused, ""));
 }
 
 TEST(TurntableConfig, TheExampleLoadsEveryGrblField) {

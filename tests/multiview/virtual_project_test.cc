@@ -9,6 +9,7 @@
 #include "core/config.h"
 #include "core/error.h"
 #include "core/image_set.h"
+#include "core/pose_io.h"
 #include "tests/multiview/multiview_test_util.h"
 #include "tests/testing/error_of.h"
 #include "tests/testing/temp_dir.h"

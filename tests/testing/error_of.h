@@ -5,6 +5,8 @@
 #include <functional>
 #include <string>
 
+#include <gtest/gtest.h>
+
 #include "core/error.h"
 
 namespace slshadow::testing {
@@ -16,6 +18,19 @@ inline std::string ErrorOf(const std::function<void()>& f) {
     return e.what();
   }
   return "";
+}
+
+// The exception of type E (e.g. a device error carrying its fault kind) that `f` throws; a test
+// failure and `none` when it throws none.
+template <typename E>
+E ExceptionOf(const std::function<void()>& f, E none) {
+  try {
+    f();
+  } catch (const E& e) {
+    return e;
+  }
+  ADD_FAILURE() << "no exception of the expected type thrown";
+  return none;
 }
 
 }  // namespace slshadow::testing

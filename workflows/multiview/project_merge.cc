@@ -11,6 +11,7 @@
 #include "core/error.h"
 #include "core/file_util.h"
 #include "core/image_set.h"
+#include "core/pose_io.h"
 #include "core/string_printf.h"
 #include "shadow/scan_pipeline.h"
 

@@ -92,15 +92,15 @@ ProjectMergeResult MergeProject(const std::filesystem::path& project_dir,
                                 const TriangleMesh* cad_in_part,
                                 const ProjectMergeOptions& options = {});
 
-// The model folder (atomically; an existing folder is replaced only with `overwrite`):
-//   MODEL/report.json        ToJson(): views (poses, figures, left out with the reason), CAD
-//   figures MODEL/summary.txt        Summary() MODEL/merged.ply         the merged cloud, part
-//   frame, scalars view, quality (and deviation_mm
-//                            with a CAD mesh)
-//   MODEL/cad_deviation.ply  with a CAD mesh: WritePaintedMesh
-//   MODEL/cad_coverage.ply   with a CAD mesh: the surface samples with scalar reason
-//                            (CoverageReason), coloured covered green, not reconstructed red,
-//                            grazing orange, occluded blue, outside the field grey, table black
+// The model folder, written atomically (an existing folder is replaced only with `overwrite`):
+//  - MODEL/report.json: ToJson(): views (poses, figures, left out with the reason), CAD figures;
+//  - MODEL/summary.txt: Summary();
+//  - MODEL/merged.ply: the merged cloud, part frame, scalars view, quality (and deviation_mm with
+//    a CAD mesh);
+//  - MODEL/cad_deviation.ply: with a CAD mesh, WritePaintedMesh;
+//  - MODEL/cad_coverage.ply: with a CAD mesh, the surface samples with scalar reason
+//    (CoverageReason), coloured covered green, not reconstructed red, grazing orange, occluded
+//    blue, outside the field grey, table black.
 void WriteModel(const ProjectMergeResult& result, const TriangleMesh* cad_in_part,
                 const std::filesystem::path& model_dir, bool overwrite);
 

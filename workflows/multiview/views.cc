@@ -6,6 +6,7 @@
 #include "core/config.h"
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/pose_io.h"
 #include "core/string_printf.h"
 
 namespace slshadow::multiview {
@@ -110,31 +111,6 @@ ViewsFile FullTurnViews(int count, double start_deg) {
   }
   views.Check("full turn");
   return views;
-}
-
-nlohmann::json PoseToJson(const Rigid3d& pose) {
-  const Eigen::Quaterniond& q = pose.rotation;
-  return {{"rotation_quat_wxyz", {q.w(), q.x(), q.y(), q.z()}},
-          {"translation_mm", {pose.translation.x(), pose.translation.y(), pose.translation.z()}}};
-}
-
-Rigid3d PoseFromConfig(const ConfigNode& node) {
-  node.RejectUnknownKeys({"rotation_quat_wxyz", "rotation_rvec_rad", "translation_mm"});
-  const auto t = node["translation_mm"].AsDoubles(3);
-  if (node.Has("rotation_quat_wxyz") == node.Has("rotation_rvec_rad"))
-    node.Fail("give exactly one of rotation_quat_wxyz and rotation_rvec_rad");
-  Eigen::Quaterniond q = Eigen::Quaterniond::Identity();
-  if (node.Has("rotation_quat_wxyz")) {
-    const auto c = node["rotation_quat_wxyz"];
-    const auto v = c.AsDoubles(4);
-    q = Eigen::Quaterniond(v[0], v[1], v[2], v[3]);
-    if (std::abs(q.norm() - 1.0) > 1e-6) c.Fail("quaternion must have unit norm");
-  } else {
-    const auto v = node["rotation_rvec_rad"].AsDoubles(3);
-    const Eigen::Vector3d r(v[0], v[1], v[2]);
-    if (r.norm() > 0) q = Eigen::Quaterniond(Eigen::AngleAxisd(r.norm(), r / r.norm()));
-  }
-  return Rigid3d(q, Eigen::Vector3d(t[0], t[1], t[2]));
 }
 
 ViewsFile ViewsFromConfig(const ConfigNode& node) {

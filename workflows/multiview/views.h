@@ -65,11 +65,6 @@ ViewsFile LoadViews(const std::filesystem::path& path);  // .yaml/.yml/.json
 nlohmann::json ViewsToJson(const ViewsFile& views);
 void SaveViews(const ViewsFile& views, const std::filesystem::path& path);  // atomically
 
-// A pose as the rig file writes it ({rotation_quat_wxyz, translation_mm}) and back (also
-// rotation_rvec_rad); throws naming the field.
-nlohmann::json PoseToJson(const Rigid3d& pose);
-Rigid3d PoseFromConfig(const ConfigNode& node);
-
 // ---- The project folder.
 
 enum class ViewState { kComplete, kMissing };

@@ -5,6 +5,7 @@
 #include "core/config.h"
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/pose_io.h"
 #include "core/provenance.h"
 #include "core/string_printf.h"
 #include "patterns/codec.h"
@@ -128,18 +129,20 @@ VirtualProjectSummary SimulateProject(const Scene& scene, const Rig& rig, const 
   VirtualProjectSummary summary;
   const SimulateOptions simulate = ViewSimulateOptions(options);
   std::vector<cv::Mat> projector_images;  // generated when the first view needs them
+  // A view whose ImageSet is on disk: complete in the manifest, which is saved at once.
+  const auto mark_complete = [&](ProjectView& view, const fs::path& dir) {
+    view.state = ViewState::kComplete;
+    view.source = "virtual";
+    view.completed = ImageSet::Open(dir).created();
+    SaveProject(project, project_dir);
+  };
   for (size_t i = 0; i < project.views.size(); ++i) {
     ProjectView& view = project.views[i];
     const fs::path dir = project_dir / view.Folder();
     if (fs::exists(dir / "manifest.json", ec)) {
       // Kept: complete on disk (also when an interruption struck between the ImageSet's commit
       // and the manifest's update).
-      if (view.state != ViewState::kComplete) {
-        view.state = ViewState::kComplete;
-        view.source = "virtual";
-        view.completed = ImageSet::Open(dir).created();
-        SaveProject(project, project_dir);
-      }
+      if (view.state != ViewState::kComplete) mark_complete(view, dir);
       summary.kept.push_back(view.spec.name);
       if (options.on_view) options.on_view(view.spec.name, i, false);
       continue;
@@ -164,10 +167,7 @@ VirtualProjectSummary SimulateProject(const Scene& scene, const Rig& rig, const 
     shadow::WriteVirtualScan(dir, rig, spec, placed, images, simulate.writer, extra);
     summary.write_seconds += SecondsSince(t0);
     images.clear();
-    view.state = ViewState::kComplete;
-    view.source = "virtual";
-    view.completed = ImageSet::Open(dir).created();
-    SaveProject(project, project_dir);
+    mark_complete(view, dir);
     summary.rendered.push_back(view.spec.name);
     if (options.on_view) options.on_view(view.spec.name, i, true);
   }

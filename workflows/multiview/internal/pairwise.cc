@@ -174,9 +174,7 @@ IcpOutcome RegisterPair(const ViewGeometry& a, const ViewGeometry& b,
     const Eigen::Matrix<double, 6, 1> x = ata.ldlt().solve(-acc.atb);
     const Eigen::Vector3d w = x.head<3>();
     const double angle = w.norm();
-    const Eigen::Quaterniond dq = angle > 0
-                                      ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, w / angle))
-                                      : Eigen::Quaterniond::Identity();
+    const Eigen::Quaterniond dq = QuaternionFromRotationVector(w);
     t = Rigid3d(dq, x.tail<3>()) * t;
     // The gate shrinks (halving, down to 3 point spacings) only once the pose has settled at the
     // current one, so that correspondences on the few surfaces that fix a weakly constrained
