@@ -8,13 +8,14 @@
 #include "core/image_set.h"
 #include "core/rig.h"
 #include "reconstruct/reconstruct_image_set.h"
+#include "reconstruct/strict_policy.h"
 #include "reconstruct/write_reconstruction.h"
 
 namespace slshadow::app {
 
 int RunReconstruct(int argc, char** argv) {
   CLI::App app{
-      "Reconstruct a point cloud from an ImageSet (docs/formats.md \"ImageSet manifest\").\n\n"
+      "Reconstruct a point cloud from an ImageSet (docs/formats.md \"ImageSet\").\n\n"
       "Reads the rig and the pattern spec from IMAGESET/manifest.json, decodes every camera's "
       "fringe\n"
       "images (patterns/: projector column / row per camera pixel, with a validity reason and a\n"
@@ -41,11 +42,14 @@ int RunReconstruct(int argc, char** argv) {
       "noise\n"
       "and warns (stderr) when the field is significant against the noise, naming its likely "
       "cause;\n"
-      "with one coded axis it says why it is not available.",
+      "with one coded axis it says on stderr what the capture cannot reveal and what would.\n"
+      "With --strict a warning, a check that cannot run or too few points end the command with a\n"
+      "non-zero exit before anything is written.",
       argv[0]};
   std::string imageset_dir, out_path, summary_path, rig_path, mode = "auto", method = "midpoint",
                                                               interpolation = "auto";
   ImageSetReconstructOptions options;
+  StrictOptions strict;
   ReconstructOptions& r = options.reconstruct;
   bool ascii = false, no_discontinuity = false, no_outliers = false, no_normals = false,
        quiet = false;
@@ -147,6 +151,7 @@ int RunReconstruct(int argc, char** argv) {
                  "summary JSON path (default: CLOUD with .summary.json)");
   app.add_flag("--ascii", ascii, "write ASCII PLY instead of binary");
   app.add_flag("--quiet", quiet, "print only the one-line summaries");
+  AddStrictOptions(&app, &strict);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -166,6 +171,9 @@ int RunReconstruct(int argc, char** argv) {
   options.Check();
 
   const ImageSetReconstruction rec = ReconstructImageSet(image_set, options, rig);
+  for (const auto& w : rec.Warnings()) std::fprintf(stderr, "slshadow: warning: %s\n", w.c_str());
+  for (const auto& n : rec.Notices()) std::fprintf(stderr, "slshadow: note: %s\n", n.c_str());
+  EnforceStrict(rec.summaries, strict, "reconstruct " + imageset_dir);
   ReconstructionOutputOptions output;
   output.cloud_path = out_path;
   output.summary_path = summary_path;
@@ -173,7 +181,6 @@ int RunReconstruct(int argc, char** argv) {
   output.imageset = imageset_dir;
   output.rig_file = rig_path;
   const ReconstructionOutputs written = WriteReconstruction(rec, options, rig, output);
-  for (const auto& w : rec.Warnings()) std::fprintf(stderr, "slshadow: warning: %s\n", w.c_str());
   if (quiet) {
     for (const auto& s : rec.summaries) {
       std::printf("%s\n", s.BriefReport().c_str());

@@ -10,6 +10,7 @@
 
 #include "core/error.h"
 #include "core/huge_pages.h"
+#include "reconstruct/strict_policy.h"
 
 #ifndef SLSHADOW_VERSION
 #define SLSHADOW_VERSION "unknown"
@@ -78,6 +79,19 @@ const std::vector<Command>& Commands() {
        RunSweep},
   };
   return commands;
+}
+
+void AddStrictOptions(CLI::App* app, StrictOptions* strict) {
+  app->add_flag("--strict", strict->enabled,
+                "what a measurement chain should run with: end with a non-zero exit and write "
+                "nothing when a reconstruction's calibration check warns, cannot run (e.g. "
+                "camera-projector with one coded axis and no stereo check of that camera), or "
+                "turns fewer than --strict-min-points of its decoded pixels into points");
+  app->add_option("--strict-min-points", strict->min_point_share,
+                  "strict mode: least share of the decoded (valid) pixels that must become "
+                  "points, 0..1 (stereo: of the mean over both cameras)")
+      ->check(CLI::Range(0.0, 1.0))
+      ->capture_default_str();
 }
 
 int ExitOnParseError(const CLI::App& app, const CLI::ParseError& error) {

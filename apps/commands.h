@@ -11,6 +11,10 @@ class App;
 class ParseError;
 }  // namespace CLI
 
+namespace slshadow {
+struct StrictOptions;
+}  // namespace slshadow
+
 namespace slshadow::app {
 
 struct Command {
@@ -30,6 +34,10 @@ int Main(int argc, char** argv);
 // anything else is one line on stderr ("slshadow: error: slshadow rig: RIG is required ...") and
 // CLI11's non-zero exit code.
 int ExitOnParseError(const CLI::App& app, const CLI::ParseError& error);
+
+// `--strict` and `--strict-min-points` (reconstruct/strict_policy.h), with the help text that says
+// what strict mode refuses; shared by the commands that reconstruct a capture.
+void AddStrictOptions(CLI::App* app, StrictOptions* strict);
 
 // Subcommands.
 int RunRig(int argc, char** argv);

@@ -57,6 +57,15 @@ class CmdReconstruct : public ::testing::Test {
   }
   static std::filesystem::path Dir() { return tmp_->path(); }
   static std::filesystem::path Scan() { return *tmp_ / "scan"; }
+  // A copy of the scan whose manifest holds `rig` instead of the scan's own.
+  static std::filesystem::path CopyWithRig(const std::string& name, const Rig& rig) {
+    const auto copy = Dir() / name;
+    std::filesystem::copy(Scan(), copy, std::filesystem::copy_options::recursive);
+    nlohmann::json manifest = ReadJson(copy / "manifest.json");
+    manifest["rig"] = RigToJson(rig);
+    std::ofstream(copy / "manifest.json") << manifest.dump(2);
+    return copy;
+  }
   static testing::TempDir* tmp_;
 };
 testing::TempDir* CmdReconstruct::tmp_ = nullptr;
@@ -90,11 +99,7 @@ TEST_F(CmdReconstruct, CalibrationCheckWarnsAboutAWrongRigFile) {
   Rig wrong = scan.rig();
   wrong.cameras[0].model.params[CameraModel::kCx] += 1.0;
   wrong.cameras[0].model.params[CameraModel::kCy] += 1.0;
-  const auto copy = Dir() / "scan_wrong_rig";
-  std::filesystem::copy(Scan(), copy, std::filesystem::copy_options::recursive);
-  nlohmann::json manifest = ReadJson(copy / "manifest.json");
-  manifest["rig"] = RigToJson(wrong);
-  std::ofstream(copy / "manifest.json") << manifest.dump(2);
+  const auto copy = CopyWithRig("scan_wrong_rig", wrong);
   const auto out = Dir() / "wrong.ply";
   ASSERT_EQ(RunCli({"reconstruct", copy.string(), "--out", out.string(), "--quiet"}), 0);
   const nlohmann::json summary = ReadJson(Dir() / "wrong.summary.json");
@@ -121,11 +126,7 @@ TEST_F(CmdReconstruct, NoPointsIsAnErrorWithItsReason) {
   const ImageSet scan = ImageSet::Open(Scan());
   Rig wrong = scan.rig();
   wrong.projector->cam_from_rig.translation.y() += 40;  // the projector 40 mm off
-  const auto copy = Dir() / "scan_far_off_rig";
-  std::filesystem::copy(Scan(), copy, std::filesystem::copy_options::recursive);
-  nlohmann::json manifest = ReadJson(copy / "manifest.json");
-  manifest["rig"] = RigToJson(wrong);
-  std::ofstream(copy / "manifest.json") << manifest.dump(2);
+  const auto copy = CopyWithRig("scan_far_off_rig", wrong);
   const auto out = Dir() / "none.ply";
   ::testing::internal::CaptureStderr();
   const int code = RunCli({"reconstruct", copy.string(), "--out", out.string(), "--quiet"});
@@ -251,6 +252,91 @@ TEST_F(CmdReconstruct, ZeroPointsIsAnErrorWithTheReason) {
   EXPECT_NE(err.find("outside the depth range"), std::string::npos) << err;
   EXPECT_FALSE(std::filesystem::exists(out));
   EXPECT_FALSE(std::filesystem::exists(Dir() / "empty.summary.json"));
+}
+
+// --strict: the scan's own rig passes and writes; a rig file whose calibration check warns, or a
+// minimum share of points the scan cannot reach, ends with a non-zero exit naming the reason, and
+// an output already at --out is left as it was.
+TEST_F(CmdReconstruct, StrictModeRefusesAWarningAndWritesNothing) {
+  const auto good = Dir() / "strict_good.ply";
+  ASSERT_EQ(RunCli({"reconstruct", Scan().string(), "--out", good.string(), "--quiet", "--strict"}),
+            0);
+  EXPECT_TRUE(std::filesystem::exists(good));
+
+  Rig wrong = ImageSet::Open(Scan()).rig();
+  wrong.cameras[0].model.params[CameraModel::kCx] += 1.0;
+  wrong.cameras[0].model.params[CameraModel::kCy] += 1.0;
+  const auto copy = CopyWithRig("scan_strict_wrong_rig", wrong);
+  const auto out = Dir() / "strict_wrong.ply";
+  std::ofstream(out) << "an earlier cloud";
+  ::testing::internal::CaptureStderr();
+  const int code =
+      RunCli({"reconstruct", copy.string(), "--out", out.string(), "--quiet", "--strict"});
+  const std::string err = ::testing::internal::GetCapturedStderr();
+  EXPECT_NE(code, 0);
+  EXPECT_NE(err.find("--strict"), std::string::npos) << err;
+  EXPECT_NE(err.find("left-projector: the calibration check warns"), std::string::npos) << err;
+  EXPECT_EQ(err.find("right-projector: the calibration check warns"), std::string::npos) << err;
+  EXPECT_NE(err.find("nothing written"), std::string::npos) << err;
+  std::ifstream in(out);
+  EXPECT_EQ(std::string(std::istreambuf_iterator<char>(in), {}), "an earlier cloud");
+  EXPECT_FALSE(std::filesystem::exists(Dir() / "strict_wrong.summary.json"));
+
+  // Every decoded pixel a point is more than any scan gives (filters and gates reject some).
+  const auto all = Dir() / "strict_all.ply";
+  ::testing::internal::CaptureStderr();
+  const int code_all = RunCli({"reconstruct", Scan().string(), "--out", all.string(), "--quiet",
+                               "--strict", "--strict-min-points", "1"});
+  const std::string err_all = ::testing::internal::GetCapturedStderr();
+  EXPECT_NE(code_all, 0);
+  EXPECT_NE(err_all.find("under the 100.0 % minimum"), std::string::npos) << err_all;
+  EXPECT_FALSE(std::filesystem::exists(all));
+  // The share is checked as an option.
+  EXPECT_NE(
+      RunCli({"reconstruct", Scan().string(), "--out", all.string(), "--strict-min-points", "1.5"}),
+      0);
+}
+
+// One coded axis (columns only): camera-projector has no calibration check. The command says so
+// on stderr and still writes; --strict refuses it; stereo of the same capture checks the rig
+// against the projector (one-axis stereo's projector error) and passes --strict.
+TEST_F(CmdReconstruct, OneAxisCaptureIsNotedAndRefusedInStrictMode) {
+  const auto spec = Dir() / "columns_only.yaml";
+  std::ofstream(spec) << "kind: phase_shift\nprojector_width: 1280\nprojector_height: 800\n"
+                         "code_x: true\ncode_y: false\nphase_steps: 4\nperiod_px: 16\n";
+  const auto scan = Dir() / "scan_columns";
+  ASSERT_EQ(RunCli({"simulate", "--rig", (Dir() / "rig.yaml").string(), "--scene",
+                    (testing::SourceDir() / "config/demo/scene.yaml").string(), "--patterns",
+                    spec.string(), "--out", scan.string(), "--encoding", "pgm", "--no-ground-truth",
+                    "--quiet"}),
+            0);
+  const auto out = Dir() / "columns.ply";
+  ::testing::internal::CaptureStderr();
+  const int code = RunCli({"reconstruct", scan.string(), "--out", out.string(), "--quiet"});
+  const std::string err = ::testing::internal::GetCapturedStderr();
+  EXPECT_EQ(code, 0) << err;
+  EXPECT_TRUE(std::filesystem::exists(out));
+  EXPECT_NE(err.find("slshadow: note: calibration check: not available for left-projector"),
+            std::string::npos)
+      << err;
+
+  const auto strict_out = Dir() / "columns_strict.ply";
+  ::testing::internal::CaptureStderr();
+  const int strict_code =
+      RunCli({"reconstruct", scan.string(), "--out", strict_out.string(), "--quiet", "--strict"});
+  const std::string strict_err = ::testing::internal::GetCapturedStderr();
+  EXPECT_NE(strict_code, 0);
+  EXPECT_NE(strict_err.find("left-projector: no calibration check, because"), std::string::npos)
+      << strict_err;
+  EXPECT_FALSE(std::filesystem::exists(strict_out));
+
+  const auto stereo_out = Dir() / "columns_stereo.ply";
+  ::testing::internal::CaptureStderr();
+  const int stereo_code = RunCli({"reconstruct", scan.string(), "--out", stereo_out.string(),
+                                  "--quiet", "--mode", "stereo", "--strict"});
+  const std::string stereo_err = ::testing::internal::GetCapturedStderr();
+  EXPECT_EQ(stereo_code, 0) << stereo_err;
+  EXPECT_TRUE(std::filesystem::exists(stereo_out));
 }
 
 }  // namespace

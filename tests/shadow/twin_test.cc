@@ -276,12 +276,23 @@ TEST(ShadowTwin, CommandLineRejectsBadInput) {
                        "--fixed-pose", "--out", (tmp / "out3").string()}),
       0);
   EXPECT_FALSE(std::filesystem::exists(tmp / "out3"));
-  // And the good case through the command line: --pose as a rotation vector and a translation.
+  // --strict with a share of points no scan reaches: refused after the real scan, nothing written.
+  ::testing::internal::CaptureStderr();
+  const int strict_code =
+      testing::RunCli({"shadow", (tmp / "real").string(), "--part", (tmp / "part.ply").string(),
+                       "--out", (tmp / "out5").string(), "--strict", "--strict-min-points", "1"});
+  const std::string strict_err = ::testing::internal::GetCapturedStderr();
+  EXPECT_NE(strict_code, 0);
+  EXPECT_NE(strict_err.find("shadow: the real scan: --strict:"), std::string::npos) << strict_err;
+  EXPECT_FALSE(std::filesystem::exists(tmp / "out5"));
+  // And the good case through the command line, strict (the clean scan's checks pass): --pose as
+  // a rotation vector and a translation.
   const Eigen::AngleAxisd aa(DemoPartPose().rotation);
   const Eigen::Vector3d r = aa.angle() * aa.axis(), t = DemoPartPose().translation;
   std::vector<std::string> args = {
       "shadow", (tmp / "real").string(), "--part",      (tmp / "part.ply").string(),
-      "--out",  (tmp / "out4").string(), "--no-clouds", "--pose"};
+      "--out",  (tmp / "out4").string(), "--no-clouds", "--strict",
+      "--pose"};
   for (double v : {r.x(), r.y(), r.z(), t.x(), t.y(), t.z()}) args.push_back(std::to_string(v));
   ASSERT_EQ(testing::RunCli(args), 0);
   std::ifstream in(tmp / "out4" / "report.json");
