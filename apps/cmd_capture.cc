@@ -106,7 +106,8 @@ int RunCapture(int argc, char** argv) {
       ->capture_default_str()
       ->check(CLI::IsMember({"png", "pgm", "tiff"}));
   app.add_flag("--no-validate", no_validate,
-               "store frames without checking them against the patterns");
+               "store frames without checking them against the patterns (a projector backend "
+               "none needs it, unless every camera replays a recorded capture)");
   app.add_flag("--quiet", quiet, "print nothing but errors");
   try {
     app.parse(argc, argv);

@@ -1,6 +1,7 @@
 // NoneProjector: no projector at all, for cameras-only stills (calibration boards under room
-// light). Show() returns at once; the sequencer does not validate frames against patterns it
-// cannot show (Info().width == 0).
+// light) and for replaying a recorded capture. Show() returns at once. The sequencer cannot check
+// frames against patterns nobody shows (Info().width == 0): it refuses to run validated unless
+// every camera replays a recording (whose frames hold the sequence and are checked as live ones).
 #pragma once
 
 #include "capture/projector.h"

@@ -86,6 +86,7 @@ class PatternSequenceCapture {
     images_ = GeneratePatterns(spec_);
     model_ = std::make_unique<SequenceModel>(spec_, images_);
     validate_ = options_.validate;
+    summary_.validated = validate_;
   }
 
   CaptureSummary Run() {

@@ -71,7 +71,21 @@ class Sequencer {
     images_ = GeneratePatterns(spec_);
     model_ = std::make_unique<SequenceModel>(spec_, images_);
     half_range_ = 0.5 * (spec_.intensity_max - spec_.intensity_min);
-    validate_ = options_.validate && projector_.Info().width > 0;
+    validate_ = options_.validate;
+    if (validate_ && projector_.Info().width <= 0) {
+      // No projector shows the patterns. Frames replayed from a recorded capture still hold the
+      // sequence, so they are checked as a live capture's would be; any other camera would film
+      // one unchanging scene pattern after pattern, almost always a mistake in the devices file.
+      bool all_replay = !cameras_.empty();
+      for (const auto& c : cameras_)
+        all_replay = all_replay && c.camera->Info().backend == "replay";
+      SLSHADOW_THROW_IF(!all_replay, "capture: the projector (backend '", projector_.Info().backend,
+                        "') shows none of the pattern spec's ", spec_.NumImages(),
+                        " patterns, so the frames cannot be checked against them and every image "
+                        "would show the same scene: name a projector in the devices file's "
+                        "projector: entry, or pass --no-validate to store the frames unchecked");
+    }
+    summary_.validated = validate_;
   }
 
   CaptureSummary Run() {

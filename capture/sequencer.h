@@ -102,7 +102,9 @@ struct SequencerOptions {
   // Upper bound of the wait after a Show the capture may learn when frames show that the
   // projector's latency was underestimated (CaptureSummary::learned_latency_us).
   std::chrono::microseconds max_latency{std::chrono::seconds(1)};
-  bool validate = true;  // only effective when the projector shows patterns
+  // Check every frame against the patterns. With a projector that shows nothing (backend none)
+  // Capture refuses to run validated unless every camera replays a recorded capture.
+  bool validate = true;
   ValidationOptions validation;
   bool auto_exposure = false;  // exposure assistant before the sequence
   AutoExposureOptions auto_exposure_options;
@@ -152,6 +154,7 @@ struct CaptureSummary {
   bool complete = false;          // committed
   bool interrupted = false;       // stopped by options.stop; resumable
   bool resumed = false;           // continued an existing staging folder
+  bool validated = false;         // frames were checked (stale, complementary); else counters are 0
   int patterns = 0;               // in the sequence
   int images_total = 0;           // patterns x cameras
   int images_before = 0;          // already stored when this run started (resume)

@@ -107,6 +107,7 @@ nlohmann::json CaptureSummary::ToJson() const {
   nlohmann::json j = {{"complete", complete},
                       {"interrupted", interrupted},
                       {"resumed", resumed},
+                      {"validated", validated},
                       {"patterns", patterns},
                       {"images_total", images_total},
                       {"images_before", images_before},
@@ -133,14 +134,19 @@ std::string CaptureSummary::BriefReport() const {
                 images_before + images_stored, images_total, images_stored, images_before, patterns,
                 retries, seconds, resumed ? ", resumed" : "");
   std::string s = line;
+  if (!validated) s += "\n  frames not checked against the patterns (--no-validate)";
   for (const auto& [name, c] : cameras) {
+    // Stale and not complementary count the checks' findings: printed only where they ran.
+    char checks[96] = "";
+    if (validated) {
+      std::snprintf(checks, sizeof(checks), "%lld stale, %lld not complementary, ",
+                    static_cast<long long>(c.stale), static_cast<long long>(c.not_complementary));
+    }
     std::snprintf(line, sizeof(line),
-                  "\n  %s (%s): %lld grabbed, %lld timeouts, %lld damaged, %lld stale, %lld not "
-                  "complementary, "
-                  "%lld missing frame ids, exposure %.0f us",
+                  "\n  %s (%s): %lld grabbed, %lld timeouts, %lld damaged, %s%lld missing frame "
+                  "ids, exposure %.0f us",
                   name.c_str(), c.serial.c_str(), static_cast<long long>(c.frames_grabbed),
-                  static_cast<long long>(c.timeouts), static_cast<long long>(c.damaged),
-                  static_cast<long long>(c.stale), static_cast<long long>(c.not_complementary),
+                  static_cast<long long>(c.timeouts), static_cast<long long>(c.damaged), checks,
                   static_cast<long long>(c.missing_frame_ids), c.exposure_us);
     s += line;
   }

@@ -98,6 +98,10 @@ nlohmann::json CameraNote(const CameraInfo& info, const CameraSettings& settings
 void EndSession(ResumableImageSetWriter& writer, const CaptureSummary& summary,
                 const std::string& failure, const std::string& storage_error) {
   nlohmann::json end_note = summary.ToJson();
+  // The note is written before the commit, so summary.complete (committed) is still false here:
+  // the note says whether this session ended with every image captured (the commit follows).
+  end_note["complete"] = failure.empty() && storage_error.empty() && !summary.interrupted &&
+                         summary.images_before + summary.images_stored >= summary.images_total;
   end_note["ended"] = UtcTimestamp();
   if (!failure.empty()) end_note["failure"] = failure;
   if (!storage_error.empty()) end_note["storage_error"] = storage_error;

@@ -12,6 +12,7 @@
 
 #include <gtest/gtest.h>
 
+#include "capture/none_projector.h"
 #include "core/error.h"
 #include "core/file_util.h"
 #include "patterns/codec.h"
@@ -150,6 +151,49 @@ TEST(Sequencer, StereoCaptureStoresEveryFrameUnderItsPatternWithProvenance) {
   EXPECT_EQ(set.Find("right", 0)->device_serial, "TEST-1");
   EXPECT_EQ(set.extra()["capture"]["sessions"].size(), 2u);  // start and end note
   EXPECT_EQ(set.extra()["capture"]["sessions"][1]["cameras"]["left"]["frames_stored"], 24);
+  // The end note, written just before the commit, says the session ended with every image.
+  EXPECT_EQ(set.extra()["capture"]["sessions"][1]["complete"], true);
+  EXPECT_TRUE(s.validated);
+  EXPECT_NE(s.BriefReport().find("0 stale, 0 not complementary"), std::string::npos);
+}
+
+// No projector shows the patterns: a coded capture with live cameras is refused before anything
+// is staged, unless validation is switched off; then the report prints no counters of checks that
+// did not run, and the manifest says validate: false.
+TEST(Sequencer, NoProjectorRefusesAValidatedCaptureAndReportsNoChecksWithout) {
+  slshadow::testing::TempDir dir;
+  Stereo rig;
+  NoneProjector none;
+  SequencerOptions o = Options(rig.projector);
+  const std::string error =
+      ErrorOf([&] { Capture(StereoRig(), GraySpec(), rig.cameras, none, dir / "set", o); });
+  EXPECT_NE(error.find("projector (backend 'none') shows none of the pattern spec's 24 patterns"),
+            std::string::npos)
+      << error;
+  EXPECT_NE(error.find("--no-validate"), std::string::npos) << error;
+  EXPECT_FALSE(fs::exists(dir / "set"));
+  EXPECT_FALSE(fs::exists(dir / "set.partial"));
+
+  // The test cameras film what their test projector shows: one grey still for the whole capture,
+  // as an Aravis fake camera shows one image.
+  rig.projector.Load({cv::Mat(32, 64, CV_8UC1, cv::Scalar(128))});
+  rig.projector.Show(0);
+  o.validate = false;
+  const CaptureSummary s = Capture(StereoRig(), GraySpec(), rig.cameras, none, dir / "set", o);
+  ASSERT_TRUE(s.complete);
+  EXPECT_FALSE(s.validated);
+  const std::string report = s.BriefReport();
+  EXPECT_EQ(report.find("stale"), std::string::npos) << report;
+  EXPECT_EQ(report.find("complementary"), std::string::npos) << report;
+  EXPECT_NE(report.find("frames not checked against the patterns"), std::string::npos) << report;
+  EXPECT_NE(report.find("complete: 48 of 48 images"), std::string::npos) << report;
+  const ImageSet set = ImageSet::Open(dir / "set");
+  EXPECT_EQ(set.records().size(), 48u);
+  const nlohmann::json& sessions = set.extra()["capture"]["sessions"];
+  ASSERT_EQ(sessions.size(), 2u);
+  EXPECT_EQ(sessions[0]["validate"], false);
+  EXPECT_EQ(sessions[1]["validated"], false);
+  EXPECT_EQ(sessions[1]["complete"], true);
 }
 
 TEST(Sequencer, LaggingProjectorIsCaughtAndRetriedGrayAndPhase) {
