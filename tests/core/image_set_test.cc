@@ -5,6 +5,7 @@
 
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "core/error.h"
 #include "tests/testing/error_of.h"
@@ -98,6 +99,54 @@ TEST(ImageSet, PgmWriterRoundTripsThroughOpenCv) {
               WriteGrayImage(dir / "color.pgm", cv::Mat(4, 4, CV_8UC3));
             }).find("single-channel"),
             std::string::npos);
+}
+
+// Sets made by other tools: the reader finds each file's format from its first bytes, as
+// docs/formats.md "ImageSet" says, so a grey BMP or JPEG under any name reads (BMP bit-exact,
+// JPEG within its loss); a colour file is refused naming the file.
+TEST(ImageSet, ReadsGreyBmpAndJpegFromTheirBytesAndRefusesColour) {
+  testing::TempDir dir;
+  const auto out = dir / "set";
+  std::vector<cv::Mat> images;
+  {
+    ImageSetWriter writer(out, SmallRig(), Spec(), {.encoding = ImageEncoding::kPng});
+    for (int i = 0; i < 3; ++i) {
+      images.push_back(RandomImage(8, 70 + i));
+      cv::GaussianBlur(images.back(), images.back(), cv::Size(5, 5), 1.5);  // JPEG-friendly
+      writer.Add("left", i, images.back(), 0, ImageSource::kDevice);
+    }
+    writer.Commit();
+  }
+  const ImageSet written = ImageSet::Open(out);
+  const auto file = [&](int k) { return out / written.Find("left", k)->file; };
+  std::vector<uchar> bytes;
+  ASSERT_TRUE(cv::imencode(".bmp", images[0], bytes));
+  std::ofstream(file(0), std::ios::binary)
+      .write(reinterpret_cast<const char*>(bytes.data()),
+             static_cast<std::streamsize>(bytes.size()));
+  ASSERT_TRUE(cv::imencode(".jpg", images[1], bytes, {cv::IMWRITE_JPEG_QUALITY, 98}));
+  std::ofstream(file(1), std::ios::binary)
+      .write(reinterpret_cast<const char*>(bytes.data()),
+             static_cast<std::streamsize>(bytes.size()));
+  const ImageSet set = ImageSet::Open(out);
+  EXPECT_EQ(cv::norm(set.Load("left", 0), images[0], cv::NORM_INF), 0.0);  // BMP: lossless
+  const cv::Mat jpeg = set.Load("left", 1);
+  ASSERT_EQ(jpeg.type(), CV_8UC1);
+  EXPECT_LE(cv::norm(jpeg, images[1], cv::NORM_INF), 12.0);  // JPEG: lossy, but the same image
+  EXPECT_GT(cv::norm(jpeg, images[1], cv::NORM_INF), 0.0);
+
+  cv::Mat colour;
+  cv::cvtColor(images[2], colour, cv::COLOR_GRAY2BGR);
+  colour.col(5).setTo(cv::Scalar(0, 0, 255));
+  ASSERT_TRUE(cv::imencode(".jpg", colour, bytes));
+  std::ofstream(file(2), std::ios::binary)
+      .write(reinterpret_cast<const char*>(bytes.data()),
+             static_cast<std::streamsize>(bytes.size()));
+  const std::string message = ErrorOf([&] { set.Load("left", 2); });
+  EXPECT_NE(message.find(file(2).filename().string()), std::string::npos) << message;
+  EXPECT_NE(message.find("expected a single-channel (grey) image, got 3 channels"),
+            std::string::npos)
+      << message;
 }
 
 TEST(ImageSet, AbandonedWriterLeavesNothing) {
