@@ -331,8 +331,15 @@ TEST(Refine, LargeRotationIsRecoveredOrRejected) {
           "47 deg bump about (%.2f %.2f %.2f) x %+.0f: rejected %d, front %.3f, inliers %.3f, "
           "rotation error %.3f deg\n",
           axis.x(), axis.y(), axis.z(), deg, r.rejected, r.front_share, r.inlier_share, error_deg);
-      if (!r.rejected) {
+      // Each case must end as measured: about x the reversed baseline, seen by cheirality and
+      // rejected; about every other axis the pose recovered. A change of outcome is a failure.
+      if (axis == Eigen::Vector3d::UnitX()) {
+        EXPECT_TRUE(r.rejected) << r.message;
+        EXPECT_LT(r.front_share, 0.5) << r.message;
+      } else {
+        EXPECT_FALSE(r.rejected) << r.message;
         EXPECT_LT(error_deg, 0.2) << r.message;
+        EXPECT_GT(r.front_share, 0.99) << r.message;
       }
     }
   }
