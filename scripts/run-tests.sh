@@ -21,6 +21,15 @@ SLSHADOW_CHECK_FORMAT=${SLSHADOW_CHECK_FORMAT:-1}
 if [ "$SLSHADOW_CHECK_FORMAT" = 1 ]; then
   bash scripts/format.sh --check
 fi
+# The suite, then every skipped GoogleTest case listed with its reason: a skip that is not on
+# tests/skip_allowlist.txt fails the run (scripts/check_skips.py reads the XML reports).
+run_ctest() {
+  local dir=$1 timeout=$2
+  rm -rf "$dir/gtest-results"
+  mkdir -p "$dir/gtest-results"
+  (cd "$dir" && GTEST_OUTPUT="xml:$PWD/gtest-results/" ctest --output-on-failure -j2 --timeout "$timeout")
+  python3 scripts/check_skips.py "$dir/gtest-results" tests/skip_allowlist.txt
+}
 # ccache: rewrite absolute paths relative to the checkout so clones in other folders share hits.
 export CCACHE_BASEDIR="$PWD" CCACHE_NOHASHDIR=true
 if [ "$SANITIZE" = 1 ]; then
@@ -33,14 +42,13 @@ if [ "$SANITIZE" = 1 ]; then
   export ASAN_OPTIONS="detect_leaks=1:abort_on_error=0:halt_on_error=1:detect_stack_use_after_return=0${ASAN_OPTIONS:+:$ASAN_OPTIONS}"
   export LSAN_OPTIONS="suppressions=$PWD/scripts/lsan.supp:print_suppressions=0${LSAN_OPTIONS:+:$LSAN_OPTIONS}"
   export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1${UBSAN_OPTIONS:+:$UBSAN_OPTIONS}"
-  cd "$BUILD_DIR"
-  ctest --output-on-failure -j2 --timeout 3000
+  run_ctest "$BUILD_DIR" 3000
   exit 0
 fi
 BUILD_DIR=${SLSHADOW_BUILD_DIR:-build}
 cmake -S . -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=Release -DSLSHADOW_WERROR=ON
 cmake --build "$BUILD_DIR" -j2
-(cd "$BUILD_DIR" && ctest --output-on-failure -j2 --timeout 1500)
+run_ctest "$BUILD_DIR" 1500
 # Fuzz smoke: every harness for a few seconds from its seeds (clang's libFuzzer; skipped without).
 if command -v clang++ >/dev/null; then
   FUZZ_DIR=${SLSHADOW_FUZZ_BUILD_DIR:-build-fuzz}
