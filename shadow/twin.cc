@@ -349,7 +349,8 @@ void JudgePose(ShadowRun& run, PoseSource pose_source, const compare::Registrati
                     {"min_fitness", options.min_fitness},
                     {"max_rmse_mm", options.max_rmse_mm}};
   if (pose_source != PoseSource::kGivenFixed) {
-    report["pose"]["registration"] = {{"fitness", reg.fitness},
+    report["pose"]["registration"] = {{"ran", true},
+                                      {"fitness", reg.fitness},
                                       {"inlier_rmse_mm", reg.inlier_rmse_mm},
                                       {"icp_iterations", reg.icp_iterations},
                                       {"converged", reg.converged},
@@ -400,8 +401,15 @@ void PlacePart(ShadowRun& run) {
   StageMeter meter("pose");
   const ShadowPart& part = run.part;
   const ShadowOptions& options = run.options;
-  const compare::Reference reference =
-      compare::ReferenceFromMesh(part.surface, part.source, 100000);
+  // Wall and CPU seconds of the stage's parts, for report.json's pose.seconds.
+  nlohmann::json seconds = nlohmann::json::object();
+  StageTimer timer;
+  const auto lap = [&](const char* name) {
+    double wall = 0, cpu = 0;
+    timer.Elapsed(&wall, &cpu);
+    seconds[name] = {{"wall", wall}, {"cpu", cpu}};
+    timer.Restart();
+  };
   const PointCloud& reg_cloud = run.real_rec.modes.back().second.cloud;  // stereo when there is one
   SLSHADOW_THROW_IF(reg_cloud.size() < 100 && !(options.rig_from_part && !options.refine_pose),
                     "shadow: the real scan reconstructed only ", reg_cloud.size(),
@@ -409,36 +417,71 @@ void PlacePart(ShadowRun& run) {
   PoseSource pose_source;
   compare::RegistrationResult reg;
   Rigid3d rig_from_part;
+  nlohmann::json icp_skipped;
   if (options.rig_from_part && !options.refine_pose) {
     pose_source = PoseSource::kGivenFixed;
     rig_from_part = *options.rig_from_part;
   } else {
-    compare::RegistrationOptions ro;
-    std::vector<Eigen::Vector3d> cloud = reg_cloud.points;
+    const compare::MeshDistance part_distance(part.surface);
     Rigid3d part_from_rig_guess;
+    std::vector<Rigid3d> starts;
+    bool run_icp = true;
     if (options.rig_from_part) {
       pose_source = PoseSource::kGivenRefined;
-      ro.method = compare::RegistrationMethod::kIcp;
       part_from_rig_guess = options.rig_from_part->Inverse();
-      for (auto& p : cloud) p = part_from_rig_guess * p;
+      starts.push_back(part_from_rig_guess);
+      // ICP widens the basin of a rough guess. A given pose whose points already sit within a
+      // fraction of the refinement's first scale is inside that basin: ICP, which stops at its
+      // sampled correspondences, could only hand the refinement a worse second start.
+      const internal::PoseRefineOptions refine_options;
+      const internal::PoseFit fit = internal::MeasurePoseFit(
+          part_distance, reg_cloud.points, part_from_rig_guess, refine_options.gate_mm, 20000);
+      if (internal::WithinRefinementBasin(fit, refine_options)) {
+        run_icp = false;
+        icp_skipped = {{"fitness", fit.fitness},
+                       {"median_abs_mm", fit.median_abs_mm},
+                       {"points", fit.points},
+                       {"reason",
+                        "the given pose is within the refinement's basin (>= 90 % of "
+                        "the points within the gate, median |C2M| below a quarter of "
+                        "the first scale): ICP not run"}};
+      }
+      lap("given pose fit");
     } else {
       pose_source = PoseSource::kRegistered;
-      ro.method = compare::RegistrationMethod::kGlobalIcp;
     }
-    std::vector<Eigen::Vector3d> normals;
-    normals.reserve(reference.cloud.size());
-    for (const auto& n : reference.cloud.normals) normals.push_back(n.cast<double>());
-    reg = compare::Register(cloud, reference.cloud.points, normals, ro);
-    // ICP stops at its sampled correspondences: the pose is refined on the exact surface, from the
-    // better of the given pose and ICP's, and never left worse than the given one
-    // (shadow/internal/twin_pose.h).
-    std::vector<Rigid3d> starts;
-    if (options.rig_from_part) starts.push_back(options.rig_from_part->Inverse());
-    starts.push_back(reg.reference_from_cloud * part_from_rig_guess);
-    run.pose_fit = internal::RefinePoseOnSurface(part.surface, reg_cloud.points, starts);
+    if (run_icp) {
+      const compare::Reference reference =
+          compare::ReferenceFromMesh(part.surface, part.source, 100000);
+      lap("reference");
+      compare::RegistrationOptions ro;
+      ro.method = options.rig_from_part ? compare::RegistrationMethod::kIcp
+                                        : compare::RegistrationMethod::kGlobalIcp;
+      std::vector<Eigen::Vector3d> cloud = reg_cloud.points;
+      if (options.rig_from_part) {
+        for (auto& p : cloud) p = part_from_rig_guess * p;
+      }
+      std::vector<Eigen::Vector3d> normals;
+      normals.reserve(reference.cloud.size());
+      for (const auto& n : reference.cloud.normals) normals.push_back(n.cast<double>());
+      reg = compare::Register(cloud, reference.cloud.points, normals, ro);
+      lap("registration");
+      // ICP stops at its sampled correspondences: the pose is refined on the exact surface, from
+      // the better of the given pose and ICP's, and never left worse than the given one
+      // (shadow/internal/twin_pose.h).
+      starts.push_back(reg.reference_from_cloud * part_from_rig_guess);
+    }
+    run.pose_fit =
+        internal::RefinePoseOnSurface(part_distance, part.surface, reg_cloud.points, starts);
     rig_from_part = run.pose_fit->part_from_rig.Inverse();
+    lap("refinement");
   }
   JudgePose(run, pose_source, reg, rig_from_part);
+  if (!icp_skipped.is_null()) {
+    run.result.report["pose"]["registration"] = {{"ran", false}, {"skipped", icp_skipped}};
+  }
+  lap("judgement");
+  run.result.report["pose"]["seconds"] = seconds;
   run.result.stages.push_back(meter.Stop());
 }
 

@@ -212,7 +212,44 @@ double PoseCost(const TriangleMesh& part_surface, const std::vector<Eigen::Vecto
   return Evaluate(p, part_from_rig, scale_mm, false).cost;
 }
 
+PoseFit MeasurePoseFit(const compare::MeshDistance& part,
+                       const std::vector<Eigen::Vector3d>& cloud_in_rig,
+                       const Rigid3d& part_from_rig, double gate_mm, int max_points) {
+  PoseFit fit;
+  const size_t step =
+      std::max<size_t>(1, cloud_in_rig.size() / static_cast<size_t>(std::max(1, max_points)));
+  std::vector<size_t> index;
+  for (size_t i = 0; i < cloud_in_rig.size(); i += step) index.push_back(i);
+  std::vector<double> d(index.size());
+  cv::parallel_for_(cv::Range(0, static_cast<int>(index.size())), [&](const cv::Range& r) {
+    for (int i = r.start; i < r.end; ++i) {
+      const size_t k = static_cast<size_t>(i);
+      d[k] = std::abs(part.Closest(part_from_rig * cloud_in_rig[index[k]]).signed_distance_mm);
+    }
+  });
+  std::vector<double> in;
+  for (double x : d) {
+    if (x < gate_mm) in.push_back(x);
+  }
+  fit.points = static_cast<int>(d.size());
+  fit.fitness = d.empty() ? 0.0 : static_cast<double>(in.size()) / static_cast<double>(d.size());
+  fit.median_abs_mm = in.empty() ? std::numeric_limits<double>::quiet_NaN() : Median(in);
+  return fit;
+}
+
+bool WithinRefinementBasin(const PoseFit& fit, const PoseRefineOptions& o) {
+  return fit.points >= 100 && fit.fitness >= 0.9 && fit.median_abs_mm < 0.25 * o.start_scale_mm;
+}
+
 PoseRefinement RefinePoseOnSurface(const TriangleMesh& part_surface,
+                                   const std::vector<Eigen::Vector3d>& cloud_in_rig,
+                                   const std::vector<Rigid3d>& starts, const PoseRefineOptions& o) {
+  const compare::MeshDistance mesh(part_surface);
+  return RefinePoseOnSurface(mesh, part_surface, cloud_in_rig, starts, o);
+}
+
+PoseRefinement RefinePoseOnSurface(const compare::MeshDistance& mesh,
+                                   const TriangleMesh& part_surface,
                                    const std::vector<Eigen::Vector3d>& cloud_in_rig,
                                    const std::vector<Rigid3d>& starts, const PoseRefineOptions& o) {
   SLSHADOW_THROW_IF(starts.empty(), "RefinePoseOnSurface: no starting pose");
@@ -220,7 +257,6 @@ PoseRefinement RefinePoseOnSurface(const TriangleMesh& part_surface,
   PoseRefinement out;
   out.part_from_rig = start;
   out.kept_start = true;
-  const compare::MeshDistance mesh(part_surface);
   Problem p{mesh, {}, {}, Eigen::Vector3d::Zero(), 1.0, {}};
   // The fixed set: an evenly strided subset, the points within the gate at any starting pose.
   {
@@ -259,17 +295,38 @@ PoseRefinement RefinePoseOnSurface(const TriangleMesh& part_surface,
   double s = std::max(o.start_scale_mm, o.min_scale_mm);
   // The best start at the first scale.
   Rigid3d pose = start;
+  double sigma = s;  // the residuals' robust sigma, as last measured
   {
-    double best = Evaluate(p, start, s, false).cost;
+    Evaluation first = Evaluate(p, start, s, false);
+    double best = first.cost;
+    sigma = RobustScale(first.r, s);
     for (size_t k = 1; k < starts.size(); ++k) {
-      const double c = Evaluate(p, starts[k], s, false).cost;
-      if (c < best) best = c, pose = starts[k];
+      Evaluation e = Evaluate(p, starts[k], s, false);
+      if (e.cost < best) best = e.cost, pose = starts[k], sigma = RobustScale(e.r, s);
     }
   }
   const CreaseEdges creases(part_surface);
+  // A coarse stage (its scale still above coarse_factor x the final scale the residuals point
+  // to) moves the pose by far more than the noise, and every coarse_stride-th point measures
+  // that as well as all of them: it runs on that subset. The last stage, which the result,
+  // its judgement and its uncertainty come from, always runs on every point.
+  // Only the last stage's pose is returned: a stage that is not the last (its scale above the
+  // final one the residuals point to) converges to 1e-3 of its scale, the last one to 1 nm.
+  bool last_coarse = false, force_full = false;
   for (int stage = 0; stage < 12; ++stage) {
     ++out.stages;
+    const double final_scale = std::max(o.scale_sigmas * sigma, o.min_scale_mm);
+    const bool coarse = !force_full && o.coarse_stride > 1 && s > o.coarse_factor * final_scale;
+    const bool tight = force_full || s <= 1.05 * final_scale;
+    const double tolerance_mm = tight ? 1e-6 : std::max(1e-6, 1e-3 * s);
+    last_coarse = coarse;
     CreaseBandMembership(p, creases, pose, 3 * s);
+    if (coarse) {
+      for (size_t i = 0; i < p.use.size(); ++i) {
+        if (i % static_cast<size_t>(o.coarse_stride) != 0) p.use[i] = 0;
+      }
+      ++out.coarse_stages;
+    }
     Evaluation cur = Evaluate(p, pose, s, true);
     double mu = 1e-4;  // LM damping, relative to the largest eigenvalue
     for (int it = 0; it < o.max_iterations; ++it) {
@@ -301,13 +358,20 @@ PoseRefinement RefinePoseOnSurface(const TriangleMesh& part_surface,
         ++out.rejected_steps;
         mu *= 8;
       }
-      // Converged: no step improves, or the last one moved the points by less than 1 nm.
-      if (!improved || x.norm() < 1e-6) break;
+      // Converged: no step improves, or the last one moved the points by less than the
+      // tolerance.
+      if (!improved || x.norm() < tolerance_mm) break;
     }
-    const double next_s = std::max({s / 2, o.scale_sigmas * RobustScale(cur.r, s), o.min_scale_mm});
-    if (next_s >= 0.95 * s) break;
+    sigma = RobustScale(cur.r, s);
+    const double next_s = std::max({s / 2, o.scale_sigmas * sigma, o.min_scale_mm});
+    if (next_s >= 0.95 * s) {
+      if (!coarse && tight) break;
+      force_full = true;  // the same scale once more, on every point, to 1 nm
+      continue;
+    }
     s = next_s;
   }
+  if (last_coarse) CreaseBandMembership(p, creases, pose, 3 * s);  // every point counts below
   out.scale_mm = s;
   // Judged at the final scale over the same points: the refined pose only if it beats every
   // start (the first, the given pose, wins ties).
@@ -413,6 +477,7 @@ nlohmann::json PoseRefinementToJson(const PoseRefinement& f,
                       {"final_cost", f.final_cost},
                       {"kept_start", f.kept_start},
                       {"stages", f.stages},
+                      {"coarse_stages", f.coarse_stages},
                       {"iterations", f.iterations},
                       {"accepted_steps", f.accepted_steps},
                       {"rejected_steps", f.rejected_steps},

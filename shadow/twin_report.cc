@@ -209,6 +209,8 @@ std::string ShadowResult::Summary() const {
                 pose["source"].get<std::string>().c_str(), pose["fitness"].get<double>(),
                 pose["inlier_rmse_mm"].get<double>());
   out += buf;
+  if (pose.contains("registration") && !pose["registration"].value("ran", true))
+    out += "; ICP not run: the given pose is within the refinement's basin";
   if (pose.contains("refinement")) {
     const auto& ref = pose["refinement"];
     const auto& u = ref["uncertainty"];

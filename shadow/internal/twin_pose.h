@@ -36,6 +36,7 @@
 
 #include <Eigen/Core>
 
+#include "compare/mesh_distance.h"
 #include "core/mesh.h"
 #include "core/rigid3.h"
 
@@ -50,6 +51,10 @@ struct PoseRefineOptions {
   int max_iterations = 12;      // LM iterations per stage
   double weak_ratio = 1e-5;     // eigenvalue / largest (rotations scaled by the cloud's radius)
   double cell_mm = 5.0;         // cells of correlated residuals, for the covariance
+  // Stages whose scale exceeds coarse_factor x the final scale the residuals point to use every
+  // coarse_stride-th point (1: all points in every stage).
+  int coarse_stride = 4;
+  double coarse_factor = 2.0;
 };
 
 struct PoseUncertainty {
@@ -72,6 +77,7 @@ struct PoseRefinement {
   double scale_mm = 0;                    // the final scale s
   int points = 0;                         // points in the fixed set
   int stages = 0, iterations = 0, accepted_steps = 0, rejected_steps = 0;
+  int coarse_stages = 0;    // stages run on the coarse subset (PoseRefineOptions::coarse_stride)
   bool kept_start = false;  // the first start was at least as good: returned unchanged
   double rms_mm = 0;        // RMS of r over the points with |r| < 3 s, at the returned pose
   PoseUncertainty uncertainty;
@@ -91,6 +97,29 @@ PoseRefinement RefinePoseOnSurface(const TriangleMesh& part_surface,
                                    const std::vector<Eigen::Vector3d>& cloud_in_rig,
                                    const std::vector<Rigid3d>& starts,
                                    const PoseRefineOptions& options = {});
+// The same with the part's distance field already built (`part` of `part_surface`).
+PoseRefinement RefinePoseOnSurface(const compare::MeshDistance& part,
+                                   const TriangleMesh& part_surface,
+                                   const std::vector<Eigen::Vector3d>& cloud_in_rig,
+                                   const std::vector<Rigid3d>& starts,
+                                   const PoseRefineOptions& options = {});
+
+// How well one pose fits the cloud, before any refinement: over an evenly strided subset of at
+// most `max_points` points of the cloud (rig frame), the share within `gate_mm` of the part and
+// the median |signed C2M| of those.
+struct PoseFit {
+  int points = 0;            // points in the subset
+  double fitness = 0;        // share of them within the gate
+  double median_abs_mm = 0;  // median |r| of the points within the gate (NaN: none)
+};
+PoseFit MeasurePoseFit(const compare::MeshDistance& part,
+                       const std::vector<Eigen::Vector3d>& cloud_in_rig,
+                       const Rigid3d& part_from_rig, double gate_mm, int max_points);
+
+// Whether the refinement can start from `fit` alone, with no wider search (ICP) first: nearly all
+// points within the gate (>= 0.9) and their median |r| below a quarter of the first stage's
+// scale, so every point pulls with nearly full weight from the start.
+bool WithinRefinementBasin(const PoseFit& fit, const PoseRefineOptions& options = {});
 
 // The refinement's figures for report.json's `pose.refinement` (docs/formats.md "Shadow report"):
 // its objective and the pose's uncertainty; with a given pose, how far the returned pose moved

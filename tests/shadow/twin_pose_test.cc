@@ -129,6 +129,33 @@ TEST(TwinPose, SmallOffsetRecoveredWithinStatedUncertainty) {
   EXPECT_LT(e.head<3>().norm(), 0.003);
 }
 
+// The shadow command runs ICP before the refinement only when the given pose is outside the
+// refinement's basin: the exact pose and a slide along the table (each recovered by the refinement
+// alone, as the tests around show) are inside; a pose 1 mm and 1 deg off, or one that leaves the
+// part beside its points, is not. (The 0.05 mm / 0.05 deg case above, median |r| above 0.05 mm,
+// is outside: ICP runs and the refinement starts from the better of the two.)
+TEST(TwinPose, IcpIsSkippedOnlyInsideTheRefinementsBasin) {
+  const TriangleMesh mesh = PartOnTable();
+  const Rigid3d truth = DemoRigFromPart().Inverse();
+  const auto cloud = SampleCloud(mesh, truth.Inverse(), 0.7, 0.01, 3);
+  const compare::MeshDistance part(mesh);
+  const PoseFit exact = MeasurePoseFit(part, cloud, truth, 1.0, 20000);
+  EXPECT_GE(exact.points, 10000);
+  EXPECT_GT(exact.fitness, 0.999);
+  EXPECT_LT(exact.median_abs_mm, 0.01);  // noise 0.01 mm: median |r| 0.0067 mm
+  EXPECT_TRUE(WithinRefinementBasin(exact));
+  EXPECT_TRUE(WithinRefinementBasin(
+      MeasurePoseFit(part, cloud, Perturbed(truth, {0.15, 0.1, 0}, {0, 0, 1}, 0.02), 1.0, 20000)));
+  const PoseFit far =
+      MeasurePoseFit(part, cloud, Perturbed(truth, {1, -1, 0.5}, {1, 2, -1}, 1.0), 1.0, 20000);
+  EXPECT_FALSE(WithinRefinementBasin(far)) << far.fitness << " " << far.median_abs_mm;
+  const PoseFit beside =
+      MeasurePoseFit(part, cloud, Perturbed(truth, {0, 0, 30}, {0, 0, 1}, 0), 1.0, 20000);
+  EXPECT_LT(beside.fitness, 0.5);
+  EXPECT_FALSE(WithinRefinementBasin(beside));
+  EXPECT_FALSE(WithinRefinementBasin(MeasurePoseFit(part, {}, truth, 1.0, 20000)));  // no points
+}
+
 // A pose slid 0.15 mm along the table (which keeps the table's points on it: only the part's
 // walls see the slide) comes back to the truth.
 TEST(TwinPose, SlideAlongTheTableIsUndone) {
