@@ -50,11 +50,8 @@ TEST(HugePagesCli, VersionSaysWhatTheProcessRunsWith) {
               std::string::npos)
         << out;
   }
-  // Freed buffers are kept for reuse unless SLSHADOW_MALLOC_KEEP=0 (core/huge_pages.h); not under
-  // AddressSanitizer, whose allocator ignores mallopt.
-#ifndef __SANITIZE_ADDRESS__
+  // Freed buffers are kept for reuse unless SLSHADOW_MALLOC_KEEP=0 (core/huge_pages.h).
   EXPECT_NE(on.find("; freed buffers kept for reuse"), std::string::npos) << on;
-#endif
   const std::string returned = RunVersion("SLSHADOW_MALLOC_KEEP=0");
   EXPECT_NE(returned.find("; freed buffers returned to the kernel"), std::string::npos) << returned;
   // A tunable the user set is left alone.
