@@ -49,9 +49,6 @@ TEST(HugePages, TunableAddedOnlyWhereItHelps) {
 
 // KeepFreedBuffers: a large block comes from the heap, not from a mapping of its own, and stays
 // there once freed (reused by the next one), instead of being unmapped.
-// (Not in the sanitizer build: AddressSanitizer's allocator replaces glibc's, and its mallopt does
-// nothing.)
-#ifndef __SANITIZE_ADDRESS__
 TEST(KeepFreedBuffers, LargeBlocksComeFromTheHeapAndStayThereWhenFreed) {
   setenv("SLSHADOW_MALLOC_KEEP", "0", 1);
   EXPECT_FALSE(KeepFreedBuffers());
@@ -76,7 +73,6 @@ TEST(KeepFreedBuffers, LargeBlocksComeFromTheHeapAndStayThereWhenFreed) {
   EXPECT_EQ(mallinfo2().arena, after.arena);  // served from the freed block
   std::free(again);
 }
-#endif
 
 }  // namespace
 }  // namespace slshadow
