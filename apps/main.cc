@@ -6,8 +6,6 @@ int main(int argc, char** argv) {
   // Large buffers on transparent huge pages: re-executes this program once with glibc's tunable
   // set (core/huge_pages.h), before anything else happens.
   slshadow::ReexecWithHugePages(argv);
-  // Freed large buffers reused rather than unmapped and faulted in again (core/huge_pages.h).
-  slshadow::KeepFreedBuffers();
   // Ctrl-C or SIGTERM removes unfinished outputs and leaves existing files untouched.
   slshadow::InstallInterruptCleanup();
   return slshadow::app::Main(argc, argv);

@@ -4,12 +4,10 @@
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
-#include <limits>
 #include <sstream>
 
 #ifdef __GLIBC__
 #include <gnu/libc-version.h>
-#include <malloc.h>
 #endif
 #include <unistd.h>
 
@@ -85,11 +83,7 @@ void ReexecWithHugePages(char** argv) {
   unsetenv("GLIBC_TUNABLES");
 }
 
-namespace {
-
-bool keep_freed = false;  // KeepFreedBuffers() took
-
-std::string PagesStatus() {
+std::string HugePagesStatus() {
   const std::string mode = KernelThpMode();
   if (mode == "always") {
     return "memory: large buffers on transparent huge pages (the kernel's mode is 'always')";
@@ -102,23 +96,6 @@ std::string PagesStatus() {
   std::string reason;
   if (TunablesForThisProcess(&reason)) reason = "the program was not re-executed";
   return "memory: malloc on 4 KiB pages (" + reason + ")";
-}
-
-}  // namespace
-
-std::string HugePagesStatus() {
-  return PagesStatus() +
-         (keep_freed ? "; freed buffers kept for reuse" : "; freed buffers returned to the kernel");
-}
-
-bool KeepFreedBuffers() {
-  const char* v = std::getenv("SLSHADOW_MALLOC_KEEP");
-  if (v && std::strcmp(v, "0") == 0) return false;
-#ifdef __GLIBC__
-  keep_freed = mallopt(M_MMAP_MAX, 0) == 1 &&
-               mallopt(M_TRIM_THRESHOLD, std::numeric_limits<int>::max()) == 1;
-#endif
-  return keep_freed;
 }
 
 }  // namespace slshadow

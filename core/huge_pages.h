@@ -40,19 +40,7 @@ void GlibcVersion(int* major, int* minor);
 // re-execution failed (the program then simply runs with 4 KiB pages).
 void ReexecWithHugePages(char** argv);
 
-// One line for `slshadow --version`: whether this process's malloc uses huge pages, and if not why;
-// and whether freed buffers are kept for reuse (KeepFreedBuffers).
+// One line for `slshadow --version`: whether this process's malloc uses huge pages, and if not why.
 std::string HugePagesStatus();
-
-// Freed large buffers kept for reuse, for the command line (apps/main.cc): glibc's malloc serves
-// blocks above its mmap threshold (128 KiB, growing to at most 32 MiB) with fresh mappings and
-// unmaps them when freed, so the next image, map or grid of the same size faults in and zero-fills
-// new pages again. With mmap off for malloc (M_MMAP_MAX 0) and no trimming of the heap's top
-// (M_TRIM_THRESHOLD 2 GiB), freed blocks stay in the heap and are reused: on the demo's
-// `slshadow shadow` the page faults fell from 72 000 to 40 000 and the CPU time by 16 %, for
-// 2.5 % more peak memory (docs/benchmarks/log/2026-12-07-shadow-speed.md). Returns whether both
-// settings took; nothing is done (false) when the environment variable SLSHADOW_MALLOC_KEEP is "0"
-// or without glibc.
-bool KeepFreedBuffers();
 
 }  // namespace slshadow

@@ -50,10 +50,6 @@ TEST(HugePagesCli, VersionSaysWhatTheProcessRunsWith) {
               std::string::npos)
         << out;
   }
-  // Freed buffers are kept for reuse unless SLSHADOW_MALLOC_KEEP=0 (core/huge_pages.h).
-  EXPECT_NE(on.find("; freed buffers kept for reuse"), std::string::npos) << on;
-  const std::string returned = RunVersion("SLSHADOW_MALLOC_KEEP=0");
-  EXPECT_NE(returned.find("; freed buffers returned to the kernel"), std::string::npos) << returned;
   // A tunable the user set is left alone.
   const std::string user = RunVersion("GLIBC_TUNABLES=glibc.malloc.hugetlb=0");
   EXPECT_NE(user.find("4 KiB pages (GLIBC_TUNABLES sets glibc.malloc.hugetlb already)"),

@@ -1,10 +1,5 @@
 #include "core/huge_pages.h"
 
-#include <malloc.h>
-
-#include <cstdlib>
-#include <cstring>
-
 #include <string>
 
 #include <gtest/gtest.h>
@@ -45,33 +40,6 @@ TEST(HugePages, TunableAddedOnlyWhereItHelps) {
   EXPECT_EQ(reason, "the kernel's transparent huge page mode is unknown");
   EXPECT_FALSE(HugePageTunables(nullptr, "madvise", 2, 34, false, &reason));
   EXPECT_EQ(reason, "glibc 2.34 has no glibc.malloc.hugetlb (2.35 on)");
-}
-
-// KeepFreedBuffers: a large block comes from the heap, not from a mapping of its own, and stays
-// there once freed (reused by the next one), instead of being unmapped.
-TEST(KeepFreedBuffers, LargeBlocksComeFromTheHeapAndStayThereWhenFreed) {
-  setenv("SLSHADOW_MALLOC_KEEP", "0", 1);
-  EXPECT_FALSE(KeepFreedBuffers());
-  EXPECT_NE(HugePagesStatus().find("freed buffers returned to the kernel"), std::string::npos);
-  unsetenv("SLSHADOW_MALLOC_KEEP");
-  ASSERT_TRUE(KeepFreedBuffers());
-  EXPECT_NE(HugePagesStatus().find("freed buffers kept for reuse"), std::string::npos);
-  const size_t size = size_t{48} << 20;
-  const struct mallinfo2 before = mallinfo2();
-  char* block = static_cast<char*>(std::malloc(size));
-  ASSERT_NE(block, nullptr);
-  std::memset(block, 1, size);
-  const struct mallinfo2 during = mallinfo2();
-  EXPECT_EQ(during.hblks, before.hblks);  // no mapping of its own
-  EXPECT_GE(during.arena, before.arena + size);
-  std::free(block);
-  const struct mallinfo2 after = mallinfo2();
-  EXPECT_GE(after.arena, before.arena + size);  // not trimmed: kept for the next block
-  EXPECT_GE(after.fordblks, size);
-  char* again = static_cast<char*>(std::malloc(size));
-  ASSERT_NE(again, nullptr);
-  EXPECT_EQ(mallinfo2().arena, after.arena);  // served from the freed block
-  std::free(again);
 }
 
 }  // namespace
