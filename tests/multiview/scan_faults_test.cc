@@ -377,5 +377,27 @@ TEST_F(ScanFaults, ManualTurntableWithYes) {
       << err;
 }
 
+// `slshadow turntable status|home|move`: what an engineer runs to check the table before a scan.
+TEST_F(ScanFaults, TurntableCommand) {
+  const std::string devices = (dir_ / "devices.yaml").string();
+  ::testing::internal::CaptureStdout();
+  std::string err;
+  EXPECT_EQ(RunSlshadow({"turntable", "move", "--devices", devices, "--deg", "90"}, &err), 0);
+  EXPECT_EQ(RunSlshadow({"turntable", "home", "--devices", devices}, &err), 0);  // homing: false
+  EXPECT_EQ(RunSlshadow({"turntable", "status", "--devices", devices}, &err), 0);
+  const std::string out = ::testing::internal::GetCapturedStdout();
+  EXPECT_NE(out.find("grbl on " + grbl_->port() + " (axis X): idle at 90.0000 deg"),
+            std::string::npos)
+      << out;
+  EXPECT_EQ(grbl_->MachinePosition(0), 90.0);
+  EXPECT_NE(RunSlshadow({"turntable", "move", "--devices", devices}, &err), 0);
+  EXPECT_NE(err.find("--deg is required"), std::string::npos) << err;
+  grbl_->ErrorOn("G90 G53 G0 X45", 20);
+  EXPECT_NE(RunSlshadow({"turntable", "move", "--devices", devices, "--deg", "45"}, &err), 0);
+  EXPECT_NE(err.find("move to 45.000 deg: \"G90 G53 G0 X45.0000\" answered error:20"),
+            std::string::npos)
+      << err;
+}
+
 }  // namespace
 }  // namespace slshadow::multiview

@@ -312,6 +312,14 @@ TEST_F(ScanLoop, ScanCommandEqualsSimulatedProject) {
   EXPECT_EQ(moves, 3);
   EXPECT_EQ(grbl_->MachinePosition(0), 240.0);
 
+  // `slshadow merge` reads the device project like a simulated one: every view merged.
+  ASSERT_EQ(
+      RunSlshadow({"merge", (dir_ / "scanned").string(), "--out", (dir_ / "model").string()}, &err),
+      0);
+  const nlohmann::json report = ConfigNode::LoadFile(dir_ / "model" / "report.json").json();
+  ASSERT_EQ(report["views"].size(), 3u);
+  for (const auto& v : report["views"]) EXPECT_TRUE(v["merged"].get<bool>()) << v["name"];
+
   // Scanning into the same folder again without --resume: refused, nothing touched.
   EXPECT_NE(RunSlshadow(ScanArgs("scanned"), &err), 0);
   EXPECT_NE(err.find("already holds a project (pass --resume"), std::string::npos) << err;
