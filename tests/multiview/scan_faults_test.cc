@@ -17,10 +17,14 @@
 #include <string>
 #include <vector>
 
+#include <fcntl.h>
+#include <unistd.h>
+
 #include <gtest/gtest.h>
 
 #include "apps/commands.h"
 #include "capture/factory.h"
+#include "capture/manual_turntable.h"
 #include "core/error.h"
 #include "core/image_set.h"
 #include "core/rig.h"
@@ -141,15 +145,16 @@ class ScanFaults : public ::testing::Test {
   // view, before_show(view, pattern) before each pattern is shown.
   ScanSummary Scan(const std::string& project, const std::function<void(size_t)>& on_view,
                    const std::function<void(int, int)>& before_show, const ViewsFile& views,
-                   ScanOptions options = {}) {
+                   ScanOptions options = {}, capture::Turntable* turntable = nullptr) {
     const capture::DevicesConfig devices = capture::LoadDevices(dir_ / "devices.yaml");
     capture::OpenedDevices opened = capture::OpenDevices(devices, rig_);
-    const std::unique_ptr<capture::Turntable> table = capture::OpenTurntable(devices.turntable);
+    const std::unique_ptr<capture::Turntable> table =
+        turntable ? nullptr : capture::OpenTurntable(devices.turntable);
     HookedProjector projector(*opened.projector, before_show);
     ScanDevices d;
     d.cameras = opened.cameras;
     d.projector = &projector;
-    d.turntable = table.get();
+    d.turntable = turntable ? turntable : table.get();
     d.turntable_backend = devices.turntable.backend;
     d.turntable_tolerance_deg = devices.turntable.tolerance_deg;
     d.devices_file = (dir_ / "devices.yaml").string();
@@ -375,6 +380,39 @@ TEST_F(ScanFaults, ManualTurntableWithYes) {
   EXPECT_NE(err.find("project.json: views (their number) differs from this run's"),
             std::string::npos)
       << err;
+}
+
+// The operator of a manual table answers q when asked to turn it to the second view: the scan
+// stops as interrupted (not as a device fault) with the first view kept, and resumes.
+TEST_F(ScanFaults, ManualTurntableAbortIsAnInterruption) {
+  WriteDevices("devices.yaml", "manual");
+  int answers[2];
+  ASSERT_EQ(pipe(answers), 0);
+  const std::string typed = "\nq\n";  // Enter at the zero mark; q at 120 deg (0 asks nothing)
+  ASSERT_EQ(write(answers[1], typed.data(), typed.size()), static_cast<ssize_t>(typed.size()));
+  close(answers[1]);
+  const int prompts = open("/dev/null", O_WRONLY);
+  capture::TurntableConfig config;
+  config.backend = "manual";
+  capture::ManualTurntable table(config, capture::ManualTurntableIo{answers[0], prompts});
+  std::ostringstream lines;
+  ScanOptions options;
+  options.prompt = &lines;
+  const ScanSummary s = Scan(
+      "aborted", [](size_t) {}, [](int, int) {}, views_, options, &table);
+  close(answers[0]);
+  close(prompts);
+  EXPECT_TRUE(s.interrupted);
+  EXPECT_FALSE(s.complete);
+  ASSERT_EQ(s.captured.size(), 1u);
+  EXPECT_NE(lines.str().find("view 'view_01' (2 of 3, table 120.000 deg): turntable: "),
+            std::string::npos)
+      << lines.str();
+  std::string err;
+  auto args = ScanArgs("aborted");
+  args.push_back("--resume");
+  ASSERT_EQ(RunSlshadow(args, &err), 0) << err;
+  EXPECT_EQ(DifferingImages("aborted"), 0);
 }
 
 // `slshadow turntable status|home|move`: what an engineer runs to check the table before a scan.

@@ -256,6 +256,12 @@ ScanSummary ScanProject(const Rig& rig, const PatternSpec& spec, const ViewsFile
         out << "scan: " << label << ": turning the table" << std::endl;
         table.MoveTo(*view.spec.table_deg);
       } catch (const capture::TurntableError& e) {
+        // The operator of a manual table said q (or its input closed): a stop, not a fault.
+        if (e.fault() == capture::TurntableFault::kAborted) {
+          out << "scan: " << label << ": " << e.what() << std::endl;
+          summary.interrupted = true;
+          break;
+        }
         throw fault(i, "turntable", e.what());
       }
       const capture::TurntableStatus status = table.Status();

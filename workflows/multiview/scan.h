@@ -125,7 +125,7 @@ void CheckScanInputs(const Rig& rig, const PatternSpec& spec, const ViewsFile& v
 // without a turntable that can turn to it, a pattern spec of another projector size, a
 // project made with other inputs), and ScanError on a device fault during the scan, with the
 // project left resumable. Returns interrupted = true on Ctrl-C (options.sequencer.stop) or an
-// operator's abort.
+// operator's abort (q at a hand-placed view's prompt or at a manual table's, kAborted).
 ScanSummary ScanProject(const Rig& rig, const PatternSpec& spec, const ViewsFile& views,
                         const ScanDevices& devices, const std::filesystem::path& project_dir,
                         const ScanOptions& options);
