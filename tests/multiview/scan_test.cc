@@ -422,6 +422,10 @@ TEST_F(ScanLoop, CameraLostAtViewKLeavesAProjectThatResumeCompletes) {
   const ProjectManifest p = LoadProject(dir_ / "unplugged");
   for (const ProjectView& v : p.views) EXPECT_EQ(v.state, ViewState::kComplete) << v.spec.name;
   EXPECT_TRUE(p.views[1].provenance["resumed"].get<bool>());
+  // Continued at its first missing frame: the frames staged before the camera was lost were kept.
+  const int before = p.views[1].provenance["images_before"].get<int>();
+  EXPECT_GT(before, 0);
+  EXPECT_LT(before, p.views[1].provenance["images"].get<int>());
   EXPECT_FALSE(p.views[2].provenance["resumed"].get<bool>());
 }
 

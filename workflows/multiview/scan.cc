@@ -318,6 +318,7 @@ ScanSummary ScanProject(const Rig& rig, const PatternSpec& spec, const ViewsFile
     provenance["capture_s"] = SecondsSince(capture_t0);
     provenance["resumed"] = report.capture.resumed;
     provenance["images"] = report.capture.images_total;
+    provenance["images_before"] = report.capture.images_before;
     provenance["retries"] = report.capture.retries;
 
     // 3. The table must not have moved while the frames were taken.
