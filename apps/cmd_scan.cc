@@ -16,6 +16,7 @@
 #include "core/error.h"
 #include "core/rig.h"
 #include "patterns/pattern_spec.h"
+#include "reconstruct/strict_policy.h"
 #include "workflows/multiview/scan.h"
 #include "workflows/multiview/views.h"
 
@@ -60,7 +61,14 @@ int RunScan(int argc, char** argv) {
       "continues at its first missing frame (after the table turns to its angle again). A table "
       "that\n"
       "moved during a view's capture rejects the view (moved aside to "
-      "views/<name>.rejected-N).\n\n"
+      "views/<name>.rejected-N).\n"
+      "With --strict each view is reconstructed right after its capture, as `slshadow reconstruct "
+      "--strict`\n"
+      "does: a calibration check that warns or cannot run, or too few points, rejects the view "
+      "the same\n"
+      "way and stops the scan (a rig bumped mid-scan is caught at that view; recalibrate and "
+      "start a new\n"
+      "project, since a resume needs the same rig file).\n\n"
       "Exit status: 0 every view complete, 1 error (the project resumable), 130 interrupted "
       "(Ctrl-C,\n"
       "or q at a prompt).\n"
@@ -79,6 +87,7 @@ int RunScan(int argc, char** argv) {
   bool resume = false, yes = false, auto_exposure = false, no_validate = false, no_home = false,
        quiet = false;
   int max_retries = 3;
+  multiview::ScanOptions options;
   app.add_option("--rig", rig_path,
                  "rig file (docs/formats.md \"Rig YAML\"), with its turntable axis for table views")
       ->required();
@@ -117,6 +126,7 @@ int RunScan(int argc, char** argv) {
                "store frames without checking them against the patterns (a projector backend "
                "none needs it)");
   app.add_flag("--quiet", quiet, "print nothing but errors and operator prompts");
+  AddStrictOptions(&app, &options.strict);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -143,7 +153,6 @@ int RunScan(int argc, char** argv) {
   scan_devices.turntable_tolerance_deg = devices.turntable.tolerance_deg;
   scan_devices.devices_file = devices_path;
 
-  multiview::ScanOptions options;
   options.resume = resume;
   options.home = !no_home;
   options.confirm_hand_views = !yes;

@@ -25,6 +25,7 @@
 #include "apps/commands.h"
 #include "capture/factory.h"
 #include "capture/manual_turntable.h"
+#include "core/camera_model.h"
 #include "core/error.h"
 #include "core/image_set.h"
 #include "core/rig.h"
@@ -413,6 +414,37 @@ TEST_F(ScanFaults, ManualTurntableAbortIsAnInterruption) {
   args.push_back("--resume");
   ASSERT_EQ(RunSlshadow(args, &err), 0) << err;
   EXPECT_EQ(DifferingImages("aborted"), 0);
+}
+
+// --strict: each view is reconstructed after its capture. With the rig file the images were taken
+// with every view passes (and says so in its provenance); with a rig file whose left camera's
+// principal point is off by a pixel (a bumped rig) the first view is rejected, moved aside, and
+// the scan stops naming the view, the rig and the calibration check.
+TEST_F(ScanFaults, StrictRejectsTheViewWhereTheRigNoLongerFits) {
+  std::string err;
+  auto args = ScanArgs("strict");
+  args.push_back("--strict");
+  ASSERT_EQ(RunSlshadow(args, &err), 0) << err;
+  for (const ProjectView& v : LoadProject(dir_ / "strict").views) {
+    EXPECT_EQ(v.provenance["strict"]["mode"], "projector") << v.spec.name;
+    EXPECT_TRUE(v.provenance["strict"]["violations"].empty()) << v.provenance.dump();
+  }
+
+  Rig bumped = rig_;
+  bumped.cameras[0].model.params[CameraModel::kCx] += 1.0;
+  bumped.cameras[0].model.params[CameraModel::kCy] += 1.0;
+  SaveRig(bumped, dir_ / "bumped.yaml");
+  args = ScanArgs("strict_bumped");
+  args[2] = (dir_ / "bumped.yaml").string();
+  args.push_back("--strict");
+  EXPECT_EQ(RunSlshadow(args, &err), 1);
+  EXPECT_NE(err.find("scan: view 'view_00' (1 of 3, table 0.000 deg): rig: --strict: "),
+            std::string::npos)
+      << err;
+  EXPECT_NE(err.find("left-projector: the calibration check warns"), std::string::npos) << err;
+  EXPECT_NE(err.find("needs a new calibration"), std::string::npos) << err;
+  EXPECT_TRUE(fs::exists(dir_ / "strict_bumped" / "views" / "view_00.rejected-1"));
+  EXPECT_EQ(LoadProject(dir_ / "strict_bumped").views[0].state, ViewState::kMissing);
 }
 
 // `slshadow turntable status|home|move`: what an engineer runs to check the table before a scan.

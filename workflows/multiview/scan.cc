@@ -9,6 +9,7 @@
 #include "core/file_util.h"
 #include "core/image_set.h"
 #include "core/string_printf.h"
+#include "reconstruct/reconstruct_image_set.h"
 
 namespace slshadow::multiview {
 namespace fs = std::filesystem;
@@ -74,6 +75,7 @@ bool Faulty(capture::TurntableState state) {
 
 void ScanOptions::Check() const {
   sequencer.Check();
+  strict.Check();
   SLSHADOW_THROW_IF(!provenance.is_object(), "scan: provenance must be a JSON object");
 }
 
@@ -196,7 +198,10 @@ ScanSummary ScanProject(const Rig& rig, const PatternSpec& spec, const ViewsFile
                      "the %s and run the same command with --resume (it continues at view '%s'%s)",
                      ViewLabel(view, index, count).c_str(), device.c_str(), what.c_str(),
                      complete_views(), count, project_dir.string().c_str(),
-                     device == "capture" ? "camera or projector" : device.c_str(),
+                     device == "capture" ? "camera or projector"
+                     : device == "rig"   ? "cause (a rig file that no longer fits needs a new "
+                                           "calibration, and then a new project)"
+                                         : device.c_str(),
                      view.spec.name.c_str(), staged ? ", at its first missing frame" : ""),
         view.spec.name, device);
   };
@@ -341,6 +346,27 @@ ScanSummary ScanProject(const Rig& rig, const PatternSpec& spec, const ViewsFile
                     : "moved",
                 *report.read_back_deg, after.position_deg, devices.turntable_tolerance_deg,
                 aside.string().c_str()));
+      }
+    }
+    // 4. Strict mode: the view's own reconstruction must confirm the rig file.
+    if (options.strict.enabled) {
+      ImageSetReconstructOptions reconstruct;
+      reconstruct.mode = DefaultReconstructMode(rig);
+      std::vector<std::string> violations;
+      try {
+        violations = StrictViolations(
+            ReconstructImageSet(ImageSet::Open(dir), reconstruct).summaries, options.strict);
+      } catch (const Error& e) {
+        violations = {std::string("the view cannot be reconstructed: ") + e.what()};
+      }
+      provenance["strict"] = {{"mode", ToString(reconstruct.mode)}, {"violations", violations}};
+      if (!violations.empty()) {
+        std::string why;
+        for (const std::string& v : violations) why += (why.empty() ? "" : "; ") + v;
+        const fs::path aside = RejectView(project_dir, view);
+        throw fault(
+            i, "rig",
+            "--strict: " + why + "; the view is moved aside to " + aside.string() + ", not merged");
       }
     }
     view.provenance = provenance;

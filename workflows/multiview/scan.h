@@ -36,6 +36,7 @@
 #include "core/error.h"
 #include "core/rig.h"
 #include "patterns/pattern_spec.h"
+#include "reconstruct/strict_policy.h"
 #include "workflows/multiview/views.h"
 
 namespace slshadow::multiview {
@@ -75,6 +76,12 @@ struct ScanOptions {
   std::ostream* prompt = nullptr;  // prompts and per-view lines; null: std::cerr
   // Added to the project's provenance (e.g. {"command": ..., "views_file": ...}).
   nlohmann::json provenance = nlohmann::json::object();
+  // Strict mode (`--strict`, reconstruct/strict_policy.h): after each view's capture the view is
+  // reconstructed as `slshadow reconstruct --strict` does (the rig's default mode) and a
+  // calibration-check warning, a check that cannot run or too few points reject the view (moved
+  // aside to views/<name>.rejected-N/) and stop the scan with a ScanError (device "rig"): a rig
+  // bumped during a scan is caught at the view where it happened, not after the last view.
+  StrictOptions strict;
   // Called after each view is captured or found complete.
   std::function<void(const std::string& name, size_t index, bool captured)> on_view;
   void Check() const;  // throws slshadow::Error naming the bad field
@@ -106,7 +113,8 @@ class ScanError : public Error {
   ScanError(const std::string& message, std::string view, std::string device)
       : Error(message), view_(std::move(view)), device_(std::move(device)) {}
   const std::string& view() const { return view_; }
-  // "turntable", "operator" or "capture" (a camera or the projector; the message names it).
+  // "turntable", "capture" (a camera or the projector; the message names it) or "rig" (strict
+  // mode: the view's reconstruction does not confirm the rig file).
   const std::string& device() const { return device_; }
 
  private:
