@@ -69,6 +69,14 @@ const std::vector<Command>& Commands() {
        "a DLP LightCrafter 4500 over USB: firmware and mode, switch video/pattern mode, validate "
        "(projector info|mode|validate)",
        RunProjector},
+      {"scan",
+       "multi-view scan with real devices: the turntable turns (or you place the part), one "
+       "ImageSet per view, resumable (scan --rig --devices --patterns --views --out PROJECT)",
+       RunScan},
+      {"turntable",
+       "check the devices file's turntable: status, home, move --deg A (turntable status "
+       "--devices D)",
+       RunTurntable},
       {"merge",
        "merge a multi-view project into one model and compare it with the CAD model (merge PROJECT "
        "--out MODEL [--cad MESH])",

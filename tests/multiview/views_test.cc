@@ -121,6 +121,10 @@ TEST(ProjectManifestTest, RoundTripAndStateChecks) {
   project.views[1].state = ViewState::kComplete;
   project.views[1].source = "virtual";
   project.views[1].completed = "2026-12-01T00:00:00.000Z";
+  // A device scan's record of how the view was taken: round-tripped untouched.
+  project.views[1].provenance = {{"table_deg", 120.0},
+                                 {"read_back_deg", 119.9995},
+                                 {"turntable", "devices.yaml: turntable: grbl on /dev/ttyUSB0"}};
   // A complete view needs its ImageSet's manifest on disk.
   SaveProject(project, tmp.path());
   const std::string missing = ErrorOf([&] { LoadProject(tmp.path()); });
@@ -138,6 +142,8 @@ TEST(ProjectManifestTest, RoundTripAndStateChecks) {
   EXPECT_EQ(back.views[3].Folder(), std::filesystem::path("views/hand"));
   EXPECT_EQ(back.Find("hand"), &back.views[3]);
   ASSERT_TRUE(back.rig.turntable.has_value());
+  EXPECT_EQ(back.views[1].provenance["read_back_deg"], 119.9995);
+  EXPECT_TRUE(back.views[0].provenance.is_null());  // none written, none read
 }
 
 TEST(ProjectManifestTest, BadManifests) {
@@ -173,6 +179,10 @@ TEST(ProjectManifestTest, BadManifests) {
   bad = j;
   bad["views"][0].erase("name");
   EXPECT_NE(error_of(bad).find("views[0].name: missing"), std::string::npos);
+  bad = j;
+  bad["views"][0]["provenance"] = "by hand";
+  EXPECT_NE(error_of(bad).find("views[0].provenance: must be a mapping"), std::string::npos)
+      << error_of(bad);
   bad = j;
   bad["extra_key"] = 1;
   EXPECT_NE(error_of(bad).find("extra_key"), std::string::npos);

@@ -218,6 +218,7 @@ nlohmann::json ProjectToJson(const ProjectManifest& project) {
     view["state"] = ToString(v.state);
     view["source"] = v.source;
     view["completed"] = v.completed;
+    if (!v.provenance.is_null()) view["provenance"] = v.provenance;
     j["views"].push_back(std::move(view));
   }
   return j;
@@ -240,13 +241,14 @@ ProjectManifest ProjectFromConfig(const ConfigNode& node) {
   if (!list.IsArray() || list.size() == 0) list.Fail("must be a non-empty list of views");
   for (size_t i = 0; i < list.size(); ++i) {
     const auto v = list.at(i);
-    v.RejectUnknownKeys(
-        {"name", "table_deg", "part_from_rig_guess", "folder", "state", "source", "completed"});
+    v.RejectUnknownKeys({"name", "table_deg", "part_from_rig_guess", "folder", "state", "source",
+                         "completed", "provenance"});
     ProjectView view;
     {
       // The spec's own keys, read as the views file reads them; the name is required here.
       nlohmann::json spec = v.json();
-      for (const char* key : {"folder", "state", "source", "completed"}) spec.erase(key);
+      for (const char* key : {"folder", "state", "source", "completed", "provenance"})
+        spec.erase(key);
       view.spec = ViewFromConfig(ConfigNode::FromJson(spec, node.file(), v.path()), i);
       v["name"].AsString();
     }
@@ -258,6 +260,11 @@ ProjectManifest ProjectFromConfig(const ConfigNode& node) {
     }
     view.source = v.GetString("source", "");
     view.completed = v.GetString("completed", "");
+    if (v.Has("provenance")) {
+      view.provenance = v["provenance"].json();
+      if (!view.provenance.is_object() && !view.provenance.is_null())
+        v["provenance"].Fail("must be a mapping (how the view was scanned)");
+    }
     if (v.Has("folder") && v["folder"].AsString() != view.Folder().generic_string())
       v["folder"].Fail("must be views/<name> (" + view.Folder().generic_string() + ")");
     project.views.push_back(std::move(view));

@@ -76,6 +76,10 @@ struct ProjectView {
   ViewState state = ViewState::kMissing;
   std::string source;     // "virtual" or "device" (the ImageSet's image source), empty if missing
   std::string completed;  // ISO 8601 UTC time the view's ImageSet was committed, empty if missing
+  // How a device scan took the view (`slshadow scan`, workflows/multiview/scan.h): commanded and
+  // read-back table angles, the devices, times (docs/formats.md "Multi-view project"); null for
+  // virtual views and views not yet scanned. Round-tripped untouched.
+  nlohmann::json provenance;
   // The view's ImageSet folder relative to the project: views/<name>.
   std::filesystem::path Folder() const { return std::filesystem::path("views") / spec.name; }
 };
