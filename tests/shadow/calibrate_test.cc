@@ -1,7 +1,7 @@
 // shadow/calibrate.cc, the workflows behind `slshadow calibrate`, called as the command calls them:
 // the board-detection summary, a stereo calibration of synthetic boards (known truth) through to
-// the written rig, OpenCV file and report, and bad turntable input refused before anything is
-// written. (`calibrate refine` runs RefineRigFromScan end to end in tests/apps/cmd_calibrate_test.)
+// the written rig, OpenCV file and report, and bad input refused before anything is written.
+// (`calibrate refine` runs RefineRigFromScan to success in tests/apps/cmd_calibrate_test.)
 #include "shadow/calibrate.h"
 
 #include <filesystem>
@@ -13,7 +13,9 @@
 #include "calib/calibration_io.h"
 #include "calib/synthetic.h"
 #include "core/error.h"
+#include "core/image_set.h"
 #include "core/rig.h"
+#include "patterns/pattern_spec.h"
 #include "tests/testing/temp_dir.h"
 
 namespace slshadow::shadow {
@@ -116,6 +118,58 @@ TEST(CalibrateTurntableAndWrite, AnglesNotMatchingTheFoldersAreRefusedBeforeWrit
   }
   EXPECT_FALSE(fs::exists(request.out));
   EXPECT_EQ(printed, "");
+}
+
+// A scan RefineRigFromScan cannot use is refused naming the file and what is wrong, and no rig is
+// written: a camera the rig does not have, patterns coding one projector axis, a rig without a
+// projector and no --stereo camera. (A small blank Gray-code scan: the checks come before any
+// decoding.)
+TEST(RefineRigFromScan, UnusableRequestsAreRefusedNamingTheFileAndWriteNothing) {
+  testing::TempDir tmp;
+  Rig rig;
+  rig.name = "small";
+  rig.working_distance_mm = 500;
+  rig.cameras.push_back({"cam", CameraModel(64, 48, 80, 80, 32, 24), Rigid3d()});
+  rig.projector = RigDevice{"projector", CameraModel(32, 24, 40, 40, 16, 12),
+                            Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(-100, 0, 0))};
+  SaveRig(rig, tmp / "rig.yaml");
+  const auto write_scan = [&](const fs::path& dir, bool code_y) {
+    PatternSpec spec;
+    spec.kind = PatternKind::kGrayCode;
+    spec.projector_width = 32;
+    spec.projector_height = 24;
+    spec.code_y = code_y;
+    ImageSetWriter writer(dir, rig, PatternSpecToJson(spec));
+    for (int i = 0; i < spec.NumImages(); ++i) {
+      writer.Add("cam", i, cv::Mat(48, 64, CV_8UC1, cv::Scalar(100)), 0, ImageSource::kReplay);
+    }
+    writer.Commit();
+  };
+  write_scan(tmp / "scan", true);
+  write_scan(tmp / "scan_x", false);
+  const auto refused = [&](RefineFromScanRequest request, const std::string& expected) {
+    request.out = tmp / "out.yaml";
+    try {
+      RefineRigFromScan(request);
+      ADD_FAILURE() << "accepted; expected: " << expected;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(expected), std::string::npos) << e.what();
+    }
+    EXPECT_FALSE(fs::exists(tmp / "out.yaml")) << expected;
+  };
+  RefineFromScanRequest request;
+  request.rig = tmp / "rig.yaml";
+  request.scan = tmp / "scan";
+  request.camera = "nope";
+  refused(request, (tmp / "rig.yaml").string() + ": no camera named 'nope'");
+  request.camera.clear();
+  request.scan = tmp / "scan_x";
+  refused(request, (tmp / "scan_x").string() + ": patterns must code both projector axes");
+  rig.projector.reset();
+  SaveRig(rig, tmp / "cameras.yaml");
+  request.rig = tmp / "cameras.yaml";
+  request.scan = tmp / "scan";
+  refused(request, "has no projector: refine the pose of one camera against another with --stereo");
 }
 
 }  // namespace
