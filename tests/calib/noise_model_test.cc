@@ -171,5 +171,41 @@ TEST(EstimateViewKernels, CorrelationLengthAndShareFromNeighbouringResiduals) {
   EXPECT_EQ(k[0].length_squares, 1.0);
 }
 
+// Independent errors (share 0, as EstimateViewKernels' first guess says for uncorrelated
+// residuals): no refit, and the sandwich (J^T J)^-1 J^T (sigma^2 I) J (J^T J)^-1 collapses to
+// sigma^2 (J^T J)^-1 whatever J is (a fixed pseudo-random dense J over 3 columns, as a CRS matrix).
+TEST(ViewCorrelatedCovariance, IndependentErrorsGiveSigmaSquaredTimesTheInverse) {
+  Problem p = MakeProblem(1);
+  p.input.views.push_back(
+      MakeView(p.state, 0, [](int, int) -> Eigen::Vector2d { return Eigen::Vector2d::Zero(); }));
+  const int points = 6, cols = 3;
+  std::vector<std::pair<int, int>> block_points;
+  for (int i = 0; i < points; ++i) block_points.emplace_back(0, i);
+  Eigen::MatrixXd j(2 * points, cols);
+  for (int r = 0; r < j.rows(); ++r) {
+    for (int c = 0; c < cols; ++c) j(r, c) = std::sin(1.0 + 0.7 * (c + 1) * r + c);
+  }
+  ceres::CRSMatrix crs;
+  crs.num_rows = static_cast<int>(j.rows());
+  crs.num_cols = cols;
+  crs.rows.push_back(0);
+  for (int r = 0; r < j.rows(); ++r) {
+    for (int c = 0; c < cols; ++c) {
+      crs.cols.push_back(c);
+      crs.values.push_back(j(r, c));
+    }
+    crs.rows.push_back(static_cast<int>(crs.cols.size()));
+  }
+  std::vector<double> residuals(static_cast<size_t>(j.rows()));
+  for (size_t k = 0; k < residuals.size(); ++k) residuals[k] = 0.1 * std::cos(2.0 * k);
+  const Eigen::MatrixXd inv = (j.transpose() * j).inverse();
+  std::vector<ViewNoiseKernel> kernels = {{.sigma_px = 0.5, .share = 0, .length_squares = 1}};
+  const Eigen::MatrixXd cov =
+      ViewCorrelatedCovariance(p.input, block_points, residuals, crs, inv, cols, &kernels);
+  EXPECT_TRUE(cov.isApprox(0.25 * inv, 1e-9)) << cov << "\n\n" << 0.25 * inv;
+  EXPECT_EQ(kernels[0].share, 0.0);  // not refitted
+  EXPECT_EQ(kernels[0].sigma_px, 0.5);
+}
+
 }  // namespace
 }  // namespace slshadow::calib::internal
