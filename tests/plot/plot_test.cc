@@ -38,6 +38,9 @@ TEST(HeatColor, ControlPointsMidpointsAndClamping) {
   EXPECT_EQ(HeatColor(-3.0), HeatColor(0.0));
   EXPECT_EQ(HeatColor(7.0), HeatColor(1.0));
   EXPECT_EQ(HeatColor(std::numeric_limits<double>::quiet_NaN()), (Rgb{0, 255, 0}));
+  // Infinities clamp like any value outside [0, 1] (they were drawn green, the NaN colour).
+  EXPECT_EQ(HeatColor(std::numeric_limits<double>::infinity()), HeatColor(1.0));
+  EXPECT_EQ(HeatColor(-std::numeric_limits<double>::infinity()), HeatColor(0.0));
 }
 
 // A filled bar x 2..4, y 0..60 in a window 0..10 x 0..100 on the viewport 0.1..0.9 of a 400 x
