@@ -17,7 +17,7 @@ constexpr double kStops[5][4] = {{0.00, 0, 0, 255},
 }  // namespace
 
 std::array<uint8_t, 3> HeatColor(double t) {
-  t = std::isfinite(t) ? std::clamp(t, 0.0, 1.0) : 0.5;
+  t = std::isnan(t) ? 0.5 : std::clamp(t, 0.0, 1.0);  // +-inf clamp to the ends, as documented
   int i = 0;
   while (i < 3 && t > kStops[i + 1][0]) ++i;
   const double f = (t - kStops[i][0]) / (kStops[i + 1][0] - kStops[i][0]);

@@ -15,6 +15,15 @@ for arg in "$@"; do
   esac
 done
 bash scripts/setup.sh
+# The shared data (../shared/data, read in place, never copied) is part of a prepared machine:
+# the real-data tests fail without it. Each folder is checked against its SHA256SUMS here, so a
+# missing or changed file is named before the build instead of failing tests one by one.
+for data in kamino-procam-graycode opencv-charuco-tutorial opencv-stereo-chessboard; do
+  if ! (cd "../shared/data/$data" 2>/dev/null && sha256sum --quiet --strict -c SHA256SUMS); then
+    echo "run-tests: ../shared/data/$data is missing or differs from its SHA256SUMS" >&2
+    exit 1
+  fi
+done
 # The tree is formatted (.clang-format): a file that is not fails the run, listed by name; fix
 # with scripts/format.sh --apply. SLSHADOW_CHECK_FORMAT=0 skips the check (e.g. mid-edit).
 SLSHADOW_CHECK_FORMAT=${SLSHADOW_CHECK_FORMAT:-1}

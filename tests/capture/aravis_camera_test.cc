@@ -432,8 +432,12 @@ TEST_P(PacketLossTest, EveryDamagedFrameIsDetectedAndAccountedFor) {
 INSTANTIATE_TEST_SUITE_P(Ratios, PacketLossTest, ::testing::Values(0.0, 0.001, 0.01, 0.1));
 
 // Resend off, free-run: a damaged frame is closed as soon as the next one starts (Aravis's status
-// MISSING_PACKETS). The same accounting holds from the stream's first frame to the last complete
-// one, whatever the machine's load (a buffer underrun is a frame lost whole, counted as a gap).
+// MISSING_PACKETS), or, when the fake camera's thread is starved mid-frame on a loaded machine, by
+// its retention expiring (Aravis's TIMEOUT, counted in its n_timeouts; reported as missing packets
+// too, its message saying so). Which of the two closes a frame is the machine's speed, not the
+// backend's behaviour: the test counts both. The same accounting holds from the stream's first
+// frame to the last complete one, whatever the machine's load (a buffer underrun is a frame lost
+// whole, counted as a gap).
 TEST_F(AravisCameraTest, PacketLossWithoutResendInFreeRun) {
   FakeGvCamera::SeedLoss(7);
   FakeGvCamera fake({.address = "127.0.0.2", .frame_rate_hz = 100, .keep_served = 256});
@@ -448,8 +452,16 @@ TEST_F(AravisCameraTest, PacketLossWithoutResendInFreeRun) {
   Frame first = camera->Grab(kPatience);
   ASSERT_TRUE(first.ok()) << first.message;
   fake.SetLostPacketRatio(0.01);
-  int ok = 1, damaged = 0;
+  int ok = 1, damaged = 0, retention_expired = 0;
   uint64_t last_ok = first.frame_id;
+  const auto count_damaged = [&](const Frame& frame) {
+    ++damaged;
+    EXPECT_EQ(frame.status, FrameStatus::kMissingPackets) << frame.message;
+    if (frame.message.find("packets missing when the frame retention expired") !=
+        std::string::npos) {
+      ++retention_expired;
+    }
+  };
   for (int i = 0; i < 60; ++i) {
     const Frame frame = camera->Grab(kPatience);
     ASSERT_NE(frame.status, FrameStatus::kTimeout) << frame.message;
@@ -459,8 +471,7 @@ TEST_F(AravisCameraTest, PacketLossWithoutResendInFreeRun) {
       EXPECT_TRUE(SameImage(frame.image, fake.ServedImage(frame.frame_id)))
           << "frame " << frame.frame_id;
     } else {
-      ++damaged;
-      EXPECT_EQ(frame.status, FrameStatus::kMissingPackets) << frame.message;
+      count_damaged(frame);
     }
   }
   fake.SetLostPacketRatio(0.0);
@@ -472,7 +483,7 @@ TEST_F(AravisCameraTest, PacketLossWithoutResendInFreeRun) {
       EXPECT_TRUE(SameImage(frame.image, fake.ServedImage(frame.frame_id)));
       break;
     }
-    ++damaged;
+    count_damaged(frame);
   }
   const StreamStatistics stats = camera->Statistics();
   const std::vector<uint64_t> served = fake.served_ids();
@@ -483,7 +494,10 @@ TEST_F(AravisCameraTest, PacketLossWithoutResendInFreeRun) {
       << "ok " << ok << " damaged " << damaged << " lost whole " << stats.missing_frames;
   EXPECT_GT(damaged, 0);  // about 190 packets a frame at 1 %: most frames are damaged
   EXPECT_EQ(stats.resend_requests, 0u);
-  EXPECT_EQ(stats.timeouts, 0u);
+  // Every frame we were handed as closed by its retention is one Aravis counted as a timeout
+  // (frames still queued after the last complete one may add to its count, never subtract).
+  EXPECT_GE(stats.timeouts, static_cast<uint64_t>(retention_expired))
+      << "damaged " << damaged << ", closed by retention " << retention_expired;
 }
 
 TEST_F(AravisCameraTest, FrameTimeoutIsReportedAndTheCameraStaysUsable) {

@@ -346,8 +346,11 @@ TEST_F(ClosedLoop, SlshadowLatencyAndCaptureCommandsEqualSimulation) {
                                std::to_string(projector_rect_.height);
   ASSERT_EQ(RunSlshadow({"latency", "--geometry", geometry, "--samples", "3"}, &out), 0);
   EXPECT_NE(out.find("present latency over 6 frames"), std::string::npos) << out;
+  // The search's upper end (--max-ms) is not what this proves (the measured wait drives a capture
+  // equal to the simulation): 500 ms, so a loaded machine's stall of the fake cameras' threads is
+  // measured as a longer wait instead of failing the search.
   ASSERT_EQ(RunSlshadow({"latency", "--devices", devices_file.string(), "--repetitions", "2",
-                         "--max-ms", "200"},
+                         "--max-ms", "500"},
                         &out),
             0);
   const size_t at = out.find("latency_us: ");

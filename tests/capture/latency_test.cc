@@ -30,6 +30,19 @@ LatencyOptions FastOptions() {
   return o;
 }
 
+// For a projector double whose delay runs on a thread of its own: what these tests prove is a
+// lower bound (no repetition's wait is below the added delay). The search's upper end is not part
+// of it: a loaded machine holds the delay thread or the screen camera back by a hundred ms and more
+// at times, which a 200 ms range turned into "did not see the projector turn white". A 500 ms range
+// leaves room for such stalls (a stall now lengthens the measured wait, which the tests allow);
+// two repetitions keep the time of the longer search near that of three at 200 ms.
+LatencyOptions LoadTolerantOptions() {
+  LatencyOptions o = FastOptions();
+  o.repetitions = 2;
+  o.max_latency = milliseconds(500);
+  return o;
+}
+
 // The software renderer has put the frame into the X framebuffer before Show returns, so a
 // camera triggered right after Show sees it: the measured latency is exactly 0.
 TEST(ProjectorLatency, WindowProjectorSoftwareTriggerIsZero) {
@@ -63,11 +76,12 @@ TEST(ProjectorLatency, AddedDisplayDelayIsFound) {
   CameraSettings s;
   s.trigger = TriggerMode::kSoftware;
   camera.Configure(s);
-  const LatencyMeasurement m = MeasureProjectorLatency(camera, projector, FastOptions());
+  const LatencyMeasurement m = MeasureProjectorLatency(camera, projector, LoadTolerantOptions());
   std::printf("window projector + 40 ms display delay, screen camera: %s\n",
               m.BriefReport().c_str());
-  EXPECT_GE(m.latency, delay);
-  EXPECT_LE(m.latency, FastOptions().max_latency);
+  ASSERT_EQ(m.per_repetition.size(), 2u);
+  for (const microseconds wait : m.per_repetition) EXPECT_GE(wait, delay);
+  EXPECT_LE(m.latency, LoadTolerantOptions().max_latency);
 }
 
 TEST(ProjectorLatency, FreeRunCountsFrames) {
@@ -81,13 +95,13 @@ TEST(ProjectorLatency, FreeRunCountsFrames) {
   CameraSettings s;
   s.trigger = TriggerMode::kFreeRun;
   camera.Configure(s);
-  const LatencyMeasurement m = MeasureProjectorLatency(camera, projector, FastOptions());
+  const LatencyMeasurement m = MeasureProjectorLatency(camera, projector, LoadTolerantOptions());
   std::printf("window projector + 30 ms display delay, free-running screen camera: %s\n",
               m.BriefReport().c_str());
   EXPECT_EQ(m.mode, "frame counting");
-  ASSERT_EQ(m.frames_until_change.size(), 3u);
+  ASSERT_EQ(m.frames_until_change.size(), 2u);
   for (int n : m.frames_until_change) EXPECT_GE(n, 1);
-  EXPECT_GE(m.latency, delay);
+  for (const microseconds wait : m.per_repetition) EXPECT_GE(wait, delay);
 }
 
 // A camera that does not look at the projector: one clear error.

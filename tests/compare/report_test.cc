@@ -14,6 +14,7 @@
 #include "core/error.h"
 #include "core/file_util.h"
 #include "tests/compare/test_shapes.h"
+#include "tests/testing/chart_readback.h"
 #include "tests/testing/temp_dir.h"
 
 namespace slshadow::compare {
@@ -224,6 +225,58 @@ TEST(WriteDeviationMapPng, DrawsEachPixelInItsPlaceAndColour) {
   // The empty quarter is white (left of green, level with it).
   const cv::Vec3b empty = png.at<cv::Vec3b>(green.y, blue.x);
   EXPECT_EQ(empty, cv::Vec3b(255, 255, 255));
+}
+
+// The histogram read back from its PNG: the axes box spans the bins' range (lo..hi) and 0..1.12
+// times the peak count, so each bar stands on its bin's columns, reaches the row of its count
+// and has the heat colour of its bin centre (unsigned: centre / hi); an empty bin draws nothing.
+TEST(WriteHistogramPng, BarsStandOnTheirBinsAtTheirCountsInTheirColours) {
+  Histogram h;
+  h.lo_mm = 0;
+  h.hi_mm = 1;
+  h.counts = {0, 5, 20, 50, 100, 60, 30, 10, 0, 2};
+  HistogramChart chart;
+  chart.title = "deviation";
+  chart.threshold_mm = 0.83;  // a dashed line in the empty bin 8, 15 px off its centre
+  chart.notes = {"a note"};
+  const slshadow::testing::TempDir tmp;
+  const auto path = tmp / "histogram.png";
+  WriteHistogramPng(path, h, chart);
+  const cv::Mat png = cv::imread(path.string(), cv::IMREAD_COLOR);
+  ASSERT_FALSE(png.empty());
+  EXPECT_EQ(png.cols, chart.width_px);
+  EXPECT_EQ(png.rows, chart.height_px);
+  const auto frame = slshadow::testing::FindChartFrame(png);
+  ASSERT_TRUE(frame.has_value());
+  const double ymax = 100 * 1.12;
+  const auto column = [&](double x) {
+    return frame->left + (frame->right - frame->left) * (x - h.lo_mm) / (h.hi_mm - h.lo_mm);
+  };
+  const auto row = [&](double count) {
+    return frame->bottom - (frame->bottom - frame->top) * count / ymax;
+  };
+  for (size_t i = 0; i < h.counts.size(); ++i) {
+    SCOPED_TRACE("bin " + std::to_string(i));
+    const double x0 = 0.1 * static_cast<double>(i), xc = x0 + 0.05;
+    const int cx = static_cast<int>(std::lround(column(xc)));
+    const int cy = static_cast<int>(std::lround(row(h.counts[i] / 2.0)));
+    if (h.counts[i] == 0) {  // white halfway up (the axis' ticks stand at its foot)
+      EXPECT_TRUE(slshadow::testing::IsColour(
+          png.at<cv::Vec3b>(static_cast<int>(std::lround(row(ymax / 2))), cx), {255, 255, 255}, 0));
+      continue;
+    }
+    if (h.counts[i] < 10) continue;  // a bar a few pixels high: too short to read a colour run
+    const std::array<uint8_t, 3> colour = DeviationColor(xc / h.hi_mm);
+    const slshadow::testing::ColourRun run = slshadow::testing::RunThrough(png, cx, cy, colour, 6);
+    ASSERT_GE(run.top, 0) << "colour at the bar's centre " << png.at<cv::Vec3b>(cy, cx)
+                          << ", expected RGB " << int{colour[0]} << " " << int{colour[1]} << " "
+                          << int{colour[2]};
+    // Inside its grey outline (one pixel, antialiased) and the axis.
+    EXPECT_NEAR(run.top, row(static_cast<double>(h.counts[i])), 2.5);
+    EXPECT_NEAR(run.bottom, frame->bottom, 2.5);
+    EXPECT_NEAR(run.left, column(x0), 2.5);
+    EXPECT_NEAR(run.right, column(x0 + 0.1), 2.5);
+  }
 }
 
 }  // namespace

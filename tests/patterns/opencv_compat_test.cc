@@ -47,8 +47,7 @@ TEST(OpenCvCompat, GeneratedImagesEqualGrayCodePatternGenerate) {
 std::filesystem::path KaminoDir() { return testing::SharedDataDir() / "kamino-procam-graycode"; }
 
 TEST(OpenCvCompat, GeneratedImagesEqualTheProjectedKaminoPatterns) {
-  if (!std::filesystem::exists(KaminoDir()))
-    GTEST_SKIP() << "real data not present: " << KaminoDir();
+  ASSERT_TRUE(std::filesystem::exists(KaminoDir())) << "real data not present: " << KaminoDir();
   const std::vector<cv::Mat> ours = GeneratePatterns(OpenCvSpec(1024, 768));
   ASSERT_EQ(ours.size(), 42u);
   for (size_t i = 0; i < ours.size(); ++i) {
@@ -62,8 +61,7 @@ TEST(OpenCvCompat, GeneratedImagesEqualTheProjectedKaminoPatterns) {
 // Our decoder with OpenCV's rules (no edge midpoint, white threshold = contrast threshold, black
 // threshold = shadow threshold) must agree with getProjPixel on every pixel of a real capture.
 TEST(OpenCvCompat, DecodeAgreesWithGetProjPixelOnRealCaptures) {
-  if (!std::filesystem::exists(KaminoDir()))
-    GTEST_SKIP() << "real data not present: " << KaminoDir();
+  ASSERT_TRUE(std::filesystem::exists(KaminoDir())) << "real data not present: " << KaminoDir();
   const PatternSpec spec = OpenCvSpec(1024, 768);
   for (int pose : {0, 3}) {
     std::vector<cv::Mat> images;

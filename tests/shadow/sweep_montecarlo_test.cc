@@ -161,9 +161,8 @@ TEST(MonteCarlo, PredictedUncertaintyCoversIndependentReplicateScans) {
 }
 
 TEST(MonteCarlo, GnuParallelShardsMergeToTheOneProcessResult) {
-  if (std::system("parallel --version > /dev/null 2>&1") != 0) {
-    GTEST_SKIP() << "GNU parallel is not installed (scripts/setup.sh installs it)";
-  }
+  ASSERT_EQ(std::system("parallel --version > /dev/null 2>&1"), 0)
+      << "GNU parallel is not installed (scripts/setup.sh installs it)";
   TempDir tmp;
   WriteSmallRig(tmp / "rig.json", 2);
   WriteStudy(tmp / "study.yaml", tmp / "rig.json", 3, 2);

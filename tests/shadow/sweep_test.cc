@@ -216,9 +216,8 @@ TEST(Sweep, ShardsAreContiguousDisjointAndCoverEveryJob) {
 // The quick study through GNU parallel: 3 shards on 2 job slots, then merge; equal byte for byte
 // to the one-process result.
 TEST(Sweep, GnuParallelShardsMergeToTheOneProcessResult) {
-  if (std::system("parallel --version > /dev/null 2>&1") != 0) {
-    GTEST_SKIP() << "GNU parallel is not installed (scripts/setup.sh installs it)";
-  }
+  ASSERT_EQ(std::system("parallel --version > /dev/null 2>&1"), 0)
+      << "GNU parallel is not installed (scripts/setup.sh installs it)";
   TempDir tmp;
   const fs::path study = SourceDir() / "config/studies/noise_quick.yaml";
   PlanSweep(study, tmp / "one");
@@ -248,8 +247,9 @@ TEST(Sweep, GnuParallelShardsMergeToTheOneProcessResult) {
 // The small study through a real single-node Slurm (Debian's slurm-wlm and munge), configured
 // and started by tests/shadow/slurm_sweep.sh in a temporary folder inside a private network
 // namespace (loopback only) and stopped afterwards: the shards as an `sbatch --array`, the merge as
-// a job depending on them (afterok). Equal byte for byte to the one-process result. Skips, naming
-// what failed, when Slurm or MUNGE cannot start here.
+// a job depending on them (afterok). Equal byte for byte to the one-process result. Skips (refused
+// by the skip gate of scripts/run-tests.sh: not on tests/skip_allowlist.txt), naming what failed,
+// when Slurm or MUNGE cannot start here.
 TEST(Sweep, SlurmArrayShardsAndDependentMergeGiveTheOneProcessResult) {
   if (std::system("unshare -n true > /dev/null 2>&1") != 0) {
     GTEST_SKIP() << "cannot make a private network namespace (unshare -n) for the Slurm daemons";

@@ -235,9 +235,8 @@ TEST(Vdi2634Study, SmallStudyScansFitsAndShardsThroughGnuParallelToTheSameResult
   for (const char* f : {"vdi2634.csv", "positions.csv", "vdi2634.png", "vdi2634.svg"})
     EXPECT_TRUE(fs::exists(tmp / "one_result" / f)) << f;
 
-  if (std::system("parallel --version > /dev/null 2>&1") != 0) {
-    GTEST_SKIP() << "GNU parallel is not installed (scripts/setup.sh installs it)";
-  }
+  ASSERT_EQ(std::system("parallel --version > /dev/null 2>&1"), 0)
+      << "GNU parallel is not installed (scripts/setup.sh installs it)";
   const std::string result = (tmp / "par_result").string();
   ASSERT_EQ(testing::SweepThroughGnuParallel(SLSHADOW_BINARY, tmp / "study.yaml", tmp / "par",
                                              result, "3 1 2 0", 4),
