@@ -1,0 +1,32 @@
+"""Type stubs of the slshadow package (python/slshadow/__init__.py)."""
+
+from typing import Any
+
+import open3d
+
+from ._slshadow import (
+    CameraModel as CameraModel,
+    Comparison as Comparison,
+    Device as Device,
+    Error as Error,
+    ImageSet as ImageSet,
+    PatternSpec as PatternSpec,
+    PointCloud as PointCloud,
+    ProjectorMap as ProjectorMap,
+    Reconstruction as Reconstruction,
+    Reference as Reference,
+    Rig as Rig,
+    Scan as Scan,
+    Scene as Scene,
+    __version__ as __version__,
+    compare as compare,
+    decode as decode,
+    read_ply as read_ply,
+    reconstruct as reconstruct,
+    simulate as simulate,
+    write_image_set as write_image_set,
+)
+
+def to_open3d(cloud: PointCloud | Reconstruction) -> open3d.geometry.PointCloud: ...
+
+__all__: list[str]
