@@ -175,7 +175,7 @@ void BindPatternsAndSim(py::module_& m) {
       "decode",
       [](const py::handle& images, const py::handle& patterns, const py::kwargs& kwargs) {
         const PatternSpec spec = PatternSpecFromObject(patterns, "patterns");
-        const DecodeOptions options = DecodeOptionsFromKwargs(kwargs, "decode options");
+        const DecodeOptions options = DecodeOptionsFromKwargs(kwargs, "decode");
         std::vector<py::object> keep;
         const std::vector<cv::Mat> mats = ImagesFromObject(images, "images", &keep);
         py::gil_scoped_release release;

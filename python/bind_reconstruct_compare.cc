@@ -32,26 +32,39 @@ std::string Join(const std::set<std::string>& names) {
   return out;
 }
 
-// Keyword arguments -> ImageSetReconstructOptions through ImageSetReconstructOptionsFromConfig:
-// mode and cameras at the top, the ReconstructOptions fields under "reconstruct", the
-// DecodeOptions fields under "decode". mode "auto" (the default): DefaultReconstructMode(rig).
+// Keyword arguments -> ImageSetReconstructOptions: the ReconstructOptions fields through
+// ReconstructOptionsFromConfig, the DecodeOptions fields through DecodeOptionsFromConfig (their
+// names, types and checks), mode and cameras as on the command line, then the whole Check(). A
+// message is the command line's for the same value, after "reconstruct: ". mode "auto" (the
+// default): DefaultReconstructMode(rig).
 ImageSetReconstructOptions ReconstructOptionsFromKwargs(const py::kwargs& kwargs, const Rig& rig) {
   static const std::set<std::string> reconstruct_keys = Keys(ReconstructOptions{}.ToJson());
   static const std::set<std::string> decode_keys = Keys(DecodeOptionsToJson(DecodeOptions{}));
-  nlohmann::json tree = {{"reconstruct", nlohmann::json::object()},
-                         {"decode", nlohmann::json::object()}};
+  nlohmann::json reconstruct_tree = nlohmann::json::object();
+  nlohmann::json decode_tree = nlohmann::json::object();
   std::string mode = "auto";
+  ImageSetReconstructOptions options;
   for (const auto& [key, value] : kwargs) {
     const std::string name = py::str(key);
     const std::string what = "reconstruct: " + name;
     if (name == "mode") {
-      mode = py::str(value).cast<std::string>();
+      SLSHADOW_THROW_IF(!py::isinstance<py::str>(value), what, ": expected a string (got ",
+                        std::string(py::repr(value)), ")");
+      mode = value.cast<std::string>();
     } else if (name == "cameras") {
-      tree["cameras"] = ToJson(value, what);
+      SLSHADOW_THROW_IF(py::isinstance<py::str>(value) || !py::isinstance<py::sequence>(value),
+                        what, ": expected a list of camera names (got ",
+                        std::string(py::repr(value)), ")");
+      for (const py::handle camera : value) {
+        SLSHADOW_THROW_IF(!py::isinstance<py::str>(camera), what,
+                          ": expected a list of camera names (got ", std::string(py::repr(value)),
+                          ")");
+        options.cameras.push_back(camera.cast<std::string>());
+      }
     } else if (reconstruct_keys.count(name)) {
-      tree["reconstruct"][name] = ToJson(value, what);
+      reconstruct_tree[name] = ToJson(value, what);
     } else if (decode_keys.count(name)) {
-      tree["decode"][name] = ToJson(value, what);
+      decode_tree[name] = ToJson(value, what);
     } else {
       std::set<std::string> all = reconstruct_keys;
       all.insert(decode_keys.begin(), decode_keys.end());
@@ -60,10 +73,17 @@ ImageSetReconstructOptions ReconstructOptionsFromKwargs(const py::kwargs& kwargs
       SLSHADOW_THROW("reconstruct: unknown option '", name, "' (expected one of ", Join(all), ")");
     }
   }
-  if (mode != "auto") tree["mode"] = mode;
-  ImageSetReconstructOptions options =
-      ImageSetReconstructOptionsFromConfig(ConfigNode::FromJson(tree, "reconstruct options"));
-  if (mode == "auto") options.mode = DefaultReconstructMode(rig);
+  if (!reconstruct_tree.empty())
+    options.reconstruct =
+        ReconstructOptionsFromConfig(ConfigNode::FromJson(reconstruct_tree, "reconstruct"));
+  if (!decode_tree.empty())
+    options.decode = DecodeOptionsFromConfig(ConfigNode::FromJson(decode_tree, "reconstruct"));
+  try {
+    options.mode = mode == "auto" ? DefaultReconstructMode(rig) : ReconstructModeFromString(mode);
+    options.Check();
+  } catch (const Error& e) {
+    SLSHADOW_THROW("reconstruct: ", e.what());
+  }
   return options;
 }
 
@@ -120,7 +140,8 @@ compare::CompareOptions CompareOptionsFromKwargs(const py::kwargs& kwargs) {
       tree[name] = ToJson(value, "compare: " + name);
     }
   }
-  return compare::CompareOptionsFromConfig(ConfigNode::FromJson(tree, "compare options"));
+  // A message is the command line's for the same value, after "compare: ".
+  return compare::CompareOptionsFromConfig(ConfigNode::FromJson(tree, "compare"));
 }
 
 struct PyComparison {

@@ -2,7 +2,7 @@
 
 from typing import Any
 
-import open3d
+import open3d  # type: ignore[import]
 
 from ._slshadow import (
     CameraModel as CameraModel,
@@ -29,4 +29,25 @@ from ._slshadow import (
 
 def to_open3d(cloud: PointCloud | Reconstruction) -> open3d.geometry.PointCloud: ...
 
-__all__: list[str]
+__all__ = [
+    "CameraModel",
+    "Comparison",
+    "Device",
+    "Error",
+    "ImageSet",
+    "PatternSpec",
+    "PointCloud",
+    "ProjectorMap",
+    "Reconstruction",
+    "Reference",
+    "Rig",
+    "Scan",
+    "Scene",
+    "compare",
+    "decode",
+    "read_ply",
+    "reconstruct",
+    "simulate",
+    "to_open3d",
+    "write_image_set",
+]

@@ -8,9 +8,9 @@ import numpy.typing as npt
 
 __version__: str
 
-PathLike = Union[str, os.PathLike[str]]
-Progress = Optional[Callable[[str, int, int], Any]]
-ImageStack = Union[npt.NDArray[np.uint8], npt.NDArray[np.uint16], Sequence[npt.NDArray[Any]]]
+_PathLike = Union[str, os.PathLike[str]]
+_Progress = Optional[Callable[[str, int, int], Any]]
+_ImageStack = Union[npt.NDArray[np.uint8], npt.NDArray[np.uint16], Sequence[npt.NDArray[Any]]]
 
 class Error(ValueError):
     """Bad input: the command line's one-line message (file, field, value)."""
@@ -69,10 +69,10 @@ class Rig:
     """Cameras and at most one projector (docs/formats.md "Rig YAML")."""
 
     @staticmethod
-    def load(path: PathLike) -> Rig: ...
+    def load(path: _PathLike) -> Rig: ...
     @staticmethod
     def from_dict(tree: dict[str, Any]) -> Rig: ...
-    def save(self, path: PathLike) -> None: ...
+    def save(self, path: _PathLike) -> None: ...
     def describe(self) -> str: ...
     def to_dict(self) -> dict[str, Any]: ...
     @property
@@ -108,15 +108,15 @@ class PointCloud:
     @property
     def scalar_names(self) -> list[str]: ...
     def scalar(self, name: str) -> npt.NDArray[np.float32]: ...
-    def write_ply(self, path: PathLike, binary: bool = True) -> None: ...
+    def write_ply(self, path: _PathLike, binary: bool = True) -> None: ...
 
-def read_ply(path: PathLike) -> PointCloud: ...
+def read_ply(path: _PathLike) -> PointCloud: ...
 
 class Scene:
     """What the simulator scans (docs/formats.md "Scene YAML")."""
 
     @staticmethod
-    def load(path: PathLike) -> Scene: ...
+    def load(path: _PathLike) -> Scene: ...
     @property
     def name(self) -> str: ...
     def to_dict(self) -> dict[str, Any]: ...
@@ -125,7 +125,7 @@ class ImageSet:
     """A capture folder, real or virtual (docs/formats.md "ImageSet")."""
 
     @staticmethod
-    def open(dir: PathLike) -> ImageSet: ...
+    def open(dir: _PathLike) -> ImageSet: ...
     @property
     def dir(self) -> str: ...
     @property
@@ -142,10 +142,10 @@ class ImageSet:
     def images(self, camera: str) -> npt.NDArray[Any]: ...
 
 def write_image_set(
-    dir: PathLike,
+    dir: _PathLike,
     rig: Rig,
-    patterns: Union[PatternSpec, dict[str, Any], PathLike],
-    images: dict[str, ImageStack],
+    patterns: Union[PatternSpec, dict[str, Any], _PathLike],
+    images: dict[str, _ImageStack],
     *,
     encoding: str = "png",
     png_compression: int = 1,
@@ -159,7 +159,7 @@ class PatternSpec:
     """What is projected and how it is decoded (docs/formats.md "Pattern spec")."""
 
     @staticmethod
-    def load(path: PathLike) -> PatternSpec: ...
+    def load(path: _PathLike) -> PatternSpec: ...
     @staticmethod
     def from_dict(tree: dict[str, Any]) -> PatternSpec: ...
     def to_dict(self) -> dict[str, Any]: ...
@@ -217,7 +217,7 @@ class ProjectorMap:
     def counts(self) -> dict[str, int]: ...
 
 def decode(
-    images: ImageStack, patterns: Union[PatternSpec, dict[str, Any], PathLike], **options: Any
+    images: _ImageStack, patterns: Union[PatternSpec, dict[str, Any], _PathLike], **options: Any
 ) -> ProjectorMap: ...
 
 class Scan:
@@ -235,16 +235,16 @@ class Scan:
     def visible_surface(self, camera: str) -> PointCloud: ...
     @property
     def summary(self) -> str: ...
-    def write(self, dir: PathLike, *, encoding: str = "png", overwrite: bool = False) -> ImageSet: ...
+    def write(self, dir: _PathLike, *, encoding: str = "png", overwrite: bool = False) -> ImageSet: ...
 
 def simulate(
     rig: Rig,
     scene: Scene,
-    patterns: Union[PatternSpec, dict[str, Any], PathLike],
+    patterns: Union[PatternSpec, dict[str, Any], _PathLike],
     *,
     ground_truth: bool = False,
     trace_mode: str = "packet16",
-    progress: Progress = None,
+    progress: _Progress = None,
 ) -> Scan: ...
 
 class Reconstruction:
@@ -278,16 +278,16 @@ class Reconstruction:
     def report(self) -> str: ...
     def to_dict(self) -> dict[str, Any]: ...
     def write(
-        self, path: PathLike, summary: Optional[PathLike] = None, binary: bool = True
+        self, path: _PathLike, summary: Optional[_PathLike] = None, binary: bool = True
     ) -> str: ...
     def __len__(self) -> int: ...
 
 def reconstruct(
-    source: Union[ImageSet, Scan, dict[str, ImageStack]],
-    patterns: Union[PatternSpec, dict[str, Any], PathLike, None] = None,
+    source: Union[ImageSet, Scan, dict[str, _ImageStack]],
+    patterns: Union[PatternSpec, dict[str, Any], _PathLike, None] = None,
     *,
     rig: Optional[Rig] = None,
-    progress: Progress = None,
+    progress: _Progress = None,
     **options: Any,
 ) -> Reconstruction: ...
 
@@ -295,7 +295,7 @@ class Reference:
     """A mesh (C2M) or cloud (C2C) reference, built once for many comparisons."""
 
     @staticmethod
-    def load(path: PathLike, mesh_samples: int = 200000) -> Reference: ...
+    def load(path: _PathLike, mesh_samples: int = 200000) -> Reference: ...
     @staticmethod
     def from_cloud(cloud: PointCloud, source: str = "cloud") -> Reference: ...
     @property
@@ -320,15 +320,15 @@ class Comparison:
     def summary(self) -> str: ...
 
 def compare(
-    cloud: Union[PointCloud, Reconstruction, npt.ArrayLike, PathLike],
-    reference: Union[Reference, PointCloud, Reconstruction, npt.ArrayLike, PathLike],
+    cloud: Union[PointCloud, Reconstruction, npt.ArrayLike, _PathLike],
+    reference: Union[Reference, PointCloud, Reconstruction, npt.ArrayLike, _PathLike],
     *,
-    out: Optional[PathLike] = None,
+    out: Optional[_PathLike] = None,
     mesh_samples: int = 200000,
     cloud_source: Optional[str] = None,
     view_rig: Optional[Rig] = None,
     view_camera: Optional[str] = None,
     overwrite: bool = True,
-    progress: Progress = None,
+    progress: _Progress = None,
     **options: Any,
 ) -> Comparison: ...

@@ -51,20 +51,48 @@ def test_bad_pattern_spec_message_is_the_cli_one(tmp_path):
     assert one_line(e) == cli_error("patterns", "show", bad)
 
 
-def test_option_validation(cli_scan):
+def test_option_messages_are_the_cli_ones_after_the_call_name(cli_scan, tmp_path):
+    """Keyword options are checked by the C++ code the command line runs: the message for a value
+    is the command line's for the same value, after the name of the call."""
+    image_set = sl.ImageSet.open(cli_scan)
+    out = tmp_path / "x.ply"
+    with pytest.raises(sl.Error) as e:
+        sl.reconstruct(image_set, min_depth_mm=-5)
+    assert one_line(e) == "reconstruct: " + cli_error("reconstruct", cli_scan, "--out", out,
+                                                      "--min-depth-mm", "-5")
+    with pytest.raises(sl.Error) as e:
+        sl.reconstruct(image_set, shadow_threshold=-5)
+    cli_decode = cli_error("reconstruct", cli_scan, "--out", out, "--shadow-threshold", "-5")
+    assert one_line(e) == "reconstruct: " + cli_decode
+    with pytest.raises(sl.Error) as e:
+        sl.decode(image_set.images("left"), image_set.patterns, shadow_threshold=-5)
+    assert one_line(e) == "decode: " + cli_decode
+    cloud = tmp_path / "cloud.ply"
+    sl.PointCloud(np.random.default_rng(2).normal(size=(50, 3))).write_ply(cloud)
+    with pytest.raises(sl.Error) as e:
+        sl.compare(cloud, cloud, threshold_mm=-1)
+    assert one_line(e) == "compare: " + cli_error("compare", cloud, cloud, "--out",
+                                                  tmp_path / "report", "--threshold-mm", "-1")
+    assert not out.exists() and not (tmp_path / "report").exists()
+
+
+def test_option_names_and_types(cli_scan):
     image_set = sl.ImageSet.open(cli_scan)
     with pytest.raises(sl.Error) as e:
         sl.reconstruct(image_set, method="hartley")
     assert "hartley" in one_line(e) and "optimal" in str(e.value)
     with pytest.raises(sl.Error) as e:
-        sl.reconstruct(image_set, min_depth_mm=-5)
-    assert "min_depth_mm" in one_line(e)
+        sl.reconstruct(image_set, mode="sideways")
+    assert "sideways" in one_line(e)
+    with pytest.raises(sl.Error) as e:
+        sl.reconstruct(image_set, min_depth_mm="near")
+    assert "min_depth_mm" in one_line(e) and "near" in str(e.value)
     with pytest.raises(sl.Error) as e:
         sl.reconstruct(image_set, no_such_option=1)
     assert "no_such_option" in one_line(e) and "min_depth_mm" in str(e.value)
     with pytest.raises(sl.Error) as e:
-        sl.compare(np.zeros((10, 3)), np.ones((10, 3)), threshold_mm=-1)
-    assert "threshold_mm" in one_line(e)
+        sl.compare(np.zeros((10, 3)), np.ones((10, 3)), registration="magic")
+    assert "magic" in one_line(e)
     with pytest.raises(sl.Error) as e:
         sl.decode(image_set.images("left")[:5], image_set.patterns)
     assert "5" in one_line(e)
