@@ -32,12 +32,15 @@ std::string Join(const std::set<std::string>& names) {
   return out;
 }
 
+}  // namespace
+
 // Keyword arguments -> ImageSetReconstructOptions: the ReconstructOptions fields through
 // ReconstructOptionsFromConfig, the DecodeOptions fields through DecodeOptionsFromConfig (their
 // names, types and checks), mode and cameras as on the command line, then the whole Check(). A
-// message is the command line's for the same value, after "reconstruct: ". mode "auto" (the
-// default): DefaultReconstructMode(rig).
-ImageSetReconstructOptions ReconstructOptionsFromKwargs(const py::kwargs& kwargs, const Rig& rig) {
+// message is the command line's for the same value, after "<call>: ". mode "auto" (the
+// default): DefaultReconstructMode(rig); without a rig, mode and cameras are refused.
+ImageSetReconstructOptions ReconstructOptionsFromKwargs(const py::kwargs& kwargs, const Rig* rig,
+                                                        const std::string& call) {
   static const std::set<std::string> reconstruct_keys = Keys(ReconstructOptions{}.ToJson());
   static const std::set<std::string> decode_keys = Keys(DecodeOptionsToJson(DecodeOptions{}));
   nlohmann::json reconstruct_tree = nlohmann::json::object();
@@ -46,8 +49,10 @@ ImageSetReconstructOptions ReconstructOptionsFromKwargs(const py::kwargs& kwargs
   ImageSetReconstructOptions options;
   for (const auto& [key, value] : kwargs) {
     const std::string name = py::str(key);
-    const std::string what = "reconstruct: " + name;
-    if (name == "mode") {
+    const std::string what = call + ": " + name;
+    if (!rig && (name == "mode" || name == "cameras")) {
+      SLSHADOW_THROW(call, ": unknown option '", name, "'");
+    } else if (name == "mode") {
       SLSHADOW_THROW_IF(!py::isinstance<py::str>(value), what, ": expected a string (got ",
                         std::string(py::repr(value)), ")");
       mode = value.cast<std::string>();
@@ -70,22 +75,30 @@ ImageSetReconstructOptions ReconstructOptionsFromKwargs(const py::kwargs& kwargs
       all.insert(decode_keys.begin(), decode_keys.end());
       all.insert("mode");
       all.insert("cameras");
-      SLSHADOW_THROW("reconstruct: unknown option '", name, "' (expected one of ", Join(all), ")");
+      if (!rig) {
+        all.erase("mode");
+        all.erase("cameras");
+      }
+      SLSHADOW_THROW(call, ": unknown option '", name, "' (expected one of ", Join(all), ")");
     }
   }
   if (!reconstruct_tree.empty())
     options.reconstruct =
-        ReconstructOptionsFromConfig(ConfigNode::FromJson(reconstruct_tree, "reconstruct"));
+        ReconstructOptionsFromConfig(ConfigNode::FromJson(reconstruct_tree, call));
   if (!decode_tree.empty())
-    options.decode = DecodeOptionsFromConfig(ConfigNode::FromJson(decode_tree, "reconstruct"));
+    options.decode = DecodeOptionsFromConfig(ConfigNode::FromJson(decode_tree, call));
   try {
-    options.mode = mode == "auto" ? DefaultReconstructMode(rig) : ReconstructModeFromString(mode);
+    if (rig)
+      options.mode =
+          mode == "auto" ? DefaultReconstructMode(*rig) : ReconstructModeFromString(mode);
     options.Check();
   } catch (const Error& e) {
-    SLSHADOW_THROW("reconstruct: ", e.what());
+    SLSHADOW_THROW(call, ": ", e.what());
   }
   return options;
 }
+
+namespace {
 
 struct PyReconstruction {
   std::shared_ptr<ImageSetReconstruction> rec;
@@ -244,7 +257,7 @@ void BindReconstructAndCompare(py::module_& m) {
           out.rig = rig_arg ? *rig_arg : image_set.rig();
           if (rig_arg) out.rig_file = "(Python)";
           out.imageset = image_set.dir().string();
-          out.options = ReconstructOptionsFromKwargs(kwargs, out.rig);
+          out.options = ReconstructOptionsFromKwargs(kwargs, &out.rig, "reconstruct");
           py::gil_scoped_release release;
           report("reconstruct", 0, 1);
           out.rec = std::make_shared<ImageSetReconstruction>(
@@ -284,7 +297,7 @@ void BindReconstructAndCompare(py::module_& m) {
               "reconstruct: expected an ImageSet, a Scan or a dict camera -> images (got ",
               std::string(py::str(py::type::of(source))), ")");
         }
-        out.options = ReconstructOptionsFromKwargs(kwargs, out.rig);
+        out.options = ReconstructOptionsFromKwargs(kwargs, &out.rig, "reconstruct");
         py::gil_scoped_release release;
         report("reconstruct", 0, 1);
         out.rec = std::make_shared<ImageSetReconstruction>(

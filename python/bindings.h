@@ -10,7 +10,9 @@
 
 #include "core/image_set.h"
 #include "core/point_cloud.h"
+#include "core/rig.h"
 #include "patterns/pattern_spec.h"
+#include "reconstruct/reconstruct_image_set.h"
 
 namespace slshadow::python {
 
@@ -22,6 +24,14 @@ void BindCore(py::module_& m);
 void BindPatternsAndSim(py::module_& m);
 // reconstruct (Reconstruction), compare (Reference, Comparison).
 void BindReconstructAndCompare(py::module_& m);
+// shadow (real vs virtual).
+void BindShadow(py::module_& m);
+
+// Keyword arguments -> reconstruction options: the ReconstructOptions and DecodeOptions fields
+// through their config readers, mode and cameras (only with a rig; mode "auto":
+// DefaultReconstructMode), then Check(). Messages: "<call>: " + the command line's.
+ImageSetReconstructOptions ReconstructOptionsFromKwargs(const py::kwargs& kwargs, const Rig* rig,
+                                                        const std::string& call);
 
 // A PatternSpec from a Python argument: a PatternSpec, a dict (the fields of PatternSpecToJson) or
 // a path to a .yaml/.json spec. Throws slshadow::Error naming `what`.

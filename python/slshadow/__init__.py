@@ -24,6 +24,7 @@ from ._slshadow import (  # noqa: F401
     decode,
     read_ply,
     reconstruct,
+    shadow,
     simulate,
     write_image_set,
 )
@@ -63,6 +64,7 @@ __all__ = [
     "decode",
     "read_ply",
     "reconstruct",
+    "shadow",
     "simulate",
     "to_open3d",
     "write_image_set",

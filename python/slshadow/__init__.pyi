@@ -23,6 +23,7 @@ from ._slshadow import (
     decode as decode,
     read_ply as read_ply,
     reconstruct as reconstruct,
+    shadow as shadow,
     simulate as simulate,
     write_image_set as write_image_set,
 )
@@ -47,6 +48,7 @@ __all__ = [
     "decode",
     "read_ply",
     "reconstruct",
+    "shadow",
     "simulate",
     "to_open3d",
     "write_image_set",

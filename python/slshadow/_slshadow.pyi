@@ -332,3 +332,20 @@ def compare(
     progress: _Progress = None,
     **options: Any,
 ) -> Comparison: ...
+
+def shadow(
+    real: Union[ImageSet, _PathLike],
+    part: _PathLike,
+    *,
+    out: Optional[_PathLike] = None,
+    rig: Optional[Rig] = None,
+    pose: Optional[npt.ArrayLike] = None,
+    refine_pose: bool = True,
+    fit_physics: bool = True,
+    min_fitness: float = 0.5,
+    max_rmse_mm: float = 0.5,
+    write_clouds: bool = True,
+    overwrite: bool = False,
+    progress: _Progress = None,
+    **options: Any,
+) -> dict[str, Any]: ...
