@@ -10,6 +10,7 @@
 #include "core/image_io.h"
 #include "python/bindings.h"
 #include "python/convert.h"
+#include "shadow/sweep.h"
 #include "shadow/twin.h"
 
 namespace slshadow::python {
@@ -155,6 +156,56 @@ void BindShadow(py::module_& m) {
       "ReconstructOptions and DecodeOptions. Returns a dict: report (report.json), summary, "
       "rig_from_part (4x4), maps {camera: {name: RGB array}}. With out= the report folder is kept "
       "there. The GIL is released while it runs.");
+}
+
+void BindSweep(py::module_& m) {
+  m.def(
+      "_sweep",
+      [](const std::filesystem::path& study, const std::filesystem::path& out,
+         const std::string& shard, bool verbose, const py::object& progress) {
+        shadow::SweepRunOptions options;
+        shadow::ParseShard(shard, "shard", &options);
+        options.verbose = verbose;
+        const ProgressCallback report(progress);
+        shadow::SweepStudySummary s;
+        {
+          py::gil_scoped_release release;
+          report("plan", 0, 3);
+          s = shadow::RunStudy(study, out, options,
+                               [&](const shadow::SweepStudySummary&) { report("run", 1, 3); });
+          report("done", 3, 3);
+        }
+        py::dict plan, run, merge;
+        plan["study"] = s.plan.study;
+        plan["jobs"] = s.plan.jobs;
+        plan["geometry_groups"] = s.plan.geometry_groups;
+        plan["axes"] = s.plan.axes;
+        run["assigned"] = s.run.assigned;
+        run["already_done"] = s.run.already_done;
+        run["ran"] = s.run.ran;
+        run["geometry_traces"] = s.run.geometry_traces;
+        run["wall_s"] = s.run.wall_s;
+        run["summary"] = s.run.BriefReport();
+        merge["jobs"] = s.merge.jobs;
+        merge["rows"] = s.merge.rows;
+        merge["front"] = s.merge.front;
+        merge["break_points"] = s.merge.break_points;
+        merge["effects"] = s.merge.effects;
+        merge["acceptance"] = s.merge.acceptance;
+        merge["uncertainty"] = s.merge.uncertainty;
+        py::dict d;
+        d["resumed"] = s.resumed;
+        d["plan"] = plan;
+        d["run"] = run;
+        d["merge"] = merge;
+        d["jobs_dir"] = s.jobs_dir.string();
+        d["out_dir"] = s.merge.out_dir.string();
+        return d;
+      },
+      py::arg("study"), py::arg("out"), py::kw_only(), py::arg("shard") = "0/1",
+      py::arg("verbose") = false, py::arg("progress") = py::none(),
+      "`slshadow sweep study`: plans, runs and merges a study (docs/sweeps.md); slshadow.sweep "
+      "adds the result tables.");
 }
 
 }  // namespace slshadow::python

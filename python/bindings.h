@@ -24,8 +24,9 @@ void BindCore(py::module_& m);
 void BindPatternsAndSim(py::module_& m);
 // reconstruct (Reconstruction), compare (Reference, Comparison).
 void BindReconstructAndCompare(py::module_& m);
-// shadow (real vs virtual).
+// shadow (real vs virtual); _sweep (a study planned, run and merged; slshadow.sweep adds tables).
 void BindShadow(py::module_& m);
+void BindSweep(py::module_& m);
 
 // Keyword arguments -> reconstruction options: the ReconstructOptions and DecodeOptions fields
 // through their config readers, mode and cameras (only with a rig; mode "auto":

@@ -1,6 +1,9 @@
 """Type stubs of the slshadow package (python/slshadow/__init__.py)."""
 
+import os
 from typing import Any
+
+import numpy as np
 
 import open3d  # type: ignore[import]
 
@@ -28,6 +31,15 @@ from ._slshadow import (
     write_image_set as write_image_set,
 )
 
+def read_table(path: str | os.PathLike[str]) -> dict[str, np.ndarray[Any, Any]]: ...
+def sweep(
+    study: str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    *,
+    shard: str = "0/1",
+    verbose: bool = False,
+    progress: Any = None,
+) -> dict[str, Any]: ...
 def to_open3d(cloud: PointCloud | Reconstruction) -> open3d.geometry.PointCloud: ...
 
 __all__ = [
@@ -47,9 +59,11 @@ __all__ = [
     "compare",
     "decode",
     "read_ply",
+    "read_table",
     "reconstruct",
     "shadow",
     "simulate",
+    "sweep",
     "to_open3d",
     "write_image_set",
 ]
