@@ -27,6 +27,8 @@ void BindReconstructAndCompare(py::module_& m);
 // shadow (real vs virtual); _sweep (a study planned, run and merged; slshadow.sweep adds tables).
 void BindShadow(py::module_& m);
 void BindSweep(py::module_& m);
+// calibrate_camera (board images -> rig file and report).
+void BindCalibrate(py::module_& m);
 
 // Keyword arguments -> reconstruction options: the ReconstructOptions and DecodeOptions fields
 // through their config readers, mode and cameras (only with a rig; mode "auto":

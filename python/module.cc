@@ -25,6 +25,7 @@ PYBIND11_MODULE(_slshadow, m) {
   slshadow::python::BindReconstructAndCompare(m);
   slshadow::python::BindShadow(m);
   slshadow::python::BindSweep(m);
+  slshadow::python::BindCalibrate(m);
 #ifdef SLSHADOW_VERSION
   m.attr("__version__") = SLSHADOW_VERSION;
 #endif

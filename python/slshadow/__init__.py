@@ -7,6 +7,7 @@ top-left pixel (OpenCV). Bad input raises slshadow.Error with the command line's
 
 from ._slshadow import (  # noqa: F401
     CameraModel,
+    calibrate_camera,
     Comparison,
     Device,
     Error,
@@ -90,6 +91,7 @@ def sweep(study, out, *, shard="0/1", verbose=False, progress=None):
 
 __all__ = [
     "CameraModel",
+    "calibrate_camera",
     "Comparison",
     "Device",
     "Error",

@@ -9,6 +9,7 @@ import open3d  # type: ignore[import]
 
 from ._slshadow import (
     CameraModel as CameraModel,
+    calibrate_camera as calibrate_camera,
     Comparison as Comparison,
     Device as Device,
     Error as Error,
@@ -44,6 +45,7 @@ def to_open3d(cloud: PointCloud | Reconstruction) -> open3d.geometry.PointCloud:
 
 __all__ = [
     "CameraModel",
+    "calibrate_camera",
     "Comparison",
     "Device",
     "Error",

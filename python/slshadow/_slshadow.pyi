@@ -349,3 +349,24 @@ def shadow(
     progress: _Progress = None,
     **options: Any,
 ) -> dict[str, Any]: ...
+
+def calibrate_camera(
+    images: Union[_PathLike, Sequence[_PathLike]],
+    target: _PathLike,
+    out: _PathLike,
+    *,
+    camera: str = "camera",
+    report: Optional[_PathLike] = None,
+    opencv_out: Optional[_PathLike] = None,
+    name: str = "calibrated",
+    fix_aspect: bool = False,
+    fix_principal_point: bool = False,
+    zero_tangential: bool = False,
+    fix_k3: bool = False,
+    loss: str = "none",
+    loss_scale_px: float = 1.0,
+    board_warp: bool = False,
+    cross_validate: bool = True,
+    min_views: int = 10,
+    progress: _Progress = None,
+) -> dict[str, Any]: ...

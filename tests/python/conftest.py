@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-SOURCE_DIR = Path(os.environ.get("SLSHADOW_SOURCE_DIR", Path(__file__).resolve().parents[2]))
+SOURCE_DIR = Path(os.environ.get("SLSHADOW_SOURCE_DIR", Path(__file__).resolve().parents[2])).resolve()
 SLSHADOW_BIN = os.environ.get("SLSHADOW_BIN", str(SOURCE_DIR / "build" / "apps" / "slshadow"))
 QUARTER_RIG = SOURCE_DIR / "config" / "studies" / "quarter_demo_rig.yaml"
 DEMO_SCENE = SOURCE_DIR / "config" / "demo" / "scene.yaml"
