@@ -1,4 +1,5 @@
-// shadow in Python: real scan vs its virtual twin, the library call behind `slshadow shadow`.
+// The workflows in Python: shadow (`slshadow shadow`), calibrate_camera (`slshadow calibrate
+// camera`) and _sweep (`slshadow sweep study`), the library calls behind those commands.
 #include <atomic>
 #include <chrono>
 #include <filesystem>
