@@ -40,13 +40,18 @@ def cli_error(*args):
 
 @pytest.fixture(scope="session")
 def tmp_root(tmp_path_factory):
+    """A session folder under SLSHADOW_TEST_TMP (removed at the end), else pytest's own."""
     base = os.environ.get("SLSHADOW_TEST_TMP")
-    if base:
-        Path(base).mkdir(parents=True, exist_ok=True)
-        import tempfile
+    if not base:
+        yield tmp_path_factory.mktemp("slshadow")
+        return
+    import shutil
+    import tempfile
 
-        return Path(tempfile.mkdtemp(prefix="pytest-", dir=base))
-    return tmp_path_factory.mktemp("slshadow")
+    Path(base).mkdir(parents=True, exist_ok=True)
+    root = Path(tempfile.mkdtemp(prefix="pytest-", dir=base))
+    yield root
+    shutil.rmtree(root, ignore_errors=True)
 
 
 @pytest.fixture(scope="session")
