@@ -15,7 +15,9 @@ set(allowed_shadow "core;plot;patterns;reconstruct;sim;capture;calib;compare;sha
 # workflows/<name>/ may use every module, shadow/ and the workflows before it (DESIGN.md).
 set(allowed_workflows "core;plot;patterns;reconstruct;sim;capture;calib;compare;shadow;workflows")
 set(allowed_apps "core;plot;patterns;reconstruct;sim;capture;calib;compare;shadow;workflows;apps")
-set(modules core plot patterns reconstruct sim capture calib compare shadow workflows apps)
+# python/ (the slshadow Python module) binds the libraries, never the command line.
+set(allowed_python "core;plot;patterns;reconstruct;sim;capture;calib;compare;shadow;workflows;python")
+set(modules core plot patterns reconstruct sim capture calib compare shadow workflows apps python)
 
 set(violations "")
 foreach(module IN LISTS modules)

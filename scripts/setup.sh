@@ -24,6 +24,10 @@ PACKAGES=(
   clang
   # benchmark peer: the digital-model paper's Python/Open3D approach (bench/paper_peer)
   python3-open3d
+  # the slshadow Python module (python/, docs/python.md) and its pytest suite (tests/python/)
+  pybind11-dev python3-dev python3-numpy python3-pytest python3-matplotlib python3-pil
+  # mypy stubtest: the type stubs match the module (tests/python/test_stubs.py)
+  python3-mypy
   # devices and their mocks
   libaravis-dev aravis-tools aravis-tools-cli libusb-1.0-0-dev umockdev libumockdev-dev
   libsdl2-dev xvfb x11-apps

@@ -1,0 +1,117 @@
+"""slshadow: structured-light scanning and its digital shadow, from Python.
+
+The project's C++ libraries with numpy in and out (docs/python.md): Rig, PatternSpec, ImageSet,
+simulate, decode, reconstruct, compare. Units: mm, rad, px; pixel (0, 0) is the centre of the
+top-left pixel (OpenCV). Bad input raises slshadow.Error with the command line's one-line message.
+"""
+
+from ._slshadow import (  # noqa: F401
+    CameraModel,
+    calibrate_camera,
+    Comparison,
+    Device,
+    Error,
+    ImageSet,
+    PatternSpec,
+    PointCloud,
+    ProjectorMap,
+    Reconstruction,
+    Reference,
+    Rig,
+    Scan,
+    Scene,
+    __version__,
+    compare,
+    decode,
+    read_ply,
+    reconstruct,
+    shadow,
+    simulate,
+    write_image_set,
+)
+from ._slshadow import _sweep
+
+
+def to_open3d(cloud):
+    """An open3d.geometry.PointCloud of a PointCloud or Reconstruction (points, normals and
+    colours copied; colours scaled to [0, 1])."""
+    import numpy as np
+    import open3d as o3d
+
+    if isinstance(cloud, Reconstruction):
+        cloud = cloud.cloud
+    out = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.array(cloud.points)))
+    if cloud.normals is not None:
+        out.normals = o3d.utility.Vector3dVector(np.array(cloud.normals, dtype=np.float64))
+    if cloud.colors is not None:
+        out.colors = o3d.utility.Vector3dVector(np.asarray(cloud.colors, dtype=np.float64) / 255.0)
+    return out
+
+
+def read_table(path):
+    """A CSV table written by slshadow (e.g. a sweep's results.csv) as a dict column -> numpy
+    array: float64 where every value is a number (empty cells NaN), else str (also identifiers
+    such as job ids "000001", numbers written with leading zeros)."""
+    import csv
+
+    import numpy as np
+
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    header, body = rows[0], rows[1:]
+    table = {}
+    for i, name in enumerate(header):
+        values = [row[i] if i < len(row) else "" for row in body]
+        if any(len(v) > 1 and v[0] == "0" and v[1].isdigit() for v in values):
+            table[name] = np.array(values, dtype=str)
+            continue
+        try:
+            table[name] = np.array([float(v) if v != "" else np.nan for v in values])
+        except ValueError:
+            table[name] = np.array(values, dtype=str)
+    return table
+
+
+def sweep(study, out, *, shard="0/1", verbose=False, progress=None):
+    """Plans, runs and merges a study as `slshadow sweep study STUDY --out OUT` does (docs/sweeps.md;
+    a second call resumes it). Returns the summaries (plan, run, merge) and the result tables as
+    dicts of arrays: results (results.csv, one row per job and mode) and, when written, pareto,
+    break_points, layers, effects."""
+    import os
+
+    summary = _sweep(study, out, shard=shard, verbose=verbose, progress=progress)
+    tables = {}
+    for name in ("results", "pareto", "break_points", "layers", "effects"):
+        path = os.path.join(summary["out_dir"], name + ".csv")
+        if os.path.exists(path):
+            tables[name] = read_table(path)
+    summary["tables"] = tables
+    return summary
+
+
+__all__ = [
+    "CameraModel",
+    "calibrate_camera",
+    "Comparison",
+    "Device",
+    "Error",
+    "ImageSet",
+    "PatternSpec",
+    "PointCloud",
+    "ProjectorMap",
+    "Reconstruction",
+    "Reference",
+    "Rig",
+    "Scan",
+    "Scene",
+    "compare",
+    "decode",
+    "read_ply",
+    "read_table",
+    "reconstruct",
+    "shadow",
+    "simulate",
+    "sweep",
+    "to_open3d",
+    "write_image_set",
+]
