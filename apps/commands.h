@@ -55,5 +55,6 @@ int RunShadowCommand(int argc, char** argv);
 int RunProjector(int argc, char** argv);
 int RunSweep(int argc, char** argv);
 int RunMerge(int argc, char** argv);
+int RunReport(int argc, char** argv);
 
 }  // namespace slshadow::app

@@ -10,12 +10,13 @@ set(allowed_sim "core;patterns;sim")
 set(allowed_capture "core;patterns;capture")
 set(allowed_calib "core;patterns;plot;calib")
 set(allowed_compare "core;plot;compare")
+set(allowed_report "core;plot;report")
 # shadow/ (workflows) may use every module but apps/.
-set(allowed_shadow "core;plot;patterns;reconstruct;sim;capture;calib;compare;shadow")
+set(allowed_shadow "core;plot;patterns;reconstruct;sim;capture;calib;compare;report;shadow")
 # workflows/<name>/ may use every module, shadow/ and the workflows before it (DESIGN.md).
-set(allowed_workflows "core;plot;patterns;reconstruct;sim;capture;calib;compare;shadow;workflows")
-set(allowed_apps "core;plot;patterns;reconstruct;sim;capture;calib;compare;shadow;workflows;apps")
-set(modules core plot patterns reconstruct sim capture calib compare shadow workflows apps)
+set(allowed_workflows "core;plot;patterns;reconstruct;sim;capture;calib;compare;report;shadow;workflows")
+set(allowed_apps "core;plot;patterns;reconstruct;sim;capture;calib;compare;report;shadow;workflows;apps")
+set(modules core plot patterns reconstruct sim capture calib compare report shadow workflows apps)
 
 set(violations "")
 foreach(module IN LISTS modules)

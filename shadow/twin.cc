@@ -844,6 +844,7 @@ void WriteReportFolder(ShadowRun& run) {
   report["stages"] = StagesToJson(result.stages);
   WriteTextFileAtomically(staging / "report.json", report.dump(2) + "\n");
   WriteTextFileAtomically(staging / "summary.txt", result.Summary());
+  if (run.options.write_html) report::WriteHtmlReport(staging, run.options.html);
   run.staged->Commit(run.options.overwrite);
 }
 
