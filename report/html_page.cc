@@ -164,6 +164,10 @@ std::string ArrayTable(const json& array, const std::string& src, const std::str
     }
   }
   if (columns.empty()) return "";
+  // A row's name first (JSON objects list their keys alphabetically).
+  std::stable_partition(columns.begin(), columns.end(), [](const std::string& c) {
+    return c == "name" || c == "mode" || c == "camera" || c == "cause";
+  });
   std::string out = "<table class=\"grid\">\n<tr>";
   for (const auto& c : columns) out += "<th>" + HtmlEscape(Label(c)) + "</th>";
   out += "</tr>\n";

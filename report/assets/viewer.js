@@ -5,7 +5,7 @@
 // no figure, it only draws and reads back per-point values.
 (function () {
   'use strict';
-  var state = {ready: false, active: null, timings: {}, error: null};
+  var state = {ready: false, active: null, timings: {start_ms: performance.now()}, error: null};
   window.slshadow = state;
   var meta = JSON.parse(document.getElementById('slshadow-meta').textContent);
   var emptyMsg = document.getElementById('empty-msg');
@@ -15,6 +15,7 @@
 
   function bytes(id) {
     var s = document.getElementById(id).textContent;
+    if (typeof Uint8Array.fromBase64 === 'function') return Uint8Array.fromBase64(s);
     var bin = atob(s);
     var n = bin.length;
     var out = new Uint8Array(n);
@@ -31,24 +32,25 @@
     document.documentElement.setAttribute('data-ready', '1');
   }
 
-  // Decode every layer.
+  // Clouds are decoded when first shown (the first one at once); meshes at once.
   var lut = meta.lut;
   var clouds = meta.clouds.map(function (c) {
-    var q = new Uint16Array(bytes(c.blocks.pos).buffer);
-    return {
-      meta: c, n: c.shown, q: q,
-      dev: new Float32Array(bytes(c.blocks.dev).buffer),
-      ci: bytes(c.blocks.col),
-      uv: c.blocks.uv ? new Float32Array(bytes(c.blocks.uv).buffer) : null,
-      view: c.blocks.view ? new Uint16Array(bytes(c.blocks.view).buffer) : null,
-      pos: null, object: null
-    };
+    return {meta: c, n: c.shown, built: false, pos: null, object: null};
   });
+  function decodeCloud(c) {
+    var m = c.meta;
+    c.q = new Uint16Array(bytes(m.blocks.pos).buffer);
+    c.dev = new Float32Array(bytes(m.blocks.dev).buffer);
+    c.uv = m.blocks.uv ? new Uint16Array(bytes(m.blocks.uv).buffer) : null;
+    c.view = m.blocks.view ? new Uint16Array(bytes(m.blocks.view).buffer) : null;
+  }
   var meshes = meta.meshes.map(function (m) {
-    return {meta: m, vertices: new Float32Array(bytes(m.blocks.vertices).buffer),
-            indices: new Uint32Array(bytes(m.blocks.indices).buffer), object: null};
+    var q = new Uint16Array(bytes(m.blocks.vertices).buffer), v = new Float32Array(q.length);
+    for (var i = 0; i < q.length; i++) v[i] = m.min[i % 3] + q[i] * m.step[i % 3];
+    var ib = bytes(m.blocks.indices).buffer;
+    return {meta: m, vertices: v, object: null,
+            indices: m.index_bytes === 2 ? new Uint16Array(ib) : new Uint32Array(ib)};
   });
-  state.timings.decoded_ms = performance.now();
 
   // Centre of the view: the first non-empty cloud's box, else the first mesh's.
   var centre = [0, 0, 0];
@@ -64,20 +66,19 @@
   }
   state.centre = centre;
 
+  // The view's radius: the farthest box corner of the clouds (their boxes are in the meta data).
   var radius = 1e-3;
   clouds.forEach(function (c) {
-    var n = c.n, q = c.q, m = c.meta, pos = new Float32Array(3 * n);
-    var o0 = m.min[0] - centre[0], o1 = m.min[1] - centre[1], o2 = m.min[2] - centre[2];
-    var s0 = m.step[0], s1 = m.step[1], s2 = m.step[2];
-    for (var k = 0; k < n; k++) {
-      var x = o0 + q[3 * k] * s0, y = o1 + q[3 * k + 1] * s1, z = o2 + q[3 * k + 2] * s2;
-      pos[3 * k] = x; pos[3 * k + 1] = y; pos[3 * k + 2] = z;
-      var r = x * x + y * y + z * z;
-      if (r > radius) radius = r;
+    if (!c.n) return;
+    for (var corner = 0; corner < 8; corner++) {
+      var r2 = 0;
+      for (var a = 0; a < 3; a++) {
+        var t = c.meta.min[a] + ((corner >> a) & 1) * 65535 * c.meta.step[a] - centre[a];
+        r2 += t * t;
+      }
+      radius = Math.max(radius, Math.sqrt(r2));
     }
-    c.pos = pos;
   });
-  radius = Math.sqrt(radius);
   meshes.forEach(function (m) {
     var v = m.vertices;
     for (var i = 0; i < v.length; i += 3) {
@@ -122,13 +123,26 @@
   controls.saveState();
 
   var pointSize = 2;
-  clouds.forEach(function (c) {
-    if (!c.n) return;
+  function buildCloud(c) {
+    if (c.built || !c.n) return;
+    c.built = true;
+    decodeCloud(c);
+    var n = c.n, q = c.q, m = c.meta, pos = new Float32Array(3 * n);
+    var o0 = m.min[0] - centre[0], o1 = m.min[1] - centre[1], o2 = m.min[2] - centre[2];
+    var s0 = m.step[0], s1 = m.step[1], s2 = m.step[2];
+    for (var k0 = 0; k0 < n; k0++) {
+      pos[3 * k0] = o0 + q[3 * k0] * s0;
+      pos[3 * k0 + 1] = o1 + q[3 * k0 + 1] * s1;
+      pos[3 * k0 + 2] = o2 + q[3 * k0 + 2] * s2;
+    }
+    c.pos = pos;
     var g = new THREE.BufferGeometry();
     g.setAttribute('position', new THREE.BufferAttribute(c.pos, 3));
-    var col = new Uint8Array(3 * c.n);
+    // Colour: the index into the report's colour table, round(clamp((d - lo) / (hi - lo)) * 254),
+    // the PNG maps' heat map over the layer's range.
+    var col = new Uint8Array(3 * c.n), lo = c.meta.lo, span = c.meta.hi > lo ? c.meta.hi - lo : 1;
     for (var k = 0; k < c.n; k++) {
-      var j = 3 * c.ci[k];
+      var j = 3 * Math.round(Math.min(Math.max((c.dev[k] - lo) / span, 0), 1) * 254);
       col[3 * k] = lut[j]; col[3 * k + 1] = lut[j + 1]; col[3 * k + 2] = lut[j + 2];
     }
     g.setAttribute('color', new THREE.BufferAttribute(col, 3, true));
@@ -138,7 +152,7 @@
     c.object = new THREE.Points(g, c.material);
     c.object.visible = false;
     scene.add(c.object);
-  });
+  }
   meshes.forEach(function (m) {
     var g = new THREE.BufferGeometry();
     g.setAttribute('position', new THREE.BufferAttribute(m.vertices, 3));
@@ -156,7 +170,8 @@
   marker.renderOrder = 10;
   scene.add(marker);
 
-  function render() { renderer.render(scene, camera); }
+  var starting = true;  // one render at the end of start-up, not one per step
+  function render() { if (!starting) renderer.render(scene, camera); }
   function resize() {
     var w = viewer.clientWidth, h = viewer.clientHeight;
     if (w < 1 || h < 1) return;
@@ -169,6 +184,7 @@
 
   function setCloud(id) {
     state.active = null;
+    clouds.forEach(function (c) { if (c.meta.id === id) buildCloud(c); });
     clouds.forEach(function (c) {
       var on = c.meta.id === id;
       if (c.object) c.object.visible = on;
@@ -213,14 +229,15 @@
     if (k2 < 0) return null;
     var r = {index: k2, deviation_mm: c.dev[k2], field: c.meta.field,
              position_mm: [p[3 * k2] + centre[0], p[3 * k2 + 1] + centre[1], p[3 * k2 + 2] + centre[2]]};
-    if (c.uv) r.pixel = [c.uv[2 * k2], c.uv[2 * k2 + 1]];
+    if (c.uv && c.uv[2 * k2] !== 65535 && c.uv[2 * k2 + 1] !== 65535)
+      r.pixel = [c.uv[2 * k2] / 8, c.uv[2 * k2 + 1] / 8];
     if (c.view) r.view = c.view[k2];
     return r;
   }
   function showPick(r) {
     if (!r) { pickBox.hidden = true; marker.visible = false; render(); return; }
     var lines = [state.active.meta.field + ': ' + (r.deviation_mm >= 0 ? '+' : '') + fmt(r.deviation_mm, 5) + ' mm'];
-    if (r.pixel) lines.push('camera pixel (u, v): ' + r.pixel[0].toFixed(2) + ', ' + r.pixel[1].toFixed(2) + ' px');
+    if (r.pixel) lines.push('camera pixel (u, v): ' + r.pixel[0].toFixed(3) + ', ' + r.pixel[1].toFixed(3) + ' px');
     if (r.view !== undefined) lines.push('view: ' + r.view);
     lines.push('x, y, z: ' + r.position_mm.map(function (t) { return t.toFixed(3); }).join(', ') + ' mm');
     pickBox.textContent = lines.join('\n');
@@ -262,7 +279,10 @@
   state.camera = camera;
   state.controls = controls;
   setCloud(clouds.length ? clouds[0].meta.id : null);
+  state.timings.built_ms = performance.now();  // first cloud decoded and drawn once
   if (typeof ResizeObserver !== 'undefined') new ResizeObserver(resize).observe(viewer);
   resize();
-  requestAnimationFrame(function () { render(); markReady(); });
+  starting = false;
+  render();
+  requestAnimationFrame(markReady);
 })();
