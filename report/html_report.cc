@@ -247,7 +247,15 @@ Page ShadowPage(const fs::path& dir, const json& j, const HtmlOptions& options) 
         Eigen::Quaterniond(q.at(0), q.at(1), q.at(2), q.at(3)).normalized().toRotationMatrix();
     rig_from_part.translation() = Eigen::Vector3d(t.at(0), t.at(1), t.at(2));
     const fs::path part = j.value("part", std::string());
-    AddMesh(part, part.string(), "cad", "CAD part at its pose", options, &page, &rig_from_part);
+    const std::string ext = part.extension().string();
+    if (options.part_surface && ext != ".ply" && ext != ".stl" && ext != ".obj") {
+      TriangleMesh mesh = *options.part_surface;
+      mesh.Transform(rig_from_part.linear(), rig_from_part.translation());
+      page.meshes.push_back(
+          PackMesh(mesh, "cad", "CAD part at its pose (" + part.string() + ")", part.string()));
+    } else {
+      AddMesh(part, part.string(), "cad", "CAD part at its pose", options, &page, &rig_from_part);
+    }
   }
   page.view_note =
       "Real and twin clouds in the rig frame (mm), coloured by their signed distance "

@@ -24,8 +24,11 @@
 #include <cstddef>
 #include <filesystem>
 #include <functional>
+#include <memory>
 #include <string>
 #include <vector>
+
+#include "core/mesh.h"
 
 namespace slshadow::report {
 
@@ -33,6 +36,9 @@ struct HtmlOptions {
   size_t max_points = 1'000'000;  // display budget over all clouds of the page (>= 1)
   // Triangles above this leave a mesh layer out (the page says so); 0: no mesh layers.
   size_t max_mesh_triangles = 2'000'000;
+  // Shadow pages: the part's surface in the part frame, drawn at the report's pose when the
+  // report's `part` is not a mesh file (e.g. a scene file); set by the shadow workflow.
+  std::shared_ptr<const TriangleMesh> part_surface;
   void Check() const;  // throws slshadow::Error naming the bad field
 };
 
