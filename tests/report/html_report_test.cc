@@ -36,16 +36,19 @@ TriangleMesh Square() {
 }
 
 // Points on the square in three bands of x: 0.2 mm in front (+), on it, 0.2 mm behind (-), each
-// with 0.01 mm noise; u, v fields as a camera pixel (10 px per mm).
+// with 0.01 mm noise; u, v fields as a camera pixel (10 px per mm) and a `view` field (the band,
+// as a multi-view merge labels each point with its view).
 PointCloud BandedCloud(int n_side) {
   PointCloud c;
   std::mt19937 rng(7);
   std::normal_distribution<double> noise(0.0, 0.01);
-  std::vector<float> u, v;
+  std::vector<float> u, v, view;
   for (int i = 0; i < n_side; ++i) {
     for (int j = 0; j < n_side; ++j) {
       const double x = -50 + 100.0 * (i + 0.5) / n_side, y = -50 + 100.0 * (j + 0.5) / n_side;
-      const double d = (x < -50 + 100.0 / 3 ? -0.2 : x < -50 + 200.0 / 3 ? 0.0 : 0.2) + noise(rng);
+      const int band = x < -50 + 100.0 / 3 ? 0 : x < -50 + 200.0 / 3 ? 1 : 2;
+      const double d = 0.2 * (band - 1) + noise(rng);
+      view.push_back(static_cast<float>(band));
       c.points.emplace_back(x, y, 500 - d);
       u.push_back(static_cast<float>((x + 50) * 10));
       v.push_back(static_cast<float>((y + 50) * 10));
@@ -53,6 +56,7 @@ PointCloud BandedCloud(int n_side) {
   }
   c.SetScalar("u", u);
   c.SetScalar("v", v);
+  c.SetScalar("view", view);
   return c;
 }
 
@@ -186,7 +190,7 @@ TEST(HtmlReport, ComparePageLoadsOfflineWithoutErrorsAndDrawsTheCloudInItsDeviat
   EXPECT_TRUE(b.problems().empty()) << Joined(b.problems());
 }
 
-TEST(HtmlReport, PickingAPointShowsItsDeviationAndCameraPixelFromThePly) {
+TEST(HtmlReport, PickingAPointShowsItsDeviationCameraPixelAndViewFromThePly) {
   HeadlessChromium b;
   Load(b, CompareFolder() / "report.html");
   const Box box = CanvasBox(b);
@@ -214,6 +218,9 @@ TEST(HtmlReport, PickingAPointShowsItsDeviationAndCameraPixelFromThePly) {
   EXPECT_EQ(pick["deviation_mm"].get<float>(), field("deviation"));
   EXPECT_NEAR(pick["pixel"][0].get<double>(), field("u"), 1.0 / 16);  // kept in 1/8 px
   EXPECT_NEAR(pick["pixel"][1].get<double>(), field("v"), 1.0 / 16);
+  EXPECT_EQ(pick["view"].get<double>(), field("view"));
+  EXPECT_EQ(field("view"), 2) << "the click at 70 % of the width lands in the third band";
+  EXPECT_NE(text.find("view: 2"), std::string::npos) << text;
   EXPECT_TRUE(b.problems().empty()) << Joined(b.problems());
 }
 
