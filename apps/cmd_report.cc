@@ -17,6 +17,7 @@ int RunReport(int argc, char** argv) {
       "  slshadow shadow ... --out DIR    (report.json, clouds/, maps/, charts/)\n"
       "  slshadow demo --out DIR          (demo.json, <mode>/ comparison folders, "
       "ground_truth.ply)\n"
+      "  slshadow merge PROJECT --out DIR (report.json, merged.ply, cad_deviation.ply)\n"
       "Those commands write the page themselves unless given --no-html; this command writes it\n"
       "again, e.g. with another --max-points, or for a folder written before pages existed.\n\n"
       "The page holds: a 3D view of the cloud(s) coloured by signed deviation with the colour\n"

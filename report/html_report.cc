@@ -318,6 +318,54 @@ Page ShadowPage(const fs::path& dir, const json& j, const HtmlOptions& options) 
   return page;
 }
 
+// --- multi-view merge ----------------------------------------------------------------------
+
+Page MergePage(const fs::path& dir, const json& j, const HtmlOptions& options) {
+  Page page;
+  page.kind = "merge";
+  const std::string src = "report.json";
+  page.title = "Multi-view merge: " + j.value("project", std::string("project"));
+  page.subtitle = "slshadow merge";
+  const json cad = j.contains("cad") && j["cad"].is_object() ? j["cad"] : json();
+  ColourScale scale;
+  const double range = cad.is_object() && cad.value("color_range_mm", 0.0) > 0
+                           ? cad.value("color_range_mm", 0.0)
+                           : std::max(AbsPercentile99({dir / "merged.ply"}, "deviation_mm"), 1e-3);
+  scale.lo = -range;
+  scale.hi = range;
+  scale.label = "signed deviation to the CAD model (mm, + outside)";
+  scale.note = "range +-" + FormatNumber(range) + " mm, as cad_deviation.ply";
+  PackClouds({{dir / "merged.ply", "merged.ply", "merged", "merged cloud", "deviation_mm", scale}},
+             options.max_points, &page);
+  if (j.contains("views")) {
+    json names = json::array();
+    for (const auto& v : j["views"]) names.push_back(v.value("name", std::string()));
+    for (auto& c : page.clouds) c.meta["view_names"] = names;
+  }
+  std::error_code ec;
+  if (fs::exists(dir / "cad_deviation.ply", ec))
+    AddMesh(dir / "cad_deviation.ply", "cad_deviation.ply", "cad", "CAD model", options, &page);
+  page.view_note =
+      "The merged cloud in the part frame (mm), coloured by its signed distance to "
+      "the CAD model; a picked point names its view.";
+  std::string& s = page.sections;
+  s += "<section><h2>Merge</h2>\n" + KeyValueTable(j, src, "", {"views", "cad"}) + "</section>\n";
+  if (j.contains("views"))
+    s += "<section><h2>Views</h2>\n" + ArrayTable(j["views"], src, "/views") + "</section>\n";
+  if (cad.is_object()) {
+    s += "<section><h2>Against the CAD model</h2>\n" +
+         KeyValueTable(cad, src, "/cad", {"views", "surface_by_reason"});
+    if (cad.contains("views"))
+      s += "<h3>Each view</h3>\n" + ArrayTable(cad["views"], src, "/cad/views");
+    if (cad.contains("surface_by_reason"))
+      s += "<h3>Surface by reason</h3>\n" +
+           KeyValueTable(cad["surface_by_reason"], src, "/cad/surface_by_reason");
+    s += "</section>\n";
+  }
+  s += FullRecord(j, src, "every field of report.json");
+  return page;
+}
+
 // --- demo -----------------------------------------------------------------------------------
 
 Page DemoPage(const fs::path& dir, const json& demo, const HtmlOptions& options) {
@@ -452,10 +500,12 @@ HtmlSummary WriteHtmlReport(const fs::path& dir, const HtmlOptions& options) {
       page = ComparePage(dir, j, options);
     } else if (format == "slshadow-shadow-report") {
       page = ShadowPage(dir, j, options);
+    } else if (format == "slshadow-merge-report") {
+      page = MergePage(dir, j, options);
     } else {
       SLSHADOW_THROW((dir / "report.json").string(), ": format: '", format,
-                     "' has no HTML page (expected slshadow.compare_report or "
-                     "slshadow-shadow-report)");
+                     "' has no HTML page (expected slshadow.compare_report, "
+                     "slshadow-shadow-report or slshadow-merge-report)");
     }
   } else if (fs::exists(dir / "demo.json", ec)) {
     page = DemoPage(dir, ReadJson(dir / "demo.json"), options);

@@ -12,6 +12,9 @@
 //            (clouds/*.ply, field c2m_part_mm) and the CAD part at its pose when `part` is a mesh
 //            file, the diagnosis table beside the maps/*.png, the pose, image, cloud, physics and
 //            stage tables, charts/*.png;
+//   merge    (report.json `format: slshadow-merge-report`, a model folder of `slshadow merge`):
+//            merged.ply coloured by deviation_mm (a picked point names its view), the painted CAD
+//            mesh cad_deviation.ply, the merge's, views' and CAD comparison's tables;
 //   demo     (demo.json of `slshadow demo`): one cloud layer per mode (<mode>/compared.ply), the
 //            ground truth mesh (ground_truth.ply), the modes' accuracy and the stage times, and
 //            each mode's comparison tables and charts.
@@ -44,7 +47,7 @@ struct HtmlOptions {
 
 struct HtmlSummary {
   std::filesystem::path path;      // the page written
-  std::string kind;                // "compare", "shadow" or "demo"
+  std::string kind;                // "compare", "shadow", "merge" or "demo"
   size_t bytes = 0;                // page size
   size_t points_total = 0;         // points of the clouds the page shows (all layers)
   size_t points_shown = 0;         // of those, drawn in the 3D view

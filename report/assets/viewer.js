@@ -238,7 +238,9 @@
     if (!r) { pickBox.hidden = true; marker.visible = false; render(); return; }
     var lines = [state.active.meta.field + ': ' + (r.deviation_mm >= 0 ? '+' : '') + fmt(r.deviation_mm, 5) + ' mm'];
     if (r.pixel) lines.push('camera pixel (u, v): ' + r.pixel[0].toFixed(3) + ', ' + r.pixel[1].toFixed(3) + ' px');
-    if (r.view !== undefined) lines.push('view: ' + r.view);
+    var names = state.active.meta.view_names;
+    if (r.view !== undefined)
+      lines.push('view: ' + (names && names[r.view] !== undefined ? names[r.view] + ' (' + r.view + ')' : r.view));
     lines.push('x, y, z: ' + r.position_mm.map(function (t) { return t.toFixed(3); }).join(', ') + ' mm');
     pickBox.textContent = lines.join('\n');
     pickBox.hidden = false;

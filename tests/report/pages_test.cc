@@ -7,8 +7,10 @@
 #include "core/file_util.h"
 #include "shadow/demo.h"
 #include "shadow/twin.h"
+#include "tests/multiview/multiview_test_util.h"
 #include "tests/report/chromium.h"
 #include "tests/testing/temp_dir.h"
+#include "workflows/multiview/multiview_demo.h"
 
 namespace slshadow::report {
 namespace {
@@ -103,6 +105,47 @@ TEST(HtmlPages, DemoAndShadowPagesLoadOfflineShowTheirLayersAndTheirJsonValues) 
     EXPECT_NE(real, Canvas(b));
     EXPECT_TRUE(b.problems().empty()) << Joined(b.problems());
   }
+}
+
+// A multi-view merge (the whole-part demo at 1/4 of the demo rig's resolution, 3 views): the
+// merged cloud coloured by its deviation to the CAD, the painted CAD mesh, the views' table; a
+// picked point names its view.
+TEST(HtmlPages, AMergeModelPageNamesThePickedPointsView) {
+  testing::TempDir tmp;
+  const multiview::TurntableSetup setup = testing::ScaledTurntableDemo(4);
+  multiview::MultiviewDemoOptions options;
+  options.views = 3;
+  options.out_dir = tmp / "mv";
+  options.rig = setup.rig;
+  options.scene = setup.scene;
+  multiview::RunMultiviewDemo(options);
+  const fs::path model = tmp / "mv" / "model";
+  HeadlessChromium b;
+  Load(b, model / "report.html");
+  EXPECT_GT(b.Evaluate("window.slshadow.active.n").get<int>(), 1000);
+  EXPECT_EQ(b.Evaluate("document.querySelectorAll('input[name=mesh]').length"), 1);
+  EXPECT_GT(CheckCells(b, model), 50u);
+  // Click until a point is hit (the part does not fill the view): its view is named.
+  const json r = b.Evaluate(
+      "(() => { const c = document.getElementById('gl').getBoundingClientRect();"
+      " return [c.left + scrollX, c.top + scrollY, c.width, c.height]; })()");
+  const json names = json::parse(ReadTextFile(model / "report.json"))["views"];
+  bool hit = false;
+  for (int k = 0; k < 25 && !hit; ++k) {
+    b.Click(r[0].get<double>() + r[2].get<double>() * (0.3 + 0.1 * (k % 5)),
+            r[1].get<double>() + r[3].get<double>() * (0.3 + 0.1 * (k / 5)));
+    const json pick = b.Evaluate("window.slshadow.lastPick");
+    if (!pick.is_object()) continue;
+    hit = true;
+    const int view = pick["view"].get<int>();
+    ASSERT_LT(static_cast<size_t>(view), names.size());
+    const std::string text = b.Evaluate("document.getElementById('pick').textContent");
+    EXPECT_NE(text.find("view: " + names[static_cast<size_t>(view)]["name"].get<std::string>()),
+              std::string::npos)
+        << text;
+  }
+  EXPECT_TRUE(hit);
+  EXPECT_TRUE(b.problems().empty()) << Joined(b.problems());
 }
 
 }  // namespace
