@@ -136,9 +136,10 @@ std::string FormatValue(const json& v) {
 
 std::string ValueCell(const json& v, const std::string& src, const std::string& pointer) {
   const bool number = v.is_number();
-  return std::string("<td class=\"v") + (number ? " num" : "") + "\" data-src=\"" +
-         HtmlEscape(src) + "\" data-key=\"" + HtmlEscape(pointer) + "\" data-value=\"" +
-         HtmlEscape(v.dump()) + "\">" + HtmlEscape(FormatValue(v)) + "</td>";
+  return std::string("<td class=\"v") + (number ? " num" : "") + "\" title=\"" +
+         HtmlEscape(src + " " + pointer) + "\" data-src=\"" + HtmlEscape(src) + "\" data-key=\"" +
+         HtmlEscape(pointer) + "\" data-value=\"" + HtmlEscape(v.dump()) + "\">" +
+         HtmlEscape(FormatValue(v)) + "</td>";
 }
 
 std::string KeyValueTable(const json& object, const std::string& src, const std::string& pointer,
