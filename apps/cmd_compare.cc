@@ -6,6 +6,7 @@
 #include "compare/report.h"
 #include "core/point_cloud.h"
 #include "core/rig.h"
+#include "report/html_report.h"
 
 namespace slshadow::app {
 
@@ -25,7 +26,11 @@ int RunCompare(int argc, char** argv) {
       "DIR/histogram.png,\n"
       "DIR/deviation_map.png and DIR/compared.ply (registered cloud with a 'deviation' scalar "
       "field\n"
-      "and colours; opens in CloudCompare). The folder is replaced atomically when complete.",
+      "and colours; opens in CloudCompare), and DIR/report.html: all of it in one self-contained "
+      "page\n"
+      "(3D view of the deviations, tables, charts; opens from the file, no network). The folder "
+      "is\n"
+      "replaced atomically when complete.",
       argv[0]};
   std::string cloud_path, reference_path, out_dir, method = "none", local_model = "none", view_rig,
                                                    view_camera;
@@ -95,6 +100,16 @@ int RunCompare(int argc, char** argv) {
       ->check(CLI::ExistingFile);
   app.add_flag("--no-overwrite", no_overwrite,
                "fail instead of replacing an existing report folder");
+  bool no_html = false;
+  ::slshadow::report::HtmlOptions html;
+  app.add_flag("--no-html", no_html,
+               "do not write report.html (the self-contained page of the result; slshadow report "
+               "DIR writes it later)");
+  app.add_option("--html-max-points", html.max_points,
+                 "points drawn in report.html's 3D view (a fixed-seed uniform sample; the figures "
+                 "use every point)")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -103,6 +118,7 @@ int RunCompare(int argc, char** argv) {
   options.registration.method = compare::RegistrationMethodFromString(method);
   options.c2c.local_model = compare::LocalModelFromString(local_model);
   report.overwrite = !no_overwrite;
+  if (!no_html) report.before_commit = ::slshadow::report::HtmlWriter(html);
   if (!view_rig.empty()) {
     const Rig rig = LoadRig(view_rig);
     const RigDevice& cam = view_camera.empty() ? rig.cameras.front() : rig.Camera(view_camera);

@@ -51,6 +51,15 @@ int RunDemo(int argc, char** argv) {
                  "| png (smaller files, slower to write) | tiff")
       ->capture_default_str();
   app.add_flag("--verbose", options.verbose, "print each stage's full report");
+  bool no_html = false;
+  app.add_flag("--no-html", no_html,
+               "do not write report.html (the self-contained page of the result; slshadow report "
+               "DIR writes it later)");
+  app.add_option("--html-max-points", options.html.max_points,
+                 "points drawn in report.html's 3D view (a fixed-seed uniform sample; the figures "
+                 "use every point)")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
   int views = 0;
   app.add_option("--views", views,
                  "N > 0: the whole-part loop instead: the demo part on a turntable, N views over a "
@@ -74,6 +83,7 @@ int RunDemo(int argc, char** argv) {
         views, result.Table().c_str());
     return 0;
   }
+  options.write_html = !no_html;
   const DemoResult result = RunDemoJob(options);
   std::printf(
       "slshadow demo: virtual scan of the demo part, reconstructed and compared with its ground "
@@ -83,6 +93,8 @@ int RunDemo(int argc, char** argv) {
       "\nreports: %s/{projector,stereo}/ (report.json, summary.txt, PNG charts, cloud PLY); scan: "
       "%s/scan\n",
       result.out_dir.string().c_str(), result.out_dir.string().c_str());
+  if (!no_html)
+    std::printf("page: %s/report.html (open it in a browser)\n", result.out_dir.string().c_str());
   return 0;
 }
 

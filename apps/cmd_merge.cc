@@ -63,6 +63,10 @@ int RunMerge(int argc, char** argv) {
       ->capture_default_str();
   app.add_flag("--overwrite", overwrite, "replace an existing output folder");
   app.add_flag("--quiet", quiet, "do not print the summary");
+  bool no_html = false;
+  app.add_flag("--no-html", no_html,
+               "do not write MODEL/report.html (the self-contained page of the model; slshadow "
+               "report MODEL writes it later)");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -79,7 +83,7 @@ int RunMerge(int argc, char** argv) {
   }
   const multiview::ProjectMergeResult result =
       multiview::MergeProject(project, cad ? &*cad : nullptr, options);
-  multiview::WriteModel(result, cad ? &*cad : nullptr, out_dir, overwrite);
+  multiview::WriteModel(result, cad ? &*cad : nullptr, out_dir, overwrite, !no_html);
   if (!quiet) std::printf("%s-> %s\n", result.Summary().c_str(), out_dir.c_str());
   return 0;
 }

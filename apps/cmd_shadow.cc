@@ -61,6 +61,15 @@ int RunShadowCommand(int argc, char** argv) {
   app.add_flag("--no-physics-fit", no_fit, "keep the part file's radiometry; fit no layer");
   app.add_flag("--no-clouds", no_clouds, "do not write the clouds");
   app.add_flag("--overwrite", overwrite, "replace an existing report folder");
+  bool no_html = false;
+  app.add_flag("--no-html", no_html,
+               "do not write report.html (the self-contained page of the result; slshadow report "
+               "DIR writes it later)");
+  app.add_option("--html-max-points", options.html.max_points,
+                 "points drawn in report.html's 3D view (a fixed-seed uniform sample; the figures "
+                 "use every point)")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
   AddStrictOptions(&app, &options.strict);
   try {
     app.parse(argc, argv);
@@ -77,12 +86,14 @@ int RunShadowCommand(int argc, char** argv) {
   options.fit_physics = !no_fit;
   options.overwrite = overwrite;
   options.write_clouds = !no_clouds;
+  options.write_html = !no_html;
   const shadow::ShadowPart part = shadow::LoadShadowPart(part_path);
   std::optional<Rig> rig;
   if (!rig_path.empty()) rig = LoadRig(rig_path);
   const shadow::ShadowResult result =
       shadow::RunShadow(image_set, part, options, out_dir, rig ? &*rig : nullptr);
-  std::printf("%sreport: %s\n", result.Summary().c_str(), out_dir.c_str());
+  std::printf("%sreport: %s%s\n", result.Summary().c_str(), out_dir.c_str(),
+              no_html ? "" : " (open report.html in a browser)");
   return 0;
 }
 

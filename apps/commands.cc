@@ -81,6 +81,10 @@ const std::vector<Command>& Commands() {
        "merge a multi-view project into one model and compare it with the CAD model (merge PROJECT "
        "--out MODEL [--cad MESH])",
        RunMerge},
+      {"report",
+       "(re)write the self-contained HTML page (report.html) of a compare, shadow or demo result "
+       "folder (report DIR)",
+       RunReport},
       {"sweep",
        "studies as independent jobs: sweep plan STUDY.yaml --out JOBS | run JOBS --shard I/N | "
        "merge JOBS --out RESULT",

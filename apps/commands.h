@@ -57,5 +57,6 @@ int RunSweep(int argc, char** argv);
 int RunMerge(int argc, char** argv);
 int RunScan(int argc, char** argv);
 int RunTurntable(int argc, char** argv);
+int RunReport(int argc, char** argv);
 
 }  // namespace slshadow::app

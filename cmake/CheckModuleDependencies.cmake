@@ -10,14 +10,15 @@ set(allowed_sim "core;patterns;sim")
 set(allowed_capture "core;patterns;capture")
 set(allowed_calib "core;patterns;plot;calib")
 set(allowed_compare "core;plot;compare")
+set(allowed_report "core;plot;report")
 # shadow/ (workflows) may use every module but apps/.
-set(allowed_shadow "core;plot;patterns;reconstruct;sim;capture;calib;compare;shadow")
+set(allowed_shadow "core;plot;patterns;reconstruct;sim;capture;calib;compare;report;shadow")
 # workflows/<name>/ may use every module, shadow/ and the workflows before it (DESIGN.md).
-set(allowed_workflows "core;plot;patterns;reconstruct;sim;capture;calib;compare;shadow;workflows")
-set(allowed_apps "core;plot;patterns;reconstruct;sim;capture;calib;compare;shadow;workflows;apps")
+set(allowed_workflows "core;plot;patterns;reconstruct;sim;capture;calib;compare;report;shadow;workflows")
+set(allowed_apps "core;plot;patterns;reconstruct;sim;capture;calib;compare;report;shadow;workflows;apps")
 # python/ (the slshadow Python module) binds the libraries, never the command line.
-set(allowed_python "core;plot;patterns;reconstruct;sim;capture;calib;compare;shadow;workflows;python")
-set(modules core plot patterns reconstruct sim capture calib compare shadow workflows apps python)
+set(allowed_python "core;plot;patterns;reconstruct;sim;capture;calib;compare;report;shadow;workflows;python")
+set(modules core plot patterns reconstruct sim capture calib compare report shadow workflows apps python)
 
 set(violations "")
 foreach(module IN LISTS modules)

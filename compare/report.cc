@@ -315,6 +315,7 @@ void WriteReport(const fs::path& dir, const CompareResult& r, const ReportOption
       mc.notes.push_back(Fmt("threshold %.4g mm: black lines", s.threshold_mm));
     WriteDeviationMapPng(staged / "deviation_map.png", img, mc);
     WriteTextFileAtomically(staged / "summary.txt", r.Summary());
+    if (options.before_commit) options.before_commit(staged);
     CommitDirectory(staged, target, options.overwrite);
   } catch (...) {
     fs::remove_all(staged, ec);

@@ -9,6 +9,7 @@
 #pragma once
 
 #include <filesystem>
+#include <functional>
 #include <optional>
 #include <string>
 #include <vector>
@@ -52,6 +53,9 @@ struct ReportOptions {
   // compared.ply's x, y, z as float when every |coordinate| < 8192 mm (rounding <= 2^-11 mm =
   // 0.49 um, below the 1 um fidelity the report keeps; docs/formats.md), else as double.
   bool float_positions = true;
+  // Called with the staged folder once every file above is in it, before the folder is renamed
+  // into place (e.g. report::HtmlWriter() adds report.html); if it throws, nothing is replaced.
+  std::function<void(const std::filesystem::path&)> before_commit;
 };
 
 nlohmann::json ReportJson(const CompareResult& result);

@@ -37,6 +37,8 @@ PACKAGES=(
   libx11-dev libxext-dev
   # window projector on a second display in tests: Xorg with the dummy driver, xrandr
   xserver-xorg-core xserver-xorg-video-dummy x11-xserver-utils
+  # HTML reports (report/): three.js embedded at build time; headless Chromium for their tests
+  libjs-three chromium
   # sweeps: shards run through GNU parallel (tests/shadow/sweep_test.cc, docs/sweeps.md)
   parallel
   # sweeps: a single-node Slurm started by tests/shadow/slurm_sweep.sh (array shards, dependent merge)

@@ -37,6 +37,7 @@ void DemoOptions::Check() const {
                     ")");
   TriangulationMethodFromString(method);
   ImageEncodingFromString(encoding);
+  html.Check();
 }
 
 nlohmann::json DemoResult::ToJson() const {
@@ -247,6 +248,7 @@ DemoResult RunDemoJob(const DemoOptions& options) {
   result.stages.push_back(meter.Stop());
 
   WriteTextFileAtomically(staging / kMarker, result.ToJson().dump(2) + "\n");
+  if (options.write_html) report::WriteHtmlReport(staging, options.html);
   staged.Commit(/*overwrite=*/true);
   return result;
 }

@@ -13,6 +13,7 @@
 #include <nlohmann/json.hpp>
 
 #include "core/stage_meter.h"
+#include "report/html_report.h"
 #include "shadow/scan_pipeline.h"
 
 namespace slshadow::shadow {
@@ -26,6 +27,8 @@ struct DemoOptions {
   double threshold_mm = 0.25;       // outlier threshold of the comparison
   std::string encoding = "pgm";     // ImageSet image encoding: pgm (fastest) | png | tiff
   bool verbose = false;             // print each stage's full report
+  bool write_html = true;           // report.html beside demo.json (report/html_report.h)
+  report::HtmlOptions html;
   void Check() const;
 };
 

@@ -11,6 +11,7 @@
 #include <atomic>
 #include <cmath>
 #include <exception>
+#include <memory>
 #include <mutex>
 #include <optional>
 #include <thread>
@@ -188,6 +189,7 @@ void ShadowOptions::Check() const {
   physics.Check();
   diagnose.Check();
   strict.Check();
+  html.Check();
 }
 
 namespace {
@@ -887,6 +889,11 @@ void WriteReportFolder(ShadowRun& run) {
   report["stages"] = StagesToJson(result.stages);
   WriteTextFileAtomically(staging / "report.json", report.dump(2) + "\n");
   WriteTextFileAtomically(staging / "summary.txt", result.Summary());
+  if (run.options.write_html) {
+    report::HtmlOptions html = run.options.html;
+    html.part_surface = std::make_shared<const TriangleMesh>(run.part.surface);
+    report::WriteHtmlReport(staging, html);
+  }
   run.staged->Commit(run.options.overwrite);
 }
 

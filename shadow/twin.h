@@ -37,6 +37,7 @@
 #include "patterns/pattern_spec.h"
 #include "reconstruct/reconstruct.h"
 #include "reconstruct/strict_policy.h"
+#include "report/html_report.h"
 #include "shadow/diagnose.h"
 #include "shadow/physics_fit.h"
 #include "sim/scene.h"
@@ -80,6 +81,9 @@ struct ShadowOptions {
   // calibration check and keep min_point_share of their decoded pixels, else the job ends before
   // the twin is built, with nothing written.
   StrictOptions strict;
+  // report.html beside report.json (report/html_report.h), written into the staged folder.
+  bool write_html = true;
+  report::HtmlOptions html;
   void Check() const;  // throws slshadow::Error
 };
 

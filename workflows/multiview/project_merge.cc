@@ -13,6 +13,7 @@
 #include "core/image_set.h"
 #include "core/pose_io.h"
 #include "core/string_printf.h"
+#include "report/html_report.h"
 #include "shadow/scan_pipeline.h"
 
 namespace slshadow::multiview {
@@ -275,7 +276,7 @@ std::string ProjectMergeResult::Summary() const {
 }
 
 void WriteModel(const ProjectMergeResult& result, const TriangleMesh* cad_in_part,
-                const fs::path& model_dir, bool overwrite) {
+                const fs::path& model_dir, bool overwrite, bool write_html) {
   std::error_code ec;
   SLSHADOW_THROW_IF(fs::exists(model_dir, ec) && !overwrite, model_dir.string(),
                     ": already exists (pass --overwrite to replace it)");
@@ -299,6 +300,7 @@ void WriteModel(const ProjectMergeResult& result, const TriangleMesh* cad_in_par
     samples.SetScalar("reason", std::move(reason));
     WritePly(dir / "cad_coverage.ply", samples);
   }
+  if (write_html) report::WriteHtmlReport(dir);
   staged.Commit(overwrite);
 }
 

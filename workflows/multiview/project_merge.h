@@ -101,7 +101,8 @@ ProjectMergeResult MergeProject(const std::filesystem::path& project_dir,
 //  - MODEL/cad_coverage.ply: with a CAD mesh, the surface samples with scalar reason
 //    (CoverageReason), coloured covered green, not reconstructed red, grazing orange, occluded
 //    blue, outside the field grey, table black.
+//  - MODEL/report.html: with `write_html`, the self-contained page (report/html_report.h).
 void WriteModel(const ProjectMergeResult& result, const TriangleMesh* cad_in_part,
-                const std::filesystem::path& model_dir, bool overwrite);
+                const std::filesystem::path& model_dir, bool overwrite, bool write_html = true);
 
 }  // namespace slshadow::multiview
