@@ -63,6 +63,8 @@ int RunDemo(int argc, char** argv) {
                  "graph, as slshadow merge does) | axis (the table poses as they are)")
       ->capture_default_str()
       ->check(CLI::IsMember({"registered", "axis"}));
+  bool no_mesh = false;
+  app.add_flag("--no-mesh", no_mesh, "with --views: do not build the surface mesh");
   bool noise = false;
   app.add_flag("--noise", noise, "with --views: sensor noise on (shot and read noise)");
   try {
@@ -78,6 +80,7 @@ int RunDemo(int argc, char** argv) {
     mv.encoding = ImageEncodingFromString(options.encoding);
     mv.merge.poses = multiview::PoseSourceFromString(poses);
     mv.sensor_noise = noise;
+    mv.merge.mesh = !no_mesh;
     const multiview::MultiviewDemoResult result = multiview::RunMultiviewDemo(mv);
     std::printf(
         "slshadow demo --views %d: the demo part on a turntable, scanned, merged and "

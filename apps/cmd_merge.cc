@@ -1,4 +1,4 @@
-// slshadow merge PROJECT --out MODEL [--cad MESH|SCENE] [--poses registered|axis]
+// slshadow merge PROJECT --out MODEL [--cad MESH|SCENE] [--poses registered|axis] [--no-mesh]
 #include <CLI/CLI.hpp>
 #include <cstdio>
 
@@ -38,7 +38,12 @@ int RunMerge(int argc, char** argv) {
       "     coverage of the reachable CAD surface (the face on the table excluded) and the area no "
       "view\n"
       "     covered by reason (occluded, grazing, outside the field, not reconstructed).\n"
-      "Output MODEL (written atomically): report.json, summary.txt, merged.ply, and with --cad\n"
+      "  5. unless --no-mesh: a watertight surface mesh by Poisson reconstruction of the merged "
+      "cloud,\n"
+      "     trimmed where no view saw the surface (mesh.ply; with --cad its C2M to the CAD), timed "
+      "apart.\n"
+      "Output MODEL (written atomically): report.json, summary.txt, merged.ply, mesh.ply, and with "
+      "--cad\n"
       "cad_deviation.ply and cad_coverage.ply (surface samples coloured by reason). Example:\n"
       "  slshadow simulate --rig config/demo/turntable_rig.yaml --scene "
       "config/demo/turntable_scene.yaml \\\n"
@@ -85,6 +90,15 @@ int RunMerge(int argc, char** argv) {
          "--table-crop-mm", options.table_crop_mm,
          "table views: drop points less than this above the table plane (negative: keep all)")
       ->capture_default_str();
+  bool no_mesh = false;
+  app.add_flag("--no-mesh", no_mesh, "do not build the surface mesh (mesh.ply)");
+  app.add_option("--mesh-depth", options.mesh_options.depth,
+                 "Poisson octree depth of the mesh (finest cell: the cloud's extent / 2^depth)")
+      ->capture_default_str();
+  app.add_option("--mesh-trim-mm", options.mesh_options.trim_distance_mm,
+                 "mesh vertices farther than this from every merged point are trimmed, mm (0: 2 x "
+                 "the larger of the finest cell and the cloud's point spacing)")
+      ->capture_default_str();
   app.add_flag("--overwrite", overwrite, "replace an existing output folder");
   app.add_flag("--quiet", quiet, "do not print the summary");
   try {
@@ -94,6 +108,7 @@ int RunMerge(int argc, char** argv) {
   }
   options.mode = ReconstructModeFromString(mode);
   options.poses = multiview::PoseSourceFromString(poses);
+  options.mesh = !no_mesh;
   std::optional<TriangleMesh> cad;
   if (!cad_path.empty()) {
     const std::filesystem::path p(cad_path);

@@ -87,8 +87,7 @@ TEST_F(CmdMerge, RegistersTheViewsAndReportsTheirPoses) {
 
 TEST_F(CmdMerge, AViewWithAWrongTableAngleIsNamedAndLeftOut) {
   std::string out;
-  ASSERT_EQ(Merge({Path("wrong"), "--out", Path("wrong_model"), "--cad", Path("cad.ply")}, &out),
-            0)
+  ASSERT_EQ(Merge({Path("wrong"), "--out", Path("wrong_model"), "--cad", Path("cad.ply")}, &out), 0)
       << out;
   const nlohmann::json report = Report("wrong_model");
   EXPECT_EQ(report["left_out"], nlohmann::json::array({"view_03"})) << out;
@@ -106,8 +105,8 @@ TEST_F(CmdMerge, AViewWithAWrongTableAngleIsNamedAndLeftOut) {
   }
   // --poses axis trusts the table angle: the wrong view is merged 20 deg off, and its points
   // lie off the CAD model.
-  ASSERT_EQ(Merge({Path("wrong"), "--out", Path("axis_model"), "--cad", Path("cad.ply"),
-                   "--poses", "axis"},
+  ASSERT_EQ(Merge({Path("wrong"), "--out", Path("axis_model"), "--cad", Path("cad.ply"), "--poses",
+                   "axis"},
                   &out),
             0)
       << out;

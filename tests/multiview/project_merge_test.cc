@@ -146,8 +146,8 @@ TEST_F(ProjectMergeTest, ModelFolderAndLeftOutViews) {
   const ProjectMergeResult r = MergeProject(partial, cad_);
   const testing::TempDir out;
   WriteModel(r, cad_, out / "model", false);
-  for (const char* f :
-       {"report.json", "summary.txt", "merged.ply", "cad_deviation.ply", "cad_coverage.ply"})
+  for (const char* f : {"report.json", "summary.txt", "merged.ply", "mesh.ply", "cad_deviation.ply",
+                        "cad_coverage.ply"})
     EXPECT_TRUE(fs::exists(out / "model" / f)) << f;
   const nlohmann::json report = nlohmann::json::parse(ReadTextFile(out / "model/report.json"));
   EXPECT_EQ(report["left_out"], nlohmann::json::array({"view_03"}));

@@ -7,6 +7,8 @@
 #include <chrono>
 #include <cmath>
 
+#include "compare/distances.h"
+#include "compare/statistics.h"
 #include "core/config.h"
 #include "core/error.h"
 #include "core/file_util.h"
@@ -76,6 +78,7 @@ void ProjectMergeOptions::Check() const {
   decode.Check();
   registration.Check();
   cad.Check();
+  mesh_options.Check();
 }
 
 namespace {
@@ -253,6 +256,18 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
     result.compare_seconds = SecondsSince(t0);
   }
   result.total_seconds = SecondsSince(t_start);
+
+  // 6. The surface mesh, timed apart.
+  if (options.mesh) {
+    t0 = std::chrono::steady_clock::now();
+    result.mesh = BuildSurfaceMesh(result.merged, options.mesh_options);
+    if (cad_in_part) {
+      result.mesh_c2m = compare::ComputeStats(
+          compare::CloudToMesh(result.mesh->mesh.vertices, *cad_in_part).signed_distances_mm, true,
+          options.cad.threshold_mm);
+    }
+    result.mesh_seconds = SecondsSince(t0);
+  }
   return result;
 }
 
@@ -352,10 +367,39 @@ nlohmann::json ProjectMergeResult::ToJson() const {
         {"fusion", r.time_fuse_s},
         {"total", r.time_s}}}};
   j["cad"] = cad ? cad->ToJson() : nlohmann::json(nullptr);
+  j["mesh"] = nullptr;
+  if (mesh) {
+    const SurfaceMeshResult& m = *mesh;
+    j["mesh"] = {{"file", "mesh.ply"},
+                 {"vertices", m.mesh.vertices.size()},
+                 {"triangles", m.mesh.triangles.size()},
+                 {"boundary_edges", m.boundary_edges},
+                 {"non_manifold_edges", m.non_manifold_edges},
+                 {"area_mm2", m.area_mm2},
+                 {"trimmed_area_mm2", m.trimmed_area_mm2},
+                 {"trim_distance_mm", m.trim_distance_mm},
+                 {"cell_mm", m.cell_mm},
+                 {"poisson",
+                  {{"vertices", m.poisson_vertices},
+                   {"triangles", m.poisson_triangles},
+                   {"boundary_edges", m.poisson_boundary_edges},
+                   {"non_manifold_edges", m.poisson_non_manifold_edges},
+                   {"seconds", m.poisson_seconds}}},
+                 {"trim_s", m.trim_seconds}};
+    if (mesh_c2m) {
+      j["mesh"]["cad_c2m"] = {{"count", mesh_c2m->count},
+                              {"rms_mm", mesh_c2m->rms_mm},
+                              {"signed_mean_mm", mesh_c2m->signed_mean_mm},
+                              {"median_abs_mm", mesh_c2m->median_mm},
+                              {"p95_abs_mm", mesh_c2m->p95_mm},
+                              {"max_abs_mm", mesh_c2m->max_mm}};
+    }
+  }
   j["time_s"] = {{"reconstruct", reconstruct_seconds},
                  {"merge", merge_seconds},
                  {"compare", compare_seconds},
-                 {"total", total_seconds}};
+                 {"total", total_seconds},
+                 {"mesh", mesh_seconds}};
   return j;
 }
 
@@ -416,11 +460,21 @@ std::string ProjectMergeResult::Summary() const {
         p.reason.c_str());
   }
   if (cad) out += cad->Summary();
+  if (mesh) {
+    out += mesh->Summary() + "\n";
+    if (mesh_c2m) {
+      out += StringPrintf(
+          "mesh vertices to the CAD: signed C2M RMS %.4f mm, mean %+.4f mm, median |d| %.4f mm, "
+          "p95 |d| %.4f mm, max |d| %.3f mm\n",
+          mesh_c2m->rms_mm, mesh_c2m->signed_mean_mm, mesh_c2m->median_mm, mesh_c2m->p95_mm,
+          mesh_c2m->max_mm);
+    }
+  }
   out += StringPrintf(
       "time: reconstruct %.2f s, merge %.2f s (normals %.2f, pairs %.2f, graph %.2f, fusion "
-      "%.2f), CAD comparison %.2f s, total %.2f s\n",
+      "%.2f), CAD comparison %.2f s, total %.2f s; mesh %.2f s apart\n",
       reconstruct_seconds, merge_seconds, r.time_normals_s, r.time_pairs_s, r.time_graph_s,
-      r.time_fuse_s, compare_seconds, total_seconds);
+      r.time_fuse_s, compare_seconds, total_seconds, mesh_seconds);
   return out;
 }
 
@@ -434,6 +488,7 @@ void WriteModel(const ProjectMergeResult& result, const TriangleMesh* cad_in_par
   WriteTextFileAtomically(dir / "report.json", result.ToJson().dump(1) + "\n");
   WriteTextFileAtomically(dir / "summary.txt", result.Summary());
   WritePly(dir / "merged.ply", result.merged);
+  if (result.mesh) WriteMesh(dir / "mesh.ply", result.mesh->mesh);
   if (cad_in_part && result.cad) {
     WritePaintedMesh(dir / "cad_deviation.ply", *cad_in_part, *result.cad);
     PointCloud samples;

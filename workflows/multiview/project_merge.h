@@ -21,6 +21,8 @@
 //     surface cell where the views agree within their noise, kept apart and flagged where they
 //     do not), scalars view (index into the result's views), views_fused, sigma_mm, disagree.
 //  5. With a CAD mesh (part frame): CompareWithCad, the deviation painted on the mesh.
+//  6. Unless options.mesh is false: the surface mesh of the merged cloud (surface_mesh.h:
+//     Poisson, trimmed where no view saw the surface), timed apart (mesh_seconds).
 //
 // Truth: when a view's ImageSet records the pose it was rendered at (a virtual project's
 // extra.view.part_from_rig_true), the report gives each pose's error against it, for the initial
@@ -42,6 +44,7 @@
 #include "reconstruct/reconstruct.h"
 #include "workflows/multiview/cad_compare.h"
 #include "workflows/multiview/merge.h"
+#include "workflows/multiview/surface_mesh.h"
 #include "workflows/multiview/views.h"
 
 namespace slshadow::multiview {
@@ -67,6 +70,9 @@ struct ProjectMergeOptions {
   // dropped from the view's cloud. Negative: keep every point.
   double table_crop_mm = 0.5;
   CadCompareOptions cad;
+  // Step 6: the surface mesh (surface_mesh.h BuildSurfaceMesh) of the merged cloud.
+  bool mesh = true;
+  SurfaceMeshOptions mesh_options;
   void Check() const;  // throws slshadow::Error naming the bad field
 };
 
@@ -107,6 +113,11 @@ struct ProjectMergeResult {
   MergeResult registration;
   std::vector<int> registration_view;
   std::optional<CadComparison> cad;
+  // The watertight (then trimmed) surface mesh, with options.mesh; with a CAD mesh, the signed
+  // distances of its vertices to the CAD (mesh_c2m, threshold as the cloud's).
+  std::optional<SurfaceMeshResult> mesh;
+  std::optional<compare::DistanceStats> mesh_c2m;
+  double mesh_seconds = 0;  // apart from total_seconds
   double reconstruct_seconds = 0, merge_seconds = 0, compare_seconds = 0, total_seconds = 0;
   // Largest pose errors against the truth over the merged views (0 when no truth is known).
   double max_rotation_error_deg = 0, max_translation_error_mm = 0;
@@ -129,6 +140,7 @@ ProjectMergeResult MergeProject(const std::filesystem::path& project_dir,
 //  - MODEL/summary.txt: Summary();
 //  - MODEL/merged.ply: the merged cloud, part frame, normals, scalars view, views_fused,
 //    sigma_mm, disagree (and deviation_mm with a CAD mesh);
+//  - MODEL/mesh.ply: with a mesh, the trimmed surface mesh (binary PLY, part frame);
 //  - MODEL/cad_deviation.ply: with a CAD mesh, WritePaintedMesh;
 //  - MODEL/cad_coverage.ply: with a CAD mesh, the surface samples with scalar reason
 //    (CoverageReason), coloured covered green, not reconstructed red, grazing orange, occluded
