@@ -74,8 +74,8 @@ TEST(SurfaceMesh, WatertightPoissonTrimmedToTheSeenSurface) {
   {
     std::vector<std::pair<int, int>> edges;
     for (const auto& f : r.mesh.triangles)
-      for (int k = 0; k < 3; ++k) edges.emplace_back(std::min(f[k], f[(k + 1) % 3]),
-                                                     std::max(f[k], f[(k + 1) % 3]));
+      for (int k = 0; k < 3; ++k)
+        edges.emplace_back(std::min(f[k], f[(k + 1) % 3]), std::max(f[k], f[(k + 1) % 3]));
     std::sort(edges.begin(), edges.end());
     for (size_t i = 0; i < edges.size();) {
       size_t j = i;
@@ -130,7 +130,8 @@ TEST(SurfaceMesh, BadInputThrows) {
   EXPECT_NE(slshadow::testing::ErrorOf([&] { o.Check(); }).find("depth"), std::string::npos);
   o = SurfaceMeshOptions();
   o.trim_distance_mm = -1;
-  EXPECT_NE(slshadow::testing::ErrorOf([&] { o.Check(); }).find("trim_distance_mm"), std::string::npos);
+  EXPECT_NE(slshadow::testing::ErrorOf([&] { o.Check(); }).find("trim_distance_mm"),
+            std::string::npos);
 }
 
 }  // namespace

@@ -122,9 +122,8 @@ SurfaceMeshResult BuildSurfaceMesh(const PointCloud& cloud, const SurfaceMeshOpt
   auto key = [&](uint32_t i) {
     return std::make_tuple(vertices[i].x, vertices[i].y, vertices[i].z);
   };
-  std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) {
-    return key(a) < key(b) || (key(a) == key(b) && a < b);
-  });
+  std::sort(order.begin(), order.end(),
+            [&](uint32_t a, uint32_t b) { return key(a) < key(b) || (key(a) == key(b) && a < b); });
   std::vector<int> weld(vertices.size());
   TriangleMesh full;
   for (size_t k = 0; k < order.size(); ++k) {
@@ -137,8 +136,7 @@ SurfaceMeshResult BuildSurfaceMesh(const PointCloud& cloud, const SurfaceMeshOpt
   full.triangles.reserve(polygons.size());
   for (const pcl::Vertices& poly : polygons) {
     if (poly.vertices.size() != 3) continue;
-    const Eigen::Vector3i t(weld[poly.vertices[0]], weld[poly.vertices[1]],
-                            weld[poly.vertices[2]]);
+    const Eigen::Vector3i t(weld[poly.vertices[0]], weld[poly.vertices[1]], weld[poly.vertices[2]]);
     if (t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) continue;
     full.triangles.push_back(t);
   }
@@ -152,9 +150,8 @@ SurfaceMeshResult BuildSurfaceMesh(const PointCloud& cloud, const SurfaceMeshOpt
   t0 = std::chrono::steady_clock::now();
   const compare::KdTree tree(cloud.points);
   const double spacing = compare::MedianSpacing(tree);
-  result.trim_distance_mm = options.trim_distance_mm > 0
-                                ? options.trim_distance_mm
-                                : 2.0 * std::max(result.cell_mm, spacing);
+  result.trim_distance_mm = options.trim_distance_mm > 0 ? options.trim_distance_mm
+                                                         : 2.0 * std::max(result.cell_mm, spacing);
   std::vector<uint8_t> keep(full.vertices.size());
   std::vector<uint32_t> nearest(full.vertices.size());
   tbb::parallel_for(tbb::blocked_range<size_t>(0, full.vertices.size(), 4096),

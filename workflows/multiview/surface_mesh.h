@@ -17,9 +17,9 @@ namespace slshadow::multiview {
 struct SurfaceMeshOptions {
   // Octree depth: the finest cells are the cloud's bounding cube (x scale) / 2^depth.
   int depth = 8;
-  double scale = 1.1;            // bounding cube / the cloud's bounding box
-  double samples_per_node = 2;   // points per finest cell at which the octree stops refining
-  double point_weight = 4;       // screening: how strongly the surface is held to the points
+  double scale = 1.1;           // bounding cube / the cloud's bounding box
+  double samples_per_node = 2;  // points per finest cell at which the octree stops refining
+  double point_weight = 4;      // screening: how strongly the surface is held to the points
   // A vertex farther than this from every merged point is trimmed (0: 2 x the larger of the
   // octree's finest cell and the cloud's median point spacing).
   double trim_distance_mm = 0;
@@ -36,8 +36,8 @@ struct SurfaceMeshResult {
   // After trimming: boundary edges (one triangle: where the trimming cut), non-manifold edges
   // (more than two triangles: none expected).
   size_t boundary_edges = 0, non_manifold_edges = 0;
-  double cell_mm = 0;           // the octree's finest cell
-  double trim_distance_mm = 0;  // the trim distance used
+  double cell_mm = 0;                         // the octree's finest cell
+  double trim_distance_mm = 0;                // the trim distance used
   double area_mm2 = 0, trimmed_area_mm2 = 0;  // kept, and removed by the trimming
   double poisson_seconds = 0, trim_seconds = 0;
   std::string Summary() const;  // one line
