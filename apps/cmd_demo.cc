@@ -64,7 +64,18 @@ int RunDemo(int argc, char** argv) {
   app.add_option("--views", views,
                  "N > 0: the whole-part loop instead: the demo part on a turntable, N views over a "
                  "full turn scanned, merged (slshadow merge) and compared with its CAD model; "
-                 "prints coverage, RMS and the poses' errors (--out, --encoding apply)");
+                 "prints coverage, RMS and the poses' errors (--out, --encoding, --poses, --noise "
+                 "apply)");
+  std::string poses = "registered";
+  app.add_option("--poses", poses,
+                 "with --views: registered (the table poses refined by pairwise ICP and the pose "
+                 "graph, as slshadow merge does) | axis (the table poses as they are)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"registered", "axis"}));
+  bool no_mesh = false;
+  app.add_flag("--no-mesh", no_mesh, "with --views: do not build the surface mesh");
+  bool noise = false;
+  app.add_flag("--noise", noise, "with --views: sensor noise on (shot and read noise)");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -76,6 +87,9 @@ int RunDemo(int argc, char** argv) {
     mv.out_dir =
         app.count("--out") ? options.out_dir : std::filesystem::path("slshadow-demo-views");
     mv.encoding = ImageEncodingFromString(options.encoding);
+    mv.merge.poses = multiview::PoseSourceFromString(poses);
+    mv.sensor_noise = noise;
+    mv.merge.mesh = !no_mesh;
     const multiview::MultiviewDemoResult result = multiview::RunMultiviewDemo(mv);
     std::printf(
         "slshadow demo --views %d: the demo part on a turntable, scanned, merged and "

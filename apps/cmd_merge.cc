@@ -1,4 +1,4 @@
-// slshadow merge PROJECT --out MODEL [--cad MESH|SCENE]
+// slshadow merge PROJECT --out MODEL [--cad MESH|SCENE] [--poses registered|axis] [--no-mesh]
 #include <CLI/CLI.hpp>
 #include <cstdio>
 
@@ -18,25 +18,39 @@ int RunMerge(int argc, char** argv) {
       "\"Multi-view project\") into one model in the part frame (the rig frame at table angle 0):\n"
       "  1. every complete view is reconstructed like any scan, one view's images in memory at a "
       "time;\n"
-      "  2. each view's pose from the rig's turntable axis and its commanded table angle "
-      "(hand-placed\n"
-      "     views from their part_from_rig_guess); views missing or without a pose are left out, "
-      "named;\n"
-      "  3. the merged cloud (scalars view, quality);\n"
+      "  2. initial poses from the rig's turntable axis and each view's commanded table angle\n"
+      "     (hand-placed views: their part_from_rig_guess, else global registration, FPFH + "
+      "RANSAC);\n"
+      "     then pairwise ICP between overlapping views and one pose graph (Ceres) over all "
+      "views,\n"
+      "     the first merged view fixing the part frame (--poses axis: the initial poses as they "
+      "are);\n"
+      "     each view's pose, residual and 1-sigma, and the loop closure before/after, are "
+      "reported;\n"
+      "     a view that is missing or does not fit (no overlap, a wrong table angle, the part "
+      "moved)\n"
+      "     is left out and named with the reason;\n"
+      "  3. the merged cloud: the views fused where they agree within their noise, kept apart and\n"
+      "     flagged where they do not (scalars view, views_fused, sigma_mm, disagree);\n"
       "  4. with --cad: the signed C2M of the merged cloud and of each view to the CAD model, the\n"
       "     deviation painted on the CAD mesh (cad_deviation.ply, per vertex: MeshLab, "
       "CloudCompare),\n"
       "     coverage of the reachable CAD surface (the face on the table excluded) and the area no "
       "view\n"
       "     covered by reason (occluded, grazing, outside the field, not reconstructed).\n"
-      "Output MODEL (written atomically): report.json, summary.txt, merged.ply, and with --cad\n"
+      "  5. unless --no-mesh: a watertight surface mesh by Poisson reconstruction of the merged "
+      "cloud,\n"
+      "     trimmed where no view saw the surface (mesh.ply; with --cad its C2M to the CAD), timed "
+      "apart.\n"
+      "Output MODEL (written atomically): report.json, summary.txt, merged.ply, mesh.ply, and with "
+      "--cad\n"
       "cad_deviation.ply and cad_coverage.ply (surface samples coloured by reason). Example:\n"
       "  slshadow simulate --rig config/demo/turntable_rig.yaml --scene "
       "config/demo/turntable_scene.yaml \\\n"
       "      --patterns config/demo/patterns.yaml --views config/demo/views_12.yaml --out project\n"
       "  slshadow merge project --out model --cad config/demo/turntable_scene.yaml",
       argv[0]};
-  std::string project, out_dir, cad_path, mode = "stereo";
+  std::string project, out_dir, cad_path, mode = "stereo", poses = "registered";
   bool overwrite = false, quiet = false;
   multiview::ProjectMergeOptions options;
   app.add_option("PROJECT", project, "multi-view project folder (project.json, views/<name>/)")
@@ -49,6 +63,21 @@ int RunMerge(int argc, char** argv) {
   app.add_option("--mode", mode, "reconstruction: stereo (both cameras) | projector (first camera)")
       ->capture_default_str()
       ->check(CLI::IsMember({"stereo", "projector"}));
+  app.add_option("--poses", poses,
+                 "registered: the initial poses refined by pairwise ICP and the pose graph | "
+                 "axis: the turntable axis and table angles as they are (no registration)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"registered", "axis"}));
+  app.add_option("--initial-gate-mm", options.registration.initial_gate_mm,
+                 "bound on the initial poses' error where views overlap, mm (pairing and ICP)")
+      ->capture_default_str();
+  app.add_option("--max-departure-deg", options.registration.max_initial_departure_deg,
+                 "a table view whose registered pose departs from its table angle's by more is "
+                 "left out, deg (0: no check)")
+      ->capture_default_str();
+  app.add_option("--max-departure-mm", options.registration.max_initial_departure_mm,
+                 "the same bound on the displacement of the view's centroid, mm (0: no check)")
+      ->capture_default_str();
   app.add_option("--max-points-per-view", options.max_points_per_view,
                  "keep at most this many points of each view (every s-th cell; 0: all)")
       ->capture_default_str();
@@ -60,6 +89,15 @@ int RunMerge(int argc, char** argv) {
   app.add_option(
          "--table-crop-mm", options.table_crop_mm,
          "table views: drop points less than this above the table plane (negative: keep all)")
+      ->capture_default_str();
+  bool no_mesh = false;
+  app.add_flag("--no-mesh", no_mesh, "do not build the surface mesh (mesh.ply)");
+  app.add_option("--mesh-depth", options.mesh_options.depth,
+                 "Poisson octree depth of the mesh (finest cell: the cloud's extent / 2^depth)")
+      ->capture_default_str();
+  app.add_option("--mesh-trim-mm", options.mesh_options.trim_distance_mm,
+                 "mesh vertices farther than this from every merged point are trimmed, mm (0: 2 x "
+                 "the larger of the finest cell and the cloud's point spacing)")
       ->capture_default_str();
   app.add_flag("--overwrite", overwrite, "replace an existing output folder");
   app.add_flag("--quiet", quiet, "do not print the summary");
@@ -73,6 +111,8 @@ int RunMerge(int argc, char** argv) {
     return ExitOnParseError(app, e);
   }
   options.mode = ReconstructModeFromString(mode);
+  options.poses = multiview::PoseSourceFromString(poses);
+  options.mesh = !no_mesh;
   std::optional<TriangleMesh> cad;
   if (!cad_path.empty()) {
     const std::filesystem::path p(cad_path);

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cstdio>
 #include <vector>
 
 #include "core/error.h"
@@ -56,7 +57,11 @@ TurntableSetup* ProjectMergeTest::setup_ = nullptr;
 TriangleMesh* ProjectMergeTest::cad_ = nullptr;
 
 TEST_F(ProjectMergeTest, ViewsAtTheirTablePosesMergeOntoTheCad) {
-  const ProjectMergeResult r = MergeProject(project(), cad_);
+  ProjectMergeOptions axis;
+  axis.poses = PoseSource::kAxis;
+  const ProjectMergeResult r = MergeProject(project(), cad_, axis);
+  EXPECT_FALSE(r.refined);
+  EXPECT_TRUE(r.registration.pairs.empty());
   ASSERT_EQ(r.views.size(), 4u);
   size_t points = 0;
   for (const MergedView& v : r.views) {
@@ -68,32 +73,93 @@ TEST_F(ProjectMergeTest, ViewsAtTheirTablePosesMergeOntoTheCad) {
     EXPECT_LT(v.translation_error_mm, 1e-9) << v.name;
     points += v.points;
   }
-  EXPECT_EQ(r.merged.size(), points);
+  // Fused where the views overlap: fewer points than the views hold, more than any one.
+  EXPECT_LT(r.merged.size(), points);
+  EXPECT_EQ(r.registration.input_points, points);
+  for (const MergedView& v : r.views) EXPECT_GT(r.merged.size(), v.points);
   ASSERT_NE(r.merged.Scalar("view"), nullptr);
+  ASSERT_NE(r.merged.Scalar("views_fused"), nullptr);
   ASSERT_NE(r.merged.Scalar("deviation_mm"), nullptr);
   ASSERT_TRUE(r.cad.has_value());
   // The merged cloud lies on the CAD model as the views do (at 480x300 pixels the edges of the
-  // steps and holes dominate the RMS): the views' points pooled, so its RMS lies between theirs.
-  std::vector<double> rms;
+  // steps and holes dominate the RMS): the views' points fused, so its median |C2M| is at most
+  // the worst view's (its RMS is not: each view's outliers are kept apart at full weight).
+  std::vector<double> median;
   for (const CadViewFigures& v : r.cad->views) {
     EXPECT_LT(v.c2m.rms_mm, 0.5) << v.name;
     EXPECT_LT(v.coverage, r.cad->coverage_reachable) << v.name << ": one view covers less";
-    rms.push_back(v.c2m.rms_mm);
+    median.push_back(v.c2m.median_mm);
   }
-  std::sort(rms.begin(), rms.end());
-  EXPECT_LE(r.cad->merged_c2m.rms_mm, rms.back() + 1e-9);
-  EXPECT_GE(r.cad->merged_c2m.rms_mm, rms.front() - 1e-9);
-  EXPECT_LT(std::abs(r.cad->merged_c2m.signed_mean_mm), 0.05);
+  std::sort(median.begin(), median.end());
+  EXPECT_LE(r.cad->merged_c2m.median_mm, median.back() + 1e-9);
+  EXPECT_LT(r.cad->merged_c2m.rms_mm, 0.5);
+  EXPECT_LT(std::abs(r.cad->merged_c2m.signed_mean_mm), 0.1);
   EXPECT_GT(r.cad->merged_c2m.inliers, r.cad->merged_c2m.count * 9 / 10);
   EXPECT_GT(r.cad->coverage_reachable, 0.9);
   EXPECT_NE(r.Summary().find("CAD comparison"), std::string::npos);
 }
 
+// The default: the table poses refined by MergeViews. Four views 90 deg apart at 480x300 pixels
+// still overlap on the top faces; the registration keeps the poses near the truth and reports
+// each view's residual and uncertainty.
+TEST_F(ProjectMergeTest, RegisteredPosesStayOnTheTruth) {
+  const ProjectMergeResult r = MergeProject(project(), cad_);
+  EXPECT_TRUE(r.refined);
+  ASSERT_TRUE(r.has_truth);
+  ASSERT_EQ(r.registration_view.size(), 4u);
+  for (const MergedView& v : r.views) {
+    EXPECT_TRUE(v.merged) << v.name << ": " << v.reason;
+    EXPECT_EQ(v.anchor, v.name == "view_00") << v.name;
+    EXPECT_GE(v.pairs, 1) << v.name;
+    EXPECT_GT(v.residual_rms_mm, 0) << v.name;
+    EXPECT_LT(v.rotation_error_deg, 0.05) << v.name;
+    EXPECT_LT(v.translation_error_mm, 0.05) << v.name;
+  }
+  EXPECT_LT(r.max_translation_error_mm, 0.05) << r.Summary();
+  const nlohmann::json j = r.ToJson();
+  EXPECT_TRUE(j["registration"]["refined"].get<bool>());
+  EXPECT_FALSE(j["registration"]["pairs"].empty());
+  EXPECT_NE(r.Summary().find("(* the anchor"), std::string::npos);
+}
+
+// Views placed by hand with no guess: posed by global registration (FPFH + RANSAC, then ICP)
+// against the views posed before them, then refined like the others. Each is either registered
+// near the truth or left out with the registration's reason; never merged at a wrong pose.
+TEST_F(ProjectMergeTest, HandPlacedViewsWithoutAGuessAreRegisteredGlobally) {
+  const fs::path dir = tmp_->path() / "hand";
+  fs::copy(project(), dir, fs::copy_options::recursive);
+  ProjectManifest p = LoadProject(dir);
+  for (size_t i = 1; i < p.views.size(); ++i) p.views[i].spec.table_deg.reset();
+  SaveProject(p, dir);
+  const ProjectMergeResult r = MergeProject(dir, cad_);
+  std::printf("%s", r.Summary().c_str());
+  ASSERT_TRUE(r.views[0].merged) << r.views[0].reason;
+  int registered = 0;
+  for (size_t i = 1; i < r.views.size(); ++i) {
+    const MergedView& v = r.views[i];
+    EXPECT_FALSE(v.table_deg.has_value());
+    if (!v.merged) {
+      EXPECT_NE(v.reason.find("registration: "), std::string::npos) << v.name << ": " << v.reason;
+      continue;
+    }
+    ++registered;
+    ASSERT_TRUE(v.part_from_rig_initial.has_value()) << v.name;
+    EXPECT_LT(v.rotation_error_deg, 0.1) << v.name;
+    EXPECT_LT(v.translation_error_mm, 0.1) << v.name;
+  }
+  // On this coarse fixture (480x300 pixels, views 90 deg apart, the table disc kept in hand
+  // views) the globally found poses do not survive ICP: every hand view is left out, named.
+  std::printf("hand views registered: %d of %zu\n", registered, r.views.size() - 1);
+  EXPECT_GT(r.merged.size(), 0u);
+}
+
 TEST_F(ProjectMergeTest, CoverageGrowsWithViews) {
   double last = 0;
+  ProjectMergeOptions axis;  // the table poses: coverage alone, whatever the views overlap
+  axis.poses = PoseSource::kAxis;
   for (const size_t n : {1u, 2u, 4u}) {
-    const ProjectMergeResult r =
-        MergeProject(n == 4 ? project() : ProjectWithViews(n, "views" + std::to_string(n)), cad_);
+    const ProjectMergeResult r = MergeProject(
+        n == 4 ? project() : ProjectWithViews(n, "views" + std::to_string(n)), cad_, axis);
     ASSERT_TRUE(r.cad.has_value());
     EXPECT_GT(r.cad->coverage_total, last + 0.05) << n << " views";
     last = r.cad->coverage_total;
@@ -112,8 +178,8 @@ TEST_F(ProjectMergeTest, ModelFolderAndLeftOutViews) {
   const ProjectMergeResult r = MergeProject(partial, cad_);
   const testing::TempDir out;
   WriteModel(r, cad_, out / "model", false);
-  for (const char* f :
-       {"report.json", "summary.txt", "merged.ply", "cad_deviation.ply", "cad_coverage.ply"})
+  for (const char* f : {"report.json", "summary.txt", "merged.ply", "mesh.ply", "cad_deviation.ply",
+                        "cad_coverage.ply"})
     EXPECT_TRUE(fs::exists(out / "model" / f)) << f;
   const nlohmann::json report = nlohmann::json::parse(ReadTextFile(out / "model/report.json"));
   EXPECT_EQ(report["left_out"], nlohmann::json::array({"view_03"}));

@@ -78,9 +78,11 @@ void MergeOptions::Check() const {
   SLSHADOW_THROW_IF(icp_max_iterations < 1, "merge options: icp_max_iterations: must be >= 1 (got ",
                     icp_max_iterations, ")");
   positive(icp_tolerance_mm, "icp_tolerance_mm");
+  positive(icp_max_final_motion_mm, "icp_max_final_motion_mm");
   SLSHADOW_THROW_IF(!(icp_max_normal_angle_deg > 0 && icp_max_normal_angle_deg <= 180),
                     "merge options: icp_max_normal_angle_deg: must be in (0, 180] (got ",
                     icp_max_normal_angle_deg, ")");
+  nonneg(icp_max_residual_sigmas, "icp_max_residual_sigmas");
   SLSHADOW_THROW_IF(!(icp_max_surface_variation > 0 && icp_max_surface_variation <= 1.0 / 3.0),
                     "merge options: icp_max_surface_variation: must be in (0, 1/3] (got ",
                     icp_max_surface_variation, ")");
@@ -205,7 +207,12 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
   t0 = Clock::now();
   std::vector<bool> posed(n, false);
   for (size_t i = 0; i < n; ++i) posed[i] = views[i].has_initial;
-  for (size_t i = 0; i < n; ++i) {
+  if (!options.refine) {
+    for (size_t i = 0; i < n; ++i) {
+      if (!posed[i]) result.views[i].reason = "no initial pose, and registration is off";
+    }
+  }
+  for (size_t i = 0; i < n && options.refine; ++i) {
     if (views[i].has_initial) continue;
     ViewPose& v = result.views[i];
     std::vector<Eigen::Vector3d> ref_points, ref_normals, cloud;
@@ -240,9 +247,10 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
   struct Candidate {
     int a, b;
     double overlap;
+    double angle_deg;  // relative rotation of the two views at their initial poses
   };
   std::vector<Candidate> all;
-  for (size_t a = 0; a < n; ++a) {
+  for (size_t a = 0; a < n && options.refine; ++a) {
     for (size_t b = a + 1; b < n; ++b) {
       if (!posed[a] || !posed[b]) continue;
       const Rigid3d a_from_b =
@@ -253,17 +261,25 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
           internal::OverlapShare(geo[b], geo[a], a_from_b.Inverse(), options.initial_gate_mm,
                                  options.icp_max_normal_angle_deg));
       if (share >= options.min_pair_overlap)
-        all.push_back({static_cast<int>(a), static_cast<int>(b), share});
+        all.push_back(
+            {static_cast<int>(a), static_cast<int>(b), share,
+             RotationErrorDeg(result.views[a].part_from_rig, result.views[b].part_from_rig)});
     }
   }
-  // Each view's most overlapping partners (ties: the lower index).
+  // Each view's overlapping partners that look at the part from the nearest directions (the
+  // smallest relative rotation; ties: the larger overlap, then the lower index). The overlap share
+  // alone does not rank them: a face every view sees (a part's top on a turntable) makes it high
+  // for every pair, while views far apart share little else and leave ICP free to slide.
   std::vector<bool> chosen(all.size(), false);
   for (size_t v = 0; v < n; ++v) {
     std::vector<size_t> mine;
     for (size_t k = 0; k < all.size(); ++k)
       if (all[k].a == static_cast<int>(v) || all[k].b == static_cast<int>(v)) mine.push_back(k);
-    std::stable_sort(mine.begin(), mine.end(),
-                     [&](size_t x, size_t y) { return all[x].overlap > all[y].overlap; });
+    std::stable_sort(mine.begin(), mine.end(), [&](size_t x, size_t y) {
+      const double dx = std::round(all[x].angle_deg * 1e6), dy = std::round(all[y].angle_deg * 1e6);
+      if (dx != dy) return dx < dy;
+      return all[x].overlap > all[y].overlap;
+    });
     for (size_t k = 0; k < mine.size() && k < static_cast<size_t>(options.max_pairs_per_view); ++k)
       chosen[mine[k]] = true;
   }
@@ -291,10 +307,19 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
     p.correspondences = icp[k].correspondences;
     p.iterations = icp[k].iterations;
     p.converged = icp[k].converged;
-    p.kept = p.fitness >= options.min_pair_fitness && p.correspondences >= 7;
-    if (!p.kept)
+    // Not converged, but only jittering (correspondences switching at the noise level), is
+    // kept; still moving after icp_max_iterations is sliding along a direction the overlap
+    // leaves free.
+    const bool sliding = !p.converged && icp[k].last_motion_mm > options.icp_max_final_motion_mm;
+    p.kept = p.fitness >= options.min_pair_fitness && p.correspondences >= 7 && !sliding;
+    if (p.fitness < options.min_pair_fitness || p.correspondences < 7)
       p.reason = StringPrintf("overlap after ICP %.3f (min_pair_fitness %.3f)", p.fitness,
                               options.min_pair_fitness);
+    else if (sliding)
+      p.reason = StringPrintf(
+          "ICP still moving %.2g mm per iteration after %d iterations (the overlap leaves a "
+          "direction free to slide)",
+          icp[k].last_motion_mm, p.iterations);
     else
       rms_of_good.push_back(p.rms_mm);
   }
@@ -321,6 +346,10 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
       if (active[i]) anchor = static_cast<int>(i);
     result.anchor = anchor;
     if (anchor < 0) break;
+    if (!options.refine) {  // the initial poses as they are
+      sol.part_from_rig = initial;
+      break;
+    }
     // The anchor's connected component over kept pairs.
     std::vector<bool> reached(n, false);
     reached[static_cast<size_t>(anchor)] = true;
@@ -438,8 +467,8 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
     if (!p.kept) continue;
     const size_t a = static_cast<size_t>(p.view_a), b = static_cast<size_t>(p.view_b);
     const Rigid3d a_from_b = sol.part_from_rig[a].Inverse() * sol.part_from_rig[b];
-    const internal::IcpOutcome fin =
-        internal::EvaluatePair(geo[a], geo[b], a_from_b, icp[k].gate_mm, options);
+    const internal::IcpOutcome fin = internal::EvaluatePair(
+        geo[a], geo[b], a_from_b, icp[k].gate_mm, icp[k].max_residual_mm, options);
     p.final_rms_mm = fin.rms_mm;
     for (size_t v : {a, b}) {
       view_rms[v].push_back(fin.rms_mm);
@@ -461,7 +490,7 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
     v.residual_rms_mm =
         view_rms[i].empty() ? 0.0 : std::sqrt(sum_sq / static_cast<double>(view_rms[i].size()));
     v.noise_mm = Median(view_rms[i]) / std::sqrt(2.0);
-    if (v.anchor) continue;
+    if (v.anchor || !options.refine) continue;
     if (!sol.covariance_ok) {
       v.sigma_rotation_deg = v.sigma_translation_mm = std::numeric_limits<double>::quiet_NaN();
       continue;

@@ -5,29 +5,34 @@
 //  1. Initial poses. A view with has_initial keeps part_from_rig_initial (for a table view the
 //     inverse of TurntableAxis::RigFromTableTurn(angle)); a view without one is found by
 //     compare::Register (global+icp: FPFH + RANSAC, then ICP) against the views posed so far.
-//  2. Pairwise registration. Each view is paired with the (up to) max_pairs_per_view views it
-//     overlaps most at the initial poses (overlap: share of a view's sample points with a
+//  2. Pairwise registration. Each view is paired with the (up to) max_pairs_per_view views that
+//     overlap it at the initial poses (overlap: share of a view's sample points with a
 //     neighbour of the other view within initial_gate_mm and a compatible normal; at least
-//     min_pair_overlap); each pair is registered by point-to-plane ICP (Chen & Medioni 1991)
+//     min_pair_overlap) and look at the part from the nearest directions (smallest relative
+//     rotation; a face all views see makes the overlap high for every pair, so it does not rank
+//     them); each pair is registered by point-to-plane ICP (Chen & Medioni 1991)
 //     with the symmetric normal, the mean of both points' normals (Rusinkiewicz 2019, so curved
 //     surfaces add no bias), from the initial relative pose: up to icp_points source points
 //     against all points of the other view, edge points (PCA surface variation above
-//     icp_max_surface_variation) left out, the gate halving from initial_gate_mm down to 3 x the
-//     point spacing each time the pose has settled. Each pair yields
-//     a_from_b, the residual RMS and the 6x6 information J^T J / sigma^2 of the left
+//     icp_max_surface_variation) and outliers (residual beyond icp_max_residual_sigmas robust
+//     standard deviations of the previous iteration's) left out, the gate halving from
+//     initial_gate_mm down to 3 x the point spacing each time the pose has settled. Each pair
+//     yields a_from_b, the residual RMS and the 6x6 information J^T J / sigma^2 of the left
 //     perturbation (rotation vector, translation) of a_from_b in frame a, sigma^2 the residual
 //     variance.
 //  3. Pose graph. One Ceres optimisation of all view poses, residual sqrt(information) x
 //     Log(estimated a_from_b x measured a_from_b^-1) per pair, the anchor view (the first
 //     accepted view) fixed: its initial pose defines the part frame. Left out and named, with the
-//     reason: a pair whose ICP residual exceeds max_pair_rms_ratio x the median of the pairs or
-//     whose overlap after ICP is below min_pair_fitness; then, one at a time, the pair that
-//     disagrees most with the optimised graph when its disagreement exceeds
-//     max(min_edge_error_mm, max_edge_error_ratio x the median); a view left with no pair into
-//     the anchor's component; a view with an initial pose whose optimised pose departs from it by
-//     more than max_initial_departure_deg / _mm (a wrong table angle, or the part moved).
-//     Covariance of each pose from ceres::Covariance at the solution, relative to the anchor.
-//     Because it assumes independent point errors it is a lower bound of the real uncertainty.
+//     reason: a pair whose ICP still moves more than icp_max_final_motion_mm per iteration after
+//     icp_max_iterations (a direction the overlap leaves free slides), whose residual exceeds
+//     max_pair_rms_ratio x the median of the pairs or whose overlap after ICP is below
+//     min_pair_fitness; then, one at a time, the pair that disagrees most with the optimised graph
+//     when its disagreement exceeds max(min_edge_error_mm, max_edge_error_ratio x the median); a
+//     view left with no pair into the anchor's component; a view with an initial pose whose
+//     optimised pose departs from it by more than max_initial_departure_deg / _mm (a wrong table
+//     angle, or the part moved). Covariance of each pose from ceres::Covariance at the solution,
+//     relative to the anchor. Because it assumes independent point errors it is a lower bound of
+//     the real uncertainty.
 //  4. Fusion. The accepted views' points, in the part frame, are binned in cubic cells of
 //     fuse_cell_mm; within a cell, points whose normals agree (within 60 deg) form one surface,
 //     and each view's mean height along that surface's normal is compared with the others'. The
@@ -66,16 +71,26 @@ struct ViewCloud {
 };
 
 struct MergeOptions {
+  // false: no registration: every view keeps its initial pose (a view without one is left out,
+  // named), steps 1-3 are skipped and the views are only fused (step 4), each view's noise taken
+  // as fuse_min_disagreement_mm / fuse_k_sigma.
+  bool refine = true;
   // Pairing and ICP.
   double initial_gate_mm = 5.0;   // bound on the initial poses' error where the views overlap:
                                   // the overlap test's and the ICP's first correspondence gate
   double min_pair_overlap = 0.1;  // share of sample points, at the initial poses, to pair views
-  int max_pairs_per_view = 4;     // each view is paired with its most overlapping views only
+  int max_pairs_per_view = 4;     // each view is paired with its nearest overlapping views only
   int overlap_samples = 2000;     // sample points per view for the overlap test
   int icp_points = 20000;         // source points per pair (evenly strided subset)
   int icp_max_iterations = 60;
   double icp_tolerance_mm = 1e-5;  // stop when an update moves the source points less than this
-  double icp_max_normal_angle_deg = 30.0;   // correspondences with normals farther apart: dropped
+  // A pair still moving more than this per iteration after icp_max_iterations is rejected.
+  double icp_max_final_motion_mm = 1e-3;
+  double icp_max_normal_angle_deg = 30.0;  // correspondences with normals farther apart: dropped
+  // Correspondences whose point-to-plane residual exceeds this many robust standard deviations
+  // (1.4826 x the median |residual| of the previous iteration) are dropped: outliers of the
+  // reconstruction. 0: none dropped.
+  double icp_max_residual_sigmas = 3.0;
   double icp_max_surface_variation = 0.05;  // PCA lambda_min / sum: above it a point is an edge
   int normal_neighbors = 12;                // k of the PCA normals and surface variation
   // Rejection.

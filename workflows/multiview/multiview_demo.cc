@@ -49,10 +49,6 @@ std::string MultiviewDemoResult::Table() const {
         100 * merge.cad->coverage_reachable, merge.cad->merged_c2m.rms_mm, single_view_rms_mm,
         single_view_rms_mm > 0 ? merge.cad->merged_c2m.rms_mm / single_view_rms_mm : 0.0);
   }
-  if (merge.has_truth) {
-    out += StringPrintf("pose errors against the truth: max %.5f deg, max %.4f mm\n",
-                        merge.max_rotation_error_deg, merge.max_translation_error_mm);
-  }
   out += StringPrintf("total %.2f s wall; outputs in %s/{project,model}\n", total_seconds,
                       out_dir.string().c_str());
   return out;
@@ -65,8 +61,9 @@ MultiviewDemoResult RunMultiviewDemo(const MultiviewDemoOptions& options) {
   SLSHADOW_THROW_IF(fs::exists(options.out_dir, ec) && !fs::exists(options.out_dir / kMarker, ec),
                     options.out_dir.string(),
                     ": exists and is not an earlier multi-view demo output; choose another --out");
-  const TurntableSetup setup =
+  TurntableSetup setup =
       options.rig ? TurntableSetup{*options.rig, *options.scene} : DemoTurntableSetup();
+  if (options.sensor_noise) setup.scene.layers.noise_enabled = true;
   // The demo's sequence, sized to the rig's projector (a replacement rig may have another).
   PatternSpec spec = shadow::LoadPatternSpecOrDemo("");
   spec.projector_width = setup.rig.projector->model.width;

@@ -7,6 +7,8 @@
 #include <chrono>
 #include <cmath>
 
+#include "compare/distances.h"
+#include "compare/statistics.h"
 #include "core/config.h"
 #include "core/error.h"
 #include "core/file_util.h"
@@ -60,13 +62,37 @@ nlohmann::json OptionalPose(const std::optional<Rigid3d>& pose) {
 
 }  // namespace
 
+std::string ToString(PoseSource source) {
+  return source == PoseSource::kAxis ? "axis" : "registered";
+}
+
+PoseSource PoseSourceFromString(const std::string& s) {
+  if (s == "registered") return PoseSource::kRegistered;
+  if (s == "axis") return PoseSource::kAxis;
+  SLSHADOW_THROW("poses: unknown source '", s, "' (expected registered or axis)");
+}
+
 void ProjectMergeOptions::Check() const {
   SLSHADOW_THROW_IF(!std::isfinite(table_crop_mm), "merge: table_crop_mm must be finite (got ",
                     table_crop_mm, ")");
   reconstruct.Check();
   decode.Check();
+  registration.Check();
   cad.Check();
+  mesh_options.Check();
 }
+
+namespace {
+
+// Rotation angle (deg) of estimated * truth^-1 and the displacement it gives `centre` (mm).
+void PoseError(const Rigid3d& estimated, const Rigid3d& truth, const Eigen::Vector3d& centre,
+               double* deg, double* mm) {
+  const Rigid3d delta = estimated * truth.Inverse();
+  *deg = Eigen::AngleAxisd(delta.rotation).angle() * 180.0 / M_PI;
+  *mm = (delta * centre - centre).norm();
+}
+
+}  // namespace
 
 ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh* cad_in_part,
                                 const ProjectMergeOptions& options) {
@@ -74,11 +100,15 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
   options.Check();
   const ProjectManifest project = LoadProject(project_dir);
   const std::string what = (project_dir / "project.json").string();
+  const bool refine = options.poses == PoseSource::kRegistered;
   ProjectMergeResult result;
   result.project = project_dir.string();
+  result.refined = refine;
   result.pose_method =
-      "turntable axis and table angles; hand-placed views from their guess (not "
-      "registered)";
+      refine ? "turntable axis and table angles (hand-placed views: their guess, else global "
+               "registration), refined by pairwise ICP and the pose graph"
+             : "turntable axis and table angles; hand-placed views from their guess (not "
+               "registered: --poses axis)";
 
   // 1.-2. Reconstruct every complete view, one at a time; initial poses.
   std::vector<PointCloud> clouds(project.views.size());
@@ -95,9 +125,10 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
     }
     if (pv.state != ViewState::kComplete) {
       v.reason = "missing: the view was not captured (project state missing)";
-    } else if (!v.part_from_rig_initial) {
+    } else if (!v.part_from_rig_initial && !refine) {
       v.reason =
-          "no pose: placed by hand without part_from_rig_guess, and views are not registered";
+          "no pose: placed by hand without part_from_rig_guess, and --poses axis registers no "
+          "view";
     } else {
       const auto t0 = std::chrono::steady_clock::now();
       const ImageSet image_set = ImageSet::Open(project_dir / pv.Folder());
@@ -120,48 +151,61 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
       v.accepted_points = rec.summary.points;
       v.reconstruct_seconds = SecondsSince(t0);
       result.reconstruct_seconds += v.reconstruct_seconds;
-      if (rec.cloud.empty()) {
-        v.reason = "empty: the reconstruction accepted no point";
+      v.points = rec.cloud.size();
+      if (rec.cloud.size() <= static_cast<size_t>(options.registration.normal_neighbors)) {
+        v.reason = StringPrintf("too few points: the reconstruction kept %zu (need more than %d)",
+                                rec.cloud.size(), options.registration.normal_neighbors);
       } else {
-        v.merged = true;
-        v.part_from_rig = *v.part_from_rig_initial;
-        v.points = rec.cloud.size();
         clouds[i] = std::move(rec.cloud);
       }
     }
     result.views.push_back(std::move(v));
   }
-  const bool any = std::any_of(result.views.begin(), result.views.end(),
-                               [](const MergedView& v) { return v.merged; });
-  SLSHADOW_THROW_IF(!any, what, ": no view can be merged (",
+  std::vector<ViewCloud> inputs;
+  for (size_t i = 0; i < result.views.size(); ++i) {
+    const MergedView& v = result.views[i];
+    if (clouds[i].empty()) continue;
+    inputs.push_back({v.name, &clouds[i], v.part_from_rig_initial.value_or(Rigid3d()),
+                      v.part_from_rig_initial.has_value()});
+    result.registration_view.push_back(static_cast<int>(i));
+  }
+  SLSHADOW_THROW_IF(inputs.empty(), what, ": no view can be merged (",
                     result.views.empty() ? "no views" : result.views.front().reason, ")");
 
-  // 3. The merged cloud in the part frame.
+  // 3.-4. Registration and fusion.
   auto t0 = std::chrono::steady_clock::now();
-  size_t total = 0;
-  for (const PointCloud& c : clouds) total += c.size();
-  PointCloud& merged = result.merged;
-  merged.points.reserve(total);
-  merged.normals.reserve(total);
-  std::vector<float> view_index, quality;
-  view_index.reserve(total);
-  quality.reserve(total);
-  for (size_t i = 0; i < clouds.size(); ++i) {
-    const MergedView& v = result.views[i];
-    if (!v.merged) continue;
-    const PointCloud& c = clouds[i];
-    const Eigen::Matrix3f r = v.part_from_rig.rotation.toRotationMatrix().cast<float>();
-    const std::vector<float>* q = c.Scalar("quality");
-    for (size_t k = 0; k < c.size(); ++k) {
-      merged.points.push_back(v.part_from_rig * c.points[k]);
-      merged.normals.push_back(c.HasNormals() ? Eigen::Vector3f(r * c.normals[k])
-                                              : Eigen::Vector3f::Zero());
-      view_index.push_back(static_cast<float>(i));
-      quality.push_back(q ? (*q)[k] : 0.0f);
+  MergeOptions mo = options.registration;
+  mo.refine = refine;
+  result.registration = MergeViews(inputs, mo);
+  MergeResult& reg = result.registration;
+  for (size_t k = 0; k < reg.views.size(); ++k) {
+    const ViewPose& p = reg.views[k];
+    MergedView& v = result.views[static_cast<size_t>(result.registration_view[k])];
+    if (!v.part_from_rig_initial && p.accepted) v.part_from_rig_initial = p.part_from_rig_initial;
+    if (!p.accepted) {
+      v.reason = "registration: " + p.reason;
+      continue;
     }
+    v.merged = true;
+    v.part_from_rig = p.part_from_rig;
+    v.anchor = p.anchor;
+    v.pairs = p.pairs;
+    v.residual_rms_mm = p.residual_rms_mm;
+    v.noise_mm = p.noise_mm;
+    v.sigma_rotation_deg = p.sigma_rotation_deg;
+    v.sigma_translation_mm = p.sigma_translation_mm;
   }
-  merged.SetScalar("view", std::move(view_index));
-  merged.SetScalar("quality", std::move(quality));
+  result.merged = std::move(reg.merged);
+  reg.merged = PointCloud();
+  std::vector<float> view_index(reg.point_view.size());
+  for (size_t k = 0; k < view_index.size(); ++k)
+    view_index[k] =
+        static_cast<float>(result.registration_view[static_cast<size_t>(reg.point_view[k])]);
+  result.merged.SetScalar("view", std::move(view_index));
+  reg.point_view = {};
+  reg.point_views = {};
+  reg.point_sigma_mm = {};
+  reg.disagree = {};
   result.merge_seconds = SecondsSince(t0);
 
   // Pose errors against the truth, at the part's centre.
@@ -169,22 +213,32 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
   if (cad_in_part && !cad_in_part->vertices.empty()) {
     for (const auto& p : cad_in_part->vertices) centre += p;
     centre /= static_cast<double>(cad_in_part->vertices.size());
-  } else {
-    for (const auto& p : merged.points) centre += p;
-    centre /= static_cast<double>(merged.size());
+  } else if (!result.merged.empty()) {
+    for (const auto& p : result.merged.points) centre += p;
+    centre /= static_cast<double>(result.merged.size());
   }
   for (MergedView& v : result.views) {
     if (!v.merged || !v.part_from_rig_true) continue;
-    const Rigid3d delta = v.part_from_rig * v.part_from_rig_true->Inverse();
-    v.rotation_error_deg = Eigen::AngleAxisd(delta.rotation).angle() * 180.0 / M_PI;
-    v.translation_error_mm = (delta * centre - centre).norm();
+    PoseError(v.part_from_rig, *v.part_from_rig_true, centre, &v.rotation_error_deg,
+              &v.translation_error_mm);
+    if (v.part_from_rig_initial)
+      PoseError(*v.part_from_rig_initial, *v.part_from_rig_true, centre,
+                &v.initial_rotation_error_deg, &v.initial_translation_error_mm);
     result.has_truth = true;
     result.max_rotation_error_deg = std::max(result.max_rotation_error_deg, v.rotation_error_deg);
     result.max_translation_error_mm =
         std::max(result.max_translation_error_mm, v.translation_error_mm);
+    result.max_initial_rotation_error_deg =
+        std::max(result.max_initial_rotation_error_deg, v.initial_rotation_error_deg);
+    result.max_initial_translation_error_mm =
+        std::max(result.max_initial_translation_error_mm, v.initial_translation_error_mm);
   }
+  const bool any = std::any_of(result.views.begin(), result.views.end(),
+                               [](const MergedView& v) { return v.merged; });
+  SLSHADOW_THROW_IF(!any, what, ": no view can be merged (", result.views.front().name, ": ",
+                    result.views.front().reason, ")");
 
-  // 4. The CAD comparison.
+  // 5. The CAD comparison.
   if (cad_in_part) {
     t0 = std::chrono::steady_clock::now();
     std::vector<CadView> cad_views;
@@ -195,7 +249,7 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
       cad_views.push_back(CadView{v.name, v.merged ? v.part_from_rig : *v.part_from_rig_initial,
                                   v.merged ? &clouds[i] : nullptr});
     }
-    result.cad = CompareWithCad(*cad_in_part, project.rig, options.mode, cad_views, merged,
+    result.cad = CompareWithCad(*cad_in_part, project.rig, options.mode, cad_views, result.merged,
                                 project.rig.turntable, options.cad);
     result.merged.SetScalar("deviation_mm",
                             std::vector<float>(result.cad->merged_deviations_mm.begin(),
@@ -203,12 +257,24 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
     result.compare_seconds = SecondsSince(t0);
   }
   result.total_seconds = SecondsSince(t_start);
+
+  // 6. The surface mesh, timed apart.
+  if (options.mesh) {
+    t0 = std::chrono::steady_clock::now();
+    result.mesh = BuildSurfaceMesh(result.merged, options.mesh_options);
+    if (cad_in_part) {
+      result.mesh_c2m = compare::ComputeStats(
+          compare::CloudToMesh(result.mesh->mesh.vertices, *cad_in_part).signed_distances_mm, true,
+          options.cad.threshold_mm);
+    }
+    result.mesh_seconds = SecondsSince(t0);
+  }
   return result;
 }
 
 nlohmann::json ProjectMergeResult::ToJson() const {
   nlohmann::json j = {{"format", "slshadow-merge-report"},
-                      {"version", 1},
+                      {"version", 2},
                       {"project", project},
                       {"pose_method", pose_method},
                       {"merged_points", merged.size()}};
@@ -224,10 +290,20 @@ nlohmann::json ProjectMergeResult::ToJson() const {
         {"points", v.points},
         {"accepted_points", v.accepted_points},
         {"reconstruct_s", v.reconstruct_seconds}};
+    if (v.merged && refined) {
+      view["anchor"] = v.anchor;
+      view["pairs"] = v.pairs;
+      view["residual_rms_mm"] = v.residual_rms_mm;
+      view["noise_mm"] = v.noise_mm;
+      view["sigma_rotation_deg"] = v.sigma_rotation_deg;
+      view["sigma_translation_mm"] = v.sigma_translation_mm;
+    }
     if (v.part_from_rig_true) {
       view["part_from_rig_true"] = PoseToJson(*v.part_from_rig_true);
       view["rotation_error_deg"] = v.rotation_error_deg;
       view["translation_error_mm"] = v.translation_error_mm;
+      view["initial_rotation_error_deg"] = v.initial_rotation_error_deg;
+      view["initial_translation_error_mm"] = v.initial_translation_error_mm;
     }
     j["views"].push_back(std::move(view));
   }
@@ -238,20 +314,104 @@ nlohmann::json ProjectMergeResult::ToJson() const {
   j["left_out"] = left_out;
   if (has_truth) {
     j["pose_errors"] = {{"max_rotation_deg", max_rotation_error_deg},
-                        {"max_translation_mm", max_translation_error_mm}};
+                        {"max_translation_mm", max_translation_error_mm},
+                        {"initial_max_rotation_deg", max_initial_rotation_error_deg},
+                        {"initial_max_translation_mm", max_initial_translation_error_mm}};
   }
+  const MergeResult& r = registration;
+  nlohmann::json pairs = nlohmann::json::array();
+  for (const PairRegistration& p : r.pairs) {
+    pairs.push_back(
+        {{"a", views[static_cast<size_t>(registration_view[static_cast<size_t>(p.view_a)])].name},
+         {"b", views[static_cast<size_t>(registration_view[static_cast<size_t>(p.view_b)])].name},
+         {"overlap_initial", p.overlap_initial},
+         {"fitness", p.fitness},
+         {"rms_mm", p.rms_mm},
+         {"final_rms_mm", p.final_rms_mm},
+         {"correspondences", p.correspondences},
+         {"iterations", p.iterations},
+         {"converged", p.converged},
+         {"graph_error_deg", p.graph_error_deg},
+         {"graph_error_mm", p.graph_error_mm},
+         {"kept", p.kept},
+         {"reason", p.reason}});
+  }
+  nlohmann::json loop = nullptr;
+  if (r.has_loop) {
+    loop = {{"before_deg", r.loop_closure_before_deg},
+            {"before_mm", r.loop_closure_before_mm},
+            {"after_deg", r.loop_closure_after_deg},
+            {"after_mm", r.loop_closure_after_mm}};
+  }
+  j["registration"] = {
+      {"refined", refined},
+      {"anchor",
+       r.anchor >= 0
+           ? nlohmann::json(
+                 views[static_cast<size_t>(registration_view[static_cast<size_t>(r.anchor)])].name)
+           : nlohmann::json(nullptr)},
+      {"pairs", std::move(pairs)},
+      {"loop_closure", std::move(loop)},
+      {"graph",
+       {{"iterations", r.graph_iterations},
+        {"initial_cost", r.graph_initial_cost},
+        {"final_cost", r.graph_final_cost}}},
+      {"fusion",
+       {{"cell_mm", r.fuse_cell_mm},
+        {"input_points", r.input_points},
+        {"merged_points", merged.size()},
+        {"disagree_points", r.disagree_points}}},
+      {"time_s",
+       {{"normals", r.time_normals_s},
+        {"pairs", r.time_pairs_s},
+        {"graph", r.time_graph_s},
+        {"fusion", r.time_fuse_s},
+        {"total", r.time_s}}}};
   j["cad"] = cad ? cad->ToJson() : nlohmann::json(nullptr);
+  j["mesh"] = nullptr;
+  if (mesh) {
+    const SurfaceMeshResult& m = *mesh;
+    j["mesh"] = {{"file", "mesh.ply"},
+                 {"vertices", m.mesh.vertices.size()},
+                 {"triangles", m.mesh.triangles.size()},
+                 {"boundary_edges", m.boundary_edges},
+                 {"non_manifold_edges", m.non_manifold_edges},
+                 {"area_mm2", m.area_mm2},
+                 {"trimmed_area_mm2", m.trimmed_area_mm2},
+                 {"trim_distance_mm", m.trim_distance_mm},
+                 {"cell_mm", m.cell_mm},
+                 {"poisson",
+                  {{"vertices", m.poisson_vertices},
+                   {"triangles", m.poisson_triangles},
+                   {"boundary_edges", m.poisson_boundary_edges},
+                   {"non_manifold_edges", m.poisson_non_manifold_edges},
+                   {"seconds", m.poisson_seconds}}},
+                 {"trim_s", m.trim_seconds}};
+    if (mesh_c2m) {
+      j["mesh"]["cad_c2m"] = {{"count", mesh_c2m->count},
+                              {"rms_mm", mesh_c2m->rms_mm},
+                              {"signed_mean_mm", mesh_c2m->signed_mean_mm},
+                              {"median_abs_mm", mesh_c2m->median_mm},
+                              {"p95_abs_mm", mesh_c2m->p95_mm},
+                              {"max_abs_mm", mesh_c2m->max_mm}};
+    }
+  }
   j["time_s"] = {{"reconstruct", reconstruct_seconds},
                  {"merge", merge_seconds},
                  {"compare", compare_seconds},
-                 {"total", total_seconds}};
+                 {"total", total_seconds},
+                 {"mesh", mesh_seconds}};
   return j;
 }
 
 std::string ProjectMergeResult::Summary() const {
   std::string out = StringPrintf("merge of %s: %zu views, poses from the %s\n", project.c_str(),
                                  views.size(), pose_method.c_str());
-  out += "view        table (deg)   points   rotation err (deg)   translation err (mm)\n";
+  out +=
+      "view        table (deg)   points  pairs  residual   sigma rot / trans    error vs truth: "
+      "rotation   translation\n"
+      "                                          (mm)     (deg)      (mm)      initial -> final "
+      "(deg)      (mm)\n";
   for (const MergedView& v : views) {
     const std::string table = v.table_deg ? StringPrintf("%9.3f", *v.table_deg) : "     hand";
     if (!v.merged) {
@@ -259,19 +419,63 @@ std::string ProjectMergeResult::Summary() const {
                           v.reason.c_str());
       continue;
     }
+    out += StringPrintf("%-10s%s %s %8zu  %5d  %8.4f  %8.5f  %8.5f", v.name.c_str(),
+                        v.anchor ? "*" : " ", table.c_str(), v.points, v.pairs, v.residual_rms_mm,
+                        v.sigma_rotation_deg, v.sigma_translation_mm);
     if (v.part_from_rig_true) {
-      out += StringPrintf("%-10s  %s   %8zu   %18.5f   %20.4f\n", v.name.c_str(), table.c_str(),
-                          v.points, v.rotation_error_deg, v.translation_error_mm);
+      out += StringPrintf("   %8.5f -> %8.5f   %7.4f -> %7.4f\n", v.initial_rotation_error_deg,
+                          v.rotation_error_deg, v.initial_translation_error_mm,
+                          v.translation_error_mm);
     } else {
-      out += StringPrintf("%-10s  %s   %8zu   %18s   %20s\n", v.name.c_str(), table.c_str(),
-                          v.points, "-", "-");
+      out += "   -\n";
     }
   }
-  out += StringPrintf("merged cloud: %zu points\n", merged.size());
+  out += "(* the anchor: its initial pose fixes the part frame)\n";
+  const MergeResult& r = registration;
+  if (r.has_loop) {
+    out += StringPrintf(
+        "loop closure (full turn): %.5f deg / %.4f mm chaining the pairs -> %.5f deg / %.4f mm "
+        "after the pose graph\n",
+        r.loop_closure_before_deg, r.loop_closure_before_mm, r.loop_closure_after_deg,
+        r.loop_closure_after_mm);
+  }
+  if (has_truth) {
+    out += StringPrintf(
+        "pose errors against the truth (largest): initial %.5f deg / %.4f mm -> final %.5f deg / "
+        "%.4f mm\n",
+        max_initial_rotation_error_deg, max_initial_translation_error_mm, max_rotation_error_deg,
+        max_translation_error_mm);
+  }
+  int kept = 0;
+  for (const PairRegistration& p : r.pairs) kept += p.kept ? 1 : 0;
+  out += StringPrintf(
+      "merged cloud: %zu points fused from %zu (cell %.3f mm), %zu flagged where views "
+      "disagree; %d of %zu pairs kept\n",
+      merged.size(), r.input_points, r.fuse_cell_mm, r.disagree_points, kept, r.pairs.size());
+  for (const PairRegistration& p : r.pairs) {
+    if (p.kept) continue;
+    out += StringPrintf(
+        "  pair %s <- %s rejected: %s\n",
+        views[static_cast<size_t>(registration_view[static_cast<size_t>(p.view_a)])].name.c_str(),
+        views[static_cast<size_t>(registration_view[static_cast<size_t>(p.view_b)])].name.c_str(),
+        p.reason.c_str());
+  }
   if (cad) out += cad->Summary();
-  out +=
-      StringPrintf("time: reconstruct %.2f s, merge %.2f s, CAD comparison %.2f s, total %.2f s\n",
-                   reconstruct_seconds, merge_seconds, compare_seconds, total_seconds);
+  if (mesh) {
+    out += mesh->Summary() + "\n";
+    if (mesh_c2m) {
+      out += StringPrintf(
+          "mesh vertices to the CAD: signed C2M RMS %.4f mm, mean %+.4f mm, median |d| %.4f mm, "
+          "p95 |d| %.4f mm, max |d| %.3f mm\n",
+          mesh_c2m->rms_mm, mesh_c2m->signed_mean_mm, mesh_c2m->median_mm, mesh_c2m->p95_mm,
+          mesh_c2m->max_mm);
+    }
+  }
+  out += StringPrintf(
+      "time: reconstruct %.2f s, merge %.2f s (normals %.2f, pairs %.2f, graph %.2f, fusion "
+      "%.2f), CAD comparison %.2f s, total %.2f s; mesh %.2f s apart\n",
+      reconstruct_seconds, merge_seconds, r.time_normals_s, r.time_pairs_s, r.time_graph_s,
+      r.time_fuse_s, compare_seconds, total_seconds, mesh_seconds);
   return out;
 }
 
@@ -285,6 +489,7 @@ void WriteModel(const ProjectMergeResult& result, const TriangleMesh* cad_in_par
   WriteTextFileAtomically(dir / "report.json", result.ToJson().dump(1) + "\n");
   WriteTextFileAtomically(dir / "summary.txt", result.Summary());
   WritePly(dir / "merged.ply", result.merged);
+  if (result.mesh) WriteMesh(dir / "mesh.ply", result.mesh->mesh);
   if (cad_in_part && result.cad) {
     WritePaintedMesh(dir / "cad_deviation.ply", *cad_in_part, *result.cad);
     PointCloud samples;

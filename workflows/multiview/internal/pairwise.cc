@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -22,14 +23,26 @@ struct Accumulator {
   Eigen::Vector3d sum_s = Eigen::Vector3d::Zero();
   double sum_s_sq = 0;
   size_t n = 0;
+  std::vector<float> abs_residuals;  // |point-to-plane| of every correspondence within the gate
 };
 
+// Robust scale of the residuals: 1.4826 x their median absolute value (0 when none).
+double RobustSigma(std::vector<float> r) {
+  if (r.empty()) return 0.0;
+  const auto mid = r.begin() + static_cast<long>(r.size() / 2);
+  std::nth_element(r.begin(), mid, r.end());
+  return 1.4826 * static_cast<double>(*mid);
+}
+
 // Correspondences of b's ICP sample moved by a_from_b with a's flat points: nearest point within
-// the gate, normals compatible. Residual n . (s - q) with n the mean of both normals, Jacobian
-// [s x n, n] of the left perturbation s -> s + w x s + v (n held fixed).
+// the gate, normals compatible, point-to-plane residual within max_residual (outliers of the
+// reconstruction, a few points far off the surface, would otherwise pull the least squares).
+// Residual n . (s - q) with n the mean of both normals, Jacobian [s x n, n] of the left
+// perturbation s -> s + w x s + v (n held fixed).
 Accumulator Correspond(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d& a_from_b,
-                       double gate, const MergeOptions& o) {
+                       double gate, double max_residual, const MergeOptions& o) {
   Accumulator acc;
+  acc.abs_residuals.reserve(b.icp_sample.size());
   const double cos_max = std::cos(o.icp_max_normal_angle_deg * M_PI / 180.0);
   const Eigen::Matrix3d r = a_from_b.rotation.toRotationMatrix();
   const auto& pa = *a.points;
@@ -46,6 +59,8 @@ Accumulator Correspond(const ViewGeometry& a, const ViewGeometry& b, const Rigid
     // residual of two points on one circle is zero, so curved surfaces add no bias.
     const Eigen::Vector3d na = (a.normals[nb.index] + nb_in_a).normalized();
     const double res = na.dot(s - pa[nb.index]);
+    acc.abs_residuals.push_back(static_cast<float>(std::abs(res)));
+    if (std::abs(res) > max_residual) continue;
     Eigen::Matrix<double, 6, 1> j;
     j.head<3>() = s.cross(na);
     j.tail<3>() = na;
@@ -160,14 +175,19 @@ IcpOutcome RegisterPair(const ViewGeometry& a, const ViewGeometry& b,
   IcpOutcome out;
   Rigid3d t = a_from_b_initial;
   double gate = o.initial_gate_mm;
+  double max_residual = std::numeric_limits<double>::infinity();
   const double min_gate = std::min(gate, 3.0 * a.spacing_mm);
   // Lever arm for the motion test: the farthest the sample's points are from frame a's origin.
   double lever = 0;
   for (uint32_t i : b.icp_sample) lever = std::max(lever, (t * (*b.points)[i]).norm());
   for (int it = 0; it < o.icp_max_iterations; ++it) {
-    const Accumulator acc = Correspond(a, b, t, gate, o);
+    const Accumulator acc = Correspond(a, b, t, gate, max_residual, o);
     out.iterations = it + 1;
     if (acc.n < 7) break;
+    // The next iteration's residual bound from this one's robust scale (every residual within the
+    // gate, so an outlier share below half cannot inflate it).
+    if (o.icp_max_residual_sigmas > 0)
+      max_residual = std::max(o.icp_max_residual_sigmas * RobustSigma(acc.abs_residuals), 1e-6);
     // A tiny damping keeps unobservable directions (a plane's in-plane motions) at zero.
     Matrix6d ata = acc.ata;
     ata.diagonal().array() += 1e-12 * ata.trace();
@@ -180,6 +200,7 @@ IcpOutcome RegisterPair(const ViewGeometry& a, const ViewGeometry& b,
     // current one, so that correspondences on the few surfaces that fix a weakly constrained
     // direction (walls across a large plane) are not cut before that direction has converged.
     const double motion = angle * lever + x.tail<3>().norm();
+    out.last_motion_mm = motion;
     if (gate > min_gate) {
       if (motion < 0.01 * gate) gate = std::max(min_gate, 0.5 * gate);
     } else if (motion < o.icp_tolerance_mm) {
@@ -189,17 +210,19 @@ IcpOutcome RegisterPair(const ViewGeometry& a, const ViewGeometry& b,
   }
   out.a_from_b = t;
   out.gate_mm = gate;
-  FillOutcome(Correspond(a, b, t, gate, o), b, &out);
+  out.max_residual_mm = max_residual;
+  FillOutcome(Correspond(a, b, t, gate, max_residual, o), b, &out);
   return out;
 }
 
 IcpOutcome EvaluatePair(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d& a_from_b,
-                        double gate_mm, const MergeOptions& options) {
+                        double gate_mm, double max_residual_mm, const MergeOptions& options) {
   IcpOutcome out;
   out.a_from_b = a_from_b;
   out.gate_mm = gate_mm;
+  out.max_residual_mm = max_residual_mm;
   out.converged = true;
-  FillOutcome(Correspond(a, b, a_from_b, gate_mm, options), b, &out);
+  FillOutcome(Correspond(a, b, a_from_b, gate_mm, max_residual_mm, options), b, &out);
   return out;
 }
 

@@ -49,7 +49,9 @@ struct IcpOutcome {
   int correspondences = 0;
   int iterations = 0;
   bool converged = false;
-  double gate_mm = 0;                                       // final correspondence gate
+  double last_motion_mm = 0;   // how far the last iteration moved the farthest sample point
+  double gate_mm = 0;          // final correspondence gate
+  double max_residual_mm = 0;  // final bound on |point-to-plane residual| (inf: none)
   Eigen::Vector3d centroid_in_a = Eigen::Vector3d::Zero();  // of the matched points
   double radius_mm = 0;  // RMS distance of the matched points from their centroid
 };
@@ -58,8 +60,8 @@ struct IcpOutcome {
 IcpOutcome RegisterPair(const ViewGeometry& a, const ViewGeometry& b,
                         const Rigid3d& a_from_b_initial, const MergeOptions& options);
 
-// The same statistics at a fixed a_from_b (no iteration), with the given gate.
+// The same statistics at a fixed a_from_b (no iteration), with the given gate and residual bound.
 IcpOutcome EvaluatePair(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d& a_from_b,
-                        double gate_mm, const MergeOptions& options);
+                        double gate_mm, double max_residual_mm, const MergeOptions& options);
 
 }  // namespace slshadow::multiview::internal
