@@ -81,6 +81,10 @@ const std::vector<Command>& Commands() {
        "merge a multi-view project into one model and compare it with the CAD model (merge PROJECT "
        "--out MODEL [--cad MESH])",
        RunMerge},
+      {"plan",
+       "plan a turntable scan: the fewest table angles covering the target share of the part, "
+       "predicted without images (plan --rig --part --turntable --target T --out VIEWS.yaml)",
+       RunPlan},
       {"sweep",
        "studies as independent jobs: sweep plan STUDY.yaml --out JOBS | run JOBS --shard I/N | "
        "merge JOBS --out RESULT",

@@ -202,65 +202,103 @@ std::vector<PredictedViewPose> PosesOfViews(const ViewsFile& views, const Rig& r
   return poses;
 }
 
-CoveragePrediction PredictCoverage(const TriangleMesh& cad_in_part, const Rig& rig,
-                                   const std::vector<PredictedViewPose>& views,
-                                   const std::optional<TurntableAxis>& table_axis,
-                                   const CoveragePredictionOptions& options) {
-  const auto t0 = std::chrono::steady_clock::now();
+struct CoveragePredictor::Impl {
+  CoveragePredictionOptions options;
+  std::vector<Eigen::Vector3d> samples;
+  std::vector<Eigen::Vector3f> normals;
+  std::vector<uint8_t> on_table;
+  double cad_area_mm2 = 0;
+  std::vector<RigDevice> devices;  // copies: the rig may go away
+  Scene scene;                     // the CAD mesh alone; outlives the caster
+  std::unique_ptr<RayCaster> caster;
+  double eps = 0, cos_grazing = 0;
+  Light light;
+};
+
+CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig& rig,
+                                     const std::optional<TurntableAxis>& table_axis,
+                                     const CoveragePredictionOptions& options)
+    : impl_(std::make_unique<Impl>()) {
   options.Check();
   SLSHADOW_THROW_IF(cad_in_part.empty(), "coverage prediction: the CAD mesh is empty");
-  SLSHADOW_THROW_IF(views.empty(), "coverage prediction: no views");
-  const std::vector<const RigDevice*> devices = ModeDevices(rig, options.mode);
+  Impl& m = *impl_;
+  m.options = options;
+  for (const RigDevice* d : ModeDevices(rig, options.mode)) m.devices.push_back(*d);
 
   // The samples of CompareWithCad (same seed, same count).
   compare::Reference reference =
       compare::ReferenceFromMesh(cad_in_part, "CAD model", options.samples);
-  CoveragePrediction result;
-  result.sample_points = std::move(reference.cloud.points);
-  result.sample_normals = std::move(reference.cloud.normals);
-  result.cad_area_mm2 = cad_in_part.SurfaceArea();
-  const std::vector<Eigen::Vector3d>& samples = result.sample_points;
-  const size_t ns = samples.size();
-
-  std::vector<uint8_t> on_table(ns, 0);
+  m.samples = std::move(reference.cloud.points);
+  m.normals = std::move(reference.cloud.normals);
+  m.cad_area_mm2 = cad_in_part.SurfaceArea();
+  const size_t ns = m.samples.size();
+  m.on_table.assign(ns, 0);
   if (table_axis) {
     const Eigen::Vector3d up = table_axis->direction_in_rig.normalized();
     double lowest = std::numeric_limits<double>::infinity();
     for (const Eigen::Vector3d& v : cad_in_part.vertices) lowest = std::min(lowest, up.dot(v));
     for (size_t i = 0; i < ns; ++i) {
-      on_table[i] = up.dot(result.sample_normals[i].cast<double>()) < -0.99 &&
-                    up.dot(samples[i]) - lowest <= options.table_tolerance_mm;
+      m.on_table[i] = up.dot(m.normals[i].cast<double>()) < -0.99 &&
+                      up.dot(m.samples[i]) - lowest <= options.table_tolerance_mm;
     }
   }
-
-  Scene scene;
-  scene.name = "CAD";
+  m.scene.name = "CAD";
   SceneObject object;
   object.name = "cad";
   object.type = ObjectType::kMesh;
   object.mesh = std::make_shared<const TriangleMesh>(cad_in_part);
-  scene.objects.push_back(object);
-  const RayCaster caster(scene);
+  m.scene.objects.push_back(object);
+  m.caster = std::make_unique<RayCaster>(m.scene);
   const Eigen::Vector3d extent = cad_in_part.BoundsMax() - cad_in_part.BoundsMin();
-  const double eps = std::max(1e-3, 2e-5 * extent.norm());
-  const double cos_grazing = std::cos(options.grazing_deg * kDeg);
-
-  result.sample_reason.assign(ns, kOutside);
-  result.sample_views.assign(ns, 0);
-  Light light;
-  light.range_per_factor = options.exposure_fraction * 255.0 * options.albedo;
+  m.eps = std::max(1e-3, 2e-5 * extent.norm());
+  m.cos_grazing = std::cos(options.grazing_deg * kDeg);
+  m.light.range_per_factor = options.exposure_fraction * 255.0 * options.albedo;
   const double d_ref =
       options.reference_distance_mm > 0 ? options.reference_distance_mm : rig.working_distance_mm;
-  light.ref_distance_sq = d_ref * d_ref;
-  light.threshold = options.shadow_threshold;
+  m.light.ref_distance_sq = d_ref * d_ref;
+  m.light.threshold = options.shadow_threshold;
+}
+
+CoveragePredictor::~CoveragePredictor() = default;
+
+const std::vector<Eigen::Vector3d>& CoveragePredictor::Samples() const { return impl_->samples; }
+const std::vector<Eigen::Vector3f>& CoveragePredictor::Normals() const { return impl_->normals; }
+const std::vector<uint8_t>& CoveragePredictor::OnTable() const { return impl_->on_table; }
+double CoveragePredictor::CadAreaMm2() const { return impl_->cad_area_mm2; }
+
+std::vector<uint8_t> CoveragePredictor::View(const Rigid3d& part_from_rig) const {
+  const Impl& m = *impl_;
+  std::vector<const RigDevice*> devices;
+  for (const RigDevice& d : m.devices) devices.push_back(&d);
+  std::vector<uint8_t> sight = ViewSight(*m.caster, m.samples, m.normals, devices, part_from_rig,
+                                         m.cos_grazing, m.eps, m.light);
+  for (size_t i = 0; i < sight.size(); ++i) {
+    if (m.on_table[i]) sight[i] = kOnTable;
+  }
+  return sight;
+}
+
+CoveragePrediction PredictCoverage(const TriangleMesh& cad_in_part, const Rig& rig,
+                                   const std::vector<PredictedViewPose>& views,
+                                   const std::optional<TurntableAxis>& table_axis,
+                                   const CoveragePredictionOptions& options) {
+  const auto t0 = std::chrono::steady_clock::now();
+  SLSHADOW_THROW_IF(views.empty(), "coverage prediction: no views");
+  const CoveragePredictor predictor(cad_in_part, rig, table_axis, options);
+  CoveragePrediction result;
+  result.sample_points = predictor.Samples();
+  result.sample_normals = predictor.Normals();
+  result.cad_area_mm2 = predictor.CadAreaMm2();
+  const std::vector<uint8_t>& on_table = predictor.OnTable();
+  const size_t ns = result.sample_points.size();
+  result.sample_reason.assign(ns, kOutside);
+  result.sample_views.assign(ns, 0);
   for (const PredictedViewPose& v : views) {
-    std::vector<uint8_t> sight = ViewSight(caster, samples, result.sample_normals, devices,
-                                           v.part_from_rig, cos_grazing, eps, light);
+    std::vector<uint8_t> sight = predictor.View(v.part_from_rig);
     PredictedView view;
     view.name = v.name;
     view.part_from_rig = v.part_from_rig;
     for (size_t i = 0; i < ns; ++i) {
-      if (on_table[i]) sight[i] = kOnTable;
       ++view.reason_samples[sight[i]];
       if (sight[i] == kOnTable) continue;
       result.sample_reason[i] = std::min(result.sample_reason[i], sight[i]);

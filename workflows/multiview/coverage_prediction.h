@@ -19,6 +19,7 @@
 
 #include <array>
 #include <filesystem>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -105,6 +106,29 @@ struct CoveragePrediction {
   size_t OffTable() const;
   nlohmann::json ToJson() const;  // figures only
   std::string Table() const;      // per view and over all views, what `slshadow plan` prints
+};
+
+// The prediction's machinery, kept for many views of one part (slshadow plan): the samples, the
+// on-table mask and the ray caster are made once; View() predicts one view. Thread-compatible.
+class CoveragePredictor {
+ public:
+  // Throws slshadow::Error as PredictCoverage.
+  CoveragePredictor(const TriangleMesh& cad_in_part, const Rig& rig,
+                    const std::optional<TurntableAxis>& table_axis,
+                    const CoveragePredictionOptions& options = {});
+  ~CoveragePredictor();
+  CoveragePredictor(const CoveragePredictor&) = delete;
+  CoveragePredictor& operator=(const CoveragePredictor&) = delete;
+  const std::vector<Eigen::Vector3d>& Samples() const;
+  const std::vector<Eigen::Vector3f>& Normals() const;
+  const std::vector<uint8_t>& OnTable() const;  // 1: on the table
+  double CadAreaMm2() const;
+  // Per sample, the view's PredictedReason (on_table where OnTable()).
+  std::vector<uint8_t> View(const Rigid3d& part_from_rig) const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
 };
 
 // Predicts `views` of `rig` on `cad_in_part` (see the header comment). `table_axis`: the turntable
