@@ -34,7 +34,8 @@ int RunPlan(int argc, char** argv) {
   std::string rig_path, part_path, out_path, coverage_path, report_path, mode = "stereo";
   bool turntable = false;
   multiview::PlanOptions options;
-  app.add_option("--rig", rig_path, "rig file with its turntable axis (docs/formats.md \"Rig YAML\")")
+  app.add_option("--rig", rig_path,
+                 "rig file with its turntable axis (docs/formats.md \"Rig YAML\")")
       ->required();
   app.add_option("--part", part_path,
                  "the part in the part frame: a mesh (.stl/.ply/.obj), or a scene (.yaml/.json) "

@@ -66,10 +66,10 @@ TEST(PlanTest, CommandWritesTheViewsFile) {
   const std::string coverage = (tmp / "coverage.ply").string();
   const std::string rig = (config / "turntable_rig.yaml").string();
   const std::string scene = (config / "turntable_scene.yaml").string();
-  std::vector<std::string> args = {"slshadow plan", "--rig",     rig,        "--part", scene,
-                                   "--turntable",   "--target",  "0.95",     "--step-deg",
-                                   "30",            "--samples", "20000",    "--out", out,
-                                   "--coverage",    coverage};
+  std::vector<std::string> args = {"slshadow plan", "--rig",       rig,          "--part",
+                                   scene,           "--turntable", "--target",   "0.95",
+                                   "--step-deg",    "30",          "--samples",  "20000",
+                                   "--out",         out,           "--coverage", coverage};
   const auto run = [](std::vector<std::string> a) {
     std::vector<char*> argv;
     for (std::string& s : a) argv.push_back(s.data());

@@ -22,10 +22,8 @@ double Share(size_t a, size_t b) { return b ? static_cast<double>(a) / static_ca
 void PlanOptions::Check() const {
   SLSHADOW_THROW_IF(!(step_deg >= 0.5 && step_deg <= 180),
                     "--step-deg: must be in [0.5, 180] (got ", step_deg, ")");
-  SLSHADOW_THROW_IF(!std::isfinite(start_deg), "--start-deg: must be finite (got ", start_deg,
-                    ")");
-  SLSHADOW_THROW_IF(!(target > 0 && target <= 1), "--target: must be in (0, 1] (got ", target,
-                    ")");
+  SLSHADOW_THROW_IF(!std::isfinite(start_deg), "--start-deg: must be finite (got ", start_deg, ")");
+  SLSHADOW_THROW_IF(!(target > 0 && target <= 1), "--target: must be in (0, 1] (got ", target, ")");
   prediction.Check();
 }
 
@@ -74,8 +72,8 @@ ViewPlan PlanTurntableViews(const TriangleMesh& cad_in_part, const Rig& rig,
       }
     }
   }
-  SLSHADOW_THROW_IF(plan.reachable == 0, "plan: no candidate view reconstructs any of the part (rig '",
-                    rig.name, "')");
+  SLSHADOW_THROW_IF(plan.reachable == 0,
+                    "plan: no candidate view reconstructs any of the part (rig '", rig.name, "')");
   plan.reachable_share = Share(plan.reachable, plan.off_table);
 
   // Greedy set cover.
@@ -160,11 +158,11 @@ std::string ViewPlan::Table() const {
                           : std::string("      -");
     out += StringPrintf("%5zu  %s   %s\n", k + 1, plan_cell.c_str(), uni.c_str());
   }
-  out += StringPrintf("target %.2f %%: the plan needs %zu views%s; uniform steps need %s (%.2f s)\n",
-                      100 * target, greedy_deg.size(), reached ? "" : " (not reached)",
-                      uniform_needed > 0 ? std::to_string(uniform_needed).c_str()
-                                         : "more than the candidates",
-                      seconds);
+  out += StringPrintf(
+      "target %.2f %%: the plan needs %zu views%s; uniform steps need %s (%.2f s)\n", 100 * target,
+      greedy_deg.size(), reached ? "" : " (not reached)",
+      uniform_needed > 0 ? std::to_string(uniform_needed).c_str() : "more than the candidates",
+      seconds);
   return out;
 }
 

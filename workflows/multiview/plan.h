@@ -25,11 +25,11 @@
 namespace slshadow::multiview {
 
 struct PlanOptions {
-  double step_deg = 15;     // candidate table angles: start_deg + k * step_deg over a full turn
+  double step_deg = 15;  // candidate table angles: start_deg + k * step_deg over a full turn
   double start_deg = 0;
-  double target = 0.98;     // share of the reachable surface, (0, 1]
+  double target = 0.98;  // share of the reachable surface, (0, 1]
   CoveragePredictionOptions prediction;
-  void Check() const;       // throws slshadow::Error naming the bad field (the option's name)
+  void Check() const;  // throws slshadow::Error naming the bad field (the option's name)
 };
 
 struct ViewPlan {
