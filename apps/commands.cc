@@ -85,6 +85,10 @@ const std::vector<Command>& Commands() {
        "(re)write the self-contained HTML page (report.html) of a compare, shadow or demo result "
        "folder (report DIR)",
        RunReport},
+      {"plan",
+       "plan a turntable scan: the fewest table angles covering the target share of the part, "
+       "predicted without images (plan --rig --part --turntable --target T --out VIEWS.yaml)",
+       RunPlan},
       {"sweep",
        "studies as independent jobs: sweep plan STUDY.yaml --out JOBS | run JOBS --shard I/N | "
        "merge JOBS --out RESULT",

@@ -55,6 +55,7 @@ int RunShadowCommand(int argc, char** argv);
 int RunProjector(int argc, char** argv);
 int RunSweep(int argc, char** argv);
 int RunMerge(int argc, char** argv);
+int RunPlan(int argc, char** argv);
 int RunScan(int argc, char** argv);
 int RunTurntable(int argc, char** argv);
 int RunReport(int argc, char** argv);

@@ -1,0 +1,94 @@
+// slshadow plan --rig RIG --part PART --turntable [--step-deg S] [--target T] --out VIEWS.yaml
+#include <CLI/CLI.hpp>
+#include <cstdio>
+
+#include "apps/commands.h"
+#include "core/error.h"
+#include "core/file_util.h"
+#include "core/rig.h"
+#include "workflows/multiview/coverage_prediction.h"
+#include "workflows/multiview/plan.h"
+
+namespace slshadow::app {
+
+int RunPlan(int argc, char** argv) {
+  CLI::App app{
+      "Plan a turntable scan before the part is on the table: the fewest table angles that "
+      "reconstruct\n"
+      "the target share of the part's reachable surface (what some candidate angle reconstructs; "
+      "the\n"
+      "face on the table excluded). Each candidate angle (a full turn in --step-deg steps) is "
+      "predicted\n"
+      "by the simulator's and decoder's rules without rendering images (hidden from a camera or "
+      "the\n"
+      "projector, grazing, outside an image, too dark), then a greedy set cover picks the views. "
+      "Prints\n"
+      "coverage against the number of views beside uniform steps over a full turn, and writes the "
+      "views\n"
+      "file that slshadow scan / slshadow simulate --views read (docs/formats.md \"Views YAML\"). "
+      "Example:\n"
+      "  slshadow plan --rig config/demo/turntable_rig.yaml --part "
+      "config/demo/turntable_scene.yaml \\\n"
+      "      --turntable --target 0.98 --out views.yaml --coverage coverage.ply",
+      argv[0]};
+  std::string rig_path, part_path, out_path, coverage_path, report_path, mode = "stereo";
+  bool turntable = false;
+  multiview::PlanOptions options;
+  app.add_option("--rig", rig_path,
+                 "rig file with its turntable axis (docs/formats.md \"Rig YAML\")")
+      ->required();
+  app.add_option("--part", part_path,
+                 "the part in the part frame: a mesh (.stl/.ply/.obj), or a scene (.yaml/.json) "
+                 "whose meshes are the part at table angle 0 (its radiometry is used)")
+      ->required();
+  app.add_flag("--turntable", turntable, "candidates are table angles (the only planner so far)");
+  app.add_option("--out", out_path, "the planned views file (.yaml or .json)")->required();
+  app.add_option("--step-deg", options.step_deg, "candidate table angles every this many degrees")
+      ->capture_default_str();
+  app.add_option("--start-deg", options.start_deg, "first candidate angle, degrees")
+      ->capture_default_str();
+  app.add_option("--target", options.target, "share of the reachable surface to cover, (0, 1]")
+      ->capture_default_str();
+  app.add_option("--samples", options.prediction.samples, "CAD surface samples")
+      ->capture_default_str();
+  app.add_option("--mode", mode, "reconstruction: stereo (both cameras) | projector (first camera)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"stereo", "projector"}));
+  app.add_option("--albedo", options.prediction.albedo,
+                 "the part's albedo for the too-dark rule (default: a scene's darkest mesh, else "
+                 "0.5)");
+  app.add_option("--coverage", coverage_path,
+                 "also write the plan's predicted coverage map (PLY of the surface samples, "
+                 "docs/formats.md \"Coverage map PLY\")");
+  app.add_option("--report", report_path, "also write the plan's figures as JSON");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return ExitOnParseError(app, e);
+  }
+  SLSHADOW_THROW_IF(!turntable,
+                    "--turntable: required (hand-placed view planning is not implemented yet)");
+  const double albedo = options.prediction.albedo;
+  const bool albedo_given = app.count("--albedo") > 0;
+  options.prediction.mode = ReconstructModeFromString(mode);
+  const Rig rig = LoadRig(rig_path);
+  const multiview::PlanPart part = multiview::LoadPlanPart(part_path);
+  if (part.scene)
+    options.prediction = multiview::WithSceneRadiometry(options.prediction, *part.scene);
+  if (albedo_given) options.prediction.albedo = albedo;
+  const multiview::ViewPlan plan = multiview::PlanTurntableViews(part.cad, rig, options);
+  std::printf("%s", plan.Table().c_str());
+  SLSHADOW_THROW_IF(plan.views.views.empty(), "plan: no view reconstructs anything new");
+  multiview::SaveViews(plan.views, out_path);
+  if (!coverage_path.empty()) {
+    const multiview::CoveragePrediction prediction = multiview::PredictCoverage(
+        part.cad, rig, multiview::PosesOfViews(plan.views, rig), rig.turntable, options.prediction);
+    multiview::WriteCoverageMap(coverage_path, prediction);
+    std::printf("%s", prediction.Table().c_str());
+  }
+  if (!report_path.empty()) WriteTextFileAtomically(report_path, plan.ToJson().dump(1) + "\n");
+  std::printf("-> %s (%zu views)\n", out_path.c_str(), plan.views.views.size());
+  return plan.reached ? 0 : 1;
+}
+
+}  // namespace slshadow::app

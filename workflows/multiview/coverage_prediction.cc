@@ -1,0 +1,452 @@
+#include "workflows/multiview/coverage_prediction.h"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <memory>
+
+#include "compare/compare.h"
+#include "compare/kdtree.h"
+#include "core/error.h"
+#include "core/point_cloud.h"
+#include "core/string_printf.h"
+#include "sim/raycaster.h"
+#include "sim/scene.h"
+#include "workflows/multiview/virtual_project.h"
+
+namespace slshadow::multiview {
+
+namespace {
+
+constexpr double kDeg = M_PI / 180.0;
+constexpr auto kCovered = static_cast<uint8_t>(PredictedReason::kReconstructed);
+constexpr auto kDark = static_cast<uint8_t>(PredictedReason::kTooDark);
+constexpr auto kGrazing = static_cast<uint8_t>(PredictedReason::kGrazing);
+constexpr auto kOccluded = static_cast<uint8_t>(PredictedReason::kOccluded);
+constexpr auto kOutside = static_cast<uint8_t>(PredictedReason::kOutsideField);
+constexpr auto kOnTable = static_cast<uint8_t>(PredictedReason::kOnTable);
+static_assert(kCovered == static_cast<uint8_t>(CoverageReason::kCovered) &&
+              kDark == static_cast<uint8_t>(CoverageReason::kNotReconstructed) &&
+              kGrazing == static_cast<uint8_t>(CoverageReason::kGrazing) &&
+              kOccluded == static_cast<uint8_t>(CoverageReason::kOccluded) &&
+              kOutside == static_cast<uint8_t>(CoverageReason::kOutsideField) &&
+              kOnTable == static_cast<uint8_t>(CoverageReason::kOnTable));
+
+// The lit range (8-bit grey levels) per unit of cos_p * (d_ref / d_p)^2, and d_ref^2.
+struct Light {
+  double range_per_factor = 0;
+  double ref_distance_sq = 0;
+  double threshold = 0;
+};
+
+// Worse of two per-device reasons of one view (outside worst, then occluded, grazing, covered):
+// the CoverageReason values grow from covered to outside, so the larger one.
+uint8_t Worse(uint8_t a, uint8_t b) { return std::max(a, b); }
+
+// The devices of the mode, as cad_compare.cc's ModeDevices.
+std::vector<const RigDevice*> ModeDevices(const Rig& rig, ReconstructMode mode) {
+  SLSHADOW_THROW_IF(rig.cameras.empty(), "coverage prediction: rig '", rig.name, "' has no camera");
+  SLSHADOW_THROW_IF(!rig.projector, "coverage prediction: rig '", rig.name,
+                    "' has no projector (every mode needs the surface lit)");
+  std::vector<const RigDevice*> devices = {&rig.cameras[0]};
+  if (mode == ReconstructMode::kStereo) {
+    SLSHADOW_THROW_IF(rig.cameras.size() < 2,
+                      "coverage prediction: stereo needs two cameras (rig '", rig.name, "' has ",
+                      rig.cameras.size(), ")");
+    devices.push_back(&rig.cameras[1]);
+  }
+  devices.push_back(&*rig.projector);
+  return devices;
+}
+
+// Per sample, this view's reason (kCovered .. kOutside) with every device of `devices`: the rule
+// of cad_compare.cc's BestSight for one view.
+std::vector<uint8_t> ViewSight(const RayCaster& caster, const std::vector<Eigen::Vector3d>& samples,
+                               const std::vector<Eigen::Vector3f>& normals,
+                               const std::vector<const RigDevice*>& devices,
+                               const Rigid3d& part_from_rig, double cos_grazing, double eps,
+                               const Light& light) {
+  const Rigid3d rig_from_part = part_from_rig.Inverse();
+  std::vector<Eigen::Vector3d> centres;
+  for (const RigDevice* d : devices) centres.push_back(part_from_rig * d->CenterInRig());
+  std::vector<uint8_t> sight(samples.size(), kCovered);
+  constexpr size_t kLanes = RayPacket::kSize;
+  const size_t blocks = (samples.size() + kLanes - 1) / kLanes;
+  tbb::parallel_for(size_t{0}, blocks, [&](size_t b) {
+    const size_t first = b * kLanes, n = std::min(kLanes, samples.size() - first);
+    RayPacket packet;
+    for (size_t d = 0; d < devices.size(); ++d) {
+      const RigDevice& device = *devices[d];
+      const Eigen::Vector3d& c = centres[d];
+      const double max_r2 = std::pow(device.model.width / device.model.fx(), 2) +
+                            std::pow(device.model.height / device.model.fy(), 2);
+      bool any = false;
+      for (size_t l = 0; l < kLanes; ++l) {
+        packet.active[l] = 0;
+        if (l >= n || sight[first + l] == kOutside) continue;
+        const Eigen::Vector3d& p = samples[first + l];
+        const Eigen::Vector3d in_device = device.cam_from_rig * (rig_from_part * p);
+        const double x = in_device.x() / in_device.z(), y = in_device.y() / in_device.z();
+        const auto pixel = device.model.Project(in_device);
+        if (in_device.z() <= 0 || x * x + y * y > max_r2 || !pixel ||
+            !device.model.IsInImage(*pixel)) {
+          sight[first + l] = kOutside;
+          continue;
+        }
+        const Eigen::Vector3d nrm = normals[first + l].cast<double>();
+        const Eigen::Vector3d to = c - p;
+        const double cos_incidence = nrm.dot(to) / to.norm();
+        if (cos_incidence <= 0) {
+          sight[first + l] = Worse(sight[first + l], kOccluded);
+          continue;
+        }
+        if (cos_incidence < cos_grazing) sight[first + l] = Worse(sight[first + l], kGrazing);
+        // The last device is the projector: the light it brings (sim/scene.h radiometry).
+        if (d + 1 == devices.size() &&
+            light.range_per_factor * cos_incidence * light.ref_distance_sq / to.squaredNorm() <
+                light.threshold)
+          sight[first + l] = Worse(sight[first + l], kDark);
+        const Eigen::Vector3d o = p + eps * nrm;
+        const Eigen::Vector3d dir = (c - o) / (c - o).norm();
+        packet.org_x[l] = static_cast<float>(o.x());
+        packet.org_y[l] = static_cast<float>(o.y());
+        packet.org_z[l] = static_cast<float>(o.z());
+        packet.dir_x[l] = static_cast<float>(dir.x());
+        packet.dir_y[l] = static_cast<float>(dir.y());
+        packet.dir_z[l] = static_cast<float>(dir.z());
+        packet.tnear[l] = 0.0f;
+        packet.tfar[l] = static_cast<float>((c - o).norm() - eps);
+        packet.active[l] = 1;
+        any = true;
+      }
+      if (!any) continue;
+      caster.Occluded(packet, TraceMode::kPacket16);
+      for (size_t l = 0; l < n; ++l) {
+        if (packet.active[l] && packet.occluded[l])
+          sight[first + l] = Worse(sight[first + l], kOccluded);
+      }
+    }
+  });
+  return sight;
+}
+
+const std::array<uint8_t, 3> kColors[kNumCoverageReasons] = {
+    {40, 170, 60}, {220, 30, 30}, {240, 150, 20}, {40, 80, 220}, {150, 150, 150}, {0, 0, 0}};
+
+double Share(size_t a, size_t b) { return b ? static_cast<double>(a) / static_cast<double>(b) : 0; }
+
+}  // namespace
+
+std::string ToString(PredictedReason reason) {
+  switch (reason) {
+    case PredictedReason::kReconstructed:
+      return "reconstructed";
+    case PredictedReason::kTooDark:
+      return "too_dark";
+    case PredictedReason::kGrazing:
+      return "grazing";
+    case PredictedReason::kOccluded:
+      return "occluded";
+    case PredictedReason::kOutsideField:
+      return "outside_field";
+    case PredictedReason::kOnTable:
+      return "on_table";
+  }
+  return "unknown";
+}
+
+CoveragePredictionOptions WithSceneRadiometry(CoveragePredictionOptions options,
+                                              const Scene& scene) {
+  options.exposure_fraction = scene.radiometry.exposure_fraction;
+  options.reference_distance_mm = scene.radiometry.reference_distance_mm;
+  double albedo = std::numeric_limits<double>::infinity();
+  for (const SceneObject& o : scene.objects) {
+    if (o.type == ObjectType::kMesh && !o.albedo.IsTextured())
+      albedo = std::min(albedo, o.albedo.value);
+  }
+  if (std::isfinite(albedo)) options.albedo = albedo;
+  return options;
+}
+
+void CoveragePredictionOptions::Check() const {
+  SLSHADOW_THROW_IF(!(albedo > 0 && albedo <= 1),
+                    "coverage prediction: albedo must be in (0, 1] (got ", albedo, ")");
+  SLSHADOW_THROW_IF(!(exposure_fraction > 0),
+                    "coverage prediction: exposure_fraction must be positive (got ",
+                    exposure_fraction, ")");
+  SLSHADOW_THROW_IF(!(reference_distance_mm >= 0),
+                    "coverage prediction: reference_distance_mm must be >= 0 (got ",
+                    reference_distance_mm, ")");
+  SLSHADOW_THROW_IF(!(shadow_threshold >= 0),
+                    "coverage prediction: shadow_threshold must be >= 0 (got ", shadow_threshold,
+                    ")");
+  SLSHADOW_THROW_IF(samples < 100, "coverage prediction: samples must be at least 100 (got ",
+                    samples, ")");
+  SLSHADOW_THROW_IF(!(grazing_deg > 0 && grazing_deg <= 90),
+                    "coverage prediction: grazing_deg must be in (0, 90] (got ", grazing_deg, ")");
+  SLSHADOW_THROW_IF(!(table_tolerance_mm >= 0),
+                    "coverage prediction: table_tolerance_mm must be >= 0 (got ",
+                    table_tolerance_mm, ")");
+}
+
+size_t CoveragePrediction::OffTable() const {
+  return sample_points.size() - reason_samples[static_cast<size_t>(CoverageReason::kOnTable)];
+}
+
+std::vector<PredictedViewPose> PosesOfViews(const ViewsFile& views, const Rig& rig) {
+  std::vector<PredictedViewPose> poses;
+  for (const ViewSpec& v : views.views) poses.push_back({v.name, VirtualViewPose(v, rig)});
+  return poses;
+}
+
+struct CoveragePredictor::Impl {
+  CoveragePredictionOptions options;
+  std::vector<Eigen::Vector3d> samples;
+  std::vector<Eigen::Vector3f> normals;
+  std::vector<uint8_t> on_table;
+  double cad_area_mm2 = 0;
+  std::vector<RigDevice> devices;  // copies: the rig may go away
+  Scene scene;                     // the CAD mesh alone; outlives the caster
+  std::unique_ptr<RayCaster> caster;
+  double eps = 0, cos_grazing = 0;
+  Light light;
+};
+
+CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig& rig,
+                                     const std::optional<TurntableAxis>& table_axis,
+                                     const CoveragePredictionOptions& options)
+    : impl_(std::make_unique<Impl>()) {
+  options.Check();
+  SLSHADOW_THROW_IF(cad_in_part.empty(), "coverage prediction: the CAD mesh is empty");
+  Impl& m = *impl_;
+  m.options = options;
+  for (const RigDevice* d : ModeDevices(rig, options.mode)) m.devices.push_back(*d);
+
+  // The samples of CompareWithCad (same seed, same count).
+  compare::Reference reference =
+      compare::ReferenceFromMesh(cad_in_part, "CAD model", options.samples);
+  m.samples = std::move(reference.cloud.points);
+  m.normals = std::move(reference.cloud.normals);
+  m.cad_area_mm2 = cad_in_part.SurfaceArea();
+  const size_t ns = m.samples.size();
+  m.on_table.assign(ns, 0);
+  if (table_axis) {
+    const Eigen::Vector3d up = table_axis->direction_in_rig.normalized();
+    double lowest = std::numeric_limits<double>::infinity();
+    for (const Eigen::Vector3d& v : cad_in_part.vertices) lowest = std::min(lowest, up.dot(v));
+    for (size_t i = 0; i < ns; ++i) {
+      m.on_table[i] = up.dot(m.normals[i].cast<double>()) < -0.99 &&
+                      up.dot(m.samples[i]) - lowest <= options.table_tolerance_mm;
+    }
+  }
+  m.scene.name = "CAD";
+  SceneObject object;
+  object.name = "cad";
+  object.type = ObjectType::kMesh;
+  object.mesh = std::make_shared<const TriangleMesh>(cad_in_part);
+  m.scene.objects.push_back(object);
+  m.caster = std::make_unique<RayCaster>(m.scene);
+  const Eigen::Vector3d extent = cad_in_part.BoundsMax() - cad_in_part.BoundsMin();
+  m.eps = std::max(1e-3, 2e-5 * extent.norm());
+  m.cos_grazing = std::cos(options.grazing_deg * kDeg);
+  m.light.range_per_factor = options.exposure_fraction * 255.0 * options.albedo;
+  const double d_ref =
+      options.reference_distance_mm > 0 ? options.reference_distance_mm : rig.working_distance_mm;
+  m.light.ref_distance_sq = d_ref * d_ref;
+  m.light.threshold = options.shadow_threshold;
+}
+
+CoveragePredictor::~CoveragePredictor() = default;
+
+const std::vector<Eigen::Vector3d>& CoveragePredictor::Samples() const { return impl_->samples; }
+const std::vector<Eigen::Vector3f>& CoveragePredictor::Normals() const { return impl_->normals; }
+const std::vector<uint8_t>& CoveragePredictor::OnTable() const { return impl_->on_table; }
+double CoveragePredictor::CadAreaMm2() const { return impl_->cad_area_mm2; }
+
+std::vector<uint8_t> CoveragePredictor::View(const Rigid3d& part_from_rig) const {
+  const Impl& m = *impl_;
+  std::vector<const RigDevice*> devices;
+  for (const RigDevice& d : m.devices) devices.push_back(&d);
+  std::vector<uint8_t> sight = ViewSight(*m.caster, m.samples, m.normals, devices, part_from_rig,
+                                         m.cos_grazing, m.eps, m.light);
+  for (size_t i = 0; i < sight.size(); ++i) {
+    if (m.on_table[i]) sight[i] = kOnTable;
+  }
+  return sight;
+}
+
+CoveragePrediction PredictCoverage(const TriangleMesh& cad_in_part, const Rig& rig,
+                                   const std::vector<PredictedViewPose>& views,
+                                   const std::optional<TurntableAxis>& table_axis,
+                                   const CoveragePredictionOptions& options) {
+  const auto t0 = std::chrono::steady_clock::now();
+  SLSHADOW_THROW_IF(views.empty(), "coverage prediction: no views");
+  const CoveragePredictor predictor(cad_in_part, rig, table_axis, options);
+  CoveragePrediction result;
+  result.sample_points = predictor.Samples();
+  result.sample_normals = predictor.Normals();
+  result.cad_area_mm2 = predictor.CadAreaMm2();
+  const std::vector<uint8_t>& on_table = predictor.OnTable();
+  const size_t ns = result.sample_points.size();
+  result.sample_reason.assign(ns, kOutside);
+  result.sample_views.assign(ns, 0);
+  for (const PredictedViewPose& v : views) {
+    std::vector<uint8_t> sight = predictor.View(v.part_from_rig);
+    PredictedView view;
+    view.name = v.name;
+    view.part_from_rig = v.part_from_rig;
+    for (size_t i = 0; i < ns; ++i) {
+      ++view.reason_samples[sight[i]];
+      if (sight[i] == kOnTable) continue;
+      result.sample_reason[i] = std::min(result.sample_reason[i], sight[i]);
+      if (sight[i] == kCovered && result.sample_views[i] < 255) ++result.sample_views[i];
+    }
+    result.view_reason.push_back(std::move(sight));
+    result.views.push_back(view);
+  }
+  for (size_t i = 0; i < ns; ++i) {
+    if (on_table[i]) result.sample_reason[i] = kOnTable;
+    ++result.reason_samples[result.sample_reason[i]];
+  }
+  const size_t off = result.OffTable();
+  for (PredictedView& v : result.views) v.coverage = Share(v.reason_samples[kCovered], off);
+  result.coverage_off_table = Share(result.reason_samples[kCovered], off);
+  result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return result;
+}
+
+nlohmann::json CoveragePrediction::ToJson() const {
+  nlohmann::json j;
+  j["samples"] = sample_points.size();
+  j["cad_area_mm2"] = cad_area_mm2;
+  j["coverage_off_table"] = coverage_off_table;
+  nlohmann::json by = nlohmann::json::object();
+  for (int r = 0; r < kNumCoverageReasons; ++r)
+    by[ToString(static_cast<PredictedReason>(r))] = reason_samples[static_cast<size_t>(r)];
+  j["samples_by_reason"] = by;
+  j["views"] = nlohmann::json::array();
+  for (const PredictedView& v : views) {
+    nlohmann::json view = {{"name", v.name}, {"coverage_off_table", v.coverage}};
+    for (int r = 0; r < kNumCoverageReasons; ++r) {
+      view["samples_by_reason"][ToString(static_cast<PredictedReason>(r))] =
+          v.reason_samples[static_cast<size_t>(r)];
+    }
+    j["views"].push_back(std::move(view));
+  }
+  j["seconds"] = seconds;
+  return j;
+}
+
+std::string CoveragePrediction::Table() const {
+  const size_t off = OffTable();
+  const auto pct = [&](size_t n) { return 100.0 * Share(n, off); };
+  std::string out =
+      "predicted coverage (share of the CAD surface off the table, no images rendered)\n"
+      "view        reconstructed  too dark   grazing  occluded   outside\n";
+  const auto row = [&](const std::string& name, const std::array<size_t, kNumCoverageReasons>& n) {
+    return StringPrintf("%-10s  %10.2f %%  %6.2f %%  %6.2f %%  %6.2f %%  %6.2f %%", name.c_str(),
+                        pct(n[kCovered]), pct(n[kDark]), pct(n[kGrazing]), pct(n[kOccluded]),
+                        pct(n[kOutside]));
+  };
+  for (const PredictedView& v : views) out += row(v.name, v.reason_samples) + "\n";
+  out += row("all views", reason_samples) +
+         StringPrintf("   (%zu samples, %.2f s)\n", sample_points.size(), seconds);
+  return out;
+}
+
+void WriteCoverageMap(const std::filesystem::path& path, const CoveragePrediction& prediction) {
+  PointCloud cloud;
+  cloud.points = prediction.sample_points;
+  cloud.normals = prediction.sample_normals;
+  cloud.colors.resize(cloud.size());
+  std::vector<float> reason(cloud.size()), views(cloud.size());
+  for (size_t i = 0; i < cloud.size(); ++i) {
+    reason[i] = prediction.sample_reason[i];
+    views[i] = prediction.sample_views[i];
+    cloud.colors[i] = kColors[prediction.sample_reason[i]];
+  }
+  cloud.SetScalar("reason", std::move(reason));
+  cloud.SetScalar("views", std::move(views));
+  PlyWriteOptions options;
+  options.double_positions = false;
+  WritePly(path, cloud, options);
+}
+
+PredictionCheck CheckPrediction(const CoveragePrediction& prediction, const CadComparison& scan) {
+  SLSHADOW_THROW_IF(scan.sample_reason.size() != prediction.sample_reason.size() ||
+                        scan.sample_points.size() != prediction.sample_points.size(),
+                    "prediction check: the scan's comparison has ", scan.sample_reason.size(),
+                    " samples, the prediction ", prediction.sample_reason.size(),
+                    " (use the same sample count)");
+  const size_t ns = prediction.sample_reason.size();
+  std::vector<Eigen::Vector3d> reconstructed;
+  for (size_t i = 0; i < ns; ++i) {
+    SLSHADOW_THROW_IF((scan.sample_points[i] - prediction.sample_points[i]).norm() > 1e-9,
+                      "prediction check: sample ", i, " differs (another CAD mesh?)");
+    if (prediction.sample_reason[i] == kCovered)
+      reconstructed.push_back(prediction.sample_points[i]);
+  }
+  // Predicted covered as the scan measures it: a reconstructed sample within the radius.
+  std::vector<uint8_t> covered(ns, 0);
+  if (!reconstructed.empty()) {
+    const compare::KdTree tree(reconstructed);
+    tbb::parallel_for(size_t{0}, ns, [&](size_t i) {
+      compare::Neighbor n;
+      covered[i] = prediction.sample_reason[i] == kCovered ||
+                   tree.Nearest(prediction.sample_points[i], &n, scan.coverage_radius_mm);
+    });
+  }
+  PredictionCheck check;
+  check.coverage_radius_mm = scan.coverage_radius_mm;
+  size_t predicted = 0, scanned = 0;
+  for (size_t i = 0; i < ns; ++i) {
+    const uint8_t p = prediction.sample_reason[i];
+    const auto s = static_cast<CoverageReason>(scan.sample_reason[i]);
+    if (p == kOnTable || s == CoverageReason::kOnTable) continue;
+    ++check.compared;
+    const bool pc = covered[i] != 0, sc = s == CoverageReason::kCovered;
+    predicted += pc;
+    scanned += sc;
+    if (pc == sc) {
+      ++check.agree;
+    } else {
+      ++check.disagree_by_predicted[p];
+    }
+  }
+  check.agreement = Share(check.agree, check.compared);
+  check.predicted_coverage = Share(predicted, check.compared);
+  check.scanned_coverage = Share(scanned, check.compared);
+  return check;
+}
+
+std::string PredictionCheck::Summary() const {
+  return StringPrintf(
+      "prediction against the scan: %.3f %% of %zu samples agree (predicted coverage %.2f %%, "
+      "scanned %.2f %%, coverage radius %.3f mm); disagreements by predicted reason: "
+      "reconstructed but not covered %zu, too dark but covered %zu, grazing but covered %zu, "
+      "occluded but covered %zu, outside the field but covered %zu\n",
+      100 * agreement, compared, 100 * predicted_coverage, 100 * scanned_coverage,
+      coverage_radius_mm, disagree_by_predicted[kCovered], disagree_by_predicted[kDark],
+      disagree_by_predicted[kGrazing], disagree_by_predicted[kOccluded],
+      disagree_by_predicted[kOutside]);
+}
+
+nlohmann::json PredictionCheck::ToJson() const {
+  return {{"compared", compared},
+          {"agree", agree},
+          {"agreement", agreement},
+          {"predicted_coverage", predicted_coverage},
+          {"scanned_coverage", scanned_coverage},
+          {"coverage_radius_mm", coverage_radius_mm},
+          {"disagree",
+           {{"predicted_covered_not_scanned", disagree_by_predicted[kCovered]},
+            {"predicted_too_dark_scanned", disagree_by_predicted[kDark]},
+            {"predicted_grazing_scanned", disagree_by_predicted[kGrazing]},
+            {"predicted_occluded_scanned", disagree_by_predicted[kOccluded]},
+            {"predicted_outside_scanned", disagree_by_predicted[kOutside]}}}};
+}
+
+}  // namespace slshadow::multiview

@@ -1,0 +1,173 @@
+// Predicted coverage: before the part is on the table, which views of a rig will reconstruct which
+// part of the CAD surface, and why the rest will be missed. No fringe image is rendered: every
+// surface sample is tested against every device of the reconstruction mode in every view by the
+// same rules the CAD comparison uses to explain the uncovered surface (cad_compare.h): the same
+// area-uniform samples (compare::ReferenceFromMesh, fixed seed, so sample i here is sample i of a
+// CompareWithCad with the same sample count), the same on-table rule, and per device: outside its
+// image (behind it, beyond its field or outside the image after distortion), hidden (facing away
+// or occluded by the part, Embree shadow rays from the sample towards the device centre), grazing
+// (incidence beyond grazing_deg). A view reconstructs a sample when every device sees it
+// unoccluded and not grazing.
+//
+// The projector's light: the simulator's radiometric factor (sim/scene.h) gives the lit range a
+// camera records, below the decoder's shadow threshold the sample is too dark. Not modelled
+// (yet): depth of field against the finest fringe; a sample that the prediction reconstructs but
+// a scan does not is listed as a disagreement by CheckPrediction.
+//
+// Frames and units: the part frame (views.h), mm, degrees.
+#pragma once
+
+#include <array>
+#include <filesystem>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "core/mesh.h"
+#include "core/rig.h"
+#include "core/rigid3.h"
+#include "reconstruct/reconstruct.h"
+#include "sim/scene.h"
+#include "workflows/multiview/cad_compare.h"
+#include "workflows/multiview/views.h"
+
+namespace slshadow::multiview {
+
+// The reasons of a prediction, numbered as CoverageReason so that a sample's predicted reason and
+// its reason in a scan's CAD comparison line up: kTooDark takes kNotReconstructed's place (seen by
+// every device, but the predicted fringe modulation is below the decoder's threshold).
+enum class PredictedReason : uint8_t {
+  kReconstructed = 0,  // CoverageReason::kCovered
+  kTooDark = 1,        // CoverageReason::kNotReconstructed
+  kGrazing = 2,
+  kOccluded = 3,
+  kOutsideField = 4,
+  kOnTable = 5
+};
+// "reconstructed", "too_dark", "grazing", "occluded", "outside_field", "on_table"
+std::string ToString(PredictedReason reason);
+
+struct CoveragePredictionOptions {
+  ReconstructMode mode = ReconstructMode::kStereo;
+  size_t samples = 200000;  // CAD surface samples (CadCompareOptions::samples)
+  // Incidence to a device beyond which the surface is grazing. The simulator's surfaces are
+  // Lambertian and the decoder has no incidence limit of its own: the light that reaches the
+  // surface at a grazing projector incidence is what limits it (too_dark below), so the default
+  // only rejects the last degree, where a camera pixel's footprint runs along the surface.
+  double grazing_deg = 89;
+  double table_tolerance_mm = 0.5;  // CadCompareOptions::table_tolerance_mm
+  // The radiometry of sim/scene.h: the lit range (white - black) a camera records is
+  // exposure_fraction * 255 * albedo * cos_p * (d_ref / d_p)^2 in 8-bit grey levels; below the
+  // decoder's shadow_threshold (patterns/codec.h DecodeOptions) the sample is too dark.
+  double albedo = 0.5;               // the part's (FromScene: the darkest part mesh)
+  double exposure_fraction = 0.8;    // Radiometry::exposure_fraction
+  double reference_distance_mm = 0;  // d_ref; 0: the rig's working distance
+  double shadow_threshold = 12;      // DecodeOptions::shadow_threshold (8-bit grey levels)
+  void Check() const;                // throws slshadow::Error naming the bad field
+};
+// The radiometry of `scene` (exposure fraction, reference distance, the smallest uniform albedo of
+// its meshes, the part) in `options`.
+CoveragePredictionOptions WithSceneRadiometry(CoveragePredictionOptions options,
+                                              const Scene& scene);
+
+// One view to predict: its name and true part_from_rig (VirtualViewPose for a views file).
+struct PredictedViewPose {
+  std::string name;
+  Rigid3d part_from_rig;
+};
+
+struct PredictedView {
+  std::string name;
+  Rigid3d part_from_rig;
+  // Samples by this view's own reason (PredictedReason order).
+  std::array<size_t, kNumCoverageReasons> reason_samples{};
+  double coverage = 0;  // reconstructed by this view / samples off the table
+};
+
+struct CoveragePrediction {
+  std::vector<Eigen::Vector3d> sample_points;  // part frame
+  std::vector<Eigen::Vector3f> sample_normals;
+  // Per view and sample: PredictedReason of that view alone (see PredictedView).
+  std::vector<std::vector<uint8_t>> view_reason;
+  // Per sample over all views (PredictedReason): reconstructed when some view reconstructs it,
+  // else the best reason of any view (too_dark, grazing, occluded, outside_field in that order,
+  // as cad_compare.h ranks them), or on_table.
+  std::vector<uint8_t> sample_reason;
+  std::vector<uint8_t> sample_views;  // number of views reconstructing the sample (<= 255)
+  std::vector<PredictedView> views;
+  std::array<size_t, kNumCoverageReasons> reason_samples{};
+  double cad_area_mm2 = 0;
+  double coverage_off_table = 0;  // covered / samples off the table
+  double seconds = 0;
+
+  size_t OffTable() const;
+  nlohmann::json ToJson() const;  // figures only
+  std::string Table() const;      // per view and over all views, what `slshadow plan` prints
+};
+
+// The prediction's machinery, kept for many views of one part (slshadow plan): the samples, the
+// on-table mask and the ray caster are made once; View() predicts one view. Thread-compatible.
+class CoveragePredictor {
+ public:
+  // Throws slshadow::Error as PredictCoverage.
+  CoveragePredictor(const TriangleMesh& cad_in_part, const Rig& rig,
+                    const std::optional<TurntableAxis>& table_axis,
+                    const CoveragePredictionOptions& options = {});
+  ~CoveragePredictor();
+  CoveragePredictor(const CoveragePredictor&) = delete;
+  CoveragePredictor& operator=(const CoveragePredictor&) = delete;
+  const std::vector<Eigen::Vector3d>& Samples() const;
+  const std::vector<Eigen::Vector3f>& Normals() const;
+  const std::vector<uint8_t>& OnTable() const;  // 1: on the table
+  double CadAreaMm2() const;
+  // Per sample, the view's PredictedReason (on_table where OnTable()).
+  std::vector<uint8_t> View(const Rigid3d& part_from_rig) const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+// Predicts `views` of `rig` on `cad_in_part` (see the header comment). `table_axis`: the turntable
+// axis (its table face is excluded as on_table), nullopt: nothing excluded. Throws slshadow::Error
+// on an empty mesh, no views, a rig without the mode's devices or invalid options.
+CoveragePrediction PredictCoverage(const TriangleMesh& cad_in_part, const Rig& rig,
+                                   const std::vector<PredictedViewPose>& views,
+                                   const std::optional<TurntableAxis>& table_axis,
+                                   const CoveragePredictionOptions& options = {});
+
+// The views of a views file at their true poses (VirtualViewPose).
+std::vector<PredictedViewPose> PosesOfViews(const ViewsFile& views, const Rig& rig);
+
+// The coverage map as a binary PLY of the surface samples (atomically): x, y, z, nx, ny, nz,
+// red, green, blue (the colours of project_merge's cad_coverage.ply: reconstructed green, too
+// dark red, grazing orange, occluded blue, outside the field grey, on the table black), scalars
+// `reason` (PredictedReason) and `views` (how many views reconstruct the sample).
+void WriteCoverageMap(const std::filesystem::path& path, const CoveragePrediction& prediction);
+
+// The prediction against a scan's CAD comparison of the same views (same sample count, so the
+// same samples). The scan counts a sample covered when a reconstructed point lies within its
+// coverage radius (cad_compare.h), so a hidden sample next to a seen one is covered: the
+// prediction is measured the same way, a sample predicted covered when a sample some view
+// reconstructs lies within the scan's coverage_radius_mm. A sample agrees when it is off the
+// table in both and predicted covered equals covered in the scan.
+struct PredictionCheck {
+  size_t compared = 0;  // samples off the table
+  size_t agree = 0;
+  double agreement = 0;  // agree / compared
+  // Disagreements by the sample's own predicted reason (PredictedReason order): predicted
+  // reconstructed but not covered in the scan, predicted too dark / grazing / occluded / outside
+  // the field but covered.
+  std::array<size_t, kNumCoverageReasons> disagree_by_predicted{};
+  double predicted_coverage = 0, scanned_coverage = 0;  // of the compared samples
+  double coverage_radius_mm = 0;                        // the scan's
+  std::string Summary() const;
+  nlohmann::json ToJson() const;
+};
+// Throws slshadow::Error when the sample counts or points differ.
+PredictionCheck CheckPrediction(const CoveragePrediction& prediction, const CadComparison& scan);
+
+}  // namespace slshadow::multiview

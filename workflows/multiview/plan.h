@@ -1,0 +1,66 @@
+// `slshadow plan`: the fewest turntable views that cover a part, before it is on the table. Every
+// candidate table angle (a full turn in steps) is predicted (coverage_prediction.h, no images
+// rendered); the part's reachable surface is what at least one candidate reconstructs; a greedy
+// set cover then picks, one at a time, the candidate that reconstructs the most reachable samples
+// not yet covered, until the target share of the reachable surface is covered. Beside it, the
+// uniform baseline: n views evenly spaced over a full turn from the first candidate angle, for
+// n = 1, 2, ... until the target is reached (or n = the number of candidates).
+//
+// Frames and units: the part frame (views.h), mm, degrees.
+#pragma once
+
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "core/mesh.h"
+#include "core/rig.h"
+#include "sim/scene.h"
+#include "workflows/multiview/coverage_prediction.h"
+#include "workflows/multiview/views.h"
+
+namespace slshadow::multiview {
+
+struct PlanOptions {
+  double step_deg = 15;  // candidate table angles: start_deg + k * step_deg over a full turn
+  double start_deg = 0;
+  double target = 0.98;  // share of the reachable surface, (0, 1]
+  CoveragePredictionOptions prediction;
+  void Check() const;  // throws slshadow::Error naming the bad field (the option's name)
+};
+
+struct ViewPlan {
+  ViewsFile views;                      // the plan, by table angle, named view_00, view_01, ...
+  std::vector<double> greedy_deg;       // the chosen angles in the order greedy picked them
+  std::vector<double> greedy_coverage;  // of the reachable surface after 1, 2, ... views
+  bool reached = false;                 // the plan reaches the target
+  // Uniform baseline: uniform_coverage[n - 1] for n views evenly spaced; uniform_needed the first
+  // n reaching the target (0: none up to the number of candidates).
+  std::vector<double> uniform_coverage;
+  int uniform_needed = 0;
+  size_t candidates = 0;
+  size_t samples = 0, off_table = 0, reachable = 0;
+  double reachable_share = 0;  // reachable / off the table
+  double target = 0;
+  double seconds = 0;
+  nlohmann::json ToJson() const;
+  std::string Table() const;  // coverage against the number of views, plan beside uniform
+};
+
+// Plans table views of `cad_in_part` for `rig` (which must have a turntable axis). Throws
+// slshadow::Error on a rig without an axis, bad options or nothing reachable.
+ViewPlan PlanTurntableViews(const TriangleMesh& cad_in_part, const Rig& rig,
+                            const PlanOptions& options = {});
+
+// The part for `slshadow plan --part` / `merge --cad`: a mesh (.stl/.ply/.obj) is the CAD model;
+// a scene (.yaml/.yml/.json) gives its meshes as the CAD model (PartSurface) and its radiometry.
+struct PlanPart {
+  TriangleMesh cad;
+  std::optional<Scene> scene;
+};
+PlanPart LoadPlanPart(const std::filesystem::path& path);
+
+}  // namespace slshadow::multiview
