@@ -40,8 +40,28 @@ struct Light {
   double range_per_factor = 0;
   double ref_distance_sq = 0;
   double threshold = 0;
-  double max_code_step_px = 0;  // stereo: 0 = no gate
+  double max_code_step_px = 0;           // stereo: 0 = no gate
+  double max_depth_jump_footprints = 0;  // 0: no filter
 };
+
+// The depth-discontinuity filter (reconstruct/filters.h) at the reference camera's pixel of
+// `in_cam`: the largest range change to its horizontal and vertical neighbours on the tangent
+// plane (normal `n_cam`), in footprints (range / fx). Infinity when a neighbour's ray misses it.
+double RangeStepFootprints(const RigDevice& cam, const Eigen::Vector3d& in_cam,
+                           const Eigen::Vector3d& n_cam, const Eigen::Vector2d& pixel) {
+  const double range = in_cam.norm();
+  double step = 0;
+  for (const Eigen::Vector2d& offset : {Eigen::Vector2d(1, 0), Eigen::Vector2d(0, 1)}) {
+    const auto ray = cam.model.Unproject(pixel + offset);
+    if (!ray) return std::numeric_limits<double>::infinity();
+    const double denom = n_cam.dot(*ray);
+    if (std::abs(denom) < 1e-12) return std::numeric_limits<double>::infinity();
+    const double t = n_cam.dot(in_cam) / denom;  // the range along the unit ray
+    if (t <= 0) return std::numeric_limits<double>::infinity();
+    step = std::max(step, std::abs(t - range));
+  }
+  return step / (range / cam.model.fx());
+}
 
 // Stereo's code-step gate (ReconstructOptions::max_code_step_px): the largest change of either
 // projector coordinate between the camera pixel of `in_cam` and its neighbour along the row (the
@@ -127,6 +147,11 @@ std::vector<uint8_t> ViewSight(const RayCaster& caster, const std::vector<Eigen:
           continue;
         }
         if (cos_incidence < cos_grazing) sight[first + l] = Worse(sight[first + l], kGrazing);
+        if (light.max_depth_jump_footprints > 0 && d == 0 &&
+            RangeStepFootprints(device, in_device,
+                                device.cam_from_rig.rotation * (rig_from_part.rotation * nrm),
+                                *pixel) > light.max_depth_jump_footprints)
+          sight[first + l] = Worse(sight[first + l], kGrazing);
         if (light.max_code_step_px > 0 && d + 1 < devices.size() &&
             CodeStepPx(device, *devices.back(), in_device,
                        device.cam_from_rig.rotation * (rig_from_part.rotation * nrm),
@@ -208,6 +233,9 @@ void CoveragePredictionOptions::Check() const {
   SLSHADOW_THROW_IF(!(reference_distance_mm >= 0),
                     "coverage prediction: reference_distance_mm must be >= 0 (got ",
                     reference_distance_mm, ")");
+  SLSHADOW_THROW_IF(!(max_depth_jump_footprints >= 0),
+                    "coverage prediction: max_depth_jump_footprints must be >= 0 (got ",
+                    max_depth_jump_footprints, ")");
   SLSHADOW_THROW_IF(!(max_code_step_px >= 0),
                     "coverage prediction: max_code_step_px must be >= 0 (got ", max_code_step_px,
                     ")");
@@ -289,6 +317,7 @@ CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig&
   m.light.ref_distance_sq = d_ref * d_ref;
   m.light.threshold = options.shadow_threshold;
   if (options.mode == ReconstructMode::kStereo) m.light.max_code_step_px = options.max_code_step_px;
+  m.light.max_depth_jump_footprints = options.max_depth_jump_footprints;
 }
 
 CoveragePredictor::~CoveragePredictor() = default;
