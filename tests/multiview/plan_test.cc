@@ -22,7 +22,7 @@ constexpr size_t kSamples = 40000;
 // The demo part (1/4 of the demo rig's resolution): the plan reaches 98 % of the reachable
 // surface with no more views than uniform steps need, and its coverage accounting equals a
 // prediction of the planned views made from scratch. (A virtual scan of the plan does not confirm
-// it yet: see docs/benchmarks.md, "Planned views".)
+// it yet: docs/benchmarks/log/2026-12-07-plan.md.)
 TEST(PlanTest, TheDemoPlanReachesItsTargetWithNoMoreViewsThanUniformSteps) {
   const TurntableSetup setup = testing::ScaledTurntableDemo(4);
   const TriangleMesh cad = PartSurface(setup.scene);

@@ -40,7 +40,50 @@ struct Light {
   double range_per_factor = 0;
   double ref_distance_sq = 0;
   double threshold = 0;
+  double max_code_step_px = 0;           // stereo: 0 = no gate
+  double max_depth_jump_footprints = 0;  // 0: no filter
 };
+
+// The depth-discontinuity filter (reconstruct/filters.h) at the reference camera's pixel of
+// `in_cam`: the largest range change to its horizontal and vertical neighbours on the tangent
+// plane (normal `n_cam`), in footprints (range / fx). Infinity when a neighbour's ray misses it.
+double RangeStepFootprints(const RigDevice& cam, const Eigen::Vector3d& in_cam,
+                           const Eigen::Vector3d& n_cam, const Eigen::Vector2d& pixel) {
+  const double range = in_cam.norm();
+  double step = 0;
+  for (const Eigen::Vector2d& offset : {Eigen::Vector2d(1, 0), Eigen::Vector2d(0, 1)}) {
+    const auto ray = cam.model.Unproject(pixel + offset);
+    if (!ray) return std::numeric_limits<double>::infinity();
+    const double denom = n_cam.dot(*ray);
+    if (std::abs(denom) < 1e-12) return std::numeric_limits<double>::infinity();
+    const double t = n_cam.dot(in_cam) / denom;  // the range along the unit ray
+    if (t <= 0) return std::numeric_limits<double>::infinity();
+    step = std::max(step, std::abs(t - range));
+  }
+  return step / (range / cam.model.fx());
+}
+
+// Stereo's code-step gate (ReconstructOptions::max_code_step_px): the largest change of either
+// projector coordinate between the camera pixel of `in_cam` and its neighbour along the row (the
+// direction the matcher interpolates and searches, the baseline's), with the surface as its
+// tangent plane (normal `n_cam`, camera frame). Infinity when the neighbour's ray misses the plane
+// or the projector.
+double CodeStepPx(const RigDevice& cam, const RigDevice& projector, const Eigen::Vector3d& in_cam,
+                  const Eigen::Vector3d& n_cam, const Eigen::Vector2d& pixel) {
+  const Rigid3d proj_from_cam = projector.cam_from_rig * cam.cam_from_rig.Inverse();
+  const auto proj_pixel = [&](const Eigen::Vector3d& x) {
+    return projector.model.Project(proj_from_cam * x);
+  };
+  const auto centre = proj_pixel(in_cam);
+  if (!centre) return std::numeric_limits<double>::infinity();
+  const auto ray = cam.model.Unproject(pixel + Eigen::Vector2d(1, 0));
+  if (!ray) return std::numeric_limits<double>::infinity();
+  const double denom = n_cam.dot(*ray);
+  if (std::abs(denom) < 1e-12) return std::numeric_limits<double>::infinity();
+  const auto q = proj_pixel(*ray * (n_cam.dot(in_cam) / denom));
+  if (!q) return std::numeric_limits<double>::infinity();
+  return (*q - *centre).cwiseAbs().maxCoeff();
+}
 
 // Worse of two per-device reasons of one view (outside worst, then occluded, grazing, covered):
 // the CoverageReason values grow from covered to outside, so the larger one.
@@ -104,6 +147,16 @@ std::vector<uint8_t> ViewSight(const RayCaster& caster, const std::vector<Eigen:
           continue;
         }
         if (cos_incidence < cos_grazing) sight[first + l] = Worse(sight[first + l], kGrazing);
+        if (light.max_depth_jump_footprints > 0 && d == 0 &&
+            RangeStepFootprints(device, in_device,
+                                device.cam_from_rig.rotation * (rig_from_part.rotation * nrm),
+                                *pixel) > light.max_depth_jump_footprints)
+          sight[first + l] = Worse(sight[first + l], kGrazing);
+        if (light.max_code_step_px > 0 && d + 1 < devices.size() &&
+            CodeStepPx(device, *devices.back(), in_device,
+                       device.cam_from_rig.rotation * (rig_from_part.rotation * nrm),
+                       *pixel) > light.max_code_step_px)
+          sight[first + l] = Worse(sight[first + l], kGrazing);
         // The last device is the projector: the light it brings (sim/scene.h radiometry).
         if (d + 1 == devices.size() &&
             light.range_per_factor * cos_incidence * light.ref_distance_sq / to.squaredNorm() <
@@ -180,6 +233,12 @@ void CoveragePredictionOptions::Check() const {
   SLSHADOW_THROW_IF(!(reference_distance_mm >= 0),
                     "coverage prediction: reference_distance_mm must be >= 0 (got ",
                     reference_distance_mm, ")");
+  SLSHADOW_THROW_IF(!(max_depth_jump_footprints >= 0),
+                    "coverage prediction: max_depth_jump_footprints must be >= 0 (got ",
+                    max_depth_jump_footprints, ")");
+  SLSHADOW_THROW_IF(!(max_code_step_px >= 0),
+                    "coverage prediction: max_code_step_px must be >= 0 (got ", max_code_step_px,
+                    ")");
   SLSHADOW_THROW_IF(!(shadow_threshold >= 0),
                     "coverage prediction: shadow_threshold must be >= 0 (got ", shadow_threshold,
                     ")");
@@ -257,6 +316,8 @@ CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig&
       options.reference_distance_mm > 0 ? options.reference_distance_mm : rig.working_distance_mm;
   m.light.ref_distance_sq = d_ref * d_ref;
   m.light.threshold = options.shadow_threshold;
+  if (options.mode == ReconstructMode::kStereo) m.light.max_code_step_px = options.max_code_step_px;
+  m.light.max_depth_jump_footprints = options.max_depth_jump_footprints;
 }
 
 CoveragePredictor::~CoveragePredictor() = default;

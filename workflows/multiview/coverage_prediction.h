@@ -6,8 +6,11 @@
 // CompareWithCad with the same sample count), the same on-table rule, and per device: outside its
 // image (behind it, beyond its field or outside the image after distortion), hidden (facing away
 // or occluded by the part, Embree shadow rays from the sample towards the device centre), grazing
-// (incidence beyond grazing_deg). A view reconstructs a sample when every device sees it
-// unoccluded and not grazing.
+// (incidence beyond grazing_deg, or, in stereo, the projector coordinates stepping by more than the
+// matcher's max_code_step_px from one camera pixel to the next along the row: the matcher neither
+// interpolates nor searches across such steps; or, at the first camera, the range stepping by more
+// than the depth-discontinuity filter's max_depth_jump_footprints from one pixel to the next). A
+// view reconstructs a sample when every device sees it unoccluded and not grazing.
 //
 // The projector's light: the simulator's radiometric factor (sim/scene.h) gives the lit range a
 // camera records, below the decoder's shadow threshold the sample is too dark. Not modelled
@@ -66,7 +69,14 @@ struct CoveragePredictionOptions {
   double exposure_fraction = 0.8;    // Radiometry::exposure_fraction
   double reference_distance_mm = 0;  // d_ref; 0: the rig's working distance
   double shadow_threshold = 12;      // DecodeOptions::shadow_threshold (8-bit grey levels)
-  void Check() const;                // throws slshadow::Error naming the bad field
+  // Stereo: ReconstructOptions::max_code_step_px; a camera whose neighbouring pixels see the
+  // projector coordinates change by more than this along the surface is not matched.
+  double max_code_step_px = 4.0;
+  // ReconstructOptions::max_depth_jump_footprints (reconstruct/filters.h): at the first camera
+  // (the reference viewpoint), a surface whose range changes by more than this many pixel
+  // footprints from one pixel to the next is taken for a jump and rejected (~83 deg for 8). 0: off.
+  double max_depth_jump_footprints = 8.0;
+  void Check() const;  // throws slshadow::Error naming the bad field
 };
 // The radiometry of `scene` (exposure fraction, reference distance, the smallest uniform albedo of
 // its meshes, the part) in `options`.
