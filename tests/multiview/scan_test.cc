@@ -312,10 +312,14 @@ TEST_F(ScanLoop, ScanCommandEqualsSimulatedProject) {
   EXPECT_EQ(moves, 3);
   EXPECT_EQ(grbl_->MachinePosition(0), 240.0);
 
-  // `slshadow merge` reads the device project like a simulated one: every view merged.
-  ASSERT_EQ(
-      RunSlshadow({"merge", (dir_ / "scanned").string(), "--out", (dir_ / "model").string()}, &err),
-      0);
+  // `slshadow merge` reads the device project like a simulated one: every view merged. With the
+  // poses from the axis (--poses axis): three views 120 deg apart at this resolution overlap too
+  // little for the pairwise registration, which leaves a sliding pair out (what that looks like is
+  // multiview_cmd_merge_test's); here the reading of the project is under test.
+  ASSERT_EQ(RunSlshadow({"merge", (dir_ / "scanned").string(), "--out", (dir_ / "model").string(),
+                         "--poses", "axis"},
+                        &err),
+            0);
   const nlohmann::json report = ConfigNode::LoadFile(dir_ / "model" / "report.json").json();
   ASSERT_EQ(report["views"].size(), 3u);
   for (const auto& v : report["views"]) EXPECT_TRUE(v["merged"].get<bool>()) << v["name"];

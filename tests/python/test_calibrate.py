@@ -61,6 +61,8 @@ def test_calibrate_camera_matches_cli(tmp_path):
             theirs = json.loads((tmp_path / "cli" / "rig_report" / name).read_text())
             assert ours.get("extra", {}).pop("command", "").startswith("slshadow.calibrate_camera")
             theirs.get("extra", {}).pop("command", None)
-            assert_close(strip_times(ours), strip_times(theirs), name)
+            # The cross-validation refits differ between two runs of the command itself by up to
+            # a few 1e-6 (Ceres' threads; 2.2e-6 seen in centre_px): compared to 1e-5.
+            assert_close(strip_times(ours), strip_times(theirs), name, rtol=1e-5)
     assert result["log"] and result["log"].splitlines()[0] in cli.stdout
     np.testing.assert_allclose(model.params, cli_rig.camera("left").model.params, rtol=1e-9)

@@ -13,7 +13,7 @@ from conftest import DEMO_SCENE, run_cli
 def strip_times(x):
     if isinstance(x, dict):
         return {k: strip_times(v) for k, v in x.items()
-                if not (k.endswith("_s") or k in ("stages", "created_utc"))}
+                if not (k.endswith("_s") or k in ("stages", "seconds", "created_utc"))}
     if isinstance(x, list):
         return [strip_times(v) for v in x]
     return x
