@@ -52,7 +52,9 @@ def test_calibrate_camera_matches_cli(tmp_path):
                                  progress=lambda s, d, t: stages.append(s))
     assert stages == ["detect", "calibrate", "done"]
     cli_rig = sl.Rig.load(tmp_path / "cli" / "rig.yaml")
-    assert_close(strip_times(result["rig"].to_dict()), strip_times(cli_rig.to_dict()))
+    # The rig's calibration evidence holds the cross-validation refits, which differ between two
+    # runs of the command itself by a few 1e-6 (Ceres' threads; 3.0e-6 seen in centre_px): 1e-5.
+    assert_close(strip_times(result["rig"].to_dict()), strip_times(cli_rig.to_dict()), rtol=1e-5)
     model = result["rig"].camera("left").model
     assert model.width == 640 and 400 < model.params[0] < 700
     for name in sorted(os.listdir(tmp_path / "cli" / "rig_report")):
