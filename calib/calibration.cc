@@ -22,6 +22,7 @@
 #include "calib/internal/initialization.h"
 #include "calib/internal/noise_model.h"
 #include "core/error.h"
+#include "core/statistics.h"
 #include "core/threads.h"
 
 namespace slshadow {

@@ -5,18 +5,9 @@
 #include <cstdio>
 
 #include "calib/uncertainty.h"
+#include "core/string_printf.h"
 
 namespace slshadow {
-namespace {
-
-std::string Fmt(const char* format, double a, double b = 0) {
-  char buf[256];
-  std::snprintf(buf, sizeof(buf), format, a, b);
-  return buf;
-}
-
-}  // namespace
-
 std::string ToString(Severity s) {
   switch (s) {
     case Severity::kInfo:
@@ -88,20 +79,22 @@ std::vector<Finding> ReviewCalibration(const CalibrationInput& input,
     if (!tilts.empty()) {
       const double max_tilt = *std::max_element(tilts.begin(), tilts.end());
       if (max_tilt < o.min_tilt_deg) {
-        out.push_back({Severity::kWarning, name,
-                       Fmt("all boards nearly fronto-parallel (largest tilt %.1f deg): focal "
-                           "length and distance trade "
-                           "off, the focal length is poorly determined",
-                           max_tilt),
-                       "capture views with the board tilted 20-40 deg about its horizontal and its "
-                       "vertical axis"});
+        out.push_back(
+            {Severity::kWarning, name,
+             StringPrintf("all boards nearly fronto-parallel (largest tilt %.1f deg): focal "
+                          "length and distance trade "
+                          "off, the focal length is poorly determined",
+                          max_tilt),
+             "capture views with the board tilted 20-40 deg about its horizontal and its "
+             "vertical axis"});
       }
     }
     const double coverage = ImageCoverage(input, di);
     if (coverage < o.min_coverage) {
       out.push_back(
           {Severity::kWarning, name,
-           Fmt("corners cover only %.0f%% of the image (corners only in the centre): distortion "
+           StringPrintf(
+               "corners cover only %.0f%% of the image (corners only in the centre): distortion "
                "towards the "
                "edges is extrapolated",
                100 * coverage),
@@ -110,7 +103,7 @@ std::vector<Finding> ReviewCalibration(const CalibrationInput& input,
     if (d < result.summary.devices.size() && result.summary.devices[d].rms_px > o.max_rms_px) {
       out.push_back(
           {Severity::kWarning, name,
-           Fmt("RMS reprojection error %.2f px is high", result.summary.devices[d].rms_px),
+           StringPrintf("RMS reprojection error %.2f px is high", result.summary.devices[d].rms_px),
            "check the target's square size, focus and motion blur, and the outlier views"});
     }
     // Corner errors shared across a view: how much wider is the focal length's sigma? The same
@@ -121,11 +114,12 @@ std::vector<Finding> ReviewCalibration(const CalibrationInput& input,
       const auto& k = result.summary.view_noise[d];
       out.push_back(
           {Severity::kWarning, name,
-           Fmt("corner errors are correlated across each view (share %.2f over %.1f board squares)",
+           StringPrintf(
+               "corner errors are correlated across each view (share %.2f over %.1f board squares)",
                k.share, k.length_squares) +
-               Fmt(": with them the focal length's sigma is %.1fx the independent-error "
-                   "covariance's",
-                   quoted.fx_sigma_ratio),
+               StringPrintf(": with them the focal length's sigma is %.1fx the independent-error "
+                            "covariance's",
+                            quoted.fx_sigma_ratio),
            "the report's sigmas and uncertainty maps use the view-correlated covariance (rig file: "
            "calibration.intrinsics_covariance_view_correlated); quote it or the cross-validation; "
            "check focus, motion blur, the board's print and flatness"});
@@ -135,7 +129,8 @@ std::vector<Finding> ReviewCalibration(const CalibrationInput& input,
       if (u.p95 > o.max_uncertainty_px) {
         out.push_back(
             {Severity::kWarning, name,
-             Fmt("projection uncertainty reaches %.2f px (95th percentile over the image, median "
+             StringPrintf(
+                 "projection uncertainty reaches %.2f px (95th percentile over the image, median "
                  "%.2f px; ",
                  u.p95, u.median) +
                  (quoted.view_correlated ? "view-correlated covariance)" : "standard covariance)"),
@@ -148,7 +143,8 @@ std::vector<Finding> ReviewCalibration(const CalibrationInput& input,
     if (!v.outlier) continue;
     out.push_back(
         {Severity::kWarning, input.devices[static_cast<size_t>(v.device)].name,
-         "outlier view " + v.label + Fmt(" (RMS %.2f px, worst point %.2f px)", v.rms_px, v.max_px),
+         "outlier view " + v.label +
+             StringPrintf(" (RMS %.2f px, worst point %.2f px)", v.rms_px, v.max_px),
          "look at that image (blur, mis-detected corner, board moved during the capture); "
          "recapture or drop it"});
   }
@@ -162,8 +158,8 @@ std::vector<Finding> ReviewCalibration(const CalibrationInput& input,
     }
     if (im.saturated_fraction > o.max_saturated) {
       out.push_back({Severity::kWarning, dev,
-                     Fmt("saturated image: %.1f%% of the pixels at the sensor maximum in ",
-                         100 * im.saturated_fraction) +
+                     StringPrintf("saturated image: %.1f%% of the pixels at the sensor maximum in ",
+                                  100 * im.saturated_fraction) +
                          im.label,
                      "lower the exposure time or the light; saturated corners are biased"});
     }

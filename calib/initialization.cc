@@ -126,12 +126,6 @@ State InitDevice(const CalibrationInput& sub, const CalibrationOptions& options)
   return s;
 }
 
-double Median(std::vector<double> v) {
-  if (v.empty()) return 0;
-  std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
-  return v[v.size() / 2];
-}
-
 // The candidate transform closest (in translation, then rotation) to all others: robust average.
 Rigid3d Medoid(const std::vector<Rigid3d>& candidates) {
   SLSHADOW_CHECK(!candidates.empty());

@@ -11,6 +11,7 @@
 
 #include "calib/internal/initialization.h"
 #include "core/error.h"
+#include "core/statistics.h"
 #include "core/threads.h"
 
 namespace slshadow::calib::internal {
@@ -410,7 +411,7 @@ NoiseModel EstimateNoise(const CalibrationInput& input, const State& s, bool rob
   }
   auto scale = [&](const std::vector<double>& x) {
     if (x.empty()) return 1.0;
-    return robust ? Median(x) / std::log(2.0)
+    return robust ? Median(std::vector<double>(x)) / std::log(2.0)
                   : std::accumulate(x.begin(), x.end(), 0.0) / static_cast<double>(x.size());
   };
   NoiseModel noise;

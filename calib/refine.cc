@@ -73,12 +73,10 @@ EpipolarStats Stats(std::vector<double> abs_res) {
   EpipolarStats s;
   s.count = static_cast<int>(abs_res.size());
   if (abs_res.empty()) return s;
-  double sq = 0;
-  for (double v : abs_res) sq += v * v;
-  s.rms_px = std::sqrt(sq / static_cast<double>(abs_res.size()));
-  std::sort(abs_res.begin(), abs_res.end());
-  s.median_px = abs_res[PercentileRank(abs_res.size(), 50)];  // core/statistics.h: nearest rank
-  s.p95_px = abs_res[PercentileRank(abs_res.size(), 95)];
+  const Summary summary = Summarize(std::move(abs_res));  // core/statistics.h: nearest rank
+  s.rms_px = summary.rms;
+  s.median_px = summary.median;
+  s.p95_px = summary.p95_abs;  // of magnitudes
   return s;
 }
 

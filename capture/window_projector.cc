@@ -16,6 +16,7 @@
 
 #include "capture/x11_screen.h"
 #include "core/error.h"
+#include "core/statistics.h"
 
 namespace slshadow::capture {
 
@@ -26,13 +27,6 @@ std::atomic<bool> g_window_open{false};  // one window projector per process
 std::string SdlError() {
   const char* e = SDL_GetError();
   return e && *e ? e : "no SDL error message";
-}
-
-double Median(std::vector<double> v) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  const size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
 // SDL_InitSubSystem(VIDEO), tried three times 200 ms apart: the X connection (XOpenDisplay inside

@@ -16,6 +16,7 @@
 #include "compare/mesh_distance.h"
 #include "core/config.h"
 #include "core/error.h"
+#include "core/string_printf.h"
 
 namespace slshadow::compare {
 namespace fs = std::filesystem;
@@ -27,12 +28,6 @@ std::vector<Eigen::Vector3d> NormalsAsDouble(const PointCloud& c) {
   n.reserve(c.normals.size());
   for (const auto& v : c.normals) n.push_back(v.cast<double>());
   return n;
-}
-
-std::string Fmt(const char* format, double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof(buf), format, v);
-  return buf;
 }
 
 }  // namespace
@@ -378,29 +373,31 @@ std::string CompareResult::Summary() const {
   const DistanceStats& s = c2c;
   o << "  points      " << s.count
     << (s.num_invalid ? " (" + std::to_string(s.num_invalid) + " invalid)" : "") << "\n"
-    << "  mean        " << Fmt("%.4f mm", s.mean_mm) << "    std " << Fmt("%.4f mm", s.std_mm)
-    << "\n"
-    << "  rms         " << Fmt("%.4f mm", s.rms_mm) << "    median " << Fmt("%.4f mm", s.median_mm)
-    << "\n"
-    << "  p95         " << Fmt("%.4f mm", s.p95_mm) << "    max " << Fmt("%.4f mm", s.max_mm)
-    << "\n";
+    << "  mean        " << StringPrintf("%.4f mm", s.mean_mm) << "    std "
+    << StringPrintf("%.4f mm", s.std_mm) << "\n"
+    << "  rms         " << StringPrintf("%.4f mm", s.rms_mm) << "    median "
+    << StringPrintf("%.4f mm", s.median_mm) << "\n"
+    << "  p95         " << StringPrintf("%.4f mm", s.p95_mm) << "    max "
+    << StringPrintf("%.4f mm", s.max_mm) << "\n";
   if (c2m) {
-    o << "  signed mean " << Fmt("%+.4f mm", c2m->signed_mean_mm) << "    signed std "
-      << Fmt("%.4f mm", c2m->signed_std_mm) << "\n";
+    o << "  signed mean " << StringPrintf("%+.4f mm", c2m->signed_mean_mm) << "    signed std "
+      << StringPrintf("%.4f mm", c2m->signed_std_mm) << "\n";
   }
-  o << "  threshold   " << Fmt("%.3f mm", s.threshold_mm) << ": " << s.inliers << " inliers, "
-    << s.outliers << " outliers (" << Fmt("%.3f %%", pct(s.outliers, s.count)) << ")\n";
+  o << "  threshold   " << StringPrintf("%.3f mm", s.threshold_mm) << ": " << s.inliers
+    << " inliers, " << s.outliers << " outliers ("
+    << StringPrintf("%.3f %%", pct(s.outliers, s.count)) << ")\n";
   if (num_not_found) o << "  beyond max search distance: " << num_not_found << "\n";
-  o << "coverage: " << Fmt("%.2f %%", 100.0 * coverage) << " of the reference surface ("
-    << coverage_samples << " samples, radius " << Fmt("%.3f mm", coverage_radius_mm) << ")\n";
+  o << "coverage: " << StringPrintf("%.2f %%", 100.0 * coverage) << " of the reference surface ("
+    << coverage_samples << " samples, radius " << StringPrintf("%.3f mm", coverage_radius_mm)
+    << ")\n";
   if (m3c2) {
     o << "M3C2: " << m3c2->num_valid << " valid, " << m3c2->num_significant << " significant ("
-      << Fmt("%.2f %%", pct(m3c2->num_significant, m3c2->num_valid)) << "), mean "
-      << Fmt("%+.4f mm", m3c2->stats.signed_mean_mm) << ", mean LoD95 "
-      << Fmt("%.4f mm", m3c2->mean_lod95_mm) << "\n";
+      << StringPrintf("%.2f %%", pct(m3c2->num_significant, m3c2->num_valid)) << "), mean "
+      << StringPrintf("%+.4f mm", m3c2->stats.signed_mean_mm) << ", mean LoD95 "
+      << StringPrintf("%.4f mm", m3c2->mean_lod95_mm) << "\n";
   }
   if (vdi2634) o << vdi2634->Summary();
-  o << "time: " << Fmt("%.2f s", time_s) << "\n";
+  o << "time: " << StringPrintf("%.2f s", time_s) << "\n";
   return o.str();
 }
 

@@ -13,6 +13,7 @@
 #include "compare/statistics.h"
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/string_printf.h"
 
 namespace slshadow::compare {
 namespace fs = std::filesystem;
@@ -53,12 +54,6 @@ bool FitsFloatPositions(const std::vector<Eigen::Vector3d>& points) {
     if (!(p.cwiseAbs().maxCoeff() < 8192.0)) return false;
   }
   return true;
-}
-
-std::string Fmt(const char* format, double v) {
-  char buf[96];
-  std::snprintf(buf, sizeof(buf), format, v);
-  return buf;
 }
 
 }  // namespace
@@ -284,16 +279,19 @@ void WriteReport(const fs::path& dir, const CompareResult& r, const ReportOption
         r.c2c.count ? 100.0 * static_cast<double>(r.c2c.outliers) / static_cast<double>(r.c2c.count)
                     : 0.0;
     hc.notes = {std::to_string(r.c2c.count) + " points",
-                "RMS " + Fmt("%.4f mm", r.c2c.rms_mm) + ", p95 " + Fmt("%.4f mm", r.c2c.p95_mm),
-                "beyond " + Fmt("%.3f mm", s.threshold_mm) + ": " + Fmt("%.3f %%", out_pct),
-                "coverage " + Fmt("%.1f %%", 100.0 * r.coverage)};
+                "RMS " + StringPrintf("%.4f mm", r.c2c.rms_mm) + ", p95 " +
+                    StringPrintf("%.4f mm", r.c2c.p95_mm),
+                "beyond " + StringPrintf("%.3f mm", s.threshold_mm) + ": " +
+                    StringPrintf("%.3f %%", out_pct),
+                "coverage " + StringPrintf("%.1f %%", 100.0 * r.coverage)};
     if (r.c2m)
       hc.notes.insert(hc.notes.begin() + 1,
-                      "signed mean " + Fmt("%+.4f mm", r.c2m->signed_mean_mm));
+                      "signed mean " + StringPrintf("%+.4f mm", r.c2m->signed_mean_mm));
     const size_t beyond = s.histogram.underflow + s.histogram.overflow;
     if (beyond > 0 && s.count > 0) {
-      hc.notes.push_back(Fmt("%.2f %% beyond the axis",
-                             100.0 * static_cast<double>(beyond) / static_cast<double>(s.count)));
+      hc.notes.push_back(
+          StringPrintf("%.2f %% beyond the axis",
+                       100.0 * static_cast<double>(beyond) / static_cast<double>(s.count)));
     }
     WriteHistogramPng(staged / "histogram.png", s.histogram, hc);
     const ViewCamera view = options.view ? *options.view : FitView(r.compared);
@@ -306,13 +304,14 @@ void WriteReport(const fs::path& dir, const CompareResult& r, const ReportOption
     mc.hi = s.histogram.hi_mm;
     mc.marks = {s.threshold_mm};
     if (s.is_signed) mc.marks.push_back(-s.threshold_mm);
-    mc.notes = {Fmt(r.options.color_range_mm > 0 ? "colour range +-%.4g mm (fixed)"
-                                                 : "colour range +-%.4g mm (99 %% of points)",
-                    s.histogram.hi_mm)};
+    mc.notes = {StringPrintf(r.options.color_range_mm > 0
+                                 ? "colour range +-%.4g mm (fixed)"
+                                 : "colour range +-%.4g mm (99 %% of points)",
+                             s.histogram.hi_mm)};
     if (s.threshold_mm >= s.histogram.hi_mm)
-      mc.notes.push_back(Fmt("threshold %.4g mm: beyond the range", s.threshold_mm));
+      mc.notes.push_back(StringPrintf("threshold %.4g mm: beyond the range", s.threshold_mm));
     else
-      mc.notes.push_back(Fmt("threshold %.4g mm: black lines", s.threshold_mm));
+      mc.notes.push_back(StringPrintf("threshold %.4g mm: black lines", s.threshold_mm));
     WriteDeviationMapPng(staged / "deviation_map.png", img, mc);
     WriteTextFileAtomically(staged / "summary.txt", r.Summary());
     if (options.before_commit) options.before_commit(staged);

@@ -1,4 +1,4 @@
-// Summary statistics of per-point deviations, and the coverage of a reference surface.
+// Summary statistics of per-point deviations.
 //
 // Definitions (docs/formats.md "Comparison report" repeats them):
 //  - count: number of finite distances d_i (NaN entries are skipped and counted in num_invalid);
@@ -12,15 +12,19 @@
 #pragma once
 
 #include <cstddef>
-#include <cstdint>
-#include <cstring>
 #include <vector>
 
-#include <Eigen/Core>
+// Until the scan pipeline calls AbsPercentile (shadow/scan_pipeline.cc), and its callers include
+// coverage.h and median_spacing.h themselves.
+#include "compare/coverage.h"
+#include "compare/internal/abs_buckets.h"
+#include "compare/median_spacing.h"
 
 namespace slshadow::compare {
 
-class KdTree;
+using internal::AbsBucket;  // until shadow/scan_pipeline.cc calls AbsPercentile
+using internal::AbsValuesAtRanks;
+using internal::kAbsBuckets;
 
 struct Histogram {
   double lo_mm = 0.0, hi_mm = 0.0;  // range of the bins
@@ -62,50 +66,9 @@ UnsignedAndSigned ComputeUnsignedAndSignedStats(const std::vector<double>& dista
                                                 double threshold_mm, int bins = 60,
                                                 double range_mm = 0);
 
-// Coverage of the reference surface: the fraction of `reference_samples` (points that sample
-// the reference surface uniformly by area, or the reference cloud's own points) that have a
-// point of `reached` (the compared points within the threshold of the reference) within
-// `radius_mm`. In [0, 1]; 0 when there are no samples.
-double Coverage(const std::vector<Eigen::Vector3d>& reference_samples, const KdTree& reached,
-                double radius_mm);
-// The same value from the reached points themselves, through a uniform grid of cell ~radius
-// (no tree to build: cheaper on millions of reached points).
-double Coverage(const std::vector<Eigen::Vector3d>& reference_samples,
-                const std::vector<Eigen::Vector3d>& reached, double radius_mm);
-// Coverage(*sample_sets[k], reached, radius_mm) for every k, bit for bit, from one grid over the
-// reached points (built once instead of once per sample set).
-std::vector<double> Coverages(const std::vector<const std::vector<Eigen::Vector3d>*>& sample_sets,
-                              const std::vector<Eigen::Vector3d>& reached, double radius_mm);
-// The same with the reached points given as flags over `points` (non-zero: reached), without
-// copying them out.
-std::vector<double> Coverages(const std::vector<const std::vector<Eigen::Vector3d>*>& sample_sets,
-                              const std::vector<Eigen::Vector3d>& points,
-                              const std::vector<uint8_t>& reached, double radius_mm);
-
-// MedianSpacing(KdTree(points), max_samples) without the tree, the same double. A cloud whose
-// array order follows space (a scan's cloud, in grid order): each sample's distance to its array
-// neighbours bounds its nearest, hashed cells sized from those bounds list the samples searching
-// them, and one pass over the points compares each with the samples searching its cell. Any
-// other cloud (or one with a non-finite sample, or many isolated ones): a uniform grid from the
-// bounding box answers the samples whose nearest other point lies within its cell, a tree only
-// the others (compare/internal/median_spacing.h).
-double MedianSpacing(const std::vector<Eigen::Vector3d>& points, size_t max_samples = 20000);
-
-// Order statistics of magnitudes by buckets (ComputeStats's median, p95 and p99; the sweep's
-// per-band p95): the bucket of |d| is its top 16 bits (sign 0, exponent, 4 bits of mantissa),
-// which order magnitudes as their values; non-finite values fall beyond every finite bucket.
-inline constexpr size_t kAbsBuckets = size_t{1} << 16;
-inline uint32_t AbsBucket(double magnitude) {
-  uint64_t bits = 0;
-  std::memcpy(&bits, &magnitude, sizeof(bits));
-  return static_cast<uint32_t>(bits >> 48);
-}
-
-// out[r] = the value of 0-based rank ranks[r] among the |d| of the finite d of [first, last),
-// ascending (ranks ascending, each below that count), given counts[b] = how many of those |d|
-// fall in bucket b (AbsBucket; kAbsBuckets entries): what a full sort puts there, selected among
-// the values of the ranks' buckets only.
-void AbsValuesAtRanks(const double* first, const double* last, const std::vector<uint32_t>& counts,
-                      const size_t* ranks, int num_ranks, double* out);
+// The nearest-rank p-th percentile (core/statistics.h) of |d| over the finite d of [first, last)
+// (NaN for none): Percentile's value, by ComputeStats's buckets of magnitudes, without copying or
+// reordering the values.
+double AbsPercentile(const double* first, const double* last, double p);
 
 }  // namespace slshadow::compare

@@ -11,16 +11,10 @@
 
 #include "core/config.h"
 #include "core/error.h"
+#include "core/statistics.h"
 
 namespace slshadow::compare {
 namespace {
-
-double Median(std::vector<double> v) {
-  if (v.empty()) return 0.0;
-  const auto mid = v.begin() + static_cast<long>(v.size() / 2);
-  std::nth_element(v.begin(), mid, v.end());
-  return *mid;
-}
 
 // Sphere through 4 points (algebraic); false when degenerate.
 bool SphereFrom4(const Eigen::Vector3d* p, SphereFit* fit) {

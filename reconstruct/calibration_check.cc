@@ -8,6 +8,8 @@
 
 #include <Eigen/Dense>
 
+#include "core/statistics.h"
+
 namespace slshadow {
 
 namespace {
@@ -33,15 +35,7 @@ Terms Basis(double x, double y) {
 // 1.4826 x the median absolute value: the standard deviation of Gaussian noise.
 double RobustScale(std::vector<double> r) {
   for (double& v : r) v = std::abs(v);
-  const auto mid = r.begin() + static_cast<std::ptrdiff_t>(r.size() / 2);
-  std::nth_element(r.begin(), mid, r.end());
-  return 1.4826 * *mid;
-}
-
-double Median(std::vector<double> v) {
-  const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
-  std::nth_element(v.begin(), mid, v.end());
-  return *mid;
+  return 1.4826 * Median(r);  // core/statistics.h: nearest rank
 }
 
 // The weighted normal equations of the full basis; a nested group's are their top-left block.
@@ -164,7 +158,7 @@ CalibrationCheck FitCalibrationCheck(const std::vector<float>& x, const std::vec
     basis.push_back(Basis(x[i], y[i]));
     e.push_back(error_px[i]);
   }
-  c.median_px = Median(e);
+  c.median_px = Median(std::vector<double>(e));  // a copy: e stays aligned with basis
   const size_t n = e.size();
 
   // Huber IRLS from the median: bounded influence of decoding blunders, convex, so it converges

@@ -136,8 +136,9 @@ struct ResidualStats {
   double rms = 0;
   nlohmann::json ToJson() const;
 };
-// Computes the statistics of `values` (NaN entries ignored); reorders `values`.
-ResidualStats ComputeResidualStats(std::vector<float>& values);
+// The statistics of `values` (non-finite entries ignored): Summarize()'s count, median, 95th
+// percentile, maximum and RMS of the values (core/statistics.h).
+ResidualStats ComputeResidualStats(const std::vector<float>& values);
 
 struct ReconstructSummary {
   ReconstructMode mode = ReconstructMode::kProjector;

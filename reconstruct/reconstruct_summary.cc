@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cstdio>
-#include <cstring>
 #include <sstream>
 
 #include "core/statistics.h"
@@ -18,73 +17,17 @@ std::string Percent(int64_t part, int64_t whole) {
   return buf;
 }
 
-// The values of ranks k0 and k1 (0-based, ascending) of finite `values`, exactly as
-// std::nth_element would give them, by one radix pass: a histogram of the top 16 bits of the
-// order-preserving integer key of each float locates the bucket holding each rank, and only the
-// values of those buckets (a few thousand of millions for residuals) are then ordered.
-inline uint32_t SortKey(float v) {
-  uint32_t bits;
-  std::memcpy(&bits, &v, sizeof(bits));
-  return (bits & 0x80000000u) ? ~bits : (bits | 0x80000000u);
-}
-
-std::pair<float, float> SelectRanks(std::vector<float>& values, size_t k0, size_t k1) {
-  constexpr int kBuckets = 1 << 16;
-  std::vector<uint32_t> hist(kBuckets, 0);
-  for (float v : values) ++hist[SortKey(v) >> 16];
-  auto locate = [&](size_t k, size_t* rank_in_bucket) {
-    size_t below = 0;
-    for (int b = 0; b < kBuckets; ++b) {
-      if (below + hist[static_cast<size_t>(b)] > k) {
-        *rank_in_bucket = k - below;
-        return static_cast<uint32_t>(b);
-      }
-      below += hist[static_cast<size_t>(b)];
-    }
-    *rank_in_bucket = 0;
-    return static_cast<uint32_t>(kBuckets - 1);
-  };
-  size_t r0 = 0, r1 = 0;
-  const uint32_t b0 = locate(k0, &r0), b1 = locate(k1, &r1);
-  std::vector<float> c0, c1;
-  c0.reserve(hist[b0]);
-  if (b1 != b0) c1.reserve(hist[b1]);
-  for (float v : values) {
-    const uint32_t b = SortKey(v) >> 16;
-    if (b == b0)
-      c0.push_back(v);
-    else if (b == b1)
-      c1.push_back(v);
-  }
-  std::vector<float>& d1 = b1 == b0 ? c0 : c1;
-  std::nth_element(c0.begin(), c0.begin() + static_cast<std::ptrdiff_t>(r0), c0.end());
-  const float v0 = c0[r0];
-  std::nth_element(d1.begin(), d1.begin() + static_cast<std::ptrdiff_t>(r1), d1.end());
-  return {v0, d1[r1]};
-}
-
 }  // namespace
 
-ResidualStats ComputeResidualStats(std::vector<float>& values) {
-  values.erase(
-      std::remove_if(values.begin(), values.end(), [](float v) { return !std::isfinite(v); }),
-      values.end());
+ResidualStats ComputeResidualStats(const std::vector<float>& values) {
+  const Summary summary = Summarize(values);  // core/statistics.h: nearest rank
   ResidualStats s;
-  s.count = static_cast<int64_t>(values.size());
-  if (values.empty()) return s;
-  double sum2 = 0, mx = 0;
-  for (float v : values) {
-    sum2 += static_cast<double>(v) * v;
-    mx = std::max(mx, static_cast<double>(v));
-  }
-  s.rms = std::sqrt(sum2 / static_cast<double>(values.size()));
-  s.max = mx;
-  const size_t n = values.size();
-  const size_t km = PercentileRank(n, 50);  // core/statistics.h: nearest rank
-  const size_t kp = PercentileRank(n, 95);
-  const auto ranked = SelectRanks(values, km, kp);
-  s.median = ranked.first;
-  s.p95 = ranked.second;
+  s.count = summary.count;
+  if (s.count == 0) return s;
+  s.rms = summary.rms;
+  s.max = std::max(0.0, summary.max);  // as a running maximum from 0
+  s.median = summary.median;
+  s.p95 = summary.p95;
   return s;
 }
 

@@ -19,6 +19,7 @@
 #include <nlohmann/json.hpp>
 
 #include "core/point_cloud.h"
+#include "core/statistics.h"
 #include "core/string_printf.h"
 #include "tests/multiview/synthetic_views.h"
 #include "workflows/multiview/merge.h"
@@ -32,9 +33,8 @@ struct Errors {
   std::vector<double> rotation_deg, displacement_um;
 };
 
-double Median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  return v.empty() ? 0.0 : v[v.size() / 2];
+double Median(std::vector<double> v) {  // core/statistics.h's nearest rank; 0 for none
+  return v.empty() ? 0.0 : slshadow::Median(v);
 }
 double Max(const std::vector<double>& v) {
   return v.empty() ? 0.0 : *std::max_element(v.begin(), v.end());

@@ -24,9 +24,6 @@ CalibrationInput DeviceInput(const CalibrationInput& input, int d);
 // Intrinsics and per-pose dev_from_board of one device alone.
 State InitDevice(const CalibrationInput& sub, const CalibrationOptions& options);
 
-// The median of `v` (the upper middle element for an even count); 0 for an empty vector.
-double Median(std::vector<double> v);
-
 // The candidate transform closest (in translation, then rotation) to all others: robust average.
 Rigid3d Medoid(const std::vector<Rigid3d>& candidates);
 

@@ -14,8 +14,10 @@
 
 #include <gtest/gtest.h>
 
+#include "compare/coverage.h"
 #include "compare/internal/median_spacing.h"
 #include "compare/kdtree.h"
+#include "compare/median_spacing.h"
 #include "core/error.h"
 #include "tests/compare/test_shapes.h"
 

@@ -11,6 +11,7 @@
 #include <Eigen/Geometry>
 
 #include "core/error.h"
+#include "core/statistics.h"
 #include "core/string_printf.h"
 #include "workflows/multiview/internal/fusion.h"
 #include "workflows/multiview/internal/pairwise.h"
@@ -24,13 +25,6 @@ using Clock = std::chrono::steady_clock;
 
 double Seconds(Clock::time_point since) {
   return std::chrono::duration<double>(Clock::now() - since).count();
-}
-
-double Median(std::vector<double> v) {
-  if (v.empty()) return 0.0;
-  std::sort(v.begin(), v.end());
-  const size_t h = v.size() / 2;
-  return v.size() % 2 ? v[h] : 0.5 * (v[h - 1] + v[h]);
 }
 
 Eigen::Matrix3d Skew(const Eigen::Vector3d& v) {
@@ -323,7 +317,7 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
     else
       rms_of_good.push_back(p.rms_mm);
   }
-  const double median_rms = Median(rms_of_good);
+  const double median_rms = rms_of_good.empty() ? 0.0 : Median(rms_of_good);
   for (auto& p : result.pairs) {
     if (p.kept && p.rms_mm > options.max_pair_rms_ratio * median_rms) {
       p.kept = false;
@@ -406,7 +400,8 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
       errors.push_back(p.graph_error_mm);
     }
     const double bound =
-        std::max(options.min_edge_error_mm, options.max_edge_error_ratio * Median(errors));
+        std::max(options.min_edge_error_mm,
+                 options.max_edge_error_ratio * Median(std::vector<double>(errors)));
     size_t worst = edges.size();
     for (size_t e = 0; e < edges.size(); ++e)
       if (errors[e] > bound && (worst == edges.size() || errors[e] > errors[worst])) worst = e;
@@ -489,7 +484,8 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
     for (double r : view_rms[i]) sum_sq += r * r;
     v.residual_rms_mm =
         view_rms[i].empty() ? 0.0 : std::sqrt(sum_sq / static_cast<double>(view_rms[i].size()));
-    v.noise_mm = Median(view_rms[i]) / std::sqrt(2.0);
+    v.noise_mm =
+        view_rms[i].empty() ? 0.0 : Median(std::vector<double>(view_rms[i])) / std::sqrt(2.0);
     if (v.anchor || !options.refine) continue;
     if (!sol.covariance_ok) {
       v.sigma_rotation_deg = v.sigma_translation_mm = std::numeric_limits<double>::quiet_NaN();
