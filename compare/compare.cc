@@ -12,10 +12,11 @@
 #include <tbb/parallel_for.h>
 
 #include "compare/charts.h"
-#include "compare/kdtree.h"
+#include "compare/median_spacing.h"
 #include "compare/mesh_distance.h"
 #include "core/config.h"
 #include "core/error.h"
+#include "core/kdtree.h"
 #include "core/string_printf.h"
 
 namespace slshadow::compare {

@@ -8,8 +8,8 @@
 #include <tbb/parallel_reduce.h>
 
 #include "compare/internal/point_grid.h"
-#include "compare/kdtree.h"
 #include "core/error.h"
+#include "core/kdtree.h"
 
 namespace slshadow::compare {
 

@@ -6,9 +6,11 @@
 
 #include <Eigen/Core>
 
-namespace slshadow::compare {
-
+namespace slshadow {
 class KdTree;
+}  // namespace slshadow
+
+namespace slshadow::compare {
 
 // Coverage of the reference surface: the fraction of `reference_samples` (points that sample
 // the reference surface uniformly by area, or the reference cloud's own points) that have a

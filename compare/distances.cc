@@ -7,9 +7,9 @@
 #include <tbb/parallel_for.h>
 #include <Eigen/Eigenvalues>
 
-#include "compare/kdtree.h"
 #include "compare/mesh_distance.h"
 #include "core/error.h"
+#include "core/kdtree.h"
 
 namespace slshadow::compare {
 namespace {

@@ -22,9 +22,12 @@
 #include "core/mesh.h"
 #include "core/point_cloud.h"
 
+namespace slshadow {
+class KdTree;
+}  // namespace slshadow
+
 namespace slshadow::compare {
 
-class KdTree;
 class MeshDistance;
 
 enum class LocalModel { kNone, kPlane, kQuadric };

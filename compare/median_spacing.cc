@@ -13,8 +13,8 @@
 
 #include "compare/internal/median_spacing.h"
 #include "compare/internal/point_grid.h"
-#include "compare/kdtree.h"
 #include "core/error.h"
+#include "core/kdtree.h"
 
 namespace slshadow::compare {
 
@@ -221,7 +221,7 @@ bool ScanOrderSpacings(const std::vector<Eigen::Vector3d>& pts, size_t stride,
   }
   // MedianSpacingByCells answers from its grids the samples whose nearest lies within 8 of its
   // cells (the same squared distance), the others from its tree: the same squared distance too
-  // (compare/kdtree.h) when every point is finite; with non-finite points in the tree, it is left
+  // (core/kdtree.h) when every point is finite; with non-finite points in the tree, it is left
   // to answer them.
   if (!scan.finite) {
     Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
@@ -316,6 +316,21 @@ double MedianSpacingByCells(const std::vector<Eigen::Vector3d>& points, size_t m
 }
 
 }  // namespace internal
+
+double MedianSpacing(const KdTree& tree, size_t max_samples) {
+  const auto& pts = tree.points();
+  if (pts.size() < 2) return 0.0;
+  const size_t stride = std::max<size_t>(1, pts.size() / std::max<size_t>(1, max_samples));
+  std::vector<double> d;
+  std::vector<Neighbor> nn;
+  for (size_t i = 0; i < pts.size(); i += stride) {
+    tree.KNearest(pts[i], 2, &nn);
+    if (nn.size() == 2) d.push_back(std::sqrt(nn[1].distance_sq));
+  }
+  if (d.empty()) return 0.0;
+  std::nth_element(d.begin(), d.begin() + static_cast<long>(d.size() / 2), d.end());
+  return d[d.size() / 2];
+}
 
 double MedianSpacing(const std::vector<Eigen::Vector3d>& points, size_t max_samples) {
   if (points.size() < 2) return 0.0;

@@ -6,7 +6,15 @@
 
 #include <Eigen/Core>
 
+namespace slshadow {
+class KdTree;
+}  // namespace slshadow
+
 namespace slshadow::compare {
+
+// Median distance from each point to its nearest other point (exact, on at most max_samples
+// evenly strided points): the typical point spacing of a cloud, mm. 0 for fewer than 2 points.
+double MedianSpacing(const KdTree& tree, size_t max_samples = 20000);
 
 // MedianSpacing(KdTree(points), max_samples) without the tree, the same double. A cloud whose
 // array order follows space (a scan's cloud, in grid order): each sample's distance to its array

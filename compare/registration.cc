@@ -18,8 +18,9 @@
 #include <Eigen/Geometry>
 
 #include "compare/distances.h"
-#include "compare/kdtree.h"
+#include "compare/median_spacing.h"
 #include "core/error.h"
+#include "core/kdtree.h"
 
 namespace slshadow::compare {
 namespace {

@@ -5,11 +5,11 @@
 #include <map>
 
 #include <tbb/parallel_for.h>
-#include <nanoflann.hpp>
 
 #include "core/config.h"
 #include "core/error.h"
 #include "core/image_io.h"
+#include "core/kdtree.h"
 #include "core/pose_io.h"
 #include "sim/shapes.h"
 
@@ -354,16 +354,6 @@ void AddObjects(const ConfigNode& node, const std::filesystem::path& base_dir, S
   scene.objects.push_back(std::move(o));
 }
 
-struct CloudAdaptor {
-  const std::vector<Eigen::Vector3d>& pts;
-  size_t kdtree_get_point_count() const { return pts.size(); }
-  double kdtree_get_pt(size_t i, size_t dim) const { return pts[i][static_cast<int>(dim)]; }
-  template <class B>
-  bool kdtree_get_bbox(B&) const {
-    return false;
-  }
-};
-
 }  // namespace
 
 double Albedo::Evaluate(double x_mm, double y_mm) const {
@@ -623,24 +613,18 @@ nlohmann::json SceneToJson(const Scene& scene) {
 std::vector<float> DiscRadiiFromSpacing(const std::vector<Eigen::Vector3d>& points, double scale) {
   std::vector<float> radii(points.size(), 1.0f);
   if (points.size() < 2) return radii;
-  using Tree =
-      nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<double, CloudAdaptor>,
-                                          CloudAdaptor, 3, size_t>;
-  CloudAdaptor adaptor{points};
-  Tree tree(3, adaptor, nanoflann::KDTreeSingleIndexAdaptorParams(16));
-  tree.buildIndex();
-  const size_t k = std::min<size_t>(5, points.size());  // the point itself + 4 neighbours
+  const KdTree tree(points, 16);
+  const int k = static_cast<int>(std::min<size_t>(5, points.size()));  // the point + 4 neighbours
   tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 1024),
                     [&](const tbb::blocked_range<size_t>& range) {
-                      std::vector<size_t> idx(k);
-                      std::vector<double> d2(k);
+                      std::vector<Neighbor> near;
                       for (size_t i = range.begin(); i < range.end(); ++i) {
-                        const size_t n = tree.knnSearch(points[i].data(), k, idx.data(), d2.data());
+                        tree.KNearest(points[i], k, &near);
                         double sum = 0;
                         int count = 0;
-                        for (size_t m = 0; m < n; ++m) {
-                          if (idx[m] == i) continue;
-                          sum += std::sqrt(d2[m]);
+                        for (const Neighbor& n : near) {
+                          if (n.index == i) continue;
+                          sum += std::sqrt(n.distance_sq);
                           ++count;
                         }
                         radii[i] =

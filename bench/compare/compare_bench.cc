@@ -18,8 +18,8 @@
 #include <unistd.h>
 
 #include "compare/distances.h"
-#include "compare/kdtree.h"
 #include "compare/registration.h"
+#include "core/kdtree.h"
 #include "core/point_cloud.h"
 #include "tests/compare/test_shapes.h"
 

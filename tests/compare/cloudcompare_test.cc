@@ -9,7 +9,7 @@
 #include <gtest/gtest.h>
 
 #include "compare/distances.h"
-#include "compare/kdtree.h"
+#include "core/kdtree.h"
 #include "core/point_cloud.h"
 #include "tests/compare/test_shapes.h"
 #include "tests/testing/temp_dir.h"

@@ -5,8 +5,8 @@
 
 #include <gtest/gtest.h>
 
-#include "compare/kdtree.h"
 #include "core/error.h"
+#include "core/kdtree.h"
 #include "tests/compare/test_shapes.h"
 
 namespace slshadow::compare {

@@ -16,9 +16,9 @@
 
 #include "compare/coverage.h"
 #include "compare/internal/median_spacing.h"
-#include "compare/kdtree.h"
 #include "compare/median_spacing.h"
 #include "core/error.h"
+#include "core/kdtree.h"
 #include "tests/compare/test_shapes.h"
 
 namespace slshadow::compare {
@@ -551,6 +551,14 @@ TEST(MedianSpacing, ScanOrderGridOnAReconstructionSizedCloud) {
   EXPECT_TRUE(ScanOrder(scan, 20000));
   const KdTree tree(scan);
   EXPECT_EQ(MedianSpacing(scan), MedianSpacing(tree));
+}
+
+TEST(MedianSpacing, OfATreeOverAGrid) {
+  std::vector<Eigen::Vector3d> grid;
+  for (int i = 0; i < 30; ++i)
+    for (int j = 0; j < 30; ++j) grid.emplace_back(0.5 * i, 0.5 * j, 0.0);
+  const KdTree tree(grid);
+  EXPECT_DOUBLE_EQ(MedianSpacing(tree), 0.5);
 }
 
 }  // namespace

@@ -12,10 +12,11 @@
 #include "compare/charts.h"
 #include "compare/compare.h"
 #include "compare/distances.h"
-#include "compare/kdtree.h"
+#include "compare/median_spacing.h"
 #include "compare/mesh_distance.h"
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/kdtree.h"
 #include "core/string_printf.h"
 #include "sim/raycaster.h"
 #include "sim/scene.h"
@@ -53,9 +54,9 @@ std::vector<uint8_t> Reached(const std::vector<Eigen::Vector3d>& points,
   }
   std::vector<uint8_t> reached(samples.size(), 0);
   if (inliers.empty()) return reached;
-  const compare::KdTree tree(inliers);
+  const KdTree tree(inliers);
   tbb::parallel_for(size_t{0}, samples.size(), [&](size_t i) {
-    compare::Neighbor n;
+    Neighbor n;
     reached[i] = tree.Nearest(samples[i], &n, radius_mm) ? 1 : 0;
   });
   return reached;
@@ -328,21 +329,21 @@ CadComparison CompareWithCad(const TriangleMesh& cad_in_part, const Rig& rig, Re
                               ? options.color_range_mm
                               : std::max(result.merged_c2m.histogram.hi_mm, 1e-6);
   {
-    const compare::KdTree merged_tree(merged_in_part.points);
-    const compare::KdTree sample_tree(samples);
+    const KdTree merged_tree(merged_in_part.points);
+    const KdTree sample_tree(samples);
     const size_t nv = cad_in_part.vertices.size();
     result.vertex_deviation_mm.assign(nv, std::numeric_limits<float>::quiet_NaN());
     result.vertex_reason.assign(nv, 0);
     tbb::parallel_for(size_t{0}, nv, [&](size_t i) {
       const Eigen::Vector3d& x = cad_in_part.vertices[i];
-      std::vector<compare::Neighbor> near;
+      std::vector<Neighbor> near;
       merged_tree.Radius(x, result.coverage_radius_mm, &near);
       if (!near.empty()) {
         double sum = 0;
         for (const auto& n : near) sum += result.merged_deviations_mm[n.index];
         result.vertex_deviation_mm[i] = static_cast<float>(sum / static_cast<double>(near.size()));
       }
-      compare::Neighbor s;
+      Neighbor s;
       if (sample_tree.Nearest(x, &s)) result.vertex_reason[i] = result.sample_reason[s.index];
     });
   }

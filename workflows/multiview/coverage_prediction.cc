@@ -9,8 +9,8 @@
 #include <memory>
 
 #include "compare/compare.h"
-#include "compare/kdtree.h"
 #include "core/error.h"
+#include "core/kdtree.h"
 #include "core/point_cloud.h"
 #include "core/string_printf.h"
 #include "sim/raycaster.h"
@@ -453,9 +453,9 @@ PredictionCheck CheckPrediction(const CoveragePrediction& prediction, const CadC
   // Predicted covered as the scan measures it: a reconstructed sample within the radius.
   std::vector<uint8_t> covered(ns, 0);
   if (!reconstructed.empty()) {
-    const compare::KdTree tree(reconstructed);
+    const KdTree tree(reconstructed);
     tbb::parallel_for(size_t{0}, ns, [&](size_t i) {
-      compare::Neighbor n;
+      Neighbor n;
       covered[i] = prediction.sample_reason[i] == kCovered ||
                    tree.Nearest(prediction.sample_points[i], &n, scan.coverage_radius_mm);
     });

@@ -15,8 +15,9 @@
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
 
-#include "compare/kdtree.h"
+#include "compare/median_spacing.h"
 #include "core/error.h"
+#include "core/kdtree.h"
 #include "core/string_printf.h"
 
 namespace slshadow::multiview {
@@ -148,7 +149,7 @@ SurfaceMeshResult BuildSurfaceMesh(const PointCloud& cloud, const SurfaceMeshOpt
 
   // Trim: vertices no merged point is near; orientation from the points' normals.
   t0 = std::chrono::steady_clock::now();
-  const compare::KdTree tree(cloud.points);
+  const KdTree tree(cloud.points);
   const double spacing = compare::MedianSpacing(tree);
   result.trim_distance_mm = options.trim_distance_mm > 0 ? options.trim_distance_mm
                                                          : 2.0 * std::max(result.cell_mm, spacing);
@@ -156,7 +157,7 @@ SurfaceMeshResult BuildSurfaceMesh(const PointCloud& cloud, const SurfaceMeshOpt
   std::vector<uint32_t> nearest(full.vertices.size());
   tbb::parallel_for(tbb::blocked_range<size_t>(0, full.vertices.size(), 4096),
                     [&](const tbb::blocked_range<size_t>& r) {
-                      compare::Neighbor nb;
+                      Neighbor nb;
                       for (size_t i = r.begin(); i != r.end(); ++i) {
                         keep[i] = tree.Nearest(full.vertices[i], &nb, result.trim_distance_mm);
                         nearest[i] = keep[i] ? static_cast<uint32_t>(nb.index) : 0;

@@ -10,6 +10,7 @@
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 
+#include "compare/median_spacing.h"
 #include "core/error.h"
 
 namespace slshadow::multiview::internal {
@@ -48,7 +49,7 @@ Accumulator Correspond(const ViewGeometry& a, const ViewGeometry& b, const Rigid
   const auto& pa = *a.points;
   const auto& pb = *b.points;
   const float max_var = static_cast<float>(o.icp_max_surface_variation);
-  compare::Neighbor nb;
+  Neighbor nb;
   for (uint32_t i : b.icp_sample) {
     const Eigen::Vector3d s = r * pb[i] + a_from_b.translation;
     if (!a.tree->Nearest(s, &nb, gate)) continue;
@@ -98,7 +99,7 @@ void PrepareView(const PointCloud& cloud, const MergeOptions& o, ViewGeometry* v
                     pts.size(), " points (need more than normal_neighbors = ", o.normal_neighbors,
                     ")");
   view->points = &pts;
-  view->tree = std::make_unique<compare::KdTree>(pts);
+  view->tree = std::make_unique<KdTree>(pts);
   view->spacing_mm = compare::MedianSpacing(*view->tree);
   view->normals.resize(pts.size());
   view->variation.resize(pts.size());
@@ -106,7 +107,7 @@ void PrepareView(const PointCloud& cloud, const MergeOptions& o, ViewGeometry* v
   std::vector<float> radius(pts.size());
   tbb::parallel_for(tbb::blocked_range<size_t>(0, pts.size(), 4096),
                     [&](const tbb::blocked_range<size_t>& range) {
-                      std::vector<compare::Neighbor> nn;
+                      std::vector<Neighbor> nn;
                       for (size_t i = range.begin(); i != range.end(); ++i) {
                         view->tree->KNearest(pts[i], o.normal_neighbors, &nn);
                         radius[i] = static_cast<float>(std::sqrt(nn.back().distance_sq));
@@ -147,7 +148,7 @@ void PrepareView(const PointCloud& cloud, const MergeOptions& o, ViewGeometry* v
     chosen.push_back(pts[flat[k]]);
     chosen_index.push_back(flat[k]);
   }
-  const std::vector<uint32_t> order = compare::SpatialOrder(chosen);
+  const std::vector<uint32_t> order = SpatialOrder(chosen);
   view->icp_sample.clear();
   for (uint32_t k : order) view->icp_sample.push_back(chosen_index[k]);
   const size_t ostride = std::max<size_t>(1, pts.size() / static_cast<size_t>(o.overlap_samples));
@@ -161,7 +162,7 @@ double OverlapShare(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d&
   if (b.overlap_sample.empty()) return 0.0;
   const double cos_max = std::cos(max_normal_angle_deg * M_PI / 180.0);
   size_t hits = 0;
-  compare::Neighbor nb;
+  Neighbor nb;
   for (uint32_t i : b.overlap_sample) {
     const Eigen::Vector3d s = a_from_b * (*b.points)[i];
     if (!a.tree->Nearest(s, &nb, gate_mm)) continue;

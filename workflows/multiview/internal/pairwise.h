@@ -9,7 +9,7 @@
 
 #include <Eigen/Core>
 
-#include "compare/kdtree.h"
+#include "core/kdtree.h"
 #include "core/point_cloud.h"
 #include "core/rigid3.h"
 #include "workflows/multiview/merge.h"
@@ -23,7 +23,7 @@ struct ViewGeometry {
   const std::vector<Eigen::Vector3d>* points = nullptr;
   std::vector<Eigen::Vector3d> normals;  // unit; the cloud's, else PCA oriented to the origin
   std::vector<float> variation;          // PCA lambda_min / (lambda_0 + lambda_1 + lambda_2)
-  std::unique_ptr<compare::KdTree> tree;
+  std::unique_ptr<KdTree> tree;
   double spacing_mm = 0;                 // median nearest-neighbour distance
   double area_spacing_mm = 0;            // sqrt(area per point), from the median k-neighbour radius
   std::vector<uint32_t> icp_sample;      // flat points (variation below the bound), Morton order

@@ -1,17 +1,22 @@
-#include "compare/kdtree.h"
+#include "core/kdtree.h"
 
 #include <algorithm>
 #include <cmath>
+#include <random>
 
 #include <gtest/gtest.h>
 #include <tbb/task_arena.h>
 
-#include "tests/compare/test_shapes.h"
-
-namespace slshadow::compare {
+namespace slshadow {
 namespace {
 
-using testing::RandomPoints;
+std::vector<Eigen::Vector3d> RandomPoints(size_t n, double extent, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-extent, extent);
+  std::vector<Eigen::Vector3d> pts(n);
+  for (auto& p : pts) p = {u(rng), u(rng), u(rng)};
+  return pts;
+}
 
 TEST(KdTree, NearestEqualsBruteForceExactly) {
   const auto ref = RandomPoints(3000, 10.0, 1);
@@ -148,13 +153,5 @@ TEST(SpatialOrder, StablePermutationAlongACurve) {
   EXPECT_LT(along, 0.1 * by_index);
 }
 
-TEST(KdTree, MedianSpacingOfAGrid) {
-  std::vector<Eigen::Vector3d> grid;
-  for (int i = 0; i < 30; ++i)
-    for (int j = 0; j < 30; ++j) grid.emplace_back(0.5 * i, 0.5 * j, 0.0);
-  const KdTree tree(grid);
-  EXPECT_DOUBLE_EQ(MedianSpacing(tree), 0.5);
-}
-
 }  // namespace
-}  // namespace slshadow::compare
+}  // namespace slshadow

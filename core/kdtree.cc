@@ -1,4 +1,4 @@
-#include "compare/kdtree.h"
+#include "core/kdtree.h"
 
 #include <algorithm>
 #include <cmath>
@@ -9,7 +9,7 @@
 #include <tbb/parallel_invoke.h>
 #include <tbb/parallel_reduce.h>
 
-namespace slshadow::compare {
+namespace slshadow {
 namespace {
 
 // Spreads the low 10 bits of v to every third bit.
@@ -340,19 +340,4 @@ void KdTree::Radius(const Eigen::Vector3d& query, double radius, std::vector<Nei
   }
 }
 
-double MedianSpacing(const KdTree& tree, size_t max_samples) {
-  const auto& pts = tree.points();
-  if (pts.size() < 2) return 0.0;
-  const size_t stride = std::max<size_t>(1, pts.size() / std::max<size_t>(1, max_samples));
-  std::vector<double> d;
-  std::vector<Neighbor> nn;
-  for (size_t i = 0; i < pts.size(); i += stride) {
-    tree.KNearest(pts[i], 2, &nn);
-    if (nn.size() == 2) d.push_back(std::sqrt(nn[1].distance_sq));
-  }
-  if (d.empty()) return 0.0;
-  std::nth_element(d.begin(), d.begin() + static_cast<long>(d.size() / 2), d.end());
-  return d[d.size() / 2];
-}
-
-}  // namespace slshadow::compare
+}  // namespace slshadow
