@@ -21,6 +21,7 @@
 #include "calib/internal/calibration_problem.h"
 #include "calib/internal/initialization.h"
 #include "calib/internal/noise_model.h"
+#include "core/enum_names.h"
 #include "core/error.h"
 #include "core/statistics.h"
 #include "core/threads.h"
@@ -281,23 +282,13 @@ SolveOutput Solve(const CalibrationInput& input, const CalibrationOptions& optio
 
 }  // namespace
 
-std::string ToString(LossType loss) {
-  switch (loss) {
-    case LossType::kNone:
-      return "none";
-    case LossType::kHuber:
-      return "huber";
-    case LossType::kCauchy:
-      return "cauchy";
-  }
-  return "?";
-}
+constexpr EnumName<LossType> kLossTypeNames[] = {
+    {LossType::kNone, "none"}, {LossType::kHuber, "huber"}, {LossType::kCauchy, "cauchy"}};
+
+std::string ToString(LossType value) { return EnumToString(value, kLossTypeNames); }
 
 LossType LossTypeFromString(const std::string& name) {
-  if (name == "none") return LossType::kNone;
-  if (name == "huber") return LossType::kHuber;
-  if (name == "cauchy") return LossType::kCauchy;
-  SLSHADOW_THROW("loss: unknown robust loss (got '", name, "'; use none, huber or cauchy)");
+  return EnumFromString("loss", name, kLossTypeNames);
 }
 
 void CalibrationOptions::Check() const {

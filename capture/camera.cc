@@ -6,44 +6,18 @@
 
 namespace slshadow::capture {
 
-std::string ToString(PixelFormat format) {
-  switch (format) {
-    case PixelFormat::kMono8:
-      return "Mono8";
-    case PixelFormat::kMono12:
-      return "Mono12";
-    case PixelFormat::kMono16:
-      return "Mono16";
-  }
-  return "unknown";
-}
+std::string ToString(PixelFormat value) { return EnumToString(value, kPixelFormatNames); }
 
 PixelFormat PixelFormatFromString(const std::string& name) {
-  for (PixelFormat f : {PixelFormat::kMono8, PixelFormat::kMono12, PixelFormat::kMono16}) {
-    if (ToString(f) == name) return f;
-  }
-  SLSHADOW_THROW("pixel_format: unknown pixel format '", name, "' (Mono8, Mono12 or Mono16)");
+  return EnumFromString("pixel_format", name, kPixelFormatNames);
 }
 
 int BitDepthOf(PixelFormat format) { return format == PixelFormat::kMono8 ? 8 : 16; }
 
-std::string ToString(TriggerMode mode) {
-  switch (mode) {
-    case TriggerMode::kFreeRun:
-      return "free-run";
-    case TriggerMode::kSoftware:
-      return "software";
-    case TriggerMode::kHardware:
-      return "hardware";
-  }
-  return "unknown";
-}
+std::string ToString(TriggerMode value) { return EnumToString(value, kTriggerModeNames); }
 
 TriggerMode TriggerModeFromString(const std::string& name) {
-  for (TriggerMode m : {TriggerMode::kFreeRun, TriggerMode::kSoftware, TriggerMode::kHardware}) {
-    if (ToString(m) == name) return m;
-  }
-  SLSHADOW_THROW("trigger: unknown trigger mode '", name, "' (free-run, software or hardware)");
+  return EnumFromString("trigger", name, kTriggerModeNames);
 }
 
 std::string ToString(FrameStatus status) {

@@ -18,11 +18,17 @@
 
 #include <opencv2/core.hpp>
 
+#include "core/enum_names.h"
+
 namespace slshadow::capture {
 
 enum class PixelFormat { kMono8, kMono12, kMono16 };
 std::string ToString(PixelFormat format);                    // "Mono8", "Mono12", "Mono16"
 PixelFormat PixelFormatFromString(const std::string& name);  // throws slshadow::Error
+// The names (core/enum_names.h), for the devices file's reader.
+inline constexpr EnumName<PixelFormat> kPixelFormatNames[] = {{PixelFormat::kMono8, "Mono8"},
+                                                              {PixelFormat::kMono12, "Mono12"},
+                                                              {PixelFormat::kMono16, "Mono16"}};
 int BitDepthOf(PixelFormat format);  // 8 or 16: the depth of the stored image
 
 enum class TriggerMode {
@@ -32,6 +38,9 @@ enum class TriggerMode {
 };
 std::string ToString(TriggerMode mode);                      // "free-run", "software", "hardware"
 TriggerMode TriggerModeFromString(const std::string& name);  // throws slshadow::Error
+inline constexpr EnumName<TriggerMode> kTriggerModeNames[] = {{TriggerMode::kFreeRun, "free-run"},
+                                                              {TriggerMode::kSoftware, "software"},
+                                                              {TriggerMode::kHardware, "hardware"}};
 
 // Region of interest in sensor pixels; width/height 0 means the full sensor.
 struct Roi {

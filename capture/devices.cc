@@ -21,16 +21,18 @@ const std::vector<std::string>& KnownProjectorBackends() {
 
 namespace {
 
+// "a", "a or b", "a, b or c" (as core/enum_names.h lists an enum's names).
 std::string OneOf(const std::vector<std::string>& names) {
   std::string s;
-  for (size_t i = 0; i < names.size(); ++i) s += (i ? ", " : "") + names[i];
+  for (size_t i = 0; i < names.size(); ++i)
+    s += (i == 0 ? "" : i + 1 == names.size() ? " or " : ", ") + names[i];
   return s;
 }
 
 std::string Backend(const ConfigNode& node, const std::vector<std::string>& known) {
   const std::string name = node.AsString();
   if (std::find(known.begin(), known.end(), name) == known.end())
-    node.Fail("unknown backend (known: " + OneOf(known) + ")");
+    node.Fail("unknown backend (expected " + OneOf(known) + ")");
   return name;
 }
 
@@ -60,13 +62,8 @@ CameraSettings CameraSettingsFromConfig(const ConfigNode& node, const std::strin
       node["exposure_us"].Fail("must be a positive number of microseconds");
   }
   if (node.Has("gain_db")) s.gain_db = node["gain_db"].AsDouble();
-  if (node.Has("pixel_format")) {
-    try {
-      s.pixel_format = PixelFormatFromString(node["pixel_format"].AsString());
-    } catch (const Error&) {
-      node["pixel_format"].Fail("unknown pixel format (Mono8, Mono12 or Mono16)");
-    }
-  }
+  if (node.Has("pixel_format"))
+    s.pixel_format = EnumFromConfig(node["pixel_format"], kPixelFormatNames);
   if (node.Has("roi")) {
     const ConfigNode roi = node["roi"];
     if (!roi.IsArray() || roi.size() != 4)
@@ -81,13 +78,7 @@ CameraSettings CameraSettingsFromConfig(const ConfigNode& node, const std::strin
     if ((s.roi.width == 0) != (s.roi.height == 0))
       roi.Fail("width and height must both be 0 (full sensor) or both positive");
   }
-  if (node.Has("trigger")) {
-    try {
-      s.trigger = TriggerModeFromString(node["trigger"].AsString());
-    } catch (const Error&) {
-      node["trigger"].Fail("unknown trigger mode (free-run, software or hardware)");
-    }
-  }
+  if (node.Has("trigger")) s.trigger = EnumFromConfig(node["trigger"], kTriggerModeNames);
   s.trigger_line = node.GetString("trigger_line", s.trigger_line);
   for (const char* key : {"packet_size_bytes", "socket_buffer_bytes"}) {
     const int64_t v = NonNegative(node, key, 0);

@@ -25,7 +25,7 @@ void CheckFields(const TurntableConfig& c,
                  const std::function<void(const char*, const std::string&)>& fail) {
   const auto& known = KnownTurntableBackends();
   if (std::find(known.begin(), known.end(), c.backend) == known.end())
-    fail("backend", "unknown backend (known: grbl, manual, none)");
+    fail("backend", "unknown backend (expected grbl, manual or none)");
   if (c.backend != "grbl") return;
   if (c.port.empty()) fail("port", "must name the serial port, e.g. /dev/ttyUSB0");
   if (std::find(Bauds().begin(), Bauds().end(), c.baud) == Bauds().end())

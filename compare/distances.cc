@@ -8,6 +8,7 @@
 #include <Eigen/Eigenvalues>
 
 #include "compare/mesh_distance.h"
+#include "core/enum_names.h"
 #include "core/error.h"
 #include "core/kdtree.h"
 
@@ -104,23 +105,13 @@ double QuadricDistance(const std::vector<Eigen::Vector3d>& pts, const std::vecto
 
 }  // namespace
 
-std::string ToString(LocalModel model) {
-  switch (model) {
-    case LocalModel::kNone:
-      return "none";
-    case LocalModel::kPlane:
-      return "plane";
-    case LocalModel::kQuadric:
-      return "quadric";
-  }
-  return "none";
-}
+constexpr EnumName<LocalModel> kLocalModelNames[] = {
+    {LocalModel::kNone, "none"}, {LocalModel::kPlane, "plane"}, {LocalModel::kQuadric, "quadric"}};
+
+std::string ToString(LocalModel value) { return EnumToString(value, kLocalModelNames); }
 
 LocalModel LocalModelFromString(const std::string& name) {
-  if (name == "none") return LocalModel::kNone;
-  if (name == "plane") return LocalModel::kPlane;
-  if (name == "quadric") return LocalModel::kQuadric;
-  SLSHADOW_THROW("local model: unknown name (got '", name, "'; expected none, plane or quadric)");
+  return EnumFromString("local model", name, kLocalModelNames);
 }
 
 void C2COptions::Check() const {

@@ -19,6 +19,7 @@
 
 #include "compare/distances.h"
 #include "compare/median_spacing.h"
+#include "core/enum_names.h"
 #include "core/error.h"
 #include "core/kdtree.h"
 
@@ -295,24 +296,17 @@ IcpAcc Correspond(const std::vector<Eigen::Vector3d>& src, const Rigid3d& t, con
 
 }  // namespace
 
-std::string ToString(RegistrationMethod m) {
-  switch (m) {
-    case RegistrationMethod::kNone:
-      return "none";
-    case RegistrationMethod::kIcp:
-      return "icp";
-    case RegistrationMethod::kGlobalIcp:
-      return "global+icp";
-  }
-  return "none";
+constexpr EnumName<RegistrationMethod> kRegistrationMethodNames[] = {
+    {RegistrationMethod::kNone, "none"},
+    {RegistrationMethod::kIcp, "icp"},
+    {RegistrationMethod::kGlobalIcp, "global+icp"}};
+
+std::string ToString(RegistrationMethod value) {
+  return EnumToString(value, kRegistrationMethodNames);
 }
 
 RegistrationMethod RegistrationMethodFromString(const std::string& name) {
-  if (name == "none") return RegistrationMethod::kNone;
-  if (name == "icp") return RegistrationMethod::kIcp;
-  if (name == "global+icp") return RegistrationMethod::kGlobalIcp;
-  SLSHADOW_THROW("registration method: unknown name (got '", name,
-                 "'; expected none, icp or global+icp)");
+  return EnumFromString("registration method", name, kRegistrationMethodNames);
 }
 
 void RegistrationOptions::Check() const {

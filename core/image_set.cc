@@ -1,4 +1,5 @@
 #include "core/image_set.h"
+#include "core/enum_names.h"
 
 #include <fcntl.h>
 #include <sys/uio.h>
@@ -22,26 +23,20 @@
 namespace slshadow {
 namespace fs = std::filesystem;
 
-std::string ToString(ImageSource source) {
-  switch (source) {
-    case ImageSource::kDevice:
-      return "device";
-    case ImageSource::kVirtual:
-      return "virtual";
-    case ImageSource::kReplay:
-      return "replay";
-  }
-  return "device";
+constexpr EnumName<ImageSource> kImageSourceNames[] = {{ImageSource::kDevice, "device"},
+                                                       {ImageSource::kVirtual, "virtual"},
+                                                       {ImageSource::kReplay, "replay"}};
+
+std::string ToString(ImageSource value) { return EnumToString(value, kImageSourceNames); }
+
+ImageSource ImageSourceFromString(const std::string& name) {
+  return EnumFromString("image source", name, kImageSourceNames);
 }
 
 namespace {
 
 ImageSource SourceFromConfig(const ConfigNode& node) {
-  const std::string s = node.AsString();
-  if (s == "device") return ImageSource::kDevice;
-  if (s == "virtual") return ImageSource::kVirtual;
-  if (s == "replay") return ImageSource::kReplay;
-  node.Fail("expected one of device, virtual, replay");
+  return EnumFromConfig(node, kImageSourceNames);
 }
 
 const char* Extension(ImageEncoding e) {
@@ -176,24 +171,16 @@ ImageRecord RecordFromConfig(const ConfigNode& n, const Rig& rig, const fs::path
 
 }  // namespace
 
+constexpr EnumName<ImageEncoding> kImageEncodingNames[] = {{ImageEncoding::kPng, "png"},
+                                                           {ImageEncoding::kPgm, "pgm"},
+                                                           {ImageEncoding::kTiff, "tiff"},
+                                                           {ImageEncoding::kTiff, "tif"}};
+
 ImageEncoding ImageEncodingFromString(const std::string& name) {
-  if (name == "png") return ImageEncoding::kPng;
-  if (name == "pgm") return ImageEncoding::kPgm;
-  if (name == "tiff" || name == "tif") return ImageEncoding::kTiff;
-  SLSHADOW_THROW("image encoding: unknown '", name, "' (known: png, pgm, tiff)");
+  return EnumFromString("image encoding", name, kImageEncodingNames);
 }
 
-std::string ToString(ImageEncoding encoding) {
-  switch (encoding) {
-    case ImageEncoding::kPng:
-      return "png";
-    case ImageEncoding::kPgm:
-      return "pgm";
-    case ImageEncoding::kTiff:
-      return "tiff";
-  }
-  return "png";
-}
+std::string ToString(ImageEncoding value) { return EnumToString(value, kImageEncodingNames); }
 
 namespace {}  // namespace
 

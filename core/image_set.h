@@ -23,7 +23,8 @@
 namespace slshadow {
 
 enum class ImageSource { kDevice, kVirtual, kReplay };
-std::string ToString(ImageSource source);  // "device", "virtual", "replay"
+std::string ToString(ImageSource source);                    // "device", "virtual", "replay"
+ImageSource ImageSourceFromString(const std::string& name);  // throws slshadow::Error
 
 struct ImageRecord {
   std::string camera;      // a camera name of the rig

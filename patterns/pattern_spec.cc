@@ -5,6 +5,7 @@
 #include <numbers>
 
 #include "core/config.h"
+#include "core/enum_names.h"
 #include "core/error.h"
 #include "core/rig.h"
 
@@ -22,57 +23,34 @@ const char* AxisName(int axis) { return axis == 0 ? "x" : "y"; }
 
 }  // namespace
 
-std::string ToString(PatternKind kind) {
-  switch (kind) {
-    case PatternKind::kGrayCode:
-      return "gray_code";
-    case PatternKind::kPhaseShift:
-      return "phase_shift";
-    case PatternKind::kMultiFrequency:
-      return "multi_frequency";
-  }
-  return "unknown";
-}
+constexpr EnumName<PatternKind> kPatternKindNames[] = {
+    {PatternKind::kGrayCode, "gray_code"},
+    {PatternKind::kPhaseShift, "phase_shift"},
+    {PatternKind::kMultiFrequency, "multi_frequency"}};
+
+std::string ToString(PatternKind value) { return EnumToString(value, kPatternKindNames); }
 
 PatternKind PatternKindFromString(const std::string& name) {
-  if (name == "gray_code") return PatternKind::kGrayCode;
-  if (name == "phase_shift") return PatternKind::kPhaseShift;
-  if (name == "multi_frequency") return PatternKind::kMultiFrequency;
-  SLSHADOW_THROW("pattern spec: kind: unknown pattern kind (got \"", name,
-                 "\"; known: gray_code, phase_shift, multi_frequency)");
+  return EnumFromString("pattern spec: kind", name, kPatternKindNames);
 }
 
-std::string ToString(GrayCodeVariant variant) {
-  switch (variant) {
-    case GrayCodeVariant::kComplementary:
-      return "complementary";
-    case GrayCodeVariant::kShifted:
-      return "shifted";
-    case GrayCodeVariant::kShiftedOnly:
-      return "shifted_only";
-  }
-  return "unknown";
-}
+constexpr EnumName<GrayCodeVariant> kGrayCodeVariantNames[] = {
+    {GrayCodeVariant::kComplementary, "complementary"},
+    {GrayCodeVariant::kShifted, "shifted"},
+    {GrayCodeVariant::kShiftedOnly, "shifted_only"}};
+
+std::string ToString(GrayCodeVariant value) { return EnumToString(value, kGrayCodeVariantNames); }
 
 GrayCodeVariant GrayCodeVariantFromString(const std::string& name) {
-  if (name == "complementary") return GrayCodeVariant::kComplementary;
-  if (name == "shifted") return GrayCodeVariant::kShifted;
-  if (name == "shifted_only") return GrayCodeVariant::kShiftedOnly;
-  SLSHADOW_THROW("pattern spec: gray_code: unknown Gray-code variant (got '", name,
-                 "'; expected complementary, shifted or shifted_only)");
+  return EnumFromString("pattern spec: gray_code", name, kGrayCodeVariantNames);
 }
 
-std::string ToString(GrayReference reference) {
-  switch (reference) {
-    case GrayReference::kAuto:
-      return "auto";
-    case GrayReference::kWhiteBlack:
-      return "white_black";
-    case GrayReference::kPhaseMean:
-      return "phase_mean";
-  }
-  return "unknown";
-}
+constexpr EnumName<GrayReference> kGrayReferenceNames[] = {
+    {GrayReference::kAuto, "auto"},
+    {GrayReference::kWhiteBlack, "white_black"},
+    {GrayReference::kPhaseMean, "phase_mean"}};
+
+std::string ToString(GrayReference value) { return EnumToString(value, kGrayReferenceNames); }
 
 std::string FrameInfo::Name() const {
   const char* code_name = code == 1 ? "_shifted" : "";
@@ -345,11 +323,7 @@ PatternSpec PatternSpecFromConfig(const ConfigNode& root) {
   if (!root.IsObject()) root.Fail("expected a pattern spec mapping");
   PatternSpec spec;
   const ConfigNode kind_node = root["kind"];
-  try {
-    spec.kind = PatternKindFromString(kind_node.AsString());
-  } catch (const Error&) {
-    kind_node.Fail("unknown pattern kind (known: gray_code, phase_shift, multi_frequency)");
-  }
+  spec.kind = EnumFromConfig(kind_node, kPatternKindNames);
   std::vector<std::string> allowed = {"kind",          "projector_width", "projector_height",
                                       "code_x",        "code_y",          "intensity_min",
                                       "intensity_max", "num_images"};
@@ -398,26 +372,10 @@ PatternSpec PatternSpecFromConfig(const ConfigNode& root) {
   spec.white_black = root.GetBool("white_black", false);
   spec.phase_offset_rad = root.GetDouble("phase_offset_rad", 0.0);
   spec.phase_direction = get_int("phase_direction", 1);
-  if (root.Has("gray_reference")) {
-    const std::string name = root["gray_reference"].AsString();
-    if (name == "white_black") {
-      spec.gray_reference = GrayReference::kWhiteBlack;
-    } else if (name == "phase_mean") {
-      spec.gray_reference = GrayReference::kPhaseMean;
-    } else if (name != "auto") {
-      root["gray_reference"].Fail("unknown reference (known: white_black, phase_mean, auto)");
-    }
-  }
-  if (root.Has("gray_code")) {
-    const std::string name = root["gray_code"].AsString();
-    try {
-      spec.gray_code = GrayCodeVariantFromString(name);
-    } catch (const Error&) {
-      root["gray_code"].Fail(
-          internal::Concat("unknown Gray-code variant (got '", name,
-                           "'; expected complementary, shifted or shifted_only)"));
-    }
-  }
+  if (root.Has("gray_reference"))
+    spec.gray_reference = EnumFromConfig(root["gray_reference"], kGrayReferenceNames);
+  if (root.Has("gray_code"))
+    spec.gray_code = EnumFromConfig(root["gray_code"], kGrayCodeVariantNames);
   if (root.Has("frame_order")) {
     const ConfigNode order = root["frame_order"];
     if (!order.IsArray())

@@ -86,14 +86,6 @@ py::array Vector3(const Eigen::Vector3d& v) {
   return out;
 }
 
-ImageSource ImageSourceFromName(const std::string& name) {
-  if (name == "device") return ImageSource::kDevice;
-  if (name == "virtual") return ImageSource::kVirtual;
-  if (name == "replay") return ImageSource::kReplay;
-  SLSHADOW_THROW("image source: unknown name (got '", name,
-                 "'; expected device, virtual or replay)");
-}
-
 // A PointCloud from arrays (copied).
 std::shared_ptr<PointCloud> CloudFromArrays(const py::handle& points, const py::handle& normals,
                                             const py::handle& colors, const py::handle& scalars) {
@@ -401,7 +393,7 @@ void BindCore(py::module_& m) {
         options.encoding = ImageEncodingFromString(encoding);
         options.png_compression = png_compression;
         options.overwrite = overwrite;
-        const ImageSource image_source = ImageSourceFromName(source);
+        const ImageSource image_source = ImageSourceFromString(source);
         std::vector<std::pair<std::string, std::vector<cv::Mat>>> all;
         std::vector<py::object> keep;
         for (const auto& [key, value] : images) {

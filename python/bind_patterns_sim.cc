@@ -280,11 +280,7 @@ void BindPatternsAndSim(py::module_& m) {
         SLSHADOW_THROW_IF(!rig.projector, "rig '", rig.name,
                           "': rig has no projector: the simulator needs one");
         CheckProjectorSize(rig, scan->spec, "patterns", "rig '" + rig.name + "'");
-        SLSHADOW_THROW_IF(trace_mode != "packet16" && trace_mode != "single_ray",
-                          "trace_mode: unknown name (got '", trace_mode,
-                          "'; expected packet16 or single_ray)");
-        const TraceMode mode =
-            trace_mode == "packet16" ? TraceMode::kPacket16 : TraceMode::kSingleRay;
+        const TraceMode mode = TraceModeFromString(trace_mode);
         const ProgressCallback report(std::move(progress));
         {
           py::gil_scoped_release release;

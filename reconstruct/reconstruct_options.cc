@@ -4,38 +4,31 @@
 #include <limits>
 
 #include "core/config.h"
+#include "core/enum_names.h"
 #include "core/error.h"
 
 namespace slshadow {
 
-std::string ToString(ReconstructMode mode) {
-  return mode == ReconstructMode::kProjector ? "projector" : "stereo";
-}
+constexpr EnumName<ReconstructMode> kReconstructModeNames[] = {
+    {ReconstructMode::kProjector, "projector"}, {ReconstructMode::kStereo, "stereo"}};
 
-std::string ToString(StereoInterpolation interpolation) {
-  switch (interpolation) {
-    case StereoInterpolation::kAuto:
-      return "auto";
-    case StereoInterpolation::kLinear:
-      return "linear";
-    case StereoInterpolation::kCubic:
-      return "cubic";
-  }
-  return "unknown";
+std::string ToString(ReconstructMode value) { return EnumToString(value, kReconstructModeNames); }
+
+constexpr EnumName<StereoInterpolation> kStereoInterpolationNames[] = {
+    {StereoInterpolation::kAuto, "auto"},
+    {StereoInterpolation::kLinear, "linear"},
+    {StereoInterpolation::kCubic, "cubic"}};
+
+std::string ToString(StereoInterpolation value) {
+  return EnumToString(value, kStereoInterpolationNames);
 }
 
 StereoInterpolation StereoInterpolationFromString(const std::string& name) {
-  if (name == "auto") return StereoInterpolation::kAuto;
-  if (name == "linear") return StereoInterpolation::kLinear;
-  if (name == "cubic") return StereoInterpolation::kCubic;
-  SLSHADOW_THROW("stereo interpolation: unknown name (got '", name,
-                 "'; expected auto, linear or cubic)");
+  return EnumFromString("stereo interpolation", name, kStereoInterpolationNames);
 }
 
 ReconstructMode ReconstructModeFromString(const std::string& name) {
-  if (name == "projector") return ReconstructMode::kProjector;
-  if (name == "stereo") return ReconstructMode::kStereo;
-  SLSHADOW_THROW("reconstruct mode: unknown name (got '", name, "'; expected projector or stereo)");
+  return EnumFromString("reconstruct mode", name, kReconstructModeNames);
 }
 
 void ReconstructOptions::Check() const {

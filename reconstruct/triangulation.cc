@@ -4,28 +4,22 @@
 
 #include <Eigen/Cholesky>
 
+#include "core/enum_names.h"
 #include "core/error.h"
 
 namespace slshadow {
 
-std::string ToString(TriangulationMethod method) {
-  switch (method) {
-    case TriangulationMethod::kMidpoint:
-      return "midpoint";
-    case TriangulationMethod::kDlt:
-      return "dlt";
-    case TriangulationMethod::kOptimal:
-      return "optimal";
-  }
-  return "unknown";
+constexpr EnumName<TriangulationMethod> kTriangulationMethodNames[] = {
+    {TriangulationMethod::kMidpoint, "midpoint"},
+    {TriangulationMethod::kDlt, "dlt"},
+    {TriangulationMethod::kOptimal, "optimal"}};
+
+std::string ToString(TriangulationMethod value) {
+  return EnumToString(value, kTriangulationMethodNames);
 }
 
 TriangulationMethod TriangulationMethodFromString(const std::string& name) {
-  if (name == "midpoint") return TriangulationMethod::kMidpoint;
-  if (name == "dlt") return TriangulationMethod::kDlt;
-  if (name == "optimal") return TriangulationMethod::kOptimal;
-  SLSHADOW_THROW("triangulation method: unknown name (got '", name,
-                 "'; expected midpoint, dlt or optimal)");
+  return EnumFromString("triangulation method", name, kTriangulationMethodNames);
 }
 
 TriangulationView::TriangulationView(const Rigid3d& cam_from_rig, double focal)

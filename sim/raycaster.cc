@@ -16,6 +16,12 @@
 #include "sim/internal/lanes.h"
 
 namespace slshadow {
+
+std::string ToString(TraceMode value) { return EnumToString(value, kTraceModeNames); }
+
+TraceMode TraceModeFromString(const std::string& name) {
+  return EnumFromString("trace_mode", name, kTraceModeNames);
+}
 namespace {
 
 constexpr float kInf = std::numeric_limits<float>::infinity();

@@ -12,11 +12,17 @@
 #include <cstdint>
 #include <memory>
 
+#include "core/enum_names.h"
 #include "sim/scene.h"
 
 namespace slshadow {
 
 enum class TraceMode { kPacket16, kSingleRay };
+std::string ToString(TraceMode mode);                    // "packet16", "single_ray"
+TraceMode TraceModeFromString(const std::string& name);  // throws slshadow::Error
+// The names (core/enum_names.h), for the simulate options' reader.
+inline constexpr EnumName<TraceMode> kTraceModeNames[] = {{TraceMode::kPacket16, "packet16"},
+                                                          {TraceMode::kSingleRay, "single_ray"}};
 
 struct alignas(64) RayPacket {
   static constexpr int kSize = 16;

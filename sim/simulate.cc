@@ -14,6 +14,7 @@
 #include <tbb/parallel_for.h>
 
 #include "core/config.h"
+#include "core/enum_names.h"
 #include "core/error.h"
 #include "core/file_util.h"
 #include "core/progress.h"
@@ -223,7 +224,7 @@ nlohmann::json SimulateOptionsToJson(const SimulateOptions& o) {
           {"png_compression", o.writer.png_compression},
           {"overwrite", o.writer.overwrite},
           {"write_ground_truth", o.write_ground_truth},
-          {"trace_mode", o.trace_mode == TraceMode::kPacket16 ? "packet16" : "single_ray"}};
+          {"trace_mode", ToString(o.trace_mode)}};
 }
 
 SimulateOptions SimulateOptionsFromConfig(const ConfigNode& node) {
@@ -242,16 +243,7 @@ SimulateOptions SimulateOptionsFromConfig(const ConfigNode& node) {
       static_cast<int>(node.GetInt("png_compression", o.writer.png_compression));
   o.writer.overwrite = node.GetBool("overwrite", o.writer.overwrite);
   o.write_ground_truth = node.GetBool("write_ground_truth", o.write_ground_truth);
-  if (node.Has("trace_mode")) {
-    const std::string mode = node["trace_mode"].AsString();
-    if (mode == "packet16") {
-      o.trace_mode = TraceMode::kPacket16;
-    } else if (mode == "single_ray") {
-      o.trace_mode = TraceMode::kSingleRay;
-    } else {
-      node["trace_mode"].Fail("unknown trace mode (known: packet16, single_ray)");
-    }
-  }
+  if (node.Has("trace_mode")) o.trace_mode = EnumFromConfig(node["trace_mode"], kTraceModeNames);
   try {
     o.Check();
   } catch (const Error& e) {

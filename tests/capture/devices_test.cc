@@ -125,22 +125,22 @@ TEST(Devices, BadInputIsNamedWithFileFieldAndValue) {
             "dev.yaml: cameras[0].exposure_us: unknown field (known fields here: name, backend, "
             "id, address, serial, "
             "settings, grab_timeout_ms, imageset, imageset_camera, first_frame_id)");
-  EXPECT_NE(
-      ErrorOf([&] {
-        Parse(kHead + "cameras:\n  - name: left\n    backend: gige\n");
-      }).find("dev.yaml: cameras[0].backend: unknown backend (known: aravis, replay, sim, v4l2)"),
-      std::string::npos);
+  EXPECT_NE(ErrorOf([&] { Parse(kHead + "cameras:\n  - name: left\n    backend: gige\n"); })
+                .find("dev.yaml: cameras[0].backend: unknown backend (expected aravis, replay, sim "
+                      "or v4l2)"),
+            std::string::npos);
   EXPECT_NE(ErrorOf([&] { Parse(kHead + cam + "    settings: {exposure_us: -3}\n"); })
                 .find("dev.yaml: cameras[0].settings.exposure_us: must be a positive number of "
                       "microseconds (got -3)"),
             std::string::npos);
-  EXPECT_NE(ErrorOf([&] {
-              Parse(kHead + cam + "    settings: {pixel_format: RGB8}\n");
-            }).find("cameras[0].settings.pixel_format: unknown pixel format"),
-            std::string::npos);
+  EXPECT_NE(
+      ErrorOf([&] {
+        Parse(kHead + cam + "    settings: {pixel_format: RGB8}\n");
+      }).find("cameras[0].settings.pixel_format: unknown name (expected Mono8, Mono12 or Mono16)"),
+      std::string::npos);
   EXPECT_NE(ErrorOf([&] {
               Parse(kHead + cam + "    settings: {trigger: line}\n");
-            }).find("settings.trigger: unknown trigger mode"),
+            }).find("settings.trigger: unknown name (expected free-run, software or hardware)"),
             std::string::npos);
   EXPECT_NE(ErrorOf([&] {
               Parse(kHead + cam + "    settings: {roi: [0, 0, 640]}\n");

@@ -135,7 +135,7 @@ TEST(TurntableConfig, ReadsAllFields) {
 
 TEST(TurntableConfig, BadInputIsOneErrorNamingTheFieldAndTheValue) {
   EXPECT_EQ(ErrorOf([] { Parse("turntable: {backend: stepper}\n"); }),
-            "dev.yaml: turntable.backend: unknown backend (known: grbl, manual, none) (got "
+            "dev.yaml: turntable.backend: unknown backend (expected grbl, manual or none) (got "
             "\"stepper\")");
   EXPECT_EQ(ErrorOf([] { Parse("turntable: {backend: grbl, baud: 250000}\n"); }),
             "dev.yaml: turntable.baud: must be one of 9600, 19200, 38400, 57600, 115200, 230400, "

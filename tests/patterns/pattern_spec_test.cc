@@ -284,7 +284,8 @@ TEST(PatternSpec, ShiftedOnlyLayout) {
   } catch (const Error& e) {
     const std::string m = e.what();
     EXPECT_NE(m.find("p.yaml: gray_code"), std::string::npos) << m;
-    EXPECT_NE(m.find("got 'shifted-only'; expected complementary, shifted or shifted_only"),
+    EXPECT_NE(m.find("unknown name (expected complementary, shifted or shifted_only) (got "
+                     "\"shifted-only\")"),
               std::string::npos)
         << m;
   }

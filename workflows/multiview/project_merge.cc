@@ -10,6 +10,7 @@
 #include "compare/distances.h"
 #include "compare/statistics.h"
 #include "core/config.h"
+#include "core/enum_names.h"
 #include "core/error.h"
 #include "core/file_util.h"
 #include "core/image_set.h"
@@ -62,14 +63,13 @@ nlohmann::json OptionalPose(const std::optional<Rigid3d>& pose) {
 
 }  // namespace
 
-std::string ToString(PoseSource source) {
-  return source == PoseSource::kAxis ? "axis" : "registered";
-}
+constexpr EnumName<PoseSource> kPoseSourceNames[] = {{PoseSource::kRegistered, "registered"},
+                                                     {PoseSource::kAxis, "axis"}};
 
-PoseSource PoseSourceFromString(const std::string& s) {
-  if (s == "registered") return PoseSource::kRegistered;
-  if (s == "axis") return PoseSource::kAxis;
-  SLSHADOW_THROW("poses: unknown source '", s, "' (expected registered or axis)");
+std::string ToString(PoseSource value) { return EnumToString(value, kPoseSourceNames); }
+
+PoseSource PoseSourceFromString(const std::string& name) {
+  return EnumFromString("poses", name, kPoseSourceNames);
 }
 
 void ProjectMergeOptions::Check() const {

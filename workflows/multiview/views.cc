@@ -4,6 +4,7 @@
 #include <set>
 
 #include "core/config.h"
+#include "core/enum_names.h"
 #include "core/error.h"
 #include "core/file_util.h"
 #include "core/pose_io.h"
@@ -156,14 +157,13 @@ void SaveViews(const ViewsFile& views, const fs::path& path) {
 
 // ---- Project.
 
-std::string ToString(ViewState state) {
-  return state == ViewState::kComplete ? "complete" : "missing";
-}
+constexpr EnumName<ViewState> kViewStateNames[] = {{ViewState::kComplete, "complete"},
+                                                   {ViewState::kMissing, "missing"}};
+
+std::string ToString(ViewState value) { return EnumToString(value, kViewStateNames); }
 
 ViewState ViewStateFromString(const std::string& name) {
-  if (name == "complete") return ViewState::kComplete;
-  if (name == "missing") return ViewState::kMissing;
-  SLSHADOW_THROW("view state: unknown name (got '", name, "'; expected complete or missing)");
+  return EnumFromString("view state", name, kViewStateNames);
 }
 
 ViewsFile ProjectManifest::Views() const {
