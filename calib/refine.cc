@@ -81,8 +81,7 @@ EpipolarStats Stats(std::vector<double> abs_res) {
 }
 
 std::vector<double> Residuals(const Rays& rays, const Rigid3d& proj_from_cam, double focal) {
-  const Eigen::AngleAxisd aa(proj_from_cam.rotation);
-  const Eigen::Vector3d r = aa.angle() * aa.axis();
+  const Eigen::Vector3d r = RotationVectorFromQuaternion(proj_from_cam.rotation);
   const double length = proj_from_cam.translation.norm();
   const Eigen::Vector3d dir = proj_from_cam.translation / std::max(length, 1e-300);
   const double one = 1.0;
@@ -149,8 +148,7 @@ PairResult RefinePair(const CameraModel& model_a, const CameraModel& model_b_in,
                     "the right one?");
   out.before = Stats(Residuals(rays, initial, out.model_b.fx()));
 
-  const Eigen::AngleAxisd aa(initial.rotation);
-  Eigen::Vector3d rvec = aa.angle() * aa.axis();
+  Eigen::Vector3d rvec = RotationVectorFromQuaternion(initial.rotation);
   Eigen::Vector3d dir = initial.translation / length;
   // With focal refinement, the rays of b depend on its focal length through the distortion too:
   // solve with the first-order ray scaling, update the model, re-undistort, solve again.
@@ -180,11 +178,7 @@ PairResult RefinePair(const CameraModel& model_a, const CameraModel& model_b_in,
       rays = Unproject(model_a, out.model_b, correspondences);
     }
   }
-  const double angle = rvec.norm();
-  const Eigen::Quaterniond q = angle > 0
-                                   ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, rvec / angle))
-                                   : Eigen::Quaterniond::Identity();
-  out.b_from_a = Rigid3d(q, length * dir.normalized());
+  out.b_from_a = Rigid3d::FromRotationVector(rvec, length * dir.normalized());
   const std::vector<double> after = Residuals(rays, out.b_from_a, out.model_b.fx());
   out.after = Stats(after);
   // Inliers, and cheirality over the inliers (an outlier's depth means nothing).

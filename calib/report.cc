@@ -8,6 +8,7 @@
 #include "calib/calibration_io.h"
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/pose_io.h"
 #include "core/statistics.h"
 #include "plot/plot.h"
 
@@ -211,10 +212,7 @@ nlohmann::json CalibrationReportJson(const CalibrationReport& r) {
   for (size_t d = 0; d < r.result->devices.size(); ++d) {
     const auto& dev = r.result->devices[d];
     nlohmann::json dj = {{"name", dev.name}, {"params", dev.model.params}};
-    const auto& t = dev.cam_from_rig;
-    dj["cam_from_rig"] = {
-        {"rotation_quat_wxyz", {t.rotation.w(), t.rotation.x(), t.rotation.y(), t.rotation.z()}},
-        {"translation_mm", {t.translation.x(), t.translation.y(), t.translation.z()}}};
+    dj["cam_from_rig"] = PoseToJson(dev.cam_from_rig);
     const QuotedCovariance q = PreferredCovariance(*r.result, static_cast<int>(d));
     if (q.available) {
       std::vector<double> sigma, standard;

@@ -7,6 +7,21 @@
 
 namespace slshadow {
 
+// The rotation of a rotation vector r (axis r / |r|, angle |r| radians; OpenCV's rvec, Ceres'
+// angle-axis); the identity for r = 0.
+inline Eigen::Quaterniond QuaternionFromRotationVector(const Eigen::Vector3d& r) {
+  const double angle = r.norm();
+  return angle > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, r / angle))
+                   : Eigen::Quaterniond::Identity();
+}
+
+// The rotation vector of q (axis times angle, radians, angle in [0, pi]; OpenCV's rvec): the
+// inverse of QuaternionFromRotationVector up to rounding.
+inline Eigen::Vector3d RotationVectorFromQuaternion(const Eigen::Quaterniond& q) {
+  const Eigen::AngleAxisd aa(q);
+  return aa.angle() * aa.axis();
+}
+
 struct Rigid3d {
   Eigen::Quaterniond rotation = Eigen::Quaterniond::Identity();
   Eigen::Vector3d translation = Eigen::Vector3d::Zero();
@@ -36,18 +51,16 @@ struct Rigid3d {
     m.topRightCorner<3, 1>() = translation;
     return m;
   }
+  // From a rotation vector (QuaternionFromRotationVector) and a translation: the poses of the
+  // command line (`rx ry rz tx ty tz`), of Ceres' angle-axis blocks and of OpenCV's rvec, tvec.
+  static Rigid3d FromRotationVector(const Eigen::Vector3d& rotation_vector,
+                                    const Eigen::Vector3d& translation) {
+    return Rigid3d(QuaternionFromRotationVector(rotation_vector), translation);
+  }
   static Rigid3d FromMatrix(const Eigen::Matrix4d& m) {
     return Rigid3d(Eigen::Quaterniond(Eigen::Matrix3d(m.topLeftCorner<3, 3>())),
                    m.topRightCorner<3, 1>());
   }
 };
-
-// The rotation of a rotation vector r (axis r / |r|, angle |r| radians; OpenCV's rvec, Ceres'
-// angle-axis); the identity for r = 0.
-inline Eigen::Quaterniond QuaternionFromRotationVector(const Eigen::Vector3d& r) {
-  const double angle = r.norm();
-  return angle > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, r / angle))
-                   : Eigen::Quaterniond::Identity();
-}
 
 }  // namespace slshadow

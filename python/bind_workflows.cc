@@ -33,8 +33,8 @@ std::optional<Rigid3d> PoseFromObject(const py::handle& pose) {
                     "matrix");
   if (a.ndim() == 1 && a.shape(0) == 6) {
     const double* p = a.data();
-    return Rigid3d(QuaternionFromRotationVector(Eigen::Vector3d(p[0], p[1], p[2])),
-                   Eigen::Vector3d(p[3], p[4], p[5]));
+    return Rigid3d::FromRotationVector(Eigen::Vector3d(p[0], p[1], p[2]),
+                                       Eigen::Vector3d(p[3], p[4], p[5]));
   }
   SLSHADOW_THROW_IF(a.ndim() != 2 || a.shape(0) != 4 || a.shape(1) != 4,
                     "shadow: pose: expected 6 numbers (rx ry rz, rad; tx ty tz, mm) or a 4x4 "

@@ -21,15 +21,13 @@ using Pose6 = std::array<double, 6>;  // angle-axis (rad), translation (mm)
 using Intr9 = std::array<double, CameraModel::kNumParams>;
 
 inline Pose6 ToPose6(const Rigid3d& t) {
-  const Eigen::AngleAxisd aa(t.rotation);
-  const Eigen::Vector3d r = aa.angle() * aa.axis();
+  const Eigen::Vector3d r = RotationVectorFromQuaternion(t.rotation);
   return {r.x(), r.y(), r.z(), t.translation.x(), t.translation.y(), t.translation.z()};
 }
 
 inline Rigid3d FromPose6(const Pose6& p) {
-  const Eigen::Vector3d r(p[0], p[1], p[2]);
-  const Eigen::Quaterniond q = QuaternionFromRotationVector(r);
-  return Rigid3d(q, Eigen::Vector3d(p[3], p[4], p[5]));
+  return Rigid3d::FromRotationVector(Eigen::Vector3d(p[0], p[1], p[2]),
+                                     Eigen::Vector3d(p[3], p[4], p[5]));
 }
 
 // Weights of the joint noise model (CalibrationOptions::correlated_carried_noise).
