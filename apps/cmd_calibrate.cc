@@ -1,6 +1,6 @@
 // slshadow calibrate camera|stereo|projector|rig|refine|import|export ...: one function per
 // subcommand, each parsing into its arguments and making its calls into calib/ and the workflows
-// of shadow/calibrate.h.
+// of workflows/pipeline/calibrate.h.
 #include <CLI/CLI.hpp>
 
 #include <algorithm>
@@ -28,7 +28,7 @@
 #include "core/image_set.h"
 #include "patterns/codec.h"
 #include "patterns/pattern_spec.h"
-#include "shadow/calibrate.h"
+#include "workflows/pipeline/calibrate.h"
 
 namespace slshadow::app {
 namespace {
@@ -143,13 +143,13 @@ struct CommonOptions {
 void Print(const std::string& text) { std::fputs(text.c_str(), stdout); }
 
 void PrintMissed(const std::vector<ImageCheck>& checks) {
-  Print(shadow::DescribeBoardDetections(checks));
+  Print(pipeline::DescribeBoardDetections(checks));
 }
 
 // The workflow's options from the command line's.
 int CalibrateAndWrite(CalibrationInput input, const std::vector<ImageCheck>& checks,
                       const CommonOptions& common, nlohmann::json extra) {
-  shadow::CalibrateWriteOptions o;
+  pipeline::CalibrateWriteOptions o;
   o.solve = common.Options();
   o.select_model = common.select_model;
   o.cross_validate = !common.no_cross_validation;
@@ -158,7 +158,7 @@ int CalibrateAndWrite(CalibrationInput input, const std::vector<ImageCheck>& che
   o.rig_out = common.out;
   o.report_dir = common.ReportDir();
   o.opencv_out = common.opencv_out;
-  shadow::CalibrateAndWrite(std::move(input), checks, o, std::move(extra), Print);
+  pipeline::CalibrateAndWrite(std::move(input), checks, o, std::move(extra), Print);
   return 0;
 }
 
@@ -315,7 +315,7 @@ std::vector<double> ParseKnownDistance(const std::string& text) {
 }
 
 int RunCalibrateRefine(const RefineArgs& a) {
-  shadow::RefineFromScanRequest r;
+  pipeline::RefineFromScanRequest r;
   r.rig = a.rig;
   r.scan = a.scan;
   r.out = a.out;
@@ -325,7 +325,7 @@ int RunCalibrateRefine(const RefineArgs& a) {
   r.refine.refine_focal = a.refine_focal;
   r.refine.known_baseline_mm = a.known_baseline_mm;
   r.decode = ProcamArgs{}.Decode();
-  const RefineResult result = shadow::RefineRigFromScan(r);
+  const RefineResult result = pipeline::RefineRigFromScan(r);
   std::printf("%s\nwrote %s\n", result.message.c_str(), a.out.c_str());
   return 0;
 }

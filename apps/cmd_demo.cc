@@ -3,13 +3,13 @@
 #include <cstdio>
 
 #include "apps/commands.h"
-#include "shadow/demo.h"
 #include "workflows/multiview/multiview_demo.h"
+#include "workflows/pipeline/demo.h"
 
 namespace slshadow::app {
-using shadow::DemoOptions;
-using shadow::DemoResult;
-using shadow::RunDemoJob;
+using pipeline::DemoOptions;
+using pipeline::DemoResult;
+using pipeline::RunDemoJob;
 
 int RunDemo(int argc, char** argv) {
   DemoOptions options;

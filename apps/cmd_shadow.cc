@@ -5,7 +5,7 @@
 #include "apps/commands.h"
 #include "core/error.h"
 #include "core/rig.h"
-#include "shadow/twin.h"
+#include "workflows/twin/twin.h"
 
 namespace slshadow::app {
 
@@ -27,7 +27,7 @@ int RunShadowCommand(int argc, char** argv) {
   std::string image_set, part_path, out_dir, rig_path;
   std::vector<double> pose;
   bool fixed_pose = false, no_fit = false, overwrite = false, no_clouds = false;
-  shadow::ShadowOptions options;
+  twin::ShadowOptions options;
   app.add_option("REAL_IMAGESET", image_set, "the real scan (ImageSet folder)")
       ->required()
       ->check(CLI::ExistingDirectory);
@@ -87,11 +87,11 @@ int RunShadowCommand(int argc, char** argv) {
   options.overwrite = overwrite;
   options.write_clouds = !no_clouds;
   options.write_html = !no_html;
-  const shadow::ShadowPart part = shadow::LoadShadowPart(part_path);
+  const twin::ShadowPart part = twin::LoadShadowPart(part_path);
   std::optional<Rig> rig;
   if (!rig_path.empty()) rig = LoadRig(rig_path);
-  const shadow::ShadowResult result =
-      shadow::RunShadow(image_set, part, options, out_dir, rig ? &*rig : nullptr);
+  const twin::ShadowResult result =
+      twin::RunShadow(image_set, part, options, out_dir, rig ? &*rig : nullptr);
   std::printf("%sreport: %s%s\n", result.Summary().c_str(), out_dir.c_str(),
               no_html ? "" : " (open report.html in a browser)");
   return 0;

@@ -13,9 +13,9 @@
 #include "core/image_io.h"
 #include "python/bindings.h"
 #include "python/convert.h"
-#include "shadow/calibrate.h"
-#include "shadow/sweep.h"
-#include "shadow/twin.h"
+#include "workflows/pipeline/calibrate.h"
+#include "workflows/studies/sweep.h"
+#include "workflows/twin/twin.h"
 
 namespace slshadow::python {
 
@@ -89,7 +89,7 @@ void BindShadow(py::module_& m) {
         } else {
           image_set_dir = py::str(py::module_::import("os").attr("fspath")(real));
         }
-        shadow::ShadowOptions options;
+        twin::ShadowOptions options;
         const ImageSetReconstructOptions r =
             ReconstructOptionsFromKwargs(kwargs, nullptr, "shadow");
         options.reconstruct = r.reconstruct;
@@ -119,13 +119,13 @@ void BindShadow(py::module_& m) {
                        std::to_string(counter++) + "-" +
                        std::to_string(std::chrono::steady_clock::now().time_since_epoch().count()));
         const ProgressCallback report(progress);
-        shadow::ShadowResult result;
+        twin::ShadowResult result;
         {
           py::gil_scoped_release release;
           report("shadow", 0, 1);
           try {
-            const shadow::ShadowPart part = shadow::LoadShadowPart(part_path);
-            result = shadow::RunShadow(image_set_dir, part, options, dir, rig ? &*rig : nullptr);
+            const twin::ShadowPart part = twin::LoadShadowPart(part_path);
+            result = twin::RunShadow(image_set_dir, part, options, dir, rig ? &*rig : nullptr);
           } catch (...) {
             std::error_code ec;
             if (!out) fs::remove_all(dir, ec);
@@ -180,7 +180,7 @@ void BindCalibrate(py::module_& m) {
             args.push_back(py::str(py::module_::import("os").attr("fspath")(item)));
         }
         // What `slshadow calibrate camera` does with the same options (apps/cmd_calibrate.cc).
-        shadow::CalibrateWriteOptions o;
+        pipeline::CalibrateWriteOptions o;
         o.solve.fix_aspect_ratio = fix_aspect;
         o.solve.fix_principal_point = fix_principal_point;
         o.solve.zero_tangential = zero_tangential;
@@ -208,13 +208,13 @@ void BindCalibrate(py::module_& m) {
           input.num_poses = static_cast<int>(files.size());
           std::vector<ImageCheck> checks;
           AddBoardViews(spec, files, 0, &input, &checks);
-          log += shadow::DescribeBoardDetections(checks);
+          log += pipeline::DescribeBoardDetections(checks);
           report("calibrate", 1, 2);
           nlohmann::json extra;
           extra["command"] = "slshadow.calibrate_camera (Python)";
           extra["target"] = target.string();
-          shadow::CalibrateAndWrite(std::move(input), checks, o, extra,
-                                    [&log](const std::string& text) { log += text; });
+          pipeline::CalibrateAndWrite(std::move(input), checks, o, extra,
+                                      [&log](const std::string& text) { log += text; });
           report("done", 2, 2);
         }
         py::dict d;
@@ -241,16 +241,16 @@ void BindSweep(py::module_& m) {
       "_sweep",
       [](const std::filesystem::path& study, const std::filesystem::path& out,
          const std::string& shard, bool verbose, const py::object& progress) {
-        shadow::SweepRunOptions options;
-        shadow::ParseShard(shard, "shard", &options);
+        studies::SweepRunOptions options;
+        studies::ParseShard(shard, "shard", &options);
         options.verbose = verbose;
         const ProgressCallback report(progress);
-        shadow::SweepStudySummary s;
+        studies::SweepStudySummary s;
         {
           py::gil_scoped_release release;
           report("plan", 0, 3);
-          s = shadow::RunStudy(study, out, options,
-                               [&](const shadow::SweepStudySummary&) { report("run", 1, 3); });
+          s = studies::RunStudy(study, out, options,
+                                [&](const studies::SweepStudySummary&) { report("run", 1, 3); });
           report("done", 3, 3);
         }
         py::dict plan, run, merge;

@@ -1,7 +1,7 @@
 // The last step of the pattern pass (sim/renderer.h): the sensor-noise layer and the ADC of a
 // camera (sim/scene.h SceneLayers, EMVA 1288 style) applied to a noise-free irradiance image.
 // One definition, used by PatternRenderer and by the sweep's reuse of noise-free images
-// (shadow/sweep_reuse.h), so both give the same image bit for bit.
+// (workflows/studies/sweep_reuse.h), so both give the same image bit for bit.
 //
 // The noise generator (docs/formats.md, layer `noise`): pixels in blocks of 16 by index
 // i = y * width + x. Per block b, lane l (0..7): SplitMix64(the image's stream, a hash of seed,

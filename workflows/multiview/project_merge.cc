@@ -16,7 +16,7 @@
 #include "core/pose_io.h"
 #include "core/string_printf.h"
 #include "report/html_report.h"
-#include "shadow/scan_pipeline.h"
+#include "workflows/pipeline/scan_pipeline.h"
 
 namespace slshadow::multiview {
 namespace fs = std::filesystem;
@@ -35,7 +35,8 @@ Reconstruction ReconstructView(const ImageSet& image_set, const ProjectMergeOpti
                     rig.cameras.size(), ")");
   std::vector<std::string> cameras = {rig.cameras[0].name};
   if (options.mode == ReconstructMode::kStereo) cameras.push_back(rig.cameras[1].name);
-  const shadow::DecodedScan decoded = shadow::DecodeImageSet(image_set, cameras, options.decode);
+  const pipeline::DecodedScan decoded =
+      pipeline::DecodeImageSet(image_set, cameras, options.decode);
   Reconstruction rec =
       options.mode == ReconstructMode::kStereo
           ? ReconstructStereo(rig, cameras[0], cameras[1], decoded.maps[0], decoded.maps[1],

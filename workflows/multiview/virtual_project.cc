@@ -9,9 +9,9 @@
 #include "core/provenance.h"
 #include "core/string_printf.h"
 #include "patterns/codec.h"
-#include "shadow/scan_pipeline.h"
 #include "sim/simulate.h"
 #include "workflows/multiview/turntable_scene.h"
+#include "workflows/pipeline/scan_pipeline.h"
 
 namespace slshadow::multiview {
 namespace fs = std::filesystem;
@@ -164,7 +164,7 @@ VirtualProjectSummary SimulateProject(const Scene& scene, const Rig& rig, const 
                      {"table_deg", view.spec.table_deg ? nlohmann::json(*view.spec.table_deg)
                                                        : nlohmann::json(nullptr)},
                      {"part_from_rig_true", PoseToJson(part_from_rig)}};
-    shadow::WriteVirtualScan(dir, rig, spec, placed, images, simulate.writer, extra);
+    pipeline::WriteVirtualScan(dir, rig, spec, placed, images, simulate.writer, extra);
     summary.write_seconds += SecondsSince(t0);
     images.clear();
     mark_complete(view, dir);
