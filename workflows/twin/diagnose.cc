@@ -213,21 +213,16 @@ std::string Diagnosis::Summary() const {
   return out;
 }
 
-Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projector_images,
-                   const std::vector<float>& response, const PhysicsFit& physics,
-                   const std::vector<CameraEvidence>& cameras,
-                   const std::vector<ModeEvidence>& modes, const DiagnoseOptions& options) {
-  options.Check();
-  SLSHADOW_THROW_IF(cameras.empty(), "diagnose: no camera evidence");
-  SLSHADOW_THROW_IF(response.size() != 256, "diagnose: the response table needs 256 entries");
-  Diagnosis diag;
-  const std::vector<FrameInfo> frames = spec.Frames();
+namespace {
 
-  // Calibration fields per camera (used by the frame test too).
-  struct Field {
-    QuadraticField x, y;
-    double rms_x = 0, rms_y = 0, mean_x = 0, mean_y = 0;
-  };
+// The calibration field of one camera: the robust quadratic of each projector-coordinate
+// residual (the calibration cause reads it, and the frame test and the response's ripple too).
+struct Field {
+  QuadraticField x, y;
+  double rms_x = 0, rms_y = 0, mean_x = 0, mean_y = 0;
+};
+
+std::vector<Field> FitCalibrationFields(const std::vector<CameraEvidence>& cameras) {
   std::vector<Field> fields(cameras.size());
   for (size_t c = 0; c < cameras.size(); ++c) {
     const CameraEvidence& cam = cameras[c];
@@ -241,8 +236,23 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
           FitSmoothField(cam.real_y - cam.gt_y, cam.mask, &fields[c].rms_y, &fields[c].mean_y);
     }
   }
+  return fields;
+}
 
-  // --- wrong frame ---
+// A cause not evaluated because a wrong frame corrupts the decoding.
+Finding NotEvaluated(const std::string& cause) {
+  Finding f;
+  f.cause = cause;
+  f.evaluated = false;
+  f.message = "not evaluated: a wrong frame corrupts the decoding";
+  return f;
+}
+
+// wrong_frame: each real frame correlated with the predicted frame of every pattern.
+Finding WrongFrame(const std::vector<FrameInfo>& frames,
+                   const std::vector<cv::Mat>& projector_images, const std::vector<float>& response,
+                   const std::vector<CameraEvidence>& cameras, const std::vector<Field>& fields,
+                   const DiagnoseOptions& options) {
   Finding wrong;
   wrong.cause = "wrong_frame";
   wrong.evidence["frames"] = nlohmann::json::array();
@@ -323,503 +333,550 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
   } else {
     wrong.message = "every frame matches its own pattern best";
   }
-  diag.findings.push_back(wrong);
+  return wrong;
+}
 
-  const auto not_evaluated = [&](const std::string& cause) {
-    Finding f;
-    f.cause = cause;
-    f.evaluated = false;
-    f.message = "not evaluated: a wrong frame corrupts the decoding";
-    diag.findings.push_back(f);
-  };
-
-  // --- calibration ---
-  bool calibration_found = false;
-  if (wrong.detected) {
-    not_evaluated("calibration");
-  } else {
-    Finding cal;
-    cal.cause = "calibration";
-    double worst = 0, worst_threshold = options.calibration_field_px;
-    bool above = false;
-    cal.evidence["cameras"] = nlohmann::json::array();
-    for (size_t c = 0; c < cameras.size(); ++c) {
-      const Field& f = fields[c];
-      const CameraEvidence& cam = cameras[c];
-      const double rms = std::hypot(f.rms_x, f.rms_y);
-      const double rot_y_deg = std::atan(f.mean_x / cam.projector_fx) * 180 / M_PI;
-      const double rot_x_deg = std::atan(f.mean_y / cam.projector_fy) * 180 / M_PI;
-      // Focal-length equivalent: a projector focal error df moves a coordinate by
-      // (df / f) (u - cx), so the field's slope against u - cx (least squares, with an offset)
-      // times f is the focal error that explains its linear part.
-      const auto focal_error = [&](const QuadraticField& field, const cv::Mat& truth,
-                                   double principal, double focal) {
-        if (!field.valid || truth.empty()) return std::nan("");
-        double n = 0, sx = 0, sy = 0, sxx = 0, sxy = 0;
-        const int stride = std::max(1, std::min(cam.width, cam.height) / 200);
-        for (int y = 0; y < cam.height; y += stride) {
-          for (int x = 0; x < cam.width; x += stride) {
-            if (!cam.mask.at<uint8_t>(y, x)) continue;
-            const double u = truth.at<float>(y, x) - principal, d = field.At(x, y);
-            if (!std::isfinite(u) || !std::isfinite(d)) continue;
-            n += 1, sx += u, sy += d, sxx += u * u, sxy += u * d;
-          }
-        }
-        const double den = n * sxx - sx * sx;
-        return n > 50 && den > 0 ? focal * (n * sxy - sx * sy) / den : std::nan("");
-      };
-      const double dfx = focal_error(f.x, cam.gt_x, cam.projector_cx, cam.projector_fx);
-      const double dfy = focal_error(f.y, cam.gt_y, cam.projector_cy, cam.projector_fy);
-      nlohmann::json ev = {{"camera", cam.camera},
-                           {"field_rms_px", rms},
-                           {"field_rms_x_px", f.rms_x},
-                           {"field_rms_y_px", f.rms_y},
-                           {"field_mean_x_px", f.mean_x},
-                           {"field_mean_y_px", f.mean_y},
-                           {"equivalent_projector_rotation_about_y_deg", rot_y_deg},
-                           {"equivalent_projector_rotation_about_x_deg", rot_x_deg}};
-      // The rig's own uncertainty, where its file says, raises the bar.
-      const double threshold = std::isfinite(cam.rig_uncertainty_px)
-                                   ? std::max(options.calibration_field_px, cam.rig_uncertainty_px)
-                                   : options.calibration_field_px;
-      ev["rig_uncertainty_px"] = std::isfinite(cam.rig_uncertainty_px)
-                                     ? nlohmann::json(cam.rig_uncertainty_px)
-                                     : nlohmann::json();
-      ev["threshold_px"] = threshold;
-      above = above || rms > threshold;
-      if (std::isfinite(dfx)) ev["equivalent_projector_focal_error_x_px"] = dfx;
-      if (std::isfinite(dfy)) ev["equivalent_projector_focal_error_y_px"] = dfy;
-      cal.evidence["cameras"].push_back(ev);
-      if (rms > worst) {
-        worst = rms;
-        worst_threshold = threshold;
-        cal.message =
-            Fmt("smooth projector-coordinate field of %.3f px RMS (mean %.3f, %.3f px): ", rms,
-                f.mean_x, f.mean_y) +
-            Fmt("equivalent projector rotation %.4f deg about y, %.4f deg about x", rot_y_deg,
-                rot_x_deg);
-        if (std::isfinite(dfx))
-          cal.message +=
-              Fmt(", or a projector focal length off by %.2f px (fx %.1f)", dfx, cam.projector_fx);
-        if (std::isfinite(dfy)) cal.message += Fmt(" / %.2f px (fy)", dfy);
-      }
-    }
-    cal.evidence["threshold_px"] = options.calibration_field_px;
-    cal.detected = above;
-    if (cal.detected) {
-      cal.message = "calibration error: " + cal.message + "; run `slshadow calibrate refine`";
-    } else if (worst > options.calibration_field_px) {
-      cal.message =
-          Fmt("a smooth field of %.3f px RMS, within what the rig's calibration "
-              "uncertainty explains (%.3f px)",
-              worst, worst_threshold);
-    } else {
-      cal.message = Fmt("no smooth field above %.2f px (largest %.3f px RMS)",
-                        options.calibration_field_px, worst);
-    }
-    calibration_found = cal.detected;
-    diag.findings.push_back(cal);
-  }
-
-  // --- projector response ---
-  {
-    Finding resp;
-    resp.cause = "projector_response";
-    const PhysicsLayer* g = physics.Find("gamma");
-    resp.evaluated = g && g->observable;
-    resp.detected = g && g->kept;
-    if (g) resp.evidence["gamma"] = g->ToJson();
-    // Ripple of the residual at 1..4 x the fringe frequency (phase codecs).
-    if (spec.kind != PatternKind::kGrayCode && !wrong.detected) {
-      const double period = spec.PeriodsPx().front();
-      const CameraEvidence& cam = cameras[0];
-      Eigen::MatrixXd ata = Eigen::MatrixXd::Zero(9, 9);
-      Eigen::VectorXd atb = Eigen::VectorXd::Zero(9);
-      double ss = 0;
-      int64_t n = 0;
-      for (int y = 0; y < cam.height; y += 2) {
-        for (int x = 0; x < cam.width; x += 2) {
+// calibration: the smooth field of each camera against the threshold and the rig's uncertainty.
+Finding Calibration(const std::vector<CameraEvidence>& cameras, const std::vector<Field>& fields,
+                    const DiagnoseOptions& options) {
+  Finding cal;
+  cal.cause = "calibration";
+  double worst = 0, worst_threshold = options.calibration_field_px;
+  bool above = false;
+  cal.evidence["cameras"] = nlohmann::json::array();
+  for (size_t c = 0; c < cameras.size(); ++c) {
+    const Field& f = fields[c];
+    const CameraEvidence& cam = cameras[c];
+    const double rms = std::hypot(f.rms_x, f.rms_y);
+    const double rot_y_deg = std::atan(f.mean_x / cam.projector_fx) * 180 / M_PI;
+    const double rot_x_deg = std::atan(f.mean_y / cam.projector_fy) * 180 / M_PI;
+    // Focal-length equivalent: a projector focal error df moves a coordinate by
+    // (df / f) (u - cx), so the field's slope against u - cx (least squares, with an offset)
+    // times f is the focal error that explains its linear part.
+    const auto focal_error = [&](const QuadraticField& field, const cv::Mat& truth,
+                                 double principal, double focal) {
+      if (!field.valid || truth.empty()) return std::nan("");
+      double n = 0, sx = 0, sy = 0, sxx = 0, sxy = 0;
+      const int stride = std::max(1, std::min(cam.width, cam.height) / 200);
+      for (int y = 0; y < cam.height; y += stride) {
+        for (int x = 0; x < cam.width; x += stride) {
           if (!cam.mask.at<uint8_t>(y, x)) continue;
-          const float gx = cam.gt_x.at<float>(y, x);
-          double r = cam.real_x.at<float>(y, x) - gx;
-          if (!std::isfinite(r)) continue;
-          if (fields[0].x.valid) r -= fields[0].x.At(x, y);
-          if (std::abs(r) > 2) continue;
-          Eigen::VectorXd b(9);
-          const double phi = 2 * M_PI * gx / period;
-          b(0) = 1;
-          for (int m = 1; m <= 4; ++m)
-            b(2 * m - 1) = std::cos(m * phi), b(2 * m) = std::sin(m * phi);
-          ata += b * b.transpose();
-          atb += b * r;
-          ss += r * r;
-          ++n;
+          const double u = truth.at<float>(y, x) - principal, d = field.At(x, y);
+          if (!std::isfinite(u) || !std::isfinite(d)) continue;
+          n += 1, sx += u, sy += d, sxx += u * u, sxy += u * d;
         }
       }
-      if (n > 100) {
-        const Eigen::VectorXd coef = ata.ldlt().solve(atb);
-        const double var = std::max(0.0, (ss - coef.dot(atb)) / static_cast<double>(n - 9));
-        nlohmann::json amps = nlohmann::json::array();
-        double largest = 0;
-        for (int m = 1; m <= 4; ++m) {
-          const double a = std::hypot(coef(2 * m - 1), coef(2 * m));
-          largest = std::max(largest, a);
-          amps.push_back({{"harmonic", m},
-                          {"amplitude_px", a},
-                          {"standard_error_px", std::sqrt(2 * var / static_cast<double>(n))}});
-        }
-        resp.evidence["ripple"] = amps;
-        resp.evidence["ripple_largest_px"] = largest;
-      }
+      const double den = n * sxx - sx * sx;
+      return n > 50 && den > 0 ? focal * (n * sxy - sx * sy) / den : std::nan("");
+    };
+    const double dfx = focal_error(f.x, cam.gt_x, cam.projector_cx, cam.projector_fx);
+    const double dfy = focal_error(f.y, cam.gt_y, cam.projector_cy, cam.projector_fy);
+    nlohmann::json ev = {{"camera", cam.camera},
+                         {"field_rms_px", rms},
+                         {"field_rms_x_px", f.rms_x},
+                         {"field_rms_y_px", f.rms_y},
+                         {"field_mean_x_px", f.mean_x},
+                         {"field_mean_y_px", f.mean_y},
+                         {"equivalent_projector_rotation_about_y_deg", rot_y_deg},
+                         {"equivalent_projector_rotation_about_x_deg", rot_x_deg}};
+    // The rig's own uncertainty, where its file says, raises the bar.
+    const double threshold = std::isfinite(cam.rig_uncertainty_px)
+                                 ? std::max(options.calibration_field_px, cam.rig_uncertainty_px)
+                                 : options.calibration_field_px;
+    ev["rig_uncertainty_px"] = std::isfinite(cam.rig_uncertainty_px)
+                                   ? nlohmann::json(cam.rig_uncertainty_px)
+                                   : nlohmann::json();
+    ev["threshold_px"] = threshold;
+    above = above || rms > threshold;
+    if (std::isfinite(dfx)) ev["equivalent_projector_focal_error_x_px"] = dfx;
+    if (std::isfinite(dfy)) ev["equivalent_projector_focal_error_y_px"] = dfy;
+    cal.evidence["cameras"].push_back(ev);
+    if (rms > worst) {
+      worst = rms;
+      worst_threshold = threshold;
+      cal.message =
+          Fmt("smooth projector-coordinate field of %.3f px RMS (mean %.3f, %.3f px): ", rms,
+              f.mean_x, f.mean_y) +
+          Fmt("equivalent projector rotation %.4f deg about y, %.4f deg about x", rot_y_deg,
+              rot_x_deg);
+      if (std::isfinite(dfx))
+        cal.message +=
+            Fmt(", or a projector focal length off by %.2f px (fx %.1f)", dfx, cam.projector_fx);
+      if (std::isfinite(dfy)) cal.message += Fmt(" / %.2f px (fy)", dfy);
     }
-    if (resp.detected) {
-      resp.message =
-          Fmt("projector response is not linear: gamma %.3f +- %.3f fitted from the phase frames",
-              g->value, g->sigma);
-      if (resp.evidence.contains("ripple_largest_px"))
-        resp.message += Fmt(" (coordinate ripple at the fringe harmonics up to %.4f px)",
-                            resp.evidence["ripple_largest_px"].get<double>());
-    } else {
-      resp.message = g ? g->reason : "no response fit";
-    }
-    diag.findings.push_back(resp);
   }
-
-  // --- defocus ---
-  {
-    Finding d;
-    d.cause = "defocus";
-    const PhysicsLayer* l = physics.Find("defocus");
-    d.evaluated = l && l->observable;
-    d.detected = l && l->kept;
-    if (l) d.evidence["defocus"] = l->ToJson();
-    d.message = d.detected ? Fmt("projector defocus: Gaussian blur sigma %.2f +- %.2f projector px "
-                                 "(fringe modulation %.1f %% of focused)",
-                                 l->value, l->sigma, 100 * l->extra.value("modulation_ratio", 1.0))
-                           : (l ? l->reason : "no defocus fit");
-    diag.findings.push_back(d);
-  }
-
-  // --- multipath / specular ---
-  if (wrong.detected) {
-    not_evaluated("multipath");
+  cal.evidence["threshold_px"] = options.calibration_field_px;
+  cal.detected = above;
+  if (cal.detected) {
+    cal.message = "calibration error: " + cal.message + "; run `slshadow calibrate refine`";
+  } else if (worst > options.calibration_field_px) {
+    cal.message =
+        Fmt("a smooth field of %.3f px RMS, within what the rig's calibration "
+            "uncertainty explains (%.3f px)",
+            worst, worst_threshold);
   } else {
-    Finding mp;
-    mp.cause = "multipath";
-    int largest = 0;
-    std::string where;
-    for (const CameraEvidence& cam : cameras) {
-      if (cam.modulation_ratio.empty()) continue;
-      // Well-lit pixels only (real white - black at least 30 % of its median over the part):
-      // dark print or shadowed parts have little modulation to lose and say nothing of multipath.
-      cv::Mat usable = cam.mask.clone();
-      if (!cam.white.empty() && !cam.black.empty()) {
-        std::vector<double> range;
-        for (int y = 0; y < cam.height; y += 2) {
-          for (int x = 0; x < cam.width; x += 2) {
-            if (cam.mask.at<uint8_t>(y, x))
-              range.push_back(cam.white.at<float>(y, x) - cam.black.at<float>(y, x));
-          }
-        }
-        const double min_range = 0.3 * Median(range);
-        for (int y = 0; y < cam.height; ++y) {
-          for (int x = 0; x < cam.width; ++x) {
-            if (cam.white.at<float>(y, x) - cam.black.at<float>(y, x) < min_range)
-              usable.at<uint8_t>(y, x) = 0;
-          }
-        }
+    cal.message = Fmt("no smooth field above %.2f px (largest %.3f px RMS)",
+                      options.calibration_field_px, worst);
+  }
+  return cal;
+}
+
+// projector_response: the physics fit's gamma; the ripple at the fringe harmonics as evidence
+// (phase codecs, unless a wrong frame was found).
+Finding ProjectorResponse(const PatternSpec& spec, const PhysicsFit& physics,
+                          const std::vector<CameraEvidence>& cameras,
+                          const std::vector<Field>& fields, bool wrong_frame) {
+  Finding resp;
+  resp.cause = "projector_response";
+  const PhysicsLayer* g = physics.Find("gamma");
+  resp.evaluated = g && g->observable;
+  resp.detected = g && g->kept;
+  if (g) resp.evidence["gamma"] = g->ToJson();
+  // Ripple of the residual at 1..4 x the fringe frequency (phase codecs).
+  if (spec.kind != PatternKind::kGrayCode && !wrong_frame) {
+    const double period = spec.PeriodsPx().front();
+    const CameraEvidence& cam = cameras[0];
+    Eigen::MatrixXd ata = Eigen::MatrixXd::Zero(9, 9);
+    Eigen::VectorXd atb = Eigen::VectorXd::Zero(9);
+    double ss = 0;
+    int64_t n = 0;
+    for (int y = 0; y < cam.height; y += 2) {
+      for (int x = 0; x < cam.width; x += 2) {
+        if (!cam.mask.at<uint8_t>(y, x)) continue;
+        const float gx = cam.gt_x.at<float>(y, x);
+        double r = cam.real_x.at<float>(y, x) - gx;
+        if (!std::isfinite(r)) continue;
+        if (fields[0].x.valid) r -= fields[0].x.At(x, y);
+        if (std::abs(r) > 2) continue;
+        Eigen::VectorXd b(9);
+        const double phi = 2 * M_PI * gx / period;
+        b(0) = 1;
+        for (int m = 1; m <= 4; ++m) b(2 * m - 1) = std::cos(m * phi), b(2 * m) = std::sin(m * phi);
+        ata += b * b.transpose();
+        atb += b * r;
+        ss += r * r;
+        ++n;
       }
-      // Relative to a smooth background (a robust quadratic over the image): a depth-dependent
-      // blur on a tilted part is a smooth trend, multipath a local loss.
-      cv::Mat ratio = cam.modulation_ratio.clone();
-      // Normalised where it is read: the usable pixels (the others keep the raw ratio, unread).
-      const QuadraticField background =
-          FitSmoothField(cam.modulation_ratio, usable, nullptr, nullptr);
-      if (background.valid) {
-        for (int y = 0; y < cam.height; ++y) {
-          const uint8_t* use = usable.ptr<uint8_t>(y);
-          for (int x = 0; x < cam.width; ++x) {
-            if (!use[x]) continue;
-            const float b = background.At(x, y);
-            ratio.at<float>(y, x) = b > 0.05f ? ratio.at<float>(y, x) / b : std::nanf("");
-          }
-        }
+    }
+    if (n > 100) {
+      const Eigen::VectorXd coef = ata.ldlt().solve(atb);
+      const double var = std::max(0.0, (ss - coef.dot(atb)) / static_cast<double>(n - 9));
+      nlohmann::json amps = nlohmann::json::array();
+      double largest = 0;
+      for (int m = 1; m <= 4; ++m) {
+        const double a = std::hypot(coef(2 * m - 1), coef(2 * m));
+        largest = std::max(largest, a);
+        amps.push_back({{"harmonic", m},
+                        {"amplitude_px", a},
+                        {"standard_error_px", std::sqrt(2 * var / static_cast<double>(n))}});
       }
-      std::vector<double> all;
+      resp.evidence["ripple"] = amps;
+      resp.evidence["ripple_largest_px"] = largest;
+    }
+  }
+  if (resp.detected) {
+    resp.message =
+        Fmt("projector response is not linear: gamma %.3f +- %.3f fitted from the phase frames",
+            g->value, g->sigma);
+    if (resp.evidence.contains("ripple_largest_px"))
+      resp.message += Fmt(" (coordinate ripple at the fringe harmonics up to %.4f px)",
+                          resp.evidence["ripple_largest_px"].get<double>());
+  } else {
+    resp.message = g ? g->reason : "no response fit";
+  }
+  return resp;
+}
+
+// defocus: the physics fit's projector blur.
+Finding Defocus(const PhysicsFit& physics) {
+  Finding d;
+  d.cause = "defocus";
+  const PhysicsLayer* l = physics.Find("defocus");
+  d.evaluated = l && l->observable;
+  d.detected = l && l->kept;
+  if (l) d.evidence["defocus"] = l->ToJson();
+  d.message = d.detected ? Fmt("projector defocus: Gaussian blur sigma %.2f +- %.2f projector px "
+                               "(fringe modulation %.1f %% of focused)",
+                               l->value, l->sigma, 100 * l->extra.value("modulation_ratio", 1.0))
+                         : (l ? l->reason : "no defocus fit");
+  return d;
+}
+
+// multipath: local blobs of lost fringe modulation.
+Finding Multipath(const std::vector<CameraEvidence>& cameras, const DiagnoseOptions& options) {
+  Finding mp;
+  mp.cause = "multipath";
+  int largest = 0;
+  std::string where;
+  for (const CameraEvidence& cam : cameras) {
+    if (cam.modulation_ratio.empty()) continue;
+    // Well-lit pixels only (real white - black at least 30 % of its median over the part):
+    // dark print or shadowed parts have little modulation to lose and say nothing of multipath.
+    cv::Mat usable = cam.mask.clone();
+    if (!cam.white.empty() && !cam.black.empty()) {
+      std::vector<double> range;
       for (int y = 0; y < cam.height; y += 2) {
         for (int x = 0; x < cam.width; x += 2) {
-          const float v = ratio.at<float>(y, x);
-          if (usable.at<uint8_t>(y, x) && std::isfinite(v)) all.push_back(v);
+          if (cam.mask.at<uint8_t>(y, x))
+            range.push_back(cam.white.at<float>(y, x) - cam.black.at<float>(y, x));
         }
       }
-      if (all.size() < 100) continue;
-      const double med = Median(all);
-      const int bw = cam.width / 8, bh = cam.height / 8;
-      std::vector<uint8_t> flag(static_cast<size_t>(bw * bh), 0);
-      for (int by = 0; by < bh; ++by) {
-        for (int bx = 0; bx < bw; ++bx) {
-          std::vector<double> v;
-          bool full = true;
-          for (int y = by * 8; y < by * 8 + 8 && full; ++y) {
-            for (int x = bx * 8; x < bx * 8 + 8; ++x) {
-              if (!usable.at<uint8_t>(y, x)) {
-                full = false;
-                break;
-              }
-              const float r = ratio.at<float>(y, x);
-              if (std::isfinite(r)) v.push_back(r);
-            }
-          }
-          if (full && v.size() >= 48 && Median(v) < options.multipath_ratio * med)
-            flag[static_cast<size_t>(by * bw + bx)] = 1;
+      const double min_range = 0.3 * Median(range);
+      for (int y = 0; y < cam.height; ++y) {
+        for (int x = 0; x < cam.width; ++x) {
+          if (cam.white.at<float>(y, x) - cam.black.at<float>(y, x) < min_range)
+            usable.at<uint8_t>(y, x) = 0;
         }
       }
-      // Connected blobs (4-neighbourhood).
-      std::vector<int> stack;
-      for (int i = 0; i < bw * bh; ++i) {
-        if (flag[static_cast<size_t>(i)] != 1) continue;
-        int size = 0;
-        double sx = 0, sy = 0;
-        stack.push_back(i);
-        flag[static_cast<size_t>(i)] = 2;
-        while (!stack.empty()) {
-          const int k = stack.back();
-          stack.pop_back();
-          ++size;
-          sx += (k % bw) * 8 + 4, sy += (k / bw) * 8 + 4;
-          const int kx = k % bw, ky = k / bw;
-          const int nb[4][2] = {{kx - 1, ky}, {kx + 1, ky}, {kx, ky - 1}, {kx, ky + 1}};
-          for (const auto& q : nb) {
-            if (q[0] < 0 || q[1] < 0 || q[0] >= bw || q[1] >= bh) continue;
-            const size_t qi = static_cast<size_t>(q[1] * bw + q[0]);
-            if (flag[qi] == 1) {
-              flag[qi] = 2;
-              stack.push_back(static_cast<int>(qi));
-            }
-          }
-        }
-        if (size > largest) {
-          largest = size;
-          where = cam.camera + Fmt(" around pixel (%.0f, %.0f)", sx / size, sy / size);
-        }
-      }
-      mp.evidence["median_modulation_ratio_" + cam.camera] = med;
     }
-    mp.evidence["largest_blob_blocks"] = largest;
-    mp.evidence["block_px"] = 8;
-    mp.detected = largest >= options.min_blob_blocks;
-    mp.message = mp.detected ? "multipath / specular / subsurface: real fringe modulation below "
-                               "the twin's in a blob of " +
-                                   std::to_string(largest) + " 8x8 blocks, " + where
-                             : "no local loss of fringe modulation (largest blob " +
-                                   std::to_string(largest) + " blocks)";
-    diag.findings.push_back(mp);
+    // Relative to a smooth background (a robust quadratic over the image): a depth-dependent
+    // blur on a tilted part is a smooth trend, multipath a local loss.
+    cv::Mat ratio = cam.modulation_ratio.clone();
+    // Normalised where it is read: the usable pixels (the others keep the raw ratio, unread).
+    const QuadraticField background =
+        FitSmoothField(cam.modulation_ratio, usable, nullptr, nullptr);
+    if (background.valid) {
+      for (int y = 0; y < cam.height; ++y) {
+        const uint8_t* use = usable.ptr<uint8_t>(y);
+        for (int x = 0; x < cam.width; ++x) {
+          if (!use[x]) continue;
+          const float b = background.At(x, y);
+          ratio.at<float>(y, x) = b > 0.05f ? ratio.at<float>(y, x) / b : std::nanf("");
+        }
+      }
+    }
+    std::vector<double> all;
+    for (int y = 0; y < cam.height; y += 2) {
+      for (int x = 0; x < cam.width; x += 2) {
+        const float v = ratio.at<float>(y, x);
+        if (usable.at<uint8_t>(y, x) && std::isfinite(v)) all.push_back(v);
+      }
+    }
+    if (all.size() < 100) continue;
+    const double med = Median(all);
+    const int bw = cam.width / 8, bh = cam.height / 8;
+    std::vector<uint8_t> flag(static_cast<size_t>(bw * bh), 0);
+    for (int by = 0; by < bh; ++by) {
+      for (int bx = 0; bx < bw; ++bx) {
+        std::vector<double> v;
+        bool full = true;
+        for (int y = by * 8; y < by * 8 + 8 && full; ++y) {
+          for (int x = bx * 8; x < bx * 8 + 8; ++x) {
+            if (!usable.at<uint8_t>(y, x)) {
+              full = false;
+              break;
+            }
+            const float r = ratio.at<float>(y, x);
+            if (std::isfinite(r)) v.push_back(r);
+          }
+        }
+        if (full && v.size() >= 48 && Median(v) < options.multipath_ratio * med)
+          flag[static_cast<size_t>(by * bw + bx)] = 1;
+      }
+    }
+    // Connected blobs (4-neighbourhood).
+    std::vector<int> stack;
+    for (int i = 0; i < bw * bh; ++i) {
+      if (flag[static_cast<size_t>(i)] != 1) continue;
+      int size = 0;
+      double sx = 0, sy = 0;
+      stack.push_back(i);
+      flag[static_cast<size_t>(i)] = 2;
+      while (!stack.empty()) {
+        const int k = stack.back();
+        stack.pop_back();
+        ++size;
+        sx += (k % bw) * 8 + 4, sy += (k / bw) * 8 + 4;
+        const int kx = k % bw, ky = k / bw;
+        const int nb[4][2] = {{kx - 1, ky}, {kx + 1, ky}, {kx, ky - 1}, {kx, ky + 1}};
+        for (const auto& q : nb) {
+          if (q[0] < 0 || q[1] < 0 || q[0] >= bw || q[1] >= bh) continue;
+          const size_t qi = static_cast<size_t>(q[1] * bw + q[0]);
+          if (flag[qi] == 1) {
+            flag[qi] = 2;
+            stack.push_back(static_cast<int>(qi));
+          }
+        }
+      }
+      if (size > largest) {
+        largest = size;
+        where = cam.camera + Fmt(" around pixel (%.0f, %.0f)", sx / size, sy / size);
+      }
+    }
+    mp.evidence["median_modulation_ratio_" + cam.camera] = med;
   }
+  mp.evidence["largest_blob_blocks"] = largest;
+  mp.evidence["block_px"] = 8;
+  mp.detected = largest >= options.min_blob_blocks;
+  mp.message = mp.detected ? "multipath / specular / subsurface: real fringe modulation below "
+                             "the twin's in a blob of " +
+                                 std::to_string(largest) + " 8x8 blocks, " + where
+                           : "no local loss of fringe modulation (largest blob " +
+                                 std::to_string(largest) + " blocks)";
+  return mp;
+}
 
-  // --- the part itself ---
-  if (wrong.detected) {
-    not_evaluated("part");
-  } else {
-    Finding part;
-    part.cause = "part";
-    part.evidence["modes"] = nlohmann::json::array();
-    std::vector<Eigen::Vector3d> centroids;
-    std::vector<double> signs;
-    std::vector<std::pair<std::vector<Eigen::Vector3d>, std::vector<double>>> mode_means;
-    bool all_detect = !modes.empty();
-    for (const ModeEvidence& m : modes) {
-      if (m.real_points.size() < 100 || m.virtual_points.size() < 100) {
-        all_detect = false;
-        mode_means.emplace_back();
-        part.evidence["modes"].push_back(
-            {{"mode", m.mode}, {"detected", false}, {"compared_points", 0}});
-        continue;
-      }
-      // Exact k-nearest neighbours on uniform grids (workflows/twin/diagnose_neighbours.h: the same
-      // neighbours in the same order as compare::KdTree, ~5 x cheaper at k = 64).
-      const int k = options.smoothing_neighbors;
-      const NeighbourGrid real_grid(m.real_points, k), virt_grid(m.virtual_points, k);
-      const size_t step = std::max<size_t>(1, m.real_points.size() / 40000);
-      std::vector<size_t> idx;
-      for (size_t i = 0; i < m.real_points.size(); i += step) idx.push_back(i);
-      std::vector<double> d(idx.size()), spread(idx.size());
-      cv::parallel_for_(cv::Range(0, static_cast<int>(idx.size())), [&](const cv::Range& range) {
-        std::vector<compare::Neighbor> nb;
-        NeighbourGrid::Scratch real_scratch, virt_scratch;
-        for (int i = range.start; i < range.end; ++i) {
-          const Eigen::Vector3d& p = m.real_points[idx[static_cast<size_t>(i)]];
-          real_grid.KNearest(p, k, &real_scratch, &nb);
-          double sr = 0;
-          for (const auto& q : nb) sr += m.real_c2m[q.index];
-          sr /= static_cast<double>(nb.size());
-          virt_grid.KNearest(p, k, &virt_scratch, &nb);
-          double sv = 0, svv = 0;
-          for (const auto& q : nb)
-            sv += m.virtual_c2m[q.index], svv += m.virtual_c2m[q.index] * m.virtual_c2m[q.index];
-          sv /= static_cast<double>(nb.size());
-          d[static_cast<size_t>(i)] = sr - sv;
-          // The twin's own local scatter: large at edges and mixed pixels, where the real scan
-          // scatters too; such places say nothing about the part.
-          spread[static_cast<size_t>(i)] =
-              std::sqrt(std::max(0.0, svv / static_cast<double>(nb.size()) - sv * sv));
-        }
-      });
-      const double spread_limit = 3 * Median(spread);
-      const double med = Median(d), sigma = Mad(d, med);
-      const double thr = std::max(4 * sigma, options.part_min_mm);
-      {
-        std::vector<Eigen::Vector3d> pts;
-        std::vector<double> vals;
-        for (size_t i = 0; i < idx.size(); ++i) {
-          if (spread[i] <= spread_limit)
-            pts.push_back(m.real_points[idx[i]]), vals.push_back(d[i] - med);
-        }
-        mode_means.emplace_back(std::move(pts), std::move(vals));
-      }
-      // What the pose's uncertainty explains at each point.
-      std::vector<double> pose_bound(idx.size(), 0.0);
-      if (m.pose_sigma_mm) {
-        cv::parallel_for_(cv::Range(0, static_cast<int>(idx.size())), [&](const cv::Range& r) {
-          for (int i = r.start; i < r.end; ++i) {
-            pose_bound[static_cast<size_t>(i)] =
-                options.part_pose_sigmas *
-                m.pose_sigma_mm(m.real_points[idx[static_cast<size_t>(i)]]);
-          }
-        });
-      }
-      std::vector<Eigen::Vector3d> sig;
-      std::vector<double> sig_d, sig_bound;
-      for (size_t i = 0; i < idx.size(); ++i) {
-        if (std::abs(d[i] - med) > std::max(thr, pose_bound[i]) && spread[i] <= spread_limit) {
-          sig.push_back(m.real_points[idx[i]]);
-          sig_d.push_back(d[i] - med);
-          sig_bound.push_back(pose_bound[i]);
-        }
-      }
-      // The largest connected cluster of significant points (linked within 4 point spacings).
-      size_t coherent = 0;
-      Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
-      double peak = 0, mean_dev = 0, cluster_bound = 0;
-      if (sig.size() >= 10) {
-        const compare::KdTree sig_tree(sig);
-        std::vector<compare::Neighbor> nb;
-        const double spacing = [&] {
-          std::vector<double> s;
-          NeighbourGrid::Scratch scratch;
-          for (size_t i = 0; i < idx.size(); i += std::max<size_t>(1, idx.size() / 500)) {
-            real_grid.KNearest(m.real_points[idx[i]], 2, &scratch, &nb);
-            if (nb.size() == 2) s.push_back(std::sqrt(nb[1].distance_sq));
-          }
-          return Median(s) * static_cast<double>(step);
-        }();
-        std::vector<int> label(sig.size(), -1);
-        std::vector<size_t> size_of;
-        for (size_t i = 0; i < sig.size(); ++i) {
-          if (label[i] >= 0) continue;
-          const int id = static_cast<int>(size_of.size());
-          size_of.push_back(0);
-          std::vector<size_t> stack = {i};
-          label[i] = id;
-          while (!stack.empty()) {
-            const size_t j = stack.back();
-            stack.pop_back();
-            ++size_of.back();
-            sig_tree.Radius(sig[j], 4 * spacing, &nb);
-            for (const auto& q : nb) {
-              // Same sign only: a bump and a dent next to each other are two findings.
-              if (label[q.index] < 0 && sig_d[q.index] * sig_d[j] > 0) {
-                label[q.index] = id;
-                stack.push_back(q.index);
-              }
-            }
-          }
-        }
-        const int best =
-            static_cast<int>(std::max_element(size_of.begin(), size_of.end()) - size_of.begin());
-        for (size_t i = 0; i < sig.size(); ++i) {
-          if (label[i] != best) continue;
-          ++coherent;
-          centroid += sig[i];
-          peak = std::max(peak, std::abs(sig_d[i]));
-          mean_dev += sig_d[i];
-          cluster_bound = std::max(cluster_bound, sig_bound[i]);
-        }
-        if (coherent)
-          centroid /= static_cast<double>(coherent), mean_dev /= static_cast<double>(coherent);
-      }
-      const double fraction = static_cast<double>(coherent) / static_cast<double>(idx.size());
-      const bool found = fraction >= options.part_min_fraction && coherent >= 20;
-      part.evidence["modes"].push_back(
-          {{"mode", m.mode},
-           {"compared_points", idx.size()},
-           {"noise_sigma_mm", sigma},
-           {"threshold_mm", thr},
-           {"significant_points", sig.size()},
-           {"clustered_points", coherent},
-           {"clustered_fraction", fraction},
-           {"mean_deviation_mm", mean_dev},
-           {"peak_deviation_mm", peak},
-           {"centroid_in_rig_mm", {centroid.x(), centroid.y(), centroid.z()}},
-           {"pose_bound_known", static_cast<bool>(m.pose_sigma_mm)},
-           {"pose_bound_p95_mm", Percentile(pose_bound, 95)},
-           {"pose_bound_at_cluster_mm", cluster_bound},
-           {"detected", found}});
-      if (found) {
-        centroids.push_back(centroid);
-        signs.push_back(mean_dev);
-      } else {
-        all_detect = false;
-      }
-    }
-    // Consistent between modes: every other mode deviates the same way where the strongest
-    // mode found its cluster (mean of its smoothed differences within 6 mm of that centroid at
-    // least half the strongest mode's mean deviation, same sign).
-    bool consistent = false;
-    if (!centroids.empty()) {
-      size_t primary = 0;
-      for (size_t i = 1; i < centroids.size(); ++i) {
-        if (std::abs(signs[i]) > std::abs(signs[primary])) primary = i;
-      }
-      consistent = true;
-      for (size_t mi = 0; mi < mode_means.size(); ++mi) {
-        const auto& [points, values] = mode_means[mi];
-        double sum = 0;
-        int64_t n = 0;
-        for (size_t i = 0; i < points.size(); ++i) {
-          if ((points[i] - centroids[primary]).norm() < 6.0) sum += values[i], ++n;
-        }
-        const double mean = n ? sum / static_cast<double>(n) : 0.0;
-        part.evidence["modes"][mi]["mean_at_strongest_cluster_mm"] = mean;
-        if (!(n > 0 && mean * signs[primary] > 0 &&
-              std::abs(mean) >= 0.5 * std::abs(signs[primary])))
-          consistent = false;
-      }
-      centroids = {centroids[primary]};
-      signs = {signs[primary]};
-    }
-    (void)all_detect;
-    part.detected = consistent && !calibration_found;
-    if (part.detected) {
-      const auto& first = part.evidence["modes"][0];
-      part.message =
-          Fmt("deviation on the part's surface: %.3f mm mean, %.3f mm peak",
-              first["mean_deviation_mm"].get<double>(), first["peak_deviation_mm"].get<double>()) +
-          Fmt(" around (%.1f, %.1f, %.1f) mm in the rig frame", centroids[0].x(), centroids[0].y(),
-              centroids[0].z()) +
-          (first["pose_bound_known"].get<bool>()
-               ? Fmt(" (the pose's uncertainty explains up to %.3f mm there)",
-                     first["pose_bound_at_cluster_mm"].get<double>())
-               : std::string(" (the pose's uncertainty is unknown)")) +
-          ", in every mode, not explained by the rig: the part differs from its model";
-    } else if (consistent && calibration_found) {
-      part.message = "surface deviations are explained by the calibration error";
-    } else if (!centroids.empty()) {
-      part.message = "a surface deviation in some modes only: not the part (a mode-specific error)";
-    } else {
-      part.message = "the real cloud follows the part as closely as the twin's";
-    }
-    diag.findings.push_back(part);
+// The mean smoothed difference (real - twin distance to the part) of one mode's points: one
+// cluster's worth of evidence per mode.
+struct PartMode {
+  nlohmann::json evidence;
+  bool found = false;
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  double mean_deviation_mm = 0;
+  // Where the twin's local scatter is small: the points and their differences (minus the median).
+  std::vector<Eigen::Vector3d> points;
+  std::vector<double> values;
+};
+
+// The largest connected cluster of significant points of one mode.
+struct Cluster {
+  size_t points = 0;
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  double peak = 0, mean_deviation = 0, pose_bound = 0;
+};
+
+// The median spacing of the compared points, from a sample of their nearest neighbours.
+double PointSpacing(const NeighbourGrid& real_grid, const std::vector<Eigen::Vector3d>& real_points,
+                    const std::vector<size_t>& idx, size_t step) {
+  std::vector<compare::Neighbor> nb;
+  std::vector<double> s;
+  NeighbourGrid::Scratch scratch;
+  for (size_t i = 0; i < idx.size(); i += std::max<size_t>(1, idx.size() / 500)) {
+    real_grid.KNearest(real_points[idx[i]], 2, &scratch, &nb);
+    if (nb.size() == 2) s.push_back(std::sqrt(nb[1].distance_sq));
   }
+  return Median(s) * static_cast<double>(step);
+}
+
+// Significant points linked within 4 point spacings, same sign only (a bump and a dent next to
+// each other are two findings): the largest such cluster.
+Cluster LargestCluster(const std::vector<Eigen::Vector3d>& sig, const std::vector<double>& sig_d,
+                       const std::vector<double>& sig_bound, double spacing) {
+  Cluster out;
+  const compare::KdTree sig_tree(sig);
+  std::vector<compare::Neighbor> nb;
+  std::vector<int> label(sig.size(), -1);
+  std::vector<size_t> size_of;
+  for (size_t i = 0; i < sig.size(); ++i) {
+    if (label[i] >= 0) continue;
+    const int id = static_cast<int>(size_of.size());
+    size_of.push_back(0);
+    std::vector<size_t> stack = {i};
+    label[i] = id;
+    while (!stack.empty()) {
+      const size_t j = stack.back();
+      stack.pop_back();
+      ++size_of.back();
+      sig_tree.Radius(sig[j], 4 * spacing, &nb);
+      for (const auto& q : nb) {
+        // Same sign only: a bump and a dent next to each other are two findings.
+        if (label[q.index] < 0 && sig_d[q.index] * sig_d[j] > 0) {
+          label[q.index] = id;
+          stack.push_back(q.index);
+        }
+      }
+    }
+  }
+  const int best =
+      static_cast<int>(std::max_element(size_of.begin(), size_of.end()) - size_of.begin());
+  for (size_t i = 0; i < sig.size(); ++i) {
+    if (label[i] != best) continue;
+    ++out.points;
+    out.centroid += sig[i];
+    out.peak = std::max(out.peak, std::abs(sig_d[i]));
+    out.mean_deviation += sig_d[i];
+    out.pose_bound = std::max(out.pose_bound, sig_bound[i]);
+  }
+  if (out.points) {
+    out.centroid /= static_cast<double>(out.points);
+    out.mean_deviation /= static_cast<double>(out.points);
+  }
+  return out;
+}
+
+// One mode of the part cause: the real minus the twin distance to the part, each smoothed over
+// k neighbours, its significant points and their largest cluster.
+PartMode EvaluatePartMode(const ModeEvidence& m, const DiagnoseOptions& options) {
+  PartMode out;
+  if (m.real_points.size() < 100 || m.virtual_points.size() < 100) {
+    out.evidence = {{"mode", m.mode}, {"detected", false}, {"compared_points", 0}};
+    return out;
+  }
+  // Exact k-nearest neighbours on uniform grids (workflows/twin/diagnose_neighbours.h: the same
+  // neighbours in the same order as compare::KdTree, ~5 x cheaper at k = 64).
+  const int k = options.smoothing_neighbors;
+  const NeighbourGrid real_grid(m.real_points, k), virt_grid(m.virtual_points, k);
+  const size_t step = std::max<size_t>(1, m.real_points.size() / 40000);
+  std::vector<size_t> idx;
+  for (size_t i = 0; i < m.real_points.size(); i += step) idx.push_back(i);
+  std::vector<double> d(idx.size()), spread(idx.size());
+  cv::parallel_for_(cv::Range(0, static_cast<int>(idx.size())), [&](const cv::Range& range) {
+    std::vector<compare::Neighbor> nb;
+    NeighbourGrid::Scratch real_scratch, virt_scratch;
+    for (int i = range.start; i < range.end; ++i) {
+      const Eigen::Vector3d& p = m.real_points[idx[static_cast<size_t>(i)]];
+      real_grid.KNearest(p, k, &real_scratch, &nb);
+      double sr = 0;
+      for (const auto& q : nb) sr += m.real_c2m[q.index];
+      sr /= static_cast<double>(nb.size());
+      virt_grid.KNearest(p, k, &virt_scratch, &nb);
+      double sv = 0, svv = 0;
+      for (const auto& q : nb)
+        sv += m.virtual_c2m[q.index], svv += m.virtual_c2m[q.index] * m.virtual_c2m[q.index];
+      sv /= static_cast<double>(nb.size());
+      d[static_cast<size_t>(i)] = sr - sv;
+      // The twin's own local scatter: large at edges and mixed pixels, where the real scan
+      // scatters too; such places say nothing about the part.
+      spread[static_cast<size_t>(i)] =
+          std::sqrt(std::max(0.0, svv / static_cast<double>(nb.size()) - sv * sv));
+    }
+  });
+  const double spread_limit = 3 * Median(spread);
+  const double med = Median(d), sigma = Mad(d, med);
+  const double thr = std::max(4 * sigma, options.part_min_mm);
+  for (size_t i = 0; i < idx.size(); ++i) {
+    if (spread[i] <= spread_limit)
+      out.points.push_back(m.real_points[idx[i]]), out.values.push_back(d[i] - med);
+  }
+  // What the pose's uncertainty explains at each point.
+  std::vector<double> pose_bound(idx.size(), 0.0);
+  if (m.pose_sigma_mm) {
+    cv::parallel_for_(cv::Range(0, static_cast<int>(idx.size())), [&](const cv::Range& r) {
+      for (int i = r.start; i < r.end; ++i) {
+        pose_bound[static_cast<size_t>(i)] =
+            options.part_pose_sigmas * m.pose_sigma_mm(m.real_points[idx[static_cast<size_t>(i)]]);
+      }
+    });
+  }
+  std::vector<Eigen::Vector3d> sig;
+  std::vector<double> sig_d, sig_bound;
+  for (size_t i = 0; i < idx.size(); ++i) {
+    if (std::abs(d[i] - med) > std::max(thr, pose_bound[i]) && spread[i] <= spread_limit) {
+      sig.push_back(m.real_points[idx[i]]);
+      sig_d.push_back(d[i] - med);
+      sig_bound.push_back(pose_bound[i]);
+    }
+  }
+  Cluster cluster;
+  if (sig.size() >= 10) {
+    cluster =
+        LargestCluster(sig, sig_d, sig_bound, PointSpacing(real_grid, m.real_points, idx, step));
+  }
+  const double fraction = static_cast<double>(cluster.points) / static_cast<double>(idx.size());
+  out.found = fraction >= options.part_min_fraction && cluster.points >= 20;
+  out.centroid = cluster.centroid;
+  out.mean_deviation_mm = cluster.mean_deviation;
+  out.evidence = {
+      {"mode", m.mode},
+      {"compared_points", idx.size()},
+      {"noise_sigma_mm", sigma},
+      {"threshold_mm", thr},
+      {"significant_points", sig.size()},
+      {"clustered_points", cluster.points},
+      {"clustered_fraction", fraction},
+      {"mean_deviation_mm", cluster.mean_deviation},
+      {"peak_deviation_mm", cluster.peak},
+      {"centroid_in_rig_mm", {cluster.centroid.x(), cluster.centroid.y(), cluster.centroid.z()}},
+      {"pose_bound_known", static_cast<bool>(m.pose_sigma_mm)},
+      {"pose_bound_p95_mm", Percentile(pose_bound, 95)},
+      {"pose_bound_at_cluster_mm", cluster.pose_bound},
+      {"detected", out.found}};
+  return out;
+}
+
+// part: a deviation on the part's surface, found in every mode the same way and not explained
+// by a calibration error.
+Finding Part(const std::vector<ModeEvidence>& modes, const DiagnoseOptions& options,
+             bool calibration_found) {
+  Finding part;
+  part.cause = "part";
+  part.evidence["modes"] = nlohmann::json::array();
+  std::vector<Eigen::Vector3d> centroids;
+  std::vector<double> signs;
+  std::vector<std::pair<std::vector<Eigen::Vector3d>, std::vector<double>>> mode_means;
+  for (const ModeEvidence& m : modes) {
+    PartMode mode = EvaluatePartMode(m, options);
+    part.evidence["modes"].push_back(std::move(mode.evidence));
+    mode_means.emplace_back(std::move(mode.points), std::move(mode.values));
+    if (mode.found) {
+      centroids.push_back(mode.centroid);
+      signs.push_back(mode.mean_deviation_mm);
+    }
+  }
+  // Consistent between modes: every other mode deviates the same way where the strongest
+  // mode found its cluster (mean of its smoothed differences within 6 mm of that centroid at
+  // least half the strongest mode's mean deviation, same sign).
+  bool consistent = false;
+  if (!centroids.empty()) {
+    size_t primary = 0;
+    for (size_t i = 1; i < centroids.size(); ++i) {
+      if (std::abs(signs[i]) > std::abs(signs[primary])) primary = i;
+    }
+    consistent = true;
+    for (size_t mi = 0; mi < mode_means.size(); ++mi) {
+      const auto& [points, values] = mode_means[mi];
+      double sum = 0;
+      int64_t n = 0;
+      for (size_t i = 0; i < points.size(); ++i) {
+        if ((points[i] - centroids[primary]).norm() < 6.0) sum += values[i], ++n;
+      }
+      const double mean = n ? sum / static_cast<double>(n) : 0.0;
+      part.evidence["modes"][mi]["mean_at_strongest_cluster_mm"] = mean;
+      if (!(n > 0 && mean * signs[primary] > 0 && std::abs(mean) >= 0.5 * std::abs(signs[primary])))
+        consistent = false;
+    }
+    centroids = {centroids[primary]};
+    signs = {signs[primary]};
+  }
+  part.detected = consistent && !calibration_found;
+  if (part.detected) {
+    const auto& first = part.evidence["modes"][0];
+    part.message =
+        Fmt("deviation on the part's surface: %.3f mm mean, %.3f mm peak",
+            first["mean_deviation_mm"].get<double>(), first["peak_deviation_mm"].get<double>()) +
+        Fmt(" around (%.1f, %.1f, %.1f) mm in the rig frame", centroids[0].x(), centroids[0].y(),
+            centroids[0].z()) +
+        (first["pose_bound_known"].get<bool>()
+             ? Fmt(" (the pose's uncertainty explains up to %.3f mm there)",
+                   first["pose_bound_at_cluster_mm"].get<double>())
+             : std::string(" (the pose's uncertainty is unknown)")) +
+        ", in every mode, not explained by the rig: the part differs from its model";
+  } else if (consistent && calibration_found) {
+    part.message = "surface deviations are explained by the calibration error";
+  } else if (!centroids.empty()) {
+    part.message = "a surface deviation in some modes only: not the part (a mode-specific error)";
+  } else {
+    part.message = "the real cloud follows the part as closely as the twin's";
+  }
+  return part;
+}
+
+}  // namespace
+
+Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projector_images,
+                   const std::vector<float>& response, const PhysicsFit& physics,
+                   const std::vector<CameraEvidence>& cameras,
+                   const std::vector<ModeEvidence>& modes, const DiagnoseOptions& options) {
+  options.Check();
+  SLSHADOW_THROW_IF(cameras.empty(), "diagnose: no camera evidence");
+  SLSHADOW_THROW_IF(response.size() != 256, "diagnose: the response table needs 256 entries");
+  Diagnosis diag;
+  // Calibration fields per camera (used by the frame test too).
+  const std::vector<Field> fields = FitCalibrationFields(cameras);
+
+  // A wrong frame is evaluated first: it corrupts the decoding, so the coordinate and cloud
+  // signatures are then not evaluated.
+  const Finding wrong =
+      WrongFrame(spec.Frames(), projector_images, response, cameras, fields, options);
+  diag.findings.push_back(wrong);
+  const bool decoded = !wrong.detected;
+  diag.findings.push_back(decoded ? Calibration(cameras, fields, options)
+                                  : NotEvaluated("calibration"));
+  const bool calibration_found = decoded && diag.findings.back().detected;
+  diag.findings.push_back(ProjectorResponse(spec, physics, cameras, fields, wrong.detected));
+  diag.findings.push_back(Defocus(physics));
+  diag.findings.push_back(decoded ? Multipath(cameras, options) : NotEvaluated("multipath"));
+  diag.findings.push_back(decoded ? Part(modes, options, calibration_found) : NotEvaluated("part"));
 
   for (const auto& f : diag.findings) {
     if (f.detected) diag.causes.push_back(f.cause);
