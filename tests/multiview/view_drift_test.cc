@@ -29,8 +29,9 @@ ViewDriftOptions Options() {
   return o;
 }
 
-const Rigid3d kPlacement(Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Eigen::Vector3d(1, 2, 3).normalized())),
-                         Eigen::Vector3d(1.5, 35.0, 470.0));
+const Rigid3d kPlacement(
+    Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Eigen::Vector3d(1, 2, 3).normalized())),
+    Eigen::Vector3d(1.5, 35.0, 470.0));
 
 // Views every 45 deg with their true poses under `truth`, the slip (in the rig frame at angle 0)
 // applied from view `slip_view` on, and pose noise of `noise_mm` at the probe points' scale.
@@ -45,7 +46,8 @@ std::vector<ViewPose> MakeViews(const TurntableAxis& truth, int slip_view, const
     if (slip_view >= 0 && v >= slip_view) placement = slip * placement;
     Rigid3d pose = truth.RigFromTableTurn(deg) * placement;
     // Noise about the probe points' centre (0, 0, 12.5) in the part frame: a rotation of
-    // noise / 38 mm radians (38 mm: the probe points' RMS radius) and a shift of noise mm, per axis.
+    // noise / 38 mm radians (38 mm: the probe points' RMS radius) and a shift of noise mm, per
+    // axis.
     const Eigen::Vector3d w(n(rng), n(rng), n(rng));
     const Eigen::Vector3d t(n(rng), n(rng), n(rng));
     const Eigen::Vector3d centre(0, 0, 12.5);

@@ -27,9 +27,9 @@ std::pair<Eigen::Vector3d, Eigen::Vector3d> Perpendiculars(const Eigen::Vector3d
 struct DriftParameters {
   std::array<double, 4> q{};  // rig_from_part0 rotation, Eigen's order (x, y, z, w)
   std::array<double, 3> t{};
-  std::array<double, 2> tilt{};   // axis direction + tilt[0] u1 + tilt[1] u2, normalised
-  std::array<double, 2> shift{};  // axis point + shift[0] u1 + shift[1] u2
-  std::array<double, 1> scale{};  // the table turns (1 + scale) x the stated angle
+  std::array<double, 2> tilt{};          // axis direction + tilt[0] u1 + tilt[1] u2, normalised
+  std::array<double, 2> shift{};         // axis point + shift[0] u1 + shift[1] u2
+  std::array<double, 1> scale{};         // the table turns (1 + scale) x the stated angle
   std::array<double, 4> dq{0, 0, 0, 1};  // the slip, in the rig frame at commanded angle 0
   std::array<double, 3> dt{};
 
@@ -80,7 +80,8 @@ struct PoseResidual {
     const Vec d = (axis.direction_in_rig.normalized().cast<T>() + tilt[0] * u1.cast<T>() +
                    tilt[1] * u2.cast<T>())
                       .normalized();
-    const Vec c = axis.point_in_rig_mm.cast<T>() + shift[0] * u1.cast<T>() + shift[1] * u2.cast<T>();
+    const Vec c =
+        axis.point_in_rig_mm.cast<T>() + shift[0] * u1.cast<T>() + shift[1] * u2.cast<T>();
     const T angle_rad =
         (T(axis.angle_scale) * (T(1.0) + scale[0]) * T(table_deg) + T(axis.angle_offset_deg)) /
         T(kDegPerRad);
@@ -256,8 +257,10 @@ nlohmann::json ViewDriftDiagnosis::ToJson(const std::vector<ViewPose>& views) co
   j["finding"] = finding;
   nlohmann::json fits_json = nlohmann::json::array();
   for (const DriftFit& f : fits) {
-    nlohmann::json fj = {{"cause", ToString(f.cause)}, {"parameters", f.parameters},
-                         {"chi2", f.chi2},             {"bic", f.bic},
+    nlohmann::json fj = {{"cause", ToString(f.cause)},
+                         {"parameters", f.parameters},
+                         {"chi2", f.chi2},
+                         {"bic", f.bic},
                          {"rms_mm", f.rms_mm}};
     if (f.cause == DriftCause::kAxisOff) {
       fj["axis_tilt_deg"] = f.axis_tilt_deg;
@@ -318,7 +321,7 @@ ViewDriftDiagnosis DiagnoseViewDrift(const TurntableAxis& axis, const std::vecto
     if (f.bic < best->bic) best = &f;
   }
   d.cause = (best != &none && none.bic - best->bic >= options.min_evidence) ? best->cause
-                                                                             : DriftCause::kNone;
+                                                                            : DriftCause::kNone;
 
   // Per-view residuals under the stated model anchored at the first view (so a drift shows as it
   // grows from there).

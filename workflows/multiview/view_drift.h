@@ -57,7 +57,7 @@ struct DriftFit {
   int parameters = 0;
   double chi2 = 0;
   double bic = 0;
-  double rms_mm = 0;      // of the probe-point residuals
+  double rms_mm = 0;       // of the probe-point residuals
   Rigid3d rig_from_part0;  // the part's placement at commanded angle 0
   // kAxisOff: the fitted axis against the stated one.
   double axis_tilt_deg = 0;
