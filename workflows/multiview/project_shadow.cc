@@ -9,8 +9,8 @@
 #include "core/file_util.h"
 #include "core/point_cloud.h"
 #include "core/string_printf.h"
-#include "sim/scene.h"
 #include "shadow/scan_pipeline.h"
+#include "sim/scene.h"
 #include "workflows/multiview/views.h"
 
 namespace slshadow::multiview {
@@ -100,9 +100,9 @@ void ProjectShadowOptions::Check() const {
   if (!drift.probe_points_in_part.empty()) drift.Check();
   cad.Check();
   if (rig_from_part0) {
-    SLSHADOW_THROW_IF(!rig_from_part0->translation.allFinite() ||
-                          !rig_from_part0->rotation.coeffs().allFinite(),
-                      "rig_from_part0: not finite");
+    SLSHADOW_THROW_IF(
+        !rig_from_part0->translation.allFinite() || !rig_from_part0->rotation.coeffs().allFinite(),
+        "rig_from_part0: not finite");
   }
   SLSHADOW_THROW_IF(!std::isfinite(table_crop_mm), "table_crop_mm: ", table_crop_mm,
                     "; expected a finite number");
@@ -116,6 +116,16 @@ std::string ProjectShadowResult::Summary() const {
     s += StringPrintf("  %-12s %8.2f deg  %s\n", v.name.c_str(), v.table_deg, v.verdict.c_str());
   }
   s += "across views: " + drift.finding + "\n";
+  const nlohmann::json& causes = report["per_view_causes"];
+  if (causes.is_object()) {
+    for (const auto& [cause, count] : causes.items()) {
+      s += StringPrintf("named by %zu of %zu views: %s%s\n", count.get<size_t>(), views.size(),
+                        cause.c_str(),
+                        count.get<size_t>() == views.size() && cause == "calibration"
+                            ? " (in every view alike: the rig's calibration, not the table)"
+                            : "");
+    }
+  }
   const nlohmann::json& m = report["merged"];
   if (m.is_object()) {
     s += StringPrintf(
@@ -125,8 +135,8 @@ std::string ProjectShadowResult::Summary() const {
         100 * m["real"]["coverage"]["reachable"].get<double>(),
         m["twin"]["merged"]["rms_mm"].get<double>(),
         100 * m["twin"]["coverage"]["reachable"].get<double>(),
-        m["real_minus_twin"]["signed_mean_mm"].get<double>(), m["real_minus_twin"]["rms_mm"].get<double>(),
-        m["real_minus_twin"]["count"].get<size_t>());
+        m["real_minus_twin"]["signed_mean_mm"].get<double>(),
+        m["real_minus_twin"]["rms_mm"].get<double>(), m["real_minus_twin"]["count"].get<size_t>());
   }
   return s;
 }
@@ -184,7 +194,8 @@ ProjectShadowResult RunProjectShadow(const fs::path& project_dir, const shadow::
       SLSHADOW_THROW("view '", v.spec.name, "' (", (project_dir / v.Folder()).string(),
                      "): ", e.what());
     }
-    if (!placement) placement = axis.RigFromTableTurn(*v.spec.table_deg).Inverse() * r.rig_from_part;
+    if (!placement)
+      placement = axis.RigFromTableTurn(*v.spec.table_deg).Inverse() * r.rig_from_part;
     ProjectShadowView pv;
     pv.name = v.spec.name;
     pv.table_deg = *v.spec.table_deg;
@@ -265,12 +276,13 @@ ProjectShadowResult RunProjectShadow(const fs::path& project_dir, const shadow::
   report["version"] = 1;
   report["project"] = fs::absolute(project_dir).lexically_normal().string();
   report["rig"] = rig.name;
-  report["turntable"] = {{"direction_in_rig", {axis.direction_in_rig.x(), axis.direction_in_rig.y(),
-                                               axis.direction_in_rig.z()}},
-                         {"point_in_rig_mm", {axis.point_in_rig_mm.x(), axis.point_in_rig_mm.y(),
-                                              axis.point_in_rig_mm.z()}},
-                         {"angle_offset_deg", axis.angle_offset_deg},
-                         {"angle_scale", axis.angle_scale}};
+  report["turntable"] = {
+      {"direction_in_rig",
+       {axis.direction_in_rig.x(), axis.direction_in_rig.y(), axis.direction_in_rig.z()}},
+      {"point_in_rig_mm",
+       {axis.point_in_rig_mm.x(), axis.point_in_rig_mm.y(), axis.point_in_rig_mm.z()}},
+      {"angle_offset_deg", axis.angle_offset_deg},
+      {"angle_scale", axis.angle_scale}};
   const Eigen::Matrix4d m = placement->ToMatrix();
   nlohmann::json rows = nlohmann::json::array();
   for (int r = 0; r < 4; ++r) rows.push_back({m(r, 0), m(r, 1), m(r, 2), m(r, 3)});
@@ -287,6 +299,15 @@ ProjectShadowResult RunProjectShadow(const fs::path& project_dir, const shadow::
   }
   report["views"] = per_view;
   report["left_out"] = left_out;
+  // How many views' own diagnoses name each cause: a calibration error names itself in every view.
+  nlohmann::json per_view_causes = nlohmann::json::object();
+  for (const ProjectShadowView& v : result.views) {
+    for (const auto& c : v.figures["diagnosis"]["causes"]) {
+      const std::string name = c.get<std::string>();
+      per_view_causes[name] = per_view_causes.value(name, 0) + 1;
+    }
+  }
+  report["per_view_causes"] = per_view_causes;
   report["across_views"] = result.drift.ToJson(poses);
   report["merged"] = merged;
   WriteTextFileAtomically(staging.path() / "report.json", report.dump(2) + "\n");

@@ -10,7 +10,8 @@
 //     refined from axis.RigFromTableTurn(commanded) * rig_from_part0, the physics fit, the twin's
 //     re-scan, the comparison and the diagnosis), its report in OUT/views/<name>/. A calibration
 //     error shows in this step, in every view alike.
-//  3. The diagnosis across views (workflows/multiview/view_drift.h) on the views' refined poses: the
+//  3. The diagnosis across views (workflows/multiview/view_drift.h) on the views' refined poses:
+//  the
 //     turntable axis off, the angle scale off, or the part slipped between two views, or none.
 //  4. Merged: every view's real cloud and twin cloud carried into the part frame by the view's
 //     refined pose and compared with the part's surface (workflows/multiview/cad_compare.h, the
@@ -63,9 +64,9 @@ struct ProjectShadowOptions {
 struct ProjectShadowView {
   std::string name;
   double table_deg = 0;
-  Rigid3d rig_from_part;  // refined by the view's pose stage
-  double sigma_mm = 0;    // the pose's 1-sigma translation (worst direction)
-  std::string verdict;    // the view's own diagnosis in one line
+  Rigid3d rig_from_part;   // refined by the view's pose stage
+  double sigma_mm = 0;     // the pose's 1-sigma translation (worst direction)
+  std::string verdict;     // the view's own diagnosis in one line
   nlohmann::json figures;  // the view's report: pose, clouds' C2M, diagnosis
 };
 
