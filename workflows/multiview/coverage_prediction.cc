@@ -13,6 +13,7 @@
 #include "core/error.h"
 #include "core/point_cloud.h"
 #include "core/string_printf.h"
+#include "reconstruct/stereo_matcher.h"
 #include "sim/raycaster.h"
 #include "sim/scene.h"
 #include "workflows/multiview/virtual_project.h"
@@ -40,27 +41,78 @@ struct Light {
   double range_per_factor = 0;
   double ref_distance_sq = 0;
   double threshold = 0;
-  double max_code_step_px = 0;           // stereo: 0 = no gate
-  double max_depth_jump_footprints = 0;  // 0: no filter
+  double max_code_step_px = 0;  // stereo: 0 = no gate
 };
 
-// The depth-discontinuity filter (reconstruct/filters.h) at the reference camera's pixel of
-// `in_cam`: the largest range change to its horizontal and vertical neighbours on the tangent
-// plane (normal `n_cam`), in footprints (range / fx). Infinity when a neighbour's ray misses it.
-double RangeStepFootprints(const RigDevice& cam, const Eigen::Vector3d& in_cam,
-                           const Eigen::Vector3d& n_cam, const Eigen::Vector2d& pixel) {
-  const double range = in_cam.norm();
-  double step = 0;
-  for (const Eigen::Vector2d& offset : {Eigen::Vector2d(1, 0), Eigen::Vector2d(0, 1)}) {
-    const auto ray = cam.model.Unproject(pixel + offset);
-    if (!ray) return std::numeric_limits<double>::infinity();
-    const double denom = n_cam.dot(*ray);
-    if (std::abs(denom) < 1e-12) return std::numeric_limits<double>::infinity();
-    const double t = n_cam.dot(in_cam) / denom;  // the range along the unit ray
-    if (t <= 0) return std::numeric_limits<double>::infinity();
-    step = std::max(step, std::abs(t - range));
+// The reconstruction's reference grid, where its filters run (reconstruct.h): the rectified left
+// camera in stereo (stereo_matcher.h: pinhole, focal_px, cx, cy, centred on the left camera), the
+// first camera's own image in projector mode. Footprints are range / focal_px (DenseGrid).
+struct ReferenceGrid {
+  Rigid3d grid_from_rig;
+  bool rectified = false;
+  double focal_px = 1, cx = 0, cy = 0;
+  const RigDevice* camera = nullptr;  // projector mode
+  // The reconstruction's filters (0: off).
+  double max_depth_jump_footprints = 0;
+  bool outliers = false;
+  int outlier_radius = 1, outlier_neighbors = 4;
+  double outlier_std_ratio = 4, outlier_floor = 4;
+
+  std::optional<Eigen::Vector2d> Pixel(const Eigen::Vector3d& in_grid) const {
+    if (in_grid.z() <= 0) return std::nullopt;
+    if (!rectified) return camera->model.Project(in_grid);
+    return Eigen::Vector2d(focal_px * in_grid.x() / in_grid.z() + cx,
+                           focal_px * in_grid.y() / in_grid.z() + cy);
   }
-  return step / (range / cam.model.fx());
+  std::optional<Eigen::Vector3d> Ray(const Eigen::Vector2d& pixel) const {
+    if (!rectified) return camera->model.Unproject(pixel);
+    return Eigen::Vector3d((pixel.x() - cx) / focal_px, (pixel.y() - cy) / focal_px, 1.0);
+  }
+};
+
+// The cells around the grid's pixel of `in_grid` on the surface's tangent plane (normal `n_grid`,
+// grid frame): the depth-discontinuity filter's largest range change to a 4-neighbour, and the
+// statistical outlier filter's score (RMS distance to the `outlier_neighbors` nearest cells of
+// the window), both in footprints (reconstruct/filters.h). Infinity where a neighbour's ray
+// misses the plane.
+struct CellFigures {
+  double jump_footprints = 0;
+  double outlier_score = 0;
+};
+CellFigures TangentCells(const ReferenceGrid& grid, const Eigen::Vector3d& in_grid,
+                         const Eigen::Vector3d& n_grid, const Eigen::Vector2d& pixel) {
+  constexpr double kInf = std::numeric_limits<double>::infinity();
+  const double range = in_grid.norm(), footprint = range / grid.focal_px;
+  const double plane = n_grid.dot(in_grid);
+  CellFigures f;
+  std::vector<double> d2;
+  const int r = std::max(1, grid.outlier_radius);
+  for (int dv = -r; dv <= r; ++dv) {
+    for (int du = -r; du <= r; ++du) {
+      if (du == 0 && dv == 0) continue;
+      const bool four = std::abs(du) + std::abs(dv) == 1;
+      if (!four && !grid.outliers) continue;
+      Eigen::Vector3d q;
+      bool hit = false;
+      if (const auto ray = grid.Ray(pixel + Eigen::Vector2d(du, dv))) {
+        const double denom = n_grid.dot(*ray);
+        const double t = std::abs(denom) > 1e-12 ? plane / denom : -1;
+        if (t > 0) q = *ray * t, hit = true;
+      }
+      if (four)
+        f.jump_footprints = std::max(f.jump_footprints, hit ? std::abs(q.norm() - range) : kInf);
+      d2.push_back(hit ? (q - in_grid).squaredNorm() : kInf);
+    }
+  }
+  if (grid.outliers) {
+    const auto k = std::min(d2.size(), static_cast<size_t>(std::max(1, grid.outlier_neighbors)));
+    std::partial_sort(d2.begin(), d2.begin() + static_cast<std::ptrdiff_t>(k), d2.end());
+    double sum = 0;
+    for (size_t i = 0; i < k; ++i) sum += d2[i];
+    f.outlier_score = std::sqrt(sum / static_cast<double>(k)) / footprint;
+  }
+  f.jump_footprints /= footprint;
+  return f;
 }
 
 // Stereo's code-step gate (ReconstructOptions::max_code_step_px): the largest change of either
@@ -111,11 +163,15 @@ std::vector<uint8_t> ViewSight(const RayCaster& caster, const std::vector<Eigen:
                                const std::vector<Eigen::Vector3f>& normals,
                                const std::vector<const RigDevice*>& devices,
                                const Rigid3d& part_from_rig, double cos_grazing, double eps,
-                               const Light& light) {
+                               const Light& light, const ReferenceGrid& grid) {
   const Rigid3d rig_from_part = part_from_rig.Inverse();
   std::vector<Eigen::Vector3d> centres;
   for (const RigDevice* d : devices) centres.push_back(part_from_rig * d->CenterInRig());
   std::vector<uint8_t> sight(samples.size(), kCovered);
+  // The outlier filter's score of each sample's cell and the cells per sample (its weight in the
+  // filter's mean and spread over the grid's cells: cos / footprint^2 per unit of area).
+  std::vector<double> score(samples.size(), 0), weight(samples.size(), 0);
+  const Rigid3d grid_from_part = grid.grid_from_rig * rig_from_part;
   constexpr size_t kLanes = RayPacket::kSize;
   const size_t blocks = (samples.size() + kLanes - 1) / kLanes;
   tbb::parallel_for(size_t{0}, blocks, [&](size_t b) {
@@ -147,11 +203,19 @@ std::vector<uint8_t> ViewSight(const RayCaster& caster, const std::vector<Eigen:
           continue;
         }
         if (cos_incidence < cos_grazing) sight[first + l] = Worse(sight[first + l], kGrazing);
-        if (light.max_depth_jump_footprints > 0 && d == 0 &&
-            RangeStepFootprints(device, in_device,
-                                device.cam_from_rig.rotation * (rig_from_part.rotation * nrm),
-                                *pixel) > light.max_depth_jump_footprints)
-          sight[first + l] = Worse(sight[first + l], kGrazing);
+        if (d == 0 && (grid.max_depth_jump_footprints > 0 || grid.outliers)) {
+          const Eigen::Vector3d in_grid = grid_from_part * p;
+          const Eigen::Vector3d n_grid = grid_from_part.rotation * nrm;
+          if (const auto cell = grid.Pixel(in_grid)) {
+            const CellFigures f = TangentCells(grid, in_grid, n_grid, *cell);
+            if (grid.max_depth_jump_footprints > 0 &&
+                f.jump_footprints > grid.max_depth_jump_footprints)
+              sight[first + l] = Worse(sight[first + l], kGrazing);
+            score[first + l] = f.outlier_score;
+            weight[first + l] = std::abs(n_grid.dot(in_grid)) * grid.focal_px * grid.focal_px /
+                                std::pow(in_grid.squaredNorm(), 1.5);
+          }
+        }
         if (light.max_code_step_px > 0 && d + 1 < devices.size() &&
             CodeStepPx(device, *devices.back(), in_device,
                        device.cam_from_rig.rotation * (rig_from_part.rotation * nrm),
@@ -183,6 +247,25 @@ std::vector<uint8_t> ViewSight(const RayCaster& caster, const std::vector<Eigen:
       }
     }
   });
+  if (grid.outliers) {
+    // The filter's limit over the cells that reach it (the samples every other rule keeps):
+    // max(mean + std_ratio * spread, floor); a cell above it is rejected (a surface too steep for
+    // its neighbours to stay close, or with a neighbour's ray off the plane); grazing before too
+    // dark, as the other rules rank them.
+    double w = 0, ws = 0, ws2 = 0;
+    for (size_t i = 0; i < samples.size(); ++i) {
+      if (sight[i] != kCovered || !std::isfinite(score[i])) continue;
+      w += weight[i];
+      ws += weight[i] * score[i];
+      ws2 += weight[i] * score[i] * score[i];
+    }
+    const double mean = w > 0 ? ws / w : 0;
+    const double spread = w > 0 ? std::sqrt(std::max(0.0, ws2 / w - mean * mean)) : 0;
+    const double limit = std::max(mean + grid.outlier_std_ratio * spread, grid.outlier_floor);
+    for (size_t i = 0; i < samples.size(); ++i) {
+      if (sight[i] <= kDark && score[i] > limit) sight[i] = kGrazing;
+    }
+  }
   return sight;
 }
 
@@ -233,12 +316,7 @@ void CoveragePredictionOptions::Check() const {
   SLSHADOW_THROW_IF(!(reference_distance_mm >= 0),
                     "coverage prediction: reference_distance_mm must be >= 0 (got ",
                     reference_distance_mm, ")");
-  SLSHADOW_THROW_IF(!(max_depth_jump_footprints >= 0),
-                    "coverage prediction: max_depth_jump_footprints must be >= 0 (got ",
-                    max_depth_jump_footprints, ")");
-  SLSHADOW_THROW_IF(!(max_code_step_px >= 0),
-                    "coverage prediction: max_code_step_px must be >= 0 (got ", max_code_step_px,
-                    ")");
+  reconstruct.Check();
   SLSHADOW_THROW_IF(!(shadow_threshold >= 0),
                     "coverage prediction: shadow_threshold must be >= 0 (got ", shadow_threshold,
                     ")");
@@ -272,6 +350,7 @@ struct CoveragePredictor::Impl {
   std::unique_ptr<RayCaster> caster;
   double eps = 0, cos_grazing = 0;
   Light light;
+  ReferenceGrid grid;
 };
 
 CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig& rig,
@@ -316,8 +395,29 @@ CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig&
       options.reference_distance_mm > 0 ? options.reference_distance_mm : rig.working_distance_mm;
   m.light.ref_distance_sq = d_ref * d_ref;
   m.light.threshold = options.shadow_threshold;
-  if (options.mode == ReconstructMode::kStereo) m.light.max_code_step_px = options.max_code_step_px;
-  m.light.max_depth_jump_footprints = options.max_depth_jump_footprints;
+  const ReconstructOptions& r = options.reconstruct;
+  // The automatic gate (0) is at least 4 px (AutoCodeStepGate): its floor.
+  if (options.mode == ReconstructMode::kStereo)
+    m.light.max_code_step_px = r.max_code_step_px > 0 ? r.max_code_step_px : 4.0;
+  ReferenceGrid& grid = m.grid;
+  const RigDevice& left = m.devices[0];
+  grid.camera = &left;
+  grid.focal_px = 0.5 * (left.model.fx() + left.model.fy());
+  grid.grid_from_rig = left.cam_from_rig;
+  if (options.mode == ReconstructMode::kStereo) {
+    const StereoRectification rect = ComputeStereoRectification(left, m.devices[1]);
+    grid.rectified = true;
+    grid.grid_from_rig = rect.RectCamFromRig(0);
+    grid.focal_px = rect.focal_px;
+    grid.cx = rect.cx[0];
+    grid.cy = rect.cy;
+  }
+  grid.max_depth_jump_footprints = r.filter_depth_discontinuities ? r.max_depth_jump_footprints : 0;
+  grid.outliers = r.filter_outliers;
+  grid.outlier_radius = r.outlier_window_radius_px;
+  grid.outlier_neighbors = r.outlier_neighbors;
+  grid.outlier_std_ratio = r.outlier_std_ratio;
+  grid.outlier_floor = r.outlier_min_distance_footprints;
 }
 
 CoveragePredictor::~CoveragePredictor() = default;
@@ -332,7 +432,7 @@ std::vector<uint8_t> CoveragePredictor::View(const Rigid3d& part_from_rig) const
   std::vector<const RigDevice*> devices;
   for (const RigDevice& d : m.devices) devices.push_back(&d);
   std::vector<uint8_t> sight = ViewSight(*m.caster, m.samples, m.normals, devices, part_from_rig,
-                                         m.cos_grazing, m.eps, m.light);
+                                         m.cos_grazing, m.eps, m.light, m.grid);
   for (size_t i = 0; i < sight.size(); ++i) {
     if (m.on_table[i]) sight[i] = kOnTable;
   }
