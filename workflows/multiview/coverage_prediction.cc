@@ -14,15 +14,14 @@
 #include "core/point_cloud.h"
 #include "core/string_printf.h"
 #include "reconstruct/stereo_matcher.h"
-#include "sim/raycaster.h"
 #include "sim/scene.h"
+#include "workflows/multiview/internal/device_sight.h"
 #include "workflows/multiview/virtual_project.h"
 
 namespace slshadow::multiview {
 
 namespace {
 
-constexpr double kDeg = M_PI / 180.0;
 constexpr auto kCovered = static_cast<uint8_t>(PredictedReason::kReconstructed);
 constexpr auto kDark = static_cast<uint8_t>(PredictedReason::kTooDark);
 constexpr auto kGrazing = static_cast<uint8_t>(PredictedReason::kGrazing);
@@ -85,7 +84,8 @@ CellFigures TangentCells(const ReferenceGrid& grid, const Eigen::Vector3d& in_gr
   const double range = in_grid.norm(), footprint = range / grid.focal_px;
   const double plane = n_grid.dot(in_grid);
   CellFigures f;
-  std::vector<double> d2;
+  thread_local std::vector<double> d2;  // no allocation per sample
+  d2.clear();
   const int r = std::max(1, grid.outlier_radius);
   for (int dv = -r; dv <= r; ++dv) {
     for (int du = -r; du <= r; ++du) {
@@ -137,115 +137,62 @@ double CodeStepPx(const RigDevice& cam, const RigDevice& projector, const Eigen:
   return (*q - *centre).cwiseAbs().maxCoeff();
 }
 
-// Worse of two per-device reasons of one view (outside worst, then occluded, grazing, covered):
-// the CoverageReason values grow from covered to outside, so the larger one.
-uint8_t Worse(uint8_t a, uint8_t b) { return std::max(a, b); }
-
-// The devices of the mode, as cad_compare.cc's ModeDevices.
-std::vector<const RigDevice*> ModeDevices(const Rig& rig, ReconstructMode mode) {
-  SLSHADOW_THROW_IF(rig.cameras.empty(), "coverage prediction: rig '", rig.name, "' has no camera");
-  SLSHADOW_THROW_IF(!rig.projector, "coverage prediction: rig '", rig.name,
-                    "' has no projector (every mode needs the surface lit)");
-  std::vector<const RigDevice*> devices = {&rig.cameras[0]};
-  if (mode == ReconstructMode::kStereo) {
-    SLSHADOW_THROW_IF(rig.cameras.size() < 2,
-                      "coverage prediction: stereo needs two cameras (rig '", rig.name, "' has ",
-                      rig.cameras.size(), ")");
-    devices.push_back(&rig.cameras[1]);
-  }
-  devices.push_back(&*rig.projector);
-  return devices;
-}
-
-// Per sample, this view's reason (kCovered .. kOutside) with every device of `devices`: the rule
-// of cad_compare.cc's BestSight for one view.
-std::vector<uint8_t> ViewSight(const RayCaster& caster, const std::vector<Eigen::Vector3d>& samples,
+// Per sample, this view's reason (kCovered .. kOutside) with every device of `devices`: the
+// geometry of the CAD comparison (internal/device_sight.h), then, where every device sees the
+// sample, the rules of the light, the matcher and the filters. The reasons grow from covered to
+// outside, so a view's reason is the largest of its rules'.
+std::vector<uint8_t> ViewSight(const internal::SightCaster& caster,
+                               const std::vector<Eigen::Vector3d>& samples,
                                const std::vector<Eigen::Vector3f>& normals,
                                const std::vector<const RigDevice*>& devices,
-                               const Rigid3d& part_from_rig, double cos_grazing, double eps,
-                               const Light& light, const ReferenceGrid& grid) {
+                               const Rigid3d& part_from_rig, double grazing_deg, const Light& light,
+                               const ReferenceGrid& grid) {
+  std::vector<uint8_t> sight = caster.View(samples, normals, devices, part_from_rig, grazing_deg);
   const Rigid3d rig_from_part = part_from_rig.Inverse();
-  std::vector<Eigen::Vector3d> centres;
-  for (const RigDevice* d : devices) centres.push_back(part_from_rig * d->CenterInRig());
-  std::vector<uint8_t> sight(samples.size(), kCovered);
+  const Rigid3d grid_from_part = grid.grid_from_rig * rig_from_part;
+  const RigDevice& projector = *devices.back();
+  const Eigen::Vector3d projector_centre = part_from_rig * projector.CenterInRig();
   // The outlier filter's score of each sample's cell and the cells per sample (its weight in the
   // filter's mean and spread over the grid's cells: cos / footprint^2 per unit of area).
   std::vector<double> score(samples.size(), 0), weight(samples.size(), 0);
-  const Rigid3d grid_from_part = grid.grid_from_rig * rig_from_part;
-  constexpr size_t kLanes = RayPacket::kSize;
-  const size_t blocks = (samples.size() + kLanes - 1) / kLanes;
-  tbb::parallel_for(size_t{0}, blocks, [&](size_t b) {
-    const size_t first = b * kLanes, n = std::min(kLanes, samples.size() - first);
-    RayPacket packet;
-    for (size_t d = 0; d < devices.size(); ++d) {
-      const RigDevice& device = *devices[d];
-      const Eigen::Vector3d& c = centres[d];
-      const double max_r2 = std::pow(device.model.width / device.model.fx(), 2) +
-                            std::pow(device.model.height / device.model.fy(), 2);
-      bool any = false;
-      for (size_t l = 0; l < kLanes; ++l) {
-        packet.active[l] = 0;
-        if (l >= n || sight[first + l] == kOutside) continue;
-        const Eigen::Vector3d& p = samples[first + l];
-        const Eigen::Vector3d in_device = device.cam_from_rig * (rig_from_part * p);
-        const double x = in_device.x() / in_device.z(), y = in_device.y() / in_device.z();
-        const auto pixel = device.model.Project(in_device);
-        if (in_device.z() <= 0 || x * x + y * y > max_r2 || !pixel ||
-            !device.model.IsInImage(*pixel)) {
-          sight[first + l] = kOutside;
-          continue;
-        }
-        const Eigen::Vector3d nrm = normals[first + l].cast<double>();
-        const Eigen::Vector3d to = c - p;
-        const double cos_incidence = nrm.dot(to) / to.norm();
-        if (cos_incidence <= 0) {
-          sight[first + l] = Worse(sight[first + l], kOccluded);
-          continue;
-        }
-        if (cos_incidence < cos_grazing) sight[first + l] = Worse(sight[first + l], kGrazing);
-        if (d == 0 && (grid.max_depth_jump_footprints > 0 || grid.outliers)) {
-          const Eigen::Vector3d in_grid = grid_from_part * p;
-          const Eigen::Vector3d n_grid = grid_from_part.rotation * nrm;
-          if (const auto cell = grid.Pixel(in_grid)) {
-            const CellFigures f = TangentCells(grid, in_grid, n_grid, *cell);
-            if (grid.max_depth_jump_footprints > 0 &&
-                f.jump_footprints > grid.max_depth_jump_footprints)
-              sight[first + l] = Worse(sight[first + l], kGrazing);
-            score[first + l] = f.outlier_score;
-            weight[first + l] = std::abs(n_grid.dot(in_grid)) * grid.focal_px * grid.focal_px /
-                                std::pow(in_grid.squaredNorm(), 1.5);
-          }
-        }
-        if (light.max_code_step_px > 0 && d + 1 < devices.size() &&
-            CodeStepPx(device, *devices.back(), in_device,
-                       device.cam_from_rig.rotation * (rig_from_part.rotation * nrm),
-                       *pixel) > light.max_code_step_px)
-          sight[first + l] = Worse(sight[first + l], kGrazing);
-        // The last device is the projector: the light it brings (sim/scene.h radiometry).
-        if (d + 1 == devices.size() &&
-            light.range_per_factor * cos_incidence * light.ref_distance_sq / to.squaredNorm() <
-                light.threshold)
-          sight[first + l] = Worse(sight[first + l], kDark);
-        const Eigen::Vector3d o = p + eps * nrm;
-        const Eigen::Vector3d dir = (c - o) / (c - o).norm();
-        packet.org_x[l] = static_cast<float>(o.x());
-        packet.org_y[l] = static_cast<float>(o.y());
-        packet.org_z[l] = static_cast<float>(o.z());
-        packet.dir_x[l] = static_cast<float>(dir.x());
-        packet.dir_y[l] = static_cast<float>(dir.y());
-        packet.dir_z[l] = static_cast<float>(dir.z());
-        packet.tnear[l] = 0.0f;
-        packet.tfar[l] = static_cast<float>((c - o).norm() - eps);
-        packet.active[l] = 1;
-        any = true;
-      }
-      if (!any) continue;
-      caster.Occluded(packet, TraceMode::kPacket16);
-      for (size_t l = 0; l < n; ++l) {
-        if (packet.active[l] && packet.occluded[l])
-          sight[first + l] = Worse(sight[first + l], kOccluded);
+  tbb::parallel_for(size_t{0}, samples.size(), [&](size_t i) {
+    if (sight[i] > kGrazing) return;  // hidden from or outside a device
+    const Eigen::Vector3d& p = samples[i];
+    const Eigen::Vector3d nrm = normals[i].cast<double>();
+    const Eigen::Vector3d p_rig = rig_from_part * p;
+    const Eigen::Vector3d n_rig = rig_from_part.rotation * nrm;
+    uint8_t r = sight[i];
+    // The projector's light (sim/scene.h radiometry).
+    const Eigen::Vector3d to = projector_centre - p;
+    const double cos_p = nrm.dot(to) / to.norm();
+    if (light.range_per_factor * cos_p * light.ref_distance_sq / to.squaredNorm() < light.threshold)
+      r = std::max(r, kDark);
+    // Stereo's code-step gate, per camera.
+    if (light.max_code_step_px > 0) {
+      for (size_t d = 0; d + 1 < devices.size(); ++d) {
+        const RigDevice& camera = *devices[d];
+        const Eigen::Vector3d in_cam = camera.cam_from_rig * p_rig;
+        const auto pixel = camera.model.Project(in_cam);
+        if (pixel && CodeStepPx(camera, projector, in_cam, camera.cam_from_rig.rotation * n_rig,
+                                *pixel) > light.max_code_step_px)
+          r = std::max(r, kGrazing);
       }
     }
+    // The filters on the reference grid.
+    if (grid.max_depth_jump_footprints > 0 || grid.outliers) {
+      const Eigen::Vector3d in_grid = grid_from_part * p;
+      const Eigen::Vector3d n_grid = grid_from_part.rotation * nrm;
+      if (const auto cell = grid.Pixel(in_grid)) {
+        const CellFigures f = TangentCells(grid, in_grid, n_grid, *cell);
+        if (grid.max_depth_jump_footprints > 0 &&
+            f.jump_footprints > grid.max_depth_jump_footprints)
+          r = std::max(r, kGrazing);
+        score[i] = f.outlier_score;
+        weight[i] = std::abs(n_grid.dot(in_grid)) * grid.focal_px * grid.focal_px /
+                    std::pow(in_grid.squaredNorm(), 1.5);
+      }
+    }
+    sight[i] = r;
   });
   if (grid.outliers) {
     // The filter's limit over the cells that reach it (the samples every other rule keeps):
@@ -346,9 +293,7 @@ struct CoveragePredictor::Impl {
   std::vector<uint8_t> on_table;
   double cad_area_mm2 = 0;
   std::vector<RigDevice> devices;  // copies: the rig may go away
-  Scene scene;                     // the CAD mesh alone; outlives the caster
-  std::unique_ptr<RayCaster> caster;
-  double eps = 0, cos_grazing = 0;
+  std::unique_ptr<internal::SightCaster> caster;
   Light light;
   ReferenceGrid grid;
 };
@@ -361,7 +306,8 @@ CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig&
   SLSHADOW_THROW_IF(cad_in_part.empty(), "coverage prediction: the CAD mesh is empty");
   Impl& m = *impl_;
   m.options = options;
-  for (const RigDevice* d : ModeDevices(rig, options.mode)) m.devices.push_back(*d);
+  for (const RigDevice* d : internal::ModeDevices(rig, options.mode, "coverage prediction"))
+    m.devices.push_back(*d);
 
   // The samples of CompareWithCad (same seed, same count).
   compare::Reference reference =
@@ -369,27 +315,9 @@ CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig&
   m.samples = std::move(reference.cloud.points);
   m.normals = std::move(reference.cloud.normals);
   m.cad_area_mm2 = cad_in_part.SurfaceArea();
-  const size_t ns = m.samples.size();
-  m.on_table.assign(ns, 0);
-  if (table_axis) {
-    const Eigen::Vector3d up = table_axis->direction_in_rig.normalized();
-    double lowest = std::numeric_limits<double>::infinity();
-    for (const Eigen::Vector3d& v : cad_in_part.vertices) lowest = std::min(lowest, up.dot(v));
-    for (size_t i = 0; i < ns; ++i) {
-      m.on_table[i] = up.dot(m.normals[i].cast<double>()) < -0.99 &&
-                      up.dot(m.samples[i]) - lowest <= options.table_tolerance_mm;
-    }
-  }
-  m.scene.name = "CAD";
-  SceneObject object;
-  object.name = "cad";
-  object.type = ObjectType::kMesh;
-  object.mesh = std::make_shared<const TriangleMesh>(cad_in_part);
-  m.scene.objects.push_back(object);
-  m.caster = std::make_unique<RayCaster>(m.scene);
-  const Eigen::Vector3d extent = cad_in_part.BoundsMax() - cad_in_part.BoundsMin();
-  m.eps = std::max(1e-3, 2e-5 * extent.norm());
-  m.cos_grazing = std::cos(options.grazing_deg * kDeg);
+  m.on_table = internal::OnTableMask(cad_in_part, m.samples, m.normals, table_axis,
+                                     options.table_tolerance_mm);
+  m.caster = std::make_unique<internal::SightCaster>(cad_in_part);
   m.light.range_per_factor = options.exposure_fraction * 255.0 * options.albedo;
   const double d_ref =
       options.reference_distance_mm > 0 ? options.reference_distance_mm : rig.working_distance_mm;
@@ -432,7 +360,7 @@ std::vector<uint8_t> CoveragePredictor::View(const Rigid3d& part_from_rig) const
   std::vector<const RigDevice*> devices;
   for (const RigDevice& d : m.devices) devices.push_back(&d);
   std::vector<uint8_t> sight = ViewSight(*m.caster, m.samples, m.normals, devices, part_from_rig,
-                                         m.cos_grazing, m.eps, m.light, m.grid);
+                                         m.options.grazing_deg, m.light, m.grid);
   for (size_t i = 0; i < sight.size(); ++i) {
     if (m.on_table[i]) sight[i] = kOnTable;
   }
