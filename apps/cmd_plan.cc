@@ -6,6 +6,7 @@
 #include "core/error.h"
 #include "core/file_util.h"
 #include "core/rig.h"
+#include "patterns/pattern_spec.h"
 #include "workflows/multiview/coverage_prediction.h"
 #include "workflows/multiview/plan.h"
 
@@ -31,7 +32,8 @@ int RunPlan(int argc, char** argv) {
       "config/demo/turntable_scene.yaml \\\n"
       "      --turntable --target 0.98 --out views.yaml --coverage coverage.ply",
       argv[0]};
-  std::string rig_path, part_path, out_path, coverage_path, report_path, mode = "stereo";
+  std::string rig_path, part_path, out_path, coverage_path, report_path, patterns_path,
+      mode = "stereo";
   bool turntable = false;
   multiview::PlanOptions options;
   app.add_option("--rig", rig_path,
@@ -57,6 +59,10 @@ int RunPlan(int argc, char** argv) {
   app.add_option("--albedo", options.prediction.albedo,
                  "the part's albedo for the too-dark rule (default: a scene's darkest mesh, else "
                  "0.5)");
+  app.add_option("--patterns", patterns_path,
+                 "the pattern spec the scan will project (docs/formats.md \"Pattern spec\"): its "
+                 "finest fringe against the scene's defocus layers (default: a 16 px period, both "
+                 "axes coded, the demo's)");
   app.add_option("--coverage", coverage_path,
                  "also write the plan's predicted coverage map (PLY of the surface samples, "
                  "docs/formats.md \"Coverage map PLY\")");
@@ -76,6 +82,9 @@ int RunPlan(int argc, char** argv) {
   if (part.scene)
     options.prediction = multiview::WithSceneRadiometry(options.prediction, *part.scene);
   if (albedo_given) options.prediction.albedo = albedo;
+  if (!patterns_path.empty())
+    options.prediction =
+        multiview::WithPatterns(options.prediction, LoadPatternSpec(patterns_path));
   const multiview::ViewPlan plan = multiview::PlanTurntableViews(part.cad, rig, options);
   std::printf("%s", plan.Table().c_str());
   SLSHADOW_THROW_IF(plan.views.views.empty(), "plan: no view reconstructs anything new");

@@ -41,6 +41,9 @@ struct Light {
   double ref_distance_sq = 0;
   double threshold = 0;
   double max_code_step_px = 0;  // stereo: 0 = no gate
+  SceneLayers::Defocus camera_defocus, projector_defocus;
+  double fringe_period_px = 16;
+  bool code_y = true;
 };
 
 // The reconstruction's reference grid, where its filters run (reconstruct.h): the rectified left
@@ -115,26 +118,37 @@ CellFigures TangentCells(const ReferenceGrid& grid, const Eigen::Vector3d& in_gr
   return f;
 }
 
-// Stereo's code-step gate (ReconstructOptions::max_code_step_px): the largest change of either
-// projector coordinate between the camera pixel of `in_cam` and its neighbour along the row (the
-// direction the matcher interpolates and searches, the baseline's), with the surface as its
-// tangent plane (normal `n_cam`, camera frame). Infinity when the neighbour's ray misses the plane
-// or the projector.
-double CodeStepPx(const RigDevice& cam, const RigDevice& projector, const Eigen::Vector3d& in_cam,
-                  const Eigen::Vector3d& n_cam, const Eigen::Vector2d& pixel) {
+// How the projector coordinates change from the camera pixel of `in_cam` to its neighbours, with
+// the surface as its tangent plane (normal `n_cam`, camera frame): column 0 to the next pixel along
+// the row, column 1 to the next along the column, projector px. Nullopt when a neighbour's ray
+// misses the plane or the projector.
+std::optional<Eigen::Matrix2d> ProjectorSteps(const RigDevice& cam, const RigDevice& projector,
+                                              const Eigen::Vector3d& in_cam,
+                                              const Eigen::Vector3d& n_cam,
+                                              const Eigen::Vector2d& pixel) {
   const Rigid3d proj_from_cam = projector.cam_from_rig * cam.cam_from_rig.Inverse();
   const auto proj_pixel = [&](const Eigen::Vector3d& x) {
     return projector.model.Project(proj_from_cam * x);
   };
   const auto centre = proj_pixel(in_cam);
-  if (!centre) return std::numeric_limits<double>::infinity();
-  const auto ray = cam.model.Unproject(pixel + Eigen::Vector2d(1, 0));
-  if (!ray) return std::numeric_limits<double>::infinity();
-  const double denom = n_cam.dot(*ray);
-  if (std::abs(denom) < 1e-12) return std::numeric_limits<double>::infinity();
-  const auto q = proj_pixel(*ray * (n_cam.dot(in_cam) / denom));
-  if (!q) return std::numeric_limits<double>::infinity();
-  return (*q - *centre).cwiseAbs().maxCoeff();
+  if (!centre) return std::nullopt;
+  Eigen::Matrix2d steps;
+  for (int k = 0; k < 2; ++k) {
+    const auto ray = cam.model.Unproject(pixel + Eigen::Vector2d(k == 0, k == 1));
+    if (!ray) return std::nullopt;
+    const double denom = n_cam.dot(*ray);
+    if (std::abs(denom) < 1e-12) return std::nullopt;
+    const auto q = proj_pixel(*ray * (n_cam.dot(in_cam) / denom));
+    if (!q) return std::nullopt;
+    steps.col(k) = *q - *centre;
+  }
+  return steps;
+}
+
+// The share of the finest fringe's modulation a Gaussian blur of sigma (px of the image where the
+// fringe has period period_px) keeps: the Gaussian's transfer exp(-2 pi^2 sigma^2 / period^2).
+double FringeTransfer(double sigma_px, double period_px) {
+  return std::exp(-2 * M_PI * M_PI * sigma_px * sigma_px / (period_px * period_px));
 }
 
 // Per sample, this view's reason (kCovered .. kOutside) with every device of `devices`: the
@@ -162,22 +176,42 @@ std::vector<uint8_t> ViewSight(const internal::SightCaster& caster,
     const Eigen::Vector3d p_rig = rig_from_part * p;
     const Eigen::Vector3d n_rig = rig_from_part.rotation * nrm;
     uint8_t r = sight[i];
-    // The projector's light (sim/scene.h radiometry).
+    // The projector's light (sim/scene.h radiometry): the lit range, then the fringe's
+    // modulation through the projector's and each camera's defocus (the finest fringe, period
+    // fringe_period_px in the projector; in a camera, divided by how many projector px one camera
+    // px spans along the coded axes).
     const Eigen::Vector3d to = projector_centre - p;
     const double cos_p = nrm.dot(to) / to.norm();
-    if (light.range_per_factor * cos_p * light.ref_distance_sq / to.squaredNorm() < light.threshold)
-      r = std::max(r, kDark);
-    // Stereo's code-step gate, per camera.
-    if (light.max_code_step_px > 0) {
-      for (size_t d = 0; d + 1 < devices.size(); ++d) {
-        const RigDevice& camera = *devices[d];
-        const Eigen::Vector3d in_cam = camera.cam_from_rig * p_rig;
-        const auto pixel = camera.model.Project(in_cam);
-        if (pixel && CodeStepPx(camera, projector, in_cam, camera.cam_from_rig.rotation * n_rig,
-                                *pixel) > light.max_code_step_px)
-          r = std::max(r, kGrazing);
+    double range = light.range_per_factor * cos_p * light.ref_distance_sq / to.squaredNorm();
+    if (light.projector_defocus.enabled) {
+      const double depth = (projector.cam_from_rig * p_rig).z();
+      range *= FringeTransfer(light.projector_defocus.SigmaPx(projector.model.fx(), depth),
+                              light.fringe_period_px);
+    }
+    double camera_transfer = 1;  // the worst camera's: every camera must decode
+    for (size_t d = 0; d + 1 < devices.size(); ++d) {
+      if (!light.camera_defocus.enabled && light.max_code_step_px <= 0) break;
+      const RigDevice& camera = *devices[d];
+      const Eigen::Vector3d in_cam = camera.cam_from_rig * p_rig;
+      const auto pixel = camera.model.Project(in_cam);
+      if (!pixel) continue;
+      const auto steps =
+          ProjectorSteps(camera, projector, in_cam, camera.cam_from_rig.rotation * n_rig, *pixel);
+      // Stereo's code-step gate: the matcher neither interpolates nor searches across a step of
+      // either projector coordinate larger than max_code_step_px along the row.
+      if (light.max_code_step_px > 0 &&
+          (!steps || steps->col(0).cwiseAbs().maxCoeff() > light.max_code_step_px))
+        r = std::max(r, kGrazing);
+      if (light.camera_defocus.enabled && steps) {
+        // Projector px per camera px along each coded axis's gradient.
+        double gradient = steps->row(0).norm();
+        if (light.code_y) gradient = std::max(gradient, steps->row(1).norm());
+        const double sigma = light.camera_defocus.SigmaPx(camera.model.fx(), in_cam.z());
+        camera_transfer =
+            std::min(camera_transfer, FringeTransfer(sigma * gradient, light.fringe_period_px));
       }
     }
+    if (range * camera_transfer < light.threshold) r = std::max(r, kDark);
     // The filters on the reference grid.
     if (grid.max_depth_jump_footprints > 0 || grid.outliers) {
       const Eigen::Vector3d in_grid = grid_from_part * p;
@@ -251,6 +285,16 @@ CoveragePredictionOptions WithSceneRadiometry(CoveragePredictionOptions options,
       albedo = std::min(albedo, o.albedo.value);
   }
   if (std::isfinite(albedo)) options.albedo = albedo;
+  options.camera_defocus = scene.layers.camera_defocus;
+  options.projector_defocus = scene.layers.projector_defocus;
+  return options;
+}
+
+CoveragePredictionOptions WithPatterns(CoveragePredictionOptions options, const PatternSpec& spec) {
+  const std::vector<double> periods = spec.PeriodsPx();
+  options.fringe_period_px =
+      periods.empty() ? 4.0 : *std::min_element(periods.begin(), periods.end());
+  options.code_y = spec.code_y;
   return options;
 }
 
@@ -263,6 +307,9 @@ void CoveragePredictionOptions::Check() const {
   SLSHADOW_THROW_IF(!(reference_distance_mm >= 0),
                     "coverage prediction: reference_distance_mm must be >= 0 (got ",
                     reference_distance_mm, ")");
+  SLSHADOW_THROW_IF(!(fringe_period_px > 0),
+                    "coverage prediction: fringe_period_px must be positive (got ",
+                    fringe_period_px, ")");
   reconstruct.Check();
   SLSHADOW_THROW_IF(!(shadow_threshold >= 0),
                     "coverage prediction: shadow_threshold must be >= 0 (got ", shadow_threshold,
@@ -323,6 +370,10 @@ CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig&
       options.reference_distance_mm > 0 ? options.reference_distance_mm : rig.working_distance_mm;
   m.light.ref_distance_sq = d_ref * d_ref;
   m.light.threshold = options.shadow_threshold;
+  m.light.camera_defocus = options.camera_defocus;
+  m.light.projector_defocus = options.projector_defocus;
+  m.light.fringe_period_px = options.fringe_period_px;
+  m.light.code_y = options.code_y;
   const ReconstructOptions& r = options.reconstruct;
   // The automatic gate (0) is at least 4 px (AutoCodeStepGate): its floor.
   if (options.mode == ReconstructMode::kStereo)

@@ -21,9 +21,9 @@
 // more than predicted): docs/benchmarks/log/2026-12-07-plan.md.
 //
 // The projector's light: the simulator's radiometric factor (sim/scene.h) gives the lit range a
-// camera records, below the decoder's shadow threshold the sample is too dark. Not modelled
-// (yet): depth of field against the finest fringe; a sample that the prediction reconstructs but
-// a scan does not is listed as a disagreement by CheckPrediction.
+// camera records, and the defocus layers the share of the finest fringe's modulation the
+// projector's and the cameras' blur keep: below the decoder's shadow threshold the sample is too
+// dark (or too blurred) to decode.
 //
 // Frames and units: the part frame (views.h), mm, degrees.
 #pragma once
@@ -40,6 +40,7 @@
 #include "core/mesh.h"
 #include "core/rig.h"
 #include "core/rigid3.h"
+#include "patterns/pattern_spec.h"
 #include "reconstruct/reconstruct.h"
 #include "sim/scene.h"
 #include "workflows/multiview/cad_compare.h"
@@ -77,6 +78,15 @@ struct CoveragePredictionOptions {
   double exposure_fraction = 0.8;    // Radiometry::exposure_fraction
   double reference_distance_mm = 0;  // d_ref; 0: the rig's working distance
   double shadow_threshold = 12;      // DecodeOptions::shadow_threshold (8-bit grey levels)
+  // The defocus layers (sim/scene.h SceneLayers: thin lens, Gaussian PSF of sigma px; off unless
+  // enabled): the finest fringe (period fringe_period_px in the projector) keeps
+  // exp(-2 pi^2 sigma^2 / period^2) of its modulation through the projector's blur, and through a
+  // camera's with the period in that camera's pixels (the projector px one camera px spans along
+  // a coded axis on the surface); the lit range times what the worst camera keeps is the fringe's
+  // peak-to-peak against shadow_threshold (too_dark: too dark or too blurred to decode).
+  SceneLayers::Defocus camera_defocus, projector_defocus;
+  double fringe_period_px = 16;  // WithPatterns: the phase codecs' finest period, Gray code 4
+  bool code_y = true;            // the projector's rows are coded too (PatternSpec::code_y)
   // The reconstruction's gates and filters (ProjectMergeOptions::reconstruct's defaults): stereo's
   // code-step gate max_code_step_px (a camera whose next pixel along the row sees the projector
   // coordinates step by more than it on the surface's tangent plane is not matched; 0, the
@@ -94,9 +104,12 @@ struct CoveragePredictionOptions {
   void Check() const;  // throws slshadow::Error naming the bad field
 };
 // The radiometry of `scene` (exposure fraction, reference distance, the smallest uniform albedo of
-// its meshes, the part) in `options`.
+// its meshes, the part) and its defocus layers in `options`.
 CoveragePredictionOptions WithSceneRadiometry(CoveragePredictionOptions options,
                                               const Scene& scene);
+
+// The finest fringe of `spec` in `options` (fringe_period_px, code_y).
+CoveragePredictionOptions WithPatterns(CoveragePredictionOptions options, const PatternSpec& spec);
 
 // One view to predict: its name and true part_from_rig (VirtualViewPose for a views file).
 struct PredictedViewPose {
