@@ -1,4 +1,5 @@
 // slshadow plan --rig RIG --part PART --turntable [--step-deg S] [--target T] --out VIEWS.yaml
+//   | --check PROJECT
 #include <CLI/CLI.hpp>
 #include <cstdio>
 
@@ -32,7 +33,7 @@ int RunPlan(int argc, char** argv) {
       "config/demo/turntable_scene.yaml \\\n"
       "      --turntable --target 0.98 --out views.yaml --coverage coverage.ply",
       argv[0]};
-  std::string rig_path, part_path, out_path, coverage_path, report_path, patterns_path,
+  std::string rig_path, part_path, out_path, coverage_path, report_path, patterns_path, check_path,
       mode = "stereo";
   bool turntable = false;
   multiview::PlanOptions options;
@@ -44,7 +45,7 @@ int RunPlan(int argc, char** argv) {
                  "whose meshes are the part at table angle 0 (its radiometry is used)")
       ->required();
   app.add_flag("--turntable", turntable, "candidates are table angles (the only planner so far)");
-  app.add_option("--out", out_path, "the planned views file (.yaml or .json)")->required();
+  app.add_option("--out", out_path, "the planned views file (.yaml or .json); required to plan");
   app.add_option("--step-deg", options.step_deg, "candidate table angles every this many degrees")
       ->capture_default_str();
   app.add_option("--start-deg", options.start_deg, "first candidate angle, degrees")
@@ -67,11 +68,16 @@ int RunPlan(int argc, char** argv) {
                  "also write the plan's predicted coverage map (PLY of the surface samples, "
                  "docs/formats.md \"Coverage map PLY\")");
   app.add_option("--report", report_path, "also write the plan's figures as JSON");
+  app.add_option("--check", check_path,
+                 "instead of planning, check the prediction against a scanned (or simulated) "
+                 "project of table views: merged at the table's poses, compared with the part per "
+                 "CAD sample, disagreements by reason (--out not needed)");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return ExitOnParseError(app, e);
   }
+  SLSHADOW_THROW_IF(check_path.empty() && out_path.empty(), "--out: required");
   SLSHADOW_THROW_IF(!turntable,
                     "--turntable: required (hand-placed view planning is not implemented yet)");
   const double albedo = options.prediction.albedo;
@@ -85,6 +91,14 @@ int RunPlan(int argc, char** argv) {
   if (!patterns_path.empty())
     options.prediction =
         multiview::WithPatterns(options.prediction, LoadPatternSpec(patterns_path));
+  if (!check_path.empty()) {
+    const multiview::PlanCheck check =
+        multiview::CheckPlanAgainstProject(part.cad, rig, check_path, options.prediction);
+    std::printf("%s%s", check.prediction.Table().c_str(), check.check.Summary().c_str());
+    if (!report_path.empty())
+      WriteTextFileAtomically(report_path, check.check.ToJson().dump(1) + "\n");
+    return 0;
+  }
   const multiview::ViewPlan plan = multiview::PlanTurntableViews(part.cad, rig, options);
   std::printf("%s", plan.Table().c_str());
   SLSHADOW_THROW_IF(plan.views.views.empty(), "plan: no view reconstructs anything new");

@@ -12,7 +12,6 @@
 #include "tests/multiview/multiview_test_util.h"
 #include "tests/testing/error_of.h"
 #include "tests/testing/temp_dir.h"
-#include "workflows/multiview/project_merge.h"
 #include "workflows/multiview/virtual_project.h"
 
 namespace slshadow::multiview {
@@ -62,14 +61,12 @@ TEST(PlanTest, TheDemoPlanReachesItsTargetWithNoMoreViewsThanUniformSteps) {
   const testing::TempDir tmp;
   SimulateProject(setup.scene, setup.rig, testing::ScaledDemoPatterns(setup.rig), plan.views,
                   tmp / "project");
-  ProjectMergeOptions merge;
-  merge.poses = PoseSource::kAxis;  // the prediction is under test, not the registration
-  merge.mesh = false;
-  merge.cad.samples = kSamples;
-  const ProjectMergeResult scan = MergeProject(tmp / "project", &cad, merge);
-  ASSERT_TRUE(scan.cad.has_value());
-  const PredictionCheck check = CheckPrediction(predicted, *scan.cad);
+  const PlanCheck confirmed =
+      CheckPlanAgainstProject(cad, setup.rig, tmp / "project", options.prediction);
+  const PredictionCheck& check = confirmed.check;
   std::cout << check.Summary();
+  // The project's views are the plan's: the same prediction.
+  EXPECT_EQ(confirmed.prediction.reason_samples, predicted.reason_samples);
   EXPECT_GT(check.compared, kSamples / 2);
   EXPECT_GE(check.agreement, 0.99) << check.Summary();
   // The planned coverage holds: the scan covers the target share of the reachable surface less at

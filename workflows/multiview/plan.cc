@@ -7,6 +7,7 @@
 
 #include "core/error.h"
 #include "core/string_printf.h"
+#include "workflows/multiview/project_merge.h"
 #include "workflows/multiview/turntable_scene.h"
 
 namespace slshadow::multiview {
@@ -164,6 +165,35 @@ std::string ViewPlan::Table() const {
       uniform_needed > 0 ? std::to_string(uniform_needed).c_str() : "more than the candidates",
       seconds);
   return out;
+}
+
+PlanCheck CheckPlanAgainstProject(const TriangleMesh& cad_in_part, const Rig& rig,
+                                  const std::filesystem::path& project_dir,
+                                  const CoveragePredictionOptions& options) {
+  SLSHADOW_THROW_IF(!rig.turntable, "plan check: rig '", rig.name, "' has no turntable axis");
+  ProjectMergeOptions merge;
+  merge.mode = options.mode;
+  merge.poses = PoseSource::kAxis;  // the prediction is checked, not the registration
+  merge.mesh = false;
+  merge.cad.samples = options.samples;
+  merge.cad.table_tolerance_mm = options.table_tolerance_mm;
+  ProjectMergeResult merged = MergeProject(project_dir, &cad_in_part, merge);
+  SLSHADOW_THROW_IF(!merged.cad, project_dir.string(), ": the merge made no CAD comparison");
+  ViewsFile views;
+  for (const MergedView& v : merged.views) {
+    SLSHADOW_THROW_IF(!v.table_deg, project_dir.string(), ": view '", v.name,
+                      "' has no table angle (the plan check predicts table views)");
+    ViewSpec spec;
+    spec.name = v.name;
+    spec.table_deg = v.table_deg;
+    views.views.push_back(spec);
+  }
+  PlanCheck result;
+  result.prediction =
+      PredictCoverage(cad_in_part, rig, PosesOfViews(views, rig), rig.turntable, options);
+  result.check = CheckPrediction(result.prediction, *merged.cad);
+  result.scan = std::move(*merged.cad);
+  return result;
 }
 
 PlanPart LoadPlanPart(const std::filesystem::path& path) {

@@ -55,6 +55,20 @@ struct ViewPlan {
 ViewPlan PlanTurntableViews(const TriangleMesh& cad_in_part, const Rig& rig,
                             const PlanOptions& options = {});
 
+// A plan confirmed by its scan (`slshadow plan --check PROJECT`): the project (the planned views,
+// scanned or simulated) merged at the table's poses (ProjectMergeOptions poses kAxis, no mesh) and
+// compared with `cad_in_part` on options.samples samples; the prediction of the project's views
+// (table angles) against it, per sample (CheckPrediction). Throws slshadow::Error as MergeProject,
+// and when the rig has no turntable axis or a view has no table angle.
+struct PlanCheck {
+  CoveragePrediction prediction;
+  PredictionCheck check;
+  CadComparison scan;
+};
+PlanCheck CheckPlanAgainstProject(const TriangleMesh& cad_in_part, const Rig& rig,
+                                  const std::filesystem::path& project_dir,
+                                  const CoveragePredictionOptions& options);
+
 // The part for `slshadow plan --part` / `merge --cad`: a mesh (.stl/.ply/.obj) is the CAD model;
 // a scene (.yaml/.yml/.json) gives its meshes as the CAD model (PartSurface) and its radiometry.
 struct PlanPart {
