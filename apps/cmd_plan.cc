@@ -1,7 +1,9 @@
-// slshadow plan --rig RIG --part PART --turntable [--step-deg S] [--target T] --out VIEWS.yaml
-//   | --check PROJECT
+// slshadow plan --rig RIG --part PART [--turntable | --tilts-deg 0,90,180 | --candidates V.yaml]
+//   [--step-deg S] [--target T] --out VIEWS.yaml  |  --check PROJECT
 #include <CLI/CLI.hpp>
 #include <cstdio>
+#include <optional>
+#include <vector>
 
 #include "apps/commands.h"
 #include "core/error.h"
@@ -15,7 +17,8 @@ namespace slshadow::app {
 
 int RunPlan(int argc, char** argv) {
   CLI::App app{
-      "Plan a turntable scan before the part is on the table: the fewest table angles that "
+      "Plan a scan before the part is on the table: the fewest table angles (or, without\n"
+      "--turntable, placements by hand) that "
       "reconstruct\n"
       "the target share of the part's reachable surface (what some candidate angle reconstructs; "
       "the\n"
@@ -44,7 +47,20 @@ int RunPlan(int argc, char** argv) {
                  "the part in the part frame: a mesh (.stl/.ply/.obj), or a scene (.yaml/.json) "
                  "whose meshes are the part at table angle 0 (its radiometry is used)")
       ->required();
-  app.add_flag("--turntable", turntable, "candidates are table angles (the only planner so far)");
+  app.add_flag(
+      "--turntable", turntable,
+      "candidates are table angles (every --step-deg); without it, placements by hand: the "
+      "part tilted by each --tilts-deg, then turned about the vertical every --step-deg "
+      "(views with a part_from_rig_guess; nothing excluded as on the table)");
+  std::vector<double> tilts_deg = {0, 90, 180};
+  app.add_option("--tilts-deg", tilts_deg,
+                 "hand placements: the tilts about the horizontal axis the user allows, degrees")
+      ->delimiter(',')
+      ->capture_default_str();
+  std::string candidates_path;
+  app.add_option("--candidates", candidates_path,
+                 "the candidates as a views file (table angles or hand-placed views with their "
+                 "part_from_rig_guess) instead of the generated ones");
   app.add_option("--out", out_path, "the planned views file (.yaml or .json); required to plan");
   app.add_option("--step-deg", options.step_deg, "candidate table angles every this many degrees")
       ->capture_default_str();
@@ -78,8 +94,6 @@ int RunPlan(int argc, char** argv) {
     return ExitOnParseError(app, e);
   }
   SLSHADOW_THROW_IF(check_path.empty() && out_path.empty(), "--out: required");
-  SLSHADOW_THROW_IF(!turntable,
-                    "--turntable: required (hand-placed view planning is not implemented yet)");
   const double albedo = options.prediction.albedo;
   const bool albedo_given = app.count("--albedo") > 0;
   options.prediction.mode = ReconstructModeFromString(mode);
@@ -99,13 +113,28 @@ int RunPlan(int argc, char** argv) {
       WriteTextFileAtomically(report_path, check.check.ToJson().dump(1) + "\n");
     return 0;
   }
-  const multiview::ViewPlan plan = multiview::PlanTurntableViews(part.cad, rig, options);
+  const std::optional<TurntableAxis> table =
+      turntable ? rig.turntable : std::optional<TurntableAxis>();
+  multiview::ViewPlan plan;
+  if (turntable && candidates_path.empty()) {
+    plan = multiview::PlanTurntableViews(part.cad, rig, options);
+  } else {
+    std::vector<multiview::ViewCandidate> candidates;
+    if (!candidates_path.empty()) {
+      for (const multiview::ViewSpec& v : multiview::LoadViews(candidates_path).views)
+        candidates.push_back({v.name, v});
+    } else {
+      candidates = multiview::PlacementCandidates(part.cad, rig, tilts_deg, options.step_deg,
+                                                  options.start_deg);
+    }
+    plan = multiview::PlanViews(part.cad, rig, candidates, table, options);
+  }
   std::printf("%s", plan.Table().c_str());
   SLSHADOW_THROW_IF(plan.views.views.empty(), "plan: no view reconstructs anything new");
   multiview::SaveViews(plan.views, out_path);
   if (!coverage_path.empty()) {
     const multiview::CoveragePrediction prediction = multiview::PredictCoverage(
-        part.cad, rig, multiview::PosesOfViews(plan.views, rig), rig.turntable, options.prediction);
+        part.cad, rig, multiview::PosesOfViews(plan.views, rig), table, options.prediction);
     multiview::WriteCoverageMap(coverage_path, prediction);
     std::printf("%s", prediction.Table().c_str());
   }
