@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "calib/calibration_input.h"
+#include "calib/calibration_io.h"
 #include "calib/target.h"
 #include "core/error.h"
 #include "core/file_util.h"
@@ -471,6 +472,94 @@ void BindCalibrate(py::module_& m) {
       "width, height, image_points (N, 2) px, object_points (N, 3) mm in the board frame, "
       "point_ids (N,) into the board's points, saturated_fraction. The GIL is released while it "
       "runs.");
+
+  m.def(
+      "calibrate_refine",
+      [](const py::handle& rig, const py::handle& imageset, const fs::path& out,
+         const std::string& camera, const std::string& stereo, double baseline_mm,
+         const std::optional<std::vector<double>>& known_distance, bool refine_focal) {
+        // apps/cmd_calibrate.cc RunCalibrateRefine
+        shadow::RefineFromScanRequest r;
+        r.rig = FsPath(rig);
+        r.scan = py::isinstance<PyImageSet>(imageset)
+                     ? imageset.cast<const PyImageSet&>().image_set.dir()
+                     : fs::path(FsPath(imageset));
+        r.out = out;
+        r.camera = camera;
+        r.stereo = stereo;
+        if (known_distance) {
+          SLSHADOW_THROW_IF(known_distance->size() != 5,
+                            "calibrate_refine: known_distance: expected (u1, v1, u2, v2, mm) (got ",
+                            known_distance->size(), " numbers)");
+          r.known_distance = *known_distance;
+        }
+        r.refine.refine_focal = refine_focal;
+        r.refine.known_baseline_mm = baseline_mm;
+        r.decode = DecodeOptions{};
+        r.decode.shadow_threshold = 12;  // the command's --shadow-threshold default (ProcamArgs)
+        r.decode.contrast_threshold = 4;
+        r.decode.Check();
+        RefineResult result;
+        {
+          py::gil_scoped_release release;
+          result = shadow::RefineRigFromScan(r);
+        }
+        py::dict d;
+        d["rig"] = LoadRig(out);
+        d["message"] = result.message;
+        d["before"] = py::dict(
+            py::arg("count") = result.before.count, py::arg("median_px") = result.before.median_px,
+            py::arg("p95_px") = result.before.p95_px, py::arg("rms_px") = result.before.rms_px);
+        d["after"] = py::dict(
+            py::arg("count") = result.after.count, py::arg("median_px") = result.after.median_px,
+            py::arg("p95_px") = result.after.p95_px, py::arg("rms_px") = result.after.rms_px);
+        d["baseline_mm"] = result.baseline_mm;
+        d["scale_verified"] = result.scale_verified;
+        d["focal_scale"] = result.focal_scale;
+        return d;
+      },
+      py::arg("rig"), py::arg("imageset"), py::arg("out"), py::kw_only(), py::arg("camera") = "",
+      py::arg("stereo") = "", py::arg("baseline_mm") = 0.0, py::arg("known_distance") = py::none(),
+      py::arg("refine_focal") = false,
+      "`slshadow calibrate refine`: checks the rig file against a scan (an ImageSet or its "
+      "folder) and re-estimates the projector's pose (or with stereo=NAME that camera's, "
+      "relative to `camera`), writing the refined rig to out. baseline_mm or known_distance "
+      "(u1, v1, u2, v2, mm) fix the scale. Returns a dict: rig (the written Rig), message (what "
+      "the command prints), before / after (epipolar residuals: count, median_px, p95_px, "
+      "rms_px), baseline_mm, scale_verified, focal_scale. The GIL is released while it runs.");
+
+  m.def(
+      "calibrate_import",
+      [](const fs::path& opencv_file, const std::optional<fs::path>& out,
+         const std::optional<std::pair<int, int>>& image_size,
+         const std::optional<std::pair<int, int>>& projector_size,
+         const std::optional<std::string>& map) {
+        // apps/cmd_calibrate.cc RunCalibrateImport
+        const auto [w, h] = image_size.value_or(std::pair<int, int>{0, 0});
+        const auto [pw, ph] = projector_size.value_or(std::pair<int, int>{0, 0});
+        const OpenCvNodeMap node_map = map ? ParseOpenCvNodeMap(*map) : OpenCvNodeMap{};
+        const Rig rig = ReadOpenCvCalibration(opencv_file, w, h, pw, ph, node_map);
+        if (out) SaveRig(rig, *out);
+        return rig;
+      },
+      py::arg("opencv_file"), py::arg("out") = py::none(), py::kw_only(),
+      py::arg("image_size") = py::none(), py::arg("projector_size") = py::none(),
+      py::arg("map") = py::none(),
+      "`slshadow calibrate import`: a rig from an OpenCV calibration file (calibrateCamera / "
+      "stereoCalibrate / procam layouts; map: 'K1=NODE,D1=NODE,...' for another layout); "
+      "image_size / projector_size (width, height) where the file has none. Writes it to out "
+      "when given; returns the Rig.");
+
+  m.def(
+      "calibrate_export",
+      [](const py::handle& rig, const fs::path& out) {
+        // apps/cmd_calibrate.cc RunCalibrateExport
+        WriteOpenCvCalibration(py::isinstance<Rig>(rig) ? rig.cast<Rig>() : LoadRig(FsPath(rig)),
+                               out);
+      },
+      py::arg("rig"), py::arg("out"),
+      "`slshadow calibrate export`: writes a rig (a Rig or a rig file) as an OpenCV "
+      "calibration file (.yml / .xml: camera_matrix ... or M1 D1 M2 D2 R T).");
 }
 
 #undef SLSHADOW_COMMON_PARAMS

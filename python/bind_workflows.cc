@@ -101,11 +101,7 @@ void BindShadow(py::module_& m) {
         options.max_rmse_mm = max_rmse_mm;
         options.write_clouds = write_clouds;
         options.overwrite = overwrite;
-        try {
-          options.Check();
-        } catch (const Error& e) {
-          SLSHADOW_THROW("shadow: ", e.what());  // as `slshadow shadow` says it
-        }
+        options.Check();  // its messages are the command line's ("shadow: min_fitness ...")
         // Without out=, the report folder is written to a temporary folder for its maps, then
         // removed.
         static std::atomic<int> counter{0};

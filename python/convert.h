@@ -113,14 +113,16 @@ class ProgressCallback {
 
 // While alive (construct it on the calling thread, GIL held or not), the library's own progress
 // made on this thread (core/progress.h: per camera traced, image rendered, camera decoded, ...)
-// reaches `callback` as (task, done, total), done increasing within each run of a task. Nothing
-// when the callback is None.
+// reaches `callback` as (task, done, total), done increasing within each run of a task; with
+// `only`, the tasks of that name only (a sweep's jobs, not each job's own rendering). Nothing when
+// the callback is None.
 class ForwardLibraryProgress {
  public:
-  explicit ForwardLibraryProgress(const ProgressCallback& callback) {
+  explicit ForwardLibraryProgress(const ProgressCallback& callback, std::string only = "") {
     if (callback.active())
-      scope_.emplace([&callback](const std::string& task, int64_t done, int64_t total) {
-        callback(task, done, total);
+      scope_.emplace([&callback, only = std::move(only)](const std::string& task, int64_t done,
+                                                         int64_t total) {
+        if (only.empty() || task == only) callback(task, done, total);
       });
   }
 

@@ -476,6 +476,26 @@ def detect_target(
     image: Union[npt.NDArray[np.uint8], npt.NDArray[np.uint16], _PathLike], target: _PathLike
 ) -> dict[str, Any]: ...
 
+def calibrate_refine(
+    rig: _PathLike,
+    imageset: Union[ImageSet, _PathLike],
+    out: _PathLike,
+    *,
+    camera: str = "",
+    stereo: str = "",
+    baseline_mm: float = 0.0,
+    known_distance: Optional[Sequence[float]] = None,
+    refine_focal: bool = False,
+) -> dict[str, Any]: ...
+def calibrate_import(
+    opencv_file: _PathLike,
+    out: Optional[_PathLike] = None,
+    *,
+    image_size: Optional[tuple[int, int]] = None,
+    projector_size: Optional[tuple[int, int]] = None,
+    map: Optional[str] = None,
+) -> Rig: ...
+def calibrate_export(rig: Union[Rig, _PathLike], out: _PathLike) -> None: ...
 def _sweep(
     study: _PathLike,
     out: _PathLike,

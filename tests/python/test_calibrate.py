@@ -206,20 +206,37 @@ def test_calibrate_projector_matches_cli(tmp_path):
     assert result["calibration"]["summary"]["devices"][1]["rms_px"] <= 0.43
 
 
-def test_calibrate_rig_from_imagesets_written_in_python_matches_cli(tmp_path):
-    """kamino's captures become ImageSets through write_image_set (arrays from PIL), then the
-    command and the module calibrate the rig from the same folders."""
-    nominal = tmp_path / "nominal.yaml"
-    run_cli("calibrate", "import", KAMINO / "calibration_result_ccf1cd8.xml", "--out", nominal,
-            "--projector-size", "1024x768")
-    rig = sl.Rig.load(nominal)
+@pytest.fixture(scope="module")
+def kamino_sets(tmp_path_factory):
+    """kamino's captures as ImageSets written through write_image_set (arrays from PIL), with the
+    rig `slshadow calibrate import` makes of upstream's calibration; the module's import of the
+    same file gives the same rig, and its export the command's file byte for byte."""
+    tmp = tmp_path_factory.mktemp("kamino")
+    xml = KAMINO / "calibration_result_ccf1cd8.xml"
+    nominal = tmp / "nominal.yaml"
+    run_cli("calibrate", "import", xml, "--out", nominal, "--projector-size", "1024x768")
+    rig = sl.calibrate_import(xml, tmp / "py_nominal.yaml", projector_size=(1024, 768))
+    assert rig.to_dict() == sl.Rig.load(nominal).to_dict()
+    assert (tmp / "py_nominal.yaml").read_text() == nominal.read_text()
+    run_cli("calibrate", "export", nominal, "--out", tmp / "cli.yml")
+    sl.calibrate_export(rig, tmp / "py.yml")
+    assert (tmp / "py.yml").read_bytes() == (tmp / "cli.yml").read_bytes()
+    with pytest.raises(sl.Error) as e:
+        sl.calibrate_import(tmp / "none.yml")
+    assert str(e.value) == cli_error("calibrate", "import", tmp / "none.yml", "--out",
+                                     tmp / "x.yaml")
     patterns = sl.PatternSpec.load(KAMINO_PATTERNS)
     sets = []
     for p in range(5):
         frames = np.stack([np.asarray(Image.open(KAMINO / f"capture_{p}" / f"graycode_{i:02d}.png")
                                       .convert("L")) for i in range(patterns.num_images)])
-        sets.append(sl.write_image_set(tmp_path / f"pose{p}", rig, patterns, {"camera": frames},
+        sets.append(sl.write_image_set(tmp / f"pose{p}", rig, patterns, {"camera": frames},
                                        encoding="pgm", source="replay"))
+    return nominal, sets
+
+
+def test_calibrate_rig_from_imagesets_written_in_python_matches_cli(kamino_sets, tmp_path):
+    _, sets = kamino_sets
     cli_out = tmp_path / "cli" / "rig.yaml"
     run_cli("calibrate", "rig", *KAMINO_CLI, "--out", cli_out, "--imagesets",
             *[s.dir for s in sets])
@@ -229,3 +246,23 @@ def test_calibrate_rig_from_imagesets_written_in_python_matches_cli(tmp_path):
     assert monotone_runs(calls) == [("decode", 5, 5, 5), ("calibrate", 2, 1, 1)]
     assert_same_calibration(result, cli_out, "calibrate_rig")
     assert result["calibration"]["summary"]["bounds_active"] == ["projector cy = 767.5 (upper bound)"]
+
+
+def test_calibrate_refine_matches_cli(kamino_sets, tmp_path):
+    """`calibrate refine` of upstream's calibration against the first capture (as
+    tests/apps/cmd_calibrate_test.cc does)."""
+    nominal, sets = kamino_sets
+    run_cli("calibrate", "refine", "--rig", nominal, "--imageset", sets[0].dir, "--out",
+            tmp_path / "cli.yaml")
+    result = sl.calibrate_refine(nominal, sets[0], tmp_path / "py.yaml")
+    cli_rig = sl.Rig.load(tmp_path / "cli.yaml")
+    assert_close(strip_times(result["rig"].to_dict()), strip_times(cli_rig.to_dict()))
+    refine = cli_rig.to_dict()["calibration"]["refine"]
+    assert result["after"]["median_px"] <= result["before"]["median_px"] + 1e-9
+    assert abs(result["before"]["median_px"] - refine["before_median_px"]) <= 1e-9
+    assert result["message"]
+    with pytest.raises(sl.Error) as e:
+        sl.calibrate_refine(nominal, tmp_path / "missing", tmp_path / "x.yaml")
+    assert str(e.value) == cli_error("calibrate", "refine", "--rig", nominal, "--imageset",
+                                     tmp_path / "missing", "--out", tmp_path / "x.yaml")
+    assert not (tmp_path / "x.yaml").exists()
