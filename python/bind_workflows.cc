@@ -170,10 +170,11 @@ void BindSweep(py::module_& m) {
         shadow::SweepStudySummary s;
         {
           py::gil_scoped_release release;
-          report("plan", 0, 3);
+          const ForwardLibraryProgress forward(report, "jobs");  // per job (run or found done)
+          report("plan", 0, 1);
           s = shadow::RunStudy(study, out, options,
-                               [&](const shadow::SweepStudySummary&) { report("run", 1, 3); });
-          report("done", 3, 3);
+                               [&](const shadow::SweepStudySummary&) { report("plan", 1, 1); });
+          report("done", 1, 1);
         }
         py::dict plan, run, merge;
         plan["study"] = s.plan.study;

@@ -70,7 +70,9 @@ def sweep(
     """Plans, runs and merges a study as `slshadow sweep study STUDY --out OUT` does (docs/sweeps.md;
     a second call resumes it). Returns the summaries (plan, run, merge) and the result tables as
     dicts of arrays: results (results.csv, one row per job and mode) and, when written, pareto,
-    break_points, layers, effects. progress(stage, done, total) is called per job run."""
+    break_points, layers, effects. progress(stage, done, total) is called as ("plan", 0, 1) and
+    ("plan", 1, 1) around the planning, ("jobs", k, n) per job of the shard (run, or found done by
+    an earlier call), and ("done", 1, 1) after the merge."""
     summary = _sweep(study, out, shard=shard, verbose=verbose, progress=progress)
     tables = {}
     for name in ("results", "pareto", "break_points", "layers", "effects"):
