@@ -7,6 +7,7 @@
 #include "core/config.h"
 #include "core/error.h"
 #include "core/image_set.h"
+#include "core/progress.h"
 #include "patterns/pattern_spec.h"
 
 namespace slshadow {
@@ -43,6 +44,7 @@ void AddBoardViews(const TargetSpec& spec, const std::vector<fs::path>& files, i
                    CalibrationInput* input, std::vector<ImageCheck>* checks) {
   const auto board = BoardPoints(spec);
   auto& dev = input->devices[static_cast<size_t>(device)];
+  Progress progress("detect", static_cast<int64_t>(files.size()), false);
   for (size_t p = 0; p < files.size(); ++p) {
     const TargetDetection det = DetectTargetInFile(spec, files[p]);
     if (dev.width == 0) {
@@ -54,6 +56,7 @@ void AddBoardViews(const TargetSpec& spec, const std::vector<fs::path>& files, i
                       dev.name, "' is ", dev.width, "x", dev.height,
                       " (mismatched image sizes: one camera per list)");
     checks->push_back({files[p].string(), device, det.found, det.reason, det.saturated_fraction});
+    progress.Advance();
     if (!det.found) continue;
     BoardView v;
     v.device = device;
@@ -86,6 +89,7 @@ void AddProcamCaptures(const PatternSpec& patterns, const std::string& patterns_
   options.Check();
   SLSHADOW_THROW_IF(labels.size() != captures.size(), "AddProcamCaptures: ", labels.size(),
                     " labels for ", captures.size(), " captures");
+  Progress progress("decode", static_cast<int64_t>(captures.size()), false);
   for (size_t p = 0; p < captures.size(); ++p) {
     const auto& files = captures[p];
     SLSHADOW_THROW_IF(static_cast<int>(files.size()) != patterns.NumImages(), labels[p], ": ",
@@ -103,6 +107,7 @@ void AddProcamCaptures(const PatternSpec& patterns, const std::string& patterns_
                        pose.detection.saturated_fraction});
     for (const auto& s : pose.projector.skipped) skipped->push_back(labels[p] + ": skipped " + s);
     AddProcamPose(pose, input);
+    progress.Advance();
   }
 }
 
@@ -114,6 +119,7 @@ CalibrationInput ProcamInputFromImageSets(const std::vector<std::string>& images
   input.num_poses = static_cast<int>(imagesets.size());
   std::vector<std::string> names;
   int projector_device = -1;
+  Progress progress("decode", static_cast<int64_t>(imagesets.size()), false);  // per ImageSet
   for (size_t p = 0; p < imagesets.size(); ++p) {
     const ImageSet set = ImageSet::Open(imagesets[p]);
     const PatternSpec patterns = PatternSpecFromConfig(ConfigNode::FromJson(
@@ -140,6 +146,7 @@ CalibrationInput ProcamInputFromImageSets(const std::vector<std::string>& images
                          pose.detection.saturated_fraction});
       AddProcamPose(pose, &input);
     }
+    progress.Advance();
   }
   return input;
 }

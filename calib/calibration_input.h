@@ -6,6 +6,8 @@
 // Device and pose numbering: devices in the order they are added (device 0 defines the rig
 // frame); pose p is the p-th file, capture folder or ImageSet of the list. Every image is checked
 // (ImageCheck, one per image: board found or why not, saturation) for ReviewCalibration.
+// Progress (core/progress.h, seen by an observer only): "detect" per image file, "decode" per
+// capture folder or ImageSet.
 #pragma once
 
 #include <filesystem>
