@@ -25,7 +25,7 @@ std::vector<ViewCloud> Views(const std::vector<PointCloud>& clouds,
                              const std::vector<Rigid3d>& initial) {
   std::vector<ViewCloud> views;
   for (size_t k = 0; k < clouds.size(); ++k)
-    views.push_back({StringPrintf("view_%02zu", k), &clouds[k], initial[k], true});
+    views.push_back({StringPrintf("view_%02zu", k), &clouds[k], initial[k], true, std::nullopt});
   return views;
 }
 
@@ -262,11 +262,13 @@ TEST(MergeViews, BadInputThrows) {
   EXPECT_THROW(MergeViews({}), Error);
   PointCloud cloud;
   for (int i = 0; i < 100; ++i) cloud.points.emplace_back(i % 10, i / 10, 500);
-  EXPECT_THROW(MergeViews({{"a", nullptr, Rigid3d(), true}}), Error);
-  EXPECT_THROW(MergeViews({{"a", &cloud, Rigid3d(), true}, {"a", &cloud, Rigid3d(), true}}), Error);
+  EXPECT_THROW(MergeViews({{"a", nullptr, Rigid3d(), true, std::nullopt}}), Error);
+  EXPECT_THROW(MergeViews({{"a", &cloud, Rigid3d(), true, std::nullopt},
+                           {"a", &cloud, Rigid3d(), true, std::nullopt}}),
+               Error);
   PointCloud tiny;
   tiny.points.emplace_back(0, 0, 500);
-  EXPECT_THROW(MergeViews({{"a", &tiny, Rigid3d(), true}}), Error);
+  EXPECT_THROW(MergeViews({{"a", &tiny, Rigid3d(), true, std::nullopt}}), Error);
 }
 
 }  // namespace
