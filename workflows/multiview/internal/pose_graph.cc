@@ -39,14 +39,13 @@ struct RelativePoseResidual {
   Matrix6d sqrt_info;
 };
 
-// S with S^T S = information (eigen decomposition; negative round-off eigenvalues clamped).
+}  // namespace
+
 Matrix6d SqrtInformation(const Matrix6d& information) {
   const Eigen::SelfAdjointEigenSolver<Matrix6d> eig(0.5 * (information + information.transpose()));
   const Eigen::Matrix<double, 6, 1> root = eig.eigenvalues().cwiseMax(0.0).cwiseSqrt();
   return root.asDiagonal() * eig.eigenvectors().transpose();
 }
-
-}  // namespace
 
 Rigid3d EdgeDiscrepancy(const std::vector<Rigid3d>& part_from_rig, const GraphEdge& edge) {
   const Rigid3d estimated = part_from_rig[static_cast<size_t>(edge.a)].Inverse() *
