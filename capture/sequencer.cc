@@ -53,6 +53,7 @@ class Sequencer {
         cameras_(cameras) {
     options_.Check();
     spec_.Check();
+    CheckProjectorSize(rig, spec, "pattern spec", "rig '" + rig.name + "'");
     CheckCaptureCameras(rig, cameras);
     for (const auto& c : cameras) {
       CameraState s;

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <iostream>
 
+#include "capture/factory.h"
 #include "capture/pattern_sequence_capture.h"
 #include "core/config.h"
 #include "core/file_util.h"
@@ -97,13 +98,7 @@ void CheckScanInputs(const Rig& rig, const PatternSpec& spec, const ViewsFile& v
                      const std::string& turntable_backend, const std::string& devices_file) {
   views.Check("views");
   rig.Check("rig '" + rig.name + "'");
-  if (rig.projector) {
-    SLSHADOW_THROW_IF(spec.projector_width != rig.projector->model.width ||
-                          spec.projector_height != rig.projector->model.height,
-                      "pattern spec: projector size ", spec.projector_width, "x",
-                      spec.projector_height, " does not match the rig's projector (",
-                      rig.projector->model.width, "x", rig.projector->model.height, ")");
-  }
+  CheckProjectorSize(rig, spec, "pattern spec", "rig '" + rig.name + "'");
   for (const ViewSpec& v : views.views) {
     if (!v.OnTable()) continue;
     SLSHADOW_THROW_IF(!rig.turntable, "view '", v.name, "': table_deg ", *v.table_deg,
@@ -307,11 +302,8 @@ ScanSummary ScanProject(const Rig& rig, const PatternSpec& spec, const ViewsFile
     provenance["capture_started"] = UtcTimestamp();
     const auto capture_t0 = Clock::now();
     try {
-      report.capture =
-          devices.sequence_projector
-              ? capture::CapturePatternSequence(rig, spec, devices.cameras,
-                                                *devices.sequence_projector, dir, sequencer)
-              : capture::Capture(rig, spec, devices.cameras, *devices.projector, dir, sequencer);
+      report.capture = capture::CaptureImageSet(rig, spec, devices.cameras, devices.projector,
+                                                devices.sequence_projector, dir, sequencer);
     } catch (const Error& e) {
       throw fault(i, "capture", e.what());
     }

@@ -95,11 +95,7 @@ VirtualProjectSummary SimulateProject(const Scene& scene, const Rig& rig, const 
   rig.Check("rig '" + rig.name + "'");
   SLSHADOW_THROW_IF(!rig.projector, "rig '", rig.name,
                     "': has no projector: the simulator needs one");
-  SLSHADOW_THROW_IF(spec.projector_width != rig.projector->model.width ||
-                        spec.projector_height != rig.projector->model.height,
-                    "pattern spec: projector size ", spec.projector_width, "x",
-                    spec.projector_height, " does not match the rig's projector (",
-                    rig.projector->model.width, "x", rig.projector->model.height, ")");
+  CheckProjectorSize(rig, spec, "pattern spec", "rig '" + rig.name + "'");
   for (const ViewSpec& v : views.views) VirtualViewPose(v, rig);  // every view has a pose
 
   const nlohmann::json patterns = PatternSpecToJson(spec);
