@@ -71,25 +71,16 @@ int RunShadowCommand(int argc, char** argv) {
   app.add_flag("--no-clouds", no_clouds, "do not write the clouds");
   app.add_flag("--overwrite", overwrite, "replace an existing report folder");
   bool no_html = false;
-  app.add_flag("--no-html", no_html,
-               "do not write report.html (the self-contained page of the result; slshadow report "
-               "DIR writes it later)");
-  app.add_option("--html-max-points", options.html.max_points,
-                 "points drawn in report.html's 3D view (a fixed-seed uniform sample; the figures "
-                 "use every point)")
-      ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+  AddHtmlOptions(&app, &no_html, &options.html);
   AddStrictOptions(&app, &options.strict);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return ExitOnParseError(app, e);
   }
-  if (!pose.empty()) {
-    const Eigen::Vector3d r(pose[0], pose[1], pose[2]);
-    const Eigen::Quaterniond q = QuaternionFromRotationVector(r);
-    options.rig_from_part = Rigid3d(q, Eigen::Vector3d(pose[3], pose[4], pose[5]));
-  }
+  if (!pose.empty())
+    options.rig_from_part = Rigid3d(QuaternionFromRotationVector({pose[0], pose[1], pose[2]}),
+                                    {pose[3], pose[4], pose[5]});
   SLSHADOW_THROW_IF(fixed_pose && pose.empty(), "--fixed-pose: needs --pose");
   options.refine_pose = !fixed_pose;
   options.fit_physics = !no_fit;

@@ -70,6 +70,32 @@ void AddBoardViews(const TargetSpec& spec, const std::vector<fs::path>& files, i
   }
 }
 
+CalibrationInput CameraInputFromImages(const TargetSpec& spec, const std::vector<fs::path>& files,
+                                       const std::string& camera_name,
+                                       std::vector<ImageCheck>* checks) {
+  CalibrationInput input;
+  input.devices = {CalibrationDevice::Camera(camera_name)};
+  input.num_poses = static_cast<int>(files.size());
+  AddBoardViews(spec, files, 0, &input, checks);
+  return input;
+}
+
+CalibrationInput StereoInputFromImages(const TargetSpec& spec, const std::vector<fs::path>& left,
+                                       const std::vector<fs::path>& right,
+                                       const std::string& left_name, const std::string& right_name,
+                                       std::vector<ImageCheck>* checks) {
+  SLSHADOW_THROW_IF(left.size() != right.size(), "stereo: ", left.size(), " left images but ",
+                    right.size(), " right images; give the same poses in the same (name) order");
+  SLSHADOW_THROW_IF(left_name == right_name,
+                    "stereo: --left-name and --right-name must differ (got '", left_name, "')");
+  CalibrationInput input;
+  input.devices = {CalibrationDevice::Camera(left_name), CalibrationDevice::Camera(right_name)};
+  input.num_poses = static_cast<int>(left.size());
+  AddBoardViews(spec, left, 0, &input, checks);
+  AddBoardViews(spec, right, 1, &input, checks);
+  return input;
+}
+
 namespace {
 
 // Adds a decoded pose's views: the camera's, and the projector's when it has 4+ corners.
@@ -109,6 +135,27 @@ void AddProcamCaptures(const PatternSpec& patterns, const std::string& patterns_
     AddProcamPose(pose, input);
     progress.Advance();
   }
+}
+
+CalibrationInput ProcamInputFromCaptures(
+    const PatternSpec& patterns, const std::string& patterns_path, const TargetSpec& spec,
+    const std::vector<std::string>& capture_dirs, const std::string& camera_name,
+    const CameraModel* known_camera, const ProcamInputOptions& options,
+    std::vector<ImageCheck>* checks, std::vector<std::string>* skipped) {
+  CalibrationInput input;
+  input.devices = {CalibrationDevice::Camera(camera_name),
+                   CalibrationDevice::Projector("projector", patterns.projector_width,
+                                                patterns.projector_height)};
+  if (known_camera) {
+    input.devices[0].initial = *known_camera;
+    input.devices[0].hold_intrinsics = true;
+  }
+  input.num_poses = static_cast<int>(capture_dirs.size());
+  std::vector<std::vector<fs::path>> files;
+  for (const auto& capture : capture_dirs) files.push_back(ImageFiles({capture}, "--captures"));
+  AddProcamCaptures(patterns, patterns_path, spec, files, capture_dirs, options, &input, checks,
+                    skipped);
+  return input;
 }
 
 CalibrationInput ProcamInputFromImageSets(const std::vector<std::string>& imagesets,
