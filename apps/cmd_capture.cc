@@ -111,6 +111,8 @@ int RunCapture(int argc, char** argv) {
   }
   const Rig rig = LoadRig(rig_path);
   const PatternSpec spec = LoadPatternSpec(patterns_path);
+  // Before any device opens (Capture checks it again, naming no files).
+  CheckProjectorSize(rig, spec, patterns_path, rig_path);
   const capture::OpenedDevices opened = capture::OpenDevicesFile(devices_path, rig);
 
   capture::SequencerOptions options;
