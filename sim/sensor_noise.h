@@ -10,8 +10,7 @@
 // noise, independent Gaussians, enter as one: sqrt(mu_e + read^2) n. Log, sine and cosine as
 // polynomials (Cephes' single-precision ones), the signal in float. Deterministic for a seed
 // whatever the thread count or the CPU (the same IEEE operations in every code path, no FMA).
-// (Until 2026-11-25 each pixel drew two normals, shot and read, from two hashes, and the signal
-// was computed in double: the same distribution, 2.6 times the CPU time, other images.)
+// The generator's history: docs/benchmarks/log/2026-12-07-header-notes.md.
 #pragma once
 
 #include <cstdint>

@@ -4,6 +4,7 @@
 #include "core/config.h"
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/progress.h"
 #include "core/stage_meter.h"
 #include "patterns/codec.h"
 #include "patterns/pattern_spec.h"
@@ -648,18 +649,21 @@ SweepRunSummary RunSweepShard(const fs::path& jobs_dir, const SweepRunOptions& o
     }
   }
   size_t position = 0;
+  Progress progress("jobs", static_cast<int64_t>(ids.size()), false);  // for an observer only
   for (int id : ids) {
     const int jobs_left = group_jobs_left[position++];
     std::error_code ec;
     const fs::path result_file = ResultFile(jobs_dir, id);
     if (fs::exists(result_file, ec)) {
       ++summary.already_done;
+      progress.Advance();
       continue;
     }
     const fs::path file = JobFile(jobs_dir, id);
     const json result = runner.Run(ReadJob(jobs_dir, id), file, jobs_left);
     WriteTextFileAtomically(result_file, result.dump(1) + "\n");
     ++summary.ran;
+    progress.Advance();
     if (options.verbose) {
       std::printf("job %s: %s, %.3f s\n", JobName(id).c_str(), result["params"].dump().c_str(),
                   result["timing"]["total_s"].get<double>());
