@@ -4,13 +4,13 @@
 
 #include "apps/commands.h"
 #include "core/file_util.h"
-#include "shadow/bench.h"
+#include "workflows/pipeline/bench.h"
 
 namespace slshadow::app {
-using shadow::BenchOptions;
-using shadow::BenchToJson;
-using shadow::FormatBench;
-using shadow::RunBench;
+using pipeline::BenchOptions;
+using pipeline::BenchToJson;
+using pipeline::FormatBench;
+using pipeline::RunBench;
 
 int RunBenchCommand(int argc, char** argv) {
   BenchOptions options;

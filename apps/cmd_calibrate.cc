@@ -1,6 +1,6 @@
 // slshadow calibrate camera|stereo|projector|rig|refine|import|export ...: one function per
 // subcommand, each parsing into its arguments and making its calls into calib/ and the workflows
-// of shadow/calibrate.h.
+// of workflows/pipeline/calibrate.h.
 #include <CLI/CLI.hpp>
 
 #include <algorithm>
@@ -28,7 +28,7 @@
 #include "core/image_set.h"
 #include "patterns/codec.h"
 #include "patterns/pattern_spec.h"
-#include "shadow/calibrate.h"
+#include "workflows/pipeline/calibrate.h"
 
 namespace slshadow::app {
 namespace {
@@ -143,13 +143,13 @@ struct CommonOptions {
 void Print(const std::string& text) { std::fputs(text.c_str(), stdout); }
 
 void PrintMissed(const std::vector<ImageCheck>& checks) {
-  Print(shadow::DescribeBoardDetections(checks));
+  Print(pipeline::DescribeBoardDetections(checks));
 }
 
 // The workflow's options from the command line's.
 int CalibrateAndWrite(CalibrationInput input, const std::vector<ImageCheck>& checks,
                       const CommonOptions& common, nlohmann::json extra) {
-  shadow::CalibrateWriteOptions o;
+  pipeline::CalibrateWriteOptions o;
   o.solve = common.Options();
   o.select_model = common.select_model;
   o.cross_validate = !common.no_cross_validation;
@@ -158,22 +158,21 @@ int CalibrateAndWrite(CalibrationInput input, const std::vector<ImageCheck>& che
   o.rig_out = common.out;
   o.report_dir = common.ReportDir();
   o.opencv_out = common.opencv_out;
-  shadow::CalibrateAndWrite(std::move(input), checks, o, std::move(extra), Print);
+  pipeline::CalibrateAndWrite(std::move(input), checks, o, std::move(extra), Print);
   return 0;
 }
 
-// Decoding and local-homography options of `projector` and `rig`.
+// Decoding and local-homography options of `projector` and `rig` (library defaults).
 struct ProcamArgs {
-  double shadow_threshold = 12;
-  double contrast_threshold = 4;
-  int window = 20;
+  ProcamInputOptions options;
+  int window = LocalHomographyOptions{}.half_window_px;
 
   void Add(CLI::App* app, bool long_help) {
-    app->add_option("--shadow-threshold", shadow_threshold,
+    app->add_option("--shadow-threshold", options.decode.shadow_threshold,
                     long_help ? "decode: minimum white - black, grey levels (8-bit scale)"
                               : "decode: minimum white - black, grey levels")
         ->capture_default_str();
-    app->add_option("--contrast-threshold", contrast_threshold,
+    app->add_option("--contrast-threshold", options.decode.contrast_threshold,
                     "decode: minimum |bit - inverse|, grey levels")
         ->capture_default_str();
     app->add_option("--window", window,
@@ -181,18 +180,10 @@ struct ProcamArgs {
                               : "local homography half window, camera px")
         ->capture_default_str();
   }
-  DecodeOptions Decode() const {
-    DecodeOptions decode;
-    decode.shadow_threshold = shadow_threshold;
-    decode.contrast_threshold = contrast_threshold;
-    decode.Check();
-    return decode;
-  }
   ProcamInputOptions Options() const {
-    ProcamInputOptions o;
-    o.decode = Decode();
-    o.local.half_window_px = window;
-    o.local.min_valid_pixels = std::min(100, window * window);
+    ProcamInputOptions o = options;
+    o.decode.Check();
+    o.local.SetHalfWindow(window);
     o.Check();
     return o;
   }
@@ -207,11 +198,8 @@ struct CameraArgs {
 int RunCalibrateCamera(const CameraArgs& a, nlohmann::json extra) {
   const TargetSpec spec = LoadTargetSpec(a.common.target);
   const auto files = ImageFiles(a.images, "--images");
-  CalibrationInput input;
-  input.devices = {CalibrationDevice::Camera(a.camera_name)};
-  input.num_poses = static_cast<int>(files.size());
   std::vector<ImageCheck> checks;
-  AddBoardViews(spec, files, 0, &input, &checks);
+  const CalibrationInput input = CameraInputFromImages(spec, files, a.camera_name, &checks);
   PrintMissed(checks);
   extra["target"] = a.common.target;
   return CalibrateAndWrite(input, checks, a.common, extra);
@@ -226,16 +214,9 @@ struct StereoArgs {
 int RunCalibrateStereo(const StereoArgs& a, nlohmann::json extra) {
   const TargetSpec spec = LoadTargetSpec(a.common.target);
   const auto lf = ImageFiles(a.left, "--left"), rf = ImageFiles(a.right, "--right");
-  SLSHADOW_THROW_IF(lf.size() != rf.size(), "stereo: ", lf.size(), " left images but ", rf.size(),
-                    " right images; give the same poses in the same (name) order");
-  SLSHADOW_THROW_IF(a.left_name == a.right_name,
-                    "stereo: --left-name and --right-name must differ (got '", a.left_name, "')");
-  CalibrationInput input;
-  input.devices = {CalibrationDevice::Camera(a.left_name), CalibrationDevice::Camera(a.right_name)};
-  input.num_poses = static_cast<int>(lf.size());
   std::vector<ImageCheck> checks;
-  AddBoardViews(spec, lf, 0, &input, &checks);
-  AddBoardViews(spec, rf, 1, &input, &checks);
+  const CalibrationInput input =
+      StereoInputFromImages(spec, lf, rf, a.left_name, a.right_name, &checks);
   PrintMissed(checks);
   extra["target"] = a.common.target;
   return CalibrateAndWrite(input, checks, a.common, extra);
@@ -253,22 +234,13 @@ int RunCalibrateProjector(const ProjectorArgs& a, nlohmann::json extra) {
   const ProcamInputOptions procam = a.procam.Options();
   const TargetSpec spec = LoadTargetSpec(a.common.target);
   const PatternSpec patterns = LoadPatternSpec(a.patterns_path);
-  CalibrationInput input;
-  input.devices = {CalibrationDevice::Camera(a.camera_name),
-                   CalibrationDevice::Projector("projector", patterns.projector_width,
-                                                patterns.projector_height)};
-  if (!a.camera_rig.empty()) {
-    const Rig known = LoadRig(a.camera_rig);
-    input.devices[0].initial = known.cameras.at(0).model;
-    input.devices[0].hold_intrinsics = true;
-  }
-  input.num_poses = static_cast<int>(a.captures.size());
-  std::vector<std::vector<fs::path>> files;
-  for (const auto& capture : a.captures) files.push_back(ImageFiles({capture}, "--captures"));
+  std::optional<Rig> known;
+  if (!a.camera_rig.empty()) known = LoadRig(a.camera_rig);
   std::vector<ImageCheck> checks;
   std::vector<std::string> skipped;
-  AddProcamCaptures(patterns, a.patterns_path, spec, files, a.captures, procam, &input, &checks,
-                    &skipped);
+  const CalibrationInput input = ProcamInputFromCaptures(
+      patterns, a.patterns_path, spec, a.captures, a.camera_name,
+      known ? &known->cameras.at(0).model : nullptr, procam, &checks, &skipped);
   for (const auto& s : skipped) std::printf("%s\n", s.c_str());
   PrintMissed(checks);
   extra["target"] = a.common.target;
@@ -315,7 +287,7 @@ std::vector<double> ParseKnownDistance(const std::string& text) {
 }
 
 int RunCalibrateRefine(const RefineArgs& a) {
-  shadow::RefineFromScanRequest r;
+  pipeline::RefineFromScanRequest r;
   r.rig = a.rig;
   r.scan = a.scan;
   r.out = a.out;
@@ -324,8 +296,8 @@ int RunCalibrateRefine(const RefineArgs& a) {
   if (!a.known_distance.empty()) r.known_distance = ParseKnownDistance(a.known_distance);
   r.refine.refine_focal = a.refine_focal;
   r.refine.known_baseline_mm = a.known_baseline_mm;
-  r.decode = ProcamArgs{}.Decode();
-  const RefineResult result = shadow::RefineRigFromScan(r);
+  r.decode = DecodeOptions{};
+  const RefineResult result = pipeline::RefineRigFromScan(r);
   std::printf("%s\nwrote %s\n", result.message.c_str(), a.out.c_str());
   return 0;
 }
@@ -527,9 +499,7 @@ int RunCalibrate(int argc, char** argv) {
     return ExitOnParseError(app, e);
   }
   nlohmann::json extra;
-  std::string cmdline;
-  for (int i = 0; i < argc; ++i) cmdline += (i ? " " : "") + std::string(argv[i]);
-  extra["command"] = cmdline;
+  extra["command"] = CommandLine(argc, argv);
 
   if (camera->parsed()) return RunCalibrateCamera(camera_args, extra);
   if (stereo->parsed()) return RunCalibrateStereo(stereo_args, extra);

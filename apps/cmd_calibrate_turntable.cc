@@ -4,7 +4,7 @@
 
 #include <cstdio>
 
-#include "shadow/calibrate.h"
+#include "workflows/pipeline/calibrate.h"
 
 namespace slshadow::app {
 
@@ -50,7 +50,7 @@ void CalibrateTurntableCommand::Register(CLI::App* calibrate) {
 }
 
 int CalibrateTurntableCommand::Run() const {
-  shadow::CalibrateTurntableRequest request;
+  pipeline::CalibrateTurntableRequest request;
   request.rig = rig;
   request.target = target;
   request.out = out;
@@ -59,7 +59,7 @@ int CalibrateTurntableCommand::Run() const {
   request.options.loss = LossTypeFromString(loss);
   request.options.loss_scale_px = loss_scale_px;
   request.max_rms_px = max_rms_px;
-  shadow::CalibrateTurntableAndWrite(request, [](const std::string& text) {
+  pipeline::CalibrateTurntableAndWrite(request, [](const std::string& text) {
     std::fputs(text.c_str(), stdout);
     std::fflush(stdout);
   });

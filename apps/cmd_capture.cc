@@ -1,25 +1,20 @@
 // slshadow capture --rig RIG --devices DEVICES.yaml --patterns SPEC --out DIR [--resume]
 //                  [--auto-exposure] [--poses N]
 #include <CLI/CLI.hpp>
-#include <atomic>
-#include <csignal>
 #include <cstdio>
 #include <iostream>
 
 #include "apps/commands.h"
 #include "capture/devices.h"
 #include "capture/factory.h"
-#include "capture/pattern_sequence_capture.h"
 #include "capture/sequencer.h"
+#include "capture/stop_on_interrupt.h"
 #include "core/error.h"
 #include "core/rig.h"
 #include "patterns/pattern_spec.h"
 
 namespace slshadow::app {
 namespace {
-
-std::atomic<bool> g_stop{false};
-extern "C" void OnInterrupt(int) { g_stop.store(true); }
 
 std::string List(const std::vector<std::string>& names) {
   std::string s;
@@ -116,16 +111,9 @@ int RunCapture(int argc, char** argv) {
   }
   const Rig rig = LoadRig(rig_path);
   const PatternSpec spec = LoadPatternSpec(patterns_path);
-  if (rig.projector) {
-    SLSHADOW_THROW_IF(spec.projector_width != rig.projector->model.width ||
-                          spec.projector_height != rig.projector->model.height,
-                      patterns_path, ": projector size ", spec.projector_width, "x",
-                      spec.projector_height, " does not match the rig's projector (",
-                      rig.projector->model.width, "x", rig.projector->model.height, " in ",
-                      rig_path, ")");
-  }
-  const capture::DevicesConfig devices = capture::LoadDevices(devices_path);
-  capture::OpenedDevices opened = capture::OpenDevices(devices, rig);
+  // Before any device opens (Capture checks it again, naming no files).
+  CheckProjectorSize(rig, spec, patterns_path, rig_path);
+  const capture::OpenedDevices opened = capture::OpenDevicesFile(devices_path, rig);
 
   capture::SequencerOptions options;
   options.settle = opened.settle;
@@ -136,17 +124,9 @@ int RunCapture(int argc, char** argv) {
   options.writer.resume = resume;
   options.writer.overwrite = overwrite;
   options.progress = !quiet;
-  options.stop = &g_stop;
-  std::string cmdline;
-  for (int i = 0; i < argc; ++i) cmdline += (i ? " " : "") + std::string(argv[i]);
-  options.extra = {{"command", cmdline}, {"devices", devices_path}};
-
-  g_stop = false;
-  const auto previous_handler = std::signal(SIGINT, OnInterrupt);
-  struct Restore {
-    decltype(previous_handler) handler;
-    ~Restore() { std::signal(SIGINT, handler); }
-  } restore{previous_handler};
+  options.extra = {{"command", CommandLine(argc, argv)}, {"devices", devices_path}};
+  const capture::StopOnInterrupt interrupt;
+  options.stop = interrupt.flag();
 
   const std::string again = "run the same command with --resume to continue";
   SLSHADOW_THROW_IF(
@@ -169,12 +149,7 @@ int RunCapture(int argc, char** argv) {
                   out_dir.c_str(), out_dir.c_str());
     return 0;
   }
-  // A LightCrafter in pattern-sequence mode runs the sequence and triggers the cameras itself.
-  const capture::CaptureSummary s =
-      opened.sequence_projector
-          ? capture::CapturePatternSequence(rig, spec, opened.cameras, *opened.sequence_projector,
-                                            out_dir, options)
-          : capture::Capture(rig, spec, opened.cameras, *opened.projector, out_dir, options);
+  const capture::CaptureSummary s = capture::CaptureImageSet(rig, spec, opened, out_dir, options);
   if (s.interrupted) {
     std::fprintf(stderr, "capture: interrupted: %d of %d images staged in %s; %s\n",
                  s.images_before + s.images_stored, s.images_total, s.staging.string().c_str(),

@@ -3,13 +3,13 @@
 #include <cstdio>
 
 #include "apps/commands.h"
-#include "shadow/demo.h"
 #include "workflows/multiview/multiview_demo.h"
+#include "workflows/pipeline/demo.h"
 
 namespace slshadow::app {
-using shadow::DemoOptions;
-using shadow::DemoResult;
-using shadow::RunDemoJob;
+using pipeline::DemoOptions;
+using pipeline::DemoResult;
+using pipeline::RunDemoJob;
 
 int RunDemo(int argc, char** argv) {
   DemoOptions options;
@@ -52,14 +52,7 @@ int RunDemo(int argc, char** argv) {
       ->capture_default_str();
   app.add_flag("--verbose", options.verbose, "print each stage's full report");
   bool no_html = false;
-  app.add_flag("--no-html", no_html,
-               "do not write report.html (the self-contained page of the result; slshadow report "
-               "DIR writes it later)");
-  app.add_option("--html-max-points", options.html.max_points,
-                 "points drawn in report.html's 3D view (a fixed-seed uniform sample; the figures "
-                 "use every point)")
-      ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+  AddHtmlOptions(&app, &no_html, &options.html);
   int views = 0;
   app.add_option("--views", views,
                  "N > 0: the whole-part loop instead: the demo part on a turntable, N views over a "

@@ -78,6 +78,13 @@ int RunMerge(int argc, char** argv) {
   app.add_option("--max-departure-mm", options.registration.max_initial_departure_mm,
                  "the same bound on the displacement of the view's centroid, mm (0: no check)")
       ->capture_default_str();
+  app.add_option("--icp-points", options.registration.icp_points,
+                 "source points per pair in the pairwise ICP")
+      ->capture_default_str();
+  bool six_dof = false;
+  app.add_flag("--six-dof", six_dof,
+               "pose graph with six free unknowns per view, also for table views (default: the "
+               "turntable model, one angle per table view about one fitted axis)");
   app.add_option("--max-points-per-view", options.max_points_per_view,
                  "keep at most this many points of each view (every s-th cell; 0: all)")
       ->capture_default_str();
@@ -113,6 +120,7 @@ int RunMerge(int argc, char** argv) {
   options.mode = ReconstructModeFromString(mode);
   options.poses = multiview::PoseSourceFromString(poses);
   options.mesh = !no_mesh;
+  options.registration.turntable_model = !six_dof;
   std::optional<TriangleMesh> cad;
   if (!cad_path.empty()) {
     const std::filesystem::path p(cad_path);

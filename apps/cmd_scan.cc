@@ -2,8 +2,6 @@
 //               [--resume] [--yes] [--encoding E] [--max-retries N] [--auto-exposure] [--no-home]
 // slshadow turntable status|home|move --devices DEVICES.yaml [--deg A]
 #include <CLI/CLI.hpp>
-#include <atomic>
-#include <csignal>
 #include <cstdio>
 #include <iostream>
 #include <memory>
@@ -12,6 +10,7 @@
 #include "apps/commands.h"
 #include "capture/devices.h"
 #include "capture/factory.h"
+#include "capture/stop_on_interrupt.h"
 #include "capture/turntable.h"
 #include "core/error.h"
 #include "core/rig.h"
@@ -21,12 +20,6 @@
 #include "workflows/multiview/views.h"
 
 namespace slshadow::app {
-namespace {
-
-std::atomic<bool> g_stop{false};
-extern "C" void OnScanInterrupt(int) { g_stop.store(true); }
-
-}  // namespace
 
 int RunScan(int argc, char** argv) {
   CLI::App app{
@@ -135,12 +128,14 @@ int RunScan(int argc, char** argv) {
   const Rig rig = LoadRig(rig_path);
   const PatternSpec spec = LoadPatternSpec(patterns_path);
   const multiview::ViewsFile views = multiview::LoadViews(views_path);
-  capture::DevicesConfig devices = capture::LoadDevices(devices_path);
-  if (devices.turntable.backend == "manual" && yes) devices.turntable.auto_confirm = true;
   bool on_table = false;
   for (const auto& v : views.views) on_table = on_table || v.OnTable();
-  multiview::CheckScanInputs(rig, spec, views, devices.turntable.backend, devices_path);
-  capture::OpenedDevices opened = capture::OpenDevices(devices, rig);
+  const capture::OpenedDevices opened =
+      capture::OpenDevicesFile(devices_path, rig, [&](capture::DevicesConfig& devices) {
+        if (devices.turntable.backend == "manual" && yes) devices.turntable.auto_confirm = true;
+        multiview::CheckScanInputs(rig, spec, views, devices.turntable.backend, devices_path);
+      });
+  const capture::DevicesConfig& devices = opened.config;
   std::unique_ptr<capture::Turntable> turntable;
   if (on_table) turntable = capture::OpenTurntable(devices.turntable);
 
@@ -162,20 +157,14 @@ int RunScan(int argc, char** argv) {
   options.sequencer.auto_exposure = auto_exposure;
   options.sequencer.writer.encoding = ImageEncodingFromString(encoding);
   options.sequencer.progress = !quiet;
-  options.sequencer.stop = &g_stop;
-  std::string cmdline;
-  for (int i = 0; i < argc; ++i) cmdline += (i ? " " : "") + std::string(argv[i]);
+  const std::string cmdline = CommandLine(argc, argv);
   options.sequencer.extra = {{"command", cmdline}, {"devices", devices_path}};
   options.provenance = {{"command", cmdline}, {"views_file", views_path}};
   std::ostringstream discard;
   if (quiet) options.prompt = yes ? &discard : &std::cerr;
 
-  g_stop = false;
-  const auto previous_handler = std::signal(SIGINT, OnScanInterrupt);
-  struct Restore {
-    decltype(previous_handler) handler;
-    ~Restore() { std::signal(SIGINT, handler); }
-  } restore{previous_handler};
+  const capture::StopOnInterrupt interrupt;
+  options.sequencer.stop = interrupt.flag();
 
   const multiview::ScanSummary s =
       multiview::ScanProject(rig, spec, views, scan_devices, out_dir, options);

@@ -1,11 +1,12 @@
-// slshadow shadow REAL_IMAGESET --part PART --out DIR [...]
+// slshadow shadow REAL --part PART --out DIR [...] (REAL: an ImageSet or a multi-view project)
 #include <CLI/CLI.hpp>
 #include <cstdio>
 
 #include "apps/commands.h"
 #include "core/error.h"
 #include "core/rig.h"
-#include "shadow/twin.h"
+#include "workflows/twin/twin.h"
+#include "workflows/multiview/project_shadow.h"
 
 namespace slshadow::app {
 
@@ -22,13 +23,21 @@ int RunShadowCommand(int argc, char** argv) {
       "PART is a mesh (.stl/.ply/.obj, mm, albedo 0.8) or a scene file (.yaml) whose objects are "
       "the\n"
       "part in its own frame (e.g. a plane with a printed checkerboard). Writes DIR/report.json\n"
-      "(docs/formats.md \"Shadow report\"), DIR/summary.txt, DIR/maps/*.png, DIR/clouds/*.ply.",
+      "(docs/formats.md \"Shadow report\"), DIR/summary.txt, DIR/maps/*.png, DIR/clouds/*.ply.\n\n"
+      "REAL may also be a multi-view turntable project (slshadow scan): every view against its\n"
+      "twin at the pose the turntable gives it (--pose is then the part at table angle 0), the\n"
+      "diagnosis across views (the turntable axis off, the angle scale off, the part slipped\n"
+      "between two views), and the merged real scan against the merged twin on the CAD surface;\n"
+      "DIR/views/<name>/ holds each view's report (docs/formats.md \"Multi-view shadow report\").\n"
+      "Give the part with what turns with it (e.g. a scene with the part and the table disc).",
       argv[0]};
   std::string image_set, part_path, out_dir, rig_path;
   std::vector<double> pose;
   bool fixed_pose = false, no_fit = false, overwrite = false, no_clouds = false;
-  shadow::ShadowOptions options;
-  app.add_option("REAL_IMAGESET", image_set, "the real scan (ImageSet folder)")
+  twin::ShadowOptions options;
+  app.add_option("REAL", image_set,
+                 "the real scan (ImageSet folder) or a multi-view project (folder with "
+                 "project.json)")
       ->required()
       ->check(CLI::ExistingDirectory);
   app.add_option("--part", part_path, "the part: mesh (.stl/.ply/.obj) or scene (.yaml)")
@@ -62,36 +71,41 @@ int RunShadowCommand(int argc, char** argv) {
   app.add_flag("--no-clouds", no_clouds, "do not write the clouds");
   app.add_flag("--overwrite", overwrite, "replace an existing report folder");
   bool no_html = false;
-  app.add_flag("--no-html", no_html,
-               "do not write report.html (the self-contained page of the result; slshadow report "
-               "DIR writes it later)");
-  app.add_option("--html-max-points", options.html.max_points,
-                 "points drawn in report.html's 3D view (a fixed-seed uniform sample; the figures "
-                 "use every point)")
-      ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+  AddHtmlOptions(&app, &no_html, &options.html);
   AddStrictOptions(&app, &options.strict);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return ExitOnParseError(app, e);
   }
-  if (!pose.empty()) {
-    const Eigen::Vector3d r(pose[0], pose[1], pose[2]);
-    const Eigen::Quaterniond q = QuaternionFromRotationVector(r);
-    options.rig_from_part = Rigid3d(q, Eigen::Vector3d(pose[3], pose[4], pose[5]));
-  }
+  if (!pose.empty())
+    options.rig_from_part = Rigid3d(QuaternionFromRotationVector({pose[0], pose[1], pose[2]}),
+                                    {pose[3], pose[4], pose[5]});
   SLSHADOW_THROW_IF(fixed_pose && pose.empty(), "--fixed-pose: needs --pose");
   options.refine_pose = !fixed_pose;
   options.fit_physics = !no_fit;
   options.overwrite = overwrite;
   options.write_clouds = !no_clouds;
   options.write_html = !no_html;
-  const shadow::ShadowPart part = shadow::LoadShadowPart(part_path);
   std::optional<Rig> rig;
   if (!rig_path.empty()) rig = LoadRig(rig_path);
-  const shadow::ShadowResult result =
-      shadow::RunShadow(image_set, part, options, out_dir, rig ? &*rig : nullptr);
+  if (std::filesystem::exists(std::filesystem::path(image_set) / "project.json")) {
+    const twin::ShadowPart part = multiview::LoadTurntablePart(part_path);
+    SLSHADOW_THROW_IF(fixed_pose, "--fixed-pose: a multi-view project refines every view's pose");
+    multiview::ProjectShadowOptions project_options;
+    project_options.rig_from_part0 = options.rig_from_part;
+    project_options.view = options;
+    project_options.on_view = [](const std::string& name, size_t i, size_t n) {
+      std::fprintf(stderr, "view %zu/%zu: %s\n", i + 1, n, name.c_str());
+    };
+    const multiview::ProjectShadowResult result = multiview::RunProjectShadow(
+        image_set, part, project_options, out_dir, rig ? &*rig : nullptr);
+    std::printf("%sreport: %s\n", result.Summary().c_str(), out_dir.c_str());
+    return 0;
+  }
+  const twin::ShadowPart part = twin::LoadShadowPart(part_path);
+  const twin::ShadowResult result =
+      twin::RunShadow(image_set, part, options, out_dir, rig ? &*rig : nullptr);
   std::printf("%sreport: %s%s\n", result.Summary().c_str(), out_dir.c_str(),
               no_html ? "" : " (open report.html in a browser)");
   return 0;

@@ -85,12 +85,7 @@ int RunSimulate(int argc, char** argv) {
   const Scene scene = LoadScene(scene_path);
   const PatternSpec spec = LoadPatternSpec(patterns_path);
   SLSHADOW_THROW_IF(!rig.projector, rig_path, ": rig has no projector: the simulator needs one");
-  SLSHADOW_THROW_IF(spec.projector_width != rig.projector->model.width ||
-                        spec.projector_height != rig.projector->model.height,
-                    patterns_path, ": projector size ", spec.projector_width, "x",
-                    spec.projector_height, " does not match the rig's projector (",
-                    rig.projector->model.width, "x", rig.projector->model.height, " in ", rig_path,
-                    ")");
+  CheckProjectorSize(rig, spec, patterns_path, rig_path);  // SimulateScan takes images, not a spec
   if (!views_path.empty()) {
     SLSHADOW_THROW_IF(overwrite,
                       "--overwrite: not with --views (use --resume to continue a project)");

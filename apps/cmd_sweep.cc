@@ -5,7 +5,7 @@
 #include "core/threads.h"
 
 #include <CLI/CLI.hpp>
-#include "shadow/sweep.h"
+#include "workflows/studies/sweep.h"
 
 #include <cstdio>
 #include <cstdlib>
@@ -15,7 +15,7 @@
 namespace slshadow::app {
 namespace {
 
-void PrintPlan(const shadow::SweepPlanSummary& s, const std::filesystem::path& jobs_dir) {
+void PrintPlan(const studies::SweepPlanSummary& s, const std::filesystem::path& jobs_dir) {
   std::printf("study %s: %d job%s (%d geometry group%s) in %s\n", s.study.c_str(), s.jobs,
               s.jobs == 1 ? "" : "s", s.geometry_groups, s.geometry_groups == 1 ? "" : "s",
               jobs_dir.string().c_str());
@@ -68,21 +68,21 @@ int RunSweep(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     return ExitOnParseError(app, e);
   }
-  shadow::SweepRunOptions options;
-  if (plan->parsed()) PrintPlan(shadow::PlanSweep(study, out), out);
+  studies::SweepRunOptions options;
+  if (plan->parsed()) PrintPlan(studies::PlanSweep(study, out), out);
   if (run->parsed() || whole->parsed()) {
-    shadow::ParseShard(shard, "--shard", &options);
+    studies::ParseShard(shard, "--shard", &options);
     options.verbose = verbose;
     std::string source;
     const int budget = ResolveThreadBudget(threads, &source);
     if (budget > 0) SetThreadBudget(budget);
     std::printf("threads: %d (%s)\n", ThreadBudget(), source.c_str());
   }
-  shadow::SweepRunSummary ran;
-  shadow::SweepMergeSummary merged;
+  studies::SweepRunSummary ran;
+  studies::SweepMergeSummary merged;
   if (whole->parsed()) {
-    const shadow::SweepStudySummary s =
-        shadow::RunStudy(study, out, options, [](const shadow::SweepStudySummary& p) {
+    const studies::SweepStudySummary s =
+        studies::RunStudy(study, out, options, [](const studies::SweepStudySummary& p) {
           if (p.resumed) {
             std::printf("resuming %s\n", p.jobs_dir.string().c_str());
           } else {
@@ -93,14 +93,14 @@ int RunSweep(int argc, char** argv) {
     ran = s.run;
     merged = s.merge;
   }
-  if (run->parsed()) ran = shadow::RunSweepShard(jobs, options);
+  if (run->parsed()) ran = studies::RunSweepShard(jobs, options);
   if (run->parsed() || whole->parsed()) {
     std::printf("shard %d/%d: %s\n", options.shard_index, options.shard_count,
                 ran.BriefReport().c_str());
   }
-  if (merge->parsed()) merged = shadow::MergeSweep(jobs, out);
+  if (merge->parsed()) merged = studies::MergeSweep(jobs, out);
   if (merge->parsed() || whole->parsed()) {
-    const shadow::SweepMergeSummary& s = merged;
+    const studies::SweepMergeSummary& s = merged;
     std::printf("%d jobs merged: %d rows in %s/results.csv (+ results.json, timings.csv)\n", s.jobs,
                 s.rows, out.c_str());
     std::printf(

@@ -11,6 +11,7 @@
 #include "core/error.h"
 #include "core/huge_pages.h"
 #include "reconstruct/strict_policy.h"
+#include "report/html_report.h"
 
 #ifndef SLSHADOW_VERSION
 #define SLSHADOW_VERSION "unknown"
@@ -108,6 +109,23 @@ void AddStrictOptions(CLI::App* app, StrictOptions* strict) {
                   "points, 0..1 (stereo: of the mean over both cameras)")
       ->check(CLI::Range(0.0, 1.0))
       ->capture_default_str();
+}
+
+void AddHtmlOptions(CLI::App* app, bool* no_html, report::HtmlOptions* html) {
+  app->add_flag("--no-html", *no_html,
+                "do not write report.html (the self-contained page of the result; slshadow report "
+                "DIR writes it later)");
+  app->add_option("--html-max-points", html->max_points,
+                  "points drawn in report.html's 3D view (a fixed-seed uniform sample; the figures "
+                  "use every point)")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+}
+
+std::string CommandLine(int argc, char** argv) {
+  std::string line;
+  for (int i = 0; i < argc; ++i) line += (i ? " " : "") + std::string(argv[i]);
+  return line;
 }
 
 int ExitOnParseError(const CLI::App& app, const CLI::ParseError& error) {

@@ -14,6 +14,9 @@ class ParseError;
 namespace slshadow {
 struct StrictOptions;
 }  // namespace slshadow
+namespace slshadow::report {
+struct HtmlOptions;
+}  // namespace slshadow::report
 
 namespace slshadow::app {
 
@@ -38,6 +41,14 @@ int ExitOnParseError(const CLI::App& app, const CLI::ParseError& error);
 // `--strict` and `--strict-min-points` (reconstruct/strict_policy.h), with the help text that says
 // what strict mode refuses; shared by the commands that reconstruct a capture.
 void AddStrictOptions(CLI::App* app, StrictOptions* strict);
+
+// `--no-html` (sets *no_html) and `--html-max-points` (report/html_report.h), with their help text;
+// shared by the commands that write a report.html.
+void AddHtmlOptions(CLI::App* app, bool* no_html, report::HtmlOptions* html);
+
+// The command line as one string, the words of argv joined by single spaces ("slshadow capture
+// --rig rig.yaml ..."), as the outputs' provenance records it.
+std::string CommandLine(int argc, char** argv);
 
 // Subcommands.
 int RunRig(int argc, char** argv);

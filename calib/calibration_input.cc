@@ -7,6 +7,7 @@
 #include "core/config.h"
 #include "core/error.h"
 #include "core/image_set.h"
+#include "core/progress.h"
 #include "patterns/pattern_spec.h"
 
 namespace slshadow {
@@ -43,6 +44,7 @@ void AddBoardViews(const TargetSpec& spec, const std::vector<fs::path>& files, i
                    CalibrationInput* input, std::vector<ImageCheck>* checks) {
   const auto board = BoardPoints(spec);
   auto& dev = input->devices[static_cast<size_t>(device)];
+  Progress progress("detect", static_cast<int64_t>(files.size()), false);
   for (size_t p = 0; p < files.size(); ++p) {
     const TargetDetection det = DetectTargetInFile(spec, files[p]);
     if (dev.width == 0) {
@@ -54,6 +56,7 @@ void AddBoardViews(const TargetSpec& spec, const std::vector<fs::path>& files, i
                       dev.name, "' is ", dev.width, "x", dev.height,
                       " (mismatched image sizes: one camera per list)");
     checks->push_back({files[p].string(), device, det.found, det.reason, det.saturated_fraction});
+    progress.Advance();
     if (!det.found) continue;
     BoardView v;
     v.device = device;
@@ -65,6 +68,32 @@ void AddBoardViews(const TargetSpec& spec, const std::vector<fs::path>& files, i
     }
     input->views.push_back(std::move(v));
   }
+}
+
+CalibrationInput CameraInputFromImages(const TargetSpec& spec, const std::vector<fs::path>& files,
+                                       const std::string& camera_name,
+                                       std::vector<ImageCheck>* checks) {
+  CalibrationInput input;
+  input.devices = {CalibrationDevice::Camera(camera_name)};
+  input.num_poses = static_cast<int>(files.size());
+  AddBoardViews(spec, files, 0, &input, checks);
+  return input;
+}
+
+CalibrationInput StereoInputFromImages(const TargetSpec& spec, const std::vector<fs::path>& left,
+                                       const std::vector<fs::path>& right,
+                                       const std::string& left_name, const std::string& right_name,
+                                       std::vector<ImageCheck>* checks) {
+  SLSHADOW_THROW_IF(left.size() != right.size(), "stereo: ", left.size(), " left images but ",
+                    right.size(), " right images; give the same poses in the same (name) order");
+  SLSHADOW_THROW_IF(left_name == right_name,
+                    "stereo: --left-name and --right-name must differ (got '", left_name, "')");
+  CalibrationInput input;
+  input.devices = {CalibrationDevice::Camera(left_name), CalibrationDevice::Camera(right_name)};
+  input.num_poses = static_cast<int>(left.size());
+  AddBoardViews(spec, left, 0, &input, checks);
+  AddBoardViews(spec, right, 1, &input, checks);
+  return input;
 }
 
 namespace {
@@ -86,6 +115,7 @@ void AddProcamCaptures(const PatternSpec& patterns, const std::string& patterns_
   options.Check();
   SLSHADOW_THROW_IF(labels.size() != captures.size(), "AddProcamCaptures: ", labels.size(),
                     " labels for ", captures.size(), " captures");
+  Progress progress("decode", static_cast<int64_t>(captures.size()), false);
   for (size_t p = 0; p < captures.size(); ++p) {
     const auto& files = captures[p];
     SLSHADOW_THROW_IF(static_cast<int>(files.size()) != patterns.NumImages(), labels[p], ": ",
@@ -103,7 +133,29 @@ void AddProcamCaptures(const PatternSpec& patterns, const std::string& patterns_
                        pose.detection.saturated_fraction});
     for (const auto& s : pose.projector.skipped) skipped->push_back(labels[p] + ": skipped " + s);
     AddProcamPose(pose, input);
+    progress.Advance();
   }
+}
+
+CalibrationInput ProcamInputFromCaptures(
+    const PatternSpec& patterns, const std::string& patterns_path, const TargetSpec& spec,
+    const std::vector<std::string>& capture_dirs, const std::string& camera_name,
+    const CameraModel* known_camera, const ProcamInputOptions& options,
+    std::vector<ImageCheck>* checks, std::vector<std::string>* skipped) {
+  CalibrationInput input;
+  input.devices = {CalibrationDevice::Camera(camera_name),
+                   CalibrationDevice::Projector("projector", patterns.projector_width,
+                                                patterns.projector_height)};
+  if (known_camera) {
+    input.devices[0].initial = *known_camera;
+    input.devices[0].hold_intrinsics = true;
+  }
+  input.num_poses = static_cast<int>(capture_dirs.size());
+  std::vector<std::vector<fs::path>> files;
+  for (const auto& capture : capture_dirs) files.push_back(ImageFiles({capture}, "--captures"));
+  AddProcamCaptures(patterns, patterns_path, spec, files, capture_dirs, options, &input, checks,
+                    skipped);
+  return input;
 }
 
 CalibrationInput ProcamInputFromImageSets(const std::vector<std::string>& imagesets,
@@ -114,6 +166,7 @@ CalibrationInput ProcamInputFromImageSets(const std::vector<std::string>& images
   input.num_poses = static_cast<int>(imagesets.size());
   std::vector<std::string> names;
   int projector_device = -1;
+  Progress progress("decode", static_cast<int64_t>(imagesets.size()), false);  // per ImageSet
   for (size_t p = 0; p < imagesets.size(); ++p) {
     const ImageSet set = ImageSet::Open(imagesets[p]);
     const PatternSpec patterns = PatternSpecFromConfig(ConfigNode::FromJson(
@@ -140,6 +193,7 @@ CalibrationInput ProcamInputFromImageSets(const std::vector<std::string>& images
                          pose.detection.saturated_fraction});
       AddProcamPose(pose, &input);
     }
+    progress.Advance();
   }
   return input;
 }

@@ -6,6 +6,8 @@
 // Device and pose numbering: devices in the order they are added (device 0 defines the rig
 // frame); pose p is the p-th file, capture folder or ImageSet of the list. Every image is checked
 // (ImageCheck, one per image: board found or why not, saturation) for ReviewCalibration.
+// Progress (core/progress.h, seen by an observer only): "detect" per image file, "decode" per
+// capture folder or ImageSet.
 #pragma once
 
 #include <filesystem>
@@ -33,6 +35,21 @@ std::vector<std::filesystem::path> ImageFiles(const std::vector<std::string>& ar
 void AddBoardViews(const TargetSpec& spec, const std::vector<std::filesystem::path>& files,
                    int device, CalibrationInput* input, std::vector<ImageCheck>* checks);
 
+// One input per command of `slshadow calibrate`, from the image files its options name.
+//
+// camera: one camera `camera_name` from the board in `files` (pose p = files[p]).
+CalibrationInput CameraInputFromImages(const TargetSpec& spec,
+                                       const std::vector<std::filesystem::path>& files,
+                                       const std::string& camera_name,
+                                       std::vector<ImageCheck>* checks);
+// stereo: two cameras, `left` defining the rig frame, from image pairs (pose p = left[p] and
+// right[p]). Throws slshadow::Error when the lists differ in length or the names are equal.
+CalibrationInput StereoInputFromImages(const TargetSpec& spec,
+                                       const std::vector<std::filesystem::path>& left,
+                                       const std::vector<std::filesystem::path>& right,
+                                       const std::string& left_name, const std::string& right_name,
+                                       std::vector<ImageCheck>* checks);
+
 // Decoding and corner-carrying settings of the camera-projector inputs below.
 struct ProcamInputOptions {
   DecodeOptions decode;
@@ -55,6 +72,16 @@ void AddProcamCaptures(const PatternSpec& patterns, const std::string& patterns_
                        const std::vector<std::string>& labels, const ProcamInputOptions& options,
                        CalibrationInput* input, std::vector<ImageCheck>* checks,
                        std::vector<std::string>* skipped);
+
+// projector: a camera `camera_name` and a projector "projector" sized by `patterns`, from one
+// folder (or file list, ImageFiles) per board pose in `capture_dirs` (pose p, labelled by its
+// argument), as AddProcamCaptures reads them. With `known_camera` the camera's intrinsics are
+// held at it (calibrate a projector against a calibrated camera), else estimated jointly.
+CalibrationInput ProcamInputFromCaptures(
+    const PatternSpec& patterns, const std::string& patterns_path, const TargetSpec& spec,
+    const std::vector<std::string>& capture_dirs, const std::string& camera_name,
+    const CameraModel* known_camera, const ProcamInputOptions& options,
+    std::vector<ImageCheck>* checks, std::vector<std::string>* skipped);
 
 // Every camera of the ImageSets and the projector, one ImageSet per board pose (each with its rig
 // and pattern spec in its manifest): devices are the first ImageSet's cameras in its order, then

@@ -88,6 +88,11 @@ void LocalFitAtCorner(const Eigen::Matrix3d& h, const Eigen::Vector2d& c,
 
 }  // namespace
 
+void LocalHomographyOptions::SetHalfWindow(int n) {
+  half_window_px = n;
+  min_valid_pixels = std::min(100, n * n);
+}
+
 void LocalHomographyOptions::Check() const {
   SLSHADOW_THROW_IF(half_window_px < 2 || half_window_px > 200,
                     "local homography: half_window_px: must be in 2..200 (got ", half_window_px,

@@ -37,6 +37,9 @@ struct LocalHomographyOptions {
   int min_valid_pixels = 100;        // fewer decoded pixels in the window: corner skipped
   double inlier_threshold_px = 1.5;  // projector px; pairs farther from the fit are dropped, refit
   double max_fit_rms_px = 0.8;  // projector px; a corner whose inlier RMS exceeds this is skipped
+  // Sets half_window_px = n and min_valid_pixels = min(100, n^2), so a small window (below 10 px)
+  // asks for no more decoded pixels than it can hold (`calibrate projector|rig --window`).
+  void SetHalfWindow(int n);
   // Throws slshadow::Error naming the first violated constraint.
   void Check() const;
 };

@@ -3,6 +3,7 @@
 #include "capture/aravis_camera.h"
 #include "capture/lightcrafter_projector.h"
 #include "capture/none_projector.h"
+#include "capture/pattern_sequence_capture.h"
 #include "capture/replay_camera.h"
 #include "capture/v4l2_camera.h"
 #include "capture/window_projector.h"
@@ -132,6 +133,34 @@ OpenedDevices OpenDevices(const DevicesConfig& devices, const Rig& rig) {
   }
   opened.settle = std::chrono::microseconds(devices.projector.settle_us);
   return opened;
+}
+
+OpenedDevices OpenDevicesFile(const std::filesystem::path& devices_file, const Rig& rig,
+                              const std::function<void(DevicesConfig&)>& adjust) {
+  DevicesConfig devices = LoadDevices(devices_file);
+  if (adjust) adjust(devices);
+  OpenedDevices opened = OpenDevices(devices, rig);
+  opened.config = std::move(devices);
+  return opened;
+}
+
+CaptureSummary CaptureImageSet(const Rig& rig, const PatternSpec& spec,
+                               const std::vector<CaptureCamera>& cameras, Projector* projector,
+                               SequenceProjector* sequence_projector,
+                               const std::filesystem::path& out, const SequencerOptions& options) {
+  SLSHADOW_THROW_IF((projector == nullptr) == (sequence_projector == nullptr),
+                    "capture: exactly one projector is needed (shown pattern by pattern, or "
+                    "running the sequence itself)");
+  if (sequence_projector)
+    return CapturePatternSequence(rig, spec, cameras, *sequence_projector, out, options);
+  return Capture(rig, spec, cameras, *projector, out, options);
+}
+
+CaptureSummary CaptureImageSet(const Rig& rig, const PatternSpec& spec,
+                               const OpenedDevices& devices, const std::filesystem::path& out,
+                               const SequencerOptions& options) {
+  return CaptureImageSet(rig, spec, devices.cameras, devices.projector.get(),
+                         devices.sequence_projector.get(), out, options);
 }
 
 }  // namespace slshadow::capture

@@ -3,6 +3,8 @@
 #pragma once
 
 #include <chrono>
+#include <filesystem>
+#include <functional>
 #include <memory>
 #include <vector>
 
@@ -31,6 +33,7 @@ std::vector<std::string> BuiltInProjectorBackends();
 // Everything a capture needs from a devices file: the cameras of the rig that have an entry (rig
 // order), opened, with their settings and timeouts, and the projector. Owns the devices.
 struct OpenedDevices {
+  DevicesConfig config;  // the devices file as read (OpenDevicesFile; empty after OpenDevices)
   std::vector<std::unique_ptr<Camera>> owned;
   std::vector<CaptureCamera> cameras;                     // point into `owned`
   std::unique_ptr<Projector> projector;                   // null when sequence_projector is set
@@ -39,5 +42,23 @@ struct OpenedDevices {
 };
 // Checks the entries against the rig (DevicesConfig::CheckAgainst) and opens every device.
 OpenedDevices OpenDevices(const DevicesConfig& devices, const Rig& rig);
+// What `slshadow capture` and `slshadow scan` do with their --devices file: LoadDevices, then
+// `adjust` (when set) may change or check the entries before any device is opened (a throw leaves
+// every device closed), then OpenDevices. The result keeps the entries as adjusted in `config`.
+OpenedDevices OpenDevicesFile(const std::filesystem::path& devices_file, const Rig& rig,
+                              const std::function<void(DevicesConfig&)>& adjust = {});
+
+// Captures `spec` into the ImageSet `out` with the sequencer the projector calls for:
+// CapturePatternSequence when `sequence_projector` is set (a projector that runs the sequence
+// itself and triggers the cameras, a LightCrafter in pattern-sequence mode), else Capture with
+// `projector`. Exactly one of the two must be set (else slshadow::Error). Throws like those.
+CaptureSummary CaptureImageSet(const Rig& rig, const PatternSpec& spec,
+                               const std::vector<CaptureCamera>& cameras, Projector* projector,
+                               SequenceProjector* sequence_projector,
+                               const std::filesystem::path& out, const SequencerOptions& options);
+// The same with the devices OpenDevices opened.
+CaptureSummary CaptureImageSet(const Rig& rig, const PatternSpec& spec,
+                               const OpenedDevices& devices, const std::filesystem::path& out,
+                               const SequencerOptions& options);
 
 }  // namespace slshadow::capture

@@ -62,6 +62,7 @@ class PatternSequenceCapture {
         cameras_(cameras) {
     options_.Check();
     spec_.Check();
+    CheckProjectorSize(rig, spec, "pattern spec", "rig '" + rig.name + "'");
     SLSHADOW_THROW_IF(options_.auto_exposure,
                       "capture: auto exposure is not available when the projector runs the ",
                       "pattern sequence itself; set exposure_us per camera");

@@ -8,13 +8,25 @@
 
 namespace slshadow {
 
-Progress::Progress(std::string task, int64_t total)
+namespace {
+thread_local std::shared_ptr<const ProgressObserver> thread_observer;
+}  // namespace
+
+ScopedProgressObserver::ScopedProgressObserver(ProgressObserver observer)
+    : previous_(std::move(thread_observer)) {
+  thread_observer = std::make_shared<const ProgressObserver>(std::move(observer));
+}
+
+ScopedProgressObserver::~ScopedProgressObserver() { thread_observer = std::move(previous_); }
+
+Progress::Progress(std::string task, int64_t total, bool print)
     : task_(std::move(task)),
       total_(total),
       start_(std::chrono::steady_clock::now()),
-      last_print_(start_) {
+      last_print_(start_),
+      observer_(thread_observer) {
   const char* env = std::getenv("SLSHADOW_PROGRESS");
-  enabled_ = env ? std::strcmp(env, "0") != 0 : ::isatty(STDERR_FILENO) == 1;
+  enabled_ = print && (env ? std::strcmp(env, "0") != 0 : ::isatty(STDERR_FILENO) == 1);
 }
 
 Progress::~Progress() {
@@ -27,6 +39,14 @@ double Progress::ElapsedSeconds() const {
 
 void Progress::Advance(int64_t steps) {
   const int64_t done = done_ += steps;
+  if (observer_) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    const int64_t latest = done_.load();
+    if (latest > observed_) {
+      observed_ = latest;
+      (*observer_)(task_, latest, total_);
+    }
+  }
   if (!enabled_) return;
   const auto now = std::chrono::steady_clock::now();
   std::lock_guard<std::mutex> lock(mutex_);

@@ -170,7 +170,8 @@ PatternSpec LoadPatternSpec(const std::filesystem::path& yaml_or_json);
 // "patterns.yaml: the pattern spec codes a 1920x1080 projector, but the rig's projector
 // 'projector' is 1280x800 px (rig.yaml): a spec or a rig of another projector?". `spec_what`
 // and `rig_what` name the sources (files). A rig without projector passes (stereo rigs). Called
-// by capture::Capture, CapturePatternSequence, SimulateScan and ReconstructFromImages.
+// by capture::Capture and CapturePatternSequence, the multi-view scan and virtual project, and
+// `slshadow simulate` (SimulateScan takes projector images and checks their size itself).
 void CheckProjectorSize(const Rig& rig, const PatternSpec& spec, const std::string& spec_what,
                         const std::string& rig_what);
 

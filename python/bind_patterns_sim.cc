@@ -67,7 +67,9 @@ py::dict GroundTruthDict(const GeometryBuffer& g) {
 
 DecodeOptions DecodeOptionsFromKwargs(const py::kwargs& kwargs, const std::string& what) {
   if (kwargs.empty()) return DecodeOptions{};
-  return DecodeOptionsFromConfig(ConfigNode::FromJson(ToJson(kwargs, what), what));
+  const nlohmann::json tree = ToJson(kwargs, what);
+  return WithoutSource(what,
+                       [&] { return DecodeOptionsFromConfig(ConfigNode::FromJson(tree, what)); });
 }
 
 }  // namespace
@@ -284,16 +286,14 @@ void BindPatternsAndSim(py::module_& m) {
         const ProgressCallback report(std::move(progress));
         {
           py::gil_scoped_release release;
+          const ForwardLibraryProgress forward(report);
           scene->Check("scene '" + scene->name + "'");
           rig.Check("rig '" + rig.name + "'");
           const std::vector<cv::Mat> projector_images = GeneratePatterns(scan->spec);
-          report("trace", 0, 2);
           Simulator simulator(*scene, scan->rig, mode, ground_truth);
           scan->summary = simulator.setup();
-          report("render", 1, 2);
           scan->images = simulator.Render(projector_images, nullptr, &scan->summary);
           if (ground_truth) scan->geometry = simulator.ReleaseGeometry();
-          report("done", 2, 2);
         }
         return scan;
       },
@@ -302,7 +302,8 @@ void BindPatternsAndSim(py::module_& m) {
       py::arg("progress") = py::none(),
       "Virtual scan in memory: every camera of `rig` sees every projector image of `patterns` on "
       "`scene` (the images `slshadow simulate` writes). Returns a Scan. progress(stage, done, "
-      "total) is called at the stages trace, render, done.");
+      "total) is called per camera traced (stage 'trace') and per image rendered ('render'). "
+      "The GIL is released while it runs.");
 }
 
 }  // namespace slshadow::python

@@ -37,7 +37,7 @@ std::string Join(const std::set<std::string>& names) {
 // Keyword arguments -> ImageSetReconstructOptions: the ReconstructOptions fields through
 // ReconstructOptionsFromConfig, the DecodeOptions fields through DecodeOptionsFromConfig (their
 // names, types and checks), mode and cameras as on the command line, then the whole Check(). A
-// message is the command line's for the same value, after "<call>: ". mode "auto" (the
+// message is the command line's for the same value (WithoutSource). mode "auto" (the
 // default): DefaultReconstructMode(rig); without a rig, mode and cameras are refused.
 ImageSetReconstructOptions ReconstructOptionsFromKwargs(const py::kwargs& kwargs, const Rig* rig,
                                                         const std::string& call) {
@@ -83,18 +83,16 @@ ImageSetReconstructOptions ReconstructOptionsFromKwargs(const py::kwargs& kwargs
     }
   }
   if (!reconstruct_tree.empty())
-    options.reconstruct =
-        ReconstructOptionsFromConfig(ConfigNode::FromJson(reconstruct_tree, call));
+    options.reconstruct = WithoutSource(call, [&] {
+      return ReconstructOptionsFromConfig(ConfigNode::FromJson(reconstruct_tree, call));
+    });
   if (!decode_tree.empty())
-    options.decode = DecodeOptionsFromConfig(ConfigNode::FromJson(decode_tree, call));
-  try {
-    if (rig)
-      options.mode =
-          mode == "auto" ? DefaultReconstructMode(*rig) : ReconstructModeFromString(mode);
-    options.Check();
-  } catch (const Error& e) {
-    SLSHADOW_THROW(call, ": ", e.what());
-  }
+    options.decode = WithoutSource(
+        call, [&] { return DecodeOptionsFromConfig(ConfigNode::FromJson(decode_tree, call)); });
+  // The checks are the command line's code: their messages are its messages, as they are.
+  if (rig)
+    options.mode = mode == "auto" ? DefaultReconstructMode(*rig) : ReconstructModeFromString(mode);
+  options.Check();
   return options;
 }
 
@@ -153,8 +151,10 @@ compare::CompareOptions CompareOptionsFromKwargs(const py::kwargs& kwargs) {
       tree[name] = ToJson(value, "compare: " + name);
     }
   }
-  // A message is the command line's for the same value, after "compare: ".
-  return compare::CompareOptionsFromConfig(ConfigNode::FromJson(tree, "compare"));
+  // A message is the command line's for the same value.
+  return WithoutSource("compare", [&] {
+    return compare::CompareOptionsFromConfig(ConfigNode::FromJson(tree, "compare"));
+  });
 }
 
 struct PyComparison {
@@ -259,10 +259,9 @@ void BindReconstructAndCompare(py::module_& m) {
           out.imageset = image_set.dir().string();
           out.options = ReconstructOptionsFromKwargs(kwargs, &out.rig, "reconstruct");
           py::gil_scoped_release release;
-          report("reconstruct", 0, 1);
+          const ForwardLibraryProgress forward(report);
           out.rec = std::make_shared<ImageSetReconstruction>(
               ReconstructImageSet(image_set, out.options, out.rig));
-          report("done", 1, 1);
           return out;
         }
         std::map<std::string, std::vector<cv::Mat>> images;
@@ -299,10 +298,9 @@ void BindReconstructAndCompare(py::module_& m) {
         }
         out.options = ReconstructOptionsFromKwargs(kwargs, &out.rig, "reconstruct");
         py::gil_scoped_release release;
-        report("reconstruct", 0, 1);
+        const ForwardLibraryProgress forward(report);
         out.rec = std::make_shared<ImageSetReconstruction>(
             ReconstructFromImages(out.rig, spec, images, out.options));
-        report("done", 1, 1);
         return out;
       },
       py::arg("source"), py::arg("patterns") = py::none(), py::kw_only(),
@@ -316,7 +314,8 @@ void BindReconstructAndCompare(py::module_& m) {
       "max_depth_jump_footprints, discontinuity_dilation_px, filter_outliers, outlier_std_ratio, "
       "estimate_normals, calibration_warning_px, ...) and of DecodeOptions (shadow_threshold, "
       "contrast_threshold, ...). The GIL is released while it runs; progress(stage, done, total) "
-      "is called at the stages reconstruct and done.");
+      "is called per camera decoded and per camera (stereo: pair) triangulated, as stage "
+      "'reconstruct' with done counting up to total.");
 
   py::class_<compare::Reference, std::shared_ptr<compare::Reference>>(
       m, "Reference",
@@ -394,6 +393,7 @@ void BindReconstructAndCompare(py::module_& m) {
         const ProgressCallback callback(progress);
         PyComparison out_result;
         py::gil_scoped_release release;
+        const ForwardLibraryProgress forward(callback);
         callback("compare", 0, 1);
         out_result.result = std::make_shared<compare::CompareResult>(
             out ? compare::CompareAndReport(*cloud, *reference, options, *out, report, source)
@@ -410,7 +410,8 @@ void BindReconstructAndCompare(py::module_& m) {
       "also writes the report folder. Keyword options: the fields of CompareOptions "
       "(threshold_mm, color_range_mm, coverage_radius_mm, histogram_bins, m3c2, registration "
       "('none' | 'icp' | 'global+icp', or a dict), c2c (dict), m3c2_options (dict), ...). The GIL "
-      "is released while it runs.");
+      "is released while it runs; progress(stage, done, total) is called as ('compare', 0, 1) "
+      "and ('done', 1, 1).");
 }
 
 }  // namespace slshadow::python

@@ -1,5 +1,5 @@
-// The workflows in Python: shadow (`slshadow shadow`), calibrate_camera (`slshadow calibrate
-// camera`) and _sweep (`slshadow sweep study`), the library calls behind those commands.
+// The workflows in Python: shadow (`slshadow shadow`) and _sweep (`slshadow sweep study`), the
+// library calls behind those commands (calibration: bind_calibrate.cc).
 #include <atomic>
 #include <chrono>
 #include <filesystem>
@@ -7,15 +7,12 @@
 
 #include <unistd.h>
 
-#include "calib/calibration_input.h"
-#include "calib/target.h"
 #include "core/error.h"
 #include "core/image_io.h"
 #include "python/bindings.h"
 #include "python/convert.h"
-#include "shadow/calibrate.h"
-#include "shadow/sweep.h"
-#include "shadow/twin.h"
+#include "workflows/studies/sweep.h"
+#include "workflows/twin/twin.h"
 
 namespace slshadow::python {
 
@@ -89,7 +86,7 @@ void BindShadow(py::module_& m) {
         } else {
           image_set_dir = py::str(py::module_::import("os").attr("fspath")(real));
         }
-        shadow::ShadowOptions options;
+        twin::ShadowOptions options;
         const ImageSetReconstructOptions r =
             ReconstructOptionsFromKwargs(kwargs, nullptr, "shadow");
         options.reconstruct = r.reconstruct;
@@ -104,11 +101,7 @@ void BindShadow(py::module_& m) {
         options.max_rmse_mm = max_rmse_mm;
         options.write_clouds = write_clouds;
         options.overwrite = overwrite;
-        try {
-          options.Check();
-        } catch (const Error& e) {
-          SLSHADOW_THROW("shadow: ", e.what());
-        }
+        options.Check();  // its messages are the command line's ("shadow: min_fitness ...")
         // Without out=, the report folder is written to a temporary folder for its maps, then
         // removed.
         static std::atomic<int> counter{0};
@@ -119,13 +112,14 @@ void BindShadow(py::module_& m) {
                        std::to_string(counter++) + "-" +
                        std::to_string(std::chrono::steady_clock::now().time_since_epoch().count()));
         const ProgressCallback report(progress);
-        shadow::ShadowResult result;
+        twin::ShadowResult result;
         {
           py::gil_scoped_release release;
+          const ForwardLibraryProgress forward(report);
           report("shadow", 0, 1);
           try {
-            const shadow::ShadowPart part = shadow::LoadShadowPart(part_path);
-            result = shadow::RunShadow(image_set_dir, part, options, dir, rig ? &*rig : nullptr);
+            const twin::ShadowPart part = twin::LoadShadowPart(part_path);
+            result = twin::RunShadow(image_set_dir, part, options, dir, rig ? &*rig : nullptr);
           } catch (...) {
             std::error_code ec;
             if (!out) fs::remove_all(dir, ec);
@@ -159,81 +153,9 @@ void BindShadow(py::module_& m) {
       "a 4x4 matrix; refine_pose=False keeps it (--fixed-pose). Keyword options: the fields of "
       "ReconstructOptions and DecodeOptions. Returns a dict: report (report.json), summary, "
       "rig_from_part (4x4), maps {camera: {name: RGB array}}. With out= the report folder is kept "
-      "there. The GIL is released while it runs.");
-}
-
-void BindCalibrate(py::module_& m) {
-  m.def(
-      "calibrate_camera",
-      [](const py::object& images, const std::filesystem::path& target,
-         const std::filesystem::path& out, const std::string& camera,
-         const std::optional<std::filesystem::path>& report_dir,
-         const std::optional<std::filesystem::path>& opencv_out, const std::string& name,
-         bool fix_aspect, bool fix_principal_point, bool zero_tangential, bool fix_k3,
-         const std::string& loss, double loss_scale_px, bool board_warp, bool cross_validate,
-         int min_views, const py::object& progress) {
-        std::vector<std::string> args;
-        if (py::isinstance<py::str>(images) || py::hasattr(images, "__fspath__")) {
-          args.push_back(py::str(py::module_::import("os").attr("fspath")(images)));
-        } else {
-          for (const py::handle item : images)
-            args.push_back(py::str(py::module_::import("os").attr("fspath")(item)));
-        }
-        // What `slshadow calibrate camera` does with the same options (apps/cmd_calibrate.cc).
-        shadow::CalibrateWriteOptions o;
-        o.solve.fix_aspect_ratio = fix_aspect;
-        o.solve.fix_principal_point = fix_principal_point;
-        o.solve.zero_tangential = zero_tangential;
-        o.solve.fix_k3 = fix_k3;
-        o.solve.loss = LossTypeFromString(loss);
-        o.solve.loss_scale_px = loss_scale_px;
-        o.solve.estimate_board_warp = board_warp;
-        o.solve.Check();
-        o.cross_validate = cross_validate;
-        o.min_views = min_views;
-        o.rig_name = name;
-        o.rig_out = out;
-        o.report_dir =
-            report_dir ? *report_dir : out.parent_path() / (out.stem().string() + "_report");
-        if (opencv_out) o.opencv_out = *opencv_out;
-        const ProgressCallback report(progress);
-        std::string log;
-        {
-          py::gil_scoped_release release;
-          report("detect", 0, 2);
-          const TargetSpec spec = LoadTargetSpec(target);
-          const std::vector<std::filesystem::path> files = ImageFiles(args, "images");
-          CalibrationInput input;
-          input.devices = {CalibrationDevice::Camera(camera)};
-          input.num_poses = static_cast<int>(files.size());
-          std::vector<ImageCheck> checks;
-          AddBoardViews(spec, files, 0, &input, &checks);
-          log += shadow::DescribeBoardDetections(checks);
-          report("calibrate", 1, 2);
-          nlohmann::json extra;
-          extra["command"] = "slshadow.calibrate_camera (Python)";
-          extra["target"] = target.string();
-          shadow::CalibrateAndWrite(std::move(input), checks, o, extra,
-                                    [&log](const std::string& text) { log += text; });
-          report("done", 2, 2);
-        }
-        py::dict d;
-        d["rig"] = LoadRig(out);
-        d["log"] = log;
-        d["report_dir"] = o.report_dir.string();
-        return d;
-      },
-      py::arg("images"), py::arg("target"), py::arg("out"), py::kw_only(),
-      py::arg("camera") = "camera", py::arg("report") = py::none(),
-      py::arg("opencv_out") = py::none(), py::arg("name") = "calibrated",
-      py::arg("fix_aspect") = false, py::arg("fix_principal_point") = false,
-      py::arg("zero_tangential") = false, py::arg("fix_k3") = false, py::arg("loss") = "none",
-      py::arg("loss_scale_px") = 1.0, py::arg("board_warp") = false,
-      py::arg("cross_validate") = true, py::arg("min_views") = 10, py::arg("progress") = py::none(),
-      "`slshadow calibrate camera`: detects the target (a target file, docs/formats.md) in the "
-      "board images (a folder or a list of files), calibrates one camera and writes the rig "
-      "(out), its report folder and optionally an OpenCV file. Returns a dict: rig (the written "
-      "Rig), log (what the command prints), report_dir.");
+      "there. The GIL is released while it runs; progress(stage, done, total): ('shadow', 0, 1), "
+      "then the reconstructions' and renderings' own steps (each run of a stage counts up), then "
+      "('done', 1, 1).");
 }
 
 void BindSweep(py::module_& m) {
@@ -241,17 +163,18 @@ void BindSweep(py::module_& m) {
       "_sweep",
       [](const std::filesystem::path& study, const std::filesystem::path& out,
          const std::string& shard, bool verbose, const py::object& progress) {
-        shadow::SweepRunOptions options;
-        shadow::ParseShard(shard, "shard", &options);
+        studies::SweepRunOptions options;
+        studies::ParseShard(shard, "shard", &options);
         options.verbose = verbose;
         const ProgressCallback report(progress);
-        shadow::SweepStudySummary s;
+        studies::SweepStudySummary s;
         {
           py::gil_scoped_release release;
-          report("plan", 0, 3);
-          s = shadow::RunStudy(study, out, options,
-                               [&](const shadow::SweepStudySummary&) { report("run", 1, 3); });
-          report("done", 3, 3);
+          const ForwardLibraryProgress forward(report, "jobs");  // per job (run or found done)
+          report("plan", 0, 1);
+          s = studies::RunStudy(study, out, options,
+                               [&](const studies::SweepStudySummary&) { report("plan", 1, 1); });
+          report("done", 1, 1);
         }
         py::dict plan, run, merge;
         plan["study"] = s.plan.study;

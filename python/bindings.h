@@ -27,12 +27,12 @@ void BindReconstructAndCompare(py::module_& m);
 // shadow (real vs virtual); _sweep (a study planned, run and merged; slshadow.sweep adds tables).
 void BindShadow(py::module_& m);
 void BindSweep(py::module_& m);
-// calibrate_camera (board images -> rig file and report).
+// calibrate_camera | stereo | projector | rig | corners, detect_target (bind_calibrate.cc).
 void BindCalibrate(py::module_& m);
 
 // Keyword arguments -> reconstruction options: the ReconstructOptions and DecodeOptions fields
 // through their config readers, mode and cameras (only with a rig; mode "auto":
-// DefaultReconstructMode), then Check(). Messages: "<call>: " + the command line's.
+// DefaultReconstructMode), then Check(). Messages: the command line's, word for word.
 ImageSetReconstructOptions ReconstructOptionsFromKwargs(const py::kwargs& kwargs, const Rig* rig,
                                                         const std::string& call);
 

@@ -8,6 +8,7 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -20,6 +21,8 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 
+#include "core/error.h"
+#include "core/progress.h"
 #include "core/rigid3.h"
 
 namespace slshadow::python {
@@ -69,6 +72,22 @@ py::array ViewArray(const Scalar* data, size_t n, size_t cols, const py::handle&
   return out;
 }
 
+// Runs f() (a config reader given `source` as its file name); an slshadow::Error whose message
+// starts with "<source>: " is rethrown without it, so that a keyword option's message is the
+// command line's for the same value, word for word (the checks are the same code). Messages of
+// Python-only mistakes (an unknown keyword, a value of the wrong Python type) keep the call's name.
+template <typename F>
+auto WithoutSource(const std::string& source, F&& f) -> decltype(f()) {
+  try {
+    return f();
+  } catch (const Error& e) {
+    const std::string message = e.what();
+    const std::string prefix = source + ": ";
+    if (message.rfind(prefix, 0) == 0) throw Error(message.substr(prefix.size()));
+    throw;
+  }
+}
+
 // The transform as a 4x4 matrix (a new array).
 py::array Matrix4(const Rigid3d& transform);
 
@@ -79,15 +98,36 @@ nlohmann::json ToJson(const py::handle& object, const std::string& what);
 py::object FromJson(const nlohmann::json& json);
 
 // The optional progress callback of long calls: fn(stage: str, done: int, total: int), called
-// with the GIL held (acquired from the calling thread, which has released it). None: no calls. An
-// exception raised by the callback propagates out of the call.
+// with the GIL held (acquired by whichever thread reports: the calling thread, which has released
+// it, or a worker thread of the library). None: no calls. An exception raised by the callback
+// propagates out of the call.
 class ProgressCallback {
  public:
   explicit ProgressCallback(py::object fn) : fn_(std::move(fn)) {}
   void operator()(const std::string& stage, int64_t done, int64_t total) const;
+  bool active() const { return !fn_.is_none(); }
 
  private:
   py::object fn_;
+};
+
+// While alive (construct it on the calling thread, GIL held or not), the library's own progress
+// made on this thread (core/progress.h: per camera traced, image rendered, camera decoded, ...)
+// reaches `callback` as (task, done, total), done increasing within each run of a task; with
+// `only`, the tasks of that name only (a sweep's jobs, not each job's own rendering). Nothing when
+// the callback is None.
+class ForwardLibraryProgress {
+ public:
+  explicit ForwardLibraryProgress(const ProgressCallback& callback, std::string only = "") {
+    if (callback.active())
+      scope_.emplace([&callback, only = std::move(only)](const std::string& task, int64_t done,
+                                                         int64_t total) {
+        if (only.empty() || task == only) callback(task, done, total);
+      });
+  }
+
+ private:
+  std::optional<ScopedProgressObserver> scope_;
 };
 
 }  // namespace slshadow::python

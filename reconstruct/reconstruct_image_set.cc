@@ -8,6 +8,7 @@
 
 #include "core/config.h"
 #include "core/error.h"
+#include "core/progress.h"
 
 namespace slshadow {
 
@@ -134,8 +135,13 @@ ImageSetReconstruction ReconstructFromImages(
   }
   std::map<std::string, ProjectorMap> maps;
   auto t0 = Clock::now();
-  for (const auto& name : out.cameras)
+  // Steps: one decode per camera, then one triangulation per camera (stereo: one for the pair).
+  const auto n = static_cast<int64_t>(out.cameras.size());
+  Progress progress("reconstruct", n + (options.mode == ReconstructMode::kStereo ? 1 : n), false);
+  for (const auto& name : out.cameras) {
     maps[name] = DecodePatterns(spec, images.at(name), options.decode);
+    progress.Advance();
+  }
   out.decode_s = Seconds(t0);
   t0 = Clock::now();
   if (options.mode == ReconstructMode::kStereo) {
@@ -147,6 +153,7 @@ ImageSetReconstruction ReconstructFromImages(
                                    ResidualMap(rec));
     out.cloud = std::move(rec.cloud);
     out.summaries.push_back(rec.summary);
+    progress.Advance();
   } else {
     for (const auto& name : out.cameras) {
       Reconstruction rec = ReconstructWithProjector(rig, name, maps[name], options.reconstruct);
@@ -159,6 +166,7 @@ ImageSetReconstruction ReconstructFromImages(
         out.cloud.Append(rec.cloud);
       }
       out.summaries.push_back(rec.summary);
+      progress.Advance();
     }
   }
   out.reconstruct_s = Seconds(t0);

@@ -39,9 +39,9 @@ PACKAGES=(
   xserver-xorg-core xserver-xorg-video-dummy x11-xserver-utils
   # HTML reports (report/): three.js embedded at build time; headless Chromium for their tests
   libjs-three chromium
-  # sweeps: shards run through GNU parallel (tests/shadow/sweep_test.cc, docs/sweeps.md)
+  # sweeps: shards run through GNU parallel (tests/studies/sweep_test.cc, docs/sweeps.md)
   parallel
-  # sweeps: a single-node Slurm started by tests/shadow/slurm_sweep.sh (array shards, dependent merge)
+  # sweeps: a single-node Slurm started by tests/studies/slurm_sweep.sh (array shards, dependent merge)
   slurm-wlm munge
 )
 

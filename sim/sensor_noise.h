@@ -1,7 +1,7 @@
 // The last step of the pattern pass (sim/renderer.h): the sensor-noise layer and the ADC of a
 // camera (sim/scene.h SceneLayers, EMVA 1288 style) applied to a noise-free irradiance image.
 // One definition, used by PatternRenderer and by the sweep's reuse of noise-free images
-// (shadow/sweep_reuse.h), so both give the same image bit for bit.
+// (workflows/studies/sweep_reuse.h), so both give the same image bit for bit.
 //
 // The noise generator (docs/formats.md, layer `noise`): pixels in blocks of 16 by index
 // i = y * width + x. Per block b, lane l (0..7): SplitMix64(the image's stream, a hash of seed,
@@ -10,8 +10,7 @@
 // noise, independent Gaussians, enter as one: sqrt(mu_e + read^2) n. Log, sine and cosine as
 // polynomials (Cephes' single-precision ones), the signal in float. Deterministic for a seed
 // whatever the thread count or the CPU (the same IEEE operations in every code path, no FMA).
-// (Until 2026-11-25 each pixel drew two normals, shot and read, from two hashes, and the signal
-// was computed in double: the same distribution, 2.6 times the CPU time, other images.)
+// The generator's history: docs/benchmarks/log/2026-12-07-header-notes.md.
 #pragma once
 
 #include <cstdint>

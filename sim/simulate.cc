@@ -150,6 +150,7 @@ Simulator::Simulator(const RayCaster& caster, const Rig& rig, TraceMode mode, bo
 void Simulator::Trace(const RayCaster& caster, TraceMode mode, bool ground_truth) {
   setup_.triangles = caster.num_triangles();
   setup_.cameras = static_cast<int>(rig_.cameras.size());
+  Progress progress("trace", static_cast<int64_t>(rig_.cameras.size()), false);
   for (size_t c = 0; c < rig_.cameras.size(); ++c) {
     const auto t = std::chrono::steady_clock::now();
     const std::shared_ptr<const CameraRays> rays =
@@ -161,6 +162,7 @@ void Simulator::Trace(const RayCaster& caster, TraceMode mode, bool ground_truth
     setup_.geometry_seconds += geometry_.back().seconds;
     setup_.primary_rays += geometry_.back().primary_rays;
     setup_.shadow_rays += geometry_.back().shadow_rays;
+    progress.Advance();
   }
 }
 
@@ -181,12 +183,16 @@ std::vector<std::vector<cv::Mat>> Simulator::Render(const std::vector<cv::Mat>& 
   const auto start = std::chrono::steady_clock::now();
   std::vector<std::vector<cv::Mat>> images(geometry_.size());
   const std::deque<PatternBatch> batches = MakeBatches(projector_images);
+  Progress progress("render", static_cast<int64_t>(geometry_.size() * projector_images.size()),
+                    false);
   for (size_t c = 0; c < geometry_.size(); ++c) {
     const PatternRenderer renderer(s, rig_, static_cast<int>(c), geometry_[c]);
     images[c].reserve(projector_images.size());
     for (size_t b = 0; b < batches.size(); ++b) {
-      for (cv::Mat& m : renderer.RenderBatch(batches[b], static_cast<int>(b * kBatch)))
-        images[c].push_back(std::move(m));
+      std::vector<cv::Mat> rendered =
+          renderer.RenderBatch(batches[b], static_cast<int>(b * kBatch));
+      progress.Advance(static_cast<int64_t>(rendered.size()));
+      for (cv::Mat& m : rendered) images[c].push_back(std::move(m));
     }
   }
   if (summary) {

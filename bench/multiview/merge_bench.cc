@@ -117,7 +117,8 @@ int main(int argc, char** argv) {
     clouds.push_back(slshadow::ReadPly(out / slshadow::StringPrintf("view_%02zu.ply", k)));
   std::vector<mv::ViewCloud> views;
   for (size_t k = 0; k < clouds.size(); ++k)
-    views.push_back({slshadow::StringPrintf("view_%02zu", k), &clouds[k], initial[k], true});
+    views.push_back(
+        {slshadow::StringPrintf("view_%02zu", k), &clouds[k], initial[k], true, std::nullopt});
   std::printf(
       "%zu views, %zu points (spacing %.2f mm, noise %.3f mm), initial poses off by "
       "0.5 deg / 1 mm\n",

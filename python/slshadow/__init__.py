@@ -1,42 +1,29 @@
 """slshadow: structured-light scanning and its digital shadow, from Python.
 
 The project's C++ libraries with numpy in and out (docs/python.md): Rig, PatternSpec, ImageSet,
-simulate, decode, reconstruct, compare. Units: mm, rad, px; pixel (0, 0) is the centre of the
-top-left pixel (OpenCV). Bad input raises slshadow.Error with the command line's one-line message.
+simulate, decode, reconstruct, compare, shadow, calibrate_*. Units: mm, rad, px; pixel (0, 0) is
+the centre of the top-left pixel (OpenCV). Bad input raises slshadow.Error with the command line's
+one-line message.
+
+One source for each signature: the extension's names come from _slshadow (typed by
+_slshadow.pyi), and the few functions written in Python are annotated here (no __init__.pyi), so
+mypy's stubtest checks both against the running module (tests/python/test_stubs.py).
 """
 
-from ._slshadow import (  # noqa: F401
-    CameraModel,
-    calibrate_camera,
-    Comparison,
-    Device,
-    Error,
-    ImageSet,
-    PatternSpec,
-    PointCloud,
-    ProjectorMap,
-    Reconstruction,
-    Reference,
-    Rig,
-    Scan,
-    Scene,
-    __version__,
-    compare,
-    decode,
-    read_ply,
-    reconstruct,
-    shadow,
-    simulate,
-    write_image_set,
-)
-from ._slshadow import _sweep
+import os
+from typing import Any, Callable, Optional, Union
+
+from ._slshadow import *  # noqa: F401,F403  (every public name of the extension)
+from ._slshadow import PointCloud, Reconstruction, __version__, _sweep  # noqa: F401
+
+_PathLike = Union[str, "os.PathLike[str]"]
 
 
-def to_open3d(cloud):
+def to_open3d(cloud: Union[PointCloud, Reconstruction]) -> Any:
     """An open3d.geometry.PointCloud of a PointCloud or Reconstruction (points, normals and
     colours copied; colours scaled to [0, 1])."""
     import numpy as np
-    import open3d as o3d
+    import open3d as o3d  # type: ignore
 
     if isinstance(cloud, Reconstruction):
         cloud = cloud.cloud
@@ -48,7 +35,7 @@ def to_open3d(cloud):
     return out
 
 
-def read_table(path):
+def read_table(path: _PathLike) -> dict[str, Any]:
     """A CSV table written by slshadow (e.g. a sweep's results.csv) as a dict column -> numpy
     array: float64 where every value is a number (empty cells NaN), else str (also identifiers
     such as job ids "000001", numbers written with leading zeros)."""
@@ -59,7 +46,7 @@ def read_table(path):
     with open(path, newline="") as f:
         rows = list(csv.reader(f))
     header, body = rows[0], rows[1:]
-    table = {}
+    table: dict[str, Any] = {}
     for i, name in enumerate(header):
         values = [row[i] if i < len(row) else "" for row in body]
         if any(len(v) > 1 and v[0] == "0" and v[1].isdigit() for v in values):
@@ -72,13 +59,20 @@ def read_table(path):
     return table
 
 
-def sweep(study, out, *, shard="0/1", verbose=False, progress=None):
+def sweep(
+    study: _PathLike,
+    out: _PathLike,
+    *,
+    shard: str = "0/1",
+    verbose: bool = False,
+    progress: Optional[Callable[[str, int, int], Any]] = None,
+) -> dict[str, Any]:
     """Plans, runs and merges a study as `slshadow sweep study STUDY --out OUT` does (docs/sweeps.md;
     a second call resumes it). Returns the summaries (plan, run, merge) and the result tables as
     dicts of arrays: results (results.csv, one row per job and mode) and, when written, pareto,
-    break_points, layers, effects."""
-    import os
-
+    break_points, layers, effects. progress(stage, done, total) is called as ("plan", 0, 1) and
+    ("plan", 1, 1) around the planning, ("jobs", k, n) per job of the shard (run, or found done by
+    an earlier call), and ("done", 1, 1) after the merge."""
     summary = _sweep(study, out, shard=shard, verbose=verbose, progress=progress)
     tables = {}
     for name in ("results", "pareto", "break_points", "layers", "effects"):
@@ -87,31 +81,3 @@ def sweep(study, out, *, shard="0/1", verbose=False, progress=None):
             tables[name] = read_table(path)
     summary["tables"] = tables
     return summary
-
-
-__all__ = [
-    "CameraModel",
-    "calibrate_camera",
-    "Comparison",
-    "Device",
-    "Error",
-    "ImageSet",
-    "PatternSpec",
-    "PointCloud",
-    "ProjectorMap",
-    "Reconstruction",
-    "Reference",
-    "Rig",
-    "Scan",
-    "Scene",
-    "compare",
-    "decode",
-    "read_ply",
-    "read_table",
-    "reconstruct",
-    "shadow",
-    "simulate",
-    "sweep",
-    "to_open3d",
-    "write_image_set",
-]

@@ -370,3 +370,137 @@ def calibrate_camera(
     min_views: int = 10,
     progress: _Progress = None,
 ) -> dict[str, Any]: ...
+
+def calibrate_stereo(
+    left: Union[_PathLike, Sequence[_PathLike]],
+    right: Union[_PathLike, Sequence[_PathLike]],
+    target: _PathLike,
+    out: _PathLike,
+    *,
+    left_name: str = "left",
+    right_name: str = "right",
+    report: Optional[_PathLike] = None,
+    opencv_out: Optional[_PathLike] = None,
+    name: str = "calibrated",
+    fix_aspect: bool = False,
+    fix_principal_point: bool = False,
+    zero_tangential: bool = False,
+    fix_k3: bool = False,
+    loss: str = "none",
+    loss_scale_px: float = 1.0,
+    board_warp: bool = False,
+    cross_validate: bool = True,
+    min_views: int = 10,
+    progress: _Progress = None,
+) -> dict[str, Any]: ...
+
+def calibrate_projector(
+    captures: Union[_PathLike, Sequence[_PathLike]],
+    patterns: Union[PatternSpec, dict[str, Any], _PathLike],
+    target: _PathLike,
+    out: _PathLike,
+    *,
+    camera: str = "camera",
+    camera_rig: Optional[_PathLike] = None,
+    shadow_threshold: float = 12.0,
+    contrast_threshold: float = 4.0,
+    window: int = 20,
+    select_model: bool = False,
+    principal_point_inside: bool = False,
+    report: Optional[_PathLike] = None,
+    opencv_out: Optional[_PathLike] = None,
+    name: str = "calibrated",
+    fix_aspect: bool = False,
+    fix_principal_point: bool = False,
+    zero_tangential: bool = False,
+    fix_k3: bool = False,
+    loss: str = "none",
+    loss_scale_px: float = 1.0,
+    board_warp: bool = False,
+    cross_validate: bool = True,
+    min_views: int = 10,
+    progress: _Progress = None,
+) -> dict[str, Any]: ...
+
+def calibrate_rig(
+    imagesets: Sequence[Union[ImageSet, _PathLike]],
+    target: _PathLike,
+    out: _PathLike,
+    *,
+    shadow_threshold: float = 12.0,
+    contrast_threshold: float = 4.0,
+    window: int = 20,
+    select_model: bool = False,
+    principal_point_inside: bool = False,
+    report: Optional[_PathLike] = None,
+    opencv_out: Optional[_PathLike] = None,
+    name: str = "calibrated",
+    fix_aspect: bool = False,
+    fix_principal_point: bool = False,
+    zero_tangential: bool = False,
+    fix_k3: bool = False,
+    loss: str = "none",
+    loss_scale_px: float = 1.0,
+    board_warp: bool = False,
+    cross_validate: bool = True,
+    min_views: int = 10,
+    progress: _Progress = None,
+) -> dict[str, Any]: ...
+
+def calibrate_corners(
+    object_points: Sequence[npt.ArrayLike],
+    image_points: Union[
+        Sequence[Optional[npt.ArrayLike]], dict[str, Sequence[Optional[npt.ArrayLike]]]
+    ],
+    image_size: Union[tuple[int, int], dict[str, tuple[int, int]]],
+    out: _PathLike,
+    *,
+    camera: str = "camera",
+    labels: Optional[Sequence[str]] = None,
+    report: Optional[_PathLike] = None,
+    opencv_out: Optional[_PathLike] = None,
+    name: str = "calibrated",
+    fix_aspect: bool = False,
+    fix_principal_point: bool = False,
+    zero_tangential: bool = False,
+    fix_k3: bool = False,
+    loss: str = "none",
+    loss_scale_px: float = 1.0,
+    board_warp: bool = False,
+    cross_validate: bool = True,
+    min_views: int = 10,
+    progress: _Progress = None,
+) -> dict[str, Any]: ...
+
+def detect_target(
+    image: Union[npt.NDArray[np.uint8], npt.NDArray[np.uint16], _PathLike], target: _PathLike
+) -> dict[str, Any]: ...
+
+def calibrate_refine(
+    rig: _PathLike,
+    imageset: Union[ImageSet, _PathLike],
+    out: _PathLike,
+    *,
+    camera: str = "",
+    stereo: str = "",
+    baseline_mm: float = 0.0,
+    known_distance: Optional[Sequence[float]] = None,
+    refine_focal: bool = False,
+) -> dict[str, Any]: ...
+def calibrate_import(
+    opencv_file: _PathLike,
+    out: Optional[_PathLike] = None,
+    *,
+    image_size: Optional[tuple[int, int]] = None,
+    projector_size: Optional[tuple[int, int]] = None,
+    map: Optional[str] = None,
+) -> Rig: ...
+def calibrate_export(rig: Union[Rig, _PathLike], out: _PathLike) -> None: ...
+def _sweep(
+    study: _PathLike,
+    out: _PathLike,
+    *,
+    shard: str = "0/1",
+    verbose: bool = False,
+    progress: _Progress = None,
+) -> dict[str, Any]: ...

@@ -7,9 +7,9 @@
 #include <nlohmann/json.hpp>
 
 #include "core/file_util.h"
-#include "shadow/sweep.h"
 #include "tests/testing/run_cli.h"
 #include "tests/testing/temp_dir.h"
+#include "workflows/studies/sweep.h"
 
 namespace slshadow::app {
 namespace {
@@ -87,8 +87,8 @@ TEST(Commands, SweepStudyRunsInOneProcessAsTheLibraryDoes) {
         std::string("shard 0/1: "), "1 jobs merged: 2 rows in " + (tmp / "cli").string()}) {
     EXPECT_NE(out.find(line), std::string::npos) << line << "\n" << out;
   }
-  const shadow::SweepStudySummary lib =
-      shadow::RunStudy(tmp / "study.yaml", tmp / "lib", shadow::SweepRunOptions{});
+  const studies::SweepStudySummary lib =
+      studies::RunStudy(tmp / "study.yaml", tmp / "lib", studies::SweepRunOptions{});
   EXPECT_EQ(lib.run.ran, 1);
   for (const char* f : {"results.csv", "results.json"}) {
     EXPECT_EQ(ReadTextFile(tmp / "cli" / f), ReadTextFile(tmp / "lib" / f)) << f;

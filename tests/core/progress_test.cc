@@ -95,5 +95,61 @@ TEST(Progress, WorkStoppedShortShowsItsShare) {
   EXPECT_EQ(err.back(), '\n') << err;
 }
 
+// An observer installed on a thread sees the Progress objects constructed there (also when they
+// advance from other threads), with `done` rising from call to call and ending at the total; a
+// Progress constructed on another thread or after the scope ends is not seen; print=false keeps
+// stderr clean while the observer still sees every step.
+TEST(Progress, ObserverSeesItsThreadsWorkInOrder) {
+  std::vector<std::pair<std::string, int64_t>> seen;
+  const std::string err = StderrOf("1", [&seen] {
+    {
+      ScopedProgressObserver observer(
+          [&seen](const std::string& task, int64_t done, int64_t total) {
+            EXPECT_EQ(total, 4000);
+            seen.emplace_back(task, done);
+          });
+      Progress p("render", 4000, false);
+      std::vector<std::thread> threads;
+      for (int t = 0; t < 4; ++t) {
+        threads.emplace_back([&p] {
+          for (int i = 0; i < 500; ++i) p.Advance(2);
+        });
+      }
+      for (auto& t : threads) t.join();
+      std::thread other([] {
+        Progress q("elsewhere", 1, false);
+        q.Advance();
+      });
+      other.join();
+    }
+    Progress after("after", 1, false);
+    after.Advance();
+  });
+  EXPECT_EQ(err, "");
+  ASSERT_FALSE(seen.empty());
+  for (size_t i = 0; i < seen.size(); ++i) {
+    EXPECT_EQ(seen[i].first, "render");
+    if (i > 0) {
+      EXPECT_GT(seen[i].second, seen[i - 1].second);
+    }
+  }
+  EXPECT_EQ(seen.back().second, 4000);
+}
+
+TEST(Progress, NestedObserversRestoreTheOuterOne) {
+  int outer = 0, inner = 0;
+  ScopedProgressObserver a([&outer](const std::string&, int64_t, int64_t) { ++outer; });
+  {
+    ScopedProgressObserver b([&inner](const std::string&, int64_t, int64_t) { ++inner; });
+    Progress p("inner", 2, false);
+    p.Advance(2);
+  }
+  Progress q("outer", 3, false);
+  q.Advance();
+  q.Advance();
+  EXPECT_EQ(inner, 1);
+  EXPECT_EQ(outer, 2);
+}
+
 }  // namespace
 }  // namespace slshadow

@@ -23,9 +23,9 @@ struct OcclusionSetup {
 };
 
 OcclusionSetup MakeOcclusionSetup() {
-  Scene scene = shadow::LoadSceneOrDemo("");
+  Scene scene = pipeline::LoadSceneOrDemo("");
   scene.objects[0].mesh = std::make_shared<const TriangleMesh>(MakeOcclusionPart(2.0));
-  const TurntableSetup setup = MakeTurntableSetup(shadow::LoadRigOrDemo(""), scene);
+  const TurntableSetup setup = MakeTurntableSetup(pipeline::LoadRigOrDemo(""), scene);
   return {setup.rig, PartSurface(setup.scene)};
 }
 
@@ -108,7 +108,7 @@ TEST(CadCompareTest, UncoveredSurfaceIsNamedByItsReason) {
   far.points = {Eigen::Vector3d(0, 0, 5000), Eigen::Vector3d(1, 0, 5000)};
   CadCompareOptions options;
   options.samples = 40000;
-  const Rigid3d part_from_object = shadow::LoadSceneOrDemo("").objects[0].rig_from_object;
+  const Rigid3d part_from_object = pipeline::LoadSceneOrDemo("").objects[0].rig_from_object;
   const Rigid3d object_from_part = part_from_object.Inverse();
   const auto hole_bottom = [](const Eigen::Vector3d& p) {
     return std::abs(p.z() - 10) < 0.01 && p.x() > -39 && p.x() < -31 && std::abs(p.y()) < 4;

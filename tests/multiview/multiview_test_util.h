@@ -4,9 +4,9 @@
 #pragma once
 
 #include "patterns/pattern_spec.h"
-#include "shadow/scan_pipeline.h"
 #include "tests/capture/scaled_demo_rig.h"
 #include "workflows/multiview/turntable_scene.h"
+#include "workflows/pipeline/scan_pipeline.h"
 
 namespace slshadow::testing {
 
@@ -19,7 +19,7 @@ inline multiview::TurntableSetup ScaledTurntableDemo(int scale) {
 }
 
 inline PatternSpec ScaledDemoPatterns(const Rig& rig) {
-  PatternSpec spec = shadow::LoadPatternSpecOrDemo("");
+  PatternSpec spec = pipeline::LoadPatternSpecOrDemo("");
   spec.projector_width = rig.projector->model.width;
   spec.projector_height = rig.projector->model.height;
   spec.Check();

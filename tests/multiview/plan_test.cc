@@ -12,6 +12,7 @@
 #include "tests/multiview/multiview_test_util.h"
 #include "tests/testing/error_of.h"
 #include "tests/testing/temp_dir.h"
+#include "workflows/multiview/virtual_project.h"
 
 namespace slshadow::multiview {
 namespace {
@@ -20,9 +21,10 @@ namespace fs = std::filesystem;
 constexpr size_t kSamples = 40000;
 
 // The demo part (1/4 of the demo rig's resolution): the plan reaches 98 % of the reachable
-// surface with no more views than uniform steps need, and its coverage accounting equals a
-// prediction of the planned views made from scratch. (A virtual scan of the plan does not confirm
-// it yet: docs/benchmarks/log/2026-12-07-plan.md.)
+// surface with no more views than uniform steps need, its coverage accounting equals a prediction
+// of the planned views made from scratch, and a virtual scan of the planned views confirms it: per
+// CAD sample the scan's coverage (merged at the table's poses, compared with the CAD) agrees with
+// the prediction on at least 99 % of the samples off the table, the disagreements listed by reason.
 TEST(PlanTest, TheDemoPlanReachesItsTargetWithNoMoreViewsThanUniformSteps) {
   const TurntableSetup setup = testing::ScaledTurntableDemo(4);
   const TriangleMesh cad = PartSurface(setup.scene);
@@ -55,6 +57,22 @@ TEST(PlanTest, TheDemoPlanReachesItsTargetWithNoMoreViewsThanUniformSteps) {
   EXPECT_NEAR(static_cast<double>(reconstructed),
               plan.greedy_coverage.back() * static_cast<double>(plan.reachable), 0.5);
   EXPECT_EQ(predicted.OffTable(), plan.off_table);
+
+  const testing::TempDir tmp;
+  SimulateProject(setup.scene, setup.rig, testing::ScaledDemoPatterns(setup.rig), plan.views,
+                  tmp / "project");
+  const PlanCheck confirmed =
+      CheckPlanAgainstProject(cad, setup.rig, tmp / "project", options.prediction);
+  const PredictionCheck& check = confirmed.check;
+  std::cout << check.Summary();
+  // The project's views are the plan's: the same prediction.
+  EXPECT_EQ(confirmed.prediction.reason_samples, predicted.reason_samples);
+  EXPECT_GT(check.compared, kSamples / 2);
+  EXPECT_GE(check.agreement, 0.99) << check.Summary();
+  // The planned coverage holds: the scan covers the target share of the reachable surface less at
+  // most the 1 % the prediction may miss.
+  EXPECT_GE(check.scanned_coverage, options.target * plan.reachable_share - 0.01)
+      << check.Summary();
 }
 
 // The command line: the views file it writes is the plan's and loads as slshadow scan reads it;
@@ -99,16 +117,90 @@ TEST(PlanTest, CommandWritesTheViewsFile) {
   bad_args[13] = bad;   // --out
   EXPECT_NE(testing::ErrorOf([&] { run(bad_args); }).find("--target"), std::string::npos);
   EXPECT_FALSE(fs::exists(bad));
-  // Without --turntable: refused.
-  std::vector<std::string> no_table = args;
-  no_table.erase(no_table.begin() + 5);
-  no_table[12] = bad;
-  EXPECT_NE(testing::ErrorOf([&] { run(no_table); }).find("--turntable"), std::string::npos);
+  // Without --turntable: placements by hand, tilted and turned about the part's centre; the views
+  // file holds hand-placed views with their poses, the plan the library makes.
+  std::vector<std::string> by_hand = args;
+  by_hand.erase(by_hand.begin() + 5);
+  const std::string hand = (tmp / "hand.yaml").string();
+  by_hand[12] = hand;
+  by_hand.insert(by_hand.end(), {"--tilts-deg", "0,90"});
+  ASSERT_EQ(run(by_hand), 0);
+  const ViewsFile hand_views = LoadViews(hand);
+  ASSERT_FALSE(hand_views.views.empty());
+  for (const ViewSpec& v : hand_views.views) {
+    EXPECT_FALSE(v.table_deg.has_value()) << v.name;
+    EXPECT_TRUE(v.part_from_rig_guess.has_value()) << v.name;
+  }
+  const Rig the_rig = LoadRig(rig);
+  // The same plan from the library (poses to the text's precision).
+  const ViewsFile library =
+      PlanViews(part.cad, the_rig, PlacementCandidates(part.cad, the_rig, {0, 90}, 30),
+                std::nullopt, options)
+          .views;
+  ASSERT_EQ(library.views.size(), hand_views.views.size());
+  for (size_t k = 0; k < library.views.size(); ++k) {
+    const Rigid3d a = *library.views[k].part_from_rig_guess;
+    const Rigid3d b = *hand_views.views[k].part_from_rig_guess;
+    EXPECT_EQ(library.views[k].name, hand_views.views[k].name);
+    EXPECT_LT(a.rotation.angularDistance(b.rotation), 1e-9) << k;
+    EXPECT_LT((a.translation - b.translation).norm(), 1e-9) << k;
+  }
+  // A bad tilt: named, nothing written.
+  std::vector<std::string> bad_tilt = by_hand;
+  bad_tilt[12] = bad;
+  bad_tilt.back() = "0,270";
+  EXPECT_NE(testing::ErrorOf([&] { run(bad_tilt); }).find("--tilts-deg"), std::string::npos);
   EXPECT_FALSE(fs::exists(bad));
   // An unknown option: CLI11's non-zero exit.
   std::vector<std::string> unknown = args;
   unknown.push_back("--no-such-option");
   EXPECT_NE(run(unknown), 0);
+}
+
+// Placements by hand (1/4 rig): each candidate turns the part about its centre (which stays put)
+// and about "up" (the table axis) for a tilt of 0; the general planner given the table's own
+// angles as candidates picks what the turntable planner picks; a placement plan reaches its
+// target and a fresh prediction of its views reconstructs what the plan counted.
+TEST(PlanTest, PlacementsByHand) {
+  const TurntableSetup setup = testing::ScaledTurntableDemo(4);
+  const TriangleMesh cad = PartSurface(setup.scene);
+  const Eigen::Vector3d centre = 0.5 * (cad.BoundsMin() + cad.BoundsMax());
+  const Eigen::Vector3d up = setup.rig.turntable->direction_in_rig.normalized();
+  const std::vector<ViewCandidate> placed = PlacementCandidates(cad, setup.rig, {0, 90, 180}, 45);
+  ASSERT_EQ(placed.size(), 24u);
+  for (size_t k = 0; k < placed.size(); ++k) {
+    const Rigid3d rig_from_part = placed[k].view.part_from_rig_guess->Inverse();
+    EXPECT_LT((rig_from_part * centre - centre).norm(), 1e-9) << placed[k].label;
+    const double tilt = k < 8 ? 0 : (k < 16 ? 90 : 180);
+    EXPECT_NEAR(up.dot(rig_from_part.rotation * up), std::cos(tilt * M_PI / 180), 1e-9)
+        << placed[k].label;
+  }
+  EXPECT_THROW(PlacementCandidates(cad, setup.rig, {}, 45), Error);
+
+  PlanOptions options;
+  options.prediction = WithSceneRadiometry(options.prediction, setup.scene);
+  options.prediction.samples = 20000;
+  options.step_deg = 30;
+  options.target = 0.98;
+  const ViewPlan table_plan = PlanTurntableViews(cad, setup.rig, options);
+  std::vector<ViewCandidate> table_candidates;
+  for (const ViewSpec& v : FullTurnViews(12, 0).views) table_candidates.push_back({v.name, v});
+  const ViewPlan general =
+      PlanViews(cad, setup.rig, table_candidates, setup.rig.turntable, options);
+  EXPECT_EQ(general.greedy_deg, table_plan.greedy_deg);
+  EXPECT_EQ(general.greedy_coverage, table_plan.greedy_coverage);
+
+  const ViewPlan hand = PlanViews(cad, setup.rig, placed, std::nullopt, options);
+  std::cout << hand.Table();
+  ASSERT_TRUE(hand.reached);
+  EXPECT_TRUE(hand.greedy_deg.empty());
+  EXPECT_TRUE(hand.uniform_coverage.empty());
+  EXPECT_EQ(hand.off_table, hand.samples);  // nothing on a table
+  const CoveragePrediction predicted = PredictCoverage(
+      cad, setup.rig, PosesOfViews(hand.views, setup.rig), std::nullopt, options.prediction);
+  EXPECT_NEAR(static_cast<double>(
+                  predicted.reason_samples[static_cast<size_t>(PredictedReason::kReconstructed)]),
+              hand.greedy_coverage.back() * static_cast<double>(hand.reachable), 0.5);
 }
 
 }  // namespace

@@ -35,6 +35,7 @@
 #include "sim/simulate.h"
 #include "tests/capture/grbl_emulator.h"
 #include "tests/capture/scaled_demo_rig.h"
+#include "tests/multiview/scan_test_util.h"
 #include "workflows/multiview/scan.h"
 #include "workflows/multiview/turntable_scene.h"
 #include "workflows/multiview/views.h"
@@ -45,50 +46,12 @@ namespace {
 namespace fs = std::filesystem;
 using capture::testing::GrblEmulator;
 
+using slshadow::testing::HookedProjector;
+using slshadow::testing::RunSlshadow;
+
 fs::path TestDir(const std::string& name) {
-  const char* tmp = std::getenv("SLSHADOW_TEST_TMP");
-  fs::path dir = fs::path(tmp ? tmp : fs::temp_directory_path().string()) / ("scan_faults_" + name);
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
+  return slshadow::testing::ScanTestDir("scan_faults_", name);
 }
-
-int RunSlshadow(std::vector<std::string> args, std::string* err) {
-  args.insert(args.begin(), "slshadow");
-  std::vector<char*> argv;
-  for (auto& a : args) argv.push_back(a.data());
-  ::testing::internal::CaptureStderr();
-  const int rc = app::Main(static_cast<int>(argv.size()), argv.data());
-  *err = ::testing::internal::GetCapturedStderr();
-  std::printf("slshadow %s: exit %d\n%s", args[1].c_str(), rc, err->c_str());
-  return rc;
-}
-
-// Forwards to another projector and runs hook(view, index) before each Show; `view` counts the
-// sequencer's Load() calls (one per view's capture).
-class HookedProjector : public capture::Projector {
- public:
-  HookedProjector(capture::Projector& inner, std::function<void(int, int)> hook)
-      : inner_(inner), hook_(std::move(hook)) {}
-  capture::ProjectorInfo Info() const override { return inner_.Info(); }
-  void Load(const std::vector<cv::Mat>& images) override {
-    ++view_;
-    inner_.Load(images);
-  }
-  std::chrono::steady_clock::time_point Show(int index) override {
-    hook_(view_, index);
-    return inner_.Show(index);
-  }
-  std::chrono::steady_clock::time_point ShowBlack() override { return inner_.ShowBlack(); }
-  std::chrono::microseconds Latency() const override { return inner_.Latency(); }
-  void SetLatency(std::chrono::microseconds latency) override { inner_.SetLatency(latency); }
-  int size() const override { return inner_.size(); }
-
- private:
-  capture::Projector& inner_;
-  std::function<void(int, int)> hook_;
-  int view_ = -1;
-};
 
 class ScanFaults : public ::testing::Test {
  protected:

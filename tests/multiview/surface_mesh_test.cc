@@ -30,7 +30,8 @@ TEST(SurfaceMesh, WatertightPoissonTrimmedToTheSeenSurface) {
   const testing::TurntableScan scan = testing::MakeTurntableScan({});
   std::vector<ViewCloud> views;
   for (size_t k = 0; k < scan.clouds.size(); ++k)
-    views.push_back({StringPrintf("view_%02zu", k), &scan.clouds[k], scan.part_from_rig[k], true});
+    views.push_back({StringPrintf("view_%02zu", k), &scan.clouds[k], scan.part_from_rig[k], true,
+                     std::nullopt});
   MergeOptions mo;
   mo.refine = false;
   const MergeResult merged = MergeViews(views, mo);

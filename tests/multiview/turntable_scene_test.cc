@@ -7,10 +7,10 @@
 #include <vector>
 
 #include "core/error.h"
-#include "shadow/scan_pipeline.h"
 #include "sim/raycaster.h"
 #include "sim/shapes.h"
 #include "tests/testing/error_of.h"
+#include "workflows/pipeline/scan_pipeline.h"
 
 namespace slshadow::multiview {
 namespace {
@@ -26,7 +26,7 @@ Eigen::Vector3d Turned(const Eigen::Vector3d& x, const TurntableAxis& axis, doub
 }
 
 TEST(TurntableSceneTest, DemoSetupPutsTheAxisOnTheTableNormalThroughThePart) {
-  const Scene demo = shadow::LoadSceneOrDemo("");
+  const Scene demo = pipeline::LoadSceneOrDemo("");
   const TurntableSetup setup = DemoTurntableSetup();
   ASSERT_TRUE(setup.rig.turntable.has_value());
   const TurntableAxis& axis = *setup.rig.turntable;
@@ -179,12 +179,12 @@ TEST(TurntableSceneTest, FixedObjectsStayAndBadInputs) {
 }
 
 TEST(TurntableSceneTest, OcclusionPartStandsOnTheTableToo) {
-  Scene scene = shadow::LoadSceneOrDemo("");
+  Scene scene = pipeline::LoadSceneOrDemo("");
   scene.objects[0].mesh = std::make_shared<const TriangleMesh>(MakeOcclusionPart(2.0));
   const TurntableSetup setup =
-      MakeTurntableSetup(shadow::LoadRigOrDemo(""), scene, "part", {"table"});
+      MakeTurntableSetup(pipeline::LoadRigOrDemo(""), scene, "part", {"table"});
   EXPECT_EQ(PartSurface(setup.scene).NumTriangles(), MakeOcclusionPart(2.0).NumTriangles());
-  EXPECT_THROW(MakeTurntableSetup(shadow::LoadRigOrDemo(""), scene, "block"), Error);
+  EXPECT_THROW(MakeTurntableSetup(pipeline::LoadRigOrDemo(""), scene, "block"), Error);
 }
 
 }  // namespace

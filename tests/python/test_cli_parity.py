@@ -42,6 +42,8 @@ RECONSTRUCTIONS = [
     ([], {}),
     (["--mode", "projector", "--method", "dlt"], {"mode": "projector", "method": "dlt"}),
     (["--mode", "stereo", "--method", "optimal"], {"mode": "stereo", "method": "optimal"}),
+    (["--mode", "projector", "--method", "optimal"], {"mode": "projector", "method": "optimal"}),
+    (["--mode", "stereo", "--method", "dlt"], {"mode": "stereo", "method": "dlt"}),
     (["--mode", "stereo", "--method", "midpoint", "--stereo-interpolation", "cubic",
       "--no-outlier-filter", "--min-depth-mm", "300"],
      {"mode": "stereo", "method": "midpoint", "stereo_interpolation": "cubic",

@@ -29,9 +29,10 @@ axes:
 def test_sweep_matches_cli(tmp_path):
     study = small_study(tmp_path)
     run_cli("sweep", "study", study, "--out", tmp_path / "cli")
-    stages = []
-    result = sl.sweep(study, tmp_path / "py", progress=lambda s, d, t: stages.append(s))
-    assert stages == ["plan", "run", "done"]
+    calls = []
+    result = sl.sweep(study, tmp_path / "py", progress=lambda *a: calls.append(a))
+    # One call per job (two albedo values: two jobs), between the plan and the merge.
+    assert calls == [("plan", 0, 1), ("plan", 1, 1), ("jobs", 1, 2), ("jobs", 2, 2), ("done", 1, 1)]
     assert result["plan"]["jobs"] == 2 and result["plan"]["axes"] == ["albedo"]
     assert result["run"]["ran"] == 2 and not result["resumed"]
     assert result["merge"]["rows"] == 4

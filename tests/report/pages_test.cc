@@ -5,12 +5,12 @@
 #include <gtest/gtest.h>
 
 #include "core/file_util.h"
-#include "shadow/demo.h"
-#include "shadow/twin.h"
 #include "tests/multiview/multiview_test_util.h"
 #include "tests/report/chromium.h"
 #include "tests/testing/temp_dir.h"
 #include "workflows/multiview/multiview_demo.h"
+#include "workflows/pipeline/demo.h"
+#include "workflows/twin/twin.h"
 
 namespace slshadow::report {
 namespace {
@@ -59,9 +59,9 @@ std::string Canvas(HeadlessChromium& b) {
 
 TEST(HtmlPages, DemoAndShadowPagesLoadOfflineShowTheirLayersAndTheirJsonValues) {
   testing::TempDir tmp;
-  shadow::DemoOptions demo;
+  pipeline::DemoOptions demo;
   demo.out_dir = tmp / "demo";
-  shadow::RunDemoJob(demo);
+  pipeline::RunDemoJob(demo);
   const fs::path demo_page = tmp / "demo" / "report.html";
   ASSERT_TRUE(fs::exists(demo_page));
   EXPECT_LE(fs::file_size(demo_page), 25'000'000u);
@@ -88,11 +88,11 @@ TEST(HtmlPages, DemoAndShadowPagesLoadOfflineShowTheirLayersAndTheirJsonValues) 
     EXPECT_TRUE(b.problems().empty()) << Joined(b.problems());
   }
   {
-    shadow::ShadowOptions options;
+    twin::ShadowOptions options;
     options.rig_from_part = Rigid3d();  // the demo scene is in the rig frame
-    const shadow::ShadowPart part =
-        shadow::LoadShadowPart(testing::SourceDir() / "config" / "demo" / "scene.yaml");
-    shadow::RunShadow(tmp / "demo" / "scan", part, options, tmp / "shadow");
+    const twin::ShadowPart part =
+        twin::LoadShadowPart(testing::SourceDir() / "config" / "demo" / "scene.yaml");
+    twin::RunShadow(tmp / "demo" / "scan", part, options, tmp / "shadow");
     Load(b, tmp / "shadow" / "report.html");
     EXPECT_EQ(b.Evaluate("document.querySelectorAll('input[name=cloud]').length"), 4);
     EXPECT_EQ(b.Evaluate("document.querySelectorAll('input[name=mesh]').length"), 1);

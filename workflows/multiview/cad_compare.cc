@@ -7,7 +7,6 @@
 #include <cmath>
 #include <fstream>
 #include <limits>
-#include <memory>
 
 #include "compare/charts.h"
 #include "compare/compare.h"
@@ -18,17 +17,11 @@
 #include "core/file_util.h"
 #include "core/kdtree.h"
 #include "core/string_printf.h"
-#include "sim/raycaster.h"
-#include "sim/scene.h"
+#include "workflows/multiview/internal/device_sight.h"
 
 namespace slshadow::multiview {
 
 namespace {
-
-constexpr double kDeg = M_PI / 180.0;
-
-// How well one device sees a sample from one view, worst first (the order of the reasons).
-enum DeviceSight : uint8_t { kOutside = 0, kHidden = 1, kGrazing = 2, kSeen = 3 };
 
 std::vector<Eigen::Vector3d> Moved(const PointCloud& cloud, const Rigid3d& motion) {
   std::vector<Eigen::Vector3d> points(cloud.size());
@@ -62,104 +55,24 @@ std::vector<uint8_t> Reached(const std::vector<Eigen::Vector3d>& points,
   return reached;
 }
 
-// The best sight over `views` of each sample by every device in `devices` (kSeen when some view
-// sees it with all of them), by ray casting the CAD mesh.
+// The best sight over `views` of each sample by every device in `devices` (CoverageReason: kCovered
+// when some view sees it with all of them), by ray casting the CAD mesh (internal/device_sight.h).
 std::vector<uint8_t> BestSight(const TriangleMesh& cad, const std::vector<Eigen::Vector3d>& samples,
                                const std::vector<Eigen::Vector3f>& normals,
                                const std::vector<const RigDevice*>& devices,
                                const std::vector<Rigid3d>& part_from_rig, double grazing_deg) {
-  Scene scene;
-  scene.name = "CAD";
-  SceneObject object;
-  object.name = "cad";
-  object.type = ObjectType::kMesh;
-  object.mesh = std::make_shared<const TriangleMesh>(cad);
-  scene.objects.push_back(object);
-  const RayCaster caster(scene);
-  const double cos_grazing = std::cos(grazing_deg * kDeg);
-  const Eigen::Vector3d extent = cad.BoundsMax() - cad.BoundsMin();
-  const double eps = std::max(1e-3, 2e-5 * extent.norm());  // off the surface for shadow rays
-
-  // Device centres in the part frame, per view.
-  std::vector<std::vector<Eigen::Vector3d>> centres(part_from_rig.size());
-  for (size_t v = 0; v < part_from_rig.size(); ++v) {
-    for (const RigDevice* d : devices) centres[v].push_back(part_from_rig[v] * d->CenterInRig());
-  }
-  std::vector<uint8_t> best(samples.size(), kOutside);
-  constexpr size_t kLanes = RayPacket::kSize;
-  const size_t blocks = (samples.size() + kLanes - 1) / kLanes;
-  tbb::parallel_for(size_t{0}, blocks, [&](size_t b) {
-    const size_t first = b * kLanes, n = std::min(kLanes, samples.size() - first);
-    RayPacket packet;
-    for (size_t v = 0; v < part_from_rig.size(); ++v) {
-      const Rigid3d rig_from_part = part_from_rig[v].Inverse();
-      uint8_t sight[kLanes];
-      for (size_t l = 0; l < kLanes; ++l) sight[l] = (l < n && best[first + l] < kSeen) ? kSeen : 0;
-      for (size_t d = 0; d < devices.size(); ++d) {
-        const RigDevice& device = *devices[d];
-        const Eigen::Vector3d& c = centres[v][d];
-        bool any = false;
-        for (size_t l = 0; l < kLanes; ++l) {
-          packet.active[l] = 0;
-          if (sight[l] == 0 || l >= n) continue;
-          const Eigen::Vector3d& p = samples[first + l];
-          const Eigen::Vector3d in_device = device.cam_from_rig * (rig_from_part * p);
-          const double max_r2 = std::pow(device.model.width / device.model.fx(), 2) +
-                                std::pow(device.model.height / device.model.fy(), 2);
-          const double x = in_device.x() / in_device.z(), y = in_device.y() / in_device.z();
-          const auto pixel = device.model.Project(in_device);
-          if (in_device.z() <= 0 || x * x + y * y > max_r2 || !pixel ||
-              !device.model.IsInImage(*pixel)) {
-            sight[l] = kOutside;
-            continue;
-          }
-          const Eigen::Vector3d nrm = normals[first + l].cast<double>();
-          const Eigen::Vector3d to = c - p;
-          const double dist = to.norm();
-          const double cos_incidence = nrm.dot(to) / dist;
-          if (cos_incidence <= 0) {
-            sight[l] = std::min<uint8_t>(sight[l], kHidden);
-            continue;
-          }
-          if (cos_incidence < cos_grazing) sight[l] = std::min<uint8_t>(sight[l], kGrazing);
-          const Eigen::Vector3d o = p + eps * nrm;
-          const Eigen::Vector3d dir = (c - o) / (c - o).norm();
-          packet.org_x[l] = static_cast<float>(o.x());
-          packet.org_y[l] = static_cast<float>(o.y());
-          packet.org_z[l] = static_cast<float>(o.z());
-          packet.dir_x[l] = static_cast<float>(dir.x());
-          packet.dir_y[l] = static_cast<float>(dir.y());
-          packet.dir_z[l] = static_cast<float>(dir.z());
-          packet.tnear[l] = 0.0f;
-          packet.tfar[l] = static_cast<float>((c - o).norm() - eps);
-          packet.active[l] = 1;
-          any = true;
-        }
-        if (!any) continue;
-        caster.Occluded(packet, TraceMode::kPacket16);
-        for (size_t l = 0; l < kLanes; ++l) {
-          if (packet.active[l] && packet.occluded[l])
-            sight[l] = std::min<uint8_t>(sight[l], kHidden);
-        }
-      }
-      for (size_t l = 0; l < n; ++l) best[first + l] = std::max(best[first + l], sight[l]);
+  const internal::SightCaster caster(cad);
+  std::vector<uint8_t> best(samples.size(), static_cast<uint8_t>(CoverageReason::kOutsideField));
+  std::vector<uint8_t> active(samples.size(), 1);
+  for (const Rigid3d& pose : part_from_rig) {
+    const std::vector<uint8_t> sight =
+        caster.View(samples, normals, devices, pose, grazing_deg, &active);
+    for (size_t i = 0; i < samples.size(); ++i) {
+      best[i] = std::min(best[i], sight[i]);
+      active[i] = best[i] != static_cast<uint8_t>(CoverageReason::kCovered);
     }
-  });
-  return best;
-}
-
-std::vector<const RigDevice*> ModeDevices(const Rig& rig, ReconstructMode mode) {
-  SLSHADOW_THROW_IF(rig.cameras.empty(), "CAD comparison: rig '", rig.name, "' has no camera");
-  SLSHADOW_THROW_IF(!rig.projector, "CAD comparison: rig '", rig.name,
-                    "' has no projector (every mode needs the surface lit)");
-  std::vector<const RigDevice*> devices = {&rig.cameras[0]};
-  if (mode == ReconstructMode::kStereo) {
-    SLSHADOW_THROW_IF(rig.cameras.size() < 2, "CAD comparison: stereo needs two cameras (rig '",
-                      rig.name, "' has ", rig.cameras.size(), ")");
-    devices.push_back(&rig.cameras[1]);
   }
-  devices.push_back(&*rig.projector);
-  return devices;
+  return best;
 }
 
 nlohmann::json StatsJson(const compare::DistanceStats& s) {
@@ -222,7 +135,7 @@ CadComparison CompareWithCad(const TriangleMesh& cad_in_part, const Rig& rig, Re
   options.Check();
   SLSHADOW_THROW_IF(cad_in_part.empty(), "CAD comparison: the CAD mesh is empty");
   SLSHADOW_THROW_IF(merged_in_part.empty(), "CAD comparison: the merged cloud is empty");
-  const std::vector<const RigDevice*> devices = ModeDevices(rig, mode);
+  const std::vector<const RigDevice*> devices = internal::ModeDevices(rig, mode, "CAD comparison");
   CadComparison result;
 
   const compare::Reference reference =
@@ -257,16 +170,8 @@ CadComparison CompareWithCad(const TriangleMesh& cad_in_part, const Rig& rig, Re
   for (const CadView& v : views) poses.push_back(v.part_from_rig);
   const std::vector<uint8_t> sight =
       BestSight(cad_in_part, samples, reference.cloud.normals, devices, poses, options.grazing_deg);
-  std::vector<uint8_t> on_table(samples.size(), 0);
-  if (table_axis) {
-    const Eigen::Vector3d up = table_axis->direction_in_rig.normalized();
-    double lowest = std::numeric_limits<double>::infinity();
-    for (const Eigen::Vector3d& v : cad_in_part.vertices) lowest = std::min(lowest, up.dot(v));
-    for (size_t i = 0; i < samples.size(); ++i) {
-      on_table[i] = up.dot(reference.cloud.normals[i].cast<double>()) < -0.99 &&
-                    up.dot(samples[i]) - lowest <= options.table_tolerance_mm;
-    }
-  }
+  const std::vector<uint8_t> on_table = internal::OnTableMask(
+      cad_in_part, samples, reference.cloud.normals, table_axis, options.table_tolerance_mm);
   result.sample_reason.resize(samples.size());
   for (size_t i = 0; i < samples.size(); ++i) {
     CoverageReason r;
@@ -275,10 +180,9 @@ CadComparison CompareWithCad(const TriangleMesh& cad_in_part, const Rig& rig, Re
     } else if (covered[i]) {
       r = CoverageReason::kCovered;
     } else {
-      r = sight[i] == kSeen      ? CoverageReason::kNotReconstructed
-          : sight[i] == kGrazing ? CoverageReason::kGrazing
-          : sight[i] == kHidden  ? CoverageReason::kOccluded
-                                 : CoverageReason::kOutsideField;
+      r = sight[i] == static_cast<uint8_t>(CoverageReason::kCovered)
+              ? CoverageReason::kNotReconstructed
+              : static_cast<CoverageReason>(sight[i]);
     }
     result.sample_reason[i] = static_cast<uint8_t>(r);
     ++result.reason_samples[static_cast<size_t>(r)];

@@ -13,15 +13,15 @@
 #include "core/kdtree.h"
 #include "core/point_cloud.h"
 #include "core/string_printf.h"
-#include "sim/raycaster.h"
+#include "reconstruct/stereo_matcher.h"
 #include "sim/scene.h"
+#include "workflows/multiview/internal/device_sight.h"
 #include "workflows/multiview/virtual_project.h"
 
 namespace slshadow::multiview {
 
 namespace {
 
-constexpr double kDeg = M_PI / 180.0;
 constexpr auto kCovered = static_cast<uint8_t>(PredictedReason::kReconstructed);
 constexpr auto kDark = static_cast<uint8_t>(PredictedReason::kTooDark);
 constexpr auto kGrazing = static_cast<uint8_t>(PredictedReason::kGrazing);
@@ -40,149 +40,213 @@ struct Light {
   double range_per_factor = 0;
   double ref_distance_sq = 0;
   double threshold = 0;
-  double max_code_step_px = 0;           // stereo: 0 = no gate
-  double max_depth_jump_footprints = 0;  // 0: no filter
+  double max_code_step_px = 0;  // stereo: 0 = no gate
+  SceneLayers::Defocus camera_defocus, projector_defocus;
+  double fringe_period_px = 16;
+  bool code_y = true;
 };
 
-// The depth-discontinuity filter (reconstruct/filters.h) at the reference camera's pixel of
-// `in_cam`: the largest range change to its horizontal and vertical neighbours on the tangent
-// plane (normal `n_cam`), in footprints (range / fx). Infinity when a neighbour's ray misses it.
-double RangeStepFootprints(const RigDevice& cam, const Eigen::Vector3d& in_cam,
-                           const Eigen::Vector3d& n_cam, const Eigen::Vector2d& pixel) {
-  const double range = in_cam.norm();
-  double step = 0;
-  for (const Eigen::Vector2d& offset : {Eigen::Vector2d(1, 0), Eigen::Vector2d(0, 1)}) {
-    const auto ray = cam.model.Unproject(pixel + offset);
-    if (!ray) return std::numeric_limits<double>::infinity();
-    const double denom = n_cam.dot(*ray);
-    if (std::abs(denom) < 1e-12) return std::numeric_limits<double>::infinity();
-    const double t = n_cam.dot(in_cam) / denom;  // the range along the unit ray
-    if (t <= 0) return std::numeric_limits<double>::infinity();
-    step = std::max(step, std::abs(t - range));
+// The reconstruction's reference grid, where its filters run (reconstruct.h): the rectified left
+// camera in stereo (stereo_matcher.h: pinhole, focal_px, cx, cy, centred on the left camera), the
+// first camera's own image in projector mode. Footprints are range / focal_px (DenseGrid).
+struct ReferenceGrid {
+  Rigid3d grid_from_rig;
+  bool rectified = false;
+  double focal_px = 1, cx = 0, cy = 0;
+  const RigDevice* camera = nullptr;  // projector mode
+  // The reconstruction's filters (0: off).
+  double max_depth_jump_footprints = 0;
+  bool outliers = false;
+  int outlier_radius = 1, outlier_neighbors = 4;
+  double outlier_std_ratio = 4, outlier_floor = 4;
+
+  std::optional<Eigen::Vector2d> Pixel(const Eigen::Vector3d& in_grid) const {
+    if (in_grid.z() <= 0) return std::nullopt;
+    if (!rectified) return camera->model.Project(in_grid);
+    return Eigen::Vector2d(focal_px * in_grid.x() / in_grid.z() + cx,
+                           focal_px * in_grid.y() / in_grid.z() + cy);
   }
-  return step / (range / cam.model.fx());
+  std::optional<Eigen::Vector3d> Ray(const Eigen::Vector2d& pixel) const {
+    if (!rectified) return camera->model.Unproject(pixel);
+    return Eigen::Vector3d((pixel.x() - cx) / focal_px, (pixel.y() - cy) / focal_px, 1.0);
+  }
+};
+
+// The cells around the grid's pixel of `in_grid` on the surface's tangent plane (normal `n_grid`,
+// grid frame): the depth-discontinuity filter's largest range change to a 4-neighbour, and the
+// statistical outlier filter's score (RMS distance to the `outlier_neighbors` nearest cells of
+// the window), both in footprints (reconstruct/filters.h). Infinity where a neighbour's ray
+// misses the plane.
+struct CellFigures {
+  double jump_footprints = 0;
+  double outlier_score = 0;
+};
+CellFigures TangentCells(const ReferenceGrid& grid, const Eigen::Vector3d& in_grid,
+                         const Eigen::Vector3d& n_grid, const Eigen::Vector2d& pixel) {
+  constexpr double kInf = std::numeric_limits<double>::infinity();
+  const double range = in_grid.norm(), footprint = range / grid.focal_px;
+  const double plane = n_grid.dot(in_grid);
+  CellFigures f;
+  thread_local std::vector<double> d2;  // no allocation per sample
+  d2.clear();
+  const int r = std::max(1, grid.outlier_radius);
+  for (int dv = -r; dv <= r; ++dv) {
+    for (int du = -r; du <= r; ++du) {
+      if (du == 0 && dv == 0) continue;
+      const bool four = std::abs(du) + std::abs(dv) == 1;
+      if (!four && !grid.outliers) continue;
+      Eigen::Vector3d q;
+      bool hit = false;
+      if (const auto ray = grid.Ray(pixel + Eigen::Vector2d(du, dv))) {
+        const double denom = n_grid.dot(*ray);
+        const double t = std::abs(denom) > 1e-12 ? plane / denom : -1;
+        if (t > 0) q = *ray * t, hit = true;
+      }
+      if (four)
+        f.jump_footprints = std::max(f.jump_footprints, hit ? std::abs(q.norm() - range) : kInf);
+      d2.push_back(hit ? (q - in_grid).squaredNorm() : kInf);
+    }
+  }
+  if (grid.outliers) {
+    const auto k = std::min(d2.size(), static_cast<size_t>(std::max(1, grid.outlier_neighbors)));
+    std::partial_sort(d2.begin(), d2.begin() + static_cast<std::ptrdiff_t>(k), d2.end());
+    double sum = 0;
+    for (size_t i = 0; i < k; ++i) sum += d2[i];
+    f.outlier_score = std::sqrt(sum / static_cast<double>(k)) / footprint;
+  }
+  f.jump_footprints /= footprint;
+  return f;
 }
 
-// Stereo's code-step gate (ReconstructOptions::max_code_step_px): the largest change of either
-// projector coordinate between the camera pixel of `in_cam` and its neighbour along the row (the
-// direction the matcher interpolates and searches, the baseline's), with the surface as its
-// tangent plane (normal `n_cam`, camera frame). Infinity when the neighbour's ray misses the plane
-// or the projector.
-double CodeStepPx(const RigDevice& cam, const RigDevice& projector, const Eigen::Vector3d& in_cam,
-                  const Eigen::Vector3d& n_cam, const Eigen::Vector2d& pixel) {
+// How the projector coordinates change from the camera pixel of `in_cam` to its neighbours, with
+// the surface as its tangent plane (normal `n_cam`, camera frame): column 0 to the next pixel along
+// the row, column 1 to the next along the column, projector px. Nullopt when a neighbour's ray
+// misses the plane or the projector.
+std::optional<Eigen::Matrix2d> ProjectorSteps(const RigDevice& cam, const RigDevice& projector,
+                                              const Eigen::Vector3d& in_cam,
+                                              const Eigen::Vector3d& n_cam,
+                                              const Eigen::Vector2d& pixel) {
   const Rigid3d proj_from_cam = projector.cam_from_rig * cam.cam_from_rig.Inverse();
   const auto proj_pixel = [&](const Eigen::Vector3d& x) {
     return projector.model.Project(proj_from_cam * x);
   };
   const auto centre = proj_pixel(in_cam);
-  if (!centre) return std::numeric_limits<double>::infinity();
-  const auto ray = cam.model.Unproject(pixel + Eigen::Vector2d(1, 0));
-  if (!ray) return std::numeric_limits<double>::infinity();
-  const double denom = n_cam.dot(*ray);
-  if (std::abs(denom) < 1e-12) return std::numeric_limits<double>::infinity();
-  const auto q = proj_pixel(*ray * (n_cam.dot(in_cam) / denom));
-  if (!q) return std::numeric_limits<double>::infinity();
-  return (*q - *centre).cwiseAbs().maxCoeff();
-}
-
-// Worse of two per-device reasons of one view (outside worst, then occluded, grazing, covered):
-// the CoverageReason values grow from covered to outside, so the larger one.
-uint8_t Worse(uint8_t a, uint8_t b) { return std::max(a, b); }
-
-// The devices of the mode, as cad_compare.cc's ModeDevices.
-std::vector<const RigDevice*> ModeDevices(const Rig& rig, ReconstructMode mode) {
-  SLSHADOW_THROW_IF(rig.cameras.empty(), "coverage prediction: rig '", rig.name, "' has no camera");
-  SLSHADOW_THROW_IF(!rig.projector, "coverage prediction: rig '", rig.name,
-                    "' has no projector (every mode needs the surface lit)");
-  std::vector<const RigDevice*> devices = {&rig.cameras[0]};
-  if (mode == ReconstructMode::kStereo) {
-    SLSHADOW_THROW_IF(rig.cameras.size() < 2,
-                      "coverage prediction: stereo needs two cameras (rig '", rig.name, "' has ",
-                      rig.cameras.size(), ")");
-    devices.push_back(&rig.cameras[1]);
+  if (!centre) return std::nullopt;
+  Eigen::Matrix2d steps;
+  for (int k = 0; k < 2; ++k) {
+    const auto ray = cam.model.Unproject(pixel + Eigen::Vector2d(k == 0, k == 1));
+    if (!ray) return std::nullopt;
+    const double denom = n_cam.dot(*ray);
+    if (std::abs(denom) < 1e-12) return std::nullopt;
+    const auto q = proj_pixel(*ray * (n_cam.dot(in_cam) / denom));
+    if (!q) return std::nullopt;
+    steps.col(k) = *q - *centre;
   }
-  devices.push_back(&*rig.projector);
-  return devices;
+  return steps;
 }
 
-// Per sample, this view's reason (kCovered .. kOutside) with every device of `devices`: the rule
-// of cad_compare.cc's BestSight for one view.
-std::vector<uint8_t> ViewSight(const RayCaster& caster, const std::vector<Eigen::Vector3d>& samples,
+// The share of the finest fringe's modulation a Gaussian blur of sigma (px of the image where the
+// fringe has period period_px) keeps: the Gaussian's transfer exp(-2 pi^2 sigma^2 / period^2).
+double FringeTransfer(double sigma_px, double period_px) {
+  return std::exp(-2 * M_PI * M_PI * sigma_px * sigma_px / (period_px * period_px));
+}
+
+// Per sample, this view's reason (kCovered .. kOutside) with every device of `devices`: the
+// geometry of the CAD comparison (internal/device_sight.h), then, where every device sees the
+// sample, the rules of the light, the matcher and the filters. The reasons grow from covered to
+// outside, so a view's reason is the largest of its rules'.
+std::vector<uint8_t> ViewSight(const internal::SightCaster& caster,
+                               const std::vector<Eigen::Vector3d>& samples,
                                const std::vector<Eigen::Vector3f>& normals,
                                const std::vector<const RigDevice*>& devices,
-                               const Rigid3d& part_from_rig, double cos_grazing, double eps,
-                               const Light& light) {
+                               const Rigid3d& part_from_rig, double grazing_deg, const Light& light,
+                               const ReferenceGrid& grid) {
+  std::vector<uint8_t> sight = caster.View(samples, normals, devices, part_from_rig, grazing_deg);
   const Rigid3d rig_from_part = part_from_rig.Inverse();
-  std::vector<Eigen::Vector3d> centres;
-  for (const RigDevice* d : devices) centres.push_back(part_from_rig * d->CenterInRig());
-  std::vector<uint8_t> sight(samples.size(), kCovered);
-  constexpr size_t kLanes = RayPacket::kSize;
-  const size_t blocks = (samples.size() + kLanes - 1) / kLanes;
-  tbb::parallel_for(size_t{0}, blocks, [&](size_t b) {
-    const size_t first = b * kLanes, n = std::min(kLanes, samples.size() - first);
-    RayPacket packet;
-    for (size_t d = 0; d < devices.size(); ++d) {
-      const RigDevice& device = *devices[d];
-      const Eigen::Vector3d& c = centres[d];
-      const double max_r2 = std::pow(device.model.width / device.model.fx(), 2) +
-                            std::pow(device.model.height / device.model.fy(), 2);
-      bool any = false;
-      for (size_t l = 0; l < kLanes; ++l) {
-        packet.active[l] = 0;
-        if (l >= n || sight[first + l] == kOutside) continue;
-        const Eigen::Vector3d& p = samples[first + l];
-        const Eigen::Vector3d in_device = device.cam_from_rig * (rig_from_part * p);
-        const double x = in_device.x() / in_device.z(), y = in_device.y() / in_device.z();
-        const auto pixel = device.model.Project(in_device);
-        if (in_device.z() <= 0 || x * x + y * y > max_r2 || !pixel ||
-            !device.model.IsInImage(*pixel)) {
-          sight[first + l] = kOutside;
-          continue;
-        }
-        const Eigen::Vector3d nrm = normals[first + l].cast<double>();
-        const Eigen::Vector3d to = c - p;
-        const double cos_incidence = nrm.dot(to) / to.norm();
-        if (cos_incidence <= 0) {
-          sight[first + l] = Worse(sight[first + l], kOccluded);
-          continue;
-        }
-        if (cos_incidence < cos_grazing) sight[first + l] = Worse(sight[first + l], kGrazing);
-        if (light.max_depth_jump_footprints > 0 && d == 0 &&
-            RangeStepFootprints(device, in_device,
-                                device.cam_from_rig.rotation * (rig_from_part.rotation * nrm),
-                                *pixel) > light.max_depth_jump_footprints)
-          sight[first + l] = Worse(sight[first + l], kGrazing);
-        if (light.max_code_step_px > 0 && d + 1 < devices.size() &&
-            CodeStepPx(device, *devices.back(), in_device,
-                       device.cam_from_rig.rotation * (rig_from_part.rotation * nrm),
-                       *pixel) > light.max_code_step_px)
-          sight[first + l] = Worse(sight[first + l], kGrazing);
-        // The last device is the projector: the light it brings (sim/scene.h radiometry).
-        if (d + 1 == devices.size() &&
-            light.range_per_factor * cos_incidence * light.ref_distance_sq / to.squaredNorm() <
-                light.threshold)
-          sight[first + l] = Worse(sight[first + l], kDark);
-        const Eigen::Vector3d o = p + eps * nrm;
-        const Eigen::Vector3d dir = (c - o) / (c - o).norm();
-        packet.org_x[l] = static_cast<float>(o.x());
-        packet.org_y[l] = static_cast<float>(o.y());
-        packet.org_z[l] = static_cast<float>(o.z());
-        packet.dir_x[l] = static_cast<float>(dir.x());
-        packet.dir_y[l] = static_cast<float>(dir.y());
-        packet.dir_z[l] = static_cast<float>(dir.z());
-        packet.tnear[l] = 0.0f;
-        packet.tfar[l] = static_cast<float>((c - o).norm() - eps);
-        packet.active[l] = 1;
-        any = true;
-      }
-      if (!any) continue;
-      caster.Occluded(packet, TraceMode::kPacket16);
-      for (size_t l = 0; l < n; ++l) {
-        if (packet.active[l] && packet.occluded[l])
-          sight[first + l] = Worse(sight[first + l], kOccluded);
+  const Rigid3d grid_from_part = grid.grid_from_rig * rig_from_part;
+  const RigDevice& projector = *devices.back();
+  const Eigen::Vector3d projector_centre = part_from_rig * projector.CenterInRig();
+  // The outlier filter's score of each sample's cell and the cells per sample (its weight in the
+  // filter's mean and spread over the grid's cells: cos / footprint^2 per unit of area).
+  std::vector<double> score(samples.size(), 0), weight(samples.size(), 0);
+  tbb::parallel_for(size_t{0}, samples.size(), [&](size_t i) {
+    if (sight[i] > kGrazing) return;  // hidden from or outside a device
+    const Eigen::Vector3d& p = samples[i];
+    const Eigen::Vector3d nrm = normals[i].cast<double>();
+    const Eigen::Vector3d p_rig = rig_from_part * p;
+    const Eigen::Vector3d n_rig = rig_from_part.rotation * nrm;
+    uint8_t r = sight[i];
+    // The projector's light (sim/scene.h radiometry): the lit range, then the fringe's
+    // modulation through the projector's and each camera's defocus (the finest fringe, period
+    // fringe_period_px in the projector; in a camera, divided by how many projector px one camera
+    // px spans along the coded axes).
+    const Eigen::Vector3d to = projector_centre - p;
+    const double cos_p = nrm.dot(to) / to.norm();
+    double range = light.range_per_factor * cos_p * light.ref_distance_sq / to.squaredNorm();
+    if (light.projector_defocus.enabled) {
+      const double depth = (projector.cam_from_rig * p_rig).z();
+      range *= FringeTransfer(light.projector_defocus.SigmaPx(projector.model.fx(), depth),
+                              light.fringe_period_px);
+    }
+    double camera_transfer = 1;  // the worst camera's: every camera must decode
+    for (size_t d = 0; d + 1 < devices.size(); ++d) {
+      if (!light.camera_defocus.enabled && light.max_code_step_px <= 0) break;
+      const RigDevice& camera = *devices[d];
+      const Eigen::Vector3d in_cam = camera.cam_from_rig * p_rig;
+      const auto pixel = camera.model.Project(in_cam);
+      if (!pixel) continue;
+      const auto steps =
+          ProjectorSteps(camera, projector, in_cam, camera.cam_from_rig.rotation * n_rig, *pixel);
+      // Stereo's code-step gate: the matcher neither interpolates nor searches across a step of
+      // either projector coordinate larger than max_code_step_px along the row.
+      if (light.max_code_step_px > 0 &&
+          (!steps || steps->col(0).cwiseAbs().maxCoeff() > light.max_code_step_px))
+        r = std::max(r, kGrazing);
+      if (light.camera_defocus.enabled && steps) {
+        // Projector px per camera px along each coded axis's gradient.
+        double gradient = steps->row(0).norm();
+        if (light.code_y) gradient = std::max(gradient, steps->row(1).norm());
+        const double sigma = light.camera_defocus.SigmaPx(camera.model.fx(), in_cam.z());
+        camera_transfer =
+            std::min(camera_transfer, FringeTransfer(sigma * gradient, light.fringe_period_px));
       }
     }
+    if (range * camera_transfer < light.threshold) r = std::max(r, kDark);
+    // The filters on the reference grid.
+    if (grid.max_depth_jump_footprints > 0 || grid.outliers) {
+      const Eigen::Vector3d in_grid = grid_from_part * p;
+      const Eigen::Vector3d n_grid = grid_from_part.rotation * nrm;
+      if (const auto cell = grid.Pixel(in_grid)) {
+        const CellFigures f = TangentCells(grid, in_grid, n_grid, *cell);
+        if (grid.max_depth_jump_footprints > 0 &&
+            f.jump_footprints > grid.max_depth_jump_footprints)
+          r = std::max(r, kGrazing);
+        score[i] = f.outlier_score;
+        weight[i] = std::abs(n_grid.dot(in_grid)) * grid.focal_px * grid.focal_px /
+                    std::pow(in_grid.squaredNorm(), 1.5);
+      }
+    }
+    sight[i] = r;
   });
+  if (grid.outliers) {
+    // The filter's limit over the cells that reach it (the samples every other rule keeps):
+    // max(mean + std_ratio * spread, floor); a cell above it is rejected (a surface too steep for
+    // its neighbours to stay close, or with a neighbour's ray off the plane); grazing before too
+    // dark, as the other rules rank them.
+    double w = 0, ws = 0, ws2 = 0;
+    for (size_t i = 0; i < samples.size(); ++i) {
+      if (sight[i] != kCovered || !std::isfinite(score[i])) continue;
+      w += weight[i];
+      ws += weight[i] * score[i];
+      ws2 += weight[i] * score[i] * score[i];
+    }
+    const double mean = w > 0 ? ws / w : 0;
+    const double spread = w > 0 ? std::sqrt(std::max(0.0, ws2 / w - mean * mean)) : 0;
+    const double limit = std::max(mean + grid.outlier_std_ratio * spread, grid.outlier_floor);
+    for (size_t i = 0; i < samples.size(); ++i) {
+      if (sight[i] <= kDark && score[i] > limit) sight[i] = kGrazing;
+    }
+  }
   return sight;
 }
 
@@ -221,6 +285,16 @@ CoveragePredictionOptions WithSceneRadiometry(CoveragePredictionOptions options,
       albedo = std::min(albedo, o.albedo.value);
   }
   if (std::isfinite(albedo)) options.albedo = albedo;
+  options.camera_defocus = scene.layers.camera_defocus;
+  options.projector_defocus = scene.layers.projector_defocus;
+  return options;
+}
+
+CoveragePredictionOptions WithPatterns(CoveragePredictionOptions options, const PatternSpec& spec) {
+  const std::vector<double> periods = spec.PeriodsPx();
+  options.fringe_period_px =
+      periods.empty() ? 4.0 : *std::min_element(periods.begin(), periods.end());
+  options.code_y = spec.code_y;
   return options;
 }
 
@@ -233,12 +307,10 @@ void CoveragePredictionOptions::Check() const {
   SLSHADOW_THROW_IF(!(reference_distance_mm >= 0),
                     "coverage prediction: reference_distance_mm must be >= 0 (got ",
                     reference_distance_mm, ")");
-  SLSHADOW_THROW_IF(!(max_depth_jump_footprints >= 0),
-                    "coverage prediction: max_depth_jump_footprints must be >= 0 (got ",
-                    max_depth_jump_footprints, ")");
-  SLSHADOW_THROW_IF(!(max_code_step_px >= 0),
-                    "coverage prediction: max_code_step_px must be >= 0 (got ", max_code_step_px,
-                    ")");
+  SLSHADOW_THROW_IF(!(fringe_period_px > 0),
+                    "coverage prediction: fringe_period_px must be positive (got ",
+                    fringe_period_px, ")");
+  reconstruct.Check();
   SLSHADOW_THROW_IF(!(shadow_threshold >= 0),
                     "coverage prediction: shadow_threshold must be >= 0 (got ", shadow_threshold,
                     ")");
@@ -268,10 +340,9 @@ struct CoveragePredictor::Impl {
   std::vector<uint8_t> on_table;
   double cad_area_mm2 = 0;
   std::vector<RigDevice> devices;  // copies: the rig may go away
-  Scene scene;                     // the CAD mesh alone; outlives the caster
-  std::unique_ptr<RayCaster> caster;
-  double eps = 0, cos_grazing = 0;
+  std::unique_ptr<internal::SightCaster> caster;
   Light light;
+  ReferenceGrid grid;
 };
 
 CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig& rig,
@@ -282,7 +353,8 @@ CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig&
   SLSHADOW_THROW_IF(cad_in_part.empty(), "coverage prediction: the CAD mesh is empty");
   Impl& m = *impl_;
   m.options = options;
-  for (const RigDevice* d : ModeDevices(rig, options.mode)) m.devices.push_back(*d);
+  for (const RigDevice* d : internal::ModeDevices(rig, options.mode, "coverage prediction"))
+    m.devices.push_back(*d);
 
   // The samples of CompareWithCad (same seed, same count).
   compare::Reference reference =
@@ -290,34 +362,41 @@ CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig&
   m.samples = std::move(reference.cloud.points);
   m.normals = std::move(reference.cloud.normals);
   m.cad_area_mm2 = cad_in_part.SurfaceArea();
-  const size_t ns = m.samples.size();
-  m.on_table.assign(ns, 0);
-  if (table_axis) {
-    const Eigen::Vector3d up = table_axis->direction_in_rig.normalized();
-    double lowest = std::numeric_limits<double>::infinity();
-    for (const Eigen::Vector3d& v : cad_in_part.vertices) lowest = std::min(lowest, up.dot(v));
-    for (size_t i = 0; i < ns; ++i) {
-      m.on_table[i] = up.dot(m.normals[i].cast<double>()) < -0.99 &&
-                      up.dot(m.samples[i]) - lowest <= options.table_tolerance_mm;
-    }
-  }
-  m.scene.name = "CAD";
-  SceneObject object;
-  object.name = "cad";
-  object.type = ObjectType::kMesh;
-  object.mesh = std::make_shared<const TriangleMesh>(cad_in_part);
-  m.scene.objects.push_back(object);
-  m.caster = std::make_unique<RayCaster>(m.scene);
-  const Eigen::Vector3d extent = cad_in_part.BoundsMax() - cad_in_part.BoundsMin();
-  m.eps = std::max(1e-3, 2e-5 * extent.norm());
-  m.cos_grazing = std::cos(options.grazing_deg * kDeg);
+  m.on_table = internal::OnTableMask(cad_in_part, m.samples, m.normals, table_axis,
+                                     options.table_tolerance_mm);
+  m.caster = std::make_unique<internal::SightCaster>(cad_in_part);
   m.light.range_per_factor = options.exposure_fraction * 255.0 * options.albedo;
   const double d_ref =
       options.reference_distance_mm > 0 ? options.reference_distance_mm : rig.working_distance_mm;
   m.light.ref_distance_sq = d_ref * d_ref;
   m.light.threshold = options.shadow_threshold;
-  if (options.mode == ReconstructMode::kStereo) m.light.max_code_step_px = options.max_code_step_px;
-  m.light.max_depth_jump_footprints = options.max_depth_jump_footprints;
+  m.light.camera_defocus = options.camera_defocus;
+  m.light.projector_defocus = options.projector_defocus;
+  m.light.fringe_period_px = options.fringe_period_px;
+  m.light.code_y = options.code_y;
+  const ReconstructOptions& r = options.reconstruct;
+  // The automatic gate (0) is at least 4 px (AutoCodeStepGate): its floor.
+  if (options.mode == ReconstructMode::kStereo)
+    m.light.max_code_step_px = r.max_code_step_px > 0 ? r.max_code_step_px : 4.0;
+  ReferenceGrid& grid = m.grid;
+  const RigDevice& left = m.devices[0];
+  grid.camera = &left;
+  grid.focal_px = 0.5 * (left.model.fx() + left.model.fy());
+  grid.grid_from_rig = left.cam_from_rig;
+  if (options.mode == ReconstructMode::kStereo) {
+    const StereoRectification rect = ComputeStereoRectification(left, m.devices[1]);
+    grid.rectified = true;
+    grid.grid_from_rig = rect.RectCamFromRig(0);
+    grid.focal_px = rect.focal_px;
+    grid.cx = rect.cx[0];
+    grid.cy = rect.cy;
+  }
+  grid.max_depth_jump_footprints = r.filter_depth_discontinuities ? r.max_depth_jump_footprints : 0;
+  grid.outliers = r.filter_outliers;
+  grid.outlier_radius = r.outlier_window_radius_px;
+  grid.outlier_neighbors = r.outlier_neighbors;
+  grid.outlier_std_ratio = r.outlier_std_ratio;
+  grid.outlier_floor = r.outlier_min_distance_footprints;
 }
 
 CoveragePredictor::~CoveragePredictor() = default;
@@ -332,7 +411,7 @@ std::vector<uint8_t> CoveragePredictor::View(const Rigid3d& part_from_rig) const
   std::vector<const RigDevice*> devices;
   for (const RigDevice& d : m.devices) devices.push_back(&d);
   std::vector<uint8_t> sight = ViewSight(*m.caster, m.samples, m.normals, devices, part_from_rig,
-                                         m.cos_grazing, m.eps, m.light);
+                                         m.options.grazing_deg, m.light, m.grid);
   for (size_t i = 0; i < sight.size(); ++i) {
     if (m.on_table[i]) sight[i] = kOnTable;
   }

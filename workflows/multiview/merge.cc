@@ -16,6 +16,7 @@
 #include "workflows/multiview/internal/fusion.h"
 #include "workflows/multiview/internal/pairwise.h"
 #include "workflows/multiview/internal/pose_graph.h"
+#include "workflows/multiview/internal/turntable_graph.h"
 
 namespace slshadow::multiview {
 namespace {
@@ -92,6 +93,17 @@ void MergeOptions::Check() const {
   nonneg(min_edge_error_mm, "min_edge_error_mm");
   nonneg(max_initial_departure_deg, "max_initial_departure_deg");
   nonneg(max_initial_departure_mm, "max_initial_departure_mm");
+  nonneg(graph_robust_k, "graph_robust_k");
+  SLSHADOW_THROW_IF(joint_iterations < 0, "merge options: joint_iterations: must be >= 0 (got ",
+                    joint_iterations, ")");
+  positive(joint_tolerance_mm, "joint_tolerance_mm");
+  if (turntable) {
+    SLSHADOW_THROW_IF(!turntable->direction_in_rig.allFinite() ||
+                          turntable->direction_in_rig.norm() < 1e-12 ||
+                          !turntable->point_in_rig_mm.allFinite(),
+                      "merge options: turntable: the axis must have a finite non-zero direction "
+                      "and a finite point");
+  }
   global.Check();
   nonneg(fuse_cell_mm, "fuse_cell_mm");
   positive(fuse_k_sigma, "fuse_k_sigma");
@@ -158,13 +170,27 @@ std::string MergeResult::FullReport() const {
         p.final_rms_mm, p.graph_error_deg, p.graph_error_mm,
         p.kept ? "" : ", rejected: ", p.reason.c_str());
   }
+  if (turntable_model) {
+    s += StringPrintf(
+        "turntable model: axis (%.6f, %.6f, %.6f) through (%.4f, %.4f, %.4f) mm, 1-sigma %.2g deg "
+        "/ %.2g mm, pair variance factor %.3g, Huber corner %.3g\n",
+        axis_direction_in_rig.x(), axis_direction_in_rig.y(), axis_direction_in_rig.z(),
+        axis_point_in_rig_mm.x(), axis_point_in_rig_mm.y(), axis_point_in_rig_mm.z(),
+        axis_sigma_direction_deg, axis_sigma_point_mm, graph_variance_factor, graph_huber_corner);
+    for (const auto& v : views) {
+      if (!v.table_angle_deg) continue;
+      s += StringPrintf("  %-12s table angle %10.5f deg (%+.5f, 1-sigma %.2g)\n", v.name.c_str(),
+                        *v.table_angle_deg, v.table_angle_correction_deg, v.sigma_table_angle_deg);
+    }
+  }
   s += StringPrintf(
+      "joint refinement: %d iterations, last motion %.2g mm\n"
       "pose graph: %d iterations, cost %.6g -> %.6g\n"
       "model: cell %.4f mm, %zu input points -> %zu merged, %zu flagged where views disagree\n"
       "time: normals %.2f s, pairs %.2f s, graph %.2f s, fusion %.2f s, total %.2f s\n",
-      graph_iterations, graph_initial_cost, graph_final_cost, fuse_cell_mm, input_points,
-      merged.size(), disagree_points, time_normals_s, time_pairs_s, time_graph_s, time_fuse_s,
-      time_s);
+      joint_iterations, joint_last_motion_mm, graph_iterations, graph_initial_cost,
+      graph_final_cost, fuse_cell_mm, input_points, merged.size(), disagree_points, time_normals_s,
+      time_pairs_s, time_graph_s, time_fuse_s, time_s);
   return s;
 }
 
@@ -334,6 +360,27 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
   for (size_t i = 0; i < n; ++i) initial[i] = result.views[i].part_from_rig_initial;
   internal::GraphSolution sol;
   std::vector<size_t> edge_pair;  // pair index of each graph edge
+  internal::TableModel table_model;
+  table_model.robust_k = options.graph_robust_k;
+  table_model.angle_rad.assign(n, std::numeric_limits<double>::quiet_NaN());
+  if (options.turntable) {
+    table_model.direction_in_rig = options.turntable->direction_in_rig.normalized();
+    table_model.point_in_rig_mm = options.turntable->point_in_rig_mm;
+    for (size_t i = 0; i < n; ++i)
+      if (views[i].table_deg)
+        table_model.angle_rad[i] =
+            options.turntable->TrueAngleDeg(*views[i].table_deg) * M_PI / 180;
+  }
+  internal::TableFit table_fit;
+  bool use_model = false;
+  auto optimize = [&](const std::vector<internal::GraphEdge>& edges, bool with_covariance) {
+    use_model = options.turntable_model && options.turntable.has_value() &&
+                internal::TableModelApplies(table_model, active);
+    return use_model ? internal::OptimizeTurntableGraph(initial, active, result.anchor, edges,
+                                                        table_model, with_covariance, &table_fit)
+                     : internal::OptimizePoseGraph(initial, active, result.anchor, edges,
+                                                   with_covariance);
+  };
   for (;;) {
     int anchor = -1;
     for (size_t i = 0; i < n && anchor < 0; ++i)
@@ -389,7 +436,7 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
       edges.push_back({p.view_a, p.view_b, p.a_from_b, icp[k].information});
       edge_pair.push_back(k);
     }
-    sol = internal::OptimizePoseGraph(initial, active, anchor, edges, false);
+    sol = optimize(edges, false);
     // The pair that disagrees most with the graph, if beyond the bound.
     std::vector<double> errors;
     for (size_t e = 0; e < edges.size(); ++e) {
@@ -440,12 +487,60 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
         if (active[i] && static_cast<int>(i) != worst_view) result.views[i].reason.clear();
       continue;
     }
+    // Joint refinement: every kept pair re-linearised at the graph's poses (its correspondences
+    // found there, with its ICP's final gate and residual bound) and the graph solved again, until
+    // no view moves: Gauss-Newton on the point-to-plane cost of all pairs at once, so that a pair
+    // whose own ICP stopped off its minimum (jittering correspondences) is not taken at its word.
+    for (int it = 0; it < options.joint_iterations && !edges.empty(); ++it) {
+      tbb::parallel_for(size_t{0}, edges.size(), [&](size_t e) {
+        const size_t k = edge_pair[e];
+        const size_t a = static_cast<size_t>(edges[e].a), b = static_cast<size_t>(edges[e].b);
+        const internal::IcpOutcome o = internal::LinearizePair(
+            geo[a], geo[b], sol.part_from_rig[a].Inverse() * sol.part_from_rig[b], icp[k].gate_mm,
+            icp[k].max_residual_mm, options);
+        if (o.correspondences >= 7) {
+          edges[e].a_from_b = o.a_from_b;
+          edges[e].information = o.information;
+        }
+      });
+      const std::vector<Rigid3d> before = sol.part_from_rig;
+      sol = optimize(edges, false);
+      double motion = 0;
+      for (size_t i = 0; i < n; ++i) {
+        if (!active[i]) continue;
+        std::vector<Eigen::Vector3d> probe;
+        const auto& sample = geo[i].overlap_sample;
+        for (size_t k = 0; k < sample.size(); k += std::max<size_t>(1, sample.size() / 16))
+          probe.push_back((*geo[i].points)[sample[k]]);
+        motion = std::max(motion, MaxDisplacementMm(sol.part_from_rig[i], before[i], probe));
+      }
+      result.joint_iterations = it + 1;
+      result.joint_last_motion_mm = motion;
+      if (motion < options.joint_tolerance_mm) break;
+    }
     // Final solve with the covariance.
-    sol = internal::OptimizePoseGraph(initial, active, anchor, edges, true);
+    sol = optimize(edges, true);
     result.graph_iterations = sol.iterations;
     result.graph_initial_cost = sol.initial_cost;
     result.graph_final_cost = sol.final_cost;
     break;
+  }
+  if (use_model) {
+    result.turntable_model = true;
+    result.axis_direction_in_rig = table_fit.direction_in_rig;
+    result.axis_point_in_rig_mm = table_fit.point_in_rig_mm;
+    result.axis_sigma_direction_deg = table_fit.sigma_direction_deg;
+    result.axis_sigma_point_mm = table_fit.sigma_point_mm;
+    result.graph_variance_factor = table_fit.variance_factor;
+    result.graph_huber_corner = table_fit.huber_corner;
+    for (size_t i = 0; i < n; ++i) {
+      if (!active[i] || !std::isfinite(table_fit.angle_rad[i])) continue;
+      ViewPose& v = result.views[i];
+      v.table_angle_deg = table_fit.angle_rad[i] * 180 / M_PI;
+      v.table_angle_correction_deg =
+          (table_fit.angle_rad[i] - table_model.angle_rad[i]) * 180 / M_PI;
+      v.sigma_table_angle_deg = table_fit.sigma_angle_deg[i];
+    }
   }
   for (auto& p : result.pairs) {
     if (p.kept &&

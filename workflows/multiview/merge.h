@@ -33,6 +33,14 @@
 //     angle, or the part moved). Covariance of each pose from ceres::Covariance at the solution,
 //     relative to the anchor. Because it assumes independent point errors it is a lower bound of
 //     the real uncertainty.
+//     With the rig's turntable axis (MergeOptions::turntable) and two or more table views, the
+//     graph is the turntable's model instead (internal/turntable_graph.h): one shared axis
+//     (direction and point, fitted) and one angle per table view, hand-placed views 6 free
+//     unknowns, a Huber loss on each pair, the covariances scaled by the pairs' reduced chi^2.
+//     Then the joint refinement: every kept pair re-linearised at the graph's poses (its
+//     correspondences found there) and the graph solved again until no view moves, so a pair
+//     whose ICP stopped off its minimum does not pull the views (Gauss-Newton on the point-to-
+//     plane cost of all pairs at once).
 //  4. Fusion. The accepted views' points, in the part frame, are binned in cubic cells of
 //     fuse_cell_mm; within a cell, points whose normals agree (within 60 deg) form one surface,
 //     and each view's mean height along that surface's normal is compared with the others'. The
@@ -50,11 +58,13 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "compare/registration.h"
 #include "core/point_cloud.h"
+#include "core/rig.h"
 #include "core/rigid3.h"
 
 namespace slshadow::multiview {
@@ -68,6 +78,9 @@ struct ViewCloud {
   // inverse of RigFromTableTurn(angle); ignored when has_initial is false.
   Rigid3d part_from_rig_initial;
   bool has_initial = true;  // false: found by global registration against the views posed so far
+  // The commanded table angle of a table view (degrees), for the turntable model
+  // (MergeOptions::turntable); empty for a view placed by hand.
+  std::optional<double> table_deg;
 };
 
 struct MergeOptions {
@@ -102,6 +115,21 @@ struct MergeOptions {
   // out. 0 disables the check.
   double max_initial_departure_deg = 2.0;
   double max_initial_departure_mm = 10.0;
+  // The pose graph on the turntable's model (internal/turntable_graph.h): with the rig's axis
+  // and at least two accepted table views (ViewCloud::table_deg) whose angles differ, a table
+  // view's pose is the rotation by its own table angle about one shared axis (direction and
+  // point fitted, starting from `turntable`), so each table view has one unknown instead of six;
+  // hand-placed views keep six. Without an axis, or turntable_model false: six per view.
+  bool turntable_model = true;
+  std::optional<TurntableAxis> turntable;
+  // Huber loss on each pair's whitened residual in the turntable graph, its corner at this many
+  // times the median pair's; 0: plain least squares.
+  double graph_robust_k = 3.0;
+  // Joint refinement after the pose graph: every kept pair re-linearised at the graph's poses and
+  // the graph solved again (Gauss-Newton on all pairs' point-to-plane cost), at most this many
+  // times, until no view's sample points move more than joint_tolerance_mm. 0: none.
+  int joint_iterations = 10;
+  double joint_tolerance_mm = 1e-4;
   // Global registration for views without an initial pose (method forced to global+icp).
   compare::RegistrationOptions global;
   // Fusion.
@@ -123,10 +151,15 @@ struct ViewPose {
   double sigma_rotation_deg = 0;    // 1-sigma along the worst axis (covariance, see above)
   double sigma_translation_mm = 0;  // 1-sigma displacement of the view's centroid, worst axis
   int pairs = 0;                    // kept pairs this view is in
-  int points = 0;                   // points of the view's cloud
-  bool anchor = false;              // the view that fixes the part frame
-  bool accepted = false;            // registered and merged
-  std::string reason;               // why it was left out (empty when accepted)
+  // Turntable model (MergeResult::turntable_model), table views: the fitted true table angle,
+  // its departure from the commanded one's (TurntableAxis::TrueAngleDeg) and its 1-sigma.
+  std::optional<double> table_angle_deg;
+  double table_angle_correction_deg = 0;
+  double sigma_table_angle_deg = 0;
+  int points = 0;         // points of the view's cloud
+  bool anchor = false;    // the view that fixes the part frame
+  bool accepted = false;  // registered and merged
+  std::string reason;     // why it was left out (empty when accepted)
 };
 
 // One registered pair of views: view a is the reference, b is moved onto it.
@@ -159,7 +192,16 @@ struct MergeResult {
   bool has_loop = false;
   double loop_closure_before_deg = 0, loop_closure_before_mm = 0;
   double loop_closure_after_deg = 0, loop_closure_after_mm = 0;
-  // Pose graph.
+  // Pose graph. With the turntable model: the fitted axis (rig frame; the point nearest the given
+  // one), its 1-sigma (worst direction), the reduced chi^2 of the pairs the sigmas are scaled by
+  // (at least 1) and the Huber corner (whitened units; 0: none).
+  bool turntable_model = false;
+  Eigen::Vector3d axis_direction_in_rig = Eigen::Vector3d::Zero();
+  Eigen::Vector3d axis_point_in_rig_mm = Eigen::Vector3d::Zero();
+  double axis_sigma_direction_deg = 0, axis_sigma_point_mm = 0;
+  double graph_variance_factor = 1, graph_huber_corner = 0;
+  int joint_iterations = 0;  // joint refinement rounds run
+  double joint_last_motion_mm = 0;
   int graph_iterations = 0;
   double graph_initial_cost = 0, graph_final_cost = 0;
   // The merged model in the part frame, with normals and the scalar fields "view",

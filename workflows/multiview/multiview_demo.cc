@@ -7,8 +7,8 @@
 #include "core/file_util.h"
 #include "core/mesh.h"
 #include "core/string_printf.h"
-#include "shadow/scan_pipeline.h"
 #include "workflows/multiview/turntable_scene.h"
+#include "workflows/pipeline/scan_pipeline.h"
 
 namespace slshadow::multiview {
 namespace fs = std::filesystem;
@@ -65,7 +65,7 @@ MultiviewDemoResult RunMultiviewDemo(const MultiviewDemoOptions& options) {
       options.rig ? TurntableSetup{*options.rig, *options.scene} : DemoTurntableSetup();
   if (options.sensor_noise) setup.scene.layers.noise_enabled = true;
   // The demo's sequence, sized to the rig's projector (a replacement rig may have another).
-  PatternSpec spec = shadow::LoadPatternSpecOrDemo("");
+  PatternSpec spec = pipeline::LoadPatternSpecOrDemo("");
   spec.projector_width = setup.rig.projector->model.width;
   spec.projector_height = setup.rig.projector->model.height;
   spec.Check();

@@ -7,7 +7,9 @@
 
 #include "core/error.h"
 #include "core/string_printf.h"
+#include "workflows/multiview/project_merge.h"
 #include "workflows/multiview/turntable_scene.h"
+#include "workflows/multiview/virtual_project.h"
 
 namespace slshadow::multiview {
 
@@ -27,6 +29,69 @@ void PlanOptions::Check() const {
   prediction.Check();
 }
 
+namespace {
+
+// The reachable samples (off the table, reconstructed by some candidate) and the greedy set cover
+// over `seen` (per candidate, 1 where it reconstructs the sample) to options.target of them: fills
+// plan's samples, off_table, reachable, reachable_share, greedy_label, greedy_coverage, reached,
+// target; returns the chosen candidates in pick order.
+std::vector<size_t> GreedyCover(const std::vector<const std::vector<uint8_t>*>& seen,
+                                const std::vector<std::string>& labels,
+                                const std::vector<uint8_t>& on_table, const PlanOptions& options,
+                                const std::string& rig_name, ViewPlan* plan,
+                                std::vector<uint8_t>* reachable) {
+  const size_t ns = on_table.size();
+  plan->candidates = seen.size();
+  plan->samples = ns;
+  plan->target = options.target;
+  reachable->assign(ns, 0);
+  for (size_t i = 0; i < ns; ++i) {
+    if (on_table[i]) continue;
+    ++plan->off_table;
+    for (const auto* s : seen) {
+      if ((*s)[i]) {
+        (*reachable)[i] = 1;
+        ++plan->reachable;
+        break;
+      }
+    }
+  }
+  SLSHADOW_THROW_IF(plan->reachable == 0,
+                    "plan: no candidate view reconstructs any of the part (rig '", rig_name, "')");
+  plan->reachable_share = Share(plan->reachable, plan->off_table);
+  std::vector<uint8_t> covered(ns, 0);
+  std::vector<bool> used(seen.size(), false);
+  std::vector<size_t> chosen;
+  size_t n_covered = 0;
+  while (Share(n_covered, plan->reachable) < options.target) {
+    size_t best = seen.size(), best_gain = 0;
+    for (size_t c = 0; c < seen.size(); ++c) {
+      if (used[c]) continue;
+      size_t gain = 0;
+      const std::vector<uint8_t>& s = *seen[c];
+      for (size_t i = 0; i < ns; ++i) gain += (*reachable)[i] & s[i] & (covered[i] ^ 1);
+      if (gain > best_gain) best = c, best_gain = gain;
+    }
+    if (best == seen.size()) break;  // nothing more to gain
+    used[best] = true;
+    const std::vector<uint8_t>& s = *seen[best];
+    for (size_t i = 0; i < ns; ++i) covered[i] |= (*reachable)[i] & s[i];
+    n_covered += best_gain;
+    chosen.push_back(best);
+    plan->greedy_label.push_back(labels[best]);
+    plan->greedy_coverage.push_back(Share(n_covered, plan->reachable));
+  }
+  plan->reached = Share(n_covered, plan->reachable) >= options.target;
+  return chosen;
+}
+
+std::vector<uint8_t> Reconstructed(std::vector<uint8_t> reasons) {
+  for (uint8_t& x : reasons) x = x == kReconstructed;
+  return reasons;
+}
+
+}  // namespace
+
 ViewPlan PlanTurntableViews(const TriangleMesh& cad_in_part, const Rig& rig,
                             const PlanOptions& options) {
   const auto t0 = std::chrono::steady_clock::now();
@@ -36,7 +101,6 @@ ViewPlan PlanTurntableViews(const TriangleMesh& cad_in_part, const Rig& rig,
   const TurntableAxis& axis = *rig.turntable;
   const CoveragePredictor predictor(cad_in_part, rig, axis, options.prediction);
   const size_t ns = predictor.Samples().size();
-  const std::vector<uint8_t>& on_table = predictor.OnTable();
 
   // Every candidate's reconstructed samples; a cache by angle for the uniform baseline.
   const int count = std::max(1, static_cast<int>(std::floor(360.0 / options.step_deg + 1e-9)));
@@ -44,60 +108,26 @@ ViewPlan PlanTurntableViews(const TriangleMesh& cad_in_part, const Rig& rig,
   const auto seen_at = [&](double deg) -> const std::vector<uint8_t>& {
     const double key = std::round(deg * 1e6) / 1e6;
     auto it = by_angle.find(key);
-    if (it == by_angle.end()) {
-      std::vector<uint8_t> v = predictor.View(axis.RigFromTableTurn(key).Inverse());
-      for (uint8_t& x : v) x = x == kReconstructed;
-      it = by_angle.emplace(key, std::move(v)).first;
-    }
+    if (it == by_angle.end())
+      it =
+          by_angle.emplace(key, Reconstructed(predictor.View(axis.RigFromTableTurn(key).Inverse())))
+              .first;
     return it->second;
   };
   std::vector<double> candidates;
-  for (int k = 0; k < count; ++k) candidates.push_back(options.start_deg + k * options.step_deg);
+  std::vector<std::string> labels;
+  for (int k = 0; k < count; ++k) {
+    candidates.push_back(options.start_deg + k * options.step_deg);
+    labels.push_back(StringPrintf("%.2f deg", candidates.back()));
+  }
   std::vector<const std::vector<uint8_t>*> cand_seen;
   for (double a : candidates) cand_seen.push_back(&seen_at(a));
 
   ViewPlan plan;
-  plan.candidates = candidates.size();
-  plan.samples = ns;
-  plan.target = options.target;
-  std::vector<uint8_t> reachable(ns, 0);
-  for (size_t i = 0; i < ns; ++i) {
-    if (on_table[i]) continue;
-    ++plan.off_table;
-    for (const auto* s : cand_seen) {
-      if ((*s)[i]) {
-        reachable[i] = 1;
-        ++plan.reachable;
-        break;
-      }
-    }
-  }
-  SLSHADOW_THROW_IF(plan.reachable == 0,
-                    "plan: no candidate view reconstructs any of the part (rig '", rig.name, "')");
-  plan.reachable_share = Share(plan.reachable, plan.off_table);
-
-  // Greedy set cover.
-  std::vector<uint8_t> covered(ns, 0);
-  std::vector<bool> used(candidates.size(), false);
-  size_t n_covered = 0;
-  while (Share(n_covered, plan.reachable) < options.target) {
-    size_t best = candidates.size(), best_gain = 0;
-    for (size_t c = 0; c < candidates.size(); ++c) {
-      if (used[c]) continue;
-      size_t gain = 0;
-      const std::vector<uint8_t>& s = *cand_seen[c];
-      for (size_t i = 0; i < ns; ++i) gain += reachable[i] & s[i] & (covered[i] ^ 1);
-      if (gain > best_gain) best = c, best_gain = gain;
-    }
-    if (best == candidates.size()) break;  // nothing more to gain
-    used[best] = true;
-    const std::vector<uint8_t>& s = *cand_seen[best];
-    for (size_t i = 0; i < ns; ++i) covered[i] |= reachable[i] & s[i];
-    n_covered += best_gain;
-    plan.greedy_deg.push_back(candidates[best]);
-    plan.greedy_coverage.push_back(Share(n_covered, plan.reachable));
-  }
-  plan.reached = Share(n_covered, plan.reachable) >= options.target;
+  std::vector<uint8_t> reachable;
+  const std::vector<size_t> chosen =
+      GreedyCover(cand_seen, labels, predictor.OnTable(), options, rig.name, &plan, &reachable);
+  for (size_t c : chosen) plan.greedy_deg.push_back(candidates[c]);
   std::vector<double> sorted = plan.greedy_deg;
   std::sort(sorted.begin(), sorted.end());
   for (size_t k = 0; k < sorted.size(); ++k) {
@@ -126,11 +156,78 @@ ViewPlan PlanTurntableViews(const TriangleMesh& cad_in_part, const Rig& rig,
   return plan;
 }
 
+std::vector<ViewCandidate> PlacementCandidates(const TriangleMesh& cad_in_part, const Rig& rig,
+                                               const std::vector<double>& tilts_deg,
+                                               double step_deg, double start_deg) {
+  SLSHADOW_THROW_IF(!(step_deg >= 0.5 && step_deg <= 360),
+                    "--step-deg: must be in [0.5, 360] (got ", step_deg, ")");
+  SLSHADOW_THROW_IF(!std::isfinite(start_deg), "--start-deg: must be finite (got ", start_deg, ")");
+  SLSHADOW_THROW_IF(tilts_deg.empty(), "--tilts-deg: at least one tilt");
+  for (double t : tilts_deg) {
+    SLSHADOW_THROW_IF(!(std::abs(t) <= 180), "--tilts-deg: each tilt must be in [-180, 180] (got ",
+                      t, ")");
+  }
+  SLSHADOW_THROW_IF(cad_in_part.empty(), "plan: the part has no triangles");
+  const Eigen::Vector3d centre = 0.5 * (cad_in_part.BoundsMin() + cad_in_part.BoundsMax());
+  const Eigen::Vector3d up =
+      rig.turntable ? rig.turntable->direction_in_rig.normalized() : Eigen::Vector3d(0, -1, 0);
+  Eigen::Vector3d across = Eigen::Vector3d::UnitX() - Eigen::Vector3d::UnitX().dot(up) * up;
+  if (across.norm() < 1e-6)
+    across = Eigen::Vector3d::UnitZ() - Eigen::Vector3d::UnitZ().dot(up) * up;
+  across.normalize();
+  const int count = std::max(1, static_cast<int>(std::floor(360.0 / step_deg + 1e-9)));
+  std::vector<ViewCandidate> candidates;
+  for (double tilt : tilts_deg) {
+    for (int k = 0; k < count; ++k) {
+      const double yaw = start_deg + k * step_deg;
+      const Eigen::Quaterniond r(Eigen::AngleAxisd(yaw * M_PI / 180, up) *
+                                 Eigen::AngleAxisd(tilt * M_PI / 180, across));
+      // The part turned about its centre: x -> centre + r (x - centre), in the part frame at rest.
+      const Rigid3d rig_from_part(r, centre - (r * centre));
+      ViewCandidate c;
+      c.label = StringPrintf("yaw %g tilt %g", yaw, tilt);
+      c.view.part_from_rig_guess = rig_from_part.Inverse();
+      candidates.push_back(c);
+    }
+  }
+  return candidates;
+}
+
+ViewPlan PlanViews(const TriangleMesh& cad_in_part, const Rig& rig,
+                   const std::vector<ViewCandidate>& candidates,
+                   const std::optional<TurntableAxis>& table_axis, const PlanOptions& options) {
+  const auto t0 = std::chrono::steady_clock::now();
+  options.Check();
+  SLSHADOW_THROW_IF(candidates.empty(), "plan: no candidate views");
+  const CoveragePredictor predictor(cad_in_part, rig, table_axis, options.prediction);
+  std::vector<std::vector<uint8_t>> seen;
+  std::vector<std::string> labels;
+  for (const ViewCandidate& c : candidates) {
+    seen.push_back(Reconstructed(predictor.View(VirtualViewPose(c.view, rig))));
+    labels.push_back(c.label);
+  }
+  std::vector<const std::vector<uint8_t>*> cand_seen;
+  for (const auto& s : seen) cand_seen.push_back(&s);
+  ViewPlan plan;
+  std::vector<uint8_t> reachable;
+  const std::vector<size_t> chosen =
+      GreedyCover(cand_seen, labels, predictor.OnTable(), options, rig.name, &plan, &reachable);
+  for (size_t c : chosen) {
+    ViewSpec v = candidates[c].view;
+    v.name = DefaultViewName(plan.views.views.size());
+    if (v.table_deg) plan.greedy_deg.push_back(*v.table_deg);
+    plan.views.views.push_back(v);
+  }
+  plan.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return plan;
+}
+
 nlohmann::json ViewPlan::ToJson() const {
   return {{"target", target},
           {"reached", reached},
-          {"views", greedy_deg.size()},
+          {"views", greedy_label.size()},
           {"greedy_deg", greedy_deg},
+          {"greedy_label", greedy_label},
           {"greedy_coverage", greedy_coverage},
           {"uniform_coverage", uniform_coverage},
           {"uniform_needed", uniform_needed},
@@ -146,24 +243,55 @@ std::string ViewPlan::Table() const {
   std::string out = StringPrintf(
       "reachable surface: %.2f %% of the part off the table (%zu of %zu samples, %zu candidate "
       "angles)\n"
-      "views  plan: angle added  coverage   uniform: coverage\n",
+      "views  plan: view added       coverage   uniform: coverage\n",
       100 * reachable_share, reachable, off_table, candidates);
-  const size_t rows = std::max(greedy_deg.size(), uniform_coverage.size());
+  const size_t rows = std::max(greedy_label.size(), uniform_coverage.size());
   for (size_t k = 0; k < rows; ++k) {
     std::string plan_cell = "                           ";
-    if (k < greedy_deg.size())
-      plan_cell = StringPrintf("%11.2f deg  %7.2f %%", greedy_deg[k], 100 * greedy_coverage[k]);
+    if (k < greedy_label.size())
+      plan_cell = StringPrintf("%15s  %7.2f %%", greedy_label[k].c_str(), 100 * greedy_coverage[k]);
     std::string uni = k < uniform_coverage.size()
                           ? StringPrintf("%7.2f %%", 100 * uniform_coverage[k])
                           : std::string("      -");
     out += StringPrintf("%5zu  %s   %s\n", k + 1, plan_cell.c_str(), uni.c_str());
   }
-  out += StringPrintf(
-      "target %.2f %%: the plan needs %zu views%s; uniform steps need %s (%.2f s)\n", 100 * target,
-      greedy_deg.size(), reached ? "" : " (not reached)",
-      uniform_needed > 0 ? std::to_string(uniform_needed).c_str() : "more than the candidates",
-      seconds);
+  out +=
+      StringPrintf("target %.2f %%: the plan needs %zu views%s; uniform steps need %s (%.2f s)\n",
+                   100 * target, greedy_label.size(), reached ? "" : " (not reached)",
+                   uniform_coverage.empty() ? "- (no uniform baseline for placed views)"
+                   : uniform_needed > 0     ? std::to_string(uniform_needed).c_str()
+                                            : "more than the candidates",
+                   seconds);
   return out;
+}
+
+PlanCheck CheckPlanAgainstProject(const TriangleMesh& cad_in_part, const Rig& rig,
+                                  const std::filesystem::path& project_dir,
+                                  const CoveragePredictionOptions& options) {
+  SLSHADOW_THROW_IF(!rig.turntable, "plan check: rig '", rig.name, "' has no turntable axis");
+  ProjectMergeOptions merge;
+  merge.mode = options.mode;
+  merge.poses = PoseSource::kAxis;  // the prediction is checked, not the registration
+  merge.mesh = false;
+  merge.cad.samples = options.samples;
+  merge.cad.table_tolerance_mm = options.table_tolerance_mm;
+  ProjectMergeResult merged = MergeProject(project_dir, &cad_in_part, merge);
+  SLSHADOW_THROW_IF(!merged.cad, project_dir.string(), ": the merge made no CAD comparison");
+  ViewsFile views;
+  for (const MergedView& v : merged.views) {
+    SLSHADOW_THROW_IF(!v.table_deg, project_dir.string(), ": view '", v.name,
+                      "' has no table angle (the plan check predicts table views)");
+    ViewSpec spec;
+    spec.name = v.name;
+    spec.table_deg = v.table_deg;
+    views.views.push_back(spec);
+  }
+  PlanCheck result;
+  result.prediction =
+      PredictCoverage(cad_in_part, rig, PosesOfViews(views, rig), rig.turntable, options);
+  result.check = CheckPrediction(result.prediction, *merged.cad);
+  result.scan = std::move(*merged.cad);
+  return result;
 }
 
 PlanPart LoadPlanPart(const std::filesystem::path& path) {

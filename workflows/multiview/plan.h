@@ -1,4 +1,5 @@
-// `slshadow plan`: the fewest turntable views that cover a part, before it is on the table. Every
+// `slshadow plan`: the fewest views that cover a part, before it is on the table (turntable angles,
+// or placements by hand: PlanViews / PlacementCandidates below). Every
 // candidate table angle (a full turn in steps) is predicted (coverage_prediction.h, no images
 // rendered); the part's reachable surface is what at least one candidate reconstructs; a greedy
 // set cover then picks, one at a time, the candidate that reconstructs the most reachable samples
@@ -33,10 +34,13 @@ struct PlanOptions {
 };
 
 struct ViewPlan {
-  ViewsFile views;                      // the plan, by table angle, named view_00, view_01, ...
-  std::vector<double> greedy_deg;       // the chosen angles in the order greedy picked them
-  std::vector<double> greedy_coverage;  // of the reachable surface after 1, 2, ... views
-  bool reached = false;                 // the plan reaches the target
+  // The plan, named view_00, view_01, ...: table views by increasing angle; placed views (hand
+  // plans) in the order greedy picked them, each with its part_from_rig_guess.
+  ViewsFile views;
+  std::vector<double> greedy_deg;  // table plans: the chosen angles in the order greedy picked
+  std::vector<std::string> greedy_label;  // every plan: the chosen candidates' labels, same order
+  std::vector<double> greedy_coverage;    // of the reachable surface after 1, 2, ... views
+  bool reached = false;                   // the plan reaches the target
   // Uniform baseline: uniform_coverage[n - 1] for n views evenly spaced; uniform_needed the first
   // n reaching the target (0: none up to the number of candidates).
   std::vector<double> uniform_coverage;
@@ -54,6 +58,47 @@ struct ViewPlan {
 // slshadow::Error on a rig without an axis, bad options or nothing reachable.
 ViewPlan PlanTurntableViews(const TriangleMesh& cad_in_part, const Rig& rig,
                             const PlanOptions& options = {});
+
+// A plan confirmed by its scan (`slshadow plan --check PROJECT`): the project (the planned views,
+// scanned or simulated) merged at the table's poses (ProjectMergeOptions poses kAxis, no mesh) and
+// compared with `cad_in_part` on options.samples samples; the prediction of the project's views
+// (table angles) against it, per sample (CheckPrediction). Throws slshadow::Error as MergeProject,
+// and when the rig has no turntable axis or a view has no table angle.
+struct PlanCheck {
+  CoveragePrediction prediction;
+  PredictionCheck check;
+  CadComparison scan;
+};
+PlanCheck CheckPlanAgainstProject(const TriangleMesh& cad_in_part, const Rig& rig,
+                                  const std::filesystem::path& project_dir,
+                                  const CoveragePredictionOptions& options);
+
+// A candidate placement of the part: a label for the tables ("15.00 deg", "yaw 30 tilt 45") and
+// the view it would be (a table view with its angle, or a hand-placed view whose
+// part_from_rig_guess is its pose).
+struct ViewCandidate {
+  std::string label;
+  ViewSpec view;
+};
+
+// Hand-placed candidates (`slshadow plan` without --turntable): the part turned about its centre
+// (the centre of its bounding box in the part frame) from where the part frame puts it, first
+// tilted by each of `tilts_deg` about the horizontal axis (the rig's x axis made orthogonal to
+// "up"), then turned about "up" by start_deg + k * step_deg over a full turn; "up" is the rig's
+// turntable axis when it has one, else the first camera's -y (image up). A tilt of 0 turns once
+// per step, as a table would; tilts of +-180 deg the same for the flipped part. Throws
+// slshadow::Error naming the option on bad steps or tilts.
+std::vector<ViewCandidate> PlacementCandidates(const TriangleMesh& cad_in_part, const Rig& rig,
+                                               const std::vector<double>& tilts_deg,
+                                               double step_deg, double start_deg = 0);
+
+// The fewest of `candidates` that reach options.target of the reachable surface (greedy set
+// cover, as PlanTurntableViews; no uniform baseline). `table_axis`: the face on that table is
+// excluded (nullopt for parts placed by hand: nothing excluded). Throws slshadow::Error on no
+// candidates, bad options or nothing reachable.
+ViewPlan PlanViews(const TriangleMesh& cad_in_part, const Rig& rig,
+                   const std::vector<ViewCandidate>& candidates,
+                   const std::optional<TurntableAxis>& table_axis, const PlanOptions& options);
 
 // The part for `slshadow plan --part` / `merge --cad`: a mesh (.stl/.ply/.obj) is the CAD model;
 // a scene (.yaml/.yml/.json) gives its meshes as the CAD model (PartSurface) and its radiometry.

@@ -17,7 +17,7 @@
 #include "core/pose_io.h"
 #include "core/string_printf.h"
 #include "report/html_report.h"
-#include "shadow/scan_pipeline.h"
+#include "workflows/pipeline/scan_pipeline.h"
 
 namespace slshadow::multiview {
 namespace fs = std::filesystem;
@@ -36,7 +36,8 @@ Reconstruction ReconstructView(const ImageSet& image_set, const ProjectMergeOpti
                     rig.cameras.size(), ")");
   std::vector<std::string> cameras = {rig.cameras[0].name};
   if (options.mode == ReconstructMode::kStereo) cameras.push_back(rig.cameras[1].name);
-  const shadow::DecodedScan decoded = shadow::DecodeImageSet(image_set, cameras, options.decode);
+  const pipeline::DecodedScan decoded =
+      pipeline::DecodeImageSet(image_set, cameras, options.decode);
   Reconstruction rec =
       options.mode == ReconstructMode::kStereo
           ? ReconstructStereo(rig, cameras[0], cameras[1], decoded.maps[0], decoded.maps[1],
@@ -166,7 +167,7 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
     const MergedView& v = result.views[i];
     if (clouds[i].empty()) continue;
     inputs.push_back({v.name, &clouds[i], v.part_from_rig_initial.value_or(Rigid3d()),
-                      v.part_from_rig_initial.has_value()});
+                      v.part_from_rig_initial.has_value(), v.table_deg});
     result.registration_view.push_back(static_cast<int>(i));
   }
   SLSHADOW_THROW_IF(inputs.empty(), what, ": no view can be merged (",
@@ -176,6 +177,7 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
   auto t0 = std::chrono::steady_clock::now();
   MergeOptions mo = options.registration;
   mo.refine = refine;
+  if (!mo.turntable) mo.turntable = project.rig.turntable;
   result.registration = MergeViews(inputs, mo);
   MergeResult& reg = result.registration;
   for (size_t k = 0; k < reg.views.size(); ++k) {
@@ -194,6 +196,9 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
     v.noise_mm = p.noise_mm;
     v.sigma_rotation_deg = p.sigma_rotation_deg;
     v.sigma_translation_mm = p.sigma_translation_mm;
+    v.table_angle_deg = p.table_angle_deg;
+    v.table_angle_correction_deg = p.table_angle_correction_deg;
+    v.sigma_table_angle_deg = p.sigma_table_angle_deg;
   }
   result.merged = std::move(reg.merged);
   reg.merged = PointCloud();
@@ -291,6 +296,11 @@ nlohmann::json ProjectMergeResult::ToJson() const {
         {"accepted_points", v.accepted_points},
         {"reconstruct_s", v.reconstruct_seconds}};
     if (v.merged && refined) {
+      if (v.table_angle_deg) {
+        view["table_angle_fitted_deg"] = *v.table_angle_deg;
+        view["table_angle_correction_deg"] = v.table_angle_correction_deg;
+        view["sigma_table_angle_deg"] = v.sigma_table_angle_deg;
+      }
       view["anchor"] = v.anchor;
       view["pairs"] = v.pairs;
       view["residual_rms_mm"] = v.residual_rms_mm;
@@ -352,6 +362,21 @@ nlohmann::json ProjectMergeResult::ToJson() const {
            : nlohmann::json(nullptr)},
       {"pairs", std::move(pairs)},
       {"loop_closure", std::move(loop)},
+      {"turntable_model",
+       r.turntable_model
+           ? nlohmann::json{{"axis_direction",
+                             {r.axis_direction_in_rig.x(), r.axis_direction_in_rig.y(),
+                              r.axis_direction_in_rig.z()}},
+                            {"axis_point_mm",
+                             {r.axis_point_in_rig_mm.x(), r.axis_point_in_rig_mm.y(),
+                              r.axis_point_in_rig_mm.z()}},
+                            {"sigma_direction_deg", r.axis_sigma_direction_deg},
+                            {"sigma_point_mm", r.axis_sigma_point_mm},
+                            {"variance_factor", r.graph_variance_factor},
+                            {"huber_corner", r.graph_huber_corner}}
+           : nlohmann::json(nullptr)},
+      {"joint_refinement",
+       {{"iterations", r.joint_iterations}, {"last_motion_mm", r.joint_last_motion_mm}}},
       {"graph",
        {{"iterations", r.graph_iterations},
         {"initial_cost", r.graph_initial_cost},
@@ -438,6 +463,16 @@ std::string ProjectMergeResult::Summary() const {
         "after the pose graph\n",
         r.loop_closure_before_deg, r.loop_closure_before_mm, r.loop_closure_after_deg,
         r.loop_closure_after_mm);
+  }
+  if (r.turntable_model) {
+    out += StringPrintf(
+        "pose graph on the turntable model: axis (%.6f, %.6f, %.6f) through (%.4f, %.4f, %.4f) "
+        "mm in the rig frame, 1-sigma %.2g deg / %.2g mm; pair variance factor %.3g; joint "
+        "refinement %d rounds\n",
+        r.axis_direction_in_rig.x(), r.axis_direction_in_rig.y(), r.axis_direction_in_rig.z(),
+        r.axis_point_in_rig_mm.x(), r.axis_point_in_rig_mm.y(), r.axis_point_in_rig_mm.z(),
+        r.axis_sigma_direction_deg, r.axis_sigma_point_mm, r.graph_variance_factor,
+        r.joint_iterations);
   }
   if (has_truth) {
     out += StringPrintf(

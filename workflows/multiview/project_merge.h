@@ -91,6 +91,11 @@ struct MergedView {
   double noise_mm = 0;            // its noise along the normal, from the residuals
   double sigma_rotation_deg = 0;  // 1-sigma (pose graph covariance; a lower bound)
   double sigma_translation_mm = 0;
+  // Turntable model (MergeResult::turntable_model): the fitted true table angle, its departure
+  // from the commanded one's and its 1-sigma, deg.
+  std::optional<double> table_angle_deg;
+  double table_angle_correction_deg = 0;
+  double sigma_table_angle_deg = 0;
   size_t points = 0;            // in the view's cloud (after max_points_per_view)
   int64_t accepted_points = 0;  // the reconstruction's accepted cells
   double reconstruct_seconds = 0;

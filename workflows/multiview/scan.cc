@@ -4,6 +4,7 @@
 #include <cmath>
 #include <iostream>
 
+#include "capture/factory.h"
 #include "capture/pattern_sequence_capture.h"
 #include "core/config.h"
 #include "core/file_util.h"
@@ -43,13 +44,8 @@ std::string ResumeMismatch(const ProjectManifest& project, const Rig& rig,
   const std::string generator = project.provenance.value("generator", "");
   if (generator != kGenerator)
     return "provenance.generator ('" + generator + "': not a device scan)";
-  if (RigToJson(project.rig) != RigToJson(rig)) return "rig";
-  if (project.patterns != patterns) return "pattern spec";
-  const ViewsFile stored = project.Views();
-  if (stored.views.size() != views.views.size()) return "views (their number)";
-  for (size_t i = 0; i < views.views.size(); ++i) {
-    if (!(stored.views[i] == views.views[i])) return "views[" + std::to_string(i) + "]";
-  }
+  const std::string inputs = ProjectInputsMismatch(project, rig, patterns, views);
+  if (!inputs.empty()) return inputs;
   if (project.provenance.value("encoding", "") != encoding) return "provenance.encoding";
   return "";
 }
@@ -97,13 +93,7 @@ void CheckScanInputs(const Rig& rig, const PatternSpec& spec, const ViewsFile& v
                      const std::string& turntable_backend, const std::string& devices_file) {
   views.Check("views");
   rig.Check("rig '" + rig.name + "'");
-  if (rig.projector) {
-    SLSHADOW_THROW_IF(spec.projector_width != rig.projector->model.width ||
-                          spec.projector_height != rig.projector->model.height,
-                      "pattern spec: projector size ", spec.projector_width, "x",
-                      spec.projector_height, " does not match the rig's projector (",
-                      rig.projector->model.width, "x", rig.projector->model.height, ")");
-  }
+  CheckProjectorSize(rig, spec, "pattern spec", "rig '" + rig.name + "'");
   for (const ViewSpec& v : views.views) {
     if (!v.OnTable()) continue;
     SLSHADOW_THROW_IF(!rig.turntable, "view '", v.name, "': table_deg ", *v.table_deg,
@@ -147,35 +137,24 @@ ScanSummary ScanProject(const Rig& rig, const PatternSpec& spec, const ViewsFile
   run["devices"] = devices.devices_file;
   run["turntable"] = turntable_name;
   std::error_code ec;
-  ProjectManifest project;
-  const fs::path manifest = project_dir / "project.json";
-  if (fs::exists(manifest, ec)) {
-    SLSHADOW_THROW_IF(!options.resume, project_dir.string(),
-                      ": already holds a project (pass --resume to scan its missing views)");
-    // Not LoadProject: a complete view whose folder was lost since is scanned again below.
-    project = ProjectFromConfig(ConfigNode::LoadFile(manifest));
-    const std::string mismatch = ResumeMismatch(project, rig, patterns, views, encoding);
-    SLSHADOW_THROW_IF(!mismatch.empty(), manifest.string(), ": ", mismatch,
-                      " differs from this run's; resume only with the inputs the project was "
-                      "started with");
+  nlohmann::json provenance = options.provenance;
+  provenance["generator"] = kGenerator;
+  provenance["devices"] = devices.devices_file;
+  provenance["encoding"] = encoding;
+  provenance["turntable"] = turntable_name;
+  provenance["turntable_backend"] = devices.turntable_backend;
+  provenance["runs"] = nlohmann::json::array({run});
+  // A complete view whose folder was lost since is scanned again below.
+  StartedProject started =
+      StartOrResumeProject(project_dir, rig, patterns, views, provenance, options.resume,
+                           "scan its missing views", [&](const ProjectManifest& stored) {
+                             return ResumeMismatch(stored, rig, patterns, views, encoding);
+                           });
+  ProjectManifest& project = started.manifest;
+  if (started.resumed) {
     project.provenance["runs"].push_back(run);
-  } else {
-    SLSHADOW_THROW_IF(fs::exists(project_dir, ec) && !fs::is_empty(project_dir, ec),
-                      project_dir.string(),
-                      ": exists and is not a multi-view project (no project.json); choose another "
-                      "folder");
-    nlohmann::json provenance = options.provenance;
-    provenance["generator"] = kGenerator;
-    provenance["devices"] = devices.devices_file;
-    provenance["encoding"] = encoding;
-    provenance["turntable"] = turntable_name;
-    provenance["turntable_backend"] = devices.turntable_backend;
-    provenance["runs"] = nlohmann::json::array({run});
-    project = NewProject(rig, patterns, views, provenance);
-    fs::create_directories(project_dir / "views", ec);
-    SLSHADOW_THROW_IF(ec, project_dir.string(), ": cannot create the folder: ", ec.message());
+    SaveProject(project, project_dir);
   }
-  SaveProject(project, project_dir);
 
   std::istream& input = options.input ? *options.input : std::cin;
   std::ostream& out = options.prompt ? *options.prompt : std::cerr;
@@ -307,11 +286,8 @@ ScanSummary ScanProject(const Rig& rig, const PatternSpec& spec, const ViewsFile
     provenance["capture_started"] = UtcTimestamp();
     const auto capture_t0 = Clock::now();
     try {
-      report.capture =
-          devices.sequence_projector
-              ? capture::CapturePatternSequence(rig, spec, devices.cameras,
-                                                *devices.sequence_projector, dir, sequencer)
-              : capture::Capture(rig, spec, devices.cameras, *devices.projector, dir, sequencer);
+      report.capture = capture::CaptureImageSet(rig, spec, devices.cameras, devices.projector,
+                                                devices.sequence_projector, dir, sequencer);
     } catch (const Error& e) {
       throw fault(i, "capture", e.what());
     }

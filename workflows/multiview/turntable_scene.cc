@@ -4,7 +4,7 @@
 #include <cmath>
 
 #include "core/error.h"
-#include "shadow/scan_pipeline.h"
+#include "workflows/pipeline/scan_pipeline.h"
 
 namespace slshadow::multiview {
 
@@ -105,7 +105,7 @@ Scene SceneAtTableAngle(const Scene& scene, const TurntableAxis& axis, double co
 }
 
 TriangleMesh PartSurface(const Scene& scene) {
-  TriangleMesh part = shadow::SceneMeshSurface(scene);
+  TriangleMesh part = pipeline::SceneMeshSurface(scene);
   SLSHADOW_THROW_IF(part.empty(), "scene '", scene.name,
                     "': has no mesh, so no part to compare with its CAD model");
   return part;
@@ -144,7 +144,7 @@ TurntableSetup MakeTurntableSetup(Rig rig, Scene scene, const std::string& part_
 }
 
 TurntableSetup DemoTurntableSetup() {
-  return MakeTurntableSetup(shadow::LoadRigOrDemo(""), shadow::LoadSceneOrDemo(""));
+  return MakeTurntableSetup(pipeline::LoadRigOrDemo(""), pipeline::LoadSceneOrDemo(""));
 }
 
 }  // namespace slshadow::multiview

@@ -294,4 +294,47 @@ void SaveProject(const ProjectManifest& project, const fs::path& project_dir) {
   WriteTextFileAtomically(project_dir / "project.json", ProjectToJson(project).dump(1) + "\n");
 }
 
+std::string ProjectInputsMismatch(const ProjectManifest& project, const Rig& rig,
+                                  const nlohmann::json& patterns, const ViewsFile& views) {
+  if (RigToJson(project.rig) != RigToJson(rig)) return "rig";
+  if (project.patterns != patterns) return "pattern spec";
+  const ViewsFile stored = project.Views();
+  if (stored.views.size() != views.views.size()) return "views (their number)";
+  for (size_t i = 0; i < views.views.size(); ++i) {
+    if (!(stored.views[i] == views.views[i])) return "views[" + std::to_string(i) + "]";
+  }
+  return "";
+}
+
+StartedProject StartOrResumeProject(
+    const fs::path& project_dir, const Rig& rig, const nlohmann::json& patterns,
+    const ViewsFile& views, const nlohmann::json& provenance, bool resume,
+    const std::string& resume_action,
+    const std::function<std::string(const ProjectManifest&)>& mismatch) {
+  std::error_code ec;
+  StartedProject started;
+  const fs::path manifest = project_dir / "project.json";
+  if (fs::exists(manifest, ec)) {
+    SLSHADOW_THROW_IF(!resume, project_dir.string(), ": already holds a project (pass --resume to ",
+                      resume_action, ")");
+    // Not LoadProject: a complete view whose folder was lost since is done again.
+    started.manifest = ProjectFromConfig(ConfigNode::LoadFile(manifest));
+    started.resumed = true;
+    const std::string what = mismatch ? mismatch(started.manifest) : std::string();
+    SLSHADOW_THROW_IF(!what.empty(), manifest.string(), ": ", what,
+                      " differs from this run's; resume only with the inputs the project was "
+                      "started with");
+    return started;
+  }
+  SLSHADOW_THROW_IF(fs::exists(project_dir, ec) && !fs::is_empty(project_dir, ec),
+                    project_dir.string(),
+                    ": exists and is not a multi-view project (no project.json); choose another "
+                    "folder");
+  started.manifest = NewProject(rig, patterns, views, provenance);
+  fs::create_directories(project_dir / "views", ec);
+  SLSHADOW_THROW_IF(ec, project_dir.string(), ": cannot create the folder: ", ec.message());
+  SaveProject(started.manifest, project_dir);
+  return started;
+}
+
 }  // namespace slshadow::multiview

@@ -13,6 +13,7 @@
 #pragma once
 
 #include <filesystem>
+#include <functional>
 #include <optional>
 #include <string>
 #include <vector>
@@ -114,5 +115,28 @@ ProjectManifest LoadProject(const std::filesystem::path& project_dir);
 void SaveProject(const ProjectManifest& project, const std::filesystem::path& project_dir);
 nlohmann::json ProjectToJson(const ProjectManifest& project);
 ProjectManifest ProjectFromConfig(const ConfigNode& node);
+
+// What of the rig, the pattern spec and the views differs from those `project` was started with:
+// "rig", "pattern spec", "views (their number)", "views[i]"; empty when nothing does.
+std::string ProjectInputsMismatch(const ProjectManifest& project, const Rig& rig,
+                                  const nlohmann::json& patterns, const ViewsFile& views);
+
+// The start of every run that writes a project (`slshadow scan`, `slshadow simulate --views`).
+// Without PROJECT/project.json: a new manifest (NewProject of rig, patterns, views and
+// `provenance`), saved, with views/ created; PROJECT must be absent or empty. With it: only when
+// `resume`, the manifest as stored (read without LoadProject's folder checks: a complete view
+// whose folder was lost is redone), refused when `mismatch(manifest)` names what differs from
+// this run (empty: nothing); the caller saves it. Throws slshadow::Error naming PROJECT or its
+// project.json: "already holds a project (pass --resume to <resume_action>)", "<what> differs
+// from this run's; ...", "exists and is not a multi-view project ...".
+struct StartedProject {
+  ProjectManifest manifest;
+  bool resumed = false;  // read from PROJECT/project.json
+};
+StartedProject StartOrResumeProject(
+    const std::filesystem::path& project_dir, const Rig& rig, const nlohmann::json& patterns,
+    const ViewsFile& views, const nlohmann::json& provenance, bool resume,
+    const std::string& resume_action,
+    const std::function<std::string(const ProjectManifest&)>& mismatch);
 
 }  // namespace slshadow::multiview

@@ -9,9 +9,9 @@
 #include "core/provenance.h"
 #include "core/string_printf.h"
 #include "patterns/codec.h"
-#include "shadow/scan_pipeline.h"
 #include "sim/simulate.h"
 #include "workflows/multiview/turntable_scene.h"
+#include "workflows/pipeline/scan_pipeline.h"
 
 namespace slshadow::multiview {
 namespace fs = std::filesystem;
@@ -44,13 +44,8 @@ nlohmann::json ProjectProvenance(const Scene& scene, const VirtualProjectOptions
 std::string ResumeMismatch(const ProjectManifest& project, const Rig& rig,
                            const nlohmann::json& patterns, const ViewsFile& views,
                            const nlohmann::json& provenance) {
-  if (RigToJson(project.rig) != RigToJson(rig)) return "rig";
-  if (project.patterns != patterns) return "pattern spec";
-  const ViewsFile stored = project.Views();
-  if (stored.views.size() != views.views.size()) return "views (their number)";
-  for (size_t i = 0; i < views.views.size(); ++i) {
-    if (!(stored.views[i] == views.views[i])) return "views[" + std::to_string(i) + "]";
-  }
+  const std::string inputs = ProjectInputsMismatch(project, rig, patterns, views);
+  if (!inputs.empty()) return inputs;
   for (const char* key : {"scene", "simulate", "fixed_objects"}) {
     if (!project.provenance.contains(key) || project.provenance[key] != provenance[key])
       return std::string("provenance.") + key;
@@ -95,36 +90,19 @@ VirtualProjectSummary SimulateProject(const Scene& scene, const Rig& rig, const 
   rig.Check("rig '" + rig.name + "'");
   SLSHADOW_THROW_IF(!rig.projector, "rig '", rig.name,
                     "': has no projector: the simulator needs one");
-  SLSHADOW_THROW_IF(spec.projector_width != rig.projector->model.width ||
-                        spec.projector_height != rig.projector->model.height,
-                    "pattern spec: projector size ", spec.projector_width, "x",
-                    spec.projector_height, " does not match the rig's projector (",
-                    rig.projector->model.width, "x", rig.projector->model.height, ")");
+  CheckProjectorSize(rig, spec, "pattern spec", "rig '" + rig.name + "'");
   for (const ViewSpec& v : views.views) VirtualViewPose(v, rig);  // every view has a pose
 
   const nlohmann::json patterns = PatternSpecToJson(spec);
   const nlohmann::json provenance = ProjectProvenance(scene, options);
   std::error_code ec;
-  ProjectManifest project;
-  if (fs::exists(project_dir / "project.json", ec)) {
-    SLSHADOW_THROW_IF(!options.resume, project_dir.string(),
-                      ": already holds a project (pass --resume to render its missing views)");
-    // Not LoadProject: a complete view whose folder was lost since is rendered again below.
-    project = ProjectFromConfig(ConfigNode::LoadFile(project_dir / "project.json"));
-    const std::string mismatch = ResumeMismatch(project, rig, patterns, views, provenance);
-    SLSHADOW_THROW_IF(!mismatch.empty(), (project_dir / "project.json").string(), ": ", mismatch,
-                      " differs from this run's; resume only with the inputs the project was "
-                      "started with");
-  } else {
-    SLSHADOW_THROW_IF(fs::exists(project_dir, ec) && !fs::is_empty(project_dir, ec),
-                      project_dir.string(),
-                      ": exists and is not a multi-view project (no project.json); choose another "
-                      "folder");
-    project = NewProject(rig, patterns, views, provenance);
-    fs::create_directories(project_dir / "views", ec);
-    SLSHADOW_THROW_IF(ec, project_dir.string(), ": cannot create the folder: ", ec.message());
-    SaveProject(project, project_dir);
-  }
+  // A complete view whose folder was lost since is rendered again below.
+  StartedProject started =
+      StartOrResumeProject(project_dir, rig, patterns, views, provenance, options.resume,
+                           "render its missing views", [&](const ProjectManifest& stored) {
+                             return ResumeMismatch(stored, rig, patterns, views, provenance);
+                           });
+  ProjectManifest& project = started.manifest;
 
   VirtualProjectSummary summary;
   const SimulateOptions simulate = ViewSimulateOptions(options);
@@ -164,7 +142,7 @@ VirtualProjectSummary SimulateProject(const Scene& scene, const Rig& rig, const 
                      {"table_deg", view.spec.table_deg ? nlohmann::json(*view.spec.table_deg)
                                                        : nlohmann::json(nullptr)},
                      {"part_from_rig_true", PoseToJson(part_from_rig)}};
-    shadow::WriteVirtualScan(dir, rig, spec, placed, images, simulate.writer, extra);
+    pipeline::WriteVirtualScan(dir, rig, spec, placed, images, simulate.writer, extra);
     summary.write_seconds += SecondsSince(t0);
     images.clear();
     mark_complete(view, dir);

@@ -1,10 +1,10 @@
 // A virtual multi-view scan: the scene turned to each view's table angle (or placed at a hand
 // view's pose) and scanned by the rig with the simulate path every virtual scan takes
-// (sim/simulate.h RenderScan, shadow/scan_pipeline.h WriteVirtualScan), written as a project
-// folder (workflows/multiview/views.h; docs/formats.md "Multi-view project"). Resumable: a project
-// interrupted after some views (or with a view folder deleted) is continued by rendering the views
-// whose ImageSet is missing; complete ones are kept untouched. Rendering is deterministic, so a
-// resumed project's images equal an uninterrupted one's bit for bit.
+// (sim/simulate.h RenderScan, workflows/pipeline/scan_pipeline.h WriteVirtualScan), written as a
+// project folder (workflows/multiview/views.h; docs/formats.md "Multi-view project"). Resumable: a
+// project interrupted after some views (or with a view folder deleted) is continued by rendering
+// the views whose ImageSet is missing; complete ones are kept untouched. Rendering is
+// deterministic, so a resumed project's images equal an uninterrupted one's bit for bit.
 #pragma once
 
 #include <filesystem>

@@ -216,6 +216,23 @@ IcpOutcome RegisterPair(const ViewGeometry& a, const ViewGeometry& b,
   return out;
 }
 
+IcpOutcome LinearizePair(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d& a_from_b,
+                         double gate_mm, double max_residual_mm, const MergeOptions& options) {
+  IcpOutcome out;
+  out.gate_mm = gate_mm;
+  out.max_residual_mm = max_residual_mm;
+  out.converged = true;
+  const Accumulator acc = Correspond(a, b, a_from_b, gate_mm, max_residual_mm, options);
+  FillOutcome(acc, b, &out);
+  out.a_from_b = a_from_b;
+  if (acc.n < 7) return out;
+  Matrix6d ata = acc.ata;
+  ata.diagonal().array() += 1e-12 * ata.trace();
+  const Eigen::Matrix<double, 6, 1> x = ata.ldlt().solve(-acc.atb);
+  out.a_from_b = Rigid3d(QuaternionFromRotationVector(x.head<3>()), x.tail<3>()) * a_from_b;
+  return out;
+}
+
 IcpOutcome EvaluatePair(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d& a_from_b,
                         double gate_mm, double max_residual_mm, const MergeOptions& options) {
   IcpOutcome out;

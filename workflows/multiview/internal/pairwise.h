@@ -60,6 +60,13 @@ struct IcpOutcome {
 IcpOutcome RegisterPair(const ViewGeometry& a, const ViewGeometry& b,
                         const Rigid3d& a_from_b_initial, const MergeOptions& options);
 
+// One Gauss-Newton step of the pair's point-to-plane cost from a_from_b with the correspondences
+// found there (gate, residual bound): a_from_b is the minimiser of the linearised cost and
+// information its curvature J^T J / sigma^2 (the joint refinement of merge.cc re-linearises every
+// pair at the graph's poses this way).
+IcpOutcome LinearizePair(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d& a_from_b,
+                         double gate_mm, double max_residual_mm, const MergeOptions& options);
+
 // The same statistics at a fixed a_from_b (no iteration), with the given gate and residual bound.
 IcpOutcome EvaluatePair(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d& a_from_b,
                         double gate_mm, double max_residual_mm, const MergeOptions& options);

@@ -8,6 +8,8 @@
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 
+#include "workflows/multiview/internal/relative_pose_delta.h"
+
 namespace slshadow::multiview::internal {
 namespace {
 
@@ -21,17 +23,7 @@ struct RelativePoseResidual {
   bool operator()(const T* qa, const T* ta, const T* qb, const T* tb, T* residuals) const {
     const Eigen::Map<const Eigen::Quaternion<T>> rot_a(qa), rot_b(qb);
     const Eigen::Map<const Eigen::Matrix<T, 3, 1>> tr_a(ta), tr_b(tb);
-    const Eigen::Quaternion<T> rot_a_inv = rot_a.conjugate();
-    const Eigen::Quaternion<T> rot_e = rot_a_inv * rot_b;
-    const Eigen::Matrix<T, 3, 1> tr_e = rot_a_inv * (tr_b - tr_a);
-    const Eigen::Quaternion<T> rot_d = rot_e * measured_inverse.rotation.cast<T>();
-    const Eigen::Matrix<T, 3, 1> tr_d = rot_e * measured_inverse.translation.cast<T>() + tr_e;
-    const T q[4] = {rot_d.w(), rot_d.x(), rot_d.y(), rot_d.z()};
-    Eigen::Matrix<T, 6, 1> delta;
-    ceres::QuaternionToAngleAxis(q, delta.data());
-    delta.template tail<3>() = tr_d;
-    Eigen::Map<Eigen::Matrix<T, 6, 1>> out(residuals);
-    out = sqrt_info.cast<T>() * delta;
+    RelativePoseDelta<T>(rot_a, tr_a, rot_b, tr_b, measured_inverse, sqrt_info, residuals);
     return true;
   }
 
@@ -39,14 +31,13 @@ struct RelativePoseResidual {
   Matrix6d sqrt_info;
 };
 
-// S with S^T S = information (eigen decomposition; negative round-off eigenvalues clamped).
+}  // namespace
+
 Matrix6d SqrtInformation(const Matrix6d& information) {
   const Eigen::SelfAdjointEigenSolver<Matrix6d> eig(0.5 * (information + information.transpose()));
   const Eigen::Matrix<double, 6, 1> root = eig.eigenvalues().cwiseMax(0.0).cwiseSqrt();
   return root.asDiagonal() * eig.eigenvectors().transpose();
 }
-
-}  // namespace
 
 Rigid3d EdgeDiscrepancy(const std::vector<Rigid3d>& part_from_rig, const GraphEdge& edge) {
   const Rigid3d estimated = part_from_rig[static_cast<size_t>(edge.a)].Inverse() *

@@ -37,6 +37,9 @@ GraphSolution OptimizePoseGraph(const std::vector<Rigid3d>& initial,
                                 const std::vector<bool>& active, int anchor,
                                 const std::vector<GraphEdge>& edges, bool with_covariance);
 
+// S with S^T S = information (eigen decomposition; negative round-off eigenvalues clamped).
+Matrix6d SqrtInformation(const Matrix6d& information);
+
 // The discrepancy P_a^-1 P_b M^-1 of one edge at the given poses (identity when consistent).
 Rigid3d EdgeDiscrepancy(const std::vector<Rigid3d>& part_from_rig, const GraphEdge& edge);
 

@@ -1,0 +1,935 @@
+#include "workflows/twin/twin.h"
+
+#include "workflows/pipeline/scan_pipeline.h"
+#include "workflows/twin/diagnose_neighbours.h"
+#include "workflows/twin/internal/twin_images.h"
+#include "workflows/twin/internal/twin_pose.h"
+#include "workflows/twin/internal/twin_report.h"
+#include "workflows/twin/internal/twin_stats.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <exception>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <thread>
+#include <utility>
+
+#include <Eigen/Dense>
+#include <opencv2/core/utility.hpp>
+
+#include "calib/calibration_io.h"
+#include "compare/compare.h"
+#include "compare/kdtree.h"
+#include "compare/mesh_distance.h"
+#include "core/config.h"
+#include "core/error.h"
+#include "core/file_util.h"
+#include "core/image_io.h"
+#include "core/image_set.h"
+#include "core/point_cloud.h"
+#include "core/pose_io.h"
+#include "sim/simulate.h"
+
+namespace slshadow::twin {
+namespace fs = std::filesystem;
+
+// The report folder's writers (workflows/twin/twin_report.cc).
+using internal::CompareFrames;
+using internal::CompareProjectorCoordinates;
+using internal::ComputeSampleStats;
+using internal::FrameAgreement;
+using internal::LitPartMask;
+using internal::ModeClouds;
+using internal::SampleStats;
+using internal::ShadowMaps;
+using internal::StagesToJson;
+using internal::WriteShadowCharts;
+using internal::WriteShadowClouds;
+using internal::WriteShadowMaps;
+
+namespace {
+
+constexpr const char* kFormat = "slshadow-shadow-report";
+constexpr int kVersion = 1;
+
+// The rig file's pose (core/pose_io.h) with the rotation also as a Rodrigues vector, for readers
+// that think in OpenCV's rvec.
+nlohmann::json ReportPoseJson(const Rigid3d& p) {
+  nlohmann::json j = PoseToJson(p);
+  const Eigen::AngleAxisd aa(p.rotation);
+  const Eigen::Vector3d r = aa.angle() * aa.axis();
+  j["rotation_rvec_rad"] = {r.x(), r.y(), r.z()};
+  return j;
+}
+
+// One task on a thread of its own, joined (its exception rethrown) by Join() or, on the way out
+// of an exception, by the destructor (the exception then dropped).
+class BackgroundTask {
+ public:
+  BackgroundTask() = default;
+  BackgroundTask(const BackgroundTask&) = delete;
+  BackgroundTask& operator=(const BackgroundTask&) = delete;
+  ~BackgroundTask() {
+    if (thread_.joinable()) thread_.join();
+  }
+  template <typename F>
+  void Start(F&& task) {
+    thread_ = std::thread([this, task = std::forward<F>(task)] {
+      try {
+        task();
+      } catch (...) {
+        error_ = std::current_exception();
+      }
+    });
+  }
+  void Join() {
+    if (thread_.joinable()) thread_.join();
+    if (error_) std::rethrow_exception(std::exchange(error_, nullptr));
+  }
+
+ private:
+  std::thread thread_;
+  std::exception_ptr error_;
+};
+
+std::vector<double> SignedC2M(const compare::MeshDistance& mesh,
+                              const std::vector<Eigen::Vector3d>& points) {
+  std::vector<double> d(points.size());
+  cv::parallel_for_(cv::Range(0, static_cast<int>(points.size())), [&](const cv::Range& r) {
+    for (int i = r.start; i < r.end; ++i)
+      d[static_cast<size_t>(i)] = mesh.Closest(points[static_cast<size_t>(i)]).signed_distance_mm;
+  });
+  return d;
+}
+
+struct Reconstructions {
+  std::vector<ProjectorMap> maps;  // per camera
+  std::vector<std::pair<std::string, Reconstruction>> modes;
+};
+
+// At most this many points of a cloud are compared (and written): C2M costs ~1 us a point.
+constexpr size_t kComparedPoints = 400000;
+
+// `for_pose`: the registration cloud (stereo's when there is one, else the projector mode's) is
+// kept whole; every other cloud is made with at most kComparedPoints points, as compared.
+Reconstructions DecodeAndReconstruct(const Rig& rig, const PatternSpec& spec,
+                                     const std::vector<std::string>& cameras,
+                                     const std::vector<const std::vector<cv::Mat>*>& images,
+                                     const ShadowOptions& options, bool for_pose) {
+  Reconstructions out;
+  const bool stereo = cameras.size() >= 2 && spec.code_x;
+  for (size_t c = 0; c < cameras.size(); ++c)
+    out.maps.push_back(DecodePatterns(spec, *images[c], options.decode));
+  // Only the clouds and summaries are read: each organised grid (~100 MB at 1920x1200) goes back
+  // to reconstruct/'s grid pool as soon as its cloud exists, so the next reconstruction (the
+  // twin's) reuses its pages instead of faulting in fresh ones.
+  const auto release_grid = [](Reconstruction& r) { DenseGrid released = std::move(r.grid); };
+  out.modes.emplace_back("projector",
+                         ReconstructWithProjector(rig, cameras[0], out.maps[0], options.reconstruct,
+                                                  for_pose && !stereo ? 0 : kComparedPoints));
+  release_grid(out.modes.back().second);
+  if (stereo) {
+    out.modes.emplace_back("stereo",
+                           ReconstructStereo(rig, cameras[0], cameras[1], out.maps[0], out.maps[1],
+                                             options.reconstruct, for_pose ? 0 : kComparedPoints));
+    release_grid(out.modes.back().second);
+  }
+  return out;
+}
+
+}  // namespace
+
+std::string ToString(PoseSource source) {
+  switch (source) {
+    case PoseSource::kGivenFixed:
+      return "given";
+    case PoseSource::kGivenRefined:
+      return "given+icp";
+    case PoseSource::kRegistered:
+      return "global+icp";
+  }
+  return "?";
+}
+
+ShadowPart LoadShadowPart(const fs::path& path) {
+  ShadowPart part;
+  part.source = path.string();
+  std::string ext = path.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  if (ext == ".yaml" || ext == ".yml" || ext == ".json") {
+    part.scene = LoadScene(path);
+  } else if (ext == ".stl" || ext == ".ply" || ext == ".obj") {
+    auto mesh = std::make_shared<TriangleMesh>(ReadMesh(path));
+    CheckSceneMesh(*mesh, path.string(), /*allow_non_manifold=*/true);
+    SceneObject object;
+    object.name = path.stem().string();
+    object.type = ObjectType::kMesh;
+    object.mesh = mesh;
+    object.albedo.value = 0.8;
+    part.scene.name = object.name;
+    part.scene.objects.push_back(object);
+  } else {
+    SLSHADOW_THROW(path.string(), ": unknown part format '", ext,
+                   "' (expected .stl, .ply, .obj or a scene .yaml/.json)");
+  }
+  part.surface = pipeline::SceneSurface(part.scene, path.string(), kPartPlaneCells);
+  return part;
+}
+
+void ShadowOptions::Check() const {
+  SLSHADOW_THROW_IF(!(min_fitness >= 0 && min_fitness <= 1),
+                    "shadow: min_fitness must be in [0, 1] (got ", min_fitness, ")");
+  SLSHADOW_THROW_IF(!(max_rmse_mm > 0), "shadow: max_rmse_mm must be > 0 (got ", max_rmse_mm, ")");
+  decode.Check();
+  reconstruct.Check();
+  physics.Check();
+  diagnose.Check();
+  strict.Check();
+  html.Check();
+}
+
+namespace {
+
+// What the stages of RunShadowOnImages share, in the order they fill it. The maps' writer comes
+// last: on the way out of an exception it is joined before what it reads (and the staging
+// folder) goes away.
+struct ShadowRun {
+  ShadowRun(const Rig& rig, const PatternSpec& spec, const ShadowPart& part,
+            const ShadowOptions& options, const fs::path& out_dir)
+      : rig(rig), spec(spec), part(part), options(options), out_dir(out_dir) {}
+
+  const Rig& rig;
+  const PatternSpec& spec;
+  const ShadowPart& part;
+  const ShadowOptions& options;
+  const fs::path& out_dir;
+  std::vector<std::string> cameras;  // cameras with images, in rig order
+  std::vector<const std::vector<cv::Mat>*> real_images;
+  bool sixteen = false;
+  double fs_dn = 255.0;
+  ShadowResult result;
+  // 1. The real scan.
+  Reconstructions real_rec;
+  // 2. Pose: the refinement (when it ran) and the part's distance field at the pose used, for
+  // the fitness and the clouds.
+  std::optional<internal::PoseRefinement> pose_fit;
+  Rigid3d rig_from_part;
+  TriangleMesh surface_in_rig;
+  std::optional<compare::MeshDistance> part_distance_at_pose;
+  // 3. The twin.
+  Scene twin;
+  std::vector<cv::Mat> projector_images;
+  Rig twin_rig;
+  std::unique_ptr<Simulator> simulator;
+  std::vector<CameraData> data;
+  double projector_depth_mm = 0;
+  PhysicsFit fit;
+  // 4. Virtual re-scan.
+  Scene fitted;
+  std::vector<std::vector<cv::Mat>> rendered;
+  std::vector<const std::vector<cv::Mat>*> twin_images;
+  Reconstructions twin_rec;
+  // 5. Images and clouds.
+  std::vector<float> response;
+  std::vector<CameraEvidence> evidence;
+  ShadowMaps maps;
+  std::vector<ModeClouds> clouds;
+  std::vector<ModeEvidence> mode_evidence;
+  std::vector<std::vector<double>> mode_diffs;  // real - twin C2M per mode, for the charts
+  std::vector<double> mode_lod95;
+  // 7. Report folder.
+  std::optional<StagingDirectory> staged;
+  nlohmann::json maps_json = nlohmann::json::array();
+  BackgroundTask maps_writer;
+};
+
+// The checks, the cameras with images, the report's header.
+void BeginRun(ShadowRun& run, const std::map<std::string, std::vector<cv::Mat>>& real,
+              const std::string& source, const std::vector<StageMeasurement>& earlier_stages) {
+  const Rig& rig = run.rig;
+  const PatternSpec& spec = run.spec;
+  const ShadowPart& part = run.part;
+  const ShadowOptions& options = run.options;
+  const fs::path& out_dir = run.out_dir;
+  options.Check();
+  spec.Check();
+  SLSHADOW_THROW_IF(!rig.projector, "shadow: the rig '", rig.name, "' has no projector");
+  SLSHADOW_THROW_IF(part.surface.empty(), "shadow: the part '", part.source, "' has no surface");
+  std::error_code ec;
+  if (!out_dir.empty()) {
+    SLSHADOW_THROW_IF(fs::exists(out_dir, ec) && !options.overwrite, out_dir.string(),
+                      ": exists; choose another --out or pass --overwrite");
+  }
+  // Cameras with images, in rig order.
+  std::vector<std::string>& cameras = run.cameras;
+  std::vector<const std::vector<cv::Mat>*>& real_images = run.real_images;
+  for (const auto& cam : rig.cameras) {
+    auto it = real.find(cam.name);
+    if (it == real.end()) continue;
+    SLSHADOW_THROW_IF(static_cast<int>(it->second.size()) != spec.NumImages(), "shadow: camera '",
+                      cam.name, "' has ", it->second.size(), " images, the pattern spec needs ",
+                      spec.NumImages());
+    cameras.push_back(cam.name);
+    real_images.push_back(&it->second);
+  }
+  SLSHADOW_THROW_IF(cameras.empty(), "shadow: no camera of the rig has images");
+  run.sixteen = real_images[0]->front().depth() == CV_16U;
+  run.fs_dn = run.sixteen ? 65535.0 : 255.0;
+
+  ShadowResult& result = run.result;
+  result.stages = earlier_stages;
+  nlohmann::json& report = result.report;
+  report["format"] = kFormat;
+  report["version"] = kVersion;
+  report["image_set"] = source;
+  report["part"] = part.source;
+  report["cameras"] = cameras;
+}
+
+// 1. The real scan.
+void ScanReal(ShadowRun& run) {
+  StageMeter meter("real: decode + reconstruct");
+  run.real_rec = DecodeAndReconstruct(run.rig, run.spec, run.cameras, run.real_images, run.options,
+                                      /*for_pose=*/true);
+  run.result.stages.push_back(meter.Stop());
+  std::vector<ReconstructSummary> summaries;
+  for (const auto& [mode, rec] : run.real_rec.modes) summaries.push_back(rec.summary);
+  EnforceStrict(summaries, run.options.strict, "shadow: the real scan");
+}
+
+// The projector-coordinate error (px) that the rig's calibration uncertainty explains for
+// `camera`: the p95 projection uncertainties the rig file's calibration evidence keeps for the
+// projector and the camera (docs/formats.md "Calibration evidence", the larger of the two noise
+// models), the camera's in projector pixels, added in quadrature; NaN when the file has neither.
+double RigUncertaintyPx(const Rig& rig, const std::string& camera) {
+  if (!rig.projector) return std::nan("");
+  const double proj = EvidenceProjectionUncertaintyP95Px(rig.calibration, rig.projector->name);
+  const double cam = EvidenceProjectionUncertaintyP95Px(rig.calibration, camera);
+  if (!std::isfinite(proj) && !std::isfinite(cam)) return std::nan("");
+  const double cam_in_proj =
+      std::isfinite(cam) ? cam * rig.projector->model.fx() / rig.Camera(camera).model.fx() : 0.0;
+  return std::hypot(std::isfinite(proj) ? proj : 0.0, cam_in_proj);
+}
+
+// 2. Pose, after PlacePart found it: fitness and RMSE of the final pose, measured the same way
+// for every source: share of the registration cloud within 1 mm of the part, RMS of those
+// distances. Not credible with a pose given: the given pose is used.
+void JudgePose(ShadowRun& run, PoseSource pose_source, const compare::RegistrationResult& reg,
+               Rigid3d rig_from_part) {
+  const ShadowPart& part = run.part;
+  const ShadowOptions& options = run.options;
+  nlohmann::json& report = run.result.report;
+  const PointCloud& reg_cloud = run.real_rec.modes.back().second.cloud;
+  TriangleMesh& surface_in_rig = run.surface_in_rig;
+  std::optional<compare::MeshDistance>& part_distance_at_pose = run.part_distance_at_pose;
+  surface_in_rig = part.surface;
+  surface_in_rig.Transform(rig_from_part.rotation.toRotationMatrix(), rig_from_part.translation);
+  // The part's distance field at the pose used: built once, for the fitness and the clouds.
+  part_distance_at_pose.emplace(surface_in_rig);
+  const compare::MeshDistance& registered = *part_distance_at_pose;
+  std::vector<Eigen::Vector3d> sample;
+  for (size_t i = 0; i < reg_cloud.size(); i += std::max<size_t>(1, reg_cloud.size() / 100000))
+    sample.push_back(reg_cloud.points[i]);
+  const std::vector<double> d = SignedC2M(registered, sample);
+  int64_t in = 0;
+  double ss = 0;
+  for (double x : d) {
+    if (std::abs(x) < 1.0) ++in, ss += x * x;
+  }
+  const double fitness = d.empty() ? 0.0 : static_cast<double>(in) / static_cast<double>(d.size());
+  const double rmse = in ? std::sqrt(ss / static_cast<double>(in)) : 0.0;
+  report["pose"] = {{"source", ToString(pose_source)},
+                    {"rig_from_part", ReportPoseJson(rig_from_part)},
+                    {"registration_cloud", run.real_rec.modes.back().first},
+                    {"fitness", fitness},
+                    {"inlier_rmse_mm", rmse},
+                    {"gate_mm", 1.0},
+                    {"min_fitness", options.min_fitness},
+                    {"max_rmse_mm", options.max_rmse_mm}};
+  if (pose_source != PoseSource::kGivenFixed) {
+    report["pose"]["registration"] = {{"ran", true},
+                                      {"fitness", reg.fitness},
+                                      {"inlier_rmse_mm", reg.inlier_rmse_mm},
+                                      {"icp_iterations", reg.icp_iterations},
+                                      {"converged", reg.converged},
+                                      {"global_found", reg.global_found}};
+  }
+  if (options.rig_from_part) {
+    report["pose"]["moved_from_given_mm"] =
+        (rig_from_part.translation - options.rig_from_part->translation).norm();
+    report["pose"]["rotated_from_given_deg"] =
+        compare::RotationDifferenceDeg(rig_from_part, *options.rig_from_part);
+  }
+  if (run.pose_fit)
+    report["pose"]["refinement"] = internal::PoseRefinementToJson(
+        *run.pose_fit, options.rig_from_part
+                           ? std::optional<Rigid3d>(options.rig_from_part->Inverse())
+                           : std::nullopt);
+  const bool credible = in > 0 && fitness >= options.min_fitness && rmse <= options.max_rmse_mm;
+  report["pose"]["credible"] = credible;
+  // Not credible: stop, unless a pose was given; then the job goes on from the given pose
+  // (a scan corrupted e.g. by a wrong frame still deserves its diagnosis), and says so.
+  SLSHADOW_THROW_IF(!credible && !options.rig_from_part,
+                    "shadow: the part's pose is not credible (", ToString(pose_source),
+                    "): fitness ", fitness, " (need >= ", options.min_fitness, "), inlier RMSE ",
+                    rmse, " mm over ", in, " points (need <= ", options.max_rmse_mm,
+                    "); give a pose guess with --pose, or check the part file");
+  if (pose_source == PoseSource::kGivenFixed) {
+    report["pose"]["used"] = "given";  // no registration ran: fitness and RMSE are for information
+  } else if (!credible) {
+    rig_from_part = *options.rig_from_part;
+    surface_in_rig = part.surface;
+    surface_in_rig.Transform(rig_from_part.rotation.toRotationMatrix(), rig_from_part.translation);
+    part_distance_at_pose.emplace(surface_in_rig);  // `registered` is not used after this
+    report["pose"]["used"] = "given";
+    report["pose"]["rig_from_part"] = ReportPoseJson(rig_from_part);
+    report["pose"]["warning"] =
+        "registration not credible (the real cloud is far from the part); the given pose is used "
+        "as it is";
+  } else {
+    report["pose"]["used"] = ToString(pose_source);
+  }
+  run.result.rig_from_part = rig_from_part;
+  run.rig_from_part = rig_from_part;
+}
+
+// 2. Pose: given, or registered to the real cloud (from the given pose when there is one) and
+// polished; then judged.
+void PlacePart(ShadowRun& run) {
+  StageMeter meter("pose");
+  const ShadowPart& part = run.part;
+  const ShadowOptions& options = run.options;
+  // Wall and CPU seconds of the stage's parts, for report.json's pose.seconds.
+  nlohmann::json seconds = nlohmann::json::object();
+  StageTimer timer;
+  const auto lap = [&](const char* name) {
+    double wall = 0, cpu = 0;
+    timer.Elapsed(&wall, &cpu);
+    seconds[name] = {{"wall", wall}, {"cpu", cpu}};
+    timer.Restart();
+  };
+  const PointCloud& reg_cloud = run.real_rec.modes.back().second.cloud;  // stereo when there is one
+  SLSHADOW_THROW_IF(reg_cloud.size() < 100 && !(options.rig_from_part && !options.refine_pose),
+                    "shadow: the real scan reconstructed only ", reg_cloud.size(),
+                    " points; cannot place the part");
+  PoseSource pose_source;
+  compare::RegistrationResult reg;
+  Rigid3d rig_from_part;
+  nlohmann::json icp_skipped;
+  if (options.rig_from_part && !options.refine_pose) {
+    pose_source = PoseSource::kGivenFixed;
+    rig_from_part = *options.rig_from_part;
+  } else {
+    const compare::MeshDistance part_distance(part.surface);
+    Rigid3d part_from_rig_guess;
+    std::vector<Rigid3d> starts;
+    bool run_icp = true;
+    if (options.rig_from_part) {
+      pose_source = PoseSource::kGivenRefined;
+      part_from_rig_guess = options.rig_from_part->Inverse();
+      starts.push_back(part_from_rig_guess);
+      // ICP widens the basin of a rough guess. A given pose whose points already sit within a
+      // fraction of the refinement's first scale is inside that basin: ICP, which stops at its
+      // sampled correspondences, could only hand the refinement a worse second start.
+      const internal::PoseRefineOptions refine_options;
+      const internal::PoseFit fit = internal::MeasurePoseFit(
+          part_distance, reg_cloud.points, part_from_rig_guess, refine_options.gate_mm, 20000);
+      if (internal::WithinRefinementBasin(fit, refine_options)) {
+        run_icp = false;
+        icp_skipped = {{"fitness", fit.fitness},
+                       {"median_abs_mm", fit.median_abs_mm},
+                       {"points", fit.points},
+                       {"reason",
+                        "the given pose is within the refinement's basin (>= 90 % of "
+                        "the points within the gate, median |C2M| below a quarter of "
+                        "the first scale): ICP not run"}};
+      }
+      lap("given pose fit");
+    } else {
+      pose_source = PoseSource::kRegistered;
+    }
+    if (run_icp) {
+      const compare::Reference reference =
+          compare::ReferenceFromMesh(part.surface, part.source, 100000);
+      lap("reference");
+      compare::RegistrationOptions ro;
+      ro.method = options.rig_from_part ? compare::RegistrationMethod::kIcp
+                                        : compare::RegistrationMethod::kGlobalIcp;
+      std::vector<Eigen::Vector3d> cloud = reg_cloud.points;
+      if (options.rig_from_part) {
+        for (auto& p : cloud) p = part_from_rig_guess * p;
+      }
+      std::vector<Eigen::Vector3d> normals;
+      normals.reserve(reference.cloud.size());
+      for (const auto& n : reference.cloud.normals) normals.push_back(n.cast<double>());
+      reg = compare::Register(cloud, reference.cloud.points, normals, ro);
+      lap("registration");
+      // ICP stops at its sampled correspondences: the pose is refined on the exact surface, from
+      // the better of the given pose and ICP's, and never left worse than the given one
+      // (workflows/twin/internal/twin_pose.h).
+      starts.push_back(reg.reference_from_cloud * part_from_rig_guess);
+    }
+    run.pose_fit =
+        internal::RefinePoseOnSurface(part_distance, part.surface, reg_cloud.points, starts);
+    rig_from_part = run.pose_fit->part_from_rig.Inverse();
+    lap("refinement");
+  }
+  JudgePose(run, pose_source, reg, rig_from_part);
+  if (!icp_skipped.is_null()) {
+    run.result.report["pose"]["registration"] = {{"ran", false}, {"skipped", icp_skipped}};
+  }
+  lap("judgement");
+  run.result.report["pose"]["seconds"] = seconds;
+  run.result.stages.push_back(meter.Stop());
+}
+
+// 3. The twin: the part at its pose; geometry once (focused), then the physics fit.
+void BuildTwin(ShadowRun& run) {
+  StageMeter meter("twin geometry + physics fit");
+  const PatternSpec& spec = run.spec;
+  const ShadowPart& part = run.part;
+  const ShadowOptions& options = run.options;
+  const std::vector<std::string>& cameras = run.cameras;
+  Scene& twin = run.twin;
+  twin = part.scene;
+  twin.name = "twin of " + part.scene.name;
+  for (auto& o : twin.objects) o.rig_from_object = run.rig_from_part * o.rig_from_object;
+  twin.radiometry.adc_bits = run.sixteen ? 16 : 8;
+  twin.layers.noise_enabled = false;
+  twin.layers.projector_defocus.enabled = false;
+  twin.layers.response_enabled = false;
+  twin.layers.ambient = 0;
+  run.projector_images = GeneratePatterns(spec);
+  Rig& twin_rig = run.twin_rig;
+  twin_rig = run.rig;
+  run.simulator = std::make_unique<Simulator>(twin, twin_rig);
+  std::vector<CameraData>& data = run.data;
+  data.resize(cameras.size());
+  run.projector_depth_mm = twin_rig.working_distance_mm;
+  {
+    std::vector<double> depths;
+    const GeometryBuffer& g0 = run.simulator->geometry(twin_rig.CameraIndex(cameras[0]));
+    for (int y = 0; y < g0.height; y += 8) {
+      for (int x = 0; x < g0.width; x += 8) {
+        if (g0.visibility.at<uint8_t>(y, x) != 2) continue;
+        const cv::Vec3f p = g0.point_in_rig.at<cv::Vec3f>(y, x);
+        depths.push_back(
+            (twin_rig.projector->cam_from_rig * Eigen::Vector3d(p[0], p[1], p[2])).z());
+      }
+    }
+    SLSHADOW_THROW_IF(depths.empty(), "shadow: the part at its pose is not seen lit by camera '",
+                      cameras[0], "'");
+    std::nth_element(depths.begin(),
+                     depths.begin() + static_cast<std::ptrdiff_t>(depths.size() / 2), depths.end());
+    run.projector_depth_mm = depths[depths.size() / 2];
+  }
+  for (size_t c = 0; c < cameras.size(); ++c) {
+    data[c].camera = cameras[c];
+    data[c].real = *run.real_images[c];
+    data[c].geometry = &run.simulator->geometry(twin_rig.CameraIndex(cameras[c]));
+    WhiteBlackImages(spec, data[c].real, &data[c].white, &data[c].black);
+  }
+  PhysicsFit& fit = run.fit;
+  if (options.fit_physics) {
+    fit = FitPhysics(spec, twin, data, options.physics);
+  } else {
+    PhysicsLayer e;
+    e.name = "exposure";
+    e.kept = true;
+    e.value = part.scene.radiometry.exposure_fraction;
+    e.reason = "from the part file (--no-physics-fit)";
+    fit.layers.push_back(e);
+  }
+  run.result.stages.push_back(meter.Stop());
+}
+
+// 4. Virtual re-scan with the fitted physics; defocus from its fringes against the real ones.
+void RenderTwin(ShadowRun& run) {
+  StageMeter meter("twin: render (+ defocus fit)");
+  const PatternSpec& spec = run.spec;
+  const ShadowOptions& options = run.options;
+  const std::vector<std::string>& cameras = run.cameras;
+  const std::vector<cv::Mat>& projector_images = run.projector_images;
+  const Rig& twin_rig = run.twin_rig;
+  PhysicsFit& fit = run.fit;
+  std::vector<CameraData>& data = run.data;
+  Scene& fitted = run.fitted;
+  std::vector<std::vector<cv::Mat>>& rendered = run.rendered;
+  fitted = fit.Apply(run.twin, twin_rig, run.projector_depth_mm, options.noise_seed);
+  // The image layers the renderer does not model (black level, illumination field, global light).
+  const std::vector<double> pattern_means = PatternMeans(projector_images);
+  const auto apply_image_layers = [&] {
+    for (const auto& name : cameras) {
+      ApplyImageLayers(fit, spec, pattern_means, name,
+                       &rendered[static_cast<size_t>(twin_rig.CameraIndex(name))]);
+    }
+  };
+  const auto render_all = [&] {
+    rendered.clear();
+    rendered = run.simulator->Render(projector_images, &fitted);
+    apply_image_layers();
+  };
+  if (options.fit_physics) {
+    // The defocus fit reads only the white, black and finest fringe frames: with white and black
+    // frames in the sequence only those are rendered for it (the rest once the physics is final).
+    std::vector<int> fit_frames;
+    if (spec.WhiteFrameIndex() >= 0 && spec.BlackFrameIndex() >= 0) {
+      fit_frames = ModulationFrames(spec);
+      fit_frames.push_back(spec.WhiteFrameIndex());
+      fit_frames.push_back(spec.BlackFrameIndex());
+    }
+    if (fit_frames.empty()) {
+      render_all();
+    } else {
+      std::vector<cv::Mat> subset;
+      for (int i : fit_frames) subset.push_back(projector_images[static_cast<size_t>(i)]);
+      const std::vector<std::vector<cv::Mat>> part = run.simulator->Render(subset, &fitted);
+      rendered.assign(part.size(), std::vector<cv::Mat>(projector_images.size()));
+      for (size_t cam = 0; cam < part.size(); ++cam) {
+        for (size_t k = 0; k < fit_frames.size(); ++k)
+          rendered[cam][static_cast<size_t>(fit_frames[k])] = part[cam][k];
+      }
+      apply_image_layers();
+    }
+    for (size_t c = 0; c < cameras.size(); ++c)
+      data[c].twin = rendered[static_cast<size_t>(twin_rig.CameraIndex(cameras[c]))];
+    FitDefocus(spec, data, options.physics, &fit);
+    for (auto& d : data) d.twin.clear();
+    if (fit.Kept("defocus")) {
+      fitted = fit.Apply(run.twin, twin_rig, run.projector_depth_mm, options.noise_seed);
+      for (auto& d : data)
+        d.twin_modulation = d.twin_white = d.twin_black = cv::Mat(), d.geometry = nullptr;
+      rendered.clear();
+      run.simulator = std::make_unique<Simulator>(fitted, twin_rig);
+      render_all();
+    } else if (!fit_frames.empty()) {
+      for (auto& d : data) d.twin_modulation = d.twin_white = d.twin_black = cv::Mat();
+      render_all();
+    }
+  } else {
+    render_all();
+  }
+  run.result.stages.push_back(meter.Stop());
+  nlohmann::json& report = run.result.report;
+  report["physics"] = {{"layers", fit.ToJson()}, {"twin_scene", SceneToJson(fitted)}};
+  report["physics"]["projector_depth_mm"] = run.projector_depth_mm;
+}
+
+// 4. The twin's images decoded and reconstructed like the real ones.
+void ScanTwin(ShadowRun& run) {
+  StageMeter meter("twin: decode + reconstruct");
+  for (const auto& name : run.cameras)
+    run.twin_images.push_back(&run.rendered[static_cast<size_t>(run.twin_rig.CameraIndex(name))]);
+  run.twin_rec = DecodeAndReconstruct(run.twin_rig, run.spec, run.cameras, run.twin_images,
+                                      run.options, /*for_pose=*/false);
+  run.result.stages.push_back(meter.Stop());
+}
+
+// 5. Images (the per-camera comparisons: workflows/twin/twin_images.cc).
+// Camera c's evidence for the diagnosis, and its white-difference and modulation-ratio maps.
+void CameraEvidenceAndMaps(ShadowRun& run, size_t c, const GeometryBuffer& g, const cv::Mat& mask,
+                           const std::vector<cv::Mat>& rimg, const std::vector<cv::Mat>& timg) {
+  const PatternSpec& spec = run.spec;
+  const ProjectorMap& rm = run.real_rec.maps[c];
+  const ProjectorMap& gt = g.projector;
+  const CameraData& data_c = run.data[c];
+  CameraEvidence& ev = run.evidence[c];
+  ev.camera = run.cameras[c];
+  ev.width = g.width;
+  ev.height = g.height;
+  ev.mask = mask;
+  ev.real_x = rm.proj_x;
+  ev.real_y = rm.proj_y;
+  ev.gt_x = gt.proj_x;
+  ev.gt_y = gt.proj_y;
+  if (!spec.code_x) ev.real_x = ev.gt_x = cv::Mat();
+  if (!spec.code_y) ev.real_y = ev.gt_y = cv::Mat();
+  ev.real = run.real_images[c];
+  ev.white = data_c.white;
+  ev.black = data_c.black;
+  ev.projector_fx = run.twin_rig.projector->model.fx();
+  ev.projector_fy = run.twin_rig.projector->model.fy();
+  ev.projector_cx = run.twin_rig.projector->model.cx();
+  ev.projector_cy = run.twin_rig.projector->model.cy();
+  ev.rig_uncertainty_px = RigUncertaintyPx(run.rig, ev.camera);
+  cv::Mat twin_white = data_c.twin_white, twin_black = data_c.twin_black;
+  if (twin_white.empty() || twin_black.empty())
+    WhiteBlackImages(spec, timg, &twin_white, &twin_black);
+  const cv::Mat mr = data_c.real_modulation.empty()
+                         ? NormalisedModulation(spec, rimg, ev.white, ev.black)
+                         : data_c.real_modulation;
+  const cv::Mat mt = data_c.twin_modulation.empty()
+                         ? NormalisedModulation(spec, timg, twin_white, twin_black)
+                         : data_c.twin_modulation;
+  ev.modulation_ratio = mr / mt;
+  cv::Mat wd(g.height, g.width, CV_32FC1, cv::Scalar(std::nanf("")));
+  for (int y = 0; y < g.height; ++y) {
+    for (int x = 0; x < g.width; ++x) {
+      if (mask.at<uint8_t>(y, x))
+        wd.at<float>(y, x) = ev.white.at<float>(y, x) - twin_white.at<float>(y, x);
+    }
+  }
+  run.maps.white_difference[c] = wd;
+  cv::Mat mod = ev.modulation_ratio.clone();
+  for (int y = 0; y < g.height; ++y) {
+    for (int x = 0; x < g.width; ++x) {
+      if (!mask.at<uint8_t>(y, x)) mod.at<float>(y, x) = std::nanf("");
+    }
+  }
+  run.maps.modulation[c] = mod;
+}
+
+// 5. Images, camera c: its report entry, evidence and maps.
+nlohmann::json CompareCamera(ShadowRun& run, size_t c, const std::vector<FrameInfo>& frames) {
+  const GeometryBuffer& g = run.simulator->geometry(run.twin_rig.CameraIndex(run.cameras[c]));
+  const std::vector<cv::Mat>& rimg = *run.real_images[c];
+  const std::vector<cv::Mat>& timg = *run.twin_images[c];
+  const cv::Mat mask = LitPartMask(g);
+  const int64_t lit = cv::countNonZero(mask);
+  const int nf = run.spec.NumImages();
+  const FrameAgreement agreement = CompareFrames(run.spec, frames, rimg, timg, mask, g, run.fs_dn);
+  nlohmann::json projector_coordinates =
+      CompareProjectorCoordinates(run.spec, run.real_rec.maps[c], run.twin_rec.maps[c], g.projector,
+                                  mask, lit, g, &run.maps.residual[c], &run.maps.validity[c]);
+  nlohmann::json cj = {
+      {"camera", run.cameras[c]},
+      {"lit_part_pixels", lit},
+      {"full_scale_dn", run.fs_dn},
+      {"within_5pct_all_frames",
+       lit ? static_cast<double>(agreement.in_all) / static_cast<double>(lit * nf) : 0.0},
+      {"within_5pct_worst_frame", agreement.worst},
+      {"patterns", agreement.per}};
+  cj["projector_coordinates"] = std::move(projector_coordinates);
+  CameraEvidenceAndMaps(run, c, g, mask, rimg, timg);
+  return cj;
+}
+
+// 5. Images: the cameras side by side (each mostly serial work); the report gets them in rig
+// order.
+void CompareImages(ShadowRun& run) {
+  StageMeter meter("compare images");
+  const Scene& fitted = run.fitted;
+  run.response.resize(256);
+  for (int v = 0; v < 256; ++v)
+    run.response[static_cast<size_t>(v)] = static_cast<float>(
+        fitted.layers.response_enabled ? std::pow(v / 255.0, fitted.layers.gamma) : v / 255.0);
+  const size_t num_cameras = run.cameras.size();
+  run.evidence.resize(num_cameras);
+  nlohmann::json& report = run.result.report;
+  report["images"]["cameras"] = nlohmann::json::array();
+  const std::vector<FrameInfo> frames = run.spec.Frames();
+  std::vector<nlohmann::json> camera_json(num_cameras);
+  run.maps.residual.resize(num_cameras);
+  run.maps.validity.resize(num_cameras);
+  run.maps.white_difference.resize(num_cameras);
+  run.maps.modulation.resize(num_cameras);
+  cv::parallel_for_(cv::Range(0, static_cast<int>(num_cameras)),
+                    [&](const cv::Range& camera_range) {
+                      for (int camera_index = camera_range.start; camera_index < camera_range.end;
+                           ++camera_index) {
+                        const size_t c = static_cast<size_t>(camera_index);
+                        camera_json[c] = CompareCamera(run, c, frames);
+                      }
+                    });
+  for (auto& cj : camera_json) report["images"]["cameras"].push_back(std::move(cj));
+  run.result.stages.push_back(meter.Stop());
+}
+
+// The report's maps depend on the images only: drawn on a thread of their own (PLplot and PNG
+// encoding are single-threaded) while the clouds are compared and the diagnosis runs.
+void StartMapsWriter(ShadowRun& run) {
+  if (run.out_dir.empty()) return;
+  std::error_code ec;
+  run.staged.emplace(run.out_dir);
+  const fs::path maps_dir = run.staged->path() / "maps";
+  fs::create_directories(maps_dir, ec);
+  SLSHADOW_THROW_IF(ec, maps_dir.string(), ": cannot create folder: ", ec.message());
+  run.maps_writer.Start([&run, maps_dir] {
+    WriteShadowMaps(maps_dir, run.cameras, run.spec, run.options.diagnose, run.fs_dn, run.maps,
+                    &run.maps_json);
+  });
+}
+
+// Clouds, mode m: the real and twin clouds (thinned to kComparedPoints) against the part and
+// each other on the part; appended to the report and the run.
+void CompareMode(ShadowRun& run, size_t m) {
+  Reconstructions& real_rec = run.real_rec;
+  Reconstructions& twin_rec = run.twin_rec;
+  const compare::MeshDistance& part_distance = *run.part_distance_at_pose;
+  ModeClouds mc;
+  mc.mode = real_rec.modes[m].first;
+  // At most kComparedPoints per cloud: every s-th point (the clouds not needed whole were made
+  // that way by DecodeAndReconstruct: the same points).
+  const auto thin = [](PointCloud cloud) {
+    const size_t stride =
+        std::max<size_t>(1, (cloud.size() + kComparedPoints - 1) / kComparedPoints);
+    if (stride == 1) return cloud;
+    std::vector<bool> keep(cloud.size(), false);
+    for (size_t i = 0; i < cloud.size(); i += stride) keep[i] = true;
+    return cloud.Select(keep);
+  };
+  const int64_t real_total = real_rec.modes[m].second.summary.points,
+                twin_total = twin_rec.modes[m].second.summary.points;
+  mc.real = thin(std::move(real_rec.modes[m].second.cloud));
+  mc.twin = thin(std::move(twin_rec.modes[m].second.cloud));
+  mc.real_c2m = SignedC2M(part_distance, mc.real.points);
+  mc.twin_c2m = SignedC2M(part_distance, mc.twin.points);
+  // Compare on the part only: points within 2 mm of it (the rest is background the twin lacks).
+  const auto on_part = [](const PointCloud& cloud, const std::vector<double>& d,
+                          std::vector<Eigen::Vector3d>* pts, std::vector<double>* vals) {
+    for (size_t i = 0; i < cloud.size(); ++i) {
+      if (std::abs(d[i]) < 2.0) pts->push_back(cloud.points[i]), vals->push_back(d[i]);
+    }
+  };
+  ModeEvidence me;
+  me.mode = mc.mode;
+  if (run.pose_fit && run.pose_fit->points >= 100) {
+    // The pose's uncertainty at a point, from the normal of its closest triangle.
+    const internal::PoseUncertainty* u = &run.pose_fit->uncertainty;
+    const Rigid3d part_from_rig = run.rig_from_part.Inverse();
+    const compare::MeshDistance* mesh = &part_distance;
+    me.pose_sigma_mm = [u, part_from_rig, mesh](const Eigen::Vector3d& p) {
+      const compare::MeshHit hit = mesh->Closest(p);
+      return u->PointSigmaMm(part_from_rig * p,
+                             part_from_rig.rotation * mesh->FaceNormal(hit.triangle));
+    };
+  }
+  on_part(mc.real, mc.real_c2m, &me.real_points, &me.real_c2m);
+  on_part(mc.twin, mc.twin_c2m, &me.virtual_points, &me.virtual_c2m);
+  std::vector<double> diff;
+  if (!me.virtual_points.empty()) {
+    const NeighbourGrid tree(me.virtual_points);
+    diff.resize(me.real_points.size(), std::nan(""));
+    cv::parallel_for_(cv::Range(0, static_cast<int>(me.real_points.size())),
+                      [&](const cv::Range& r) {
+                        for (int i = r.start; i < r.end; ++i) {
+                          compare::Neighbor nb;
+                          if (tree.Nearest(me.real_points[static_cast<size_t>(i)], &nb, 1.0))
+                            diff[static_cast<size_t>(i)] =
+                                me.real_c2m[static_cast<size_t>(i)] - me.virtual_c2m[nb.index];
+                        }
+                      });
+  }
+  const SampleStats sr = ComputeSampleStats(me.real_c2m), st = ComputeSampleStats(me.virtual_c2m),
+                    sd = ComputeSampleStats(diff);
+  // LoD95 of a real - twin difference from the twin's own scatter about the part (both scans
+  // carry that noise): 1.96 sqrt(2) sigma.
+  const double lod95 = 1.96 * std::sqrt(2.0) * st.stddev;
+  int64_t significant = 0;
+  for (double d : diff) {
+    if (std::isfinite(d) && std::abs(d) > lod95) ++significant;
+  }
+  run.result.report["clouds"]["modes"].push_back(
+      {{"mode", mc.mode},
+       {"real_points", real_total},
+       {"twin_points", twin_total},
+       {"compared_real_points", mc.real.size()},
+       {"compared_twin_points", mc.twin.size()},
+       {"on_part_gate_mm", 2.0},
+       {"real_vs_part", sr.ToJson("mm")},
+       {"twin_vs_part", st.ToJson("mm")},
+       {"real_vs_twin", sd.ToJson("mm")},
+       {"lod95_mm", lod95},
+       {"real_vs_twin_significant_fraction",
+        sd.count ? static_cast<double>(significant) / static_cast<double>(sd.count) : 0.0},
+       {"real_summary", real_rec.modes[m].second.summary.ToJson()},
+       {"twin_summary", twin_rec.modes[m].second.summary.ToJson()}});
+  run.mode_evidence.push_back(std::move(me));
+  run.clouds.push_back(std::move(mc));
+  run.mode_diffs.push_back(std::move(diff));
+  run.mode_lod95.push_back(lod95);
+}
+
+// 5. Clouds.
+void CompareClouds(ShadowRun& run) {
+  StageMeter meter("compare clouds");
+  run.result.report["clouds"]["modes"] = nlohmann::json::array();
+  for (size_t m = 0; m < run.real_rec.modes.size(); ++m) CompareMode(run, m);
+  run.result.stages.push_back(meter.Stop());
+}
+
+// 6. Diagnosis.
+void DiagnoseRun(ShadowRun& run) {
+  StageMeter meter("diagnose");
+  ShadowResult& result = run.result;
+  result.diagnosis = Diagnose(run.spec, run.projector_images, run.response, run.fit, run.evidence,
+                              run.mode_evidence, run.options.diagnose);
+  result.report["diagnosis"] = result.diagnosis.ToJson();
+  result.physics = run.fit;
+  result.stages.push_back(meter.Stop());
+}
+
+// 7. Report folder (with no folder: the stages into the report only).
+void WriteReportFolder(ShadowRun& run) {
+  ShadowResult& result = run.result;
+  nlohmann::json& report = result.report;
+  if (run.out_dir.empty()) {
+    report["stages"] = StagesToJson(result.stages);
+    return;
+  }
+  StageMeter meter("write report");
+  std::error_code ec;
+  const fs::path& staging = run.staged->path();
+  // The clouds and charts first: the maps are still being drawn in the background (since the
+  // images were compared), and writing the clouds does not wait for PLplot.
+  if (run.options.write_clouds) {
+    fs::create_directories(staging / "clouds", ec);
+    WriteShadowClouds(staging / "clouds", &run.clouds);
+  }
+  fs::create_directories(staging / "charts", ec);
+  SLSHADOW_THROW_IF(ec, (staging / "charts").string(), ": cannot create folder: ", ec.message());
+  WriteShadowCharts(staging, run.clouds, run.mode_diffs, run.mode_lod95, &report);
+  run.maps_writer.Join();
+  report["maps"] = run.maps_json;
+  result.stages.push_back(meter.Stop());
+  report["stages"] = StagesToJson(result.stages);
+  WriteTextFileAtomically(staging / "report.json", report.dump(2) + "\n");
+  WriteTextFileAtomically(staging / "summary.txt", result.Summary());
+  if (run.options.write_html) {
+    report::HtmlOptions html = run.options.html;
+    html.part_surface = std::make_shared<const TriangleMesh>(run.part.surface);
+    report::WriteHtmlReport(staging, html);
+  }
+  run.staged->Commit(run.options.overwrite);
+}
+
+}  // namespace
+
+ShadowResult RunShadowOnImages(const Rig& rig, const PatternSpec& spec,
+                               const std::map<std::string, std::vector<cv::Mat>>& real,
+                               const ShadowPart& part, const ShadowOptions& options,
+                               const fs::path& out_dir, const std::string& source,
+                               const std::vector<StageMeasurement>& earlier_stages) {
+  ShadowRun run(rig, spec, part, options, out_dir);
+  BeginRun(run, real, source, earlier_stages);
+  ScanReal(run);           // 1. The real scan.
+  PlacePart(run);          // 2. Pose.
+  BuildTwin(run);          // 3. The twin: geometry and physics fit.
+  RenderTwin(run);         // 4. Virtual re-scan,
+  ScanTwin(run);           //    decoded and reconstructed.
+  CompareImages(run);      // 5. Images,
+  StartMapsWriter(run);    //    their maps drawn in the background,
+  CompareClouds(run);      //    clouds.
+  DiagnoseRun(run);        // 6. Diagnosis.
+  WriteReportFolder(run);  // 7. Report folder.
+  return std::move(run.result);
+}
+
+ShadowResult RunShadow(const fs::path& image_set_dir, const ShadowPart& part,
+                       const ShadowOptions& options, const fs::path& out_dir, const Rig* rig) {
+  StageMeter meter("read ImageSet");
+  const ImageSet set = ImageSet::Open(image_set_dir);
+  const PatternSpec spec = PatternSpecFromConfig(
+      ConfigNode::FromJson(set.patterns(), (image_set_dir / "manifest.json").string(), "patterns"));
+  std::map<std::string, std::vector<cv::Mat>> images;
+  for (const auto& name : set.CameraNames()) images[name] = set.LoadCamera(name);
+  const StageMeasurement read = meter.Stop();
+  return RunShadowOnImages(rig ? *rig : set.rig(), spec, images, part, options, out_dir,
+                           image_set_dir.string(), {read});
+}
+
+}  // namespace slshadow::twin
