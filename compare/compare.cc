@@ -1,4 +1,5 @@
 #include "compare/compare.h"
+#include "compare/coverage.h"
 
 #include <algorithm>
 #include <chrono>

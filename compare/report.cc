@@ -1,4 +1,5 @@
 #include "compare/report.h"
+#include "compare/median_spacing.h"
 
 #include <algorithm>
 #include <cmath>

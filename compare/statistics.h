@@ -14,17 +14,7 @@
 #include <cstddef>
 #include <vector>
 
-// Until the scan pipeline calls AbsPercentile (shadow/scan_pipeline.cc), and its callers include
-// coverage.h and median_spacing.h themselves.
-#include "compare/coverage.h"
-#include "compare/internal/abs_buckets.h"
-#include "compare/median_spacing.h"
-
 namespace slshadow::compare {
-
-using internal::AbsBucket;  // until shadow/scan_pipeline.cc calls AbsPercentile
-using internal::AbsValuesAtRanks;
-using internal::kAbsBuckets;
 
 struct Histogram {
   double lo_mm = 0.0, hi_mm = 0.0;  // range of the bins

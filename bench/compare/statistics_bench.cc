@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "compare/internal/median_spacing.h"
+#include "compare/median_spacing.h"
 #include "compare/statistics.h"
 #include "core/point_cloud.h"
 #include "core/statistics.h"

@@ -4,6 +4,7 @@
 #include "workflows/studies/sweep_reuse.h"
 
 #include "compare/internal/median_spacing.h"
+#include "compare/median_spacing.h"
 #include "compare/statistics.h"
 #include "core/config.h"
 #include "core/error.h"

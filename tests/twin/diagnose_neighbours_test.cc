@@ -7,7 +7,7 @@
 
 #include <gtest/gtest.h>
 
-#include "compare/kdtree.h"
+#include "core/kdtree.h"
 
 namespace slshadow::twin {
 namespace {
@@ -31,14 +31,14 @@ std::vector<Eigen::Vector3d> SurfaceCloud(int n_side, uint32_t seed) {
   return points;
 }
 
-// The grid's k nearest are compare::KdTree's: the same points in the same order, the same
+// The grid's k nearest are KdTree's: the same points in the same order, the same
 // distances bit for bit (ties in distance, here only duplicates, are compared as sets).
 void ExpectSameAsKdTree(const std::vector<Eigen::Vector3d>& points,
                         const std::vector<Eigen::Vector3d>& queries, int k) {
-  const compare::KdTree tree(points);
+  const KdTree tree(points);
   const NeighbourGrid grid(points, k);
   NeighbourGrid::Scratch scratch;
-  std::vector<compare::Neighbor> a, b;
+  std::vector<Neighbor> a, b;
   int64_t compared = 0;
   for (const Eigen::Vector3d& q : queries) {
     tree.KNearest(q, k, &a);
@@ -54,7 +54,7 @@ void ExpectSameAsKdTree(const std::vector<Eigen::Vector3d>& points,
       }
       ++compared;
     }
-    compare::Neighbor n1, n2;
+    Neighbor n1, n2;
     const bool f1 = tree.Nearest(q, &n1, 1.0), f2 = grid.Nearest(q, &n2, 1.0);
     ASSERT_EQ(f1, f2);
     if (f1) {
@@ -97,7 +97,7 @@ TEST(NeighbourGrid, SameNeighboursAsKdTreeOnAVolumeAndFewPoints) {
   ExpectSameAsKdTree(line, queries, 64);
   NeighbourGrid grid(same, 64);
   NeighbourGrid::Scratch scratch;
-  std::vector<compare::Neighbor> out;
+  std::vector<Neighbor> out;
   grid.KNearest(Eigen::Vector3d(0, 0, 0), 64, &scratch, &out);
   ASSERT_EQ(out.size(), 10u);
   for (size_t i = 0; i < out.size(); ++i) EXPECT_EQ(out[i].index, i);  // ties: lower index first
@@ -110,7 +110,7 @@ TEST(NeighbourGrid, SameNeighboursAsKdTreeOnAVolumeAndFewPoints) {
   for (const auto& nb : out) EXPECT_NE(nb.index, 5u);
   const std::vector<Eigen::Vector3d> none;
   const NeighbourGrid empty(none);
-  compare::Neighbor n;
+  Neighbor n;
   EXPECT_FALSE(empty.Nearest(Eigen::Vector3d::Zero(), &n));
   empty.KNearest(Eigen::Vector3d::Zero(), 5, &scratch, &out);
   EXPECT_TRUE(out.empty());

@@ -17,8 +17,8 @@
 
 #include "compare/compare.h"
 #include "compare/distances.h"
-#include "compare/kdtree.h"
 #include "core/error.h"
+#include "core/kdtree.h"
 #include "core/rig.h"
 #include "core/stage_meter.h"
 #include "patterns/codec.h"
@@ -420,7 +420,7 @@ std::vector<BenchEntry> RunBench(const BenchOptions& options) {
                        " points (stereo cloud, even to odd points; kd-tree + queries)");
     double c2c_mean = 0;
     const Timing t2 = Median(reps, [&] {
-      const compare::KdTree tree(odd);
+      const KdTree tree(odd);
       const compare::C2CResult r = compare::CloudToCloud(even, tree);
       double sum = 0;
       for (const double d : r.distances_mm) sum += d;

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <optional>
 
+#include "compare/coverage.h"
 #include "compare/statistics.h"
 #include "core/config.h"
 #include "core/error.h"
@@ -265,23 +266,6 @@ ModeAccuracy MeasureAccuracy(const std::string& mode, const compare::CompareResu
   return m;
 }
 
-namespace {
-
-// The nearest-rank 95th percentile of |d| over the finite d of [first, last) (`count` of them,
-// > 0): Percentile's value, by compare's buckets of magnitudes.
-double AbsP95(const double* first, const double* last, size_t count) {
-  std::vector<uint32_t> counts(compare::kAbsBuckets, 0);
-  for (const double* d = first; d != last; ++d) {
-    if (std::isfinite(*d)) ++counts[compare::AbsBucket(std::abs(*d))];
-  }
-  const size_t rank = PercentileRank(count, 95.0);
-  double p95 = 0;
-  compare::AbsValuesAtRanks(first, last, counts, &rank, 1, &p95);
-  return p95;
-}
-
-}  // namespace
-
 void MeasureFigureUncertainty(const std::vector<double>& deviations_mm, ModeAccuracy* accuracy) {
   const size_t n = deviations_mm.size(), bands = kSignificanceBands;
   std::vector<double> rms(bands, std::nan("")), p95(bands, std::nan(""));
@@ -299,7 +283,7 @@ void MeasureFigureUncertainty(const std::vector<double>& deviations_mm, ModeAccu
     }
     if (count == 0) return;
     rms[b] = std::sqrt(sum2 / static_cast<double>(count));
-    p95[b] = AbsP95(first, last, count);
+    p95[b] = compare::AbsPercentile(first, last, 95.0);
   });
   accuracy->rms_sigma_mm = BandSigma(rms);
   accuracy->p95_sigma_mm = BandSigma(p95);

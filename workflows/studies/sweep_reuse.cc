@@ -1,5 +1,7 @@
 #include "workflows/studies/sweep_reuse.h"
 
+#include "compare/coverage.h"
+#include "compare/median_spacing.h"
 #include "compare/statistics.h"
 #include "core/error.h"
 #include "sim/renderer.h"

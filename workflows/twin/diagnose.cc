@@ -8,32 +8,20 @@
 #include <Eigen/Dense>
 #include <opencv2/core/utility.hpp>
 
-#include "compare/kdtree.h"
 #include "core/error.h"
+#include "core/kdtree.h"
 #include "core/statistics.h"
+#include "core/string_printf.h"
 #include "workflows/twin/diagnose_neighbours.h"
 
 namespace slshadow::twin {
 namespace {
-
-double Median(std::vector<double> v) {
-  if (v.empty()) return std::nan("");
-  const size_t mid = v.size() / 2;
-  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(mid), v.end());
-  return v[mid];
-}
 
 double Mad(const std::vector<double>& v, double median) {
   std::vector<double> d;
   d.reserve(v.size());
   for (double x : v) d.push_back(std::abs(x - median));
   return 1.4826 * Median(std::move(d));
-}
-
-std::string Fmt(const char* format, double a, double b = 0, double c = 0, double d = 0) {
-  char buf[512];
-  std::snprintf(buf, sizeof(buf), format, a, b, c, d);
-  return buf;
 }
 
 float PixelValue(const cv::Mat& m, int y, int x) {
@@ -141,7 +129,7 @@ QuadraticField FitSmoothField(const cv::Mat& residual, const cv::Mat& mask, doub
     }
   }
   if (values.size() < 50) return out;
-  const double med = Median(values);
+  const double med = Median(std::vector<double>(values));
   std::vector<bool> inlier(values.size());
   for (size_t i = 0; i < values.size(); ++i) inlier[i] = std::abs(values[i] - med) < 5.0;
   Eigen::Matrix<double, 6, 1> coef = Eigen::Matrix<double, 6, 1>::Zero();
@@ -395,14 +383,14 @@ Finding Calibration(const std::vector<CameraEvidence>& cameras, const std::vecto
       worst = rms;
       worst_threshold = threshold;
       cal.message =
-          Fmt("smooth projector-coordinate field of %.3f px RMS (mean %.3f, %.3f px): ", rms,
-              f.mean_x, f.mean_y) +
-          Fmt("equivalent projector rotation %.4f deg about y, %.4f deg about x", rot_y_deg,
-              rot_x_deg);
+          StringPrintf("smooth projector-coordinate field of %.3f px RMS (mean %.3f, %.3f px): ",
+                       rms, f.mean_x, f.mean_y) +
+          StringPrintf("equivalent projector rotation %.4f deg about y, %.4f deg about x",
+                       rot_y_deg, rot_x_deg);
       if (std::isfinite(dfx))
-        cal.message +=
-            Fmt(", or a projector focal length off by %.2f px (fx %.1f)", dfx, cam.projector_fx);
-      if (std::isfinite(dfy)) cal.message += Fmt(" / %.2f px (fy)", dfy);
+        cal.message += StringPrintf(", or a projector focal length off by %.2f px (fx %.1f)", dfx,
+                                    cam.projector_fx);
+      if (std::isfinite(dfy)) cal.message += StringPrintf(" / %.2f px (fy)", dfy);
     }
   }
   cal.evidence["threshold_px"] = options.calibration_field_px;
@@ -410,13 +398,13 @@ Finding Calibration(const std::vector<CameraEvidence>& cameras, const std::vecto
   if (cal.detected) {
     cal.message = "calibration error: " + cal.message + "; run `slshadow calibrate refine`";
   } else if (worst > options.calibration_field_px) {
-    cal.message =
-        Fmt("a smooth field of %.3f px RMS, within what the rig's calibration "
-            "uncertainty explains (%.3f px)",
-            worst, worst_threshold);
+    cal.message = StringPrintf(
+        "a smooth field of %.3f px RMS, within what the rig's calibration "
+        "uncertainty explains (%.3f px)",
+        worst, worst_threshold);
   } else {
-    cal.message = Fmt("no smooth field above %.2f px (largest %.3f px RMS)",
-                      options.calibration_field_px, worst);
+    cal.message = StringPrintf("no smooth field above %.2f px (largest %.3f px RMS)",
+                               options.calibration_field_px, worst);
   }
   return cal;
 }
@@ -475,12 +463,12 @@ Finding ProjectorResponse(const PatternSpec& spec, const PhysicsFit& physics,
     }
   }
   if (resp.detected) {
-    resp.message =
-        Fmt("projector response is not linear: gamma %.3f +- %.3f fitted from the phase frames",
-            g->value, g->sigma);
+    resp.message = StringPrintf(
+        "projector response is not linear: gamma %.3f +- %.3f fitted from the phase frames",
+        g->value, g->sigma);
     if (resp.evidence.contains("ripple_largest_px"))
-      resp.message += Fmt(" (coordinate ripple at the fringe harmonics up to %.4f px)",
-                          resp.evidence["ripple_largest_px"].get<double>());
+      resp.message += StringPrintf(" (coordinate ripple at the fringe harmonics up to %.4f px)",
+                                   resp.evidence["ripple_largest_px"].get<double>());
   } else {
     resp.message = g ? g->reason : "no response fit";
   }
@@ -495,7 +483,8 @@ Finding Defocus(const PhysicsFit& physics) {
   d.evaluated = l && l->observable;
   d.detected = l && l->kept;
   if (l) d.evidence["defocus"] = l->ToJson();
-  d.message = d.detected ? Fmt("projector defocus: Gaussian blur sigma %.2f +- %.2f projector px "
+  d.message = d.detected ? StringPrintf(
+                               "projector defocus: Gaussian blur sigma %.2f +- %.2f projector px "
                                "(fringe modulation %.1f %% of focused)",
                                l->value, l->sigma, 100 * l->extra.value("modulation_ratio", 1.0))
                          : (l ? l->reason : "no defocus fit");
@@ -521,7 +510,7 @@ Finding Multipath(const std::vector<CameraEvidence>& cameras, const DiagnoseOpti
             range.push_back(cam.white.at<float>(y, x) - cam.black.at<float>(y, x));
         }
       }
-      const double min_range = 0.3 * Median(range);
+      const double min_range = 0.3 * Median(std::vector<double>(range));
       for (int y = 0; y < cam.height; ++y) {
         for (int x = 0; x < cam.width; ++x) {
           if (cam.white.at<float>(y, x) - cam.black.at<float>(y, x) < min_range)
@@ -553,7 +542,7 @@ Finding Multipath(const std::vector<CameraEvidence>& cameras, const DiagnoseOpti
       }
     }
     if (all.size() < 100) continue;
-    const double med = Median(all);
+    const double med = Median(std::vector<double>(all));
     const int bw = cam.width / 8, bh = cam.height / 8;
     std::vector<uint8_t> flag(static_cast<size_t>(bw * bh), 0);
     for (int by = 0; by < bh; ++by) {
@@ -570,7 +559,8 @@ Finding Multipath(const std::vector<CameraEvidence>& cameras, const DiagnoseOpti
             if (std::isfinite(r)) v.push_back(r);
           }
         }
-        if (full && v.size() >= 48 && Median(v) < options.multipath_ratio * med)
+        if (full && v.size() >= 48 &&
+            Median(std::vector<double>(v)) < options.multipath_ratio * med)
           flag[static_cast<size_t>(by * bw + bx)] = 1;
       }
     }
@@ -600,7 +590,7 @@ Finding Multipath(const std::vector<CameraEvidence>& cameras, const DiagnoseOpti
       }
       if (size > largest) {
         largest = size;
-        where = cam.camera + Fmt(" around pixel (%.0f, %.0f)", sx / size, sy / size);
+        where = cam.camera + StringPrintf(" around pixel (%.0f, %.0f)", sx / size, sy / size);
       }
     }
     mp.evidence["median_modulation_ratio_" + cam.camera] = med;
@@ -638,14 +628,14 @@ struct Cluster {
 // The median spacing of the compared points, from a sample of their nearest neighbours.
 double PointSpacing(const NeighbourGrid& real_grid, const std::vector<Eigen::Vector3d>& real_points,
                     const std::vector<size_t>& idx, size_t step) {
-  std::vector<compare::Neighbor> nb;
+  std::vector<Neighbor> nb;
   std::vector<double> s;
   NeighbourGrid::Scratch scratch;
   for (size_t i = 0; i < idx.size(); i += std::max<size_t>(1, idx.size() / 500)) {
     real_grid.KNearest(real_points[idx[i]], 2, &scratch, &nb);
     if (nb.size() == 2) s.push_back(std::sqrt(nb[1].distance_sq));
   }
-  return Median(s) * static_cast<double>(step);
+  return Median(std::vector<double>(s)) * static_cast<double>(step);
 }
 
 // Significant points linked within 4 point spacings, same sign only (a bump and a dent next to
@@ -653,8 +643,8 @@ double PointSpacing(const NeighbourGrid& real_grid, const std::vector<Eigen::Vec
 Cluster LargestCluster(const std::vector<Eigen::Vector3d>& sig, const std::vector<double>& sig_d,
                        const std::vector<double>& sig_bound, double spacing) {
   Cluster out;
-  const compare::KdTree sig_tree(sig);
-  std::vector<compare::Neighbor> nb;
+  const KdTree sig_tree(sig);
+  std::vector<Neighbor> nb;
   std::vector<int> label(sig.size(), -1);
   std::vector<size_t> size_of;
   for (size_t i = 0; i < sig.size(); ++i) {
@@ -703,7 +693,7 @@ PartMode EvaluatePartMode(const ModeEvidence& m, const DiagnoseOptions& options)
     return out;
   }
   // Exact k-nearest neighbours on uniform grids (workflows/twin/diagnose_neighbours.h: the same
-  // neighbours in the same order as compare::KdTree, ~5 x cheaper at k = 64).
+  // neighbours in the same order as KdTree, ~5 x cheaper at k = 64).
   const int k = options.smoothing_neighbors;
   const NeighbourGrid real_grid(m.real_points, k), virt_grid(m.virtual_points, k);
   const size_t step = std::max<size_t>(1, m.real_points.size() / 40000);
@@ -711,7 +701,7 @@ PartMode EvaluatePartMode(const ModeEvidence& m, const DiagnoseOptions& options)
   for (size_t i = 0; i < m.real_points.size(); i += step) idx.push_back(i);
   std::vector<double> d(idx.size()), spread(idx.size());
   cv::parallel_for_(cv::Range(0, static_cast<int>(idx.size())), [&](const cv::Range& range) {
-    std::vector<compare::Neighbor> nb;
+    std::vector<Neighbor> nb;
     NeighbourGrid::Scratch real_scratch, virt_scratch;
     for (int i = range.start; i < range.end; ++i) {
       const Eigen::Vector3d& p = m.real_points[idx[static_cast<size_t>(i)]];
@@ -731,8 +721,8 @@ PartMode EvaluatePartMode(const ModeEvidence& m, const DiagnoseOptions& options)
           std::sqrt(std::max(0.0, svv / static_cast<double>(nb.size()) - sv * sv));
     }
   });
-  const double spread_limit = 3 * Median(spread);
-  const double med = Median(d), sigma = Mad(d, med);
+  const double spread_limit = 3 * Median(std::vector<double>(spread));
+  const double med = Median(std::vector<double>(d)), sigma = Mad(d, med);
   const double thr = std::max(4 * sigma, options.part_min_mm);
   for (size_t i = 0; i < idx.size(); ++i) {
     if (spread[i] <= spread_limit)
@@ -831,16 +821,16 @@ Finding Part(const std::vector<ModeEvidence>& modes, const DiagnoseOptions& opti
   part.detected = consistent && !calibration_found;
   if (part.detected) {
     const auto& first = part.evidence["modes"][0];
-    part.message =
-        Fmt("deviation on the part's surface: %.3f mm mean, %.3f mm peak",
-            first["mean_deviation_mm"].get<double>(), first["peak_deviation_mm"].get<double>()) +
-        Fmt(" around (%.1f, %.1f, %.1f) mm in the rig frame", centroids[0].x(), centroids[0].y(),
-            centroids[0].z()) +
-        (first["pose_bound_known"].get<bool>()
-             ? Fmt(" (the pose's uncertainty explains up to %.3f mm there)",
-                   first["pose_bound_at_cluster_mm"].get<double>())
-             : std::string(" (the pose's uncertainty is unknown)")) +
-        ", in every mode, not explained by the rig: the part differs from its model";
+    part.message = StringPrintf("deviation on the part's surface: %.3f mm mean, %.3f mm peak",
+                                first["mean_deviation_mm"].get<double>(),
+                                first["peak_deviation_mm"].get<double>()) +
+                   StringPrintf(" around (%.1f, %.1f, %.1f) mm in the rig frame", centroids[0].x(),
+                                centroids[0].y(), centroids[0].z()) +
+                   (first["pose_bound_known"].get<bool>()
+                        ? StringPrintf(" (the pose's uncertainty explains up to %.3f mm there)",
+                                       first["pose_bound_at_cluster_mm"].get<double>())
+                        : std::string(" (the pose's uncertainty is unknown)")) +
+                   ", in every mode, not explained by the rig: the part differs from its model";
   } else if (consistent && calibration_found) {
     part.message = "surface deviations are explained by the calibration error";
   } else if (!centroids.empty()) {

@@ -7,10 +7,10 @@
 // query gathers the points of the cells that cover a ball around the query, radius a guess (the
 // previous query's k-th distance: queries in cloud order are neighbours), grown until the ball
 // holds k points; the k nearest of them are then the k nearest of the cloud. Distances are
-// computed as compare::KdTree computes them ((q - p) per axis, dx dx + dy dy + dz dz in double),
+// computed as KdTree computes them ((q - p) per axis, dx dx + dy dy + dz dz in double),
 // so the result equals its KNearest / Nearest bit for bit (the same points in the same order)
-// except for ties in distance, which compare::KdTree breaks by its search order and this grid by
-// the lower index. Measured: ~5 x fewer CPU seconds than compare::KdTree at k = 64 on surface
+// except for ties in distance, which KdTree breaks by its search order and this grid by
+// the lower index. Measured: ~5 x fewer CPU seconds than KdTree at k = 64 on surface
 // scans (docs/benchmarks/log/2026-11-25-shadow-speed.md).
 #pragma once
 
@@ -20,7 +20,7 @@
 
 #include <Eigen/Core>
 
-#include "compare/kdtree.h"
+#include "core/kdtree.h"
 
 namespace slshadow::twin {
 
@@ -34,15 +34,15 @@ class NeighbourGrid {
 
   // Per-thread state of KNearest: scratch buffers and the radius guess.
   struct Scratch {
-    std::vector<compare::Neighbor> candidates;
+    std::vector<Neighbor> candidates;
     double radius = 0;  // the last query's k-th distance (0: none yet)
   };
   // The k nearest points, sorted by distance, then by index (fewer when the grid holds fewer
   // finite points).
   void KNearest(const Eigen::Vector3d& query, int k, Scratch* scratch,
-                std::vector<compare::Neighbor>* out) const;
+                std::vector<Neighbor>* out) const;
   // The nearest point strictly closer than max_distance (the lower index among equals), or false.
-  bool Nearest(const Eigen::Vector3d& query, compare::Neighbor* nearest,
+  bool Nearest(const Eigen::Vector3d& query, Neighbor* nearest,
                double max_distance = std::numeric_limits<double>::infinity()) const;
 
   double cell_mm() const { return cell_; }

@@ -8,6 +8,8 @@
 #include <opencv2/core/utility.hpp>
 
 #include "core/error.h"
+#include "core/statistics.h"
+#include "core/string_printf.h"
 #include "patterns/codec.h"
 #include "workflows/pipeline/significance.h"
 #include "workflows/twin/internal/physics_fit_layers.h"
@@ -16,18 +18,11 @@ namespace slshadow::twin {
 // The tools workflows/twin/internal/physics_fit_layers.h declares.
 namespace internal {
 
-double Median(std::vector<double> v) {
-  if (v.empty()) return std::nan("");
-  const size_t mid = v.size() / 2;
-  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(mid), v.end());
-  return v[mid];
-}
-
 // Variance of the values within 4 robust sigmas of the median (the MAD alone is biased for
 // integer-valued data: its median snaps to the grid).
 double RobustVariance(const std::vector<double>& v) {
   if (v.size() < 8) return std::nan("");
-  const double med = Median(v);
+  const double med = Median(std::vector<double>(v));
   std::vector<double> dev;
   dev.reserve(v.size());
   for (double x : v) dev.push_back(std::abs(x - med));
@@ -61,12 +56,6 @@ int FindFrame(const std::vector<FrameInfo>& frames, FrameRole role, int axis, in
       return static_cast<int>(i);
   }
   return -1;
-}
-
-std::string Fmt(const char* format, double a, double b, double c, double d) {
-  char buf[256];
-  std::snprintf(buf, sizeof(buf), format, a, b, c, d);
-  return buf;
 }
 
 double Rms(const std::vector<double>& v) {
@@ -148,7 +137,7 @@ LinearFit FitLinear(const std::vector<double>& x, const std::vector<double>& y,
     res[i] = y[i] - Eigen::Map<const Eigen::VectorXd>(&x[i * static_cast<size_t>(p)], p).dot(beta);
   std::vector<double> abs_res(n);
   for (size_t i = 0; i < n; ++i) abs_res[i] = std::abs(res[i]);
-  const double gate = 4 * 1.4826 * std::max(Median(abs_res), 1e-12);
+  const double gate = 4 * 1.4826 * std::max(Median(std::vector<double>(abs_res)), 1e-12);
   for (size_t i = 0; i < n; ++i) use[i] = std::abs(res[i]) <= gate;
   f.inliers = std::count(use.begin(), use.end(), 1);
   solve(use, &f.beta, &f.jackknife);
@@ -179,12 +168,10 @@ using internal::BandedValues;
 using internal::BandOfRow;
 using internal::FindFrame;
 using internal::FirstPeriodPhaseFrames;
-using internal::Fmt;
 using internal::HeldoutDrops;
 using internal::HeldOutRow;
 using internal::IlluminationTerms;
 using internal::InversePairs;
-using internal::Median;
 using internal::MonomialRow;
 using internal::NormalisedCoordinate;
 using internal::Pixel;
@@ -557,7 +544,7 @@ void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras,
   for (const Obs& o : obs) {
     if (!o.held) r.Add(o.band, o.real / o.twin);
   }
-  const double rho = Median(r.all);
+  const double rho = Median(std::vector<double>(r.all));
   const double sigma_rho = r.MedianSigma();
   const auto sigma_of = [&](double q) {
     return q < 1 ? period / (M_PI * std::sqrt(2.0)) * std::sqrt(-std::log(q)) : 0.0;
@@ -585,10 +572,12 @@ void FitDefocus(const PatternSpec& spec, std::vector<CameraData>& cameras,
   d.kept = significant && HeldoutDrops(d, options.min_heldout_drop);
   d.reason =
       d.kept
-          ? Fmt("fringes reach %.1f %% of the focused twin's modulation: held-out residual %.4f -> "
+          ? StringPrintf(
+                "fringes reach %.1f %% of the focused twin's modulation: held-out residual %.4f -> "
                 "%.4f",
                 100 * rho, d.heldout_residual_off, d.heldout_residual_on)
-          : Fmt("fringe modulation %.1f %% of the focused twin's: focus explains it within noise",
+          : StringPrintf(
+                "fringe modulation %.1f %% of the focused twin's: focus explains it within noise",
                 100 * rho);
   fit->layers.push_back(d);
 }

@@ -22,13 +22,13 @@
 
 #include "calib/calibration_io.h"
 #include "compare/compare.h"
-#include "compare/kdtree.h"
 #include "compare/mesh_distance.h"
 #include "core/config.h"
 #include "core/error.h"
 #include "core/file_util.h"
 #include "core/image_io.h"
 #include "core/image_set.h"
+#include "core/kdtree.h"
 #include "core/point_cloud.h"
 #include "core/pose_io.h"
 #include "sim/simulate.h"
@@ -807,7 +807,7 @@ void CompareMode(ShadowRun& run, size_t m) {
     cv::parallel_for_(cv::Range(0, static_cast<int>(me.real_points.size())),
                       [&](const cv::Range& r) {
                         for (int i = r.start; i < r.end; ++i) {
-                          compare::Neighbor nb;
+                          Neighbor nb;
                           if (tree.Nearest(me.real_points[static_cast<size_t>(i)], &nb, 1.0))
                             diff[static_cast<size_t>(i)] =
                                 me.real_c2m[static_cast<size_t>(i)] - me.virtual_c2m[nb.index];

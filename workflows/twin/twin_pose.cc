@@ -181,7 +181,7 @@ double RobustScale(const std::vector<double>& r, double s) {
     if (std::abs(x) < 3 * s) a.push_back(std::abs(x));  // NaN (not counted) fails the test
   }
   if (a.empty()) return s;
-  return 1.4826 * Median(a);
+  return 1.4826 * Median(std::vector<double>(a));
 }
 
 std::string Vec(const Eigen::Vector3d& v) {
@@ -233,7 +233,8 @@ PoseFit MeasurePoseFit(const compare::MeshDistance& part,
   }
   fit.points = static_cast<int>(d.size());
   fit.fitness = d.empty() ? 0.0 : static_cast<double>(in.size()) / static_cast<double>(d.size());
-  fit.median_abs_mm = in.empty() ? std::numeric_limits<double>::quiet_NaN() : Median(in);
+  fit.median_abs_mm =
+      in.empty() ? std::numeric_limits<double>::quiet_NaN() : Median(std::vector<double>(in));
   return fit;
 }
 

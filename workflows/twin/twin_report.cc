@@ -12,6 +12,7 @@
 #include "core/error.h"
 #include "core/file_util.h"
 #include "core/image_io.h"
+#include "core/string_printf.h"
 #include "plot/plot.h"
 #include "workflows/twin/twin.h"
 
@@ -20,12 +21,6 @@ namespace fs = std::filesystem;
 
 namespace internal {
 namespace {
-
-std::string Fmt(const char* format, double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof(buf), format, v);
-  return buf;
-}
 
 // A camera-image map (CV_32FC1, NaN where unknown) as a chart with a colour bar: symmetric at the
 // 99th percentile of |value| over the finite pixels (at least `floor`), `marks` drawn on the bar
@@ -121,16 +116,16 @@ void WriteShadowMaps(const fs::path& maps_dir, const std::vector<std::string>& c
     const double residual_range = WriteMapChart(
         maps_dir / (n + "_projector_residual.png"), maps.residual[c],
         n + ": decoded projector " + (spec.code_x ? "x" : "y") + " - twin truth", "projector px",
-        {-cal, cal}, "+-" + Fmt("%.2f", cal) + " px (calibration-field threshold)", 0.05);
+        {-cal, cal}, "+-" + StringPrintf("%.2f", cal) + " px (calibration-field threshold)", 0.05);
     const double white_range =
         WriteMapChart(maps_dir / (n + "_white_difference.png"), maps.white_difference[c],
                       n + ": white level, real - twin", "DN", {-0.05 * fs_dn, 0.05 * fs_dn},
-                      "+-" + Fmt("%.4g", 0.05 * fs_dn) + " DN (5 % of full scale)", 1.0);
+                      "+-" + StringPrintf("%.4g", 0.05 * fs_dn) + " DN (5 % of full scale)", 1.0);
     cv::Mat ratio = maps.modulation[c] - 1.0f;
     const double mr = diagnose.multipath_ratio;
     const double modulation_range = WriteMapChart(
         maps_dir / (n + "_modulation_ratio.png"), ratio, n + ": fringe modulation, real / twin - 1",
-        "relative", {mr - 1}, Fmt("%.2f", mr - 1) + " (multipath threshold)", 0.05);
+        "relative", {mr - 1}, StringPrintf("%.2f", mr - 1) + " (multipath threshold)", 0.05);
     WriteImage(maps_dir / (n + "_validity.png"), maps.validity[c]);
     maps_json->push_back(
         {{"camera", n},
@@ -178,9 +173,9 @@ void WriteShadowCharts(const fs::path& staging, const std::vector<ModeClouds>& c
     hc.threshold_mm = mode_lod95[m];
     const double beyond = 100.0 * static_cast<double>(st.outliers) / static_cast<double>(st.count);
     hc.notes = {std::to_string(st.count) + " points on the part",
-                "RMS " + Fmt("%.4f mm", st.rms_mm),
-                "dashed: LoD95 " + Fmt("%.4f mm", mode_lod95[m]),
-                "beyond LoD95: " + Fmt("%.2f %%", beyond)};
+                "RMS " + StringPrintf("%.4f mm", st.rms_mm),
+                "dashed: LoD95 " + StringPrintf("%.4f mm", mode_lod95[m]),
+                "beyond LoD95: " + StringPrintf("%.2f %%", beyond)};
     const std::string file = "charts/real_vs_twin_" + clouds[m].mode + ".png";
     compare::WriteHistogramPng(staging / file, st.histogram, hc);
     report["charts"]["real_vs_twin_" + clouds[m].mode] = file;

@@ -9,6 +9,8 @@
 #include <Eigen/Dense>
 
 #include "core/error.h"
+#include "core/statistics.h"
+#include "core/string_printf.h"
 #include "patterns/codec.h"
 #include "workflows/pipeline/significance.h"
 
@@ -135,7 +137,7 @@ void FitExposure(FitContext& ctx) {
   PhysicsLayer exposure;
   exposure.name = "exposure";
   exposure.unit = "fraction of full scale";
-  exposure.value = Median(v.all);
+  exposure.value = Median(std::vector<double>(v.all));
   exposure.sigma = v.MedianSigma();
   exposure.off_value = ctx.twin.radiometry.exposure_fraction;
   exposure.samples = static_cast<int64_t>(v.all.size());
@@ -277,10 +279,12 @@ PhysicsLayer FitIlluminationField(FitContext& ctx, size_t c,
       il.value > 0 && pipeline::Significant(il.value, il.sigma, options.illumination_floor);
   il.kept = significant && HeldoutDrops(il, options.min_heldout_drop);
   il.reason =
-      il.kept ? Fmt("the lit part is %.3f..%.3f of its mean brightness, smoothly: held-out "
+      il.kept ? StringPrintf(
+                    "the lit part is %.3f..%.3f of its mean brightness, smoothly: held-out "
                     "residual %.2f -> %.2f DN",
                     lo, hi, il.heldout_residual_off, il.heldout_residual_on)
-              : Fmt("uniform within noise (field %.3f..%.3f, held-out residual %.2f vs %.2f DN)",
+              : StringPrintf(
+                    "uniform within noise (field %.3f..%.3f, held-out residual %.2f vs %.2f DN)",
                     lo, hi, il.heldout_residual_off, il.heldout_residual_on);
   if (il.kept) {
     for (Sample& s : samples) {
@@ -319,7 +323,7 @@ PhysicsLayer FitObjectAlbedo(const FitContext& ctx, size_t o) {
     a.reason = "too few lit pixels on this object";
     return a;
   }
-  a.value = Median(v.all);
+  a.value = Median(std::vector<double>(v.all));
   a.sigma = v.MedianSigma();
   a.samples = static_cast<int64_t>(v.all.size());
   std::vector<double> off, on;
@@ -333,11 +337,12 @@ PhysicsLayer FitObjectAlbedo(const FitContext& ctx, size_t o) {
   a.heldout_residual_on = Rms(on);
   const bool significant = pipeline::Significant(a.value - a.off_value, a.sigma, 0.01);
   a.kept = significant && HeldoutDrops(a, ctx.options.min_heldout_drop);
-  a.reason =
-      a.kept ? Fmt("reflects %.3f, not %.3f, relative to the reference object: held-out "
-                   "residual %.2f -> %.2f DN",
-                   a.value, a.off_value, a.heldout_residual_off, a.heldout_residual_on)
-             : Fmt("the file's albedo %.3f fits within noise (fitted %.3f)", a.off_value, a.value);
+  a.reason = a.kept ? StringPrintf(
+                          "reflects %.3f, not %.3f, relative to the reference object: held-out "
+                          "residual %.2f -> %.2f DN",
+                          a.value, a.off_value, a.heldout_residual_off, a.heldout_residual_on)
+                    : StringPrintf("the file's albedo %.3f fits within noise (fitted %.3f)",
+                                   a.off_value, a.value);
   return a;
 }
 
@@ -370,7 +375,7 @@ void FitDarkSquares(FitContext& ctx) {
     dark.observable = false;
     dark.reason = "too few dark-square pixels lit";
   } else {
-    dark.value = Median(d.all);
+    dark.value = Median(std::vector<double>(d.all));
     dark.sigma = d.MedianSigma();
     dark.samples = static_cast<int64_t>(d.all.size());
     std::vector<double> off, on;
@@ -384,7 +389,8 @@ void FitDarkSquares(FitContext& ctx) {
     dark.heldout_residual_on = Rms(on);
     const bool significant = pipeline::Significant(dark.value - dark.off_value, dark.sigma, 0.005);
     dark.kept = significant && HeldoutDrops(dark, ctx.options.min_heldout_drop);
-    dark.reason = dark.kept ? Fmt("dark squares reflect %.3f of the light ones' exposure, not "
+    dark.reason = dark.kept ? StringPrintf(
+                                  "dark squares reflect %.3f of the light ones' exposure, not "
                                   "%.3f: held-out residual %.2f -> %.2f DN",
                                   dark.value / board->light, board->dark / board->light,
                                   dark.heldout_residual_off, dark.heldout_residual_on)
@@ -430,7 +436,7 @@ PhysicsLayer FitAmbient(const FitContext& ctx) {
   const BandedValues v = FittingValues(
       samples, [](const Sample& s) { return !(s.twin_albedo < 0.02f); },
       [&](const Sample& s) { return s.black / AmbientRegressor(ctx, s); });
-  amb.value = Median(v.all);
+  amb.value = Median(std::vector<double>(v.all));
   amb.sigma = v.MedianSigma();
   amb.samples = static_cast<int64_t>(v.all.size());
   std::vector<double> off, on;
@@ -445,10 +451,11 @@ PhysicsLayer FitAmbient(const FitContext& ctx) {
   amb.heldout_residual_on = Rms(on);
   amb.kept = KeepAmbient(amb, options);
   const double off_mean = off.empty() ? 0.0 : off_sum / static_cast<double>(off.size());
-  amb.reason = amb.kept
-                   ? Fmt("the black frame is lit: %.2f DN mean; held-out residual %.2f -> %.2f DN",
+  amb.reason =
+      amb.kept
+          ? StringPrintf("the black frame is lit: %.2f DN mean; held-out residual %.2f -> %.2f DN",
                          off_mean, amb.heldout_residual_off, amb.heldout_residual_on)
-                   : Fmt("the black frame is dark within noise (held-out RMS %.2f DN)",
+          : StringPrintf("the black frame is dark within noise (held-out RMS %.2f DN)",
                          amb.heldout_residual_off);
   return amb;
 }
@@ -575,10 +582,12 @@ void RejudgeAmbientWithOffsets(const FitContext& ctx, const std::vector<int>& co
   amb.heldout_residual_on = Rms(on2);
   amb.kept = KeepAmbient(amb, ctx.options);
   amb.reason =
-      amb.kept ? Fmt("the black frame scales with reflectance beyond the offset: %.4f of white; "
+      amb.kept ? StringPrintf(
+                     "the black frame scales with reflectance beyond the offset: %.4f of white; "
                      "held-out residual %.2f -> %.2f DN",
                      amb.value, amb.heldout_residual_off, amb.heldout_residual_on)
-               : Fmt("with the black-level offset in, the black frame does not scale with "
+               : StringPrintf(
+                     "with the black-level offset in, the black frame does not scale with "
                      "reflectance (%.4f +- %.4f); held-out residual %.2f vs %.2f DN",
                      amb.value, amb.sigma, amb.heldout_residual_off, amb.heldout_residual_on);
   for (size_t c = 0; c < offsets->size(); ++c) {
@@ -591,10 +600,10 @@ void RejudgeAmbientWithOffsets(const FitContext& ctx, const std::vector<int>& co
       bl.heldout_residual_on =
           BlackFrameResidual(ctx, column, static_cast<int>(c), 0.0, &only.beta, 1);
     }
-    bl.reason =
-        Fmt("the black frame sits %.2f DN above what ambient light on the print explains, "
-            "on every reflectance: held-out residual %.2f -> %.2f DN",
-            bl.value, bl.heldout_residual_off, bl.heldout_residual_on);
+    bl.reason = StringPrintf(
+        "the black frame sits %.2f DN above what ambient light on the print explains, "
+        "on every reflectance: held-out residual %.2f -> %.2f DN",
+        bl.value, bl.heldout_residual_off, bl.heldout_residual_on);
   }
 }
 
@@ -629,7 +638,7 @@ std::vector<PhysicsLayer> FitBlackLevels(const FitContext& ctx, PhysicsLayer* am
   if (any_kept) RejudgeAmbientWithOffsets(ctx, column, both, only, only_inliers, amb, &offsets);
   for (PhysicsLayer& bl : offsets) {
     if (bl.observable && !bl.kept)
-      bl.reason = Fmt("no offset beyond noise (%.2f +- %.2f DN)", bl.value, bl.sigma);
+      bl.reason = StringPrintf("no offset beyond noise (%.2f +- %.2f DN)", bl.value, bl.sigma);
   }
   return offsets;
 }
@@ -721,9 +730,10 @@ void FitGamma(FitContext& ctx) {
       gamma.observable = false;
       gamma.reason = "too few well-lit pixels for the response fit";
     } else {
-      gamma.value = GammaOfPhaseMean(Median(fit_mean.all));
-      gamma.sigma = fit_mean.Sigma(
-          50, [](const std::vector<double>& b) { return GammaOfPhaseMean(Median(b)); });
+      gamma.value = GammaOfPhaseMean(Median(std::vector<double>(fit_mean.all)));
+      gamma.sigma = fit_mean.Sigma(50, [](const std::vector<double>& b) {
+        return GammaOfPhaseMean(Median(std::vector<double>(b)));
+      });
       gamma.samples = static_cast<int64_t>(fit_mean.all.size());
       std::vector<double> off, on;
       const double on_level = PhaseMeanOfGamma(gamma.value);
@@ -735,9 +745,11 @@ void FitGamma(FitContext& ctx) {
       gamma.kept = significant && HeldoutDrops(gamma, ctx.options.min_heldout_drop);
       gamma.reason =
           gamma.kept
-              ? Fmt("phase frames average %.3f of white, not 0.5: held-out residual %.4f -> %.4f",
+              ? StringPrintf(
+                    "phase frames average %.3f of white, not 0.5: held-out residual %.4f -> %.4f",
                     on_level, gamma.heldout_residual_off, gamma.heldout_residual_on)
-              : Fmt("a linear response fits within noise (gamma %.3f, held-out residual %.4f vs "
+              : StringPrintf(
+                    "a linear response fits within noise (gamma %.3f, held-out residual %.4f vs "
                     "%.4f)",
                     gamma.value, gamma.heldout_residual_off, gamma.heldout_residual_on);
     }
@@ -802,7 +814,8 @@ void FitGlobalLight(FitContext& ctx) {
                           Pixel(real[static_cast<size_t>(coarse[k].second)], s.y, s.x)) /
                  (s.white - s.black);
       }
-      const double r = Median(per);  // a pixel near one bit's edge is outvoted by the others
+      const double r = Median(
+          std::vector<double>(per));  // a pixel near one bit's edge is outvoted by the others
       if (s.heldout) {
         held_r.push_back(r);
       } else {
@@ -813,8 +826,9 @@ void FitGlobalLight(FitContext& ctx) {
       gl.observable = false;
       gl.reason = "too few well-lit pixels for the global-light fit";
     } else {
-      gl.value = 1 - Median(fit_r.all);
-      gl.sigma = fit_r.Sigma(20, [](const std::vector<double>& b) { return 1 - Median(b); });
+      gl.value = 1 - Median(std::vector<double>(fit_r.all));
+      gl.sigma = fit_r.Sigma(
+          20, [](const std::vector<double>& b) { return 1 - Median(std::vector<double>(b)); });
       gl.samples = static_cast<int64_t>(fit_r.all.size());
       std::vector<double> off, on;
       for (double r : held_r) off.push_back(r - 1), on.push_back(r - (1 - gl.value));
@@ -825,12 +839,14 @@ void FitGlobalLight(FitContext& ctx) {
           gl.value > 0 && pipeline::Significant(gl.value, gl.sigma, options.global_light_floor);
       gl.kept = significant && HeldoutDrops(gl, options.min_heldout_drop);
       gl.reason =
-          gl.kept ? Fmt("coarse stripes reach %.1f %% of white - black: %.1f %% of the light is "
+          gl.kept ? StringPrintf(
+                        "coarse stripes reach %.1f %% of white - black: %.1f %% of the light is "
                         "scattered from the lit "
                         "projector image; held-out residual %.3f -> %.3f",
                         100 * (1 - gl.value), 100 * gl.value, gl.heldout_residual_off,
                         gl.heldout_residual_on)
-                  : Fmt("coarse stripes reach %.1f %% of white - black: direct light explains them",
+                  : StringPrintf(
+                        "coarse stripes reach %.1f %% of white - black: direct light explains them",
                         100 * (1 - gl.value));
     }
   }
@@ -897,7 +913,7 @@ void BinnedVariance(const std::vector<NoiseObservation>& obs, bool held,
     const size_t lo = b * o.size() / bins, hi = (b + 1) * o.size() / bins;
     std::vector<double> r, s;
     for (size_t i = lo; i < hi; ++i) r.push_back(o[i]->r), s.push_back(o[i]->s);
-    centre->push_back(Median(s));
+    centre->push_back(Median(std::vector<double>(s)));
     var->push_back(RobustVariance(r));
   }
 }
@@ -962,10 +978,12 @@ void FitNoise(FitContext& ctx) {
       noise.extra["variance_offset_dn2"] = kc(1);
       noise.extra["mean_pair_variance_dn2"] = mean_var;
       noise.kept = above_quant && significant && drops;
-      noise.reason = noise.kept ? Fmt("inverse pairs vary by %.2f DN^2 (quantisation alone: "
+      noise.reason = noise.kept ? StringPrintf(
+                                      "inverse pairs vary by %.2f DN^2 (quantisation alone: "
                                       "%.2f), growing with signal: shot noise",
                                       mean_var, quant)
-                                : Fmt("inverse-pair variance %.2f DN^2 is what quantisation "
+                                : StringPrintf(
+                                      "inverse-pair variance %.2f DN^2 is what quantisation "
                                       "(%.2f) explains, or does not grow with signal",
                                       mean_var, quant);
     }

@@ -15,6 +15,7 @@
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
 
+#include "core/statistics.h"
 #include "workflows/pipeline/significance.h"
 #include "workflows/twin/physics_fit.h"
 
@@ -29,12 +30,10 @@ inline float Pixel(const cv::Mat& m, int y, int x) {
                             : static_cast<float>(m.at<uint16_t>(y, x));
 }
 
-double Median(std::vector<double> v);
 // Variance of the values within 4 robust sigmas of the median (the MAD alone is biased for
 // integer-valued data: its median snaps to the grid).
 double RobustVariance(const std::vector<double>& v);
 double Rms(const std::vector<double>& v);
-std::string Fmt(const char* format, double a, double b = 0, double c = 0, double d = 0);
 
 // The band of image row y (kBands horizontal bands), and whether the row is held out (odd sample
 // rows; the fits use the even ones).
@@ -58,7 +57,7 @@ struct BandedValues {
     return pipeline::BandSigma(v);
   }
   double MedianSigma() const {
-    return Sigma(20, [](const std::vector<double>& b) { return Median(b); });
+    return Sigma(20, [](const std::vector<double>& b) { return Median(std::vector<double>(b)); });
   }
 };
 

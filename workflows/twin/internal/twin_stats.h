@@ -23,10 +23,8 @@ struct SampleStats {
   nlohmann::json ToJson(const std::string& unit) const;
 };
 
-// The statistics of `values` (non-finite ones left out). Floats: the order statistics by two
-// passes of a 16-bit histogram of the values' bits (~5x faster than nth_element on the ~4 M
-// coordinate differences of a camera); doubles: nth_element. The same figures for float values
-// either way.
+// The statistics of `values` (non-finite ones left out): core's Summarize (core/statistics.h),
+// under the report's field names.
 SampleStats ComputeSampleStats(std::vector<float> values);
 SampleStats ComputeSampleStats(std::vector<double> values);
 
