@@ -5,8 +5,8 @@
 #include "apps/commands.h"
 #include "core/error.h"
 #include "core/rig.h"
-#include "workflows/twin/twin.h"
 #include "workflows/multiview/project_shadow.h"
+#include "workflows/twin/twin.h"
 
 namespace slshadow::app {
 

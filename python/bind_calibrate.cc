@@ -113,7 +113,7 @@ constexpr const char* kCommonDoc =
 
 // The workflow's options from the call's (apps/cmd_calibrate.cc CalibrateAndWrite).
 pipeline::CalibrateWriteOptions WriteOptions(const Common& c, const fs::path& out,
-                                           const Procam* procam) {
+                                             const Procam* procam) {
   pipeline::CalibrateWriteOptions o;
   o.solve.fix_aspect_ratio = c.fix_aspect;
   o.solve.fix_principal_point = c.fix_principal_point;
@@ -152,7 +152,7 @@ py::dict Solve(const Common& c, const fs::path& out, const Procam* procam, const
     report("calibrate", 0, 1);
     extra["command"] = "slshadow." + call + " (Python)";
     pipeline::CalibrateAndWrite(std::move(input), checks, o, extra,
-                              [&log](const std::string& text) { log += text; });
+                                [&log](const std::string& text) { log += text; });
     report("calibrate", 1, 1);
   }
   py::dict d;

@@ -173,7 +173,7 @@ void BindSweep(py::module_& m) {
           const ForwardLibraryProgress forward(report, "jobs");  // per job (run or found done)
           report("plan", 0, 1);
           s = studies::RunStudy(study, out, options,
-                               [&](const studies::SweepStudySummary&) { report("plan", 1, 1); });
+                                [&](const studies::SweepStudySummary&) { report("plan", 1, 1); });
           report("done", 1, 1);
         }
         py::dict plan, run, merge;

@@ -9,9 +9,9 @@
 #include "core/file_util.h"
 #include "core/point_cloud.h"
 #include "core/string_printf.h"
-#include "workflows/pipeline/scan_pipeline.h"
 #include "sim/scene.h"
 #include "workflows/multiview/views.h"
+#include "workflows/pipeline/scan_pipeline.h"
 
 namespace slshadow::multiview {
 namespace fs = std::filesystem;

@@ -37,9 +37,9 @@
 
 #include "core/rig.h"
 #include "core/rigid3.h"
-#include "workflows/twin/twin.h"
 #include "workflows/multiview/cad_compare.h"
 #include "workflows/multiview/view_drift.h"
+#include "workflows/twin/twin.h"
 
 namespace slshadow::multiview {
 
