@@ -10,6 +10,7 @@
 #include "sim/scene.h"
 #include "sim/simulate.h"
 #include "workflows/multiview/virtual_project.h"
+#include "workflows/pipeline/scan_pipeline.h"
 
 namespace slshadow::app {
 
@@ -84,14 +85,14 @@ int RunSimulate(int argc, char** argv) {
   const Rig rig = LoadRig(rig_path);
   const Scene scene = LoadScene(scene_path);
   const PatternSpec spec = LoadPatternSpec(patterns_path);
-  SLSHADOW_THROW_IF(!rig.projector, rig_path, ": rig has no projector: the simulator needs one");
-  CheckProjectorSize(rig, spec, patterns_path, rig_path);  // SimulateScan takes images, not a spec
   if (!views_path.empty()) {
     SLSHADOW_THROW_IF(overwrite,
                       "--overwrite: not with --views (use --resume to continue a project)");
     multiview::VirtualProjectOptions project_options;
     project_options.encoding = ImageEncodingFromString(encoding);
     project_options.resume = resume;
+    project_options.rig_what = rig_path;
+    project_options.spec_what = patterns_path;
     if (!quiet) {
       project_options.on_view = [](const std::string& name, size_t, bool rendered) {
         std::printf("view %s: %s\n", name.c_str(), rendered ? "rendered" : "kept (complete)");
@@ -106,13 +107,12 @@ int RunSimulate(int argc, char** argv) {
     return 0;
   }
   SLSHADOW_THROW_IF(resume, "--resume: only with --views");
-  const std::vector<cv::Mat> images = GeneratePatterns(spec);
   SimulateOptions options;
   options.writer.encoding = ImageEncodingFromString(encoding);
   options.writer.overwrite = overwrite;
   options.write_ground_truth = !no_ground_truth;
   const SimulateSummary summary =
-      SimulateScan(scene, rig, images, PatternSpecToJson(spec), out_dir, options);
+      pipeline::SimulateFromSpec(scene, rig, spec, patterns_path, rig_path, out_dir, options);
   if (!quiet)
     std::printf("simulate: %s -> %s\n%s\n", scene_path.c_str(), out_dir.c_str(),
                 summary.BriefReport().c_str());

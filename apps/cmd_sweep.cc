@@ -13,16 +13,6 @@
 #include <string>
 
 namespace slshadow::app {
-namespace {
-
-void PrintPlan(const studies::SweepPlanSummary& s, const std::filesystem::path& jobs_dir) {
-  std::printf("study %s: %d job%s (%d geometry group%s) in %s\n", s.study.c_str(), s.jobs,
-              s.jobs == 1 ? "" : "s", s.geometry_groups, s.geometry_groups == 1 ? "" : "s",
-              jobs_dir.string().c_str());
-}
-
-}  // namespace
-
 int RunSweep(int argc, char** argv) {
   CLI::App app{
       "Sweeps: a study (config/studies/*.yaml, docs/formats.md 'Study YAML') as independent jobs,\n"
@@ -69,7 +59,7 @@ int RunSweep(int argc, char** argv) {
     return ExitOnParseError(app, e);
   }
   studies::SweepRunOptions options;
-  if (plan->parsed()) PrintPlan(studies::PlanSweep(study, out), out);
+  if (plan->parsed()) std::fputs(studies::PlanSweep(study, out).BriefReport(out).c_str(), stdout);
   if (run->parsed() || whole->parsed()) {
     studies::ParseShard(shard, "--shard", &options);
     options.verbose = verbose;
@@ -86,7 +76,7 @@ int RunSweep(int argc, char** argv) {
           if (p.resumed) {
             std::printf("resuming %s\n", p.jobs_dir.string().c_str());
           } else {
-            PrintPlan(p.plan, p.jobs_dir);
+            std::fputs(p.plan.BriefReport(p.jobs_dir).c_str(), stdout);
           }
           std::fflush(stdout);
         });
@@ -99,37 +89,7 @@ int RunSweep(int argc, char** argv) {
                 ran.BriefReport().c_str());
   }
   if (merge->parsed()) merged = studies::MergeSweep(jobs, out);
-  if (merge->parsed() || whole->parsed()) {
-    const studies::SweepMergeSummary& s = merged;
-    std::printf("%d jobs merged: %d rows in %s/results.csv (+ results.json, timings.csv)\n", s.jobs,
-                s.rows, out.c_str());
-    std::printf(
-        "Pareto front of decode + reconstruct time against RMS (%s/pareto.csv, "
-        "time_vs_rms.png/.svg):\n",
-        out.c_str());
-    for (const auto& f : s.front) std::printf("  %s\n", f.c_str());
-    if (!s.break_points.empty()) {
-      std::printf("Break points (%s/break_points.csv, curves_*.png):\n", out.c_str());
-      for (const auto& b : s.break_points) std::printf("  %s\n", b.c_str());
-    }
-    if (!s.effects.empty()) {
-      std::printf("Which layers the scene needs (%s/layers.csv, effects.csv):\n", out.c_str());
-      for (const auto& e : s.effects) std::printf("  %s\n", e.c_str());
-    }
-    if (!s.acceptance.empty()) {
-      std::printf(
-          "VDI/VDE 2634-2 figures, overall (%s/vdi2634_summary.csv, vdi2634.csv, "
-          "vdi2634.png/.svg):\n",
-          out.c_str());
-      for (const auto& a : s.acceptance) std::printf("  %s\n", a.c_str());
-    }
-    if (!s.uncertainty.empty()) {
-      std::printf(
-          "Scan uncertainty (%s/uncertainty_summary.csv, uncertainty.ply, uncertainty.png):\n",
-          out.c_str());
-      for (const auto& u : s.uncertainty) std::printf("  %s\n", u.c_str());
-    }
-  }
+  if (merge->parsed() || whole->parsed()) std::fputs(merged.FullReport().c_str(), stdout);
   return EXIT_SUCCESS;
 }
 

@@ -48,7 +48,7 @@ class MeshDistance {
   // its `feature` (ClosestPointOnTriangle's), squared_distance = |point - closest|^2: the square
   // root, negative when point - closest points against that feature's angle-weighted
   // pseudo-normal. What Closest returns as signed_distance_mm (for searches of their own over
-  // this mesh's triangles, e.g. workflows/studies/internal/c2m_grid.h).
+  // this mesh's triangles, e.g. compare/c2m_grid.h).
   double SignedDistance(const Eigen::Vector3d& point, const Eigen::Vector3d& closest,
                         uint32_t triangle, int feature, double squared_distance) const;
 

@@ -7,6 +7,7 @@
 #include <limits>
 #include <optional>
 #include <sstream>
+#include <utility>
 
 #include "core/config.h"
 #include "core/error.h"
@@ -190,8 +191,8 @@ void Finish(const ReconstructOptions& options, size_t max_cloud_points, Reconstr
     });
     cv::parallel_for_(cv::Range(0, 2), [&](const cv::Range& r) {
       for (int k = r.start; k < r.end; ++k) {
-        if (k == 0) s.reprojection_error_px = ComputeResidualStats(reproj);
-        if (k == 1) s.epipolar_error_px = ComputeResidualStats(epi);
+        if (k == 0) s.reprojection_error_px = ComputeResidualStats(std::move(reproj));
+        if (k == 1) s.epipolar_error_px = ComputeResidualStats(std::move(epi));
       }
     });
   }

@@ -137,8 +137,9 @@ struct ResidualStats {
   nlohmann::json ToJson() const;
 };
 // The statistics of `values` (non-finite entries ignored): Summarize()'s count, median, 95th
-// percentile, maximum and RMS of the values (core/statistics.h).
-ResidualStats ComputeResidualStats(const std::vector<float>& values);
+// percentile, maximum and RMS of the values (core/statistics.h). Pass a temporary (std::move) to
+// spare the copy.
+ResidualStats ComputeResidualStats(std::vector<float> values);
 
 struct ReconstructSummary {
   ReconstructMode mode = ReconstructMode::kProjector;

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <sstream>
+#include <utility>
 
 #include "core/statistics.h"
 
@@ -19,8 +20,8 @@ std::string Percent(int64_t part, int64_t whole) {
 
 }  // namespace
 
-ResidualStats ComputeResidualStats(const std::vector<float>& values) {
-  const Summary summary = Summarize(values);  // core/statistics.h: nearest rank
+ResidualStats ComputeResidualStats(std::vector<float> values) {
+  const Summary summary = Summarize(std::move(values));  // core/statistics.h: nearest rank
   ResidualStats s;
   s.count = summary.count;
   if (s.count == 0) return s;

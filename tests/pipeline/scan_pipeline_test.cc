@@ -1,4 +1,5 @@
 #include "workflows/pipeline/scan_pipeline.h"
+#include "sim/scene_surface.h"
 
 #include <algorithm>
 #include <cmath>

@@ -3,6 +3,7 @@
 // bit; MeasureAccuracy(compare::Compare(...)) for the accuracy figures, double for double.
 #include "workflows/studies/sweep_reuse.h"
 
+#include "compare/c2m_grid.h"
 #include "compare/internal/median_spacing.h"
 #include "compare/median_spacing.h"
 #include "compare/statistics.h"
@@ -11,9 +12,9 @@
 #include "patterns/codec.h"
 #include "reconstruct/reconstruct.h"
 #include "sim/scene.h"
+#include "sim/scene_surface.h"
 #include "tests/testing/temp_dir.h"
 #include "workflows/pipeline/scan_pipeline.h"
-#include "workflows/studies/internal/c2m_grid.h"
 
 #include <gtest/gtest.h>
 
@@ -163,8 +164,7 @@ TEST(GroundTruthSurface, TessellatedPrimitivesWithinAFractionOfAMicrometre) {
   }
   // Planes (and meshes) are SceneSurface's.
   const Scene plane = LoadScene(SourceDir() / "config/scenes/flat_plane.yaml");
-  const TriangleMesh a = GroundTruthSurface(plane, "plane"),
-                     b = pipeline::SceneSurface(plane, "plane");
+  const TriangleMesh a = GroundTruthSurface(plane, "plane"), b = SceneSurface(plane, "plane");
   EXPECT_EQ(a.vertices, b.vertices);
   EXPECT_EQ(a.triangles, b.triangles);
   // A box is exact: the signed distance of points along random directions from its centre
@@ -222,7 +222,7 @@ const NoisyScan& SharedScan() {
       decoded.maps.push_back(DecodePatterns(f.spec, images[c], DecodeOptions{}));
     }
     s->recs = pipeline::ReconstructModes(decoded, s->modes, ReconstructOptions{});
-    s->visible = pipeline::LitVisibleSurface(sim.geometry(0));
+    s->visible = LitVisibleSurface(sim.geometry(0));
     return s;
   }();
   return *scan;
@@ -239,7 +239,7 @@ TEST(GroundTruthScorer, EqualsCompareThenMeasureAccuracy) {
   const std::vector<ReconstructMode>& modes = scan.modes;
   const std::vector<Reconstruction>& recs = scan.recs;
   const std::vector<Eigen::Vector3d>& visible = scan.visible;
-  const TriangleMesh surface = pipeline::SceneSurface(f.scene, "demo");
+  const TriangleMesh surface = SceneSurface(f.scene, "demo");
   GroundTruthScorer scorer(surface, visible, "truth");
   const compare::Reference reference = compare::ReferenceFromMesh(surface, "truth");
   for (const int prepared : {0, 2, 3}) {
@@ -295,7 +295,7 @@ TEST(C2mGrid, SignedDistancesAreMeshDistancesBitForBit) {
   const NoisyScan& scan = SharedScan();
   const TriangleMesh surface = GroundTruthSurface(f.scene, "demo");
   const compare::MeshDistance distance(surface);
-  internal::C2mGrid grid(surface, distance);
+  compare::C2mGrid grid(surface, distance);
   EXPECT_GT(grid.cell_mm(), 0.1);
   EXPECT_LT(grid.cell_mm(), 2.0);
   std::vector<std::vector<Eigen::Vector3d>> sets = {scan.recs[0].cloud.points,
@@ -363,7 +363,7 @@ TEST(C2mGrid, SignedDistancesAreMeshDistancesBitForBit) {
   }
   // The cells SignedDistances finds unbuilt are those Prepare would build for the same points:
   // BuildMissed builds them, and the distances stay the same bits.
-  internal::C2mGrid lazy(surface, distance), eager(surface, distance);
+  compare::C2mGrid lazy(surface, distance), eager(surface, distance);
   std::vector<double> before, after;
   lazy.SignedDistances(sets[0], &before);
   EXPECT_EQ(lazy.built_cells(), 0u);
@@ -379,7 +379,7 @@ TEST(C2mGrid, SignedDistancesAreMeshDistancesBitForBit) {
   EXPECT_EQ(lazy.built_cells(), eager.built_cells());
 
   // Clouds far sparser than the triangles: no grid, MeshDistance answers every point.
-  internal::C2mGrid coarse(surface, distance, 1.0);
+  compare::C2mGrid coarse(surface, distance, 1.0);
   EXPECT_FALSE(coarse.enabled());
   coarse.Prepare(sets[0]);
   EXPECT_EQ(coarse.built_cells(), 0u);

@@ -9,6 +9,7 @@
 #include <gtest/gtest.h>
 
 #include "core/image_set.h"
+#include "sim/scene_surface.h"
 #include "tests/testing/run_cli.h"
 #include "tests/testing/temp_dir.h"
 #include "workflows/pipeline/scan_pipeline.h"
@@ -48,7 +49,7 @@ twin::ShadowPart KaminoBoard(bool flipped) {
   part.scene.radiometry.exposure_fraction = 0.5;
   part.scene.layers.supersampling = 3;  // anti-aliased square edges, as a real lens gives
   part.scene.objects.push_back(o);
-  part.surface = pipeline::SceneSurface(part.scene, part.source, twin::kPartPlaneCells);
+  part.surface = SceneSurface(part.scene, part.source, twin::kPartPlaneCells);
   return part;
 }
 

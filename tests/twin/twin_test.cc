@@ -1,4 +1,5 @@
 #include "workflows/twin/twin.h"
+#include "sim/scene_surface.h"
 
 #include "workflows/pipeline/scan_pipeline.h"
 
@@ -334,7 +335,7 @@ TEST(ShadowTwin, ExposureTimesAlbedoPerObject) {
   table_in_part.rig_from_object =
       Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0, -0.05));
   part.scene.objects.push_back(table_in_part);
-  part.surface = pipeline::SceneSurface(part.scene, "part + table", twin::kPartPlaneCells);
+  part.surface = SceneSurface(part.scene, "part + table", twin::kPartPlaneCells);
   twin::ShadowOptions options;
   options.rig_from_part = truth;
   const twin::ShadowResult r =
@@ -440,7 +441,7 @@ twin::ShadowResult ShadowBoard(const CameraPhysics& truth) {
   twin::ShadowPart part;
   part.source = "board";
   part.scene = BoardScene(true);
-  part.surface = pipeline::SceneSurface(part.scene, part.source, twin::kPartPlaneCells);
+  part.surface = SceneSurface(part.scene, part.source, twin::kPartPlaneCells);
   twin::ShadowOptions options;
   options.rig_from_part = BoardPose();
   options.refine_pose = false;

@@ -10,6 +10,7 @@
 #include "core/point_cloud.h"
 #include "core/string_printf.h"
 #include "sim/scene.h"
+#include "sim/scene_surface.h"
 #include "workflows/multiview/views.h"
 #include "workflows/pipeline/scan_pipeline.h"
 
@@ -91,7 +92,7 @@ twin::ShadowPart LoadTurntablePart(const fs::path& path) {
   SLSHADOW_THROW_IF(compared.objects.empty(), path.string(),
                     ": objects: no mesh or plane; expected the part as a mesh (its table may be a "
                     "cylinder)");
-  part.surface = pipeline::SceneSurface(compared, path.string(), twin::kPartPlaneCells);
+  part.surface = SceneSurface(compared, path.string(), twin::kPartPlaneCells);
   return part;
 }
 
@@ -224,7 +225,7 @@ ProjectShadowResult RunProjectShadow(const fs::path& project_dir, const twin::Sh
   nlohmann::json merged;
   SLSHADOW_THROW_IF(mode.empty(), "the views' reports hold no clouds to merge");
   {
-    TriangleMesh cad = pipeline::SceneMeshSurface(part.scene);
+    TriangleMesh cad = SceneMeshSurface(part.scene);
     if (cad.empty()) cad = part.surface;
     const Rigid3d part_from_rig0 = placement->Inverse();
     TurntableAxis axis_in_part = axis;

@@ -1,4 +1,5 @@
 #include "workflows/multiview/turntable_scene.h"
+#include "sim/scene_surface.h"
 
 #include <algorithm>
 #include <cmath>
@@ -105,7 +106,7 @@ Scene SceneAtTableAngle(const Scene& scene, const TurntableAxis& axis, double co
 }
 
 TriangleMesh PartSurface(const Scene& scene) {
-  TriangleMesh part = pipeline::SceneMeshSurface(scene);
+  TriangleMesh part = SceneMeshSurface(scene);
   SLSHADOW_THROW_IF(part.empty(), "scene '", scene.name,
                     "': has no mesh, so no part to compare with its CAD model");
   return part;

@@ -88,9 +88,11 @@ VirtualProjectSummary SimulateProject(const Scene& scene, const Rig& rig, const 
   views.Check("views");
   scene.Check("scene '" + scene.name + "'");
   rig.Check("rig '" + rig.name + "'");
-  SLSHADOW_THROW_IF(!rig.projector, "rig '", rig.name,
-                    "': has no projector: the simulator needs one");
-  CheckProjectorSize(rig, spec, "pattern spec", "rig '" + rig.name + "'");
+  const std::string rig_what =
+      options.rig_what.empty() ? "rig '" + rig.name + "'" : options.rig_what;
+  SLSHADOW_THROW_IF(!rig.projector, rig_what, ": rig has no projector: the simulator needs one");
+  CheckProjectorSize(rig, spec, options.spec_what.empty() ? "pattern spec" : options.spec_what,
+                     rig_what);
   for (const ViewSpec& v : views.views) VirtualViewPose(v, rig);  // every view has a pose
 
   const nlohmann::json patterns = PatternSpecToJson(spec);

@@ -28,6 +28,9 @@ struct VirtualProjectOptions {
   bool resume = false;
   std::vector<std::string> fixed_objects;  // scene objects that do not turn (MoveScene)
   std::string generator = "slshadow simulate --views";  // recorded in the provenance
+  // What errors call the rig and the pattern spec (their files); empty: "rig '<name>'" and
+  // "pattern spec".
+  std::string rig_what, spec_what;
   // Called after each view is written or kept (name, index, rendered): progress for the caller.
   std::function<void(const std::string&, size_t, bool)> on_view;
   void Check() const;  // throws slshadow::Error naming the bad field

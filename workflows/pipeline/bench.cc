@@ -25,6 +25,7 @@
 #include "patterns/pattern_spec.h"
 #include "reconstruct/reconstruct.h"
 #include "sim/scene.h"
+#include "sim/scene_surface.h"
 #include "sim/simulate.h"
 #include "workflows/pipeline/c2m_peer_py.h"
 #include "workflows/pipeline/scan_pipeline.h"

@@ -27,7 +27,7 @@ namespace slshadow::pipeline {
 struct BenchOptions {
   int repetitions = 5;            // per entry; the median is reported
   std::vector<std::string> only;  // entry names to run; empty: all
-  bool with_opencv = true;        // run the OpenCV peer (slow: ~1 s per repetition)
+  bool with_opencv = true;        // run the OpenCV peer (the slowest part of the bench)
   bool with_open3d = true;        // run the Open3D C2M peer (skipped with a message when absent)
   bool with_cloudcompare = true;  // run CloudCompare's C2C (skipped with a message when absent)
   void Check() const;

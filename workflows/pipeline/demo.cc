@@ -19,6 +19,7 @@
 #include "core/provenance.h"
 #include "core/stage_meter.h"
 #include "reconstruct/dense_grid.h"
+#include "sim/scene_surface.h"
 #include "sim/simulate.h"
 #include "workflows/pipeline/scan_pipeline.h"
 

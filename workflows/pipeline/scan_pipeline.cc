@@ -94,6 +94,15 @@ ScanSettings ScanSettingsFromProvenance(const ScanProvenance& provenance, const 
   return settings;
 }
 
+SimulateSummary SimulateFromSpec(const Scene& scene, const Rig& rig, const PatternSpec& spec,
+                                 const std::string& spec_what, const std::string& rig_what,
+                                 const fs::path& out_dir, const SimulateOptions& options) {
+  SLSHADOW_THROW_IF(!rig.projector, rig_what, ": rig has no projector: the simulator needs one");
+  CheckProjectorSize(rig, spec, spec_what, rig_what);
+  return SimulateScan(scene, rig, GeneratePatterns(spec), PatternSpecToJson(spec), out_dir,
+                      options);
+}
+
 SimulateSummary RedoVirtualScan(const fs::path& scan_dir, const fs::path& out_dir) {
   const ImageSet image_set = ImageSet::Open(scan_dir);
   const std::string manifest = (scan_dir / "manifest.json").string();
@@ -167,69 +176,6 @@ std::vector<Reconstruction> ReconstructModes(const DecodedScan& scan,
     if (stages) stages->push_back(meter.Stop());
   }
   return recs;
-}
-
-namespace {
-
-TriangleMesh ObjectSurfaceInRig(const SceneObject& object, TriangleMesh part) {
-  part.Transform(object.rig_from_object.rotation.toRotationMatrix(),
-                 object.rig_from_object.translation);
-  return part;
-}
-
-}  // namespace
-
-TriangleMesh SceneSurface(const Scene& scene, const std::string& what, int plane_cells) {
-  SLSHADOW_CHECK(plane_cells >= 1);
-  TriangleMesh surface;
-  for (const auto& object : scene.objects) {
-    TriangleMesh part;
-    const double hx = object.size_mm.x() / 2, hy = object.size_mm.y() / 2;
-    if (object.type == ObjectType::kMesh) {
-      part = *object.mesh;
-    } else if (object.type == ObjectType::kPlane && plane_cells == 1) {
-      part.vertices = {{-hx, -hy, 0}, {hx, -hy, 0}, {hx, hy, 0}, {-hx, hy, 0}};
-      part.triangles = {{0, 1, 2}, {0, 2, 3}};
-    } else if (object.type == ObjectType::kPlane) {
-      const int n = plane_cells;
-      for (int j = 0; j <= n; ++j) {
-        for (int i = 0; i <= n; ++i)
-          part.vertices.emplace_back(-hx + 2 * hx * i / n, -hy + 2 * hy * j / n, 0);
-      }
-      for (int j = 0; j < n; ++j) {
-        for (int i = 0; i < n; ++i) {
-          const int a = j * (n + 1) + i;
-          part.triangles.emplace_back(a, a + 1, a + n + 2);
-          part.triangles.emplace_back(a, a + n + 2, a + n + 1);
-        }
-      }
-    } else {
-      SLSHADOW_THROW(what, ": object '", object.name, "' is a ", ToString(object.type),
-                     "; only meshes and planes have a surface to compare against");
-    }
-    surface.Append(ObjectSurfaceInRig(object, std::move(part)));
-  }
-  return surface;
-}
-
-TriangleMesh SceneMeshSurface(const Scene& scene) {
-  TriangleMesh surface;
-  for (const auto& object : scene.objects) {
-    if (object.type == ObjectType::kMesh) surface.Append(ObjectSurfaceInRig(object, *object.mesh));
-  }
-  return surface;
-}
-
-std::vector<Eigen::Vector3d> LitVisibleSurface(const GeometryBuffer& geometry) {
-  std::vector<Eigen::Vector3d> points;
-  for (int y = 0; y < geometry.height; y += 2) {
-    const uint8_t* vis = geometry.visibility.ptr<uint8_t>(y);
-    const cv::Vec3f* p = geometry.point_in_rig.ptr<cv::Vec3f>(y);
-    for (int x = 0; x < geometry.width; x += 2) {
-      if (vis[x] == 2) points.emplace_back(p[x][0], p[x][1], p[x][2]);
-    }
-  }
-  return points;
 }
 
 double VisibleCoverage(const compare::CompareResult& result,

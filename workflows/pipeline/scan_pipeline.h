@@ -76,6 +76,14 @@ struct ScanSettings {
 // Throws slshadow::Error naming the manifest and the field on a malformed provenance.
 ScanSettings ScanSettingsFromProvenance(const ScanProvenance& provenance, const std::string& file);
 
+// What `slshadow simulate` runs: the spec's projector images rendered by SimulateScan into the
+// ImageSet at `out_dir`, after checking that the rig has a projector of the spec's size
+// (CheckProjectorSize; `spec_what` and `rig_what` name the files in the message).
+SimulateSummary SimulateFromSpec(const Scene& scene, const Rig& rig, const PatternSpec& spec,
+                                 const std::string& spec_what, const std::string& rig_what,
+                                 const std::filesystem::path& out_dir,
+                                 const SimulateOptions& options);
+
 // Renders the virtual scan in `scan_dir` again from that folder alone, with the same settings:
 // rig and pattern spec from its manifest, the scene rebuilt from extra.provenance.scene (config and
 // base_dir), the simulator options from extra.provenance.simulate (overwrite off); writes the new
@@ -116,19 +124,6 @@ std::vector<Reconstruction> ReconstructModes(const DecodedScan& scan,
                                              std::vector<StageMeasurement>* stages = nullptr);
 
 // ---- Compare against a reference.
-
-// The ground-truth surface of the scene's meshes and planes in the rig frame. Other object
-// types (exact primitives, clouds) would need their exact surfaces: a scene with them is rejected,
-// naming `what`, the object and its type.
-// Planes are split into plane_cells x plane_cells squares (two triangles each), so samples and
-// C2M spread over the whole plane; 1 keeps the two triangles of the demo.
-TriangleMesh SceneSurface(const Scene& scene, const std::string& what, int plane_cells = 1);
-// The scene's meshes only, in the rig frame (other objects, e.g. the demo's table, left out).
-TriangleMesh SceneMeshSurface(const Scene& scene);
-
-// Points of the surface the camera sees lit by the projector (geometry.visibility == 2), every
-// second pixel in x and y, from the pixel-centre ground truth.
-std::vector<Eigen::Vector3d> LitVisibleSurface(const GeometryBuffer& geometry);
 
 // The share of `visible` that the comparison's inliers (|deviation| <= threshold) reach within
 // its coverage radius (compare::Coverage).

@@ -80,9 +80,7 @@ void PerturbDevice(RigDevice* device, const std::array<double, 9>& sigma, const 
   if (!move) return;
   const double s = rs.rotation_deg * kPi / 180;
   const Eigen::Vector3d w(s * p[0], s * p[1], s * p[2]);
-  const Eigen::Quaterniond dq =
-      w.norm() > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(w.norm(), w.normalized()))
-                   : Eigen::Quaterniond::Identity();
+  const Eigen::Quaterniond dq = QuaternionFromRotationVector(w);
   const Eigen::Vector3d dt = rs.translation_mm * Eigen::Vector3d(p[3], p[4], p[5]);
   device->cam_from_rig =
       Rigid3d(dq * device->cam_from_rig.rotation, dq * device->cam_from_rig.translation + dt);

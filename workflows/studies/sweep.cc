@@ -6,6 +6,7 @@
 #include "core/file_util.h"
 #include "core/progress.h"
 #include "core/stage_meter.h"
+#include "core/string_printf.h"
 #include "patterns/codec.h"
 #include "patterns/pattern_spec.h"
 #include "reconstruct/reconstruct.h"
@@ -566,6 +567,49 @@ void ParseShard(const std::string& text, const std::string& what, SweepRunOption
                     what, ": '", text, "' is not I/N with 0 <= I < N (e.g. 0/4)");
   options->shard_index = i;
   options->shard_count = n;
+}
+
+std::string SweepPlanSummary::BriefReport(const fs::path& jobs_dir) const {
+  return StringPrintf("study %s: %d job%s (%d geometry group%s) in %s\n", study.c_str(), jobs,
+                      jobs == 1 ? "" : "s", geometry_groups, geometry_groups == 1 ? "" : "s",
+                      jobs_dir.string().c_str());
+}
+
+std::string SweepMergeSummary::FullReport() const {
+  const std::string out = out_dir.string();
+  std::string text =
+      StringPrintf("%d jobs merged: %d rows in %s/results.csv (+ results.json, timings.csv)\n",
+                   jobs, rows, out.c_str());
+  const auto section = [&text](const std::string& heading, const std::vector<std::string>& lines) {
+    text += heading;
+    for (const std::string& line : lines) text += "  " + line + "\n";
+  };
+  section(StringPrintf("Pareto front of decode + reconstruct time against RMS (%s/pareto.csv, "
+                       "time_vs_rms.png/.svg):\n",
+                       out.c_str()),
+          front);
+  if (!break_points.empty()) {
+    section(StringPrintf("Break points (%s/break_points.csv, curves_*.png):\n", out.c_str()),
+            break_points);
+  }
+  if (!effects.empty()) {
+    section(
+        StringPrintf("Which layers the scene needs (%s/layers.csv, effects.csv):\n", out.c_str()),
+        effects);
+  }
+  if (!acceptance.empty()) {
+    section(StringPrintf("VDI/VDE 2634-2 figures, overall (%s/vdi2634_summary.csv, vdi2634.csv, "
+                         "vdi2634.png/.svg):\n",
+                         out.c_str()),
+            acceptance);
+  }
+  if (!uncertainty.empty()) {
+    section(StringPrintf("Scan uncertainty (%s/uncertainty_summary.csv, uncertainty.ply, "
+                         "uncertainty.png):\n",
+                         out.c_str()),
+            uncertainty);
+  }
+  return text;
 }
 
 std::string SweepRunSummary::BriefReport() const {

@@ -39,6 +39,8 @@ struct SweepPlanSummary {
   int jobs = 0;
   int geometry_groups = 0;
   std::vector<std::string> axes;  // axis names, first the slowest
+  // "study NAME: N jobs (G geometry groups) in JOBS_DIR", one line with its newline.
+  std::string BriefReport(const std::filesystem::path& jobs_dir) const;
 };
 
 // Reads the study file and writes the plan at `jobs_dir` (which must not exist; written to a
@@ -94,6 +96,10 @@ struct SweepMergeSummary {
   // With the study key `monte_carlo`: the uncertainty's summary and its 2-sigma coverage.
   std::vector<std::string> uncertainty;
   std::filesystem::path out_dir;
+  // What `slshadow sweep merge` prints: the rows written, the Pareto front, then each of the
+  // break points, the layer effects, the VDI/VDE 2634-2 figures and the uncertainty the study
+  // asked for, each under a line naming its files in out_dir. Lines end in a newline.
+  std::string FullReport() const;
 };
 
 // Reads every job's result (in id order) and writes at `out_dir` (created if missing; each file

@@ -8,6 +8,7 @@
 #include "patterns/pattern_spec.h"
 #include "reconstruct/reconstruct.h"
 #include "sim/scene.h"
+#include "sim/scene_surface.h"
 #include "sim/simulate.h"
 #include "workflows/pipeline/scan_pipeline.h"
 #include "workflows/studies/internal/sweep_files.h"
@@ -88,9 +89,9 @@ json SweepJobRunner::Run(const json& job, const fs::path& file, int group_jobs_l
     const double cg = ProcessCpuSeconds();
     g->simulator = std::make_unique<Simulator>(g->scene, g->rig);
     g->geometry_cpu_s = ProcessCpuSeconds() - cg;
-    g->scorer = std::make_unique<GroundTruthScorer>(
-        GroundTruthSurface(g->scene, what + ": scene"),
-        pipeline::LitVisibleSurface(g->simulator->geometry(0)), "scene ground truth");
+    g->scorer = std::make_unique<GroundTruthScorer>(GroundTruthSurface(g->scene, what + ": scene"),
+                                                    LitVisibleSurface(g->simulator->geometry(0)),
+                                                    "scene ground truth");
     group = std::move(g);
     ++traces_;
   }

@@ -1,5 +1,6 @@
 #include "workflows/studies/sweep_reuse.h"
 
+#include "compare/c2m_grid.h"
 #include "compare/coverage.h"
 #include "compare/median_spacing.h"
 #include "compare/statistics.h"
@@ -7,7 +8,6 @@
 #include "sim/renderer.h"
 #include "sim/sensor_noise.h"
 #include "sim/shapes.h"
-#include "workflows/studies/internal/c2m_grid.h"
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -59,70 +59,6 @@ void NoiseFreeImages::Render(const Scene& scene, std::vector<std::vector<cv::Mat
                          &cam[p]);
     }
   }
-}
-
-namespace {
-
-constexpr int kSegments = 512;
-
-// The box |x|, |y|, |z| <= size / 2: exact, 12 triangles with outward normals.
-TriangleMesh BoxMesh(const Eigen::Vector3d& size) {
-  TriangleMesh m;
-  const Eigen::Vector3d h = size / 2;
-  for (int k = 0; k < 8; ++k) {
-    m.vertices.emplace_back(k & 1 ? h.x() : -h.x(), k & 2 ? h.y() : -h.y(), k & 4 ? h.z() : -h.z());
-  }
-  // Two triangles per face, counter-clockwise seen from outside.
-  m.triangles = {{0, 2, 3}, {0, 3, 1}, {4, 5, 7}, {4, 7, 6},   // z = -h, z = +h
-                 {0, 1, 5}, {0, 5, 4}, {2, 6, 7}, {2, 7, 3},   // y = -h, y = +h
-                 {0, 4, 6}, {0, 6, 2}, {1, 3, 7}, {1, 7, 5}};  // x = -h, x = +h
-  return m;
-}
-
-// A closed cylinder of radius r along z, from z = -h/2 to h/2: `sides` facets and two capped ends.
-TriangleMesh CylinderMesh(double r, double h, int sides) {
-  TriangleMesh m;
-  for (int k = 0; k < sides; ++k) {
-    const double a = 2 * M_PI * k / sides;
-    m.vertices.emplace_back(r * std::cos(a), r * std::sin(a), -h / 2);
-    m.vertices.emplace_back(r * std::cos(a), r * std::sin(a), h / 2);
-  }
-  const int bottom = static_cast<int>(m.vertices.size());
-  m.vertices.emplace_back(0, 0, -h / 2);
-  m.vertices.emplace_back(0, 0, h / 2);
-  for (int k = 0; k < sides; ++k) {
-    const int a0 = 2 * k, a1 = 2 * k + 1, b0 = 2 * ((k + 1) % sides), b1 = b0 + 1;
-    m.triangles.emplace_back(a0, b0, b1);  // outward (counter-clockwise seen from outside)
-    m.triangles.emplace_back(a0, b1, a1);
-    m.triangles.emplace_back(bottom, b0, a0);
-    m.triangles.emplace_back(bottom + 1, a1, b1);
-  }
-  return m;
-}
-
-}  // namespace
-
-TriangleMesh GroundTruthSurface(const Scene& scene, const std::string& what) {
-  TriangleMesh surface;
-  for (const SceneObject& object : scene.objects) {
-    TriangleMesh part;
-    if (object.type == ObjectType::kSphere) {
-      part = MakeSphereMesh(object.radius_mm, kSegments);
-    } else if (object.type == ObjectType::kCylinder) {
-      part = CylinderMesh(object.radius_mm, object.height_mm, kSegments);
-    } else if (object.type == ObjectType::kBox) {
-      part = BoxMesh(object.size_mm);
-    } else {
-      Scene one;
-      one.objects = {object};
-      surface.Append(pipeline::SceneSurface(one, what));
-      continue;
-    }
-    part.Transform(object.rig_from_object.rotation.toRotationMatrix(),
-                   object.rig_from_object.translation);
-    surface.Append(part);
-  }
-  return surface;
 }
 
 // The samples of the reference surface followed by the visible points, sorted into a dense
@@ -377,7 +313,7 @@ void GroundTruthScorer::Prepare(const std::vector<const PointCloud*>& clouds, in
   for (const PointCloud* cloud : clouds) {
     if (cloud->size() >= 2) spacing = std::max(spacing, compare::MedianSpacing(cloud->points));
   }
-  grid_ = std::make_unique<internal::C2mGrid>(reference_.mesh, distance_, spacing);
+  grid_ = std::make_unique<compare::C2mGrid>(reference_.mesh, distance_, spacing);
   if (!grid_->enabled()) return;
   for (const PointCloud* cloud : clouds) grid_->Prepare(cloud->points);
 }

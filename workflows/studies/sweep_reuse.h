@@ -10,7 +10,7 @@
 //                       its area samples and the lit visible surface, built once per geometry
 //                       group, and from the group's second job on a grid of cells near the
 //                       surface listing the triangles that can be closest to a point in each
-//                       (workflows/studies/internal/c2m_grid.h), kept job to job; each cloud is
+//                       (compare/c2m_grid.h), kept job to job; each cloud is
 //                       then measured against them.
 //
 // Reconstruction needs nothing of its own here: what it computes from the rig and the image size
@@ -40,11 +40,11 @@
 #include <string>
 #include <vector>
 
-namespace slshadow::studies {
-
-namespace internal {
+namespace slshadow::compare {
 class C2mGrid;
-}
+}  // namespace slshadow::compare
+
+namespace slshadow::studies {
 
 // The noise-free irradiance images of one pattern sequence seen by every camera of a Simulator.
 class NoiseFreeImages {
@@ -73,13 +73,6 @@ class NoiseFreeImages {
   std::vector<std::vector<cv::Mat>> irradiance_;  // [camera][pattern], CV_32FC1
 };
 
-// The ground-truth surface of a scene in the rig frame: meshes and planes as SceneSurface gives
-// them; exact spheres and cylinders (also those of a ball bar) tessellated finely enough that
-// their true surface lies within 0.5 um of the mesh (UV spheres of 512 segments, cylinders of 512
-// sides with caps; sim/shapes.h MakeSphereMesh). Throws slshadow::Error naming `what` and the
-// object for other types (point clouds). Boxes are exact (12 triangles).
-TriangleMesh GroundTruthSurface(const Scene& scene, const std::string& what);
-
 // The accuracy figures of clouds against one ground-truth surface, with the hierarchy and the
 // samples built once.
 class GroundTruthScorer {
@@ -100,7 +93,7 @@ class GroundTruthScorer {
   // Announces the clouds about to be measured (one job's), before Measure is called on them; not
   // to be called while Measure runs. From the second call on, when at least kGridJobs jobs
   // (`jobs_left`, this one included) are still to be measured and the clouds are dense on the
-  // ground truth's triangles (workflows/studies/internal/c2m_grid.h), the signed distances of the
+  // ground truth's triangles (compare/c2m_grid.h), the signed distances of the
   // points come from a grid of cells near the surface (compare::MeshDistance's doubles, in a
   // fraction of its time). The call that makes the grid builds the cells of `clouds`; each later
   // call builds the cells that the points measured since fell in unbuilt (those points were
@@ -120,7 +113,7 @@ class GroundTruthScorer {
   struct SampleGrid;
   std::unique_ptr<const SampleGrid> samples_;
   int prepared_ = 0;  // calls of Prepare
-  std::unique_ptr<internal::C2mGrid> grid_;
+  std::unique_ptr<compare::C2mGrid> grid_;
 };
 
 }  // namespace slshadow::studies

@@ -8,11 +8,11 @@
 #include <Eigen/Dense>
 #include <opencv2/core/utility.hpp>
 
+#include "compare/neighbour_grid.h"
 #include "core/error.h"
 #include "core/kdtree.h"
 #include "core/statistics.h"
 #include "core/string_printf.h"
-#include "workflows/twin/diagnose_neighbours.h"
 
 namespace slshadow::twin {
 namespace {
@@ -626,11 +626,12 @@ struct Cluster {
 };
 
 // The median spacing of the compared points, from a sample of their nearest neighbours.
-double PointSpacing(const NeighbourGrid& real_grid, const std::vector<Eigen::Vector3d>& real_points,
-                    const std::vector<size_t>& idx, size_t step) {
+double PointSpacing(const compare::NeighbourGrid& real_grid,
+                    const std::vector<Eigen::Vector3d>& real_points, const std::vector<size_t>& idx,
+                    size_t step) {
   std::vector<Neighbor> nb;
   std::vector<double> s;
-  NeighbourGrid::Scratch scratch;
+  compare::NeighbourGrid::Scratch scratch;
   for (size_t i = 0; i < idx.size(); i += std::max<size_t>(1, idx.size() / 500)) {
     real_grid.KNearest(real_points[idx[i]], 2, &scratch, &nb);
     if (nb.size() == 2) s.push_back(std::sqrt(nb[1].distance_sq));
@@ -692,17 +693,17 @@ PartMode EvaluatePartMode(const ModeEvidence& m, const DiagnoseOptions& options)
     out.evidence = {{"mode", m.mode}, {"detected", false}, {"compared_points", 0}};
     return out;
   }
-  // Exact k-nearest neighbours on uniform grids (workflows/twin/diagnose_neighbours.h: the same
+  // Exact k-nearest neighbours on uniform grids (compare/neighbour_grid.h: the same
   // neighbours in the same order as KdTree, ~5 x cheaper at k = 64).
   const int k = options.smoothing_neighbors;
-  const NeighbourGrid real_grid(m.real_points, k), virt_grid(m.virtual_points, k);
+  const compare::NeighbourGrid real_grid(m.real_points, k), virt_grid(m.virtual_points, k);
   const size_t step = std::max<size_t>(1, m.real_points.size() / 40000);
   std::vector<size_t> idx;
   for (size_t i = 0; i < m.real_points.size(); i += step) idx.push_back(i);
   std::vector<double> d(idx.size()), spread(idx.size());
   cv::parallel_for_(cv::Range(0, static_cast<int>(idx.size())), [&](const cv::Range& range) {
     std::vector<Neighbor> nb;
-    NeighbourGrid::Scratch real_scratch, virt_scratch;
+    compare::NeighbourGrid::Scratch real_scratch, virt_scratch;
     for (int i = range.start; i < range.end; ++i) {
       const Eigen::Vector3d& p = m.real_points[idx[static_cast<size_t>(i)]];
       real_grid.KNearest(p, k, &real_scratch, &nb);

@@ -1,7 +1,7 @@
 #include "workflows/twin/twin.h"
 
+#include "compare/neighbour_grid.h"
 #include "workflows/pipeline/scan_pipeline.h"
-#include "workflows/twin/diagnose_neighbours.h"
 #include "workflows/twin/internal/twin_images.h"
 #include "workflows/twin/internal/twin_pose.h"
 #include "workflows/twin/internal/twin_report.h"
@@ -31,6 +31,7 @@
 #include "core/kdtree.h"
 #include "core/point_cloud.h"
 #include "core/pose_io.h"
+#include "sim/scene_surface.h"
 #include "sim/simulate.h"
 
 namespace slshadow::twin {
@@ -59,8 +60,7 @@ constexpr int kVersion = 1;
 // that think in OpenCV's rvec.
 nlohmann::json ReportPoseJson(const Rigid3d& p) {
   nlohmann::json j = PoseToJson(p);
-  const Eigen::AngleAxisd aa(p.rotation);
-  const Eigen::Vector3d r = aa.angle() * aa.axis();
+  const Eigen::Vector3d r = RotationVectorFromQuaternion(p.rotation);
   j["rotation_rvec_rad"] = {r.x(), r.y(), r.z()};
   return j;
 }
@@ -176,7 +176,7 @@ ShadowPart LoadShadowPart(const fs::path& path) {
     SLSHADOW_THROW(path.string(), ": unknown part format '", ext,
                    "' (expected .stl, .ply, .obj or a scene .yaml/.json)");
   }
-  part.surface = pipeline::SceneSurface(part.scene, path.string(), kPartPlaneCells);
+  part.surface = SceneSurface(part.scene, path.string(), kPartPlaneCells);
   return part;
 }
 
@@ -802,7 +802,7 @@ void CompareMode(ShadowRun& run, size_t m) {
   on_part(mc.twin, mc.twin_c2m, &me.virtual_points, &me.virtual_c2m);
   std::vector<double> diff;
   if (!me.virtual_points.empty()) {
-    const NeighbourGrid tree(me.virtual_points);
+    const compare::NeighbourGrid tree(me.virtual_points);
     diff.resize(me.real_points.size(), std::nan(""));
     cv::parallel_for_(cv::Range(0, static_cast<int>(me.real_points.size())),
                       [&](const cv::Range& r) {

@@ -494,10 +494,9 @@ nlohmann::json PoseRefinementToJson(const PoseRefinement& f,
     const Rigid3d& given = *given_part_from_rig;
     const Rigid3d d = f.part_from_rig * given.Inverse();
     const Eigen::Vector3d c = u.centroid_in_part;
-    const Eigen::AngleAxisd aa(d.rotation);
     Eigen::Matrix<double, 6, 1> delta;
     delta.head<3>() = d.rotation * c + d.translation - c;
-    delta.tail<3>() = aa.angle() * aa.axis();
+    delta.tail<3>() = RotationVectorFromQuaternion(d.rotation);
     const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> eig(u.covariance);
     const double emax = eig.eigenvalues().maxCoeff();
     double m2 = 0;

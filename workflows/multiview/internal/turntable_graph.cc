@@ -112,8 +112,7 @@ std::vector<Rigid3d> Poses(const Frame& f, const Params& p, const std::vector<do
 double WhitenedNorm(const std::vector<Rigid3d>& poses, const GraphEdge& e) {
   const Rigid3d d = EdgeDiscrepancy(poses, e);
   Eigen::Matrix<double, 6, 1> delta;
-  const Eigen::AngleAxisd aa(d.rotation);
-  delta.head<3>() = aa.angle() * aa.axis();
+  delta.head<3>() = RotationVectorFromQuaternion(d.rotation);
   delta.tail<3>() = d.translation;
   return (SqrtInformation(e.information) * delta).norm();
 }
@@ -337,8 +336,8 @@ GraphSolution OptimizeTurntableGraph(const std::vector<Rigid3d>& initial,
       std::copy(saved.begin(), saved.end(), block);
       for (size_t i = 0; i < n; ++i) {
         if (!active[i]) continue;
-        const Eigen::AngleAxisd aa(moved[i].rotation * poses[i].rotation.conjugate());
-        jac.block<3, 1>(6 * static_cast<long>(i), offset[x] + k) = aa.angle() * aa.axis() / kStep;
+        jac.block<3, 1>(6 * static_cast<long>(i), offset[x] + k) =
+            RotationVectorFromQuaternion(moved[i].rotation * poses[i].rotation.conjugate()) / kStep;
         jac.block<3, 1>(6 * static_cast<long>(i) + 3, offset[x] + k) =
             (moved[i].translation - poses[i].translation) / kStep;
       }

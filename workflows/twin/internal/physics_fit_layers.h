@@ -152,8 +152,11 @@ struct FitContext {
   }
 };
 
+// The white - black contrast a pixel needs to count as well lit: 0.3 x the median over the samples.
+double WellLitContrast(const std::vector<Sample>& samples);
+
 // The layers, in the order FitPhysics fits them (workflows/twin/physics_fit.h describes each); each
-// appends its layers to ctx.fit.
+// appends its layers to ctx.fit. Gamma, global light and noise: physics_fit_response.cc.
 void FitExposure(FitContext& ctx);               // exposure; sets ctx.e
 void FitIlluminationFields(FitContext& ctx);     // illumination_<camera>; kept: the samples' gain
 void FitObjectAlbedos(FitContext& ctx);          // albedo_<object>

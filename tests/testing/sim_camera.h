@@ -28,7 +28,7 @@
 #include "sim/renderer.h"
 #include "sim/scene.h"
 
-namespace slshadow::pipeline {
+namespace slshadow::testing {
 
 // What the projector currently shows: the loaded sequence and the index on the output (or
 // black). Shared between a SimProjector and the SimCameras that look at its light. Thread-safe.
@@ -116,4 +116,4 @@ class SimCamera : public capture::Camera {
   capture::StreamStatistics statistics_;
 };
 
-}  // namespace slshadow::pipeline
+}  // namespace slshadow::testing

@@ -1,9 +1,9 @@
-#include "workflows/twin/diagnose_neighbours.h"
+#include "compare/neighbour_grid.h"
 
 #include <algorithm>
 #include <cmath>
 
-namespace slshadow::twin {
+namespace slshadow::compare {
 namespace {
 
 // At most this many cells per point (and 2^24 in all): the table of cell starts stays small.
@@ -15,7 +15,7 @@ constexpr double kMargin = 1e-9;
 
 // A function object (inlined by the sorts, unlike a function pointer).
 struct Less {
-  bool operator()(const compare::Neighbor& a, const compare::Neighbor& b) const {
+  bool operator()(const Neighbor& a, const Neighbor& b) const {
     return a.distance_sq < b.distance_sq || (a.distance_sq == b.distance_sq && a.index < b.index);
   }
 };
@@ -137,11 +137,11 @@ void NeighbourGrid::ForEachRun(const Eigen::Vector3d& lo, const Eigen::Vector3d&
 }
 
 void NeighbourGrid::KNearest(const Eigen::Vector3d& query, int k, Scratch* scratch,
-                             std::vector<compare::Neighbor>* out) const {
+                             std::vector<Neighbor>* out) const {
   out->clear();
   const size_t want = std::min(static_cast<size_t>(std::max(k, 0)), sorted_.size());
   if (want == 0 || !query.allFinite()) return;
-  std::vector<compare::Neighbor>& cand = scratch->candidates;
+  std::vector<Neighbor>& cand = scratch->candidates;
   const double* q = query.data();
   // The ball grows until it holds `want` points: those are then the nearest (every point within
   // the ball's radius was gathered; every other one is farther than all of them).
@@ -173,12 +173,12 @@ void NeighbourGrid::KNearest(const Eigen::Vector3d& query, int k, Scratch* scrat
   scratch->radius = std::sqrt(out->back().distance_sq);
 }
 
-bool NeighbourGrid::Nearest(const Eigen::Vector3d& query, compare::Neighbor* nearest,
+bool NeighbourGrid::Nearest(const Eigen::Vector3d& query, Neighbor* nearest,
                             double max_distance) const {
   if (sorted_.empty() || !query.allFinite()) return false;
   if (!std::isfinite(max_distance)) {
     Scratch scratch;
-    std::vector<compare::Neighbor> one;
+    std::vector<Neighbor> one;
     KNearest(query, 1, &scratch, &one);
     if (one.empty()) return false;
     *nearest = one.front();
@@ -186,7 +186,7 @@ bool NeighbourGrid::Nearest(const Eigen::Vector3d& query, compare::Neighbor* nea
   }
   const double* q = query.data();
   const double limit = max_distance * max_distance;
-  compare::Neighbor best{0, limit};
+  Neighbor best{0, limit};
   bool found = false;
   const double box = max_distance * (1 + kMargin) + kMargin * cell_;
   ForEachRun(query - Eigen::Vector3d::Constant(box), query + Eigen::Vector3d::Constant(box),
@@ -206,4 +206,4 @@ bool NeighbourGrid::Nearest(const Eigen::Vector3d& query, compare::Neighbor* nea
   return found;
 }
 
-}  // namespace slshadow::twin
+}  // namespace slshadow::compare

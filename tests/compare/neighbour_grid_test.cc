@@ -1,4 +1,4 @@
-#include "workflows/twin/diagnose_neighbours.h"
+#include "compare/neighbour_grid.h"
 
 #include <algorithm>
 #include <cmath>
@@ -9,7 +9,7 @@
 
 #include "core/kdtree.h"
 
-namespace slshadow::twin {
+namespace slshadow::compare {
 namespace {
 
 // A wavy surface sampled on a jittered grid (a scan's organised cloud), with a hole, a few points
@@ -117,4 +117,4 @@ TEST(NeighbourGrid, SameNeighboursAsKdTreeOnAVolumeAndFewPoints) {
 }
 
 }  // namespace
-}  // namespace slshadow::twin
+}  // namespace slshadow::compare

@@ -26,7 +26,7 @@
 #include <memory>
 #include <vector>
 
-namespace slshadow::studies::internal {
+namespace slshadow::compare {
 
 class C2mGrid {
  public:
@@ -62,4 +62,4 @@ class C2mGrid {
   std::unique_ptr<Impl> impl_;
 };
 
-}  // namespace slshadow::studies::internal
+}  // namespace slshadow::compare

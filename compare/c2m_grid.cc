@@ -1,4 +1,4 @@
-#include "workflows/studies/internal/c2m_grid.h"
+#include "compare/c2m_grid.h"
 
 #include "core/error.h"
 
@@ -10,7 +10,7 @@
 #include <limits>
 #include <mutex>
 
-namespace slshadow::studies::internal {
+namespace slshadow::compare {
 namespace {
 
 constexpr int kBlockBits = 3;  // blocks of 8 x 8 x 8 cells
@@ -432,4 +432,4 @@ void C2mGrid::SignedDistances(const std::vector<Eigen::Vector3d>& points,
                     });
 }
 
-}  // namespace slshadow::studies::internal
+}  // namespace slshadow::compare

@@ -1,4 +1,4 @@
-#include "workflows/pipeline/sim_camera.h"
+#include "tests/testing/sim_camera.h"
 
 #include <cstring>
 
@@ -9,8 +9,12 @@
 #include "sim/simulate.h"
 #include "workflows/pipeline/scan_pipeline.h"
 
-namespace slshadow::pipeline {
+namespace slshadow::testing {
 namespace {
+
+using pipeline::LoadPatternSpecOrDemo;
+using pipeline::LoadRigOrDemo;
+using pipeline::LoadSceneOrDemo;
 
 bool SameBytes(const cv::Mat& a, const cv::Mat& b) {
   if (a.type() != b.type() || a.size() != b.size()) return false;
@@ -167,4 +171,4 @@ TEST(SimCamera, RefusedSettingsAndImagesAreNamed) {
 }
 
 }  // namespace
-}  // namespace slshadow::pipeline
+}  // namespace slshadow::testing

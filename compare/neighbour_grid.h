@@ -1,6 +1,8 @@
-// Exact nearest-neighbour queries for the diagnosis's cloud smoothing (workflows/twin/diagnose.h,
-// the part test: the mean of a scalar over the k nearest points of ~40 k query points in clouds of
-// a few 100 k points) and for the real - twin cloud difference (the nearest twin point).
+// Exact k-nearest-neighbour queries on surface scans queried in cloud order: the twin's diagnosis
+// smoothes a scalar over the k nearest points of ~40 k query points in clouds of a few 100 k points
+// (workflows/twin/diagnose.h, the part test), and the real - twin cloud difference asks for the
+// nearest twin point. For such queries it answers what KdTree answers, with less work per query
+// (docs/benchmarks/log/2026-11-25-shadow-speed.md has the figures).
 //
 // The points are binned in a uniform grid of cubic cells (a dense table of cell starts, the points
 // copied in cell order), sized from the cloud so that a k-neighbourhood spans a few cells. A k
@@ -10,8 +12,7 @@
 // computed as KdTree computes them ((q - p) per axis, dx dx + dy dy + dz dz in double),
 // so the result equals its KNearest / Nearest bit for bit (the same points in the same order)
 // except for ties in distance, which KdTree breaks by its search order and this grid by
-// the lower index. Measured: ~5 x fewer CPU seconds than KdTree at k = 64 on surface
-// scans (docs/benchmarks/log/2026-11-25-shadow-speed.md).
+// the lower index.
 #pragma once
 
 #include <cstdint>
@@ -22,7 +23,7 @@
 
 #include "core/kdtree.h"
 
-namespace slshadow::twin {
+namespace slshadow::compare {
 
 class NeighbourGrid {
  public:
@@ -64,4 +65,4 @@ class NeighbourGrid {
   double diagonal_ = 0;                  // of the bounding box
 };
 
-}  // namespace slshadow::twin
+}  // namespace slshadow::compare

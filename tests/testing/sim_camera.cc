@@ -1,11 +1,11 @@
-#include "workflows/pipeline/sim_camera.h"
+#include "tests/testing/sim_camera.h"
 
 #include <cmath>
 
 #include "core/error.h"
 #include "sim/raycaster.h"
 
-namespace slshadow::pipeline {
+namespace slshadow::testing {
 
 void ShownPattern::Load(std::vector<cv::Mat> images) {
   std::lock_guard<std::mutex> lock(mutex_);
@@ -212,4 +212,4 @@ void SimCamera::Flush() { pending_.clear(); }
 
 capture::StreamStatistics SimCamera::Statistics() const { return statistics_; }
 
-}  // namespace slshadow::pipeline
+}  // namespace slshadow::testing
