@@ -13,7 +13,7 @@ PACKAGES=(
   # image files (core/image_io.h) through the system codecs, not opencv_imgcodecs
   libpng-dev libjpeg62-turbo-dev libtiff-dev
   # calibration, simulation, comparison
-  libceres-dev libembree-dev libtbb-dev libnanoflann-dev libpcl-dev libplplot-dev plplot-driver-cairo
+  libceres-dev libembree-dev libtbb-dev libpcl-dev libplplot-dev plplot-driver-cairo
   # C2C cross-check and benchmark peer (compare tests skip without it; runs headless)
   cloudcompare
   # command line

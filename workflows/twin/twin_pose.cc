@@ -505,7 +505,7 @@ nlohmann::json PoseRefinementToJson(const PoseRefinement& f,
       if (e > 1e-12 * emax && e > 0) m2 += std::pow(eig.eigenvectors().col(k).dot(delta), 2) / e;
     }
     j["moved_from_given"] = {{"translation_at_centre_mm", delta.head<3>().norm()},
-                             {"rotation_deg", aa.angle() * 180.0 / M_PI},
+                             {"rotation_deg", Eigen::AngleAxisd(d.rotation).angle() * 180.0 / M_PI},
                              {"sigmas", std::sqrt(m2)}};
   }
   return j;
