@@ -125,7 +125,8 @@ Box BoundsOf(const Item* items, size_t n) {
 std::pair<uint32_t, uint32_t> NodeCounts(size_t n, size_t leaf) {
   if (n <= leaf) return {1u, n + 1 <= leaf ? 1u : 3u};
   const size_t m = n / 2;
-  const auto [cm, cm1] = NodeCounts(m, leaf);
+  const std::pair<uint32_t, uint32_t> below = NodeCounts(m, leaf);
+  const uint32_t cm = below.first, cm1 = below.second;  // named copies: lambdas capture them
   const auto count = [&](size_t k) -> uint32_t {
     if (k <= leaf) return 1u;
     const size_t a = k / 2, b = k - a;
