@@ -47,7 +47,6 @@ std::vector<double> SignedC2M(const compare::MeshDistance& mesh,
   return d;
 }
 
-
 namespace {
 
 // The projector-coordinate error (px) that the rig's calibration uncertainty explains for
