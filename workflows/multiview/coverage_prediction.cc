@@ -38,6 +38,7 @@ static_assert(kCovered == static_cast<uint8_t>(CoverageReason::kCovered) &&
 // The lit range (8-bit grey levels) per unit of cos_p * (d_ref / d_p)^2, and d_ref^2.
 struct Light {
   double range_per_factor = 0;
+  std::vector<float> sample_albedo;  // per sample when the part is printed; else in the factor
   double ref_distance_sq = 0;
   double threshold = 0;
   double max_code_step_px = 0;  // stereo: 0 = no gate
@@ -183,6 +184,7 @@ std::vector<uint8_t> ViewSight(const internal::SightCaster& caster,
     const Eigen::Vector3d to = projector_centre - p;
     const double cos_p = nrm.dot(to) / to.norm();
     double range = light.range_per_factor * cos_p * light.ref_distance_sq / to.squaredNorm();
+    if (!light.sample_albedo.empty()) range *= light.sample_albedo[i];
     if (light.projector_defocus.enabled) {
       const double depth = (projector.cam_from_rig * p_rig).z();
       range *= FringeTransfer(light.projector_defocus.SigmaPx(projector.model.fx(), depth),
@@ -290,6 +292,93 @@ CoveragePredictionOptions WithSceneRadiometry(CoveragePredictionOptions options,
   return options;
 }
 
+CoveragePredictionOptions WithCapturedRadiometry(CoveragePredictionOptions options,
+                                                 const TriangleMesh& part_in_part, const Rig& rig,
+                                                 int camera, const Rigid3d& part_from_rig,
+                                                 const cv::Mat& white, const cv::Mat& black,
+                                                 double edge_margin_mm,
+                                                 CapturedRadiometry* measured) {
+  SLSHADOW_THROW_IF(!rig.projector, "captured radiometry: the rig '", rig.name,
+                    "' has no projector");
+  SLSHADOW_THROW_IF(camera < 0 || camera >= static_cast<int>(rig.cameras.size()),
+                    "captured radiometry: no camera ", camera, " in the rig '", rig.name, "'");
+  const RigDevice& cam = rig.cameras[static_cast<size_t>(camera)];
+  const RigDevice& projector = *rig.projector;
+  SLSHADOW_THROW_IF(white.type() != CV_8UC1 || black.type() != CV_8UC1 ||
+                        white.size() != black.size() || white.cols != cam.model.width ||
+                        white.rows != cam.model.height,
+                    "captured radiometry: the white and black frames must be 8-bit grey images of "
+                    "camera '",
+                    cam.name, "' (", cam.model.width, " x ", cam.model.height, ")");
+  SLSHADOW_THROW_IF(part_in_part.empty(), "captured radiometry: the part mesh is empty");
+  const double d_ref =
+      options.reference_distance_mm > 0 ? options.reference_distance_mm : rig.working_distance_mm;
+  SLSHADOW_THROW_IF(!(d_ref > 0), "captured radiometry: no reference distance (the rig '", rig.name,
+                    "' has no working_distance_mm)");
+  const Albedo& texture = options.albedo_texture;
+  const bool board = texture.kind == Albedo::Kind::kCheckerboard;
+  SLSHADOW_THROW_IF(texture.IsTextured() && !board,
+                    "captured radiometry: only a uniform or a checkerboard albedo is measured");
+  const compare::Reference reference =
+      compare::ReferenceFromMesh(part_in_part, "part", options.samples);
+  const Rigid3d rig_from_part = part_from_rig.Inverse();
+  const Eigen::Vector3d cam_centre = part_from_rig * cam.CenterInRig();
+  const Eigen::Vector3d projector_centre = part_from_rig * projector.CenterInRig();
+  std::vector<double> ratios[2];  // dark, light
+  for (size_t i = 0; i < reference.cloud.points.size(); ++i) {
+    const Eigen::Vector3d& p = reference.cloud.points[i];
+    const Eigen::Vector3d n = reference.cloud.normals[i].cast<double>();
+    int cls = 1;
+    if (board) {
+      const double sq = texture.square_mm;
+      const int a = static_cast<int>(std::floor(p.x() / sq)) + 1;
+      const int b = static_cast<int>(std::floor(p.y() / sq)) + 1;
+      if (a < 0 || b < 0 || a >= texture.squares_x || b >= texture.squares_y) continue;
+      const double ex = std::abs(p.x() / sq - std::round(p.x() / sq)) * sq;
+      const double ey = std::abs(p.y() / sq - std::round(p.y() / sq)) * sq;
+      if (std::min(ex, ey) < edge_margin_mm) continue;
+      cls = (a + b) % 2 == 0 ? 0 : 1;
+    }
+    const Eigen::Vector3d to_p = projector_centre - p;
+    if (n.dot(to_p) <= 0 || n.dot(cam_centre - p) <= 0) continue;
+    const Eigen::Vector3d p_rig = rig_from_part * p;
+    if (!projector.model.Project(projector.cam_from_rig * p_rig)) continue;
+    const auto px = cam.model.Project(cam.cam_from_rig * p_rig);
+    if (!px) continue;
+    const int u = static_cast<int>(std::lround(px->x())),
+              v = static_cast<int>(std::lround(px->y()));
+    if (u < 0 || v < 0 || u >= white.cols || v >= white.rows) continue;
+    const double range = white.at<uint8_t>(v, u) - black.at<uint8_t>(v, u);
+    const double factor = n.dot(to_p) / to_p.norm() * d_ref * d_ref / to_p.squaredNorm();
+    ratios[cls].push_back(range / factor);
+  }
+  const auto median = [](std::vector<double>& v) {
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+    return v[v.size() / 2];
+  };
+  CapturedRadiometry m;
+  m.samples_dark = ratios[0].size();
+  m.samples_light = ratios[1].size();
+  SLSHADOW_THROW_IF(ratios[1].empty() || (board && ratios[0].empty()),
+                    "captured radiometry: no sample of the part's ",
+                    ratios[1].empty() ? (board ? "light squares" : "surface") : "dark squares",
+                    " seen by camera '", cam.name, "' and lit by the projector");
+  m.range_per_factor_light = std::max(0.0, median(ratios[1]));
+  m.range_per_factor_dark = board ? std::max(0.0, median(ratios[0])) : m.range_per_factor_light;
+  // Albedo in (0, 1]: a class read as black keeps the smallest positive albedo (too dark).
+  const auto albedo = [](double range) { return std::clamp(range / 255.0, 1e-6, 1.0); };
+  options.exposure_fraction = 1;
+  options.reference_distance_mm = d_ref;
+  if (board) {
+    options.albedo_texture.dark = albedo(m.range_per_factor_dark);
+    options.albedo_texture.light = albedo(m.range_per_factor_light);
+  } else {
+    options.albedo = albedo(m.range_per_factor_light);
+  }
+  if (measured) *measured = m;
+  return options;
+}
+
 CoveragePredictionOptions WithPatterns(CoveragePredictionOptions options, const PatternSpec& spec) {
   const std::vector<double> periods = spec.PeriodsPx();
   options.fringe_period_px =
@@ -365,7 +454,15 @@ CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig&
   m.on_table = internal::OnTableMask(cad_in_part, m.samples, m.normals, table_axis,
                                      options.table_tolerance_mm);
   m.caster = std::make_unique<internal::SightCaster>(cad_in_part);
-  m.light.range_per_factor = options.exposure_fraction * 255.0 * options.albedo;
+  m.light.range_per_factor = options.exposure_fraction * 255.0 *
+                             (options.albedo_texture.IsTextured() ? 1.0 : options.albedo);
+  if (options.albedo_texture.IsTextured()) {
+    m.light.sample_albedo.resize(m.samples.size());
+    for (size_t i = 0; i < m.samples.size(); ++i) {
+      m.light.sample_albedo[i] =
+          static_cast<float>(options.albedo_texture.Evaluate(m.samples[i].x(), m.samples[i].y()));
+    }
+  }
   const double d_ref =
       options.reference_distance_mm > 0 ? options.reference_distance_mm : rig.working_distance_mm;
   m.light.ref_distance_sq = d_ref * d_ref;

@@ -36,6 +36,7 @@
 #include <vector>
 
 #include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
 
 #include "core/mesh.h"
 #include "core/rig.h"
@@ -74,7 +75,11 @@ struct CoveragePredictionOptions {
   // The radiometry of sim/scene.h: the lit range (white - black) a camera records is
   // exposure_fraction * 255 * albedo * cos_p * (d_ref / d_p)^2 in 8-bit grey levels; below the
   // decoder's shadow_threshold (patterns/codec.h DecodeOptions) the sample is too dark.
-  double albedo = 0.5;               // the part's (FromScene: the darkest part mesh)
+  double albedo = 0.5;  // the part's (FromScene: the darkest part mesh)
+  // A printed part (a calibration board): when textured, the albedo of a sample is
+  // albedo_texture.Evaluate(x, y) at its part-frame x, y (a planar part in the part frame's z = 0
+  // carries the texture as sim/scene.h prints it on a plane) and `albedo` is not used.
+  Albedo albedo_texture;
   double exposure_fraction = 0.8;    // Radiometry::exposure_fraction
   double reference_distance_mm = 0;  // d_ref; 0: the rig's working distance
   double shadow_threshold = 12;      // DecodeOptions::shadow_threshold (8-bit grey levels)
@@ -107,6 +112,28 @@ struct CoveragePredictionOptions {
 // its meshes, the part) and its defocus layers in `options`.
 CoveragePredictionOptions WithSceneRadiometry(CoveragePredictionOptions options,
                                               const Scene& scene);
+
+// The radiometry a real capture of the part records, from its all-white and all-black frames
+// (what the decoder's shadow test reads): per albedo class (uniform: one; a checkerboard
+// albedo_texture: its dark and its light squares), the median over the samples of that class at
+// least edge_margin_mm from a square edge, inside the camera's and the projector's images and
+// facing both, of (white - black) at the sample's camera pixel (nearest) divided by the
+// prediction's own geometric factor cos_p * (d_ref / d_p)^2. That median is the class's
+// exposure_fraction x 255 x albedo; the returned options carry it as exposure_fraction 1 and the
+// class's albedo (capped at 1), with reference_distance_mm set to the d_ref used. Nothing of the
+// decoded result is read: the prediction's rules then decide from this light alone.
+struct CapturedRadiometry {
+  double range_per_factor_dark = 0, range_per_factor_light = 0;  // grey levels (uniform: light)
+  size_t samples_dark = 0, samples_light = 0;
+};
+// `white`, `black`: the camera's 8-bit frames. Throws slshadow::Error when a class has no sample,
+// the frames' size differs from the camera's or the rig has no projector.
+CoveragePredictionOptions WithCapturedRadiometry(CoveragePredictionOptions options,
+                                                 const TriangleMesh& part_in_part, const Rig& rig,
+                                                 int camera, const Rigid3d& part_from_rig,
+                                                 const cv::Mat& white, const cv::Mat& black,
+                                                 double edge_margin_mm = 10,
+                                                 CapturedRadiometry* measured = nullptr);
 
 // The finest fringe of `spec` in `options` (fringe_period_px, code_y).
 CoveragePredictionOptions WithPatterns(CoveragePredictionOptions options, const PatternSpec& spec);
