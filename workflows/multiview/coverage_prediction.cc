@@ -39,6 +39,8 @@ static_assert(kCovered == static_cast<uint8_t>(CoverageReason::kCovered) &&
 struct Light {
   double range_per_factor = 0;
   std::vector<float> sample_albedo;  // per sample when the part is printed; else in the factor
+  std::vector<float> sample_gloss;   // per sample: the specular lobe's weight (empty: none)
+  std::vector<float> sample_gloss_inv_alpha_sq;  // and 1 / its alpha^2
   double ref_distance_sq = 0;
   double threshold = 0;
   double max_code_step_px = 0;  // stereo: 0 = no gate
@@ -146,6 +148,11 @@ std::optional<Eigen::Matrix2d> ProjectorSteps(const RigDevice& cam, const RigDev
   return steps;
 }
 
+// The specular lobe at tan^2(theta_h), 1 on the mirror direction.
+// (Beckmann's distribution; GGX's heavier tail fits the kamino board's white frames no better:
+// 0.37 against 0.41 DN RMS on pose 0's dark squares, the same coverage within 0.8 %.)
+double GlossLobe(double tan2, double inv_alpha_sq) { return std::exp(-tan2 * inv_alpha_sq); }
+
 // The share of the finest fringe's modulation a Gaussian blur of sigma (px of the image where the
 // fringe has period period_px) keeps: the Gaussian's transfer exp(-2 pi^2 sigma^2 / period^2).
 double FringeTransfer(double sigma_px, double period_px) {
@@ -184,7 +191,16 @@ std::vector<uint8_t> ViewSight(const internal::SightCaster& caster,
     const Eigen::Vector3d to = projector_centre - p;
     const double cos_p = nrm.dot(to) / to.norm();
     double range = light.range_per_factor * cos_p * light.ref_distance_sq / to.squaredNorm();
-    if (!light.sample_albedo.empty()) range *= light.sample_albedo[i];
+    double albedo = light.sample_albedo.empty() ? 1.0 : light.sample_albedo[i];
+    if (!light.sample_gloss.empty() && light.sample_gloss[i] > 0) {
+      // The lobe about the mirror direction of the projector into the reference camera.
+      const Eigen::Vector3d to_c = part_from_rig * devices[0]->CenterInRig() - p;
+      const Eigen::Vector3d half = (to.normalized() + to_c.normalized()).normalized();
+      const double cos_h = std::max(1e-6, std::abs(nrm.dot(half)));
+      const double tan2 = (1 - cos_h * cos_h) / (cos_h * cos_h);
+      albedo += light.sample_gloss[i] * GlossLobe(tan2, light.sample_gloss_inv_alpha_sq[i]);
+    }
+    range *= albedo;
     if (light.projector_defocus.enabled) {
       const double depth = (projector.cam_from_rig * p_rig).z();
       range *= FringeTransfer(light.projector_defocus.SigmaPx(projector.model.fx(), depth),
@@ -324,7 +340,7 @@ CoveragePredictionOptions WithCapturedRadiometry(CoveragePredictionOptions optio
   const Rigid3d rig_from_part = part_from_rig.Inverse();
   const Eigen::Vector3d cam_centre = part_from_rig * cam.CenterInRig();
   const Eigen::Vector3d projector_centre = part_from_rig * projector.CenterInRig();
-  std::vector<double> ratios[2];  // dark, light
+  std::vector<double> ratios[2], tan2[2];  // dark, light
   for (size_t i = 0; i < reference.cloud.points.size(); ++i) {
     const Eigen::Vector3d& p = reference.cloud.points[i];
     const Eigen::Vector3d n = reference.cloud.normals[i].cast<double>();
@@ -351,6 +367,9 @@ CoveragePredictionOptions WithCapturedRadiometry(CoveragePredictionOptions optio
     const double range = white.at<uint8_t>(v, u) - black.at<uint8_t>(v, u);
     const double factor = n.dot(to_p) / to_p.norm() * d_ref * d_ref / to_p.squaredNorm();
     ratios[cls].push_back(range / factor);
+    const Eigen::Vector3d half = (to_p.normalized() + (cam_centre - p).normalized()).normalized();
+    const double cos_h = std::max(1e-6, std::abs(n.dot(half)));
+    tan2[cls].push_back((1 - cos_h * cos_h) / (cos_h * cos_h));
   }
   const auto median = [](std::vector<double>& v) {
     std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
@@ -363,8 +382,72 @@ CoveragePredictionOptions WithCapturedRadiometry(CoveragePredictionOptions optio
                     "captured radiometry: no sample of the part's ",
                     ratios[1].empty() ? (board ? "light squares" : "surface") : "dark squares",
                     " seen by camera '", cam.name, "' and lit by the projector");
-  m.range_per_factor_light = std::max(0.0, median(ratios[1]));
-  m.range_per_factor_dark = board ? std::max(0.0, median(ratios[0])) : m.range_per_factor_light;
+  const int classes = board ? 2 : 1;
+  // The half angles seen, and per class the medians of equal-count bins of tan^2(theta_h).
+  double t2_min = std::numeric_limits<double>::infinity(), t2_max = 0;
+  constexpr int kBins = 20;
+  std::vector<std::array<double, 2>> bins[2];  // (median tan^2, median ratio)
+  for (int c = 2 - classes; c < 2; ++c) {
+    std::vector<size_t> order(ratios[c].size());
+    for (size_t i = 0; i < order.size(); ++i) order[i] = i;
+    std::sort(order.begin(), order.end(),
+              [&](size_t a, size_t b) { return tan2[c][a] < tan2[c][b]; });
+    t2_min = std::min(t2_min, tan2[c][order.front()]);
+    t2_max = std::max(t2_max, tan2[c][order.back()]);
+    const size_t per = std::max<size_t>(1, order.size() / kBins);
+    for (size_t b0 = 0; b0 + per <= order.size(); b0 += per) {
+      std::vector<double> t, r;
+      for (size_t k = b0; k < b0 + per; ++k) {
+        t.push_back(tan2[c][order[k]]);
+        r.push_back(ratios[c][order[k]]);
+      }
+      bins[c].push_back({median(t), median(r)});
+    }
+  }
+  // Per class: ratio = rho + S lobe(alpha), least squares on the bins, alpha the best of the grid.
+  double rho[2] = {0, 0}, gloss[2] = {0, 0}, alpha_of[2] = {0.1, 0.1};
+  for (int c = 2 - classes; c < 2; ++c) {
+    double best_sse = std::numeric_limits<double>::infinity();
+    for (int k = 0; k <= 40; ++k) {
+      const double alpha = 0.02 * std::pow(50.0, k / 40.0);
+      double n = 0, sx = 0, sy = 0, sxx = 0, sxy = 0;
+      for (const auto& b : bins[c]) {
+        const double x = GlossLobe(b[0], 1 / (alpha * alpha));
+        n += 1, sx += x, sy += b[1], sxx += x * x, sxy += x * b[1];
+      }
+      const double det = n * sxx - sx * sx;
+      double s_k = det > 1e-12 * n * n ? (n * sxy - sx * sy) / det : 0;
+      if (s_k < 0) s_k = 0;
+      const double r_k = (sy - s_k * sx) / n;
+      double sse = 0;
+      for (const auto& b : bins[c]) {
+        const double e = b[1] - r_k - s_k * GlossLobe(b[0], 1 / (alpha * alpha));
+        sse += e * e;
+      }
+      if (sse < best_sse) best_sse = sse, rho[c] = r_k, gloss[c] = s_k, alpha_of[c] = alpha;
+    }
+  }
+  // No lobe, or one that lifts the class by less than a grey level where it is measured (the 8-bit
+  // steps of the frames are that large): the class's median.
+  for (int c = 2 - classes; c < 2; ++c) {
+    if (gloss[c] * GlossLobe(t2_min, 1 / (alpha_of[c] * alpha_of[c])) < 1) gloss[c] = 0;
+    if (gloss[c] <= 0) rho[c] = median(ratios[c]);
+  }
+  m.range_per_factor_light = std::max(0.0, rho[1]);
+  m.range_per_factor_dark = board ? std::max(0.0, rho[0]) : m.range_per_factor_light;
+  m.gloss_range_light = gloss[1];
+  m.gloss_range_dark = board ? gloss[0] : gloss[1];
+  m.min_half_angle_deg = std::atan(std::sqrt(t2_min)) * 180 / M_PI;
+  m.max_half_angle_deg = std::atan(std::sqrt(t2_max)) * 180 / M_PI;
+  options.gloss = m.gloss_range_light / 255.0;
+  options.gloss_dark = board ? m.gloss_range_dark / 255.0 : 0;
+  m.gloss_alpha_light = alpha_of[1];
+  m.gloss_alpha_dark = board ? alpha_of[0] : alpha_of[1];
+  m.gloss_seen_light = gloss[1] * GlossLobe(t2_min, 1 / (alpha_of[1] * alpha_of[1]));
+  m.gloss_seen_dark =
+      board ? gloss[0] * GlossLobe(t2_min, 1 / (alpha_of[0] * alpha_of[0])) : m.gloss_seen_light;
+  options.gloss_alpha = m.gloss_alpha_light;
+  options.gloss_alpha_dark = m.gloss_alpha_dark;
   // Albedo in (0, 1]: a class read as black keeps the smallest positive albedo (too dark).
   const auto albedo = [](double range) { return std::clamp(range / 255.0, 1e-6, 1.0); };
   options.exposure_fraction = 1;
@@ -403,6 +486,11 @@ void CoveragePredictionOptions::Check() const {
   SLSHADOW_THROW_IF(!(shadow_threshold >= 0),
                     "coverage prediction: shadow_threshold must be >= 0 (got ", shadow_threshold,
                     ")");
+  SLSHADOW_THROW_IF(
+      !(gloss >= 0 && gloss_dark >= 0 && gloss_alpha > 0 && gloss_alpha_dark > 0),
+      "coverage prediction: gloss and gloss_dark must be >= 0, gloss_alpha and gloss_alpha_dark "
+      "positive (got ",
+      gloss, ", ", gloss_dark, ", ", gloss_alpha, ", ", gloss_alpha_dark, ")");
   SLSHADOW_THROW_IF(samples < 100, "coverage prediction: samples must be at least 100 (got ",
                     samples, ")");
   SLSHADOW_THROW_IF(!(grazing_deg > 0 && grazing_deg <= 90),
@@ -461,6 +549,20 @@ CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig&
     for (size_t i = 0; i < m.samples.size(); ++i) {
       m.light.sample_albedo[i] =
           static_cast<float>(options.albedo_texture.Evaluate(m.samples[i].x(), m.samples[i].y()));
+    }
+  }
+  if (options.gloss > 0 || options.gloss_dark > 0) {
+    const Albedo& t = options.albedo_texture;
+    const bool board = t.kind == Albedo::Kind::kCheckerboard;
+    m.light.sample_gloss.assign(m.samples.size(), static_cast<float>(options.gloss));
+    m.light.sample_gloss_inv_alpha_sq.assign(
+        m.samples.size(), static_cast<float>(1 / (options.gloss_alpha * options.gloss_alpha)));
+    for (size_t i = 0; board && i < m.samples.size(); ++i) {
+      if (t.Evaluate(m.samples[i].x(), m.samples[i].y()) == t.dark && t.dark != t.light) {
+        m.light.sample_gloss[i] = static_cast<float>(options.gloss_dark);
+        m.light.sample_gloss_inv_alpha_sq[i] =
+            static_cast<float>(1 / (options.gloss_alpha_dark * options.gloss_alpha_dark));
+      }
     }
   }
   const double d_ref =

@@ -23,7 +23,11 @@
 // The projector's light: the simulator's radiometric factor (sim/scene.h) gives the lit range a
 // camera records, and the defocus layers the share of the finest fringe's modulation the
 // projector's and the cameras' blur keep: below the decoder's shadow threshold the sample is too
-// dark (or too blurred) to decode.
+// dark (or too blurred) to decode. A printed part (a checkerboard albedo) and a glossy one (a
+// specular lobe about the projector's mirror direction) light up per sample; on a real capture
+// WithCapturedRadiometry measures both from the white and black frames (checked on the kamino
+// board: tests/multiview/kamino_coverage_test.cc,
+// docs/benchmarks/log/2026-12-07-kamino-coverage.md).
 //
 // Frames and units: the part frame (views.h), mm, degrees.
 #pragma once
@@ -80,6 +84,12 @@ struct CoveragePredictionOptions {
   // albedo_texture.Evaluate(x, y) at its part-frame x, y (a planar part in the part frame's z = 0
   // carries the texture as sim/scene.h prints it on a plane) and `albedo` is not used.
   Albedo albedo_texture;
+  // A glossy surface (a printed board's toner, a coat): a specular lobe adds
+  // gloss x exp(-tan^2(theta_h) / gloss_alpha^2) to the albedo (Beckmann's distribution), theta_h
+  // the angle between the normal and the half vector of the directions to the projector and to
+  // the mode's first camera; 0: Lambertian. A checkerboard albedo_texture has one per class:
+  // gloss_dark and gloss_alpha_dark on its dark squares, gloss and gloss_alpha on the light ones.
+  double gloss = 0, gloss_dark = 0, gloss_alpha = 0.1, gloss_alpha_dark = 0.1;
   double exposure_fraction = 0.8;    // Radiometry::exposure_fraction
   double reference_distance_mm = 0;  // d_ref; 0: the rig's working distance
   double shadow_threshold = 12;      // DecodeOptions::shadow_threshold (8-bit grey levels)
@@ -122,8 +132,22 @@ CoveragePredictionOptions WithSceneRadiometry(CoveragePredictionOptions options,
 // exposure_fraction x 255 x albedo; the returned options carry it as exposure_fraction 1 and the
 // class's albedo (capped at 1), with reference_distance_mm set to the d_ref used. Nothing of the
 // decoded result is read: the prediction's rules then decide from this light alone.
+// A glossy print shows as that ratio growing towards the mirror direction: the ratio is fitted per
+// class as range_per_factor + gloss_range x exp(-tan^2(theta_h) / alpha^2) (the lobe above) by
+// least squares on the medians of 20 equal-count bins of tan^2(theta_h), alpha the best of a
+// log-spaced grid (0.02-1) per class; a class whose lobe comes out negative, or lifts it by less
+// than one grey level at the smallest half angle measured (the frames' 8-bit step), keeps its
+// median and no gloss. Where the view is far from the mirror direction the lobe is flat and the
+// fit gives it no weight.
 struct CapturedRadiometry {
   double range_per_factor_dark = 0, range_per_factor_light = 0;  // grey levels (uniform: light)
+  double gloss_range_dark = 0, gloss_range_light = 0;            // grey levels
+  double gloss_alpha_dark = 0, gloss_alpha_light = 0;
+  // The lobe at the smallest half angle measured (grey levels): what the capture shows of it;
+  // gloss_range beyond that angle is an extrapolation (large and uncertain when the view is far
+  // from the mirror direction, where it does not matter).
+  double gloss_seen_dark = 0, gloss_seen_light = 0;
+  double min_half_angle_deg = 0, max_half_angle_deg = 0;  // theta_h over the measured samples
   size_t samples_dark = 0, samples_light = 0;
 };
 // `white`, `black`: the camera's 8-bit frames. Throws slshadow::Error when a class has no sample,
