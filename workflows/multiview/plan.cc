@@ -56,7 +56,7 @@ size_t CountUnion(const std::vector<const Bits*>& sets, size_t words) {
 // Some `m` of `bits` whose union has at least `needed` bits, or empty. Exhaustive over the
 // m-subsets (partial unions kept per depth) when there are at most kExhaustive of them; otherwise
 // a swap search from `start` (m of the candidates): one chosen view exchanged for one other while
-// the union grows.
+// the union grows (at most 500 exchanges).
 std::vector<size_t> CoverWith(const std::vector<Bits>& bits, size_t m, size_t needed,
                               std::vector<size_t> start) {
   constexpr double kExhaustive = 300000;
@@ -102,7 +102,9 @@ std::vector<size_t> CoverWith(const std::vector<Bits>& bits, size_t m, size_t ne
   };
   size_t best = union_of(start);
   bool improved = true;
-  while (best < needed && improved) {
+  // Each round takes the first exchange that grows the union; at most kRounds of them.
+  constexpr int kRounds = 500;
+  for (int round = 0; round < kRounds && best < needed && improved; ++round) {
     improved = false;
     for (size_t i = 0; i < start.size() && !improved; ++i) {
       for (size_t c = 0; c < n && !improved; ++c) {
