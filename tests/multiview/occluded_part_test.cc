@@ -26,6 +26,7 @@
 #include "tests/testing/temp_dir.h"
 #include "workflows/multiview/coverage_prediction.h"
 #include "workflows/multiview/plan.h"
+#include "workflows/multiview/project_merge.h"
 #include "workflows/multiview/turntable_scene.h"
 #include "workflows/multiview/virtual_project.h"
 
@@ -284,15 +285,87 @@ TEST(OccludedPartTest, ManyCandidatesTakeTheSwapSearch) {
     EXPECT_GT(plan.greedy_coverage[k], plan.greedy_coverage[k - 1]);
 }
 
+// What removes a wall a camera sees steeply: at table angle 30 deg the right camera sees the
+// wall at y = +40 (object frame) at ~88 deg, the left camera and the projector at ~75 / ~79 deg.
+// The reconstruction loses it to stereo's code-step gate (max_code_step_px, automatic: its 4 px
+// floor here): the projector column spans 5.4-5.8 px over the 2 x 2 right-camera pixels a
+// rectified cell is interpolated from (2.7 px along the camera's rows, 2.9 px along its columns),
+// while the rectified row steps by 2.6 px only, so the matcher's own row gate alone would keep it.
+// The prediction models that gate, so it calls the wall grazing with the default gate and
+// reconstructed with a gate of 12 px, as the scan of the same images finds it (the other rules,
+// the outlier filter's on the left camera's grid among them, keep the wall in both).
+TEST(OccludedPartTest, TheCodeStepGateDecidesTheWallTheRightCameraSeesSteeply) {
+  const TurntableSetup s = ScaledOcclusionPart(4);
+  const TriangleMesh cad = PartSurface(s.scene);
+  ViewsFile views;
+  ViewSpec view;
+  view.name = "t030";
+  view.table_deg = 30;
+  views.views.push_back(view);
+  const testing::TempDir tmp;
+  SimulateProject(s.scene, s.rig, testing::ScaledDemoPatterns(s.rig), views, tmp / "project");
+  const Rigid3d object_from_rig = Object(s.scene, "part").rig_from_object.Inverse();
+  for (const double gate : {0.0, 12.0}) {
+    ProjectMergeOptions merge;
+    merge.poses = PoseSource::kAxis;
+    merge.mesh = false;
+    merge.cad.samples = kSamples;
+    merge.reconstruct.max_code_step_px = gate;
+    const ProjectMergeResult merged = MergeProject(tmp / "project", &cad, merge);
+    ASSERT_TRUE(merged.cad);
+    CoveragePredictionOptions options = WithSceneRadiometry({}, s.scene);
+    options.samples = kSamples;
+    options.reconstruct.max_code_step_px = gate;
+    const CoveragePrediction predicted =
+        PredictCoverage(cad, s.rig, PosesOfViews(views, s.rig), s.rig.turntable, options);
+    const PredictionCheck check = CheckPrediction(predicted, *merged.cad);
+    size_t wall = 0, scanned = 0, predicted_covered = 0, predicted_grazing = 0, agree = 0;
+    for (size_t i = 0; i < predicted.sample_points.size(); ++i) {
+      const Eigen::Vector3d local = object_from_rig * predicted.sample_points[i];
+      // The tower's side (x -60..-10, z 20..60) 5 mm inside its edges: at this 1/4 rig a right
+      // camera pixel spans ~20 mm of the wall across it, so its bands along the top face and the
+      // slab are covered by the mixed pixels of those faces' edges, whatever the gate.
+      if (std::abs(local.y() - 40) > 1e-3 || local.x() < -55 || local.x() > -15 || local.z() < 25 ||
+          local.z() > 45)
+        continue;
+      ++wall;
+      const bool scan_covered = merged.cad->sample_reason[i] == 0;
+      const bool predicted_reconstructed =
+          predicted.sample_reason[i] == static_cast<uint8_t>(PredictedReason::kReconstructed);
+      scanned += scan_covered;
+      predicted_covered += predicted_reconstructed;
+      predicted_grazing +=
+          predicted.sample_reason[i] == static_cast<uint8_t>(PredictedReason::kGrazing);
+      agree += scan_covered == predicted_reconstructed;
+    }
+    std::cout << "gate " << gate << ": the wall's " << wall << " samples: scanned " << scanned
+              << ", predicted reconstructed " << predicted_covered << ", grazing "
+              << predicted_grazing << ", agree " << agree << "; " << check.Summary();
+    ASSERT_GT(wall, 500u);
+    const double share = 1.0 / static_cast<double>(wall);
+    // Measured: gate 0 (automatic, 4 px here), none of the 680 samples scanned, all predicted
+    // grazing; gate 12, all scanned and predicted reconstructed. Over the whole part (one view,
+    // mostly edges at this resolution): 94.27 % and 96.72 % agree.
+    if (gate == 0) {
+      EXPECT_LT(static_cast<double>(scanned) * share, 0.02);
+      EXPECT_GT(static_cast<double>(predicted_grazing) * share, 0.98);
+    } else {
+      EXPECT_GT(static_cast<double>(scanned) * share, 0.98);
+      EXPECT_GT(static_cast<double>(predicted_covered) * share, 0.98);
+    }
+    EXPECT_GT(static_cast<double>(agree) * share, 0.98);
+    EXPECT_GE(check.agreement, gate == 0 ? 0.935 : 0.96) << check.Summary();
+  }
+}
+
 // The virtual multi-view scan of the 98 % plan, merged at the table's poses and compared with the
-// CAD per sample. The 99 % per-sample agreement is NOT met on this part (measured at this
-// 1/4 rig: 90.43 % of 31969 samples; predicted coverage 76.81 %, scanned 67.31 %): the prediction
-// calls the 60 x 80 mm wall at y = +40 (object frame) reconstructed where the scan loses it
-// (its uncovered samples explained as grazing). Vertical walls are seen at 70 deg or more in this
-// rig, near the reconstruction's outlier-filter limit (~80 deg: docs/benchmarks/log/
-// 2026-12-07-plan.md), and this part is mostly walls. Off that wall 98.2 % agree. What the test
-// holds: those figures (so a better prediction shows), the direction of the disagreement on the
-// wall, and the scan's own reason for the deep hole and the underside: occluded.
+// CAD per sample. Measured at this 1/4 rig: 98.08 % of 31969 samples agree (predicted coverage
+// 77.00 %, scanned 75.27 %); the 99 % is not met. Before the prediction modelled the
+// code-step gate over the rectification's 2 x 2 source pixels (the test above) it agreed on
+// 90.43 %: the plan counted on the right camera's ~88 deg view of the wall at y = +40 (object
+// frame), which the scan loses (2622 samples predicted reconstructed and lost as grazing). What the
+// test holds: those figures, the wall now agreeing like the rest, and the scan's own reason for
+// the deep hole and the underside: occluded.
 TEST(OccludedPartTest, TheVirtualScanOfThePlanConfirmsIt) {
   const TurntableSetup s = ScaledOcclusionPart(4);
   const TriangleMesh cad = PartSurface(s.scene);
@@ -310,11 +383,11 @@ TEST(OccludedPartTest, TheVirtualScanOfThePlanConfirmsIt) {
   const PredictionCheck& check = confirmed.check;
   std::cout << check.Summary();
   EXPECT_GT(check.compared, kSamples / 2);
-  EXPECT_GE(check.agreement, 0.90) << check.Summary();
-  EXPECT_GT(check.predicted_coverage, 0.70) << check.Summary();
-  EXPECT_GT(check.scanned_coverage, 0.62) << check.Summary();
+  EXPECT_GE(check.agreement, 0.975) << check.Summary();
+  EXPECT_GT(check.predicted_coverage, 0.75) << check.Summary();
+  EXPECT_GT(check.scanned_coverage, 0.73) << check.Summary();
   const Rigid3d object_from_rig = Object(s.scene, "part").rig_from_object.Inverse();
-  size_t off_wall = 0, off_wall_agree = 0, wall_disagree = 0, wall_lost = 0;
+  size_t off_wall = 0, off_wall_agree = 0, wall = 0, wall_disagree = 0, wall_lost = 0;
   for (size_t i = 0; i < confirmed.prediction.sample_points.size(); ++i) {
     const uint8_t predicted = confirmed.prediction.sample_reason[i];
     const uint8_t scanned = confirmed.scan.sample_reason[i];
@@ -322,6 +395,7 @@ TEST(OccludedPartTest, TheVirtualScanOfThePlanConfirmsIt) {
     if (predicted == on_table || scanned == on_table) continue;
     const bool agree = (predicted == 0) == (scanned == 0);
     if (std::abs((object_from_rig * confirmed.prediction.sample_points[i]).y() - 40) < 1e-3) {
+      ++wall;
       wall_disagree += !agree;
       wall_lost +=
           !agree && predicted == 0 && scanned == static_cast<uint8_t>(CoverageReason::kGrazing);
@@ -331,11 +405,14 @@ TEST(OccludedPartTest, TheVirtualScanOfThePlanConfirmsIt) {
     }
   }
   std::cout << "off the y = +40 wall: " << off_wall_agree << " of " << off_wall << " agree; on it "
-            << wall_disagree << " disagree, " << wall_lost
+            << wall_disagree << " of " << wall << " disagree, " << wall_lost
             << " predicted reconstructed and lost as grazing\n";
-  EXPECT_GE(static_cast<double>(off_wall_agree) / static_cast<double>(off_wall), 0.98);
-  EXPECT_GT(wall_disagree, (check.compared - check.agree) * 3 / 4);  // most are on the wall
-  EXPECT_GE(wall_lost, wall_disagree * 95 / 100);
+  // Measured: 27444 of 27958 off the wall agree (98.16 %), 38 of 4011 on it disagree, none of them
+  // lost as grazing.
+  EXPECT_GE(static_cast<double>(off_wall_agree) / static_cast<double>(off_wall), 0.975);
+  ASSERT_GT(wall, 3000u);
+  EXPECT_LT(wall_disagree, wall / 50);
+  EXPECT_LT(wall_lost, wall / 100);
   // The scan's own reasons for the surface it missed.
   const std::vector<Feature> feature = Features(s.scene, confirmed.prediction.sample_points);
   size_t hidden = 0, named = 0;

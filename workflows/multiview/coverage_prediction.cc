@@ -44,6 +44,10 @@ struct Light {
   double ref_distance_sq = 0;
   double threshold = 0;
   double max_code_step_px = 0;  // stereo: 0 = no gate
+  // Stereo: the rectified right camera (stereo_matcher.h), where the matcher walks the rows.
+  bool rectified_right = false;
+  Rigid3d rect_right_from_rig;
+  double rect_focal_px = 1, rect_cx_right = 0, rect_cy = 0;
   SceneLayers::Defocus camera_defocus, projector_defocus;
   double fringe_period_px = 16;
   bool code_y = true;
@@ -148,6 +152,31 @@ std::optional<Eigen::Matrix2d> ProjectorSteps(const RigDevice& cam, const RigDev
   return steps;
 }
 
+// The projector column's step from the rectified right camera's cell of `p_rig` (normal `n_rig`,
+// rig frame) to the next cell along its row, the surface as its tangent plane, projector px:
+// what MatchRectifiedMaps compares with the code-step gate. Infinity when the cell or its
+// neighbour misses the plane or the projector.
+double RectifiedRowStep(const Light& light, const RigDevice& projector,
+                        const Eigen::Vector3d& p_rig, const Eigen::Vector3d& n_rig) {
+  constexpr double kInf = std::numeric_limits<double>::infinity();
+  const Eigen::Vector3d in_rect = light.rect_right_from_rig * p_rig;
+  if (in_rect.z() <= 0) return kInf;
+  const Eigen::Vector3d n_rect = light.rect_right_from_rig.rotation * n_rig;
+  const double u = light.rect_focal_px * in_rect.x() / in_rect.z() + light.rect_cx_right;
+  const double v = light.rect_focal_px * in_rect.y() / in_rect.z() + light.rect_cy;
+  const Eigen::Vector3d ray((u + 1 - light.rect_cx_right) / light.rect_focal_px,
+                            (v - light.rect_cy) / light.rect_focal_px, 1.0);
+  const double denom = n_rect.dot(ray);
+  if (std::abs(denom) < 1e-12) return kInf;
+  const double t = n_rect.dot(in_rect) / denom;
+  if (t <= 0) return kInf;
+  const Rigid3d proj_from_rect = projector.cam_from_rig * light.rect_right_from_rig.Inverse();
+  const auto a = projector.model.Project(proj_from_rect * in_rect);
+  const auto b = projector.model.Project(proj_from_rect * (ray * t));
+  if (!a || !b) return kInf;
+  return std::abs(b->x() - a->x());
+}
+
 // The specular lobe at tan^2(theta_h), 1 on the mirror direction.
 // (Beckmann's distribution; GGX's heavier tail fits the kamino board's white frames no better:
 // 0.37 against 0.41 DN RMS on pose 0's dark squares, the same coverage within 0.8 %.)
@@ -215,11 +244,21 @@ std::vector<uint8_t> ViewSight(const internal::SightCaster& caster,
       if (!pixel) continue;
       const auto steps =
           ProjectorSteps(camera, projector, in_cam, camera.cam_from_rig.rotation * n_rig, *pixel);
-      // Stereo's code-step gate: the matcher neither interpolates nor searches across a step of
-      // either projector coordinate larger than max_code_step_px along the row.
-      if (light.max_code_step_px > 0 &&
-          (!steps || steps->col(0).cwiseAbs().maxCoeff() > light.max_code_step_px))
-        r = std::max(r, kGrazing);
+      // Stereo's code-step gate (stereo_matcher.h), in the reconstruction's two places:
+      // RectifyProjectorMap keeps a rectified cell only when the 2 x 2 camera pixels around its
+      // source position span at most max_code_step_px in each coded projector coordinate (on the
+      // tangent plane a coordinate's span over the block is |step along x| + |step along y|), and
+      // MatchRectifiedMaps does not search the right camera's rectified row across a step of the
+      // projector column larger than it.
+      if (light.max_code_step_px > 0) {
+        const int coords = light.code_y ? 2 : 1;
+        if (!steps ||
+            (steps->topRows(coords).cwiseAbs().rowwise().sum().maxCoeff() > light.max_code_step_px))
+          r = std::max(r, kGrazing);
+        if (d == 1 && light.rectified_right &&
+            RectifiedRowStep(light, projector, p_rig, n_rig) > light.max_code_step_px)
+          r = std::max(r, kGrazing);
+      }
       if (light.camera_defocus.enabled && steps) {
         // Projector px per camera px along each coded axis's gradient.
         double gradient = steps->row(0).norm();
@@ -589,6 +628,11 @@ CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig&
     grid.focal_px = rect.focal_px;
     grid.cx = rect.cx[0];
     grid.cy = rect.cy;
+    m.light.rectified_right = true;
+    m.light.rect_right_from_rig = rect.RectCamFromRig(1);
+    m.light.rect_focal_px = rect.focal_px;
+    m.light.rect_cx_right = rect.cx[1];
+    m.light.rect_cy = rect.cy;
   }
   grid.max_depth_jump_footprints = r.filter_depth_discontinuities ? r.max_depth_jump_footprints : 0;
   grid.outliers = r.filter_outliers;

@@ -6,9 +6,11 @@
 // CompareWithCad with the same sample count), the same on-table rule, and per device: outside its
 // image (behind it, beyond its field or outside the image after distortion), hidden (facing away
 // or occluded by the part, Embree shadow rays from the sample towards the device centre), grazing
-// (incidence beyond grazing_deg, or, in stereo, the projector coordinates stepping by more than the
-// matcher's max_code_step_px from one camera pixel to the next along the row: the matcher neither
-// interpolates nor searches across such steps; or a filter of the reconstruction on its reference
+// (incidence beyond grazing_deg, or, in stereo, stereo's code-step gate max_code_step_px where the
+// reconstruction applies it: a camera's 2 x 2 pixels around a rectified cell's source position
+// spanning more than it in a coded projector coordinate, or the right camera's rectified row
+// stepping by more than it in the projector column; at a steep view of a camera this gate, not the
+// incidence, removes the surface; or a filter of the reconstruction on its reference
 // grid rejecting the cell: the depth-discontinuity filter's range step to a neighbour cell, the
 // statistical outlier filter's distance to the nearest cells, both on the surface's tangent plane
 // and in the filters' own footprints and limits). A view reconstructs a sample when every device
@@ -71,9 +73,11 @@ struct CoveragePredictionOptions {
   ReconstructMode mode = ReconstructMode::kStereo;
   size_t samples = 200000;  // CAD surface samples (CadCompareOptions::samples)
   // Incidence to a device beyond which the surface is grazing. The simulator's surfaces are
-  // Lambertian and the decoder has no incidence limit of its own: the light that reaches the
-  // surface at a grazing projector incidence is what limits it (too_dark below), so the default
-  // only rejects the last degree, where a camera pixel's footprint runs along the surface.
+  // Lambertian and the decoder has no incidence limit of its own: at a grazing projector incidence
+  // the light that reaches the surface limits it (too_dark below), at a grazing camera incidence
+  // stereo's code-step gate (reconstruct below: on the occlusion part a wall the right camera sees
+  // at ~88 deg is lost to it, docs/benchmarks/log/2026-12-07-grazing.md). The default only rejects
+  // the last degree, where a camera pixel's footprint runs along the surface.
   double grazing_deg = 89;
   double table_tolerance_mm = 0.5;  // CadCompareOptions::table_tolerance_mm
   // The radiometry of sim/scene.h: the lit range (white - black) a camera records is
@@ -103,9 +107,12 @@ struct CoveragePredictionOptions {
   double fringe_period_px = 16;  // WithPatterns: the phase codecs' finest period, Gray code 4
   bool code_y = true;            // the projector's rows are coded too (PatternSpec::code_y)
   // The reconstruction's gates and filters (ProjectMergeOptions::reconstruct's defaults): stereo's
-  // code-step gate max_code_step_px (a camera whose next pixel along the row sees the projector
-  // coordinates step by more than it on the surface's tangent plane is not matched; 0, the
-  // automatic gate: its 4 px floor), and on the reference grid (the rectified left camera in
+  // code-step gate max_code_step_px (0, the automatic gate: its 4 px floor), on the surface's
+  // tangent plane as stereo_matcher.h applies it: RectifyProjectorMap drops a rectified cell whose
+  // 2 x 2 source pixels span more than the gate in a coded projector coordinate (the span is
+  // |step to the next pixel along the row| + |step along the column|), MatchRectifiedMaps does not
+  // search the right camera's rectified row across a larger step of the projector column; and on
+  // the reference grid (the rectified left camera in
   // stereo, the first camera in projector mode) the depth-discontinuity filter
   // (max_depth_jump_footprints: the range step to a 4-neighbour cell) and the statistical outlier
   // filter (the RMS distance to the outlier_neighbors nearest cells on the tangent plane, against
