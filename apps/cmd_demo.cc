@@ -3,6 +3,9 @@
 #include <cstdio>
 
 #include "apps/commands.h"
+#include "core/error.h"
+#include "core/rig.h"
+#include "sim/scene.h"
 #include "workflows/multiview/multiview_demo.h"
 #include "workflows/pipeline/demo.h"
 
@@ -58,7 +61,9 @@ int RunDemo(int argc, char** argv) {
                  "N > 0: the whole-part loop instead: the demo part on a turntable, N views over a "
                  "full turn scanned, merged (slshadow merge) and compared with its CAD model; "
                  "prints coverage, RMS and the poses' errors (--out, --encoding, --poses, --noise "
-                 "apply)");
+                 "apply; --rig and --scene together replace the demo: a rig with its turntable "
+                 "axis and a scene at table angle 0 with its disc, e.g. "
+                 "config/demo/turntable_rig.yaml and config/demo/occlusion_turntable_scene.yaml)");
   std::string poses = "registered";
   app.add_option("--poses", poses,
                  "with --views: registered (the table poses refined by pairwise ICP and the pose "
@@ -83,11 +88,18 @@ int RunDemo(int argc, char** argv) {
     mv.merge.poses = multiview::PoseSourceFromString(poses);
     mv.sensor_noise = noise;
     mv.merge.mesh = !no_mesh;
+    if (!options.rig_path.empty() || !options.scene_path.empty()) {
+      SLSHADOW_THROW_IF(options.rig_path.empty() || options.scene_path.empty(),
+                        "--views with --rig or --scene: give both (the rig with its turntable "
+                        "axis, the scene at table angle 0 with its table disc)");
+      mv.rig = LoadRig(options.rig_path);
+      mv.scene = LoadScene(options.scene_path);
+    }
     const multiview::MultiviewDemoResult result = multiview::RunMultiviewDemo(mv);
     std::printf(
-        "slshadow demo --views %d: the demo part on a turntable, scanned, merged and "
-        "compared with its CAD model\n\n%s",
-        views, result.Table().c_str());
+        "slshadow demo --views %d: %s on a turntable, scanned, merged and compared with its CAD "
+        "model\n\n%s",
+        views, mv.scene ? mv.scene->name.c_str() : "the demo part", result.Table().c_str());
     return 0;
   }
   options.write_html = !no_html;

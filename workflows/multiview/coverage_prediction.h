@@ -6,9 +6,11 @@
 // CompareWithCad with the same sample count), the same on-table rule, and per device: outside its
 // image (behind it, beyond its field or outside the image after distortion), hidden (facing away
 // or occluded by the part, Embree shadow rays from the sample towards the device centre), grazing
-// (incidence beyond grazing_deg, or, in stereo, the projector coordinates stepping by more than the
-// matcher's max_code_step_px from one camera pixel to the next along the row: the matcher neither
-// interpolates nor searches across such steps; or a filter of the reconstruction on its reference
+// (incidence beyond grazing_deg, or, in stereo, stereo's code-step gate max_code_step_px where the
+// reconstruction applies it: a camera's 2 x 2 pixels around a rectified cell's source position
+// spanning more than it in a coded projector coordinate, or the right camera's rectified row
+// stepping by more than it in the projector column; at a steep view of a camera this gate, not the
+// incidence, removes the surface; or a filter of the reconstruction on its reference
 // grid rejecting the cell: the depth-discontinuity filter's range step to a neighbour cell, the
 // statistical outlier filter's distance to the nearest cells, both on the surface's tangent plane
 // and in the filters' own footprints and limits). A view reconstructs a sample when every device
@@ -23,7 +25,11 @@
 // The projector's light: the simulator's radiometric factor (sim/scene.h) gives the lit range a
 // camera records, and the defocus layers the share of the finest fringe's modulation the
 // projector's and the cameras' blur keep: below the decoder's shadow threshold the sample is too
-// dark (or too blurred) to decode.
+// dark (or too blurred) to decode. A printed part (a checkerboard albedo) and a glossy one (a
+// specular lobe about the projector's mirror direction) light up per sample; on a real capture
+// WithCapturedRadiometry measures both from the white and black frames (checked on the kamino
+// board: tests/multiview/kamino_coverage_test.cc,
+// docs/benchmarks/log/2026-12-07-kamino-coverage.md).
 //
 // Frames and units: the part frame (views.h), mm, degrees.
 #pragma once
@@ -36,6 +42,7 @@
 #include <vector>
 
 #include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
 
 #include "core/mesh.h"
 #include "core/rig.h"
@@ -66,15 +73,27 @@ struct CoveragePredictionOptions {
   ReconstructMode mode = ReconstructMode::kStereo;
   size_t samples = 200000;  // CAD surface samples (CadCompareOptions::samples)
   // Incidence to a device beyond which the surface is grazing. The simulator's surfaces are
-  // Lambertian and the decoder has no incidence limit of its own: the light that reaches the
-  // surface at a grazing projector incidence is what limits it (too_dark below), so the default
-  // only rejects the last degree, where a camera pixel's footprint runs along the surface.
+  // Lambertian and the decoder has no incidence limit of its own: at a grazing projector incidence
+  // the light that reaches the surface limits it (too_dark below), at a grazing camera incidence
+  // stereo's code-step gate (reconstruct below: on the occlusion part a wall the right camera sees
+  // at ~88 deg is lost to it, docs/benchmarks/log/2026-12-07-grazing.md). The default only rejects
+  // the last degree, where a camera pixel's footprint runs along the surface.
   double grazing_deg = 89;
   double table_tolerance_mm = 0.5;  // CadCompareOptions::table_tolerance_mm
   // The radiometry of sim/scene.h: the lit range (white - black) a camera records is
   // exposure_fraction * 255 * albedo * cos_p * (d_ref / d_p)^2 in 8-bit grey levels; below the
   // decoder's shadow_threshold (patterns/codec.h DecodeOptions) the sample is too dark.
-  double albedo = 0.5;               // the part's (FromScene: the darkest part mesh)
+  double albedo = 0.5;  // the part's (FromScene: the darkest part mesh)
+  // A printed part (a calibration board): when textured, the albedo of a sample is
+  // albedo_texture.Evaluate(x, y) at its part-frame x, y (a planar part in the part frame's z = 0
+  // carries the texture as sim/scene.h prints it on a plane) and `albedo` is not used.
+  Albedo albedo_texture;
+  // A glossy surface (a printed board's toner, a coat): a specular lobe adds
+  // gloss x exp(-tan^2(theta_h) / gloss_alpha^2) to the albedo (Beckmann's distribution), theta_h
+  // the angle between the normal and the half vector of the directions to the projector and to
+  // the mode's first camera; 0: Lambertian. A checkerboard albedo_texture has one per class:
+  // gloss_dark and gloss_alpha_dark on its dark squares, gloss and gloss_alpha on the light ones.
+  double gloss = 0, gloss_dark = 0, gloss_alpha = 0.1, gloss_alpha_dark = 0.1;
   double exposure_fraction = 0.8;    // Radiometry::exposure_fraction
   double reference_distance_mm = 0;  // d_ref; 0: the rig's working distance
   double shadow_threshold = 12;      // DecodeOptions::shadow_threshold (8-bit grey levels)
@@ -88,9 +107,12 @@ struct CoveragePredictionOptions {
   double fringe_period_px = 16;  // WithPatterns: the phase codecs' finest period, Gray code 4
   bool code_y = true;            // the projector's rows are coded too (PatternSpec::code_y)
   // The reconstruction's gates and filters (ProjectMergeOptions::reconstruct's defaults): stereo's
-  // code-step gate max_code_step_px (a camera whose next pixel along the row sees the projector
-  // coordinates step by more than it on the surface's tangent plane is not matched; 0, the
-  // automatic gate: its 4 px floor), and on the reference grid (the rectified left camera in
+  // code-step gate max_code_step_px (0, the automatic gate: its 4 px floor), on the surface's
+  // tangent plane as stereo_matcher.h applies it: RectifyProjectorMap drops a rectified cell whose
+  // 2 x 2 source pixels span more than the gate in a coded projector coordinate (the span is
+  // |step to the next pixel along the row| + |step along the column|), MatchRectifiedMaps does not
+  // search the right camera's rectified row across a larger step of the projector column; and on
+  // the reference grid (the rectified left camera in
   // stereo, the first camera in projector mode) the depth-discontinuity filter
   // (max_depth_jump_footprints: the range step to a 4-neighbour cell) and the statistical outlier
   // filter (the RMS distance to the outlier_neighbors nearest cells on the tangent plane, against
@@ -107,6 +129,42 @@ struct CoveragePredictionOptions {
 // its meshes, the part) and its defocus layers in `options`.
 CoveragePredictionOptions WithSceneRadiometry(CoveragePredictionOptions options,
                                               const Scene& scene);
+
+// The radiometry a real capture of the part records, from its all-white and all-black frames
+// (what the decoder's shadow test reads): per albedo class (uniform: one; a checkerboard
+// albedo_texture: its dark and its light squares), the median over the samples of that class at
+// least edge_margin_mm from a square edge, inside the camera's and the projector's images and
+// facing both, of (white - black) at the sample's camera pixel (nearest) divided by the
+// prediction's own geometric factor cos_p * (d_ref / d_p)^2. That median is the class's
+// exposure_fraction x 255 x albedo; the returned options carry it as exposure_fraction 1 and the
+// class's albedo (capped at 1), with reference_distance_mm set to the d_ref used. Nothing of the
+// decoded result is read: the prediction's rules then decide from this light alone.
+// A glossy print shows as that ratio growing towards the mirror direction: the ratio is fitted per
+// class as range_per_factor + gloss_range x exp(-tan^2(theta_h) / alpha^2) (the lobe above) by
+// least squares on the medians of 20 equal-count bins of tan^2(theta_h), alpha the best of a
+// log-spaced grid (0.02-1) per class; a class whose lobe comes out negative, or lifts it by less
+// than one grey level at the smallest half angle measured (the frames' 8-bit step), keeps its
+// median and no gloss. Where the view is far from the mirror direction the lobe is flat and the
+// fit gives it no weight.
+struct CapturedRadiometry {
+  double range_per_factor_dark = 0, range_per_factor_light = 0;  // grey levels (uniform: light)
+  double gloss_range_dark = 0, gloss_range_light = 0;            // grey levels
+  double gloss_alpha_dark = 0, gloss_alpha_light = 0;
+  // The lobe at the smallest half angle measured (grey levels): what the capture shows of it;
+  // gloss_range beyond that angle is an extrapolation (large and uncertain when the view is far
+  // from the mirror direction, where it does not matter).
+  double gloss_seen_dark = 0, gloss_seen_light = 0;
+  double min_half_angle_deg = 0, max_half_angle_deg = 0;  // theta_h over the measured samples
+  size_t samples_dark = 0, samples_light = 0;
+};
+// `white`, `black`: the camera's 8-bit frames. Throws slshadow::Error when a class has no sample,
+// the frames' size differs from the camera's or the rig has no projector.
+CoveragePredictionOptions WithCapturedRadiometry(CoveragePredictionOptions options,
+                                                 const TriangleMesh& part_in_part, const Rig& rig,
+                                                 int camera, const Rigid3d& part_from_rig,
+                                                 const cv::Mat& white, const cv::Mat& black,
+                                                 double edge_margin_mm = 10,
+                                                 CapturedRadiometry* measured = nullptr);
 
 // The finest fringe of `spec` in `options` (fringe_period_px, code_y).
 CoveragePredictionOptions WithPatterns(CoveragePredictionOptions options, const PatternSpec& spec);

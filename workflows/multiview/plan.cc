@@ -1,8 +1,10 @@
 #include "workflows/multiview/plan.h"
 
 #include <algorithm>
+#include <bit>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <map>
 
 #include "core/error.h"
@@ -31,58 +33,192 @@ void PlanOptions::Check() const {
 
 namespace {
 
-// The reachable samples (off the table, reconstructed by some candidate) and the greedy set cover
-// over `seen` (per candidate, 1 where it reconstructs the sample) to options.target of them: fills
-// plan's samples, off_table, reachable, reachable_share, greedy_label, greedy_coverage, reached,
-// target; returns the chosen candidates in pick order.
-std::vector<size_t> GreedyCover(const std::vector<const std::vector<uint8_t>*>& seen,
-                                const std::vector<std::string>& labels,
-                                const std::vector<uint8_t>& on_table, const PlanOptions& options,
-                                const std::string& rig_name, ViewPlan* plan,
-                                std::vector<uint8_t>* reachable) {
+// Samples as bits (one per reachable sample), so that a set of views is covered by OR and popcount.
+using Bits = std::vector<uint64_t>;
+
+Bits ToBits(const std::vector<uint8_t>& seen, const std::vector<size_t>& reachable_index) {
+  Bits b((reachable_index.size() + 63) / 64, 0);
+  for (size_t j = 0; j < reachable_index.size(); ++j)
+    if (seen[reachable_index[j]]) b[j / 64] |= uint64_t{1} << (j % 64);
+  return b;
+}
+
+size_t CountUnion(const std::vector<const Bits*>& sets, size_t words) {
+  size_t n = 0;
+  for (size_t w = 0; w < words; ++w) {
+    uint64_t x = 0;
+    for (const Bits* s : sets) x |= (*s)[w];
+    n += static_cast<size_t>(std::popcount(x));
+  }
+  return n;
+}
+
+// Some `m` of `bits` whose union has at least `needed` bits, or empty. Exhaustive over the
+// m-subsets (partial unions kept per depth) when there are at most kExhaustive of them; otherwise
+// a swap search from `start` (m of the candidates): one chosen view exchanged for one other while
+// the union grows (at most 500 exchanges).
+std::vector<size_t> CoverWith(const std::vector<Bits>& bits, size_t m, size_t needed,
+                              std::vector<size_t> start) {
+  constexpr double kExhaustive = 300000;
+  const size_t n = bits.size(), words = bits.empty() ? 0 : bits[0].size();
+  if (m == 0 || m > n) return {};
+  double subsets = 1;
+  for (size_t k = 0; k < m; ++k) subsets = subsets * static_cast<double>(n - k) / (k + 1);
+  if (subsets <= kExhaustive) {
+    std::vector<size_t> pick(m);
+    std::vector<Bits> partial(m + 1, Bits(words, 0));
+    // Depth-first over increasing indices; partial[d] is the union of the first d picks.
+    std::vector<size_t> next(m + 1, 0);
+    size_t d = 0;
+    next[0] = 0;
+    while (true) {
+      if (d == m) {
+        size_t count = 0;
+        for (uint64_t x : partial[m]) count += static_cast<size_t>(std::popcount(x));
+        if (count >= needed) return pick;
+        --d;
+        continue;
+      }
+      const size_t c = next[d];
+      if (c + (m - d) > n) {  // too few candidates left for this depth
+        if (d == 0) return {};
+        --d;
+        continue;
+      }
+      next[d] = c + 1;
+      pick[d] = c;
+      for (size_t w = 0; w < words; ++w) partial[d + 1][w] = partial[d][w] | bits[c][w];
+      ++d;
+      next[d] = c + 1;
+    }
+  }
+  // Swap search.
+  std::vector<bool> in(n, false);
+  for (size_t c : start) in[c] = true;
+  const auto union_of = [&](const std::vector<size_t>& set) {
+    std::vector<const Bits*> sets;
+    for (size_t c : set) sets.push_back(&bits[c]);
+    return CountUnion(sets, words);
+  };
+  size_t best = union_of(start);
+  bool improved = true;
+  // Each round takes the first exchange that grows the union; at most kRounds of them.
+  constexpr int kRounds = 500;
+  for (int round = 0; round < kRounds && best < needed && improved; ++round) {
+    improved = false;
+    for (size_t i = 0; i < start.size() && !improved; ++i) {
+      for (size_t c = 0; c < n && !improved; ++c) {
+        if (in[c]) continue;
+        std::vector<size_t> trial = start;
+        trial[i] = c;
+        const size_t count = union_of(trial);
+        if (count > best) {
+          in[start[i]] = false;
+          in[c] = true;
+          start = trial;
+          best = count;
+          improved = true;
+        }
+      }
+    }
+  }
+  return best >= needed ? start : std::vector<size_t>{};
+}
+
+// The reachable samples (off the table, reconstructed by some candidate) and a set cover over
+// `seen` (per candidate, 1 where it reconstructs the sample) to options.target of them: greedy
+// (the candidate adding the most uncovered samples, until the target), then as long as one view
+// fewer can reach the target, such a set (CoverWith, seeded by the greedy's first picks). Fills
+// plan's samples, off_table, reachable, reachable_share, target; returns the chosen candidates
+// and, in *bits, every candidate's reachable samples as bits (for Account).
+std::vector<size_t> SetCover(const std::vector<const std::vector<uint8_t>*>& seen,
+                             const std::vector<uint8_t>& on_table, const PlanOptions& options,
+                             const std::string& rig_name, ViewPlan* plan,
+                             std::vector<uint8_t>* reachable, std::vector<Bits>* bits) {
   const size_t ns = on_table.size();
   plan->candidates = seen.size();
   plan->samples = ns;
   plan->target = options.target;
   reachable->assign(ns, 0);
+  std::vector<size_t> reachable_index;
   for (size_t i = 0; i < ns; ++i) {
     if (on_table[i]) continue;
     ++plan->off_table;
     for (const auto* s : seen) {
       if ((*s)[i]) {
         (*reachable)[i] = 1;
-        ++plan->reachable;
+        reachable_index.push_back(i);
         break;
       }
     }
   }
+  plan->reachable = reachable_index.size();
   SLSHADOW_THROW_IF(plan->reachable == 0,
                     "plan: no candidate view reconstructs any of the part (rig '", rig_name, "')");
   plan->reachable_share = Share(plan->reachable, plan->off_table);
-  std::vector<uint8_t> covered(ns, 0);
+  bits->clear();
+  for (const auto* s : seen) bits->push_back(ToBits(*s, reachable_index));
+  const size_t words = (*bits)[0].size();
+  size_t needed = 0;  // the fewest samples whose share reaches the target
+  while (Share(needed, plan->reachable) < options.target) ++needed;
+  Bits covered(words, 0);
   std::vector<bool> used(seen.size(), false);
   std::vector<size_t> chosen;
   size_t n_covered = 0;
-  while (Share(n_covered, plan->reachable) < options.target) {
+  while (n_covered < needed) {
     size_t best = seen.size(), best_gain = 0;
     for (size_t c = 0; c < seen.size(); ++c) {
       if (used[c]) continue;
       size_t gain = 0;
-      const std::vector<uint8_t>& s = *seen[c];
-      for (size_t i = 0; i < ns; ++i) gain += (*reachable)[i] & s[i] & (covered[i] ^ 1);
+      for (size_t w = 0; w < words; ++w)
+        gain += static_cast<size_t>(std::popcount((*bits)[c][w] & ~covered[w]));
       if (gain > best_gain) best = c, best_gain = gain;
     }
     if (best == seen.size()) break;  // nothing more to gain
     used[best] = true;
-    const std::vector<uint8_t>& s = *seen[best];
-    for (size_t i = 0; i < ns; ++i) covered[i] |= (*reachable)[i] & s[i];
+    for (size_t w = 0; w < words; ++w) covered[w] |= (*bits)[best][w];
     n_covered += best_gain;
     chosen.push_back(best);
-    plan->greedy_label.push_back(labels[best]);
+  }
+  if (n_covered < needed) return chosen;
+  while (chosen.size() > 1) {
+    std::vector<size_t> fewer = CoverWith(*bits, chosen.size() - 1, needed,
+                                          std::vector<size_t>(chosen.begin(), chosen.end() - 1));
+    if (fewer.empty()) break;
+    chosen = std::move(fewer);
+  }
+  return chosen;
+}
+
+// The plan's accounting of `chosen` (indices into `bits`): ordered greedily (each next the one
+// adding the most), with its labels, the coverage after 1, 2, ... views and whether it reaches
+// the target. Returns the order.
+std::vector<size_t> Account(const std::vector<Bits>& bits, std::vector<size_t> chosen,
+                            const std::vector<std::string>& labels, ViewPlan* plan) {
+  plan->greedy_label.clear();
+  plan->greedy_coverage.clear();
+  const size_t words = bits.empty() ? 0 : bits[0].size();
+  Bits covered(words, 0);
+  std::vector<size_t> order;
+  size_t n_covered = 0;
+  while (!chosen.empty()) {
+    size_t best = 0, best_gain = 0;
+    for (size_t k = 0; k < chosen.size(); ++k) {
+      size_t gain = 0;
+      for (size_t w = 0; w < words; ++w)
+        gain += static_cast<size_t>(std::popcount(bits[chosen[k]][w] & ~covered[w]));
+      if (k == 0 || gain > best_gain) best = k, best_gain = gain;
+    }
+    const size_t c = chosen[best];
+    chosen.erase(chosen.begin() + static_cast<std::ptrdiff_t>(best));
+    for (size_t w = 0; w < words; ++w) covered[w] |= bits[c][w];
+    n_covered += best_gain;
+    order.push_back(c);
+    plan->greedy_label.push_back(labels[c]);
     plan->greedy_coverage.push_back(Share(n_covered, plan->reachable));
   }
-  plan->reached = Share(n_covered, plan->reachable) >= options.target;
-  return chosen;
+  plan->reached = !plan->greedy_coverage.empty() && plan->greedy_coverage.back() >= plan->target;
+  return order;
 }
 
 std::vector<uint8_t> Reconstructed(std::vector<uint8_t> reasons) {
@@ -125,19 +261,12 @@ ViewPlan PlanTurntableViews(const TriangleMesh& cad_in_part, const Rig& rig,
 
   ViewPlan plan;
   std::vector<uint8_t> reachable;
-  const std::vector<size_t> chosen =
-      GreedyCover(cand_seen, labels, predictor.OnTable(), options, rig.name, &plan, &reachable);
-  for (size_t c : chosen) plan.greedy_deg.push_back(candidates[c]);
-  std::vector<double> sorted = plan.greedy_deg;
-  std::sort(sorted.begin(), sorted.end());
-  for (size_t k = 0; k < sorted.size(); ++k) {
-    ViewSpec v;
-    v.name = DefaultViewName(k);
-    v.table_deg = sorted[k];
-    plan.views.views.push_back(v);
-  }
+  std::vector<Bits> bits;
+  std::vector<size_t> chosen =
+      SetCover(cand_seen, predictor.OnTable(), options, rig.name, &plan, &reachable, &bits);
 
   // The uniform baseline.
+  std::vector<double> uniform_deg;
   for (int n = 1; n <= count; ++n) {
     std::vector<uint8_t> seen(ns, 0);
     for (int k = 0; k < n; ++k) {
@@ -149,8 +278,32 @@ ViewPlan PlanTurntableViews(const TriangleMesh& cad_in_part, const Rig& rig,
     plan.uniform_coverage.push_back(Share(hit, plan.reachable));
     if (plan.uniform_coverage.back() >= options.target) {
       plan.uniform_needed = n;
+      for (int k = 0; k < n; ++k) uniform_deg.push_back(options.start_deg + 360.0 * k / n);
       break;
     }
+  }
+  // Uniform steps off the candidate grid (e.g. 72 deg for 5 views) may reach the target with
+  // fewer views than any cover of the grid found: then they are the plan.
+  if (plan.uniform_needed > 0 && chosen.size() > uniform_deg.size()) {
+    std::vector<size_t> reachable_index;
+    for (size_t i = 0; i < ns; ++i)
+      if (reachable[i]) reachable_index.push_back(i);
+    chosen.clear();
+    for (double a : uniform_deg) {
+      candidates.push_back(a);
+      labels.push_back(StringPrintf("%.2f deg", a));
+      bits.push_back(ToBits(seen_at(a), reachable_index));
+      chosen.push_back(bits.size() - 1);
+    }
+  }
+  for (size_t c : Account(bits, chosen, labels, &plan)) plan.greedy_deg.push_back(candidates[c]);
+  std::vector<double> sorted = plan.greedy_deg;
+  std::sort(sorted.begin(), sorted.end());
+  for (size_t k = 0; k < sorted.size(); ++k) {
+    ViewSpec v;
+    v.name = DefaultViewName(k);
+    v.table_deg = sorted[k];
+    plan.views.views.push_back(v);
   }
   plan.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return plan;
@@ -210,9 +363,10 @@ ViewPlan PlanViews(const TriangleMesh& cad_in_part, const Rig& rig,
   for (const auto& s : seen) cand_seen.push_back(&s);
   ViewPlan plan;
   std::vector<uint8_t> reachable;
+  std::vector<Bits> bits;
   const std::vector<size_t> chosen =
-      GreedyCover(cand_seen, labels, predictor.OnTable(), options, rig.name, &plan, &reachable);
-  for (size_t c : chosen) {
+      SetCover(cand_seen, predictor.OnTable(), options, rig.name, &plan, &reachable, &bits);
+  for (size_t c : Account(bits, chosen, labels, &plan)) {
     ViewSpec v = candidates[c].view;
     v.name = DefaultViewName(plan.views.views.size());
     if (v.table_deg) plan.greedy_deg.push_back(*v.table_deg);

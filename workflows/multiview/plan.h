@@ -3,9 +3,14 @@
 // candidate table angle (a full turn in steps) is predicted (coverage_prediction.h, no images
 // rendered); the part's reachable surface is what at least one candidate reconstructs; a greedy
 // set cover then picks, one at a time, the candidate that reconstructs the most reachable samples
-// not yet covered, until the target share of the reachable surface is covered. Beside it, the
-// uniform baseline: n views evenly spaced over a full turn from the first candidate angle, for
-// n = 1, 2, ... until the target is reached (or n = the number of candidates).
+// not yet covered, until the target share of the reachable surface is covered; then, while some
+// set of one view fewer reaches the target, that set (exhaustive over the subsets of that size when
+// there are at most 300 000 of them, else a swap search from the greedy picks): greedy alone can
+// need a view more than the best cover. Beside it, the uniform baseline: n views evenly spaced over
+// a full turn from the first candidate angle, for n = 1, 2, ... until the target is reached (or
+// n = the number of candidates); a table plan that would need more views than the uniform steps
+// (whose angles may lie off the candidate grid, 72 deg for 5 views) takes the uniform steps.
+// The picks are reported in greedy order (each next the one adding the most).
 //
 // Frames and units: the part frame (views.h), mm, degrees.
 #pragma once
@@ -92,8 +97,8 @@ std::vector<ViewCandidate> PlacementCandidates(const TriangleMesh& cad_in_part, 
                                                const std::vector<double>& tilts_deg,
                                                double step_deg, double start_deg = 0);
 
-// The fewest of `candidates` that reach options.target of the reachable surface (greedy set
-// cover, as PlanTurntableViews; no uniform baseline). `table_axis`: the face on that table is
+// The fewest of `candidates` that reach options.target of the reachable surface (the set cover
+// of PlanTurntableViews; no uniform baseline). `table_axis`: the face on that table is
 // excluded (nullopt for parts placed by hand: nothing excluded). Throws slshadow::Error on no
 // candidates, bad options or nothing reachable.
 ViewPlan PlanViews(const TriangleMesh& cad_in_part, const Rig& rig,
