@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cstdio>
 #include <vector>
 
 #include "core/error.h"
@@ -29,13 +30,20 @@ TEST(MultiviewDemoTest, TwelveViewsCoverTheReachableDemoPart) {
   ASSERT_TRUE(r.merge.cad.has_value());
   const CadComparison& cad = *r.merge.cad;
   EXPECT_GE(cad.coverage_reachable, 0.98) << cad.Summary();
-  // The fused model is closer to the CAD than a single view where the views overlap (its median
-  // |C2M| is lower); its RMS and p95 are not (docs/benchmarks.md): the few outliers of each view
-  // (points off depth edges) are kept apart at full weight while the surface points are fused.
-  std::vector<double> median;
-  for (const CadViewFigures& v : cad.views) median.push_back(v.c2m.median_mm);
+  // The fused model is closer to the CAD than a single view (its median |C2M| is lower). Its RMS
+  // is within the 10 % of a single view's at the demo's full resolution (ratio 0.79,
+  // docs/benchmarks.md), not at this half resolution (0.054 against 0.026 mm on 2026-12-07:
+  // not yet understood), so it is printed, not bounded here.
+  std::vector<double> median, rms;
+  for (const CadViewFigures& v : cad.views) {
+    median.push_back(v.c2m.median_mm);
+    rms.push_back(v.c2m.rms_mm);
+  }
   std::sort(median.begin(), median.end());
+  std::sort(rms.begin(), rms.end());
   EXPECT_LT(cad.merged_c2m.median_mm, median[median.size() / 2]) << cad.Summary();
+  std::printf("merged C2M RMS %.4f mm, single views' median %.4f mm\n", cad.merged_c2m.rms_mm,
+              rms[rms.size() / 2]);
   // The poses registered by MergeViews (pairwise ICP, pose graph) from the table angles: at half
   // the demo rig's resolution within 0.02 deg / 0.025 mm of the truth (the 0.002 deg /
   // 2 um is not reached; full resolution: docs/benchmarks.md).

@@ -108,6 +108,15 @@ void MergeOptions::Check() const {
   nonneg(fuse_cell_mm, "fuse_cell_mm");
   positive(fuse_k_sigma, "fuse_k_sigma");
   nonneg(fuse_min_disagreement_mm, "fuse_min_disagreement_mm");
+  nonneg(fuse_edge_variation, "fuse_edge_variation");
+  SLSHADOW_THROW_IF(!(fuse_min_incidence_cos >= 0 && fuse_min_incidence_cos <= 1),
+                    "merge options: fuse_min_incidence_cos: must be in [0, 1] (got ",
+                    fuse_min_incidence_cos, ")");
+  nonneg(fuse_support_cells, "fuse_support_cells");
+  nonneg(fuse_reject_cells, "fuse_reject_cells");
+  SLSHADOW_THROW_IF(!(fuse_support_min_factor >= 1),
+                    "merge options: fuse_support_min_factor: must be >= 1 (got ",
+                    fuse_support_min_factor, ")");
 }
 
 double RotationErrorDeg(const Rigid3d& a, const Rigid3d& b) {
@@ -186,11 +195,14 @@ std::string MergeResult::FullReport() const {
   s += StringPrintf(
       "joint refinement: %d iterations, last motion %.2g mm\n"
       "pose graph: %d iterations, cost %.6g -> %.6g\n"
-      "model: cell %.4f mm, %zu input points -> %zu merged, %zu flagged where views disagree\n"
+      "model: cell %.4f mm, %zu input points -> %zu merged, %zu flagged where views disagree, "
+      "%zu single-view points superseded by better views, %zu rejected off other views' "
+      "surfaces\n"
       "time: normals %.2f s, pairs %.2f s, graph %.2f s, fusion %.2f s, total %.2f s\n",
       joint_iterations, joint_last_motion_mm, graph_iterations, graph_initial_cost,
-      graph_final_cost, fuse_cell_mm, input_points, merged.size(), disagree_points, time_normals_s,
-      time_pairs_s, time_graph_s, time_fuse_s, time_s);
+      graph_final_cost, fuse_cell_mm, input_points, merged.size(), disagree_points,
+      superseded_points, rejected_points, time_normals_s, time_pairs_s, time_graph_s, time_fuse_s,
+      time_s);
   return s;
 }
 
@@ -638,6 +650,7 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
     f.view = static_cast<int>(i);
     f.points = geo[i].points;
     f.normals = &geo[i].normals;
+    f.variation = &geo[i].variation;
     f.part_from_rig = result.views[i].part_from_rig;
     f.sigma_mm = result.views[i].noise_mm > 0
                      ? result.views[i].noise_mm
@@ -649,8 +662,16 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
         options.fuse_cell_mm > 0
             ? options.fuse_cell_mm
             : std::max(geo[static_cast<size_t>(result.anchor)].area_spacing_mm, 1e-3);
-    internal::FuseViews(fusion, result.fuse_cell_mm, options.fuse_k_sigma,
-                        options.fuse_min_disagreement_mm, &result);
+    internal::FusionOptions fo;
+    fo.cell_mm = result.fuse_cell_mm;
+    fo.k_sigma = options.fuse_k_sigma;
+    fo.min_disagreement_mm = options.fuse_min_disagreement_mm;
+    fo.edge_variation = options.fuse_edge_variation;
+    fo.min_incidence_cos = options.fuse_min_incidence_cos;
+    fo.support_radius_mm = options.fuse_support_cells * result.fuse_cell_mm;
+    fo.reject_radius_mm = options.fuse_reject_cells * result.fuse_cell_mm;
+    fo.support_min_factor = options.fuse_support_min_factor;
+    internal::FuseViews(fusion, fo, &result);
   }
   result.time_fuse_s = Seconds(t0);
   result.time_s = Seconds(t_start);

@@ -41,15 +41,26 @@
 //     correspondences found there) and the graph solved again until no view moves, so a pair
 //     whose ICP stopped off its minimum does not pull the views (Gauss-Newton on the point-to-
 //     plane cost of all pairs at once).
-//  4. Fusion. The accepted views' points, in the part frame, are binned in cubic cells of
-//     fuse_cell_mm; within a cell, points whose normals agree (within 60 deg) form one surface,
-//     and each view's mean height along that surface's normal is compared with the others'. The
-//     largest set of views that agree within max(fuse_min_disagreement_mm,
-//     fuse_k_sigma x sqrt(sigma_a^2 / n_a + sigma_b^2 / n_b)) (sigma: the views' noise along the
-//     normal, n: their point counts in the cell) is fused into one point, the weighted mean
-//     (weights 1 / sigma^2); each other view keeps its own point; all points of such a surface
-//     cell are flagged `disagree`. So the merged cloud has about one point per surface cell
-//     and view group, however many views saw it.
+//  4. Fusion. Each point gets its own noise: the view's (noise_mm) raised at edges (PCA surface
+//     variation above the larger of fuse_edge_variation and 3 x the view's median variation) and
+//     at grazing incidence (fuse_edge_variation, fuse_min_incidence_cos), and weight 1 / noise^2.
+//     The accepted views' points, in the part frame, are binned in cubic cells of fuse_cell_mm;
+//     within a cell, points off edges whose normals agree (within 60 deg) form one surface, edge
+//     points (their normals unreliable) join the surface nearest their normal, and each view's
+//     weighted mean height along that surface's normal is compared with the others'. The largest
+//     set of views that agree within max(fuse_min_disagreement_mm, fuse_k_sigma x
+//     sqrt(sigma_a^2 + sigma_b^2)) (sigma: the noise of each view's weighted mean in the cell) is
+//     fused into one point, the weighted mean; each other view keeps its own point; all points of
+//     such a surface cell are flagged `disagree`. Then each point one view alone gave with a noise
+//     factor of at least fuse_support_min_factor (an edge or grazing point) is checked against
+//     the other views' points around it that are no noisier: on the surface of one within
+//     fuse_support_cells cells (within the combined noise) it is superseded (left out: the
+//     better view measures it); an edge point in front of the surfaces of two or more other
+//     views within fuse_reject_cells cells (in the space they see through) and on none is
+//     rejected (left out: a point off a depth edge); otherwise, off another view's surface, it is
+//     flagged `disagree` and kept apart. So the merged cloud has about one point per surface cell
+//     and view group, however many views saw it, and a view's edge outliers do not outweigh the
+//     fused surface (superseded_points, rejected_points count what was left out).
 //
 // Units: mm, degrees where named. Frames: each view's cloud is in its rig frame (the first
 // camera's frame, camera at the origin, which is also the viewpoint normals are oriented to);
@@ -136,6 +147,20 @@ struct MergeOptions {
   double fuse_cell_mm = 0.0;  // 0: the anchor view's point spacing, sqrt(area per point)
   double fuse_k_sigma = 4.0;  // agreement bound in combined standard deviations
   double fuse_min_disagreement_mm = 0.05;  // agreement bound floor (sampling of curved surfaces)
+  // Each point's noise: the view's x (1 + min(v, 5 v_ref) / v_ref) / sqrt(max(cos i,
+  // fuse_min_incidence_cos)), v its PCA surface variation (edges), v_ref the larger of
+  // fuse_edge_variation and 3 x the view's median variation (what its noise gives a flat
+  // surface), i the angle between its normal and the ray to the camera; it weights the point by
+  // 1 / noise^2. 0: no edge factor (no incidence factor).
+  double fuse_edge_variation = 0.001;
+  double fuse_min_incidence_cos = 0.1;
+  // The check of points one view alone gave with a noise factor of at least
+  // fuse_support_min_factor (step 4): superseded by a no noisier point of another view within
+  // fuse_support_cells cells whose surface it lies on; rejected when in front of the surfaces of
+  // two or more other views within fuse_reject_cells cells. 0: no such check.
+  double fuse_support_cells = 2.0;
+  double fuse_reject_cells = 4.0;
+  double fuse_support_min_factor = 2.0;
 
   // Throws slshadow::Error naming the field and its value when one is out of range.
   void Check() const;
@@ -214,6 +239,8 @@ struct MergeResult {
   double fuse_cell_mm = 0;            // the cell size used
   size_t input_points = 0;            // points of the accepted views
   size_t disagree_points = 0;
+  size_t superseded_points = 0;  // one view's noisy points other views measure better (step 4)
+  size_t rejected_points = 0;    // one view's points off two or more other views' surfaces
   double time_normals_s = 0, time_pairs_s = 0, time_graph_s = 0, time_fuse_s = 0, time_s = 0;
 
   int NumAccepted() const;

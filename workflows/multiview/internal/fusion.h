@@ -1,6 +1,8 @@
 // Fusion of registered views into one cloud (workflows/multiview/merge.h, step 4): cubic cells in
-// the part frame, surfaces within a cell split by normal, views' heights along the normal compared
-// within their noise. Internal to workflows/multiview/.
+// the part frame, surfaces within a cell split by normal, each point weighted by its own noise
+// (the view's, raised at edges and grazing incidence), views' heights along the normal compared
+// within their noise; then each point one view alone gave checked against the other views'
+// points around it. Internal to workflows/multiview/.
 #pragma once
 
 #include <vector>
@@ -14,15 +16,35 @@ namespace slshadow::multiview::internal {
 
 struct FusionView {
   int view = 0;                                           // index reported in point_view
-  const std::vector<Eigen::Vector3d>* points = nullptr;   // rig frame
+  const std::vector<Eigen::Vector3d>* points = nullptr;   // rig frame (camera at the origin)
   const std::vector<Eigen::Vector3d>* normals = nullptr;  // rig frame, unit
+  // PCA surface variation per point (lambda_min / sum, internal/pairwise.h); null: all flat.
+  const std::vector<float>* variation = nullptr;
   Rigid3d part_from_rig;
-  double sigma_mm = 0;  // noise along the normal, > 0
+  double sigma_mm = 0;  // noise along the normal of a flat point seen head-on, > 0
+};
+
+struct FusionOptions {
+  double cell_mm = 0;  // > 0
+  double k_sigma = 4;
+  double min_disagreement_mm = 0.05;
+  // A point's noise: sigma_mm x (1 + min(v, 5 v_ref) / v_ref) / sqrt(max(cos i,
+  // min_incidence_cos)), v its surface variation, v_ref the larger of edge_variation and 3 x the
+  // view's median variation (its noise's share on flat surfaces), i the angle between its normal
+  // and the ray to the camera. A point with v > v_ref is an edge point. <= 0: no edge factor.
+  double edge_variation = 0.001;
+  double min_incidence_cos = 0.1;
+  // Radius of the check of single-view points against the other views (0: no check).
+  double support_radius_mm = 0;
+  double reject_radius_mm = 0;  // of the other views' points that can contradict one
+  // Single-view points whose noise factor (above) is at least this are checked.
+  double support_min_factor = 2.0;
 };
 
 // Fills result->merged (points, normals, scalar fields), point_view, point_views,
-// point_sigma_mm, disagree, input_points, disagree_points. Deterministic.
-void FuseViews(const std::vector<FusionView>& views, double cell_mm, double k_sigma,
-               double min_disagreement_mm, MergeResult* result);
+// point_sigma_mm, disagree, input_points, disagree_points, superseded_points, rejected_points.
+// Deterministic.
+void FuseViews(const std::vector<FusionView>& views, const FusionOptions& options,
+               MergeResult* result);
 
 }  // namespace slshadow::multiview::internal
