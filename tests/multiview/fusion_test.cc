@@ -12,7 +12,7 @@
 #include <gtest/gtest.h>
 
 #include "compare/distances.h"
-#include "compare/kdtree.h"
+#include "core/kdtree.h"
 #include "tests/multiview/synthetic_views.h"
 #include "workflows/multiview/internal/pairwise.h"
 
@@ -138,10 +138,10 @@ TEST(Fusion, FusedWithinTheNoiseOutliersRejectedDisagreementKeptApart) {
   EXPECT_EQ(off, 0u);
   // None of them is in the model: rejected (in front of other views' surfaces) or superseded
   // (within the stated noise of an edge point: 0.5 mm is inside 4 of its sigmas there).
-  const compare::KdTree tree(r.merged.points);
+  const KdTree tree(r.merged.points);
   size_t kept = 0;
   for (const auto& p : f.outliers_in_part) {
-    compare::Neighbor nb;
+    Neighbor nb;
     kept += tree.Nearest(p, &nb, 0.1) ? 1 : 0;
   }
   EXPECT_EQ(kept, 0u);
@@ -182,10 +182,10 @@ TEST(Fusion, WithoutTheCheckTheOutliersStay) {
   size_t off = 0;
   for (double v : d) off += std::abs(v) > 0.3 ? 1 : 0;
   EXPECT_GE(off, 10u);
-  const compare::KdTree tree(r.merged.points);
+  const KdTree tree(r.merged.points);
   size_t kept = 0;
   for (const auto& p : f.outliers_in_part) {
-    compare::Neighbor nb;
+    Neighbor nb;
     kept += tree.Nearest(p, &nb, 0.1) ? 1 : 0;
   }
   EXPECT_GE(kept, 10u);  // measured 17 of 40 (the others averaged with their own neighbours)

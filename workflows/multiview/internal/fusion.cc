@@ -9,7 +9,7 @@
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_sort.h>
 
-#include "compare/kdtree.h"
+#include "core/kdtree.h"
 
 namespace slshadow::multiview::internal {
 namespace {
@@ -270,11 +270,11 @@ void FuseViews(const std::vector<FusionView>& views, const FusionOptions& o, Mer
   if (o.support_radius_mm > 0 && !out.empty()) {
     std::vector<Eigen::Vector3d> positions(out.size());
     for (size_t i = 0; i < out.size(); ++i) positions[i] = out[i].position;
-    const compare::KdTree tree(positions);
+    const KdTree tree(positions);
     tbb::parallel_for(
         tbb::blocked_range<size_t>(0, out.size(), 2048),
         [&](const tbb::blocked_range<size_t>& range) {
-          std::vector<compare::Neighbor> nn;
+          std::vector<Neighbor> nn;
           for (size_t i = range.begin(); i != range.end(); ++i) {
             const OutPoint& p = out[i];
             if (p.views != 1 || p.disagree || p.factor < o.support_min_factor) continue;
