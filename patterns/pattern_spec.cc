@@ -8,6 +8,7 @@
 #include "core/enum_names.h"
 #include "core/error.h"
 #include "core/rig.h"
+#include "patterns/simulator_projector.h"
 
 namespace slshadow {
 namespace {
@@ -424,6 +425,12 @@ nlohmann::json PatternSpecToJson(const PatternSpec& spec) {
 
 PatternSpec LoadPatternSpec(const std::filesystem::path& yaml_or_json) {
   return PatternSpecFromConfig(ConfigNode::LoadFile(yaml_or_json));
+}
+
+void CheckSimulatorProjector(const Rig& rig, const PatternSpec& spec, const std::string& spec_what,
+                             const std::string& rig_what) {
+  SLSHADOW_THROW_IF(!rig.projector, rig_what, ": rig has no projector: the simulator needs one");
+  CheckProjectorSize(rig, spec, spec_what, rig_what);
 }
 
 void CheckProjectorSize(const Rig& rig, const PatternSpec& spec, const std::string& spec_what,

@@ -7,6 +7,7 @@
 #include "core/provenance.h"
 #include "patterns/codec.h"
 #include "patterns/pattern_spec.h"
+#include "patterns/simulator_projector.h"
 #include "python/bindings.h"
 #include "python/convert.h"
 #include "sim/simulate.h"
@@ -279,9 +280,7 @@ void BindPatternsAndSim(py::module_& m) {
         scan->rig = rig;
         scan->spec = PatternSpecFromObject(patterns, "patterns");
         scan->scene = scene;
-        SLSHADOW_THROW_IF(!rig.projector, "rig '", rig.name,
-                          "': rig has no projector: the simulator needs one");
-        CheckProjectorSize(rig, scan->spec, "patterns", "rig '" + rig.name + "'");
+        CheckSimulatorProjector(rig, scan->spec, "patterns", "rig '" + rig.name + "'");
         const TraceMode mode = TraceModeFromString(trace_mode);
         const ProgressCallback report(std::move(progress));
         {

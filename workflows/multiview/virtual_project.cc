@@ -9,6 +9,7 @@
 #include "core/provenance.h"
 #include "core/string_printf.h"
 #include "patterns/codec.h"
+#include "patterns/simulator_projector.h"
 #include "sim/simulate.h"
 #include "workflows/multiview/turntable_scene.h"
 #include "workflows/pipeline/scan_pipeline.h"
@@ -90,9 +91,8 @@ VirtualProjectSummary SimulateProject(const Scene& scene, const Rig& rig, const 
   rig.Check("rig '" + rig.name + "'");
   const std::string rig_what =
       options.rig_what.empty() ? "rig '" + rig.name + "'" : options.rig_what;
-  SLSHADOW_THROW_IF(!rig.projector, rig_what, ": rig has no projector: the simulator needs one");
-  CheckProjectorSize(rig, spec, options.spec_what.empty() ? "pattern spec" : options.spec_what,
-                     rig_what);
+  CheckSimulatorProjector(rig, spec, options.spec_what.empty() ? "pattern spec" : options.spec_what,
+                          rig_what);
   for (const ViewSpec& v : views.views) VirtualViewPose(v, rig);  // every view has a pose
 
   const nlohmann::json patterns = PatternSpecToJson(spec);

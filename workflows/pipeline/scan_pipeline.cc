@@ -11,6 +11,7 @@
 #include "core/config.h"
 #include "core/error.h"
 #include "core/statistics.h"
+#include "patterns/simulator_projector.h"
 #include "workflows/pipeline/demo_config.h"  // generated: the embedded config/demo files
 #include "workflows/pipeline/significance.h"
 
@@ -97,8 +98,7 @@ ScanSettings ScanSettingsFromProvenance(const ScanProvenance& provenance, const 
 SimulateSummary SimulateFromSpec(const Scene& scene, const Rig& rig, const PatternSpec& spec,
                                  const std::string& spec_what, const std::string& rig_what,
                                  const fs::path& out_dir, const SimulateOptions& options) {
-  SLSHADOW_THROW_IF(!rig.projector, rig_what, ": rig has no projector: the simulator needs one");
-  CheckProjectorSize(rig, spec, spec_what, rig_what);
+  CheckSimulatorProjector(rig, spec, spec_what, rig_what);
   return SimulateScan(scene, rig, GeneratePatterns(spec), PatternSpecToJson(spec), out_dir,
                       options);
 }

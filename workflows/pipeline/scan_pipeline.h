@@ -78,7 +78,7 @@ ScanSettings ScanSettingsFromProvenance(const ScanProvenance& provenance, const 
 
 // What `slshadow simulate` runs: the spec's projector images rendered by SimulateScan into the
 // ImageSet at `out_dir`, after checking that the rig has a projector of the spec's size
-// (CheckProjectorSize; `spec_what` and `rig_what` name the files in the message).
+// (CheckSimulatorProjector; `spec_what` and `rig_what` name the files in the message).
 SimulateSummary SimulateFromSpec(const Scene& scene, const Rig& rig, const PatternSpec& spec,
                                  const std::string& spec_what, const std::string& rig_what,
                                  const std::filesystem::path& out_dir,
