@@ -15,7 +15,7 @@ set(allowed_compare "core;plot;compare")
 set(allowed_report "core;plot;report")
 # workflows/<name>/, in this order: each may use every module above and the workflows before it.
 set(libraries "core;plot;patterns;reconstruct;sim;capture;calib;compare;report")
-set(workflows workflows/pipeline workflows/twin workflows/studies workflows/multiview)
+set(workflows workflows/pipeline workflows/twin workflows/multiview workflows/studies)
 set(before "${libraries}")
 foreach(workflow IN LISTS workflows)
   string(MAKE_C_IDENTIFIER "${workflow}" key)

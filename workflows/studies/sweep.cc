@@ -12,12 +12,14 @@
 #include "reconstruct/reconstruct.h"
 #include "sim/scene.h"
 #include "sim/simulate.h"
+#include "workflows/multiview/turntable_scene.h"
 #include "workflows/pipeline/scan_pipeline.h"
 #include "workflows/studies/internal/sweep_files.h"
 #include "workflows/studies/internal/sweep_job.h"
 #include "workflows/studies/montecarlo.h"
 #include "workflows/studies/sweep_reuse.h"
 #include "workflows/studies/vdi2634.h"
+#include "workflows/studies/whole_part.h"
 
 #include <tbb/parallel_for.h>
 
@@ -83,8 +85,8 @@ namespace {
 constexpr const char* kStudyFormat = "slshadow-study";
 constexpr const char* kJobFormat = "slshadow-sweep-job";
 // The top-level keys of a job an axis or a `set` entry may write into.
-const std::vector<std::string> kSettable = {"scene",  "rig",         "patterns",
-                                            "decode", "reconstruct", "compare"};
+const std::vector<std::string> kSettable = {"scene",       "rig",     "patterns",  "decode",
+                                            "reconstruct", "compare", "whole_part"};
 
 fs::path JobFile(const fs::path& dir, int id) { return dir / "jobs" / (JobName(id) + ".json"); }
 
@@ -100,7 +102,8 @@ json::json_pointer SetPath(const std::string& path, const ConfigNode& node) {
     if (part.empty()) node.Fail("path '" + path + "' has an empty component");
     if (start == 0 && std::find(kSettable.begin(), kSettable.end(), part) == kSettable.end()) {
       node.Fail("path '" + path +
-                "' must start with one of scene, rig, patterns, decode, reconstruct, compare");
+                "' must start with one of scene, rig, patterns, decode, reconstruct, compare, "
+                "whole_part");
     }
     pointer += '/';
     pointer += part;
@@ -222,11 +225,20 @@ void AddOneLayerOffValues(const ConfigNode& effects, Axis* axis) {
 void CheckJob(const json& job, const std::string& what, std::set<std::string>* seen_scenes) {
   const auto node = [&](const char* key) { return ConfigNode::FromJson(job.at(key), what, key); };
   const std::string scene_key = job.at("scene").dump() + job.at("scene_base_dir").dump();
-  if (seen_scenes->insert(scene_key).second) {
-    SceneFromConfig(node("scene"), job.at("scene_base_dir").get<std::string>())
-        .Check(what + ": scene");
-  }
   const Rig rig = RigFromConfig(node("rig"));
+  if (seen_scenes->insert(scene_key).second) {
+    const Scene scene = SceneFromConfig(node("scene"), job.at("scene_base_dir").get<std::string>());
+    scene.Check(what + ": scene");
+    if (job.contains("whole_part")) {
+      // The part on the turntable: its object and the objects removed must be in the scene.
+      const WholePartOptions w = WholePartOptionsFromConfig(node("whole_part"));
+      try {
+        multiview::MakeTurntableSetup(rig, scene, w.part_object, w.remove_objects);
+      } catch (const Error& e) {
+        SLSHADOW_THROW(what, ": whole_part: ", e.what());
+      }
+    }
+  }
   PatternSpecFromConfig(node("patterns")).Check();
   DecodeOptionsFromConfig(node("decode"));
   ReconstructOptionsFromConfig(node("reconstruct"));
@@ -253,7 +265,7 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
   const fs::path study_dir = fs::absolute(study_file).parent_path();
   study.RejectUnknownKeys({"format", "version", "name", "description", "scene", "rig", "patterns",
                            "modes", "decode", "reconstruct", "compare", "set", "axes", "curves",
-                           "effects", "pareto", "vdi2634", "monte_carlo"});
+                           "effects", "pareto", "vdi2634", "monte_carlo", "whole_part"});
   if (study["format"].AsString() != kStudyFormat)
     study["format"].Fail(std::string("must be ") + kStudyFormat);
   if (study["version"].AsInt() != kVersion) study["version"].Fail("must be 1");
@@ -295,6 +307,16 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
   base["compare"] = compare::CompareOptionsToJson(
       study.Has("compare") ? compare::CompareOptionsFromConfig(study["compare"])
                            : compare::CompareOptions{});
+  // Whole parts (workflows/studies/whole_part.h): every field, defaults included.
+  if (study.Has("whole_part")) {
+    base["whole_part"] = WholePartOptionsFromConfig(study["whole_part"]).ToJson();
+    for (const char* other : {"vdi2634", "monte_carlo", "curves", "effects", "pareto"}) {
+      if (study.Has(other)) {
+        study[other].Fail(std::string("a whole_part study has no ") + other +
+                          " (its merge writes the fronts of scan time against coverage and RMS)");
+      }
+    }
+  }
   std::vector<std::pair<json::json_pointer, json>> set_entries;
   if (study.Has("set")) {
     const ConfigNode set = study["set"];
@@ -510,6 +532,15 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
     job["patterns"] = PatternSpecToJson(PatternSpecFromConfig(ConfigNode::FromJson(
         job["patterns"], study_file.string() + " (job " + JobName(static_cast<int>(k)) + ")",
         "patterns")));
+    if (job.contains("whole_part")) {
+      // An axis or `set` wrote into it: checked, every field again.
+      job["whole_part"] =
+          WholePartOptionsFromConfig(ConfigNode::FromJson(job["whole_part"],
+                                                          study_file.string() + " (job " +
+                                                              JobName(static_cast<int>(k)) + ")",
+                                                          "whole_part"))
+              .ToJson();
+    }
     CheckJob(job, study_file.string() + " (job " + JobName(static_cast<int>(k)) + ")",
              &seen_scenes);
     groups.insert(GeometryKey(job));
@@ -535,6 +566,7 @@ SweepPlanSummary PlanSweep(const fs::path& study_file, const fs::path& jobs_dir)
                {"geometry_groups", summary.geometry_groups}};
   if (!vdi2634_plan.is_null()) plan["vdi2634"] = vdi2634_plan;
   if (!monte_carlo_plan.is_null()) plan["monte_carlo"] = monte_carlo_plan;
+  if (!jobs.empty() && jobs.front().contains("whole_part")) plan["whole_part"] = true;
   WriteTextFileAtomically(staging / "plan.json", plan.dump(2) + "\n");
   staged.Commit(/*overwrite=*/false);
   return summary;
@@ -584,10 +616,21 @@ std::string SweepMergeSummary::FullReport() const {
     text += heading;
     for (const std::string& line : lines) text += "  " + line + "\n";
   };
-  section(StringPrintf("Pareto front of decode + reconstruct time against RMS (%s/pareto.csv, "
-                       "time_vs_rms.png/.svg):\n",
-                       out.c_str()),
-          front);
+  if (whole_part) {
+    section(StringPrintf("Pareto front of scan time against coverage (%s/pareto.csv, "
+                         "time_vs_coverage.png/.svg):\n",
+                         out.c_str()),
+            coverage_front);
+    section(StringPrintf("Pareto front of scan time against merged RMS (%s/pareto.csv, "
+                         "time_vs_rms.png/.svg):\n",
+                         out.c_str()),
+            front);
+  } else {
+    section(StringPrintf("Pareto front of decode + reconstruct time against RMS (%s/pareto.csv, "
+                         "time_vs_rms.png/.svg):\n",
+                         out.c_str()),
+            front);
+  }
   if (!break_points.empty()) {
     section(StringPrintf("Break points (%s/break_points.csv, curves_*.png):\n", out.c_str()),
             break_points);

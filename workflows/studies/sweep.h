@@ -86,6 +86,10 @@ struct SweepMergeSummary {
   int jobs = 0;
   int rows = 0;                    // results.csv rows (one per job and mode)
   std::vector<std::string> front;  // "mode: id (axis values)" of the jobs on the Pareto front
+  // A whole-part study (study key `whole_part`, workflows/studies/whole_part.h): `front` is that of
+  // scan time against merged RMS, `coverage_front` that of scan time against coverage.
+  bool whole_part = false;
+  std::vector<std::string> coverage_front;
   // With the study key `curves`: "series, mode: metric > limit at x = value" per curve and limit.
   std::vector<std::string> break_points;
   // With the study key `effects`: "series, mode: value needed / not needed at T mm (off in the full

@@ -14,6 +14,7 @@
 #include "workflows/studies/internal/sweep_files.h"
 #include "workflows/studies/montecarlo.h"
 #include "workflows/studies/sweep_reuse.h"
+#include "workflows/studies/whole_part.h"
 
 #include <tbb/parallel_for.h>
 
@@ -62,6 +63,12 @@ SweepJobRunner::SweepJobRunner() = default;
 SweepJobRunner::~SweepJobRunner() = default;
 
 json SweepJobRunner::Run(const json& job, const fs::path& file, int group_jobs_left) {
+  // A whole-part job: a multi-view project rendered, merged and compared (whole_part.h); it
+  // shares nothing with the jobs before it.
+  if (job.contains("whole_part")) {
+    group_.reset();
+    return RunWholePartJob(job, file);
+  }
   std::unique_ptr<Group>& group = group_;
   const std::string what = file.string();
   const auto node = [&](const char* key) { return ConfigNode::FromJson(job.at(key), what, key); };

@@ -7,9 +7,11 @@
 #include "plot/plot.h"
 #include "workflows/pipeline/significance.h"
 #include "workflows/studies/internal/sweep_files.h"
+#include "workflows/studies/internal/sweep_pareto.h"
 #include "workflows/studies/montecarlo.h"
 #include "workflows/studies/sweep.h"
 #include "workflows/studies/vdi2634.h"
+#include "workflows/studies/whole_part.h"
 
 #include <algorithm>
 #include <array>
@@ -29,233 +31,6 @@ using namespace internal;  // NOLINT: the jobs folder's formats,
                            // workflows/studies/internal/sweep_files.h
 
 namespace {
-
-// Floats with `digits` significant digits (17: exact round trip).
-std::string CsvField(const json& v, int digits = 10) {
-  std::string s;
-  if (v.is_string()) {
-    s = v.get<std::string>();
-  } else if (v.is_null()) {
-    s = "";  // a figure a job could not have (e.g. the error of an empty cloud)
-  } else if (v.is_number_float()) {
-    char buf[64];
-    std::snprintf(buf, sizeof(buf), "%.*g", digits, v.get<double>());
-    s = buf;
-  } else {
-    s = v.dump();
-  }
-  if (s.find_first_of(",\"\n") != std::string::npos) {
-    std::string q = "\"";
-    for (char c : s) q += (c == '"') ? std::string("\"\"") : std::string(1, c);
-    q += '"';
-    return q;
-  }
-  return s;
-}
-
-// Per group (the mode, or the mode and a value of the study's `pareto.by` axis): a job is on the
-// Pareto front of (method time, RMS) when no other job of that group is at least as fast and as
-// accurate and better in one of the two.
-struct FrontPoint {
-  std::string id, mode, group, label;
-  std::string described;  // the axes as name=value
-  std::string key;        // on the front: its group's letter and rank by time ("P1"), else empty
-  double time_s = 0, rms_mm = 0;
-  bool on_front = false;
-};
-
-void MarkFront(std::vector<FrontPoint>& points) {
-  for (auto& p : points) {
-    p.on_front = true;
-    for (const auto& q : points) {
-      if (q.group != p.group || &q == &p) continue;
-      if (q.time_s <= p.time_s && q.rms_mm <= p.rms_mm &&
-          (q.time_s < p.time_s || q.rms_mm < p.rms_mm)) {
-        p.on_front = false;
-        break;
-      }
-    }
-  }
-}
-
-// The groups in order of appearance.
-std::vector<std::string> FrontGroups(const std::vector<FrontPoint>& points) {
-  std::vector<std::string> groups;
-  for (const auto& p : points) {
-    if (std::find(groups.begin(), groups.end(), p.group) == groups.end()) groups.push_back(p.group);
-  }
-  return groups;
-}
-
-// The indices of the front's points in key order: by group (in order of appearance), then by
-// time, fastest first.
-std::vector<size_t> FrontInKeyOrder(const std::vector<FrontPoint>& points) {
-  std::vector<size_t> front;
-  for (const std::string& g : FrontGroups(points)) {
-    const size_t first = front.size();
-    for (size_t i = 0; i < points.size(); ++i) {
-      if (points[i].group == g && points[i].on_front) front.push_back(i);
-    }
-    std::stable_sort(front.begin() + static_cast<std::ptrdiff_t>(first), front.end(),
-                     [&](size_t a, size_t b) { return points[a].time_s < points[b].time_s; });
-  }
-  return front;
-}
-
-// Keys of the front's points: per group a letter (the mode's initial, "P" and "S", when the groups
-// are the modes and their initials differ; else A, B, ...), then the rank by time, fastest 1.
-void KeyFront(std::vector<FrontPoint>& points) {
-  const std::vector<std::string> groups = FrontGroups(points);
-  std::vector<std::string> letters;
-  for (size_t g = 0; g < groups.size(); ++g)
-    letters.push_back(std::string(1, static_cast<char>('A' + g % 26)));
-  bool initials = true;
-  std::string seen;
-  for (const auto& p : points) initials = initials && p.group == p.mode && !p.mode.empty();
-  for (const auto& g : groups) {
-    const char c =
-        static_cast<char>(std::toupper(static_cast<unsigned char>(g.empty() ? '?' : g[0])));
-    initials = initials && seen.find(c) == std::string::npos;
-    seen += c;
-  }
-  if (initials) {
-    for (size_t g = 0; g < groups.size(); ++g) letters[g] = std::string(1, seen[g]);
-  }
-  size_t rank = 0;
-  const FrontPoint* previous = nullptr;
-  for (const size_t i : FrontInKeyOrder(points)) {
-    FrontPoint* p = &points[i];
-    rank = previous && previous->group == p->group ? rank + 1 : 1;
-    const size_t g =
-        static_cast<size_t>(std::find(groups.begin(), groups.end(), p->group) - groups.begin());
-    p->key = letters[g] + std::to_string(rank);
-    previous = p;
-  }
-}
-
-constexpr std::initializer_list<std::array<int, 3>> kFrontPalette = {
-    {40, 90, 200},   {200, 60, 0},  {30, 150, 60}, {150, 40, 160},
-    {120, 120, 120}, {220, 160, 0}, {0, 170, 190}, {120, 60, 20}};
-
-// The chart as `path`.png and `path`.svg (the same drawing), each written atomically: every job
-// of every group, the front's points filled, joined and marked with their keys, and below the
-// chart one line per key: its time, RMS and combination.
-void WriteFrontChart(const fs::path& path, const std::vector<FrontPoint>& points,
-                     const std::string& study, bool cpu_time) {
-  double xmax = 0, ymax = 0;
-  for (const auto& p : points) {
-    xmax = std::max(xmax, p.time_s);
-    ymax = std::max(ymax, p.rms_mm);
-  }
-  const std::vector<std::string> groups = FrontGroups(points);
-  std::vector<const FrontPoint*> keyed;  // in key order
-  for (const size_t i : FrontInKeyOrder(points)) keyed.push_back(&points[i]);
-  // 700 px for the chart, 20 px per key line below it.
-  constexpr double kChart = 700, kLine = 20;
-  const double height = kChart + kLine * static_cast<double>(keyed.size() + 1);
-  const double bottom = (kChart * 0.12 + kLine * static_cast<double>(keyed.size() + 1)) / height;
-  const double top = 1 - kChart * 0.1 / height;
-  const auto lock = plot::LockPlplot();
-  for (const char* ext : {".png", ".svg"}) {
-    fs::path file = path;
-    file += ext;
-    WriteFileAtomically(file, [&](const fs::path& tmp) {
-      const int h = static_cast<int>(height);
-      auto pls = std::string(ext) == ".png" ? plot::OpenPng(tmp, 1000, h, kFrontPalette)
-                                            : plot::OpenSvg(tmp, 1000, h, kFrontPalette);
-      pls->adv(0);
-      pls->vpor(0.12, 0.95, bottom, top);
-      pls->wind(0, xmax * 1.1 + 1e-9, 0,
-                ymax * (1.15 + 0.07 * static_cast<double>(groups.size() > 2 ? groups.size() : 0)) +
-                    1e-12);
-      pls->col0(1);
-      pls->box("bcnst", 0, 0, "bcnstv", 0, 0);
-      pls->lab(cpu_time ? "decode (cameras the mode reads) + reconstruct, CPU s (all threads)"
-                        : "decode (cameras the mode reads) + reconstruct time (s)",
-               "RMS deviation (mm)", "");
-      // The title, smaller when long: about 64 characters fit the page at full size.
-      const std::string title =
-          study + ": time against error, Pareto front per " +
-          (points.empty() || points[0].group == points[0].mode ? "mode" : "group");
-      pls->schr(0, std::min(1.0, 64.0 / static_cast<double>(title.size())));
-      pls->mtex("t", 2.0, 0.5, 0.5, title.c_str());
-      pls->schr(0, 1.0);
-      for (size_t m = 0; m < groups.size(); ++m) {
-        pls->col0(static_cast<PLINT>(2 + m % 8));
-        std::vector<PLFLT> xs, ys;
-        for (const FrontPoint* p : keyed) {
-          if (p->group != groups[m]) continue;
-          xs.push_back(p->time_s);
-          ys.push_back(p->rms_mm);
-        }
-        if (xs.size() > 1) pls->line(static_cast<PLINT>(xs.size()), xs.data(), ys.data());
-        for (const auto& p : points) {
-          if (p.group != groups[m]) continue;
-          PLFLT x = p.time_s, y = p.rms_mm;
-          pls->ssym(0, p.on_front ? 2.5 : 1.0);
-          pls->poin(1, &x, &y, p.on_front ? 17 : 4);
-        }
-        pls->schr(0, 0.75);
-        for (const FrontPoint* p : keyed) {
-          if (p->group == groups[m]) pls->ptex(p->time_s, p->rms_mm, 1, 0, -0.25, p->key.c_str());
-        }
-        pls->schr(0, groups.size() > 2 ? 0.75 : 1.0);
-        pls->mtex("t", -1.5 - (groups.size() > 2 ? 1.2 : 1.5) * static_cast<double>(m), 0.98, 1.0,
-                  (groups[m] + " (filled: on the front)").c_str());
-      }
-      // The key, in page coordinates below the chart: one line per key, its text in one piece
-      // (columns would overlap for long group names), smaller when the longest line would not fit
-      // (about 90 characters at 0.7 from the key's column to the page's edge).
-      pls->vpor(0, 1, 0, 1);
-      pls->wind(0, 1, 0, height);
-      std::vector<std::string> lines;
-      size_t longest = 1;
-      for (const FrontPoint* p : keyed) {
-        char figures[64];
-        std::snprintf(figures, sizeof(figures), "%.3f s  %.4f mm", p->time_s, p->rms_mm);
-        lines.push_back(p->group + "  " + figures + "  " + p->described);
-        longest = std::max(longest, lines.back().size());
-      }
-      pls->schr(0, std::min(0.7, 0.7 * 90.0 / static_cast<double>(longest)));
-      for (size_t k = 0; k < keyed.size(); ++k) {
-        const FrontPoint& p = *keyed[k];
-        const size_t m =
-            static_cast<size_t>(std::find(groups.begin(), groups.end(), p.group) - groups.begin());
-        pls->col0(static_cast<PLINT>(2 + m % 8));
-        const double y = kLine * (static_cast<double>(keyed.size() - k) - 0.3);
-        pls->ptex(0.03, y, 1, 0, 0, p.key.c_str());
-        pls->col0(1);
-        pls->ptex(0.08, y, 1, 0, 0, lines[k].c_str());
-      }
-    });
-  }
-}
-
-// The axis values of a job as a label ("graycode_phase 4 midpoint", or named: "codec=graycode_phase
-// steps=4 triangulation=midpoint"), `skip` left out; files axes by their file's stem, not their
-// path (scene.yaml, rig.yaml, patterns.yaml by their folder's name).
-std::string ParamsLabel(const json& params, const std::vector<std::string>& axes,
-                        const std::string& skip, bool named = false) {
-  std::string label;
-  for (const auto& a : axes) {
-    if (a == skip) continue;
-    if (!label.empty()) label += ' ';
-    if (named) label += a + '=';
-    const json& v = params.at(a);
-    if (v.is_string() && v.get<std::string>().find_first_of("/.") != std::string::npos) {
-      // config/demo/scene.yaml reads better as its folder's name.
-      const fs::path file(v.get<std::string>());
-      const std::string stem = file.stem().string();
-      label += (stem == "scene" || stem == "rig" || stem == "patterns") &&
-                       !file.parent_path().filename().empty()
-                   ? file.parent_path().filename().string()
-                   : stem;
-    } else {
-      label += CsvField(v);
-    }
-  }
-  return label;
-}
 
 // One curve: a metric of one mode and one combination of the other axes, against the x axis.
 struct Curve {
@@ -525,6 +300,49 @@ void WriteEffects(const json& spec, const std::vector<std::string>& axes,
   WriteTextFileAtomically(out_dir / "layers.csv", layers);
 }
 
+// A whole-part study's merge (workflows/studies/whole_part.h): results.json as any study's, its
+// own results.csv, pareto.csv and charts, and timings.csv with the per-mode stages.
+SweepMergeSummary MergeWholePart(const json& plan, const std::vector<std::string>& axes,
+                                 const std::vector<json>& results, const fs::path& out_dir) {
+  json merged = {
+      {"format", "slshadow-sweep-results"},      {"version", kVersion}, {"study", plan.at("study")},
+      {"study_config", plan.at("study_config")}, {"axes", axes},        {"jobs", json::array()}};
+  std::vector<std::string> modes;
+  for (const auto& m : results.at(0).at("modes")) modes.push_back(m.at("mode").get<std::string>());
+  std::string timings = "id,render_s";
+  for (const auto& m : modes) {
+    for (const char* k : {"reconstruct_s", "merge_s", "cad_compare_s", "reference_s"})
+      timings += ',' + m + '_' + k;
+  }
+  timings += ",total_s,cpu_s\n";
+  for (const auto& r : results) {
+    merged["jobs"].push_back(
+        {{"id", r.at("id")}, {"params", r.at("params")}, {"modes", r.at("modes")}});
+    const json& t = r.at("timing");
+    timings += JobName(r.at("id").get<int>()) + ',' + CsvField(t.at("render_s"));
+    for (const auto& m : modes) {
+      for (const char* k : {"reconstruct_s", "merge_s", "cad_compare_s", "reference_s"})
+        timings += ',' + CsvField(t.at(k).at(m));
+    }
+    timings += ',' + CsvField(t.at("total_s")) + ',' + CsvField(t.at("cpu_s")) + '\n';
+  }
+  std::error_code ec;
+  fs::create_directories(out_dir, ec);
+  SLSHADOW_THROW_IF(ec, out_dir.string(), ": cannot create folder: ", ec.message());
+  WriteTextFileAtomically(out_dir / "results.json", merged.dump(2) + "\n");
+  WriteTextFileAtomically(out_dir / "timings.csv", timings);
+  const WholePartMerge whole =
+      WriteWholePartResults(out_dir, axes, results, plan.at("study").get<std::string>());
+  SweepMergeSummary summary;
+  summary.whole_part = true;
+  summary.rows = whole.rows;
+  summary.front = whole.rms_front;
+  summary.coverage_front = whole.coverage_front;
+  summary.jobs = static_cast<int>(results.size());
+  summary.out_dir = out_dir;
+  return summary;
+}
+
 }  // namespace
 
 SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) {
@@ -555,6 +373,7 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
     SLSHADOW_THROW(jobs_dir.string(), ": ", missing.size(), " of ", n, " jobs have no result (",
                    list, missing.size() > 10 ? ", ..." : "", "); run their shards first");
   }
+  if (plan.value("whole_part", false)) return MergeWholePart(plan, axes, results, out_dir);
 
   const std::vector<std::string> metrics = {"points",  "coverage", "visible_coverage",
                                             "mean_mm", "rms_mm",   "p95_mm",
@@ -637,7 +456,7 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
       p.time_s = t.at(cpu_time && t.contains("method_cpu_s") ? "method_cpu_s" : "method_s")
                      .at(p.mode)
                      .get<double>();
-      p.rms_mm = m.at("rms_mm").get<double>();
+      p.value = m.at("rms_mm").get<double>();
       points.push_back(p);
     }
   }
@@ -647,7 +466,7 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
       std::string("id,mode,label,time_s,rms_mm,on_front") + (by.empty() ? "" : ",group") + ",key\n";
   for (const auto& p : points) {
     front_csv += p.id + ',' + p.mode + ',' + CsvField(p.label) + ',' + CsvField(p.time_s, 17) +
-                 ',' + CsvField(p.rms_mm, 17) + ',' + (p.on_front ? "1" : "0") +
+                 ',' + CsvField(p.value, 17) + ',' + (p.on_front ? "1" : "0") +
                  (by.empty() ? "" : "," + CsvField(p.group)) + ',' + p.key + '\n';
   }
   for (const size_t i : FrontInKeyOrder(points)) {
@@ -655,7 +474,10 @@ SweepMergeSummary MergeSweep(const fs::path& jobs_dir, const fs::path& out_dir) 
     summary.front.push_back(p.key + " " + p.group + ": " + p.id + " (" + p.described + ")");
   }
   WriteTextFileAtomically(out_dir / "pareto.csv", front_csv);
-  WriteFrontChart(out_dir / "time_vs_rms", points, plan.at("study").get<std::string>(), cpu_time);
+  FrontChartText chart;
+  if (cpu_time)
+    chart.x_label = "decode (cameras the mode reads) + reconstruct, CPU s (all threads)";
+  WriteFrontChart(out_dir / "time_vs_rms", points, plan.at("study").get<std::string>(), chart);
 
   // Curves against one axis and break points (study key `curves`): from the accuracy figures
   // only, so as reproducible as results.csv.
