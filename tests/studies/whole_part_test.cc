@@ -160,6 +160,8 @@ TEST_F(WholePartStudy, AcquisitionIsViewsTimesPatternsTimesExposure) {
     PatternSpec spec = pipeline::LoadPatternSpecOrDemo(SourceDir() / "config/studies" /
                                                        r.at("codec"));
     spec.phase_steps = std::stoi(r.at("steps"));
+    spec.projector_width = 320;  // the study's `set`
+    spec.projector_height = 200;
     EXPECT_EQ(std::stoi(r.at("patterns")), spec.NumImages()) << r.at("id");
     EXPECT_NEAR(std::stod(r.at("acquisition_s")),
                 std::stoi(r.at("views")) * spec.NumImages() * 0.010, 1e-9)
@@ -169,16 +171,19 @@ TEST_F(WholePartStudy, AcquisitionIsViewsTimesPatternsTimesExposure) {
 
 // Job 000004 (2 views, Gray code + phase shift, 4 steps) against the multi-view library called
 // directly on the same inputs: the turntable set-up of the quarter rig and the demo scene, the
-// virtual project, the merge with the study's options.
+// virtual project, the merge with the study's options (scaled4_demo_rig.yaml, the pattern spec
+// sized to its 320x200 projector).
 TEST_F(WholePartStudy, JobEqualsTheMultiviewLibrary) {
   const json result =
       json::parse(ReadTextFile(Result() / "jobs/results/000004.json")).at("modes").at(0);
   const multiview::TurntableSetup setup = multiview::MakeTurntableSetup(
-      pipeline::LoadRigOrDemo(SourceDir() / "config/studies/quarter_demo_rig.yaml"),
+      pipeline::LoadRigOrDemo(SourceDir() / "config/studies/scaled4_demo_rig.yaml"),
       pipeline::LoadSceneOrDemo(""));
   PatternSpec spec =
       pipeline::LoadPatternSpecOrDemo(SourceDir() / "config/patterns/graycode_phase.yaml");
   spec.phase_steps = 4;
+  spec.projector_width = 320;  // the study's `set`
+  spec.projector_height = 200;
   const TempDir tmp;
   multiview::SimulateProject(setup.scene, setup.rig, spec, multiview::FullTurnViews(2),
                              tmp / "project");
