@@ -157,8 +157,8 @@ TEST_F(WholePartStudy, FrontsAreTheBruteForceFrontsAndMonotone) {
 // (the demo scene's 10 ms), the spec loaded here from the codec file with the job's steps.
 TEST_F(WholePartStudy, AcquisitionIsViewsTimesPatternsTimesExposure) {
   for (const auto& r : ReadCsv(Result() / "results.csv")) {
-    PatternSpec spec = pipeline::LoadPatternSpecOrDemo(SourceDir() / "config/studies" /
-                                                       r.at("codec"));
+    PatternSpec spec =
+        pipeline::LoadPatternSpecOrDemo(SourceDir() / "config/studies" / r.at("codec"));
     spec.phase_steps = std::stoi(r.at("steps"));
     spec.projector_width = 320;  // the study's `set`
     spec.projector_height = 200;

@@ -43,8 +43,7 @@ json WholePartOptions::ToJson() const {
 
 WholePartOptions WholePartOptionsFromConfig(const ConfigNode& node) {
   node.RejectUnknownKeys({"views", "start_deg", "part_object", "remove_objects", "poses",
-                          "frame_ms", "turn_s", "max_points_per_view", "reference_views",
-                          "cad"});
+                          "frame_ms", "turn_s", "max_points_per_view", "reference_views", "cad"});
   WholePartOptions o;
   if (node.Has("views")) {
     const int64_t v = node["views"].AsInt();
@@ -129,8 +128,7 @@ json RunWholePartJob(const json& job, const fs::path& file) {
   const auto t0 = std::chrono::steady_clock::now();
   const double cpu0 = ProcessCpuSeconds();
   const WholePartOptions options = WholePartOptionsFromConfig(node("whole_part"));
-  const Scene scene =
-      SceneFromConfig(node("scene"), job.at("scene_base_dir").get<std::string>());
+  const Scene scene = SceneFromConfig(node("scene"), job.at("scene_base_dir").get<std::string>());
   const multiview::TurntableSetup setup = multiview::MakeTurntableSetup(
       RigFromConfig(node("rig")), scene, options.part_object, options.remove_objects);
   const PatternSpec spec = PatternSpecFromConfig(node("patterns"));
@@ -150,17 +148,14 @@ json RunWholePartJob(const json& job, const fs::path& file) {
   scan.spec_what = what + ": patterns";
   const multiview::VirtualProjectSummary rendered =
       multiview::SimulateProject(setup.scene, setup.rig, spec, views, work.path / "project", scan);
-  json timing = {{"render_s", rendered.total_seconds},
-                 {"method_s", json::object()},
-                 {"reconstruct_s", json::object()},
-                 {"merge_s", json::object()},
-                 {"cad_compare_s", json::object()},
-                 {"reference_s", json::object()}};
+  json timing = {{"render_s", rendered.total_seconds}, {"method_s", json::object()},
+                 {"reconstruct_s", json::object()},    {"merge_s", json::object()},
+                 {"cad_compare_s", json::object()},    {"reference_s", json::object()}};
 
   const int patterns = spec.NumImages();
-  const double frame_s = (options.frame_ms > 0 ? options.frame_ms
-                                               : setup.scene.radiometry.exposure_us / 1000.0) /
-                         1000.0;
+  const double frame_s =
+      (options.frame_ms > 0 ? options.frame_ms : setup.scene.radiometry.exposure_us / 1000.0) /
+      1000.0;
   const double acquisition_s = AcquisitionSeconds(options.views, patterns, frame_s, options.turn_s);
   json modes = json::array();
   for (const auto& m : job.at("modes")) {
@@ -181,18 +176,22 @@ json RunWholePartJob(const json& job, const fs::path& file) {
     const multiview::ProjectMergeResult r =
         multiview::MergeProject(work.path / "project", &cad, merge);
     const multiview::CadComparison& c = *r.cad;
+    // Views the merge left out, with its reason (e.g. a registration that did not converge).
+    json left_out = json::array();
+    for (const multiview::MergedView& v : r.views) {
+      if (!v.merged) left_out.push_back(v.name + ": " + v.reason);
+    }
     // The part's reachable surface: what a full turn in reference_views uniform steps lets every
     // device of the mode see (the same CAD samples, cad_compare.h's rules, only the merged cloud
     // covering). Coverage = covered / (reachable from the full turn, or covered).
     std::vector<multiview::CadView> reference;
     for (const multiview::ViewSpec& v :
          multiview::FullTurnViews(options.reference_views, options.start_deg).views) {
-      reference.push_back({v.name, setup.rig.turntable->RigFromTableTurn(*v.table_deg).Inverse(),
-                           nullptr});
+      reference.push_back(
+          {v.name, setup.rig.turntable->RigFromTableTurn(*v.table_deg).Inverse(), nullptr});
     }
-    const multiview::CadComparison turn =
-        multiview::CompareWithCad(cad, setup.rig, merge.mode, reference, r.merged,
-                                  setup.rig.turntable, merge.cad);
+    const multiview::CadComparison turn = multiview::CompareWithCad(
+        cad, setup.rig, merge.mode, reference, r.merged, setup.rig.turntable, merge.cad);
     size_t covered = 0, reachable = 0;
     for (size_t i = 0; i < c.sample_reason.size(); ++i) {
       const auto job_reason = static_cast<multiview::CoverageReason>(c.sample_reason[i]);
@@ -221,6 +220,7 @@ json RunWholePartJob(const json& job, const fs::path& file) {
     modes.push_back({{"mode", mode_name},
                      {"views", options.views},
                      {"views_merged", merged_views},
+                     {"left_out", left_out},
                      {"points", c.merged_points},
                      {"coverage", part_coverage},
                      {"coverage_views", c.coverage_reachable},
@@ -244,17 +244,18 @@ json RunWholePartJob(const json& job, const fs::path& file) {
   }
   timing["total_s"] = SecondsBetween(t0, std::chrono::steady_clock::now());
   timing["cpu_s"] = ProcessCpuSeconds() - cpu0;
-  return {{"format", kResultFormat}, {"version", kVersion}, {"id", job.at("id")},
-          {"params", job.at("params")}, {"modes", modes},   {"timing", timing}};
+  return {{"format", kResultFormat},    {"version", kVersion}, {"id", job.at("id")},
+          {"params", job.at("params")}, {"modes", modes},      {"timing", timing}};
 }
 
 WholePartMerge WriteWholePartResults(const fs::path& out_dir, const std::vector<std::string>& axes,
                                      const std::vector<json>& results, const std::string& study) {
   WholePartMerge merge;
   const std::vector<std::string> metrics = {
-      "views_merged", "points",  "coverage", "coverage_views", "coverage_total", "reachable_share",
-      "mean_mm",      "rms_mm",  "median_mm", "p95_mm",        "max_mm",
-      "single_view_rms_mm",      "patterns", "acquisition_s"};
+      "views_merged",   "points",          "coverage", "coverage_views",
+      "coverage_total", "reachable_share", "mean_mm",  "rms_mm",
+      "median_mm",      "p95_mm",          "max_mm",   "single_view_rms_mm",
+      "patterns",       "acquisition_s"};
   std::string csv = "id";
   for (const auto& a : axes) csv += ',' + CsvField(a);
   csv += ",mode";

@@ -74,16 +74,16 @@ namespace internal {
 
 // Runs one whole-part job (read from `file`, named in errors): its result's `modes` (per mode the
 // figures of the header comment) and `timing` (render_s, per mode reconstruct_s, merge_s,
-// cad_compare_s and method_s = processing_s; total_s, cpu_s). The multi-view project is written under
-// JOBS/work/<id>/ and removed when the job ends. Throws slshadow::Error naming the file.
+// cad_compare_s and method_s = processing_s; total_s, cpu_s). The multi-view project is written
+// under JOBS/work/<id>/ and removed when the job ends. Throws slshadow::Error naming the file.
 nlohmann::json RunWholePartJob(const nlohmann::json& job, const std::filesystem::path& file);
 
 // The merge of a whole-part study into `out_dir`: results.csv (one row per job and mode: id, the
-// axis values, mode, views_merged, points, coverage, coverage_views, coverage_total, reachable_share, mean_mm,
-// rms_mm, median_mm, p95_mm, max_mm, single_view_rms_mm, patterns, acquisition_s), pareto.csv (per
-// job and mode: acquisition_s, processing_s, scan_time_s, coverage, rms_mm, and per front
-// on_front and key), time_vs_coverage.png/.svg and time_vs_rms.png/.svg. Returns the rows written
-// and the fronts' lines ("C1 stereo: 000004 (views=2 ...)").
+// axis values, mode, views_merged, points, coverage, coverage_views, coverage_total,
+// reachable_share, mean_mm, rms_mm, median_mm, p95_mm, max_mm, single_view_rms_mm, patterns,
+// acquisition_s), pareto.csv (per job and mode: acquisition_s, processing_s, scan_time_s, coverage,
+// rms_mm, and per front on_front and key), time_vs_coverage.png/.svg and time_vs_rms.png/.svg.
+// Returns the rows written and the fronts' lines ("C1 stereo: 000004 (views=2 ...)").
 struct WholePartMerge {
   int rows = 0;
   std::vector<std::string> coverage_front, rms_front;
