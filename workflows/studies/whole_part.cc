@@ -315,7 +315,7 @@ WholePartMerge WriteWholePartResults(const fs::path& out_dir, const std::vector<
   lines(coverage, &merge.coverage_front);
   lines(rms, &merge.rms_front);
   FrontChartText text;
-  text.x_label = "scan time (s): views x patterns x frame + turns, + reconstruct and merge";
+  text.x_label = "scan time (s): acquisition (modelled) + processing (measured)";
   text.y_label = "coverage of the reachable CAD surface";
   text.title = "scan time against coverage";
   text.value_unit = "";
