@@ -3,9 +3,11 @@
 // checked against oracles: coverage grows with the views, the fronts are the brute-force fronts
 // and monotone, the modelled acquisition is views x patterns x exposure, a job's figures equal the
 // multi-view library's own calls (virtual project, merge, CAD comparison) on the same inputs, and a
-// merge of the same results is identical byte for byte.
+// merge of the same results is identical byte for byte, and shards run by GNU parallel through the
+// command line give the tables one process gives.
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <map>
 #include <sstream>
 #include <string>
@@ -16,6 +18,7 @@
 #include "core/config.h"
 #include "core/file_util.h"
 #include "patterns/pattern_spec.h"
+#include "tests/studies/sweep_cli.h"
 #include "tests/testing/error_of.h"
 #include "tests/testing/temp_dir.h"
 #include "workflows/multiview/project_merge.h"
@@ -212,6 +215,39 @@ TEST_F(WholePartStudy, MergeIsReproducible) {
   MergeSweep(Result() / "jobs", tmp / "again");
   for (const char* f : {"results.csv", "results.json"})
     EXPECT_EQ(ReadTextFile(tmp / "again" / f), ReadTextFile(Result() / f)) << f;
+}
+
+// A small whole-part study (views 1 and 3, axis poses), run in this process and through
+// the command line in 2 shards by GNU parallel (in reverse order): the merged tables are identical
+// byte for byte.
+TEST(WholePartStudyShards, GnuParallelShardsEqualOneProcess) {
+  ASSERT_EQ(std::system("parallel --version > /dev/null 2>&1"), 0)
+      << "GNU parallel is not installed (scripts/setup.sh installs it)";
+  const TempDir tmp;
+  const fs::path study = tmp / "study.yaml";
+  WriteTextFileAtomically(
+      study, "format: slshadow-study\nversion: 1\nname: whole-part-shards\nrig: " +
+                 (SourceDir() / "config/studies/scaled4_demo_rig.yaml").string() +
+                 "\npatterns: " + (SourceDir() / "config/patterns/multi_frequency.yaml").string() +
+                 "\nmodes: [stereo]\ncompare: {threshold_mm: 0.5}\n"
+                 "set: {patterns.projector_width: 320, patterns.projector_height: 200, "
+                 "patterns.phase_steps: 4}\n"
+                 "whole_part: {poses: axis, reference_views: 12, cad: {samples: 5000}}\n"
+                 "axes: [{name: views, set: whole_part.views, values: [1, 3]}]\n");
+  SweepRunOptions options;
+  const SweepStudySummary one = RunStudy(study, tmp / "one", options);
+  EXPECT_EQ(one.plan.jobs, 2);
+  const std::string failed = testing::SweepThroughGnuParallel(SLSHADOW_BINARY, study, tmp / "jobs",
+                                                              tmp / "shards", "1 0", 2);
+  ASSERT_EQ(failed, "");
+  for (const char* f : {"results.csv", "results.json"})
+    EXPECT_EQ(ReadTextFile(tmp / "shards" / f), ReadTextFile(tmp / "one" / f)) << f;
+  // The work folders of the jobs are gone.
+  EXPECT_FALSE(fs::exists(tmp / "jobs/work/000000/project"));
+  const auto rows = ReadCsv(tmp / "one/results.csv");
+  ASSERT_EQ(rows.size(), 2u);
+  EXPECT_EQ(rows[1].at("views_merged"), "3");
+  EXPECT_GT(std::stod(rows[1].at("coverage")), std::stod(rows[0].at("coverage")));
 }
 
 TEST(WholePartStudyPlan, BadInputNamesTheField) {
