@@ -88,8 +88,9 @@ int RunPlan(int argc, char** argv) {
   app.add_option("--report", report_path, "also write the plan's figures as JSON");
   app.add_option("--check", check_path,
                  "instead of planning, check the prediction against a scanned (or simulated) "
-                 "project of table views: merged at the table's poses, compared with the part per "
-                 "CAD sample, disagreements by reason (--out not needed)");
+                 "project of the planned views (table angles or placed by hand): merged at the "
+                 "planned poses, compared with the part per CAD sample, disagreements by reason "
+                 "(--out not needed)");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

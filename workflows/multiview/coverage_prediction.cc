@@ -188,6 +188,99 @@ double FringeTransfer(double sigma_px, double period_px) {
   return std::exp(-2 * M_PI * M_PI * sigma_px * sigma_px / (period_px * period_px));
 }
 
+// Stereo's code-step gate at the right camera (stereo_matcher.h), on the surface's tangent plane
+// at `p_rig` (normal `n_rig`): the 2 x 2 block's span per coded coordinate and the rectified
+// row's step of the projector column, at most max_code_step_px. What the matcher needs of the
+// right map where it searches.
+bool RightCameraGatesPass(const Light& light, const RigDevice& right, const RigDevice& projector,
+                          const Eigen::Vector3d& p_rig, const Eigen::Vector3d& n_rig) {
+  if (light.max_code_step_px <= 0) return true;
+  const Eigen::Vector3d in_cam = right.cam_from_rig * p_rig;
+  const auto pixel = right.model.Project(in_cam);
+  if (!pixel) return false;
+  const auto steps =
+      ProjectorSteps(right, projector, in_cam, right.cam_from_rig.rotation * n_rig, *pixel);
+  const int coords = light.code_y ? 2 : 1;
+  if (!steps ||
+      steps->topRows(coords).cwiseAbs().rowwise().sum().maxCoeff() > light.max_code_step_px)
+    return false;
+  return RectifiedRowStep(light, projector, p_rig, n_rig) <= light.max_code_step_px;
+}
+
+// Stereo's ambiguous matches (stereo_matcher.h MatchRectifiedMaps): the matcher looks for the left
+// cell's projector column along the right camera's rectified row (the epipolar plane through the
+// left and right centres and the sample) and rejects the cell when it crosses that column more
+// than once (kAmbiguousMatch; the disparity range is the depth gates', wide open). The points
+// carrying the same column on that row lie on the line where the epipolar plane meets the
+// projector's plane of that column: another crossing of the part on that line (Embree, both
+// ways, beyond one rectified footprint of the sample) that the right camera sees and the
+// projector lights (unoccluded, facing both, inside both images, not grazing) and where the right
+// map passes the code-step gate is a second solution. Such samples are marked occluded (the part
+// itself is in the way of the match) in `sight`; only samples every other rule keeps are tested.
+void AmbiguousMatches(const internal::SightCaster& caster,
+                      const std::vector<Eigen::Vector3d>& samples,
+                      const std::vector<const RigDevice*>& devices, const Rigid3d& part_from_rig,
+                      double grazing_deg, const Light& light, const ReferenceGrid& grid,
+                      std::vector<uint8_t>* sight) {
+  constexpr int kMaxHits = 4;
+  const size_t ns = samples.size();
+  const RigDevice& right = *devices[1];
+  const RigDevice& projector = *devices.back();
+  const Rigid3d rig_from_part = part_from_rig.Inverse();
+  const Rigid3d rig_from_projector = projector.cam_from_rig.Inverse();
+  const Eigen::Vector3d cl = devices[0]->CenterInRig(), cr = right.CenterInRig();
+  std::vector<Eigen::Vector3d> dirs(ns, Eigen::Vector3d::Zero());
+  std::vector<uint8_t> test(ns, 0);
+  double skip_mm = std::numeric_limits<double>::infinity();
+  tbb::parallel_for(size_t{0}, ns, [&](size_t i) {
+    if ((*sight)[i] > kDark) return;
+    const Eigen::Vector3d p_rig = rig_from_part * samples[i];
+    const auto pp = projector.model.Project(projector.cam_from_rig * p_rig);
+    if (!pp) return;
+    const auto r1 = projector.model.Unproject(*pp);
+    const auto r2 = projector.model.Unproject(*pp + Eigen::Vector2d(0, 1));
+    if (!r1 || !r2) return;
+    const Eigen::Vector3d n_col =
+        (rig_from_projector.rotation * *r1).cross(rig_from_projector.rotation * *r2);
+    const Eigen::Vector3d n_epi = (cr - cl).cross(p_rig - cl);
+    const Eigen::Vector3d d = n_col.cross(n_epi);
+    if (d.norm() < 1e-12 * n_col.norm() * n_epi.norm()) return;
+    dirs[i] = part_from_rig.rotation * d.normalized();
+    test[i] = 1;
+  });
+  // One rectified footprint at the part's nearest sample: a crossing closer than that is the
+  // sample's own segment of the right row.
+  for (size_t i = 0; i < ns; ++i) {
+    if (test[i])
+      skip_mm = std::min(skip_mm, (grid.grid_from_rig * (rig_from_part * samples[i])).norm());
+  }
+  if (!std::isfinite(skip_mm)) return;
+  skip_mm /= grid.focal_px;
+  const std::vector<internal::SightCaster::LineHit> hits =
+      caster.LineHits(samples, dirs, test, kMaxHits, skip_mm);
+  std::vector<Eigen::Vector3d> points;
+  std::vector<Eigen::Vector3f> hit_normals;
+  std::vector<size_t> owner;
+  for (size_t h = 0; h < hits.size(); ++h) {
+    if (!hits[h].found) continue;
+    points.push_back(hits[h].point);
+    hit_normals.push_back(hits[h].normal);
+    owner.push_back(h / (2 * kMaxHits));
+  }
+  const std::vector<uint8_t> seen =
+      caster.View(points, hit_normals, {&right, &projector}, part_from_rig, grazing_deg);
+  std::vector<uint8_t> ambiguous(ns, 0);
+  for (size_t k = 0; k < points.size(); ++k) {
+    if (seen[k] != kCovered || ambiguous[owner[k]]) continue;
+    if (RightCameraGatesPass(light, right, projector, rig_from_part * points[k],
+                             rig_from_part.rotation * hit_normals[k].cast<double>()))
+      ambiguous[owner[k]] = 1;
+  }
+  for (size_t i = 0; i < ns; ++i) {
+    if (ambiguous[i]) (*sight)[i] = std::max((*sight)[i], kOccluded);
+  }
+}
+
 // Per sample, this view's reason (kCovered .. kOutside) with every device of `devices`: the
 // geometry of the CAD comparison (internal/device_sight.h), then, where every device sees the
 // sample, the rules of the light, the matcher and the filters. The reasons grow from covered to
@@ -285,6 +378,8 @@ std::vector<uint8_t> ViewSight(const internal::SightCaster& caster,
     }
     sight[i] = r;
   });
+  if (light.rectified_right)
+    AmbiguousMatches(caster, samples, devices, part_from_rig, grazing_deg, light, grid, &sight);
   if (grid.outliers) {
     // The filter's limit over the cells that reach it (the samples every other rule keeps):
     // max(mean + std_ratio * spread, floor); a cell above it is rejected (a surface too steep for
@@ -796,6 +891,7 @@ PredictionCheck CheckPrediction(const CoveragePrediction& prediction, const CadC
     if (pc == sc) {
       ++check.agree;
     } else {
+      check.predicted_not_scanned += pc;
       ++check.disagree_by_predicted[p];
     }
   }
@@ -808,11 +904,12 @@ PredictionCheck CheckPrediction(const CoveragePrediction& prediction, const CadC
 std::string PredictionCheck::Summary() const {
   return StringPrintf(
       "prediction against the scan: %.3f %% of %zu samples agree (predicted coverage %.2f %%, "
-      "scanned %.2f %%, coverage radius %.3f mm); disagreements by predicted reason: "
-      "reconstructed but not covered %zu, too dark but covered %zu, grazing but covered %zu, "
-      "occluded but covered %zu, outside the field but covered %zu\n",
+      "scanned %.2f %%, coverage radius %.3f mm); disagreements: predicted covered but not "
+      "scanned %zu, scanned but not predicted %zu; by the sample's own predicted reason: "
+      "reconstructed %zu, too dark %zu, grazing %zu, occluded %zu, outside the field %zu\n",
       100 * agreement, compared, 100 * predicted_coverage, 100 * scanned_coverage,
-      coverage_radius_mm, disagree_by_predicted[kCovered], disagree_by_predicted[kDark],
+      coverage_radius_mm, predicted_not_scanned, compared - agree - predicted_not_scanned,
+      disagree_by_predicted[kCovered], disagree_by_predicted[kDark],
       disagree_by_predicted[kGrazing], disagree_by_predicted[kOccluded],
       disagree_by_predicted[kOutside]);
 }
@@ -824,6 +921,8 @@ nlohmann::json PredictionCheck::ToJson() const {
           {"predicted_coverage", predicted_coverage},
           {"scanned_coverage", scanned_coverage},
           {"coverage_radius_mm", coverage_radius_mm},
+          {"predicted_not_scanned", predicted_not_scanned},
+          {"scanned_not_predicted", compared - agree - predicted_not_scanned},
           {"disagree",
            {{"predicted_covered_not_scanned", disagree_by_predicted[kCovered]},
             {"predicted_too_dark_scanned", disagree_by_predicted[kDark]},

@@ -13,8 +13,14 @@
 // incidence, removes the surface; or a filter of the reconstruction on its reference
 // grid rejecting the cell: the depth-discontinuity filter's range step to a neighbour cell, the
 // statistical outlier filter's distance to the nearest cells, both on the surface's tangent plane
-// and in the filters' own footprints and limits). A view reconstructs a sample when every device
-// sees it unoccluded and not grazing.
+// and in the filters' own footprints and limits). In stereo the matcher's ambiguity too: the
+// left cell's projector column crossed twice along the right camera's rectified row
+// (MatchRectifiedMaps' kAmbiguousMatch) when another surface of the part on the line where the
+// epipolar plane meets the projector's plane of that column is seen by the right camera and lit
+// (Embree along that line; named occluded: the part itself is in the way of the match; on the
+// occlusion part's overhang end seen at 45 deg, docs/benchmarks/log/
+// 2026-12-07-prediction-agreement.md). A view reconstructs a sample when every device sees it
+// unoccluded and not grazing and its match is unambiguous.
 //
 // The outlier filter decides the steep faces (~80 deg to the reference camera): its score there
 // depends on the geometry alone (the prediction's score equals the reconstruction's within ~0.05
@@ -254,10 +260,12 @@ struct PredictionCheck {
   size_t compared = 0;  // samples off the table
   size_t agree = 0;
   double agreement = 0;  // agree / compared
-  // Disagreements by the sample's own predicted reason (PredictedReason order): predicted
-  // reconstructed but not covered in the scan, predicted too dark / grazing / occluded / outside
-  // the field but covered.
+  // Disagreements by the sample's own predicted reason (PredictedReason order). A sample not
+  // reconstructed itself but within the radius of one that is counts as predicted covered, so a
+  // disagreement under "occluded" may be either way: predicted_not_scanned says how many of all
+  // are predicted covered and not covered in the scan (the rest: covered, not predicted).
   std::array<size_t, kNumCoverageReasons> disagree_by_predicted{};
+  size_t predicted_not_scanned = 0;
   double predicted_coverage = 0, scanned_coverage = 0;  // of the compared samples
   double coverage_radius_mm = 0;                        // the scan's
   std::string Summary() const;
