@@ -129,6 +129,16 @@ struct CoveragePredictionOptions {
     r.report_residuals = false;
     return r;
   }();
+  // Also the points each view would reconstruct (CoveragePrediction::predicted_points, for
+  // CheckPrediction): every cell of the reference grid over the part ray-cast onto the CAD, the
+  // hit kept by the rules above, then the reconstruction's own depth-discontinuity and outlier
+  // filters (reconstruct/filters.h) run on that grid of points (a cell whose ray misses the part
+  // counts as a far background for the discontinuity filter: the scan's table or nothing), and
+  // points within table_tolerance_mm of the table plane dropped (the merge's table crop). Where
+  // the surface is steep to the reference camera the points are farther apart than the scan's
+  // coverage radius, and an edge loses the cells the filters take from it: both show in the
+  // check only this way. Slower (a ray per cell); off for the plan, which counts samples.
+  bool predict_points = false;
   void Check() const;  // throws slshadow::Error naming the bad field
 };
 // The radiometry of `scene` (exposure fraction, reference distance, the smallest uniform albedo of
@@ -199,6 +209,9 @@ struct CoveragePrediction {
   // as cad_compare.h ranks them), or on_table.
   std::vector<uint8_t> sample_reason;
   std::vector<uint8_t> sample_views;  // number of views reconstructing the sample (<= 255)
+  // With CoveragePredictionOptions::predict_points: the points the views would reconstruct, part
+  // frame (CoveragePredictor::ViewPoints), all views together.
+  std::vector<Eigen::Vector3d> predicted_points;
   std::vector<PredictedView> views;
   std::array<size_t, kNumCoverageReasons> reason_samples{};
   double cad_area_mm2 = 0;
@@ -227,6 +240,8 @@ class CoveragePredictor {
   double CadAreaMm2() const;
   // Per sample, the view's PredictedReason (on_table where OnTable()).
   std::vector<uint8_t> View(const Rigid3d& part_from_rig) const;
+  // The points the view would reconstruct, part frame (CoveragePredictionOptions::predict_points).
+  std::vector<Eigen::Vector3d> ViewPoints(const Rigid3d& part_from_rig) const;
 
  private:
   struct Impl;
@@ -253,8 +268,9 @@ void WriteCoverageMap(const std::filesystem::path& path, const CoveragePredictio
 // The prediction against a scan's CAD comparison of the same views (same sample count, so the
 // same samples). The scan counts a sample covered when a reconstructed point lies within its
 // coverage radius (cad_compare.h), so a hidden sample next to a seen one is covered: the
-// prediction is measured the same way, a sample predicted covered when a sample some view
-// reconstructs lies within the scan's coverage_radius_mm. A sample agrees when it is off the
+// prediction is measured the same way, a sample predicted covered when one of the predicted
+// points (predict_points), else a sample some view reconstructs, lies within the scan's
+// coverage_radius_mm. A sample agrees when it is off the
 // table in both and predicted covered equals covered in the scan.
 struct PredictionCheck {
   size_t compared = 0;  // samples off the table

@@ -69,7 +69,8 @@ ViewPlan PlanTurntableViews(const TriangleMesh& cad_in_part, const Rig& rig,
 // table views at their angle on the axis, views placed by hand at their part_from_rig_guess) with
 // options.reconstruct and compared with `cad_in_part` on options.samples samples; the prediction
 // of the project's views at those poses against it, per sample (CheckPrediction); the face on
-// the rig's turntable (when it has one) is excluded in both. Throws slshadow::Error as
+// the rig's turntable (when it has one) is excluded in both; with options.predict_points the
+// prediction's coverage is that of its predicted points. Throws slshadow::Error as
 // MergeProject, and when a view has no pose.
 struct PlanCheck {
   CoveragePrediction prediction;

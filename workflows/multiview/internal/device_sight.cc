@@ -174,7 +174,8 @@ std::vector<uint8_t> SightCaster::View(const std::vector<Eigen::Vector3d>& sampl
 std::vector<SightCaster::LineHit> SightCaster::LineHits(const std::vector<Eigen::Vector3d>& origins,
                                                         const std::vector<Eigen::Vector3d>& dirs,
                                                         const std::vector<uint8_t>& active,
-                                                        int max_hits, double skip_mm) const {
+                                                        int max_hits, double skip_mm,
+                                                        bool forward_only) const {
   const RayCaster& caster = *impl_->caster;
   const auto per = static_cast<size_t>(2 * max_hits);
   std::vector<LineHit> hits(origins.size() * per);
@@ -182,7 +183,7 @@ std::vector<SightCaster::LineHit> SightCaster::LineHits(const std::vector<Eigen:
   const size_t blocks = (origins.size() + kLanes - 1) / kLanes;
   tbb::parallel_for(size_t{0}, blocks, [&](size_t b) {
     const size_t first = b * kLanes, n = std::min(kLanes, origins.size() - first);
-    for (int side = 0; side < 2; ++side) {
+    for (int side = 0; side < (forward_only ? 1 : 2); ++side) {
       const double sign = side == 0 ? 1.0 : -1.0;
       RayPacket packet;
       float start[kLanes];  // distance from the origin along the line where the next ray starts
