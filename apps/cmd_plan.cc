@@ -86,10 +86,15 @@ int RunPlan(int argc, char** argv) {
                  "also write the plan's predicted coverage map (PLY of the surface samples, "
                  "docs/formats.md \"Coverage map PLY\")");
   app.add_option("--report", report_path, "also write the plan's figures as JSON");
+  app.add_flag("--check-points", options.prediction.predict_points,
+               "with --check: measure the prediction by the points each view would reconstruct "
+               "(the reference grid ray-cast, the reconstruction's filters run on it) instead of "
+               "by its samples; slower");
   app.add_option("--check", check_path,
                  "instead of planning, check the prediction against a scanned (or simulated) "
-                 "project of table views: merged at the table's poses, compared with the part per "
-                 "CAD sample, disagreements by reason (--out not needed)");
+                 "project of the planned views (table angles or placed by hand): merged at the "
+                 "planned poses, compared with the part per CAD sample, disagreements by reason "
+                 "(--out not needed)");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

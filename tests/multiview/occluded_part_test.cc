@@ -359,8 +359,9 @@ TEST(OccludedPartTest, TheCodeStepGateDecidesTheWallTheRightCameraSeesSteeply) {
 }
 
 // The virtual multi-view scan of the 98 % plan, merged at the table's poses and compared with the
-// CAD per sample. Measured at this 1/4 rig: 98.08 % of 31969 samples agree (predicted coverage
-// 77.00 %, scanned 75.27 %); the issue's 99 % is not met. Before the prediction modelled the
+// CAD per sample. Measured at this 1/4 rig: 98.74 % of 31969 samples agree (predicted coverage
+// 76.78 %, scanned 75.90 %; 98.08 % before the prediction modelled stereo's ambiguous matches,
+// docs/benchmarks/log/2026-12-07-prediction-agreement.md). Before the prediction modelled the
 // code-step gate over the rectification's 2 x 2 source pixels (the test above) it agreed on
 // 90.43 %: the plan counted on the right camera's ~88 deg view of the wall at y = +40 (object
 // frame), which the scan loses (2622 samples predicted reconstructed and lost as grazing). What the
@@ -383,7 +384,7 @@ TEST(OccludedPartTest, TheVirtualScanOfThePlanConfirmsIt) {
   const PredictionCheck& check = confirmed.check;
   std::cout << check.Summary();
   EXPECT_GT(check.compared, kSamples / 2);
-  EXPECT_GE(check.agreement, 0.975) << check.Summary();
+  EXPECT_GE(check.agreement, 0.985) << check.Summary();
   EXPECT_GT(check.predicted_coverage, 0.75) << check.Summary();
   EXPECT_GT(check.scanned_coverage, 0.73) << check.Summary();
   const Rigid3d object_from_rig = Object(s.scene, "part").rig_from_object.Inverse();
@@ -407,7 +408,7 @@ TEST(OccludedPartTest, TheVirtualScanOfThePlanConfirmsIt) {
   std::cout << "off the y = +40 wall: " << off_wall_agree << " of " << off_wall << " agree; on it "
             << wall_disagree << " of " << wall << " disagree, " << wall_lost
             << " predicted reconstructed and lost as grazing\n";
-  // Measured: 27444 of 27958 off the wall agree (98.16 %), 38 of 4011 on it disagree, none of them
+  // Measured: 27349 of 27958 off the wall agree (97.82 %), 44 of 4011 on it disagree, none of them
   // lost as grazing.
   EXPECT_GE(static_cast<double>(off_wall_agree) / static_cast<double>(off_wall), 0.975);
   ASSERT_GT(wall, 3000u);
@@ -423,6 +424,74 @@ TEST(OccludedPartTest, TheVirtualScanOfThePlanConfirmsIt) {
   }
   ASSERT_GT(hidden, 1000u);
   EXPECT_EQ(named, hidden);
+  // Measured by the points the views would reconstruct (predict_points): at this coarse rig the
+  // predicted points are sparser at the edges than the scan's (measured 97.60 %, predicted
+  // 74.30 %, scanned 75.90 %); at full rig 99.27 % (docs/benchmarks/log/
+  // 2026-12-07-prediction-agreement.md).
+  CoveragePredictionOptions by_points = options.prediction;
+  by_points.predict_points = true;
+  const PlanCheck points = CheckPlanAgainstProject(cad, s.rig, tmp / "project", by_points);
+  std::cout << "by points: " << points.check.Summary();
+  EXPECT_GT(points.prediction.predicted_points.size(), kSamples / 2);
+  EXPECT_EQ(points.check.compared, check.compared);
+  EXPECT_NEAR(points.check.scanned_coverage, check.scanned_coverage, 1e-12);
+  EXPECT_GE(points.check.agreement, 0.97) << points.check.Summary();
+}
+
+// A plan of views placed by hand (issue 33: the placements the user allows, here the part upright
+// and tilted 90 deg, turned every 90 deg) is confirmed by a virtual scan of its views file: the
+// views simulated at their part_from_rig_guess (the part alone, no table under it), merged at
+// those poses and compared per sample with the prediction of the same poses. The tilted views see
+// the overhang's underside, which no table view sees; the scan covers it where the plan said.
+TEST(OccludedPartTest, AHandPlacedPlanIsConfirmedByItsVirtualScan) {
+  TurntableSetup s = ScaledOcclusionPart(4);
+  s.scene.objects.erase(std::remove_if(s.scene.objects.begin(), s.scene.objects.end(),
+                                       [](const SceneObject& o) { return o.name == "turntable"; }),
+                        s.scene.objects.end());
+  const TriangleMesh cad = PartSurface(s.scene);
+  PlanOptions options;
+  options.prediction = WithSceneRadiometry(options.prediction, s.scene);
+  options.prediction.samples = kSamples;
+  options.target = 0.95;
+  const std::vector<ViewCandidate> candidates = PlacementCandidates(cad, s.rig, {0, 90}, 90);
+  ASSERT_EQ(candidates.size(), 8u);
+  const ViewPlan plan = PlanViews(cad, s.rig, candidates, std::nullopt, options);
+  std::cout << plan.Table();
+  ASSERT_TRUE(plan.reached);
+  size_t tilted = 0;
+  for (const std::string& label : plan.greedy_label)
+    tilted += label.find("tilt 90") != std::string::npos;
+  EXPECT_GT(tilted, 0u);
+  for (const ViewSpec& v : plan.views.views) {
+    ASSERT_FALSE(v.table_deg);
+    ASSERT_TRUE(v.part_from_rig_guess);
+  }
+  const testing::TempDir tmp;
+  SimulateProject(s.scene, s.rig, testing::ScaledDemoPatterns(s.rig), plan.views, tmp / "project");
+  const PlanCheck confirmed =
+      CheckPlanAgainstProject(cad, s.rig, tmp / "project", options.prediction);
+  const PredictionCheck& check = confirmed.check;
+  std::cout << check.Summary();
+  EXPECT_GT(check.compared, kSamples / 2);
+  // Measured: 98.56 % of 31969 samples agree (predicted 86.30 %, scanned 85.06 %; the plan:
+  // yaw 0 tilt 90, yaw 180 / 270 / 90 upright, yaw 90 tilt 90).
+  EXPECT_GE(check.agreement, 0.98) << check.Summary();
+  // The underside: reconstructed by the plan's tilted views, covered by their scan.
+  const std::vector<Feature> feature = Features(s.scene, confirmed.prediction.sample_points);
+  size_t underside = 0, predicted = 0, scanned = 0;
+  for (size_t i = 0; i < feature.size(); ++i) {
+    if (feature[i] != Feature::kUnderside) continue;
+    ++underside;
+    predicted += confirmed.prediction.sample_reason[i] ==
+                 static_cast<uint8_t>(PredictedReason::kReconstructed);
+    scanned += confirmed.scan.sample_reason[i] == static_cast<uint8_t>(CoverageReason::kCovered);
+  }
+  std::cout << "underside: " << underside << " samples, predicted reconstructed " << predicted
+            << ", scanned " << scanned << "\n";  // measured: 2396, 1894, 1888
+  ASSERT_GT(underside, 1500u);
+  EXPECT_GT(predicted, underside / 2);
+  EXPECT_NEAR(static_cast<double>(scanned), static_cast<double>(predicted),
+              0.05 * static_cast<double>(underside));
 }
 
 // `slshadow demo --views N --rig RIG --scene SCENE`: the whole-part loop on this part (two views,

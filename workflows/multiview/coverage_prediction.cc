@@ -13,6 +13,8 @@
 #include "core/kdtree.h"
 #include "core/point_cloud.h"
 #include "core/string_printf.h"
+#include "reconstruct/dense_grid.h"
+#include "reconstruct/filters.h"
 #include "reconstruct/stereo_matcher.h"
 #include "sim/scene.h"
 #include "workflows/multiview/internal/device_sight.h"
@@ -58,6 +60,7 @@ struct Light {
 // first camera's own image in projector mode. Footprints are range / focal_px (DenseGrid).
 struct ReferenceGrid {
   Rigid3d grid_from_rig;
+  int width = 0, height = 0;  // cells
   bool rectified = false;
   double focal_px = 1, cx = 0, cy = 0;
   const RigDevice* camera = nullptr;  // projector mode
@@ -188,6 +191,99 @@ double FringeTransfer(double sigma_px, double period_px) {
   return std::exp(-2 * M_PI * M_PI * sigma_px * sigma_px / (period_px * period_px));
 }
 
+// Stereo's code-step gate at the right camera (stereo_matcher.h), on the surface's tangent plane
+// at `p_rig` (normal `n_rig`): the 2 x 2 block's span per coded coordinate and the rectified
+// row's step of the projector column, at most max_code_step_px. What the matcher needs of the
+// right map where it searches.
+bool RightCameraGatesPass(const Light& light, const RigDevice& right, const RigDevice& projector,
+                          const Eigen::Vector3d& p_rig, const Eigen::Vector3d& n_rig) {
+  if (light.max_code_step_px <= 0) return true;
+  const Eigen::Vector3d in_cam = right.cam_from_rig * p_rig;
+  const auto pixel = right.model.Project(in_cam);
+  if (!pixel) return false;
+  const auto steps =
+      ProjectorSteps(right, projector, in_cam, right.cam_from_rig.rotation * n_rig, *pixel);
+  const int coords = light.code_y ? 2 : 1;
+  if (!steps ||
+      steps->topRows(coords).cwiseAbs().rowwise().sum().maxCoeff() > light.max_code_step_px)
+    return false;
+  return RectifiedRowStep(light, projector, p_rig, n_rig) <= light.max_code_step_px;
+}
+
+// Stereo's ambiguous matches (stereo_matcher.h MatchRectifiedMaps): the matcher looks for the left
+// cell's projector column along the right camera's rectified row (the epipolar plane through the
+// left and right centres and the sample) and rejects the cell when it crosses that column more
+// than once (kAmbiguousMatch; the disparity range is the depth gates', wide open). The points
+// carrying the same column on that row lie on the line where the epipolar plane meets the
+// projector's plane of that column: another crossing of the part on that line (Embree, both
+// ways, beyond one rectified footprint of the sample) that the right camera sees and the
+// projector lights (unoccluded, facing both, inside both images, not grazing) and where the right
+// map passes the code-step gate is a second solution. Such samples are marked occluded (the part
+// itself is in the way of the match) in `sight`; only samples every other rule keeps are tested.
+void AmbiguousMatches(const internal::SightCaster& caster,
+                      const std::vector<Eigen::Vector3d>& samples,
+                      const std::vector<const RigDevice*>& devices, const Rigid3d& part_from_rig,
+                      double grazing_deg, const Light& light, const ReferenceGrid& grid,
+                      std::vector<uint8_t>* sight) {
+  constexpr int kMaxHits = 4;
+  const size_t ns = samples.size();
+  const RigDevice& right = *devices[1];
+  const RigDevice& projector = *devices.back();
+  const Rigid3d rig_from_part = part_from_rig.Inverse();
+  const Rigid3d rig_from_projector = projector.cam_from_rig.Inverse();
+  const Eigen::Vector3d cl = devices[0]->CenterInRig(), cr = right.CenterInRig();
+  std::vector<Eigen::Vector3d> dirs(ns, Eigen::Vector3d::Zero());
+  std::vector<uint8_t> test(ns, 0);
+  double skip_mm = std::numeric_limits<double>::infinity();
+  tbb::parallel_for(size_t{0}, ns, [&](size_t i) {
+    if ((*sight)[i] > kDark) return;
+    const Eigen::Vector3d p_rig = rig_from_part * samples[i];
+    const auto pp = projector.model.Project(projector.cam_from_rig * p_rig);
+    if (!pp) return;
+    const auto r1 = projector.model.Unproject(*pp);
+    const auto r2 = projector.model.Unproject(*pp + Eigen::Vector2d(0, 1));
+    if (!r1 || !r2) return;
+    const Eigen::Vector3d n_col =
+        (rig_from_projector.rotation * *r1).cross(rig_from_projector.rotation * *r2);
+    const Eigen::Vector3d n_epi = (cr - cl).cross(p_rig - cl);
+    const Eigen::Vector3d d = n_col.cross(n_epi);
+    if (d.norm() < 1e-12 * n_col.norm() * n_epi.norm()) return;
+    dirs[i] = part_from_rig.rotation * d.normalized();
+    test[i] = 1;
+  });
+  // One rectified footprint at the part's nearest sample: a crossing closer than that is the
+  // sample's own segment of the right row.
+  for (size_t i = 0; i < ns; ++i) {
+    if (test[i])
+      skip_mm = std::min(skip_mm, (grid.grid_from_rig * (rig_from_part * samples[i])).norm());
+  }
+  if (!std::isfinite(skip_mm)) return;
+  skip_mm /= grid.focal_px;
+  const std::vector<internal::SightCaster::LineHit> hits =
+      caster.LineHits(samples, dirs, test, kMaxHits, skip_mm);
+  std::vector<Eigen::Vector3d> points;
+  std::vector<Eigen::Vector3f> hit_normals;
+  std::vector<size_t> owner;
+  for (size_t h = 0; h < hits.size(); ++h) {
+    if (!hits[h].found) continue;
+    points.push_back(hits[h].point);
+    hit_normals.push_back(hits[h].normal);
+    owner.push_back(h / (2 * kMaxHits));
+  }
+  const std::vector<uint8_t> seen =
+      caster.View(points, hit_normals, {&right, &projector}, part_from_rig, grazing_deg);
+  std::vector<uint8_t> ambiguous(ns, 0);
+  for (size_t k = 0; k < points.size(); ++k) {
+    if (seen[k] != kCovered || ambiguous[owner[k]]) continue;
+    if (RightCameraGatesPass(light, right, projector, rig_from_part * points[k],
+                             rig_from_part.rotation * hit_normals[k].cast<double>()))
+      ambiguous[owner[k]] = 1;
+  }
+  for (size_t i = 0; i < ns; ++i) {
+    if (ambiguous[i]) (*sight)[i] = std::max((*sight)[i], kOccluded);
+  }
+}
+
 // Per sample, this view's reason (kCovered .. kOutside) with every device of `devices`: the
 // geometry of the CAD comparison (internal/device_sight.h), then, where every device sees the
 // sample, the rules of the light, the matcher and the filters. The reasons grow from covered to
@@ -285,6 +381,8 @@ std::vector<uint8_t> ViewSight(const internal::SightCaster& caster,
     }
     sight[i] = r;
   });
+  if (light.rectified_right)
+    AmbiguousMatches(caster, samples, devices, part_from_rig, grazing_deg, light, grid, &sight);
   if (grid.outliers) {
     // The filter's limit over the cells that reach it (the samples every other rule keeps):
     // max(mean + std_ratio * spread, floor); a cell above it is rejected (a surface too steep for
@@ -559,6 +657,8 @@ struct CoveragePredictor::Impl {
   std::unique_ptr<internal::SightCaster> caster;
   Light light;
   ReferenceGrid grid;
+  std::optional<TurntableAxis> table_axis;
+  double table_lowest = 0;  // the part's lowest point along the axis direction
 };
 
 CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig& rig,
@@ -581,6 +681,13 @@ CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig&
   m.on_table = internal::OnTableMask(cad_in_part, m.samples, m.normals, table_axis,
                                      options.table_tolerance_mm);
   m.caster = std::make_unique<internal::SightCaster>(cad_in_part);
+  m.table_axis = table_axis;
+  if (table_axis) {
+    const Eigen::Vector3d up = table_axis->direction_in_rig.normalized();
+    m.table_lowest = std::numeric_limits<double>::infinity();
+    for (const Eigen::Vector3d& v : cad_in_part.vertices)
+      m.table_lowest = std::min(m.table_lowest, up.dot(v));
+  }
   m.light.range_per_factor = options.exposure_fraction * 255.0 *
                              (options.albedo_texture.IsTextured() ? 1.0 : options.albedo);
   if (options.albedo_texture.IsTextured()) {
@@ -621,6 +728,8 @@ CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig&
   grid.camera = &left;
   grid.focal_px = 0.5 * (left.model.fx() + left.model.fy());
   grid.grid_from_rig = left.cam_from_rig;
+  grid.width = left.model.width;
+  grid.height = left.model.height;
   if (options.mode == ReconstructMode::kStereo) {
     const StereoRectification rect = ComputeStereoRectification(left, m.devices[1]);
     grid.rectified = true;
@@ -628,6 +737,8 @@ CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig&
     grid.focal_px = rect.focal_px;
     grid.cx = rect.cx[0];
     grid.cy = rect.cy;
+    grid.width = rect.width[0];
+    grid.height = rect.height;
     m.light.rectified_right = true;
     m.light.rect_right_from_rig = rect.RectCamFromRig(1);
     m.light.rect_focal_px = rect.focal_px;
@@ -661,6 +772,122 @@ std::vector<uint8_t> CoveragePredictor::View(const Rigid3d& part_from_rig) const
   return sight;
 }
 
+std::vector<Eigen::Vector3d> CoveragePredictor::ViewPoints(const Rigid3d& part_from_rig) const {
+  const Impl& m = *impl_;
+  const ReferenceGrid& grid = m.grid;
+  const Rigid3d rig_from_part = part_from_rig.Inverse();
+  const Rigid3d grid_from_part = grid.grid_from_rig * rig_from_part;
+  const Rigid3d part_from_grid = grid_from_part.Inverse();
+  // The window of the grid the part covers (its samples' cells, a margin of 2).
+  double u0 = std::numeric_limits<double>::infinity(), v0 = u0, u1 = -u0, v1 = -u0;
+  for (const Eigen::Vector3d& p : m.samples) {
+    if (const auto px = grid.Pixel(grid_from_part * p)) {
+      u0 = std::min(u0, px->x()), u1 = std::max(u1, px->x());
+      v0 = std::min(v0, px->y()), v1 = std::max(v1, px->y());
+    }
+  }
+  if (!(u0 <= u1)) return {};
+  const int cu0 = std::max(0, static_cast<int>(std::floor(u0)) - 2);
+  const int cv0 = std::max(0, static_cast<int>(std::floor(v0)) - 2);
+  const int cu1 = std::min(grid.width - 1, static_cast<int>(std::ceil(u1)) + 2);
+  const int cv1 = std::min(grid.height - 1, static_cast<int>(std::ceil(v1)) + 2);
+  if (cu0 > cu1 || cv0 > cv1) return {};
+  const int w = cu1 - cu0 + 1, h = cv1 - cv0 + 1;
+  const auto cells = static_cast<size_t>(w) * static_cast<size_t>(h);
+  // Each cell's ray onto the part.
+  std::vector<Eigen::Vector3d> origins(cells, part_from_grid.translation), dirs(cells);
+  std::vector<uint8_t> active(cells, 0);
+  tbb::parallel_for(size_t{0}, cells, [&](size_t c) {
+    const Eigen::Vector2d px(cu0 + static_cast<int>(c % static_cast<size_t>(w)),
+                             cv0 + static_cast<int>(c / static_cast<size_t>(w)));
+    if (const auto ray = grid.Ray(px)) {
+      dirs[c] = part_from_grid.rotation * ray->normalized();
+      active[c] = 1;
+    }
+  });
+  const std::vector<internal::SightCaster::LineHit> hits =
+      m.caster->LineHits(origins, dirs, active, 1, 0, /*forward_only=*/true);
+  std::vector<Eigen::Vector3d> points;
+  std::vector<Eigen::Vector3f> normals;
+  std::vector<size_t> cell_of;
+  for (size_t c = 0; c < cells; ++c) {
+    if (!hits[2 * c].found) continue;
+    points.push_back(hits[2 * c].point);
+    normals.push_back(hits[2 * c].normal);
+    cell_of.push_back(c);
+  }
+  // The rules per point; the filters below on the grid itself, not on tangent planes.
+  std::vector<const RigDevice*> devices;
+  for (const RigDevice& d : m.devices) devices.push_back(&d);
+  ReferenceGrid unfiltered = grid;
+  unfiltered.max_depth_jump_footprints = 0;
+  unfiltered.outliers = false;
+  const std::vector<uint8_t> sight = ViewSight(*m.caster, points, normals, devices, part_from_rig,
+                                               m.options.grazing_deg, m.light, unfiltered);
+  DenseGrid dense;
+  dense.width = w;
+  dense.height = h;
+  dense.viewpoint_in_rig = grid.grid_from_rig.Inverse().translation;
+  dense.focal_px = grid.focal_px;
+  dense.point_in_rig.assign(cells, Eigen::Vector3d::Zero());
+  constexpr auto kAcceptedCell = static_cast<uint8_t>(RejectReason::kAccepted);
+  constexpr auto kNotDecodedCell = static_cast<uint8_t>(RejectReason::kNotDecoded);
+  dense.reason.assign(cells, kNotDecodedCell);
+  // A ray that misses the part: the turntable's plane (the part's lowest plane across the axis)
+  // where the ray meets it and the devices see it past the part, else a far background (10 m),
+  // for the filters; neither is a point of the part.
+  std::vector<uint8_t> background(cells, 0);
+  const Eigen::Vector3d up =
+      m.table_axis ? m.table_axis->direction_in_rig.normalized() : Eigen::Vector3d::Zero();
+  std::vector<Eigen::Vector3d> table_points;
+  std::vector<size_t> table_cell;
+  for (size_t c = 0; c < cells; ++c) {
+    if (!active[c] || hits[2 * c].found) continue;
+    background[c] = 1;
+    const double denom = up.dot(dirs[c]);
+    const double t = std::abs(denom) > 1e-12 ? (m.table_lowest - up.dot(origins[c])) / denom : -1.0;
+    if (m.table_axis && t > 0) {
+      table_points.push_back(origins[c] + t * dirs[c]);
+      table_cell.push_back(c);
+      continue;
+    }
+    dense.reason[c] = kAcceptedCell;
+    dense.point_in_rig[c] = rig_from_part * (origins[c] + 1e4 * dirs[c]);
+  }
+  if (!table_points.empty()) {
+    const std::vector<Eigen::Vector3f> table_normals(table_points.size(), up.cast<float>());
+    const std::vector<uint8_t> table_sight =
+        m.caster->View(table_points, table_normals, devices, part_from_rig, m.options.grazing_deg);
+    for (size_t k = 0; k < table_points.size(); ++k) {
+      if (table_sight[k] > kGrazing) continue;
+      dense.reason[table_cell[k]] = kAcceptedCell;
+      dense.point_in_rig[table_cell[k]] = rig_from_part * table_points[k];
+    }
+  }
+  for (size_t k = 0; k < points.size(); ++k) {
+    if (sight[k] != kCovered) continue;
+    dense.reason[cell_of[k]] = kAcceptedCell;
+    dense.point_in_rig[cell_of[k]] = rig_from_part * points[k];
+  }
+  const ReconstructOptions& r = m.options.reconstruct;
+  if (r.filter_depth_discontinuities)
+    FilterDepthDiscontinuities(dense, r.max_depth_jump_footprints, r.discontinuity_dilation_px);
+  for (size_t c = 0; c < cells; ++c) {
+    if (background[c] && dense.point_in_rig[c].norm() > 5e3) dense.reason[c] = kNotDecodedCell;
+  }
+  if (r.filter_outliers)
+    FilterStatisticalOutliers(dense, r.outlier_window_radius_px, r.outlier_neighbors,
+                              r.outlier_std_ratio, r.outlier_min_distance_footprints);
+  std::vector<Eigen::Vector3d> kept;
+  for (size_t c = 0; c < cells; ++c) {
+    if (dense.reason[c] != kAcceptedCell || background[c]) continue;
+    const Eigen::Vector3d p = part_from_rig * dense.point_in_rig[c];
+    if (m.table_axis && up.dot(p) - m.table_lowest < m.options.table_tolerance_mm) continue;
+    kept.push_back(p);
+  }
+  return kept;
+}
+
 CoveragePrediction PredictCoverage(const TriangleMesh& cad_in_part, const Rig& rig,
                                    const std::vector<PredictedViewPose>& views,
                                    const std::optional<TurntableAxis>& table_axis,
@@ -689,6 +916,10 @@ CoveragePrediction PredictCoverage(const TriangleMesh& cad_in_part, const Rig& r
     }
     result.view_reason.push_back(std::move(sight));
     result.views.push_back(view);
+    if (options.predict_points) {
+      const std::vector<Eigen::Vector3d> points = predictor.ViewPoints(v.part_from_rig);
+      result.predicted_points.insert(result.predicted_points.end(), points.begin(), points.end());
+    }
   }
   for (size_t i = 0; i < ns; ++i) {
     if (on_table[i]) result.sample_reason[i] = kOnTable;
@@ -772,9 +1003,16 @@ PredictionCheck CheckPrediction(const CoveragePrediction& prediction, const CadC
     if (prediction.sample_reason[i] == kCovered)
       reconstructed.push_back(prediction.sample_points[i]);
   }
-  // Predicted covered as the scan measures it: a reconstructed sample within the radius.
+  // Predicted covered as the scan measures it: a predicted point (or a reconstructed sample)
+  // within the radius.
   std::vector<uint8_t> covered(ns, 0);
-  if (!reconstructed.empty()) {
+  if (!prediction.predicted_points.empty()) {
+    const KdTree tree(prediction.predicted_points);
+    tbb::parallel_for(size_t{0}, ns, [&](size_t i) {
+      Neighbor n;
+      covered[i] = tree.Nearest(prediction.sample_points[i], &n, scan.coverage_radius_mm);
+    });
+  } else if (!reconstructed.empty()) {
     const KdTree tree(reconstructed);
     tbb::parallel_for(size_t{0}, ns, [&](size_t i) {
       Neighbor n;
@@ -796,6 +1034,7 @@ PredictionCheck CheckPrediction(const CoveragePrediction& prediction, const CadC
     if (pc == sc) {
       ++check.agree;
     } else {
+      check.predicted_not_scanned += pc;
       ++check.disagree_by_predicted[p];
     }
   }
@@ -808,11 +1047,12 @@ PredictionCheck CheckPrediction(const CoveragePrediction& prediction, const CadC
 std::string PredictionCheck::Summary() const {
   return StringPrintf(
       "prediction against the scan: %.3f %% of %zu samples agree (predicted coverage %.2f %%, "
-      "scanned %.2f %%, coverage radius %.3f mm); disagreements by predicted reason: "
-      "reconstructed but not covered %zu, too dark but covered %zu, grazing but covered %zu, "
-      "occluded but covered %zu, outside the field but covered %zu\n",
+      "scanned %.2f %%, coverage radius %.3f mm); disagreements: predicted covered but not "
+      "scanned %zu, scanned but not predicted %zu; by the sample's own predicted reason: "
+      "reconstructed %zu, too dark %zu, grazing %zu, occluded %zu, outside the field %zu\n",
       100 * agreement, compared, 100 * predicted_coverage, 100 * scanned_coverage,
-      coverage_radius_mm, disagree_by_predicted[kCovered], disagree_by_predicted[kDark],
+      coverage_radius_mm, predicted_not_scanned, compared - agree - predicted_not_scanned,
+      disagree_by_predicted[kCovered], disagree_by_predicted[kDark],
       disagree_by_predicted[kGrazing], disagree_by_predicted[kOccluded],
       disagree_by_predicted[kOutside]);
 }
@@ -824,6 +1064,8 @@ nlohmann::json PredictionCheck::ToJson() const {
           {"predicted_coverage", predicted_coverage},
           {"scanned_coverage", scanned_coverage},
           {"coverage_radius_mm", coverage_radius_mm},
+          {"predicted_not_scanned", predicted_not_scanned},
+          {"scanned_not_predicted", compared - agree - predicted_not_scanned},
           {"disagree",
            {{"predicted_covered_not_scanned", disagree_by_predicted[kCovered]},
             {"predicted_too_dark_scanned", disagree_by_predicted[kDark]},

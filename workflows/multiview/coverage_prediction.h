@@ -13,8 +13,14 @@
 // incidence, removes the surface; or a filter of the reconstruction on its reference
 // grid rejecting the cell: the depth-discontinuity filter's range step to a neighbour cell, the
 // statistical outlier filter's distance to the nearest cells, both on the surface's tangent plane
-// and in the filters' own footprints and limits). A view reconstructs a sample when every device
-// sees it unoccluded and not grazing.
+// and in the filters' own footprints and limits). In stereo the matcher's ambiguity too: the
+// left cell's projector column crossed twice along the right camera's rectified row
+// (MatchRectifiedMaps' kAmbiguousMatch) when another surface of the part on the line where the
+// epipolar plane meets the projector's plane of that column is seen by the right camera and lit
+// (Embree along that line; named occluded: the part itself is in the way of the match; on the
+// occlusion part's overhang end seen at 45 deg, docs/benchmarks/log/
+// 2026-12-07-prediction-agreement.md). A view reconstructs a sample when every device sees it
+// unoccluded and not grazing and its match is unambiguous.
 //
 // The outlier filter decides the steep faces (~80 deg to the reference camera): its score there
 // depends on the geometry alone (the prediction's score equals the reconstruction's within ~0.05
@@ -123,6 +129,16 @@ struct CoveragePredictionOptions {
     r.report_residuals = false;
     return r;
   }();
+  // Also the points each view would reconstruct (CoveragePrediction::predicted_points, for
+  // CheckPrediction): every cell of the reference grid over the part ray-cast onto the CAD, the
+  // hit kept by the rules above, then the reconstruction's own depth-discontinuity and outlier
+  // filters (reconstruct/filters.h) run on that grid of points (a cell whose ray misses the part
+  // counts as a far background for the discontinuity filter: the scan's table or nothing), and
+  // points within table_tolerance_mm of the table plane dropped (the merge's table crop). Where
+  // the surface is steep to the reference camera the points are farther apart than the scan's
+  // coverage radius, and an edge loses the cells the filters take from it: both show in the
+  // check only this way. Slower (a ray per cell); off for the plan, which counts samples.
+  bool predict_points = false;
   void Check() const;  // throws slshadow::Error naming the bad field
 };
 // The radiometry of `scene` (exposure fraction, reference distance, the smallest uniform albedo of
@@ -193,6 +209,9 @@ struct CoveragePrediction {
   // as cad_compare.h ranks them), or on_table.
   std::vector<uint8_t> sample_reason;
   std::vector<uint8_t> sample_views;  // number of views reconstructing the sample (<= 255)
+  // With CoveragePredictionOptions::predict_points: the points the views would reconstruct, part
+  // frame (CoveragePredictor::ViewPoints), all views together.
+  std::vector<Eigen::Vector3d> predicted_points;
   std::vector<PredictedView> views;
   std::array<size_t, kNumCoverageReasons> reason_samples{};
   double cad_area_mm2 = 0;
@@ -221,6 +240,8 @@ class CoveragePredictor {
   double CadAreaMm2() const;
   // Per sample, the view's PredictedReason (on_table where OnTable()).
   std::vector<uint8_t> View(const Rigid3d& part_from_rig) const;
+  // The points the view would reconstruct, part frame (CoveragePredictionOptions::predict_points).
+  std::vector<Eigen::Vector3d> ViewPoints(const Rigid3d& part_from_rig) const;
 
  private:
   struct Impl;
@@ -247,17 +268,20 @@ void WriteCoverageMap(const std::filesystem::path& path, const CoveragePredictio
 // The prediction against a scan's CAD comparison of the same views (same sample count, so the
 // same samples). The scan counts a sample covered when a reconstructed point lies within its
 // coverage radius (cad_compare.h), so a hidden sample next to a seen one is covered: the
-// prediction is measured the same way, a sample predicted covered when a sample some view
-// reconstructs lies within the scan's coverage_radius_mm. A sample agrees when it is off the
+// prediction is measured the same way, a sample predicted covered when one of the predicted
+// points (predict_points), else a sample some view reconstructs, lies within the scan's
+// coverage_radius_mm. A sample agrees when it is off the
 // table in both and predicted covered equals covered in the scan.
 struct PredictionCheck {
   size_t compared = 0;  // samples off the table
   size_t agree = 0;
   double agreement = 0;  // agree / compared
-  // Disagreements by the sample's own predicted reason (PredictedReason order): predicted
-  // reconstructed but not covered in the scan, predicted too dark / grazing / occluded / outside
-  // the field but covered.
+  // Disagreements by the sample's own predicted reason (PredictedReason order). A sample not
+  // reconstructed itself but within the radius of one that is counts as predicted covered, so a
+  // disagreement under "occluded" may be either way: predicted_not_scanned says how many of all
+  // are predicted covered and not covered in the scan (the rest: covered, not predicted).
   std::array<size_t, kNumCoverageReasons> disagree_by_predicted{};
+  size_t predicted_not_scanned = 0;
   double predicted_coverage = 0, scanned_coverage = 0;  // of the compared samples
   double coverage_radius_mm = 0;                        // the scan's
   std::string Summary() const;

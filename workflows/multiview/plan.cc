@@ -422,27 +422,26 @@ std::string ViewPlan::Table() const {
 PlanCheck CheckPlanAgainstProject(const TriangleMesh& cad_in_part, const Rig& rig,
                                   const std::filesystem::path& project_dir,
                                   const CoveragePredictionOptions& options) {
-  SLSHADOW_THROW_IF(!rig.turntable, "plan check: rig '", rig.name, "' has no turntable axis");
   ProjectMergeOptions merge;
   merge.mode = options.mode;
   merge.poses = PoseSource::kAxis;  // the prediction is checked, not the registration
   merge.mesh = false;
+  merge.reconstruct = options.reconstruct;
   merge.cad.samples = options.samples;
   merge.cad.table_tolerance_mm = options.table_tolerance_mm;
   ProjectMergeResult merged = MergeProject(project_dir, &cad_in_part, merge);
   SLSHADOW_THROW_IF(!merged.cad, project_dir.string(), ": the merge made no CAD comparison");
-  ViewsFile views;
+  // Each view at the pose the merge placed it: a table view at its angle on the axis, a view
+  // placed by hand at its part_from_rig_guess (the planned pose).
+  std::vector<PredictedViewPose> poses;
   for (const MergedView& v : merged.views) {
-    SLSHADOW_THROW_IF(!v.table_deg, project_dir.string(), ": view '", v.name,
-                      "' has no table angle (the plan check predicts table views)");
-    ViewSpec spec;
-    spec.name = v.name;
-    spec.table_deg = v.table_deg;
-    views.views.push_back(spec);
+    SLSHADOW_THROW_IF(!v.merged && !v.part_from_rig_initial, project_dir.string(), ": view '",
+                      v.name, "' has no pose (neither a table angle nor a part_from_rig_guess)");
+    poses.push_back({v.name, v.merged ? v.part_from_rig : *v.part_from_rig_initial});
   }
   PlanCheck result;
-  result.prediction =
-      PredictCoverage(cad_in_part, rig, PosesOfViews(views, rig), rig.turntable, options);
+  // The table face as the merge's comparison excludes it (the project's rig's axis).
+  result.prediction = PredictCoverage(cad_in_part, rig, poses, rig.turntable, options);
   result.check = CheckPrediction(result.prediction, *merged.cad);
   result.scan = std::move(*merged.cad);
   return result;

@@ -65,10 +65,13 @@ ViewPlan PlanTurntableViews(const TriangleMesh& cad_in_part, const Rig& rig,
                             const PlanOptions& options = {});
 
 // A plan confirmed by its scan (`slshadow plan --check PROJECT`): the project (the planned views,
-// scanned or simulated) merged at the table's poses (ProjectMergeOptions poses kAxis, no mesh) and
-// compared with `cad_in_part` on options.samples samples; the prediction of the project's views
-// (table angles) against it, per sample (CheckPrediction). Throws slshadow::Error as MergeProject,
-// and when the rig has no turntable axis or a view has no table angle.
+// scanned or simulated) merged at the planned poses (ProjectMergeOptions poses kAxis, no mesh:
+// table views at their angle on the axis, views placed by hand at their part_from_rig_guess) with
+// options.reconstruct and compared with `cad_in_part` on options.samples samples; the prediction
+// of the project's views at those poses against it, per sample (CheckPrediction); the face on
+// the rig's turntable (when it has one) is excluded in both; with options.predict_points the
+// prediction's coverage is that of its predicted points. Throws slshadow::Error as
+// MergeProject, and when a view has no pose.
 struct PlanCheck {
   CoveragePrediction prediction;
   PredictionCheck check;

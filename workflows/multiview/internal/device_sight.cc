@@ -58,6 +58,8 @@ struct SightCaster::Impl {
   Scene scene;  // the CAD mesh alone; outlives the caster
   std::unique_ptr<RayCaster> caster;
   double eps = 0;  // off the surface for shadow rays
+  // Embree's geometric normal times this is the mesh's outward face normal (FaceNormal).
+  float normal_sign = 1;
 };
 
 SightCaster::SightCaster(const TriangleMesh& cad) : impl_(std::make_unique<Impl>()) {
@@ -70,6 +72,29 @@ SightCaster::SightCaster(const TriangleMesh& cad) : impl_(std::make_unique<Impl>
   impl_->caster = std::make_unique<RayCaster>(impl_->scene);
   const Eigen::Vector3d extent = cad.BoundsMax() - cad.BoundsMin();
   impl_->eps = std::max(1e-3, 2e-5 * extent.norm());
+  // The orientation of the hits' normals: a ray onto the first face of the mesh from just in
+  // front of it.
+  if (cad.NumTriangles() > 0) {
+    const auto& t = cad.triangles[0];
+    const Eigen::Vector3d centre =
+        (cad.vertices[t[0]] + cad.vertices[t[1]] + cad.vertices[t[2]]) / 3.0;
+    const Eigen::Vector3d n = cad.FaceNormal(0);
+    RayPacket packet;
+    for (int l = 0; l < RayPacket::kSize; ++l) packet.active[l] = l == 0;
+    const Eigen::Vector3d o = centre + 10 * impl_->eps * n;
+    packet.org_x[0] = static_cast<float>(o.x());
+    packet.org_y[0] = static_cast<float>(o.y());
+    packet.org_z[0] = static_cast<float>(o.z());
+    packet.dir_x[0] = static_cast<float>(-n.x());
+    packet.dir_y[0] = static_cast<float>(-n.y());
+    packet.dir_z[0] = static_cast<float>(-n.z());
+    packet.tnear[0] = 0;
+    packet.tfar[0] = static_cast<float>(20 * impl_->eps);
+    impl_->caster->Intersect(packet, TraceMode::kSingleRay, false);
+    if (packet.object[0] >= 0 &&
+        n.dot(Eigen::Vector3d(packet.ng_x[0], packet.ng_y[0], packet.ng_z[0])) < 0)
+      impl_->normal_sign = -1;
+  }
 }
 
 SightCaster::~SightCaster() = default;
@@ -144,6 +169,65 @@ std::vector<uint8_t> SightCaster::View(const std::vector<Eigen::Vector3d>& sampl
     }
   });
   return sight;
+}
+
+std::vector<SightCaster::LineHit> SightCaster::LineHits(const std::vector<Eigen::Vector3d>& origins,
+                                                        const std::vector<Eigen::Vector3d>& dirs,
+                                                        const std::vector<uint8_t>& active,
+                                                        int max_hits, double skip_mm,
+                                                        bool forward_only) const {
+  const RayCaster& caster = *impl_->caster;
+  const auto per = static_cast<size_t>(2 * max_hits);
+  std::vector<LineHit> hits(origins.size() * per);
+  constexpr size_t kLanes = RayPacket::kSize;
+  const size_t blocks = (origins.size() + kLanes - 1) / kLanes;
+  tbb::parallel_for(size_t{0}, blocks, [&](size_t b) {
+    const size_t first = b * kLanes, n = std::min(kLanes, origins.size() - first);
+    for (int side = 0; side < (forward_only ? 1 : 2); ++side) {
+      const double sign = side == 0 ? 1.0 : -1.0;
+      RayPacket packet;
+      float start[kLanes];  // distance from the origin along the line where the next ray starts
+      bool any = false;
+      for (size_t l = 0; l < kLanes; ++l) {
+        packet.active[l] = l < n && active[first + l];
+        start[l] = static_cast<float>(skip_mm);
+        any = any || packet.active[l];
+      }
+      for (int k = 0; k < max_hits && any; ++k) {
+        any = false;
+        for (size_t l = 0; l < n; ++l) {
+          if (!packet.active[l]) continue;
+          const Eigen::Vector3d& o = origins[first + l];
+          const Eigen::Vector3d d = sign * dirs[first + l];
+          packet.org_x[l] = static_cast<float>(o.x());
+          packet.org_y[l] = static_cast<float>(o.y());
+          packet.org_z[l] = static_cast<float>(o.z());
+          packet.dir_x[l] = static_cast<float>(d.x());
+          packet.dir_y[l] = static_cast<float>(d.y());
+          packet.dir_z[l] = static_cast<float>(d.z());
+          packet.tnear[l] = start[l];
+          packet.tfar[l] = std::numeric_limits<float>::infinity();
+        }
+        caster.Intersect(packet, TraceMode::kPacket16, false);
+        for (size_t l = 0; l < n; ++l) {
+          if (!packet.active[l]) continue;
+          if (packet.object[l] < 0) {
+            packet.active[l] = 0;
+            continue;
+          }
+          LineHit& h = hits[(first + l) * per + static_cast<size_t>(side * max_hits + k)];
+          h.point =
+              origins[first + l] + sign * dirs[first + l] * static_cast<double>(packet.tfar[l]);
+          h.normal =
+              impl_->normal_sign * Eigen::Vector3f(packet.ng_x[l], packet.ng_y[l], packet.ng_z[l]);
+          h.found = 1;
+          start[l] = packet.tfar[l] + static_cast<float>(impl_->eps);
+          any = true;
+        }
+      }
+    }
+  });
+  return hits;
 }
 
 }  // namespace slshadow::multiview::internal

@@ -54,6 +54,21 @@ class SightCaster {
                             const Rigid3d& part_from_rig, double grazing_deg,
                             const std::vector<uint8_t>* active = nullptr) const;
 
+  // The surface crossings of lines: for line i (through origins[i] along dirs[i], unit, part
+  // frame; skipped when active[i] is 0), up to max_hits crossings of the part on each side of the
+  // origin, nearest first, farther than `skip_mm` from it. Returned as hits[i * 2 * max_hits + k]
+  // (k < max_hits: along dirs[i], then against it) with the face normal (outward); `found` 0
+  // where none. forward_only: the side along dirs[i] alone (the other side's entries stay empty).
+  struct LineHit {
+    Eigen::Vector3d point = Eigen::Vector3d::Zero();
+    Eigen::Vector3f normal = Eigen::Vector3f::Zero();
+    uint8_t found = 0;
+  };
+  std::vector<LineHit> LineHits(const std::vector<Eigen::Vector3d>& origins,
+                                const std::vector<Eigen::Vector3d>& dirs,
+                                const std::vector<uint8_t>& active, int max_hits, double skip_mm,
+                                bool forward_only = false) const;
+
  private:
   struct Impl;
   std::unique_ptr<Impl> impl_;
