@@ -74,6 +74,8 @@ int RunDemo(int argc, char** argv) {
   app.add_flag("--no-mesh", no_mesh, "with --views: do not build the surface mesh");
   bool noise = false;
   app.add_flag("--noise", noise, "with --views: sensor noise on (shot and read noise)");
+  multiview::MergeOptions fusion;
+  AddFusionOptions(&app, &fusion);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -85,6 +87,7 @@ int RunDemo(int argc, char** argv) {
     mv.out_dir =
         app.count("--out") ? options.out_dir : std::filesystem::path("slshadow-demo-views");
     mv.encoding = ImageEncodingFromString(options.encoding);
+    mv.merge.registration = fusion;
     mv.merge.poses = multiview::PoseSourceFromString(poses);
     mv.sensor_noise = noise;
     mv.merge.mesh = !no_mesh;

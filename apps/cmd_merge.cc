@@ -6,10 +6,80 @@
 #include "core/error.h"
 #include "core/mesh.h"
 #include "sim/scene.h"
+#include "workflows/multiview/merge.h"
 #include "workflows/multiview/project_merge.h"
 #include "workflows/multiview/turntable_scene.h"
 
 namespace slshadow::app {
+
+void AddFusionOptions(CLI::App* app, multiview::MergeOptions* m) {
+  CLI::App* g = app->add_option_group(
+      "Fusion",
+      "The merged cloud (docs/formats.md \"Merge model folder\"). Points of the registered views "
+      "are "
+      "binned in cubic cells; per cell and surface, views that agree within their noise become "
+      "one point, the mean weighted by 1 / noise^2 of each point; views that disagree are kept "
+      "apart and flagged. A point's noise is its view's (from its pairs' ICP residuals) x its "
+      "noise factor: (1 + min(v, 5 v_ref) / v_ref) / sqrt(max(cos i, --fuse-min-incidence-cos)), "
+      "v the PCA surface variation of its 12 neighbours (0 on a plane, up to 1/3 at corners, "
+      "edges and stray points), v_ref the larger of --fuse-edge-variation and 3 x the view's "
+      "median v, i the angle between its normal and the ray to its camera. Then the points one "
+      "view alone gave are checked against the other views (superseded, rejected, flagged).");
+  g->add_option("--fuse-cell-mm", m->fuse_cell_mm,
+                "edge of the fusion cells, mm; 0: the anchor view's point spacing (sqrt of the "
+                "area per point). Larger averages more points into each merged point and blurs "
+                "edges; smaller leaves single-view cells where views interleave")
+      ->capture_default_str();
+  g->add_option("--fuse-k-sigma", m->fuse_k_sigma,
+                "two views agree on a surface when their heights along its normal differ by at "
+                "most this many combined standard deviations (of each view's weighted mean in the "
+                "cell); beyond, they are kept apart and flagged `disagree`")
+      ->capture_default_str();
+  g->add_option("--fuse-min-disagreement-mm", m->fuse_min_disagreement_mm,
+                "floor of that bound, mm: height differences below it never count as a "
+                "disagreement (a curved surface sampled within one cell)")
+      ->capture_default_str();
+  g->add_option("--fuse-edge-variation", m->fuse_edge_variation,
+                "noise model: the smallest v_ref (above). A point with v > v_ref is an edge point: "
+                "up to 6x noisier, and its normal is not trusted to start a surface. Lower it to "
+                "distrust more of a noisy rig's points; 0: no edge factor")
+      ->capture_default_str();
+  g->add_option("--fuse-min-incidence-cos", m->fuse_min_incidence_cos,
+                "noise model: the bound on cos i (above), so a grazing point counts at most "
+                "1 / sqrt(this) times noisier (0.1: 3.2x); 0: no incidence factor")
+      ->capture_default_str();
+  g->add_option("--fuse-support-min-factor", m->fuse_support_min_factor,
+                "a point one view alone gave with a noise factor of at least this (an edge or "
+                "grazing point) is checked against the other views' points around it "
+                "(--fuse-support-cells, --fuse-reject-cells)")
+      ->capture_default_str();
+  g->add_option("--fuse-support-cells", m->fuse_support_cells,
+                "such a point on the surface of a no noisier point of another view within this "
+                "many cells (within the combined noise) is superseded: left out, the other view "
+                "measures that surface better; 0: no such check")
+      ->capture_default_str();
+  g->add_option("--fuse-reject-cells", m->fuse_reject_cells,
+                "such an edge point in front of the surfaces of two or more other views within "
+                "this many cells, and on none, is rejected (a point off a depth edge); otherwise, "
+                "off another view's surface, it is flagged `disagree`")
+      ->capture_default_str();
+  g->add_option(
+       "--fuse-see-through-views", m->fuse_see_through_views,
+       "free-space check: a point one view alone gave that at least this many other views saw "
+       "through (all their points along their line of sight through it, the table points "
+       "--table-crop-mm cropped included, lie beyond it by more than the combined noise) "
+       "is rejected when noisy (noise factor >= --fuse-support-min-factor) or when no "
+       "other view's point lies within --fuse-reject-cells: the ghost points off depth "
+       "edges and at the part's foot that no other surface lies near. A clean point near "
+       "another view's surface is flagged `disagree` and kept apart instead. 1: trust "
+       "one view's sight; 0: no such check")
+      ->capture_default_str();
+  g->add_option("--fuse-see-through-pixels", m->fuse_see_through_pixels,
+                "radius of a line of sight, in that view's point spacing (the angle between "
+                "neighbouring points from its camera); 3 or more of its points must lie within it "
+                "for the view to count")
+      ->capture_default_str();
+}
 
 int RunMerge(int argc, char** argv) {
   CLI::App app{
@@ -106,6 +176,7 @@ int RunMerge(int argc, char** argv) {
                  "mesh vertices farther than this from every merged point are trimmed, mm (0: 2 x "
                  "the larger of the finest cell and the cloud's point spacing)")
       ->capture_default_str();
+  AddFusionOptions(&app, &options.registration);
   app.add_flag("--overwrite", overwrite, "replace an existing output folder");
   app.add_flag("--quiet", quiet, "do not print the summary");
   bool no_html = false;

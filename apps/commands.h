@@ -17,6 +17,9 @@ struct StrictOptions;
 namespace slshadow::report {
 struct HtmlOptions;
 }  // namespace slshadow::report
+namespace slshadow::multiview {
+struct MergeOptions;
+}  // namespace slshadow::multiview
 
 namespace slshadow::app {
 
@@ -45,6 +48,11 @@ void AddStrictOptions(CLI::App* app, StrictOptions* strict);
 // `--no-html` (sets *no_html) and `--html-max-points` (report/html_report.h), with their help text;
 // shared by the commands that write a report.html.
 void AddHtmlOptions(CLI::App* app, bool* no_html, report::HtmlOptions* html);
+
+// The fusion's options (--fuse-*: cell, agreement bound, per-point noise model, the checks of
+// single-view points; workflows/multiview/merge.h step 4), with help text that says what each
+// does; shared by `slshadow merge` and `slshadow demo --views`. Defined in cmd_merge.cc.
+void AddFusionOptions(CLI::App* app, multiview::MergeOptions* merge);
 
 // The command line as one string, the words of argv joined by single spaces ("slshadow capture
 // --rig rig.yaml ..."), as the outputs' provenance records it.

@@ -1,7 +1,8 @@
 // `slshadow merge` end to end through the command line (apps/cmd_merge.cc): a virtual turntable
 // project of the demo part (1/4 of the demo rig's resolution, 8 views 45 deg apart) merged with
 // the registration (MergeViews) and with --poses axis; a view whose recorded table angle is wrong
-// is named and left out by the registration, and merged blindly by --poses axis.
+// is named and left out by the registration, and merged blindly by --poses axis; the fusion's
+// options reach the fusion.
 #include <gtest/gtest.h>
 
 #include <filesystem>
@@ -123,6 +124,25 @@ TEST_F(CmdMerge, BadPoseSourceIsRefused) {
   EXPECT_NE(Merge({Path("project"), "--out", Path("bad"), "--poses", "table"}, &out), 0);
   EXPECT_FALSE(fs::exists(*tmp_ / "bad"));
   EXPECT_NE(Merge({Path("project"), "--out", Path("bad"), "--max-departure-deg", "-1"}, &out), 0);
+  EXPECT_FALSE(fs::exists(*tmp_ / "bad"));
+}
+
+// The fusion's options (--fuse-*) reach MergeViews: the cell size is the one used, reported in
+// report.json; values out of range are refused before anything is written.
+TEST_F(CmdMerge, FusionOptionsReachTheFusion) {
+  std::string out;
+  ASSERT_EQ(Merge({Path("project"), "--out", Path("cell"), "--poses", "axis", "--no-mesh",
+                   "--no-html", "--fuse-cell-mm", "0.8", "--fuse-see-through-views", "0"},
+                  &out),
+            0)
+      << out;
+  const nlohmann::json fusion = Report("cell")["registration"]["fusion"];
+  EXPECT_DOUBLE_EQ(fusion["cell_mm"].get<double>(), 0.8);
+  EXPECT_NE(Merge({Path("project"), "--out", Path("bad"), "--fuse-see-through-views", "-1"}, &out),
+            0);
+  EXPECT_FALSE(fs::exists(*tmp_ / "bad"));
+  EXPECT_NE(Merge({Path("project"), "--out", Path("bad"), "--fuse-min-incidence-cos", "2"}, &out),
+            0);
   EXPECT_FALSE(fs::exists(*tmp_ / "bad"));
 }
 

@@ -17,7 +17,8 @@ namespace fs = std::filesystem;
 
 // The whole-part target on the demo part: 12 views cover at least 98 % of the part's
 // reachable CAD surface (the face on the table excluded), with a merged C2M RMS within 10 % of a
-// single view's. At 1/2 of the demo rig's resolution (960x600 cameras) to keep the test short.
+// single view's (the median of the views' RMS, as the demo prints it). At 1/2 of the demo rig's
+// resolution (960x600 cameras) to keep the test short.
 TEST(MultiviewDemoTest, TwelveViewsCoverTheReachableDemoPart) {
   const testing::TempDir tmp;
   const TurntableSetup setup = testing::ScaledTurntableDemo(2);
@@ -30,20 +31,21 @@ TEST(MultiviewDemoTest, TwelveViewsCoverTheReachableDemoPart) {
   ASSERT_TRUE(r.merge.cad.has_value());
   const CadComparison& cad = *r.merge.cad;
   EXPECT_GE(cad.coverage_reachable, 0.98) << cad.Summary();
-  // The fused model is closer to the CAD than a single view (its median |C2M| is lower). Its RMS
-  // is within the 10 % of a single view's at the demo's full resolution (ratio 0.79,
-  // docs/benchmarks.md), not at this half resolution (0.054 against 0.026 mm on 2026-12-07:
-  // not yet understood), so it is printed, not bounded here.
-  std::vector<double> median, rms;
-  for (const CadViewFigures& v : cad.views) {
-    median.push_back(v.c2m.median_mm);
-    rms.push_back(v.c2m.rms_mm);
-  }
+  // The fused model is closer to the CAD than a single view: its median |C2M| is lower, and its
+  // RMS within the 10 % of a single view's (median over the views). At this half
+  // resolution the views' ghost points at the part's foot (one view's points a few mm in front
+  // of a wall, just above the table) carried 85 % of the merged cloud's sum of squares until the
+  // fusion's free-space check (merge.h step 4) rejected them: ratio 2.19 before, 0.64 after
+  // (docs/benchmarks/log/2026-12-07-fusion-half-res.md).
+  std::vector<double> median;
+  for (const CadViewFigures& v : cad.views) median.push_back(v.c2m.median_mm);
   std::sort(median.begin(), median.end());
-  std::sort(rms.begin(), rms.end());
   EXPECT_LT(cad.merged_c2m.median_mm, median[median.size() / 2]) << cad.Summary();
-  std::printf("merged C2M RMS %.4f mm, single views' median %.4f mm\n", cad.merged_c2m.rms_mm,
-              rms[rms.size() / 2]);
+  std::printf("merged C2M RMS %.4f mm, single views' median %.4f mm, ratio %.3f\n",
+              cad.merged_c2m.rms_mm, r.single_view_rms_mm,
+              cad.merged_c2m.rms_mm / r.single_view_rms_mm);
+  ASSERT_GT(r.single_view_rms_mm, 0);
+  EXPECT_LE(cad.merged_c2m.rms_mm, 1.1 * r.single_view_rms_mm) << cad.Summary();
   // The poses registered by MergeViews (pairwise ICP, pose graph) from the table angles: at half
   // the demo rig's resolution within 0.02 deg / 0.025 mm of the truth (the 0.002 deg /
   // 2 um is not reached; full resolution: docs/benchmarks.md).

@@ -29,6 +29,10 @@ struct TurntableScanOptions {
   double working_distance_mm = 500;
   double min_cos_incidence = 0.15;  // grazing faces culled below this
   unsigned seed = 1;
+  // > 0: a table disc of this radius about the axis, 0.05 mm under the part, is sampled too (it
+  // occludes and is occluded like the part) into TurntableScan::backdrops, as a table view's
+  // cropped table points are.
+  double table_radius_mm = 0;
 };
 
 struct TurntableScan {
@@ -38,6 +42,7 @@ struct TurntableScan {
   std::vector<double> angles_deg;
   std::vector<Rigid3d> part_from_rig;  // the truth per view: RigFromTableTurn(angle)^-1
   std::vector<PointCloud> clouds;      // per view, rig frame, no normals
+  std::vector<PointCloud> backdrops;   // per view, rig frame: the table's points (table_radius_mm)
 };
 
 // Point on the demo part's top face (tile at height 40) that is flat within 10 mm, and its
@@ -57,6 +62,18 @@ inline TurntableScan MakeTurntableScan(const TurntableScanOptions& o) {
   scan.part_from_object = Rigid3d(Eigen::Quaterniond(r), scan.axis.point_in_rig_mm);
   scan.part = MakeDemoPart(2.0);
   scan.part.Transform(r, scan.axis.point_in_rig_mm);
+  TriangleMesh table;
+  if (o.table_radius_mm > 0) {
+    constexpr int kSectors = 72;
+    const Eigen::Vector3d centre = scan.axis.point_in_rig_mm - 0.05 * up;
+    table.vertices.push_back(centre);
+    for (int s = 0; s < kSectors; ++s) {
+      const double a = 2 * M_PI * s / kSectors;
+      table.vertices.push_back(centre + o.table_radius_mm *
+                                            (std::cos(a) * r.col(0) + std::sin(a) * r.col(1)));
+      table.triangles.emplace_back(0, 1 + s, 1 + (s + 1) % kSectors);
+    }
+  }
 
   std::mt19937 rng(o.seed);
   std::uniform_real_distribution<double> uni(0.0, 1.0);
@@ -74,28 +91,32 @@ inline TurntableScan MakeTurntableScan(const TurntableScanOptions& o) {
     const Rigid3d rig_from_part = scan.axis.RigFromTableTurn(angle);
     scan.part_from_rig.push_back(rig_from_part.Inverse());
     std::vector<Eigen::Vector3d> pts, nrm;
-    for (size_t t = 0; t < scan.part.NumTriangles(); ++t) {
-      const Eigen::Vector3i& f = scan.part.triangles[t];
-      const Eigen::Vector3d a = rig_from_part * scan.part.vertices[static_cast<size_t>(f[0])];
-      const Eigen::Vector3d b = rig_from_part * scan.part.vertices[static_cast<size_t>(f[1])];
-      const Eigen::Vector3d c = rig_from_part * scan.part.vertices[static_cast<size_t>(f[2])];
-      const Eigen::Vector3d cr = (b - a).cross(c - a);
-      const double area = 0.5 * cr.norm();
-      if (area <= 0) continue;
-      const Eigen::Vector3d n = cr.normalized();
-      const Eigen::Vector3d centre = (a + b + c) / 3.0;
-      const double expected = area * density;
-      int count = static_cast<int>(expected);
-      if (uni(rng) < expected - count) ++count;
-      if (n.dot(-centre.normalized()) < o.min_cos_incidence) continue;
-      for (int s = 0; s < count; ++s) {
-        double u = uni(rng), v = uni(rng);
-        if (u + v > 1) {
-          u = 1 - u;
-          v = 1 - v;
+    size_t part_samples = 0;  // pts[part_samples...] are the table's
+    for (const TriangleMesh* mesh : {&scan.part, &table}) {
+      if (mesh == &table) part_samples = pts.size();
+      for (size_t t = 0; t < mesh->NumTriangles(); ++t) {
+        const Eigen::Vector3i& f = mesh->triangles[t];
+        const Eigen::Vector3d a = rig_from_part * mesh->vertices[static_cast<size_t>(f[0])];
+        const Eigen::Vector3d b = rig_from_part * mesh->vertices[static_cast<size_t>(f[1])];
+        const Eigen::Vector3d c = rig_from_part * mesh->vertices[static_cast<size_t>(f[2])];
+        const Eigen::Vector3d cr = (b - a).cross(c - a);
+        const double area = 0.5 * cr.norm();
+        if (area <= 0) continue;
+        const Eigen::Vector3d n = cr.normalized();
+        const Eigen::Vector3d centre = (a + b + c) / 3.0;
+        const double expected = area * density;
+        int count = static_cast<int>(expected);
+        if (uni(rng) < expected - count) ++count;
+        if (n.dot(-centre.normalized()) < o.min_cos_incidence) continue;
+        for (int s = 0; s < count; ++s) {
+          double u = uni(rng), v = uni(rng);
+          if (u + v > 1) {
+            u = 1 - u;
+            v = 1 - v;
+          }
+          pts.push_back(a + u * (b - a) + v * (c - a));
+          nrm.push_back(n);
         }
-        pts.push_back(a + u * (b - a) + v * (c - a));
-        nrm.push_back(n);
       }
     }
     std::vector<float> zbuf((2 * kHalf + 1) * (2 * kHalf + 1), std::numeric_limits<float>::max());
@@ -110,7 +131,7 @@ inline TurntableScan MakeTurntableScan(const TurntableScanOptions& o) {
       float& z = zbuf[static_cast<size_t>((py + kHalf) * (2 * kHalf + 1) + px + kHalf)];
       z = std::min(z, static_cast<float>(p.norm()));
     }
-    PointCloud cloud;
+    PointCloud cloud, backdrop;
     for (size_t i = 0; i < pts.size(); ++i) {
       int px, py;
       const double noise = o.noise_mm * gauss(rng);
@@ -119,9 +140,11 @@ inline TurntableScan MakeTurntableScan(const TurntableScanOptions& o) {
       const double cos_i = std::max(0.15, nrm[i].dot(-pts[i].normalized()));
       const double slope = std::sqrt(1 - cos_i * cos_i) / cos_i;
       if (pts[i].norm() > z + 1.0 + 2.0 * footprint * slope) continue;
-      cloud.points.push_back(pts[i] + noise * nrm[i]);
+      (i < part_samples || table.empty() ? cloud : backdrop)
+          .points.push_back(pts[i] + noise * nrm[i]);
     }
     scan.clouds.push_back(std::move(cloud));
+    scan.backdrops.push_back(std::move(backdrop));
   }
   return scan;
 }

@@ -117,6 +117,10 @@ void MergeOptions::Check() const {
   SLSHADOW_THROW_IF(!(fuse_support_min_factor >= 1),
                     "merge options: fuse_support_min_factor: must be >= 1 (got ",
                     fuse_support_min_factor, ")");
+  SLSHADOW_THROW_IF(fuse_see_through_views < 0,
+                    "merge options: fuse_see_through_views: must be >= 0 (got ",
+                    fuse_see_through_views, ")");
+  positive(fuse_see_through_pixels, "fuse_see_through_pixels");
 }
 
 double RotationErrorDeg(const Rigid3d& a, const Rigid3d& b) {
@@ -216,6 +220,7 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
                       "'): no cloud");
     SLSHADOW_THROW_IF(views[i].cloud->empty(), "merge: view '", views[i].name, "': empty cloud");
     views[i].cloud->Check("merge: view '" + views[i].name + "'");
+    if (views[i].backdrop) views[i].backdrop->Check("merge: view '" + views[i].name + "' backdrop");
     SLSHADOW_THROW_IF(!names.insert(views[i].name).second, "merge: duplicate view name '",
                       views[i].name, "'");
   }
@@ -651,6 +656,7 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
     f.points = geo[i].points;
     f.normals = &geo[i].normals;
     f.variation = &geo[i].variation;
+    if (views[i].backdrop) f.backdrop = &views[i].backdrop->points;
     f.part_from_rig = result.views[i].part_from_rig;
     f.sigma_mm = result.views[i].noise_mm > 0
                      ? result.views[i].noise_mm
@@ -671,6 +677,8 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
     fo.support_radius_mm = options.fuse_support_cells * result.fuse_cell_mm;
     fo.reject_radius_mm = options.fuse_reject_cells * result.fuse_cell_mm;
     fo.support_min_factor = options.fuse_support_min_factor;
+    fo.see_through_views = options.fuse_see_through_views;
+    fo.see_through_pixels = options.fuse_see_through_pixels;
     internal::FuseViews(fusion, fo, &result);
   }
   result.time_fuse_s = Seconds(t0);

@@ -58,9 +58,14 @@
 //     better view measures it); an edge point in front of the surfaces of two or more other
 //     views within fuse_reject_cells cells (in the space they see through) and on none is
 //     rejected (left out: a point off a depth edge); otherwise, off another view's surface, it is
-//     flagged `disagree` and kept apart. So the merged cloud has about one point per surface cell
-//     and view group, however many views saw it, and a view's edge outliers do not outweigh the
-//     fused surface (superseded_points, rejected_points count what was left out).
+//     flagged `disagree` and kept apart. Last, the free-space check: any point one view alone
+//     gave that fuse_see_through_views or more other views saw through (all their points along
+//     their line of sight through it, within fuse_see_through_pixels of their point spacing and
+//     ViewCloud::backdrop included, lie beyond it by more than the combined noise) is rejected:
+//     ghost points far from any other view's surface (off depth edges, at the part's foot above
+//     the cropped table). So the merged cloud has about one point per surface cell and view
+//     group, however many views saw it, and a view's edge outliers do not outweigh the fused
+//     surface (superseded_points, rejected_points count what was left out).
 //
 // Units: mm, degrees where named. Frames: each view's cloud is in its rig frame (the first
 // camera's frame, camera at the origin, which is also the viewpoint normals are oriented to);
@@ -92,6 +97,11 @@ struct ViewCloud {
   // The commanded table angle of a table view (degrees), for the turntable model
   // (MergeOptions::turntable); empty for a view placed by hand.
   std::optional<double> table_deg;
+  // Points the view measured that are not part of the model (e.g. the table, cropped by
+  // project_merge.h), in the same rig frame; borrowed like `cloud`, may be null. They are never
+  // merged: they only show where the view saw through the space in front of them (step 4's
+  // free-space check).
+  const PointCloud* backdrop = nullptr;
 };
 
 struct MergeOptions {
@@ -161,6 +171,12 @@ struct MergeOptions {
   double fuse_support_cells = 2.0;
   double fuse_reject_cells = 4.0;
   double fuse_support_min_factor = 2.0;
+  // The free-space check (step 4): a point one view alone gave is rejected when at least this
+  // many other views saw through it, i.e. their measurements along their own lines of sight
+  // through it (within fuse_see_through_pixels of their point spacing, backdrop points included)
+  // all lie beyond it by more than the combined noise. 0: no such check.
+  int fuse_see_through_views = 2;
+  double fuse_see_through_pixels = 1.5;
 
   // Throws slshadow::Error naming the field and its value when one is out of range.
   void Check() const;
@@ -240,7 +256,8 @@ struct MergeResult {
   size_t input_points = 0;            // points of the accepted views
   size_t disagree_points = 0;
   size_t superseded_points = 0;  // one view's noisy points other views measure better (step 4)
-  size_t rejected_points = 0;    // one view's points off two or more other views' surfaces
+  size_t rejected_points = 0;    // one view's points off two or more other views' surfaces or
+                                 // seen through by two or more other views
   double time_normals_s = 0, time_pairs_s = 0, time_graph_s = 0, time_fuse_s = 0, time_s = 0;
 
   int NumAccepted() const;

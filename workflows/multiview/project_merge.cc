@@ -113,6 +113,9 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
 
   // 1.-2. Reconstruct every complete view, one at a time; initial poses.
   std::vector<PointCloud> clouds(project.views.size());
+  // The table points cropped from each view: not merged, but where the view saw the table, the
+  // space in front of it is empty (the fusion's free-space check, merge.h step 4).
+  std::vector<PointCloud> backdrops(project.views.size());
   for (size_t i = 0; i < project.views.size(); ++i) {
     const ProjectView& pv = project.views[i];
     MergedView v;
@@ -147,6 +150,8 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
         std::vector<bool> keep(rec.cloud.size());
         for (size_t k = 0; k < rec.cloud.size(); ++k)
           keep[k] = up.dot(rec.cloud.points[k] - axis.point_in_rig_mm) >= options.table_crop_mm;
+        for (size_t k = 0; k < rec.cloud.size(); ++k)
+          if (!keep[k]) backdrops[i].points.push_back(rec.cloud.points[k]);
         rec.cloud = rec.cloud.Select(keep);
       }
       v.accepted_points = rec.summary.points;
@@ -167,7 +172,8 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
     const MergedView& v = result.views[i];
     if (clouds[i].empty()) continue;
     inputs.push_back({v.name, &clouds[i], v.part_from_rig_initial.value_or(Rigid3d()),
-                      v.part_from_rig_initial.has_value(), v.table_deg});
+                      v.part_from_rig_initial.has_value(), v.table_deg,
+                      backdrops[i].empty() ? nullptr : &backdrops[i]});
     result.registration_view.push_back(static_cast<int>(i));
   }
   SLSHADOW_THROW_IF(inputs.empty(), what, ": no view can be merged (",

@@ -4,6 +4,7 @@
 #include <bit>
 #include <cmath>
 #include <cstdint>
+#include <memory>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -267,42 +268,146 @@ void FuseViews(const std::vector<FusionView>& views, const FusionOptions& o, Mer
   // (rejected, e.g. a point off a depth edge); otherwise off another view's surface, the views
   // disagree (flagged, kept apart).
   std::vector<Support> support(out.size(), Support::kKeep);
-  if (o.support_radius_mm > 0 && !out.empty()) {
-    std::vector<Eigen::Vector3d> positions(out.size());
+  const double near_radius = std::max(o.support_radius_mm, o.reject_radius_mm);
+  std::vector<Eigen::Vector3d> positions;
+  std::unique_ptr<KdTree> out_tree;
+  if (near_radius > 0 && !out.empty()) {
+    positions.resize(out.size());
     for (size_t i = 0; i < out.size(); ++i) positions[i] = out[i].position;
-    const KdTree tree(positions);
+    out_tree = std::make_unique<KdTree>(positions);
+  }
+  if (o.support_radius_mm > 0 && out_tree) {
+    const KdTree& tree = *out_tree;
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, out.size(), 2048),
+                      [&](const tbb::blocked_range<size_t>& range) {
+                        std::vector<Neighbor> nn;
+                        for (size_t i = range.begin(); i != range.end(); ++i) {
+                          const OutPoint& p = out[i];
+                          if (p.views != 1 || p.disagree || p.factor < o.support_min_factor)
+                            continue;
+                          tree.Radius(p.position, near_radius, &nn);
+                          uint64_t agree = 0, contra = 0;
+                          for (const auto& q_n : nn) {
+                            const OutPoint& q = out[q_n.index];
+                            if ((q.mask & ~p.mask) == 0 || q.sigma > p.sigma) continue;
+                            const double signed_h = q.normal.dot(p.position - q.position);
+                            const double h = std::abs(signed_h);
+                            const double tol = std::max(
+                                o.min_disagreement_mm,
+                                o.k_sigma * std::sqrt(static_cast<double>(p.sigma) * p.sigma +
+                                                      static_cast<double>(q.sigma) * q.sigma));
+                            const double d = std::sqrt(q_n.distance_sq);
+                            if (h <= tol) {
+                              if (d <= o.support_radius_mm) agree |= q.mask & ~p.mask;
+                            } else if (signed_h > 0 && d <= o.reject_radius_mm) {
+                              contra |= q.mask & ~p.mask;
+                            }
+                          }
+                          if (agree != 0) {
+                            support[i] = Support::kSuperseded;
+                          } else if (std::popcount(contra) >= 2 && p.edge > 2.0f) {
+                            support[i] = Support::kRejected;
+                          } else if (contra != 0) {
+                            support[i] = Support::kDisagree;
+                          }
+                        }
+                      });
+  }
+
+  // 3. Free space. A point one view alone gave lies where other views saw through it when all
+  // their points (the backdrop included) along their line of sight through it lie beyond it: a
+  // surface there would have hidden them. Lines of sight are matched by direction from each
+  // view's camera (the origin of its rig frame), within see_through_pixels of the view's point
+  // spacing (the median distance of a direction to its 4th nearest: the pitch on a pixel grid);
+  // fewer than 3 points there: that view says nothing. Points in front of it, or on it within
+  // the combined noise, clear it (the view saw it, or something hid it). Seen through by
+  // see_through_views or more: rejected when noisy (factor >= support_min_factor) or when no
+  // other view's point lies within the check's radius (a ghost far from every surface);
+  // otherwise, a clean point near another view's surface, it is flagged `disagree` and kept
+  // apart, as step 1 keeps a view that disagrees within a cell (such a point is not checked).
+  if (o.see_through_views > 0 && views.size() > 1) {
+    std::vector<uint32_t> candidates;
+    for (size_t i = 0; i < out.size(); ++i)
+      if (out[i].views == 1 && !out[i].disagree && support[i] != Support::kSuperseded &&
+          support[i] != Support::kRejected)
+        candidates.push_back(static_cast<uint32_t>(i));
+    struct Sight {
+      std::vector<Eigen::Vector3d> direction;  // (x / z, y / z, 0) in the rig frame
+      std::vector<float> range;                // distance from the camera
+      std::unique_ptr<KdTree> tree;
+      double radius = 0;
+      Rigid3d rig_from_part;
+    };
+    std::vector<Sight> sights(candidates.empty() ? 0 : views.size());
+    tbb::parallel_for(size_t{0}, sights.size(), [&](size_t k) {
+      Sight& s = sights[k];
+      s.rig_from_part = views[k].part_from_rig.Inverse();
+      size_t own = 0;  // s.direction[0, own): the view's own points
+      for (const auto* set : {views[k].points, views[k].backdrop}) {
+        if (set == nullptr) continue;
+        for (const Eigen::Vector3d& p : *set) {
+          if (!(p.z() > 0)) continue;
+          s.direction.emplace_back(p.x() / p.z(), p.y() / p.z(), 0.0);
+          s.range.push_back(static_cast<float>(p.norm()));
+        }
+        if (set == views[k].points) own = s.direction.size();
+      }
+      if (own < 5) return;
+      s.tree = std::make_unique<KdTree>(s.direction, 32);
+      // The angular point spacing: the median distance of the view's own points (a sample of
+      // them) to their 4th nearest other direction (the backdrop's lie between, on the same grid).
+      const size_t step = std::max<size_t>(1, own / 2000);
+      std::vector<double> spacing;
+      std::vector<Neighbor> nn;
+      for (size_t i = 0; i < own; i += step) {
+        s.tree->KNearest(s.direction[i], 5, &nn);
+        if (nn.size() == 5 && nn[4].distance_sq > 0)
+          spacing.push_back(std::sqrt(nn[4].distance_sq));
+      }
+      if (spacing.empty()) {
+        s.tree.reset();
+        return;
+      }
+      std::nth_element(spacing.begin(), spacing.begin() + static_cast<long>(spacing.size() / 2),
+                       spacing.end());
+      s.radius = o.see_through_pixels * spacing[spacing.size() / 2];
+    });
     tbb::parallel_for(
-        tbb::blocked_range<size_t>(0, out.size(), 2048),
+        tbb::blocked_range<size_t>(0, candidates.size(), 512),
         [&](const tbb::blocked_range<size_t>& range) {
           std::vector<Neighbor> nn;
-          for (size_t i = range.begin(); i != range.end(); ++i) {
+          for (size_t c = range.begin(); c != range.end(); ++c) {
+            const size_t i = candidates[c];
             const OutPoint& p = out[i];
-            if (p.views != 1 || p.disagree || p.factor < o.support_min_factor) continue;
-            tree.Radius(p.position, std::max(o.support_radius_mm, o.reject_radius_mm), &nn);
-            uint64_t agree = 0, contra = 0;
-            for (const auto& q_n : nn) {
-              const OutPoint& q = out[q_n.index];
-              if ((q.mask & ~p.mask) == 0 || q.sigma > p.sigma) continue;
-              const double signed_h = q.normal.dot(p.position - q.position);
-              const double h = std::abs(signed_h);
+            int through = 0;
+            for (size_t k = 0; k < sights.size(); ++k) {
+              const Sight& s = sights[k];
+              if (!s.tree || s.radius <= 0 || (p.mask & Bit(static_cast<int>(k))) != 0) continue;
+              const Eigen::Vector3d q = s.rig_from_part * p.position;
+              if (!(q.z() > 0)) continue;
+              s.tree->Radius(Eigen::Vector3d(q.x() / q.z(), q.y() / q.z(), 0.0), s.radius, &nn);
+              if (nn.size() < 3) continue;
+              const double sk = views[k].sigma_mm;
               const double tol =
                   std::max(o.min_disagreement_mm,
-                           o.k_sigma * std::sqrt(static_cast<double>(p.sigma) * p.sigma +
-                                                 static_cast<double>(q.sigma) * q.sigma));
-              const double d = std::sqrt(q_n.distance_sq);
-              if (h <= tol) {
-                if (d <= o.support_radius_mm) agree |= q.mask & ~p.mask;
-              } else if (signed_h > 0 && d <= o.reject_radius_mm) {
-                contra |= q.mask & ~p.mask;
+                           o.k_sigma * std::sqrt(static_cast<double>(p.sigma) * p.sigma + sk * sk));
+              const double beyond = q.norm() + tol;
+              bool all = true;
+              for (const Neighbor& n : nn) {
+                if (s.range[n.index] <= beyond) {
+                  all = false;
+                  break;
+                }
               }
+              through += all ? 1 : 0;
             }
-            if (agree != 0) {
-              support[i] = Support::kSuperseded;
-            } else if (std::popcount(contra) >= 2 && p.edge > 2.0f) {
-              support[i] = Support::kRejected;
-            } else if (contra != 0) {
-              support[i] = Support::kDisagree;
+            if (through < o.see_through_views) continue;
+            bool near = false;
+            if (p.factor < o.support_min_factor && out_tree) {
+              out_tree->Radius(p.position, near_radius, &nn);
+              for (const Neighbor& n : nn) near = near || (out[n.index].mask & ~p.mask) != 0;
             }
+            support[i] = near ? Support::kDisagree : Support::kRejected;
           }
         });
   }

@@ -22,6 +22,9 @@ struct FusionView {
   const std::vector<float>* variation = nullptr;
   Rigid3d part_from_rig;
   double sigma_mm = 0;  // noise along the normal of a flat point seen head-on, > 0
+  // Points the view measured that are not fused (e.g. the table), rig frame; may be null. Only
+  // the free-space check uses them.
+  const std::vector<Eigen::Vector3d>* backdrop = nullptr;
 };
 
 struct FusionOptions {
@@ -39,6 +42,12 @@ struct FusionOptions {
   double reject_radius_mm = 0;  // of the other views' points that can contradict one
   // Single-view points whose noise factor (above) is at least this are checked.
   double support_min_factor = 2.0;
+  // A point one view alone gave is rejected when at least see_through_views other views saw
+  // through it: all their points (backdrop included) within see_through_pixels of their point
+  // spacing of its line of sight from their camera lie beyond it by more than
+  // max(min_disagreement_mm, k_sigma x the combined noise). 0: no such check.
+  int see_through_views = 2;
+  double see_through_pixels = 1.5;
 };
 
 // Fills result->merged (points, normals, scalar fields), point_view, point_views,
