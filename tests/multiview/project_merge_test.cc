@@ -129,7 +129,10 @@ TEST_F(ProjectMergeTest, HandPlacedViewsWithoutAGuessAreRegisteredGlobally) {
   const fs::path dir = tmp_->path() / "hand";
   fs::copy(project(), dir, fs::copy_options::recursive);
   ProjectManifest p = LoadProject(dir);
-  for (size_t i = 1; i < p.views.size(); ++i) p.views[i].spec.table_deg.reset();
+  for (size_t i = 1; i < p.views.size(); ++i) {
+    p.views[i].spec.table_deg.reset();
+    p.views[i].spec.placed_on_table = true;  // put down on the table by hand: the table cropped
+  }
   SaveProject(p, dir);
   const ProjectMergeResult r = MergeProject(dir, cad_);
   std::printf("%s", r.Summary().c_str());
@@ -147,9 +150,11 @@ TEST_F(ProjectMergeTest, HandPlacedViewsWithoutAGuessAreRegisteredGlobally) {
     EXPECT_LT(v.rotation_error_deg, 0.1) << v.name;
     EXPECT_LT(v.translation_error_mm, 0.1) << v.name;
   }
-  // On this coarse fixture (480x300 pixels, views 90 deg apart, the table disc kept in hand
-  // views) the globally found poses do not survive ICP: every hand view is left out, named.
+  // On this coarse fixture (480x300 pixels, views 90 deg apart) one hand view registers and the
+  // others are left out, named; with the table kept in the hand views (placed_on_table false)
+  // none registered: the table disc, not the part, dominated their global registration.
   std::printf("hand views registered: %d of %zu\n", registered, r.views.size() - 1);
+  EXPECT_GE(registered, 1);
   EXPECT_GT(r.merged.size(), 0u);
 }
 

@@ -118,6 +118,10 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
     MergedView v;
     v.name = pv.spec.name;
     v.table_deg = pv.spec.table_deg;
+    SLSHADOW_THROW_IF(pv.spec.placed_on_table && !project.rig.turntable, what, ": view '",
+                      pv.spec.name,
+                      "': placed_on_table, but the rig has no turntable axis (rig.turntable) to "
+                      "give the table plane");
     if (pv.spec.OnTable()) {
       v.part_from_rig_initial =
           project.rig.turntable->RigFromTableTurn(*pv.spec.table_deg).Inverse();
@@ -140,8 +144,9 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
       Reconstruction rec = ReconstructView(image_set, options);
       ReleaseReconstructionBuffers();
       malloc_trim(0);
-      if (pv.spec.OnTable() && options.table_crop_mm >= 0) {
-        // The table plane does not move when the table turns: the same plane in every view.
+      if (pv.spec.StandsOnTable() && options.table_crop_mm >= 0) {
+        // The table plane does not move when the table turns, nor when the part is put down on
+        // it by hand: the same plane in every view that stands on the table.
         const TurntableAxis& axis = *project.rig.turntable;
         const Eigen::Vector3d up = axis.direction_in_rig.normalized();
         std::vector<bool> keep(rec.cloud.size());
