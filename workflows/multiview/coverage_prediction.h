@@ -68,6 +68,7 @@ enum class PredictedReason : uint8_t {
 };
 // "reconstructed", "too_dark", "grazing", "occluded", "outside_field", "on_table"
 std::string ToString(PredictedReason reason);
+constexpr int kNumPredictedReasons = 6;
 
 struct CoveragePredictionOptions {
   ReconstructMode mode = ReconstructMode::kStereo;
@@ -179,7 +180,7 @@ struct PredictedView {
   std::string name;
   Rigid3d part_from_rig;
   // Samples by this view's own reason (PredictedReason order).
-  std::array<size_t, kNumCoverageReasons> reason_samples{};
+  std::array<size_t, kNumPredictedReasons> reason_samples{};
   double coverage = 0;  // reconstructed by this view / samples off the table
 };
 
@@ -194,7 +195,7 @@ struct CoveragePrediction {
   std::vector<uint8_t> sample_reason;
   std::vector<uint8_t> sample_views;  // number of views reconstructing the sample (<= 255)
   std::vector<PredictedView> views;
-  std::array<size_t, kNumCoverageReasons> reason_samples{};
+  std::array<size_t, kNumPredictedReasons> reason_samples{};
   double cad_area_mm2 = 0;
   double coverage_off_table = 0;  // covered / samples off the table
   double seconds = 0;
@@ -257,7 +258,7 @@ struct PredictionCheck {
   // Disagreements by the sample's own predicted reason (PredictedReason order): predicted
   // reconstructed but not covered in the scan, predicted too dark / grazing / occluded / outside
   // the field but covered.
-  std::array<size_t, kNumCoverageReasons> disagree_by_predicted{};
+  std::array<size_t, kNumPredictedReasons> disagree_by_predicted{};
   double predicted_coverage = 0, scanned_coverage = 0;  // of the compared samples
   double coverage_radius_mm = 0;                        // the scan's
   std::string Summary() const;
