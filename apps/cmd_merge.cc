@@ -165,7 +165,8 @@ int RunMerge(int argc, char** argv) {
       ->capture_default_str();
   app.add_option(
          "--table-crop-mm", options.table_crop_mm,
-         "table views: drop points less than this above the table plane (negative: keep all)")
+         "views on the table (table views and hand placements with placed_on_table): drop points "
+         "less than this above the table plane (negative: keep all)")
       ->capture_default_str();
   bool no_mesh = false;
   app.add_flag("--no-mesh", no_mesh, "do not build the surface mesh (mesh.ply)");

@@ -164,6 +164,94 @@ TEST(CadCompareTest, UncoveredSurfaceIsNamedByItsReason) {
             cut.samples / 10);
 }
 
+// too_dark is measured, not guessed: a reachable, uncovered sample is too dark when every view
+// that sees it recorded the decoder's dark pixels and a camera's pixel under it is dark there.
+TEST(CadCompareTest, TooDarkWhereEveryViewThatSeesItHasADarkPixelThere) {
+  const OcclusionSetup s = MakeOcclusionSetup();
+  PointCloud far;
+  far.points = {Eigen::Vector3d(0, 0, 5000), Eigen::Vector3d(1, 0, 5000)};
+  CadCompareOptions options;
+  options.samples = 20000;
+  const auto at = [](const CadComparison& c, CoverageReason r) {
+    return c.reason_samples[static_cast<size_t>(r)];
+  };
+  // Every camera pixel dark (all_dark) or none (all_lit), for the stereo mode's two cameras.
+  const auto masks = [&](uint8_t value) {
+    std::vector<DarkPixels> m;
+    for (size_t k = 0; k < 2; ++k) {
+      const RigDevice& cam = s.rig.cameras[k];
+      m.push_back(DarkPixels{cam.name, cam.model.width, cam.model.height,
+                             std::vector<uint8_t>(static_cast<size_t>(cam.model.width) *
+                                                      static_cast<size_t>(cam.model.height),
+                                                  value)});
+    }
+    return m;
+  };
+  const std::vector<DarkPixels> all_dark = masks(1), all_lit = masks(0);
+  std::vector<CadView> views = TableViews(s.rig, 4, nullptr);
+  const CadComparison plain =
+      CompareWithCad(s.cad, s.rig, ReconstructMode::kStereo, views, far, s.rig.turntable, options);
+  const size_t reachable = at(plain, CoverageReason::kNotReconstructed);
+  ASSERT_GT(reachable, 1000u);
+  EXPECT_EQ(at(plain, CoverageReason::kTooDark), 0u);  // no record: nothing is called too dark
+
+  for (CadView& v : views) v.dark = &all_lit;
+  const CadComparison lit =
+      CompareWithCad(s.cad, s.rig, ReconstructMode::kStereo, views, far, s.rig.turntable, options);
+  EXPECT_EQ(at(lit, CoverageReason::kTooDark), 0u);
+  EXPECT_EQ(at(lit, CoverageReason::kNotReconstructed), reachable);
+
+  for (CadView& v : views) v.dark = &all_dark;
+  const CadComparison dark =
+      CompareWithCad(s.cad, s.rig, ReconstructMode::kStereo, views, far, s.rig.turntable, options);
+  EXPECT_EQ(at(dark, CoverageReason::kTooDark), reachable);
+  EXPECT_EQ(at(dark, CoverageReason::kNotReconstructed), 0u);
+  EXPECT_DOUBLE_EQ(dark.reachable_share, plain.reachable_share);  // still reachable
+  for (const CoverageReason r : {CoverageReason::kGrazing, CoverageReason::kOccluded,
+                                 CoverageReason::kOutsideField, CoverageReason::kOnTable})
+    EXPECT_EQ(at(dark, r), at(plain, r)) << ToString(r);
+
+  // View 0 lit where the others are dark: what view 0 sees is not too dark, the rest is. The
+  // oracle for "what view 0 sees": the comparison of view 0 alone.
+  views[0].dark = &all_lit;
+  const CadComparison mixed =
+      CompareWithCad(s.cad, s.rig, ReconstructMode::kStereo, views, far, s.rig.turntable, options);
+  const CadComparison only0 = CompareWithCad(s.cad, s.rig, ReconstructMode::kStereo, {views[0]},
+                                             far, s.rig.turntable, options);
+  const size_t seen_by_0 = at(only0, CoverageReason::kNotReconstructed);
+  EXPECT_GT(seen_by_0, 100u);
+  EXPECT_LT(seen_by_0, reachable);
+  EXPECT_EQ(at(mixed, CoverageReason::kNotReconstructed), seen_by_0);
+  EXPECT_EQ(at(mixed, CoverageReason::kTooDark), reachable - seen_by_0);
+  for (size_t i = 0; i < mixed.samples; ++i) {
+    if (only0.sample_reason[i] == static_cast<uint8_t>(CoverageReason::kNotReconstructed)) {
+      ASSERT_EQ(mixed.sample_reason[i], static_cast<uint8_t>(CoverageReason::kNotReconstructed));
+    }
+  }
+  // A view without a record can tell nothing: the same as lit.
+  views[0].dark = nullptr;
+  const CadComparison unknown =
+      CompareWithCad(s.cad, s.rig, ReconstructMode::kStereo, views, far, s.rig.turntable, options);
+  EXPECT_EQ(unknown.sample_reason, mixed.sample_reason);
+  EXPECT_NE(dark.Summary().find("too_dark"), std::string::npos);
+  EXPECT_TRUE(dark.ToJson()["surface_by_reason"].contains("too_dark"));
+}
+
+TEST(CadCompareTest, DarkPixelsFromTheDecodersStatus) {
+  cv::Mat status(2, 3, CV_8UC1, cv::Scalar(static_cast<int>(PixelStatus::kValid)));
+  status.at<uint8_t>(0, 1) = static_cast<uint8_t>(PixelStatus::kShadow);
+  status.at<uint8_t>(1, 2) = static_cast<uint8_t>(PixelStatus::kLowContrast);
+  status.at<uint8_t>(1, 0) = static_cast<uint8_t>(PixelStatus::kSaturated);
+  const DarkPixels d = DarkPixels::FromStatus("left", status);
+  EXPECT_EQ(d.dark, (std::vector<uint8_t>{0, 1, 0, 0, 0, 1}));
+  EXPECT_TRUE(d.At({1.4, 0.2}));   // nearest pixel (1, 0)
+  EXPECT_FALSE(d.At({1.6, 0.2}));  // (2, 0)
+  EXPECT_TRUE(d.At({2.0, 1.0}));
+  EXPECT_FALSE(d.At({-0.6, 0.0}));  // outside the image
+  EXPECT_FALSE(d.At({3.0, 0.0}));
+  EXPECT_THROW(DarkPixels::FromStatus("left", cv::Mat(2, 2, CV_32FC1)), Error);
+}
+
 TEST(CadCompareTest, PerViewFiguresAndPaintedMesh) {
   const OcclusionSetup s = MakeOcclusionSetup();
   // Two views whose clouds (rig frame) are the exact surface seen at their poses, one offset.

@@ -43,6 +43,10 @@ TEST(ViewsFileTest, RoundTripOfTableAndHandPlacedViews) {
   ViewSpec no_guess;
   no_guess.name = "free";
   views.views.push_back(no_guess);
+  ViewSpec put_down;
+  put_down.name = "put_down";
+  put_down.placed_on_table = true;
+  views.views.push_back(put_down);
   const TempDir tmp;
   for (const char* name : {"views.yaml", "views.json"}) {
     SaveViews(views, tmp / name);
@@ -52,6 +56,9 @@ TEST(ViewsFileTest, RoundTripOfTableAndHandPlacedViews) {
       EXPECT_TRUE(back.views[i] == views.views[i]) << name << " view " << i;
     }
     EXPECT_EQ(ViewsToJson(back), ViewsToJson(views)) << name;
+    EXPECT_TRUE(back.views.back().StandsOnTable()) << name;
+    EXPECT_FALSE(back.views[views.views.size() - 2].StandsOnTable()) << name;
+    EXPECT_TRUE(back.views[0].StandsOnTable()) << name;
   }
 }
 
@@ -98,6 +105,11 @@ TEST(ViewsFileTest, BadInputsNameFileFieldAndValue) {
   EXPECT_NE(error_of("views:\n  - {table_deg: 0, part_from_rig_guess: {translation_mm: [0, 0, 0], "
                      "rotation_quat_wxyz: [1, 0, 0, 0]}}\n")
                 .find("views[0].part_from_rig_guess: a table view's pose follows"),
+            std::string::npos);
+  EXPECT_NE(error_of("views:\n  - {table_deg: 0, placed_on_table: true}\n")
+                .find("views[0].placed_on_table: a table view stands on the table anyway"),
+            std::string::npos);
+  EXPECT_NE(error_of("views:\n  - {placed_on_table: 3}\n").find("placed_on_table"),
             std::string::npos);
   EXPECT_NE(error_of("views:\n  - {part_from_rig_guess: {translation_mm: [0, 0, 0], "
                      "rotation_quat_wxyz: [2, 0, 0, 0]}}\n")

@@ -75,6 +75,45 @@ std::vector<uint8_t> BestSight(const TriangleMesh& cad, const std::vector<Eigen:
   return best;
 }
 
+// Splits kNotReconstructed samples of `reason` into kTooDark where every view that sees the sample
+// (every device, unoccluded, not grazing) recorded its dark pixels and a camera's pixel under the
+// sample is dark in it. Views without a record keep their samples not_reconstructed.
+void MarkTooDark(const TriangleMesh& cad, const std::vector<Eigen::Vector3d>& samples,
+                 const std::vector<Eigen::Vector3f>& normals,
+                 const std::vector<const RigDevice*>& devices, const Rig& rig,
+                 const std::vector<CadView>& views, double grazing_deg,
+                 std::vector<uint8_t>* reason) {
+  constexpr auto kNot = static_cast<uint8_t>(CoverageReason::kNotReconstructed);
+  std::vector<uint8_t> active(samples.size());
+  for (size_t i = 0; i < samples.size(); ++i) active[i] = (*reason)[i] == kNot;
+  if (std::none_of(active.begin(), active.end(), [](uint8_t a) { return a != 0; })) return;
+  // Per sample: 0 no view seen it yet, 1 every view that saw it was dark there, 2 some was not.
+  std::vector<uint8_t> state(samples.size(), 0);
+  const internal::SightCaster caster(cad);
+  for (const CadView& v : views) {
+    const std::vector<uint8_t> sight =
+        caster.View(samples, normals, devices, v.part_from_rig, grazing_deg, &active);
+    const Rigid3d rig_from_part = v.part_from_rig.Inverse();
+    std::vector<std::pair<const RigDevice*, const DarkPixels*>> cameras;
+    if (v.dark) {
+      for (const DarkPixels& d : *v.dark) cameras.push_back({&rig.Camera(d.camera), &d});
+    }
+    tbb::parallel_for(size_t{0}, samples.size(), [&](size_t i) {
+      if (!active[i] || sight[i] != static_cast<uint8_t>(CoverageReason::kCovered)) return;
+      bool dark = false;
+      const Eigen::Vector3d x_rig = rig_from_part * samples[i];
+      for (const auto& [device, pixels] : cameras) {
+        const auto pixel = device->model.Project(device->cam_from_rig * x_rig);
+        if (pixel && pixels->At(*pixel)) dark = true;
+      }
+      state[i] = dark && state[i] != 2 ? 1 : 2;
+    });
+  }
+  for (size_t i = 0; i < samples.size(); ++i) {
+    if (active[i] && state[i] == 1) (*reason)[i] = static_cast<uint8_t>(CoverageReason::kTooDark);
+  }
+}
+
 nlohmann::json StatsJson(const compare::DistanceStats& s) {
   return {{"count", s.count},
           {"rms_mm", s.rms_mm},
@@ -104,8 +143,43 @@ std::string ToString(CoverageReason reason) {
       return "outside_field";
     case CoverageReason::kOnTable:
       return "on_table";
+    case CoverageReason::kTooDark:
+      return "too_dark";
   }
   return "unknown";
+}
+
+std::array<uint8_t, 3> ReasonColor(CoverageReason reason) {
+  static const std::array<uint8_t, 3> kColors[kNumCoverageReasons] = {
+      {40, 170, 60},   {220, 30, 30}, {240, 150, 20}, {40, 80, 220},
+      {150, 150, 150}, {0, 0, 0},     {120, 20, 20}};
+  return kColors[static_cast<size_t>(reason)];
+}
+
+DarkPixels DarkPixels::FromStatus(const std::string& camera, const cv::Mat& status) {
+  SLSHADOW_THROW_IF(status.type() != CV_8UC1, "dark pixels of camera '", camera,
+                    "': the status map must be CV_8UC1");
+  DarkPixels d;
+  d.camera = camera;
+  d.width = status.cols;
+  d.height = status.rows;
+  d.dark.resize(static_cast<size_t>(d.width) * static_cast<size_t>(d.height));
+  for (int y = 0; y < d.height; ++y) {
+    const uint8_t* row = status.ptr<uint8_t>(y);
+    for (int x = 0; x < d.width; ++x) {
+      const auto s = static_cast<PixelStatus>(row[x]);
+      d.dark[static_cast<size_t>(y) * static_cast<size_t>(d.width) + static_cast<size_t>(x)] =
+          s == PixelStatus::kShadow || s == PixelStatus::kLowContrast;
+    }
+  }
+  return d;
+}
+
+bool DarkPixels::At(const Eigen::Vector2d& pixel) const {
+  // Integer coordinates are pixel centres (core/projector_map.h).
+  const double x = std::round(pixel.x()), y = std::round(pixel.y());
+  if (!(x >= 0 && y >= 0 && x < width && y < height)) return false;
+  return dark[static_cast<size_t>(y) * static_cast<size_t>(width) + static_cast<size_t>(x)] != 0;
 }
 
 void CadCompareOptions::Check() const {
@@ -185,8 +259,10 @@ CadComparison CompareWithCad(const TriangleMesh& cad_in_part, const Rig& rig, Re
               : static_cast<CoverageReason>(sight[i]);
     }
     result.sample_reason[i] = static_cast<uint8_t>(r);
-    ++result.reason_samples[static_cast<size_t>(r)];
   }
+  MarkTooDark(cad_in_part, samples, reference.cloud.normals, devices, rig, views,
+              options.grazing_deg, &result.sample_reason);
+  for (const uint8_t r : result.sample_reason) ++result.reason_samples[r];
   const double n_samples = static_cast<double>(samples.size());
   for (int r = 0; r < kNumCoverageReasons; ++r) {
     result.reason_area_mm2[static_cast<size_t>(r)] =
@@ -196,8 +272,9 @@ CadComparison CompareWithCad(const TriangleMesh& cad_in_part, const Rig& rig, Re
   const auto count = [&](CoverageReason r) {
     return static_cast<double>(result.reason_samples[static_cast<size_t>(r)]);
   };
-  const double reachable =
-      count(CoverageReason::kCovered) + count(CoverageReason::kNotReconstructed);
+  const double reachable = count(CoverageReason::kCovered) +
+                           count(CoverageReason::kNotReconstructed) +
+                           count(CoverageReason::kTooDark);
   const double off_table = n_samples - count(CoverageReason::kOnTable);
   result.coverage_reachable = reachable > 0 ? count(CoverageReason::kCovered) / reachable : 0;
   result.coverage_total = off_table > 0 ? count(CoverageReason::kCovered) / off_table : 0;
@@ -219,9 +296,7 @@ CadComparison CompareWithCad(const TriangleMesh& cad_in_part, const Rig& rig, Re
           Reached(points, d, options.threshold_mm, f.coverage_radius_mm, samples);
       size_t hit = 0;
       for (size_t i = 0; i < samples.size(); ++i) {
-        const auto r = static_cast<CoverageReason>(result.sample_reason[i]);
-        if (reached[i] && (r == CoverageReason::kCovered || r == CoverageReason::kNotReconstructed))
-          ++hit;
+        if (reached[i] && Reachable(static_cast<CoverageReason>(result.sample_reason[i]))) ++hit;
       }
       f.coverage = reachable > 0 ? static_cast<double>(hit) / reachable : 0;
     }

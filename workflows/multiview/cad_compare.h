@@ -20,11 +20,16 @@
 //                      (or facing away from it);
 //   grazing            seen unoccluded by every device of some view, but at an incidence beyond
 //                      grazing_deg to one of them;
+//   too_dark           reachable, no cloud covers it, and in every view that sees it the decoder
+//                      found a camera's pixel there too dark to decode (ProjectorMap status shadow
+//                      or low contrast: white - black or the fringes' contrast below the decode
+//                      thresholds): measured on the view's own images (CadView::dark), not
+//                      predicted; views without that record leave the sample not_reconstructed;
 //   not_reconstructed  reachable (some view sees it with every device, unoccluded, not grazing)
-//                      but no cloud covers it: dark, filtered, noisy, or a merge that left a view
-//                      out.
-// Coverage of the reachable surface = covered / (covered + not_reconstructed) samples; the
-// "reachable" share is what the rig could at best cover from these views.
+//                      but no cloud covers it, and not too dark: filtered, noisy, or a merge that
+//                      left a view out.
+// Coverage of the reachable surface = covered / (covered + not_reconstructed + too_dark) samples;
+// the "reachable" share is what the rig could at best cover from these views.
 #pragma once
 
 #include <array>
@@ -38,6 +43,7 @@
 #include "compare/statistics.h"
 #include "core/mesh.h"
 #include "core/point_cloud.h"
+#include "core/projector_map.h"
 #include "core/rig.h"
 #include "core/rigid3.h"
 #include "reconstruct/reconstruct.h"
@@ -50,11 +56,21 @@ enum class CoverageReason {
   kGrazing,
   kOccluded,
   kOutsideField,
-  kOnTable
+  kOnTable,
+  kTooDark,  // last, so that the numbers of the others (PLY `reason` scalars) stay as they were
 };
-// "covered", "not_reconstructed", "grazing", "occluded", "outside_field", "on_table"
+// "covered", "not_reconstructed", "grazing", "occluded", "outside_field", "on_table", "too_dark"
 std::string ToString(CoverageReason reason);
-constexpr int kNumCoverageReasons = 6;
+constexpr int kNumCoverageReasons = 7;
+// The colour of a reason in cad_coverage.ply (docs/formats.md): covered green, not reconstructed
+// red, grazing orange, occluded blue, outside the field grey, on the table black, too dark dark
+// red.
+std::array<uint8_t, 3> ReasonColor(CoverageReason reason);
+// Reachable: some view sees the sample with every device, unoccluded, not grazing.
+inline bool Reachable(CoverageReason r) {
+  return r == CoverageReason::kCovered || r == CoverageReason::kNotReconstructed ||
+         r == CoverageReason::kTooDark;
+}
 
 struct CadCompareOptions {
   double threshold_mm = 0.25;  // inlier threshold of coverage
@@ -69,11 +85,26 @@ struct CadCompareOptions {
   void Check() const;           // throws slshadow::Error naming the bad field
 };
 
+// Where the decoder found one camera of a view too dark to decode: per camera pixel, 1 where the
+// ProjectorMap status is shadow or low contrast (core/projector_map.h).
+struct DarkPixels {
+  std::string camera;  // the rig camera's name
+  int width = 0;
+  int height = 0;
+  std::vector<uint8_t> dark;  // row-major, width x height
+  // 1 where `status` (CV_8UC1 of PixelStatus) is kShadow or kLowContrast.
+  static DarkPixels FromStatus(const std::string& camera, const cv::Mat& status);
+  bool At(const Eigen::Vector2d& pixel) const;  // the nearest pixel; false outside the image
+};
+
 // One view as the comparison sees it.
 struct CadView {
   std::string name;
   Rigid3d part_from_rig;              // the view's pose (merged, or the truth in a test)
   const PointCloud* cloud = nullptr;  // rig frame; null: the view is left out of the merge
+  // The decoder's dark pixels of the mode's cameras in this view; null: not recorded (the view
+  // cannot tell too_dark from not_reconstructed).
+  const std::vector<DarkPixels>* dark = nullptr;
 };
 
 struct CadViewFigures {
@@ -95,9 +126,9 @@ struct CadComparison {
   // Samples and area (area = cad_area_mm2 x share of samples) by reason, CoverageReason order.
   std::array<size_t, kNumCoverageReasons> reason_samples{};
   std::array<double, kNumCoverageReasons> reason_area_mm2{};
-  double coverage_reachable = 0;  // covered / (covered + not_reconstructed)
+  double coverage_reachable = 0;  // covered / reachable (covered, not_reconstructed, too_dark)
   double coverage_total = 0;      // covered / samples not on the table
-  double reachable_share = 0;     // (covered + not_reconstructed) / samples not on the table
+  double reachable_share = 0;     // reachable / samples not on the table
   // Per CAD vertex: the mean C2M of the merged points within the coverage radius (NaN: none), and
   // the reason of the nearest surface sample.
   std::vector<float> vertex_deviation_mm;

@@ -405,7 +405,7 @@ std::vector<uint8_t> ViewSight(const internal::SightCaster& caster,
   return sight;
 }
 
-const std::array<uint8_t, 3> kColors[kNumCoverageReasons] = {
+const std::array<uint8_t, 3> kColors[kNumPredictedReasons] = {
     {40, 170, 60}, {220, 30, 30}, {240, 150, 20}, {40, 80, 220}, {150, 150, 150}, {0, 0, 0}};
 
 double Share(size_t a, size_t b) { return b ? static_cast<double>(a) / static_cast<double>(b) : 0; }
@@ -938,13 +938,13 @@ nlohmann::json CoveragePrediction::ToJson() const {
   j["cad_area_mm2"] = cad_area_mm2;
   j["coverage_off_table"] = coverage_off_table;
   nlohmann::json by = nlohmann::json::object();
-  for (int r = 0; r < kNumCoverageReasons; ++r)
+  for (int r = 0; r < kNumPredictedReasons; ++r)
     by[ToString(static_cast<PredictedReason>(r))] = reason_samples[static_cast<size_t>(r)];
   j["samples_by_reason"] = by;
   j["views"] = nlohmann::json::array();
   for (const PredictedView& v : views) {
     nlohmann::json view = {{"name", v.name}, {"coverage_off_table", v.coverage}};
-    for (int r = 0; r < kNumCoverageReasons; ++r) {
+    for (int r = 0; r < kNumPredictedReasons; ++r) {
       view["samples_by_reason"][ToString(static_cast<PredictedReason>(r))] =
           v.reason_samples[static_cast<size_t>(r)];
     }
@@ -960,7 +960,7 @@ std::string CoveragePrediction::Table() const {
   std::string out =
       "predicted coverage (share of the CAD surface off the table, no images rendered)\n"
       "view        reconstructed  too dark   grazing  occluded   outside\n";
-  const auto row = [&](const std::string& name, const std::array<size_t, kNumCoverageReasons>& n) {
+  const auto row = [&](const std::string& name, const std::array<size_t, kNumPredictedReasons>& n) {
     return StringPrintf("%-10s  %10.2f %%  %6.2f %%  %6.2f %%  %6.2f %%  %6.2f %%", name.c_str(),
                         pct(n[kCovered]), pct(n[kDark]), pct(n[kGrazing]), pct(n[kOccluded]),
                         pct(n[kOutside]));

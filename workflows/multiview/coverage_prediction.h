@@ -74,6 +74,7 @@ enum class PredictedReason : uint8_t {
 };
 // "reconstructed", "too_dark", "grazing", "occluded", "outside_field", "on_table"
 std::string ToString(PredictedReason reason);
+constexpr int kNumPredictedReasons = 6;
 
 struct CoveragePredictionOptions {
   ReconstructMode mode = ReconstructMode::kStereo;
@@ -195,7 +196,7 @@ struct PredictedView {
   std::string name;
   Rigid3d part_from_rig;
   // Samples by this view's own reason (PredictedReason order).
-  std::array<size_t, kNumCoverageReasons> reason_samples{};
+  std::array<size_t, kNumPredictedReasons> reason_samples{};
   double coverage = 0;  // reconstructed by this view / samples off the table
 };
 
@@ -213,7 +214,7 @@ struct CoveragePrediction {
   // frame (CoveragePredictor::ViewPoints), all views together.
   std::vector<Eigen::Vector3d> predicted_points;
   std::vector<PredictedView> views;
-  std::array<size_t, kNumCoverageReasons> reason_samples{};
+  std::array<size_t, kNumPredictedReasons> reason_samples{};
   double cad_area_mm2 = 0;
   double coverage_off_table = 0;  // covered / samples off the table
   double seconds = 0;
@@ -280,7 +281,7 @@ struct PredictionCheck {
   // reconstructed itself but within the radius of one that is counts as predicted covered, so a
   // disagreement under "occluded" may be either way: predicted_not_scanned says how many of all
   // are predicted covered and not covered in the scan (the rest: covered, not predicted).
-  std::array<size_t, kNumCoverageReasons> disagree_by_predicted{};
+  std::array<size_t, kNumPredictedReasons> disagree_by_predicted{};
   size_t predicted_not_scanned = 0;
   double predicted_coverage = 0, scanned_coverage = 0;  // of the compared samples
   double coverage_radius_mm = 0;                        // the scan's

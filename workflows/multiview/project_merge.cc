@@ -29,7 +29,9 @@ double SecondsSince(std::chrono::steady_clock::time_point t0) {
 }
 
 // The view's cloud (rig frame): decoded and reconstructed from its ImageSet alone.
-Reconstruction ReconstructView(const ImageSet& image_set, const ProjectMergeOptions& options) {
+// The view's reconstruction, and in `dark` each camera's pixels the decoder found too dark.
+Reconstruction ReconstructView(const ImageSet& image_set, const ProjectMergeOptions& options,
+                               std::vector<DarkPixels>* dark) {
   const Rig& rig = image_set.rig();
   SLSHADOW_THROW_IF(options.mode == ReconstructMode::kStereo && rig.cameras.size() < 2,
                     image_set.dir().string(), ": stereo needs two cameras (the rig has ",
@@ -38,6 +40,9 @@ Reconstruction ReconstructView(const ImageSet& image_set, const ProjectMergeOpti
   if (options.mode == ReconstructMode::kStereo) cameras.push_back(rig.cameras[1].name);
   const pipeline::DecodedScan decoded =
       pipeline::DecodeImageSet(image_set, cameras, options.decode);
+  dark->clear();
+  for (size_t k = 0; k < cameras.size(); ++k)
+    dark->push_back(DarkPixels::FromStatus(cameras[k], decoded.maps[k].status));
   Reconstruction rec =
       options.mode == ReconstructMode::kStereo
           ? ReconstructStereo(rig, cameras[0], cameras[1], decoded.maps[0], decoded.maps[1],
@@ -116,11 +121,16 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
   // The table points cropped from each view: not merged, but where the view saw the table, the
   // space in front of it is empty (the fusion's free-space check, merge.h step 4).
   std::vector<PointCloud> backdrops(project.views.size());
+  std::vector<std::vector<DarkPixels>> dark(project.views.size());
   for (size_t i = 0; i < project.views.size(); ++i) {
     const ProjectView& pv = project.views[i];
     MergedView v;
     v.name = pv.spec.name;
     v.table_deg = pv.spec.table_deg;
+    SLSHADOW_THROW_IF(pv.spec.placed_on_table && !project.rig.turntable, what, ": view '",
+                      pv.spec.name,
+                      "': placed_on_table, but the rig has no turntable axis (rig.turntable) to "
+                      "give the table plane");
     if (pv.spec.OnTable()) {
       v.part_from_rig_initial =
           project.rig.turntable->RigFromTableTurn(*pv.spec.table_deg).Inverse();
@@ -140,11 +150,12 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
                         (project_dir / pv.Folder() / "manifest.json").string(),
                         ": rig differs from the project's (", what, ")");
       v.part_from_rig_true = RecordedTruth(image_set);
-      Reconstruction rec = ReconstructView(image_set, options);
+      Reconstruction rec = ReconstructView(image_set, options, &dark[i]);
       ReleaseReconstructionBuffers();
       malloc_trim(0);
-      if (pv.spec.OnTable() && options.table_crop_mm >= 0) {
-        // The table plane does not move when the table turns: the same plane in every view.
+      if (pv.spec.StandsOnTable() && options.table_crop_mm >= 0) {
+        // The table plane does not move when the table turns, nor when the part is put down on
+        // it by hand: the same plane in every view that stands on the table.
         const TurntableAxis& axis = *project.rig.turntable;
         const Eigen::Vector3d up = axis.direction_in_rig.normalized();
         std::vector<bool> keep(rec.cloud.size());
@@ -258,7 +269,8 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
       // Views without a pose cannot be placed; the others count in the geometry.
       if (!v.part_from_rig_initial) continue;
       cad_views.push_back(CadView{v.name, v.merged ? v.part_from_rig : *v.part_from_rig_initial,
-                                  v.merged ? &clouds[i] : nullptr});
+                                  v.merged ? &clouds[i] : nullptr,
+                                  dark[i].empty() ? nullptr : &dark[i]});
     }
     result.cad = CompareWithCad(*cad_in_part, project.rig, options.mode, cad_views, result.merged,
                                 project.rig.turntable, options.cad);
@@ -539,11 +551,9 @@ void WriteModel(const ProjectMergeResult& result, const TriangleMesh* cad_in_par
     samples.points = result.cad->sample_points;
     std::vector<float> reason(samples.size());
     samples.colors.resize(samples.size());
-    static const std::array<uint8_t, 3> kColors[kNumCoverageReasons] = {
-        {40, 170, 60}, {220, 30, 30}, {240, 150, 20}, {40, 80, 220}, {150, 150, 150}, {0, 0, 0}};
     for (size_t i = 0; i < samples.size(); ++i) {
       reason[i] = result.cad->sample_reason[i];
-      samples.colors[i] = kColors[result.cad->sample_reason[i]];
+      samples.colors[i] = ReasonColor(static_cast<CoverageReason>(result.cad->sample_reason[i]));
     }
     samples.SetScalar("reason", std::move(reason));
     WritePly(dir / "cad_coverage.ply", samples);

@@ -6,7 +6,8 @@
 //  1. Every complete view is reconstructed like any scan (the ImageSet decoded and triangulated
 //     with the reconstruct library); one view's images are in memory at a time, each view keeps
 //     its cloud (at most max_points_per_view points, every s-th accepted cell). Missing views are
-//     left out and named. Table views lose the points of the table (table_crop_mm).
+//     left out and named. Views standing on the table (table views, and hand placements with
+//     placed_on_table) lose the points of the table (table_crop_mm).
 //  2. Initial poses: table views from the rig's turntable axis and the commanded angle
 //     (part_from_rig = axis.RigFromTableTurn(a).Inverse()); hand-placed views from their guess,
 //     or, without one, by global registration (FPFH + RANSAC, then ICP) against the views posed
@@ -65,7 +66,8 @@ struct ProjectMergeOptions {
   }();
   DecodeOptions decode;
   size_t max_points_per_view = 400000;  // 0: every accepted point
-  // Table views: points less than this above the table plane (the plane through the axis point
+  // Views standing on the table (ViewSpec::StandsOnTable): points less than this above the table
+  // plane (the plane through the axis point
   // perpendicular to the axis, where the part stands) are the table, not the part, and are
   // dropped from the view's cloud. Negative: keep every point.
   double table_crop_mm = 0.5;

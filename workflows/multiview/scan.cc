@@ -258,6 +258,7 @@ ScanSummary ScanProject(const Rig& rig, const PatternSpec& spec, const ViewsFile
       report.read_back_deg = status.position_deg;
     } else {
       out << "scan: " << label << ": place the part for this view by hand"
+          << (view.spec.placed_on_table ? " on the table (the table stands still)" : "")
           << (options.confirm_hand_views ? ", then press Enter (q aborts)" : "") << std::endl;
       if (options.confirm_hand_views) {
         std::string line;

@@ -31,8 +31,15 @@ std::string NameProblem(const std::string& name) {
   return "";
 }
 
+// A view's own keys (a views file's entries; a project manifest's views add theirs).
+const std::vector<std::string>& ViewSpecKeys() {
+  static const std::vector<std::string> keys = {"name", "table_deg", "part_from_rig_guess",
+                                                "placed_on_table"};
+  return keys;
+}
+
 ViewSpec ViewFromConfig(const ConfigNode& node, size_t index) {
-  node.RejectUnknownKeys({"name", "table_deg", "part_from_rig_guess"});
+  node.RejectUnknownKeys(ViewSpecKeys());
   ViewSpec view;
   view.name = node.GetString("name", DefaultViewName(index));
   if (node.Has("name")) {
@@ -51,6 +58,13 @@ ViewSpec ViewFromConfig(const ConfigNode& node, size_t index) {
           "placed by hand (no table_deg)");
     view.part_from_rig_guess = PoseFromConfig(node["part_from_rig_guess"]);
   }
+  if (node.Has("placed_on_table")) {
+    if (view.table_deg)
+      node["placed_on_table"].Fail(
+          "a table view stands on the table anyway; placed_on_table is for a view placed by hand "
+          "(no table_deg)");
+    view.placed_on_table = node["placed_on_table"].AsBool();
+  }
   return view;
 }
 
@@ -58,6 +72,7 @@ nlohmann::json ViewToJson(const ViewSpec& view) {
   nlohmann::json j = {{"name", view.name}};
   if (view.table_deg) j["table_deg"] = *view.table_deg;
   if (view.part_from_rig_guess) j["part_from_rig_guess"] = PoseToJson(*view.part_from_rig_guess);
+  if (view.placed_on_table) j["placed_on_table"] = true;
   return j;
 }
 
@@ -69,7 +84,8 @@ bool ViewSpec::operator==(const ViewSpec& other) const {
     return !a || (a->rotation.coeffs() == b->rotation.coeffs() && a->translation == b->translation);
   };
   return name == other.name && table_deg == other.table_deg &&
-         same_pose(part_from_rig_guess, other.part_from_rig_guess);
+         same_pose(part_from_rig_guess, other.part_from_rig_guess) &&
+         placed_on_table == other.placed_on_table;
 }
 
 void ViewsFile::Check(const std::string& what) const {
@@ -89,6 +105,9 @@ void ViewsFile::Check(const std::string& what) const {
       SLSHADOW_THROW_IF(v.part_from_rig_guess.has_value(), field,
                         ".part_from_rig_guess: only for views placed by hand (this view has "
                         "table_deg ",
+                        *v.table_deg, ")");
+      SLSHADOW_THROW_IF(v.placed_on_table, field,
+                        ".placed_on_table: only for views placed by hand (this view has table_deg ",
                         *v.table_deg, ")");
     }
     if (v.part_from_rig_guess) {
@@ -241,8 +260,9 @@ ProjectManifest ProjectFromConfig(const ConfigNode& node) {
   if (!list.IsArray() || list.size() == 0) list.Fail("must be a non-empty list of views");
   for (size_t i = 0; i < list.size(); ++i) {
     const auto v = list.at(i);
-    v.RejectUnknownKeys({"name", "table_deg", "part_from_rig_guess", "folder", "state", "source",
-                         "completed", "provenance"});
+    std::vector<std::string> keys = ViewSpecKeys();
+    keys.insert(keys.end(), {"folder", "state", "source", "completed", "provenance"});
+    v.RejectUnknownKeys(keys);
     ProjectView view;
     {
       // The spec's own keys, read as the views file reads them; the name is required here.

@@ -40,7 +40,15 @@ struct ViewSpec {
   // Hand-placed views only: a guess of the view's part_from_rig (the header's part frame); the
   // merge registers hand-placed views without one globally.
   std::optional<Rigid3d> part_from_rig_guess;
+  // Hand-placed views only: the part was put down on the turntable's top, the table standing
+  // still (e.g. turned over by hand between two turns). The table plane is then where it is in
+  // every table view (fixed in the rig frame), and the merge crops it as it does in table views.
+  // False: the part rests on something else, nothing is cropped.
+  bool placed_on_table = false;
   bool OnTable() const { return table_deg.has_value(); }
+  // A table view, or a view placed by hand on the table: its points on the table plane are the
+  // table's.
+  bool StandsOnTable() const { return OnTable() || placed_on_table; }
   bool operator==(const ViewSpec&) const;
 };
 

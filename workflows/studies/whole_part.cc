@@ -198,8 +198,7 @@ json RunWholePartJob(const json& job, const fs::path& file) {
       const auto turn_reason = static_cast<multiview::CoverageReason>(turn.sample_reason[i]);
       const bool is_covered = job_reason == multiview::CoverageReason::kCovered;
       covered += is_covered;
-      reachable += is_covered || turn_reason == multiview::CoverageReason::kCovered ||
-                   turn_reason == multiview::CoverageReason::kNotReconstructed;
+      reachable += is_covered || multiview::Reachable(turn_reason);
     }
     const double part_coverage =
         reachable ? static_cast<double>(covered) / static_cast<double>(reachable) : 0.0;
