@@ -168,7 +168,7 @@ TEST_F(OcclusionPartRegistration, FourViewsAllMergedTheFreeDirectionsHeldAtTheTa
     }
     EXPECT_TRUE(about_axis) << v.name;
   }
-  EXPECT_LT(r.max_rotation_error_deg, 0.005);  // 0.00055 deg on 2026-12-07
+  EXPECT_LT(r.max_rotation_error_deg, 0.005);    // 0.00055 deg on 2026-12-07
   EXPECT_LT(r.max_translation_error_mm, 0.005);  // 0.0019 mm
 
   // Without it the pairs slide: their views are left out, or merged far off (0.04 deg / 0.24 mm

@@ -339,12 +339,24 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
   for (size_t k = 0; k < all.size(); ++k)
     if (chosen[k]) candidates.push_back(all[k]);
   std::vector<internal::IcpOutcome> icp(candidates.size());
+  // A pair's options: degenerate directions are held at the prior, and the ICP may stop at its
+  // noise level, only between two table views (their relative pose from the rig's axis and the
+  // table angles). A hand view's initial pose (a guess, or the global registration's) is no
+  // prior to keep: such a pair slides where its overlap leaves a direction free, and is rejected.
+  MergeOptions hand_options = options;
+  hand_options.icp_degenerate_ratio = 0;
+  hand_options.icp_noise_tolerance = 0;
+  auto pair_options = [&](int a, int b) -> const MergeOptions& {
+    const bool table = options.turntable.has_value() && views[static_cast<size_t>(a)].table_deg &&
+                       views[static_cast<size_t>(b)].table_deg;
+    return table ? options : hand_options;
+  };
   tbb::parallel_for(size_t{0}, candidates.size(), [&](size_t k) {
     const auto& c = candidates[k];
     const Rigid3d a_from_b = result.views[static_cast<size_t>(c.a)].part_from_rig.Inverse() *
                              result.views[static_cast<size_t>(c.b)].part_from_rig;
     icp[k] = internal::RegisterPair(geo[static_cast<size_t>(c.a)], geo[static_cast<size_t>(c.b)],
-                                    a_from_b, options);
+                                    a_from_b, pair_options(c.a, c.b));
   });
   result.pairs.resize(candidates.size());
   std::vector<double> rms_of_good;
@@ -533,7 +545,8 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
         const size_t a = static_cast<size_t>(edges[e].a), b = static_cast<size_t>(edges[e].b);
         const internal::IcpOutcome o = internal::LinearizePair(
             geo[a], geo[b], sol.part_from_rig[a].Inverse() * sol.part_from_rig[b],
-            initial[a].Inverse() * initial[b], icp[k].gate_mm, icp[k].max_residual_mm, options);
+            initial[a].Inverse() * initial[b], icp[k].gate_mm, icp[k].max_residual_mm,
+            pair_options(edges[e].a, edges[e].b));
         if (o.correspondences >= 7) {
           edges[e].a_from_b = o.a_from_b;
           edges[e].information = o.information;

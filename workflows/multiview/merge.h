@@ -113,7 +113,8 @@ struct MergeOptions {
   int icp_max_iterations = 60;
   double icp_tolerance_mm = 1e-5;  // stop when an update moves the source points less than this
   // or less than this share of the pose's own 1-sigma (its least fixed direction, from the
-  // residuals): with noise an ICP jitters at that level instead of settling. 0: tolerance only.
+  // residuals): with noise an ICP jitters at that level instead of settling. Only between two
+  // table views (as icp_degenerate_ratio). 0: tolerance only.
   double icp_noise_tolerance = 0.1;
   // A pair still moving more than this per iteration after icp_max_iterations is rejected.
   double icp_max_final_motion_mm = 1e-3;
@@ -132,7 +133,8 @@ struct MergeOptions {
   // whose eigenvalue is below this share of the largest is a direction the overlap leaves free
   // (planes slide along themselves). The ICP does not move along it and the pair measures its
   // initial relative pose there (the table's, or the global registration's) with the prior's
-  // 1-sigma below, instead of sliding (and being rejected). 0: none.
+  // 1-sigma below, instead of sliding (and being rejected). Only between two table views
+  // (table_deg, with `turntable`): a hand view's initial pose is no prior. 0: none.
   double icp_degenerate_ratio = 1e-3;
   double prior_sigma_deg = 0.05;  // 1-sigma of an initial relative pose's rotation
   double prior_sigma_mm = 0.05;   // and of its translation
