@@ -134,8 +134,11 @@ struct MergeOptions {
   // (planes slide along themselves). The ICP does not move along it and the pair measures its
   // initial relative pose there (the table's, or the global registration's) with the prior's
   // 1-sigma below, instead of sliding (and being rejected). Only between two table views
-  // (table_deg, with `turntable`): a hand view's initial pose is no prior. 0: none.
-  double icp_degenerate_ratio = 1e-3;
+  // (table_deg, with `turntable`): a hand view's initial pose is no prior. 0: none (the
+  // default: a table angle wrong along a direction held so is not detected, e.g.
+  // multiview_cmd_merge_test's view 20 deg off at 1/4 rig is then merged; 1e-3 keeps a part of
+  // planes registered, docs/benchmarks/log/2026-12-07-registration-noise.md).
+  double icp_degenerate_ratio = 0;
   double prior_sigma_deg = 0.05;  // 1-sigma of an initial relative pose's rotation
   double prior_sigma_mm = 0.05;   // and of its translation
   int normal_neighbors = 12;      // k of the PCA normals and surface variation
