@@ -148,6 +148,11 @@ int RunMerge(int argc, char** argv) {
   app.add_option("--max-departure-mm", options.registration.max_initial_departure_mm,
                  "the same bound on the displacement of the view's centroid, mm (0: no check)")
       ->capture_default_str();
+  app.add_option("--degenerate-ratio", options.registration.icp_degenerate_ratio,
+                 "hold a pair's ICP directions whose eigenvalue is below this share of the largest "
+                 "at the table's relative pose (table pairs; 0: off; 1e-3 keeps a part of planes "
+                 "registered, but then a wrong table angle in such a direction is not detected)")
+      ->capture_default_str();
   app.add_option("--icp-points", options.registration.icp_points,
                  "source points per pair in the pairwise ICP")
       ->capture_default_str();

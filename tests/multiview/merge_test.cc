@@ -115,7 +115,9 @@ TEST_F(MergeTest, TurntableViewsRegisterToTheTruth) {
       EXPECT_GT(v.sigma_rotation_deg, 0) << v.name;
       EXPECT_LT(v.sigma_rotation_deg, 0.002) << v.name;
       EXPECT_GT(v.sigma_translation_mm, 0) << v.name;
-      EXPECT_LT(v.sigma_translation_mm, 0.002) << v.name;
+      // Stated 1-sigma 0.0022-0.0028 mm since the ICP weighs each point by its measured noise
+      // (on this fixture's uniform noise the per-point estimates only add scatter).
+      EXPECT_LT(v.sigma_translation_mm, 0.003) << v.name;
     }
   }
 }

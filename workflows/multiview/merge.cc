@@ -34,6 +34,17 @@ Eigen::Matrix3d Skew(const Eigen::Vector3d& v) {
   return s;
 }
 
+// "rotation about (x, y, z)" / "translation along (x, y, z)", the axis rotated into the part
+// frame, its sign such that the largest component is positive.
+std::string DirectionText(const internal::DegenerateDirection& d, const Eigen::Quaterniond& r) {
+  Eigen::Vector3d v = r * d.axis;
+  Eigen::Index k = 0;
+  v.cwiseAbs().maxCoeff(&k);
+  if (v[k] < 0) v = -v;
+  return StringPrintf("%s (%.2f, %.2f, %.2f)", d.rotation ? "rotation about" : "translation along",
+                      v.x(), v.y(), v.z());
+}
+
 double SqrtLargestEigenvalue(const Eigen::Matrix3d& c) {
   const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(0.5 * (c + c.transpose()));
   return std::sqrt(std::max(0.0, eig.eigenvalues().maxCoeff()));
@@ -73,11 +84,17 @@ void MergeOptions::Check() const {
   SLSHADOW_THROW_IF(icp_max_iterations < 1, "merge options: icp_max_iterations: must be >= 1 (got ",
                     icp_max_iterations, ")");
   positive(icp_tolerance_mm, "icp_tolerance_mm");
+  nonneg(icp_noise_tolerance, "icp_noise_tolerance");
   positive(icp_max_final_motion_mm, "icp_max_final_motion_mm");
   SLSHADOW_THROW_IF(!(icp_max_normal_angle_deg > 0 && icp_max_normal_angle_deg <= 180),
                     "merge options: icp_max_normal_angle_deg: must be in (0, 180] (got ",
                     icp_max_normal_angle_deg, ")");
   nonneg(icp_max_residual_sigmas, "icp_max_residual_sigmas");
+  SLSHADOW_THROW_IF(!(icp_degenerate_ratio >= 0 && icp_degenerate_ratio < 1),
+                    "merge options: icp_degenerate_ratio: must be in [0, 1) (got ",
+                    icp_degenerate_ratio, ")");
+  positive(prior_sigma_deg, "prior_sigma_deg");
+  positive(prior_sigma_mm, "prior_sigma_mm");
   SLSHADOW_THROW_IF(!(icp_max_surface_variation > 0 && icp_max_surface_variation <= 1.0 / 3.0),
                     "merge options: icp_max_surface_variation: must be in (0, 1/3] (got ",
                     icp_max_surface_variation, ")");
@@ -171,6 +188,8 @@ std::string MergeResult::FullReport() const {
         v.part_from_rig.translation.x(), v.part_from_rig.translation.y(),
         v.part_from_rig.translation.z(), v.residual_rms_mm, v.noise_mm, v.sigma_rotation_deg,
         v.sigma_translation_mm, v.reason.empty() ? "" : ": ", v.reason.c_str());
+    for (const auto& d : v.prior_directions)
+      s += "      fixed by the prior (a pair's overlap leaves it free): " + d + "\n";
   }
   s += "pairs (a <- b):\n";
   for (const auto& p : pairs) {
@@ -182,6 +201,7 @@ std::string MergeResult::FullReport() const {
         p.correspondences, p.iterations, p.converged ? "" : " (not converged)", p.rms_mm,
         p.final_rms_mm, p.graph_error_deg, p.graph_error_mm,
         p.kept ? "" : ", rejected: ", p.reason.c_str());
+    for (const auto& d : p.degenerate) s += "      degenerate, held at the prior: " + d + "\n";
   }
   if (turntable_model) {
     s += StringPrintf(
@@ -324,12 +344,24 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
   for (size_t k = 0; k < all.size(); ++k)
     if (chosen[k]) candidates.push_back(all[k]);
   std::vector<internal::IcpOutcome> icp(candidates.size());
+  // A pair's options: degenerate directions are held at the prior, and the ICP may stop at its
+  // noise level, only between two table views (their relative pose from the rig's axis and the
+  // table angles). A hand view's initial pose (a guess, or the global registration's) is no
+  // prior to keep: such a pair slides where its overlap leaves a direction free, and is rejected.
+  MergeOptions hand_options = options;
+  hand_options.icp_degenerate_ratio = 0;
+  hand_options.icp_noise_tolerance = 0;
+  auto pair_options = [&](int a, int b) -> const MergeOptions& {
+    const bool table = options.turntable.has_value() && views[static_cast<size_t>(a)].table_deg &&
+                       views[static_cast<size_t>(b)].table_deg;
+    return table ? options : hand_options;
+  };
   tbb::parallel_for(size_t{0}, candidates.size(), [&](size_t k) {
     const auto& c = candidates[k];
     const Rigid3d a_from_b = result.views[static_cast<size_t>(c.a)].part_from_rig.Inverse() *
                              result.views[static_cast<size_t>(c.b)].part_from_rig;
     icp[k] = internal::RegisterPair(geo[static_cast<size_t>(c.a)], geo[static_cast<size_t>(c.b)],
-                                    a_from_b, options);
+                                    a_from_b, pair_options(c.a, c.b));
   });
   result.pairs.resize(candidates.size());
   std::vector<double> rms_of_good;
@@ -344,6 +376,10 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
     p.correspondences = icp[k].correspondences;
     p.iterations = icp[k].iterations;
     p.converged = icp[k].converged;
+    p.min_eigen_ratio = icp[k].min_eigen_ratio;
+    for (const auto& d : icp[k].degenerate)
+      p.degenerate.push_back(
+          DirectionText(d, result.views[static_cast<size_t>(p.view_a)].part_from_rig.rotation));
     // Not converged, but only jittering (correspondences switching at the noise level), is
     // kept; still moving after icp_max_iterations is sliding along a direction the overlap
     // leaves free.
@@ -513,8 +549,9 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
         const size_t k = edge_pair[e];
         const size_t a = static_cast<size_t>(edges[e].a), b = static_cast<size_t>(edges[e].b);
         const internal::IcpOutcome o = internal::LinearizePair(
-            geo[a], geo[b], sol.part_from_rig[a].Inverse() * sol.part_from_rig[b], icp[k].gate_mm,
-            icp[k].max_residual_mm, options);
+            geo[a], geo[b], sol.part_from_rig[a].Inverse() * sol.part_from_rig[b],
+            initial[a].Inverse() * initial[b], icp[k].gate_mm, icp[k].max_residual_mm,
+            pair_options(edges[e].a, edges[e].b));
         if (o.correspondences >= 7) {
           edges[e].a_from_b = o.a_from_b;
           edges[e].information = o.information;
@@ -569,6 +606,7 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
 
   // Per-view outcome: pose, residuals at the final poses, noise, uncertainty.
   std::vector<std::vector<double>> view_rms(n), view_sq(n);
+  std::vector<std::vector<internal::DegenerateDirection>> view_free(n);
   for (size_t k = 0; k < result.pairs.size(); ++k) {
     PairRegistration& p = result.pairs[k];
     if (!p.kept) continue;
@@ -580,6 +618,15 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
     for (size_t v : {a, b}) {
       view_rms[v].push_back(fin.rms_mm);
       ++result.views[v].pairs;
+      for (internal::DegenerateDirection d : icp[k].degenerate) {
+        d.axis = sol.part_from_rig[a].rotation * d.axis;  // the part frame
+        auto& mine = view_free[v];
+        // One entry per direction (within 10 deg), whichever pairs left it free.
+        const bool seen = std::any_of(mine.begin(), mine.end(), [&](const auto& e) {
+          return e.rotation == d.rotation && std::abs(e.axis.dot(d.axis)) > std::cos(M_PI / 18);
+        });
+        if (!seen) mine.push_back(d);
+      }
     }
   }
   for (size_t i = 0; i < n; ++i) {
@@ -592,6 +639,8 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
     }
     v.reason.clear();
     v.part_from_rig = sol.part_from_rig[i];
+    for (const auto& d : view_free[i])
+      v.prior_directions.push_back(DirectionText(d, Eigen::Quaterniond::Identity()));
     double sum_sq = 0;
     for (double r : view_rms[i]) sum_sq += r * r;
     v.residual_rms_mm =

@@ -16,7 +16,11 @@
 //     against all points of the other view, edge points (PCA surface variation above
 //     icp_max_surface_variation) and outliers (residual beyond icp_max_residual_sigmas robust
 //     standard deviations of the previous iteration's) left out, the gate halving from
-//     initial_gate_mm down to 3 x the point spacing each time the pose has settled. Each pair
+//     initial_gate_mm down to 3 x the point spacing each time the pose has settled, each
+//     correspondence weighted by 1 / (its two points' measured noise variances), directions
+//     the overlap leaves free (icp_degenerate_ratio: a part of planes slides along them) held
+//     at the initial relative pose with the prior's information, stopping when the pose moves
+//     less than icp_tolerance_mm or icp_noise_tolerance of its own 1-sigma. Each pair
 //     yields a_from_b, the residual RMS and the 6x6 information J^T J / sigma^2 of the left
 //     perturbation (rotation vector, translation) of a_from_b in frame a, sigma^2 the residual
 //     variance.
@@ -118,6 +122,10 @@ struct MergeOptions {
   int icp_points = 20000;         // source points per pair (evenly strided subset)
   int icp_max_iterations = 60;
   double icp_tolerance_mm = 1e-5;  // stop when an update moves the source points less than this
+  // or less than this share of the pose's own 1-sigma (its least fixed direction, from the
+  // residuals): with noise an ICP jitters at that level instead of settling. Only between two
+  // table views (as icp_degenerate_ratio). 0: tolerance only.
+  double icp_noise_tolerance = 0.1;
   // A pair still moving more than this per iteration after icp_max_iterations is rejected.
   double icp_max_final_motion_mm = 1e-3;
   double icp_max_normal_angle_deg = 30.0;  // correspondences with normals farther apart: dropped
@@ -126,7 +134,24 @@ struct MergeOptions {
   // reconstruction. 0: none dropped.
   double icp_max_residual_sigmas = 3.0;
   double icp_max_surface_variation = 0.05;  // PCA lambda_min / sum: above it a point is an edge
-  int normal_neighbors = 12;                // k of the PCA normals and surface variation
+  // Each correspondence weighted by 1 / (its two points' noise variances), each measured as the
+  // PCA plane fit's residual variance over its normal_neighbors (floored at a quarter of the
+  // view's median): noisy points (grazing, dark, edges) count less. false: equal weights.
+  bool icp_noise_weights = true;
+  // Degeneracy (Gelfand et al. 2003, Zhang et al. 2016): an eigenvector of a pair's normal-
+  // equation matrix (rotations about the matched points' centroid scaled by their RMS radius)
+  // whose eigenvalue is below this share of the largest is a direction the overlap leaves free
+  // (planes slide along themselves). The ICP does not move along it and the pair measures its
+  // initial relative pose there (the table's, or the global registration's) with the prior's
+  // 1-sigma below, instead of sliding (and being rejected). Only between two table views
+  // (table_deg, with `turntable`): a hand view's initial pose is no prior. 0: none (the
+  // default: a table angle wrong along a direction held so is not detected, e.g.
+  // multiview_cmd_merge_test's view 20 deg off at 1/4 rig is then merged; 1e-3 keeps a part of
+  // planes registered, docs/benchmarks/log/2026-12-07-registration-noise.md).
+  double icp_degenerate_ratio = 0;
+  double prior_sigma_deg = 0.05;  // 1-sigma of an initial relative pose's rotation
+  double prior_sigma_mm = 0.05;   // and of its translation
+  int normal_neighbors = 12;      // k of the PCA normals and surface variation
   // Rejection.
   double min_pair_fitness = 0.05;    // share of source points matched after ICP, to keep a pair
   double max_pair_rms_ratio = 3.0;   // ICP residual RMS vs the median of all pairs
@@ -197,6 +222,10 @@ struct ViewPose {
   std::optional<double> table_angle_deg;
   double table_angle_correction_deg = 0;
   double sigma_table_angle_deg = 0;
+  // The directions, in the part frame, that some kept pair of the view left free (degenerate,
+  // MergeOptions::icp_degenerate_ratio) and the prior (the initial poses) fixed: e.g.
+  // "translation along (0.000, 0.342, -0.940)" or "rotation about (...)".
+  std::vector<std::string> prior_directions;
   int points = 0;         // points of the view's cloud
   bool anchor = false;    // the view that fixes the part frame
   bool accepted = false;  // registered and merged
@@ -217,6 +246,10 @@ struct PairRegistration {
   // centroid plus rotation x their RMS radius.
   double graph_error_deg = 0, graph_error_mm = 0;
   double final_rms_mm = 0;  // point-to-plane RMS at the optimised poses
+  // Directions the overlap leaves free (frame a; MergeOptions::icp_degenerate_ratio), held at
+  // the initial relative pose, and the smallest eigenvalue ratio of the pair.
+  std::vector<std::string> degenerate;
+  double min_eigen_ratio = 0;
   bool kept = false;
   std::string reason;  // why it was rejected (empty when kept)
 };

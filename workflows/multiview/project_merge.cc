@@ -213,6 +213,7 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
     v.noise_mm = p.noise_mm;
     v.sigma_rotation_deg = p.sigma_rotation_deg;
     v.sigma_translation_mm = p.sigma_translation_mm;
+    v.prior_directions = p.prior_directions;
     v.table_angle_deg = p.table_angle_deg;
     v.table_angle_correction_deg = p.table_angle_correction_deg;
     v.sigma_table_angle_deg = p.sigma_table_angle_deg;
@@ -325,6 +326,7 @@ nlohmann::json ProjectMergeResult::ToJson() const {
       view["noise_mm"] = v.noise_mm;
       view["sigma_rotation_deg"] = v.sigma_rotation_deg;
       view["sigma_translation_mm"] = v.sigma_translation_mm;
+      view["prior_directions"] = v.prior_directions;
     }
     if (v.part_from_rig_true) {
       view["part_from_rig_true"] = PoseToJson(*v.part_from_rig_true);
@@ -361,6 +363,8 @@ nlohmann::json ProjectMergeResult::ToJson() const {
          {"converged", p.converged},
          {"graph_error_deg", p.graph_error_deg},
          {"graph_error_mm", p.graph_error_mm},
+         {"min_eigen_ratio", p.min_eigen_ratio},
+         {"degenerate", p.degenerate},
          {"kept", p.kept},
          {"reason", p.reason}});
   }
@@ -514,6 +518,14 @@ std::string ProjectMergeResult::Summary() const {
         views[static_cast<size_t>(registration_view[static_cast<size_t>(p.view_a)])].name.c_str(),
         views[static_cast<size_t>(registration_view[static_cast<size_t>(p.view_b)])].name.c_str(),
         p.reason.c_str());
+  }
+  for (const MergedView& v : views) {
+    if (v.prior_directions.empty()) continue;
+    std::string list;
+    for (const std::string& d : v.prior_directions) list += (list.empty() ? "" : "; ") + d;
+    out += StringPrintf(
+        "  %s: held at the table's prior where its pairs' overlap leaves it free: %s\n",
+        v.name.c_str(), list.c_str());
   }
   if (cad) out += cad->Summary();
   if (mesh) {

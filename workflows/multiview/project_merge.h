@@ -98,6 +98,8 @@ struct MergedView {
   std::optional<double> table_angle_deg;
   double table_angle_correction_deg = 0;
   double sigma_table_angle_deg = 0;
+  // Directions (part frame) some pair of the view left free, held at the prior (ViewPose).
+  std::vector<std::string> prior_directions;
   size_t points = 0;            // in the view's cloud (after max_points_per_view)
   int64_t accepted_points = 0;  // the reconstruction's accepted cells
   double reconstruct_seconds = 0;

@@ -16,11 +16,14 @@
 namespace slshadow::multiview::internal {
 namespace {
 
+using Vector6d = Eigen::Matrix<double, 6, 1>;
+
 struct Accumulator {
-  Matrix6d ata = Matrix6d::Zero();
-  Eigen::Matrix<double, 6, 1> atb = Eigen::Matrix<double, 6, 1>::Zero();
-  double sum_r2 = 0;      // point-to-plane squared residuals
-  double sum_p2p_sq = 0;  // nearest-point squared distances (drive the gate)
+  Matrix6d ata = Matrix6d::Zero();  // weighted: sum w J^T J
+  Vector6d atb = Vector6d::Zero();  // sum w J^T r
+  double sum_r2 = 0;                // point-to-plane squared residuals
+  double sum_wr2 = 0;               // weighted
+  double sum_p2p_sq = 0;            // nearest-point squared distances (drive the gate)
   Eigen::Vector3d sum_s = Eigen::Vector3d::Zero();
   double sum_s_sq = 0;
   size_t n = 0;
@@ -49,6 +52,7 @@ Accumulator Correspond(const ViewGeometry& a, const ViewGeometry& b, const Rigid
   const auto& pa = *a.points;
   const auto& pb = *b.points;
   const float max_var = static_cast<float>(o.icp_max_surface_variation);
+  const bool weighted = o.icp_noise_weights && !a.noise_var.empty() && !b.noise_var.empty();
   Neighbor nb;
   for (uint32_t i : b.icp_sample) {
     const Eigen::Vector3d s = r * pb[i] + a_from_b.translation;
@@ -62,12 +66,16 @@ Accumulator Correspond(const ViewGeometry& a, const ViewGeometry& b, const Rigid
     const double res = na.dot(s - pa[nb.index]);
     acc.abs_residuals.push_back(static_cast<float>(std::abs(res)));
     if (std::abs(res) > max_residual) continue;
-    Eigen::Matrix<double, 6, 1> j;
+    Vector6d j;
     j.head<3>() = s.cross(na);
     j.tail<3>() = na;
-    acc.ata.selfadjointView<Eigen::Upper>().rankUpdate(j);
-    acc.atb += j * res;
+    // Weighted by the two points' measured noise (each view's PCA residual variance).
+    const double w =
+        weighted ? 1.0 / static_cast<double>(a.noise_var[nb.index] + b.noise_var[i]) : 1.0;
+    acc.ata.selfadjointView<Eigen::Upper>().rankUpdate(j, w);
+    acc.atb += j * (w * res);
     acc.sum_r2 += res * res;
+    acc.sum_wr2 += w * res * res;
     acc.sum_p2p_sq += nb.distance_sq;
     acc.sum_s += s;
     acc.sum_s_sq += s.squaredNorm();
@@ -77,18 +85,95 @@ Accumulator Correspond(const ViewGeometry& a, const ViewGeometry& b, const Rigid
   return acc;
 }
 
-void FillOutcome(const Accumulator& acc, const ViewGeometry& b, IcpOutcome* out) {
+// Statistics of the correspondences; returns the weighted residual variance per unit weight
+// (0 when fewer than 7).
+double FillOutcome(const Accumulator& acc, const ViewGeometry& b, IcpOutcome* out) {
   out->correspondences = static_cast<int>(acc.n);
   out->fitness = b.icp_sample.empty()
                      ? 0.0
                      : static_cast<double>(acc.n) / static_cast<double>(b.icp_sample.size());
-  if (acc.n < 7) return;
+  if (acc.n < 7) return 0.0;
   const double n = static_cast<double>(acc.n);
   out->rms_mm = std::sqrt(acc.sum_r2 / n);
-  const double sigma2 = std::max(acc.sum_r2 / (n - 6.0), 1e-18);
-  out->information = acc.ata / sigma2;
   out->centroid_in_a = acc.sum_s / n;
   out->radius_mm = std::sqrt(std::max(0.0, acc.sum_s_sq / n - out->centroid_in_a.squaredNorm()));
+  return std::max(acc.sum_wr2 / (n - 6.0), 1e-30);
+}
+
+// The Gauss-Newton step of the linearised cost at t, with the degenerate directions (pairwise.h)
+// held at the prior: in coordinates y = (L w, v + w x c) (rotation about the centroid c of the
+// matched points scaled by their RMS radius L, so all six are displacements in mm) the normal
+// matrix's eigenvectors with eigenvalue >= ratio x the largest are solved, the others set to the
+// step that reaches the prior. The information (frame a, left perturbation of t) is J^T W J /
+// sigma2 along the solved eigenvectors and the prior's along the others.
+struct Step {
+  Vector6d x = Vector6d::Zero();
+  Matrix6d information = Matrix6d::Zero();
+  std::vector<DegenerateDirection> degenerate;
+  double min_ratio = 0;
+  double max_sigma_mm = 0;  // 1-sigma of the solved displacements y, the least fixed one
+};
+
+Step SolveStep(const Accumulator& acc, const Rigid3d& t, const Rigid3d& prior, double sigma2,
+               const MergeOptions& o) {
+  Step step;
+  const double n = static_cast<double>(acc.n);
+  const Eigen::Vector3d c = acc.sum_s / n;
+  const double radius = std::sqrt(std::max(0.0, acc.sum_s_sq / n - c.squaredNorm()));
+  const double l = std::max(radius, 1e-3);
+  Matrix6d tm = Matrix6d::Zero();  // y = tm x
+  tm.topLeftCorner<3, 3>() = l * Eigen::Matrix3d::Identity();
+  Eigen::Matrix3d cx;
+  cx << 0, -c.z(), c.y(), c.z(), 0, -c.x(), -c.y(), c.x(), 0;
+  tm.bottomLeftCorner<3, 3>() = -cx;
+  tm.bottomRightCorner<3, 3>() = Eigen::Matrix3d::Identity();
+  Matrix6d ti = Matrix6d::Zero();  // x = ti y
+  ti.topLeftCorner<3, 3>() = Eigen::Matrix3d::Identity() / l;
+  ti.bottomLeftCorner<3, 3>() = cx / l;
+  ti.bottomRightCorner<3, 3>() = Eigen::Matrix3d::Identity();
+  const Matrix6d hy = ti.transpose() * acc.ata * ti;
+  const Vector6d gy = ti.transpose() * acc.atb;
+  const Eigen::SelfAdjointEigenSolver<Matrix6d> eig(0.5 * (hy + hy.transpose()));
+  const double largest = std::max(eig.eigenvalues().maxCoeff(), 1e-300);
+  step.min_ratio = std::max(0.0, eig.eigenvalues().minCoeff()) / largest;
+  const Rigid3d d = prior * t.Inverse();
+  Vector6d xp;
+  xp.head<3>() = RotationVectorFromQuaternion(d.rotation);
+  xp.tail<3>() = d.translation;
+  const Vector6d yp = tm * xp;
+  const double sr = o.prior_sigma_deg * M_PI / 180.0 * l, st = o.prior_sigma_mm;
+  Vector6d prior_var;
+  prior_var << sr * sr, sr * sr, sr * sr, st * st, st * st, st * st;
+  Vector6d y = Vector6d::Zero();
+  Matrix6d info_y = Matrix6d::Zero();
+  Matrix6d free = Matrix6d::Zero();  // projector onto the degenerate directions
+  for (int k = 0; k < 6; ++k) {
+    const Vector6d v = eig.eigenvectors().col(k);
+    const double lambda = eig.eigenvalues()[k];
+    if (lambda >= o.icp_degenerate_ratio * largest && lambda > 0) {
+      y -= v * (v.dot(gy) / lambda);
+      info_y += v * v.transpose() * (lambda / sigma2);
+      step.max_sigma_mm = std::max(step.max_sigma_mm, std::sqrt(sigma2 / lambda));
+      continue;
+    }
+    y += v * v.dot(yp);
+    free += v * v.transpose();
+    DegenerateDirection dd;
+    dd.rotation = v.head<3>().squaredNorm() > v.tail<3>().squaredNorm();
+    dd.axis = (dd.rotation ? v.head<3>() : v.tail<3>()).normalized();
+    dd.ratio = std::max(lambda, 0.0) / largest;
+    step.degenerate.push_back(dd);
+  }
+  // The prior's information on the degenerate subspace (projected: whichever eigenvectors span it).
+  info_y += free * prior_var.cwiseInverse().asDiagonal() * free;
+  step.x = ti * y;
+  step.information = tm.transpose() * info_y * tm;
+  step.information = 0.5 * (step.information + step.information.transpose());
+  return step;
+}
+
+Rigid3d Apply(const Vector6d& x, const Rigid3d& t) {
+  return Rigid3d(QuaternionFromRotationVector(x.head<3>()), x.tail<3>()) * t;
 }
 
 }  // namespace
@@ -103,6 +188,7 @@ void PrepareView(const PointCloud& cloud, const MergeOptions& o, ViewGeometry* v
   view->spacing_mm = compare::MedianSpacing(*view->tree);
   view->normals.resize(pts.size());
   view->variation.resize(pts.size());
+  view->noise_var.resize(pts.size());
   const bool given = cloud.HasNormals();
   std::vector<float> radius(pts.size());
   tbb::parallel_for(tbb::blocked_range<size_t>(0, pts.size(), 4096),
@@ -124,6 +210,9 @@ void PrepareView(const PointCloud& cloud, const MergeOptions& o, ViewGeometry* v
                         const double sum = eig.eigenvalues().sum();
                         view->variation[i] =
                             sum > 0 ? static_cast<float>(eig.eigenvalues()[0] / sum) : 1.0f;
+                        view->noise_var[i] =
+                            static_cast<float>(std::max(0.0, eig.eigenvalues()[0]) /
+                                               std::max(1.0, static_cast<double>(nn.size()) - 3.0));
                         Eigen::Vector3d n = given ? cloud.normals[i].cast<double>().normalized()
                                                   : Eigen::Vector3d(eig.eigenvectors().col(0));
                         if (!given && n.dot(pts[i]) > 0) n = -n;  // towards the camera (origin)
@@ -134,6 +223,12 @@ void PrepareView(const PointCloud& cloud, const MergeOptions& o, ViewGeometry* v
   std::nth_element(radius.begin(), radius.begin() + static_cast<long>(radius.size() / 2),
                    radius.end());
   view->area_spacing_mm = radius[radius.size() / 2] * std::sqrt(M_PI / o.normal_neighbors);
+  {
+    std::vector<float> var = view->noise_var;
+    std::nth_element(var.begin(), var.begin() + static_cast<long>(var.size() / 2), var.end());
+    const float floor = std::max(0.25f * var[var.size() / 2], 1e-12f);
+    for (float& v : view->noise_var) v = std::max(v, floor);
+  }
   Eigen::Vector3d sum = Eigen::Vector3d::Zero();
   for (const auto& p : pts) sum += p;
   view->centroid = sum / static_cast<double>(pts.size());
@@ -189,14 +284,13 @@ IcpOutcome RegisterPair(const ViewGeometry& a, const ViewGeometry& b,
     // gate, so an outlier share below half cannot inflate it).
     if (o.icp_max_residual_sigmas > 0)
       max_residual = std::max(o.icp_max_residual_sigmas * RobustSigma(acc.abs_residuals), 1e-6);
-    // A tiny damping keeps unobservable directions (a plane's in-plane motions) at zero.
-    Matrix6d ata = acc.ata;
-    ata.diagonal().array() += 1e-12 * ata.trace();
-    const Eigen::Matrix<double, 6, 1> x = ata.ldlt().solve(-acc.atb);
-    const Eigen::Vector3d w = x.head<3>();
-    const double angle = w.norm();
-    const Eigen::Quaterniond dq = QuaternionFromRotationVector(w);
-    t = Rigid3d(dq, x.tail<3>()) * t;
+    // Directions the overlap leaves free (a plane's in-plane motions) stay at the prior.
+    const double n = static_cast<double>(acc.n);
+    const Step step =
+        SolveStep(acc, t, a_from_b_initial, std::max(acc.sum_wr2 / (n - 6.0), 1e-30), o);
+    const Vector6d& x = step.x;
+    const double angle = x.head<3>().norm();
+    t = Apply(x, t);
     // The gate shrinks (halving, down to 3 point spacings) only once the pose has settled at the
     // current one, so that correspondences on the few surfaces that fix a weakly constrained
     // direction (walls across a large plane) are not cut before that direction has converged.
@@ -204,7 +298,10 @@ IcpOutcome RegisterPair(const ViewGeometry& a, const ViewGeometry& b,
     out.last_motion_mm = motion;
     if (gate > min_gate) {
       if (motion < 0.01 * gate) gate = std::max(min_gate, 0.5 * gate);
-    } else if (motion < o.icp_tolerance_mm) {
+    } else if (motion < std::max(o.icp_tolerance_mm, o.icp_noise_tolerance * step.max_sigma_mm)) {
+      // Settled within the tolerance, or within a small share of its own standard deviation
+      // (with noise the correspondences jitter at that level; the joint refinement re-linearises
+      // the pair at the graph's poses anyway).
       out.converged = true;
       break;
     }
@@ -212,24 +309,33 @@ IcpOutcome RegisterPair(const ViewGeometry& a, const ViewGeometry& b,
   out.a_from_b = t;
   out.gate_mm = gate;
   out.max_residual_mm = max_residual;
-  FillOutcome(Correspond(a, b, t, gate, max_residual, o), b, &out);
+  const Accumulator acc = Correspond(a, b, t, gate, max_residual, o);
+  const double sigma2 = FillOutcome(acc, b, &out);
+  if (acc.n >= 7) {
+    Step step = SolveStep(acc, t, a_from_b_initial, sigma2, o);
+    out.information = step.information;
+    out.degenerate = std::move(step.degenerate);
+    out.min_eigen_ratio = step.min_ratio;
+  }
   return out;
 }
 
 IcpOutcome LinearizePair(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d& a_from_b,
-                         double gate_mm, double max_residual_mm, const MergeOptions& options) {
+                         const Rigid3d& a_from_b_prior, double gate_mm, double max_residual_mm,
+                         const MergeOptions& options) {
   IcpOutcome out;
   out.gate_mm = gate_mm;
   out.max_residual_mm = max_residual_mm;
   out.converged = true;
   const Accumulator acc = Correspond(a, b, a_from_b, gate_mm, max_residual_mm, options);
-  FillOutcome(acc, b, &out);
+  const double sigma2 = FillOutcome(acc, b, &out);
   out.a_from_b = a_from_b;
   if (acc.n < 7) return out;
-  Matrix6d ata = acc.ata;
-  ata.diagonal().array() += 1e-12 * ata.trace();
-  const Eigen::Matrix<double, 6, 1> x = ata.ldlt().solve(-acc.atb);
-  out.a_from_b = Rigid3d(QuaternionFromRotationVector(x.head<3>()), x.tail<3>()) * a_from_b;
+  Step step = SolveStep(acc, a_from_b, a_from_b_prior, sigma2, options);
+  out.a_from_b = Apply(step.x, a_from_b);
+  out.information = step.information;
+  out.degenerate = std::move(step.degenerate);
+  out.min_eigen_ratio = step.min_ratio;
   return out;
 }
 
@@ -240,7 +346,9 @@ IcpOutcome EvaluatePair(const ViewGeometry& a, const ViewGeometry& b, const Rigi
   out.gate_mm = gate_mm;
   out.max_residual_mm = max_residual_mm;
   out.converged = true;
-  FillOutcome(Correspond(a, b, a_from_b, gate_mm, max_residual_mm, options), b, &out);
+  const Accumulator acc = Correspond(a, b, a_from_b, gate_mm, max_residual_mm, options);
+  const double sigma2 = FillOutcome(acc, b, &out);
+  if (acc.n >= 7) out.information = acc.ata / sigma2;
   return out;
 }
 

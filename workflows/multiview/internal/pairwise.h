@@ -23,6 +23,10 @@ struct ViewGeometry {
   const std::vector<Eigen::Vector3d>* points = nullptr;
   std::vector<Eigen::Vector3d> normals;  // unit; the cloud's, else PCA oriented to the origin
   std::vector<float> variation;          // PCA lambda_min / (lambda_0 + lambda_1 + lambda_2)
+  // Each point's noise variance along its normal, measured: the PCA plane fit's residual variance
+  // lambda_min / (k - 3) over its k neighbours (mm^2), floored at a quarter of the view's median
+  // (a few neighbours can fit a plane by chance). It weights the point in the ICP.
+  std::vector<float> noise_var;
   std::unique_ptr<KdTree> tree;
   double spacing_mm = 0;                 // median nearest-neighbour distance
   double area_spacing_mm = 0;            // sqrt(area per point), from the median k-neighbour radius
@@ -39,6 +43,18 @@ void PrepareView(const PointCloud& cloud, const MergeOptions& options, ViewGeome
 double OverlapShare(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d& a_from_b,
                     double gate_mm, double max_normal_angle_deg);
 
+// A direction in which a pair's point-to-plane cost is (nearly) flat: the overlap does not fix it
+// (a part made of planes slides along them). Gelfand et al. 2003, Zhang et al. 2016: an
+// eigenvector of the normal-equation matrix, in coordinates where a rotation about the matched
+// points' centroid is scaled by their RMS radius, whose eigenvalue is below
+// icp_degenerate_ratio x the largest. The ICP does not move along it; the pair measures the
+// prior (its initial relative pose: the table's) there, with the prior's information.
+struct DegenerateDirection {
+  bool rotation = false;  // a rotation about `axis` through the centroid, else a translation
+  Eigen::Vector3d axis = Eigen::Vector3d::Zero();  // unit, in frame a
+  double ratio = 0;                                // eigenvalue / the largest
+};
+
 struct IcpOutcome {
   Rigid3d a_from_b;
   // Information of the left perturbation (rotation vector, translation) of a_from_b in frame a:
@@ -54,18 +70,25 @@ struct IcpOutcome {
   double max_residual_mm = 0;  // final bound on |point-to-plane residual| (inf: none)
   Eigen::Vector3d centroid_in_a = Eigen::Vector3d::Zero();  // of the matched points
   double radius_mm = 0;  // RMS distance of the matched points from their centroid
+  std::vector<DegenerateDirection> degenerate;  // at the result (empty: every direction fixed)
+  double min_eigen_ratio = 0;  // the smallest eigenvalue / the largest, at the result
 };
 
-// Point-to-plane ICP of b's ICP sample onto all of a's flat points from a_from_b_initial.
+// Point-to-plane ICP of b's ICP sample onto all of a's flat points from a_from_b_initial, each
+// correspondence weighted by 1 / (its two points' noise variances). Degenerate directions
+// (above) are held at a_from_b_initial, the prior, whose information there is that of
+// options.prior_sigma_deg / prior_sigma_mm.
 IcpOutcome RegisterPair(const ViewGeometry& a, const ViewGeometry& b,
                         const Rigid3d& a_from_b_initial, const MergeOptions& options);
 
 // One Gauss-Newton step of the pair's point-to-plane cost from a_from_b with the correspondences
 // found there (gate, residual bound): a_from_b is the minimiser of the linearised cost and
 // information its curvature J^T J / sigma^2 (the joint refinement of merge.cc re-linearises every
-// pair at the graph's poses this way).
+// pair at the graph's poses this way); along degenerate directions the minimiser is a_from_b_prior
+// with the prior's information.
 IcpOutcome LinearizePair(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d& a_from_b,
-                         double gate_mm, double max_residual_mm, const MergeOptions& options);
+                         const Rigid3d& a_from_b_prior, double gate_mm, double max_residual_mm,
+                         const MergeOptions& options);
 
 // The same statistics at a fixed a_from_b (no iteration), with the given gate and residual bound.
 IcpOutcome EvaluatePair(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d& a_from_b,

@@ -1,0 +1,200 @@
+// The registration's degenerate directions (workflows/multiview/internal/pairwise.h,
+// MergeOptions::icp_degenerate_ratio): a pair whose overlap leaves directions free (planes slide
+// along themselves) holds them at its initial relative pose (the table's) instead of sliding and
+// being rejected. On a synthetic plane (the free directions known exactly) and on the multi-view
+// issue's self-occluding part, made of planes (config/demo/occlusion_turntable_scene.yaml), on the
+// demo turntable at 1/2 of the demo rig's resolution, against the simulated truth.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <random>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "core/point_cloud.h"
+#include "core/rig.h"
+#include "sim/scene.h"
+#include "tests/multiview/multiview_test_util.h"
+#include "tests/testing/temp_dir.h"
+#include "workflows/multiview/internal/pairwise.h"
+#include "workflows/multiview/merge.h"
+#include "workflows/multiview/project_merge.h"
+#include "workflows/multiview/turntable_scene.h"
+#include "workflows/multiview/views.h"
+#include "workflows/multiview/virtual_project.h"
+
+namespace slshadow::multiview {
+namespace {
+namespace fs = std::filesystem;
+
+// A noisy square patch of the plane z = 500 (the camera at the origin looks at it), points on a
+// jittered 0.3 mm grid.
+PointCloud Plane(uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> noise(0.0, 0.005);
+  std::uniform_real_distribution<double> jitter(-0.1, 0.1);
+  PointCloud c;
+  for (double x = -20; x <= 20; x += 0.3)
+    for (double y = -20; y <= 20; y += 0.3)
+      c.points.emplace_back(x + jitter(rng), y + jitter(rng), 500 + noise(rng));
+  return c;
+}
+
+// One plane seen twice, the second view's initial pose 0.3 / 0.2 mm off along the plane, 0.05 mm
+// off across it, turned 0.1 deg about the plane's normal and tilted 0.05 deg. The plane fixes the
+// height and the tilts; the two in-plane translations and the turn about the normal are free: the
+// ICP keeps them at the initial pose (without this a plane's ICP slides on the correspondences'
+// jitter) and the pair's information there is the prior's.
+TEST(RegistrationTest, APlaneFixesThreeDirectionsAndHoldsTheOtherThreeAtThePrior) {
+  const PointCloud a = Plane(1), b = Plane(2);
+  MergeOptions options;
+  options.icp_degenerate_ratio = 1e-3;
+  internal::ViewGeometry ga, gb;
+  internal::PrepareView(a, options, &ga);
+  internal::PrepareView(b, options, &gb);
+  const double turn = 0.1 * M_PI / 180, tilt = 0.05 * M_PI / 180;
+  const Eigen::Quaterniond rotation(Eigen::AngleAxisd(turn, Eigen::Vector3d::UnitZ()) *
+                                    Eigen::AngleAxisd(tilt, Eigen::Vector3d::UnitX()));
+  // The tilt about the x axis through the patch's centre (0, 0, 500).
+  const Eigen::Vector3d centre(0, 0, 500);
+  const Rigid3d initial(rotation, Eigen::Vector3d(0.3, 0.2, 0.05) + centre - rotation * centre);
+  const internal::IcpOutcome o = internal::RegisterPair(ga, gb, initial, options);
+  EXPECT_TRUE(o.converged);
+  ASSERT_EQ(o.degenerate.size(), 3u);
+  int rotations = 0;
+  for (const auto& d : o.degenerate) {
+    if (d.rotation) {
+      ++rotations;
+      EXPECT_GT(std::abs(d.axis.z()), 0.999);  // the turn about the normal
+    } else {
+      EXPECT_LT(std::abs(d.axis.z()), 0.001);  // a translation along the plane
+    }
+    EXPECT_LT(d.ratio, 1e-3);
+  }
+  EXPECT_EQ(rotations, 1);
+  EXPECT_LT(o.min_eigen_ratio, 1e-3);
+  // The fixed directions found (the plane z = 500 back onto itself), the free ones left as they
+  // were: the centre stays where the initial pose put it along the plane.
+  const Eigen::Vector3d moved = o.a_from_b * centre;
+  EXPECT_NEAR(moved.z(), 500.0, 0.002);
+  EXPECT_NEAR(moved.x(), 0.3, 1e-4);
+  EXPECT_NEAR(moved.y(), 0.2, 1e-4);
+  const Eigen::Vector3d normal = o.a_from_b.rotation * Eigen::Vector3d::UnitZ();
+  EXPECT_LT(std::acos(std::min(1.0, normal.z())) * 180 / M_PI, 0.002);
+  const Eigen::Vector3d x_axis = o.a_from_b.rotation * Eigen::Vector3d::UnitX();
+  EXPECT_NEAR(std::atan2(x_axis.y(), x_axis.x()), turn, 2e-6);
+  // The information along the free translations is the prior's (1 / prior_sigma_mm^2), along the
+  // fixed height far more.
+  const double prior_info = 1.0 / (options.prior_sigma_mm * options.prior_sigma_mm);
+  Eigen::Matrix<double, 6, 1> along_x = Eigen::Matrix<double, 6, 1>::Zero();
+  along_x(3) = 1;
+  EXPECT_NEAR(along_x.dot(o.information * along_x) / prior_info, 1.0, 0.05);
+  Eigen::Matrix<double, 6, 1> along_z = Eigen::Matrix<double, 6, 1>::Zero();
+  along_z(5) = 1;
+  EXPECT_GT(along_z.dot(o.information * along_z), 1e4 * prior_info);
+
+  // With the degeneracy test off nothing is held: the same pair's information along the plane is
+  // only what the normals' noise gives it.
+  options.icp_degenerate_ratio = 0;
+  const internal::IcpOutcome plain = internal::RegisterPair(ga, gb, initial, options);
+  EXPECT_TRUE(plain.degenerate.empty());
+}
+
+// The self-occluding part on the demo turntable (the scene file on the 1/4 demo rig with the
+// file's axis): it is made of planes, so a pair of views 90 deg apart shares mostly the part's
+// horizontal faces, which leave the rotation about the table axis and the translations along the
+// table free.
+TurntableSetup ScaledOcclusionPart(int scale) {
+  const fs::path config = fs::path(SLSHADOW_SOURCE_DIR) / "config/demo";
+  TurntableSetup setup;
+  setup.scene = LoadScene(config / "occlusion_turntable_scene.yaml");
+  setup.rig = testing::ScaledDemoRig(scale);
+  setup.rig.turntable = LoadRig(config / "turntable_rig.yaml").turntable;
+  return setup;
+}
+
+// Parses "rotation about (x, y, z)" (ViewPose::prior_directions); false when another kind.
+bool RotationAxis(const std::string& text, Eigen::Vector3d* axis) {
+  return std::sscanf(text.c_str(), "rotation about (%lf, %lf, %lf)", &axis->x(), &axis->y(),
+                     &axis->z()) == 3;
+}
+
+constexpr double kRatio = 1e-3;  // MergeOptions::icp_degenerate_ratio (off by default)
+
+class OcclusionPartRegistration : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    tmp_ = new testing::TempDir();
+    setup_ = new TurntableSetup(ScaledOcclusionPart(2));
+    for (int views : {4, 12})
+      SimulateProject(setup_->scene, setup_->rig, testing::ScaledDemoPatterns(setup_->rig),
+                      FullTurnViews(views, 0), Project(views));
+  }
+  static void TearDownTestSuite() {
+    delete setup_;
+    delete tmp_;
+  }
+  static fs::path Project(int views) { return tmp_->path() / std::to_string(views); }
+  static ProjectMergeResult Merge(int views, double degenerate_ratio) {
+    ProjectMergeOptions options;
+    options.mesh = false;
+    options.registration.icp_degenerate_ratio = degenerate_ratio;
+    ProjectMergeResult r = MergeProject(Project(views), nullptr, options);
+    std::printf("%s", r.Summary().c_str());
+    return r;
+  }
+  static testing::TempDir* tmp_;
+  static TurntableSetup* setup_;
+};
+testing::TempDir* OcclusionPartRegistration::tmp_ = nullptr;
+TurntableSetup* OcclusionPartRegistration::setup_ = nullptr;
+
+// Four views 90 deg apart: every view is merged, each non-anchor view names the rotation about
+// the table axis among the directions the table's prior fixed, and the poses are within a few um
+// of the truth (the table's exact poses).
+TEST_F(OcclusionPartRegistration, FourViewsAllMergedTheFreeDirectionsHeldAtTheTable) {
+  const ProjectMergeResult r = Merge(4, kRatio);
+  ASSERT_TRUE(r.has_truth);
+  const Eigen::Vector3d axis = setup_->rig.turntable->direction_in_rig.normalized();
+  for (const MergedView& v : r.views) {
+    EXPECT_TRUE(v.merged) << v.name << ": " << v.reason;
+    if (v.anchor) continue;
+    bool about_axis = false;
+    for (const std::string& d : v.prior_directions) {
+      Eigen::Vector3d u;
+      // The part frame is the rig frame at table angle 0, where the axis is the rig's.
+      if (RotationAxis(d, &u)) about_axis = about_axis || std::abs(u.normalized().dot(axis)) > 0.99;
+    }
+    EXPECT_TRUE(about_axis) << v.name;
+  }
+  EXPECT_LT(r.max_rotation_error_deg, 0.005);    // 0.00055 deg on 2026-12-07
+  EXPECT_LT(r.max_translation_error_mm, 0.005);  // 0.0019 mm
+
+  // Without it the pairs slide: their views are left out, or merged far off (0.04 deg / 0.24 mm
+  // with the noise-level stop of the ICP, icp_noise_tolerance).
+  const ProjectMergeResult plain = Merge(4, 0.0);
+  int left_out = 0;
+  for (const MergedView& v : plain.views) left_out += v.merged ? 0 : 1;
+  EXPECT_TRUE(left_out > 0 || plain.max_translation_error_mm > 10 * r.max_translation_error_mm)
+      << plain.max_translation_error_mm;
+}
+
+// Twelve views 30 deg apart: every view merged, the poses within 0.05 deg / 0.02 mm of the
+// truth. At the full rig 0.0018 deg / 0.0010 mm (before the degeneracy test 0.035 deg /
+// 0.0045 mm; docs/benchmarks/log/2026-12-07-registration-noise.md); at this half resolution
+// 0.023 deg / 0.010 mm: the 30-deg pairs' rotation about the axis, just above the degeneracy
+// bound, is biased on the sparser points (not understood yet).
+TEST_F(OcclusionPartRegistration, TwelveViewsAllMergedNearTheTruth) {
+  const ProjectMergeResult r = Merge(12, kRatio);
+  ASSERT_TRUE(r.has_truth);
+  for (const MergedView& v : r.views) EXPECT_TRUE(v.merged) << v.name << ": " << v.reason;
+  EXPECT_LT(r.max_rotation_error_deg, 0.05);
+  EXPECT_LT(r.max_translation_error_mm, 0.02);
+}
+
+}  // namespace
+}  // namespace slshadow::multiview
