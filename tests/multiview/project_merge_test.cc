@@ -227,8 +227,9 @@ TEST_F(ProjectMergeTest, ModelFolderAndLeftOutViews) {
   EXPECT_EQ(report["views"][3]["reason"].get<std::string>().rfind("missing: ", 0), 0u);
   for (size_t i = 0; i < 3; ++i) {
     const nlohmann::json& v = report["views"][i];
-    if (!v["merged"].get<bool>())
+    if (!v["merged"].get<bool>()) {
       EXPECT_EQ(v["reason"].get<std::string>().rfind("registration: ", 0), 0u) << v["reason"];
+    }
   }
   EXPECT_TRUE(report["views"][0]["merged"].get<bool>());
   EXPECT_EQ(report["views"][0]["table_deg"].get<double>(), 15.0);
