@@ -11,6 +11,7 @@
 #include <gtest/gtest.h>
 
 #include "core/file_util.h"
+#include "tests/testing/read_csv.h"
 #include "tests/testing/temp_dir.h"
 #include "workflows/studies/sweep.h"
 
@@ -18,33 +19,9 @@ namespace slshadow::studies {
 namespace {
 
 namespace fs = std::filesystem;
+using testing::ReadCsv;
 using testing::SourceDir;
 using testing::TempDir;
-
-// A CSV file of sweep merge (no quoted commas in these tables) as rows of column -> text.
-std::vector<std::map<std::string, std::string>> ReadCsv(const fs::path& path) {
-  std::istringstream in(ReadTextFile(path));
-  const auto split = [](const std::string& line) {
-    std::vector<std::string> fields;
-    std::string field;
-    std::istringstream s(line);
-    while (std::getline(s, field, ',')) fields.push_back(field);
-    if (!line.empty() && line.back() == ',') fields.emplace_back();
-    return fields;
-  };
-  std::string line;
-  std::getline(in, line);
-  const std::vector<std::string> header = split(line);
-  std::vector<std::map<std::string, std::string>> rows;
-  while (std::getline(in, line)) {
-    const std::vector<std::string> fields = split(line);
-    EXPECT_EQ(fields.size(), header.size()) << path << ": " << line;
-    std::map<std::string, std::string> row;
-    for (size_t i = 0; i < header.size() && i < fields.size(); ++i) row[header[i]] = fields[i];
-    rows.push_back(std::move(row));
-  }
-  return rows;
-}
 
 SweepStudySummary RunQuickStudy(const std::string& name, const fs::path& out) {
   SweepRunOptions options;

@@ -20,6 +20,7 @@
 #include "patterns/pattern_spec.h"
 #include "tests/studies/sweep_cli.h"
 #include "tests/testing/error_of.h"
+#include "tests/testing/read_csv.h"
 #include "tests/testing/temp_dir.h"
 #include "workflows/multiview/project_merge.h"
 #include "workflows/multiview/turntable_scene.h"
@@ -33,32 +34,9 @@ namespace {
 
 namespace fs = std::filesystem;
 using nlohmann::json;
+using testing::ReadCsv;
 using testing::SourceDir;
 using testing::TempDir;
-
-std::vector<std::map<std::string, std::string>> ReadCsv(const fs::path& path) {
-  std::istringstream in(ReadTextFile(path));
-  const auto split = [](const std::string& line) {
-    std::vector<std::string> fields;
-    std::string field;
-    std::istringstream s(line);
-    while (std::getline(s, field, ',')) fields.push_back(field);
-    if (!line.empty() && line.back() == ',') fields.emplace_back();
-    return fields;
-  };
-  std::string line;
-  std::getline(in, line);
-  const std::vector<std::string> header = split(line);
-  std::vector<std::map<std::string, std::string>> rows;
-  while (std::getline(in, line)) {
-    const std::vector<std::string> fields = split(line);
-    EXPECT_EQ(fields.size(), header.size()) << path << ": " << line;
-    std::map<std::string, std::string> row;
-    for (size_t i = 0; i < header.size() && i < fields.size(); ++i) row[header[i]] = fields[i];
-    rows.push_back(std::move(row));
-  }
-  return rows;
-}
 
 // Brute force: on the front when no other point of the mode is at least as fast and as good and
 // better in one.
