@@ -5,6 +5,8 @@
 #include "apps/commands.h"
 #include "core/error.h"
 #include "core/mesh.h"
+#include "core/shard.h"
+#include "core/threads.h"
 #include "sim/scene.h"
 #include "workflows/multiview/merge.h"
 #include "workflows/multiview/project_merge.h"
@@ -107,7 +109,8 @@ int RunMerge(int argc, char** argv) {
       "CloudCompare),\n"
       "     coverage of the reachable CAD surface (the face on the table excluded) and the area no "
       "view\n"
-      "     covered by reason (occluded, grazing, outside the field, not reconstructed).\n"
+      "     covered by reason (occluded, grazing, outside the field, too dark, not "
+      "reconstructed).\n"
       "  5. unless --no-mesh: a watertight surface mesh by Poisson reconstruction of the merged "
       "cloud,\n"
       "     trimmed where no view saw the surface (mesh.ply; with --cad its C2M to the CAD), timed "
@@ -118,15 +121,42 @@ int RunMerge(int argc, char** argv) {
       "  slshadow simulate --rig config/demo/turntable_rig.yaml --scene "
       "config/demo/turntable_scene.yaml \\\n"
       "      --patterns config/demo/patterns.yaml --views config/demo/views_12.yaml --out project\n"
-      "  slshadow merge project --out model --cad config/demo/turntable_scene.yaml",
+      "  slshadow merge project --out model --cad config/demo/turntable_scene.yaml\n"
+      "Views as independent jobs (a large project; GNU parallel or a Slurm job array): each shard\n"
+      "reconstructs its views into a folder, the merge then reads them (docs/formats.md \"View\n"
+      "reconstructions\"; a view reconstructed with other options or from other images is "
+      "refused):\n"
+      "  parallel -j 2 slshadow merge project --reconstructions recon --reconstruct-only "
+      "--threads 1 --shard {}/4 ::: 0 1 2 3\n"
+      "  slshadow merge project --reconstructions recon --out model --cad "
+      "config/demo/turntable_scene.yaml",
       argv[0]};
   std::string project, out_dir, cad_path, mode = "stereo", poses = "registered";
   bool overwrite = false, quiet = false;
   multiview::ProjectMergeOptions options;
   app.add_option("PROJECT", project, "multi-view project folder (project.json, views/<name>/)")
       ->required();
-  app.add_option("--out", out_dir, "output model folder (must not exist unless --overwrite)")
-      ->required();
+  app.add_option("--out", out_dir,
+                 "output model folder (must not exist unless --overwrite); required unless "
+                 "--reconstruct-only");
+  std::string reconstructions, shard_text = "0/1";
+  bool reconstruct_only = false;
+  app.add_option("--reconstructions", reconstructions,
+                 "folder of the views' reconstructions (DIR/<view>/: cloud, dark pixels, the "
+                 "options): views stored there are read instead of reconstructed, the others "
+                 "reconstructed and written there; a second merge with other registration, "
+                 "fusion or CAD options then skips step 1");
+  app.add_flag("--reconstruct-only", reconstruct_only,
+               "step 1 only: reconstruct this shard's views into --reconstructions and stop "
+               "(views already stored with the same images and options are skipped)");
+  int threads = 0;
+  app.add_option("--threads", threads,
+                 "threads for OpenCV, TBB and Ceres (default: SLURM_CPUS_PER_TASK when set, else "
+                 "all cores); give each shard the cores it was allocated");
+  app.add_option("--shard", shard_text,
+                 "with --reconstruct-only, I/N: shard I (0-based) of N of the complete views in "
+                 "project order, contiguous blocks; SLURM_ARRAY_TASK_ID / COUNT are not read")
+      ->capture_default_str();
   app.add_option("--cad", cad_path,
                  "the part's CAD model in the part frame: a mesh (.stl/.ply/.obj), or a scene "
                  "(.yaml/.json) whose meshes are the part at table angle 0");
@@ -196,6 +226,28 @@ int RunMerge(int argc, char** argv) {
   }
   options.mode = ReconstructModeFromString(mode);
   options.poses = multiview::PoseSourceFromString(poses);
+  options.reconstructions = reconstructions;
+  if (const int budget = ResolveThreadBudget(threads); budget > 0) SetThreadBudget(budget);
+  if (reconstruct_only) {
+    SLSHADOW_THROW_IF(reconstructions.empty(),
+                      "--reconstruct-only: needs --reconstructions DIR (where the views go)");
+    SLSHADOW_THROW_IF(!out_dir.empty(), "--reconstruct-only: --out ", out_dir,
+                      " would not be written; the merge is a second command");
+    const Shard shard = ParseShard(shard_text, "--shard");
+    const multiview::ReconstructShardSummary summary = multiview::ReconstructProjectShard(
+        project, options, shard, [quiet](const std::string& name, size_t k, size_t n) {
+          if (!quiet) std::printf("[%zu/%zu] %s\n", k + 1, n, name.c_str());
+          std::fflush(stdout);
+        });
+    if (!quiet)
+      std::printf("shard %d/%d: %s-> %s\n", shard.index, shard.count, summary.Brief().c_str(),
+                  reconstructions.c_str());
+    return 0;
+  }
+  SLSHADOW_THROW_IF(out_dir.empty(),
+                    "--out: required (the model folder), unless --reconstruct-only");
+  SLSHADOW_THROW_IF(shard_text != "0/1", "--shard ", shard_text,
+                    ": only with --reconstruct-only (the merge reads every view)");
   options.mesh = !no_mesh;
   options.registration.turntable_model = !six_dof;
   std::optional<TriangleMesh> cad;

@@ -28,31 +28,6 @@ double SecondsSince(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
-// The view's cloud (rig frame): decoded and reconstructed from its ImageSet alone.
-// The view's reconstruction, and in `dark` each camera's pixels the decoder found too dark.
-Reconstruction ReconstructView(const ImageSet& image_set, const ProjectMergeOptions& options,
-                               std::vector<DarkPixels>* dark) {
-  const Rig& rig = image_set.rig();
-  SLSHADOW_THROW_IF(options.mode == ReconstructMode::kStereo && rig.cameras.size() < 2,
-                    image_set.dir().string(), ": stereo needs two cameras (the rig has ",
-                    rig.cameras.size(), ")");
-  std::vector<std::string> cameras = {rig.cameras[0].name};
-  if (options.mode == ReconstructMode::kStereo) cameras.push_back(rig.cameras[1].name);
-  const pipeline::DecodedScan decoded =
-      pipeline::DecodeImageSet(image_set, cameras, options.decode);
-  dark->clear();
-  for (size_t k = 0; k < cameras.size(); ++k)
-    dark->push_back(DarkPixels::FromStatus(cameras[k], decoded.maps[k].status));
-  Reconstruction rec =
-      options.mode == ReconstructMode::kStereo
-          ? ReconstructStereo(rig, cameras[0], cameras[1], decoded.maps[0], decoded.maps[1],
-                              options.reconstruct, options.max_points_per_view)
-          : ReconstructWithProjector(rig, cameras[0], decoded.maps[0], options.reconstruct,
-                                     options.max_points_per_view);
-  rec.grid = DenseGrid();
-  return rec;
-}
-
 std::optional<Rigid3d> RecordedTruth(const ImageSet& image_set) {
   const nlohmann::json& extra = image_set.extra();
   if (!extra.is_object() || !extra.contains("view") || !extra["view"].is_object() ||
@@ -61,6 +36,37 @@ std::optional<Rigid3d> RecordedTruth(const ImageSet& image_set) {
   return PoseFromConfig(ConfigNode::FromJson(extra["view"]["part_from_rig_true"],
                                              (image_set.dir() / "manifest.json").string(),
                                              "extra.view.part_from_rig_true"));
+}
+
+ViewReconstructOptions ViewOptions(const ProjectMergeOptions& options) {
+  return {options.mode, options.decode, options.reconstruct, options.max_points_per_view};
+}
+
+// The view's reconstruction: read from options.reconstructions when it is there (and made from
+// the same images with the same options), else reconstructed (and written there). `source` says
+// which.
+ViewReconstruction ObtainView(const fs::path& project_dir, const ProjectView& pv,
+                              const ImageSet& image_set, const ProjectMergeOptions& options,
+                              std::string* source) {
+  const ViewReconstructOptions vo = ViewOptions(options);
+  std::optional<ViewReconstructionKey> key;
+  if (!options.reconstructions.empty()) {
+    key = ViewReconstructionKey::For(pv.spec.name, project_dir / pv.Folder(), vo);
+    if (std::optional<ViewReconstruction> stored =
+            ReadViewReconstruction(options.reconstructions, *key)) {
+      *source = "read from " + (options.reconstructions / pv.spec.name).string();
+      return std::move(*stored);
+    }
+  }
+  ViewReconstruction rec = ReconstructProjectView(image_set, vo);
+  ReleaseReconstructionBuffers();
+  malloc_trim(0);
+  *source = "reconstructed";
+  if (key) {
+    WriteViewReconstruction(options.reconstructions, *key, rec);
+    *source += ", written to " + (options.reconstructions / pv.spec.name).string();
+  }
+  return rec;
 }
 
 nlohmann::json OptionalPose(const std::optional<Rigid3d>& pose) {
@@ -150,9 +156,8 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
                         (project_dir / pv.Folder() / "manifest.json").string(),
                         ": rig differs from the project's (", what, ")");
       v.part_from_rig_true = RecordedTruth(image_set);
-      Reconstruction rec = ReconstructView(image_set, options, &dark[i]);
-      ReleaseReconstructionBuffers();
-      malloc_trim(0);
+      ViewReconstruction rec = ObtainView(project_dir, pv, image_set, options, &v.reconstruction);
+      dark[i] = std::move(rec.dark);
       if (pv.spec.StandsOnTable() && options.table_crop_mm >= 0) {
         // The table plane does not move when the table turns, nor when the part is put down on
         // it by hand: the same plane in every view that stands on the table.
@@ -165,7 +170,7 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
           if (!keep[k]) backdrops[i].points.push_back(rec.cloud.points[k]);
         rec.cloud = rec.cloud.Select(keep);
       }
-      v.accepted_points = rec.summary.points;
+      v.accepted_points = rec.accepted_points;
       v.reconstruct_seconds = SecondsSince(t0);
       result.reconstruct_seconds += v.reconstruct_seconds;
       v.points = rec.cloud.size();
@@ -296,6 +301,47 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
   return result;
 }
 
+std::string ReconstructShardSummary::Brief() const {
+  return StringPrintf("%d view%s in this shard: %d reconstructed, %d already stored (%.1f s)\n",
+                      assigned, assigned == 1 ? "" : "s", reconstructed, already_done, seconds);
+}
+
+ReconstructShardSummary ReconstructProjectShard(
+    const fs::path& project_dir, const ProjectMergeOptions& options, Shard shard,
+    const std::function<void(const std::string&, size_t, size_t)>& on_view) {
+  const auto t_start = std::chrono::steady_clock::now();
+  options.Check();
+  SLSHADOW_THROW_IF(options.reconstructions.empty(),
+                    "reconstructions: empty; expected the folder the views' reconstructions go to");
+  SLSHADOW_THROW_IF(shard.count < 1 || shard.index < 0 || shard.index >= shard.count,
+                    "shard: ", shard.index, "/", shard.count, " is not I/N with 0 <= I < N");
+  const ProjectManifest project = LoadProject(project_dir);
+  std::vector<const ProjectView*> complete;
+  for (const ProjectView& pv : project.views)
+    if (pv.state == ViewState::kComplete) complete.push_back(&pv);
+  ReconstructShardSummary summary;
+  const size_t begin = shard.Begin(complete.size()), end = shard.End(complete.size());
+  summary.assigned = static_cast<int>(end - begin);
+  for (size_t k = begin; k < end; ++k) {
+    const ProjectView& pv = *complete[k];
+    if (on_view) on_view(pv.spec.name, k - begin, end - begin);
+    const ImageSet image_set = ImageSet::Open(project_dir / pv.Folder());
+    SLSHADOW_THROW_IF(RigToJson(image_set.rig()) != RigToJson(project.rig),
+                      (project_dir / pv.Folder() / "manifest.json").string(),
+                      ": rig differs from the project's (", (project_dir / "project.json").string(),
+                      ")");
+    std::string source;
+    ObtainView(project_dir, pv, image_set, options, &source);
+    if (source == "reconstructed" || source.rfind("reconstructed,", 0) == 0) {
+      ++summary.reconstructed;
+    } else {
+      ++summary.already_done;
+    }
+  }
+  summary.seconds = SecondsSince(t_start);
+  return summary;
+}
+
 nlohmann::json ProjectMergeResult::ToJson() const {
   nlohmann::json j = {{"format", "slshadow-merge-report"},
                       {"version", 2},
@@ -313,7 +359,8 @@ nlohmann::json ProjectMergeResult::ToJson() const {
         {"part_from_rig", v.merged ? PoseToJson(v.part_from_rig) : nlohmann::json(nullptr)},
         {"points", v.points},
         {"accepted_points", v.accepted_points},
-        {"reconstruct_s", v.reconstruct_seconds}};
+        {"reconstruct_s", v.reconstruct_seconds},
+        {"reconstruction", v.reconstruction}};
     if (v.merged && refined) {
       if (v.table_angle_deg) {
         view["table_angle_fitted_deg"] = *v.table_angle_deg;

@@ -32,6 +32,7 @@
 #pragma once
 
 #include <filesystem>
+#include <functional>
 #include <optional>
 #include <string>
 #include <vector>
@@ -41,11 +42,13 @@
 #include "core/mesh.h"
 #include "core/point_cloud.h"
 #include "core/rigid3.h"
+#include "core/shard.h"
 #include "patterns/codec.h"
 #include "reconstruct/reconstruct.h"
 #include "workflows/multiview/cad_compare.h"
 #include "workflows/multiview/merge.h"
 #include "workflows/multiview/surface_mesh.h"
+#include "workflows/multiview/view_reconstruction.h"
 #include "workflows/multiview/views.h"
 
 namespace slshadow::multiview {
@@ -72,6 +75,10 @@ struct ProjectMergeOptions {
   // dropped from the view's cloud. Negative: keep every point.
   double table_crop_mm = 0.5;
   CadCompareOptions cad;
+  // Step 1's reconstructions kept on disk (view_reconstruction.h): a view stored here (same
+  // images, same mode, decode and reconstruct options, same max_points_per_view) is read instead
+  // of reconstructed; a view not stored yet is reconstructed and written here. Empty: none kept.
+  std::filesystem::path reconstructions;
   // Step 6: the surface mesh (surface_mesh.h BuildSurfaceMesh) of the merged cloud.
   bool mesh = true;
   SurfaceMeshOptions mesh_options;
@@ -103,6 +110,8 @@ struct MergedView {
   size_t points = 0;            // in the view's cloud (after max_points_per_view)
   int64_t accepted_points = 0;  // the reconstruction's accepted cells
   double reconstruct_seconds = 0;
+  std::string
+      reconstruction;  // "reconstructed", or where it was read from (options.reconstructions)
   std::optional<Rigid3d> part_from_rig_true;  // recorded by a virtual project
   double rotation_error_deg = 0;              // against the truth, when known
   double translation_error_mm = 0;            // displacement of the part's centre, when known
@@ -143,6 +152,22 @@ struct ProjectMergeResult {
 ProjectMergeResult MergeProject(const std::filesystem::path& project_dir,
                                 const TriangleMesh* cad_in_part,
                                 const ProjectMergeOptions& options = {});
+
+// Step 1 alone, for shard `shard` of the project's complete views (in project order, cut into
+// contiguous blocks: core/shard.h): each view not yet in options.reconstructions (which must be
+// set) is reconstructed and written there; a stored one made from other images or with other
+// options is refused (view_reconstruction.h). `on_view(name, k, n)` reports progress. The views
+// are independent jobs: shards may run at once, in any order, on any machine sharing the folder.
+struct ReconstructShardSummary {
+  int assigned = 0;       // complete views of this shard
+  int already_done = 0;   // stored before, with the same images and options
+  int reconstructed = 0;  // reconstructed and written now
+  double seconds = 0;
+  std::string Brief() const;
+};
+ReconstructShardSummary ReconstructProjectShard(
+    const std::filesystem::path& project_dir, const ProjectMergeOptions& options, Shard shard,
+    const std::function<void(const std::string&, size_t, size_t)>& on_view = {});
 
 // The model folder, written atomically (an existing folder is replaced only with `overwrite`):
 //  - MODEL/report.json: ToJson(): views (poses, figures, left out with the reason), CAD figures;

@@ -5,6 +5,7 @@
 #include "core/error.h"
 #include "core/file_util.h"
 #include "core/progress.h"
+#include "core/shard.h"
 #include "core/stage_meter.h"
 #include "core/string_printf.h"
 #include "patterns/codec.h"
@@ -583,22 +584,9 @@ void SweepRunOptions::Check() const {
 }
 
 void ParseShard(const std::string& text, const std::string& what, SweepRunOptions* options) {
-  const size_t slash = text.find('/');
-  int i = -1, n = 0;
-  size_t used_i = 0, used_n = 0;
-  try {
-    if (slash != std::string::npos) {
-      i = std::stoi(text.substr(0, slash), &used_i);
-      n = std::stoi(text.substr(slash + 1), &used_n);
-    }
-  } catch (const std::exception&) {
-    i = -1;
-  }
-  SLSHADOW_THROW_IF(slash == std::string::npos || i < 0 || n < 1 || i >= n || used_i != slash ||
-                        used_n != text.size() - slash - 1,
-                    what, ": '", text, "' is not I/N with 0 <= I < N (e.g. 0/4)");
-  options->shard_index = i;
-  options->shard_count = n;
+  const Shard shard = slshadow::ParseShard(text, what);
+  options->shard_index = shard.index;
+  options->shard_count = shard.count;
 }
 
 std::string SweepPlanSummary::BriefReport(const fs::path& jobs_dir) const {
@@ -692,10 +680,10 @@ std::vector<int> ShardJobs(const fs::path& jobs_dir, int shard_index, int shard_
     order.emplace_back(it->second, id);
   }
   std::sort(order.begin(), order.end());
-  const auto begin = static_cast<size_t>(static_cast<int64_t>(n) * shard_index / shard_count);
-  const auto end = static_cast<size_t>(static_cast<int64_t>(n) * (shard_index + 1) / shard_count);
+  const Shard shard{shard_index, shard_count};
   std::vector<int> ids;
-  for (size_t k = begin; k < end; ++k) ids.push_back(order[k].second);
+  for (size_t k = shard.Begin(order.size()); k < shard.End(order.size()); ++k)
+    ids.push_back(order[k].second);
   return ids;
 }
 
