@@ -37,7 +37,9 @@
 // board: tests/multiview/kamino_coverage_test.cc,
 // docs/benchmarks/log/2026-12-07-kamino-coverage.md).
 //
-// Frames and units: the part frame (views.h), mm, degrees.
+// Frames and units: the part frame (views.h), mm, degrees. The prediction's report, coverage map
+// and check against a scan (ToJson, Table, WriteCoverageMap, CheckPrediction) are in
+// coverage_check.cc.
 #pragma once
 
 #include <array>
