@@ -115,6 +115,11 @@ int RunReconstruct(int argc, char** argv) {
                  "largest median step between decoded neighbours (per map and direction), at least "
                  "4 (the summary's code_step_gate_px)")
       ->capture_default_str();
+  app.add_option("--max-code-step-ratio", r.max_code_step_ratio,
+                 "stereo: nor across a smaller step larger than this many times the steps on "
+                 "either side of it (a code jump: an occlusion edge, a wall's foot at grazing "
+                 "incidence), and 0.5 projector px; 0: off")
+      ->capture_default_str();
   app.add_flag("--no-discontinuity-filter", no_discontinuity, "keep points at depth jumps");
   app.add_option(
          "--max-depth-jump", r.max_depth_jump_footprints,

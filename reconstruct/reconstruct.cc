@@ -616,8 +616,10 @@ Reconstruction ReconstructStereo(const Rig& rig, const std::string& left_name,
   const double gate = options.max_code_step_px > 0 ? options.max_code_step_px
                                                    : AutoCodeStepGate(left_map, right_map);
   s.code_step_gate_px = gate;
-  RectifyProjectorMap(rect, 0, left, left_map, gate, options.min_quality, cubic, &lm);
-  RectifyProjectorMap(rect, 1, right, right_map, gate, options.min_quality, cubic, &rm);
+  RectifyProjectorMap(rect, 0, left, left_map, gate, options.min_quality, cubic,
+                      options.max_code_step_ratio, &lm);
+  RectifyProjectorMap(rect, 1, right, right_map, gate, options.min_quality, cubic,
+                      options.max_code_step_ratio, &rm);
   t0.Elapsed(&s.rays_s, &s.rays_cpu_s);
 
   t0.Restart();

@@ -77,6 +77,14 @@ struct ReconstructOptions {
   // sphere's limb, where the steps grow smoothly to a jump (docs/studies/stability_grazing_quick:
   // stereo at 65 deg with auto, none past 55 with 4; a 25 mm sphere's PS error 0.12 mm with auto).
   double max_code_step_px = 4.0;
+  // Stereo: nor across a code jump below that gate: a step between neighbouring pixels (along a
+  // row or a column of the camera image) larger than 0.5 projector px and than this many times
+  // each of the steps on either side of it. A smooth surface's step changes gradually (also at a
+  // crease or where the surface turns away); a jump is an occlusion edge, or a wall's foot seen at
+  // grazing incidence with the table behind it, whose interpolated codes match the other camera
+  // between the two surfaces: ghost points up to a few mm in front of both
+  // (docs/benchmarks/log/2026-12-07-ghost-points.md). 0 disables the test.
+  double max_code_step_ratio = 2.5;
   // Stereo resampling and crossings (StereoInterpolation above).
   StereoInterpolation stereo_interpolation = StereoInterpolation::kAuto;
   // Depth-discontinuity filter (filters.h), in pixel footprints; dilation in pixels.

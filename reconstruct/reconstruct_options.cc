@@ -50,6 +50,8 @@ void ReconstructOptions::Check() const {
     fail("min_quality", "must be finite and >= 0", min_quality);
   if (!(max_code_step_px >= 0) || !std::isfinite(max_code_step_px))
     fail("max_code_step_px", "must be finite and positive, or 0 (auto)", max_code_step_px);
+  if (!(max_code_step_ratio == 0 || max_code_step_ratio > 1) || !std::isfinite(max_code_step_ratio))
+    fail("max_code_step_ratio", "must be finite and > 1, or 0 (off)", max_code_step_ratio);
   if (!(max_depth_jump_footprints > 0))
     fail("max_depth_jump_footprints", "must be positive", max_depth_jump_footprints);
   if (discontinuity_dilation_px < 0 || discontinuity_dilation_px > 16)
@@ -86,6 +88,7 @@ nlohmann::json ReconstructOptions::ToJson() const {
           {"min_quality", min_quality},
           {"max_code_step_px",
            max_code_step_px > 0 ? nlohmann::json(max_code_step_px) : nlohmann::json("auto")},
+          {"max_code_step_ratio", max_code_step_ratio},
           {"stereo_interpolation", ToString(stereo_interpolation)},
           {"filter_depth_discontinuities", filter_depth_discontinuities},
           {"max_depth_jump_footprints", max_depth_jump_footprints},
@@ -137,6 +140,7 @@ ReconstructOptions ReconstructOptionsFromConfig(const ConfigNode& node) {
                           "max_epipolar_error_px",
                           "min_quality",
                           "max_code_step_px",
+                          "max_code_step_ratio",
                           "stereo_interpolation",
                           "filter_depth_discontinuities",
                           "max_depth_jump_footprints",
@@ -172,6 +176,7 @@ ReconstructOptions ReconstructOptionsFromConfig(const ConfigNode& node) {
   } else {
     o.max_code_step_px = node.GetDouble("max_code_step_px", o.max_code_step_px);
   }
+  o.max_code_step_ratio = node.GetDouble("max_code_step_ratio", o.max_code_step_ratio);
   if (node.Has("stereo_interpolation")) {
     o.stereo_interpolation = ParseEnum(node["stereo_interpolation"], [](const std::string& s) {
       return StereoInterpolationFromString(s);

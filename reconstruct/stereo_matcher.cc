@@ -44,26 +44,51 @@ inline bool SmoothRun(const double* s, double max_step) {
          std::abs(s[3] - s[2]) <= max_step;
 }
 
-// Per source pixel (x0, y0), 1 when the 4x4 block x0 - 1 .. x0 + 2, y0 - 1 .. y0 + 2 is fit for
-// bicubic interpolation: every pixel decoded with finite coordinates, and no two horizontal or
-// vertical neighbours in it differing by more than max_step in either coordinate. Separable: the
-// pairs of neighbours first, then runs of 3 pairs along rows and columns.
+constexpr uint8_t kPairRight = 1, kPairDown = 2;
+
+// A code jump between neighbours a and b on a line of pixels (a row or a column), p and n the
+// pixels before a and after b (NaN where not decoded): the step |b - a| exceeds `floor_px` and
+// `ratio` times the larger of the steps on either side of it (no side step: not a jump). A smooth
+// surface changes its code step gradually from pixel to pixel, also where it turns away from the
+// camera or meets another face at a crease (the step across the crease lies between those on its
+// two sides); a surface behind an occluding edge, or the wall and the table at a wall's foot seen
+// at grazing incidence, jumps in one step. Such a step below the code-step gate is interpolated
+// across and matched otherwise: points between the two surfaces
+// (docs/benchmarks/log/2026-12-07-ghost-points.md).
+inline bool RelativeJump(double p, double a, double b, double n, double ratio, double floor_px) {
+  const double step = std::abs(b - a);
+  if (!(step > floor_px)) return false;
+  const double before = std::abs(a - p), after = std::abs(n - b);
+  double side = -1;
+  if (std::isfinite(before)) side = before;
+  if (std::isfinite(after)) side = std::max(side, after);
+  return side >= 0 && step > ratio * side;
+}
+
+// Per source pixel (x, y): bit kPairRight when (x, y) and (x + 1, y) are fit neighbours to
+// interpolate between, kPairDown for (x, y) and (x, y + 1): both decoded with finite
+// coordinates, no coordinate differing by more than max_step, and (max_step_ratio > 0) no
+// relative code jump between them (RelativeJump, floor kRelativeJumpFloorPx).
+constexpr double kRelativeJumpFloorPx = 0.5;
 template <typename T>
-std::vector<uint8_t> SmoothBlocks(const ProjectorMap& map, double max_step) {
+std::vector<uint8_t> FitPairs(const ProjectorMap& map, double max_step, double max_step_ratio) {
   const int w = map.width(), h = map.height();
   const size_t n = static_cast<size_t>(w) * h;
-  constexpr uint8_t kRight = 1, kDown = 2;
-  std::vector<uint8_t> pairs(n, 0), runs(n, 0), blocks(n, 0);
+  std::vector<uint8_t> pairs(n, 0);
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  constexpr auto kValid = static_cast<uint8_t>(PixelStatus::kValid);
   auto ok = [&](const uint8_t* status, const T* px, const T* py, int x) {
-    return status[x] == static_cast<uint8_t>(PixelStatus::kValid) &&
-           std::isfinite(static_cast<double>(px[x])) &&
+    return status[x] == kValid && std::isfinite(static_cast<double>(px[x])) &&
            (!py || std::isfinite(static_cast<double>(py[x])));
   };
   auto close = [&](const T* a, const T* b, int xa, int xb) {
     return !a || std::abs(static_cast<double>(a[xa]) - static_cast<double>(b[xb])) <= max_step;
   };
-  // pairs: bit kRight when (x, y) and (x + 1, y) are fit neighbours, kDown for (x, y) and (x, y +
-  // 1).
+  // The coordinate `c` of pixel x of a row (status s), NaN where not decoded or outside.
+  auto at = [&](const uint8_t* s, const T* c, int x) {
+    return s && x >= 0 && x < w && s[x] == kValid ? static_cast<double>(c[x]) : nan;
+  };
+  const bool relative = max_step_ratio > 0;
   cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
     for (int y = rows.start; y < rows.end; ++y) {
       const uint8_t* s0 = map.status.ptr<uint8_t>(y);
@@ -73,18 +98,49 @@ std::vector<uint8_t> SmoothBlocks(const ProjectorMap& map, double max_step) {
       const uint8_t* s1 = below ? map.status.ptr<uint8_t>(y + 1) : nullptr;
       const T* x1 = below ? map.proj_x.ptr<T>(y + 1) : nullptr;
       const T* y1 = below && map.has_y ? map.proj_y.ptr<T>(y + 1) : nullptr;
+      // The rows above and two below, for the vertical pairs' side steps.
+      const uint8_t* sm = y > 0 ? map.status.ptr<uint8_t>(y - 1) : nullptr;
+      const T* xm = y > 0 ? map.proj_x.ptr<T>(y - 1) : nullptr;
+      const T* ym = y > 0 && map.has_y ? map.proj_y.ptr<T>(y - 1) : nullptr;
+      const uint8_t* s2 = y + 2 < h ? map.status.ptr<uint8_t>(y + 2) : nullptr;
+      const T* x2 = y + 2 < h ? map.proj_x.ptr<T>(y + 2) : nullptr;
+      const T* y2 = y + 2 < h && map.has_y ? map.proj_y.ptr<T>(y + 2) : nullptr;
       uint8_t* out = pairs.data() + static_cast<size_t>(y) * w;
       for (int x = 0; x < w; ++x) {
         if (!ok(s0, x0, y0, x)) continue;
         uint8_t bits = 0;
         if (x + 1 < w && ok(s0, x0, y0, x + 1) && close(x0, x0, x, x + 1) &&
-            close(y0, y0, x, x + 1))
-          bits |= kRight;
-        if (below && ok(s1, x1, y1, x) && close(x0, x1, x, x) && close(y0, y1, x, x)) bits |= kDown;
+            close(y0, y0, x, x + 1)) {
+          const bool jump =
+              relative &&
+              (RelativeJump(at(s0, x0, x - 1), x0[x], x0[x + 1], at(s0, x0, x + 2), max_step_ratio,
+                            kRelativeJumpFloorPx) ||
+               (y0 && RelativeJump(at(s0, y0, x - 1), y0[x], y0[x + 1], at(s0, y0, x + 2),
+                                   max_step_ratio, kRelativeJumpFloorPx)));
+          if (!jump) bits |= kPairRight;
+        }
+        if (below && ok(s1, x1, y1, x) && close(x0, x1, x, x) && close(y0, y1, x, x)) {
+          const bool jump =
+              relative && (RelativeJump(at(sm, xm, x), x0[x], x1[x], at(s2, x2, x), max_step_ratio,
+                                        kRelativeJumpFloorPx) ||
+                           (y0 && RelativeJump(at(sm, ym, x), y0[x], y1[x], at(s2, y2, x),
+                                               max_step_ratio, kRelativeJumpFloorPx)));
+          if (!jump) bits |= kPairDown;
+        }
         out[x] = bits;
       }
     }
   });
+  return pairs;
+}
+
+// Per source pixel (x0, y0), 1 when the 4x4 block x0 - 1 .. x0 + 2, y0 - 1 .. y0 + 2 is fit for
+// bicubic interpolation: every horizontal and vertical pair of neighbours in it fit (FitPairs).
+// Separable: runs of 3 pairs along rows and columns, then of 4 runs.
+std::vector<uint8_t> SmoothBlocks(const std::vector<uint8_t>& pairs, int w, int h) {
+  const size_t n = static_cast<size_t>(w) * h;
+  constexpr uint8_t kRight = kPairRight, kDown = kPairDown;
+  std::vector<uint8_t> runs(n, 0), blocks(n, 0);
   // runs: kRight when the 3 right-pairs from x - 1 (a row of 4) are fit, kDown when the 4
   // down-pairs of columns x - 1 .. x + 2 are.
   cv::parallel_for_(cv::Range(0, h), [&](const cv::Range& rows) {
@@ -239,7 +295,8 @@ std::shared_ptr<const std::vector<Eigen::Vector2d>> CachedSourceGrid(
 template <typename T>
 void RectifyRows(const ProjectorMap& map, const std::vector<Eigen::Vector2d>& sources,
                  double max_step_px, float min_quality, bool cubic,
-                 const std::vector<uint8_t>& blocks, RectifiedMap* out_map) {
+                 const std::vector<uint8_t>& pairs, const std::vector<uint8_t>& blocks,
+                 RectifiedMap* out_map) {
   const double nan = std::numeric_limits<double>::quiet_NaN();
   const float nanf = std::numeric_limits<float>::quiet_NaN();
   const int w = map.width(), h = map.height();
@@ -254,6 +311,7 @@ void RectifyRows(const ProjectorMap& map, const std::vector<Eigen::Vector2d>& so
   const size_t q_step = map.quality.step1();
   const Eigen::Vector2d* const source_of = sources.data();
   const uint8_t* const smooth = blocks.data();
+  const uint8_t* const fit = pairs.data();
   RectifiedMap& out = *out_map;
   const int out_w = out.width;
   double* const out_x = out.proj_x.data();
@@ -315,6 +373,14 @@ void RectifyRows(const ProjectorMap& map, const std::vector<Eigen::Vector2d>& so
         if (reason == RejectReason::kAccepted &&
             (xmax - xmin > max_step_px || ymax - ymin > max_step_px)) {
           reason = RejectReason::kDepthDiscontinuity;
+        }
+        // The 4 pairs of neighbours around the position: a code jump between two of them (a
+        // relative jump below the gate) is not interpolated across either.
+        if (reason == RejectReason::kAccepted) {
+          const size_t i0 = static_cast<size_t>(y0) * w + x0;
+          if ((fit[i0] & (kPairRight | kPairDown)) != (kPairRight | kPairDown) ||
+              !(fit[i0 + 1] & kPairDown) || !(fit[i0 + w] & kPairRight))
+            reason = RejectReason::kDepthDiscontinuity;
         }
         out_reason[o] = static_cast<uint8_t>(reason);
         if (reason != RejectReason::kAccepted) continue;
@@ -439,15 +505,17 @@ StereoRectification ComputeStereoRectification(const RigDevice& left, const RigD
 
 RectifiedMap RectifyProjectorMap(const StereoRectification& rect, int camera,
                                  const RigDevice& device, const ProjectorMap& map,
-                                 double max_step_px, float min_quality, bool cubic) {
+                                 double max_step_px, float min_quality, bool cubic,
+                                 double max_step_ratio) {
   RectifiedMap out;
-  RectifyProjectorMap(rect, camera, device, map, max_step_px, min_quality, cubic, &out);
+  RectifyProjectorMap(rect, camera, device, map, max_step_px, min_quality, cubic, max_step_ratio,
+                      &out);
   return out;
 }
 
 void RectifyProjectorMap(const StereoRectification& rect, int camera, const RigDevice& device,
                          const ProjectorMap& map, double max_step_px, float min_quality, bool cubic,
-                         RectifiedMap* out_map) {
+                         double max_step_ratio, RectifiedMap* out_map) {
   SLSHADOW_THROW_IF(!map.has_x, "stereo: camera '", device.name,
                     "': the pattern does not code projector columns; stereo matching needs them");
   SLSHADOW_THROW_IF(map.width() != device.model.width || map.height() != device.model.height,
@@ -468,20 +536,24 @@ void RectifyProjectorMap(const StereoRectification& rect, int camera, const RigD
   out.reason.resize(n);
   const std::shared_ptr<const std::vector<Eigen::Vector2d>> sources =
       CachedSourceGrid(rect, camera, device);
-  const bool is_double = map.proj_x.depth() == CV_64F;
-  const std::vector<uint8_t> blocks = !cubic      ? std::vector<uint8_t>()
-                                      : is_double ? SmoothBlocks<double>(map, max_step_px)
-                                                  : SmoothBlocks<float>(map, max_step_px);
-  if (map.has_y && map.proj_y.depth() != map.proj_x.depth()) {
-    // Mixed coordinate types: both as double (exactly the values read as double).
-    ProjectorMap wide = map;
+  // Mixed coordinate types: both as double (exactly the values read as double).
+  ProjectorMap wide;
+  const bool mixed = map.has_y && map.proj_y.depth() != map.proj_x.depth();
+  if (mixed) {
+    wide = map;
     map.proj_x.convertTo(wide.proj_x, CV_64F);
     map.proj_y.convertTo(wide.proj_y, CV_64F);
-    RectifyRows<double>(wide, *sources, max_step_px, min_quality, cubic, blocks, &out);
-  } else if (is_double) {
-    RectifyRows<double>(map, *sources, max_step_px, min_quality, cubic, blocks, &out);
+  }
+  const ProjectorMap& src = mixed ? wide : map;
+  const bool is_double = src.proj_x.depth() == CV_64F;
+  const std::vector<uint8_t> pairs = is_double ? FitPairs<double>(src, max_step_px, max_step_ratio)
+                                               : FitPairs<float>(src, max_step_px, max_step_ratio);
+  const std::vector<uint8_t> blocks =
+      cubic ? SmoothBlocks(pairs, src.width(), src.height()) : std::vector<uint8_t>();
+  if (is_double) {
+    RectifyRows<double>(src, *sources, max_step_px, min_quality, cubic, pairs, blocks, &out);
   } else {
-    RectifyRows<float>(map, *sources, max_step_px, min_quality, cubic, blocks, &out);
+    RectifyRows<float>(src, *sources, max_step_px, min_quality, cubic, pairs, blocks, &out);
   }
 }
 

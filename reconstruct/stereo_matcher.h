@@ -68,14 +68,20 @@ struct RectifiedMap {
 };
 // Accepts proj_x / proj_y of type CV_32F or CV_64F. Requires map.has_x.
 // cubic = false: bilinear everywhere (the O(h^2) bias, but the least noise on decoded maps).
+// max_step_ratio > 0: nor across a code jump below max_step_px, a step between two neighbouring
+// pixels (along a row or a column) larger than 0.5 projector px and than max_step_ratio times
+// each of the steps on either side of it (ReconstructOptions::max_code_step_ratio: the occlusion
+// edges and the wall's foot at grazing incidence, where an interpolated code lies between two
+// surfaces); 0 disables the test.
 RectifiedMap RectifyProjectorMap(const StereoRectification& rect, int camera,
                                  const RigDevice& device, const ProjectorMap& map,
-                                 double max_step_px, float min_quality, bool cubic = true);
+                                 double max_step_px, float min_quality, bool cubic = true,
+                                 double max_step_ratio = 0);
 // The same into `out`, reusing its buffers (every cell is written, row-parallel): a caller that
 // rectifies repeatedly keeps the pages it has touched.
 void RectifyProjectorMap(const StereoRectification& rect, int camera, const RigDevice& device,
                          const ProjectorMap& map, double max_step_px, float min_quality, bool cubic,
-                         RectifiedMap* out);
+                         double max_step_ratio, RectifiedMap* out);
 
 // The value of a rectified row (`row`, `width` samples) at fractional column u: the cubic through
 // the 4 samples around u (4-point Lagrange) when they are finite and no two neighbours differ by

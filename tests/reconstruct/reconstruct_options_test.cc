@@ -87,6 +87,7 @@ TEST(ReconstructOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
   o.max_epipolar_error_px = 0.75;
   o.min_quality = 1.5f;
   o.max_code_step_px = 3;
+  o.max_code_step_ratio = 3.5;
   o.stereo_interpolation = StereoInterpolation::kCubic;
   o.filter_depth_discontinuities = false;
   o.max_depth_jump_footprints = 6;
@@ -144,6 +145,18 @@ TEST(ReconstructOptionsFile, RoundTripsEveryFieldAndRejectsUnknownKeys) {
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("max_code_step_px"), std::string::npos) << e.what();
     EXPECT_NE(std::string(e.what()).find("auto"), std::string::npos) << e.what();
+  }
+  // The relative code-jump test: 0 (off) or a ratio above 1; a ratio of 1 or less names the field.
+  nlohmann::json ratio = j;
+  ratio["max_code_step_ratio"] = 0;
+  EXPECT_EQ(ReconstructOptionsFromConfig(ConfigNode::FromJson(ratio, "r.json")).max_code_step_ratio,
+            0);
+  ratio["max_code_step_ratio"] = 0.8;
+  try {
+    ReconstructOptionsFromConfig(ConfigNode::FromJson(ratio, "r.json"));
+    FAIL() << "max_code_step_ratio 0.8 accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("max_code_step_ratio"), std::string::npos) << e.what();
   }
 
   ImageSetReconstructOptions s;

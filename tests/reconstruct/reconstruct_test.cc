@@ -408,8 +408,10 @@ TEST_F(ReconstructTest, DepthJumpsAreRejectedAndCounted) {
       options.filter_outliers = false;
       options.max_reprojection_error_px = std::numeric_limits<double>::infinity();
       options.max_epipolar_error_px = std::numeric_limits<double>::infinity();
-      options.max_code_step_px =
-          1e6;  // stereo: let the matcher bridge the jump, the filter must catch it
+      // Stereo: let the matcher bridge the jump (neither the gate nor the relative code-jump
+      // test stops it), the filter must catch it.
+      options.max_code_step_px = 1e6;
+      options.max_code_step_ratio = 0;
       return mode == ReconstructMode::kProjector
                  ? ReconstructWithProjector(rig_, "left", mixed_left, options)
                  : ReconstructStereo(rig_, "left", "right", mixed_left, mixed_right, options);

@@ -68,6 +68,67 @@ TEST(StereoRectificationTest, CoincidentCentresThrow) {
   EXPECT_THROW(ComputeStereoRectification(rig.cameras[0], rig.cameras[1]), Error);
 }
 
+// The relative code-jump test (max_step_ratio): a jump of the projector column below the gate
+// (3 times the plane's step between neighbouring pixels, < 4 px) is neither interpolated across
+// with the test (no rectified cell takes a value in the jump's gap) nor kept from being so without
+// it; on the smooth, tilted plane itself the test rejects no cell.
+TEST(RectifyProjectorMapTest, CodeJumpBelowTheGateIsNotInterpolatedAcross) {
+  // Cameras and projector 4x coarser: about 0.7 projector px between neighbouring pixels.
+  Rig rig = SmallRig();
+  rig.projector->model = testing::Downscaled(rig.projector->model, 4);
+  const Eigen::Vector3d n = Eigen::Vector3d(0.3, 0.05, -1).normalized();
+  const double d = n.dot(Eigen::Vector3d(0, 0, 500));
+  const auto view = testing::RenderAnalytic(rig, rig.cameras[1], testing::Plane(n, d));
+  const StereoRectification rect = ComputeStereoRectification(rig.cameras[0], rig.cameras[1]);
+  const ProjectorMap& smooth = view.map;
+  const int w = smooth.width(), h = smooth.height(), x_jump = w / 2;
+  // The plane's column step between horizontal neighbours at the jump, its largest on any row.
+  double step = 0;
+  for (int y = 0; y < h; ++y) {
+    const double a = smooth.proj_x.at<double>(y, x_jump - 1),
+                 b = smooth.proj_x.at<double>(y, x_jump);
+    if (std::isfinite(a) && std::isfinite(b)) step = std::max(step, std::abs(b - a));
+  }
+  ASSERT_GT(step, 0.5);
+  const double jump = 3 * step;
+  ASSERT_LT(step + jump, 4.0);
+  ProjectorMap jumped = smooth;
+  jumped.proj_x = smooth.proj_x.clone();
+  for (int y = 0; y < h; ++y)
+    for (int x = x_jump; x < w; ++x) jumped.proj_x.at<double>(y, x) += jump;
+  const auto count_accepted = [](const RectifiedMap& m) {
+    return std::count(m.reason.begin(), m.reason.end(), kOk);
+  };
+  // Cells whose column lies in the gap: between the last column left of the jump and the first
+  // right of it, on the source row.
+  const auto in_gap = [&](const RectifiedMap& m) {
+    int64_t n_gap = 0;
+    for (size_t i = 0; i < m.reason.size(); ++i) {
+      if (m.reason[i] != kOk) continue;
+      const int y = static_cast<int>(std::lround(m.source_v[i]));
+      if (m.source_u[i] < x_jump - 1 || m.source_u[i] > x_jump || y < 0 || y >= h) continue;
+      const double lo = jumped.proj_x.at<double>(y, x_jump - 1) + 0.1,
+                   hi = jumped.proj_x.at<double>(y, x_jump) - 0.1;
+      n_gap += m.proj_x[i] > std::min(lo, hi) && m.proj_x[i] < std::max(lo, hi) ? 1 : 0;
+    }
+    return n_gap;
+  };
+  const RectifiedMap off =
+      RectifyProjectorMap(rect, 1, rig.cameras[1], jumped, 4.0, 0.0f, false, 0);
+  const RectifiedMap on =
+      RectifyProjectorMap(rect, 1, rig.cameras[1], jumped, 4.0, 0.0f, false, 2.5);
+  EXPECT_GT(in_gap(off), 50);
+  EXPECT_EQ(in_gap(on), 0);
+  EXPECT_LT(count_accepted(on), count_accepted(off));
+  // The smooth plane: the same cells with and without the test.
+  const RectifiedMap plain_off =
+      RectifyProjectorMap(rect, 1, rig.cameras[1], smooth, 4.0, 0.0f, false, 0);
+  const RectifiedMap plain_on =
+      RectifyProjectorMap(rect, 1, rig.cameras[1], smooth, 4.0, 0.0f, false, 2.5);
+  EXPECT_EQ(plain_on.reason, plain_off.reason);
+  EXPECT_GT(count_accepted(plain_on), 50000);
+}
+
 TEST(RectifyProjectorMapTest, ResampledCodesMatchTheAnalyticCodes) {
   const Rig rig = SmallRig();
   const Eigen::Vector3d n = Eigen::Vector3d(0.1, 0.05, -1).normalized();
