@@ -29,9 +29,11 @@
 #include <vector>
 
 #include <opencv2/calib3d.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "calib/target.h"
 #include "compare/compare.h"
+#include "core/error.h"
 #include "core/image_set.h"
 #include "core/projector_map.h"
 #include "core/rig.h"
@@ -308,6 +310,49 @@ TEST(KaminoCoverageTest, PerPixelOddsMatchTheDecoderAtTheThreshold) {
     }
   }
   ASSERT_GT(bins[12].pixels, 1000);  // pose 0's dark squares do lie at the threshold
+}
+
+// Bad input to WithCapturedContrast: one message naming what is wrong, nothing returned.
+TEST(KaminoCoverageTest, CapturedContrastNamesBadInput) {
+  const auto dir = testing::SharedDataDir() / "kamino-procam-graycode";
+  ASSERT_TRUE(std::filesystem::exists(dir / "capture_0")) << "no shared data at " << dir;
+  const PatternSpec spec =
+      LoadPatternSpec(testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml");
+  const TargetSpec target =
+      LoadTargetSpec(testing::SourceDir() / "config/targets/kamino-procam-graycode.yaml");
+  const Rig rig = LoadRig(testing::SourceDir() / "tests/reconstruct/data/kamino_slshadow_rig.yaml");
+  std::vector<cv::Mat> images;
+  for (int k = 0; k < spec.NumImages(); ++k) {
+    char name[32];
+    std::snprintf(name, sizeof(name), "graycode_%02d.png", k);
+    images.push_back(ReadGrayImage(dir / "capture_0" / name));
+  }
+  const auto board_from_rig = BoardFromRig(target, rig, images[40]);
+  ASSERT_TRUE(board_from_rig.has_value());
+  const TriangleMesh board = BoardMesh(target, *board_from_rig * rig.cameras[0].CenterInRig());
+  const auto message = [&](const PatternSpec& s, const std::vector<cv::Mat>& ims) -> std::string {
+    try {
+      WithCapturedContrast({}, board, rig, 0, *board_from_rig, s, ims);
+    } catch (const Error& e) {
+      return e.what();
+    }
+    return "no error";
+  };
+  std::vector<cv::Mat> fewer(images.begin(), images.end() - 1);
+  EXPECT_NE(message(spec, fewer).find("41 images for a pattern spec of 42"), std::string::npos)
+      << message(spec, fewer);
+  PatternSpec phase = spec;
+  phase.kind = PatternKind::kPhaseShift;
+  EXPECT_NE(
+      message(phase, images).find("must be a Gray code with inverse frames (got phase_shift)"),
+      std::string::npos)
+      << message(phase, images);
+  std::vector<cv::Mat> small = images;
+  cv::resize(images[3], small[3], cv::Size(640, 512));
+  EXPECT_NE(message(spec, small).find("8-bit grey images of camera 'camera' (1280 x 1024)"),
+            std::string::npos)
+      << message(spec, small);
+  EXPECT_EQ(message(spec, images), "no error");
 }
 
 // The oracle of the light measured from a capture: the simulator's own radiometry (sim/scene.h,
