@@ -189,7 +189,7 @@ TEST(KaminoCoverageTest, PredictedBoardAreaAgreesWithTheReconstructionOnEveryPos
     // direction): there the decoder's odds decide (the pixel noise on the shadow and contrast
     // tests, the bits' contrast with the part of the lit range they do not modulate, each square's
     // own level, the outlier filter's decoded neighbour, the coverage radius;
-    // docs/benchmarks/log/2026-12-07-kamino-pose0.md). Measured: -1.2 % on pose 0 (-8.6 % on the
+    // docs/benchmarks/log/2026-12-07-kamino-pose0.md). Measured: -1.3 % on pose 0 (-8.6 % on the
     // mean level alone), -1.9 to +0.8 % on poses 1-4.
     EXPECT_LT(std::abs(diff), 0.02) << check.Summary();
   }

@@ -295,6 +295,8 @@ std::vector<uint8_t> ViewSight(const internal::SightCaster& caster,
   const Rigid3d grid_from_part = grid.grid_from_rig * rig_from_part;
   const RigDevice& projector = *devices.back();
   const Eigen::Vector3d projector_centre = part_from_rig * projector.CenterInRig();
+  // The draws of the decoder's odds: per sample and view (independent between views).
+  const uint64_t view_seed = internal::PoseSeed(part_from_rig);
   // The outlier filter's score of each sample's cell and the cells per sample (its weight in the
   // filter's mean and spread over the grid's cells: cos / footprint^2 per unit of area).
   std::vector<double> score(samples.size(), 0), weight(samples.size(), 0);
@@ -378,7 +380,7 @@ std::vector<uint8_t> ViewSight(const internal::SightCaster& caster,
         const double pixels = light.sample_area_mm2 * cos_c / (footprint * footprint);
         reconstructed = 1 - std::pow(1 - kept, pixels);
       }
-      if (!(internal::FixedUniform(i) < reconstructed)) r = std::max(r, kDark);
+      if (!(internal::FixedUniform(view_seed + i) < reconstructed)) r = std::max(r, kDark);
     }
     // The filters on the reference grid.
     if (grid.max_depth_jump_footprints > 0 || grid.outliers) {

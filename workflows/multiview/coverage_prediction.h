@@ -140,7 +140,8 @@ struct CoveragePredictionOptions {
   // filter keeps a pixel with a decoded neighbour in its window, p (1 - (1 - p)^neighbours); a
   // sample stands for the reference camera's pixels on its share of the surface (n, from its
   // distance and incidence), so it is reconstructed with the probability 1 - (1 - kept)^n that
-  // one of them is, drawn with a fixed uniform per sample (internal::FixedUniform): deterministic,
+  // one of them is, drawn with a fixed uniform per sample and view (internal::FixedUniform of the
+  // sample's index and the view's pose): deterministic,
   // and the coverage radius of a check then counts the scattered points as the scan's does. The
   // level is L per sample (the light squares' or dark squares' level, gloss included), the noise
   // per pixel: the level is not drawn independently per pixel.

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 
 namespace slshadow::multiview::internal {
 
@@ -101,12 +102,32 @@ double DecodeOdds::Decode(double level) const {
   return table_[i] * (1 - f) + table_[i + 1] * f;
 }
 
-double FixedUniform(uint64_t index) {
+namespace {
+
+uint64_t SplitMix64(uint64_t index) {
   uint64_t z = index + 0x9e3779b97f4a7c15ull;
   z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
   z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-  z ^= z >> 31;
-  return static_cast<double>(z >> 11) * 0x1.0p-53;
+  return z ^ (z >> 31);
+}
+
+}  // namespace
+
+double FixedUniform(uint64_t index) {
+  return static_cast<double>(SplitMix64(index) >> 11) * 0x1.0p-53;
+}
+
+uint64_t PoseSeed(const Rigid3d& pose) {
+  const double values[7] = {pose.rotation.w(),   pose.rotation.x(),    pose.rotation.y(),
+                            pose.rotation.z(),   pose.translation.x(), pose.translation.y(),
+                            pose.translation.z()};
+  uint64_t seed = 0;
+  for (double v : values) {
+    uint64_t bits = 0;
+    std::memcpy(&bits, &v, sizeof(bits));
+    seed = SplitMix64(seed ^ bits);
+  }
+  return seed;
 }
 
 }  // namespace slshadow::multiview::internal

@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "core/rigid3.h"
 #include "workflows/multiview/coverage_prediction.h"
 
 namespace slshadow::multiview::internal {
@@ -42,5 +43,8 @@ class DecodeOdds {
 
 // A uniform number in [0, 1) fixed by `index` (splitmix64; the prediction's deterministic draws).
 double FixedUniform(uint64_t index);
+// A seed fixed by a view's pose (its rotation and translation, bit for bit), so that the draws of
+// two views are independent.
+uint64_t PoseSeed(const Rigid3d& pose);
 
 }  // namespace slshadow::multiview::internal
