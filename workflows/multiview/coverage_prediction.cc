@@ -14,12 +14,14 @@
 #include "reconstruct/filters.h"
 #include "reconstruct/stereo_matcher.h"
 #include "sim/scene.h"
+#include "workflows/multiview/internal/decode_odds.h"
 #include "workflows/multiview/internal/device_sight.h"
 #include "workflows/multiview/internal/prediction_reasons.h"
 #include "workflows/multiview/virtual_project.h"
 
 namespace slshadow::multiview {
 
+using internal::GlossLobe;
 using internal::kCovered;
 using internal::kDark;
 using internal::kGrazing;
@@ -36,8 +38,13 @@ struct Light {
   std::vector<float> sample_albedo;  // per sample when the part is printed; else in the factor
   std::vector<float> sample_gloss;   // per sample: the specular lobe's weight (empty: none)
   std::vector<float> sample_gloss_inv_alpha_sq;  // and 1 / its alpha^2
+  std::vector<float> sample_offset;              // per sample: grey levels added (empty: none)
   double ref_distance_sq = 0;
   double threshold = 0;
+  // The decoder at its thresholds (CoveragePredictionOptions::pixel_noise_dn): inactive unless set.
+  internal::DecodeOdds odds;
+  int window_neighbours = 8;    // the outlier filter's window, cells besides the centre
+  double sample_area_mm2 = 0;   // surface per sample; 0: one camera pixel per sample (ViewPoints)
   double max_code_step_px = 0;  // stereo: 0 = no gate
   // Stereo: the rectified right camera (stereo_matcher.h), where the matcher walks the rows.
   bool rectified_right = false;
@@ -173,11 +180,6 @@ double RectifiedRowStep(const Light& light, const RigDevice& projector,
   return std::abs(b->x() - a->x());
 }
 
-// The specular lobe at tan^2(theta_h), 1 on the mirror direction.
-// (Beckmann's distribution; GGX's heavier tail fits the kamino board's white frames no better:
-// 0.37 against 0.41 DN RMS on pose 0's dark squares, the same coverage within 0.8 %.)
-double GlossLobe(double tan2, double inv_alpha_sq) { return std::exp(-tan2 * inv_alpha_sq); }
-
 // The share of the finest fringe's modulation a Gaussian blur of sigma (px of the image where the
 // fringe has period period_px) keeps: the Gaussian's transfer exp(-2 pi^2 sigma^2 / period^2).
 double FringeTransfer(double sigma_px, double period_px) {
@@ -286,12 +288,15 @@ std::vector<uint8_t> ViewSight(const internal::SightCaster& caster,
                                const std::vector<Eigen::Vector3f>& normals,
                                const std::vector<const RigDevice*>& devices,
                                const Rigid3d& part_from_rig, double grazing_deg, const Light& light,
-                               const ReferenceGrid& grid) {
+                               const ReferenceGrid& grid, std::vector<double>* levels = nullptr) {
   std::vector<uint8_t> sight = caster.View(samples, normals, devices, part_from_rig, grazing_deg);
+  if (levels) levels->assign(samples.size(), std::numeric_limits<double>::quiet_NaN());
   const Rigid3d rig_from_part = part_from_rig.Inverse();
   const Rigid3d grid_from_part = grid.grid_from_rig * rig_from_part;
   const RigDevice& projector = *devices.back();
   const Eigen::Vector3d projector_centre = part_from_rig * projector.CenterInRig();
+  // The draws of the decoder's odds: per sample and view (independent between views).
+  const uint64_t view_seed = internal::PoseSeed(part_from_rig);
   // The outlier filter's score of each sample's cell and the cells per sample (its weight in the
   // filter's mean and spread over the grid's cells: cos / footprint^2 per unit of area).
   std::vector<double> score(samples.size(), 0), weight(samples.size(), 0);
@@ -319,6 +324,7 @@ std::vector<uint8_t> ViewSight(const internal::SightCaster& caster,
       albedo += light.sample_gloss[i] * GlossLobe(tan2, light.sample_gloss_inv_alpha_sq[i]);
     }
     range *= albedo;
+    if (!light.sample_offset.empty()) range = std::max(0.0, range + light.sample_offset[i]);
     if (light.projector_defocus.enabled) {
       const double depth = (projector.cam_from_rig * p_rig).z();
       range *= FringeTransfer(light.projector_defocus.SigmaPx(projector.model.fx(), depth),
@@ -357,7 +363,25 @@ std::vector<uint8_t> ViewSight(const internal::SightCaster& caster,
             std::min(camera_transfer, FringeTransfer(sigma * gradient, light.fringe_period_px));
       }
     }
-    if (range * camera_transfer < light.threshold) r = std::max(r, kDark);
+    if (levels) (*levels)[i] = range * camera_transfer;
+    if (!light.odds.Active()) {
+      if (range * camera_transfer < light.threshold) r = std::max(r, kDark);
+    } else {
+      // A pixel decodes with the odds at the mean level; the outlier filter keeps it with a decoded
+      // neighbour; the sample is reconstructed when one of the reference camera's pixels on its
+      // share of the surface is kept (CoveragePredictionOptions::pixel_noise_dn).
+      const double decode = light.odds.Decode(range * camera_transfer);
+      double reconstructed = decode;
+      if (light.sample_area_mm2 > 0) {
+        const double kept = decode * (1 - std::pow(1 - decode, light.window_neighbours));
+        const Eigen::Vector3d to_c = part_from_rig * devices[0]->CenterInRig() - p;
+        const double footprint = to_c.norm() / devices[0]->model.fx();
+        const double cos_c = std::max(0.05, std::abs(nrm.dot(to_c)) / to_c.norm());
+        const double pixels = light.sample_area_mm2 * cos_c / (footprint * footprint);
+        reconstructed = 1 - std::pow(1 - kept, pixels);
+      }
+      if (!(internal::FixedUniform(view_seed + i) < reconstructed)) r = std::max(r, kDark);
+    }
     // The filters on the reference grid.
     if (grid.max_depth_jump_footprints > 0 || grid.outliers) {
       const Eigen::Vector3d in_grid = grid_from_part * p;
@@ -433,160 +457,6 @@ CoveragePredictionOptions WithSceneRadiometry(CoveragePredictionOptions options,
   return options;
 }
 
-CoveragePredictionOptions WithCapturedRadiometry(CoveragePredictionOptions options,
-                                                 const TriangleMesh& part_in_part, const Rig& rig,
-                                                 int camera, const Rigid3d& part_from_rig,
-                                                 const cv::Mat& white, const cv::Mat& black,
-                                                 double edge_margin_mm,
-                                                 CapturedRadiometry* measured) {
-  SLSHADOW_THROW_IF(!rig.projector, "captured radiometry: the rig '", rig.name,
-                    "' has no projector");
-  SLSHADOW_THROW_IF(camera < 0 || camera >= static_cast<int>(rig.cameras.size()),
-                    "captured radiometry: no camera ", camera, " in the rig '", rig.name, "'");
-  const RigDevice& cam = rig.cameras[static_cast<size_t>(camera)];
-  const RigDevice& projector = *rig.projector;
-  SLSHADOW_THROW_IF(white.type() != CV_8UC1 || black.type() != CV_8UC1 ||
-                        white.size() != black.size() || white.cols != cam.model.width ||
-                        white.rows != cam.model.height,
-                    "captured radiometry: the white and black frames must be 8-bit grey images of "
-                    "camera '",
-                    cam.name, "' (", cam.model.width, " x ", cam.model.height, ")");
-  SLSHADOW_THROW_IF(part_in_part.empty(), "captured radiometry: the part mesh is empty");
-  const double d_ref =
-      options.reference_distance_mm > 0 ? options.reference_distance_mm : rig.working_distance_mm;
-  SLSHADOW_THROW_IF(!(d_ref > 0), "captured radiometry: no reference distance (the rig '", rig.name,
-                    "' has no working_distance_mm)");
-  const Albedo& texture = options.albedo_texture;
-  const bool board = texture.kind == Albedo::Kind::kCheckerboard;
-  SLSHADOW_THROW_IF(texture.IsTextured() && !board,
-                    "captured radiometry: only a uniform or a checkerboard albedo is measured");
-  const compare::Reference reference =
-      compare::ReferenceFromMesh(part_in_part, "part", options.samples);
-  const Rigid3d rig_from_part = part_from_rig.Inverse();
-  const Eigen::Vector3d cam_centre = part_from_rig * cam.CenterInRig();
-  const Eigen::Vector3d projector_centre = part_from_rig * projector.CenterInRig();
-  std::vector<double> ratios[2], tan2[2];  // dark, light
-  for (size_t i = 0; i < reference.cloud.points.size(); ++i) {
-    const Eigen::Vector3d& p = reference.cloud.points[i];
-    const Eigen::Vector3d n = reference.cloud.normals[i].cast<double>();
-    int cls = 1;
-    if (board) {
-      const double sq = texture.square_mm;
-      const int a = static_cast<int>(std::floor(p.x() / sq)) + 1;
-      const int b = static_cast<int>(std::floor(p.y() / sq)) + 1;
-      if (a < 0 || b < 0 || a >= texture.squares_x || b >= texture.squares_y) continue;
-      const double ex = std::abs(p.x() / sq - std::round(p.x() / sq)) * sq;
-      const double ey = std::abs(p.y() / sq - std::round(p.y() / sq)) * sq;
-      if (std::min(ex, ey) < edge_margin_mm) continue;
-      cls = (a + b) % 2 == 0 ? 0 : 1;
-    }
-    const Eigen::Vector3d to_p = projector_centre - p;
-    if (n.dot(to_p) <= 0 || n.dot(cam_centre - p) <= 0) continue;
-    const Eigen::Vector3d p_rig = rig_from_part * p;
-    if (!projector.model.Project(projector.cam_from_rig * p_rig)) continue;
-    const auto px = cam.model.Project(cam.cam_from_rig * p_rig);
-    if (!px) continue;
-    const int u = static_cast<int>(std::lround(px->x())),
-              v = static_cast<int>(std::lround(px->y()));
-    if (u < 0 || v < 0 || u >= white.cols || v >= white.rows) continue;
-    const double range = white.at<uint8_t>(v, u) - black.at<uint8_t>(v, u);
-    const double factor = n.dot(to_p) / to_p.norm() * d_ref * d_ref / to_p.squaredNorm();
-    ratios[cls].push_back(range / factor);
-    const Eigen::Vector3d half = (to_p.normalized() + (cam_centre - p).normalized()).normalized();
-    const double cos_h = std::max(1e-6, std::abs(n.dot(half)));
-    tan2[cls].push_back((1 - cos_h * cos_h) / (cos_h * cos_h));
-  }
-  const auto median = [](std::vector<double>& v) {
-    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
-    return v[v.size() / 2];
-  };
-  CapturedRadiometry m;
-  m.samples_dark = ratios[0].size();
-  m.samples_light = ratios[1].size();
-  SLSHADOW_THROW_IF(ratios[1].empty() || (board && ratios[0].empty()),
-                    "captured radiometry: no sample of the part's ",
-                    ratios[1].empty() ? (board ? "light squares" : "surface") : "dark squares",
-                    " seen by camera '", cam.name, "' and lit by the projector");
-  const int classes = board ? 2 : 1;
-  // The half angles seen, and per class the medians of equal-count bins of tan^2(theta_h).
-  double t2_min = std::numeric_limits<double>::infinity(), t2_max = 0;
-  constexpr int kBins = 20;
-  std::vector<std::array<double, 2>> bins[2];  // (median tan^2, median ratio)
-  for (int c = 2 - classes; c < 2; ++c) {
-    std::vector<size_t> order(ratios[c].size());
-    for (size_t i = 0; i < order.size(); ++i) order[i] = i;
-    std::sort(order.begin(), order.end(),
-              [&](size_t a, size_t b) { return tan2[c][a] < tan2[c][b]; });
-    t2_min = std::min(t2_min, tan2[c][order.front()]);
-    t2_max = std::max(t2_max, tan2[c][order.back()]);
-    const size_t per = std::max<size_t>(1, order.size() / kBins);
-    for (size_t b0 = 0; b0 + per <= order.size(); b0 += per) {
-      std::vector<double> t, r;
-      for (size_t k = b0; k < b0 + per; ++k) {
-        t.push_back(tan2[c][order[k]]);
-        r.push_back(ratios[c][order[k]]);
-      }
-      bins[c].push_back({median(t), median(r)});
-    }
-  }
-  // Per class: ratio = rho + S lobe(alpha), least squares on the bins, alpha the best of the grid.
-  double rho[2] = {0, 0}, gloss[2] = {0, 0}, alpha_of[2] = {0.1, 0.1};
-  for (int c = 2 - classes; c < 2; ++c) {
-    double best_sse = std::numeric_limits<double>::infinity();
-    for (int k = 0; k <= 40; ++k) {
-      const double alpha = 0.02 * std::pow(50.0, k / 40.0);
-      double n = 0, sx = 0, sy = 0, sxx = 0, sxy = 0;
-      for (const auto& b : bins[c]) {
-        const double x = GlossLobe(b[0], 1 / (alpha * alpha));
-        n += 1, sx += x, sy += b[1], sxx += x * x, sxy += x * b[1];
-      }
-      const double det = n * sxx - sx * sx;
-      double s_k = det > 1e-12 * n * n ? (n * sxy - sx * sy) / det : 0;
-      if (s_k < 0) s_k = 0;
-      const double r_k = (sy - s_k * sx) / n;
-      double sse = 0;
-      for (const auto& b : bins[c]) {
-        const double e = b[1] - r_k - s_k * GlossLobe(b[0], 1 / (alpha * alpha));
-        sse += e * e;
-      }
-      if (sse < best_sse) best_sse = sse, rho[c] = r_k, gloss[c] = s_k, alpha_of[c] = alpha;
-    }
-  }
-  // No lobe, or one that lifts the class by less than a grey level where it is measured (the 8-bit
-  // steps of the frames are that large): the class's median.
-  for (int c = 2 - classes; c < 2; ++c) {
-    if (gloss[c] * GlossLobe(t2_min, 1 / (alpha_of[c] * alpha_of[c])) < 1) gloss[c] = 0;
-    if (gloss[c] <= 0) rho[c] = median(ratios[c]);
-  }
-  m.range_per_factor_light = std::max(0.0, rho[1]);
-  m.range_per_factor_dark = board ? std::max(0.0, rho[0]) : m.range_per_factor_light;
-  m.gloss_range_light = gloss[1];
-  m.gloss_range_dark = board ? gloss[0] : gloss[1];
-  m.min_half_angle_deg = std::atan(std::sqrt(t2_min)) * 180 / M_PI;
-  m.max_half_angle_deg = std::atan(std::sqrt(t2_max)) * 180 / M_PI;
-  options.gloss = m.gloss_range_light / 255.0;
-  options.gloss_dark = board ? m.gloss_range_dark / 255.0 : 0;
-  m.gloss_alpha_light = alpha_of[1];
-  m.gloss_alpha_dark = board ? alpha_of[0] : alpha_of[1];
-  m.gloss_seen_light = gloss[1] * GlossLobe(t2_min, 1 / (alpha_of[1] * alpha_of[1]));
-  m.gloss_seen_dark =
-      board ? gloss[0] * GlossLobe(t2_min, 1 / (alpha_of[0] * alpha_of[0])) : m.gloss_seen_light;
-  options.gloss_alpha = m.gloss_alpha_light;
-  options.gloss_alpha_dark = m.gloss_alpha_dark;
-  // Albedo in (0, 1]: a class read as black keeps the smallest positive albedo (too dark).
-  const auto albedo = [](double range) { return std::clamp(range / 255.0, 1e-6, 1.0); };
-  options.exposure_fraction = 1;
-  options.reference_distance_mm = d_ref;
-  if (board) {
-    options.albedo_texture.dark = albedo(m.range_per_factor_dark);
-    options.albedo_texture.light = albedo(m.range_per_factor_light);
-  } else {
-    options.albedo = albedo(m.range_per_factor_light);
-  }
-  if (measured) *measured = m;
-  return options;
-}
-
 CoveragePredictionOptions WithPatterns(CoveragePredictionOptions options, const PatternSpec& spec) {
   const std::vector<double> periods = spec.PeriodsPx();
   options.fringe_period_px =
@@ -616,6 +486,24 @@ void CoveragePredictionOptions::Check() const {
       "coverage prediction: gloss and gloss_dark must be >= 0, gloss_alpha and gloss_alpha_dark "
       "positive (got ",
       gloss, ", ", gloss_dark, ", ", gloss_alpha, ", ", gloss_alpha_dark, ")");
+  SLSHADOW_THROW_IF(!(pixel_noise_dn >= 0 && contrast_threshold >= 0),
+                    "coverage prediction: pixel_noise_dn and contrast_threshold must be >= 0 (got ",
+                    pixel_noise_dn, ", ", contrast_threshold, ")");
+  for (const auto& axis : bit_global_dn) {
+    for (double g : axis) {
+      SLSHADOW_THROW_IF(!(g >= 0 && std::isfinite(g)),
+                        "coverage prediction: bit_global_dn must be finite and >= 0 (got ", g, ")");
+    }
+  }
+  for (const PixelBitContrast& b : bit_contrasts) {
+    for (const auto& axis : b.ratio) {
+      for (float q : axis) {
+        SLSHADOW_THROW_IF(!(q >= 0 && std::isfinite(q)),
+                          "coverage prediction: bit_contrasts must be finite and >= 0 (got ", q,
+                          ")");
+      }
+    }
+  }
   SLSHADOW_THROW_IF(samples < 100, "coverage prediction: samples must be at least 100 (got ",
                     samples, ")");
   SLSHADOW_THROW_IF(!(grazing_deg > 0 && grazing_deg <= 90),
@@ -685,6 +573,19 @@ CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig&
           static_cast<float>(options.albedo_texture.Evaluate(m.samples[i].x(), m.samples[i].y()));
     }
   }
+  if (!options.square_offset_dn.empty() &&
+      options.albedo_texture.kind == Albedo::Kind::kCheckerboard) {
+    const Albedo& t = options.albedo_texture;
+    m.light.sample_offset.assign(m.samples.size(), 0.0f);
+    for (size_t i = 0; i < m.samples.size(); ++i) {
+      const int a = static_cast<int>(std::floor(m.samples[i].x() / t.square_mm)) + 1;
+      const int b = static_cast<int>(std::floor(m.samples[i].y() / t.square_mm)) + 1;
+      const auto q = static_cast<size_t>(a + t.squares_x * b);
+      if (a >= 0 && b >= 0 && a < t.squares_x && b < t.squares_y &&
+          q < options.square_offset_dn.size())
+        m.light.sample_offset[i] = options.square_offset_dn[q];
+    }
+  }
   if (options.gloss > 0 || options.gloss_dark > 0) {
     const Albedo& t = options.albedo_texture;
     const bool board = t.kind == Albedo::Kind::kCheckerboard;
@@ -703,6 +604,12 @@ CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig&
       options.reference_distance_mm > 0 ? options.reference_distance_mm : rig.working_distance_mm;
   m.light.ref_distance_sq = d_ref * d_ref;
   m.light.threshold = options.shadow_threshold;
+  m.light.odds =
+      internal::DecodeOdds(options.shadow_threshold, options.pixel_noise_dn, options.bit_global_dn,
+                           options.contrast_threshold, options.bit_contrasts);
+  const int window = 2 * std::max(1, options.reconstruct.outlier_window_radius_px) + 1;
+  m.light.window_neighbours = options.reconstruct.filter_outliers ? window * window - 1 : 0;
+  m.light.sample_area_mm2 = m.cad_area_mm2 / static_cast<double>(m.samples.size());
   m.light.camera_defocus = options.camera_defocus;
   m.light.projector_defocus = options.projector_defocus;
   m.light.fringe_period_px = options.fringe_period_px;
@@ -760,6 +667,16 @@ std::vector<uint8_t> CoveragePredictor::View(const Rigid3d& part_from_rig) const
   return sight;
 }
 
+std::vector<double> CoveragePredictor::ViewLevels(const Rigid3d& part_from_rig) const {
+  const Impl& m = *impl_;
+  std::vector<const RigDevice*> devices;
+  for (const RigDevice& d : m.devices) devices.push_back(&d);
+  std::vector<double> levels;
+  ViewSight(*m.caster, m.samples, m.normals, devices, part_from_rig, m.options.grazing_deg, m.light,
+            m.grid, &levels);
+  return levels;
+}
+
 std::vector<Eigen::Vector3d> CoveragePredictor::ViewPoints(const Rigid3d& part_from_rig) const {
   const Impl& m = *impl_;
   const ReferenceGrid& grid = m.grid;
@@ -810,8 +727,10 @@ std::vector<Eigen::Vector3d> CoveragePredictor::ViewPoints(const Rigid3d& part_f
   ReferenceGrid unfiltered = grid;
   unfiltered.max_depth_jump_footprints = 0;
   unfiltered.outliers = false;
+  Light per_cell = m.light;  // a cell is one pixel: its odds; the grid's own filter keeps it
+  per_cell.sample_area_mm2 = 0;
   const std::vector<uint8_t> sight = ViewSight(*m.caster, points, normals, devices, part_from_rig,
-                                               m.options.grazing_deg, m.light, unfiltered);
+                                               m.options.grazing_deg, per_cell, unfiltered);
   DenseGrid dense;
   dense.width = w;
   dense.height = h;

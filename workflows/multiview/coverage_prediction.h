@@ -78,6 +78,15 @@ enum class PredictedReason : uint8_t {
 std::string ToString(PredictedReason reason);
 constexpr int kNumPredictedReasons = 6;
 
+// One camera pixel's Gray bits as a capture shows them far above the decoder's thresholds
+// (WithCapturedContrast): per coded axis (x, y) |pattern - inverse| / (white - black) per bit, bit
+// 0 (the finest) first, and the bits whose flip alone gives the adjacent code (the decoder reads a
+// pixel with one such bit below the contrast threshold as the edge between the two codes).
+struct PixelBitContrast {
+  std::array<std::vector<float>, 2> ratio;
+  std::array<uint32_t, 2> adjacent_bits{0, 0};
+};
+
 struct CoveragePredictionOptions {
   ReconstructMode mode = ReconstructMode::kStereo;
   size_t samples = 200000;  // CAD surface samples (CadCompareOptions::samples)
@@ -103,6 +112,10 @@ struct CoveragePredictionOptions {
   // the mode's first camera; 0: Lambertian. A checkerboard albedo_texture has one per class:
   // gloss_dark and gloss_alpha_dark on its dark squares, gloss and gloss_alpha on the light ones.
   double gloss = 0, gloss_dark = 0, gloss_alpha = 0.1, gloss_alpha_dark = 0.1;
+  // A checkerboard albedo_texture at one known pose (WithCapturedRadiometry): per square (index
+  // a + squares_x b, square a along x from the texture's corner square 0), grey levels added to
+  // the lit range of its samples (the level each square really shows; empty: none).
+  std::vector<float> square_offset_dn;
   double exposure_fraction = 0.8;    // Radiometry::exposure_fraction
   double reference_distance_mm = 0;  // d_ref; 0: the rig's working distance
   double shadow_threshold = 12;      // DecodeOptions::shadow_threshold (8-bit grey levels)
@@ -113,6 +126,31 @@ struct CoveragePredictionOptions {
   // a coded axis on the surface); the lit range times what the worst camera keeps is the fringe's
   // peak-to-peak against shadow_threshold (too_dark: too dark or too blurred to decode).
   SceneLayers::Defocus camera_defocus, projector_defocus;
+  // The decoder at its thresholds on a real capture (internal/decode_odds.h; 0 and empty: off, the
+  // mean lit range against shadow_threshold decides, as on a simulated scan whose levels are far
+  // from the thresholds). pixel_noise_dn: the lit range's pixel noise (sigma, grey levels; also
+  // |pattern - inverse|'s); bit_contrasts: pixels' Gray-bit contrasts per unit of lit range (the
+  // stripes' edges in the pixel and the camera's and projector's blur; WithCapturedContrast).
+  // With either, a sample of mean lit range L decodes per pixel with the probability p(L) that the
+  // pixel's lit range k (L plus the noise, an integer) passes shadow_threshold and its bits pass
+  // the contrast test at k: each bit's |pattern - inverse| is its ratio x (k - bit_global_dn)
+  // plus the noise, read against contrast_threshold (an integer), and an axis passes when every
+  // bit does or only one whose flip gives the adjacent code fails (patterns/codec.h; the mean over
+  // the measured pixels); the statistical outlier
+  // filter keeps a pixel with a decoded neighbour in its window, p (1 - (1 - p)^neighbours); a
+  // sample stands for the reference camera's pixels on its share of the surface (n, from its
+  // distance and incidence), so it is reconstructed with the probability 1 - (1 - kept)^n that
+  // one of them is, drawn with a fixed uniform per sample and view (internal::FixedUniform of the
+  // sample's index and the view's pose): deterministic,
+  // and the coverage radius of a check then counts the scattered points as the scan's does. The
+  // level is L per sample (the light squares' or dark squares' level, gloss included), the noise
+  // per pixel: the level is not drawn independently per pixel.
+  // bit_global_dn: per axis (x, y) and bit (bit 0 first), the part of a pixel's lit range that
+  // bit's fringes do not modulate (empty: none).
+  double pixel_noise_dn = 0;
+  std::array<std::vector<double>, 2> bit_global_dn;
+  double contrast_threshold = 4;  // DecodeOptions::contrast_threshold
+  std::vector<PixelBitContrast> bit_contrasts;
   double fringe_period_px = 16;  // WithPatterns: the phase codecs' finest period, Gray code 4
   bool code_y = true;            // the projector's rows are coded too (PatternSpec::code_y)
   // The reconstruction's gates and filters (ProjectMergeOptions::reconstruct's defaults): stereo's
@@ -164,7 +202,8 @@ CoveragePredictionOptions WithSceneRadiometry(CoveragePredictionOptions options,
 // log-spaced grid (0.02-1) per class; a class whose lobe comes out negative, or lifts it by less
 // than one grey level at the smallest half angle measured (the frames' 8-bit step), keeps its
 // median and no gloss. Where the view is far from the mirror direction the lobe is flat and the
-// fit gives it no weight.
+// fit gives it no weight. Also the pixel noise of the lit range (pixel_noise_dn, below), and on a
+// checkerboard each square's median offset of (white - black) from that fit (square_offset_dn).
 struct CapturedRadiometry {
   double range_per_factor_dark = 0, range_per_factor_light = 0;  // grey levels (uniform: light)
   double gloss_range_dark = 0, gloss_range_light = 0;            // grey levels
@@ -175,6 +214,12 @@ struct CapturedRadiometry {
   double gloss_seen_dark = 0, gloss_seen_light = 0;
   double min_half_angle_deg = 0, max_half_angle_deg = 0;  // theta_h over the measured samples
   size_t samples_dark = 0, samples_light = 0;
+  // The lit range's pixel noise per class (sigma, grey levels): 1.4826 x the median absolute step
+  // of (white - black) to the next pixel along the row, / sqrt(2). The class of the lower level
+  // (nearest the shadow threshold) gives pixel_noise_dn.
+  double pixel_noise_dark = 0, pixel_noise_light = 0;
+  // A checkerboard: the RMS over its squares of square_offset_dn (grey levels).
+  double square_offset_rms = 0;
 };
 // `white`, `black`: the camera's 8-bit frames. Throws slshadow::Error when a class has no sample,
 // the frames' size differs from the camera's or the rig has no projector.
@@ -184,6 +229,33 @@ CoveragePredictionOptions WithCapturedRadiometry(CoveragePredictionOptions optio
                                                  const cv::Mat& white, const cv::Mat& black,
                                                  double edge_margin_mm = 10,
                                                  CapturedRadiometry* measured = nullptr);
+
+// The Gray bits' contrast per unit of lit range a real capture shows (bit_contrasts, up to 2000
+// pixels evenly over the measured ones), from its raw frames (`images`: the camera's 8-bit frames
+// in `spec` order; nothing decoded): on the
+// samples (a checkerboard's at least edge_margin_mm from a square's edge) inside the camera's and
+// the projector's images, facing both and lit at
+// least 5 x the thresholds (there the ratio is the optics', the stripes' edges in the pixel and
+// the blur, not the noise's), per pixel each bit's |pattern - inverse| over (white - black) (the
+// figures: the decoder's weakest bit, per axis the weakest or the second weakest where flipping
+// the weakest gives the adjacent code, the weaker axis). Throws slshadow::Error unless `spec`
+// is a Gray code with inverse frames, or when the images do not fit the spec or the camera, or no
+// sample is lit enough.
+// On a part with surfaces lit below 5 x the thresholds (a board's dark squares), also per axis and
+// bit the part of their lit range that bit's fringes do not modulate (bit_global_dn: veiling glare
+// from the bright surface around, scatter in the print; the finer the bit, the more): the dim
+// samples' mean lit range less their mean |pattern - inverse| over the bright samples' mean ratio
+// of that bit, on the dim samples lit within 4 grey levels above the shadow threshold (where the
+// contrast test decides) when there are 100, else on every dim sample (0 with fewer than 100).
+struct CapturedContrast {
+  size_t samples = 0, dim_samples = 0, threshold_samples = 0;
+  double median = 0, p10 = 0;  // of the decoder's weakest bit contrast per unit of lit range
+  double global_finest_dn = 0, global_coarsest_dn = 0;  // bit_global_dn of bit 0 and the top bit
+};
+CoveragePredictionOptions WithCapturedContrast(
+    CoveragePredictionOptions options, const TriangleMesh& part_in_part, const Rig& rig, int camera,
+    const Rigid3d& part_from_rig, const PatternSpec& spec, const std::vector<cv::Mat>& images,
+    double edge_margin_mm = 10, CapturedContrast* measured = nullptr);
 
 // The finest fringe of `spec` in `options` (fringe_period_px, code_y).
 CoveragePredictionOptions WithPatterns(CoveragePredictionOptions options, const PatternSpec& spec);
@@ -243,6 +315,10 @@ class CoveragePredictor {
   double CadAreaMm2() const;
   // Per sample, the view's PredictedReason (on_table where OnTable()).
   std::vector<uint8_t> View(const Rigid3d& part_from_rig) const;
+  // Per sample, the mean lit range the view's light gives it (grey levels, the fringe's through
+  // the defocus layers: what the shadow threshold is compared with); NaN where a device does not
+  // see the sample.
+  std::vector<double> ViewLevels(const Rigid3d& part_from_rig) const;
   // The points the view would reconstruct, part frame (CoveragePredictionOptions::predict_points).
   std::vector<Eigen::Vector3d> ViewPoints(const Rigid3d& part_from_rig) const;
 

@@ -1,9 +1,11 @@
 // The coverage prediction's reasons as bytes (PredictedReason, coverage_prediction.h) and the
-// helpers shared by the prediction (coverage_prediction.cc) and its report and check
-// (coverage_check.cc). Internal to workflows/multiview.
+// helpers shared by the prediction (coverage_prediction.cc), its report and check
+// (coverage_check.cc) and the light measured from a capture (captured_light.cc). Internal to
+// workflows/multiview.
 #pragma once
 
 #include <array>
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 
@@ -35,5 +37,11 @@ inline std::array<uint8_t, 3> PredictedReasonColor(uint8_t reason) {
 inline double Share(size_t a, size_t b) {
   return b ? static_cast<double>(a) / static_cast<double>(b) : 0;
 }
+
+// The specular lobe at tan^2(theta_h), 1 on the mirror direction
+// (CoveragePredictionOptions::gloss). (Beckmann's distribution; GGX's heavier tail fits the kamino
+// board's white frames no better: 0.37 against 0.41 DN RMS on pose 0's dark squares, the same
+// coverage within 0.8 %.)
+inline double GlossLobe(double tan2, double inv_alpha_sq) { return std::exp(-tan2 * inv_alpha_sq); }
 
 }  // namespace slshadow::multiview::internal
