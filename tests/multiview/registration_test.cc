@@ -23,6 +23,7 @@
 #include "tests/multiview/multiview_test_util.h"
 #include "tests/testing/temp_dir.h"
 #include "workflows/multiview/internal/pairwise.h"
+#include "workflows/multiview/internal/pose_graph.h"
 #include "workflows/multiview/merge.h"
 #include "workflows/multiview/project_merge.h"
 #include "workflows/multiview/turntable_scene.h"
@@ -236,6 +237,37 @@ TEST_F(OcclusionPartRegistration, TwelveViewsAllMergedNearTheTruth) {
   for (const MergedView& v : r.views) EXPECT_TRUE(v.merged) << v.name << ": " << v.reason;
   EXPECT_LT(r.max_rotation_error_deg, 0.05);
   EXPECT_LT(r.max_translation_error_mm, 0.02);
+}
+
+// The six-DOF pose graph's covariance scaled by how much the pairs disagree with each other
+// beyond their information (internal/pose_graph.h, variance_factor): three views in a loop whose
+// pairs' translations along x disagree by d = 3 mm, each pair's 1-sigma 0.1 mm. Least squares
+// spreads d over the three pairs (d / 3 each, 10 sigma): chi^2 = 3 x 100 over 6 x 3 - 6 x 2 = 6
+// degrees of freedom, a factor 50, also per view (each view's two pairs). The covariance is 50x
+// that of the same graph with consistent pairs; with d = 0.3 mm (chi^2 / dof = 0.5) it is not
+// shrunk (factor at least 1).
+TEST(PoseGraphVarianceFactor, DisagreeingPairsWidenTheCovariance) {
+  auto solve = [](double d) {
+    internal::Matrix6d info = internal::Matrix6d::Zero();
+    info.diagonal() << 1e6, 1e6, 1e6, 100, 100, 100;  // 0.057 deg, 0.1 mm
+    auto along_x = [](double x) { return Rigid3d(Eigen::Quaterniond::Identity(), {x, 0, 0}); };
+    const std::vector<internal::GraphEdge> edges = {
+        {0, 1, along_x(10), info}, {1, 2, along_x(10), info}, {0, 2, along_x(20 + d), info}};
+    const std::vector<Rigid3d> initial = {along_x(0), along_x(10), along_x(20)};
+    return internal::OptimizePoseGraph(initial, {true, true, true}, 0, edges, true);
+  };
+  const internal::GraphSolution consistent = solve(0.0), disagreeing = solve(3.0);
+  ASSERT_TRUE(consistent.covariance_ok);
+  ASSERT_TRUE(disagreeing.covariance_ok);
+  EXPECT_NEAR(consistent.variance_factor, 1.0, 1e-9);
+  EXPECT_NEAR(disagreeing.variance_factor, 50.0, 0.5);
+  for (size_t v : {1, 2}) {
+    EXPECT_NEAR(disagreeing.view_variance_factor[v], 50.0, 0.5) << v;
+    EXPECT_NEAR(disagreeing.covariance[v](3, 3) / consistent.covariance[v](3, 3), 50.0, 0.5) << v;
+  }
+  const internal::GraphSolution small = solve(0.3);
+  EXPECT_NEAR(small.variance_factor, 1.0, 1e-9);  // chi^2 / dof 0.5: not shrunk
+  EXPECT_NEAR(small.covariance[1](3, 3) / consistent.covariance[1](3, 3), 1.0, 0.01);
 }
 
 }  // namespace

@@ -37,8 +37,9 @@
 //     view left with no pair into the anchor's component; a view with an initial pose whose
 //     optimised pose departs from it by more than max_initial_departure_deg / _mm (a wrong table
 //     angle, or the part moved). Covariance of each pose from ceres::Covariance at the solution,
-//     relative to the anchor. Because it assumes independent point errors it is a lower bound of
-//     the real uncertainty.
+//     relative to the anchor, scaled by the pairs' reduced chi^2 (internal/pose_graph.h) when
+//     above 1. Where a view's pairs form no loop it assumes independent point errors and is a
+//     lower bound of the real uncertainty.
 //     With the rig's turntable axis (MergeOptions::turntable) and two or more table views, the
 //     graph is the turntable's model instead (internal/turntable_graph.h): one shared axis
 //     (direction and point, fitted) and one angle per table view, hand-placed views 6 free
