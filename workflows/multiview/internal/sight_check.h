@@ -11,6 +11,7 @@
 // Internal to workflows/multiview/.
 #pragma once
 
+#include <cstdint>
 #include <memory>
 #include <vector>
 
