@@ -180,8 +180,13 @@ int RunMerge(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--degenerate-ratio", options.registration.icp_degenerate_ratio,
                  "hold a pair's ICP directions whose eigenvalue is below this share of the largest "
-                 "at the table's relative pose (table pairs; 0: off; 1e-3 keeps a part of planes "
-                 "registered, but then a wrong table angle in such a direction is not detected)")
+                 "at the table's relative pose (table pairs; such a pair must pass the free-space "
+                 "check, --max-seen-through; 0: off, such pairs slide and are rejected)")
+      ->capture_default_str();
+  app.add_option("--max-seen-through", options.registration.max_seen_through,
+                 "a pair that held a direction at the table's prior is rejected when more than "
+                 "this share of either view's points lie where the other view saw through (a "
+                 "wrong table angle; 1: no check)")
       ->capture_default_str();
   app.add_option("--icp-points", options.registration.icp_points,
                  "source points per pair in the pairwise ICP")

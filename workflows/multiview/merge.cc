@@ -16,6 +16,7 @@
 #include "workflows/multiview/internal/fusion.h"
 #include "workflows/multiview/internal/pairwise.h"
 #include "workflows/multiview/internal/pose_graph.h"
+#include "workflows/multiview/internal/sight_check.h"
 #include "workflows/multiview/internal/turntable_graph.h"
 
 namespace slshadow::multiview {
@@ -93,6 +94,10 @@ void MergeOptions::Check() const {
   SLSHADOW_THROW_IF(!(icp_degenerate_ratio >= 0 && icp_degenerate_ratio < 1),
                     "merge options: icp_degenerate_ratio: must be in [0, 1) (got ",
                     icp_degenerate_ratio, ")");
+  SLSHADOW_THROW_IF(!(max_seen_through >= 0 && max_seen_through <= 1),
+                    "merge options: max_seen_through: must be in [0, 1] (got ", max_seen_through,
+                    ")");
+  nonneg(seen_through_tol_gate, "seen_through_tol_gate");
   positive(prior_sigma_deg, "prior_sigma_deg");
   positive(prior_sigma_mm, "prior_sigma_mm");
   SLSHADOW_THROW_IF(!(icp_max_surface_variation > 0 && icp_max_surface_variation <= 1.0 / 3.0),
@@ -202,6 +207,9 @@ std::string MergeResult::FullReport() const {
         p.final_rms_mm, p.graph_error_deg, p.graph_error_mm,
         p.kept ? "" : ", rejected: ", p.reason.c_str());
     for (const auto& d : p.degenerate) s += "      degenerate, held at the prior: " + d + "\n";
+    if (p.seen_through >= 0)
+      s += StringPrintf("      free-space check: %.2f %% seen through by the other view\n",
+                        100.0 * p.seen_through);
   }
   if (turntable_model) {
     s += StringPrintf(
@@ -403,6 +411,50 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
       p.reason = StringPrintf("ICP residual %.4f mm, %.1f x the median of the pairs (%.4f mm)",
                               p.rms_mm, p.rms_mm / median_rms, median_rms);
     }
+  }
+  // The free-space check of the pairs that held a direction at the prior (sight_check.h): at a
+  // wrong start only a face the rotation leaves in place (a top face) matches, the pair is
+  // degenerate, and the hold would keep the wrong pose; the other view's walls then stand where
+  // this view saw through, which the part's geometry never causes.
+  if (options.max_seen_through < 1) {
+    std::vector<bool> need(n, false);
+    for (size_t k = 0; k < result.pairs.size(); ++k) {
+      if (!result.pairs[k].kept || icp[k].degenerate.empty()) continue;
+      need[static_cast<size_t>(result.pairs[k].view_a)] = true;
+      need[static_cast<size_t>(result.pairs[k].view_b)] = true;
+    }
+    std::vector<internal::Sightlines> sight(n);
+    tbb::parallel_for(size_t{0}, n, [&](size_t i) {
+      if (need[i])
+        internal::BuildSightlines(*geo[i].points,
+                                  views[i].backdrop ? &views[i].backdrop->points : nullptr,
+                                  options.fuse_see_through_pixels, &sight[i]);
+    });
+    tbb::parallel_for(size_t{0}, result.pairs.size(), [&](size_t k) {
+      PairRegistration& p = result.pairs[k];
+      if (!p.kept || icp[k].degenerate.empty()) return;
+      const size_t a = static_cast<size_t>(p.view_a), b = static_cast<size_t>(p.view_b);
+      const double tol = std::max(options.seen_through_tol_gate * options.initial_gate_mm,
+                                  options.fuse_k_sigma * std::sqrt(2.0) * p.rms_mm);
+      const internal::SeenThrough b_in_a = internal::CountSeenThrough(
+          sight[a], *geo[b].points, geo[b].overlap_sample, p.a_from_b, tol);
+      const internal::SeenThrough a_in_b = internal::CountSeenThrough(
+          sight[b], *geo[a].points, geo[a].overlap_sample, p.a_from_b.Inverse(), tol);
+      p.seen_through = std::max(b_in_a.Share(), a_in_b.Share());
+      if (p.seen_through <= options.max_seen_through) return;
+      const bool b_worse = b_in_a.Share() >= a_in_b.Share();
+      std::string held = p.degenerate.front();  // a rotation first: what a wrong angle holds
+      for (const auto& d : p.degenerate)
+        if (d.rfind("rotation", 0) == 0) held = d;
+      p.kept = false;
+      p.reason = StringPrintf(
+          "held at the table's prior where its overlap leaves it free (%s), but there %.1f %% of "
+          "%s's points lie where %s saw through (in front of its surface by more than %.2f mm; "
+          "max_seen_through %.1f %%): the start is wrong (a wrong table angle, or the part "
+          "moved), not the part's geometry",
+          held.c_str(), 100.0 * p.seen_through, views[b_worse ? b : a].name.c_str(),
+          views[b_worse ? a : b].name.c_str(), tol, 100.0 * options.max_seen_through);
+    });
   }
   result.time_pairs_s = Seconds(t0);
 

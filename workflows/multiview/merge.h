@@ -28,15 +28,18 @@
 //     Log(estimated a_from_b x measured a_from_b^-1) per pair, the anchor view (the first
 //     accepted view) fixed: its initial pose defines the part frame. Left out and named, with the
 //     reason: a pair whose ICP still moves more than icp_max_final_motion_mm per iteration after
-//     icp_max_iterations (a direction the overlap leaves free slides), whose residual exceeds
+//     icp_max_iterations (a direction the overlap leaves free slides), that held a direction
+//     at the prior while one view's points stand where the other saw through (max_seen_through:
+//     the start was wrong, not the part's geometry degenerate), whose residual exceeds
 //     max_pair_rms_ratio x the median of the pairs or whose overlap after ICP is below
 //     min_pair_fitness; then, one at a time, the pair that disagrees most with the optimised graph
 //     when its disagreement exceeds max(min_edge_error_mm, max_edge_error_ratio x the median); a
 //     view left with no pair into the anchor's component; a view with an initial pose whose
 //     optimised pose departs from it by more than max_initial_departure_deg / _mm (a wrong table
 //     angle, or the part moved). Covariance of each pose from ceres::Covariance at the solution,
-//     relative to the anchor. Because it assumes independent point errors it is a lower bound of
-//     the real uncertainty.
+//     relative to the anchor, scaled by the pairs' reduced chi^2 (internal/pose_graph.h) when
+//     above 1. Where a view's pairs form no loop it assumes independent point errors and is a
+//     lower bound of the real uncertainty.
 //     With the rig's turntable axis (MergeOptions::turntable) and two or more table views, the
 //     graph is the turntable's model instead (internal/turntable_graph.h): one shared axis
 //     (direction and point, fitted) and one angle per table view, hand-placed views 6 free
@@ -144,11 +147,21 @@ struct MergeOptions {
   // (planes slide along themselves). The ICP does not move along it and the pair measures its
   // initial relative pose there (the table's, or the global registration's) with the prior's
   // 1-sigma below, instead of sliding (and being rejected). Only between two table views
-  // (table_deg, with `turntable`): a hand view's initial pose is no prior. 0: none (the
-  // default: a table angle wrong along a direction held so is not detected, e.g.
-  // multiview_cmd_merge_test's view 20 deg off at 1/4 rig is then merged; 1e-3 keeps a part of
-  // planes registered, docs/benchmarks/log/2026-12-07-registration-noise.md).
-  double icp_degenerate_ratio = 0;
+  // (table_deg, with `turntable`): a hand view's initial pose is no prior. Such a pair must pass
+  // the free-space check (max_seen_through): a wrong table angle held so is left out, named.
+  // 0: none (pairs slide and are rejected; a part of planes then loses views,
+  // docs/benchmarks/log/2026-12-07-degeneracy-default.md).
+  double icp_degenerate_ratio = 1e-3;
+  // The free-space check of a pair that held a direction at the prior (internal/sight_check.h):
+  // the share of either view's points (overlap samples) that, at the pair's pose, lie where the
+  // other view saw through (all its points along their line of sight, within
+  // see_through_pixels of its point spacing, its backdrop included, beyond them by more than
+  // max(seen_through_tol_gate x initial_gate_mm, fuse_k_sigma x sqrt(2) x the pair's RMS)).
+  // Above this share the pair is rejected: the start was wrong (a wrong table angle, or the part
+  // moved), since at the right pose one view's points are on or behind the other's surfaces.
+  // 1: no check.
+  double max_seen_through = 0.05;
+  double seen_through_tol_gate = 0.1;
   double prior_sigma_deg = 0.05;  // 1-sigma of an initial relative pose's rotation
   double prior_sigma_mm = 0.05;   // and of its translation
   int normal_neighbors = 12;      // k of the PCA normals and surface variation
@@ -250,6 +263,9 @@ struct PairRegistration {
   // the initial relative pose, and the smallest eigenvalue ratio of the pair.
   std::vector<std::string> degenerate;
   double min_eigen_ratio = 0;
+  // Pairs with degenerate directions: the larger share of either view's points that lie where
+  // the other saw through, at the ICP result (MergeOptions::max_seen_through); -1: not checked.
+  double seen_through = -1;
   bool kept = false;
   std::string reason;  // why it was rejected (empty when kept)
 };

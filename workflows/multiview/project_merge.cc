@@ -412,6 +412,7 @@ nlohmann::json ProjectMergeResult::ToJson() const {
          {"graph_error_mm", p.graph_error_mm},
          {"min_eigen_ratio", p.min_eigen_ratio},
          {"degenerate", p.degenerate},
+         {"seen_through", p.seen_through >= 0 ? nlohmann::json(p.seen_through) : nullptr},
          {"kept", p.kept},
          {"reason", p.reason}});
   }

@@ -1,5 +1,6 @@
 #include "workflows/multiview/internal/pose_graph.h"
 
+#include <algorithm>
 #include <array>
 #include <utility>
 
@@ -101,6 +102,34 @@ GraphSolution OptimizePoseGraph(const std::vector<Rigid3d>& initial,
     sol.part_from_rig[static_cast<size_t>(i)] =
         Rigid3d(Eigen::Quaterniond(q[3], q[0], q[1], q[2]), Eigen::Vector3d(t[0], t[1], t[2]));
   }
+  // The variance factors (pose_graph.h): whitened residuals at the solution.
+  sol.view_variance_factor.assign(n, 1.0);
+  {
+    std::vector<double> sum(n, 0.0), count(n, 0.0);
+    double total = 0;
+    for (const GraphEdge& e : edges) {
+      const Rigid3d d = EdgeDiscrepancy(sol.part_from_rig, e);
+      Eigen::Matrix<double, 6, 1> delta;
+      delta.head<3>() = RotationVectorFromQuaternion(d.rotation);
+      delta.tail<3>() = d.translation;
+      const double r2 = (SqrtInformation(e.information) * delta).squaredNorm();
+      total += r2;
+      for (int v : {e.a, e.b}) {
+        sum[static_cast<size_t>(v)] += r2;
+        count[static_cast<size_t>(v)] += 1;
+      }
+    }
+    const double edges_n = static_cast<double>(edges.size());
+    const double dof = 6.0 * edges_n - 6.0 * static_cast<double>(free_views.size());
+    if (dof > 0) {
+      sol.variance_factor = std::max(1.0, total / dof);
+      for (int i : free_views) {
+        const size_t k = static_cast<size_t>(i);
+        if (count[k] > 0)
+          sol.view_variance_factor[k] = std::max(1.0, sum[k] / (count[k] * dof / edges_n));
+      }
+    }
+  }
   if (!with_covariance) return sol;
 
   ceres::Covariance::Options cov_options;
@@ -130,7 +159,8 @@ GraphSolution OptimizePoseGraph(const std::vector<Rigid3d>& initial,
     c.topRightCorner<3, 3>() = 2.0 * qt;
     c.bottomLeftCorner<3, 3>() = 2.0 * qt.transpose();
     c.bottomRightCorner<3, 3>() = tt;
-    sol.covariance[static_cast<size_t>(i)] = c;
+    sol.covariance[static_cast<size_t>(i)] =
+        c * std::max(sol.variance_factor, sol.view_variance_factor[static_cast<size_t>(i)]);
   }
   sol.covariance_ok = true;
   return sol;

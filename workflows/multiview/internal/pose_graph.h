@@ -26,6 +26,15 @@ struct GraphSolution {
   // compute it.
   std::vector<Matrix6d> covariance;
   bool covariance_ok = false;
+  // The pairs' disagreement with the solution (OptimizePoseGraph): the reduced chi^2 of all
+  // edges' whitened residuals, sum r^2 / (6 edges - 6 free views), and per view the same over
+  // its own edges (each edge's expected r^2 the mean, 6 - 6 free views / edges). A pair's
+  // information J^T W J / sigma^2 assumes independent point errors; its residuals are correlated
+  // and biased (a curved surface sampled twice, a weakly fixed direction), which shows as pairs
+  // that disagree with each other beyond their stated information. Each view's covariance is
+  // scaled by max(1, variance_factor, view_variance_factor[i]). 1 when there is no redundancy.
+  double variance_factor = 1;
+  std::vector<double> view_variance_factor;
   int iterations = 0;
   double initial_cost = 0, final_cost = 0;
 };
