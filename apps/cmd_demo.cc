@@ -74,6 +74,11 @@ int RunDemo(int argc, char** argv) {
   app.add_flag("--no-mesh", no_mesh, "with --views: do not build the surface mesh");
   bool noise = false;
   app.add_flag("--noise", noise, "with --views: sensor noise on (shot and read noise)");
+  uint64_t noise_seed = 1;
+  app.add_option("--noise-seed", noise_seed,
+                 "with --views --noise: the noise's seed (each seed another draw of the same "
+                 "noise)")
+      ->capture_default_str();
   multiview::MergeOptions fusion;
   AddFusionOptions(&app, &fusion);
   try {
@@ -90,6 +95,7 @@ int RunDemo(int argc, char** argv) {
     mv.merge.registration = fusion;
     mv.merge.poses = multiview::PoseSourceFromString(poses);
     mv.sensor_noise = noise;
+    mv.noise_seed = noise_seed;
     mv.merge.mesh = !no_mesh;
     if (!options.rig_path.empty() || !options.scene_path.empty()) {
       SLSHADOW_THROW_IF(options.rig_path.empty() || options.scene_path.empty(),

@@ -191,6 +191,11 @@ int RunMerge(int argc, char** argv) {
   app.add_option("--icp-points", options.registration.icp_points,
                  "source points per pair in the pairwise ICP")
       ->capture_default_str();
+  app.add_option("--icp-table-share", options.registration.icp_table_share,
+                 "share of a table view's ICP points drawn where they fix the table angle (walls "
+                 "facing along the turn, far from the axis), the rest evenly strided (0: strided "
+                 "only)")
+      ->capture_default_str();
   bool six_dof = false;
   app.add_flag("--six-dof", six_dof,
                "pose graph with six free unknowns per view, also for table views (default: the "

@@ -82,6 +82,9 @@ void MergeOptions::Check() const {
                     overlap_samples, ")");
   SLSHADOW_THROW_IF(icp_points < 10, "merge options: icp_points: must be >= 10 (got ", icp_points,
                     ")");
+  SLSHADOW_THROW_IF(!(icp_table_share >= 0 && icp_table_share <= 1),
+                    "merge options: icp_table_share: must be in [0, 1] (got ", icp_table_share,
+                    ")");
   SLSHADOW_THROW_IF(icp_max_iterations < 1, "merge options: icp_max_iterations: must be >= 1 (got ",
                     icp_max_iterations, ")");
   positive(icp_tolerance_mm, "icp_tolerance_mm");
@@ -265,7 +268,9 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
   // Per-view geometry.
   auto t0 = Clock::now();
   std::vector<internal::ViewGeometry> geo(n);
-  for (size_t i = 0; i < n; ++i) internal::PrepareView(*views[i].cloud, options, &geo[i]);
+  for (size_t i = 0; i < n; ++i)
+    internal::PrepareView(*views[i].cloud, options, &geo[i],
+                          views[i].table_deg && options.turntable ? &*options.turntable : nullptr);
   result.time_normals_s = Seconds(t0);
 
   // 1. Initial poses; views without one by global registration against the views posed so far.

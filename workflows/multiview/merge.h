@@ -123,6 +123,14 @@ struct MergeOptions {
   int max_pairs_per_view = 4;     // each view is paired with its nearest overlapping views only
   int overlap_samples = 2000;     // sample points per view for the overlap test
   int icp_points = 20000;         // source points per pair (evenly strided subset)
+  // With the rig's turntable axis (`turntable`), the share of a table view's icp_points drawn
+  // where they fix the table angle: with probability proportional to |n . (u x (p - c))|, the
+  // point's motion along its normal per radian of table turn (walls facing along the turn, far
+  // from the axis), the rest evenly strided. Off by default: on the demo with sensor noise it
+  // lowered the table angles' errors on 2 of 5 noise draws and raised them on 2 (the errors do
+  // not shrink with more points either), and on the synthetic fixture it doubles them
+  // (docs/benchmarks/log/2026-12-07-registration-rotation.md). 0: evenly strided only.
+  double icp_table_share = 0;
   int icp_max_iterations = 60;
   double icp_tolerance_mm = 1e-5;  // stop when an update moves the source points less than this
   // or less than this share of the pose's own 1-sigma (its least fixed direction, from the

@@ -63,7 +63,10 @@ MultiviewDemoResult RunMultiviewDemo(const MultiviewDemoOptions& options) {
                     ": exists and is not an earlier multi-view demo output; choose another --out");
   TurntableSetup setup =
       options.rig ? TurntableSetup{*options.rig, *options.scene} : DemoTurntableSetup();
-  if (options.sensor_noise) setup.scene.layers.noise_enabled = true;
+  if (options.sensor_noise) {
+    setup.scene.layers.noise_enabled = true;
+    setup.scene.layers.seed = options.noise_seed;
+  }
   // The demo's sequence, sized to the rig's projector (a replacement rig may have another).
   PatternSpec spec = pipeline::LoadPatternSpecOrDemo("");
   spec.projector_width = setup.rig.projector->model.width;

@@ -28,6 +28,8 @@ struct MultiviewDemoOptions {
   ProjectMergeOptions merge;
   // The simulator's sensor noise (sim/scene.h SceneLayers: shot and read noise) in every view.
   bool sensor_noise = false;
+  // The seed of that noise (sim/scene.h SceneLayers::seed): another seed, another draw.
+  uint64_t noise_seed = 1;
   // Replace the embedded demo rig and scene (e.g. a scaled-down rig in tests); the scene is at
   // table angle 0 with its disc and the rig has its turntable axis (TurntableSetup). The demo's
   // pattern sequence is sized to the rig's projector.

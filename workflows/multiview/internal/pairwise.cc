@@ -178,7 +178,8 @@ Rigid3d Apply(const Vector6d& x, const Rigid3d& t) {
 
 }  // namespace
 
-void PrepareView(const PointCloud& cloud, const MergeOptions& o, ViewGeometry* view) {
+void PrepareView(const PointCloud& cloud, const MergeOptions& o, ViewGeometry* view,
+                 const TurntableAxis* table_axis) {
   const auto& pts = cloud.points;
   SLSHADOW_THROW_IF(pts.size() < static_cast<size_t>(o.normal_neighbors) + 1, "merge: a view has ",
                     pts.size(), " points (need more than normal_neighbors = ", o.normal_neighbors,
@@ -236,12 +237,46 @@ void PrepareView(const PointCloud& cloud, const MergeOptions& o, ViewGeometry* v
   std::vector<uint32_t> flat;
   for (uint32_t i = 0; i < pts.size(); ++i)
     if (view->variation[i] <= o.icp_max_surface_variation) flat.push_back(i);
-  const size_t stride = std::max<size_t>(1, flat.size() / static_cast<size_t>(o.icp_points));
+  // The ICP sample: evenly strided, and with a table axis a share drawn where the points fix the
+  // table angle (pairwise.h).
+  const size_t n_table =
+      table_axis != nullptr ? static_cast<size_t>(o.icp_table_share * o.icp_points) : 0;
+  const size_t n_strided = static_cast<size_t>(o.icp_points) - n_table;
   std::vector<Eigen::Vector3d> chosen;
   std::vector<uint32_t> chosen_index;
-  for (size_t k = 0; k < flat.size(); k += stride) {
-    chosen.push_back(pts[flat[k]]);
-    chosen_index.push_back(flat[k]);
+  std::vector<uint8_t> taken(n_table > 0 ? pts.size() : 0, 0);
+  if (n_strided > 0) {
+    const size_t stride = std::max<size_t>(1, flat.size() / n_strided);
+    for (size_t k = 0; k < flat.size(); k += stride) {
+      chosen.push_back(pts[flat[k]]);
+      chosen_index.push_back(flat[k]);
+      if (n_table > 0) taken[flat[k]] = 1;
+    }
+  }
+  if (n_table > 0 && !flat.empty()) {
+    // Systematic sampling with probability proportional to |g|, g = n . (u x (p - c)): how far
+    // the point moves along its normal per radian of table turn (u the axis direction, c a
+    // point on it). A point drawn twice, or already in the strided share, counts once.
+    const Eigen::Vector3d u = table_axis->direction_in_rig.normalized();
+    const Eigen::Vector3d c = table_axis->point_in_rig_mm;
+    std::vector<double> cumulative(flat.size());
+    double total = 0;
+    for (size_t k = 0; k < flat.size(); ++k) {
+      const uint32_t i = flat[k];
+      total += std::abs(view->normals[i].dot(u.cross(pts[i] - c)));
+      cumulative[k] = total;
+    }
+    const double step = total / static_cast<double>(n_table);
+    size_t k = 0;
+    for (size_t j = 0; j < n_table && total > 0; ++j) {
+      const double target = (static_cast<double>(j) + 0.5) * step;
+      while (k + 1 < flat.size() && cumulative[k] < target) ++k;
+      const uint32_t i = flat[k];
+      if (taken[i]) continue;
+      taken[i] = 1;
+      chosen.push_back(pts[i]);
+      chosen_index.push_back(i);
+    }
   }
   const std::vector<uint32_t> order = SpatialOrder(chosen);
   view->icp_sample.clear();

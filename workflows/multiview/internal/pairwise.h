@@ -28,15 +28,21 @@ struct ViewGeometry {
   // (a few neighbours can fit a plane by chance). It weights the point in the ICP.
   std::vector<float> noise_var;
   std::unique_ptr<KdTree> tree;
-  double spacing_mm = 0;                 // median nearest-neighbour distance
-  double area_spacing_mm = 0;            // sqrt(area per point), from the median k-neighbour radius
-  std::vector<uint32_t> icp_sample;      // flat points (variation below the bound), Morton order
+  double spacing_mm = 0;       // median nearest-neighbour distance
+  double area_spacing_mm = 0;  // sqrt(area per point), from the median k-neighbour radius
+  // Flat points (variation below the bound), Morton order: evenly strided, and for a table view
+  // a share (MergeOptions::icp_table_share) drawn with probability proportional to |g|,
+  // g = n . (u x (p - c)), how far the point moves along its normal per radian of table turn.
+  std::vector<uint32_t> icp_sample;
   std::vector<uint32_t> overlap_sample;  // evenly strided over all points
   Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
 };
 
-// Throws slshadow::Error when the cloud has fewer than normal_neighbors + 1 points.
-void PrepareView(const PointCloud& cloud, const MergeOptions& options, ViewGeometry* view);
+// Throws slshadow::Error when the cloud has fewer than normal_neighbors + 1 points. table_axis:
+// the rig's turntable axis for a table view (its ICP sample then favours the points that fix the
+// table angle), null for a view placed by hand.
+void PrepareView(const PointCloud& cloud, const MergeOptions& options, ViewGeometry* view,
+                 const TurntableAxis* table_axis = nullptr);
 
 // Share of b's overlap samples that, moved by a_from_b, have a point of a within gate_mm whose
 // normal is within max_normal_angle_deg of theirs.
