@@ -142,8 +142,8 @@ TEST_F(MergeShards, GnuParallelShardsGiveTheModelOneMergeWrites) {
                           " --reconstruct-only --threads 1 --quiet --shard {}/3 ::: 2 1 0";
   ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
   ASSERT_EQ(std::system((bin + " merge " + Path("project") + " --reconstructions " +
-                         Path("par_recon") + " --out " + Path("par") + " --cad " +
-                         Path("cad.ply") + " --no-mesh --no-html --quiet")
+                         Path("par_recon") + " --out " + Path("par") + " --cad " + Path("cad.ply") +
+                         " --no-mesh --no-html --quiet")
                             .c_str()),
             0);
   for (const char* file : {"merged.ply", "cad_deviation.ply", "cad_coverage.ply"}) {

@@ -114,10 +114,10 @@ void WriteViewReconstruction(const fs::path& dir, const ViewReconstructionKey& k
     for (int y = 0; y < d.height; ++y) {
       uint8_t* row = image.ptr<uint8_t>(y);
       for (int x = 0; x < d.width; ++x)
-        row[x] = d.dark[static_cast<size_t>(y) * static_cast<size_t>(d.width) +
-                        static_cast<size_t>(x)]
-                     ? 255
-                     : 0;
+        row[x] =
+            d.dark[static_cast<size_t>(y) * static_cast<size_t>(d.width) + static_cast<size_t>(x)]
+                ? 255
+                : 0;
     }
     const std::string file = "dark_" + d.camera + ".png";
     WriteImage(staging.path() / file, image);
