@@ -17,6 +17,7 @@
 
 #include <Eigen/Geometry>
 
+#include "core/mesh.h"
 #include "core/point_cloud.h"
 #include "core/rig.h"
 #include "sim/scene.h"
@@ -268,6 +269,57 @@ TEST(PoseGraphVarianceFactor, DisagreeingPairsWidenTheCovariance) {
   const internal::GraphSolution small = solve(0.3);
   EXPECT_NEAR(small.variance_factor, 1.0, 1e-9);  // chi^2 / dof 0.5: not shrunk
   EXPECT_NEAR(small.covariance[1](3, 3) / consistent.covariance[1](3, 3), 1.0, 0.01);
+}
+
+// Hand-placed views (issue 32; docs/benchmarks/log/2026-12-07-degeneracy-default.md, B and C):
+// the demo part at 1/4 rig, 8 views 45 deg apart from 10 deg, view_00 a table view, views 1-7 put
+// down by hand on the table (no table angle, no guess: global registration). Their pairs leave
+// the rotation about the vertical weakly fixed (smallest eigenvalue ratio 2e-4 .. 4e-4) and hold
+// nothing; view_07's global registration started 58.6 mm off and its one pair (view_00 <- view_07,
+// RMS 0.028 mm) kept it there: merged 60.3 mm off. The free-space check on such weak hand pairs
+// leaves it out, named (15 % of its points where view_00 saw through). Every merged hand view is
+// near the truth; its error against its stated 1-sigma is printed (not yet within 4 sigma: the
+// log's C).
+TEST(HandViewRegistration, AHandViewSlidAlongAWeakDirectionIsLeftOutNamed) {
+  testing::TempDir tmp;
+  const TurntableSetup setup = testing::ScaledTurntableDemo(4);
+  const TriangleMesh cad = PartSurface(setup.scene);
+  const fs::path dir = tmp.path() / "hand";
+  SimulateProject(setup.scene, setup.rig, testing::ScaledDemoPatterns(setup.rig),
+                  FullTurnViews(8, 10.0), dir);
+  ProjectManifest p = LoadProject(dir);
+  for (size_t i = 1; i < p.views.size(); ++i) {
+    p.views[i].spec.table_deg.reset();
+    p.views[i].spec.placed_on_table = true;
+  }
+  SaveProject(p, dir);
+  ProjectMergeOptions options;
+  options.mesh = false;
+  const ProjectMergeResult r = MergeProject(dir, &cad, options);
+  std::printf("%s", r.Summary().c_str());
+  ASSERT_TRUE(r.has_truth);
+  ASSERT_TRUE(r.views[0].merged) << r.views[0].reason;
+  for (const PairRegistration& q : r.registration.pairs)
+    std::printf("pair %d <- %d: kept %d, eigen ratio %.2e, seen through %.4f\n", q.view_a, q.view_b,
+                q.kept ? 1 : 0, q.min_eigen_ratio, q.seen_through);
+  int registered = 0;
+  for (size_t i = 1; i < r.views.size(); ++i) {
+    const MergedView& v = r.views[i];
+    if (!v.merged) {
+      EXPECT_NE(v.reason.find("registration: "), std::string::npos) << v.name << ": " << v.reason;
+      continue;
+    }
+    ++registered;
+    std::printf("%s: %.4f deg = %.1f sigma, %.4f mm = %.1f sigma\n", v.name.c_str(),
+                v.rotation_error_deg, v.rotation_error_deg / v.sigma_rotation_deg,
+                v.translation_error_mm, v.translation_error_mm / v.sigma_translation_mm);
+    EXPECT_LT(v.rotation_error_deg, 0.2) << v.name;
+    EXPECT_LT(v.translation_error_mm, 0.2) << v.name;
+  }
+  EXPECT_GE(registered, 1);
+  const MergedView& seventh = r.views[7];
+  EXPECT_FALSE(seventh.merged);
+  EXPECT_NE(seventh.reason.find("saw through"), std::string::npos) << seventh.reason;
 }
 
 }  // namespace

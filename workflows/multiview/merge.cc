@@ -421,10 +421,22 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
   // wrong start only a face the rotation leaves in place (a top face) matches, the pair is
   // degenerate, and the hold would keep the wrong pose; the other view's walls then stand where
   // this view saw through, which the part's geometry never causes.
+  // A hand pair holds nothing, but where its overlap leaves a direction weak (the smallest
+  // eigenvalue ratio below icp_degenerate_ratio) the ICP may stop at a wrong pose just as well
+  // (a hand view slid 60 mm along the demo part, docs/benchmarks/log/
+  // 2026-12-07-degeneracy-default.md, C): checked the same way.
+  auto weak_hand = [&](size_t k) {
+    const PairRegistration& p = result.pairs[k];
+    return &pair_options(p.view_a, p.view_b) == &hand_options &&
+           p.min_eigen_ratio < options.icp_degenerate_ratio;
+  };
+  auto to_check = [&](size_t k) {
+    return result.pairs[k].kept && (!icp[k].degenerate.empty() || weak_hand(k));
+  };
   if (options.max_seen_through < 1) {
     std::vector<bool> need(n, false);
     for (size_t k = 0; k < result.pairs.size(); ++k) {
-      if (!result.pairs[k].kept || icp[k].degenerate.empty()) continue;
+      if (!to_check(k)) continue;
       need[static_cast<size_t>(result.pairs[k].view_a)] = true;
       need[static_cast<size_t>(result.pairs[k].view_b)] = true;
     }
@@ -436,8 +448,8 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
                                   options.fuse_see_through_pixels, &sight[i]);
     });
     tbb::parallel_for(size_t{0}, result.pairs.size(), [&](size_t k) {
+      if (!to_check(k)) return;
       PairRegistration& p = result.pairs[k];
-      if (!p.kept || icp[k].degenerate.empty()) return;
       const size_t a = static_cast<size_t>(p.view_a), b = static_cast<size_t>(p.view_b);
       const double tol = std::max(options.seen_through_tol_gate * options.initial_gate_mm,
                                   options.fuse_k_sigma * std::sqrt(2.0) * p.rms_mm);
@@ -448,6 +460,18 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
       p.seen_through = std::max(b_in_a.Share(), a_in_b.Share());
       if (p.seen_through <= options.max_seen_through) return;
       const bool b_worse = b_in_a.Share() >= a_in_b.Share();
+      if (icp[k].degenerate.empty()) {  // a hand pair with a weak direction
+        p.kept = false;
+        p.reason = StringPrintf(
+            "its overlap leaves a direction weakly fixed (smallest eigenvalue ratio %.1e, "
+            "icp_degenerate_ratio %.1e) and at the ICP's pose %.1f %% of %s's points lie where %s "
+            "saw through (in front of its surface by more than %.2f mm; max_seen_through "
+            "%.1f %%): the pose is wrong, not the part's geometry",
+            p.min_eigen_ratio, options.icp_degenerate_ratio, 100.0 * p.seen_through,
+            views[b_worse ? b : a].name.c_str(), views[b_worse ? a : b].name.c_str(), tol,
+            100.0 * options.max_seen_through);
+        return;
+      }
       std::string held = p.degenerate.front();  // a rotation first: what a wrong angle holds
       for (const auto& d : p.degenerate)
         if (d.rfind("rotation", 0) == 0) held = d;
