@@ -16,6 +16,28 @@ namespace slshadow::multiview {
 
 using internal::GlossLobe;
 
+namespace {
+
+// The square of a printed checkerboard (Albedo kCheckerboard, part frame) a sample at `p` lies
+// on, as its index a + squares_x b (the board's outer squares start at -1 square) and its class
+// (0: the corner square's parity, light on the kamino board; 1: the other); false off the board
+// or within `edge_margin_mm` of a square's edge.
+bool BoardSquare(const Albedo& texture, const Eigen::Vector3d& p, double edge_margin_mm,
+                 int* square, int* cls) {
+  const double sq = texture.square_mm;
+  const int a = static_cast<int>(std::floor(p.x() / sq)) + 1;
+  const int b = static_cast<int>(std::floor(p.y() / sq)) + 1;
+  if (a < 0 || b < 0 || a >= texture.squares_x || b >= texture.squares_y) return false;
+  const double ex = std::abs(p.x() / sq - std::round(p.x() / sq)) * sq;
+  const double ey = std::abs(p.y() / sq - std::round(p.y() / sq)) * sq;
+  if (std::min(ex, ey) < edge_margin_mm) return false;
+  *cls = (a + b) % 2 == 0 ? 0 : 1;
+  *square = a + texture.squares_x * b;
+  return true;
+}
+
+}  // namespace
+
 CoveragePredictionOptions WithCapturedRadiometry(CoveragePredictionOptions options,
                                                  const TriangleMesh& part_in_part, const Rig& rig,
                                                  int camera, const Rigid3d& part_from_rig,
@@ -56,17 +78,7 @@ CoveragePredictionOptions WithCapturedRadiometry(CoveragePredictionOptions optio
     const Eigen::Vector3d& p = reference.cloud.points[i];
     const Eigen::Vector3d n = reference.cloud.normals[i].cast<double>();
     int cls = 1, square = -1;
-    if (board) {
-      const double sq = texture.square_mm;
-      const int a = static_cast<int>(std::floor(p.x() / sq)) + 1;
-      const int b = static_cast<int>(std::floor(p.y() / sq)) + 1;
-      if (a < 0 || b < 0 || a >= texture.squares_x || b >= texture.squares_y) continue;
-      const double ex = std::abs(p.x() / sq - std::round(p.x() / sq)) * sq;
-      const double ey = std::abs(p.y() / sq - std::round(p.y() / sq)) * sq;
-      if (std::min(ex, ey) < edge_margin_mm) continue;
-      cls = (a + b) % 2 == 0 ? 0 : 1;
-      square = a + texture.squares_x * b;
-    }
+    if (board && !BoardSquare(texture, p, edge_margin_mm, &square, &cls)) continue;
     const Eigen::Vector3d to_p = projector_centre - p;
     if (n.dot(to_p) <= 0 || n.dot(cam_centre - p) <= 0) continue;
     const Eigen::Vector3d p_rig = rig_from_part * p;
@@ -286,15 +298,8 @@ CoveragePredictionOptions WithCapturedContrast(CoveragePredictionOptions options
   for (size_t i = 0; i < reference.cloud.points.size(); ++i) {
     const Eigen::Vector3d& p = reference.cloud.points[i];
     const Eigen::Vector3d n = reference.cloud.normals[i].cast<double>();
-    if (board) {
-      const double sq = texture.square_mm;
-      const int a = static_cast<int>(std::floor(p.x() / sq)) + 1;
-      const int b = static_cast<int>(std::floor(p.y() / sq)) + 1;
-      if (a < 0 || b < 0 || a >= texture.squares_x || b >= texture.squares_y) continue;
-      const double ex = std::abs(p.x() / sq - std::round(p.x() / sq)) * sq;
-      const double ey = std::abs(p.y() / sq - std::round(p.y() / sq)) * sq;
-      if (std::min(ex, ey) < edge_margin_mm) continue;
-    }
+    int square = -1, cls = 1;
+    if (board && !BoardSquare(texture, p, edge_margin_mm, &square, &cls)) continue;
     if (n.dot(projector_centre - p) <= 0 || n.dot(cam_centre - p) <= 0) continue;
     const Eigen::Vector3d p_rig = rig_from_part * p;
     if (!projector.model.Project(projector.cam_from_rig * p_rig)) continue;
