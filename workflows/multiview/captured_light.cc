@@ -36,6 +36,32 @@ bool BoardSquare(const Albedo& texture, const Eigen::Vector3d& p, double edge_ma
   return true;
 }
 
+// A surface sample (part frame, outward normal n) as the capture's camera sees it lit: the camera
+// pixel nearest its projection; false when it faces away from the camera or the projector, or
+// falls outside either device's image.
+struct LitSight {
+  LitSight(const RigDevice& camera, const RigDevice& projector_device, const Rigid3d& part_from_rig)
+      : cam(camera),
+        projector(projector_device),
+        rig_from_part(part_from_rig.Inverse()),
+        cam_centre(part_from_rig * camera.CenterInRig()),
+        projector_centre(part_from_rig * projector_device.CenterInRig()) {}
+  bool Pixel(const Eigen::Vector3d& p, const Eigen::Vector3d& n, int* u, int* v) const {
+    if (n.dot(projector_centre - p) <= 0 || n.dot(cam_centre - p) <= 0) return false;
+    const Eigen::Vector3d p_rig = rig_from_part * p;
+    if (!projector.model.Project(projector.cam_from_rig * p_rig)) return false;
+    const auto px = cam.model.Project(cam.cam_from_rig * p_rig);
+    if (!px) return false;
+    *u = static_cast<int>(std::lround(px->x()));
+    *v = static_cast<int>(std::lround(px->y()));
+    return *u >= 0 && *v >= 0 && *u < cam.model.width && *v < cam.model.height;
+  }
+  const RigDevice& cam;
+  const RigDevice& projector;
+  Rigid3d rig_from_part;
+  Eigen::Vector3d cam_centre, projector_centre;
+};
+
 }  // namespace
 
 CoveragePredictionOptions WithCapturedRadiometry(CoveragePredictionOptions options,
@@ -67,9 +93,9 @@ CoveragePredictionOptions WithCapturedRadiometry(CoveragePredictionOptions optio
                     "captured radiometry: only a uniform or a checkerboard albedo is measured");
   const compare::Reference reference =
       compare::ReferenceFromMesh(part_in_part, "part", options.samples);
-  const Rigid3d rig_from_part = part_from_rig.Inverse();
-  const Eigen::Vector3d cam_centre = part_from_rig * cam.CenterInRig();
-  const Eigen::Vector3d projector_centre = part_from_rig * projector.CenterInRig();
+  const LitSight sight(cam, projector, part_from_rig);
+  const Eigen::Vector3d& projector_centre = sight.projector_centre;
+  const Eigen::Vector3d& cam_centre = sight.cam_centre;
   std::vector<double> ratios[2], tan2[2];  // dark, light
   std::vector<double> steps[2];            // (white - black) to the next pixel along the row
   std::vector<double> factors[2];          // the geometric factor
@@ -79,15 +105,9 @@ CoveragePredictionOptions WithCapturedRadiometry(CoveragePredictionOptions optio
     const Eigen::Vector3d n = reference.cloud.normals[i].cast<double>();
     int cls = 1, square = -1;
     if (board && !BoardSquare(texture, p, edge_margin_mm, &square, &cls)) continue;
+    int u = 0, v = 0;
+    if (!sight.Pixel(p, n, &u, &v)) continue;
     const Eigen::Vector3d to_p = projector_centre - p;
-    if (n.dot(to_p) <= 0 || n.dot(cam_centre - p) <= 0) continue;
-    const Eigen::Vector3d p_rig = rig_from_part * p;
-    if (!projector.model.Project(projector.cam_from_rig * p_rig)) continue;
-    const auto px = cam.model.Project(cam.cam_from_rig * p_rig);
-    if (!px) continue;
-    const int u = static_cast<int>(std::lround(px->x())),
-              v = static_cast<int>(std::lround(px->y()));
-    if (u < 0 || v < 0 || u >= white.cols || v >= white.rows) continue;
     const double range = white.at<uint8_t>(v, u) - black.at<uint8_t>(v, u);
     if (u + 1 < white.cols)
       steps[cls].push_back(white.at<uint8_t>(v, u + 1) - black.at<uint8_t>(v, u + 1) - range);
@@ -274,9 +294,7 @@ CoveragePredictionOptions WithCapturedContrast(CoveragePredictionOptions options
       compare::ReferenceFromMesh(part_in_part, "part", options.samples);
   const Albedo& texture = options.albedo_texture;
   const bool board = texture.kind == Albedo::Kind::kCheckerboard;
-  const Rigid3d rig_from_part = part_from_rig.Inverse();
-  const Eigen::Vector3d cam_centre = part_from_rig * cam.CenterInRig();
-  const Eigen::Vector3d projector_centre = part_from_rig * projector.CenterInRig();
+  const LitSight sight(cam, projector, part_from_rig);
   // Far above the thresholds the ratio is the optics' (the stripes' edges in the pixel and the
   // blur), not the noise's.
   const double min_range = 5 * std::max(options.shadow_threshold, options.contrast_threshold);
@@ -300,14 +318,8 @@ CoveragePredictionOptions WithCapturedContrast(CoveragePredictionOptions options
     const Eigen::Vector3d n = reference.cloud.normals[i].cast<double>();
     int square = -1, cls = 1;
     if (board && !BoardSquare(texture, p, edge_margin_mm, &square, &cls)) continue;
-    if (n.dot(projector_centre - p) <= 0 || n.dot(cam_centre - p) <= 0) continue;
-    const Eigen::Vector3d p_rig = rig_from_part * p;
-    if (!projector.model.Project(projector.cam_from_rig * p_rig)) continue;
-    const auto px = cam.model.Project(cam.cam_from_rig * p_rig);
-    if (!px) continue;
-    const int u = static_cast<int>(std::lround(px->x())),
-              v = static_cast<int>(std::lround(px->y()));
-    if (u < 0 || v < 0 || u >= cam.model.width || v >= cam.model.height) continue;
+    int u = 0, v = 0;
+    if (!sight.Pixel(p, n, &u, &v)) continue;
     const auto at = [&](int f) {
       return static_cast<double>(images[static_cast<size_t>(f)].at<uint8_t>(v, u));
     };
