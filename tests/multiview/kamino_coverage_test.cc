@@ -83,6 +83,21 @@ std::optional<Rigid3d> BoardFromRig(const TargetSpec& target, const Rig& rig,
   return (rig.cameras[0].cam_from_rig.Inverse() * cam_from_board).Inverse();
 }
 
+// The shared kamino captures (../shared/data) and what this project keeps for them: the pattern
+// spec, the board, slshadow's own calibration of the set.
+struct KaminoSet {
+  std::filesystem::path dir;
+  PatternSpec spec;
+  TargetSpec target;
+  Rig rig;
+};
+KaminoSet LoadKaminoSet() {
+  return {testing::SharedDataDir() / "kamino-procam-graycode",
+          LoadPatternSpec(testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml"),
+          LoadTargetSpec(testing::SourceDir() / "config/targets/kamino-procam-graycode.yaml"),
+          LoadRig(testing::SourceDir() / "tests/reconstruct/data/kamino_slshadow_rig.yaml")};
+}
+
 // The board's squares (inner corner (c, r) at (75 c, 75 r, 0)) as two triangles facing the
 // camera.
 TriangleMesh BoardMesh(const TargetSpec& target, const Eigen::Vector3d& camera_in_board) {
@@ -96,13 +111,12 @@ TriangleMesh BoardMesh(const TargetSpec& target, const Eigen::Vector3d& camera_i
 }
 
 TEST(KaminoCoverageTest, PredictedBoardAreaAgreesWithTheReconstructionOnEveryPose) {
-  const auto dir = testing::SharedDataDir() / "kamino-procam-graycode";
-  ASSERT_TRUE(std::filesystem::exists(dir / "capture_0")) << "no shared data at " << dir;
-  const PatternSpec spec =
-      LoadPatternSpec(testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml");
-  const TargetSpec target =
-      LoadTargetSpec(testing::SourceDir() / "config/targets/kamino-procam-graycode.yaml");
-  const Rig rig = LoadRig(testing::SourceDir() / "tests/reconstruct/data/kamino_slshadow_rig.yaml");
+  const KaminoSet set = LoadKaminoSet();
+  ASSERT_TRUE(std::filesystem::exists(set.dir / "capture_0")) << "no shared data at " << set.dir;
+  const auto& dir = set.dir;
+  const PatternSpec& spec = set.spec;
+  const TargetSpec& target = set.target;
+  const Rig& rig = set.rig;
   const ImageSetReconstructOptions recon;  // slshadow reconstruct's defaults
 
   // The light measured per pose (per unit of the prediction's geometric factor, at d_ref): the
@@ -204,13 +218,12 @@ TEST(KaminoCoverageTest, PredictedBoardAreaAgreesWithTheReconstructionOnEveryPos
 // WithCapturedContrast): per pixel P(read k | level) x the contrast test at the level, averaged
 // per bin with P(read k | level) as the weight.
 TEST(KaminoCoverageTest, PerPixelOddsMatchTheDecoderAtTheThreshold) {
-  const auto dir = testing::SharedDataDir() / "kamino-procam-graycode";
-  ASSERT_TRUE(std::filesystem::exists(dir / "capture_0")) << "no shared data at " << dir;
-  const PatternSpec spec =
-      LoadPatternSpec(testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml");
-  const TargetSpec target =
-      LoadTargetSpec(testing::SourceDir() / "config/targets/kamino-procam-graycode.yaml");
-  const Rig rig = LoadRig(testing::SourceDir() / "tests/reconstruct/data/kamino_slshadow_rig.yaml");
+  const KaminoSet set = LoadKaminoSet();
+  ASSERT_TRUE(std::filesystem::exists(set.dir / "capture_0")) << "no shared data at " << set.dir;
+  const auto& dir = set.dir;
+  const PatternSpec& spec = set.spec;
+  const TargetSpec& target = set.target;
+  const Rig& rig = set.rig;
   const ImageSetReconstructOptions recon;
   std::vector<cv::Mat> images;
   for (int k = 0; k < spec.NumImages(); ++k) {
@@ -314,13 +327,12 @@ TEST(KaminoCoverageTest, PerPixelOddsMatchTheDecoderAtTheThreshold) {
 
 // Bad input to WithCapturedContrast: one message naming what is wrong, nothing returned.
 TEST(KaminoCoverageTest, CapturedContrastNamesBadInput) {
-  const auto dir = testing::SharedDataDir() / "kamino-procam-graycode";
-  ASSERT_TRUE(std::filesystem::exists(dir / "capture_0")) << "no shared data at " << dir;
-  const PatternSpec spec =
-      LoadPatternSpec(testing::SourceDir() / "config/patterns/kamino_opencv_graycode.yaml");
-  const TargetSpec target =
-      LoadTargetSpec(testing::SourceDir() / "config/targets/kamino-procam-graycode.yaml");
-  const Rig rig = LoadRig(testing::SourceDir() / "tests/reconstruct/data/kamino_slshadow_rig.yaml");
+  const KaminoSet set = LoadKaminoSet();
+  ASSERT_TRUE(std::filesystem::exists(set.dir / "capture_0")) << "no shared data at " << set.dir;
+  const auto& dir = set.dir;
+  const PatternSpec& spec = set.spec;
+  const TargetSpec& target = set.target;
+  const Rig& rig = set.rig;
   std::vector<cv::Mat> images;
   for (int k = 0; k < spec.NumImages(); ++k) {
     char name[32];
@@ -361,11 +373,11 @@ TEST(KaminoCoverageTest, CapturedContrastNamesBadInput) {
 // WithCapturedRadiometry gives back 0.5 x 255 x the albedo of each class (within the 8-bit
 // quantisation) and no gloss, although pose 0 is the one near the mirror direction.
 TEST(KaminoCoverageTest, TheMeasuredLightIsTheSimulatorsOnAVirtualBoard) {
-  const auto dir = testing::SharedDataDir() / "kamino-procam-graycode";
-  ASSERT_TRUE(std::filesystem::exists(dir / "capture_0")) << "no shared data at " << dir;
-  const TargetSpec target =
-      LoadTargetSpec(testing::SourceDir() / "config/targets/kamino-procam-graycode.yaml");
-  const Rig rig = LoadRig(testing::SourceDir() / "tests/reconstruct/data/kamino_slshadow_rig.yaml");
+  const KaminoSet set = LoadKaminoSet();
+  ASSERT_TRUE(std::filesystem::exists(set.dir / "capture_0")) << "no shared data at " << set.dir;
+  const auto& dir = set.dir;
+  const TargetSpec& target = set.target;
+  const Rig& rig = set.rig;
   const auto board_from_rig =
       BoardFromRig(target, rig, ReadGrayImage(dir / "capture_0/graycode_40.png"));
   ASSERT_TRUE(board_from_rig.has_value());
