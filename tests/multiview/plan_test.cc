@@ -32,6 +32,9 @@ TEST(PlanTest, TheDemoPlanReachesItsTargetWithNoMoreViewsThanUniformSteps) {
   options.prediction = WithSceneRadiometry(options.prediction, setup.scene);
   options.prediction.samples = kSamples;
   options.step_deg = 15;
+  // The grid's angles only: at this coarse rig the refined plan (310/135/50/230 deg) agrees on
+  // 98.99 % (docs/benchmarks/log/2026-12-07-plan-search.md); the full rig's is measured there.
+  options.refine_deg = 0;
   options.target = 0.98;
   const ViewPlan plan = PlanTurntableViews(cad, setup.rig, options);
   std::cout << plan.Table();
@@ -98,7 +101,10 @@ TEST(PlanTest, CommandWritesTheViewsFile) {
   ASSERT_FALSE(views.views.empty());
   for (const ViewSpec& v : views.views) {
     ASSERT_TRUE(v.table_deg.has_value());
-    EXPECT_NEAR(std::fmod(*v.table_deg, 30.0), 0.0, 1e-9) << v.name;
+    // On the 30 deg grid or refined about it every 5 deg (PlanOptions::refine_deg), in [0, 360).
+    EXPECT_NEAR(std::fmod(*v.table_deg, 5.0), 0.0, 1e-9) << v.name;
+    EXPECT_GE(*v.table_deg, 0.0);
+    EXPECT_LT(*v.table_deg, 360.0);
   }
   EXPECT_TRUE(fs::exists(coverage));
   // The same plan from the library.
@@ -181,6 +187,7 @@ TEST(PlanTest, PlacementsByHand) {
   options.prediction = WithSceneRadiometry(options.prediction, setup.scene);
   options.prediction.samples = 20000;
   options.step_deg = 30;
+  options.refine_deg = 0;  // the same candidates as the table views below
   options.target = 0.98;
   const ViewPlan table_plan = PlanTurntableViews(cad, setup.rig, options);
   std::vector<ViewCandidate> table_candidates;
