@@ -125,6 +125,11 @@ TEST(PlanSearchTest, FewestCoverIsTheBruteForceFewestAndNeverWorseThanGreedy) {
       EXPECT_GE(plan.covered, needed);
       EXPECT_EQ(instance.Covered(plan.picks), plan.covered);
       EXPECT_LE(plan.picks.size(), plan.greedy.size());
+      // Never covers less than greedy's as many picks.
+      EXPECT_GE(plan.covered,
+                instance.Covered(std::vector<size_t>(
+                    plan.greedy.begin(),
+                    plan.greedy.begin() + static_cast<std::ptrdiff_t>(plan.picks.size()))));
       greedy_worse += plan.greedy.size() > plan.picks.size();
       if (fewest > 1) {
         EXPECT_TRUE(plan.one_fewer.exact);

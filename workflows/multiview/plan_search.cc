@@ -267,6 +267,16 @@ CoverPlan FewestCover(const CoverInstance& in, size_t needed,
     plan.covered = best_covered;
   }
   if (plan.picks.size() == 1 && plan.one_fewer.picks.empty()) plan.one_fewer.exact = true;
+  // Of the sets of that size, the one covering the most that the swap search finds from the plan
+  // and the seeds of its size: a margin over the target.
+  std::vector<std::vector<size_t>> starts = {plan.picks};
+  for (const auto& s : seeds)
+    if (s.size() == plan.picks.size()) starts.push_back(s);
+  for (const auto& s : starts) {
+    std::vector<size_t> local = SwapSearch(in, s);
+    const size_t covered = in.Covered(local);
+    if (covered > plan.covered) plan.picks = std::move(local), plan.covered = covered;
+  }
   return plan;
 }
 

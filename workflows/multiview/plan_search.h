@@ -7,7 +7,8 @@
 // for one view fewer at a time, a swap search (one pick exchanged for another while the union
 // grows, from the greedy's picks and the caller's seeds) and, when that does not reach `needed`, a
 // branch and bound over the subsets of that size (MaxCoverage) which either finds one or proves
-// that none exists (when it ends within its budget).
+// that none exists (when it ends within its budget). Of the sets of the size found, the one the
+// swap search from it and from the seeds of that size finds covering the most.
 //
 // MaxCoverage: depth-first over the subsets in increasing index order, the children by their gain;
 // a branch is cut when its covered samples plus the sum of the largest gains still to pick (or
