@@ -31,10 +31,7 @@ TEST(PlanTest, TheDemoPlanReachesItsTargetWithNoMoreViewsThanUniformSteps) {
   PlanOptions options;
   options.prediction = WithSceneRadiometry(options.prediction, setup.scene);
   options.prediction.samples = kSamples;
-  options.step_deg = 15;
-  // The grid's angles only: at this coarse rig the refined plan (310/135/50/230 deg) agrees on
-  // 98.99 % (docs/benchmarks/log/2026-12-07-plan-search.md); the full rig's is measured there.
-  options.refine_deg = 0;
+  options.step_deg = 15;  // refined every 5 deg about the chosen angles (the default)
   options.target = 0.98;
   const ViewPlan plan = PlanTurntableViews(cad, setup.rig, options);
   std::cout << plan.Table();
@@ -45,12 +42,25 @@ TEST(PlanTest, TheDemoPlanReachesItsTargetWithNoMoreViewsThanUniformSteps) {
     EXPECT_GT(plan.greedy_coverage[k], plan.greedy_coverage[k - 1]);
   ASSERT_GT(plan.uniform_needed, 0);
   EXPECT_LE(plan.views.views.size(), static_cast<size_t>(plan.uniform_needed));
-  EXPECT_EQ(plan.candidates, 24u);
+  EXPECT_EQ(plan.grid_candidates, 24u);
+  EXPECT_GT(plan.candidates, 24u);
   ASSERT_EQ(plan.views.views.size(), plan.greedy_deg.size());
   for (size_t k = 1; k < plan.views.views.size(); ++k)
     EXPECT_LT(*plan.views.views[k - 1].table_deg, *plan.views.views[k].table_deg);
   // One view cannot cover the part, so the plan is a real choice.
   EXPECT_GE(plan.views.views.size(), 3u);
+  // Against the grid alone: the same reachable surface (refining does not move the target), no
+  // fewer views, and with as many at most the refined plan's coverage.
+  PlanOptions grid_options = options;
+  grid_options.refine_deg = 0;
+  const ViewPlan grid = PlanTurntableViews(cad, setup.rig, grid_options);
+  EXPECT_EQ(grid.reachable, plan.reachable);
+  EXPECT_EQ(grid.candidates, 24u);
+  ASSERT_TRUE(grid.reached);
+  EXPECT_GE(grid.views.views.size(), plan.views.views.size());
+  if (grid.views.views.size() == plan.views.views.size()) {
+    EXPECT_LE(grid.greedy_coverage.back(), plan.greedy_coverage.back());
+  }
 
   // A fresh prediction of the planned views reconstructs exactly the samples the plan counted.
   const CoveragePrediction predicted = PredictCoverage(
@@ -123,6 +133,13 @@ TEST(PlanTest, CommandWritesTheViewsFile) {
   bad_args[13] = bad;   // --out
   EXPECT_NE(testing::ErrorOf([&] { run(bad_args); }).find("--target"), std::string::npos);
   EXPECT_FALSE(fs::exists(bad));
+  PlanOptions bad_refine;
+  bad_refine.refine_deg = -5;
+  EXPECT_NE(testing::ErrorOf([&] { bad_refine.Check(); }).find("--refine-deg"), std::string::npos);
+  bad_refine.refine_deg = 5;
+  bad_refine.max_evaluations = 0;
+  EXPECT_NE(testing::ErrorOf([&] { bad_refine.Check(); }).find("--search-budget"),
+            std::string::npos);
   // Without --turntable: placements by hand, tilted and turned about the part's centre; the views
   // file holds hand-placed views with their poses, the plan the library makes.
   std::vector<std::string> by_hand = args;

@@ -29,8 +29,8 @@ void PlanOptions::Check() const {
                     "--step-deg: must be in [0.5, 180] (got ", step_deg, ")");
   SLSHADOW_THROW_IF(!std::isfinite(start_deg), "--start-deg: must be finite (got ", start_deg, ")");
   SLSHADOW_THROW_IF(!(target > 0 && target <= 1), "--target: must be in (0, 1] (got ", target, ")");
-  SLSHADOW_THROW_IF(!(refine_deg == 0 || (refine_deg >= 0.1 && refine_deg <= step_deg)),
-                    "--refine-deg: must be 0 (off) or in [0.1, --step-deg] (got ", refine_deg, ")");
+  SLSHADOW_THROW_IF(!(refine_deg == 0 || (refine_deg >= 0.1 && refine_deg <= 180)),
+                    "--refine-deg: must be 0 (off) or in [0.1, 180] (got ", refine_deg, ")");
   SLSHADOW_THROW_IF(refine_rounds < 0 || refine_rounds > 20,
                     "--refine-rounds: must be in [0, 20] (got ", refine_rounds, ")");
   SLSHADOW_THROW_IF(max_evaluations < 1, "--search-budget: must be at least 1");
@@ -208,7 +208,9 @@ ViewPlan PlanTurntableViews(const TriangleMesh& cad_in_part, const Rig& rig,
     for (double a : candidates) cand_seen.push_back(&seen_at(a));
     chosen = SetCover(cand_seen, predictor.OnTable(), options, seeds, plan.grid_candidates,
                       rig.name, &plan, &reachable, &bits);
-    if (options.refine_deg <= 0 || round >= options.refine_rounds) break;
+    if (options.refine_deg <= 0 || options.refine_deg >= options.step_deg ||
+        round >= options.refine_rounds)
+      break;
     bool added = false;
     const int m = static_cast<int>(std::ceil(options.step_deg / options.refine_deg - 1e-9)) - 1;
     const std::vector<size_t> picked = chosen;

@@ -38,7 +38,8 @@ struct PlanOptions {
   double target = 0.98;  // share of the reachable surface, (0, 1]
   // Table plans: after the cover of the grid, the chosen angles' neighbours every refine_deg
   // within a grid step (+-5, +-10 deg for 5 in 15) are predicted too and the cover searched again
-  // over all, up to refine_rounds times (while new neighbours appear); 0: the grid only.
+  // over all, up to refine_rounds times (while new neighbours appear); 0 (or not less than
+  // step_deg): the grid only.
   double refine_deg = 5;
   int refine_rounds = 3;
   // The uniform baseline also from its best offset (every refine_deg, else step_deg, within one
