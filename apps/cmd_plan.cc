@@ -28,7 +28,9 @@ int RunPlan(int argc, char** argv) {
       "the\n"
       "projector, grazing, outside an image, too dark), then a set cover picks the views (greedy, "
       "then\n"
-      "one view fewer while that still reaches the target). "
+      "one view fewer while a swap search or an exhaustive branch and bound finds such a set; "
+      "table\n"
+      "angles then refined every --refine-deg about the chosen ones). "
       "Prints\n"
       "coverage against the number of views beside uniform steps over a full turn, and writes the "
       "views\n"
@@ -67,6 +69,18 @@ int RunPlan(int argc, char** argv) {
   app.add_option("--step-deg", options.step_deg, "candidate table angles every this many degrees")
       ->capture_default_str();
   app.add_option("--start-deg", options.start_deg, "first candidate angle, degrees")
+      ->capture_default_str();
+  app.add_option("--refine-deg", options.refine_deg,
+                 "--turntable: also the chosen angles' neighbours every this many degrees within "
+                 "a step, searched again (0: the grid only)")
+      ->capture_default_str();
+  app.add_option("--refine-rounds", options.refine_rounds,
+                 "--turntable: at most this many refinements (while new neighbours appear)")
+      ->capture_default_str();
+  app.add_flag("--best-uniform", options.best_uniform_offset,
+               "--turntable: also the uniform baseline from its best offset (slower)");
+  app.add_option("--search-budget", options.max_evaluations,
+                 "the exact search's budget in gain evaluations (past it: the best found)")
       ->capture_default_str();
   app.add_option("--target", options.target, "share of the reachable surface to cover, (0, 1]")
       ->capture_default_str();

@@ -215,6 +215,7 @@ TEST(OccludedPartTest, ThePlanNeedsNoMoreViewsThanUniformStepsAndTheFewest) {
     options.prediction.samples = kSamples;
     for (const double target : {0.95, 0.98, 0.99}) {
       options.step_deg = 15;
+      options.refine_deg = 5;
       options.target = target;
       const ViewPlan plan = PlanTurntableViews(cad, s.rig, options);
       std::cout << (occlusion ? "occlusion part" : "demo part") << ", target " << target << ":\n"
@@ -223,8 +224,10 @@ TEST(OccludedPartTest, ThePlanNeedsNoMoreViewsThanUniformStepsAndTheFewest) {
       ASSERT_GT(plan.uniform_needed, 0);
       EXPECT_LE(plan.views.views.size(), static_cast<size_t>(plan.uniform_needed));
       EXPECT_GE(plan.views.views.size(), 3u);
-      // Brute force over 8 candidates (every 45 deg): the fewest views reaching the target.
+      // Brute force over 8 candidates (every 45 deg, not refined): the fewest views reaching the
+      // target.
       options.step_deg = 45;
+      options.refine_deg = 0;
       const ViewPlan coarse = PlanTurntableViews(cad, s.rig, options);
       const CoveragePredictor predictor(cad, s.rig, s.rig.turntable, options.prediction);
       std::vector<std::vector<uint8_t>> seen;
@@ -259,9 +262,10 @@ TEST(OccludedPartTest, ThePlanNeedsNoMoreViewsThanUniformStepsAndTheFewest) {
   }
 }
 
-// 72 candidate angles (5 deg steps): too many subsets to try them all, so the set is shrunk by the
-// swap search; the plan still reaches its target with no more views than uniform steps, and a
-// fresh prediction of its views reconstructs exactly the samples it counted.
+// 72 candidate angles (5 deg steps): too many subsets to list them all (C(72, 5) = 13.9 million),
+// so the cover is searched by the swap search and the branch and bound; the plan still reaches its
+// target with no more views than uniform steps, and a fresh prediction of its views reconstructs
+// exactly the samples it counted.
 TEST(OccludedPartTest, ManyCandidatesTakeTheSwapSearch) {
   const TurntableSetup s = ScaledOcclusionPart(4);
   const TriangleMesh cad = PartSurface(s.scene);

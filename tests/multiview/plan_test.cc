@@ -31,7 +31,7 @@ TEST(PlanTest, TheDemoPlanReachesItsTargetWithNoMoreViewsThanUniformSteps) {
   PlanOptions options;
   options.prediction = WithSceneRadiometry(options.prediction, setup.scene);
   options.prediction.samples = kSamples;
-  options.step_deg = 15;
+  options.step_deg = 15;  // refined every 5 deg about the chosen angles (the default)
   options.target = 0.98;
   const ViewPlan plan = PlanTurntableViews(cad, setup.rig, options);
   std::cout << plan.Table();
@@ -42,12 +42,25 @@ TEST(PlanTest, TheDemoPlanReachesItsTargetWithNoMoreViewsThanUniformSteps) {
     EXPECT_GT(plan.greedy_coverage[k], plan.greedy_coverage[k - 1]);
   ASSERT_GT(plan.uniform_needed, 0);
   EXPECT_LE(plan.views.views.size(), static_cast<size_t>(plan.uniform_needed));
-  EXPECT_EQ(plan.candidates, 24u);
+  EXPECT_EQ(plan.grid_candidates, 24u);
+  EXPECT_GT(plan.candidates, 24u);
   ASSERT_EQ(plan.views.views.size(), plan.greedy_deg.size());
   for (size_t k = 1; k < plan.views.views.size(); ++k)
     EXPECT_LT(*plan.views.views[k - 1].table_deg, *plan.views.views[k].table_deg);
   // One view cannot cover the part, so the plan is a real choice.
   EXPECT_GE(plan.views.views.size(), 3u);
+  // Against the grid alone: the same reachable surface (refining does not move the target), no
+  // fewer views, and with as many at most the refined plan's coverage.
+  PlanOptions grid_options = options;
+  grid_options.refine_deg = 0;
+  const ViewPlan grid = PlanTurntableViews(cad, setup.rig, grid_options);
+  EXPECT_EQ(grid.reachable, plan.reachable);
+  EXPECT_EQ(grid.candidates, 24u);
+  ASSERT_TRUE(grid.reached);
+  EXPECT_GE(grid.views.views.size(), plan.views.views.size());
+  if (grid.views.views.size() == plan.views.views.size()) {
+    EXPECT_LE(grid.greedy_coverage.back(), plan.greedy_coverage.back());
+  }
 
   // A fresh prediction of the planned views reconstructs exactly the samples the plan counted.
   const CoveragePrediction predicted = PredictCoverage(
@@ -98,7 +111,10 @@ TEST(PlanTest, CommandWritesTheViewsFile) {
   ASSERT_FALSE(views.views.empty());
   for (const ViewSpec& v : views.views) {
     ASSERT_TRUE(v.table_deg.has_value());
-    EXPECT_NEAR(std::fmod(*v.table_deg, 30.0), 0.0, 1e-9) << v.name;
+    // On the 30 deg grid or refined about it every 5 deg (PlanOptions::refine_deg), in [0, 360).
+    EXPECT_NEAR(std::fmod(*v.table_deg, 5.0), 0.0, 1e-9) << v.name;
+    EXPECT_GE(*v.table_deg, 0.0);
+    EXPECT_LT(*v.table_deg, 360.0);
   }
   EXPECT_TRUE(fs::exists(coverage));
   // The same plan from the library.
@@ -117,6 +133,13 @@ TEST(PlanTest, CommandWritesTheViewsFile) {
   bad_args[13] = bad;   // --out
   EXPECT_NE(testing::ErrorOf([&] { run(bad_args); }).find("--target"), std::string::npos);
   EXPECT_FALSE(fs::exists(bad));
+  PlanOptions bad_refine;
+  bad_refine.refine_deg = -5;
+  EXPECT_NE(testing::ErrorOf([&] { bad_refine.Check(); }).find("--refine-deg"), std::string::npos);
+  bad_refine.refine_deg = 5;
+  bad_refine.max_evaluations = 0;
+  EXPECT_NE(testing::ErrorOf([&] { bad_refine.Check(); }).find("--search-budget"),
+            std::string::npos);
   // Without --turntable: placements by hand, tilted and turned about the part's centre; the views
   // file holds hand-placed views with their poses, the plan the library makes.
   std::vector<std::string> by_hand = args;
@@ -181,14 +204,20 @@ TEST(PlanTest, PlacementsByHand) {
   options.prediction = WithSceneRadiometry(options.prediction, setup.scene);
   options.prediction.samples = 20000;
   options.step_deg = 30;
+  options.refine_deg = 0;  // the same candidates as the table views below
   options.target = 0.98;
   const ViewPlan table_plan = PlanTurntableViews(cad, setup.rig, options);
   std::vector<ViewCandidate> table_candidates;
   for (const ViewSpec& v : FullTurnViews(12, 0).views) table_candidates.push_back({v.name, v});
   const ViewPlan general =
       PlanViews(cad, setup.rig, table_candidates, setup.rig.turntable, options);
-  EXPECT_EQ(general.greedy_deg, table_plan.greedy_deg);
-  EXPECT_EQ(general.greedy_coverage, table_plan.greedy_coverage);
+  // The same candidates, reachable surface and fewest views; the table plan's search also starts
+  // from evenly spaced angles, so it covers at least as much with them.
+  EXPECT_EQ(general.reachable, table_plan.reachable);
+  EXPECT_EQ(general.greedy_deg.size(), table_plan.greedy_deg.size());
+  EXPECT_EQ(general.one_fewer_coverage, table_plan.one_fewer_coverage);
+  ASSERT_TRUE(general.reached);
+  EXPECT_GE(table_plan.greedy_coverage.back(), general.greedy_coverage.back());
 
   const ViewPlan hand = PlanViews(cad, setup.rig, placed, std::nullopt, options);
   std::cout << hand.Table();

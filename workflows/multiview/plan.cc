@@ -9,6 +9,7 @@
 
 #include "core/error.h"
 #include "core/string_printf.h"
+#include "workflows/multiview/plan_search.h"
 #include "workflows/multiview/project_merge.h"
 #include "workflows/multiview/turntable_scene.h"
 #include "workflows/multiview/virtual_project.h"
@@ -28,6 +29,11 @@ void PlanOptions::Check() const {
                     "--step-deg: must be in [0.5, 180] (got ", step_deg, ")");
   SLSHADOW_THROW_IF(!std::isfinite(start_deg), "--start-deg: must be finite (got ", start_deg, ")");
   SLSHADOW_THROW_IF(!(target > 0 && target <= 1), "--target: must be in (0, 1] (got ", target, ")");
+  SLSHADOW_THROW_IF(!(refine_deg == 0 || (refine_deg >= 0.1 && refine_deg <= 180)),
+                    "--refine-deg: must be 0 (off) or in [0.1, 180] (got ", refine_deg, ")");
+  SLSHADOW_THROW_IF(refine_rounds < 0 || refine_rounds > 20,
+                    "--refine-rounds: must be in [0, 20] (got ", refine_rounds, ")");
+  SLSHADOW_THROW_IF(max_evaluations < 1, "--search-budget: must be at least 1");
   prediction.Check();
 }
 
@@ -43,109 +49,29 @@ Bits ToBits(const std::vector<uint8_t>& seen, const std::vector<size_t>& reachab
   return b;
 }
 
-size_t CountUnion(const std::vector<const Bits*>& sets, size_t words) {
-  size_t n = 0;
-  for (size_t w = 0; w < words; ++w) {
-    uint64_t x = 0;
-    for (const Bits* s : sets) x |= (*s)[w];
-    n += static_cast<size_t>(std::popcount(x));
-  }
-  return n;
-}
-
-// Some `m` of `bits` whose union has at least `needed` bits, or empty. Exhaustive over the
-// m-subsets (partial unions kept per depth) when there are at most kExhaustive of them; otherwise
-// a swap search from `start` (m of the candidates): one chosen view exchanged for one other while
-// the union grows (at most 500 exchanges).
-std::vector<size_t> CoverWith(const std::vector<Bits>& bits, size_t m, size_t needed,
-                              std::vector<size_t> start) {
-  constexpr double kExhaustive = 300000;
-  const size_t n = bits.size(), words = bits.empty() ? 0 : bits[0].size();
-  if (m == 0 || m > n) return {};
-  double subsets = 1;
-  for (size_t k = 0; k < m; ++k) subsets = subsets * static_cast<double>(n - k) / (k + 1);
-  if (subsets <= kExhaustive) {
-    std::vector<size_t> pick(m);
-    std::vector<Bits> partial(m + 1, Bits(words, 0));
-    // Depth-first over increasing indices; partial[d] is the union of the first d picks.
-    std::vector<size_t> next(m + 1, 0);
-    size_t d = 0;
-    next[0] = 0;
-    while (true) {
-      if (d == m) {
-        size_t count = 0;
-        for (uint64_t x : partial[m]) count += static_cast<size_t>(std::popcount(x));
-        if (count >= needed) return pick;
-        --d;
-        continue;
-      }
-      const size_t c = next[d];
-      if (c + (m - d) > n) {  // too few candidates left for this depth
-        if (d == 0) return {};
-        --d;
-        continue;
-      }
-      next[d] = c + 1;
-      pick[d] = c;
-      for (size_t w = 0; w < words; ++w) partial[d + 1][w] = partial[d][w] | bits[c][w];
-      ++d;
-      next[d] = c + 1;
-    }
-  }
-  // Swap search.
-  std::vector<bool> in(n, false);
-  for (size_t c : start) in[c] = true;
-  const auto union_of = [&](const std::vector<size_t>& set) {
-    std::vector<const Bits*> sets;
-    for (size_t c : set) sets.push_back(&bits[c]);
-    return CountUnion(sets, words);
-  };
-  size_t best = union_of(start);
-  bool improved = true;
-  // Each round takes the first exchange that grows the union; at most kRounds of them.
-  constexpr int kRounds = 500;
-  for (int round = 0; round < kRounds && best < needed && improved; ++round) {
-    improved = false;
-    for (size_t i = 0; i < start.size() && !improved; ++i) {
-      for (size_t c = 0; c < n && !improved; ++c) {
-        if (in[c]) continue;
-        std::vector<size_t> trial = start;
-        trial[i] = c;
-        const size_t count = union_of(trial);
-        if (count > best) {
-          in[start[i]] = false;
-          in[c] = true;
-          start = trial;
-          best = count;
-          improved = true;
-        }
-      }
-    }
-  }
-  return best >= needed ? start : std::vector<size_t>{};
-}
-
-// The reachable samples (off the table, reconstructed by some candidate) and a set cover over
-// `seen` (per candidate, 1 where it reconstructs the sample) to options.target of them: greedy
-// (the candidate adding the most uncovered samples, until the target), then as long as one view
-// fewer can reach the target, such a set (CoverWith, seeded by the greedy's first picks). Fills
-// plan's samples, off_table, reachable, reachable_share, target; returns the chosen candidates
-// and, in *bits, every candidate's reachable samples as bits (for Account).
+// The reachable samples (off the table, reconstructed by one of the first `reach_from` candidates:
+// the grid's, so that refined angles do not move the target) and the fewest
+// candidates (FewestCover, plan_search.h; `seeds` as there) whose union covers options.target of
+// them over `seen` (per candidate, 1 where it reconstructs the sample). Fills plan's samples,
+// off_table, reachable, reachable_share, target and the search's figures; returns the chosen
+// candidates and, in *bits, every candidate's reachable samples as bits (for Account).
 std::vector<size_t> SetCover(const std::vector<const std::vector<uint8_t>*>& seen,
                              const std::vector<uint8_t>& on_table, const PlanOptions& options,
+                             const std::vector<std::vector<size_t>>& seeds, size_t reach_from,
                              const std::string& rig_name, ViewPlan* plan,
                              std::vector<uint8_t>* reachable, std::vector<Bits>* bits) {
   const size_t ns = on_table.size();
   plan->candidates = seen.size();
   plan->samples = ns;
+  plan->off_table = 0;
   plan->target = options.target;
   reachable->assign(ns, 0);
   std::vector<size_t> reachable_index;
   for (size_t i = 0; i < ns; ++i) {
     if (on_table[i]) continue;
     ++plan->off_table;
-    for (const auto* s : seen) {
-      if ((*s)[i]) {
+    for (size_t c = 0; c < reach_from; ++c) {
+      if ((*seen[c])[i]) {
         (*reachable)[i] = 1;
         reachable_index.push_back(i);
         break;
@@ -157,37 +83,27 @@ std::vector<size_t> SetCover(const std::vector<const std::vector<uint8_t>*>& see
                     "plan: no candidate view reconstructs any of the part (rig '", rig_name, "')");
   plan->reachable_share = Share(plan->reachable, plan->off_table);
   bits->clear();
-  for (const auto* s : seen) bits->push_back(ToBits(*s, reachable_index));
-  const size_t words = (*bits)[0].size();
+  std::vector<std::vector<uint8_t>> on_reachable;
+  for (const auto* s : seen) {
+    bits->push_back(ToBits(*s, reachable_index));
+    std::vector<uint8_t>& r = on_reachable.emplace_back(reachable_index.size());
+    for (size_t j = 0; j < reachable_index.size(); ++j) r[j] = (*s)[reachable_index[j]];
+  }
   size_t needed = 0;  // the fewest samples whose share reaches the target
   while (Share(needed, plan->reachable) < options.target) ++needed;
-  Bits covered(words, 0);
-  std::vector<bool> used(seen.size(), false);
-  std::vector<size_t> chosen;
-  size_t n_covered = 0;
-  while (n_covered < needed) {
-    size_t best = seen.size(), best_gain = 0;
-    for (size_t c = 0; c < seen.size(); ++c) {
-      if (used[c]) continue;
-      size_t gain = 0;
-      for (size_t w = 0; w < words; ++w)
-        gain += static_cast<size_t>(std::popcount((*bits)[c][w] & ~covered[w]));
-      if (gain > best_gain) best = c, best_gain = gain;
-    }
-    if (best == seen.size()) break;  // nothing more to gain
-    used[best] = true;
-    for (size_t w = 0; w < words; ++w) covered[w] |= (*bits)[best][w];
-    n_covered += best_gain;
-    chosen.push_back(best);
-  }
-  if (n_covered < needed) return chosen;
-  while (chosen.size() > 1) {
-    std::vector<size_t> fewer = CoverWith(*bits, chosen.size() - 1, needed,
-                                          std::vector<size_t>(chosen.begin(), chosen.end() - 1));
-    if (fewer.empty()) break;
-    chosen = std::move(fewer);
-  }
-  return chosen;
+  std::vector<const std::vector<uint8_t>*> sets;
+  for (const auto& r : on_reachable) sets.push_back(&r);
+  const CoverInstance instance(sets);
+  CoverSearchOptions search;
+  search.max_evaluations = options.max_evaluations;
+  const CoverPlan cover = FewestCover(instance, needed, seeds, search);
+  plan->classes = instance.Classes();
+  plan->greedy_views = cover.greedy.size();
+  plan->greedy_reached = cover.greedy_covered >= needed;
+  plan->one_fewer_coverage = Share(cover.one_fewer.covered, plan->reachable);
+  plan->one_fewer_exact = cover.one_fewer.exact;
+  plan->search_evaluations = cover.evaluations;
+  return cover.picks;
 }
 
 // The plan's accounting of `chosen` (indices into `bits`): ordered greedily (each next the one
@@ -238,11 +154,17 @@ ViewPlan PlanTurntableViews(const TriangleMesh& cad_in_part, const Rig& rig,
   const CoveragePredictor predictor(cad_in_part, rig, axis, options.prediction);
   const size_t ns = predictor.Samples().size();
 
-  // Every candidate's reconstructed samples; a cache by angle for the uniform baseline.
+  // Every candidate's reconstructed samples; a cache by angle (the refinement, the baselines).
   const int count = std::max(1, static_cast<int>(std::floor(360.0 / options.step_deg + 1e-9)));
   std::map<double, std::vector<uint8_t>> by_angle;
-  const auto seen_at = [&](double deg) -> const std::vector<uint8_t>& {
+  const auto key_of = [](double deg) {
+    deg = std::fmod(deg, 360.0);
+    if (deg < 0) deg += 360;
     const double key = std::round(deg * 1e6) / 1e6;
+    return key >= 360 ? 0.0 : key;
+  };
+  const auto seen_at = [&](double deg) -> const std::vector<uint8_t>& {
+    const double key = key_of(deg);
     auto it = by_angle.find(key);
     if (it == by_angle.end())
       it =
@@ -252,34 +174,89 @@ ViewPlan PlanTurntableViews(const TriangleMesh& cad_in_part, const Rig& rig,
   };
   std::vector<double> candidates;
   std::vector<std::string> labels;
-  for (int k = 0; k < count; ++k) {
-    candidates.push_back(options.start_deg + k * options.step_deg);
-    labels.push_back(StringPrintf("%.2f deg", candidates.back()));
+  const auto add_candidate = [&](double deg) {
+    deg = key_of(deg);  // in [0, 360)
+    for (double c : candidates)
+      if (key_of(c) == key_of(deg)) return false;
+    candidates.push_back(deg);
+    labels.push_back(StringPrintf("%.2f deg", deg));
+    return true;
+  };
+  for (int k = 0; k < count; ++k) add_candidate(options.start_deg + k * options.step_deg);
+  // Seeds for the swap search: n grid angles evenly spaced, from each grid offset.
+  std::vector<std::vector<size_t>> seeds;
+  for (int n = 1; n <= count; ++n) {
+    for (int o = 0; o * n < count; ++o) {
+      std::vector<size_t> s;
+      for (int k = 0; k < n; ++k)
+        s.push_back(static_cast<size_t>(o + static_cast<int>(std::lround(1.0 * k * count / n))) %
+                    static_cast<size_t>(count));
+      std::sort(s.begin(), s.end());
+      if (std::adjacent_find(s.begin(), s.end()) == s.end()) seeds.push_back(s);
+    }
   }
-  std::vector<const std::vector<uint8_t>*> cand_seen;
-  for (double a : candidates) cand_seen.push_back(&seen_at(a));
 
   ViewPlan plan;
+  plan.grid_candidates = static_cast<size_t>(count);
   std::vector<uint8_t> reachable;
   std::vector<Bits> bits;
-  std::vector<size_t> chosen =
-      SetCover(cand_seen, predictor.OnTable(), options, rig.name, &plan, &reachable, &bits);
+  std::vector<size_t> chosen;
+  // The cover over the grid, then, while the chosen angles have neighbours not yet predicted (every
+  // refine_deg within a grid step), the cover over the grid and those neighbours.
+  for (int round = 0;; ++round) {
+    std::vector<const std::vector<uint8_t>*> cand_seen;
+    for (double a : candidates) cand_seen.push_back(&seen_at(a));
+    chosen = SetCover(cand_seen, predictor.OnTable(), options, seeds, plan.grid_candidates,
+                      rig.name, &plan, &reachable, &bits);
+    if (options.refine_deg <= 0 || options.refine_deg >= options.step_deg ||
+        round >= options.refine_rounds)
+      break;
+    bool added = false;
+    const int m = static_cast<int>(std::ceil(options.step_deg / options.refine_deg - 1e-9)) - 1;
+    const std::vector<size_t> picked = chosen;
+    for (size_t c : picked) {
+      for (int j = 1; j <= m; ++j) {
+        added |= add_candidate(candidates[c] - j * options.refine_deg);
+        added |= add_candidate(candidates[c] + j * options.refine_deg);
+      }
+    }
+    if (!added) break;
+  }
 
-  // The uniform baseline.
-  std::vector<double> uniform_deg;
-  for (int n = 1; n <= count; ++n) {
+  // The uniform baselines: n views every 360 / n deg from start_deg, and from the best offset.
+  const auto uniform_share = [&](double from, int n) {
     std::vector<uint8_t> seen(ns, 0);
     for (int k = 0; k < n; ++k) {
-      const std::vector<uint8_t>& s = seen_at(options.start_deg + 360.0 * k / n);
+      const std::vector<uint8_t>& s = seen_at(from + 360.0 * k / n);
       for (size_t i = 0; i < ns; ++i) seen[i] |= s[i];
     }
     size_t hit = 0;
     for (size_t i = 0; i < ns; ++i) hit += reachable[i] & seen[i];
-    plan.uniform_coverage.push_back(Share(hit, plan.reachable));
+    return Share(hit, plan.reachable);
+  };
+  std::vector<double> uniform_deg;
+  for (int n = 1; n <= count; ++n) {
+    plan.uniform_coverage.push_back(uniform_share(options.start_deg, n));
     if (plan.uniform_coverage.back() >= options.target) {
       plan.uniform_needed = n;
       for (int k = 0; k < n; ++k) uniform_deg.push_back(options.start_deg + 360.0 * k / n);
       break;
+    }
+  }
+  if (options.best_uniform_offset) {
+    const double delta = options.refine_deg > 0 ? options.refine_deg : options.step_deg;
+    for (int n = 1; n <= count; ++n) {
+      double best = -1, best_from = options.start_deg;
+      for (int j = 0; j * delta < 360.0 / n - 1e-9; ++j) {
+        const double share = uniform_share(options.start_deg + j * delta, n);
+        if (share > best) best = share, best_from = options.start_deg + j * delta;
+      }
+      plan.best_uniform_coverage.push_back(best);
+      plan.best_uniform_offset_deg.push_back(best_from - options.start_deg);
+      if (best >= options.target) {
+        plan.best_uniform_needed = n;
+        break;
+      }
     }
   }
   // Uniform steps off the candidate grid (e.g. 72 deg for 5 views) may reach the target with
@@ -364,8 +341,8 @@ ViewPlan PlanViews(const TriangleMesh& cad_in_part, const Rig& rig,
   ViewPlan plan;
   std::vector<uint8_t> reachable;
   std::vector<Bits> bits;
-  const std::vector<size_t> chosen =
-      SetCover(cand_seen, predictor.OnTable(), options, rig.name, &plan, &reachable, &bits);
+  const std::vector<size_t> chosen = SetCover(cand_seen, predictor.OnTable(), options, {},
+                                              cand_seen.size(), rig.name, &plan, &reachable, &bits);
   for (size_t c : Account(bits, chosen, labels, &plan)) {
     ViewSpec v = candidates[c].view;
     v.name = DefaultViewName(plan.views.views.size());
@@ -385,7 +362,17 @@ nlohmann::json ViewPlan::ToJson() const {
           {"greedy_coverage", greedy_coverage},
           {"uniform_coverage", uniform_coverage},
           {"uniform_needed", uniform_needed},
+          {"best_uniform_coverage", best_uniform_coverage},
+          {"best_uniform_offset_deg", best_uniform_offset_deg},
+          {"best_uniform_needed", best_uniform_needed},
+          {"greedy_views", greedy_views},
+          {"greedy_reached", greedy_reached},
+          {"one_fewer_coverage", one_fewer_coverage},
+          {"one_fewer_exact", one_fewer_exact},
+          {"classes", classes},
+          {"search_evaluations", search_evaluations},
           {"candidates", candidates},
+          {"grid_candidates", grid_candidates},
           {"samples", samples},
           {"off_table", off_table},
           {"reachable", reachable},
@@ -395,27 +382,45 @@ nlohmann::json ViewPlan::ToJson() const {
 
 std::string ViewPlan::Table() const {
   std::string out = StringPrintf(
-      "reachable surface: %.2f %% of the part off the table (%zu of %zu samples, %zu candidate "
-      "angles)\n"
-      "views  plan: view added       coverage   uniform: coverage\n",
+      "reachable surface: %.2f %% of the part off the table (%zu of %zu samples, %zu candidates",
       100 * reachable_share, reachable, off_table, candidates);
-  const size_t rows = std::max(greedy_label.size(), uniform_coverage.size());
+  if (grid_candidates && grid_candidates < candidates)
+    out += StringPrintf(": %zu on the grid, %zu refined", grid_candidates,
+                        candidates - grid_candidates);
+  out += ")\nviews  plan: view added       coverage   uniform: coverage";
+  const bool best = !best_uniform_coverage.empty();
+  if (best) out += "   from the best offset";
+  out += "\n";
+  const size_t rows =
+      std::max({greedy_label.size(), uniform_coverage.size(), best_uniform_coverage.size()});
   for (size_t k = 0; k < rows; ++k) {
     std::string plan_cell = "                           ";
     if (k < greedy_label.size())
       plan_cell = StringPrintf("%15s  %7.2f %%", greedy_label[k].c_str(), 100 * greedy_coverage[k]);
     std::string uni = k < uniform_coverage.size()
                           ? StringPrintf("%7.2f %%", 100 * uniform_coverage[k])
-                          : std::string("      -");
+                          : std::string("      -  ");
+    if (best && k < best_uniform_coverage.size())
+      uni += StringPrintf("          %7.2f %% (+%.1f deg)", 100 * best_uniform_coverage[k],
+                          best_uniform_offset_deg[k]);
     out += StringPrintf("%5zu  %s   %s\n", k + 1, plan_cell.c_str(), uni.c_str());
   }
-  out +=
-      StringPrintf("target %.2f %%: the plan needs %zu views%s; uniform steps need %s (%.2f s)\n",
-                   100 * target, greedy_label.size(), reached ? "" : " (not reached)",
-                   uniform_coverage.empty() ? "- (no uniform baseline for placed views)"
-                   : uniform_needed > 0     ? std::to_string(uniform_needed).c_str()
-                                            : "more than the candidates",
-                   seconds);
+  out += StringPrintf("target %.2f %%: the plan needs %zu views%s; uniform steps need %s",
+                      100 * target, greedy_label.size(), reached ? "" : " (not reached)",
+                      uniform_coverage.empty() ? "- (no uniform baseline for placed views)"
+                      : uniform_needed > 0     ? std::to_string(uniform_needed).c_str()
+                                               : "more than the candidates");
+  if (best)
+    out += StringPrintf(", from the best offset %s",
+                        best_uniform_needed > 0 ? std::to_string(best_uniform_needed).c_str()
+                                                : "more than the candidates");
+  out += StringPrintf(" (%.2f s)\n", seconds);
+  if (reached && greedy_label.size() > 1) {
+    out += StringPrintf("search: greedy alone %zu views; with %zu views at most %.2f %% (%s)\n",
+                        greedy_views, greedy_label.size() - 1, 100 * one_fewer_coverage,
+                        one_fewer_exact ? "exhaustive: none reaches the target"
+                                        : "the best found; the search's budget ran out");
+  }
   return out;
 }
 

@@ -1,20 +1,22 @@
 // `slshadow plan`: the fewest views that cover a part, before it is on the table (turntable angles,
 // or placements by hand: PlanViews / PlacementCandidates below). Every
 // candidate table angle (a full turn in steps) is predicted (coverage_prediction.h, no images
-// rendered); the part's reachable surface is what at least one candidate reconstructs; a greedy
-// set cover then picks, one at a time, the candidate that reconstructs the most reachable samples
-// not yet covered, until the target share of the reachable surface is covered; then, while some
-// set of one view fewer reaches the target, that set (exhaustive over the subsets of that size when
-// there are at most 300 000 of them, else a swap search from the greedy picks): greedy alone can
-// need a view more than the best cover. Beside it, the uniform baseline: n views evenly spaced over
-// a full turn from the first candidate angle, for n = 1, 2, ... until the target is reached (or
-// n = the number of candidates); a table plan that would need more views than the uniform steps
-// (whose angles may lie off the candidate grid, 72 deg for 5 views) takes the uniform steps.
+// rendered); the part's reachable surface is what at least one candidate of the grid reconstructs;
+// the set cover (plan_search.h) then picks the fewest candidates covering the target share of it:
+// greedy, then one view fewer at a time by a swap search and a branch and bound that either finds
+// such a set or proves there is none. Table plans then refine: the chosen angles' neighbours every
+// refine_deg within a grid step are predicted and the cover searched again over the grid and
+// them (the reachable surface stays the grid's, so refining never moves the target). Beside it,
+// the uniform baseline: n views evenly spaced over a full turn from the first candidate angle (and,
+// on request, from the best offset), for n = 1, 2, ... until the target is reached (or n = the
+// number of candidates); a table plan that would need more views than the uniform steps (whose
+// angles may lie off the candidate grid, 72 deg for 5 views) takes the uniform steps.
 // The picks are reported in greedy order (each next the one adding the most).
 //
 // Frames and units: the part frame (views.h), mm, degrees.
 #pragma once
 
+#include <cstdint>
 #include <filesystem>
 #include <optional>
 #include <string>
@@ -34,6 +36,17 @@ struct PlanOptions {
   double step_deg = 15;  // candidate table angles: start_deg + k * step_deg over a full turn
   double start_deg = 0;
   double target = 0.98;  // share of the reachable surface, (0, 1]
+  // Table plans: after the cover of the grid, the chosen angles' neighbours every refine_deg
+  // within a grid step (+-5, +-10 deg for 5 in 15) are predicted too and the cover searched again
+  // over all, up to refine_rounds times (while new neighbours appear); 0 (or not less than
+  // step_deg): the grid only.
+  double refine_deg = 5;
+  int refine_rounds = 3;
+  // The uniform baseline also from its best offset (every refine_deg, else step_deg, within one
+  // uniform step; predicts those angles too: slower).
+  bool best_uniform_offset = false;
+  // The exact search's budget (plan_search.h CoverSearchOptions::max_evaluations).
+  uint64_t max_evaluations = 200'000'000;
   CoveragePredictionOptions prediction;
   void Check() const;  // throws slshadow::Error naming the bad field (the option's name)
 };
@@ -50,7 +63,21 @@ struct ViewPlan {
   // n reaching the target (0: none up to the number of candidates).
   std::vector<double> uniform_coverage;
   int uniform_needed = 0;
-  size_t candidates = 0;
+  // Uniform from the best offset (PlanOptions::best_uniform_offset; empty otherwise): per n, the
+  // best coverage and its offset from start_deg; best_uniform_needed as uniform_needed.
+  std::vector<double> best_uniform_coverage, best_uniform_offset_deg;
+  int best_uniform_needed = 0;
+  // The search (plan_search.h): greedy alone's views (and whether it reached the target); the
+  // best coverage found with one view fewer than the plan, exact when the search was exhaustive
+  // (no set of candidates one fewer reaches the target); classes of samples; its gain evaluations.
+  size_t greedy_views = 0;
+  bool greedy_reached = false;
+  double one_fewer_coverage = 0;
+  bool one_fewer_exact = false;
+  size_t classes = 0;
+  uint64_t search_evaluations = 0;
+  size_t candidates = 0;       // the candidates searched (the grid and the refined angles)
+  size_t grid_candidates = 0;  // table plans: the grid's
   size_t samples = 0, off_table = 0, reachable = 0;
   double reachable_share = 0;  // reachable / off the table
   double target = 0;
