@@ -28,9 +28,9 @@ struct PairSpread {
   // weak_ratio x the largest), lambda_k divided by F_k = lambda_k x the jackknife variance along
   // it where F_k exceeds critical_factor (the stated information rejected at the 1 % level over
   // the six directions), else kept. Well-fixed directions keep theirs: there the spread is within
-  // a small factor of the stated variance (median 1.3, up to 14 on multiview_merge_test's 12
-  // six-DOF views, whose errors are within 3 x the graph's 1-sigma), along the weak ones of the
-  // hand fixture 7.6 and 33 (docs/benchmarks/log/2026-12-07-hand-sigma.md).
+  // a small factor of the stated variance (F median 1.4, 90 % below 3.6, at most 14 over the 144
+  // directions of multiview_merge_test's 24 pairs, none weak), along the weak ones of the hand
+  // fixture 2.4 - 52 (docs/benchmarks/log/2026-12-07-hand-sigma.md).
   Matrix6d information = Matrix6d::Zero();
   double weakest_factor = 1;   // F along the weakest eigen-direction (variance ratio, raw)
   double max_factor = 1;       // the largest factor applied (1: none)
