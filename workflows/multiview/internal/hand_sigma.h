@@ -56,8 +56,8 @@ PairSpread BlockSpread(const ViewGeometry& a, const ViewGeometry& b, const Rigid
 // how many edges were widened.
 int WidenWeakEdges(const std::vector<ViewGeometry>& geo, const std::vector<Rigid3d>& part_from_rig,
                    const std::vector<size_t>& edge_pair, const std::vector<IcpOutcome>& icp,
-                   const std::vector<bool>& weak_pair, const MergeOptions& pair_options,
-                   int blocks, double weak_ratio, std::vector<GraphEdge>* edges,
+                   const std::vector<bool>& weak_pair, const MergeOptions& pair_options, int blocks,
+                   double weak_ratio, std::vector<GraphEdge>* edges,
                    std::vector<double>* pair_factor);
 
 }  // namespace slshadow::multiview::internal
