@@ -188,6 +188,11 @@ int RunMerge(int argc, char** argv) {
                  "this share of either view's points lie where the other view saw through (a "
                  "wrong table angle; 1: no check)")
       ->capture_default_str();
+  app.add_option("--hand-spread-blocks", options.registration.hand_spread_blocks,
+                 "a hand view's 1-sigma from its weak pairs re-solved with each of this many "
+                 "blocks of their overlap left out; wider than --max-departure-deg / -mm: left "
+                 "out (0: the pose graph's covariance only)")
+      ->capture_default_str();
   app.add_option("--icp-points", options.registration.icp_points,
                  "source points per pair in the pairwise ICP")
       ->capture_default_str();

@@ -14,6 +14,7 @@
 #include "core/statistics.h"
 #include "core/string_printf.h"
 #include "workflows/multiview/internal/fusion.h"
+#include "workflows/multiview/internal/hand_sigma.h"
 #include "workflows/multiview/internal/pairwise.h"
 #include "workflows/multiview/internal/pose_graph.h"
 #include "workflows/multiview/internal/sight_check.h"
@@ -49,6 +50,18 @@ std::string DirectionText(const internal::DegenerateDirection& d, const Eigen::Q
 double SqrtLargestEigenvalue(const Eigen::Matrix3d& c) {
   const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(0.5 * (c + c.transpose()));
   return std::sqrt(std::max(0.0, eig.eigenvalues().maxCoeff()));
+}
+
+// 1-sigma of a view's pose from its covariance of (w, dt) (pose_graph.h): the rotation's worst
+// axis, deg, and the displacement of the view's centroid (rig frame) along its worst axis, mm.
+void WorstSigmas(const Matrix6d& c, const Rigid3d& part_from_rig,
+                 const Eigen::Vector3d& centroid_in_rig, double* deg, double* mm) {
+  const Eigen::Vector3d centroid = part_from_rig * centroid_in_rig;
+  Eigen::Matrix<double, 3, 6> jac;  // displacement of the centroid per (w, dt)
+  jac.leftCols<3>() = -Skew(centroid - part_from_rig.translation);
+  jac.rightCols<3>() = Eigen::Matrix3d::Identity();
+  *deg = SqrtLargestEigenvalue(c.topLeftCorner<3, 3>()) * 180.0 / M_PI;
+  *mm = SqrtLargestEigenvalue(jac * c * jac.transpose());
 }
 
 // Disagreement of a pair with the graph, in degrees and mm (merge.h, PairRegistration).
@@ -118,6 +131,9 @@ void MergeOptions::Check() const {
   nonneg(min_edge_error_mm, "min_edge_error_mm");
   nonneg(max_initial_departure_deg, "max_initial_departure_deg");
   nonneg(max_initial_departure_mm, "max_initial_departure_mm");
+  SLSHADOW_THROW_IF(hand_spread_blocks < 0 || hand_spread_blocks == 1,
+                    "merge options: hand_spread_blocks: must be 0 or >= 2 (got ",
+                    hand_spread_blocks, ")");
   nonneg(graph_robust_k, "graph_robust_k");
   SLSHADOW_THROW_IF(joint_iterations < 0, "merge options: joint_iterations: must be >= 0 (got ",
                     joint_iterations, ")");
@@ -213,6 +229,11 @@ std::string MergeResult::FullReport() const {
     if (p.seen_through >= 0)
       s += StringPrintf("      free-space check: %.2f %% seen through by the other view\n",
                         100.0 * p.seen_through);
+    if (p.spread_factor > 0)
+      s += StringPrintf(
+          "      spread over blocks of the overlap: %.2f x the stated variance "
+          "along the weakest direction\n",
+          p.spread_factor);
   }
   if (turntable_model) {
     s += StringPrintf(
@@ -507,6 +528,7 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
   }
   internal::TableFit table_fit;
   bool use_model = false;
+  std::vector<Matrix6d> hand_cov;  // hand views' covariance from the widened pairs (empty: none)
   auto optimize = [&](const std::vector<internal::GraphEdge>& edges, bool with_covariance) {
     use_model = options.turntable_model && options.turntable.has_value() &&
                 internal::TableModelApplies(table_model, active);
@@ -653,6 +675,47 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
       result.joint_last_motion_mm = motion;
       if (motion < options.joint_tolerance_mm) break;
     }
+    // Hand views' honest covariance (internal/hand_sigma.h): their weak pairs' information
+    // widened where the spread over blocks of the overlap exceeds it; too wide a view is left out.
+    hand_cov.clear();
+    if (options.hand_spread_blocks > 0) {
+      std::vector<internal::GraphEdge> widened = edges;
+      std::vector<bool> weak(result.pairs.size());
+      std::vector<double> factor(result.pairs.size(), 0.0);
+      for (size_t k = 0; k < weak.size(); ++k) weak[k] = weak_hand(k);
+      const internal::GraphSolution wide =
+          internal::WidenWeakEdges(geo, sol.part_from_rig, edge_pair, icp, weak, hand_options,
+                                   options.hand_spread_blocks, options.icp_degenerate_ratio,
+                                   &widened, &factor) > 0
+              ? optimize(widened, true)
+              : internal::GraphSolution{};
+      for (size_t k = 0; k < weak.size(); ++k) result.pairs[k].spread_factor = factor[k];
+      if (wide.covariance_ok) hand_cov = wide.covariance;
+    }
+    worst_view = -1;  // the widest hand view beyond the departure bounds, if any
+    worst_excess = 1.0;
+    for (size_t i = 0; i < hand_cov.size(); ++i) {
+      if (!active[i] || views[i].table_deg || static_cast<int>(i) == anchor) continue;
+      double deg = 0, mm = 0;
+      WorstSigmas(hand_cov[i], sol.part_from_rig[i], geo[i].centroid, &deg, &mm);
+      const double excess = std::max(
+          options.max_initial_departure_deg > 0 ? deg / options.max_initial_departure_deg : 0.0,
+          options.max_initial_departure_mm > 0 ? mm / options.max_initial_departure_mm : 0.0);
+      if (excess <= worst_excess) continue;
+      worst_excess = excess;
+      worst_view = static_cast<int>(i);
+      result.views[i].reason = StringPrintf(
+          "its pairs do not fix its pose: 1-sigma %.3f deg / %.3f mm from the spread of its pairs "
+          "over %d blocks of their overlap (bounds %.3f deg / %.3f mm)",
+          deg, mm, options.hand_spread_blocks, options.max_initial_departure_deg,
+          options.max_initial_departure_mm);
+    }
+    if (worst_view >= 0) {
+      active[static_cast<size_t>(worst_view)] = false;
+      for (size_t i = 0; i < n; ++i)
+        if (active[i]) result.views[i].reason.clear();
+      continue;
+    }
     // Final solve with the covariance.
     sol = optimize(edges, true);
     result.graph_iterations = sol.iterations;
@@ -733,13 +796,16 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
       v.sigma_rotation_deg = v.sigma_translation_mm = std::numeric_limits<double>::quiet_NaN();
       continue;
     }
-    const Matrix6d& c = sol.covariance[i];
-    const Eigen::Vector3d centroid = v.part_from_rig * geo[i].centroid;
-    Eigen::Matrix<double, 3, 6> jac;  // displacement of the centroid per (w, dt)
-    jac.leftCols<3>() = -Skew(centroid - v.part_from_rig.translation);
-    jac.rightCols<3>() = Eigen::Matrix3d::Identity();
-    v.sigma_rotation_deg = SqrtLargestEigenvalue(c.topLeftCorner<3, 3>()) * 180.0 / M_PI;
-    v.sigma_translation_mm = SqrtLargestEigenvalue(jac * c * jac.transpose());
+    WorstSigmas(sol.covariance[i], v.part_from_rig, geo[i].centroid, &v.sigma_rotation_deg,
+                &v.sigma_translation_mm);
+    v.graph_sigma_rotation_deg = v.sigma_rotation_deg;
+    v.graph_sigma_translation_mm = v.sigma_translation_mm;
+    if (!hand_cov.empty() && !views[i].table_deg) {
+      double deg = 0, mm = 0;
+      WorstSigmas(hand_cov[i], v.part_from_rig, geo[i].centroid, &deg, &mm);
+      v.sigma_rotation_deg = std::max(v.sigma_rotation_deg, deg);
+      v.sigma_translation_mm = std::max(v.sigma_translation_mm, mm);
+    }
   }
 
   // Loop closure over the accepted views in input order.

@@ -182,6 +182,13 @@ struct MergeOptions {
   // out. 0 disables the check.
   double max_initial_departure_deg = 2.0;
   double max_initial_departure_mm = 10.0;
+  // A hand-placed view's honest 1-sigma (internal/hand_sigma.h): each kept pair with a hand view
+  // whose overlap leaves a direction weak (smallest eigenvalue ratio below icp_degenerate_ratio)
+  // re-solved with each of this many spatial blocks of its overlap left out; its information
+  // widened along the weak directions where the spread exceeds it, and for hand views the graph's
+  // covariance with the widened pairs reported when larger. A hand view whose 1-sigma so found
+  // exceeds max_initial_departure_deg / _mm is left out, named. 0: the graph's covariance only.
+  int hand_spread_blocks = 8;
   // The pose graph on the turntable's model (internal/turntable_graph.h): with the rig's axis
   // and at least two accepted table views (ViewCloud::table_deg) whose angles differ, a table
   // view's pose is the rotation by its own table angle about one shared axis (direction and
@@ -237,7 +244,10 @@ struct ViewPose {
   double noise_mm = 0;              // the view's noise along the normal, from its pairs' residuals
   double sigma_rotation_deg = 0;    // 1-sigma along the worst axis (covariance, see above)
   double sigma_translation_mm = 0;  // 1-sigma displacement of the view's centroid, worst axis
-  int pairs = 0;                    // kept pairs this view is in
+  // The pose graph's own 1-sigma (its pairs' information as they state it); a hand view's
+  // sigma_* above is the larger of these and the widened pairs' (hand_spread_blocks).
+  double graph_sigma_rotation_deg = 0, graph_sigma_translation_mm = 0;
+  int pairs = 0;  // kept pairs this view is in
   // Turntable model (MergeResult::turntable_model), table views: the fitted true table angle,
   // its departure from the commanded one's (TurntableAxis::TrueAngleDeg) and its 1-sigma.
   std::optional<double> table_angle_deg;
@@ -274,6 +284,10 @@ struct PairRegistration {
   // Pairs with degenerate directions: the larger share of either view's points that lie where
   // the other saw through, at the ICP result (MergeOptions::max_seen_through); -1: not checked.
   double seen_through = -1;
+  // Kept pairs with a hand view (MergeOptions::hand_spread_blocks): the variance along the pair's
+  // weakest direction from the spread over blocks of its overlap over what its information
+  // states (about 1 when the information is right; internal/hand_sigma.h); 0: not measured.
+  double spread_factor = 0;
   bool kept = false;
   std::string reason;  // why it was rejected (empty when kept)
 };

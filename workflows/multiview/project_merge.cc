@@ -218,6 +218,8 @@ ProjectMergeResult MergeProject(const fs::path& project_dir, const TriangleMesh*
     v.noise_mm = p.noise_mm;
     v.sigma_rotation_deg = p.sigma_rotation_deg;
     v.sigma_translation_mm = p.sigma_translation_mm;
+    v.graph_sigma_rotation_deg = p.graph_sigma_rotation_deg;
+    v.graph_sigma_translation_mm = p.graph_sigma_translation_mm;
     v.prior_directions = p.prior_directions;
     v.table_angle_deg = p.table_angle_deg;
     v.table_angle_correction_deg = p.table_angle_correction_deg;
@@ -373,6 +375,8 @@ nlohmann::json ProjectMergeResult::ToJson() const {
       view["noise_mm"] = v.noise_mm;
       view["sigma_rotation_deg"] = v.sigma_rotation_deg;
       view["sigma_translation_mm"] = v.sigma_translation_mm;
+      view["graph_sigma_rotation_deg"] = v.graph_sigma_rotation_deg;
+      view["graph_sigma_translation_mm"] = v.graph_sigma_translation_mm;
       view["prior_directions"] = v.prior_directions;
     }
     if (v.part_from_rig_true) {
@@ -413,6 +417,7 @@ nlohmann::json ProjectMergeResult::ToJson() const {
          {"min_eigen_ratio", p.min_eigen_ratio},
          {"degenerate", p.degenerate},
          {"seen_through", p.seen_through >= 0 ? nlohmann::json(p.seen_through) : nullptr},
+         {"spread_factor", p.spread_factor > 0 ? nlohmann::json(p.spread_factor) : nullptr},
          {"kept", p.kept},
          {"reason", p.reason}});
   }

@@ -98,8 +98,9 @@ struct MergedView {
   int pairs = 0;                  // kept pairs the view is in
   double residual_rms_mm = 0;     // point-to-plane RMS over its pairs at the final poses
   double noise_mm = 0;            // its noise along the normal, from the residuals
-  double sigma_rotation_deg = 0;  // 1-sigma (pose graph covariance; a lower bound)
+  double sigma_rotation_deg = 0;  // 1-sigma (pose graph covariance; hand views: ViewPose)
   double sigma_translation_mm = 0;
+  double graph_sigma_rotation_deg = 0, graph_sigma_translation_mm = 0;  // the graph's own
   // Turntable model (MergeResult::turntable_model): the fitted true table angle, its departure
   // from the commanded one's and its 1-sigma, deg.
   std::optional<double> table_angle_deg;
