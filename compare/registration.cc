@@ -91,10 +91,20 @@ pcl::PointCloud<FeatureT>::Ptr Fpfh(const pcl::PointCloud<PointT>::Ptr& cloud, d
   return features;
 }
 
+// One pose hypothesis of the global stage: reference_from_cloud, the feature correspondences it
+// explains (its support) and the share of the voxel cloud it lands on the reference.
+struct Hypothesis {
+  Rigid3d reference_from_cloud;
+  size_t support = 0;
+  double fitness = 0;
+};
+
 struct GlobalResult {
   bool found = false;
-  Rigid3d reference_from_cloud;
-  double fitness = 0;
+  // Distinct hypotheses (most supported first), each refined on its inliers; the first is
+  // RANSAC's best.
+  std::vector<Hypothesis> candidates;
+  double fitness = 0;  // the most supported hypothesis's
 };
 
 // Mutual nearest neighbours in FPFH space (33-D, L2), by brute force over the voxel clouds'
@@ -159,22 +169,41 @@ Rigid3d Kabsch(const std::vector<Eigen::Vector3d>& s, const std::vector<Eigen::V
 // 3-sample whose pairwise distances differ by more than 10 % between the clouds is rejected
 // before any pose is computed), adaptive iteration count for 99.9 % confidence, final
 // least-squares fit on the inliers.
+//
+// Not only the best pose: a part with a large plain surface (a table, a plate) or a near
+// symmetry has several poses that explain about as many correspondences, and the most supported
+// one is not always the true one (a scan that lost its occlusion edges: the demo's block turned
+// 20 deg about the table's normal, docs/benchmarks/log/2026-12-07-shadow-registration.md). So the
+// `keep` most supported distinct hypotheses are returned, for the ICP to decide between on the
+// full clouds. Two hypotheses are the same when they differ by less than 5 deg and move the
+// cloud's centroid less than 2 voxels apart; the more supported one stands for both.
 GlobalResult RansacOnCorrespondences(const std::vector<Eigen::Vector3d>& src,
                                      const std::vector<Eigen::Vector3d>& dst,
                                      const std::vector<std::pair<uint32_t, uint32_t>>& corr,
-                                     double inlier_mm, const RegistrationOptions& o) {
+                                     double inlier_mm, double voxel, int keep,
+                                     const RegistrationOptions& o) {
   GlobalResult g;
   std::mt19937 rng(o.seed);
   std::uniform_int_distribution<size_t> pick(0, corr.size() - 1);
   const double thr2 = inlier_mm * inlier_mm;
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  for (const auto& p : src) centroid += p;
+  centroid /= static_cast<double>(src.size());
+  const auto same_pose = [&](const Rigid3d& a, const Rigid3d& b) {
+    return RotationDifferenceDeg(a, b) < 5.0 && (a * centroid - b * centroid).norm() < 2 * voxel;
+  };
+  std::vector<Hypothesis> hyps;  // distinct, unsorted until the end
   size_t best_inliers = 0;
-  Rigid3d best;
   long needed = o.ransac_iterations;
   auto count_inliers = [&](const Rigid3d& t) {
     size_t n = 0;
     for (const auto& [i, j] : corr) n += (t * src[i] - dst[j]).squaredNorm() < thr2 ? 1 : 0;
     return n;
   };
+  const auto by_support = [](const Hypothesis& a, const Hypothesis& b) {
+    return a.support > b.support;
+  };
+  const size_t capacity = static_cast<size_t>(std::max(1, keep)) * 4;
   for (long it = 0; it < needed && it < o.ransac_iterations; ++it) {
     const size_t k0 = pick(rng), k1 = pick(rng), k2 = pick(rng);
     if (k0 == k1 || k1 == k2 || k0 == k2) continue;
@@ -195,34 +224,60 @@ GlobalResult RansacOnCorrespondences(const std::vector<Eigen::Vector3d>& src,
     }
     const Rigid3d t = Kabsch(s3, d3);
     const size_t n = count_inliers(t);
+    if (n < 3) continue;
+    bool merged = false;
+    for (auto& h : hyps) {
+      if (!same_pose(h.reference_from_cloud, t)) continue;
+      if (n > h.support) h = {t, n, 0.0};
+      merged = true;
+      break;
+    }
+    if (!merged) {
+      hyps.push_back({t, n, 0.0});
+      if (hyps.size() > 2 * capacity) {
+        std::stable_sort(hyps.begin(), hyps.end(), by_support);
+        hyps.resize(capacity);
+      }
+    }
     if (n > best_inliers) {
       best_inliers = n;
-      best = t;
       const double w = static_cast<double>(n) / static_cast<double>(corr.size());
       const double denom = std::log(std::max(1e-12, 1.0 - w * w * w));
       needed = std::max<long>(1000, static_cast<long>(std::ceil(std::log(1e-3) / denom)));
     }
   }
-  if (best_inliers < 3) return g;
-  // Refine on the inliers (twice: the refined pose may admit a few more).
-  for (int pass = 0; pass < 2; ++pass) {
-    std::vector<Eigen::Vector3d> s, d;
-    for (const auto& [i, j] : corr) {
-      if ((best * src[i] - dst[j]).squaredNorm() < thr2) {
-        s.push_back(src[i]);
-        d.push_back(dst[j]);
-      }
-    }
-    if (s.size() >= 3) best = Kabsch(s, d);
-  }
-  // Accept when enough of the voxel cloud lands on the target.
+  if (hyps.empty()) return g;
+  std::stable_sort(hyps.begin(), hyps.end(), by_support);
   const KdTree tree(dst);
-  size_t on = 0;
-  Neighbor nb;
-  for (const auto& p : src) on += tree.Nearest(best * p, &nb, inlier_mm) ? 1 : 0;
-  g.fitness = static_cast<double>(on) / static_cast<double>(src.size());
-  g.found = g.fitness >= o.ransac_inlier_fraction;
-  g.reference_from_cloud = best;
+  for (auto& h : hyps) {
+    if (g.candidates.size() >= static_cast<size_t>(std::max(1, keep))) break;
+    // Refine on the inliers (twice: the refined pose may admit a few more).
+    Rigid3d best = h.reference_from_cloud;
+    for (int pass = 0; pass < 2; ++pass) {
+      std::vector<Eigen::Vector3d> s, d;
+      for (const auto& [i, j] : corr) {
+        if ((best * src[i] - dst[j]).squaredNorm() < thr2) {
+          s.push_back(src[i]);
+          d.push_back(dst[j]);
+        }
+      }
+      if (s.size() >= 3) best = Kabsch(s, d);
+    }
+    // Refinement may bring two hypotheses together: keep the first (more supported).
+    bool duplicate = false;
+    for (const auto& c : g.candidates)
+      duplicate = duplicate || same_pose(c.reference_from_cloud, best);
+    if (duplicate) continue;
+    // Accept when enough of the voxel cloud lands on the target.
+    size_t on = 0;
+    Neighbor nb;
+    for (const auto& p : src) on += tree.Nearest(best * p, &nb, inlier_mm) ? 1 : 0;
+    const double fitness = static_cast<double>(on) / static_cast<double>(src.size());
+    if (g.candidates.empty()) g.fitness = fitness;
+    if (fitness < o.ransac_inlier_fraction) continue;
+    g.candidates.push_back({best, h.support, fitness});
+  }
+  g.found = !g.candidates.empty();
   return g;
 }
 
@@ -247,8 +302,7 @@ GlobalResult GlobalAlign(const std::vector<Eigen::Vector3d>& cloud,
 
   const auto corr = MatchFeatures(*src_f, *dst_f);
   if (corr.size() < 3) return g;
-  g = RansacOnCorrespondences(src, dst, corr, 1.5 * voxel, o);
-  return g;
+  return RansacOnCorrespondences(src, dst, corr, 1.5 * voxel, voxel, o.global_candidates, o);
 }
 
 struct IcpAcc {
@@ -294,6 +348,68 @@ IcpAcc Correspond(const std::vector<Eigen::Vector3d>& src, const Rigid3d& t, con
       });
 }
 
+struct IcpRun {
+  Rigid3d pose;
+  double gate = 0;  // the final correspondence gate
+  int iterations = 0;
+  bool converged = false;
+};
+
+// Point-to-plane ICP from `t`; the gate shrinks each iteration to max(3 x RMS, min_gate).
+IcpRun RunIcp(const std::vector<Eigen::Vector3d>& src, const KdTree& tree,
+              const std::vector<Eigen::Vector3d>& normals, Rigid3d t, double gate, double min_gate,
+              double diag, int max_iterations, double tolerance) {
+  IcpRun r;
+  for (int it = 0; it < max_iterations; ++it) {
+    const IcpAcc acc = Correspond(src, t, tree, normals, gate);
+    r.iterations = it + 1;
+    if (acc.n < 6) break;
+    // A tiny additive damping keeps unobservable directions (e.g. rotations of a sphere about
+    // its centre) at zero instead of letting them drift.
+    Eigen::Matrix<double, 6, 6> ata = acc.ata.selfadjointView<Eigen::Upper>();
+    ata.diagonal().array() += 1e-9 * ata.trace();
+    const Eigen::Matrix<double, 6, 1> x = ata.ldlt().solve(-acc.atb);
+    const Eigen::Vector3d w = x.head<3>();
+    const double angle = w.norm();
+    const Eigen::Quaterniond dq = QuaternionFromRotationVector(w);
+    t = Rigid3d(dq, x.tail<3>()) * t;
+    const double rms = std::sqrt(acc.sum_sq_p2p / static_cast<double>(acc.n));
+    const double motion = angle * diag + x.tail<3>().norm();
+    double next_gate = std::max(std::min(gate, 3.0 * rms), min_gate);
+    if (next_gate > 0.95 * gate) next_gate = gate;  // settled: do not shrink by crumbs forever
+    // Converged when the update is negligible, or when it moves the points only along the
+    // surface (RMS displacement along the normals, sqrt(x' A'A x / n), below a tenth of the
+    // statistical noise floor RMS / sqrt(n)): a symmetric part (a sphere, a cylinder) leaves
+    // such motions unobservable, and they would never settle.
+    const double normal_motion =
+        std::sqrt(std::max(0.0, x.dot(acc.ata.selfadjointView<Eigen::Upper>() * x)) /
+                  static_cast<double>(acc.n));
+    const double noise_floor = 0.1 * rms / std::sqrt(static_cast<double>(acc.n));
+    if ((motion < tolerance * diag || normal_motion < noise_floor) && next_gate >= gate) {
+      r.converged = true;
+      break;
+    }
+    gate = next_gate;
+  }
+  r.pose = t;
+  r.gate = gate;
+  return r;
+}
+
+// Fitness (share of `src` with a reference point within `gate`) and the RMS of those distances.
+struct Fit {
+  double fitness = 0;
+  double rmse = 0;
+};
+Fit FitAt(const std::vector<Eigen::Vector3d>& src, const Rigid3d& t, const KdTree& tree,
+          const std::vector<Eigen::Vector3d>& normals, double gate) {
+  const IcpAcc acc = Correspond(src, t, tree, normals, gate);
+  Fit f;
+  f.fitness = static_cast<double>(acc.n) / static_cast<double>(src.size());
+  f.rmse = acc.n > 0 ? std::sqrt(acc.sum_sq_p2p / static_cast<double>(acc.n)) : 0.0;
+  return f;
+}
+
 }  // namespace
 
 constexpr EnumName<RegistrationMethod> kRegistrationMethodNames[] = {
@@ -322,6 +438,14 @@ void RegistrationOptions::Check() const {
   SLSHADOW_THROW_IF(!(ransac_inlier_fraction > 0 && ransac_inlier_fraction <= 1),
                     "registration.ransac_inlier_fraction: must be in (0, 1] (got ",
                     ransac_inlier_fraction, ")");
+  SLSHADOW_THROW_IF(global_candidates < 1, "registration.global_candidates: must be >= 1 (got ",
+                    global_candidates, ")");
+  SLSHADOW_THROW_IF(global_candidate_points < 10,
+                    "registration.global_candidate_points: must be >= 10 (got ",
+                    global_candidate_points, ")");
+  SLSHADOW_THROW_IF(global_candidate_iterations < 1,
+                    "registration.global_candidate_iterations: must be >= 1 (got ",
+                    global_candidate_iterations, ")");
   SLSHADOW_THROW_IF(icp_max_iterations < 1, "registration.icp_max_iterations: must be >= 1 (got ",
                     icp_max_iterations, ")");
   SLSHADOW_THROW_IF(icp_max_points < 10, "registration.icp_max_points: must be >= 10 (got ",
@@ -371,16 +495,6 @@ RegistrationResult Register(const std::vector<Eigen::Vector3d>& cloud,
       reference_normals.empty()
           ? EstimateNormals(reference, tree, 12, {}, Eigen::Vector3d(0, 0, 1e6))
           : reference_normals;
-  double gate = options.icp_max_correspondence_mm;
-  if (options.method == RegistrationMethod::kGlobalIcp) {
-    const double radius = options.feature_radius_mm > 0 ? options.feature_radius_mm : 5.0 * voxel;
-    const GlobalResult g = GlobalAlign(cloud, reference, voxel, radius, options);
-    r.global_found = g.found;
-    r.global_fitness = g.fitness;
-    if (g.found) r.reference_from_cloud = g.reference_from_cloud;
-    if (gate == 0) gate = 2.0 * voxel;
-  }
-  if (gate == 0) gate = 0.05 * diag;
   // ICP subset: evenly strided.
   std::vector<Eigen::Vector3d> src;
   const size_t stride =
@@ -394,45 +508,73 @@ RegistrationResult Register(const std::vector<Eigen::Vector3d>& cloud,
     src = std::move(sorted);
   }
   const double min_gate = 3.0 * MedianSpacing(tree);
-  Rigid3d t = r.reference_from_cloud;
-  r.converged = false;
-  for (int it = 0; it < options.icp_max_iterations; ++it) {
-    const IcpAcc acc = Correspond(src, t, tree, normals, gate);
-    r.icp_iterations = it + 1;
-    if (acc.n < 6) break;
-    // A tiny additive damping keeps unobservable directions (e.g. rotations of a sphere about
-    // its centre) at zero instead of letting them drift.
-    Eigen::Matrix<double, 6, 6> ata = acc.ata.selfadjointView<Eigen::Upper>();
-    ata.diagonal().array() += 1e-9 * ata.trace();
-    const Eigen::Matrix<double, 6, 1> x = ata.ldlt().solve(-acc.atb);
-    const Eigen::Vector3d w = x.head<3>();
-    const double angle = w.norm();
-    const Eigen::Quaterniond dq = QuaternionFromRotationVector(w);
-    t = Rigid3d(dq, x.tail<3>()) * t;
-    const double rms = std::sqrt(acc.sum_sq_p2p / static_cast<double>(acc.n));
-    const double motion = angle * diag + x.tail<3>().norm();
-    double next_gate = std::max(std::min(gate, 3.0 * rms), min_gate);
-    if (next_gate > 0.95 * gate) next_gate = gate;  // settled: do not shrink by crumbs forever
-    // Converged when the update is negligible, or when it moves the points only along the
-    // surface (RMS displacement along the normals, sqrt(x' A'A x / n), below a tenth of the
-    // statistical noise floor RMS / sqrt(n)): a symmetric part (a sphere, a cylinder) leaves
-    // such motions unobservable, and they would never settle.
-    const double normal_motion =
-        std::sqrt(std::max(0.0, x.dot(acc.ata.selfadjointView<Eigen::Upper>() * x)) /
-                  static_cast<double>(acc.n));
-    const double noise_floor = 0.1 * rms / std::sqrt(static_cast<double>(acc.n));
-    if ((motion < options.icp_tolerance * diag || normal_motion < noise_floor) &&
-        next_gate >= gate) {
-      r.converged = true;
-      break;
+  double gate = options.icp_max_correspondence_mm;
+  if (options.method == RegistrationMethod::kGlobalIcp) {
+    const double radius = options.feature_radius_mm > 0 ? options.feature_radius_mm : 5.0 * voxel;
+    const GlobalResult g = GlobalAlign(cloud, reference, voxel, radius, options);
+    r.global_found = g.found;
+    r.global_fitness = g.fitness;
+    if (gate == 0) gate = 2.0 * voxel;
+    r.global_candidates = static_cast<int>(g.candidates.size());
+    if (g.candidates.size() == 1) {
+      r.reference_from_cloud = g.candidates.front().reference_from_cloud;
+    } else if (g.candidates.size() > 1) {
+      // Every hypothesis refined by ICP on a subset of the full cloud (a Morton-ordered cloud
+      // strided: spread over it) and judged at the same gate, the reference's finest: the share
+      // of the points it puts on the reference's surface. RANSAC's support only decides between
+      // refined poses whose shares differ by less than kTie.
+      constexpr double kTie = 0.01;
+      std::vector<Eigen::Vector3d> sub;
+      const size_t sub_stride =
+          std::max<size_t>(1, src.size() / static_cast<size_t>(options.global_candidate_points));
+      for (size_t i = 0; i < src.size(); i += sub_stride) sub.push_back(src[i]);
+      struct Scored {
+        Rigid3d pose;
+        size_t support;
+        double global_fitness;
+        Fit fit;
+      };
+      std::vector<Scored> scored;
+      for (const Hypothesis& h : g.candidates) {
+        const IcpRun run = RunIcp(sub, tree, normals, h.reference_from_cloud, gate, min_gate, diag,
+                                  options.global_candidate_iterations, options.icp_tolerance);
+        scored.push_back(
+            {run.pose, h.support, h.fitness, FitAt(sub, run.pose, tree, normals, min_gate)});
+      }
+      size_t best = 0;
+      for (size_t k = 1; k < scored.size(); ++k) {
+        const double df = scored[k].fit.fitness - scored[best].fit.fitness;
+        if (df > kTie || (df > -kTie && scored[k].support > scored[best].support)) best = k;
+      }
+      r.reference_from_cloud = scored[best].pose;
+      r.global_fitness = scored[best].global_fitness;
+      r.candidate_fitness = scored[best].fit.fitness;
+      // The runner-up: the best-fitting refined pose that is not the chosen one.
+      Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+      for (const auto& p : sub) centroid += p;
+      centroid /= static_cast<double>(sub.size());
+      for (size_t k = 0; k < scored.size(); ++k) {
+        const double moved = (scored[k].pose * centroid - scored[best].pose * centroid).norm();
+        const double turned = RotationDifferenceDeg(scored[k].pose, scored[best].pose);
+        if (k == best || (turned < 5.0 && moved < 2 * voxel)) continue;
+        if (r.alternative_fitness < 0 || scored[k].fit.fitness > r.alternative_fitness) {
+          r.alternative_fitness = scored[k].fit.fitness;
+          r.alternative_rotation_deg = turned;
+          r.alternative_translation_mm = moved;
+        }
+      }
     }
-    gate = next_gate;
   }
-  r.reference_from_cloud = t;
-  const IcpAcc fin = Correspond(src, t, tree, normals, gate);
-  r.max_correspondence_mm = gate;
-  r.fitness = static_cast<double>(fin.n) / static_cast<double>(src.size());
-  r.inlier_rmse_mm = fin.n > 0 ? std::sqrt(fin.sum_sq_p2p / static_cast<double>(fin.n)) : 0.0;
+  if (gate == 0) gate = 0.05 * diag;
+  const IcpRun run = RunIcp(src, tree, normals, r.reference_from_cloud, gate, min_gate, diag,
+                            options.icp_max_iterations, options.icp_tolerance);
+  r.reference_from_cloud = run.pose;
+  r.icp_iterations = run.iterations;
+  r.converged = run.converged;
+  const Fit fin = FitAt(src, run.pose, tree, normals, run.gate);
+  r.max_correspondence_mm = run.gate;
+  r.fitness = fin.fitness;
+  r.inlier_rmse_mm = fin.rmse;
   r.time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return r;
 }

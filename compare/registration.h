@@ -5,7 +5,12 @@
 //              6x6 normal equations per iteration) against the reference's normals;
 //  global+icp  coarse alignment without an initial guess: both clouds voxel-downsampled, FPFH
 //              features (Rusu et al. 2009) and PCL's SampleConsensusPrerejective (Buch et al.
-//              2013), then the ICP above starting from it.
+//              2013), then the ICP above starting from it. RANSAC keeps its most supported
+//              distinct hypotheses (global_candidates); each is refined by a short ICP on a
+//              subset of the full cloud and the one that puts the largest share of the cloud
+//              on the reference at the finest gate wins (RANSAC's support breaks ties within
+//              0.01): a large plain surface or a near symmetry gives wrong poses nearly the
+//              support of the true one, not its fit.
 //
 // The ICP's correspondence gate starts at icp_max_correspondence_mm and shrinks each iteration
 // to max(3 x current RMS, 3 x the reference's median point spacing), so partial overlap (a scan
@@ -35,9 +40,12 @@ struct RegistrationOptions {
   // normals from 12 neighbours, feature radius = 5 voxels.
   double voxel_mm = 0.0;
   double feature_radius_mm = 0.0;
-  int ransac_iterations = 20000;        // SampleConsensusPrerejective iterations
-  double ransac_inlier_fraction = 0.2;  // of the downsampled cloud, to accept a pose
-  unsigned seed = 1;                    // for the random draws (results are reproducible)
+  int ransac_iterations = 20000;         // SampleConsensusPrerejective iterations
+  double ransac_inlier_fraction = 0.2;   // of the downsampled cloud, to accept a pose
+  unsigned seed = 1;                     // for the random draws (results are reproducible)
+  int global_candidates = 8;             // distinct RANSAC hypotheses refined and compared
+  int global_candidate_points = 20000;   // cloud points of each hypothesis's ICP
+  int global_candidate_iterations = 30;  // ICP iterations per hypothesis
   // ICP. 0 means automatic: 2 voxels after the global stage, 5 % of the diagonal without it.
   double icp_max_correspondence_mm = 0.0;
   int icp_max_iterations = 60;
@@ -56,6 +64,15 @@ struct RegistrationResult {
   bool converged = true;        // ICP stopped by tolerance (not by the iteration limit)
   bool global_found = true;     // global stage found a pose (false: ICP from identity)
   double global_fitness = 0.0;  // inlier fraction of the global pose on the voxel clouds
+  int global_candidates = 0;    // distinct hypotheses the global stage compared
+  // With more than one: the chosen one's refined fitness at the reference's finest gate (3 x its
+  // median spacing), and the best other (at least 5 deg or 2 voxels from the chosen one):
+  // its fitness at that gate (-1: none), how far it is turned and how far it moves the cloud's
+  // centroid. An alternative nearly as good as the chosen one means the pose is ambiguous.
+  double candidate_fitness = -1.0;
+  double alternative_fitness = -1.0;
+  double alternative_rotation_deg = 0.0;
+  double alternative_translation_mm = 0.0;
   double time_s = 0.0;
   std::string BriefReport() const;  // one line
 };

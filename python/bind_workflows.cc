@@ -90,11 +90,6 @@ void BindShadow(py::module_& m) {
         const ImageSetReconstructOptions r =
             ReconstructOptionsFromKwargs(kwargs, nullptr, "shadow");
         options.reconstruct = r.reconstruct;
-        // The shadow's own default where the call gives none (twin.h ShadowOptions::reconstruct:
-        // no code-jump test), as `slshadow shadow` does.
-        if (!kwargs.contains("max_code_step_ratio"))
-          options.reconstruct.max_code_step_ratio =
-              twin::ShadowOptions{}.reconstruct.max_code_step_ratio;
         options.decode = r.decode;
         options.rig_from_part = PoseFromObject(pose);
         SLSHADOW_THROW_IF(!refine_pose && !options.rig_from_part,

@@ -198,7 +198,10 @@ TEST(ShadowTwin, ConfusionTableNamesEachCauseAndNoOther) {
     double field = 0;
     int wrong_frames = 0;
     int64_t cluster = 0;
+    double pose_share = 0;
     for (const auto& f : r.report["diagnosis"]["findings"]) {
+      if (f["cause"] == "pose" && f["evaluated"].get<bool>())
+        pose_share = f["evidence"]["worst_share"].get<double>();
       if (f["cause"] == "calibration" && f["evaluated"].get<bool>()) {
         for (const auto& cam : f["evidence"]["cameras"])
           field = std::max(field, cam["field_rms_px"].get<double>());
@@ -213,10 +216,10 @@ TEST(ShadowTwin, ConfusionTableNamesEachCauseAndNoOther) {
     char line[512];
     std::snprintf(line, sizeof(line),
                   "%-34s %-20s field %.3f px, wrong frames %d, gamma %.2f, blur %.2f px, part "
-                  "cluster %lld pts\n",
+                  "cluster %lld pts, pose share %.4f\n",
                   c.name.c_str(), named.empty() ? "-" : named.c_str(), field, wrong_frames,
                   r.physics.Find("gamma")->value, r.physics.Find("defocus")->value,
-                  static_cast<long long>(cluster));
+                  static_cast<long long>(cluster), pose_share);
     table += line;
     EXPECT_EQ(r.diagnosis.causes, c.expected) << c.name << "\n"
                                               << r.diagnosis.Summary() << r.physics.Table();

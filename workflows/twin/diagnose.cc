@@ -92,6 +92,11 @@ void DiagnoseOptions::Check() const {
                     calibration_field_px, ")");
   SLSHADOW_THROW_IF(!(multipath_ratio > 0 && multipath_ratio < 1),
                     "diagnose: multipath_ratio must be in (0, 1) (got ", multipath_ratio, ")");
+  SLSHADOW_THROW_IF(!(pose_residual_px > 0) || !std::isfinite(pose_residual_px),
+                    "diagnose: pose_residual_px must be a finite number > 0 (got ",
+                    pose_residual_px, ")");
+  SLSHADOW_THROW_IF(!(pose_max_share > 0 && pose_max_share < 1),
+                    "diagnose: pose_max_share must be in (0, 1) (got ", pose_max_share, ")");
   SLSHADOW_THROW_IF(smoothing_neighbors < 1, "diagnose: smoothing_neighbors must be >= 1 (got ",
                     smoothing_neighbors, ")");
   SLSHADOW_THROW_IF(!(part_pose_sigmas >= 0) || !std::isfinite(part_pose_sigmas),
@@ -842,12 +847,108 @@ Finding Part(const std::vector<ModeEvidence>& modes, const DiagnoseOptions& opti
   return part;
 }
 
+// pose: the share of the pixels both decode whose real coordinate is far from the twin's truth
+// once the calibration field is taken out.
+Finding Pose(const std::vector<CameraEvidence>& cameras, const std::vector<Field>& fields,
+             const PoseEvidence& pose, bool calibration_found, const DiagnoseOptions& options) {
+  Finding f;
+  f.cause = "pose";
+  f.evidence["cameras"] = nlohmann::json::array();
+  f.evidence["residual_gate_px"] = options.pose_residual_px;
+  f.evidence["max_share"] = options.pose_max_share;
+  double worst = 0;
+  std::string worst_camera;
+  const double gate2 = options.pose_residual_px * options.pose_residual_px;
+  for (size_t c = 0; c < cameras.size(); ++c) {
+    const CameraEvidence& cam = cameras[c];
+    const bool has_x = !cam.real_x.empty() && !cam.gt_x.empty();
+    const bool has_y = !cam.real_y.empty() && !cam.gt_y.empty();
+    if (!has_x && !has_y) continue;
+    int64_t compared = 0, beyond = 0;
+    for (int y = 0; y < cam.height; ++y) {
+      const uint8_t* m = cam.mask.ptr<uint8_t>(y);
+      for (int x = 0; x < cam.width; ++x) {
+        if (!m[x]) continue;
+        double d2 = 0;
+        bool ok = true;
+        if (has_x) {
+          const float r = cam.real_x.at<float>(y, x), t = cam.gt_x.at<float>(y, x);
+          ok = std::isfinite(r) && std::isfinite(t);
+          const double d = r - t - (fields[c].x.valid ? fields[c].x.At(x, y) : 0.0f);
+          d2 += d * d;
+        }
+        if (has_y && ok) {
+          const float r = cam.real_y.at<float>(y, x), t = cam.gt_y.at<float>(y, x);
+          ok = std::isfinite(r) && std::isfinite(t);
+          const double d = r - t - (fields[c].y.valid ? fields[c].y.At(x, y) : 0.0f);
+          d2 += d * d;
+        }
+        if (!ok) continue;
+        ++compared;
+        beyond += d2 > gate2 ? 1 : 0;
+      }
+    }
+    const double share =
+        compared ? static_cast<double>(beyond) / static_cast<double>(compared) : 0.0;
+    f.evidence["cameras"].push_back({{"camera", cam.camera},
+                                     {"compared_pixels", compared},
+                                     {"beyond_gate", beyond},
+                                     {"share", share}});
+    if (share > worst) worst = share, worst_camera = cam.camera;
+  }
+  f.evidence["worst_share"] = worst;
+  if (pose.known) {
+    f.evidence["pose"] = {{"source", pose.source},
+                          {"fitness", pose.fitness},
+                          {"inlier_rmse_mm", pose.inlier_rmse_mm},
+                          {"candidate_fitness", pose.candidate_fitness},
+                          {"alternative_fitness", pose.alternative_fitness},
+                          {"alternative_rotation_deg", pose.alternative_rotation_deg},
+                          {"alternative_translation_mm", pose.alternative_translation_mm}};
+  }
+  const bool beyond = worst > options.pose_max_share;
+  f.detected = beyond && !calibration_found;
+  if (f.detected) {
+    f.message = StringPrintf(
+        "the twin is not where the real part is: real decoded projector coordinates differ "
+        "from the twin's by more than %.2f px on %.1f %% of the pixels camera '%s' decodes "
+        "(at most %.1f %% expected)",
+        options.pose_residual_px, 100 * worst, worst_camera.c_str(), 100 * options.pose_max_share);
+    if (pose.known) {
+      f.message += StringPrintf(
+          ", though the cloud fits the part at the pose (%s: fitness %.3f, "
+          "inlier RMSE %.3f mm)",
+          pose.source.c_str(), pose.fitness, pose.inlier_rmse_mm);
+      if (pose.alternative_fitness >= 0)
+        f.message += StringPrintf(
+            "; the registration's best other pose (%.1f deg, %.1f mm "
+            "away) fitted %.3f against the chosen %.3f",
+            pose.alternative_rotation_deg, pose.alternative_translation_mm,
+            pose.alternative_fitness, pose.candidate_fitness);
+    }
+    f.message +=
+        ": the pose is wrong (or the part file is not this part); give a pose with "
+        "--pose";
+  } else if (beyond) {
+    f.message =
+        "decoded differences beyond the calibration field: explained by the calibration "
+        "error";
+  } else {
+    f.message = StringPrintf(
+        "real and twin decoded coordinates agree: %.2f %% of the pixels "
+        "beyond %.2f px",
+        100 * worst, options.pose_residual_px);
+  }
+  return f;
+}
+
 }  // namespace
 
 Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projector_images,
                    const std::vector<float>& response, const PhysicsFit& physics,
                    const std::vector<CameraEvidence>& cameras,
-                   const std::vector<ModeEvidence>& modes, const DiagnoseOptions& options) {
+                   const std::vector<ModeEvidence>& modes, const DiagnoseOptions& options,
+                   const PoseEvidence& pose) {
   options.Check();
   SLSHADOW_THROW_IF(cameras.empty(), "diagnose: no camera evidence");
   SLSHADOW_THROW_IF(response.size() != 256, "diagnose: the response table needs 256 entries");
@@ -864,10 +965,29 @@ Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projecto
   diag.findings.push_back(decoded ? Calibration(cameras, fields, options)
                                   : NotEvaluated("calibration"));
   const bool calibration_found = decoded && diag.findings.back().detected;
+  // A twin rendered where the part is not: the cloud signatures compare the wrong surfaces.
+  Finding pose_finding;
+  if (decoded) {
+    pose_finding = Pose(cameras, fields, pose, calibration_found, options);
+  } else {
+    pose_finding = NotEvaluated("pose");
+  }
+  const bool pose_wrong = pose_finding.detected;
+  diag.findings.push_back(std::move(pose_finding));
   diag.findings.push_back(ProjectorResponse(spec, physics, cameras, fields, wrong.detected));
   diag.findings.push_back(Defocus(physics));
   diag.findings.push_back(decoded ? Multipath(cameras, options) : NotEvaluated("multipath"));
-  diag.findings.push_back(decoded ? Part(modes, options, calibration_found) : NotEvaluated("part"));
+  if (!decoded) {
+    diag.findings.push_back(NotEvaluated("part"));
+  } else if (pose_wrong) {
+    Finding part;
+    part.cause = "part";
+    part.evaluated = false;
+    part.message = "not evaluated: the twin is not at the real part's pose";
+    diag.findings.push_back(std::move(part));
+  } else {
+    diag.findings.push_back(Part(modes, options, calibration_found));
+  }
 
   for (const auto& f : diag.findings) {
     if (f.detected) diag.causes.push_back(f.cause);

@@ -22,6 +22,15 @@
 //                       ratio over its smooth quadratic background below multipath_ratio x its
 //                       median over >= min_blob_blocks 8 x 8 blocks
 //                       of well-lit pixels: real white - black >= 30 % of its median).
+//   pose                the twin is not where the real part is: after the calibration field is
+//                       taken out, real decoded projector coordinates differ from the twin's
+//                       ground truth by more than pose_residual_px on more than pose_max_share
+//                       of the pixels both decode (in some camera), though the cloud fitted the
+//                       part (a pose on a near-symmetric part or a large plain surface, or a
+//                       part file that is not this part). Not blamed when a calibration error or
+//                       a wrong frame is found; then (and when found) the part is not evaluated:
+//                       clouds compared at a wrong pose say nothing about the part. The pose
+//                       stage's own figures (PoseEvidence) are reported beside.
 //   part                a deviation on the part's surface: the real cloud's C2M to the part minus
 //                       the twin cloud's (at the nearest twin point, each smoothed over k
 //                       neighbours) beyond max(4 robust sigma, part_min_mm) on a cluster of
@@ -55,6 +64,11 @@ struct DiagnoseOptions {
   double wrong_frame_min_corr = 0.8;   // and the best other must reach this
   double multipath_ratio = 0.65;
   int min_blob_blocks = 6;
+  // pose: a pixel counts against the pose when its decoded coordinate is this far from the
+  // twin's (projector px, after the calibration field; the decode's own noise is ~0.02-0.2 px,
+  // a 50 um bump moves it ~0.1 px); the pose is not credible above this share of the pixels.
+  double pose_residual_px = 1.0;
+  double pose_max_share = 0.02;
   double part_min_mm = 0.015;
   double part_pose_sigmas = 3;  // a part deviation must also exceed this x the pose's sigma there
   double part_min_fraction = 0.001;  // of the compared points, in a cluster
@@ -90,6 +104,17 @@ struct ModeEvidence {
   std::function<double(const Eigen::Vector3d& point_in_rig)> pose_sigma_mm;
 };
 
+// The pose stage's own figures (twin.cc), reported with the pose signature.
+struct PoseEvidence {
+  bool known = false;
+  std::string source;                      // "given", "given+icp", "global+icp"
+  double fitness = 0, inlier_rmse_mm = 0;  // the cloud against the part at the pose (1 mm gate)
+  // Global registration's ambiguity (compare::RegistrationResult): the chosen hypothesis's
+  // refined fitness and the best other's (-1: none), how far that one is turned and moved.
+  double candidate_fitness = -1, alternative_fitness = -1;
+  double alternative_rotation_deg = 0, alternative_translation_mm = 0;
+};
+
 struct Finding {
   std::string cause;
   bool evaluated = true;
@@ -111,7 +136,8 @@ struct Diagnosis {
 Diagnosis Diagnose(const PatternSpec& spec, const std::vector<cv::Mat>& projector_images,
                    const std::vector<float>& response, const PhysicsFit& physics,
                    const std::vector<CameraEvidence>& cameras,
-                   const std::vector<ModeEvidence>& modes, const DiagnoseOptions& options = {});
+                   const std::vector<ModeEvidence>& modes, const DiagnoseOptions& options = {},
+                   const PoseEvidence& pose = {});
 
 // The robust quadratic field of a coordinate residual (exposed for maps and tests): per pixel of
 // `residual` (NaN where unknown, restricted to `mask`), the fitted field value (CV_32FC1), or an

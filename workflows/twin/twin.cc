@@ -267,6 +267,25 @@ void JudgePose(ShadowRun& run, PoseSource pose_source, const compare::Registrati
                            : std::nullopt);
   const bool credible = in > 0 && fitness >= options.min_fitness && rmse <= options.max_rmse_mm;
   report["pose"]["credible"] = credible;
+  PoseEvidence& evidence = run.pose_evidence;
+  evidence.known = true;
+  evidence.source = ToString(pose_source);
+  evidence.fitness = fitness;
+  evidence.inlier_rmse_mm = rmse;
+  if (pose_source == PoseSource::kRegistered) {
+    evidence.candidate_fitness = reg.candidate_fitness;
+    evidence.alternative_fitness = reg.alternative_fitness;
+    evidence.alternative_rotation_deg = reg.alternative_rotation_deg;
+    evidence.alternative_translation_mm = reg.alternative_translation_mm;
+    report["pose"]["registration"]["global_candidates"] = reg.global_candidates;
+    if (reg.alternative_fitness >= 0) {
+      report["pose"]["registration"]["candidate_fitness"] = reg.candidate_fitness;
+      report["pose"]["registration"]["alternative"] = {
+          {"fitness", reg.alternative_fitness},
+          {"rotation_deg", reg.alternative_rotation_deg},
+          {"translation_mm", reg.alternative_translation_mm}};
+    }
+  }
   // Not credible: stop, unless a pose was given; then the job goes on from the given pose
   // (a scan corrupted e.g. by a wrong frame still deserves its diagnosis), and says so.
   SLSHADOW_THROW_IF(!credible && !options.rig_from_part,
@@ -530,7 +549,7 @@ void DiagnoseRun(ShadowRun& run) {
   StageMeter meter("diagnose");
   ShadowResult& result = run.result;
   result.diagnosis = Diagnose(run.spec, run.projector_images, run.response, run.fit, run.evidence,
-                              run.mode_evidence, run.options.diagnose);
+                              run.mode_evidence, run.options.diagnose, run.pose_evidence);
   result.report["diagnosis"] = result.diagnosis.ToJson();
   result.physics = run.fit;
   result.stages.push_back(meter.Stop());

@@ -71,16 +71,8 @@ struct ShadowOptions {
   double min_fitness = 0.5;  // credible registration: fitness at least this
   double max_rmse_mm = 0.5;  // and inlier RMSE at most this
   DecodeOptions decode;
-  // Real and twin alike. Without stereo's relative code-jump test (max_code_step_ratio 0): with
-  // it the README's example scan loses its occlusion-edge points and the global registration
-  // (FPFH + RANSAC, compare/registration.h) lands 18-72 mm off on the demo part; until that
-  // registration is robust to it, the shadow reconstructs as `slshadow reconstruct
-  // --max-code-step-ratio 0` does.
-  ReconstructOptions reconstruct = [] {
-    ReconstructOptions r;
-    r.max_code_step_ratio = 0;
-    return r;
-  }();
+  // Real and twin alike: the library's defaults, as `slshadow reconstruct`.
+  ReconstructOptions reconstruct;
   PhysicsFitOptions physics;
   bool fit_physics = true;  // false: the twin keeps the part file's radiometry
   DiagnoseOptions diagnose;

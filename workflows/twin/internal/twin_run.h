@@ -120,6 +120,7 @@ struct ShadowRun {
   ShadowMaps maps;
   std::vector<ModeClouds> clouds;
   std::vector<ModeEvidence> mode_evidence;
+  PoseEvidence pose_evidence;                   // the pose stage's figures, for the diagnosis
   std::vector<std::vector<double>> mode_diffs;  // real - twin C2M per mode, for the charts
   std::vector<double> mode_lod95;
   // 7. Report folder.
