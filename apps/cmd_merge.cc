@@ -201,6 +201,10 @@ int RunMerge(int argc, char** argv) {
                  "facing along the turn, far from the axis), the rest evenly strided (0: strided "
                  "only)")
       ->capture_default_str();
+  app.add_option("--icp-normal-neighbors", options.registration.icp_normal_neighbors,
+                 "k of the PCA normals the pairwise ICP uses instead of the reconstruction's "
+                 "(with sensor noise those are several degrees off; 0: the reconstruction's)")
+      ->capture_default_str();
   bool six_dof = false;
   app.add_flag("--six-dof", six_dof,
                "pose graph with six free unknowns per view, also for table views (default: the "

@@ -121,6 +121,9 @@ void MergeOptions::Check() const {
                     icp_max_surface_variation, ")");
   SLSHADOW_THROW_IF(normal_neighbors < 3, "merge options: normal_neighbors: must be >= 3 (got ",
                     normal_neighbors, ")");
+  SLSHADOW_THROW_IF(icp_normal_neighbors != 0 && icp_normal_neighbors < 3,
+                    "merge options: icp_normal_neighbors: must be 0 or >= 3 (got ",
+                    icp_normal_neighbors, ")");
   share(min_pair_fitness, "min_pair_fitness");
   SLSHADOW_THROW_IF(!(max_pair_rms_ratio > 1) || !std::isfinite(max_pair_rms_ratio),
                     "merge options: max_pair_rms_ratio: must be finite and > 1 (got ",

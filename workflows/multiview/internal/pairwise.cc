@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <span>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -58,11 +59,11 @@ Accumulator Correspond(const ViewGeometry& a, const ViewGeometry& b, const Rigid
     const Eigen::Vector3d s = r * pb[i] + a_from_b.translation;
     if (!a.tree->Nearest(s, &nb, gate)) continue;
     if (a.variation[nb.index] > max_var) continue;
-    const Eigen::Vector3d nb_in_a = r * b.normals[i];
-    if (a.normals[nb.index].dot(nb_in_a) < cos_max) continue;
+    const Eigen::Vector3d nb_in_a = r * b.icp_normals[i];
+    if (a.icp_normals[nb.index].dot(nb_in_a) < cos_max) continue;
     // Symmetric point-to-plane (Rusinkiewicz 2019): the mean of both normals, for which the
     // residual of two points on one circle is zero, so curved surfaces add no bias.
-    const Eigen::Vector3d na = (a.normals[nb.index] + nb_in_a).normalized();
+    const Eigen::Vector3d na = (a.icp_normals[nb.index] + nb_in_a).normalized();
     const double res = na.dot(s - pa[nb.index]);
     acc.abs_residuals.push_back(static_cast<float>(std::abs(res)));
     if (std::abs(res) > max_residual) continue;
@@ -172,6 +173,20 @@ Step SolveStep(const Accumulator& acc, const Rigid3d& t, const Rigid3d& prior, d
   return step;
 }
 
+// Scatter matrix of the neighbours about their mean.
+Eigen::Matrix3d NeighbourScatter(const std::vector<Eigen::Vector3d>& pts,
+                                 std::span<const Neighbor> nn) {
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const auto& q : nn) mean += pts[q.index];
+  mean /= static_cast<double>(nn.size());
+  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+  for (const auto& q : nn) {
+    const Eigen::Vector3d d = pts[q.index] - mean;
+    cov += d * d.transpose();
+  }
+  return cov;
+}
+
 Rigid3d Apply(const Vector6d& x, const Rigid3d& t) {
   return Rigid3d(QuaternionFromRotationVector(x.head<3>()), x.tail<3>()) * t;
 }
@@ -188,38 +203,44 @@ void PrepareView(const PointCloud& cloud, const MergeOptions& o, ViewGeometry* v
   view->tree = std::make_unique<KdTree>(pts);
   view->spacing_mm = compare::MedianSpacing(*view->tree);
   view->normals.resize(pts.size());
+  const int k_icp = o.icp_normal_neighbors;
+  view->icp_normals.resize(k_icp > 0 ? pts.size() : 0);
+  const int k_query = std::max(o.normal_neighbors, k_icp);
   view->variation.resize(pts.size());
   view->noise_var.resize(pts.size());
   const bool given = cloud.HasNormals();
   std::vector<float> radius(pts.size());
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, pts.size(), 4096),
-                    [&](const tbb::blocked_range<size_t>& range) {
-                      std::vector<Neighbor> nn;
-                      for (size_t i = range.begin(); i != range.end(); ++i) {
-                        view->tree->KNearest(pts[i], o.normal_neighbors, &nn);
-                        radius[i] = static_cast<float>(std::sqrt(nn.back().distance_sq));
-                        Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-                        for (const auto& q : nn) mean += pts[q.index];
-                        mean /= static_cast<double>(nn.size());
-                        Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
-                        for (const auto& q : nn) {
-                          const Eigen::Vector3d d = pts[q.index] - mean;
-                          cov += d * d.transpose();
-                        }
-                        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
-                        eig.computeDirect(cov);
-                        const double sum = eig.eigenvalues().sum();
-                        view->variation[i] =
-                            sum > 0 ? static_cast<float>(eig.eigenvalues()[0] / sum) : 1.0f;
-                        view->noise_var[i] =
-                            static_cast<float>(std::max(0.0, eig.eigenvalues()[0]) /
-                                               std::max(1.0, static_cast<double>(nn.size()) - 3.0));
-                        Eigen::Vector3d n = given ? cloud.normals[i].cast<double>().normalized()
-                                                  : Eigen::Vector3d(eig.eigenvectors().col(0));
-                        if (!given && n.dot(pts[i]) > 0) n = -n;  // towards the camera (origin)
-                        view->normals[i] = n;
-                      }
-                    });
+  tbb::parallel_for(
+      tbb::blocked_range<size_t>(0, pts.size(), 4096),
+      [&](const tbb::blocked_range<size_t>& range) {
+        std::vector<Neighbor> all;
+        for (size_t i = range.begin(); i != range.end(); ++i) {
+          // Sorted by distance: the first normal_neighbors are the k of the
+          // normals and the variation, all k_query those of the ICP normal.
+          view->tree->KNearest(pts[i], k_query, &all);
+          const std::span<const Neighbor> nn(
+              all.data(), std::min(all.size(), static_cast<size_t>(o.normal_neighbors)));
+          radius[i] = static_cast<float>(std::sqrt(nn.back().distance_sq));
+          Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
+          eig.computeDirect(NeighbourScatter(pts, nn));
+          const double sum = eig.eigenvalues().sum();
+          view->variation[i] = sum > 0 ? static_cast<float>(eig.eigenvalues()[0] / sum) : 1.0f;
+          view->noise_var[i] =
+              static_cast<float>(std::max(0.0, eig.eigenvalues()[0]) /
+                                 std::max(1.0, static_cast<double>(nn.size()) - 3.0));
+          Eigen::Vector3d n = given ? cloud.normals[i].cast<double>().normalized()
+                                    : Eigen::Vector3d(eig.eigenvectors().col(0));
+          if (!given && n.dot(pts[i]) > 0) n = -n;  // towards the camera (origin)
+          view->normals[i] = n;
+          if (k_icp > 0) {
+            Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> wide;
+            wide.computeDirect(NeighbourScatter(pts, all));
+            Eigen::Vector3d m = wide.eigenvectors().col(0);
+            view->icp_normals[i] = m.dot(n) < 0 ? -m : m;
+          }
+        }
+      });
+  if (k_icp <= 0) view->icp_normals = view->normals;
   // k points within the k-th neighbour's radius r: sqrt(area per point) = r sqrt(pi / k).
   std::nth_element(radius.begin(), radius.begin() + static_cast<long>(radius.size() / 2),
                    radius.end());
@@ -263,7 +284,7 @@ void PrepareView(const PointCloud& cloud, const MergeOptions& o, ViewGeometry* v
     double total = 0;
     for (size_t k = 0; k < flat.size(); ++k) {
       const uint32_t i = flat[k];
-      total += std::abs(view->normals[i].dot(u.cross(pts[i] - c)));
+      total += std::abs(view->icp_normals[i].dot(u.cross(pts[i] - c)));
       cumulative[k] = total;
     }
     const double step = total / static_cast<double>(n_table);

@@ -22,7 +22,10 @@ using Matrix6d = Eigen::Matrix<double, 6, 6>;
 struct ViewGeometry {
   const std::vector<Eigen::Vector3d>* points = nullptr;
   std::vector<Eigen::Vector3d> normals;  // unit; the cloud's, else PCA oriented to the origin
-  std::vector<float> variation;          // PCA lambda_min / (lambda_0 + lambda_1 + lambda_2)
+  // Unit, oriented as `normals`: PCA over MergeOptions::icp_normal_neighbors (a copy of `normals`
+  // when that is 0). The pairwise ICP's residuals and Jacobians use these.
+  std::vector<Eigen::Vector3d> icp_normals;
+  std::vector<float> variation;  // PCA lambda_min / (lambda_0 + lambda_1 + lambda_2)
   // Each point's noise variance along its normal, measured: the PCA plane fit's residual variance
   // lambda_min / (k - 3) over its k neighbours (mm^2), floored at a quarter of the view's median
   // (a few neighbours can fit a plane by chance). It weights the point in the ICP.
