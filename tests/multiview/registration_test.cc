@@ -399,19 +399,20 @@ TriangleMesh* HandViewRegistration::cad_ = nullptr;
 // such weak hand pairs leaves it out, named (15 % of its points where view_00 saw through).
 // Views 01 and 02, held by the chain view_00 <- view_02 <- view_01, are 0.075 deg off the truth,
 // 7.6 x the graph's 1-sigma; the spread of their pairs over blocks of the overlap states it.
-// That start is RANSAC's single most supported hypothesis, as the global registration was when
-// this fixture was made (global_candidates 1). Comparing the candidates on the full cloud (the
-// default since branch shreg) starts view_07 0.09 mm off: it is merged, within 3 sigma.
+// That start is RANSAC's single most supported hypothesis (the merge's global_candidates 1).
+// Comparing candidates on the full cloud (compare::Register's default, the shadow's) starts
+// view_07 0.09 mm off: it is merged, within 3 sigma.
 TEST_F(HandViewRegistration, AHandViewSlidAlongAWeakDirectionIsLeftOutNamed) {
-  ProjectMergeOptions single = Defaults();
-  single.registration.global.global_candidates = 1;
-  const ProjectMergeResult r = Merge(10, single);
+  const ProjectMergeResult r = Merge(10, Defaults());
   EXPECT_GE(CheckHandViews(r), 1);
   const MergedView& seventh = r.views[7];
   EXPECT_FALSE(seventh.merged);
   EXPECT_NE(seventh.reason.find("saw through"), std::string::npos) << seventh.reason;
 
-  const ProjectMergeResult compared = Merge(10, Defaults());
+  ProjectMergeOptions compare_candidates = Defaults();
+  compare_candidates.registration.global.global_candidates =
+      compare::RegistrationOptions{}.global_candidates;
+  const ProjectMergeResult compared = Merge(10, compare_candidates);
   EXPECT_GE(CheckHandViews(compared), 1);
   EXPECT_TRUE(compared.views[7].merged) << compared.views[7].reason;
 }
@@ -426,7 +427,6 @@ TEST_F(HandViewRegistration, MergedHandViewsAreWithinThreeStatedSigmas) {
 // without the spread (hand_spread_blocks 0) the graph's 0.0098 deg passes and they are merged.
 TEST_F(HandViewRegistration, AHandViewWiderThanTheDepartureBoundIsLeftOutNamed) {
   ProjectMergeOptions options = Defaults();
-  options.registration.global.global_candidates = 1;  // the fixture's start, as above
   options.registration.max_initial_departure_deg = 0.02;
   const ProjectMergeResult r = Merge(10, options);
   for (size_t i : {1, 2}) {

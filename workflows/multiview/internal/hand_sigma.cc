@@ -12,11 +12,14 @@ namespace {
 
 using Vector6d = Eigen::Matrix<double, 6, 1>;
 
-// b's geometry with another ICP sample (Correspond reads b's points, normals, noise and sample).
+// b's geometry with another ICP sample (Correspond reads b's points, normals, ICP normals, noise
+// and sample; no tree: b is the moving view).
 ViewGeometry WithSample(const ViewGeometry& b, std::vector<uint32_t> sample) {
   ViewGeometry s;
   s.points = b.points;
   s.normals = b.normals;
+  s.icp_normals = b.icp_normals;
+  s.variation = b.variation;
   s.noise_var = b.noise_var;
   s.icp_sample = std::move(sample);
   s.spacing_mm = b.spacing_mm;
