@@ -20,6 +20,7 @@
 #include <tbb/parallel_for.h>
 #include <nlohmann/json.hpp>
 
+#include "bench/multiview/report_pose.h"
 #include "core/point_cloud.h"
 #include "core/rigid3.h"
 #include "workflows/multiview/internal/pairwise.h"
@@ -29,14 +30,6 @@ using slshadow::Rigid3d;
 namespace mi = slshadow::multiview::internal;
 
 namespace {
-Rigid3d PoseOf(const nlohmann::json& j) {
-  const auto& q = j.at("rotation_quat_wxyz");
-  const auto& t = j.at("translation_mm");
-  return Rigid3d(Eigen::Quaterniond(q[0].get<double>(), q[1].get<double>(), q[2].get<double>(),
-                                    q[3].get<double>())
-                     .normalized(),
-                 Eigen::Vector3d(t[0].get<double>(), t[1].get<double>(), t[2].get<double>()));
-}
 double Env(const char* n, double d) {
   const char* v = std::getenv(n);
   return v ? std::atof(v) : d;
@@ -82,7 +75,7 @@ int main(int argc, char** argv) {
     std::vector<mi::ViewGeometry> geo(n);
     tbb::parallel_for(size_t{0}, n, [&](size_t i) {
       const std::string name = views[i].at("name");
-      truth[i] = PoseOf(views[i].at("part_from_rig_true"));
+      truth[i] = slshadow::bench::ReportPose(views[i].at("part_from_rig_true"));
       slshadow::PointCloud c = slshadow::ReadPly(root + "/rec" + seed + "/" + name + "/cloud.ply");
       std::vector<bool> keep(c.size());
       for (size_t k = 0; k < c.size(); ++k)

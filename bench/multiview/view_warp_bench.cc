@@ -32,6 +32,7 @@
 #include <Eigen/Cholesky>
 #include <nlohmann/json.hpp>
 
+#include "bench/multiview/report_pose.h"
 #include "compare/distances.h"
 #include "compare/mesh_distance.h"
 #include "core/kdtree.h"
@@ -42,15 +43,6 @@
 using slshadow::Rigid3d;
 
 namespace {
-
-Rigid3d PoseOf(const nlohmann::json& j) {
-  const auto& q = j.at("rotation_quat_wxyz");
-  const auto& t = j.at("translation_mm");
-  return Rigid3d(Eigen::Quaterniond(q[0].get<double>(), q[1].get<double>(), q[2].get<double>(),
-                                    q[3].get<double>())
-                     .normalized(),
-                 Eigen::Vector3d(t[0].get<double>(), t[1].get<double>(), t[2].get<double>()));
-}
 
 Eigen::Vector3d Vec(const nlohmann::json& j) {
   return Eigen::Vector3d(j[0].get<double>(), j[1].get<double>(), j[2].get<double>());
@@ -110,7 +102,7 @@ int main(int argc, char** argv) {
   for (const auto& view : report.at("views")) {
     if (!view.value("merged", false) || !view.contains("part_from_rig_true")) continue;
     const std::string name = view.at("name");
-    const Rigid3d truth = PoseOf(view.at("part_from_rig_true"));
+    const Rigid3d truth = slshadow::bench::ReportPose(view.at("part_from_rig_true"));
     const slshadow::PointCloud cloud = slshadow::ReadPly(a.recon + "/" + name + "/cloud.ply");
     std::vector<Eigen::Vector3d> pts;
     for (const auto& p : cloud.points)

@@ -69,16 +69,8 @@ PairSpread BlockSpread(const ViewGeometry& a, const ViewGeometry& b, const Rigid
   const Matrix6d h = full.last.information;
   const Eigen::Vector3d c = full.last.centroid_in_a;
   const double l = std::max(full.last.radius_mm, 1e-3);
-  Matrix6d tm = Matrix6d::Zero();  // y = tm x (pairwise.cc SolveStep)
-  Eigen::Matrix3d cx;
-  cx << 0, -c.z(), c.y(), c.z(), 0, -c.x(), -c.y(), c.x(), 0;
-  tm.topLeftCorner<3, 3>() = l * Eigen::Matrix3d::Identity();
-  tm.bottomLeftCorner<3, 3>() = -cx;
-  tm.bottomRightCorner<3, 3>() = Eigen::Matrix3d::Identity();
-  Matrix6d ti = Matrix6d::Zero();  // x = ti y
-  ti.topLeftCorner<3, 3>() = Eigen::Matrix3d::Identity() / l;
-  ti.bottomLeftCorner<3, 3>() = cx / l;
-  ti.bottomRightCorner<3, 3>() = Eigen::Matrix3d::Identity();
+  Matrix6d tm, ti;  // y = tm x, x = ti y (SolveStep's unknowns)
+  CentredScaling(c, l, &tm, &ti);
 
   std::vector<Vector6d> y(static_cast<size_t>(blocks), Vector6d::Zero());
   std::vector<bool> good(static_cast<size_t>(blocks), false);

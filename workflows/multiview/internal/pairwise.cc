@@ -122,16 +122,8 @@ Step SolveStep(const Accumulator& acc, const Rigid3d& t, const Rigid3d& prior, d
   const Eigen::Vector3d c = acc.sum_s / n;
   const double radius = std::sqrt(std::max(0.0, acc.sum_s_sq / n - c.squaredNorm()));
   const double l = std::max(radius, 1e-3);
-  Matrix6d tm = Matrix6d::Zero();  // y = tm x
-  tm.topLeftCorner<3, 3>() = l * Eigen::Matrix3d::Identity();
-  Eigen::Matrix3d cx;
-  cx << 0, -c.z(), c.y(), c.z(), 0, -c.x(), -c.y(), c.x(), 0;
-  tm.bottomLeftCorner<3, 3>() = -cx;
-  tm.bottomRightCorner<3, 3>() = Eigen::Matrix3d::Identity();
-  Matrix6d ti = Matrix6d::Zero();  // x = ti y
-  ti.topLeftCorner<3, 3>() = Eigen::Matrix3d::Identity() / l;
-  ti.bottomLeftCorner<3, 3>() = cx / l;
-  ti.bottomRightCorner<3, 3>() = Eigen::Matrix3d::Identity();
+  Matrix6d tm, ti;  // y = tm x, x = ti y
+  CentredScaling(c, l, &tm, &ti);
   const Matrix6d hy = ti.transpose() * acc.ata * ti;
   const Vector6d gy = ti.transpose() * acc.atb;
   const Eigen::SelfAdjointEigenSolver<Matrix6d> eig(0.5 * (hy + hy.transpose()));
@@ -406,6 +398,19 @@ IcpOutcome EvaluatePair(const ViewGeometry& a, const ViewGeometry& b, const Rigi
   const double sigma2 = FillOutcome(acc, b, &out);
   if (acc.n >= 7) out.information = acc.ata / sigma2;
   return out;
+}
+
+void CentredScaling(const Eigen::Vector3d& c, double l, Matrix6d* tm, Matrix6d* ti) {
+  Eigen::Matrix3d cx;
+  cx << 0, -c.z(), c.y(), c.z(), 0, -c.x(), -c.y(), c.x(), 0;
+  tm->setZero();
+  tm->topLeftCorner<3, 3>() = l * Eigen::Matrix3d::Identity();
+  tm->bottomLeftCorner<3, 3>() = -cx;
+  tm->bottomRightCorner<3, 3>() = Eigen::Matrix3d::Identity();
+  ti->setZero();
+  ti->topLeftCorner<3, 3>() = Eigen::Matrix3d::Identity() / l;
+  ti->bottomLeftCorner<3, 3>() = cx / l;
+  ti->bottomRightCorner<3, 3>() = Eigen::Matrix3d::Identity();
 }
 
 }  // namespace slshadow::multiview::internal

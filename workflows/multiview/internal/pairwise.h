@@ -103,4 +103,9 @@ IcpOutcome LinearizePair(const ViewGeometry& a, const ViewGeometry& b, const Rig
 IcpOutcome EvaluatePair(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d& a_from_b,
                         double gate_mm, double max_residual_mm, const MergeOptions& options);
 
+// The ICP step's well-scaled unknowns about the overlap's centroid c and radius l: y = tm x, with
+// x = (rotation vector, translation) and y = (l x rotation, translation + c x rotation); ti its
+// inverse (x = ti y).
+void CentredScaling(const Eigen::Vector3d& c, double l, Matrix6d* tm, Matrix6d* ti);
+
 }  // namespace slshadow::multiview::internal
