@@ -90,6 +90,16 @@ struct KaminoSet {
   PatternSpec spec;
   TargetSpec target;
   Rig rig;
+  // The camera's frames of one pose, in the pattern order (graycode_00.png ...).
+  std::vector<cv::Mat> Frames(int pose) const {
+    std::vector<cv::Mat> frames;
+    for (int k = 0; k < spec.NumImages(); ++k) {
+      char name[32];
+      std::snprintf(name, sizeof(name), "graycode_%02d.png", k);
+      frames.push_back(ReadGrayImage(dir / ("capture_" + std::to_string(pose)) / name));
+    }
+    return frames;
+  }
 };
 KaminoSet LoadKaminoSet() {
   return {testing::SharedDataDir() / "kamino-procam-graycode",
@@ -113,7 +123,6 @@ TriangleMesh BoardMesh(const TargetSpec& target, const Eigen::Vector3d& camera_i
 TEST(KaminoCoverageTest, PredictedBoardAreaAgreesWithTheReconstructionOnEveryPose) {
   const KaminoSet set = LoadKaminoSet();
   ASSERT_TRUE(std::filesystem::exists(set.dir / "capture_0")) << "no shared data at " << set.dir;
-  const auto& dir = set.dir;
   const PatternSpec& spec = set.spec;
   const TargetSpec& target = set.target;
   const Rig& rig = set.rig;
@@ -128,11 +137,7 @@ TEST(KaminoCoverageTest, PredictedBoardAreaAgreesWithTheReconstructionOnEveryPos
   for (int pose = 0; pose < 5; ++pose) {
     SCOPED_TRACE("pose " + std::to_string(pose));
     std::map<std::string, std::vector<cv::Mat>> images;
-    for (int k = 0; k < spec.NumImages(); ++k) {
-      char name[32];
-      std::snprintf(name, sizeof(name), "graycode_%02d.png", k);
-      images["camera"].push_back(ReadGrayImage(dir / ("capture_" + std::to_string(pose)) / name));
-    }
+    images["camera"] = set.Frames(pose);
     const cv::Mat& white = images["camera"][40];
     const cv::Mat& black = images["camera"][41];
     const auto board_from_rig = BoardFromRig(target, rig, white);
@@ -220,17 +225,11 @@ TEST(KaminoCoverageTest, PredictedBoardAreaAgreesWithTheReconstructionOnEveryPos
 TEST(KaminoCoverageTest, PerPixelOddsMatchTheDecoderAtTheThreshold) {
   const KaminoSet set = LoadKaminoSet();
   ASSERT_TRUE(std::filesystem::exists(set.dir / "capture_0")) << "no shared data at " << set.dir;
-  const auto& dir = set.dir;
   const PatternSpec& spec = set.spec;
   const TargetSpec& target = set.target;
   const Rig& rig = set.rig;
   const ImageSetReconstructOptions recon;
-  std::vector<cv::Mat> images;
-  for (int k = 0; k < spec.NumImages(); ++k) {
-    char name[32];
-    std::snprintf(name, sizeof(name), "graycode_%02d.png", k);
-    images.push_back(ReadGrayImage(dir / "capture_0" / name));
-  }
+  const std::vector<cv::Mat> images = set.Frames(0);
   const cv::Mat& white = images[40];
   const cv::Mat& black = images[41];
   const auto board_from_rig = BoardFromRig(target, rig, white);
@@ -329,16 +328,10 @@ TEST(KaminoCoverageTest, PerPixelOddsMatchTheDecoderAtTheThreshold) {
 TEST(KaminoCoverageTest, CapturedContrastNamesBadInput) {
   const KaminoSet set = LoadKaminoSet();
   ASSERT_TRUE(std::filesystem::exists(set.dir / "capture_0")) << "no shared data at " << set.dir;
-  const auto& dir = set.dir;
   const PatternSpec& spec = set.spec;
   const TargetSpec& target = set.target;
   const Rig& rig = set.rig;
-  std::vector<cv::Mat> images;
-  for (int k = 0; k < spec.NumImages(); ++k) {
-    char name[32];
-    std::snprintf(name, sizeof(name), "graycode_%02d.png", k);
-    images.push_back(ReadGrayImage(dir / "capture_0" / name));
-  }
+  const std::vector<cv::Mat> images = set.Frames(0);
   const auto board_from_rig = BoardFromRig(target, rig, images[40]);
   ASSERT_TRUE(board_from_rig.has_value());
   const TriangleMesh board = BoardMesh(target, *board_from_rig * rig.cameras[0].CenterInRig());
