@@ -104,6 +104,10 @@ int RunPlan(int argc, char** argv) {
                "with --check: measure the prediction by the points each view would reconstruct "
                "(the reference grid ray-cast, the reconstruction's filters run on it) instead of "
                "by its samples; slower");
+  app.add_flag("--rendered", options.prediction.rendered_reconstruction,
+               "also run the reconstruction on each view's ray-cast projector maps and take the "
+               "cells its depth-discontinuity filter rejects from the prediction (the bands along "
+               "occlusion edges); slower, meant with --check");
   app.add_option("--check", check_path,
                  "instead of planning, check the prediction against a scanned (or simulated) "
                  "project of the planned views (table angles or placed by hand): merged at the "
