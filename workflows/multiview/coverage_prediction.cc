@@ -509,7 +509,6 @@ struct CoveragePredictor::Impl {
   std::unique_ptr<internal::SightCaster> caster;
   Light light;
   ReferenceGrid grid;
-  std::optional<TurntableAxis> table_axis;
   internal::TablePlane table;  // the axis's lowest plane of the part (for the grid's misses)
 };
 
@@ -533,7 +532,6 @@ CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig&
   m.on_table = internal::OnTableMask(cad_in_part, m.samples, m.normals, table_axis,
                                      options.table_tolerance_mm);
   m.caster = std::make_unique<internal::SightCaster>(cad_in_part);
-  m.table_axis = table_axis;
   if (table_axis) {
     m.table.present = true;
     m.table.up = table_axis->direction_in_rig.normalized();
