@@ -104,6 +104,13 @@ int RunPlan(int argc, char** argv) {
                "with --check: measure the prediction by the points each view would reconstruct "
                "(the reference grid ray-cast, the reconstruction's filters run on it) instead of "
                "by its samples; slower");
+  bool rendered = false, no_rendered = false;
+  app.add_flag("--rendered", rendered,
+               "also run the reconstruction on each view's ray-cast projector maps and take the "
+               "cells its depth-discontinuity filter rejects from the prediction (the bands along "
+               "occlusion edges); the default with --check; for planning ~2.5x slower");
+  app.add_flag("--no-rendered", no_rendered,
+               "with --check: the prediction's rules alone, without the rendered reconstruction");
   app.add_option("--check", check_path,
                  "instead of planning, check the prediction against a scanned (or simulated) "
                  "project of the planned views (table angles or placed by hand): merged at the "
@@ -118,6 +125,7 @@ int RunPlan(int argc, char** argv) {
   const double albedo = options.prediction.albedo;
   const bool albedo_given = app.count("--albedo") > 0;
   options.prediction.mode = ReconstructModeFromString(mode);
+  options.prediction.rendered_reconstruction = check_path.empty() ? rendered : !no_rendered;
   const Rig rig = LoadRig(rig_path);
   const multiview::PlanPart part = multiview::LoadPlanPart(part_path);
   if (part.scene)

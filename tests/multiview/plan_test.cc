@@ -82,6 +82,13 @@ TEST(PlanTest, TheDemoPlanReachesItsTargetWithNoMoreViewsThanUniformSteps) {
   EXPECT_EQ(confirmed.prediction.reason_samples, predicted.reason_samples);
   EXPECT_GT(check.compared, kSamples / 2);
   EXPECT_GE(check.agreement, 0.99) << check.Summary();
+  // With the reconstruction's depth-discontinuity filter on each view's rendered maps: measured
+  // 99.39 % (173 / 9 -> 153 / 24 disagreements).
+  CoveragePredictionOptions rendered = options.prediction;
+  rendered.rendered_reconstruction = true;
+  const PlanCheck by_rendering = CheckPlanAgainstProject(cad, setup.rig, tmp / "project", rendered);
+  std::cout << "rendered: " << by_rendering.check.Summary();
+  EXPECT_GE(by_rendering.check.agreement, 0.99) << by_rendering.check.Summary();
   // The planned coverage holds: the scan covers the target share of the reachable surface less at
   // most the 1 % the prediction may miss.
   EXPECT_GE(check.scanned_coverage, options.target * plan.reachable_share - 0.01)

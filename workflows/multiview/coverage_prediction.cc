@@ -16,6 +16,7 @@
 #include "sim/scene.h"
 #include "workflows/multiview/internal/decode_odds.h"
 #include "workflows/multiview/internal/device_sight.h"
+#include "workflows/multiview/internal/grid_render.h"
 #include "workflows/multiview/internal/prediction_reasons.h"
 #include "workflows/multiview/virtual_project.h"
 
@@ -55,32 +56,7 @@ struct Light {
   bool code_y = true;
 };
 
-// The reconstruction's reference grid, where its filters run (reconstruct.h): the rectified left
-// camera in stereo (stereo_matcher.h: pinhole, focal_px, cx, cy, centred on the left camera), the
-// first camera's own image in projector mode. Footprints are range / focal_px (DenseGrid).
-struct ReferenceGrid {
-  Rigid3d grid_from_rig;
-  int width = 0, height = 0;  // cells
-  bool rectified = false;
-  double focal_px = 1, cx = 0, cy = 0;
-  const RigDevice* camera = nullptr;  // projector mode
-  // The reconstruction's filters (0: off).
-  double max_depth_jump_footprints = 0;
-  bool outliers = false;
-  int outlier_radius = 1, outlier_neighbors = 4;
-  double outlier_std_ratio = 4, outlier_floor = 4;
-
-  std::optional<Eigen::Vector2d> Pixel(const Eigen::Vector3d& in_grid) const {
-    if (in_grid.z() <= 0) return std::nullopt;
-    if (!rectified) return camera->model.Project(in_grid);
-    return Eigen::Vector2d(focal_px * in_grid.x() / in_grid.z() + cx,
-                           focal_px * in_grid.y() / in_grid.z() + cy);
-  }
-  std::optional<Eigen::Vector3d> Ray(const Eigen::Vector2d& pixel) const {
-    if (!rectified) return camera->model.Unproject(pixel);
-    return Eigen::Vector3d((pixel.x() - cx) / focal_px, (pixel.y() - cy) / focal_px, 1.0);
-  }
-};
+using internal::ReferenceGrid;
 
 // The cells around the grid's pixel of `in_grid` on the surface's tangent plane (normal `n_grid`,
 // grid frame): the depth-discontinuity filter's largest range change to a 4-neighbour, and the
@@ -533,8 +509,7 @@ struct CoveragePredictor::Impl {
   std::unique_ptr<internal::SightCaster> caster;
   Light light;
   ReferenceGrid grid;
-  std::optional<TurntableAxis> table_axis;
-  double table_lowest = 0;  // the part's lowest point along the axis direction
+  internal::TablePlane table;  // the axis's lowest plane of the part (for the grid's misses)
 };
 
 CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig& rig,
@@ -557,12 +532,12 @@ CoveragePredictor::CoveragePredictor(const TriangleMesh& cad_in_part, const Rig&
   m.on_table = internal::OnTableMask(cad_in_part, m.samples, m.normals, table_axis,
                                      options.table_tolerance_mm);
   m.caster = std::make_unique<internal::SightCaster>(cad_in_part);
-  m.table_axis = table_axis;
   if (table_axis) {
-    const Eigen::Vector3d up = table_axis->direction_in_rig.normalized();
-    m.table_lowest = std::numeric_limits<double>::infinity();
+    m.table.present = true;
+    m.table.up = table_axis->direction_in_rig.normalized();
+    m.table.lowest = std::numeric_limits<double>::infinity();
     for (const Eigen::Vector3d& v : cad_in_part.vertices)
-      m.table_lowest = std::min(m.table_lowest, up.dot(v));
+      m.table.lowest = std::min(m.table.lowest, m.table.up.dot(v));
   }
   m.light.range_per_factor = options.exposure_fraction * 255.0 *
                              (options.albedo_texture.IsTextured() ? 1.0 : options.albedo);
@@ -661,6 +636,10 @@ std::vector<uint8_t> CoveragePredictor::View(const Rigid3d& part_from_rig) const
   for (const RigDevice& d : m.devices) devices.push_back(&d);
   std::vector<uint8_t> sight = ViewSight(*m.caster, m.samples, m.normals, devices, part_from_rig,
                                          m.options.grazing_deg, m.light, m.grid);
+  if (m.options.rendered_reconstruction)
+    internal::MarkRejectedByReconstruction(*m.caster, m.grid, m.samples, devices, part_from_rig,
+                                           m.options.grazing_deg, m.options.code_y,
+                                           m.options.reconstruct, &sight);
   for (size_t i = 0; i < sight.size(); ++i) {
     if (m.on_table[i]) sight[i] = kOnTable;
   }
@@ -680,45 +659,17 @@ std::vector<double> CoveragePredictor::ViewLevels(const Rigid3d& part_from_rig) 
 std::vector<Eigen::Vector3d> CoveragePredictor::ViewPoints(const Rigid3d& part_from_rig) const {
   const Impl& m = *impl_;
   const ReferenceGrid& grid = m.grid;
-  const Rigid3d rig_from_part = part_from_rig.Inverse();
-  const Rigid3d grid_from_part = grid.grid_from_rig * rig_from_part;
-  const Rigid3d part_from_grid = grid_from_part.Inverse();
-  // The window of the grid the part covers (its samples' cells, a margin of 2).
-  double u0 = std::numeric_limits<double>::infinity(), v0 = u0, u1 = -u0, v1 = -u0;
-  for (const Eigen::Vector3d& p : m.samples) {
-    if (const auto px = grid.Pixel(grid_from_part * p)) {
-      u0 = std::min(u0, px->x()), u1 = std::max(u1, px->x());
-      v0 = std::min(v0, px->y()), v1 = std::max(v1, px->y());
-    }
-  }
-  if (!(u0 <= u1)) return {};
-  const int cu0 = std::max(0, static_cast<int>(std::floor(u0)) - 2);
-  const int cv0 = std::max(0, static_cast<int>(std::floor(v0)) - 2);
-  const int cu1 = std::min(grid.width - 1, static_cast<int>(std::ceil(u1)) + 2);
-  const int cv1 = std::min(grid.height - 1, static_cast<int>(std::ceil(v1)) + 2);
-  if (cu0 > cu1 || cv0 > cv1) return {};
-  const int w = cu1 - cu0 + 1, h = cv1 - cv0 + 1;
-  const auto cells = static_cast<size_t>(w) * static_cast<size_t>(h);
-  // Each cell's ray onto the part.
-  std::vector<Eigen::Vector3d> origins(cells, part_from_grid.translation), dirs(cells);
-  std::vector<uint8_t> active(cells, 0);
-  tbb::parallel_for(size_t{0}, cells, [&](size_t c) {
-    const Eigen::Vector2d px(cu0 + static_cast<int>(c % static_cast<size_t>(w)),
-                             cv0 + static_cast<int>(c / static_cast<size_t>(w)));
-    if (const auto ray = grid.Ray(px)) {
-      dirs[c] = part_from_grid.rotation * ray->normalized();
-      active[c] = 1;
-    }
-  });
-  const std::vector<internal::SightCaster::LineHit> hits =
-      m.caster->LineHits(origins, dirs, active, 1, 0, /*forward_only=*/true);
+  const internal::GridRender render =
+      internal::RenderGrid(*m.caster, grid, m.samples, part_from_rig);
+  const size_t cells = render.Cells();
+  if (cells == 0) return {};
   std::vector<Eigen::Vector3d> points;
   std::vector<Eigen::Vector3f> normals;
   std::vector<size_t> cell_of;
   for (size_t c = 0; c < cells; ++c) {
-    if (!hits[2 * c].found) continue;
-    points.push_back(hits[2 * c].point);
-    normals.push_back(hits[2 * c].normal);
+    if (!render.Hit(c).found) continue;
+    points.push_back(render.Hit(c).point);
+    normals.push_back(render.Hit(c).normal);
     cell_of.push_back(c);
   }
   // The rules per point; the filters below on the grid itself, not on tangent planes.
@@ -731,51 +682,13 @@ std::vector<Eigen::Vector3d> CoveragePredictor::ViewPoints(const Rigid3d& part_f
   per_cell.sample_area_mm2 = 0;
   const std::vector<uint8_t> sight = ViewSight(*m.caster, points, normals, devices, part_from_rig,
                                                m.options.grazing_deg, per_cell, unfiltered);
+  std::vector<uint8_t> accept(cells, 0), background;
+  for (size_t k = 0; k < points.size(); ++k) accept[cell_of[k]] = sight[k] == kCovered;
   DenseGrid dense;
-  dense.width = w;
-  dense.height = h;
-  dense.viewpoint_in_rig = grid.grid_from_rig.Inverse().translation;
-  dense.focal_px = grid.focal_px;
-  dense.point_in_rig.assign(cells, Eigen::Vector3d::Zero());
+  internal::FillDenseGrid(render, grid, accept, m.table, *m.caster, devices, part_from_rig,
+                          m.options.grazing_deg, &dense, &background);
   constexpr auto kAcceptedCell = static_cast<uint8_t>(RejectReason::kAccepted);
   constexpr auto kNotDecodedCell = static_cast<uint8_t>(RejectReason::kNotDecoded);
-  dense.reason.assign(cells, kNotDecodedCell);
-  // A ray that misses the part: the turntable's plane (the part's lowest plane across the axis)
-  // where the ray meets it and the devices see it past the part, else a far background (10 m),
-  // for the filters; neither is a point of the part.
-  std::vector<uint8_t> background(cells, 0);
-  const Eigen::Vector3d up =
-      m.table_axis ? m.table_axis->direction_in_rig.normalized() : Eigen::Vector3d::Zero();
-  std::vector<Eigen::Vector3d> table_points;
-  std::vector<size_t> table_cell;
-  for (size_t c = 0; c < cells; ++c) {
-    if (!active[c] || hits[2 * c].found) continue;
-    background[c] = 1;
-    const double denom = up.dot(dirs[c]);
-    const double t = std::abs(denom) > 1e-12 ? (m.table_lowest - up.dot(origins[c])) / denom : -1.0;
-    if (m.table_axis && t > 0) {
-      table_points.push_back(origins[c] + t * dirs[c]);
-      table_cell.push_back(c);
-      continue;
-    }
-    dense.reason[c] = kAcceptedCell;
-    dense.point_in_rig[c] = rig_from_part * (origins[c] + 1e4 * dirs[c]);
-  }
-  if (!table_points.empty()) {
-    const std::vector<Eigen::Vector3f> table_normals(table_points.size(), up.cast<float>());
-    const std::vector<uint8_t> table_sight =
-        m.caster->View(table_points, table_normals, devices, part_from_rig, m.options.grazing_deg);
-    for (size_t k = 0; k < table_points.size(); ++k) {
-      if (table_sight[k] > kGrazing) continue;
-      dense.reason[table_cell[k]] = kAcceptedCell;
-      dense.point_in_rig[table_cell[k]] = rig_from_part * table_points[k];
-    }
-  }
-  for (size_t k = 0; k < points.size(); ++k) {
-    if (sight[k] != kCovered) continue;
-    dense.reason[cell_of[k]] = kAcceptedCell;
-    dense.point_in_rig[cell_of[k]] = rig_from_part * points[k];
-  }
   const ReconstructOptions& r = m.options.reconstruct;
   if (r.filter_depth_discontinuities)
     FilterDepthDiscontinuities(dense, r.max_depth_jump_footprints, r.discontinuity_dilation_px);
@@ -789,7 +702,8 @@ std::vector<Eigen::Vector3d> CoveragePredictor::ViewPoints(const Rigid3d& part_f
   for (size_t c = 0; c < cells; ++c) {
     if (dense.reason[c] != kAcceptedCell || background[c]) continue;
     const Eigen::Vector3d p = part_from_rig * dense.point_in_rig[c];
-    if (m.table_axis && up.dot(p) - m.table_lowest < m.options.table_tolerance_mm) continue;
+    if (m.table.present && m.table.up.dot(p) - m.table.lowest < m.options.table_tolerance_mm)
+      continue;
     kept.push_back(p);
   }
   return kept;

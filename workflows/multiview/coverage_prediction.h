@@ -180,6 +180,17 @@ struct CoveragePredictionOptions {
   // coverage radius, and an edge loses the cells the filters take from it: both show in the
   // check only this way. Slower (a ray per cell); off for the plan, which counts samples.
   bool predict_points = false;
+  // Also the depth-discontinuity filter at the part's own occlusion edges, by the reconstruction
+  // itself: per view both cameras' projector maps ray-cast over the part (Embree, a ray per pixel;
+  // lit where the projector sees the point: a noise-free decode) and ReconstructStereo
+  // (ReconstructWithProjector) run on them with `reconstruct`; a sample the rules above keep whose
+  // nearest cell of the reference grid that reconstruction's FilterDepthDiscontinuities rejects is
+  // grazing. The rules above test the jump on each sample's tangent plane, which shows none at an
+  // occlusion edge, where the filter takes a cell and its dilation on each side of the edge: about
+  // the coverage radius at a coarse rig (1/4 of the demo rig). Slower (two camera images of rays
+  // and a reconstruction per view): off for the plan's candidates, for its check
+  // (`slshadow plan --check P --rendered`): docs/benchmarks/log/2026-12-08-prediction-edges.md.
+  bool rendered_reconstruction = false;
   void Check() const;  // throws slshadow::Error naming the bad field
 };
 // The radiometry of `scene` (exposure fraction, reference distance, the smallest uniform albedo of
