@@ -213,6 +213,11 @@ std::string MergeResult::FullReport() const {
           "      spread over blocks of the overlap: %.2f x the stated variance "
           "along the weakest direction\n",
           p.spread_factor);
+    if (p.untested_floor_deg > 0)
+      s += StringPrintf(
+          "      no loop tests it: 1-sigma along the weakest direction at least %.4f deg (the "
+          "largest disagreement of a weak hand pair a loop tested)\n",
+          p.untested_floor_deg);
   }
   if (turntable_model) {
     s += StringPrintf(

@@ -95,13 +95,38 @@ std::vector<Matrix6d> HandCovariance(
     std::vector<PairRegistration>* pairs) {
   if (options.hand_spread_blocks <= 0) return {};
   std::vector<GraphEdge> widened = edges;
+  // The largest disagreement with the graph of a weak pair a loop tested (kept, or rejected for
+  // it: graph_error_deg is set only where the graph had the pair), the floor of every weak pair no
+  // loop tests (a bridge of the graph: without it its views lose their path to the anchor).
+  double tested_rad = 0;
+  for (size_t k = 0; k < pairs->size(); ++k)
+    if (weak_pair[k]) tested_rad = std::max(tested_rad, (*pairs)[k].graph_error_deg * M_PI / 180);
+  std::vector<double> floor_rad(pairs->size(), 0.0);
+  for (size_t e = 0; e < edges.size(); ++e) {
+    if (!weak_pair[edge_pair[e]]) continue;
+    // Union-find over the other edges: a bridge when its two views stay apart.
+    std::vector<int> root(geo.size());
+    for (size_t i = 0; i < root.size(); ++i) root[i] = static_cast<int>(i);
+    auto find = [&](int i) {
+      while (root[static_cast<size_t>(i)] != i) i = root[static_cast<size_t>(i)];
+      return i;
+    };
+    for (size_t f = 0; f < edges.size(); ++f)
+      if (f != e) root[static_cast<size_t>(find(edges[f].a))] = find(edges[f].b);
+    if (find(edges[e].a) != find(edges[e].b)) floor_rad[edge_pair[e]] = tested_rad;
+  }
   std::vector<double> factor(pairs->size(), 0.0);
-  const GraphSolution wide = WidenWeakEdges(geo, part_from_rig, edge_pair, icp, weak_pair,
-                                            pair_options, options.hand_spread_blocks,
-                                            options.icp_degenerate_ratio, &widened, &factor) > 0
-                                 ? solve(widened, true)
-                                 : GraphSolution{};
-  for (size_t k = 0; k < pairs->size(); ++k) (*pairs)[k].spread_factor = factor[k];
+  std::vector<bool> floored(pairs->size(), false);
+  const GraphSolution wide =
+      WidenWeakEdges(geo, part_from_rig, edge_pair, icp, weak_pair, pair_options,
+                     options.hand_spread_blocks, options.icp_degenerate_ratio, floor_rad, &widened,
+                     &factor, &floored) > 0
+          ? solve(widened, true)
+          : GraphSolution{};
+  for (size_t k = 0; k < pairs->size(); ++k) {
+    (*pairs)[k].spread_factor = factor[k];
+    (*pairs)[k].untested_floor_deg = floored[k] ? floor_rad[k] * 180 / M_PI : 0.0;
+  }
   return wide.covariance_ok ? wide.covariance : std::vector<Matrix6d>{};
 }
 

@@ -47,7 +47,10 @@ using GraphSolver =
 // information of each pair marked in weak_pair widened by the spread over
 // options.hand_spread_blocks blocks of its overlap (WidenWeakEdges, pair_options: the hand
 // pairs'), at the views' poses part_from_rig, solved by `solve` with the covariance.
-// (*pairs)[k].spread_factor set for every pair (0: not measured). Empty when
+// A weak pair no loop tests (a bridge of the graph over `edges`) gets a floor on its weakest
+// direction's 1-sigma: the largest graph_error_deg of a weak pair (*pairs, weak_pair), i.e. the
+// largest disagreement a loop showed (hand_sigma.h, merge.h hand_spread_blocks).
+// (*pairs)[k].spread_factor and untested_floor_deg set for every pair (0: none). Empty when
 // options.hand_spread_blocks is 0, no edge was widened, or the covariance failed.
 std::vector<Matrix6d> HandCovariance(
     const std::vector<ViewGeometry>& geo, const std::vector<Rigid3d>& part_from_rig,
