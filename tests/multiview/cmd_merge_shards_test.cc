@@ -34,10 +34,7 @@ class MergeShards : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
     tmp_ = new testing::TempDir();
-    const TurntableSetup setup = testing::ScaledTurntableDemo(4);
-    WriteMesh(*tmp_ / "cad.ply", PartSurface(setup.scene));
-    SimulateProject(setup.scene, setup.rig, testing::ScaledDemoPatterns(setup.rig),
-                    FullTurnViews(5, 10), *tmp_ / "project");
+    testing::WriteQuarterDemoProject(tmp_->path(), 5, 10);
   }
   static void TearDownTestSuite() { delete tmp_; }
   static std::string Path(const std::string& name) { return (*tmp_ / name).string(); }

@@ -28,10 +28,7 @@ class CmdMerge : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
     tmp_ = new testing::TempDir();
-    const TurntableSetup setup = testing::ScaledTurntableDemo(4);
-    WriteMesh(*tmp_ / "cad.ply", PartSurface(setup.scene));
-    SimulateProject(setup.scene, setup.rig, testing::ScaledDemoPatterns(setup.rig),
-                    FullTurnViews(8, 10), *tmp_ / "project");
+    testing::WriteQuarterDemoProject(tmp_->path(), 8, 10);
     // The same images with view_03's recorded table angle 20 deg off (as if the table had
     // slipped or the angle been mistyped).
     fs::copy(*tmp_ / "project", *tmp_ / "wrong", fs::copy_options::recursive);

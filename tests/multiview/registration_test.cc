@@ -8,6 +8,7 @@
 // horizontal faces overlap), is left out by the free-space check (internal/sight_check.h), named.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -347,9 +348,11 @@ class HandViewRegistration : public ::testing::Test {
     const ProjectMergeResult r = MergeProject(Project(start), cad_, options);
     std::printf("%s", r.Summary().c_str());
     for (const PairRegistration& q : r.registration.pairs)
-      std::printf("pair %d <- %d: kept %d, eigen ratio %.2e, seen through %.4f, spread %.2f\n",
-                  q.view_a, q.view_b, q.kept ? 1 : 0, q.min_eigen_ratio, q.seen_through,
-                  q.spread_factor);
+      std::printf(
+          "pair %d <- %d: kept %d, eigen ratio %.2e, seen through %.4f, spread %.2f, graph error "
+          "%.4f deg, untested floor %.4f deg\n",
+          q.view_a, q.view_b, q.kept ? 1 : 0, q.min_eigen_ratio, q.seen_through, q.spread_factor,
+          q.graph_error_deg, q.untested_floor_deg);
     return r;
   }
   static ProjectMergeOptions Defaults() {
@@ -360,7 +363,7 @@ class HandViewRegistration : public ::testing::Test {
   // Every merged hand view near the truth and within 3 x its stated 1-sigma (rotation and the
   // centroid's translation); every left-out view named by the registration. Returns the merged
   // hand views.
-  static int CheckHandViews(const ProjectMergeResult& r) {
+  static int CheckHandViews(const ProjectMergeResult& r, double max_error_deg = 0.2) {
     EXPECT_TRUE(r.has_truth);
     EXPECT_TRUE(r.views[0].merged) << r.views[0].reason;
     int registered = 0;
@@ -380,7 +383,7 @@ class HandViewRegistration : public ::testing::Test {
           v.graph_sigma_translation_mm, v.sigma_translation_mm,
           v.translation_error_mm / v.graph_sigma_translation_mm,
           v.translation_error_mm / v.sigma_translation_mm);
-      EXPECT_LT(v.rotation_error_deg, 0.2) << v.name;
+      EXPECT_LT(v.rotation_error_deg, max_error_deg) << v.name;
       EXPECT_LT(v.translation_error_mm, 0.2) << v.name;
       EXPECT_LE(v.rotation_error_deg, 3 * v.sigma_rotation_deg) << v.name;
       EXPECT_LE(v.translation_error_mm, 3 * v.sigma_translation_mm) << v.name;
@@ -420,6 +423,37 @@ TEST_F(HandViewRegistration, AHandViewSlidAlongAWeakDirectionIsLeftOutNamed) {
 // From 0 deg: views 01, 02 and 07 merged, 2.6 - 4.8 x the graph's 1-sigma off.
 TEST_F(HandViewRegistration, MergedHandViewsAreWithinThreeStatedSigmas) {
   EXPECT_GE(CheckHandViews(Merge(0, Defaults())), 1);
+}
+
+// With the candidates compared (compare::Register's default) from 0 deg, views 03, 05 and 06
+// register too, but view_05 hangs on one weak pair (view_00 <- view_05) and view_06 on view_05
+// (view_05 <- view_06): no loop tests them, and they are 0.23 deg off while their pairs' spread
+// states 0.046 deg (5 sigma). A weak pair a loop tests shows what such a pair can be off
+// (view_00 <- view_02, rejected: 0.215 deg off the graph), and every weak pair no loop tests is
+// given that as the floor of its weakest direction's 1-sigma: all merged within 3 sigma.
+TEST_F(HandViewRegistration, AWeakPairNoLoopTestsStatesWhatATestedOneWasOff) {
+  ProjectMergeOptions options = Defaults();
+  options.registration.global.global_candidates = compare::RegistrationOptions{}.global_candidates;
+  const ProjectMergeResult r = Merge(0, options);
+  EXPECT_GE(CheckHandViews(r, 0.3), 5);
+  double tested_deg = 0;
+  for (const PairRegistration& p : r.registration.pairs)
+    if (p.min_eigen_ratio < options.registration.icp_degenerate_ratio)
+      tested_deg = std::max(tested_deg, p.graph_error_deg);
+  EXPECT_GT(tested_deg, 0.1);
+  for (size_t i : {5, 6}) {
+    ASSERT_TRUE(r.views[i].merged) << r.views[i].name << ": " << r.views[i].reason;
+    EXPECT_GT(r.views[i].rotation_error_deg, 0.2) << "the fixture's bias is still there";
+    EXPECT_GT(r.views[i].sigma_rotation_deg, 0.1) << r.views[i].name;
+  }
+  int floored = 0;
+  for (const PairRegistration& p : r.registration.pairs) {
+    if (p.untested_floor_deg == 0) continue;
+    ++floored;
+    EXPECT_TRUE(p.kept);
+    EXPECT_DOUBLE_EQ(p.untested_floor_deg, tested_deg);
+  }
+  EXPECT_GE(floored, 2);  // view_00 <- view_05 and view_05 <- view_06 at least
 }
 
 // The departure bounds also bound a hand view's 1-sigma: at 0.02 deg (below the 1-sigma the

@@ -7,14 +7,13 @@
 #include <set>
 
 #include <tbb/parallel_for.h>
-#include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 
 #include "core/error.h"
 #include "core/statistics.h"
 #include "core/string_printf.h"
 #include "workflows/multiview/internal/fusion.h"
-#include "workflows/multiview/internal/hand_sigma.h"
+#include "workflows/multiview/internal/hand_views.h"
 #include "workflows/multiview/internal/pairwise.h"
 #include "workflows/multiview/internal/pose_graph.h"
 #include "workflows/multiview/internal/sight_check.h"
@@ -30,12 +29,6 @@ double Seconds(Clock::time_point since) {
   return std::chrono::duration<double>(Clock::now() - since).count();
 }
 
-Eigen::Matrix3d Skew(const Eigen::Vector3d& v) {
-  Eigen::Matrix3d s;
-  s << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
-  return s;
-}
-
 // "rotation about (x, y, z)" / "translation along (x, y, z)", the axis rotated into the part
 // frame, its sign such that the largest component is positive.
 std::string DirectionText(const internal::DegenerateDirection& d, const Eigen::Quaterniond& r) {
@@ -45,23 +38,6 @@ std::string DirectionText(const internal::DegenerateDirection& d, const Eigen::Q
   if (v[k] < 0) v = -v;
   return StringPrintf("%s (%.2f, %.2f, %.2f)", d.rotation ? "rotation about" : "translation along",
                       v.x(), v.y(), v.z());
-}
-
-double SqrtLargestEigenvalue(const Eigen::Matrix3d& c) {
-  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(0.5 * (c + c.transpose()));
-  return std::sqrt(std::max(0.0, eig.eigenvalues().maxCoeff()));
-}
-
-// 1-sigma of a view's pose from its covariance of (w, dt) (pose_graph.h): the rotation's worst
-// axis, deg, and the displacement of the view's centroid (rig frame) along its worst axis, mm.
-void WorstSigmas(const Matrix6d& c, const Rigid3d& part_from_rig,
-                 const Eigen::Vector3d& centroid_in_rig, double* deg, double* mm) {
-  const Eigen::Vector3d centroid = part_from_rig * centroid_in_rig;
-  Eigen::Matrix<double, 3, 6> jac;  // displacement of the centroid per (w, dt)
-  jac.leftCols<3>() = -Skew(centroid - part_from_rig.translation);
-  jac.rightCols<3>() = Eigen::Matrix3d::Identity();
-  *deg = SqrtLargestEigenvalue(c.topLeftCorner<3, 3>()) * 180.0 / M_PI;
-  *mm = SqrtLargestEigenvalue(jac * c * jac.transpose());
 }
 
 // Disagreement of a pair with the graph, in degrees and mm (merge.h, PairRegistration).
@@ -237,6 +213,11 @@ std::string MergeResult::FullReport() const {
           "      spread over blocks of the overlap: %.2f x the stated variance "
           "along the weakest direction\n",
           p.spread_factor);
+    if (p.untested_floor_deg > 0)
+      s += StringPrintf(
+          "      no loop tests it: 1-sigma along the weakest direction at least %.4f deg (the "
+          "largest disagreement of a weak hand pair a loop tested)\n",
+          p.untested_floor_deg);
   }
   if (turntable_model) {
     s += StringPrintf(
@@ -299,43 +280,8 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
 
   // 1. Initial poses; views without one by global registration against the views posed so far.
   t0 = Clock::now();
-  std::vector<bool> posed(n, false);
-  for (size_t i = 0; i < n; ++i) posed[i] = views[i].has_initial;
-  if (!options.refine) {
-    for (size_t i = 0; i < n; ++i) {
-      if (!posed[i]) result.views[i].reason = "no initial pose, and registration is off";
-    }
-  }
-  for (size_t i = 0; i < n && options.refine; ++i) {
-    if (views[i].has_initial) continue;
-    ViewPose& v = result.views[i];
-    std::vector<Eigen::Vector3d> ref_points, ref_normals, cloud;
-    for (size_t j = 0; j < n; ++j) {
-      if (!posed[j]) continue;
-      const Rigid3d& pose = result.views[j].part_from_rig;
-      for (uint32_t k : geo[j].icp_sample) {
-        ref_points.push_back(pose * (*geo[j].points)[k]);
-        ref_normals.push_back(pose.rotation * geo[j].normals[k]);
-      }
-    }
-    if (ref_points.empty()) {  // the first view to be posed defines the part frame
-      v.part_from_rig = v.part_from_rig_initial = Rigid3d();
-      posed[i] = true;
-      continue;
-    }
-    for (uint32_t k : geo[i].icp_sample) cloud.push_back((*geo[i].points)[k]);
-    compare::RegistrationOptions g = options.global;
-    g.method = compare::RegistrationMethod::kGlobalIcp;
-    const compare::RegistrationResult r = compare::Register(cloud, ref_points, ref_normals, g);
-    if (!r.global_found || r.fitness < options.min_pair_fitness) {
-      v.reason =
-          StringPrintf("global registration found no pose (global fitness %.3f, ICP fitness %.3f)",
-                       r.global_fitness, r.fitness);
-      continue;
-    }
-    v.part_from_rig = v.part_from_rig_initial = r.reference_from_cloud;
-    posed[i] = true;
-  }
+  const std::vector<bool> posed =
+      internal::PoseByGlobalRegistration(views, geo, options, &result.views);
 
   // 2. Pairs overlapping at the initial poses, then ICP (pairs in parallel, each serial).
   struct Candidate {
@@ -385,9 +331,7 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
   // noise level, only between two table views (their relative pose from the rig's axis and the
   // table angles). A hand view's initial pose (a guess, or the global registration's) is no
   // prior to keep: such a pair slides where its overlap leaves a direction free, and is rejected.
-  MergeOptions hand_options = options;
-  hand_options.icp_degenerate_ratio = 0;
-  hand_options.icp_noise_tolerance = 0;
+  const MergeOptions hand_options = internal::HandPairOptions(options);
   auto pair_options = [&](int a, int b) -> const MergeOptions& {
     const bool table = options.turntable.has_value() && views[static_cast<size_t>(a)].table_deg &&
                        views[static_cast<size_t>(b)].table_deg;
@@ -680,39 +624,13 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
     }
     // Hand views' honest covariance (internal/hand_sigma.h): their weak pairs' information
     // widened where the spread over blocks of the overlap exceeds it; too wide a view is left out.
-    hand_cov.clear();
-    if (options.hand_spread_blocks > 0) {
-      std::vector<internal::GraphEdge> widened = edges;
-      std::vector<bool> weak(result.pairs.size());
-      std::vector<double> factor(result.pairs.size(), 0.0);
-      for (size_t k = 0; k < weak.size(); ++k) weak[k] = weak_hand(k);
-      const internal::GraphSolution wide =
-          internal::WidenWeakEdges(geo, sol.part_from_rig, edge_pair, icp, weak, hand_options,
-                                   options.hand_spread_blocks, options.icp_degenerate_ratio,
-                                   &widened, &factor) > 0
-              ? optimize(widened, true)
-              : internal::GraphSolution{};
-      for (size_t k = 0; k < weak.size(); ++k) result.pairs[k].spread_factor = factor[k];
-      if (wide.covariance_ok) hand_cov = wide.covariance;
-    }
-    worst_view = -1;  // the widest hand view beyond the departure bounds, if any
-    worst_excess = 1.0;
-    for (size_t i = 0; i < hand_cov.size(); ++i) {
-      if (!active[i] || views[i].table_deg || static_cast<int>(i) == anchor) continue;
-      double deg = 0, mm = 0;
-      WorstSigmas(hand_cov[i], sol.part_from_rig[i], geo[i].centroid, &deg, &mm);
-      const double excess = std::max(
-          options.max_initial_departure_deg > 0 ? deg / options.max_initial_departure_deg : 0.0,
-          options.max_initial_departure_mm > 0 ? mm / options.max_initial_departure_mm : 0.0);
-      if (excess <= worst_excess) continue;
-      worst_excess = excess;
-      worst_view = static_cast<int>(i);
-      result.views[i].reason = StringPrintf(
-          "its pairs do not fix its pose: 1-sigma %.3f deg / %.3f mm from the spread of its pairs "
-          "over %d blocks of their overlap (bounds %.3f deg / %.3f mm)",
-          deg, mm, options.hand_spread_blocks, options.max_initial_departure_deg,
-          options.max_initial_departure_mm);
-    }
+    std::vector<bool> weak(result.pairs.size());
+    for (size_t k = 0; k < weak.size(); ++k) weak[k] = weak_hand(k);
+    hand_cov = internal::HandCovariance(geo, sol.part_from_rig, edges, edge_pair, icp, weak,
+                                        hand_options, options, optimize, &result.pairs);
+    // The widest hand view beyond the departure bounds, if any.
+    worst_view = internal::WidestHandView(hand_cov, views, active, anchor, sol.part_from_rig, geo,
+                                          options, &result.views);
     if (worst_view >= 0) {
       active[static_cast<size_t>(worst_view)] = false;
       for (size_t i = 0; i < n; ++i)
@@ -799,13 +717,13 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
       v.sigma_rotation_deg = v.sigma_translation_mm = std::numeric_limits<double>::quiet_NaN();
       continue;
     }
-    WorstSigmas(sol.covariance[i], v.part_from_rig, geo[i].centroid, &v.sigma_rotation_deg,
-                &v.sigma_translation_mm);
+    internal::WorstSigmas(sol.covariance[i], v.part_from_rig, geo[i].centroid,
+                          &v.sigma_rotation_deg, &v.sigma_translation_mm);
     v.graph_sigma_rotation_deg = v.sigma_rotation_deg;
     v.graph_sigma_translation_mm = v.sigma_translation_mm;
     if (!hand_cov.empty() && !views[i].table_deg) {
       double deg = 0, mm = 0;
-      WorstSigmas(hand_cov[i], v.part_from_rig, geo[i].centroid, &deg, &mm);
+      internal::WorstSigmas(hand_cov[i], v.part_from_rig, geo[i].centroid, &deg, &mm);
       v.sigma_rotation_deg = std::max(v.sigma_rotation_deg, deg);
       v.sigma_translation_mm = std::max(v.sigma_translation_mm, mm);
     }

@@ -418,6 +418,8 @@ nlohmann::json ProjectMergeResult::ToJson() const {
          {"degenerate", p.degenerate},
          {"seen_through", p.seen_through >= 0 ? nlohmann::json(p.seen_through) : nullptr},
          {"spread_factor", p.spread_factor > 0 ? nlohmann::json(p.spread_factor) : nullptr},
+         {"untested_floor_deg",
+          p.untested_floor_deg > 0 ? nlohmann::json(p.untested_floor_deg) : nullptr},
          {"kept", p.kept},
          {"reason", p.reason}});
   }

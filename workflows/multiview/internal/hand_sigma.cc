@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <vector>
 
 #include <tbb/parallel_for.h>
@@ -56,7 +57,7 @@ Vector6d LeftPerturbation(const Rigid3d& to, const Rigid3d& from) {
 
 PairSpread BlockSpread(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d& a_from_b,
                        double gate_mm, double max_residual_mm, const MergeOptions& options,
-                       int blocks, double weak_ratio, int iterations) {
+                       int blocks, double weak_ratio, double floor_rad, int iterations) {
   PairSpread out;
   MergeOptions o = options;
   o.icp_degenerate_ratio = 0;  // solve all six: the spread is what is measured
@@ -116,6 +117,10 @@ PairSpread BlockSpread(const ViewGeometry& a, const ViewGeometry& b, const Rigid
   const Matrix6d hy = ti.transpose() * h * ti;
   const Eigen::SelfAdjointEigenSolver<Matrix6d> eig(0.5 * (hy + hy.transpose()));
   const double largest = std::max(eig.eigenvalues().maxCoeff(), 1e-300);
+  // The floor of the weakest direction's 1-sigma, as a displacement at the matched points' radius.
+  const double floor_mm = floor_rad * l;
+  const double cap =
+      floor_mm > 0 ? 1.0 / (floor_mm * floor_mm) : std::numeric_limits<double>::infinity();
   Matrix6d widened = Matrix6d::Zero();
   for (int k = 0; k < 6; ++k) {
     const Vector6d u = eig.eigenvectors().col(k);
@@ -124,9 +129,11 @@ PairSpread BlockSpread(const ViewGeometry& a, const ViewGeometry& b, const Rigid
     const double ratio = lambda * spread;
     const bool weak = lambda < weak_ratio * largest;
     const double factor = weak && ratio > out.critical_factor ? ratio : 1.0;
-    widened += u * u.transpose() * (lambda / factor);
+    const double kept = k == 0 ? std::min(lambda / factor, cap) : lambda / factor;
+    widened += u * u.transpose() * kept;
     out.max_factor = std::max(out.max_factor, factor);
     if (k == 0) {
+      out.floored = kept < lambda / factor;
       out.weakest_factor = ratio;
       out.weakest_sigma_stated_mm = lambda > 0 ? std::sqrt(1.0 / lambda) : 0.0;
       out.weakest_sigma_spread_mm = std::sqrt(std::max(spread, 0.0));
@@ -142,8 +149,9 @@ PairSpread BlockSpread(const ViewGeometry& a, const ViewGeometry& b, const Rigid
 int WidenWeakEdges(const std::vector<ViewGeometry>& geo, const std::vector<Rigid3d>& part_from_rig,
                    const std::vector<size_t>& edge_pair, const std::vector<IcpOutcome>& icp,
                    const std::vector<bool>& weak_pair, const MergeOptions& pair_options, int blocks,
-                   double weak_ratio, std::vector<GraphEdge>* edges,
-                   std::vector<double>* pair_factor) {
+                   double weak_ratio, const std::vector<double>& pair_floor_rad,
+                   std::vector<GraphEdge>* edges, std::vector<double>* pair_factor,
+                   std::vector<bool>* pair_floored) {
   int widened = 0;
   for (size_t e = 0; e < edges->size(); ++e) {
     const size_t k = edge_pair[e];
@@ -152,9 +160,10 @@ int WidenWeakEdges(const std::vector<ViewGeometry>& geo, const std::vector<Rigid
     const size_t a = static_cast<size_t>(edge.a), b = static_cast<size_t>(edge.b);
     const PairSpread s =
         BlockSpread(geo[a], geo[b], part_from_rig[a].Inverse() * part_from_rig[b], icp[k].gate_mm,
-                    icp[k].max_residual_mm, pair_options, blocks, weak_ratio);
+                    icp[k].max_residual_mm, pair_options, blocks, weak_ratio, pair_floor_rad[k]);
     if (!s.ok) continue;
     (*pair_factor)[k] = s.weakest_factor;
+    (*pair_floored)[k] = s.floored;
     edge.information = s.information;
     ++widened;
   }

@@ -7,7 +7,11 @@
 // The spread of the pair's solution over spatial blocks of its overlap (a delete-one-block
 // jackknife: blocks are contiguous runs of the Morton-ordered ICP sample, so patches of the
 // surface, which carry the correlation) measures it; the information is widened along each
-// eigen-direction where the spread exceeds what it states. Internal to workflows/multiview/.
+// eigen-direction where the spread exceeds what it states. The jackknife cannot see a bias common
+// to the whole overlap, and a hand pair's cost can have its minimum 5 of its stated sigmas off
+// along the weak direction (docs/benchmarks/log/2026-12-08-hand-views.md): only a loop of pairs
+// shows that, so a weak pair no loop tests is given a floor (WidenWeakEdges' pair_floor_rad).
+// Internal to workflows/multiview/.
 #pragma once
 
 #include <cstddef>
@@ -39,6 +43,7 @@ struct PairSpread {
   // radius) stated by the information, and from the blocks' spread.
   double weakest_sigma_stated_mm = 0, weakest_sigma_spread_mm = 0;
   int blocks = 0;
+  bool floored = false;  // the weakest direction's 1-sigma raised to the floor (floor_rad)
 };
 
 // The pair a <- b at a_from_b (a converged registration: the joint refinement's) with its final
@@ -46,18 +51,22 @@ struct PairSpread {
 // b's ICP sample re-solved from a_from_b by `iterations` Gauss-Newton steps (LinearizePair,
 // correspondences found again each step; options as the pair's, no degenerate hold), the
 // jackknife covariance (K - 1) / K sum (y_k - mean)(y_k - mean)^T of their solutions.
+// floor_rad > 0: the weakest direction's 1-sigma is at least floor_rad x the matched points' RMS
+// radius (a rotation of floor_rad about their centroid).
 PairSpread BlockSpread(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d& a_from_b,
                        double gate_mm, double max_residual_mm, const MergeOptions& options,
-                       int blocks, double weak_ratio, int iterations = 3);
+                       int blocks, double weak_ratio, double floor_rad = 0, int iterations = 3);
 
 // The graph's edges (edge e from pair edge_pair[e], its ICP outcome icp[edge_pair[e]]) with the
 // information of each pair marked in weak_pair widened by BlockSpread at the views' poses
-// part_from_rig; pair_factor[k] (sized as the pairs) set to the pair's weakest_factor. Returns
-// how many edges were widened.
+// part_from_rig, its weakest direction floored at pair_floor_rad[k] (sized as the pairs; 0: none);
+// pair_factor[k] and pair_floored[k] (sized as the pairs) set to the pair's weakest_factor and
+// floored. Returns how many edges were widened.
 int WidenWeakEdges(const std::vector<ViewGeometry>& geo, const std::vector<Rigid3d>& part_from_rig,
                    const std::vector<size_t>& edge_pair, const std::vector<IcpOutcome>& icp,
                    const std::vector<bool>& weak_pair, const MergeOptions& pair_options, int blocks,
-                   double weak_ratio, std::vector<GraphEdge>* edges,
-                   std::vector<double>* pair_factor);
+                   double weak_ratio, const std::vector<double>& pair_floor_rad,
+                   std::vector<GraphEdge>* edges, std::vector<double>* pair_factor,
+                   std::vector<bool>* pair_floored);
 
 }  // namespace slshadow::multiview::internal
