@@ -213,6 +213,9 @@ int RunMerge(int argc, char** argv) {
   app.add_flag("--icp-table-angles", options.registration.icp_table_angles,
                "with --icp-table-share: the turntable axis from the evenly strided sample, then "
                "the table angles re-fitted (the axis held) from the sample with the table share");
+  app.add_flag("--icp-table-normals-only", options.registration.icp_table_normals_only,
+               "with --icp-table-angles: the --icp-normal-neighbors normals on the table sample "
+               "only (the axis from the reconstruction's normals)");
   app.add_option("--icp-normal-neighbors", options.registration.icp_normal_neighbors,
                  "k of the PCA normals the pairwise ICP uses instead of the reconstruction's "
                  "(with sensor noise those are several degrees off; 0: the reconstruction's)")

@@ -138,6 +138,9 @@ struct MergeOptions {
   // reconstruction's systematic error, which moved the fitted axis point (and so the views'
   // translation); the axis is fixed by the strided points, the angles by the table sample.
   bool icp_table_angles = false;
+  // With icp_table_angles: icp_normal_neighbors' normals on the table sample only; the strided
+  // sample (the pairs, the graph and so the axis) keeps the reconstruction's normals.
+  bool icp_table_normals_only = false;
   int icp_max_iterations = 60;
   double icp_tolerance_mm = 1e-5;  // stop when an update moves the source points less than this
   // or less than this share of the pose's own 1-sigma (its least fixed direction, from the

@@ -49,6 +49,10 @@ Accumulator Correspond(const ViewGeometry& a, const ViewGeometry& b, const Rigid
                        double gate, double max_residual, const MergeOptions& o,
                        const std::vector<uint32_t>* sample = nullptr) {
   const std::vector<uint32_t>& source = sample != nullptr ? *sample : b.icp_sample;
+  // MergeOptions::icp_table_normals_only: the PCA normals on the table sample only.
+  const bool plain = o.icp_table_normals_only && sample == nullptr;
+  const std::vector<Eigen::Vector3d>& normals_a = plain ? a.normals : a.icp_normals;
+  const std::vector<Eigen::Vector3d>& normals_b = plain ? b.normals : b.icp_normals;
   Accumulator acc;
   acc.abs_residuals.reserve(source.size());
   const double cos_max = std::cos(o.icp_max_normal_angle_deg * M_PI / 180.0);
@@ -62,11 +66,11 @@ Accumulator Correspond(const ViewGeometry& a, const ViewGeometry& b, const Rigid
     const Eigen::Vector3d s = r * pb[i] + a_from_b.translation;
     if (!a.tree->Nearest(s, &nb, gate)) continue;
     if (a.variation[nb.index] > max_var) continue;
-    const Eigen::Vector3d nb_in_a = r * b.icp_normals[i];
-    if (a.icp_normals[nb.index].dot(nb_in_a) < cos_max) continue;
+    const Eigen::Vector3d nb_in_a = r * normals_b[i];
+    if (normals_a[nb.index].dot(nb_in_a) < cos_max) continue;
     // Symmetric point-to-plane (Rusinkiewicz 2019): the mean of both normals, for which the
     // residual of two points on one circle is zero, so curved surfaces add no bias.
-    const Eigen::Vector3d na = (a.icp_normals[nb.index] + nb_in_a).normalized();
+    const Eigen::Vector3d na = (normals_a[nb.index] + nb_in_a).normalized();
     const double res = na.dot(s - pa[nb.index]);
     acc.abs_residuals.push_back(static_cast<float>(std::abs(res)));
     if (std::abs(res) > max_residual) continue;
