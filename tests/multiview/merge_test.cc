@@ -299,13 +299,16 @@ TEST(MergeViews, TableSampleKeepsTheTableAngles) {
     views.push_back({StringPrintf("view_%02zu", k), &scan.clouds[k],
                      scan.axis.RigFromTableTurn(scan.angles_deg[k]).Inverse(), true,
                      scan.angles_deg[k]});
-  double largest[3] = {0, 0, 0};
+  double largest[4] = {0, 0, 0, 0};
   std::vector<MergeResult> runs;
-  for (int variant = 0; variant < 3; ++variant) {
+  for (int variant = 0; variant < 4; ++variant) {
     MergeOptions options;
     options.turntable = scan.axis;
     options.icp_table_share = variant == 0 ? 0.0 : 0.5;
-    options.icp_table_angles = variant == 2;
+    options.icp_table_angles = variant >= 2;
+    // Variant 3: k = 30 PCA normals on the table sample only (icp_table_normals_only).
+    options.icp_normal_neighbors = variant == 3 ? 30 : 0;
+    options.icp_table_normals_only = variant == 3;
     runs.push_back(MergeViews(views, options));
     const MergeResult& r = runs.back();
     ASSERT_TRUE(r.turntable_model);
@@ -318,11 +321,22 @@ TEST(MergeViews, TableSampleKeepsTheTableAngles) {
   }
   std::printf(
       "largest table angle error: strided %.5f deg, half by the table turn %.5f deg, the axis "
-      "strided and the angles by the table turn (icp_table_angles) %.5f deg\n",
-      largest[0], largest[1], largest[2]);
+      "strided and the angles by the table turn (icp_table_angles) %.5f deg, the same with "
+      "k = 30 normals on the table sample only %.5f deg\n",
+      largest[0], largest[1], largest[2], largest[3]);
   EXPECT_LT(largest[1], 0.002);
   EXPECT_LT(largest[0], 0.002);
   EXPECT_LT(largest[2], 0.002);
+  EXPECT_LT(largest[3], 0.002);
+  // icp_table_normals_only: the strided phase with the clouds' own normals, so the axis is
+  // variant 0's although icp_normal_neighbors is 30; the angles are not variant 2's.
+  EXPECT_LT((runs[3].axis_direction_in_rig - runs[0].axis_direction_in_rig).norm(), 1e-9);
+  EXPECT_LT((runs[3].axis_point_in_rig_mm - runs[0].axis_point_in_rig_mm).norm(), 1e-7);
+  double other = 0;
+  for (size_t i = 0; i < runs[0].views.size(); ++i)
+    other = std::max(other, std::abs(runs[3].views[i].table_angle_correction_deg -
+                                     runs[2].views[i].table_angle_correction_deg));
+  EXPECT_GT(other, 1e-6);
   // icp_table_angles: the axis is the strided sample's (the same pairs and graph as variant 0),
   // held while the angles are re-fitted; the angles are not the strided ones.
   EXPECT_LT((runs[2].axis_direction_in_rig - runs[0].axis_direction_in_rig).norm(), 1e-9);
