@@ -183,6 +183,11 @@ int RunMerge(int argc, char** argv) {
                  "at the table's relative pose (table pairs; such a pair must pass the free-space "
                  "check, --max-seen-through; 0: off, such pairs slide and are rejected)")
       ->capture_default_str();
+  app.add_option("--hold-gate-sigmas", options.registration.icp_hold_gate_sigmas,
+                 "hold only pairs that would slide: a table pair registered without the hold "
+                 "keeps its own result where it converged within this many prior sigmas of the "
+                 "table's relative pose along its weak directions (0: always hold)")
+      ->capture_default_str();
   app.add_option("--max-seen-through", options.registration.max_seen_through,
                  "a pair that held a direction at the table's prior is rejected when more than "
                  "this share of either view's points lie where the other view saw through (a "
@@ -193,6 +198,10 @@ int RunMerge(int argc, char** argv) {
                  "blocks of their overlap left out; wider than --max-departure-deg / -mm: left "
                  "out (0: the pose graph's covariance only)")
       ->capture_default_str();
+  app.add_option("--max-pairs-per-view", options.registration.max_pairs_per_view,
+                 "each view is paired with at most this many overlapping views, those looking "
+                 "from the nearest directions")
+      ->capture_default_str();
   app.add_option("--icp-points", options.registration.icp_points,
                  "source points per pair in the pairwise ICP")
       ->capture_default_str();
@@ -201,6 +210,12 @@ int RunMerge(int argc, char** argv) {
                  "facing along the turn, far from the axis), the rest evenly strided (0: strided "
                  "only)")
       ->capture_default_str();
+  app.add_flag("--icp-table-angles", options.registration.icp_table_angles,
+               "with --icp-table-share: the turntable axis from the evenly strided sample, then "
+               "the table angles re-fitted (the axis held) from the sample with the table share");
+  app.add_flag("--icp-table-normals-only", options.registration.icp_table_normals_only,
+               "with --icp-table-angles: the --icp-normal-neighbors normals on the table sample "
+               "only (the axis from the reconstruction's normals)");
   app.add_option("--icp-normal-neighbors", options.registration.icp_normal_neighbors,
                  "k of the PCA normals the pairwise ICP uses instead of the reconstruction's "
                  "(with sensor noise those are several degrees off; 0: the reconstruction's)")

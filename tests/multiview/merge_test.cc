@@ -299,12 +299,18 @@ TEST(MergeViews, TableSampleKeepsTheTableAngles) {
     views.push_back({StringPrintf("view_%02zu", k), &scan.clouds[k],
                      scan.axis.RigFromTableTurn(scan.angles_deg[k]).Inverse(), true,
                      scan.angles_deg[k]});
-  double largest[2] = {0, 0};
-  for (int variant = 0; variant < 2; ++variant) {
+  double largest[4] = {0, 0, 0, 0};
+  std::vector<MergeResult> runs;
+  for (int variant = 0; variant < 4; ++variant) {
     MergeOptions options;
     options.turntable = scan.axis;
     options.icp_table_share = variant == 0 ? 0.0 : 0.5;
-    const MergeResult r = MergeViews(views, options);
+    options.icp_table_angles = variant >= 2;
+    // Variant 3: k = 30 PCA normals on the table sample only (icp_table_normals_only).
+    options.icp_normal_neighbors = variant == 3 ? 30 : 0;
+    options.icp_table_normals_only = variant == 3;
+    runs.push_back(MergeViews(views, options));
+    const MergeResult& r = runs.back();
     ASSERT_TRUE(r.turntable_model);
     EXPECT_EQ(r.NumAccepted(), 12) << r.BriefReport();
     for (const auto& v : r.views) {
@@ -313,10 +319,35 @@ TEST(MergeViews, TableSampleKeepsTheTableAngles) {
       largest[variant] = std::max(largest[variant], std::abs(v.table_angle_correction_deg));
     }
   }
-  std::printf("largest table angle error: strided %.5f deg, half by the table turn %.5f deg\n",
-              largest[0], largest[1]);
+  std::printf(
+      "largest table angle error: strided %.5f deg, half by the table turn %.5f deg, the axis "
+      "strided and the angles by the table turn (icp_table_angles) %.5f deg, the same with "
+      "k = 30 normals on the table sample only %.5f deg\n",
+      largest[0], largest[1], largest[2], largest[3]);
   EXPECT_LT(largest[1], 0.002);
   EXPECT_LT(largest[0], 0.002);
+  EXPECT_LT(largest[2], 0.002);
+  EXPECT_LT(largest[3], 0.002);
+  // icp_table_normals_only: the strided phase with the clouds' own normals, so the axis is
+  // variant 0's although icp_normal_neighbors is 30; the angles are not variant 2's.
+  EXPECT_LT((runs[3].axis_direction_in_rig - runs[0].axis_direction_in_rig).norm(), 1e-9);
+  EXPECT_LT((runs[3].axis_point_in_rig_mm - runs[0].axis_point_in_rig_mm).norm(), 1e-7);
+  double other = 0;
+  for (size_t i = 0; i < runs[0].views.size(); ++i)
+    other = std::max(other, std::abs(runs[3].views[i].table_angle_correction_deg -
+                                     runs[2].views[i].table_angle_correction_deg));
+  EXPECT_GT(other, 1e-6);
+  // icp_table_angles: the axis is the strided sample's (the same pairs and graph as variant 0),
+  // held while the angles are re-fitted; the angles are not the strided ones.
+  EXPECT_LT((runs[2].axis_direction_in_rig - runs[0].axis_direction_in_rig).norm(), 1e-9);
+  EXPECT_LT((runs[2].axis_point_in_rig_mm - runs[0].axis_point_in_rig_mm).norm(), 1e-7);
+  EXPECT_GT((runs[1].axis_point_in_rig_mm - runs[0].axis_point_in_rig_mm).norm(), 1e-6);
+  double moved = 0;
+  for (size_t i = 0; i < runs[0].views.size(); ++i)
+    moved = std::max(moved, std::abs(runs[2].views[i].table_angle_correction_deg -
+                                     runs[0].views[i].table_angle_correction_deg));
+  EXPECT_GT(moved, 1e-6);
+  EXPECT_GT(runs[2].axis_sigma_point_mm, 0);
 }
 
 TEST(MergeViews, BumpInOneViewIsFlaggedAndKeptApart) {
@@ -388,6 +419,14 @@ TEST(MergeViews, OptionsCheckNamesTheField) {
     FAIL() << "no throw";
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("icp_table_share"), std::string::npos) << e.what();
+  }
+  o = MergeOptions();
+  o.icp_hold_gate_sigmas = -1;
+  try {
+    o.Check();
+    FAIL() << "no throw";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("icp_hold_gate_sigmas"), std::string::npos) << e.what();
   }
 }
 

@@ -100,9 +100,10 @@ class ScanLoop : public ::testing::Test {
     grbl_ = std::make_unique<capture::testing::GrblEmulator>();
 
     // The part at each view's angle, as SimulateProject places it (the same poses, bit for bit).
-    for (const ViewSpec& v : views_.views) {
+    for (size_t i = 0; i < views_.views.size(); ++i) {
+      const ViewSpec& v = views_.views[i];
       Angle& a = angles_[*v.table_deg];
-      a.scene = std::make_unique<Scene>(MoveScene(*scene_, VirtualViewPose(v, rig_).Inverse()));
+      a.scene = std::make_unique<Scene>(VirtualViewScene(*scene_, rig_, v, i));
       a.simulator = std::make_unique<Simulator>(*a.scene, rig_, TraceMode::kPacket16,
                                                 /*ground_truth=*/false);
       for (int c = 0; c < 2; ++c)

@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
+#include <cstdio>
 #include <fstream>
 
 #include <opencv2/core.hpp>
@@ -196,6 +198,72 @@ TEST_F(VirtualProjectTest, HandPlacedViewIsRenderedAtItsPose) {
   SimulateProject(setup_.scene, setup_.rig, spec_, views, tmp / "p");
   // The same pose by hand and by the table: the same images.
   EXPECT_TRUE(Identical(AllImages(tmp / "p/views/table"), AllImages(tmp / "p/views/hand")));
+}
+
+// Sensor noise is drawn anew for every view, as a real camera draws it in every frame: two views
+// at the same table angle render the same noise-free images (the oracle: the difference between
+// their noisy images is the noise alone), but with noise on their noise fields are independent
+// (correlation near 0; one seed for every view made them equal, correlation 1), and a seed
+// reproduces every view bit for bit. Each view's provenance records its own seed.
+TEST_F(VirtualProjectTest, EveryViewDrawsItsOwnSensorNoise) {
+  const TempDir tmp;
+  ViewsFile twice;
+  for (const char* name : {"a", "b"}) {
+    ViewSpec v;
+    v.name = name;
+    v.table_deg = 10.0;
+    twice.views.push_back(v);
+  }
+  auto render = [&](const std::string& name, bool noise, uint64_t seed) {
+    Scene scene = setup_.scene;
+    scene.layers.noise_enabled = noise;
+    scene.layers.seed = seed;
+    SimulateProject(scene, setup_.rig, spec_, twice, tmp / name);
+    return std::vector<std::vector<cv::Mat>>{AllImages(tmp / name / "views" / "a"),
+                                             AllImages(tmp / name / "views" / "b")};
+  };
+  const auto clean = render("clean", false, 5);
+  const auto noisy = render("noisy", true, 5);
+  const auto again = render("again", true, 5);
+  ASSERT_FALSE(clean[0].empty());
+  EXPECT_TRUE(Identical(clean[0], clean[1])) << "noise-free, one pose: the same images";
+  EXPECT_TRUE(Identical(noisy[0], again[0]) && Identical(noisy[1], again[1]))
+      << "the same seed must reproduce every view bit for bit";
+  // Each view's noise n_v = noisy_v - clean, over every image's pixels where either is non-zero.
+  ASSERT_EQ(noisy[0].size(), clean[0].size());
+  size_t images_differ = 0;
+  double saa = 0, sbb = 0, sab = 0;
+  for (size_t k = 0; k < clean[0].size(); ++k) {
+    cv::Mat c, a, b;
+    clean[0][k].convertTo(c, CV_64F);
+    noisy[0][k].convertTo(a, CV_64F);
+    noisy[1][k].convertTo(b, CV_64F);
+    a -= c;
+    b -= c;
+    saa += a.dot(a);
+    sbb += b.dot(b);
+    sab += a.dot(b);
+    if (cv::norm(noisy[0][k], noisy[1][k], cv::NORM_INF) != 0) ++images_differ;
+  }
+  ASSERT_GT(saa, 0) << "the noise is on";
+  ASSERT_GT(sbb, 0);
+  const double correlation = sab / std::sqrt(saa * sbb);
+  std::printf("noise of view a and view b: correlation %.4f over %zu images\n", correlation,
+              clean[0].size());
+  EXPECT_EQ(images_differ, clean[0].size()) << "every image of view b must draw its own noise";
+  // Measured 0.045: the ADC's rounding and its clipping at 0 DN, the same for both views at one
+  // pixel, leave a small shared part; one noise field for both would give 1.
+  EXPECT_LT(std::abs(correlation), 0.2);
+  // The seeds, as recorded in each view's provenance.
+  for (size_t i = 0; i < 2; ++i) {
+    const nlohmann::json extra =
+        ImageSet::Open(tmp / "noisy" / "views" / twice.views[i].name).extra();
+    EXPECT_EQ(extra.at("provenance").at("scene").at("summary").at("layers").at("noise").at("seed"),
+              VirtualViewNoiseSeed(5, i))
+        << extra.dump();
+  }
+  EXPECT_NE(VirtualViewNoiseSeed(5, 0), VirtualViewNoiseSeed(5, 1));
+  EXPECT_NE(VirtualViewNoiseSeed(5, 0), VirtualViewNoiseSeed(6, 0));
 }
 
 }  // namespace

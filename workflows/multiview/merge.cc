@@ -83,6 +83,9 @@ void MergeOptions::Check() const {
                     "merge options: icp_max_normal_angle_deg: must be in (0, 180] (got ",
                     icp_max_normal_angle_deg, ")");
   nonneg(icp_max_residual_sigmas, "icp_max_residual_sigmas");
+  SLSHADOW_THROW_IF(!(icp_hold_gate_sigmas >= 0 && std::isfinite(icp_hold_gate_sigmas)),
+                    "merge options: icp_hold_gate_sigmas: must be >= 0 (got ", icp_hold_gate_sigmas,
+                    ")");
   SLSHADOW_THROW_IF(!(icp_degenerate_ratio >= 0 && icp_degenerate_ratio < 1),
                     "merge options: icp_degenerate_ratio: must be in [0, 1) (got ",
                     icp_degenerate_ratio, ")");
@@ -341,7 +344,8 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
     const auto& c = candidates[k];
     const Rigid3d a_from_b = result.views[static_cast<size_t>(c.a)].part_from_rig.Inverse() *
                              result.views[static_cast<size_t>(c.b)].part_from_rig;
-    icp[k] = internal::RegisterPair(geo[static_cast<size_t>(c.a)], geo[static_cast<size_t>(c.b)],
+    icp[k] =
+        internal::RegisterTablePair(geo[static_cast<size_t>(c.a)], geo[static_cast<size_t>(c.b)],
                                     a_from_b, pair_options(c.a, c.b));
   });
   result.pairs.resize(candidates.size());
@@ -465,9 +469,7 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
   internal::TableModel table_model;
   table_model.robust_k = options.graph_robust_k;
   table_model.angle_rad.assign(n, std::numeric_limits<double>::quiet_NaN());
-  if (options.turntable) {
-    table_model.direction_in_rig = options.turntable->direction_in_rig.normalized();
-    table_model.point_in_rig_mm = options.turntable->point_in_rig_mm;
+  if (options.turntable) {  // (its axis: set at each round below)
     for (size_t i = 0; i < n; ++i)
       if (views[i].table_deg)
         table_model.angle_rad[i] =
@@ -484,7 +486,14 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
                      : internal::OptimizePoseGraph(initial, active, result.anchor, edges,
                                                    with_covariance);
   };
+  double axis_sigma[2] = {-1, -1};  // with icp_table_angles: the strided fit's (deg, mm)
   for (;;) {
+    if (options.turntable) {  // the axis free again (icp_table_angles holds it in a round)
+      table_model.direction_in_rig = options.turntable->direction_in_rig.normalized();
+      table_model.point_in_rig_mm = options.turntable->point_in_rig_mm;
+      table_model.fix_axis = false;
+      axis_sigma[0] = axis_sigma[1] = -1;
+    }
     int anchor = -1;
     for (size_t i = 0; i < n && anchor < 0; ++i)
       if (active[i]) anchor = static_cast<int>(i);
@@ -594,33 +603,51 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
     // found there, with its ICP's final gate and residual bound) and the graph solved again, until
     // no view moves: Gauss-Newton on the point-to-plane cost of all pairs at once, so that a pair
     // whose own ICP stopped off its minimum (jittering correspondences) is not taken at its word.
-    for (int it = 0; it < options.joint_iterations && !edges.empty(); ++it) {
-      tbb::parallel_for(size_t{0}, edges.size(), [&](size_t e) {
-        const size_t k = edge_pair[e];
-        const size_t a = static_cast<size_t>(edges[e].a), b = static_cast<size_t>(edges[e].b);
-        const internal::IcpOutcome o = internal::LinearizePair(
-            geo[a], geo[b], sol.part_from_rig[a].Inverse() * sol.part_from_rig[b],
-            initial[a].Inverse() * initial[b], icp[k].gate_mm, icp[k].max_residual_mm,
-            pair_options(edges[e].a, edges[e].b));
-        if (o.correspondences >= 7) {
-          edges[e].a_from_b = o.a_from_b;
-          edges[e].information = o.information;
+    // table_sample: on the views' table samples (MergeOptions::icp_table_angles).
+    auto joint = [&](bool table_sample) {
+      for (int it = 0; it < options.joint_iterations && !edges.empty(); ++it) {
+        tbb::parallel_for(size_t{0}, edges.size(), [&](size_t e) {
+          const size_t k = edge_pair[e];
+          const size_t a = static_cast<size_t>(edges[e].a), b = static_cast<size_t>(edges[e].b);
+          const internal::IcpOutcome o = internal::LinearizePair(
+              geo[a], geo[b], sol.part_from_rig[a].Inverse() * sol.part_from_rig[b],
+              initial[a].Inverse() * initial[b], icp[k].gate_mm, icp[k].max_residual_mm,
+              // A pair whose free result was kept holds nothing (as a hand pair).
+              icp[k].hold_released ? hand_options : pair_options(edges[e].a, edges[e].b),
+              table_sample && !geo[b].table_sample.empty() ? &geo[b].table_sample : nullptr);
+          if (o.correspondences >= 7) {
+            edges[e].a_from_b = o.a_from_b;
+            edges[e].information = o.information;
+          }
+        });
+        const std::vector<Rigid3d> before = sol.part_from_rig;
+        sol = optimize(edges, false);
+        double motion = 0;
+        for (size_t i = 0; i < n; ++i) {
+          if (!active[i]) continue;
+          std::vector<Eigen::Vector3d> probe;
+          const auto& sample = geo[i].overlap_sample;
+          for (size_t k = 0; k < sample.size(); k += std::max<size_t>(1, sample.size() / 16))
+            probe.push_back((*geo[i].points)[sample[k]]);
+          motion = std::max(motion, MaxDisplacementMm(sol.part_from_rig[i], before[i], probe));
         }
-      });
-      const std::vector<Rigid3d> before = sol.part_from_rig;
-      sol = optimize(edges, false);
-      double motion = 0;
-      for (size_t i = 0; i < n; ++i) {
-        if (!active[i]) continue;
-        std::vector<Eigen::Vector3d> probe;
-        const auto& sample = geo[i].overlap_sample;
-        for (size_t k = 0; k < sample.size(); k += std::max<size_t>(1, sample.size() / 16))
-          probe.push_back((*geo[i].points)[sample[k]]);
-        motion = std::max(motion, MaxDisplacementMm(sol.part_from_rig[i], before[i], probe));
+        result.joint_iterations = it + 1;
+        result.joint_last_motion_mm = motion;
+        if (motion < options.joint_tolerance_mm) break;
       }
-      result.joint_iterations = it + 1;
-      result.joint_last_motion_mm = motion;
-      if (motion < options.joint_tolerance_mm) break;
+    };
+    joint(false);
+    if (use_model && options.icp_table_angles && options.icp_table_share > 0) {
+      // The axis where the strided pairs put it (its 1-sigma theirs), the angles from the table
+      // samples.
+      const internal::TableFit strided = table_fit;
+      optimize(edges, true);
+      axis_sigma[0] = table_fit.sigma_direction_deg;
+      axis_sigma[1] = table_fit.sigma_point_mm;
+      table_model.direction_in_rig = strided.direction_in_rig;
+      table_model.point_in_rig_mm = strided.point_in_rig_mm;
+      table_model.fix_axis = true;
+      joint(true);
     }
     // Hand views' honest covariance (internal/hand_sigma.h): their weak pairs' information
     // widened where the spread over blocks of the overlap exceeds it; too wide a view is left out.
@@ -648,8 +675,9 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
     result.turntable_model = true;
     result.axis_direction_in_rig = table_fit.direction_in_rig;
     result.axis_point_in_rig_mm = table_fit.point_in_rig_mm;
-    result.axis_sigma_direction_deg = table_fit.sigma_direction_deg;
-    result.axis_sigma_point_mm = table_fit.sigma_point_mm;
+    result.axis_sigma_direction_deg =
+        axis_sigma[0] >= 0 ? axis_sigma[0] : table_fit.sigma_direction_deg;
+    result.axis_sigma_point_mm = axis_sigma[1] >= 0 ? axis_sigma[1] : table_fit.sigma_point_mm;
     result.graph_variance_factor = table_fit.variance_factor;
     result.graph_huber_corner = table_fit.huber_corner;
     for (size_t i = 0; i < n; ++i) {

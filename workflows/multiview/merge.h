@@ -131,6 +131,16 @@ struct MergeOptions {
   // not shrink with more points either), and on the synthetic fixture it doubles them
   // (docs/benchmarks/log/2026-12-07-registration-rotation.md). 0: evenly strided only.
   double icp_table_share = 0;
+  // With icp_table_share > 0: the pairs, the pose graph, its joint refinement and so the
+  // turntable axis (direction and point) from the evenly strided sample alone; then, the axis
+  // held, the table angles fitted again from every kept pair re-linearised on the sample with
+  // the table share (joint refinement rounds). The table sample's oblique walls carry more of the
+  // reconstruction's systematic error, which moved the fitted axis point (and so the views'
+  // translation); the axis is fixed by the strided points, the angles by the table sample.
+  bool icp_table_angles = false;
+  // With icp_table_angles: icp_normal_neighbors' normals on the table sample only; the strided
+  // sample (the pairs, the graph and so the axis) keeps the reconstruction's normals.
+  bool icp_table_normals_only = false;
   int icp_max_iterations = 60;
   double icp_tolerance_mm = 1e-5;  // stop when an update moves the source points less than this
   // or less than this share of the pose's own 1-sigma (its least fixed direction, from the
@@ -169,6 +179,14 @@ struct MergeOptions {
   // moved), since at the right pose one view's points are on or behind the other's surfaces.
   // 1: no check.
   double max_seen_through = 0.05;
+  // Hold only where the pair would slide: a pair between two table views is first registered
+  // without the hold (icp_degenerate_ratio 0); where that converges and its departure from the
+  // prior along the directions icp_degenerate_ratio calls weak is within this many of the prior's
+  // 1-sigmas (prior_sigma_deg / _mm; the chi of the projected departure), the pair keeps its own
+  // result and information there (nothing held), else it is registered again with the hold.
+  // 0: always hold (every weak direction held at the prior, the pair's own information there
+  // dropped).
+  double icp_hold_gate_sigmas = 0;
   double seen_through_tol_gate = 0.1;
   double prior_sigma_deg = 0.05;  // 1-sigma of an initial relative pose's rotation
   double prior_sigma_mm = 0.05;   // and of its translation

@@ -81,6 +81,23 @@ Rigid3d VirtualViewPose(const ViewSpec& view, const Rig& rig) {
   return *view.part_from_rig_guess;
 }
 
+uint64_t VirtualViewNoiseSeed(uint64_t scene_seed, size_t view_index) {
+  auto mix = [](uint64_t x) {  // SplitMix64
+    x += 0x9E3779B97F4A7C15ull;
+    x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
+    x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
+    return x ^ (x >> 31);
+  };
+  return mix(scene_seed ^ mix(0x766965770000ull + static_cast<uint64_t>(view_index)));
+}
+
+Scene VirtualViewScene(const Scene& scene, const Rig& rig, const ViewSpec& view, size_t view_index,
+                       const std::vector<std::string>& fixed_objects) {
+  Scene placed = MoveScene(scene, VirtualViewPose(view, rig).Inverse(), fixed_objects);
+  placed.layers.seed = VirtualViewNoiseSeed(scene.layers.seed, view_index);
+  return placed;
+}
+
 VirtualProjectSummary SimulateProject(const Scene& scene, const Rig& rig, const PatternSpec& spec,
                                       const ViewsFile& views, const fs::path& project_dir,
                                       const VirtualProjectOptions& options) {
@@ -133,7 +150,7 @@ VirtualProjectSummary SimulateProject(const Scene& scene, const Rig& rig, const 
     }
     if (projector_images.empty()) projector_images = GeneratePatterns(spec);
     const Rigid3d part_from_rig = VirtualViewPose(view.spec, rig);
-    const Scene placed = MoveScene(scene, part_from_rig.Inverse(), options.fixed_objects);
+    const Scene placed = VirtualViewScene(scene, rig, view.spec, i, options.fixed_objects);
     auto t0 = std::chrono::steady_clock::now();
     std::vector<std::vector<cv::Mat>> images = RenderScan(placed, rig, projector_images);
     summary.render_seconds += SecondsSince(t0);

@@ -7,6 +7,8 @@
 // deterministic, so a resumed project's images equal an uninterrupted one's bit for bit.
 #pragma once
 
+#include <cstddef>
+#include <cstdint>
 #include <filesystem>
 #include <functional>
 #include <string>
@@ -50,6 +52,18 @@ struct VirtualProjectSummary {
 // (which a virtual scan renders as the truth). Throws slshadow::Error naming the view when it has
 // neither, or is on the table and the rig has no axis.
 Rigid3d VirtualViewPose(const ViewSpec& view, const Rig& rig);
+
+// The scene as view `view_index` (its position in the views file) of a virtual project renders
+// it: `scene` (at commanded angle 0) moved to VirtualViewPose (fixed_objects stay), with the
+// sensor noise seed of that view, VirtualViewNoiseSeed: a real camera draws new noise in every
+// frame, so each view gets its own draw (one seed would give every view the same noise field).
+Scene VirtualViewScene(const Scene& scene, const Rig& rig, const ViewSpec& view, size_t view_index,
+                       const std::vector<std::string>& fixed_objects = {});
+
+// The noise seed of view `view_index` of a virtual project whose scene has noise seed
+// `scene_seed`: a SplitMix64 hash of both, so two views (and two seeds) draw different noise and
+// one seed reproduces every view bit for bit.
+uint64_t VirtualViewNoiseSeed(uint64_t scene_seed, size_t view_index);
 
 // Renders every view of `views` that `project_dir` does not hold complete, and writes the project:
 // project.json first (all views missing), then each view's ImageSet (views/<name>/, atomically:

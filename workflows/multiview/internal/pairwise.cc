@@ -44,10 +44,17 @@ double RobustSigma(std::vector<float> r) {
 // reconstruction, a few points far off the surface, would otherwise pull the least squares).
 // Residual n . (s - q) with n the mean of both normals, Jacobian [s x n, n] of the left
 // perturbation s -> s + w x s + v (n held fixed).
+// `sample`: b's points to match (null: its ICP sample).
 Accumulator Correspond(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d& a_from_b,
-                       double gate, double max_residual, const MergeOptions& o) {
+                       double gate, double max_residual, const MergeOptions& o,
+                       const std::vector<uint32_t>* sample = nullptr) {
+  const std::vector<uint32_t>& source = sample != nullptr ? *sample : b.icp_sample;
+  // MergeOptions::icp_table_normals_only: the PCA normals on the table sample only.
+  const bool plain = o.icp_table_normals_only && sample == nullptr;
+  const std::vector<Eigen::Vector3d>& normals_a = plain ? a.normals : a.icp_normals;
+  const std::vector<Eigen::Vector3d>& normals_b = plain ? b.normals : b.icp_normals;
   Accumulator acc;
-  acc.abs_residuals.reserve(b.icp_sample.size());
+  acc.abs_residuals.reserve(source.size());
   const double cos_max = std::cos(o.icp_max_normal_angle_deg * M_PI / 180.0);
   const Eigen::Matrix3d r = a_from_b.rotation.toRotationMatrix();
   const auto& pa = *a.points;
@@ -55,15 +62,15 @@ Accumulator Correspond(const ViewGeometry& a, const ViewGeometry& b, const Rigid
   const float max_var = static_cast<float>(o.icp_max_surface_variation);
   const bool weighted = o.icp_noise_weights && !a.noise_var.empty() && !b.noise_var.empty();
   Neighbor nb;
-  for (uint32_t i : b.icp_sample) {
+  for (uint32_t i : source) {
     const Eigen::Vector3d s = r * pb[i] + a_from_b.translation;
     if (!a.tree->Nearest(s, &nb, gate)) continue;
     if (a.variation[nb.index] > max_var) continue;
-    const Eigen::Vector3d nb_in_a = r * b.icp_normals[i];
-    if (a.icp_normals[nb.index].dot(nb_in_a) < cos_max) continue;
+    const Eigen::Vector3d nb_in_a = r * normals_b[i];
+    if (normals_a[nb.index].dot(nb_in_a) < cos_max) continue;
     // Symmetric point-to-plane (Rusinkiewicz 2019): the mean of both normals, for which the
     // residual of two points on one circle is zero, so curved surfaces add no bias.
-    const Eigen::Vector3d na = (a.icp_normals[nb.index] + nb_in_a).normalized();
+    const Eigen::Vector3d na = (normals_a[nb.index] + nb_in_a).normalized();
     const double res = na.dot(s - pa[nb.index]);
     acc.abs_residuals.push_back(static_cast<float>(std::abs(res)));
     if (std::abs(res) > max_residual) continue;
@@ -88,11 +95,11 @@ Accumulator Correspond(const ViewGeometry& a, const ViewGeometry& b, const Rigid
 
 // Statistics of the correspondences; returns the weighted residual variance per unit weight
 // (0 when fewer than 7).
-double FillOutcome(const Accumulator& acc, const ViewGeometry& b, IcpOutcome* out) {
+double FillOutcome(const Accumulator& acc, const ViewGeometry& b, IcpOutcome* out,
+                   const std::vector<uint32_t>* sample = nullptr) {
+  const size_t size = sample != nullptr ? sample->size() : b.icp_sample.size();
   out->correspondences = static_cast<int>(acc.n);
-  out->fitness = b.icp_sample.empty()
-                     ? 0.0
-                     : static_cast<double>(acc.n) / static_cast<double>(b.icp_sample.size());
+  out->fitness = size == 0 ? 0.0 : static_cast<double>(acc.n) / static_cast<double>(size);
   if (acc.n < 7) return 0.0;
   const double n = static_cast<double>(acc.n);
   out->rms_mm = std::sqrt(acc.sum_r2 / n);
@@ -252,48 +259,58 @@ void PrepareView(const PointCloud& cloud, const MergeOptions& o, ViewGeometry* v
     if (view->variation[i] <= o.icp_max_surface_variation) flat.push_back(i);
   // The ICP sample: evenly strided, and with a table axis a share drawn where the points fix the
   // table angle (pairwise.h).
+  auto sample = [&](size_t n_table) {
+    const size_t n_strided = static_cast<size_t>(o.icp_points) - n_table;
+    std::vector<Eigen::Vector3d> chosen;
+    std::vector<uint32_t> chosen_index;
+    std::vector<uint8_t> taken(n_table > 0 ? pts.size() : 0, 0);
+    if (n_strided > 0) {
+      const size_t stride = std::max<size_t>(1, flat.size() / n_strided);
+      for (size_t k = 0; k < flat.size(); k += stride) {
+        chosen.push_back(pts[flat[k]]);
+        chosen_index.push_back(flat[k]);
+        if (n_table > 0) taken[flat[k]] = 1;
+      }
+    }
+    if (n_table > 0 && !flat.empty()) {
+      // Systematic sampling with probability proportional to |g|, g = n . (u x (p - c)): how far
+      // the point moves along its normal per radian of table turn (u the axis direction, c a
+      // point on it). A point drawn twice, or already in the strided share, counts once.
+      const Eigen::Vector3d u = table_axis->direction_in_rig.normalized();
+      const Eigen::Vector3d c = table_axis->point_in_rig_mm;
+      std::vector<double> cumulative(flat.size());
+      double total = 0;
+      for (size_t k = 0; k < flat.size(); ++k) {
+        const uint32_t i = flat[k];
+        total += std::abs(view->icp_normals[i].dot(u.cross(pts[i] - c)));
+        cumulative[k] = total;
+      }
+      const double step = total / static_cast<double>(n_table);
+      size_t k = 0;
+      for (size_t j = 0; j < n_table && total > 0; ++j) {
+        const double target = (static_cast<double>(j) + 0.5) * step;
+        while (k + 1 < flat.size() && cumulative[k] < target) ++k;
+        const uint32_t i = flat[k];
+        if (taken[i]) continue;
+        taken[i] = 1;
+        chosen.push_back(pts[i]);
+        chosen_index.push_back(i);
+      }
+    }
+    const std::vector<uint32_t> order = SpatialOrder(chosen);
+    std::vector<uint32_t> out;
+    for (uint32_t k : order) out.push_back(chosen_index[k]);
+    return out;
+  };
   const size_t n_table =
       table_axis != nullptr ? static_cast<size_t>(o.icp_table_share * o.icp_points) : 0;
-  const size_t n_strided = static_cast<size_t>(o.icp_points) - n_table;
-  std::vector<Eigen::Vector3d> chosen;
-  std::vector<uint32_t> chosen_index;
-  std::vector<uint8_t> taken(n_table > 0 ? pts.size() : 0, 0);
-  if (n_strided > 0) {
-    const size_t stride = std::max<size_t>(1, flat.size() / n_strided);
-    for (size_t k = 0; k < flat.size(); k += stride) {
-      chosen.push_back(pts[flat[k]]);
-      chosen_index.push_back(flat[k]);
-      if (n_table > 0) taken[flat[k]] = 1;
-    }
+  view->table_sample.clear();
+  if (o.icp_table_angles && n_table > 0) {
+    view->icp_sample = sample(0);
+    view->table_sample = sample(n_table);
+  } else {
+    view->icp_sample = sample(n_table);
   }
-  if (n_table > 0 && !flat.empty()) {
-    // Systematic sampling with probability proportional to |g|, g = n . (u x (p - c)): how far
-    // the point moves along its normal per radian of table turn (u the axis direction, c a
-    // point on it). A point drawn twice, or already in the strided share, counts once.
-    const Eigen::Vector3d u = table_axis->direction_in_rig.normalized();
-    const Eigen::Vector3d c = table_axis->point_in_rig_mm;
-    std::vector<double> cumulative(flat.size());
-    double total = 0;
-    for (size_t k = 0; k < flat.size(); ++k) {
-      const uint32_t i = flat[k];
-      total += std::abs(view->icp_normals[i].dot(u.cross(pts[i] - c)));
-      cumulative[k] = total;
-    }
-    const double step = total / static_cast<double>(n_table);
-    size_t k = 0;
-    for (size_t j = 0; j < n_table && total > 0; ++j) {
-      const double target = (static_cast<double>(j) + 0.5) * step;
-      while (k + 1 < flat.size() && cumulative[k] < target) ++k;
-      const uint32_t i = flat[k];
-      if (taken[i]) continue;
-      taken[i] = 1;
-      chosen.push_back(pts[i]);
-      chosen_index.push_back(i);
-    }
-  }
-  const std::vector<uint32_t> order = SpatialOrder(chosen);
-  view->icp_sample.clear();
-  for (uint32_t k : order) view->icp_sample.push_back(chosen_index[k]);
   const size_t ostride = std::max<size_t>(1, pts.size() / static_cast<size_t>(o.overlap_samples));
   view->overlap_sample.clear();
   for (size_t i = 0; i < pts.size(); i += ostride)
@@ -368,15 +385,50 @@ IcpOutcome RegisterPair(const ViewGeometry& a, const ViewGeometry& b,
   return out;
 }
 
+IcpOutcome RegisterTablePair(const ViewGeometry& a, const ViewGeometry& b,
+                             const Rigid3d& a_from_b_initial, const MergeOptions& o) {
+  if (o.icp_hold_gate_sigmas <= 0 || o.icp_degenerate_ratio <= 0)
+    return RegisterPair(a, b, a_from_b_initial, o);
+  MergeOptions free_options = o;
+  free_options.icp_degenerate_ratio = 0;
+  IcpOutcome free = RegisterPair(a, b, a_from_b_initial, free_options);
+  if (free.converged && free.correspondences >= 7) {
+    // The weak directions at the free result (the held step's eigen-decomposition there) and
+    // the departure from the prior along them, in the prior's sigmas.
+    const Accumulator acc = Correspond(a, b, free.a_from_b, free.gate_mm, free.max_residual_mm, o);
+    if (acc.n >= 7) {
+      const double n = static_cast<double>(acc.n);
+      const Step held = SolveStep(acc, free.a_from_b, a_from_b_initial,
+                                  std::max(acc.sum_wr2 / (n - 6.0), 1e-30), o);
+      // The held step moves the pose to the prior along the weak directions (and to the
+      // linearised minimum along the others, about zero at a converged result): its part
+      // along the weak directions is the departure.
+      const Eigen::Vector3d c = acc.sum_s / n;
+      const double l = std::max(std::sqrt(std::max(0.0, acc.sum_s_sq / n - c.squaredNorm())), 1e-3);
+      Matrix6d tm, ti;
+      CentredScaling(c, l, &tm, &ti);
+      const Vector6d y = tm * held.x;
+      const double sr = o.prior_sigma_deg * M_PI / 180.0 * l, st = o.prior_sigma_mm;
+      const double chi =
+          std::sqrt(y.head<3>().squaredNorm() / (sr * sr) + y.tail<3>().squaredNorm() / (st * st));
+      if (held.degenerate.empty() || chi <= o.icp_hold_gate_sigmas) {
+        free.hold_released = !held.degenerate.empty();
+        return free;
+      }
+    }
+  }
+  return RegisterPair(a, b, a_from_b_initial, o);
+}
+
 IcpOutcome LinearizePair(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d& a_from_b,
                          const Rigid3d& a_from_b_prior, double gate_mm, double max_residual_mm,
-                         const MergeOptions& options) {
+                         const MergeOptions& options, const std::vector<uint32_t>* sample) {
   IcpOutcome out;
   out.gate_mm = gate_mm;
   out.max_residual_mm = max_residual_mm;
   out.converged = true;
-  const Accumulator acc = Correspond(a, b, a_from_b, gate_mm, max_residual_mm, options);
-  const double sigma2 = FillOutcome(acc, b, &out);
+  const Accumulator acc = Correspond(a, b, a_from_b, gate_mm, max_residual_mm, options, sample);
+  const double sigma2 = FillOutcome(acc, b, &out, sample);
   out.a_from_b = a_from_b;
   if (acc.n < 7) return out;
   Step step = SolveStep(acc, a_from_b, a_from_b_prior, sigma2, options);

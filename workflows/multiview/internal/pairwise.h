@@ -37,6 +37,9 @@ struct ViewGeometry {
   // a share (MergeOptions::icp_table_share) drawn with probability proportional to |g|,
   // g = n . (u x (p - c)), how far the point moves along its normal per radian of table turn.
   std::vector<uint32_t> icp_sample;
+  // With MergeOptions::icp_table_angles (and a table axis, a share > 0): icp_sample is strided
+  // only and this the sample with the table share, for the table angles' re-fit; else empty.
+  std::vector<uint32_t> table_sample;
   std::vector<uint32_t> overlap_sample;  // evenly strided over all points
   Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
 };
@@ -81,6 +84,9 @@ struct IcpOutcome {
   double radius_mm = 0;  // RMS distance of the matched points from their centroid
   std::vector<DegenerateDirection> degenerate;  // at the result (empty: every direction fixed)
   double min_eigen_ratio = 0;  // the smallest eigenvalue / the largest, at the result
+  // MergeOptions::icp_hold_gate_sigmas: the pair's free result was kept (nothing held although
+  // a direction is weak); its re-linearisations then hold nothing either.
+  bool hold_released = false;
 };
 
 // Point-to-plane ICP of b's ICP sample onto all of a's flat points from a_from_b_initial, each
@@ -90,14 +96,24 @@ struct IcpOutcome {
 IcpOutcome RegisterPair(const ViewGeometry& a, const ViewGeometry& b,
                         const Rigid3d& a_from_b_initial, const MergeOptions& options);
 
+// RegisterPair with MergeOptions::icp_hold_gate_sigmas: first without the hold; that result
+// (hold_released) when it converged and departs from a_from_b_initial along its weak directions
+// by at most icp_hold_gate_sigmas of the prior's 1-sigmas, else RegisterPair with the hold. As
+// RegisterPair when the gate or icp_degenerate_ratio is 0.
+IcpOutcome RegisterTablePair(const ViewGeometry& a, const ViewGeometry& b,
+                             const Rigid3d& a_from_b_initial, const MergeOptions& options);
+
 // One Gauss-Newton step of the pair's point-to-plane cost from a_from_b with the correspondences
 // found there (gate, residual bound): a_from_b is the minimiser of the linearised cost and
 // information its curvature J^T J / sigma^2 (the joint refinement of merge.cc re-linearises every
 // pair at the graph's poses this way); along degenerate directions the minimiser is a_from_b_prior
 // with the prior's information.
+// `sample`: b's points to match (null: its ICP sample; MergeOptions::icp_table_angles passes
+// its table sample).
 IcpOutcome LinearizePair(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d& a_from_b,
                          const Rigid3d& a_from_b_prior, double gate_mm, double max_residual_mm,
-                         const MergeOptions& options);
+                         const MergeOptions& options,
+                         const std::vector<uint32_t>* sample = nullptr);
 
 // The same statistics at a fixed a_from_b (no iteration), with the given gate and residual bound.
 IcpOutcome EvaluatePair(const ViewGeometry& a, const ViewGeometry& b, const Rigid3d& a_from_b,

@@ -222,8 +222,13 @@ GraphSolution OptimizeTurntableGraph(const std::vector<Rigid3d>& initial,
     free_blocks.clear();
     if (problem->HasParameterBlock(p.u.data())) {
       problem->SetManifold(p.u.data(), &sphere);
-      free_blocks.push_back(p.u.data());
-      free_blocks.push_back(p.c.data());
+      if (model.fix_axis) {
+        problem->SetParameterBlockConstant(p.u.data());
+        problem->SetParameterBlockConstant(p.c.data());
+      } else {
+        free_blocks.push_back(p.u.data());
+        free_blocks.push_back(p.c.data());
+      }
     }
     for (size_t i = 0; i < n; ++i) {
       if (!active[i]) continue;
@@ -348,7 +353,7 @@ GraphSolution OptimizeTurntableGraph(const std::vector<Rigid3d>& initial,
     const Eigen::MatrixXd j = jac.middleRows(6 * static_cast<long>(i), 6);
     sol.covariance[i] = j * cov * j.transpose();
   }
-  if (problem->HasParameterBlock(p.u.data())) {
+  if (problem->HasParameterBlock(p.u.data()) && !model.fix_axis) {
     // free_blocks[0] is u (tangent 2), [1] is c (2).
     const Eigen::Matrix2d cu = cov.block<2, 2>(0, 0), cc = cov.block<2, 2>(2, 2);
     fit->sigma_direction_deg =

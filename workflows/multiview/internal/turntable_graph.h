@@ -28,6 +28,9 @@ struct TableModel {
   // 0: plain least squares. Else a Huber loss on each pair's whitened residual norm, its corner at
   // robust_k x the median norm of a first plain solve.
   double robust_k = 3.0;
+  // Hold the axis (direction_in_rig, point_in_rig_mm) as given: only the angles (and hand views'
+  // poses) are fitted.
+  bool fix_axis = false;
 };
 
 struct TableFit {
