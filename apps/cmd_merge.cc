@@ -210,12 +210,15 @@ int RunMerge(int argc, char** argv) {
                  "facing along the turn, far from the axis), the rest evenly strided (0: strided "
                  "only)")
       ->capture_default_str();
-  app.add_flag("--icp-table-angles", options.registration.icp_table_angles,
+  app.add_flag("--icp-table-angles,!--no-icp-table-angles", options.registration.icp_table_angles,
                "with --icp-table-share: the turntable axis from the evenly strided sample, then "
-               "the table angles re-fitted (the axis held) from the sample with the table share");
-  app.add_flag("--icp-table-normals-only", options.registration.icp_table_normals_only,
+               "the table angles re-fitted (the axis held) from the sample with the table share "
+               "(default; --no-icp-table-angles: everything from the one sample)");
+  app.add_flag("--icp-table-normals-only,!--no-icp-table-normals-only",
+               options.registration.icp_table_normals_only,
                "with --icp-table-angles: the --icp-normal-neighbors normals on the table sample "
-               "only (the axis from the reconstruction's normals)");
+               "only, the axis from the reconstruction's normals (default; "
+               "--no-icp-table-normals-only: on every ICP sample)");
   app.add_option("--icp-normal-neighbors", options.registration.icp_normal_neighbors,
                  "k of the PCA normals the pairwise ICP uses instead of the reconstruction's "
                  "(with sensor noise those are several degrees off; 0: the reconstruction's)")

@@ -81,6 +81,12 @@ TEST(RegistrationTest, IcpNormalsFromAWiderNeighbourhoodReplaceTheCloudsNoisyNor
   EXPECT_EQ(given.icp_normals, given.normals);
   EXPECT_GT(rms_deg(given.icp_normals), 4.0);
   options.icp_normal_neighbors = 30;
+  // By default (icp_table_normals_only) the wide normals serve the table sample only: a view
+  // without one (here no turntable axis) keeps the cloud's.
+  internal::ViewGeometry untabled;
+  internal::PrepareView(c, options, &untabled);
+  EXPECT_EQ(untabled.icp_normals, untabled.normals);
+  options.icp_table_normals_only = false;
   internal::ViewGeometry wide;
   internal::PrepareView(c, options, &wide);
   const double wide_deg = rms_deg(wide.icp_normals);

@@ -614,7 +614,11 @@ MergeResult MergeViews(const std::vector<ViewCloud>& views, const MergeOptions& 
               initial[a].Inverse() * initial[b], icp[k].gate_mm, icp[k].max_residual_mm,
               // A pair whose free result was kept holds nothing (as a hand pair).
               icp[k].hold_released ? hand_options : pair_options(edges[e].a, edges[e].b),
-              table_sample && !geo[b].table_sample.empty() ? &geo[b].table_sample : nullptr);
+              // A pair that held a direction at the prior keeps its strided sample: on a part of
+              // planes the table sample's walls leave that direction barely fixed, not held.
+              table_sample && !geo[b].table_sample.empty() && icp[k].degenerate.empty()
+                  ? &geo[b].table_sample
+                  : nullptr);
           if (o.correspondences >= 7) {
             edges[e].a_from_b = o.a_from_b;
             edges[e].information = o.information;

@@ -126,21 +126,26 @@ struct MergeOptions {
   // With the rig's turntable axis (`turntable`), the share of a table view's icp_points drawn
   // where they fix the table angle: with probability proportional to |n . (u x (p - c))|, the
   // point's motion along its normal per radian of table turn (walls facing along the turn, far
-  // from the axis), the rest evenly strided. Off by default: on the demo with sensor noise it
-  // lowered the table angles' errors on 2 of 5 noise draws and raised them on 2 (the errors do
-  // not shrink with more points either), and on the synthetic fixture it doubles them
-  // (docs/benchmarks/log/2026-12-07-registration-rotation.md). 0: evenly strided only.
-  double icp_table_share = 0;
+  // from the axis), the rest evenly strided. Used for the table angles only (icp_table_angles);
+  // alone it moved the fitted axis point (docs/benchmarks/log/2026-12-07-registration-rotation.md).
+  // 0: evenly strided only.
+  double icp_table_share = 0.5;
   // With icp_table_share > 0: the pairs, the pose graph, its joint refinement and so the
   // turntable axis (direction and point) from the evenly strided sample alone; then, the axis
   // held, the table angles fitted again from every kept pair re-linearised on the sample with
   // the table share (joint refinement rounds). The table sample's oblique walls carry more of the
   // reconstruction's systematic error, which moved the fitted axis point (and so the views'
-  // translation); the axis is fixed by the strided points, the angles by the table sample.
-  bool icp_table_angles = false;
+  // translation); the axis is fixed by the strided points, the angles by the table sample. A
+  // pair that held a direction at the prior (icp_degenerate_ratio) keeps the strided sample: on
+  // the self-occluding part's 4 views the table sample moved such angles 0.0071 deg. On by
+  // default (with the two settings around it): on the 12-view demo with five sensor-noise draws
+  // (no pair holds there) the largest rotation error fell on every draw (median 0.0070 -> 0.0026
+  // deg) and the translation stayed within 2 um on the same draws as before; noise-free (every
+  // pair holds) nothing changes (docs/benchmarks/log/2026-12-08-rotation-noise-3.md).
+  bool icp_table_angles = true;
   // With icp_table_angles: icp_normal_neighbors' normals on the table sample only; the strided
   // sample (the pairs, the graph and so the axis) keeps the reconstruction's normals.
-  bool icp_table_normals_only = false;
+  bool icp_table_normals_only = true;
   int icp_max_iterations = 60;
   double icp_tolerance_mm = 1e-5;  // stop when an update moves the source points less than this
   // or less than this share of the pose's own 1-sigma (its least fixed direction, from the
@@ -197,10 +202,10 @@ struct MergeOptions {
   // differences over +-1 pixel) are several degrees off, and in the point-to-plane cost that
   // noise enters both the residual and the Jacobian: on the demo part's pairs, registered from
   // the true poses, k = 30 lowers the table angles' errors from 0.0096 to 0.0037 deg RMS and
-  // their ratio to the stated sigma from 3.3 to 1.3. Off by default: after the pose graph it
-  // lowered the largest rotation error on 4 of 5 noise draws only, and raised the translation
-  // on 4 (docs/benchmarks/log/2026-12-07-rotation-noise-2.md).
-  int icp_normal_neighbors = 0;
+  // their ratio to the stated sigma from 3.3 to 1.3 (docs/benchmarks/log/2026-12-07-rotation-
+  // noise-2.md). With icp_table_normals_only (the default) on the table angles' sample only: on
+  // every ICP sample it moved the fitted axis point and raised the translation on 4 of 5 draws.
+  int icp_normal_neighbors = 30;
   // Rejection.
   double min_pair_fitness = 0.05;    // share of source points matched after ICP, to keep a pair
   double max_pair_rms_ratio = 3.0;   // ICP residual RMS vs the median of all pairs

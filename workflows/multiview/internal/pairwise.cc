@@ -202,7 +202,10 @@ void PrepareView(const PointCloud& cloud, const MergeOptions& o, ViewGeometry* v
   view->tree = std::make_unique<KdTree>(pts);
   view->spacing_mm = compare::MedianSpacing(*view->tree);
   view->normals.resize(pts.size());
-  const int k_icp = o.icp_normal_neighbors;
+  // With icp_table_normals_only the wide normals are read on the table sample only (and for its
+  // draw): a view without one (a hand view, no axis) does not compute them.
+  const bool table_sample = table_axis != nullptr && o.icp_table_share > 0 && o.icp_table_angles;
+  const int k_icp = o.icp_table_normals_only && !table_sample ? 0 : o.icp_normal_neighbors;
   view->icp_normals.resize(k_icp > 0 ? pts.size() : 0);
   const int k_query = std::max(o.normal_neighbors, k_icp);
   view->variation.resize(pts.size());
