@@ -19,6 +19,18 @@ namespace fs = std::filesystem;
 
 constexpr size_t kSamples = 50000;
 
+// The same prediction with the reconstruction's own depth-discontinuity filter run on ray-cast
+// projector maps (CoveragePredictionOptions::rendered_reconstruction), checked against `scan`.
+PredictionCheck RenderedCheck(const TriangleMesh& cad, const TurntableSetup& setup,
+                              const std::vector<PredictedViewPose>& poses,
+                              CoveragePredictionOptions options, const CadComparison& scan) {
+  options.rendered_reconstruction = true;
+  const PredictionCheck check =
+      CheckPrediction(PredictCoverage(cad, setup.rig, poses, setup.rig.turntable, options), scan);
+  std::cout << "rendered: " << check.Summary();
+  return check;
+}
+
 // The check: the prediction of three table views of the demo part (1/4 of the demo rig's
 // resolution) against the virtual scan of the same views, reconstructed, merged and compared with
 // the CAD (CompareWithCad's coverage, same samples): at least 99 % of the samples off the table
@@ -44,13 +56,8 @@ TEST(CoveragePredictionTest, AgreesWithTheVirtualScanOfTheSameViews) {
   ASSERT_TRUE(scan.cad.has_value());
   const PredictionCheck check = CheckPrediction(prediction, *scan.cad);
   std::cout << check.Summary();
-  CoveragePredictionOptions rendered = options;
-  rendered.rendered_reconstruction = true;
   const PredictionCheck rendered_check =
-      CheckPrediction(PredictCoverage(cad, setup.rig, PosesOfViews(views, setup.rig),
-                                      setup.rig.turntable, rendered),
-                      *scan.cad);
-  std::cout << "rendered: " << rendered_check.Summary();
+      RenderedCheck(cad, setup, PosesOfViews(views, setup.rig), options, *scan.cad);
   EXPECT_GT(check.compared, kSamples / 2);
   EXPECT_GE(check.agreement, 0.99) << check.Summary();
   // With the reconstruction's depth-discontinuity filter on the rendered maps
@@ -181,13 +188,8 @@ TEST(CoveragePredictionTest, TheDefocusLayerAgainstTheFinestFringe) {
   ASSERT_TRUE(scan.cad.has_value());
   const PredictionCheck check = CheckPrediction(prediction, *scan.cad);
   std::cout << check.Summary();
-  CoveragePredictionOptions rendered = options;
-  rendered.rendered_reconstruction = true;
   const PredictionCheck rendered_check =
-      CheckPrediction(PredictCoverage(cad, setup.rig, PosesOfViews(views, setup.rig),
-                                      setup.rig.turntable, rendered),
-                      *scan.cad);
-  std::cout << "rendered: " << rendered_check.Summary();
+      RenderedCheck(cad, setup, PosesOfViews(views, setup.rig), options, *scan.cad);
   // 98.6 % measured: the disagreements sit on the edge of the blurred-out region (too dark but
   // covered); the simulator blends blurred images at up to 8 sigma levels, which keeps a little
   // more of the fringe than one Gaussian of the exact sigma. The 99 % is not met here.
